@@ -1,0 +1,16 @@
+"""Physical models: car-following laws, leader profiles, vehicle, 2-RC cell, powertrain/current map.
+
+Models return CasADi expressions or Functions and know nothing of solvers, files or plots.
+"""
+
+from . import battery, carfollowing, energy, leader, powertrain, vehicle
+from .carfollowing import (IDM, LAW_REGISTRY, OVFL, OVM, V_INF, CarFollowingLaw, Proposed,
+                           energy_term, equilibrium_gap, make_law, optimal_velocity, register_law)
+from .leader import ConstantSpeed, LeaderProfile, PaperLeader, SpeedTrace, drive_cycle
+
+__all__ = [
+    "battery", "carfollowing", "energy", "leader", "powertrain", "vehicle",
+    "IDM", "LAW_REGISTRY", "OVFL", "OVM", "V_INF", "CarFollowingLaw", "Proposed", "energy_term",
+    "equilibrium_gap", "make_law", "optimal_velocity", "register_law",
+    "ConstantSpeed", "LeaderProfile", "PaperLeader", "SpeedTrace", "drive_cycle",
+]
