@@ -1,0 +1,143 @@
+"""OCPResult: the one result type of every optimal-control solve, with atomic CSV/JSON writers."""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import math
+import os
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+
+def _write_atomic(path: str | os.PathLike[str], text: str) -> Path:
+    """Write text to path atomically: temp file in the same folder, then os.replace."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
+    try:
+        with os.fdopen(fd, "w") as fh:
+            fh.write(text)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+    return path
+
+
+def to_jsonable(x: Any) -> Any:
+    """numpy arrays/scalars -> lists/floats, non-finite floats -> None, recursively."""
+    if isinstance(x, dict):
+        return {str(k): to_jsonable(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [to_jsonable(v) for v in x]
+    if isinstance(x, np.ndarray):
+        return to_jsonable(x.tolist())
+    if isinstance(x, (bool, np.bool_)):
+        return bool(x)
+    if isinstance(x, (np.integer,)):
+        return int(x)
+    if isinstance(x, (float, np.floating)):
+        xf = float(x)
+        return xf if math.isfinite(xf) else None
+    return x
+
+
+def write_json_atomic(path: str | os.PathLike[str], obj: Any) -> Path:
+    """Atomically write obj as indented JSON."""
+    return _write_atomic(path, json.dumps(to_jsonable(obj), indent=2) + "\n")
+
+
+@dataclass
+class OCPResult:
+    """Solution of one OCP.
+
+    t: node times (N+1) [time_unit]; states: name -> (N+1) values at the nodes; controls: name -> (N)
+    piecewise-constant values on [t_k, t_{k+1}); outputs: name -> (N+1) values at the nodes (the
+    last one with the last control held), e.g. cell current ``I`` [A] and heat ``Q`` [W per cell];
+    objective: optimal NLP objective (``objective_name`` says what it is); status: short status
+    ('optimal', 'acceptable', 'infeasible', 'iteration_limit', 'restoration_failed',
+    'constraint_violation', 'solver_error: …'); success: usable solution; message: why;
+    max_violation: largest bound/constraint violation of the returned point (NLP scaling);
+    wall_time_s: wall time of the solve call [s]; t_colloc: collocation-point times, if any.
+    """
+
+    problem: str
+    method: str
+    N: int
+    t: np.ndarray
+    time_unit: str
+    states: dict[str, np.ndarray]
+    controls: dict[str, np.ndarray]
+    outputs: dict[str, np.ndarray]
+    objective: float
+    objective_name: str
+    status: str
+    success: bool
+    message: str
+    solver_status: str
+    iterations: int
+    wall_time_s: float
+    solver_time_s: float
+    max_violation: float
+    t_colloc: np.ndarray | None = None
+    meta: dict[str, Any] = field(default_factory=dict)
+
+    @classmethod
+    def failed(cls, problem: str, method: str, N: int, status: str, wall: float, t: np.ndarray,
+               time_unit: str, message: str = "") -> "OCPResult":
+        """A result without a solution (status says why)."""
+        return cls(problem=problem, method=method, N=N, t=t, time_unit=time_unit, states={}, controls={},
+                   outputs={}, objective=math.nan, objective_name="objective", status=status, success=False,
+                   message=message or status, solver_status=status, iterations=-1, wall_time_s=wall,
+                   solver_time_s=wall, max_violation=math.inf)
+
+    @property
+    def I(self) -> np.ndarray:
+        """Cell current at the nodes [A] (empty if the problem does not report it)."""
+        return self.outputs.get("I", np.zeros(0))
+
+    @property
+    def Q(self) -> np.ndarray:
+        """The paper's heat Q = I(V1+V2) + R_s I² at the nodes [W per cell] (empty if not reported)."""
+        return self.outputs.get("Q", np.zeros(0))
+
+    def stats(self) -> dict[str, Any]:
+        """Solver statistics as a JSON-ready dict."""
+        return {"problem": self.problem, "method": self.method, "N": self.N, "status": self.status,
+                "success": self.success, "message": self.message, "solver_status": self.solver_status,
+                "iterations": self.iterations, "wall_time_s": self.wall_time_s,
+                "solver_time_s": self.solver_time_s, "max_violation": self.max_violation,
+                "objective": self.objective, "objective_name": self.objective_name}
+
+    def summary(self) -> dict[str, Any]:
+        """Statistics plus the trajectories, JSON-ready."""
+        out = self.stats()
+        out.update({"time_unit": self.time_unit, "t": self.t, "states": self.states,
+                    "controls": self.controls, "outputs": self.outputs, "meta": self.meta})
+        return to_jsonable(out)
+
+    def to_json(self, path: str | os.PathLike[str]) -> Path:
+        """Write :meth:`summary` as JSON, atomically."""
+        return write_json_atomic(path, self.summary())
+
+    def to_csv(self, path: str | os.PathLike[str]) -> Path:
+        """One row per node: t, states, controls (held; last row repeats the last control), outputs."""
+        buf = io.StringIO()
+        wr = csv.writer(buf)
+        names_x, names_u, names_o = list(self.states), list(self.controls), list(self.outputs)
+        wr.writerow([f"t_{self.time_unit}"] + names_x + names_u + names_o)
+        n = self.t.size
+        for k in range(n):
+            row = [f"{self.t[k]:.10g}"]
+            row += [f"{self.states[nm][k]:.12g}" for nm in names_x]
+            row += [f"{self.controls[nm][min(k, self.controls[nm].size - 1)]:.12g}" for nm in names_u]
+            row += [f"{self.outputs[nm][k]:.12g}" for nm in names_o]
+            wr.writerow(row)
+        return _write_atomic(path, buf.getvalue())
