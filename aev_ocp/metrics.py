@@ -1,0 +1,107 @@
+"""Per-vehicle metrics of PROBLEM.md §10, computed from a :class:`SimulationResult`.
+
+Integrals (ω, pack ∫Q, ∫Q_irr, RMS errors, RMS jerk of smooth laws) come from the plant's own
+quadratures, so they are exact across control jumps. The minimum gap is taken over the continuous
+trajectory: the smallest sample is refined by the cubic Hermite interpolant of h with ḣ = v_l − v
+on its two neighbouring intervals.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from .models.carfollowing import optimal_velocity
+from .results import SimulationResult
+
+MPC_GAP_MIN = 0.2  # PROBLEM.md §9: h ≥ 0.2 (2 m)
+MPC_SPEED_MAX = 2.0  # PROBLEM.md §9: 0 ≤ v ≤ 2
+
+
+def _hermite_min(t0: float, t1: float, y0: float, y1: float, d0: float, d1: float) -> float:
+    """Minimum of the cubic Hermite interpolant on [t0, t1] (values y, slopes d)."""
+    dt = t1 - t0
+    if dt <= 0:
+        return min(y0, y1)
+    # p(s) = h00 y0 + h10 dt d0 + h01 y1 + h11 dt d1, s ∈ [0,1]; p'(s) = a s² + b s + c
+    a = 6 * y0 + 3 * dt * d0 - 6 * y1 + 3 * dt * d1
+    b = -6 * y0 - 4 * dt * d0 + 6 * y1 - 2 * dt * d1
+    c = dt * d0
+    cands = [0.0, 1.0]
+    if abs(a) > 1e-15:
+        disc = b * b - 4 * a * c
+        if disc >= 0:
+            r = math.sqrt(disc)
+            cands += [(-b + r) / (2 * a), (-b - r) / (2 * a)]
+    elif abs(b) > 1e-15:
+        cands.append(-c / b)
+    best = min(y0, y1)
+    for s in cands:
+        if 0.0 <= s <= 1.0:
+            h00, h10, h01, h11 = 2 * s**3 - 3 * s**2 + 1, s**3 - 2 * s**2 + s, -2 * s**3 + 3 * s**2, s**3 - s**2
+            best = min(best, h00 * y0 + h10 * dt * d0 + h01 * y1 + h11 * dt * d1)
+    return best
+
+
+def min_gap_continuous(t: np.ndarray, h: np.ndarray, hdot: np.ndarray) -> float:
+    """Minimum of h(t) over the continuous trajectory [model length] (Hermite refinement near the smallest sample)."""
+    k = int(np.argmin(h))
+    best = float(h[k])
+    for j in (k - 1, k):
+        if 0 <= j < t.size - 1:
+            best = min(best, _hermite_min(t[j], t[j + 1], h[j], h[j + 1], hdot[j], hdot[j + 1]))
+    return best
+
+
+def vehicle_metrics(r: SimulationResult, i: int) -> dict[str, Any]:
+    """All §10 metrics of follower i (0-based) as a flat dict; units in the key names."""
+    u = r.units
+    t = r.t
+    duration = float(t[-1] - t[0]) if t.size > 1 else 0.0
+    v_lead = r.leader_speed if i == 0 else r.speed[:, i - 1]
+    h, v = r.gap[:, i], r.speed[:, i]
+    hdot = v_lead - v
+    rms = (lambda c: math.sqrt(max(float(c[-1, i]), 0.0) / duration) if duration > 0 else float("nan"))
+    if r.jerk_sampled and t.size > 1:
+        da = np.diff(r.accel[:, i]) / np.diff(t)
+        rms_jerk = float(math.sqrt(np.sum(da**2 * np.diff(t)) / duration))
+    else:
+        rms_jerk = rms(r.int_jerk2)
+    min_gap = min_gap_continuous(t, h, hdot)
+    omega = float(r.omega[-1, i])
+    kinds = [e.kind for e in r.events if e.vehicle == i]
+    out: dict[str, Any] = {
+        "vehicle": i + 1,
+        "controller": r.controllers[i],
+        "status": kinds[0] if kinds else "ok",
+        "duration_model": duration,
+        "omega_model": omega,
+        "omega_J_per_kg": float(u.energy_per_mass_to_si(omega)),
+        "heat_pack_J": float(r.heat_J[-1, i]),
+        "heat_irr_pack_J": float(r.heat_irr_J[-1, i]),
+        "delta_soc": float(r.S[-1, i] - r.S[0, i]),
+        "min_gap_model": min_gap,
+        "min_gap_m": float(u.length_to_si(min_gap)),
+        "min_speed_model": float(np.min(v)),
+        "max_speed_model": float(np.max(v)),
+        "rms_ovm_error_model": rms(r.int_ovm_err2),
+        "rms_rel_speed_model": rms(r.int_rel_speed2),
+        "rms_jerk_model": rms_jerk,
+        "max_abs_current_A": float(np.nanmax(np.abs(r.current_A[:, i]))) if np.isfinite(r.current_A[:, i]).any() else float("nan"),
+        "gap_violations": int(np.sum(h[1:] < MPC_GAP_MIN - 1e-9)),
+        "speed_violations": int(np.sum((v[1:] < -1e-9) | (v[1:] > MPC_SPEED_MAX + 1e-9))),
+        "collisions": kinds.count("collision"),
+        "infeasible_current": kinds.count("infeasible_current"),
+        "final_ovm_error_model": float(optimal_velocity(h[-1]) - v[-1]),
+    }
+    stats = r.solver_stats[i] if i < len(r.solver_stats) else None
+    if stats:
+        out.update(stats)
+    return out
+
+
+def metrics_table(r: SimulationResult) -> list[dict[str, Any]]:
+    """Metrics of every follower."""
+    return [vehicle_metrics(r, i) for i in range(r.n_vehicles)]

@@ -1,0 +1,166 @@
+"""Simulation checks: an independent SciPy integration, conservation laws, tolerance convergence, events."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import pytest
+
+from aev_ocp.metrics import _hermite_min, min_gap_continuous
+from aev_ocp.models import OVFL, OVM, ConstantSpeed, PaperLeader, Proposed
+from aev_ocp.models.battery import stored_energy_J
+from aev_ocp.models.carfollowing import CarFollowingLaw
+from aev_ocp.params import CellParams, EVParams, PackParams, ParameterError
+from aev_ocp.reference import simulate_reference
+from aev_ocp.simulate import PlatoonSimulator, SimOptions, simulate_platoon
+
+GAPS = np.array([0.3, 3.5, 3.5, 3.5, 3.5])
+SPEEDS = np.full(5, 1.1 * 1.7)
+
+
+@pytest.fixture(scope="module")
+def table1() -> dict[str, Any]:
+    L = PaperLeader()
+    return {law.name: simulate_platoon(L, [law] * 5, GAPS, SPEEDS, 70.0, rtol=1e-10, atol=1e-10)
+            for law in (Proposed(), OVFL())}
+
+
+@pytest.mark.parametrize("kind", ["proposed", "ovfl"])
+def test_omega_and_heat_match_independent_scipy(table1: dict[str, Any], kind: str) -> None:
+    ref = simulate_reference(kind, GAPS, SPEEDS, 70.0, rtol=1e-10, atol=1e-10)
+    r = table1[kind]
+    assert r.status == "ok"
+    np.testing.assert_allclose(r.omega[-1], ref["omega"], atol=1e-6)
+    np.testing.assert_allclose(r.gap[-1], ref["gap"], atol=1e-6)
+    # the OCV splines differ (CasADi B-spline vs SciPy not-a-knot), so the heat agrees less tightly
+    np.testing.assert_allclose(r.heat_J[-1], ref["heat_J"], rtol=2e-3)
+    np.testing.assert_allclose(r.S[-1], ref["S"], atol=1e-7)
+
+
+def test_energy_balance_of_the_cell(table1: dict[str, Any]) -> None:
+    """Q = Q_irr + d/dt(½C1V1² + ½C2V2²): the pack integrals must differ by the stored RC energy."""
+    r = table1["proposed"]
+    ev = r.ev
+    stored = stored_energy_J(r.V1, r.V2, ev.cell) * ev.pack.n_cells
+    np.testing.assert_allclose(r.heat_J[-1] - r.heat_irr_J[-1], stored[-1] - stored[0], rtol=1e-5, atol=1e-6)
+    assert np.all(np.diff(r.heat_irr_J, axis=0) >= -1e-9)
+
+
+def test_charge_balance() -> None:
+    """ΔS = −∫I dt/(3600 C_n): a trapezoid on the sampled current converges (second order in the
+    sample spacing) to the integrated S."""
+    errs = []
+    for dt in (0.01, 0.002):
+        r = simulate_platoon(PaperLeader(), [OVFL()] * 5, GAPS, SPEEDS, 70.0, dt_out=dt, rtol=1e-9, atol=1e-9)
+        charge = np.trapezoid(r.current_A, r.t * r.units.time_s, axis=0)
+        dS = -charge / (3600 * r.ev.cell.capacity_Ah)
+        errs.append(np.abs((r.S[-1] - r.S[0] - dS) / dS).max())
+    assert errs[1] < 1e-4
+    assert errs[1] < errs[0] / 15  # (0.01/0.002)² = 25 for a second-order rule
+
+
+def test_table1_converged_across_tolerances(table1: dict[str, Any]) -> None:
+    r = table1["proposed"]
+    loose = simulate_platoon(PaperLeader(), [Proposed()] * 5, GAPS, SPEEDS, 70.0, rtol=1e-8, atol=1e-8, dt_out=0.02)
+    np.testing.assert_allclose(loose.omega[-1], r.omega[-1], atol=5e-6)
+
+
+def test_steady_state_follower_uses_cruise_power() -> None:
+    """At equilibrium behind a constant leader, P_w = F_res(v) v and ω = 0 (no acceleration)."""
+    from aev_ocp.models import equilibrium_gap
+    from aev_ocp.models.vehicle import road_load_force_N
+
+    ev = EVParams()
+    v = 1.5
+    r = simulate_platoon(ConstantSpeed(v), [Proposed()], [equilibrium_gap(v)], [v], 10.0, ev=ev)
+    assert np.max(np.abs(r.accel)) < 1e-9 and abs(r.omega[-1, 0]) < 1e-9
+    vs = ev.units.speed_to_si(v)
+    P_c = float(road_load_force_N(vs, ev.vehicle)) * vs / ev.vehicle.efficiency / ev.pack.n_cells
+    V_T = 3.3352 - r.V1[0, 0] - r.V2[0, 0]  # OCV(0.8) from the table, zero polarisation at t = 0
+    assert r.current_A[0, 0] == pytest.approx(P_c / V_T, rel=1e-3)
+
+
+def test_collision_detected_with_time_and_vehicle() -> None:
+    """OVM has no follow-the-leader term: a fast follower hits a stopped leader. Compare the time
+    with SciPy's event location on the same ODE."""
+    from scipy.integrate import solve_ivp
+
+    r = simulate_platoon(ConstantSpeed(0.0), [OVM()], [0.5], [2.0], 10.0, battery=False)
+    assert r.status == "collision"
+    ev = r.events[0]
+    assert ev.vehicle == 0
+
+    def f(t: float, y: np.ndarray) -> list[float]:
+        return [-y[1], 2.0 * (np.tanh(y[0] - 2) + np.tanh(2) - y[1])]
+
+    hit = lambda t, y: y[0]  # noqa: E731
+    hit.terminal = True
+    sol = solve_ivp(f, (0, 10), [0.5, 2.0], events=hit, rtol=1e-10, atol=1e-12)
+    assert ev.time == pytest.approx(sol.t_events[0][0], abs=1e-4)
+    assert r.t[-1] < ev.time and np.all(r.gap > 0)
+
+
+@dataclass(frozen=True)
+class Brake(CarFollowingLaw):
+    """A user-defined law: constant braking (tests that laws are pluggable)."""
+
+    decel: float = 1.0
+    name = "brake"
+
+    def accel(self, h, v, v_l):  # type: ignore[no-untyped-def]
+        return -self.decel + 0 * h
+
+
+def test_negative_speed_detected() -> None:
+    r = simulate_platoon(ConstantSpeed(1.0), [Brake()], [5.0], [0.5], 3.0, battery=False)
+    assert r.status == "negative_speed"
+    assert r.events[0].time == pytest.approx(0.5, abs=1e-6)
+
+
+def test_infeasible_current_detected() -> None:
+    """One cell cannot drive a car: the current map reports the infeasible demand with its time."""
+    ev = EVParams(pack=PackParams(1, 1))
+    r = simulate_platoon(ConstantSpeed(1.7), [Proposed()], [3.5], [1.7], 5.0, ev=ev)
+    assert r.status == "infeasible_current"
+    assert r.events[0].time == 0.0 and r.events[0].vehicle == 0
+
+
+def test_soc_out_of_range_detected() -> None:
+    ev = EVParams(cell=CellParams(capacity_Ah=1e-4, soc0=0.01), pack=PackParams(106, 700))
+    r = simulate_platoon(ConstantSpeed(1.7), [Proposed()], [3.5], [1.7], 50.0, ev=ev)
+    assert r.status == "soc_out_of_range"
+    assert 0 < r.events[0].time < 50
+
+
+def test_mixed_platoon_and_reuse() -> None:
+    sim = PlatoonSimulator(PaperLeader(), [Proposed(), OVFL(), OVM(alpha=1.5)], options=SimOptions(dt_out=0.05))
+    a = sim.run([0.3, 3.5, 3.5], [1.87] * 3, 30.0)
+    b = sim.run([0.3, 3.5, 3.5], [1.87] * 3, 30.0)
+    assert a.controllers == ["proposed", "ovfl", "ovm"]
+    np.testing.assert_array_equal(a.omega, b.omega)
+
+
+@pytest.mark.parametrize("gaps,speeds,match", [
+    ([0.0], [1.0], "initial gap of vehicle 1"), ([-1.0], [1.0], "initial gap"),
+    ([1.0], [-0.1], "initial speed of vehicle 1"), ([1.0, 1.0], [1.0], "one per follower"),
+])
+def test_bad_initial_conditions(gaps: list[float], speeds: list[float], match: str) -> None:
+    with pytest.raises(ParameterError, match=match):
+        simulate_platoon(ConstantSpeed(1.0), [Proposed()], gaps, speeds, 1.0)
+
+
+def test_hermite_min() -> None:
+    # h(t) = (t − 0.3)² + 0.1 on [0, 1]: exact cubic, minimum 0.1 between samples
+    assert _hermite_min(0.0, 1.0, 0.19, 0.59, -0.6, 1.4) == pytest.approx(0.1, abs=1e-12)
+    t = np.array([0.0, 1.0, 2.0])
+    h = (t - 1.3) ** 2 + 0.1
+    assert min_gap_continuous(t, h, 2 * (t - 1.3)) == pytest.approx(0.1, abs=1e-12)
+
+
+def test_min_gap_continuous_below_samples(table1: dict[str, Any]) -> None:
+    r = table1["proposed"]
+    m = r.metrics()
+    assert all(mm["min_gap_model"] <= r.gap[:, i].min() + 1e-15 for i, mm in enumerate(m))
+    assert all(mm["collisions"] == 0 for mm in m)
