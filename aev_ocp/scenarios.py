@@ -1,0 +1,532 @@
+"""Scenario files: a TOML file a user edits, validated into a frozen :class:`Scenario`.
+
+Every field is checked. An unknown key, a wrong type or a value out of range raises
+:class:`ScenarioError` (a ValueError) whose message names the file, the key path (e.g.
+``vehicle.mass_kg``), the value and what is allowed. Parameter dataclasses keep their own checks:
+a :class:`~aev_ocp.params.ParameterError` is caught and re-raised with the file and key path.
+
+Schema (model units unless a key says otherwise; see README.md "Scenario files")::
+
+    name = "table1"                     # optional, defaults to the file stem
+    description = "..."                 # optional
+    compare = ["proposed", "ovfl"]      # optional: run the whole platoon once per law
+
+    [units]       length_m, speed_mps                       (PROBLEM.md §1)
+    [leader]      kind = "constant" | "paper" | "cycle" | "array"
+                  constant: v                               [model speed]
+                  paper:    v0, amplitude, forcing_end      (paper eq. acc5; forcing_end [model time])
+                  cycle:    cycle = "udds" | "hwfet" | "us06" (SI data, converted with [units])
+                  array:    times, speeds, unit = "model" | "si"  (si: [s], [m/s])
+    [platoon]     followers, law | laws, gap0_first, gap0_others | gaps0,
+                  speed0 | speed0_factor | speeds0
+    [carfollowing] alpha, beta, kappa, eps; a sub-table per law name holds that law's
+                  coefficients, e.g. [carfollowing.idm] a_max = 1.0
+    [simulation]  t_end [model time], dt_out, rtol, atol
+    [vehicle] [cell] [pack]  fields of VehicleParams, CellParams, PackParams (SI names)
+
+Other top-level tables are rejected unless a module registered them with
+:func:`register_section`; their validated values land in ``Scenario.extra``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import tomllib
+import warnings
+from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
+from typing import Any, Callable, Iterator, Sequence
+
+from .models.carfollowing import LAW_REGISTRY, V_INF, CarFollowingLaw, make_law
+from .models.leader import CYCLES, ConstantSpeed, LeaderProfile, PaperLeader, SpeedTrace, drive_cycle
+from .params import (CarFollowingParams, CellParams, EVParams, PackParams, ParameterError, Units,
+                     VehicleParams)
+
+LEADER_KINDS = ("constant", "paper", "cycle", "array")
+SCENARIO_DIR_NAME = "scenarios"  # the repository's folder of scenario files
+PACKAGED_DIR_NAME = "scenario_files"  # inside the package: a link to the repository's folder
+
+
+class ScenarioError(ValueError):
+    """A scenario file is invalid; the message names the file, the key path and the value."""
+
+
+class ScenarioWarning(UserWarning):
+    """A scenario is valid but questionable (e.g. the leader is faster than any law can follow)."""
+
+
+_MISSING = object()
+
+
+def _type_name(value: Any) -> str:
+    return {bool: "boolean", int: "integer", float: "float", str: "string", list: "array",
+            dict: "table"}.get(type(value), type(value).__name__)
+
+
+class TableReader:
+    """Reads one TOML table with typed, range-checked getters that name the file and key path.
+
+    Section validators registered with :func:`register_section` receive one of these. Call
+    :meth:`finish` at the end: it rejects every key that was not read.
+    """
+
+    def __init__(self, table: dict[str, Any], path: str, file: str) -> None:
+        self.table, self.path, self.file = table, path, file
+        self._seen: set[str] = set()
+
+    # -- errors --------------------------------------------------------------------------
+    def key_path(self, key: str) -> str:
+        """Dotted key path of ``key`` in this table."""
+        return f"{self.path}.{key}" if self.path else key
+
+    def error(self, key: str, value: Any, allowed: str) -> ScenarioError:
+        """A ScenarioError naming the file, ``key``'s path, the value and what is allowed."""
+        return ScenarioError(f"{self.file}: {self.key_path(key)} = {value!r} is not allowed: {allowed}")
+
+    def has(self, key: str) -> bool:
+        """Whether ``key`` is present (marks nothing as read)."""
+        return key in self.table
+
+    def _get(self, key: str, default: Any) -> Any:
+        self._seen.add(key)
+        if key in self.table:
+            return self.table[key]
+        if default is _MISSING:
+            raise ScenarioError(f"{self.file}: {self.key_path(key)} is missing (required)")
+        return default
+
+    # -- typed getters -------------------------------------------------------------------
+    def number(self, key: str, default: Any = _MISSING, *, gt: float | None = None, ge: float | None = None,
+               lt: float | None = None, le: float | None = None) -> float:
+        """A finite float (integers accepted) within the given bounds."""
+        value = self._get(key, default)
+        if value is default and key not in self.table:
+            return value
+        return self.check_number(key, value, gt=gt, ge=ge, lt=lt, le=le)
+
+    def check_number(self, key: str, value: Any, *, gt: float | None = None, ge: float | None = None,
+                     lt: float | None = None, le: float | None = None) -> float:
+        """Validate one number against bounds; ``key`` is only used in the message."""
+        bounds = [f"{op} {b:g}" for op, b in ((">", gt), (">=", ge), ("<", lt), ("<=", le)) if b is not None]
+        allowed = "a finite number" + (" " + " and ".join(bounds) if bounds else "")
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise self.error(key, value, f"expected {allowed}, got a {_type_name(value)}")
+        x = float(value)
+        ok = (math.isfinite(x) and (gt is None or x > gt) and (ge is None or x >= ge)
+              and (lt is None or x < lt) and (le is None or x <= le))
+        if not ok:
+            raise self.error(key, value, f"must be {allowed}")
+        return x
+
+    def integer(self, key: str, default: Any = _MISSING, *, ge: int | None = None) -> int:
+        """An integer (not a boolean, not a float) >= ``ge``."""
+        value = self._get(key, default)
+        if value is default and key not in self.table:
+            return value
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise self.error(key, value, f"expected an integer, got a {_type_name(value)}")
+        if ge is not None and value < ge:
+            raise self.error(key, value, f"must be an integer >= {ge}")
+        return value
+
+    def string(self, key: str, default: Any = _MISSING, *, choices: Sequence[str] | None = None) -> str:
+        """A string, optionally one of ``choices`` (compared in lower case)."""
+        value = self._get(key, default)
+        if value is default and key not in self.table:
+            return value
+        if not isinstance(value, str):
+            raise self.error(key, value, f"expected a string, got a {_type_name(value)}")
+        if choices is not None and value.lower() not in choices:
+            raise self.error(key, value, f"must be one of {list(choices)}")
+        return value.lower() if choices is not None else value
+
+    def boolean(self, key: str, default: Any = _MISSING) -> bool:
+        """true or false."""
+        value = self._get(key, default)
+        if not isinstance(value, bool):
+            raise self.error(key, value, f"expected true or false, got a {_type_name(value)}")
+        return value
+
+    def numbers(self, key: str, default: Any = _MISSING, *, min_len: int = 1, gt: float | None = None,
+                ge: float | None = None) -> list[float]:
+        """A non-empty array of finite numbers, each within the bounds."""
+        value = self._get(key, default)
+        if value is default and key not in self.table:
+            return value
+        if not isinstance(value, list):
+            raise self.error(key, value, f"expected an array of numbers, got a {_type_name(value)}")
+        if len(value) < min_len:
+            raise self.error(key, value, f"needs at least {min_len} value(s)")
+        return [self.check_number(f"{key}[{i}]", x, gt=gt, ge=ge) for i, x in enumerate(value)]
+
+    def strings(self, key: str, default: Any = _MISSING, *, choices: Sequence[str] | None = None) -> list[str]:
+        """A non-empty array of strings, each one of ``choices`` if given (lower case)."""
+        value = self._get(key, default)
+        if value is default and key not in self.table:
+            return value
+        if not isinstance(value, list) or not value or not all(isinstance(x, str) for x in value):
+            raise self.error(key, value, "expected a non-empty array of strings")
+        out = [x.lower() for x in value] if choices is not None else list(value)
+        for i, x in enumerate(out):
+            if choices is not None and x not in choices:
+                raise self.error(f"{key}[{i}]", value[i], f"must be one of {list(choices)}")
+        return out
+
+    def sub(self, key: str, required: bool = False) -> "TableReader":
+        """The sub-table ``key`` as a reader (an empty one if absent and not required)."""
+        value = self._get(key, _MISSING if required else {})
+        if not isinstance(value, dict):
+            raise self.error(key, value, f"expected a table, got a {_type_name(value)}")
+        return TableReader(value, self.key_path(key), self.file)
+
+    def unread(self) -> list[str]:
+        """Keys present but not read so far."""
+        return [k for k in self.table if k not in self._seen]
+
+    def finish(self, allowed_hint: Sequence[str] | None = None) -> None:
+        """Reject every key that was not read (unknown keys), listing the known ones."""
+        extra = self.unread()
+        if extra:
+            known = sorted(allowed_hint if allowed_hint is not None else self._seen)
+            raise ScenarioError(f"{self.file}: unknown key {self.key_path(extra[0])!r} "
+                                f"(= {self.table[extra[0]]!r}); allowed keys here: {known}")
+
+
+SectionValidator = Callable[[TableReader], Any]
+_SECTIONS: dict[str, SectionValidator] = {}
+_CORE_TABLES = ("units", "leader", "platoon", "carfollowing", "simulation", "vehicle", "cell", "pack")
+_CORE_KEYS = ("name", "description", "compare")
+
+
+def register_section(name: str, validator: SectionValidator) -> None:
+    """Allow a top-level table ``[name]`` in scenario files.
+
+    ``validator(reader)`` receives a :class:`TableReader` over the table, reads and checks its keys
+    (raising through ``reader.error(...)``; ``reader.finish()`` rejects unknown keys) and returns the
+    validated value, stored as ``Scenario.extra[name]``. It is called only when the table is present.
+    """
+    if name in _CORE_TABLES or name in _CORE_KEYS:
+        raise ValueError(f"register_section: {name!r} is a core scenario key")
+    _SECTIONS[name] = validator
+
+
+def registered_sections() -> list[str]:
+    """Names of the registered extra sections."""
+    return sorted(_SECTIONS)
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """A validated scenario. Model units unless a name says otherwise.
+
+    laws: one car-following law per follower; gaps0[i], speeds0[i]: h_i(0), v_i(0) of follower i+1;
+    t_end, dt_out [model time]; compare: law names to run side by side (each for the whole platoon);
+    cf: the car-following coefficients; law_overrides: per-law extra coefficients; extra: validated
+    registered sections.
+    """
+
+    name: str
+    description: str
+    units: Units
+    leader: LeaderProfile
+    laws: tuple[CarFollowingLaw, ...]
+    gaps0: tuple[float, ...]
+    speeds0: tuple[float, ...]
+    t_end: float
+    ev: EVParams
+    dt_out: float = 0.01
+    rtol: float = 1e-10
+    atol: float = 1e-10
+    compare: tuple[str, ...] = ()
+    cf: CarFollowingParams = field(default_factory=CarFollowingParams)
+    law_overrides: dict[str, dict[str, float]] = field(default_factory=dict)
+    extra: dict[str, Any] = field(default_factory=dict)
+    source: Path | None = None
+
+    @property
+    def n_followers(self) -> int:
+        """Number of followers."""
+        return len(self.laws)
+
+    def law(self, name: str) -> CarFollowingLaw:
+        """The law ``name`` with this scenario's coefficients."""
+        return make_law(name, self.cf, **self.law_overrides.get(name.lower(), {}))
+
+    def runs(self) -> list[tuple[str, tuple[CarFollowingLaw, ...]]]:
+        """(label, laws per follower) for each run: one per ``compare`` entry, else the platoon as given."""
+        if self.compare:
+            return [(c, (self.law(c),) * self.n_followers) for c in self.compare]
+        names = sorted({law.name for law in self.laws})
+        return [("+".join(names), self.laws)]
+
+    def simulate_kwargs(self) -> dict[str, Any]:
+        """Keyword arguments for :func:`aev_ocp.simulate.simulate_platoon` (besides leader and laws)."""
+        return {"gaps0": list(self.gaps0), "speeds0": list(self.speeds0), "t_end": self.t_end,
+                "ev": self.ev, "dt_out": self.dt_out, "rtol": self.rtol, "atol": self.atol}
+
+    def replace(self, **changes: Any) -> "Scenario":
+        """A copy with some fields changed (e.g. a shorter t_end for a quick run)."""
+        return dataclasses.replace(self, **changes)
+
+
+# ----------------------------------------------------------------------------- sections
+def _params(cls: type, reader: TableReader, base: Any = None) -> Any:
+    """Build a parameter dataclass from a table, re-wrapping ParameterError with the key path."""
+    names = [f.name for f in dataclasses.fields(cls)]
+    defaults = base if base is not None else cls()
+    kwargs: dict[str, Any] = {}
+    for key in names:
+        if not reader.has(key):
+            continue
+        default = getattr(defaults, key)
+        if isinstance(default, int) and not isinstance(default, bool):
+            kwargs[key] = reader.integer(key)
+        else:
+            kwargs[key] = reader.number(key)  # range checks are the dataclass's own
+    reader.finish(allowed_hint=names)
+    try:
+        return dataclasses.replace(defaults, **kwargs)
+    except ParameterError as exc:
+        field_name = next((k for k in kwargs if f".{k} " in str(exc)), None)
+        where = reader.key_path(field_name) if field_name else reader.path
+        raise ScenarioError(f"{reader.file}: {where}: {exc}") from None
+
+
+def _leader(r: TableReader, units: Units) -> LeaderProfile:
+    kind = r.string("kind", choices=LEADER_KINDS)
+    try:
+        if kind == "constant":
+            leader: LeaderProfile = ConstantSpeed(r.number("v", ge=0))
+        elif kind == "paper":
+            d = PaperLeader()
+            leader = PaperLeader(v0=r.number("v0", d.v0, ge=0), amplitude=r.number("amplitude", d.amplitude),
+                                 t_end=r.number("forcing_end", d.t_end, gt=0))
+        elif kind == "cycle":
+            leader = drive_cycle(r.string("cycle", choices=CYCLES), units)
+        else:
+            times = r.numbers("times", min_len=2)
+            speeds = r.numbers("speeds", min_len=2, ge=0)
+            unit = r.string("unit", "model", choices=("model", "si"))
+            if len(times) != len(speeds):
+                raise r.error("speeds", speeds, f"needs one value per entry of leader.times ({len(times)})")
+            if times[0] != 0 or any(b <= a for a, b in zip(times, times[1:])):
+                raise r.error("times", times, "must start at 0 and increase strictly")
+            leader = (SpeedTrace.from_si(times, speeds, units, label="array") if unit == "si"
+                      else SpeedTrace(tuple(times), tuple(speeds), label="array"))
+    except ParameterError as exc:
+        raise ScenarioError(f"{r.file}: {r.path}: {exc}") from None
+    r.finish()
+    return leader
+
+
+def _carfollowing(r: TableReader) -> tuple[CarFollowingParams, dict[str, dict[str, float]]]:
+    coeffs = {f.name for f in dataclasses.fields(CarFollowingParams)}
+    cf_table = {k: v for k, v in r.table.items() if k in coeffs}
+    cf = _params(CarFollowingParams, TableReader(cf_table, r.path, r.file))
+    r._seen.update(cf_table)
+    overrides: dict[str, dict[str, float]] = {}
+    for key, value in r.table.items():
+        if key in coeffs:
+            continue
+        if key.lower() not in LAW_REGISTRY:
+            raise r.error(key, value, f"unknown key: allowed are {sorted(coeffs)} or a sub-table named after "
+                                      f"a law, one of {sorted(LAW_REGISTRY)}")
+        sub = r.sub(key, required=True)
+        ov = {k: sub.number(k) for k in list(sub.table)}
+        try:
+            make_law(key, cf, **ov)
+        except (TypeError, ParameterError) as exc:
+            raise ScenarioError(f"{r.file}: {sub.path}: invalid coefficients for law {key!r}: {exc}") from None
+        overrides[key.lower()] = ov
+    return cf, overrides
+
+
+def _per_vehicle(r: TableReader, n: int, list_key: str, values: list[float] | None) -> list[float] | None:
+    if values is not None and len(values) != n:
+        raise r.error(list_key, values, f"needs exactly {n} values, one per follower (platoon.followers = {n})")
+    return values
+
+
+def _platoon(r: TableReader, leader: LeaderProfile, cf: CarFollowingParams,
+             overrides: dict[str, dict[str, float]]) -> tuple[tuple[CarFollowingLaw, ...], list[float], list[float]]:
+    laws_known = sorted(LAW_REGISTRY)
+    if r.has("laws") and r.has("law"):
+        raise r.error("laws", r.table["laws"], "give either platoon.law (all followers) or platoon.laws, not both")
+    if r.has("laws"):
+        names = r.strings("laws", choices=laws_known)
+        n = r.integer("followers", len(names), ge=1)
+        if len(names) != n:
+            raise r.error("laws", names, f"needs exactly {n} names, one per follower")
+    else:
+        n = r.integer("followers", ge=1)
+        names = [r.string("law", "proposed", choices=laws_known)] * n
+    laws = tuple(make_law(nm, cf, **overrides.get(nm, {})) for nm in names)
+
+    # initial gaps
+    if r.has("gaps0"):
+        for k in ("gap0_first", "gap0_others"):
+            if r.has(k):
+                raise r.error(k, r.table[k], "give either platoon.gaps0 or gap0_first/gap0_others, not both")
+        gaps = _per_vehicle(r, n, "gaps0", r.numbers("gaps0", gt=0))
+    else:
+        first = r.number("gap0_first", gt=0)
+        others = r.number("gap0_others", first, gt=0)
+        gaps = [first] + [others] * (n - 1)
+
+    # initial speeds
+    given = [k for k in ("speed0", "speed0_factor", "speeds0") if r.has(k)]
+    if len(given) != 1:
+        raise ScenarioError(f"{r.file}: {r.path}: give exactly one of speed0 (model speed), speed0_factor "
+                            f"(× the leader's initial speed) or speeds0 (one per follower); got {given or 'none'}")
+    if given[0] == "speeds0":
+        speeds = _per_vehicle(r, n, "speeds0", r.numbers("speeds0", ge=0))
+    elif given[0] == "speed0":
+        speeds = [r.number("speed0", ge=0)] * n
+    else:
+        v_l0 = float(leader.speed_np(0.0)[0])
+        speeds = [r.number("speed0_factor", ge=0) * v_l0] * n
+    r.finish()
+    assert gaps is not None and speeds is not None
+    return laws, gaps, speeds
+
+
+def _check_top_level(doc: dict[str, Any], file: str) -> None:
+    for key, value in doc.items():
+        if key in _CORE_KEYS:
+            continue
+        if key in _CORE_TABLES or key in _SECTIONS:
+            if not isinstance(value, dict):
+                raise ScenarioError(f"{file}: {key} = {value!r} is not allowed: expected a table [{key}], "
+                                    f"got a {_type_name(value)}")
+            continue
+        raise ScenarioError(f"{file}: unknown top-level key or table {key!r}; allowed: "
+                            f"{sorted(_CORE_KEYS + _CORE_TABLES + tuple(_SECTIONS))}")
+
+
+def parse_scenario(doc: dict[str, Any], file: str = "<scenario>", *, source: Path | None = None) -> Scenario:
+    """Validate a parsed TOML document (``file`` names it in messages) into a :class:`Scenario`."""
+    _check_top_level(doc, file)
+    top = TableReader(doc, "", file)
+    default_name = source.stem if source is not None else "scenario"
+    name = top.string("name", default_name)
+    description = top.string("description", "")
+    compare = tuple(top.strings("compare", [], choices=sorted(LAW_REGISTRY)))
+
+    units = _params(Units, top.sub("units"))
+    vehicle = _params(VehicleParams, top.sub("vehicle"))
+    cell = _params(CellParams, top.sub("cell"))
+    pack = _params(PackParams, top.sub("pack"))
+    ev = EVParams(units=units, vehicle=vehicle, cell=cell, pack=pack)
+
+    cf, overrides = _carfollowing(top.sub("carfollowing"))
+    leader = _leader(top.sub("leader", required=True), units)
+    laws, gaps, speeds = _platoon(top.sub("platoon", required=True), leader, cf, overrides)
+
+    sim = top.sub("simulation", required=True)
+    t_end = sim.number("t_end", gt=0)
+    dt_out = sim.number("dt_out", 0.01, gt=0)
+    rtol = sim.number("rtol", 1e-10, gt=0, lt=1)
+    atol = sim.number("atol", 1e-10, gt=0, lt=1)
+    if dt_out > t_end:
+        raise sim.error("dt_out", dt_out, f"must be <= simulation.t_end ({t_end:g})")
+    sim.finish()
+
+    extra: dict[str, Any] = {}
+    for sec, validator in _SECTIONS.items():
+        if sec in doc:
+            reader = top.sub(sec)
+            try:
+                extra[sec] = validator(reader)
+            except ScenarioError:
+                raise
+            except (ValueError, TypeError) as exc:
+                raise ScenarioError(f"{file}: [{sec}]: {exc}") from None
+            reader.finish()
+    top.finish()
+
+    scenario = Scenario(name=name, description=description, units=units, leader=leader, laws=laws,
+                        gaps0=tuple(gaps), speeds0=tuple(speeds), t_end=t_end, ev=ev, dt_out=dt_out,
+                        rtol=rtol, atol=atol, compare=compare, cf=cf, law_overrides=overrides, extra=extra,
+                        source=source)
+    check_leader_speed(scenario, file)
+    return scenario
+
+
+def check_leader_speed(scenario: Scenario, file: str = "<scenario>") -> float:
+    """Warn (ScenarioWarning) if the leader's top speed reaches V∞ = 1 + tanh 2; returns that top speed."""
+    v_max = scenario.leader.max_speed(scenario.t_end)
+    if v_max >= V_INF:
+        u = scenario.units
+        warnings.warn(ScenarioWarning(
+            f"{file}: the leader reaches {v_max:.4g} model speed ({u.speed_to_si(v_max):.4g} m/s), at or above "
+            f"V∞ = 1 + tanh 2 = {V_INF:.4f} ({u.speed_to_si(V_INF):.4g} m/s with units.speed_mps = "
+            f"{u.speed_mps:g}): no optimal-velocity law can keep up; raise units.speed_mps above "
+            f"{u.speed_to_si(v_max) / V_INF:.4g}"), stacklevel=3)
+    return v_max
+
+
+def load_scenario(path: str | Path) -> Scenario:
+    """Read and validate a scenario file (a path, or the name of a shipped scenario, see :func:`find_scenario`)."""
+    p = find_scenario(path)
+    file = str(path)
+    try:
+        text = p.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise ScenarioError(f"{file}: cannot read the scenario file ({exc.strerror or exc})") from None
+    try:
+        doc = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ScenarioError(f"{file}: not valid TOML: {exc}") from None
+    return parse_scenario(doc, file, source=p)
+
+
+# ----------------------------------------------------------------------------- finding files
+def packaged_scenario_dir() -> Path | None:
+    """The scenario files installed with the package (``aev_ocp/scenario_files``), if present."""
+    try:
+        d = resources.files("aev_ocp") / PACKAGED_DIR_NAME
+        path = Path(str(d))
+    except (ModuleNotFoundError, TypeError):
+        return None
+    return path if path.is_dir() else None
+
+
+def scenario_dirs() -> list[Path]:
+    """Where shipped scenarios are looked for, in order: ./scenarios, then the packaged copy."""
+    out = [Path.cwd() / SCENARIO_DIR_NAME]
+    pkg = packaged_scenario_dir()
+    if pkg is not None:
+        out.append(pkg)
+    return out
+
+
+def shipped_scenarios() -> dict[str, Path]:
+    """Shipped scenario names -> files (the first folder of :func:`scenario_dirs` that has each name)."""
+    found: dict[str, Path] = {}
+    for d in scenario_dirs():
+        if d.is_dir():
+            for f in sorted(d.glob("*.toml")):
+                found.setdefault(f.stem, f)
+    return dict(sorted(found.items()))
+
+
+def find_scenario(name_or_path: str | Path) -> Path:
+    """Resolve a scenario: an existing file path, else a shipped scenario name (with or without .toml)."""
+    p = Path(name_or_path)
+    if p.is_file():
+        return p
+    stem = p.name[:-5] if p.name.endswith(".toml") else p.name
+    if p.parent == Path(".") or str(p.parent) == SCENARIO_DIR_NAME:
+        for d in scenario_dirs():
+            cand = d / f"{stem}.toml"
+            if cand.is_file():
+                return cand
+    known = ", ".join(shipped_scenarios()) or "none found"
+    raise ScenarioError(f"{name_or_path}: no such scenario file (shipped scenarios: {known})")
+
+
+def iter_shipped() -> Iterator[tuple[str, Path]]:
+    """(name, path) of every shipped scenario."""
+    yield from shipped_scenarios().items()

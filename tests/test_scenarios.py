@@ -1,0 +1,223 @@
+"""Scenario files: every shipped file loads, and each class of invalid input gives a ScenarioError
+whose message names the file, the key path and the offending value."""
+
+from __future__ import annotations
+
+import warnings
+from pathlib import Path
+
+import pytest
+
+from aev_ocp.models.carfollowing import V_INF, OVFL, Proposed
+from aev_ocp.models.leader import PaperLeader, SpeedTrace
+from aev_ocp.scenarios import (ScenarioError, ScenarioWarning, TableReader, find_scenario, load_scenario,
+                               register_section, shipped_scenarios)
+
+BASE = """
+name = "t"
+compare = ["proposed", "ovfl"]
+[units]
+length_m = 10.0
+speed_mps = 5.0
+[leader]
+kind = "paper"
+[platoon]
+followers = 3
+law = "proposed"
+gap0_first = 0.3
+gap0_others = 3.5
+speed0_factor = 1.1
+[carfollowing]
+kappa = 0.03
+[vehicle]
+mass_kg = 1752.0
+efficiency = 0.8
+[simulation]
+t_end = 5.0
+"""
+
+SHIPPED = ["fig1a", "fig1b", "table1", "udds_platoon", "hwfet_platoon", "us06_platoon"]
+
+
+def write(tmp_path: Path, text: str, name: str = "s.toml") -> Path:
+    p = tmp_path / name
+    p.write_text(text)
+    return p
+
+
+def edit(old: str, new: str) -> str:
+    assert old in BASE, old
+    return BASE.replace(old, new)
+
+
+def expect_error(tmp_path: Path, text: str, *fragments: str) -> str:
+    p = write(tmp_path, text)
+    with pytest.raises(ScenarioError) as info:
+        load_scenario(p)
+    msg = str(info.value)
+    assert str(p) in msg, msg
+    for frag in fragments:
+        assert frag in msg, f"{frag!r} not in {msg!r}"
+    assert "\n" not in msg
+    return msg
+
+
+def test_base_loads(tmp_path: Path) -> None:
+    s = load_scenario(write(tmp_path, BASE))
+    assert s.n_followers == 3
+    assert s.gaps0 == (0.3, 3.5, 3.5)
+    assert s.speeds0 == pytest.approx((1.87, 1.87, 1.87))
+    assert isinstance(s.leader, PaperLeader)
+    assert all(isinstance(law, Proposed) for law in s.laws)
+    assert [label for label, _ in s.runs()] == ["proposed", "ovfl"]
+    assert isinstance(s.runs()[1][1][0], OVFL)
+    assert s.ev.vehicle.mass_kg == 1752.0 and s.t_end == 5.0
+
+
+@pytest.mark.parametrize("name", SHIPPED)
+def test_shipped_scenarios_load(name: str) -> None:
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", ScenarioWarning)  # shipped leaders stay below V∞
+        s = load_scenario(find_scenario(name))
+    assert s.name == name
+    assert s.compare == ("proposed", "ovfl")
+    assert s.leader.max_speed(s.t_end) < V_INF
+    assert all(g > 0 for g in s.gaps0) and all(v >= 0 for v in s.speeds0)
+
+
+def test_shipped_list_is_complete() -> None:
+    assert set(SHIPPED) <= set(shipped_scenarios())
+
+
+def test_table1_matches_paper_setup() -> None:
+    s = load_scenario("table1")
+    assert s.n_followers == 5 and s.t_end == 70.0
+    assert s.gaps0 == (0.3, 3.5, 3.5, 3.5, 3.5)
+    assert s.speeds0 == pytest.approx((1.1 * 1.7,) * 5)
+    assert s.ev.vehicle.efficiency == 0.8
+    assert (s.cf.alpha, s.cf.beta, s.cf.kappa) == (2.0, 3.0, 0.03)
+
+
+def test_unknown_top_level_key(tmp_path: Path) -> None:
+    expect_error(tmp_path, BASE + "\n[mystery]\nx = 1\n", "'mystery'", "allowed")
+
+
+def test_unknown_nested_key(tmp_path: Path) -> None:
+    expect_error(tmp_path, edit("mass_kg = 1752.0", "mass_kg = 1752.0\nmas_kg = 3.0"), "vehicle.mas_kg", "3.0")
+
+
+def test_unknown_platoon_key(tmp_path: Path) -> None:
+    expect_error(tmp_path, edit("followers = 3", "followers = 3\ncolour = 'red'"), "platoon.colour", "'red'")
+
+
+def test_wrong_type(tmp_path: Path) -> None:
+    expect_error(tmp_path, edit("mass_kg = 1752.0", 'mass_kg = "heavy"'), "vehicle.mass_kg", "'heavy'", "number")
+
+
+def test_wrong_type_integer(tmp_path: Path) -> None:
+    expect_error(tmp_path, edit("followers = 3", "followers = 2.5"), "platoon.followers", "2.5", "integer")
+
+
+def test_negative_mass(tmp_path: Path) -> None:
+    expect_error(tmp_path, edit("mass_kg = 1752.0", "mass_kg = -5.0"), "vehicle.mass_kg", "-5.0", "> 0")
+
+
+def test_negative_kappa(tmp_path: Path) -> None:
+    expect_error(tmp_path, edit("kappa = 0.03", "kappa = -0.1"), "carfollowing.kappa", "-0.1", ">= 0")
+
+
+@pytest.mark.parametrize("old,new,key,value", [
+    ("gap0_first = 0.3", "gap0_first = 0.0", "platoon.gap0_first", "0.0"),
+    ("gap0_others = 3.5", "gap0_others = -1.0", "platoon.gap0_others", "-1.0"),
+])
+def test_gap_not_positive(tmp_path: Path, old: str, new: str, key: str, value: str) -> None:
+    expect_error(tmp_path, edit(old, new), key, value, "> 0")
+
+
+@pytest.mark.parametrize("eta", ["0.0", "1.2"])
+def test_efficiency_out_of_range(tmp_path: Path, eta: str) -> None:
+    expect_error(tmp_path, edit("efficiency = 0.8", f"efficiency = {eta}"), "vehicle.efficiency", eta, "(0, 1]")
+
+
+def test_negative_speed_and_t_end(tmp_path: Path) -> None:
+    expect_error(tmp_path, edit("speed0_factor = 1.1", "speed0 = -0.5"), "platoon.speed0", "-0.5")
+    expect_error(tmp_path, edit("t_end = 5.0", "t_end = 0.0"), "simulation.t_end", "0.0")
+
+
+def test_unknown_law(tmp_path: Path) -> None:
+    expect_error(tmp_path, edit('law = "proposed"', 'law = "warp"'), "platoon.law", "'warp'", "proposed")
+
+
+def test_unknown_law_in_compare(tmp_path: Path) -> None:
+    expect_error(tmp_path, edit('compare = ["proposed", "ovfl"]', 'compare = ["ovfl", "bogus"]'),
+                 "compare[1]", "'bogus'")
+
+
+def test_unknown_cycle(tmp_path: Path) -> None:
+    expect_error(tmp_path, edit('kind = "paper"', 'kind = "cycle"\ncycle = "nedc"'), "leader.cycle", "'nedc'", "udds")
+
+
+def test_unknown_leader_kind(tmp_path: Path) -> None:
+    expect_error(tmp_path, edit('kind = "paper"', 'kind = "teleport"'), "leader.kind", "'teleport'", "constant")
+
+
+def test_per_vehicle_list_length(tmp_path: Path) -> None:
+    text = edit("gap0_first = 0.3\ngap0_others = 3.5", "gaps0 = [0.3, 1.0]")
+    expect_error(tmp_path, text, "platoon.gaps0", "3 values")
+
+
+def test_file_not_found(tmp_path: Path) -> None:
+    missing = tmp_path / "nope.toml"
+    with pytest.raises(ScenarioError, match="nope.toml"):
+        load_scenario(missing)
+
+
+def test_malformed_toml(tmp_path: Path) -> None:
+    expect_error(tmp_path, BASE + "\n[units\n", "not valid TOML")
+
+
+def test_parameter_error_is_rewrapped_with_key_path(tmp_path: Path) -> None:
+    expect_error(tmp_path, BASE + "\n[cell]\nsoc0 = 1.5\n", "cell.soc0", "1.5", "[0, 1]")
+
+
+def test_speed_warning_fires(tmp_path: Path) -> None:
+    fast = edit('kind = "paper"', 'kind = "constant"\nv = 2.5').replace("speed0_factor = 1.1", "speed0 = 1.0")
+    with pytest.warns(ScenarioWarning, match="V∞"):
+        load_scenario(write(tmp_path, fast))
+
+
+def test_array_leader_si_and_model(tmp_path: Path) -> None:
+    arr = edit('kind = "paper"', 'kind = "array"\ntimes = [0, 10, 20]\nspeeds = [0, 8, 8]\nunit = "si"')
+    s = load_scenario(write(tmp_path, arr))
+    assert isinstance(s.leader, SpeedTrace)
+    assert s.leader.times == (0.0, 5.0, 10.0) and s.leader.speeds == (0.0, 1.6, 1.6)  # T = 2 s, U = 5 m/s
+    bad = edit('kind = "paper"', 'kind = "array"\ntimes = [0, 2, 1]\nspeeds = [0, 1, 1]')
+    expect_error(tmp_path, bad, "leader.times", "increase")
+
+
+def test_per_vehicle_laws_and_overrides(tmp_path: Path) -> None:
+    text = edit('law = "proposed"', 'laws = ["proposed", "ovfl", "idm"]') + "\n[carfollowing.idm]\nv0 = 1.9\n"
+    s = load_scenario(write(tmp_path, text.replace('compare = ["proposed", "ovfl"]\n', "")))
+    assert [law.name for law in s.laws] == ["proposed", "ovfl", "idm"]
+    assert s.laws[2].v0 == 1.9
+    assert len(s.runs()) == 1
+    bad = edit('law = "proposed"', 'law = "idm"') + "\n[carfollowing.idm]\nspeed_of_light = 3.0\n"
+    expect_error(tmp_path, bad, "carfollowing.idm", "speed_of_light")
+
+
+def test_many_followers(tmp_path: Path) -> None:
+    s = load_scenario(write(tmp_path, edit("followers = 3", "followers = 1200")))
+    assert s.n_followers == 1200 and len(s.gaps0) == 1200
+
+
+def test_registered_section(tmp_path: Path) -> None:
+    def validate(r: TableReader) -> dict[str, float]:
+        out = {"horizon": r.integer("horizon", 40, ge=1), "w_q": r.number("w_q", 1.0, ge=0)}
+        r.finish()
+        return out
+
+    register_section("testsection", validate)
+    s = load_scenario(write(tmp_path, BASE + "\n[testsection]\nhorizon = 20\n"))
+    assert s.extra["testsection"] == {"horizon": 20, "w_q": 1.0}
+    expect_error(tmp_path, BASE + "\n[testsection]\nw_q = -1\n", "testsection.w_q", "-1")
+    expect_error(tmp_path, BASE + "\n[testsection]\nbogus = 1\n", "testsection.bogus")
