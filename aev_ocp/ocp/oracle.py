@@ -1,0 +1,210 @@
+"""OCP-D: oracle following (PROBLEM.md §8 OCP-D with the cost and constraints of §9).
+
+The leader's whole trajectory is known; the ego state z = (h, v, V1, V2, S) and the piecewise-constant
+acceleration a are optimised over the whole scenario. This is the lower bound that the MPC and the
+closed-form laws are measured against (compare with :func:`stage_cost_of_trajectory`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import casadi as ca
+import numpy as np
+
+from ..models.carfollowing import CarFollowingLaw, Proposed
+from ..models.leader import LeaderProfile, PaperLeader, drive_cycle
+from ..params import EVParams, ParameterError, PowertrainOptions, Units
+from .following import (STATE_NAMES, FollowingBounds, FollowingWeights, following_functions,
+                        following_state_bounds, following_stage_terms)
+from .result import OCPResult
+from .transcription import OCPProblem, OCPSolver, TranscriptionOptions
+
+
+@dataclass(frozen=True)
+class OracleScenario:
+    """One follower behind a known leader. Model units: t_end, dt (model time), h0, v0 (model);
+    V10, V20 [V]; S0 [-]. Defaults: the canonical scenario of PROBLEM.md §9."""
+
+    leader: LeaderProfile = field(default_factory=PaperLeader)  # PROBLEM.md §9: Table 1 leader
+    t_end: float = 70.0  # PROBLEM.md §9: 700 steps, t ∈ [0, 70]
+    dt: float = 0.1  # PROBLEM.md §9
+    h0: float = 0.3  # PROBLEM.md §9
+    v0: float = 1.87  # PROBLEM.md §9 (1.1 × 1.7)
+    V10: float = 0.0  # PROBLEM.md §9
+    V20: float = 0.0  # PROBLEM.md §9
+    S0: float = 0.8  # PROBLEM.md §9 / §6
+    ev: EVParams = field(default_factory=EVParams)
+    weights: FollowingWeights = field(default_factory=FollowingWeights)
+    bounds: FollowingBounds = field(default_factory=FollowingBounds)
+    smooth: PowertrainOptions = field(default_factory=PowertrainOptions)  # PROBLEM.md §7: optimisers smooth η
+    objective: str = "heat"  # PROBLEM.md §9 default objective
+    name: str = "canonical"
+
+    def __post_init__(self) -> None:
+        for nm in ("t_end", "dt"):
+            v = getattr(self, nm)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+                raise ParameterError(f"OracleScenario.{nm} = {v!r} is not allowed: must be a finite number > 0")
+        n = self.t_end / self.dt
+        if abs(n - round(n)) > 1e-6:
+            raise ParameterError(f"OracleScenario.dt = {self.dt} must divide t_end = {self.t_end}")
+        if not 0.0 <= self.S0 <= 1.0:
+            raise ParameterError(f"OracleScenario.S0 = {self.S0!r} is not allowed: must be in [0, 1]")
+        if not (math.isfinite(self.h0) and self.h0 > 0):
+            raise ParameterError(f"OracleScenario.h0 = {self.h0!r} is not allowed: must be > 0")
+
+    @property
+    def N(self) -> int:
+        """Number of intervals t_end/dt."""
+        return int(round(self.t_end / self.dt))
+
+    @property
+    def z0(self) -> list[float]:
+        """Initial state (h, v, V1, V2, S)."""
+        return [self.h0, self.v0, self.V10, self.V20, self.S0]
+
+
+def canonical_scenario() -> OracleScenario:
+    """PROBLEM.md §9 canonical scenario: Table 1 leader, h(0) = 0.3, v(0) = 1.87, S(0) = 0.8, N = 700."""
+    return OracleScenario()
+
+
+def drive_cycle_scenario(cycle: str = "udds", duration_s: float = 600.0, speed_unit_mps: float = 13.0,
+                         dt_s: float = 0.5, h0: float = 0.5, v0: float = 0.0) -> OracleScenario:
+    """Follower behind an EPA cycle (first ``duration_s`` seconds). U = 13 m/s so that V∞·U = 25.5 m/s
+    exceeds UDDS's top speed 25.35 m/s (PROBLEM.md §1); L = 10 m; dt_s = 0.5 s (the cycles are
+    sampled at 1 s). h0, v0 in model units (UDDS starts at rest)."""
+    units = Units(10.0, speed_unit_mps)
+    leader = drive_cycle(cycle, units)
+    t_end = units.time_from_si(duration_s)
+    dt = units.time_from_si(dt_s)
+    return OracleScenario(leader=leader, t_end=t_end, dt=t_end / round(t_end / dt), h0=h0, v0=v0,
+                          ev=EVParams(units=units), name=f"{cycle}_{duration_s:g}s")
+
+
+def leader_forecast(leader: LeaderProfile, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Oracle forecast on node times t (N+1): interval-mean speed (x_l(t_{k+1}) − x_l(t_k))/dt_k and
+    v_l(t_k), both (N,) [model speed] (PROBLEM.md §9)."""
+    x = np.asarray(leader.position(t), float)
+    return np.diff(x) / np.diff(t), leader.speed_np(t[:-1])
+
+
+def oracle_problem(scn: OracleScenario) -> OCPProblem:
+    """OCP-D as an OCPProblem: sampled §9 stage cost, current constraints at interval starts,
+    state bounds at nodes 1…N (and collocation points)."""
+    fn = following_functions(scn.ev, scn.weights, scn.smooth, scn.objective)
+    xl, xu = following_state_bounds(scn.bounds)
+    Imax = scn.ev.cell.max_current_A
+    return OCPProblem(
+        name="ocp_d", state_names=list(STATE_NAMES), control_names=["a"], ode=fn["ode"], stage=fn["stage"],
+        path=fn["path"], path_lb=[-Imax, 0.0], path_ub=[Imax, ca.inf], outputs=fn["outputs"],
+        x_lb=xl, x_ub=xu, u_lb=[scn.bounds.a_min], u_ub=[scn.bounds.a_max],
+        x_scale=[1.0, 1.0, 0.01, 0.01, 1.0], u_scale=[1.0], time_unit="model")
+
+
+def law_rollout(scn: OracleScenario, law: CarFollowingLaw, substeps: int = 4) -> tuple[np.ndarray, np.ndarray]:
+    """Closed-form law sampled per dt (a_k = law(h_k, v_k, v_l(t_k)) clipped to the a bounds, held over
+    the interval; smoothed-η RK4). Used as the optimiser's initial guess. Returns X (5, N+1), U (1, N)."""
+    fn = following_functions(scn.ev, scn.weights, scn.smooth, scn.objective)
+    z, w = ca.SX.sym("z", 5), ca.SX.sym("w", 2)
+    a = ca.fmin(ca.fmax(law.accel(ca.fmax(z[0], 1e-3), z[1], w[1]), scn.bounds.a_min), scn.bounds.a_max)
+    dt = scn.dt / substeps
+    x = z
+    p0 = ca.SX.sym("p", 0)
+    for _ in range(substeps):
+        k1 = fn["ode"](x, a, w, p0)
+        k2 = fn["ode"](x + dt / 2 * k1, a, w, p0)
+        k3 = fn["ode"](x + dt / 2 * k2, a, w, p0)
+        k4 = fn["ode"](x + dt * k3, a, w, p0)
+        x = x + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+    x = ca.vertcat(ca.fmax(x[0], scn.bounds.h_min), ca.fmax(x[1], 0.0), x[2:])  # keep the guess in bounds
+    step = ca.Function("law_step", [z, w], [x, a])
+    t = np.linspace(0.0, scn.t_end, scn.N + 1)
+    vm, vh = leader_forecast(scn.leader, t)
+    roll = step.mapaccum(scn.N)
+    Xn, U = roll(ca.DM(scn.z0), np.vstack([vm, vh]))
+    return np.hstack([np.asarray(scn.z0, float).reshape(5, 1), np.asarray(Xn)]), np.asarray(U)
+
+
+class OracleSolver:
+    """OCP-D built once for a scenario's grid (N, dt); :meth:`solve` re-solves (warm) for new
+    initial states or leaders on the same grid."""
+
+    def __init__(self, scn: OracleScenario, method: str = "ms", rk4_substeps: int = 1, degree: int = 3,
+                 scheme: str = "radau", tol: float = 1e-8) -> None:
+        self.scn = scn
+        self.solver = OCPSolver(oracle_problem(scn), TranscriptionOptions(
+            method=method, N=scn.N, rk4_substeps=rk4_substeps, degree=degree, scheme=scheme, tol=tol))
+
+    @property
+    def build_time_s(self) -> float:
+        """Time to build the NLP and IPOPT [s]."""
+        return self.solver.build_time_s
+
+    def solve(self, scn: OracleScenario | None = None, warm: bool = False,
+              guess_law: CarFollowingLaw | None = None) -> OCPResult:
+        """Solve for ``scn`` (default: the scenario given at construction; must have the same N).
+        Initial guess: the proposed law rolled out per dt (or the previous solution if warm)."""
+        scn = scn or self.scn
+        if scn.N != self.scn.N:
+            raise ParameterError(f"OracleSolver: scenario has N = {scn.N}, solver was built for N = {self.scn.N}")
+        t = np.linspace(0.0, scn.t_end, scn.N + 1)
+        vm, vh = leader_forecast(scn.leader, t)
+        guess = None
+        if not warm:
+            guess = law_rollout(scn, guess_law or Proposed())
+        res = self.solver.solve(scn.z0, scn.t_end, w=np.vstack([vm, vh]), guess=guess, warm=warm,
+                                objective_name="sum_k l(z_k, a_k) dt (PROBLEM.md §9)")
+        res.meta.update({"scenario": scn.name, "dt": scn.dt, "leader_speed_mean": vm, "leader_speed_hat": vh,
+                         "units": {"length_m": scn.ev.units.length_m, "speed_mps": scn.ev.units.speed_mps}})
+        if res.success:
+            res.meta["cost_terms"] = stage_cost_of_trajectory(
+                t, res.states["h"], res.states["v"], res.states["V1"], res.states["V2"], res.states["S"],
+                res.controls["a"], vh, scn.weights, scn.ev, scn.smooth, scn.objective)
+        return res
+
+
+def stage_cost_of_trajectory(t: np.ndarray, h: np.ndarray, v: np.ndarray, V1: np.ndarray, V2: np.ndarray,
+                             S: np.ndarray, a: np.ndarray, v_l_hat: np.ndarray,
+                             weights: FollowingWeights | None = None, ev: EVParams | None = None,
+                             smooth: PowertrainOptions | None = PowertrainOptions(),
+                             objective: str = "heat") -> dict[str, float]:
+    """The §9 cost Σ_k ℓ(z_k, a_k)·dt_k of a sampled trajectory, for comparing any controller with
+    the OCP-D lower bound.
+
+    t: node times t_0 … t_N [model time] (N+1); h, v [model], V1, V2 [V], S [-]: states at the nodes
+    (at least the first N are used); a: acceleration held on [t_k, t_{k+1}) [model] (N); v_l_hat:
+    leader speed v_l(t_k) at the start of each interval [model] (N). weights/ev: as in the OCP
+    (defaults PROBLEM.md §9). smooth: η-switch smoothing used in Q_pack (default the optimiser's,
+    PROBLEM.md §7; None = exact switch). Returns total and the four weighted terms, each Σ·dt.
+    """
+    weights, ev = weights or FollowingWeights(), ev or EVParams()
+    t = np.asarray(t, float).ravel()
+    N = t.size - 1
+    a = np.asarray(a, float).ravel()
+    vl = np.asarray(v_l_hat, float).ravel()
+    if N < 1 or a.size != N or vl.size != N:
+        raise ParameterError(f"stage_cost_of_trajectory: t has {t.size} nodes, so a and v_l_hat need {N} "
+                             f"values (got a: {a.size}, v_l_hat: {vl.size})")
+    Z = []
+    for nm, arr in (("h", h), ("v", v), ("V1", V1), ("V2", V2), ("S", S)):
+        arr = np.asarray(arr, float).ravel()
+        if arr.size < N:
+            raise ParameterError(f"stage_cost_of_trajectory: {nm} has {arr.size} values, need at least {N}")
+        Z.append(arr[:N])
+    z, u, vh = ca.SX.sym("z", 5), ca.SX.sym("a"), ca.SX.sym("vh")
+    terms = following_stage_terms(z, u, vh, weights, ev, smooth, objective)
+    f = ca.Function("ell_terms", [z, u, vh], [ca.vertcat(*terms.values())]).map(N)
+    vals = np.asarray(f(np.vstack(Z), a.reshape(1, -1), vl.reshape(1, -1)))
+    dt = np.diff(t)
+    out = {nm: float(vals[i] @ dt) for i, nm in enumerate(terms)}
+    out["total"] = float(sum(out[nm] for nm in terms))
+    return out
+
+
+def solve_oracle(scn: OracleScenario | None = None, method: str = "ms", **kw: Any) -> OCPResult:
+    """Build and solve OCP-D once (default: canonical scenario)."""
+    return OracleSolver(scn or canonical_scenario(), method=method, **kw).solve()
