@@ -1,0 +1,106 @@
+"""Numerical checks of the paper's claims about the proposed model (paper Theorem 4.1, §5, §6).
+
+* Theorem 4.1: ω(proposed) ≤ ω(OVFL) for the same initial condition and leader, on any finite horizon.
+  Checked on the paper's own platoon (every follower) and on random single-follower cases.
+* The proof's intermediate step: the OVFL follower is never slower than the proposed one (Δv ≥ 0).
+* §6: no collision or negative speed in the paper's platoon.
+
+Every number here comes from :mod:`aev_ocp.simulate`; nothing is assumed from the paper.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Callable
+
+import numpy as np
+
+from .models.carfollowing import OVFL, Proposed
+from .models.leader import ConstantSpeed, LeaderProfile, PaperLeader
+from .simulate import PlatoonSimulator, SimOptions
+
+ProgressFn = Callable[[str], None]
+
+
+@dataclass(frozen=True)
+class Theorem41Case:
+    """One comparison of the proposed law and OVFL from the same initial condition (model units)."""
+
+    leader: str  # "paper" or "constant"
+    leader_speed: float | None  # the constant leader's speed, None for the paper leader
+    gap0: float
+    speed0: float
+    kappa: float
+    omega_proposed: float
+    omega_ovfl: float
+    max_speed_excess: float  # max_t (v_proposed − v_ovfl): > 0 contradicts the proof's Δv ≥ 0
+    status: str
+
+    @property
+    def violates(self) -> bool:
+        """ω(proposed) > ω(OVFL) beyond integration error (1e-6)."""
+        return self.omega_proposed > self.omega_ovfl + 1e-6
+
+
+def compare_laws(leader: LeaderProfile, gaps0: list[float], speeds0: list[float], t_end: float,
+                 kappa: float = 0.03, alpha: float = 2.0, beta: float = 3.0, rtol: float = 1e-10,
+                 dt_out: float = 0.01) -> dict[str, Any]:
+    """Run the proposed law and OVFL on the same platoon; ω per follower and the speed ordering."""
+    out: dict[str, Any] = {}
+    res = {}
+    for law in (Proposed(alpha, beta, kappa), OVFL(alpha, beta)):
+        sim = PlatoonSimulator(leader, [law] * len(gaps0), options=SimOptions(dt_out=dt_out, rtol=rtol, atol=rtol),
+                               battery=False)
+        res[law.name] = sim.run(gaps0, speeds0, t_end)
+    p, o = res["proposed"], res["ovfl"]
+    k = min(p.t.size, o.t.size)
+    out["omega_proposed"] = p.omega[-1].tolist()
+    out["omega_ovfl"] = o.omega[-1].tolist()
+    out["max_speed_excess"] = np.max(p.speed[:k] - o.speed[:k], axis=0).tolist()
+    out["status"] = p.status if p.status != "ok" else o.status
+    return out
+
+
+def paper_platoon_check() -> dict[str, Any]:
+    """Theorem 4.1 and §6 on the paper's Table 1 platoon (5 followers, t ∈ [0, 70])."""
+    gaps = [0.3] + [3.5] * 4
+    speeds = [1.1 * 1.7] * 5
+    r = compare_laws(PaperLeader(), gaps, speeds, 70.0)
+    r["violating_followers"] = [i + 1 for i, (a, b) in enumerate(zip(r["omega_proposed"], r["omega_ovfl"]))
+                                if a > b + 1e-6]
+    r["followers_faster_under_proposed"] = [i + 1 for i, d in enumerate(r["max_speed_excess"]) if d > 1e-9]
+    return r
+
+
+def random_cases(n_cases: int = 60, seed: int = 2025, t_end: float = 70.0,
+                 progress: ProgressFn | None = None) -> list[Theorem41Case]:
+    """Random single-follower cases: paper leader or a constant leader, random gap, speed and κ."""
+    rng = np.random.default_rng(seed)
+    cases = []
+    for j in range(n_cases):
+        paper = j % 2 == 0
+        leader: LeaderProfile = PaperLeader() if paper else ConstantSpeed(float(rng.uniform(0.2, 1.8)))
+        gap0 = float(rng.uniform(0.3, 4.0))
+        speed0 = float(rng.uniform(0.2, 1.95))
+        kappa = float(rng.choice([0.01, 0.03, 0.1, 0.3]))
+        r = compare_laws(leader, [gap0], [speed0], t_end, kappa=kappa, dt_out=0.05)
+        cases.append(Theorem41Case("paper" if paper else "constant", None if paper else float(leader.speed(0.0)),
+                                   gap0, speed0, kappa,
+                                   r["omega_proposed"][0], r["omega_ovfl"][0], r["max_speed_excess"][0],
+                                   r["status"]))
+        if progress is not None and (j + 1) % 10 == 0:
+            progress(f"Theorem 4.1 random cases: {j + 1}/{n_cases}")
+    return cases
+
+
+def theorem41_summary(cases: list[Theorem41Case]) -> dict[str, Any]:
+    """Counts of cases that contradict Theorem 4.1 and the proof's Δv ≥ 0 step."""
+    ok = [c for c in cases if c.status == "ok"]
+    worst = max(ok, key=lambda c: c.omega_proposed - c.omega_ovfl) if ok else None
+    return {
+        "n_cases": len(cases),
+        "n_completed": len(ok),
+        "n_violating_theorem": sum(c.violates for c in ok),
+        "n_violating_speed_ordering": sum(c.max_speed_excess > 1e-9 for c in ok),
+        "worst_case": vars(worst) if worst else None,
+    }
