@@ -266,6 +266,22 @@ class Scenario:
         return {"gaps0": list(self.gaps0), "speeds0": list(self.speeds0), "t_end": self.t_end,
                 "ev": self.ev, "dt_out": self.dt_out, "rtol": self.rtol, "atol": self.atol}
 
+    def run(self, progress: Callable[[str, float, float], None] | None = None,
+            **overrides: Any) -> dict[str, Any]:
+        """Simulate every run of :meth:`runs`; returns {label: SimulationResult}.
+
+        progress(label, t, t_end) is called as each run advances [model time]; ``overrides`` replace
+        keyword arguments of :func:`aev_ocp.simulate.simulate_platoon` (e.g. rtol, dt_out, t_end).
+        """
+        from .simulate import simulate_platoon
+
+        out: dict[str, Any] = {}
+        for label, laws in self.runs():
+            kwargs = {**self.simulate_kwargs(), **overrides}
+            cb = (lambda t, te, _l=label: progress(_l, t, te)) if progress is not None else None
+            out[label] = simulate_platoon(self.leader, list(laws), progress=cb, **kwargs)
+        return out
+
     def replace(self, **changes: Any) -> "Scenario":
         """A copy with some fields changed (e.g. a shorter t_end for a quick run)."""
         return dataclasses.replace(self, **changes)

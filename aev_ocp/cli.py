@@ -1,0 +1,164 @@
+"""Command line: ``aev-ocp reproduce | simulate | scenarios | ocp | mpc``.
+
+A thin layer over the Python API (:mod:`aev_ocp.reproduce`, :mod:`aev_ocp.scenarios`,
+:mod:`aev_ocp.report`). Errors print one line ``aev-ocp: error: ...`` on stderr. Exit codes:
+0 success, 1 a run failed (a simulation event such as a collision; its results are still written),
+2 bad input (invalid scenario or parameters, unreadable file, bad arguments).
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+import warnings
+from pathlib import Path
+from typing import Sequence
+
+from .params import ParameterError
+
+EXIT_OK, EXIT_FAILED_RUN, EXIT_BAD_INPUT = 0, 1, 2
+
+
+def _err(message: str) -> None:
+    first = " ".join(str(message).split())  # one line, whatever the message holds
+    print(f"aev-ocp: error: {first}", file=sys.stderr, flush=True)
+
+
+def _warn(message: str) -> None:
+    print(f"aev-ocp: warning: {' '.join(str(message).split())}", file=sys.stderr, flush=True)
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse with the one-line error format and exit code 2."""
+
+    def error(self, message: str) -> None:  # type: ignore[override]
+        _err(f"{message} (try '{self.prog} --help')")
+        raise SystemExit(EXIT_BAD_INPUT)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser (sub-commands reproduce, simulate, scenarios; ocp and mpc are dispatched)."""
+    p = _Parser(prog="aev-ocp", description="Energy-aware control of autonomous electric vehicles (CasADi).")
+    sub = p.add_subparsers(dest="command", required=True, parser_class=_Parser)
+    r = sub.add_parser("reproduce", help="reproduce the paper's figures and Table 1, write report.md")
+    r.add_argument("--out", default="results", help="output folder (default: results/)")
+    r.add_argument("--quick", action="store_true", help="a cheap smoke run (short horizons), not the reproduction")
+    s = sub.add_parser("simulate", help="simulate a scenario file: trajectories CSV, metrics JSON, plots")
+    s.add_argument("scenario", help="a scenario .toml file or the name of a shipped scenario (e.g. table1)")
+    s.add_argument("--out", default=None, help="output folder (default: results/<scenario name>/)")
+    s.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
+    sub.add_parser("scenarios", help="list the shipped scenarios")
+    sub.add_parser("ocp", help="optimal-control problems (see aev-ocp ocp --help)", add_help=False)
+    sub.add_parser("mpc", help="model predictive control (see aev-ocp mpc --help)", add_help=False)
+    return p
+
+
+def _load_scenario_or_exit(path: str):  # noqa: ANN202 - returns Scenario
+    from .scenarios import load_scenario
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        scenario = load_scenario(path)
+    for w in caught:
+        _warn(str(w.message))
+    return scenario
+
+
+def cmd_simulate(args: argparse.Namespace) -> int:
+    """Run every law of a scenario and write its files; exit 1 if any run stopped on an event."""
+    from .report import scenario_metrics_rows, write_scenario_outputs
+
+    scenario = _load_scenario_or_exit(args.scenario)
+    out = Path(args.out) if args.out else Path("results") / scenario.name
+    last: dict[str, int] = {}
+
+    def progress(label: str, t: float, t_end: float) -> None:
+        pct = int(100 * t / t_end)
+        if pct // 25 != last.get(label, -1):
+            last[label] = pct // 25
+            print(f"[{scenario.name}] {label}: t = {t:.4g} / {t_end:g} ({pct}%)", file=sys.stderr, flush=True)
+
+    results = scenario.run(progress=progress)
+    files = write_scenario_outputs(scenario.name, results, out, plots=not args.no_plots)
+    headers, rows = scenario_metrics_rows(results)
+    keep = [0, 1, 2, 4, 6, 7, 9]
+    print("  ".join(f"{headers[k]:>12}" for k in keep))
+    for row in rows:
+        print("  ".join(f"{row[k]:>12}" for k in keep))
+    print(f"wrote {len(files)} files to {out}/")
+    failed = [(label, r.events[0]) for label, r in results.items() if r.events]
+    for label, event in failed:
+        _err(f"scenario {scenario.name}, run {label}: {event} (results up to that time written to {out}/)")
+    return EXIT_FAILED_RUN if failed else EXIT_OK
+
+
+def cmd_reproduce(args: argparse.Namespace) -> int:
+    """Reproduce the paper into ``--out``."""
+    from .reproduce import ReproduceConfig, reproduce
+
+    report = reproduce(args.out, ReproduceConfig.quick() if args.quick else ReproduceConfig())
+    print(f"wrote {report}")
+    return EXIT_OK
+
+
+def cmd_scenarios(args: argparse.Namespace) -> int:
+    """List shipped scenarios with their descriptions."""
+    from .scenarios import shipped_scenarios
+
+    for name, path in shipped_scenarios().items():
+        scenario = _load_scenario_or_exit(str(path))
+        print(f"{name:16s} {scenario.description}  [{path}]")
+    return EXIT_OK
+
+
+def _dispatch(module: str, func: str, argv: list[str]) -> int:
+    try:
+        mod = importlib.import_module(module)
+        fn = getattr(mod, func)
+    except (ImportError, AttributeError) as exc:
+        _err(f"'{module.rsplit('.', 1)[-1]}' commands are not available in this installation ({exc})")
+        return EXIT_BAD_INPUT
+    rc = fn(argv)
+    return int(rc or 0)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of ``aev-ocp``; returns the exit code (also raised as SystemExit by the script)."""
+    from .scenarios import ScenarioError
+
+    args_list = list(sys.argv[1:] if argv is None else argv)
+    if args_list and args_list[0] in ("ocp", "mpc"):
+        name = args_list[0]
+        try:
+            return _dispatch(f"aev_ocp.{name}", f"cli_{name}", args_list[1:])
+        except (ScenarioError, ParameterError, OSError) as exc:
+            _err(str(exc))
+            return EXIT_BAD_INPUT
+    try:
+        args = build_parser().parse_args(args_list)
+    except SystemExit as exc:
+        return int(exc.code or 0)
+    handlers = {"simulate": cmd_simulate, "reproduce": cmd_reproduce, "scenarios": cmd_scenarios}
+    try:
+        return handlers[args.command](args)
+    except (ScenarioError, ParameterError) as exc:
+        _err(str(exc))
+        return EXIT_BAD_INPUT
+    except OSError as exc:
+        _err(f"{exc.strerror or exc}: {exc.filename}" if exc.filename else str(exc))
+        return EXIT_BAD_INPUT
+    except RuntimeError as exc:  # a solver failure that the simulator could not turn into an event
+        _err(f"run failed: {exc}")
+        return EXIT_FAILED_RUN
+    except KeyboardInterrupt:
+        _err("interrupted")
+        return 130
+
+
+def _console() -> None:  # pragma: no cover - used when run as ``python -m aev_ocp.cli``
+    raise SystemExit(main())
+
+
+if __name__ == "__main__":  # pragma: no cover
+    _console()
