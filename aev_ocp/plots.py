@@ -129,9 +129,9 @@ def plot_platoon(r: SimulationResult, path: str | os.PathLike[str], *, v_eq: flo
     if v_eq is not None:
         ax1.axhline(equilibrium_gap(v_eq), color="gray", ls="--", lw=1.2, label=f"V⁻¹({v_eq:.3f})")
         ax2.axhline(0.0, color="gray", ls="--", lw=1.2, label="0")
-    ax1.set_ylabel("spacing x_{n−1} − x_n [model length]")
+    ax1.set_ylabel("spacing x(n−1) − x(n) [model length]")
     ax1.set_title("(a) spacing", fontsize=10)
-    ax2.set_ylabel("relative velocity v_{n−1} − v_n [model speed]")
+    ax2.set_ylabel("relative velocity v(n−1) − v(n) [model speed]")
     ax2.set_title("(b) relative velocity", fontsize=10)
     for ax in (ax1, ax2):
         ax.set_xlabel("t [model time]")
