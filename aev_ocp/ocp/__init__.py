@@ -1,11 +1,19 @@
 """Optimal control (PROBLEM.md §8–§9): a transcription layer (multiple shooting / collocation, IPOPT)
 and the four problems OCP-A (Proposition 3.1), OCP-B (current profile), OCP-C (eco-trip) and
 OCP-D (oracle following, the lower bound). Nothing here plots; see :mod:`aev_ocp.ocp_plots`.
+
+The §9 stage cost and constraints shared with the MPC live in :mod:`aev_ocp.ocp.following`.
 """
 
-from .api import run_prop31
+from .api import run_current_profile, run_eco_trip, run_oracle, run_prop31
 from .cli import cli_ocp
+from .following import (FollowingBounds, FollowingWeights, following_ode, following_path_constraints,
+                        following_stage_cost)
+from .oracle import OracleScenario, OracleSolver, canonical_scenario, stage_cost_of_trajectory
 from .result import OCPResult
 from .transcription import OCPProblem, OCPSolver, TranscriptionOptions
 
-__all__ = ["OCPResult", "OCPProblem", "OCPSolver", "TranscriptionOptions", "cli_ocp", "run_prop31"]
+__all__ = ["OCPResult", "OCPProblem", "OCPSolver", "TranscriptionOptions", "cli_ocp", "run_prop31",
+           "run_current_profile", "run_eco_trip", "run_oracle", "FollowingBounds", "FollowingWeights",
+           "following_ode", "following_path_constraints", "following_stage_cost", "OracleScenario",
+           "OracleSolver", "canonical_scenario", "stage_cost_of_trajectory"]

@@ -1,7 +1,149 @@
-"""Top-level entry points of the OCP package (Python API behind ``aev-ocp ocp …``)."""
+"""Top-level entry points of the OCP package (Python API behind ``aev-ocp ocp …``).
+
+Each ``run_*`` returns a dict with at least 'result' (OCPResult) or cases, 'table' (text), 'ok'
+(bool), and writes JSON/CSV/PNG into ``out_dir`` when given.
+"""
 
 from __future__ import annotations
 
-from .prop31 import run_prop31
+import math
+from pathlib import Path
+from typing import Any, Sequence
 
-__all__ = ["run_prop31"]
+import numpy as np
+
+from ..models.carfollowing import OVFL, Proposed
+from ..params import EVParams
+from .current_profile import E_REQ_J, SOC0, T_F_S, CurrentProfileSolver, compare_profiles
+from .eco_trip import EcoTrip, EcoTripSolver
+from .oracle import (OracleScenario, OracleSolver, canonical_scenario, drive_cycle_scenario, leader_forecast,
+                     rollout_guess, stage_cost_of_trajectory)
+from .prop31 import run_prop31
+from .result import OCPResult, write_json_atomic
+
+__all__ = ["run_prop31", "run_current_profile", "run_eco_trip", "run_oracle", "scenario_ev", "oracle_scenario_from_file"]
+
+
+def _load(scenario: str | Path | None) -> Any:
+    if scenario is None:
+        return None
+    from ..scenarios import load_scenario  # written by another module; imported only when needed
+
+    return load_scenario(scenario)
+
+
+def scenario_ev(scenario: str | Path | None) -> EVParams:
+    """The EVParams of a scenario TOML (default parameters if None)."""
+    sc = _load(scenario)
+    return sc.ev if sc is not None else EVParams()
+
+
+def oracle_scenario_from_file(path: str | Path, dt: float = 0.1) -> OracleScenario:
+    """OCP-D scenario from a scenario TOML: its leader, t_end, units/vehicle/cell/pack, and follower 1's
+    h(0), v(0); dt [model time] (PROBLEM.md §9 default 0.1) is adjusted to divide t_end."""
+    sc = _load(path)
+    n = max(1, round(sc.t_end / dt))
+    return OracleScenario(leader=sc.leader, t_end=sc.t_end, dt=sc.t_end / n, h0=sc.gaps0[0], v0=sc.speeds0[0],
+                          ev=sc.ev, name=sc.name)
+
+
+def _write_result(res: OCPResult, out: Path, stem: str) -> None:
+    from ..ocp_plots import plot_result
+
+    if res.success:
+        res.to_csv(out / f"{stem}.csv")
+        plot_result(res, out / f"{stem}.png")
+    res.to_json(out / f"{stem}.json")
+
+
+def run_current_profile(method: str = "ms", out_dir: str | Path | None = None, scenario: str | Path | None = None,
+                        N: int = 200, E_req_J: float = E_REQ_J, t_f_s: float = T_F_S, S0: float = SOC0,
+                        sweep_E_J: Sequence[float] = (1000.0, 2000.0, 3000.0, 4000.0, 6000.0),
+                        sweep_t_f_s: Sequence[float] = (30.0, 60.0, 120.0)) -> dict[str, Any]:
+    """OCP-B: optimal current for (E_req_J [J], t_f_s [s]) vs constant current / constant power, and a
+    sweep over E_req × t_f (one solver, re-solved). Cell parameters from ``scenario`` if given."""
+    solver = CurrentProfileSolver(method, N, cell=scenario_ev(scenario).cell)
+    main = compare_profiles(E_req_J, t_f_s, S0, solver)
+    rows = [compare_profiles(E, tf, S0, solver)["row"] for tf in sweep_t_f_s for E in sweep_E_J]
+    hdr = f"{'E_req [J]':>10}{'t_f [s]':>9}{'status':>12}{'opt ∫Q [J]':>13}{'CC ∫Q [J]':>12}{'CP ∫Q [J]':>12}{'vs CC %':>9}{'vs CP %':>9}"
+    lines = ["OCP-B optimal current profile vs constant current (CC) / constant power (CP)", hdr]
+    for r in [main["row"]] + rows:
+        lines.append(f"{r['E_req_J']:>10g}{r['t_f_s']:>9g}{r['status']:>12}{r['optimal_heat_J']:>13.5g}"
+                     f"{r['constant_current_heat_J']:>12.5g}{r['constant_power_heat_J']:>12.5g}"
+                     f"{r.get('saving_vs_cc_pct', math.nan):>9.3f}{r.get('saving_vs_cp_pct', math.nan):>9.3f}")
+    out = {"result": main["result"], "row": main["row"], "references": main["references"], "sweep": rows,
+           "table": "\n".join(lines), "ok": main["result"].success}
+    if out_dir is not None:
+        o = Path(out_dir)
+        _write_result(main["result"], o, "current_profile")
+        write_json_atomic(o / "current_profile_sweep.json", {"main": main["row"], "references": main["references"],
+                                                             "sweep": rows})
+        from ..ocp_plots import plot_sweep
+
+        plot_sweep([r for r in rows if r["status"] in ("optimal", "acceptable")], "E_req_J",
+                   ["optimal_heat_J", "constant_current_heat_J", "constant_power_heat_J"],
+                   o / "current_profile_sweep.png", group="t_f_s", ylabel="∫Q dt [J per cell]")
+    return out
+
+
+def run_eco_trip(method: str = "ms", out_dir: str | Path | None = None, scenario: str | Path | None = None,
+                 N: int = 200, trip: EcoTrip | None = None) -> dict[str, Any]:
+    """OCP-C for ``trip`` (default EcoTrip(): 1 km in 100 s, rest to rest), objective 'heat' and the
+    paper's ω ('energy'), each evaluated on both metrics. Vehicle/pack from ``scenario`` if given."""
+    base = trip or EcoTrip(ev=scenario_ev(scenario))
+    results: dict[str, OCPResult] = {}
+    for obj in ("heat", "energy"):
+        tr = EcoTrip(**{**{k: getattr(base, k) for k in base.__dataclass_fields__}, "objective": obj})
+        results[obj] = EcoTripSolver(tr, method, N).solve()
+    lines = ["OCP-C eco-trip: " + f"{base.distance_m:g} m in {base.t_f_s:g} s, v {base.v0_mps:g} -> {base.vf_mps:g} m/s",
+             f"{'objective':>10}{'status':>12}{'iter':>6}{'pack ∫Q [J]':>14}{'ω [J/kg]':>11}{'max v [m/s]':>13}{'max |I| [A]':>13}"]
+    for obj, r in results.items():
+        if r.success:
+            t = r.t
+            omega = float(np.sum(np.diff(t) * 0.5 * (r.outputs["omega_rate"][1:] + r.outputs["omega_rate"][:-1])))
+            r.meta["omega_J_per_kg"] = omega
+            lines.append(f"{obj:>10}{r.status:>12}{r.iterations:>6}{r.meta['pack_heat_J']:>14.5g}{omega:>11.5g}"
+                         f"{r.states['v'].max():>13.4g}{np.abs(r.I).max():>13.4g}")
+        else:
+            lines.append(f"{obj:>10}{r.status:>12}{r.iterations:>6}  {r.message}")
+    out = {"result": results["heat"], "results": results, "table": "\n".join(lines),
+           "ok": all(r.success for r in results.values())}
+    if out_dir is not None:
+        for obj, r in results.items():
+            _write_result(r, Path(out_dir), f"eco_trip_{obj}")
+    return out
+
+
+def run_oracle(method: str = "ms", out_dir: str | Path | None = None, scenario: str | Path | None = None,
+               which: str = "canonical") -> dict[str, Any]:
+    """OCP-D lower bound. scenario: a TOML file, else ``which`` = 'canonical' (PROBLEM.md §9) or
+    'udds' (first 600 s of UDDS, U = 13 m/s, dt = 0.5 s). Also reports the same §9 cost of the
+    proposed law and OVFL sampled per dt (when the sampled law is stable, α·dt < 1)."""
+    if scenario is not None:
+        scn = oracle_scenario_from_file(scenario)
+    else:
+        scn = canonical_scenario() if which == "canonical" else drive_cycle_scenario(which)
+    solver = OracleSolver(scn, method=method)
+    res = solver.solve()
+    t = np.linspace(0.0, scn.t_end, scn.N + 1)
+    _, vh = leader_forecast(scn.leader, t)
+    laws: dict[str, float] = {}
+    for law in (Proposed(), OVFL()):
+        if law.alpha * scn.dt < 1.0:
+            X, U = rollout_guess(scn, law)
+            laws[law.name] = stage_cost_of_trajectory(t, *X, U.ravel(), vh, scn.weights, scn.ev, scn.smooth,
+                                                      scn.objective)["total"]
+    lines = [f"OCP-D oracle following, scenario {scn.name}: N = {scn.N}, dt = {scn.dt:g} (model time), method {method}",
+             f"status {res.status} ({res.message}), iterations {res.iterations}, solve {res.wall_time_s:.3f} s, "
+             f"build {solver.build_time_s:.2f} s, max violation {res.max_violation:.2g}",
+             f"lower bound Σℓ·dt = {res.objective:.6g}"]
+    if res.success:
+        lines.append("  terms: " + ", ".join(f"{k} {v:.5g}" for k, v in res.meta["cost_terms"].items()))
+    for nm, c in laws.items():
+        lines.append(f"{nm} (sampled per dt, same §9 cost): {c:.6g}")
+    res.meta["closed_form_costs"] = laws
+    out = {"result": res, "closed_form_costs": laws, "table": "\n".join(lines), "ok": res.success,
+           "build_time_s": solver.build_time_s}
+    if out_dir is not None:
+        _write_result(res, Path(out_dir), f"oracle_{scn.name}")
+    return out

@@ -105,27 +105,40 @@ def oracle_problem(scn: OracleScenario) -> OCPProblem:
         x_scale=[1.0, 1.0, 0.01, 0.01, 1.0], u_scale=[1.0], time_unit="model")
 
 
-def law_rollout(scn: OracleScenario, law: CarFollowingLaw, substeps: int = 4) -> tuple[np.ndarray, np.ndarray]:
-    """Closed-form law sampled per dt (a_k = law(h_k, v_k, v_l(t_k)) clipped to the a bounds, held over
-    the interval; smoothed-η RK4). Used as the optimiser's initial guess. Returns X (5, N+1), U (1, N)."""
+def _step_function(scn: OracleScenario, policy: str, law: CarFollowingLaw | None, substeps: int) -> ca.Function:
+    """One interval of the smoothed-η model (RK4) under a policy: 'law' (a_k = law(h_k, v_k, v_l(t_k)))
+    or 'copy' (a_k drives v to the leader's next node speed); a_k clipped to the a bounds."""
     fn = following_functions(scn.ev, scn.weights, scn.smooth, scn.objective)
-    z, w = ca.SX.sym("z", 5), ca.SX.sym("w", 2)
-    a = ca.fmin(ca.fmax(law.accel(ca.fmax(z[0], 1e-3), z[1], w[1]), scn.bounds.a_min), scn.bounds.a_max)
+    z, w = ca.SX.sym("z", 5), ca.SX.sym("w", 3)  # w = (v̄_l, v_l(t_k), v_l(t_{k+1}))
+    if policy == "law" and law is not None:
+        a_raw = law.accel(ca.fmax(z[0], 1e-3), z[1], w[1])
+    else:
+        a_raw = (w[2] - z[1]) / scn.dt
+    a = ca.fmin(ca.fmax(a_raw, scn.bounds.a_min), scn.bounds.a_max)
     dt = scn.dt / substeps
     x = z
     p0 = ca.SX.sym("p", 0)
     for _ in range(substeps):
-        k1 = fn["ode"](x, a, w, p0)
-        k2 = fn["ode"](x + dt / 2 * k1, a, w, p0)
-        k3 = fn["ode"](x + dt / 2 * k2, a, w, p0)
-        k4 = fn["ode"](x + dt * k3, a, w, p0)
+        k1 = fn["ode"](x, a, w[:2], p0)
+        k2 = fn["ode"](x + dt / 2 * k1, a, w[:2], p0)
+        k3 = fn["ode"](x + dt / 2 * k2, a, w[:2], p0)
+        k4 = fn["ode"](x + dt * k3, a, w[:2], p0)
         x = x + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
     x = ca.vertcat(ca.fmax(x[0], scn.bounds.h_min), ca.fmax(x[1], 0.0), x[2:])  # keep the guess in bounds
-    step = ca.Function("law_step", [z, w], [x, a])
+    return ca.Function("guess_step", [z, w], [x, a])
+
+
+def rollout_guess(scn: OracleScenario, law: CarFollowingLaw | None = None, substeps: int = 4) -> tuple[np.ndarray, np.ndarray]:
+    """Initial guess for OCP-D: the closed-form ``law`` sampled per dt (a_k held over the interval),
+    or, when law is None or α·dt ≥ 1 (the sampled law would oscillate), a speed copy of the leader.
+    Returns X (5, N+1), U (1, N)."""
+    alpha = getattr(law, "alpha", 0.0)
+    policy = "law" if law is not None and alpha * scn.dt < 1.0 else "copy"
+    step = _step_function(scn, policy, law, substeps)
     t = np.linspace(0.0, scn.t_end, scn.N + 1)
     vm, vh = leader_forecast(scn.leader, t)
-    roll = step.mapaccum(scn.N)
-    Xn, U = roll(ca.DM(scn.z0), np.vstack([vm, vh]))
+    vnext = scn.leader.speed_np(t[1:])
+    Xn, U = step.mapaccum(scn.N)(ca.DM(scn.z0), np.vstack([vm, vh, vnext]))
     return np.hstack([np.asarray(scn.z0, float).reshape(5, 1), np.asarray(Xn)]), np.asarray(U)
 
 
@@ -147,7 +160,7 @@ class OracleSolver:
     def solve(self, scn: OracleScenario | None = None, warm: bool = False,
               guess_law: CarFollowingLaw | None = None) -> OCPResult:
         """Solve for ``scn`` (default: the scenario given at construction; must have the same N).
-        Initial guess: the proposed law rolled out per dt (or the previous solution if warm)."""
+        Initial guess: :func:`rollout_guess` with the proposed law (or the previous solution if warm)."""
         scn = scn or self.scn
         if scn.N != self.scn.N:
             raise ParameterError(f"OracleSolver: scenario has N = {scn.N}, solver was built for N = {self.scn.N}")
@@ -155,7 +168,7 @@ class OracleSolver:
         vm, vh = leader_forecast(scn.leader, t)
         guess = None
         if not warm:
-            guess = law_rollout(scn, guess_law or Proposed())
+            guess = rollout_guess(scn, guess_law or Proposed())
         res = self.solver.solve(scn.z0, scn.t_end, w=np.vstack([vm, vh]), guess=guess, warm=warm,
                                 objective_name="sum_k l(z_k, a_k) dt (PROBLEM.md §9)")
         res.meta.update({"scenario": scn.name, "dt": scn.dt, "leader_speed_mean": vm, "leader_speed_hat": vh,
