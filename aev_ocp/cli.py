@@ -54,7 +54,7 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-def _load_scenario_or_exit(path: str):  # noqa: ANN202 - returns Scenario
+def _load_scenario_with_warnings(path: str):  # noqa: ANN202 - returns Scenario
     from .scenarios import load_scenario
 
     with warnings.catch_warnings(record=True) as caught:
@@ -69,7 +69,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     """Run every law of a scenario and write its files; exit 1 if any run stopped on an event."""
     from .report import scenario_metrics_rows, write_scenario_outputs
 
-    scenario = _load_scenario_or_exit(args.scenario)
+    scenario = _load_scenario_with_warnings(args.scenario)
     out = Path(args.out) if args.out else Path("results") / scenario.name
     last: dict[str, int] = {}
 
@@ -107,7 +107,7 @@ def cmd_scenarios(args: argparse.Namespace) -> int:
     from .scenarios import shipped_scenarios
 
     for name, path in shipped_scenarios().items():
-        scenario = _load_scenario_or_exit(str(path))
+        scenario = _load_scenario_with_warnings(str(path))
         print(f"{name:16s} {scenario.description}  [{path}]")
     return EXIT_OK
 
