@@ -117,7 +117,7 @@ def run_eco_trip(method: str = "ms", out_dir: str | Path | None = None, scenario
 def run_oracle(method: str = "ms", out_dir: str | Path | None = None, scenario: str | Path | None = None,
                which: str = "canonical") -> dict[str, Any]:
     """OCP-D lower bound. scenario: a TOML file, else ``which`` = 'canonical' (PROBLEM.md §9) or
-    'udds' (first 600 s of UDDS, U = 13 m/s, dt = 0.5 s). Also reports the same §9 cost of the
+    'udds' (first 600 s of UDDS, U = 13 m/s, dt = 1 s). Also reports the same §9 cost of the
     proposed law and OVFL sampled per dt (when the sampled law is stable, α·dt < 1)."""
     if scenario is not None:
         scn = oracle_scenario_from_file(scenario)

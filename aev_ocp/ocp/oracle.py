@@ -73,9 +73,9 @@ def canonical_scenario() -> OracleScenario:
 
 
 def drive_cycle_scenario(cycle: str = "udds", duration_s: float = 600.0, speed_unit_mps: float = 13.0,
-                         dt_s: float = 0.5, h0: float = 0.5, v0: float = 0.0) -> OracleScenario:
+                         dt_s: float = 1.0, h0: float = 0.5, v0: float = 0.0) -> OracleScenario:
     """Follower behind an EPA cycle (first ``duration_s`` seconds). U = 13 m/s so that V∞·U = 25.5 m/s
-    exceeds UDDS's top speed 25.35 m/s (PROBLEM.md §1); L = 10 m; dt_s = 0.5 s (the cycles are
+    exceeds UDDS top speed 25.35 m/s (PROBLEM.md §1); L = 10 m; dt_s = 1 s (the cycles are
     sampled at 1 s). h0, v0 in model units (UDDS starts at rest)."""
     units = Units(10.0, speed_unit_mps)
     leader = drive_cycle(cycle, units)
