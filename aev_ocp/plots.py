@@ -196,3 +196,27 @@ def plot_compare_omega(omegas: Mapping[str, Sequence[float]], path: str | os.Pat
         ax.set_title(title, fontsize=10)
     fig.tight_layout()
     return save_figure(fig, path)
+
+
+def plot_theorem41(kappa: Sequence[float], d_omega: Sequence[float], leader: Sequence[str],
+                   path: str | os.PathLike[str], title: str | None = None) -> Path:
+    """ω(proposed) − ω(OVFL) of random cases against κ; points above zero contradict Theorem 4.1."""
+    fig, ax = plt.subplots(figsize=(6.5, 4))
+    k, d, lab = np.asarray(kappa, float), np.asarray(d_omega, float), np.asarray(leader)
+    rng = np.random.default_rng(0)
+    jitter = np.exp(rng.uniform(-0.12, 0.12, k.size))
+    for name, marker in (("paper", "o"), ("constant", "^")):
+        m = lab == name
+        ax.scatter(k[m] * jitter[m], d[m], marker=marker, s=22, alpha=0.8, label=f"{name} leader",
+                   c=np.where(d[m] > 1e-6, "tab:red", "tab:blue"))
+    ax.axhline(0.0, color="gray", ls="--", lw=1)
+    ax.set_xscale("log")
+    ax.set_yscale("symlog", linthresh=1e-3)
+    ax.set_xlabel("κ (jittered)")
+    ax.set_ylabel("ω(proposed) − ω(OVFL) [model units]")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    if title:
+        ax.set_title(title, fontsize=10)
+    fig.tight_layout()
+    return save_figure(fig, path)
