@@ -1,20 +1,39 @@
 """Platoon simulation with closed-form car-following laws and each vehicle's battery in the loop.
 
-The platoon's ODE is one CasADi SX expression integrated by CVODES. State per follower:
-gap h, speed v (model units), and the cell's V1, V2 [V], S [-]; quadratures per follower: the
-paper's ω, pack ∫Q and ∫Q_irr [J], and the integrals of squared tracking errors and jerk.
+State per follower: gap h, speed v (model units), and the cell's V1, V2 [V], S [-]; cumulative
+integrals per follower: the paper's ω, pack ∫Q and ∫Q_irr [J], and the integrals of squared
+tracking errors and jerk. Two interchangeable integrators (SimOptions.method):
 
-Time is normalised inside the integrator (dx/ds = L·f(t0 + L s, x), s ∈ [0, 1], parameters
-p = (t0, L)), so ONE integrator Function serves every interval: the timeline is split exactly at
-the leader's breakpoints (e.g. the paper leader's t = 20) and into chunks between them, and after
-each chunk the samples are checked for collision (h ≤ 0), negative speed, an infeasible current
-demand (E² < 4 R_s P_c) and S leaving [0, 1]. The first such event stops the run and is reported
-with its time and vehicle — nothing is integrated through.
+* "cascade" (default when a C compiler works): vehicle i depends only on vehicle i − 1, so the
+  platoon is integrated vehicle by vehicle in compiled code (CasADi-generated C for each law and the
+  leader plus a small Dormand–Prince 5(4) driver, compiled once with gcc and cached by content hash).
+  Each vehicle gets its own adaptive steps (cost ~linear in the platoon size, each integration only
+  resolves its own kinks); its leader's speed and acceleration are the predecessor's quartic dense
+  output, accurate to the tolerance. ω is computed exactly as A·Δ(v²/2) + B·TV(v²/2) (g = A u + B|u|),
+  so the kink of g at v̇ = 0 costs no steps; steps end at gap extrema (v_l = v), where the proposed
+  law's ε term switches sharply, so the error estimate sees that feature instead of stepping over it.
+  Events are checked after every step and located on the dense output (bisection).
+* "cvodes": the whole platoon as one CasADi SX expression integrated by CVODES (the fallback when no
+  compiler is available). Time is normalised inside the integrator (dx/ds = L·f(t0 + L s, x),
+  s ∈ [0, 1], p = (t0, L)), so ONE integrator Function serves every chunk; after each chunk the
+  samples are checked.
+
+Both split the timeline exactly at the leader's breakpoints (e.g. the paper leader's t = 20) and
+check for collision (h ≤ 0), negative speed, an infeasible current demand (E² < 4 R_s P_c) and S
+leaving [0, 1]. The first such event stops the run and is reported with its time and vehicle —
+nothing is integrated through (in the cascade, later vehicles are integrated only up to the
+earliest event so far).
 """
 
 from __future__ import annotations
 
+import ctypes
+import hashlib
 import math
+import os
+import shutil
+import subprocess
+import tempfile
 from dataclasses import dataclass
 from typing import Any, Callable, Sequence
 
@@ -29,20 +48,32 @@ from .params import EVParams, ParameterError
 from .results import Event, SimulationResult
 
 ProgressFn = Callable[[float, float], None]
+METHODS = ("auto", "cascade", "cvodes")
+_EVENT_KINDS = {1: ("collision", "gap h reached 0"), 2: ("negative_speed", "speed became negative"),
+                3: ("infeasible_current", "cell cannot deliver the power demand (E² < 4 R_s P_c)"),
+                4: ("soc_out_of_range", "state of charge fell below 0"),
+                5: ("soc_out_of_range", "state of charge rose above 1")}
 
 
 @dataclass(frozen=True)
 class SimOptions:
-    """Integration settings. dt_out: largest sample spacing [model time]; rtol/atol: CVODES
-    tolerances; chunk: nominal length between event checks [model time]."""
+    """Integration settings. dt_out: largest sample spacing [model time]; rtol/atol: relative and
+    absolute tolerances; chunk: nominal length between event checks of the CVODES path [model time];
+    max_num_steps: step limit (per chunk for CVODES, per vehicle for the cascade);
+    method: "cascade" (compiled vehicle-by-vehicle Dormand–Prince 5(4), needs a C compiler),
+    "cvodes" (the whole platoon in one CVODES integrator) or "auto" (cascade when a compiler
+    works, else CVODES)."""
 
     dt_out: float = 0.01
     rtol: float = 1e-10
     atol: float = 1e-10
     chunk: float = 5.0
     max_num_steps: int = 200_000
+    method: str = "auto"
 
     def __post_init__(self) -> None:
+        if self.method not in METHODS:
+            raise ParameterError(f"SimOptions.method = {self.method!r} is not allowed: must be one of {METHODS}")
         for name in ("dt_out", "rtol", "atol", "chunk"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
@@ -77,6 +108,298 @@ def cell_rates_function(ev: EVParams) -> ca.Function:
                        ["v", "a", "V1", "V2", "S"], names)
 
 
+_CASCADE_C = r"""
+/* ---------------- aev_ocp cascade driver (appended to the CasADi-generated RHS) ----------------
+ * Vehicle i depends only on vehicle i-1, so the platoon is integrated vehicle by vehicle with an
+ * adaptive Dormand-Prince 5(4) method (coefficients as in Dormand & Prince 1980 / SciPy RK45, quartic
+ * dense output). The predecessor's speed v_l(t) and acceleration a_l(t) are its own dense output.
+ * All z = (x, quadratures) are in the error norm (like CVODES with quad_err_con).          */
+#include <stdlib.h>
+#include <string.h>
+#define NZ (NX + NQ)
+#define NCOL (NZ + NY)
+
+typedef struct { const casadi_real* arg[SZ_ARG]; casadi_real* res[SZ_RES]; casadi_int iw[SZ_IW + 1]; casadi_real w[SZ_W + 1]; } aev_ctx;
+typedef struct { long m, cap, cur; double *t0, *h, *v0, *q; } aev_traj;
+
+static const double DP_C[7] = {0.0, 1.0/5, 3.0/10, 4.0/5, 8.0/9, 1.0, 1.0};
+static const double DP_A[6][5] = {
+  {0, 0, 0, 0, 0}, {1.0/5, 0, 0, 0, 0}, {3.0/40, 9.0/40, 0, 0, 0}, {44.0/45, -56.0/15, 32.0/9, 0, 0},
+  {19372.0/6561, -25360.0/2187, 64448.0/6561, -212.0/729, 0},
+  {9017.0/3168, -355.0/33, 46732.0/5247, 49.0/176, -5103.0/18656}};
+static const double DP_B[6] = {35.0/384, 0, 500.0/1113, 125.0/192, -2187.0/6784, 11.0/84};
+static const double DP_E[7] = {-71.0/57600, 0, 71.0/16695, -71.0/1920, 17253.0/339200, -22.0/525, 1.0/40};
+static const double DP_P[7][4] = {
+  {1, -8048581381.0/2820520608, 8663915743.0/2820520608, -12715105075.0/11282082432},
+  {0, 0, 0, 0},
+  {0, 131558114200.0/32700410799, -68118460800.0/10900136933, 87487479700.0/32700410799},
+  {0, -1754552775.0/470086768, 14199869525.0/1410260304, -10690763975.0/1880347072},
+  {0, 127303824393.0/49829197408, -318862633887.0/49829197408, 701980252875.0/199316789632},
+  {0, -282668133.0/205662961, 2019193451.0/616988883, -1453857185.0/822651844},
+  {0, 40617522.0/29380423, -110615467.0/29380423, 69997945.0/29380423}};
+
+static int aev_law(aev_ctx* c, int law, const double* u, const double* x, double* dz, double* y) {
+  c->arg[0] = u; c->arg[1] = x; c->res[0] = dz; c->res[1] = y;
+  switch (law) {
+LAW_SWITCH
+  }
+  return 1;
+}
+
+static void aev_leader(aev_ctx* c, double t, double* u) {
+  c->arg[0] = &t; c->res[0] = u;
+  aevsim_leader(c->arg, c->res, c->iw, c->w, 0);
+}
+
+static int aev_push(aev_traj* p, double t0, double h, double v0, const double* q) {
+  if (p->m == p->cap) {
+    long cap = p->cap ? 2 * p->cap : 1024;
+    double* a = realloc(p->t0, cap * sizeof(double)); if (!a) return 1; p->t0 = a;
+    a = realloc(p->h, cap * sizeof(double)); if (!a) return 1; p->h = a;
+    a = realloc(p->v0, cap * sizeof(double)); if (!a) return 1; p->v0 = a;
+    a = realloc(p->q, 4 * cap * sizeof(double)); if (!a) return 1; p->q = a;
+    p->cap = cap;
+  }
+  p->t0[p->m] = t0; p->h[p->m] = h; p->v0[p->m] = v0; memcpy(p->q + 4 * p->m, q, 4 * sizeof(double));
+  p->m++;
+  return 0;
+}
+
+/* predecessor speed and acceleration at t from its dense output */
+static void aev_traj_eval(aev_traj* p, double t, double* u) {
+  long j = p->cur;
+  while (j < p->m - 1 && t > p->t0[j] + p->h[j]) j++;
+  while (j > 0 && t < p->t0[j]) j--;
+  p->cur = j;
+  double h = p->h[j], th = (t - p->t0[j]) / h;
+  if (th < 0) th = 0; if (th > 1) th = 1;
+  const double* q = p->q + 4 * j;
+  u[0] = p->v0[j] + h * th * (q[0] + th * (q[1] + th * (q[2] + th * q[3])));
+  u[1] = q[0] + th * (2 * q[1] + th * (3 * q[2] + th * 4 * q[3]));
+}
+
+static void aev_input(aev_ctx* c, aev_traj* prev, int i, double t, double* u) {
+  if (i == 0) aev_leader(c, t, u); else aev_traj_eval(prev, t, u);
+}
+
+static void aev_dense(const double* z, const double (*Q)[4], double h, double th, double* out) {
+  for (int k = 0; k < NZ; k++)
+    out[k] = z[k] + h * th * (Q[k][0] + th * (Q[k][1] + th * (Q[k][2] + th * Q[k][3])));
+}
+
+/* first theta in (0, 1] where component k of the dense output (plus off) becomes <= 0 (bisection) */
+static double aev_root(const double* z, const double (*Q)[4], double h, int k, double sign, double off) {
+  double lo = 0, hi = 1, buf[NZ];
+  for (int it = 0; it < 60; it++) {
+    double mid = 0.5 * (lo + hi);
+    aev_dense(z, Q, h, mid, buf);
+    if (sign * buf[k] + off > 0) lo = mid; else hi = mid;
+  }
+  return hi;
+}
+
+/* Exact ω over [0, th_end] of a step: with g(u) = A u + B |u| (A = (1/η + η)/2, B = (1/η − η)/2) and
+ * v ≥ 0, v g(v̇) = A d(v²/2)/dt + B |d(v²/2)/dt|, so ω = A Δ(v²/2) + B · (total variation of v²/2),
+ * and the variation only needs v at the zeros of v̇ — located on the quartic dense output of v.
+ * This removes the kink of g at v̇ = 0 from the quadrature (no tiny steps around it). */
+static double aev_vpoly(double v0, const double* q, double h, double th) {
+  return v0 + h * th * (q[0] + th * (q[1] + th * (q[2] + th * q[3])));
+}
+static double aev_dvpoly(const double* q, double th) {
+  return q[0] + th * (2 * q[1] + th * (3 * q[2] + th * 4 * q[3]));
+}
+static double aev_omega_inc(double v0, const double* q, double h, double th_end) {
+  /* split [0, th_end] where dv/dθ is monotone (zeros of its derivative), bisect each sign change */
+  double cut[5]; int nc = 0;
+  cut[nc++] = 0;
+  double a2 = 12 * q[3], a1 = 6 * q[2], a0 = 2 * q[1], r[2]; int nr = 0;
+  if (fabs(a2) > 1e-300) {
+    double d = a1 * a1 - 4 * a2 * a0;
+    if (d > 0) { double sq = sqrt(d); r[0] = (-a1 - sq) / (2 * a2); r[1] = (-a1 + sq) / (2 * a2); nr = 2;
+                 if (r[0] > r[1]) { double tt = r[0]; r[0] = r[1]; r[1] = tt; } }
+  } else if (fabs(a1) > 1e-300) { r[0] = -a0 / a1; nr = 1; }
+  for (int j = 0; j < nr; j++) if (r[j] > 0 && r[j] < th_end) cut[nc++] = r[j];
+  cut[nc++] = th_end;
+  double tv = 0, th_prev = 0, w_prev = 0.5 * v0 * v0;
+  for (int j = 0; j + 1 < nc; j++) {
+    double lo = cut[j], hi = cut[j + 1], flo = aev_dvpoly(q, lo), fhi = aev_dvpoly(q, hi);
+    if ((flo > 0 && fhi < 0) || (flo < 0 && fhi > 0)) {
+      for (int it = 0; it < 45; it++) {
+        double mid = 0.5 * (lo + hi), fm = aev_dvpoly(q, mid);
+        if ((fm > 0) == (flo > 0)) { lo = mid; flo = fm; } else hi = mid;
+      }
+      double th = 0.5 * (lo + hi), vv = aev_vpoly(v0, q, h, th), w = 0.5 * vv * vv;
+      tv += fabs(w - w_prev); w_prev = w; th_prev = th;
+    }
+  }
+  (void)th_prev;
+  double ve = aev_vpoly(v0, q, h, th_end), we = 0.5 * ve * ve;
+  tv += fabs(we - w_prev);
+  return OMEGA_A * (we - 0.5 * v0 * v0) + OMEGA_B * tv;
+}
+
+/* Returns 0 on success, 1 on out-of-memory. Event kinds: 0 none, 1 collision, 2 negative_speed,
+ * 3 infeasible_current, 4 soc below 0, 5 soc above 1, 6 integration failed. */
+CASADI_SYMBOL_EXPORT int aevsim_run(int n, const int* law_idx, const double* x0, int nstop, const double* stops,
+    int K, const double* ts, double rtol, double atol, long max_steps,
+    double* out, int* nsamp, int* ev_kind, double* ev_time, double* ev_val, long* stats) {
+  aev_ctx* c = malloc(sizeof(aev_ctx));
+  aev_traj tr[2] = {{0}, {0}};
+  if (!c) return 1;
+  double tmax = stops[nstop - 1];
+  int status = 0;
+  for (int i = 0; i < n && !status; i++) {
+    aev_traj* prev = &tr[(i + 1) % 2];
+    aev_traj* cur = &tr[i % 2];
+    cur->m = 0; cur->cur = 0; prev->cur = 0;
+    int law = law_idx[i];
+    double z[NZ], zn[NZ], zt[NZ], k[7][NZ], Q[NZ][4], y[NY], yn[NY], u[2], err, tmp[NZ];
+    double* o = out + (long)i * K * NCOL;
+    long nst = 0, nrej = 0, nfev = 0;
+    int s = 0, kind = 0, istop = 0;
+    double t = 0, tev = INFINITY, val = 0;
+    for (int j = 0; j < NX; j++) z[j] = x0[i * NX + j];
+    for (int j = NX; j < NZ; j++) z[j] = 0;
+    aev_input(c, prev, i, t, u); aev_law(c, law, u, z, k[0], y); nfev++;
+    /* sample at t = 0 and the initial check */
+    memcpy(o, z, NZ * sizeof(double)); memcpy(o + NZ, y, NY * sizeof(double)); s = 1;
+    if (y[2] < 0) { kind = 3; tev = 0; val = y[2]; }
+    if (BATTERY && z[4] < 0) { kind = 4; tev = 0; val = z[4]; }
+    if (BATTERY && z[4] > 1) { kind = 5; tev = 0; val = z[4]; }
+    double h = 1e-4;
+    while (!kind && t < tmax) {
+      while (istop < nstop - 1 && stops[istop] <= t) istop++;
+      double tstop = stops[istop] < tmax ? stops[istop] : tmax;
+      int hit = 0;
+      if (t + h >= tstop - 1e-12 * (1 + fabs(tstop))) { h = tstop - t; hit = 1; }
+      for (int st = 1; st < 6; st++) {
+        for (int j = 0; j < NZ; j++) {
+          double acc = 0; for (int l = 0; l < st; l++) acc += DP_A[st][l] * k[l][j];
+          zt[j] = z[j] + h * acc;
+        }
+        aev_input(c, prev, i, t + DP_C[st] * h, u); aev_law(c, law, u, zt, k[st], tmp);
+      }
+      for (int j = 0; j < NZ; j++) {
+        double acc = 0; for (int l = 0; l < 6; l++) acc += DP_B[l] * k[l][j];
+        zn[j] = z[j] + h * acc;
+      }
+      aev_input(c, prev, i, t + h, u); aev_law(c, law, u, zn, k[6], yn); nfev += 6;
+      double nrm = 0;
+      for (int j = 0; j < NZ; j++) {
+        if (j == NX) continue;  /* ω is computed exactly from v below */
+        double e = 0; for (int l = 0; l < 7; l++) e += DP_E[l] * k[l][j];
+        double sc = atol + rtol * fmax(fabs(z[j]), fabs(zn[j]));
+        e = h * e / sc; nrm += e * e;
+      }
+      nrm = sqrt(nrm / (NZ - 1));
+      if (!isfinite(nrm)) nrm = INFINITY;
+      if (nrm > 1) {
+        nrej++;
+        h *= fmax(0.2, 0.9 * pow(nrm, -0.2));
+        if (h < 1e-14 * (1 + fabs(t)) || nst + nrej > max_steps) { kind = 6; tev = t; val = z[0]; }
+        continue;
+      }
+      for (int j = 0; j < NZ; j++)
+        for (int m = 0; m < 4; m++) {
+          double acc = 0; for (int l = 0; l < 7; l++) acc += k[l][j] * DP_P[l][m];
+          Q[j][m] = acc;
+        }
+      /* Gap extrema (v_l − v = 0) are where laws like the proposed one switch sharply (the ε term
+       * has width ~sqrt(ε) in v_l − v): end the step at the crossing so the next step starts on the
+       * feature and its error estimate sees it, instead of stepping over it between stages. */
+      if (!hit || h > 0) {
+        int cross = 0;
+        for (int l = 1; l < 7; l++) if ((k[l][0] > 0) != (k[0][0] > 0)) cross = 1;
+        if (cross) {
+          double lo = 0, hi = 1, flo = aev_dvpoly(Q[0], 0.0);
+          double fhi = aev_dvpoly(Q[0], 1.0);
+          if ((flo > 0) != (fhi > 0)) {
+            for (int it = 0; it < 40; it++) {
+              double mid = 0.5 * (lo + hi), fm = aev_dvpoly(Q[0], mid);
+              if ((fm > 0) == (flo > 0)) lo = mid; else hi = mid;
+            }
+          } else hi = 0;
+          if (hi > 1e-3 && hi < 0.999 && h * hi > 1e-12 * (1 + fabs(t))) { h *= hi; nrej++; continue; }
+        }
+      }
+      zn[NX] = z[NX] + aev_omega_inc(z[1], Q[1], h, 1.0);
+      if (i < n - 1 && aev_push(cur, t, h, z[1], Q[1])) { status = 1; break; }
+      /* events at the step end, located inside the step on the dense output */
+      double th_ev = 2;
+      if (zn[0] <= 0) { double th = aev_root(z, Q, h, 0, 1, 0); if (th < th_ev) { th_ev = th; kind = 1; val = zn[0]; } }
+      if (zn[1] < -1e-9) { double th = aev_root(z, Q, h, 1, 1, 1e-9); if (th < th_ev) { th_ev = th; kind = 2; val = zn[1]; } }
+      if (yn[2] < 0) { double th = y[2] > 0 ? y[2] / (y[2] - yn[2]) : 0; if (th < th_ev) { th_ev = th; kind = 3; val = yn[2]; } }
+      if (BATTERY && zn[4] < 0) { double th = aev_root(z, Q, h, 4, 1, 0); if (th < th_ev) { th_ev = th; kind = 4; val = zn[4]; } }
+      if (BATTERY && zn[4] > 1) { double th = aev_root(z, Q, h, 4, -1, 1); if (th < th_ev) { th_ev = th; kind = 5; val = zn[4]; } }
+      double tend = hit ? tstop : t + h;
+      if (kind) tev = t + th_ev * h;
+      double tlim = kind ? tev : tend;
+      while (s < K && (kind ? ts[s] < tlim : ts[s] <= tlim + 1e-12 * (1 + fabs(tlim)))) {
+        double th = (ts[s] - t) / h, us[2], dz[NZ];
+        if (th > 1) th = 1;
+        double* os = o + (long)s * NCOL;
+        aev_dense(z, Q, h, th, os);
+        os[NX] = z[NX] + aev_omega_inc(z[1], Q[1], h, th);
+        aev_input(c, prev, i, ts[s], us); aev_law(c, law, us, os, dz, os + NZ); nfev++;
+        s++;
+      }
+      nst++;
+      if (kind) break;
+      t = tend;
+      memcpy(z, zn, sizeof z); memcpy(y, yn, sizeof y); memcpy(k[0], k[6], sizeof k[0]);
+      if (hit && t < tmax) {  /* restart at a breakpoint: the leader's acceleration may jump there */
+        aev_input(c, prev, i, t, u); aev_law(c, law, u, z, k[0], y); nfev++;
+      }
+      h *= nrm == 0 ? 10 : fmin(10, 0.9 * pow(nrm, -0.2));
+      if (nst + nrej > max_steps) { kind = 6; tev = t; val = z[0]; }
+    }
+    nsamp[i] = s; ev_kind[i] = kind; ev_time[i] = kind ? tev : t; ev_val[i] = val;
+    stats[3 * i] = nst; stats[3 * i + 1] = nrej; stats[3 * i + 2] = nfev;
+    if (kind && tev < tmax) tmax = tev;
+  }
+  for (int j = 0; j < 2; j++) { free(tr[j].t0); free(tr[j].h); free(tr[j].v0); free(tr[j].q); }
+  free(c);
+  return status;
+}
+"""
+
+
+
+def _cache_dir() -> str:
+    """Folder for compiled right-hand sides (env AEV_OCP_CACHE, else a per-user temp folder)."""
+    d = os.environ.get("AEV_OCP_CACHE") or os.path.join(tempfile.gettempdir(), f"aev_ocp_cache_{os.getuid()}")
+    os.makedirs(d, exist_ok=True)
+    return d
+
+
+def _compile_shared(source: str) -> ctypes.CDLL | None:
+    """Compile C source to a shared library (cached by content hash) and load it; None if no
+    compiler is available or compilation fails (callers fall back to CVODES)."""
+    cc = os.environ.get("CC") or "gcc"
+    cc_path = shutil.which(cc) or shutil.which("cc")
+    if cc_path is None:
+        return None
+    flags = ["-O2", "-fPIC", "-shared", "-fno-math-errno"]
+    key = hashlib.sha256((source + cc_path + " ".join(flags)).encode()).hexdigest()[:24]
+    try:
+        d = _cache_dir()
+        lib = os.path.join(d, f"aevsim_{key}.so")
+        if not os.path.exists(lib):
+            c_file = os.path.join(d, f"aevsim_{key}_{os.getpid()}.c")
+            tmp = os.path.join(d, f".aevsim_{key}_{os.getpid()}.so")
+            with open(c_file, "w") as fh:
+                fh.write(source)
+            proc = subprocess.run([cc_path, *flags, "-o", tmp, c_file, "-lm"], capture_output=True, text=True,
+                                  timeout=300)
+            os.unlink(c_file)
+            if proc.returncode != 0:
+                return None
+            os.replace(tmp, lib)
+        return ctypes.CDLL(lib)
+    except (OSError, subprocess.SubprocessError):
+        return None
+
+
 def _segments(t_end: float, breakpoints: Sequence[float], chunk: float) -> list[tuple[float, float]]:
     """Intervals covering [0, t_end], split exactly at breakpoints and into pieces of length ≤ chunk."""
     cuts = [0.0] + sorted(b for b in breakpoints if 0.0 < b < t_end) + [t_end]
@@ -104,7 +427,16 @@ class PlatoonSimulator:
         self.battery = battery
         self.n = len(self.laws)
         self.k = max(1, math.ceil(self.opts.chunk / self.opts.dt_out - 1e-9))
-        self._build()
+        self._lib: ctypes.CDLL | None = None
+        self._leader_maps: dict[int, ca.Function] = {}
+        if self.opts.method in ("auto", "cascade"):
+            self._build_cascade()
+            if self._lib is None and self.opts.method == "cascade":
+                raise ParameterError("SimOptions.method = 'cascade' needs a working C compiler (gcc/cc); "
+                                     "use method='cvodes' or 'auto'")
+        self.method = "cascade" if self._lib is not None else "cvodes"
+        if self.method == "cvodes":
+            self._build()
 
     # ------------------------------------------------------------------ symbolic model
     def _accel_expr(self, h: ca.SX, v: ca.SX, v_lead: ca.SX) -> ca.SX:
@@ -154,6 +486,118 @@ class PlatoonSimulator:
         self.samples = sample.map(self.k + 1)
         self.nx = X.numel()
 
+
+    # ------------------------------------------------------------------ compiled cascade
+    def _vehicle_function(self, law: CarFollowingLaw, k: int) -> ca.Function:
+        """One follower's right-hand side: (u = (v_l, a_l), x) -> (dz = (ẋ, quadrature integrands), y = (a, I, disc)).
+
+        x = (h, v[, V1, V2, S]) in model units and volts; quadrature integrands per model time unit:
+        ω, (V(h) − v)², (v_l − v)², jerk²[, pack Q and Q_irr in J per model time unit]."""
+        ev, T, eta = self.ev, self.ev.units.time_s, self.ev.vehicle.efficiency
+        u = ca.SX.sym("u", 2)
+        vl, al = u[0], u[1]
+        h, v = ca.SX.sym("h"), ca.SX.sym("v")
+        a = law.accel(h, v, vl)
+        hdot = vl - v
+        jerk = ca.jacobian(a, h) * hdot + ca.jacobian(a, v) * a + ca.jacobian(a, vl) * al
+        x, ode = [h, v], [hdot, a]
+        quad = [v * energy.g_exact(a, eta), (optimal_velocity(h) - v) ** 2, hdot**2, jerk**2]
+        if self.battery:
+            V1, V2, S = ca.SX.sym("V1"), ca.SX.sym("V2"), ca.SX.sym("S")
+            cr = cell_rates(v, a, V1, V2, S, ev)
+            x += [V1, V2, S]
+            ode += [T * cr["dV1"], T * cr["dV2"], T * cr["dS"]]
+            quad += [T * cr["heat_W"], T * cr["heat_irr_W"]]
+            y = [a, cr["I"], cr["disc"]]
+        else:
+            y = [a, ca.SX(0), ca.SX(0)]
+        return ca.Function(f"aevsim_law{k}", [u, ca.vertcat(*x)], [ca.vertcat(*ode, *quad), ca.vertcat(*y)])
+
+    def _build_cascade(self) -> None:
+        """Generate C for each distinct law and the leader, append the cascade driver, compile, load."""
+        self._law_of: list[int] = []
+        distinct: dict[CarFollowingLaw, int] = {}
+        for law in self.laws:
+            self._law_of.append(distinct.setdefault(law, len(distinct)))
+        funcs = [self._vehicle_function(law, k) for law, k in distinct.items()]
+        t = ca.SX.sym("t")
+        vl = self.leader.speed(t)
+        funcs.append(ca.Function("aevsim_leader", [t], [ca.vertcat(vl, ca.jacobian(vl, t))]))
+        self._nx = 5 if self.battery else 2
+        self._nq = 6 if self.battery else 4
+        cg = ca.CodeGenerator("aevsim_rhs.c", {"with_header": False})
+        for f in funcs:
+            cg.add(f)
+        sizes = {"SZ_ARG": max(2, *(f.sz_arg() for f in funcs)), "SZ_RES": max(2, *(f.sz_res() for f in funcs)),
+                 "SZ_IW": max(f.sz_iw() for f in funcs), "SZ_W": max(f.sz_w() for f in funcs)}
+        head = "".join(f"#define {k} {v}\n" for k, v in sizes.items())
+        eta = self.ev.vehicle.efficiency
+        head += f"#define OMEGA_A {0.5 * (1 / eta + eta)!r}\n#define OMEGA_B {0.5 * (1 / eta - eta)!r}\n"
+        head += f"#define NX {self._nx}\n#define NQ {self._nq}\n#define NY 3\n#define BATTERY {int(self.battery)}\n"
+        switch = "".join(f"    case {k}: return aevsim_law{k}(c->arg, c->res, c->iw, c->w, 0);\n"
+                         for k in range(len(distinct)))
+        source = cg.dump() + "\n" + head + _CASCADE_C.replace("LAW_SWITCH", switch)
+        lib = _compile_shared(source)
+        if lib is None:
+            return
+        fn = lib.aevsim_run
+        dp, ip, lp = (np.ctypeslib.ndpointer(dtype=d, flags="C_CONTIGUOUS") for d in (np.float64, np.int32, np.int64))
+        fn.argtypes = [ctypes.c_int, ip, dp, ctypes.c_int, dp, ctypes.c_int, dp, ctypes.c_double, ctypes.c_double,
+                       ctypes.c_long, dp, ip, ip, dp, dp, lp]
+        fn.restype = ctypes.c_int
+        self._lib, self._run_c = lib, fn
+
+    def _sample_times(self, t_end: float) -> np.ndarray:
+        """The sample grid [model time]: the same chunks of ≤ dt_out as the CVODES path."""
+        ts = [0.0]
+        for a, b in _segments(t_end, self.leader.breakpoints, self.opts.chunk):
+            ts.extend((a + (b - a) * np.linspace(0.0, 1.0, self.k + 1)[1:]).tolist())
+        return np.asarray(ts)
+
+    def _run_cascade(self, x0: np.ndarray, t_end: float, progress: ProgressFn | None) -> SimulationResult:
+        """Integrate vehicle by vehicle in compiled code; stop everything at the first event."""
+        n, nx, nq = self.n, self._nx, self._nq
+        ncol = nx + nq + 3
+        ts = self._sample_times(t_end)
+        K = ts.size
+        stops = np.asarray(sorted({b for b in self.leader.breakpoints if 0.0 < b < t_end} | {t_end}), float)
+        out = np.empty((n, K, ncol))
+        nsamp, kind = np.zeros(n, np.int32), np.zeros(n, np.int32)
+        ev_time, ev_val, stats = np.zeros(n), np.zeros(n), np.zeros((n, 3), np.int64)
+        x0v = np.ascontiguousarray(x0.reshape(nx, n).T)
+        rc = self._run_c(n, np.asarray(self._law_of, np.int32), x0v, stops.size, stops, K, ts, self.opts.rtol,
+                         self.opts.atol, self.opts.max_num_steps, out, nsamp, kind, ev_time, ev_val, stats)
+        if rc != 0:
+            raise MemoryError("simulate: the cascade integrator ran out of memory")
+        events: list[Event] = []
+        hit = np.where(kind > 0)[0]
+        keep = K
+        if hit.size:
+            i = int(hit[np.argmin(ev_time[hit])])  # first in time; ties -> the vehicle nearest the leader
+            t_ev = float(ev_time[i])
+            if kind[i] == 6:
+                h = float(ev_val[i])
+                events.append(Event("collision" if h < 0.05 else "integration_failed", t_ev, i,
+                                    f"the integrator failed at t = {t_ev:.4f} with gap h = {h:.3g}"))
+            else:
+                name, msg = _EVENT_KINDS[int(kind[i])]
+                events.append(Event(name, t_ev, i, f"{msg} (value {ev_val[i]:.4g} at the step ending after "
+                                                   f"t = {t_ev:.4f})"))
+            keep = max(1, int(np.searchsorted(ts, t_ev, side="left")))
+        out = out[:, :keep]
+        if progress is not None:
+            progress(float(ts[keep - 1]), t_end)
+        tk = ts[:keep]
+        Z = out.transpose(2, 0, 1).reshape(ncol * n, keep)  # row c·n + i = column c of vehicle i
+        if keep not in self._leader_maps:  # the mapped leader speed is reused across runs
+            self._leader_maps[keep] = self.leader.speed_function.map(keep)
+        vl = np.asarray(self._leader_maps[keep](tk.reshape(1, -1))).reshape(1, -1)
+        Y = np.vstack([Z[(nx + nq) * n:], vl])
+        res = self._assemble(tk, Z[:nx * n], Z[nx * n:(nx + nq) * n], Y, events)
+        res.solver_stats = [{"nsteps": int(s[0]), "nrejected": int(s[1]), "nfev": int(s[2])} for s in stats]
+        res.meta["integrator"] = "cascade-dopri5"
+        return res
+
     # ------------------------------------------------------------------ running
     def run(self, gaps0: Sequence[float], speeds0: Sequence[float], t_end: float, *,
             soc0: float | Sequence[float] | None = None, progress: ProgressFn | None = None) -> SimulationResult:
@@ -176,6 +620,8 @@ class PlatoonSimulator:
             s0 = np.broadcast_to(np.asarray(self.ev.cell.soc0 if soc0 is None else soc0, float), (n,))
             x0 += [np.zeros(n), np.zeros(n), np.array(s0)]
         x = np.concatenate(x0)
+        if self.method == "cascade":
+            return self._run_cascade(x, t_end, progress)
         nq = self.integrator.size1_out("qf")
         q = np.zeros(nq)
         ts, xs, qs, ys = [np.array([0.0])], [x[:, None]], [q[:, None]], []
