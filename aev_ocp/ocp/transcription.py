@@ -152,7 +152,9 @@ class TranscriptionOptions:
     rk4_substeps: RK4 steps per interval (ms); degree, scheme: collocation polynomial degree and
     points ('radau' or 'legendre'); tol, max_iter: IPOPT settings; print_level: IPOPT verbosity
     (0 = silent, the default); violation_tol: largest constraint violation accepted in a returned
-    "solution" (NLP units, i.e. after scaling).
+    "solution" (NLP units, i.e. after scaling); mx_map: keep the NLP as MX calls of ONE mapped
+    SX interval Function (derivatives generated once: build time independent of N) instead of
+    expanding everything to SX (expand=True; slower build, fastest evaluation).
     """
 
     method: str = "ms"
@@ -166,6 +168,7 @@ class TranscriptionOptions:
     violation_tol: float = 1e-6
     mu_init_warm: float = 1e-6
     linear_solver: str = "mumps"
+    mx_map: bool = False
 
     def __post_init__(self) -> None:
         if self.method not in METHODS:
@@ -298,15 +301,16 @@ class OCPSolver:
         nb = nx + nu + nx * d  # per-interval block: x_k, u_k, collocation states
         self._nb, self._d = nb, d
         nv = nb * N + nx
-        V = ca.SX.sym("V", nv)
+        SYM = ca.MX if o.mx_map else ca.SX
+        V = SYM.sym("V", nv)
         blocks = ca.reshape(V[:nb * N], nb, N)
         Xs = ca.horzcat(blocks[:nx, :], V[nb * N:])
         Us = blocks[nx:nx + nu, :]
         Xcs = blocks[nx + nu:, :]
-        P_x0 = ca.SX.sym("x0", nx)
-        P_p = ca.SX.sym("p", npar)
-        P_w = ca.SX.sym("w", nw * N)
-        P_tf = ca.SX.sym("tf")
+        P_x0 = SYM.sym("x0", nx)
+        P_p = SYM.sym("p", npar)
+        P_w = SYM.sym("w", nw * N)
+        P_tf = SYM.sym("tf")
         h = P_tf / N
         W = ca.reshape(P_w, nw, N)
         F = self._interval_function().map(N)
@@ -353,7 +357,7 @@ class OCPSolver:
             ipopt.update({"warm_start_init_point": "yes", "warm_start_bound_push": 1e-9,
                           "warm_start_mult_bound_push": 1e-9, "warm_start_slack_bound_push": 1e-9,
                           "mu_init": o.mu_init_warm})
-        return {"ipopt": ipopt, "print_time": False, "expand": True, "error_on_fail": False}
+        return {"ipopt": ipopt, "print_time": False, "expand": not o.mx_map, "error_on_fail": False}
 
     def _make_solver(self, warm: bool) -> ca.Function:
         return ca.nlpsol(f"{self.problem.name}_{self.options.method}{'_warm' if warm else ''}",
