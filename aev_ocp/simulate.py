@@ -729,7 +729,10 @@ class PlatoonSimulator:
 def simulate_platoon(leader: LeaderProfile, laws: Sequence[CarFollowingLaw], gaps0: Sequence[float],
                      speeds0: Sequence[float], t_end: float, *, ev: EVParams | None = None,
                      soc0: float | Sequence[float] | None = None, dt_out: float = 0.01, rtol: float = 1e-10,
-                     atol: float = 1e-10, battery: bool = True, progress: ProgressFn | None = None) -> SimulationResult:
-    """Simulate followers behind ``leader`` (model units) over [0, t_end]; see :class:`PlatoonSimulator`."""
-    sim = PlatoonSimulator(leader, laws, ev, SimOptions(dt_out=dt_out, rtol=rtol, atol=atol), battery=battery)
+                     atol: float = 1e-10, battery: bool = True, progress: ProgressFn | None = None,
+                     method: str = "auto") -> SimulationResult:
+    """Simulate followers behind ``leader`` (model units) over [0, t_end]; see :class:`PlatoonSimulator`.
+    method: "auto" (compiled cascade when a C compiler works, else CVODES), "cascade" or "cvodes"."""
+    sim = PlatoonSimulator(leader, laws, ev, SimOptions(dt_out=dt_out, rtol=rtol, atol=atol, method=method),
+                           battery=battery)
     return sim.run(gaps0, speeds0, t_end, soc0=soc0, progress=progress)

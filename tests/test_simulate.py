@@ -20,10 +20,25 @@ GAPS = np.array([0.3, 3.5, 3.5, 3.5, 3.5])
 SPEEDS = np.full(5, 1.1 * 1.7)
 
 
-@pytest.fixture(scope="module")
-def table1() -> dict[str, Any]:
+METHODS = ["cascade", "cvodes"]
+
+
+def _has_compiler() -> bool:
+    import shutil
+
+    return shutil.which("gcc") is not None or shutil.which("cc") is not None
+
+
+if not _has_compiler():  # the compiled cascade needs gcc/cc; CVODES is then the only integrator
+    METHODS = ["cvodes"]
+
+
+@pytest.fixture(scope="module", params=METHODS)
+def table1(request: pytest.FixtureRequest) -> dict[str, Any]:
+    """Table 1 runs with each integrator (the compiled cascade and CVODES)."""
     L = PaperLeader()
-    return {law.name: simulate_platoon(L, [law] * 5, GAPS, SPEEDS, 70.0, rtol=1e-10, atol=1e-10)
+    return {law.name: simulate_platoon(L, [law] * 5, GAPS, SPEEDS, 70.0, rtol=1e-10, atol=1e-10,
+                                       method=request.param)
             for law in (Proposed(), OVFL())}
 
 
@@ -32,6 +47,7 @@ def test_omega_and_heat_match_independent_scipy(table1: dict[str, Any], kind: st
     ref = simulate_reference(kind, GAPS, SPEEDS, 70.0, rtol=1e-10, atol=1e-10)
     r = table1[kind]
     assert r.status == "ok"
+    assert r.meta["integrator"].split("-")[0] in METHODS
     np.testing.assert_allclose(r.omega[-1], ref["omega"], atol=1e-6)
     np.testing.assert_allclose(r.gap[-1], ref["gap"], atol=1e-6)
     # the OCV splines differ (CasADi B-spline vs SciPy not-a-knot), so the heat agrees less tightly
@@ -48,12 +64,14 @@ def test_energy_balance_of_the_cell(table1: dict[str, Any]) -> None:
     assert np.all(np.diff(r.heat_irr_J, axis=0) >= -1e-9)
 
 
-def test_charge_balance() -> None:
+@pytest.mark.parametrize("method", METHODS)
+def test_charge_balance(method: str) -> None:
     """ΔS = −∫I dt/(3600 C_n): a trapezoid on the sampled current converges (second order in the
     sample spacing) to the integrated S."""
     errs = []
     for dt in (0.01, 0.002):
-        r = simulate_platoon(PaperLeader(), [OVFL()] * 5, GAPS, SPEEDS, 70.0, dt_out=dt, rtol=1e-9, atol=1e-9)
+        r = simulate_platoon(PaperLeader(), [OVFL()] * 5, GAPS, SPEEDS, 70.0, dt_out=dt, rtol=1e-9, atol=1e-9,
+                             method=method)
         charge = np.trapezoid(r.current_A, r.t * r.units.time_s, axis=0)
         dS = -charge / (3600 * r.ev.cell.capacity_Ah)
         errs.append(np.abs((r.S[-1] - r.S[0] - dS) / dS).max())
@@ -67,14 +85,15 @@ def test_table1_converged_across_tolerances(table1: dict[str, Any]) -> None:
     np.testing.assert_allclose(loose.omega[-1], r.omega[-1], atol=5e-6)
 
 
-def test_steady_state_follower_uses_cruise_power() -> None:
+@pytest.mark.parametrize("method", METHODS)
+def test_steady_state_follower_uses_cruise_power(method: str) -> None:
     """At equilibrium behind a constant leader, P_w = F_res(v) v and ω = 0 (no acceleration)."""
     from aev_ocp.models import equilibrium_gap
     from aev_ocp.models.vehicle import road_load_force_N
 
     ev = EVParams()
     v = 1.5
-    r = simulate_platoon(ConstantSpeed(v), [Proposed()], [equilibrium_gap(v)], [v], 10.0, ev=ev)
+    r = simulate_platoon(ConstantSpeed(v), [Proposed()], [equilibrium_gap(v)], [v], 10.0, ev=ev, method=method)
     assert np.max(np.abs(r.accel)) < 1e-9 and abs(r.omega[-1, 0]) < 1e-9
     vs = ev.units.speed_to_si(v)
     P_c = float(road_load_force_N(vs, ev.vehicle)) * vs / ev.vehicle.efficiency / ev.pack.n_cells
@@ -82,12 +101,13 @@ def test_steady_state_follower_uses_cruise_power() -> None:
     assert r.current_A[0, 0] == pytest.approx(P_c / V_T, rel=1e-3)
 
 
-def test_collision_detected_with_time_and_vehicle() -> None:
+@pytest.mark.parametrize("method", METHODS)
+def test_collision_detected_with_time_and_vehicle(method: str) -> None:
     """OVM has no follow-the-leader term: a fast follower hits a stopped leader. Compare the time
     with SciPy's event location on the same ODE."""
     from scipy.integrate import solve_ivp
 
-    r = simulate_platoon(ConstantSpeed(0.0), [OVM()], [0.5], [2.0], 10.0, battery=False)
+    r = simulate_platoon(ConstantSpeed(0.0), [OVM()], [0.5], [2.0], 10.0, battery=False, method=method)
     assert r.status == "collision"
     ev = r.events[0]
     assert ev.vehicle == 0
@@ -113,23 +133,26 @@ class Brake(CarFollowingLaw):
         return -self.decel + 0 * h
 
 
-def test_negative_speed_detected() -> None:
-    r = simulate_platoon(ConstantSpeed(1.0), [Brake()], [5.0], [0.5], 3.0, battery=False)
+@pytest.mark.parametrize("method", METHODS)
+def test_negative_speed_detected(method: str) -> None:
+    r = simulate_platoon(ConstantSpeed(1.0), [Brake()], [5.0], [0.5], 3.0, battery=False, method=method)
     assert r.status == "negative_speed"
     assert r.events[0].time == pytest.approx(0.5, abs=1e-6)
 
 
-def test_infeasible_current_detected() -> None:
+@pytest.mark.parametrize("method", METHODS)
+def test_infeasible_current_detected(method: str) -> None:
     """One cell cannot drive a car: the current map reports the infeasible demand with its time."""
     ev = EVParams(pack=PackParams(1, 1))
-    r = simulate_platoon(ConstantSpeed(1.7), [Proposed()], [3.5], [1.7], 5.0, ev=ev)
+    r = simulate_platoon(ConstantSpeed(1.7), [Proposed()], [3.5], [1.7], 5.0, ev=ev, method=method)
     assert r.status == "infeasible_current"
     assert r.events[0].time == 0.0 and r.events[0].vehicle == 0
 
 
-def test_soc_out_of_range_detected() -> None:
+@pytest.mark.parametrize("method", METHODS)
+def test_soc_out_of_range_detected(method: str) -> None:
     ev = EVParams(cell=CellParams(capacity_Ah=1e-4, soc0=0.01), pack=PackParams(106, 700))
-    r = simulate_platoon(ConstantSpeed(1.7), [Proposed()], [3.5], [1.7], 50.0, ev=ev)
+    r = simulate_platoon(ConstantSpeed(1.7), [Proposed()], [3.5], [1.7], 50.0, ev=ev, method=method)
     assert r.status == "soc_out_of_range"
     assert 0 < r.events[0].time < 50
 
@@ -164,3 +187,15 @@ def test_min_gap_continuous_below_samples(table1: dict[str, Any]) -> None:
     m = r.metrics()
     assert all(mm["min_gap_model"] <= r.gap[:, i].min() + 1e-15 for i, mm in enumerate(m))
     assert all(mm["collisions"] == 0 for mm in m)
+
+
+def test_cascade_and_cvodes_agree_on_a_mixed_platoon() -> None:
+    """The two integrators share no stepping code: their trajectories and integrals must agree."""
+    laws = [Proposed(), OVFL(), OVM(alpha=1.5), Proposed(kappa=0.1)]
+    res = {m: simulate_platoon(PaperLeader(), laws, [0.3, 3.5, 3.5, 3.5], [1.87] * 4, 40.0, dt_out=0.05,
+                               rtol=1e-10, atol=1e-10, method=m) for m in METHODS}
+    a, b = res["cascade"], res["cvodes"]
+    np.testing.assert_allclose(a.t, b.t, atol=1e-12)
+    for name in ("gap", "speed", "S", "omega", "heat_J", "heat_irr_J", "int_ovm_err2", "int_rel_speed2"):
+        np.testing.assert_allclose(getattr(a, name), getattr(b, name), rtol=1e-6, atol=1e-6, err_msg=name)
+    np.testing.assert_allclose(a.int_jerk2[-1], b.int_jerk2[-1], rtol=1e-4)
