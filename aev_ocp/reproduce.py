@@ -189,8 +189,11 @@ class _Run:
         fig5_rows = [[f"n = {i + 1}", fmt(chk["min_gap"][i]), fmt(chk["min_speed"][i]), fmt(chk["peak_abs_rel_speed"][i]),
                       fmt(chk["final_gap_error"][i], 3), fmt(chk["final_rel_speed"][i], 3)] for i in range(n)]
         return ("## Table 1: energy per unit mass ω (platoon of 6, paper leader, t ∈ [0, 70])\n\n"
-                f"Converged values (CVODES, rtol = atol = {s.rtol:g}; ω is a quadrature of v·g(v̇) inside the "
-                "integrator with the exact, non-smooth g, and the run is split at the leader's switch t = 20). "
+                f"Converged values (integrator {res['proposed'].meta.get('integrator', '?')}, rtol = atol = "
+                f"{s.rtol:g}; the exact, non-smooth g is used — the cascade evaluates ω exactly from v at the "
+                "zeros of v̇, CVODES integrates it as an error-controlled quadrature — and the run is split at "
+                "the leader's switch t = 20; the tolerance study below and the test suite cross-check both "
+                "integrators and an independent SciPy integration). "
                 "Files: table1.csv, table1.md, table1.json.\n\n" + table_md +
                 "\n![Table 1 ω](table1_omega.png)\n\n"
                 f"### Battery side of Table 1 (units L = {u.length_m:g} m, U = {u.speed_mps:g} m/s, T = {u.time_s:g} s; "
@@ -221,7 +224,7 @@ class _Run:
         self.tol_spread = spread
         n = s.n_followers
         text = ("## Tolerance study (Table 1 ω)\n\n"
-                "The same Table 1 runs at several CVODES tolerances (rtol = atol) and with the output "
+                "The same Table 1 runs at several integrator tolerances (rtol = atol) and with the output "
                 "spacing dt_out halved. File: tolerance_study.json.\n\n"
                 + markdown_table(["rtol = atol", "dt_out", "law"] + [f"n = {i + 1}" for i in range(n)], rows)
                 + "\nLargest change of any ω among the runs with rtol ≤ 1e-8: "
