@@ -130,3 +130,15 @@ def test_outputs_written(tmp_path):
         for k in ("objective_J", "max_abs_current_A", "zero_heat_alternative_objective_J", "status", "iterations"):
             assert k in e
     assert (tmp_path / "prop31_currents.png").stat().st_size > 1000
+
+
+def test_mx_map_transcription_matches_expanded_sx():
+    from aev_ocp.ocp.cell import cell_problem
+    from aev_ocp.ocp.transcription import OCPSolver, TranscriptionOptions
+
+    J_disc, _ = lq_discrete_exact(CELL, V_RELAX, 60.0, 100)
+    for method in ("ms", "collocation"):
+        s = OCPSolver(cell_problem(CELL, False), TranscriptionOptions(method=method, N=100, mx_map=True))
+        r = s.solve([V_RELAX[0], V_RELAX[1], 0.5], 60.0)
+        assert r.status == "optimal"
+        assert r.objective == pytest.approx(J_disc, rel=1e-6)
