@@ -41,26 +41,29 @@ def write_atomic(path: str | os.PathLike[str], data: str | bytes) -> Path:
     return path
 
 
-def _jsonable(x: Any) -> Any:
+def to_jsonable(x: Any) -> Any:
+    """numpy arrays/scalars -> lists/floats, non-finite floats -> None, dataclasses -> dicts, recursively."""
     if isinstance(x, dict):
-        return {str(k): _jsonable(v) for k, v in x.items()}
+        return {str(k): to_jsonable(v) for k, v in x.items()}
     if isinstance(x, (list, tuple)):
-        return [_jsonable(v) for v in x]
+        return [to_jsonable(v) for v in x]
     if isinstance(x, np.ndarray):
-        return _jsonable(x.tolist())
+        return to_jsonable(x.tolist())
+    if isinstance(x, (bool, np.bool_)):
+        return bool(x)
     if isinstance(x, (np.floating, float)):
         xf = float(x)
         return xf if math.isfinite(xf) else None
     if isinstance(x, (np.integer,)):
         return int(x)
     if hasattr(x, "__dataclass_fields__"):
-        return _jsonable(as_dict(x))
+        return to_jsonable(as_dict(x))
     return x
 
 
 def write_json(path: str | os.PathLike[str], obj: Any) -> Path:
     """Atomically write ``obj`` as indented JSON (numpy values converted, non-finite -> null)."""
-    return write_atomic(path, json.dumps(_jsonable(obj), indent=2) + "\n")
+    return write_atomic(path, json.dumps(to_jsonable(obj), indent=2) + "\n")
 
 
 @dataclass

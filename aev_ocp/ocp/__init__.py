@@ -10,10 +10,11 @@ from .cli import cli_ocp
 from .following import (FollowingBounds, FollowingWeights, following_ode, following_path_constraints,
                         following_stage_cost)
 from .oracle import OracleScenario, OracleSolver, canonical_scenario, stage_cost_of_trajectory
+from .report_section import REPRODUCE_SECTIONS
 from .result import OCPResult
 from .transcription import OCPProblem, OCPSolver, TranscriptionOptions
 
-__all__ = ["OCPResult", "OCPProblem", "OCPSolver", "TranscriptionOptions", "cli_ocp", "run_prop31",
+__all__ = ["REPRODUCE_SECTIONS", "OCPResult", "OCPProblem", "OCPSolver", "TranscriptionOptions", "cli_ocp", "run_prop31",
            "run_current_profile", "run_eco_trip", "run_oracle", "FollowingBounds", "FollowingWeights",
            "following_ode", "following_path_constraints", "following_stage_cost", "OracleScenario",
            "OracleSolver", "canonical_scenario", "stage_cost_of_trajectory"]

@@ -4,54 +4,19 @@ from __future__ import annotations
 
 import csv
 import io
-import json
 import math
 import os
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-
-def _write_atomic(path: str | os.PathLike[str], text: str) -> Path:
-    """Write text to path atomically: temp file in the same folder, then os.replace."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w") as fh:
-            fh.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-    return path
+from ..results import to_jsonable, write_atomic, write_json
 
 
-def to_jsonable(x: Any) -> Any:
-    """numpy arrays/scalars -> lists/floats, non-finite floats -> None, recursively."""
-    if isinstance(x, dict):
-        return {str(k): to_jsonable(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [to_jsonable(v) for v in x]
-    if isinstance(x, np.ndarray):
-        return to_jsonable(x.tolist())
-    if isinstance(x, (bool, np.bool_)):
-        return bool(x)
-    if isinstance(x, (np.integer,)):
-        return int(x)
-    if isinstance(x, (float, np.floating)):
-        xf = float(x)
-        return xf if math.isfinite(xf) else None
-    return x
-
-
-def write_json_atomic(path: str | os.PathLike[str], obj: Any) -> Path:
-    """Atomically write obj as indented JSON."""
-    return _write_atomic(path, json.dumps(to_jsonable(obj), indent=2) + "\n")
+# one implementation of atomic writes and JSON conversion for the whole package
+write_json_atomic = write_json
 
 
 @dataclass
@@ -140,4 +105,4 @@ class OCPResult:
             row += [f"{self.controls[nm][min(k, self.controls[nm].size - 1)]:.12g}" for nm in names_u]
             row += [f"{self.outputs[nm][k]:.12g}" for nm in names_o]
             wr.writerow(row)
-        return _write_atomic(path, buf.getvalue())
+        return write_atomic(path, buf.getvalue())
