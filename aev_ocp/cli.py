@@ -145,6 +145,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (ScenarioError, ParameterError) as exc:
         _err(str(exc))
         return EXIT_BAD_INPUT
+    except BrokenPipeError:  # output piped into e.g. `head`: stop quietly, as Unix tools do
+        sys.stderr.close()
+        return 0
     except OSError as exc:
         _err(f"{exc.strerror or exc}: {exc.filename}" if exc.filename else str(exc))
         return EXIT_BAD_INPUT
