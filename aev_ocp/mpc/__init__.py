@@ -1,0 +1,42 @@
+"""Receding-horizon MPC of the ego vehicle with the battery in the loop (PROBLEM.md §9) and its
+closed-loop simulation against the exact plant. Model (aev_ocp.ocp.following), controller
+(:class:`MPCController`) and plant (:class:`ClosedLoop`) are kept apart; results are the shared
+:class:`aev_ocp.results.SimulationResult`, so MPC and closed-form laws share the §10 metrics.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from .closed_loop import ClosedLoop, MPCVehicle, run_closed_loop, run_single
+from .controller import MPCController, MPCSolution
+from .predictors import (ConstantAccelerationPredictor, ConstantVelocityPredictor, LeaderPredictor, Measurements,
+                         OraclePredictor, make_predictor)
+from .settings import PREDICTOR_NAMES, SOLVER_PATHS, MPCSettings
+
+
+def cli_mpc(argv: list[str]) -> int:
+    """``aev-ocp mpc SCENARIO.toml [--out DIR] [--solver ...]`` (see :mod:`aev_ocp.mpc.cli`)."""
+    from .cli import cli_mpc as _cli
+
+    return _cli(argv)
+
+
+def _reproduce_section(out_dir: Any, progress: Any) -> str:
+    from .report import mpc_section
+
+    return mpc_section(out_dir, progress)
+
+
+REPRODUCE_SECTIONS = [("mpc", _reproduce_section, 4)]
+
+try:  # the [mpc] table of scenario files
+    from .scenario import register as _register_scenario_section
+
+    _register_scenario_section()
+except ImportError:  # pragma: no cover - scenario loader not installed
+    pass
+
+__all__ = ["ClosedLoop", "ConstantAccelerationPredictor", "ConstantVelocityPredictor", "LeaderPredictor",
+           "MPCController", "MPCSettings", "MPCSolution", "MPCVehicle", "Measurements", "OraclePredictor",
+           "PREDICTOR_NAMES", "SOLVER_PATHS", "cli_mpc", "make_predictor", "run_closed_loop", "run_single"]

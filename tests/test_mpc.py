@@ -1,0 +1,229 @@
+"""MPC of PROBLEM.md §9 and its closed loop: checked against OCP-D, NumPy re-computations of the cost
+and constraints, closed-form laws and each other (solver paths)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from scipy.interpolate import make_interp_spline
+
+from aev_ocp.models.battery import ocv_table
+from aev_ocp.models.carfollowing import OVFL, Proposed
+from aev_ocp.models.leader import ConstantSpeed, PaperLeader
+from aev_ocp.mpc.closed_loop import ClosedLoop, MPCVehicle, run_closed_loop, run_single
+from aev_ocp.mpc.controller import MPCController
+from aev_ocp.mpc.predictors import (ConstantAccelerationPredictor, ConstantVelocityPredictor, Measurements,
+                                    OraclePredictor, forecast_intervals, plan_forecast)
+from aev_ocp.mpc.settings import MPCSettings
+from aev_ocp.ocp.following import FollowingBounds, FollowingWeights
+from aev_ocp.ocp.oracle import OracleScenario, OracleSolver, stage_cost_of_trajectory
+from aev_ocp.params import EVParams, ParameterError
+
+EV = EVParams()
+
+
+def _forecast(t0: float, N: int, dt: float = 0.1, leader=PaperLeader()):
+    x, v = OraclePredictor(leader).predict(t0, dt, N, Measurements(np.array([t0]), np.array([0.0])))
+    return forecast_intervals(x, v, dt)
+
+
+def _stage_cost_numpy(h, v, V1, V2, S, a, vl, w=FollowingWeights(), width_W=300.0):
+    """ℓ of PROBLEM.md §9 written out in NumPy (SciPy not-a-knot cubic for OCV), independent of CasADi."""
+    u, veh, cell, n = EV.units, EV.vehicle, EV.cell, EV.pack.n_cells
+    soc, ocv_v = ocv_table()
+    ocv = make_interp_spline(soc, ocv_v, k=3)(S)
+    vs, as_ = v * u.speed_mps, a * u.accel_mps2
+    Fres = 0.5 * veh.air_density_kgpm3 * veh.frontal_area_m2 * veh.drag_coefficient * vs**2 \
+        + veh.rolling_coefficient * veh.mass_kg * veh.gravity_mps2
+    Pw = (veh.mass_kg * as_ + Fres) * vs
+    sig = 0.5 * (1 + np.tanh(Pw / width_W))
+    Pc = Pw * (sig / veh.efficiency + (1 - sig) * veh.efficiency) / n
+    E = ocv - V1 - V2
+    disc = E**2 - 4 * cell.R_s_ohm * Pc
+    I = 2 * Pc / (E + np.sqrt(np.maximum(disc, 0)))
+    Q = I * (V1 + V2) + cell.R_s_ohm * I**2
+    Vh = np.tanh(h - 2) + np.tanh(2)
+    ell = w.w_Q * n * Q / 1000 + w.w_V * (Vh - v) ** 2 + w.w_r * (vl - v) ** 2 + w.w_a * a**2
+    return ell, I, disc
+
+
+@pytest.fixture(scope="module")
+def canonical10():
+    """The canonical MPC scenario shortened to 10 time units (100 steps), IPOPT path."""
+    return run_single(MPCSettings(), t_end=10.0)
+
+
+def test_closed_loop_matches_ocp_d_within_1_percent():
+    T = 4.0  # 40 steps; horizon N = 40 covers the whole scenario at t = 0
+    ocpd = OracleSolver(OracleScenario(t_end=T)).solve()
+    assert ocpd.success
+    # the first MPC problem IS OCP-D on this scenario: same optimum
+    ctrl = MPCController(MPCSettings(N=40), EV)
+    sol = ctrl.solve([0.3, 1.87, 0, 0, 0.8], *_forecast(0.0, 40))
+    assert sol.success
+    assert sol.cost == pytest.approx(ocpd.objective, rel=1e-6)
+    # closed loop (receding horizon, exact plant) within 1 % of the lower bound, and not below it
+    r = run_single(MPCSettings(N=40), t_end=T)
+    c = stage_cost_of_trajectory(r.t, r.gap[:, 0], r.speed[:, 0], r.V1[:, 0], r.V2[:, 0], r.S[:, 0],
+                                 r.accel[:-1, 0], r.leader_speed[:-1])
+    assert abs(c["total"] / ocpd.objective - 1) < 0.01
+    assert c["total"] > ocpd.objective * (1 - 1e-4)
+
+
+def test_constraints_hold_in_every_closed_loop_step(canonical10):
+    r = canonical10
+    assert r.status == "ok" and r.solver_stats[0]["fallbacks"] == 0
+    assert r.solver_stats[0]["n_steps"] == 100 and r.t.size == 101
+    h, v, a, I = r.gap[:, 0], r.speed[:, 0], r.accel[:, 0], r.current_A[:, 0]
+    assert np.all(h[1:] >= 0.2 - 1e-6)
+    assert np.all((v[1:] >= -1e-7) & (v[1:] <= 2 + 1e-7))
+    assert np.all((a >= -3 - 1e-9) & (a <= 2 + 1e-9))
+    assert np.all(np.abs(I) <= EV.cell.max_current_A + 1e-6)
+    # the plant's h, v are exact kinematics: v_{k+1} = v_k + a_k dt for a piecewise-constant control
+    np.testing.assert_allclose(np.diff(v), a[:-1] * 0.1, atol=1e-8)
+    # the continuous-time minimum gap (metrics) also respects the bound
+    assert r.metrics()[0]["min_gap_model"] >= 0.2 - 1e-4
+
+
+def test_stage_cost_and_constraints_rechecked_in_numpy():
+    ctrl = MPCController(MPCSettings(), EV)
+    vm, vh = _forecast(3.0, 40)
+    sol = ctrl.solve([0.5, 1.2, 0.01, 0.005, 0.7], vm, vh)
+    assert sol.success
+    X, a = sol.X, sol.a
+    ell, I, disc = _stage_cost_numpy(X[0, :-1], X[1, :-1], X[2, :-1], X[3, :-1], X[4, :-1], a, vh)
+    assert np.sum(ell) * 0.1 == pytest.approx(sol.cost, rel=1e-4)
+    assert np.all(np.abs(I) <= 46 + 1e-5) and np.all(disc >= 0)
+    assert np.all(X[0, 1:] >= 0.2 - 1e-7) and np.all((X[1, 1:] >= -1e-7) & (X[1, 1:] <= 2 + 1e-7))
+    # gap dynamics use the interval-mean leader speed: h_{k+1} − h_k = (v̄_l,k − (v_k + v_{k+1})/2)·dt
+    np.testing.assert_allclose(np.diff(X[0]), (vm - 0.5 * (X[1, :-1] + X[1, 1:])) * 0.1, atol=1e-9)
+    # weights are parameters: a different w_Q changes the optimum without a rebuild
+    sol2 = ctrl.solve([0.5, 1.2, 0.01, 0.005, 0.7], vm, vh, weights=FollowingWeights(w_Q=20.0))
+    ell2, _, _ = _stage_cost_numpy(sol2.X[0, :-1], sol2.X[1, :-1], sol2.X[2, :-1], sol2.X[3, :-1], sol2.X[4, :-1],
+                                   sol2.a, vh, FollowingWeights(w_Q=20.0))
+    assert np.sum(ell2) * 0.1 == pytest.approx(sol2.cost, rel=1e-4)
+    assert not np.allclose(sol2.a, a, atol=1e-3)
+
+
+@pytest.mark.parametrize("settings", [MPCSettings(solver="sqp", qp_solver="hpipm"),
+                                      MPCSettings(solver="sqp", qp_solver="qrqp"),
+                                      MPCSettings(solver="sqp", qp_solver="hpipm", codegen=True),
+                                      MPCSettings(solver="ipopt-cold")],
+                         ids=["sqp-hpipm", "sqp-qrqp", "sqp-hpipm-codegen", "ipopt-cold"])
+def test_solver_paths_give_the_same_closed_loop(settings, tmp_path_factory, monkeypatch):
+    monkeypatch.setenv("AEV_OCP_CACHE", str(tmp_path_factory.getbasetemp() / "cache"))
+    T = 3.0
+    ref = run_single(MPCSettings(), t_end=T)
+    r = run_single(settings, t_end=T)
+    assert r.status == "ok" and r.solver_stats[0]["fallbacks"] == 0
+    np.testing.assert_allclose(r.accel[:, 0], ref.accel[:, 0], atol=2e-4)
+    np.testing.assert_allclose(r.gap[:, 0], ref.gap[:, 0], atol=1e-5)
+    assert r.heat_J[-1, 0] == pytest.approx(ref.heat_J[-1, 0], rel=1e-4)
+    if settings.codegen:
+        assert r.solver_stats[0]["solver_path"] == "sqp+codegen"
+
+
+def test_codegen_without_compiler_falls_back_with_warning(monkeypatch):
+    import aev_ocp.mpc.controller as C
+
+    monkeypatch.setattr(C.shutil, "which", lambda name: None)
+    with pytest.warns(RuntimeWarning, match="no C compiler"):
+        ctrl = MPCController(MPCSettings(N=5, solver="sqp", codegen=True), EV)
+    assert not ctrl.codegen_active
+    assert ctrl.solve([0.5, 1.2, 0, 0, 0.8], *_forecast(0.0, 5)).success
+
+
+def test_forced_infeasible_step_triggers_counted_fallback():
+    # h ≥ 0.5 at node 1 is impossible from h(0) = 0.3 closing at 0.17: every early solve fails
+    s = MPCSettings(bounds=FollowingBounds(h_min=0.5), max_iter=50)
+    r = run_single(s, t_end=1.0)
+    st = r.solver_stats[0]
+    steps = r.meta["mpc_steps"][0]
+    assert st["fallbacks"] >= 1 and st["n_steps"] == 10
+    assert st["fallbacks"] == sum(1 for k in range(10) if steps["status"][k] not in ("Solve_Succeeded",
+                                                                                      "Solved_To_Acceptable_Level"))
+    # the applied control on the first (failed) step is the proposed law at the measured state, clipped
+    law = Proposed()
+    a0 = float(law.accel(0.3, 1.87, 1.7))
+    assert r.accel[0, 0] == pytest.approx(min(max(a0, -3.0), 2.0), rel=1e-9)
+    assert r.status == "ok"
+
+
+@pytest.mark.parametrize("kw, name", [({"N": 0}, "MPCSettings.N"), ({"dt": -0.1}, "MPCSettings.dt"),
+                                      ({"solver": "magic"}, "MPCSettings.solver"),
+                                      ({"objective": "speed"}, "MPCSettings.objective"),
+                                      ({"qp_solver": "gurobi"}, "MPCSettings.qp_solver"),
+                                      ({"predictor": "psychic"}, "MPCSettings.predictor"),
+                                      ({"codegen": "yes"}, "MPCSettings.codegen"),
+                                      ({"tol": float("nan")}, "MPCSettings.tol")])
+def test_invalid_options_name_the_option(kw, name):
+    with pytest.raises(ParameterError, match=name.replace(".", r"\.")):
+        MPCSettings(**kw)
+
+
+def test_from_dict_errors_name_the_key():
+    with pytest.raises(ParameterError, match="w_Q"):
+        MPCSettings.from_dict({"w_Q": -1.0})
+    with pytest.raises(ParameterError, match="horizon_len"):
+        MPCSettings.from_dict({"horizon_len": 3})
+    s = MPCSettings.from_dict({"N": 20, "w_Q": 2.0, "h_min": 0.3, "solver": "sqp"})
+    assert (s.N, s.weights.w_Q, s.bounds.h_min, s.solver) == (20, 2.0, 0.3, "sqp")
+
+
+def test_bad_forecast_shape_is_a_clear_error():
+    ctrl = MPCController(MPCSettings(N=5), EV)
+    with pytest.raises(ParameterError, match="forecast"):
+        ctrl.solve([0.5, 1.2, 0, 0, 0.8], np.ones(4), np.ones(5))
+
+
+def test_predictors_exact_on_their_own_motion():
+    dt, N = 0.1, 10
+    tau = dt * np.arange(N + 1)
+    # constant acceleration trace v = 1 + 0.2 t: the CA predictor is exact, CV holds the last speed
+    mt = np.arange(6) * dt
+    m = Measurements(mt, 1.0 + 0.2 * mt)
+    x, v = ConstantAccelerationPredictor(5).predict(mt[-1], dt, N, m)
+    v0 = 1.0 + 0.2 * mt[-1]
+    np.testing.assert_allclose(v, v0 + 0.2 * tau, atol=1e-12)
+    np.testing.assert_allclose(x, v0 * tau + 0.1 * tau**2, atol=1e-12)
+    x, v = ConstantVelocityPredictor().predict(mt[-1], dt, N, m)
+    np.testing.assert_allclose(x, v0 * tau)
+    # braking to a stop: never reverses
+    x, v = ConstantAccelerationPredictor(5).predict(0.5, dt, 40, Measurements(mt, 0.8 - 1.0 * mt))
+    assert v.min() == 0.0 and np.all(np.diff(x) >= -1e-15) and x[-1] == pytest.approx(0.3**2 / 2)
+    # oracle = true positions; plan forecast integrates a piecewise-constant acceleration exactly
+    L = ConstantSpeed(1.3)
+    x, v = OraclePredictor(L).predict(2.0, dt, N, m)
+    np.testing.assert_allclose(x, 1.3 * tau, atol=1e-12)
+    xs, vs = plan_forecast(1.0 + 0.5 * tau, dt, N)
+    np.testing.assert_allclose(xs, tau + 0.25 * tau**2, atol=1e-12)
+
+
+def test_mixed_platoon_cooperative_and_laws():
+    L = PaperLeader()
+    ctrls = [MPCSettings(N=20), Proposed(), OVFL(),
+             MPCVehicle(MPCSettings(N=20), predictor="constant-acceleration"),
+             MPCVehicle(MPCSettings(N=20), predictor="cooperative")]
+    r = run_closed_loop(L, ctrls, [0.3, 3.5, 3.5, 3.5, 3.5], [1.87] * 5, 2.0)
+    assert r.status == "ok" and r.controllers[1:3] == ["proposed", "ovfl"]
+    assert [s is None for s in r.solver_stats] == [False, True, True, False, False]
+    # the law followers move by their own law: a_k = law(h_k, v_k, v_pred,k) at every sample
+    for i, law in ((1, Proposed()), (2, OVFL())):
+        want = [float(law.accel(r.gap[k, i], r.speed[k, i], r.speed[k, i - 1])) for k in range(r.t.size)]
+        np.testing.assert_allclose(r.accel[:, i], want, rtol=1e-9, atol=1e-12)
+    m = r.metrics()
+    assert all(mm["gap_violations"] == 0 for mm in (m[0], m[3], m[4]))
+    assert all(s["fallbacks"] == 0 for s in r.solver_stats if s)
+
+
+def test_bad_platoon_configuration_errors():
+    with pytest.raises(ParameterError, match="cooperative"):
+        ClosedLoop(PaperLeader(), [Proposed(), MPCVehicle(MPCSettings(N=5), predictor="cooperative")])
+    with pytest.raises(ParameterError, match="oracle"):
+        ClosedLoop(PaperLeader(), [MPCSettings(N=5), MPCSettings(N=5)])
+    with pytest.raises(ParameterError, match="same dt"):
+        ClosedLoop(PaperLeader(), [MPCSettings(N=5), MPCVehicle(MPCSettings(N=5, dt=0.2), "cooperative")])
+    with pytest.raises(ParameterError, match="multiple of dt"):
+        run_single(MPCSettings(N=5), t_end=0.25)
