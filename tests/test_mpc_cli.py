@@ -1,0 +1,59 @@
+"""The [mpc] scenario table, the ``aev-ocp mpc`` command and the reproduce section hook."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+import aev_ocp.mpc  # noqa: F401  (registers the [mpc] table)
+from aev_ocp.mpc import cli_mpc
+from aev_ocp.scenarios import ScenarioError, find_scenario, load_scenario, parse_scenario
+
+try:
+    import tomllib
+except ModuleNotFoundError:  # pragma: no cover
+    import tomli as tomllib
+
+
+def _doc(**mpc):
+    doc = tomllib.loads(find_scenario("mpc_paper_single").read_text())
+    doc["mpc"].update(mpc)
+    return doc
+
+
+def test_shipped_mpc_scenarios_load():
+    s = load_scenario(find_scenario("mpc_paper_single"))
+    assert s.n_followers == 1 and s.extra["mpc"].settings.N == 40 and s.extra["mpc"].settings.predictor == "oracle"
+    p = load_scenario(find_scenario("mpc_paper_platoon"))
+    assert p.n_followers == 5 and p.extra["mpc"].follower_predictor == "cooperative"
+
+
+@pytest.mark.parametrize("bad, word", [({"N": 0}, "N"), ({"w_Q": -1.0}, "w_Q"), ({"solver": "x"}, "solver"),
+                                       ({"horizon": 3}, "horizon"), ({"vehicles": [0]}, "vehicles")])
+def test_bad_mpc_table_names_the_key(bad, word):
+    with pytest.raises(ScenarioError, match=word):
+        parse_scenario(_doc(**bad), "x.toml")
+
+
+def test_cli_writes_results_and_compares(tmp_path, capsys):
+    rc = cli_mpc(["mpc_paper_single", "--out", str(tmp_path), "--t-end", "1.0", "--solver", "sqp"])
+    assert rc == 0
+    out = capsys.readouterr().out
+    assert "proposed" in out and "ovfl" in out and "ocp-d" in out and "solve_ms_median" in out
+    res = json.loads((tmp_path / "results.json").read_text())
+    m = res["metrics"]["mpc"][0]
+    assert m["n_steps"] == 10 and m["fallbacks"] == 0 and m["solver_path"] == "sqp"
+    # the §9 cost of MPC is not below the OCP-D lower bound (small tolerance for the plant mismatch)
+    assert m["cost_s9"] >= res["ocp_d"]["cost_s9"] * (1 - 1e-3)
+    for f in ("trajectories_mpc.csv", "mpc_trajectories.png", "mpc_solve_times.png", "overlay_vehicle1.png"):
+        assert (tmp_path / f).stat().st_size > 0
+
+
+def test_cli_bad_input_is_exit_2(capsys):
+    assert cli_mpc(["no_such_scenario_file.toml"]) == 2
+    assert "error" in capsys.readouterr().err
+
+
+def test_reproduce_section_is_provided():
+    assert [s[0] for s in aev_ocp.mpc.REPRODUCE_SECTIONS] == ["mpc"]
