@@ -139,6 +139,12 @@ def test_ocp_c_agree_and_resimulate(ocp_c):
     ye = resim_vehicle(a.t, a.controls["a"], trip, exact=True)
     assert ye[0] == pytest.approx(trip.distance_m, rel=1e-9)
     assert abs(ye[5] / 1000 - a.objective) < 0.05 * a.objective
+    # the reported metrics are the exact model's: heat as SciPy's exact re-simulation, and ω by the
+    # closed form Σ g(a_k)(v_k + v_k+1)/2·dt for piecewise-constant a (PROBLEM.md §10)
+    assert a.meta["pack_heat_J"] == pytest.approx(ye[5], rel=1e-6)
+    eta, ak, v = trip.ev.vehicle.efficiency, a.controls["a"], a.states["v"]
+    g = np.where(ak >= 0, ak / eta, eta * ak)
+    assert a.meta["omega_J_per_kg"] == pytest.approx(float(np.sum(g * 0.5 * (v[1:] + v[:-1]) * np.diff(a.t))), rel=1e-6)
 
 
 def test_ocp_c_infeasible_and_bad_input():

@@ -5,6 +5,7 @@ closed-form OVFL / proposed laws integrated here with piecewise-constant a sampl
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -146,3 +147,14 @@ def test_stage_cost_of_trajectory_bad_input():
     with pytest.raises(ParameterError, match="h has"):
         stage_cost_of_trajectory(t, np.ones(2), *np.ones((4, 11)), np.zeros(10), np.zeros(10))
     assert not math.isnan(stage_cost_of_trajectory(t, *np.ones((5, 11)), np.zeros(10), np.zeros(10))["total"])
+
+
+def test_oracle_scenario_from_file_takes_the_files_settings(tmp_path):
+    from aev_ocp.ocp.api import oracle_scenario_from_file
+
+    text = (Path(__file__).resolve().parents[1] / "scenarios" / "table1.toml").read_text()
+    f = tmp_path / "s.toml"
+    f.write_text(text + "\n[cell]\nsoc0 = 0.55\n")
+    scn = oracle_scenario_from_file(f)
+    assert scn.S0 == 0.55 and scn.h0 == 0.3 and scn.v0 == pytest.approx(1.87)
+    assert scn.t_end == 70.0 and scn.N == 700

@@ -44,7 +44,7 @@ def oracle_scenario_from_file(path: str | Path, dt: float = 0.1) -> OracleScenar
     sc = _load(path)
     n = max(1, round(sc.t_end / dt))
     return OracleScenario(leader=sc.leader, t_end=sc.t_end, dt=sc.t_end / n, h0=sc.gaps0[0], v0=sc.speeds0[0],
-                          ev=sc.ev, name=sc.name)
+                          S0=sc.ev.cell.soc0, ev=sc.ev, name=sc.name)
 
 
 def _write_result(res: OCPResult, out: Path, stem: str) -> None:
@@ -99,9 +99,7 @@ def run_eco_trip(method: str = "ms", out_dir: str | Path | None = None, scenario
              f"{'objective':>10}{'status':>12}{'iter':>6}{'pack ∫Q [J]':>14}{'ω [J/kg]':>11}{'max v [m/s]':>13}{'max |I| [A]':>13}"]
     for obj, r in results.items():
         if r.success:
-            t = r.t
-            omega = float(np.sum(np.diff(t) * 0.5 * (r.outputs["omega_rate"][1:] + r.outputs["omega_rate"][:-1])))
-            r.meta["omega_J_per_kg"] = omega
+            omega = r.meta["omega_J_per_kg"]  # exact re-simulation (EcoTripSolver.solve)
             lines.append(f"{obj:>10}{r.status:>12}{r.iterations:>6}{r.meta['pack_heat_J']:>14.5g}{omega:>11.5g}"
                          f"{r.states['v'].max():>13.4g}{np.abs(r.I).max():>13.4g}")
         else:

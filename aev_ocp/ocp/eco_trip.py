@@ -120,5 +120,36 @@ class EcoTripSolver:
                                                               "v_max_mps", "a_min_mps2", "a_max_mps2", "S0",
                                                               "objective")}})
         if res.success:
-            res.meta["pack_heat_J"] = float(np.sum(np.diff(t) * 0.5 * (res.outputs["Q_pack_W"][1:] + res.outputs["Q_pack_W"][:-1])))
+            res.meta.update(resimulate_exact(tr, res.controls["a"], res.t))
         return res
+
+
+def resimulate_exact(trip: EcoTrip, a_mps2: np.ndarray, t_s: np.ndarray) -> dict[str, float]:
+    """Metrics of a piecewise-constant acceleration profile under the EXACT model (PROBLEM.md §10).
+
+    The vehicle and cell are re-integrated by CVODES, interval by interval with that interval's own
+    control, with the exact η switch and the exact g: pack ∫Q and ∫Q_irr [J], ω [J/kg] and the final
+    distance [m], speed [m/s] and S. A trapezoid on node samples would mix the controls of adjacent
+    intervals (the optimiser's outputs at node k use a_k), which is what this replaces.
+    """
+    ev = trip.ev
+    x, a = ca.SX.sym("x", 5), ca.SX.sym("a")
+    cm = cell_current_from_motion(x[1], a, x[2], x[3], x[4], ev)
+    I = cm["I"]
+    dV1, dV2, dS = battery.cell_derivatives(x[2], x[3], I, ev.cell)
+    n = ev.pack.n_cells
+    quad = ca.vertcat(n * battery.heat_Q(x[2], x[3], I, ev.cell), n * battery.heat_irreversible(x[2], x[3], I, ev.cell),
+                      x[1] * energy.g_exact(a, ev.vehicle.efficiency))
+    dt = ca.SX.sym("dt")
+    dae = {"x": x, "p": ca.vertcat(a, dt), "ode": dt * ca.vertcat(x[1], a, dV1, dV2, dS), "quad": dt * quad}
+    F = ca.integrator("eco_exact", "cvodes", dae, 0.0, 1.0, {"abstol": 1e-10, "reltol": 1e-10})
+    a_k = np.asarray(a_mps2, float).ravel()
+    h = np.diff(np.asarray(t_s, float))
+    xk = np.array([0.0, trip.v0_mps, 0.0, 0.0, trip.S0])
+    q = np.zeros(3)
+    for ak, hk in zip(a_k, h):
+        out = F(x0=xk, p=[ak, hk])
+        xk = np.asarray(out["xf"]).ravel()
+        q += np.asarray(out["qf"]).ravel()
+    return {"pack_heat_J": float(q[0]), "pack_heat_irr_J": float(q[1]), "omega_J_per_kg": float(q[2]),
+            "exact_final_distance_m": float(xk[0]), "exact_final_speed_mps": float(xk[1]), "exact_final_soc": float(xk[4])}
