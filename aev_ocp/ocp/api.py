@@ -126,9 +126,14 @@ def run_oracle(method: str = "ms", out_dir: str | Path | None = None, scenario: 
     t = np.linspace(0.0, scn.t_end, scn.N + 1)
     _, vh = leader_forecast(scn.leader, t)
     laws: dict[str, float] = {}
+    clamped: list[str] = []  # laws whose guess rollout was clamped at a bound (cost then not comparable)
     for law in (Proposed(), OVFL()):
         if law.alpha * scn.dt < 1.0:
             X, U = rollout_guess(scn, law)
+            b = scn.bounds
+            if (np.any(X[0, 1:] <= b.h_min + 1e-12) or np.any(X[1, 1:] <= b.v_min + 1e-12)
+                    or np.any(X[1, 1:] >= b.v_max - 1e-12)):
+                clamped.append(law.name)
             laws[law.name] = stage_cost_of_trajectory(t, *X, U.ravel(), vh, scn.weights, scn.ev, scn.smooth,
                                                       scn.objective)["total"]
     lines = [f"OCP-D oracle following, scenario {scn.name}: N = {scn.N}, dt = {scn.dt:g} (model time), method {method}",
@@ -138,8 +143,11 @@ def run_oracle(method: str = "ms", out_dir: str | Path | None = None, scenario: 
     if res.success:
         lines.append("  terms: " + ", ".join(f"{k} {v:.5g}" for k, v in res.meta["cost_terms"].items()))
     for nm, c in laws.items():
-        lines.append(f"{nm} (sampled per dt, same §9 cost): {c:.6g}")
+        note = "" if nm not in clamped else (" — NOT comparable: the rollout reached a bound (h ≤ h_min, v ≤ v_min "
+                                             "or v ≥ v_max) and was clamped there")
+        lines.append(f"{nm} (sampled per dt, same §9 cost): {c:.6g}{note}")
     res.meta["closed_form_costs"] = laws
+    res.meta["closed_form_clamped"] = clamped
     out = {"result": res, "closed_form_costs": laws, "table": "\n".join(lines), "ok": res.success,
            "build_time_s": solver.build_time_s}
     if out_dir is not None:
