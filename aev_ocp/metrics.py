@@ -76,6 +76,7 @@ def vehicle_metrics(r: SimulationResult, i: int) -> dict[str, Any]:
         "vehicle": i + 1,
         "controller": r.controllers[i],
         "status": kinds[0] if kinds else "ok",
+        "run_status": r.status,  # 'ok' or the event that stopped the whole run (possibly another vehicle's)
         "duration_model": duration,
         "omega_model": omega,
         "omega_J_per_kg": float(u.energy_per_mass_to_si(omega)),

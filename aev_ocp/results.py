@@ -21,6 +21,9 @@ import numpy as np
 
 from .params import EVParams, Units, as_dict
 
+_UMASK = os.umask(0)
+os.umask(_UMASK)
+
 EVENT_KINDS = ("collision", "negative_speed", "infeasible_current", "soc_out_of_range", "integration_failed")
 
 
@@ -33,6 +36,7 @@ def write_atomic(path: str | os.PathLike[str], data: str | bytes) -> Path:
     try:
         with os.fdopen(fd, mode) as fh:
             fh.write(data)
+        os.chmod(tmp, 0o666 & ~_UMASK)  # mkstemp creates 0600; give the file the mode open() would
         os.replace(tmp, path)
     except BaseException:
         if os.path.exists(tmp):

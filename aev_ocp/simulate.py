@@ -28,18 +28,14 @@ earliest event so far).
 from __future__ import annotations
 
 import ctypes
-import hashlib
 import math
-import os
-import shutil
-import subprocess
-import tempfile
 from dataclasses import dataclass
 from typing import Any, Callable, Sequence
 
 import casadi as ca
 import numpy as np
 
+from .compiled import compile_shared
 from .models import battery, energy
 from .models.carfollowing import CarFollowingLaw, optimal_velocity
 from .models.leader import LeaderProfile
@@ -220,7 +216,7 @@ static double aev_omega_inc(double v0, const double* q, double h, double th_end)
   } else if (fabs(a1) > 1e-300) { r[0] = -a0 / a1; nr = 1; }
   for (int j = 0; j < nr; j++) if (r[j] > 0 && r[j] < th_end) cut[nc++] = r[j];
   cut[nc++] = th_end;
-  double tv = 0, th_prev = 0, w_prev = 0.5 * v0 * v0;
+  double tv = 0, w_prev = 0.5 * v0 * v0;
   for (int j = 0; j + 1 < nc; j++) {
     double lo = cut[j], hi = cut[j + 1], flo = aev_dvpoly(q, lo), fhi = aev_dvpoly(q, hi);
     if ((flo > 0 && fhi < 0) || (flo < 0 && fhi > 0)) {
@@ -229,10 +225,9 @@ static double aev_omega_inc(double v0, const double* q, double h, double th_end)
         if ((fm > 0) == (flo > 0)) { lo = mid; flo = fm; } else hi = mid;
       }
       double th = 0.5 * (lo + hi), vv = aev_vpoly(v0, q, h, th), w = 0.5 * vv * vv;
-      tv += fabs(w - w_prev); w_prev = w; th_prev = th;
+      tv += fabs(w - w_prev); w_prev = w;
     }
   }
-  (void)th_prev;
   double ve = aev_vpoly(v0, q, h, th_end), we = 0.5 * ve * ve;
   tv += fabs(we - w_prev);
   return OMEGA_A * (we - 0.5 * v0 * v0) + OMEGA_B * tv;
@@ -307,7 +302,7 @@ CASADI_SYMBOL_EXPORT int aevsim_run(int n, const int* law_idx, const double* x0,
       /* Gap extrema (v_l − v = 0) are where laws like the proposed one switch sharply (the ε term
        * has width ~sqrt(ε) in v_l − v): end the step at the crossing so the next step starts on the
        * feature and its error estimate sees it, instead of stepping over it between stages. */
-      if (!hit || h > 0) {
+      {
         int cross = 0;
         for (int l = 1; l < 7; l++) if ((k[l][0] > 0) != (k[0][0] > 0)) cross = 1;
         if (cross) {
@@ -365,39 +360,15 @@ CASADI_SYMBOL_EXPORT int aevsim_run(int n, const int* law_idx, const double* x0,
 
 
 
-def _cache_dir() -> str:
-    """Folder for compiled right-hand sides (env AEV_OCP_CACHE, else a per-user temp folder)."""
-    d = os.environ.get("AEV_OCP_CACHE") or os.path.join(tempfile.gettempdir(), f"aev_ocp_cache_{os.getuid()}")
-    os.makedirs(d, exist_ok=True)
-    return d
-
-
-def _compile_shared(source: str) -> ctypes.CDLL | None:
-    """Compile C source to a shared library (cached by content hash) and load it; None if no
-    compiler is available or compilation fails (callers fall back to CVODES)."""
-    cc = os.environ.get("CC") or "gcc"
-    cc_path = shutil.which(cc) or shutil.which("cc")
-    if cc_path is None:
-        return None
-    flags = ["-O2", "-fPIC", "-shared", "-fno-math-errno"]
-    key = hashlib.sha256((source + cc_path + " ".join(flags)).encode()).hexdigest()[:24]
+def _compile_shared(source: str) -> tuple[ctypes.CDLL | None, str]:
+    """Compile and load the cascade's C source (cached, see :mod:`aev_ocp.compiled`); (None, why) on failure."""
+    built = compile_shared(source, "aevsim", "simulate")
+    if built.path is None:
+        return None, built.error
     try:
-        d = _cache_dir()
-        lib = os.path.join(d, f"aevsim_{key}.so")
-        if not os.path.exists(lib):
-            c_file = os.path.join(d, f"aevsim_{key}_{os.getpid()}.c")
-            tmp = os.path.join(d, f".aevsim_{key}_{os.getpid()}.so")
-            with open(c_file, "w") as fh:
-                fh.write(source)
-            proc = subprocess.run([cc_path, *flags, "-o", tmp, c_file, "-lm"], capture_output=True, text=True,
-                                  timeout=300)
-            os.unlink(c_file)
-            if proc.returncode != 0:
-                return None
-            os.replace(tmp, lib)
-        return ctypes.CDLL(lib)
-    except (OSError, subprocess.SubprocessError):
-        return None
+        return ctypes.CDLL(str(built.path)), ""
+    except OSError as exc:
+        return None, f"cannot load {built.path}: {exc}"
 
 
 def _segments(t_end: float, breakpoints: Sequence[float], chunk: float) -> list[tuple[float, float]]:
@@ -428,12 +399,13 @@ class PlatoonSimulator:
         self.n = len(self.laws)
         self.k = max(1, math.ceil(self.opts.chunk / self.opts.dt_out - 1e-9))
         self._lib: ctypes.CDLL | None = None
+        self._build_error = ""
         self._leader_maps: dict[int, ca.Function] = {}
         if self.opts.method in ("auto", "cascade"):
             self._build_cascade()
             if self._lib is None and self.opts.method == "cascade":
-                raise ParameterError("SimOptions.method = 'cascade' needs a working C compiler (gcc/cc); "
-                                     "use method='cvodes' or 'auto'")
+                raise ParameterError("SimOptions.method = 'cascade' needs a working C compiler (gcc/cc): "
+                                     f"{self._build_error}; use method='cvodes' or 'auto'")
         self.method = "cascade" if self._lib is not None else "cvodes"
         if self.method == "cvodes":
             self._build()
@@ -537,7 +509,7 @@ class PlatoonSimulator:
         switch = "".join(f"    case {k}: return aevsim_law{k}(c->arg, c->res, c->iw, c->w, 0);\n"
                          for k in range(len(distinct)))
         source = cg.dump() + "\n" + head + _CASCADE_C.replace("LAW_SWITCH", switch)
-        lib = _compile_shared(source)
+        lib, self._build_error = _compile_shared(source)
         if lib is None:
             return
         fn = lib.aevsim_run
@@ -577,8 +549,9 @@ class PlatoonSimulator:
             t_ev = float(ev_time[i])
             if kind[i] == 6:
                 h = float(ev_val[i])
-                events.append(Event("collision" if h < 0.05 else "integration_failed", t_ev, i,
-                                    f"the integrator failed at t = {t_ev:.4f} with gap h = {h:.3g}"))
+                events.append(Event("integration_failed", t_ev, i,
+                                    f"the integrator failed at t = {t_ev:.4f} with gap h = {h:.3g}"
+                                    + (" (near collision)" if h < 0.05 else "")))
             else:
                 name, msg = _EVENT_KINDS[int(kind[i])]
                 events.append(Event(name, t_ev, i, f"{msg} (value {ev_val[i]:.4g} at the step ending after "
@@ -655,9 +628,9 @@ class PlatoonSimulator:
                 return True
             h = x[: self.n]
             i = int(np.argmin(h))
-            kind = "collision" if h[i] < 0.05 else "integration_failed"
-            events.append(Event(kind, a, i, f"CVODES failed on [{a:.4f}, {b:.4f}] with gap h = {h[i]:.3g} "
-                                f"(CasADi: {str(exc).splitlines()[0][:120]})"))
+            near = " (near collision)" if h[i] < 0.05 else ""
+            events.append(Event("integration_failed", a, i, f"CVODES failed on [{a:.4f}, {b:.4f}] with gap "
+                                f"h = {h[i]:.3g}{near} (CasADi: {str(exc).splitlines()[0][:120]})"))
             return False
         tk = a + (b - a) * np.linspace(0.0, 1.0, self.k + 1)[1:]
         xk = np.asarray(out["xf"])
@@ -677,33 +650,35 @@ class PlatoonSimulator:
                prev: tuple[float, np.ndarray, np.ndarray] | None = None) -> Event | None:
         """First violation among the samples, with its time interpolated from the previous sample."""
         n = self.n
-        h, v = xk[:n], xk[n:2 * n]
-        checks = [("collision", h, 0.0, "gap h reached 0"),
-                  ("negative_speed", v, -1e-9, "speed became negative")]
+        # the previous sample (for an event at the first sample of this chunk)
+        xp, yp = (prev[1][:, 0], prev[2][:, 0]) if prev is not None else (None, None)
+        rows = {"h": (xk[:n], None if xp is None else xp[:n]),
+                "v": (xk[n:2 * n], None if xp is None else xp[n:2 * n])}
+        checks = [("collision", "h", 1.0, 0.0, "gap h reached 0"),
+                  ("negative_speed", "v", 1.0, -1e-9, "speed became negative")]
         if self.battery:
-            S, disc = xk[4 * n:5 * n], yk[2 * n:3 * n]
-            checks += [("infeasible_current", disc, 0.0, "cell cannot deliver the power demand (E² < 4 R_s P_c)"),
-                       ("soc_out_of_range", S, 0.0, "state of charge fell below 0"),
-                       ("soc_out_of_range", 1.0 - S, 0.0, "state of charge rose above 1")]
+            rows["disc"] = (yk[2 * n:3 * n], None if yp is None else yp[2 * n:3 * n])
+            rows["S"] = (xk[4 * n:5 * n], None if xp is None else xp[4 * n:5 * n])
+            checks += [("infeasible_current", "disc", 1.0, 0.0, "cell cannot deliver the power demand (E² < 4 R_s P_c)"),
+                       ("soc_out_of_range", "S", 1.0, 0.0, "state of charge fell below 0"),
+                       ("soc_out_of_range", "S", -1.0, -1.0, "state of charge rose above 1")]
         first: Event | None = None
-        for kind, arr, floor, msg in checks:
-            bad = arr <= floor if kind == "collision" else arr < floor
+        for kind, key, sign, floor, msg in checks:
+            cur, before = rows[key]
+            arr = sign * cur - floor  # the quantity that must stay > 0 (collision) or >= 0 (others)
+            bad = arr <= 0 if kind == "collision" else arr < 0
             if not bad.any():
                 continue
-            cols = np.where(bad.any(axis=0))[0]
-            j = int(cols[0])
+            j = int(np.where(bad.any(axis=0))[0][0])
             i = int(np.where(bad[:, j])[0][0])
             t_ev = float(tk[j])
-            if j > 0 or prev is not None:
+            # linear interpolation of the crossing between the previous sample and this one
+            a0 = (sign * cur[i, j - 1] - floor) if j > 0 else (None if before is None else sign * before[i] - floor)
+            if a0 is not None and a0 > 0:
                 t_prev = float(tk[j - 1]) if j > 0 else prev[0]
-                prev_val = {"collision": lambda: (xk[:n, j - 1] if j > 0 else prev[1][:n, 0])[i],
-                            "negative_speed": lambda: (xk[n:2 * n, j - 1] if j > 0 else prev[1][n:2 * n, 0])[i]}
-                if kind in prev_val:
-                    a0, a1 = prev_val[kind]() - floor, arr[i, j] - floor
-                    if a0 > 0 > a1 or (a0 > 0 and a1 == 0):
-                        t_ev = t_prev + (t_ev - t_prev) * a0 / (a0 - a1)
+                t_ev = t_prev + (t_ev - t_prev) * a0 / (a0 - arr[i, j])
             if first is None or t_ev < first.time:
-                first = Event(kind, t_ev, i, f"{msg} (value {arr[i, j]:.4g} at t = {tk[j]:.4f})")
+                first = Event(kind, t_ev, i, f"{msg} (value {cur[i, j]:.4g} at t = {tk[j]:.4f})")
         return first
 
     def _assemble(self, t: np.ndarray, X: np.ndarray, Qc: np.ndarray, Y: np.ndarray,

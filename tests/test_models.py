@@ -187,12 +187,13 @@ def test_ocv_interpolant_matches_table_and_is_monotone() -> None:
     fine = np.linspace(0, 1, 2001)
     vals = np.asarray(battery.ocv_function().map(fine.size)(fine.reshape(1, -1))).ravel()
     assert vals.min() > 2.3 and vals.max() < 3.6
+    assert np.all(np.diff(vals) > 0)  # the table is increasing and the spline keeps it so
 
 
 @pytest.mark.parametrize("cls,field,value", [
     (VehicleParams, "mass_kg", -1.0), (VehicleParams, "efficiency", 1.5), (CellParams, "R_s_ohm", 0.0),
     (CellParams, "soc0", 1.2), (PackParams, "n_series", 0), (CarFollowingParams, "kappa", -0.1),
-    (Units, "speed_mps", float("nan")),
+    (Units, "speed_mps", float("nan")), (Proposed, "eps", 0.0), (OVFL, "beta", -3.0), (OVM, "alpha", float("inf")),
 ])
 def test_parameter_validation_names_field(cls, field: str, value: float) -> None:
     with pytest.raises(ParameterError, match=rf"{cls.__name__}\.{field} = "):

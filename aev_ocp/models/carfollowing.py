@@ -46,6 +46,16 @@ class CarFollowingLaw(ABC):
     """A car-following law v̇ = f(h, v, v_l) in model units."""
 
     name: str = "law"
+    _nonnegative: tuple[str, ...] = ()  # coefficients that must be finite and >= 0
+    _positive: tuple[str, ...] = ()  # coefficients that must be finite and > 0
+
+    def __post_init__(self) -> None:
+        for attr, strict in [(a, False) for a in self._nonnegative] + [(a, True) for a in self._positive]:
+            v = getattr(self, attr)
+            ok = isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and (v > 0 if strict else v >= 0)
+            if not ok:
+                raise ParameterError(f"{type(self).__name__}.{attr} = {v!r} is not allowed: must be a finite "
+                                     f"number {'> 0' if strict else '>= 0'}")
 
     @abstractmethod
     def accel(self, h: Any, v: Any, v_l: Any) -> Any:
@@ -71,6 +81,7 @@ class OVM(CarFollowingLaw):
 
     alpha: float = 2.0  # paper §2
     name = "ovm"
+    _nonnegative = ("alpha",)
 
     def accel(self, h: Any, v: Any, v_l: Any) -> Any:
         return self.alpha * (optimal_velocity(h) - v)
@@ -83,6 +94,7 @@ class OVFL(CarFollowingLaw):
     alpha: float = 2.0  # paper §2
     beta: float = 3.0  # paper §2
     name = "ovfl"
+    _nonnegative = ("alpha", "beta")
 
     def accel(self, h: Any, v: Any, v_l: Any) -> Any:
         return self.alpha * (optimal_velocity(h) - v) + self.beta * (v_l - v) / h**2
@@ -97,6 +109,8 @@ class Proposed(CarFollowingLaw):
     kappa: float = 0.03  # paper Fig. 1 caption
     eps: float = 1e-6  # paper §2
     name = "proposed"
+    _nonnegative = ("alpha", "beta", "kappa")
+    _positive = ("eps",)
 
     def accel(self, h: Any, v: Any, v_l: Any) -> Any:
         return (OVFL(self.alpha, self.beta).accel(h, v, v_l)
@@ -117,6 +131,8 @@ class IDM(CarFollowingLaw):
     s0: float = 0.2
     T_h: float = 0.8
     name = "idm"
+    _positive = ("a_max", "b", "v0")
+    _nonnegative = ("s0", "T_h")
 
     def accel(self, h: Any, v: Any, v_l: Any) -> Any:
         s_star = self.s0 + v * self.T_h + v * (v - v_l) / (2.0 * math.sqrt(self.a_max * self.b))

@@ -139,6 +139,9 @@ class PaperLeader(LeaderProfile):
 class SpeedTrace(LeaderProfile):
     """A sampled speed trace, linearly interpolated; held at its last value after its end.
 
+    It declares no breakpoints: its acceleration jumps at every knot, but the followers only see its
+    (continuous) speed, so the integrators' step control handles the kinks instead of splitting there.
+
     times, speeds: model time and model speed (use :meth:`from_si` or :func:`drive_cycle` for SI data).
     """
 
