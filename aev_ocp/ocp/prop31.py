@@ -118,7 +118,10 @@ def _verdict(case: str, V0: tuple[float, float], q_nonneg: bool, res: OCPResult,
     if not res.success:
         return f"solver did not converge ({res.status}: {res.message}); no verdict"
     J, Imax = res.objective, float(np.max(np.abs(res.controls["I"])))
-    tol_J, tol_I = 1e-6, 1e-3
+    # With stored RC energy and Q ≥ 0 (enforced at grid points only) the computed optimum sits slightly
+    # below 0: −5.9e-7 J for N = 25…400 (solver tolerance, not discretisation). The tolerance scales
+    # with W(0) so that this is read as 0, far from the failing case (−0.47 J ≈ −0.1 W(0)).
+    tol_J, tol_I = max(1e-6, 1e-4 * W0), 1e-3
     a = alt["neg_polarisation"]
     if abs(J) <= tol_J and Imax <= tol_I:
         if a["max_abs_current_A"] > tol_I and abs(a["objective_J"] - J) <= tol_J:
