@@ -32,22 +32,34 @@ def cli_ocp(argv: list[str]) -> int:
         return int(exc.code or 0)
     from . import api
 
+    if args.N is not None and args.N < 1:
+        print(f"aev-ocp ocp {args.problem}: error: --N = {args.N} is not allowed: must be an integer >= 1",
+              file=sys.stderr)
+        return 2
+    if args.problem in ("prop31",) and args.scenario is not None:
+        print("aev-ocp ocp prop31: error: prop31 takes no scenario (OCP-A is the single cell of PROBLEM.md §8)",
+              file=sys.stderr)
+        return 2
+    if args.problem == "oracle" and args.N is not None:
+        print("aev-ocp ocp oracle: error: --N does not apply (N = t_end/dt of the scenario, dt = 0.1)",
+              file=sys.stderr)
+        return 2
     out = Path(args.out) if args.out else None
     try:
         if args.problem == "prop31":
             from .prop31 import prop31_table
 
-            cases = api.run_prop31(args.method, out_dir=out, **({"N": args.N} if args.N else {}))
+            cases = api.run_prop31(args.method, out_dir=out, **({"N": args.N} if args.N is not None else {}))
             print(prop31_table(cases))
             ok = all(e["status"] in ("optimal", "acceptable") for e in cases.values())
         elif args.problem == "current-profile":
             rep = api.run_current_profile(method=args.method, out_dir=out, scenario=args.scenario,
-                                          **({"N": args.N} if args.N else {}))
+                                          **({"N": args.N} if args.N is not None else {}))
             print(rep["table"])
             ok = rep["ok"]
         elif args.problem == "eco-trip":
             rep = api.run_eco_trip(method=args.method, out_dir=out, scenario=args.scenario,
-                                   **({"N": args.N} if args.N else {}))
+                                   **({"N": args.N} if args.N is not None else {}))
             print(rep["table"])
             ok = rep["ok"]
         else:
