@@ -40,8 +40,14 @@ def scenario_ev(scenario: str | Path | None) -> EVParams:
 
 def oracle_scenario_from_file(path: str | Path, dt: float = 0.1) -> OracleScenario:
     """OCP-D scenario from a scenario TOML: its leader, t_end, units/vehicle/cell/pack, and follower 1's
-    h(0), v(0); dt [model time] (PROBLEM.md §9 default 0.1) is adjusted to divide t_end."""
+    h(0), v(0), S(0); dt [model time] (PROBLEM.md §9 default 0.1) is adjusted to divide t_end. A drive-cycle
+    (speed-trace) leader uses dt = 1 s instead, the cycles' sampling (as drive_cycle_scenario; a 0.1 grid
+    over a whole cycle would be an NLP of ~15 000 intervals)."""
+    from ..models.leader import SpeedTrace
+
     sc = _load(path)
+    if isinstance(sc.leader, SpeedTrace):
+        dt = sc.units.time_from_si(1.0)
     n = max(1, round(sc.t_end / dt))
     return OracleScenario(leader=sc.leader, t_end=sc.t_end, dt=sc.t_end / n, h0=sc.gaps0[0], v0=sc.speeds0[0],
                           S0=sc.ev.cell.soc0, ev=sc.ev, name=sc.name)
