@@ -152,7 +152,7 @@ def test_forced_infeasible_step_triggers_counted_fallback():
 
 
 @pytest.mark.parametrize("kw, name", [({"N": 0}, "MPCSettings.N"), ({"dt": -0.1}, "MPCSettings.dt"),
-                                      ({"solver": "magic"}, "MPCSettings.solver"),
+                                      ({"solver": "magic"}, "MPCSettings.solver"), ({"rti_iterations": 0}, "MPCSettings.rti_iterations"),
                                       ({"objective": "speed"}, "MPCSettings.objective"),
                                       ({"qp_solver": "gurobi"}, "MPCSettings.qp_solver"),
                                       ({"predictor": "psychic"}, "MPCSettings.predictor"),
@@ -227,3 +227,82 @@ def test_bad_platoon_configuration_errors():
         ClosedLoop(PaperLeader(), [MPCSettings(N=5), MPCVehicle(MPCSettings(N=5, dt=0.2), "cooperative")])
     with pytest.raises(ParameterError, match="multiple of dt"):
         run_single(MPCSettings(N=5), t_end=0.25)
+
+
+@pytest.mark.parametrize("codegen", [True, False], ids=["codegen", "interpreted"])
+def test_rti_closed_loop_matches_ipopt_and_holds_constraints(codegen, tmp_path_factory, monkeypatch):
+    """Real-time iteration (one QP per step from the shifted previous solution) on the canonical
+    scenario shortened to 10 time units: same closed loop as the IPOPT path within tolerance."""
+    monkeypatch.setenv("AEV_OCP_CACHE", str(tmp_path_factory.getbasetemp() / "cache"))
+    T = 10.0
+    ref = run_single(MPCSettings(), t_end=T)
+    r = run_single(MPCSettings(solver="rti", codegen=codegen), t_end=T)
+    st = r.solver_stats[0]
+    assert r.status == "ok" and st["fallbacks"] == 0 and st["n_steps"] == 100
+    assert st["solver_path"] == ("rti+codegen" if codegen else "rti")
+    steps = r.meta["mpc_steps"][0]
+    assert steps["status"][0] == "Solve_Succeeded"  # first step: cold IPOPT
+    assert all(s.startswith("RTI_") for s in steps["status"][1:]) and max(steps["iterations"][1:]) == 1
+    np.testing.assert_allclose(r.accel[:, 0], ref.accel[:, 0], atol=2e-3)
+    np.testing.assert_allclose(r.gap[:, 0], ref.gap[:, 0], atol=1e-4)
+
+    def cost(x):
+        return stage_cost_of_trajectory(x.t, x.gap[:, 0], x.speed[:, 0], x.V1[:, 0], x.V2[:, 0], x.S[:, 0],
+                                        x.accel[:-1, 0], x.leader_speed[:-1])["total"]
+
+    assert cost(r) == pytest.approx(cost(ref), rel=1e-3)
+    h, v, a, I = r.gap[:, 0], r.speed[:, 0], r.accel[:, 0], r.current_A[:, 0]
+    assert np.all(h[1:] >= 0.2 - 1e-6) and np.all((v[1:] >= -1e-7) & (v[1:] <= 2 + 1e-7))
+    assert np.all((a >= -3 - 1e-9) & (a <= 2 + 1e-9)) and np.all(np.abs(I) <= EV.cell.max_current_A + 1e-6)
+    m = r.metrics()[0]
+    assert m["gap_violations"] == 0 and m["speed_violations"] == 0 and m["min_gap_model"] >= 0.2 - 1e-4
+
+
+def test_rti_failed_qp_is_a_failure_and_restarts_cold():
+    ctrl = MPCController(MPCSettings(N=10, solver="rti"), EV)
+    z0 = [0.5, 1.2, 0.0, 0.0, 0.8]
+    fc = _forecast(0.0, 10)
+    assert ctrl.solve(z0, *fc).path == "ipopt-cold"
+    ok = ctrl.solve(z0, *fc)
+    assert ok.success and ok.path == "rti" and ok.iterations == 1
+
+    class FailingQP:
+        def __init__(self, qp):
+            self.qp = qp
+
+        def __call__(self, **kw):
+            return self.qp(**kw)
+
+        def stats(self):
+            return {"success": False, "return_status": "forced"}
+
+    real = ctrl._rti_qp
+    ctrl._rti_qp = FailingQP(real)
+    bad = ctrl.solve(z0, *fc)
+    assert not bad.success and "QP failed" in bad.status and np.all(np.isnan(bad.a))
+    ctrl._rti_qp = real
+    again = ctrl.solve(z0, *fc)  # warm start dropped: cold IPOPT, then RTI again
+    assert again.success and again.path == "ipopt-cold"
+    assert ctrl.solve(z0, *fc).path == "rti"
+
+
+def test_rti_failure_in_closed_loop_applies_counted_fallback(monkeypatch):
+    import aev_ocp.mpc.controller as C
+
+    real = C.MPCController._solve_rti
+    calls = {"n": 0}
+
+    def flaky(self, *a, **kw):
+        calls["n"] += 1
+        sol = real(self, *a, **kw)
+        if calls["n"] == 3:  # third RTI step fails
+            self._warm = None
+            sol.success, sol.status = False, "QP failed: forced"
+        return sol
+
+    monkeypatch.setattr(C.MPCController, "_solve_rti", flaky)
+    r = run_single(MPCSettings(N=10, solver="rti"), t_end=1.0)
+    st, steps = r.solver_stats[0], r.meta["mpc_steps"][0]
+    assert st["fallbacks"] == 1 and steps["status"][3] == "QP failed: forced"
+    assert steps["status"][4] == "Solve_Succeeded" and steps["status"][5].startswith("RTI_")
+    assert r.status == "ok"

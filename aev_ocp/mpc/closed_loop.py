@@ -18,6 +18,7 @@ bounds) for that step and is counted as a fallback. Collision, negative speed, i
 from __future__ import annotations
 
 import math
+import time
 from dataclasses import dataclass, field
 from typing import Any, Callable, Sequence
 
@@ -50,8 +51,9 @@ Controller = MPCVehicle | MPCSettings | CarFollowingLaw
 
 
 def _stats(times_s: list[float], iters: list[int], fallbacks: int, path: str, n: int,
-           codegen: bool) -> dict[str, Any]:
+           codegen: bool, call_s: list[float] | None = None) -> dict[str, Any]:
     ms = np.asarray(times_s, float) * 1e3
+    cm = np.asarray(call_s if call_s is not None else [], float) * 1e3
     it = np.asarray(iters, float)
     ok = ms.size > 0
     return {"solve_ms_median": float(np.median(ms)) if ok else float("nan"),
@@ -60,7 +62,10 @@ def _stats(times_s: list[float], iters: list[int], fallbacks: int, path: str, n:
             "iterations_mean": float(it.mean()) if ok else float("nan"),
             "iterations_max": int(it.max()) if ok else 0,
             "fallbacks": int(fallbacks), "solver_path": path + ("+codegen" if codegen else ""),
-            "n_steps": int(n)}
+            "n_steps": int(n),
+            # whole controller call (forecast excluded): warm-start shift, parameters, solve, unpacking
+            "call_ms_median": float(np.median(cm)) if cm.size else float("nan"),
+            "call_ms_p95": float(np.percentile(cm, 95)) if cm.size else float("nan")}
 
 
 class ClosedLoop:
@@ -194,6 +199,7 @@ class ClosedLoop:
         meas_t: list[float] = []
         meas_v: list[list[float]] = [[] for _ in range(n)]
         solve_t: list[list[float]] = [[] for _ in range(n)]
+        call_t: list[list[float]] = [[] for _ in range(n)]
         iters: list[list[int]] = [[] for _ in range(n)]
         status: list[list[str]] = [[] for _ in range(n)]
         fallbacks = [0] * n
@@ -217,7 +223,9 @@ class ClosedLoop:
                     continue
                 z = x[[i, n + i, 2 * n + i, 3 * n + i, 4 * n + i]]
                 vm, vh = self._forecast(i, tk, meas_t, meas_v, plans, ctrl.settings.N)
+                tc = time.perf_counter()
                 sol: MPCSolution = ctrl.solve(z, vm, vh)
+                call_t[i].append(time.perf_counter() - tc)
                 solve_t[i].append(sol.solve_time_s)
                 iters[i].append(sol.iterations)
                 status[i].append(sol.status)
@@ -265,7 +273,7 @@ class ClosedLoop:
         acc.append(y_last[:n])
         cur.append(y_last[n:2 * n])
         return self._assemble(np.array(ts), np.array(xs), np.array(qs), np.array(acc), np.array(cur), events,
-                              solve_t, iters, status, fallbacks, plans_last)
+                              solve_t, iters, status, fallbacks, plans_last, call_t)
 
     def _check(self, t1: float, x: np.ndarray, prev: tuple[float, np.ndarray, np.ndarray, np.ndarray] | None) -> Event | None:
         n = self.n
@@ -292,7 +300,8 @@ class ClosedLoop:
 
     def _assemble(self, t: np.ndarray, X: np.ndarray, Q: np.ndarray, A: np.ndarray, I: np.ndarray,
                   events: list[Event], solve_t: list[list[float]], iters: list[list[int]], status: list[list[str]],
-                  fallbacks: list[int], plans: list[np.ndarray | None]) -> SimulationResult:
+                  fallbacks: list[int], plans: list[np.ndarray | None],
+                  call_t: list[list[float]] | None = None) -> SimulationResult:
         n = self.n
         cols = lambda M, j: M[:, j * n:(j + 1) * n]  # noqa: E731
         names, stats, steps = [], [], []
@@ -305,9 +314,11 @@ class ClosedLoop:
                 continue
             s = c.settings
             names.append(f"mpc(w_Q={s.weights.w_Q:g})")
-            stats.append(_stats(solve_t[i], iters[i], fallbacks[i], s.solver, len(solve_t[i]), c.codegen_active))
+            ct = call_t[i] if call_t is not None else None
+            stats.append(_stats(solve_t[i], iters[i], fallbacks[i], s.solver, len(solve_t[i]), c.codegen_active,
+                                ct))
             steps.append({"solve_ms": (np.asarray(solve_t[i]) * 1e3).tolist(), "iterations": iters[i],
-                          "status": status[i]})
+                          "status": status[i], "call_ms": (np.asarray(ct or []) * 1e3).tolist()})
         settings = []
         for i in range(n):
             v = self.vehicles[i]

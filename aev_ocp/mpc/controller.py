@@ -152,32 +152,36 @@ class MPCController:
 
     def _compile(self, plugin: str) -> str | None:
         """C code of the NLP functions (objective, constraints, their Jacobians and the Lagrangian
-        Hessian), compiled once with gcc -O2 into a cache folder keyed by the source's hash
+        Hessian) of nlpsol ``plugin``, compiled once (see :meth:`_compile_c`)."""
+        gen = ca.nlpsol("mpc_nlp", plugin, self._nlp, {**_PLUGIN_GEN_OPTS.get(plugin, {})})
+        return self._compile_c(f"mpc_nlp_{plugin}", lambda: gen.generate_dependencies("mpc_nlp.c"), "mpc_nlp.c")
+
+    def _compile_c(self, stem: str, generate: Any, cfile: str) -> str | None:
+        """Run ``generate()`` (writes ``cfile`` into the current folder) in a temporary folder and
+        compile the C file with gcc -O2 into a cache folder keyed by the source's hash
         ($AEV_OCP_CACHE or ~/.cache/aev_ocp). Returns the shared library's path, or None (with a
         warning) when no compiler works."""
         cc = shutil.which("gcc") or shutil.which("cc")
         if cc is None:
             warnings.warn("MPC codegen requested but no C compiler (gcc) was found: using the "
-                          "interpreted CasADi functions instead", RuntimeWarning, stacklevel=4)
+                          "interpreted CasADi functions instead", RuntimeWarning, stacklevel=5)
             return None
         cache = Path(os.environ.get("AEV_OCP_CACHE", str(Path.home() / ".cache" / "aev_ocp"))) / "mpc"
         try:
             cache.mkdir(parents=True, exist_ok=True)
-            gen = ca.nlpsol("mpc_nlp", plugin, self._nlp, {**_PLUGIN_GEN_OPTS.get(plugin, {}),
-                                                            })
             with tempfile.TemporaryDirectory() as tmp:
                 cwd = os.getcwd()
                 os.chdir(tmp)
                 try:
-                    gen.generate_dependencies("mpc_nlp.c")
+                    generate()
                 finally:
                     os.chdir(cwd)
-                src = Path(tmp, "mpc_nlp.c").read_bytes()
+                src = Path(tmp, cfile).read_bytes()
                 key = hashlib.sha256(src + ca.__version__.encode()).hexdigest()[:16]
-                lib = cache / f"mpc_nlp_{plugin}_{key}.so"
+                lib = cache / f"{stem}_{key}.so"
                 if not lib.exists():
                     out = Path(tmp, lib.name)
-                    subprocess.run([cc, "-fPIC", "-shared", "-O2", "mpc_nlp.c", "-o", out.name], cwd=tmp,
+                    subprocess.run([cc, "-fPIC", "-shared", "-O2", cfile, "-o", out.name], cwd=tmp,
                                    check=True, capture_output=True, timeout=600)
                     tmp_lib = cache / f".{lib.name}.{os.getpid()}"
                     shutil.copyfile(out, tmp_lib)
@@ -185,7 +189,7 @@ class MPCController:
             return str(lib)
         except (OSError, subprocess.SubprocessError, RuntimeError) as exc:
             warnings.warn(f"MPC codegen failed ({type(exc).__name__}: {str(exc)[:200]}): using the "
-                          "interpreted CasADi functions instead", RuntimeWarning, stacklevel=4)
+                          "interpreted CasADi functions instead", RuntimeWarning, stacklevel=5)
             return None
 
     def _nlpsol(self, name: str, plugin: str, opts: dict[str, Any]) -> ca.Function:
@@ -233,7 +237,80 @@ class MPCController:
                     "tol_du": s.tol * 100, "print_header": s.verbose, "print_iteration": s.verbose,
                     "print_status": s.verbose, "min_step_size": 1e-12, **_SQP_EXTRA}
             self._fast = self._nlpsol("mpc_sqp", "sqpmethod", opts)
+        elif s.solver == "rti":
+            self._build_rti()
         # 'ipopt-cold': the cold IPOPT at every step
+
+    def _build_rti(self) -> None:
+        """The QP of one SQP step at a primal-dual point (x, λ_g) of the scaled NLP, stage by stage:
+        H = ∇²_x(f + λ_gᵀg) (block diagonal: the stage (z_k, a_k) blocks; gap_k is linear in
+        z_{k+1}), ∇f, A = ∂g/∂x (banded), g's bound offsets and the step bounds; one mapped stage
+        function, compiled to C when codegen is on. The QP (step dx, new multipliers) is solved by
+        ``ca.conic`` (HPIPM detects the OCP structure from the sparsity)."""
+        s = self.settings
+        N, nb, ngs = s.N, NX + 1, self._ng_stage
+        xs = ca.DM(X_SCALE)
+        zk, ak, zn = ca.SX.sym("zk", NX), ca.SX.sym("ak"), ca.SX.sym("zn", NX)
+        w, wt, sw, lk = ca.SX.sym("w", 2), ca.SX.sym("wt", 4), ca.SX.sym("sw"), ca.SX.sym("lk", ngs)
+        u = ca.vertcat(zk, ak)
+        ck = ca.vertcat(self.step(zk * xs, ak, w) / xs, self.path(zk * xs, ak))  # g_k + (z_{k+1}; 0)
+        cost = sw * s.dt * ca.dot(wt, self.terms(zk * xs, ak, w))
+        Hk = ca.densify(ca.hessian(cost + ca.dot(lk, ck), u)[0])
+        Jk = ca.densify(ca.jacobian(ck, u))
+        gk = ck - ca.vertcat(zn, ca.SX.zeros(ngs - NX))
+        stage = ca.Function("mpc_rti_stage", [zk, ak, zn, w, wt, sw, lk],
+                            [Hk, ca.gradient(cost, u), Jk, gk, cost])
+        V, P = ca.MX.sym("x", self.nv), ca.MX.sym("p", self.np_)
+        LAM, LBX, UBX = ca.MX.sym("lam_g", self.ng), ca.MX.sym("lbx", self.nv), ca.MX.sym("ubx", self.nv)
+        B = ca.reshape(V[:nb * N], nb, N)
+        Xn = ca.horzcat(B[:NX, 1:], V[nb * N:]) if N > 1 else V[nb * N:]
+        W, WT, SW = ca.reshape(P[:2 * N], 2, N), P[2 * N:2 * N + 4], P[2 * N + 4:]
+        Hs, Qs, Js, Gs, Cs = stage.map(N, "serial")(B[:NX, :], B[NX, :], Xn, W, ca.repmat(WT, 1, N), SW.T,
+                                                     ca.reshape(LAM, ngs, N))
+        H = ca.diagcat(*ca.horzsplit(Hs, nb), ca.MX(NX, NX))
+        E = ca.DM(self.ng, self.nv)  # −I of gap_k in z_{k+1}
+        for k in range(N):
+            for i in range(NX):
+                E[k * ngs + i, (k + 1) * nb + i] = -1.0
+        A = ca.horzcat(ca.diagcat(*ca.horzsplit(Js, nb)), ca.MX(self.ng, NX)) + ca.sparsify(E)
+        g = ca.vec(Gs)
+        qpdata = ca.Function("mpc_rti_qp_data", [V, P, LAM, LBX, UBX],
+                             [H, ca.vertcat(ca.vec(Qs), ca.MX.zeros(NX)), A, ca.DM(self._lbg) - g,
+                              ca.DM(self._ubg) - g, LBX - V, UBX - V, ca.sum2(Cs), g],
+                             ["x", "p", "lam_g", "lbx", "ubx"],
+                             ["h", "g", "a", "lba", "uba", "lbdx", "ubdx", "f", "gx"])
+        # objective and constraints only (cost and nonlinear violation of the returned plan)
+        fg = ca.Function("mpc_rti_fg", [self._nlp["x"], self._nlp["p"]], [self._nlp["f"], self._nlp["g"]],
+                         ["x", "p"], ["f", "g"])
+        self._rti_data, self._rti_fg = qpdata, fg
+        if s.codegen:
+            def generate() -> None:
+                cg = ca.CodeGenerator("mpc_rti.c")
+                cg.add(qpdata)
+                cg.add(fg)
+                cg.generate()
+
+            lib = self._compile_c("mpc_rti", generate, "mpc_rti.c")
+            if lib is not None:
+                self.codegen_active = True
+                self._rti_data = ca.external("mpc_rti_qp_data", lib)
+                self._rti_fg = ca.external("mpc_rti_fg", lib)
+        if not self.codegen_active:
+            self._rti_data, self._rti_fg = qpdata.expand(), fg.expand()
+        qp_opts: dict[str, Any] = {"error_on_fail": False}
+        if s.qp_solver == "hpipm":
+            qp_opts["hpipm"] = {"iter_max": 100, "warm_start": 0}
+        elif s.qp_solver == "qrqp":
+            qp_opts.update({"print_iter": False, "print_header": False, "print_info": False})
+        elif s.qp_solver == "osqp":
+            qp_opts.update({"osqp": {"verbose": False, "eps_abs": 1e-9, "eps_rel": 1e-9, "polish": True,
+                                     "max_iter": 20000}})
+        elif s.qp_solver == "qpoases":
+            qp_opts.update({"printLevel": "none", "sparse": True})
+        self._rti_qp = ca.conic("mpc_rti_qp", s.qp_solver, {"h": H.sparsity(), "a": A.sparsity()}, qp_opts)
+        self._rti_path0 = ca.Function("mpc_rti_path0", [V], [self.path(V[:NX] * xs, V[NX])])
+        self._rti_path0_lb = np.asarray(self._path_lb, float)
+        self._rti_path0_ub = np.asarray(self._path_ub, float)
 
     # ------------------------------------------------------------------ helpers
     def _params(self, z0: np.ndarray, w: np.ndarray, weights: FollowingWeights | None,
@@ -317,6 +394,8 @@ class MPCController:
             solver, path = self._cold, "ipopt-cold"
         lbx, ubx = self._lbx.copy(), self._ubx.copy()
         lbx[:NX] = ubx[:NX] = z0 / X_SCALE
+        if warm and s.solver == "rti":
+            return self._solve_rti(args, p, lbx, ubx)
         t0 = time.perf_counter()
         try:
             out = solver(p=p, lbx=lbx, ubx=ubx, lbg=self._lbg, ubg=self._ubg, **args)
@@ -342,3 +421,51 @@ class MPCController:
             self._warm = None
         return MPCSolution(success, status, iters, dt_wall, X, a, float(out["f"]), viol, path,
                            {"t_wall_solver": float(st.get("t_wall_total", float("nan")))})
+
+    def _solve_rti(self, args: dict[str, np.ndarray], p: np.ndarray, lbx: np.ndarray,
+                   ubx: np.ndarray) -> MPCSolution:
+        """``rti_iterations`` full SQP steps from the shifted previous solution (see :meth:`_build_rti`).
+        Success: every QP solved, a finite step, and the applied control's path constraints (pack
+        current, current map at node 0, where the state is the measurement) hold on the exact model."""
+        s = self.settings
+        N = s.N
+        data, qp = self._rti_data, self._rti_qp
+        t0 = time.perf_counter()
+        x, lam_g, lam_x = args["x0"], args["lam_g0"], args["lam_x0"]
+        ok, status, it, step = True, "", 0, float("inf")
+        try:
+            while it < s.rti_iterations:
+                d = data(x, p, lam_g, lbx, ubx)
+                out = qp(h=d[0], g=d[1], a=d[2], lba=d[3], uba=d[4], lbx=d[5], ubx=d[6])
+                it += 1
+                st = qp.stats()
+                dx = np.asarray(out["x"]).ravel()
+                if not st.get("success", False) or not np.all(np.isfinite(dx)):
+                    ok, status = False, f"QP failed: {st.get('return_status', '')}"
+                    break
+                x = x + dx
+                lam_g, lam_x = np.asarray(out["lam_a"]).ravel(), np.asarray(out["lam_x"]).ravel()
+                step = float(np.abs(dx).max())
+                if step <= s.tol:
+                    break
+            c0 = np.asarray(self._rti_path0(x)).ravel() if ok else None
+        except RuntimeError as exc:
+            ok, status, c0 = False, f"exception: {str(exc).splitlines()[0][:200]}", None
+        dt_wall = time.perf_counter() - t0
+        viol0 = float("inf")
+        if c0 is not None:
+            viol0 = float(np.maximum(np.maximum(self._rti_path0_lb - c0, c0 - self._rti_path0_ub), 0).max(initial=0))
+            if not np.isfinite(viol0) or viol0 > 1e-6:
+                ok, status = False, f"applied control violates the path constraints by {viol0:.3g}"
+        if not ok:
+            self._warm = None
+            return MPCSolution(False, status, it, dt_wall, np.full((NX, N + 1), np.nan), np.full(N, np.nan),
+                               float("nan"), viol0, "rti")
+        # plan, cost and the nonlinear constraint violation of the plan (the RTI plan is feasible only
+        # to first order; reported, not required)
+        f, g = self._rti_fg(x, p)
+        viol = self._violation(x, np.asarray(g).ravel(), lbx, ubx)
+        X, a = self.unpack(x)
+        self._warm = {"x": x, "lam_x": lam_x, "lam_g": lam_g}
+        return MPCSolution(True, "RTI_Step" if step > s.tol else "RTI_Converged", it, dt_wall, X, a,
+                           float(f), viol, "rti", {"step_inf": step, "node0_violation": viol0})

@@ -1,7 +1,7 @@
 """The ``[mpc]`` table of scenario files, and building a closed loop from a scenario.
 
 Keys (all optional; defaults PROBLEM.md §9): every :class:`MPCSettings` option (N, dt, objective,
-solver, qp_solver, codegen, tol, max_iter, max_cpu_time_s, predictor, predictor_window, rk4_substeps,
+solver, qp_solver, codegen, tol, max_iter, rti_iterations, max_cpu_time_s, predictor, predictor_window, rk4_substeps,
 verbose), the weights w_Q, w_V, w_r, w_a, the bounds h_min, v_min, v_max, a_min, a_max,
 smoothing_width_W, plus ``vehicles`` ("all" or an array of 1-based follower numbers on MPC; the others
 keep the scenario's [platoon] law) and ``follower_predictor`` (forecast of an MPC follower behind
@@ -20,7 +20,7 @@ from .settings import PREDICTOR_NAMES, QP_SOLVERS, SOLVER_PATHS, MPCSettings
 
 _STR = {"objective": ("heat", "energy"), "solver": SOLVER_PATHS, "qp_solver": QP_SOLVERS,
         "predictor": PREDICTOR_NAMES}
-_INT = ("N", "max_iter", "predictor_window", "rk4_substeps")
+_INT = ("N", "max_iter", "rti_iterations", "predictor_window", "rk4_substeps")
 _BOOL = ("codegen", "verbose")
 
 

@@ -18,7 +18,11 @@ from ..params import ParameterError, PowertrainOptions
 #: ``qp_solver``) warm-started from the shifted previous solution after a cold IPOPT first solve.
 #: (FATROP was tried: CasADi 3.8.2's interface raised 'fatrop inf' on this NLP, so it is not offered.)
 #: 'ipopt-cold': IPOPT from the closed-form-law guess at every step (the benchmark baseline).
-SOLVER_PATHS = ("ipopt", "sqp", "ipopt-cold")
+#: 'rti': real-time iteration — ``rti_iterations`` (default 1) full SQP steps per control step from the
+#: shifted previous solution: one QP (exact Lagrangian Hessian, linearised constraints) built by a
+#: stage-wise (optionally C-compiled) function and solved by ``qp_solver`` through ``ca.conic``; no
+#: line search. The applied control's path constraints (current, map) are checked on the exact model.
+SOLVER_PATHS = ("ipopt", "sqp", "ipopt-cold", "rti")
 QP_SOLVERS = ("qrqp", "osqp", "hpipm", "qpoases", "proxqp")
 PREDICTOR_NAMES = ("oracle", "constant-velocity", "constant-acceleration", "cooperative")
 
@@ -35,7 +39,9 @@ class MPCSettings:
     the NLP, changeable per solve without rebuilding); bounds: h, v, a bounds; objective: 'heat'
     (pack Q with the smoothed η switch) or 'energy' (v g̃(a)); smooth: η-switch smoothing (PROBLEM.md §7);
     rk4_substeps: RK4 steps per interval in the prediction model; solver: one of SOLVER_PATHS;
-    qp_solver: QP solver of the 'sqp' path; codegen: compile the NLP functions to C with gcc
+    qp_solver: QP solver of the 'sqp' and 'rti' paths; rti_iterations: SQP iterations per step of the
+    'rti' path (1 = real-time iteration; fewer when the step falls below tol); codegen: compile the
+    NLP functions to C with gcc
     (falls back to the interpreted path with a warning when no compiler is found); tol: optimality
     tolerance; max_iter: iteration limit per solve; max_cpu_time_s: wall-time limit per solve [s];
     predictor: leader forecast (PREDICTOR_NAMES); predictor_window: measured samples used by the
@@ -54,13 +60,15 @@ class MPCSettings:
     codegen: bool = False
     tol: float = 1e-8
     max_iter: int = 200
+    rti_iterations: int = 1
     max_cpu_time_s: float = 10.0
     predictor: str = "oracle"  # PROBLEM.md §9 canonical scenario: oracle forecast
     predictor_window: int = 5
     verbose: bool = False
 
     def __post_init__(self) -> None:
-        for nm, lo in (("N", 1), ("rk4_substeps", 1), ("max_iter", 1), ("predictor_window", 2)):
+        for nm, lo in (("N", 1), ("rk4_substeps", 1), ("max_iter", 1), ("rti_iterations", 1),
+                       ("predictor_window", 2)):
             v = getattr(self, nm)
             if not isinstance(v, int) or isinstance(v, bool) or v < lo:
                 raise _err(nm, v, f"must be an integer >= {lo}")
