@@ -27,6 +27,9 @@ def test_shipped_mpc_scenarios_load():
     assert s.n_followers == 1 and s.extra["mpc"].settings.N == 40 and s.extra["mpc"].settings.predictor == "oracle"
     p = load_scenario(find_scenario("mpc_paper_platoon"))
     assert p.n_followers == 5 and p.extra["mpc"].follower_predictor == "cooperative"
+    for sc in (s, p):  # the fast real-time-iteration path with compiled functions is the scenario default
+        st = sc.extra["mpc"].settings
+        assert (st.solver, st.qp_solver, st.codegen, st.rti_iterations) == ("rti", "hpipm", True, 1)
 
 
 @pytest.mark.parametrize("bad, word", [({"N": 0}, "N"), ({"w_Q": -1.0}, "w_Q"), ({"solver": "x"}, "solver"),
@@ -37,7 +40,8 @@ def test_bad_mpc_table_names_the_key(bad, word):
 
 
 def test_cli_writes_results_and_compares(tmp_path, capsys):
-    rc = cli_mpc(["mpc_paper_single", "--out", str(tmp_path), "--t-end", "1.0", "--solver", "sqp"])
+    rc = cli_mpc(["mpc_paper_single", "--out", str(tmp_path), "--t-end", "1.0", "--solver", "sqp",
+                  "--no-codegen"])
     assert rc == 0
     out = capsys.readouterr().out
     assert "proposed" in out and "ovfl" in out and "ocp-d" in out and "solve_ms_median" in out
@@ -48,6 +52,20 @@ def test_cli_writes_results_and_compares(tmp_path, capsys):
     assert m["cost_s9"] >= res["ocp_d"]["cost_s9"] * (1 - 1e-3)
     for f in ("trajectories_mpc.csv", "mpc_trajectories.png", "mpc_solve_times.png", "overlay_vehicle1.png"):
         assert (tmp_path / f).stat().st_size > 0
+
+
+def test_cli_scenario_default_rti_path(tmp_path, capsys, monkeypatch, tmp_path_factory):
+    monkeypatch.setenv("AEV_OCP_CACHE", str(tmp_path_factory.getbasetemp() / "cache"))
+    rc = cli_mpc(["mpc_paper_single", "--out", str(tmp_path), "--t-end", "1.0", "--no-ocpd", "--laws", "proposed"])
+    assert rc == 0
+    m = json.loads((tmp_path / "results.json").read_text())["metrics"]["mpc"][0]
+    assert m["n_steps"] == 10 and m["fallbacks"] == 0 and m["solver_path"] == "rti+codegen"
+    assert m["gap_violations"] == 0 and m["speed_violations"] == 0
+    rc = cli_mpc(["mpc_paper_single", "--out", str(tmp_path / "b"), "--t-end", "0.5", "--no-ocpd", "--laws",
+                  "proposed", "--solver", "rti", "--no-codegen"])
+    assert rc == 0
+    m = json.loads((tmp_path / "b" / "results.json").read_text())["metrics"]["mpc"][0]
+    assert m["solver_path"] == "rti" and m["fallbacks"] == 0
 
 
 def test_cli_bad_input_is_exit_2(capsys):

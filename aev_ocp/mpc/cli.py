@@ -18,7 +18,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", default=None, help="output folder (default results/mpc/<scenario name>)")
     p.add_argument("--solver", choices=SOLVER_PATHS, default=None, help="solver path (default: the scenario's)")
     p.add_argument("--qp-solver", choices=QP_SOLVERS, default=None, help="QP solver of the sqp path")
-    p.add_argument("--codegen", action="store_true", help="compile the NLP functions to C (gcc)")
+    cg = p.add_mutually_exclusive_group()
+    cg.add_argument("--codegen", action="store_true", default=None, help="compile the NLP functions to C (gcc)")
+    cg.add_argument("--no-codegen", dest="codegen", action="store_false", help="interpreted CasADi functions")
     p.add_argument("--t-end", type=float, default=None, help="shorter horizon [model time] for a quick run")
     p.add_argument("--laws", nargs="*", default=None, help="closed-form laws to compare (default proposed ovfl)")
     p.add_argument("--no-ocpd", action="store_true", help="skip the OCP-D lower bound")
@@ -40,8 +42,8 @@ def cli_mpc(argv: list[str]) -> int:
         sc = load_scenario(find_scenario(a.scenario))
         cfg: MPCConfig = sc.extra.get("mpc") or MPCConfig(MPCSettings())
         changes = {k: v for k, v in (("solver", a.solver), ("qp_solver", a.qp_solver)) if v is not None}
-        if a.codegen:
-            changes["codegen"] = True
+        if a.codegen is not None:
+            changes["codegen"] = a.codegen
         s = cfg.settings.with_(**changes)
         if a.t_end is not None:
             sc = sc.replace(t_end=a.t_end)
