@@ -65,6 +65,20 @@ _PLUGIN_GEN_OPTS: dict[str, dict[str, Any]] = {"sqpmethod": {"print_header": Fal
                                                              "qpsol_options": {"print_info": False, "print_header": False, "print_iter": False}}}
 
 
+def _qp_options(qp_solver: str) -> dict[str, Any]:
+    """Silent, tight options of a QP solver (the 'sqp' path's qpsol and the 'rti' path's conic)."""
+    opts: dict[str, Any] = {"error_on_fail": False}
+    if qp_solver == "qrqp":
+        opts.update({"print_iter": False, "print_header": False, "print_info": False})
+    elif qp_solver == "osqp":
+        opts["osqp"] = {"verbose": False, "eps_abs": 1e-9, "eps_rel": 1e-9, "polish": True, "max_iter": 20000}
+    elif qp_solver == "hpipm":
+        opts["hpipm"] = {"iter_max": 100, "warm_start": 0}
+    elif qp_solver == "qpoases":
+        opts.update({"printLevel": "none", "sparse": True})
+    return opts
+
+
 class MPCController:
     """The §9 MPC for one vehicle: build once, then :meth:`solve` at every step (warm-started).
 
@@ -222,16 +236,9 @@ class MPCController:
         if s.solver == "ipopt":
             self._fast = self._ipopt("mpc_ipopt_warm", warm=True)
         elif s.solver == "sqp":
-            qp_opts: dict[str, Any] = {"error_on_fail": False}
-            if s.qp_solver == "qrqp":
-                qp_opts.update({"print_iter": False, "print_header": False, "print_info": False})
-            elif s.qp_solver == "osqp":
-                qp_opts.update({"osqp": {"verbose": False, "eps_abs": 1e-9, "eps_rel": 1e-9, "polish": True,
-                                         "max_iter": 20000}, "warm_start_primal": True})
-            elif s.qp_solver == "hpipm":
-                qp_opts.update({"hpipm": {"iter_max": 100, "warm_start": 0}})
-            elif s.qp_solver == "qpoases":
-                qp_opts.update({"printLevel": "none", "sparse": True})
+            qp_opts = _qp_options(s.qp_solver)
+            if s.qp_solver == "osqp":
+                qp_opts["warm_start_primal"] = True
             opts = {"qpsol": s.qp_solver, "qpsol_options": qp_opts,
                     "hessian_approximation": "exact", "max_iter": s.max_iter, "tol_pr": s.tol * 100,
                     "tol_du": s.tol * 100, "print_header": s.verbose, "print_iteration": s.verbose,
@@ -297,17 +304,8 @@ class MPCController:
                 self._rti_fg = ca.external("mpc_rti_fg", lib)
         if not self.codegen_active:
             self._rti_data, self._rti_fg = qpdata.expand(), fg.expand()
-        qp_opts: dict[str, Any] = {"error_on_fail": False}
-        if s.qp_solver == "hpipm":
-            qp_opts["hpipm"] = {"iter_max": 100, "warm_start": 0}
-        elif s.qp_solver == "qrqp":
-            qp_opts.update({"print_iter": False, "print_header": False, "print_info": False})
-        elif s.qp_solver == "osqp":
-            qp_opts.update({"osqp": {"verbose": False, "eps_abs": 1e-9, "eps_rel": 1e-9, "polish": True,
-                                     "max_iter": 20000}})
-        elif s.qp_solver == "qpoases":
-            qp_opts.update({"printLevel": "none", "sparse": True})
-        self._rti_qp = ca.conic("mpc_rti_qp", s.qp_solver, {"h": H.sparsity(), "a": A.sparsity()}, qp_opts)
+        self._rti_qp = ca.conic("mpc_rti_qp", s.qp_solver, {"h": H.sparsity(), "a": A.sparsity()},
+                                _qp_options(s.qp_solver))
         self._rti_path0 = ca.Function("mpc_rti_path0", [V], [self.path(V[:NX] * xs, V[NX])])
         self._rti_path0_lb = np.asarray(self._path_lb, float)
         self._rti_path0_ub = np.asarray(self._path_ub, float)
