@@ -126,9 +126,9 @@ def test_solver_paths_give_the_same_closed_loop(settings, tmp_path_factory, monk
 
 
 def test_codegen_without_compiler_falls_back_with_warning(monkeypatch):
-    import aev_ocp.mpc.controller as C
+    import aev_ocp.compiled as B
 
-    monkeypatch.setattr(C.shutil, "which", lambda name: None)
+    monkeypatch.setattr(B.shutil, "which", lambda name: None)
     with pytest.warns(RuntimeWarning, match="no C compiler"):
         ctrl = MPCController(MPCSettings(N=5, solver="sqp", codegen=True), EV)
     assert not ctrl.codegen_active

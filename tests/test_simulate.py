@@ -213,3 +213,13 @@ def test_event_time_is_located_between_samples() -> None:
         assert e.kind == "infeasible_current" and e.vehicle == 0
     t = [e.time for e in times.values()]
     assert max(t) - min(t) < 1e-4
+
+
+def test_no_compiler_auto_falls_back_to_cvodes_and_cascade_says_why(monkeypatch: pytest.MonkeyPatch) -> None:
+    import aev_ocp.compiled as B
+
+    monkeypatch.setattr(B.shutil, "which", lambda name: None)
+    sim = PlatoonSimulator(ConstantSpeed(1.0), [Proposed(kappa=0.0123)], options=SimOptions(dt_out=0.1))
+    assert sim.method == "cvodes"
+    with pytest.raises(ParameterError, match="no C compiler found"):
+        PlatoonSimulator(ConstantSpeed(1.0), [Proposed(kappa=0.0123)], options=SimOptions(method="cascade"))

@@ -17,10 +17,7 @@ KKT system is banded and HPIPM can detect the OCP structure.
 
 from __future__ import annotations
 
-import hashlib
 import os
-import shutil
-import subprocess
 import tempfile
 import time
 import warnings
@@ -31,6 +28,7 @@ from typing import Any
 import casadi as ca
 import numpy as np
 
+from ..compiled import compile_shared, compiler
 from ..models.carfollowing import CarFollowingLaw, Proposed
 from ..ocp.following import (FollowingWeights, following_ode, following_path_constraints,
                              following_stage_terms, following_state_bounds)
@@ -172,17 +170,14 @@ class MPCController:
 
     def _compile_c(self, stem: str, generate: Any, cfile: str) -> str | None:
         """Run ``generate()`` (writes ``cfile`` into the current folder) in a temporary folder and
-        compile the C file with gcc -O2 into a cache folder keyed by the source's hash
-        ($AEV_OCP_CACHE or ~/.cache/aev_ocp). Returns the shared library's path, or None (with a
-        warning) when no compiler works."""
-        cc = shutil.which("gcc") or shutil.which("cc")
-        if cc is None:
+        compile the C file into the private cache (:func:`aev_ocp.compiled.compile_shared`, keyed by
+        the source's hash). Returns the shared library's path, or None (with a warning) when no
+        compiler works."""
+        if compiler() is None:
             warnings.warn("MPC codegen requested but no C compiler (gcc) was found: using the "
                           "interpreted CasADi functions instead", RuntimeWarning, stacklevel=5)
             return None
-        cache = Path(os.environ.get("AEV_OCP_CACHE", str(Path.home() / ".cache" / "aev_ocp"))) / "mpc"
         try:
-            cache.mkdir(parents=True, exist_ok=True)
             with tempfile.TemporaryDirectory() as tmp:
                 cwd = os.getcwd()
                 os.chdir(tmp)
@@ -190,21 +185,17 @@ class MPCController:
                     generate()
                 finally:
                     os.chdir(cwd)
-                src = Path(tmp, cfile).read_bytes()
-                key = hashlib.sha256(src + ca.__version__.encode()).hexdigest()[:16]
-                lib = cache / f"{stem}_{key}.so"
-                if not lib.exists():
-                    out = Path(tmp, lib.name)
-                    subprocess.run([cc, "-fPIC", "-shared", "-O2", cfile, "-o", out.name], cwd=tmp,
-                                   check=True, capture_output=True, timeout=600)
-                    tmp_lib = cache / f".{lib.name}.{os.getpid()}"
-                    shutil.copyfile(out, tmp_lib)
-                    os.replace(tmp_lib, lib)  # atomic: concurrent runs never load a half-written library
-            return str(lib)
-        except (OSError, subprocess.SubprocessError, RuntimeError) as exc:
+                src = Path(tmp, cfile).read_text()
+        except (OSError, RuntimeError) as exc:
             warnings.warn(f"MPC codegen failed ({type(exc).__name__}: {str(exc)[:200]}): using the "
                           "interpreted CasADi functions instead", RuntimeWarning, stacklevel=5)
             return None
+        built = compile_shared(src, stem, "mpc")
+        if built.path is None:
+            warnings.warn(f"MPC codegen failed ({built.error}): using the interpreted CasADi functions instead",
+                          RuntimeWarning, stacklevel=5)
+            return None
+        return str(built.path)
 
     def _nlpsol(self, name: str, plugin: str, opts: dict[str, Any]) -> ca.Function:
         """nlpsol on the compiled library of the NLP functions when codegen is on (and works),
