@@ -198,6 +198,9 @@ SectionValidator = Callable[[TableReader], Any]
 _SECTIONS: dict[str, SectionValidator] = {}
 _CORE_TABLES = ("units", "leader", "platoon", "carfollowing", "simulation", "vehicle", "cell", "pack")
 _CORE_KEYS = ("name", "description", "compare")
+# Packages that register extra sections on import; imported on demand the first time their table
+# appears, so that a scenario with an [mpc] table loads whichever module the caller imported first.
+SECTION_PROVIDERS: dict[str, str] = {"mpc": "aev_ocp.mpc"}
 
 
 def register_section(name: str, validator: SectionValidator) -> None:
@@ -408,7 +411,18 @@ def _platoon(r: TableReader, leader: LeaderProfile, cf: CarFollowingParams,
     return laws, gaps, speeds
 
 
+def _load_provider(key: str) -> None:
+    """Import the package that registers section ``key`` (if one is known and it is not registered)."""
+    mod = SECTION_PROVIDERS.get(key)
+    if mod is not None and key not in _SECTIONS:
+        import importlib
+
+        importlib.import_module(mod)
+
+
 def _check_top_level(doc: dict[str, Any], file: str) -> None:
+    for key in doc:
+        _load_provider(key)
     for key, value in doc.items():
         if key in _CORE_KEYS:
             continue

@@ -306,3 +306,23 @@ def test_rti_failure_in_closed_loop_applies_counted_fallback(monkeypatch):
     assert st["fallbacks"] == 1 and steps["status"][3] == "QP failed: forced"
     assert steps["status"][4] == "Solve_Succeeded" and steps["status"][5].startswith("RTI_")
     assert r.status == "ok"
+
+
+def test_ocpd_controls_replayed_through_the_exact_plant() -> None:
+    """OCP-D's controls, replayed open loop through the closed loop's exact plant (ControlSequence),
+    reproduce its predicted gaps and speeds at the nodes: with a piecewise-constant a and the
+    interval-mean leader speed these are exact in the transcription, so they must agree closely; the
+    battery states differ only by the η smoothing (PROBLEM.md §7)."""
+    from aev_ocp.mpc.closed_loop import ControlSequence
+
+    scn = OracleScenario(leader=PaperLeader(), t_end=4.0, dt=0.1, h0=0.3, v0=1.87)
+    res = OracleSolver(scn).solve()
+    assert res.success
+    seq = ControlSequence(tuple(np.asarray(res.controls["a"]).ravel()), 0.1, "ocp-d")
+    r = ClosedLoop(PaperLeader(), [seq], EV).run([0.3], [1.87], 4.0)
+    assert r.status == "ok" and r.controllers == ["ocp-d"]
+    np.testing.assert_allclose(r.gap[:, 0], res.states["h"], atol=1e-8)
+    np.testing.assert_allclose(r.speed[:, 0], res.states["v"], atol=1e-10)
+    np.testing.assert_allclose(r.S[:, 0], res.states["S"], atol=1e-7)
+    with pytest.raises(ParameterError, match="control sequence of vehicle 1 has 3 values"):
+        ClosedLoop(PaperLeader(), [ControlSequence((0.0, 0.0, 0.0), 0.1)], EV).run([0.3], [1.87], 4.0)

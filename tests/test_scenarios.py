@@ -221,3 +221,15 @@ def test_registered_section(tmp_path: Path) -> None:
     assert s.extra["testsection"] == {"horizon": 20, "w_q": 1.0}
     expect_error(tmp_path, BASE + "\n[testsection]\nw_q = -1\n", "testsection.w_q", "-1")
     expect_error(tmp_path, BASE + "\n[testsection]\nbogus = 1\n", "testsection.bogus")
+
+
+def test_mpc_table_loads_without_importing_the_mpc_package_first() -> None:
+    """A fresh interpreter that only imports the scenario loader can read a scenario with [mpc]."""
+    import subprocess
+    import sys
+
+    code = ("from aev_ocp.scenarios import load_scenario; s = load_scenario('mpc_paper_single'); "
+            "print(type(s.extra['mpc']).__name__)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == "MPCConfig"

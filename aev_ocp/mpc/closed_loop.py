@@ -47,7 +47,24 @@ class MPCVehicle:
     predictor: LeaderPredictor | str | None = None
 
 
-Controller = MPCVehicle | MPCSettings | CarFollowingLaw
+@dataclass(frozen=True)
+class ControlSequence:
+    """An open-loop command: a_k [model acceleration] held over [k dt, (k+1) dt] — e.g. OCP-D's optimal
+    controls replayed through the exact plant so the lower bound gets every §10 metric."""
+
+    a: tuple[float, ...]
+    dt: float
+    name: str = "open-loop"
+
+    def __post_init__(self) -> None:
+        a = np.asarray(self.a, float)
+        if a.ndim != 1 or a.size < 1 or not np.all(np.isfinite(a)):
+            raise ParameterError("ControlSequence.a must be a non-empty 1-D sequence of finite accelerations")
+        if not (math.isfinite(self.dt) and self.dt > 0):
+            raise ParameterError(f"ControlSequence.dt = {self.dt!r} is not allowed: must be > 0")
+
+
+Controller = MPCVehicle | MPCSettings | CarFollowingLaw | ControlSequence
 
 
 def _stats(times_s: list[float], iters: list[int], fallbacks: int, path: str, n: int,
@@ -86,24 +103,23 @@ class ClosedLoop:
         self.kinds: list[str] = []
         self.vehicles: list[MPCVehicle | None] = []
         self.laws: list[CarFollowingLaw | None] = []
+        self.sequences: list[ControlSequence | None] = []
         for i, c in enumerate(controllers):
             if isinstance(c, MPCSettings):
                 c = MPCVehicle(c)
-            if isinstance(c, MPCVehicle):
-                self.vehicles.append(c)
-                self.laws.append(None)
-            elif isinstance(c, CarFollowingLaw):
-                self.vehicles.append(None)
-                self.laws.append(c)
-            else:
-                raise ParameterError(f"ClosedLoop: controller of vehicle {i + 1} must be MPCVehicle, MPCSettings "
-                                     f"or a CarFollowingLaw, got {type(c).__name__}")
-        mpc_idx = [i for i, v in enumerate(self.vehicles) if v is not None]
-        if not mpc_idx:
-            raise ParameterError("ClosedLoop: no MPC follower; use aev_ocp.simulate for closed-form laws only")
-        dts = {self.vehicles[i].settings.dt for i in mpc_idx}  # type: ignore[union-attr]
+            self.vehicles.append(c if isinstance(c, MPCVehicle) else None)
+            self.laws.append(c if isinstance(c, CarFollowingLaw) else None)
+            self.sequences.append(c if isinstance(c, ControlSequence) else None)
+            if not isinstance(c, (MPCVehicle, CarFollowingLaw, ControlSequence)):
+                raise ParameterError(f"ClosedLoop: controller of vehicle {i + 1} must be MPCVehicle, MPCSettings, "
+                                     f"ControlSequence or a CarFollowingLaw, got {type(c).__name__}")
+        dts = {v.settings.dt for v in self.vehicles if v is not None} | {q.dt for q in self.sequences if q is not None}
+        if not dts:
+            raise ParameterError("ClosedLoop: no MPC follower or control sequence; use aev_ocp.simulate for "
+                                 "closed-form laws only")
         if len(dts) != 1:
-            raise ParameterError(f"ClosedLoop: every MPC follower must use the same dt, got {sorted(dts)}")
+            raise ParameterError(f"ClosedLoop: every MPC follower and control sequence must use the same dt, "
+                                 f"got {sorted(dts)}")
         self.dt = dts.pop()
         self.predictors: list[LeaderPredictor | str | None] = []
         for i in range(self.n):
@@ -188,6 +204,10 @@ class ClosedLoop:
         K = int(round(t_end / dt))
         if K < 1 or abs(K * dt - t_end) > 1e-9 * max(1.0, t_end):
             raise ParameterError(f"closed loop: t_end = {t_end} must be a multiple of dt = {dt}")
+        for i, seq in enumerate(self.sequences):
+            if seq is not None and len(seq.a) < K:
+                raise ParameterError(f"closed loop: the control sequence of vehicle {i + 1} has {len(seq.a)} "
+                                     f"values, {K} steps are needed")
         s0 = np.broadcast_to(np.asarray(self.ev.cell.soc0 if soc0 is None else soc0, float), (n,))
         x = np.concatenate([h0, v0, np.zeros(n), np.zeros(n), s0])
         q = np.zeros(6 * n)
@@ -218,6 +238,9 @@ class ClosedLoop:
                 meas_v[i].append(vl_k if i == 0 else float(x[n + i - 1]))
             plans: list[np.ndarray | None] = [None] * n
             for i in range(n):
+                seq = self.sequences[i]
+                if seq is not None:
+                    a_cmd[i] = seq.a[k]
                 ctrl = self.ctrl[i]
                 if ctrl is None:
                     continue
@@ -246,9 +269,9 @@ class ClosedLoop:
                     out = self.plant(x0=x, p=np.concatenate([[a0, b0 - a0], a_cmd]))
                 except RuntimeError as exc:
                     hmin = int(np.argmin(x[:n]))
-                    kind = "collision" if x[hmin] < 0.05 else "integration_failed"
-                    events.append(Event(kind, a0, hmin, f"CVODES failed on [{a0:.4f}, {b0:.4f}] "
-                                        f"({str(exc).splitlines()[0][:120]})"))
+                    near = " (near collision)" if x[hmin] < 0.05 else ""
+                    events.append(Event("integration_failed", a0, hmin, f"CVODES failed on [{a0:.4f}, {b0:.4f}] "
+                                        f"with gap h = {x[hmin]:.3g}{near} ({str(exc).splitlines()[0][:120]})"))
                     ok = False
                     break
                 x = np.asarray(out["xf"]).ravel()
@@ -308,7 +331,8 @@ class ClosedLoop:
         for i in range(n):
             c = self.ctrl[i]
             if c is None:
-                names.append(self.laws[i].name)  # type: ignore[union-attr]
+                seq = self.sequences[i]
+                names.append(seq.name if seq is not None else self.laws[i].name)  # type: ignore[union-attr]
                 stats.append(None)
                 steps.append(None)
                 continue
@@ -322,7 +346,9 @@ class ClosedLoop:
         settings = []
         for i in range(n):
             v = self.vehicles[i]
-            if v is None:
+            if self.sequences[i] is not None:
+                settings.append({"controller": self.sequences[i].name, "dt": self.dt})  # type: ignore[union-attr]
+            elif v is None:
                 settings.append(self.laws[i].describe())  # type: ignore[union-attr]
             else:
                 d = as_dict(v.settings)

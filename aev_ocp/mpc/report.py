@@ -11,6 +11,7 @@ from typing import Any, Callable
 import numpy as np
 
 from ..ocp.oracle import OracleScenario, OracleSolver, stage_cost_of_trajectory
+from .closed_loop import ClosedLoop, ControlSequence
 from ..results import SimulationResult, write_json
 from ..simulate import simulate_platoon
 from .scenario import MPCConfig, closed_loop_from_scenario
@@ -84,13 +85,16 @@ def run_comparison(scenario: Any, settings: MPCSettings | None = None, laws: tup
         tim["ocpd"] = time.perf_counter() - t0
         ocpd = {"success": res.success, "status": res.status, "cost_s9": res.objective}
         if res.success:
-            v, a = np.asarray(res.states["v"]), np.asarray(res.controls["a"]).ravel()
-            eta = scenario.ev.vehicle.efficiency
-            g = np.where(a >= 0, a / eta, eta * a)
-            om = float(np.sum(g * 0.5 * (v[:-1] + v[1:]) * s.dt))  # exact for piecewise-constant a (§10)
-            ocpd.update({"omega_model": om, "omega_J_per_kg": float(scenario.ev.units.energy_per_mass_to_si(om)),
-                         "min_gap_model": float(np.min(res.states["h"])), "delta_soc": float(res.states["S"][-1] - res.states["S"][0]),
-                         "min_speed_model": float(np.min(v))})
+            # replay the optimal controls open loop through the same exact plant: every §10 metric
+            say("OCP-D: replaying its controls through the exact plant")
+            seq = ControlSequence(tuple(np.asarray(res.controls["a"], float).ravel()), s.dt, "ocp-d")
+            r = ClosedLoop(scenario.leader, [seq], scenario.ev).run(list(scenario.gaps0), list(scenario.speeds0),
+                                                                   scenario.t_end)
+            m = r.metrics()[0]
+            m["cost_s9_replayed"] = _cost_s9(r, 0, s)  # the same cost on the exact plant's trajectory
+            ocpd.update({k: v for k, v in m.items() if k not in ("vehicle", "controller")})
+            ocpd["cost_s9"] = res.objective
+            out["ocp-d"] = r
     return Comparison(out, metrics, ocpd, tim)
 
 
