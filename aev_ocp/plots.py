@@ -44,6 +44,16 @@ def save_figure(fig: Any, path: str | os.PathLike[str]) -> Path:
     return path
 
 
+def _finish_single(fig: Any, ax: Any, path: str | os.PathLike[str], title: str | None) -> Path:
+    """Grid, legend and title of a one-axes figure, then write it (atomically)."""
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    if title:
+        ax.set_title(title, fontsize=10)
+    fig.tight_layout()
+    return save_figure(fig, path)
+
+
 def _style(label: str) -> dict[str, Any]:
     return dict(LAW_STYLE.get(label.lower(), {}))
 
@@ -190,12 +200,7 @@ def plot_compare_omega(omegas: Mapping[str, Sequence[float]], path: str | os.Pat
         ax.plot(n, om, "s", mfc="none", ms=8, label=f"{label} (paper, printed)", color=_style(label).get("color"))
     ax.set_xlabel("follower n")
     ax.set_ylabel("ω [model units]")
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=8)
-    if title:
-        ax.set_title(title, fontsize=10)
-    fig.tight_layout()
-    return save_figure(fig, path)
+    return _finish_single(fig, ax, path, title)
 
 
 def plot_theorem41(kappa: Sequence[float], d_omega: Sequence[float], leader: Sequence[str],
@@ -214,9 +219,4 @@ def plot_theorem41(kappa: Sequence[float], d_omega: Sequence[float], leader: Seq
     ax.set_yscale("symlog", linthresh=1e-3)
     ax.set_xlabel("κ (jittered)")
     ax.set_ylabel("ω(proposed) − ω(OVFL) [model units]")
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=8)
-    if title:
-        ax.set_title(title, fontsize=10)
-    fig.tight_layout()
-    return save_figure(fig, path)
+    return _finish_single(fig, ax, path, title)
