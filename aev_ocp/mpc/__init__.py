@@ -28,7 +28,7 @@ def _reproduce_section(out_dir: Any, progress: Any) -> str:
     return mpc_section(out_dir, progress)
 
 
-REPRODUCE_SECTIONS = [("mpc", _reproduce_section, 4)]
+REPRODUCE_SECTIONS = [("mpc", _reproduce_section, 5)]
 
 try:  # the [mpc] table of scenario files
     from .scenario import register as _register_scenario_section
