@@ -10,7 +10,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from ..ocp.oracle import OracleScenario, OracleSolver, stage_cost_of_trajectory
+from ..ocp.oracle import OracleScenario, OracleSolver, stage_cost_of_result
 from .closed_loop import ClosedLoop, ControlSequence
 from ..results import SimulationResult, write_json
 from ..simulate import simulate_platoon
@@ -37,14 +37,7 @@ class Comparison:
 
 def _cost_s9(r: SimulationResult, i: int, s: MPCSettings) -> float:
     """§9 cost Σ ℓ(z_k, a_k)·dt on the dt grid (laws: sampled at the grid; smoothed η as in OCP-D)."""
-    dt = s.dt
-    K = int(round((r.t[-1] - r.t[0]) / dt))
-    tg = np.linspace(r.t[0], r.t[0] + K * dt, K + 1)
-    f = (lambda y: np.interp(tg, r.t, y))  # noqa: E731
-    vl = r.leader_speed if i == 0 else r.speed[:, i - 1]
-    return stage_cost_of_trajectory(tg, f(r.gap[:, i]), f(r.speed[:, i]), f(r.V1[:, i]), f(r.V2[:, i]),
-                                    f(r.S[:, i]), f(r.accel[:, i])[:-1], f(vl)[:-1], s.weights, r.ev, s.smooth,
-                                    s.objective)["total"]
+    return stage_cost_of_result(r, i, s.dt, s.weights, s.smooth, s.objective)
 
 
 def run_comparison(scenario: Any, settings: MPCSettings | None = None, laws: tuple[str, ...] = ("proposed", "ovfl"),

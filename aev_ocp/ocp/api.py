@@ -16,8 +16,8 @@ from ..models.carfollowing import OVFL, Proposed
 from ..params import EVParams
 from .current_profile import E_REQ_J, SOC0, T_F_S, CurrentProfileSolver, compare_profiles
 from .eco_trip import EcoTrip, EcoTripSolver
-from .oracle import (OracleScenario, OracleSolver, canonical_scenario, drive_cycle_scenario, leader_forecast,
-                     stage_cost_of_trajectory)
+from .oracle import (OracleScenario, OracleSolver, canonical_scenario, drive_cycle_scenario,
+                     stage_cost_of_result)
 from .prop31 import run_prop31
 from .result import OCPResult, write_json_atomic
 
@@ -118,7 +118,7 @@ def run_eco_trip(method: str = "ms", out_dir: str | Path | None = None, scenario
     return out
 
 
-def closed_form_costs(scn: OracleScenario, t: np.ndarray, v_hat: np.ndarray) -> tuple[dict[str, float], dict[str, str]]:
+def closed_form_costs(scn: OracleScenario) -> tuple[dict[str, float], dict[str, str]]:
     """The §9 cost of the proposed law and OVFL on the same scenario: each law is simulated in closed
     loop (continuous law, exact plant, :func:`aev_ocp.simulate.simulate_platoon`) and the stage cost is
     evaluated at the OCP grid nodes t_k with a_k = v̇(t_k). Returns costs and notes (events)."""
@@ -128,12 +128,10 @@ def closed_form_costs(scn: OracleScenario, t: np.ndarray, v_hat: np.ndarray) -> 
     for law in (Proposed(), OVFL()):
         r = simulate_platoon(scn.leader, [law], [scn.h0], [scn.v0], scn.t_end, ev=scn.ev, soc0=scn.S0,
                              dt_out=min(0.01, scn.dt))
-        if r.status != "ok" or r.t[-1] < t[-1] - 1e-9:
+        if r.status != "ok" or r.t[-1] < scn.t_end - 1e-9:
             notes[law.name] = f" — simulation stopped: {r.events[0] if r.events else r.status}"
             continue
-        arrs = [np.interp(t, r.t, getattr(r, k)[:, 0]) for k in ("gap", "speed", "V1", "V2", "S", "accel")]
-        costs[law.name] = stage_cost_of_trajectory(t, *arrs[:5], arrs[5][:-1], v_hat, scn.weights, scn.ev,
-                                                   scn.smooth, scn.objective)["total"]
+        costs[law.name] = stage_cost_of_result(r, 0, scn.dt, scn.weights, scn.smooth, scn.objective)
     return costs, notes
 
 
@@ -148,9 +146,7 @@ def run_oracle(method: str = "ms", out_dir: str | Path | None = None, scenario: 
         scn = canonical_scenario() if which == "canonical" else drive_cycle_scenario(which)
     solver = OracleSolver(scn, method=method)
     res = solver.solve()
-    t = np.linspace(0.0, scn.t_end, scn.N + 1)
-    _, vh = leader_forecast(scn.leader, t)
-    laws, notes = closed_form_costs(scn, t, vh)
+    laws, notes = closed_form_costs(scn)
     lines = [f"OCP-D oracle following, scenario {scn.name}: N = {scn.N}, dt = {scn.dt:g} (model time), method {method}",
              f"status {res.status} ({res.message}), iterations {res.iterations}, solve {res.wall_time_s:.3f} s, "
              f"build {solver.build_time_s:.2f} s, max violation {res.max_violation:.2g}",

@@ -221,3 +221,18 @@ def stage_cost_of_trajectory(t: np.ndarray, h: np.ndarray, v: np.ndarray, V1: np
 def solve_oracle(scn: OracleScenario | None = None, method: str = "ms", **kw: Any) -> OCPResult:
     """Build and solve OCP-D once (default: canonical scenario)."""
     return OracleSolver(scn or canonical_scenario(), method=method, **kw).solve()
+
+
+def stage_cost_of_result(r: Any, i: int, dt: float, weights: FollowingWeights | None = None,
+                         smooth: PowertrainOptions | None = PowertrainOptions(),
+                         objective: str = "heat") -> float:
+    """The §9 cost of follower i of a :class:`aev_ocp.results.SimulationResult`, on the grid of step dt
+    [model time] from the result's first time: states, a_k and the w_r term's v̂_l(t_k) (its leader's
+    speed) are the result's samples interpolated at the nodes (exact where the nodes are samples)."""
+    K = int(round((r.t[-1] - r.t[0]) / dt))
+    tg = np.linspace(r.t[0], r.t[0] + K * dt, K + 1)
+    f = (lambda y: np.interp(tg, r.t, y))  # noqa: E731
+    vl = r.leader_speed if i == 0 else r.speed[:, i - 1]
+    return stage_cost_of_trajectory(tg, f(r.gap[:, i]), f(r.speed[:, i]), f(r.V1[:, i]), f(r.V2[:, i]),
+                                    f(r.S[:, i]), f(r.accel[:, i])[:-1], f(vl)[:-1], weights, r.ev, smooth,
+                                    objective)["total"]
