@@ -228,3 +228,31 @@ def as_dict(obj: Any) -> dict[str, Any]:
         v = getattr(obj, f.name)
         out[f.name] = as_dict(v) if hasattr(v, "__dataclass_fields__") else v
     return out
+
+
+METHODS = ("auto", "cascade", "cvodes")  # simulation integrators (aev_ocp.simulate)
+
+
+@dataclass(frozen=True)
+class SimOptions:
+    """Integration settings. dt_out: largest sample spacing [model time]; rtol/atol: relative and
+    absolute tolerances; chunk: nominal length between event checks of the CVODES path [model time];
+    max_num_steps: step limit (per chunk for CVODES, per vehicle for the cascade);
+    method: "cascade" (compiled vehicle-by-vehicle Dormand–Prince 5(4), needs a C compiler),
+    "cvodes" (the whole platoon in one CVODES integrator) or "auto" (cascade when a compiler
+    works, else CVODES)."""
+
+    dt_out: float = 0.01
+    rtol: float = 1e-10
+    atol: float = 1e-10
+    chunk: float = 5.0
+    max_num_steps: int = 200_000
+    method: str = "auto"
+
+    def __post_init__(self) -> None:
+        if self.method not in METHODS:
+            raise ParameterError(f"SimOptions.method = {self.method!r} is not allowed: must be one of {METHODS}")
+        for name in ("dt_out", "rtol", "atol", "chunk"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+                raise ParameterError(f"SimOptions.{name} = {v!r} is not allowed: must be a finite number > 0")

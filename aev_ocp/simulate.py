@@ -40,40 +40,14 @@ from .models import battery, energy
 from .models.carfollowing import CarFollowingLaw, optimal_velocity
 from .models.leader import LeaderProfile
 from .models.powertrain import cell_current_from_motion
-from .params import EVParams, ParameterError
+from .params import METHODS, EVParams, ParameterError, SimOptions
 from .results import Event, SimulationResult
 
 ProgressFn = Callable[[float, float], None]
-METHODS = ("auto", "cascade", "cvodes")
 _EVENT_KINDS = {1: ("collision", "gap h reached 0"), 2: ("negative_speed", "speed became negative"),
                 3: ("infeasible_current", "cell cannot deliver the power demand (E² < 4 R_s P_c)"),
                 4: ("soc_out_of_range", "state of charge fell below 0"),
                 5: ("soc_out_of_range", "state of charge rose above 1")}
-
-
-@dataclass(frozen=True)
-class SimOptions:
-    """Integration settings. dt_out: largest sample spacing [model time]; rtol/atol: relative and
-    absolute tolerances; chunk: nominal length between event checks of the CVODES path [model time];
-    max_num_steps: step limit (per chunk for CVODES, per vehicle for the cascade);
-    method: "cascade" (compiled vehicle-by-vehicle Dormand–Prince 5(4), needs a C compiler),
-    "cvodes" (the whole platoon in one CVODES integrator) or "auto" (cascade when a compiler
-    works, else CVODES)."""
-
-    dt_out: float = 0.01
-    rtol: float = 1e-10
-    atol: float = 1e-10
-    chunk: float = 5.0
-    max_num_steps: int = 200_000
-    method: str = "auto"
-
-    def __post_init__(self) -> None:
-        if self.method not in METHODS:
-            raise ParameterError(f"SimOptions.method = {self.method!r} is not allowed: must be one of {METHODS}")
-        for name in ("dt_out", "rtol", "atol", "chunk"):
-            v = getattr(self, name)
-            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
-                raise ParameterError(f"SimOptions.{name} = {v!r} is not allowed: must be a finite number > 0")
 
 
 def cell_rates(v: Any, a: Any, V1: Any, V2: Any, S: Any, ev: EVParams) -> dict[str, Any]:
