@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from aev_ocp.models.leader import PaperLeader
-from aev_ocp.mpc.closed_loop import run_single
+from aev_ocp.mpc import run_single
 from aev_ocp.mpc.settings import MPCSettings
 from aev_ocp.ocp.oracle import stage_cost_of_trajectory
 from aev_ocp.results import write_json

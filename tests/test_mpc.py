@@ -12,7 +12,7 @@ from scipy.interpolate import make_interp_spline
 from aev_ocp.models.battery import ocv_table
 from aev_ocp.models.carfollowing import OVFL, Proposed
 from aev_ocp.models.leader import ConstantSpeed, PaperLeader
-from aev_ocp.mpc.closed_loop import ClosedLoop, MPCVehicle, run_closed_loop, run_single
+from aev_ocp.mpc import ClosedLoop, MPCVehicle, run_closed_loop, run_single
 from aev_ocp.mpc.controller import MPCController
 from aev_ocp.mpc.predictors import (ConstantAccelerationPredictor, ConstantVelocityPredictor, Measurements,
                                     OraclePredictor, forecast_intervals, plan_forecast)
@@ -313,7 +313,7 @@ def test_ocpd_controls_replayed_through_the_exact_plant() -> None:
     reproduce its predicted gaps and speeds at the nodes: with a piecewise-constant a and the
     interval-mean leader speed these are exact in the transcription, so they must agree closely; the
     battery states differ only by the η smoothing (PROBLEM.md §7)."""
-    from aev_ocp.mpc.closed_loop import ControlSequence
+    from aev_ocp.control import ControlSequence
 
     scn = OracleScenario(leader=PaperLeader(), t_end=4.0, dt=0.1, h0=0.3, v0=1.87)
     res = OracleSolver(scn).solve()

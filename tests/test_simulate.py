@@ -5,6 +5,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -13,6 +15,7 @@ from aev_ocp.models import OVFL, OVM, ConstantSpeed, PaperLeader, Proposed
 from aev_ocp.models.battery import stored_energy_J
 from aev_ocp.models.carfollowing import CarFollowingLaw
 from aev_ocp.params import CellParams, EVParams, PackParams, ParameterError
+from aev_ocp.plant import PLAN_TOLERANCE
 from aev_ocp.reference import simulate_reference
 from aev_ocp.simulate import PlatoonSimulator, SimOptions, simulate_platoon
 
@@ -127,7 +130,7 @@ def test_collision_detected_with_time_and_vehicle(method: str) -> None:
 class Brake(CarFollowingLaw):
     """A user-defined law: constant braking (tests that laws are pluggable)."""
 
-    decel: float = 1.0
+    decel: float = 1.3
     name = "brake"
 
     def accel(self, h, v, v_l):  # type: ignore[no-untyped-def]
@@ -136,9 +139,10 @@ class Brake(CarFollowingLaw):
 
 @pytest.mark.parametrize("method", METHODS)
 def test_negative_speed_detected(method: str) -> None:
-    r = simulate_platoon(ConstantSpeed(1.0), [Brake()], [5.0], [0.5], 3.0, battery=False, method=method)
+    """v = 0.65 − 1.3 t crosses the plant's threshold −PLAN_TOLERANCE (the table's rule) at 0.5 + tol/1.3."""
+    r = simulate_platoon(ConstantSpeed(1.0), [Brake()], [5.0], [0.65], 3.0, battery=False, method=method)
     assert r.status == "negative_speed"
-    assert r.events[0].time == pytest.approx(0.5, abs=1e-6)
+    assert r.events[0].time == pytest.approx(0.5 + PLAN_TOLERANCE / 1.3, abs=1e-9)
 
 
 @pytest.mark.parametrize("method", METHODS)
@@ -218,8 +222,51 @@ def test_event_time_is_located_between_samples() -> None:
 def test_no_compiler_auto_falls_back_to_cvodes_and_cascade_says_why(monkeypatch: pytest.MonkeyPatch) -> None:
     import aev_ocp.compiled as B
 
+    import aev_ocp.simulate as S
+
     monkeypatch.setattr(B.shutil, "which", lambda name: None)
-    sim = PlatoonSimulator(ConstantSpeed(1.0), [Proposed(kappa=0.0123)], options=SimOptions(dt_out=0.1))
+    monkeypatch.setattr(S, "_FALLBACK_WARNED", set())
+    with pytest.warns(RuntimeWarning, match="compiled cascade is unavailable.*CVODES"):
+        sim = PlatoonSimulator(ConstantSpeed(1.0), [Proposed(kappa=0.0123)], options=SimOptions(dt_out=0.1))
     assert sim.method == "cvodes"
     with pytest.raises(ParameterError, match="no C compiler found"):
         PlatoonSimulator(ConstantSpeed(1.0), [Proposed(kappa=0.0123)], options=SimOptions(method="cascade"))
+
+
+def test_cascade_driver_compiles_cleanly_with_all_warnings(tmp_path: Path) -> None:
+    """The shipped driver (aev_ocp/c/cascade.c) with its generated prologue compiles with -Wall -Werror."""
+    import shutil
+    import subprocess
+
+    import aev_ocp.simulate as S
+
+    cc = shutil.which("gcc") or shutil.which("cc")
+    if cc is None:
+        pytest.skip("no C compiler")
+    sources: list[str] = []
+    orig = S._compile_shared
+    S._compile_shared = lambda src: (sources.append(src), orig(src))[1]  # type: ignore[assignment]
+    try:
+        PlatoonSimulator(PaperLeader(), [Proposed(kappa=0.0421), OVFL(beta=2.7)], options=SimOptions(method="cascade"))
+    finally:
+        S._compile_shared = orig  # type: ignore[assignment]
+    c = tmp_path / "cascade_full.c"
+    c.write_text(sources[0])
+    res = subprocess.run([cc, "-Wall", "-Werror", "-O1", "-fPIC", "-shared", "-o", str(tmp_path / "x.so"), str(c)],
+                         capture_output=True, text=True)
+    assert res.returncode == 0, res.stderr[-2000:]
+
+
+def test_step_size_underflow_fails_cleanly_in_every_vehicle() -> None:
+    """rtol = atol = 1e-30 cannot be honoured: the first vehicle's steps underflow at t = 0. The run
+    must end with an 'integration_failed' event (it crashed the interpreter in the cascade when the
+    later vehicles read their predecessor's empty trajectory). Run in a subprocess: a crash fails."""
+    import subprocess
+    import sys
+
+    code = ("from aev_ocp.simulate import simulate_platoon; from aev_ocp.models import PaperLeader, Proposed; "
+            "r = simulate_platoon(PaperLeader(), [Proposed()] * 3, [0.3, 3.5, 3.5], [1.87] * 3, 9.0, "
+            "rtol=1e-30, atol=1e-30); print(r.status, r.events[0].vehicle, r.t.size, r.speed[0].tolist())")
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=Path(__file__).parents[1])
+    assert res.returncode == 0, res.stderr[-1500:]
+    assert res.stdout.split()[:3] == ["integration_failed", "0", "1"]

@@ -51,10 +51,17 @@ class LeaderProfile(ABC):
         t = ca.SX.sym("t")
         return ca.Function(f"{self.name}_speed", [t], [self.speed(t)], ["t"], ["v_l"])
 
+    @cached_property
+    def _speed_maps(self) -> dict[int, ca.Function]:
+        return {}
+
     def speed_np(self, t: np.ndarray | float) -> np.ndarray:
-        """Numeric leader speed at the times t [model speed]."""
+        """Numeric leader speed at the times t [model speed] (the mapped Function is built once per size)."""
         tt = np.atleast_1d(np.asarray(t, dtype=float))
-        return np.asarray(self.speed_function.map(tt.size)(tt.reshape(1, -1))).ravel()
+        f = self._speed_maps.get(tt.size)
+        if f is None:
+            f = self._speed_maps.setdefault(tt.size, self.speed_function.map(tt.size))
+        return np.asarray(f(tt.reshape(1, -1))).ravel()
 
     def max_speed(self, t_end: float, n: int = 20001) -> float:
         """Maximum speed over [0, t_end] on a fine grid [model speed]."""

@@ -5,6 +5,11 @@ It is solved exactly: with E = OCV(S) − V1 − V2, P_c = I (E − R_s I) gives
 I = 2 P_c / (E + sqrt(E² − 4 R_s P_c)), continuous through P_c = 0. When E² < 4 R_s P_c the cell
 cannot deliver the demand: :func:`current_from_power` also returns the discriminant so that a
 simulator can report it and an optimiser can constrain it.
+
+One floor policy: the square root is taken of max(disc, DISC_FLOOR_V2), so every user (plant,
+OCP, MPC) evaluates the same finite root up to an event (the plant reports disc < 0, optimisers
+constrain disc ≥ 0). One η-switch default: the models use the EXACT switch unless a caller passes
+:class:`~aev_ocp.params.PowertrainOptions` (optimisers do, PROBLEM.md §7).
 """
 
 from __future__ import annotations
@@ -15,6 +20,8 @@ import casadi as ca
 
 from ..params import CellParams, EVParams, PackParams, PowertrainOptions, VehicleParams
 from . import battery, vehicle
+
+DISC_FLOOR_V2 = 1e-12  # [V²] floor under the discriminant's square root (keeps the root and its derivative finite)
 
 
 def battery_power_W(P_w: Any, p: VehicleParams) -> Any:
@@ -43,11 +50,12 @@ def current_discriminant(P_c: Any, E: Any, cell: CellParams) -> Any:
 def current_from_power(P_c: Any, E: Any, cell: CellParams) -> tuple[Any, Any]:
     """Cell current I [A] that delivers P_c [W] at the terminals, and the discriminant [V²].
 
-    I = 2 P_c / (E + sqrt(max(disc, 0))); exact where disc ≥ 0. Where disc < 0 the returned I is
-    the current at maximum power (E / 2R_s) and the caller must treat the demand as infeasible.
+    I = 2 P_c / (E + sqrt(max(disc, DISC_FLOOR_V2))); exact to 1e-6 relative where disc ≥ 0. Where
+    disc < 0 the returned I is about the current at maximum power (E / 2R_s) and the caller must
+    treat the demand as infeasible.
     """
     disc = current_discriminant(P_c, E, cell)
-    return 2.0 * P_c / (E + ca.sqrt(ca.fmax(disc, 0.0))), disc
+    return 2.0 * P_c / (E + ca.sqrt(ca.fmax(disc, DISC_FLOOR_V2))), disc
 
 
 def cell_current_from_motion(v_mps: Any, a_mps2: Any, V1: Any, V2: Any, S: Any, p: EVParams,

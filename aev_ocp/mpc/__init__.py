@@ -1,6 +1,9 @@
-"""Receding-horizon MPC of the ego vehicle with the battery in the loop (PROBLEM.md §9) and its
-closed-loop simulation against the exact plant. Model (aev_ocp.ocp.following), controller
-(:class:`MPCController`) and plant (:class:`ClosedLoop`) are kept apart; results are the shared
+"""Receding-horizon MPC of the ego vehicle with the battery in the loop (PROBLEM.md §9).
+
+Problem (:func:`aev_ocp.ocp.following.following_problem`, shared with OCP-D), controller
+(:class:`MPCController`, built once from the problem), policy (:class:`MPCPolicy`: forecast, solve,
+fallback — a :class:`aev_ocp.control.Controller`) and plant (:class:`aev_ocp.plant.Plant`, driven by
+:class:`aev_ocp.control.ClosedLoop`) are kept apart; results are the shared
 :class:`aev_ocp.results.SimulationResult`, so MPC and closed-form laws share the §10 metrics.
 """
 
@@ -8,8 +11,9 @@ from __future__ import annotations
 
 from typing import Any
 
-from .closed_loop import ClosedLoop, MPCVehicle, run_closed_loop, run_single
+from ..control import ClosedLoop, ControlSequence, run_closed_loop
 from .controller import MPCController, MPCSolution
+from .policy import MPCPolicy, MPCVehicle, run_single
 from .predictors import (ConstantAccelerationPredictor, ConstantVelocityPredictor, LeaderPredictor, Measurements,
                          OraclePredictor, make_predictor)
 from .settings import PREDICTOR_NAMES, SOLVER_PATHS, MPCSettings
@@ -37,6 +41,6 @@ try:  # the [mpc] table of scenario files
 except ImportError:  # pragma: no cover - scenario loader not installed
     pass
 
-__all__ = ["ClosedLoop", "ConstantAccelerationPredictor", "ConstantVelocityPredictor", "LeaderPredictor",
+__all__ = ["ClosedLoop", "ControlSequence", "MPCPolicy", "ConstantAccelerationPredictor", "ConstantVelocityPredictor", "LeaderPredictor",
            "MPCController", "MPCSettings", "MPCSolution", "MPCVehicle", "Measurements", "OraclePredictor",
            "PREDICTOR_NAMES", "SOLVER_PATHS", "cli_mpc", "make_predictor", "run_closed_loop", "run_single"]

@@ -1,18 +1,22 @@
-"""The receding-horizon controller of PROBLEM.md §9, built ONCE as a parametric NLP.
+"""The receding-horizon controller of PROBLEM.md §9, built ONCE as a parametric NLP from an
+:class:`~aev_ocp.ocp.problem.OCPProblem` — by default the §9 problem of
+:func:`aev_ocp.ocp.following.following_problem`, the same description OCP-D is built from — and
+discretised by the same interval function as the whole-horizon transcription
+(:func:`aev_ocp.ocp.transcription.interval_function`, multiple shooting, RK4):
 
-State z = (h, v, V1, V2, S) (model units; V1, V2 [V]; S [-]), control a held constant over each
-interval of length dt [model time]. The stage cost, dynamics and path constraints come from
-:mod:`aev_ocp.ocp.following` (the one place that defines them, shared with OCP-D):
+    min Σ_k s_k J_k(z_k, u_k)  (J_k = stage cost·dt + integral cost over interval k) + terminal cost
+    s.t. z_{k+1} = F(z_k, u_k, w_k, p), path constraints at nodes 0…N−1, simple bounds at 1…N.
 
-    min Σ_k s_k ℓ(z_k, a_k)·dt,  ℓ = w_Q Q_pack/(1 kW) + w_V (V(h) − v)² + w_r (v̂_l − v)² + w_a a²
-    s.t. z_{k+1} = F(z_k, a_k, v̄_l,k) (RK4 of the smoothed model, interval-mean leader speed v̄_l,k),
-         h ≥ 0.2, 0 ≤ v ≤ 2, S ∈ [0, 1] at nodes 1…N;  −3 ≤ a ≤ 2;  |I| ≤ 46 A, disc ≥ 0 at nodes 0…N−1.
+NLP parameters (nothing is rebuilt between solves or weight sweeps): the per-interval stage
+parameters w_k (the forecast), the problem's parameters p (for §9 the four weights) and per-interval
+stage weights s_k (default 1). The measured initial state is fixed by equal simple bounds. Decision
+variables are ordered (z_0, u_0, z_1, u_1, …, z_N) and constraints stage by stage, so the KKT system
+is banded and HPIPM detects the OCP structure.
 
-NLP parameters (so that nothing is rebuilt between solves or weight sweeps): the measured initial
-state, the forecast (v̄_l,k, v̂_l(t_k)) per interval, the four weights and per-interval stage weights
-s_k (default 1; lets a user shape the cost along the horizon, e.g. to end it at a scenario's end).
-Decision variables are ordered (z_0, a_0, z_1, a_1, …, z_N) and constraints stage by stage, so the
-KKT system is banded and HPIPM can detect the OCP structure.
+A problem used in the closed loop keeps the §9 layout in front: states (h, v, V1, V2, S) (measured),
+control a, stage parameters (v̄_l, v̂_l) (the forecast). Further states are the controller's own
+(initialised from ``initial_values`` and then from its previous plan), further controls (e.g. the
+slacks of soft constraints) start at 0, further stage or global parameters take ``parameter_values``.
 """
 
 from __future__ import annotations
@@ -30,21 +34,23 @@ import numpy as np
 
 from ..compiled import compile_shared, compiler
 from ..models.carfollowing import CarFollowingLaw, Proposed
-from ..ocp.following import (FollowingWeights, following_ode, following_path_constraints,
-                             following_stage_terms, following_state_bounds)
+from ..models.ego import STATE_NAMES
+from ..numerics import rk4
+from ..ocp.following import WEIGHT_NAMES, FollowingWeights, following_problem, weight_vector
+from ..ocp.problem import OCPProblem, ProblemBuilder
+from ..ocp.transcription import TranscriptionOptions, interval_function
 from ..params import EVParams, ParameterError
+from ..plant import PLAN_TOLERANCE
 from .settings import MPCSettings
 
-NX = 5
-X_SCALE = np.array([1.0, 1.0, 0.01, 0.01, 1.0])  # nominal magnitudes of h, v, V1 [V], V2 [V], S
-TERM_NAMES = ("energy", "ovm", "relative", "accel")
-_UNIT_WEIGHTS = FollowingWeights(1.0, 1.0, 1.0, 1.0)
+NZ = len(STATE_NAMES)  # measured states (h, v, V1, V2, S) at the front of every MPC problem
 
 
 @dataclass
 class MPCSolution:
     """One solve: success, status, iterations, wall time [s] of the solver call, the plan
-    X (5, N+1) and a (N,) [model units], cost (NLP objective), max constraint violation."""
+    X (nx, N+1) and a (N,) [model units] (all controls: U (nu, N)), cost (NLP objective), max
+    constraint violation (NLP units)."""
 
     success: bool
     status: str
@@ -56,6 +62,7 @@ class MPCSolution:
     violation: float
     path: str
     stats: dict[str, Any] = field(default_factory=dict)
+    U: np.ndarray | None = None
 
 
 _SQP_EXTRA: dict[str, Any] = {}
@@ -78,19 +85,28 @@ def _qp_options(qp_solver: str) -> dict[str, Any]:
 
 
 class MPCController:
-    """The §9 MPC for one vehicle: build once, then :meth:`solve` at every step (warm-started).
+    """The MPC for one vehicle: build once, then :meth:`solve` at every step (warm-started).
 
-    ``guess_law``: closed-form law rolled out over the horizon as the cold-start guess (default the
-    paper's proposed law).
+    ``problem``: an :class:`OCPProblem` or :class:`ProblemBuilder` (default: the §9 problem of the
+    settings' bounds, smoothing and objective); ``guess_law``: closed-form law rolled out over the
+    horizon as the cold-start guess (default the paper's proposed law); ``parameter_values`` /
+    ``initial_values``: values of a user problem's extra parameters / own states by name.
     """
 
     def __init__(self, settings: MPCSettings | None = None, ev: EVParams | None = None,
-                 guess_law: CarFollowingLaw | None = None) -> None:
+                 guess_law: CarFollowingLaw | None = None, problem: OCPProblem | ProblemBuilder | None = None,
+                 parameter_values: dict[str, float] | None = None,
+                 initial_values: dict[str, float] | None = None) -> None:
         self.settings = settings or MPCSettings()
         if not isinstance(self.settings, MPCSettings):
             raise ParameterError(f"MPCController: settings must be an MPCSettings, got {type(settings).__name__}")
         self.ev = ev or EVParams()
         self.guess_law = guess_law or Proposed()
+        s = self.settings
+        if problem is None:
+            problem = following_problem(self.ev, s.bounds, s.smooth, s.objective, name="mpc")
+        self.problem = problem.build() if isinstance(problem, ProblemBuilder) else problem
+        self._check_layout(parameter_values or {}, initial_values or {})
         self.codegen_active = False
         t0 = time.perf_counter()
         self._build_model()
@@ -99,67 +115,94 @@ class MPCController:
         self.build_time_s = time.perf_counter() - t0
         self._warm: dict[str, np.ndarray] | None = None
 
+    def _check_layout(self, pvals: dict[str, float], xinit: dict[str, float]) -> None:
+        """The closed-loop layout (see the module docstring) and the values of extra names."""
+        pr = self.problem
+        if tuple(pr.state_names[:NZ]) != STATE_NAMES or pr.control_names[0] != "a" or pr.nw < 2:
+            raise ParameterError(f"MPCController: problem {pr.name!r} must start with states {STATE_NAMES}, "
+                                 "control 'a' and stage parameters (v_l_mean, v_l_hat)")
+        if self.settings.solver == "rti" and (pr.terminal is not None or pr.terminal_cost is not None):
+            raise ParameterError("MPCSettings.solver = 'rti' does not handle terminal costs or constraints yet: "
+                                 "use 'ipopt' or 'sqp'")
+        pnames = list(pr.meta.get("parameter_names", WEIGHT_NAMES[:pr.np_]))
+        wnames = list(pr.meta.get("stage_parameter_names", ["v_l_mean", "v_l_hat"]))
+        self._n_weights = sum(1 for k in pnames[:len(WEIGHT_NAMES)] if k in WEIGHT_NAMES)
+        extra_p, extra_w = pnames[self._n_weights:], wnames[2:]
+        unknown = sorted(set(pvals) - set(extra_p) - set(extra_w))
+        missing = [k for k in extra_p + extra_w if k not in pvals]
+        if unknown or missing:
+            raise ParameterError(f"MPCController: parameter_values must give exactly {extra_p + extra_w}"
+                                 f"{'; unknown ' + str(unknown) if unknown else ''}"
+                                 f"{'; missing ' + str(missing) if missing else ''}")
+        self._p_extra = np.array([float(pvals[k]) for k in extra_p])
+        self._w_extra = np.array([float(pvals[k]) for k in extra_w])
+        own = list(pr.state_names[NZ:])
+        bad = sorted(set(xinit) - set(own))
+        if bad:
+            raise ParameterError(f"MPCController: initial_values names unknown states {bad}; own states are {own}")
+        self._x_own0 = np.array([float(xinit.get(k, 0.0)) for k in own])
+
     # ------------------------------------------------------------------ model
     def _build_model(self) -> None:
-        s, ev = self.settings, self.ev
-        z, a, w = ca.SX.sym("z", NX), ca.SX.sym("a"), ca.SX.sym("w", 2)  # w = (v̄_l interval mean, v̂_l(t_k))
-        M = s.rk4_substeps
-        h = s.dt / M
-
-        def f(x: Any) -> Any:
-            return following_ode(x, a, w[0], ev, s.smooth)
-
-        x = z
-        for _ in range(M):
-            k1 = f(x)
-            k2 = f(x + h / 2 * k1)
-            k3 = f(x + h / 2 * k2)
-            k4 = f(x + h * k3)
-            x = x + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
-        terms = following_stage_terms(z, a, w[1], _UNIT_WEIGHTS, ev, s.smooth, s.objective)
-        c, self._path_lb, self._path_ub = following_path_constraints(z, a, ev, s.smooth)
-        self.step = ca.Function("mpc_step", [z, a, w], [x], ["z", "a", "w"], ["z_next"])
-        self.terms = ca.Function("mpc_terms", [z, a, w], [ca.vertcat(*[terms[k] for k in TERM_NAMES])],
-                                 ["z", "a", "w"], ["terms"])
-        self.path = ca.Function("mpc_path", [z, a], [c], ["z", "a"], ["c"])
-        # cold-start guess: the closed-form law per interval, clipped, rolled out by the same step
-        b = s.bounds
-        ag = ca.fmin(ca.fmax(self.guess_law.accel(ca.fmax(z[0], 1e-2), z[1], w[1]), b.a_min), b.a_max)
-        zn = self.step(z, ag, w)
-        zn = ca.vertcat(ca.fmax(zn[0], b.h_min), ca.fmin(ca.fmax(zn[1], b.v_min), b.v_max), zn[2:])
-        self._rollout = ca.Function("mpc_rollout", [z, w], [zn, ag]).mapaccum(s.N)
+        s, pr = self.settings, self.problem
+        nx, nu, nw, npar = pr.nx, pr.nu, pr.nw, pr.np_
+        self.nx, self.nu = nx, nu
+        self.x_scale = np.asarray(pr.x_scale if pr.x_scale is not None else np.ones(nx), float)
+        self.u_scale = np.asarray(pr.u_scale if pr.u_scale is not None else np.ones(nu), float)
+        z, u, w, p = ca.SX.sym("z", nx), ca.SX.sym("u", nu), ca.SX.sym("w", nw), ca.SX.sym("p", npar)
+        zn, _ = rk4(lambda x: pr.ode(x, u, w, p), z, s.dt, s.rk4_substeps)
+        self.step = ca.Function("mpc_step", [z, u, w, p], [zn], ["z", "u", "w", "p"], ["z_next"])
+        self.F = interval_function(pr, TranscriptionOptions(method="ms", N=s.N, rk4_substeps=s.rk4_substeps))
+        xl = np.asarray(pr.x_lb if pr.x_lb is not None else -np.inf * np.ones(nx), float)
+        xu = np.asarray(pr.x_ub if pr.x_ub is not None else np.inf * np.ones(nx), float)
+        ul = np.asarray(pr.u_lb if pr.u_lb is not None else -np.inf * np.ones(nu), float)
+        uu = np.asarray(pr.u_ub if pr.u_ub is not None else np.inf * np.ones(nu), float)
+        self._xb, self._ub = (xl, xu), (ul, uu)
+        # cold-start guess: the closed-form law per interval (other controls 0), clipped, rolled out by
+        # the same step, states clipped to their bounds
+        ag = ca.fmin(ca.fmax(self.guess_law.accel(ca.fmax(z[0], 1e-2), z[1], w[1]), ul[0]), uu[0])
+        ug = ca.vertcat(ag, ca.fmin(ca.fmax(ca.DM.zeros(nu - 1), ul[1:]), uu[1:])) if nu > 1 else ag
+        zg = self.step(z, ug, w, p)
+        zg = ca.fmin(ca.fmax(zg, ca.DM(np.where(np.isfinite(xl), xl, -1e20))), ca.DM(np.where(np.isfinite(xu), xu, 1e20)))
+        self._rollout = ca.Function("mpc_rollout", [z, w, p], [zg, ug]).mapaccum(s.N)
 
     # ------------------------------------------------------------------ NLP
-    def _build_nlp(self) -> None:
-        s = self.settings
-        N, nb = s.N, NX + 1
-        xs = ca.DM(X_SCALE)
-        # one stage on scaled variables: [gap_k; path_k] and its cost share s_k ℓ(z_k, a_k)·dt
-        zk, ak, zn = ca.SX.sym("zk", NX), ca.SX.sym("ak"), ca.SX.sym("zn", NX)
-        w, wt, sw = ca.SX.sym("w", 2), ca.SX.sym("wt", 4), ca.SX.sym("sw")
-        gap = (self.step(zk * xs, ak, w) - zn * xs) / xs
-        stage = ca.Function("mpc_stage", [zk, ak, zn, w, wt, sw],
-                            [ca.vertcat(gap, self.path(zk * xs, ak)),
-                             sw * s.dt * ca.dot(wt, self.terms(zk * xs, ak, w))])
-        # decision vector (z_0, a_0, z_1, a_1, …, z_N), scaled; z_0 is fixed by equal simple bounds
-        # (set per solve); constraints stage by stage [gap_0, path_0, gap_1, …] with
-        # gap_k = F(z_k, a_k) − z_{k+1} (the layout HPIPM detects)
-        V = ca.MX.sym("V", nb * N + NX)
+    def _stage_inputs(self, V: Any, P: Any) -> tuple[Any, ...]:
+        """(X_k (nx, N), U_k (nu, N), X_{k+1} (nx, N), W (nw, N), p, SW (1, N)) of the scaled NLP."""
+        pr, N = self.problem, self.settings.N
+        nx, nb = pr.nx, pr.nx + pr.nu
         B = ca.reshape(V[:nb * N], nb, N)
-        Xn = ca.horzcat(B[:NX, 1:], V[nb * N:]) if N > 1 else V[nb * N:]
-        P = ca.MX.sym("p", 2 * N + 4 + N)  # forecast (v̄_l, v̂_l) per interval, weights, stage weights
-        W, WT, SW = ca.reshape(P[:2 * N], 2, N), P[2 * N:2 * N + 4], P[2 * N + 4:]
-        G, Js = stage.map(N, "serial")(B[:NX, :], B[NX, :], Xn, W, ca.repmat(WT, 1, N), SW.T)
-        self._nlp = {"x": V, "p": P, "f": ca.sum2(Js), "g": ca.vec(G)}
-        lbg_k = np.concatenate([np.zeros(NX), np.asarray(self._path_lb, float)])
-        ubg_k = np.concatenate([np.zeros(NX), np.asarray(self._path_ub, float)])
-        self._lbg, self._ubg = np.tile(lbg_k, N), np.tile(ubg_k, N)
+        Xn = ca.horzcat(B[:nx, 1:], V[nb * N:]) if N > 1 else V[nb * N:]
+        nwN = pr.nw * N
+        return (B[:nx, :], B[nx:, :], Xn, ca.reshape(P[:nwN], pr.nw, N), P[nwN:nwN + pr.np_], P[nwN + pr.np_:].T)
+
+    def _build_nlp(self) -> None:
+        s, pr = self.settings, self.problem
+        N, nx, nu = s.N, pr.nx, pr.nu
+        nb = nx + nu
+        xs = ca.DM(self.x_scale)
+        V = ca.MX.sym("V", nb * N + nx)
+        P = ca.MX.sym("p", pr.nw * N + pr.np_ + N)  # stage parameters per interval, p, stage weights
+        Xk, Uk, Xn, W, PP, SW = self._stage_inputs(V, P)
+        eq, path, J = self.F.map(N, "serial")(Xk, Uk, ca.MX(0, N), Xn, W, ca.repmat(PP, 1, N), s.dt)
+        f, g = ca.sum2(J * SW), [ca.vec(ca.vertcat(eq, path))]
+        lbg_k = np.concatenate([np.zeros(nx), np.asarray(pr.path_lb, float)])
+        ubg_k = np.concatenate([np.zeros(nx), np.asarray(pr.path_ub, float)])
+        lbg, ubg = [np.tile(lbg_k, N)], [np.tile(ubg_k, N)]
+        xN = V[nb * N:] * xs
+        if pr.terminal_cost is not None:
+            f = f + pr.terminal_cost(xN, PP)
+        if pr.terminal is not None:
+            g.append(pr.terminal(xN, PP))
+            lbg.append(np.asarray(pr.terminal_lb, float))
+            ubg.append(np.asarray(pr.terminal_ub, float))
+        self._nlp = {"x": V, "p": P, "f": f, "g": ca.vertcat(*g)}
+        self._lbg, self._ubg = np.concatenate(lbg), np.concatenate(ubg)
         self._ng_stage = lbg_k.size
-        xl, xu = following_state_bounds(s.bounds)
-        xl, xu = np.asarray(xl, float) / X_SCALE, np.asarray(xu, float) / X_SCALE
-        lbx = np.tile(np.concatenate([xl, [s.bounds.a_min]]), N)
-        ubx = np.tile(np.concatenate([xu, [s.bounds.a_max]]), N)
-        self._lbx, self._ubx = np.concatenate([lbx, xl]), np.concatenate([ubx, xu])
+        (xl, xu), (ul, uu) = self._xb, self._ub
+        xl_s, xu_s = xl / self.x_scale, xu / self.x_scale
+        self._lbx = np.concatenate([np.tile(np.concatenate([xl_s, ul / self.u_scale]), N), xl_s])
+        self._ubx = np.concatenate([np.tile(np.concatenate([xu_s, uu / self.u_scale]), N), xu_s])
         self.nv, self.ng, self.np_ = V.numel(), self._lbg.size, P.numel()
 
     def _compile(self, plugin: str) -> str | None:
@@ -241,51 +284,53 @@ class MPCController:
 
     def _build_rti(self) -> None:
         """The QP of one SQP step at a primal-dual point (x, λ_g) of the scaled NLP, stage by stage:
-        H = ∇²_x(f + λ_gᵀg) (block diagonal: the stage (z_k, a_k) blocks; gap_k is linear in
+        H = ∇²_x(f + λ_gᵀg) (block diagonal: the stage (z_k, u_k) blocks; gap_k is linear in
         z_{k+1}), ∇f, A = ∂g/∂x (banded), g's bound offsets and the step bounds; one mapped stage
         function, compiled to C when codegen is on. The QP (step dx, new multipliers) is solved by
         ``ca.conic`` (HPIPM detects the OCP structure from the sparsity)."""
-        s = self.settings
-        N, nb, ngs = s.N, NX + 1, self._ng_stage
-        xs = ca.DM(X_SCALE)
-        zk, ak, zn = ca.SX.sym("zk", NX), ca.SX.sym("ak"), ca.SX.sym("zn", NX)
-        w, wt, sw, lk = ca.SX.sym("w", 2), ca.SX.sym("wt", 4), ca.SX.sym("sw"), ca.SX.sym("lk", ngs)
-        u = ca.vertcat(zk, ak)
-        ck = ca.vertcat(self.step(zk * xs, ak, w) / xs, self.path(zk * xs, ak))  # g_k + (z_{k+1}; 0)
-        cost = sw * s.dt * ca.dot(wt, self.terms(zk * xs, ak, w))
+        s, pr = self.settings, self.problem
+        N, nx, nu, ngs = s.N, pr.nx, pr.nu, self._ng_stage
+        nb = nx + nu
+        zk, uk = ca.SX.sym("zk", nx), ca.SX.sym("uk", nu)
+        zn, w, pp = ca.SX.sym("zn", nx), ca.SX.sym("w", pr.nw), ca.SX.sym("p", pr.np_)
+        sw, lk = ca.SX.sym("sw"), ca.SX.sym("lk", ngs)
+        u = ca.vertcat(zk, uk)
+        eq, path, J = self.F(zk, uk, ca.SX(0, 1), ca.SX.zeros(nx), w, pp, s.dt)
+        ck = ca.vertcat(eq, path)  # g_k + (z_{k+1}; 0): the interval's end state and the path constraints
+        cost = sw * J
         Hk = ca.densify(ca.hessian(cost + ca.dot(lk, ck), u)[0])
         Jk = ca.densify(ca.jacobian(ck, u))
-        gk = ck - ca.vertcat(zn, ca.SX.zeros(ngs - NX))
-        stage = ca.Function("mpc_rti_stage", [zk, ak, zn, w, wt, sw, lk],
-                            [Hk, ca.gradient(cost, u), Jk, gk, cost])
+        gk = ck - ca.vertcat(zn, ca.SX.zeros(ngs - nx))
+        stage = ca.Function("mpc_rti_stage", [zk, uk, zn, w, pp, sw, lk], [Hk, ca.gradient(cost, u), Jk, gk, cost])
         V, P = ca.MX.sym("x", self.nv), ca.MX.sym("p", self.np_)
         LAM, LBX, UBX = ca.MX.sym("lam_g", self.ng), ca.MX.sym("lbx", self.nv), ca.MX.sym("ubx", self.nv)
-        B = ca.reshape(V[:nb * N], nb, N)
-        Xn = ca.horzcat(B[:NX, 1:], V[nb * N:]) if N > 1 else V[nb * N:]
-        W, WT, SW = ca.reshape(P[:2 * N], 2, N), P[2 * N:2 * N + 4], P[2 * N + 4:]
-        Hs, Qs, Js, Gs, Cs = stage.map(N, "serial")(B[:NX, :], B[NX, :], Xn, W, ca.repmat(WT, 1, N), SW.T,
-                                                     ca.reshape(LAM, ngs, N))
-        H = ca.diagcat(*ca.horzsplit(Hs, nb), ca.MX(NX, NX))
+        Xk, Uk, Xn, W, PP, SW = self._stage_inputs(V, P)
+        Hs, Qs, Js, Gs, Cs = stage.map(N, "serial")(Xk, Uk, Xn, W, ca.repmat(PP, 1, N), SW, ca.reshape(LAM, ngs, N))
+        H = ca.diagcat(*ca.horzsplit(Hs, nb), ca.MX(nx, nx))
         E = ca.DM(self.ng, self.nv)  # −I of gap_k in z_{k+1}
         for k in range(N):
-            for i in range(NX):
+            for i in range(nx):
                 E[k * ngs + i, (k + 1) * nb + i] = -1.0
-        A = ca.horzcat(ca.diagcat(*ca.horzsplit(Js, nb)), ca.MX(self.ng, NX)) + ca.sparsify(E)
+        A = ca.horzcat(ca.diagcat(*ca.horzsplit(Js, nb)), ca.MX(self.ng, nx)) + ca.sparsify(E)
         g = ca.vec(Gs)
         qpdata = ca.Function("mpc_rti_qp_data", [V, P, LAM, LBX, UBX],
-                             [H, ca.vertcat(ca.vec(Qs), ca.MX.zeros(NX)), A, ca.DM(self._lbg) - g,
+                             [H, ca.vertcat(ca.vec(Qs), ca.MX.zeros(nx)), A, ca.DM(self._lbg) - g,
                               ca.DM(self._ubg) - g, LBX - V, UBX - V, ca.sum2(Cs), g],
                              ["x", "p", "lam_g", "lbx", "ubx"],
                              ["h", "g", "a", "lba", "uba", "lbdx", "ubdx", "f", "gx"])
         # objective and constraints only (cost and nonlinear violation of the returned plan)
         fg = ca.Function("mpc_rti_fg", [self._nlp["x"], self._nlp["p"]], [self._nlp["f"], self._nlp["g"]],
                          ["x", "p"], ["f", "g"])
-        self._rti_data, self._rti_fg = qpdata, fg
+        # path constraints of the applied control at node 0 (where the state is the measurement)
+        path0 = self.F(V[:nx], V[nx:nb], ca.MX(0, 1), ca.MX.zeros(nx), W[:, 0], PP, s.dt)[1]
+        p0 = ca.Function("mpc_rti_path0", [V, P], [path0])
+        self._rti_data, self._rti_fg, self._rti_path0 = qpdata, fg, p0
         if s.codegen:
             def generate() -> None:
                 cg = ca.CodeGenerator("mpc_rti.c")
                 cg.add(qpdata)
                 cg.add(fg)
+                cg.add(p0)
                 cg.generate()
 
             lib = self._compile_c("mpc_rti", generate, "mpc_rti.c")
@@ -293,58 +338,71 @@ class MPCController:
                 self.codegen_active = True
                 self._rti_data = ca.external("mpc_rti_qp_data", lib)
                 self._rti_fg = ca.external("mpc_rti_fg", lib)
+                self._rti_path0 = ca.external("mpc_rti_path0", lib)
         if not self.codegen_active:
-            self._rti_data, self._rti_fg = qpdata.expand(), fg.expand()
+            self._rti_data, self._rti_fg, self._rti_path0 = qpdata.expand(), fg.expand(), p0.expand()
         self._rti_qp = ca.conic("mpc_rti_qp", s.qp_solver, {"h": H.sparsity(), "a": A.sparsity()},
                                 _qp_options(s.qp_solver))
-        self._rti_path0 = ca.Function("mpc_rti_path0", [V], [self.path(V[:NX] * xs, V[NX])])
-        self._rti_path0_lb = np.asarray(self._path_lb, float)
-        self._rti_path0_ub = np.asarray(self._path_ub, float)
+        self._rti_path0_lb = np.asarray(pr.path_lb, float)
+        self._rti_path0_ub = np.asarray(pr.path_ub, float)
 
     # ------------------------------------------------------------------ helpers
-    def _params(self, z0: np.ndarray, w: np.ndarray, weights: FollowingWeights | None,
-                stage_weights: np.ndarray | None) -> np.ndarray:
-        wt = weights or self.settings.weights
-        sw = np.ones(self.settings.N) if stage_weights is None else np.asarray(stage_weights, float).ravel()
-        if sw.size != self.settings.N or not np.all(np.isfinite(sw)) or np.any(sw < 0):
-            raise ParameterError(f"MPC stage_weights must be {self.settings.N} finite numbers >= 0")
-        return np.concatenate([w.ravel(order="F"), [wt.w_Q, wt.w_V, wt.w_r, wt.w_a], sw])
+    def _params(self, w: np.ndarray, weights: FollowingWeights | None, stage_weights: np.ndarray | None) -> np.ndarray:
+        """NLP parameter vector: stage parameters per interval (forecast, then the user's), the problem's
+        parameters (the §9 weights, then the user's) and the stage weights."""
+        N = self.settings.N
+        wt = weight_vector(weights or self.settings.weights)[:self._n_weights]
+        sw = np.ones(N) if stage_weights is None else np.asarray(stage_weights, float).ravel()
+        if sw.size != N or not np.all(np.isfinite(sw)) or np.any(sw < 0):
+            raise ParameterError(f"MPC stage_weights must be {N} finite numbers >= 0")
+        W = np.vstack([w, np.repeat(self._w_extra.reshape(-1, 1), N, axis=1)]) if self._w_extra.size else w
+        return np.concatenate([W.ravel(order="F"), wt, self._p_extra, sw])
 
-    def guess(self, z0: np.ndarray, w: np.ndarray) -> np.ndarray:
+    def _w_and_p(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(W (nw, N), p) back from the NLP parameter vector."""
+        pr, N = self.problem, self.settings.N
+        return p[:pr.nw * N].reshape(N, pr.nw).T, p[pr.nw * N:pr.nw * N + pr.np_]
+
+    def guess(self, z0: np.ndarray, p: np.ndarray) -> np.ndarray:
         """Cold-start primal guess (scaled NLP vector): the closed-form law rolled out over the horizon."""
-        Zn, A = self._rollout(ca.DM(z0), ca.DM(w))
-        Z = np.hstack([np.asarray(z0, float).reshape(NX, 1), np.asarray(Zn)]) / X_SCALE[:, None]
-        A = np.asarray(A).reshape(1, -1)
-        return np.concatenate([np.vstack([Z[:, :-1], A]).ravel(order="F"), Z[:, -1]])
+        W, pp = self._w_and_p(p)
+        Zn, U = self._rollout(ca.DM(z0), W, np.repeat(pp.reshape(-1, 1), self.settings.N, axis=1))
+        Z = np.hstack([np.asarray(z0, float).reshape(self.nx, 1), np.asarray(Zn)]) / self.x_scale[:, None]
+        U = np.asarray(U).reshape(self.nu, -1) / self.u_scale[:, None]
+        return np.concatenate([np.vstack([Z[:, :-1], U]).ravel(order="F"), Z[:, -1]])
 
-    def unpack(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(X (5, N+1) in physical units, a (N,)) from the scaled NLP vector."""
-        N, nb = self.settings.N, NX + 1
+    def unpack(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(X (nx, N+1), a (N,), U (nu, N)) in physical units from the scaled NLP vector."""
+        N, nx, nb = self.settings.N, self.nx, self.nx + self.nu
         blocks = x[:nb * N].reshape(N, nb).T
-        X = np.hstack([blocks[:NX], x[nb * N:].reshape(NX, 1)]) * X_SCALE[:, None]
-        return X, blocks[NX].copy()
+        X = np.hstack([blocks[:nx], x[nb * N:].reshape(nx, 1)]) * self.x_scale[:, None]
+        U = blocks[nx:] * self.u_scale[:, None]
+        return X, U[0].copy(), U
 
-    def _shift(self, z0: np.ndarray, w: np.ndarray) -> dict[str, np.ndarray]:
-        """Warm start from the previous solution shifted by one interval: (z_1, a_1, …, z_N, a_{N−1},
-        F(z_N, a_{N−1})), z_0 replaced by the measurement; multipliers shifted the same way."""
+    def _shift(self, z0: np.ndarray, p: np.ndarray) -> dict[str, np.ndarray]:
+        """Warm start from the previous solution shifted by one interval: (z_1, u_1, …, z_N, u_{N−1},
+        F(z_N, u_{N−1})), z_0 replaced by the measurement; multipliers shifted the same way."""
         prev = self._warm
         assert prev is not None
-        N, nb, ngs = self.settings.N, NX + 1, self._ng_stage
+        N, nx, nb, ngs = self.settings.N, self.nx, self.nx + self.nu, self._ng_stage
 
         def shift_v(v: np.ndarray, new_last: np.ndarray) -> np.ndarray:
             blocks = v[:nb * N].reshape(N, nb)
-            nbk = np.vstack([blocks[1:], np.concatenate([v[nb * N:], blocks[-1, NX:]])])
+            nbk = np.vstack([blocks[1:], np.concatenate([v[nb * N:], blocks[-1, nx:]])])
             return np.concatenate([nbk.ravel(), new_last])
 
         x = prev["x"]
-        zN = x[nb * N:] * X_SCALE
-        z_ext = np.asarray(self.step(zN, x[nb * N - 1], w[:, -1])).ravel() / X_SCALE
-        z_ext = np.clip(z_ext, self._lbx[-NX:], self._ubx[-NX:])
+        W, pp = self._w_and_p(p)
+        zN = x[nb * N:] * self.x_scale
+        uN = x[nb * N - self.nu:nb * N] * self.u_scale
+        z_ext = np.asarray(self.step(zN, uN, W[:, -1], pp)).ravel() / self.x_scale
+        z_ext = np.clip(z_ext, self._lbx[-nx:], self._ubx[-nx:])
         x0 = shift_v(x, z_ext)
-        x0[:NX] = z0 / X_SCALE
+        x0[:nx] = z0 / self.x_scale
         lam_x = prev["lam_x"]
-        g_st = prev["lam_g"].reshape(N, ngs)
-        lg = np.vstack([g_st[1:], g_st[-1:]]).ravel()
+        lg = prev["lam_g"]
+        g_st = lg[:N * ngs].reshape(N, ngs)
+        lg = np.concatenate([np.vstack([g_st[1:], g_st[-1:]]).ravel(), lg[N * ngs:]])
         return {"x0": x0, "lam_x0": shift_v(lam_x, lam_x[nb * N:]), "lam_g0": lg}
 
     def _violation(self, x: np.ndarray, g: np.ndarray, lbx: np.ndarray, ubx: np.ndarray) -> float:
@@ -357,6 +415,19 @@ class MPCController:
         self._warm = None
 
     # ------------------------------------------------------------------ solving
+    def initial_state(self, z0: np.ndarray) -> np.ndarray:
+        """The full initial state: the measured (h, v, V1, V2, S) and the controller's own states
+        (from the previous plan's node 1 when warm, else ``initial_values``)."""
+        z0 = np.asarray(z0, float).ravel()
+        if z0.size == self.nx:
+            return z0
+        if z0.size != NZ:
+            raise ParameterError(f"MPC: z0 must be {NZ} (h, v, V1, V2, S) or {self.nx} values, got {z0.size}")
+        if self.nx == NZ:
+            return z0
+        own = self._x_own0 if self._warm is None else self._warm["X1"][NZ:]
+        return np.concatenate([z0, own])
+
     def solve(self, z0: np.ndarray, v_mean: np.ndarray, v_hat: np.ndarray, *,
               weights: FollowingWeights | None = None, stage_weights: np.ndarray | None = None) -> MPCSolution:
         """Solve from the measured state z0 = (h, v, V1, V2, S) with the forecast per interval:
@@ -364,25 +435,24 @@ class MPCController:
         [model speed]. ``weights`` overrides the settings' weights for this solve (no rebuild).
         Never raises on solver failure: returns success=False with a status."""
         s = self.settings
-        N = s.N
-        z0 = np.asarray(z0, float).ravel()
-        if z0.size != NX or not np.all(np.isfinite(z0)):
-            raise ParameterError(f"MPC: z0 must be 5 finite numbers (h, v, V1, V2, S), got {z0!r}")
+        N, nx = s.N, self.nx
+        z0 = self.initial_state(z0)
+        if not np.all(np.isfinite(z0)):
+            raise ParameterError(f"MPC: z0 must be finite (h, v, V1, V2, S), got {z0!r}")
         vm_, vh_ = np.asarray(v_mean, float).ravel(), np.asarray(v_hat, float).ravel()
         if vm_.size != N or vh_.size != N or not (np.all(np.isfinite(vm_)) and np.all(np.isfinite(vh_))):
             raise ParameterError(f"MPC: the leader forecast (v_mean, v_hat) must be N = {N} finite values each, "
                                  f"got {vm_.size} and {vh_.size}")
-        w = np.vstack([vm_, vh_])
-        p = self._params(z0, w, weights, stage_weights)
+        p = self._params(np.vstack([vm_, vh_]), weights, stage_weights)
         warm = self._warm is not None and s.solver != "ipopt-cold"
         if warm:
-            args = self._shift(z0, w)
+            args = self._shift(z0, p)
             solver, path = self._fast, s.solver
         else:
-            args = {"x0": self.guess(z0, w)}
+            args = {"x0": self.guess(z0, p)}
             solver, path = self._cold, "ipopt-cold"
         lbx, ubx = self._lbx.copy(), self._ubx.copy()
-        lbx[:NX] = ubx[:NX] = z0 / X_SCALE
+        lbx[:nx] = ubx[:nx] = z0 / self.x_scale
         if warm and s.solver == "rti":
             return self._solve_rti(args, p, lbx, ubx)
         t0 = time.perf_counter()
@@ -393,31 +463,32 @@ class MPCController:
             out, err = None, str(exc).splitlines()[0][:200]
         dt_wall = time.perf_counter() - t0
         if out is None:
-            self._warm = None
-            return MPCSolution(False, f"exception: {err}", 0, dt_wall, np.full((NX, N + 1), np.nan),
-                               np.full(N, np.nan), float("nan"), float("inf"), path)
+            return self._failed(f"exception: {err}", 0, dt_wall, float("inf"), path)
         st = solver.stats()
         x, g = np.asarray(out["x"]).ravel(), np.asarray(out["g"]).ravel()
         viol = self._violation(x, g, lbx, ubx)
         status = str(st.get("return_status", st.get("unified_return_status", "")))
-        success = bool(st.get("success", False)) and viol < 1e-6 and np.all(np.isfinite(x))
+        success = bool(st.get("success", False)) and viol < PLAN_TOLERANCE and np.all(np.isfinite(x))
         iters = int(st.get("iter_count", st.get("iterations", {}).get("iter", [0])[-1]
                            if isinstance(st.get("iterations"), dict) else 0))
-        X, a = self.unpack(x)
-        if success:
-            self._warm = {"x": x, "lam_x": np.asarray(out["lam_x"]).ravel(), "lam_g": np.asarray(out["lam_g"]).ravel()}
-        else:
-            self._warm = None
+        X, a, U = self.unpack(x)
+        self._warm = ({"x": x, "lam_x": np.asarray(out["lam_x"]).ravel(), "lam_g": np.asarray(out["lam_g"]).ravel(),
+                       "X1": X[:, 1]} if success else None)
         return MPCSolution(success, status, iters, dt_wall, X, a, float(out["f"]), viol, path,
-                           {"t_wall_solver": float(st.get("t_wall_total", float("nan")))})
+                           {"t_wall_solver": float(st.get("t_wall_total", float("nan")))}, U)
+
+    def _failed(self, status: str, iters: int, dt_wall: float, viol: float, path: str) -> MPCSolution:
+        N = self.settings.N
+        self._warm = None
+        return MPCSolution(False, status, iters, dt_wall, np.full((self.nx, N + 1), np.nan), np.full(N, np.nan),
+                           float("nan"), viol, path, {}, np.full((self.nu, N), np.nan))
 
     def _solve_rti(self, args: dict[str, np.ndarray], p: np.ndarray, lbx: np.ndarray,
                    ubx: np.ndarray) -> MPCSolution:
         """``rti_iterations`` full SQP steps from the shifted previous solution (see :meth:`_build_rti`).
-        Success: every QP solved, a finite step, and the applied control's path constraints (pack
-        current, current map at node 0, where the state is the measurement) hold on the exact model."""
+        Success: every QP solved, a finite step, and the applied control's path constraints (node 0,
+        where the state is the measurement) hold within :data:`aev_ocp.plant.PLAN_TOLERANCE`."""
         s = self.settings
-        N = s.N
         data, qp = self._rti_data, self._rti_qp
         t0 = time.perf_counter()
         x, lam_g, lam_x = args["x0"], args["lam_g0"], args["lam_x0"]
@@ -437,24 +508,22 @@ class MPCController:
                 step = float(np.abs(dx).max())
                 if step <= s.tol:
                     break
-            c0 = np.asarray(self._rti_path0(x)).ravel() if ok else None
+            c0 = np.asarray(self._rti_path0(x, p)).ravel() if ok else None
         except RuntimeError as exc:
             ok, status, c0 = False, f"exception: {str(exc).splitlines()[0][:200]}", None
         dt_wall = time.perf_counter() - t0
         viol0 = float("inf")
         if c0 is not None:
             viol0 = float(np.maximum(np.maximum(self._rti_path0_lb - c0, c0 - self._rti_path0_ub), 0).max(initial=0))
-            if not np.isfinite(viol0) or viol0 > 1e-6:
+            if not np.isfinite(viol0) or viol0 > PLAN_TOLERANCE:
                 ok, status = False, f"applied control violates the path constraints by {viol0:.3g}"
         if not ok:
-            self._warm = None
-            return MPCSolution(False, status, it, dt_wall, np.full((NX, N + 1), np.nan), np.full(N, np.nan),
-                               float("nan"), viol0, "rti")
+            return self._failed(status, it, dt_wall, viol0, "rti")
         # plan, cost and the nonlinear constraint violation of the plan (the RTI plan is feasible only
         # to first order; reported, not required)
         f, g = self._rti_fg(x, p)
         viol = self._violation(x, np.asarray(g).ravel(), lbx, ubx)
-        X, a = self.unpack(x)
-        self._warm = {"x": x, "lam_x": lam_x, "lam_g": lam_g}
+        X, a, U = self.unpack(x)
+        self._warm = {"x": x, "lam_x": lam_x, "lam_g": lam_g, "X1": X[:, 1]}
         return MPCSolution(True, "RTI_Step" if step > s.tol else "RTI_Converged", it, dt_wall, X, a,
-                           float(f), viol, "rti", {"step_inf": step, "node0_violation": viol0})
+                           float(f), viol, "rti", {"step_inf": step, "node0_violation": viol0}, U)

@@ -11,7 +11,7 @@ from typing import Any, Callable
 import numpy as np
 
 from ..ocp.oracle import OracleScenario, OracleSolver, stage_cost_of_result
-from .closed_loop import ClosedLoop, ControlSequence
+from ..control import ClosedLoop, ControlSequence
 from ..results import SimulationResult, write_json
 from ..simulate import simulate_platoon
 from .scenario import MPCConfig, closed_loop_from_scenario

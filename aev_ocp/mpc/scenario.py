@@ -15,7 +15,8 @@ from typing import Any
 
 from ..ocp.following import FollowingBounds, FollowingWeights
 from ..params import ParameterError
-from .closed_loop import ClosedLoop, MPCVehicle
+from ..control import ClosedLoop
+from .policy import MPCVehicle
 from .settings import PREDICTOR_NAMES, QP_SOLVERS, SOLVER_PATHS, MPCSettings
 
 _STR = {"objective": ("heat", "energy"), "solver": SOLVER_PATHS, "qp_solver": QP_SOLVERS,

@@ -1,6 +1,8 @@
-"""The car-following stage cost, dynamics and constraints of PROBLEM.md §9 — in ONE place.
+"""The car-following problem of PROBLEM.md §9 — stated ONCE, as a :class:`ProblemBuilder`.
 
-Shared by OCP-D (the oracle lower bound, :mod:`aev_ocp.ocp.oracle`) and the MPC (issue 4).
+OCP-D (the oracle lower bound, :mod:`aev_ocp.ocp.oracle`) and the MPC (:mod:`aev_ocp.mpc`) are both
+built from :func:`following_problem`, so they solve the same problem; a user adds a cost term, a
+constraint or a state to the builder before building either (README, "Your own MPC terms").
 
 Model units throughout (PROBLEM.md §1): gap h, speed v, acceleration a, time in model time units;
 the cell states V1, V2 [V] and S [-] evolve in seconds, converted with ``ev.units.time_s``.
@@ -20,12 +22,14 @@ from typing import Any
 
 import casadi as ca
 
-from ..models import battery, energy
+from ..models import energy
 from ..models.carfollowing import optimal_velocity
-from ..models.powertrain import cell_current_from_motion
+from ..models.ego import STATE_NAMES, battery_side, following_ode
 from ..params import EVParams, ParameterError, PowertrainOptions
+from .problem import ProblemBuilder
 
-STATE_NAMES = ("h", "v", "V1", "V2", "S")
+TERM_NAMES = ("energy", "ovm", "relative", "accel")  # the four §9 terms, weighted by w_Q, w_V, w_r, w_a
+WEIGHT_NAMES = ("w_Q", "w_V", "w_r", "w_a")
 OBJECTIVES = ("heat", "energy")
 G_SMOOTH_WIDTH = 0.01  # model acceleration; width of the smoothed g (aev_ocp.models.energy.g_smooth default)
 
@@ -68,83 +72,57 @@ class FollowingBounds:
             raise ParameterError(f"FollowingBounds.a_min = {self.a_min} must be < a_max = {self.a_max}")
 
 
-def following_cell(z: Any, a: Any, ev: EVParams, smooth: PowertrainOptions | None = PowertrainOptions()) -> dict[str, Any]:
-    """Current map for state z (model units) and acceleration a (model): I [A], disc [V²],
-    Q [W per cell], Q_pack [W], Q_irr_pack [W], P_b [W]. ``smooth=None``: exact η switch."""
-    u = ev.units
-    h, v, V1, V2, S = (z[i] for i in range(5))
-    cm = cell_current_from_motion(u.speed_to_si(v), u.accel_to_si(a), V1, V2, S, ev, smooth=smooth)
-    I = cm["I"]
-    Q = battery.heat_Q(V1, V2, I, ev.cell)
-    n = ev.pack.n_cells
-    return {"I": I, "disc": cm["disc"], "Q": Q, "Q_pack": n * Q,
-            "Q_irr_pack": n * battery.heat_irreversible(V1, V2, I, ev.cell), "P_b": cm["P_b"]}
-
-
-def following_ode(z: Any, a: Any, v_l_mean: Any, ev: EVParams,
-                  smooth: PowertrainOptions | None = PowertrainOptions()) -> Any:
-    """dz/dt in model time: ḣ = v̄_l − v (interval-mean leader speed), v̇ = a, and the cell ODE
-    (paper eqs. V_1_V_2, change_SOC) scaled by the time unit T [s]."""
-    c = following_cell(z, a, ev, smooth)
-    dV1, dV2, dS = battery.cell_derivatives(z[2], z[3], c["I"], ev.cell)
-    T = ev.units.time_s
-    return ca.vertcat(v_l_mean - z[1], a, T * dV1, T * dV2, T * dS)
-
-
-def following_stage_cost(z: Any, a: Any, v_l_hat: Any, weights: FollowingWeights, ev: EVParams,
-                         smooth: PowertrainOptions | None = PowertrainOptions(),
-                         objective: str = "heat") -> Any:
-    """ℓ(z, a) of PROBLEM.md §9 [model units; multiply by dt in model time]:
-    w_Q Q_pack/(1 kW) + w_V (V(h) − v)² + w_r (v̂_l − v)² + w_a a².
-    objective='energy' uses v g̃(a) (smoothed g, η = ev.vehicle.efficiency) in place of Q_pack/(1 kW)."""
-    return sum(following_stage_terms(z, a, v_l_hat, weights, ev, smooth, objective).values())
-
-
-def following_stage_terms(z: Any, a: Any, v_l_hat: Any, weights: FollowingWeights, ev: EVParams,
+def following_stage_terms(z: Any, a: Any, v_l_hat: Any, ev: EVParams,
                           smooth: PowertrainOptions | None = PowertrainOptions(),
                           objective: str = "heat") -> dict[str, Any]:
-    """The four weighted terms of ℓ separately: 'energy', 'ovm', 'relative', 'accel'."""
+    """The four UNWEIGHTED terms of ℓ (PROBLEM.md §9) [model units; multiply by dt in model time]:
+    'energy' Q_pack/(1 kW) (objective 'heat') or v g̃(a) (objective 'energy', smoothed g,
+    η = ev.vehicle.efficiency), 'ovm' (V(h) − v)², 'relative' (v̂_l − v)², 'accel' a²."""
     if objective not in OBJECTIVES:
         raise ParameterError(f"objective = {objective!r} is not allowed: must be one of {OBJECTIVES}")
     h, v = z[0], z[1]
     if objective == "heat":
-        e = following_cell(z, a, ev, smooth)["Q_pack"] / 1000.0
+        e = battery_side(v, a, z[2], z[3], z[4], ev, smooth)["Q_pack"] / 1000.0
     else:
         e = v * energy.g_smooth(a, ev.vehicle.efficiency, G_SMOOTH_WIDTH)
-    return {"energy": weights.w_Q * e, "ovm": weights.w_V * (optimal_velocity(h) - v) ** 2,
-            "relative": weights.w_r * (v_l_hat - v) ** 2, "accel": weights.w_a * a**2}
+    return {"energy": e, "ovm": (optimal_velocity(h) - v) ** 2, "relative": (v_l_hat - v) ** 2, "accel": a**2}
 
 
-def following_path_constraints(z: Any, a: Any, ev: EVParams,
-                               smooth: PowertrainOptions | None = PowertrainOptions()) -> tuple[Any, list[float], list[float]]:
-    """Constraints at the start of every interval (PROBLEM.md §9): c = (I [A], disc [V²]) with
-    −I_max ≤ I ≤ I_max and disc ≥ 0. Returns (c, lb, ub)."""
-    c = following_cell(z, a, ev, smooth)
+def weight_vector(weights: FollowingWeights) -> list[float]:
+    """The problem's global parameter p = (w_Q, w_V, w_r, w_a)."""
+    return [float(getattr(weights, k)) for k in WEIGHT_NAMES]
+
+
+def following_problem(ev: EVParams, bounds: FollowingBounds | None = None,
+                      smooth: PowertrainOptions | None = PowertrainOptions(), objective: str = "heat",
+                      name: str = "following") -> ProblemBuilder:
+    """The §9 problem as a builder (model units, time in model time units):
+
+    states z = (h, v, V1, V2, S) (scales 1, 1, 0.01 V, 0.01 V, 1); control a; stage parameters
+    (v̄_l interval-mean leader speed, v̂_l(t_k)); parameters p = (w_Q, w_V, w_r, w_a);
+    stage cost Σ_k (w_Q·energy + w_V·ovm + w_r·relative + w_a·accel)·dt; bounds h ≥ h_min,
+    v_min ≤ v ≤ v_max, S ∈ [0, 1] at nodes 1…N, a_min ≤ a ≤ a_max; |I| ≤ I_max and disc ≥ 0 at
+    the start of every interval. ``smooth``: η-switch smoothing of the optimiser (PROBLEM.md §7).
+    Outputs: I [A], Q [W per cell], Q_pack_W, Q_irr_pack_W, disc [V²] and each weighted term.
+    """
+    b = bounds or FollowingBounds()
+    pb = ProblemBuilder(name, time_unit="model")
+    z = ca.vertcat(pb.state("h", b.h_min), pb.state("v", b.v_min, b.v_max), pb.state("V1", scale=0.01),
+                   pb.state("V2", scale=0.01), pb.state("S", 0.0, 1.0))
+    a = pb.control("a", b.a_min, b.a_max)
+    v_mean, v_hat = pb.stage_parameter("v_l_mean"), pb.stage_parameter("v_l_hat")
+    wt = [pb.parameter(k) for k in WEIGHT_NAMES]
+    rhs = following_ode(z, a, v_mean, ev, smooth)
+    for i, nm in enumerate(STATE_NAMES):
+        pb.set_der(pb.x[nm], rhs[i])
+    terms = following_stage_terms(z, a, v_hat, ev, smooth, objective)
+    for wk, nm in zip(wt, TERM_NAMES):
+        pb.add_stage_cost(wk * terms[nm], nm)
+    cell = battery_side(z[1], a, z[2], z[3], z[4], ev, smooth)
     Imax = ev.cell.max_current_A
-    return ca.vertcat(c["I"], c["disc"]), [-Imax, 0.0], [Imax, ca.inf]
-
-
-def following_state_bounds(bounds: FollowingBounds) -> tuple[list[float], list[float]]:
-    """Simple bounds on z at nodes 1…N (PROBLEM.md §9): h ≥ h_min, v_min ≤ v ≤ v_max, S ∈ [0, 1]."""
-    inf = ca.inf
-    return [bounds.h_min, bounds.v_min, -inf, -inf, 0.0], [inf, bounds.v_max, inf, inf, 1.0]
-
-
-def following_functions(ev: EVParams, weights: FollowingWeights,
-                        smooth: PowertrainOptions | None = PowertrainOptions(),
-                        objective: str = "heat") -> dict[str, ca.Function]:
-    """SX Functions of (z, a, w, p) with w = (v̄_l interval-mean, v̂_l(t_k)) and p empty:
-    'ode', 'stage', 'path', 'outputs' (I, Q, Q_pack, Q_irr_pack, disc, ell)."""
-    z, a, w, p = ca.SX.sym("z", 5), ca.SX.sym("a"), ca.SX.sym("w", 2), ca.SX.sym("p", 0)
-    args, names = [z, a, w, p], ["x", "u", "w", "p"]
-    cell = following_cell(z, a, ev, smooth)
-    ell = following_stage_cost(z, a, w[1], weights, ev, smooth, objective)
-    path, _, _ = following_path_constraints(z, a, ev, smooth)
-    return {
-        "ode": ca.Function("follow_ode", args, [following_ode(z, a, w[0], ev, smooth)], names, ["zdot"]),
-        "stage": ca.Function("follow_stage", args, [ell], names, ["ell"]),
-        "path": ca.Function("follow_path", args, [path], names, ["c"]),
-        "outputs": ca.Function("follow_out", args, [cell["I"], cell["Q"], cell["Q_pack"], cell["Q_irr_pack"],
-                                                    cell["disc"], ell], names,
-                               ["I", "Q", "Q_pack_W", "Q_irr_pack_W", "disc", "ell"]),
-    }
+    pb.subject_to(cell["I"], -Imax, Imax, name="I")  # |I| ≤ 20C (PROBLEM.md §9)
+    pb.subject_to(cell["disc"], 0.0, ca.inf, name="disc")  # current map feasible (PROBLEM.md §7)
+    for nm, key in (("I", "I"), ("Q", "Q"), ("Q_pack_W", "Q_pack"), ("Q_irr_pack_W", "Q_irr_pack"), ("disc", "disc")):
+        pb.add_output(nm, cell[key])
+    pb.meta.update({"objective": objective, "bounds": b})
+    return pb

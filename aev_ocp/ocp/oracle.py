@@ -17,10 +17,13 @@ import numpy as np
 from ..models.carfollowing import CarFollowingLaw, Proposed
 from ..models.leader import LeaderProfile, PaperLeader, drive_cycle
 from ..params import EVParams, ParameterError, PowertrainOptions, Units
-from .following import (STATE_NAMES, FollowingBounds, FollowingWeights, following_functions,
-                        following_state_bounds, following_stage_terms)
+from ..models.ego import following_ode
+from ..numerics import rk4
+from .following import (TERM_NAMES, FollowingBounds, FollowingWeights, following_problem, following_stage_terms,
+                        weight_vector)
+from .problem import OCPProblem
 from .result import OCPResult
-from .transcription import OCPProblem, OCPSolver, TranscriptionOptions
+from .transcription import OCPSolver, TranscriptionOptions
 
 
 @dataclass(frozen=True)
@@ -93,37 +96,21 @@ def leader_forecast(leader: LeaderProfile, t: np.ndarray) -> tuple[np.ndarray, n
 
 
 def oracle_problem(scn: OracleScenario) -> OCPProblem:
-    """OCP-D as an OCPProblem: sampled §9 stage cost, current constraints at interval starts,
-    state bounds at nodes 1…N (and collocation points)."""
-    fn = following_functions(scn.ev, scn.weights, scn.smooth, scn.objective)
-    xl, xu = following_state_bounds(scn.bounds)
-    Imax = scn.ev.cell.max_current_A
-    return OCPProblem(
-        name="ocp_d", state_names=list(STATE_NAMES), control_names=["a"], ode=fn["ode"], stage=fn["stage"],
-        path=fn["path"], path_lb=[-Imax, 0.0], path_ub=[Imax, ca.inf], outputs=fn["outputs"],
-        x_lb=xl, x_ub=xu, u_lb=[scn.bounds.a_min], u_ub=[scn.bounds.a_max],
-        x_scale=[1.0, 1.0, 0.01, 0.01, 1.0], u_scale=[1.0], time_unit="model")
+    """OCP-D: the §9 problem (:func:`aev_ocp.ocp.following.following_problem`) over the whole scenario;
+    the weights are its parameter p (:func:`aev_ocp.ocp.following.weight_vector`)."""
+    return following_problem(scn.ev, scn.bounds, scn.smooth, scn.objective, name="ocp_d").build()
 
 
 def _step_function(scn: OracleScenario, policy: str, law: CarFollowingLaw | None, substeps: int) -> ca.Function:
     """One interval of the smoothed-η model (RK4) under a policy: 'law' (a_k = law(h_k, v_k, v_l(t_k)))
     or 'copy' (a_k drives v to the leader's next node speed); a_k clipped to the a bounds."""
-    fn = following_functions(scn.ev, scn.weights, scn.smooth, scn.objective)
     z, w = ca.SX.sym("z", 5), ca.SX.sym("w", 3)  # w = (v̄_l, v_l(t_k), v_l(t_{k+1}))
     if policy == "law" and law is not None:
         a_raw = law.accel(ca.fmax(z[0], 1e-3), z[1], w[1])
     else:
         a_raw = (w[2] - z[1]) / scn.dt
     a = ca.fmin(ca.fmax(a_raw, scn.bounds.a_min), scn.bounds.a_max)
-    dt = scn.dt / substeps
-    x = z
-    p0 = ca.SX.sym("p", 0)
-    for _ in range(substeps):
-        k1 = fn["ode"](x, a, w[:2], p0)
-        k2 = fn["ode"](x + dt / 2 * k1, a, w[:2], p0)
-        k3 = fn["ode"](x + dt / 2 * k2, a, w[:2], p0)
-        k4 = fn["ode"](x + dt * k3, a, w[:2], p0)
-        x = x + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+    x, _ = rk4(lambda y: following_ode(y, a, w[0], scn.ev, scn.smooth), z, scn.dt, substeps)
     x = ca.vertcat(ca.fmax(x[0], scn.bounds.h_min), ca.fmax(x[1], 0.0), x[2:])  # keep the guess in bounds
     return ca.Function("guess_step", [z, w], [x, a])
 
@@ -169,7 +156,8 @@ class OracleSolver:
         guess = None
         if not warm:
             guess = rollout_guess(scn, guess_law or Proposed())
-        res = self.solver.solve(scn.z0, scn.t_end, w=np.vstack([vm, vh]), guess=guess, warm=warm,
+        res = self.solver.solve(scn.z0, scn.t_end, p=weight_vector(scn.weights), w=np.vstack([vm, vh]),
+                                guess=guess, warm=warm,
                                 objective_name="sum_k l(z_k, a_k) dt (PROBLEM.md §9)")
         res.meta.update({"scenario": scn.name, "dt": scn.dt, "leader_speed_mean": vm, "leader_speed_hat": vh,
                          "units": {"length_m": scn.ev.units.length_m, "speed_mps": scn.ev.units.speed_mps}})
@@ -209,12 +197,13 @@ def stage_cost_of_trajectory(t: np.ndarray, h: np.ndarray, v: np.ndarray, V1: np
             raise ParameterError(f"stage_cost_of_trajectory: {nm} has {arr.size} values, need at least {N}")
         Z.append(arr[:N])
     z, u, vh = ca.SX.sym("z", 5), ca.SX.sym("a"), ca.SX.sym("vh")
-    terms = following_stage_terms(z, u, vh, weights, ev, smooth, objective)
-    f = ca.Function("ell_terms", [z, u, vh], [ca.vertcat(*terms.values())]).map(N)
+    terms = following_stage_terms(z, u, vh, ev, smooth, objective)
+    wt = weight_vector(weights)
+    f = ca.Function("ell_terms", [z, u, vh], [ca.vertcat(*[w * terms[nm] for w, nm in zip(wt, TERM_NAMES)])]).map(N)
     vals = np.asarray(f(np.vstack(Z), a.reshape(1, -1), vl.reshape(1, -1)))
     dt = np.diff(t)
-    out = {nm: float(vals[i] @ dt) for i, nm in enumerate(terms)}
-    out["total"] = float(sum(out[nm] for nm in terms))
+    out = {nm: float(vals[i] @ dt) for i, nm in enumerate(TERM_NAMES)}
+    out["total"] = float(sum(out[nm] for nm in TERM_NAMES))
     return out
 
 

@@ -32,7 +32,9 @@ from typing import Any, Sequence
 import casadi as ca
 import numpy as np
 
+from ..numerics import rk4
 from ..params import ParameterError
+from .problem import OCPProblem
 from .result import OCPResult
 
 METHODS = ("ms", "collocation")
@@ -59,89 +61,6 @@ _IPOPT_STATUS: dict[str, tuple[str, bool, str]] = {
     "Not_Enough_Degrees_Of_Freedom": ("too_few_dof", False, "more equality constraints than unknowns"),
     "Infeasible_Problem_Definition": ("bad_bounds", False, "a lower bound exceeds its upper bound"),
 }
-
-
-@dataclass
-class OCPProblem:
-    """A continuous-time OCP with piecewise-constant controls (see the module docstring).
-
-    ode: Function (x, u, w, p) -> dx/dt [state units per problem time unit].
-    lagrange: optional Function (x, u, w, p) -> integrand, integrated over [0, t_f].
-    stage: optional Function (x, u, w, p) -> ℓ, summed as Σ_k ℓ(x_k, u_k, w_k, p)·h.
-    path: optional Function (x, u, w, p) -> c with ``path_lb ≤ c ≤ path_ub`` at nodes 0 … N−1.
-    terminal: optional Function (x_N, p) -> c_T with ``terminal_lb ≤ c_T ≤ terminal_ub``.
-    outputs: optional Function (x, u, w, p) -> named scalars (e.g. I, Q) reported at the nodes.
-    x_lb/x_ub, u_lb/u_ub: bounds; x_scale/u_scale: nominal magnitudes (NLP variables are x/x_scale).
-    """
-
-    name: str
-    state_names: Sequence[str]
-    control_names: Sequence[str]
-    ode: ca.Function
-    lagrange: ca.Function | None = None
-    stage: ca.Function | None = None
-    path: ca.Function | None = None
-    path_lb: Sequence[float] = ()
-    path_ub: Sequence[float] = ()
-    path_at_collocation: bool = False
-    terminal: ca.Function | None = None
-    terminal_lb: Sequence[float] = ()
-    terminal_ub: Sequence[float] = ()
-    outputs: ca.Function | None = None
-    x_lb: Sequence[float] | None = None
-    x_ub: Sequence[float] | None = None
-    u_lb: Sequence[float] | None = None
-    u_ub: Sequence[float] | None = None
-    x_scale: Sequence[float] | None = None
-    u_scale: Sequence[float] | None = None
-    time_unit: str = "s"
-    meta: dict[str, Any] = field(default_factory=dict)
-
-    @property
-    def nx(self) -> int:
-        """Number of states."""
-        return len(self.state_names)
-
-    @property
-    def nu(self) -> int:
-        """Number of controls."""
-        return len(self.control_names)
-
-    @property
-    def nw(self) -> int:
-        """Size of the per-interval parameter w."""
-        return int(self.ode.size1_in(2))
-
-    @property
-    def np_(self) -> int:
-        """Size of the global parameter p."""
-        return int(self.ode.size1_in(3))
-
-    def validate(self) -> None:
-        """Check the shapes of the functions and bounds; raise ParameterError naming the field."""
-        nx, nu = self.nx, self.nu
-        if self.ode.n_in() != 4 or self.ode.size1_in(0) != nx or self.ode.size1_in(1) != nu:
-            raise ParameterError(f"OCPProblem.ode must map (x[{nx}], u[{nu}], w, p) -> dx/dt[{nx}]")
-        if self.ode.size1_out(0) != nx:
-            raise ParameterError(f"OCPProblem.ode returns {self.ode.size1_out(0)} values, expected {nx}")
-        if self.lagrange is None and self.stage is None:
-            raise ParameterError("OCPProblem: give a lagrange and/or a stage cost")
-        for nm in ("lagrange", "stage", "path", "outputs"):
-            f = getattr(self, nm)
-            if f is not None and (f.n_in() != 4 or f.size1_in(0) != nx or f.size1_in(1) != nu):
-                raise ParameterError(f"OCPProblem.{nm} must take (x[{nx}], u[{nu}], w, p)")
-        if self.path is not None:
-            nc = self.path.size1_out(0)
-            if len(self.path_lb) != nc or len(self.path_ub) != nc:
-                raise ParameterError(f"OCPProblem.path_lb/path_ub must have {nc} entries")
-        if self.terminal is not None:
-            nt = self.terminal.size1_out(0)
-            if len(self.terminal_lb) != nt or len(self.terminal_ub) != nt:
-                raise ParameterError(f"OCPProblem.terminal_lb/terminal_ub must have {nt} entries")
-        for nm, n in (("x_lb", nx), ("x_ub", nx), ("x_scale", nx), ("u_lb", nu), ("u_ub", nu), ("u_scale", nu)):
-            v = getattr(self, nm)
-            if v is not None and len(v) != n:
-                raise ParameterError(f"OCPProblem.{nm} must have {n} entries, got {len(v)}")
 
 
 @dataclass(frozen=True)
@@ -217,6 +136,53 @@ def _vec(v: Sequence[float] | None, n: int, default: float) -> np.ndarray:
     return np.full(n, default) if v is None else np.asarray(v, dtype=float).reshape(n)
 
 
+def interval_function(pr: OCPProblem, o: TranscriptionOptions) -> ca.Function:
+    """One interval of the transcription on SCALED variables (x/x_scale, u/u_scale): inputs
+    (xk, uk, xc collocation states, xn next node, w, p, h interval length) -> (eq, path, J):
+    eq = 0 are the continuity (and collocation) equations, path the path constraints at the interval
+    start (and collocation points), J the interval's cost (stage·h + integral). Shared by
+    :class:`OCPSolver` and the MPC, so both discretise a problem identically."""
+    nx, nu, nw, npar = pr.nx, pr.nu, pr.nw, pr.np_
+    xs = ca.DM(_vec(pr.x_scale, nx, 1.0))
+    us = ca.DM(_vec(pr.u_scale, nu, 1.0))
+    d = o.degree if o.method == "collocation" else 0
+    xk_s, uk_s = ca.SX.sym("xk", nx), ca.SX.sym("uk", nu)
+    xc_s, xn_s = ca.SX.sym("xc", nx * d), ca.SX.sym("xn", nx)
+    w, p, h = ca.SX.sym("w", nw), ca.SX.sym("p", npar), ca.SX.sym("h")
+    xk, uk, xn = xk_s * xs, uk_s * us, xn_s * xs
+
+    def f(x: Any) -> Any:
+        return pr.ode(x, uk, w, p)
+
+    def ell(x: Any) -> Any:
+        return pr.lagrange(x, uk, w, p)
+
+    J = pr.stage(xk, uk, w, p) * h if pr.stage is not None else ca.SX(0)
+    eqs: list[Any] = []
+    path: list[Any] = [pr.path(xk, uk, w, p)] if pr.path is not None else []
+    if o.method == "ms":
+        x_end, q = rk4(f, xk, h, o.rk4_substeps, ell if pr.lagrange is not None else None)
+        J = J + q
+    else:
+        _, C, D, B = collocation_coefficients(o.degree, o.scheme)
+        Xc = [xk] + [xc_s[j * nx:(j + 1) * nx] * xs for j in range(d)]
+        x_end = D[0] * xk
+        for j in range(1, d + 1):
+            xp = C[0, j] * Xc[0]
+            for r in range(1, d + 1):
+                xp = xp + C[r, j] * Xc[r]
+            eqs.append((h * f(Xc[j]) - xp) / xs)
+            x_end = x_end + D[j] * Xc[j]
+            if pr.lagrange is not None:
+                J = J + B[j] * ell(Xc[j]) * h
+            if pr.path is not None and pr.path_at_collocation:
+                path.append(pr.path(Xc[j], uk, w, p))
+    eqs.append((x_end - xn) / xs)
+    return ca.Function("interval", [xk_s, uk_s, xc_s, xn_s, w, p, h],
+                       [ca.vertcat(*eqs), ca.vertcat(*path) if path else ca.SX(0, 1), J],
+                       ["xk", "uk", "xc", "xn", "w", "p", "h"], ["eq", "path", "J"])
+
+
 class OCPSolver:
     """A transcribed OCP with its IPOPT solver, built once; :meth:`solve` re-solves with new data.
 
@@ -235,65 +201,6 @@ class OCPSolver:
         self._last: dict[str, np.ndarray] | None = None
 
     # ------------------------------------------------------------------ building
-    def _interval_function(self) -> ca.Function:
-        pr, o = self.problem, self.options
-        nx, nu, nw, npar = pr.nx, pr.nu, pr.nw, pr.np_
-        xs = ca.DM(_vec(pr.x_scale, nx, 1.0))
-        us = ca.DM(_vec(pr.u_scale, nu, 1.0))
-        d = o.degree if o.method == "collocation" else 0
-        xk_s = ca.SX.sym("xk", nx)
-        uk_s = ca.SX.sym("uk", nu)
-        xc_s = ca.SX.sym("xc", nx * d)
-        xn_s = ca.SX.sym("xn", nx)
-        w = ca.SX.sym("w", nw)
-        p = ca.SX.sym("p", npar)
-        h = ca.SX.sym("h")
-        xk, uk, xn = xk_s * xs, uk_s * us, xn_s * xs
-
-        def f(x: Any) -> Any:
-            return pr.ode(x, uk, w, p)
-
-        def ell(x: Any) -> Any:
-            return pr.lagrange(x, uk, w, p) if pr.lagrange is not None else 0
-
-        J = pr.stage(xk, uk, w, p) * h if pr.stage is not None else ca.SX(0)
-        eqs: list[Any] = []
-        path: list[Any] = []
-        if pr.path is not None:
-            path.append(pr.path(xk, uk, w, p))
-        if o.method == "ms":
-            M = o.rk4_substeps
-            dt = h / M
-            x = xk
-            q = ca.SX(0)
-            for _ in range(M):
-                k1, q1 = f(x), ell(x)
-                k2, q2 = f(x + dt / 2 * k1), ell(x + dt / 2 * k1)
-                k3, q3 = f(x + dt / 2 * k2), ell(x + dt / 2 * k2)
-                k4, q4 = f(x + dt * k3), ell(x + dt * k3)
-                x = x + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
-                q = q + dt / 6 * (q1 + 2 * q2 + 2 * q3 + q4)
-            x_end = x
-            J = J + q
-        else:
-            _, C, D, B = collocation_coefficients(o.degree, o.scheme)
-            Xc = [xk] + [xc_s[j * nx:(j + 1) * nx] * xs for j in range(d)]
-            x_end = D[0] * xk
-            for j in range(1, d + 1):
-                xp = C[0, j] * Xc[0]
-                for r in range(1, d + 1):
-                    xp = xp + C[r, j] * Xc[r]
-                eqs.append((h * f(Xc[j]) - xp) / xs)
-                x_end = x_end + D[j] * Xc[j]
-                if pr.lagrange is not None:
-                    J = J + B[j] * ell(Xc[j]) * h
-                if pr.path is not None and pr.path_at_collocation:
-                    path.append(pr.path(Xc[j], uk, w, p))
-        eqs.append((x_end - xn) / xs)
-        return ca.Function("interval", [xk_s, uk_s, xc_s, xn_s, w, p, h],
-                           [ca.vertcat(*eqs), ca.vertcat(*path) if path else ca.SX(0, 1), J],
-                           ["xk", "uk", "xc", "xn", "w", "p", "h"], ["eq", "path", "J"])
-
     def _build(self) -> None:
         pr, o = self.problem, self.options
         nx, nu, nw, npar, N = pr.nx, pr.nu, pr.nw, pr.np_, o.N
@@ -313,7 +220,7 @@ class OCPSolver:
         P_tf = SYM.sym("tf")
         h = P_tf / N
         W = ca.reshape(P_w, nw, N)
-        F = self._interval_function().map(N)
+        F = interval_function(pr, o).map(N)
         eq, path, J = F(Xs[:, :N], Us, Xcs, Xs[:, 1:], W, ca.repmat(P_p, 1, N), ca.repmat(h, 1, N))
         xs = ca.DM(_vec(pr.x_scale, nx, 1.0))
         n_eq, n_path = eq.size1(), path.size1()
@@ -325,6 +232,8 @@ class OCPSolver:
         lbg = [np.zeros(nx), np.tile(lbg_k, N)]
         ubg = [np.zeros(nx), np.tile(ubg_k, N)]
         obj = ca.sum2(J)
+        if pr.terminal_cost is not None:
+            obj = obj + pr.terminal_cost(Xs[:, N] * xs, P_p)
         if pr.terminal is not None:
             g_parts.append(pr.terminal(Xs[:, N] * xs, P_p))
             lbg.append(np.asarray(pr.terminal_lb, float))

@@ -1,0 +1,269 @@
+/* ---------------- aev_ocp cascade driver ----------------
+ * Compiled after the CasADi-generated right-hand sides and a generated prologue (aev_ocp.simulate):
+ * SZ_ARG/SZ_RES/SZ_IW/SZ_W (work sizes), NX/NQ/NY (state, quadrature and output sizes), BATTERY,
+ * OMEGA_A/OMEGA_B (the g split), AEV_LAW_SWITCH (the case list of the laws) and the event table
+ * of aev_ocp.plant.EVENT_RULES (AEV_EVk_OFFSET, AEV_EV_FAILED).
+ * Vehicle i depends only on vehicle i-1, so the platoon is integrated vehicle by vehicle with an
+ * adaptive Dormand-Prince 5(4) method (coefficients as in Dormand & Prince 1980 / SciPy RK45, quartic
+ * dense output). The predecessor's speed v_l(t) and acceleration a_l(t) are its own dense output.
+ * All z = (x, quadratures) are in the error norm (like CVODES with quad_err_con).          */
+#include <math.h>
+#include <stdint.h>
+#include <stdlib.h>
+#include <string.h>
+#define NZ (NX + NQ)
+#define NCOL (NZ + NY)
+
+typedef struct { const casadi_real* arg[SZ_ARG]; casadi_real* res[SZ_RES]; casadi_int iw[SZ_IW + 1]; casadi_real w[SZ_W + 1]; } aev_ctx;
+typedef struct { int64_t m, cap, cur; double *t0, *h, *v0, *q; } aev_traj;
+
+static const double DP_C[7] = {0.0, 1.0/5, 3.0/10, 4.0/5, 8.0/9, 1.0, 1.0};
+static const double DP_A[6][5] = {
+  {0, 0, 0, 0, 0}, {1.0/5, 0, 0, 0, 0}, {3.0/40, 9.0/40, 0, 0, 0}, {44.0/45, -56.0/15, 32.0/9, 0, 0},
+  {19372.0/6561, -25360.0/2187, 64448.0/6561, -212.0/729, 0},
+  {9017.0/3168, -355.0/33, 46732.0/5247, 49.0/176, -5103.0/18656}};
+static const double DP_B[6] = {35.0/384, 0, 500.0/1113, 125.0/192, -2187.0/6784, 11.0/84};
+static const double DP_E[7] = {-71.0/57600, 0, 71.0/16695, -71.0/1920, 17253.0/339200, -22.0/525, 1.0/40};
+static const double DP_P[7][4] = {
+  {1, -8048581381.0/2820520608, 8663915743.0/2820520608, -12715105075.0/11282082432},
+  {0, 0, 0, 0},
+  {0, 131558114200.0/32700410799, -68118460800.0/10900136933, 87487479700.0/32700410799},
+  {0, -1754552775.0/470086768, 14199869525.0/1410260304, -10690763975.0/1880347072},
+  {0, 127303824393.0/49829197408, -318862633887.0/49829197408, 701980252875.0/199316789632},
+  {0, -282668133.0/205662961, 2019193451.0/616988883, -1453857185.0/822651844},
+  {0, 40617522.0/29380423, -110615467.0/29380423, 69997945.0/29380423}};
+
+static int aev_law(aev_ctx* c, int law, const double* u, const double* x, double* dz, double* y) {
+  c->arg[0] = u; c->arg[1] = x; c->res[0] = dz; c->res[1] = y;
+  switch (law) {
+AEV_LAW_SWITCH
+  }
+  return 1;
+}
+
+static void aev_leader(aev_ctx* c, double t, double* u) {
+  c->arg[0] = &t; c->res[0] = u;
+  aevsim_leader(c->arg, c->res, c->iw, c->w, 0);
+}
+
+static int aev_push(aev_traj* p, double t0, double h, double v0, const double* q) {
+  if (p->m == p->cap) {
+    int64_t cap = p->cap ? 2 * p->cap : 1024;
+    double* a = realloc(p->t0, cap * sizeof(double)); if (!a) return 1; p->t0 = a;
+    a = realloc(p->h, cap * sizeof(double)); if (!a) return 1; p->h = a;
+    a = realloc(p->v0, cap * sizeof(double)); if (!a) return 1; p->v0 = a;
+    a = realloc(p->q, 4 * cap * sizeof(double)); if (!a) return 1; p->q = a;
+    p->cap = cap;
+  }
+  p->t0[p->m] = t0; p->h[p->m] = h; p->v0[p->m] = v0; memcpy(p->q + 4 * p->m, q, 4 * sizeof(double));
+  p->m++;
+  return 0;
+}
+
+/* predecessor speed and acceleration at t from its dense output */
+static void aev_traj_eval(aev_traj* p, double t, double* u) {
+  int64_t j = p->cur;
+  while (j < p->m - 1 && t > p->t0[j] + p->h[j]) j++;
+  while (j > 0 && t < p->t0[j]) j--;
+  p->cur = j;
+  double h = p->h[j], th = (t - p->t0[j]) / h;
+  if (th < 0) th = 0;
+  if (th > 1) th = 1;
+  const double* q = p->q + 4 * j;
+  u[0] = p->v0[j] + h * th * (q[0] + th * (q[1] + th * (q[2] + th * q[3])));
+  u[1] = q[0] + th * (2 * q[1] + th * (3 * q[2] + th * 4 * q[3]));
+}
+
+static void aev_input(aev_ctx* c, aev_traj* prev, int i, double t, double* u) {
+  if (i == 0) aev_leader(c, t, u); else aev_traj_eval(prev, t, u);
+}
+
+static void aev_dense(const double* z, const double (*Q)[4], double h, double th, double* out) {
+  for (int k = 0; k < NZ; k++)
+    out[k] = z[k] + h * th * (Q[k][0] + th * (Q[k][1] + th * (Q[k][2] + th * Q[k][3])));
+}
+
+/* first theta in (0, 1] where component k of the dense output (plus off) becomes <= 0 (bisection) */
+static double aev_root(const double* z, const double (*Q)[4], double h, int k, double sign, double off) {
+  double lo = 0, hi = 1, buf[NZ];
+  for (int it = 0; it < 60; it++) {
+    double mid = 0.5 * (lo + hi);
+    aev_dense(z, Q, h, mid, buf);
+    if (sign * buf[k] + off > 0) lo = mid; else hi = mid;
+  }
+  return hi;
+}
+
+/* Exact ω over [0, th_end] of a step: with g(u) = A u + B |u| (A = (1/η + η)/2, B = (1/η − η)/2) and
+ * v ≥ 0, v g(v̇) = A d(v²/2)/dt + B |d(v²/2)/dt|, so ω = A Δ(v²/2) + B · (total variation of v²/2),
+ * and the variation only needs v at the zeros of v̇ — located on the quartic dense output of v.
+ * This removes the kink of g at v̇ = 0 from the quadrature (no tiny steps around it). */
+static double aev_vpoly(double v0, const double* q, double h, double th) {
+  return v0 + h * th * (q[0] + th * (q[1] + th * (q[2] + th * q[3])));
+}
+static double aev_dvpoly(const double* q, double th) {
+  return q[0] + th * (2 * q[1] + th * (3 * q[2] + th * 4 * q[3]));
+}
+static double aev_omega_inc(double v0, const double* q, double h, double th_end) {
+  /* split [0, th_end] where dv/dθ is monotone (zeros of its derivative), bisect each sign change */
+  double cut[5]; int nc = 0;
+  cut[nc++] = 0;
+  double a2 = 12 * q[3], a1 = 6 * q[2], a0 = 2 * q[1], r[2]; int nr = 0;
+  if (fabs(a2) > 1e-300) {
+    double d = a1 * a1 - 4 * a2 * a0;
+    if (d > 0) { double sq = sqrt(d); r[0] = (-a1 - sq) / (2 * a2); r[1] = (-a1 + sq) / (2 * a2); nr = 2;
+                 if (r[0] > r[1]) { double tt = r[0]; r[0] = r[1]; r[1] = tt; } }
+  } else if (fabs(a1) > 1e-300) { r[0] = -a0 / a1; nr = 1; }
+  for (int j = 0; j < nr; j++) if (r[j] > 0 && r[j] < th_end) cut[nc++] = r[j];
+  cut[nc++] = th_end;
+  double tv = 0, w_prev = 0.5 * v0 * v0;
+  for (int j = 0; j + 1 < nc; j++) {
+    double lo = cut[j], hi = cut[j + 1], flo = aev_dvpoly(q, lo), fhi = aev_dvpoly(q, hi);
+    if ((flo > 0 && fhi < 0) || (flo < 0 && fhi > 0)) {
+      for (int it = 0; it < 45; it++) {
+        double mid = 0.5 * (lo + hi), fm = aev_dvpoly(q, mid);
+        if ((fm > 0) == (flo > 0)) { lo = mid; flo = fm; } else hi = mid;
+      }
+      double th = 0.5 * (lo + hi), vv = aev_vpoly(v0, q, h, th), w = 0.5 * vv * vv;
+      tv += fabs(w - w_prev); w_prev = w;
+    }
+  }
+  double ve = aev_vpoly(v0, q, h, th_end), we = 0.5 * ve * ve;
+  tv += fabs(we - w_prev);
+  return OMEGA_A * (we - 0.5 * v0 * v0) + OMEGA_B * tv;
+}
+
+/* Returns 0 on success, 1 on out-of-memory. Event kinds: 0 none, 1 collision, 2 negative_speed,
+ * 3 infeasible_current, 4 soc below 0, 5 soc above 1, 6 integration failed. */
+CASADI_SYMBOL_EXPORT int aevsim_run(int n, const int* law_idx, const double* x0, int nstop, const double* stops,
+    int K, const double* ts, double rtol, double atol, int64_t max_steps,
+    double* out, int* nsamp, int* ev_kind, double* ev_time, double* ev_val, int64_t* stats) {
+  aev_ctx* c = malloc(sizeof(aev_ctx));
+  aev_traj tr[2] = {{0}, {0}};
+  if (!c) return 1;
+  double tmax = stops[nstop - 1];
+  int status = 0;
+  for (int i = 0; i < n && !status; i++) {
+    aev_traj* prev = &tr[(i + 1) % 2];
+    aev_traj* cur = &tr[i % 2];
+    cur->m = 0; cur->cur = 0; prev->cur = 0;
+    int law = law_idx[i];
+    double z[NZ], zn[NZ], zt[NZ], k[7][NZ], Q[NZ][4], y[NY], yn[NY], u[2], tmp[NZ];
+    double* o = out + (int64_t)i * K * NCOL;
+    int64_t nst = 0, nrej = 0, nfev = 0;
+    int s = 0, kind = 0, istop = 0;
+    double t = 0, tev = INFINITY, val = 0;
+    for (int j = 0; j < NX; j++) z[j] = x0[i * NX + j];
+    for (int j = NX; j < NZ; j++) z[j] = 0;
+    if (i > 0 && prev->m == 0) {
+      /* the predecessor stopped at t = 0 (an event or a failure before its first step): there is no
+       * trajectory to follow; record the initial sample with its measured speed and stop here */
+      u[0] = x0[(i - 1) * NX + 1]; u[1] = 0;
+      aev_law(c, law, u, z, k[0], y);
+      memcpy(o, z, NZ * sizeof(double)); memcpy(o + NZ, y, NY * sizeof(double));
+      nsamp[i] = 1; ev_kind[i] = 0; ev_time[i] = 0; ev_val[i] = 0;
+      stats[3 * i] = 0; stats[3 * i + 1] = 0; stats[3 * i + 2] = 1;
+      continue;
+    }
+    aev_input(c, prev, i, t, u); aev_law(c, law, u, z, k[0], y); nfev++;
+    /* sample at t = 0 and the initial check */
+    memcpy(o, z, NZ * sizeof(double)); memcpy(o + NZ, y, NY * sizeof(double)); s = 1;
+    if (AEV_EV3_SIGN * y[2] - AEV_EV3_OFFSET < 0) { kind = 3; tev = 0; val = y[2]; }
+    if (BATTERY && AEV_EV4_SIGN * z[4] - AEV_EV4_OFFSET < 0) { kind = 4; tev = 0; val = z[4]; }
+    if (BATTERY && AEV_EV5_SIGN * z[4] - AEV_EV5_OFFSET < 0) { kind = 5; tev = 0; val = z[4]; }
+    double h = 1e-4;
+    while (!kind && t < tmax) {
+      while (istop < nstop - 1 && stops[istop] <= t) istop++;
+      double tstop = stops[istop] < tmax ? stops[istop] : tmax;
+      int hit = 0;
+      if (t + h >= tstop - 1e-12 * (1 + fabs(tstop))) { h = tstop - t; hit = 1; }
+      for (int st = 1; st < 6; st++) {
+        for (int j = 0; j < NZ; j++) {
+          double acc = 0; for (int l = 0; l < st; l++) acc += DP_A[st][l] * k[l][j];
+          zt[j] = z[j] + h * acc;
+        }
+        aev_input(c, prev, i, t + DP_C[st] * h, u); aev_law(c, law, u, zt, k[st], tmp);
+      }
+      for (int j = 0; j < NZ; j++) {
+        double acc = 0; for (int l = 0; l < 6; l++) acc += DP_B[l] * k[l][j];
+        zn[j] = z[j] + h * acc;
+      }
+      aev_input(c, prev, i, t + h, u); aev_law(c, law, u, zn, k[6], yn); nfev += 6;
+      double nrm = 0;
+      for (int j = 0; j < NZ; j++) {
+        if (j == NX) continue;  /* ω is computed exactly from v below */
+        double e = 0; for (int l = 0; l < 7; l++) e += DP_E[l] * k[l][j];
+        double sc = atol + rtol * fmax(fabs(z[j]), fabs(zn[j]));
+        e = h * e / sc; nrm += e * e;
+      }
+      nrm = sqrt(nrm / (NZ - 1));
+      if (!isfinite(nrm)) nrm = INFINITY;
+      if (nrm > 1) {
+        nrej++;
+        h *= fmax(0.2, 0.9 * pow(nrm, -0.2));
+        if (h < 1e-14 * (1 + fabs(t)) || nst + nrej > max_steps) { kind = AEV_EV_FAILED; tev = t; val = z[0]; }
+        continue;
+      }
+      for (int j = 0; j < NZ; j++)
+        for (int m = 0; m < 4; m++) {
+          double acc = 0; for (int l = 0; l < 7; l++) acc += k[l][j] * DP_P[l][m];
+          Q[j][m] = acc;
+        }
+      /* Gap extrema (v_l − v = 0) are where laws like the proposed one switch sharply (the ε term
+       * has width ~sqrt(ε) in v_l − v): end the step at the crossing so the next step starts on the
+       * feature and its error estimate sees it, instead of stepping over it between stages. */
+      {
+        int cross = 0;
+        for (int l = 1; l < 7; l++) if ((k[l][0] > 0) != (k[0][0] > 0)) cross = 1;
+        if (cross) {
+          double lo = 0, hi = 1, flo = aev_dvpoly(Q[0], 0.0);
+          double fhi = aev_dvpoly(Q[0], 1.0);
+          if ((flo > 0) != (fhi > 0)) {
+            for (int it = 0; it < 40; it++) {
+              double mid = 0.5 * (lo + hi), fm = aev_dvpoly(Q[0], mid);
+              if ((fm > 0) == (flo > 0)) lo = mid; else hi = mid;
+            }
+          } else hi = 0;
+          if (hi > 1e-3 && hi < 0.999 && h * hi > 1e-12 * (1 + fabs(t))) { h *= hi; nrej++; continue; }
+        }
+      }
+      zn[NX] = z[NX] + aev_omega_inc(z[1], Q[1], h, 1.0);
+      if (i < n - 1 && aev_push(cur, t, h, z[1], Q[1])) { status = 1; break; }
+      /* events at the step end, located inside the step on the dense output */
+      double th_ev = 2;
+      /* the rules of aev_ocp.plant.EVENT_RULES: margin = sign * value - offset */
+      if (AEV_EV1_SIGN * zn[0] - AEV_EV1_OFFSET <= 0) { double th = aev_root(z, Q, h, 0, AEV_EV1_SIGN, -AEV_EV1_OFFSET); if (th < th_ev) { th_ev = th; kind = 1; val = zn[0]; } }
+      if (AEV_EV2_SIGN * zn[1] - AEV_EV2_OFFSET < 0) { double th = aev_root(z, Q, h, 1, AEV_EV2_SIGN, -AEV_EV2_OFFSET); if (th < th_ev) { th_ev = th; kind = 2; val = zn[1]; } }
+      if (AEV_EV3_SIGN * yn[2] - AEV_EV3_OFFSET < 0) { double th = y[2] > 0 ? y[2] / (y[2] - yn[2]) : 0; if (th < th_ev) { th_ev = th; kind = 3; val = yn[2]; } }
+      if (BATTERY && AEV_EV4_SIGN * zn[4] - AEV_EV4_OFFSET < 0) { double th = aev_root(z, Q, h, 4, AEV_EV4_SIGN, -AEV_EV4_OFFSET); if (th < th_ev) { th_ev = th; kind = 4; val = zn[4]; } }
+      if (BATTERY && AEV_EV5_SIGN * zn[4] - AEV_EV5_OFFSET < 0) { double th = aev_root(z, Q, h, 4, AEV_EV5_SIGN, -AEV_EV5_OFFSET); if (th < th_ev) { th_ev = th; kind = 5; val = zn[4]; } }
+      double tend = hit ? tstop : t + h;
+      if (kind) tev = t + th_ev * h;
+      double tlim = kind ? tev : tend;
+      while (s < K && (kind ? ts[s] < tlim : ts[s] <= tlim + 1e-12 * (1 + fabs(tlim)))) {
+        double th = (ts[s] - t) / h, us[2], dz[NZ];
+        if (th > 1) th = 1;
+        double* os = o + (int64_t)s * NCOL;
+        aev_dense(z, Q, h, th, os);
+        os[NX] = z[NX] + aev_omega_inc(z[1], Q[1], h, th);
+        aev_input(c, prev, i, ts[s], us); aev_law(c, law, us, os, dz, os + NZ); nfev++;
+        s++;
+      }
+      nst++;
+      if (kind) break;
+      t = tend;
+      memcpy(z, zn, sizeof z); memcpy(y, yn, sizeof y); memcpy(k[0], k[6], sizeof k[0]);
+      if (hit && t < tmax) {  /* restart at a breakpoint: the leader's acceleration may jump there */
+        aev_input(c, prev, i, t, u); aev_law(c, law, u, z, k[0], y); nfev++;
+      }
+      h *= nrm == 0 ? 10 : fmin(10, 0.9 * pow(nrm, -0.2));
+      if (nst + nrej > max_steps) { kind = AEV_EV_FAILED; tev = t; val = z[0]; }
+    }
+    nsamp[i] = s; ev_kind[i] = kind; ev_time[i] = kind ? tev : t; ev_val[i] = val;
+    stats[3 * i] = nst; stats[3 * i + 1] = nrej; stats[3 * i + 2] = nfev;
+    if (kind && tev < tmax) tmax = tev;
+  }
+  for (int j = 0; j < 2; j++) { free(tr[j].t0); free(tr[j].h); free(tr[j].v0); free(tr[j].q); }
+  free(c);
+  return status;
+}

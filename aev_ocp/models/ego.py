@@ -1,0 +1,51 @@
+"""The ego vehicle with its battery pack: the battery side of a motion and the following dynamics.
+
+One place for the physics that the plant (simulation, closed loops), the OCPs and the MPC share
+(PROBLEM.md §5–§7, §9). Speeds, gaps and accelerations are in model units (converted with
+``ev.units``); the cell states V1, V2 [V] and S [-] evolve in seconds.
+
+Policies stated once:
+* the η switch is EXACT unless ``smooth`` (a :class:`~aev_ocp.params.PowertrainOptions`) is given;
+  optimisers pass it (PROBLEM.md §7), the plant never does;
+* the OCV is evaluated at S clamped to the table's range [0, 1] (the plant reports S leaving [0, 1]
+  as an event, optimisers bound S), so right-hand sides stay finite up to an event;
+* the current root uses :data:`aev_ocp.models.powertrain.DISC_FLOOR_V2`.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import casadi as ca
+
+from ..params import EVParams, PowertrainOptions
+from . import battery
+from .powertrain import cell_current_from_motion
+
+STATE_NAMES = ("h", "v", "V1", "V2", "S")  # ego state z: gap, speed [model], V1, V2 [V], S [-]
+
+
+def battery_side(v: Any, a: Any, V1: Any, V2: Any, S: Any, ev: EVParams,
+                 smooth: PowertrainOptions | None = None) -> dict[str, Any]:
+    """Battery side of one vehicle at model speed v and acceleration a.
+
+    Returns I [A per cell], disc [V²] (E² − 4 R_s P_c; < 0 = infeasible demand), P_b [W],
+    dV1, dV2 [V/s], dS [1/s], Q [W per cell], Q_pack [W] and Q_irr_pack [W] (PROBLEM.md §6).
+    """
+    u = ev.units
+    S_in = ca.fmin(ca.fmax(S, 0.0), 1.0)
+    cm = cell_current_from_motion(u.speed_to_si(v), u.accel_to_si(a), V1, V2, S_in, ev, smooth=smooth)
+    I = cm["I"]
+    dV1, dV2, dS = battery.cell_derivatives(V1, V2, I, ev.cell)
+    Q = battery.heat_Q(V1, V2, I, ev.cell)
+    n = ev.pack.n_cells
+    return {"I": I, "disc": cm["disc"], "P_b": cm["P_b"], "dV1": dV1, "dV2": dV2, "dS": dS,
+            "Q": Q, "Q_pack": n * Q, "Q_irr_pack": n * battery.heat_irreversible(V1, V2, I, ev.cell)}
+
+
+def following_ode(z: Any, a: Any, v_l: Any, ev: EVParams, smooth: PowertrainOptions | None = None) -> Any:
+    """dz/dt in model time for z = (h, v, V1, V2, S): ḣ = v_l − v, v̇ = a, and the cell ODE
+    (paper eqs. V_1_V_2, change_SOC) scaled by the time unit T [s]."""
+    b = battery_side(z[1], a, z[2], z[3], z[4], ev, smooth)
+    T = ev.units.time_s
+    return ca.vertcat(v_l - z[1], a, T * b["dV1"], T * b["dV2"], T * b["dS"])

@@ -1,0 +1,112 @@
+"""The MPC as a :class:`~aev_ocp.control.Controller`: forecast, solve, fall back.
+
+At every step the policy forecasts its predecessor (a :class:`LeaderPredictor`, or the predecessor's
+published plan for 'cooperative'), solves its :class:`MPCController` and returns the first control.
+A failed solve applies the fallback law (the proposed law with the scenario's α, β, κ at the measured
+predecessor speed v_l(t_k), clipped to the a bounds; PROBLEM.md §9) and is counted as a fallback with
+its cause. :class:`MPCSettings` and :class:`MPCVehicle` are accepted by
+:class:`aev_ocp.control.ClosedLoop` directly (registered adapters).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from ..control import ClosedLoop, Command, Observation, register_controller_adapter, run_closed_loop
+from ..models.carfollowing import CarFollowingLaw
+from ..models.leader import LeaderProfile, PaperLeader
+from ..ocp.problem import OCPProblem, ProblemBuilder
+from ..params import EVParams, ParameterError, as_dict
+from ..results import SimulationResult
+from .controller import MPCController
+from .predictors import LeaderPredictor, Measurements, forecast_intervals, make_predictor, plan_forecast
+from .settings import MPCSettings
+
+
+@dataclass
+class MPCVehicle:
+    """An MPC follower: its settings, optionally its own predictor (default: settings.predictor;
+    'cooperative' = the predecessor's last MPC plan) and its own problem (default: §9)."""
+
+    settings: MPCSettings = field(default_factory=MPCSettings)
+    predictor: LeaderPredictor | str | None = None
+    problem: OCPProblem | ProblemBuilder | None = None
+    parameter_values: dict[str, float] | None = None
+
+
+class MPCPolicy:
+    """One vehicle's MPC as a Controller (see the module docstring)."""
+
+    def __init__(self, settings: MPCSettings, ev: EVParams, fallback_law: CarFollowingLaw,
+                 predictor: LeaderPredictor | str, problem: OCPProblem | ProblemBuilder | None = None,
+                 parameter_values: dict[str, float] | None = None) -> None:
+        self.settings, self.fallback_law, self.predictor = settings, fallback_law, predictor
+        self.controller = MPCController(settings, ev, fallback_law, problem, parameter_values)
+        self.dt = settings.dt
+        self.name = f"mpc(w_Q={settings.weights.w_Q:g})"
+
+    def reset(self) -> None:
+        """Forget the warm start."""
+        self.controller.reset()
+
+    def forecast(self, obs: Observation) -> tuple[np.ndarray, np.ndarray]:
+        """(v̄_l, v̂_l) per interval over the horizon [model speed]."""
+        N, dt = self.settings.N, self.dt
+        p = self.predictor
+        if p == "cooperative":
+            if obs.predecessor_plan is not None:
+                return forecast_intervals(*plan_forecast(obs.predecessor_plan, dt, N), dt)
+            p = make_predictor("constant-velocity")  # the predecessor fell back this step: no plan
+        assert isinstance(p, LeaderPredictor)
+        return forecast_intervals(*p.predict(obs.t, dt, N, Measurements(obs.meas_t, obs.meas_v)), dt)
+
+    def command(self, obs: Observation) -> Command:
+        vm, vh = self.forecast(obs)
+        sol = self.controller.solve(obs.z, vm, vh)
+        info = {"cost": sol.cost, "violation": sol.violation}
+        if sol.success:
+            return Command(float(sol.a[0]), True, sol.status, sol.solve_time_s, sol.iterations, sol.X[1], info)
+        b = self.settings.bounds
+        af = float(self.fallback_law.function(max(obs.z[0], 1e-6), obs.z[1], obs.meas_v[-1]))
+        a = min(max(af if math.isfinite(af) else b.a_min, b.a_min), b.a_max)
+        return Command(a, False, sol.status, sol.solve_time_s, sol.iterations, None, info)
+
+    def describe(self) -> dict[str, Any]:
+        d = as_dict(self.settings)
+        p = self.predictor
+        d["predictor"] = p if isinstance(p, str) else getattr(p, "name", type(p).__name__)
+        d["solver_path"] = self.settings.solver + ("+codegen" if self.controller.codegen_active else "")
+        d["problem"] = self.controller.problem.name
+        return d
+
+
+def _adapt(obj: MPCSettings | MPCVehicle, i: int, loop: ClosedLoop) -> MPCPolicy:
+    """MPCSettings / MPCVehicle of follower i -> MPCPolicy (predictor rules of PROBLEM.md §9)."""
+    veh = obj if isinstance(obj, MPCVehicle) else MPCVehicle(obj)
+    p = veh.predictor if veh.predictor is not None else veh.settings.predictor
+    if isinstance(p, str):
+        if p == "cooperative":
+            if i == 0 or not isinstance(loop.ctrl[i - 1], MPCPolicy):
+                raise ParameterError(f"vehicle {i + 1}: predictor 'cooperative' needs an MPC vehicle ahead")
+        elif p == "oracle" and i > 0:
+            raise ParameterError(f"vehicle {i + 1}: predictor 'oracle' is only available to the first "
+                                 "follower (use 'cooperative' behind an MPC vehicle, or a measured predictor)")
+        else:
+            p = make_predictor(p, loop.leader, veh.settings.predictor_window)
+    return MPCPolicy(veh.settings, loop.ev, loop.fallback_law, p, veh.problem, veh.parameter_values)
+
+
+register_controller_adapter(MPCSettings, _adapt)
+register_controller_adapter(MPCVehicle, _adapt)
+
+
+def run_single(settings: MPCSettings | None = None, leader: LeaderProfile | None = None, h0: float = 0.3,
+               v0: float = 1.87, t_end: float = 70.0, ev: EVParams | None = None,
+               fallback_law: CarFollowingLaw | None = None) -> SimulationResult:
+    """One MPC follower (defaults: the canonical MPC scenario of PROBLEM.md §9)."""
+    return run_closed_loop(leader or PaperLeader(), [settings or MPCSettings()], [h0], [v0], t_end, ev=ev,
+                           fallback_law=fallback_law)

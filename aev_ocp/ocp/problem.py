@@ -1,0 +1,257 @@
+"""The optimal-control problem description (states, controls, parameters, costs, constraints).
+
+:class:`OCPProblem` is the compiled description (CasADi Functions of ``(x, u, w, p)``: ``w`` a
+per-interval parameter such as a leader forecast, ``p`` a global one such as cost weights). It is
+what the transcription (:mod:`aev_ocp.ocp.transcription`, whole horizon: OCP-A…D) and the MPC
+(:mod:`aev_ocp.mpc.controller`, receding horizon) are built from, so both solve the same problem.
+
+:class:`ProblemBuilder` states a problem the way it reads in maths (like rockit's ``Ocp``):
+``x = pb.state("h", lb=0.2)``, ``a = pb.control("a", -3, 2)``, ``pb.set_der(x, rhs)``,
+``pb.add_stage_cost(expr)``, ``pb.subject_to(expr, lb, ub, soft=penalty)``, then ``pb.build()``.
+A soft constraint gets a slack control σ ≥ 0 with the exact L1 penalty ``soft·σ`` plus a small
+quadratic ``soft_quadratic·σ²`` (keeps the QP Hessian positive definite), so every NLP/QP stays
+feasible; σ is reported like any other control.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Sequence
+
+import casadi as ca
+
+from ..params import ParameterError
+
+
+@dataclass
+class OCPProblem:
+    """A continuous-time OCP with piecewise-constant controls, as CasADi Functions — the one problem
+    description from which :class:`~aev_ocp.ocp.transcription.OCPSolver` (the whole horizon) and
+    :class:`~aev_ocp.mpc.controller.MPCController` (receding horizon) are both built.
+
+    ode: Function (x, u, w, p) -> dx/dt [state units per problem time unit].
+    lagrange: optional Function (x, u, w, p) -> integrand, integrated over [0, t_f].
+    stage: optional Function (x, u, w, p) -> ℓ, summed as Σ_k ℓ(x_k, u_k, w_k, p)·h.
+    path: optional Function (x, u, w, p) -> c with ``path_lb ≤ c ≤ path_ub`` at nodes 0 … N−1.
+    terminal: optional Function (x_N, p) -> c_T with ``terminal_lb ≤ c_T ≤ terminal_ub``.
+    terminal_cost: optional Function (x_N, p) -> Mayer cost added to the objective.
+    outputs: optional Function (x, u, w, p) -> named scalars (e.g. I, Q) reported at the nodes.
+    x_lb/x_ub, u_lb/u_ub: bounds; x_scale/u_scale: nominal magnitudes (NLP variables are x/x_scale).
+    """
+
+    name: str
+    state_names: Sequence[str]
+    control_names: Sequence[str]
+    ode: ca.Function
+    lagrange: ca.Function | None = None
+    stage: ca.Function | None = None
+    path: ca.Function | None = None
+    path_lb: Sequence[float] = ()
+    path_ub: Sequence[float] = ()
+    path_at_collocation: bool = False
+    terminal: ca.Function | None = None
+    terminal_lb: Sequence[float] = ()
+    terminal_ub: Sequence[float] = ()
+    terminal_cost: ca.Function | None = None
+    outputs: ca.Function | None = None
+    x_lb: Sequence[float] | None = None
+    x_ub: Sequence[float] | None = None
+    u_lb: Sequence[float] | None = None
+    u_ub: Sequence[float] | None = None
+    x_scale: Sequence[float] | None = None
+    u_scale: Sequence[float] | None = None
+    time_unit: str = "s"
+    meta: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def nx(self) -> int:
+        """Number of states."""
+        return len(self.state_names)
+
+    @property
+    def nu(self) -> int:
+        """Number of controls."""
+        return len(self.control_names)
+
+    @property
+    def nw(self) -> int:
+        """Size of the per-interval parameter w."""
+        return int(self.ode.size1_in(2))
+
+    @property
+    def np_(self) -> int:
+        """Size of the global parameter p."""
+        return int(self.ode.size1_in(3))
+
+    def validate(self) -> None:
+        """Check the shapes of the functions and bounds; raise ParameterError naming the field."""
+        nx, nu = self.nx, self.nu
+        if self.ode.n_in() != 4 or self.ode.size1_in(0) != nx or self.ode.size1_in(1) != nu:
+            raise ParameterError(f"OCPProblem.ode must map (x[{nx}], u[{nu}], w, p) -> dx/dt[{nx}]")
+        if self.ode.size1_out(0) != nx:
+            raise ParameterError(f"OCPProblem.ode returns {self.ode.size1_out(0)} values, expected {nx}")
+        if self.lagrange is None and self.stage is None:
+            raise ParameterError("OCPProblem: give a lagrange and/or a stage cost")
+        if self.terminal_cost is not None and (self.terminal_cost.size1_in(0) != nx
+                                               or self.terminal_cost.numel_out(0) != 1):
+            raise ParameterError(f"OCPProblem.terminal_cost must map (x_N[{nx}], p) -> a scalar")
+        for nm in ("lagrange", "stage", "path", "outputs"):
+            f = getattr(self, nm)
+            if f is not None and (f.n_in() != 4 or f.size1_in(0) != nx or f.size1_in(1) != nu):
+                raise ParameterError(f"OCPProblem.{nm} must take (x[{nx}], u[{nu}], w, p)")
+        if self.path is not None:
+            nc = self.path.size1_out(0)
+            if len(self.path_lb) != nc or len(self.path_ub) != nc:
+                raise ParameterError(f"OCPProblem.path_lb/path_ub must have {nc} entries")
+        if self.terminal is not None:
+            nt = self.terminal.size1_out(0)
+            if len(self.terminal_lb) != nt or len(self.terminal_ub) != nt:
+                raise ParameterError(f"OCPProblem.terminal_lb/terminal_ub must have {nt} entries")
+        for nm, n in (("x_lb", nx), ("x_ub", nx), ("x_scale", nx), ("u_lb", nu), ("u_ub", nu), ("u_scale", nu)):
+            v = getattr(self, nm)
+            if v is not None and len(v) != n:
+                raise ParameterError(f"OCPProblem.{nm} must have {n} entries, got {len(v)}")
+
+
+class ProblemBuilder:
+    """A problem stated symbolically, term by term; :meth:`build` returns the :class:`OCPProblem`.
+
+    Time is in the problem's own unit (``time_unit``). Stage costs are sampled at the start of each
+    interval and summed with weight h (the interval length); integral costs are integrated by the
+    transcription; path constraints hold at the start of every interval.
+    """
+
+    def __init__(self, name: str, time_unit: str = "s") -> None:
+        self.name, self.time_unit = name, time_unit
+        self.x: dict[str, ca.SX] = {}
+        self.u: dict[str, ca.SX] = {}
+        self.w: dict[str, ca.SX] = {}
+        self.p: dict[str, ca.SX] = {}
+        self._x_info: dict[str, tuple[float, float, float]] = {}
+        self._u_info: dict[str, tuple[float, float, float]] = {}
+        self._der: dict[str, Any] = {}
+        self.stage_terms: dict[str, Any] = {}
+        self.integral_terms: dict[str, Any] = {}
+        self._terminal_cost: Any = 0
+        self._path: list[tuple[str, Any, float, float]] = []
+        self._terminal: list[tuple[str, Any, float, float]] = []
+        self._outputs: dict[str, Any] = {}
+        self.meta: dict[str, Any] = {}
+
+    # ---------------------------------------------------------------- variables
+    def _new(self, table: dict[str, ca.SX], kind: str, name: str) -> ca.SX:
+        if not isinstance(name, str) or not name.isidentifier():
+            raise ParameterError(f"{self.name}: {kind} name {name!r} must be an identifier")
+        if any(name in t for t in (self.x, self.u, self.w, self.p)):
+            raise ParameterError(f"{self.name}: a variable named {name!r} exists already")
+        table[name] = ca.SX.sym(name)
+        return table[name]
+
+    def state(self, name: str, lb: float = -ca.inf, ub: float = ca.inf, scale: float = 1.0) -> ca.SX:
+        """A state with simple bounds (nodes 1…N) and a nominal magnitude ``scale``."""
+        self._x_info[name] = (lb, ub, scale)
+        return self._new(self.x, "state", name)
+
+    def control(self, name: str, lb: float = -ca.inf, ub: float = ca.inf, scale: float = 1.0) -> ca.SX:
+        """A piecewise-constant control with simple bounds."""
+        self._u_info[name] = (lb, ub, scale)
+        return self._new(self.u, "control", name)
+
+    def stage_parameter(self, name: str) -> ca.SX:
+        """A parameter with one value per interval (e.g. a forecast)."""
+        return self._new(self.w, "stage parameter", name)
+
+    def parameter(self, name: str) -> ca.SX:
+        """A global parameter (e.g. a cost weight), set at every solve without rebuilding."""
+        return self._new(self.p, "parameter", name)
+
+    # ---------------------------------------------------------------- dynamics, costs, constraints
+    def set_der(self, x: ca.SX, rhs: Any) -> None:
+        """dx/dt = rhs for the state symbol x."""
+        name = next((k for k, s in self.x.items() if s is x or ca.is_equal(s, x)), None)
+        if name is None:
+            raise ParameterError(f"{self.name}: set_der needs a state made by state(), got {x}")
+        self._der[name] = rhs
+
+    def add_stage_cost(self, expr: Any, name: str | None = None) -> None:
+        """Add ℓ(x_k, u_k, w_k, p) to the stage cost Σ_k ℓ·h."""
+        self.stage_terms[name or f"stage{len(self.stage_terms)}"] = expr
+
+    def add_integral_cost(self, expr: Any, name: str | None = None) -> None:
+        """Add ∫ expr dt (integrated by the transcription's quadrature)."""
+        self.integral_terms[name or f"integral{len(self.integral_terms)}"] = expr
+
+    def add_terminal_cost(self, expr: Any) -> None:
+        """Add a cost on the final state (expression of states and global parameters)."""
+        self._terminal_cost = self._terminal_cost + expr
+
+    def subject_to(self, expr: Any, lb: float = -ca.inf, ub: float = ca.inf, *, soft: float | None = None,
+                   soft_quadratic: float = 1e-3, name: str | None = None) -> None:
+        """lb ≤ expr ≤ ub at the start of every interval; ``soft`` = L1 penalty per unit of violation
+        (per unit time) of a soft constraint, which then never makes the problem infeasible."""
+        name = name or f"c{len(self._path)}"
+        if not (lb <= ub):
+            raise ParameterError(f"{self.name}: constraint {name!r} has lb = {lb} > ub = {ub}")
+        if soft is None:
+            self._path.append((name, expr, lb, ub))
+            return
+        if not (soft > 0 and soft_quadratic >= 0):
+            raise ParameterError(f"{self.name}: soft constraint {name!r} needs a penalty soft > 0, got {soft!r}")
+        sigma = self.control(f"slack_{name}", 0.0, ca.inf)
+        if lb > -ca.inf:
+            self._path.append((f"{name}_lb", expr + sigma, lb, ca.inf))
+        if ub < ca.inf:
+            self._path.append((f"{name}_ub", expr - sigma, -ca.inf, ub))
+        self.add_stage_cost(soft * sigma + soft_quadratic * sigma**2, f"penalty_{name}")
+
+    def subject_to_terminal(self, expr: Any, lb: float = -ca.inf, ub: float = ca.inf, name: str | None = None) -> None:
+        """lb ≤ expr(x_N, p) ≤ ub at the final node."""
+        self._terminal.append((name or f"t{len(self._terminal)}", expr, lb, ub))
+
+    def add_output(self, name: str, expr: Any) -> None:
+        """A named quantity reported at the nodes of a solution (e.g. the cell current)."""
+        self._outputs[name] = expr
+
+    # ---------------------------------------------------------------- build
+    def build(self, path_at_collocation: bool = False) -> OCPProblem:
+        """The compiled :class:`OCPProblem` (every stage and integral term is also an output)."""
+        missing = [k for k in self.x if k not in self._der]
+        if missing:
+            raise ParameterError(f"{self.name}: no set_der for state(s) {missing}")
+        if not self.stage_terms and not self.integral_terms:
+            raise ParameterError(f"{self.name}: add a stage or integral cost")
+        x, u = ca.vertcat(*self.x.values()), ca.vertcat(*self.u.values())
+        w, p = ca.vertcat(*self.w.values()), ca.vertcat(*self.p.values())
+        w = w if w.numel() else ca.SX.sym("w", 0)
+        p = p if p.numel() else ca.SX.sym("p", 0)
+        args, names = [x, u, w, p], ["x", "u", "w", "p"]
+        fn = lambda nm, e, on: ca.Function(f"{self.name}_{nm}", args, [ca.vertcat(*e)], names, on)  # noqa: E731
+        stage = sum(self.stage_terms.values()) if self.stage_terms else None
+        lag = sum(self.integral_terms.values()) if self.integral_terms else None
+        outs = {**self._outputs, **self.stage_terms, **self.integral_terms}
+        pr = OCPProblem(
+            name=self.name, state_names=list(self.x), control_names=list(self.u),
+            ode=fn("ode", [self._der[k] for k in self.x], ["xdot"]),
+            stage=None if stage is None else fn("stage", [stage], ["ell"]),
+            lagrange=None if lag is None else fn("lagrange", [lag], ["L"]),
+            outputs=ca.Function(f"{self.name}_out", args, list(outs.values()), names, list(outs)) if outs else None,
+            x_lb=[i[0] for i in self._x_info.values()], x_ub=[i[1] for i in self._x_info.values()],
+            x_scale=[i[2] for i in self._x_info.values()],
+            u_lb=[i[0] for i in self._u_info.values()], u_ub=[i[1] for i in self._u_info.values()],
+            u_scale=[i[2] for i in self._u_info.values()], time_unit=self.time_unit,
+            meta={**self.meta, "parameter_names": list(self.p), "stage_parameter_names": list(self.w)})
+        if self._path:
+            pr.path = fn("path", [c[1] for c in self._path], ["c"])
+            pr.path_lb, pr.path_ub = [c[2] for c in self._path], [c[3] for c in self._path]
+            pr.path_at_collocation = path_at_collocation
+            pr.meta["path_names"] = [c[0] for c in self._path]
+        xN, pT = ca.SX.sym("xN", x.numel()), p
+        if self._terminal:
+            e = ca.substitute(ca.vertcat(*[c[1] for c in self._terminal]), x, xN)
+            pr.terminal = ca.Function(f"{self.name}_terminal", [xN, pT], [e])
+            pr.terminal_lb, pr.terminal_ub = [c[2] for c in self._terminal], [c[3] for c in self._terminal]
+        if not (isinstance(self._terminal_cost, (int, float)) and self._terminal_cost == 0):
+            pr.terminal_cost = ca.Function(f"{self.name}_mayer", [xN, pT],
+                                           [ca.substitute(ca.SX(self._terminal_cost), x, xN)])
+        pr.validate()
+        return pr

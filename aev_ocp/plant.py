@@ -1,0 +1,292 @@
+"""The plant: the exact model of a platoon, and ONE table of event rules used by every closed loop.
+
+Every run of the toolkit (closed-form laws in :mod:`aev_ocp.simulate`, the MPC and any
+:class:`~aev_ocp.control.Controller` in :mod:`aev_ocp.control`, the OCP-D replay) integrates this
+model and stops at the events of :data:`EVENT_RULES`. The compiled cascade (``aev_ocp/c/cascade.c``)
+gets its thresholds and event codes from the same table (:func:`event_header`).
+
+Model (PROBLEM.md §2, §5–§7): per follower the gap h and speed v (model units) and the cell's
+V1, V2 [V], S [-]; the exact η switch and the exact current map (:func:`aev_ocp.models.ego.battery_side`).
+A follower's acceleration is either its car-following law, evaluated continuously inside the
+integrator, or a commanded acceleration held constant over a sample interval (zero-order hold).
+Quadratures per follower (per model time unit): ω = ∫ v g(a), ∫(V(h) − v)², ∫(v_l − v)², ∫jerk²,
+pack ∫Q and ∫Q_irr [J], so the §10 metrics are exact across control jumps.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Sequence
+
+import casadi as ca
+import numpy as np
+
+from .models import energy
+from .models.carfollowing import CarFollowingLaw, optimal_velocity
+from .models.ego import battery_side
+from .models.leader import LeaderProfile
+from .params import EVParams, ParameterError
+from .results import Event, SimulationResult
+
+# A controller's plan may violate a bound by at most this much (NLP units: model speed for v) and
+# still be applied; the plant's negative-speed rule uses the same number, so a plan accepted within
+# tolerance never stops the plant (PROBLEM.md §9: "negative speed in the plant is reported").
+PLAN_TOLERANCE = 1e-6
+
+
+@dataclass(frozen=True)
+class EventRule:
+    """An event: the run stops when ``sign·value − offset`` drops below 0 (``≤ 0`` when ``strict``),
+    ``value`` being the sampled quantity ``quantity`` ('h', 'v', 'disc' or 'S') of a follower."""
+
+    code: int  # the code the compiled cascade reports (1…5; 6 = integration failed)
+    kind: str  # Event.kind
+    quantity: str
+    sign: float
+    offset: float
+    strict: bool
+    message: str
+
+    def margin(self, value: Any) -> Any:
+        """sign·value − offset: the distance to the event (event when < 0, or ≤ 0 if strict)."""
+        return self.sign * value - self.offset
+
+    def violated(self, value: Any) -> Any:
+        """True where the rule fires."""
+        m = self.margin(value)
+        return m <= 0 if self.strict else m < 0
+
+
+EVENT_RULES: tuple[EventRule, ...] = (
+    EventRule(1, "collision", "h", 1.0, 0.0, True, "gap h reached 0"),
+    EventRule(2, "negative_speed", "v", 1.0, -PLAN_TOLERANCE, False, "speed became negative"),
+    EventRule(3, "infeasible_current", "disc", 1.0, 0.0, False,
+              "cell cannot deliver the power demand (E² < 4 R_s P_c)"),
+    EventRule(4, "soc_out_of_range", "S", 1.0, 0.0, False, "state of charge fell below 0"),
+    EventRule(5, "soc_out_of_range", "S", -1.0, -1.0, False, "state of charge rose above 1"),
+)
+INTEGRATION_FAILED = 6  # code of a failed integration (not a physical event)
+BATTERY_QUANTITIES = ("disc", "S")
+
+
+def event_header() -> str:
+    """C macros of the event table for the compiled cascade: AEV_EV<code>_SIGN, AEV_EV<code>_OFFSET and
+    AEV_EV_FAILED (rule k fires when SIGN·value − OFFSET < 0; ≤ 0 for the collision, code 1)."""
+    lines = []
+    for r in EVENT_RULES:
+        key = f"AEV_EV{r.code}"
+        lines.append(f"#define {key}_SIGN ({r.sign!r})\n#define {key}_OFFSET ({r.offset!r})\n")
+    lines.append(f"#define AEV_EV_FAILED {INTEGRATION_FAILED}\n")
+    return "".join(lines)
+
+
+def event_from_code(code: int, time: float, vehicle: int, value: float) -> Event:
+    """The Event of a compiled-cascade code (message from the table)."""
+    rule = next(r for r in EVENT_RULES if r.code == code)
+    return Event(rule.kind, time, vehicle, f"{rule.message} (value {value:.4g} at the step ending after t = {time:.4f})")
+
+
+class Plant:
+    """The exact platoon model behind ``leader`` integrated by ONE CasADi CVODES integrator.
+
+    laws[i] is follower i's car-following law (continuous) or None (commanded acceleration, held
+    over each call of :meth:`advance`). The integrator works in normalised time s ∈ [0, 1] with
+    parameters (t0, L, a_cmd) (dx/ds = L·f(t0 + L s, x)), so ONE Function serves every interval;
+    ``samples`` output points are returned per interval (equally spaced). battery=False integrates
+    h and v only (and ω, the tracking errors and jerk).
+    """
+
+    def __init__(self, leader: LeaderProfile, laws: Sequence[CarFollowingLaw | None], ev: EVParams | None = None,
+                 *, battery: bool = True, rtol: float = 1e-10, atol: float = 1e-10, max_num_steps: int = 200_000,
+                 samples: int = 1) -> None:
+        if len(laws) < 1:
+            raise ParameterError("plant: the platoon needs at least one follower")
+        self.leader, self.laws, self.ev = leader, list(laws), ev or EVParams()
+        self.n, self.battery, self.k = len(self.laws), battery, int(samples)
+        self.commanded = [i for i, law in enumerate(self.laws) if law is None]
+        self.rtol, self.atol = rtol, atol
+        self._build(max_num_steps)
+
+    def _accelerations(self, h: ca.SX, v: ca.SX, v_lead: ca.SX, a_cmd: ca.SX) -> ca.SX:
+        """Accelerations of all followers, vectorised over groups with the same law."""
+        a = ca.SX.zeros(self.n)
+        groups: dict[CarFollowingLaw, list[int]] = {}
+        for i, law in enumerate(self.laws):
+            if law is not None:
+                groups.setdefault(law, []).append(i)
+        for law, idx in groups.items():
+            a[idx] = law.accel(h[idx], v[idx], v_lead[idx])
+        for j, i in enumerate(self.commanded):
+            a[i] = a_cmd[j]
+        return a
+
+    def _build(self, max_num_steps: int) -> None:
+        n, ev, T = self.n, self.ev, self.ev.units.time_s
+        h, v = ca.SX.sym("h", n), ca.SX.sym("v", n)
+        s, p = ca.SX.sym("s"), ca.SX.sym("p", 2 + len(self.commanded))  # normalised time; (t0, L, a_cmd)
+        t = p[0] + p[1] * s
+        vl = self.leader.speed(t)
+        v_lead = ca.vertcat(vl, v[:-1]) if n > 1 else vl
+        a = self._accelerations(h, v, v_lead, p[2:])
+        hdot = v_lead - v
+        # jerk = da/dt by the chain rule (forward AD), including the leader's explicit time dependence
+        jerk = ca.jtimes(a, ca.vertcat(h, v), ca.vertcat(hdot, a)) + ca.jacobian(a, s) / p[1]
+        x, ode = [h, v], [hdot, a]
+        quad = [v * energy.g_exact(a, ev.vehicle.efficiency), (optimal_velocity(h) - v) ** 2, hdot**2, jerk**2]
+        if self.battery:
+            V1, V2, S = ca.SX.sym("V1", n), ca.SX.sym("V2", n), ca.SX.sym("S", n)
+            b = battery_side(v, a, V1, V2, S, ev)
+            x += [V1, V2, S]
+            ode += [T * b["dV1"], T * b["dV2"], T * b["dS"]]
+            quad += [T * b["Q_pack"], T * b["Q_irr_pack"]]
+            I, disc = b["I"], b["disc"]
+        else:
+            I = disc = ca.SX.zeros(n)
+        X = ca.vertcat(*x)
+        dae = {"x": X, "p": p, "t": s, "ode": p[1] * ca.vertcat(*ode), "quad": p[1] * ca.vertcat(*quad)}
+        grid = np.linspace(0.0, 1.0, self.k + 1)[1:].tolist()
+        self.integrator = ca.integrator("plant", "cvodes", dae, 0.0, grid,
+                                        {"abstol": self.atol, "reltol": self.rtol, "max_num_steps": max_num_steps,
+                                         "quad_err_con": True, "disable_internal_warnings": True,
+                                         "show_eval_warnings": False})
+        tt, ac = ca.SX.sym("t"), ca.SX.sym("a_cmd", len(self.commanded))
+        y = ca.substitute(ca.vertcat(a, I, disc, vl), ca.vertcat(s, p), ca.vertcat(0, tt, 1, ac))
+        self._samples = ca.Function("plant_samples", [tt, X, ac], [y])
+        self._sample_maps: dict[int, ca.Function] = {}
+        self.nx, self.nq = X.numel(), len(quad) * n
+
+    # ---------------------------------------------------------------- state
+    def initial_state(self, gaps0: Sequence[float], speeds0: Sequence[float],
+                      soc0: float | Sequence[float] | None = None, what: str = "plant") -> np.ndarray:
+        """x(0) of this plant (see :func:`initial_state`)."""
+        return initial_state(self.n, self.ev, self.battery, gaps0, speeds0, soc0, what)
+
+    def samples(self, t: np.ndarray, X: np.ndarray, a_cmd: np.ndarray | None = None) -> np.ndarray:
+        """(a, I, disc, v_l) stacked by quantity ((3n + 1), K) at the times t (K,) and states X (nx, K)."""
+        t = np.atleast_1d(np.asarray(t, float))
+        ac = np.zeros((len(self.commanded), t.size)) if a_cmd is None else np.repeat(
+            np.asarray(a_cmd, float).reshape(-1, 1), t.size, axis=1)
+        if t.size not in self._sample_maps:  # built once per sample count
+            self._sample_maps[t.size] = self._samples.map(t.size)
+        return np.asarray(self._sample_maps[t.size](t.reshape(1, -1), X, ac))
+
+    # ---------------------------------------------------------------- integration
+    def advance(self, a: float, b: float, x: np.ndarray, q: np.ndarray, a_cmd: np.ndarray | None,
+                out: tuple[list, list, list, list], events: list[Event], depth: int = 0) -> bool:
+        """Integrate [a, b] from (x, q) with the commands a_cmd held, append the samples to
+        out = (ts, xs, qs, ys) and check the event rules. On a solver failure the interval is
+        subdivided (3 levels) to locate it. Returns False when the run must stop."""
+        ts, xs, qs, ys = out
+        ac = np.zeros(0) if a_cmd is None else np.asarray(a_cmd, float)
+        try:
+            res = self.integrator(x0=x, p=np.concatenate([[a, b - a], ac]))
+        except RuntimeError as exc:
+            if depth < 3:
+                for lo, hi in zip(np.linspace(a, b, 11)[:-1], np.linspace(a, b, 11)[1:]):
+                    if not self.advance(float(lo), float(hi), xs[-1][:, -1], qs[-1][:, -1], a_cmd, out, events,
+                                        depth + 1):
+                        return False
+                return True
+            hh = x[: self.n]
+            i = int(np.argmin(hh))
+            near = " (near collision)" if hh[i] < 0.05 else ""
+            events.append(Event("integration_failed", a, i, f"CVODES failed on [{a:.4f}, {b:.4f}] with gap "
+                                f"h = {hh[i]:.3g}{near} (CasADi: {str(exc).splitlines()[0][:120]})"))
+            return False
+        tk = a + (b - a) * np.linspace(0.0, 1.0, self.k + 1)[1:]
+        xk = np.asarray(res["xf"]).reshape(self.nx, -1)
+        qk = q[:, None] + np.asarray(res["qf"]).reshape(self.nq, -1)
+        yk = self.samples(tk, xk, a_cmd)
+        event = self.check(tk, xk, yk, (ts[-1][-1], xs[-1][:, -1], ys[-1][:, -1]))
+        if event is not None:
+            keep = tk < event.time
+            ts.append(tk[keep]); xs.append(xk[:, keep]); qs.append(qk[:, keep]); ys.append(yk[:, keep])  # noqa: E702
+            events.append(event)
+            return False
+        ts.append(tk); xs.append(xk); qs.append(qk); ys.append(yk)  # noqa: E702
+        return True
+
+    def check(self, tk: np.ndarray, xk: np.ndarray, yk: np.ndarray,
+              prev: tuple[float, np.ndarray, np.ndarray] | None = None) -> Event | None:
+        """First violation of :data:`EVENT_RULES` among the samples (tk, xk, yk), its time linearly
+        interpolated from the previous sample ``prev = (t, x, y)`` where there is one."""
+        n = self.n
+        rows = {"h": lambda M, Y: M[:n], "v": lambda M, Y: M[n:2 * n],
+                "disc": lambda M, Y: Y[2 * n:3 * n], "S": lambda M, Y: M[4 * n:5 * n]}
+        first: Event | None = None
+        for rule in EVENT_RULES:
+            if rule.quantity in BATTERY_QUANTITIES and not self.battery:
+                continue
+            cur = rows[rule.quantity](xk, yk)
+            bad = rule.violated(cur)
+            if not bad.any():
+                continue
+            j = int(np.where(bad.any(axis=0))[0][0])
+            i = int(np.where(bad[:, j])[0][0])
+            t_ev = float(tk[j])
+            if j > 0:
+                t_prev, m0 = float(tk[j - 1]), rule.margin(cur[i, j - 1])
+            elif prev is not None:
+                t_prev, m0 = prev[0], rule.margin(rows[rule.quantity](prev[1][:, None], prev[2][:, None])[i, 0])
+            else:
+                t_prev, m0 = t_ev, None
+            if m0 is not None and m0 > 0:
+                t_ev = t_prev + (t_ev - t_prev) * m0 / (m0 - rule.margin(cur[i, j]))
+            if first is None or t_ev < first.time:
+                first = Event(rule.kind, t_ev, i, f"{rule.message} (value {cur[i, j]:.4g} at t = {tk[j]:.4f})")
+        return first
+
+    # ---------------------------------------------------------------- results
+    def result(self, t: np.ndarray, X: np.ndarray, Qc: np.ndarray, Y: np.ndarray, events: list[Event],
+               controllers: list[str], meta: dict[str, Any], **kw: Any) -> SimulationResult:
+        """The run as a :class:`SimulationResult` (see :func:`assemble_result`)."""
+        return assemble_result(self.leader, self.ev, self.battery, t, X, Qc, Y, events, controllers,
+                               {"plant": "cvodes, exact eta switch", "rtol": self.rtol, "atol": self.atol, **meta}, **kw)
+
+
+def initial_state(n: int, ev: EVParams, battery: bool, gaps0: Sequence[float], speeds0: Sequence[float],
+                  soc0: float | Sequence[float] | None = None, what: str = "plant") -> np.ndarray:
+    """x(0) = (h, v[, V1 = 0, V2 = 0, S]) stacked by quantity, validated: gaps > 0, speeds ≥ 0,
+    S(0) ∈ [0, 1] (default the cell's soc0); errors name the vehicle and the value."""
+    h0, v0 = np.asarray(gaps0, float).ravel(), np.asarray(speeds0, float).ravel()
+    if h0.size != n or v0.size != n:
+        raise ParameterError(f"{what}: gaps0 and speeds0 need {n} values (one per follower), "
+                             f"got {h0.size} and {v0.size}")
+    if not np.all(np.isfinite(h0)) or np.any(h0 <= 0):
+        i = int(np.argmin(np.where(np.isfinite(h0), h0, -np.inf)))
+        raise ParameterError(f"{what}: initial gap of vehicle {i + 1} is {h0[i]!r}: must be > 0")
+    if not np.all(np.isfinite(v0)) or np.any(v0 < 0):
+        i = int(np.argmin(np.where(np.isfinite(v0), v0, -np.inf)))
+        raise ParameterError(f"{what}: initial speed of vehicle {i + 1} is {v0[i]!r}: must be >= 0")
+    x = [h0, v0]
+    if battery:
+        try:
+            s0 = np.broadcast_to(np.asarray(ev.cell.soc0 if soc0 is None else soc0, float), (n,))
+        except (TypeError, ValueError):
+            raise ParameterError(f"{what}: soc0 = {soc0!r} is not allowed: one number or {n} numbers in [0, 1]") from None
+        if not np.all(np.isfinite(s0)) or np.any((s0 < 0) | (s0 > 1)):
+            raise ParameterError(f"{what}: soc0 = {np.asarray(s0).tolist()!r} is not allowed: must be in [0, 1]")
+        x += [np.zeros(n), np.zeros(n), np.array(s0, float)]
+    return np.concatenate(x)
+
+
+def assemble_result(leader: LeaderProfile, ev: EVParams, battery: bool, t: np.ndarray, X: np.ndarray,
+                    Qc: np.ndarray, Y: np.ndarray, events: list[Event], controllers: list[str],
+                    meta: dict[str, Any], *, accel: np.ndarray | None = None, jerk_sampled: bool = False,
+                    solver_stats: list[Any] | None = None) -> SimulationResult:
+    """A run as a :class:`SimulationResult`: X (states), Qc (quadratures) and Y = (a, I, disc, v_l)
+    stacked by quantity with one column per sample time t; ``accel`` (K, n) overrides the sampled
+    accelerations (e.g. with a controller's applied ones)."""
+    n, K = len(controllers), t.size
+    nan = np.full((K, n), np.nan)
+    rows = lambda M, j: M[j * n:(j + 1) * n].T  # noqa: E731
+    return SimulationResult(
+        t=t, leader_speed=Y[3 * n], leader_position=np.asarray(leader.position(t), float),
+        gap=rows(X, 0), speed=rows(X, 1), accel=rows(Y, 0) if accel is None else accel,
+        V1=rows(X, 2) if battery else nan, V2=rows(X, 3) if battery else nan, S=rows(X, 4) if battery else nan,
+        current_A=rows(Y, 1) if battery else nan,
+        omega=rows(Qc, 0), int_ovm_err2=rows(Qc, 1), int_rel_speed2=rows(Qc, 2), int_jerk2=rows(Qc, 3),
+        heat_J=rows(Qc, 4) if battery else nan, heat_irr_J=rows(Qc, 5) if battery else nan,
+        controllers=controllers, ev=ev, events=events, jerk_sampled=jerk_sampled,
+        solver_stats=solver_stats if solver_stats is not None else [None] * n,
+        meta={"leader": leader.describe(), **meta})
