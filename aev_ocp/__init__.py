@@ -1,8 +1,47 @@
 """aev_ocp: energy-aware control of autonomous electric vehicles, built on CasADi.
 
-Layers: ``params`` (parameter sets with units and sources), ``models`` (symbolic physical models),
-``simulate`` and ``metrics`` (closed-form laws in closed loop), ``ocp`` and ``mpc`` (optimal control),
-``scenarios`` (TOML scenario files), ``report``/``cli`` (figures, tables, command line).
+Layers: ``params`` (parameter sets with units and sources), ``models`` (physics only), ``plant``
+(the exact platoon model and its event rules), ``control`` (the Controller protocol and the closed
+loop), ``simulate`` (closed-form-law platoons), ``ocp`` (problem description, transcription, OCP-A…D),
+``mpc`` (the receding-horizon controller built from the same problem), ``scenarios`` (TOML files),
+``report``/``cli`` (figures, tables, command line). The names most users need are exported here;
+importing them is lazy, so ``import aev_ocp`` stays cheap.
 """
 
+from __future__ import annotations
+
+import importlib
+from typing import Any
+
 __version__ = "0.1.0"
+
+_EXPORTS = {
+    # parameters and models
+    "EVParams": "params", "Units": "params", "CarFollowingParams": "params", "VehicleParams": "params",
+    "CellParams": "params", "PackParams": "params", "PowertrainOptions": "params", "SimOptions": "params",
+    "ParameterError": "params",
+    "OVM": "models", "OVFL": "models", "Proposed": "models", "IDM": "models", "CarFollowingLaw": "models",
+    "make_law": "models", "register_law": "models", "PaperLeader": "models", "ConstantSpeed": "models",
+    "SpeedTrace": "models", "drive_cycle": "models",
+    # plant, controllers, results
+    "Plant": "plant", "EVENT_RULES": "plant", "ClosedLoop": "control", "Controller": "control",
+    "Command": "control", "Observation": "control", "ControlSequence": "control", "SampledLaw": "control",
+    "run_closed_loop": "control", "SimulationResult": "results", "simulate_platoon": "simulate",
+    # optimal control and MPC
+    "OCPProblem": "ocp", "ProblemBuilder": "ocp", "OCPSolver": "ocp", "TranscriptionOptions": "ocp",
+    "following_problem": "ocp", "MPCSettings": "mpc", "MPCController": "mpc", "MPCVehicle": "mpc",
+    "MPCPolicy": "mpc",
+    # scenarios
+    "load_scenario": "scenarios", "Scenario": "scenarios",
+}
+__all__ = ["__version__", *_EXPORTS]
+
+
+def __getattr__(name: str) -> Any:
+    if name in _EXPORTS:
+        return getattr(importlib.import_module(f".{_EXPORTS[name]}", __name__), name)
+    raise AttributeError(f"module 'aev_ocp' has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted(__all__)

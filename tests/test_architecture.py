@@ -203,3 +203,13 @@ def test_closed_loop_rejects_non_controllers() -> None:
         ClosedLoop(PaperLeader(), [object()], EV)
     with pytest.raises(ParameterError, match="same dt"):
         ClosedLoop(PaperLeader(), [ACC(0.2), ACC(0.1)], EV)
+
+
+def test_package_root_exports_resolve() -> None:
+    import aev_ocp
+
+    for name in aev_ocp.__all__[1:]:
+        assert getattr(aev_ocp, name) is not None, name
+    assert aev_ocp.ClosedLoop is ClosedLoop and aev_ocp.following_problem is following_problem
+    with pytest.raises(AttributeError):
+        aev_ocp.no_such_name  # noqa: B018
