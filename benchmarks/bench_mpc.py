@@ -8,6 +8,9 @@ call measured by the closed loop (acados-style: median, p95, max in ms), on what
 the diagnostics). 'viol' counts plant constraint violations (gap, speed, |I| > 20C, collisions,
 infeasible current). The 'rti' paths do one QP per step (real-time iteration) after a cold IPOPT first
 step; the first step is included in max and p95.
+'breakdown' (the rti+codegen path, N = 40) splits the wall time of a closed-loop step into its parts
+by timing wrappers around the compiled functions and the plant: forecast, QP data (one compiled call),
+the HPIPM solve, the node-0 check, the plan's cost/constraints, the plant (CVODES) and the Python rest.
 Usage: python benchmarks/bench_mpc.py [--t-end 70] [--N 20 40 80] [--out benchmarks/bench_mpc.json]
 """
 
@@ -61,6 +64,51 @@ def bench(N: int, label: str, kw: dict, t_end: float) -> dict:
             "constraint_violations": int(sum(viol.values()))}
 
 
+class _Timed:
+    """A callable proxy that accumulates the wall time of every call of ``f``."""
+
+    def __init__(self, f: object) -> None:
+        self.f, self.times = f, []  # type: ignore[var-annotated]
+
+    def __call__(self, *a: object, **k: object) -> object:
+        t0 = time.perf_counter()
+        try:
+            return self.f(*a, **k)  # type: ignore[operator]
+        finally:
+            self.times.append(time.perf_counter() - t0)
+
+    def __getattr__(self, name: str) -> object:
+        return getattr(self.f, name)
+
+
+def breakdown(N: int, t_end: float) -> dict:
+    """Where a closed-loop step of the rti+codegen path spends its time: mean ms per step (outliers such
+    as the cold first solve included) and median ms per call of each part."""
+    from aev_ocp.control import ClosedLoop
+
+    loop = ClosedLoop(PaperLeader(), [MPCSettings(N=N, solver="rti", qp_solver="hpipm", codegen=True)])
+    pol = loop.ctrl[0]
+    c = pol.controller  # type: ignore[union-attr]
+    parts = {"forecast": (pol, "forecast"), "qp_data": (c, "_rti_data"), "qp_solve": (c, "_rti_qp"),
+             "node0_check": (c, "_rti_path0"), "plan_cost": (c, "_rti_fg"), "warm_shift_step": (c, "step"),
+             "plant": (loop.plant, "advance"), "plant_samples": (loop.plant, "samples"),
+             "events": (loop.plant, "check"), "controller_call": (pol, "command")}
+    timers = {k: _Timed(getattr(o, a)) for k, (o, a) in parts.items()}
+    for k, (o, a) in parts.items():
+        setattr(o, a, timers[k])
+    t0 = time.perf_counter()
+    r = loop.run([0.3], [1.87], t_end)
+    wall = time.perf_counter() - t0
+    K = len(r.meta["mpc_steps"][0]["status"])
+    ms = {k: 1e3 * sum(t.times) / K for k, t in timers.items()}
+    med = {k: 1e3 * float(np.median(t.times)) if t.times else float("nan") for k, t in timers.items()}
+    inner = ("forecast", "qp_data", "qp_solve", "node0_check", "plan_cost", "warm_shift_step")
+    ms["controller_python_rest"] = ms["controller_call"] - sum(ms[k] for k in inner)
+    ms["loop_python_rest"] = 1e3 * wall / K - ms["controller_call"] - ms["plant"] - ms["events"] - ms["plant_samples"]
+    ms["total_per_step"] = 1e3 * wall / K
+    return {"N": N, "steps": K, "ms_per_step": ms, "median_ms_per_call": med}
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--t-end", type=float, default=70.0)
@@ -101,12 +149,17 @@ def main(argv: list[str] | None = None) -> int:
                    "max_ms": best["solve_ms_max"], "call_median_ms": best["call_ms_median"],
                    "speedup": best["speedup_vs_cold_median"]}
         print("targets (N = 40, fastest path):", targets)
+    bd = breakdown(40, a.t_end)
+    print(f"\nbreakdown of a closed-loop step, rti+codegen, N = 40 ({bd['steps']} steps): mean ms per step, "
+          "median ms per call")
+    for k, v in sorted(bd["ms_per_step"].items(), key=lambda kv: -kv[1]):
+        print(f"  {k:24s} {v:7.3f} {bd['median_ms_per_call'].get(k, float('nan')):8.3f}")
     write_json(a.out, {"scenario": "mpc_paper_single (PROBLEM.md §9 canonical)", "t_end": a.t_end,
                        "machine": {"platform": platform.platform(), "python": sys.version.split()[0],
                                    "cpus": os.cpu_count()},
                        "note": "wall time of each solver call in the closed loop; the first solve of every "
                                "non-baseline path is a cold IPOPT solve and is included in the statistics",
-                       "rows": rows, "targets": targets})
+                       "rows": rows, "targets": targets, "breakdown": bd})
     print(f"wrote {a.out}")
     return 0
 
