@@ -20,9 +20,10 @@ from .linear import (LinearizedLaw, LinearStability, analyse, analyse_speeds, eq
 from .measure import (Attenuation, attenuation_of, fig5_amplitude, linear_prediction, measure, measure_mpc,
                       sweep_amplitudes)
 from .perturbation import PerturbedLeader
+from .report import REPRODUCE_SECTIONS, string_stability_section
 
-__all__ = ["SIGN_CONVENTION", "Attenuation", "LinearStability", "LinearizedLaw", "PerturbedLeader", "analyse",
+__all__ = ["SIGN_CONVENTION", "Attenuation", "LinearStability", "LinearizedLaw", "PerturbedLeader", "REPRODUCE_SECTIONS", "analyse",
            "analyse_speeds", "attenuation_of", "cli_stability", "default_amplitudes", "equilibrium_gap_of",
            "fig5_amplitude", "head_to_tail_criterion", "linear_prediction", "max_gain", "measure", "measure_mpc",
-           "partials_function", "peak_gain", "run_stability", "stability_map", "study_metrics",
+           "partials_function", "peak_gain", "run_stability", "stability_map", "string_stability_section", "study_metrics",
            "sweep_amplitudes", "transfer"]

@@ -57,7 +57,8 @@ def stability_map(law: CarFollowingLaw, v_star: float, x_name: str, xs: Sequence
     for i, y in enumerate(Y):
         for j, x in enumerate(X):
             try:
-                lin = analyse(dataclasses.replace(law, **{x_name: float(x), y_name: float(y)}), v_star)
+                lin = analyse(dataclasses.replace(law, **{x_name: float(x), y_name: float(y)}), v_star,
+                              with_peak_gain=False)
             except ParameterError:
                 continue
             C[i, j], loc[i, j], gain[i, j] = lin.criterion, lin.locally_stable, lin.max_gain
@@ -90,7 +91,7 @@ def _measured_row(a: Attenuation) -> dict[str, Any]:
 def run_stability(law: CarFollowingLaw | None, speeds: Sequence[float], out_dir: str | Path | None = None, *,
                   amplitudes: Sequence[float] | None = None, kind: str = "pulse", omega: float = 0.5 * math.pi,
                   duration: float = 4.0, n_followers: int = 50, measure_runs: bool = True,
-                  mpc_predictor: str | None = None, region: tuple[str, str] | None = None, region_n: int = 31,
+                  mpc_predictor: str | None = None, region: tuple[str, str] | None = None, region_n: int = 21,
                   plots: bool = True, progress: Callable[[str], None] | None = None) -> dict[str, Any]:
     """Everything ``aev-ocp stability`` writes: returns the stability.json document (and writes it and the
     plots into out_dir when given). law None with mpc_predictor: measure the MPC platoon only (no linear

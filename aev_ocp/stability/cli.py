@@ -90,11 +90,16 @@ def build_law(name: str, sets: list[str]) -> Any:
     for k in shared:
         if k not in known:
             raise ParameterError(f"--set carfollowing.{k}: unknown coefficient: shared ones are {sorted(known)}")
-    params = CarFollowingParams(**shared)
+    try:
+        params = CarFollowingParams(**shared)
+    except ParameterError as exc:
+        raise ParameterError(f"--set carfollowing.*: {exc}") from None
     if name.lower() not in LAW_REGISTRY:
         raise ParameterError(f"--law {name!r}: unknown law: known laws are {sorted(LAW_REGISTRY)} or 'mpc'")
     try:
         law = make_law(name, params, **own)
+    except ParameterError as exc:
+        raise ParameterError(f"--set carfollowing.{name}.*: {exc}") from None
     except TypeError:
         factory = LAW_REGISTRY[name.lower()]
         fields = [f.name for f in dataclasses.fields(factory)] if dataclasses.is_dataclass(factory) else []

@@ -35,6 +35,7 @@ from ..models.carfollowing import CarFollowingLaw
 from ..params import ParameterError
 
 _PARTIALS: dict[Any, ca.Function] = {}
+_GRID = np.logspace(-4, 3, 600)  # gaps scanned for a sign change of f(h, v*, v*) [model length]
 
 
 def partials_function(law: CarFollowingLaw) -> ca.Function:
@@ -57,21 +58,32 @@ def _accel(law: CarFollowingLaw, h: float, v: float) -> float:
     return float(partials_function(law)(h, v, v)[0])
 
 
-def equilibrium_gap_of(law: CarFollowingLaw, v_star: float, h_max: float = 1e3, tol: float = 1e-13) -> float:
+def _accel_on_grid(law: CarFollowingLaw, v: float) -> np.ndarray:
+    key = ("grid", type(law), law)
+    fn = _PARTIALS.get(key)
+    if fn is None:
+        h = ca.SX.sym("h")
+        vv = ca.SX.sym("v")
+        one = ca.Function("f", [h, vv], [law.accel(h, vv, vv)])
+        fn = _PARTIALS[key] = one.map(_GRID.size)
+    return np.asarray(fn(_GRID.reshape(1, -1), v)).ravel()
+
+
+def equilibrium_gap_of(law: CarFollowingLaw, v_star: float, tol: float = 1e-13) -> float:
     """Equilibrium gap h* of ``law`` at speed v_star [model units]: the root of f(h, v*, v*) = 0.
 
     A bracketed solve, valid for any law (with or without an optimal-velocity function, e.g. IDM): the
-    first sign change from f < 0 (too close: brake) to f > 0 on a log grid of h ∈ [1e-4, h_max], then
+    first sign change from f < 0 (too close: brake) to f > 0 on a log grid of h ∈ [1e-4, 1e3], then
     bisection with secant steps (Illinois) to |Δh| ≤ tol·(1 + h). Raises ParameterError if none exists.
     """
     if not (isinstance(v_star, (int, float)) and math.isfinite(v_star) and v_star >= 0):
         raise ParameterError(f"stability: speed v* = {v_star!r} is not allowed: must be a finite number >= 0")
-    grid = np.logspace(-4, math.log10(h_max), 600)
-    fv = np.asarray(partials_function(law).map(grid.size)(grid.reshape(1, -1), v_star, v_star)[0]).ravel()
+    grid = _GRID
+    fv = _accel_on_grid(law, float(v_star))
     idx = np.flatnonzero((fv[:-1] < 0) & (fv[1:] >= 0))
     if idx.size == 0:
         raise ParameterError(f"stability: law {law.name!r} has no equilibrium gap at speed v* = {v_star:g} "
-                             f"(f(h, v*, v*) does not change sign for h in [1e-4, {h_max:g}])")
+                             "(f(h, v*, v*) does not change sign for h in [1e-4, 1e3])")
     a, b = float(grid[idx[0]]), float(grid[idx[0] + 1])
     fa, fb = float(fv[idx[0]]), float(fv[idx[0] + 1])
     if fb == 0.0:
@@ -114,13 +126,14 @@ def max_gain(f_h: float, f_v: float, f_dv: float) -> tuple[float, float]:
     """(sup_ω |G(iω)|, the ω where it is reached) in closed form, for a locally stable follower.
 
     With x = ω², a = f_h, b = f_Δv², C the criterion: d|G|²/dx = 0 ⟺ b x² + 2a² x + 2a² C = 0, whose
-    positive root exists iff C < 0. Otherwise the supremum is |G(0)| = 1 at ω = 0.
+    positive root, x = −2aC/(sqrt(a² − 2bC) + a), exists iff C < 0. Otherwise the supremum is |G(0)| = 1
+    at ω = 0.
     """
     C = head_to_tail_criterion(f_h, f_v, f_dv)
     if C >= 0:
         return 1.0, 0.0
     a, b = f_h, f_dv * f_dv
-    x = -C if b == 0.0 else a * (math.sqrt(a * a - 2.0 * b * C) - a) / b
+    x = -2.0 * a * C / (math.sqrt(a * a - 2.0 * b * C) + a)  # = a (sqrt(a² − 2bC) − a)/b, no cancellation
     w = math.sqrt(max(x, 0.0))
     return float(abs(transfer(f_h, f_v, f_dv, w))), w
 
@@ -215,10 +228,12 @@ class LinearStability:
         return d
 
 
-def analyse(law: CarFollowingLaw, v_star: float, h_star: float | None = None) -> LinearStability:
+def analyse(law: CarFollowingLaw, v_star: float, h_star: float | None = None,
+            with_peak_gain: bool = True) -> LinearStability:
     """Linear string and platoon stability of ``law`` at the equilibrium speed v_star [model speed].
 
     h_star: the equilibrium gap; default the root of f(h, v*, v*) = 0 (:func:`equilibrium_gap_of`).
+    with_peak_gain: compute ∫|g| (a few ms; NaN when skipped, e.g. in large parameter maps).
     """
     h = equilibrium_gap_of(law, v_star) if h_star is None else float(h_star)
     _, fh, fv, fdv = (float(x) for x in partials_function(law)(h, v_star, v_star))
@@ -229,7 +244,7 @@ def analyse(law: CarFollowingLaw, v_star: float, h_star: float | None = None) ->
     poles = tuple(complex(p) for p in np.roots([1.0, fdv - fv, fh]))
     if local:
         g, w = max_gain(fh, fv, fdv)
-        pk = peak_gain(fh, fv, fdv)
+        pk = peak_gain(fh, fv, fdv) if with_peak_gain else math.nan
     else:
         g, w, pk = math.inf, math.nan, math.inf
     band = (0.0, math.sqrt(-2.0 * C)) if C < 0 else None
