@@ -21,6 +21,10 @@ def _finish_single(fig, ax, path: str | Path, title: str | None) -> Path:  # noq
     return save_figure(fig, path)
 
 
+COEFFICIENT_LABELS = {"alpha": "α [1/model time]", "beta": "β [model length²/model time]",
+                      "kappa": "κ [1/model length]", "eps": "ε [model speed²]"}
+
+
 def plot_gain(lins: Sequence[LinearStability], path: str | Path, title: str | None = None) -> Path:
     """|G(iω)| against ω for each analysis (one line per equilibrium speed / law)."""
     fig, ax = plt.subplots(figsize=(6.4, 4.0))
@@ -51,8 +55,8 @@ def plot_region(xs: np.ndarray, ys: np.ndarray, criterion: np.ndarray, local: np
     ax.plot([], [], "s", color="#92c5de", label="string stable (C ≥ 0)")
     ax.plot([], [], "s", color="#f4a582", label="string unstable, platoon stable")
     ax.plot([], [], "s", color="#d9d9d9", label="not platoon stable")
-    ax.set_xlabel(x_name)
-    ax.set_ylabel(y_name)
+    ax.set_xlabel(COEFFICIENT_LABELS.get(x_name, x_name))
+    ax.set_ylabel(COEFFICIENT_LABELS.get(y_name, y_name))
     ax.legend(fontsize=7, loc="upper right")
     ax.set_title(title, fontsize=9)
     fig.tight_layout()
@@ -74,6 +78,7 @@ def plot_attenuation(series: Mapping[str, Sequence[Attenuation]], linear: Mappin
         if label in linear:
             ax.axhline(linear[label].ratio_peak, color=col, ls="--", lw=0.8)
     ax.axhline(1.0, color="gray", lw=0.8)
+    ax.set_yscale("log")
     ax.set_xlabel("disturbance amplitude A [model speed]")
     ax.set_ylabel("follower-to-follower ratio")
     return _finish_single(fig, ax, path, title or "Measured attenuation (dashed: linear prediction)")

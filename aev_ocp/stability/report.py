@@ -19,7 +19,7 @@ from .linear import analyse
 from .measure import Attenuation, fig5_amplitude, linear_prediction, measure
 
 ProgressFn = Callable[[str], None]
-N_REPORT = 20  # followers in the report's measured platoon
+N_REPORT = 50  # followers in the report's measured platoon
 AMPLITUDES = (1e-6, 1e-5, 1e-4, 1e-3, 1e-2, 1e-1)
 
 
@@ -135,18 +135,24 @@ def string_stability_section(out_dir: Path, progress: ProgressFn) -> str:
         f"{0.03 * v_star ** 2 / 1e-6:.3g} makes it as large as the linear terms once |Δv| ≈ ε/(κv²) ≈ "
         f"{1e-6 / (0.03 * v_star ** 2):.1e}, i.e. two orders below √ε = 1e-3; above that it is a braking of about κv² "
         f"= {0.03 * v_star ** 2:.3f} whenever the relative velocity is not tiny, which does not scale with A. "
-        + (f"The platoon amplifies the disturbance for A in {[m.amplitude for m in amplified]}; worst, a dip of "
-           f"A = {worst.amplitude:g} makes follower 1 dip by {worst.peak[1]:.3g} ({worst.peak[1] / worst.amplitude:.3g} × A) "
-           f"and the deviation keeps growing along the platoon (last follower {worst.peak[-1]:.3g}): the size of the "
-           "response is set by κ, not by A. " if worst else "")
+        + (f"Some follower-to-follower step grows (peak or ℓ2 above 1) for A in {[m.amplitude for m in amplified]}. "
+           if amplified else "")
+        + (f"Worst, a dip of A = {worst.amplitude:g} makes follower 1 dip by {worst.peak[1]:.3g} "
+           f"({worst.peak[1] / worst.amplitude:.3g} × A) and the deviation keeps growing along the platoon (last "
+           f"follower {worst.peak[-1]:.3g}): the size of the response is set by κ, not by A. " if worst else "")
         + f"At Fig. 5's size (A = {top:g}; Fig. 5's leader dips by {fig5_amplitude():.3f}) the run is far outside the "
-        f"linear range for both laws (peaks up to {100 * big_dev:.0f} % (proposed) and {100 * ov_dev:.0f} % (OVFL) from "
-        "the linear prediction), "
-        + ("yet it attenuates: " if big_ok else "and it does not attenuate at every step: ")
-        + f"mean peak ratio {big.ratio_peak:.4f} (OVFL {ov_big.ratio_peak:.4f}), largest peak step {big.max_step_peak:.4f}, "
-        f"largest ℓ2 step {big.max_step_l2:.4f}; the braking term (≤ κv² = {0.03 * v_star ** 2:.3f}) is small next to "
-        "the accelerations of such a dip. So Fig. 5's conclusion holds at its own size (and for A ≤ "
-        f"{holds if holds is not None else '—'}), but not because of §6's argument, and it fails in between.\n\n"
+        f"linear range for both laws (some follower's peak is {100 * big_dev:.0f} % (proposed) and {100 * ov_dev:.0f} % "
+        "(OVFL) away from the linear prediction); the braking term (≤ κv² = "
+        f"{0.03 * v_star ** 2:.3f}) is small next to such a dip, and the peaks "
+        + ("decrease at every step" if big.max_step_peak <= 1 + 1e-3 else "do not decrease at every step")
+        + f" (mean ratio {big.ratio_peak:.4f}, OVFL {ov_big.ratio_peak:.4f}; largest step {big.max_step_peak:.4f})"
+        + (f", while ‖v_n − v*‖₂ grows at some step of the tail (largest step {big.max_step_l2:.4f}; OVFL "
+           f"{ov_big.max_step_l2:.4f}), where the deviation has shrunk to the size at which the braking term "
+           "matters again. " if big.max_step_l2 > 1 + 1e-3 else f" and so does ‖v_n − v*‖₂ (largest step "
+           f"{big.max_step_l2:.4f}). ")
+        + "So Fig. 5's 'the perturbation attenuates' is borne out at Fig. 5's own size for the peaks, and §6's "
+        f"linear argument covers only A ≤ {holds if holds is not None else '—'}; in between, the proposed platoon "
+        "amplifies small disturbances although its linearisation is string stable.\n\n"
         "**Fig. 5's 0.88 → 1.19** (peak |Δv| of followers 1 and 2 in the Table 1 platoon) comes from the "
         "initial condition, not from string instability: peak |v_l − v| per follower, proposed law — paper's start "
         f"(gap 0.3 then 3.5, speeds 1.87): {lst(o['paper'])}; everyone at equilibrium (V⁻¹(1.7), 1.7): "
