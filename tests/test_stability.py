@@ -233,3 +233,16 @@ def test_report_section_answers_fig5(tmp_path: Path) -> None:
     assert doc["fig5_origin"]["proposed"]["paper"][1] > doc["fig5_origin"]["proposed"]["paper"][0]
     eq = doc["fig5_origin"]["proposed"]["equilibrium"]
     assert all(b < a for a, b in zip(eq[:-1], eq[1:]))  # from equilibrium the peaks decrease
+
+
+def test_mpc_platoon_measured_through_the_closed_loop() -> None:
+    """The MPC platoon (2 followers, short horizon, interpreted RTI): the dip is seen and attenuated."""
+    from aev_ocp.mpc.settings import MPCSettings
+    from aev_ocp.stability import measure_mpc
+
+    st_ = MPCSettings(N=15, solver="rti", codegen=False)
+    att, base = measure_mpc(1.5, 0.05, n_followers=2, predictor="cooperative", duration=2.0, t_start=0.5,
+                            t_end=5.0, settings=st_)
+    assert att.status == "ok" and base.status == "ok"
+    assert att.peak[0] == pytest.approx(0.05, rel=1e-3)
+    assert 0 < att.peak[2] < att.peak[1] < att.peak[0]

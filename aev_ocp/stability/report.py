@@ -61,11 +61,11 @@ def string_stability_section(out_dir: Path, progress: ProgressFn) -> str:
     v_star = float(PaperLeader().speed_np(20.0)[0])
     progress("string stability: linear analysis")
     lin = analyse(law, v_star)
-    others = [(lw, v) for lw in (OVM(), OVFL(), IDM()) for v in (v_star,)] + [(OVM(), 0.964), (OVM(1.0), 0.964)]
-    lins = [lin] + [analyse(lw, v) for lw, v in others]
+    cases = [("proposed (paper)", lin)] + [
+        (f"{lw.name}" + (f", α = {lw.alpha:g}" if isinstance(lw, OVM) else ""), analyse(lw, v))
+        for lw, v in ((OVM(), v_star), (OVFL(), v_star), (IDM(), v_star), (OVM(), 0.964), (OVM(1.0), 0.964))]
     rows = []
-    for ls, (name, extra) in zip(lins, [("proposed (paper)", "")] + [(lw.name, "") for lw, _ in others]):
-        tag = name + (f", α = {others[lins.index(ls) - 1][0].alpha:g}" if name == "ovm" else "")
+    for tag, ls in cases:
         band = f"(0, {ls.unstable_band[1]:.4f})" if ls.unstable_band else "—"
         rows.append(f"| {tag} | {ls.v_star:g} | {ls.h_star:.4f} | {ls.f_h:.4f} | {ls.f_v:.4f} | {ls.f_dv:.4f} | "
                     f"{ls.criterion:.4f} | {'yes' if ls.string_stable else 'no'} | {_f(ls.max_gain)} | {band} | "
