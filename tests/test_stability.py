@@ -230,6 +230,7 @@ def test_report_section_answers_fig5(tmp_path: Path) -> None:
     assert doc["linear"]["string_stable"] and doc["linear"]["criterion"] == pytest.approx(1.7767, abs=1e-4)
     assert doc["linear_agreement_up_to"] is not None and doc["linear_agreement_up_to"] < 1e-3
     assert "C = 1.7767 ≥ 0" in md and "Fig. 5's 0.88 → 1.19" in md
+    assert (tmp_path / "string_stability.png").read_bytes()[:4] == b"\x89PNG"
     assert doc["fig5_origin"]["proposed"]["paper"][1] > doc["fig5_origin"]["proposed"]["paper"][0]
     eq = doc["fig5_origin"]["proposed"]["equilibrium"]
     assert all(b < a for a, b in zip(eq[:-1], eq[1:]))  # from equilibrium the peaks decrease

@@ -86,6 +86,11 @@ def string_stability_section(out_dir: Path, progress: ProgressFn) -> str:
         "law": law.describe(), "v_star": v_star, "linear": lin.to_dict(), "linear_prediction": ref.to_dict(),
         "measured": [m.to_dict() for m in meas], "ovfl_measured": [a.to_dict() for a in ovfl.values()],
         "fig5_origin": {"proposed": origin, "ovfl": origin_ovfl}, "linear_agreement_up_to": holds})
+    from .plots import plot_attenuation
+
+    plot_attenuation({"proposed": meas, "ovfl": list(ovfl.values())}, {"proposed": ref},
+                     out_dir / "string_stability.png",
+                     f"Dip of depth A in {N_REPORT} followers at v* = {v_star:g} (dashed: linearisation)")
     mrows = []
     for m in meas:
         mrows.append(f"| {m.amplitude:g} | {m.peak[1] / m.amplitude:.4g} | {m.ratio_peak:.4f} | {m.max_step_peak:.4g} | "
@@ -109,7 +114,7 @@ def string_stability_section(out_dir: Path, progress: ProgressFn) -> str:
         "G(s) = (f_Δv s + f_h)/(s² + (f_Δv − f_v)s + f_h) from predecessor speed to follower speed; "
         "∫|g| is the ℓ∞ gain (growth of the peak speed deviation per vehicle; 1 iff the impulse response "
         "never changes sign). `aev-ocp stability --law NAME` computes all of it for any law. "
-        "File: string_stability.json.\n\n"
+        "Files: string_stability.json, string_stability.png.\n\n"
         f"**Linear, the paper's platoon** (α = 2, β = 3, κ = 0.03, ε = 1e-6, v* = v_l(20) = {v_star:g}): "
         f"C = {lin.criterion:.4f} ≥ 0, so it is string stable; sup|G| = {lin.max_gain:g}, reached only as ω → 0; "
         f"poles {lin.poles[0].real:.4f}, {lin.poles[1].real:.4f} (real), so ∫|g| = {lin.peak_gain:.4f}: linear theory "
@@ -124,6 +129,7 @@ def string_stability_section(out_dir: Path, progress: ProgressFn) -> str:
         f"follower {ref.peak[1] / ref.amplitude:.4f}, mean ratio {ref.ratio_peak:.4f}, largest step "
         f"{ref.max_step_peak:.4f} (peak) and {ref.max_step_l2:.4f} (ℓ2), last follower {ref.peak[-1] / ref.amplitude:.4g}. "
         "'Linear' = every follower's peak within 5 % of the prediction.\n\n"
+        "![attenuation against amplitude](string_stability.png)\n\n"
         "| A | follower 1 peak / A | mean peak ratio | max peak step | max ℓ2 step | last peak / A | linear | status |\n"
         "|---|---|---|---|---|---|---|---|\n" + "\n".join(mrows) + "\n\n"
         f"OVFL, same runs: mean peak ratio {ovfl[1e-4].ratio_peak:.4f} at A = 1e-4 and {ovfl[top].ratio_peak:.4f} at "
