@@ -83,11 +83,6 @@ def study_metrics(law: CarFollowingLaw, v_star: float, amplitude: float | None =
     return row
 
 
-def _measured_row(a: Attenuation) -> dict[str, Any]:
-    d = a.to_dict()
-    return d
-
-
 def run_stability(law: CarFollowingLaw | None, speeds: Sequence[float], out_dir: str | Path | None = None, *,
                   amplitudes: Sequence[float] | None = None, kind: str = "pulse", omega: float = 0.5 * math.pi,
                   duration: float = 4.0, n_followers: int = 50, measure_runs: bool = True,
@@ -130,7 +125,7 @@ def run_stability(law: CarFollowingLaw | None, speeds: Sequence[float], out_dir:
                                         n_followers=n_followers, lin=lin))
                 ref = linear_prediction(law, float(v), kind=kind, omega=omega, duration=duration,
                                         n_followers=n_followers, lin=lin)
-                entry["linear_prediction"] = _measured_row(ref)
+                entry["linear_prediction"] = ref.to_dict()
                 linear_refs[label] = ref
             else:
                 base = None
@@ -141,7 +136,7 @@ def run_stability(law: CarFollowingLaw | None, speeds: Sequence[float], out_dir:
                                             baseline=base)
                     meas.append(att)
             series[label] = meas
-        entry["measured"] = [_measured_row(a) for a in meas]
+        entry["measured"] = [a.to_dict() for a in meas]
         doc["speeds"].append(entry)
     files: list[str] = []
     if out_dir is not None:
