@@ -184,6 +184,7 @@ def test_cli_writes_json_and_plots(tmp_path: Path, capsys: pytest.CaptureFixture
         for key in ("criterion", "string_stable", "max_gain", "unstable_band", "measured", "linear_prediction"):
             assert key in e
         assert [m["amplitude"] for m in e["measured"]] == [1e-4, 0.3]
+        assert e["measured"][0]["agrees_with_linear"] is True  # OVFL at A = 1e-4 is in its linear range
         assert e["criterion"] == pytest.approx(2 + 2 * 2.5 / e["h_star"] ** 2 - 2 * v_prime(e["h_star"]), rel=1e-9)
     for name in ("gain.png", "stable_region.png", "attenuation.png"):
         assert (tmp_path / name).stat().st_size > 1000

@@ -19,7 +19,7 @@ from ..models.carfollowing import CarFollowingLaw
 from ..params import ParameterError
 from ..results import write_json
 from .linear import LinearStability, analyse
-from .measure import Attenuation, fig5_amplitude, linear_prediction, measure, measure_mpc
+from .measure import Attenuation, fig5_amplitude, linear_agreement, linear_prediction, measure, measure_mpc
 
 SIGN_CONVENTION = ("v̇ = f(h, v, Δv) with Δv = v_l − v; f_h = ∂f/∂h, f_v = ∂f/∂v at fixed Δv, f_Δv = ∂f/∂Δv "
                    "(= ∂f/∂v_l), at (h*, v*, 0); criterion C = f_v²/2 − f_Δv·f_v − f_h, string stable iff C ≥ 0 "
@@ -98,7 +98,9 @@ def run_stability(law: CarFollowingLaw | None, speeds: Sequence[float], out_dir:
                            "experiment": {"kind": kind, "omega": omega, "duration": duration,
                                           "n_followers": n_followers,
                                           "sizes": "peak = max|v_n − v*|, l2 = ‖v_n − v*‖₂; ratio_* = geometric-mean "
-                                                   "step ratio over the platoon, max_step_* = largest step ratio"},
+                                                   "step ratio over the platoon, max_step_* = largest step ratio; "
+                                                   "agrees_with_linear: every follower's peak/A within 5 % of the "
+                                                   "linearised law's"},
                            "speeds": []}
     lins: list[LinearStability] = []
     series: dict[str, list[Attenuation]] = {}
@@ -127,6 +129,8 @@ def run_stability(law: CarFollowingLaw | None, speeds: Sequence[float], out_dir:
                                         n_followers=n_followers, lin=lin)
                 entry["linear_prediction"] = ref.to_dict()
                 linear_refs[label] = ref
+                for m in meas:
+                    m.agrees_with_linear = linear_agreement(m, ref)
             else:
                 base = None
                 for a in amps:

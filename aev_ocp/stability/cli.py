@@ -163,7 +163,9 @@ def cli_stability(argv: list[str]) -> int:
         for m in e["measured"]:
             print(f"  A = {m['amplitude']:<8g} mean peak ratio {m['ratio_peak']:.4f}  max peak step "
                   f"{m['max_step_peak']:.4f}  max ℓ2 step {m['max_step_l2']:.4f}  measured string stable: "
-                  f"{m['string_stable_measured']}  ({m['status']})")
+                  f"{m['string_stable_measured']}"
+                  + ("" if m.get("agrees_with_linear") is None else
+                     f"  linear: {'yes' if m['agrees_with_linear'] else 'no'}") + f"  ({m['status']})")
             if m["status"] != "ok":
                 events.append(f"{head}, A = {m['amplitude']:g}: run stopped ({m['status']})")
     print(f"wrote {len(doc.get('files', []))} files to {out}/")

@@ -76,6 +76,7 @@ class Attenuation:
     max_step_harmonic: float | None
     string_stable_measured: bool
     max_abs_rel_speed: list[float] = field(default_factory=list)
+    agrees_with_linear: bool | None = None  # set against a linear prediction (:func:`linear_agreement`)
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready."""
@@ -173,6 +174,13 @@ def linear_prediction(law: CarFollowingLaw, v_star: float, *, kind: str = "pulse
     lin = lin or analyse(law, v_star)
     return measure(LinearizedLaw.of(lin), v_star, min(amplitude, v_star), kind=kind, omega=omega,
                    duration=duration, n_followers=n_followers, lin=lin, label=f"{law.name} (linearised)", **kw)
+
+
+def linear_agreement(att: Attenuation, lin: Attenuation, rel: float = 0.05) -> bool:
+    """Every vehicle's peak |ṽ|/A within ``rel`` of the linearised law's (the linear theory describes the run)."""
+    a = np.asarray(att.peak) / att.amplitude
+    b = np.asarray(lin.peak) / lin.amplitude
+    return bool(a.size == b.size and np.all(np.abs(a - b) <= rel * b))
 
 
 def sweep_amplitudes(law: CarFollowingLaw, v_star: float, amplitudes: Sequence[float], **kw: Any) -> list[Attenuation]:

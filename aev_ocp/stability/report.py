@@ -16,18 +16,11 @@ from ..models.leader import PaperLeader
 from ..results import write_json
 from ..simulate import simulate_platoon
 from .linear import analyse
-from .measure import Attenuation, fig5_amplitude, linear_prediction, measure
+from .measure import fig5_amplitude, linear_agreement, linear_prediction, measure
 
 ProgressFn = Callable[[str], None]
 N_REPORT = 50  # followers in the report's measured platoon
 AMPLITUDES = (1e-6, 1e-5, 1e-4, 1e-3, 1e-2, 1e-1)
-
-
-def linear_agreement(att: Attenuation, lin: Attenuation, rel: float = 0.05) -> bool:
-    """Every vehicle's peak |ṽ|/A within ``rel`` of the linearised law's (the linear theory describes the run)."""
-    a = np.asarray(att.peak) / att.amplitude
-    b = np.asarray(lin.peak) / lin.amplitude
-    return bool(np.all(np.abs(a - b) <= rel * b))
 
 
 def fig5_origin(law_factory: Callable[[], Any] = Proposed) -> dict[str, list[float]]:
