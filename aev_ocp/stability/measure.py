@@ -203,8 +203,7 @@ def measure_mpc(v_star: float, amplitude: float, *, n_followers: int = 6, predic
     from dataclasses import replace
 
     from ..models.carfollowing import equilibrium_gap
-    from ..mpc.closed_loop import MPCVehicle, run_closed_loop
-    from ..mpc.settings import MPCSettings
+    from ..mpc import MPCSettings, MPCVehicle, run_closed_loop
 
     st = settings or MPCSettings(solver="rti", codegen=True)
     if predictor == "cooperative":
