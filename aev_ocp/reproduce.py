@@ -30,7 +30,7 @@ from .simulate import simulate_platoon
 
 ProgressFn = Callable[[str], None]
 SectionFn = Callable[[Path, ProgressFn], str]
-SECTION_PROVIDERS: tuple[str, ...] = ("aev_ocp.claims", "aev_ocp.ocp", "aev_ocp.mpc")
+SECTION_PROVIDERS: tuple[str, ...] = ("aev_ocp.claims", "aev_ocp.ocp", "aev_ocp.mpc", "aev_ocp.stability")
 
 
 @dataclass(frozen=True)

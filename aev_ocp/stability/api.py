@@ -1,0 +1,175 @@
+"""Python API of the string-stability analysis, for notebooks, the CLI and studies (model units).
+
+* :func:`stability_map` — criterion and platoon stability over a grid of two law coefficients.
+* :func:`study_metrics` — one flat row of numbers for a (law, v*) point, for a study's sweep.
+* :func:`run_stability` — the whole analysis of ``aev-ocp stability``: linear results per equilibrium
+  speed, measured attenuations per amplitude, the linear prediction, files and plots.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from pathlib import Path
+from typing import Any, Callable, Sequence
+
+import numpy as np
+
+from ..models.carfollowing import CarFollowingLaw
+from ..params import ParameterError
+from ..results import write_json
+from .linear import LinearStability, analyse
+from .measure import Attenuation, fig5_amplitude, linear_agreement, linear_prediction, measure, measure_mpc
+
+SIGN_CONVENTION = ("v̇ = f(h, v, Δv) with Δv = v_l − v; f_h = ∂f/∂h, f_v = ∂f/∂v at fixed Δv, f_Δv = ∂f/∂Δv "
+                   "(= ∂f/∂v_l), at (h*, v*, 0); criterion C = f_v²/2 − f_Δv·f_v − f_h, string stable iff C ≥ 0 "
+                   "(and platoon stable: f_h > 0, f_Δv − f_v > 0); G(s) = (f_Δv s + f_h)/(s² + (f_Δv − f_v) s + f_h) "
+                   "from predecessor to follower speed; model units (ω in rad per model time).")
+
+
+def default_amplitudes(v_star: float) -> list[float]:
+    """1e-6 … Fig. 5's size (v_l(20) − min v_l of the paper's leader), kept below 0.95 v* [model speed]."""
+    top = min(fig5_amplitude(), 0.95 * v_star)
+    return [a for a in (1e-6, 1e-5, 1e-4, 1e-3, 1e-2, 1e-1, 0.5) if a < top] + [round(top, 6)]
+
+
+def coefficient_names(law: CarFollowingLaw) -> list[str]:
+    """The law's numeric dataclass fields (its coefficients)."""
+    return [f.name for f in dataclasses.fields(law)  # type: ignore[arg-type]
+            if isinstance(getattr(law, f.name), (int, float)) and not isinstance(getattr(law, f.name), bool)]
+
+
+def stability_map(law: CarFollowingLaw, v_star: float, x_name: str, xs: Sequence[float], y_name: str,
+                  ys: Sequence[float]) -> dict[str, np.ndarray]:
+    """Criterion C and platoon stability of ``law`` with coefficients x_name, y_name set to each grid pair.
+
+    Returns arrays of shape (len(ys), len(xs)): 'criterion', 'locally_stable', 'string_stable',
+    'max_gain' (inf where not platoon stable), and 'xs', 'ys'. A grid point whose law has no
+    equilibrium at v* gets NaN and False."""
+    names = coefficient_names(law)
+    for nm in (x_name, y_name):
+        if nm not in names:
+            raise ParameterError(f"stability map: {type(law).__name__} has no coefficient {nm!r}: known are {names}")
+    X, Y = np.asarray(xs, float), np.asarray(ys, float)
+    C = np.full((Y.size, X.size), np.nan)
+    loc = np.zeros_like(C, dtype=bool)
+    gain = np.full_like(C, np.inf)
+    for i, y in enumerate(Y):
+        for j, x in enumerate(X):
+            try:
+                lin = analyse(dataclasses.replace(law, **{x_name: float(x), y_name: float(y)}), v_star,
+                              with_peak_gain=False)
+            except ParameterError:
+                continue
+            C[i, j], loc[i, j], gain[i, j] = lin.criterion, lin.locally_stable, lin.max_gain
+    return {"xs": X, "ys": Y, "criterion": C, "locally_stable": loc, "string_stable": loc & (C >= 0),
+            "max_gain": gain}
+
+
+def study_metrics(law: CarFollowingLaw, v_star: float, amplitude: float | None = None, **measure_kw: Any) -> dict[str, Any]:
+    """One flat row for a study: the linear results at v*, and (if amplitude) the measured attenuation.
+
+    Keys: v_star, h_star, criterion, string_stable, locally_stable, max_gain, unstable_band_hi, peak_gain and,
+    with an amplitude, ratio_peak, ratio_l2, max_step_peak, max_step_l2, string_stable_measured, status."""
+    lin = analyse(law, v_star)
+    row: dict[str, Any] = {"law": law.name, "v_star": v_star, "h_star": lin.h_star, "criterion": lin.criterion,
+                           "string_stable": lin.string_stable, "locally_stable": lin.locally_stable,
+                           "max_gain": lin.max_gain, "peak_gain": lin.peak_gain,
+                           "unstable_band_hi": lin.unstable_band[1] if lin.unstable_band else 0.0}
+    if amplitude is not None:
+        a = measure(law, v_star, amplitude, lin=lin, **measure_kw)
+        row.update(amplitude=amplitude, ratio_peak=a.ratio_peak, ratio_l2=a.ratio_l2, max_step_peak=a.max_step_peak,
+                   max_step_l2=a.max_step_l2, string_stable_measured=a.string_stable_measured, status=a.status)
+    return row
+
+
+def run_stability(law: CarFollowingLaw | None, speeds: Sequence[float], out_dir: str | Path | None = None, *,
+                  amplitudes: Sequence[float] | None = None, kind: str = "pulse", omega: float = 0.5 * math.pi,
+                  duration: float = 4.0, n_followers: int = 50, measure_runs: bool = True,
+                  mpc_predictor: str | None = None, region: tuple[str, str] | None = None, region_n: int = 21,
+                  plots: bool = True, progress: Callable[[str], None] | None = None) -> dict[str, Any]:
+    """Everything ``aev-ocp stability`` writes: returns the stability.json document (and writes it and the
+    plots into out_dir when given). law None with mpc_predictor: measure the MPC platoon only (no linear
+    analysis: the MPC has no closed-form law). region: the two coefficients of the stable-region plot
+    (default: the law's first two), gridded over [0, 2.5 × their value] (at least [0, 5])."""
+    say = progress or (lambda m: None)
+    doc: dict[str, Any] = {"law": law.describe() if law is not None else {"law": f"mpc ({mpc_predictor})"},
+                           "sign_convention": SIGN_CONVENTION,
+                           "experiment": {"kind": kind, "omega": omega, "duration": duration,
+                                          "n_followers": n_followers,
+                                          "sizes": "peak = max|v_n − v*|, l2 = ‖v_n − v*‖₂; ratio_* = geometric-mean "
+                                                   "step ratio over the platoon, max_step_* = largest step ratio; "
+                                                   "agrees_with_linear: every follower's peak/A within 5 % of the "
+                                                   "linearised law's"},
+                           "speeds": []}
+    lins: list[LinearStability] = []
+    series: dict[str, list[Attenuation]] = {}
+    linear_refs: dict[str, Attenuation] = {}
+    for v in speeds:
+        entry: dict[str, Any] = {"v_star": float(v)}
+        lin = None
+        if law is not None:
+            lin = analyse(law, float(v))
+            lins.append(lin)
+            entry.update(lin.to_dict())
+            entry.pop("law", None)
+        amps = list(amplitudes) if amplitudes is not None else default_amplitudes(float(v))
+        bad = [a for a in amps if not (isinstance(a, (int, float)) and math.isfinite(a) and 0 < a <= float(v))]
+        if bad:
+            raise ParameterError(f"stability: amplitude {bad[0]!r} is not allowed at v* = {v:g}: must be in (0, v*]")
+        meas: list[Attenuation] = []
+        if measure_runs:
+            label = f"v* = {float(v):g}"
+            if law is not None:
+                for a in amps:
+                    say(f"{law.name}, v* = {v:g}: amplitude {a:g}")
+                    meas.append(measure(law, float(v), a, kind=kind, omega=omega, duration=duration,
+                                        n_followers=n_followers, lin=lin))
+                ref = linear_prediction(law, float(v), kind=kind, omega=omega, duration=duration,
+                                        n_followers=n_followers, lin=lin)
+                entry["linear_prediction"] = ref.to_dict()
+                linear_refs[label] = ref
+                for m in meas:
+                    m.agrees_with_linear = linear_agreement(m, ref)
+            else:
+                base = None
+                for a in amps:
+                    say(f"mpc ({mpc_predictor}), v* = {v:g}: amplitude {a:g}")
+                    att, base = measure_mpc(float(v), a, n_followers=n_followers, predictor=mpc_predictor or
+                                            "constant-velocity", kind=kind, omega=omega, duration=duration,
+                                            baseline=base)
+                    meas.append(att)
+            series[label] = meas
+        entry["measured"] = [a.to_dict() for a in meas]
+        doc["speeds"].append(entry)
+    files: list[str] = []
+    if out_dir is not None:
+        out = Path(out_dir)
+        if plots:
+            from .plots import plot_attenuation, plot_gain, plot_region
+
+            if lins:
+                files.append(str(plot_gain(lins, out / "gain.png", f"|G(iω)| of {law.name}")))
+                names = coefficient_names(law)
+                if region is None and len(names) >= 2:
+                    region = (names[0], names[1])
+                if region is not None:
+                    x0, y0 = (float(getattr(law, n)) for n in region)
+                    xs = np.linspace(0.0, max(5.0, 2.5 * x0), region_n)
+                    ys = np.linspace(0.0, max(5.0, 2.5 * y0), region_n)
+                    v_map = float(speeds[0])
+                    say(f"stable region in ({region[0]}, {region[1]}) at v* = {v_map:g}")
+                    m = stability_map(law, v_map, region[0], xs, region[1], ys)
+                    files.append(str(plot_region(xs, ys, m["criterion"], m["locally_stable"], region[0], region[1],
+                                                 out / "stable_region.png",
+                                                 f"{law.name}: string-stable region at v* = {v_map:g}"
+                                                 + "".join(f", {k} = {getattr(law, k):g}" for k in names
+                                                           if k not in region), mark=(x0, y0))))
+                    doc["stable_region"] = {"x": region[0], "y": region[1], "v_star": v_map, "xs": xs.tolist(),
+                                            "ys": ys.tolist(), "criterion": m["criterion"].tolist()}
+            if any(series.values()):
+                files.append(str(plot_attenuation(series, linear_refs, out / "attenuation.png",
+                                                  f"{doc['law']['law']}: attenuation vs amplitude ({kind})")))
+        doc["files"] = files + [str(out / "stability.json")]
+        write_json(out / "stability.json", doc)
+    return doc

@@ -1,0 +1,84 @@
+"""Figures of the string-stability analysis (matplotlib Agg, written atomically; model units)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Mapping, Sequence
+
+import numpy as np
+
+from ..plots import plt, save_figure
+from .linear import LinearStability
+from .measure import Attenuation
+
+
+def _finish_single(fig, ax, path: str | Path, title: str | None) -> Path:  # noqa: ANN001
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7)
+    if title:
+        ax.set_title(title, fontsize=9)
+    fig.tight_layout()
+    return save_figure(fig, path)
+
+
+COEFFICIENT_LABELS = {"alpha": "α [1/model time]", "beta": "β [model length²/model time]",
+                      "kappa": "κ [1/model length]", "eps": "ε [model speed²]"}
+
+
+def plot_gain(lins: Sequence[LinearStability], path: str | Path, title: str | None = None) -> Path:
+    """|G(iω)| against ω for each analysis (one line per equilibrium speed / law)."""
+    fig, ax = plt.subplots(figsize=(6.4, 4.0))
+    w = np.logspace(-2.5, 1.5, 800)
+    for lin in lins:
+        ax.semilogx(w, lin.gain(w), label=f"{lin.law}, v* = {lin.v_star:g} (C = {lin.criterion:.3g})")
+        if lin.unstable_band:
+            ax.axvspan(1e-2 * 10 ** -0.5, lin.unstable_band[1], color="tab:red", alpha=0.06)
+    ax.axhline(1.0, color="gray", ls="--", lw=0.8)
+    ax.set_xlabel("ω [rad / model time]")
+    ax.set_ylabel("|G(iω)| (follower / predecessor speed)")
+    return _finish_single(fig, ax, path, title or "Frequency response of one follower")
+
+
+def plot_region(xs: np.ndarray, ys: np.ndarray, criterion: np.ndarray, local: np.ndarray, x_name: str,
+                y_name: str, path: str | Path, title: str, mark: tuple[float, float] | None = None) -> Path:
+    """Stable region in a parameter plane: criterion C ≥ 0 (string stable) shaded, C = 0 contour drawn.
+
+    criterion, local: arrays of shape (len(ys), len(xs))."""
+    fig, ax = plt.subplots(figsize=(5.6, 4.4))
+    cls = np.where(~local, 0, np.where(criterion >= 0, 2, 1))
+    cmap = plt.matplotlib.colors.ListedColormap(["#d9d9d9", "#f4a582", "#92c5de"])
+    ax.pcolormesh(xs, ys, cls, cmap=cmap, vmin=-0.5, vmax=2.5, shading="nearest")
+    if np.nanmin(criterion) < 0 < np.nanmax(criterion):
+        ax.contour(xs, ys, criterion, levels=[0.0], colors="k", linewidths=1.0)
+    if mark is not None:
+        ax.plot(*mark, "kx", ms=8, label="chosen")
+    ax.plot([], [], "s", color="#92c5de", label="string stable (C ≥ 0)")
+    ax.plot([], [], "s", color="#f4a582", label="string unstable, platoon stable")
+    ax.plot([], [], "s", color="#d9d9d9", label="not platoon stable")
+    ax.set_xlabel(COEFFICIENT_LABELS.get(x_name, x_name))
+    ax.set_ylabel(COEFFICIENT_LABELS.get(y_name, y_name))
+    ax.legend(fontsize=7, loc="upper right")
+    ax.set_title(title, fontsize=9)
+    fig.tight_layout()
+    return save_figure(fig, path)
+
+
+def plot_attenuation(series: Mapping[str, Sequence[Attenuation]], linear: Mapping[str, Attenuation], path: str | Path,
+                     title: str | None = None) -> Path:
+    """Measured attenuation against disturbance amplitude: geometric-mean step ratio of the peak |ṽ|
+    (solid) and the largest step ratio of ‖ṽ‖₂ (dotted); dashed: the linearised law's values."""
+    fig, ax = plt.subplots(figsize=(6.4, 4.0))
+    for k, (label, atts) in enumerate(series.items()):
+        if not atts:
+            continue
+        col = f"C{k}"
+        a = [x.amplitude for x in atts]
+        ax.semilogx(a, [x.ratio_peak for x in atts], "o-", color=col, label=f"{label}: mean peak ratio")
+        ax.semilogx(a, [x.max_step_l2 for x in atts], "s:", color=col, ms=4, label=f"{label}: max ℓ2 step ratio")
+        if label in linear:
+            ax.axhline(linear[label].ratio_peak, color=col, ls="--", lw=0.8)
+    ax.axhline(1.0, color="gray", lw=0.8)
+    ax.set_yscale("log")
+    ax.set_xlabel("disturbance amplitude A [model speed]")
+    ax.set_ylabel("follower-to-follower ratio")
+    return _finish_single(fig, ax, path, title or "Measured attenuation (dashed: linear prediction)")
