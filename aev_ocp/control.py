@@ -283,6 +283,10 @@ class ClosedLoop:
         names = [c.name if c is not None else law.name for c, law in zip(self.ctrl, self.laws)]  # type: ignore[union-attr]
         stats = [_stats(rec[i], c) if c is not None and not isinstance(c, ControlSequence) else None
                  for i, c in enumerate(self.ctrl)]
+        for i, st in enumerate(stats):
+            if st is not None:
+                v_pred = ys[3 * n] if i == 0 else xs[n + i - 1]
+                st["forecast_rms"] = forecast_rms(ts, v_pred, dt, [info.get("v_hat") for info in rec[i]["info"]])
         steps = [{"solve_ms": (np.asarray(rec[i]["solve"], float) * 1e3).tolist(), "iterations": rec[i]["iters"],
                   "status": rec[i]["status"], "call_ms": (np.asarray(rec[i]["call"]) * 1e3).tolist(),
                   "ok": rec[i]["ok"]} if stats[i] is not None else None for i in range(n)]
@@ -292,6 +296,23 @@ class ClosedLoop:
                             {"dt": dt, "controllers": settings, "mpc_steps": steps,
                              "fallback_law": self.fallback_law.describe()},
                             accel=acc, jerk_sampled=True, solver_stats=stats)
+
+
+def forecast_rms(t: np.ndarray, v_actual: np.ndarray, dt: float, forecasts: Sequence[np.ndarray | None]) -> float:
+    """RMS error [model speed] of the forecasts v̂ made at t_k = k·dt for t_k + j·dt (j = 0, 1, …) against the
+    speeds that happened (``v_actual`` sampled at t), over every forecast node inside the run; NaN when no
+    controller published forecasts (Command.info["v_hat"])."""
+    err: list[np.ndarray] = []
+    for k, vh in enumerate(forecasts):
+        if vh is None:
+            continue
+        tj = k * dt + dt * np.arange(len(vh))
+        inside = tj <= t[-1] + 1e-9
+        err.append(np.asarray(vh, float)[inside] - np.interp(tj[inside], t, v_actual))
+    if not err:
+        return float("nan")
+    e = np.concatenate(err)
+    return float(np.sqrt(np.mean(e**2)))
 
 
 def run_closed_loop(leader: LeaderProfile, controllers: Sequence[Any], gaps0: Sequence[float],

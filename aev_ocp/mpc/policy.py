@@ -67,7 +67,7 @@ class MPCPolicy:
     def command(self, obs: Observation) -> Command:
         vm, vh = self.forecast(obs)
         sol = self.controller.solve(obs.z, vm, vh)
-        info = {"cost": sol.cost, "violation": sol.violation}
+        info = {"cost": sol.cost, "violation": sol.violation, "v_hat": vh}
         if sol.success:
             return Command(float(sol.a[0]), True, sol.status, sol.solve_time_s, sol.iterations, sol.X[1], info)
         b = self.settings.bounds
@@ -96,7 +96,7 @@ def _adapt(obj: MPCSettings | MPCVehicle, i: int, loop: ClosedLoop) -> MPCPolicy
             raise ParameterError(f"vehicle {i + 1}: predictor 'oracle' is only available to the first "
                                  "follower (use 'cooperative' behind an MPC vehicle, or a measured predictor)")
         else:
-            p = make_predictor(p, loop.leader, veh.settings.predictor_window)
+            p = make_predictor(p, loop.leader, veh.settings.predictor_window, loop.ev.units.time_s)
     return MPCPolicy(veh.settings, loop.ev, loop.fallback_law, p, veh.problem, veh.parameter_values)
 
 

@@ -87,6 +87,49 @@ class ConstantAccelerationPredictor(LeaderPredictor):
         return x, v
 
 
+class DecayingAccelerationPredictor(LeaderPredictor):
+    """The predecessor's acceleration fades: a(t) = â e^{−(t − t_0)/τ} with â the least-squares slope of
+    the last ``window`` measured speeds, so v̂ = v_0 + â τ (1 − e^{−(t−t_0)/τ}), stopped at v = 0.
+
+    Between constant velocity (τ → 0) and constant acceleration (τ → ∞): drivers hold an acceleration
+    for a few seconds, not for a whole horizon. τ [model time]; :func:`make_predictor` sets it from
+    DECAY_TIME_S = 2 s with the scenario's units (a typical duration of an acceleration phase in urban
+    drive cycles; an assumption, stated in the README)."""
+
+    name = "decaying-acceleration"
+
+    def __init__(self, tau: float, window: int = 5) -> None:
+        if not (isinstance(tau, (int, float)) and np.isfinite(tau) and tau > 0):
+            raise ParameterError(f"DecayingAccelerationPredictor.tau = {tau!r} is not allowed: must be a number > 0")
+        if not isinstance(window, int) or window < 2:
+            raise ParameterError(f"DecayingAccelerationPredictor.window = {window!r} is not allowed: must be an integer >= 2")
+        self.tau, self.window = float(tau), window
+
+    def predict(self, t0: float, dt: float, N: int, meas: Measurements) -> tuple[np.ndarray, np.ndarray]:
+        s = dt * np.arange(N + 1)
+        v0 = float(meas.v[-1])
+        acc = self._slope(meas)
+        tau = self.tau
+        e = 1.0 - np.exp(-s / tau)
+        v = v0 + acc * tau * e
+        x = v0 * s + acc * tau * (s - tau * e)
+        if acc < 0 and v0 + acc * tau < 0:  # stops at s_stop and stays
+            s_stop = -tau * np.log1p(v0 / (acc * tau))
+            e_stop = 1.0 - np.exp(-s_stop / tau)
+            x_stop = v0 * s_stop + acc * tau * (s_stop - tau * e_stop)
+            v = np.where(s >= s_stop, 0.0, v)
+            x = np.where(s >= s_stop, x_stop, x)
+        return x, np.maximum(v, 0.0)
+
+    def _slope(self, meas: Measurements) -> float:
+        w = self.window
+        tt, vv = np.asarray(meas.t[-w:], float), np.asarray(meas.v[-w:], float)
+        return float(np.polyfit(tt - tt[-1], vv, 1)[0]) if tt.size >= 2 and np.ptp(tt) > 0 else 0.0
+
+
+DECAY_TIME_S = 2.0  # [s] default τ of the decaying-acceleration predictor (see its docstring)
+
+
 def plan_forecast(speeds: np.ndarray, dt: float, N: int) -> tuple[np.ndarray, np.ndarray]:
     """Forecast from a predecessor's MPC plan (cooperative): node speeds (M+1,) with piecewise-constant
     acceleration, so x̂ is exact: x̂_{j+1} = x̂_j + (v_j + v_{j+1})/2·dt. Held at the last speed beyond
@@ -105,8 +148,12 @@ def forecast_intervals(x_hat: np.ndarray, v_hat: np.ndarray, dt: float) -> tuple
     return np.diff(x_hat) / dt, v_hat[:-1]
 
 
-def make_predictor(name: str, profile: LeaderProfile | None = None, window: int = 5) -> LeaderPredictor:
-    """Predictor by name: 'oracle' (needs the true profile), 'constant-velocity', 'constant-acceleration'."""
+def make_predictor(name: str, profile: LeaderProfile | None = None, window: int = 5,
+                   time_unit_s: float | None = None) -> LeaderPredictor:
+    """Predictor by name: 'oracle' (needs the true profile), 'constant-velocity', 'constant-acceleration',
+    'decaying-acceleration' (τ = DECAY_TIME_S converted with ``time_unit_s`` = T [s], default 2 s at T = 2 s)."""
+    if name == "decaying-acceleration":
+        return DecayingAccelerationPredictor(DECAY_TIME_S / (time_unit_s or 2.0), window)
     if name == "oracle":
         if profile is None:
             raise ParameterError("predictor 'oracle' needs the true leader profile (only the first follower has one)")
@@ -116,4 +163,5 @@ def make_predictor(name: str, profile: LeaderProfile | None = None, window: int 
     if name == "constant-acceleration":
         return ConstantAccelerationPredictor(window)
     raise ParameterError(f"predictor = {name!r} is not allowed: must be 'oracle', 'constant-velocity', "
-                         "'constant-acceleration' (or 'cooperative' for a follower behind an MPC vehicle)")
+                         "'constant-acceleration', 'decaying-acceleration' (or 'cooperative' for a follower "
+                         "behind an MPC vehicle)")

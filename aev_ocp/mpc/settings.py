@@ -24,7 +24,7 @@ from ..params import ParameterError, PowertrainOptions
 #: line search. The applied control's path constraints (current, map) are checked on the exact model.
 SOLVER_PATHS = ("ipopt", "sqp", "ipopt-cold", "rti")
 QP_SOLVERS = ("qrqp", "osqp", "hpipm", "qpoases", "proxqp")
-PREDICTOR_NAMES = ("oracle", "constant-velocity", "constant-acceleration", "cooperative")
+PREDICTOR_NAMES = ("oracle", "constant-velocity", "constant-acceleration", "decaying-acceleration", "cooperative")
 
 
 def _err(name: str, value: Any, allowed: str) -> ParameterError:
