@@ -194,5 +194,5 @@ def test_cli_eco_trip_reports_gap_refinement_and_multistart(capsys):
     assert cli_ocp(["eco-trip", "--N", "40", "--multistart"]) == 0
     out = capsys.readouterr().out
     assert "exact obj" in out and "N = 40 -> 80" in out and "starts: sine" in out and "WARNING" not in out
-    assert cli_ocp(["oracle", "--multistart"]) == 2
-    assert "--multistart applies to eco-trip only" in capsys.readouterr().err
+    assert cli_ocp(["current-profile", "--multistart"]) == 2
+    assert "--multistart applies to eco-trip and oracle only" in capsys.readouterr().err

@@ -25,7 +25,7 @@ def _parser() -> argparse.ArgumentParser:
     ap.add_argument("--no-refine", action="store_true",
                     help="skip the extra solve with 2N intervals that reports how the objective changes")
     ap.add_argument("--multistart", action="store_true",
-                    help="eco-trip: solve from several initial guesses, keep the best, report the spread")
+                    help="eco-trip, oracle: solve from several initial guesses, keep the best, report the spread")
     return ap
 
 
@@ -45,8 +45,8 @@ def cli_ocp(argv: list[str]) -> int:
         print("aev-ocp ocp prop31: error: prop31 takes no scenario (OCP-A is the single cell of PROBLEM.md §8)",
               file=sys.stderr)
         return 2
-    if args.multistart and args.problem != "eco-trip":
-        print(f"aev-ocp ocp {args.problem}: error: --multistart applies to eco-trip only", file=sys.stderr)
+    if args.multistart and args.problem not in ("eco-trip", "oracle"):
+        print(f"aev-ocp ocp {args.problem}: error: --multistart applies to eco-trip and oracle only", file=sys.stderr)
         return 2
     if args.problem == "oracle" and args.N is not None:
         print("aev-ocp ocp oracle: error: --N does not apply (N = t_end/dt of the scenario, dt = 0.1)",
@@ -73,7 +73,7 @@ def cli_ocp(argv: list[str]) -> int:
             print(rep["table"])
             ok = rep["ok"]
         else:
-            rep = api.run_oracle(method=args.method, out_dir=out, scenario=args.scenario)
+            rep = api.run_oracle(method=args.method, out_dir=out, scenario=args.scenario, multistart=args.multistart)
             print(rep["table"])
             ok = rep["ok"]
     except (ParameterError, FileNotFoundError, ValueError) as exc:
