@@ -184,7 +184,6 @@ def replay_exact(res: OCPResult, scn: OracleScenario, gap_rtol: float = GAP_RTOL
     plant (:class:`aev_ocp.mpc.closed_loop.ClosedLoop` with a ControlSequence: CVODES, exact η switch)
     and evaluate the same §9 cost on that trajectory with the exact η switch (and the exact g for the
     'energy' objective). Stores meta['replay'] and the smoothing-gap record; returns the replay record."""
-    from ..models import energy
     from ..mpc.closed_loop import ClosedLoop, ControlSequence
 
     seq = ControlSequence(tuple(np.asarray(res.controls["a"], float).ravel()), scn.dt, "ocp-d")

@@ -23,7 +23,6 @@ objective keeps the smoothed switch of PROBLEM.md §7; the smoothing-gap check
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from dataclasses import dataclass, field
 from typing import Any, Sequence
