@@ -204,7 +204,8 @@ class CurrentProfileSolver:
 
     def refine(self, res: OCPResult, S0: float = SOC0) -> dict[str, Any]:
         """Solve ``res``'s (E_req, t_f) again with 2N intervals; record the change in res.meta['refinement']."""
-        fine = CurrentProfileSolver(self.method, 2 * self.solver.options.N, self.cell, **self.opts)
+        # a one-off solve: one mapped interval Function (mx_map) keeps its build time independent of 2N
+        fine = CurrentProfileSolver(self.method, 2 * self.solver.options.N, self.cell, **{**self.opts, "mx_map": True})
         return record_refinement(res, fine.solve(res.meta["E_req_J"], float(res.meta["t_f"]), S0))
 
 

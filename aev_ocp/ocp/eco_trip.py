@@ -245,7 +245,8 @@ class EcoTripSolver:
     def refine(self, res: OCPResult, trip: EcoTrip | None = None, guess: str | None = None) -> dict[str, Any]:
         """Solve again with 2N intervals (same trip, same initial guess kind) and record in
         ``res.meta['refinement']`` how the objective changes."""
-        fine = EcoTripSolver(self.trip, self.method, 2 * self.solver.options.N, **self.opts)
+        # a one-off solve: one mapped interval Function (mx_map) keeps its build time independent of 2N
+        fine = EcoTripSolver(self.trip, self.method, 2 * self.solver.options.N, **{**self.opts, "mx_map": True})
         kind = guess or str(res.meta.get("guess", "sine"))
         return record_refinement(res, fine.solve(trip, guess=kind if kind in GUESSES else "sine"))
 
