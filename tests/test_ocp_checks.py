@@ -196,3 +196,17 @@ def test_cli_eco_trip_reports_gap_refinement_and_multistart(capsys):
     assert "exact obj" in out and "N = 40 -> 80" in out and "starts: sine" in out and "WARNING" not in out
     assert cli_ocp(["current-profile", "--multistart"]) == 2
     assert "--multistart applies to eco-trip and oracle only" in capsys.readouterr().err
+
+
+def test_prop31_results_carry_exact_resimulation_and_refinement():
+    from aev_ocp.ocp.prop31 import run_prop31
+
+    cases = run_prop31("ms", N=40)
+    for case, e in cases.items():
+        assert e["warnings"] == [], case
+        assert e["objective_exact_J"] == pytest.approx(e["objective_J"], rel=1e-6, abs=1e-9), case
+        assert e["objective_2N_J"] == pytest.approx(e["objective_J"], rel=1e-3, abs=1e-6), case
+    # the relaxing case without Q ≥ 0 is linear-quadratic: its 2N value is the exact discrete optimum
+    from aev_ocp.ocp.prop31 import V_RELAX, lq_discrete_exact
+
+    assert cases["relaxing"]["objective_2N_J"] == pytest.approx(lq_discrete_exact(CELL, V_RELAX, 60.0, 80)[0], rel=1e-6)
