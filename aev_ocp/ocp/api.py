@@ -184,7 +184,10 @@ def replay_exact(res: OCPResult, scn: OracleScenario, gap_rtol: float = GAP_RTOL
     plant (:class:`aev_ocp.mpc.closed_loop.ClosedLoop` with a ControlSequence: CVODES, exact η switch)
     and evaluate the same §9 cost on that trajectory with the exact η switch (and the exact g for the
     'energy' objective). Stores meta['replay'] and the smoothing-gap record; returns the replay record."""
-    from ..mpc.closed_loop import ClosedLoop, ControlSequence
+    try:  # the generic closed loop (aev_ocp.control) where it exists, else the MPC's
+        from ..control import ClosedLoop, ControlSequence
+    except ImportError:
+        from ..mpc.closed_loop import ClosedLoop, ControlSequence
 
     seq = ControlSequence(tuple(np.asarray(res.controls["a"], float).ravel()), scn.dt, "ocp-d")
     r = ClosedLoop(scn.leader, [seq], scn.ev).run([scn.h0], [scn.v0], scn.t_end, soc0=scn.S0)
