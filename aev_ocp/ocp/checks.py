@@ -28,6 +28,27 @@ from .result import OCPResult
 GAP_RTOL = 5e-3
 
 
+def record_term_gap(res: OCPResult, term: str, nlp: float, exact: float, what: str, rtol: float = GAP_RTOL,
+                    atol: float = 0.0) -> dict[str, Any]:
+    """The smoothing gap of ONE smoothed term of the objective (e.g. OCP-D's energy term, the only one
+    the smoothing touches): a large gap there can hide in a total dominated by exact terms. Same rule
+    and warning as :func:`record_smoothing_gap`; stored in ``res.meta['smoothing_gap_terms'][term]``."""
+    if not (math.isfinite(rtol) and rtol >= 0 and math.isfinite(atol) and atol >= 0):
+        raise ParameterError(f"smoothing-gap tolerance: rtol = {rtol!r}, atol = {atol!r} must be finite and >= 0")
+    nlp, exact = float(nlp), float(exact)
+    diff = nlp - exact
+    scale = max(abs(nlp), abs(exact))
+    fired = not math.isfinite(diff) or abs(diff) > rtol * scale + atol
+    rec = {"nlp": nlp, "exact": exact, "difference": diff, "relative": abs(diff) / scale if scale > 0 else 0.0,
+           "rtol": rtol, "atol": atol, "exact_model": what, "warning": bool(fired)}
+    res.meta.setdefault("smoothing_gap_terms", {})[term] = rec
+    if fired:
+        res.warnings.append(
+            f"smoothing gap in the {term} term: {nlp:.6g} in the NLP, {exact:.6g} re-evaluated ({what}), "
+            f"{100 * rec['relative']:.3g} % apart (tolerance {100 * rtol:.3g} %); the optimiser may exploit its smoothing")
+    return rec
+
+
 def record_smoothing_gap(res: OCPResult, exact: float, what: str, rtol: float = GAP_RTOL,
                          atol: float = 0.0) -> dict[str, Any]:
     """Store the exact re-evaluation ``exact`` of ``res.objective`` (same units) and warn on a gap.
