@@ -5,6 +5,11 @@ compare with a constant current and a constant power delivering the same energy,
 with the same cell model (CVODES): the constant current is found by root finding on
 E(t_f; I_c) = E_req; constant power P = E_req/t_f takes at each instant the physical root of
 P = I (E − R_s I) (PROBLEM.md §7).
+
+OCP-B has no smoothing (the cell model is smooth), so its smoothing-gap check measures the
+transcription alone: the NLP's ∫Q against CVODES along the optimal piecewise-constant current.
+When a demand is infeasible, the message quotes the true bound: the maximum energy the cell can
+deliver within |I| ≤ I_max and S ∈ [0, 1] over t_f, from a max-energy solve (:func:`max_energy_problem`).
 """
 
 from __future__ import annotations
@@ -19,8 +24,9 @@ from ..models import battery
 from ..models.powertrain import current_discriminant
 from ..params import CellParams, ParameterError
 from .cell import cell_problem
+from .checks import GAP_RTOL, record_refinement, record_smoothing_gap, resimulate_cell_current
 from .result import OCPResult
-from .transcription import OCPSolver, TranscriptionOptions
+from .transcription import OCPProblem, OCPSolver, TranscriptionOptions
 
 E_REQ_J = 3000.0  # default demand: 50 W average per cell over 60 s (≈ 15 A, 6.5C); our choice
 T_F_S = 60.0  # same horizon as OCP-A (PROBLEM.md §8)
@@ -120,17 +126,52 @@ def reference_profiles(E_req: float, t_f: float, S0: float = SOC0, cell: CellPar
     return out
 
 
+def max_energy_problem(cell: CellParams) -> OCPProblem:
+    """The cell OCP with objective −∫ I V_T dt [J] (maximise the energy delivered at the terminals)
+    under the same limits as OCP-B (|I| ≤ I_max, S ∈ [0, 1]) and no energy constraint."""
+    pr = cell_problem(cell, False, energy_state=False, name="ocp_b_max_energy")
+    x, I, w, p = ca.SX.sym("x", 3), ca.SX.sym("I"), ca.SX.sym("w", 0), ca.SX.sym("p", 0)
+    VT = battery.terminal_voltage(x[2], x[0], x[1], I, cell)
+    pr.lagrange = ca.Function("ocp_b_minus_energy", [x, I, w, p], [-I * VT], ["x", "u", "w", "p"], ["l"])
+    return pr
+
+
 class CurrentProfileSolver:
     """OCP-B built once for N intervals; solve(E_req, t_f, S0) re-solves (t_f and E_req are NLP
     parameters, so no rebuild)."""
 
     def __init__(self, method: str = "ms", N: int = 200, cell: CellParams | None = None, **opts: Any) -> None:
         self.cell = cell or CellParams()
+        self.method, self.opts = method, dict(opts)
         self.solver = OCPSolver(cell_problem(self.cell, False, energy_state=True, name="ocp_b"),
                                 TranscriptionOptions(method=method, N=N, **opts))
+        self._max_solver: OCPSolver | None = None
 
-    def solve(self, E_req: float = E_REQ_J, t_f: float = T_F_S, S0: float = SOC0, warm: bool = False) -> OCPResult:
-        """Minimise ∫Q delivering E_req [J] in t_f [s] from rest at S0."""
+    def max_energy(self, t_f: float = T_F_S, S0: float = SOC0) -> dict[str, Any]:
+        """The most energy [J per cell] any current profile within |I| ≤ I_max, S ∈ [0, 1] delivers
+        over t_f [s] from rest at S0: the max-energy solve's current re-simulated exactly (CVODES),
+        next to constant I_max (the closed-form candidate). Keys: max_energy_J, status,
+        constant_Imax_energy_J, current_A (the maximising profile)."""
+        if self._max_solver is None:
+            self._max_solver = OCPSolver(max_energy_problem(self.cell), self.solver.options)
+        N = self.solver.options.N
+        Imax = self.cell.max_current_A
+        guess = (np.vstack([np.zeros((2, N + 1)), np.full(N + 1, S0)]), np.full((1, N), Imax))
+        res = self._max_solver.solve([0.0, 0.0, S0], t_f, guess=guess, objective_name="-integral I V_T dt [J]")
+        const = resimulate_cell_current(self.cell, res.t, np.full(N, Imax), [0.0, 0.0, S0])
+        out: dict[str, Any] = {"status": res.status, "constant_Imax_energy_J": const["energy_J"]
+                               if 0 <= const["S_end"] <= 1 else math.nan}
+        if res.success:
+            exact = resimulate_cell_current(self.cell, res.t, res.controls["I"], [0.0, 0.0, S0])
+            out.update({"max_energy_J": exact["energy_J"], "current_A": res.controls["I"]})
+        else:
+            out.update({"max_energy_J": out["constant_Imax_energy_J"], "current_A": np.full(N, Imax)})
+        return out
+
+    def solve(self, E_req: float = E_REQ_J, t_f: float = T_F_S, S0: float = SOC0, warm: bool = False,
+              gap_rtol: float = GAP_RTOL) -> OCPResult:
+        """Minimise ∫Q delivering E_req [J] in t_f [s] from rest at S0. A successful result carries the
+        exact re-simulation (meta 'exact': heat, energy) and the smoothing-gap record."""
         if not (isinstance(E_req, (int, float)) and math.isfinite(E_req)):
             raise ParameterError(f"OCP-B: E_req = {E_req!r} is not allowed: must be a finite number [J]")
         if not 0 <= S0 <= 1:
@@ -146,11 +187,26 @@ class CurrentProfileSolver:
         res = self.solver.solve([0.0, 0.0, S0, 0.0], t_f, p=[E_req], guess=guess, warm=warm,
                                 objective_name="integral of Q dt [J per cell]")
         if not res.success and res.status in ("infeasible", "restoration_failed"):
-            Emax = self.cell.max_current_A * t_f * 3.4
-            res.message += (f"; E_req = {E_req:g} J in {t_f:g} s needs ≈ {E_req / t_f:.4g} W per cell "
-                            f"(rough ceiling I_max·V ≈ {Emax / t_f:.4g} W)")
+            bound = self.max_energy(t_f, S0)
+            res.meta["max_energy"] = {k: v for k, v in bound.items() if k != "current_A"}
+            Em = bound["max_energy_J"]
+            verdict = "exceeds" if E_req > Em else "is within"
+            res.message += (f"; E_req = {E_req:g} J in {t_f:g} s ({E_req / t_f:.4g} W per cell) {verdict} the most "
+                            f"any profile with |I| ≤ {self.cell.max_current_A:g} A delivers: {Em:.6g} J "
+                            f"({Em / t_f:.4g} W; max-energy solve {bound['status']}, constant "
+                            f"{self.cell.max_current_A:g} A: {bound['constant_Imax_energy_J']:.6g} J)")
         res.meta.update({"E_req_J": E_req})
+        if res.success:
+            exact = resimulate_cell_current(self.cell, res.t, res.controls["I"], [0.0, 0.0, S0])
+            res.meta["exact"] = exact
+            record_smoothing_gap(res, exact["heat_J"], "no smoothing; CVODES re-simulation", gap_rtol, atol=1e-9)
         return res
+
+    def refine(self, res: OCPResult, S0: float = SOC0) -> dict[str, Any]:
+        """Solve ``res``'s (E_req, t_f) again with 2N intervals; record the change in res.meta['refinement']."""
+        # a one-off solve: one mapped interval Function (mx_map) keeps its build time independent of 2N
+        fine = CurrentProfileSolver(self.method, 2 * self.solver.options.N, self.cell, **{**self.opts, "mx_map": True})
+        return record_refinement(res, fine.solve(res.meta["E_req_J"], float(res.meta["t_f"]), S0))
 
 
 def compare_profiles(E_req: float = E_REQ_J, t_f: float = T_F_S, S0: float = SOC0,
@@ -164,6 +220,10 @@ def compare_profiles(E_req: float = E_REQ_J, t_f: float = T_F_S, S0: float = SOC
                            "constant_power_heat_J": ref["constant_power"]["heat_J"],
                            "constant_current_A": ref["constant_current"]["current_A"],
                            "constant_power_W": ref["constant_power"]["power_W"]}
+    row["exact_heat_J"] = res.objective_exact
+    row["warnings"] = list(res.warnings)
+    if "max_energy" in res.meta:
+        row["max_energy_J"] = res.meta["max_energy"]["max_energy_J"]
     if not res.success:
         row["optimal_heat_J"] = math.nan  # not a solution: see status
     else:

@@ -27,6 +27,7 @@ import numpy as np
 from ..models import battery
 from ..params import CellParams, ParameterError
 from .cell import cell_problem
+from .checks import record_refinement, record_smoothing_gap, resimulate_cell_current
 from .result import OCPResult, write_json_atomic
 from .transcription import OCPSolver, TranscriptionOptions
 
@@ -137,22 +138,38 @@ def _verdict(case: str, V0: tuple[float, float], q_nonneg: bool, res: OCPResult,
 
 
 def run_prop31(method: str = "ms", out_dir: str | Path | None = None, N: int = 200,
-               cell: CellParams | None = None, t_f: float = T_F_S) -> dict[str, dict[str, Any]]:
+               cell: CellParams | None = None, t_f: float = T_F_S, refine: bool = True) -> dict[str, dict[str, Any]]:
     """Solve OCP-A's four cases and test the uniqueness claim of Proposition 3.1.
 
     method: 'ms' or 'collocation'; N: intervals over t_f [s]. Returns {case: entry} with entry keys
     objective_J, max_abs_current_A, zero_heat_alternative_objective_J, status, iterations, verdict,
     plus details (alternative currents, LQ reference for the cases without Q ≥ 0, stored energy
     W(0) [J], result: the OCPResult). Writes prop31.json and prop31_currents.png into out_dir if given.
+    Each result also carries its exact re-simulation (CVODES along I*: objective_exact_J, smoothing-gap
+    record; OCP-A has no smoothing, so the gap is the transcription's) and, with ``refine``, the
+    objective with 2N intervals (objective_2N_J).
     """
     cell = cell or CellParams()
     if method not in ("ms", "collocation"):
         raise ParameterError(f"run_prop31: method = {method!r} is not allowed: must be 'ms' or 'collocation'")
     opts = TranscriptionOptions(method=method, N=N)
     solvers = {qn: OCPSolver(cell_problem(cell, qn, name=f"ocp_a{'_qnn' if qn else ''}"), opts) for qn in (False, True)}
+    # refined grid: one mapped interval Function (mx_map) keeps the build time independent of 2N
+    fine = {qn: OCPSolver(cell_problem(cell, qn, name=f"ocp_a2{'_qnn' if qn else ''}"),
+                          TranscriptionOptions(method=method, N=2 * N, mx_map=True)) for qn in (False, True)} if refine else {}
     out: dict[str, dict[str, Any]] = {}
     for case, (V0, qn) in CASES.items():
         res = solvers[qn].solve([V0[0], V0[1], SOC0], t_f)
+        if res.success:
+            # |ΔJ| ≤ 1e-6 J: the solver-tolerance level of the Q ≥ 0 cases (see _verdict)
+            ex = resimulate_cell_current(cell, res.t, res.controls["I"], [V0[0], V0[1], SOC0])
+            record_smoothing_gap(res, ex["heat_J"], "no smoothing; CVODES re-simulation", atol=1e-6)
+            if refine:
+                res2 = fine[qn].solve([V0[0], V0[1], SOC0], t_f)
+                if res2.success:
+                    ex2 = resimulate_cell_current(cell, res2.t, res2.controls["I"], [V0[0], V0[1], SOC0])
+                    res2.objective_exact = ex2["heat_J"]
+                record_refinement(res, res2)
         alt = zero_heat_alternatives(cell, V0, t_f)
         W0 = float(battery.stored_energy_J(V0[0], V0[1], cell))
         entry: dict[str, Any] = {
@@ -168,6 +185,10 @@ def run_prop31(method: str = "ms", out_dir: str | Path | None = None, N: int = 2
         if not qn:
             J_lq, _ = lq_discrete_exact(cell, V0, t_f, N)
             entry["lq_exact_discrete_J"] = J_lq
+        entry["objective_exact_J"] = res.objective_exact
+        entry["warnings"] = list(res.warnings)
+        if "refinement" in res.meta:
+            entry["objective_2N_J"] = res.meta["refinement"]["objective_refined"]
         entry["verdict"] = _verdict(case, V0, qn, res, alt, W0)
         entry["result"] = res
         entry["alternatives"] = alt
@@ -179,12 +200,17 @@ def run_prop31(method: str = "ms", out_dir: str | Path | None = None, N: int = 2
 
 def prop31_table(cases: dict[str, dict[str, Any]]) -> str:
     """A short text table of the four cases and their verdicts."""
-    lines = [f"{'case':<20}{'J* [J]':>14}{'max|I*| [A]':>13}{'J(I=-(V1+V2)/Rs)':>19}{'status':>12}{'iter':>6}"]
+    lines = [f"{'case':<20}{'J* [J]':>14}{'exact [J]':>14}{'2N [J]':>14}{'max|I*| [A]':>13}{'J(I=-(V1+V2)/Rs)':>19}"
+             f"{'status':>12}{'iter':>6}"]
+    nan = math.nan
     for case, e in cases.items():
-        lines.append(f"{case:<20}{e['objective_J']:>14.6g}{e['max_abs_current_A']:>13.4g}"
+        lines.append(f"{case:<20}{e['objective_J']:>14.6g}{e.get('objective_exact_J', nan):>14.6g}"
+                     f"{e.get('objective_2N_J', nan):>14.6g}{e['max_abs_current_A']:>13.4g}"
                      f"{e['zero_heat_alternative_objective_J']:>19.3g}{e['status']:>12}{e['iterations']:>6}")
+    lines.append("exact: I* re-simulated by CVODES (no smoothing in OCP-A); 2N: the optimum with twice the intervals")
     lines.append("")
     lines += [f"{case}: {e['verdict']}" for case, e in cases.items()]
+    lines += [f"{case}: WARNING {w}" for case, e in cases.items() for w in e.get("warnings", [])]
     return "\n".join(lines)
 
 
@@ -194,7 +220,7 @@ def write_prop31_outputs(cases: dict[str, dict[str, Any]], out_dir: str | Path) 
     keep = ("objective_J", "max_abs_current_A", "zero_heat_alternative_objective_J",
             "zero_heat_alternative_max_abs_current_A", "switched_alternative_objective_J", "status",
             "iterations", "solve_time_s", "max_violation", "stored_rc_energy_W0_J", "Q_nonneg_constraint",
-            "V0", "lq_exact_discrete_J", "verdict")
+            "V0", "lq_exact_discrete_J", "objective_exact_J", "objective_2N_J", "warnings", "verdict")
     js = {c: {k: e[k] for k in keep if k in e} for c, e in cases.items()}
     paths = {"json": write_json_atomic(out_dir / "prop31.json", js)}
     from ..ocp_plots import plot_prop31  # plotting lives outside the solver package

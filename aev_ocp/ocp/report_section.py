@@ -1,4 +1,6 @@
-"""The Proposition 3.1 section of ``aev-ocp reproduce`` (OCP-A, both transcriptions)."""
+"""The OCP sections of ``aev-ocp reproduce``: Proposition 3.1 (OCP-A, both transcriptions) and the
+checks of issue 13 (OCP-B and OCP-C: NLP objective vs exact re-simulation, N doubled, the
+maximum deliverable energy)."""
 
 from __future__ import annotations
 
@@ -6,7 +8,10 @@ from pathlib import Path
 from typing import Callable
 
 from ..report import markdown_table
+from .current_profile import CurrentProfileSolver
+from .eco_trip import EcoTrip, EcoTripSolver
 from .prop31 import run_prop31, write_prop31_outputs
+from .result import OCPResult, write_json_atomic
 
 
 def prop31_section(out_dir: Path, progress: Callable[[str], None]) -> str:
@@ -20,12 +25,15 @@ def prop31_section(out_dir: Path, progress: Callable[[str], None]) -> str:
     for case, e in ms.items():
         lq = e.get("lq_exact_discrete_J")
         rows.append([case, f"{e['objective_J']:.6g}", f"{col[case]['objective_J']:.6g}",
-                     "—" if lq is None else f"{lq:.6g}", f"{e['max_abs_current_A']:.3g}",
+                     "—" if lq is None else f"{lq:.6g}", f"{e.get('objective_exact_J', float('nan')):.6g}",
+                     f"{e.get('objective_2N_J', float('nan')):.6g}", f"{e['max_abs_current_A']:.3g}",
                      f"{e['zero_heat_alternative_objective_J']:.3g} (max |I| "
                      f"{e['zero_heat_alternative_max_abs_current_A']:.3g} A)", f"{e['status']} / {e['iterations']}"])
     table = markdown_table(["case", "J* [J] (multiple shooting)", "J* [J] (collocation)", "J* exact LQ [J]",
-                            "max |I*| [A]", "∫Q of I = −(V1+V2)/R_s [J]", "status / iterations"], rows)
+                            "∫Q of I* re-simulated [J]", "J* with 2N [J]", "max |I*| [A]", "∫Q of I = −(V1+V2)/R_s [J]", "status / iterations"], rows)
     verdicts = "".join(f"- **{case}**: {e['verdict']}\n" for case, e in ms.items())
+    verdicts += "".join(f"- **{case}** ({m}): WARNING {w}\n" for m, cs in (("ms", ms), ("collocation", col))
+                        for case, e in cs.items() for w in e.get("warnings", []))
     return ("## Proposition 3.1: is I* = 0 the unique minimiser of ∫Q dt?\n\n"
             "OCP-A (PROBLEM.md §8): one A123 cell, t_f = 60 s, S(0) = 0.5, |I| ≤ 46 A, N = 200 intervals, "
             "IPOPT with exact Hessian. Cases: rest (V1 = V2 = 0) and relaxing polarisation (V1 = 0.02 V, "
@@ -41,4 +49,67 @@ def prop31_section(out_dir: Path, progress: Callable[[str], None]) -> str:
             "I = −(V1+V2)/R_s, so it is not unique.\n\n![Proposition 3.1 currents](prop31_currents.png)\n")
 
 
-REPRODUCE_SECTIONS = [("prop31", prop31_section, 2)]
+def _eco_row(label: str, r: OCPResult) -> list[str]:
+    if not r.success:
+        return [label, r.status] + ["—"] * 6
+    gap = r.meta["smoothing_gap"]
+    ref = r.meta.get("refinement", {})
+    return [label, r.status, f"{r.objective:.6g}", f"{r.objective_exact:.6g}", f"{100 * gap['relative']:.2g}",
+            f"{ref['objective_refined']:.6g} ({100 * ref['change_rel']:+.2g} %)" if ref else "—",
+            f"{r.meta['pack_heat_J']:.5g}", f"{r.meta['omega_J_per_kg']:.5g}"]
+
+
+def ocp_checks_section(out_dir: Path, progress: Callable[[str], None]) -> str:
+    """OCP-C (both objectives, and the smoothed-g form the issue found) and OCP-B: NLP objective next to
+    the exact re-simulation, with N doubled; OCP-B's infeasible row with its true bound. Writes
+    ocp_checks.json; returns Markdown."""
+    progress("OCP checks: eco-trip (heat, exact ω, smoothed ω), N = 200 (and 400)")
+    res: dict[str, OCPResult] = {}
+    for label, trip in (("heat [kJ]", EcoTrip()), ("ω [J/kg], exact epigraph form", EcoTrip(objective="energy")),
+                        ("ω [J/kg], smoothed g (earlier form)", EcoTrip(objective="energy", omega_form="smooth"))):
+        solver = EcoTripSolver(trip, "ms", 200, mx_map=True)
+        # the smoothed form reaches the same 24.1378 J/kg from every start (README); from the
+        # bang–cruise–bang guess in 9 IPOPT iterations instead of ~200 from the sine guess
+        r = solver.solve(guess="bang" if trip.omega_form == "smooth" else "sine")
+        if r.success and trip.omega_form != "smooth":  # the smoothed form is shown for its gap only
+            solver.refine(r)
+        res[label] = r
+    progress("OCP checks: current profile (OCP-B) and its maximum deliverable energy")
+    cps = CurrentProfileSolver("ms", 200, mx_map=True)
+    b_ok = cps.solve(3000.0, 60.0)
+    if b_ok.success:
+        cps.refine(b_ok)
+    b_bad = cps.solve(4000.0, 30.0)
+    table = markdown_table(["OCP-C objective", "status", "NLP objective", "exact re-simulation", "gap [%]",
+                            "with 2N (change)", "pack ∫Q [J] (exact)", "ω [J/kg] (exact)"],
+                           [_eco_row(k, r) for k, r in res.items()])
+    warn = "".join(f"- **{k}**: {w}\n" for k, r in res.items() for w in r.warnings)
+    warn += "".join(f"- **OCP-B**: {w}\n" for w in b_ok.warnings)
+    ref = b_ok.meta.get("refinement", {})
+    me = b_bad.meta.get("max_energy", {})
+    write_json_atomic(out_dir / "ocp_checks.json", {
+        "eco_trip": {k: {**r.stats(), **{m: r.meta.get(m) for m in ("smoothing_gap", "refinement", "pack_heat_J",
+                                                                    "omega_J_per_kg")}} for k, r in res.items()},
+        "current_profile": {"3000 J in 60 s": {**b_ok.stats(), "refinement": ref},
+                            "4000 J in 30 s": {**b_bad.stats(), "max_energy": me}}})
+    b_line = (f"OCP-B, 3000 J in 60 s: ∫Q = {b_ok.objective:.6g} J in the NLP, {b_ok.objective_exact:.6g} J "
+              f"re-simulated; with 2N {ref.get('objective_refined', float('nan')):.6g} J. 4000 J in 30 s: "
+              f"{b_bad.status}; the most any current within ±46 A delivers in 30 s is "
+              f"{me.get('max_energy_J', float('nan')):.6g} J (max-energy solve; constant 46 A: "
+              f"{me.get('constant_Imax_energy_J', float('nan')):.6g} J).")
+    return ("## Optimal control: the NLP objective against the exact model\n\n"
+            "Every OCP result reports its objective twice: as the NLP saw it (smoothed η switch, PROBLEM.md §7, "
+            "and the transcription's integrator) and re-evaluated on the exact, unsmoothed model along the "
+            "applied piecewise-constant controls (CVODES interval by interval; OCP-D: replayed through the "
+            "exact plant). A difference above 0.5 % puts a warning on the result. OCP-C, 1 km in 100 s from "
+            "rest to rest, N = 200, multiple shooting; file ocp_checks.json.\n\n" + table + "\n"
+            "The ω objective is exact in its epigraph form (for v ≥ 0, v·g(a) = max(v·a/η, η·v·a); minimise ∫s "
+            "with s above both): its optimum is the bang–cruise–bang trip (accelerate at 2 m/s² to 10.46 m/s, "
+            "cruise, brake at 3 m/s²), 24.596 J/kg in continuous time. The smoothed g of earlier versions lets "
+            "the optimiser creep where g̃ < g: its NLP objective is below what the same trip costs, and the "
+            "check flags it. The heat objective has no exact reformulation (the η switch sits inside the "
+            "nonlinear current map), so it keeps the smoothing and relies on the check.\n\n"
+            + (warn if warn else "No warnings on the shipped problems.\n") + "\n" + b_line + "\n")
+
+
+REPRODUCE_SECTIONS = [("prop31", prop31_section, 2), ("ocp_checks", ocp_checks_section, 2)]

@@ -31,6 +31,10 @@ class OCPResult:
     'constraint_violation', 'solver_error: …'); success: usable solution; message: why;
     max_violation: largest bound/constraint violation of the returned point (NLP scaling);
     wall_time_s: wall time of the solve call [s]; t_colloc: collocation-point times, if any.
+    objective_exact: the same objective re-evaluated on the exact (unsmoothed) model along the
+    applied piecewise-constant controls (NaN until a problem's check fills it, see
+    :mod:`aev_ocp.ocp.checks`); warnings: human-readable warnings (e.g. a smoothing gap with both
+    numbers), shown by the CLI and the report.
     """
 
     problem: str
@@ -53,6 +57,8 @@ class OCPResult:
     max_violation: float
     t_colloc: np.ndarray | None = None
     meta: dict[str, Any] = field(default_factory=dict)
+    objective_exact: float = math.nan
+    warnings: list[str] = field(default_factory=list)
 
     @classmethod
     def failed(cls, problem: str, method: str, N: int, status: str, wall: float, t: np.ndarray,
@@ -79,7 +85,8 @@ class OCPResult:
                 "success": self.success, "message": self.message, "solver_status": self.solver_status,
                 "iterations": self.iterations, "wall_time_s": self.wall_time_s,
                 "solver_time_s": self.solver_time_s, "max_violation": self.max_violation,
-                "objective": self.objective, "objective_name": self.objective_name}
+                "objective": self.objective, "objective_name": self.objective_name,
+                "objective_exact": self.objective_exact, "warnings": list(self.warnings)}
 
     def summary(self) -> dict[str, Any]:
         """Statistics plus the trajectories, JSON-ready."""
@@ -93,16 +100,30 @@ class OCPResult:
         return write_json_atomic(path, self.summary())
 
     def to_csv(self, path: str | os.PathLike[str]) -> Path:
-        """One row per node: t, states, controls (held; last row repeats the last control), outputs."""
+        """One row per node: t, states, controls (held; last row repeats the last control), outputs.
+
+        Column names are unique: an output that repeats a state or control of the same name (OCP-B's
+        current ``I`` is both its control and an output) is left out when its values are the same,
+        and written as ``<name>_out`` otherwise."""
         buf = io.StringIO()
         wr = csv.writer(buf)
-        names_x, names_u, names_o = list(self.states), list(self.controls), list(self.outputs)
-        wr.writerow([f"t_{self.time_unit}"] + names_x + names_u + names_o)
+        names_x, names_u = list(self.states), list(self.controls)
+        held = {nm: np.append(u, u[-1:]) if u.size else u for nm, u in self.controls.items()}
+        cols_o: list[tuple[str, str]] = []  # (column header, output name)
+        for nm, v in self.outputs.items():
+            if nm in self.states or nm in held:
+                ref = self.states.get(nm, held.get(nm))
+                if ref is not None and ref.shape == v.shape and np.allclose(ref, v, rtol=1e-12, atol=0.0):
+                    continue
+                cols_o.append((f"{nm}_out", nm))
+            else:
+                cols_o.append((nm, nm))
+        wr.writerow([f"t_{self.time_unit}"] + names_x + names_u + [c for c, _ in cols_o])
         n = self.t.size
         for k in range(n):
             row = [f"{self.t[k]:.10g}"]
             row += [f"{self.states[nm][k]:.12g}" for nm in names_x]
             row += [f"{self.controls[nm][min(k, self.controls[nm].size - 1)]:.12g}" for nm in names_u]
-            row += [f"{self.outputs[nm][k]:.12g}" for nm in names_o]
+            row += [f"{self.outputs[nm][k]:.12g}" for _, nm in cols_o]
             wr.writerow(row)
         return write_atomic(path, buf.getvalue())
