@@ -14,14 +14,14 @@ from dataclasses import dataclass, fields
 from typing import Any
 
 from ..ocp.following import FollowingBounds, FollowingWeights
-from ..params import ParameterError
+from ..params import Check, ParameterError, PowertrainOptions, field_checks
 from .closed_loop import ClosedLoop, MPCVehicle
-from .settings import PREDICTOR_NAMES, QP_SOLVERS, SOLVER_PATHS, MPCSettings
+from .settings import MPCSettings
 
-_STR = {"objective": ("heat", "energy"), "solver": SOLVER_PATHS, "qp_solver": QP_SOLVERS,
-        "predictor": PREDICTOR_NAMES}
-_INT = ("N", "max_iter", "rti_iterations", "predictor_window", "rk4_substeps")
-_BOOL = ("codegen", "verbose")
+#: Nested dataclasses of MPCSettings whose fields appear flat in the [mpc] table.
+_NESTED = {"weights": FollowingWeights, "bounds": FollowingBounds, "smooth": PowertrainOptions}
+#: The ``follower_predictor`` key: forecasts that make sense behind another vehicle.
+FOLLOWER_PREDICTORS = ("cooperative", "constant-velocity", "constant-acceleration")
 
 
 @dataclass(frozen=True)
@@ -33,34 +33,57 @@ class MPCConfig:
     follower_predictor: str | None = None
 
 
+def mpc_table_keys() -> dict[str, Check | None]:
+    """Keys of the [mpc] table (besides vehicles, follower_predictor) -> their declared Check (None: a
+    number checked by its dataclass). Derived from MPCSettings and its nested dataclasses, never listed by hand."""
+    keys: dict[str, Check | None] = {k: c for k, c in field_checks(MPCSettings).items() if c.kind != "instance"}
+    for cls in _NESTED.values():
+        checks = field_checks(cls)
+        keys.update({f.name: checks.get(f.name) for f in fields(cls)})
+    return keys
+
+
+def _read(r: Any, key: str, check: Check | None) -> Any:
+    """One [mpc] value checked against its declaration (type and range), errors naming file and key."""
+    if check is None:
+        return r.number(key)
+    value = r.table[key]
+    r._get(key, None)  # mark as read
+    if check.kind == "choice" and isinstance(value, str) and value.lower() in (check.choices or ()):
+        value = value.lower()
+    problem = check.problem(value)
+    if problem is not None:
+        raise r.error(key, value, problem)
+    return float(value) if check.kind == "number" else value
+
+
 def validate_mpc_table(r: Any) -> MPCConfig:
     """Validator for ``aev_ocp.scenarios.register_section('mpc', ...)`` (a TableReader)."""
-    d: dict[str, Any] = {}
-    nums = ({f.name for f in fields(MPCSettings)} - set(_STR) - set(_INT) - set(_BOOL)
-            - {"weights", "bounds", "smooth"}) | {f.name for f in fields(FollowingWeights)} \
-        | {f.name for f in fields(FollowingBounds)} | {"smoothing_width_W"}
-    for k in list(r.table):
-        if k in _STR:
-            d[k] = r.string(k, choices=list(_STR[k]))
-        elif k in _INT:
-            d[k] = r.integer(k, ge=1)
-        elif k in _BOOL:
-            d[k] = r.boolean(k)
-        elif k in nums:
-            d[k] = r.number(k)
+    from ..scenarios import ScenarioError
+
+    keys = mpc_table_keys()
+    d = {k: _read(r, k, keys[k]) for k in list(r.table) if k in keys}
     vehicles: tuple[int, ...] | None = None
     if r.has("vehicles"):
         val = r.table["vehicles"]
         if val == "all":
             r._get("vehicles", None)
         else:
+            if not isinstance(val, list):
+                raise r.error("vehicles", val, "must be \"all\" or an array of follower numbers (1, 2, …)")
             nums_v = r.numbers("vehicles", ge=1)
             if any(int(x) != x for x in nums_v):
                 raise r.error("vehicles", val, "must be \"all\" or an array of follower numbers (1, 2, …)")
+            if len(set(nums_v)) != len(nums_v):
+                raise r.error("vehicles", val, "lists a follower twice")
             vehicles = tuple(sorted({int(x) - 1 for x in nums_v}))
-    fp = r.string("follower_predictor", None, choices=["cooperative", "constant-velocity", "constant-acceleration"])
-    r.finish()
-    settings = MPCSettings.from_dict(d)  # ParameterError names the option; the loader adds file and [mpc]
+    fp = r.string("follower_predictor", None, choices=list(FOLLOWER_PREDICTORS))
+    r.finish(allowed_hint=sorted(keys) + ["follower_predictor", "vehicles"])
+    try:
+        settings = MPCSettings.from_dict(d)
+    except ParameterError as exc:  # a cross-field rule of a nested dataclass (e.g. v_min < v_max)
+        key = next((k for k in d if f".{k} " in str(exc)), None)
+        raise ScenarioError(f"{r.file}: {r.key_path(key) if key else r.path}: {exc}") from None
     return MPCConfig(settings, vehicles, fp)
 
 
@@ -79,9 +102,21 @@ def closed_loop_from_scenario(scenario: Any, config: MPCConfig | None = None,
     s = settings or cfg.settings
     n = scenario.n_followers
     on = set(range(n)) if cfg.vehicles is None else set(cfg.vehicles)
-    bad = [i + 1 for i in on if i >= n]
+    file = str(scenario.source) if getattr(scenario, "source", None) is not None else scenario.name
+    bad = sorted(i + 1 for i in on if i >= n)
     if bad:
-        raise ParameterError(f"[mpc].vehicles: followers {bad} do not exist (the platoon has {n})")
+        raise ParameterError(f"{file}: mpc.vehicles = {[i + 1 for i in sorted(on)]} is not allowed: followers {bad} "
+                             f"do not exist (platoon.followers = {n})")
+    b = s.bounds
+    for i in sorted(on):  # an initial state outside the MPC's own bounds makes every NLP infeasible
+        h0, v0 = scenario.gaps0[i], scenario.speeds0[i]
+        if h0 < b.h_min:
+            raise ParameterError(f"{file}: mpc.h_min = {b.h_min:g} is above the initial gap of follower {i + 1} "
+                                 f"({h0:g}): every MPC problem would be infeasible (lower mpc.h_min or raise the gap)")
+        if not b.v_min <= v0 <= b.v_max:
+            raise ParameterError(f"{file}: the initial speed of follower {i + 1} ({v0:g}) is outside "
+                                 f"[mpc.v_min, mpc.v_max] = [{b.v_min:g}, {b.v_max:g}]: every MPC problem would be "
+                                 "infeasible")
     ctrls: list[Any] = []
     for i in range(n):
         if i not in on:
