@@ -8,7 +8,6 @@ unless a label says otherwise.
 from __future__ import annotations
 
 import os
-import tempfile
 from pathlib import Path
 from typing import Any, Mapping, Sequence
 
@@ -21,7 +20,7 @@ import numpy as np  # noqa: E402
 
 from .models.carfollowing import equilibrium_gap  # noqa: E402
 from .models.leader import LeaderProfile  # noqa: E402
-from .results import SimulationResult  # noqa: E402
+from .results import SimulationResult, save_figure_atomic  # noqa: E402
 
 LAW_STYLE = {"proposed": {"color": "tab:blue", "ls": "-"}, "ovfl": {"color": "tab:orange", "ls": "--"},
              "ovm": {"color": "tab:green", "ls": "-."}, "idm": {"color": "tab:purple", "ls": ":"}}
@@ -29,19 +28,11 @@ DPI = 120
 
 
 def save_figure(fig: Any, path: str | os.PathLike[str]) -> Path:
-    """Write ``fig`` as PNG to ``path`` atomically and close it."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=".png", dir=path.parent)
-    os.close(fd)
+    """Write ``fig`` as PNG to ``path`` atomically (unique temp name, mode as open() gives) and close it."""
     try:
-        fig.savefig(tmp, dpi=DPI, format="png")
-        os.replace(tmp, path)
+        return save_figure_atomic(fig, path, dpi=DPI, format="png")
     finally:
         plt.close(fig)
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-    return path
 
 
 def _finish_single(fig: Any, ax: Any, path: str | os.PathLike[str], title: str | None) -> Path:

@@ -8,7 +8,7 @@ from typing import Mapping
 
 import numpy as np
 
-from ..results import SimulationResult
+from ..results import SimulationResult, save_figure_atomic
 
 
 def _plt():  # noqa: ANN202
@@ -21,11 +21,7 @@ def _plt():  # noqa: ANN202
 
 
 def _save(fig, path: Path) -> Path:  # noqa: ANN001
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.stem}.tmp{path.suffix}")
-    fig.savefig(tmp, dpi=110, bbox_inches="tight")
-    tmp.replace(path)
-    return path
+    return save_figure_atomic(fig, path, dpi=110, bbox_inches="tight")
 
 
 def plot_overlay(results: Mapping[str, SimulationResult], path: str | Path, vehicle: int = 0) -> Path:
