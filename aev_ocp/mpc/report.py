@@ -206,7 +206,8 @@ def comparison_table(c: Comparison, vehicle: int = 0, markdown: bool = False) ->
 
 def write_outputs(c: Comparison, out: Path) -> list[Path]:
     """results.json, trajectories CSV and plots of a comparison into ``out``."""
-    from .plots import plot_overlay, plot_solve_times, plot_trajectories
+    from ..plots import plot_trajectories
+    from .plots import plot_overlay, plot_solve_times
 
     out.mkdir(parents=True, exist_ok=True)
     r = c.results["mpc"]
