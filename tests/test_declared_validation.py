@@ -111,12 +111,13 @@ def test_mpc_table_accepts_valid_values_and_upper_case_choices() -> None:
     ({"vehicles": [7]}, ["mpc.vehicles = [7]", "platoon.followers = 1"]),
     ({"h_min": 0.45}, ["mpc.h_min = 0.45", "initial gap", "infeasible"]),
     ({"v_max": 1.5}, ["initial speed of follower 1", "1.87", "infeasible"]),
+    ({"h_min": 0.3}, ["mpc.h_min = 0.3", "at or above the initial gap"]),
 ])
 def test_mpc_setup_errors_name_the_file(mpc, fragments) -> None:
     """Issue 11 minor: [mpc] vehicles = [7] did not name the file; h_min above h(0) ran on the fallback."""
     src = find_scenario("mpc_paper_single")
     sc = parse_scenario(_mpc_doc(**mpc), str(src), source=src)
-    with pytest.raises(ParameterError) as info:
+    with pytest.raises(ScenarioError) as info:
         closed_loop_from_scenario(sc)
     msg = str(info.value)
     assert msg.startswith(str(src)) and "\n" not in msg

@@ -94,6 +94,32 @@ def register() -> None:
     register_section("mpc", validate_mpc_table)
 
 
+def check_mpc_setup(scenario: Any, config: MPCConfig | None = None, settings: MPCSettings | None = None) -> None:
+    """Refuse an MPC setup that cannot run, before anything is built: MPC vehicles that do not exist, or an
+    MPC vehicle whose initial gap is at or below h_min or whose initial speed is outside [v_min, v_max]
+    (every NLP would be infeasible and every step would run on the fallback). ScenarioError naming the file."""
+    from ..scenarios import ScenarioError
+
+    cfg = config or scenario.extra.get("mpc") or MPCConfig(MPCSettings())
+    s = settings or cfg.settings
+    file = str(scenario.source) if getattr(scenario, "source", None) is not None else scenario.name
+    n = scenario.n_followers
+    on = list(range(n)) if cfg.vehicles is None else list(cfg.vehicles)
+    missing = [i + 1 for i in on if i >= n]
+    if missing:
+        raise ScenarioError(f"{file}: mpc.vehicles = {[i + 1 for i in on]} is not allowed: follower(s) {missing} "
+                            f"do not exist (platoon.followers = {n})")
+    b = s.bounds
+    for i in on:
+        h0, v0 = scenario.gaps0[i], scenario.speeds0[i]
+        if b.h_min >= h0:
+            raise ScenarioError(f"{file}: mpc.h_min = {b.h_min:g} is not allowed: it is at or above the initial gap "
+                                f"of follower {i + 1} ({h0:g}), so the MPC problem is infeasible from the first step")
+        if not b.v_min <= v0 <= b.v_max:
+            raise ScenarioError(f"{file}: mpc.v_min/v_max = [{b.v_min:g}, {b.v_max:g}] is not allowed: the initial "
+                                f"speed of follower {i + 1} ({v0:g}) lies outside, so the MPC problem is infeasible")
+
+
 def closed_loop_from_scenario(scenario: Any, config: MPCConfig | None = None,
                               settings: MPCSettings | None = None) -> ClosedLoop:
     """A :class:`ClosedLoop` for a scenario: MPC on the configured followers, the scenario's laws on the
@@ -102,21 +128,7 @@ def closed_loop_from_scenario(scenario: Any, config: MPCConfig | None = None,
     s = settings or cfg.settings
     n = scenario.n_followers
     on = set(range(n)) if cfg.vehicles is None else set(cfg.vehicles)
-    file = str(scenario.source) if getattr(scenario, "source", None) is not None else scenario.name
-    bad = sorted(i + 1 for i in on if i >= n)
-    if bad:
-        raise ParameterError(f"{file}: mpc.vehicles = {[i + 1 for i in sorted(on)]} is not allowed: followers {bad} "
-                             f"do not exist (platoon.followers = {n})")
-    b = s.bounds
-    for i in sorted(on):  # an initial state outside the MPC's own bounds makes every NLP infeasible
-        h0, v0 = scenario.gaps0[i], scenario.speeds0[i]
-        if h0 < b.h_min:
-            raise ParameterError(f"{file}: mpc.h_min = {b.h_min:g} is above the initial gap of follower {i + 1} "
-                                 f"({h0:g}): every MPC problem would be infeasible (lower mpc.h_min or raise the gap)")
-        if not b.v_min <= v0 <= b.v_max:
-            raise ParameterError(f"{file}: the initial speed of follower {i + 1} ({v0:g}) is outside "
-                                 f"[mpc.v_min, mpc.v_max] = [{b.v_min:g}, {b.v_max:g}]: every MPC problem would be "
-                                 "infeasible")
+    check_mpc_setup(scenario, cfg, s)
     ctrls: list[Any] = []
     for i in range(n):
         if i not in on:
