@@ -458,6 +458,8 @@ def _platoon(r: TableReader, leader: LeaderProfile, cf: CarFollowingParams,
         n = r.integer("followers", len(names), ge=1)
         if len(names) != n:
             raise r.error("laws", names, f"needs exactly {n} names, one per follower")
+        if size is not None:
+            size(n)
         if compare:  # a mixed platoon never runs when compare is set: say so instead of ignoring it
             raise r.error("laws", r.table["laws"], f"cannot be combined with compare = {list(compare)}, which runs "
                                                    "the whole platoon once per compared law; remove one of them")
@@ -470,8 +472,6 @@ def _platoon(r: TableReader, leader: LeaderProfile, cf: CarFollowingParams,
         if size is not None:
             size(n)  # refuse an oversized platoon before building anything of its size
         names = [law_name] * n
-    if size is not None:
-        size(n)
     laws = tuple(make_law(nm, cf, **overrides.get(nm, {})) for nm in names)
 
     # initial gaps
