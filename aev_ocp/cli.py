@@ -188,7 +188,9 @@ def cmd_simulate(args: argparse.Namespace) -> int:
 def cmd_reproduce(args: argparse.Namespace) -> int:
     """Reproduce the paper into ``--out``."""
     from .reproduce import ReproduceConfig, reproduce
+    from .results import claim_output_dir
 
+    claim_output_dir(args.out, "reproduce", "paper", None, ["report.md"])
     report = reproduce(args.out, ReproduceConfig.quick() if args.quick else ReproduceConfig())
     print(f"wrote {report}")
     return EXIT_OK

@@ -58,6 +58,7 @@ MAX_FILE_BYTES = 16 * 2**20  # a scenario file is a hand-edited TOML file; a big
 BYTES_PER_SAMPLE = 300
 DEFAULT_MEMORY_LIMIT_GB = 3.0  # default budget of one run's arrays; $AEV_OCP_MAX_MEMORY_GB overrides
 MIN_SAMPLES = 100  # thinning never leaves fewer output intervals than this
+MAX_SAMPLES = 1_000_000  # samples per follower (t_end/dt_out); shipped scenarios need 7 001 ... 70 001
 
 
 class ScenarioError(ValueError):
@@ -325,6 +326,13 @@ def estimate_run_bytes(n_followers: int, t_end: float, dt_out: float) -> float:
     return BYTES_PER_SAMPLE * float(n_followers) * n_samples(t_end, dt_out)
 
 
+def _round_up(x: float) -> float:
+    """The smallest number of 3 significant digits >= x (x > 0)."""
+    step = 10.0 ** (math.floor(math.log10(x)) - 2)
+    y = math.ceil(x / step - 1e-9) * step
+    return float(f"{y:.3g}") if float(f"{y:.3g}") >= x else y
+
+
 def _gb(x: float) -> str:
     return f"{x / 1e9:.3g} GB"
 
@@ -342,7 +350,8 @@ def check_run_size(n_followers: int, t_end: float, dt_out: float, file: str = "<
         fix = (f"lower platoon.followers to at most {max_followers}" if max_followers >= 1
                else "lower simulation.t_end")
     else:
-        fix = f"raise simulation.dt_out to at least {t_end / (k_max - 1):.3g} or lower platoon.followers"
+        fix = (f"raise simulation.dt_out to at least {_round_up(t_end / (k_max - 1)):.3g}"
+               + (" or lower platoon.followers" if n_followers > 1 else " or lower simulation.t_end"))
     raise ScenarioError(f"{file}: the run needs about {_gb(need)} ({n_followers} followers x "
                         f"{n_samples(t_end, dt_out):.3g} samples, simulation.t_end = {t_end:g}, simulation.dt_out = "
                         f"{dt_out:g}), more than the limit of {_gb(limit)} ($AEV_OCP_MAX_MEMORY_GB): {fix}")
@@ -351,12 +360,20 @@ def check_run_size(n_followers: int, t_end: float, dt_out: float, file: str = "<
 def thinned_dt_out(n_followers: int, t_end: float, dt_out: float, file: str = "<scenario>") -> float:
     """dt_out, raised (with a ScenarioWarning) just enough that the run fits the memory budget when at
     least MIN_SAMPLES output intervals remain; otherwise :func:`check_run_size` refuses the run."""
+    chunk = SimOptions().chunk
+    if n_samples(t_end, dt_out) > MAX_SAMPLES:  # not a large platoon but an absurd grid: refuse, never thin
+        if t_end / chunk + 1 > MAX_SAMPLES:
+            raise ScenarioError(f"{file}: simulation.t_end = {t_end:g} is not allowed: the integrator samples "
+                                f"at least every {chunk:g} time units, {t_end / chunk:.3g} samples per follower, "
+                                f"more than {MAX_SAMPLES}; lower simulation.t_end to at most {MAX_SAMPLES * chunk:g}")
+        raise ScenarioError(f"{file}: simulation.dt_out = {dt_out:g} is not allowed: {n_samples(t_end, dt_out):.3g} "
+                            f"samples per follower over simulation.t_end = {t_end:g}, more than {MAX_SAMPLES}; raise "
+                            f"simulation.dt_out to at least {_round_up(t_end / (MAX_SAMPLES - 2)):.3g}")
     limit = memory_limit_bytes()
     if estimate_run_bytes(n_followers, t_end, dt_out) <= limit:
         return dt_out
     k_max = limit / (BYTES_PER_SAMPLE * n_followers) - 2
-    new = t_end / math.floor(k_max) if k_max >= MIN_SAMPLES else dt_out
-    new = float(f"{new * 1.0001:.3g}")  # a round number just above the bound
+    new = _round_up(t_end / math.floor(k_max)) if k_max >= MIN_SAMPLES else dt_out
     if k_max >= MIN_SAMPLES and new < SimOptions().chunk and estimate_run_bytes(n_followers, t_end, new) <= limit:
         warnings.warn(ScenarioWarning(
             f"{file}: simulation.dt_out raised from {dt_out:g} to {new:g} so that {n_followers} followers over "

@@ -40,24 +40,11 @@ def check_mpc_scenario(scenario: Any, settings: MPCSettings, laws: tuple[str, ..
     """
     from ..models.carfollowing import LAW_REGISTRY
     from ..scenarios import ScenarioError, check_run_size, memory_limit_bytes
+    from .scenario import check_mpc_setup
 
     file = str(scenario.source or scenario.name)
-    cfg: MPCConfig = scenario.extra.get("mpc") or MPCConfig(MPCSettings())
+    check_mpc_setup(scenario, None, settings)  # vehicles exist; h_min and v bounds vs the initial state
     n = scenario.n_followers
-    on = list(range(n)) if cfg.vehicles is None else list(cfg.vehicles)
-    missing = [i + 1 for i in on if i >= n]
-    if missing:
-        raise ScenarioError(f"{file}: mpc.vehicles = {[i + 1 for i in on]} is not allowed: follower(s) {missing} "
-                            f"do not exist (platoon.followers = {n})")
-    b = settings.bounds
-    for i in on:
-        h0, v0 = scenario.gaps0[i], scenario.speeds0[i]
-        if b.h_min >= h0:
-            raise ScenarioError(f"{file}: mpc.h_min = {b.h_min:g} is not allowed: it is at or above the initial gap "
-                                f"of follower {i + 1} ({h0:g}), so the MPC problem is infeasible from the first step")
-        if not b.v_min <= v0 <= b.v_max:
-            raise ScenarioError(f"{file}: mpc.v_min/v_max = [{b.v_min:g}, {b.v_max:g}] is not allowed: the initial "
-                                f"speed of follower {i + 1} ({v0:g}) lies outside, so the MPC problem is infeasible")
     for k, name in enumerate(laws):
         if not isinstance(name, str) or name.lower() not in LAW_REGISTRY:
             raise ScenarioError(f"--laws: {name!r} is not a car-following law; known: {sorted(LAW_REGISTRY)}")

@@ -23,6 +23,22 @@ def _parser() -> argparse.ArgumentParser:
     return ap
 
 
+def _check_size(args: argparse.Namespace) -> None:
+    """Refuse, before building it, an NLP too large for the memory budget (:mod:`aev_ocp.limits`:
+    measured bytes per interval per problem and transcription)."""
+    from ..limits import check_ocp_size
+
+    if args.problem == "oracle":
+        if args.scenario is not None:  # the canonical scenario has N = 700
+            from ..scenarios import find_scenario
+            from .api import oracle_scenario_from_file
+
+            scn = oracle_scenario_from_file(find_scenario(args.scenario))
+            check_ocp_size("oracle", scn.N, args.method, f"{args.scenario}: simulation.t_end (N = t_end/dt)")
+    else:
+        check_ocp_size(args.problem, args.N or 200, args.method)
+
+
 def cli_ocp(argv: list[str]) -> int:
     """Run one OCP from the command line; returns the exit code (0 ok, 1 solver failure, 2 bad input,
     130 interrupted). Errors are one line ``aev-ocp: error: ...`` as for every subcommand."""
@@ -44,6 +60,7 @@ def _cli_ocp(argv: list[str]) -> int:
         raise ParameterError("ocp prop31: prop31 takes no scenario (OCP-A is the single cell of PROBLEM.md §8)")
     if args.problem == "oracle" and args.N is not None:
         raise ParameterError("ocp oracle: --N does not apply (N = t_end/dt of the scenario, dt = 0.1)")
+    _check_size(args)
     out = Path(args.out) if args.out else None
     if out is not None:
         claim_output_dir(out, f"ocp {args.problem}", str(args.scenario or args.problem), args.scenario)
