@@ -45,8 +45,8 @@ from typing import Any, Callable, Iterator, Sequence
 
 from .models.carfollowing import LAW_REGISTRY, V_INF, CarFollowingLaw, make_law
 from .models.leader import CYCLES, ConstantSpeed, LeaderProfile, PaperLeader, SpeedTrace, drive_cycle
-from .params import (ATOL_RANGE, RTOL_RANGE, CarFollowingParams, CellParams, EVParams, PackParams, ParameterError,
-                     SimOptions, Units, VehicleParams)
+from .params import (CarFollowingParams, CellParams, Check, EVParams, PackParams, ParameterError, SimOptions,
+                     Units, VehicleParams, field_checks)
 from .results import check_safe_name
 
 LEADER_KINDS = ("constant", "paper", "cycle", "array")
@@ -153,6 +153,19 @@ class TableReader:
         if choices is not None and value.lower() not in choices:
             raise self.error(key, value, f"must be one of {list(choices)}")
         return value.lower() if choices is not None else value
+
+    def declared(self, key: str, check: Check, default: Any = _MISSING) -> Any:
+        """A value checked against a dataclass field's declared :class:`~aev_ocp.params.Check` (type and
+        range declared once, beside the field); errors name the file, key path, value and range."""
+        value = self._get(key, default)
+        if value is default and key not in self.table:
+            return value
+        if check.kind == "choice" and isinstance(value, str) and value.lower() in (check.choices or ()):
+            value = value.lower()
+        problem = check.problem(value)
+        if problem is not None:
+            raise self.error(key, value, problem)
+        return float(value) if check.kind == "number" else value
 
     def boolean(self, key: str, default: Any = _MISSING) -> bool:
         """true or false."""
@@ -386,26 +399,37 @@ def thinned_dt_out(n_followers: int, t_end: float, dt_out: float, file: str = "<
 
 
 # ----------------------------------------------------------------------------- sections
+def read_declared(cls: type, reader: TableReader, keys: Sequence[str] | None = None) -> dict[str, Any]:
+    """The keys of ``reader``'s table that are fields of dataclass ``cls`` (or ``keys``), each checked against
+    the type and range the dataclass declares (:func:`aev_ocp.params.field_checks`): a range is written
+    once, beside the field, and the TOML table derives from it. Undeclared fields are read as numbers."""
+    checks = field_checks(cls)
+    names = list(keys) if keys is not None else [f.name for f in dataclasses.fields(cls)]
+    out: dict[str, Any] = {}
+    for key in names:
+        if reader.has(key):
+            check = checks.get(key)
+            out[key] = reader.declared(key, check) if check is not None else reader.number(key)
+    return out
+
+
+def _rewrap(reader: TableReader, exc: ParameterError, keys: Sequence[str]) -> ScenarioError:
+    """A ParameterError of a dataclass's cross-field rule, with the file and the key path."""
+    field_name = next((k for k in keys if f".{k} " in str(exc)), None)
+    where = reader.key_path(field_name) if field_name else reader.path
+    return ScenarioError(f"{reader.file}: {where}: {exc}")
+
+
 def _params(cls: type, reader: TableReader, base: Any = None) -> Any:
-    """Build a parameter dataclass from a table, re-wrapping ParameterError with the key path."""
+    """Build a parameter dataclass from a table: types and ranges come from the dataclass's declarations."""
     names = [f.name for f in dataclasses.fields(cls)]
     defaults = base if base is not None else cls()
-    kwargs: dict[str, Any] = {}
-    for key in names:
-        if not reader.has(key):
-            continue
-        default = getattr(defaults, key)
-        if isinstance(default, int) and not isinstance(default, bool):
-            kwargs[key] = reader.integer(key)
-        else:
-            kwargs[key] = reader.number(key)  # range checks are the dataclass's own
+    kwargs = read_declared(cls, reader)
     reader.finish(allowed_hint=names)
     try:
         return dataclasses.replace(defaults, **kwargs)
     except ParameterError as exc:
-        field_name = next((k for k in kwargs if f".{k} " in str(exc)), None)
-        where = reader.key_path(field_name) if field_name else reader.path
-        raise ScenarioError(f"{reader.file}: {where}: {exc}") from None
+        raise _rewrap(reader, exc, list(kwargs)) from None
 
 
 def _leader(r: TableReader, units: Units) -> LeaderProfile:
@@ -570,9 +594,9 @@ def parse_scenario(doc: dict[str, Any], file: str = "<scenario>", *, source: Pat
 
     sim = top.sub("simulation", required=True)
     t_end = sim.number("t_end", gt=0)
-    dt_out = sim.number("dt_out", 0.01, gt=0)
-    rtol = sim.number("rtol", 1e-10, ge=RTOL_RANGE[0], le=RTOL_RANGE[1])  # what the integrators can honour
-    atol = sim.number("atol", 1e-10, ge=ATOL_RANGE[0], le=ATOL_RANGE[1])  # (params.SimOptions)
+    # dt_out, rtol, atol: types, ranges and defaults are SimOptions's (rtol/atol: what the integrators honour)
+    opts = dataclasses.replace(SimOptions(), **read_declared(SimOptions, sim, ("dt_out", "rtol", "atol")))
+    dt_out, rtol, atol = opts.dt_out, opts.rtol, opts.atol
     if dt_out > t_end:
         raise sim.error("dt_out", dt_out, f"must be <= simulation.t_end ({t_end:g})")
     sim.finish()

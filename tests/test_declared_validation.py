@@ -123,3 +123,29 @@ def test_mpc_setup_errors_name_the_file(mpc, fragments) -> None:
     assert msg.startswith(str(src)) and "\n" not in msg
     for f in fragments:
         assert f in msg, msg
+
+
+SMALL_DOC = {"leader": {"kind": "constant", "v": 1.0}, "platoon": {"followers": 1, "gap0_first": 1.0, "speed0": 1.0},
+             "simulation": {"t_end": 1.0}}
+
+
+@pytest.mark.parametrize("table, cls", [("simulation", SimOptions), ("vehicle", VehicleParams), ("cell", CellParams),
+                                        ("units", Units), ("pack", PackParams), ("carfollowing", CarFollowingParams)])
+def test_toml_tables_derive_their_ranges_from_the_dataclass(table, cls) -> None:
+    """Every declared bound of the dataclass is the TOML table's bound, with the same words in the message."""
+    checked = 0
+    for name, c in field_checks(cls).items():
+        if table == "simulation" and name not in ("dt_out", "rtol", "atol"):
+            continue
+        for bound, sign, strict in ((c.gt, -1, True), (c.ge, -1, False), (c.lt, +1, True), (c.le, +1, False)):
+            if bound is None:
+                continue
+            outside = bound if strict else (bound + sign if c.kind == "integer" else bound + sign * max(abs(bound), 1) * 1e-3)
+            doc = {k: dict(v) for k, v in SMALL_DOC.items()}
+            doc.setdefault(table, {})[name] = outside
+            with pytest.raises(ScenarioError) as info:
+                parse_scenario(doc, "d.toml")
+            msg = str(info.value)
+            assert msg.startswith(f"d.toml: {table}.{name} = ") and c.allowed() in msg, msg
+            checked += 1
+    assert checked >= 2
