@@ -112,3 +112,19 @@ def test_unusable_cache_folder_uses_one_temp_folder_removed_at_exit(tmp_path) ->
     assert out.returncode == 0, out.stderr
     assert out.stdout.strip().startswith(str(tmpdir))
     assert list(tmpdir.iterdir()) == []  # no aev_ocp_build_* folder left behind
+
+
+def test_concurrent_builds_of_one_library_all_succeed_without_warnings(tmp_path) -> None:
+    """Four processes build the same (new) library into one empty cache at once: each gets a verified
+    library, none warns, and no temporary file is left."""
+    env = {**os.environ, "AEV_OCP_CACHE": str(tmp_path / "cache"), "PYTHONPATH": str(Path(__file__).parents[1])}
+    code = ("import warnings, aev_ocp.compiled as B; warnings.simplefilter('error', B.CompileWarning);"
+            "r = B.compile_shared('double aev_conc(double x){return 3.0*x - 0.125;}', 'aevconc', 'c');"
+            "assert r.path is not None and not r.rebuilt, r; print(B.verify_library(r.path) or 'verified')")
+    procs = [subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                              text=True, env=env) for _ in range(4)]
+    outs = [p.communicate(timeout=300) for p in procs]
+    assert all(p.returncode == 0 for p in procs), outs
+    assert [o.strip() for o, _ in outs] == ["verified"] * 4
+    files = sorted(p.name for p in (tmp_path / "cache" / "c").iterdir())
+    assert len(files) == 2 and files[0].endswith(".so") and files[1].endswith(".so.sha256"), files
