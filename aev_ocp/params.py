@@ -96,6 +96,25 @@ def field_checks(cls: Any) -> dict[str, Check]:
     return {f.name: f.metadata["check"] for f in fields(cls) if "check" in f.metadata}
 
 
+def check_declared(cls: Any, name: str, value: Any, where: str) -> Any:
+    """``value`` checked against field ``name``'s declaration in dataclass ``cls`` (e.g. a ``soc0`` argument
+    against CellParams.soc0); ParameterError '<where>: <name> = <value> is not allowed: ...' otherwise."""
+    problem = field_checks(cls)[name].problem(value)
+    if problem is not None:
+        raise ParameterError(f"{where}: {name} = {value!r} is not allowed: {problem}")
+    return value
+
+
+def check_argument(where: str, name: str, value: Any, expected: type | tuple[type, ...]) -> Any:
+    """``value`` if it is an instance of ``expected``, else a one-line TypeError naming the argument, what
+    was expected and what was given (instead of an AttributeError deep inside)."""
+    if not isinstance(value, expected):
+        kinds = expected if isinstance(expected, tuple) else (expected,)
+        names = " or ".join("None" if k is type(None) else k.__name__ for k in kinds)
+        raise TypeError(f"{where}: {name} must be {names}, got {type(value).__name__} {value!r:.60}")
+    return value
+
+
 def validate_fields(obj: Any) -> None:
     """Check every declared field of a dataclass instance; ParameterError names class, field, value, range."""
     for name, check in field_checks(obj).items():

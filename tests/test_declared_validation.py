@@ -149,3 +149,21 @@ def test_toml_tables_derive_their_ranges_from_the_dataclass(table, cls) -> None:
             assert msg.startswith(f"d.toml: {table}.{name} = ") and c.allowed() in msg, msg
             checked += 1
     assert checked >= 2
+
+
+def test_argument_helpers_for_the_python_api() -> None:
+    """Helpers the simulator and closed loop use for their arguments (issue 11 minor: AttributeError for a
+    wrong type, 'integration failed' for soc0 = nan)."""
+    from aev_ocp.models.leader import LeaderProfile, PaperLeader
+    from aev_ocp.params import EVParams, check_argument, check_declared
+
+    assert check_declared(CellParams, "soc0", 0.35, "simulate") == 0.35
+    for bad in (float("nan"), 1.5, -0.1, "0.5"):
+        with pytest.raises(ParameterError, match=r"^simulate: soc0 = .* is not allowed: .*\[0, 1\]"):
+            check_declared(CellParams, "soc0", bad, "simulate")
+    leader = PaperLeader()
+    assert check_argument("simulate_platoon", "leader", leader, LeaderProfile) is leader
+    with pytest.raises(TypeError, match=r"^simulate_platoon: leader must be LeaderProfile, got str 'paper'$"):
+        check_argument("simulate_platoon", "leader", "paper", LeaderProfile)
+    with pytest.raises(TypeError, match=r"ev must be EVParams or None, got dict"):
+        check_argument("simulate_platoon", "ev", {}, (EVParams, type(None)))
