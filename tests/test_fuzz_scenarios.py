@@ -184,7 +184,7 @@ def test_loader_returns_a_scenario_or_a_scenario_error(tmp_path: Path, data: byt
     assert isinstance(s, Scenario) and s.n_followers >= 1 and s.t_end > 0 and s.dt_out > 0
 
 
-@settings(max_examples=int(os.environ.get("AEV_OCP_FUZZ_CLI", 20)), deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture,
+@settings(max_examples=int(os.environ.get("AEV_OCP_FUZZ_CLI", 15)), deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture,
                                                                   HealthCheck.too_slow])
 @given(doc=st.one_of(mutated_docs(), plausible_docs()))
 def test_simulate_exits_cleanly_on_any_mutated_scenario(tmp_path_factory: pytest.TempPathFactory,

@@ -70,16 +70,20 @@ def one_error(err: str) -> str:
 
 
 # ----------------------------------------------------------------------------- 1. where files land
-@pytest.mark.parametrize("bad", ["/tmp/aev_ocp_abs_target", "../../../escape", "", "a/b", "..", ".hidden"])
+@pytest.mark.parametrize("bad", ["ABSOLUTE", "../../../escape", "", "a/b", "..", ".hidden"])
 def test_scenario_name_cannot_choose_a_folder_outside_results(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
                                                                capsys: pytest.CaptureFixture[str], bad: str) -> None:
-    monkeypatch.chdir(tmp_path)
-    scen = small(tmp_path, name=bad)
-    before = set(Path("/tmp").iterdir())
+    work = tmp_path / "a" / "b" / "c"
+    work.mkdir(parents=True)
+    monkeypatch.chdir(work)
+    bad = str(tmp_path / "abs_target") if bad == "ABSOLUTE" else bad
+    scen = small(work, name=bad)
+    targets = [tmp_path / "abs_target", tmp_path / "escape", work / "results" / "a" / "b", work / "results"]
+    assert not any(t.exists() for t in targets)
     rc, _, err = run_cli(["simulate", str(scen), "--no-plots"], capsys)
     assert rc == EXIT_BAD_INPUT
     assert "name" in one_error(err)
-    assert not (tmp_path / "results").exists() and set(Path("/tmp").iterdir()) <= before
+    assert not any(t.exists() for t in targets)
 
 
 def test_output_folder_of_another_run_is_never_clobbered(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
