@@ -1,23 +1,28 @@
 """Command line: ``aev-ocp reproduce | simulate | scenarios | ocp | mpc``.
 
 A thin layer over the Python API (:mod:`aev_ocp.reproduce`, :mod:`aev_ocp.scenarios`,
-:mod:`aev_ocp.report`). Errors print one line ``aev-ocp: error: ...`` on stderr. Exit codes:
-0 success, 1 a run failed (a simulation event such as a collision; its results are still written),
-2 bad input (invalid scenario or parameters, unreadable file, bad arguments).
+:mod:`aev_ocp.report`). Every subcommand reports errors the same way (:func:`guarded`): one line
+``aev-ocp: error: ...`` on stderr, never a traceback. Exit codes: 0 success, 1 a run failed (a
+simulation event such as a collision, a solver failure; its results are still written), 2 bad input
+(invalid scenario or parameters, unreadable file, bad arguments, an output folder holding another
+run's files, a run too large for memory), 130 interrupted (Ctrl-C or SIGTERM; partial files are
+never left behind). Set ``AEV_OCP_DEBUG=1`` to get the traceback of an unexpected error.
 """
 
 from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import sys
 import warnings
 from pathlib import Path
-from typing import Sequence
+from typing import Callable, Sequence
 
+from . import interrupts
 from .params import ParameterError
 
-EXIT_OK, EXIT_FAILED_RUN, EXIT_BAD_INPUT = 0, 1, 2
+EXIT_OK, EXIT_FAILED_RUN, EXIT_BAD_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 130
 
 
 def _err(message: str) -> None:
@@ -25,8 +30,16 @@ def _err(message: str) -> None:
     print(f"aev-ocp: error: {first}", file=sys.stderr, flush=True)
 
 
+error_line = _err  # public name, used by the ocp and mpc subcommands
+
+
 def _warn(message: str) -> None:
     print(f"aev-ocp: warning: {' '.join(str(message).split())}", file=sys.stderr, flush=True)
+
+
+def _show_warning(message: Warning | str, category: type[Warning], filename: str, lineno: int,
+                  file: object = None, line: str | None = None) -> None:
+    _warn(str(message))
 
 
 class _Parser(argparse.ArgumentParser):
@@ -35,6 +48,79 @@ class _Parser(argparse.ArgumentParser):
     def error(self, message: str) -> None:  # type: ignore[override]
         _err(f"{message} (try '{self.prog} --help')")
         raise SystemExit(EXIT_BAD_INPUT)
+
+
+OneLineParser = _Parser  # public name, used by the ocp and mpc subcommands
+
+
+def guarded(run: Callable[[], int]) -> int:
+    """Run one command with the one error behaviour of every subcommand; returns the exit code.
+
+    Bad input (ScenarioError, ParameterError, OutputError, TypeError/ValueError from argument checks,
+    unreadable files) -> one line, exit 2; a failed run (RuntimeError, MemoryError) -> one line,
+    exit 1; Ctrl-C or SIGTERM -> 'interrupted', exit 130, also when a solver swallowed the signal.
+    """
+    from .results import OutputError
+    from .scenarios import ScenarioError
+
+    # Already inside a guarded command (main -> cli_mpc): the outer one reports. The depth lives in
+    # aev_ocp.interrupts, imported once even when this file also runs as __main__ (python -m).
+    if interrupts._state.get("depth", 0):
+        return int(run() or 0)
+    debug = os.environ.get("AEV_OCP_DEBUG", "") not in ("", "0")
+    interrupts._state["depth"] = 1
+    try:
+        return _guarded(run, debug)
+    finally:
+        interrupts._state["depth"] = 0
+
+
+def _guarded(run: Callable[[], int], debug: bool) -> int:
+    from .results import OutputError
+    from .scenarios import ScenarioError
+
+    with interrupts.handle_signals(), warnings.catch_warnings():
+        warnings.showwarning = _show_warning  # every warning is one line 'aev-ocp: warning: ...'
+        try:
+            rc = int(run() or 0)
+            interrupts.check()  # a signal that a solver turned into a failed solve
+            return rc
+        except SystemExit as exc:
+            interrupts.check()
+            return int(exc.code) if isinstance(exc.code, int) else (EXIT_BAD_INPUT if exc.code else EXIT_OK)
+        except KeyboardInterrupt:
+            _err("interrupted")
+            return EXIT_INTERRUPTED
+        except (ScenarioError, ParameterError, OutputError) as exc:
+            _err(str(exc))
+            return EXIT_BAD_INPUT
+        except BrokenPipeError:  # output piped into e.g. `head`: stop quietly, as Unix tools do
+            try:
+                sys.stdout = open(os.devnull, "w")  # noqa: SIM115 - nothing more may reach the closed pipe
+            except OSError:
+                pass
+            return EXIT_OK
+        except OSError as exc:
+            _err(f"{exc.strerror or exc}: {exc.filename}" if exc.filename else str(exc))
+            return EXIT_BAD_INPUT
+        except MemoryError:
+            _err("run failed: out of memory (lower platoon.followers or simulation.t_end, or raise simulation.dt_out)")
+            return EXIT_FAILED_RUN
+        except RuntimeError as exc:  # a solver failure that the simulator could not turn into an event
+            if debug:
+                raise
+            _err(f"run failed: {exc}")
+            return EXIT_FAILED_RUN
+        except (TypeError, ValueError, RecursionError) as exc:
+            if debug:
+                raise
+            _err(f"{type(exc).__name__}: {exc}")
+            return EXIT_BAD_INPUT
+        except Exception as exc:  # noqa: BLE001 - never a traceback on the command line
+            if debug:
+                raise
+            _err(f"internal error ({type(exc).__name__}: {exc}); please report it, AEV_OCP_DEBUG=1 shows the traceback")
+            return EXIT_FAILED_RUN
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -70,11 +156,17 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     """Run every law of a scenario and write its files; exit 1 if any run stopped on an event."""
     from .report import scenario_metrics_rows, write_scenario_outputs
 
+    from .results import claim_output_dir, default_output_dir
+
     scenario = _load_scenario_with_warnings(args.scenario)
-    out = Path(args.out) if args.out else Path("results") / scenario.name
+    out = Path(args.out) if args.out else default_output_dir(scenario.name)
+    labels = [label for label, _ in scenario.runs()]
+    claim_output_dir(out, "simulate", scenario.name, str(scenario.source) if scenario.source else None,
+                     [f"{lab}.{ext}" for lab in labels for ext in ("csv", "png")] + ["metrics.json", "metrics.md"])
     last: dict[str, int] = {}
 
     def progress(label: str, t: float, t_end: float) -> None:
+        interrupts.check()
         pct = int(100 * t / t_end)
         if pct // 25 != last.get(label, -1):
             last[label] = pct // 25
@@ -97,7 +189,9 @@ def cmd_simulate(args: argparse.Namespace) -> int:
 def cmd_reproduce(args: argparse.Namespace) -> int:
     """Reproduce the paper into ``--out``."""
     from .reproduce import ReproduceConfig, reproduce
+    from .results import claim_output_dir
 
+    claim_output_dir(args.out, "reproduce", "paper", None, ["report.md"])
     report = reproduce(args.out, ReproduceConfig.quick() if args.quick else ReproduceConfig())
     print(f"wrote {report}")
     return EXIT_OK
@@ -107,8 +201,14 @@ def cmd_scenarios(args: argparse.Namespace) -> int:
     """List shipped scenarios with their descriptions."""
     from .scenarios import shipped_scenarios
 
+    from .scenarios import ScenarioError
+
     for name, path in shipped_scenarios().items():
-        scenario = _load_scenario_with_warnings(str(path))
+        try:
+            scenario = _load_scenario_with_warnings(str(path))
+        except ScenarioError as exc:  # one broken local file must not hide the others
+            _warn(f"skipping {path}: {exc}")
+            continue
         print(f"{name:16s} {scenario.description}  [{path}]")
     return EXIT_OK
 
@@ -126,38 +226,16 @@ def _dispatch(module: str, func: str, argv: list[str]) -> int:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``aev-ocp``; returns the exit code (also raised as SystemExit by the script)."""
-    from .scenarios import ScenarioError
-
     args_list = list(sys.argv[1:] if argv is None else argv)
     if args_list and args_list[0] in ("ocp", "mpc", "stability"):
         name = args_list[0]
-        try:
-            return _dispatch(f"aev_ocp.{name}", f"cli_{name}", args_list[1:])
-        except (ScenarioError, ParameterError, OSError) as exc:
-            _err(str(exc))
-            return EXIT_BAD_INPUT
+        return guarded(lambda: _dispatch(f"aev_ocp.{name}", f"cli_{name}", args_list[1:]))
     try:
         args = build_parser().parse_args(args_list)
     except SystemExit as exc:
         return int(exc.code or 0)
     handlers = {"simulate": cmd_simulate, "reproduce": cmd_reproduce, "scenarios": cmd_scenarios}
-    try:
-        return handlers[args.command](args)
-    except (ScenarioError, ParameterError) as exc:
-        _err(str(exc))
-        return EXIT_BAD_INPUT
-    except BrokenPipeError:  # output piped into e.g. `head`: stop quietly, as Unix tools do
-        sys.stderr.close()
-        return 0
-    except OSError as exc:
-        _err(f"{exc.strerror or exc}: {exc.filename}" if exc.filename else str(exc))
-        return EXIT_BAD_INPUT
-    except RuntimeError as exc:  # a solver failure that the simulator could not turn into an event
-        _err(f"run failed: {exc}")
-        return EXIT_FAILED_RUN
-    except KeyboardInterrupt:
-        _err("interrupted")
-        return 130
+    return guarded(lambda: handlers[args.command](args))
 
 
 def _console() -> None:  # pragma: no cover - used when run as ``python -m aev_ocp.cli``

@@ -2,31 +2,49 @@
 
 The cache folder is ``$AEV_OCP_CACHE`` if set, else ``$XDG_CACHE_HOME/aev_ocp`` or ``~/.cache/aev_ocp``.
 A folder that is not owned by the current user, or that others can write to, is not used (a planted
-library would be loaded): the library is then built in a fresh private temporary folder instead.
-Libraries are keyed by a hash of the source, compiler and flags; each build writes to a per-process
-temporary name and is moved into place atomically, so concurrent processes never see a partial file.
+library would be loaded): the library is then built in ONE private temporary folder per process,
+removed when the process exits. Libraries are keyed by a hash of the source, compiler and flags; each
+build writes to a per-process temporary name and is moved into place atomically, so concurrent
+processes never see a partial file.
+
+Every cached library has a sidecar ``<lib>.sha256`` (size and SHA-256 of the library, written after
+the library). A cache hit is used only if the sidecar matches and the library loads (``ctypes.CDLL``);
+otherwise (a truncated or damaged file, a library from an older version without a sidecar) it is
+rebuilt once, with a :class:`CompileWarning` saying why. A build that fails warns once per library
+and error, so a caller's fallback (CVODES for the simulator, interpreted CasADi for the MPC) is
+never silent.
 """
 
 from __future__ import annotations
 
+import atexit
+import ctypes
 import hashlib
 import os
 import shutil
 import stat
 import subprocess
 import tempfile
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
 FLAGS = ("-O2", "-fPIC", "-shared", "-fno-math-errno")
+SIDECAR_SUFFIX = ".sha256"
+
+
+class CompileWarning(RuntimeWarning):
+    """A cached library was damaged and rebuilt, or a build failed (the caller falls back)."""
 
 
 @dataclass(frozen=True)
 class BuildResult:
-    """Path of the built library (None on failure) and, on failure, why."""
+    """Path of the built library (None on failure) and, on failure, why; ``rebuilt`` says a damaged
+    cached copy was replaced."""
 
     path: Path | None
     error: str = ""
+    rebuilt: bool = False
 
 
 def compiler() -> str | None:
@@ -45,8 +63,20 @@ def _private(d: Path) -> bool:
     return stat.S_ISDIR(st.st_mode) and owner_ok and not (st.st_mode & (stat.S_IWGRP | stat.S_IWOTH))
 
 
+_PROCESS_TMP: Path | None = None
+
+
+def _process_temp_dir() -> Path:
+    """One private temporary folder per process (mode 0700), removed at exit."""
+    global _PROCESS_TMP
+    if _PROCESS_TMP is None or not _PROCESS_TMP.is_dir():
+        _PROCESS_TMP = Path(tempfile.mkdtemp(prefix="aev_ocp_build_"))
+        atexit.register(shutil.rmtree, str(_PROCESS_TMP), True)
+    return _PROCESS_TMP
+
+
 def cache_dir(sub: str = "") -> Path:
-    """A private cache folder (created with mode 0700), or a fresh private temp folder if that fails."""
+    """A private cache folder (created with mode 0700), or this process's private temp folder if that fails."""
     base = os.environ.get("AEV_OCP_CACHE") or os.path.join(
         os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache"), "aev_ocp")
     d = Path(base) / sub if sub else Path(base)
@@ -56,12 +86,61 @@ def cache_dir(sub: str = "") -> Path:
             return d
     except OSError:
         pass
-    return Path(tempfile.mkdtemp(prefix="aev_ocp_build_"))
+    t = _process_temp_dir() / sub if sub else _process_temp_dir()
+    t.mkdir(parents=True, exist_ok=True, mode=0o700)
+    return t
+
+
+def _digest(path: Path) -> str:
+    """'<size> <sha256>' of a file."""
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            h.update(block)
+    return f"{path.stat().st_size} {h.hexdigest()}"
+
+
+def verify_library(lib: Path) -> str:
+    """'' if ``lib`` matches its sidecar and loads, else why not (one line)."""
+    side = lib.with_name(lib.name + SIDECAR_SUFFIX)
+    try:
+        want = side.read_text(encoding="ascii").strip()
+    except (OSError, UnicodeDecodeError):
+        return "no readable checksum file beside it"
+    try:
+        got = _digest(lib)
+    except OSError as exc:
+        return f"cannot read it ({exc.strerror or exc})"
+    if got != want:
+        size_want = want.split(" ")[0]
+        return f"size/checksum mismatch ({got.split(' ')[0]} bytes, {size_want} expected)"
+    try:
+        ctypes.CDLL(str(lib))
+    except OSError as exc:
+        return f"it does not load ({' '.join(str(exc).split())})"
+    return ""
+
+
+def _remove(*paths: Path) -> None:
+    for f in paths:
+        try:
+            f.unlink()
+        except OSError:
+            pass
+
+
+_WARNED: set[tuple[str, str]] = set()
+
+
+def _warn_once(stem: str, message: str) -> None:
+    if (stem, message) not in _WARNED:
+        _WARNED.add((stem, message))
+        warnings.warn(CompileWarning(message), stacklevel=3)
 
 
 def compile_shared(source: str, stem: str, sub: str = "", extra_flags: tuple[str, ...] = (),
                    timeout_s: float = 600.0) -> BuildResult:
-    """Compile C ``source`` into ``<cache>/<stem>_<hash>.so`` unless it is already there."""
+    """Compile C ``source`` into ``<cache>/<stem>_<hash>.so`` unless a verified copy is already there."""
     cc = compiler()
     if cc is None:
         return BuildResult(None, "no C compiler found (set $CC or install gcc)")
@@ -69,24 +148,37 @@ def compile_shared(source: str, stem: str, sub: str = "", extra_flags: tuple[str
     key = hashlib.sha256("\0".join((source, cc, *flags)).encode()).hexdigest()[:24]
     d = cache_dir(sub)
     lib = d / f"{stem}_{key}.so"
+    side = lib.with_name(lib.name + SIDECAR_SUFFIX)
+    rebuilt = False
     if lib.exists():
-        return BuildResult(lib)
-    c_file = d / f".{stem}_{key}_{os.getpid()}.c"
-    tmp = d / f".{stem}_{key}_{os.getpid()}.so"
+        why = verify_library(lib)
+        if not why:
+            return BuildResult(lib)
+        _warn_once(stem, f"cached library {lib} cannot be verified ({why}; built by an older version?); rebuilding it"
+                   if why.startswith("no readable checksum") else f"cached library {lib} is damaged ({why}); rebuilding it")
+        _remove(lib, side)
+        rebuilt = True
+    tag = f".{stem}_{key}_{os.getpid()}"
+    c_file, tmp, tmp_side = d / f"{tag}.c", d / f"{tag}.so", d / f"{tag}.sha256"
     try:
         c_file.write_text(source)
         proc = subprocess.run([cc, *flags, "-o", str(tmp), str(c_file), "-lm"], capture_output=True, text=True,
                               timeout=timeout_s)
         if proc.returncode != 0:
             last = (proc.stderr or proc.stdout).strip().splitlines()
-            return BuildResult(None, f"{Path(cc).name} failed: {last[-1] if last else 'exit ' + str(proc.returncode)}")
+            err = f"{Path(cc).name} failed: {last[-1] if last else 'exit ' + str(proc.returncode)}"
+            _warn_once(stem, f"compiling {stem} failed ({err}); the caller falls back to its uncompiled path")
+            return BuildResult(None, err, rebuilt)
+        tmp_side.write_text(_digest(tmp) + "\n", encoding="ascii")
         os.replace(tmp, lib)
-        return BuildResult(lib)
+        os.replace(tmp_side, side)  # after the library: a sidecar never vouches for a missing library
+        why = verify_library(lib)
+        if why:  # a concurrent build replaced one of the pair, or the disk is full: do not use it
+            _warn_once(stem, f"freshly built {lib} failed verification ({why}); the caller falls back")
+            return BuildResult(None, f"built library failed verification: {why}", rebuilt)
+        return BuildResult(lib, "", rebuilt)
     except (OSError, subprocess.SubprocessError) as exc:
-        return BuildResult(None, f"compilation failed: {exc}")
+        _warn_once(stem, f"compiling {stem} failed ({exc}); the caller falls back to its uncompiled path")
+        return BuildResult(None, f"compilation failed: {exc}", rebuilt)
     finally:
-        for f in (c_file, tmp):
-            try:
-                f.unlink()
-            except OSError:
-                pass
+        _remove(c_file, tmp, tmp_side)

@@ -8,7 +8,6 @@ unless a label says otherwise.
 from __future__ import annotations
 
 import os
-import tempfile
 from pathlib import Path
 from typing import Any, Mapping, Sequence
 
@@ -21,7 +20,7 @@ import numpy as np  # noqa: E402
 
 from .models.carfollowing import equilibrium_gap  # noqa: E402
 from .models.leader import LeaderProfile  # noqa: E402
-from .results import SimulationResult  # noqa: E402
+from .results import SimulationResult, save_figure_atomic  # noqa: E402
 
 LAW_STYLE = {"proposed": {"color": "tab:blue", "ls": "-"}, "ovfl": {"color": "tab:orange", "ls": "--"},
              "ovm": {"color": "tab:green", "ls": "-."}, "idm": {"color": "tab:purple", "ls": ":"}}
@@ -29,19 +28,11 @@ DPI = 120
 
 
 def save_figure(fig: Any, path: str | os.PathLike[str]) -> Path:
-    """Write ``fig`` as PNG to ``path`` atomically and close it."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=".png", dir=path.parent)
-    os.close(fd)
+    """Write ``fig`` as PNG to ``path`` atomically (unique temp name, mode as open() gives) and close it."""
     try:
-        fig.savefig(tmp, dpi=DPI, format="png")
-        os.replace(tmp, path)
+        return save_figure_atomic(fig, path, dpi=DPI, format="png")
     finally:
         plt.close(fig)
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-    return path
 
 
 def _finish_single(fig: Any, ax: Any, path: str | os.PathLike[str], title: str | None) -> Path:
@@ -154,34 +145,52 @@ def plot_platoon(r: SimulationResult, path: str | os.PathLike[str], *, v_eq: flo
 
 
 # ----------------------------------------------------------------------------- per scenario
+MAX_TRAJECTORY_LINES = 50  # vehicles drawn per panel; a larger platoon is shown by an even subset
+
+
 def plot_trajectories(r: SimulationResult, path: str | os.PathLike[str], title: str | None = None) -> Path:
-    """Gaps, speeds (with the leader's), cell current [A] and SOC over time for one run."""
-    fig, axes = plt.subplots(2, 2, figsize=(11, 7), sharex=True)
+    """Gaps, speeds (with the leader's), accelerations, cell current [A] and SOC over time for one run
+    (any controller: closed-form laws, MPC, replayed controls; sampled controls drawn as steps).
+    Platoons above MAX_TRAJECTORY_LINES vehicles are drawn as an even subset, first and last included."""
+    fig, axes = plt.subplots(3, 2, figsize=(11, 9.5), sharex=True)
     cmap = plt.get_cmap("viridis")
     n = r.n_vehicles
     t = r.t
-    for i in range(n):
+    shown = (list(range(n)) if n <= MAX_TRAJECTORY_LINES
+             else sorted({int(round(k)) for k in np.linspace(0, n - 1, MAX_TRAJECTORY_LINES)}))
+    mixed = len(set(r.controllers)) > 1
+    for i in shown:
         c = cmap(i / max(n - 1, 1))
-        lab = f"n = {i + 1}" if n <= 10 else None
+        lab = (f"n = {i + 1}" + (f" ({r.controllers[i]})" if mixed else "")) if len(shown) <= 10 else None
         axes[0, 0].plot(t, r.gap[:, i], color=c, lw=0.9, label=lab)
         axes[0, 1].plot(t, r.speed[:, i], color=c, lw=0.9, label=lab)
-        axes[1, 0].plot(t, r.current_A[:, i], color=c, lw=0.9, label=lab)
-        axes[1, 1].plot(t, r.S[:, i], color=c, lw=0.9, label=lab)
+        if r.jerk_sampled:
+            axes[1, 0].step(t, r.accel[:, i], where="post", color=c, lw=0.9, label=lab)
+        else:
+            axes[1, 0].plot(t, r.accel[:, i], color=c, lw=0.9, label=lab)
+        axes[1, 1].plot(t, r.current_A[:, i], color=c, lw=0.9, label=lab)
+        axes[2, 0].plot(t, r.S[:, i], color=c, lw=0.9, label=lab)
+        axes[2, 1].plot(t, r.heat_J[:, i], color=c, lw=0.9, label=lab)
     axes[0, 1].plot(t, r.leader_speed, color="black", lw=1.2, ls="--", label="leader")
     axes[0, 0].axhline(0.0, color="gray", ls="--", lw=1.0)
     u = r.units
     axes[0, 0].set_ylabel(f"gap [model length; × {u.length_m:g} m]")
     axes[0, 1].set_ylabel(f"speed [model speed; × {u.speed_mps:g} m/s]")
-    axes[1, 0].set_ylabel("cell current I [A] (> 0 discharges)")
-    axes[1, 1].set_ylabel("state of charge S [-]")
-    for ax in axes[1]:
+    axes[1, 0].set_ylabel(f"acceleration [model; × {u.accel_mps2:g} m/s²]")
+    axes[1, 1].set_ylabel("cell current I [A] (> 0 discharges)")
+    axes[2, 0].set_ylabel("state of charge S [-]")
+    axes[2, 1].set_ylabel("pack heat ∫Q dt [J]")
+    for ax in axes[2]:
         ax.set_xlabel(f"t [model time; × {u.time_s:g} s]")
     for ax in axes.ravel():
         ax.grid(alpha=0.3)
-    if n <= 10:
+    if len(shown) <= 10:
         axes[0, 1].legend(fontsize=7, ncol=2)
-    if r.events:
-        fig.text(0.01, 0.005, f"stopped: {r.events[0]}", fontsize=8, color="red")
+    notes = [f"stopped: {r.events[0]}"] if r.events else []
+    if len(shown) < n:
+        notes.append(f"{len(shown)} of {n} vehicles shown (evenly spaced)")
+    if notes:
+        fig.text(0.01, 0.005, "; ".join(notes), fontsize=8, color="red" if r.events else "black")
     if title:
         fig.suptitle(title, fontsize=11)
     fig.tight_layout(rect=(0, 0.02, 1, 1))

@@ -5,7 +5,10 @@ The report is a list of sections. Each section is a function ``fn(out_dir, progr
 writes its own files into ``out_dir`` and returns Markdown; ``progress(message)`` prints one line on
 stderr. Other modules add sections with :func:`register_section`, either directly or by defining
 ``REPRODUCE_SECTIONS = [(name, fn, steps), ...]`` in a provider package listed in
-:data:`SECTION_PROVIDERS` (imported lazily; a provider that fails to import adds no section).
+:data:`SECTION_PROVIDERS` (imported lazily). A provider that is not installed at all adds no section
+(a log line says so); a provider that fails to import, or a section that raises, stops ``reproduce``
+with :class:`ReportSectionError` naming the section and the cause (the CLI exits 1), so a section can
+never vanish from the report while the run exits 0.
 """
 
 from __future__ import annotations
@@ -50,16 +53,31 @@ def register_section(name: str, fn: SectionFn, steps: int = 1) -> None:
     _REGISTRY[name] = Section(name, fn, max(1, int(steps)))
 
 
+class ReportSectionError(RuntimeError):
+    """A report section (or its provider package) failed; the message names it and the cause."""
+
+
+def _cause(exc: BaseException) -> str:
+    return " ".join(f"{type(exc).__name__}: {exc}".split())
+
+
 def load_providers(providers: Sequence[str] = SECTION_PROVIDERS, log: Callable[[str], None] | None = None) -> list[str]:
-    """Import provider packages so they can register sections; returns the ones that loaded."""
+    """Import provider packages so they can register sections; returns the ones that loaded.
+
+    A provider module that does not exist is skipped (logged); one that exists but fails to import
+    raises :class:`ReportSectionError` (its sections would otherwise vanish silently)."""
     loaded = []
     for mod_name in providers:
         try:
             mod = importlib.import_module(mod_name)
-        except Exception as exc:  # a provider still being written must not break the report
+        except ModuleNotFoundError as exc:
+            if exc.name is None or not (mod_name == exc.name or mod_name.startswith(exc.name + ".")):
+                raise ReportSectionError(f"report section provider {mod_name} failed to import: {_cause(exc)}") from exc
             if log is not None:
-                log(f"section provider {mod_name} unavailable ({type(exc).__name__}: {exc}); skipped")
+                log(f"section provider {mod_name} is not installed; its sections are skipped")
             continue
+        except Exception as exc:
+            raise ReportSectionError(f"report section provider {mod_name} failed to import: {_cause(exc)}") from exc
         for entry in getattr(mod, "REPRODUCE_SECTIONS", ()):
             register_section(*entry)
         loaded.append(mod_name)
@@ -332,7 +350,13 @@ def reproduce(out_dir: str | Path = "results", config: ReproduceConfig | None = 
     if config != ReproduceConfig():
         parts.append(f"\n**Reduced configuration** (not the full reproduction): {config}\n")
     for sec in sections:
-        md = sec.fn(out, lambda msg, _n=sec.name: progress(f"{_n}: {msg}" if not msg.startswith(_n) else msg))
+        try:
+            md = sec.fn(out, lambda msg, _n=sec.name: progress(f"{_n}: {msg}" if not msg.startswith(_n) else msg))
+        except ReportSectionError:
+            raise
+        except Exception as exc:  # KeyboardInterrupt/SystemExit pass through untouched
+            raise ReportSectionError(f"report section {sec.name!r} failed: {_cause(exc)} "
+                                     f"(no report.md written)") from exc
         if md:
             parts.append("\n" + md.rstrip() + "\n")
     report = write_text(out / "report.md", "".join(parts))

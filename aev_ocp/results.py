@@ -7,15 +7,16 @@ by the plant's own quadrature (exact across control jumps, unlike a trapezoid on
 
 from __future__ import annotations
 
+import contextlib
 import csv
-import io
 import json
 import math
 import os
+import re
 import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Iterator
 
 import numpy as np
 
@@ -27,22 +28,104 @@ os.umask(_UMASK)
 EVENT_KINDS = ("collision", "negative_speed", "infeasible_current", "soc_out_of_range", "integration_failed")
 
 
-def write_atomic(path: str | os.PathLike[str], data: str | bytes) -> Path:
-    """Write ``data`` to ``path`` atomically (temp file in the same folder, then os.replace)."""
+@contextlib.contextmanager
+def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
+    """Yield a unique temporary path beside ``path``; on success it replaces ``path`` atomically.
+
+    The temporary file is created by mkstemp (a unique name, so concurrent writers into one folder
+    never collide), given the mode a plain ``open()`` would give (0666 & ~umask, not mkstemp's 0600),
+    and removed on any failure, Ctrl-C included.
+    """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    mode = "wb" if isinstance(data, bytes) else "w"
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
+    fd, tmp_name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp" + path.suffix, dir=path.parent)
+    os.close(fd)
+    tmp = Path(tmp_name)
     try:
-        with os.fdopen(fd, mode) as fh:
-            fh.write(data)
-        os.chmod(tmp, 0o666 & ~_UMASK)  # mkstemp creates 0600; give the file the mode open() would
+        os.chmod(tmp, 0o666 & ~_UMASK)
+        yield tmp
         os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    finally:
+        try:
+            tmp.unlink()
+        except FileNotFoundError:
+            pass
+
+
+def write_atomic(path: str | os.PathLike[str], data: str | bytes) -> Path:
+    """Write ``data`` to ``path`` atomically (unique temp file in the same folder, then os.replace)."""
+    path = Path(path)
+    with atomic_path(path) as tmp:
+        with open(tmp, "wb" if isinstance(data, bytes) else "w", encoding=None if isinstance(data, bytes) else "utf-8") as fh:
+            fh.write(data)
     return path
+
+
+def save_figure_atomic(fig: Any, path: str | os.PathLike[str], **savefig_kwargs: Any) -> Path:
+    """Save a matplotlib figure as ``path`` atomically (see :func:`atomic_path`); the figure stays open."""
+    path = Path(path)
+    fmt = savefig_kwargs.pop("format", path.suffix.lstrip(".") or "png")
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format=fmt, **savefig_kwargs)
+    return path
+
+
+# ----------------------------------------------------------------------------- output folders
+_SAFE_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._+-]{0,99}")
+MARKER = "aev-ocp-run.json"  # which command and scenario wrote this folder
+
+
+class OutputError(ValueError):
+    """An output folder cannot be used (it holds another run's files); the message says which and why."""
+
+
+def check_safe_name(name: str, what: str = "name") -> str:
+    """``name`` if it is a safe single folder name (1-100 of A-Z a-z 0-9 . _ + -, not starting with
+    '.', '_', '+' or '-'), else ValueError: a name must never lead outside the output folder."""
+    if not isinstance(name, str) or not _SAFE_NAME.fullmatch(name) or name in (".", ".."):
+        raise ValueError(f"{what} = {name!r} is not allowed: must be 1-100 characters of letters, digits, "
+                         "'.', '_', '+', '-', starting with a letter or digit (it names a folder under results/)")
+    return name
+
+
+def default_output_dir(*parts: str, root: str | os.PathLike[str] = "results") -> Path:
+    """``root/parts…`` where every part is checked with :func:`check_safe_name` (no absolute paths, no '..')."""
+    for part in parts:
+        check_safe_name(part)
+    return Path(root).joinpath(*parts)
+
+
+def claim_output_dir(out: str | os.PathLike[str], command: str, scenario: str, source: str | None,
+                     files: Iterator[str] | list[str] | tuple[str, ...] = ()) -> Path:
+    """Make ``out`` ready for the files of one run, never clobbering another run's files silently.
+
+    The folder gets a marker naming the command, the scenario and its source file. If it already holds
+    a marker of a *different* command/scenario/source, or (without a marker) any of ``files``, an
+    :class:`OutputError` says so: re-running the same scenario into its own folder replaces its files.
+    """
+    out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise OutputError(f"output folder {out} exists and is not a folder")
+    me = {"command": command, "scenario": scenario, "source": str(Path(source).resolve()) if source else None}
+    marker = out / MARKER
+    if marker.is_file():
+        try:
+            prev = json.loads(marker.read_text(encoding="utf-8"))
+        except (OSError, ValueError):
+            prev = None
+        if not isinstance(prev, dict) or {k: prev.get(k) for k in me} != me:
+            who = (f"'aev-ocp {prev.get('command')}' of scenario {prev.get('scenario')!r} ({prev.get('source')})"
+                   if isinstance(prev, dict) else "an unreadable marker")
+            raise OutputError(f"output folder {out} holds the results of {who}; choose another --out, or "
+                              f"remove {out} first (files of other runs are never replaced)")
+    elif out.is_dir():
+        clash = sorted(f for f in files if (out / f).exists())
+        if clash:
+            raise OutputError(f"output folder {out} already holds {clash[0]}"
+                              f"{f' and {len(clash) - 1} more of the files this run writes' if len(clash) > 1 else ''}, "
+                              "not written by aev-ocp; choose another --out, or remove them first")
+    write_json(marker, me)
+    return out
 
 
 def to_jsonable(x: Any) -> Any:
@@ -140,18 +223,27 @@ class SimulationResult:
         return [vehicle_metrics(self, i) for i in range(self.n_vehicles)]
 
     def to_csv(self, path: str | os.PathLike[str]) -> Path:
-        """Long-format CSV (one row per time and vehicle), written atomically."""
-        buf = io.StringIO()
-        w = csv.writer(buf)
+        """Long-format CSV (one row per time and vehicle), streamed to a temp file and moved into place
+        atomically. Memory stays O(samples of one vehicle) whatever the platoon size; each vehicle's
+        rows are formatted by one ``%`` operation (about 5x faster than a row-by-row writer)."""
         cols = ["gap", "speed", "accel", "V1", "V2", "S", "current_A", "omega", "heat_J", "heat_irr_J"]
-        w.writerow(["t", "t_s", "vehicle", "controller", "leader_speed"] + cols)
         T = self.units.time_s
-        for i in range(self.n_vehicles):
-            arrs = [getattr(self, c)[:, i] for c in cols]
-            for k in range(self.t.size):
-                w.writerow([f"{self.t[k]:.6g}", f"{self.t[k] * T:.6g}", i + 1, self.controllers[i],
-                            f"{self.leader_speed[k]:.10g}"] + [f"{a[k]:.10g}" for a in arrs])
-        return write_atomic(path, buf.getvalue())
+        t_txt = [f"{t:.6g}" for t in self.t]
+        ts_txt = [f"{t * T:.6g}" for t in self.t]
+        vl_txt = [f"{v:.10g}" for v in self.leader_speed]
+        row = "%s,%s,%d,%s,%s," + ",".join(["%.10g"] * len(cols)) + "\n"
+        K = self.t.size
+        with atomic_path(path) as tmp:
+            with open(tmp, "w", newline="", encoding="utf-8") as fh:
+                fh.write(",".join(["t", "t_s", "vehicle", "controller", "leader_speed"] + cols) + "\n")
+                for i in range(self.n_vehicles):
+                    name = self.controllers[i]
+                    if any(ch in name for ch in ',"\r\n'):  # needs CSV quoting
+                        name = '"' + name.replace('"', '""') + '"'
+                    arrs = [getattr(self, c)[:, i].tolist() for c in cols]
+                    flat = [x for r in zip(t_txt, ts_txt, [i + 1] * K, [name] * K, vl_txt, *arrs) for x in r]
+                    fh.write((row * K) % tuple(flat))
+        return Path(path)
 
     def summary(self) -> dict[str, Any]:
         """Status, events, metrics and settings as a JSON-ready dict."""

@@ -31,7 +31,11 @@ Other top-level tables are rejected unless a module registered them with
 from __future__ import annotations
 
 import dataclasses
+import errno
 import math
+import os
+import re
+import stat
 import tomllib
 import warnings
 from dataclasses import dataclass, field
@@ -41,12 +45,20 @@ from typing import Any, Callable, Iterator, Sequence
 
 from .models.carfollowing import LAW_REGISTRY, V_INF, CarFollowingLaw, make_law
 from .models.leader import CYCLES, ConstantSpeed, LeaderProfile, PaperLeader, SpeedTrace, drive_cycle
-from .params import (CarFollowingParams, CellParams, EVParams, PackParams, ParameterError, Units,
-                     VehicleParams)
+from .params import (CarFollowingParams, CellParams, Check, EVParams, PackParams, ParameterError, SimOptions,
+                     Units, VehicleParams, field_checks)
+from .results import check_safe_name
 
 LEADER_KINDS = ("constant", "paper", "cycle", "array")
 SCENARIO_DIR_NAME = "scenarios"  # the repository's folder of scenario files
 PACKAGED_DIR_NAME = "scenario_files"  # inside the package: a link to the repository's folder
+MAX_FILE_BYTES = 16 * 2**20  # a scenario file is a hand-edited TOML file; a bigger one is a mistake
+# Peak memory of a simulation per (sample x follower): 255 B measured with the cascade on the Table 1
+# platoon (200 and 1000 followers, 7001 samples, peak RSS after run + metrics); 300 B leaves a margin.
+BYTES_PER_SAMPLE = 300
+DEFAULT_MEMORY_LIMIT_GB = 3.0  # default budget of one run's arrays; $AEV_OCP_MAX_MEMORY_GB overrides
+MIN_SAMPLES = 100  # thinning never leaves fewer output intervals than this
+MAX_SAMPLES = 1_000_000  # samples per follower (t_end/dt_out); shipped scenarios need 7 001 ... 70 001
 
 
 class ScenarioError(ValueError):
@@ -141,6 +153,19 @@ class TableReader:
         if choices is not None and value.lower() not in choices:
             raise self.error(key, value, f"must be one of {list(choices)}")
         return value.lower() if choices is not None else value
+
+    def declared(self, key: str, check: Check, default: Any = _MISSING) -> Any:
+        """A value checked against a dataclass field's declared :class:`~aev_ocp.params.Check` (type and
+        range declared once, beside the field); errors name the file, key path, value and range."""
+        value = self._get(key, default)
+        if value is default and key not in self.table:
+            return value
+        if check.kind == "choice" and isinstance(value, str) and value.lower() in (check.choices or ()):
+            value = value.lower()
+        problem = check.problem(value)
+        if problem is not None:
+            raise self.error(key, value, problem)
+        return float(value) if check.kind == "number" else value
 
     def boolean(self, key: str, default: Any = _MISSING) -> bool:
         """true or false."""
@@ -278,9 +303,12 @@ class Scenario:
         """
         from .simulate import simulate_platoon
 
+        base = {**self.simulate_kwargs(), **overrides}
+        check_run_size(self.n_followers, float(base["t_end"]), float(base["dt_out"]),
+                       str(self.source or self.name))
         out: dict[str, Any] = {}
         for label, laws in self.runs():
-            kwargs = {**self.simulate_kwargs(), **overrides}
+            kwargs = dict(base)
             cb = (lambda t, te, _l=label: progress(_l, t, te)) if progress is not None else None
             out[label] = simulate_platoon(self.leader, list(laws), progress=cb, **kwargs)
         return out
@@ -290,27 +318,118 @@ class Scenario:
         return dataclasses.replace(self, **changes)
 
 
+# ----------------------------------------------------------------------------- size of a run
+def memory_limit_bytes() -> float:
+    """The memory budget of one run [bytes]: $AEV_OCP_MAX_MEMORY_GB, default DEFAULT_MEMORY_LIMIT_GB."""
+    raw = os.environ.get("AEV_OCP_MAX_MEMORY_GB", "")
+    try:
+        gb = float(raw) if raw else DEFAULT_MEMORY_LIMIT_GB
+    except ValueError:
+        gb = DEFAULT_MEMORY_LIMIT_GB
+    return (gb if math.isfinite(gb) and gb > 0 else DEFAULT_MEMORY_LIMIT_GB) * 1e9
+
+
+def n_samples(t_end: float, dt_out: float) -> float:
+    """Samples per follower of a run [-]: one per dt_out and at least one per integrator chunk."""
+    return math.ceil(t_end / min(dt_out, SimOptions().chunk)) + 1.0
+
+
+def estimate_run_bytes(n_followers: int, t_end: float, dt_out: float) -> float:
+    """Estimated peak memory of simulating ``n_followers`` over [0, t_end] sampled every dt_out [bytes]."""
+    return BYTES_PER_SAMPLE * float(n_followers) * n_samples(t_end, dt_out)
+
+
+def _round_up(x: float) -> float:
+    """The smallest number of 3 significant digits >= x (x > 0)."""
+    step = 10.0 ** (math.floor(math.log10(x)) - 2)
+    y = math.ceil(x / step - 1e-9) * step
+    return float(f"{y:.3g}") if float(f"{y:.3g}") >= x else y
+
+
+def _gb(x: float) -> str:
+    return f"{x / 1e9:.3g} GB"
+
+
+def check_run_size(n_followers: int, t_end: float, dt_out: float, file: str = "<scenario>") -> float:
+    """Raise ScenarioError (naming the key to change) if a run needs more than :func:`memory_limit_bytes`.
+    Returns the estimate [bytes]."""
+    need, limit = estimate_run_bytes(n_followers, t_end, dt_out), memory_limit_bytes()
+    if need <= limit:
+        return need
+    per_vehicle = BYTES_PER_SAMPLE * n_samples(t_end, dt_out)
+    max_followers = int(limit // per_vehicle)
+    k_max = limit / (BYTES_PER_SAMPLE * n_followers)
+    if k_max - 1 < MIN_SAMPLES or max_followers < 1 and t_end / SimOptions().chunk > k_max:
+        fix = (f"lower platoon.followers to at most {max_followers}" if max_followers >= 1
+               else "lower simulation.t_end")
+    else:
+        fix = (f"raise simulation.dt_out to at least {_round_up(t_end / (k_max - 1)):.3g}"
+               + (" or lower platoon.followers" if n_followers > 1 else " or lower simulation.t_end"))
+    raise ScenarioError(f"{file}: the run needs about {_gb(need)} ({n_followers} followers x "
+                        f"{n_samples(t_end, dt_out):.3g} samples, simulation.t_end = {t_end:g}, simulation.dt_out = "
+                        f"{dt_out:g}), more than the limit of {_gb(limit)} ($AEV_OCP_MAX_MEMORY_GB): {fix}")
+
+
+def thinned_dt_out(n_followers: int, t_end: float, dt_out: float, file: str = "<scenario>") -> float:
+    """dt_out, raised (with a ScenarioWarning) just enough that the run fits the memory budget when at
+    least MIN_SAMPLES output intervals remain; otherwise :func:`check_run_size` refuses the run."""
+    chunk = SimOptions().chunk
+    if n_samples(t_end, dt_out) > MAX_SAMPLES:  # not a large platoon but an absurd grid: refuse, never thin
+        if t_end / chunk + 1 > MAX_SAMPLES:
+            raise ScenarioError(f"{file}: simulation.t_end = {t_end:g} is not allowed: the integrator samples "
+                                f"at least every {chunk:g} time units, {t_end / chunk:.3g} samples per follower, "
+                                f"more than {MAX_SAMPLES}; lower simulation.t_end to at most {MAX_SAMPLES * chunk:g}")
+        raise ScenarioError(f"{file}: simulation.dt_out = {dt_out:g} is not allowed: {n_samples(t_end, dt_out):.3g} "
+                            f"samples per follower over simulation.t_end = {t_end:g}, more than {MAX_SAMPLES}; raise "
+                            f"simulation.dt_out to at least {_round_up(t_end / (MAX_SAMPLES - 2)):.3g}")
+    limit = memory_limit_bytes()
+    if estimate_run_bytes(n_followers, t_end, dt_out) <= limit:
+        return dt_out
+    k_max = limit / (BYTES_PER_SAMPLE * n_followers) - 2
+    new = _round_up(t_end / math.floor(k_max)) if k_max >= MIN_SAMPLES else dt_out
+    if k_max >= MIN_SAMPLES and new < SimOptions().chunk and estimate_run_bytes(n_followers, t_end, new) <= limit:
+        warnings.warn(ScenarioWarning(
+            f"{file}: simulation.dt_out raised from {dt_out:g} to {new:g} so that {n_followers} followers over "
+            f"t_end = {t_end:g} fit in {_gb(limit)} ($AEV_OCP_MAX_MEMORY_GB; {_gb(estimate_run_bytes(n_followers, t_end, dt_out))} "
+            f"were needed); ω, ∫Q and the RMS metrics are integrated by the solver and do not depend on dt_out, "
+            f"min gap and min speed are taken from the coarser samples"), stacklevel=3)
+        return new
+    check_run_size(n_followers, t_end, dt_out, file)
+    return dt_out  # pragma: no cover - check_run_size raised
+
+
 # ----------------------------------------------------------------------------- sections
+def read_declared(cls: type, reader: TableReader, keys: Sequence[str] | None = None) -> dict[str, Any]:
+    """The keys of ``reader``'s table that are fields of dataclass ``cls`` (or ``keys``), each checked against
+    the type and range the dataclass declares (:func:`aev_ocp.params.field_checks`): a range is written
+    once, beside the field, and the TOML table derives from it. Undeclared fields are read as numbers."""
+    checks = field_checks(cls)
+    names = list(keys) if keys is not None else [f.name for f in dataclasses.fields(cls)]
+    out: dict[str, Any] = {}
+    for key in names:
+        if reader.has(key):
+            check = checks.get(key)
+            out[key] = reader.declared(key, check) if check is not None else reader.number(key)
+    return out
+
+
+def _rewrap(reader: TableReader, exc: ParameterError, keys: Sequence[str]) -> ScenarioError:
+    """A ParameterError of a dataclass's cross-field rule, with the file and the key path."""
+    field_name = next((k for k in keys if f".{k} " in str(exc)), None)
+    where = reader.key_path(field_name) if field_name else reader.path
+    return ScenarioError(f"{reader.file}: {where}: {exc}")
+
+
 def _params(cls: type, reader: TableReader, base: Any = None) -> Any:
-    """Build a parameter dataclass from a table, re-wrapping ParameterError with the key path."""
+    """Build a parameter dataclass from a table: types and ranges come from the dataclass's declarations."""
     names = [f.name for f in dataclasses.fields(cls)]
     defaults = base if base is not None else cls()
-    kwargs: dict[str, Any] = {}
-    for key in names:
-        if not reader.has(key):
-            continue
-        default = getattr(defaults, key)
-        if isinstance(default, int) and not isinstance(default, bool):
-            kwargs[key] = reader.integer(key)
-        else:
-            kwargs[key] = reader.number(key)  # range checks are the dataclass's own
+    kwargs = read_declared(cls, reader)
     reader.finish(allowed_hint=names)
     try:
         return dataclasses.replace(defaults, **kwargs)
     except ParameterError as exc:
-        field_name = next((k for k in kwargs if f".{k} " in str(exc)), None)
-        where = reader.key_path(field_name) if field_name else reader.path
-        raise ScenarioError(f"{reader.file}: {where}: {exc}") from None
+        raise _rewrap(reader, exc, list(kwargs)) from None
 
 
 def _leader(r: TableReader, units: Units) -> LeaderProfile:
@@ -369,7 +488,9 @@ def _per_vehicle(r: TableReader, n: int, list_key: str, values: list[float] | No
 
 
 def _platoon(r: TableReader, leader: LeaderProfile, cf: CarFollowingParams,
-             overrides: dict[str, dict[str, float]]) -> tuple[tuple[CarFollowingLaw, ...], list[float], list[float]]:
+             overrides: dict[str, dict[str, float]], compare: tuple[str, ...] = (),
+             size: Callable[[int], None] | None = None
+             ) -> tuple[tuple[CarFollowingLaw, ...], list[float], list[float]]:
     laws_known = sorted(LAW_REGISTRY)
     if r.has("laws") and r.has("law"):
         raise r.error("laws", r.table["laws"], "give either platoon.law (all followers) or platoon.laws, not both")
@@ -378,9 +499,20 @@ def _platoon(r: TableReader, leader: LeaderProfile, cf: CarFollowingParams,
         n = r.integer("followers", len(names), ge=1)
         if len(names) != n:
             raise r.error("laws", names, f"needs exactly {n} names, one per follower")
+        if size is not None:
+            size(n)
+        if compare:  # a mixed platoon never runs when compare is set: say so instead of ignoring it
+            raise r.error("laws", r.table["laws"], f"cannot be combined with compare = {list(compare)}, which runs "
+                                                   "the whole platoon once per compared law; remove one of them")
     else:
         n = r.integer("followers", ge=1)
-        names = [r.string("law", "proposed", choices=laws_known)] * n
+        law_name = r.string("law", "proposed", choices=laws_known)
+        if compare and r.has("law") and law_name not in compare:
+            raise r.error("law", r.table["law"], f"is never run: compare = {list(compare)} runs the whole platoon "
+                                                 f"once per compared law; add {law_name!r} to compare, or remove compare")
+        if size is not None:
+            size(n)  # refuse an oversized platoon before building anything of its size
+        names = [law_name] * n
     laws = tuple(make_law(nm, cf, **overrides.get(nm, {})) for nm in names)
 
     # initial gaps
@@ -439,10 +571,20 @@ def parse_scenario(doc: dict[str, Any], file: str = "<scenario>", *, source: Pat
     """Validate a parsed TOML document (``file`` names it in messages) into a :class:`Scenario`."""
     _check_top_level(doc, file)
     top = TableReader(doc, "", file)
-    default_name = source.stem if source is not None else "scenario"
-    name = top.string("name", default_name)
+    if top.has("name"):
+        name = top.string("name")
+        try:
+            check_safe_name(name)
+        except ValueError as exc:
+            raise top.error("name", name, str(exc).split("is not allowed: ", 1)[-1]) from None
+    else:  # the file stem, made safe (it names the default output folder results/<name>/)
+        stem = source.stem if source is not None else "scenario"
+        name = re.sub(r"[^A-Za-z0-9._+-]", "_", stem).lstrip("._+-")[:100] or "scenario"
     description = top.string("description", "")
     compare = tuple(top.strings("compare", [], choices=sorted(LAW_REGISTRY)))
+    dups = sorted({c for c in compare if compare.count(c) > 1})
+    if dups:
+        raise top.error("compare", doc["compare"], f"names {dups[0]!r} twice; each law runs once")
 
     units = _params(Units, top.sub("units"))
     vehicle = _params(VehicleParams, top.sub("vehicle"))
@@ -450,18 +592,30 @@ def parse_scenario(doc: dict[str, Any], file: str = "<scenario>", *, source: Pat
     pack = _params(PackParams, top.sub("pack"))
     ev = EVParams(units=units, vehicle=vehicle, cell=cell, pack=pack)
 
-    cf, overrides = _carfollowing(top.sub("carfollowing"))
-    leader = _leader(top.sub("leader", required=True), units)
-    laws, gaps, speeds = _platoon(top.sub("platoon", required=True), leader, cf, overrides)
-
     sim = top.sub("simulation", required=True)
     t_end = sim.number("t_end", gt=0)
-    dt_out = sim.number("dt_out", 0.01, gt=0)
-    rtol = sim.number("rtol", 1e-10, gt=0, lt=1)
-    atol = sim.number("atol", 1e-10, gt=0, lt=1)
+    # dt_out, rtol, atol: types, ranges and defaults are SimOptions's (rtol/atol: what the integrators honour)
+    opts = dataclasses.replace(SimOptions(), **read_declared(SimOptions, sim, ("dt_out", "rtol", "atol")))
+    dt_out, rtol, atol = opts.dt_out, opts.rtol, opts.atol
     if dt_out > t_end:
         raise sim.error("dt_out", dt_out, f"must be <= simulation.t_end ({t_end:g})")
     sim.finish()
+
+    cf, overrides = _carfollowing(top.sub("carfollowing"))
+    leader = _leader(top.sub("leader", required=True), units)
+    sized: dict[str, float] = {}
+
+    def size(n: int) -> None:
+        sized["dt_out"] = thinned_dt_out(n, t_end, dt_out, file)
+
+    laws, gaps, speeds = _platoon(top.sub("platoon", required=True), leader, cf, overrides, compare, size)
+    dt_out = sized.get("dt_out", dt_out)
+    used = set(compare) | {law.name for law in laws} | {"proposed"}  # proposed: the MPC's fallback law
+    for law_name in overrides:
+        if law_name not in used:
+            warnings.warn(ScenarioWarning(
+                f"{file}: carfollowing.{law_name} sets coefficients of law {law_name!r}, which no run uses "
+                f"(runs: {sorted(set(compare) or {law.name for law in laws})})"), stacklevel=2)
 
     extra: dict[str, Any] = {}
     for sec, validator in _SECTIONS.items():
@@ -497,19 +651,58 @@ def check_leader_speed(scenario: Scenario, file: str = "<scenario>") -> float:
     return v_max
 
 
+def read_scenario_text(p: Path, file: str) -> str:
+    """The text of scenario file ``p`` (``file`` names it in messages): a regular file of at most
+    MAX_FILE_BYTES, UTF-8; anything else is a ScenarioError."""
+    try:
+        fd = os.open(p, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))  # a FIFO must not block the open
+    except OSError as exc:
+        raise ScenarioError(f"{file}: cannot read the scenario file ({_os_reason(exc)})") from None
+    try:
+        st = os.fstat(fd)
+        if not stat.S_ISREG(st.st_mode):
+            kind = "a folder" if stat.S_ISDIR(st.st_mode) else "not a regular file"
+            raise ScenarioError(f"{file}: cannot read the scenario file (it is {kind})")
+        if st.st_size > MAX_FILE_BYTES:
+            raise ScenarioError(f"{file}: the scenario file is {st.st_size} bytes, more than the "
+                                f"{MAX_FILE_BYTES} a scenario may have")
+        with os.fdopen(fd, "rb", closefd=False) as fh:
+            data = fh.read(MAX_FILE_BYTES + 1)
+    except OSError as exc:
+        raise ScenarioError(f"{file}: cannot read the scenario file ({_os_reason(exc)})") from None
+    finally:
+        os.close(fd)
+    if len(data) > MAX_FILE_BYTES:
+        raise ScenarioError(f"{file}: the scenario file is larger than the {MAX_FILE_BYTES} bytes a scenario may have")
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        line = data[:exc.start].count(b"\n") + 1
+        raise ScenarioError(f"{file}: not a text file in UTF-8 (byte 0x{data[exc.start]:02x} at line {line}); "
+                            "scenario files are UTF-8 TOML") from None
+
+
+def _os_reason(exc: OSError) -> str:
+    if exc.errno == errno.ELOOP:
+        return "a loop of symbolic links"
+    return exc.strerror or str(exc)
+
+
 def load_scenario(path: str | Path) -> Scenario:
     """Read and validate a scenario file (a path, or the name of a shipped scenario, see :func:`find_scenario`)."""
     p = find_scenario(path)
     file = str(path)
-    try:
-        text = p.read_text(encoding="utf-8")
-    except OSError as exc:
-        raise ScenarioError(f"{file}: cannot read the scenario file ({exc.strerror or exc})") from None
+    text = read_scenario_text(p, file)
     try:
         doc = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise ScenarioError(f"{file}: not valid TOML: {exc}") from None
-    return parse_scenario(doc, file, source=p)
+    except RecursionError:
+        raise ScenarioError(f"{file}: not valid TOML for a scenario: arrays or tables nested too deeply") from None
+    try:
+        return parse_scenario(doc, file, source=p)
+    except RecursionError:
+        raise ScenarioError(f"{file}: arrays or tables nested too deeply for a scenario") from None
 
 
 # ----------------------------------------------------------------------------- finding files
@@ -543,10 +736,24 @@ def shipped_scenarios() -> dict[str, Path]:
 
 
 def find_scenario(name_or_path: str | Path) -> Path:
-    """Resolve a scenario: an existing file path, else a shipped scenario name (with or without .toml)."""
+    """Resolve a scenario: an existing path, else a shipped scenario name (with or without .toml).
+
+    A path that exists but is not a readable file (a folder, a loop of symbolic links, a device) is
+    reported as such, not as a missing scenario."""
+    if not isinstance(name_or_path, (str, os.PathLike)):
+        raise TypeError(f"scenario must be a path or a scenario name (str), got {type(name_or_path).__name__}")
     p = Path(name_or_path)
-    if p.is_file():
-        return p
+    try:
+        st = p.stat()
+    except OSError as exc:
+        if exc.errno == errno.ELOOP:
+            raise ScenarioError(f"{name_or_path}: cannot read the scenario file (a loop of symbolic links)") from None
+        st = None
+    if st is not None:
+        if stat.S_ISREG(st.st_mode):
+            return p
+        kind = "a folder" if stat.S_ISDIR(st.st_mode) else "not a regular file"
+        raise ScenarioError(f"{name_or_path}: cannot read the scenario file (it is {kind})")
     stem = p.name[:-5] if p.name.endswith(".toml") else p.name
     if p.parent == Path(".") or str(p.parent) == SCENARIO_DIR_NAME:
         for d in scenario_dirs():

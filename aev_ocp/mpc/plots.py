@@ -1,5 +1,6 @@
-"""Plots of MPC closed loops (matplotlib, Agg): trajectories, current and SOC, solve time per step,
-and overlays of several controllers on the same leader. Each function writes one PNG and returns its path."""
+"""Plots of MPC closed loops (matplotlib, Agg): solve time per step and overlays of several controllers
+on the same leader. Trajectories of one run are :func:`aev_ocp.plots.plot_trajectories`, shared by every
+controller. Each function writes one PNG and returns its path."""
 
 from __future__ import annotations
 
@@ -8,7 +9,7 @@ from typing import Mapping
 
 import numpy as np
 
-from ..results import SimulationResult
+from ..results import SimulationResult, save_figure_atomic
 
 
 def _plt():  # noqa: ANN202
@@ -21,11 +22,7 @@ def _plt():  # noqa: ANN202
 
 
 def _save(fig, path: Path) -> Path:  # noqa: ANN001
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.stem}.tmp{path.suffix}")
-    fig.savefig(tmp, dpi=110, bbox_inches="tight")
-    tmp.replace(path)
-    return path
+    return save_figure_atomic(fig, path, dpi=110, bbox_inches="tight")
 
 
 def plot_overlay(results: Mapping[str, SimulationResult], path: str | Path, vehicle: int = 0) -> Path:
@@ -52,28 +49,6 @@ def plot_overlay(results: Mapping[str, SimulationResult], path: str | Path, vehi
     ax[0].legend(fontsize=8)
     ax[-1].set_xlabel("t [model time]")
     fig.suptitle(f"follower {vehicle + 1}")
-    out = _save(fig, Path(path))
-    plt.close(fig)
-    return out
-
-
-def plot_trajectories(r: SimulationResult, path: str | Path) -> Path:
-    """Gaps, speeds, accelerations, currents and SOC of every follower of one run."""
-    plt = _plt()
-    fig, ax = plt.subplots(5, 1, figsize=(9, 11), sharex=True)
-    ax[1].plot(r.t, r.leader_speed, "k:", lw=1, label="leader")
-    for i in range(r.n_vehicles):
-        lab = f"{i + 1}: {r.controllers[i]}"
-        ax[0].plot(r.t, r.gap[:, i], label=lab)
-        ax[1].plot(r.t, r.speed[:, i], label=lab)
-        ax[2].step(r.t, r.accel[:, i], where="post", label=lab)
-        ax[3].plot(r.t, r.current_A[:, i], label=lab)
-        ax[4].plot(r.t, r.S[:, i], label=lab)
-    for a, lab in zip(ax, ["gap h [model]", "speed v [model]", "accel a [model]", "cell current I [A]", "SOC S [-]"]):
-        a.set_ylabel(lab)
-        a.grid(alpha=0.3)
-    ax[0].legend(fontsize=7)
-    ax[-1].set_xlabel("t [model time]")
     out = _save(fig, Path(path))
     plt.close(fig)
     return out

@@ -10,6 +10,7 @@ from typing import Any, Callable
 
 import numpy as np
 
+from .. import interrupts
 from ..ocp.oracle import OracleScenario, OracleSolver, stage_cost_of_result
 from ..control import ClosedLoop, ControlSequence
 from ..results import SimulationResult, write_json
@@ -22,6 +23,59 @@ METRIC_ROWS = ["omega_model", "omega_J_per_kg", "heat_pack_J", "heat_irr_pack_J"
                "max_abs_current_A", "gap_violations", "speed_violations", "collisions", "infeasible_current",
                "cost_s9", "solve_ms_median", "solve_ms_p95", "solve_ms_max", "iterations_mean", "iterations_max",
                "fallbacks", "solver_path"]
+
+
+# Memory of building and solving the horizon-N NLP [bytes per interval]: 0.88-1.29 MB measured by
+# benchmarks/bench_limits.py (peak RSS of MPCController construction + one solve, ipopt and rti, N = 40 ... 1600).
+MPC_BYTES_PER_INTERVAL = 1_000_000
+MAX_CLOSED_LOOP_STEPS = 10**6  # each step is one NLP solve: 10^6 steps are hours even on the fastest path
+
+
+def check_mpc_scenario(scenario: Any, settings: MPCSettings, laws: tuple[str, ...] = ()) -> None:
+    """Refuse, before anything runs, an MPC comparison that cannot be solved or would not fit in memory.
+
+    Raises ScenarioError naming the file and key: MPC vehicles that do not exist, h_min above an MPC
+    vehicle's initial gap or its initial speed outside [v_min, v_max] (infeasible from the first step),
+    unknown or repeated comparison laws, a horizon or a number of steps too large for memory or time.
+    """
+    from ..models.carfollowing import LAW_REGISTRY
+    from ..scenarios import ScenarioError, check_run_size, memory_limit_bytes
+    from .scenario import check_mpc_setup
+
+    file = str(scenario.source or scenario.name)
+    check_mpc_setup(scenario, None, settings)  # vehicles exist; h_min and v bounds vs the initial state
+    n = scenario.n_followers
+    for k, name in enumerate(laws):
+        if not isinstance(name, str) or name.lower() not in LAW_REGISTRY:
+            raise ScenarioError(f"--laws: {name!r} is not a car-following law; known: {sorted(LAW_REGISTRY)}")
+        if name.lower() in [x.lower() for x in laws[:k]]:
+            raise ScenarioError(f"--laws: {name!r} is given twice")
+    need = MPC_BYTES_PER_INTERVAL * settings.N
+    if need > memory_limit_bytes():
+        raise ScenarioError(f"{file}: mpc.N = {settings.N} is not allowed: the NLP would need about "
+                            f"{need / 1e9:.3g} GB, more than the limit of {memory_limit_bytes() / 1e9:.3g} GB "
+                            f"($AEV_OCP_MAX_MEMORY_GB); use at most "
+                            f"{int(memory_limit_bytes() // MPC_BYTES_PER_INTERVAL)}")
+    steps = scenario.t_end / settings.dt
+    if steps > MAX_CLOSED_LOOP_STEPS:
+        raise ScenarioError(f"{file}: simulation.t_end = {scenario.t_end:g} is not allowed for MPC: "
+                            f"{steps:.3g} closed-loop steps of mpc.dt = {settings.dt:g}, more than "
+                            f"{MAX_CLOSED_LOOP_STEPS}; lower simulation.t_end or raise mpc.dt")
+    check_run_size(n, scenario.t_end, min(scenario.dt_out, settings.dt), file)
+
+
+def _progress(say: Callable[[str], None], label: str) -> Callable[[float, float], None]:
+    """A progress callback: checks for Ctrl-C/SIGTERM at every step, reports every 25 %."""
+    last = [-1]
+
+    def cb(t: float, t_end: float) -> None:
+        interrupts.check()
+        q = int(4 * t / t_end) if t_end > 0 else 4
+        if q != last[0]:
+            last[0] = q
+            say(f"{label}: t = {t:.4g} / {t_end:g} ({25 * q}%)")
+
+    return cb
 
 
 @dataclass
@@ -52,14 +106,15 @@ def run_comparison(scenario: Any, settings: MPCSettings | None = None, laws: tup
     t0 = time.perf_counter()
     say(f"MPC closed loop ({s.solver}{'+codegen' if s.codegen else ''}, N = {s.N}) on {scenario.name}")
     out["mpc"] = closed_loop_from_scenario(scenario, cfg, s).run(list(scenario.gaps0), list(scenario.speeds0),
-                                                                 scenario.t_end)
+                                                                 scenario.t_end, progress=_progress(say, "mpc"))
     tim["mpc"] = time.perf_counter() - t0
     for name in laws:
         t0 = time.perf_counter()
         law = scenario.law(name)
         out[name] = simulate_platoon(scenario.leader, [law] * scenario.n_followers, list(scenario.gaps0),
                                      list(scenario.speeds0), scenario.t_end, ev=scenario.ev, rtol=scenario.rtol,
-                                     atol=scenario.atol, dt_out=min(scenario.dt_out, s.dt))
+                                     atol=scenario.atol, dt_out=min(scenario.dt_out, s.dt),
+                                     progress=_progress(lambda m: None, name))
         tim[name] = time.perf_counter() - t0
     metrics = {}
     for lab, r in out.items():
@@ -75,6 +130,7 @@ def run_comparison(scenario: Any, settings: MPCSettings | None = None, laws: tup
                              v0=scenario.speeds0[0], S0=scenario.ev.cell.soc0, ev=scenario.ev, weights=s.weights,
                              bounds=s.bounds, smooth=s.smooth, objective=s.objective, name=scenario.name)
         res = OracleSolver(scn).solve()
+        interrupts.check()  # IPOPT turns Ctrl-C into a failed solve
         tim["ocpd"] = time.perf_counter() - t0
         ocpd = {"success": res.success, "status": res.status, "cost_s9": res.objective}
         if res.success:
@@ -82,7 +138,7 @@ def run_comparison(scenario: Any, settings: MPCSettings | None = None, laws: tup
             say("OCP-D: replaying its controls through the exact plant")
             seq = ControlSequence(tuple(np.asarray(res.controls["a"], float).ravel()), s.dt, "ocp-d")
             r = ClosedLoop(scenario.leader, [seq], scenario.ev).run(list(scenario.gaps0), list(scenario.speeds0),
-                                                                   scenario.t_end)
+                                                                   scenario.t_end, progress=_progress(say, "ocp-d replay"))
             m = r.metrics()[0]
             m["cost_s9_replayed"] = _cost_s9(r, 0, s)  # the same cost on the exact plant's trajectory
             ocpd.update({k: v for k, v in m.items() if k not in ("vehicle", "controller")})
@@ -101,6 +157,14 @@ def _fmt(x: Any) -> str:
     return "—" if x is None else str(x)
 
 
+def _run_status(r: SimulationResult) -> str:
+    """'ok', or where the run stopped: 'collision at t = 12.3 (vehicle 2)'."""
+    if not r.events:
+        return "ok"
+    e = r.events[0]
+    return f"{e.kind} at t = {e.time:.4g} (vehicle {e.vehicle + 1})"
+
+
 def comparison_table(c: Comparison, vehicle: int = 0, markdown: bool = False) -> str:
     """Every §10 metric of follower ``vehicle`` side by side (MPC, laws, OCP-D)."""
     labs = list(c.metrics)
@@ -113,6 +177,10 @@ def comparison_table(c: Comparison, vehicle: int = 0, markdown: bool = False) ->
         if all(v is None for v in vals):
             continue
         rows.append([key] + [_fmt(v) for v in vals])
+    status = [_run_status(c.results[lab]) if lab in c.results else "—" for lab in labs]
+    if "ocp-d" in cols:
+        status.append(_run_status(c.results["ocp-d"]) if "ocp-d" in c.results else (c.ocpd or {}).get("status", "—"))
+    rows.insert(0, ["status"] + status)
     head = ["metric"] + cols
     if markdown:
         lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
@@ -125,12 +193,16 @@ def comparison_table(c: Comparison, vehicle: int = 0, markdown: bool = False) ->
 
 def write_outputs(c: Comparison, out: Path) -> list[Path]:
     """results.json, trajectories CSV and plots of a comparison into ``out``."""
-    from .plots import plot_overlay, plot_solve_times, plot_trajectories
+    from ..plots import plot_trajectories
+    from .plots import plot_overlay, plot_solve_times
 
     out.mkdir(parents=True, exist_ok=True)
     r = c.results["mpc"]
     files = [write_json(out / "results.json", {"scenario": r.meta.get("leader"), "status": r.status,
                                                "events": [vars(e) for e in r.events], "metrics": c.metrics,
+                                               "runs": {lab: {"status": res.status,
+                                                              "events": [vars(e) for e in res.events]}
+                                                        for lab, res in c.results.items()},
                                                "ocp_d": c.ocpd, "timings_s": c.timings_s,
                                                "mpc_settings": r.meta.get("controllers"),
                                                "mpc_steps": r.meta.get("mpc_steps")})]

@@ -14,15 +14,15 @@ from dataclasses import dataclass, fields
 from typing import Any
 
 from ..ocp.following import FollowingBounds, FollowingWeights
-from ..params import ParameterError
 from ..control import ClosedLoop
+from ..params import Check, ParameterError, PowertrainOptions, field_checks
 from .policy import MPCVehicle
-from .settings import PREDICTOR_NAMES, QP_SOLVERS, SOLVER_PATHS, MPCSettings
+from .settings import MPCSettings
 
-_STR = {"objective": ("heat", "energy"), "solver": SOLVER_PATHS, "qp_solver": QP_SOLVERS,
-        "predictor": PREDICTOR_NAMES}
-_INT = ("N", "max_iter", "rti_iterations", "predictor_window", "rk4_substeps")
-_BOOL = ("codegen", "verbose")
+#: Nested dataclasses of MPCSettings whose fields appear flat in the [mpc] table.
+_NESTED = {"weights": FollowingWeights, "bounds": FollowingBounds, "smooth": PowertrainOptions}
+#: The ``follower_predictor`` key: forecasts that make sense behind another vehicle.
+FOLLOWER_PREDICTORS = ("cooperative", "constant-velocity", "constant-acceleration")
 
 
 @dataclass(frozen=True)
@@ -34,34 +34,57 @@ class MPCConfig:
     follower_predictor: str | None = None
 
 
+def mpc_table_keys() -> dict[str, Check | None]:
+    """Keys of the [mpc] table (besides vehicles, follower_predictor) -> their declared Check (None: a
+    number checked by its dataclass). Derived from MPCSettings and its nested dataclasses, never listed by hand."""
+    keys: dict[str, Check | None] = {k: c for k, c in field_checks(MPCSettings).items() if c.kind != "instance"}
+    for cls in _NESTED.values():
+        checks = field_checks(cls)
+        keys.update({f.name: checks.get(f.name) for f in fields(cls)})
+    return keys
+
+
+def _read(r: Any, key: str, check: Check | None) -> Any:
+    """One [mpc] value checked against its declaration (type and range), errors naming file and key."""
+    if check is None:
+        return r.number(key)
+    value = r.table[key]
+    r._get(key, None)  # mark as read
+    if check.kind == "choice" and isinstance(value, str) and value.lower() in (check.choices or ()):
+        value = value.lower()
+    problem = check.problem(value)
+    if problem is not None:
+        raise r.error(key, value, problem)
+    return float(value) if check.kind == "number" else value
+
+
 def validate_mpc_table(r: Any) -> MPCConfig:
     """Validator for ``aev_ocp.scenarios.register_section('mpc', ...)`` (a TableReader)."""
-    d: dict[str, Any] = {}
-    nums = ({f.name for f in fields(MPCSettings)} - set(_STR) - set(_INT) - set(_BOOL)
-            - {"weights", "bounds", "smooth"}) | {f.name for f in fields(FollowingWeights)} \
-        | {f.name for f in fields(FollowingBounds)} | {"smoothing_width_W"}
-    for k in list(r.table):
-        if k in _STR:
-            d[k] = r.string(k, choices=list(_STR[k]))
-        elif k in _INT:
-            d[k] = r.integer(k, ge=1)
-        elif k in _BOOL:
-            d[k] = r.boolean(k)
-        elif k in nums:
-            d[k] = r.number(k)
+    from ..scenarios import ScenarioError
+
+    keys = mpc_table_keys()
+    d = {k: _read(r, k, keys[k]) for k in list(r.table) if k in keys}
     vehicles: tuple[int, ...] | None = None
     if r.has("vehicles"):
         val = r.table["vehicles"]
         if val == "all":
             r._get("vehicles", None)
         else:
+            if not isinstance(val, list):
+                raise r.error("vehicles", val, "must be \"all\" or an array of follower numbers (1, 2, …)")
             nums_v = r.numbers("vehicles", ge=1)
             if any(int(x) != x for x in nums_v):
                 raise r.error("vehicles", val, "must be \"all\" or an array of follower numbers (1, 2, …)")
+            if len(set(nums_v)) != len(nums_v):
+                raise r.error("vehicles", val, "lists a follower twice")
             vehicles = tuple(sorted({int(x) - 1 for x in nums_v}))
-    fp = r.string("follower_predictor", None, choices=["cooperative", "constant-velocity", "constant-acceleration"])
-    r.finish()
-    settings = MPCSettings.from_dict(d)  # ParameterError names the option; the loader adds file and [mpc]
+    fp = r.string("follower_predictor", None, choices=list(FOLLOWER_PREDICTORS))
+    r.finish(allowed_hint=sorted(keys) + ["follower_predictor", "vehicles"])
+    try:
+        settings = MPCSettings.from_dict(d)
+    except ParameterError as exc:  # a cross-field rule of a nested dataclass (e.g. v_min < v_max)
+        key = next((k for k in d if f".{k} " in str(exc)), None)
+        raise ScenarioError(f"{r.file}: {r.key_path(key) if key else r.path}: {exc}") from None
     return MPCConfig(settings, vehicles, fp)
 
 
@@ -72,6 +95,32 @@ def register() -> None:
     register_section("mpc", validate_mpc_table)
 
 
+def check_mpc_setup(scenario: Any, config: MPCConfig | None = None, settings: MPCSettings | None = None) -> None:
+    """Refuse an MPC setup that cannot run, before anything is built: MPC vehicles that do not exist, or an
+    MPC vehicle whose initial gap is at or below h_min or whose initial speed is outside [v_min, v_max]
+    (every NLP would be infeasible and every step would run on the fallback). ScenarioError naming the file."""
+    from ..scenarios import ScenarioError
+
+    cfg = config or scenario.extra.get("mpc") or MPCConfig(MPCSettings())
+    s = settings or cfg.settings
+    file = str(scenario.source) if getattr(scenario, "source", None) is not None else scenario.name
+    n = scenario.n_followers
+    on = list(range(n)) if cfg.vehicles is None else list(cfg.vehicles)
+    missing = [i + 1 for i in on if i >= n]
+    if missing:
+        raise ScenarioError(f"{file}: mpc.vehicles = {[i + 1 for i in on]} is not allowed: follower(s) {missing} "
+                            f"do not exist (platoon.followers = {n})")
+    b = s.bounds
+    for i in on:
+        h0, v0 = scenario.gaps0[i], scenario.speeds0[i]
+        if b.h_min >= h0:
+            raise ScenarioError(f"{file}: mpc.h_min = {b.h_min:g} is not allowed: it is at or above the initial gap "
+                                f"of follower {i + 1} ({h0:g}), so the MPC problem is infeasible from the first step")
+        if not b.v_min <= v0 <= b.v_max:
+            raise ScenarioError(f"{file}: mpc.v_min/v_max = [{b.v_min:g}, {b.v_max:g}] is not allowed: the initial "
+                                f"speed of follower {i + 1} ({v0:g}) lies outside, so the MPC problem is infeasible")
+
+
 def closed_loop_from_scenario(scenario: Any, config: MPCConfig | None = None,
                               settings: MPCSettings | None = None) -> ClosedLoop:
     """A :class:`ClosedLoop` for a scenario: MPC on the configured followers, the scenario's laws on the
@@ -80,9 +129,7 @@ def closed_loop_from_scenario(scenario: Any, config: MPCConfig | None = None,
     s = settings or cfg.settings
     n = scenario.n_followers
     on = set(range(n)) if cfg.vehicles is None else set(cfg.vehicles)
-    bad = [i + 1 for i in on if i >= n]
-    if bad:
-        raise ParameterError(f"[mpc].vehicles: followers {bad} do not exist (the platoon has {n})")
+    check_mpc_setup(scenario, cfg, s)
     ctrls: list[Any] = []
     for i in range(n):
         if i not in on:

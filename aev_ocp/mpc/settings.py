@@ -1,18 +1,18 @@
 """MPC settings (PROBLEM.md §9), validated in one place.
 
-Every option lives in :class:`MPCSettings`, a frozen dataclass; an invalid value raises
+Every option lives in :class:`MPCSettings`, a frozen dataclass whose fields declare their type and
+range (:func:`aev_ocp.params.spec`); the ``[mpc]`` scenario table reads those declarations. An invalid value raises
 :class:`aev_ocp.params.ParameterError` naming the option (``MPCSettings.N = 0 is not allowed: ...``).
 Model units throughout (PROBLEM.md §1): ``dt`` in model time units (0.1 = 0.2 s at the default units).
 """
 
 from __future__ import annotations
 
-import math
-from dataclasses import dataclass, field, fields, replace
+from dataclasses import dataclass, fields, replace
 from typing import Any
 
 from ..ocp.following import OBJECTIVES, FollowingBounds, FollowingWeights
-from ..params import ParameterError, PowertrainOptions
+from ..params import ParameterError, PowertrainOptions, spec, validate_fields
 
 #: Solver paths. 'ipopt': warm-started IPOPT (default). 'sqp': sqpmethod (exact Hessian, qpsol
 #: ``qp_solver``) warm-started from the shifted previous solution after a cold IPOPT first solve.
@@ -25,10 +25,6 @@ from ..params import ParameterError, PowertrainOptions
 SOLVER_PATHS = ("ipopt", "sqp", "ipopt-cold", "rti")
 QP_SOLVERS = ("qrqp", "osqp", "hpipm", "qpoases", "proxqp")
 PREDICTOR_NAMES = ("oracle", "constant-velocity", "constant-acceleration", "decaying-acceleration", "cooperative")
-
-
-def _err(name: str, value: Any, allowed: str) -> ParameterError:
-    return ParameterError(f"MPCSettings.{name} = {value!r} is not allowed: {allowed}")
 
 
 @dataclass(frozen=True)
@@ -48,45 +44,29 @@ class MPCSettings:
     constant-acceleration predictor; verbose: solver console output (silent by default).
     """
 
-    N: int = 40  # PROBLEM.md §9
-    dt: float = 0.1  # PROBLEM.md §9 (0.2 s at L = 10 m, U = 5 m/s)
-    weights: FollowingWeights = field(default_factory=FollowingWeights)  # PROBLEM.md §9: 1, 1, 1, 0.1
-    bounds: FollowingBounds = field(default_factory=FollowingBounds)  # PROBLEM.md §9
-    objective: str = "heat"  # PROBLEM.md §9
-    smooth: PowertrainOptions = field(default_factory=PowertrainOptions)  # PROBLEM.md §7: 300 W
-    rk4_substeps: int = 1
-    solver: str = "ipopt"
-    qp_solver: str = "hpipm"
-    codegen: bool = False
-    tol: float = 1e-8
-    max_iter: int = 200
-    rti_iterations: int = 1
-    max_cpu_time_s: float = 10.0
-    predictor: str = "oracle"  # PROBLEM.md §9 canonical scenario: oracle forecast
-    predictor_window: int = 5
-    verbose: bool = False
+    N: int = spec(40, kind="integer", ge=1)  # PROBLEM.md §9
+    dt: float = spec(0.1, gt=0)  # PROBLEM.md §9 (0.2 s at L = 10 m, U = 5 m/s)
+    weights: FollowingWeights = spec(kind="instance", cls=FollowingWeights,
+                                     default_factory=FollowingWeights)  # PROBLEM.md §9: 1, 1, 1, 0.1
+    bounds: FollowingBounds = spec(kind="instance", cls=FollowingBounds,
+                                   default_factory=FollowingBounds)  # PROBLEM.md §9
+    objective: str = spec("heat", kind="choice", choices=OBJECTIVES)  # PROBLEM.md §9
+    smooth: PowertrainOptions = spec(kind="instance", cls=PowertrainOptions,
+                                     default_factory=PowertrainOptions)  # PROBLEM.md §7: 300 W
+    rk4_substeps: int = spec(1, kind="integer", ge=1)
+    solver: str = spec("ipopt", kind="choice", choices=SOLVER_PATHS)
+    qp_solver: str = spec("hpipm", kind="choice", choices=QP_SOLVERS)
+    codegen: bool = spec(False, kind="bool")
+    tol: float = spec(1e-8, gt=0)
+    max_iter: int = spec(200, kind="integer", ge=1)
+    rti_iterations: int = spec(1, kind="integer", ge=1)
+    max_cpu_time_s: float = spec(10.0, gt=0)
+    predictor: str = spec("oracle", kind="choice", choices=PREDICTOR_NAMES)  # PROBLEM.md §9 canonical: oracle
+    predictor_window: int = spec(5, kind="integer", ge=2)
+    verbose: bool = spec(False, kind="bool")
 
     def __post_init__(self) -> None:
-        for nm, lo in (("N", 1), ("rk4_substeps", 1), ("max_iter", 1), ("rti_iterations", 1),
-                       ("predictor_window", 2)):
-            v = getattr(self, nm)
-            if not isinstance(v, int) or isinstance(v, bool) or v < lo:
-                raise _err(nm, v, f"must be an integer >= {lo}")
-        for nm in ("dt", "tol", "max_cpu_time_s"):
-            v = getattr(self, nm)
-            if isinstance(v, bool) or not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
-                raise _err(nm, v, "must be a finite number > 0")
-        for nm, choices in (("objective", OBJECTIVES), ("solver", SOLVER_PATHS), ("qp_solver", QP_SOLVERS),
-                            ("predictor", PREDICTOR_NAMES)):
-            v = getattr(self, nm)
-            if v not in choices:
-                raise _err(nm, v, f"must be one of {choices}")
-        for nm in ("codegen", "verbose"):
-            if not isinstance(getattr(self, nm), bool):
-                raise _err(nm, getattr(self, nm), "must be true or false")
-        for nm, cls in (("weights", FollowingWeights), ("bounds", FollowingBounds), ("smooth", PowertrainOptions)):
-            if not isinstance(getattr(self, nm), cls):
-                raise _err(nm, getattr(self, nm), f"must be a {cls.__name__}")
+        validate_fields(self)
 
     @property
     def horizon(self) -> float:

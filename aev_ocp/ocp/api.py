@@ -181,14 +181,11 @@ def closed_form_costs(scn: OracleScenario) -> tuple[dict[str, float], dict[str, 
 
 def replay_exact(res: OCPResult, scn: OracleScenario, gap_rtol: float = GAP_RTOL) -> dict[str, Any]:
     """OCP-D's smoothing-gap check: replay its piecewise-constant controls open loop through the exact
-    plant (ClosedLoop with a ControlSequence, aev_ocp.control or aev_ocp.mpc.closed_loop: CVODES, exact η switch)
+    plant (aev_ocp.control.ClosedLoop with a ControlSequence: CVODES, exact η switch)
     and evaluate the same §9 cost on that trajectory with the exact η switch (and the exact g for the
     'energy' objective). Stores meta['replay'], the smoothing-gap record of the total and of the energy
     term (the only smoothed one); returns the replay record."""
-    try:  # the generic closed loop (aev_ocp.control) where it exists, else the MPC's
-        from ..control import ClosedLoop, ControlSequence
-    except ImportError:
-        from ..mpc.closed_loop import ClosedLoop, ControlSequence
+    from ..control import ClosedLoop, ControlSequence
 
     seq = ControlSequence(tuple(np.asarray(res.controls["a"], float).ravel()), scn.dt, "ocp-d")
     r = ClosedLoop(scn.leader, [seq], scn.ev).run([scn.h0], [scn.v0], scn.t_end, soc0=scn.S0)

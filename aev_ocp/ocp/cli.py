@@ -7,16 +7,15 @@ The project's main CLI (owned elsewhere) can dispatch to :func:`cli_ocp`.
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
-
-from ..params import ParameterError
 
 COMMANDS = ("prop31", "current-profile", "eco-trip", "oracle")
 
 
 def _parser() -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(prog="aev-ocp ocp", description="Optimal-control problems OCP-A..D (PROBLEM.md §8).")
+    from ..cli import OneLineParser
+
+    ap = OneLineParser(prog="aev-ocp ocp", description="Optimal-control problems OCP-A..D (PROBLEM.md §8).")
     ap.add_argument("problem", choices=COMMANDS)
     ap.add_argument("scenario", nargs="?", default=None, help="scenario TOML (oracle: default canonical scenario)")
     ap.add_argument("--method", choices=("ms", "collocation"), default="ms", help="transcription (default ms)")
@@ -29,56 +28,75 @@ def _parser() -> argparse.ArgumentParser:
     return ap
 
 
+def _check_size(args: argparse.Namespace) -> None:
+    """Refuse, before building it, an NLP too large for the memory budget (:mod:`aev_ocp.limits`:
+    measured bytes per interval per problem and transcription)."""
+    from ..limits import check_ocp_size
+
+    if args.problem == "oracle":
+        if args.scenario is not None:  # the canonical scenario has N = 700
+            from ..scenarios import find_scenario
+            from .api import oracle_scenario_from_file
+
+            scn = oracle_scenario_from_file(find_scenario(args.scenario))
+            check_ocp_size("oracle", scn.N, args.method, f"{args.scenario}: simulation.t_end (N = t_end/dt)")
+    else:
+        check_ocp_size(args.problem, args.N or 200, args.method)
+
+
 def cli_ocp(argv: list[str]) -> int:
-    """Run one OCP from the command line; returns the exit code (0 ok, 1 solver failure, 2 bad input)."""
-    try:
-        args = _parser().parse_args(argv)
-    except SystemExit as exc:
-        return int(exc.code or 0)
+    """Run one OCP from the command line; returns the exit code (0 ok, 1 solver failure, 2 bad input,
+    130 interrupted). Errors are one line ``aev-ocp: error: ...`` as for every subcommand."""
+    from ..cli import guarded
+
+    return guarded(lambda: _cli_ocp(argv))
+
+
+def _cli_ocp(argv: list[str]) -> int:
+    from ..params import ParameterError
+    from ..results import claim_output_dir
+
+    args = _parser().parse_args(argv)
     from . import api
 
     if args.N is not None and args.N < 1:
-        print(f"aev-ocp ocp {args.problem}: error: --N = {args.N} is not allowed: must be an integer >= 1",
-              file=sys.stderr)
-        return 2
+        raise ParameterError(f"ocp {args.problem}: --N = {args.N} is not allowed: must be an integer >= 1")
     if args.problem in ("prop31",) and args.scenario is not None:
-        print("aev-ocp ocp prop31: error: prop31 takes no scenario (OCP-A is the single cell of PROBLEM.md §8)",
-              file=sys.stderr)
-        return 2
+        raise ParameterError("ocp prop31: prop31 takes no scenario (OCP-A is the single cell of PROBLEM.md §8)")
     if args.multistart and args.problem not in ("eco-trip", "oracle"):
-        print(f"aev-ocp ocp {args.problem}: error: --multistart applies to eco-trip and oracle only", file=sys.stderr)
-        return 2
+        raise ParameterError(f"ocp {args.problem}: --multistart applies to eco-trip and oracle only")
     if args.problem == "oracle" and args.N is not None:
-        print("aev-ocp ocp oracle: error: --N does not apply (N = t_end/dt of the scenario, dt = 0.1)",
-              file=sys.stderr)
-        return 2
+        raise ParameterError("ocp oracle: --N does not apply (N = t_end/dt of the scenario, dt = 0.1)")
+    _check_size(args)
     out = Path(args.out) if args.out else None
-    try:
-        if args.problem == "prop31":
-            from .prop31 import prop31_table
+    if out is not None:
+        claim_output_dir(out, f"ocp {args.problem}", str(args.scenario or args.problem), args.scenario)
+    if args.problem == "prop31":
+        from .prop31 import prop31_table
 
-            cases = api.run_prop31(args.method, out_dir=out, refine=not args.no_refine,
-                                   **({"N": args.N} if args.N is not None else {}))
-            print(prop31_table(cases))
-            ok = all(e["status"] in ("optimal", "acceptable") for e in cases.values())
-        elif args.problem == "current-profile":
-            rep = api.run_current_profile(method=args.method, out_dir=out, scenario=args.scenario,
-                                          refine=not args.no_refine, **({"N": args.N} if args.N is not None else {}))
-            print(rep["table"])
-            ok = rep["ok"]
-        elif args.problem == "eco-trip":
-            rep = api.run_eco_trip(method=args.method, out_dir=out, scenario=args.scenario,
-                                   refine=not args.no_refine, multistart=args.multistart,
-                                   **({"N": args.N} if args.N is not None else {}))
-            print(rep["table"])
-            ok = rep["ok"]
-        else:
-            rep = api.run_oracle(method=args.method, out_dir=out, scenario=args.scenario, multistart=args.multistart)
-            print(rep["table"])
-            ok = rep["ok"]
-    except (ParameterError, FileNotFoundError, ValueError) as exc:
-        print(f"aev-ocp ocp {args.problem}: error: {exc}", file=sys.stderr)
-        return 2
+        cases = api.run_prop31(args.method, out_dir=out, refine=not args.no_refine,
+                               **({"N": args.N} if args.N is not None else {}))
+        print(prop31_table(cases))
+        ok = all(e["status"] in ("optimal", "acceptable") for e in cases.values())
+    elif args.problem == "current-profile":
+        rep = api.run_current_profile(method=args.method, out_dir=out, scenario=args.scenario,
+                                      refine=not args.no_refine, **({"N": args.N} if args.N is not None else {}))
+        print(rep["table"])
+        ok = rep["ok"]
+    elif args.problem == "eco-trip":
+        rep = api.run_eco_trip(method=args.method, out_dir=out, scenario=args.scenario,
+                               refine=not args.no_refine, multistart=args.multistart,
+                               **({"N": args.N} if args.N is not None else {}))
+        print(rep["table"])
+        ok = rep["ok"]
+    else:
+        rep = api.run_oracle(method=args.method, out_dir=out, scenario=args.scenario, multistart=args.multistart)
+        print(rep["table"])
+        ok = rep["ok"]
     if out is not None:
         print(f"wrote results to {out}")
+    if not ok:
+        from ..cli import error_line
+
+        error_line(f"ocp {args.problem}: the solver did not converge (see the table above)")
     return 0 if ok else 1

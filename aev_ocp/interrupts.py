@@ -1,0 +1,56 @@
+"""Ctrl-C and SIGTERM: one behaviour for every command, even inside solvers that swallow them.
+
+IPOPT, CVODES and CasADi's own interrupt check turn a KeyboardInterrupt raised during a solve into a
+failed solve; an MPC loop then applies its fallback and carries on, and a run that was interrupted
+could finish with status 'ok'. :func:`handle_signals` records every SIGINT/SIGTERM in a flag (and
+raises KeyboardInterrupt as Python does); long loops call :func:`check` between steps, and the
+command line checks :func:`interrupted` after a command returns, so an interrupt is never lost.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import signal
+import threading
+from typing import Any, Iterator
+
+_state = {"signal": 0}
+
+
+class Interrupted(KeyboardInterrupt):
+    """Raised by :func:`check` after SIGINT or SIGTERM."""
+
+
+def interrupted() -> int:
+    """The number of the last SIGINT/SIGTERM received inside :func:`handle_signals`, else 0."""
+    return _state["signal"]
+
+
+def check() -> None:
+    """Raise :class:`Interrupted` if SIGINT or SIGTERM arrived (call it between steps of long loops)."""
+    if _state["signal"]:
+        raise Interrupted(signal.Signals(_state["signal"]).name)
+
+
+def _handler(signum: int, frame: Any) -> None:  # noqa: ARG001 - signal handler signature
+    _state["signal"] = signum
+    raise Interrupted(signal.Signals(signum).name)
+
+
+@contextlib.contextmanager
+def handle_signals() -> Iterator[None]:
+    """Within the block, SIGINT and SIGTERM raise :class:`Interrupted` and are remembered.
+
+    Outside the main thread (where Python cannot install handlers) it does nothing."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    _state["signal"] = 0
+    old = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        for s in old:
+            signal.signal(s, _handler)
+        yield
+    finally:
+        for s, h in old.items():
+            signal.signal(s, h if h is not None else signal.SIG_DFL)

@@ -1,0 +1,110 @@
+"""How much memory a run needs, estimated before it starts (issue 11 item 6).
+
+One place that answers "will this fit?" for every kind of run, against one budget
+(:func:`memory_limit_bytes`: ``$AEV_OCP_MAX_MEMORY_GB``, default 3 GB):
+
+* platoon simulation (closed-form laws): followers × samples × bytes per sample
+  (:func:`aev_ocp.scenarios.estimate_run_bytes`; the scenario layer thins ``dt_out`` where a large
+  platoon is legitimate, :func:`aev_ocp.scenarios.thinned_dt_out`);
+* MPC: horizon N × bytes per interval of the NLP (:data:`aev_ocp.mpc.report.MPC_BYTES_PER_INTERVAL`);
+* OCP (``aev-ocp ocp``): intervals N × bytes per interval of the transcribed NLP (this module's table).
+
+Each ``check_*`` raises :class:`~aev_ocp.params.ParameterError` with one line that says how much, the
+limit, and which key or argument to change; it returns the estimate [bytes] when the run fits.
+"""
+
+from __future__ import annotations
+
+import math
+
+from .params import ParameterError
+
+#: Peak resident memory of building and solving one OCP, per interval of the grid [bytes]: the slope of
+#: peak RSS between two N (ms: prop31 200/800, current-profile 200/800, eco-trip 100/300, oracle
+#: 350/1400; collocation: eco-trip 100/400, current-profile and oracle at 800/700, total/N), CasADi 3.x
+#: with IPOPT/MUMPS on the project's 2-core machine, rounded up by ~25 %. Multiple shooting of the
+#: eco-trip is heavy because its interval map is an RK4 of the full vehicle + pack model (3.3 MB).
+OCP_BYTES_PER_INTERVAL: dict[tuple[str, str], float] = {
+    ("prop31", "ms"): 0.65e6, ("prop31", "collocation"): 0.65e6,
+    ("current-profile", "ms"): 0.8e6, ("current-profile", "collocation"): 0.25e6,
+    ("eco-trip", "ms"): 4.2e6, ("eco-trip", "collocation"): 0.75e6,
+    ("oracle", "ms"): 0.75e6, ("oracle", "collocation"): 0.75e6,
+}
+#: Fixed part of an OCP run (CasADi, IPOPT, the OCV spline, plots) [bytes], measured at small N.
+OCP_BASE_BYTES = 0.15e9
+
+
+def memory_limit_bytes() -> float:
+    """The memory budget of one run [bytes] ($AEV_OCP_MAX_MEMORY_GB, see :mod:`aev_ocp.scenarios`)."""
+    from .scenarios import memory_limit_bytes as budget
+
+    return budget()
+
+
+def _gb(x: float) -> str:
+    return f"{x / 1e9:.3g} GB"
+
+
+def estimate_ocp_bytes(problem: str, N: int, method: str = "ms") -> float:
+    """Estimated peak memory of solving OCP ``problem`` on N intervals with ``method`` [bytes]."""
+    try:
+        per = OCP_BYTES_PER_INTERVAL[(problem, method)]
+    except KeyError:
+        raise ParameterError(f"ocp: no memory model for problem {problem!r} with method {method!r}; known: "
+                             f"{sorted({p for p, _ in OCP_BYTES_PER_INTERVAL})} x ['ms', 'collocation']") from None
+    return OCP_BASE_BYTES + per * float(N)
+
+
+def max_ocp_intervals(problem: str, method: str = "ms") -> int:
+    """The largest N that fits the budget for ``problem`` and ``method``."""
+    per = OCP_BYTES_PER_INTERVAL[(problem, method)]
+    return max(0, int((memory_limit_bytes() - OCP_BASE_BYTES) // per))
+
+
+def check_ocp_size(problem: str, N: int, method: str = "ms", key: str = "--N") -> float:
+    """Raise ParameterError if OCP ``problem`` with N intervals needs more than the budget; ``key`` names
+    what sets N (e.g. '--N', or 'simulation.t_end (N = t_end/dt)' for the oracle). Returns the estimate."""
+    if isinstance(N, bool) or not isinstance(N, int) or N < 1:
+        raise ParameterError(f"ocp {problem}: {key} gives N = {N!r}: must be an integer >= 1")
+    need, limit = estimate_ocp_bytes(problem, N, method), memory_limit_bytes()
+    if need <= limit:
+        return need
+    raise ParameterError(f"ocp {problem}: N = {N} intervals ({method}) need about {_gb(need)}, more than the limit of "
+                         f"{_gb(limit)} ($AEV_OCP_MAX_MEMORY_GB): lower {key} so that N <= "
+                         f"{max_ocp_intervals(problem, method)}")
+
+
+def oracle_intervals(t_end: float, dt: float) -> int:
+    """N of the oracle OCP over [0, t_end] with interval dt (model time), refusing absurd values early."""
+    if not (math.isfinite(t_end) and math.isfinite(dt) and t_end > 0 and dt > 0):
+        raise ParameterError(f"ocp oracle: t_end = {t_end!r} and dt = {dt!r} must be finite and > 0")
+    n = t_end / dt
+    return int(min(round(n), 2**62))
+
+
+def check_simulation_size(n_followers: int, t_end: float, dt_out: float) -> float:
+    """For :meth:`aev_ocp.simulate.PlatoonSimulator.run` (Python API): raise ParameterError naming the
+    arguments if the sampled output of a platoon simulation would exceed the budget; returns the estimate."""
+    from .scenarios import estimate_run_bytes, n_samples
+
+    need, limit = estimate_run_bytes(n_followers, t_end, dt_out), memory_limit_bytes()
+    if need <= limit:
+        return need
+    per_vehicle = need / max(n_followers, 1)
+    raise ParameterError(f"simulate: {n_followers} followers x {n_samples(t_end, dt_out):.3g} samples (t_end = {t_end:g}, "
+                         f"dt_out = {dt_out:g}) need about {_gb(need)}, more than the limit of {_gb(limit)} "
+                         f"($AEV_OCP_MAX_MEMORY_GB): raise dt_out, lower t_end, or simulate at most "
+                         f"{int(limit // per_vehicle)} followers")
+
+
+def check_mpc_size(N: int, n_mpc_vehicles: int = 1) -> float:
+    """For :class:`aev_ocp.control.ClosedLoop` (Python API): raise ParameterError if the MPC NLPs
+    (one per MPC vehicle, horizon N) exceed the budget; returns the estimate [bytes]."""
+    from .mpc.report import MPC_BYTES_PER_INTERVAL
+
+    need, limit = float(MPC_BYTES_PER_INTERVAL) * N * max(n_mpc_vehicles, 1), memory_limit_bytes()
+    if need <= limit:
+        return need
+    raise ParameterError(f"mpc: {n_mpc_vehicles} MPC vehicle(s) with horizon N = {N} need about {_gb(need)}, more than "
+                         f"the limit of {_gb(limit)} ($AEV_OCP_MAX_MEMORY_GB): lower MPCSettings.N to at most "
+                         f"{int(limit // (MPC_BYTES_PER_INTERVAL * max(n_mpc_vehicles, 1)))}")

@@ -1,0 +1,130 @@
+"""The compile cache (issue 11 item 9): a damaged cached library is detected (size/checksum, load test),
+rebuilt once with a warning, and the simulator then runs compiled again instead of silently on CVODES;
+an unusable cache folder leaks no temporary build folders."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import warnings
+from pathlib import Path
+
+import pytest
+
+import aev_ocp.compiled as B
+
+pytestmark = pytest.mark.skipif(B.compiler() is None, reason="needs a C compiler")
+
+SRC = "double aev_test_twice(double x) { return 2.0 * x + %s; }\n"
+
+
+def _build(src: str) -> tuple[B.BuildResult, list[str]]:
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        res = B.compile_shared(src, "aevtest", "t")
+    return res, [str(w.message) for w in caught if issubclass(w.category, B.CompileWarning)]
+
+
+def _call(lib: Path, x: float) -> float:
+    import ctypes
+
+    f = ctypes.CDLL(str(lib)).aev_test_twice
+    f.restype, f.argtypes = ctypes.c_double, [ctypes.c_double]
+    return f(x)
+
+
+@pytest.mark.parametrize("damage", ["truncate", "garbage", "no_sidecar", "empty"])
+def test_damaged_library_is_rebuilt_once_with_a_warning(tmp_path, monkeypatch, damage: str) -> None:
+    monkeypatch.setenv("AEV_OCP_CACHE", str(tmp_path / "cache"))
+    src = SRC % "0.25"
+    first, w1 = _build(src)
+    assert first.path is not None and not first.rebuilt and w1 == []
+    assert _call(first.path, 1.5) == 3.25
+    lib = first.path
+    data = lib.read_bytes()
+
+    def replace_with(content: bytes) -> None:  # a new file: the loaded (mapped) one must not change under us
+        tmp = lib.with_name("damaged.tmp")
+        tmp.write_bytes(content)
+        os.replace(tmp, lib)
+
+    if damage == "truncate":
+        replace_with(data[: len(data) // 3])
+    elif damage == "garbage":
+        replace_with(data[:100] + bytes(len(data) - 100))  # same size, different content
+    elif damage == "no_sidecar":
+        lib.with_name(lib.name + B.SIDECAR_SUFFIX).unlink()
+    else:
+        replace_with(b"")
+    B._WARNED.clear()
+    second, w2 = _build(src)
+    assert second.path == lib and second.rebuilt
+    assert len(w2) == 1 and ("verified" if damage == "no_sidecar" else "damaged") in w2[0] and str(lib) in w2[0]
+    assert lib.read_bytes() == data and _call(lib, -2.0) == -3.75
+    third, w3 = _build(src)  # now verified: used as is, no warning
+    assert not third.rebuilt and w3 == []
+    assert not [p for p in lib.parent.iterdir() if p.name.startswith(".")]  # no temp files left
+
+
+def test_failed_build_warns(tmp_path, monkeypatch) -> None:
+    monkeypatch.setenv("AEV_OCP_CACHE", str(tmp_path / "cache"))
+    B._WARNED.clear()
+    res, w = _build("this is not C;\n")
+    assert res.path is None and "failed" in res.error
+    assert len(w) == 1 and "falls back" in w[0]
+    assert not [p for p in (tmp_path / "cache" / "t").iterdir()]
+
+
+def test_truncated_simulator_cache_is_rebuilt_and_the_cascade_still_runs(tmp_path) -> None:
+    """End to end in fresh interpreters: build the cascade, truncate its .so, run again -> rebuilt, cascade."""
+    env = {**os.environ, "AEV_OCP_CACHE": str(tmp_path / "cache"), "PYTHONPATH": str(Path(__file__).parents[1])}
+    code = ("import warnings; warnings.simplefilter('always');"
+            "from aev_ocp.simulate import simulate_platoon; from aev_ocp.models.leader import ConstantSpeed;"
+            "from aev_ocp.models.carfollowing import Proposed;"
+            "r = simulate_platoon(ConstantSpeed(1.3), [Proposed()], [1.1], [1.2], 2.0, dt_out=0.5);"
+            "print(r.meta['integrator'], round(float(r.gap[-1, 0]), 6))")
+    run = lambda: subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env,  # noqa: E731
+                                 timeout=300)
+    a = run()
+    assert a.returncode == 0, a.stderr
+    libs = list((tmp_path / "cache" / "simulate").glob("aevsim_*.so"))
+    assert len(libs) == 1
+    libs[0].write_bytes(libs[0].read_bytes()[:4096])  # no process has it loaded now
+    b = run()
+    assert b.returncode == 0, b.stderr
+    assert b.stdout == a.stdout and b.stdout.startswith("cascade")
+    assert "damaged" in b.stderr and "rebuilding" in b.stderr
+
+
+def test_unusable_cache_folder_uses_one_temp_folder_removed_at_exit(tmp_path) -> None:
+    blocker = tmp_path / "file"
+    blocker.write_text("not a folder")
+    tmpdir = tmp_path / "tmp"
+    tmpdir.mkdir()
+    env = {**os.environ, "AEV_OCP_CACHE": str(blocker / "cache"), "TMPDIR": str(tmpdir),
+           "PYTHONPATH": str(Path(__file__).parents[1])}
+    code = ("import aev_ocp.compiled as B;"
+            "a = B.compile_shared('double f(double x){return x;}', 'aevleak', 'x');"
+            "b = B.compile_shared('double g(double x){return x;}', 'aevleak', 'x');"
+            "assert a.path and b.path and a.path.parent == b.path.parent, (a, b); print(a.path.parent)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip().startswith(str(tmpdir))
+    assert list(tmpdir.iterdir()) == []  # no aev_ocp_build_* folder left behind
+
+
+def test_concurrent_builds_of_one_library_all_succeed_without_warnings(tmp_path) -> None:
+    """Four processes build the same (new) library into one empty cache at once: each gets a verified
+    library, none warns, and no temporary file is left."""
+    env = {**os.environ, "AEV_OCP_CACHE": str(tmp_path / "cache"), "PYTHONPATH": str(Path(__file__).parents[1])}
+    code = ("import warnings, aev_ocp.compiled as B; warnings.simplefilter('error', B.CompileWarning);"
+            "r = B.compile_shared('double aev_conc(double x){return 3.0*x - 0.125;}', 'aevconc', 'c');"
+            "assert r.path is not None and not r.rebuilt, r; print(B.verify_library(r.path) or 'verified')")
+    procs = [subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                              text=True, env=env) for _ in range(4)]
+    outs = [p.communicate(timeout=300) for p in procs]
+    assert all(p.returncode == 0 for p in procs), outs
+    assert [o.strip() for o, _ in outs] == ["verified"] * 4
+    files = sorted(p.name for p in (tmp_path / "cache" / "c").iterdir())
+    assert len(files) == 2 and files[0].endswith(".so") and files[1].endswith(".so.sha256"), files

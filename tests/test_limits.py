@@ -1,0 +1,54 @@
+"""aev_ocp.limits: the memory estimates refuse oversized OCP / simulation / MPC runs before they start,
+with one line that says how much, the limit and which key to change (issue 11 item 6)."""
+
+from __future__ import annotations
+
+import pytest
+
+from aev_ocp import limits
+from aev_ocp.params import ParameterError
+
+
+@pytest.mark.parametrize("problem", ["prop31", "current-profile", "eco-trip", "oracle"])
+@pytest.mark.parametrize("method", ["ms", "collocation"])
+def test_defaults_fit_and_absurd_sizes_are_refused(problem, method, monkeypatch) -> None:
+    monkeypatch.delenv("AEV_OCP_MAX_MEMORY_GB", raising=False)
+    n_default = 700 if problem == "oracle" else 200  # the CLI's defaults (oracle: the canonical scenario)
+    assert limits.check_ocp_size(problem, n_default, method) < 3e9
+    for N in (10**9, 2**62):
+        with pytest.raises(ParameterError) as info:
+            limits.check_ocp_size(problem, N, method)
+        msg = str(info.value)
+        assert "\n" not in msg and f"N = {N}" in msg and "--N" in msg and "GB" in msg, msg
+
+
+def test_the_budget_and_the_suggested_n_agree(monkeypatch) -> None:
+    monkeypatch.setenv("AEV_OCP_MAX_MEMORY_GB", "0.95")
+    n_max = limits.max_ocp_intervals("eco-trip", "ms")
+    assert n_max == int((0.95e9 - limits.OCP_BASE_BYTES) // limits.OCP_BYTES_PER_INTERVAL[("eco-trip", "ms")])
+    limits.check_ocp_size("eco-trip", n_max, "ms")
+    with pytest.raises(ParameterError, match=rf"N <= {n_max}\b"):
+        limits.check_ocp_size("eco-trip", n_max + 1, "ms", key="--N")
+    with pytest.raises(ParameterError, match=r"lower simulation\.t_end"):
+        limits.check_ocp_size("oracle", 10**7, "ms", key="simulation.t_end")
+
+
+@pytest.mark.parametrize("bad", [0, -3, 2.5, True, "200"])
+def test_bad_n_is_refused(bad) -> None:
+    with pytest.raises(ParameterError, match="integer >= 1"):
+        limits.check_ocp_size("prop31", bad)
+
+
+def test_simulation_and_mpc_checks_name_the_arguments(monkeypatch) -> None:
+    monkeypatch.setenv("AEV_OCP_MAX_MEMORY_GB", "2")
+    assert limits.check_simulation_size(5, 70.0, 0.01) < 2e9  # Table 1
+    with pytest.raises(ParameterError, match=r"10000000 followers .*raise dt_out"):
+        limits.check_simulation_size(10**7, 70.0, 0.01)
+    with pytest.raises(ParameterError, match=r"dt_out = 1e-09"):
+        limits.check_simulation_size(1, 1e3, 1e-9)
+    assert limits.check_mpc_size(40, 5) < 2e9  # mpc_paper_platoon
+    with pytest.raises(ParameterError, match=r"MPCSettings\.N to at most \d+"):
+        limits.check_mpc_size(10**9)
+    assert limits.oracle_intervals(70.0, 0.1) == 700
+    with pytest.raises(ParameterError):
+        limits.oracle_intervals(float("inf"), 0.1)
