@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
 from aev_ocp.control import forecast_rms
@@ -22,6 +22,7 @@ def _meas(v0: float, a: float, n: int = 6, dt: float = 0.1) -> Measurements:
 @settings(max_examples=60, deadline=None)
 def test_decaying_acceleration_closed_form_and_consistent_position(v0: float, a: float, tau: float) -> None:
     """v̂ = v_k + â τ (1 − e^{−s/τ}) until it stops, x̂ its exact integral (checked by a fine trapezoid)."""
+    assume(v0 + 0.5 * a > 0.02)  # measured speeds stay positive
     m = _meas(v0, a)
     vk = float(m.v[-1])
     x, v = DecayingAccelerationPredictor(tau, 4).predict(0.5, 0.1, 30, m)
@@ -66,6 +67,12 @@ def test_forecast_rms_is_zero_for_the_truth_and_closed_form_for_constant_velocit
     errs = [0.35 * j * dt for k in range(K) for j in range(N + 1) if k + j <= K]
     assert forecast_rms(t, v, dt, cv) == pytest.approx(float(np.sqrt(np.mean(np.square(errs)))), rel=1e-12)
     assert np.isnan(forecast_rms(t, v, dt, [None] * K))
+
+
+def test_decaying_acceleration_at_standstill_predicts_standstill() -> None:
+    t = 0.1 * np.arange(5)
+    x, v = DecayingAccelerationPredictor(1.1, 4).predict(0.4, 0.1, 12, Measurements(t, np.array([0.2, 0.1, 0.0, -1e-9, -2e-9])))
+    assert np.all(x == 0) and np.all(v == 0)
 
 
 def test_closed_loop_reports_the_forecast_error_of_each_predictor() -> None:

@@ -107,8 +107,10 @@ class DecayingAccelerationPredictor(LeaderPredictor):
 
     def predict(self, t0: float, dt: float, N: int, meas: Measurements) -> tuple[np.ndarray, np.ndarray]:
         s = dt * np.arange(N + 1)
-        v0 = float(meas.v[-1])
+        v0 = max(float(meas.v[-1]), 0.0)  # a measured speed is never negative; noise is clipped
         acc = self._slope(meas)
+        if v0 == 0.0 and acc <= 0.0:
+            return np.zeros(N + 1), np.zeros(N + 1)
         tau = self.tau
         e = 1.0 - np.exp(-s / tau)
         v = v0 + acc * tau * e
