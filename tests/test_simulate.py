@@ -257,16 +257,21 @@ def test_cascade_driver_compiles_cleanly_with_all_warnings(tmp_path: Path) -> No
     assert res.returncode == 0, res.stderr[-2000:]
 
 
-def test_step_size_underflow_fails_cleanly_in_every_vehicle() -> None:
-    """rtol = atol = 1e-30 cannot be honoured: the first vehicle's steps underflow at t = 0. The run
-    must end with an 'integration_failed' event (it crashed the interpreter in the cascade when the
-    later vehicles read their predecessor's empty trajectory). Run in a subprocess: a crash fails."""
+def test_first_vehicle_stopped_at_t0_does_not_crash_the_cascade() -> None:
+    """A pack of one cell cannot drive the second follower at all (the first one brakes, regenerating):
+    it stops at t = 0 before its first step. The third then has no trajectory to follow; the cascade read that empty trajectory
+    and crashed the interpreter (as rtol = atol = 1e-30 did, now refused by SimOptions). Subprocess: a
+    crash fails the test instead of killing the suite."""
     import subprocess
     import sys
 
     code = ("from aev_ocp.simulate import simulate_platoon; from aev_ocp.models import PaperLeader, Proposed; "
+            "from aev_ocp.params import EVParams, PackParams; "
             "r = simulate_platoon(PaperLeader(), [Proposed()] * 3, [0.3, 3.5, 3.5], [1.87] * 3, 9.0, "
-            "rtol=1e-30, atol=1e-30); print(r.status, r.events[0].vehicle, r.t.size, r.speed[0].tolist())")
+            "ev=EVParams(pack=PackParams(1, 1)), method='cascade'); "
+            "print(r.status, r.events[0].vehicle, r.t.size, r.speed[0].tolist())")
     res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=Path(__file__).parents[1])
     assert res.returncode == 0, res.stderr[-1500:]
-    assert res.stdout.split()[:3] == ["integration_failed", "0", "1"]
+    assert res.stdout.split()[:3] == ["infeasible_current", "1", "1"]
+    with pytest.raises(ParameterError, match="rtol"):
+        SimOptions(rtol=1e-30, atol=1e-30)
