@@ -21,7 +21,7 @@ import numpy as np
 
 from .models.carfollowing import CarFollowingLaw, Proposed
 from .models.leader import LeaderProfile
-from .params import EVParams, ParameterError
+from .params import EVParams, ParameterError, SimOptions, check_argument
 from .plant import Plant
 from .results import Event, SimulationResult
 
@@ -168,6 +168,10 @@ class ClosedLoop:
 
     def __init__(self, leader: LeaderProfile, controllers: Sequence[Any], ev: EVParams | None = None,
                  fallback_law: CarFollowingLaw | None = None, rtol: float = 1e-10, atol: float = 1e-10) -> None:
+        check_argument("closed loop", "leader", leader, LeaderProfile)
+        check_argument("closed loop", "ev", ev, (EVParams, type(None)))
+        check_argument("closed loop", "fallback_law", fallback_law, (CarFollowingLaw, type(None)))
+        SimOptions(rtol=rtol, atol=atol)  # the plant's tolerances, validated like a scenario's [simulation]
         if len(controllers) < 1:
             raise ParameterError("ClosedLoop: the platoon needs at least one follower (controllers is empty)")
         self.leader, self.ev = leader, ev or EVParams()

@@ -39,7 +39,8 @@ from .models import energy
 from .models.carfollowing import CarFollowingLaw, optimal_velocity
 from .models.ego import battery_side
 from .models.leader import LeaderProfile
-from .params import METHODS, EVParams, ParameterError, SimOptions
+from .limits import check_simulation_size
+from .params import METHODS, EVParams, ParameterError, SimOptions, check_argument
 from .plant import INTEGRATION_FAILED, Plant, assemble_result, event_from_code, event_header, initial_state
 from .results import Event, SimulationResult
 
@@ -78,6 +79,13 @@ class PlatoonSimulator:
 
     def __init__(self, leader: LeaderProfile, laws: Sequence[CarFollowingLaw], ev: EVParams | None = None,
                  options: SimOptions | None = None, battery: bool = True) -> None:
+        check_argument("simulate", "leader", leader, LeaderProfile)
+        check_argument("simulate", "ev", ev, (EVParams, type(None)))
+        check_argument("simulate", "options", options, (SimOptions, type(None)))
+        if isinstance(laws, (str, bytes)) or not hasattr(laws, "__len__"):
+            raise TypeError(f"simulate: laws must be a sequence of CarFollowingLaw, got {type(laws).__name__}")
+        for i, law in enumerate(laws):
+            check_argument("simulate", f"laws[{i}]", law, CarFollowingLaw)
         if len(laws) < 1:
             raise ParameterError("simulate: the platoon needs at least one follower (laws is empty)")
         self.leader, self.laws = leader, list(laws)
@@ -95,6 +103,7 @@ class PlatoonSimulator:
                 raise ParameterError("SimOptions.method = 'cascade' needs a working C compiler (gcc/cc): "
                                      f"{self._build_error}; use method='cvodes' or 'auto'")
             if self._lib is None and self._build_error not in _FALLBACK_WARNED:  # say it, once per cause
+                # (a failed build was already reported by aev_ocp.compiled; this says what happens next)
                 _FALLBACK_WARNED.add(self._build_error)
                 warnings.warn(f"simulate: the compiled cascade is unavailable ({self._build_error}); "
                               "integrating with CVODES instead (slower, same results)", RuntimeWarning, stacklevel=3)
@@ -226,6 +235,7 @@ class PlatoonSimulator:
         """Integrate from the initial gaps/speeds (model units) over [0, t_end] (model time)."""
         if not (isinstance(t_end, (int, float)) and math.isfinite(t_end) and t_end > 0):
             raise ParameterError(f"simulate: t_end = {t_end!r} is not allowed: must be > 0")
+        check_simulation_size(self.n, t_end, self.opts.dt_out)
         x = initial_state(self.n, self.ev, self.battery, gaps0, speeds0, soc0, "simulate")
         if self.method == "cascade":
             return self._run_cascade(x, t_end, progress)

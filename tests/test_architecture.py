@@ -213,3 +213,19 @@ def test_package_root_exports_resolve() -> None:
     assert aev_ocp.ClosedLoop is ClosedLoop and aev_ocp.following_problem is following_problem
     with pytest.raises(AttributeError):
         aev_ocp.no_such_name  # noqa: B018
+
+
+def test_api_arguments_are_checked_with_one_line_errors() -> None:
+    """Wrong types name the argument (no AttributeError from deep inside); bad values name the field."""
+    with pytest.raises(TypeError, match="leader must be LeaderProfile"):
+        simulate_platoon("paper", [Proposed()], [0.3], [1.8], 5.0)  # type: ignore[arg-type]
+    with pytest.raises(TypeError, match=r"laws\[0\] must be CarFollowingLaw"):
+        simulate_platoon(PaperLeader(), ["proposed"], [0.3], [1.8], 5.0)  # type: ignore[list-item]
+    with pytest.raises(ParameterError, match="soc0"):
+        simulate_platoon(PaperLeader(), [Proposed()], [0.3], [1.8], 5.0, soc0=float("nan"))
+    with pytest.raises(TypeError, match="ev must be EVParams"):
+        ClosedLoop(PaperLeader(), [ACC(0.2)], {})  # type: ignore[arg-type]
+    with pytest.raises(ParameterError, match="rtol"):
+        ClosedLoop(PaperLeader(), [ACC(0.2)], EV, rtol=1e-30)
+    with pytest.raises(ParameterError, match="lower MPCSettings.N"):
+        ClosedLoop(PaperLeader(), [MPCSettings(N=10**7)], EV)

@@ -16,6 +16,7 @@ from typing import Any
 
 import numpy as np
 
+from ..limits import check_mpc_size
 from ..control import ClosedLoop, Command, Observation, register_controller_adapter, run_closed_loop
 from ..models.carfollowing import CarFollowingLaw
 from ..models.leader import LeaderProfile, PaperLeader
@@ -87,6 +88,8 @@ class MPCPolicy:
 def _adapt(obj: MPCSettings | MPCVehicle, i: int, loop: ClosedLoop) -> MPCPolicy:
     """MPCSettings / MPCVehicle of follower i -> MPCPolicy (predictor rules of PROBLEM.md §9)."""
     veh = obj if isinstance(obj, MPCVehicle) else MPCVehicle(obj)
+    n_mpc = 1 + sum(isinstance(c, MPCPolicy) for c in loop.ctrl)
+    check_mpc_size(veh.settings.N, n_mpc)  # the NLPs built so far and this one fit the memory budget
     p = veh.predictor if veh.predictor is not None else veh.settings.predictor
     if isinstance(p, str):
         if p == "cooperative":

@@ -16,7 +16,6 @@ summed as Σ ℓ(z_k, a_k)·dt (dt in model time units), evaluated at the start 
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from typing import Any
 
@@ -25,7 +24,7 @@ import casadi as ca
 from ..models import energy
 from ..models.carfollowing import optimal_velocity
 from ..models.ego import STATE_NAMES, battery_side, following_ode
-from ..params import EVParams, ParameterError, PowertrainOptions
+from ..params import EVParams, ParameterError, PowertrainOptions, spec, validate_fields
 from .problem import ProblemBuilder
 
 TERM_NAMES = ("energy", "ovm", "relative", "accel")  # the four §9 terms, weighted by w_Q, w_V, w_r, w_a
@@ -36,18 +35,15 @@ G_SMOOTH_WIDTH = 0.01  # model acceleration; width of the smoothed g (aev_ocp.mo
 
 @dataclass(frozen=True)
 class FollowingWeights:
-    """Stage-cost weights (PROBLEM.md §9 defaults w_Q = 1, w_V = 1, w_r = 1, w_a = 0.1)."""
+    """Stage-cost weights (PROBLEM.md §9 defaults w_Q = 1, w_V = 1, w_r = 1, w_a = 0.1), each a finite number >= 0."""
 
-    w_Q: float = 1.0  # PROBLEM.md §9
-    w_V: float = 1.0  # PROBLEM.md §9
-    w_r: float = 1.0  # PROBLEM.md §9
-    w_a: float = 0.1  # PROBLEM.md §9
+    w_Q: float = spec(1.0, ge=0.0)  # PROBLEM.md §9
+    w_V: float = spec(1.0, ge=0.0)  # PROBLEM.md §9
+    w_r: float = spec(1.0, ge=0.0)  # PROBLEM.md §9
+    w_a: float = spec(0.1, ge=0.0)  # PROBLEM.md §9
 
     def __post_init__(self) -> None:
-        for nm in ("w_Q", "w_V", "w_r", "w_a"):
-            v = getattr(self, nm)
-            if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
-                raise ParameterError(f"FollowingWeights.{nm} = {v!r} is not allowed: must be a finite number >= 0")
+        validate_fields(self)
 
 
 @dataclass(frozen=True)
@@ -55,17 +51,14 @@ class FollowingBounds:
     """Bounds of PROBLEM.md §9 (model units): h ≥ h_min and v_min ≤ v ≤ v_max at nodes 1…N,
     a_min ≤ a ≤ a_max; |I| ≤ cell.max_current_A and disc ≥ 0 at the start of every interval."""
 
-    h_min: float = 0.2  # PROBLEM.md §9 (2 m at L = 10 m)
-    v_min: float = 0.0  # PROBLEM.md §9
-    v_max: float = 2.0  # PROBLEM.md §9
-    a_min: float = -3.0  # PROBLEM.md §9 (−7.5 m/s² at default units)
-    a_max: float = 2.0  # PROBLEM.md §9 (5 m/s² at default units)
+    h_min: float = spec(0.2)  # PROBLEM.md §9 (2 m at L = 10 m)
+    v_min: float = spec(0.0)  # PROBLEM.md §9
+    v_max: float = spec(2.0)  # PROBLEM.md §9
+    a_min: float = spec(-3.0)  # PROBLEM.md §9 (−7.5 m/s² at default units)
+    a_max: float = spec(2.0)  # PROBLEM.md §9 (5 m/s² at default units)
 
     def __post_init__(self) -> None:
-        for nm in ("h_min", "v_min", "v_max", "a_min", "a_max"):
-            v = getattr(self, nm)
-            if not (isinstance(v, (int, float)) and math.isfinite(v)):
-                raise ParameterError(f"FollowingBounds.{nm} = {v!r} is not allowed: must be finite")
+        validate_fields(self)
         if self.v_min >= self.v_max:
             raise ParameterError(f"FollowingBounds.v_min = {self.v_min} must be < v_max = {self.v_max}")
         if self.a_min >= self.a_max:
