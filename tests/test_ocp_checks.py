@@ -115,18 +115,22 @@ def test_oracle_replay_gap_silent_and_fires_with_wide_smoothing():
     assert rw.objective_exact == pytest.approx(r.objective_exact, rel=1e-2)  # same plant, similar trajectory
 
 
-def test_oracle_energy_objective_term_gap_fires_where_the_total_hides_it():
-    # §9's optional 'energy' objective uses the smoothed g: on 30 model time units behind the paper's
-    # leader its energy term is 7 % off the exact g, while the total (tracking terms are exact) moves 0.1 %
+def test_oracle_energy_term_exact_by_epigraph_and_term_gap_fires_on_a_wide_smoothing():
+    """§9's optional 'energy' objective is stated exactly (epigraph of v g(a)): NLP and exact replay agree
+    and nothing fires. A 200 kW η smoothing of the heat objective moves the energy term a lot while the
+    exact tracking terms dilute it in the total: the term check fires."""
+    from aev_ocp.params import PowertrainOptions
+
     scn = OracleScenario(t_end=30.0, objective="energy")
     r = OracleSolver(scn).solve()
     replay_exact(r, scn)
     term = r.meta["smoothing_gap_terms"]["energy"]
-    assert r.success and not r.meta["smoothing_gap"]["warning"] and term["warning"]
-    assert term["relative"] > 0.05 and any("energy term" in w for w in r.warnings)
-    heat = OracleSolver(OracleScenario(t_end=30.0)).solve()
-    replay_exact(heat, OracleScenario(t_end=30.0))
-    assert heat.warnings == [] and not heat.meta["smoothing_gap_terms"]["energy"]["warning"]
+    assert r.success and r.warnings == [] and not term["warning"] and abs(term["relative"]) < 1e-5
+    wide = OracleScenario(t_end=30.0, smooth=PowertrainOptions(smoothing_width_W=2e5))
+    w = OracleSolver(wide).solve()
+    replay_exact(w, wide)
+    assert w.success and w.meta["smoothing_gap_terms"]["energy"]["warning"]
+    assert any("energy term" in x for x in w.warnings)
 
 
 def cell_rhs(I):

@@ -30,7 +30,6 @@ from .problem import ProblemBuilder
 TERM_NAMES = ("energy", "ovm", "relative", "accel")  # the four §9 terms, weighted by w_Q, w_V, w_r, w_a
 WEIGHT_NAMES = ("w_Q", "w_V", "w_r", "w_a")
 OBJECTIVES = ("heat", "energy")
-G_SMOOTH_WIDTH = 0.01  # model acceleration; width of the smoothed g (aev_ocp.models.energy.g_smooth default)
 
 
 @dataclass(frozen=True)
@@ -69,15 +68,17 @@ def following_stage_terms(z: Any, a: Any, v_l_hat: Any, ev: EVParams,
                           smooth: PowertrainOptions | None = PowertrainOptions(),
                           objective: str = "heat") -> dict[str, Any]:
     """The four UNWEIGHTED terms of ℓ (PROBLEM.md §9) [model units; multiply by dt in model time]:
-    'energy' Q_pack/(1 kW) (objective 'heat') or v g̃(a) (objective 'energy', smoothed g,
-    η = ev.vehicle.efficiency), 'ovm' (V(h) − v)², 'relative' (v̂_l − v)², 'accel' a²."""
+    'energy' Q_pack/(1 kW) (objective 'heat', η switch smoothed by ``smooth``) or v g(a) (objective
+    'energy', the exact g, η = ev.vehicle.efficiency), 'ovm' (V(h) − v)², 'relative' (v̂_l − v)², 'accel' a².
+    The optimisers never see the non-smooth v g(a): :func:`following_problem` states it exactly by an
+    epigraph (issue 13)."""
     if objective not in OBJECTIVES:
         raise ParameterError(f"objective = {objective!r} is not allowed: must be one of {OBJECTIVES}")
     h, v = z[0], z[1]
     if objective == "heat":
         e = battery_side(v, a, z[2], z[3], z[4], ev, smooth)["Q_pack"] / 1000.0
     else:
-        e = v * energy.g_smooth(a, ev.vehicle.efficiency, G_SMOOTH_WIDTH)
+        e = v * energy.g_exact(a, ev.vehicle.efficiency)
     return {"energy": e, "ovm": (optimal_velocity(h) - v) ** 2, "relative": (v_l_hat - v) ** 2, "accel": a**2}
 
 
@@ -96,6 +97,7 @@ def following_problem(ev: EVParams, bounds: FollowingBounds | None = None,
     stage cost Σ_k (w_Q·energy + w_V·ovm + w_r·relative + w_a·accel)·dt; bounds h ≥ h_min,
     v_min ≤ v ≤ v_max, S ∈ [0, 1] at nodes 1…N, a_min ≤ a ≤ a_max; |I| ≤ I_max and disc ≥ 0 at
     the start of every interval. ``smooth``: η-switch smoothing of the optimiser (PROBLEM.md §7).
+    Objective 'energy': v g(a) through an epigraph control ``energy_rate`` ≥ v a/η, ≥ η v a (exact).
     Outputs: I [A], Q [W per cell], Q_pack_W, Q_irr_pack_W, disc [V²] and each weighted term.
     """
     b = bounds or FollowingBounds()
@@ -109,6 +111,14 @@ def following_problem(ev: EVParams, bounds: FollowingBounds | None = None,
     for i, nm in enumerate(STATE_NAMES):
         pb.set_der(pb.x[nm], rhs[i])
     terms = following_stage_terms(z, a, v_hat, ev, smooth, objective)
+    if objective == "energy":
+        # v g(a) = max(v a/η, η v a) for v ≥ 0: minimising an epigraph variable e ≥ both is exact and
+        # smooth (no width to exploit, PROBLEM.md §9 deviation: §9 smooths g; see README)
+        e = pb.control("energy_rate")
+        eta = ev.vehicle.efficiency
+        pb.subject_to(e - z[1] * a / eta, 0.0, ca.inf, name="energy_epi_drive")
+        pb.subject_to(e - eta * z[1] * a, 0.0, ca.inf, name="energy_epi_brake")
+        terms["energy"] = e
     for wk, nm in zip(wt, TERM_NAMES):
         pb.add_stage_cost(wk * terms[nm], nm)
     cell = battery_side(z[1], a, z[2], z[3], z[4], ev, smooth)

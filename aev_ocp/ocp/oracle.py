@@ -155,7 +155,11 @@ class OracleSolver:
         vm, vh = leader_forecast(scn.leader, t)
         guess = None
         if not warm:
-            guess = rollout_guess(scn, guess_law or Proposed())
+            X, U = rollout_guess(scn, guess_law or Proposed())
+            if "energy_rate" in self.solver.problem.control_names:  # the epigraph variable at its optimum v g(a)
+                eta = scn.ev.vehicle.efficiency
+                U = np.vstack([U, X[1, :-1] * np.where(U[0] >= 0, U[0] / eta, eta * U[0])])
+            guess = (X, U)
         res = self.solver.solve(scn.z0, scn.t_end, p=weight_vector(scn.weights), w=np.vstack([vm, vh]),
                                 guess=guess, warm=warm,
                                 objective_name="sum_k l(z_k, a_k) dt (PROBLEM.md §9)")

@@ -282,7 +282,10 @@ class OCPSolver:
         nx, nu, N, d = pr.nx, pr.nu, o.N, self._d
         xs, us = _vec(pr.x_scale, nx, 1.0), _vec(pr.u_scale, nu, 1.0)
         X = np.asarray(X, float).reshape(nx, N + 1) / xs[:, None]
-        U = np.asarray(U, float).reshape(nu, N) / us[:, None]
+        U = np.asarray(U, float).reshape(-1, N)
+        if U.shape[0] < nu:  # controls the guess does not give (e.g. slacks of soft constraints) start at 0
+            U = np.vstack([U, np.zeros((nu - U.shape[0], N))])
+        U = U.reshape(nu, N) / us[:, None]
         if d:
             tau = collocation_coefficients(o.degree, o.scheme)[0][1:]
             Xc = np.concatenate([X[:, :N] + tj * (X[:, 1:] - X[:, :N]) for tj in tau], axis=0)
