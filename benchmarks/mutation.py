@@ -104,6 +104,26 @@ MUTATIONS: tuple[Mutation, ...] = (
              "return I * (V1 + V2) + p.R_s_ohm * I**2", "return I * (V1 - V2) + p.R_s_ohm * I**2"),
     Mutation("M22", "cell power divided by N_s only", "aev_ocp/models/powertrain.py",
              "return P_b / pack.n_cells", "return P_b / pack.n_series"),
+    Mutation("M23", "w_r term uses the interval-mean leader speed", "aev_ocp/ocp/following.py",
+             "terms = following_stage_terms(z, a, v_hat,", "terms = following_stage_terms(z, a, v_mean,"),
+    Mutation("M24", "gap dynamics use v_hat instead of the interval mean", "aev_ocp/ocp/following.py",
+             "rhs = following_ode(z, a, v_mean, ev, smooth)", "rhs = following_ode(z, a, v_hat, ev, smooth)"),
+    Mutation("M25", "plant's pack heat quadrature not scaled by T", "aev_ocp/plant.py",
+             'quad += [T * b["Q_pack"], T * b["Q_irr_pack"]]', 'quad += [b["Q_pack"], T * b["Q_irr_pack"]]'),
+    Mutation("M26", "cascade's Q and Q_irr quadratures swapped", "aev_ocp/simulate.py",
+             'quad += [T * b["Q_pack"], T * b["Q_irr_pack"]]', 'quad += [T * b["Q_irr_pack"], T * b["Q_pack"]]'),
+    Mutation("M27", "acceleration unit U/L instead of U^2/L", "aev_ocp/params.py",
+             "return self.speed_mps**2 / self.length_m", "return self.speed_mps / self.length_m"),
+    Mutation("M28", "OCP-D solves with the default weights, not the scenario's", "aev_ocp/ocp/oracle.py",
+             "p=weight_vector(scn.weights)", "p=weight_vector(FollowingWeights())"),
+    Mutation("M29", "MPC ignores the per-solve weights", "aev_ocp/mpc/controller.py",
+             "wt = weight_vector(weights or self.settings.weights)", "wt = weight_vector(self.settings.weights)"),
+    Mutation("M30", "a Dormand-Prince weight in the C cascade (500/1113 -> 500/1112)", "aev_ocp/c/cascade.c",
+             "DP_B[6] = {35.0/384, 0, 500.0/1113,", "DP_B[6] = {35.0/384, 0, 500.0/1112,"),
+    Mutation("M31", "optimal-velocity offset 2 -> 2.2", "aev_ocp/models/carfollowing.py",
+             "return ca.tanh(h - 2.0) + TANH2", "return ca.tanh(h - 2.2) + TANH2"),
+    Mutation("M32", "plant checks the gap row for negative speed", "aev_ocp/plant.py",
+             '"v": lambda M, Y: M[n:2 * n]', '"v": lambda M, Y: M[:n]'),
 )
 
 
@@ -142,12 +162,18 @@ def apply(dest: Path, m: Mutation) -> None:
 
 
 def first_failure(out: str) -> tuple[str, str]:
-    for line in out.splitlines():
+    """(first failing test, its message): the short-summary line and the first 'E' lines of the report
+    (they show how far the checked number moved)."""
+    lines = out.splitlines()
+    e_lines = [ln[1:].strip() for ln in lines if ln.startswith("E ") and ln[1:].strip()]
+    detail = " | ".join(e_lines[:3])
+    for line in lines:
         mm = re.match(r"^(FAILED|ERROR) (\S+)(?: - (.*))?$", line)
         if mm:
-            return mm.group(2), (mm.group(3) or "")[:300]
-    tail = [ln for ln in out.splitlines() if ln.strip()][-1:] or [""]
-    return "?", tail[0][:300]
+            msg = (mm.group(3) or "").strip()
+            return mm.group(2), (detail or msg)[:400]
+    tail = [ln for ln in lines if ln.strip()][-1:] or [""]
+    return "?", (detail or tail[0])[:400]
 
 
 def run_pytest(cwd: Path, args: list[str], timeout: float) -> tuple[int, str]:
