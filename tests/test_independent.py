@@ -13,16 +13,19 @@ from __future__ import annotations
 
 import csv
 import math
+from dataclasses import dataclass
 from pathlib import Path
 
 import casadi as ca
 import numpy as np
 import pytest
 from scipy.interpolate import make_interp_spline
+from scipy.linalg import expm
 from scipy.optimize import brentq
 
 from aev_ocp.models import OVFL, OVM, ConstantSpeed, PaperLeader, Proposed
 from aev_ocp.models import battery, powertrain
+from aev_ocp.models.carfollowing import CarFollowingLaw
 from aev_ocp.models.ego import battery_side, following_ode
 from aev_ocp.models.energy import g_exact, g_smooth
 from aev_ocp.numerics import rk4
@@ -225,6 +228,31 @@ def test_g_by_hand() -> None:
     assert float(g_smooth(0.61, ETA, 0.2)) == pytest.approx(0.61 * (sig / 0.73 + (1 - sig) * 0.73), rel=1e-14)
 
 
+@dataclass(frozen=True)
+class LinearLaw(CarFollowingLaw):
+    """v̇ = k_h (h − h*) + k_v (v_l − v): behind a constant-speed leader the platoon ODE is linear."""
+
+    k_h: float = 0.8
+    k_v: float = 1.9
+    h_star: float = 1.4
+    name = "linear_test"
+
+    def accel(self, h, v, v_l):  # type: ignore[no-untyped-def]
+        return self.k_h * (h - self.h_star) + self.k_v * (v_l - v)
+
+
+@pytest.mark.parametrize("method", ["cascade", "cvodes"])
+def test_simulators_integrate_a_linear_law_exactly(method: str) -> None:
+    """Both integrators against the closed form y(t) = expm(M t) y0, y = (h − h*, v − v_l), to 1e-8."""
+    law, vl, h0, v0 = LinearLaw(), 1.1, 0.9, 1.6
+    r = simulate_platoon(ConstantSpeed(vl), [law], [h0], [v0], 4.0, ev=EV, dt_out=0.05, battery=False, method=method)
+    assert r.status == "ok"
+    M = np.array([[0.0, -1.0], [law.k_h, -law.k_v]])
+    y = np.array([expm(M * t) @ [h0 - law.h_star, v0 - vl] for t in r.t])
+    np.testing.assert_allclose(r.gap[:, 0], y[:, 0] + law.h_star, rtol=0, atol=1e-8)
+    np.testing.assert_allclose(r.speed[:, 0], y[:, 1] + vl, rtol=0, atol=1e-8)
+
+
 @pytest.fixture(scope="module")
 def runs():
     """A Proposed-law follower behind the paper leader (η = 0.73, P_aux, L = 12 m, U = 4 m/s), both integrators."""
@@ -379,6 +407,13 @@ def test_mpc_objective_is_the_numpy_cost_with_distinct_weights(mpc) -> None:
     X, a = sol.X, sol.a
     ell = np_stage(X[0, :-1], X[1, :-1], X[2, :-1], X[3, :-1], X[4, :-1], a, vh)
     assert float(np.sum(ell) * 0.1) == pytest.approx(sol.cost, rel=1e-9)
+    # per-solve weights (no rebuild) reach the NLP too
+    W2 = FollowingWeights(w_Q=0.3, w_V=1.7, w_r=0.6, w_a=2.2)
+    sol2 = mpc.solve(z0, vm, vh, weights=W2)
+    assert sol2.success
+    X, a = sol2.X, sol2.a
+    ell2 = np_stage(X[0, :-1], X[1, :-1], X[2, :-1], X[3, :-1], X[4, :-1], a, vh, weights=W2)
+    assert float(np.sum(ell2) * 0.1) == pytest.approx(sol2.cost, rel=1e-9)
 
 
 # ----------------------------------------------------------------------------- soft constraints, events
