@@ -68,7 +68,8 @@ def np_battery(v, a, V1, V2, S, ev=EV, width=None):
     u, veh, c = ev.units, ev.vehicle, ev.cell
     vs, as_ = v * u.speed_mps, a * u.speed_mps**2 / u.length_m
     F = (0.5 * veh.air_density_kgpm3 * veh.frontal_area_m2 * veh.drag_coefficient * vs**2
-         + veh.rolling_coefficient * veh.mass_kg * veh.gravity_mps2 + veh.mass_kg * veh.gravity_mps2 * math.sin(veh.grade_rad))
+         + veh.rolling_coefficient * veh.mass_kg * veh.gravity_mps2
+         + veh.mass_kg * veh.gravity_mps2 * math.sin(veh.grade_rad))
     Pw = (veh.mass_kg * as_ + F) * vs
     eta = veh.efficiency
     if width is None:
@@ -263,7 +264,8 @@ def runs():
 
 @pytest.mark.parametrize("method", ["cascade", "cvodes"])
 def test_simulated_omega_is_the_exact_split(runs, method: str) -> None:
-    """ω = A Δ(v²/2) + B TV(v²/2), A = (1/η + η)/2, B = (1/η − η)/2 (g = A u + B |u|, v ≥ 0), from samples."""
+    """ω = A Δ(v²/2) + B TV(v²/2), A = (1/η + η)/2, B = (1/η − η)/2 (g = A u + B |u|, v ≥ 0),
+    from the samples."""
     r = runs[method]
     assert r.status == "ok"
     w = 0.5 * r.speed[:, 0] ** 2
@@ -418,7 +420,8 @@ def test_mpc_objective_is_the_numpy_cost_with_distinct_weights(mpc) -> None:
 
 # ----------------------------------------------------------------------------- soft constraints, events
 def test_soft_constraint_adds_a_positive_l1_penalty() -> None:
-    """subject_to(..., soft=ρ) adds +ρ σ + q σ² to the stage cost (σ ≥ 0 the slack) and shifts the bound by σ."""
+    """subject_to(..., soft=ρ) adds +ρ σ + q σ² to the stage cost (σ ≥ 0 the slack) and shifts the
+    bound by σ."""
     pb = ProblemBuilder("soft", time_unit="s")
     x = pb.state("x")
     u = pb.control("u")
@@ -437,7 +440,8 @@ def test_event_rules_fire_on_the_right_side_of_their_thresholds() -> None:
     """Each rule of the one event table, just inside and just outside its threshold."""
     rule = {(r.kind, r.sign): r for r in EVENT_RULES}
     col, neg = rule[("collision", 1.0)], rule[("negative_speed", 1.0)]
-    disc, slo, shi = rule[("infeasible_current", 1.0)], rule[("soc_out_of_range", 1.0)], rule[("soc_out_of_range", -1.0)]
+    disc = rule[("infeasible_current", 1.0)]
+    slo, shi = rule[("soc_out_of_range", 1.0)], rule[("soc_out_of_range", -1.0)]
     assert col.violated(0.0) and not col.violated(1e-12)
     tol = PLAN_TOLERANCE
     assert not neg.violated(0.0) and not neg.violated(-0.5 * tol) and neg.violated(-1.5 * tol)
