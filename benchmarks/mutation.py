@@ -212,7 +212,8 @@ def table(rows: list[Outcome]) -> str:
     head = f"{'key':<5} {'mutation':<58} {'file':<30} {'caught':<7} {'stage':<6} {'s':>6}  first failing test"
     lines = [head, "-" * len(head)]
     for r in rows:
-        lines.append(f"{r.key:<5} {r.what[:58]:<58} {r.path:<30} {('yes' if r.caught else 'NO'):<7} "
+        mark = ("FAILS" if r.caught else "passes") if r.key == "base" else ("yes" if r.caught else "NO")
+        lines.append(f"{r.key:<5} {r.what[:58]:<58} {r.path:<30} {mark:<7} "
                      f"{r.stage:<6} {r.seconds:6.0f}  {r.first_failure}")
     return "\n".join(lines)
 
@@ -242,7 +243,9 @@ def main() -> int:
     for m in plan:
         r = run_one(m, files, a.full or m is None, a.timeout)
         rows.append(r)
-        print(f"[{time.perf_counter() - t0:7.0f} s] {r.key}: {'caught' if r.caught else 'SURVIVED'} "
+        verdict = ("FAILS (the unmutated suite must pass)" if r.caught else "passes") if m is None else (
+            "caught" if r.caught else "SURVIVED")
+        print(f"[{time.perf_counter() - t0:7.0f} s] {r.key}: {verdict} "
               f"({r.stage}, {r.seconds:.0f} s) {r.first_failure} {r.message[:160]}", flush=True)
     print()
     print(table(rows))
