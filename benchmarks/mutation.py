@@ -124,6 +124,10 @@ MUTATIONS: tuple[Mutation, ...] = (
              "return ca.tanh(h - 2.0) + TANH2", "return ca.tanh(h - 2.2) + TANH2"),
     Mutation("M32", "plant checks the gap row for negative speed", "aev_ocp/plant.py",
              '"v": lambda M, Y: M[n:2 * n]', '"v": lambda M, Y: M[:n]'),
+    Mutation("M33", "paper leader amplitude 1.65/1.37 -> 1.37/1.65", "aev_ocp/models/leader.py",
+             "amplitude: float = 1.65 / 1.37", "amplitude: float = 1.37 / 1.65"),
+    Mutation("M34", "collocation's Lagrange quadrature without the interval length", "aev_ocp/ocp/transcription.py",
+             "J = J + B[j] * ell(Xc[j]) * h", "J = J + B[j] * ell(Xc[j])"),
 )
 
 

@@ -448,3 +448,41 @@ def test_event_rules_fire_on_the_right_side_of_their_thresholds() -> None:
     assert disc.violated(-1e-12) and not disc.violated(0.0)
     assert slo.violated(-1e-12) and not slo.violated(0.0) and not slo.violated(0.37)
     assert shi.violated(1 + 1e-12) and not shi.violated(1.0) and not shi.violated(0.37)
+
+
+# ----------------------------------------------------------------------------- leader, plant stop
+def test_paper_leader_against_its_equation() -> None:
+    """v_l(t) = 1.7 + ∫₀ᵗ a_l, a_l = −(1.65/1.37)(sin(0.5πt) + cos(3.2πt)) on [0, 20] (paper eq. acc5),
+    by SciPy quadrature of the printed equation; position by quadrature of that speed."""
+    from scipy.integrate import quad
+
+    L = PaperLeader()
+
+    def a_l(t: float) -> float:
+        return -(1.65 / 1.37) * (math.sin(0.5 * math.pi * t) + math.cos(3.2 * math.pi * t)) if t <= 20 else 0.0
+
+    def v_l(t: float) -> float:
+        return 1.7 + quad(a_l, 0.0, min(t, 20.0), limit=400, epsabs=1e-12, epsrel=1e-12)[0]  # a_l = 0 after 20
+
+    for t in (0.37, 3.1, 11.9, 23.0):
+        assert float(L.accel(t)) == pytest.approx(a_l(t), abs=1e-12)
+        assert float(L.speed(t)) == pytest.approx(v_l(t), abs=1e-10)
+    x = quad(v_l, 0.0, 3.1, limit=200, epsabs=1e-11)[0]
+    assert float(L.position(3.1)) == pytest.approx(x, abs=1e-9)
+
+
+@pytest.mark.parametrize("method", ["cascade", "cvodes"])
+def test_plant_stops_where_the_speed_crosses_the_tolerance(method: str) -> None:
+    """Braking at 1.7 from v = 0.85: the run stops at t = 0.5 + PLAN_TOLERANCE/1.7 with a negative-speed
+    event (exact kinematics), in the CVODES plant and in the compiled cascade."""
+
+    @dataclass(frozen=True)
+    class Brake(CarFollowingLaw):
+        name = "brake17"
+
+        def accel(self, h, v, v_l):  # type: ignore[no-untyped-def]
+            return -1.7 + 0 * h
+
+    r = simulate_platoon(ConstantSpeed(1.1), [Brake()], [4.3], [0.85], 2.0, ev=EV, battery=False, method=method)
+    assert r.status == "negative_speed" and r.events[0].vehicle == 0
+    assert r.events[0].time == pytest.approx(0.5 + PLAN_TOLERANCE / 1.7, abs=1e-9)
