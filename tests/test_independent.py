@@ -343,6 +343,26 @@ def test_transcription_interval_is_rk4_with_its_quadrature() -> None:
     assert float(out["J"]) == pytest.approx(qt, rel=1e-13)
 
 
+@pytest.mark.parametrize("scheme", ["radau", "legendre"])
+def test_collocation_interval_is_exact_on_a_polynomial(scheme: str) -> None:
+    """Collocation (degree 3) on ẋ = u with ∫ x² dt: the exact states x0 + u t at the collocation points
+    solve its equations, and its quadrature of x² is exact: J = ((x0 + u h)³ − x0³)/(3u)."""
+    from aev_ocp.ocp.transcription import collocation_coefficients
+
+    pb = ProblemBuilder("poly", time_unit="s")
+    x = pb.state("x")
+    u = pb.control("u")
+    pb.set_der(x, u)
+    pb.add_integral_cost(x**2, "x2")
+    pr = pb.build()
+    F = interval_function(pr, TranscriptionOptions(method="collocation", N=1, degree=3, scheme=scheme))
+    x0, u0, h = 0.7, -1.3, 0.37
+    tau = collocation_coefficients(3, scheme)[0][1:]
+    out = F(xk=x0, uk=u0, xc=x0 + u0 * h * tau, xn=x0 + u0 * h, w=ca.DM(0, 1), p=ca.DM(0, 1), h=h)
+    np.testing.assert_allclose(dm(out["eq"]), 0.0, atol=1e-14)
+    assert float(out["J"]) == pytest.approx(((x0 + u0 * h) ** 3 - x0**3) / (3 * u0), rel=1e-13)
+
+
 @pytest.fixture(scope="module")
 def mpc():
     from aev_ocp.mpc import MPCController, MPCSettings
