@@ -128,6 +128,13 @@ MUTATIONS: tuple[Mutation, ...] = (
              "amplitude: float = 1.65 / 1.37", "amplitude: float = 1.37 / 1.65"),
     Mutation("M34", "collocation's Lagrange quadrature without the interval length", "aev_ocp/ocp/transcription.py",
              "J = J + B[j] * ell(Xc[j]) * h", "J = J + B[j] * ell(Xc[j])"),
+    Mutation("M35", "plant's jerk: leader time derivative scaled by L, not 1/L", "aev_ocp/plant.py",
+             "+ ca.jacobian(a, s) / p[1]", "+ ca.jacobian(a, s) * p[1]"),
+    Mutation("M36", "cascade's jerk without the predecessor-acceleration term", "aev_ocp/simulate.py",
+             "jerk = ca.jacobian(a, h) * hdot + ca.jacobian(a, v) * a + ca.jacobian(a, vl) * al",
+             "jerk = ca.jacobian(a, h) * hdot + ca.jacobian(a, v) * a"),
+    Mutation("M37", "RMS metrics: square root taken before dividing by the duration", "aev_ocp/metrics.py",
+             "math.sqrt(max(float(c[-1, i]), 0.0) / duration)", "math.sqrt(max(float(c[-1, i]), 0.0)) / duration"),
 )
 
 

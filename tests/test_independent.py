@@ -294,6 +294,26 @@ def test_simulated_current_and_cell_rates_are_the_independent_map(runs, method: 
     assert r.heat_irr_J[-1, 0] == pytest.approx(heat_irr, rel=1e-4)
 
 
+@pytest.mark.parametrize("method", ["cascade", "cvodes"])
+def test_simulated_tracking_and_jerk_integrals_from_samples(runs, method: str) -> None:
+    """∫(V(h) − v)², ∫(v_l − v)² (trapezoid) and ∫ jerk² (finite differences of the sampled a) against
+    each simulator's quadratures, and the §10 RMS metrics built from them."""
+    from aev_ocp.metrics import vehicle_metrics
+
+    r = runs[method]
+    t, h, v, vl, a = r.t, r.gap[:, 0], r.speed[:, 0], r.leader_speed, r.accel[:, 0]
+    dt = np.diff(t)
+    trap = lambda y: float(np.sum(0.5 * (y[1:] + y[:-1]) * dt))  # noqa: E731
+    e_ovm, e_rel = (np.tanh(h - 2) + np.tanh(2) - v) ** 2, (vl - v) ** 2
+    assert r.int_ovm_err2[-1, 0] == pytest.approx(trap(e_ovm), rel=1e-5)
+    assert r.int_rel_speed2[-1, 0] == pytest.approx(trap(e_rel), rel=1e-5)
+    jerk2 = float(np.sum(np.diff(a) ** 2 / dt))
+    assert r.int_jerk2[-1, 0] == pytest.approx(jerk2, rel=1e-3)
+    m = vehicle_metrics(r, 0)
+    assert m["rms_rel_speed_model"] == pytest.approx(math.sqrt(trap(e_rel) / (t[-1] - t[0])), rel=1e-5)
+    assert m["rms_jerk_model"] == pytest.approx(math.sqrt(jerk2 / (t[-1] - t[0])), rel=1e-3)
+
+
 # ----------------------------------------------------------------------------- RK4 (numerics, OCP, MPC)
 A_LIN = np.array([[-0.7, 1.3, 0.0], [-0.4, -0.2, 0.9], [0.25, 0.0, -1.1]])
 C_LIN = np.array([0.3, -1.7, 0.45])
