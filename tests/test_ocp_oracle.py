@@ -13,6 +13,7 @@ from scipy.integrate import solve_ivp
 
 from aev_ocp.models.battery import ocv_function
 from aev_ocp.models.carfollowing import OVFL, Proposed
+from aev_ocp.ocp.following import FollowingWeights
 from aev_ocp.ocp.oracle import OracleSolver, canonical_scenario, stage_cost_of_trajectory
 from aev_ocp.params import EVParams, ParameterError
 
@@ -40,11 +41,13 @@ def np_current(v, a, V1, V2, S, ev=EV, smooth_W=300.0):
     return I, disc
 
 
-def np_stage_cost(h, v, V1, V2, S, a, vl, smooth_W=300.0):
+def np_stage_cost(h, v, V1, V2, S, a, vl, smooth_W=300.0, weights=None):
+    """The §9 stage cost in NumPy; the weights are the scenario's (never hard-coded, issue 15)."""
+    w = weights if weights is not None else FollowingWeights()
     I, _ = np_current(v, a, V1, V2, S, smooth_W=smooth_W)
     Qp = EV.pack.n_cells * (I * (V1 + V2) + EV.cell.R_s_ohm * I**2)
     Vh = np.tanh(h - 2) + np.tanh(2)
-    return Qp / 1000 + (Vh - v) ** 2 + (vl - v) ** 2 + 0.1 * a**2
+    return w.w_Q * Qp / 1000 + w.w_V * (Vh - v) ** 2 + w.w_r * (vl - v) ** 2 + w.w_a * a**2
 
 
 def simulate_pc(scn, a_fn, smooth_W=None):
@@ -111,7 +114,7 @@ def test_objective_matches_independent_cost_and_resimulation(sols, scn):
     vh = r.meta["leader_speed_hat"]
     # independent numpy evaluation of the §9 cost on the optimiser's own trajectory
     ell = np_stage_cost(r.states["h"][:-1], r.states["v"][:-1], r.states["V1"][:-1], r.states["V2"][:-1],
-                        r.states["S"][:-1], r.controls["a"], vh)
+                        r.states["S"][:-1], r.controls["a"], vh, weights=scn.weights)
     assert float(np.sum(ell) * scn.dt) == pytest.approx(r.objective, rel=1e-9)
     # re-simulate a* with scipy and the SAME smoothed model: states agree, cost agrees
     a_opt = r.controls["a"]
@@ -135,7 +138,7 @@ def test_lower_bound_vs_closed_form_laws(sols, scn, law, ):
     t, X, A, vl = simulate_pc(scn, a_fn, smooth_W=300.0)
     assert np.min(X[0]) > 0.2  # the law's trajectory is feasible for OCP-D
     c = stage_cost_of_trajectory(t, *X, A, vl)
-    assert c["total"] == pytest.approx(float(np.sum(np_stage_cost(*X[:, :-1], A, vl)) * scn.dt), rel=1e-9)
+    assert c["total"] == pytest.approx(float(np.sum(np_stage_cost(*X[:, :-1], A, vl, weights=scn.weights)) * scn.dt), rel=1e-9)
     assert sols["ms"].objective <= c["total"]
     assert sols["ms"].objective < 0.95 * c["total"]  # and the bound is informative
 
