@@ -29,7 +29,7 @@ from aev_ocp.models.carfollowing import CarFollowingLaw
 from aev_ocp.models.ego import battery_side, following_ode
 from aev_ocp.models.energy import g_exact, g_smooth
 from aev_ocp.numerics import rk4
-from aev_ocp.ocp.following import G_SMOOTH_WIDTH, FollowingWeights, following_problem, weight_vector
+from aev_ocp.ocp.following import FollowingWeights, following_problem, weight_vector
 from aev_ocp.ocp.oracle import OracleScenario, OracleSolver, oracle_problem, stage_cost_of_trajectory
 from aev_ocp.ocp.problem import ProblemBuilder
 from aev_ocp.ocp.transcription import TranscriptionOptions, interval_function
@@ -96,10 +96,9 @@ def np_stage(h, v, V1, V2, S, a, vl_hat, weights=W, ev=EV, width=SMOOTH.smoothin
     """ℓ of PROBLEM.md §9 with the given weights (nothing hard-coded)."""
     if objective == "heat":
         e = np_battery(v, a, V1, V2, S, ev, width)["Q_pack"] / 1000.0
-    else:
-        sig = 0.5 * (1 + np.tanh(a / G_SMOOTH_WIDTH))
+    else:  # the exact g (the problem states v g(a) exactly, by an epigraph)
         eta = ev.vehicle.efficiency
-        e = v * a * (sig / eta + (1 - sig) * eta)
+        e = v * np.where(a >= 0, a / eta, eta * a)
     Vh = np.tanh(h - 2.0) + np.tanh(2.0)
     return weights.w_Q * e + weights.w_V * (Vh - v) ** 2 + weights.w_r * (vl_hat - v) ** 2 + weights.w_a * a**2
 
@@ -417,8 +416,11 @@ def test_stage_cost_weights_reach_every_user(objective: str) -> None:
     A = POINTS[:, 1].copy()
     vh = np.array([1.2, 0.9, 1.7, 1.05])
     want = np_stage(*Z, A, vh, objective=objective)
+    eta = EV.vehicle.efficiency
     for k in range(4):
-        got = float(pr.stage(Z[:, k], A[k], [1.0, vh[k]], weight_vector(W)))
+        # objective 'energy': the epigraph control at its optimum, e = v g(a)
+        u = A[k] if objective == "heat" else [A[k], Z[1, k] * (A[k] / eta if A[k] >= 0 else eta * A[k])]
+        got = float(pr.stage(Z[:, k], u, [1.0, vh[k]], weight_vector(W)))
         assert got == pytest.approx(want[k], rel=1e-11)
     t = np.arange(5) * 0.1
     c = stage_cost_of_trajectory(t, *np.hstack([Z, Z[:, -1:]]), A, vh, W, EV, SMOOTH, objective)
