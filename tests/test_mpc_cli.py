@@ -75,3 +75,21 @@ def test_cli_bad_input_is_exit_2(capsys):
 
 def test_reproduce_section_is_provided():
     assert [s[0] for s in aev_ocp.mpc.REPRODUCE_SECTIONS] == ["mpc"]
+
+
+def test_mpc_comparison_reports_its_cost_on_the_exact_model_and_warns_on_a_smoothing_gap() -> None:
+    """Issue 13 for the MPC: every run reports its §9 cost twice (smoothed η as the optimiser saw it, and
+    exact). Silent on the canonical settings (300 W); a 200 kW smoothing makes the warning fire."""
+    from aev_ocp.mpc.report import run_comparison
+    from aev_ocp.params import PowertrainOptions
+
+    sc = load_scenario(find_scenario("mpc_paper_single")).replace(t_end=4.0)
+    s = sc.extra["mpc"].settings
+    c = run_comparison(sc, s, laws=(), with_ocpd=False)
+    m = c.metrics["mpc"][0]
+    assert abs(m["smoothing_gap_pct"]) < 0.05 and c.warnings == []
+    assert m["forecast_rms"] < 1e-9  # the canonical scenario's oracle forecast
+    wide = s.with_(smooth=PowertrainOptions(smoothing_width_W=2e5))
+    c2 = run_comparison(sc, wide, laws=(), with_ocpd=False)
+    m2 = c2.metrics["mpc"][0]
+    assert abs(m2["smoothing_gap_pct"]) > 0.5 and len(c2.warnings) == 1 and "exact model" in c2.warnings[0]

@@ -11,6 +11,7 @@ from typing import Any, Callable
 import numpy as np
 
 from .. import interrupts
+from ..ocp.checks import GAP_RTOL as SMOOTHING_GAP_RTOL
 from ..ocp.oracle import OracleScenario, OracleSolver, stage_cost_of_result
 from ..control import ClosedLoop, ControlSequence
 from ..results import SimulationResult, write_json
@@ -21,7 +22,7 @@ from .settings import MPCSettings
 METRIC_ROWS = ["omega_model", "omega_J_per_kg", "heat_pack_J", "heat_irr_pack_J", "delta_soc", "min_gap_model",
                "min_gap_m", "min_speed_model", "rms_ovm_error_model", "rms_rel_speed_model", "rms_jerk_model",
                "max_abs_current_A", "gap_violations", "speed_violations", "collisions", "infeasible_current",
-               "cost_s9", "solve_ms_median", "solve_ms_p95", "solve_ms_max", "iterations_mean", "iterations_max",
+               "cost_s9", "cost_s9_exact", "smoothing_gap_pct", "forecast_rms", "solve_ms_median", "solve_ms_p95", "solve_ms_max", "iterations_mean", "iterations_max",
                "fallbacks", "solver_path"]
 
 
@@ -87,11 +88,13 @@ class Comparison:
     metrics: dict[str, list[dict[str, Any]]]
     ocpd: dict[str, Any] | None = None
     timings_s: dict[str, float] = field(default_factory=dict)
+    warnings: list[str] = field(default_factory=list)
 
 
-def _cost_s9(r: SimulationResult, i: int, s: MPCSettings) -> float:
-    """§9 cost Σ ℓ(z_k, a_k)·dt on the dt grid (laws: sampled at the grid; smoothed η as in OCP-D)."""
-    return stage_cost_of_result(r, i, s.dt, s.weights, s.smooth, s.objective)
+def _cost_s9(r: SimulationResult, i: int, s: MPCSettings, exact: bool = False) -> float:
+    """§9 cost Σ ℓ(z_k, a_k)·dt on the dt grid (laws: sampled at the grid), with the optimiser's smoothed
+    η switch (as the MPC and OCP-D see it) or, ``exact``, the plant's exact switch."""
+    return stage_cost_of_result(r, i, s.dt, s.weights, None if exact else s.smooth, s.objective)
 
 
 def run_comparison(scenario: Any, settings: MPCSettings | None = None, laws: tuple[str, ...] = ("proposed", "ovfl"),
@@ -117,10 +120,19 @@ def run_comparison(scenario: Any, settings: MPCSettings | None = None, laws: tup
                                      progress=_progress(lambda m: None, name))
         tim[name] = time.perf_counter() - t0
     metrics = {}
+    warn: list[str] = []
     for lab, r in out.items():
         ms = r.metrics()
         for i, m in enumerate(ms):
-            m["cost_s9"] = _cost_s9(r, i, s)
+            m["cost_s9"], m["cost_s9_exact"] = _cost_s9(r, i, s), _cost_s9(r, i, s, exact=True)
+            m["smoothing_gap_pct"] = 100 * (m["cost_s9"] / m["cost_s9_exact"] - 1) if m["cost_s9_exact"] else float("nan")
+            st = (r.solver_stats or [None] * len(ms))[i]
+            if st:
+                m["forecast_rms"] = st.get("forecast_rms", float("nan"))
+            if lab == "mpc" and abs(m["smoothing_gap_pct"]) > 100 * SMOOTHING_GAP_RTOL:
+                warn.append(f"vehicle {i + 1}: the MPC's §9 cost is {m['cost_s9']:.6g} with its smoothed η switch "
+                            f"but {m['cost_s9_exact']:.6g} on the exact model ({m['smoothing_gap_pct']:+.2f} %): "
+                            "the optimiser may exploit the smoothing (narrow mpc.smoothing_width_W)")
         metrics[lab] = ms
     ocpd = None
     if with_ocpd and scenario.n_followers == 1:
@@ -144,7 +156,9 @@ def run_comparison(scenario: Any, settings: MPCSettings | None = None, laws: tup
             ocpd.update({k: v for k, v in m.items() if k not in ("vehicle", "controller")})
             ocpd["cost_s9"] = res.objective
             out["ocp-d"] = r
-    return Comparison(out, metrics, ocpd, tim)
+    for w in warn:
+        say(f"warning: {w}")
+    return Comparison(out, metrics, ocpd, tim, warn)
 
 
 def _fmt(x: Any) -> str:
@@ -203,7 +217,7 @@ def write_outputs(c: Comparison, out: Path) -> list[Path]:
                                                "runs": {lab: {"status": res.status,
                                                               "events": [vars(e) for e in res.events]}
                                                         for lab, res in c.results.items()},
-                                               "ocp_d": c.ocpd, "timings_s": c.timings_s,
+                                               "ocp_d": c.ocpd, "timings_s": c.timings_s, "warnings": c.warnings,
                                                "mpc_settings": r.meta.get("controllers"),
                                                "mpc_steps": r.meta.get("mpc_steps")})]
     files.append(r.to_csv(out / "trajectories_mpc.csv"))
@@ -233,10 +247,12 @@ def mpc_section(out_dir: Any, progress: Callable[[str], None]) -> str:
              f"unsmoothed η switch). Solver path {st.get('solver_path')}: median {st.get('solve_ms_median', float('nan')):.2f} ms, "
              f"p95 {st.get('solve_ms_p95', float('nan')):.2f} ms, max {st.get('solve_ms_max', float('nan')):.2f} ms per "
              f"step, {st.get('fallbacks')} fallbacks. `cost_s9` is Σ ℓ(z_k, a_k)·dt of §9 on the dt grid "
-             "(smoothed η, as in OCP-D); OCP-D is the lower bound of that cost.", "",
+             "(smoothed η, as in OCP-D); OCP-D is the lower bound of that cost. `cost_s9_exact` is the same "
+             "cost with the exact η switch; `smoothing_gap_pct` their difference (a warning above 0.5 %).", "",
              comparison_table(c, 0, markdown=True), "",
              "Plots: `mpc/overlay_vehicle1.png` (trajectories, current, SOC), `mpc/mpc_solve_times.png`.", ""]
     if c.ocpd and c.ocpd.get("success"):
         gap = 100 * (st["cost_s9"] / c.ocpd["cost_s9"] - 1)
         lines.append(f"MPC's §9 cost is {gap:.3f} % above the OCP-D lower bound.")
+    lines += [f"**Warning:** {w}" for w in c.warnings]
     return "\n".join(lines) + "\n"
