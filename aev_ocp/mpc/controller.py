@@ -38,7 +38,7 @@ from ..models.ego import STATE_NAMES
 from ..numerics import rk4
 from ..ocp.following import WEIGHT_NAMES, FollowingWeights, following_problem, weight_vector
 from ..ocp.problem import OCPProblem, ProblemBuilder
-from ..ocp.transcription import TranscriptionOptions, interval_function
+from ..ocp.transcription import TranscriptionOptions, interval_function, with_discrete_update
 from ..params import EVParams, ParameterError
 from ..plant import PLAN_TOLERANCE
 from .settings import MPCSettings
@@ -151,6 +151,7 @@ class MPCController:
         self.u_scale = np.asarray(pr.u_scale if pr.u_scale is not None else np.ones(nu), float)
         z, u, w, p = ca.SX.sym("z", nx), ca.SX.sym("u", nu), ca.SX.sym("w", nw), ca.SX.sym("p", npar)
         zn, _ = rk4(lambda x: pr.ode(x, u, w, p), z, s.dt, s.rk4_substeps)
+        zn = with_discrete_update(pr, zn, z, u, w, p)
         self.step = ca.Function("mpc_step", [z, u, w, p], [zn], ["z", "u", "w", "p"], ["z_next"])
         self.F = interval_function(pr, TranscriptionOptions(method="ms", N=s.N, rk4_substeps=s.rk4_substeps))
         xl = np.asarray(pr.x_lb if pr.x_lb is not None else -np.inf * np.ones(nx), float)
@@ -415,9 +416,9 @@ class MPCController:
         self._warm = None
 
     # ------------------------------------------------------------------ solving
-    def initial_state(self, z0: np.ndarray) -> np.ndarray:
+    def initial_state(self, z0: np.ndarray, own: dict[str, float] | None = None) -> np.ndarray:
         """The full initial state: the measured (h, v, V1, V2, S) and the controller's own states
-        (from the previous plan's node 1 when warm, else ``initial_values``)."""
+        (``own`` by name, else the previous plan's node 1 when warm, else ``initial_values``)."""
         z0 = np.asarray(z0, float).ravel()
         if z0.size == self.nx:
             return z0
@@ -425,18 +426,24 @@ class MPCController:
             raise ParameterError(f"MPC: z0 must be {NZ} (h, v, V1, V2, S) or {self.nx} values, got {z0.size}")
         if self.nx == NZ:
             return z0
-        own = self._x_own0 if self._warm is None else self._warm["X1"][NZ:]
-        return np.concatenate([z0, own])
+        x_own = (self._x_own0 if self._warm is None else self._warm["X1"][NZ:]).copy()
+        names = list(self.problem.state_names[NZ:])
+        for k, val in (own or {}).items():
+            if k in names:
+                x_own[names.index(k)] = float(val)
+        return np.concatenate([z0, x_own])
 
     def solve(self, z0: np.ndarray, v_mean: np.ndarray, v_hat: np.ndarray, *,
-              weights: FollowingWeights | None = None, stage_weights: np.ndarray | None = None) -> MPCSolution:
+              weights: FollowingWeights | None = None, stage_weights: np.ndarray | None = None,
+              own: dict[str, float] | None = None) -> MPCSolution:
         """Solve from the measured state z0 = (h, v, V1, V2, S) with the forecast per interval:
         v_mean (N,) interval-mean leader speed and v_hat (N,) leader speed at the interval starts
         [model speed]. ``weights`` overrides the settings' weights for this solve (no rebuild).
+        ``own``: values of the controller's own states by name (see :meth:`initial_state`).
         Never raises on solver failure: returns success=False with a status."""
         s = self.settings
         N, nx = s.N, self.nx
-        z0 = self.initial_state(z0)
+        z0 = self.initial_state(z0, own)
         if not np.all(np.isfinite(z0)):
             raise ParameterError(f"MPC: z0 must be finite (h, v, V1, V2, S), got {z0!r}")
         vm_, vh_ = np.asarray(v_mean, float).ravel(), np.asarray(v_hat, float).ravel()

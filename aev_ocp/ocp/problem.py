@@ -35,6 +35,9 @@ class OCPProblem:
     path: optional Function (x, u, w, p) -> c with ``path_lb ≤ c ≤ path_ub`` at nodes 0 … N−1.
     terminal: optional Function (x_N, p) -> c_T with ``terminal_lb ≤ c_T ≤ terminal_ub``.
     terminal_cost: optional Function (x_N, p) -> Mayer cost added to the objective.
+    discrete_next / discrete_states: discrete-time states (indices; their ode entry is 0): at the end of
+    an interval they take the value discrete_next(x_k, u_k, w_k, p) (e.g. the previous control, for a
+    penalty on Δu), in every transcription and in the MPC.
     outputs: optional Function (x, u, w, p) -> named scalars (e.g. I, Q) reported at the nodes.
     x_lb/x_ub, u_lb/u_ub: bounds; x_scale/u_scale: nominal magnitudes (NLP variables are x/x_scale).
     """
@@ -53,6 +56,8 @@ class OCPProblem:
     terminal_lb: Sequence[float] = ()
     terminal_ub: Sequence[float] = ()
     terminal_cost: ca.Function | None = None
+    discrete_next: ca.Function | None = None
+    discrete_states: Sequence[int] = ()
     outputs: ca.Function | None = None
     x_lb: Sequence[float] | None = None
     x_ub: Sequence[float] | None = None
@@ -92,6 +97,8 @@ class OCPProblem:
             raise ParameterError(f"OCPProblem.ode returns {self.ode.size1_out(0)} values, expected {nx}")
         if self.lagrange is None and self.stage is None:
             raise ParameterError("OCPProblem: give a lagrange and/or a stage cost")
+        if self.discrete_next is not None and self.discrete_next.size1_out(0) != len(self.discrete_states):
+            raise ParameterError(f"OCPProblem.discrete_next must return {len(self.discrete_states)} values")
         if self.terminal_cost is not None and (self.terminal_cost.size1_in(0) != nx
                                                or self.terminal_cost.numel_out(0) != 1):
             raise ParameterError(f"OCPProblem.terminal_cost must map (x_N[{nx}], p) -> a scalar")
@@ -130,6 +137,7 @@ class ProblemBuilder:
         self._x_info: dict[str, tuple[float, float, float]] = {}
         self._u_info: dict[str, tuple[float, float, float]] = {}
         self._der: dict[str, Any] = {}
+        self._next: dict[str, Any] = {}
         self.stage_terms: dict[str, Any] = {}
         self.integral_terms: dict[str, Any] = {}
         self._terminal_cost: Any = 0
@@ -168,10 +176,23 @@ class ProblemBuilder:
     # ---------------------------------------------------------------- dynamics, costs, constraints
     def set_der(self, x: ca.SX, rhs: Any) -> None:
         """dx/dt = rhs for the state symbol x."""
+        name = self._state_name(x, "set_der")
+        if name in self._next:
+            raise ParameterError(f"{self.name}: state {name!r} is discrete (set_next): it has no derivative")
+        self._der[name] = rhs
+
+    def set_next(self, x: ca.SX, expr: Any) -> None:
+        """Make x a discrete-time state: constant over an interval, x_{k+1} = expr(x_k, u_k, w_k, p).
+        E.g. ``a_prev = pb.state("a_prev"); pb.set_next(a_prev, a)`` and a stage cost on (a − a_prev)²."""
+        name = self._state_name(x, "set_next")
+        self._next[name] = expr
+        self._der[name] = ca.SX(0)
+
+    def _state_name(self, x: ca.SX, what: str) -> str:
         name = next((k for k, s in self.x.items() if s is x or ca.is_equal(s, x)), None)
         if name is None:
-            raise ParameterError(f"{self.name}: set_der needs a state made by state(), got {x}")
-        self._der[name] = rhs
+            raise ParameterError(f"{self.name}: {what} needs a state made by state(), got {x}")
+        return name
 
     def add_stage_cost(self, expr: Any, name: str | None = None) -> None:
         """Add ℓ(x_k, u_k, w_k, p) to the stage cost Σ_k ℓ·h."""
@@ -217,7 +238,7 @@ class ProblemBuilder:
         """The compiled :class:`OCPProblem` (every stage and integral term is also an output)."""
         missing = [k for k in self.x if k not in self._der]
         if missing:
-            raise ParameterError(f"{self.name}: no set_der for state(s) {missing}")
+            raise ParameterError(f"{self.name}: no set_der (or set_next) for state(s) {missing}")
         if not self.stage_terms and not self.integral_terms:
             raise ParameterError(f"{self.name}: add a stage or integral cost")
         x, u = ca.vertcat(*self.x.values()), ca.vertcat(*self.u.values())
@@ -240,6 +261,9 @@ class ProblemBuilder:
             u_lb=[i[0] for i in self._u_info.values()], u_ub=[i[1] for i in self._u_info.values()],
             u_scale=[i[2] for i in self._u_info.values()], time_unit=self.time_unit,
             meta={**self.meta, "parameter_names": list(self.p), "stage_parameter_names": list(self.w)})
+        if self._next:
+            pr.discrete_states = [list(self.x).index(k) for k in self._next]
+            pr.discrete_next = fn("next", list(self._next.values()), ["x_next"])
         if self._path:
             pr.path = fn("path", [c[1] for c in self._path], ["c"])
             pr.path_lb, pr.path_ub = [c[2] for c in self._path], [c[3] for c in self._path]

@@ -136,6 +136,17 @@ def _vec(v: Sequence[float] | None, n: int, default: float) -> np.ndarray:
     return np.full(n, default) if v is None else np.asarray(v, dtype=float).reshape(n)
 
 
+def with_discrete_update(pr: OCPProblem, x_end: Any, xk: Any, uk: Any, w: Any, p: Any) -> Any:
+    """x_end with the problem's discrete-time states replaced by their update x_{k+1} = next(x_k, u_k, w, p)."""
+    if pr.discrete_next is None:
+        return x_end
+    nxt = pr.discrete_next(xk, uk, w, p)
+    parts = [x_end[i] for i in range(pr.nx)]
+    for j, i in enumerate(pr.discrete_states):
+        parts[i] = nxt[j]
+    return ca.vertcat(*parts)
+
+
 def interval_function(pr: OCPProblem, o: TranscriptionOptions) -> ca.Function:
     """One interval of the transcription on SCALED variables (x/x_scale, u/u_scale): inputs
     (xk, uk, xc collocation states, xn next node, w, p, h interval length) -> (eq, path, J):
@@ -177,6 +188,7 @@ def interval_function(pr: OCPProblem, o: TranscriptionOptions) -> ca.Function:
                 J = J + B[j] * ell(Xc[j]) * h
             if pr.path is not None and pr.path_at_collocation:
                 path.append(pr.path(Xc[j], uk, w, p))
+    x_end = with_discrete_update(pr, x_end, xk, uk, w, p)
     eqs.append((x_end - xn) / xs)
     return ca.Function("interval", [xk_s, uk_s, xc_s, xn_s, w, p, h],
                        [ca.vertcat(*eqs), ca.vertcat(*path) if path else ca.SX(0, 1), J],
