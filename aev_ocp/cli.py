@@ -51,6 +51,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub.add_parser("scenarios", help="list the shipped scenarios")
     sub.add_parser("ocp", help="optimal-control problems (see aev-ocp ocp --help)", add_help=False)
     sub.add_parser("mpc", help="model predictive control (see aev-ocp mpc --help)", add_help=False)
+    sub.add_parser("study", help="sweeps and Pareto fronts from a study file (see aev-ocp study --help)", add_help=False)
     return p
 
 
@@ -128,7 +129,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     from .scenarios import ScenarioError
 
     args_list = list(sys.argv[1:] if argv is None else argv)
-    if args_list and args_list[0] in ("ocp", "mpc"):
+    if args_list and args_list[0] in ("ocp", "mpc", "study"):
         name = args_list[0]
         try:
             return _dispatch(f"aev_ocp.{name}", f"cli_{name}", args_list[1:])
