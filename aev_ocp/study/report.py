@@ -153,7 +153,8 @@ def change_table(study: Study, rows: list[dict[str, Any]], metric: str, vehicle:
         cell = {(r[ax1], r.get(ax2) if ax2 else None): r for r in sub}
         lines += [f"% change of {metric} of **{c}** against **{study.reference}** (follower "
                   f"{vehicle}; * = not comparable):", ""]
-        lines.append(f"| {ax1} \\ {ax2 or ''} | " + " | ".join(_fmt(y) for y in ys) + " |")
+        lines.append(f"| {ax1} \\ {ax2} | " + " | ".join(_fmt(y) for y in ys) + " |" if ax2
+                     else f"| {ax1} | % change |")
         lines.append("|---" * (len(ys) + 1) + "|")
         for x in xs:
             vals = []
@@ -230,7 +231,7 @@ def write_report(study: Study, rows_all: list[dict[str, Any]], out: str | Path) 
     n_err = sum(1 for r in rows_all if r["status"] == "error")
     n_evt = sum(1 for r in rows_all if r["status"] not in ("ok", "error"))
     n_nc = sum(1 for r in rows if not r.get("comparable"))
-    lines = [f"# Study {study.name}", "", study.description, "",
+    lines = [f"# Study {study.name}", ""] + ([study.description, ""] if study.description else []) + [
              f"{len(study.points)} points × {len(study.controllers)} controllers "
              f"({', '.join(c.label for c in study.controllers)}), reference **{study.reference}**; "
              f"base scenario(s): {', '.join(study.bases)}; axes: "
