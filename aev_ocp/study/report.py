@@ -36,6 +36,12 @@ def pareto_mask(points: list[tuple[float, float]]) -> list[bool]:
     return out
 
 
+def _primary_axes(study: Study) -> list[str]:
+    """The first key of each axis (a zipped axis moves its keys together), 'scenario' first if several."""
+    keys = [a.keys[0] for a in study.axes]
+    return (["scenario"] if len(study.bases) > 1 else []) + keys
+
+
 def _save(fig: Any, path: Path) -> Path:
     fig.tight_layout()
     tmp = path.with_name(f".{path.stem}.tmp.png")
@@ -55,10 +61,12 @@ def _label(row: dict[str, Any], keys: list[str]) -> str:
 
 def plot_metric_vs_axis(study: Study, rows: list[dict[str, Any]], metric: str, axis: str, out: Path) -> Path | None:
     """metric against one numeric axis: a line per controller (and per value of the other axes, up to 6)."""
-    others = [k for k in study.axis_keys if k != axis]
+    others = [k for k in _primary_axes(study) if k != axis]
+    cats = sorted({str(r.get(axis)) for r in rows if r.get(axis) is not None and _num(r.get(axis)) is None})
     series: dict[tuple, list[tuple[float, float, bool]]] = {}
     for r in rows:
-        x, y = _num(r.get(axis)), _num(r.get(metric))
+        x = float(cats.index(str(r.get(axis)))) if cats and r.get(axis) is not None else _num(r.get(axis))
+        y = _num(r.get(metric))
         if x is None or y is None:
             continue
         key = (r["controller"],) + tuple(repr(r.get(k)) for k in others)
@@ -81,6 +89,8 @@ def plot_metric_vs_axis(study: Study, rows: list[dict[str, Any]], metric: str, a
         ax.scatter([p[0] for p in pts if p[2]], [p[1] for p in pts if p[2]], color=color, s=14)
         ax.scatter([p[0] for p in pts if not p[2]], [p[1] for p in pts if not p[2]], facecolors="none",
                    edgecolors=color, s=30)
+    if cats:
+        ax.set_xticks(range(len(cats)), cats)
     ax.set_xlabel(axis)
     ax.set_ylabel(metric)
     ax.set_title(f"{study.name}: {metric}, follower {study.report.get('vehicle', 1)} (hollow: not comparable)",
@@ -134,7 +144,7 @@ def change_table(study: Study, rows: list[dict[str, Any]], metric: str, vehicle:
     """% change of ``metric`` against the reference over the first two numeric axes (one table per
     other controller; '*' marks a point that is not comparable), and where the sign changes."""
     col = f"{metric}_change_pct"
-    axes = [k for k in study.axis_keys if k != "scenario"]
+    axes = _primary_axes(study)
     lines: list[str] = []
     if not axes or not any(r.get(col) is not None for r in rows):
         return lines
@@ -210,9 +220,8 @@ def write_report(study: Study, rows_all: list[dict[str, Any]], out: str | Path) 
     rows = [r for r in rows_all if r.get("vehicle") in (veh, None)]
     files: list[Path] = []
     figs: list[Path] = []
-    numeric_axes = [k for k in study.axis_keys if k != "scenario" and any(_num(r.get(k)) is not None for r in rows)]
     for m in study.report.get("metrics", []):
-        for a in numeric_axes:
+        for a in _primary_axes(study):
             f = plot_metric_vs_axis(study, rows, m, a, out)
             if f:
                 figs.append(f)

@@ -4,7 +4,9 @@ A study is a TOML file (see README.md "Studies")::
 
     name = "kappa_alpha_table1"          # optional (default: the file stem)
     description = "..."
-    scenarios = ["table1"]               # shipped names or paths relative to the study file
+    scenarios = ["table1"]               # shipped names or paths relative to the study file, or inline
+                                         # tables { scenario = "udds_platoon", label = "udds",
+                                         #          overrides = { "simulation.t_end" = 680.0 } }
     reference = "ovfl"                   # controller for comparability and % change (default: first)
 
     [overrides]                          # dotted keys applied to every point
@@ -292,6 +294,36 @@ def _report(r: TableReader, file: str) -> dict[str, Any]:
     return rep
 
 
+def _bases(top: TableReader) -> tuple[list[str], dict[str, tuple[str, dict[str, Any]]]]:
+    """``scenarios``: names/paths, or inline tables {scenario, label, overrides} (overrides for that base only).
+    Returns the labels and {label: (scenario, overrides)}."""
+    raw = top.table.get("scenarios")
+    top._get("scenarios", None)
+    if not isinstance(raw, list) or not raw:
+        raise top.error("scenarios", raw, "expected a non-empty array of scenario names/paths or "
+                                          "{ scenario = ..., label = ..., overrides = { ... } } tables")
+    labels: list[str] = []
+    out: dict[str, tuple[str, dict[str, Any]]] = {}
+    for j, item in enumerate(raw):
+        if isinstance(item, str):
+            label, scen, ov = Path(item).stem, item, {}
+        elif isinstance(item, dict):
+            r = TableReader(item, f"scenarios[{j}]", top.file)
+            scen = r.string("scenario")
+            label = r.string("label", Path(scen).stem)
+            ov_r = r.sub("overrides")
+            ov = dict(ov_r.table)
+            ov_r._seen.update(ov)
+            r.finish()
+        else:
+            raise top.error(f"scenarios[{j}]", item, "expected a scenario name/path or an inline table")
+        if label in out:
+            raise top.error(f"scenarios[{j}]", item, f"label {label!r} is used twice; give each a distinct label")
+        labels.append(label)
+        out[label] = (scen, ov)
+    return labels, out
+
+
 def _base(name: str, study_path: Path | None) -> Path:
     p = Path(name)
     if study_path is not None and not p.is_absolute():
@@ -329,7 +361,7 @@ def _parse_study(doc: dict[str, Any], file: str, path: Path | None) -> Study:
     top = TableReader(doc, "", file)
     name = top.string("name", path.stem if path is not None else "study")
     description = top.string("description", "")
-    bases = top.strings("scenarios")
+    bases, base_overrides = _bases(top)
     common = top.sub("overrides")
     overrides = dict(common.table)
     common._seen.update(overrides)
@@ -355,7 +387,7 @@ def _parse_study(doc: dict[str, Any], file: str, path: Path | None) -> Study:
     docs: dict[str, tuple[dict[str, Any], str]] = {}
     for b in bases:
         try:
-            sc = load_scenario(_base(b, path))
+            sc = load_scenario(_base(base_overrides[b][0], path))
         except ScenarioError as exc:
             raise StudyError(f"{file}: scenarios: {exc}") from None
         assert sc.document is not None
@@ -369,7 +401,8 @@ def _parse_study(doc: dict[str, Any], file: str, path: Path | None) -> Study:
         base_doc, base_file = docs[b]
         for combo in combos:
             values = {k: v for a, row in zip(axes, combo) for k, v in zip(a.keys, row)}
-            pdoc = _point_document(file, base_doc, base_file, overrides, values, axes, b, len(points))
+            pdoc = _point_document(file, base_doc, base_file, {**overrides, **base_overrides[b][1]}, values, axes, b,
+                                   len(points))
             points.append(Point(len(points), b, values, pdoc, base_file))
     study = Study(name, description, file, axes, controllers, reference, points, bases, report)
     _validate_controllers(study)
