@@ -64,6 +64,8 @@ def cli_study(argv: list[str]) -> int:
     except (StudyError, ScenarioError, OverrideError) as exc:
         _err(str(exc))
         return EXIT_BAD_INPUT
+    for w in study.warnings:
+        print(f"aev-ocp: warning: {' '.join(w.split())}", file=sys.stderr, flush=True)
     if a.in_process:
         kw: dict = {"executor": "inprocess"}
     elif a.dask_local is not None or a.scheduler is not None:

@@ -45,6 +45,7 @@ study file, the axis and the key.
 from __future__ import annotations
 
 import copy
+import dataclasses
 import hashlib
 import itertools
 import json
@@ -53,7 +54,8 @@ import tomllib
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from contextlib import contextmanager
+from typing import Any, Iterator
 
 import numpy as np
 
@@ -131,10 +133,14 @@ class Study:
     points: list[Point]
     bases: list[str]
     report: dict[str, Any] = field(default_factory=dict)
+    warnings: list[str] = field(default_factory=list)  # the scenario loader's warnings, once each
+    _tasks: list[Task] | None = field(default=None, repr=False)
 
     def tasks(self) -> list[Task]:
         """Every point × controller as a task (tasks with equal specifications share one hash)."""
-        return [make_task(p, c) for p in self.points for c in self.controllers]
+        if self._tasks is None:
+            self._tasks = [make_task(p, c) for p in self.points for c in self.controllers]
+        return list(self._tasks)
 
     @property
     def axis_keys(self) -> list[str]:
@@ -149,11 +155,17 @@ def canonical_json(obj: Any) -> str:
     return json.dumps(obj, sort_keys=True, separators=(",", ":"), allow_nan=True, default=str)
 
 
-def _law_fingerprint(doc: dict[str, Any], file: str, law: str) -> dict[str, Any]:
-    """The law's coefficients as the document sets them (only what the law reads)."""
-    sc = parse_scenario_quiet(doc, file)
-    obj = sc.law(law)
-    return {"law": law, "coefficients": {k: v for k, v in vars(obj).items() if not k.startswith("_")}}
+def _law_fingerprint(doc: dict[str, Any], law: str) -> dict[str, Any]:
+    """The law's coefficients as the (validated) document sets them: only what the law reads."""
+    from ..models.carfollowing import make_law
+    from ..params import CarFollowingParams
+
+    table = doc.get("carfollowing") or {}
+    names = {f.name for f in dataclasses.fields(CarFollowingParams)}
+    cf = CarFollowingParams(**{k: float(v) for k, v in table.items() if k in names})
+    own = {k.lower(): v for k, v in table.items() if k not in names and isinstance(v, dict)}
+    obj = make_law(law, cf, **own.get(law, {}))
+    return {"law": law, "coefficients": {f.name: getattr(obj, f.name) for f in dataclasses.fields(obj)}}
 
 
 def make_task(p: Point, c: Controller) -> Task:
@@ -169,7 +181,7 @@ def make_task(p: Point, c: Controller) -> Task:
         doc.pop("mpc", None)
         doc.pop("carfollowing", None)
         doc["platoon"] = {k: v for k, v in doc.get("platoon", {}).items() if k not in ("law", "laws")}
-        identity: dict[str, Any] = {"document": doc, "law": _law_fingerprint(p.document, p.file, c.name)}
+        identity: dict[str, Any] = {"document": doc, "law": _law_fingerprint(p.document, c.name)}
     else:
         identity = {"document": doc}
     identity.update({"controller": {"kind": c.kind, "name": c.name, "settings": dict(c.settings)},
@@ -179,11 +191,56 @@ def make_task(p: Point, c: Controller) -> Task:
     return Task(p.index, c.label, spec, key)
 
 
+_LEADER_CHECKS: dict[Any, tuple[float, list[Warning]]] = {}
+
+
+@contextmanager
+def _memoised_leader_check() -> Iterator[None]:
+    """parse_scenario checks the leader's top speed by sampling it (tens of ms); study points share a few
+    leaders, so the check is computed once per (leader, t_end, units) in this process and its warnings
+    replayed. Everything else of parse_scenario runs as usual."""
+    from .. import scenarios as scn
+
+    orig = scn.check_leader_speed
+
+    def check(scenario: Scenario, file: str = "<scenario>") -> float:
+        key = (scenario.leader, scenario.t_end, scenario.units, file)
+        try:
+            hash(key)
+        except TypeError:
+            return orig(scenario, file)
+        if key not in _LEADER_CHECKS:
+            with warnings.catch_warnings(record=True) as caught:
+                warnings.simplefilter("always")
+                v = orig(scenario, file)
+            _LEADER_CHECKS[key] = (v, [w.message for w in caught if isinstance(w.message, Warning)])
+        v, msgs = _LEADER_CHECKS[key]
+        for m in msgs:
+            warnings.warn(m, stacklevel=3)
+        return v
+
+    scn.check_leader_speed = check
+    try:
+        yield
+    finally:
+        scn.check_leader_speed = orig
+
+
 def parse_scenario_quiet(doc: dict[str, Any], file: str) -> Scenario:
-    """parse_scenario without warnings (they are reported once, at validation)."""
+    """parse_scenario without warnings (they are collected once, at validation)."""
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        return parse_scenario(doc, file)
+        with _memoised_leader_check():
+            return parse_scenario(doc, file)
+
+
+def parse_scenario_warnings(doc: dict[str, Any], file: str) -> tuple[Scenario, list[str]]:
+    """parse_scenario, returning its warnings' messages."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        with _memoised_leader_check():
+            sc = parse_scenario(doc, file)
+    return sc, [str(w.message) for w in caught]
 
 
 # ----------------------------------------------------------------------------- reading
@@ -396,15 +453,16 @@ def _parse_study(doc: dict[str, Any], file: str, path: Path | None) -> Study:
         docs[b] = (d, sc.file_label)
 
     points: list[Point] = []
+    found_warnings: list[str] = []
     combos = list(itertools.product(*[a.rows for a in axes])) if axes else [()]
     for b in bases:
         base_doc, base_file = docs[b]
         for combo in combos:
             values = {k: v for a, row in zip(axes, combo) for k, v in zip(a.keys, row)}
             pdoc = _point_document(file, base_doc, base_file, {**overrides, **base_overrides[b][1]}, values, axes, b,
-                                   len(points))
+                                   len(points), found_warnings)
             points.append(Point(len(points), b, values, pdoc, base_file))
-    study = Study(name, description, file, axes, controllers, reference, points, bases, report)
+    study = Study(name, description, file, axes, controllers, reference, points, bases, report, found_warnings)
     _validate_controllers(study)
     return study
 
@@ -423,12 +481,16 @@ def _culprit(message: str, values: dict[str, Any], axes: list[Axis]) -> str:
 
 
 def _point_document(file: str, base_doc: dict[str, Any], base_file: str, overrides: dict[str, Any],
-                    values: dict[str, Any], axes: list[Axis], base: str, index: int) -> dict[str, Any]:
+                    values: dict[str, Any], axes: list[Axis], base: str, index: int,
+                    sink: list[str]) -> dict[str, Any]:
     """The point's document, validated by the scenario loader; errors name study file, axis, key."""
     merged = {**overrides, **values}
     try:
         pdoc = apply_to_document(base_doc, merged, base_file)
-        parse_scenario_quiet(pdoc, base_file)
+        _, found = parse_scenario_warnings(pdoc, base_file)
+        for w in found:
+            if w not in sink:
+                sink.append(w)
     except (ScenarioError, OverrideError, ParameterError) as exc:
         msg = str(exc)
         if any(k in msg for k in values):
