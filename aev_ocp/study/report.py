@@ -108,7 +108,7 @@ def pareto_front(study: Study, rows: list[dict[str, Any]], mx: str, my: str) -> 
     return cand, mask
 
 
-def plot_pareto(study: Study, rows: list[dict[str, Any]], mx: str, my: str, out: Path) -> Path | None:
+def plot_pareto(study: Study, rows: list[dict[str, Any]], mx: str, my: str, out: Path, base: str = "") -> Path | None:
     """Every comparable point by controller; the non-dominated ones circled and joined."""
     cand, mask = pareto_front(study, rows, mx, my)
     if not cand:
@@ -124,10 +124,10 @@ def plot_pareto(study: Study, rows: list[dict[str, Any]], mx: str, my: str, out:
     ax.scatter(*zip(*front), facecolors="none", edgecolors="k", s=70, linewidths=1.2, label="non-dominated")
     ax.set_xlabel(f"{mx} (lower is better)")
     ax.set_ylabel(f"{my} (lower is better)")
-    ax.set_title(f"{study.name}: follower {study.report.get('vehicle', 1)}", fontsize=9)
+    ax.set_title(f"{study.name}{' / ' + base if base else ''}: follower {study.report.get('vehicle', 1)}", fontsize=9)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=7)
-    return _save(fig, out / f"pareto_{_slug(mx)}_vs_{_slug(my)}.png")
+    return _save(fig, out / f"pareto_{_slug(mx)}_vs_{_slug(my)}{'_' + _slug(base) if base else ''}.png")
 
 
 def _fmt(x: Any) -> str:
@@ -148,8 +148,11 @@ def change_table(study: Study, rows: list[dict[str, Any]], metric: str, vehicle:
     lines: list[str] = []
     if not axes or not any(r.get(col) is not None for r in rows):
         return lines
+    numeric = [a for a in axes if any(_num(r.get(a)) is not None for r in rows)]
+    axes = numeric[:1] + [a for a in axes if a not in numeric[:1]]  # rows along a numeric axis if any
     ax1 = axes[0]
     ax2 = axes[1] if len(axes) > 1 else None
+    signs = bool(numeric)  # a sign change is only meaningful along a numeric axis
     for c in (c.label for c in study.controllers if c.label != study.reference):
         sub = [r for r in rows if r["controller"] == c]
         if not sub:
@@ -158,7 +161,7 @@ def change_table(study: Study, rows: list[dict[str, Any]], metric: str, vehicle:
         ys = sorted({r[ax2] for r in sub if r.get(ax2) is not None}, key=lambda v: (str(type(v)), v)) if ax2 else [None]
         if len(xs) * len(ys) > 400:
             lines.append(f"({c}: {len(xs)} × {len(ys)} points; the % change is in table.csv, column {col})")
-            lines += _sign_changes(sub, col, ax1, ax2, xs, ys, c)
+            lines += _sign_changes(sub, col, ax1, ax2, xs, ys, c) if signs else []
             continue
         cell = {(r[ax1], r.get(ax2) if ax2 else None): r for r in sub}
         lines += [f"% change of {metric} of **{c}** against **{study.reference}** (follower "
@@ -174,7 +177,7 @@ def change_table(study: Study, rows: list[dict[str, Any]], metric: str, vehicle:
                 vals.append("—" if v is None else f"{v:+.2f}%" + ("" if r.get("comparable") else "*"))
             lines.append(f"| {_fmt(x)} | " + " | ".join(vals) + " |")
         lines.append("")
-        lines += _sign_changes(sub, col, ax1, ax2, xs, ys, c)
+        lines += _sign_changes(sub, col, ax1, ax2, xs, ys, c) if signs else []
     return lines
 
 
@@ -221,20 +224,22 @@ def write_report(study: Study, rows_all: list[dict[str, Any]], out: str | Path) 
     files: list[Path] = []
     figs: list[Path] = []
     for m in study.report.get("metrics", []):
-        for a in _primary_axes(study):
+        for a in (k for k in _primary_axes(study) if k != "scenario"):
             f = plot_metric_vs_axis(study, rows, m, a, out)
             if f:
                 figs.append(f)
-    fronts: list[tuple[str, str, Path | None, list[dict[str, Any]]]] = []
-    for mx, my in study.report.get("pareto", []):
-        f = plot_pareto(study, rows, mx, my, out)
-        cand, mask = pareto_front(study, rows, mx, my)
+    fronts: list[tuple[str, str, str, Path | None, list[dict[str, Any]]]] = []
+    groups = [(b, [r for r in rows if r.get("scenario") == b]) for b in study.bases] if len(study.bases) > 1 \
+        else [("", rows)]
+    for (mx, my), (base, grows) in ((pair, g) for pair in study.report.get("pareto", []) for g in groups):
+        f = plot_pareto(study, grows, mx, my, out, base)
+        cand, mask = pareto_front(study, grows, mx, my)
         front, seen = [], set()
         for r, k in sorted(zip(cand, mask), key=lambda rk: (rk[0][mx], rk[0][my])):
             if k and r.get("task_hash") not in seen:  # one row per distinct run (equal tasks share a hash)
                 seen.add(r.get("task_hash"))
                 front.append(r)
-        fronts.append((mx, my, f, front))
+        fronts.append((mx, my, base, f, front))
         if f:
             figs.append(f)
     n_err = sum(1 for r in rows_all if r["status"] == "error")
@@ -263,15 +268,18 @@ def write_report(study: Study, rows_all: list[dict[str, Any]], out: str | Path) 
                           study.report.get("change_metric", "omega_model"), v)
         if ch:
             lines += [f"## Change against the reference, follower {v}", ""] + ch
-    for mx, my, f, front in fronts:
-        lines += [f"## Pareto front: {mx} vs {my} (both minimised, follower {veh})", ""]
+    for mx, my, base, f, front in fronts:
+        lines += [f"## Pareto front: {mx} vs {my}{', scenario ' + base if base else ''} (both minimised, "
+                  f"follower {veh}; comparable rows only)", ""]
         if f:
             lines += [f"![Pareto front]({f.name})", ""]
         keys = study.axis_keys
         lines.append("| controller | " + " | ".join(keys) + f" | {mx} | {my} |")
         lines.append("|---" * (len(keys) + 3) + "|")
         for r in front:
-            lines.append(f"| {r['controller']} | " + " | ".join(_fmt(r.get(k)) for k in keys)
+            law = next((c.kind == "law" for c in study.controllers if c.label == r["controller"]), False)
+            lines.append(f"| {r['controller']} | " + " | ".join("(any)" if law and k.startswith("mpc.") else _fmt(r.get(k))
+                                                              for k in keys)
                          + f" | {_fmt(r[mx])} | {_fmt(r[my])} |")
         lines.append("")
     if figs:
