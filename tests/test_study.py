@@ -227,3 +227,64 @@ def test_pareto_mask():
     pts = [(1.0, 5.0), (2.0, 3.0), (3.0, 3.5), (4.0, 1.0), (2.5, 3.0), (1.0, 5.0)]
     assert pareto_mask(pts) == [True, True, False, True, False, True]
     assert not math.isnan(sum(x for x, _ in pts))
+
+
+def test_mpc_and_ocpd_points_equal_direct_runs(tmp_path):
+    """An MPC point equals the closed loop built directly from the overridden scenario (solve times aside)."""
+    from aev_ocp.mpc.scenario import closed_loop_from_scenario
+
+    text = """
+scenarios = ["mpc_paper_single"]
+reference = "proposed"
+[overrides]
+"simulation.t_end" = 1.2
+"mpc.N" = 8
+[[axes]]
+key = "mpc.w_Q"
+values = [0.4, 3.0]
+[controllers]
+laws = ["proposed"]
+ocpd = true
+[[controllers.mpc]]
+label = "mpc-ipopt"
+solver = "ipopt"
+codegen = false
+"""
+    out = run_study(read_study(_study(tmp_path, text)), tmp_path / "o", executor="inprocess", report=False)
+    rows = {(r["mpc.w_Q"], r["controller"]): r for r in out.rows}
+    assert all(r["status"] == "ok" for r in out.rows) and len(rows) == 6
+    for wq in (0.4, 3.0):
+        sc = load_scenario("mpc_paper_single").with_overrides(
+            {"simulation.t_end": 1.2, "mpc.N": 8, "mpc.w_Q": wq, "mpc.solver": "ipopt", "mpc.codegen": False})
+        m = closed_loop_from_scenario(sc).run(list(sc.gaps0), list(sc.speeds0), sc.t_end).metrics()[0]
+        r = rows[(wq, "mpc-ipopt")]
+        for k in ("heat_pack_J", "omega_model", "rms_jerk_model", "min_gap_model", "distance_m", "fallbacks"):
+            assert r[k] == m[k], (wq, k)
+        assert r["solve_ms_median"] > 0
+        assert rows[(wq, "ocp-d")]["cost_s9_optimum"] > 0
+    # more weight on heat: less pack heat per km (the w_Q axis reaches the controller)
+    assert rows[(3.0, "mpc-ipopt")]["heat_pack_J_per_km"] < rows[(0.4, "mpc-ipopt")]["heat_pack_J_per_km"]
+    # the law does not read [mpc]: one run serves both w_Q points
+    assert rows[(0.4, "proposed")]["task_hash"] == rows[(3.0, "proposed")]["task_hash"]
+
+
+def test_interrupt_leaves_only_complete_results(tmp_path, monkeypatch):
+    f = _study(tmp_path)
+    real = runner_mod.run_task
+    count = {"n": 0}
+
+    def interrupted(spec):
+        count["n"] += 1
+        if count["n"] == 4:
+            raise KeyboardInterrupt
+        return real(spec)
+
+    monkeypatch.setattr(runner_mod, "run_task", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        run_study(read_study(f), tmp_path / "o", executor="inprocess")
+    stored = list((tmp_path / "o" / "points").glob("*"))
+    assert len(stored) == 3 and all(json.loads(p.read_text())["status"] == "ok" for p in stored)
+    assert not (tmp_path / "o" / "table.csv").exists()
+    monkeypatch.setattr(runner_mod, "run_task", real)
+    out = run_study(read_study(f), tmp_path / "o", executor="inprocess")
+    assert out.n_tasks == 6 and len(out.rows) == 24
