@@ -288,3 +288,14 @@ def test_interrupt_leaves_only_complete_results(tmp_path, monkeypatch):
     monkeypatch.setattr(runner_mod, "run_task", real)
     out = run_study(read_study(f), tmp_path / "o", executor="inprocess")
     assert out.n_tasks == 6 and len(out.rows) == 24
+
+
+def test_dask_scheduler_address(tmp_path):
+    """--scheduler ADDRESS: a running cluster (here a LocalCluster started by the test) gives the same table."""
+    distributed = pytest.importorskip("dask.distributed")
+    f = _study(tmp_path, STUDY.replace("values = [0.35, 0.9]", "values = [0.35]"))
+    ref = run_study(read_study(f), tmp_path / "ref", executor="inprocess", report=False)
+    with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=None) as cl:
+        out = run_study(read_study(f), tmp_path / "sched", executor="dask", scheduler=cl.scheduler_address,
+                        report=False)
+    assert _stable(out.rows) == _stable(ref.rows)
