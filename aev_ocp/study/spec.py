@@ -180,7 +180,9 @@ def make_task(p: Point, c: Controller) -> Task:
     if c.kind == "law":
         doc.pop("mpc", None)
         doc.pop("carfollowing", None)
-        doc["platoon"] = {k: v for k, v in doc.get("platoon", {}).items() if k not in ("law", "laws")}
+        platoon = doc.get("platoon", {})
+        n = platoon.get("followers", len(platoon.get("laws") or ()))  # laws = [...] may set the count
+        doc["platoon"] = {**{k: v for k, v in platoon.items() if k not in ("law", "laws")}, "followers": n}
         identity: dict[str, Any] = {"document": doc, "law": _law_fingerprint(p.document, c.name)}
     else:
         identity = {"document": doc}
