@@ -215,6 +215,19 @@ def _sign_changes(sub: list[dict[str, Any]], col: str, ax1: str, ax2: str | None
     return out + [""]
 
 
+def _pareto_groups(study: Study, rows: list[dict[str, Any]]) -> list[tuple[str, list[dict[str, Any]]]]:
+    """Rows split into the sets a Pareto front compares within: per base scenario (when several) and per
+    value of each ``[report] pareto_by`` key (e.g. leader.cycle: runs on different cycles never compete)."""
+    by = (["scenario"] if len(study.bases) > 1 else []) + list(study.report.get("pareto_by", []))
+    if not by:
+        return [("", rows)]
+    groups: dict[tuple, list[dict[str, Any]]] = {}
+    for r in rows:
+        groups.setdefault(tuple(r.get(k) for k in by), []).append(r)
+    return [(", ".join(f"{k.split('.')[-1] if k != 'scenario' else 'scenario'} {v}" for k, v in zip(by, key)), g)
+            for key, g in groups.items()]
+
+
 def write_report(study: Study, rows_all: list[dict[str, Any]], out: str | Path) -> list[Path]:
     """Figures and report.md into ``out``; returns the files written."""
     out = Path(out)
@@ -229,8 +242,7 @@ def write_report(study: Study, rows_all: list[dict[str, Any]], out: str | Path) 
             if f:
                 figs.append(f)
     fronts: list[tuple[str, str, str, Path | None, list[dict[str, Any]]]] = []
-    groups = [(b, [r for r in rows if r.get("scenario") == b]) for b in study.bases] if len(study.bases) > 1 \
-        else [("", rows)]
+    groups = _pareto_groups(study, rows)
     for (mx, my), (base, grows) in ((pair, g) for pair in study.report.get("pareto", []) for g in groups):
         f = plot_pareto(study, grows, mx, my, out, base)
         cand, mask = pareto_front(study, grows, mx, my)
@@ -269,7 +281,7 @@ def write_report(study: Study, rows_all: list[dict[str, Any]], out: str | Path) 
         if ch:
             lines += [f"## Change against the reference, follower {v}", ""] + ch
     for mx, my, base, f, front in fronts:
-        lines += [f"## Pareto front: {mx} vs {my}{', scenario ' + base if base else ''} (both minimised, "
+        lines += [f"## Pareto front: {mx} vs {my}{', ' + base if base else ''} (both minimised, "
                   f"follower {veh}; comparable rows only)", ""]
         if f:
             lines += [f"![Pareto front]({f.name})", ""]

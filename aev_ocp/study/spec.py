@@ -35,6 +35,7 @@ A study is a TOML file (see README.md "Studies")::
     vehicle = 1                          # follower in figures (an array: change tables for each)
     metrics = ["omega_model", "heat_pack_J_per_km"]
     pareto = [["heat_pack_J_per_km", "rms_rel_speed_model"]]
+    pareto_by = ["leader.cycle"]         # a front per value of these keys (and per base scenario)
     change_metric = "omega_model"        # % change vs the reference, tabulated over the first two axes
 
 Points are the Cartesian product of the axes (and of ``scenarios``). Every point and every
@@ -349,6 +350,7 @@ def _report(r: TableReader, file: str) -> dict[str, Any]:
                                                for p in pareto):
         raise r.error("pareto", pareto, "expected an array of [metric_x, metric_y] pairs (both minimised)")
     rep["pareto"] = [tuple(p) for p in pareto]
+    rep["pareto_by"] = r.strings("pareto_by", [])
     r.finish()
     return rep
 
