@@ -18,8 +18,8 @@ Rules beyond plain assignment:
 - An override the scenario would ignore is an error: ``platoon.law``/``platoon.laws`` while
   ``compare`` is set (every run then uses the ``compare`` laws).
 
-Command lines call :func:`parse_assignments` on their ``--set KEY=VALUE`` arguments, then
-:func:`apply_to_scenario` (or ``Scenario.with_overrides``).
+Command lines call :func:`load_with_sets` (or :func:`parse_assignments` on their ``--set KEY=VALUE``
+arguments, then :func:`apply_to_scenario` / ``Scenario.with_overrides``).
 """
 
 from __future__ import annotations
@@ -137,3 +137,16 @@ def apply_to_scenario(scenario: "Scenario", overrides: Mapping[str, Any]) -> "Sc
     file = scenario.file_label
     doc = apply_to_document(scenario.document, overrides, file)
     return parse_scenario(doc, file, source=scenario.source)
+
+
+def load_with_sets(path: str, sets: Iterable[str] | None) -> "Scenario":
+    """``load_scenario(path)`` with every ``--set KEY=VALUE`` applied and validated like the file.
+
+    The one call a command needs for its ``--set`` flags (``action="append"``); raises ScenarioError
+    (invalid value, unknown key) or OverrideError (malformed or ignored override), both ValueErrors
+    whose message names the file and the key."""
+    from .scenarios import load_scenario
+
+    scenario = load_scenario(path)
+    overrides = parse_assignments(sets)
+    return apply_to_scenario(scenario, overrides) if overrides else scenario

@@ -94,6 +94,16 @@ def test_parse_assignments():
             parse_assignment(bad)
 
 
+def test_load_with_sets():
+    from aev_ocp.overrides import load_with_sets
+
+    sc = load_with_sets("table1", ["carfollowing.kappa=0.071", "simulation.t_end=12.5"])
+    assert sc.law("proposed").kappa == 0.071 and sc.t_end == 12.5
+    assert load_with_sets("table1", None).t_end == 70.0
+    with pytest.raises(ScenarioError, match="table1.toml: simulation.t_end"):
+        load_with_sets("table1", ["simulation.t_end=-3"])
+
+
 # ----------------------------------------------------------------------------- replace
 def test_replace_cf_takes_effect_without_compare():
     """The bug of issue 9: replace(cf=...) did nothing on a scenario without compare."""
