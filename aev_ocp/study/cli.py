@@ -22,7 +22,9 @@ class _Parser(argparse.ArgumentParser):
 
 def build_parser() -> argparse.ArgumentParser:
     """Argument parser of ``aev-ocp study``."""
-    p = _Parser(prog="aev-ocp study", description=(__doc__ or "").splitlines()[0].split(": ", 1)[-1])
+    p = _Parser(prog="aev-ocp study", description="Run or resume a study (points x controllers) on a local process "
+                "pool or on Dask; writes table.csv, table.jsonl, figures and report.md. Rerun the same command "
+                "to resume: stored points are not recomputed.")
     p.add_argument("study", help="a study .toml file (e.g. studies/kappa_alpha_table1.toml)")
     p.add_argument("--out", default=None, help="output folder (default results/study/<name>); rerun to resume")
     ex = p.add_mutually_exclusive_group()
