@@ -91,6 +91,9 @@ def cli_study(argv: list[str]) -> int:
     except OSError as exc:
         _err(f"{exc.strerror or exc}: {exc.filename}" if getattr(exc, "filename", None) else str(exc))
         return EXIT_BAD_INPUT
+    except RuntimeError as exc:  # the executor failed (a broken pool, a cluster that cannot import aev_ocp)
+        _err(f"{exc}; finished tasks are stored, rerun to resume")
+        return EXIT_FAILED_RUN
     bad = [r for r in out.rows if r["status"] != "ok"]
     print(f"{out.n_tasks} tasks, {out.n_failed} failed, {len({(r['point'], r['controller']) for r in bad})} "
           f"ended by an event or error")

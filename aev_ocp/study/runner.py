@@ -212,7 +212,11 @@ def _run_pool(specs: list[dict[str, Any]], workers: int | None, done: Callable[[
         while pending:
             finished, pending = wait(pending, return_when=FIRST_COMPLETED)
             for f in finished:
-                done(f.result())
+                try:
+                    res = f.result()
+                except Exception as exc:  # run_task records its own errors: this is the pool failing
+                    raise RuntimeError(f"a worker process failed ({type(exc).__name__}: {exc})") from exc
+                done(res)
     except BaseException:
         ex.shutdown(wait=False, cancel_futures=True)
         raise
@@ -251,7 +255,12 @@ def _run_dask(specs: list[dict[str, Any]], workers: int | None, scheduler: str |
         futures = [client.submit(run_task, sp, key=f"aev-ocp-task-{sp['key']}", pure=False) for sp in specs]
         try:
             for fut in as_completed(futures):
-                done(fut.result())
+                try:
+                    res = fut.result()
+                except Exception as exc:  # run_task records its own errors: this is the cluster failing
+                    raise RuntimeError(f"a Dask worker could not run a study task ({type(exc).__name__}: {exc}); "
+                                       "do the workers have this aev_ocp installed?") from exc
+                done(res)
         except BaseException:
             client.cancel(futures)
             raise
