@@ -299,3 +299,11 @@ def test_dask_scheduler_address(tmp_path):
         out = run_study(read_study(f), tmp_path / "sched", executor="dask", scheduler=cl.scheduler_address,
                         report=False)
     assert _stable(out.rows) == _stable(ref.rows)
+
+
+@pytest.mark.parametrize("name, points, controllers", [("kappa_alpha_table1", 32, 2), ("wq_pareto_mpc", 10, 3),
+                                                       ("predictor_cycle", 9, 3)])
+def test_shipped_studies_validate(name, points, controllers):
+    study = read_study(Path(__file__).resolve().parents[1] / "studies" / f"{name}.toml")
+    assert len(study.points) == points and len(study.controllers) == controllers
+    assert not study.warnings
