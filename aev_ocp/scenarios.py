@@ -307,7 +307,8 @@ class Scenario:
         dt_out, rtol, atol) go through :meth:`with_overrides` when the scenario has its document, so
         whatever is derived from them (the laws from cf, the leader and ev from units, …) is rebuilt
         and validated. Object fields (leader, laws, gaps0, speeds0, ev, extra, source) are set as given
-        and checked for consistency; the copy then has no document (no file describes it).
+        and checked for consistency; the copy then has no document (no file describes it; ``source`` alone
+        keeps it).
         """
         unknown = sorted(set(changes) - {f.name for f in dataclasses.fields(self)} - {"document"})
         if unknown:
@@ -322,7 +323,8 @@ class Scenario:
             else:
                 out = _replace_without_document(self, keyed)
         if changes:
-            fixed = dataclasses.replace(out, document=None, **changes)
+            stale = set(changes) - {"source"}  # no file key states these objects: the document no longer applies
+            fixed = dataclasses.replace(out, **changes, **({"document": None} if stale else {}))
             if "units" not in keyed and "ev" in changes and changes["ev"].units != fixed.units:
                 raise ScenarioError(f"{self.file_label}: replace(ev=...): ev.units ({changes['ev'].units}) differ "
                                     f"from the scenario's units ({fixed.units}); pass units= too")

@@ -50,7 +50,6 @@ import dataclasses
 import hashlib
 import itertools
 import json
-import math
 import tomllib
 import warnings
 from dataclasses import dataclass, field
@@ -531,7 +530,3 @@ def controller_document(doc: dict[str, Any], c: Controller, file: str) -> dict[s
         return doc
     return apply_to_document(doc, {f"mpc.{k}": v for k, v in c.settings}, file)
 
-
-def finite_or_none(x: Any) -> Any:
-    """JSON-friendly float (nan/inf -> None)."""
-    return x if not isinstance(x, float) or math.isfinite(x) else None
