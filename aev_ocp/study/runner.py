@@ -76,7 +76,10 @@ def _ocpd(sc: Any, s: Any) -> Any:
     through the exact plant, as run by :func:`aev_ocp.mpc.report.run_comparison`."""
     import numpy as np
 
-    from ..mpc.closed_loop import ClosedLoop, ControlSequence
+    try:  # the plant's closed loop lives in aev_ocp.control on main (the architecture rewrite)
+        from ..control import ClosedLoop, ControlSequence  # type: ignore[import-not-found]
+    except ImportError:
+        from ..mpc.closed_loop import ClosedLoop, ControlSequence
     from ..ocp.oracle import OracleScenario, OracleSolver
 
     scn = OracleScenario(leader=sc.leader, t_end=sc.t_end, dt=s.dt, h0=sc.gaps0[0], v0=sc.speeds0[0],
