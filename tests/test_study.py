@@ -307,3 +307,15 @@ def test_shipped_studies_validate(name, points, controllers):
     study = read_study(Path(__file__).resolve().parents[1] / "studies" / f"{name}.toml")
     assert len(study.points) == points and len(study.controllers) == controllers
     assert not study.warnings
+
+
+def test_chunks_cover_every_task_once(tmp_path):
+    from aev_ocp.study.runner import chunk_size, run_tasks
+
+    assert chunk_size(200, 2) == 13 and chunk_size(6, 2) == 1 and chunk_size(1, 64) == 1
+    specs = [t.spec for t in read_study(_study(tmp_path)).tasks()][:3]
+    batch = run_tasks(specs)
+    assert [r["key"] for r in batch] == [s["key"] for s in specs]
+    single = [runner_mod.run_task(s) for s in specs]
+    strip = lambda rs: [{k: v for k, v in r.items() if k != "wall_s"} for r in rs]  # noqa: E731
+    assert strip(batch) == strip(single)
