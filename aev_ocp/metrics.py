@@ -97,6 +97,7 @@ def vehicle_metrics(r: SimulationResult, i: int) -> dict[str, Any]:
         "infeasible_current": kinds.count("infeasible_current"),
         "final_ovm_error_model": float(optimal_velocity(h[-1]) - v[-1]),
     }
+    out.update(distance_metrics(r, i, duration))
     stats = r.solver_stats[i] if i < len(r.solver_stats) else None
     if stats:
         out.update(stats)
@@ -106,3 +107,83 @@ def vehicle_metrics(r: SimulationResult, i: int) -> dict[str, Any]:
 def metrics_table(r: SimulationResult) -> list[dict[str, Any]]:
     """Metrics of every follower."""
     return [vehicle_metrics(r, i) for i in range(r.n_vehicles)]
+
+
+# ----------------------------------------------------------------------------- comparable results
+#: Runs whose distance or duration differ from the reference's by more than this fraction are flagged.
+COMPARABLE_REL_TOL = 0.01
+
+
+def min_time_to_collision(t: np.ndarray, h: np.ndarray, closing_speed: np.ndarray) -> float:
+    """Smallest time-to-collision h / (v − v_l) over the samples where the follower closes in
+    (v > v_l) [model time]; inf if it never closes in. Samples only: TTC is a sampled safety indicator."""
+    closing = closing_speed > 1e-12
+    if not np.any(closing):
+        return math.inf
+    return float(np.min(h[closing] / closing_speed[closing]))
+
+
+def distance_metrics(r: SimulationResult, i: int, duration: float | None = None) -> dict[str, Any]:
+    """Distance travelled, duration, ω and pack heat per km and the minimum time-to-collision of follower i.
+
+    Keys: distance_model [model length], distance_m [m], duration_s [s], omega_model_per_km [model
+    energy per unit mass per km], omega_J_per_kg_per_km [J/kg/km], heat_pack_J_per_km [J/km],
+    heat_irr_pack_J_per_km [J/km], min_ttc_model [model time], min_ttc_s [s] (inf: never closing in).
+    The distance is x_i(t_end) − x_i(0) from the sampled positions (exact at the samples); per-km
+    values are nan when the follower did not move."""
+    u = r.units
+    t = r.t
+    if duration is None:
+        duration = float(t[-1] - t[0]) if t.size > 1 else 0.0
+    x = r.positions()[:, i]
+    dist = float(x[-1] - x[0]) if t.size > 1 else 0.0
+    dist_m = float(u.length_to_si(dist))
+    km = dist_m / 1000.0
+    per_km = (lambda q: q / km if km > 1e-12 else float("nan"))
+    omega = float(r.omega[-1, i])
+    v_lead = r.leader_speed if i == 0 else r.speed[:, i - 1]
+    ttc = min_time_to_collision(t, r.gap[:, i], r.speed[:, i] - v_lead)
+    return {
+        "distance_model": dist,
+        "distance_m": dist_m,
+        "duration_s": duration * u.time_s,
+        "omega_model_per_km": per_km(omega),
+        "omega_J_per_kg_per_km": per_km(float(u.energy_per_mass_to_si(omega))),
+        "heat_pack_J_per_km": per_km(float(r.heat_J[-1, i])),
+        "heat_irr_pack_J_per_km": per_km(float(r.heat_irr_J[-1, i])),
+        "min_ttc_model": ttc,
+        "min_ttc_s": ttc * u.time_s,
+    }
+
+
+def _rel_diff(a: Any, b: Any) -> float:
+    try:
+        a, b = float(a), float(b)
+    except (TypeError, ValueError):
+        return float("nan")
+    if not (math.isfinite(a) and math.isfinite(b)):
+        return float("nan")
+    if b == 0.0:
+        return 0.0 if a == 0.0 else math.inf
+    return (a - b) / abs(b)
+
+
+def comparability(m: dict[str, Any], ref: dict[str, Any] | None,
+                  rel_tol: float = COMPARABLE_REL_TOL) -> dict[str, Any]:
+    """Whether the metrics ``m`` of one vehicle can be ranked beside those of the same vehicle under the
+    reference controller (``ref``; None when the reference run is missing or failed).
+
+    Returns distance_diff_pct and duration_diff_pct [%] (m relative to ref), and the flags
+    flag_distance / flag_duration (differs by more than ``rel_tol``, or cannot be compared),
+    flag_event (m's run ended by an event: a collision, negative speed, ...) and comparable (no
+    flag set). A run is comparable with itself."""
+    ended = str(m.get("run_status", m.get("status", "ok"))) != "ok"
+    if ref is None:
+        dd = du = float("nan")
+    else:
+        dd = _rel_diff(m.get("distance_m"), ref.get("distance_m"))
+        du = _rel_diff(m.get("duration_s"), ref.get("duration_s"))
+    flag_d = not (math.isfinite(dd) and abs(dd) <= rel_tol)
+    flag_t = not (math.isfinite(du) and abs(du) <= rel_tol)
+    return {"distance_diff_pct": 100 * dd, "duration_diff_pct": 100 * du, "flag_distance": flag_d,
+            "flag_duration": flag_t, "flag_event": ended, "comparable": not (flag_d or flag_t or ended)}

@@ -30,6 +30,7 @@ Other top-level tables are rejected unless a module registered them with
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import errno
 import math
@@ -272,6 +273,12 @@ class Scenario:
     law_overrides: dict[str, dict[str, float]] = field(default_factory=dict)
     extra: dict[str, Any] = field(default_factory=dict)
     source: Path | None = None
+    document: dict[str, Any] | None = field(default=None, compare=False, repr=False)  # the TOML as parsed
+
+    @property
+    def file_label(self) -> str:
+        """How messages name this scenario: its file, else its name."""
+        return str(self.source) if self.source is not None else self.name
 
     @property
     def n_followers(self) -> int:
@@ -313,9 +320,93 @@ class Scenario:
             out[label] = simulate_platoon(self.leader, list(laws), progress=cb, **kwargs)
         return out
 
+    def with_overrides(self, overrides: dict[str, Any]) -> "Scenario":
+        """A copy with dotted-path overrides ({"carfollowing.kappa": 0.05, "mpc.w_Q": 2}) applied to the
+        scenario's TOML document and validated exactly like the file (see :mod:`aev_ocp.overrides`)."""
+        from .overrides import apply_to_scenario
+
+        return apply_to_scenario(self, overrides)
+
     def replace(self, **changes: Any) -> "Scenario":
-        """A copy with some fields changed (e.g. a shorter t_end for a quick run)."""
-        return dataclasses.replace(self, **changes)
+        """A copy with some fields changed (e.g. ``replace(t_end=5.0)`` for a quick run); every change takes
+        effect or raises ScenarioError.
+
+        Fields that a file key states (name, description, compare, units, cf, law_overrides, t_end,
+        dt_out, rtol, atol) go through :meth:`with_overrides` when the scenario has its document, so
+        whatever is derived from them (the laws from cf, the leader and ev from units, …) is rebuilt
+        and validated. Object fields (leader, laws, gaps0, speeds0, ev, extra, source) are set as given
+        and checked for consistency; the copy then has no document (no file describes it; ``source`` alone
+        keeps it).
+        """
+        unknown = sorted(set(changes) - {f.name for f in dataclasses.fields(self)} - {"document"})
+        if unknown:
+            raise ScenarioError(f"{self.file_label}: replace(): unknown field(s) {unknown}; fields are "
+                                f"{[f.name for f in dataclasses.fields(self) if f.name != 'document']}")
+        changes.pop("document", None)
+        keyed = {k: changes.pop(k) for k in list(changes) if k in _REPLACE_KEYS}
+        out = self
+        if keyed:
+            if self.document is not None:
+                out = self.with_overrides(_replace_overrides(keyed))
+            else:
+                out = _replace_without_document(self, keyed)
+        if changes:
+            stale = set(changes) - {"source"}  # no file key states these objects: the document no longer applies
+            fixed = dataclasses.replace(out, **changes, **({"document": None} if stale else {}))
+            if "units" not in keyed and "ev" in changes and changes["ev"].units != fixed.units:
+                raise ScenarioError(f"{self.file_label}: replace(ev=...): ev.units ({changes['ev'].units}) differ "
+                                    f"from the scenario's units ({fixed.units}); pass units= too")
+            if "laws" in changes and fixed.compare:
+                raise ScenarioError(f"{self.file_label}: replace(laws=...) would be ignored: the scenario sets "
+                                    f"compare = {list(fixed.compare)}, so every run uses those laws; "
+                                    "pass compare=() too")
+            n = len(fixed.laws)
+            if len(fixed.gaps0) != n or len(fixed.speeds0) != n:
+                raise ScenarioError(f"{self.file_label}: replace(): {n} laws but {len(fixed.gaps0)} gaps0 and "
+                                    f"{len(fixed.speeds0)} speeds0; give one of each per follower")
+            out = fixed
+        return out
+
+
+#: Scenario fields that a file key states: replace() routes them through with_overrides.
+_REPLACE_KEYS = ("name", "description", "compare", "units", "cf", "law_overrides", "t_end", "dt_out", "rtol", "atol")
+
+
+def _replace_overrides(keyed: dict[str, Any]) -> dict[str, Any]:
+    """replace() arguments of the file-keyed fields as dotted-path overrides."""
+    ov: dict[str, Any] = {}
+    simple = {"name": "name", "description": "description", "t_end": "simulation.t_end",
+              "dt_out": "simulation.dt_out", "rtol": "simulation.rtol", "atol": "simulation.atol"}
+    for k, v in keyed.items():
+        if k in simple:
+            ov[simple[k]] = v
+        elif k == "compare":
+            ov["compare"] = list(v) or None  # None removes the key: no compare
+        elif k in ("units", "cf"):
+            table = "units" if k == "units" else "carfollowing"
+            ov.update({f"{table}.{f.name}": getattr(v, f.name) for f in dataclasses.fields(v)})
+        elif k == "law_overrides":
+            for law, coeffs in v.items():
+                ov.update({f"carfollowing.{law}.{c}": x for c, x in coeffs.items()})
+    return ov
+
+
+def _replace_without_document(sc: "Scenario", keyed: dict[str, Any]) -> "Scenario":
+    """replace() of file-keyed fields on a scenario built in Python: rebuild what derives from them."""
+    out = dataclasses.replace(sc, **keyed)
+    if "cf" in keyed or "law_overrides" in keyed:
+        try:
+            laws = tuple(make_law(law.name, out.cf, **out.law_overrides.get(law.name, {})) for law in out.laws)
+        except (KeyError, TypeError, ParameterError) as exc:
+            raise ScenarioError(f"{sc.file_label}: replace(): cannot rebuild the laws: {exc}") from None
+        out = dataclasses.replace(out, laws=laws)
+    if "units" in keyed:
+        if not isinstance(out.leader, (ConstantSpeed, PaperLeader)):
+            raise ScenarioError(f"{sc.file_label}: replace(units=...): the leader ({type(out.leader).__name__}) "
+                                "was converted with the old units and this scenario has no document to rebuild "
+                                "it from; pass leader= too, or load the scenario from a file")
+        out = dataclasses.replace(out, ev=dataclasses.replace(out.ev, units=out.units))
+    return out
 
 
 # ----------------------------------------------------------------------------- size of a run
@@ -633,7 +724,7 @@ def parse_scenario(doc: dict[str, Any], file: str = "<scenario>", *, source: Pat
     scenario = Scenario(name=name, description=description, units=units, leader=leader, laws=laws,
                         gaps0=tuple(gaps), speeds0=tuple(speeds), t_end=t_end, ev=ev, dt_out=dt_out,
                         rtol=rtol, atol=atol, compare=compare, cf=cf, law_overrides=overrides, extra=extra,
-                        source=source)
+                        source=source, document=copy.deepcopy(doc))
     check_leader_speed(scenario, file)
     return scenario
 

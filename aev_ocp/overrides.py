@@ -1,0 +1,152 @@
+"""Dotted-path overrides of a scenario, validated exactly like the file.
+
+An override is ``key.path = value`` (``carfollowing.kappa=0.05``, ``mpc.w_Q=2``, ``leader.cycle="udds"``,
+``units.length_m=15``). It is applied to the scenario's raw TOML document (kept on the
+:class:`~aev_ocp.scenarios.Scenario` by the loader), and the edited document is re-parsed by
+:func:`aev_ocp.scenarios.parse_scenario`: every override meets the same checks, with the same
+messages naming file, key path, value and what is allowed, as the file itself.
+
+Rules beyond plain assignment:
+
+- Keys that exclude each other are swapped, not added: setting ``platoon.speed0`` removes
+  ``speed0_factor``/``speeds0`` (likewise ``gaps0`` against ``gap0_first``/``gap0_others`` and
+  ``law`` against ``laws``), so an override replaces the file's choice.
+- Setting ``leader.kind`` to another kind clears the file's ``[leader]`` keys (they belong to the old
+  kind); give the new kind's keys as overrides too (``leader.kind="cycle"``, ``leader.cycle="udds"``).
+- In Python, the value ``None`` removes the key (the loader's default applies), e.g.
+  ``{"compare": None}`` runs the platoon as declared.
+- An override the scenario would ignore is an error: ``platoon.law``/``platoon.laws`` while
+  ``compare`` is set (every run then uses the ``compare`` laws).
+
+Command lines call :func:`load_with_sets` (or :func:`parse_assignments` on their ``--set KEY=VALUE``
+arguments, then :func:`apply_to_scenario` / ``Scenario.with_overrides``).
+"""
+
+from __future__ import annotations
+
+import copy
+import tomllib
+from typing import TYPE_CHECKING, Any, Iterable, Mapping
+
+if TYPE_CHECKING:  # pragma: no cover
+    from .scenarios import Scenario
+
+#: Keys of one table that exclude each other: setting one removes the others.
+EXCLUSIVE: dict[str, tuple[tuple[str, ...], ...]] = {
+    "platoon": (("speed0", "speed0_factor", "speeds0"), ("gaps0", "gap0_first"), ("gaps0", "gap0_others"),
+                ("law", "laws")),
+}
+
+
+class OverrideError(ValueError):
+    """An override is malformed (syntax, path) or would be ignored by the scenario.
+
+    A subclass of ValueError; the scenario loader's ScenarioError is raised for invalid values."""
+
+
+def parse_value(text: str) -> Any:
+    """A TOML value (``0.05``, ``2``, ``true``, ``"udds"``, ``[1, 2]``); anything else is a bare string."""
+    text = text.strip()
+    try:
+        return tomllib.loads(f"v = {text}")["v"]
+    except tomllib.TOMLDecodeError:
+        return text
+
+
+def parse_assignment(item: str) -> tuple[str, Any]:
+    """``"key.path=value"`` -> (``"key.path"``, value parsed by :func:`parse_value`)."""
+    if "=" not in item:
+        raise OverrideError(f"override {item!r} is not KEY.PATH=VALUE (e.g. carfollowing.kappa=0.05)")
+    key, _, raw = item.partition("=")
+    key = key.strip()
+    check_key(key)
+    if not raw.strip():
+        raise OverrideError(f"override {item!r} has no value after '='")
+    return key, parse_value(raw)
+
+
+def parse_assignments(items: Iterable[str] | None) -> dict[str, Any]:
+    """Every ``--set KEY=VALUE`` of a command line as an ordered dict (a later key wins)."""
+    out: dict[str, Any] = {}
+    for item in items or ():
+        k, v = parse_assignment(item)
+        out[k] = v
+    return out
+
+
+def check_key(key: str) -> list[str]:
+    """Split a dotted key path, rejecting empty parts; returns the parts."""
+    parts = key.split(".")
+    if not key or any(not p.strip() for p in parts):
+        raise OverrideError(f"override key {key!r} is not a dotted key path (e.g. carfollowing.kappa)")
+    return [p.strip() for p in parts]
+
+
+def apply_to_document(doc: Mapping[str, Any], overrides: Mapping[str, Any], file: str = "<scenario>") -> dict[str, Any]:
+    """A deep copy of the TOML document ``doc`` with every override set (missing tables are created).
+
+    Raises :class:`OverrideError` naming ``file`` and the key when a path runs through a value that
+    is not a table, or when the scenario would ignore the override (see the module docstring)."""
+    out = copy.deepcopy(dict(doc))
+    items = list(overrides.items())
+    # a kind change clears the old kind's keys before the new ones are set
+    kind = dict(items).get("leader.kind")
+    if kind is not None and isinstance(out.get("leader"), dict) and out["leader"].get("kind") != kind:
+        out["leader"] = {}
+    for key, value in items:
+        parts = check_key(key)
+        node: Any = out
+        for depth, part in enumerate(parts[:-1]):
+            nxt = node.get(part)
+            if nxt is None:
+                nxt = node[part] = {}
+            if not isinstance(nxt, dict):
+                where = ".".join(parts[:depth + 1])
+                raise OverrideError(f"{file}: override {key} = {value!r}: {where} is a value "
+                                    f"({nxt!r}), not a table")
+            node = nxt
+        leaf = parts[-1]
+        table = ".".join(parts[:-1])
+        for group in EXCLUSIVE.get(table, ()):
+            if leaf in group:
+                for other in group:
+                    if other != leaf and f"{table}.{other}" not in overrides:
+                        node.pop(other, None)
+        if value is None:  # Python API: None removes the key (the file's default applies)
+            node.pop(leaf, None)
+        else:
+            node[leaf] = copy.deepcopy(value)
+    ignored = [k for k in overrides if k in ("platoon.law", "platoon.laws")]
+    if ignored and out.get("compare"):
+        raise OverrideError(f"{file}: override {ignored[0]} = {overrides[ignored[0]]!r} would be ignored: the "
+                            f"scenario sets compare = {out['compare']!r}, so every run uses those laws; "
+                            f"override 'compare' instead (e.g. compare=[\"ovfl\"])")
+    return out
+
+
+def apply_to_scenario(scenario: "Scenario", overrides: Mapping[str, Any]) -> "Scenario":
+    """``scenario`` with ``overrides`` applied to its TOML document and re-validated (see module docstring).
+
+    The scenario must come from a document (a file, or :func:`aev_ocp.scenarios.parse_scenario`)."""
+    from .scenarios import ScenarioError, parse_scenario
+
+    if scenario.document is None:
+        raise ScenarioError(f"{scenario.name}: overrides need the scenario's TOML document; this scenario was "
+                            "built in Python or changed with replace(leader=..., laws=..., ...), which no "
+                            "document describes")
+    file = scenario.file_label
+    doc = apply_to_document(scenario.document, overrides, file)
+    return parse_scenario(doc, file, source=scenario.source)
+
+
+def load_with_sets(path: str, sets: Iterable[str] | None) -> "Scenario":
+    """``load_scenario(path)`` with every ``--set KEY=VALUE`` applied and validated like the file.
+
+    The one call a command needs for its ``--set`` flags (``action="append"``); raises ScenarioError
+    (invalid value, unknown key) or OverrideError (malformed or ignored override), both ValueErrors
+    whose message names the file and the key."""
+    from .scenarios import load_scenario
+
+    scenario = load_scenario(path)
+    overrides = parse_assignments(sets)
+    return apply_to_scenario(scenario, overrides) if overrides else scenario

@@ -1,0 +1,119 @@
+"""``aev-ocp study STUDY.toml [--out DIR] [--workers N | --dask-local N | --scheduler ADDRESS | --in-process]
+[--set KEY=VALUE ...]``: run or resume a study; writes table.csv, table.jsonl, figures and report.md."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+EXIT_OK, EXIT_FAILED_RUN, EXIT_BAD_INPUT = 0, 1, 2
+
+
+def _err(message: str) -> None:
+    print(f"aev-ocp: error: {' '.join(str(message).split())}", file=sys.stderr, flush=True)
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message: str) -> None:  # type: ignore[override]
+        _err(f"{message} (try 'aev-ocp study --help')")
+        raise SystemExit(EXIT_BAD_INPUT)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """Argument parser of ``aev-ocp study``."""
+    p = _Parser(prog="aev-ocp study", description="Run or resume a study (points x controllers) on a local process "
+                "pool or on Dask; writes table.csv, table.jsonl, figures and report.md. Rerun the same command "
+                "to resume: stored points are not recomputed.")
+    p.add_argument("study", help="a study .toml file (e.g. studies/kappa_alpha_table1.toml)")
+    p.add_argument("--out", default=None, help="output folder (default results/study/<name>); rerun to resume")
+    ex = p.add_mutually_exclusive_group()
+    ex.add_argument("--workers", type=int, default=None, metavar="N",
+                    help="local process pool of N workers (default: one per core)")
+    ex.add_argument("--dask-local", type=int, default=None, metavar="N",
+                    help="start a Dask LocalCluster of N worker processes (needs aev_ocp[dask])")
+    ex.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                    help="run on a running Dask scheduler, e.g. tcp://10.0.0.5:8786 (needs aev_ocp[dask])")
+    ex.add_argument("--in-process", action="store_true", help="run every task in this process (debugging)")
+    p.add_argument("--set", dest="sets", action="append", default=[], metavar="KEY=VALUE",
+                   help="override a scenario key at every point, e.g. --set simulation.t_end=20 (repeatable)")
+    p.add_argument("--no-report", action="store_true", help="write the table only (no figures, no report.md)")
+    return p
+
+
+def cli_study(argv: list[str]) -> int:
+    """Entry point; exit 0 when every task ran (events are results), 1 if a task failed, 2 for bad input."""
+    from ..overrides import OverrideError, parse_assignments
+    from ..scenarios import ScenarioError
+    from . import StudyError, read_study, run_study
+    from .spec import parse_study
+
+    try:
+        a = build_parser().parse_args(argv)
+    except SystemExit as exc:
+        return int(exc.code or 0)
+    for opt in ("workers", "dask_local"):
+        n = getattr(a, opt)
+        if n is not None and n < 1:
+            _err(f"--{opt.replace('_', '-')} {n}: needs at least 1 worker")
+            return EXIT_BAD_INPUT
+    try:
+        sets = parse_assignments(a.sets)
+        if sets:
+            study = _with_sets(a.study, sets, parse_study)
+        else:
+            study = read_study(a.study)
+    except (StudyError, ScenarioError, OverrideError) as exc:
+        _err(str(exc))
+        return EXIT_BAD_INPUT
+    for w in study.warnings:
+        print(f"aev-ocp: warning: {' '.join(w.split())}", file=sys.stderr, flush=True)
+    if a.in_process:
+        kw: dict = {"executor": "inprocess"}
+    elif a.dask_local is not None or a.scheduler is not None:
+        try:
+            import dask.distributed  # noqa: F401
+        except ImportError:
+            from .runner import dask_missing_message
+
+            _err(dask_missing_message())
+            return EXIT_BAD_INPUT
+        kw = {"executor": "dask", "workers": a.dask_local, "scheduler": a.scheduler}
+    else:
+        kw = {"executor": "pool", "workers": a.workers}
+    print(f"[study {study.name}] {len(study.points)} points × {len(study.controllers)} controllers "
+          f"({', '.join(c.label for c in study.controllers)}), executor {kw['executor']}", file=sys.stderr, flush=True)
+    try:
+        out = run_study(study, a.out, report=not a.no_report, **kw)
+    except KeyboardInterrupt:
+        _err("interrupted: finished tasks are stored; rerun the same command to resume")
+        return 130
+    except OSError as exc:
+        _err(f"{exc.strerror or exc}: {exc.filename}" if getattr(exc, "filename", None) else str(exc))
+        return EXIT_BAD_INPUT
+    except RuntimeError as exc:  # the executor failed (a broken pool, a cluster that cannot import aev_ocp)
+        _err(f"{exc}; finished tasks are stored, rerun to resume")
+        return EXIT_FAILED_RUN
+    bad = [r for r in out.rows if r["status"] != "ok"]
+    print(f"{out.n_tasks} tasks, {out.n_failed} failed, {len({(r['point'], r['controller']) for r in bad})} "
+          f"ended by an event or error")
+    print(f"wrote {out.folder}/table.csv, table.jsonl" + ("" if a.no_report else ", report.md and figures"))
+    return EXIT_FAILED_RUN if out.n_failed else EXIT_OK
+
+
+def _with_sets(path: str, sets: dict, parse_study):  # noqa: ANN001, ANN202
+    """The study with ``--set`` overrides added to its [overrides] table (validated at every point)."""
+    import tomllib
+
+    from .spec import StudyError
+
+    try:
+        doc = tomllib.loads(Path(path).read_text(encoding="utf-8"))
+    except OSError as exc:
+        raise StudyError(f"{path}: cannot read the study file ({exc.strerror or exc})") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise StudyError(f"{path}: not valid TOML: {exc}") from None
+    ov = dict(doc.get("overrides") or {})
+    ov.update(sets)
+    doc["overrides"] = ov
+    return parse_study(doc, path, Path(path))

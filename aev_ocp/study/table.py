@@ -1,0 +1,155 @@
+"""The study's tidy table: one row per point × controller × vehicle; CSV and JSON Lines; loading back.
+
+Columns: study, point, scenario, the axis keys, controller, vehicle, status, message, the
+comparability check against the reference controller (comparable, flag_distance, flag_duration,
+flag_event, distance_diff_pct, duration_diff_pct), % change of ω, pack ∫Q and pack ∫Q per km against
+the reference (``*_change_pct``), every §10 metric of :mod:`aev_ocp.metrics` (with solver statistics
+for MPC rows), the task's wall time and hash, and provenance (package and CasADi versions, git
+commit when available).
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import math
+import subprocess
+from functools import lru_cache
+from pathlib import Path
+from typing import Any
+
+from .. import __version__
+from ..metrics import comparability
+from ..results import write_atomic
+from .spec import Study
+
+TABLE_JSONL = "table.jsonl"
+TABLE_CSV = "table.csv"
+CHANGE_METRICS = ("omega_model", "heat_pack_J", "heat_pack_J_per_km")
+_LEAD = ("study", "point", "scenario")
+_AFTER = ("controller", "vehicle", "status", "message", "comparable", "flag_distance", "flag_duration", "flag_event",
+          "distance_diff_pct", "duration_diff_pct") + tuple(f"{m}_change_pct" for m in CHANGE_METRICS)
+_TAIL = ("wall_s", "task_hash", "aev_ocp_version", "casadi_version", "git_commit")
+
+
+@lru_cache(maxsize=1)
+def provenance() -> dict[str, Any]:
+    """Package and CasADi versions and the git commit of the source tree (None when not a checkout)."""
+    import casadi
+
+    commit = None
+    try:
+        root = Path(__file__).resolve().parents[2]
+        p = subprocess.run(["git", "-C", str(root), "rev-parse", "HEAD"], capture_output=True, text=True, timeout=5)
+        if p.returncode == 0:
+            commit = p.stdout.strip() or None
+    except (OSError, subprocess.SubprocessError):
+        commit = None
+    return {"aev_ocp_version": __version__, "casadi_version": casadi.__version__, "git_commit": commit}
+
+
+def _pct(a: Any, b: Any) -> float | None:
+    if not isinstance(a, (int, float)) or not isinstance(b, (int, float)) or isinstance(a, bool) or b == 0:
+        return None
+    x = 100.0 * (a / b - 1.0)
+    return x if math.isfinite(x) else None
+
+
+def build_rows(study: Study, results: dict[str, dict[str, Any]]) -> list[dict[str, Any]]:
+    """The tidy rows of a study from its task results ({hash: result})."""
+    prov = provenance()
+    tasks = {(t.point, t.controller): t for t in study.tasks()}
+    rows: list[dict[str, Any]] = []
+    for p in study.points:
+        ref = results.get(tasks[(p.index, study.reference)].key)
+        ref_by_vehicle = {m["vehicle"]: m for m in (ref or {}).get("metrics", [])} if ref else {}
+        for c in study.controllers:
+            t = tasks[(p.index, c.label)]
+            res = results.get(t.key)
+            if res is None:
+                continue
+            head: dict[str, Any] = {"study": study.name, "point": p.index, "scenario": p.base}
+            head.update({k: p.values[k] for k in p.values})
+            ms = res.get("metrics") or [{"vehicle": None}]
+            for m in ms:
+                row = dict(head)
+                row.update(controller=c.label, vehicle=m.get("vehicle"), status=res["status"],
+                           message=res.get("message", ""))
+                r = ref_by_vehicle.get(m.get("vehicle"))
+                if res["status"] == "error":
+                    flags = {"distance_diff_pct": None, "duration_diff_pct": None, "flag_distance": True,
+                             "flag_duration": True, "flag_event": True, "comparable": False}
+                else:
+                    flags = comparability({**m, "run_status": res["status"]}, r)
+                    flags = {k: (v if not isinstance(v, float) or math.isfinite(v) else None) for k, v in flags.items()}
+                row.update(flags)
+                for k in CHANGE_METRICS:
+                    row[f"{k}_change_pct"] = _pct(m.get(k), r.get(k)) if r else None
+                row.update({k: v for k, v in m.items() if k not in ("vehicle", "controller", "status")})
+                row["vehicle_status"] = m.get("status")
+                row["wall_s"] = res.get("wall_s")
+                row["task_hash"] = t.key
+                row.update(prov)
+                rows.append(row)
+    return rows
+
+
+def columns(rows: list[dict[str, Any]], axis_keys: list[str]) -> list[str]:
+    """Column order: leading, axes, controller/flags, metrics (first-seen order), tail."""
+    fixed = set(_LEAD) | set(axis_keys) | set(_AFTER) | set(_TAIL)
+    metrics: dict[str, None] = {}
+    for r in rows:
+        for k in r:
+            if k not in fixed:
+                metrics.setdefault(k, None)
+    return list(_LEAD) + [k for k in axis_keys if k != "scenario"] + list(_AFTER) + list(metrics) + list(_TAIL)
+
+
+def write_table(rows: list[dict[str, Any]], out: str | Path, axis_keys: list[str]) -> tuple[Path, Path]:
+    """Write ``table.csv`` and ``table.jsonl`` atomically into ``out``; returns both paths."""
+    out = Path(out)
+    cols = columns(rows, axis_keys)
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(cols)
+    for r in rows:
+        w.writerow(["" if r.get(c) is None else (repr(r[c]) if isinstance(r[c], float) else r[c]) for c in cols])
+    csv_path = write_atomic(out / TABLE_CSV, buf.getvalue())
+    lines = "".join(json.dumps({c: r.get(c) for c in cols}) + "\n" for r in rows)
+    jsonl_path = write_atomic(out / TABLE_JSONL, lines)
+    return csv_path, jsonl_path
+
+
+def _convert(x: str) -> Any:
+    if x == "":
+        return None
+    if x in ("True", "False"):
+        return x == "True"
+    try:
+        return int(x)
+    except ValueError:
+        pass
+    try:
+        return float(x)
+    except ValueError:
+        return x
+
+
+def load_table(path: str | Path, as_dataframe: bool = False) -> Any:
+    """Load a study table: a study output folder, its ``table.jsonl`` or its ``table.csv``.
+
+    Returns a list of row dicts, or a pandas DataFrame with ``as_dataframe=True`` (needs pandas)."""
+    p = Path(path)
+    if p.is_dir():
+        p = p / TABLE_JSONL
+    if p.suffix == ".csv":
+        with p.open(newline="", encoding="utf-8") as fh:
+            rows = [{k: _convert(v) for k, v in r.items()} for r in csv.DictReader(fh)]
+    else:
+        rows = [json.loads(line) for line in p.read_text(encoding="utf-8").splitlines() if line.strip()]
+    if as_dataframe:
+        import pandas as pd
+
+        return pd.DataFrame(rows)
+    return rows

@@ -1,0 +1,321 @@
+"""Studies (aev_ocp.study): points equal direct runs, executors agree byte for byte (a real Dask
+LocalCluster included), resume recomputes nothing, failures are recorded, bad input is one line."""
+
+from __future__ import annotations
+
+import json
+import math
+import sys
+from pathlib import Path
+
+import pytest
+
+from aev_ocp.cli import main
+from aev_ocp.results import EVENT_KINDS
+from aev_ocp.scenarios import load_scenario
+from aev_ocp.simulate import simulate_platoon
+from aev_ocp.study import StudyError, load_table, read_study, run_study
+from aev_ocp.study import runner as runner_mod
+from aev_ocp.study.report import pareto_mask
+
+# Table 1 platoon cut to 3 followers and t_end = 2.5: cheap, but every metric non-trivial.
+STUDY = """
+name = "tiny"
+scenarios = ["table1"]
+reference = "ovfl"
+[overrides]
+"simulation.t_end" = 2.5
+"simulation.dt_out" = 0.05
+"platoon.followers" = 3
+[[axes]]
+key = "platoon.gap0_first"
+values = [0.35, 0.9]
+[[axes]]
+key = "carfollowing.kappa"
+values = [0.03, 0.26]
+[controllers]
+laws = ["proposed", "ovfl"]
+[report]
+metrics = ["omega_model"]
+pareto = [["heat_pack_J_per_km", "rms_rel_speed_model"]]
+"""
+
+VOLATILE = ("wall_s",)
+
+
+def _study(tmp_path: Path, text: str = STUDY, name: str = "tiny.toml") -> Path:
+    f = tmp_path / name
+    f.write_text(text)
+    return f
+
+
+def _stable(rows: list[dict]) -> str:
+    return json.dumps([{k: v for k, v in r.items() if k not in VOLATILE} for r in rows], sort_keys=True)
+
+
+def test_points_equal_direct_simulations(tmp_path):
+    out = run_study(read_study(_study(tmp_path)), tmp_path / "out", executor="inprocess", report=False,
+                    progress_stream=sys.stderr)
+    rows = out.rows
+    assert len(rows) == 4 * 2 * 3  # points × controllers × vehicles
+    # OVFL does not read kappa: its two kappa values share one task (one hash), 6 tasks in all
+    assert out.n_tasks == 6
+    base = load_scenario("table1")
+    for gap, kappa in ((0.35, 0.26), (0.9, 0.03)):
+        sc = base.with_overrides({"simulation.t_end": 2.5, "simulation.dt_out": 0.05, "platoon.followers": 3,
+                                  "platoon.gap0_first": gap, "carfollowing.kappa": kappa})
+        for law in ("proposed", "ovfl"):
+            direct = simulate_platoon(sc.leader, [sc.law(law)] * 3, **sc.simulate_kwargs()).metrics()
+            got = [r for r in rows if r["platoon.gap0_first"] == gap and r["carfollowing.kappa"] == kappa
+                   and r["controller"] == law]
+            assert [r["vehicle"] for r in got] == [1, 2, 3]
+            for r, m in zip(got, direct):
+                for k in ("omega_model", "heat_pack_J", "min_gap_model", "rms_jerk_model", "distance_m",
+                          "heat_pack_J_per_km", "min_ttc_s", "delta_soc"):
+                    assert r[k] == m[k], (law, gap, kappa, k)
+    # % change and comparability against the reference run of the same point and vehicle
+    r = next(r for r in rows if r["controller"] == "proposed" and r["vehicle"] == 2 and r["carfollowing.kappa"] == 0.26
+             and r["platoon.gap0_first"] == 0.9)
+    ref = next(x for x in rows if x["controller"] == "ovfl" and x["vehicle"] == 2 and x["carfollowing.kappa"] == 0.26
+               and x["platoon.gap0_first"] == 0.9)
+    assert r["omega_model_change_pct"] == pytest.approx(100 * (r["omega_model"] / ref["omega_model"] - 1), rel=1e-12)
+    assert r["distance_diff_pct"] == pytest.approx(100 * (r["distance_m"] / ref["distance_m"] - 1), rel=1e-12)
+    assert r["comparable"] == (abs(r["distance_diff_pct"]) <= 1.0)
+    # provenance on every row
+    assert all(x["aev_ocp_version"] and x["casadi_version"] for x in rows)
+
+
+def test_executors_identical_and_dask_local_cluster(tmp_path):
+    pytest.importorskip("dask.distributed")
+    f = _study(tmp_path)
+    tables = {}
+    for ex, kw in (("inprocess", {}), ("pool", {"workers": 2}), ("dask", {"workers": 2})):
+        out = run_study(read_study(f), tmp_path / ex, executor=ex, report=False, **kw)
+        tables[ex] = _stable(out.rows)
+        # the stored task files hold the same bytes apart from the wall time
+        stored = sorted((p.name, {k: v for k, v in json.loads(p.read_text()).items() if k not in VOLATILE})
+                        for p in (tmp_path / ex / "points").glob("*.json"))
+        tables[ex + "-store"] = json.dumps(stored, sort_keys=True)
+    assert tables["pool"] == tables["inprocess"] == tables["dask"]
+    assert tables["pool-store"] == tables["inprocess-store"] == tables["dask-store"]
+
+
+def test_resume_recomputes_only_what_is_missing(tmp_path, monkeypatch):
+    f = _study(tmp_path)
+    out1 = run_study(read_study(f), tmp_path / "o", executor="inprocess", report=False)
+    calls: list[str] = []
+    real = runner_mod.run_task
+    monkeypatch.setattr(runner_mod, "run_task", lambda spec: calls.append(spec["key"]) or real(spec))
+    out2 = run_study(read_study(f), tmp_path / "o", executor="inprocess", report=False)
+    assert calls == [] and _stable(out2.rows) == _stable(out1.rows)
+    # one file deleted and one truncated (an interrupted foreign write): exactly those two rerun
+    files = sorted((tmp_path / "o" / "points").glob("*.json"))
+    files[0].unlink()
+    files[3].write_text(files[3].read_text()[:40])
+    out3 = run_study(read_study(f), tmp_path / "o", executor="inprocess", report=False)
+    assert sorted(calls) == sorted([files[0].stem, files[3].stem])
+    assert _stable(out3.rows) == _stable(out1.rows)
+    # extending the study (a third kappa) computes only the new proposed runs
+    calls.clear()
+    run_study(read_study(_study(tmp_path, STUDY.replace("[0.03, 0.26]", "[0.03, 0.26, 0.11]"))), tmp_path / "o",
+              executor="inprocess", report=False)
+    assert len(calls) == 2  # two gaps × proposed(κ = 0.11); OVFL is already stored
+
+
+def test_failures_and_events_are_recorded(tmp_path, monkeypatch):
+    text = STUDY.replace("values = [0.35, 0.9]", "values = [0.35, 0.9, 0.0004]").replace('"platoon.followers" = 3',
+                                                                                         '"platoon.followers" = 1')
+    study = read_study(_study(tmp_path, text))
+    real = runner_mod._simulate
+    doomed = next(t.key for t in study.tasks() if t.controller == "proposed" and t.point == 1)
+
+    def flaky(spec):
+        if spec["key"] == doomed:
+            raise FloatingPointError("planted failure")
+        return real(spec)
+
+    monkeypatch.setattr(runner_mod, "_simulate", flaky)
+    out = run_study(study, tmp_path / "o", executor="inprocess")
+    rows = out.rows
+    failed = [r for r in rows if r["status"] == "error"]
+    assert len(failed) == 1 and "planted failure" in failed[0]["message"] and not failed[0]["comparable"]
+    assert out.n_failed == 1
+    # gap 0.0004 at 1.87 speed: the run stops on an event (β/h² makes it stiff: integration_failed),
+    # recorded as the row's status, flagged, the other points unaffected
+    tiny = [r for r in rows if r["platoon.gap0_first"] == 0.0004]
+    assert tiny and all(r["status"] in EVENT_KINDS and r["flag_event"] and not r["comparable"] for r in tiny)
+    assert all(r["status"] == "ok" for r in rows if r["platoon.gap0_first"] != 0.0004 and r["status"] != "error")
+    report = (tmp_path / "o" / "report.md").read_text()
+    assert "planted failure" in report and "Pareto front" in report
+
+
+def test_table_loads_back_from_csv_and_jsonl(tmp_path):
+    out = run_study(read_study(_study(tmp_path)), tmp_path / "o", executor="inprocess")
+    a = load_table(tmp_path / "o")
+    b = load_table(tmp_path / "o" / "table.csv")
+    assert len(a) == len(b) == len(out.rows)
+    for x, y in zip(a, b):
+        for k in ("omega_model", "heat_pack_J_per_km", "carfollowing.kappa", "vehicle", "controller", "comparable"):
+            assert x[k] == y[k], k
+    assert (tmp_path / "o" / "fig_omega_model_vs_carfollowing_kappa.png").stat().st_size > 1000
+
+
+def test_random_and_zip_axes(tmp_path):
+    text = """
+scenarios = ["table1"]
+[overrides]
+"simulation.t_end" = 1.0
+[[axes]]
+keys = ["carfollowing.kappa", "carfollowing.beta"]
+random = { n = 5, seed = 7, low = [0.01, 2.0], high = [0.2, 4.0] }
+[[axes]]
+keys = ["platoon.gap0_first", "platoon.gap0_others"]
+values = [[0.3, 0.6], [3.5, 2.9]]
+[controllers]
+laws = ["proposed"]
+"""
+    s1, s2 = read_study(_study(tmp_path, text)), read_study(_study(tmp_path, text, "again.toml"))
+    assert [p.values for p in s1.points] == [p.values for p in s2.points]  # seeded
+    assert len(s1.points) == 10
+    ks = [p.values["carfollowing.kappa"] for p in s1.points]
+    assert all(0.01 <= k <= 0.2 for k in ks) and len(set(ks)) == 5
+    assert {(p.values["platoon.gap0_first"], p.values["platoon.gap0_others"]) for p in s1.points} == {(0.3, 3.5), (0.6, 2.9)}
+    s3 = read_study(_study(tmp_path, text.replace("seed = 7", "seed = 8"), "other.toml"))
+    assert [p.values for p in s3.points] != [p.values for p in s1.points]
+
+
+@pytest.mark.parametrize("edit, needles", [
+    (('key = "carfollowing.kappa"', 'key = "carfollowing.kapa"'), ["tiny.toml", "axis carfollowing.kapa", "kapa"]),
+    (("values = [0.03, 0.26]", "values = [0.03, -0.26]"), ["tiny.toml", "axis carfollowing.kappa", "point 1", "-0.26"]),
+    (('laws = ["proposed", "ovfl"]', 'laws = ["proposed", "ovlf"]'), ["tiny.toml", "controllers.laws"]),
+    (('"simulation.t_end" = 2.5', '"simulation.t_end" = "long"'), ["tiny.toml", "overrides", "simulation.t_end"]),
+    (('reference = "ovfl"', 'reference = "mpc"'), ["tiny.toml", "reference"]),
+])
+def test_bad_study_is_one_line_naming_file_axis_key(tmp_path, capsys, edit, needles):
+    f = _study(tmp_path, STUDY.replace(*edit))
+    with pytest.raises(StudyError) as exc:
+        read_study(f)
+    for n in needles:
+        assert n in str(exc.value), (n, str(exc.value))
+    rc = main(["study", str(f), "--out", str(tmp_path / "o"), "--in-process"])
+    err = capsys.readouterr().err
+    assert rc == 2 and err.startswith("aev-ocp: error: ") and err.count("\n") == 1 and "Traceback" not in err
+    assert not (tmp_path / "o").exists()  # nothing ran
+
+
+def test_cli_set_and_mpc_validation(tmp_path, capsys):
+    f = _study(tmp_path)
+    rc = main(["study", str(f), "--out", str(tmp_path / "o"), "--in-process", "--set", "simulation.t_end=1.5",
+               "--no-report"])
+    assert rc == 0
+    rows = load_table(tmp_path / "o")
+    assert {r["duration_model"] for r in rows} == {1.5}
+    assert "ETA" in capsys.readouterr().err
+    bad = STUDY + '[[controllers.mpc]]\nlabel = "m"\nN = 0\n'
+    with pytest.raises(StudyError, match="controller m.*N"):
+        read_study(_study(tmp_path, bad, "bad.toml"))
+
+
+def test_dask_missing_is_a_clear_error(tmp_path, capsys, monkeypatch):
+    monkeypatch.setitem(sys.modules, "dask.distributed", None)  # import fails as if not installed
+    rc = main(["study", str(_study(tmp_path)), "--dask-local", "2", "--out", str(tmp_path / "o")])
+    err = capsys.readouterr().err
+    assert rc == 2 and "aev_ocp[dask]" in err and err.count("\n") == 1
+
+
+def test_pareto_mask():
+    pts = [(1.0, 5.0), (2.0, 3.0), (3.0, 3.5), (4.0, 1.0), (2.5, 3.0), (1.0, 5.0)]
+    assert pareto_mask(pts) == [True, True, False, True, False, True]
+    assert not math.isnan(sum(x for x, _ in pts))
+
+
+def test_mpc_and_ocpd_points_equal_direct_runs(tmp_path):
+    """An MPC point equals the closed loop built directly from the overridden scenario (solve times aside)."""
+    from aev_ocp.mpc.scenario import closed_loop_from_scenario
+
+    text = """
+scenarios = ["mpc_paper_single"]
+reference = "proposed"
+[overrides]
+"simulation.t_end" = 1.2
+"mpc.N" = 8
+[[axes]]
+key = "mpc.w_Q"
+values = [0.4, 3.0]
+[controllers]
+laws = ["proposed"]
+ocpd = true
+[[controllers.mpc]]
+label = "mpc-ipopt"
+solver = "ipopt"
+codegen = false
+"""
+    out = run_study(read_study(_study(tmp_path, text)), tmp_path / "o", executor="inprocess", report=False)
+    rows = {(r["mpc.w_Q"], r["controller"]): r for r in out.rows}
+    assert all(r["status"] == "ok" for r in out.rows) and len(rows) == 6
+    for wq in (0.4, 3.0):
+        sc = load_scenario("mpc_paper_single").with_overrides(
+            {"simulation.t_end": 1.2, "mpc.N": 8, "mpc.w_Q": wq, "mpc.solver": "ipopt", "mpc.codegen": False})
+        m = closed_loop_from_scenario(sc).run(list(sc.gaps0), list(sc.speeds0), sc.t_end).metrics()[0]
+        r = rows[(wq, "mpc-ipopt")]
+        for k in ("heat_pack_J", "omega_model", "rms_jerk_model", "min_gap_model", "distance_m", "fallbacks"):
+            assert r[k] == m[k], (wq, k)
+        assert r["solve_ms_median"] > 0
+        assert rows[(wq, "ocp-d")]["cost_s9_optimum"] > 0
+    # more weight on heat: less pack heat per km (the w_Q axis reaches the controller)
+    assert rows[(3.0, "mpc-ipopt")]["heat_pack_J_per_km"] < rows[(0.4, "mpc-ipopt")]["heat_pack_J_per_km"]
+    # the law does not read [mpc]: one run serves both w_Q points
+    assert rows[(0.4, "proposed")]["task_hash"] == rows[(3.0, "proposed")]["task_hash"]
+
+
+def test_interrupt_leaves_only_complete_results(tmp_path, monkeypatch):
+    f = _study(tmp_path)
+    real = runner_mod.run_task
+    count = {"n": 0}
+
+    def interrupted(spec):
+        count["n"] += 1
+        if count["n"] == 4:
+            raise KeyboardInterrupt
+        return real(spec)
+
+    monkeypatch.setattr(runner_mod, "run_task", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        run_study(read_study(f), tmp_path / "o", executor="inprocess")
+    stored = list((tmp_path / "o" / "points").glob("*"))
+    assert len(stored) == 3 and all(json.loads(p.read_text())["status"] == "ok" for p in stored)
+    assert not (tmp_path / "o" / "table.csv").exists()
+    monkeypatch.setattr(runner_mod, "run_task", real)
+    out = run_study(read_study(f), tmp_path / "o", executor="inprocess")
+    assert out.n_tasks == 6 and len(out.rows) == 24
+
+
+def test_dask_scheduler_address(tmp_path):
+    """--scheduler ADDRESS: a running cluster (here a LocalCluster started by the test) gives the same table."""
+    distributed = pytest.importorskip("dask.distributed")
+    f = _study(tmp_path, STUDY.replace("values = [0.35, 0.9]", "values = [0.35]"))
+    ref = run_study(read_study(f), tmp_path / "ref", executor="inprocess", report=False)
+    with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=None) as cl:
+        out = run_study(read_study(f), tmp_path / "sched", executor="dask", scheduler=cl.scheduler_address,
+                        report=False)
+    assert _stable(out.rows) == _stable(ref.rows)
+
+
+@pytest.mark.parametrize("name, points, controllers", [("kappa_alpha_table1", 32, 2), ("wq_pareto_mpc", 10, 3),
+                                                       ("predictor_cycle", 9, 3)])
+def test_shipped_studies_validate(name, points, controllers):
+    study = read_study(Path(__file__).resolve().parents[1] / "studies" / f"{name}.toml")
+    assert len(study.points) == points and len(study.controllers) == controllers
+    assert not study.warnings
+
+
+def test_chunks_cover_every_task_once(tmp_path):
+    from aev_ocp.study.runner import chunk_size, run_tasks
+
+    assert chunk_size(200, 2) == 13 and chunk_size(6, 2) == 1 and chunk_size(1, 64) == 1
+    specs = [t.spec for t in read_study(_study(tmp_path)).tasks()][:3]
+    batch = run_tasks(specs)
+    assert [r["key"] for r in batch] == [s["key"] for s in specs]
+    single = [runner_mod.run_task(s) for s in specs]
+    strip = lambda rs: [{k: v for k, v in r.items() if k != "wall_s"} for r in rs]  # noqa: E731
+    assert strip(batch) == strip(single)
