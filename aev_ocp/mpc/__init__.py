@@ -32,7 +32,7 @@ def _reproduce_section(out_dir: Any, progress: Any) -> str:
     return mpc_section(out_dir, progress)
 
 
-REPRODUCE_SECTIONS = [("mpc", _reproduce_section, 5)]
+REPRODUCE_SECTIONS = [("mpc", _reproduce_section, 15)]  # 3 runs x 4 progress lines + OCP-D + replay + writing
 
 try:  # the [mpc] table of scenario files
     from .scenario import register as _register_scenario_section
