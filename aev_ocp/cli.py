@@ -60,9 +60,6 @@ def guarded(run: Callable[[], int]) -> int:
     unreadable files) -> one line, exit 2; a failed run (RuntimeError, MemoryError) -> one line,
     exit 1; Ctrl-C or SIGTERM -> 'interrupted', exit 130, also when a solver swallowed the signal.
     """
-    from .results import OutputError
-    from .scenarios import ScenarioError
-
     # Already inside a guarded command (main -> cli_mpc): the outer one reports. The depth lives in
     # aev_ocp.interrupts, imported once even when this file also runs as __main__ (python -m).
     if interrupts._state.get("depth", 0):

@@ -8,7 +8,6 @@ by the plant's own quadrature (exact across control jumps, unlike a trapezoid on
 from __future__ import annotations
 
 import contextlib
-import csv
 import json
 import math
 import os

@@ -7,7 +7,6 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-import casadi as ca
 import numpy as np
 import pytest
 

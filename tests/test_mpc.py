@@ -3,7 +3,6 @@ and constraints, closed-form laws and each other (solver paths)."""
 
 from __future__ import annotations
 
-import math
 
 import numpy as np
 import pytest
