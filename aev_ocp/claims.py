@@ -77,7 +77,10 @@ def paper_platoon_check() -> dict[str, Any]:
     return r
 
 
-def random_cases(n_cases: int = 60, seed: int = 2025, t_end: float = 70.0,
+THEOREM41_SEED = 2025  # the random Theorem 4.1 cases (recorded in theorem41.json's provenance)
+
+
+def random_cases(n_cases: int = 60, seed: int = THEOREM41_SEED, t_end: float = 70.0,
                  progress: ProgressFn | None = None) -> list[Theorem41Case]:
     """Random single-follower cases: paper leader or a constant leader, random gap, speed and κ."""
     rng = np.random.default_rng(seed)
@@ -115,13 +118,15 @@ def theorem41_section(out_dir: Path, progress: ProgressFn, n_cases: int = 60) ->
     """Report section: Theorem 4.1 on the paper platoon and on random cases (writes theorem41.json/.png)."""
     from .plots import plot_theorem41
     from .report import markdown_table
+    from .provenance import provenance
     from .results import write_json
 
     progress("Theorem 4.1 on the paper's platoon")
     platoon = paper_platoon_check()
-    cases = random_cases(n_cases, progress=progress)
+    cases = random_cases(n_cases, seed=THEOREM41_SEED, progress=progress)
     summary = theorem41_summary(cases)
-    write_json(out_dir / "theorem41.json", {"paper_platoon": platoon, "random": summary,
+    write_json(out_dir / "theorem41.json", {"provenance": provenance(seeds={"theorem41_random_cases": THEOREM41_SEED}),
+                                            "paper_platoon": platoon, "random": summary,
                                             "cases": [vars(c) for c in cases]})
     plot_theorem41([c.kappa for c in cases], [c.omega_proposed - c.omega_ovfl for c in cases],
                    [c.leader for c in cases], out_dir / "theorem41.png",

@@ -17,7 +17,7 @@ import os
 import sys
 import warnings
 from pathlib import Path
-from typing import Callable, Sequence
+from typing import Any, Callable, Sequence
 
 from . import interrupts
 from .params import ParameterError
@@ -120,9 +120,30 @@ def _guarded(run: Callable[[], int], debug: bool) -> int:
             return EXIT_FAILED_RUN
 
 
+def _version_line() -> str:
+    from .provenance import versions
+
+    v = versions()
+    commit = f", commit {v['git_commit']}" if v["git_commit"] else ""
+    return (f"aev-ocp {v['aev_ocp']}{commit} (CasADi {v['casadi']}, NumPy {v['numpy']}, Python {v['python']}, "
+            f"{v['platform']})")
+
+
+class _VersionAction(argparse.Action):
+    """``--version``: one unwrapped line on stdout, exit 0."""
+
+    def __init__(self, option_strings: Sequence[str], dest: str = argparse.SUPPRESS, **kw: Any) -> None:
+        super().__init__(option_strings, dest, nargs=0, default=argparse.SUPPRESS, **kw)
+
+    def __call__(self, parser: argparse.ArgumentParser, *args: Any, **kw: Any) -> None:
+        print(_version_line())
+        parser.exit(0)
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser (sub-commands reproduce, simulate, scenarios; ocp and mpc are dispatched)."""
     p = _Parser(prog="aev-ocp", description="Energy-aware control of autonomous electric vehicles (CasADi).")
+    p.add_argument("--version", action=_VersionAction, help="print the versions and the git commit, then exit")
     sub = p.add_subparsers(dest="command", required=True, parser_class=_Parser)
     r = sub.add_parser("reproduce", help="reproduce the paper's figures and Table 1, write report.md")
     r.add_argument("--out", default="results", help="output folder (default: results/)")
@@ -147,6 +168,9 @@ def _load_scenario_with_warnings(path: str):  # noqa: ANN202 - returns Scenario
         scenario = load_scenario(path)
     for w in caught:
         _warn(str(w.message))
+    from .provenance import declare
+
+    declare(scenario)  # every JSON this command writes names the scenario and its SHA-256
     return scenario
 
 

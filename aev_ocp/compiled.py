@@ -159,11 +159,15 @@ def compile_shared(source: str, stem: str, sub: str = "", extra_flags: tuple[str
         _remove(lib, side)
         rebuilt = True
     tag = f".{stem}_{key}_{os.getpid()}"
-    c_file, tmp, tmp_side = d / f"{tag}.c", d / f"{tag}.so", d / f"{tag}.sha256"
+    # The source gets the same relative name in every process (gcc records it in the library), so
+    # concurrent builds of one library are byte-identical and whichever lands first verifies.
+    build_dir = d / f"{tag}.build"
+    c_file, tmp, tmp_side = build_dir / f"{stem}_{key}.c", d / f"{tag}.so", d / f"{tag}.sha256"
     try:
+        build_dir.mkdir(mode=0o700, exist_ok=True)
         c_file.write_text(source)
-        proc = subprocess.run([cc, *flags, "-o", str(tmp), str(c_file), "-lm"], capture_output=True, text=True,
-                              timeout=timeout_s)
+        proc = subprocess.run([cc, *flags, "-o", str(tmp), c_file.name, "-lm"], capture_output=True, text=True,
+                              timeout=timeout_s, cwd=build_dir)
         if proc.returncode != 0:
             last = (proc.stderr or proc.stdout).strip().splitlines()
             err = f"{Path(cc).name} failed: {last[-1] if last else 'exit ' + str(proc.returncode)}"
@@ -182,3 +186,7 @@ def compile_shared(source: str, stem: str, sub: str = "", extra_flags: tuple[str
         return BuildResult(None, f"compilation failed: {exc}", rebuilt)
     finally:
         _remove(c_file, tmp, tmp_side)
+        try:
+            build_dir.rmdir()
+        except OSError:
+            pass

@@ -353,6 +353,11 @@ def reproduce(out_dir: str | Path = "results", config: ReproduceConfig | None = 
              "says otherwise; the battery side uses each scenario's units L, U (PROBLEM.md §1).\n"]
     if config != ReproduceConfig():
         parts.append(f"\n**Reduced configuration** (not the full reproduction): {config}\n")
+    from .provenance import provenance
+
+    prov = provenance()
+    parts.append("\nProvenance: " + ", ".join(f"{k} `{v}`" for k, v in prov.items() if v is not None)
+                 + "; random seeds are in each section's JSON (e.g. `theorem41.json`).\n")
     for sec in sections:
         end = progress.k + sec.steps
         try:

@@ -123,7 +123,7 @@ def claim_output_dir(out: str | os.PathLike[str], command: str, scenario: str, s
             raise OutputError(f"output folder {out} already holds {clash[0]}"
                               f"{f' and {len(clash) - 1} more of the files this run writes' if len(clash) > 1 else ''}, "
                               "not written by aev-ocp; choose another --out, or remove them first")
-    write_json(marker, me)
+    write_json(marker, me, provenance=False)
     return out
 
 
@@ -147,8 +147,14 @@ def to_jsonable(x: Any) -> Any:
     return x
 
 
-def write_json(path: str | os.PathLike[str], obj: Any) -> Path:
-    """Atomically write ``obj`` as indented JSON (numpy values converted, non-finite -> null)."""
+def write_json(path: str | os.PathLike[str], obj: Any, provenance: bool = True) -> Path:
+    """Atomically write ``obj`` as indented JSON (numpy values converted, non-finite -> null). A dict gets
+    a ``provenance`` record (:func:`aev_ocp.provenance.provenance`) unless it has one or ``provenance``
+    is False."""
+    if provenance and isinstance(obj, dict) and "provenance" not in obj:
+        from .provenance import provenance as _record
+
+        obj = {**obj, "provenance": _record()}
     return write_atomic(path, json.dumps(to_jsonable(obj), indent=2) + "\n")
 
 

@@ -125,7 +125,8 @@ def test_outputs_written(tmp_path):
     rc = cli_ocp(["prop31", "--out", str(tmp_path), "--method", "ms"])
     assert rc == 0
     js = json.loads((tmp_path / "prop31.json").read_text())
-    assert set(js) == {"rest", "rest_Q_nonneg", "relaxing", "relaxing_Q_nonneg"}
+    assert set(js) == {"rest", "rest_Q_nonneg", "relaxing", "relaxing_Q_nonneg", "provenance"}
+    assert js["provenance"]["aev_ocp"] and js["provenance"]["casadi"]
     for e in js.values():
         for k in ("objective_J", "max_abs_current_A", "zero_heat_alternative_objective_J", "status", "iterations"):
             assert k in e

@@ -59,6 +59,9 @@ def _cli_mpc(argv: list[str]) -> int:
 
     a = build_parser().parse_args(argv)
     sc = load_scenario(find_scenario(a.scenario))
+    from ..provenance import declare
+
+    declare(sc)  # every JSON this command writes names the scenario and its SHA-256
     cfg: MPCConfig = sc.extra.get("mpc") or MPCConfig(MPCSettings())
     changes = {k: v for k, v in (("solver", a.solver), ("qp_solver", a.qp_solver)) if v is not None}
     if a.codegen is not None:

@@ -68,6 +68,11 @@ def _cli_ocp(argv: list[str]) -> int:
     if args.problem == "oracle" and args.N is not None:
         raise ParameterError("ocp oracle: --N does not apply (N = t_end/dt of the scenario, dt = 0.1)")
     _check_size(args)
+    if args.scenario is not None:  # every JSON this command writes names the scenario and its SHA-256
+        from ..provenance import declare
+        from ..scenarios import find_scenario, load_scenario
+
+        declare(load_scenario(find_scenario(args.scenario)))
     out = Path(args.out) if args.out else None
     if out is not None:
         claim_output_dir(out, f"ocp {args.problem}", str(args.scenario or args.problem), args.scenario)

@@ -14,12 +14,10 @@ import csv
 import io
 import json
 import math
-import subprocess
-from functools import lru_cache
 from pathlib import Path
 from typing import Any
 
-from .. import __version__
+from ..provenance import versions
 from ..metrics import comparability
 from ..results import write_atomic
 from .spec import Study
@@ -33,20 +31,10 @@ _AFTER = ("controller", "vehicle", "status", "message", "comparable", "flag_dist
 _TAIL = ("wall_s", "task_hash", "aev_ocp_version", "casadi_version", "git_commit")
 
 
-@lru_cache(maxsize=1)
 def provenance() -> dict[str, Any]:
-    """Package and CasADi versions and the git commit of the source tree (None when not a checkout)."""
-    import casadi
-
-    commit = None
-    try:
-        root = Path(__file__).resolve().parents[2]
-        p = subprocess.run(["git", "-C", str(root), "rev-parse", "HEAD"], capture_output=True, text=True, timeout=5)
-        if p.returncode == 0:
-            commit = p.stdout.strip() or None
-    except (OSError, subprocess.SubprocessError):
-        commit = None
-    return {"aev_ocp_version": __version__, "casadi_version": casadi.__version__, "git_commit": commit}
+    """Package and CasADi versions and the git commit (:mod:`aev_ocp.provenance`), the study table's columns."""
+    v = versions()
+    return {"aev_ocp_version": v["aev_ocp"], "casadi_version": v["casadi"], "git_commit": v["git_commit"]}
 
 
 def _pct(a: Any, b: Any) -> float | None:
