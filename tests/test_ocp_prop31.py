@@ -127,7 +127,9 @@ def test_outputs_written(tmp_path):
     js = json.loads((tmp_path / "prop31.json").read_text())
     assert set(js) == {"rest", "rest_Q_nonneg", "relaxing", "relaxing_Q_nonneg", "provenance"}
     assert js["provenance"]["aev_ocp"] and js["provenance"]["casadi"]
-    for e in js.values():
+    for case, e in js.items():
+        if case == "provenance":
+            continue
         for k in ("objective_J", "max_abs_current_A", "zero_heat_alternative_objective_J", "status", "iterations"):
             assert k in e
     assert (tmp_path / "prop31_currents.png").stat().st_size > 1000
