@@ -7,18 +7,9 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
-from ..plots import plt, save_figure
+from ..plots import _finish_single, plt, save_figure
 from .linear import LinearStability
 from .measure import Attenuation
-
-
-def _finish_single(fig, ax, path: str | Path, title: str | None) -> Path:  # noqa: ANN001
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=7)
-    if title:
-        ax.set_title(title, fontsize=9)
-    fig.tight_layout()
-    return save_figure(fig, path)
 
 
 COEFFICIENT_LABELS = {"alpha": "α [1/model time]", "beta": "β [model length²/model time]",
