@@ -25,11 +25,13 @@ through (in the cascade, later vehicles are integrated only up to the earliest e
 
 from __future__ import annotations
 
+import copy
 import ctypes
+import dataclasses
 import math
 import warnings
 from importlib import resources
-from typing import Callable, Sequence
+from typing import Any, Callable, Sequence
 
 import casadi as ca
 import numpy as np
@@ -47,6 +49,36 @@ from .results import Event, SimulationResult
 ProgressFn = Callable[[float, float], None]
 __all__ = ["METHODS", "PlatoonSimulator", "SimOptions", "simulate_platoon"]
 _FALLBACK_WARNED: set[str] = set()
+
+
+def _law_template(law: CarFollowingLaw) -> tuple[Any, Callable[[ca.SX], CarFollowingLaw], list[float]]:
+    """(key, make, values): laws with the same key share one compiled right-hand side; ``make(p)`` is the
+    law with its float coefficients replaced by the entries of the runtime parameter vector p, ``values``
+    their numbers. Dataclass laws whose accel works on symbolic coefficients get this; any other law
+    (or one whose accel needs numbers) is compiled with its coefficients as constants (key = the law)."""
+    if dataclasses.is_dataclass(law):
+        names = [f.name for f in dataclasses.fields(law)
+                 if isinstance(getattr(law, f.name), float) and not isinstance(getattr(law, f.name), bool)]
+        if names:
+            def make(p: ca.SX, _law: CarFollowingLaw = law, _names: tuple[str, ...] = tuple(names)) -> CarFollowingLaw:
+                twin = copy.copy(_law)
+                for j, nm in enumerate(_names):
+                    object.__setattr__(twin, nm, p[j])  # bypasses the frozen dataclass; validation ran on law
+                return twin
+
+            values = [float(getattr(law, nm)) for nm in names]
+            try:  # symbolic coefficients must give the same law (math.sqrt of an SX, say, gives NaN silently)
+                h, v, vl, p = ca.SX.sym("h"), ca.SX.sym("v"), ca.SX.sym("vl"), ca.SX.sym("p", len(names))
+                f = ca.Function("probe", [h, v, vl, p], [make(p).accel(h, v, vl)])
+                pts = ((1.3, 0.9, 1.1), (2.7, 1.6, 1.45), (0.6, 0.2, 0.35))
+                ok = all(abs(float(f(*pt, values)) - float(law.accel(*pt))) <= 1e-12 * (1 + abs(float(law.accel(*pt))))
+                         for pt in pts)
+            except (TypeError, ValueError, RuntimeError, ParameterError):
+                ok = False
+            if ok:
+                rest = tuple((f.name, getattr(law, f.name)) for f in dataclasses.fields(law) if f.name not in names)
+                return (type(law), tuple(names), rest), make, values
+    return law, (lambda p, _law=law: _law), []
 
 
 def _compile_shared(source: str) -> tuple[ctypes.CDLL | None, str]:
@@ -113,8 +145,9 @@ class PlatoonSimulator:
                                atol=self.opts.atol, max_num_steps=self.opts.max_num_steps, samples=self.k)
 
     # ------------------------------------------------------------------ compiled cascade
-    def _vehicle_function(self, law: CarFollowingLaw, k: int) -> ca.Function:
-        """One follower's right-hand side: (u = (v_l, a_l), x) -> (dz = (ẋ, quadrature integrands), y = (a, I, disc)).
+    def _vehicle_function(self, law: CarFollowingLaw, k: int, p: ca.SX) -> ca.Function:
+        """One follower's right-hand side: (u = (v_l, a_l), x, p) -> (dz = (ẋ, quadrature integrands), y = (a, I, disc)),
+        p the law's runtime coefficients (see :func:`_law_template`).
 
         x = (h, v[, V1, V2, S]) in model units and volts; quadrature integrands per model time unit:
         ω, (V(h) − v)², (v_l − v)², jerk²[, pack Q and Q_irr in J per model time unit]."""
@@ -136,15 +169,25 @@ class PlatoonSimulator:
             y = [a, b["I"], b["disc"]]
         else:
             y = [a, ca.SX(0), ca.SX(0)]
-        return ca.Function(f"aevsim_law{k}", [u, ca.vertcat(*x)], [ca.vertcat(*ode, *quad), ca.vertcat(*y)])
+        return ca.Function(f"aevsim_law{k}", [u, ca.vertcat(*x), p], [ca.vertcat(*ode, *quad), ca.vertcat(*y)])
 
     def _build_cascade(self) -> None:
         """Generate C for each distinct law and the leader, append the cascade driver, compile, load."""
+        # one compiled right-hand side per law *template*: the coefficients of dataclass laws are runtime
+        # parameters, so a sweep of κ, α, … reuses the compiled library
         self._law_of: list[int] = []
-        distinct: dict[CarFollowingLaw, int] = {}
-        for law in self.laws:
-            self._law_of.append(distinct.setdefault(law, len(distinct)))
-        funcs = [self._vehicle_function(law, k) for law, k in distinct.items()]
+        distinct: dict[Any, int] = {}
+        templates = [_law_template(law) for law in self.laws]
+        n_par = max(1, *(len(t[2]) for t in templates))
+        self._params = np.zeros((self.n, n_par))
+        first: dict[int, tuple[Any, ...]] = {}
+        for i, (key, make, values) in enumerate(templates):
+            k = distinct.setdefault(key, len(distinct))
+            first.setdefault(k, (make, len(values)))
+            self._law_of.append(k)
+            self._params[i, :len(values)] = values
+        p = ca.SX.sym("p", n_par)
+        funcs = [self._vehicle_function(make(p), k, p) for k, (make, _) in first.items()]
         t = ca.SX.sym("t")
         vl = self.leader.speed(t)
         funcs.append(ca.Function("aevsim_leader", [t], [ca.vertcat(vl, ca.jacobian(vl, t))]))
@@ -153,12 +196,13 @@ class PlatoonSimulator:
         cg = ca.CodeGenerator("aevsim_rhs.c", {"with_header": False})
         for f in funcs:
             cg.add(f)
-        sizes = {"SZ_ARG": max(2, *(f.sz_arg() for f in funcs)), "SZ_RES": max(2, *(f.sz_res() for f in funcs)),
+        sizes = {"SZ_ARG": max(3, *(f.sz_arg() for f in funcs)), "SZ_RES": max(2, *(f.sz_res() for f in funcs)),
                  "SZ_IW": max(f.sz_iw() for f in funcs), "SZ_W": max(f.sz_w() for f in funcs)}
         head = "".join(f"#define {k} {v}\n" for k, v in sizes.items())
         eta = self.ev.vehicle.efficiency
         head += f"#define OMEGA_A {0.5 * (1 / eta + eta)!r}\n#define OMEGA_B {0.5 * (1 / eta - eta)!r}\n"
         head += f"#define NX {self._nx}\n#define NQ {self._nq}\n#define NY 3\n#define BATTERY {int(self.battery)}\n"
+        head += f"#define AEV_NP {n_par}\n"
         head += "#define AEV_LAW_SWITCH " + " ".join(f"case {k}: return aevsim_law{k}(c->arg, c->res, c->iw, c->w, 0);"
                                                      for k in range(len(distinct))) + "\n"
         head += event_header()
@@ -169,7 +213,7 @@ class PlatoonSimulator:
             return
         fn = lib.aevsim_run
         dp, ip, lp = (np.ctypeslib.ndpointer(dtype=d, flags="C_CONTIGUOUS") for d in (np.float64, np.int32, np.int64))
-        fn.argtypes = [ctypes.c_int, ip, dp, ctypes.c_int, dp, ctypes.c_int, dp, ctypes.c_double, ctypes.c_double,
+        fn.argtypes = [ctypes.c_int, ip, dp, dp, ctypes.c_int, dp, ctypes.c_int, dp, ctypes.c_double, ctypes.c_double,
                        ctypes.c_int64, dp, ip, ip, dp, dp, lp]
         fn.restype = ctypes.c_int
         self._lib, self._run_c = lib, fn
@@ -192,7 +236,7 @@ class PlatoonSimulator:
         nsamp, kind = np.zeros(n, np.int32), np.zeros(n, np.int32)
         ev_time, ev_val, stats = np.zeros(n), np.zeros(n), np.zeros((n, 3), np.int64)
         x0v = np.ascontiguousarray(x0.reshape(nx, n).T)
-        rc = self._run_c(n, np.asarray(self._law_of, np.int32), x0v, stops.size, stops, K, ts, self.opts.rtol,
+        rc = self._run_c(n, np.asarray(self._law_of, np.int32), np.ascontiguousarray(self._params), x0v, stops.size, stops, K, ts, self.opts.rtol,
                          self.opts.atol, self.opts.max_num_steps, out, nsamp, kind, ev_time, ev_val, stats)
         if rc != 0:
             raise MemoryError("simulate: the cascade integrator ran out of memory")

@@ -275,3 +275,24 @@ def test_first_vehicle_stopped_at_t0_does_not_crash_the_cascade() -> None:
     assert res.stdout.split()[:3] == ["infeasible_current", "1", "1"]
     with pytest.raises(ParameterError, match="rtol"):
         SimOptions(rtol=1e-30, atol=1e-30)
+
+
+def test_law_coefficients_are_runtime_parameters_of_the_cascade() -> None:
+    """A κ (or α, β, …) sweep generates ONE C source (compiled once), and each run still uses its own
+    coefficients: the cascade agrees with CVODES, which builds the law's coefficients in."""
+    import aev_ocp.simulate as S
+
+    sources: list[str] = []
+    orig = S._compile_shared
+    S._compile_shared = lambda src: (sources.append(src), orig(src))[1]  # type: ignore[assignment]
+    try:
+        runs = {k: simulate_platoon(PaperLeader(), [Proposed(kappa=k, alpha=1.9), OVFL(beta=2.6)], [0.3, 3.1],
+                                    [1.87, 1.8], 25.0, method="cascade") for k in (0.0217, 0.0731)}
+    finally:
+        S._compile_shared = orig  # type: ignore[assignment]
+    assert len(sources) == 2 and sources[0] == sources[1]
+    assert abs(runs[0.0217].omega[-1, 0] - runs[0.0731].omega[-1, 0]) > 1e-3
+    for k, r in runs.items():
+        ref = simulate_platoon(PaperLeader(), [Proposed(kappa=k, alpha=1.9), OVFL(beta=2.6)], [0.3, 3.1], [1.87, 1.8],
+                               25.0, method="cvodes")
+        np.testing.assert_allclose(r.omega[-1], ref.omega[-1], rtol=1e-6, atol=1e-7)

@@ -33,8 +33,8 @@ static const double DP_P[7][4] = {
   {0, -282668133.0/205662961, 2019193451.0/616988883, -1453857185.0/822651844},
   {0, 40617522.0/29380423, -110615467.0/29380423, 69997945.0/29380423}};
 
-static int aev_law(aev_ctx* c, int law, const double* u, const double* x, double* dz, double* y) {
-  c->arg[0] = u; c->arg[1] = x; c->res[0] = dz; c->res[1] = y;
+static int aev_law(aev_ctx* c, int law, const double* par, const double* u, const double* x, double* dz, double* y) {
+  c->arg[0] = u; c->arg[1] = x; c->arg[2] = par; c->res[0] = dz; c->res[1] = y;
   switch (law) {
 AEV_LAW_SWITCH
   }
@@ -135,7 +135,7 @@ static double aev_omega_inc(double v0, const double* q, double h, double th_end)
 
 /* Returns 0 on success, 1 on out-of-memory. Event kinds: 0 none, 1 collision, 2 negative_speed,
  * 3 infeasible_current, 4 soc below 0, 5 soc above 1, 6 integration failed. */
-CASADI_SYMBOL_EXPORT int aevsim_run(int n, const int* law_idx, const double* x0, int nstop, const double* stops,
+CASADI_SYMBOL_EXPORT int aevsim_run(int n, const int* law_idx, const double* params, const double* x0, int nstop, const double* stops,
     int K, const double* ts, double rtol, double atol, int64_t max_steps,
     double* out, int* nsamp, int* ev_kind, double* ev_time, double* ev_val, int64_t* stats) {
   aev_ctx* c = malloc(sizeof(aev_ctx));
@@ -148,6 +148,7 @@ CASADI_SYMBOL_EXPORT int aevsim_run(int n, const int* law_idx, const double* x0,
     aev_traj* cur = &tr[i % 2];
     cur->m = 0; cur->cur = 0; prev->cur = 0;
     int law = law_idx[i];
+    const double* par = params + (int64_t)i * AEV_NP;  /* the law's coefficients (runtime, not compiled in) */
     double z[NZ], zn[NZ], zt[NZ], k[7][NZ], Q[NZ][4], y[NY], yn[NY], u[2], tmp[NZ];
     double* o = out + (int64_t)i * K * NCOL;
     int64_t nst = 0, nrej = 0, nfev = 0;
@@ -159,13 +160,13 @@ CASADI_SYMBOL_EXPORT int aevsim_run(int n, const int* law_idx, const double* x0,
       /* the predecessor stopped at t = 0 (an event or a failure before its first step): there is no
        * trajectory to follow; record the initial sample with its measured speed and stop here */
       u[0] = x0[(i - 1) * NX + 1]; u[1] = 0;
-      aev_law(c, law, u, z, k[0], y);
+      aev_law(c, law, par, u, z, k[0], y);
       memcpy(o, z, NZ * sizeof(double)); memcpy(o + NZ, y, NY * sizeof(double));
       nsamp[i] = 1; ev_kind[i] = 0; ev_time[i] = 0; ev_val[i] = 0;
       stats[3 * i] = 0; stats[3 * i + 1] = 0; stats[3 * i + 2] = 1;
       continue;
     }
-    aev_input(c, prev, i, t, u); aev_law(c, law, u, z, k[0], y); nfev++;
+    aev_input(c, prev, i, t, u); aev_law(c, law, par, u, z, k[0], y); nfev++;
     /* sample at t = 0 and the initial check */
     memcpy(o, z, NZ * sizeof(double)); memcpy(o + NZ, y, NY * sizeof(double)); s = 1;
     if (AEV_EV3_SIGN * y[2] - AEV_EV3_OFFSET < 0) { kind = 3; tev = 0; val = y[2]; }
@@ -182,13 +183,13 @@ CASADI_SYMBOL_EXPORT int aevsim_run(int n, const int* law_idx, const double* x0,
           double acc = 0; for (int l = 0; l < st; l++) acc += DP_A[st][l] * k[l][j];
           zt[j] = z[j] + h * acc;
         }
-        aev_input(c, prev, i, t + DP_C[st] * h, u); aev_law(c, law, u, zt, k[st], tmp);
+        aev_input(c, prev, i, t + DP_C[st] * h, u); aev_law(c, law, par, u, zt, k[st], tmp);
       }
       for (int j = 0; j < NZ; j++) {
         double acc = 0; for (int l = 0; l < 6; l++) acc += DP_B[l] * k[l][j];
         zn[j] = z[j] + h * acc;
       }
-      aev_input(c, prev, i, t + h, u); aev_law(c, law, u, zn, k[6], yn); nfev += 6;
+      aev_input(c, prev, i, t + h, u); aev_law(c, law, par, u, zn, k[6], yn); nfev += 6;
       double nrm = 0;
       for (int j = 0; j < NZ; j++) {
         if (j == NX) continue;  /* ω is computed exactly from v below */
@@ -246,7 +247,7 @@ CASADI_SYMBOL_EXPORT int aevsim_run(int n, const int* law_idx, const double* x0,
         double* os = o + (int64_t)s * NCOL;
         aev_dense(z, Q, h, th, os);
         os[NX] = z[NX] + aev_omega_inc(z[1], Q[1], h, th);
-        aev_input(c, prev, i, ts[s], us); aev_law(c, law, us, os, dz, os + NZ); nfev++;
+        aev_input(c, prev, i, ts[s], us); aev_law(c, law, par, us, os, dz, os + NZ); nfev++;
         s++;
       }
       nst++;
@@ -254,7 +255,7 @@ CASADI_SYMBOL_EXPORT int aevsim_run(int n, const int* law_idx, const double* x0,
       t = tend;
       memcpy(z, zn, sizeof z); memcpy(y, yn, sizeof y); memcpy(k[0], k[6], sizeof k[0]);
       if (hit && t < tmax) {  /* restart at a breakpoint: the leader's acceleration may jump there */
-        aev_input(c, prev, i, t, u); aev_law(c, law, u, z, k[0], y); nfev++;
+        aev_input(c, prev, i, t, u); aev_law(c, law, par, u, z, k[0], y); nfev++;
       }
       h *= nrm == 0 ? 10 : fmin(10, 0.9 * pow(nrm, -0.2));
       if (nst + nrej > max_steps) { kind = AEV_EV_FAILED; tev = t; val = z[0]; }

@@ -42,6 +42,11 @@ def energy_term(v: Any, v_l: Any, kappa: float, eps: float) -> Any:
     return -kappa * v**2 * dv2 / (dv2 + eps)
 
 
+def ovfl_accel(h: Any, v: Any, v_l: Any, alpha: Any, beta: Any) -> Any:
+    """OVFL's v̇ = α (V(h) − v) + β (v_l − v)/h² (paper §2); coefficients may be symbolic."""
+    return alpha * (optimal_velocity(h) - v) + beta * (v_l - v) / h**2
+
+
 class CarFollowingLaw(ABC):
     """A car-following law v̇ = f(h, v, v_l) in model units."""
 
@@ -97,7 +102,7 @@ class OVFL(CarFollowingLaw):
     _nonnegative = ("alpha", "beta")
 
     def accel(self, h: Any, v: Any, v_l: Any) -> Any:
-        return self.alpha * (optimal_velocity(h) - v) + self.beta * (v_l - v) / h**2
+        return ovfl_accel(h, v, v_l, self.alpha, self.beta)
 
 
 @dataclass(frozen=True)
@@ -113,8 +118,7 @@ class Proposed(CarFollowingLaw):
     _positive = ("eps",)
 
     def accel(self, h: Any, v: Any, v_l: Any) -> Any:
-        return (OVFL(self.alpha, self.beta).accel(h, v, v_l)
-                + energy_term(v, v_l, self.kappa, self.eps))
+        return ovfl_accel(h, v, v_l, self.alpha, self.beta) + energy_term(v, v_l, self.kappa, self.eps)
 
 
 @dataclass(frozen=True)
@@ -135,7 +139,7 @@ class IDM(CarFollowingLaw):
     _nonnegative = ("s0", "T_h")
 
     def accel(self, h: Any, v: Any, v_l: Any) -> Any:
-        s_star = self.s0 + v * self.T_h + v * (v - v_l) / (2.0 * math.sqrt(self.a_max * self.b))
+        s_star = self.s0 + v * self.T_h + v * (v - v_l) / (2.0 * ca.sqrt(self.a_max * self.b))
         return self.a_max * (1.0 - (v / self.v0) ** 4 - (s_star / h) ** 2)
 
 
