@@ -128,7 +128,6 @@ class PlatoonSimulator:
         self.k = max(1, math.ceil(self.opts.chunk / self.opts.dt_out - 1e-9))
         self._lib: ctypes.CDLL | None = None
         self._build_error = ""
-        self._leader_maps: dict[int, ca.Function] = {}
         if self.opts.method in ("auto", "cascade"):
             self._build_cascade()
             if self._lib is None and self.opts.method == "cascade":
@@ -260,9 +259,7 @@ class PlatoonSimulator:
             progress(float(ts[keep - 1]), t_end)
         tk = ts[:keep]
         Z = out.transpose(2, 0, 1).reshape(ncol * n, keep)  # row c·n + i = column c of vehicle i
-        if keep not in self._leader_maps:  # the mapped leader speed is reused across runs
-            self._leader_maps[keep] = self.leader.speed_function.map(keep)
-        vl = np.asarray(self._leader_maps[keep](tk.reshape(1, -1))).reshape(1, -1)
+        vl = self.leader.speed_np(tk).reshape(1, -1)  # the leader caches its mapped Function per size
         Y = np.vstack([Z[(nx + nq) * n:], vl])
         return assemble_result(self.leader, self.ev, self.battery, tk, Z[:nx * n], Z[nx * n:(nx + nq) * n], Y, events,
                                [law.name for law in self.laws], self._meta("cascade-dopri5"),

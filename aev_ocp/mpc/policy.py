@@ -10,14 +10,13 @@ its cause. :class:`MPCSettings` and :class:`MPCVehicle` are accepted by
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
 from ..limits import check_mpc_size
-from ..control import ClosedLoop, Command, Observation, register_controller_adapter, run_closed_loop
+from ..control import ClosedLoop, Command, Observation, SampledLaw, register_controller_adapter, run_closed_loop
 from ..models.carfollowing import CarFollowingLaw
 from ..models.leader import LeaderProfile, PaperLeader
 from ..ocp.problem import OCPProblem, ProblemBuilder
@@ -47,6 +46,8 @@ class MPCPolicy:
                  parameter_values: dict[str, float] | None = None) -> None:
         self.settings, self.fallback_law, self.predictor = settings, fallback_law, predictor
         self.controller = MPCController(settings, ev, fallback_law, problem, parameter_values)
+        b = settings.bounds  # the fallback: the law on the measurements, clipped to the a bounds
+        self._fallback = SampledLaw(fallback_law, settings.dt, b.a_min, b.a_max)
         self.dt = settings.dt
         self.name = f"mpc(w_Q={settings.weights.w_Q:g})"
 
@@ -72,9 +73,7 @@ class MPCPolicy:
         info = {"cost": sol.cost, "violation": sol.violation, "v_hat": vh}
         if sol.success:
             return Command(float(sol.a[0]), True, sol.status, sol.solve_time_s, sol.iterations, sol.X[1], info)
-        b = self.settings.bounds
-        af = float(self.fallback_law.function(max(obs.z[0], 1e-6), obs.z[1], obs.meas_v[-1]))
-        a = min(max(af if math.isfinite(af) else b.a_min, b.a_min), b.a_max)
+        a = self._fallback.command(obs).a
         return Command(a, False, sol.status, sol.solve_time_s, sol.iterations, None, info)
 
     def describe(self) -> dict[str, Any]:
