@@ -10,7 +10,8 @@ from pathlib import Path
 
 import pytest
 
-from aev_ocp.cli import EXIT_BAD_INPUT, EXIT_FAILED_RUN, main
+from aev_ocp.cli import EXIT_BAD_INPUT, EXIT_FAILED_RUN
+from cli_helpers import one_error, run_cli
 
 SMALL = """
 name = "small"
@@ -42,23 +43,13 @@ t_end = 5.0
 """
 
 
-def run_main(argv: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, str, str]:
-    rc = main(argv)
-    out, err = capsys.readouterr()
-    return rc, out, err
-
-
-def assert_one_line_error(err: str) -> None:
-    errors = [line for line in err.splitlines() if line.startswith("aev-ocp: error:")]
-    assert len(errors) == 1, err
-    assert "Traceback" not in err
 
 
 def test_simulate_writes_files(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     scen = tmp_path / "small.toml"
     scen.write_text(SMALL)
     out = tmp_path / "out"
-    rc, stdout, err = run_main(["simulate", str(scen), "--out", str(out)], capsys)
+    rc, stdout, err = run_cli(["simulate", str(scen), "--out", str(out)], capsys)
     assert rc == 0, err
     for name in ("proposed.csv", "ovfl.csv", "proposed.png", "ovfl.png", "metrics.json", "metrics.md"):
         assert (out / name).stat().st_size > 0, name
@@ -74,28 +65,28 @@ def test_simulate_writes_files(tmp_path: Path, capsys: pytest.CaptureFixture[str
 def test_bad_scenario_exit_2(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     scen = tmp_path / "bad.toml"
     scen.write_text(SMALL.replace("followers = 2", "followers = 2\nmass_kg = -1"))
-    rc, _, err = run_main(["simulate", str(scen), "--out", str(tmp_path / "o")], capsys)
+    rc, _, err = run_cli(["simulate", str(scen), "--out", str(tmp_path / "o")], capsys)
     assert rc == EXIT_BAD_INPUT
-    assert_one_line_error(err)
+    one_error(err)
     assert "platoon.mass_kg" in err and str(scen) in err
 
 
 def test_missing_file_and_bad_arguments_exit_2(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    rc, _, err = run_main(["simulate", str(tmp_path / "missing.toml")], capsys)
+    rc, _, err = run_cli(["simulate", str(tmp_path / "missing.toml")], capsys)
     assert rc == EXIT_BAD_INPUT
-    assert_one_line_error(err)
-    rc, _, err = run_main(["frobnicate"], capsys)
+    one_error(err)
+    rc, _, err = run_cli(["frobnicate"], capsys)
     assert rc == EXIT_BAD_INPUT
-    assert_one_line_error(err)
+    one_error(err)
 
 
 def test_failed_run_still_writes_and_exits_1(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     scen = tmp_path / "crash.toml"
     scen.write_text(CRASH)
     out = tmp_path / "crash"
-    rc, _, err = run_main(["simulate", str(scen), "--out", str(out), "--no-plots"], capsys)
+    rc, _, err = run_cli(["simulate", str(scen), "--out", str(out), "--no-plots"], capsys)
     assert rc == EXIT_FAILED_RUN
-    assert_one_line_error(err)
+    one_error(err)
     assert "collision" in err
     summary = json.loads((out / "metrics.json").read_text())
     assert summary["runs"]["ovm"]["status"] == "collision"

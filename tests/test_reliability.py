@@ -20,7 +20,7 @@ from pathlib import Path
 
 import pytest
 
-from aev_ocp.cli import main
+from cli_helpers import one_error, run_cli
 from aev_ocp.params import ParameterError, SimOptions
 from aev_ocp.results import write_atomic
 from aev_ocp.scenarios import ScenarioError, ScenarioWarning, find_scenario, load_scenario
@@ -56,17 +56,6 @@ def small(tmp_path: Path, fname: str = "s.toml", *, name: str = "small", law: st
     return p
 
 
-def run_cli(argv: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, str, str]:
-    rc = main(argv)
-    out, err = capsys.readouterr()
-    return rc, out, err
-
-
-def one_error(err: str) -> str:
-    lines = [ln for ln in err.splitlines() if ln.startswith("aev-ocp: error:")]
-    assert len(lines) == 1, err
-    assert "Traceback" not in err, err
-    return lines[0]
 
 
 # ----------------------------------------------------------------------------- 1. where files land
