@@ -190,9 +190,11 @@ def interval_function(pr: OCPProblem, o: TranscriptionOptions) -> ca.Function:
                 path.append(pr.path(Xc[j], uk, w, p))
     x_end = with_discrete_update(pr, x_end, xk, uk, w, p)
     eqs.append((x_end - xn) / xs)
+    # cse: the battery side of the state at the interval start appears in the dynamics, the stage cost and
+    # the path constraints (and in any term a user adds): evaluate each common subexpression once
     return ca.Function("interval", [xk_s, uk_s, xc_s, xn_s, w, p, h],
                        [ca.vertcat(*eqs), ca.vertcat(*path) if path else ca.SX(0, 1), J],
-                       ["xk", "uk", "xc", "xn", "w", "p", "h"], ["eq", "path", "J"])
+                       ["xk", "uk", "xc", "xn", "w", "p", "h"], ["eq", "path", "J"], {"cse": True})
 
 
 class OCPSolver:
