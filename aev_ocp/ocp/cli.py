@@ -1,5 +1,5 @@
 """``aev-ocp ocp {prop31,current-profile,eco-trip,oracle} [SCENARIO.toml] [--method ms|collocation] [--out DIR]
-[--N N] [--no-refine] [--multistart]``.
+[--N N] [--no-refine] [--multistart] [--time-limit S]``.
 
 The project's main CLI (owned elsewhere) can dispatch to :func:`cli_ocp`.
 """
@@ -7,6 +7,7 @@ The project's main CLI (owned elsewhere) can dispatch to :func:`cli_ocp`.
 from __future__ import annotations
 
 import argparse
+import math
 from pathlib import Path
 
 COMMANDS = ("prop31", "current-profile", "eco-trip", "oracle")
@@ -25,6 +26,9 @@ def _parser() -> argparse.ArgumentParser:
                     help="skip the extra solve with 2N intervals that reports how the objective changes")
     ap.add_argument("--multistart", action="store_true",
                     help="eco-trip, oracle: solve from several initial guesses, keep the best, report the spread")
+    ap.add_argument("--time-limit", type=float, default=None, metavar="S",
+                    help="oracle: wall-time limit of each IPOPT solve [s] (default 600); a solve stopped there "
+                         "is reported as not optimal")
     return ap
 
 
@@ -66,7 +70,14 @@ def _cli_ocp(argv: list[str]) -> int:
     if args.multistart and args.problem not in ("eco-trip", "oracle"):
         raise ParameterError(f"ocp {args.problem}: --multistart applies to eco-trip and oracle only")
     if args.problem == "oracle" and args.N is not None:
-        raise ParameterError("ocp oracle: --N does not apply (N = t_end/dt of the scenario, dt = 0.1)")
+        raise ParameterError("ocp oracle: --N does not apply (N = t_end/dt of the scenario: dt = 0.1, "
+                             "1 s on a drive cycle)")
+    if args.time_limit is not None:
+        if args.problem != "oracle":
+            raise ParameterError(f"ocp {args.problem}: --time-limit applies to oracle only")
+        if not (math.isfinite(args.time_limit) and args.time_limit > 0):
+            raise ParameterError(f"ocp oracle: --time-limit = {args.time_limit!r} is not allowed: must be a finite "
+                                 "number of seconds > 0")
     _check_size(args)
     if args.scenario is not None:  # every JSON this command writes names the scenario and its SHA-256
         from ..provenance import declare
@@ -95,7 +106,10 @@ def _cli_ocp(argv: list[str]) -> int:
         print(rep["table"])
         ok = rep["ok"]
     else:
-        rep = api.run_oracle(method=args.method, out_dir=out, scenario=args.scenario, multistart=args.multistart)
+        from .oracle import DEFAULT_TIME_LIMIT_S
+
+        rep = api.run_oracle(method=args.method, out_dir=out, scenario=args.scenario, multistart=args.multistart,
+                             time_limit_s=args.time_limit or DEFAULT_TIME_LIMIT_S, progress=True)
         print(rep["table"])
         ok = rep["ok"]
     if out is not None:
