@@ -4,6 +4,7 @@ ranks them."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import tomllib
 from pathlib import Path
@@ -17,6 +18,7 @@ from aev_ocp.models.leader import PaperLeader
 from aev_ocp.mpc.cycles import cycle_rows, cycle_scenario, platoon_rows, rank_rows, run_cycle
 from aev_ocp.mpc.cycles_section import platoon_markdown, verdicts, write_tables
 from aev_ocp.params import EVParams, ParameterError
+from aev_ocp.results import Event
 from aev_ocp.scenarios import find_scenario, load_scenario
 from aev_ocp.simulate import simulate_platoon
 
@@ -74,8 +76,10 @@ def tiny_runs() -> dict:
     short = simulate_platoon(lead, [Proposed()], [1.3], [1.6], 2.4, ev=ev, dt_out=0.05)
     crash = ClosedLoop(lead, [ControlSequence((1.7,) * 40, 0.1, "rush")], ev).run([0.35], [1.6], 3.0)
     assert crash.status != "ok" and crash.t[-1] < 3.0  # the constructed event
+    # ended by an event at t_end: same duration and distance as OVFL, only the event flag can catch it
+    ended = dataclasses.replace(ovfl, events=[Event("negative_speed", 3.0, 0, "constructed")])
     return {("proposed", None): ref, ("ovfl", None): ovfl, ("mpc", "constant-velocity"): short,
-            ("mpc", "decaying-acceleration"): crash}
+            ("mpc", "decaying-acceleration"): crash, ("mpc", "cooperative"): ended}
 
 
 def test_table_builder_flags_and_never_ranks_non_comparable_rows(tiny_runs: dict) -> None:
@@ -85,6 +89,8 @@ def test_table_builder_flags_and_never_ranks_non_comparable_rows(tiny_runs: dict
     assert ref["comparable"] and ovfl["comparable"] and ref["flags"] == ""
     assert not short["comparable"] and "duration" in short["flags"] and short["duration_diff_pct"] == pytest.approx(-20.0)
     assert not crash["comparable"] and "event" in crash["flags"]
+    ended = rows[("mpc", "cooperative")]
+    assert not ended["comparable"] and ended["flags"] == "event: negative_speed" and ended["rank"] is None
     assert short["rank"] is None and crash["rank"] is None
     # rank by pack ∫Q/km, computed here from the raw results: heat / (∫v dt · L / 1000)
     per_km = {}
@@ -97,6 +103,7 @@ def test_table_builder_flags_and_never_ranks_non_comparable_rows(tiny_runs: dict
     assert rows[(best, "—")]["rank"] == 1 and {ref["rank"], ovfl["rank"]} == {1, 2}
     text = "\n".join(verdicts(list(rows.values())))
     assert "MPC/constant-velocity not comparable" in text and "MPC/decaying-acceleration not comparable" in text
+    assert "MPC/cooperative not comparable (event: negative_speed)" in text
     assert f"lowest pack ∫Q/km among comparable runs: {best}" in text  # a law here: the MPC rows are not ranked
 
 
