@@ -33,7 +33,8 @@ from .simulate import simulate_platoon
 
 ProgressFn = Callable[[str], None]
 SectionFn = Callable[[Path, ProgressFn], str]
-SECTION_PROVIDERS: tuple[str, ...] = ("aev_ocp.claims", "aev_ocp.ocp", "aev_ocp.mpc", "aev_ocp.stability")
+SECTION_PROVIDERS: tuple[str, ...] = ("aev_ocp.claims", "aev_ocp.ocp", "aev_ocp.mpc", "aev_ocp.mpc.cycles_section",
+                                       "aev_ocp.stability")
 
 
 @dataclass(frozen=True)
@@ -331,6 +332,15 @@ class _Run:
         return [table[k] for k in self.config.builtin]
 
 
+_ACTIVE: list[ReproduceConfig] = []
+
+
+def active_config() -> ReproduceConfig:
+    """The configuration of the running :func:`reproduce` (the full one outside it), for registered
+    sections that honour it (e.g. scenario_t_end_max caps the horizons of "MPC on drive cycles")."""
+    return _ACTIVE[-1] if _ACTIVE else ReproduceConfig()
+
+
 def reproduce(out_dir: str | Path = "results", config: ReproduceConfig | None = None, *,
               registered: bool = True, stream: Any = None) -> Path:
     """Run every section, write all files into ``out_dir`` and return the path of report.md.
@@ -360,6 +370,7 @@ def reproduce(out_dir: str | Path = "results", config: ReproduceConfig | None = 
                  + "; random seeds are in each section's JSON (e.g. `theorem41.json`).\n")
     for sec in sections:
         end = progress.k + sec.steps
+        _ACTIVE.append(config)
         try:
             md = sec.fn(out, lambda msg, _n=sec.name: progress(f"{_n}: {msg}" if not msg.startswith(_n) else msg))
         except ReportSectionError:
@@ -367,6 +378,8 @@ def reproduce(out_dir: str | Path = "results", config: ReproduceConfig | None = 
         except Exception as exc:  # KeyboardInterrupt/SystemExit pass through untouched
             raise ReportSectionError(f"report section {sec.name!r} failed: {_cause(exc)} "
                                      f"(no report.md written)") from exc
+        finally:
+            _ACTIVE.pop()
         if md:
             parts.append("\n" + md.rstrip() + "\n")
         progress.skip_to(end)

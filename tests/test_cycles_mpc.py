@@ -33,7 +33,9 @@ def test_new_cycle_scenarios_load_with_default_formulation(name: str) -> None:
     assert sc.n_followers == n and sc.compare == ("proposed", "ovfl")
     assert (sc.units.length_m, sc.units.speed_mps) == (L, U)
     assert sc.gaps0 == (0.8,) * n and sc.speeds0 == (0.0,) * n
-    assert sc.t_end * sc.units.time_s == pytest.approx(dur_s, rel=1e-6)  # the whole cycle
+    assert 0 <= sc.t_end * sc.units.time_s - dur_s < 0.1  # the whole cycle (rounded up to the MPC step)
+    steps = sc.t_end / sc.extra["mpc"].settings.dt  # the closed loop needs whole MPC steps
+    assert abs(steps - round(steps)) < 1e-9
     assert sc.leader.max_speed(sc.t_end) < 2.0  # below the §9 v_max
     cfg = sc.extra["mpc"]
     assert cfg.settings.predictor not in ("oracle",) and cfg.vehicles is None
@@ -58,7 +60,9 @@ def test_new_cycle_scenarios_run_on_a_short_horizon(name: str) -> None:
 
 def test_cycle_scenario_segment_and_bad_input() -> None:
     sc = cycle_scenario("hwfet", 30.0)
-    assert sc.t_end * sc.units.time_s == pytest.approx(30.0)
+    assert sc.t_end * sc.units.time_s == pytest.approx(30.0)  # 34.0 model time: whole MPC steps already
+    sc = cycle_scenario("us06", 10.03)  # 11.033 model time, rounded up to 111 MPC steps of 0.1
+    assert sc.t_end == pytest.approx(11.1) and sc.t_end * sc.units.time_s >= 10.03
     assert cycle_scenario("paper", 1e6).t_end == 70.0  # longer than the scenario: unchanged
     with pytest.raises(ParameterError, match="cycle"):
         cycle_scenario("nedc")

@@ -32,14 +32,7 @@ def _reproduce_section(out_dir: Any, progress: Any) -> str:
     return mpc_section(out_dir, progress)
 
 
-def _cycles_section(out_dir: Any, progress: Any) -> str:
-    from .cycles_section import cycles_section
-
-    return cycles_section(out_dir, progress)
-
-
-REPRODUCE_SECTIONS = [("mpc", _reproduce_section, 15),  # 3 runs x 4 progress lines + OCP-D + replay + writing
-                      ("mpc-cycles", _cycles_section, 55)]  # cycles_section.STEPS
+REPRODUCE_SECTIONS = [("mpc", _reproduce_section, 15)]  # 3 runs x 4 progress lines + OCP-D + replay + writing
 
 try:  # the [mpc] table of scenario files
     from .scenario import register as _register_scenario_section

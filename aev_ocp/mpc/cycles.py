@@ -44,7 +44,8 @@ COLUMNS: tuple[str, ...] = ("cycle", "vehicle", "controller", "predictor", "stat
 
 def cycle_scenario(cycle: str, segment_s: float | None = None, platoon: bool = False) -> Any:
     """The shipped scenario of ``cycle`` ('udds', 'hwfet', 'us06', 'paper'; platoon: the UDDS 5-follower
-    scenario), cut to its first ``segment_s`` seconds [s] when given and shorter than the scenario."""
+    scenario), cut to its first ``segment_s`` seconds [s] (rounded up to whole MPC steps) when given and
+    shorter than the scenario."""
     from ..scenarios import find_scenario, load_scenario
 
     if platoon:
@@ -61,6 +62,9 @@ def cycle_scenario(cycle: str, segment_s: float | None = None, platoon: bool = F
         if not (isinstance(segment_s, (int, float)) and math.isfinite(segment_s) and segment_s > 0):
             raise ParameterError(f"cycle_scenario: segment_s = {segment_s!r} is not allowed: must be a number of seconds > 0")
         t_seg = sc.units.time_from_si(float(segment_s))
+        cfg = sc.extra.get("mpc")
+        if cfg is not None:  # whole MPC steps (the closed loop needs them): round up to a multiple of mpc.dt
+            t_seg = math.ceil(t_seg / cfg.settings.dt - 1e-9) * cfg.settings.dt
         if t_seg < sc.t_end:
             sc = sc.replace(t_end=t_seg)
     return sc

@@ -30,6 +30,10 @@ SOLVER_PATH: dict[str, Any] = {"solver": "rti", "qp_solver": "hpipm", "codegen":
 STEPS = 4 * 2 * 6 + 6 + 1  # 6 lines per MPC run (start + every 25 %), the platoon run, writing
 
 
+def _capped(sc: Any, t_end_max: float | None) -> Any:
+    return sc if t_end_max is None or sc.t_end <= t_end_max else sc.replace(t_end=t_end_max)
+
+
 def section_settings() -> Any:
     """MPCSettings() with the section's solver path (:data:`SOLVER_PATH`)."""
     from .settings import MPCSettings
@@ -112,9 +116,10 @@ def verdicts(rows: Sequence[dict[str, Any]]) -> list[str]:
 def cycles_section(out_dir: Any, progress: Callable[[str], None], segment_s: float | None = SEGMENT_S,
                    platoon_segment_s: float | None = PLATOON_SEGMENT_S,
                    cycles: Sequence[str] = tuple(CYCLE_SCENARIOS), predictors: Sequence[str] = PREDICTORS,
-                   settings: Any = None) -> str:
+                   settings: Any = None, t_end_max: float | None = None) -> str:
     """The section: runs, tables (``out_dir``/mpc_cycles/cycles.{csv,json,md}) and Markdown text.
-    segment_s / platoon_segment_s: first seconds of each cycle / of the platoon run (None: whole)."""
+    segment_s / platoon_segment_s: first seconds of each cycle / of the platoon run (None: whole);
+    t_end_max: a further cap on every run's horizon [model time] (reduced reproduce configurations)."""
     out = Path(out_dir) / "mpc_cycles"
     s = settings if settings is not None else section_settings()
     t0 = time.perf_counter()
@@ -122,12 +127,12 @@ def cycles_section(out_dir: Any, progress: Callable[[str], None], segment_s: flo
     wall: dict[str, dict[str, float]] = {}
     seg_model: dict[str, float] = {}
     for cyc in cycles:
-        sc = cycle_scenario(cyc, segment_s)
+        sc = _capped(cycle_scenario(cyc, segment_s), t_end_max)
         seg_model[cyc] = sc.t_end
         runs, wall[cyc] = run_cycle(sc, predictors, settings=s, log=lambda m, c=cyc: progress(f"MPC cycles, {c}: {m}"))
         rows += cycle_rows(cyc, runs, vehicles=[0])
     rank_rows(rows)
-    sc = cycle_scenario("udds", platoon_segment_s, platoon=True)
+    sc = _capped(cycle_scenario("udds", platoon_segment_s, platoon=True), t_end_max)
     pred = sc.extra["mpc"].settings.predictor
     runs, wall["udds_platoon"] = run_cycle(sc, (pred,), laws=(REFERENCE,), settings=s,
                                            log=lambda m: progress(f"MPC cycles, UDDS platoon: {m}"))
@@ -135,6 +140,8 @@ def cycles_section(out_dir: Any, progress: Callable[[str], None], segment_s: flo
     elapsed = time.perf_counter() - t0
     progress("MPC cycles: writing tables")
     seg_txt = "whole cycles" if segment_s is None else f"the first {segment_s:g} s of each cycle"
+    if t_end_max is not None:
+        seg_txt += f", capped at t = {t_end_max:g} model time units (reduced configuration)"
     meta = {"segment_s": segment_s, "platoon_segment_s": platoon_segment_s, "t_end_model": seg_model,
             "settings": dataclasses.asdict(s), "wall_time_s": wall,
             "section_wall_time_s": elapsed, "platoon_predictor": pred}
@@ -152,9 +159,23 @@ def cycles_section(out_dir: Any, progress: Callable[[str], None], segment_s: flo
              f"1 % or whose run ended by an event is marked **no** with the reason and is not ranked nor used in a "
              f"verdict ({n_bad} such rows here). Rank: pack ∫Q/km among the comparable rows of the cycle.", "",
              md, "Verdicts (comparable rows only):", ""] + verdicts(rows) + ["",
-             f"UDDS platoon (mpc_udds_platoon, first {platoon_segment_s:g} s): five followers all on MPC (follower 1 "
+             f"UDDS platoon (mpc_udds_platoon, first {sc.t_end * sc.units.time_s:.4g} s): five followers all on MPC (follower 1 "
              f"{pred}, the others their predecessor's plan) vs all five on the proposed law, per follower:", "",
              platoon_markdown(plat),
              "Files: `mpc_cycles/cycles.csv`, `mpc_cycles/cycles.json` (every column, the platoon rows, run wall "
              "times), `mpc_cycles/cycles.md`.", ""]
     return "\n".join(lines)
+
+
+def _reproduce_section(out_dir: Any, progress: Callable[[str], None]) -> str:
+    """The section as ``reproduce`` runs it: a reduced configuration's scenario_t_end_max [model time]
+    caps every segment (e.g. ReproduceConfig.quick(): 10 time units)."""
+    from ..reproduce import active_config
+
+    cap = active_config().scenario_t_end_max
+    if cap is None:
+        return cycles_section(out_dir, progress)
+    return cycles_section(out_dir, progress, t_end_max=cap)
+
+
+REPRODUCE_SECTIONS = [("mpc-cycles", _reproduce_section, STEPS)]  # listed in aev_ocp.reproduce.SECTION_PROVIDERS
