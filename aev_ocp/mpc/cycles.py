@@ -83,7 +83,9 @@ def run_cycle(sc: Any, predictors: Iterable[str] = PREDICTORS, laws: Iterable[st
     base = settings if settings is not None else MPCSettings()
     runs: dict[tuple[str, str | None], SimulationResult] = {}
     wall: dict[str, float] = {}
-    laws = tuple(laws)
+    laws, predictors = tuple(laws), tuple(predictors)
+    if not predictors:
+        raise ParameterError("run_cycle: predictors is empty: give at least one forecast for the MPC runs")
     for k, p in enumerate(predictors):
         s = base.with_(predictor=p)
         c = run_comparison(sc, s, laws=laws if k == 0 else (), with_ocpd=False, log=log)
