@@ -8,6 +8,7 @@ import dataclasses
 import numpy as np
 import pytest
 
+from aev_ocp.ocp.api import run_oracle
 from aev_ocp.ocp.cli import cli_ocp
 from aev_ocp.ocp.oracle import (COARSE_GRID_S, ORACLE_MAX_INTERVALS, OracleSolver, canonical_scenario,
                                 drive_cycle_scenario, oracle_grid_dt)
@@ -63,6 +64,13 @@ def test_time_limit_stops_with_a_clear_status(short_scn) -> None:
     assert res.message in res.warnings and "cost_terms" not in res.meta
     with pytest.raises(ParameterError, match="time limit"):
         OracleSolver(short_scn, time_limit_s=-2.0)
+
+
+def test_run_oracle_at_the_time_limit_reports_no_bound() -> None:
+    rep = run_oracle(time_limit_s=1e-4)
+    assert not rep["ok"] and rep["result"].status == "time_limit"
+    assert "no lower bound: OCP-D stopped at the time limit of 0.0001 s" in rep["table"]
+    assert "lower bound Σℓ·dt =" not in rep["table"]
 
 
 def test_cli_time_limit(capsys) -> None:

@@ -246,7 +246,8 @@ def run_oracle(method: str = "ms", out_dir: str | Path | None = None, scenario: 
     lines = [f"OCP-D oracle following, scenario {scn.name}: N = {scn.N}, dt = {scn.dt:g} (model time), method {method}",
              f"status {res.status} ({res.message}), iterations {res.iterations}, solve {res.wall_time_s:.3f} s, "
              f"build {solver.build_time_s:.2f} s, max violation {res.max_violation:.2g}",
-             f"lower bound Σℓ·dt = {res.objective:.6g}"]
+             f"lower bound Σℓ·dt = {res.objective:.6g}" if res.success else
+             f"no lower bound: {res.message} (the last iterate's Σℓ·dt {res.objective:.6g} bounds nothing)"]
     if res.success:
         lines.append("  terms: " + ", ".join(f"{k} {v:.5g}" for k, v in res.meta["cost_terms"].items()))
         rp = res.meta.get("replay", {})
