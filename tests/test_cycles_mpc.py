@@ -7,19 +7,20 @@ from __future__ import annotations
 import dataclasses
 import math
 import tomllib
+import warnings
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from aev_ocp.control import ClosedLoop, ControlSequence
-from aev_ocp.models.carfollowing import OVFL, Proposed
+from aev_ocp.models.carfollowing import OVFL, V_INF, Proposed
 from aev_ocp.models.leader import PaperLeader
 from aev_ocp.mpc.cycles import cycle_rows, cycle_scenario, platoon_rows, rank_rows, run_cycle
 from aev_ocp.mpc.cycles_section import platoon_markdown, verdicts, write_tables
 from aev_ocp.params import EVParams, ParameterError
 from aev_ocp.results import Event
-from aev_ocp.scenarios import find_scenario, load_scenario
+from aev_ocp.scenarios import ScenarioWarning, find_scenario, load_scenario, shipped_scenarios
 from aev_ocp.simulate import simulate_platoon
 
 NEW = {"mpc_udds_single": ("udds", 1, 15.0, 17.0, 1369.0), "mpc_hwfet_single": ("hwfet", 1, 15.0, 17.0, 765.0),
@@ -29,7 +30,10 @@ NEW = {"mpc_udds_single": ("udds", 1, 15.0, 17.0, 1369.0), "mpc_hwfet_single": (
 @pytest.mark.parametrize("name", sorted(NEW))
 def test_new_cycle_scenarios_load_with_default_formulation(name: str) -> None:
     cyc, n, L, U, dur_s = NEW[name]
-    sc = load_scenario(find_scenario(name))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", ScenarioWarning)  # as tests/test_scenarios.py: leaders below V∞
+        sc = load_scenario(find_scenario(name))
+    assert sc.name == name and name in shipped_scenarios() and sc.leader.max_speed(sc.t_end) < V_INF
     assert sc.n_followers == n and sc.compare == ("proposed", "ovfl")
     assert (sc.units.length_m, sc.units.speed_mps) == (L, U)
     assert sc.gaps0 == (0.8,) * n and sc.speeds0 == (0.0,) * n
