@@ -33,9 +33,11 @@ DEFAULT_TIME_LIMIT_S = 600.0
 #: Seconds between two OCP-D progress lines on stderr while IPOPT iterates.
 PROGRESS_EVERY_S = 3.0
 #: Largest OCP-D grid solved on the caller's dt; beyond it :func:`oracle_grid_dt` coarsens to the 1 s
-#: grid of the drive cycles. Measured (benchmarks/bench_ocp.py, 2 cores): whole UDDS at 1 s, N = 1369:
-#: 31 IPOPT iterations, ~5 s, ~0.1 GB; at the MPC's dt = 0.1 (0.088 s), N = 15 515: > 2 s per iteration
-#: and still 50 % above the optimum after 27 iterations (the issue's 15-28 min, 7.5 GB run).
+#: grid of the drive cycles. Measured on 2 shared cores (benchmarks/bench_ocp.py --udds-only): whole UDDS
+#: at 1 s, N = 1369: 31 IPOPT iterations, 5-10 s, 0.1 GB; at the MPC's dt = 0.1 (0.088 s), N = 15 516:
+#: 62 iterations, 127 s, 0.53 GB (was 15-28 min and 7.5 GB expanded to SX with second-order corrections).
+#: The two optima differ (28.13 vs 29.20 on UDDS): Σ ℓ(z_k)·dt samples ℓ at each interval's start, so
+#: compare costs on one grid only (the MPC comparison replays OCP-D's controls and costs them on dt).
 ORACLE_MAX_INTERVALS = 2000
 #: The coarse OCP-D grid [s]: the EPA cycles are sampled at 1 s (aev_ocp/data/cycles).
 COARSE_GRID_S = 1.0
