@@ -101,11 +101,10 @@ def run_current_profile(method: str = "ms", out_dir: str | Path | None = None, s
         _write_result(main["result"], o, "current_profile")
         write_json_atomic(o / "current_profile_sweep.json", {"main": main["row"], "references": main["references"],
                                                              "sweep": rows})
-        from ..ocp_plots import plot_sweep
+        from ..ocp_plots import plot_current_profile_sweep
 
-        plot_sweep([r for r in rows if r["status"] in ("optimal", "acceptable")], "E_req_J",
-                   ["optimal_heat_J", "constant_current_heat_J", "constant_power_heat_J"],
-                   o / "current_profile_sweep.png", group="t_f_s", ylabel="∫Q dt [J per cell]")
+        plot_current_profile_sweep([r for r in rows if r["status"] in ("optimal", "acceptable")],
+                                   o / "current_profile_sweep.png")
     return out
 
 
