@@ -27,7 +27,7 @@ import numpy as np
 
 from .models.carfollowing import CarFollowingLaw
 from .models.energy import g_exact, g_smooth
-from .models.leader import LeaderProfile
+from .models.leader import LeaderProfile, PaperLeader
 from .params import ParameterError
 
 GFn = Callable[[Any], Any]
@@ -123,7 +123,7 @@ def integrate(setup: PlatoonSetup, t_end: float, dt_grid: float = 0.1, rtol: flo
     for lo, hi in zip(cuts[:-1], cuts[1:]):
         tout = [s for s in grid if lo < s <= hi + 1e-12]
         F = ca.integrator("table1_hyp", "cvodes", {"x": x, "t": t, "ode": f, "quad": quad}, lo, tout,
-                          {"abstol": rtol, "reltol": rtol, "max_num_steps": 200000})
+                          {"abstol": rtol, "reltol": rtol, "max_num_steps": 200000, "quad_err_con": True})
         r = F(x0=xs[-1])
         X, Q = np.asarray(r["xf"]), np.asarray(r["qf"])
         xs += list(X.T)
@@ -218,7 +218,7 @@ def table1_setups() -> dict[str, PlatoonSetup]:
     from .scenarios import load_scenario
 
     s = load_scenario("table1")
-    switch = tuple(x for x in (getattr(s.leader, "forcing_end", None),) if x is not None)
+    switch = (s.leader.t_end,) if isinstance(s.leader, PaperLeader) else ()  # a_l switches off at t_end
     return {label: PlatoonSetup(s.leader, tuple(laws), tuple(s.gaps0), tuple(s.speeds0),
                                 s.ev.vehicle.efficiency, switch) for label, laws in s.runs()}
 
