@@ -24,7 +24,7 @@ from .models.leader import LeaderProfile  # noqa: E402
 from .params import Units  # noqa: E402
 from .results import SimulationResult, save_figure_atomic  # noqa: E402
 
-LAW_STYLE = {"proposed": {"color": "tab:blue", "ls": "-"}, "ovfl": {"color": "tab:orange", "ls": "--"},
+LAW_STYLE: dict[str, dict[str, Any]] = {"proposed": {"color": "tab:blue", "ls": "-"}, "ovfl": {"color": "tab:orange", "ls": "--"},
              "ovm": {"color": "tab:green", "ls": "-."}, "idm": {"color": "tab:purple", "ls": ":"},
              "mpc": {"color": "tab:red", "ls": "-"}, "ocp-d": {"color": "black", "ls": (0, (1, 1))}}
 # further controllers cycle through these (colour, dash) pairs so that no overlaid line hides another
@@ -135,7 +135,7 @@ def plot_phase_planes(panels: Sequence[tuple[str, Mapping[str, SimulationResult]
 
 # ----------------------------------------------------------------------------- Fig. 3
 def leader_arrays(leader: LeaderProfile, t_end: float, n: int = 7001) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(t, a_l(t), v_l(t)) sampled on [0, t_end] [model units]."""
+    """(t, a_l(t), v_l(t)) sampled on [0, t_end], all in model units."""
     t = np.linspace(0.0, t_end, n)
     ts = ca.SX.sym("t")
     acc = ca.Function("a_l", [ts], [leader.accel(ts)]).map(n)
@@ -225,7 +225,7 @@ def plot_space_time(r: SimulationResult, path: str | os.PathLike[str], title: st
     lc = None
     for i in _shown(r.n_vehicles):
         pts = np.column_stack([t, x[:, i]]).reshape(-1, 1, 2)
-        lc = LineCollection(np.concatenate([pts[:-1], pts[1:]], axis=1), cmap="viridis", norm=norm, lw=1.0)
+        lc = LineCollection(list(np.concatenate([pts[:-1], pts[1:]], axis=1)), cmap="viridis", norm=norm, lw=1.0)
         lc.set_array(au.v * r.speed[:-1, i])
         ax.add_collection(lc)
     ax.plot(t, au.x * r.leader_position, color="black", lw=1.6, ls="--", label="leader")

@@ -338,7 +338,8 @@ class _Run:
 
     def tolerance(self, out: Path, progress: ProgressFn) -> str:
         s = load_scenario("table1")
-        rows, json_rows = [], []
+        rows: list[list[str]] = []
+        json_rows: list[dict[str, Any]] = []
         settings = [(tol, s.dt_out) for tol in self.config.tolerances] + [(s.rtol, s.dt_out / 2)]
         for tol, dt in settings:
             res = self.simulate(s, progress, f"tolerance rtol=atol={tol:g}, dt_out={dt:g}", rtol=tol, atol=tol,
@@ -493,7 +494,7 @@ def reproduce(out_dir: str | Path = "results", config: ReproduceConfig | None = 
     for sec in sections:
         end = progress.k + sec.steps
         try:
-            md = sec.fn(out, lambda msg, _n=sec.name: progress(f"{_n}: {msg}" if not msg.startswith(_n) else msg))
+            md = sec.fn(out, _prefixed(progress, sec.name))
         except ReportSectionError:
             raise
         except Exception as exc:  # KeyboardInterrupt/SystemExit pass through untouched
@@ -511,6 +512,11 @@ def reproduce(out_dir: str | Path = "results", config: ReproduceConfig | None = 
 
     write_report_html(text, out, out / "report.html", title=f"aev_ocp {__version__}: reproduction of Yeo et al. (2025)")
     return write_text(out / "report.md", text)
+
+
+def _prefixed(progress: ProgressFn, name: str) -> ProgressFn:
+    """``progress`` with each message prefixed by the section's name (unless it already starts with it)."""
+    return lambda msg: progress(msg if msg.startswith(name) else f"{name}: {msg}")
 
 
 def _claims_from_outputs(out: Path, parts: Sequence[str]) -> None:

@@ -164,7 +164,7 @@ def riemann_omega(traj: Trajectory, eta: float, delta: float, t_end: float) -> n
     return np.sum(v * np.where(a >= 0, a / eta, eta * a), axis=0) * delta
 
 
-def fitted_regeneration(traj: Trajectory, printed: Sequence[float], t_end: float) -> np.ndarray:
+def fitted_regeneration(traj: Trajectory, printed: Sequence[float] | np.ndarray, t_end: float) -> np.ndarray:
     """Per follower, the regeneration efficiency c with ∫ v (a⁺/η + c a⁻) dt = the printed ω (ω is linear in c)."""
     P, N = traj.window("traction", 0.0, t_end), traj.window("braking", 0.0, t_end)
     return (np.asarray(printed, float) - P) / N

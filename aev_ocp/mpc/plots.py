@@ -93,7 +93,8 @@ def plot_solve_times(r: SimulationResult, path: str | Path, si: bool = True) -> 
             continue
         ms = np.asarray(st["solve_ms"])
         tk = au.t * r.t[:ms.size]
-        path_name = r.solver_stats[i]["solver_path"] if i < len(r.solver_stats) and r.solver_stats[i] else "mpc"
+        st_i = r.solver_stats[i] if i < len(r.solver_stats) else None
+        path_name = st_i["solver_path"] if st_i else "mpc"
         ax.semilogy(tk, ms, lw=0.8, label=f"follower {i + 1} ({path_name})")
         bad = fallback_steps(st)
         n_fallbacks += bad.size
