@@ -101,6 +101,8 @@ def test_overlay_styles_are_distinct_and_legend_names_leader_and_h_min(run, figs
     got = {ln.get_label(): (ln.get_color(), str(ln._dash_pattern)) for ln in fig.axes[0].lines
            if ln.get_label() in labels}
     assert len(set(got.values())) == 4  # four controllers, four distinct (colour, dash) pairs
+    widths = [ln.get_linewidth() for ln in fig.axes[0].lines if ln.get_label() in labels]
+    assert widths == sorted(widths, reverse=True) and len(set(widths)) == 4  # each drawn over a wider one
     speed_legend = [t.get_text() for t in fig.axes[1].get_legend().get_texts()]
     gap_legend = [t.get_text() for t in fig.axes[0].get_legend().get_texts()]
     assert "leader" in speed_legend and any(t.startswith("h_min = ") and "m" in t for t in gap_legend)

@@ -18,8 +18,9 @@ def plot_overlay(results: Mapping[str, SimulationResult], path: str | Path, vehi
                  h_min: float | None = None, si: bool = True) -> Path:
     """Gap, speed, acceleration, cell current and SOC of follower ``vehicle`` for each controller.
 
-    Each controller has its own colour and dash pattern (so an identical run does not hide another),
-    the vehicle ahead is in the speed legend, and ``h_min`` [model length] (default: the first MPC
+    Each controller has its own colour and dash pattern and is drawn thinner than the one before it (so an
+    identical run does not hide another); the vehicle ahead is a wide gray band behind them;
+    it is in the speed legend, and ``h_min`` [model length] (default: the first MPC
     run's bound, if any) is drawn and labelled on the gap panel."""
     if not results:
         raise ValueError("plot_overlay: no results to draw")
@@ -30,8 +31,9 @@ def plot_overlay(results: Mapping[str, SimulationResult], path: str | Path, vehi
         h_min = _h_min_of(results)
     fig, ax = plt.subplots(5, 1, figsize=(9, 11), sharex=True)
     i = vehicle
-    for label, r in results.items():
-        st: dict[str, Any] = {**styles[label], "lw": 1.3, "label": label}
+    for k, (label, r) in enumerate(results.items()):
+        # each line thinner than the one drawn before it, so an identical later run cannot hide an earlier one
+        st: dict[str, Any] = {**styles[label], "lw": max(2.6 - 0.5 * k, 0.8), "label": label}
         t = au.t * r.t
         ax[0].plot(t, au.x * r.gap[:, i], **st)
         ax[1].plot(t, au.v * r.speed[:, i], **st)
@@ -42,7 +44,7 @@ def plot_overlay(results: Mapping[str, SimulationResult], path: str | Path, vehi
         ax[3].plot(t, r.current_A[:, i], **st)
         ax[4].plot(t, r.S[:, i], **st)
     ahead = first.leader_speed if vehicle == 0 else first.speed[:, vehicle - 1]
-    ax[1].plot(au.t * first.t, au.v * ahead, color="black", ls=(0, (1, 2)), lw=1.0,
+    ax[1].plot(au.t * first.t, au.v * ahead, color="0.55", ls="-", lw=3.2, alpha=0.45, zorder=0,
                label="leader" if vehicle == 0 else f"vehicle ahead (n = {vehicle}, {list(results)[0]})")
     if h_min is not None:
         ax[0].axhline(au.x * h_min, color="gray", ls="--", lw=0.9, label=f"h_min = {au.x * h_min:.3g} {au.x_label}")
