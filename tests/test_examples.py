@@ -71,3 +71,26 @@ def test_custom_mpc_term(tmp_path: Path) -> None:
                for m in re.finditer(r"^\s*(.+?): status ok, min \(h - T_h v\) over the second half = ([-\d.]+)", out, re.M)}
     assert set(margins) == {"mpc (§9)", "mpc + headway"}
     assert margins["mpc + headway"] >= 0.2 - 2e-3 > margins["mpc (§9)"]  # the added constraint is active
+
+
+def test_docs_pages_take_their_sections_from_the_readme() -> None:
+    """docs/hooks/readme_sections.py (the MkDocs build hook) inserts README sections verbatim and refuses an
+    unknown section title; every marker in docs/ names a README section."""
+    import importlib.util
+    from types import SimpleNamespace
+
+    spec = importlib.util.spec_from_file_location("readme_sections", ROOT / "docs" / "hooks" / "readme_sections.py")
+    assert spec is not None and spec.loader is not None
+    hook = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(hook)
+    readme = (ROOT / "README.md").read_text(encoding="utf-8")
+    config = {"config_file_path": str(ROOT / "mkdocs.yml")}
+    page = SimpleNamespace(file=SimpleNamespace(src_uri="guide/x.md"))
+    out = hook.on_page_markdown("# T\n\n<!-- readme: Set up -->\n", page, config, None)
+    body = readme.split("\n## Set up\n", 1)[1].split("\n## ", 1)[0]
+    assert out.startswith("# T\n\n## Set up\n") and body.strip() in out
+    with pytest.raises(KeyError, match="No such section"):
+        hook.on_page_markdown("<!-- readme: No such section -->\n", page, config, None)
+    marks = [m for f in (ROOT / "docs").rglob("*.md") for m in re.findall(r"<!-- readme: (.+?) -->", f.read_text())]
+    titles = set(re.findall(r"^## (.+)$", readme, re.M)) | {"intro"}
+    assert marks and set(marks) <= titles
