@@ -33,6 +33,8 @@ _EXPORTS = {
     "MPCPolicy": "mpc",
     # scenarios
     "load_scenario": "scenarios", "Scenario": "scenarios",
+    # saved outputs (every command's folder loads back)
+    "load": "saved", "load_all": "saved", "LoadError": "saved",
 }
 __all__ = ["__version__", *_EXPORTS]
 
