@@ -106,7 +106,7 @@ class Progress:
                         clock=self.clock, deadline=self.deadline)
 
     # ------------------------------------------------------------------ output
-    def line(self, what: str = "") -> str:
+    def line(self, what: str = "", note: str = "") -> str:
         """The progress line for the current state."""
         head = (f"[{self.label}] " if self.label else "") + (f"{what} " if what else "")
         if self.total:
@@ -120,7 +120,7 @@ class Progress:
         if self.deadline is not None:
             tail += f", time limit {format_seconds(self.time_limit_s or (self.deadline - self.t0))} " \
                     f"({format_seconds(max(self.remaining_s(), 0.0))} left)"
-        return head + tail
+        return head + tail + (f" {note}" if note else "")
 
     def say(self, text: str) -> None:
         """Print one line (stream or ``say``)."""
@@ -138,8 +138,10 @@ class Progress:
             raise TimeLimitReached(f"time limit of {format_seconds(self.time_limit_s or 0.0)} reached after "
                                    f"{self.done:.4g}/{self.total if self.total is not None else '?'} {self.unit}")
 
-    def update(self, done: float, total: float | None = None, what: str = "", force: bool = False) -> None:
-        """Record progress (``done`` of ``total``), print a line when one is due, then :meth:`check`."""
+    def update(self, done: float, total: float | None = None, what: str = "", force: bool = False,
+               note: str = "") -> None:
+        """Record progress (``done`` of ``total``), print a line when one is due (``what`` before the count,
+        ``note`` after the times), then :meth:`check`."""
         self.done = float(done)
         if total is not None:
             self.total = total
@@ -149,7 +151,7 @@ class Progress:
         finished = self.total is not None and self.done >= self.total
         if force or finished or now - self._last >= self.every_s:
             self._last = now
-            self.say(self.line(what))
+            self.say(self.line(what, note))
         self.check()
 
     def closed_loop(self, dt: float | None = None) -> Callable[[float, float], None]:
