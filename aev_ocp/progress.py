@@ -139,9 +139,9 @@ class Progress:
                                    f"{self.done:.4g}/{self.total if self.total is not None else '?'} {self.unit}")
 
     def update(self, done: float, total: float | None = None, what: str = "", force: bool = False,
-               note: str = "") -> None:
+               note: str = "", check: bool = True) -> None:
         """Record progress (``done`` of ``total``), print a line when one is due (``what`` before the count,
-        ``note`` after the times), then :meth:`check`."""
+        ``note`` after the times), then :meth:`check` (unless ``check`` is False)."""
         self.done = float(done)
         if total is not None:
             self.total = total
@@ -152,7 +152,8 @@ class Progress:
         if force or finished or now - self._last >= self.every_s:
             self._last = now
             self.say(self.line(what, note))
-        self.check()
+        if check:
+            self.check()
 
     def closed_loop(self, dt: float | None = None) -> Callable[[float, float], None]:
         """A ``progress(t, t_end)`` callback for :meth:`aev_ocp.control.ClosedLoop.run` (model time):

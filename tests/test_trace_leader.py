@@ -104,3 +104,25 @@ def test_max_gap_is_settable_and_paths_are_relative_to_the_scenario(tmp_path, mo
         load_scenario(_scenario(tmp_path, 'kind = "trace"\nfile = "sub/g.csv"\nspeed_unit = "knots"'))
     with pytest.raises(ParameterError, match="exactly one"):
         read_trace_csv(tmp_path / "sub" / "g.csv")
+
+
+def test_example_follow_csv_trace_quick(tmp_path):
+    """examples/follow_csv_trace.py --quick: both laws follow the recorded vehicle without an event, the
+    position-derived leader agrees with the speed column to the file's rounding (3 decimals of ft and
+    ft/s: well below 0.01 m/s), and its saved output loads back with the same metrics."""
+    import sys
+    from pathlib import Path
+
+    import aev_ocp
+
+    sys.path.insert(0, str(Path(__file__).parents[1] / "examples"))
+    try:
+        import follow_csv_trace
+    finally:
+        sys.path.pop(0)
+    res = follow_csv_trace.main(quick=True, out=str(tmp_path))
+    assert res["status"] == {"proposed": "ok", "ovfl": "ok"}
+    assert 0 < res["position_speed_diff_mps"] < 0.01
+    r = aev_ocp.load(tmp_path, run="ovfl")
+    assert r.metrics()[2]["omega_model"] == res["metrics"]["ovfl"][2]["omega_model"]
+    assert r.meta["output"]["settings"]["document"]["leader"]["filter_value"] == 1042

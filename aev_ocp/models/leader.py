@@ -288,7 +288,7 @@ def read_trace_csv(source: Any, *, time_column: str = "time", speed_column: str 
     what = f" with {filter_column} = {filter_value!r}" if filter_column is not None else ""
     if len(t_list) < 2:
         raise ParameterError(f"trace {name}: needs at least 2 samples{what}, found {len(t_list)}")
-    t = np.asarray(t_list) * TIME_UNITS[time_unit]
+    t = (np.asarray(t_list) - t_list[0]) * TIME_UNITS[time_unit]  # shift first: epoch times in ms keep their digits
     dt = np.diff(t)
     bad = np.flatnonzero(dt <= 0)
     if bad.size:
@@ -311,7 +311,7 @@ def read_trace_csv(source: Any, *, time_column: str = "time", speed_column: str 
         j = int(neg[0])
         raise ParameterError(f"trace {name}, row {line_no[j]}, column {col!r}: speed {v[j]:.6g} m/s is negative; "
                              "a leader only drives forward")
-    return t - t[0], v
+    return t, v
 
 
 def _matches(text: str, value: Any) -> bool:

@@ -188,7 +188,7 @@ def execute(tasks: list[Task], store: Store, *, executor: str = "pool", workers:
                     stream=progress_stream)
     cached, failed = len(results), [0]
     # the first update is the ETA's origin: the ETA counts only the tasks computed in this run
-    prog.update(cached, len(todo), force=True, note=f"({cached} stored, 0 failed)")
+    prog.update(cached, len(todo), force=True, note=f"({cached} stored, 0 failed)", check=False)
 
     def done(res: dict[str, Any]) -> None:
         store.put(res["key"], res)
