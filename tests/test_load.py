@@ -187,3 +187,17 @@ def test_damaged_arrays_are_refused(tmp_path, capsys):
     (tmp_path / ARRAYS).write_bytes(bytes(data))
     with pytest.raises(LoadError, match="SHA-256"):
         aev_ocp.load(tmp_path)
+
+
+def test_ocp_eco_trip_time_limit_writes_a_flagged_partial_sweep(tmp_path, capsys):
+    """A time limit that has passed after the first solve: exit 1, the heat-optimal trip solved and saved,
+    the energy objective and the D sweep not run, the manifest flagged."""
+    from aev_ocp.ocp.cli import cli_ocp
+
+    rc = cli_ocp(["eco-trip", "--N", "20", "--no-refine", "--grid", "D=800,900", "--time-limit", "1e-9",
+                  "--out", str(tmp_path)])
+    err = capsys.readouterr().err
+    assert rc == 1 and "stopped by --time-limit" in err and "partial" in err
+    m = json.loads((tmp_path / MANIFEST).read_text())
+    assert m["time_limit"] is True and m["sweep"] == []
+    assert list(load_all(tmp_path)) == ["heat"] and aev_ocp.load(tmp_path).success
