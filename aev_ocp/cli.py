@@ -190,14 +190,13 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     claim_output_dir(out, "simulate", scenario.name, str(scenario.source) if scenario.source else None,
                      [f"{lab}.{ext}" for lab in labels for ext in ("csv", "png")] + ["metrics.json", "metrics.md",
                                                                                     *OUTPUT_FILES])
-    last: dict[str, int] = {}
+    from .progress import Progress
 
-    def progress(label: str, t: float, t_end: float) -> None:
-        interrupts.check()
-        pct = int(100 * t / t_end)
-        if pct // 25 != last.get(label, -1):
-            last[label] = pct // 25
-            print(f"[{scenario.name}] {label}: t = {t:.4g} / {t_end:g} ({pct}%)", file=sys.stderr, flush=True)
+    bars: dict[str, Progress] = {}
+
+    def progress(label: str, t: float, t_end: float) -> None:  # one line per run every 2 s, with an ETA
+        bar = bars.setdefault(label, Progress(f"{scenario.name}] [{label}", t_end, unit="model time"))
+        bar.update(t, t_end, "t =")
 
     results = scenario.run(progress=progress)
     files = write_scenario_outputs(scenario.name, results, out, plots=not args.no_plots)

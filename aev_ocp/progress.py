@@ -93,6 +93,8 @@ class Progress:
         (nan until two updates show progress)."""
         done = self.done if done is None else done
         total = self.total if total is None else total
+        if total is not None and done >= total:
+            return 0.0
         if total is None or self._ref is None:
             return math.nan
         t_ref, done_ref = self._ref

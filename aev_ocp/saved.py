@@ -45,12 +45,17 @@ class LoadError(ValueError):
 
 
 # ----------------------------------------------------------------------------- saving
+def _own_meta(meta: dict[str, Any]) -> dict[str, Any]:
+    """A result's meta without the record :func:`load` adds (a loaded result saved again stays flat)."""
+    return {k: v for k, v in meta.items() if k != "output"}
+
+
 def _sim_record(label: str, r: SimulationResult, arrays: dict[str, np.ndarray]) -> dict[str, Any]:
     for name in SIM_ARRAYS:
         arrays[f"{label}/{name}"] = np.asarray(getattr(r, name))
     return {"type": "SimulationResult", "status": r.status, "controllers": list(r.controllers),
             "events": [vars(e) for e in r.events], "ev": as_dict(r.ev), "jerk_sampled": bool(r.jerk_sampled),
-            "solver_stats": r.solver_stats, "meta": r.meta, "metrics": r.metrics()}
+            "solver_stats": r.solver_stats, "meta": _own_meta(r.meta), "metrics": r.metrics()}
 
 
 def _ocp_record(label: str, r: Any, arrays: dict[str, np.ndarray]) -> dict[str, Any]:
@@ -65,7 +70,8 @@ def _ocp_record(label: str, r: Any, arrays: dict[str, np.ndarray]) -> dict[str, 
     return {"type": "OCPResult", "problem": r.problem, "method": r.method, "N": r.N, "time_unit": r.time_unit,
             "objective_name": r.objective_name, "status": r.status, "success": r.success, "message": r.message,
             "solver_status": r.solver_status, "iterations": r.iterations, "warnings": list(r.warnings),
-            "states": list(r.states), "controls": list(r.controls), "outputs": list(r.outputs), "meta": r.meta,
+            "states": list(r.states), "controls": list(r.controls), "outputs": list(r.outputs),
+            "meta": _own_meta(r.meta),
             "metrics": r.stats()}
 
 
