@@ -126,3 +126,26 @@ def test_example_follow_csv_trace_quick(tmp_path):
     r = aev_ocp.load(tmp_path, run="ovfl")
     assert r.metrics()[2]["omega_model"] == res["metrics"]["ovfl"][2]["omega_model"]
     assert r.meta["output"]["settings"]["document"]["leader"]["filter_value"] == 1042
+
+
+def test_study_over_a_trace_leader_hashes_the_data_and_finds_the_file(tmp_path, monkeypatch):
+    """A study whose scenario follows a CSV: the task hash covers the CSV's content (a changed file is
+    recomputed, not served from the store), and the file is found relative to the scenario wherever
+    the study runs."""
+    from aev_ocp.study import read_study, run_study
+
+    t, v = load_cycle_si("udds")
+    _write(tmp_path / "u.csv", "time,speed", zip(t[:120], v[:120]))
+    _scenario(tmp_path, 'kind = "trace"\nfile = "u.csv"', "trace.toml")
+    study = tmp_path / "st.toml"
+    study.write_text('name = "tr"\nscenarios = ["trace.toml"]\nreference = "ovfl"\n'
+                     '[overrides]\n"simulation.t_end" = 20.0\n'
+                     '[[axes]]\nkey = "carfollowing.kappa"\nvalues = [0.02, 0.04]\n'
+                     '[controllers]\nlaws = ["proposed", "ovfl"]\n')
+    monkeypatch.chdir(tmp_path.parent)
+    keys = [tk.key for tk in read_study(study).tasks()]
+    out = run_study(read_study(study), tmp_path / "out", executor="inprocess", report=False)
+    assert out.n_tasks == 3 and all(r["status"] == "ok" for r in out.rows)  # OVFL ignores kappa: 1 task
+    _write(tmp_path / "u.csv", "time,speed", zip(t[:120], 1.01 * v[:120]))
+    keys2 = [tk.key for tk in read_study(study).tasks()]
+    assert len(set(keys) & set(keys2)) == 0
