@@ -201,3 +201,28 @@ def test_ocp_eco_trip_time_limit_writes_a_flagged_partial_sweep(tmp_path, capsys
     m = json.loads((tmp_path / MANIFEST).read_text())
     assert m["time_limit"] is True and m["sweep"] == []
     assert list(load_all(tmp_path)) == ["heat"] and aev_ocp.load(tmp_path).success
+
+
+@pytest.mark.quick
+def test_study_trajectories_are_optional_and_load_back(tmp_path):
+    """run_study(..., trajectories=True) saves each task's run; a stored task without them is run again;
+    the loaded trajectories give back the table's metrics."""
+    import io
+
+    from aev_ocp.study import run_study
+    from aev_ocp.study.cli import _with_sets
+    from aev_ocp.study.spec import parse_study
+
+    study = _with_sets("studies/kappa_alpha_table1.toml", {"simulation.t_end": 0.8}, parse_study)
+    out = run_study(study, tmp_path, executor="inprocess", report=False, progress_stream=io.StringIO())
+    with pytest.raises(LoadError, match="--trajectories"):
+        out.trajectory(3, "proposed")
+    buf = io.StringIO()
+    out = run_study(study, tmp_path, executor="inprocess", report=False, trajectories=True, progress_stream=buf)
+    assert "(0 stored" in buf.getvalue()  # nothing reused: the stored tasks had no trajectories
+    r = out.trajectory(3, "proposed")
+    rows = {row["vehicle"]: row for row in out.rows if row["point"] == 3 and row["controller"] == "proposed"}
+    for m in r.metrics():
+        assert m["omega_model"] == rows[m["vehicle"]]["omega_model"]
+        assert m["min_gap_model"] == rows[m["vehicle"]]["min_gap_model"]
+    assert aev_ocp.load(tmp_path).trajectory(3, "proposed").t.size == r.t.size

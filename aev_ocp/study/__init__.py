@@ -19,6 +19,8 @@ from .runner import EXECUTORS, Store, TimeLimitStop, execute, run_task
 from .spec import Study, StudyError, parse_study, read_study
 from .table import build_rows, load_table, write_table
 
+TRAJECTORIES = "trajectories"  # sub-folder of a study's output: one loadable folder per task hash
+
 
 @dataclass
 class StudyOutput:
@@ -37,20 +39,38 @@ class StudyOutput:
         """The table rows (every §10 metric per point × controller × vehicle)."""
         return self.rows
 
+    def trajectory(self, point: int, controller: str) -> Any:
+        """The SimulationResult of one point under one controller, saved by ``run_study(...,
+        trajectories=True)`` (``aev-ocp study --trajectories``); LoadError if it was not saved."""
+        from ..saved import LoadError, load
+
+        keys = {r["task_hash"] for r in self.rows if r["point"] == point and r["controller"] == controller}
+        if not keys:
+            raise LoadError(f"{self.folder}: no row for point {point} and controller {controller!r}")
+        path = self.folder / TRAJECTORIES / keys.pop()
+        if not path.is_dir():
+            raise LoadError(f"{self.folder}: no trajectories saved for point {point}, controller {controller!r}; "
+                            "rerun the study with --trajectories (trajectories=True)")
+        return load(path)
+
 
 def run_study(study: Study | str | Path, out: str | Path | None = None, *, executor: str = "pool",
               workers: int | None = None, scheduler: str | None = None, report: bool = True,
-              progress_stream: Any = None, time_limit_s: float | None = None) -> StudyOutput:
+              progress_stream: Any = None, time_limit_s: float | None = None,
+              trajectories: bool = False) -> StudyOutput:
     """Run (or resume) a study and write its table, figures, report.md and manifest.json (so that
     :func:`aev_ocp.load` reads it back) into ``out`` (default ``results/study/<name>``). executor:
     'inprocess', 'pool' or 'dask' (see :func:`aev_ocp.study.runner.execute`); time_limit_s [s]: stop
-    (raising :class:`TimeLimitStop`) once passed, the finished tasks stored for a rerun to resume."""
+    (raising :class:`TimeLimitStop`) once passed, the finished tasks stored for a rerun to resume;
+    trajectories: also save every task's trajectories (``trajectories/<hash>/``, see
+    :meth:`StudyOutput.trajectory`)."""
     if not isinstance(study, Study):
         study = read_study(study)
     folder = Path(out) if out is not None else Path("results") / "study" / study.name
     tasks = study.tasks()
     results = execute(tasks, Store(folder), executor=executor, workers=workers, scheduler=scheduler,
-                      name=study.name, progress_stream=progress_stream, time_limit_s=time_limit_s)
+                      name=study.name, progress_stream=progress_stream, time_limit_s=time_limit_s,
+                      trajectories_dir=folder / TRAJECTORIES if trajectories else None)
     rows = build_rows(study, results)
     files = list(write_table(rows, folder, study.axis_keys))
     if report:
@@ -65,7 +85,8 @@ def run_study(study: Study | str | Path, out: str | Path | None = None, *, execu
                 "controllers": study.controllers, "reference": study.reference, "bases": study.bases,
                 "n_points": len(study.points)}
     files += save_output(folder, "study", {}, settings=settings,
-                         extra={"table": "table.jsonl", "n_tasks": len(results), "n_failed": failed})
+                         extra={"table": "table.jsonl", "n_tasks": len(results), "n_failed": failed,
+                                "trajectories": TRAJECTORIES if trajectories else None})
     return StudyOutput(folder, rows, files, len(results), failed, {"settings": to_jsonable(settings)})
 
 

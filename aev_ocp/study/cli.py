@@ -40,6 +40,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--set", dest="sets", action="append", default=[], metavar="KEY=VALUE",
                    help="override a scenario key at every point, e.g. --set simulation.t_end=20 (repeatable)")
     p.add_argument("--no-report", action="store_true", help="write the table only (no figures, no report.md)")
+    p.add_argument("--trajectories", action="store_true",
+                   help="also save every task's trajectories (trajectories/<hash>/, loadable with aev_ocp.load or "
+                        "StudyOutput.trajectory(point, controller)); stored tasks without them are run again")
     p.add_argument("--time-limit", type=float, default=None, metavar="S",
                    help="wall-clock limit [s]: past it, pending tasks are cancelled; finished ones are stored and "
                         "a rerun resumes (default: none)")
@@ -92,7 +95,8 @@ def cli_study(argv: list[str]) -> int:
     print(f"[study {study.name}] {len(study.points)} points × {len(study.controllers)} controllers "
           f"({', '.join(c.label for c in study.controllers)}), executor {kw['executor']}", file=sys.stderr, flush=True)
     try:
-        out = run_study(study, a.out, report=not a.no_report, time_limit_s=a.time_limit, **kw)
+        out = run_study(study, a.out, report=not a.no_report, time_limit_s=a.time_limit,
+                        trajectories=a.trajectories, **kw)
     except TimeLimitStop as exc:
         _err(f"stopped by --time-limit {a.time_limit:g} s: {exc}; rerun the same command to resume")
         return EXIT_FAILED_RUN

@@ -43,6 +43,12 @@ def run_task(spec: dict[str, Any]) -> dict[str, Any]:
         result = _simulate(spec)
         metrics = result.metrics()
         out.update(status=result.status, message="; ".join(str(e) for e in result.events), metrics=metrics)
+        if spec.get("trajectories"):  # optional: the run's trajectories, loadable by aev_ocp.load
+            from ..saved import save_output
+
+            save_output(Path(spec["trajectories"]) / spec["key"], "simulate", {c["label"]: result},
+                        settings={"task": spec["key"], "file": spec["file"], "controller": c,
+                                  "document": spec["document"]})
     except Exception as exc:  # noqa: BLE001 - a failed point is recorded, the others go on
         tb = traceback.extract_tb(exc.__traceback__)
         where = f" ({Path(tb[-1].filename).name}:{tb[-1].lineno})" if tb else ""
@@ -167,21 +173,27 @@ def _unique(tasks: Iterable[Task]) -> dict[str, Task]:
 def execute(tasks: list[Task], store: Store, *, executor: str = "pool", workers: int | None = None,
             scheduler: str | None = None, name: str = "study", progress_stream: Any = None,
             on_result: Callable[[str, dict[str, Any]], None] | None = None,
-            time_limit_s: float | None = None, every_s: float = 1.0) -> dict[str, dict[str, Any]]:
+            time_limit_s: float | None = None, every_s: float = 1.0,
+            trajectories_dir: str | os.PathLike[str] | None = None) -> dict[str, dict[str, Any]]:
     """Run every task missing from ``store``; returns {hash: result} for all tasks.
 
     executor: 'inprocess', 'pool' (``workers`` processes, default one per core) or 'dask'
     (``scheduler`` address, else a LocalCluster of ``workers`` processes). Progress (tasks done, ETA)
     goes to ``progress_stream`` (default stderr) every ``every_s`` s. time_limit_s [s]: once passed,
     pending tasks are cancelled and :class:`TimeLimitStop` is raised; finished tasks are stored, so
-    rerunning resumes."""
+    rerunning resumes. trajectories_dir: also save each task's trajectories into ``<dir>/<hash>/``
+    (manifest.json + trajectories.npz; a stored task without them is run again); the Dask executor
+    then needs a folder its workers share."""
     if executor not in EXECUTORS:
         raise ValueError(f"executor {executor!r} is not one of {EXECUTORS}")
     todo = _unique(tasks)
     results: dict[str, dict[str, Any]] = {}
+    from ..saved import MANIFEST
+
     for key in list(todo):
         got = store.get(key)
-        if got is not None:
+        if got is not None and (trajectories_dir is None or got["status"] == "error"
+                                or (Path(trajectories_dir) / key / MANIFEST).is_file()):
             results[key] = got
     missing = [t for k, t in todo.items() if k not in results]
     prog = Progress(f"study {name}", len(todo), unit="tasks", time_limit_s=time_limit_s, every_s=every_s,
@@ -203,7 +215,8 @@ def execute(tasks: list[Task], store: Store, *, executor: str = "pool", workers:
 
     if not missing:
         return results
-    specs = [t.spec for t in missing]
+    specs = [t.spec if trajectories_dir is None else {**t.spec, "trajectories": str(Path(trajectories_dir).resolve())}
+             for t in missing]
     if executor == "inprocess":
         for sp in specs:
             done(run_task(sp))
