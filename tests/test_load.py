@@ -226,3 +226,18 @@ def test_study_trajectories_are_optional_and_load_back(tmp_path):
         assert m["omega_model"] == rows[m["vehicle"]]["omega_model"]
         assert m["min_gap_model"] == rows[m["vehicle"]]["min_gap_model"]
     assert aev_ocp.load(tmp_path).trajectory(3, "proposed").t.size == r.t.size
+
+
+@pytest.mark.quick
+def test_ocp_prop31_cases_load_back(tmp_path, capsys):
+    """Every OCP-A case is saved; the loaded optima equal a second, in-process solve bit for bit."""
+    from aev_ocp.ocp.api import run_prop31
+    from aev_ocp.ocp.cli import cli_ocp
+
+    assert cli_ocp(["prop31", "--N", "16", "--no-refine", "--out", str(tmp_path)]) == 0
+    runs = load_all(tmp_path)
+    direct = run_prop31("ms", N=16, refine=False)
+    assert list(runs) == list(direct)
+    for case, e in direct.items():
+        np.testing.assert_array_equal(runs[case].controls["I"], e["result"].controls["I"])
+        assert runs[case].objective == e["result"].objective and runs[case].problem == e["result"].problem
