@@ -12,6 +12,7 @@ never left behind). Set ``AEV_OCP_DEBUG=1`` to get the traceback of an unexpecte
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import importlib
 import os
 import sys
@@ -149,6 +150,8 @@ def build_parser() -> argparse.ArgumentParser:
     r = sub.add_parser("reproduce", help="reproduce the paper's figures and Table 1, write report.md")
     r.add_argument("--out", default="results", help="output folder (default: results/)")
     r.add_argument("--quick", action="store_true", help="a cheap smoke run (short horizons), not the reproduction")
+    r.add_argument("--model-units", action="store_true",
+                   help="figure axes in the paper's model units (default: s, m, km/h through each scenario's units)")
     s = sub.add_parser("simulate", help="simulate a scenario file: trajectories CSV, metrics JSON, plots")
     s.add_argument("scenario", help="a scenario .toml file or the name of a shipped scenario (e.g. table1)")
     s.add_argument("--out", default=None, help="output folder (default: results/<scenario name>/)")
@@ -218,8 +221,11 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
     from .reproduce import ReproduceConfig, reproduce
     from .results import claim_output_dir
 
-    claim_output_dir(args.out, "reproduce", "paper", None, ["report.md"])
-    report = reproduce(args.out, ReproduceConfig.quick() if args.quick else ReproduceConfig())
+    claim_output_dir(args.out, "reproduce", "paper", None, ["report.md", "report.html"])
+    config = ReproduceConfig.quick() if args.quick else ReproduceConfig()
+    if args.model_units:
+        config = dataclasses.replace(config, si_units=False)
+    report = reproduce(args.out, config)
     print(f"wrote {report}")
     return EXIT_OK
 

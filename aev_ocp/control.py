@@ -106,7 +106,7 @@ class ControlSequence:
 @dataclass(frozen=True)
 class SampledLaw:
     """A car-following law evaluated every dt on the measurements and held (like a real ECU),
-    clipped to [a_min, a_max] [model acceleration]."""
+    clipped to [a_min, a_max] (model acceleration)."""
 
     law: CarFollowingLaw
     dt: float

@@ -139,11 +139,10 @@ def run_current_profile(method: str = "ms", out_dir: str | Path | None = None, s
                                                              "sweep": rows, "time_limit": stopped,
                                                              "grid": {"E_req_J": list(sweep_E_J),
                                                                       "t_f_s": list(sweep_t_f_s)}})
-        from ..ocp_plots import plot_sweep
+        from ..ocp_plots import plot_current_profile_sweep
 
-        plot_sweep([r for r in rows if r["status"] in ("optimal", "acceptable")], "E_req_J",
-                   ["optimal_heat_J", "constant_current_heat_J", "constant_power_heat_J"],
-                   o / "current_profile_sweep.png", group="t_f_s", ylabel="∫Q dt [J per cell]")
+        plot_current_profile_sweep([r for r in rows if r["status"] in ("optimal", "acceptable")],
+                                   o / "current_profile_sweep.png")
     return out
 
 
