@@ -85,8 +85,8 @@ def test_run_oracle_at_the_time_limit_reports_no_bound() -> None:
 def test_cli_time_limit(capsys) -> None:
     assert cli_ocp(["oracle", "--time-limit", "-3"]) == 2
     assert "--time-limit" in capsys.readouterr().err
-    assert cli_ocp(["eco-trip", "--time-limit", "30"]) == 2
-    assert "oracle only" in capsys.readouterr().err
+    assert cli_ocp(["prop31", "--time-limit", "30"]) == 2
+    assert "applies to current-profile, eco-trip and oracle" in capsys.readouterr().err
 
 
 def test_grid_rule() -> None:
