@@ -30,6 +30,10 @@ SOLVER_PATH: dict[str, Any] = {"solver": "rti", "qp_solver": "hpipm", "codegen":
 STEPS = 4 * 2 * 6 + 6 + 1  # 6 lines per MPC run (start + every 25 %), the platoon run, writing
 
 
+def _prefixed(progress: Callable[[str], None], prefix: str) -> Callable[[str], None]:
+    return lambda m: progress(prefix + m)
+
+
 def _capped(sc: Any, t_end_max: float | None) -> Any:
     return sc if t_end_max is None or sc.t_end <= t_end_max else sc.replace(t_end=t_end_max)
 
@@ -129,13 +133,13 @@ def cycles_section(out_dir: Any, progress: Callable[[str], None], segment_s: flo
     for cyc in cycles:
         sc = _capped(cycle_scenario(cyc, segment_s), t_end_max)
         seg_model[cyc] = sc.t_end
-        runs, wall[cyc] = run_cycle(sc, predictors, settings=s, log=lambda m, c=cyc: progress(f"MPC cycles, {c}: {m}"))
+        runs, wall[cyc] = run_cycle(sc, predictors, settings=s, log=_prefixed(progress, f"MPC cycles, {cyc}: "))
         rows += cycle_rows(cyc, runs, vehicles=[0])
     rank_rows(rows)
     sc = _capped(cycle_scenario("udds", platoon_segment_s, platoon=True), t_end_max)
     pred = sc.extra["mpc"].settings.predictor
     runs, wall["udds_platoon"] = run_cycle(sc, (pred,), laws=(REFERENCE,), settings=s,
-                                           log=lambda m: progress(f"MPC cycles, UDDS platoon: {m}"))
+                                           log=_prefixed(progress, "MPC cycles, UDDS platoon: "))
     plat = platoon_rows(runs, ("mpc", pred))
     elapsed = time.perf_counter() - t0
     progress("MPC cycles: writing tables")

@@ -11,7 +11,7 @@ import math
 import sys
 import time
 from dataclasses import dataclass, field
-from typing import Any, Callable
+from typing import Any, Callable, Sequence
 
 import casadi as ca
 import numpy as np
@@ -186,7 +186,7 @@ class _IterationReporter(ca.Callback):
             return ca.Sparsity.dense(self.ng)
         return ca.Sparsity(0, 0)
 
-    def eval(self, arg: list[Any]) -> list[Any]:
+    def eval(self, arg: Sequence[ca.DM]) -> list[Any]:
         self.k += 1  # IPOPT calls back at iteration 0 (the initial point) and after every iteration
         now = time.perf_counter() - self.t0
         if self.say is not None and now - self.last >= self.every_s:
@@ -260,7 +260,7 @@ class OracleSolver:
             mx_map=mx_map, max_iter=max_iter), time_limit_s)
         rep = self.solver.reporter
         assert rep is not None
-        rep.say = _stderr if progress is True else (progress or None)  # type: ignore[assignment]
+        rep.say = _stderr if progress is True else (progress or None)
         rep.every_s = float(progress_every_s)
 
     @property
