@@ -39,7 +39,8 @@ HEAD_TABLE1 = "Table 1: energy per unit mass ω (platoon of 6, paper leader, t �
 HEAD_FIG5 = "Fig. 5: the platoon under the proposed model"
 HEAD_HYP = "Table 1: why our ω are below the printed ones (hypotheses tested)"
 SectionFn = Callable[[Path, ProgressFn], str]
-SECTION_PROVIDERS: tuple[str, ...] = ("aev_ocp.claims", "aev_ocp.ocp", "aev_ocp.mpc", "aev_ocp.stability")
+SECTION_PROVIDERS: tuple[str, ...] = ("aev_ocp.claims", "aev_ocp.ocp", "aev_ocp.mpc", "aev_ocp.mpc.cycles_section",
+                                       "aev_ocp.stability")
 
 
 @dataclass(frozen=True)
@@ -470,6 +471,15 @@ class _Run:
         return [table[k] for k in self.config.builtin]
 
 
+_ACTIVE: list[ReproduceConfig] = []
+
+
+def active_config() -> ReproduceConfig:
+    """The configuration of the running :func:`reproduce` (the full one outside it), for registered
+    sections that honour it (e.g. scenario_t_end_max caps the horizons of "MPC on drive cycles")."""
+    return _ACTIVE[-1] if _ACTIVE else ReproduceConfig()
+
+
 def reproduce(out_dir: str | Path = "results", config: ReproduceConfig | None = None, *,
               registered: bool = True, stream: Any = None) -> Path:
     """Run every section, write all files into ``out_dir`` and return the path of report.md.
@@ -502,6 +512,7 @@ def reproduce(out_dir: str | Path = "results", config: ReproduceConfig | None = 
                  + "; random seeds are in each section's JSON (e.g. `theorem41.json`).\n")
     for sec in sections:
         end = progress.k + sec.steps
+        _ACTIVE.append(config)
         try:
             md = sec.fn(out, _prefixed(progress, sec.name))
         except ReportSectionError:
@@ -509,6 +520,8 @@ def reproduce(out_dir: str | Path = "results", config: ReproduceConfig | None = 
         except Exception as exc:  # KeyboardInterrupt/SystemExit pass through untouched
             raise ReportSectionError(f"report section {sec.name!r} failed: {_cause(exc)} "
                                      f"(no report.md written)") from exc
+        finally:
+            _ACTIVE.pop()
         if md:
             parts.append("\n" + md.rstrip() + "\n")
         progress.skip_to(end)

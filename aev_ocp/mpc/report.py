@@ -3,6 +3,7 @@ by ``aev-ocp mpc`` and by the ``reproduce`` report section."""
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -12,7 +13,7 @@ import numpy as np
 
 from .. import interrupts
 from ..ocp.checks import GAP_RTOL as SMOOTHING_GAP_RTOL
-from ..ocp.oracle import OracleScenario, OracleSolver, stage_cost_of_result
+from ..ocp.oracle import DEFAULT_TIME_LIMIT_S, OracleSolver, oracle_grid_dt, scenario_oracle, stage_cost_of_result
 from ..control import ClosedLoop, ControlSequence
 from ..progress import Progress
 from ..results import SimulationResult, write_json
@@ -145,18 +146,22 @@ def run_comparison(scenario: Any, settings: MPCSettings | None = None, laws: tup
         warn.append("OCP-D skipped: the time limit has passed")
     elif with_ocpd and scenario.n_followers == 1:
         t0 = time.perf_counter()
-        say("OCP-D lower bound (whole scenario, IPOPT)")
-        scn = OracleScenario(leader=scenario.leader, t_end=scenario.t_end, dt=s.dt, h0=scenario.gaps0[0],
-                             v0=scenario.speeds0[0], S0=scenario.ev.cell.soc0, ev=scenario.ev, weights=s.weights,
-                             bounds=s.bounds, smooth=s.smooth, objective=s.objective, name=scenario.name)
-        res = OracleSolver(scn).solve()
+        # a long run (e.g. a whole drive cycle) gets the coarser 1 s grid (oracle_grid_dt, meta 'grid_dt')
+        scn = scenario_oracle(scenario, oracle_grid_dt(scenario.t_end, s.dt, scenario.units), s.weights, s.bounds,
+                              s.smooth, s.objective)
+        say(f"OCP-D lower bound (whole scenario, IPOPT, N = {scn.N}, dt = {scn.dt:.4g})")
+        # IPOPT's wall-time limit: what is left of the run's time limit (at most the OCP-D default)
+        left = progress.remaining_s() if progress is not None else math.inf
+        res = OracleSolver(scn, progress=say, time_limit_s=min(DEFAULT_TIME_LIMIT_S, max(left, 1e-3))).solve()
         interrupts.check()  # IPOPT turns Ctrl-C into a failed solve
         tim["ocpd"] = time.perf_counter() - t0
-        ocpd = {"success": res.success, "status": res.status, "cost_s9": res.objective}
+        # a failed or time-limited solve bounds nothing: no cost is reported for it
+        ocpd = {"success": res.success, "status": res.status, "cost_s9": res.objective if res.success else float("nan"),
+                "grid_dt": scn.dt}
         if res.success:
             # replay the optimal controls open loop through the same exact plant: every §10 metric
             say("OCP-D: replaying its controls through the exact plant")
-            seq = ControlSequence(tuple(np.asarray(res.controls["a"], float).ravel()), s.dt, "ocp-d")
+            seq = ControlSequence(tuple(np.asarray(res.controls["a"], float).ravel()), scn.dt, "ocp-d")
             r = ClosedLoop(scenario.leader, [seq], scenario.ev).run(list(scenario.gaps0), list(scenario.speeds0),
                                                                    scenario.t_end, progress=_progress(say, "ocp-d replay"))
             m = r.metrics()[0]

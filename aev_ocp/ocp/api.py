@@ -9,7 +9,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, Callable, Sequence
 
 import numpy as np
 
@@ -19,8 +19,9 @@ from .current_profile import E_REQ_J, SOC0, T_F_S, CurrentProfileSolver, compare
 from .checks import GAP_RTOL, multistart_line, record_smoothing_gap, record_term_gap, refinement_line
 from .checks import multistart as run_multistart
 from .eco_trip import GUESSES, EcoTrip, EcoTripSolver
-from .oracle import (OracleScenario, OracleSolver, canonical_scenario, drive_cycle_scenario,
-                     stage_cost_of_result, stage_cost_of_trajectory)
+from .oracle import (COARSE_GRID_S, DEFAULT_TIME_LIMIT_S, PROGRESS_EVERY_S, OracleScenario, OracleSolver,
+                     canonical_scenario, drive_cycle_scenario, scenario_oracle, stage_cost_of_result,
+                     stage_cost_of_trajectory)
 from .prop31 import run_prop31
 from .result import OCPResult, write_json_atomic
 from ..progress import Progress, TimeLimitReached
@@ -51,10 +52,8 @@ def oracle_scenario_from_file(path: str | Path, dt: float = 0.1) -> OracleScenar
 
     sc = _load(path)
     if isinstance(sc.leader, SpeedTrace):
-        dt = sc.units.time_from_si(1.0)
-    n = max(1, round(sc.t_end / dt))
-    return OracleScenario(leader=sc.leader, t_end=sc.t_end, dt=sc.t_end / n, h0=sc.gaps0[0], v0=sc.speeds0[0],
-                          S0=sc.ev.cell.soc0, ev=sc.ev, name=sc.name)
+        dt = sc.units.time_from_si(COARSE_GRID_S)
+    return scenario_oracle(sc, dt)
 
 
 def _write_result(res: OCPResult, out: Path, stem: str) -> None:
@@ -297,19 +296,24 @@ ORACLE_GUESSES: dict[str, Any] = {"proposed": Proposed, "ovfl": OVFL, "ovm": OVM
 
 
 def run_oracle(method: str = "ms", out_dir: str | Path | None = None, scenario: str | Path | None = None,
-               which: str = "canonical", multistart: bool = False) -> dict[str, Any]:
+               which: str = "canonical", multistart: bool = False, time_limit_s: float | None = DEFAULT_TIME_LIMIT_S,
+               progress: Callable[[str], None] | bool | None = None,
+               progress_every_s: float = PROGRESS_EVERY_S) -> dict[str, Any]:
     """OCP-D lower bound. scenario: a TOML file, else ``which`` = 'canonical' (PROBLEM.md §9) or
     'udds' (first 600 s of UDDS, U = 13 m/s, dt = 1 s). Also reports the same §9 cost of the
     proposed law and OVFL sampled per dt (when the sampled law is stable, α·dt < 1).
     The optimum is replayed through the exact plant (:func:`replay_exact`, smoothing-gap check).
     multistart: solve from each closed-form law's rollout (ORACLE_GUESSES), keep the best, report the
     spread (meta['multistart']); default: the proposed law's rollout only. OCP-D's N is fixed by §9's
-    dt, so there is no N-doubling."""
+    dt, so there is no N-doubling. time_limit_s: IPOPT's wall-time limit per solve [s] (a solve stopped
+    there is reported, never used as the bound); progress: a line every few seconds while IPOPT
+    iterates (True: on stderr)."""
     if scenario is not None:
         scn = oracle_scenario_from_file(scenario)
     else:
         scn = canonical_scenario() if which == "canonical" else drive_cycle_scenario(which)
-    solver = OracleSolver(scn, method=method)
+    solver = OracleSolver(scn, method=method, time_limit_s=time_limit_s, progress=progress,
+                          progress_every_s=progress_every_s)
     if multistart:
         res = run_multistart(lambda g: solver.solve(guess_law=ORACLE_GUESSES[g]()), list(ORACLE_GUESSES))[0]
     else:
@@ -320,7 +324,8 @@ def run_oracle(method: str = "ms", out_dir: str | Path | None = None, scenario: 
     lines = [f"OCP-D oracle following, scenario {scn.name}: N = {scn.N}, dt = {scn.dt:g} (model time), method {method}",
              f"status {res.status} ({res.message}), iterations {res.iterations}, solve {res.wall_time_s:.3f} s, "
              f"build {solver.build_time_s:.2f} s, max violation {res.max_violation:.2g}",
-             f"lower bound Σℓ·dt = {res.objective:.6g}"]
+             f"lower bound Σℓ·dt = {res.objective:.6g}" if res.success else
+             f"no lower bound: {res.message} (the last iterate's Σℓ·dt {res.objective:.6g} bounds nothing)"]
     if res.success:
         lines.append("  terms: " + ", ".join(f"{k} {v:.5g}" for k, v in res.meta["cost_terms"].items()))
         rp = res.meta.get("replay", {})
@@ -336,7 +341,7 @@ def run_oracle(method: str = "ms", out_dir: str | Path | None = None, scenario: 
         lines.append(f"{nm} (continuous law, exact plant, same §9 cost at the grid nodes): {c:.6g}{notes.get(nm, '')}")
     res.meta["closed_form_costs"] = laws
     out = {"result": res, "closed_form_costs": laws, "table": "\n".join(lines), "ok": res.success,
-           "build_time_s": solver.build_time_s}
+           "build_time_s": solver.build_time_s, "time_limit": res.status == "time_limit"}
     if out_dir is not None:
         _write_result(res, Path(out_dir), f"oracle_{scn.name}")
     return out

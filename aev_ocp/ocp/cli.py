@@ -38,9 +38,11 @@ def _parser() -> argparse.ArgumentParser:
                          "(--grid entries override it)")
     ap.add_argument("--time-limit", type=float, default=None, metavar="S",
                     help="current-profile, eco-trip: wall-clock limit [s]; the sweep stops cleanly after the solve "
-                         "that passes it, the output is flagged partial (default: none)")
+                         "that passes it, the output is flagged partial (default: none). oracle: IPOPT's wall-time "
+                         "limit (default 600 s); a solve stopped there is reported as not optimal, with no bound")
     ap.add_argument("--progress-every", type=float, default=2.0, metavar="S",
-                    help="seconds between progress lines (solve k/n, elapsed, ETA) on stderr (default: 2)")
+                    help="seconds between progress lines (solve k/n, elapsed, ETA; oracle: IPOPT iteration, "
+                         "objective, infeasibility) on stderr (default: 2)")
     return ap
 
 
@@ -132,7 +134,8 @@ def _cli_ocp(argv: list[str]) -> int:
     if args.multistart and args.problem not in ("eco-trip", "oracle"):
         raise ParameterError(f"ocp {args.problem}: --multistart applies to eco-trip and oracle only")
     if args.problem == "oracle" and args.N is not None:
-        raise ParameterError("ocp oracle: --N does not apply (N = t_end/dt of the scenario, dt = 0.1)")
+        raise ParameterError("ocp oracle: --N does not apply (N = t_end/dt of the scenario: dt = 0.1, "
+                             "1 s on a drive cycle)")
     _check_size(args)
     from ..scenarios import find_scenario, load_scenario
 
@@ -144,8 +147,8 @@ def _cli_ocp(argv: list[str]) -> int:
 
     grids = parse_grids(args.problem, args.grid, args.grid_file)
     check_time_limit(args.time_limit, "--time-limit")
-    if args.time_limit is not None and args.problem not in ("current-profile", "eco-trip"):
-        raise ParameterError(f"ocp {args.problem}: --time-limit applies to current-profile and eco-trip")
+    if args.time_limit is not None and args.problem not in ("current-profile", "eco-trip", "oracle"):
+        raise ParameterError(f"ocp {args.problem}: --time-limit applies to current-profile, eco-trip and oracle")
     prog = Progress(f"ocp {args.problem}", unit="solves", time_limit_s=args.time_limit,
                     every_s=args.progress_every)
     scenario_name = load_scenario(find_scenario(args.scenario)).name if args.scenario is not None else None
@@ -177,7 +180,12 @@ def _cli_ocp(argv: list[str]) -> int:
         ok = rep["ok"]
         runs = {**rep["results"], **{f"sweep{k:03d}": r for k, r in enumerate(rep["sweep_results"])}}
     else:
-        rep = api.run_oracle(method=args.method, out_dir=out, scenario=args.scenario, multistart=args.multistart)
+        from .oracle import DEFAULT_TIME_LIMIT_S
+
+        # IPOPT stops itself at the limit (max_wall_time); its iterations are reported every --progress-every s
+        rep = api.run_oracle(method=args.method, out_dir=out, scenario=args.scenario, multistart=args.multistart,
+                             time_limit_s=args.time_limit or DEFAULT_TIME_LIMIT_S, progress=prog.say,
+                             progress_every_s=args.progress_every)
         print(rep["table"])
         ok = rep["ok"]
         runs = {"main": rep["result"]}
@@ -196,5 +204,8 @@ def _cli_ocp(argv: list[str]) -> int:
     if not ok:
         from ..cli import error_line
 
-        error_line(f"ocp {args.problem}: the solver did not converge (see the table above)")
+        if args.problem == "oracle" and rep["time_limit"]:
+            error_line(f"ocp oracle: {rep['result'].message} (no lower bound; raise --time-limit)")
+        else:
+            error_line(f"ocp {args.problem}: the solver did not converge (see the table above)")
     return 0 if ok else 1

@@ -8,8 +8,10 @@ closed-form laws are measured against (compare with :func:`stage_cost_of_traject
 from __future__ import annotations
 
 import math
+import sys
+import time
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Callable, Sequence
 
 import casadi as ca
 import numpy as np
@@ -24,6 +26,21 @@ from .following import (TERM_NAMES, FollowingBounds, FollowingWeights, following
 from .problem import OCPProblem
 from .result import OCPResult
 from .transcription import OCPSolver, TranscriptionOptions
+
+#: Default wall-time limit of one OCP-D solve [s]: the whole UDDS on the 1 s grid takes ~5 s
+#: (benchmarks/bench_ocp.py), so this only stops a run that has gone wrong; IPOPT's max_wall_time.
+DEFAULT_TIME_LIMIT_S = 600.0
+#: Seconds between two OCP-D progress lines on stderr while IPOPT iterates.
+PROGRESS_EVERY_S = 3.0
+#: Largest OCP-D grid solved on the caller's dt; beyond it :func:`oracle_grid_dt` coarsens to the 1 s
+#: grid of the drive cycles. Measured on 2 shared cores (benchmarks/bench_ocp.py --udds-only): whole UDDS
+#: at 1 s, N = 1369: 31 IPOPT iterations, 5-10 s, 0.1 GB; at the MPC's dt = 0.1 (0.088 s), N = 15 516:
+#: 62 iterations, 127 s, 0.53 GB (was 15-28 min and 7.5 GB expanded to SX with second-order corrections).
+#: The two optima differ (28.13 vs 29.20 on UDDS): Σ ℓ(z_k)·dt samples ℓ at each interval's start, so
+#: compare costs on one grid only (the MPC comparison replays OCP-D's controls and costs them on dt).
+ORACLE_MAX_INTERVALS = 2000
+#: The coarse OCP-D grid [s]: the EPA cycles are sampled at 1 s (aev_ocp/data/cycles).
+COARSE_GRID_S = 1.0
 
 
 @dataclass(frozen=True)
@@ -129,25 +146,139 @@ def rollout_guess(scn: OracleScenario, law: CarFollowingLaw | None = None, subst
     return np.hstack([np.asarray(scn.z0, float).reshape(5, 1), np.asarray(Xn)]), np.asarray(U)
 
 
+class _IterationReporter(ca.Callback):
+    """IPOPT iteration callback of OCP-D: counts iterations and, every ``every_s`` seconds, reports
+    iteration k / max_iter, objective, largest constraint violation (NLP scaling) and elapsed time."""
+
+    def __init__(self, nx: int, ng: int, max_iter: int, bounds: tuple[np.ndarray, ...],
+                 time_limit_s: float | None) -> None:
+        ca.Callback.__init__(self)
+        self.nx, self.ng, self.max_iter, self.bounds, self.time_limit_s = nx, ng, max_iter, bounds, time_limit_s
+        self.say: Callable[[str], None] | None = None
+        self.every_s = PROGRESS_EVERY_S
+        self.reset()
+        self.construct("ocp_d_progress", {})
+
+    def reset(self) -> None:
+        """Start of a solve: iteration count and clock back to zero."""
+        self.k, self.t0, self.last = -1, time.perf_counter(), -math.inf
+        self.lines: list[dict[str, float]] = []
+
+    def get_n_in(self) -> int:
+        return ca.nlpsol_n_out()
+
+    def get_n_out(self) -> int:
+        return 1
+
+    def get_name_in(self, i: int) -> str:
+        return ca.nlpsol_out(i)
+
+    def get_name_out(self, i: int) -> str:
+        return "ret"
+
+    def get_sparsity_in(self, i: int) -> ca.Sparsity:
+        n = ca.nlpsol_out(i)
+        if n == "f":
+            return ca.Sparsity.scalar()
+        if n in ("x", "lam_x"):
+            return ca.Sparsity.dense(self.nx)
+        if n in ("g", "lam_g"):
+            return ca.Sparsity.dense(self.ng)
+        return ca.Sparsity(0, 0)
+
+    def eval(self, arg: Sequence[ca.DM]) -> list[Any]:
+        self.k += 1  # IPOPT calls back at iteration 0 (the initial point) and after every iteration
+        now = time.perf_counter() - self.t0
+        if self.say is not None and now - self.last >= self.every_s:
+            self.last = now
+            lbx, ubx, lbg, ubg = self.bounds
+            x, g = np.asarray(arg[0]).ravel(), np.asarray(arg[2]).ravel()
+            viol = max(float(np.max(np.maximum(lbx - x, x - ubx), initial=0.0)),
+                       float(np.max(np.maximum(lbg - g, g - ubg), initial=0.0)))
+            f = float(arg[1])
+            self.lines.append({"iteration": self.k, "objective": f, "infeasibility": viol, "elapsed_s": now})
+            left = (f", time limit {self.time_limit_s:g} s: at most {max(self.time_limit_s - now, 0.0):.0f} s left"
+                    if self.time_limit_s is not None else "")
+            self.say(f"OCP-D: iteration {self.k} / {self.max_iter}, objective {f:.6g}, infeasibility {viol:.2g}, "
+                     f"{now:.1f} s elapsed{left}")
+        return [0]
+
+
+class _OracleOCPSolver(OCPSolver):
+    """OCPSolver with IPOPT's wall-time limit and the progress callback (built with the solver)."""
+
+    def __init__(self, problem: OCPProblem, options: TranscriptionOptions, time_limit_s: float | None) -> None:
+        self.time_limit_s = time_limit_s
+        self.reporter: _IterationReporter | None = None
+        super().__init__(problem, options)
+
+    def _ipopt_opts(self, warm: bool) -> dict[str, Any]:
+        opts = super()._ipopt_opts(warm)
+        # no second-order corrections: on drive cycles they made IPOPT crawl at tiny steps with the dual
+        # infeasibility stuck (whole HWFET at 1 s: iteration limit 1000 reached, 106 s; US06 191
+        # iterations; UDDS 60 time units at dt = 0.1: 112) where without them it converges to the same
+        # optimum (objectives equal to 1e-10) in 45, 52 and 14 iterations; canonical and whole UDDS unchanged
+        opts["ipopt"]["max_soc"] = 0
+        if self.time_limit_s is not None:
+            opts["ipopt"]["max_wall_time"] = float(self.time_limit_s)
+        if self.reporter is None:
+            self.reporter = _IterationReporter(self._nlp["x"].numel(), self._nlp["g"].numel(), self.options.max_iter,
+                                               (self._lbx, self._ubx, self._lbg, self._ubg), self.time_limit_s)
+        opts["iteration_callback"] = self.reporter
+        return opts
+
+
+def _stderr(message: str) -> None:
+    print(message, file=sys.stderr, flush=True)
+
+
 class OracleSolver:
     """OCP-D built once for a scenario's grid (N, dt); :meth:`solve` re-solves (warm) for new
-    initial states or leaders on the same grid."""
+    initial states or leaders on the same grid.
+
+    mx_map: keep the NLP as MX calls of one mapped interval Function (default; build 0.3 s and 0.1 GB
+    for the whole UDDS at 1 s instead of 6 s and 0.66 GB expanded to SX, same optimum, benchmarks/bench_ocp.py).
+    time_limit_s: IPOPT's wall-time limit [s] (None: none); a solve stopped there has status 'time_limit'
+    and a message that says so. progress: called with one line every ``progress_every_s`` seconds
+    while IPOPT iterates, and once before and after (True: print on stderr; None/False: silent).
+    """
 
     def __init__(self, scn: OracleScenario, method: str = "ms", rk4_substeps: int = 1, degree: int = 3,
-                 scheme: str = "radau", tol: float = 1e-8) -> None:
+                 scheme: str = "radau", tol: float = 1e-8, mx_map: bool = True,
+                 time_limit_s: float | None = DEFAULT_TIME_LIMIT_S,
+                 progress: Callable[[str], None] | bool | None = None,
+                 progress_every_s: float = PROGRESS_EVERY_S, max_iter: int = 1000) -> None:
+        if time_limit_s is not None and not (isinstance(time_limit_s, (int, float)) and math.isfinite(time_limit_s)
+                                             and time_limit_s > 0):
+            raise ParameterError(f"OCP-D: time limit = {time_limit_s!r} s is not allowed: must be a finite number > 0")
+        if not (isinstance(progress_every_s, (int, float)) and progress_every_s >= 0):
+            raise ParameterError(f"OCP-D: progress_every_s = {progress_every_s!r} is not allowed: must be >= 0")
         self.scn = scn
-        self.solver = OCPSolver(oracle_problem(scn), TranscriptionOptions(
-            method=method, N=scn.N, rk4_substeps=rk4_substeps, degree=degree, scheme=scheme, tol=tol))
+        self.time_limit_s = time_limit_s
+        self.solver = _OracleOCPSolver(oracle_problem(scn), TranscriptionOptions(
+            method=method, N=scn.N, rk4_substeps=rk4_substeps, degree=degree, scheme=scheme, tol=tol,
+            mx_map=mx_map, max_iter=max_iter), time_limit_s)
+        rep = self.solver.reporter
+        assert rep is not None
+        rep.say = _stderr if progress is True else (progress or None)
+        rep.every_s = float(progress_every_s)
 
     @property
     def build_time_s(self) -> float:
         """Time to build the NLP and IPOPT [s]."""
         return self.solver.build_time_s
 
+    @property
+    def progress_lines(self) -> list[dict[str, float]]:
+        """What the last solve reported: iteration, objective, infeasibility, elapsed_s per line."""
+        return list(self.solver.reporter.lines) if self.solver.reporter is not None else []
+
     def solve(self, scn: OracleScenario | None = None, warm: bool = False,
               guess_law: CarFollowingLaw | None = None) -> OCPResult:
         """Solve for ``scn`` (default: the scenario given at construction; must have the same N).
-        Initial guess: :func:`rollout_guess` with the proposed law (or the previous solution if warm)."""
+        Initial guess: :func:`rollout_guess` with the proposed law (or the previous solution if warm).
+        A solve stopped by the time limit returns status 'time_limit' (success False) with the message
+        'OCP-D stopped at the time limit of X s after k iterations; the last iterate is not optimal'."""
         scn = scn or self.scn
         if scn.N != self.scn.N:
             raise ParameterError(f"OracleSolver: scenario has N = {scn.N}, solver was built for N = {self.scn.N}")
@@ -160,16 +291,58 @@ class OracleSolver:
                 eta = scn.ev.vehicle.efficiency
                 U = np.vstack([U, X[1, :-1] * np.where(U[0] >= 0, U[0] / eta, eta * U[0])])
             guess = (X, U)
+        rep = self.solver.reporter
+        if rep is not None:
+            rep.reset()
+            if rep.say is not None:
+                lim = f", time limit {self.time_limit_s:g} s" if self.time_limit_s is not None else ""
+                rep.say(f"OCP-D: {scn.name}, N = {scn.N} intervals of dt = {scn.dt:.4g} (model time), IPOPT{lim}")
         res = self.solver.solve(scn.z0, scn.t_end, p=weight_vector(scn.weights), w=np.vstack([vm, vh]),
                                 guess=guess, warm=warm,
                                 objective_name="sum_k l(z_k, a_k) dt (PROBLEM.md §9)")
+        if res.status == "time_limit":
+            res.message = (f"OCP-D stopped at the time limit of {self.time_limit_s:g} s after {res.iterations} "
+                           "iterations; the last iterate is not optimal")
+            res.warnings.append(res.message)
+        if rep is not None and rep.say is not None:
+            rep.say(f"OCP-D: {res.status} after {res.iterations} iterations, {res.wall_time_s:.1f} s"
+                    + ("" if res.success else f" ({res.message})"))
         res.meta.update({"scenario": scn.name, "dt": scn.dt, "leader_speed_mean": vm, "leader_speed_hat": vh,
+                         "time_limit_s": self.time_limit_s,
                          "units": {"length_m": scn.ev.units.length_m, "speed_mps": scn.ev.units.speed_mps}})
         if res.success:
             res.meta["cost_terms"] = stage_cost_of_trajectory(
                 t, res.states["h"], res.states["v"], res.states["V1"], res.states["V2"], res.states["S"],
                 res.controls["a"], vh, scn.weights, scn.ev, scn.smooth, scn.objective)
         return res
+
+
+def oracle_grid_dt(t_end: float, dt: float, units: Units, max_intervals: int = ORACLE_MAX_INTERVALS) -> float:
+    """The OCP-D grid step [model time] for a run over [0, t_end] whose controller uses ``dt``: ``dt``
+    itself when t_end/dt ≤ max_intervals; else the drive cycles' 1 s grid (COARSE_GRID_S), and
+    t_end/max_intervals if even that is too fine. Adjusted to divide t_end. A coarser grid makes OCP-D
+    the best control held for dt_c (an upper bound of the fine-grid optimum): callers say so."""
+    if not (math.isfinite(t_end) and math.isfinite(dt) and t_end > 0 and dt > 0):
+        raise ParameterError(f"OCP-D: t_end = {t_end!r} and dt = {dt!r} must be finite numbers > 0")
+    step = dt
+    if t_end / dt > max_intervals:
+        step = max(dt, units.time_from_si(COARSE_GRID_S))
+        if t_end / step > max_intervals:
+            step = t_end / max_intervals
+    return t_end / max(1, round(t_end / step))
+
+
+def scenario_oracle(sc: Any, dt: float, weights: FollowingWeights | None = None,
+                    bounds: FollowingBounds | None = None, smooth: PowertrainOptions | None = None,
+                    objective: str = "heat") -> OracleScenario:
+    """OCP-D of a loaded scenario (:class:`aev_ocp.scenarios.Scenario`): its leader, t_end,
+    vehicle/pack and follower 1's h(0), v(0), S(0), on the grid of step ``dt`` [model time] (adjusted to
+    divide t_end); weights, bounds, smoothing and objective default to PROBLEM.md §9."""
+    n = max(1, round(sc.t_end / dt))
+    return OracleScenario(leader=sc.leader, t_end=sc.t_end, dt=sc.t_end / n, h0=sc.gaps0[0], v0=sc.speeds0[0],
+                          S0=sc.ev.cell.soc0, ev=sc.ev, weights=weights or FollowingWeights(),
+                          bounds=bounds or FollowingBounds(), smooth=smooth if smooth is not None else PowertrainOptions(),
+                          objective=objective, name=sc.name)
 
 
 def stage_cost_of_trajectory(t: np.ndarray, h: np.ndarray, v: np.ndarray, V1: np.ndarray, V2: np.ndarray,

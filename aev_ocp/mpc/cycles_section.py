@@ -1,0 +1,185 @@
+"""Report section "MPC on drive cycles" (``aev-ocp reproduce``): one follower behind UDDS, HWFET, US06
+and the paper's leader, MPC with each forecast beside the proposed law and OVFL, and the UDDS platoon
+with every follower on MPC. Rows from :mod:`aev_ocp.mpc.cycles`; written as CSV, JSON and Markdown."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+from pathlib import Path
+from typing import Any, Callable, Sequence
+
+from ..report import csv_text, fmt, markdown_table, write_text
+from ..results import write_json
+from .cycles import (COLUMNS, CYCLE_SCENARIOS, PREDICTORS, REFERENCE, cycle_rows, cycle_scenario, platoon_rows,
+                     rank_rows, run_cycle)
+
+#: Segment of each cycle run in ``reproduce`` [s]: the first 120 s. Measured: 4 cycles × 2 forecasts of
+#: 120 s and the 60 s platoon take ~1.5-2 min on 2 shared cores with the rti path below; the whole
+#: cycles (1369 s UDDS) take ~10x longer, so they stay with the scenarios (``aev-ocp mpc
+#: mpc_udds_single``) and benchmarks/bench_mpc_cycles.py.
+SEGMENT_S = 120.0
+#: Segment of the 5-follower UDDS platoon in ``reproduce`` [s] (five MPC solves per step).
+PLATOON_SEGMENT_S = 60.0
+#: Solver path of the section: real-time iteration, HPIPM, compiled functions — the fast path of the
+#: shipped MPC scenarios (mpc_paper_single: closed-loop cost within 0.001 % of the IPOPT path's,
+#: benchmarks/bench_mpc.py). Only the path is set: the formulation is MPCSettings()'s default.
+SOLVER_PATH: dict[str, Any] = {"solver": "rti", "qp_solver": "hpipm", "codegen": True}
+#: Progress lines the section reports (declared to the reproduce Progress counter).
+STEPS = 4 * 2 * 6 + 6 + 1  # 6 lines per MPC run (start + every 25 %), the platoon run, writing
+
+
+def _prefixed(progress: Callable[[str], None], prefix: str) -> Callable[[str], None]:
+    return lambda m: progress(prefix + m)
+
+
+def _capped(sc: Any, t_end_max: float | None) -> Any:
+    return sc if t_end_max is None or sc.t_end <= t_end_max else sc.replace(t_end=t_end_max)
+
+
+def section_settings() -> Any:
+    """MPCSettings() with the section's solver path (:data:`SOLVER_PATH`)."""
+    from .settings import MPCSettings
+
+    return MPCSettings().with_(**SOLVER_PATH)
+
+
+def _cell(key: str, v: Any) -> str:
+    if key == "comparable":
+        return "yes" if v else "**no**"
+    if key == "rank":
+        return "not ranked" if v is None else str(v)
+    if isinstance(v, str):
+        return v or "—"
+    if isinstance(v, float) and math.isinf(v):
+        return "∞"
+    return fmt(v)
+
+
+#: Markdown headers of the main table (units in brackets).
+HEADERS: dict[str, str] = {
+    "cycle": "cycle", "vehicle": "follower", "controller": "controller", "predictor": "forecast", "status": "run",
+    "heat_pack_J_per_km": "pack ∫Q [J/km]", "omega_J_per_kg_per_km": "ω [J/kg/km]", "distance_m": "distance [m]",
+    "duration_s": "duration [s]", "min_gap_m": "min gap [m]", "min_ttc_s": "min TTC [s]",
+    "rms_jerk_model": "RMS jerk [model]", "fallbacks": "fallbacks", "solve_ms_p50": "solve p50 [ms]",
+    "solve_ms_p99": "solve p99 [ms]", "forecast_rms": "forecast RMS [model]", "distance_diff_pct": "Δdistance [%]",
+    "duration_diff_pct": "Δduration [%]", "comparable": "comparable", "flags": "flags", "rank": "rank (∫Q/km)"}
+#: Columns of the Markdown table (the CSV/JSON have all of :data:`COLUMNS`).
+MD_COLUMNS: tuple[str, ...] = ("cycle", "controller", "predictor", "heat_pack_J_per_km", "omega_J_per_kg_per_km",
+                               "distance_m", "min_gap_m", "min_ttc_s", "rms_jerk_model", "fallbacks", "solve_ms_p50",
+                               "solve_ms_p99", "forecast_rms", "comparable", "flags", "rank")
+
+
+def write_tables(rows: Sequence[dict[str, Any]], platoon: Sequence[dict[str, Any]], out: Path,
+                 meta: dict[str, Any]) -> tuple[str, list[Path]]:
+    """cycles.csv, cycles.json (rows, platoon rows, meta) and cycles.md into ``out``; returns the Markdown
+    table of ``rows`` and the files."""
+    out.mkdir(parents=True, exist_ok=True)
+    md = markdown_table([HEADERS[k] for k in MD_COLUMNS], [[_cell(k, r[k]) for k in MD_COLUMNS] for r in rows])
+    files = [write_text(out / "cycles.csv", csv_text(list(COLUMNS), [[r[k] for k in COLUMNS] for r in rows])),
+             write_json(out / "cycles.json", {"rows": list(rows), "platoon": list(platoon), "meta": meta}),
+             write_text(out / "cycles.md", md)]
+    return md, files
+
+
+def platoon_markdown(rows: Sequence[dict[str, Any]]) -> str:
+    """Per-follower pack ∫Q of the MPC platoon vs the proposed law."""
+    head = ["follower", "pack ∫Q MPC [J]", "pack ∫Q proposed [J]", "MPC [J/km]", "proposed [J/km]", "change [%]",
+            "fallbacks", "min gap MPC [m]", "comparable"]
+    body = [[str(r["vehicle"]), fmt(r["heat_pack_J_mpc"]), fmt(r["heat_pack_J_ref"]), fmt(r["heat_pack_J_per_km_mpc"]),
+             fmt(r["heat_pack_J_per_km_ref"]), (f"{r['change_pct']:+.2f}" if r["comparable"] else "not ranked"),
+             fmt(r["fallbacks"]), fmt(r["min_gap_m"]), _cell("comparable", r["comparable"])] for r in rows]
+    return markdown_table(head, body)
+
+
+def verdicts(rows: Sequence[dict[str, Any]]) -> list[str]:
+    """Per cycle: the comparable controller with the lowest pack ∫Q/km and how MPC compares with the
+    proposed law (comparable rows only; a cycle with non-comparable MPC rows says so)."""
+    lines = []
+    for cyc in dict.fromkeys(r["cycle"] for r in rows):
+        rs = [r for r in rows if r["cycle"] == cyc]
+        best = [r for r in rs if r["rank"] == 1]
+        ref = next((r for r in rs if r["controller"] == REFERENCE and r["comparable"]), None)
+        parts = []
+        for r in rs:
+            if r["controller"] != "mpc":
+                continue
+            if not r["comparable"] or ref is None:
+                parts.append(f"MPC/{r['predictor']} not comparable ({r['flags']}), not ranked")
+            else:
+                d = 100.0 * (r["heat_pack_J_per_km"] / ref["heat_pack_J_per_km"] - 1.0)
+                parts.append(f"MPC/{r['predictor']} {d:+.1f} % pack ∫Q/km vs the proposed law")
+        name = (lambda r: "MPC" if r["controller"] == "mpc" else r["controller"])  # noqa: E731
+        lead = (f"lowest pack ∫Q/km among comparable runs: {name(best[0])}"
+                + (f"/{best[0]['predictor']}" if best[0]["predictor"] != "—" else "")) if best else "no comparable run"
+        lines.append(f"- **{cyc}**: {lead}; " + "; ".join(parts) + ".")
+    return lines
+
+
+def cycles_section(out_dir: Any, progress: Callable[[str], None], segment_s: float | None = SEGMENT_S,
+                   platoon_segment_s: float | None = PLATOON_SEGMENT_S,
+                   cycles: Sequence[str] = tuple(CYCLE_SCENARIOS), predictors: Sequence[str] = PREDICTORS,
+                   settings: Any = None, t_end_max: float | None = None) -> str:
+    """The section: runs, tables (``out_dir``/mpc_cycles/cycles.{csv,json,md}) and Markdown text.
+    segment_s / platoon_segment_s: first seconds of each cycle / of the platoon run (None: whole);
+    t_end_max: a further cap on every run's horizon [model time] (reduced reproduce configurations)."""
+    out = Path(out_dir) / "mpc_cycles"
+    s = settings if settings is not None else section_settings()
+    t0 = time.perf_counter()
+    rows: list[dict[str, Any]] = []
+    wall: dict[str, dict[str, float]] = {}
+    seg_model: dict[str, float] = {}
+    for cyc in cycles:
+        sc = _capped(cycle_scenario(cyc, segment_s), t_end_max)
+        seg_model[cyc] = sc.t_end
+        runs, wall[cyc] = run_cycle(sc, predictors, settings=s, log=_prefixed(progress, f"MPC cycles, {cyc}: "))
+        rows += cycle_rows(cyc, runs, vehicles=[0])
+    rank_rows(rows)
+    sc = _capped(cycle_scenario("udds", platoon_segment_s, platoon=True), t_end_max)
+    pred = sc.extra["mpc"].settings.predictor
+    runs, wall["udds_platoon"] = run_cycle(sc, (pred,), laws=(REFERENCE,), settings=s,
+                                           log=_prefixed(progress, "MPC cycles, UDDS platoon: "))
+    plat = platoon_rows(runs, ("mpc", pred))
+    elapsed = time.perf_counter() - t0
+    progress("MPC cycles: writing tables")
+    seg_txt = "whole cycles" if segment_s is None else f"the first {segment_s:g} s of each cycle"
+    if t_end_max is not None:
+        seg_txt += f", capped at t = {t_end_max:g} model time units (reduced configuration)"
+    meta = {"segment_s": segment_s, "platoon_segment_s": platoon_segment_s, "t_end_model": seg_model,
+            "settings": dataclasses.asdict(s), "wall_time_s": wall,
+            "section_wall_time_s": elapsed, "platoon_predictor": pred}
+    md, _ = write_tables(rows, plat, out, meta)
+    n_bad = sum(not r["comparable"] for r in rows)
+    lines = ["## MPC on drive cycles", "",
+             f"One follower from rest, 0.8 L behind the leader (scenarios {', '.join(CYCLE_SCENARIOS[c] for c in cycles)}), "
+             f"over {seg_txt} (reproduce runs a segment to stay usable: the section took {elapsed:.0f} s here; the whole "
+             "cycles run with `aev-ocp mpc mpc_udds_single` etc. and benchmarks/bench_mpc_cycles.py). MPC: the "
+             f"MPCSettings() default formulation on the solver path {s.solver}"
+             f"{'+codegen' if s.codegen else ''} (qp {s.qp_solver}), N = {s.N}, dt = {s.dt:g}, with a measured forecast "
+             f"({', '.join(predictors)}; no oracle); the laws do not forecast (—). Exact plant (CVODES). "
+             "Per-km values divide by the follower's own distance. Solve p50/p99: per-step MPC solve time.", "",
+             f"**Comparable results.** A row whose distance or duration differs from the proposed law's by more than "
+             f"1 % or whose run ended by an event is marked **no** with the reason and is not ranked nor used in a "
+             f"verdict ({n_bad} such rows here). Rank: pack ∫Q/km among the comparable rows of the cycle.", "",
+             md, "Verdicts (comparable rows only):", ""] + verdicts(rows) + ["",
+             f"UDDS platoon (mpc_udds_platoon, first {sc.t_end * sc.units.time_s:.4g} s): five followers all on MPC (follower 1 "
+             f"{pred}, the others their predecessor's plan) vs all five on the proposed law, per follower:", "",
+             platoon_markdown(plat),
+             "Files: `mpc_cycles/cycles.csv`, `mpc_cycles/cycles.json` (every column, the platoon rows, run wall "
+             "times), `mpc_cycles/cycles.md`.", ""]
+    return "\n".join(lines)
+
+
+def _reproduce_section(out_dir: Any, progress: Callable[[str], None]) -> str:
+    """The section as ``reproduce`` runs it: a reduced configuration's scenario_t_end_max [model time]
+    caps every segment (e.g. ReproduceConfig.quick(): 10 time units)."""
+    from ..reproduce import active_config
+
+    cap = active_config().scenario_t_end_max
+    if cap is None:
+        return cycles_section(out_dir, progress)
+    return cycles_section(out_dir, progress, t_end_max=cap)
+
+
+REPRODUCE_SECTIONS = [("mpc-cycles", _reproduce_section, STEPS)]  # listed in aev_ocp.reproduce.SECTION_PROVIDERS
