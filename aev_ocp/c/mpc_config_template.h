@@ -24,6 +24,8 @@
 #define AEV_MPC_COLD_MAX_ITER @COLD_MAX_ITER@ /* SQP iterations at most from the cold-start guess */
 #define AEV_MPC_COLD_REG0 @COLD_REG0@ /* cold start: Hessian + reg I, reg from this, /10 when max|dx| < COLD_REG_STEP */
 #define AEV_MPC_COLD_REG_STEP @COLD_REG_STEP@
+#define AEV_MPC_COLD_REG_MAX @COLD_REG_MAX@ /* a failed QP of the cold start is retried with 10 reg up to this */
+#define AEV_MPC_RTI_REG @RTI_REG@   /* Hessian + RTI_REG I in the warm (RTI) steps */
 #define AEV_MPC_TOL @TOL@             /* SQP stops when max|dx| <= TOL */
 #define AEV_MPC_PLAN_TOL @PLAN_TOL@   /* node-0 path constraints must hold to this (aev_ocp.plant.PLAN_TOLERANCE) */
 #define AEV_MPC_DT @DT@               /* control interval [model time] */

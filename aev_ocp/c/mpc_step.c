@@ -140,6 +140,7 @@ int aev_mpc_step_full(aev_mpc_workspace *ws, const double *z0, const double *p, 
   if (z0 != ws->z0) memcpy(ws->z0, z0, sizeof(double) * AEV_MPC_NX);
   ws->info.cold = !ws->warm;
   if (ws->warm) {
+    reg = AEV_MPC_RTI_REG;
     ws->arg[0] = ws->x; ws->arg[1] = ws->lam_g; ws->arg[2] = ws->lam_x; ws->arg[3] = ws->z0; ws->arg[4] = ws->p;
     ws->res[0] = ws->x2; ws->res[1] = ws->lam_g2; ws->res[2] = ws->lam_x2;
     if (aev_cg_shift(ws->arg, ws->res, ws->iw, ws->w, ws->mem[1])) return finish(ws, AEV_MPC_NONFINITE, u_out, status);
@@ -157,6 +158,10 @@ int aev_mpc_step_full(aev_mpc_workspace *ws, const double *z0, const double *p, 
     reg = AEV_MPC_COLD_REG0;
     for (it = 0; it < AEV_MPC_COLD_MAX_ITER; ++it) {
       int s = sqp_step(ws, &reg);
+      if (s == AEV_MPC_QP_FAILED && reg > 0.0 && reg < AEV_MPC_COLD_REG_MAX) {  /* retry more regularised */
+        reg *= 10.0;
+        continue;
+      }
       if (s != AEV_MPC_OK) { st = s; break; }
       if (reg == 0.0 && ws->info.step_inf <= AEV_MPC_TOL) { st = AEV_MPC_OK; break; }
       if (ws->info.step_inf < AEV_MPC_COLD_REG_STEP) reg = reg > 1e-6 ? 0.1 * reg : 0.0;
