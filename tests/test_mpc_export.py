@@ -208,6 +208,7 @@ def test_replay_benchmark_matches_library(canonical_lib: Path, tmp_path: Path) -
     got = np.loadtxt(tmp_path / "out.txt")
     assert np.array_equal(got[:, 0], [st for _, st in us])
     np.testing.assert_allclose(got[:, 1], [u[0] for u, _ in us], rtol=0, atol=1e-14)
+    assert got.shape[1] == 4 and np.all(got[:, 3] > 0)  # status, u, wall and CPU seconds
 
 
 def test_cli_errors(capsys: pytest.CaptureFixture[str], tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
