@@ -17,7 +17,7 @@ forecast per step) and replayed through the exported library built with `make`: 
 export's replay main, clock_gettime wall and CPU time per aev_mpc_step) and from Python (ctypes, one
 call per step); the replayed controls are compared with the closed loop's. 'breakdown_compiled' splits
 that path's controller call: the generated functions timed one by one through ca.external (shift, one
-SQP step = QP data + qrqp, plan evaluation) and the Python rest; 'scaling' gives its median for N = 40
+SQP step = QP data + qrqp, node-0 check, the plan's cost — evaluated after the step, on demand) and the Python rest; 'scaling' gives its median for N = 40
 and N = 100. On a shared machine the wall-time p95 includes preemption (4 ms scheduler ticks): the CPU
 time per step is reported beside it.
 Usage: python benchmarks/bench_mpc.py [--t-end 70] [--N 20 40 80] [--out benchmarks/bench_mpc.json]
@@ -196,7 +196,7 @@ def breakdown_compiled(N: int, t_end: float) -> dict:
     pol = loop.ctrl[0]
     c = pol.controller  # type: ignore[union-attr]
     lib = c._cstep.lib._name
-    f = {k: ca.external(f"aev_cg_{k}", lib) for k in ("shift", "sqp", "eval")}
+    f = {k: ca.external(f"aev_cg_{k}", lib) for k in ("shift", "sqp", "node0", "eval")}
     pts: list[tuple] = []
     step_full = c._cstep.step_full
 
@@ -210,15 +210,16 @@ def breakdown_compiled(N: int, t_end: float) -> dict:
     pol.command, pol.forecast = timers["controller_call"], timers["forecast"]
     r = loop.run([0.3], [1.87], t_end)
     solve_ms = np.asarray(r.meta["mpc_steps"][0]["solve_ms"])
-    parts = {"shift": [], "sqp_qpdata_and_qrqp": [], "eval": []}  # type: ignore[var-annotated]
+    parts = {"shift": [], "sqp_qpdata_and_qrqp": [], "node0": [], "plan_cost_eval": []}  # type: ignore[var-annotated]
     for x, lg, lx, z0, p in pts[2:]:
         for key, fn, args in (("shift", f["shift"], (x, lg, lx, z0, p)),
-                              ("sqp_qpdata_and_qrqp", f["sqp"], (x, lg, lx, p, 0.0)), ("eval", f["eval"], (x, p))):
+                              ("sqp_qpdata_and_qrqp", f["sqp"], (x, lg, lx, p, 0.0)), ("node0", f["node0"], (x, p)),
+                              ("plan_cost_eval", f["eval"], (x, p))):
             t0 = time.perf_counter()
             fn(*args)
             parts[key].append(time.perf_counter() - t0)
     med = {k: 1e3 * float(np.median(v)) for k, v in parts.items()}
-    med["c_step_total (solve_ms)"] = float(np.median(solve_ms[1:]))
+    med["c_step_total (solve_ms)"] = float(np.median(solve_ms[1:]))  # plan_cost_eval is outside it
     med["forecast"] = 1e3 * float(np.median(timers["forecast"].times))
     med["controller_call"] = 1e3 * float(np.median(timers["controller_call"].times))
     med["python_rest"] = med["controller_call"] - med["c_step_total (solve_ms)"] - med["forecast"]

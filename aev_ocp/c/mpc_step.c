@@ -4,7 +4,8 @@
  *   aev_cg_shift(x, lam_g, lam_x, z0, p) -> x, lam_g, lam_x   warm start shifted by one interval
  *   aev_cg_sqp(x, lam_g, lam_x, p, reg) -> x+, lam_g+, lam_x+, |dx|inf, QP residual   one full SQP step
  *                                   (qrqp; Hessian + reg I, reg > 0 only in the cold start)
- *   aev_cg_eval(x, p) -> cost, violation, node-0 violation, u0
+ *   aev_cg_node0(x, p) -> node-0 violation, u0
+ *   aev_cg_eval(x, p) -> cost, violation                  (only in aev_mpc_get_info)
  * All memory is allocated in aev_mpc_create; a step allocates nothing.
  */
 #include <stdlib.h>
@@ -21,7 +22,8 @@ typedef int (*cg_work_t)(casadi_int *, casadi_int *, casadi_int *, casadi_int *)
 
 struct aev_mpc_workspace {
   int warm;                           /* a warm start is available */
-  int mem[4];                         /* CasADi memory ids of guess, shift, sqp, eval */
+  int mem[5];                         /* CasADi memory ids of guess, shift, sqp, node0, eval */
+  int evaluated;                      /* cost and violation of the plan are up to date */
   double *x, *lam_g, *lam_x;          /* current primal-dual point */
   double *x2, *lam_g2, *lam_x2;       /* buffers of the next point (swapped) */
   double *p, *z0;
@@ -51,7 +53,8 @@ aev_mpc_workspace *aev_mpc_create(void) {
   casadi_int sz[4] = {0, 0, 0, 0};
   aev_mpc_workspace *ws = (aev_mpc_workspace *)calloc(1, sizeof(aev_mpc_workspace));
   if (!ws) return NULL;
-  grow(aev_cg_guess_work, sz); grow(aev_cg_shift_work, sz); grow(aev_cg_sqp_work, sz); grow(aev_cg_eval_work, sz);
+  grow(aev_cg_guess_work, sz); grow(aev_cg_shift_work, sz); grow(aev_cg_sqp_work, sz);
+  grow(aev_cg_node0_work, sz); grow(aev_cg_eval_work, sz);
   ws->block = (double *)calloc(4 * AEV_MPC_NV + 2 * AEV_MPC_NG + AEV_MPC_NP + AEV_MPC_NX, sizeof(double));
   ws->x = ws->block;
   ws->arg = (const casadi_real **)calloc((size_t)sz[0] + 1, sizeof(casadi_real *));
@@ -69,11 +72,12 @@ aev_mpc_workspace *aev_mpc_create(void) {
   ws->lam_g2 = ws->lam_g + AEV_MPC_NG;
   ws->p = ws->lam_g2 + AEV_MPC_NG;
   ws->z0 = ws->p + AEV_MPC_NP;
-  aev_cg_guess_incref(); aev_cg_shift_incref(); aev_cg_sqp_incref(); aev_cg_eval_incref();
+  aev_cg_guess_incref(); aev_cg_shift_incref(); aev_cg_sqp_incref(); aev_cg_node0_incref(); aev_cg_eval_incref();
   ws->mem[0] = aev_cg_guess_checkout();
   ws->mem[1] = aev_cg_shift_checkout();
   ws->mem[2] = aev_cg_sqp_checkout();
-  ws->mem[3] = aev_cg_eval_checkout();
+  ws->mem[3] = aev_cg_node0_checkout();
+  ws->mem[4] = aev_cg_eval_checkout();
   ws->warm = 0;
   return ws;
 }
@@ -82,8 +86,8 @@ void aev_mpc_free(aev_mpc_workspace *ws) {
   if (!ws) return;
   if (ws->arg && ws->block) {  /* fully created: give the CasADi memories back */
     aev_cg_guess_release(ws->mem[0]); aev_cg_shift_release(ws->mem[1]);
-    aev_cg_sqp_release(ws->mem[2]); aev_cg_eval_release(ws->mem[3]);
-    aev_cg_guess_decref(); aev_cg_shift_decref(); aev_cg_sqp_decref(); aev_cg_eval_decref();
+    aev_cg_sqp_release(ws->mem[2]); aev_cg_node0_release(ws->mem[3]); aev_cg_eval_release(ws->mem[4]);
+    aev_cg_guess_decref(); aev_cg_shift_decref(); aev_cg_sqp_decref(); aev_cg_node0_decref(); aev_cg_eval_decref();
   }
   free(ws->block); free((void *)ws->arg); free(ws->res); free(ws->iw); free(ws->w);
   free(ws);
@@ -118,13 +122,13 @@ static int finish(aev_mpc_workspace *ws, int st, double *u_out, int *status) {
   double u0[AEV_MPC_NU];
   if (st == AEV_MPC_OK) {
     ws->arg[0] = ws->x; ws->arg[1] = ws->p;
-    ws->res[0] = &ws->info.cost; ws->res[1] = &ws->info.violation; ws->res[2] = &ws->info.node0_violation;
-    ws->res[3] = u0;
-    if (aev_cg_eval(ws->arg, ws->res, ws->iw, ws->w, ws->mem[3])) st = AEV_MPC_NONFINITE;
+    ws->res[0] = &ws->info.node0_violation; ws->res[1] = u0;
+    if (aev_cg_node0(ws->arg, ws->res, ws->iw, ws->w, ws->mem[3])) st = AEV_MPC_NONFINITE;
     else if (!isfinite(ws->info.node0_violation)) st = AEV_MPC_NONFINITE;
     else if (ws->info.node0_violation > AEV_MPC_PLAN_TOL) st = AEV_MPC_NODE0_VIOLATION;
   }
   ws->warm = (st == AEV_MPC_OK);
+  ws->evaluated = 0;
   for (i = 0; i < AEV_MPC_NU; ++i) u_out[i] = (st == AEV_MPC_OK) ? u0[i] : NAN;
   *status = st;
   return st;
@@ -199,4 +203,12 @@ void aev_mpc_get_solution(const aev_mpc_workspace *ws, double *x, double *lam_g,
   if (lam_x) memcpy(lam_x, ws->lam_x, sizeof(double) * AEV_MPC_NV);
 }
 
-void aev_mpc_get_info(const aev_mpc_workspace *ws, aev_mpc_info *info) { *info = ws->info; }
+void aev_mpc_get_info(aev_mpc_workspace *ws, aev_mpc_info *info) {
+  if (ws->warm && !ws->evaluated) {  /* the plan's cost and violation, evaluated on demand */
+    ws->arg[0] = ws->x; ws->arg[1] = ws->p;
+    ws->res[0] = &ws->info.cost; ws->res[1] = &ws->info.violation;
+    if (aev_cg_eval(ws->arg, ws->res, ws->iw, ws->w, ws->mem[4])) ws->info.cost = ws->info.violation = NAN;
+    ws->evaluated = 1;
+  }
+  *info = ws->info;
+}

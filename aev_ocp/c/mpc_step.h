@@ -37,8 +37,8 @@ typedef struct {
   int cold;               /* 1 if the last step was a cold start */
   double step_inf;        /* max |dx| of the last SQP iteration (scaled NLP variables) */
   double qp_residual;     /* max violation of the last QP's linear constraints */
-  double cost;            /* NLP objective of the plan */
-  double violation;       /* max nonlinear constraint violation of the plan (NLP units) */
+  double cost;            /* NLP objective of the plan (NaN after a failed step) */
+  double violation;       /* max nonlinear constraint violation of the plan (NLP units; NaN after a failure) */
   double node0_violation; /* max violation of the path constraints at node 0 */
 } aev_mpc_info;
 
@@ -58,7 +58,8 @@ int aev_mpc_step_full(aev_mpc_workspace *ws, const double *z0, const double *p, 
 void aev_mpc_set_warm(aev_mpc_workspace *ws, const double *x, const double *lam_g, const double *lam_x);
 /* The last plan: x[NV] (scaled NLP vector), lam_g[NG], lam_x[NV] (any may be NULL). */
 void aev_mpc_get_solution(const aev_mpc_workspace *ws, double *x, double *lam_g, double *lam_x);
-void aev_mpc_get_info(const aev_mpc_workspace *ws, aev_mpc_info *info);
+/* Diagnostics of the last step; the plan's cost and violation are evaluated here (not in the step). */
+void aev_mpc_get_info(aev_mpc_workspace *ws, aev_mpc_info *info);
 
 #ifdef __cplusplus
 }

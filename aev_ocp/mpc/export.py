@@ -2,7 +2,7 @@
 (solver 'rti') with CasADi's active-set QP solver ``qrqp`` generated into the same C code, so that nothing
 of Python or CasADi is needed at run time.
 
-Four CasADi Functions are built from the controller's (any) :class:`~aev_ocp.ocp.problem.OCPProblem` and
+Five CasADi Functions are built from the controller's (any) :class:`~aev_ocp.ocp.problem.OCPProblem` and
 generated into ``mpc_casadi.c`` (:func:`rti_functions`):
 
 * ``aev_cg_guess(z0, p) -> x``: the cold-start guess (the closed-form law rolled out, as
@@ -11,7 +11,9 @@ generated into ``mpc_casadi.c`` (:func:`rti_functions`):
   (as :meth:`MPCController._shift`);
 * ``aev_cg_sqp(x, lam_g, lam_x, p, reg) -> (x⁺, lam_g⁺, lam_x⁺, |dx|∞, max|A dx − b|)``: one full SQP step
   (exact Lagrangian Hessian + reg·I, the QP solved by qrqp warm-started on the previous active set);
-* ``aev_cg_eval(x, p) -> (f, violation, node-0 violation, u0)``: the plan's cost and constraint violations.
+* ``aev_cg_node0(x, p) -> (node-0 violation, u0)``: the applied control and its path constraints;
+* ``aev_cg_eval(x, p) -> (f, violation)``: the plan's cost and constraint violation (evaluated only when
+  asked for, by ``aev_mpc_get_info``).
 
 The hand-written driver ``aev_ocp/c/mpc_step.c`` (header ``mpc_step.h``) runs them: a cold step iterates
 regularised SQP from the guess until the step is below ``tol`` (at most :data:`COLD_MAX_ITER` QPs), a warm step shifts
@@ -20,6 +22,14 @@ same library (:class:`CompiledStep`), so the Python controller and the exported 
 
 :func:`export_mpc` writes the folder of ``aev-ocp mpc-export``: sources, header, generated config header,
 Makefile, CMakeLists.txt, a benchmark main and README.txt.
+
+Why qrqp: it is the QP solver whose C CasADi generates (no library at run time; HPIPM's sources may not be
+copied). It is an active-set method on a sparse QR of the KKT matrix: on the §9 problem (strictly convex
+QPs near the solution) it is as fast as HPIPM through ``ca.conic`` and warm-starts on the previous active
+set. Limits: it needs a nonsingular reduced Hessian — a problem whose controls enter the cost only
+linearly (the 'energy' objective's energy-rate control) makes it fail or hit its iteration limit (the
+Python controller then falls back to IPOPT / the closed-form law); use HPIPM for those. A structure-
+exploiting interior-point QP in C (Riccati recursion) would lift this and is the next step.
 """
 
 from __future__ import annotations
@@ -72,7 +82,7 @@ def _template(name: str) -> str:
 
 # ---------------------------------------------------------------------------------------------- functions
 def rti_functions(c: "MPCController", qp_plugin: str = "qrqp", qp_options: dict[str, Any] | None = None) -> list[ca.Function]:
-    """The four CasADi Functions of the exported step (see the module docstring), from a built controller.
+    """The five CasADi Functions of the exported step (see the module docstring), from a built controller.
     ``qp_plugin``/``qp_options``: another ``ca.conic`` plugin for comparisons (only qrqp generates C)."""
     s, pr = c.settings, c.problem
     N, nx, nu, ngs = s.N, pr.nx, pr.nu, c._ng_stage
@@ -125,8 +135,8 @@ def rti_functions(c: "MPCController", qp_plugin: str = "qrqp", qp_options: dict[
     path0 = c.F(V[:nx], V[nx:nb], ca.MX(0, 1), ca.MX.zeros(nx), W[:, 0], PP, s.dt)[1]
     lb0, ub0 = ca.DM(np.asarray(pr.path_lb, float)), ca.DM(np.asarray(pr.path_ub, float))
     viol0 = ca.mmax(ca.vertcat(ca.fmax(ca.fmax(lb0 - path0, path0 - ub0), 0), ca.DM(0)))
-    ev = ca.Function("aev_cg_eval", [V, P], [f, viol, viol0, V[nx:nb] * us], ["x", "p"],
-                     ["f", "violation", "node0_violation", "u0"])
+    ev = ca.Function("aev_cg_eval", [V, P], [f, viol], ["x", "p"], ["f", "violation"])
+    node0 = ca.Function("aev_cg_node0", [V, P], [viol0, V[nx:nb] * us], ["x", "p"], ["node0_violation", "u0"])
     # --- cold-start guess (MPCController.guess) and shift (MPCController._shift)
     Z0 = ca.MX.sym("z0", nx)
     Wm, pm = ca.reshape(P[:pr.nw * N], pr.nw, N), P[pr.nw * N:pr.nw * N + pr.np_]
@@ -148,11 +158,11 @@ def rti_functions(c: "MPCController", qp_plugin: str = "qrqp", qp_options: dict[
     lam_g0 = ca.vertcat(LAM[ngs:N * ngs], LAM[(N - 1) * ngs:N * ngs], LAM[N * ngs:])
     shift = ca.Function("aev_cg_shift", [V, LAM, LAMX, Z0, P], [x0, lam_g0, shift_v(LAMX, LAMX[nb * N:])],
                         ["x", "lam_g", "lam_x", "z0", "p"], ["x0", "lam_g0", "lam_x0"])
-    return [guess, shift, sqp, ev]
+    return [guess, shift, sqp, node0, ev]
 
 
 def generate_casadi(c: "MPCController", folder: Path) -> None:
-    """Write mpc_casadi.c and mpc_casadi.h (the four functions, CasADi's generated C, qrqp included)."""
+    """Write mpc_casadi.c and mpc_casadi.h (the five functions, CasADi's generated C, qrqp included)."""
     cg = ca.CodeGenerator("mpc_casadi.c", {"with_header": True})
     for f in rti_functions(c):
         cg.add(f)
@@ -347,7 +357,7 @@ class CStep:
     def solution(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, Info]:
         """(x, lam_g, lam_x, info) of the last step (arrays reused: copy to keep)."""
         self.lib.aev_mpc_get_solution(self.ws, _ptr(self.x), _ptr(self.lam_g), _ptr(self.lam_x))
-        self.lib.aev_mpc_get_info(self.ws, ctypes.byref(self._info))
+        self.lib.aev_mpc_get_info(self.ws, ctypes.byref(self._info))  # evaluates the plan's cost
         return self.x, self.lam_g, self.lam_x, self._info
 
 
