@@ -244,3 +244,26 @@ def test_two_workspaces_are_independent(canonical_lib: Path) -> None:
         got2.append(b.step(r2[:5], r2[5:])[0][0])
     assert got1 == ref1 and got2 == ref2
     assert np.ptp(ref1) > 1e-3  # the inputs matter
+
+
+def test_piecewise_ocv_equals_the_bspline() -> None:
+    """The MPC's OCV written with comparisons (models/battery.py) against the B-spline Function: values,
+    first and second derivatives at random SOC in [0, 1] and at the breakpoints."""
+    import casadi as ca
+
+    from aev_ocp.models import battery as B
+
+    soc, _ = B.ocv_table()
+    x = np.concatenate([np.random.default_rng(11).uniform(0, 1, 400), soc[1:-1], soc[1:-1] - 1e-9])
+    S = ca.SX.sym("S")
+    e = B.ocv_piecewise(S)
+    pw = ca.Function("pw", [S], [e, ca.jacobian(e, S), ca.hessian(e, S)[0]]).map(x.size)
+    Sm = ca.MX.sym("S")
+    em = B.ocv_function()(Sm)
+    bs = ca.Function("bs", [Sm], [em, ca.jacobian(em, Sm), ca.hessian(em, Sm)[0]]).map(x.size)
+    for k, tol in ((0, 1e-13), (1, 1e-10), (2, 1e-7)):
+        a, b = np.asarray(pw(x)[k]).ravel(), np.asarray(bs(x)[k]).ravel()
+        assert np.abs(a - b).max() <= tol * max(1.0, np.abs(b).max()), (k, np.abs(a - b).max())
+    with B.piecewise_ocv():  # SX inside the block: the comparisons; numbers: the B-spline
+        assert "BSpline" not in str(B.ocv(S)) and float(B.ocv(0.37)) == float(B.ocv_function()(0.37))
+    assert "ocv" in str(B.ocv(S))  # outside: the B-spline Function call

@@ -33,6 +33,7 @@ import casadi as ca
 import numpy as np
 
 from ..compiled import compile_shared, compiler
+from ..models.battery import piecewise_ocv
 from ..models.carfollowing import CarFollowingLaw, Proposed
 from ..models.ego import STATE_NAMES
 from ..numerics import rk4
@@ -103,8 +104,9 @@ class MPCController:
         self.ev = ev or EVParams()
         self.guess_law = guess_law or Proposed()
         s = self.settings
-        if problem is None:
-            problem = following_problem(self.ev, s.bounds, s.smooth, s.objective, name="mpc")
+        if problem is None:  # the OCV as comparisons (same values, cheaper Hessians: models/battery.py)
+            with piecewise_ocv():
+                problem = following_problem(self.ev, s.bounds, s.smooth, s.objective, name="mpc")
         self.problem = problem.build() if isinstance(problem, ProblemBuilder) else problem
         self._check_layout(parameter_values or {}, initial_values or {})
         self.codegen_active = False
