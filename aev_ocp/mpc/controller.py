@@ -21,6 +21,7 @@ slacks of soft constraints) start at 0, further stage or global parameters take 
 
 from __future__ import annotations
 
+import contextlib
 import os
 import tempfile
 import time
@@ -104,8 +105,8 @@ class MPCController:
         self.ev = ev or EVParams()
         self.guess_law = guess_law or Proposed()
         s = self.settings
-        if problem is None:  # the OCV as comparisons (same values, cheaper Hessians: models/battery.py)
-            with piecewise_ocv():
+        if problem is None:  # rti: the OCV as comparisons (same values, cheaper Hessians: models/battery.py)
+            with piecewise_ocv() if s.solver == "rti" else contextlib.nullcontext():
                 problem = following_problem(self.ev, s.bounds, s.smooth, s.objective, name="mpc")
         self.problem = problem.build() if isinstance(problem, ProblemBuilder) else problem
         self._check_layout(parameter_values or {}, initial_values or {})
