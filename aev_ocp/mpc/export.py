@@ -241,9 +241,17 @@ def export_controller(c: "MPCController", out: Path, description: str) -> list[P
 def export_controller_settings(settings: Any, ev: Any = None, problem: Any = None,
                                parameter_values: dict[str, float] | None = None,
                                initial_values: dict[str, float] | None = None) -> "MPCController":
-    """A controller built only for the export (cold IPOPT path, no codegen: nothing is compiled)."""
+    """A controller built only for the export (cold IPOPT path, no codegen: nothing is compiled); the
+    default problem is built as the rti path builds it (the OCV as comparisons, models/battery.py)."""
+    from ..models.battery import piecewise_ocv
+    from ..ocp.following import following_problem
+    from ..params import EVParams
     from .controller import MPCController
 
+    if problem is None:
+        with piecewise_ocv():
+            problem = following_problem(ev or EVParams(), settings.bounds, settings.smooth, settings.objective,
+                                        name="mpc")
     return MPCController(settings.with_(solver="ipopt-cold", codegen=False), ev, problem=problem,
                          parameter_values=parameter_values, initial_values=initial_values)
 
