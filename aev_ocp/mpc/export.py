@@ -292,40 +292,41 @@ class Info(ctypes.Structure):
                 ("node0_violation", ctypes.c_double)]
 
 
-_DP = ctypes.POINTER(ctypes.c_double)
-_IP = ctypes.POINTER(ctypes.c_int)
+_VP = ctypes.c_void_p
 
 
-def _ptr(a: np.ndarray) -> Any:
-    return a.ctypes.data_as(_DP)
+def _addr(a: np.ndarray) -> int:
+    """Address of a C-contiguous float64 array (cheaper than ``ctypes.data_as``; keep ``a`` alive)."""
+    return a.ctypes.data
 
 
 class CStep:
-    """ctypes binding of an exported (or cached) MPC step library: one workspace, allocated once."""
+    """ctypes binding of an exported (or cached) MPC step library: one workspace, allocated once; the
+    library's own output buffers are addressed once (no per-step allocation besides the returned copies)."""
 
     def __init__(self, lib_path: str | Path) -> None:
         self.lib = lib = ctypes.CDLL(str(lib_path))
-        lib.aev_mpc_create.restype = ctypes.c_void_p
-        lib.aev_mpc_free.argtypes = [ctypes.c_void_p]
-        lib.aev_mpc_reset.argtypes = [ctypes.c_void_p]
-        lib.aev_mpc_step.argtypes = [ctypes.c_void_p, _DP, _DP, _DP, _IP]
-        lib.aev_mpc_step.restype = ctypes.c_int
-        lib.aev_mpc_step_full.argtypes = [ctypes.c_void_p, _DP, _DP, _DP, _IP]
-        lib.aev_mpc_step_full.restype = ctypes.c_int
-        lib.aev_mpc_set_warm.argtypes = [ctypes.c_void_p, _DP, _DP, _DP]
-        lib.aev_mpc_get_solution.argtypes = [ctypes.c_void_p, _DP, _DP, _DP]
-        lib.aev_mpc_get_info.argtypes = [ctypes.c_void_p, ctypes.POINTER(Info)]
-        lib.aev_mpc_dims.argtypes = [_IP]
+        lib.aev_mpc_create.restype = _VP
+        for name, n in (("aev_mpc_free", 1), ("aev_mpc_reset", 1), ("aev_mpc_set_warm", 4),
+                        ("aev_mpc_get_solution", 4), ("aev_mpc_get_info", 2), ("aev_mpc_dims", 1)):
+            getattr(lib, name).argtypes = [_VP] * n
+            getattr(lib, name).restype = None
+        for name in ("aev_mpc_step", "aev_mpc_step_full"):
+            getattr(lib, name).argtypes = [_VP] * 5
+            getattr(lib, name).restype = ctypes.c_int
         dims = np.zeros(8, dtype=np.intc)
-        lib.aev_mpc_dims(dims.ctypes.data_as(_IP))
+        lib.aev_mpc_dims(dims.ctypes.data)
         self.N, self.nx, self.nu, self.nz, self.nv, self.ng, self.np_, self.nf = (int(d) for d in dims)
         self.ws = lib.aev_mpc_create()
         if not self.ws:
             raise MemoryError("aev_mpc_create: out of memory")
         self._u = np.zeros(self.nu)
-        self._status = ctypes.c_int(0)
+        self._status = np.zeros(1, dtype=np.intc)
         self._info = Info()
         self.x, self.lam_g, self.lam_x = np.zeros(self.nv), np.zeros(self.ng), np.zeros(self.nv)
+        self._a = {k: _addr(v) for k, v in (("u", self._u), ("status", self._status), ("x", self.x),
+                                            ("lam_g", self.lam_g), ("lam_x", self.lam_x))}
+        self._a["info"] = ctypes.addressof(self._info)
 
     def __del__(self) -> None:
         ws, self.ws = getattr(self, "ws", None), None
@@ -342,30 +343,35 @@ class CStep:
         fc = np.ascontiguousarray(forecast, float)
         if xm.size != self.nz or fc.size != self.nf:
             raise ParameterError(f"CStep.step: x_meas must have {self.nz} and forecast {self.nf} values")
-        self.lib.aev_mpc_step(self.ws, _ptr(xm), _ptr(fc), _ptr(self._u), ctypes.byref(self._status))
-        return self._u.copy(), int(self._status.value)
+        a = self._a
+        self.lib.aev_mpc_step(self.ws, _addr(xm), _addr(fc), a["u"], a["status"])
+        return self._u.copy(), int(self._status[0])
 
     def step_full(self, z0: np.ndarray, p: np.ndarray) -> int:
         """Status of a step from the full initial state (nx) and the NLP parameter vector (np)."""
         z = np.ascontiguousarray(z0, float)
         pp = np.ascontiguousarray(p, float)
-        self.lib.aev_mpc_step_full(self.ws, _ptr(z), _ptr(pp), _ptr(self._u), ctypes.byref(self._status))
-        return int(self._status.value)
+        if z.size != self.nx or pp.size != self.np_:
+            raise ParameterError(f"CStep.step_full: z0 must have {self.nx} and p {self.np_} values")
+        return int(self.lib.aev_mpc_step_full(self.ws, _addr(z), _addr(pp), self._a["u"], self._a["status"]))
 
     def set_warm(self, x: np.ndarray, lam_g: np.ndarray, lam_x: np.ndarray, drop_below: float = 0.0) -> None:
         """Start the next step from this primal-dual point (scaled NLP vector and multipliers).
         ``drop_below``: multipliers of smaller magnitude are set to 0 — an interior-point solution (IPOPT)
         has tiny nonzero multipliers on inactive constraints, which qrqp would take as its initial active set."""
         a, b, d = (np.array(v, float) for v in (x, lam_g, lam_x))
+        if a.size != self.nv or b.size != self.ng or d.size != self.nv:
+            raise ParameterError(f"CStep.set_warm: x, lam_g, lam_x must have {self.nv}, {self.ng}, {self.nv} values")
         if drop_below > 0:
             b[np.abs(b) < drop_below] = 0.0
             d[np.abs(d) < drop_below] = 0.0
-        self.lib.aev_mpc_set_warm(self.ws, _ptr(a), _ptr(b), _ptr(d))
+        self.lib.aev_mpc_set_warm(self.ws, _addr(a), _addr(b), _addr(d))
 
     def solution(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, Info]:
         """(x, lam_g, lam_x, info) of the last step (arrays reused: copy to keep)."""
-        self.lib.aev_mpc_get_solution(self.ws, _ptr(self.x), _ptr(self.lam_g), _ptr(self.lam_x))
-        self.lib.aev_mpc_get_info(self.ws, ctypes.byref(self._info))  # evaluates the plan's cost
+        a = self._a
+        self.lib.aev_mpc_get_solution(self.ws, a["x"], a["lam_g"], a["lam_x"])
+        self.lib.aev_mpc_get_info(self.ws, a["info"])  # evaluates the plan's cost
         return self.x, self.lam_g, self.lam_x, self._info
 
 
