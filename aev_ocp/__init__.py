@@ -4,7 +4,8 @@ Layers: ``params`` (parameter sets with units and sources), ``models`` (physics 
 (the exact platoon model and its event rules), ``control`` (the Controller protocol and the closed
 loop), ``simulate`` (closed-form-law platoons), ``ocp`` (problem description, transcription, OCP-A…D),
 ``mpc`` (the receding-horizon controller built from the same problem), ``scenarios`` (TOML files),
-``report``/``cli`` (figures, tables, command line). The names most users need are exported here;
+``report``/``cli`` (figures, tables, command line), ``saved`` (``load(folder)``: every command's output
+folder back as its result object). The names most users need are exported here;
 importing them is lazy, so ``import aev_ocp`` stays cheap.
 """
 
@@ -33,6 +34,8 @@ _EXPORTS = {
     "MPCPolicy": "mpc",
     # scenarios
     "load_scenario": "scenarios", "Scenario": "scenarios",
+    # saved outputs (every command's folder loads back)
+    "load": "saved", "load_all": "saved", "LoadError": "saved",
 }
 __all__ = ["__version__", *_EXPORTS]
 

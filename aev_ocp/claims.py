@@ -77,6 +77,7 @@ def paper_platoon_check() -> dict[str, Any]:
     return r
 
 
+HEAD_THEOREM41 = "Theorem 4.1 checked numerically (ω(proposed) ≤ ω(OVFL)?)"
 THEOREM41_SEED = 2025  # the random Theorem 4.1 cases (recorded in theorem41.json's provenance)
 
 
@@ -119,6 +120,7 @@ def theorem41_section(out_dir: Path, progress: ProgressFn, n_cases: int = 60) ->
     from .plots import plot_theorem41
     from .report import markdown_table
     from .provenance import provenance
+    from .reproduce import record_claim
     from .results import write_json
 
     progress("Theorem 4.1 on the paper's platoon")
@@ -139,8 +141,14 @@ def theorem41_section(out_dir: Path, progress: ProgressFn, n_cases: int = 60) ->
              + (f" at v_l = {w['leader_speed']:.4f}" if w["leader_speed"] is not None else "")
              + f", h(0) = {w['gap0']:.4f}, v(0) = {w['speed0']:.4f}, κ = {w['kappa']:g}: ω(proposed) = "
              f"{w['omega_proposed']:.6f} vs ω(OVFL) = {w['omega_ovfl']:.6f}." if w else "")
+    n_bad, n_ok = summary["n_violating_theorem"], summary["n_completed"]
+    record_claim("Theorem 4.1: ω(proposed) ≤ ω(OVFL) for the same leader and initial condition",
+                 "fails" if n_bad else "holds",
+                 f"contradicted by {n_bad} of {n_ok} random single-follower cases (largest excess "
+                 f"{(w['omega_proposed'] - w['omega_ovfl']) if w else float('nan'):.3g}); the proof's step Δv ≥ 0 "
+                 f"fails in {summary['n_violating_speed_ordering']}", HEAD_THEOREM41)
     return (
-        "## Theorem 4.1 checked numerically (ω(proposed) ≤ ω(OVFL)?)\n\n"
+        f"## {HEAD_THEOREM41}\n\n"
         "Same leader, same initial condition, both laws integrated with CVODES at rtol = atol = 1e-10 "
         "(confirmed by an independent SciPy DOP853 integration in the test suite). File: theorem41.json.\n\n"
         "**Paper platoon (Table 1 set-up).** Column 'max (v_prop − v_OVFL)' is the proof's step Δv ≥ 0 "

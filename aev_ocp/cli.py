@@ -12,6 +12,7 @@ never left behind). Set ``AEV_OCP_DEBUG=1`` to get the traceback of an unexpecte
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import importlib
 import os
 import sys
@@ -73,6 +74,7 @@ def guarded(run: Callable[[], int]) -> int:
 
 
 def _guarded(run: Callable[[], int], debug: bool) -> int:
+    from .overrides import OverrideError
     from .results import OutputError
     from .scenarios import ScenarioError
 
@@ -88,7 +90,7 @@ def _guarded(run: Callable[[], int], debug: bool) -> int:
         except KeyboardInterrupt:
             _err("interrupted")
             return EXIT_INTERRUPTED
-        except (ScenarioError, ParameterError, OutputError) as exc:
+        except (ScenarioError, ParameterError, OutputError, OverrideError) as exc:
             _err(str(exc))
             return EXIT_BAD_INPUT
         except BrokenPipeError:  # output piped into e.g. `head`: stop quietly, as Unix tools do
@@ -148,10 +150,14 @@ def build_parser() -> argparse.ArgumentParser:
     r = sub.add_parser("reproduce", help="reproduce the paper's figures and Table 1, write report.md")
     r.add_argument("--out", default="results", help="output folder (default: results/)")
     r.add_argument("--quick", action="store_true", help="a cheap smoke run (short horizons), not the reproduction")
+    r.add_argument("--model-units", action="store_true",
+                   help="figure axes in the paper's model units (default: s, m, km/h through each scenario's units)")
     s = sub.add_parser("simulate", help="simulate a scenario file: trajectories CSV, metrics JSON, plots")
     s.add_argument("scenario", help="a scenario .toml file or the name of a shipped scenario (e.g. table1)")
     s.add_argument("--out", default=None, help="output folder (default: results/<scenario name>/)")
     s.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
+    s.add_argument("--set", dest="sets", action="append", default=[], metavar="KEY=VALUE",
+                   help="override a scenario key, e.g. --set simulation.t_end=20 (repeatable; checked like the file)")
     sub.add_parser("scenarios", help="list the shipped scenarios")
     sub.add_parser("ocp", help="optimal-control problems (see aev-ocp ocp --help)", add_help=False)
     sub.add_parser("mpc", help="model predictive control (see aev-ocp mpc --help)", add_help=False)
@@ -162,12 +168,12 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-def _load_scenario_with_warnings(path: str):  # noqa: ANN202 - returns Scenario
-    from .scenarios import load_scenario
+def _load_scenario_with_warnings(path: str, sets: Sequence[str] = ()):  # noqa: ANN202 - returns Scenario
+    from .overrides import load_with_sets
 
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        scenario = load_scenario(path)
+        scenario = load_with_sets(path, sets)
     for w in caught:
         _warn(str(w.message))
     from .provenance import declare
@@ -181,23 +187,25 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     from .report import scenario_metrics_rows, write_scenario_outputs
 
     from .results import claim_output_dir, default_output_dir
+    from .saved import OUTPUT_FILES, save_output, settings_of
 
-    scenario = _load_scenario_with_warnings(args.scenario)
+    scenario = _load_scenario_with_warnings(args.scenario, args.sets)
     out = Path(args.out) if args.out else default_output_dir(scenario.name)
     labels = [label for label, _ in scenario.runs()]
     claim_output_dir(out, "simulate", scenario.name, str(scenario.source) if scenario.source else None,
-                     [f"{lab}.{ext}" for lab in labels for ext in ("csv", "png")] + ["metrics.json", "metrics.md"])
-    last: dict[str, int] = {}
+                     [f"{lab}.{ext}" for lab in labels for ext in ("csv", "png")] + ["metrics.json", "metrics.md",
+                                                                                    *OUTPUT_FILES])
+    from .progress import Progress
 
-    def progress(label: str, t: float, t_end: float) -> None:
-        interrupts.check()
-        pct = int(100 * t / t_end)
-        if pct // 25 != last.get(label, -1):
-            last[label] = pct // 25
-            print(f"[{scenario.name}] {label}: t = {t:.4g} / {t_end:g} ({pct}%)", file=sys.stderr, flush=True)
+    bars: dict[str, Progress] = {}
+
+    def progress(label: str, t: float, t_end: float) -> None:  # one line per run every 2 s, with an ETA
+        bar = bars.setdefault(label, Progress(f"{scenario.name}] [{label}", t_end, unit="model time"))
+        bar.update(t, t_end, "t =")
 
     results = scenario.run(progress=progress)
     files = write_scenario_outputs(scenario.name, results, out, plots=not args.no_plots)
+    files += save_output(out, "simulate", results, settings=settings_of(scenario, sets=list(args.sets)))
     headers, rows = scenario_metrics_rows(results)
     keep = [0, 1, 2, 4, 6, 7, 9]
     print("  ".join(f"{headers[k]:>12}" for k in keep))
@@ -215,8 +223,11 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
     from .reproduce import ReproduceConfig, reproduce
     from .results import claim_output_dir
 
-    claim_output_dir(args.out, "reproduce", "paper", None, ["report.md"])
-    report = reproduce(args.out, ReproduceConfig.quick() if args.quick else ReproduceConfig())
+    claim_output_dir(args.out, "reproduce", "paper", None, ["report.md", "report.html"])
+    config = ReproduceConfig.quick() if args.quick else ReproduceConfig()
+    if args.model_units:
+        config = dataclasses.replace(config, si_units=False)
+    report = reproduce(args.out, config)
     print(f"wrote {report}")
     return EXIT_OK
 

@@ -23,6 +23,7 @@ from .models.carfollowing import CarFollowingLaw, Proposed
 from .models.leader import LeaderProfile
 from .params import EVParams, ParameterError, SimOptions, check_argument
 from .plant import Plant
+from .progress import TimeLimitReached
 from .results import Event, SimulationResult
 
 ProgressFn = Callable[[float, float], None]
@@ -105,7 +106,7 @@ class ControlSequence:
 @dataclass(frozen=True)
 class SampledLaw:
     """A car-following law evaluated every dt on the measurements and held (like a real ECU),
-    clipped to [a_min, a_max] [model acceleration]."""
+    clipped to [a_min, a_max] (model acceleration)."""
 
     law: CarFollowingLaw
     dt: float
@@ -203,7 +204,9 @@ class ClosedLoop:
     def run(self, gaps0: Sequence[float], speeds0: Sequence[float], t_end: float, *,
             soc0: float | Sequence[float] | None = None, progress: ProgressFn | None = None) -> SimulationResult:
         """Closed loop over [0, t_end] (model time, a multiple of dt) from the initial gaps and speeds
-        (model units), V1 = V2 = 0 and S = soc0 (default the cell's S(0))."""
+        (model units), V1 = V2 = 0 and S = soc0 (default the cell's S(0)). ``progress(t, t_end)`` is called
+        after every step; if it raises :class:`aev_ocp.progress.TimeLimitReached` the loop stops there and
+        the result, covering [0, t], ends with an event of kind 'time_limit' (its status)."""
         n, dt, plant = self.n, self.dt, self.plant
         if not (isinstance(t_end, (int, float)) and math.isfinite(t_end) and t_end > 0):
             raise ParameterError(f"closed loop: t_end = {t_end!r} must be > 0")
@@ -274,8 +277,13 @@ class ClosedLoop:
                     del lst[before:]
                     lst.append(last)
             k += 1
-            if progress is not None:
-                progress(float(out[0][-1][-1]) if out[0][-1].size else tk, t_end)
+            if progress is not None and not events:
+                t_now = float(out[0][-1][-1]) if out[0][-1].size else tk
+                try:
+                    progress(t_now, t_end)
+                except TimeLimitReached as stop:  # stop cleanly: a partial result, flagged by its status
+                    events.append(Event(stop.kind, t_now, -1, f"{stop}; the run covers [0, {t_now:g}] of "
+                                                              f"[0, {t_end:g}] (partial result)"))
         ts, xs, qs, ys = (np.concatenate(out[0]), np.hstack(out[1]), np.hstack(out[2]), np.hstack(out[3]))
         acc = ys[:n].T.copy()
         for j, i in enumerate(sampled):  # node k shows the command held from t_k on (the last node: the last one)

@@ -174,31 +174,61 @@ def platoon_checks(r: SimulationResult, t_eq: float = 20.0) -> dict[str, Any]:
 
 
 # ----------------------------------------------------------------------------- scenario outputs
-def scenario_metrics_rows(results: Mapping[str, SimulationResult]) -> tuple[list[str], list[list[str]]]:
-    """Per law and follower: ω, pack ∫Q, ∫Q_irr, ΔSOC, min gap, max |I|, status."""
+OVER_LIMIT_MARK = "†"  # marks battery numbers of a vehicle whose cell current exceeded the cell's limit
+
+
+def scenario_metrics_rows(results: Mapping[str, SimulationResult], i_max_A: float | None = None,
+                          totals: bool = False) -> tuple[list[str], list[list[str]]]:
+    """Per law and follower: ω, pack ∫Q, ∫Q_irr, ΔSOC, min gap, max |I|, status.
+
+    i_max_A: the cell's current limit [A]; the battery columns (∫Q, ∫Q_irr, ΔSOC, max |I|) of a vehicle
+    whose current exceeded it get OVER_LIMIT_MARK (the cell model is not valid there). totals: a
+    'platoon' row per run after its followers (:func:`platoon_totals`)."""
     headers = ["run", "n", "ω [model]", "ω [J/kg]", "pack ∫Q [J]", "pack ∫Q_irr [J]", "ΔSOC",
                "min gap [m]", "max |I| [A/cell]", "status"]
     rows: list[list[str]] = []
     for label, r in results.items():
-        for m in r.metrics():
+        ms = r.metrics()
+        for m in ms:
+            over = i_max_A is not None and float(m["max_abs_current_A"]) > i_max_A
+            mk = (lambda x: x + " " + OVER_LIMIT_MARK) if over else (lambda x: x)  # noqa: E731
             rows.append([label, str(m["vehicle"]), fmt(m["omega_model"]), fmt(m["omega_J_per_kg"]),
-                         fmt(m["heat_pack_J"]), fmt(m["heat_irr_pack_J"]), fmt(m["delta_soc"], 3),
-                         fmt(m["min_gap_m"]), fmt(m["max_abs_current_A"]), m["status"]])
+                         mk(fmt(m["heat_pack_J"])), mk(fmt(m["heat_irr_pack_J"])), mk(fmt(m["delta_soc"], 3)),
+                         fmt(m["min_gap_m"]), mk(fmt(m["max_abs_current_A"])), m["status"]])
+        if totals and len(ms) > 1:
+            tot = platoon_totals(r)
+            rows.append([f"**{label}: platoon**", f"Σ {len(ms)}", fmt(tot["omega_model"]), fmt(tot["omega_J_per_kg"]),
+                         fmt(tot["heat_pack_J"]), fmt(tot["heat_irr_pack_J"]), fmt(tot["delta_soc"], 3),
+                         fmt(tot["min_gap_m"]) + " (min)", fmt(tot["max_abs_current_A"]) + " (max)", r.status])
     return headers, rows
+
+
+def platoon_totals(r: SimulationResult) -> dict[str, float]:
+    """Whole-platoon figures of one run: sums over followers of ω [model and J/kg], pack ∫Q and ∫Q_irr [J]
+    and ΔSOC; the smallest gap [m] and the largest |I| [A per cell] of any follower."""
+    ms = r.metrics()
+    total = {k: float(sum(m[k] for m in ms)) for k in ("omega_model", "omega_J_per_kg", "heat_pack_J",
+                                                        "heat_irr_pack_J", "delta_soc")}
+    total["min_gap_m"] = float(min(m["min_gap_m"] for m in ms))
+    total["max_abs_current_A"] = float(max(m["max_abs_current_A"] for m in ms))
+    return total
 
 
 def write_scenario_outputs(name: str, results: Mapping[str, SimulationResult], out_dir: str | os.PathLike[str],
                            plots: bool = True) -> list[Path]:
-    """For each run: ``<label>.csv`` (trajectories), ``<label>.png`` (gaps, speeds, current, SOC);
+    """For each run: ``<label>.csv`` (trajectories), ``<label>.png`` (gaps, speeds, current, SOC), for a
+    platoon ``<label>_space_time.png``;
     plus ``metrics.json`` (status, events and metrics of every run) and ``metrics.md``."""
     out = Path(out_dir)
     written: list[Path] = []
     for label, r in results.items():
         written.append(r.to_csv(out / f"{label}.csv"))
         if plots:
-            from .plots import plot_trajectories
+            from .plots import plot_space_time, plot_trajectories
 
             written.append(plot_trajectories(r, out / f"{label}.png", title=f"{name}: {label}"))
+            if r.n_vehicles > 1:
+                written.append(plot_space_time(r, out / f"{label}_space_time.png", title=f"{name}: {label}"))
     written.append(write_json(out / "metrics.json", {"scenario": name,
                                                      "runs": {k: r.summary() for k, r in results.items()}}))
     headers, rows = scenario_metrics_rows(results)

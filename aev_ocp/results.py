@@ -24,7 +24,8 @@ from .params import EVParams, Units, as_dict
 _UMASK = os.umask(0)
 os.umask(_UMASK)
 
-EVENT_KINDS = ("collision", "negative_speed", "infeasible_current", "soc_out_of_range", "integration_failed")
+EVENT_KINDS = ("collision", "negative_speed", "infeasible_current", "soc_out_of_range", "integration_failed",
+               "time_limit")  # time_limit: the run was stopped by its wall-clock limit (vehicle -1: the whole run)
 
 
 @contextlib.contextmanager
@@ -160,7 +161,8 @@ def write_json(path: str | os.PathLike[str], obj: Any, provenance: bool = True) 
 
 @dataclass
 class Event:
-    """Something the simulation must not integrate through: kind, time [model], vehicle (0-based follower index)."""
+    """Something the simulation must not integrate through: kind, time [model], vehicle (0-based follower
+    index; -1 for the whole run, e.g. a time limit)."""
 
     kind: str
     time: float
@@ -168,7 +170,8 @@ class Event:
     message: str
 
     def __str__(self) -> str:
-        return f"{self.kind} at t = {self.time:.4f} (vehicle {self.vehicle + 1}): {self.message}"
+        who = f"vehicle {self.vehicle + 1}" if self.vehicle >= 0 else "whole run"
+        return f"{self.kind} at t = {self.time:.4f} ({who}): {self.message}"
 
 
 @dataclass

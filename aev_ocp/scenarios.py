@@ -17,6 +17,11 @@ Schema (model units unless a key says otherwise; see README.md "Scenario files")
                   paper:    v0, amplitude, forcing_end      (paper eq. acc5; forcing_end [model time])
                   cycle:    cycle = "udds" | "hwfet" | "us06" (SI data, converted with [units])
                   array:    times, speeds, unit = "model" | "si"  (si: [s], [m/s])
+                  trace:    file (CSV, relative to the scenario file), time_column ("time"),
+                            speed_column ("speed") | position_column, time_unit ("s" | "ms" | "min"),
+                            speed_unit ("m/s" | "km/h" | "mph" | "ft/s"), position_unit ("m" | "km" |
+                            "ft" | "mi"), max_gap_s (10), filter_column + filter_value (one vehicle's rows);
+                            resampled as the cycles are (linear, held after the end)
     [platoon]     followers, law | laws, gap0_first, gap0_others | gaps0,
                   speed0 | speed0_factor | speeds0
     [carfollowing] alpha, beta, kappa, eps; a sub-table per law name holds that law's
@@ -45,12 +50,13 @@ from pathlib import Path
 from typing import Any, Callable, Iterator, Sequence
 
 from .models.carfollowing import LAW_REGISTRY, V_INF, CarFollowingLaw, make_law
-from .models.leader import CYCLES, ConstantSpeed, LeaderProfile, PaperLeader, SpeedTrace, drive_cycle
+from .models.leader import (CYCLES, LENGTH_UNITS, MAX_GAP_S, SPEED_UNITS, TIME_UNITS, ConstantSpeed, LeaderProfile,
+                            PaperLeader, SpeedTrace, drive_cycle, read_trace_csv, trace_leader)
 from .params import (CarFollowingParams, CellParams, Check, EVParams, PackParams, ParameterError, SimOptions,
                      Units, VehicleParams, field_checks)
 from .results import check_safe_name
 
-LEADER_KINDS = ("constant", "paper", "cycle", "array")
+LEADER_KINDS = ("constant", "paper", "cycle", "array", "trace")
 SCENARIO_DIR_NAME = "scenarios"  # the repository's folder of scenario files
 PACKAGED_DIR_NAME = "scenario_files"  # inside the package: a link to the repository's folder
 MAX_FILE_BYTES = 16 * 2**20  # a scenario file is a hand-edited TOML file; a bigger one is a mistake
@@ -523,8 +529,47 @@ def _params(cls: type, reader: TableReader, base: Any = None) -> Any:
         raise _rewrap(reader, exc, list(kwargs)) from None
 
 
-def _leader(r: TableReader, units: Units) -> LeaderProfile:
+def _trace(r: TableReader, units: Units, source: Path | None) -> LeaderProfile:
+    """[leader] kind = "trace": a recorded trajectory in a CSV file, relative to the scenario file."""
+    file = r.string("file")
+    path = Path(file)
+    if not path.is_absolute():
+        path = (source.parent if source is not None else Path.cwd()) / path
+    if not path.is_file():
+        raise r.error("file", file, f"no such file ({path}); a relative path starts at the scenario file's folder")
+    speed, position = r.string("speed_column", None), r.string("position_column", None)
+    if speed is not None and position is not None:
+        raise r.error("position_column", position, "give speed_column or position_column, not both")
+    if speed is None and position is None:
+        speed = "speed"
+    kw: dict[str, Any] = {"time_column": r.string("time_column", "time"), "speed_column": speed,
+                          "position_column": position,
+                          "time_unit": r.string("time_unit", "s", choices=tuple(TIME_UNITS)),
+                          "speed_unit": r.string("speed_unit", "m/s", choices=tuple(SPEED_UNITS)),
+                          "position_unit": r.string("position_unit", "m", choices=tuple(LENGTH_UNITS)),
+                          "max_gap_s": r.number("max_gap_s", MAX_GAP_S, gt=0)}
+    if r.has("filter_column") != r.has("filter_value"):
+        missing = "filter_value" if r.has("filter_column") else "filter_column"
+        raise r.error(missing, None, "filter_column and filter_value go together (the rows of one vehicle)")
+    if r.has("filter_column"):
+        kw["filter_column"] = r.string("filter_column")
+        value = r._get("filter_value", None)
+        if not isinstance(value, (str, int, float)) or isinstance(value, bool):
+            raise r.error("filter_value", value, "expected a string or a number")
+        kw["filter_value"] = value
+    try:
+        t, v = read_trace_csv(path, label=file, **kw)
+    except ParameterError as exc:
+        raise ScenarioError(f"{r.file}: {r.key_path('file')}: {exc}") from None
+    return trace_leader(t, v, units, "trace")
+
+
+def _leader(r: TableReader, units: Units, source: Path | None = None) -> LeaderProfile:
     kind = r.string("kind", choices=LEADER_KINDS)
+    if kind == "trace":
+        leader = _trace(r, units, source)
+        r.finish()
+        return leader
     try:
         if kind == "constant":
             leader: LeaderProfile = ConstantSpeed(r.number("v", ge=0))
@@ -693,7 +738,7 @@ def parse_scenario(doc: dict[str, Any], file: str = "<scenario>", *, source: Pat
     sim.finish()
 
     cf, overrides = _carfollowing(top.sub("carfollowing"))
-    leader = _leader(top.sub("leader", required=True), units)
+    leader = _leader(top.sub("leader", required=True), units, source)
     sized: dict[str, float] = {}
 
     def size(n: int) -> None:

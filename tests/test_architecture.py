@@ -117,6 +117,7 @@ def test_event_table_reaches_the_c_cascade() -> None:
     assert next(r for r in EVENT_RULES if r.kind == "negative_speed").offset == -PLAN_TOLERANCE
 
 
+@pytest.mark.quick
 def test_closed_loop_and_simulator_stop_at_the_same_rule() -> None:
     """Braking at 1.3 from v = 0.65: the simulator's law run (cascade and CVODES) and a replayed command
     in the closed loop all stop where v crosses −PLAN_TOLERANCE, t = 0.5 + tol/1.3 (exact kinematics)."""
@@ -169,6 +170,7 @@ class ACC:
         return {"controller": "acc", "k_h": self.k_h, "k_v": self.k_v}
 
 
+@pytest.mark.quick
 def test_a_users_controller_runs_on_any_vehicle() -> None:
     """Vehicle 2 of 3 runs the user's ACC between two laws: its applied accelerations are exactly the
     ACC formula on the plant's samples, and its speed follows the held commands exactly."""
@@ -185,6 +187,7 @@ def test_a_users_controller_runs_on_any_vehicle() -> None:
     np.testing.assert_allclose(r.speed[np.isin(np.round(r.t, 9), np.round(ref.t, 9)), 0], ref.speed[common, 0], atol=1e-7)
 
 
+@pytest.mark.quick
 def test_sampled_law_converges_to_the_continuous_law() -> None:
     """OVFL evaluated every dt and held (SampledLaw) approaches the continuous OVFL as dt → 0, at first order."""
     law = OVFL(alpha=1.9, beta=2.6)

@@ -62,6 +62,7 @@ def test_simulate_writes_files(tmp_path: Path, capsys: pytest.CaptureFixture[str
     assert "proposed" in stdout and not list(out.glob(".*"))  # no temporary files left behind
 
 
+@pytest.mark.quick
 def test_bad_scenario_exit_2(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     scen = tmp_path / "bad.toml"
     scen.write_text(SMALL.replace("followers = 2", "followers = 2\nmass_kg = -1"))
@@ -71,6 +72,7 @@ def test_bad_scenario_exit_2(tmp_path: Path, capsys: pytest.CaptureFixture[str])
     assert "platoon.mass_kg" in err and str(scen) in err
 
 
+@pytest.mark.quick
 def test_missing_file_and_bad_arguments_exit_2(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     rc, _, err = run_cli(["simulate", str(tmp_path / "missing.toml")], capsys)
     assert rc == EXIT_BAD_INPUT
@@ -80,6 +82,7 @@ def test_missing_file_and_bad_arguments_exit_2(tmp_path: Path, capsys: pytest.Ca
     one_error(err)
 
 
+@pytest.mark.quick
 def test_failed_run_still_writes_and_exits_1(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     scen = tmp_path / "crash.toml"
     scen.write_text(CRASH)

@@ -15,6 +15,8 @@ from aev_ocp.params import (ATOL_RANGE, RTOL_RANGE, CarFollowingParams, CellPara
                             PowertrainOptions, SimOptions, Units, VehicleParams, field_checks)
 from aev_ocp.scenarios import ScenarioError, find_scenario, parse_scenario
 
+pytestmark = pytest.mark.quick  # the whole module runs in the sub-minute subset (pytest -m quick)
+
 DATACLASSES = (Units, CarFollowingParams, VehicleParams, CellParams, PackParams, PowertrainOptions, SimOptions,
                MPCSettings)
 

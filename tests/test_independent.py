@@ -37,6 +37,8 @@ from aev_ocp.params import CellParams, EVParams, PackParams, PowertrainOptions, 
 from aev_ocp.plant import EVENT_RULES, PLAN_TOLERANCE
 from aev_ocp.simulate import simulate_platoon
 
+pytestmark = pytest.mark.quick  # the whole module runs in the sub-minute subset (pytest -m quick)
+
 ETA = 0.73
 UNITS = Units(length_m=12.0, speed_mps=4.0)  # T = 3 s, U/L = 1/3 s⁻¹
 VEH = VehicleParams(mass_kg=1610.0, efficiency=ETA, aux_power_W=420.0, grade_rad=0.013)

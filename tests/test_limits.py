@@ -8,6 +8,8 @@ import pytest
 from aev_ocp import limits
 from aev_ocp.params import ParameterError
 
+pytestmark = pytest.mark.quick  # the whole module runs in the sub-minute subset (pytest -m quick)
+
 
 @pytest.mark.parametrize("problem", ["prop31", "current-profile", "eco-trip", "oracle"])
 @pytest.mark.parametrize("method", ["ms", "collocation"])

@@ -17,6 +17,8 @@ from aev_ocp.models.leader import PaperLeader, SpeedTrace, drive_cycle, load_cyc
 from aev_ocp.params import (CarFollowingParams, CellParams, EVParams, PackParams, ParameterError,
                             PowertrainOptions, Units, VehicleParams)
 
+pytestmark = pytest.mark.quick  # the whole module runs in the sub-minute subset (pytest -m quick)
+
 
 def test_laws_by_hand() -> None:
     h, v, vl = 1.0, 1.0, 1.5

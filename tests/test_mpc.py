@@ -86,6 +86,7 @@ def test_constraints_hold_in_every_closed_loop_step(canonical10):
     assert r.metrics()[0]["min_gap_model"] >= 0.2 - 1e-4
 
 
+@pytest.mark.quick
 def test_stage_cost_and_constraints_rechecked_in_numpy():
     ctrl = MPCController(MPCSettings(), EV)
     vm, vh = _forecast(3.0, 40)
@@ -217,6 +218,7 @@ def test_mixed_platoon_cooperative_and_laws():
     assert all(s["fallbacks"] == 0 for s in r.solver_stats if s)
 
 
+@pytest.mark.quick
 def test_bad_platoon_configuration_errors():
     with pytest.raises(ParameterError, match="cooperative"):
         ClosedLoop(PaperLeader(), [Proposed(), MPCVehicle(MPCSettings(N=5), predictor="cooperative")])
@@ -285,6 +287,7 @@ def test_rti_failed_qp_is_a_failure_and_restarts_cold():
     assert ctrl.solve(z0, *fc).path == "rti"
 
 
+@pytest.mark.quick
 def test_rti_failure_in_closed_loop_applies_counted_fallback(monkeypatch):
     import aev_ocp.mpc.controller as C
 

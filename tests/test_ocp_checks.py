@@ -206,8 +206,10 @@ def test_multistart_keeps_the_best_and_reports_the_spread():
     assert rec["best"] == "b" and b.objective == 1.5 and rec["spread"] == pytest.approx(1.5)
 
 
-def test_cli_eco_trip_reports_gap_refinement_and_multistart(capsys):
+def test_cli_eco_trip_reports_gap_refinement_and_multistart(capsys, tmp_path, monkeypatch):
     from aev_ocp.ocp.cli import cli_ocp
+
+    monkeypatch.chdir(tmp_path)  # the default output folder results/ocp/eco-trip goes there
 
     assert cli_ocp(["eco-trip", "--N", "40", "--multistart"]) == 0
     out = capsys.readouterr().out

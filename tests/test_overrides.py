@@ -15,6 +15,8 @@ from aev_ocp.overrides import OverrideError, apply_to_document, parse_assignment
 from aev_ocp.scenarios import ScenarioError, find_scenario, load_scenario
 from aev_ocp.simulate import simulate_platoon
 
+pytestmark = pytest.mark.quick  # the whole module runs in the sub-minute subset (pytest -m quick)
+
 TABLE1_TEXT = find_scenario("table1").read_text()
 
 

@@ -18,6 +18,7 @@ def _meas(v0: float, a: float, n: int = 6, dt: float = 0.1) -> Measurements:
     return Measurements(t, v0 + a * t)
 
 
+@pytest.mark.quick
 @given(v0=st.floats(0.3, 2.1), a=st.floats(-0.9, 0.9), tau=st.floats(0.2, 4.0))
 @settings(max_examples=60, deadline=None)
 def test_decaying_acceleration_closed_form_and_consistent_position(v0: float, a: float, tau: float) -> None:

@@ -10,6 +10,7 @@ from pathlib import Path
 
 import casadi
 import numpy as np
+import pytest
 
 from aev_ocp import __version__
 from aev_ocp.provenance import context, provenance, scenario_sha256
@@ -19,6 +20,7 @@ from aev_ocp.scenarios import find_scenario, load_scenario
 ROOT = Path(__file__).parents[1]
 
 
+@pytest.mark.quick
 def test_record_has_versions_time_scenario_and_seeds(tmp_path: Path) -> None:
     sc = load_scenario(find_scenario("table1"))
     before = provenance().get("scenario")

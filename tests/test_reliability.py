@@ -59,6 +59,7 @@ def small(tmp_path: Path, fname: str = "s.toml", *, name: str = "small", law: st
 
 
 # ----------------------------------------------------------------------------- 1. where files land
+@pytest.mark.quick
 @pytest.mark.parametrize("bad", ["ABSOLUTE", "../../../escape", "", "a/b", "..", ".hidden"])
 def test_scenario_name_cannot_choose_a_folder_outside_results(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
                                                                capsys: pytest.CaptureFixture[str], bad: str) -> None:
@@ -75,6 +76,7 @@ def test_scenario_name_cannot_choose_a_folder_outside_results(tmp_path: Path, mo
     assert not any(t.exists() for t in targets)
 
 
+@pytest.mark.quick
 def test_output_folder_of_another_run_is_never_clobbered(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
                                                         capsys: pytest.CaptureFixture[str]) -> None:
     monkeypatch.chdir(tmp_path)
@@ -94,6 +96,7 @@ def test_output_folder_of_another_run_is_never_clobbered(tmp_path: Path, monkeyp
     assert (user / "metrics.json").read_text() == '{"mine": 1}'
 
 
+@pytest.mark.quick
 def test_claim_output_dir_unit(tmp_path: Path) -> None:
     from aev_ocp.results import OutputError, claim_output_dir
 
@@ -108,6 +111,7 @@ def test_claim_output_dir_unit(tmp_path: Path) -> None:
 
 
 # ----------------------------------------------------------------------------- 2. nothing ignored silently
+@pytest.mark.quick
 def test_law_that_compare_would_ignore_is_refused(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     text = (ROOT / "scenarios" / "table1.toml").read_text().replace('law = "proposed"', 'law = "idm"')
     scen = tmp_path / "copy.toml"
@@ -119,6 +123,7 @@ def test_law_that_compare_would_ignore_is_refused(tmp_path: Path, capsys: pytest
     assert not (tmp_path / "o").exists()
 
 
+@pytest.mark.quick
 @pytest.mark.parametrize("compare, platoon_extra, match", [
     ('compare = ["ovfl", "ovfl"]', "", "compare.*twice"),
     ('compare = ["ovfl", "proposed"]', 'laws = ["ovfl", "proposed"]', "platoon.laws.*compare"),
@@ -133,6 +138,7 @@ def test_compare_siblings(tmp_path: Path, compare: str, platoon_extra: str, matc
         load_scenario(p)
 
 
+@pytest.mark.quick
 def test_coefficients_of_a_law_that_never_runs_warn(tmp_path: Path) -> None:
     p = small(tmp_path, extra="[carfollowing.idm]\nv0 = 1.9\n")
     with pytest.warns(ScenarioWarning, match="carfollowing.idm"):
@@ -210,8 +216,8 @@ def test_plot_and_file_writers_use_unique_temp_names_and_plain_modes(tmp_path: P
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from aev_ocp.mpc.plots import _save as mpc_save
-    from aev_ocp.ocp_plots import _save as ocp_save
+    from aev_ocp.mpc.plots import save_figure as mpc_save  # both modules write through aev_ocp.plots.save_figure
+    from aev_ocp.ocp_plots import save_figure as ocp_save
 
     for fixed in (".mpc_trajectories.tmp.png", ".ocp.tmp.png"):  # the old fixed temp names, taken by others
         (tmp_path / fixed).mkdir()
@@ -227,6 +233,7 @@ def test_plot_and_file_writers_use_unique_temp_names_and_plain_modes(tmp_path: P
     assert sorted(p.name for p in tmp_path.iterdir() if p.is_file()) == ["a.csv", "mpc_trajectories.png", "ocp.png"]
 
 
+@pytest.mark.quick
 def test_failed_figure_write_leaves_no_temp_file(tmp_path: Path) -> None:
     from aev_ocp.results import save_figure_atomic
 
@@ -241,6 +248,7 @@ def test_failed_figure_write_leaves_no_temp_file(tmp_path: Path) -> None:
 
 
 # ----------------------------------------------------------------------------- 6. size limits
+@pytest.mark.quick
 @pytest.mark.parametrize("followers, t_end, dt_out, key", [
     (10**7, 3.0, 0.05, "platoon.followers"),
     (2**62, 3.0, 0.05, "platoon.followers"),
@@ -258,6 +266,7 @@ def test_runs_too_large_for_memory_are_refused_before_they_start(tmp_path: Path,
     assert key in line and ("GB" in line or "samples" in line), line
 
 
+@pytest.mark.quick
 def test_ten_thousand_followers_are_thinned_to_fit(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     from aev_ocp.scenarios import estimate_run_bytes, memory_limit_bytes
 
@@ -269,6 +278,7 @@ def test_ten_thousand_followers_are_thinned_to_fit(tmp_path: Path, monkeypatch: 
     assert estimate_run_bytes(10_000, 70.0, s.dt_out) <= memory_limit_bytes() <= 4e9
 
 
+@pytest.mark.quick
 def test_mpc_horizon_too_large_is_refused(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     scen = small(tmp_path, followers=1, extra="[mpc]\nN = 1000000000\nsolver = \"ipopt\"\n")
     rc, _, err = run_cli(["mpc", str(scen), "--out", str(tmp_path / "o")], capsys)
@@ -277,6 +287,7 @@ def test_mpc_horizon_too_large_is_refused(tmp_path: Path, capsys: pytest.Capture
 
 
 # ----------------------------------------------------------------------------- 7. unreadable files
+@pytest.mark.quick
 def test_unreadable_scenario_files_are_one_line_bad_input(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     cases = {}
     (tmp_path / "bin.toml").write_bytes(b"name = \"x\"\n\xff\xfe\x00\x01binary")
@@ -343,6 +354,7 @@ def test_mpc_run_stopped_by_an_event_exits_1_with_one_error_line(tmp_path: Path,
     assert res["status"] == "collision" and res["runs"]["proposed"]["status"] == "ok"
 
 
+@pytest.mark.quick
 @pytest.mark.parametrize("extra, match", [
     ("[mpc]\nvehicles = [7]\n", r"s\.toml: mpc\.vehicles = \[7\].*do not exist"),
     ("[mpc]\nh_min = 2.5\n", r"mpc\.h_min = 2\.5.*infeasible"),
@@ -358,6 +370,7 @@ def test_mpc_infeasible_or_missing_vehicles_are_bad_input(tmp_path: Path, capsys
 
 
 # ----------------------------------------------------------------------------- 10. one error style
+@pytest.mark.quick
 @pytest.mark.parametrize("argv", [
     ["mpc"], ["mpc", "mpc_paper_single", "--solver", "nope"], ["mpc", "mpc_paper_single", "--t-end", "-1"],
     ["ocp"], ["ocp", "nope"], ["ocp", "prop31", "--N", "0"], ["ocp", "prop31", "table1"],
@@ -385,6 +398,7 @@ def test_warnings_are_one_line_on_the_command_line(capsys: pytest.CaptureFixture
     assert interrupts.interrupted() == 0
 
 
+@pytest.mark.quick
 def test_csv_round_trip_matches_the_arrays(tmp_path: Path) -> None:
     import csv
 
@@ -404,6 +418,7 @@ def test_csv_round_trip_matches_the_arrays(tmp_path: Path) -> None:
 
 
 # ----------------------------------------------------------------------------- siblings
+@pytest.mark.quick
 def test_ocp_sizes_are_checked_before_building(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     rc, _, err = run_cli(["ocp", "eco-trip", "--N", str(10**9)], capsys)
     line = one_error(err)

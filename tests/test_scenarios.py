@@ -13,6 +13,8 @@ from aev_ocp.models.leader import PaperLeader, SpeedTrace
 from aev_ocp.scenarios import (ScenarioError, ScenarioWarning, TableReader, find_scenario, load_scenario,
                                register_section, shipped_scenarios)
 
+pytestmark = pytest.mark.quick  # the whole module runs in the sub-minute subset (pytest -m quick)
+
 BASE = """
 name = "t"
 compare = ["proposed", "ovfl"]

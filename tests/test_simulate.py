@@ -81,6 +81,7 @@ def test_charge_balance(method: str) -> None:
     assert errs[1] < errs[0] / 15  # (0.01/0.002)² = 25 for a second-order rule
 
 
+@pytest.mark.quick
 def test_table1_converged_across_tolerances(table1: dict[str, Any]) -> None:
     r = table1["proposed"]
     loose = simulate_platoon(PaperLeader(), [Proposed()] * 5, GAPS, SPEEDS, 70.0, rtol=1e-8, atol=1e-8, dt_out=0.02)
@@ -154,6 +155,7 @@ def test_infeasible_current_detected(method: str) -> None:
     assert r.events[0].time == 0.0 and r.events[0].vehicle == 0
 
 
+@pytest.mark.quick
 @pytest.mark.parametrize("method", METHODS)
 def test_soc_out_of_range_detected(method: str) -> None:
     ev = EVParams(cell=CellParams(capacity_Ah=1e-4, soc0=0.01), pack=PackParams(106, 700))
@@ -162,6 +164,7 @@ def test_soc_out_of_range_detected(method: str) -> None:
     assert 0 < r.events[0].time < 50
 
 
+@pytest.mark.quick
 def test_mixed_platoon_and_reuse() -> None:
     sim = PlatoonSimulator(PaperLeader(), [Proposed(), OVFL(), OVM(alpha=1.5)], options=SimOptions(dt_out=0.05))
     a = sim.run([0.3, 3.5, 3.5], [1.87] * 3, 30.0)
@@ -194,6 +197,7 @@ def test_min_gap_continuous_below_samples(table1: dict[str, Any]) -> None:
     assert all(mm["collisions"] == 0 for mm in m)
 
 
+@pytest.mark.quick
 def test_cascade_and_cvodes_agree_on_a_mixed_platoon() -> None:
     """The two integrators share no stepping code: their trajectories and integrals must agree."""
     laws = [Proposed(), OVFL(), OVM(alpha=1.5), Proposed(kappa=0.1)]
@@ -207,6 +211,7 @@ def test_cascade_and_cvodes_agree_on_a_mixed_platoon() -> None:
     np.testing.assert_allclose(a.int_jerk2, b.int_jerk2, rtol=1e-5, atol=1e-6)
 
 
+@pytest.mark.quick
 def test_event_time_is_located_between_samples() -> None:
     """A 106s1p pack cannot follow the paper leader: both integrators place the infeasible-current event
     at the same time, well inside a sample interval (dt_out = 0.01)."""

@@ -53,6 +53,7 @@ def _stable(rows: list[dict]) -> str:
     return json.dumps([{k: v for k, v in r.items() if k not in VOLATILE} for r in rows], sort_keys=True)
 
 
+@pytest.mark.quick
 def test_points_equal_direct_simulations(tmp_path):
     out = run_study(read_study(_study(tmp_path)), tmp_path / "out", executor="inprocess", report=False,
                     progress_stream=sys.stderr)
@@ -100,6 +101,7 @@ def test_executors_identical_and_dask_local_cluster(tmp_path):
     assert tables["pool-store"] == tables["inprocess-store"] == tables["dask-store"]
 
 
+@pytest.mark.quick
 def test_resume_recomputes_only_what_is_missing(tmp_path, monkeypatch):
     f = _study(tmp_path)
     out1 = run_study(read_study(f), tmp_path / "o", executor="inprocess", report=False)
@@ -160,6 +162,7 @@ def test_table_loads_back_from_csv_and_jsonl(tmp_path):
     assert (tmp_path / "o" / "fig_omega_model_vs_carfollowing_kappa.png").stat().st_size > 1000
 
 
+@pytest.mark.quick
 def test_random_and_zip_axes(tmp_path):
     text = """
 scenarios = ["table1"]
@@ -203,6 +206,7 @@ def test_bad_study_is_one_line_naming_file_axis_key(tmp_path, capsys, edit, need
     assert not (tmp_path / "o").exists()  # nothing ran
 
 
+@pytest.mark.quick
 def test_cli_set_and_mpc_validation(tmp_path, capsys):
     f = _study(tmp_path)
     rc = main(["study", str(f), "--out", str(tmp_path / "o"), "--in-process", "--set", "simulation.t_end=1.5",

@@ -215,19 +215,139 @@ class SpeedTrace(LeaderProfile):
                 "max_speed": max(self.speeds)}
 
 
+# unit -> SI factor of the columns a trace file may use
+TIME_UNITS = {"s": 1.0, "ms": 1e-3, "min": 60.0}
+SPEED_UNITS = {"m/s": 1.0, "km/h": 1.0 / 3.6, "mph": 0.44704, "ft/s": 0.3048}  # mph, ft: exact (NIST SP 811)
+LENGTH_UNITS = {"m": 1.0, "km": 1000.0, "ft": 0.3048, "mi": 1609.344}
+MAX_GAP_S = 10.0  # default largest sampling gap of a trace [s] (our choice: longer is a hole in the data)
+
+
+def _column(header: list[str], name: str, what: str, where: str) -> int:
+    if name not in header:
+        raise ParameterError(f"{where}: {what} = {name!r} is not a column of the file; its columns are {header}")
+    return header.index(name)
+
+
+def read_trace_csv(source: Any, *, time_column: str = "time", speed_column: str | None = None,
+                   position_column: str | None = None, time_unit: str = "s", speed_unit: str = "m/s",
+                   position_unit: str = "m", max_gap_s: float | None = MAX_GAP_S, filter_column: str | None = None,
+                   filter_value: Any = None, label: str | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """A recorded trajectory from a CSV file (header row, then one row per sample): times [s] from 0 and
+    speeds [m/s], validated.
+
+    source: a path (or a package resource); time_column in ``time_unit`` (TIME_UNITS); either
+    speed_column in ``speed_unit`` (SPEED_UNITS) or position_column in ``position_unit`` (LENGTH_UNITS;
+    the speed is then its derivative, numpy.gradient, second order, exact for quadratic motion);
+    filter_column/filter_value keep only the rows of one vehicle (NGSIM/highD files hold many).
+    Times are shifted to start at 0. ParameterError names the file, the row (as a spreadsheet counts
+    them: the header is row 1) and the column for a missing or non-finite value, a time that does not
+    increase, a negative speed or a sampling gap larger than ``max_gap_s`` [s] (None: no check)."""
+    name = label or str(getattr(source, "name", source))
+    if (speed_column is None) == (position_column is None):
+        raise ParameterError(f"trace {name}: give exactly one of speed_column and position_column")
+    for what, unit, table in (("time_unit", time_unit, TIME_UNITS), ("speed_unit", speed_unit, SPEED_UNITS),
+                              ("position_unit", position_unit, LENGTH_UNITS)):
+        if unit not in table:
+            raise ParameterError(f"trace {name}: {what} = {unit!r} is not allowed: must be one of {list(table)}")
+    try:
+        with source.open(newline="", encoding="utf-8") as fh:
+            rows = list(csv.reader(fh))
+    except OSError as exc:
+        raise ParameterError(f"trace {name}: cannot read the file ({exc.strerror or exc})") from None
+    except UnicodeDecodeError:
+        raise ParameterError(f"trace {name}: not a text (UTF-8) CSV file") from None
+    if not rows:
+        raise ParameterError(f"trace {name}: the file is empty (expected a header row, then one row per sample)")
+    header = [h.strip() for h in rows[0]]
+    col_t = _column(header, time_column, "time_column", f"trace {name}")
+    value_col, value_what = ((speed_column, "speed_column") if speed_column is not None
+                             else (position_column, "position_column"))
+    col_v = _column(header, str(value_col), value_what, f"trace {name}")
+    col_f = _column(header, filter_column, "filter_column", f"trace {name}") if filter_column is not None else None
+    t_list: list[float] = []
+    v_list: list[float] = []
+    line_no: list[int] = []
+    for k, row in enumerate(rows[1:], start=2):
+        if not row or all(not c.strip() for c in row):
+            continue  # blank line
+        if col_f is not None and not _matches(row[col_f] if col_f < len(row) else "", filter_value):
+            continue
+        vals = []
+        for col, cname in ((col_t, time_column), (col_v, value_col)):
+            text = row[col].strip() if col < len(row) else ""
+            try:
+                x = float(text)
+            except ValueError:
+                x = math.nan
+            if not math.isfinite(x):
+                raise ParameterError(f"trace {name}, row {k}, column {cname!r}: {text!r} is not a finite number")
+            vals.append(x)
+        t_list.append(vals[0])
+        v_list.append(vals[1])
+        line_no.append(k)
+    what = f" with {filter_column} = {filter_value!r}" if filter_column is not None else ""
+    if len(t_list) < 2:
+        raise ParameterError(f"trace {name}: needs at least 2 samples{what}, found {len(t_list)}")
+    t = (np.asarray(t_list) - t_list[0]) * TIME_UNITS[time_unit]  # shift first: epoch times in ms keep their digits
+    dt = np.diff(t)
+    bad = np.flatnonzero(dt <= 0)
+    if bad.size:
+        j = int(bad[0])
+        raise ParameterError(f"trace {name}, row {line_no[j + 1]}, column {time_column!r}: time {t_list[j + 1]!r} does "
+                             f"not increase (row {line_no[j]} has {t_list[j]!r}); times must increase strictly")
+    if max_gap_s is not None and dt.max() > max_gap_s:
+        j = int(np.argmax(dt))
+        raise ParameterError(f"trace {name}, rows {line_no[j]}-{line_no[j + 1]}: a sampling gap of {dt[j]:.6g} s, "
+                             f"more than max_gap_s = {max_gap_s:g} s (a hole in the data; raise max_gap_s to accept it)")
+    if speed_column is not None:
+        v = np.asarray(v_list) * SPEED_UNITS[speed_unit]
+        col = speed_column
+    else:
+        x = np.asarray(v_list) * LENGTH_UNITS[position_unit]
+        v = np.gradient(x, t, edge_order=2) if t.size > 2 else np.full(2, (x[1] - x[0]) / dt[0])
+        col = f"{position_column} (speed = d/dt)"
+    neg = np.flatnonzero(v < 0)
+    if neg.size:
+        j = int(neg[0])
+        raise ParameterError(f"trace {name}, row {line_no[j]}, column {col!r}: speed {v[j]:.6g} m/s is negative; "
+                             "a leader only drives forward")
+    return t, v
+
+
+def _matches(text: str, value: Any) -> bool:
+    """Whether a CSV cell equals ``value`` (numbers compared as numbers: '12.0' matches 12)."""
+    text = text.strip()
+    if isinstance(value, (int, float)) and not isinstance(value, bool):
+        try:
+            return float(text) == float(value)
+        except ValueError:
+            return False
+    return text == str(value)
+
+
 def load_cycle_si(name: str) -> tuple[np.ndarray, np.ndarray]:
     """EPA cycle shipped with the package (see aev_ocp/data/README.md): times [s], speeds [m/s]."""
     key = name.lower()
     if key not in CYCLES:
         raise ParameterError(f"unknown drive cycle {name!r}: known cycles are {list(CYCLES)}")
     path = resources.files("aev_ocp") / "data" / "cycles" / f"{key}.csv"
-    with path.open() as fh:
-        rows = list(csv.DictReader(fh))
-    return (np.array([float(r["time_s"]) for r in rows]), np.array([float(r["speed_mps"]) for r in rows]))
+    return read_trace_csv(path, time_column="time_s", speed_column="speed_mps", max_gap_s=None, label=f"{key}.csv")
+
+
+def trace_leader(times_s: np.ndarray, speeds_mps: np.ndarray, units: Units, label: str) -> SpeedTrace:
+    """A recorded or drive-cycle speed trace (SI) as the leader in ``units``: the one resampling of every
+    trace (linear interpolation between samples, held after the end; :class:`SpeedTrace`)."""
+    return SpeedTrace.from_si(times_s, speeds_mps, units, label=label)
 
 
 def drive_cycle(name: str, units: Units) -> SpeedTrace:
     """An EPA drive cycle (udds, hwfet, us06) as a SpeedTrace in ``units``."""
     t, v = load_cycle_si(name)
-    return SpeedTrace.from_si(t, v, units, label=name.lower())
+    return trace_leader(t, v, units, name.lower())
 
+
+def csv_trace(path: Any, units: Units, label: str | None = None, **columns: Any) -> SpeedTrace:
+    """A leader that follows a recorded trajectory in a CSV file (see :func:`read_trace_csv` for
+    ``columns``: time_column, speed_column or position_column, units, max_gap_s, filter), in ``units``."""
+    t, v = read_trace_csv(path, label=label, **columns)
+    return trace_leader(t, v, units, label or "trace")

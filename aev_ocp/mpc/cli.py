@@ -1,5 +1,5 @@
-"""``aev-ocp mpc SCENARIO.toml [--out DIR] [--solver ...]``: the MPC closed loop of a scenario beside the
-closed-form laws (and OCP-D for a single follower); writes results.json, a trajectories CSV and plots."""
+"""``aev-ocp mpc SCENARIO.toml [--out DIR] [--set KEY=VALUE] [--solver ...] [--time-limit S]``: the MPC closed loop of a scenario beside the
+closed-form laws (and OCP-D for a single follower); writes results.json, a trajectories CSV, plots, manifest.json and trajectories.npz."""
 
 from __future__ import annotations
 
@@ -13,20 +13,43 @@ OUTPUT_FILES = ("results.json", "trajectories_mpc.csv", "mpc_trajectories.png", 
 
 
 def build_parser() -> argparse.ArgumentParser:
-    """Argument parser of ``aev-ocp mpc``."""
+    """Argument parser of ``aev-ocp mpc`` (every option with its unit and default)."""
     from ..cli import OneLineParser
 
-    p = OneLineParser(prog="aev-ocp mpc", description=__doc__.splitlines()[0])
-    p.add_argument("scenario", help="scenario TOML file or shipped scenario name (e.g. mpc_paper_single)")
-    p.add_argument("--out", default=None, help="output folder (default results/mpc/<scenario name>)")
-    p.add_argument("--solver", choices=SOLVER_PATHS, default=None, help="solver path (default: the scenario's)")
-    p.add_argument("--qp-solver", choices=QP_SOLVERS, default=None, help="QP solver of the sqp path")
+    p = OneLineParser(prog="aev-ocp mpc", description="The MPC closed loop of a scenario beside the closed-form laws (and the "
+                      "OCP-D lower bound for a single follower); writes results.json, trajectories_mpc.csv, plots, "
+                      "manifest.json and trajectories.npz into the output folder.",
+                      epilog="Exit codes: 0 ok; 1 the MPC run stopped on an event (collision, infeasible current, "
+                             "time limit, ...; results up to then are written) or a solver failed; 2 bad input; "
+                             "130 interrupted. Load the results with aev_ocp.load(OUT).")
+    p.add_argument("scenario", help="scenario TOML file or shipped scenario name (e.g. mpc_paper_single); its [mpc] "
+                   "table holds the controller settings (defaults: PROBLEM.md §9)")
+    p.add_argument("--out", default=None, metavar="DIR",
+                   help="output folder (default: results/mpc/<scenario name>/)")
+    p.add_argument("--set", dest="sets", action="append", default=[], metavar="KEY=VALUE",
+                   help="override a scenario key, e.g. --set mpc.N=20 --set simulation.t_end=5 (repeatable; "
+                        "checked like the file; default: none)")
+    p.add_argument("--solver", choices=SOLVER_PATHS, default=None,
+                   help="solver path (default: the scenario's mpc.solver, else ipopt)")
+    p.add_argument("--qp-solver", choices=QP_SOLVERS, default=None,
+                   help="QP solver of the sqp and rti paths (default: the scenario's mpc.qp_solver, else hpipm)")
     cg = p.add_mutually_exclusive_group()
-    cg.add_argument("--codegen", action="store_true", default=None, help="compile the NLP functions to C (gcc)")
-    cg.add_argument("--no-codegen", dest="codegen", action="store_false", help="interpreted CasADi functions")
-    p.add_argument("--t-end", type=_positive_float, default=None, help="shorter horizon [model time] for a quick run")
-    p.add_argument("--laws", nargs="*", default=None, help="closed-form laws to compare (default proposed ovfl)")
-    p.add_argument("--no-ocpd", action="store_true", help="skip the OCP-D lower bound")
+    cg.add_argument("--codegen", action="store_true", default=None,
+                    help="compile the NLP functions to C with gcc (default: the scenario's mpc.codegen, else off)")
+    cg.add_argument("--no-codegen", dest="codegen", action="store_false",
+                    help="interpreted CasADi functions (overrides the scenario's mpc.codegen)")
+    p.add_argument("--t-end", type=_positive_float, default=None, metavar="T",
+                   help="shorter horizon [model time, 1 = L/U s] for a quick run (default: the scenario's "
+                        "simulation.t_end)")
+    p.add_argument("--laws", nargs="*", default=None, metavar="LAW",
+                   help="closed-form laws to compare (default: the scenario's compare list, else proposed ovfl)")
+    p.add_argument("--no-ocpd", action="store_true", help="skip the OCP-D lower bound (default: solved for a "
+                   "single follower)")
+    p.add_argument("--time-limit", type=_positive_float, default=None, metavar="S",
+                   help="wall-clock limit of the MPC closed loop [s]: the loop stops cleanly at the first step "
+                        "past it, with status time_limit and a partial result (default: none)")
+    p.add_argument("--progress-every", type=_positive_float, default=2.0, metavar="S",
+                   help="seconds between progress lines (step k/N, elapsed, ETA) on stderr (default: 2)")
     return p
 
 
@@ -52,13 +75,16 @@ def cli_mpc(argv: list[str]) -> int:
 def _cli_mpc(argv: list[str]) -> int:
     from ..cli import error_line
     from ..results import claim_output_dir, default_output_dir
-    from ..scenarios import find_scenario, load_scenario
+    from ..overrides import load_with_sets
+    from ..progress import TIME_LIMIT, Progress
+    from ..saved import OUTPUT_FILES as SAVED_FILES, save_output, settings_of
+    from ..scenarios import find_scenario
     from .report import check_mpc_scenario, comparison_table, run_comparison, write_outputs
     from .scenario import MPCConfig
     from .settings import MPCSettings
 
     a = build_parser().parse_args(argv)
-    sc = load_scenario(find_scenario(a.scenario))
+    sc = load_with_sets(str(find_scenario(a.scenario)), a.sets)
     from ..provenance import declare
 
     declare(sc)  # every JSON this command writes names the scenario and its SHA-256
@@ -73,18 +99,31 @@ def _cli_mpc(argv: list[str]) -> int:
     check_mpc_scenario(sc, s, laws)  # bad input is refused before anything runs or is written
     out = Path(a.out) if a.out else default_output_dir("mpc", sc.name)
     overlays = tuple(f"overlay_vehicle{i + 1}.png" for i in range(sc.n_followers))
-    claim_output_dir(out, "mpc", sc.name, str(sc.source) if sc.source else None, OUTPUT_FILES + overlays)
-    c = run_comparison(sc, s, laws=laws, with_ocpd=not a.no_ocpd,
-                       log=lambda m: print(f"[mpc] {m}", file=sys.stderr, flush=True))
+    claim_output_dir(out, "mpc", sc.name, str(sc.source) if sc.source else None,
+                     OUTPUT_FILES + SAVED_FILES + overlays)
+    say = (lambda m: print(f"[mpc] {m}", file=sys.stderr, flush=True))  # noqa: E731
+    prog = Progress("", unit="steps", time_limit_s=a.time_limit, every_s=a.progress_every, say=say)
+    c = run_comparison(sc, s, laws=laws, with_ocpd=not a.no_ocpd, log=say, progress=prog)
     write_outputs(c, out)
+    save_output(out, "mpc", c.results, primary="mpc",
+                settings=settings_of(sc, solver=s.solver, qp_solver=s.qp_solver, codegen=s.codegen, t_end=sc.t_end,
+                                     laws=list(laws), ocpd=not a.no_ocpd, sets=list(a.sets),
+                                     time_limit_s=a.time_limit),
+                extra={"ocp_d": c.ocpd, "comparison_metrics": c.metrics, "timings_s": c.timings_s,
+                       "warnings": c.warnings})
     r = c.results["mpc"]
     for i in range(r.n_vehicles):
         print(f"\nfollower {i + 1}:")
         print(comparison_table(c, i))
-    print(f"\nwrote {out}/results.json, trajectories_mpc.csv and plots")
+    print(f"\nwrote {out}/results.json, trajectories_mpc.csv, plots and manifest.json + trajectories.npz "
+          f"(aev_ocp.load('{out}'))")
     for lab, res in c.results.items():
         if lab != "mpc" and res.events:
             print(f"aev-ocp: warning: run {lab} stopped: {res.events[0]}", file=sys.stderr, flush=True)
+    if r.status == TIME_LIMIT:
+        error_line(f"scenario {sc.name}, run mpc stopped by --time-limit {a.time_limit:g} s at t = "
+                   f"{r.events[0].time:.4g} of {sc.t_end:g}: partial result (status time_limit) written to {out}/")
+        return 1
     if r.events:
         error_line(f"scenario {sc.name}, run mpc: {r.events[0]} (results up to that time written to {out}/)")
         return 1

@@ -14,6 +14,7 @@ from .. import interrupts
 from ..ocp.checks import GAP_RTOL as SMOOTHING_GAP_RTOL
 from ..ocp.oracle import OracleScenario, OracleSolver, stage_cost_of_result
 from ..control import ClosedLoop, ControlSequence
+from ..progress import Progress
 from ..results import SimulationResult, write_json
 from ..simulate import simulate_platoon
 from .scenario import MPCConfig, closed_loop_from_scenario
@@ -98,9 +99,12 @@ def _cost_s9(r: SimulationResult, i: int, s: MPCSettings, exact: bool = False) -
 
 
 def run_comparison(scenario: Any, settings: MPCSettings | None = None, laws: tuple[str, ...] = ("proposed", "ovfl"),
-                   with_ocpd: bool = True, log: Callable[[str], None] | None = None) -> Comparison:
+                   with_ocpd: bool = True, log: Callable[[str], None] | None = None,
+                   progress: Progress | None = None) -> Comparison:
     """MPC closed loop on ``scenario`` (its [mpc] table, or ``settings``) beside each law in ``laws``
-    (whole platoon on that law, same leader and initial state) and OCP-D for a single follower."""
+    (whole platoon on that law, same leader and initial state) and OCP-D for a single follower.
+    progress: reports the MPC loop (step k/N, ETA) and holds its time limit: the loop then stops with
+    status 'time_limit' (a partial result) and OCP-D is skipped."""
     cfg: MPCConfig = scenario.extra.get("mpc") or MPCConfig(MPCSettings())
     s = settings or cfg.settings
     say = log or (lambda m: None)
@@ -109,7 +113,9 @@ def run_comparison(scenario: Any, settings: MPCSettings | None = None, laws: tup
     t0 = time.perf_counter()
     say(f"MPC closed loop ({s.solver}{'+codegen' if s.codegen else ''}, N = {s.N}) on {scenario.name}")
     out["mpc"] = closed_loop_from_scenario(scenario, cfg, s).run(list(scenario.gaps0), list(scenario.speeds0),
-                                                                 scenario.t_end, progress=_progress(say, "mpc"))
+                                                                 scenario.t_end,
+                                                                 progress=(progress.closed_loop(s.dt) if progress
+                                                                           else _progress(say, "mpc")))
     tim["mpc"] = time.perf_counter() - t0
     for name in laws:
         t0 = time.perf_counter()
@@ -135,7 +141,9 @@ def run_comparison(scenario: Any, settings: MPCSettings | None = None, laws: tup
                             "the optimiser may exploit the smoothing (narrow mpc.smoothing_width_W)")
         metrics[lab] = ms
     ocpd = None
-    if with_ocpd and scenario.n_followers == 1:
+    if with_ocpd and scenario.n_followers == 1 and progress is not None and progress.expired():
+        warn.append("OCP-D skipped: the time limit has passed")
+    elif with_ocpd and scenario.n_followers == 1:
         t0 = time.perf_counter()
         say("OCP-D lower bound (whole scenario, IPOPT)")
         scn = OracleScenario(leader=scenario.leader, t_end=scenario.t_end, dt=s.dt, h0=scenario.gaps0[0],
@@ -176,7 +184,7 @@ def _run_status(r: SimulationResult) -> str:
     if not r.events:
         return "ok"
     e = r.events[0]
-    return f"{e.kind} at t = {e.time:.4g} (vehicle {e.vehicle + 1})"
+    return f"{e.kind} at t = {e.time:.4g}" + (f" (vehicle {e.vehicle + 1})" if e.vehicle >= 0 else "")
 
 
 def comparison_table(c: Comparison, vehicle: int = 0, markdown: bool = False) -> str:

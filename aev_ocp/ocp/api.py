@@ -23,6 +23,7 @@ from .oracle import (OracleScenario, OracleSolver, canonical_scenario, drive_cyc
                      stage_cost_of_result, stage_cost_of_trajectory)
 from .prop31 import run_prop31
 from .result import OCPResult, write_json_atomic
+from ..progress import Progress, TimeLimitReached
 
 __all__ = ["run_prop31", "run_current_profile", "run_eco_trip", "run_oracle", "scenario_ev", "oracle_scenario_from_file"]
 
@@ -65,19 +66,51 @@ def _write_result(res: OCPResult, out: Path, stem: str) -> None:
     res.to_json(out / f"{stem}.json")
 
 
+# the sweep grids of OCP-B and OCP-C (``--grid NAME=v1,v2,...``): name -> (unit, problems)
+GRIDS: dict[str, tuple[str, tuple[str, ...]]] = {"E_req": ("J", ("current-profile",)),
+                                                 "t_f": ("s", ("current-profile", "eco-trip")),
+                                                 "D": ("m", ("eco-trip",))}
+SWEEP_E_J = (1000.0, 2000.0, 3000.0, 4000.0, 6000.0)  # OCP-B sweep (our choice, around E_REQ_J)
+SWEEP_T_F_S = (30.0, 60.0, 120.0)  # OCP-B sweep (our choice, around T_F_S)
+
+
+def _sweep(points: Sequence[Any], solve: Any, progress: Progress | None, done0: int, total: int) -> tuple[list, bool]:
+    """solve(p) for each point in turn, reporting progress after each; stops (returns the solved part and
+    True) when the progress's time limit has passed."""
+    out = []
+    for k, p in enumerate(points):
+        out.append(solve(p))
+        if progress is not None:
+            try:
+                progress.update(done0 + k + 1, total, "solve")
+            except TimeLimitReached:
+                return out, k + 1 < len(points)
+    return out, False
+
+
 def run_current_profile(method: str = "ms", out_dir: str | Path | None = None, scenario: str | Path | None = None,
                         N: int = 200, E_req_J: float = E_REQ_J, t_f_s: float = T_F_S, S0: float = SOC0,
-                        sweep_E_J: Sequence[float] = (1000.0, 2000.0, 3000.0, 4000.0, 6000.0),
-                        sweep_t_f_s: Sequence[float] = (30.0, 60.0, 120.0), refine: bool = True) -> dict[str, Any]:
+                        sweep_E_J: Sequence[float] = SWEEP_E_J, sweep_t_f_s: Sequence[float] = SWEEP_T_F_S,
+                        refine: bool = True, progress: Progress | None = None) -> dict[str, Any]:
     """OCP-B: optimal current for (E_req_J [J], t_f_s [s]) vs constant current / constant power, and a
     sweep over E_req × t_f (one solver, re-solved). Cell parameters from ``scenario`` if given.
     Each row reports the NLP ∫Q and its exact re-simulation; infeasible rows the maximum deliverable
-    energy; refine: the main case is solved again with 2N intervals (meta['refinement'])."""
+    energy; refine: the main case is solved again with 2N intervals (meta['refinement']).
+    progress: reports each solve (k/n, ETA); past its time limit the sweep stops and the output is
+    flagged (``time_limit`` True, the rows solved so far)."""
     solver = CurrentProfileSolver(method, N, cell=scenario_ev(scenario).cell)
     main = compare_profiles(E_req_J, t_f_s, S0, solver)
     if refine and main["result"].success:
         solver.refine(main["result"], S0)
-    rows = [compare_profiles(E, tf, S0, solver)["row"] for tf in sweep_t_f_s for E in sweep_E_J]
+    points = [(E, tf) for tf in sweep_t_f_s for E in sweep_E_J]
+    try:
+        if progress is not None:
+            progress.update(1, 1 + len(points), "solve")
+        cases, stopped = _sweep(points, lambda p: compare_profiles(p[0], p[1], S0, solver), progress, 1,
+                                1 + len(points))
+    except TimeLimitReached:  # after the main solve
+        cases, stopped = [], bool(points)
+    rows = [c["row"] for c in cases]
     hdr = (f"{'E_req [J]':>10}{'t_f [s]':>9}{'status':>12}{'opt ∫Q [J]':>13}{'exact ∫Q [J]':>14}{'CC ∫Q [J]':>12}"
            f"{'CP ∫Q [J]':>12}{'vs CC %':>9}{'vs CP %':>9}")
     lines = ["OCP-B optimal current profile vs constant current (CC) / constant power (CP)", hdr]
@@ -93,19 +126,23 @@ def run_current_profile(method: str = "ms", out_dir: str | Path | None = None, s
                          f"can be delivered within |I| ≤ I_max (max-energy solve)")
         lines += [f"  {r['E_req_J']:g} J in {r['t_f_s']:g} s: WARNING {w}" for w in r["warnings"]]
     lines += _check_lines(main["result"], f"{E_req_J:g} J in {t_f_s:g} s")
+    if stopped:
+        lines.append(f"STOPPED by the time limit: {len(rows)} of {len(points)} sweep points solved (partial sweep)")
     out = {"result": main["result"], "row": main["row"], "references": main["references"], "sweep": rows,
+           "sweep_results": [c["result"] for c in cases], "time_limit": stopped,
            "table": "\n".join(lines), "ok": main["result"].success,
            "warnings": list(main["result"].warnings) + [w for r in rows for w in r["warnings"]]}
     if out_dir is not None:
         o = Path(out_dir)
         _write_result(main["result"], o, "current_profile")
         write_json_atomic(o / "current_profile_sweep.json", {"main": main["row"], "references": main["references"],
-                                                             "sweep": rows})
-        from ..ocp_plots import plot_sweep
+                                                             "sweep": rows, "time_limit": stopped,
+                                                             "grid": {"E_req_J": list(sweep_E_J),
+                                                                      "t_f_s": list(sweep_t_f_s)}})
+        from ..ocp_plots import plot_current_profile_sweep
 
-        plot_sweep([r for r in rows if r["status"] in ("optimal", "acceptable")], "E_req_J",
-                   ["optimal_heat_J", "constant_current_heat_J", "constant_power_heat_J"],
-                   o / "current_profile_sweep.png", group="t_f_s", ylabel="∫Q dt [J per cell]")
+        plot_current_profile_sweep([r for r in rows if r["status"] in ("optimal", "acceptable")],
+                                   o / "current_profile_sweep.png")
     return out
 
 
@@ -118,24 +155,51 @@ def _check_lines(res: OCPResult, label: str) -> list[str]:
 
 def run_eco_trip(method: str = "ms", out_dir: str | Path | None = None, scenario: str | Path | None = None,
                  N: int = 200, trip: EcoTrip | None = None, refine: bool = True, multistart: bool = False,
-                 guesses: Sequence[str] = GUESSES) -> dict[str, Any]:
+                 guesses: Sequence[str] = GUESSES, sweep_D_m: Sequence[float] = (), sweep_t_f_s: Sequence[float] = (),
+                 progress: Progress | None = None) -> dict[str, Any]:
     """OCP-C for ``trip`` (default EcoTrip(): 1 km in 100 s, rest to rest), objective 'heat' and the
     paper's ω ('energy', exact epigraph form), each evaluated on both metrics by the exact
     re-simulation. Vehicle/pack from ``scenario`` if given.
 
     Every result reports its NLP objective next to its exact re-evaluation (warning beyond 0.5 %);
     refine: also solve with 2N intervals and report the change (meta['refinement']); multistart:
-    solve from each of ``guesses`` (eco_trip.GUESSES) and keep the best (meta['multistart'])."""
+    solve from each of ``guesses`` (eco_trip.GUESSES) and keep the best (meta['multistart']).
+    sweep_D_m [m] × sweep_t_f_s [s]: also solve every such trip (either list empty: the main trip's
+    value) for both objectives with the same solvers (rows in 'sweep'); progress: reports each solve,
+    and past its time limit the sweep stops (``time_limit`` True, the rows solved so far)."""
     base = trip or EcoTrip(ev=scenario_ev(scenario))
     results: dict[str, OCPResult] = {}
-    for obj in ("heat", "energy"):
+    solvers: dict[str, EcoTripSolver] = {}
+    grid = ([(D, tf) for tf in (sweep_t_f_s or [base.t_f_s]) for D in (sweep_D_m or [base.distance_m])]
+            if (sweep_D_m or sweep_t_f_s) else [])
+    total = 2 * (1 + len(grid))
+    stopped = False
+    for k, obj in enumerate(("heat", "energy")):
         tr = dataclasses.replace(base, objective=obj)
         # one mapped interval Function (mx_map): build time independent of N, same NLP and optimum
-        solver = EcoTripSolver(tr, method, N, mx_map=True)
+        solver = solvers[obj] = EcoTripSolver(tr, method, N, mx_map=True)
         res = solver.solve_multistart(guesses=guesses) if multistart else solver.solve()
         if refine and res.success:
             solver.refine(res)
         results[obj] = res
+        if progress is not None:
+            try:
+                progress.update(k + 1, total, "solve")
+            except TimeLimitReached:
+                stopped = k + 1 < total
+                break
+
+    def solve_point(p: tuple[str, float, float]) -> OCPResult:
+        obj, D, tf = p
+        return solvers[obj].solve(dataclasses.replace(base, objective=obj, distance_m=D, t_f_s=tf))
+
+    pts = [(obj, D, tf) for obj in ("heat", "energy") for D, tf in grid]
+    sweep_res, more = _sweep(pts, solve_point, progress, 2, total) if not stopped else ([], False)
+    stopped = stopped or more
+    sweep = [{"objective": o, "D_m": D, "t_f_s": tf, "status": r.status, "iterations": r.iterations,
+              "nlp_objective": r.objective, "exact_objective": r.objective_exact,
+              "pack_heat_J": r.meta.get("pack_heat_J", math.nan), "omega_J_per_kg": r.meta.get("omega_J_per_kg", math.nan),
+              "warnings": list(r.warnings)} for (o, D, tf), r in zip(pts, sweep_res)]
     lines = ["OCP-C eco-trip: " + f"{base.distance_m:g} m in {base.t_f_s:g} s, v {base.v0_mps:g} -> {base.vf_mps:g} m/s, "
              f"N = {N}, method {method}",
              f"{'objective':>10}{'status':>12}{'iter':>6}{'NLP obj':>12}{'exact obj':>12}{'gap %':>9}"
@@ -153,12 +217,23 @@ def run_eco_trip(method: str = "ms", out_dir: str | Path | None = None, scenario
                  "the pack ∫Q and ω columns too")
     for obj, r in results.items():
         lines += _check_lines(r, obj)
+    if sweep:
+        lines.append(f"sweep over D × t_f: {'objective':>10}{'D [m]':>9}{'t_f [s]':>9}{'status':>12}{'NLP obj':>12}"
+                     f"{'exact obj':>12}{'pack ∫Q [J]':>14}{'ω [J/kg]':>11}")
+        lines += [f"{'':20}{r['objective']:>10}{r['D_m']:>9g}{r['t_f_s']:>9g}{r['status']:>12}{r['nlp_objective']:>12.6g}"
+                  f"{r['exact_objective']:>12.6g}{r['pack_heat_J']:>14.5g}{r['omega_J_per_kg']:>11.5g}" for r in sweep]
+    if stopped:
+        lines.append(f"STOPPED by the time limit: {len(sweep)} of {len(pts)} sweep solves done (partial sweep)")
     out = {"result": results["heat"], "results": results, "table": "\n".join(lines),
-           "ok": all(r.success for r in results.values()),
-           "warnings": [w for r in results.values() for w in r.warnings]}
+           "ok": all(r.success for r in results.values()), "sweep": sweep, "sweep_results": sweep_res,
+           "time_limit": stopped, "warnings": [w for r in results.values() for w in r.warnings]}
     if out_dir is not None:
         for obj, r in results.items():
             _write_result(r, Path(out_dir), f"eco_trip_{obj}")
+        if grid:
+            write_json_atomic(Path(out_dir) / "eco_trip_sweep.json",
+                              {"sweep": sweep, "time_limit": stopped,
+                               "grid": {"D_m": list(sweep_D_m), "t_f_s": list(sweep_t_f_s)}})
     return out
 
 

@@ -1,5 +1,8 @@
 """``aev-ocp ocp {prop31,current-profile,eco-trip,oracle} [SCENARIO.toml] [--method ms|collocation] [--out DIR]
-[--N N] [--no-refine] [--multistart]``.
+[--N N] [--no-refine] [--multistart] [--grid NAME=V1,V2,...] [--grid-file FILE] [--time-limit S]``.
+
+Every problem writes into ``--out`` (default ``results/ocp/<problem>[/<scenario>]``), including
+manifest.json + trajectories.npz that :func:`aev_ocp.load` reads back.
 
 The project's main CLI (owned elsewhere) can dispatch to :func:`cli_ocp`.
 """
@@ -19,13 +22,75 @@ def _parser() -> argparse.ArgumentParser:
     ap.add_argument("problem", choices=COMMANDS)
     ap.add_argument("scenario", nargs="?", default=None, help="scenario TOML (oracle: default canonical scenario)")
     ap.add_argument("--method", choices=("ms", "collocation"), default="ms", help="transcription (default ms)")
-    ap.add_argument("--out", default=None, help="output folder (JSON, CSV, PNG)")
+    ap.add_argument("--out", default=None,
+                    help="output folder (JSON, CSV, PNG, manifest.json; default results/ocp/<problem>[/<scenario>])")
     ap.add_argument("--N", type=int, default=None, help="number of intervals (problem default if omitted)")
     ap.add_argument("--no-refine", action="store_true",
                     help="skip the extra solve with 2N intervals that reports how the objective changes")
     ap.add_argument("--multistart", action="store_true",
                     help="eco-trip, oracle: solve from several initial guesses, keep the best, report the spread")
+    ap.add_argument("--grid", action="append", default=[], metavar="NAME=V1,V2,...",
+                    help="sweep grid (repeatable): current-profile E_req [J] (default 1000,2000,3000,4000,6000) and "
+                         "t_f [s] (default 30,60,120); eco-trip D [m] and t_f [s] (default: no sweep; one list "
+                         "given, the other is the trip's value)")
+    ap.add_argument("--grid-file", default=None, metavar="FILE",
+                    help="the grids from a TOML or JSON file: E_req = [...], t_f = [...], D = [...] "
+                         "(--grid entries override it)")
+    ap.add_argument("--time-limit", type=float, default=None, metavar="S",
+                    help="current-profile, eco-trip: wall-clock limit [s]; the sweep stops cleanly after the solve "
+                         "that passes it, the output is flagged partial (default: none)")
+    ap.add_argument("--progress-every", type=float, default=2.0, metavar="S",
+                    help="seconds between progress lines (solve k/n, elapsed, ETA) on stderr (default: 2)")
     return ap
+
+
+def parse_grids(problem: str, items: list[str], file: str | None) -> dict[str, list[float]]:
+    """The sweep grids of ``--grid NAME=v1,v2,...`` and ``--grid-file`` (TOML or JSON) as {name: values};
+    ParameterError naming the grid for an unknown name, one that ``problem`` does not sweep, or a value
+    that is not a finite number > 0."""
+    import json
+    import math
+    import tomllib
+
+    from ..params import ParameterError
+    from .api import GRIDS
+
+    raw: dict[str, object] = {}
+    if file is not None:
+        text = Path(file).read_text(encoding="utf-8")
+        try:
+            raw.update(json.loads(text) if file.endswith(".json") else tomllib.loads(text))
+        except (ValueError, tomllib.TOMLDecodeError) as exc:
+            raise ParameterError(f"--grid-file {file}: not valid {'JSON' if file.endswith('.json') else 'TOML'}: "
+                                 f"{exc}") from None
+    for item in items:
+        name, sep, vals = item.partition("=")
+        if not sep or not vals.strip():
+            raise ParameterError(f"--grid {item!r} is not NAME=V1,V2,... (e.g. --grid E_req=1000,2000)")
+        raw[name.strip()] = [v.strip() for v in vals.split(",")]
+    out: dict[str, list[float]] = {}
+    for name, vals in raw.items():
+        where = f"grid {name}"
+        if name not in GRIDS:
+            raise ParameterError(f"{where}: unknown grid; known grids are {sorted(GRIDS)} "
+                                 f"({', '.join(f'{k} [{u}]' for k, (u, _) in GRIDS.items())})")
+        unit, problems = GRIDS[name]
+        if problem not in problems:
+            raise ParameterError(f"{where} does not apply to ocp {problem} (it sweeps {', '.join(problems)})")
+        if not isinstance(vals, list) or not vals:
+            raise ParameterError(f"{where} = {vals!r} is not allowed: must be a non-empty list of numbers [{unit}]")
+        xs = []
+        for k, v in enumerate(vals):
+            try:
+                x = float(v) if not isinstance(v, bool) else math.nan
+            except (TypeError, ValueError):
+                x = math.nan
+            if not (math.isfinite(x) and x > 0):
+                raise ParameterError(f"{where}: value {k + 1} = {v!r} is not allowed: must be a finite number > 0 "
+                                     f"[{unit}]")
+            xs.append(x)
+        out[name] = xs
+    return out
 
 
 def _check_size(args: argparse.Namespace) -> None:
@@ -54,7 +119,8 @@ def cli_ocp(argv: list[str]) -> int:
 
 def _cli_ocp(argv: list[str]) -> int:
     from ..params import ParameterError
-    from ..results import claim_output_dir
+    from ..results import claim_output_dir, default_output_dir
+    from ..saved import save_output
 
     args = _parser().parse_args(argv)
     from . import api
@@ -68,14 +134,24 @@ def _cli_ocp(argv: list[str]) -> int:
     if args.problem == "oracle" and args.N is not None:
         raise ParameterError("ocp oracle: --N does not apply (N = t_end/dt of the scenario, dt = 0.1)")
     _check_size(args)
+    from ..scenarios import find_scenario, load_scenario
+
     if args.scenario is not None:  # every JSON this command writes names the scenario and its SHA-256
         from ..provenance import declare
-        from ..scenarios import find_scenario, load_scenario
 
         declare(load_scenario(find_scenario(args.scenario)))
-    out = Path(args.out) if args.out else None
-    if out is not None:
-        claim_output_dir(out, f"ocp {args.problem}", str(args.scenario or args.problem), args.scenario)
+    from ..progress import Progress, check_time_limit
+
+    grids = parse_grids(args.problem, args.grid, args.grid_file)
+    check_time_limit(args.time_limit, "--time-limit")
+    if args.time_limit is not None and args.problem not in ("current-profile", "eco-trip"):
+        raise ParameterError(f"ocp {args.problem}: --time-limit applies to current-profile and eco-trip")
+    prog = Progress(f"ocp {args.problem}", unit="solves", time_limit_s=args.time_limit,
+                    every_s=args.progress_every)
+    scenario_name = load_scenario(find_scenario(args.scenario)).name if args.scenario is not None else None
+    out = (Path(args.out) if args.out else
+           default_output_dir("ocp", args.problem, *([scenario_name] if scenario_name else [])))
+    claim_output_dir(out, f"ocp {args.problem}", str(args.scenario or args.problem), args.scenario)
     if args.problem == "prop31":
         from .prop31 import prop31_table
 
@@ -83,23 +159,40 @@ def _cli_ocp(argv: list[str]) -> int:
                                **({"N": args.N} if args.N is not None else {}))
         print(prop31_table(cases))
         ok = all(e["status"] in ("optimal", "acceptable") for e in cases.values())
+        runs = {case: e["result"] for case, e in cases.items() if "result" in e}
     elif args.problem == "current-profile":
+        sweep = {k: v for k, v in (("sweep_E_J", grids.get("E_req")), ("sweep_t_f_s", grids.get("t_f"))) if v}
         rep = api.run_current_profile(method=args.method, out_dir=out, scenario=args.scenario,
-                                      refine=not args.no_refine, **({"N": args.N} if args.N is not None else {}))
+                                      refine=not args.no_refine, progress=prog, **sweep,
+                                      **({"N": args.N} if args.N is not None else {}))
         print(rep["table"])
         ok = rep["ok"]
+        runs = {"main": rep["result"], **{f"sweep{k:03d}": r for k, r in enumerate(rep["sweep_results"])}}
     elif args.problem == "eco-trip":
         rep = api.run_eco_trip(method=args.method, out_dir=out, scenario=args.scenario,
-                               refine=not args.no_refine, multistart=args.multistart,
+                               refine=not args.no_refine, multistart=args.multistart, progress=prog,
+                               sweep_D_m=grids.get("D", ()), sweep_t_f_s=grids.get("t_f", ()),
                                **({"N": args.N} if args.N is not None else {}))
         print(rep["table"])
         ok = rep["ok"]
+        runs = {**rep["results"], **{f"sweep{k:03d}": r for k, r in enumerate(rep["sweep_results"])}}
     else:
         rep = api.run_oracle(method=args.method, out_dir=out, scenario=args.scenario, multistart=args.multistart)
         print(rep["table"])
         ok = rep["ok"]
-    if out is not None:
-        print(f"wrote results to {out}")
+        runs = {"main": rep["result"]}
+    stopped = args.problem in ("current-profile", "eco-trip") and rep["time_limit"]
+    save_output(out, "ocp", runs, settings={"problem": args.problem, "method": args.method, "N": args.N,
+                                            "refine": not args.no_refine, "multistart": args.multistart,
+                                            "grids": grids, "time_limit_s": args.time_limit,
+                                            "scenario": args.scenario},
+                extra={"time_limit": stopped, "sweep": rep.get("sweep") if args.problem != "prop31" else None})
+    print(f"wrote results to {out} (aev_ocp.load('{out}'))")
+    if stopped:
+        from ..cli import error_line
+
+        error_line(f"ocp {args.problem}: stopped by --time-limit {args.time_limit:g} s: partial sweep written to {out}")
+        return 1
     if not ok:
         from ..cli import error_line
 

@@ -5,13 +5,15 @@ maximum deliverable energy)."""
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Callable
+from typing import Any, Callable
 
 from ..report import markdown_table
 from .current_profile import CurrentProfileSolver
 from .eco_trip import EcoTrip, EcoTripSolver
 from .prop31 import run_prop31, write_prop31_outputs
 from .result import OCPResult, write_json_atomic
+
+HEAD_PROP31 = "Proposition 3.1: is I* = 0 the unique minimiser of ∫Q dt?"
 
 
 def prop31_section(out_dir: Path, progress: Callable[[str], None]) -> str:
@@ -32,9 +34,10 @@ def prop31_section(out_dir: Path, progress: Callable[[str], None]) -> str:
     table = markdown_table(["case", "J* [J] (multiple shooting)", "J* [J] (collocation)", "J* exact LQ [J]",
                             "∫Q of I* re-simulated [J]", "J* with 2N [J]", "max |I*| [A]", "∫Q of I = −(V1+V2)/R_s [J]", "status / iterations"], rows)
     verdicts = "".join(f"- **{case}**: {e['verdict']}\n" for case, e in ms.items())
+    _prop31_claim(ms)
     verdicts += "".join(f"- **{case}** ({m}): WARNING {w}\n" for m, cs in (("ms", ms), ("collocation", col))
                         for case, e in cs.items() for w in e.get("warnings", []))
-    return ("## Proposition 3.1: is I* = 0 the unique minimiser of ∫Q dt?\n\n"
+    return (f"## {HEAD_PROP31}\n\n"
             "OCP-A (PROBLEM.md §8): one A123 cell, t_f = 60 s, S(0) = 0.5, |I| ≤ 46 A, N = 200 intervals, "
             "IPOPT with exact Hessian. Cases: rest (V1 = V2 = 0) and relaxing polarisation (V1 = 0.02 V, "
             "V2 = 0.03 V), each with and without the constraint Q ≥ 0. The cases without Q ≥ 0 are "
@@ -47,6 +50,24 @@ def prop31_section(out_dir: Path, progress: Callable[[str], None]) -> str:
             "with |I| are false: without Q ≥ 0 the optimum is negative (the cell gives back stored energy), "
             "and with Q ≥ 0 the optimum 0 is reached by I = 0 and also by the non-zero current "
             "I = −(V1+V2)/R_s, so it is not unique.\n\n![Proposition 3.1 currents](prop31_currents.png)\n")
+
+
+def _prop31_claim(ms: dict[str, dict[str, Any]]) -> None:
+    """Summary row: I* = 0 is the unique minimiser from rest; with polarisation the optimum is negative
+    (I* ≠ 0) without Q ≥ 0, and not unique with it."""
+    from ..reproduce import record_claim
+
+    neg = [c for c, e in ms.items() if e["objective_J"] < -1e-6]
+    tied = [c for c, e in ms.items() if e["Q_nonneg_constraint"] and abs(e["zero_heat_alternative_objective_J"]
+                                                                       - e["objective_J"]) <= 1e-6
+            and e["zero_heat_alternative_max_abs_current_A"] > 1e-6]
+    rest_zero = all(e["max_abs_current_A"] < 1e-6 for c, e in ms.items() if max(map(abs, e["V0"])) == 0)
+    evidence = (("from rest I* = 0 (|I*| < 1e-6 A); " if rest_zero else "from rest I* ≠ 0; ")
+                + (f"{', '.join(neg)}: J* < 0 with I* ≠ 0; " if neg else "")
+                + (f"{', '.join(tied)}: the non-zero I = −(V1+V2)/R_s gives the same ∫Q, so not unique" if tied else ""))
+    verdict = "holds" if rest_zero and not neg and not tied else ("partly" if rest_zero else "fails")
+    record_claim("Proposition 3.1: I* = 0 is the unique minimiser of ∫Q dt", verdict, evidence.rstrip("; "),
+                 HEAD_PROP31)
 
 
 def _eco_row(label: str, r: OCPResult) -> list[str]:

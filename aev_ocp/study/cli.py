@@ -1,9 +1,11 @@
 """``aev-ocp study STUDY.toml [--out DIR] [--workers N | --dask-local N | --scheduler ADDRESS | --in-process]
-[--set KEY=VALUE ...]``: run or resume a study; writes table.csv, table.jsonl, figures and report.md."""
+[--set KEY=VALUE ...] [--time-limit S]``: run or resume a study; writes table.csv, table.jsonl, figures,
+report.md and manifest.json (``aev_ocp.load(OUT)`` returns the table)."""
 
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from pathlib import Path
 
@@ -38,6 +40,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--set", dest="sets", action="append", default=[], metavar="KEY=VALUE",
                    help="override a scenario key at every point, e.g. --set simulation.t_end=20 (repeatable)")
     p.add_argument("--no-report", action="store_true", help="write the table only (no figures, no report.md)")
+    p.add_argument("--trajectories", action="store_true",
+                   help="also save every task's trajectories (trajectories/<hash>/, loadable with aev_ocp.load or "
+                        "StudyOutput.trajectory(point, controller)); stored tasks without them are run again")
+    p.add_argument("--time-limit", type=float, default=None, metavar="S",
+                   help="wall-clock limit [s]: past it, pending tasks are cancelled; finished ones are stored and "
+                        "a rerun resumes (default: none)")
     return p
 
 
@@ -45,13 +53,16 @@ def cli_study(argv: list[str]) -> int:
     """Entry point; exit 0 when every task ran (events are results), 1 if a task failed, 2 for bad input."""
     from ..overrides import OverrideError, parse_assignments
     from ..scenarios import ScenarioError
-    from . import StudyError, read_study, run_study
+    from . import StudyError, TimeLimitStop, read_study, run_study
     from .spec import parse_study
 
     try:
         a = build_parser().parse_args(argv)
     except SystemExit as exc:
         return int(exc.code or 0)
+    if a.time_limit is not None and not (math.isfinite(a.time_limit) and a.time_limit > 0):
+        _err(f"--time-limit {a.time_limit:g}: must be a number of seconds > 0")
+        return EXIT_BAD_INPUT
     for opt in ("workers", "dask_local"):
         n = getattr(a, opt)
         if n is not None and n < 1:
@@ -84,7 +95,11 @@ def cli_study(argv: list[str]) -> int:
     print(f"[study {study.name}] {len(study.points)} points × {len(study.controllers)} controllers "
           f"({', '.join(c.label for c in study.controllers)}), executor {kw['executor']}", file=sys.stderr, flush=True)
     try:
-        out = run_study(study, a.out, report=not a.no_report, **kw)
+        out = run_study(study, a.out, report=not a.no_report, time_limit_s=a.time_limit,
+                        trajectories=a.trajectories, **kw)
+    except TimeLimitStop as exc:
+        _err(f"stopped by --time-limit {a.time_limit:g} s: {exc}; rerun the same command to resume")
+        return EXIT_FAILED_RUN
     except KeyboardInterrupt:
         _err("interrupted: finished tasks are stored; rerun the same command to resume")
         return 130

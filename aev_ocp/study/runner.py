@@ -17,13 +17,13 @@ from __future__ import annotations
 
 import json
 import os
-import sys
 import time
 import traceback
 from collections import OrderedDict
 from pathlib import Path
 from typing import Any, Callable, Iterable
 
+from ..progress import Progress, TimeLimitReached
 from ..results import to_jsonable, write_atomic
 from .spec import Task
 
@@ -43,6 +43,12 @@ def run_task(spec: dict[str, Any]) -> dict[str, Any]:
         result = _simulate(spec)
         metrics = result.metrics()
         out.update(status=result.status, message="; ".join(str(e) for e in result.events), metrics=metrics)
+        if spec.get("trajectories"):  # optional: the run's trajectories, loadable by aev_ocp.load
+            from ..saved import save_output
+
+            save_output(Path(spec["trajectories"]) / spec["key"], "simulate", {c["label"]: result},
+                        settings={"task": spec["key"], "file": spec["file"], "controller": c,
+                                  "document": spec["document"]})
     except Exception as exc:  # noqa: BLE001 - a failed point is recorded, the others go on
         tb = traceback.extract_tb(exc.__traceback__)
         where = f" ({Path(tb[-1].filename).name}:{tb[-1].lineno})" if tb else ""
@@ -151,43 +157,9 @@ class Store:
         write_atomic(self.path(key), json.dumps(result, sort_keys=True) + "\n")
 
 
-# ----------------------------------------------------------------------------- progress
-class Progress:
-    """Progress with ETA on stderr: done/total tasks, cached, failed, elapsed and remaining time."""
-
-    def __init__(self, name: str, total: int, cached: int, stream: Any = None, every_s: float = 1.0) -> None:
-        self.name, self.total, self.cached = name, total, cached
-        self.done = cached
-        self.failed = 0
-        self.t0 = time.perf_counter()
-        self.stream = stream if stream is not None else sys.stderr
-        self.every_s = every_s
-        self._last = -1e9
-
-    def line(self) -> str:
-        """The progress line."""
-        el = time.perf_counter() - self.t0
-        computed = self.done - self.cached
-        left = self.total - self.done
-        eta = f"{el / computed * left:.0f} s" if computed else "?"
-        return (f"[study {self.name}] {self.done}/{self.total} tasks ({self.cached} stored, {self.failed} failed), "
-                f"{el:.1f} s elapsed, ETA {eta}")
-
-    def start(self) -> None:
-        """First line."""
-        self._print(force=True)
-
-    def step(self, failed: bool) -> None:
-        """One task finished."""
-        self.done += 1
-        self.failed += int(failed)
-        self._print(force=self.done == self.total)
-
-    def _print(self, force: bool = False) -> None:
-        now = time.perf_counter()
-        if force or now - self._last >= self.every_s:
-            self._last = now
-            print(self.line(), file=self.stream, flush=True)
+# ----------------------------------------------------------------------------- time limit
+class TimeLimitStop(RuntimeError):
+    """The study's time limit passed: finished tasks are stored, the rest did not run."""
 
 
 # ----------------------------------------------------------------------------- executors
@@ -200,33 +172,51 @@ def _unique(tasks: Iterable[Task]) -> dict[str, Task]:
 
 def execute(tasks: list[Task], store: Store, *, executor: str = "pool", workers: int | None = None,
             scheduler: str | None = None, name: str = "study", progress_stream: Any = None,
-            on_result: Callable[[str, dict[str, Any]], None] | None = None) -> dict[str, dict[str, Any]]:
+            on_result: Callable[[str, dict[str, Any]], None] | None = None,
+            time_limit_s: float | None = None, every_s: float = 1.0,
+            trajectories_dir: str | os.PathLike[str] | None = None) -> dict[str, dict[str, Any]]:
     """Run every task missing from ``store``; returns {hash: result} for all tasks.
 
     executor: 'inprocess', 'pool' (``workers`` processes, default one per core) or 'dask'
-    (``scheduler`` address, else a LocalCluster of ``workers`` processes)."""
+    (``scheduler`` address, else a LocalCluster of ``workers`` processes). Progress (tasks done, ETA)
+    goes to ``progress_stream`` (default stderr) every ``every_s`` s. time_limit_s [s]: once passed,
+    pending tasks are cancelled and :class:`TimeLimitStop` is raised; finished tasks are stored, so
+    rerunning resumes. trajectories_dir: also save each task's trajectories into ``<dir>/<hash>/``
+    (manifest.json + trajectories.npz; a stored task without them is run again); the Dask executor
+    then needs a folder its workers share."""
     if executor not in EXECUTORS:
         raise ValueError(f"executor {executor!r} is not one of {EXECUTORS}")
     todo = _unique(tasks)
     results: dict[str, dict[str, Any]] = {}
+    from ..saved import MANIFEST
+
     for key in list(todo):
         got = store.get(key)
-        if got is not None:
+        if got is not None and (trajectories_dir is None or got["status"] == "error"
+                                or (Path(trajectories_dir) / key / MANIFEST).is_file()):
             results[key] = got
     missing = [t for k, t in todo.items() if k not in results]
-    prog = Progress(name, len(todo), len(results), progress_stream)
-    prog.start()
+    prog = Progress(f"study {name}", len(todo), unit="tasks", time_limit_s=time_limit_s, every_s=every_s,
+                    stream=progress_stream)
+    cached, failed = len(results), [0]
+    # the first update is the ETA's origin: the ETA counts only the tasks computed in this run
+    prog.update(cached, len(todo), force=True, note=f"({cached} stored, 0 failed)", check=False)
 
     def done(res: dict[str, Any]) -> None:
         store.put(res["key"], res)
         results[res["key"]] = res
-        prog.step(res["status"] == "error")
+        failed[0] += int(res["status"] == "error")
         if on_result is not None:
             on_result(res["key"], res)
+        try:
+            prog.update(len(results), len(todo), note=f"({cached} stored, {failed[0]} failed)")
+        except TimeLimitReached:
+            raise TimeLimitStop(f"{len(results)} of {len(todo)} tasks stored") from None
 
     if not missing:
         return results
-    specs = [t.spec for t in missing]
+    specs = [t.spec if trajectories_dir is None else {**t.spec, "trajectories": str(Path(trajectories_dir).resolve())}
+             for t in missing]
     if executor == "inprocess":
         for sp in specs:
             done(run_task(sp))

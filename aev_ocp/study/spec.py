@@ -188,6 +188,9 @@ def make_task(p: Point, c: Controller) -> Task:
         identity = {"document": doc}
     identity.update({"controller": {"kind": c.kind, "name": c.name, "settings": dict(c.settings)},
                      "version": __version__})
+    trace = _trace_file(p.document, p.file)
+    if trace is not None:  # a recorded leader: its data, not only its file name, decides the result
+        identity["leader_trace_sha256"] = hashlib.sha256(trace.read_bytes()).hexdigest() if trace.is_file() else None
     key = hashlib.sha256(canonical_json(identity).encode()).hexdigest()
     spec = {"document": p.document, "file": p.file, "controller": c.as_dict(), "key": key}
     return Task(p.index, c.label, spec, key)
@@ -228,12 +231,28 @@ def _memoised_leader_check() -> Iterator[None]:
         scn.check_leader_speed = orig
 
 
+def _source(file: str) -> Path | None:
+    """The scenario file (relative paths inside it, e.g. a trace leader's CSV, start at its folder)."""
+    p = Path(file)
+    return p if p.is_file() else None
+
+
+def _trace_file(doc: dict[str, Any], file: str) -> Path | None:
+    """The CSV of a ``[leader] kind = "trace"`` leader, resolved like the scenario loader does; else None."""
+    lead = doc.get("leader")
+    if not isinstance(lead, dict) or lead.get("kind") != "trace" or not isinstance(lead.get("file"), str):
+        return None
+    f = Path(lead["file"])
+    src = _source(file)
+    return f if f.is_absolute() else (src.parent if src is not None else Path.cwd()) / f
+
+
 def parse_scenario_quiet(doc: dict[str, Any], file: str) -> Scenario:
     """parse_scenario without warnings (they are collected once, at validation)."""
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         with _memoised_leader_check():
-            return parse_scenario(doc, file)
+            return parse_scenario(doc, file, source=_source(file))
 
 
 def parse_scenario_warnings(doc: dict[str, Any], file: str) -> tuple[Scenario, list[str]]:
@@ -241,7 +260,7 @@ def parse_scenario_warnings(doc: dict[str, Any], file: str) -> tuple[Scenario, l
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         with _memoised_leader_check():
-            sc = parse_scenario(doc, file)
+            sc = parse_scenario(doc, file, source=_source(file))
     return sc, [str(w.message) for w in caught]
 
 

@@ -1,0 +1,240 @@
+"""Saving every run so that it loads back: ``manifest.json`` + ``trajectories.npz`` in the output folder.
+
+Format (``format = "aev_ocp-output"``, ``format_version`` 1):
+
+- ``trajectories.npz``: every array of every run, keyed ``<run label>/<field>`` (SimulationResult:
+  ``t``, ``gap``, ``speed`` …; OCPResult: ``t``, ``states/<name>``, ``controls/<name>``,
+  ``outputs/<name>`` and its scalars ``objective`` …). NumPy's own format (no pickle): float64 kept
+  bit for bit, NaN and inf included, read without aev_ocp by ``numpy.load``.
+- ``manifest.json``: ``kind`` (simulate, mpc, ocp, study), ``primary`` (the run :func:`load` returns),
+  per run its type, controllers, events, parameters, solver statistics, meta and metrics as saved;
+  ``settings`` (the scenario's TOML document and the command's options) and ``provenance``
+  (:mod:`aev_ocp.provenance`); the SHA-256 of the arrays file, checked on load.
+
+The arrays file is written first and the manifest last, both atomically: a folder with a manifest
+always has the arrays it names (a rerun that is interrupted in between is caught by the SHA-256).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import io
+import json
+import math
+from pathlib import Path
+from typing import Any, Mapping
+
+import numpy as np
+
+from .params import CellParams, EVParams, PackParams, Units, VehicleParams, as_dict
+from .results import Event, SimulationResult, atomic_path, to_jsonable, write_json
+
+FORMAT = "aev_ocp-output"
+FORMAT_VERSION = 1
+MANIFEST = "manifest.json"
+ARRAYS = "trajectories.npz"
+KINDS = ("simulate", "mpc", "ocp", "study")
+SIM_ARRAYS = ("t", "leader_speed", "leader_position", "gap", "speed", "accel", "V1", "V2", "S", "current_A", "omega",
+              "heat_J", "heat_irr_J", "int_ovm_err2", "int_rel_speed2", "int_jerk2")
+OCP_SCALARS = ("objective", "objective_exact", "max_violation", "wall_time_s", "solver_time_s")
+OUTPUT_FILES = (MANIFEST, ARRAYS)  # what :func:`save_output` writes (for claim_output_dir)
+
+
+class LoadError(ValueError):
+    """A path is not a loadable aev_ocp output (or a newer format); the message says which and why."""
+
+
+# ----------------------------------------------------------------------------- saving
+def _own_meta(meta: dict[str, Any]) -> dict[str, Any]:
+    """A result's meta without the record :func:`load` adds (a loaded result saved again stays flat)."""
+    return {k: v for k, v in meta.items() if k != "output"}
+
+
+def _sim_record(label: str, r: SimulationResult, arrays: dict[str, np.ndarray]) -> dict[str, Any]:
+    for name in SIM_ARRAYS:
+        arrays[f"{label}/{name}"] = np.asarray(getattr(r, name))
+    return {"type": "SimulationResult", "status": r.status, "controllers": list(r.controllers),
+            "events": [vars(e) for e in r.events], "ev": as_dict(r.ev), "jerk_sampled": bool(r.jerk_sampled),
+            "solver_stats": r.solver_stats, "meta": _own_meta(r.meta), "metrics": r.metrics()}
+
+
+def _ocp_record(label: str, r: Any, arrays: dict[str, np.ndarray]) -> dict[str, Any]:
+    arrays[f"{label}/t"] = np.asarray(r.t, float)
+    for group in ("states", "controls", "outputs"):
+        for name, v in getattr(r, group).items():
+            arrays[f"{label}/{group}/{name}"] = np.asarray(v, float)
+    if r.t_colloc is not None:
+        arrays[f"{label}/t_colloc"] = np.asarray(r.t_colloc, float)
+    for name in OCP_SCALARS:
+        arrays[f"{label}/{name}"] = np.asarray(float(getattr(r, name)))
+    return {"type": "OCPResult", "problem": r.problem, "method": r.method, "N": r.N, "time_unit": r.time_unit,
+            "objective_name": r.objective_name, "status": r.status, "success": r.success, "message": r.message,
+            "solver_status": r.solver_status, "iterations": r.iterations, "warnings": list(r.warnings),
+            "states": list(r.states), "controls": list(r.controls), "outputs": list(r.outputs),
+            "meta": _own_meta(r.meta),
+            "metrics": r.stats()}
+
+
+def save_output(out: str | Path, kind: str, runs: Mapping[str, Any], *, primary: str | None = None,
+                settings: Mapping[str, Any] | None = None, extra: Mapping[str, Any] | None = None) -> list[Path]:
+    """Write ``trajectories.npz`` (if any run) and ``manifest.json`` into ``out``; returns the paths.
+
+    runs: {label: SimulationResult or OCPResult}; primary: the label :func:`load` returns by default
+    (default the first); settings: what produced the runs (scenario document, options); extra: more
+    JSON-ready manifest entries (e.g. a study's table file)."""
+    if kind not in KINDS:
+        raise ValueError(f"save_output: kind {kind!r} is not one of {KINDS}")
+    from .ocp.result import OCPResult
+
+    out = Path(out)
+    arrays: dict[str, np.ndarray] = {}
+    records: dict[str, Any] = {}
+    for label, r in runs.items():
+        if "/" in label:
+            raise ValueError(f"save_output: run label {label!r} must not contain '/'")
+        if isinstance(r, SimulationResult):
+            records[label] = _sim_record(label, r, arrays)
+        elif isinstance(r, OCPResult):
+            records[label] = _ocp_record(label, r, arrays)
+        else:
+            raise TypeError(f"save_output: run {label!r} is a {type(r).__name__}, not a SimulationResult or OCPResult")
+    files: list[Path] = []
+    manifest: dict[str, Any] = {"format": FORMAT, "format_version": FORMAT_VERSION, "kind": kind,
+                                "primary": primary if primary is not None else next(iter(records), None),
+                                "arrays": None, "arrays_sha256": None, "runs": records,
+                                "settings": dict(settings or {})}
+    if arrays:
+        buf = io.BytesIO()
+        np.savez(buf, **arrays)
+        data = buf.getvalue()
+        with atomic_path(out / ARRAYS) as tmp:
+            tmp.write_bytes(data)
+        files.append(out / ARRAYS)
+        manifest.update(arrays=ARRAYS, arrays_sha256=hashlib.sha256(data).hexdigest())
+    manifest.update(dict(extra or {}))
+    files.append(write_json(out / MANIFEST, manifest))
+    return files
+
+
+# ----------------------------------------------------------------------------- loading
+def read_manifest(path: str | Path) -> tuple[dict[str, Any], Path]:
+    """The manifest of an output (its folder or the manifest file) and the folder; LoadError otherwise."""
+    p = Path(path)
+    if p.is_dir():
+        folder, file = p, p / MANIFEST
+    else:
+        folder, file = p.parent, p
+    if not file.is_file():
+        hint = (" (written by aev-ocp before outputs became loadable? rerun the command)"
+                if folder.is_dir() and (folder / "aev-ocp-run.json").is_file() else "")
+        raise LoadError(f"{path}: not an aev_ocp output: no {MANIFEST} found{hint}")
+    try:
+        m = json.loads(file.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, ValueError) as exc:
+        raise LoadError(f"{file}: not an aev_ocp output: cannot read it as JSON ({exc})") from None
+    if not isinstance(m, dict) or m.get("format") != FORMAT:
+        raise LoadError(f"{file}: not an aev_ocp output (format is {m.get('format') if isinstance(m, dict) else None!r}, "
+                        f"expected {FORMAT!r})")
+    ver = m.get("format_version")
+    if not isinstance(ver, int) or isinstance(ver, bool) or ver < 1:
+        raise LoadError(f"{file}: format_version = {ver!r} is not a known version of {FORMAT}")
+    if ver > FORMAT_VERSION:
+        raise LoadError(f"{file}: format_version {ver} is newer than this aev_ocp reads ({FORMAT_VERSION}); "
+                        "upgrade aev_ocp to load it")
+    if m.get("kind") not in KINDS:
+        raise LoadError(f"{file}: kind = {m.get('kind')!r} is not one of {KINDS}")
+    return m, folder
+
+
+def _arrays(m: dict[str, Any], folder: Path) -> dict[str, np.ndarray]:
+    name = m.get("arrays")
+    if not name:
+        return {}
+    f = folder / Path(str(name)).name  # never outside the folder
+    try:
+        data = f.read_bytes()
+    except OSError as exc:
+        raise LoadError(f"{folder}: the output's arrays file {f.name} cannot be read ({exc.strerror or exc})") from None
+    if hashlib.sha256(data).hexdigest() != m.get("arrays_sha256"):
+        raise LoadError(f"{f}: its SHA-256 differs from the one in {MANIFEST}: the arrays belong to another run "
+                        "(an interrupted rerun?); rerun the command")
+    with np.load(io.BytesIO(data), allow_pickle=False) as z:
+        return {k: z[k] for k in z.files}
+
+
+def _nan(x: Any) -> float:
+    return math.nan if x is None else float(x)
+
+
+def _sim_result(label: str, rec: dict[str, Any], arrays: dict[str, np.ndarray]) -> SimulationResult:
+    ev = rec["ev"]
+    evp = EVParams(units=Units(**ev["units"]), vehicle=VehicleParams(**ev["vehicle"]), cell=CellParams(**ev["cell"]),
+                   pack=PackParams(**ev["pack"]))
+    events = [Event(e["kind"], _nan(e["time"]), int(e["vehicle"]), e["message"]) for e in rec["events"]]
+    return SimulationResult(**{n: arrays[f"{label}/{n}"] for n in SIM_ARRAYS}, controllers=list(rec["controllers"]),
+                            ev=evp, events=events, jerk_sampled=bool(rec["jerk_sampled"]),
+                            solver_stats=list(rec["solver_stats"] or []), meta=dict(rec["meta"] or {}))
+
+
+def _ocp_result(label: str, rec: dict[str, Any], arrays: dict[str, np.ndarray]) -> Any:
+    from .ocp.result import OCPResult
+
+    group = {g: {n: arrays[f"{label}/{g}/{n}"] for n in rec[g]} for g in ("states", "controls", "outputs")}
+    scal = {n: float(arrays[f"{label}/{n}"]) for n in OCP_SCALARS}
+    return OCPResult(problem=rec["problem"], method=rec["method"], N=int(rec["N"]), t=arrays[f"{label}/t"],
+                     time_unit=rec["time_unit"], **group, objective_name=rec["objective_name"], status=rec["status"],
+                     success=bool(rec["success"]), message=rec["message"], solver_status=rec["solver_status"],
+                     iterations=int(rec["iterations"]), t_colloc=arrays.get(f"{label}/t_colloc"),
+                     meta=dict(rec["meta"] or {}), warnings=list(rec["warnings"]), **scal)
+
+
+def _build(label: str, m: dict[str, Any], arrays: dict[str, np.ndarray], folder: Path) -> Any:
+    rec = m["runs"][label]
+    try:
+        obj = (_sim_result if rec["type"] == "SimulationResult" else _ocp_result)(label, rec, arrays)
+    except (KeyError, TypeError, ValueError) as exc:
+        raise LoadError(f"{folder / MANIFEST}: run {label!r} is incomplete or damaged ({type(exc).__name__}: {exc})") from None
+    obj.meta["output"] = {"path": str(folder), "kind": m["kind"], "label": label, "runs": list(m["runs"]),
+                          "settings": m.get("settings", {}), "provenance": m.get("provenance"),
+                          "saved_metrics": rec.get("metrics")}
+    return obj
+
+
+def load_all(path: str | Path) -> dict[str, Any]:
+    """Every run of an output folder: {label: SimulationResult or OCPResult} (a study: {} – use :func:`load`)."""
+    m, folder = read_manifest(path)
+    arrays = _arrays(m, folder)
+    return {label: _build(label, m, arrays, folder) for label in m.get("runs", {})}
+
+
+def load(path: str | Path, run: str | None = None) -> Any:
+    """Load what a command saved: ``path`` is its output folder (or the folder's manifest.json).
+
+    Returns the run's result object: a :class:`~aev_ocp.results.SimulationResult` (``simulate``,
+    ``mpc``), an :class:`~aev_ocp.ocp.result.OCPResult` (``ocp``) or a
+    :class:`~aev_ocp.study.StudyOutput` (``study``: the table rows). ``run`` picks one labelled run of
+    the folder (``"mpc"``, ``"proposed"``, ``"ocp-d"``, ``"heat"`` …); default the command's main run
+    (simulate: the first law; mpc: the MPC; ocp: the main solve). The object's
+    ``meta["output"]`` holds the folder, the run labels, the settings, the provenance and the metrics
+    as saved; :meth:`SimulationResult.metrics` recomputes them from the loaded trajectories.
+    Raises :class:`LoadError` for a path that is not an aev_ocp output, a damaged one or a newer format.
+    """
+    m, folder = read_manifest(path)
+    if m["kind"] == "study":
+        from .study import load_study_output
+
+        return load_study_output(m, folder)
+    runs = m.get("runs") or {}
+    label = run if run is not None else m.get("primary")
+    if label not in runs:
+        raise LoadError(f"{folder}: no run {label!r} in this output; its runs are {list(runs)}")
+    return _build(label, m, _arrays(m, folder), folder)
+
+
+def settings_of(scenario: Any, **options: Any) -> dict[str, Any]:
+    """The ``settings`` entry of a manifest: the scenario (name, file, TOML document) and the options."""
+    out: dict[str, Any] = {"options": to_jsonable(options)}
+    if scenario is not None:
+        out.update(scenario=scenario.name, source=str(scenario.source) if scenario.source else None,
+                   document=scenario.document)
+    return out

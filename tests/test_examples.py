@@ -1,0 +1,96 @@
+"""The runnable examples (issue 10 item 8): each runs in a subprocess in its quick mode, and what it
+writes or prints is checked against the physics it claims to show (not only its exit code)."""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+EXAMPLES = ROOT / "examples"
+
+
+def run_example(name: str, tmp_path: Path, *args: str) -> str:
+    env = {**os.environ, "PYTHONPATH": str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""), "MPLBACKEND": "Agg"}
+    p = subprocess.run([sys.executable, str(EXAMPLES / name), "--quick", *args], cwd=tmp_path, env=env,
+                       capture_output=True, text=True, timeout=600)
+    assert p.returncode == 0, p.stderr[-3000:]
+    return p.stdout
+
+
+def _png(path: Path) -> bool:
+    return path.is_file() and path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_own_law(tmp_path: Path) -> None:
+    run_example("own_law.py", tmp_path, "--out", str(tmp_path / "o"))
+    d = json.loads((tmp_path / "o" / "own_law.json").read_text())
+    assert set(d) == {"gentle_ovfl", "ovfl", "proposed"} and all(v["status"] == "ok" for v in d.values())
+    cap = 0.1 * 17.0**2 / 15.0  # a_cap [model] × U²/L [m/s²]
+    assert d["gentle_ovfl"]["max_abs_accel_mps2"] <= cap * (1 + 1e-9) < d["ovfl"]["max_abs_accel_mps2"]
+    assert all(v["omega_J_per_kg"] > 0 and v["heat_pack_J"] > 0 and v["min_gap_m"] > 0 for v in d.values())
+    assert _png(tmp_path / "o" / "own_law_space_time.png")
+
+
+def test_mpc_drive_cycle(tmp_path: Path) -> None:
+    out = run_example("mpc_drive_cycle.py", tmp_path, "--out", str(tmp_path / "m"))
+    d = json.loads((tmp_path / "m" / "mpc_drive_cycle.json").read_text())
+    m = d["metrics"]
+    assert set(m) == {"mpc", "proposed", "ovfl"} and all(v["status"] == "ok" for v in m.values())
+    assert m["mpc"]["fallbacks"] == 0 and m["mpc"]["solve_ms_median"] > 0
+    assert m["mpc"]["min_gap_m"] >= 0.2 * 20.0 - 1e-6  # h_min [model] × L [m]: the MPC keeps its bound
+    assert d["t_end_s"] == pytest.approx(8.0 * 20.0 / 22.0)
+    assert _png(tmp_path / "m" / "overlay.png") and "mpc" in out
+
+
+def test_wq_pareto(tmp_path: Path) -> None:
+    run_example("wq_pareto.py", tmp_path, "--out", str(tmp_path / "w"))
+    rows = json.loads((tmp_path / "w" / "wq_pareto.json").read_text())
+    mpc = sorted((r for r in rows if r["w_Q"] is not None), key=lambda r: r["w_Q"])
+    assert [r["w_Q"] for r in mpc] == [0.3, 1.0, 3.0] and {r["controller"] for r in rows} >= {"proposed", "ovfl"}
+    heat = [r["heat_pack_J"] for r in mpc]
+    assert heat == sorted(heat, reverse=True)  # a larger heat weight never buys more heat
+    for r in mpc:  # the 'pareto' flag is exactly non-domination, checked by hand
+        dominated = any(o is not r and o["heat_pack_J"] <= r["heat_pack_J"]
+                        and o["rms_rel_speed_model"] <= r["rms_rel_speed_model"]
+                        and (o["heat_pack_J"], o["rms_rel_speed_model"]) != (r["heat_pack_J"], r["rms_rel_speed_model"])
+                        for o in mpc)
+        assert r["pareto"] == (not dominated)
+    assert _png(tmp_path / "w" / "wq_pareto.png")
+
+
+def test_custom_mpc_term(tmp_path: Path) -> None:
+    out = run_example("custom_mpc_term.py", tmp_path)
+    margins = {m.group(1).strip(): float(m.group(2))
+               for m in re.finditer(r"^\s*(.+?): status ok, min \(h - T_h v\) over the second half = ([-\d.]+)", out, re.M)}
+    assert set(margins) == {"mpc (§9)", "mpc + headway"}
+    assert margins["mpc + headway"] >= 0.2 - 2e-3 > margins["mpc (§9)"]  # the added constraint is active
+
+
+def test_docs_pages_take_their_sections_from_the_readme() -> None:
+    """docs/hooks/readme_sections.py (the MkDocs build hook) inserts README sections verbatim and refuses an
+    unknown section title; every marker in docs/ names a README section."""
+    import importlib.util
+    from types import SimpleNamespace
+
+    spec = importlib.util.spec_from_file_location("readme_sections", ROOT / "docs" / "hooks" / "readme_sections.py")
+    assert spec is not None and spec.loader is not None
+    hook = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(hook)
+    readme = (ROOT / "README.md").read_text(encoding="utf-8")
+    config = {"config_file_path": str(ROOT / "mkdocs.yml")}
+    page = SimpleNamespace(file=SimpleNamespace(src_uri="guide/x.md"))
+    out = hook.on_page_markdown("# T\n\n<!-- readme: Set up -->\n", page, config, None)
+    body = readme.split("\n## Set up\n", 1)[1].split("\n## ", 1)[0]
+    assert out.startswith("# T\n\n## Set up\n") and body.strip() in out
+    with pytest.raises(KeyError, match="No such section"):
+        hook.on_page_markdown("<!-- readme: No such section -->\n", page, config, None)
+    marks = [m for f in (ROOT / "docs").rglob("*.md") for m in re.findall(r"<!-- readme: (.+?) -->", f.read_text())]
+    titles = set(re.findall(r"^## (.+)$", readme, re.M)) | {"intro"}
+    assert marks and set(marks) <= titles

@@ -1,0 +1,111 @@
+"""The shared progress helper (ETA, time limit) and the runs that use it stop cleanly at their time limit."""
+
+from __future__ import annotations
+
+import io
+import math
+
+import numpy as np
+import pytest
+
+from aev_ocp.control import ClosedLoop, ControlSequence
+from aev_ocp.models.leader import ConstantSpeed
+from aev_ocp.params import ParameterError
+from aev_ocp.progress import Progress, TimeLimitReached, format_seconds
+
+pytestmark = pytest.mark.quick
+
+
+class Clock:
+    """A settable clock [s]."""
+
+    def __init__(self, t: float = 100.0) -> None:
+        self.t = t
+
+    def __call__(self) -> float:
+        return self.t
+
+
+def test_eta_is_the_rate_since_the_first_update():
+    """Set-up before the first step (e.g. a solver build) does not enter the ETA: 7 s of set-up, then
+    12 steps in 3 s -> 0.25 s per step, 188 steps left -> 47 s."""
+    clock, buf = Clock(), io.StringIO()
+    p = Progress("run", 200, clock=clock, stream=buf, every_s=5.0)
+    clock.t += 7.0
+    p.update(0, what="step")
+    assert math.isnan(p.eta_s())
+    clock.t += 3.0
+    p.update(12, what="step")
+    assert p.eta_s() == pytest.approx(0.25 * 188)
+    assert p.elapsed_s() == pytest.approx(10.0)
+    lines = buf.getvalue().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("[run] step 0/200 (0 %)")  # the next line is due after 5 s
+    clock.t += 5.0
+    p.update(32, what="step")
+    assert buf.getvalue().splitlines()[-1] == "[run] step 32/200 (16 %), 15 s elapsed, ETA 42 s"  # 8 s/32 steps × 168
+    assert p.eta_s() == pytest.approx(8.0 / 32 * 168)
+
+
+def test_time_limit_raises_after_it_passes_and_children_share_it():
+    clock = Clock()
+    p = Progress("run", 10, clock=clock, time_limit_s=4.5, stream=io.StringIO())
+    clock.t += 4.4
+    p.update(3)
+    assert p.remaining_s() == pytest.approx(0.1)
+    c = p.child("part", 5)
+    clock.t += 0.2
+    assert p.expired() and c.expired()
+    with pytest.raises(TimeLimitReached, match="4.5 s"):
+        p.update(4)
+    with pytest.raises(TimeLimitReached):
+        c.check()
+    for bad in (0, -1.0, math.inf, math.nan, True):
+        with pytest.raises(ParameterError, match="time limit"):
+            Progress("x", time_limit_s=bad)
+
+
+def test_format_seconds():
+    assert [format_seconds(x) for x in (3.25, 42.4, 185.0, 7325.0, math.nan)] == \
+        ["3.2 s", "42 s", "3 min 05 s", "2 h 02 min", "?"]
+
+
+def test_closed_loop_stops_at_the_time_limit_with_the_prefix_of_the_full_run():
+    """A progress that raises TimeLimitReached after step 7 stops the loop there: status 'time_limit'
+    (an event of the whole run), and the trajectory is exactly the first 7 steps of the full run."""
+    dt = 0.25
+    a = tuple(0.3 * math.sin(0.7 * k) for k in range(20))
+    loop = ClosedLoop(ConstantSpeed(1.3), [ControlSequence(a, dt, "seq")])
+    full = loop.run([2.1], [1.1], 20 * dt)
+    steps = []
+
+    def progress(t: float, t_end: float) -> None:
+        steps.append(t)
+        if len(steps) == 7:
+            raise TimeLimitReached("time limit of 1 s reached")
+
+    part = loop.run([2.1], [1.1], 20 * dt, progress=progress)
+    assert full.status == "ok" and part.status == "time_limit"
+    assert part.events[0].vehicle == -1 and "partial" in part.events[0].message and "whole run" in str(part.events[0])
+    assert part.t[-1] == pytest.approx(7 * dt)
+    k = part.t.size
+    for name in ("gap", "speed", "S", "omega", "heat_J"):
+        np.testing.assert_array_equal(getattr(part, name), getattr(full, name)[:k], err_msg=name)
+    m = part.metrics()[0]
+    assert m["run_status"] == "time_limit" and m["status"] == "ok" and m["duration_model"] == pytest.approx(7 * dt)
+
+
+def test_study_time_limit_stores_finished_tasks_and_resumes(tmp_path):
+    from aev_ocp.study import TimeLimitStop, read_study, run_study
+    from aev_ocp.study.cli import _with_sets
+    from aev_ocp.study.spec import parse_study
+
+    study = _with_sets("studies/kappa_alpha_table1.toml", {"simulation.t_end": 1.0}, parse_study)
+    assert read_study("studies/kappa_alpha_table1.toml").name == study.name
+    with pytest.raises(TimeLimitStop, match=r"\d+ of 36 tasks stored"):
+        run_study(study, tmp_path, executor="inprocess", report=False, time_limit_s=1e-9,
+                  progress_stream=io.StringIO())
+    stored = len(list((tmp_path / "points").glob("*.json")))
+    assert 1 <= stored < 36
+    buf = io.StringIO()
+    out = run_study(study, tmp_path, executor="inprocess", report=False, progress_stream=buf)
+    assert out.n_tasks == 36 and f"({stored} stored" in buf.getvalue() and "ETA" in buf.getvalue()

@@ -1,0 +1,104 @@
+"""A report that answers first (issue 10 item 6): the claims summary at the top links to sections that exist,
+report.html carries the same text with every figure embedded, battery columns beyond the cell's current
+limit are marked, and platoon totals are the sums of the per-follower numbers."""
+
+from __future__ import annotations
+
+import base64
+import io
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import aev_ocp.reproduce as rp
+from aev_ocp.models.carfollowing import OVFL, Proposed
+from aev_ocp.models.leader import ConstantSpeed
+from aev_ocp.report import OVER_LIMIT_MARK, platoon_totals, scenario_metrics_rows
+from aev_ocp.report_html import ReportHTMLError, heading_anchor, markdown_to_html
+from aev_ocp.simulate import simulate_platoon
+
+SMALL = rp.ReproduceConfig(tolerances=(1e-8,), fig12_t_end=15.0, scenario_t_end_max=5.0, scenarios=("table1",),
+                           builtin=("fig1-2", "table1", "scenarios"))
+
+
+@pytest.fixture(scope="module")
+def small_report(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, str, str]:
+    out = tmp_path_factory.mktemp("summary")
+    log = io.StringIO()
+    rp.reproduce(out, SMALL, registered=False, stream=log)
+    return out, (out / "report.md").read_text(), log.getvalue()
+
+
+def test_summary_comes_first_and_every_link_reaches_a_heading(small_report) -> None:  # noqa: ANN001
+    out, md, _ = small_report
+    heads = [ln for ln in md.splitlines() if ln.startswith("## ")]
+    assert heads[0] == "## Summary: the paper's claims and what the computations say"
+    anchors = {heading_anchor(h[3:]) for h in heads}
+    summary = md.split("## Summary", 1)[1].split("\n## ", 1)[0]
+    links = re.findall(r"\]\(#([^)]+)\)", summary)
+    rows = [ln for ln in summary.splitlines() if ln.startswith("| ") and "**" in ln]
+    assert len(rows) == len(links) >= 4  # Fig. 1/2, Table 1 (two), Fig. 5 (two)
+    assert set(links) <= anchors
+    assert any("**fails**" in r and "Table 1: the proposed law uses less energy" in r for r in rows)
+    html = (out / "report.html").read_text()
+    for a in links:  # the same links work in report.html
+        assert f'id="{a}"' in html
+
+
+def test_html_embeds_every_figure_of_the_report(small_report) -> None:  # noqa: ANN001
+    out, md, log = small_report
+    html = (out / "report.html").read_text()
+    figs = re.findall(r"!\[[^\]]*\]\(([^)]+)\)", md)
+    imgs = re.findall(r'<img alt="[^"]*" src="data:image/png;base64,([^"]+)"', html)
+    assert len(figs) == len(imgs) >= 5 and 'src="data' in html and "src=\"fig" not in html
+    for f, b64 in zip(figs, imgs):
+        assert base64.b64decode(b64) == (out / f).read_bytes()
+    assert html.count("<table>") == md.count("\n|---")
+    # the progress counter reaches N/N
+    last = [ln for ln in log.splitlines() if ln.startswith("[")][-1]
+    k, n = re.match(r"\[(\d+)/(\d+)\]", last).groups()
+    assert k == n
+
+
+def test_markdown_to_html_by_hand(tmp_path: Path) -> None:
+    png = b"\x89PNG\r\n\x1a\nnot really a picture"
+    (tmp_path / "a.png").write_bytes(png)
+    md = ("# Title\n\n## Section: one (x ≤ 2)\n\nText with `a|b`, **bold** and [a link](#section-one-x--2).\n\n"
+          "| h1 | h2 |\n|---|---|\n| 1 \\| 2 | <b> |\n\n- item *one*\n- item two\n\n![alt text](a.png)\n")
+    html = markdown_to_html(md, tmp_path, "t")
+    assert '<h2 id="section-one-x--2">' in html and '<a href="#section-one-x--2">a link</a>' in html
+    assert "<td>1 | 2</td><td>&lt;b&gt;</td>" in html and "<code>a|b</code>" in html and "<strong>bold</strong>" in html
+    assert "<li>item *one*</li>" in html
+    assert base64.b64encode(png).decode() in html
+    with pytest.raises(ReportHTMLError, match="missing.png"):
+        markdown_to_html("![x](missing.png)\n", tmp_path)
+
+
+def test_heading_anchor() -> None:
+    assert heading_anchor("Fig. 5: the platoon (n = 3)") == "fig-5-the-platoon-n--3"
+    assert heading_anchor("Theorem 4.1 checked (ω ≤ 2?)") == "theorem-41-checked-ω--2"
+
+
+def test_over_limit_battery_columns_are_marked_and_totals_are_sums() -> None:
+    runs = {law.name: simulate_platoon(ConstantSpeed(1.4), [law] * 3, [0.9, 2.2, 2.6], [1.9, 1.5, 1.45], 3.0,
+                                       dt_out=0.05) for law in (Proposed(), OVFL())}
+    peaks = {k: np.max(np.abs(r.current_A), axis=0) for k, r in runs.items()}
+    limit = float(np.median(np.concatenate(list(peaks.values()))))  # some vehicles above, some below
+    headers, rows = scenario_metrics_rows(runs, i_max_A=limit, totals=True)
+    per_vehicle = [r for r in rows if not r[0].startswith("**")]
+    for r in per_vehicle:
+        over = peaks[r[0]][int(r[1]) - 1] > limit
+        battery = [r[headers.index(h)] for h in ("pack ∫Q [J]", "pack ∫Q_irr [J]", "ΔSOC", "max |I| [A/cell]")]
+        assert all((OVER_LIMIT_MARK in c) == over for c in battery)
+        assert OVER_LIMIT_MARK not in r[headers.index("ω [model]")]  # ω does not depend on the cell
+    assert any(OVER_LIMIT_MARK in r[4] for r in per_vehicle) and not all(OVER_LIMIT_MARK in r[4] for r in per_vehicle)
+    totals = [r for r in rows if r[0].startswith("**")]
+    assert len(totals) == 2
+    for k, r in runs.items():
+        tot = platoon_totals(r)
+        assert tot["heat_pack_J"] == pytest.approx(float(np.sum(r.heat_J[-1])), rel=1e-12)
+        assert tot["omega_model"] == pytest.approx(float(np.sum(r.omega[-1])), rel=1e-12)
+        assert tot["delta_soc"] == pytest.approx(float(np.sum(r.S[-1] - r.S[0])), rel=1e-9)
+        assert tot["max_abs_current_A"] == pytest.approx(float(peaks[k].max()), rel=1e-12)

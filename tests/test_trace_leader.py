@@ -1,0 +1,151 @@
+"""[leader] kind = "trace": a recorded trajectory from a CSV file, validated, resampled as the cycles are."""
+
+from __future__ import annotations
+
+import tomllib
+
+import numpy as np
+import pytest
+
+from aev_ocp.models.leader import load_cycle_si, read_trace_csv
+from aev_ocp.params import ParameterError
+from aev_ocp.scenarios import ScenarioError, find_scenario, load_scenario
+
+pytestmark = pytest.mark.quick
+
+
+def _scenario(tmp_path, leader: str, name: str = "s.toml") -> str:
+    """The shipped udds_platoon scenario with its [leader] table replaced, written beside the CSVs."""
+    text = find_scenario("udds_platoon").read_text(encoding="utf-8")
+    doc = tomllib.loads(text)
+    head, _, rest = text.partition("[leader]")
+    tail = rest[rest.index("\n["):] if "\n[" in rest else ""
+    p = tmp_path / name
+    p.write_text(head + "[leader]\n" + leader + "\n" + tail, encoding="utf-8")
+    assert doc["leader"]["kind"] == "cycle"
+    return str(p)
+
+
+def _write(path, header: str, rows) -> None:
+    path.write_text(header + "\n" + "".join(",".join(repr(float(x)) for x in r) + "\n" for r in rows), encoding="utf-8")
+
+
+def _grid(sc) -> np.ndarray:
+    return np.linspace(0.0, sc.leader.times[-1] + 3.7, 4001)
+
+
+def test_udds_trace_in_kmh_and_ms_is_the_cycle(tmp_path):
+    """A CSV written from the UDDS data (km/h and ms, starting at t = 5 s) gives the same leader as
+    kind = "cycle" to round-off, at every time; an m/s file equals the km/h file."""
+    t, v = load_cycle_si("udds")
+    _write(tmp_path / "kmh.csv", "t_ms,v_kmh", zip(1000 * t + 5000.0, 3.6 * v))
+    _write(tmp_path / "ms.csv", "time,speed", zip(t, v))
+    ref = load_scenario(find_scenario("udds_platoon"))
+    kmh = load_scenario(_scenario(tmp_path, 'kind = "trace"\nfile = "kmh.csv"\ntime_column = "t_ms"\n'
+                                            'speed_column = "v_kmh"\ntime_unit = "ms"\nspeed_unit = "km/h"'))
+    ms = load_scenario(_scenario(tmp_path, 'kind = "trace"\nfile = "ms.csv"', "m.toml"))
+    tt = _grid(ref)
+    v_ref = ref.leader.speed_np(tt)
+    np.testing.assert_allclose(kmh.leader.speed_np(tt), v_ref, rtol=1e-13, atol=1e-14)
+    np.testing.assert_array_equal(ms.leader.speed_np(tt), v_ref)  # same numbers: bit for bit
+    np.testing.assert_allclose(kmh.leader.position(tt), ref.leader.position(tt), rtol=1e-12, atol=1e-10)
+
+
+def test_position_trace_recovers_a_quadratic_motion(tmp_path):
+    """x(t) = x0 + 3.3 t + 0.45 t² in feet on an uneven grid: np.gradient (2nd order) is exact for a
+    quadratic, so the speeds are v = (3.3 + 0.9 t)·0.3048 m/s at the samples."""
+    rng = np.random.default_rng(7)
+    t = np.cumsum(np.r_[0.0, rng.uniform(0.05, 0.2, 80)])
+    x_ft = 123.4 + 3.3 * t + 0.45 * t**2
+    _write(tmp_path / "pos.csv", "frame_time,Local_Y", zip(t + 2.5, x_ft))
+    ts, vs = read_trace_csv(tmp_path / "pos.csv", time_column="frame_time", position_column="Local_Y",
+                            position_unit="ft")
+    np.testing.assert_allclose(ts, t, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(vs, (3.3 + 0.9 * t) * 0.3048, rtol=1e-9)
+
+
+def test_filter_keeps_one_vehicle(tmp_path):
+    rows = [(7, 0.0, 4.1), (9, 0.0, 30.0), (7, 0.1, 4.3), (9, 0.1, 31.0), (7, 0.2, 4.6)]
+    (tmp_path / "many.csv").write_text("Vehicle_ID,time,speed\n" + "".join(f"{a},{b},{c}\n" for a, b, c in rows))
+    t, v = read_trace_csv(tmp_path / "many.csv", filter_column="Vehicle_ID", filter_value=7, speed_column="speed")
+    np.testing.assert_allclose(v, [4.1, 4.3, 4.6])
+    np.testing.assert_allclose(t, [0.0, 0.1, 0.2])
+
+
+@pytest.mark.parametrize("body, words", [
+    ("time,speed\n0,1.5\n1,2.5\n1,3.5\n", ["row 4", "'time'", "increase"]),
+    ("time,speed\n0,1.5\n1,nan\n2,3.5\n", ["row 3", "'speed'", "finite"]),
+    ("time,speed\n0,1.5\n1,-2.5\n2,3.5\n", ["row 3", "negative"]),
+    ("time,speed\n0,1.5\n1,2.5\n31,3.5\n", ["rows 3-4", "gap", "max_gap_s"]),
+    ("time,speed\n0,1.5\n1,abc\n", ["row 3", "'abc'"]),
+    ("time,velocity\n0,1.5\n1,2.5\n", ["speed_column", "'speed'", "velocity"]),
+    ("time,speed\n0,1.5\n", ["at least 2"]),
+])
+def test_bad_trace_names_the_row_and_field(tmp_path, body, words):
+    (tmp_path / "bad.csv").write_text(body)
+    with pytest.raises(ScenarioError) as exc:
+        load_scenario(_scenario(tmp_path, 'kind = "trace"\nfile = "bad.csv"'))
+    msg = str(exc.value)
+    assert "leader.file" in msg and "bad.csv" in msg
+    for w in words:
+        assert w in msg, msg
+
+
+def test_max_gap_is_settable_and_paths_are_relative_to_the_scenario(tmp_path, monkeypatch):
+    (tmp_path / "sub").mkdir()
+    (tmp_path / "sub" / "g.csv").write_text("time,speed\n0,1.5\n1,2.5\n31,3.5\n")
+    path = _scenario(tmp_path, 'kind = "trace"\nfile = "sub/g.csv"\nmax_gap_s = 40')
+    monkeypatch.chdir(tmp_path / "sub")  # the file is found from the scenario's folder, not the cwd
+    sc = load_scenario(path)
+    assert sc.leader.times[-1] == pytest.approx(31.0 / sc.units.time_s)
+    with pytest.raises(ScenarioError, match="no such file"):
+        load_scenario(_scenario(tmp_path, 'kind = "trace"\nfile = "missing.csv"'))
+    with pytest.raises(ScenarioError, match="speed_unit"):
+        load_scenario(_scenario(tmp_path, 'kind = "trace"\nfile = "sub/g.csv"\nspeed_unit = "knots"'))
+    with pytest.raises(ParameterError, match="exactly one"):
+        read_trace_csv(tmp_path / "sub" / "g.csv")
+
+
+def test_example_follow_csv_trace_quick(tmp_path):
+    """examples/follow_csv_trace.py --quick: both laws follow the recorded vehicle without an event, the
+    position-derived leader agrees with the speed column to the file's rounding (3 decimals of ft and
+    ft/s: well below 0.01 m/s), and its saved output loads back with the same metrics."""
+    import sys
+    from pathlib import Path
+
+    import aev_ocp
+
+    sys.path.insert(0, str(Path(__file__).parents[1] / "examples"))
+    try:
+        import follow_csv_trace
+    finally:
+        sys.path.pop(0)
+    res = follow_csv_trace.main(quick=True, out=str(tmp_path))
+    assert res["status"] == {"proposed": "ok", "ovfl": "ok"}
+    assert 0 < res["position_speed_diff_mps"] < 0.01
+    r = aev_ocp.load(tmp_path, run="ovfl")
+    assert r.metrics()[2]["omega_model"] == res["metrics"]["ovfl"][2]["omega_model"]
+    assert r.meta["output"]["settings"]["document"]["leader"]["filter_value"] == 1042
+
+
+def test_study_over_a_trace_leader_hashes_the_data_and_finds_the_file(tmp_path, monkeypatch):
+    """A study whose scenario follows a CSV: the task hash covers the CSV's content (a changed file is
+    recomputed, not served from the store), and the file is found relative to the scenario wherever
+    the study runs."""
+    from aev_ocp.study import read_study, run_study
+
+    t, v = load_cycle_si("udds")
+    _write(tmp_path / "u.csv", "time,speed", zip(t[:120], v[:120]))
+    _scenario(tmp_path, 'kind = "trace"\nfile = "u.csv"', "trace.toml")
+    study = tmp_path / "st.toml"
+    study.write_text('name = "tr"\nscenarios = ["trace.toml"]\nreference = "ovfl"\n'
+                     '[overrides]\n"simulation.t_end" = 20.0\n'
+                     '[[axes]]\nkey = "carfollowing.kappa"\nvalues = [0.02, 0.04]\n'
+                     '[controllers]\nlaws = ["proposed", "ovfl"]\n')
+    monkeypatch.chdir(tmp_path.parent)
+    keys = [tk.key for tk in read_study(study).tasks()]
+    out = run_study(read_study(study), tmp_path / "out", executor="inprocess", report=False)
+    assert out.n_tasks == 3 and all(r["status"] == "ok" for r in out.rows)  # OVFL ignores kappa: 1 task
+    _write(tmp_path / "u.csv", "time,speed", zip(t[:120], 1.01 * v[:120]))
+    keys2 = [tk.key for tk in read_study(study).tasks()]
+    assert len(set(keys) & set(keys2)) == 0
