@@ -1,4 +1,4 @@
-"""Command line: ``aev-ocp reproduce | simulate | scenarios | ocp | mpc``.
+"""Command line: ``aev-ocp reproduce | simulate | scenarios | ocp | mpc | mpc-export``.
 
 A thin layer over the Python API (:mod:`aev_ocp.reproduce`, :mod:`aev_ocp.scenarios`,
 :mod:`aev_ocp.report`). Every subcommand reports errors the same way (:func:`guarded`): one line
@@ -161,6 +161,8 @@ def build_parser() -> argparse.ArgumentParser:
     sub.add_parser("scenarios", help="list the shipped scenarios")
     sub.add_parser("ocp", help="optimal-control problems (see aev-ocp ocp --help)", add_help=False)
     sub.add_parser("mpc", help="model predictive control (see aev-ocp mpc --help)", add_help=False)
+    sub.add_parser("mpc-export", help="export a scenario's MPC step as a C library (see aev-ocp mpc-export --help)",
+                   add_help=False)
     sub.add_parser("stability", help="string stability of a law or the MPC (see aev-ocp stability --help)", add_help=False)
     sub.add_parser("study", help="sweeps and Pareto fronts from a study file (see aev-ocp study --help)", add_help=False)
     return p
@@ -260,6 +262,8 @@ def _dispatch(module: str, func: str, argv: list[str]) -> int:
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``aev-ocp``; returns the exit code (also raised as SystemExit by the script)."""
     args_list = list(sys.argv[1:] if argv is None else argv)
+    if args_list and args_list[0] == "mpc-export":
+        return guarded(lambda: _dispatch("aev_ocp.mpc.export", "cli_mpc_export", args_list[1:]))
     if args_list and args_list[0] in ("ocp", "mpc", "stability", "study"):
         name = args_list[0]
         return guarded(lambda: _dispatch(f"aev_ocp.{name}", f"cli_{name}", args_list[1:]))

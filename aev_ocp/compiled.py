@@ -139,13 +139,16 @@ def _warn_once(stem: str, message: str) -> None:
 
 
 def compile_shared(source: str, stem: str, sub: str = "", extra_flags: tuple[str, ...] = (),
-                   timeout_s: float = 600.0) -> BuildResult:
-    """Compile C ``source`` into ``<cache>/<stem>_<hash>.so`` unless a verified copy is already there."""
+                   timeout_s: float = 600.0, companions: dict[str, str] | None = None) -> BuildResult:
+    """Compile C ``source`` into ``<cache>/<stem>_<hash>.so`` unless a verified copy is already there.
+    ``companions``: further files by name (headers, and ``.c`` files compiled into the same library),
+    written beside the source and part of the cache key."""
     cc = compiler()
     if cc is None:
         return BuildResult(None, "no C compiler found (set $CC or install gcc)")
     flags = FLAGS + tuple(extra_flags)
-    key = hashlib.sha256("\0".join((source, cc, *flags)).encode()).hexdigest()[:24]
+    comp = dict(sorted((companions or {}).items()))
+    key = hashlib.sha256("\0".join((source, cc, *flags, *(f"{k}\0{v}" for k, v in comp.items()))).encode()).hexdigest()[:24]
     d = cache_dir(sub)
     lib = d / f"{stem}_{key}.so"
     side = lib.with_name(lib.name + SIDECAR_SUFFIX)
@@ -166,7 +169,10 @@ def compile_shared(source: str, stem: str, sub: str = "", extra_flags: tuple[str
     try:
         build_dir.mkdir(mode=0o700, exist_ok=True)
         c_file.write_text(source)
-        proc = subprocess.run([cc, *flags, "-o", str(tmp), c_file.name, "-lm"], capture_output=True, text=True,
+        for name, text in comp.items():
+            (build_dir / name).write_text(text)
+        more = [k for k in comp if k.endswith(".c")]
+        proc = subprocess.run([cc, *flags, "-o", str(tmp), c_file.name, *more, "-lm"], capture_output=True, text=True,
                               timeout=timeout_s, cwd=build_dir)
         if proc.returncode != 0:
             last = (proc.stderr or proc.stdout).strip().splitlines()
@@ -185,7 +191,7 @@ def compile_shared(source: str, stem: str, sub: str = "", extra_flags: tuple[str
         _warn_once(stem, f"compiling {stem} failed ({exc}); the caller falls back to its uncompiled path")
         return BuildResult(None, f"compilation failed: {exc}", rebuilt)
     finally:
-        _remove(c_file, tmp, tmp_side)
+        _remove(c_file, tmp, tmp_side, *(build_dir / k for k in comp))
         try:
             build_dir.rmdir()
         except OSError:

@@ -11,7 +11,17 @@ step; the first step is included in max and p95.
 'breakdown' (the rti+codegen path, N = 40) splits the wall time of a closed-loop step into its parts
 by timing wrappers around the compiled functions and the plant: forecast, QP data (one compiled call),
 the HPIPM solve, the node-0 check, the plan's cost/constraints, the plant (CVODES) and the Python rest.
+'exported' (aev_ocp/mpc/export.py, the C of `aev-ocp mpc-export`): the canonical closed loop of the
+'rti-qrqp+codegen' path (which runs that same C library through ctypes) is recorded (measured state and
+forecast per step) and replayed through the exported library built with `make`: from C (mpc_bench, the
+export's replay main, clock_gettime wall and CPU time per aev_mpc_step) and from Python (ctypes, one
+call per step); the replayed controls are compared with the closed loop's. 'breakdown_compiled' splits
+that path's controller call: the generated functions timed one by one through ca.external (shift, one
+SQP step = QP data + qrqp, node-0 check, the plan's cost — evaluated after the step, on demand) and the Python rest; 'scaling' gives its median for N = 40
+and N = 100. On a shared machine the wall-time p95 includes preemption (4 ms scheduler ticks): the CPU
+time per step is reported beside it.
 Usage: python benchmarks/bench_mpc.py [--t-end 70] [--N 20 40 80] [--out benchmarks/bench_mpc.json]
+       [--skip-paths] (only the exported library, the breakdowns and the scaling)
 """
 
 from __future__ import annotations
@@ -19,7 +29,10 @@ from __future__ import annotations
 import argparse
 import os
 import platform
+import shutil
+import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -39,7 +52,9 @@ PATHS = {
     "sqp-hpipm+codegen": dict(solver="sqp", qp_solver="hpipm", codegen=True),
     "rti-hpipm": dict(solver="rti", qp_solver="hpipm"),
     "rti-hpipm+codegen": dict(solver="rti", qp_solver="hpipm", codegen=True),
+    "rti-qrqp+codegen (compiled step)": dict(solver="rti", qp_solver="qrqp", codegen=True),
 }
+COMPILED = dict(solver="rti", qp_solver="qrqp", codegen=True)
 
 
 def bench(N: int, label: str, kw: dict, t_end: float) -> dict:
@@ -109,13 +124,136 @@ def breakdown(N: int, t_end: float) -> dict:
     return {"N": N, "steps": K, "ms_per_step": ms, "median_ms_per_call": med}
 
 
+def _stats_ms(t_s: np.ndarray) -> dict:
+    """median, p95, p99, max [ms] of per-step times [s] after the first (cold) step."""
+    t = 1e3 * np.asarray(t_s[1:], float)
+    return {"median_ms": float(np.median(t)), "p95_ms": float(np.percentile(t, 95)),
+            "p99_ms": float(np.percentile(t, 99)), "max_ms": float(t.max()), "first_ms": 1e3 * float(t_s[0])}
+
+
+def record_loop(N: int, t_end: float) -> tuple[np.ndarray, np.ndarray, object]:
+    """The closed loop of the compiled-step path with its controller inputs recorded: (inputs (K, 5 + 2N):
+    measured state and forecast per step, the applied controls (K,), the result)."""
+    from aev_ocp.control import ClosedLoop
+
+    loop = ClosedLoop(PaperLeader(), [MPCSettings(N=N, **COMPILED)])
+    c = loop.ctrl[0].controller  # type: ignore[union-attr]
+    rows: list[np.ndarray] = []
+    solve = c.solve
+
+    def rec(z0: object, vm: object, vh: object, **kw: object) -> object:
+        rows.append(np.concatenate([np.asarray(z0, float)[:5], np.asarray(vm, float), np.asarray(vh, float)]))
+        return solve(z0, vm, vh, **kw)
+
+    c.solve = rec
+    r = loop.run([0.3], [1.87], t_end)
+    return np.array(rows), np.asarray(r.accel[:len(rows), 0]), r
+
+
+def exported(t_end: float) -> dict:
+    """The exported library of the canonical scenario replayed from C (mpc_bench) and from Python (ctypes)."""
+    from aev_ocp.compiled import compiler
+    from aev_ocp.mpc.export import CStep, export_mpc
+    from aev_ocp.scenarios import find_scenario, load_scenario
+
+    if compiler() is None or shutil.which("make") is None:
+        return {"skipped": "no C compiler or make"}
+    inputs, u_loop, _ = record_loop(40, t_end)
+    with tempfile.TemporaryDirectory() as tmp:
+        out = Path(tmp)
+        export_mpc(load_scenario(find_scenario("mpc_paper_single")), out)
+        t0 = time.perf_counter()
+        subprocess.run(["make", "-s"], cwd=out, check=True, capture_output=True)
+        build_s = time.perf_counter() - t0
+        np.savetxt(out / "in.txt", inputs, fmt="%.17g")
+        proc = subprocess.run([str(out / "mpc_bench"), str(out / "in.txt"), str(out / "out.txt")], check=True,
+                              capture_output=True, text=True)
+        res = np.loadtxt(out / "out.txt")
+        from_c = {"wall": _stats_ms(res[:, -2]), "cpu": _stats_ms(res[:, -1]), "printed": proc.stdout.strip()}
+        cs = CStep(out / "libaev_mpc.so")
+        t_py, u_py, st_py = [], [], []
+        for row in inputs:
+            xm, fc = row[:5], row[5:]
+            t0 = time.perf_counter()
+            u, st = cs.step(xm, fc)
+            t_py.append(time.perf_counter() - t0)
+            u_py.append(u[0])
+            st_py.append(st)
+    return {"steps": len(inputs), "build_s": build_s, "from_c": from_c, "from_python_ctypes": _stats_ms(np.array(t_py)),
+            "status_nonzero_c": int(np.count_nonzero(res[:, 0])), "status_nonzero_python": int(np.count_nonzero(st_py)),
+            "max_abs_du_c_vs_closed_loop": float(np.abs(res[:, 1] - u_loop).max()),
+            "max_abs_du_ctypes_vs_closed_loop": float(np.abs(np.array(u_py) - u_loop).max())}
+
+
+def breakdown_compiled(N: int, t_end: float) -> dict:
+    """The compiled-step path: its generated functions timed one by one (ca.external on the cached library,
+    the inputs of a recorded closed loop) against the whole controller call."""
+    import casadi as ca
+
+    from aev_ocp.control import ClosedLoop
+
+    loop = ClosedLoop(PaperLeader(), [MPCSettings(N=N, **COMPILED)])
+    pol = loop.ctrl[0]
+    c = pol.controller  # type: ignore[union-attr]
+    lib = c._cstep.lib._name
+    f = {k: ca.external(f"aev_cg_{k}", lib) for k in ("shift", "sqp", "node0", "eval")}
+    pts: list[tuple] = []
+    step_full = c._cstep.step_full
+
+    def rec(z0: np.ndarray, p: np.ndarray) -> int:
+        prev = c._cstep.solution()
+        pts.append((prev[0].copy(), prev[1].copy(), prev[2].copy(), np.array(z0, float), np.array(p, float)))
+        return step_full(z0, p)
+
+    c._cstep.step_full = rec
+    timers = {"controller_call": _Timed(pol.command), "forecast": _Timed(pol.forecast)}
+    pol.command, pol.forecast = timers["controller_call"], timers["forecast"]
+    r = loop.run([0.3], [1.87], t_end)
+    solve_ms = np.asarray(r.meta["mpc_steps"][0]["solve_ms"])
+    parts = {"shift": [], "sqp_qpdata_and_qrqp": [], "node0": [], "plan_cost_eval": []}  # type: ignore[var-annotated]
+    for x, lg, lx, z0, p in pts[2:]:
+        for key, fn, args in (("shift", f["shift"], (x, lg, lx, z0, p)),
+                              ("sqp_qpdata_and_qrqp", f["sqp"], (x, lg, lx, p, 0.0)), ("node0", f["node0"], (x, p)),
+                              ("plan_cost_eval", f["eval"], (x, p))):
+            t0 = time.perf_counter()
+            fn(*args)
+            parts[key].append(time.perf_counter() - t0)
+    med = {k: 1e3 * float(np.median(v)) for k, v in parts.items()}
+    med["c_step_total (solve_ms)"] = float(np.median(solve_ms[1:]))  # plan_cost_eval is outside it
+    med["forecast"] = 1e3 * float(np.median(timers["forecast"].times))
+    med["controller_call"] = 1e3 * float(np.median(timers["controller_call"].times))
+    med["python_rest"] = med["controller_call"] - med["c_step_total (solve_ms)"] - med["forecast"]
+    return {"N": N, "median_ms_per_call": med,
+            "note": "the parts are called through ca.external (each includes about 0.04 ms of CasADi call "
+                    "overhead: node0, a single interval, takes 0.05 ms); their QP data alone is the 'qp_data' "
+                    "of the rti-hpipm breakdown (the same stage computations), the rest of the SQP step is qrqp"}
+
+
+def scaling(t_end: float, Ns: tuple[int, ...] = (40, 100)) -> dict:
+    """Median per-step time of the compiled-step path for N = 40 and N = 100."""
+    out = {}
+    for N in Ns:
+        r = run_single(MPCSettings(N=N, **COMPILED), leader=PaperLeader(), t_end=t_end)
+        st = dict(r.solver_stats[0] or {})
+        out[str(N)] = {"solve_ms_median": st["solve_ms_median"], "solve_ms_p95": st["solve_ms_p95"],
+                       "call_ms_median": st["call_ms_median"], "fallbacks": st["fallbacks"],
+                       "omega_model": float(r.omega[-1, 0])}
+    a, b = out[str(Ns[0])]["solve_ms_median"], out[str(Ns[-1])]["solve_ms_median"]
+    out["ratio"] = b / a
+    out["linear_ratio"] = Ns[-1] / Ns[0]
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--t-end", type=float, default=70.0)
     ap.add_argument("--N", type=int, nargs="+", default=[20, 40, 80])
     ap.add_argument("--out", default=str(Path(__file__).with_name("bench_mpc.json")))
+    ap.add_argument("--skip-paths", action="store_true", help="only the exported library, breakdowns and scaling")
     a = ap.parse_args(argv)
     rows = []
+    if a.skip_paths:
+        a.N = []
     print(f"{'N':>3} {'path':20s} {'median':>7} {'p95':>7} {'max':>7} {'call':>6} {'it':>5} {'fb':>3} {'viol':>4} "
           f"{'speedup':>7} {'dcost %':>8}")
     for N in a.N:
@@ -154,12 +292,45 @@ def main(argv: list[str] | None = None) -> int:
           "median ms per call")
     for k, v in sorted(bd["ms_per_step"].items(), key=lambda kv: -kv[1]):
         print(f"  {k:24s} {v:7.3f} {bd['median_ms_per_call'].get(k, float('nan')):8.3f}")
+    bdc = breakdown_compiled(40, a.t_end)
+    print("\nbreakdown of the compiled-step path (rti-qrqp+codegen), N = 40: median ms per call")
+    for k, v in bdc["median_ms_per_call"].items():
+        print(f"  {k:26s} {v:7.3f}")
+    ex = exported(a.t_end)
+    if "skipped" not in ex:
+        print(f"\nexported C library ({ex['steps']} steps replayed; make took {ex['build_s']:.1f} s):")
+        for lab, st in (("from C, wall", ex["from_c"]["wall"]), ("from C, CPU", ex["from_c"]["cpu"]),
+                        ("from Python (ctypes)", ex["from_python_ctypes"])):
+            print(f"  {lab:22s} median {st['median_ms']:.3f}  p95 {st['p95_ms']:.3f}  p99 {st['p99_ms']:.3f}  "
+                  f"max {st['max_ms']:.3f} ms")
+        print(f"  replayed controls vs the closed loop: max |du| C {ex['max_abs_du_c_vs_closed_loop']:.2e}, "
+              f"ctypes {ex['max_abs_du_ctypes_vs_closed_loop']:.2e}")
+    else:
+        print(f"\nexported C library: skipped ({ex['skipped']})")
+    sc = scaling(a.t_end)
+    print(f"\nscaling (compiled step): N = 40 median {sc['40']['solve_ms_median']:.3f} ms, N = 100 "
+          f"{sc['100']['solve_ms_median']:.3f} ms: ratio {sc['ratio']:.2f} (linear: {sc['linear_ratio']:.1f})")
+    comp = [r for r in rows if r["N"] == 40 and r["path"].startswith("rti-qrqp")]
+    ref = [r for r in rows if r["N"] == 40 and r["path"] == "ipopt (warm)"]
+    issue = {"exported_c_median_ms": ex.get("from_c", {}).get("wall", {}).get("median_ms"),
+             "exported_c_median_le_0.25ms": (ex["from_c"]["wall"]["median_ms"] <= 0.25) if "from_c" in ex else None,
+             "scaling_ratio_N100_N40": sc["ratio"], "scaling_at_most_linear": sc["ratio"] <= sc["linear_ratio"]}
+    if comp:
+        issue.update({"python_call_median_ms": comp[0]["call_ms_median"], "python_call_p95_ms": comp[0]["call_ms_p95"],
+                      "python_solve_median_ms": comp[0]["solve_ms_median"],
+                      "python_median_le_0.5ms": comp[0]["call_ms_median"] <= 0.5,
+                      "python_p95_le_1ms": comp[0]["call_ms_p95"] <= 1.0})
+        if ref:
+            rel = comp[0]["closed_loop_cost"] / ref[0]["closed_loop_cost"] - 1
+            issue.update({"cost_rel_to_ipopt": rel, "cost_within_1e-6": abs(rel) <= 1e-6})
+    print("issue-12 targets:", issue)
     write_json(a.out, {"scenario": "mpc_paper_single (PROBLEM.md §9 canonical)", "t_end": a.t_end,
                        "machine": {"platform": platform.platform(), "python": sys.version.split()[0],
                                    "cpus": os.cpu_count()},
                        "note": "wall time of each solver call in the closed loop; the first solve of every "
                                "non-baseline path is a cold IPOPT solve and is included in the statistics",
-                       "rows": rows, "targets": targets, "breakdown": bd})
+                       "rows": rows, "targets": targets, "breakdown": bd, "breakdown_compiled": bdc,
+                       "exported": ex, "scaling": sc, "issue12_targets": issue})
     print(f"wrote {a.out}")
     return 0
 

@@ -7,9 +7,11 @@ The OCV curve is a cubic B-spline interpolant of the A123 ANR26650 table shipped
 from __future__ import annotations
 
 import csv
+from contextlib import contextmanager
+from contextvars import ContextVar
 from functools import lru_cache
 from importlib import resources
-from typing import Any
+from typing import Any, Iterator
 
 import casadi as ca
 import numpy as np
@@ -34,8 +36,51 @@ def ocv_function() -> ca.Function:
     return ca.interpolant("ocv", "bspline", [soc], ocv)
 
 
+@lru_cache(maxsize=1)
+def ocv_pieces() -> tuple[np.ndarray, np.ndarray]:
+    """The B-spline of :func:`ocv_function` as its cubic pieces: breakpoints s_k (the table's SOC grid)
+    and the coefficients (a_k, b_k, c_k, d_k) of OCV = a + b u + c u² + d u³, u = S − s_k, on
+    [s_k, s_{k+1}] (fitted to the spline at four points per piece: it is exactly cubic there)."""
+    soc, _ = ocv_table()
+    f = ocv_function()
+    coef = []
+    for a, b in zip(soc[:-1], soc[1:]):
+        us = (b - a) * np.array([0.0, 1 / 3, 2 / 3, 1.0])
+        ys = np.asarray(f(ca.DM(a + us).T)).ravel()
+        coef.append(np.linalg.solve(np.vander(us, 4, increasing=True), ys))
+    return soc, np.array(coef)
+
+
+def ocv_piecewise(S: Any) -> Any:
+    """OCV(S) [V] as the same piecewise cubic written with comparisons: an SX expression whose
+    derivatives are plain arithmetic (cheaper than B-spline calls in generated Hessians); equal to
+    :func:`ocv_function` within 1e-14 V on [0, 1] (tests/test_mpc_export.py); the end pieces extended."""
+    s, c = ocv_pieces()
+    step = [S >= s[k] for k in range(1, len(c))]
+    s0, a, b, cc, d = (v[0] + sum((v[k] - v[k - 1]) * step[k - 1] for k in range(1, len(c)))
+                       for v in (s[:-1], c[:, 0], c[:, 1], c[:, 2], c[:, 3]))
+    u = S - s0
+    return a + u * (b + u * (cc + u * d))
+
+
+_PIECEWISE: ContextVar[bool] = ContextVar("aev_ocp_ocv_piecewise", default=False)
+
+
+@contextmanager
+def piecewise_ocv() -> Iterator[None]:
+    """Within this block, :func:`ocv` of an SX expression is :func:`ocv_piecewise` (the same values;
+    the MPC builds its prediction model so). Numeric and MX arguments keep the B-spline Function."""
+    token = _PIECEWISE.set(True)
+    try:
+        yield
+    finally:
+        _PIECEWISE.reset(token)
+
+
 def ocv(S: Any) -> Any:
     """Open-circuit voltage OCV(S) [V]."""
+    if _PIECEWISE.get() and isinstance(S, ca.SX):
+        return ocv_piecewise(S)
     return ocv_function()(S)
 
 

@@ -21,6 +21,7 @@ slacks of soft constraints) start at 0, further stage or global parameters take 
 
 from __future__ import annotations
 
+import contextlib
 import os
 import tempfile
 import time
@@ -33,6 +34,7 @@ import casadi as ca
 import numpy as np
 
 from ..compiled import compile_shared, compiler
+from ..models.battery import piecewise_ocv
 from ..models.carfollowing import CarFollowingLaw, Proposed
 from ..models.ego import STATE_NAMES
 from ..numerics import rk4
@@ -103,11 +105,13 @@ class MPCController:
         self.ev = ev or EVParams()
         self.guess_law = guess_law or Proposed()
         s = self.settings
-        if problem is None:
-            problem = following_problem(self.ev, s.bounds, s.smooth, s.objective, name="mpc")
+        if problem is None:  # rti: the OCV as comparisons (same values, cheaper Hessians: models/battery.py)
+            with piecewise_ocv() if s.solver == "rti" else contextlib.nullcontext():
+                problem = following_problem(self.ev, s.bounds, s.smooth, s.objective, name="mpc")
         self.problem = problem.build() if isinstance(problem, ProblemBuilder) else problem
         self._check_layout(parameter_values or {}, initial_values or {})
         self.codegen_active = False
+        self._cstep: Any = None  # the compiled whole step (export.CStep) of the rti path with qrqp + codegen
         t0 = time.perf_counter()
         self._build_model()
         self._build_nlp()
@@ -290,6 +294,13 @@ class MPCController:
         function, compiled to C when codegen is on. The QP (step dx, new multipliers) is solved by
         ``ca.conic`` (HPIPM detects the OCP structure from the sparsity)."""
         s, pr = self.settings, self.problem
+        if s.qp_solver == "qrqp" and s.codegen:  # the whole step compiled: the exported C (mpc/export.py)
+            from .export import CompiledStep
+
+            self._cstep = CompiledStep.build(self)
+            if self._cstep is not None:
+                self.codegen_active = True
+                return
         N, nx, nu, ngs = s.N, pr.nx, pr.nu, self._ng_stage
         nb = nx + nu
         zk, uk = ca.SX.sym("zk", nx), ca.SX.sym("uk", nu)
@@ -451,6 +462,11 @@ class MPCController:
             raise ParameterError(f"MPC: the leader forecast (v_mean, v_hat) must be N = {N} finite values each, "
                                  f"got {vm_.size} and {vh_.size}")
         p = self._params(np.vstack([vm_, vh_]), weights, stage_weights)
+        if self._cstep is not None:
+            cold = self._warm is None
+            sol = self._solve_cstep(z0, p)
+            if sol.success or not cold:
+                return sol  # a failed cold start of the compiled step falls back to the cold IPOPT below
         warm = self._warm is not None and s.solver != "ipopt-cold"
         if warm:
             args = self._shift(z0, p)
@@ -481,6 +497,8 @@ class MPCController:
         X, a, U = self.unpack(x)
         self._warm = ({"x": x, "lam_x": np.asarray(out["lam_x"]).ravel(), "lam_g": np.asarray(out["lam_g"]).ravel(),
                        "X1": X[:, 1]} if success else None)
+        if self._cstep is not None and self._warm is not None:
+            self._cstep.set_warm(self._warm["x"], self._warm["lam_g"], self._warm["lam_x"], drop_below=1e-8)
         return MPCSolution(success, status, iters, dt_wall, X, a, float(out["f"]), viol, path,
                            {"t_wall_solver": float(st.get("t_wall_total", float("nan")))}, U)
 
@@ -534,3 +552,24 @@ class MPCController:
         self._warm = {"x": x, "lam_x": lam_x, "lam_g": lam_g, "X1": X[:, 1]}
         return MPCSolution(True, "RTI_Step" if step > s.tol else "RTI_Converged", it, dt_wall, X, a,
                            float(f), viol, "rti", {"step_inf": step, "node0_violation": viol0}, U)
+
+    def _solve_cstep(self, z0: np.ndarray, p: np.ndarray) -> MPCSolution:
+        """One step of the compiled whole RTI step (:class:`aev_ocp.mpc.export.CStep`, the same C as
+        ``aev-ocp mpc-export``): a cold start (SQP from the guess) when there is no warm start."""
+        from .export import STATUS
+
+        cs = self._cstep
+        if self._warm is None:
+            cs.reset()
+        t0 = time.perf_counter()
+        st = cs.step_full(z0, p)
+        dt_wall = time.perf_counter() - t0
+        x, lam_g, lam_x, info = cs.solution()
+        if st != 0:
+            return self._failed(STATUS.get(st, f"status {st}"), info.iterations, dt_wall, info.node0_violation, "rti")
+        X, a, U = self.unpack(x)
+        self._warm = {"x": x.copy(), "X1": X[:, 1]}
+        return MPCSolution(True, "RTI_Step" if info.step_inf > self.settings.tol else "RTI_Converged",
+                           info.iterations, dt_wall, X, a, info.cost, info.violation, "rti",
+                           {"step_inf": info.step_inf, "node0_violation": info.node0_violation,
+                            "cold_start": bool(info.cold)}, U)

@@ -1,0 +1,452 @@
+"""The MPC step as self-contained C: the real-time iteration of :class:`~aev_ocp.mpc.controller.MPCController`
+(solver 'rti') with CasADi's active-set QP solver ``qrqp`` generated into the same C code, so that nothing
+of Python or CasADi is needed at run time.
+
+Five CasADi Functions are built from the controller's (any) :class:`~aev_ocp.ocp.problem.OCPProblem` and
+generated into ``mpc_casadi.c`` (:func:`rti_functions`):
+
+* ``aev_cg_guess(z0, p) -> x``: the cold-start guess (the closed-form law rolled out, as
+  :meth:`MPCController.guess`);
+* ``aev_cg_shift(x, lam_g, lam_x, z0, p) -> (x, lam_g, lam_x)``: the warm start shifted by one interval
+  (as :meth:`MPCController._shift`);
+* ``aev_cg_sqp(x, lam_g, lam_x, p, reg) -> (x⁺, lam_g⁺, lam_x⁺, |dx|∞, max|A dx − b|)``: one full SQP step
+  (exact Lagrangian Hessian + reg·I, the QP solved by qrqp warm-started on the previous active set);
+* ``aev_cg_node0(x, p) -> (node-0 violation, u0)``: the applied control and its path constraints;
+* ``aev_cg_eval(x, p) -> (f, violation)``: the plan's cost and constraint violation (evaluated only when
+  asked for, by ``aev_mpc_get_info``).
+
+The hand-written driver ``aev_ocp/c/mpc_step.c`` (header ``mpc_step.h``) runs them: a cold step iterates
+regularised SQP from the guess until the step is below ``tol`` (at most :data:`COLD_MAX_ITER` QPs), a warm step shifts
+and does ``rti_iterations`` SQP steps. The Python rti path with qp_solver 'qrqp' and codegen loads the
+same library (:class:`CompiledStep`), so the Python controller and the exported C run the same code.
+
+:func:`export_mpc` writes the folder of ``aev-ocp mpc-export``: sources, header, generated config header,
+Makefile, CMakeLists.txt, a benchmark main and README.txt.
+
+Why qrqp: it is the QP solver whose C CasADi generates (no library at run time; HPIPM's sources may not be
+copied). It is an active-set method on a sparse QR of the KKT matrix: on the §9 problem (strictly convex
+QPs near the solution) it is as fast as HPIPM through ``ca.conic`` and warm-starts on the previous active
+set. Limits: it needs a nonsingular reduced Hessian — a problem whose controls enter the cost only
+linearly (the 'energy' objective's energy-rate control) makes it fail or hit its iteration limit (the
+Python controller then falls back to IPOPT / the closed-form law); use HPIPM for those. A structure-
+exploiting interior-point QP in C (Riccati recursion) would lift this and is the next step.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import os
+import subprocess
+import tempfile
+from importlib import resources
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import casadi as ca
+import numpy as np
+
+from ..params import ParameterError
+
+if TYPE_CHECKING:  # pragma: no cover
+    from .controller import MPCController
+
+#: Hand-written templates (package data under aev_ocp/c/) copied or filled into an export.
+TEMPLATES = ("mpc_step.c", "mpc_step.h", "mpc_bench_main.c")
+#: Files of an export folder.
+EXPORT_FILES = ("mpc_casadi.c", "mpc_casadi.h", "mpc_config.h", "mpc_step.c", "mpc_step.h", "mpc_bench_main.c",
+                "Makefile", "CMakeLists.txt", "README.txt")
+#: At most this many SQP iterations from the cold-start guess (the first step, or after a failure).
+COLD_MAX_ITER = 100
+#: Cold start (Levenberg-Marquardt): the QP Hessian gets reg·I, reg = COLD_REG0 at first, divided by 10
+#: whenever max|dx| < COLD_REG_STEP (0 once below 1e-6), multiplied by 10 and the step retried when the QP
+#: fails (up to COLD_REG_MAX); full SQP steps. Without it qrqp fails within two iterations from the guess
+#: on the §9 problem (the exact Hessian is singular and, far from the solution, indefinite); with it the
+#: cold start reaches IPOPT's solution (max |dx| 4e-7 = IPOPT's tolerance) in 22 iterations.
+COLD_REG0 = 0.1
+COLD_REG_STEP = 1e-2
+COLD_REG_MAX = 1e3
+#: reg of the warm (RTI) steps: 0, the exact Hessian as in the Python rti path
+RTI_REG = 0.0
+#: Status codes of aev_mpc_step (mpc_step.h).
+STATUS = {0: "RTI_Step", 1: "QP failed", 2: "non-finite step", 3: "applied control violates the path constraints",
+          4: "cold start did not converge", 5: "non-finite input"}
+
+
+class ExportError(ParameterError):
+    """The MPC cannot be exported or built (names the cause)."""
+
+
+def _template(name: str) -> str:
+    return resources.files("aev_ocp").joinpath("c", name).read_text(encoding="utf-8")
+
+
+# ---------------------------------------------------------------------------------------------- functions
+def rti_functions(c: "MPCController", qp_plugin: str = "qrqp", qp_options: dict[str, Any] | None = None) -> list[ca.Function]:
+    """The five CasADi Functions of the exported step (see the module docstring), from a built controller.
+    ``qp_plugin``/``qp_options``: another ``ca.conic`` plugin for comparisons (only qrqp generates C)."""
+    s, pr = c.settings, c.problem
+    N, nx, nu, ngs = s.N, pr.nx, pr.nu, c._ng_stage
+    nb, nv, ng, npp = nx + nu, c.nv, c.ng, c.np_
+    xs, us = ca.DM(c.x_scale), ca.DM(c.u_scale)
+    # --- one SQP step: stage-wise Hessian/gradient/Jacobian as in MPCController._build_rti
+    zk, uk = ca.SX.sym("zk", nx), ca.SX.sym("uk", nu)
+    zn, w, pp = ca.SX.sym("zn", nx), ca.SX.sym("w", pr.nw), ca.SX.sym("p", pr.np_)
+    sw, lk = ca.SX.sym("sw"), ca.SX.sym("lk", ngs)
+    zu = ca.vertcat(zk, uk)
+    eq, path, J = c.F(zk, uk, ca.SX(0, 1), ca.SX.zeros(nx), w, pp, s.dt)
+    ck = ca.vertcat(eq, path)
+    cost = sw * J
+    Hk = ca.densify(ca.hessian(cost + ca.dot(lk, ck), zu)[0])
+    Jk = ca.densify(ca.jacobian(ck, zu))
+    gk = ck - ca.vertcat(zn, ca.SX.zeros(ngs - nx))
+    stage = ca.Function("aev_cg_stage", [zk, uk, zn, w, pp, sw, lk], [Hk, ca.gradient(cost, zu), Jk, gk])
+    V, P = ca.MX.sym("x", nv), ca.MX.sym("p", npp)
+    LAM, LAMX = ca.MX.sym("lam_g", ng), ca.MX.sym("lam_x", nv)
+    Xk, Uk, Xn, W, PP, SW = c._stage_inputs(V, P)
+    Hs, Qs, Js, Gs = stage.map(N, "serial")(Xk, Uk, Xn, W, ca.repmat(PP, 1, N), SW, ca.reshape(LAM, ngs, N))
+    REG = ca.MX.sym("reg")  # Levenberg-Marquardt term reg·I (the cold start's iterations; 0 in RTI)
+    H = ca.diagcat(*ca.horzsplit(Hs, nb), ca.MX(nx, nx)) + REG * ca.MX(ca.DM.eye(nv))
+    E = ca.DM(ng, nv)  # −I of gap_k in z_{k+1}
+    for k in range(N):
+        for i in range(nx):
+            E[k * ngs + i, (k + 1) * nb + i] = -1.0
+    A = ca.horzcat(ca.diagcat(*ca.horzsplit(Js, nb)), ca.MX(ng, nx)) + ca.sparsify(E)
+    g = ca.vec(Gs)
+    # the initial state is fixed at x[:nx] (the shift or the guess put the measurement there)
+    lbx = ca.vertcat(V[:nx], ca.DM(c._lbx[nx:]))
+    ubx = ca.vertcat(V[:nx], ca.DM(c._ubx[nx:]))
+    qp = ca.conic("aev_cg_qp", qp_plugin, {"h": H.sparsity(), "a": A.sparsity()},
+                  qp_options if qp_options is not None else
+                  {"error_on_fail": True, "print_iter": False, "print_header": False, "print_info": False})
+    lba, uba = ca.DM(c._lbg) - g, ca.DM(c._ubg) - g
+    sol = qp(h=H, g=ca.vertcat(ca.vec(Qs), ca.MX.zeros(nx)), a=A, lba=lba, uba=uba, lbx=lbx - V, ubx=ubx - V,
+             lam_x0=LAMX, lam_a0=LAM)  # qrqp's initial active set: the nonzero multipliers (0.58 vs 0.75 ms)
+    dx = sol["x"]
+    Adx = ca.mtimes(A, dx)
+    qp_res = ca.mmax(ca.vertcat(ca.fmax(lba - Adx, 0), ca.fmax(Adx - uba, 0), ca.DM(0)))
+    sqp = ca.Function("aev_cg_sqp", [V, LAM, LAMX, P, REG], [V + dx, sol["lam_a"], sol["lam_x"], ca.norm_inf(dx), qp_res],
+                      ["x", "lam_g", "lam_x", "p", "reg"], ["x_next", "lam_g_next", "lam_x_next", "step_inf", "qp_residual"])
+    # --- plan evaluation: cost, nonlinear violation, node-0 path violation, applied controls
+    f_nlp = ca.Function("f", [c._nlp["x"], c._nlp["p"]], [c._nlp["f"], c._nlp["g"]])
+    f, gg = f_nlp(V, P)
+    vg = ca.fmax(ca.fmax(ca.DM(c._lbg) - gg, gg - ca.DM(c._ubg)), 0)
+    vx = ca.fmax(ca.fmax(lbx - V, V - ubx), 0)
+    viol = ca.mmax(ca.vertcat(vg, vx, ca.DM(0)))
+    path0 = c.F(V[:nx], V[nx:nb], ca.MX(0, 1), ca.MX.zeros(nx), W[:, 0], PP, s.dt)[1]
+    lb0, ub0 = ca.DM(np.asarray(pr.path_lb, float)), ca.DM(np.asarray(pr.path_ub, float))
+    viol0 = ca.mmax(ca.vertcat(ca.fmax(ca.fmax(lb0 - path0, path0 - ub0), 0), ca.DM(0)))
+    ev = ca.Function("aev_cg_eval", [V, P], [f, viol], ["x", "p"], ["f", "violation"])
+    node0 = ca.Function("aev_cg_node0", [V, P], [viol0, V[nx:nb] * us], ["x", "p"], ["node0_violation", "u0"])
+    # --- cold-start guess (MPCController.guess) and shift (MPCController._shift)
+    Z0 = ca.MX.sym("z0", nx)
+    Wm, pm = ca.reshape(P[:pr.nw * N], pr.nw, N), P[pr.nw * N:pr.nw * N + pr.np_]
+    Zn, Ug = c._rollout(Z0, Wm, ca.repmat(pm, 1, N))
+    Z = ca.horzcat(Z0, Zn) / ca.repmat(xs, 1, N + 1)
+    Ug = ca.reshape(Ug, nu, N) / ca.repmat(us, 1, N)
+    guess = ca.Function("aev_cg_guess", [Z0, P], [ca.vertcat(ca.vec(ca.vertcat(Z[:, :N], Ug)), Z[:, N])],
+                        ["z0", "p"], ["x"])
+    zN, uN = V[nb * N:] * xs, V[nb * N - nu:nb * N] * us
+    z_ext = c.step(zN, uN, Wm[:, N - 1], pm) / xs
+    z_ext = ca.fmin(ca.fmax(z_ext, ca.DM(c._lbx[-nx:])), ca.DM(c._ubx[-nx:]))
+
+    def shift_v(v: Any, new_last: Any) -> Any:
+        # blocks 1..N-1, then (z_N, u_{N-1}), then new_last; the first nx entries are replaced later
+        return ca.vertcat(v[nb:nb * N], v[nb * N:], v[nb * N - nu:nb * N], new_last)
+
+    x0 = shift_v(V, z_ext)
+    x0 = ca.vertcat(Z0 / xs, x0[nx:])
+    lam_g0 = ca.vertcat(LAM[ngs:N * ngs], LAM[(N - 1) * ngs:N * ngs], LAM[N * ngs:])
+    shift = ca.Function("aev_cg_shift", [V, LAM, LAMX, Z0, P], [x0, lam_g0, shift_v(LAMX, LAMX[nb * N:])],
+                        ["x", "lam_g", "lam_x", "z0", "p"], ["x0", "lam_g0", "lam_x0"])
+    return [guess, shift, sqp, node0, ev]
+
+
+def generate_casadi(c: "MPCController", folder: Path) -> None:
+    """Write mpc_casadi.c and mpc_casadi.h (the five functions, CasADi's generated C, qrqp included)."""
+    cg = ca.CodeGenerator("mpc_casadi.c", {"with_header": True})
+    for f in rti_functions(c):
+        cg.add(f)
+    cwd = os.getcwd()
+    os.chdir(folder)
+    try:
+        cg.generate()
+    finally:
+        os.chdir(cwd)
+
+
+def _c_array(values: np.ndarray) -> str:
+    v = np.asarray(values, float).ravel()
+    if v.size == 0:
+        return "{0.0}"
+    return "{" + ", ".join(repr(float(x)) if np.isfinite(x) else ("INFINITY" if x > 0 else "-INFINITY")
+                           for x in v) + "}"
+
+
+def config_header(c: "MPCController", description: str) -> str:
+    """mpc_config.h: dimensions and constants of the exported problem (filled template)."""
+    from .controller import NZ
+
+    s, pr = c.settings, c.problem
+    from ..ocp.following import weight_vector
+
+    p_const = np.concatenate([weight_vector(s.weights)[:c._n_weights], c._p_extra])
+    subs = {"DESCRIPTION": description.replace("*/", "* /"), "N": s.N, "NX": pr.nx, "NU": pr.nu, "NZ": NZ,
+            "NW": pr.nw, "NW_EXTRA": pr.nw - 2, "NPP": pr.np_, "NV": c.nv, "NG": c.ng, "NP": c.np_,
+            "NG_STAGE": c._ng_stage, "RTI_ITER": s.rti_iterations, "COLD_MAX_ITER": COLD_MAX_ITER,
+            "COLD_REG0": repr(COLD_REG0), "RTI_REG": repr(RTI_REG), "COLD_REG_MAX": repr(COLD_REG_MAX), "COLD_REG_STEP": repr(COLD_REG_STEP),
+            "TOL": repr(float(s.tol)), "PLAN_TOL": repr(float(_plan_tolerance())), "DT": repr(float(s.dt)),
+            "X_SCALE": _c_array(c.x_scale), "U_SCALE": _c_array(c.u_scale), "OWN0": _c_array(c._x_own0),
+            "W_EXTRA": _c_array(c._w_extra), "P_CONST": _c_array(p_const),
+            "STATE_NAMES": ", ".join(pr.state_names), "CONTROL_NAMES": ", ".join(pr.control_names)}
+    text = _template("mpc_config_template.h")
+    for k, v in subs.items():
+        text = text.replace(f"@{k}@", str(v))
+    return text
+
+
+def _plan_tolerance() -> float:
+    from ..plant import PLAN_TOLERANCE
+
+    return float(PLAN_TOLERANCE)
+
+
+def write_sources(c: "MPCController", folder: Path, description: str) -> None:
+    """Generated and hand-written C sources of the step into ``folder`` (created)."""
+    folder.mkdir(parents=True, exist_ok=True)
+    generate_casadi(c, folder)
+    (folder / "mpc_config.h").write_text(config_header(c, description), encoding="utf-8")
+    for name in TEMPLATES:
+        (folder / name).write_text(_template(name), encoding="utf-8")
+
+
+# ---------------------------------------------------------------------------------------------- export
+def export_controller(c: "MPCController", out: Path, description: str) -> list[Path]:
+    """Write the export folder of a built controller; returns the files written."""
+    out = Path(out)
+    write_sources(c, out, description)
+    (out / "Makefile").write_text(_template("mpc_Makefile.in"), encoding="utf-8")
+    (out / "CMakeLists.txt").write_text(_template("mpc_CMakeLists.txt.in"), encoding="utf-8")
+    s, pr = c.settings, c.problem
+    readme = _template("mpc_README.txt.in")
+    subs = {"DESCRIPTION": description, "N": s.N, "DT": f"{s.dt:g}", "NX": pr.nx, "NU": pr.nu,
+            "STATES": ", ".join(pr.state_names), "CONTROLS": ", ".join(pr.control_names),
+            "NV": c.nv, "NG": c.ng, "UNITS": f"length {c.ev.units.length_m:g} m, speed {c.ev.units.speed_mps:g} m/s, "
+                                             f"time {c.ev.units.time_s:g} s"}
+    for k, v in subs.items():
+        readme = readme.replace(f"@{k}@", str(v))
+    (out / "README.txt").write_text(readme, encoding="utf-8")
+    return [out / f for f in EXPORT_FILES]
+
+
+def export_controller_settings(settings: Any, ev: Any = None, problem: Any = None,
+                               parameter_values: dict[str, float] | None = None,
+                               initial_values: dict[str, float] | None = None) -> "MPCController":
+    """A controller built only for the export (cold IPOPT path, no codegen: nothing is compiled); the
+    default problem is built as the rti path builds it (the OCV as comparisons, models/battery.py)."""
+    from ..models.battery import piecewise_ocv
+    from ..ocp.following import following_problem
+    from ..params import EVParams
+    from .controller import MPCController
+
+    if problem is None:
+        with piecewise_ocv():
+            problem = following_problem(ev or EVParams(), settings.bounds, settings.smooth, settings.objective,
+                                        name="mpc")
+    return MPCController(settings.with_(solver="ipopt-cold", codegen=False), ev, problem=problem,
+                         parameter_values=parameter_values, initial_values=initial_values)
+
+
+def export_mpc(scenario: Any, out: Path, settings: Any = None) -> list[Path]:
+    """Export the MPC of a loaded scenario (its ``[mpc]`` table; ExportError if it has none)."""
+    cfg = scenario.extra.get("mpc")
+    if cfg is None:
+        raise ExportError(f"scenario {scenario.name!r} has no [mpc] table: there is no MPC to export")
+    s = settings or cfg.settings
+    c = export_controller_settings(s, scenario.ev)
+    desc = (f"MPC of scenario {scenario.name} (N = {s.N}, dt = {s.dt:g}, objective {s.objective}, "
+            f"rk4_substeps {s.rk4_substeps}, rti_iterations {s.rti_iterations})")
+    return export_controller(c, out, desc)
+
+
+# ---------------------------------------------------------------------------------------------- building
+def build_library(src: Path, out_lib: Path, cc: str | None = None, flags: tuple[str, ...] = ("-O2",)) -> Path:
+    """Compile the export folder's C sources into a shared library (ExportError naming the cause)."""
+    from ..compiled import compiler
+
+    cc = cc or compiler()
+    if cc is None:
+        raise ExportError("no C compiler found (set $CC or install gcc/cc) to build the exported MPC")
+    cmd = [cc, *flags, "-fPIC", "-shared", "-o", str(out_lib), "mpc_casadi.c", "mpc_step.c", "-lm"]
+    proc = subprocess.run(cmd, cwd=src, capture_output=True, text=True, timeout=900)
+    if proc.returncode != 0:
+        last = (proc.stderr or proc.stdout).strip().splitlines()
+        raise ExportError(f"building the exported MPC failed: {last[-1] if last else proc.returncode}")
+    return out_lib
+
+
+class Info(ctypes.Structure):
+    """aev_mpc_info of mpc_step.h."""
+
+    _fields_ = [("iterations", ctypes.c_int), ("cold", ctypes.c_int), ("step_inf", ctypes.c_double),
+                ("qp_residual", ctypes.c_double), ("cost", ctypes.c_double), ("violation", ctypes.c_double),
+                ("node0_violation", ctypes.c_double)]
+
+
+_VP = ctypes.c_void_p
+
+
+def _addr(a: np.ndarray) -> int:
+    """Address of a C-contiguous float64 array (cheaper than ``ctypes.data_as``; keep ``a`` alive)."""
+    return a.ctypes.data
+
+
+class CStep:
+    """ctypes binding of an exported (or cached) MPC step library: one workspace, allocated once; the
+    library's own output buffers are addressed once (no per-step allocation besides the returned copies)."""
+
+    def __init__(self, lib_path: str | Path) -> None:
+        self.lib = lib = ctypes.CDLL(str(lib_path))
+        lib.aev_mpc_create.restype = _VP
+        for name, n in (("aev_mpc_free", 1), ("aev_mpc_reset", 1), ("aev_mpc_set_warm", 4),
+                        ("aev_mpc_get_solution", 4), ("aev_mpc_get_info", 2), ("aev_mpc_dims", 1)):
+            getattr(lib, name).argtypes = [_VP] * n
+            getattr(lib, name).restype = None
+        for name in ("aev_mpc_step", "aev_mpc_step_full"):
+            getattr(lib, name).argtypes = [_VP] * 5
+            getattr(lib, name).restype = ctypes.c_int
+        dims = np.zeros(8, dtype=np.intc)
+        lib.aev_mpc_dims(dims.ctypes.data)
+        self.N, self.nx, self.nu, self.nz, self.nv, self.ng, self.np_, self.nf = (int(d) for d in dims)
+        self.ws = lib.aev_mpc_create()
+        if not self.ws:
+            raise MemoryError("aev_mpc_create: out of memory")
+        self._u = np.zeros(self.nu)
+        self._status = np.zeros(1, dtype=np.intc)
+        self._info = Info()
+        self.x, self.lam_g, self.lam_x = np.zeros(self.nv), np.zeros(self.ng), np.zeros(self.nv)
+        self._a = {k: _addr(v) for k, v in (("u", self._u), ("status", self._status), ("x", self.x),
+                                            ("lam_g", self.lam_g), ("lam_x", self.lam_x))}
+        self._a["info"] = ctypes.addressof(self._info)
+
+    def __del__(self) -> None:
+        ws, self.ws = getattr(self, "ws", None), None
+        if ws:
+            self.lib.aev_mpc_free(ws)
+
+    def reset(self) -> None:
+        """Forget the warm start (next step is a cold start)."""
+        self.lib.aev_mpc_reset(self.ws)
+
+    def step(self, x_meas: np.ndarray, forecast: np.ndarray) -> tuple[np.ndarray, int]:
+        """(u0 (nu,), status) from the measured (h, v, V1, V2, S) and forecast (v̄_l (N), v̂_l (N))."""
+        xm = np.ascontiguousarray(x_meas, float)
+        fc = np.ascontiguousarray(forecast, float)
+        if xm.size != self.nz or fc.size != self.nf:
+            raise ParameterError(f"CStep.step: x_meas must have {self.nz} and forecast {self.nf} values")
+        a = self._a
+        self.lib.aev_mpc_step(self.ws, _addr(xm), _addr(fc), a["u"], a["status"])
+        return self._u.copy(), int(self._status[0])
+
+    def step_full(self, z0: np.ndarray, p: np.ndarray) -> int:
+        """Status of a step from the full initial state (nx) and the NLP parameter vector (np)."""
+        z = np.ascontiguousarray(z0, float)
+        pp = np.ascontiguousarray(p, float)
+        if z.size != self.nx or pp.size != self.np_:
+            raise ParameterError(f"CStep.step_full: z0 must have {self.nx} and p {self.np_} values")
+        return int(self.lib.aev_mpc_step_full(self.ws, _addr(z), _addr(pp), self._a["u"], self._a["status"]))
+
+    def set_warm(self, x: np.ndarray, lam_g: np.ndarray, lam_x: np.ndarray, drop_below: float = 0.0) -> None:
+        """Start the next step from this primal-dual point (scaled NLP vector and multipliers).
+        ``drop_below``: multipliers of smaller magnitude are set to 0 — an interior-point solution (IPOPT)
+        has tiny nonzero multipliers on inactive constraints, which qrqp would take as its initial active set."""
+        a, b, d = (np.array(v, float) for v in (x, lam_g, lam_x))
+        if a.size != self.nv or b.size != self.ng or d.size != self.nv:
+            raise ParameterError(f"CStep.set_warm: x, lam_g, lam_x must have {self.nv}, {self.ng}, {self.nv} values")
+        if drop_below > 0:
+            b[np.abs(b) < drop_below] = 0.0
+            d[np.abs(d) < drop_below] = 0.0
+        self.lib.aev_mpc_set_warm(self.ws, _addr(a), _addr(b), _addr(d))
+
+    def solution(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, Info]:
+        """(x, lam_g, lam_x, info) of the last step (arrays reused: copy to keep)."""
+        a = self._a
+        self.lib.aev_mpc_get_solution(self.ws, a["x"], a["lam_g"], a["lam_x"])
+        self.lib.aev_mpc_get_info(self.ws, a["info"])  # evaluates the plan's cost
+        return self.x, self.lam_g, self.lam_x, self._info
+
+
+class CompiledStep:
+    """The exported step's library built into the private cache (:func:`aev_ocp.compiled.compile_shared`,
+    keyed by a hash of the sources) for the Python rti path (qp_solver 'qrqp', codegen)."""
+
+    @staticmethod
+    def build(c: "MPCController") -> "CStep | None":
+        """A :class:`CStep` on the cached library, or None (with a warning) when it cannot be built."""
+        import warnings
+
+        from ..compiled import compile_shared, compiler
+
+        if compiler() is None:
+            warnings.warn("MPC codegen requested but no C compiler (gcc) was found: using the "
+                          "interpreted CasADi functions instead", RuntimeWarning, stacklevel=4)
+            return None
+        with tempfile.TemporaryDirectory() as tmp:
+            write_sources(c, Path(tmp), f"MPC controller {c.problem.name}")
+            files = {n: Path(tmp, n).read_text(encoding="utf-8") for n in ("mpc_config.h", "mpc_casadi.h",
+                                                                          "mpc_step.h", "mpc_step.c")}
+            main = Path(tmp, "mpc_casadi.c").read_text(encoding="utf-8")
+        built = compile_shared(main, "mpc_step", "mpc", companions=files)
+        if built.path is None:
+            warnings.warn(f"MPC codegen failed ({built.error}): using the interpreted CasADi functions instead",
+                          RuntimeWarning, stacklevel=4)
+            return None
+        return CStep(built.path)
+
+
+# ---------------------------------------------------------------------------------------------- command line
+def build_parser() -> Any:
+    """Argument parser of ``aev-ocp mpc-export``."""
+    from ..cli import OneLineParser
+
+    p = OneLineParser(prog="aev-ocp mpc-export",
+                      description="Export the MPC step of a scenario's [mpc] table as a self-contained C library "
+                                  "(sources, header mpc_step.h, Makefile, CMakeLists.txt, README.txt; no Python or "
+                                  "CasADi at run time). The exported step is the real-time iteration with the "
+                                  "qrqp QP solver generated into the C code, whatever the scenario's solver.")
+    p.add_argument("scenario", help="scenario TOML file or shipped scenario name (e.g. mpc_paper_single)")
+    p.add_argument("--out", required=True, help="output folder of the C sources (created; files replaced)")
+    p.add_argument("--set", action="append", default=None, metavar="KEY=VALUE",
+                   help="override a scenario value, e.g. --set mpc.N=100 (repeatable)")
+    p.add_argument("--build", action="store_true",
+                   help="also compile the library with the system C compiler ($CC, gcc or cc) into OUT/libaev_mpc.so")
+    return p
+
+
+def cli_mpc_export(argv: list[str]) -> int:
+    """Entry point of ``aev-ocp mpc-export``; exit 0 ok, 2 bad input (unknown scenario, no [mpc] table,
+    no C compiler for --build), 1 a failed build."""
+    from ..cli import guarded
+
+    return guarded(lambda: _cli(argv))
+
+
+def _cli(argv: list[str]) -> int:
+    from ..overrides import load_with_sets
+    from ..scenarios import find_scenario
+
+    a = build_parser().parse_args(argv)
+    sc = load_with_sets(str(find_scenario(a.scenario)), a.set)
+    out = Path(a.out)
+    if out.exists() and not out.is_dir():
+        raise ExportError(f"--out {out} exists and is not a folder")
+    files = export_mpc(sc, out)
+    print(f"wrote {len(files)} files to {out}/ ({', '.join(f.name for f in files)})")
+    if a.build:
+        try:
+            lib = build_library(out, out / "libaev_mpc.so")
+        except ExportError as exc:
+            if "no C compiler" in str(exc):
+                raise
+            raise RuntimeError(str(exc)) from None
+        print(f"built {lib}")
+    return 0

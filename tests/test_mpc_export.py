@@ -1,0 +1,269 @@
+"""The MPC step exported as C (aev_ocp/mpc/export.py, `aev-ocp mpc-export`): built with the system
+compiler and driven through the CVODES plant via ctypes.
+
+* The canonical §9 scenario (200 of its 700 steps, t ∈ [0, 20], to keep the suite short): the C library
+  called on (x_meas, forecast) through its own API — its own cold start included — against the Python
+  controller (rti, qrqp, codegen) in the closed loop; and, independently of the shared code, against the
+  Python rti path whose QP data come from the interpreted CasADi functions and whose QP is solved by
+  ``ca.conic('qrqp')`` (both loops start from the same cold IPOPT step, handed to the C by set_warm).
+  Max |Δu| and max |Δx| over the closed loop <= 1e-8.
+* A second problem built with the ProblemBuilder with a soft constraint (a slack control) and an extra
+  state (a_prev with a jerk penalty): the same comparison.
+* Command-line errors: unknown scenario, a scenario without [mpc], no C compiler for --build.
+"""
+
+from __future__ import annotations
+
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from aev_ocp.compiled import compiler
+from aev_ocp.control import ClosedLoop, Command, Observation
+from aev_ocp.models.leader import PaperLeader
+from aev_ocp.mpc.export import EXPORT_FILES, CStep, build_library, export_controller, export_controller_settings
+from aev_ocp.mpc.policy import MPCVehicle
+from aev_ocp.mpc.settings import MPCSettings
+from aev_ocp.params import EVParams
+from tests.cli_helpers import one_error, run_cli
+
+pytestmark = pytest.mark.skipif(compiler() is None, reason="no C compiler")
+
+T_END = 20.0  # 200 closed-loop steps of the canonical 700
+TOL = 1e-8
+CANON = dict(N=40, dt=0.1, solver="rti", qp_solver="qrqp", codegen=True)
+
+
+class CPolicy:
+    """A Controller that runs the exported library on (x_meas, forecast); the forecast is the MPC policy's
+    (oracle), failures fall back to the policy's fallback. ``first``: a controller that makes the first
+    step instead (its solution warm-starts the library)."""
+
+    def __init__(self, lib: Path, policy: Any, first: Any = None) -> None:
+        self.step, self.policy, self.first = CStep(lib), policy, first
+        self.name, self.dt = "exported C", policy.dt
+        self.status: list[int] = []
+
+    def reset(self) -> None:
+        self.step.reset()
+
+    def describe(self) -> dict[str, Any]:
+        return {"name": "exported C"}
+
+    def command(self, obs: Observation) -> Command:
+        vm, vh = self.policy.forecast(obs)
+        if self.first is not None:
+            sol = self.first.solve(obs.z, vm, vh)
+            w = self.first._warm
+            self.step.set_warm(w["x"], w["lam_g"], w["lam_x"], drop_below=1e-8)
+            self.first, self.status = None, [0]
+            return Command(float(sol.a[0]), True)
+        u, st = self.step.step(obs.z, np.concatenate([vm, vh]))
+        self.status.append(st)
+        if st != 0:
+            return self.policy._fallback.command(obs)
+        return Command(float(u[0]), True)
+
+
+def _loop(ctrl: Any, ev: EVParams | None = None) -> ClosedLoop:
+    return ClosedLoop(PaperLeader(), [ctrl], ev)
+
+
+def _traj(r: Any) -> tuple[np.ndarray, np.ndarray]:
+    x = np.stack([r.gap[:, 0], r.speed[:, 0], r.V1[:, 0], r.V2[:, 0], r.S[:, 0]])
+    return r.accel[:, 0], x
+
+
+def _compare(a: Any, b: Any) -> tuple[float, float]:
+    (ua, xa), (ub, xb) = _traj(a), _traj(b)
+    assert ua.shape == ub.shape and xa.shape == xb.shape
+    return float(np.abs(ua - ub).max()), float(np.abs(xa - xb).max())
+
+
+def _c_run(lib: Path, settings: MPCSettings, vehicle: Any = None, first: Any = None) -> tuple[Any, list[int]]:
+    """The closed loop driven by the exported library (forecast from an MPC policy of the same settings)."""
+    loop = _loop(vehicle or settings)
+    pol = loop.ctrl[0]
+    cp = CPolicy(lib, pol, first)
+    loop.ctrl[0] = cp
+    return loop.run([0.3], [1.87], T_END), cp.status
+
+
+@pytest.fixture(scope="module")
+def canonical_lib(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """`aev-ocp mpc-export mpc_paper_single --out DIR`, then `make` (or cc without make)."""
+    out = tmp_path_factory.mktemp("mpc_export")
+    from aev_ocp.cli import main
+
+    assert main(["mpc-export", "mpc_paper_single", "--out", str(out)]) == 0
+    assert sorted(p.name for p in out.iterdir()) == sorted(EXPORT_FILES)
+    if shutil.which("make"):
+        proc = subprocess.run(["make", "-s", "libaev_mpc.so", "mpc_bench"], cwd=out, capture_output=True, text=True)
+        assert proc.returncode == 0, proc.stderr
+        return out / "libaev_mpc.so"
+    return build_library(out, out / "libaev_mpc.so")
+
+
+def test_export_has_no_python_or_casadi_dependency(canonical_lib: Path) -> None:
+    """The library links only libc/libm: no libcasadi, no libpython."""
+    if sys.platform != "linux" or shutil.which("ldd") is None:
+        pytest.skip("ldd needed")
+    deps = subprocess.run(["ldd", str(canonical_lib)], capture_output=True, text=True).stdout
+    assert "casadi" not in deps and "python" not in deps, deps
+    src = (canonical_lib.parent / "mpc_casadi.c").read_text()
+    assert "#include <casadi" not in src and "Python.h" not in src
+
+
+def test_canonical_closed_loop_matches_python_controller(canonical_lib: Path) -> None:
+    """C on (x_meas, forecast) with its own cold start vs the Python controller (rti, qrqp, codegen)."""
+    s = MPCSettings(**CANON)
+    rc, st = _c_run(canonical_lib, s)
+    rp = _loop(s).run([0.3], [1.87], T_END)
+    assert len(st) == 200 and all(k == 0 for k in st)
+    assert (rp.solver_stats[0] or {}).get("fallbacks") == 0
+    du, dx = _compare(rc, rp)
+    assert du <= TOL and dx <= TOL, (du, dx)
+    # a closed loop that really moves: the acceleration spans a range (not a constant command)
+    assert np.ptp(rc.accel[:, 0]) > 0.3
+
+
+def test_canonical_closed_loop_matches_interpreted_qp_path(canonical_lib: Path) -> None:
+    """Independent of the shared generated code: the Python rti path on interpreted CasADi functions with
+    ca.conic('qrqp') (numpy shift, separate QP-data function), both from the same cold IPOPT step."""
+    from aev_ocp.mpc.controller import MPCController
+
+    s = MPCSettings(**{**CANON, "codegen": False})
+    ref = MPCController(s)
+    assert ref._cstep is None  # the interpreted path, not the library
+    rc, st = _c_run(canonical_lib, s, first=ref)
+    rp = _loop(s).run([0.3], [1.87], T_END)
+    assert all(k == 0 for k in st)
+    du, dx = _compare(rc, rp)
+    assert du <= TOL and dx <= TOL, (du, dx)
+
+
+def _candidate(ev: EVParams, s: MPCSettings) -> Any:
+    """A ProblemBuilder problem with a soft constraint (slack control) and an extra state: the §9 problem
+    (heat objective; the 'energy' objective's linear-cost control defeats qrqp, see export.py), a soft time-headway constraint h − 0.23 v >= 0.21 (penalty 37) and a jerk
+    penalty 0.013 ((a − a_prev)/dt)² through the own state a_prev (benchmarks/bench_mpc_cycles.py)."""
+    from aev_ocp.ocp.following import following_problem
+
+    pb = following_problem(ev, s.bounds, s.smooth, s.objective, name="export_candidate")
+    h, v, a = pb.x["h"], pb.x["v"], pb.u["a"]
+    pb.subject_to(h - 0.23 * v, lb=0.21, soft=37.0, name="headway")
+    a_prev = pb.state("a_prev")
+    pb.set_next(a_prev, a)
+    pb.add_stage_cost(0.013 * ((a - a_prev) / s.dt) ** 2, name="jerk")
+    return pb
+
+
+def test_soft_constraint_and_extra_state_problem(tmp_path: Path) -> None:
+    ev = EVParams()
+    s = MPCSettings.from_dict({**CANON, "w_Q": 0.7, "h_min": -10.0})
+    prob = _candidate(ev, s)
+    c = export_controller_settings(s, ev, problem=prob)
+    assert c.nx == 6 and c.problem.control_names[-1] == "slack_headway"  # a_prev; the soft constraint's slack
+    export_controller(c, tmp_path, "candidate")
+    lib = build_library(tmp_path, tmp_path / "lib.so")
+    rc, st = _c_run(lib, s, MPCVehicle(s, problem=prob))
+    rp = _loop(MPCVehicle(s, problem=prob)).run([0.3], [1.87], T_END)
+    assert all(k == 0 for k in st)
+    assert (rp.solver_stats[0] or {}).get("fallbacks") == 0
+    du, dx = _compare(rc, rp)
+    assert du <= TOL and dx <= TOL, (du, dx)
+    # the soft constraint is active somewhere (the slack control is used): the test exercises it
+    cs = CStep(lib)
+    z0 = np.array([0.3, 1.87, 0.0, 0.0, 0.8])
+    u, status = cs.step(z0, np.full(2 * s.N, 1.7))
+    x, *_ = cs.solution()
+    nb = c.nx + c.nu
+    slack = x[:nb * s.N].reshape(s.N, nb)[:, nb - 1] * c.u_scale[-1]
+    assert status == 0 and slack.max() > 1e-4
+
+
+def test_replay_benchmark_matches_library(canonical_lib: Path, tmp_path: Path) -> None:
+    """mpc_bench (the C main of the export) replays recorded inputs: the same controls as the ctypes calls."""
+    bench = canonical_lib.parent / "mpc_bench"
+    if not bench.exists():
+        pytest.skip("make not available")
+    cs = CStep(canonical_lib)
+    rng = np.random.default_rng(7)
+    rows, us = [], []
+    z = np.array([0.31, 1.83, 0.002, 0.001, 0.79])
+    for k in range(6):
+        fc = np.concatenate([np.full(40, 1.7 + 0.01 * k), np.full(40, 1.69 + 0.01 * k)])
+        zk = z + rng.normal(0, 1e-3, 5) * np.array([1, 1, 0, 0, 0])
+        rows.append(np.concatenate([zk, fc]))
+        us.append(cs.step(zk, fc))
+    np.savetxt(tmp_path / "in.txt", np.array(rows), fmt="%.17g")
+    proc = subprocess.run([str(bench), str(tmp_path / "in.txt"), str(tmp_path / "out.txt")], capture_output=True,
+                          text=True)
+    assert proc.returncode == 0, proc.stderr
+    assert "median_ms" in proc.stdout
+    got = np.loadtxt(tmp_path / "out.txt")
+    assert np.array_equal(got[:, 0], [st for _, st in us])
+    np.testing.assert_allclose(got[:, 1], [u[0] for u, _ in us], rtol=0, atol=1e-14)
+    assert got.shape[1] == 4 and np.all(got[:, 3] > 0)  # status, u, wall and CPU seconds
+
+
+def test_cli_errors(capsys: pytest.CaptureFixture[str], tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    rc, _, err = run_cli(["mpc-export", "no_such_scenario", "--out", str(tmp_path / "a")], capsys)
+    assert rc == 2 and "no_such_scenario" in one_error(err)
+    rc, _, err = run_cli(["mpc-export", "table1", "--out", str(tmp_path / "b")], capsys)
+    assert rc == 2 and "no [mpc] table" in one_error(err)
+    import aev_ocp.compiled
+
+    monkeypatch.setattr(aev_ocp.compiled, "compiler", lambda: None)
+    rc, _, err = run_cli(["mpc-export", "mpc_paper_single", "--out", str(tmp_path / "c"), "--set", "mpc.N=7",
+                          "--build"], capsys)
+    assert rc == 2 and "no C compiler" in one_error(err)
+    rc, _, err = run_cli(["mpc-export", "mpc_paper_single"], capsys)
+    assert rc == 2 and "--out" in one_error(err)
+
+
+def test_two_workspaces_are_independent(canonical_lib: Path) -> None:
+    """Two controllers on one library (a platoon): interleaved steps give each one's own sequence."""
+    rng = np.random.default_rng(3)
+    rows = [np.concatenate([[0.62 + 0.01 * k, 1.71 - 0.02 * k, 0.001 * k, 0.0005 * k, 0.8 - 1e-4 * k],
+                            1.7 + 0.05 * rng.standard_normal(80)]) for k in range(8)]
+
+    def alone(seq: list[np.ndarray]) -> list[float]:
+        cs = CStep(canonical_lib)
+        return [cs.step(r[:5], r[5:])[0][0] for r in seq]
+
+    ref1, ref2 = alone(rows), alone(rows[::-1])
+    a, b = CStep(canonical_lib), CStep(canonical_lib)
+    got1, got2 = [], []
+    for r1, r2 in zip(rows, rows[::-1]):
+        got1.append(a.step(r1[:5], r1[5:])[0][0])
+        got2.append(b.step(r2[:5], r2[5:])[0][0])
+    assert got1 == ref1 and got2 == ref2
+    assert np.ptp(ref1) > 1e-3  # the inputs matter
+
+
+def test_piecewise_ocv_equals_the_bspline() -> None:
+    """The MPC's OCV written with comparisons (models/battery.py) against the B-spline Function: values,
+    first and second derivatives at random SOC in [0, 1] and at the breakpoints."""
+    import casadi as ca
+
+    from aev_ocp.models import battery as B
+
+    soc, _ = B.ocv_table()
+    x = np.concatenate([np.random.default_rng(11).uniform(0, 1, 400), soc[1:-1], soc[1:-1] - 1e-9])
+    S = ca.SX.sym("S")
+    e = B.ocv_piecewise(S)
+    pw = ca.Function("pw", [S], [e, ca.jacobian(e, S), ca.hessian(e, S)[0]]).map(x.size)
+    Sm = ca.MX.sym("S")
+    em = B.ocv_function()(Sm)
+    bs = ca.Function("bs", [Sm], [em, ca.jacobian(em, Sm), ca.hessian(em, Sm)[0]]).map(x.size)
+    for k, tol in ((0, 1e-13), (1, 1e-10), (2, 1e-7)):
+        a, b = np.asarray(pw(x)[k]).ravel(), np.asarray(bs(x)[k]).ravel()
+        assert np.abs(a - b).max() <= tol * max(1.0, np.abs(b).max()), (k, np.abs(a - b).max())
+    with B.piecewise_ocv():  # SX inside the block: the comparisons; numbers: the B-spline
+        assert "BSpline" not in str(B.ocv(S)) and float(B.ocv(0.37)) == float(B.ocv_function()(0.37))
+    assert "ocv" in str(B.ocv(S))  # outside: the B-spline Function call
