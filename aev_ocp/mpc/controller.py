@@ -99,14 +99,16 @@ RTI_HESSIAN_FLOOR = 1e-8
 
 
 def _project_pd(B: np.ndarray) -> np.ndarray:
-    """Symmetric matrices B (k, n, n) with eigenvalues raised to RTI_HESSIAN_FLOOR·(1 + max|λ|)."""
+    """Symmetric matrices B (k, n, n) with eigenvalues raised to RTI_HESSIAN_FLOOR·(1 + max|λ|); blocks
+    that are PD with margin are returned unchanged (only the others are rebuilt from their eigenpairs)."""
     B = 0.5 * (B + B.transpose(0, 2, 1))
     lam, Q = np.linalg.eigh(B)
     floor = RTI_HESSIAN_FLOOR * (1.0 + np.abs(lam).max(axis=1, keepdims=True))
-    if np.all(lam >= floor):
-        return B
-    lam = np.maximum(lam, floor)
-    return np.einsum("kij,kj,klj->kil", Q, lam, Q)
+    bad = np.any(lam < floor, axis=1)
+    if np.any(bad):
+        lb, Qb = np.maximum(lam[bad], floor[bad]), Q[bad]
+        B[bad] = (Qb * lb[:, None, :]) @ Qb.transpose(0, 2, 1)
+    return B
 
 
 def default_problem(ev: EVParams, s: MPCSettings) -> ProblemBuilder:

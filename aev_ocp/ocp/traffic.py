@@ -19,14 +19,15 @@ and converted with the scenario's units (so a user does not retune when L or U c
   falling back.
 * **Terminal cost** (§9: none): w_T (h_N − h_des(v_N))², so a short horizon does not plan to close (or
   open) the gap after its end.
-* **Constraints, all on the gap soft with exact L1 penalties** (§9: a hard h ≥ 0.2): the standstill
-  floor h ≥ s_min (penalty ρ_floor), a time headway h ≥ s_min + T_h v and a braking-distance constraint
-  h ≥ s_min + v t_r + (v² − v̂_l²)/(2 b) (both penalty ρ_safe): with b the deceleration both cars can
-  brake at, the follower can stop behind a predecessor that brakes at b from its forecast speed. A
-  slack σ ≥ 0 enters each constraint and the cost ρ σ (+ 1e-3 σ² for a PD Hessian), so every QP is
-  feasible; the L1 penalty is exact: for ρ above the constraint's multiplier the slack is 0 whenever
-  the hard problem is feasible. Hard: 0 ≤ v ≤ v_max, a_min ≤ a ≤ a_max (SI), |I| ≤ 20C and the current
-  map, as §9 (always satisfiable: a = 0 keeps every one).
+* **Constraints on the gap, soft with an exact L1 penalty** (§9: a hard h ≥ 0.2): a time headway
+  h ≥ s_min + T_h v and a braking-distance constraint h ≥ s_min + v t_r + (v² − v̂_l²)/(2 b): with b the
+  deceleration both cars can brake at, the follower can stop s_min behind a predecessor that brakes at b
+  from its forecast speed, even when the forecast said it would not brake. Both imply the standstill
+  floor h ≥ s_min (v ≥ 0 is hard). One slack σ ≥ 0 [m] enters both and the cost ρ_safe σ (+ 1e-3 σ²
+  for a PD Hessian), so every QP is feasible; the L1 penalty is exact: for ρ_safe above the
+  constraints' multipliers the slack is 0 whenever the hard problem is feasible. Hard: 0 ≤ v ≤ v_max,
+  a_min ≤ a ≤ a_max (SI), |I| ≤ 20C and the current map, as §9 (always satisfiable together: a = 0
+  keeps every one; at v = 0 braking is not possible and not needed).
 """
 
 from __future__ import annotations
@@ -42,6 +43,11 @@ from .following import FollowingBounds
 from .problem import ProblemBuilder
 
 FORMULATIONS = ("traffic", "s9")  # 'traffic': this module (default); 's9': PROBLEM.md §9 exactly
+#: Finite upper bounds of the epigraph and slack controls (never active: |v g(a)| ≤ 45 m/s × 7.5 m/s² / 0.8
+#: = 422 W/kg; a gap 1 km short of its bound is not a traffic situation): finite bounds keep the QP solver's
+#: stand-in for infinity away from the variables' scale.
+ENERGY_RATE_MAX_W_PER_KG = 1000.0
+SLACK_MAX_M = 1000.0
 
 
 @dataclass(frozen=True)
@@ -62,8 +68,7 @@ class TrafficParams:
     time_headway_s: float = spec(1.0, ge=0.0)  # T_h [s] (ACC practice 1–2 s; ISO 15622 allows ≥ 0.8 s)
     reaction_time_s: float = spec(0.3, ge=0.0)  # t_r [s] of the braking-distance constraint (our choice)
     brake_decel_mps2: float = spec(6.0, gt=0.0)  # b [m/s²]: emergency braking both cars can do (dry road ≈ 8)
-    floor_penalty: float = spec(1000.0, gt=0.0)  # ρ_floor [W/kg per m of violation]
-    safe_penalty: float = spec(100.0, gt=0.0)  # ρ_safe [W/kg per m of violation]
+    safe_penalty: float = spec(100.0, gt=0.0)  # ρ_safe [W/kg per m of violation] (above every multiplier seen)
     v_max_mps: float = spec(45.0, gt=0.0)  # [m/s] (§9: 2 model = 10 m/s at L = 10, U = 5; 162 km/h here)
     a_min_mps2: float = spec(-7.5)  # [m/s²] §9's −3 at the default units
     a_max_mps2: float = spec(5.0)  # [m/s²] §9's 2 at the default units
@@ -117,22 +122,26 @@ def traffic_problem(ev: EVParams, tp: TrafficParams | None = None, dt: float = 0
     jerk = (a_ms2 - u.accel_to_si(a_prev)) / (dt * T)
     cell = battery_side(z[1], a, z[2], z[3], z[4], ev, smooth)
     # exact v g(a) [W/kg] by an epigraph (the energy_rate control, in W/kg)
-    e = pb.control("energy_rate", scale=10.0)
+    e = pb.control("energy_rate", -ENERGY_RATE_MAX_W_PER_KG, ENERGY_RATE_MAX_W_PER_KG, scale=10.0)
     pb.subject_to(e - v_ms * a_ms2 / eta, 0.0, ca.inf, name="energy_epi_drive")
     pb.subject_to(e - eta * v_ms * a_ms2, 0.0, ca.inf, name="energy_epi_brake")
     h_des = desired_gap_m(v_ms, tp)
+    s_min = tp.standstill_gap_m
     terms = {"energy": tp.energy_weight * e, "heat": tp.heat_weight * cell["Q_pack"] / m,
              "accel": tp.accel_weight * a_ms2**2, "jerk": tp.jerk_weight * jerk**2,
              "relative": tp.relative_speed_weight * (vl_ms - v_ms) ** 2,
              "gap": tp.gap_weight * (h_m - h_des) ** 2}
     for nm, expr in terms.items():  # Σ ℓ_SI·dt_s = Σ (T ℓ_SI)·dt_model
         pb.add_stage_cost(T * expr, nm)
-    # soft constraints on the gap [m]; penalties per second → ×T per model time
-    s_min = tp.standstill_gap_m
-    pb.subject_to(h_m, s_min, ca.inf, soft=T * tp.floor_penalty, name="floor")
-    pb.subject_to(h_m - tp.time_headway_s * v_ms, s_min, ca.inf, soft=T * tp.safe_penalty, name="headway")
-    pb.subject_to(h_m - v_ms * tp.reaction_time_s - (v_ms**2 - vl_ms**2) / (2 * tp.brake_decel_mps2), s_min, ca.inf,
-                  soft=T * tp.safe_penalty, name="braking")
+    # soft constraints on the gap [m], one slack σ ≥ 0 [model length] shared by both (the larger
+    # violation sets it) with the exact L1 penalty ρ_safe per metre per second (×T per model time, ×L per
+    # model length) plus 1e-3 σ² (a PD Hessian); the standstill floor h ≥ s_min is implied (v ≥ 0 is hard)
+    sig = pb.control("slack_gap", 0.0, SLACK_MAX_M / u.length_m)
+    sig_m = u.length_to_si(sig)
+    pb.subject_to(h_m + sig_m - tp.time_headway_s * v_ms, s_min, ca.inf, name="headway")
+    pb.subject_to(h_m + sig_m - v_ms * tp.reaction_time_s - (v_ms**2 - vl_ms**2) / (2 * tp.brake_decel_mps2),
+                  s_min, ca.inf, name="braking")
+    pb.add_stage_cost(T * (tp.safe_penalty * sig_m + 1e-3 * sig_m**2), "penalty_gap")
     Imax = ev.cell.max_current_A
     pb.subject_to(cell["I"], -Imax, Imax, name="I")  # |I| ≤ 20C (PROBLEM.md §9)
     pb.subject_to(cell["disc"], 0.0, ca.inf, name="disc")  # current map feasible (PROBLEM.md §7)
