@@ -78,7 +78,9 @@ class MPCPolicy:
         info = {"cost": sol.cost, "violation": sol.violation, "v_hat": vh}
         if sol.success:
             return Command(float(sol.a[0]), True, sol.status, sol.solve_time_s, sol.iterations, sol.X[1], info)
-        a = self._fallback.command(obs).a
+        # the fallback: the law on the measurements, clipped to the a bounds and so that the speed stays
+        # >= 0 over the step (a plant never reverses; the law at a tiny gap may ask for a_min at v ≈ 0)
+        a = max(self._fallback.command(obs).a, min(0.0, -float(obs.z[1]) / self.dt))
         _LOG.info("MPC fallback at t = %.4g (vehicle %d): %s (%.3g ms)", obs.t, obs.vehicle + 1, sol.status,
                   1e3 * sol.solve_time_s)
         return Command(a, False, sol.status, sol.solve_time_s, sol.iterations, None, info)
