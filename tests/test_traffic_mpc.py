@@ -159,3 +159,23 @@ def test_traffic_params_validated():
     with pytest.raises(ParameterError, match="formulation"):
         MPCSettings(formulation="highway")
     assert MPCSettings.from_dict({"time_headway_s": 1.7}).traffic.time_headway_s == 1.7
+
+
+def test_comparison_table_flags_runs_of_different_duration():
+    """A run 20 % shorter than the proposed law's is flagged and its column marked; a run of the same
+    length and distance is not (distance within 1 %: OVFL and the proposed law behind the same leader)."""
+    from aev_ocp.models import OVFL, PaperLeader, Proposed
+    from aev_ocp.mpc.report import Comparison, _flag_comparability, comparison_table
+    from aev_ocp.simulate import simulate_platoon
+
+    runs = {"proposed": simulate_platoon(PaperLeader(), [Proposed()], [0.3], [1.87], 5.0, dt_out=0.1),
+            "mpc": simulate_platoon(PaperLeader(), [Proposed()], [0.3], [1.87], 4.0, dt_out=0.1),
+            "ovfl": simulate_platoon(PaperLeader(), [OVFL()], [0.3], [1.87], 5.0, dt_out=0.1)}
+    metrics = {k: r.metrics() for k, r in runs.items()}
+    _flag_comparability(metrics)
+    assert metrics["mpc"][0]["flag_duration"] and not metrics["mpc"][0]["comparable"]
+    assert metrics["mpc"][0]["duration_diff_pct"] == pytest.approx(-20.0, abs=0.01)
+    assert metrics["ovfl"][0]["comparable"] and metrics["proposed"][0]["comparable"]
+    table = comparison_table(Comparison(runs, metrics))
+    assert "mpc (NOT COMPARABLE)" in table and "ovfl (NOT" not in table
+    assert "heat_pack_J_per_km" in table and "min_ttc_s" in table and "distance_m" in table
