@@ -543,17 +543,20 @@ class MPCController:
         return MPCSolution(False, status, iters, dt_wall, np.full((self.nx, N + 1), np.nan), np.full(N, np.nan),
                            float("nan"), viol, path, {}, np.full((self.nu, N), np.nan))
 
-    def regularised_hessian(self, hblk: Any, hN: Any) -> ca.DM:
+    def regularised_hessian(self, hblk: Any, hN: Any, project: bool = True) -> ca.DM:
         """The RTI QP's Hessian from the exact Lagrangian Hessian's diagonal blocks (``hblk`` (nb, nb·N):
         the stage blocks side by side, ``hN`` (nx, nx): the terminal block), each projected onto the
         positive-definite cone: symmetric eigendecomposition, eigenvalues below
         ``RTI_HESSIAN_FLOOR·(1 + max|λ|)`` raised to that floor (a no-op where the block is safely PD).
-        Block-wise projection makes the whole (block-diagonal) Hessian, hence every reduced Hessian, PD."""
+        Block-wise projection makes the whole (block-diagonal) Hessian, hence every reduced Hessian, PD.
+        ``project=False``: the exact blocks, assembled."""
         N, nx, nb = self.settings.N, self.nx, self.nx + self.nu
         B = np.asarray(hblk, float).reshape(nb, N, nb).transpose(1, 0, 2)  # (N, nb, nb): block k = hblk[:, k·nb:(k+1)·nb]
         HN = np.asarray(hN, float).reshape(1, nx, nx)
         # column-major nonzeros of the dense diagonal blocks (the sparsity of self._H_sp)
-        nz = np.concatenate([_project_pd(B).transpose(0, 2, 1).ravel(), _project_pd(HN)[0].T.ravel()])
+        if project:
+            B, HN = _project_pd(B), _project_pd(HN)
+        nz = np.concatenate([B.transpose(0, 2, 1).ravel(), HN[0].T.ravel()])
         return ca.DM(self._H_sp, nz)
 
     def _solve_rti(self, args: dict[str, np.ndarray], p: np.ndarray, lbx: np.ndarray,
@@ -573,7 +576,7 @@ class MPCController:
         try:
             while it < iterations:
                 d = data(x, p, lam_g, lbx, ubx)
-                H = self.regularised_hessian(d[0], d[1])
+                H = self.regularised_hessian(d[0], d[1], project=s.rti_hessian == "projected")
                 out = qp(h=H, g=d[2], a=d[3], lba=d[4], uba=d[5], lbx=d[6], ubx=d[7])
                 it += 1
                 st = qp.stats()

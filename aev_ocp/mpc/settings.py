@@ -26,6 +26,10 @@ from ..params import EVParams, ParameterError, PowertrainOptions, spec, validate
 #: The 'rti' path never calls IPOPT: its first step and the step after a failure start from the
 #: closed-form law rolled out over the horizon (``rti_cold_iterations`` SQP steps), so no step takes seconds.
 SOLVER_PATHS = ("ipopt", "sqp", "ipopt-cold", "rti")
+#: The 'rti' path's QP Hessian: 'projected' (default): the exact Lagrangian Hessian's diagonal blocks
+#: projected onto the PD cone (eigenvalues raised to a floor), so every QP is convex; 'exact': as computed
+#: (the §9 scenarios state it, so their numbers stay as published; an indefinite block can then stall HPIPM).
+RTI_HESSIANS = ("projected", "exact")
 QP_SOLVERS = ("qrqp", "osqp", "hpipm", "qpoases", "proxqp")
 PREDICTOR_NAMES = ("oracle", "constant-velocity", "constant-acceleration", "decaying-acceleration", "cooperative")
 
@@ -39,6 +43,7 @@ class MPCSettings:
     traffic: the traffic formulation's SI parameters; max_step_ms: wall-clock budget of one step [ms]
     (a solve that takes longer is discarded and the fallback applied, cause 'budget'; IPOPT also
     gets it as max_wall_time); rti_cold_iterations: SQP steps of the 'rti' path when it starts cold;
+    rti_hessian: 'projected' or 'exact' (RTI_HESSIANS);
     N: horizon intervals; dt: interval length [model time]; weights: stage-cost weights (parameters of
     the NLP, changeable per solve without rebuilding); bounds: h, v, a bounds; objective: 'heat'
     (pack Q with the smoothed η switch) or 'energy' (v g̃(a)); smooth: η-switch smoothing (PROBLEM.md §7);
@@ -72,6 +77,7 @@ class MPCSettings:
     max_iter: int = spec(200, kind="integer", ge=1)
     rti_iterations: int = spec(1, kind="integer", ge=1)
     rti_cold_iterations: int = spec(5, kind="integer", ge=1)  # our choice: converges the law's rollout
+    rti_hessian: str = spec("projected", kind="choice", choices=RTI_HESSIANS)
     max_step_ms: float = spec(100.0, gt=0)  # our choice: 10x the p99 target; see the class docstring
     max_cpu_time_s: float = spec(10.0, gt=0)
     predictor: str = spec("oracle", kind="choice", choices=PREDICTOR_NAMES)  # PROBLEM.md §9 canonical: oracle
