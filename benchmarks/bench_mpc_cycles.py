@@ -4,7 +4,7 @@ For each cycle (UDDS, HWFET, US06 with the shipped scenarios' units, and the pap
 non-oracle predictor, one follower from the scenario's initial state runs:
   * the proposed law and OVFL (closed-form, continuous),
   * the MPC with the default traffic formulation (``MPCSettings()``: aev_ocp.ocp.traffic, RTI + codegen),
-  * the MPC with the §9 formulation (``formulation = "s9"``, same solver path) for reference.
+  * the MPC with the §9 formulation (``formulation = "s9"``, N = 40, same solver path) for reference.
 One parameter set for every cycle (the defaults): no per-cycle tuning. With ``--platoon`` also the
 UDDS platoon (5 followers, MPC on all, cooperative forecasts behind the first) against the proposed law.
 Prints the table predictor × cycle × controller — pack ∫Q/km, ω/km, distance, min gap, min TTC, RMS
@@ -136,7 +136,8 @@ def main(argv: list[str] | None = None) -> int:
             runs = dict(laws)
             ctrls = [("mpc-traffic", traffic.with_(predictor=pred))]
             if not a.no_s9:
-                ctrls.append(("mpc-s9", traffic.with_(predictor=pred, formulation="s9")))
+                # §9's problem and horizon (N = 40) on the same real-time path (RTI + codegen, projected Hessian)
+                ctrls.append(("mpc-s9", traffic.with_(predictor=pred, formulation="s9", N=40)))
             for name, s in ctrls:
                 t0 = time.perf_counter()
                 r = run_closed_loop(leader, [MPCVehicle(s)], [h0], [v0], t_end, ev=ev)

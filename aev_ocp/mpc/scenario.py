@@ -82,6 +82,13 @@ def validate_mpc_table(r: Any) -> MPCConfig:
             vehicles = tuple(sorted({int(x) - 1 for x in nums_v}))
     fp = r.string("follower_predictor", None, choices=list(FOLLOWER_PREDICTORS))
     r.finish(allowed_hint=sorted(keys) + ["follower_predictor", "vehicles"])
+    if d.get("formulation", MPCSettings().formulation) != "s9":  # §9-only keys would be silently ignored
+        s9_only = {f.name for c in (FollowingWeights, FollowingBounds) for f in fields(c)} | {"objective"}
+        bad = [k for k in d if k in s9_only]
+        if bad:
+            raise r.error(bad[0], d[bad[0]], "applies to the §9 formulation only: set mpc.formulation = \"s9\", or "
+                          "use the traffic formulation's SI parameters (standstill_gap_m, time_headway_s, "
+                          "a_min_mps2, ...; see aev_ocp/ocp/traffic.py)")
     try:
         settings = MPCSettings.from_dict(d)
     except ParameterError as exc:  # a cross-field rule of a nested dataclass (e.g. v_min < v_max)
