@@ -13,6 +13,14 @@ stage weights s_k (default 1). The measured initial state is fixed by equal simp
 variables are ordered (z_0, u_0, z_1, u_1, …, z_N) and constraints stage by stage, so the KKT system
 is banded and HPIPM detects the OCP structure.
 
+Formulations (``MPCSettings.formulation``): 'traffic' (default, :mod:`aev_ocp.ocp.traffic`) and 's9'
+(PROBLEM.md §9). The 'rti' path projects each diagonal block of the exact Lagrangian Hessian onto the PD
+cone (``rti_hessian = 'projected'``, :meth:`MPCController.regularised_hessian`), handles terminal costs,
+starts cold by RTI iterations from the closed-form law's rollout (traffic; §9 keeps its cold IPOPT first
+step), and discards a step that took longer than ``max_step_ms`` (status 'budget: …', the policy applies
+its fallback). Every failed step's status starts with its cause ('QP failed', 'budget', 'path
+constraint', 'exception', or the NLP solver's status).
+
 A problem used in the closed loop keeps the §9 layout in front: states (h, v, V1, V2, S) (measured),
 control a, stage parameters (v̄_l, v̂_l) (the forecast). Further states are the controller's own
 (initialised from ``initial_values`` and then from its previous plan), further controls (e.g. the
