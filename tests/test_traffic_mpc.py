@@ -179,3 +179,19 @@ def test_comparison_table_flags_runs_of_different_duration():
     table = comparison_table(Comparison(runs, metrics))
     assert "mpc (NOT COMPARABLE)" in table and "ovfl (NOT" not in table
     assert "heat_pack_J_per_km" in table and "min_ttc_s" in table and "distance_m" in table
+
+
+def test_after_a_failure_the_rti_path_restarts_by_rti_not_ipopt():
+    """The step after a failure starts cold by RTI iterations from the law's rollout (bounded work), never
+    by a cold IPOPT solve (which took seconds on the §9 problem)."""
+    units = Units(15.0, 17.0)
+    s = MPCSettings(N=8, codegen=False, rti_cold_iterations=3)
+    c = MPCController(s, EVParams(units=units))
+    z0 = np.array([1.3, 0.4, 0.0, 0.0, 0.8])
+    vl = np.full(s.N, 0.45)
+    first = c.solve(z0, vl, vl, own={"a_prev": 0.0})
+    assert first.success and first.path == "rti" and 1 <= first.iterations <= 3
+    c._failed("QP failed: planted", 1, 0.0, float("inf"), "rti")  # what a failed step leaves behind
+    again = c.solve(z0, vl, vl, own={"a_prev": 0.0})
+    assert again.success and again.path == "rti" and 1 <= again.iterations <= 3
+    np.testing.assert_allclose(again.a, first.a, rtol=1e-9, atol=1e-12)
