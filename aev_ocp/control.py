@@ -139,6 +139,16 @@ def register_controller_adapter(cls: type, fn: AdapterFn) -> None:
     _ADAPTERS[cls] = fn
 
 
+def fallback_causes(status: Sequence[Any], ok: Sequence[bool]) -> dict[str, int]:
+    """{cause: count} over the failed steps; a cause is a step's status up to its first ':'."""
+    out: dict[str, int] = {}
+    for st, k in zip(status, ok):
+        if not k:
+            c = str(st).split(":")[0].strip() or "unknown"
+            out[c] = out.get(c, 0) + 1
+    return out
+
+
 def _stats(rec: dict[str, list[Any]], ctrl: Controller) -> dict[str, Any]:
     ms = np.asarray(rec["solve"], float) * 1e3
     ms = ms[np.isfinite(ms)]
@@ -151,7 +161,11 @@ def _stats(rec: dict[str, list[Any]], ctrl: Controller) -> dict[str, Any]:
             "solve_ms_max": float(ms.max()) if ok else float("nan"),
             "iterations_mean": float(it.mean()) if it.size else float("nan"),
             "iterations_max": int(it.max()) if it.size else 0,
-            "fallbacks": int(sum(not k for k in rec["ok"])), "solver_path": d.get("solver_path", d.get("controller", "")),
+            "fallbacks": int(sum(not k for k in rec["ok"])),
+            # cause of each fallback: the status up to its first ':' ('QP failed', 'budget', 'path constraint',
+            # 'exception', or the NLP solver's return status)
+            "fallback_causes": fallback_causes(rec["status"], rec["ok"]),
+            "solver_path": d.get("solver_path", d.get("controller", "")),
             "n_steps": len(rec["ok"]),
             # whole controller call: forecast, warm-start shift, parameters, solve, unpacking
             "call_ms_median": float(np.median(cm)) if cm.size else float("nan"),

@@ -55,10 +55,12 @@ PATHS = {
     "rti-qrqp+codegen (compiled step)": dict(solver="rti", qp_solver="qrqp", codegen=True),
 }
 COMPILED = dict(solver="rti", qp_solver="qrqp", codegen=True)
+#: the canonical problem is PROBLEM.md §9 as in scenarios/mpc_paper_single.toml (the default is 'traffic')
+S9 = dict(formulation="s9", rti_hessian="exact", max_step_ms=10000.0)
 
 
 def bench(N: int, label: str, kw: dict, t_end: float) -> dict:
-    s = MPCSettings(N=N, **kw)
+    s = MPCSettings(N=N, **S9, **kw)
     t0 = time.perf_counter()
     r = run_single(s, leader=PaperLeader(), t_end=t_end)
     wall = time.perf_counter() - t0
@@ -101,7 +103,7 @@ def breakdown(N: int, t_end: float) -> dict:
     as the cold first solve included) and median ms per call of each part."""
     from aev_ocp.control import ClosedLoop
 
-    loop = ClosedLoop(PaperLeader(), [MPCSettings(N=N, solver="rti", qp_solver="hpipm", codegen=True)])
+    loop = ClosedLoop(PaperLeader(), [MPCSettings(N=N, **S9, solver="rti", qp_solver="hpipm", codegen=True)])
     pol = loop.ctrl[0]
     c = pol.controller  # type: ignore[union-attr]
     parts = {"forecast": (pol, "forecast"), "qp_data": (c, "_rti_data"), "qp_solve": (c, "_rti_qp"),
@@ -136,7 +138,7 @@ def record_loop(N: int, t_end: float) -> tuple[np.ndarray, np.ndarray, object]:
     measured state and forecast per step, the applied controls (K,), the result)."""
     from aev_ocp.control import ClosedLoop
 
-    loop = ClosedLoop(PaperLeader(), [MPCSettings(N=N, **COMPILED)])
+    loop = ClosedLoop(PaperLeader(), [MPCSettings(N=N, **S9, **COMPILED)])
     c = loop.ctrl[0].controller  # type: ignore[union-attr]
     rows: list[np.ndarray] = []
     solve = c.solve
@@ -192,7 +194,7 @@ def breakdown_compiled(N: int, t_end: float) -> dict:
 
     from aev_ocp.control import ClosedLoop
 
-    loop = ClosedLoop(PaperLeader(), [MPCSettings(N=N, **COMPILED)])
+    loop = ClosedLoop(PaperLeader(), [MPCSettings(N=N, **S9, **COMPILED)])
     pol = loop.ctrl[0]
     c = pol.controller  # type: ignore[union-attr]
     lib = c._cstep.lib._name
@@ -233,7 +235,7 @@ def scaling(t_end: float, Ns: tuple[int, ...] = (40, 100)) -> dict:
     """Median per-step time of the compiled-step path for N = 40 and N = 100."""
     out = {}
     for N in Ns:
-        r = run_single(MPCSettings(N=N, **COMPILED), leader=PaperLeader(), t_end=t_end)
+        r = run_single(MPCSettings(N=N, **S9, **COMPILED), leader=PaperLeader(), t_end=t_end)
         st = dict(r.solver_stats[0] or {})
         out[str(N)] = {"solve_ms_median": st["solve_ms_median"], "solve_ms_p95": st["solve_ms_p95"],
                        "call_ms_median": st["call_ms_median"], "fallbacks": st["fallbacks"],

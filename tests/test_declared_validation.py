@@ -11,6 +11,7 @@ import pytest
 
 from aev_ocp.mpc.scenario import closed_loop_from_scenario, mpc_table_keys
 from aev_ocp.mpc.settings import MPCSettings
+from aev_ocp.ocp.traffic import TrafficParams
 from aev_ocp.params import (ATOL_RANGE, RTOL_RANGE, CarFollowingParams, CellParams, PackParams, ParameterError,
                             PowertrainOptions, SimOptions, Units, VehicleParams, field_checks)
 from aev_ocp.scenarios import ScenarioError, find_scenario, parse_scenario
@@ -78,9 +79,9 @@ def _mpc_doc(**mpc):
 
 def test_mpc_table_keys_derive_from_the_dataclasses() -> None:
     keys = set(mpc_table_keys())
-    own = {f.name for f in dataclasses.fields(MPCSettings)} - {"weights", "bounds", "smooth"}
+    own = {f.name for f in dataclasses.fields(MPCSettings)} - {"weights", "bounds", "smooth", "traffic"}
     assert own | {"w_Q", "w_V", "w_r", "w_a", "h_min", "v_min", "v_max", "a_min", "a_max",
-                  "smoothing_width_W"} == keys
+                  "smoothing_width_W"} | {f.name for f in dataclasses.fields(TrafficParams)} == keys
 
 
 @pytest.mark.parametrize("key, value, fragments", [

@@ -388,7 +388,8 @@ def test_collocation_interval_is_exact_on_a_polynomial(scheme: str) -> None:
 def mpc():
     from aev_ocp.mpc import MPCController, MPCSettings
 
-    return MPCController(MPCSettings(N=4, dt=0.1, weights=W, smooth=SMOOTH), ev=EV)
+    return MPCController(MPCSettings(N=4, dt=0.1, weights=W, smooth=SMOOTH, formulation="s9", solver="ipopt",
+                                     codegen=False), ev=EV)
 
 
 def test_following_step_of_ocp_and_mpc_is_rk4_of_the_independent_ode(mpc) -> None:

@@ -20,6 +20,11 @@ from aev_ocp.ocp.following import FollowingBounds, FollowingWeights
 from aev_ocp.ocp.oracle import OracleScenario, OracleSolver, stage_cost_of_trajectory
 from aev_ocp.params import EVParams, ParameterError
 
+
+def S9(**kw) -> MPCSettings:
+    """PROBLEM.md §9 settings with the path these tests were written for (IPOPT, interpreted) unless given."""
+    return MPCSettings(**{"formulation": "s9", "N": 40, "solver": "ipopt", "codegen": False, **kw})
+
 EV = EVParams()
 
 
@@ -51,7 +56,7 @@ def _stage_cost_numpy(h, v, V1, V2, S, a, vl, w=FollowingWeights(), width_W=300.
 @pytest.fixture(scope="module")
 def canonical10():
     """The canonical MPC scenario shortened to 10 time units (100 steps), IPOPT path."""
-    return run_single(MPCSettings(), t_end=10.0)
+    return run_single(S9(), t_end=10.0)
 
 
 def test_closed_loop_matches_ocp_d_within_1_percent():
@@ -59,12 +64,12 @@ def test_closed_loop_matches_ocp_d_within_1_percent():
     ocpd = OracleSolver(OracleScenario(t_end=T)).solve()
     assert ocpd.success
     # the first MPC problem IS OCP-D on this scenario: same optimum
-    ctrl = MPCController(MPCSettings(N=40), EV)
+    ctrl = MPCController(S9(N=40), EV)
     sol = ctrl.solve([0.3, 1.87, 0, 0, 0.8], *_forecast(0.0, 40))
     assert sol.success
     assert sol.cost == pytest.approx(ocpd.objective, rel=1e-6)
     # closed loop (receding horizon, exact plant) within 1 % of the lower bound, and not below it
-    r = run_single(MPCSettings(N=40), t_end=T)
+    r = run_single(S9(N=40), t_end=T)
     c = stage_cost_of_trajectory(r.t, r.gap[:, 0], r.speed[:, 0], r.V1[:, 0], r.V2[:, 0], r.S[:, 0],
                                  r.accel[:-1, 0], r.leader_speed[:-1])
     assert abs(c["total"] / ocpd.objective - 1) < 0.01
@@ -88,7 +93,7 @@ def test_constraints_hold_in_every_closed_loop_step(canonical10):
 
 @pytest.mark.quick
 def test_stage_cost_and_constraints_rechecked_in_numpy():
-    ctrl = MPCController(MPCSettings(), EV)
+    ctrl = MPCController(S9(), EV)
     vm, vh = _forecast(3.0, 40)
     sol = ctrl.solve([0.5, 1.2, 0.01, 0.005, 0.7], vm, vh)
     assert sol.success
@@ -107,15 +112,15 @@ def test_stage_cost_and_constraints_rechecked_in_numpy():
     assert not np.allclose(sol2.a, a, atol=1e-3)
 
 
-@pytest.mark.parametrize("settings", [MPCSettings(solver="sqp", qp_solver="hpipm"),
-                                      MPCSettings(solver="sqp", qp_solver="qrqp"),
-                                      MPCSettings(solver="sqp", qp_solver="hpipm", codegen=True),
-                                      MPCSettings(solver="ipopt-cold")],
+@pytest.mark.parametrize("settings", [S9(solver="sqp", qp_solver="hpipm"),
+                                      S9(solver="sqp", qp_solver="qrqp"),
+                                      S9(solver="sqp", qp_solver="hpipm", codegen=True),
+                                      S9(solver="ipopt-cold")],
                          ids=["sqp-hpipm", "sqp-qrqp", "sqp-hpipm-codegen", "ipopt-cold"])
 def test_solver_paths_give_the_same_closed_loop(settings, tmp_path_factory, monkeypatch):
     monkeypatch.setenv("AEV_OCP_CACHE", str(tmp_path_factory.getbasetemp() / "cache"))
     T = 3.0
-    ref = run_single(MPCSettings(), t_end=T)
+    ref = run_single(S9(), t_end=T)
     r = run_single(settings, t_end=T)
     assert r.status == "ok" and r.solver_stats[0]["fallbacks"] == 0
     np.testing.assert_allclose(r.accel[:, 0], ref.accel[:, 0], atol=2e-4)
@@ -130,14 +135,14 @@ def test_codegen_without_compiler_falls_back_with_warning(monkeypatch):
 
     monkeypatch.setattr(B.shutil, "which", lambda name: None)
     with pytest.warns(RuntimeWarning, match="no C compiler"):
-        ctrl = MPCController(MPCSettings(N=5, solver="sqp", codegen=True), EV)
+        ctrl = MPCController(S9(N=5, solver="sqp", codegen=True), EV)
     assert not ctrl.codegen_active
     assert ctrl.solve([0.5, 1.2, 0, 0, 0.8], *_forecast(0.0, 5)).success
 
 
 def test_forced_infeasible_step_triggers_counted_fallback():
     # h ≥ 0.5 at node 1 is impossible from h(0) = 0.3 closing at 0.17: every early solve fails
-    s = MPCSettings(bounds=FollowingBounds(h_min=0.5), max_iter=50)
+    s = S9(bounds=FollowingBounds(h_min=0.5), max_iter=50)
     r = run_single(s, t_end=1.0)
     st = r.solver_stats[0]
     steps = r.meta["mpc_steps"][0]
@@ -173,7 +178,7 @@ def test_from_dict_errors_name_the_key():
 
 
 def test_bad_forecast_shape_is_a_clear_error():
-    ctrl = MPCController(MPCSettings(N=5), EV)
+    ctrl = MPCController(S9(N=5), EV)
     with pytest.raises(ParameterError, match="forecast"):
         ctrl.solve([0.5, 1.2, 0, 0, 0.8], np.ones(4), np.ones(5))
 
@@ -203,9 +208,9 @@ def test_predictors_exact_on_their_own_motion():
 
 def test_mixed_platoon_cooperative_and_laws():
     L = PaperLeader()
-    ctrls = [MPCSettings(N=20), Proposed(), OVFL(),
-             MPCVehicle(MPCSettings(N=20), predictor="constant-acceleration"),
-             MPCVehicle(MPCSettings(N=20), predictor="cooperative")]
+    ctrls = [S9(N=20), Proposed(), OVFL(),
+             MPCVehicle(S9(N=20), predictor="constant-acceleration"),
+             MPCVehicle(S9(N=20), predictor="cooperative")]
     r = run_closed_loop(L, ctrls, [0.3, 3.5, 3.5, 3.5, 3.5], [1.87] * 5, 2.0)
     assert r.status == "ok" and r.controllers[1:3] == ["proposed", "ovfl"]
     assert [s is None for s in r.solver_stats] == [False, True, True, False, False]
@@ -221,13 +226,13 @@ def test_mixed_platoon_cooperative_and_laws():
 @pytest.mark.quick
 def test_bad_platoon_configuration_errors():
     with pytest.raises(ParameterError, match="cooperative"):
-        ClosedLoop(PaperLeader(), [Proposed(), MPCVehicle(MPCSettings(N=5), predictor="cooperative")])
+        ClosedLoop(PaperLeader(), [Proposed(), MPCVehicle(S9(N=5), predictor="cooperative")])
     with pytest.raises(ParameterError, match="oracle"):
-        ClosedLoop(PaperLeader(), [MPCSettings(N=5), MPCSettings(N=5)])
+        ClosedLoop(PaperLeader(), [S9(N=5), S9(N=5)])
     with pytest.raises(ParameterError, match="same dt"):
-        ClosedLoop(PaperLeader(), [MPCSettings(N=5), MPCVehicle(MPCSettings(N=5, dt=0.2), "cooperative")])
+        ClosedLoop(PaperLeader(), [S9(N=5), MPCVehicle(S9(N=5, dt=0.2), "cooperative")])
     with pytest.raises(ParameterError, match="multiple of dt"):
-        run_single(MPCSettings(N=5), t_end=0.25)
+        run_single(S9(N=5), t_end=0.25)
 
 
 @pytest.mark.parametrize("codegen", [True, False], ids=["codegen", "interpreted"])
@@ -236,8 +241,8 @@ def test_rti_closed_loop_matches_ipopt_and_holds_constraints(codegen, tmp_path_f
     scenario shortened to 10 time units: same closed loop as the IPOPT path within tolerance."""
     monkeypatch.setenv("AEV_OCP_CACHE", str(tmp_path_factory.getbasetemp() / "cache"))
     T = 10.0
-    ref = run_single(MPCSettings(), t_end=T)
-    r = run_single(MPCSettings(solver="rti", codegen=codegen), t_end=T)
+    ref = run_single(S9(), t_end=T)
+    r = run_single(S9(solver="rti", codegen=codegen), t_end=T)
     st = r.solver_stats[0]
     assert r.status == "ok" and st["fallbacks"] == 0 and st["n_steps"] == 100
     assert st["solver_path"] == ("rti+codegen" if codegen else "rti")
@@ -260,7 +265,7 @@ def test_rti_closed_loop_matches_ipopt_and_holds_constraints(codegen, tmp_path_f
 
 
 def test_rti_failed_qp_is_a_failure_and_restarts_cold():
-    ctrl = MPCController(MPCSettings(N=10, solver="rti"), EV)
+    ctrl = MPCController(S9(N=10, solver="rti"), EV)
     z0 = [0.5, 1.2, 0.0, 0.0, 0.8]
     fc = _forecast(0.0, 10)
     assert ctrl.solve(z0, *fc).path == "ipopt-cold"
@@ -303,7 +308,7 @@ def test_rti_failure_in_closed_loop_applies_counted_fallback(monkeypatch):
         return sol
 
     monkeypatch.setattr(C.MPCController, "_solve_rti", flaky)
-    r = run_single(MPCSettings(N=10, solver="rti"), t_end=1.0)
+    r = run_single(S9(N=10, solver="rti"), t_end=1.0)
     st, steps = r.solver_stats[0], r.meta["mpc_steps"][0]
     assert st["fallbacks"] == 1 and steps["status"][3] == "QP failed: forced"
     assert steps["status"][4] == "Solve_Succeeded" and steps["status"][5].startswith("RTI_")

@@ -36,7 +36,9 @@ pytestmark = pytest.mark.skipif(compiler() is None, reason="no C compiler")
 
 T_END = 20.0  # 200 closed-loop steps of the canonical 700
 TOL = 1e-8
-CANON = dict(N=40, dt=0.1, solver="rti", qp_solver="qrqp", codegen=True)
+# PROBLEM.md §9 as in scenarios/mpc_paper_single.toml (the default formulation is 'traffic')
+CANON = dict(formulation="s9", rti_hessian="exact", max_step_ms=10000.0, N=40, dt=0.1, solver="rti",
+             qp_solver="qrqp", codegen=True)
 
 
 class CPolicy:

@@ -357,7 +357,8 @@ def test_mpc_run_stopped_by_an_event_exits_1_with_one_error_line(tmp_path: Path,
 @pytest.mark.quick
 @pytest.mark.parametrize("extra, match", [
     ("[mpc]\nvehicles = [7]\n", r"s\.toml: mpc\.vehicles = \[7\].*do not exist"),
-    ("[mpc]\nh_min = 2.5\n", r"mpc\.h_min = 2\.5.*infeasible"),
+    ("[mpc]\nformulation = \"s9\"\nh_min = 2.5\n", r"mpc\.h_min = 2\.5.*infeasible"),
+    ("[mpc]\nh_min = 2.5\n", r"mpc\.h_min = 2\.5.*§9 formulation only"),
 ])
 def test_mpc_infeasible_or_missing_vehicles_are_bad_input(tmp_path: Path, capsys: pytest.CaptureFixture[str],
                                                          extra: str, match: str) -> None:

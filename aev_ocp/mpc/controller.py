@@ -13,6 +13,14 @@ stage weights s_k (default 1). The measured initial state is fixed by equal simp
 variables are ordered (z_0, u_0, z_1, u_1, …, z_N) and constraints stage by stage, so the KKT system
 is banded and HPIPM detects the OCP structure.
 
+Formulations (``MPCSettings.formulation``): 'traffic' (default, :mod:`aev_ocp.ocp.traffic`) and 's9'
+(PROBLEM.md §9). The 'rti' path projects each diagonal block of the exact Lagrangian Hessian onto the PD
+cone (``rti_hessian = 'projected'``, :meth:`MPCController.regularised_hessian`), handles terminal costs,
+starts cold by RTI iterations from the closed-form law's rollout (traffic; §9 keeps its cold IPOPT first
+step), and discards a step that took longer than ``max_step_ms`` (status 'budget: …', the policy applies
+its fallback). Every failed step's status starts with its cause ('QP failed', 'budget', 'path
+constraint', 'exception', or the NLP solver's status).
+
 A problem used in the closed loop keeps the §9 layout in front: states (h, v, V1, V2, S) (measured),
 control a, stage parameters (v̄_l, v̂_l) (the forecast). Further states are the controller's own
 (initialised from ``initial_values`` and then from its previous plan), further controls (e.g. the
@@ -39,6 +47,7 @@ from ..models.carfollowing import CarFollowingLaw, Proposed
 from ..models.ego import STATE_NAMES
 from ..numerics import rk4
 from ..ocp.following import WEIGHT_NAMES, FollowingWeights, following_problem, weight_vector
+from ..ocp.traffic import traffic_problem
 from ..ocp.problem import OCPProblem, ProblemBuilder
 from ..ocp.transcription import TranscriptionOptions, interval_function, with_discrete_update
 from ..params import EVParams, ParameterError
@@ -72,9 +81,17 @@ _PLUGIN_GEN_OPTS: dict[str, dict[str, Any]] = {"sqpmethod": {"print_header": Fal
                                                              "qpsol_options": {"print_info": False, "print_header": False, "print_iter": False}}}
 
 
-def _qp_options(qp_solver: str) -> dict[str, Any]:
+#: HPIPM's stand-in for an infinite bound in the traffic formulation's QPs (CasADi's default 1e8 next to
+#: O(1…1e3) scaled variables stalls HPIPM at its iteration limit (status 1) on the slack and epigraph
+#: controls, which have no upper bound; measured: 100 iterations without convergence vs 14).
+HPIPM_INF_TRAFFIC = 1e5
+
+
+def _qp_options(qp_solver: str, hpipm_inf: float | None = None) -> dict[str, Any]:
     """Silent, tight options of a QP solver (the 'sqp' path's qpsol and the 'rti' path's conic)."""
     opts: dict[str, Any] = {"error_on_fail": False}
+    if qp_solver == "hpipm" and hpipm_inf is not None:
+        opts["inf"] = hpipm_inf
     if qp_solver == "qrqp":
         opts.update({"print_iter": False, "print_header": False, "print_info": False})
     elif qp_solver == "osqp":
@@ -84,6 +101,32 @@ def _qp_options(qp_solver: str) -> dict[str, Any]:
     elif qp_solver == "qpoases":
         opts.update({"printLevel": "none", "sparse": True})
     return opts
+
+
+#: Eigenvalue floor of the RTI Hessian's diagonal blocks, relative to (1 + the block's max |λ|) (our choice:
+#: far below the curvature of every cost term, so PD blocks are unchanged and the step is undamped).
+RTI_HESSIAN_FLOOR = 1e-8
+
+
+def _project_pd(B: np.ndarray) -> np.ndarray:
+    """Symmetric matrices B (k, n, n) with eigenvalues raised to RTI_HESSIAN_FLOOR·(1 + max|λ|); blocks
+    that are PD with margin are returned unchanged (only the others are rebuilt from their eigenpairs)."""
+    B = 0.5 * (B + B.transpose(0, 2, 1))
+    lam, Q = np.linalg.eigh(B)
+    floor = RTI_HESSIAN_FLOOR * (1.0 + np.abs(lam).max(axis=1, keepdims=True))
+    bad = np.any(lam < floor, axis=1)
+    if np.any(bad):
+        lb, Qb = np.maximum(lam[bad], floor[bad]), Q[bad]
+        B[bad] = (Qb * lb[:, None, :]) @ Qb.transpose(0, 2, 1)
+    return B
+
+
+def default_problem(ev: EVParams, s: MPCSettings) -> ProblemBuilder:
+    """The MPC problem of the settings' formulation: 'traffic' (:func:`aev_ocp.ocp.traffic.traffic_problem`)
+    or 's9' (:func:`aev_ocp.ocp.following.following_problem`, PROBLEM.md §9)."""
+    if s.formulation == "traffic":
+        return traffic_problem(ev, s.traffic, s.dt, s.smooth, name="mpc_traffic")
+    return following_problem(ev, s.bounds, s.smooth, s.objective, name="mpc")
 
 
 class MPCController:
@@ -107,7 +150,7 @@ class MPCController:
         s = self.settings
         if problem is None:  # rti: the OCV as comparisons (same values, cheaper Hessians: models/battery.py)
             with piecewise_ocv() if s.solver == "rti" else contextlib.nullcontext():
-                problem = following_problem(self.ev, s.bounds, s.smooth, s.objective, name="mpc")
+                problem = default_problem(self.ev, s)
         self.problem = problem.build() if isinstance(problem, ProblemBuilder) else problem
         self._check_layout(parameter_values or {}, initial_values or {})
         self.codegen_active = False
@@ -118,6 +161,9 @@ class MPCController:
         self._build_solvers()
         self.build_time_s = time.perf_counter() - t0
         self._warm: dict[str, np.ndarray] | None = None
+        # the 'rti' path of the traffic formulation starts cold by RTI from the law's rollout; §9 keeps
+        # its cold IPOPT first step (PROBLEM.md §9 numbers unchanged)
+        self._rti_cold = self.settings.formulation != "s9"
 
     def _check_layout(self, pvals: dict[str, float], xinit: dict[str, float]) -> None:
         """The closed-loop layout (see the module docstring) and the values of extra names."""
@@ -125,9 +171,9 @@ class MPCController:
         if tuple(pr.state_names[:NZ]) != STATE_NAMES or pr.control_names[0] != "a" or pr.nw < 2:
             raise ParameterError(f"MPCController: problem {pr.name!r} must start with states {STATE_NAMES}, "
                                  "control 'a' and stage parameters (v_l_mean, v_l_hat)")
-        if self.settings.solver == "rti" and (pr.terminal is not None or pr.terminal_cost is not None):
-            raise ParameterError("MPCSettings.solver = 'rti' does not handle terminal costs or constraints yet: "
-                                 "use 'ipopt' or 'sqp'")
+        if self.settings.solver == "rti" and pr.terminal is not None:
+            raise ParameterError("MPCSettings.solver = 'rti' does not handle terminal constraints (terminal costs "
+                                 "are fine; make the constraint a soft terminal cost): use 'ipopt' or 'sqp'")
         pnames = list(pr.meta.get("parameter_names", WEIGHT_NAMES[:pr.np_]))
         wnames = list(pr.meta.get("stage_parameter_names", ["v_l_mean", "v_l_hat"]))
         self._n_weights = sum(1 for k in pnames[:len(WEIGHT_NAMES)] if k in WEIGHT_NAMES)
@@ -318,18 +364,27 @@ class MPCController:
         LAM, LBX, UBX = ca.MX.sym("lam_g", self.ng), ca.MX.sym("lbx", self.nv), ca.MX.sym("ubx", self.nv)
         Xk, Uk, Xn, W, PP, SW = self._stage_inputs(V, P)
         Hs, Qs, Js, Gs, Cs = stage.map(N, "serial")(Xk, Uk, Xn, W, ca.repmat(PP, 1, N), SW, ca.reshape(LAM, ngs, N))
-        H = ca.diagcat(*ca.horzsplit(Hs, nb), ca.MX(nx, nx))
+        # terminal cost (Mayer) on the scaled x_N: its Hessian block and gradient
+        xNs, pT = ca.SX.sym("xN", nx), ca.SX.sym("pT", pr.np_)
+        mayer = pr.terminal_cost(xNs * ca.DM(self.x_scale), pT) if pr.terminal_cost is not None else ca.SX(0)
+        term = ca.Function("mpc_rti_terminal", [xNs, pT], [ca.densify(ca.hessian(mayer, xNs)[0]),
+                                                           ca.gradient(mayer, xNs), mayer])
+        HN, qN, cN = term(V[nb * N:], PP)
+        H = ca.diagcat(*([ca.DM.ones(ca.Sparsity.dense(nb, nb))] * N), ca.DM.ones(ca.Sparsity.dense(nx, nx)))
         E = ca.DM(self.ng, self.nv)  # −I of gap_k in z_{k+1}
         for k in range(N):
             for i in range(nx):
                 E[k * ngs + i, (k + 1) * nb + i] = -1.0
         A = ca.horzcat(ca.diagcat(*ca.horzsplit(Js, nb)), ca.MX(self.ng, nx)) + ca.sparsify(E)
         g = ca.vec(Gs)
+        # the exact Hessian comes out as its dense diagonal blocks (hblk: the N stage blocks side by side,
+        # hN: the terminal block); :meth:`_regularised_hessian` projects each onto the PD cone
         qpdata = ca.Function("mpc_rti_qp_data", [V, P, LAM, LBX, UBX],
-                             [H, ca.vertcat(ca.vec(Qs), ca.MX.zeros(nx)), A, ca.DM(self._lbg) - g,
-                              ca.DM(self._ubg) - g, LBX - V, UBX - V, ca.sum2(Cs), g],
+                             [Hs, HN, ca.vertcat(ca.vec(Qs), qN), A, ca.DM(self._lbg) - g,
+                              ca.DM(self._ubg) - g, LBX - V, UBX - V, ca.sum2(Cs) + cN, g],
                              ["x", "p", "lam_g", "lbx", "ubx"],
-                             ["h", "g", "a", "lba", "uba", "lbdx", "ubdx", "f", "gx"])
+                             ["hblk", "hN", "g", "a", "lba", "uba", "lbdx", "ubdx", "f", "gx"])
+        self._H_sp = H.sparsity()
         # objective and constraints only (cost and nonlinear violation of the returned plan)
         fg = ca.Function("mpc_rti_fg", [self._nlp["x"], self._nlp["p"]], [self._nlp["f"], self._nlp["g"]],
                          ["x", "p"], ["f", "g"])
@@ -354,7 +409,7 @@ class MPCController:
         if not self.codegen_active:
             self._rti_data, self._rti_fg, self._rti_path0 = qpdata.expand(), fg.expand(), p0.expand()
         self._rti_qp = ca.conic("mpc_rti_qp", s.qp_solver, {"h": H.sparsity(), "a": A.sparsity()},
-                                _qp_options(s.qp_solver))
+                                _qp_options(s.qp_solver, HPIPM_INF_TRAFFIC if s.formulation == "traffic" else None))
         self._rti_path0_lb = np.asarray(pr.path_lb, float)
         self._rti_path0_ub = np.asarray(pr.path_ub, float)
 
@@ -468,6 +523,12 @@ class MPCController:
             if sol.success or not cold:
                 return sol  # a failed cold start of the compiled step falls back to the cold IPOPT below
         warm = self._warm is not None and s.solver != "ipopt-cold"
+        if s.solver == "rti" and not warm and self._rti_cold:
+            # cold real-time iteration from the closed-form law's rollout (never a cold IPOPT)
+            lbx, ubx = self._lbx.copy(), self._ubx.copy()
+            lbx[:nx] = ubx[:nx] = z0 / self.x_scale
+            cold = {"x0": self.guess(z0, p), "lam_g0": np.zeros(self.ng), "lam_x0": np.zeros(self.nv)}
+            return self._solve_rti(cold, p, lbx, ubx, s.rti_cold_iterations)
         if warm:
             args = self._shift(z0, p)
             solver, path = self._fast, s.solver
@@ -477,7 +538,7 @@ class MPCController:
         lbx, ubx = self._lbx.copy(), self._ubx.copy()
         lbx[:nx] = ubx[:nx] = z0 / self.x_scale
         if warm and s.solver == "rti":
-            return self._solve_rti(args, p, lbx, ubx)
+            return self._solve_rti(args, p, lbx, ubx, s.rti_iterations)
         t0 = time.perf_counter()
         try:
             out = solver(p=p, lbx=lbx, ubx=ubx, lbg=self._lbg, ubg=self._ubg, **args)
@@ -508,20 +569,41 @@ class MPCController:
         return MPCSolution(False, status, iters, dt_wall, np.full((self.nx, N + 1), np.nan), np.full(N, np.nan),
                            float("nan"), viol, path, {}, np.full((self.nu, N), np.nan))
 
+    def regularised_hessian(self, hblk: Any, hN: Any, project: bool = True) -> ca.DM:
+        """The RTI QP's Hessian from the exact Lagrangian Hessian's diagonal blocks (``hblk`` (nb, nb·N):
+        the stage blocks side by side, ``hN`` (nx, nx): the terminal block), each projected onto the
+        positive-definite cone: symmetric eigendecomposition, eigenvalues below
+        ``RTI_HESSIAN_FLOOR·(1 + max|λ|)`` raised to that floor (a no-op where the block is safely PD).
+        Block-wise projection makes the whole (block-diagonal) Hessian, hence every reduced Hessian, PD.
+        ``project=False``: the exact blocks, assembled."""
+        N, nx, nb = self.settings.N, self.nx, self.nx + self.nu
+        B = np.asarray(hblk, float).reshape(nb, N, nb).transpose(1, 0, 2)  # (N, nb, nb): block k = hblk[:, k·nb:(k+1)·nb]
+        HN = np.asarray(hN, float).reshape(1, nx, nx)
+        # column-major nonzeros of the dense diagonal blocks (the sparsity of self._H_sp)
+        if project:
+            B, HN = _project_pd(B), _project_pd(HN)
+        nz = np.concatenate([B.transpose(0, 2, 1).ravel(), HN[0].T.ravel()])
+        return ca.DM(self._H_sp, nz)
+
     def _solve_rti(self, args: dict[str, np.ndarray], p: np.ndarray, lbx: np.ndarray,
-                   ubx: np.ndarray) -> MPCSolution:
-        """``rti_iterations`` full SQP steps from the shifted previous solution (see :meth:`_build_rti`).
-        Success: every QP solved, a finite step, and the applied control's path constraints (node 0,
-        where the state is the measurement) hold within :data:`aev_ocp.plant.PLAN_TOLERANCE`."""
+                   ubx: np.ndarray, iterations: int) -> MPCSolution:
+        """Up to ``iterations`` full SQP steps from ``args`` (the shifted previous solution, or the cold
+        guess) (see :meth:`_build_rti`), each QP with the block-wise PD-projected exact Hessian
+        (:meth:`regularised_hessian`). Success: every QP solved, a finite step, the applied control's
+        path constraints (node 0, where the state is the measurement) hold within
+        :data:`aev_ocp.plant.PLAN_TOLERANCE`, and the step took at most ``max_step_ms``
+        (else the cause 'budget'). A failure's status starts with its cause: 'QP failed', 'exception',
+        'path constraint', 'budget'."""
         s = self.settings
         data, qp = self._rti_data, self._rti_qp
         t0 = time.perf_counter()
         x, lam_g, lam_x = args["x0"], args["lam_g0"], args["lam_x0"]
         ok, status, it, step = True, "", 0, float("inf")
         try:
-            while it < s.rti_iterations:
+            while it < iterations:
                 d = data(x, p, lam_g, lbx, ubx)
-                out = qp(h=d[0], g=d[1], a=d[2], lba=d[3], uba=d[4], lbx=d[5], ubx=d[6])
+                H = self.regularised_hessian(d[0], d[1], project=s.rti_hessian == "projected")
+                out = qp(h=H, g=d[2], a=d[3], lba=d[4], uba=d[5], lbx=d[6], ubx=d[7])
                 it += 1
                 st = qp.stats()
                 dx = np.asarray(out["x"]).ravel()
@@ -541,7 +623,9 @@ class MPCController:
         if c0 is not None:
             viol0 = float(np.maximum(np.maximum(self._rti_path0_lb - c0, c0 - self._rti_path0_ub), 0).max(initial=0))
             if not np.isfinite(viol0) or viol0 > PLAN_TOLERANCE:
-                ok, status = False, f"applied control violates the path constraints by {viol0:.3g}"
+                ok, status = False, f"path constraint: the applied control violates them by {viol0:.3g}"
+        if ok and dt_wall * 1e3 > s.max_step_ms:
+            ok, status = False, f"budget: the step took {dt_wall * 1e3:.3g} ms > max_step_ms = {s.max_step_ms:g}"
         if not ok:
             return self._failed(status, it, dt_wall, viol0, "rti")
         # plan, cost and the nonlinear constraint violation of the plan (the RTI plan is feasible only

@@ -13,6 +13,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any
 
+import logging
+
 import numpy as np
 
 from ..limits import check_mpc_size
@@ -27,10 +29,13 @@ from .predictors import LeaderPredictor, Measurements, forecast_intervals, make_
 from .settings import MPCSettings
 
 
+_LOG = logging.getLogger("aev_ocp.mpc")  # one INFO record per fallback, with its cause
+
+
 @dataclass
 class MPCVehicle:
     """An MPC follower: its settings, optionally its own predictor (default: settings.predictor;
-    'cooperative' = the predecessor's last MPC plan) and its own problem (default: §9)."""
+    'cooperative' = the predecessor's last MPC plan) and its own problem (default: the settings' formulation)."""
 
     settings: MPCSettings = field(default_factory=MPCSettings)
     predictor: LeaderPredictor | str | None = None
@@ -46,10 +51,10 @@ class MPCPolicy:
                  parameter_values: dict[str, float] | None = None) -> None:
         self.settings, self.fallback_law, self.predictor = settings, fallback_law, predictor
         self.controller = MPCController(settings, ev, fallback_law, problem, parameter_values)
-        b = settings.bounds  # the fallback: the law on the measurements, clipped to the a bounds
+        b = settings.effective_bounds(ev)  # the fallback: the law on the measurements, clipped to the a bounds
         self._fallback = SampledLaw(fallback_law, settings.dt, b.a_min, b.a_max)
         self.dt = settings.dt
-        self.name = f"mpc(w_Q={settings.weights.w_Q:g})"
+        self.name = f"mpc(w_Q={settings.weights.w_Q:g})" if settings.formulation == "s9" else "mpc(traffic)"
 
     def reset(self) -> None:
         """Forget the warm start."""
@@ -73,7 +78,11 @@ class MPCPolicy:
         info = {"cost": sol.cost, "violation": sol.violation, "v_hat": vh}
         if sol.success:
             return Command(float(sol.a[0]), True, sol.status, sol.solve_time_s, sol.iterations, sol.X[1], info)
-        a = self._fallback.command(obs).a
+        # the fallback: the law on the measurements, clipped to the a bounds and so that the speed stays
+        # >= 0 over the step (a plant never reverses; the law at a tiny gap may ask for a_min at v ≈ 0)
+        a = max(self._fallback.command(obs).a, min(0.0, -float(obs.z[1]) / self.dt))
+        _LOG.info("MPC fallback at t = %.4g (vehicle %d): %s (%.3g ms)", obs.t, obs.vehicle + 1, sol.status,
+                  1e3 * sol.solve_time_s)
         return Command(a, False, sol.status, sol.solve_time_s, sol.iterations, None, info)
 
     def describe(self) -> dict[str, Any]:

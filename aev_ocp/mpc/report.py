@@ -15,17 +15,22 @@ from .. import interrupts
 from ..ocp.checks import GAP_RTOL as SMOOTHING_GAP_RTOL
 from ..ocp.oracle import DEFAULT_TIME_LIMIT_S, OracleSolver, oracle_grid_dt, scenario_oracle, stage_cost_of_result
 from ..control import ClosedLoop, ControlSequence
+from ..metrics import comparability
 from ..progress import Progress
 from ..results import SimulationResult, write_json
 from ..simulate import simulate_platoon
 from .scenario import MPCConfig, closed_loop_from_scenario
 from .settings import MPCSettings
 
-METRIC_ROWS = ["omega_model", "omega_J_per_kg", "heat_pack_J", "heat_irr_pack_J", "delta_soc", "min_gap_model",
+#: every comparison table shows these first (issue 8): runs of different distance or duration (> 1 %) or
+#: ended by an event are flagged 'comparable = False' and their column is marked, never ranked as complete
+COMPARABILITY_ROWS = ["comparable", "distance_m", "distance_diff_pct", "duration_s", "duration_diff_pct",
+                      "heat_pack_J_per_km", "omega_model_per_km", "omega_J_per_kg_per_km", "min_ttc_s"]
+METRIC_ROWS = COMPARABILITY_ROWS + ["omega_model", "omega_J_per_kg", "heat_pack_J", "heat_irr_pack_J", "delta_soc", "min_gap_model",
                "min_gap_m", "min_speed_model", "rms_ovm_error_model", "rms_rel_speed_model", "rms_jerk_model",
                "max_abs_current_A", "gap_violations", "speed_violations", "collisions", "infeasible_current",
                "cost_s9", "cost_s9_exact", "smoothing_gap_pct", "forecast_rms", "solve_ms_median", "solve_ms_p95", "solve_ms_max", "iterations_mean", "iterations_max",
-               "fallbacks", "solver_path"]
+               "fallbacks", "fallback_causes", "solver_path"]
 
 
 # Memory of building and solving the horizon-N NLP [bytes per interval]: 0.88-1.29 MB measured by
@@ -141,6 +146,7 @@ def run_comparison(scenario: Any, settings: MPCSettings | None = None, laws: tup
                             f"but {m['cost_s9_exact']:.6g} on the exact model ({m['smoothing_gap_pct']:+.2f} %): "
                             "the optimiser may exploit the smoothing (narrow mpc.smoothing_width_W)")
         metrics[lab] = ms
+    _flag_comparability(metrics)
     ocpd = None
     if with_ocpd and scenario.n_followers == 1 and progress is not None and progress.expired():
         warn.append("OCP-D skipped: the time limit has passed")
@@ -168,10 +174,22 @@ def run_comparison(scenario: Any, settings: MPCSettings | None = None, laws: tup
             m["cost_s9_replayed"] = _cost_s9(r, 0, s)  # the same cost on the exact plant's trajectory
             ocpd.update({k: v for k, v in m.items() if k not in ("vehicle", "controller")})
             ocpd["cost_s9"] = res.objective
+            ref = (metrics.get("proposed") or metrics["mpc"])[0]
+            ocpd.update({k: v for k, v in comparability(m, ref).items()})
             out["ocp-d"] = r
     for w in warn:
         say(f"warning: {w}")
     return Comparison(out, metrics, ocpd, tim, warn)
+
+
+def _flag_comparability(metrics: dict[str, list[dict[str, Any]]]) -> None:
+    """Add comparability (distance, duration within 1 %, no event) of every run's vehicle i against the
+    proposed law's vehicle i (else the MPC's) to its metrics, in place (:func:`aev_ocp.metrics.comparability`)."""
+    ref_lab = "proposed" if "proposed" in metrics else "mpc"
+    for lab, ms in metrics.items():
+        for i, m in enumerate(ms):
+            ref = metrics[ref_lab][i] if i < len(metrics[ref_lab]) else None
+            m.update(comparability(m, ref))
 
 
 def _fmt(x: Any) -> str:
@@ -205,8 +223,11 @@ def comparison_table(c: Comparison, vehicle: int = 0, markdown: bool = False) ->
             continue
         rows.append([key] + [_fmt(v) for v in vals])
     status = [_run_status(c.results[lab]) if lab in c.results else "—" for lab in labs]
+    flag = [c.metrics[lab][vehicle].get("comparable", True) for lab in labs]
     if "ocp-d" in cols:
         status.append(_run_status(c.results["ocp-d"]) if "ocp-d" in c.results else (c.ocpd or {}).get("status", "—"))
+        flag.append(bool((c.ocpd or {}).get("comparable", False)))
+    cols = [col if ok else f"{col} (NOT COMPARABLE)" for col, ok in zip(cols, flag)]
     rows.insert(0, ["status"] + status)
     head = ["metric"] + cols
     if markdown:

@@ -14,13 +14,15 @@ from dataclasses import dataclass, fields
 from typing import Any
 
 from ..ocp.following import FollowingBounds, FollowingWeights
+from ..ocp.traffic import TrafficParams
 from ..control import ClosedLoop
 from ..params import Check, ParameterError, PowertrainOptions, field_checks
 from .policy import MPCVehicle
 from .settings import MPCSettings
 
 #: Nested dataclasses of MPCSettings whose fields appear flat in the [mpc] table.
-_NESTED = {"weights": FollowingWeights, "bounds": FollowingBounds, "smooth": PowertrainOptions}
+_NESTED = {"weights": FollowingWeights, "bounds": FollowingBounds, "smooth": PowertrainOptions,
+           "traffic": TrafficParams}
 #: The ``follower_predictor`` key: forecasts that make sense behind another vehicle.
 FOLLOWER_PREDICTORS = ("cooperative", "constant-velocity", "constant-acceleration")
 
@@ -80,6 +82,13 @@ def validate_mpc_table(r: Any) -> MPCConfig:
             vehicles = tuple(sorted({int(x) - 1 for x in nums_v}))
     fp = r.string("follower_predictor", None, choices=list(FOLLOWER_PREDICTORS))
     r.finish(allowed_hint=sorted(keys) + ["follower_predictor", "vehicles"])
+    if d.get("formulation", MPCSettings().formulation) != "s9":  # §9-only keys would be silently ignored
+        s9_only = {f.name for c in (FollowingWeights, FollowingBounds) for f in fields(c)} | {"objective"}
+        bad = [k for k in d if k in s9_only]
+        if bad:
+            raise r.error(bad[0], d[bad[0]], "applies to the §9 formulation only: set mpc.formulation = \"s9\", or "
+                          "use the traffic formulation's SI parameters (standstill_gap_m, time_headway_s, "
+                          "a_min_mps2, ...; see aev_ocp/ocp/traffic.py)")
     try:
         settings = MPCSettings.from_dict(d)
     except ParameterError as exc:  # a cross-field rule of a nested dataclass (e.g. v_min < v_max)
@@ -110,14 +119,14 @@ def check_mpc_setup(scenario: Any, config: MPCConfig | None = None, settings: MP
     if missing:
         raise ScenarioError(f"{file}: mpc.vehicles = {[i + 1 for i in on]} is not allowed: follower(s) {missing} "
                             f"do not exist (platoon.followers = {n})")
-    b = s.bounds
+    b = s.effective_bounds(scenario.ev)
     for i in on:
         h0, v0 = scenario.gaps0[i], scenario.speeds0[i]
-        if b.h_min >= h0:
+        if s.formulation == "s9" and b.h_min >= h0:  # the traffic formulation's gap floor is soft
             raise ScenarioError(f"{file}: mpc.h_min = {b.h_min:g} is not allowed: it is at or above the initial gap "
                                 f"of follower {i + 1} ({h0:g}), so the MPC problem is infeasible from the first step")
         if not b.v_min <= v0 <= b.v_max:
-            raise ScenarioError(f"{file}: mpc.v_min/v_max = [{b.v_min:g}, {b.v_max:g}] is not allowed: the initial "
+            raise ScenarioError(f"{file}: mpc.v_min/v_max (traffic: 0, v_max_mps) = [{b.v_min:g}, {b.v_max:g}] is not allowed: the initial "
                                 f"speed of follower {i + 1} ({v0:g}) lies outside, so the MPC problem is infeasible")
 
 
