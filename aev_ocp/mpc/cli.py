@@ -7,7 +7,9 @@ import argparse
 import sys
 from pathlib import Path
 
-from .settings import QP_SOLVERS, SOLVER_PATHS
+from .settings import QP_SOLVERS, SOLVER_PATHS, MPCSettings
+
+_D = MPCSettings()  # the defaults an [mpc] table falls back to (the traffic formulation)
 
 OUTPUT_FILES = ("results.json", "trajectories_mpc.csv", "mpc_trajectories.png", "mpc_solve_times.png")
 
@@ -23,19 +25,21 @@ def build_parser() -> argparse.ArgumentParser:
                              "time limit, ...; results up to then are written) or a solver failed; 2 bad input; "
                              "130 interrupted. Load the results with aev_ocp.load(OUT).")
     p.add_argument("scenario", help="scenario TOML file or shipped scenario name (e.g. mpc_paper_single); its [mpc] "
-                   "table holds the controller settings (defaults: PROBLEM.md §9)")
+                   "table holds the controller settings (defaults: MPCSettings(), the traffic formulation "
+                   "aev_ocp/ocp/traffic.py; formulation = \"s9\" for PROBLEM.md §9)")
     p.add_argument("--out", default=None, metavar="DIR",
                    help="output folder (default: results/mpc/<scenario name>/)")
     p.add_argument("--set", dest="sets", action="append", default=[], metavar="KEY=VALUE",
                    help="override a scenario key, e.g. --set mpc.N=20 --set simulation.t_end=5 (repeatable; "
                         "checked like the file; default: none)")
     p.add_argument("--solver", choices=SOLVER_PATHS, default=None,
-                   help="solver path (default: the scenario's mpc.solver, else ipopt)")
+                   help=f"solver path (default: the scenario's mpc.solver, else {_D.solver})")
     p.add_argument("--qp-solver", choices=QP_SOLVERS, default=None,
-                   help="QP solver of the sqp and rti paths (default: the scenario's mpc.qp_solver, else hpipm)")
+                   help=f"QP solver of the sqp and rti paths (default: the scenario's mpc.qp_solver, else {_D.qp_solver})")
     cg = p.add_mutually_exclusive_group()
     cg.add_argument("--codegen", action="store_true", default=None,
-                    help="compile the NLP functions to C with gcc (default: the scenario's mpc.codegen, else off)")
+                    help="compile the NLP functions to C with gcc (default: the scenario's mpc.codegen, else "
+                         f"{'on' if _D.codegen else 'off'})")
     cg.add_argument("--no-codegen", dest="codegen", action="store_false",
                     help="interpreted CasADi functions (overrides the scenario's mpc.codegen)")
     p.add_argument("--t-end", type=_positive_float, default=None, metavar="T",
