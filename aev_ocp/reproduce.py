@@ -13,6 +13,8 @@ never vanish from the report while the run exits 0.
 
 from __future__ import annotations
 
+import math
+
 import importlib
 import sys
 import time
@@ -148,13 +150,19 @@ class ReproduceConfig:
 
     tolerances: rtol = atol values of the Table 1 tolerance study; fig12_t_end: horizon of Fig. 1/2
     [model time] (None: the scenario's, 700); scenario_t_end_max: cap on every shipped scenario's
-    horizon in the battery section [model time] (None: full); scenarios: names for that section
-    (None: all shipped); si_units: figure axes in s, m, km/h (False: the paper's model units).
+    horizon in the battery section [model time] (None: full); mpc_scenario_max_s: cap on the horizon of
+    the shipped scenarios with an [mpc] table in that section [s] (None: full; the default 150 s keeps the
+    paper's MPC scenarios whole, 140 s, and runs the first 150 s of the MPC drive-cycle scenarios, whose
+    whole cycles take minutes: the UDDS platoon of five MPC followers alone runs 15 516 steps each; the
+    "MPC on drive cycles" section and benchmarks/bench_mpc_cycles.py --full measure the whole cycles);
+    scenarios: names for that section (None: all shipped); si_units: figure axes in s, m, km/h (False:
+    the paper's model units).
     """
 
     tolerances: tuple[float, ...] = (1e-6, 1e-8, 1e-10, 1e-12)
     fig12_t_end: float | None = None
     scenario_t_end_max: float | None = None
+    mpc_scenario_max_s: float | None = 150.0
     scenarios: tuple[str, ...] | None = None
     builtin: tuple[str, ...] = ("fig1-2", "fig3", "table1", "table1-hypotheses", "tolerance", "scenarios",
                                 "disagreements")
@@ -386,15 +394,24 @@ class _Run:
             if names is not None and name not in names:
                 continue
             s = load_scenario(path)
+            t_full = s.t_end
             if self.config.scenario_t_end_max is not None and s.t_end > self.config.scenario_t_end_max:
                 s = s.replace(t_end=self.config.scenario_t_end_max)
+            mpc_cfg = s.extra.get("mpc")
+            cap_s = self.config.mpc_scenario_max_s
+            if mpc_cfg is not None and cap_s is not None and s.units.time_to_si(s.t_end) > cap_s:
+                dt = mpc_cfg.settings.dt  # a whole number of MPC steps
+                s = s.replace(t_end=round(math.floor(s.units.time_from_si(cap_s) / dt + 1e-9) * dt, 12))
             res = self.simulate(s, progress, name)
             mpc_line = ""
-            if s.extra.get("mpc") is not None:
+            if mpc_cfg is not None:
                 r_mpc = self.simulate_mpc(s, progress, name)
                 res = {"mpc": r_mpc, **res}
                 st = [x for x in r_mpc.solver_stats if x]
-                mpc_line = (f"\nThe `mpc` rows are the scenario's own [mpc] closed loop (PROBLEM.md §9) on the exact "
+                form = ("PROBLEM.md §9" if mpc_cfg.settings.formulation == "s9"
+                        else "the traffic formulation, aev_ocp/ocp/traffic.py")
+                mpc_line = (f"\nThe `mpc` rows are the scenario's own [mpc] closed loop ({form}, forecast "
+                            f"{mpc_cfg.settings.predictor}) on the exact "
                             f"plant: solver path {st[0]['solver_path'] if st else '?'}, "
                             f"{sum(x['fallbacks'] for x in st)} fallbacks in {sum(x['n_steps'] for x in st)} "
                             "solves.\n" if st else "")
@@ -405,7 +422,9 @@ class _Run:
             u = s.units
             v_max = s.leader.max_speed(s.t_end)
             parts.append(f"\n### {name}\n\n{s.description}. Units L = {u.length_m:g} m, U = {u.speed_mps:g} m/s "
-                         f"(T = {u.time_s:.4g} s); horizon {s.t_end:g} model time = {u.time_to_si(s.t_end):.4g} s; "
+                         f"(T = {u.time_s:.4g} s); horizon {s.t_end:g} model time = {u.time_to_si(s.t_end):.4g} s"
+                         + (f" (the first part of the scenario's {u.time_to_si(t_full):.4g} s, to keep reproduce short)"
+                            if s.t_end < t_full else "") + "; "
                          f"leader top speed {v_max:.4f} model = {u.speed_to_si(v_max):.4g} m/s "
                          f"(V∞·U = {u.speed_to_si(V_INF):.4g} m/s).\n\n" + markdown_table(headers, rows) + mpc_line)
             over = sorted({r[0] for r in rows if OVER_LIMIT_MARK in r[8]})

@@ -32,7 +32,8 @@ def main(quick: bool = False, out: Path = Path("results/examples/wq_pareto")) ->
     leader = PaperLeader()
     t_end = 6.0 if quick else 70.0  # model time
     w_qs = (0.3, 1.0, 3.0) if quick else (0.1, 0.3, 1.0, 3.0, 10.0, 30.0)
-    base = MPCSettings(solver="rti")
+    # PROBLEM.md §9's formulation, as in scenarios/mpc_paper_single.toml (w_Q is a §9 weight)
+    base = MPCSettings(formulation="s9", N=40, predictor="oracle", rti_hessian="exact", max_step_ms=1e4)
     rows: list[dict[str, Any]] = []
     for w_q in w_qs:
         s = dataclasses.replace(base, weights=dataclasses.replace(base.weights, w_Q=w_q))

@@ -56,6 +56,7 @@ def test_wq_pareto(tmp_path: Path) -> None:
     assert [r["w_Q"] for r in mpc] == [0.3, 1.0, 3.0] and {r["controller"] for r in rows} >= {"proposed", "ovfl"}
     heat = [r["heat_pack_J"] for r in mpc]
     assert heat == sorted(heat, reverse=True)  # a larger heat weight never buys more heat
+    assert heat[0] > heat[-1] * (1 + 1e-3)  # ... and w_Q really acts (a front of one point is a bug)
     for r in mpc:  # the 'pareto' flag is exactly non-domination, checked by hand
         dominated = any(o is not r and o["heat_pack_J"] <= r["heat_pack_J"]
                         and o["rms_rel_speed_model"] <= r["rms_rel_speed_model"]

@@ -42,10 +42,37 @@ COLUMNS: tuple[str, ...] = ("cycle", "vehicle", "controller", "predictor", "stat
                             "distance_diff_pct", "duration_diff_pct", "comparable", "flags", "rank")
 
 
-def cycle_scenario(cycle: str, segment_s: float | None = None, platoon: bool = False) -> Any:
+#: A segment ends once the leader has stood still this long [s] (our choice: every follower of a 5-car
+#: platoon has stopped by then), so runs of different controllers end at rest with comparable distances.
+STOP_HOLD_S = 20.0
+
+
+def leader_rest_end(sc: Any, t_from: float, hold_s: float = STOP_HOLD_S, step_s: float = 0.5) -> float | None:
+    """The first time t ≥ ``t_from`` [model time] at which the leader of ``sc`` has been at rest for
+    ``hold_s`` seconds (sampled every ``step_s`` s), or None if that does not happen before ``sc.t_end``."""
+    u = sc.units
+    t = np.arange(0.0, sc.t_end, u.time_from_si(step_s))
+    rest = np.asarray(sc.leader.speed_np(t), float).ravel() <= 1e-9
+    hold = u.time_from_si(hold_s)
+    start = None
+    for ti, r in zip(t, rest):
+        if not r:
+            start = None
+            continue
+        start = ti if start is None else start
+        if ti - start >= hold - 1e-12 and ti >= t_from:
+            return float(ti)
+    return None
+
+
+def cycle_scenario(cycle: str, segment_s: float | None = None, platoon: bool = False,
+                   end_at_rest: bool = False) -> Any:
     """The shipped scenario of ``cycle`` ('udds', 'hwfet', 'us06', 'paper'; platoon: the UDDS 5-follower
     scenario), cut to its first ``segment_s`` seconds [s] (rounded up to whole MPC steps) when given and
-    shorter than the scenario."""
+    shorter than the scenario. ``end_at_rest``: the cut moves on to the first time after ``segment_s`` at
+    which the leader has stood still for :data:`STOP_HOLD_S` (the whole scenario if it never does), so
+    every controller's run ends at rest and their distances are comparable (an MPC that keeps a longer
+    time gap than a law is otherwise metres behind it at an arbitrary cut)."""
     from ..scenarios import find_scenario, load_scenario
 
     if platoon:
@@ -62,6 +89,9 @@ def cycle_scenario(cycle: str, segment_s: float | None = None, platoon: bool = F
         if not (isinstance(segment_s, (int, float)) and math.isfinite(segment_s) and segment_s > 0):
             raise ParameterError(f"cycle_scenario: segment_s = {segment_s!r} is not allowed: must be a number of seconds > 0")
         t_seg = sc.units.time_from_si(float(segment_s))
+        if end_at_rest:
+            t_rest = leader_rest_end(sc, t_seg)
+            t_seg = sc.t_end if t_rest is None else t_rest
         cfg = sc.extra.get("mpc")
         if cfg is not None:  # whole MPC steps (the closed loop needs them): round up to a multiple of mpc.dt
             t_seg = math.ceil(t_seg / cfg.settings.dt - 1e-9) * cfg.settings.dt
@@ -167,6 +197,7 @@ def platoon_rows(runs: Mapping[tuple[str, str | None], SimulationResult], mpc_ke
                     "change_pct": 100.0 * (m["heat_pack_J_per_km"] / q["heat_pack_J_per_km"] - 1.0)
                     if q["heat_pack_J_per_km"] else math.nan,
                     "fallbacks": m.get("fallbacks"), "min_gap_m": m["min_gap_m"],
+                    "distance_diff_pct": c["distance_diff_pct"],
                     "comparable": bool(c["comparable"]), "status": m.get("run_status", "ok")})
     return out
 
