@@ -136,3 +136,31 @@ def test_solve_time_percentiles_and_written_tables(tiny_runs: dict, tmp_path: Pa
     csv_lines = (tmp_path / "t" / "cycles.csv").read_text().splitlines()
     assert len(csv_lines) == len(rows) + 1 and csv_lines[0].startswith("cycle,vehicle,controller")
     assert all(f.stat().st_size > 0 for f in files)
+
+
+def test_segments_end_once_the_leader_has_stood_still() -> None:
+    """leader_rest_end against the SI cycle data read independently: UDDS's first stop after 120 s begins at
+    125 s, so a 20 s hold ends at 145 s; HWFET has no such stop (whole cycle)."""
+    from aev_ocp.mpc.cycles import STOP_HOLD_S, leader_rest_end
+
+    sc = cycle_scenario("udds")
+    csv = Path(__file__).resolve().parents[1] / "aev_ocp" / "data" / "cycles"
+    t_si, v_si = np.loadtxt(next(csv.glob("udds*")), delimiter=",", skiprows=1, unpack=True)[:2]
+    i0 = np.flatnonzero((t_si >= 120.0) & (v_si == 0.0))[0]  # the first sample at rest after 120 s
+    t_rest = leader_rest_end(sc, sc.units.time_from_si(120.0))
+    assert t_rest is not None and abs(sc.units.time_to_si(t_rest) - (t_si[i0] + STOP_HOLD_S)) <= 0.5 + 1e-9
+    seg = cycle_scenario("udds", 120.0, end_at_rest=True)
+    assert seg.t_end >= t_rest and seg.t_end - t_rest < seg.extra["mpc"].settings.dt + 1e-9
+    hw = cycle_scenario("hwfet")
+    assert cycle_scenario("hwfet", 120.0, end_at_rest=True).t_end == hw.t_end
+    assert cycle_scenario("udds", 120.0).t_end < t_rest  # without end_at_rest: the plain cut
+
+
+def test_cycles_section_runs_end_to_end(tmp_path: Path) -> None:
+    """The section on a tiny cap (every run 1.5 model time units): text, tables and the segment sentence."""
+    from aev_ocp.mpc.cycles_section import cycles_section
+
+    txt = cycles_section(tmp_path, lambda m: None, cycles=("udds",), predictors=("constant-velocity",),
+                         t_end_max=1.5)
+    assert txt.startswith("## MPC on drive cycles") and "stood still for 20 s" in txt and "udds 1 s, capped at t = 1.5" in txt
+    assert (tmp_path / "mpc_cycles" / "cycles.csv").stat().st_size > 0
