@@ -218,6 +218,9 @@ def test_cli_errors(capsys: pytest.CaptureFixture[str], tmp_path: Path, monkeypa
     assert rc == 2 and "no_such_scenario" in one_error(err)
     rc, _, err = run_cli(["mpc-export", "table1", "--out", str(tmp_path / "b")], capsys)
     assert rc == 2 and "no [mpc] table" in one_error(err)
+    # the traffic formulation is refused by name (it used to export the §9 problem silently)
+    rc, _, err = run_cli(["mpc-export", "mpc_udds_single", "--out", str(tmp_path / "t")], capsys)
+    assert rc == 2 and "mpc.formulation = 'traffic'" in one_error(err) and not (tmp_path / "t").exists()
     import aev_ocp.compiled
 
     monkeypatch.setattr(aev_ocp.compiled, "compiler", lambda: None)

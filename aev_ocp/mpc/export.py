@@ -244,14 +244,12 @@ def export_controller_settings(settings: Any, ev: Any = None, problem: Any = Non
     """A controller built only for the export (cold IPOPT path, no codegen: nothing is compiled); the
     default problem is built as the rti path builds it (the OCV as comparisons, models/battery.py)."""
     from ..models.battery import piecewise_ocv
-    from ..ocp.following import following_problem
     from ..params import EVParams
-    from .controller import MPCController
+    from .controller import MPCController, default_problem
 
     if problem is None:
         with piecewise_ocv():
-            problem = following_problem(ev or EVParams(), settings.bounds, settings.smooth, settings.objective,
-                                        name="mpc")
+            problem = default_problem(ev or EVParams(), settings)
     return MPCController(settings.with_(solver="ipopt-cold", codegen=False), ev, problem=problem,
                          parameter_values=parameter_values, initial_values=initial_values)
 
@@ -262,6 +260,11 @@ def export_mpc(scenario: Any, out: Path, settings: Any = None) -> list[Path]:
     if cfg is None:
         raise ExportError(f"scenario {scenario.name!r} has no [mpc] table: there is no MPC to export")
     s = settings or cfg.settings
+    if s.formulation != "s9":
+        raise ExportError(f"scenario {scenario.name!r}: mpc.formulation = {s.formulation!r} cannot be exported yet: "
+                          "its energy epigraph control enters the cost linearly, and the QP solver generated into "
+                          "the C (qrqp) needs curvature in every control; export a formulation = 's9' scenario "
+                          "(e.g. mpc_paper_single) or run this one in Python (rti + HPIPM)")
     c = export_controller_settings(s, scenario.ev)
     desc = (f"MPC of scenario {scenario.name} (N = {s.N}, dt = {s.dt:g}, objective {s.objective}, "
             f"rk4_substeps {s.rk4_substeps}, rti_iterations {s.rti_iterations})")
