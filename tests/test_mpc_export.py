@@ -30,7 +30,7 @@ from aev_ocp.mpc.export import EXPORT_FILES, CStep, build_library, export_contro
 from aev_ocp.mpc.policy import MPCVehicle
 from aev_ocp.mpc.settings import MPCSettings
 from aev_ocp.params import EVParams
-from tests.cli_helpers import one_error, run_cli
+from cli_helpers import one_error, run_cli
 
 pytestmark = pytest.mark.skipif(compiler() is None, reason="no C compiler")
 
