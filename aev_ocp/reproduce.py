@@ -127,10 +127,13 @@ def load_providers(providers: Sequence[str] = SECTION_PROVIDERS, log: Callable[[
 
 
 class Progress:
-    """Prints ``[k/N] message`` lines on stderr (N grows if a section reports more steps than declared)."""
+    """Prints ``[k/N] message`` lines on stderr. N is fixed: a section that reports more lines than it
+    declared (e.g. OCP-D's iteration lines, one every few seconds) keeps k at its last declared step
+    (``limit``), so the counter never runs past N and ends at N/N."""
 
     def __init__(self, total: int, stream: Any = None) -> None:
         self.total, self.k, self.stream = total, 0, stream if stream is not None else sys.stderr
+        self.limit = total
         self.t0 = time.perf_counter()
 
     def skip_to(self, k: int) -> None:
@@ -138,7 +141,7 @@ class Progress:
         self.k = max(self.k, k)
 
     def __call__(self, message: str) -> None:
-        self.k += 1
+        self.k = min(self.k + 1, max(self.limit, self.k))
         self.total = max(self.total, self.k)
         print(f"[{self.k}/{self.total}] {message} ({time.perf_counter() - self.t0:.1f} s)", file=self.stream,
               flush=True)
@@ -531,6 +534,7 @@ def reproduce(out_dir: str | Path = "results", config: ReproduceConfig | None = 
                  + "; random seeds are in each section's JSON (e.g. `theorem41.json`).\n")
     for sec in sections:
         end = progress.k + sec.steps
+        progress.limit = end
         _ACTIVE.append(config)
         try:
             md = sec.fn(out, _prefixed(progress, sec.name))
@@ -546,6 +550,7 @@ def reproduce(out_dir: str | Path = "results", config: ReproduceConfig | None = 
         progress.skip_to(end)
     _claims_from_outputs(out, parts)
     parts.insert(1, "\n" + summary_section(_CLAIMS))
+    progress.limit = progress.total
     progress.skip_to(progress.total - 1)
     progress("writing report.md and report.html")
     text = "".join(parts)

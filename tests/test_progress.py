@@ -109,3 +109,20 @@ def test_study_time_limit_stores_finished_tasks_and_resumes(tmp_path):
     buf = io.StringIO()
     out = run_study(study, tmp_path, executor="inprocess", report=False, progress_stream=buf)
     assert out.n_tasks == 36 and f"({stored} stored" in buf.getvalue() and "ETA" in buf.getvalue()
+
+
+def test_reproduce_counter_stays_within_its_total() -> None:
+    """aev_ocp.reproduce.Progress: a section that reports more lines than it declared keeps k at its last
+    declared step, so N never grows and the counter ends at N/N."""
+    from aev_ocp.reproduce import Progress as ReproduceProgress
+
+    buf = io.StringIO()
+    p = ReproduceProgress(6, stream=buf)
+    p.limit = 2  # a section that declared 2 steps reports 4 lines
+    for m in ("a", "b", "c", "d"):
+        p(m)
+    p.limit = p.total
+    p.skip_to(p.total - 1)
+    p("writing")
+    heads = [line.split("]")[0] + "]" for line in buf.getvalue().splitlines()]
+    assert heads == ["[1/6]", "[2/6]", "[2/6]", "[2/6]", "[6/6]"]
