@@ -272,16 +272,16 @@ def read_trace_csv(source: Any, *, time_column: str = "time", speed_column: str 
             continue  # blank line
         if col_f is not None and not _matches(row[col_f] if col_f < len(row) else "", filter_value):
             continue
-        vals = []
-        for col, cname in ((col_t, time_column), (col_v, value_col)):
-            text = row[col].strip() if col < len(row) else ""
+        vals: list[float] = []
+        for ci, cname in ((col_t, time_column), (col_v, value_col)):
+            text = row[ci].strip() if ci < len(row) else ""
             try:
-                x = float(text)
+                num = float(text)
             except ValueError:
-                x = math.nan
-            if not math.isfinite(x):
+                num = math.nan
+            if not math.isfinite(num):
                 raise ParameterError(f"trace {name}, row {k}, column {cname!r}: {text!r} is not a finite number")
-            vals.append(x)
+            vals.append(num)
         t_list.append(vals[0])
         v_list.append(vals[1])
         line_no.append(k)
