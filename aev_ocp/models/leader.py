@@ -13,7 +13,7 @@ from abc import ABC, abstractmethod
 from dataclasses import dataclass
 from functools import cached_property
 from importlib import resources
-from typing import Any
+from typing import Any, Sequence
 
 import casadi as ca
 import numpy as np
@@ -170,7 +170,8 @@ class SpeedTrace(LeaderProfile):
             raise ParameterError(f"SpeedTrace.speeds has a negative value ({v.min():g}): must be >= 0")
 
     @classmethod
-    def from_si(cls, times_s: np.ndarray, speeds_mps: np.ndarray, units: Units, label: str = "trace") -> "SpeedTrace":
+    def from_si(cls, times_s: np.ndarray | Sequence[float], speeds_mps: np.ndarray | Sequence[float], units: Units,
+                label: str = "trace") -> "SpeedTrace":
         """Build from SI arrays [s], [m/s], converted with ``units``."""
         return cls(tuple(float(x) for x in units.time_from_si(np.asarray(times_s, float))),
                    tuple(float(x) for x in units.speed_from_si(np.asarray(speeds_mps, float))), label)
