@@ -241,7 +241,7 @@ class ClosedLoop:
         y = plant.samples(np.array([0.0]), x[:, None], a_cmd)
         out: tuple[list, list, list, list] = ([np.array([0.0])], [x[:, None]], [q[:, None]], [y])
         applied: list[np.ndarray] = []
-        rec = [{"solve": [], "call": [], "iters": [], "ok": [], "status": [], "info": []} for _ in range(n)]
+        rec: list[dict[str, list[Any]]] = [{"solve": [], "call": [], "iters": [], "ok": [], "status": [], "info": []} for _ in range(n)]
         meas_t: list[float] = []
         meas_v: list[list[float]] = [[] for _ in range(n)]
         events: list[Event] = []

@@ -49,7 +49,9 @@ def versions() -> dict[str, Any]:
     import casadi
     import numpy
 
-    return {"aev_ocp": __version__, "git_commit": git_commit(), "casadi": casadi.__version__,
+    # CasADi 3.8's stubs omit __version__ (casadi/__init__.py sets it at import time)
+    casadi_version: str = casadi.__version__  # type: ignore[attr-defined]
+    return {"aev_ocp": __version__, "git_commit": git_commit(), "casadi": casadi_version,
             "numpy": numpy.__version__, "python": sys.version.split()[0], "platform": platform.platform()}
 
 
@@ -57,6 +59,7 @@ def scenario_sha256(scenario: Any) -> str | None:
     """SHA-256 of a scenario as loaded (its TOML document after overrides, canonical JSON), or of its
     file when no document is kept; None for objects without either."""
     doc = getattr(scenario, "document", None)
+    blob: bytes | None
     if isinstance(doc, dict):
         blob = json.dumps(doc, sort_keys=True, separators=(",", ":"), default=str).encode()
     else:

@@ -105,7 +105,8 @@ def save_output(out: str | Path, kind: str, runs: Mapping[str, Any], *, primary:
                                 "settings": dict(settings or {})}
     if arrays:
         buf = io.BytesIO()
-        np.savez(buf, **arrays)
+        # allow_pickle=True is numpy's default, stated so that no entry of **arrays can be taken for it
+        np.savez(buf, allow_pickle=True, **arrays)
         data = buf.getvalue()
         with atomic_path(out / ARRAYS) as tmp:
             tmp.write_bytes(data)
@@ -182,10 +183,13 @@ def _ocp_result(label: str, rec: dict[str, Any], arrays: dict[str, np.ndarray]) 
     group = {g: {n: arrays[f"{label}/{g}/{n}"] for n in rec[g]} for g in ("states", "controls", "outputs")}
     scal = {n: float(arrays[f"{label}/{n}"]) for n in OCP_SCALARS}
     return OCPResult(problem=rec["problem"], method=rec["method"], N=int(rec["N"]), t=arrays[f"{label}/t"],
-                     time_unit=rec["time_unit"], **group, objective_name=rec["objective_name"], status=rec["status"],
+                     time_unit=rec["time_unit"], states=group["states"], controls=group["controls"],
+                     outputs=group["outputs"], objective_name=rec["objective_name"], status=rec["status"],
                      success=bool(rec["success"]), message=rec["message"], solver_status=rec["solver_status"],
                      iterations=int(rec["iterations"]), t_colloc=arrays.get(f"{label}/t_colloc"),
-                     meta=dict(rec["meta"] or {}), warnings=list(rec["warnings"]), **scal)
+                     meta=dict(rec["meta"] or {}), warnings=list(rec["warnings"]), objective=scal["objective"],
+                     objective_exact=scal["objective_exact"], max_violation=scal["max_violation"],
+                     wall_time_s=scal["wall_time_s"], solver_time_s=scal["solver_time_s"])
 
 
 def _build(label: str, m: dict[str, Any], arrays: dict[str, np.ndarray], folder: Path) -> Any:
@@ -226,7 +230,7 @@ def load(path: str | Path, run: str | None = None) -> Any:
         return load_study_output(m, folder)
     runs = m.get("runs") or {}
     label = run if run is not None else m.get("primary")
-    if label not in runs:
+    if label is None or label not in runs:  # (JSON keys are strings: a None label was never in runs)
         raise LoadError(f"{folder}: no run {label!r} in this output; its runs are {list(runs)}")
     return _build(label, m, _arrays(m, folder), folder)
 

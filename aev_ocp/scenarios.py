@@ -358,7 +358,8 @@ class Scenario:
                 out = _replace_without_document(self, keyed)
         if changes:
             stale = set(changes) - {"source"}  # no file key states these objects: the document no longer applies
-            fixed = dataclasses.replace(out, **changes, **({"document": None} if stale else {}))
+            drop_document: dict[str, Any] = {"document": None} if stale else {}
+            fixed = dataclasses.replace(out, **changes, **drop_document)
             if "units" not in keyed and "ev" in changes and changes["ev"].units != fixed.units:
                 raise ScenarioError(f"{self.file_label}: replace(ev=...): ev.units ({changes['ev'].units}) differ "
                                     f"from the scenario's units ({fixed.units}); pass units= too")
@@ -566,13 +567,14 @@ def _trace(r: TableReader, units: Units, source: Path | None) -> LeaderProfile:
 
 def _leader(r: TableReader, units: Units, source: Path | None = None) -> LeaderProfile:
     kind = r.string("kind", choices=LEADER_KINDS)
+    leader: LeaderProfile
     if kind == "trace":
         leader = _trace(r, units, source)
         r.finish()
         return leader
     try:
         if kind == "constant":
-            leader: LeaderProfile = ConstantSpeed(r.number("v", ge=0))
+            leader = ConstantSpeed(r.number("v", ge=0))
         elif kind == "paper":
             d = PaperLeader()
             leader = PaperLeader(v0=r.number("v0", d.v0, ge=0), amplitude=r.number("amplitude", d.amplitude),

@@ -10,9 +10,9 @@ from __future__ import annotations
 
 import math
 from abc import ABC, abstractmethod
-from dataclasses import dataclass
+from dataclasses import Field, dataclass
 from functools import cached_property
-from typing import Any, Callable
+from typing import TYPE_CHECKING, Any, Callable, ClassVar
 
 import casadi as ca
 
@@ -51,6 +51,8 @@ class CarFollowingLaw(ABC):
     """A car-following law v̇ = f(h, v, v_l) in model units."""
 
     name: str = "law"
+    if TYPE_CHECKING:  # every concrete law is a dataclass: lets dataclasses.fields/replace take any law
+        __dataclass_fields__: ClassVar[dict[str, Field[Any]]]
     _nonnegative: tuple[str, ...] = ()  # coefficients that must be finite and >= 0
     _positive: tuple[str, ...] = ()  # coefficients that must be finite and > 0
 

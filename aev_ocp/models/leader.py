@@ -13,7 +13,7 @@ from abc import ABC, abstractmethod
 from dataclasses import dataclass
 from functools import cached_property
 from importlib import resources
-from typing import Any
+from typing import Any, Sequence
 
 import casadi as ca
 import numpy as np
@@ -170,7 +170,8 @@ class SpeedTrace(LeaderProfile):
             raise ParameterError(f"SpeedTrace.speeds has a negative value ({v.min():g}): must be >= 0")
 
     @classmethod
-    def from_si(cls, times_s: np.ndarray, speeds_mps: np.ndarray, units: Units, label: str = "trace") -> "SpeedTrace":
+    def from_si(cls, times_s: np.ndarray | Sequence[float], speeds_mps: np.ndarray | Sequence[float], units: Units,
+                label: str = "trace") -> "SpeedTrace":
         """Build from SI arrays [s], [m/s], converted with ``units``."""
         return cls(tuple(float(x) for x in units.time_from_si(np.asarray(times_s, float))),
                    tuple(float(x) for x in units.speed_from_si(np.asarray(speeds_mps, float))), label)
@@ -272,16 +273,16 @@ def read_trace_csv(source: Any, *, time_column: str = "time", speed_column: str 
             continue  # blank line
         if col_f is not None and not _matches(row[col_f] if col_f < len(row) else "", filter_value):
             continue
-        vals = []
-        for col, cname in ((col_t, time_column), (col_v, value_col)):
-            text = row[col].strip() if col < len(row) else ""
+        vals: list[float] = []
+        for ci, cname in ((col_t, time_column), (col_v, value_col)):
+            text = row[ci].strip() if ci < len(row) else ""
             try:
-                x = float(text)
+                num = float(text)
             except ValueError:
-                x = math.nan
-            if not math.isfinite(x):
+                num = math.nan
+            if not math.isfinite(num):
                 raise ParameterError(f"trace {name}, row {k}, column {cname!r}: {text!r} is not a finite number")
-            vals.append(x)
+            vals.append(num)
         t_list.append(vals[0])
         v_list.append(vals[1])
         line_no.append(k)

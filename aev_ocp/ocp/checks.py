@@ -39,7 +39,7 @@ def record_term_gap(res: OCPResult, term: str, nlp: float, exact: float, what: s
     diff = nlp - exact
     scale = max(abs(nlp), abs(exact))
     fired = not math.isfinite(diff) or abs(diff) > rtol * scale + atol
-    rec = {"nlp": nlp, "exact": exact, "difference": diff, "relative": abs(diff) / scale if scale > 0 else 0.0,
+    rec: dict[str, Any] = {"nlp": nlp, "exact": exact, "difference": diff, "relative": abs(diff) / scale if scale > 0 else 0.0,
            "rtol": rtol, "atol": atol, "exact_model": what, "warning": bool(fired)}
     res.meta.setdefault("smoothing_gap_terms", {})[term] = rec
     if fired:

@@ -66,10 +66,10 @@ def parse_grids(problem: str, items: list[str], file: str | None) -> dict[str, l
             raise ParameterError(f"--grid-file {file}: not valid {'JSON' if file.endswith('.json') else 'TOML'}: "
                                  f"{exc}") from None
     for item in items:
-        name, sep, vals = item.partition("=")
-        if not sep or not vals.strip():
+        name, sep, spec = item.partition("=")
+        if not sep or not spec.strip():
             raise ParameterError(f"--grid {item!r} is not NAME=V1,V2,... (e.g. --grid E_req=1000,2000)")
-        raw[name.strip()] = [v.strip() for v in vals.split(",")]
+        raw[name.strip()] = [v.strip() for v in spec.split(",")]
     out: dict[str, list[float]] = {}
     for name, vals in raw.items():
         where = f"grid {name}"
@@ -164,9 +164,11 @@ def _cli_ocp(argv: list[str]) -> int:
         ok = all(e["status"] in ("optimal", "acceptable") for e in cases.values())
         runs = {case: e["result"] for case, e in cases.items() if "result" in e}
     elif args.problem == "current-profile":
-        sweep = {k: v for k, v in (("sweep_E_J", grids.get("E_req")), ("sweep_t_f_s", grids.get("t_f"))) if v}
+        # a grid not given keeps run_current_profile's default sweep
         rep = api.run_current_profile(method=args.method, out_dir=out, scenario=args.scenario,
-                                      refine=not args.no_refine, progress=prog, **sweep,
+                                      refine=not args.no_refine, progress=prog,
+                                      sweep_E_J=grids.get("E_req") or api.SWEEP_E_J,
+                                      sweep_t_f_s=grids.get("t_f") or api.SWEEP_T_F_S,
                                       **({"N": args.N} if args.N is not None else {}))
         print(rep["table"])
         ok = rep["ok"]

@@ -182,7 +182,7 @@ def guess_speed(trip: EcoTrip, t: np.ndarray, kind: str) -> np.ndarray:
 class EcoTripSolver:
     """OCP-C built once (objective and vehicle fixed); :meth:`solve` re-solves for new D, t_f, v0, vf, S0."""
 
-    def __init__(self, trip: EcoTrip | None = None, method: str = "ms", N: int = 200, **opts: object) -> None:
+    def __init__(self, trip: EcoTrip | None = None, method: str = "ms", N: int = 200, **opts: Any) -> None:
         self.trip = trip or EcoTrip()
         self.method, self.opts = method, dict(opts)
         self.solver = OCPSolver(eco_problem(self.trip), TranscriptionOptions(method=method, N=N, **opts))

@@ -166,6 +166,7 @@ def interval_function(pr: OCPProblem, o: TranscriptionOptions) -> ca.Function:
         return pr.ode(x, uk, w, p)
 
     def ell(x: Any) -> Any:
+        assert pr.lagrange is not None  # ell is only called when the problem has a Lagrange term
         return pr.lagrange(x, uk, w, p)
 
     J = pr.stage(xk, uk, w, p) * h if pr.stage is not None else ca.SX(0)
@@ -222,7 +223,9 @@ class OCPSolver:
         nb = nx + nu + nx * d  # per-interval block: x_k, u_k, collocation states
         self._nb, self._d = nb, d
         nv = nb * N + nx
-        SYM = ca.MX if o.mx_map else ca.SX
+        # SX or MX by option: CasADi's stubs overload each function per symbol class and reject the union
+        # MX | SX, so the symbols (and the expressions built from them) are typed Any
+        SYM: Any = ca.MX if o.mx_map else ca.SX
         V = SYM.sym("V", nv)
         blocks = ca.reshape(V[:nb * N], nb, N)
         Xs = ca.horzcat(blocks[:nx, :], V[nb * N:])

@@ -35,12 +35,12 @@ def default_amplitudes(v_star: float) -> list[float]:
 
 def coefficient_names(law: CarFollowingLaw) -> list[str]:
     """The law's numeric dataclass fields (its coefficients)."""
-    return [f.name for f in dataclasses.fields(law)  # type: ignore[arg-type]
+    return [f.name for f in dataclasses.fields(law)
             if isinstance(getattr(law, f.name), (int, float)) and not isinstance(getattr(law, f.name), bool)]
 
 
-def stability_map(law: CarFollowingLaw, v_star: float, x_name: str, xs: Sequence[float], y_name: str,
-                  ys: Sequence[float]) -> dict[str, np.ndarray]:
+def stability_map(law: CarFollowingLaw, v_star: float, x_name: str, xs: Sequence[float] | np.ndarray, y_name: str,
+                  ys: Sequence[float] | np.ndarray) -> dict[str, np.ndarray]:
     """Criterion C and platoon stability of ``law`` with coefficients x_name, y_name set to each grid pair.
 
     Returns arrays of shape (len(ys), len(xs)): 'criterion', 'locally_stable', 'string_stable',
@@ -149,6 +149,7 @@ def run_stability(law: CarFollowingLaw | None, speeds: Sequence[float], out_dir:
             from .plots import plot_attenuation, plot_gain, plot_region
 
             if lins:
+                assert law is not None  # lins holds the linear analyses of a law
                 files.append(str(plot_gain(lins, out / "gain.png", f"|G(iω)| of {law.name}")))
                 names = coefficient_names(law)
                 if region is None and len(names) >= 2:
@@ -159,14 +160,14 @@ def run_stability(law: CarFollowingLaw | None, speeds: Sequence[float], out_dir:
                     ys = np.linspace(0.0, max(5.0, 2.5 * y0), region_n)
                     v_map = float(speeds[0])
                     say(f"stable region in ({region[0]}, {region[1]}) at v* = {v_map:g}")
-                    m = stability_map(law, v_map, region[0], xs, region[1], ys)
-                    files.append(str(plot_region(xs, ys, m["criterion"], m["locally_stable"], region[0], region[1],
-                                                 out / "stable_region.png",
+                    smap = stability_map(law, v_map, region[0], xs, region[1], ys)
+                    files.append(str(plot_region(xs, ys, smap["criterion"], smap["locally_stable"], region[0],
+                                                 region[1], out / "stable_region.png",
                                                  f"{law.name}: string-stable region at v* = {v_map:g}"
                                                  + "".join(f", {k} = {getattr(law, k):g}" for k in names
                                                            if k not in region), mark=(x0, y0))))
                     doc["stable_region"] = {"x": region[0], "y": region[1], "v_star": v_map, "xs": xs.tolist(),
-                                            "ys": ys.tolist(), "criterion": m["criterion"].tolist()}
+                                            "ys": ys.tolist(), "criterion": smap["criterion"].tolist()}
             if any(series.values()):
                 files.append(str(plot_attenuation(series, linear_refs, out / "attenuation.png",
                                                   f"{doc['law']['law']}: attenuation vs amplitude ({kind})")))

@@ -102,7 +102,7 @@ def build_law(name: str, sets: list[str]) -> Any:
         raise ParameterError(f"--set carfollowing.{name}.*: {exc}") from None
     except TypeError:
         factory = LAW_REGISTRY[name.lower()]
-        fields = [f.name for f in dataclasses.fields(factory)] if dataclasses.is_dataclass(factory) else []
+        fields: list[str] = [f.name for f in dataclasses.fields(factory)] if dataclasses.is_dataclass(factory) else []
         bad = [k for k in own if k not in fields]
         raise ParameterError(f"--set carfollowing.{name}.{bad[0] if bad else '?'}: unknown coefficient of law "
                              f"{name!r}: known are {fields}") from None

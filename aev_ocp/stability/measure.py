@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import asdict, dataclass, field
-from typing import Any, Sequence
+from typing import Any, Sequence, TypedDict
 
 import numpy as np
 
@@ -83,8 +83,17 @@ class Attenuation:
         return asdict(self)
 
 
+class Sizes(TypedDict):
+    """What :func:`sizes_of` returns: per vehicle, leader first [model speed]."""
+
+    peak: np.ndarray  # max |v_n − v*|
+    l2: np.ndarray  # ‖v_n − v*‖₂ over time
+    harmonic: np.ndarray | None  # amplitude of the ω harmonic (None without omega)
+    rel: np.ndarray  # max |v_{n−1} − v_n|, one per follower
+
+
 def sizes_of(res: SimulationResult, v_star: float, omega: float | None = None, periods: int = 6,
-             t_from: float = 0.0, baseline: SimulationResult | None = None) -> dict[str, np.ndarray | None]:
+             t_from: float = 0.0, baseline: SimulationResult | None = None) -> Sizes:
     """Peak, ℓ2 and (if omega) harmonic size of v_n − v* per vehicle, leader first [model speed].
 
     baseline: an unperturbed run on the same time grid; the followers' deviations are then taken from

@@ -69,10 +69,10 @@ def string_stability_section(out_dir: Path, progress: ProgressFn) -> str:
     top = round(min(fig5_amplitude(), 0.95 * v_star), 4)
     amps = list(AMPLITUDES) + [top]
     progress(f"string stability: dip in {N_REPORT} followers, {len(amps)} sizes")
-    kw = dict(n_followers=N_REPORT, dt_out=0.05)
-    ref = linear_prediction(law, v_star, lin=lin, **kw)
-    meas = [measure(law, v_star, a, lin=lin, **kw) for a in amps]
-    ovfl = {a: measure(OVFL(2.0, 3.0), v_star, a, **kw) for a in (1e-4, top)}
+    dt_out = 0.05
+    ref = linear_prediction(law, v_star, lin=lin, n_followers=N_REPORT, dt_out=dt_out)
+    meas = [measure(law, v_star, a, lin=lin, n_followers=N_REPORT, dt_out=dt_out) for a in amps]
+    ovfl = {a: measure(OVFL(2.0, 3.0), v_star, a, n_followers=N_REPORT, dt_out=dt_out) for a in (1e-4, top)}
     progress("string stability: where Fig. 5's growth 1 → 2 comes from")
     origin = fig5_origin()
     origin_ovfl = fig5_origin(lambda: OVFL(2.0, 3.0))

@@ -118,10 +118,12 @@ def plot_pareto(study: Study, rows: list[dict[str, Any]], mx: str, my: str, out:
     for j, c in enumerate(ctrls):
         pts = [(r[mx], r[my]) for r in cand if r["controller"] == c]
         if pts:
-            ax.scatter(*zip(*pts), color=f"C{j % 10}", s=18, label=c)
-    front = sorted((r[mx], r[my]) for r, m in zip(cand, mask) if m)
-    ax.plot(*zip(*front), color="k", linewidth=1.0, drawstyle="steps-post", label="Pareto front")
-    ax.scatter(*zip(*front), facecolors="none", edgecolors="k", s=70, linewidths=1.2, label="non-dominated")
+            px, py = zip(*pts)
+            ax.scatter(px, py, color=f"C{j % 10}", s=18, label=c)
+    # never empty: a finite, non-empty set of points has a non-dominated one
+    fx, fy = zip(*sorted((r[mx], r[my]) for r, m in zip(cand, mask) if m))
+    ax.plot(fx, fy, color="k", linewidth=1.0, drawstyle="steps-post", label="Pareto front")
+    ax.scatter(fx, fy, facecolors="none", edgecolors="k", s=70, linewidths=1.2, label="non-dominated")
     ax.set_xlabel(f"{mx} (lower is better)")
     ax.set_ylabel(f"{my} (lower is better)")
     ax.set_title(f"{study.name}{' / ' + base if base else ''}: follower {study.report.get('vehicle', 1)}", fontsize=9)
@@ -174,7 +176,10 @@ def change_table(study: Study, rows: list[dict[str, Any]], metric: str, vehicle:
             for y in ys:
                 r = cell.get((x, y))
                 v = None if r is None else r.get(col)
-                vals.append("—" if v is None else f"{v:+.2f}%" + ("" if r.get("comparable") else "*"))
+                if r is None or v is None:
+                    vals.append("—")
+                else:
+                    vals.append(f"{v:+.2f}%" + ("" if r.get("comparable") else "*"))
             lines.append(f"| {_fmt(x)} | " + " | ".join(vals) + " |")
         lines.append("")
         lines += _sign_changes(sub, col, ax1, ax2, xs, ys, c) if signs else []
@@ -200,8 +205,8 @@ def _sign_changes(sub: list[dict[str, Any]], col: str, ax1: str, ax2: str | None
     cell = {(r[ax1], r.get(ax2) if ax2 else None): r for r in sub}
     out = []
     for y in ys:
-        seq = [(x, cell.get((x, y))) for x in xs]
-        seq = [(x, r[col], bool(r.get("comparable"))) for x, r in seq if r is not None and r.get(col) is not None]
+        cells = [(x, cell.get((x, y))) for x in xs]
+        seq = [(x, r[col], bool(r.get("comparable"))) for x, r in cells if r is not None and r.get(col) is not None]
         flips = [f"between {ax1} = {_fmt(a[0])} ({a[1]:+.2f}%) and {_fmt(b[0])} ({b[1]:+.2f}%)"
                  + ("" if a[2] and b[2] else " [not comparable]")
                  for a, b in _nonzero_pairs(seq) if _sign(a[1]) * _sign(b[1]) < 0]

@@ -284,14 +284,15 @@ def _axis(r: TableReader, i: int) -> Axis:
         r._get("values", None)
         if not isinstance(vals, list) or not vals:
             raise r.error("values", vals, "expected a non-empty array")
+        rows: tuple[tuple[Any, ...], ...]
         if len(keys) == 1 and r.has("key"):
             rows = tuple((v,) for v in vals)
             kind = "grid"
         else:
             if len(vals) != len(keys) or not all(isinstance(v, list) for v in vals):
                 raise r.error("values", vals, f"expected {len(keys)} arrays, one per key of {keys}")
-            n = {len(v) for v in vals}
-            if len(n) != 1 or 0 in n:
+            lengths = {len(v) for v in vals}
+            if len(lengths) != 1 or 0 in lengths:
                 raise r.error("values", vals, "the arrays of a zipped axis must have the same, non-zero length")
             rows = tuple(zip(*vals))
             kind = "zip"
@@ -310,10 +311,9 @@ def _axis(r: TableReader, i: int) -> Axis:
     r.finish()
     rng = np.random.default_rng(seed)
     u = rng.random((n, len(keys)))
-    lo, hi = np.array(lows), np.array(highs)
-    x = np.exp(np.log(lo) + u * (np.log(hi) - np.log(lo))) if log else lo + u * (hi - lo)
-    rows = tuple(tuple(float(v) for v in row) for row in x)
-    return Axis(tuple(keys), rows, "random", seed)
+    lo_a, hi_a = np.array(lows), np.array(highs)
+    x = np.exp(np.log(lo_a) + u * (np.log(hi_a) - np.log(lo_a))) if log else lo_a + u * (hi_a - lo_a)
+    return Axis(tuple(keys), tuple(tuple(float(v) for v in row) for row in x), "random", seed)
 
 
 def _bounds(r: TableReader, key: str, n: int) -> list[float]:
