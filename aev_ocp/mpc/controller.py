@@ -518,9 +518,9 @@ class MPCController:
                                  f"got {vm_.size} and {vh_.size}")
         p = self._params(np.vstack([vm_, vh_]), weights, stage_weights)
         if self._cstep is not None:
-            cold = self._warm is None
+            was_cold = self._warm is None
             sol = self._solve_cstep(z0, p)
-            if sol.success or not cold:
+            if sol.success or not was_cold:
                 return sol  # a failed cold start of the compiled step falls back to the cold IPOPT below
         warm = self._warm is not None and s.solver != "ipopt-cold"
         if s.solver == "rti" and not warm and self._rti_cold:
@@ -529,16 +529,18 @@ class MPCController:
             lbx[:nx] = ubx[:nx] = z0 / self.x_scale
             cold = {"x0": self.guess(z0, p), "lam_g0": np.zeros(self.ng), "lam_x0": np.zeros(self.nv)}
             return self._solve_rti(cold, p, lbx, ubx, s.rti_cold_iterations)
+        lbx, ubx = self._lbx.copy(), self._ubx.copy()
+        lbx[:nx] = ubx[:nx] = z0 / self.x_scale
+        solver: ca.Function
         if warm:
             args = self._shift(z0, p)
+            if s.solver == "rti":
+                return self._solve_rti(args, p, lbx, ubx, s.rti_iterations)
+            assert self._fast is not None  # built for 'ipopt' and 'sqp', the other warm paths
             solver, path = self._fast, s.solver
         else:
             args = {"x0": self.guess(z0, p)}
             solver, path = self._cold, "ipopt-cold"
-        lbx, ubx = self._lbx.copy(), self._ubx.copy()
-        lbx[:nx] = ubx[:nx] = z0 / self.x_scale
-        if warm and s.solver == "rti":
-            return self._solve_rti(args, p, lbx, ubx, s.rti_iterations)
         t0 = time.perf_counter()
         try:
             out = solver(p=p, lbx=lbx, ubx=ubx, lbg=self._lbg, ubg=self._ubg, **args)
@@ -552,7 +554,7 @@ class MPCController:
         x, g = np.asarray(out["x"]).ravel(), np.asarray(out["g"]).ravel()
         viol = self._violation(x, g, lbx, ubx)
         status = str(st.get("return_status", st.get("unified_return_status", "")))
-        success = bool(st.get("success", False)) and viol < PLAN_TOLERANCE and np.all(np.isfinite(x))
+        success = bool(st.get("success", False)) and viol < PLAN_TOLERANCE and bool(np.all(np.isfinite(x)))
         iters = int(st.get("iter_count", st.get("iterations", {}).get("iter", [0])[-1]
                            if isinstance(st.get("iterations"), dict) else 0))
         X, a, U = self.unpack(x)
