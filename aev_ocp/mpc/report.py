@@ -163,7 +163,11 @@ def run_comparison(scenario: Any, settings: MPCSettings | None = None, laws: tup
         tim["ocpd"] = time.perf_counter() - t0
         # a failed or time-limited solve bounds nothing: no cost is reported for it
         ocpd = {"success": res.success, "status": res.status, "cost_s9": res.objective if res.success else float("nan"),
-                "grid_dt": scn.dt}
+                "grid_dt": scn.dt, "objective": "PROBLEM.md §9 cost"}
+        if s.formulation != "s9":
+            warn.append(f"OCP-D is the offline optimum of PROBLEM.md §9's cost (its weights, bounds and objective): "
+                        f"a lower bound for the cost_s9 row only, not for the objective of the MPC's "
+                        f"{s.formulation!r} formulation")
         if res.success:
             # replay the optimal controls open loop through the same exact plant: every §10 metric
             say("OCP-D: replaying its controls through the exact plant")
