@@ -272,3 +272,18 @@ def test_piecewise_ocv_equals_the_bspline() -> None:
     with B.piecewise_ocv():  # SX inside the block: the comparisons; numbers: the B-spline
         assert "BSpline" not in str(B.ocv(S)) and float(B.ocv(0.37)) == float(B.ocv_function()(0.37))
     assert "ocv" in str(B.ocv(S))  # outside: the B-spline Function call
+
+
+def test_export_refuses_what_the_step_does_not_implement(tmp_path: Path) -> None:
+    """A terminal cost and the projected Hessian are refused by name (the step would drop or change them)."""
+    from aev_ocp.mpc.export import ExportError
+    from aev_ocp.ocp.following import following_problem
+
+    ev = EVParams()
+    s = MPCSettings(**CANON)
+    with pytest.raises(ExportError, match="rti_hessian"):
+        export_controller(export_controller_settings(s.with_(rti_hessian="projected"), ev), tmp_path / "p", "x")
+    pb = following_problem(ev, s.bounds, s.smooth, s.objective, name="with_terminal")
+    pb.add_terminal_cost(3.5 * (pb.x["v"] - 1.3) ** 2)
+    with pytest.raises(ExportError, match="terminal cost"):
+        export_controller(export_controller_settings(s, ev, problem=pb), tmp_path / "t", "x")

@@ -209,3 +209,27 @@ def test_ocpd_beside_a_traffic_mpc_is_labelled_a_s9_bound(tmp_path, capsys) -> N
     assert rc == 0 and "a lower bound for the cost_s9 row only" in err
     res = json.loads((tmp_path / "results.json").read_text())
     assert res["ocp_d"]["objective"] == "PROBLEM.md §9 cost"
+
+
+def test_a_late_step_keeps_its_plan_as_the_next_warm_start() -> None:
+    """A step over max_step_ms is not applied (cause 'budget') but warm-starts the next one: with a budget
+    no step can meet, the first (cold, rti_cold_iterations) step and every later one fail on the budget, and
+    every later one is a warm single iteration — not a cold start again (which made every step late)."""
+    units = Units(15.0, 17.0)
+    s = MPCSettings(N=8, codegen=False, rti_cold_iterations=3, max_step_ms=1e-6)
+    c = MPCController(s, EVParams(units=units))
+    z0 = np.array([1.3, 0.4, 0.0, 0.0, 0.8])
+    vl = np.full(s.N, 0.45)
+    sols = [c.solve(z0, vl, vl, own={"a_prev": 0.0}) for _ in range(3)]
+    assert all(not x.success and x.status.startswith("budget") for x in sols)
+    assert sols[0].iterations > 1 and [x.iterations for x in sols[1:]] == [1, 1]
+
+
+def test_qrqp_compiled_step_refuses_what_it_cannot_do() -> None:
+    """The compiled whole step (qrqp + codegen) refuses the traffic formulation by name, and is not used for
+    a problem with a terminal cost or the projected Hessian (the generic RTI path takes those)."""
+    ev = EVParams(units=Units(15.0, 17.0))
+    with pytest.raises(ParameterError, match="qp_solver = 'qrqp'"):
+        MPCController(MPCSettings(N=6, qp_solver="qrqp", codegen=True), ev)
+    s9 = MPCSettings(formulation="s9", N=6, qp_solver="qrqp", codegen=True, rti_hessian="projected")
+    assert MPCController(s9, ev)._cstep is None

@@ -340,7 +340,12 @@ class MPCController:
         function, compiled to C when codegen is on. The QP (step dx, new multipliers) is solved by
         ``ca.conic`` (HPIPM detects the OCP structure from the sparsity)."""
         s, pr = self.settings, self.problem
-        if s.qp_solver == "qrqp" and s.codegen:  # the whole step compiled: the exported C (mpc/export.py)
+        if s.qp_solver == "qrqp" and s.codegen and s.formulation == "traffic":
+            raise ParameterError("MPCSettings.qp_solver = 'qrqp' with codegen compiles the whole step (mpc/export.py), "
+                                 "which cannot take the traffic formulation: its energy epigraph control enters the "
+                                 "cost linearly and qrqp needs curvature in every control; use qp_solver = 'hpipm'")
+        if (s.qp_solver == "qrqp" and s.codegen and pr.terminal_cost is None
+                and s.rti_hessian == "exact"):  # the whole step compiled: the exported C (mpc/export.py)
             from .export import CompiledStep
 
             self._cstep = CompiledStep.build(self)
@@ -523,7 +528,7 @@ class MPCController:
             if sol.success or not was_cold:
                 return sol  # a failed cold start of the compiled step falls back to the cold IPOPT below
         warm = self._warm is not None and s.solver != "ipopt-cold"
-        if s.solver == "rti" and not warm and self._rti_cold:
+        if s.solver == "rti" and not warm and self._rti_cold and self._cstep is None:
             # cold real-time iteration from the closed-form law's rollout (never a cold IPOPT)
             lbx, ubx = self._lbx.copy(), self._ubx.copy()
             lbx[:nx] = ubx[:nx] = z0 / self.x_scale
@@ -562,8 +567,22 @@ class MPCController:
                        "X1": X[:, 1]} if success else None)
         if self._cstep is not None and self._warm is not None:
             self._cstep.set_warm(self._warm["x"], self._warm["lam_g"], self._warm["lam_x"], drop_below=1e-8)
+        if success and dt_wall * 1e3 > s.max_step_ms and self._warm is not None:
+            w = self._warm
+            return self._late(w["x"], w["lam_g"], w["lam_x"], iters, dt_wall, viol, path)
         return MPCSolution(success, status, iters, dt_wall, X, a, float(out["f"]), viol, path,
                            {"t_wall_solver": float(st.get("t_wall_total", float("nan")))}, U)
+
+    def _late(self, x: np.ndarray, lam_g: np.ndarray, lam_x: np.ndarray, iters: int, dt_wall: float, viol: float,
+              path: str) -> MPCSolution:
+        """A valid plan that took longer than ``max_step_ms``: a failure with cause 'budget' (the policy
+        applies its fallback), but the plan stays the next step's warm start, so one late step (e.g. a
+        cold start) does not make every following step cold, and late, too."""
+        sol = self._failed(f"budget: the step took {dt_wall * 1e3:.3g} ms > max_step_ms = "
+                           f"{self.settings.max_step_ms:g}", iters, dt_wall, viol, path)
+        X = self.unpack(x)[0]
+        self._warm = {"x": x, "lam_x": lam_x, "lam_g": lam_g, "X1": X[:, 1]}
+        return sol
 
     def _failed(self, status: str, iters: int, dt_wall: float, viol: float, path: str) -> MPCSolution:
         N = self.settings.N
@@ -627,7 +646,7 @@ class MPCController:
             if not np.isfinite(viol0) or viol0 > PLAN_TOLERANCE:
                 ok, status = False, f"path constraint: the applied control violates them by {viol0:.3g}"
         if ok and dt_wall * 1e3 > s.max_step_ms:
-            ok, status = False, f"budget: the step took {dt_wall * 1e3:.3g} ms > max_step_ms = {s.max_step_ms:g}"
+            return self._late(x, lam_g, lam_x, it, dt_wall, viol0, "rti")
         if not ok:
             return self._failed(status, it, dt_wall, viol0, "rti")
         # plan, cost and the nonlinear constraint violation of the plan (the RTI plan is feasible only
@@ -654,6 +673,11 @@ class MPCController:
         if st != 0:
             return self._failed(STATUS.get(st, f"status {st}"), info.iterations, dt_wall, info.node0_violation, "rti")
         X, a, U = self.unpack(x)
+        if dt_wall * 1e3 > self.settings.max_step_ms:  # late: not applied, but the library keeps it as warm start
+            sol = self._failed(f"budget: the step took {dt_wall * 1e3:.3g} ms > max_step_ms = "
+                               f"{self.settings.max_step_ms:g}", info.iterations, dt_wall, info.node0_violation, "rti")
+            self._warm = {"x": x.copy(), "X1": X[:, 1]}
+            return sol
         self._warm = {"x": x.copy(), "X1": X[:, 1]}
         return MPCSolution(True, "RTI_Step" if info.step_inf > self.settings.tol else "RTI_Converged",
                            info.iterations, dt_wall, X, a, info.cost, info.violation, "rti",

@@ -68,8 +68,11 @@ COLD_REG_MAX = 1e3
 #: reg of the warm (RTI) steps: 0, the exact Hessian as in the Python rti path
 RTI_REG = 0.0
 #: Status codes of aev_mpc_step (mpc_step.h).
-STATUS = {0: "RTI_Step", 1: "QP failed", 2: "non-finite step", 3: "applied control violates the path constraints",
-          4: "cold start did not converge", 5: "non-finite input"}
+#: Status codes of the exported step, worded with the Python path's fallback causes ('QP failed', 'path
+#: constraint', 'exception': the text before the first ':' is the cause counted in fallback_causes).
+STATUS = {0: "RTI_Step", 1: "QP failed: qrqp", 2: "QP failed: non-finite step",
+          3: "path constraint: the applied control violates them", 4: "QP failed: the cold start did not converge",
+          5: "exception: non-finite input"}
 
 
 class ExportError(ParameterError):
@@ -220,8 +223,20 @@ def write_sources(c: "MPCController", folder: Path, description: str) -> None:
 
 
 # ---------------------------------------------------------------------------------------------- export
+def check_exportable(c: "MPCController") -> None:
+    """ExportError (naming the option) for what the exported step does not implement: a terminal (Mayer)
+    cost, and the projected Hessian (the step uses the exact one, as the §9 scenarios state)."""
+    if c.problem.terminal_cost is not None:
+        raise ExportError(f"problem {c.problem.name!r} has a terminal cost, which the exported step does not "
+                          "implement yet: make it a stage cost of the last interval, or run it in Python")
+    if c.settings.rti_hessian != "exact":
+        raise ExportError(f"mpc.rti_hessian = {c.settings.rti_hessian!r}: the exported step uses the exact Hessian; "
+                          "set mpc.rti_hessian = 'exact' (as scenarios/mpc_paper_single.toml does)")
+
+
 def export_controller(c: "MPCController", out: Path, description: str) -> list[Path]:
     """Write the export folder of a built controller; returns the files written."""
+    check_exportable(c)
     out = Path(out)
     write_sources(c, out, description)
     (out / "Makefile").write_text(_template("mpc_Makefile.in"), encoding="utf-8")

@@ -41,8 +41,8 @@ class MPCSettings:
     formulation: 'traffic' (default; :mod:`aev_ocp.ocp.traffic`, parameters ``traffic`` in SI) or 's9'
     (PROBLEM.md §9 exactly: ``weights``, ``bounds`` and ``objective`` apply only to it);
     traffic: the traffic formulation's SI parameters; max_step_ms: wall-clock budget of one step [ms]
-    (a solve that takes longer is discarded and the fallback applied, cause 'budget'; IPOPT also
-    gets it as max_wall_time); rti_cold_iterations: SQP steps of the 'rti' path when it starts cold;
+    (a solve that takes longer is not applied: the fallback is, cause 'budget', and the late plan
+    warm-starts the next step; every path; IPOPT's own wall-time limit is max_cpu_time_s); rti_cold_iterations: SQP steps of the 'rti' path when it starts cold;
     rti_hessian: 'projected' or 'exact' (RTI_HESSIANS);
     N: horizon intervals; dt: interval length [model time]; weights: stage-cost weights (parameters of
     the NLP, changeable per solve without rebuilding); bounds: h, v, a bounds; objective: 'heat'
