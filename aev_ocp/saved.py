@@ -105,8 +105,9 @@ def save_output(out: str | Path, kind: str, runs: Mapping[str, Any], *, primary:
                                 "settings": dict(settings or {})}
     if arrays:
         buf = io.BytesIO()
-        # allow_pickle=True is numpy's default, stated so that no entry of **arrays can be taken for it
-        np.savez(buf, allow_pickle=True, **arrays)
+        # no allow_pickle keyword: NumPy < 2.2 would store it as an array (the stubs of newer NumPy see the
+        # **arrays as that keyword)
+        np.savez(buf, **arrays)  # type: ignore[arg-type]
         data = buf.getvalue()
         with atomic_path(out / ARRAYS) as tmp:
             tmp.write_bytes(data)

@@ -149,3 +149,29 @@ def test_study_over_a_trace_leader_hashes_the_data_and_finds_the_file(tmp_path, 
     _write(tmp_path / "u.csv", "time,speed", zip(t[:120], 1.01 * v[:120]))
     keys2 = [tk.key for tk in read_study(study).tasks()]
     assert len(set(keys) & set(keys2)) == 0
+
+
+def test_position_trace_of_a_vehicle_starting_from_rest(tmp_path):
+    """At rest for 2 s, then 2.3 m/s² (exact, non-decreasing positions, given as a str path): accepted (the
+    second-order derivative's undershoot at the start is clipped, speeds ≥ 0 and exact on the ramp); a
+    position that decreases is refused naming its row."""
+    t = np.arange(0.0, 6.0, 0.1)
+    x = np.where(t < 2.0, 50.0, 50.0 + 0.5 * 2.3 * (t - 2.0) ** 2)
+    _write(tmp_path / "rest.csv", "time,pos", zip(t, x))
+    ts, vs = read_trace_csv(str(tmp_path / "rest.csv"), position_column="pos")
+    assert np.all(vs >= 0.0) and vs[0] == 0.0
+    ramp = ts > 2.15
+    np.testing.assert_allclose(vs[ramp][:-1], 2.3 * (ts[ramp][:-1] - 2.0), rtol=1e-9)
+    x_back = x.copy()
+    x_back[40] -= 0.7
+    _write(tmp_path / "back.csv", "time,pos", zip(t, x_back))
+    with pytest.raises(ParameterError, match=r"row 42, column 'pos': the position decreases"):
+        read_trace_csv(tmp_path / "back.csv", position_column="pos")
+
+
+def test_traffic_keys_under_the_s9_formulation_are_an_error(tmp_path):
+    """The mirror of the §9-keys check: a TrafficParams key with formulation = "s9" would be ignored."""
+    from aev_ocp.overrides import load_with_sets
+
+    with pytest.raises(ScenarioError, match="time_headway_s"):
+        load_with_sets(find_scenario("mpc_paper_single"), ["mpc.time_headway_s=3.0"])

@@ -13,6 +13,7 @@ from abc import ABC, abstractmethod
 from dataclasses import dataclass
 from functools import cached_property
 from importlib import resources
+from pathlib import Path
 from typing import Any, Sequence
 
 import casadi as ca
@@ -250,6 +251,8 @@ def read_trace_csv(source: Any, *, time_column: str = "time", speed_column: str 
                               ("position_unit", position_unit, LENGTH_UNITS)):
         if unit not in table:
             raise ParameterError(f"trace {name}: {what} = {unit!r} is not allowed: must be one of {list(table)}")
+    if not hasattr(source, "open"):  # a str or os.PathLike path (a resource Traversable has .open)
+        source = Path(source)
     try:
         with source.open(newline="", encoding="utf-8") as fh:
             rows = list(csv.reader(fh))
@@ -305,7 +308,15 @@ def read_trace_csv(source: Any, *, time_column: str = "time", speed_column: str 
         col = speed_column
     else:
         x = np.asarray(v_list) * LENGTH_UNITS[position_unit]
+        back = np.flatnonzero(np.diff(x) < 0)
+        if back.size:  # the data's own fault: the vehicle moved backwards
+            j = int(back[0])
+            raise ParameterError(f"trace {name}, row {line_no[j + 1]}, column {position_column!r}: the position "
+                                 f"decreases ({v_list[j]!r} -> {v_list[j + 1]!r}); a leader only drives forward")
         v = np.gradient(x, t, edge_order=2) if t.size > 2 else np.full(2, (x[1] - x[0]) / dt[0])
+        # non-decreasing positions: a negative derivative is the second-order formula overshooting where the
+        # vehicle starts or stops (e.g. at rest, then accelerating), not a reverse: it is clipped to 0
+        v = np.maximum(v, 0.0)
         col = f"{position_column} (speed = d/dt)"
     neg = np.flatnonzero(v < 0)
     if neg.size:

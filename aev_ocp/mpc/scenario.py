@@ -89,6 +89,11 @@ def validate_mpc_table(r: Any) -> MPCConfig:
             raise r.error(bad[0], d[bad[0]], "applies to the §9 formulation only: set mpc.formulation = \"s9\", or "
                           "use the traffic formulation's SI parameters (standstill_gap_m, time_headway_s, "
                           "a_min_mps2, ...; see aev_ocp/ocp/traffic.py)")
+    elif d.get("formulation") == "s9":  # and the traffic formulation's keys under §9
+        bad = [k for k in d if k in {f.name for f in fields(TrafficParams)}]
+        if bad:
+            raise r.error(bad[0], d[bad[0]], "applies to the traffic formulation only (aev_ocp/ocp/traffic.py), "
+                          "not to formulation = \"s9\"")
     try:
         settings = MPCSettings.from_dict(d)
     except ParameterError as exc:  # a cross-field rule of a nested dataclass (e.g. v_min < v_max)
