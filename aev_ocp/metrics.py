@@ -63,6 +63,12 @@ def vehicle_metrics(r: SimulationResult, i: int) -> dict[str, Any]:
     v_lead = r.leader_speed if i == 0 else r.speed[:, i - 1]
     h, v = r.gap[:, i], r.speed[:, i]
     hdot = v_lead - v
+    # violations count against the vehicle's controller's own bounds (an MPC states them: the traffic
+    # formulation's 2 m floor and 45 m/s, in model units), else PROBLEM.md §9's
+    ctrls = r.meta.get("controllers") or []
+    own = ctrls[i].get("bounds_model") if i < len(ctrls) and isinstance(ctrls[i], dict) else None
+    h_min = float(own["h_min"]) if own else MPC_GAP_MIN
+    v_max = float(own["v_max"]) if own else MPC_SPEED_MAX
     rms = (lambda c: math.sqrt(max(float(c[-1, i]), 0.0) / duration) if duration > 0 else float("nan"))
     if r.jerk_sampled and t.size > 1:
         da = np.diff(r.accel[:, i]) / np.diff(t)
@@ -91,8 +97,8 @@ def vehicle_metrics(r: SimulationResult, i: int) -> dict[str, Any]:
         "rms_rel_speed_model": rms(r.int_rel_speed2),
         "rms_jerk_model": rms_jerk,
         "max_abs_current_A": float(np.nanmax(np.abs(r.current_A[:, i]))) if np.isfinite(r.current_A[:, i]).any() else float("nan"),
-        "gap_violations": int(np.sum(h[1:] < MPC_GAP_MIN - 1e-9)),
-        "speed_violations": int(np.sum((v[1:] < -1e-9) | (v[1:] > MPC_SPEED_MAX + 1e-9))),
+        "gap_violations": int(np.sum(h[1:] < h_min - 1e-9)),
+        "speed_violations": int(np.sum((v[1:] < -1e-9) | (v[1:] > v_max + 1e-9))),
         "collisions": kinds.count("collision"),
         "infeasible_current": kinds.count("infeasible_current"),
         "final_ovm_error_model": float(optimal_velocity(h[-1]) - v[-1]),

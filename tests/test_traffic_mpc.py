@@ -148,6 +148,10 @@ def test_drive_cycle_constant_velocity_no_fallback_and_gap_kept():
     assert m["min_gap_m"] >= s.traffic.standstill_gap_m - 1e-6
     assert m["min_speed_model"] >= -1e-9
     assert m["distance_m"] > 50.0  # it moved with the leader
+    # violations are counted against the MPC's own floor (2 m), not §9's 0.2 L (3 m here): recounted
+    assert m["gap_violations"] == int(np.sum(r.gap[1:, 0] * units.length_m < s.traffic.standstill_gap_m - 1e-6)) == 0
+    r.meta["controllers"][0]["bounds_model"]["h_min"] = 1.1  # a floor above part of the run: recounted
+    assert r.metrics()[0]["gap_violations"] == int(np.sum(r.gap[1:, 0] < 1.1 - 1e-9)) > 0
     assert traffic_bounds(ev, s.traffic).h_min == pytest.approx(2.0 / 15.0)
 
 

@@ -91,6 +91,8 @@ class MPCPolicy:
         d["predictor"] = p if isinstance(p, str) else getattr(p, "name", type(p).__name__)
         d["solver_path"] = self.settings.solver + ("+codegen" if self.controller.codegen_active else "")
         d["problem"] = self.controller.problem.name
+        eb = self.settings.effective_bounds(self.controller.ev)  # what the metrics count violations against
+        d["bounds_model"] = {"h_min": eb.h_min, "v_max": eb.v_max}
         return d
 
 
