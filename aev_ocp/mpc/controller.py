@@ -567,9 +567,6 @@ class MPCController:
                        "X1": X[:, 1]} if success else None)
         if self._cstep is not None and self._warm is not None:
             self._cstep.set_warm(self._warm["x"], self._warm["lam_g"], self._warm["lam_x"], drop_below=1e-8)
-        if success and dt_wall * 1e3 > s.max_step_ms and self._warm is not None:
-            w = self._warm
-            return self._late(w["x"], w["lam_g"], w["lam_x"], iters, dt_wall, viol, path)
         return MPCSolution(success, status, iters, dt_wall, X, a, float(out["f"]), viol, path,
                            {"t_wall_solver": float(st.get("t_wall_total", float("nan")))}, U)
 

@@ -41,8 +41,9 @@ class MPCSettings:
     formulation: 'traffic' (default; :mod:`aev_ocp.ocp.traffic`, parameters ``traffic`` in SI) or 's9'
     (PROBLEM.md §9 exactly: ``weights``, ``bounds`` and ``objective`` apply only to it);
     traffic: the traffic formulation's SI parameters; max_step_ms: wall-clock budget of one step [ms]
-    (a solve that takes longer is not applied: the fallback is, cause 'budget', and the late plan
-    warm-starts the next step; every path; IPOPT's own wall-time limit is max_cpu_time_s); rti_cold_iterations: SQP steps of the 'rti' path when it starts cold;
+    (the 'rti' paths: a step that takes longer is not applied: the fallback is, cause 'budget', and the
+    late plan warm-starts the next step; the 'ipopt' and 'sqp' paths are bounded by max_cpu_time_s, IPOPT's
+    wall-time limit); rti_cold_iterations: SQP steps of the 'rti' path when it starts cold;
     rti_hessian: 'projected' or 'exact' (RTI_HESSIANS);
     N: horizon intervals; dt: interval length [model time]; weights: stage-cost weights (parameters of
     the NLP, changeable per solve without rebuilding); bounds: h, v, a bounds; objective: 'heat'
