@@ -17,17 +17,10 @@ from typing import Any
 
 from ..params import ParameterError
 
-EXIT_OK, EXIT_FAILED_RUN, EXIT_BAD_INPUT = 0, 1, 2
-
-
-def _err(message: str) -> None:
-    print(f"aev-ocp: error: {' '.join(str(message).split())}", file=sys.stderr, flush=True)
-
-
-class _Parser(argparse.ArgumentParser):
-    def error(self, message: str) -> None:  # type: ignore[override]
-        _err(f"{message} (try 'aev-ocp stability --help')")
-        raise SystemExit(EXIT_BAD_INPUT)
+# the command line's one error format, exit codes and parser (aev_ocp/cli.py)
+from ..cli import EXIT_BAD_INPUT, EXIT_FAILED_RUN, EXIT_OK
+from ..cli import OneLineParser as _Parser
+from ..cli import error_line as _err
 
 
 def build_parser() -> argparse.ArgumentParser:
