@@ -48,16 +48,7 @@ def mpc_table_keys() -> dict[str, Check | None]:
 
 def _read(r: Any, key: str, check: Check | None) -> Any:
     """One [mpc] value checked against its declaration (type and range), errors naming file and key."""
-    if check is None:
-        return r.number(key)
-    value = r.table[key]
-    r._get(key, None)  # mark as read
-    if check.kind == "choice" and isinstance(value, str) and value.lower() in (check.choices or ()):
-        value = value.lower()
-    problem = check.problem(value)
-    if problem is not None:
-        raise r.error(key, value, problem)
-    return float(value) if check.kind == "number" else value
+    return r.number(key) if check is None else r.declared(key, check)
 
 
 def validate_mpc_table(r: Any) -> MPCConfig:
