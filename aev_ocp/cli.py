@@ -38,6 +38,9 @@ def _warn(message: str) -> None:
     print(f"aev-ocp: warning: {' '.join(str(message).split())}", file=sys.stderr, flush=True)
 
 
+warning_line = _warn  # public name, used by the subcommands
+
+
 def _show_warning(message: Warning | str, category: type[Warning], filename: str, lineno: int,
                   file: object = None, line: str | None = None) -> None:
     _warn(str(message))

@@ -77,7 +77,7 @@ def cli_mpc(argv: list[str]) -> int:
 
 
 def _cli_mpc(argv: list[str]) -> int:
-    from ..cli import error_line
+    from ..cli import error_line, warning_line
     from ..results import claim_output_dir, default_output_dir
     from ..overrides import load_with_sets
     from ..progress import TIME_LIMIT, Progress
@@ -123,7 +123,7 @@ def _cli_mpc(argv: list[str]) -> int:
           f"(aev_ocp.load('{out}'))")
     for lab, res in c.results.items():
         if lab != "mpc" and res.events:
-            print(f"aev-ocp: warning: run {lab} stopped: {res.events[0]}", file=sys.stderr, flush=True)
+            warning_line(f"run {lab} stopped: {res.events[0]}")
     if r.status == TIME_LIMIT:
         error_line(f"scenario {sc.name}, run mpc stopped by --time-limit {a.time_limit:g} s at t = "
                    f"{r.events[0].time:.4g} of {sc.t_end:g}: partial result (status time_limit) written to {out}/")

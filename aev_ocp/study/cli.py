@@ -13,6 +13,7 @@ from pathlib import Path
 from ..cli import EXIT_BAD_INPUT, EXIT_FAILED_RUN, EXIT_OK
 from ..cli import OneLineParser as _Parser
 from ..cli import error_line as _err
+from ..cli import warning_line
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -71,7 +72,7 @@ def cli_study(argv: list[str]) -> int:
         _err(str(exc))
         return EXIT_BAD_INPUT
     for w in study.warnings:
-        print(f"aev-ocp: warning: {' '.join(w.split())}", file=sys.stderr, flush=True)
+        warning_line(w)
     if a.in_process:
         kw: dict = {"executor": "inprocess"}
     elif a.dask_local is not None or a.scheduler is not None:
