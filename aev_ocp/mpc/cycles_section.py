@@ -133,9 +133,10 @@ def cycles_section(out_dir: Any, progress: Callable[[str], None], segment_s: flo
     rows: list[dict[str, Any]] = []
     wall: dict[str, dict[str, float]] = {}
     seg_model: dict[str, float] = {}
+    seg_s: dict[str, float] = {}  # the same segments in seconds (each cycle's own units)
     for cyc in cycles:
         sc = _capped(cycle_scenario(cyc, segment_s, end_at_rest=True), t_end_max)
-        seg_model[cyc] = sc.t_end
+        seg_model[cyc], seg_s[cyc] = sc.t_end, sc.units.time_to_si(sc.t_end)
         runs, wall[cyc] = run_cycle(sc, predictors, settings=s, log=_prefixed(progress, f"MPC cycles, {cyc}: "))
         rows += cycle_rows(cyc, runs, vehicles=[0])
     rank_rows(rows)
@@ -150,8 +151,7 @@ def cycles_section(out_dir: Any, progress: Callable[[str], None], segment_s: flo
     seg_txt = ("whole cycles" if segment_s is None else
                f"the first {segment_s:g} s of each cycle, extended to the first moment the leader has stood still "
                f"for {STOP_HOLD_S:g} s (or to the cycle's end) so that every run ends at rest: "
-               + ", ".join(f"{c} {cycle_scenario(c).units.time_to_si(t):.0f} s" for c, t in seg_model.items()
-                           if c != "udds_platoon"))
+               + ", ".join(f"{c} {t:.0f} s" for c, t in seg_s.items()))
     if t_end_max is not None:
         seg_txt += f", capped at t = {t_end_max:g} model time units (reduced configuration)"
     meta = {"segment_s": segment_s, "platoon_segment_s": platoon_segment_s, "t_end_model": seg_model,
