@@ -570,15 +570,13 @@ class MPCController:
         return MPCSolution(success, status, iters, dt_wall, X, a, float(out["f"]), viol, path,
                            {"t_wall_solver": float(st.get("t_wall_total", float("nan")))}, U)
 
-    def _late(self, x: np.ndarray, lam_g: np.ndarray, lam_x: np.ndarray, iters: int, dt_wall: float, viol: float,
-              path: str) -> MPCSolution:
+    def _late(self, warm: dict[str, Any], iters: int, dt_wall: float, viol: float, path: str) -> MPCSolution:
         """A valid plan that took longer than ``max_step_ms``: a failure with cause 'budget' (the policy
-        applies its fallback), but the plan stays the next step's warm start, so one late step (e.g. a
-        cold start) does not make every following step cold, and late, too."""
+        applies its fallback), but the plan (``warm``: the warm start it leaves) stays the next step's warm
+        start, so one late step (e.g. a cold start) does not make every following step cold, and late, too."""
         sol = self._failed(f"budget: the step took {dt_wall * 1e3:.3g} ms > max_step_ms = "
                            f"{self.settings.max_step_ms:g}", iters, dt_wall, viol, path)
-        X = self.unpack(x)[0]
-        self._warm = {"x": x, "lam_x": lam_x, "lam_g": lam_g, "X1": X[:, 1]}
+        self._warm = warm
         return sol
 
     def _failed(self, status: str, iters: int, dt_wall: float, viol: float, path: str) -> MPCSolution:
@@ -643,7 +641,8 @@ class MPCController:
             if not np.isfinite(viol0) or viol0 > PLAN_TOLERANCE:
                 ok, status = False, f"path constraint: the applied control violates them by {viol0:.3g}"
         if ok and dt_wall * 1e3 > s.max_step_ms:
-            return self._late(x, lam_g, lam_x, it, dt_wall, viol0, "rti")
+            X_late = self.unpack(x)[0]
+            return self._late({"x": x, "lam_x": lam_x, "lam_g": lam_g, "X1": X_late[:, 1]}, it, dt_wall, viol0, "rti")
         if not ok:
             return self._failed(status, it, dt_wall, viol0, "rti")
         # plan, cost and the nonlinear constraint violation of the plan (the RTI plan is feasible only
@@ -670,12 +669,10 @@ class MPCController:
         if st != 0:
             return self._failed(STATUS.get(st, f"status {st}"), info.iterations, dt_wall, info.node0_violation, "rti")
         X, a, U = self.unpack(x)
-        if dt_wall * 1e3 > self.settings.max_step_ms:  # late: not applied, but the library keeps it as warm start
-            sol = self._failed(f"budget: the step took {dt_wall * 1e3:.3g} ms > max_step_ms = "
-                               f"{self.settings.max_step_ms:g}", info.iterations, dt_wall, info.node0_violation, "rti")
-            self._warm = {"x": x.copy(), "X1": X[:, 1]}
-            return sol
-        self._warm = {"x": x.copy(), "X1": X[:, 1]}
+        warm = {"x": x.copy(), "X1": X[:, 1]}  # (the library keeps its own warm start)
+        if dt_wall * 1e3 > self.settings.max_step_ms:
+            return self._late(warm, info.iterations, dt_wall, info.node0_violation, "rti")
+        self._warm = warm
         return MPCSolution(True, "RTI_Step" if info.step_inf > self.settings.tol else "RTI_Converged",
                            info.iterations, dt_wall, X, a, info.cost, info.violation, "rti",
                            {"step_inf": info.step_inf, "node0_violation": info.node0_violation,
