@@ -38,7 +38,7 @@ T_END = 20.0  # 200 closed-loop steps of the canonical 700
 TOL = 1e-8
 # PROBLEM.md §9 as in scenarios/mpc_paper_single.toml (the default formulation is 'traffic')
 CANON = dict(formulation="s9", rti_hessian="exact", max_step_ms=10000.0, N=40, dt=0.1, solver="rti",
-             qp_solver="qrqp", codegen=True)
+             qp_solver="riccati", codegen=True)
 
 
 class CPolicy:
@@ -87,13 +87,14 @@ def _compare(a: Any, b: Any) -> tuple[float, float]:
     return float(np.abs(ua - ub).max()), float(np.abs(xa - xb).max())
 
 
-def _c_run(lib: Path, settings: MPCSettings, vehicle: Any = None, first: Any = None) -> tuple[Any, list[int]]:
+def _c_run(lib: Path, settings: MPCSettings, vehicle: Any = None, first: Any = None,
+           loop: ClosedLoop | None = None, start: tuple[float, float, float] = (0.3, 1.87, T_END)) -> tuple[Any, list[int]]:
     """The closed loop driven by the exported library (forecast from an MPC policy of the same settings)."""
-    loop = _loop(vehicle or settings)
+    loop = loop or _loop(vehicle or settings)
     pol = loop.ctrl[0]
     cp = CPolicy(lib, pol, first)
     loop.ctrl[0] = cp
-    return loop.run([0.3], [1.87], T_END), cp.status
+    return loop.run([start[0]], [start[1]], start[2]), cp.status
 
 
 @pytest.fixture(scope="module")
@@ -166,7 +167,9 @@ def _candidate(ev: EVParams, s: MPCSettings) -> Any:
 
 def test_soft_constraint_and_extra_state_problem(tmp_path: Path) -> None:
     ev = EVParams()
-    s = MPCSettings.from_dict({**CANON, "w_Q": 0.7, "h_min": -10.0})
+    # the projected Hessian (the default): this problem's exact Hessian blocks are indefinite (min eigenvalue
+    # −0.05), which an interior-point QP cannot take
+    s = MPCSettings.from_dict({**CANON, "w_Q": 0.7, "h_min": -10.0, "rti_hessian": "projected"})
     prob = _candidate(ev, s)
     c = export_controller_settings(s, ev, problem=prob)
     assert c.nx == 6 and c.problem.control_names[-1] == "slack_headway"  # a_prev; the soft constraint's slack
@@ -218,9 +221,6 @@ def test_cli_errors(capsys: pytest.CaptureFixture[str], tmp_path: Path, monkeypa
     assert rc == 2 and "no_such_scenario" in one_error(err)
     rc, _, err = run_cli(["mpc-export", "table1", "--out", str(tmp_path / "b")], capsys)
     assert rc == 2 and "no [mpc] table" in one_error(err)
-    # the traffic formulation is refused by name (it used to export the §9 problem silently)
-    rc, _, err = run_cli(["mpc-export", "mpc_udds_single", "--out", str(tmp_path / "t")], capsys)
-    assert rc == 2 and "mpc.formulation = 'traffic'" in one_error(err) and not (tmp_path / "t").exists()
     import aev_ocp.compiled
 
     monkeypatch.setattr(aev_ocp.compiled, "compiler", lambda: None)
@@ -229,6 +229,75 @@ def test_cli_errors(capsys: pytest.CaptureFixture[str], tmp_path: Path, monkeypa
     assert rc == 2 and "no C compiler" in one_error(err)
     rc, _, err = run_cli(["mpc-export", "mpc_paper_single"], capsys)
     assert rc == 2 and "--out" in one_error(err)
+
+
+def test_traffic_formulation_exports_and_matches_the_python_driver(tmp_path: Path,
+                                                                   capsys: pytest.CaptureFixture[str]) -> None:
+    """The default traffic formulation (soft constraints with a linear-cost slack, the energy epigraph control
+    whose cost is linear, a terminal cost, the jerk state a_prev, projected Hessian, cold start by
+    rti_cold_iterations SQP steps) behind a UDDS segment with a constant-velocity forecast, from rest: the C
+    of `aev-ocp mpc-export mpc_udds_single` on (x_meas, forecast), its own cold start included, against the
+    Python rti path on the same QP solver but nothing else shared: the QP data from the interpreted CasADi
+    functions, the Hessian projected by NumPy (eigh), the shift and the multipliers' layout in NumPy."""
+    from aev_ocp.models import drive_cycle
+    from aev_ocp.mpc.controller import MPCController
+    from aev_ocp.params import Units
+
+    rc_cli, _, _ = run_cli(["mpc-export", "mpc_udds_single", "--out", str(tmp_path), "--set",
+                            "mpc.predictor=constant-velocity", "--set", "mpc.N=14"], capsys)
+    assert rc_cli == 0
+    lib = build_library(tmp_path, tmp_path / "lib.so")
+    ev = EVParams(units=Units(15.0, 17.0))
+    s = MPCSettings(N=14, predictor="constant-velocity", qp_solver="riccati", codegen=False)
+    assert MPCController(s, ev)._riccati is not None  # the Python driver, not the library
+    leader = drive_cycle("udds", ev.units)
+    t_end = 40.0  # model time: 35 s of UDDS, 400 steps (the leader starts at 20 s, 10 m/s at 31 s)
+    rc, st = _c_run(lib, s, loop=ClosedLoop(leader, [MPCVehicle(s)], ev), start=(0.8, 0.0, t_end))
+    rp = ClosedLoop(leader, [MPCVehicle(s)], ev).run([0.8], [0.0], t_end)
+    assert len(st) == 400 and all(k == 0 for k in st), st
+    assert (rp.solver_stats[0] or {}).get("fallbacks") == 0
+    du, dx = _compare(rc, rp)
+    assert du <= TOL and dx <= TOL, (du, dx)
+    assert rc.speed[:, 0].max() > 0.5  # the follower really drives off behind the leader
+
+
+def test_c_hessian_projection_equals_numpy(canonical_lib: Path) -> None:
+    """aev_mpc_project_pd (Jacobi eigenvalues, in C) against controller._project_pd (numpy.linalg.eigh) on
+    random symmetric blocks of sizes 1..9: indefinite, singular, PD with and without margin, badly scaled;
+    the result's eigenvalues are all >= the floor, and PD blocks come back unchanged (bit for bit)."""
+    import ctypes
+
+    from aev_ocp.mpc.controller import RTI_HESSIAN_FLOOR, _project_pd
+
+    lib = ctypes.CDLL(str(canonical_lib))
+    lib.aev_mpc_project_pd.argtypes = [ctypes.c_void_p, ctypes.c_int, ctypes.c_double]
+    lib.aev_mpc_project_pd.restype = ctypes.c_int
+    rng = np.random.default_rng(11)
+    projected = 0
+    for trial in range(300):
+        n = int(rng.integers(1, 7))  # the canonical export's blocks are 6 x 6 (AEV_MPC_PD_MAXN)
+        Q, _ = np.linalg.qr(rng.standard_normal((n, n)))
+        kind = trial % 4
+        lam = rng.uniform(-3.0, 7.0, n) * 10.0 ** rng.uniform(-3, 4, n)
+        if kind == 1:
+            lam = np.abs(lam) + 0.37  # PD with margin
+        elif kind == 2:
+            lam[0] = 0.0  # singular
+        B = (Q * lam) @ Q.T
+        B = 0.5 * (B + B.T) + (rng.standard_normal((n, n)) * 1e-9 if kind == 3 else 0.0)  # slightly asymmetric
+        ref = _project_pd(B[None].copy())[0]
+        got = np.asfortranarray(B.copy())
+        flag = lib.aev_mpc_project_pd(got.ctypes.data, n, RTI_HESSIAN_FLOOR)
+        assert flag in (0, 1)
+        projected += flag
+        scale = 1.0 + np.abs(np.linalg.eigvalsh(0.5 * (B + B.T))).max()
+        np.testing.assert_allclose(got, ref, rtol=0, atol=1e-11 * scale)
+        assert np.linalg.eigvalsh(0.5 * (got + got.T)).min() >= RTI_HESSIAN_FLOOR * scale * (1 - 1e-6) - 1e-12 * scale
+        if kind == 1:
+            assert flag == 0 and np.array_equal(got, 0.5 * (B + B.T))
+    assert 50 < projected < 300  # both branches exercised
+    bad = np.full((3, 3), np.nan)
+    assert lib.aev_mpc_project_pd(np.asfortranarray(bad).ctypes.data, 3, RTI_HESSIAN_FLOOR) == -1
 
 
 def test_two_workspaces_are_independent(canonical_lib: Path) -> None:
@@ -275,15 +344,14 @@ def test_piecewise_ocv_equals_the_bspline() -> None:
 
 
 def test_export_refuses_what_the_step_does_not_implement(tmp_path: Path) -> None:
-    """A terminal cost and the projected Hessian are refused by name (the step would drop or change them)."""
+    """Terminal constraints are refused by name (the exported step, like the Python rti path, has none)."""
     from aev_ocp.mpc.export import ExportError
     from aev_ocp.ocp.following import following_problem
 
     ev = EVParams()
     s = MPCSettings(**CANON)
-    with pytest.raises(ExportError, match="rti_hessian"):
-        export_controller(export_controller_settings(s.with_(rti_hessian="projected"), ev), tmp_path / "p", "x")
     pb = following_problem(ev, s.bounds, s.smooth, s.objective, name="with_terminal")
-    pb.add_terminal_cost(3.5 * (pb.x["v"] - 1.3) ** 2)
-    with pytest.raises(ExportError, match="terminal cost"):
+    pb.subject_to_terminal(pb.x["v"] - 1.3, lb=0.0, ub=0.0)
+    with pytest.raises(ExportError, match="terminal constraints"):
         export_controller(export_controller_settings(s, ev, problem=pb), tmp_path / "t", "x")
+    assert not (tmp_path / "t").exists()

@@ -51,10 +51,10 @@ if TYPE_CHECKING:  # pragma: no cover
     from .controller import MPCController
 
 #: Hand-written templates (package data under aev_ocp/c/) copied or filled into an export.
-TEMPLATES = ("mpc_step.c", "mpc_step.h", "mpc_bench_main.c")
+TEMPLATES = ("mpc_step.c", "mpc_step.h", "ocp_qp.c", "ocp_qp.h", "mpc_bench_main.c")
 #: Files of an export folder.
-EXPORT_FILES = ("mpc_casadi.c", "mpc_casadi.h", "mpc_config.h", "mpc_step.c", "mpc_step.h", "mpc_bench_main.c",
-                "Makefile", "CMakeLists.txt", "README.txt")
+EXPORT_FILES = ("mpc_casadi.c", "mpc_casadi.h", "mpc_config.h", "mpc_step.c", "mpc_step.h", "ocp_qp.c", "ocp_qp.h",
+                "mpc_bench_main.c", "Makefile", "CMakeLists.txt", "README.txt")
 #: At most this many SQP iterations from the cold-start guess (the first step, or after a failure).
 COLD_MAX_ITER = 100
 #: Cold start (Levenberg-Marquardt): the QP Hessian gets reg·I, reg = COLD_REG0 at first, divided by 10
@@ -67,10 +67,14 @@ COLD_REG_STEP = 1e-2
 COLD_REG_MAX = 1e3
 #: reg of the warm (RTI) steps: 0, the exact Hessian as in the Python rti path
 RTI_REG = 0.0
+#: Interior-point iterations per QP at most, and the QP's residual tolerances (ocp_qp.h; our choice: far
+#: below the SQP tolerance, so the exported step and the Python paths agree to 1e-8 over a closed loop).
+QP_MAX_ITER = 50
+QP_TOL = 1e-9
 #: Status codes of aev_mpc_step (mpc_step.h).
 #: Status codes of the exported step, worded with the Python path's fallback causes ('QP failed', 'path
 #: constraint', 'exception': the text before the first ':' is the cause counted in fallback_causes).
-STATUS = {0: "RTI_Step", 1: "QP failed: qrqp", 2: "QP failed: non-finite step",
+STATUS = {0: "RTI_Step", 1: "QP failed: ocp_qp", 2: "QP failed: non-finite step",
           3: "path constraint: the applied control violates them", 4: "QP failed: the cold start did not converge",
           5: "exception: non-finite input"}
 
@@ -84,14 +88,15 @@ def _template(name: str) -> str:
 
 
 # ---------------------------------------------------------------------------------------------- functions
-def rti_functions(c: "MPCController", qp_plugin: str = "qrqp", qp_options: dict[str, Any] | None = None) -> list[ca.Function]:
-    """The five CasADi Functions of the exported step (see the module docstring), from a built controller.
-    ``qp_plugin``/``qp_options``: another ``ca.conic`` plugin for comparisons (only qrqp generates C)."""
+def qp_data_function(c: "MPCController") -> ca.Function:
+    """``aev_cg_qpdata(x, p, lam_g) -> (H, g, E, e, C, lc, uc, lbw, ubw)``: the QP of one SQP step at the
+    primal-dual point (x, lam_g) of the controller's scaled NLP, in the stage layout of ``ocp_qp.h``
+    (nc = the path constraints per interval, no terminal constraint, x_0's step fixed at 0): the exact
+    Lagrangian Hessian's stage blocks (and the terminal cost's), the cost gradient, the dynamics'
+    Jacobians [A B] and defects, the path constraints' Jacobians and bound offsets, the step bounds."""
     s, pr = c.settings, c.problem
     N, nx, nu, ngs = s.N, pr.nx, pr.nu, c._ng_stage
     nb, nv, ng, npp = nx + nu, c.nv, c.ng, c.np_
-    xs, us = ca.DM(c.x_scale), ca.DM(c.u_scale)
-    # --- one SQP step: stage-wise Hessian/gradient/Jacobian as in MPCController._build_rti
     zk, uk = ca.SX.sym("zk", nx), ca.SX.sym("uk", nu)
     zn, w, pp = ca.SX.sym("zn", nx), ca.SX.sym("w", pr.nw), ca.SX.sym("p", pr.np_)
     sw, lk = ca.SX.sym("sw"), ca.SX.sym("lk", ngs)
@@ -103,35 +108,38 @@ def rti_functions(c: "MPCController", qp_plugin: str = "qrqp", qp_options: dict[
     Jk = ca.densify(ca.jacobian(ck, zu))
     gk = ck - ca.vertcat(zn, ca.SX.zeros(ngs - nx))
     stage = ca.Function("aev_cg_stage", [zk, uk, zn, w, pp, sw, lk], [Hk, ca.gradient(cost, zu), Jk, gk])
-    V, P = ca.MX.sym("x", nv), ca.MX.sym("p", npp)
-    LAM, LAMX = ca.MX.sym("lam_g", ng), ca.MX.sym("lam_x", nv)
+    V, P, LAM = ca.MX.sym("x", nv), ca.MX.sym("p", npp), ca.MX.sym("lam_g", ng)
     Xk, Uk, Xn, W, PP, SW = c._stage_inputs(V, P)
     Hs, Qs, Js, Gs = stage.map(N, "serial")(Xk, Uk, Xn, W, ca.repmat(PP, 1, N), SW, ca.reshape(LAM, ngs, N))
-    REG = ca.MX.sym("reg")  # Levenberg-Marquardt term reg·I (the cold start's iterations; 0 in RTI)
-    H = ca.diagcat(*ca.horzsplit(Hs, nb), ca.MX(nx, nx)) + REG * ca.MX(ca.DM.eye(nv))
-    E = ca.DM(ng, nv)  # −I of gap_k in z_{k+1}
-    for k in range(N):
-        for i in range(nx):
-            E[k * ngs + i, (k + 1) * nb + i] = -1.0
-    A = ca.horzcat(ca.diagcat(*ca.horzsplit(Js, nb)), ca.MX(ng, nx)) + ca.sparsify(E)
-    g = ca.vec(Gs)
-    # the initial state is fixed at x[:nx] (the shift or the guess put the measurement there)
-    lbx = ca.vertcat(V[:nx], ca.DM(c._lbx[nx:]))
-    ubx = ca.vertcat(V[:nx], ca.DM(c._ubx[nx:]))
-    qp = ca.conic("aev_cg_qp", qp_plugin, {"h": H.sparsity(), "a": A.sparsity()},
-                  qp_options if qp_options is not None else
-                  {"error_on_fail": True, "print_iter": False, "print_header": False, "print_info": False})
-    lba, uba = ca.DM(c._lbg) - g, ca.DM(c._ubg) - g
-    sol = qp(h=H, g=ca.vertcat(ca.vec(Qs), ca.MX.zeros(nx)), a=A, lba=lba, uba=uba, lbx=lbx - V, ubx=ubx - V,
-             lam_x0=LAMX, lam_a0=LAM)  # qrqp's initial active set: the nonzero multipliers (0.58 vs 0.75 ms)
-    dx = sol["x"]
-    Adx = ca.mtimes(A, dx)
-    qp_res = ca.mmax(ca.vertcat(ca.fmax(lba - Adx, 0), ca.fmax(Adx - uba, 0), ca.DM(0)))
-    sqp = ca.Function("aev_cg_sqp", [V, LAM, LAMX, P, REG], [V + dx, sol["lam_a"], sol["lam_x"], ca.norm_inf(dx), qp_res],
-                      ["x", "lam_g", "lam_x", "p", "reg"], ["x_next", "lam_g_next", "lam_x_next", "step_inf", "qp_residual"])
+    xNs, pT = ca.SX.sym("xN", nx), ca.SX.sym("pT", pr.np_)
+    mayer = pr.terminal_cost(xNs * ca.DM(c.x_scale), pT) if pr.terminal_cost is not None else ca.SX(0)
+    term = ca.Function("aev_cg_terminal", [xNs, pT], [ca.densify(ca.hessian(mayer, xNs)[0]), ca.gradient(mayer, xNs)])
+    HN, qN = term(V[nb * N:], PP)
+    path_lb = ca.repmat(ca.DM(np.asarray(pr.path_lb, float)), 1, N)
+    path_ub = ca.repmat(ca.DM(np.asarray(pr.path_ub, float)), 1, N)
+    cval = Gs[nx:, :]  # the path constraints' values at the point
+    return ca.Function("aev_cg_qpdata", [V, P, LAM],
+                       [ca.vertcat(ca.vec(Hs), ca.vec(HN)), ca.vertcat(ca.vec(Qs), qN), ca.vec(Js[:nx, :]),
+                        ca.vec(Gs[:nx, :]), ca.vec(Js[nx:, :]), ca.vec(path_lb - cval), ca.vec(path_ub - cval),
+                        ca.DM(c._lbx) - V, ca.DM(c._ubx) - V],
+                       ["x", "p", "lam_g"], ["H", "g", "E", "e", "C", "lc", "uc", "lbw", "ubw"])
+
+
+def rti_functions(c: "MPCController") -> list[ca.Function]:
+    """The five CasADi Functions of the exported step (see the module docstring), from a built controller."""
+    s, pr = c.settings, c.problem
+    N, nx, nu, ngs = s.N, pr.nx, pr.nu, c._ng_stage
+    nb, nv, ng, npp = nx + nu, c.nv, c.ng, c.np_
+    xs, us = ca.DM(c.x_scale), ca.DM(c.u_scale)
+    qpdata = qp_data_function(c)
+    V, P = ca.MX.sym("x", nv), ca.MX.sym("p", npp)
+    LAM, LAMX = ca.MX.sym("lam_g", ng), ca.MX.sym("lam_x", nv)
+    W, PP = c._stage_inputs(V, P)[3:5]
     # --- plan evaluation: cost, nonlinear violation, node-0 path violation, applied controls
     f_nlp = ca.Function("f", [c._nlp["x"], c._nlp["p"]], [c._nlp["f"], c._nlp["g"]])
     f, gg = f_nlp(V, P)
+    lbx = ca.vertcat(V[:nx], ca.DM(c._lbx[nx:]))  # the initial state is fixed at x[:nx]
+    ubx = ca.vertcat(V[:nx], ca.DM(c._ubx[nx:]))
     vg = ca.fmax(ca.fmax(ca.DM(c._lbg) - gg, gg - ca.DM(c._ubg)), 0)
     vx = ca.fmax(ca.fmax(lbx - V, V - ubx), 0)
     viol = ca.mmax(ca.vertcat(vg, vx, ca.DM(0)))
@@ -161,11 +169,11 @@ def rti_functions(c: "MPCController", qp_plugin: str = "qrqp", qp_options: dict[
     lam_g0 = ca.vertcat(LAM[ngs:N * ngs], LAM[(N - 1) * ngs:N * ngs], LAM[N * ngs:])
     shift = ca.Function("aev_cg_shift", [V, LAM, LAMX, Z0, P], [x0, lam_g0, shift_v(LAMX, LAMX[nb * N:])],
                         ["x", "lam_g", "lam_x", "z0", "p"], ["x0", "lam_g0", "lam_x0"])
-    return [guess, shift, sqp, node0, ev]
+    return [guess, shift, qpdata, node0, ev]
 
 
 def generate_casadi(c: "MPCController", folder: Path) -> None:
-    """Write mpc_casadi.c and mpc_casadi.h (the five functions, CasADi's generated C, qrqp included)."""
+    """Write mpc_casadi.c and mpc_casadi.h (the five functions, CasADi's generated C)."""
     cg = ca.CodeGenerator("mpc_casadi.c", {"with_header": True})
     for f in rti_functions(c):
         cg.add(f)
@@ -187,7 +195,7 @@ def _c_array(values: np.ndarray) -> str:
 
 def config_header(c: "MPCController", description: str) -> str:
     """mpc_config.h: dimensions and constants of the exported problem (filled template)."""
-    from .controller import NZ
+    from .controller import NZ, RTI_HESSIAN_FLOOR
 
     s, pr = c.settings, c.problem
     from ..ocp.following import weight_vector
@@ -197,6 +205,9 @@ def config_header(c: "MPCController", description: str) -> str:
             "NW": pr.nw, "NW_EXTRA": pr.nw - 2, "NPP": pr.np_, "NV": c.nv, "NG": c.ng, "NP": c.np_,
             "NG_STAGE": c._ng_stage, "RTI_ITER": s.rti_iterations, "COLD_MAX_ITER": COLD_MAX_ITER,
             "COLD_REG0": repr(COLD_REG0), "RTI_REG": repr(RTI_REG), "COLD_REG_MAX": repr(COLD_REG_MAX), "COLD_REG_STEP": repr(COLD_REG_STEP),
+            "COLD_ITER": s.rti_cold_iterations if c._rti_cold else 0,
+            "PROJECT": int(s.rti_hessian == "projected"), "HESS_FLOOR": repr(RTI_HESSIAN_FLOOR),
+            "PD_MAXN": max(pr.nx + pr.nu, 1), "QP_MAX_ITER": QP_MAX_ITER, "QP_TOL": repr(QP_TOL),
             "TOL": repr(float(s.tol)), "PLAN_TOL": repr(float(_plan_tolerance())), "DT": repr(float(s.dt)),
             "X_SCALE": _c_array(c.x_scale), "U_SCALE": _c_array(c.u_scale), "OWN0": _c_array(c._x_own0),
             "W_EXTRA": _c_array(c._w_extra), "P_CONST": _c_array(p_const),
@@ -224,14 +235,11 @@ def write_sources(c: "MPCController", folder: Path, description: str) -> None:
 
 # ---------------------------------------------------------------------------------------------- export
 def check_exportable(c: "MPCController") -> None:
-    """ExportError (naming the option) for what the exported step does not implement: a terminal (Mayer)
-    cost, and the projected Hessian (the step uses the exact one, as the §9 scenarios state)."""
-    if c.problem.terminal_cost is not None:
-        raise ExportError(f"problem {c.problem.name!r} has a terminal cost, which the exported step does not "
-                          "implement yet: make it a stage cost of the last interval, or run it in Python")
-    if c.settings.rti_hessian != "exact":
-        raise ExportError(f"mpc.rti_hessian = {c.settings.rti_hessian!r}: the exported step uses the exact Hessian; "
-                          "set mpc.rti_hessian = 'exact' (as scenarios/mpc_paper_single.toml does)")
+    """ExportError (naming the cause) for what the exported step does not implement: terminal constraints
+    (as the Python rti path; a terminal cost is fine)."""
+    if c.problem.terminal is not None:
+        raise ExportError(f"problem {c.problem.name!r} has terminal constraints, which the exported step (like the "
+                          "Python 'rti' path) does not implement: make them a soft terminal cost")
 
 
 def export_controller(c: "MPCController", out: Path, description: str) -> list[Path]:
@@ -275,14 +283,10 @@ def export_mpc(scenario: Any, out: Path, settings: Any = None) -> list[Path]:
     if cfg is None:
         raise ExportError(f"scenario {scenario.name!r} has no [mpc] table: there is no MPC to export")
     s = settings or cfg.settings
-    if s.formulation != "s9":
-        raise ExportError(f"scenario {scenario.name!r}: mpc.formulation = {s.formulation!r} cannot be exported yet: "
-                          "its energy epigraph control enters the cost linearly, and the QP solver generated into "
-                          "the C (qrqp) needs curvature in every control; export a formulation = 's9' scenario "
-                          "(e.g. mpc_paper_single) or run this one in Python (rti + HPIPM)")
     c = export_controller_settings(s, scenario.ev)
-    desc = (f"MPC of scenario {scenario.name} (N = {s.N}, dt = {s.dt:g}, objective {s.objective}, "
-            f"rk4_substeps {s.rk4_substeps}, rti_iterations {s.rti_iterations})")
+    what = f"objective {s.objective}" if s.formulation == "s9" else "the traffic formulation"
+    desc = (f"MPC of scenario {scenario.name} (N = {s.N}, dt = {s.dt:g}, {what}, rk4_substeps {s.rk4_substeps}, "
+            f"rti_iterations {s.rti_iterations}, Hessian {s.rti_hessian})")
     return export_controller(c, out, desc)
 
 
@@ -294,7 +298,7 @@ def build_library(src: Path, out_lib: Path, cc: str | None = None, flags: tuple[
     cc = cc or compiler()
     if cc is None:
         raise ExportError("no C compiler found (set $CC or install gcc/cc) to build the exported MPC")
-    cmd = [cc, *flags, "-fPIC", "-shared", "-o", str(out_lib), "mpc_casadi.c", "mpc_step.c", "-lm"]
+    cmd = [cc, *flags, "-fPIC", "-shared", "-o", str(out_lib), "mpc_casadi.c", "mpc_step.c", "ocp_qp.c", "-lm"]
     proc = subprocess.run(cmd, cwd=src, capture_output=True, text=True, timeout=900)
     if proc.returncode != 0:
         last = (proc.stderr or proc.stdout).strip().splitlines()
@@ -305,9 +309,12 @@ def build_library(src: Path, out_lib: Path, cc: str | None = None, flags: tuple[
 class Info(ctypes.Structure):
     """aev_mpc_info of mpc_step.h."""
 
-    _fields_ = [("iterations", ctypes.c_int), ("cold", ctypes.c_int), ("step_inf", ctypes.c_double),
+    _fields_ = [("iterations", ctypes.c_int), ("qp_iterations", ctypes.c_int), ("qp_status", ctypes.c_int),
+                ("cold", ctypes.c_int),
+                ("step_inf", ctypes.c_double),
                 ("qp_residual", ctypes.c_double), ("cost", ctypes.c_double), ("violation", ctypes.c_double),
-                ("node0_violation", ctypes.c_double)]
+                ("node0_violation", ctypes.c_double), ("t_shift", ctypes.c_double), ("t_qpdata", ctypes.c_double),
+                ("t_project", ctypes.c_double), ("t_qp", ctypes.c_double), ("t_node0", ctypes.c_double)]
 
 
 _VP = ctypes.c_void_p
@@ -393,6 +400,25 @@ class CStep:
         return self.x, self.lam_g, self.lam_x, self._info
 
 
+def riccati_solver(c: "MPCController") -> tuple[ca.Function, Any] | None:
+    """(the QP-data Function, interpreted; an :class:`aev_ocp.mpc.ocpqp.OcpQP` of the controller's dimensions
+    with the exported step's QP settings) for the Python rti path with qp_solver 'riccati' and no codegen,
+    or None (with a warning) when ocp_qp.c cannot be compiled."""
+    import warnings
+
+    from .ocpqp import OcpQP, OcpQPDims, OcpQPSettings
+
+    N, nx, nu = c.settings.N, c.nx, c.nu
+    try:
+        qp = OcpQP(OcpQPDims(N, nx, nu, c._ng_stage - nx, 0),
+                   OcpQPSettings(max_iter=QP_MAX_ITER, tol_stat=QP_TOL, tol_eq=QP_TOL, tol_ineq=QP_TOL, tol_comp=QP_TOL))
+    except (OSError, RuntimeError, ParameterError) as exc:
+        warnings.warn(f"qp_solver 'riccati': ocp_qp.c could not be built ({exc}); using HPIPM instead",
+                      RuntimeWarning, stacklevel=4)
+        return None
+    return qp_data_function(c).expand(), qp
+
+
 class CompiledStep:
     """The exported step's library built into the private cache (:func:`aev_ocp.compiled.compile_shared`,
     keyed by a hash of the sources) for the Python rti path (qp_solver 'qrqp', codegen)."""
@@ -410,8 +436,8 @@ class CompiledStep:
             return None
         with tempfile.TemporaryDirectory() as tmp:
             write_sources(c, Path(tmp), f"MPC controller {c.problem.name}")
-            files = {n: Path(tmp, n).read_text(encoding="utf-8") for n in ("mpc_config.h", "mpc_casadi.h",
-                                                                          "mpc_step.h", "mpc_step.c")}
+            files = {n: Path(tmp, n).read_text(encoding="utf-8") for n in ("mpc_config.h", "mpc_casadi.h", "mpc_step.h",
+                                                                          "mpc_step.c", "ocp_qp.h", "ocp_qp.c")}
             main = Path(tmp, "mpc_casadi.c").read_text(encoding="utf-8")
         built = compile_shared(main, "mpc_step", "mpc", companions=files)
         if built.path is None:
