@@ -1,0 +1,552 @@
+/* ocp_qp.c — structure-exploiting interior-point QP solver of aev_ocp (hand-written C99; see ocp_qp.h).
+ *
+ * Inequalities. Every bound of w and every general row C w is a "row" (stage k < N: nb bound rows then
+ * nc general rows; stage N: nx bound rows then ncN general rows). Each finite side of a row is a "side"
+ * i with sign sg_i = +1 (lower bound b_i) or -1 (upper bound b_i), slack s_i = sg_i (d_row - b_i) >= 0
+ * and multiplier z_i >= 0; the row's CasADi multiplier is lam_row = sum over its sides of -sg_i z_i.
+ *
+ * Newton system (residuals r_stat = H w + g + E'pi - pi shifted + D' lam, r_eq_k = E_k w_k + e_k -
+ * x_{k+1}, r_i = sg_i (d_i - b_i) - s_i, rc_i = s_i z_i (- sigma mu + corrector)): eliminating ds, dz
+ * gives, stage by stage, the equality-constrained QP
+ *     min 1/2 dw' M dw + gt' dw  s.t.  dx_{k+1} = E_k dw_k + r_eq_k,  dx_0 = 0,
+ * with M = H + D' diag(z/s) D and gt = r_stat + D' q, q_row = sum sg_i (rc_i + z_i r_i) / s_i, solved by
+ * the Riccati recursion in square-root form (value function 1/2 x'P x + p'x with P = Lp Lp', so the
+ * Newton matrices stay PSD under rounding when the barrier terms are large; dpi_k = P_{k+1} dx_{k+1} + p_{k+1}), then
+ * ds_i = sg_i dd_row + r_i and dz_i = -(rc_i + z_i ds_i) / s_i.
+ * The factorisation (M, P_k, the Cholesky factor L_k of the control block and Y_k = L_k^{-1} G_ux) is
+ * done once per iteration; the right-hand-side recursion runs twice (predictor, corrector).
+ */
+#include <stdlib.h>
+#include <string.h>
+#include <math.h>
+
+#include "ocp_qp.h"
+
+struct ocpqp_solver {
+  ocpqp_dims d;
+  ocpqp_settings set;
+  int nb, nw, nrow, nside_max;
+  /* factorisation */
+  double *P;      /* (N+1) nx x nx: lower Cholesky factors Lp_k of the Riccati matrices P_k */
+  double *L;      /* N nu x nu (lower Cholesky factor of the control block) */
+  double *Y;      /* N nu x nx (L^{-1} G_ux) */
+  double *G;      /* nb x nb work */
+  double *F;      /* nx x nb work (P_{k+1} E_k) */
+  /* right-hand side recursion */
+  double *p;      /* (N+1) nx */
+  double *ell;    /* N nu */
+  double *h;      /* nb work */
+  double *t, *t2; /* nx work */
+  /* iterate and steps */
+  double *w, *pi, *dw, *dpi;
+  double *rstat, *req, *gt;
+  double *drow, *ddrow, *sigrow, *qrow, *lamrow;
+  double *s, *z, *b, *sg, *r, *rc, *ds, *dz;
+  double *dw2, *dpi2, *ds2, *dz2, *rho, *lamrow2;  /* iterative refinement */
+  int *srow;
+  int nside;
+};
+
+void ocpqp_default_settings(ocpqp_settings *s) {
+  s->max_iter = 50;
+  s->tol_stat = 1e-10;
+  s->tol_eq = 1e-10;
+  s->tol_ineq = 1e-10;
+  s->tol_comp = 1e-10;
+  s->reg_prim = 1e-12;
+}
+
+ocpqp_solver *ocpqp_create(const ocpqp_dims *dims, const ocpqp_settings *settings) {
+  ocpqp_solver *s;
+  int N, nx, nu, nb, nw, nrow, nsm;
+  size_t nd, off = 0;
+  double *blk;
+  if (!dims || dims->N < 1 || dims->nx < 1 || dims->nu < 0 || dims->nc < 0 || dims->ncN < 0) return NULL;
+  N = dims->N; nx = dims->nx; nu = dims->nu; nb = nx + nu;
+  nw = N * nb + nx;
+  nrow = N * (nb + dims->nc) + nx + dims->ncN;
+  nsm = 2 * nrow;
+  nd = (size_t)(N + 1) * nx * nx + (size_t)N * nu * nu + (size_t)N * nu * nx + (size_t)nb * nb + (size_t)nx * nb
+       + (size_t)(N + 1) * nx + (size_t)N * nu + nb + 2 * (size_t)nx
+       + 2 * (size_t)nw + 2 * (size_t)N * nx + 2 * (size_t)nw + (size_t)N * nx
+       + 5 * (size_t)nrow + 8 * (size_t)nsm
+       + 2 * (size_t)nw + (size_t)N * nx + 2 * (size_t)nsm + (size_t)nrow;
+  /* one block: the struct, the doubles, then the side->row ints */
+  {
+    size_t head = (sizeof(ocpqp_solver) + sizeof(double) - 1) / sizeof(double);
+    blk = (double *)malloc((head + nd) * sizeof(double) + (size_t)nsm * sizeof(int));
+    if (!blk) return NULL;
+    s = (ocpqp_solver *)(void *)blk;
+    blk += head;
+  }
+  memset(blk, 0, nd * sizeof(double));
+  s->d = *dims;
+  if (settings) s->set = *settings; else ocpqp_default_settings(&s->set);
+  s->nb = nb; s->nw = nw; s->nrow = nrow; s->nside_max = nsm; s->nside = 0;
+#define TAKE(ptr, n) do { (ptr) = blk + off; off += (size_t)(n); } while (0)
+  TAKE(s->P, (size_t)(N + 1) * nx * nx);
+  TAKE(s->L, (size_t)N * nu * nu);
+  TAKE(s->Y, (size_t)N * nu * nx);
+  TAKE(s->G, (size_t)nb * nb);
+  TAKE(s->F, (size_t)nx * nb);
+  TAKE(s->p, (size_t)(N + 1) * nx);
+  TAKE(s->ell, (size_t)N * nu);
+  TAKE(s->h, nb);
+  TAKE(s->t, nx);
+  TAKE(s->t2, nx);
+  TAKE(s->w, nw);
+  TAKE(s->dw, nw);
+  TAKE(s->pi, (size_t)N * nx);
+  TAKE(s->dpi, (size_t)N * nx);
+  TAKE(s->rstat, nw);
+  TAKE(s->gt, nw);
+  TAKE(s->req, (size_t)N * nx);
+  TAKE(s->drow, nrow);
+  TAKE(s->ddrow, nrow);
+  TAKE(s->sigrow, nrow);
+  TAKE(s->qrow, nrow);
+  TAKE(s->lamrow, nrow);
+  TAKE(s->s, nsm);
+  TAKE(s->z, nsm);
+  TAKE(s->b, nsm);
+  TAKE(s->sg, nsm);
+  TAKE(s->r, nsm);
+  TAKE(s->rc, nsm);
+  TAKE(s->ds, nsm);
+  TAKE(s->dz, nsm);
+  TAKE(s->dw2, nw);
+  TAKE(s->rho, nw);
+  TAKE(s->dpi2, (size_t)N * nx);
+  TAKE(s->ds2, nsm);
+  TAKE(s->dz2, nsm);
+  TAKE(s->lamrow2, nrow);
+#undef TAKE
+  s->srow = (int *)(void *)(blk + off);
+  return s;
+}
+
+void ocpqp_free(ocpqp_solver *s) { free(s); }
+
+/* ------------------------------------------------------------------------------------------ kernels */
+/* y (m) += A (m x n, column-major) x */
+static void gemv_n(int m, int n, const double *A, const double *x, double *y) {
+  int i, j;
+  for (j = 0; j < n; ++j) {
+    double xj = x[j];
+    const double *a = A + (size_t)j * m;
+    for (i = 0; i < m; ++i) y[i] += a[i] * xj;
+  }
+}
+
+/* y (n) += A' x, A m x n column-major */
+static void gemv_t(int m, int n, const double *A, const double *x, double *y) {
+  int i, j;
+  for (j = 0; j < n; ++j) {
+    double acc = 0.0;
+    const double *a = A + (size_t)j * m;
+    for (i = 0; i < m; ++i) acc += a[i] * x[i];
+    y[j] += acc;
+  }
+}
+
+static int all_finite(const double *x, size_t n) {
+  size_t i;
+  double acc = 0.0;
+  for (i = 0; i < n; ++i) acc += x[i] * 0.0;  /* NaN if any entry is NaN or +-inf */
+  return acc == 0.0;
+}
+
+static int no_nan(const double *x, size_t n) {
+  size_t i;
+  for (i = 0; i < n; ++i)
+    if (x[i] != x[i]) return 0;
+  return 1;
+}
+
+/* ------------------------------------------------------------------------------------------ pieces */
+/* row values d = D w (bound rows: w; general rows: C w) */
+static void row_values(ocpqp_solver *s, const ocpqp_data *d, const double *w, double *dr) {
+  int N = s->d.N, nx = s->d.nx, nb = s->nb, nc = s->d.nc, ncN = s->d.ncN, k, i;
+  for (k = 0; k <= N; ++k) {
+    int n = k < N ? nb : nx, m = k < N ? nc : ncN;
+    const double *wk = w + (size_t)k * nb;
+    double *rk = dr + (size_t)k * (nb + nc);
+    const double *Ck = d->C + (size_t)k * nc * nb;
+    for (i = 0; i < n; ++i) rk[i] = wk[i];
+    for (i = 0; i < m; ++i) rk[n + i] = 0.0;
+    gemv_n(m, n, Ck, wk, rk + n);
+  }
+}
+
+/* out (stage vector of length nw) = base + D' v (v per row); base may equal out */
+static void rows_transpose(ocpqp_solver *s, const ocpqp_data *d, const double *v, const double *base, double *out) {
+  int N = s->d.N, nx = s->d.nx, nb = s->nb, nc = s->d.nc, ncN = s->d.ncN, k, i;
+  for (k = 0; k <= N; ++k) {
+    int n = k < N ? nb : nx, m = k < N ? nc : ncN;
+    const double *vk = v + (size_t)k * (nb + nc);
+    double *ok = out + (size_t)k * nb;
+    const double *bk = base + (size_t)k * nb;
+    for (i = 0; i < n; ++i) ok[i] = bk[i] + vk[i];
+    gemv_t(m, n, d->C + (size_t)k * nc * nb, vk + n, ok);
+  }
+}
+
+/* out = base + D' lam + H w + E' pi - pi shifted (per stage; lam per row) */
+static void stationarity(ocpqp_solver *s, const ocpqp_data *d, const double *w, const double *pi, const double *lam,
+                         const double *base, double *out) {
+  int N = s->d.N, nx = s->d.nx, nb = s->nb, k, i;
+  rows_transpose(s, d, lam, base, out);
+  for (k = 0; k <= N; ++k) {
+    int n = k < N ? nb : nx;
+    double *rk = out + (size_t)k * nb;
+    gemv_n(n, n, d->H + (size_t)k * nb * nb, w + (size_t)k * nb, rk);
+    if (k < N) gemv_t(nx, nb, d->E + (size_t)k * nx * nb, pi + (size_t)k * nx, rk);
+    if (k > 0)
+      for (i = 0; i < nx; ++i) rk[i] -= pi[(size_t)(k - 1) * nx + i];
+  }
+}
+
+/* lam per row = sum over the row's sides of -sg z */
+static void row_multipliers(ocpqp_solver *s, const double *z, double *lam) {
+  int i;
+  memset(lam, 0, (size_t)s->nrow * sizeof(double));
+  for (i = 0; i < s->nside; ++i) lam[s->srow[i]] -= s->sg[i] * z[i];
+}
+
+/* residuals at (w, pi, s, z); returns 0, or OCPQP_NONFINITE */
+static int residuals(ocpqp_solver *s, const ocpqp_data *d, ocpqp_info *info) {
+  int N = s->d.N, nx = s->d.nx, nb = s->nb, nw = s->nw, k, i;
+  double rs = 0.0, re = 0.0, ri = 0.0, mu = 0.0;
+  row_multipliers(s, s->z, s->lamrow);
+  stationarity(s, d, s->w, s->pi, s->lamrow, d->g, s->rstat);
+  for (i = nx; i < nw; ++i) rs = fmax(rs, fabs(s->rstat[i]));
+  for (k = 0; k < N; ++k) {
+    double *rk = s->req + (size_t)k * nx;
+    const double *xn = s->w + (size_t)(k + 1) * nb;
+    for (i = 0; i < nx; ++i) rk[i] = d->e[(size_t)k * nx + i] - xn[i];
+    gemv_n(nx, nb, d->E + (size_t)k * nx * nb, s->w + (size_t)k * nb, rk);
+    for (i = 0; i < nx; ++i) re = fmax(re, fabs(rk[i]));
+  }
+  row_values(s, d, s->w, s->drow);
+  for (i = 0; i < s->nside; ++i) {
+    s->r[i] = s->sg[i] * (s->drow[s->srow[i]] - s->b[i]) - s->s[i];
+    ri = fmax(ri, fabs(s->r[i]));
+    mu += s->s[i] * s->z[i];
+  }
+  if (s->nside > 0) mu /= s->nside;
+  info->res_stat = rs; info->res_eq = re; info->res_ineq = ri; info->res_comp = mu;
+  if (!(rs + re + ri + mu < HUGE_VAL)) return OCPQP_NONFINITE;
+  return 0;
+}
+
+/* Cholesky factor Lp (n x n, lower) of a symmetric positive semidefinite A (lower triangle read, lda):
+ * a pivot <= eps * (1 + |A_jj|) is a direction without curvature and its column is set to zero, so
+ * Lp Lp' stays PSD under rounding. Returns 0, or OCPQP_NONFINITE on a NaN. */
+static int chol_psd(int n, const double *A, int lda, double *Lp) {
+  int i, j, l;
+  for (j = 0; j < n; ++j) {
+    double dj = A[j + j * lda];
+    for (l = 0; l < j; ++l) dj -= Lp[j + l * n] * Lp[j + l * n];
+    if (dj != dj) return OCPQP_NONFINITE;
+    if (dj <= 1e-14 * (1.0 + fabs(A[j + j * lda]))) {
+      for (i = j; i < n; ++i) Lp[i + j * n] = 0.0;
+      continue;
+    }
+    dj = sqrt(dj);
+    Lp[j + j * n] = dj;
+    for (i = j + 1; i < n; ++i) {
+      double acc = A[i + j * lda];
+      for (l = 0; l < j; ++l) acc -= Lp[i + l * n] * Lp[j + l * n];
+      Lp[i + j * n] = acc / dj;
+    }
+  }
+  return 0;
+}
+
+/* y = Lp Lp' x + c (Lp n x n lower; t work n) */
+static void llt_mv(int n, const double *Lp, const double *x, const double *c, double *t, double *y) {
+  int i, l;
+  for (i = 0; i < n; ++i) {
+    double acc = 0.0;
+    for (l = i; l < n; ++l) acc += Lp[l + i * n] * x[l];
+    t[i] = acc;
+  }
+  for (i = 0; i < n; ++i) y[i] = c[i];
+  for (l = 0; l < n; ++l) {
+    const double *col = Lp + (size_t)l * n;
+    double tl = t[l];
+    for (i = l; i < n; ++i) y[i] += col[i] * tl;
+  }
+}
+
+/* Riccati factorisation of the Newton matrix (square-root form: P_k = Lp_k Lp_k'); 0 or a status */
+static int factor(ocpqp_solver *s, const ocpqp_data *d) {
+  int N = s->d.N, nx = s->d.nx, nu = s->d.nu, nb = s->nb, nc = s->d.nc, ncN = s->d.ncN, k, i, j, l;
+  int nr = nb + nc;
+  double *G = s->G, *F = s->F;
+  for (i = 0; i < s->nrow; ++i) s->sigrow[i] = 0.0;
+  for (i = 0; i < s->nside; ++i) s->sigrow[s->srow[i]] += s->z[i] / s->s[i];
+  /* terminal: P_N = H_N + diag(sig) + C_N' diag(sig) C_N (lower triangle into G, ld nb) */
+  {
+    const double *HN = d->H + (size_t)N * nb * nb, *CN = d->C + (size_t)N * nc * nb;
+    const double *sr = s->sigrow + (size_t)N * nr;
+    for (j = 0; j < nx; ++j)
+      for (i = j; i < nx; ++i) {
+        double acc = HN[i + j * nx];
+        for (l = 0; l < ncN; ++l) acc += CN[l + i * ncN] * sr[nx + l] * CN[l + j * ncN];
+        G[i + j * nb] = acc;
+      }
+    for (i = 0; i < nx; ++i) G[i + i * nb] += sr[i];
+    if (chol_psd(nx, G, nb, s->P + (size_t)N * nx * nx)) return OCPQP_NONFINITE;
+  }
+  for (k = N - 1; k >= 0; --k) {
+    const double *Hk = d->H + (size_t)k * nb * nb, *Ck = d->C + (size_t)k * nc * nb, *Ek = d->E + (size_t)k * nx * nb;
+    const double *L1 = s->P + (size_t)(k + 1) * nx * nx, *sr = s->sigrow + (size_t)k * nr;
+    double *Lk = s->L + (size_t)k * nu * nu, *Yk = s->Y + (size_t)k * nu * nx;
+    /* F = Lp_{k+1}' E_k */
+    for (j = 0; j < nb; ++j)
+      for (i = 0; i < nx; ++i) {
+        double acc = 0.0;
+        for (l = i; l < nx; ++l) acc += L1[l + i * nx] * Ek[l + j * nx];
+        F[i + j * nx] = acc;
+      }
+    /* G = H + diag(sig) + C' diag(sig) C + F' F (lower triangle) */
+    for (j = 0; j < nb; ++j)
+      for (i = j; i < nb; ++i) {
+        double acc = Hk[i + j * nb];
+        for (l = 0; l < nc; ++l) acc += Ck[l + i * nc] * sr[nb + l] * Ck[l + j * nc];
+        for (l = 0; l < nx; ++l) acc += F[l + i * nx] * F[l + j * nx];
+        G[i + j * nb] = acc;
+      }
+    for (i = 0; i < nb; ++i) G[i + i * nb] += sr[i];
+    /* Cholesky of G_uu + reg I */
+    for (j = 0; j < nu; ++j) {
+      double dj = G[(nx + j) + (nx + j) * nb] + s->set.reg_prim;
+      for (l = 0; l < j; ++l) dj -= Lk[j + l * nu] * Lk[j + l * nu];
+      if (!(dj > 0.0) || !(dj < HUGE_VAL)) return OCPQP_FACTORIZATION;
+      dj = sqrt(dj);
+      Lk[j + j * nu] = dj;
+      for (i = j + 1; i < nu; ++i) {
+        double acc = G[(nx + i) + (nx + j) * nb];
+        for (l = 0; l < j; ++l) acc -= Lk[i + l * nu] * Lk[j + l * nu];
+        Lk[i + j * nu] = acc / dj;
+      }
+    }
+    /* Y = L^{-1} G_ux (nu x nx) */
+    for (j = 0; j < nx; ++j)
+      for (i = 0; i < nu; ++i) {
+        double acc = G[(nx + i) + j * nb];
+        for (l = 0; l < i; ++l) acc -= Lk[i + l * nu] * Yk[l + j * nu];
+        Yk[i + j * nu] = acc / Lk[i + i * nu];
+      }
+    if (k == 0) break;  /* x_0 is fixed: P_0 is not needed */
+    /* P_k = G_xx - Y'Y (lower, in place in G), then its Cholesky factor */
+    for (j = 0; j < nx; ++j)
+      for (i = j; i < nx; ++i) {
+        double acc = G[i + j * nb];
+        for (l = 0; l < nu; ++l) acc -= Yk[l + i * nu] * Yk[l + j * nu];
+        G[i + j * nb] = acc;
+      }
+    if (chol_psd(nx, G, nb, s->P + (size_t)k * nx * nx)) return OCPQP_NONFINITE;
+  }
+  return 0;
+}
+
+/* one Newton solve for the residuals (rstat, req, r, rc) with the current factorisation (req, r, rc NULL:
+ * zero): fills dw, dpi, ds, dz */
+static void solve_rhs(ocpqp_solver *s, const ocpqp_data *d, const double *rstat, const double *req,
+                      const double *r, const double *rc, double *dw, double *dpi, double *ds, double *dz) {
+  int N = s->d.N, nx = s->d.nx, nu = s->d.nu, nb = s->nb, k, i, l;
+  double *h = s->h, *t = s->t;
+  for (i = 0; i < s->nrow; ++i) s->qrow[i] = 0.0;
+  for (i = 0; i < s->nside; ++i)
+    s->qrow[s->srow[i]] += s->sg[i] * ((rc ? rc[i] : 0.0) + (r ? s->z[i] * r[i] : 0.0)) / s->s[i];
+  rows_transpose(s, d, s->qrow, rstat, s->gt);
+  /* backward: p_N = gt_N; h = gt_k + E'(P_{k+1} r_eq_k + p_{k+1}); ell = L^{-1} h_u; p_k = h_x - Y' ell */
+  memcpy(s->p + (size_t)N * nx, s->gt + (size_t)N * nb, (size_t)nx * sizeof(double));
+  for (k = N - 1; k >= 0; --k) {
+    const double *P1 = s->P + (size_t)(k + 1) * nx * nx, *p1 = s->p + (size_t)(k + 1) * nx;
+    const double *Lk = s->L + (size_t)k * nu * nu, *Yk = s->Y + (size_t)k * nu * nx;
+    double *ek = s->ell + (size_t)k * nu, *pk = s->p + (size_t)k * nx;
+    if (req) llt_mv(nx, P1, req + (size_t)k * nx, p1, s->t2, t);
+    else memcpy(t, p1, (size_t)nx * sizeof(double));
+    memcpy(h, s->gt + (size_t)k * nb, (size_t)nb * sizeof(double));
+    gemv_t(nx, nb, d->E + (size_t)k * nx * nb, t, h);
+    for (i = 0; i < nu; ++i) {
+      double acc = h[nx + i];
+      for (l = 0; l < i; ++l) acc -= Lk[i + l * nu] * ek[l];
+      ek[i] = acc / Lk[i + i * nu];
+    }
+    if (k == 0) break;
+    for (i = 0; i < nx; ++i) {
+      double acc = h[i];
+      for (l = 0; l < nu; ++l) acc -= Yk[l + i * nu] * ek[l];
+      pk[i] = acc;
+    }
+  }
+  /* forward: dx_0 = 0; du = -L^{-T} (Y dx + ell); dx+ = E dw + r_eq; dpi = P+ dx+ + p+ */
+  for (i = 0; i < nx; ++i) dw[i] = 0.0;
+  for (k = 0; k < N; ++k) {
+    const double *Lk = s->L + (size_t)k * nu * nu, *Yk = s->Y + (size_t)k * nu * nx, *ek = s->ell + (size_t)k * nu;
+    double *dwk = dw + (size_t)k * nb, *du = dwk + nx, *dxn = dw + (size_t)(k + 1) * nb;
+    double *dpk = dpi + (size_t)k * nx;
+    for (i = 0; i < nu; ++i) du[i] = ek[i];
+    gemv_n(nu, nx, Yk, dwk, du);
+    for (i = nu - 1; i >= 0; --i) {
+      double acc = du[i];
+      for (l = i + 1; l < nu; ++l) acc -= Lk[l + i * nu] * du[l];
+      du[i] = acc / Lk[i + i * nu];
+    }
+    for (i = 0; i < nu; ++i) du[i] = -du[i];
+    if (req) memcpy(dxn, req + (size_t)k * nx, (size_t)nx * sizeof(double));
+    else memset(dxn, 0, (size_t)nx * sizeof(double));
+    gemv_n(nx, nb, d->E + (size_t)k * nx * nb, dwk, dxn);
+    llt_mv(nx, s->P + (size_t)(k + 1) * nx * nx, dxn, s->p + (size_t)(k + 1) * nx, t, dpk);
+  }
+  row_values(s, d, dw, s->ddrow);
+  for (i = 0; i < s->nside; ++i) {
+    ds[i] = s->sg[i] * s->ddrow[s->srow[i]] + (r ? r[i] : 0.0);
+    dz[i] = -((rc ? rc[i] : 0.0) + s->z[i] * ds[i]) / s->s[i];
+  }
+}
+
+/* iterative refinement of (dw, dpi, ds, dz): the stationarity residual of the Newton system (the only
+ * block not satisfied exactly by construction; it grows with the barrier terms z/s) is solved for again
+ * and the correction added, up to max_ref times while it exceeds tol */
+static void refine(ocpqp_solver *s, const ocpqp_data *d, int max_ref, double tol) {
+  int i, j, nw = s->nw, nx = s->d.nx, npi = s->d.N * s->d.nx;
+  for (j = 0; j < max_ref; ++j) {
+    double rn = 0.0;
+    row_multipliers(s, s->dz, s->lamrow2);
+    stationarity(s, d, s->dw, s->dpi, s->lamrow2, s->rstat, s->rho);
+    for (i = nx; i < nw; ++i) rn = fmax(rn, fabs(s->rho[i]));
+    if (!(rn > tol)) return;
+    solve_rhs(s, d, s->rho, NULL, NULL, NULL, s->dw2, s->dpi2, s->ds2, s->dz2);
+    for (i = nx; i < nw; ++i) s->dw[i] += s->dw2[i];
+    for (i = 0; i < npi; ++i) s->dpi[i] += s->dpi2[i];
+    for (i = 0; i < s->nside; ++i) {
+      s->ds[i] += s->ds2[i];
+      s->dz[i] += s->dz2[i];
+    }
+  }
+}
+
+/* largest alpha in (0, amax] keeping s + alpha ds >= 0 and z + alpha dz >= 0 */
+static double max_step(const ocpqp_solver *s, double amax) {
+  double a = amax;
+  int i;
+  for (i = 0; i < s->nside; ++i) {
+    if (s->ds[i] < 0.0 && -s->s[i] > a * s->ds[i]) a = -s->s[i] / s->ds[i];
+    if (s->dz[i] < 0.0 && -s->z[i] > a * s->dz[i]) a = -s->z[i] / s->dz[i];
+  }
+  return a;
+}
+
+/* ------------------------------------------------------------------------------------------ solve */
+int ocpqp_solve(ocpqp_solver *s, const ocpqp_data *d, double *w, double *pi, double *lam_w, double *lam_c,
+                ocpqp_info *info_out) {
+  int N = s->d.N, nx = s->d.nx, nu = s->d.nu, nb = s->nb, nc = s->d.nc, ncN = s->d.ncN, nw = s->nw;
+  int nr = nb + nc, k, i, it, st = OCPQP_OK;
+  size_t nh = (size_t)N * nb * nb + (size_t)nx * nx, ncm = (size_t)N * nc * nb + (size_t)ncN * nx;
+  ocpqp_info info_local, *info = info_out ? info_out : &info_local;
+  info->iterations = 0;
+  info->res_stat = info->res_eq = info->res_ineq = info->res_comp = 0.0;
+  (void)nu;
+  if (!d || !w || !d->H || !d->g || !d->E || !d->e || !d->x0 || !d->lbw || !d->ubw
+      || ((nc > 0 || ncN > 0) && (!d->C || !d->lc || !d->uc))) {
+    info->status = OCPQP_BAD_DIMS;
+    return info->status;
+  }
+  /* data checks */
+  if (!all_finite(d->H, nh) || !all_finite(d->g, (size_t)nw) || !all_finite(d->E, (size_t)N * nx * nb)
+      || !all_finite(d->e, (size_t)N * nx) || !all_finite(d->x0, (size_t)nx) || !no_nan(d->lbw, (size_t)nw)
+      || !no_nan(d->ubw, (size_t)nw)
+      || (nc + ncN > 0 && (!all_finite(d->C, ncm) || !no_nan(d->lc, (size_t)N * nc + ncN)
+                           || !no_nan(d->uc, (size_t)N * nc + ncN)))) {
+    info->status = OCPQP_NONFINITE;
+    return info->status;
+  }
+  /* sides */
+  s->nside = 0;
+  for (k = 0; k <= N; ++k) {
+    int n = k < N ? nb : nx, m = k < N ? nc : ncN;
+    for (i = 0; i < n + m; ++i) {
+      double lo, up;
+      if (i < n) {
+        if (k == 0 && i < nx) continue;
+        lo = d->lbw[(size_t)k * nb + i]; up = d->ubw[(size_t)k * nb + i];
+      } else {
+        lo = d->lc[(size_t)k * nc + (i - n)]; up = d->uc[(size_t)k * nc + (i - n)];
+      }
+      if (lo > up) { info->status = OCPQP_INFEASIBLE; return info->status; }
+      if (fabs(lo) < OCPQP_INF) { s->srow[s->nside] = k * nr + i; s->sg[s->nside] = 1.0; s->b[s->nside++] = lo; }
+      if (fabs(up) < OCPQP_INF) { s->srow[s->nside] = k * nr + i; s->sg[s->nside] = -1.0; s->b[s->nside++] = up; }
+    }
+  }
+  /* initial point: w = 0 with x_0 = x0, pi = 0, s = max(slack, 1), z = 1 */
+  memset(s->w, 0, (size_t)nw * sizeof(double));
+  memcpy(s->w, d->x0, (size_t)nx * sizeof(double));
+  memset(s->pi, 0, (size_t)N * nx * sizeof(double));
+  row_values(s, d, s->w, s->drow);
+  for (i = 0; i < s->nside; ++i) {
+    double sl = s->sg[i] * (s->drow[s->srow[i]] - s->b[i]);
+    s->s[i] = sl > 1.0 ? sl : 1.0;
+    s->z[i] = 1.0;
+  }
+  for (it = 0;; ++it) {
+    double mu, alpha;
+    st = residuals(s, d, info);
+    if (st) break;
+    if (info->res_stat <= s->set.tol_stat && info->res_eq <= s->set.tol_eq && info->res_ineq <= s->set.tol_ineq
+        && info->res_comp <= s->set.tol_comp) {
+      st = OCPQP_OK;
+      break;
+    }
+    if (it >= s->set.max_iter) { st = OCPQP_MAX_ITER; break; }
+    st = factor(s, d);
+    if (st) break;
+    mu = info->res_comp;
+    /* predictor */
+    for (i = 0; i < s->nside; ++i) s->rc[i] = s->s[i] * s->z[i];
+    solve_rhs(s, d, s->rstat, s->req, s->r, s->rc, s->dw, s->dpi, s->ds, s->dz);
+    if (s->nside > 0) {
+      double mu_aff = 0.0, sigma;
+      alpha = max_step(s, 1.0);
+      for (i = 0; i < s->nside; ++i) mu_aff += (s->s[i] + alpha * s->ds[i]) * (s->z[i] + alpha * s->dz[i]);
+      mu_aff /= s->nside;
+      sigma = mu > 0.0 ? mu_aff / mu : 0.0;
+      sigma = sigma * sigma * sigma;
+      if (sigma > 1.0) sigma = 1.0;
+      /* corrector */
+      for (i = 0; i < s->nside; ++i) s->rc[i] = s->s[i] * s->z[i] + s->ds[i] * s->dz[i] - sigma * mu;
+      solve_rhs(s, d, s->rstat, s->req, s->r, s->rc, s->dw, s->dpi, s->ds, s->dz);
+      refine(s, d, 4, 0.1 * s->set.tol_stat);
+      alpha = 0.995 * max_step(s, 1.0 / 0.995);
+      if (alpha > 1.0) alpha = 1.0;
+    } else {
+      alpha = 1.0;
+    }
+    for (i = nx; i < nw; ++i) s->w[i] += alpha * s->dw[i];
+    for (i = 0; i < N * nx; ++i) s->pi[i] += alpha * s->dpi[i];
+    for (i = 0; i < s->nside; ++i) {
+      s->s[i] += alpha * s->ds[i];
+      s->z[i] += alpha * s->dz[i];
+    }
+    info->iterations = it + 1;
+  }
+  /* outputs (the last iterate; lam of x_0 closes the stationarity of x_0) */
+  memcpy(w, s->w, (size_t)nw * sizeof(double));
+  if (pi) memcpy(pi, s->pi, (size_t)N * nx * sizeof(double));
+  if (lam_w || lam_c) {
+    for (k = 0; k <= N; ++k) {
+      int n = k < N ? nb : nx, m = k < N ? nc : ncN;
+      const double *lr = s->lamrow + (size_t)k * nr;
+      if (lam_w)
+        for (i = 0; i < n; ++i) lam_w[(size_t)k * nb + i] = (k == 0 && i < nx) ? -s->rstat[i] : lr[i];
+      if (lam_c)
+        for (i = 0; i < m; ++i) lam_c[(size_t)k * nc + i] = lr[n + i];
+    }
+  }
+  info->status = st;
+  return st;
+}
