@@ -520,7 +520,15 @@ int ocpqp_solve(ocpqp_solver *s, const ocpqp_data *d, double *w, double *pi, dou
       /* corrector */
       for (i = 0; i < s->nside; ++i) s->rc[i] = s->s[i] * s->z[i] + s->ds[i] * s->dz[i] - sigma * mu;
       solve_rhs(s, d, s->rstat, s->req, s->r, s->rc, s->dw, s->dpi, s->ds, s->dz);
-      refine(s, d, 4, 0.1 * s->set.tol_stat);
+      {
+        /* refine only where the Newton step's error would matter: against the current residuals */
+        double rmax = info->res_stat;
+        if (info->res_eq > rmax) rmax = info->res_eq;
+        if (info->res_ineq > rmax) rmax = info->res_ineq;
+        if (mu > rmax) rmax = mu;
+        rmax *= 1e-3;
+        refine(s, d, 4, rmax > 0.1 * s->set.tol_stat ? rmax : 0.1 * s->set.tol_stat);
+      }
       alpha = 0.995 * max_step(s, 1.0 / 0.995);
       if (alpha > 1.0) alpha = 1.0;
     } else {
