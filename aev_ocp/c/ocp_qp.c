@@ -22,16 +22,20 @@
 
 #include "ocp_qp.h"
 
+#define AMAX(acc, v) do { double a_ = fabs(v); if (a_ > (acc)) (acc) = a_; } while (0)
+
 struct ocpqp_solver {
   ocpqp_dims d;
   ocpqp_settings set;
   int nb, nw, nrow, nside_max;
   /* factorisation */
   double *P;      /* (N+1) nx x nx: lower Cholesky factors Lp_k of the Riccati matrices P_k */
+  double *Pf;     /* (N+1) nx x nx: the P_k themselves (both triangles; for the right-hand sides) */
   double *L;      /* N nu x nu (lower Cholesky factor of the control block) */
   double *Y;      /* N nu x nx (L^{-1} G_ux) */
   double *G;      /* nb x nb work */
-  double *F;      /* nx x nb work (P_{k+1} E_k) */
+  double *ET, *CT; /* the data's E_k' (nb x nx) and C_k' (nb x nc, then nx x ncN), copied per solve */
+  double *F;      /* nb x (nx + nc) work ([E_k' Lp_{k+1}, C_k' sqrt(sig)]) */
   /* right-hand side recursion */
   double *p;      /* (N+1) nx */
   double *ell;    /* N nu */
@@ -45,6 +49,7 @@ struct ocpqp_solver {
   double *dw2, *dpi2, *ds2, *dz2, *rho, *lamrow2;  /* iterative refinement */
   int *srow;
   int nside;
+  double sigmax;  /* largest barrier term z/s of the current factorisation */
 };
 
 void ocpqp_default_settings(ocpqp_settings *s) {
@@ -66,11 +71,12 @@ ocpqp_solver *ocpqp_create(const ocpqp_dims *dims, const ocpqp_settings *setting
   nw = N * nb + nx;
   nrow = N * (nb + dims->nc) + nx + dims->ncN;
   nsm = 2 * nrow;
-  nd = (size_t)(N + 1) * nx * nx + (size_t)N * nu * nu + (size_t)N * nu * nx + (size_t)nb * nb + (size_t)nx * nb
+  nd = (size_t)(N + 1) * nx * nx + (size_t)N * nu * nu + (size_t)N * nu * nx + (size_t)nb * nb + (size_t)nb * (nx + dims->nc + dims->ncN) + (size_t)(N + 1) * nx * nx
        + (size_t)(N + 1) * nx + (size_t)N * nu + nb + 2 * (size_t)nx
        + 2 * (size_t)nw + 2 * (size_t)N * nx + 2 * (size_t)nw + (size_t)N * nx
        + 5 * (size_t)nrow + 8 * (size_t)nsm
-       + 2 * (size_t)nw + (size_t)N * nx + 2 * (size_t)nsm + (size_t)nrow;
+       + 2 * (size_t)nw + (size_t)N * nx + 2 * (size_t)nsm + (size_t)nrow
+       + (size_t)N * nb * nx + (size_t)N * nb * dims->nc + (size_t)nx * dims->ncN;
   /* one block: the struct, the doubles, then the side->row ints */
   {
     size_t head = (sizeof(ocpqp_solver) + sizeof(double) - 1) / sizeof(double);
@@ -88,7 +94,8 @@ ocpqp_solver *ocpqp_create(const ocpqp_dims *dims, const ocpqp_settings *setting
   TAKE(s->L, (size_t)N * nu * nu);
   TAKE(s->Y, (size_t)N * nu * nx);
   TAKE(s->G, (size_t)nb * nb);
-  TAKE(s->F, (size_t)nx * nb);
+  TAKE(s->F, (size_t)nb * (nx + dims->nc + dims->ncN));
+  TAKE(s->Pf, (size_t)(N + 1) * nx * nx);
   TAKE(s->p, (size_t)(N + 1) * nx);
   TAKE(s->ell, (size_t)N * nu);
   TAKE(s->h, nb);
@@ -114,6 +121,8 @@ ocpqp_solver *ocpqp_create(const ocpqp_dims *dims, const ocpqp_settings *setting
   TAKE(s->rc, nsm);
   TAKE(s->ds, nsm);
   TAKE(s->dz, nsm);
+  TAKE(s->ET, (size_t)N * nb * nx);
+  TAKE(s->CT, (size_t)N * nb * dims->nc + (size_t)nx * dims->ncN);
   TAKE(s->dw2, nw);
   TAKE(s->rho, nw);
   TAKE(s->dpi2, (size_t)N * nx);
@@ -121,6 +130,9 @@ ocpqp_solver *ocpqp_create(const ocpqp_dims *dims, const ocpqp_settings *setting
   TAKE(s->dz2, nsm);
   TAKE(s->lamrow2, nrow);
 #undef TAKE
+#ifdef OCPQP_DEBUG
+  if (off != nd) { free(s); return NULL; }  /* the layout above and the size nd disagree */
+#endif
   s->srow = (int *)(void *)(blk + off);
   return s;
 }
@@ -128,24 +140,40 @@ ocpqp_solver *ocpqp_create(const ocpqp_dims *dims, const ocpqp_settings *setting
 void ocpqp_free(ocpqp_solver *s) { free(s); }
 
 /* ------------------------------------------------------------------------------------------ kernels */
-/* y (m) += A (m x n, column-major) x */
+/* y (m) += A (m x n, column-major) x; two columns per pass (half the loads and stores of y) */
 static void gemv_n(int m, int n, const double *A, const double *x, double *y) {
   int i, j;
-  for (j = 0; j < n; ++j) {
-    double xj = x[j];
-    const double *a = A + (size_t)j * m;
-    for (i = 0; i < m; ++i) y[i] += a[i] * xj;
+  for (j = 0; j + 1 < n; j += 2) {
+    double x0 = x[j], x1 = x[j + 1];
+    const double *a0 = A + (size_t)j * m, *a1 = a0 + m;
+    for (i = 0; i < m; ++i) y[i] += a0[i] * x0 + a1[i] * x1;
+  }
+  if (j < n) {
+    double x0 = x[j];
+    const double *a0 = A + (size_t)j * m;
+    for (i = 0; i < m; ++i) y[i] += a0[i] * x0;
   }
 }
 
-/* y (n) += A' x, A m x n column-major */
-static void gemv_t(int m, int n, const double *A, const double *x, double *y) {
-  int i, j;
-  for (j = 0; j < n; ++j) {
-    double acc = 0.0;
-    const double *a = A + (size_t)j * m;
-    for (i = 0; i < m; ++i) acc += a[i] * x[i];
-    y[j] += acc;
+/* G (n x n, lower triangle, leading dimension ldg) += A A', A n x k column-major (lda = n); two columns
+ * of A per pass */
+static void syrk_ln(int n, int k, const double *A, double *G, int ldg) {
+  int i, j, l;
+  for (l = 0; l + 1 < k; l += 2) {
+    const double *a0 = A + (size_t)l * n, *a1 = a0 + n;
+    for (j = 0; j < n; ++j) {
+      double b0 = a0[j], b1 = a1[j];
+      double *Gj = G + (size_t)j * ldg;
+      for (i = j; i < n; ++i) Gj[i] += a0[i] * b0 + a1[i] * b1;
+    }
+  }
+  if (l < k) {
+    const double *a0 = A + (size_t)l * n;
+    for (j = 0; j < n; ++j) {
+      double b0 = a0[j];
+      double *Gj = G + (size_t)j * ldg;
+      for (i = j; i < n; ++i) Gj[i] += a0[i] * b0;
+    }
   }
 }
 
@@ -179,7 +207,7 @@ static void row_values(ocpqp_solver *s, const ocpqp_data *d, const double *w, do
 }
 
 /* out (stage vector of length nw) = base + D' v (v per row); base may equal out */
-static void rows_transpose(ocpqp_solver *s, const ocpqp_data *d, const double *v, const double *base, double *out) {
+static void rows_transpose(ocpqp_solver *s, const double *v, const double *base, double *out) {
   int N = s->d.N, nx = s->d.nx, nb = s->nb, nc = s->d.nc, ncN = s->d.ncN, k, i;
   for (k = 0; k <= N; ++k) {
     int n = k < N ? nb : nx, m = k < N ? nc : ncN;
@@ -187,7 +215,7 @@ static void rows_transpose(ocpqp_solver *s, const ocpqp_data *d, const double *v
     double *ok = out + (size_t)k * nb;
     const double *bk = base + (size_t)k * nb;
     for (i = 0; i < n; ++i) ok[i] = bk[i] + vk[i];
-    gemv_t(m, n, d->C + (size_t)k * nc * nb, vk + n, ok);
+    gemv_n(n, m, s->CT + (size_t)k * nc * nb, vk + n, ok);
   }
 }
 
@@ -195,12 +223,12 @@ static void rows_transpose(ocpqp_solver *s, const ocpqp_data *d, const double *v
 static void stationarity(ocpqp_solver *s, const ocpqp_data *d, const double *w, const double *pi, const double *lam,
                          const double *base, double *out) {
   int N = s->d.N, nx = s->d.nx, nb = s->nb, k, i;
-  rows_transpose(s, d, lam, base, out);
+  rows_transpose(s, lam, base, out);
   for (k = 0; k <= N; ++k) {
     int n = k < N ? nb : nx;
     double *rk = out + (size_t)k * nb;
     gemv_n(n, n, d->H + (size_t)k * nb * nb, w + (size_t)k * nb, rk);
-    if (k < N) gemv_t(nx, nb, d->E + (size_t)k * nx * nb, pi + (size_t)k * nx, rk);
+    if (k < N) gemv_n(nb, nx, s->ET + (size_t)k * nx * nb, pi + (size_t)k * nx, rk);
     if (k > 0)
       for (i = 0; i < nx; ++i) rk[i] -= pi[(size_t)(k - 1) * nx + i];
   }
@@ -219,18 +247,18 @@ static int residuals(ocpqp_solver *s, const ocpqp_data *d, ocpqp_info *info) {
   double rs = 0.0, re = 0.0, ri = 0.0, mu = 0.0;
   row_multipliers(s, s->z, s->lamrow);
   stationarity(s, d, s->w, s->pi, s->lamrow, d->g, s->rstat);
-  for (i = nx; i < nw; ++i) rs = fmax(rs, fabs(s->rstat[i]));
+  for (i = nx; i < nw; ++i) AMAX(rs, s->rstat[i]);
   for (k = 0; k < N; ++k) {
     double *rk = s->req + (size_t)k * nx;
     const double *xn = s->w + (size_t)(k + 1) * nb;
     for (i = 0; i < nx; ++i) rk[i] = d->e[(size_t)k * nx + i] - xn[i];
     gemv_n(nx, nb, d->E + (size_t)k * nx * nb, s->w + (size_t)k * nb, rk);
-    for (i = 0; i < nx; ++i) re = fmax(re, fabs(rk[i]));
+    for (i = 0; i < nx; ++i) AMAX(re, rk[i]);
   }
   row_values(s, d, s->w, s->drow);
   for (i = 0; i < s->nside; ++i) {
     s->r[i] = s->sg[i] * (s->drow[s->srow[i]] - s->b[i]) - s->s[i];
-    ri = fmax(ri, fabs(s->r[i]));
+    AMAX(ri, s->r[i]);
     mu += s->s[i] * s->z[i];
   }
   if (s->nside > 0) mu /= s->nside;
@@ -263,20 +291,11 @@ static int chol_psd(int n, const double *A, int lda, double *Lp) {
   return 0;
 }
 
-/* y = Lp Lp' x + c (Lp n x n lower; t work n) */
-static void llt_mv(int n, const double *Lp, const double *x, const double *c, double *t, double *y) {
-  int i, l;
-  for (i = 0; i < n; ++i) {
-    double acc = 0.0;
-    for (l = i; l < n; ++l) acc += Lp[l + i * n] * x[l];
-    t[i] = acc;
-  }
-  for (i = 0; i < n; ++i) y[i] = c[i];
-  for (l = 0; l < n; ++l) {
-    const double *col = Lp + (size_t)l * n;
-    double tl = t[l];
-    for (i = l; i < n; ++i) y[i] += col[i] * tl;
-  }
+/* Pf (n x n, both triangles) from the lower triangle of A (leading dimension lda) */
+static void full_from_lower(int n, const double *A, int lda, double *Pf) {
+  int i, j;
+  for (j = 0; j < n; ++j)
+    for (i = j; i < n; ++i) Pf[i + j * n] = Pf[j + i * n] = A[i + j * lda];
 }
 
 /* Riccati factorisation of the Newton matrix (square-root form: P_k = Lp_k Lp_k'); 0 or a status */
@@ -285,40 +304,61 @@ static int factor(ocpqp_solver *s, const ocpqp_data *d) {
   int nr = nb + nc;
   double *G = s->G, *F = s->F;
   for (i = 0; i < s->nrow; ++i) s->sigrow[i] = 0.0;
-  for (i = 0; i < s->nside; ++i) s->sigrow[s->srow[i]] += s->z[i] / s->s[i];
+  s->sigmax = 0.0;
+  for (i = 0; i < s->nside; ++i) {
+    double q = s->z[i] / s->s[i];
+    s->sigrow[s->srow[i]] += q;
+    if (q > s->sigmax) s->sigmax = q;
+  }
   /* terminal: P_N = H_N + diag(sig) + C_N' diag(sig) C_N (lower triangle into G, ld nb) */
   {
-    const double *HN = d->H + (size_t)N * nb * nb, *CN = d->C + (size_t)N * nc * nb;
+    const double *HN = d->H + (size_t)N * nb * nb, *CTN = s->CT + (size_t)N * nc * nb;
     const double *sr = s->sigrow + (size_t)N * nr;
     for (j = 0; j < nx; ++j)
-      for (i = j; i < nx; ++i) {
-        double acc = HN[i + j * nx];
-        for (l = 0; l < ncN; ++l) acc += CN[l + i * ncN] * sr[nx + l] * CN[l + j * ncN];
-        G[i + j * nb] = acc;
-      }
+      for (i = j; i < nx; ++i) G[i + j * nb] = HN[i + j * nx];
     for (i = 0; i < nx; ++i) G[i + i * nb] += sr[i];
+    for (l = 0; l < ncN; ++l) {
+      double a0 = sqrt(sr[nx + l]);
+      for (i = 0; i < nx; ++i) F[i + l * nx] = CTN[i + l * nx] * a0;
+    }
+    syrk_ln(nx, ncN, F, G, nb);
     if (chol_psd(nx, G, nb, s->P + (size_t)N * nx * nx)) return OCPQP_NONFINITE;
+    full_from_lower(nx, G, nb, s->Pf + (size_t)N * nx * nx);
   }
   for (k = N - 1; k >= 0; --k) {
-    const double *Hk = d->H + (size_t)k * nb * nb, *Ck = d->C + (size_t)k * nc * nb, *Ek = d->E + (size_t)k * nx * nb;
+    const double *Hk = d->H + (size_t)k * nb * nb;
     const double *L1 = s->P + (size_t)(k + 1) * nx * nx, *sr = s->sigrow + (size_t)k * nr;
     double *Lk = s->L + (size_t)k * nu * nu, *Yk = s->Y + (size_t)k * nu * nx;
-    /* F = Lp_{k+1}' E_k */
-    for (j = 0; j < nb; ++j)
-      for (i = 0; i < nx; ++i) {
-        double acc = 0.0;
-        for (l = i; l < nx; ++l) acc += L1[l + i * nx] * Ek[l + j * nx];
-        F[i + j * nx] = acc;
+    /* F = [E_k' Lp_{k+1}, C_k' diag(sqrt(sig))] (nb x (nx + nc)), column by column as sums of columns */
+    {
+      const double *ETk = s->ET + (size_t)k * nx * nb, *CTk = s->CT + (size_t)k * nc * nb;
+      for (l = 0; l < nx; ++l) {
+        double *Fl = F + (size_t)l * nb;
+        const double *E0 = ETk + (size_t)l * nb;
+        double a0 = L1[l + l * nx];
+        for (i = 0; i < nb; ++i) Fl[i] = E0[i] * a0;
+        for (j = l + 1; j + 1 < nx; j += 2) {
+          double b0 = L1[j + l * nx], b1 = L1[j + 1 + l * nx];
+          const double *Ej = ETk + (size_t)j * nb, *Ej1 = Ej + nb;
+          for (i = 0; i < nb; ++i) Fl[i] += Ej[i] * b0 + Ej1[i] * b1;
+        }
+        if (j < nx) {
+          double b0 = L1[j + l * nx];
+          const double *Ej = ETk + (size_t)j * nb;
+          for (i = 0; i < nb; ++i) Fl[i] += Ej[i] * b0;
+        }
       }
-    /* G = H + diag(sig) + C' diag(sig) C + F' F (lower triangle) */
-    for (j = 0; j < nb; ++j)
-      for (i = j; i < nb; ++i) {
-        double acc = Hk[i + j * nb];
-        for (l = 0; l < nc; ++l) acc += Ck[l + i * nc] * sr[nb + l] * Ck[l + j * nc];
-        for (l = 0; l < nx; ++l) acc += F[l + i * nx] * F[l + j * nx];
-        G[i + j * nb] = acc;
+      for (l = 0; l < nc; ++l) {
+        double *Fl = F + (size_t)(nx + l) * nb, a0 = sqrt(sr[nb + l]);
+        const double *cl = CTk + (size_t)l * nb;
+        for (i = 0; i < nb; ++i) Fl[i] = cl[i] * a0;
       }
+    }
+    /* G = H + diag(sig) + F F' (lower triangle) */
+    for (j = 0; j < nb; ++j)
+      for (i = j; i < nb; ++i) G[i + j * nb] = Hk[i + j * nb];
     for (i = 0; i < nb; ++i) G[i + i * nb] += sr[i];
+    syrk_ln(nb, nx + nc, F, G, nb);
     /* Cholesky of G_uu + reg I */
     for (j = 0; j < nu; ++j) {
       double dj = G[(nx + j) + (nx + j) * nb] + s->set.reg_prim;
@@ -348,6 +388,7 @@ static int factor(ocpqp_solver *s, const ocpqp_data *d) {
         G[i + j * nb] = acc;
       }
     if (chol_psd(nx, G, nb, s->P + (size_t)k * nx * nx)) return OCPQP_NONFINITE;
+    full_from_lower(nx, G, nb, s->Pf + (size_t)k * nx * nx);
   }
   return 0;
 }
@@ -361,17 +402,17 @@ static void solve_rhs(ocpqp_solver *s, const ocpqp_data *d, const double *rstat,
   for (i = 0; i < s->nrow; ++i) s->qrow[i] = 0.0;
   for (i = 0; i < s->nside; ++i)
     s->qrow[s->srow[i]] += s->sg[i] * ((rc ? rc[i] : 0.0) + (r ? s->z[i] * r[i] : 0.0)) / s->s[i];
-  rows_transpose(s, d, s->qrow, rstat, s->gt);
+  rows_transpose(s, s->qrow, rstat, s->gt);
   /* backward: p_N = gt_N; h = gt_k + E'(P_{k+1} r_eq_k + p_{k+1}); ell = L^{-1} h_u; p_k = h_x - Y' ell */
   memcpy(s->p + (size_t)N * nx, s->gt + (size_t)N * nb, (size_t)nx * sizeof(double));
   for (k = N - 1; k >= 0; --k) {
-    const double *P1 = s->P + (size_t)(k + 1) * nx * nx, *p1 = s->p + (size_t)(k + 1) * nx;
+    const double *P1 = s->Pf + (size_t)(k + 1) * nx * nx, *p1 = s->p + (size_t)(k + 1) * nx;
     const double *Lk = s->L + (size_t)k * nu * nu, *Yk = s->Y + (size_t)k * nu * nx;
     double *ek = s->ell + (size_t)k * nu, *pk = s->p + (size_t)k * nx;
-    if (req) llt_mv(nx, P1, req + (size_t)k * nx, p1, s->t2, t);
-    else memcpy(t, p1, (size_t)nx * sizeof(double));
+    memcpy(t, p1, (size_t)nx * sizeof(double));
+    if (req) gemv_n(nx, nx, P1, req + (size_t)k * nx, t);
     memcpy(h, s->gt + (size_t)k * nb, (size_t)nb * sizeof(double));
-    gemv_t(nx, nb, d->E + (size_t)k * nx * nb, t, h);
+    gemv_n(nb, nx, s->ET + (size_t)k * nx * nb, t, h);
     for (i = 0; i < nu; ++i) {
       double acc = h[nx + i];
       for (l = 0; l < i; ++l) acc -= Lk[i + l * nu] * ek[l];
@@ -401,7 +442,8 @@ static void solve_rhs(ocpqp_solver *s, const ocpqp_data *d, const double *rstat,
     if (req) memcpy(dxn, req + (size_t)k * nx, (size_t)nx * sizeof(double));
     else memset(dxn, 0, (size_t)nx * sizeof(double));
     gemv_n(nx, nb, d->E + (size_t)k * nx * nb, dwk, dxn);
-    llt_mv(nx, s->P + (size_t)(k + 1) * nx * nx, dxn, s->p + (size_t)(k + 1) * nx, t, dpk);
+    memcpy(dpk, s->p + (size_t)(k + 1) * nx, (size_t)nx * sizeof(double));
+    gemv_n(nx, nx, s->Pf + (size_t)(k + 1) * nx * nx, dxn, dpk);
   }
   row_values(s, d, dw, s->ddrow);
   for (i = 0; i < s->nside; ++i) {
@@ -419,7 +461,7 @@ static void refine(ocpqp_solver *s, const ocpqp_data *d, int max_ref, double tol
     double rn = 0.0;
     row_multipliers(s, s->dz, s->lamrow2);
     stationarity(s, d, s->dw, s->dpi, s->lamrow2, s->rstat, s->rho);
-    for (i = nx; i < nw; ++i) rn = fmax(rn, fabs(s->rho[i]));
+    for (i = nx; i < nw; ++i) AMAX(rn, s->rho[i]);
     if (!(rn > tol)) return;
     solve_rhs(s, d, s->rho, NULL, NULL, NULL, s->dw2, s->dpi2, s->ds2, s->dz2);
     for (i = nx; i < nw; ++i) s->dw[i] += s->dw2[i];
@@ -465,6 +507,20 @@ int ocpqp_solve(ocpqp_solver *s, const ocpqp_data *d, double *w, double *pi, dou
                            || !no_nan(d->uc, (size_t)N * nc + ncN)))) {
     info->status = OCPQP_NONFINITE;
     return info->status;
+  }
+  /* transposed copies of E and C (the kernels then run over contiguous columns) */
+  for (k = 0; k <= N; ++k) {
+    int n = k < N ? nb : nx, m = k < N ? nc : ncN, j;
+    const double *Ck = d->C + (size_t)k * nc * nb;
+    double *CTk = s->CT + (size_t)k * nc * nb;
+    for (j = 0; j < n; ++j)
+      for (i = 0; i < m; ++i) CTk[j + i * n] = Ck[i + j * m];
+    if (k < N) {
+      const double *Ek = d->E + (size_t)k * nx * nb;
+      double *ETk = s->ET + (size_t)k * nx * nb;
+      for (j = 0; j < nb; ++j)
+        for (i = 0; i < nx; ++i) ETk[j + i * nb] = Ek[i + j * nx];
+    }
   }
   /* sides */
   s->nside = 0;
@@ -527,7 +583,13 @@ int ocpqp_solve(ocpqp_solver *s, const ocpqp_data *d, double *w, double *pi, dou
         if (info->res_ineq > rmax) rmax = info->res_ineq;
         if (mu > rmax) rmax = mu;
         rmax *= 1e-3;
-        refine(s, d, 4, rmax > 0.1 * s->set.tol_stat ? rmax : 0.1 * s->set.tol_stat);
+        if (rmax < 0.1 * s->set.tol_stat) rmax = 0.1 * s->set.tol_stat;
+        /* the reduced solve's error grows like eps * max(z/s) * |dw|: skip the check while that is far below */
+        {
+          double dwmax = 0.0;
+          for (i = nx; i < nw; ++i) AMAX(dwmax, s->dw[i]);
+          if (1e-13 * s->sigmax * (1.0 + dwmax) > rmax) refine(s, d, 4, rmax);
+        }
       }
       alpha = 0.995 * max_step(s, 1.0 / 0.995);
       if (alpha > 1.0) alpha = 1.0;
