@@ -24,6 +24,25 @@
 
 #define AMAX(acc, v) do { double a_ = fabs(v); if (a_ > (acc)) (acc) = a_; } while (0)
 
+/* Dimensions. Compiled with -DOCPQP_NX=.. -DOCPQP_NU=.. -DOCPQP_NC=.. -DOCPQP_NCN=.. (all four) they are
+ * compile-time constants (the small loops are then unrolled and vectorised: about 1.3x faster) and
+ * ocpqp_create accepts only those; otherwise they are the run-time values of ocpqp_create. */
+#if defined(OCPQP_NX) && defined(OCPQP_NU) && defined(OCPQP_NC) && defined(OCPQP_NCN)
+#define OCPQP_FIXED_DIMS 1
+#define DNX(s) (OCPQP_NX)
+#define DNU(s) (OCPQP_NU)
+#define DNC(s) (OCPQP_NC)
+#define DNCN(s) (OCPQP_NCN)
+#define DNB(s) (OCPQP_NX + OCPQP_NU)
+#else
+#define OCPQP_FIXED_DIMS 0
+#define DNX(s) ((s)->d.nx)
+#define DNU(s) ((s)->d.nu)
+#define DNC(s) ((s)->d.nc)
+#define DNCN(s) ((s)->d.ncN)
+#define DNB(s) ((s)->nb)
+#endif
+
 struct ocpqp_solver {
   ocpqp_dims d;
   ocpqp_settings set;
@@ -67,6 +86,9 @@ ocpqp_solver *ocpqp_create(const ocpqp_dims *dims, const ocpqp_settings *setting
   size_t nd, off = 0;
   double *blk;
   if (!dims || dims->N < 1 || dims->nx < 1 || dims->nu < 0 || dims->nc < 0 || dims->ncN < 0) return NULL;
+#if OCPQP_FIXED_DIMS
+  if (dims->nx != OCPQP_NX || dims->nu != OCPQP_NU || dims->nc != OCPQP_NC || dims->ncN != OCPQP_NCN) return NULL;
+#endif
   N = dims->N; nx = dims->nx; nu = dims->nu; nb = nx + nu;
   nw = N * nb + nx;
   nrow = N * (nb + dims->nc) + nx + dims->ncN;
@@ -194,7 +216,7 @@ static int no_nan(const double *x, size_t n) {
 /* ------------------------------------------------------------------------------------------ pieces */
 /* row values d = D w (bound rows: w; general rows: C w) */
 static void row_values(ocpqp_solver *s, const ocpqp_data *d, const double *w, double *dr) {
-  int N = s->d.N, nx = s->d.nx, nb = s->nb, nc = s->d.nc, ncN = s->d.ncN, k, i;
+  int N = s->d.N, nx = DNX(s), nb = DNB(s), nc = DNC(s), ncN = DNCN(s), k, i;
   for (k = 0; k <= N; ++k) {
     int n = k < N ? nb : nx, m = k < N ? nc : ncN;
     const double *wk = w + (size_t)k * nb;
@@ -208,7 +230,7 @@ static void row_values(ocpqp_solver *s, const ocpqp_data *d, const double *w, do
 
 /* out (stage vector of length nw) = base + D' v (v per row); base may equal out */
 static void rows_transpose(ocpqp_solver *s, const double *v, const double *base, double *out) {
-  int N = s->d.N, nx = s->d.nx, nb = s->nb, nc = s->d.nc, ncN = s->d.ncN, k, i;
+  int N = s->d.N, nx = DNX(s), nb = DNB(s), nc = DNC(s), ncN = DNCN(s), k, i;
   for (k = 0; k <= N; ++k) {
     int n = k < N ? nb : nx, m = k < N ? nc : ncN;
     const double *vk = v + (size_t)k * (nb + nc);
@@ -222,7 +244,7 @@ static void rows_transpose(ocpqp_solver *s, const double *v, const double *base,
 /* out = base + D' lam + H w + E' pi - pi shifted (per stage; lam per row) */
 static void stationarity(ocpqp_solver *s, const ocpqp_data *d, const double *w, const double *pi, const double *lam,
                          const double *base, double *out) {
-  int N = s->d.N, nx = s->d.nx, nb = s->nb, k, i;
+  int N = s->d.N, nx = DNX(s), nb = DNB(s), k, i;
   rows_transpose(s, lam, base, out);
   for (k = 0; k <= N; ++k) {
     int n = k < N ? nb : nx;
@@ -243,7 +265,7 @@ static void row_multipliers(ocpqp_solver *s, const double *z, double *lam) {
 
 /* residuals at (w, pi, s, z); returns 0, or OCPQP_NONFINITE */
 static int residuals(ocpqp_solver *s, const ocpqp_data *d, ocpqp_info *info) {
-  int N = s->d.N, nx = s->d.nx, nb = s->nb, nw = s->nw, k, i;
+  int N = s->d.N, nx = DNX(s), nb = DNB(s), nw = s->nw, k, i;
   double rs = 0.0, re = 0.0, ri = 0.0, mu = 0.0;
   row_multipliers(s, s->z, s->lamrow);
   stationarity(s, d, s->w, s->pi, s->lamrow, d->g, s->rstat);
@@ -300,7 +322,7 @@ static void full_from_lower(int n, const double *A, int lda, double *Pf) {
 
 /* Riccati factorisation of the Newton matrix (square-root form: P_k = Lp_k Lp_k'); 0 or a status */
 static int factor(ocpqp_solver *s, const ocpqp_data *d) {
-  int N = s->d.N, nx = s->d.nx, nu = s->d.nu, nb = s->nb, nc = s->d.nc, ncN = s->d.ncN, k, i, j, l;
+  int N = s->d.N, nx = DNX(s), nu = DNU(s), nb = DNB(s), nc = DNC(s), ncN = DNCN(s), k, i, j, l;
   int nr = nb + nc;
   double *G = s->G, *F = s->F;
   for (i = 0; i < s->nrow; ++i) s->sigrow[i] = 0.0;
@@ -397,7 +419,7 @@ static int factor(ocpqp_solver *s, const ocpqp_data *d) {
  * zero): fills dw, dpi, ds, dz */
 static void solve_rhs(ocpqp_solver *s, const ocpqp_data *d, const double *rstat, const double *req,
                       const double *r, const double *rc, double *dw, double *dpi, double *ds, double *dz) {
-  int N = s->d.N, nx = s->d.nx, nu = s->d.nu, nb = s->nb, k, i, l;
+  int N = s->d.N, nx = DNX(s), nu = DNU(s), nb = DNB(s), k, i, l;
   double *h = s->h, *t = s->t;
   for (i = 0; i < s->nrow; ++i) s->qrow[i] = 0.0;
   for (i = 0; i < s->nside; ++i)
@@ -456,7 +478,7 @@ static void solve_rhs(ocpqp_solver *s, const ocpqp_data *d, const double *rstat,
  * block not satisfied exactly by construction; it grows with the barrier terms z/s) is solved for again
  * and the correction added, up to max_ref times while it exceeds tol */
 static void refine(ocpqp_solver *s, const ocpqp_data *d, int max_ref, double tol) {
-  int i, j, nw = s->nw, nx = s->d.nx, npi = s->d.N * s->d.nx;
+  int i, j, nw = s->nw, nx = DNX(s), npi = s->d.N * DNX(s);
   for (j = 0; j < max_ref; ++j) {
     double rn = 0.0;
     row_multipliers(s, s->dz, s->lamrow2);
@@ -487,7 +509,7 @@ static double max_step(const ocpqp_solver *s, double amax) {
 /* ------------------------------------------------------------------------------------------ solve */
 int ocpqp_solve(ocpqp_solver *s, const ocpqp_data *d, double *w, double *pi, double *lam_w, double *lam_c,
                 ocpqp_info *info_out) {
-  int N = s->d.N, nx = s->d.nx, nu = s->d.nu, nb = s->nb, nc = s->d.nc, ncN = s->d.ncN, nw = s->nw;
+  int N = s->d.N, nx = DNX(s), nu = DNU(s), nb = DNB(s), nc = DNC(s), ncN = DNCN(s), nw = s->nw;
   int nr = nb + nc, k, i, it, st = OCPQP_OK;
   size_t nh = (size_t)N * nb * nb + (size_t)nx * nx, ncm = (size_t)N * nc * nb + (size_t)ncN * nx;
   ocpqp_info info_local, *info = info_out ? info_out : &info_local;
