@@ -511,6 +511,7 @@ int ocpqp_solve(ocpqp_solver *s, const ocpqp_data *d, double *w, double *pi, dou
                 ocpqp_info *info_out) {
   int N = s->d.N, nx = DNX(s), nu = DNU(s), nb = DNB(s), nc = DNC(s), ncN = DNCN(s), nw = s->nw;
   int nr = nb + nc, k, i, it, st = OCPQP_OK;
+  double z0;
   size_t nh = (size_t)N * nb * nb + (size_t)nx * nx, ncm = (size_t)N * nc * nb + (size_t)ncN * nx;
   ocpqp_info info_local, *info = info_out ? info_out : &info_local;
   info->iterations = 0;
@@ -561,7 +562,13 @@ int ocpqp_solve(ocpqp_solver *s, const ocpqp_data *d, double *w, double *pi, dou
       if (fabs(up) < OCPQP_INF) { s->srow[s->nside] = k * nr + i; s->sg[s->nside] = -1.0; s->b[s->nside++] = up; }
     }
   }
-  /* initial point: w = 0 with x_0 = x0, pi = 0, s = max(slack, 1), z = 1 */
+  /* initial point: w = 0 with x_0 = x0, pi = 0, s = max(slack, 1), z = sqrt(max(1, |g|inf)) (duals of the
+   * cost gradient's scale: fewer short first steps than z = 1 when the gradient is large) */
+  {
+    double gmax = 1.0;
+    for (i = 0; i < nw; ++i) AMAX(gmax, d->g[i]);
+    z0 = sqrt(gmax);
+  }
   memset(s->w, 0, (size_t)nw * sizeof(double));
   memcpy(s->w, d->x0, (size_t)nx * sizeof(double));
   memset(s->pi, 0, (size_t)N * nx * sizeof(double));
@@ -569,7 +576,7 @@ int ocpqp_solve(ocpqp_solver *s, const ocpqp_data *d, double *w, double *pi, dou
   for (i = 0; i < s->nside; ++i) {
     double sl = s->sg[i] * (s->drow[s->srow[i]] - s->b[i]);
     s->s[i] = sl > 1.0 ? sl : 1.0;
-    s->z[i] = 1.0;
+    s->z[i] = z0;
   }
   for (it = 0;; ++it) {
     double mu, alpha;
