@@ -8,8 +8,10 @@ nc = 6) — and the real RTI QPs of the controller (MPCController, solver 'rti',
 closed-loop step recorded from its ``ca.conic`` call and split into stage blocks).
 
 ocpqp: median wall time of the C solve (one ctypes call with prepared pointers, >= 200 repetitions)
-per solve and per interior-point iteration; conic: median of >= 200 calls of the CasADi Function
-(including CasADi's conversion of the sparse data). 'agree' is max |w - w_conic| over the QP's variables
+per solve and per interior-point iteration; 'fixed': the same source compiled with the dimensions as
+constants (-DOCPQP_NX=... , OcpQP(dims, specialise=True)); conic: median of >= 200 calls of the CasADi Function
+(including CasADi's conversion of the sparse data; a call slower than 2 ms, a failing solve, is
+repeated only for 0.5 s). 'agree' is max |w - w_conic| over the QP's variables
 (qrqp's and HPIPM's own accuracy included). Times on a shared machine are noisy: medians, and ratios
 within one process.
 Usage: PYTHONPATH=. python benchmarks/bench_ocp_qp.py [--reps 300] [--out benchmarks/bench_ocp_qp.json]
@@ -115,21 +117,28 @@ def rti_qp(formulation: str, N: int) -> tuple[OcpQPDims, dict[str, Any]]:
 
 
 def bench_one(name: str, dims: OcpQPDims, data: dict[str, Any], reps: int) -> dict[str, Any]:
-    solver = OcpQP(dims)
+    solver, fixed = OcpQP(dims), OcpQP(dims, specialise=True)
     res = solver.solve(**data)
+    fixed.set_data(**data)
     t = float(np.median(solver.timed_calls(reps)))
+    tf = float(np.median(fixed.timed_calls(reps)))
     row: dict[str, Any] = {"problem": name, "N": dims.N, "nx": dims.nx, "nu": dims.nu, "nc": dims.nc,
                            "status": res.status_name, "iterations": res.iterations, "ocpqp_ms": t * 1e3,
-                           "ocpqp_per_iter_us": t * 1e6 / max(1, res.iterations)}
+                           "ocpqp_per_iter_us": t * 1e6 / max(1, res.iterations), "ocpqp_fixed_ms": tf * 1e3,
+                           "fixed_same_w": bool(np.array_equal(fixed.solve_data().w, res.w))}
     sq = sparse_qp(dims, data)
     args = dict(h=sq["h"], a=sq["a"], g=sq["g"], lba=sq["lba"], uba=sq["uba"], lbx=sq["lbx"], ubx=sq["ubx"])
     for plugin, opts in CONIC.items():
         try:
             f = ca.conic(f"bench_{plugin}", plugin, {"h": sq["h"].sparsity(), "a": sq["a"].sparsity()},
                          {**opts, "error_on_fail": False})
+            t0 = time.perf_counter()
             out = f(**args)
+            once = time.perf_counter() - t0
             ok = bool(f.stats().get("success", False))
-            row[f"{plugin}_ms"] = _median_call(lambda: f(**args), reps) * 1e3
+            n = reps if once < 2e-3 else max(10, int(0.5 / once))  # slow failures: fewer repetitions
+            row[f"{plugin}_ms"] = _median_call(lambda: f(**args), n) * 1e3
+            row[f"{plugin}_reps"] = n
             row[f"{plugin}_ok"] = ok
             row[f"{plugin}_agree"] = float(np.abs(np.asarray(out["x"]).ravel() - res.w).max())
         except RuntimeError as exc:
@@ -154,7 +163,7 @@ def main() -> None:
                 rows.append(bench_one(name, dims, data, a.reps))
             except Exception as exc:  # reported, not fatal: the random rows stand on their own
                 rows.append({"problem": name, "error": f"{type(exc).__name__}: {str(exc).splitlines()[0][:200]}"})
-    head = f"{'problem':30s} {'dims':>16s} {'status':>9s} {'it':>3s} {'ocpqp ms':>9s} {'us/it':>6s} " \
+    head = f"{'problem':30s} {'dims':>16s} {'status':>9s} {'it':>3s} {'ocpqp ms':>9s} {'us/it':>6s} {'fixed ms':>8s} " \
            f"{'hpipm ms':>9s} {'qrqp ms':>9s} {'x hpipm':>7s} {'x qrqp':>7s}  agree(hpipm, qrqp)"
     print(head)
     for r in rows:
@@ -163,7 +172,7 @@ def main() -> None:
             continue
         dims = f"{r['N']}/{r['nx']}/{r['nu']}/{r['nc']}"
         print(f"{r['problem']:30s} {dims:>16s} {r['status']:>9s} {r['iterations']:3d} {r['ocpqp_ms']:9.4f} "
-              f"{r['ocpqp_per_iter_us']:6.2f} {r['hpipm_ms']:9.4f} {r['qrqp_ms']:9.4f} "
+              f"{r['ocpqp_per_iter_us']:6.2f} {r['ocpqp_fixed_ms']:8.4f} {r['hpipm_ms']:9.4f} {r['qrqp_ms']:9.4f} "
               f"{r['hpipm_ms'] / r['ocpqp_ms']:7.1f} {r['qrqp_ms'] / r['ocpqp_ms']:7.1f}  "
               f"{r.get('hpipm_agree', float('nan')):.1e}{'' if r['hpipm_ok'] else '(fail)'}, "
               f"{r.get('qrqp_agree', float('nan')):.1e}{'' if r['qrqp_ok'] else '(fail)'}")

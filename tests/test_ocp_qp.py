@@ -243,3 +243,13 @@ def test_bad_sizes_name_the_argument() -> None:
         qp.solve(**dict(data, C=None))
     with pytest.raises(ParameterError, match=r"OcpQPDims.nx must be an integer >= 1"):
         OcpQPDims(N=3, nx=0, nu=1)
+
+
+def test_compiled_in_dimensions_give_the_same_solution() -> None:
+    rng = np.random.default_rng(41)
+    dims = OcpQPDims(N=7, nx=3, nu=2, nc=2, ncN=1)
+    data = random_qp(dims, rng)
+    generic, fixed = OcpQP(dims).solve(**data), OcpQP(dims, specialise=True).solve(**data)
+    assert generic.status == fixed.status == OK and generic.iterations == fixed.iterations
+    assert np.abs(generic.w - fixed.w).max() <= 1e-12 * (1 + np.abs(generic.w).max())
+    assert np.abs(generic.lam_c - fixed.lam_c).max() <= 1e-10 * (1 + np.abs(generic.lam_c).max())

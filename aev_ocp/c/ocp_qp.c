@@ -534,10 +534,12 @@ int ocpqp_solve(ocpqp_solver *s, const ocpqp_data *d, double *w, double *pi, dou
   /* transposed copies of E and C (the kernels then run over contiguous columns) */
   for (k = 0; k <= N; ++k) {
     int n = k < N ? nb : nx, m = k < N ? nc : ncN, j;
-    const double *Ck = d->C + (size_t)k * nc * nb;
-    double *CTk = s->CT + (size_t)k * nc * nb;
-    for (j = 0; j < n; ++j)
-      for (i = 0; i < m; ++i) CTk[j + i * n] = Ck[i + j * m];
+    if (m > 0) {
+      const double *Ck = d->C + (size_t)k * nc * nb;
+      double *CTk = s->CT + (size_t)k * nc * nb;
+      for (j = 0; j < n; ++j)
+        for (i = 0; i < m; ++i) CTk[j + i * n] = Ck[i + j * m];
+    }
     if (k < N) {
       const double *Ek = d->E + (size_t)k * nx * nb;
       double *ETk = s->ET + (size_t)k * nx * nb;
@@ -557,7 +559,7 @@ int ocpqp_solve(ocpqp_solver *s, const ocpqp_data *d, double *w, double *pi, dou
       } else {
         lo = d->lc[(size_t)k * nc + (i - n)]; up = d->uc[(size_t)k * nc + (i - n)];
       }
-      if (lo > up) { info->status = OCPQP_INFEASIBLE; return info->status; }
+      if (lo > up && fabs(lo) < OCPQP_INF && fabs(up) < OCPQP_INF) { info->status = OCPQP_INFEASIBLE; return info->status; }
       if (fabs(lo) < OCPQP_INF) { s->srow[s->nside] = k * nr + i; s->sg[s->nside] = 1.0; s->b[s->nside++] = lo; }
       if (fabs(up) < OCPQP_INF) { s->srow[s->nside] = k * nr + i; s->sg[s->nside] = -1.0; s->b[s->nside++] = up; }
     }

@@ -122,7 +122,7 @@ class _Info(ctypes.Structure):
         (n, ctypes.c_double) for n in ("res_stat", "res_eq", "res_ineq", "res_comp")]
 
 
-_LIB: ctypes.CDLL | None = None
+_LIBS: dict[tuple[int, ...] | None, ctypes.CDLL] = {}
 
 
 def source_files() -> dict[str, str]:
@@ -131,14 +131,17 @@ def source_files() -> dict[str, str]:
     return {n: folder.joinpath(n).read_text(encoding="utf-8") for n in ("ocp_qp.c", "ocp_qp.h")}
 
 
-def library() -> ctypes.CDLL:
-    """The compiled solver (built once per process into the private cache)."""
-    global _LIB
-    if _LIB is None:
+def library(fixed: tuple[int, int, int, int] | None = None) -> ctypes.CDLL:
+    """The compiled solver (built once per process into the private cache); ``fixed`` = (nx, nu, nc, ncN)
+    compiles those dimensions in as constants (-DOCPQP_NX=... : faster, and only for those dimensions)."""
+    lib = _LIBS.get(fixed)
+    if lib is None:
         from ..compiled import compile_shared
 
         src = source_files()
-        built = compile_shared(src["ocp_qp.c"], "ocp_qp", "ocpqp", extra_flags=("-std=c99",),
+        flags = ("-std=c99",) if fixed is None else ("-std=c99", *(f"-DOCPQP_{n}={v}" for n, v in
+                                                                 zip(("NX", "NU", "NC", "NCN"), fixed)))
+        built = compile_shared(src["ocp_qp.c"], "ocp_qp", "ocpqp", extra_flags=flags,
                                companions={"ocp_qp.h": src["ocp_qp.h"]})
         if built.path is None:
             raise OcpQPError(f"the OCP QP solver cannot be built: {built.error}")
@@ -150,8 +153,8 @@ def library() -> ctypes.CDLL:
         lib.ocpqp_solve.restype = ctypes.c_int
         solve_args: list[Any] = [ctypes.c_void_p, ctypes.POINTER(_Data), *[ctypes.c_void_p] * 4, ctypes.POINTER(_Info)]
         lib.ocpqp_solve.argtypes = solve_args
-        _LIB = lib
-    return _LIB
+        _LIBS[fixed] = lib
+    return lib
 
 
 def _pack(name: str, value: Any, shapes: Sequence[tuple[int, int]]) -> np.ndarray:
@@ -197,14 +200,15 @@ def _block_shapes(d: OcpQPDims) -> dict[str, list[tuple[int, int]]]:
 class OcpQP:
     """One solver instance (its memory allocated once in C) for fixed dimensions; see the module docstring."""
 
-    def __init__(self, dims: OcpQPDims, settings: OcpQPSettings | None = None) -> None:
+    def __init__(self, dims: OcpQPDims, settings: OcpQPSettings | None = None, specialise: bool = False) -> None:
+        """``specialise``: a library compiled for exactly these nx, nu, nc, ncN (one more build, cached)."""
         if not isinstance(dims, OcpQPDims):
             raise ParameterError(f"dims must be an OcpQPDims, got {type(dims).__name__}")
         settings = settings or OcpQPSettings()
         if not isinstance(settings, OcpQPSettings):
             raise ParameterError(f"settings must be an OcpQPSettings or None, got {type(settings).__name__}")
         self.dims, self.settings = dims, settings
-        self._lib = library()
+        self._lib = library((dims.nx, dims.nu, dims.nc, dims.ncN) if specialise else None)
         cd = _Dims(dims.N, dims.nx, dims.nu, dims.nc, dims.ncN)
         cs = _Settings(settings.max_iter, settings.tol_stat, settings.tol_eq, settings.tol_ineq,
                        settings.tol_comp, settings.reg_prim)
