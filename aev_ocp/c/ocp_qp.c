@@ -51,6 +51,7 @@ struct ocpqp_solver {
   double *P;      /* (N+1) nx x nx: lower Cholesky factors Lp_k of the Riccati matrices P_k */
   double *Pf;     /* (N+1) nx x nx: the P_k themselves (both triangles; for the right-hand sides) */
   double *L;      /* N nu x nu (lower Cholesky factor of the control block) */
+  double *Ld;     /* N nu: inverses of L's diagonal */
   double *Y;      /* N nu x nx (L^{-1} G_ux) */
   double *G;      /* nb x nb work */
   double *ET, *CT; /* the data's E_k' (nb x nx) and C_k' (nb x nc, then nx x ncN), copied per solve */
@@ -59,12 +60,13 @@ struct ocpqp_solver {
   double *p;      /* (N+1) nx */
   double *ell;    /* N nu */
   double *h;      /* nb work */
-  double *t, *t2; /* nx work */
+  double *t;      /* nx work */
   /* iterate and steps */
   double *w, *pi, *dw, *dpi;
   double *rstat, *req, *gt;
   double *drow, *ddrow, *sigrow, *qrow, *lamrow;
   double *s, *z, *b, *sg, *r, *rc, *ds, *dz;
+  double *is;     /* 1/s of the current factorisation */
   double *dw2, *dpi2, *ds2, *dz2, *rho, *lamrow2;  /* iterative refinement */
   int *srow;
   int nside;
@@ -80,82 +82,62 @@ void ocpqp_default_settings(ocpqp_settings *s) {
   s->reg_prim = 1e-12;
 }
 
+/* Lay the solver's arrays out in blk (NULL: only count); returns the number of doubles. */
+static size_t layout(ocpqp_solver *s, double *blk) {
+  size_t N = (size_t)s->d.N, nx = (size_t)s->d.nx, nu = (size_t)s->d.nu, nb = nx + nu;
+  size_t nc = (size_t)s->d.nc, ncN = (size_t)s->d.ncN, nw = (size_t)s->nw, nrow = (size_t)s->nrow;
+  size_t nsm = (size_t)s->nside_max, off = 0, i;
+  double **per_nw[] = {&s->w, &s->dw, &s->rstat, &s->gt, &s->dw2, &s->rho};
+  double **per_pi[] = {&s->pi, &s->dpi, &s->req, &s->dpi2};
+  double **per_row[] = {&s->drow, &s->ddrow, &s->sigrow, &s->qrow, &s->lamrow, &s->lamrow2};
+  double **per_side[] = {&s->s, &s->z, &s->b, &s->sg, &s->r, &s->rc, &s->ds, &s->dz, &s->is, &s->ds2, &s->dz2};
+#define TAKE(ptr, n) do { (ptr) = blk ? blk + off : NULL; off += (n); } while (0)
+  TAKE(s->P, (N + 1) * nx * nx);
+  TAKE(s->Pf, (N + 1) * nx * nx);
+  TAKE(s->L, N * nu * nu);
+  TAKE(s->Y, N * nu * nx);
+  TAKE(s->Ld, N * nu);
+  TAKE(s->G, nb * nb);
+  TAKE(s->F, nb * (nx + nc + ncN));
+  TAKE(s->ET, N * nb * nx);
+  TAKE(s->CT, N * nb * nc + nx * ncN);
+  TAKE(s->p, (N + 1) * nx);
+  TAKE(s->ell, N * nu);
+  TAKE(s->h, nb);
+  TAKE(s->t, nx);
+  for (i = 0; i < sizeof per_nw / sizeof *per_nw; ++i) TAKE(*per_nw[i], nw);
+  for (i = 0; i < sizeof per_pi / sizeof *per_pi; ++i) TAKE(*per_pi[i], N * nx);
+  for (i = 0; i < sizeof per_row / sizeof *per_row; ++i) TAKE(*per_row[i], nrow);
+  for (i = 0; i < sizeof per_side / sizeof *per_side; ++i) TAKE(*per_side[i], nsm);
+#undef TAKE
+  return off;
+}
+
 ocpqp_solver *ocpqp_create(const ocpqp_dims *dims, const ocpqp_settings *settings) {
-  ocpqp_solver *s;
-  int N, nx, nu, nb, nw, nrow, nsm;
-  size_t nd, off = 0;
+  ocpqp_solver probe, *s;
+  size_t nd, head = (sizeof(ocpqp_solver) + sizeof(double) - 1) / sizeof(double);
   double *blk;
   if (!dims || dims->N < 1 || dims->nx < 1 || dims->nu < 0 || dims->nc < 0 || dims->ncN < 0) return NULL;
 #if OCPQP_FIXED_DIMS
   if (dims->nx != OCPQP_NX || dims->nu != OCPQP_NU || dims->nc != OCPQP_NC || dims->ncN != OCPQP_NCN) return NULL;
 #endif
-  N = dims->N; nx = dims->nx; nu = dims->nu; nb = nx + nu;
-  nw = N * nb + nx;
-  nrow = N * (nb + dims->nc) + nx + dims->ncN;
-  nsm = 2 * nrow;
-  nd = (size_t)(N + 1) * nx * nx + (size_t)N * nu * nu + (size_t)N * nu * nx + (size_t)nb * nb + (size_t)nb * (nx + dims->nc + dims->ncN) + (size_t)(N + 1) * nx * nx
-       + (size_t)(N + 1) * nx + (size_t)N * nu + nb + 2 * (size_t)nx
-       + 2 * (size_t)nw + 2 * (size_t)N * nx + 2 * (size_t)nw + (size_t)N * nx
-       + 5 * (size_t)nrow + 8 * (size_t)nsm
-       + 2 * (size_t)nw + (size_t)N * nx + 2 * (size_t)nsm + (size_t)nrow
-       + (size_t)N * nb * nx + (size_t)N * nb * dims->nc + (size_t)nx * dims->ncN;
-  /* one block: the struct, the doubles, then the side->row ints */
-  {
-    size_t head = (sizeof(ocpqp_solver) + sizeof(double) - 1) / sizeof(double);
-    blk = (double *)malloc((head + nd) * sizeof(double) + (size_t)nsm * sizeof(int));
-    if (!blk) return NULL;
-    s = (ocpqp_solver *)(void *)blk;
-    blk += head;
-  }
+  memset(&probe, 0, sizeof probe);
+  probe.d = *dims;
+  probe.nb = dims->nx + dims->nu;
+  probe.nw = dims->N * probe.nb + dims->nx;
+  probe.nrow = dims->N * (probe.nb + dims->nc) + dims->nx + dims->ncN;
+  probe.nside_max = 2 * probe.nrow;
+  if (settings) probe.set = *settings; else ocpqp_default_settings(&probe.set);
+  nd = layout(&probe, NULL);
+  /* one block: the struct, the doubles, then the side -> row indices */
+  blk = (double *)malloc((head + nd) * sizeof(double) + (size_t)probe.nside_max * sizeof(int));
+  if (!blk) return NULL;
+  s = (ocpqp_solver *)(void *)blk;
+  *s = probe;
+  blk += head;
   memset(blk, 0, nd * sizeof(double));
-  s->d = *dims;
-  if (settings) s->set = *settings; else ocpqp_default_settings(&s->set);
-  s->nb = nb; s->nw = nw; s->nrow = nrow; s->nside_max = nsm; s->nside = 0;
-#define TAKE(ptr, n) do { (ptr) = blk + off; off += (size_t)(n); } while (0)
-  TAKE(s->P, (size_t)(N + 1) * nx * nx);
-  TAKE(s->L, (size_t)N * nu * nu);
-  TAKE(s->Y, (size_t)N * nu * nx);
-  TAKE(s->G, (size_t)nb * nb);
-  TAKE(s->F, (size_t)nb * (nx + dims->nc + dims->ncN));
-  TAKE(s->Pf, (size_t)(N + 1) * nx * nx);
-  TAKE(s->p, (size_t)(N + 1) * nx);
-  TAKE(s->ell, (size_t)N * nu);
-  TAKE(s->h, nb);
-  TAKE(s->t, nx);
-  TAKE(s->t2, nx);
-  TAKE(s->w, nw);
-  TAKE(s->dw, nw);
-  TAKE(s->pi, (size_t)N * nx);
-  TAKE(s->dpi, (size_t)N * nx);
-  TAKE(s->rstat, nw);
-  TAKE(s->gt, nw);
-  TAKE(s->req, (size_t)N * nx);
-  TAKE(s->drow, nrow);
-  TAKE(s->ddrow, nrow);
-  TAKE(s->sigrow, nrow);
-  TAKE(s->qrow, nrow);
-  TAKE(s->lamrow, nrow);
-  TAKE(s->s, nsm);
-  TAKE(s->z, nsm);
-  TAKE(s->b, nsm);
-  TAKE(s->sg, nsm);
-  TAKE(s->r, nsm);
-  TAKE(s->rc, nsm);
-  TAKE(s->ds, nsm);
-  TAKE(s->dz, nsm);
-  TAKE(s->ET, (size_t)N * nb * nx);
-  TAKE(s->CT, (size_t)N * nb * dims->nc + (size_t)nx * dims->ncN);
-  TAKE(s->dw2, nw);
-  TAKE(s->rho, nw);
-  TAKE(s->dpi2, (size_t)N * nx);
-  TAKE(s->ds2, nsm);
-  TAKE(s->dz2, nsm);
-  TAKE(s->lamrow2, nrow);
-#undef TAKE
-#ifdef OCPQP_DEBUG
-  if (off != nd) { free(s); return NULL; }  /* the layout above and the size nd disagree */
-#endif
-  s->srow = (int *)(void *)(blk + off);
+  layout(s, blk);
+  s->srow = (int *)(void *)(blk + nd);
   return s;
 }
 
@@ -304,10 +286,11 @@ static int chol_psd(int n, const double *A, int lda, double *Lp) {
     }
     dj = sqrt(dj);
     Lp[j + j * n] = dj;
+    dj = 1.0 / dj;
     for (i = j + 1; i < n; ++i) {
       double acc = A[i + j * lda];
       for (l = 0; l < j; ++l) acc -= Lp[i + l * n] * Lp[j + l * n];
-      Lp[i + j * n] = acc / dj;
+      Lp[i + j * n] = acc * dj;
     }
   }
   return 0;
@@ -328,7 +311,8 @@ static int factor(ocpqp_solver *s, const ocpqp_data *d) {
   for (i = 0; i < s->nrow; ++i) s->sigrow[i] = 0.0;
   s->sigmax = 0.0;
   for (i = 0; i < s->nside; ++i) {
-    double q = s->z[i] / s->s[i];
+    double is = 1.0 / s->s[i], q = s->z[i] * is;
+    s->is[i] = is;
     s->sigrow[s->srow[i]] += q;
     if (q > s->sigmax) s->sigmax = q;
   }
@@ -350,7 +334,7 @@ static int factor(ocpqp_solver *s, const ocpqp_data *d) {
   for (k = N - 1; k >= 0; --k) {
     const double *Hk = d->H + (size_t)k * nb * nb;
     const double *L1 = s->P + (size_t)(k + 1) * nx * nx, *sr = s->sigrow + (size_t)k * nr;
-    double *Lk = s->L + (size_t)k * nu * nu, *Yk = s->Y + (size_t)k * nu * nx;
+    double *Lk = s->L + (size_t)k * nu * nu, *Yk = s->Y + (size_t)k * nu * nx, *Ldk = s->Ld + (size_t)k * nu;
     /* F = [E_k' Lp_{k+1}, C_k' diag(sqrt(sig))] (nb x (nx + nc)), column by column as sums of columns */
     {
       const double *ETk = s->ET + (size_t)k * nx * nb, *CTk = s->CT + (size_t)k * nc * nb;
@@ -388,10 +372,11 @@ static int factor(ocpqp_solver *s, const ocpqp_data *d) {
       if (!(dj > 0.0) || !(dj < HUGE_VAL)) return OCPQP_FACTORIZATION;
       dj = sqrt(dj);
       Lk[j + j * nu] = dj;
+      dj = Ldk[j] = 1.0 / dj;
       for (i = j + 1; i < nu; ++i) {
         double acc = G[(nx + i) + (nx + j) * nb];
         for (l = 0; l < j; ++l) acc -= Lk[i + l * nu] * Lk[j + l * nu];
-        Lk[i + j * nu] = acc / dj;
+        Lk[i + j * nu] = acc * dj;
       }
     }
     /* Y = L^{-1} G_ux (nu x nx) */
@@ -399,7 +384,7 @@ static int factor(ocpqp_solver *s, const ocpqp_data *d) {
       for (i = 0; i < nu; ++i) {
         double acc = G[(nx + i) + j * nb];
         for (l = 0; l < i; ++l) acc -= Lk[i + l * nu] * Yk[l + j * nu];
-        Yk[i + j * nu] = acc / Lk[i + i * nu];
+        Yk[i + j * nu] = acc * Ldk[i];
       }
     if (k == 0) break;  /* x_0 is fixed: P_0 is not needed */
     /* P_k = G_xx - Y'Y (lower, in place in G), then its Cholesky factor */
@@ -415,21 +400,21 @@ static int factor(ocpqp_solver *s, const ocpqp_data *d) {
   return 0;
 }
 
-/* one Newton solve for the residuals (rstat, req, r, rc) with the current factorisation (req, r, rc NULL:
- * zero): fills dw, dpi, ds, dz */
+/* one Newton solve for the residuals (rstat, req, r, rc) with the current factorisation (req NULL: zero;
+ * r and rc both given or both NULL: zero): fills dw, dpi, ds, dz */
 static void solve_rhs(ocpqp_solver *s, const ocpqp_data *d, const double *rstat, const double *req,
                       const double *r, const double *rc, double *dw, double *dpi, double *ds, double *dz) {
   int N = s->d.N, nx = DNX(s), nu = DNU(s), nb = DNB(s), k, i, l;
   double *h = s->h, *t = s->t;
   for (i = 0; i < s->nrow; ++i) s->qrow[i] = 0.0;
-  for (i = 0; i < s->nside; ++i)
-    s->qrow[s->srow[i]] += s->sg[i] * ((rc ? rc[i] : 0.0) + (r ? s->z[i] * r[i] : 0.0)) / s->s[i];
+  if (rc && r)
+    for (i = 0; i < s->nside; ++i) s->qrow[s->srow[i]] += s->sg[i] * (rc[i] + s->z[i] * r[i]) * s->is[i];
   rows_transpose(s, s->qrow, rstat, s->gt);
   /* backward: p_N = gt_N; h = gt_k + E'(P_{k+1} r_eq_k + p_{k+1}); ell = L^{-1} h_u; p_k = h_x - Y' ell */
   memcpy(s->p + (size_t)N * nx, s->gt + (size_t)N * nb, (size_t)nx * sizeof(double));
   for (k = N - 1; k >= 0; --k) {
     const double *P1 = s->Pf + (size_t)(k + 1) * nx * nx, *p1 = s->p + (size_t)(k + 1) * nx;
-    const double *Lk = s->L + (size_t)k * nu * nu, *Yk = s->Y + (size_t)k * nu * nx;
+    const double *Lk = s->L + (size_t)k * nu * nu, *Yk = s->Y + (size_t)k * nu * nx, *Ldk = s->Ld + (size_t)k * nu;
     double *ek = s->ell + (size_t)k * nu, *pk = s->p + (size_t)k * nx;
     memcpy(t, p1, (size_t)nx * sizeof(double));
     if (req) gemv_n(nx, nx, P1, req + (size_t)k * nx, t);
@@ -438,7 +423,7 @@ static void solve_rhs(ocpqp_solver *s, const ocpqp_data *d, const double *rstat,
     for (i = 0; i < nu; ++i) {
       double acc = h[nx + i];
       for (l = 0; l < i; ++l) acc -= Lk[i + l * nu] * ek[l];
-      ek[i] = acc / Lk[i + i * nu];
+      ek[i] = acc * Ldk[i];
     }
     if (k == 0) break;
     for (i = 0; i < nx; ++i) {
@@ -451,6 +436,7 @@ static void solve_rhs(ocpqp_solver *s, const ocpqp_data *d, const double *rstat,
   for (i = 0; i < nx; ++i) dw[i] = 0.0;
   for (k = 0; k < N; ++k) {
     const double *Lk = s->L + (size_t)k * nu * nu, *Yk = s->Y + (size_t)k * nu * nx, *ek = s->ell + (size_t)k * nu;
+    const double *Ldk = s->Ld + (size_t)k * nu;
     double *dwk = dw + (size_t)k * nb, *du = dwk + nx, *dxn = dw + (size_t)(k + 1) * nb;
     double *dpk = dpi + (size_t)k * nx;
     for (i = 0; i < nu; ++i) du[i] = ek[i];
@@ -458,7 +444,7 @@ static void solve_rhs(ocpqp_solver *s, const ocpqp_data *d, const double *rstat,
     for (i = nu - 1; i >= 0; --i) {
       double acc = du[i];
       for (l = i + 1; l < nu; ++l) acc -= Lk[l + i * nu] * du[l];
-      du[i] = acc / Lk[i + i * nu];
+      du[i] = acc * Ldk[i];
     }
     for (i = 0; i < nu; ++i) du[i] = -du[i];
     if (req) memcpy(dxn, req + (size_t)k * nx, (size_t)nx * sizeof(double));
@@ -470,7 +456,7 @@ static void solve_rhs(ocpqp_solver *s, const ocpqp_data *d, const double *rstat,
   row_values(s, d, dw, s->ddrow);
   for (i = 0; i < s->nside; ++i) {
     ds[i] = s->sg[i] * s->ddrow[s->srow[i]] + (r ? r[i] : 0.0);
-    dz[i] = -((rc ? rc[i] : 0.0) + s->z[i] * ds[i]) / s->s[i];
+    dz[i] = -((rc ? rc[i] : 0.0) + s->z[i] * ds[i]) * s->is[i];
   }
 }
 

@@ -23,6 +23,11 @@
  * Convexity: every H_k must be positive semidefinite and the QP's reduced Hessian positive definite
  * (e.g. every control with curvature or a bound); otherwise the Riccati factorisation may fail
  * (status OCPQP_FACTORIZATION).
+ * Notes (ocp_qp.c): nu = 0 is supported (the recursion is then the state propagation). An equality
+ * lc = uc (or lbw = ubw) is two inequalities. On OCPQP_BAD_DIMS, OCPQP_NONFINITE (in the data) and
+ * OCPQP_INFEASIBLE (lb > ub) the outputs are not written. Compiling ocp_qp.c with -DOCPQP_NX=nx
+ * -DOCPQP_NU=nu -DOCPQP_NC=nc -DOCPQP_NCN=ncN makes those dimensions compile-time constants (faster;
+ * ocpqp_create then returns NULL for any other dimensions).
  */
 #ifndef AEV_OCP_QP_H
 #define AEV_OCP_QP_H
