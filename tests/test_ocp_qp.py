@@ -1,0 +1,255 @@
+"""The structure-exploiting interior-point QP solver (aev_ocp/c/ocp_qp.c through aev_ocp.mpc.ocpqp).
+
+* Random convex OCP QPs (hypothesis, derandomized): solution and objective equal qpOASES (``ca.conic``) on
+  the same QP assembled in CasADi's full sparse form, and the multipliers satisfy the KKT conditions of that
+  full-space QP (stationarity, feasibility, complementarity, signs) in CasADi's convention.
+* A control that enters the cost only linearly, bounded through general rows (an energy epigraph):
+  solved (qrqp cannot).
+* An LQR (no inequalities): one Newton step, equal to numpy's solve of the dense KKT system.
+* nu = 0: the recursion is the state propagation.
+* Statuses: non-convex control block, lb > ub, a NaN, the iteration limit; wrongly sized arguments.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from aev_ocp.compiled import compiler
+from aev_ocp.mpc.ocpqp import INF, OcpQP, OcpQPDims, OcpQPSettings, random_qp, sparse_qp
+from aev_ocp.params import ParameterError
+
+pytestmark = pytest.mark.skipif(compiler() is None, reason="no C compiler")
+
+OK, MAX_ITER, FACTORIZATION, NONFINITE, INFEASIBLE = 0, 1, 2, 3, 4
+
+
+def _full(dims: OcpQPDims, data: dict[str, Any]) -> dict[str, Any]:
+    """The full-space QP as dense numpy arrays (plus the row index sets)."""
+    sq = sparse_qp(dims, data)
+    return dict(sq, H=np.array(sq["h"]), A=np.array(sq["a"]))
+
+
+def _objective(f: dict[str, Any], w: np.ndarray) -> float:
+    return float(0.5 * w @ f["H"] @ w + f["g"] @ w)
+
+
+def _kkt_violation(f: dict[str, Any], w: np.ndarray, lam_a: np.ndarray, lam_x: np.ndarray) -> float:
+    """Largest violation of the KKT conditions of min 1/2 w'Hw + g'w s.t. lba <= A w <= uba, lbx <= w <= ubx
+    with CasADi's multipliers (stationarity H w + g + A' lam_a + lam_x = 0; lam > 0 only on an active
+    upper bound, < 0 only on an active lower one)."""
+    stat = np.abs(f["H"] @ w + f["g"] + f["A"].T @ lam_a + lam_x).max()
+
+    def rows(v: np.ndarray, lo: np.ndarray, up: np.ndarray, lam: np.ndarray) -> float:
+        feas = np.maximum(np.maximum(lo - v, v - up), 0.0)
+        gap_up = np.where(np.isfinite(up), up - v, np.inf)
+        gap_lo = np.where(np.isfinite(lo), v - lo, np.inf)
+        with np.errstate(invalid="ignore"):
+            comp_up = np.where(lam > 0, np.where(np.isinf(gap_up), lam, lam * gap_up), 0.0)
+            comp_lo = np.where(lam < 0, np.where(np.isinf(gap_lo), -lam, -lam * gap_lo), 0.0)
+        return float(np.max(np.concatenate([feas, np.abs(comp_up), np.abs(comp_lo), [0.0]])))
+
+    return max(float(stat), rows(f["A"] @ w, f["lba"], f["uba"], lam_a), rows(w, f["lbx"], f["ubx"], lam_x))
+
+
+def _lam_a(f: dict[str, Any], pi: np.ndarray, lam_c: np.ndarray) -> np.ndarray:
+    lam = np.zeros(f["A"].shape[0])
+    lam[f["rows_pi"]] = pi
+    lam[f["rows_c"]] = lam_c
+    return lam
+
+
+def _qpoases(f: dict[str, Any]) -> np.ndarray:
+    import casadi as ca
+
+    solver = ca.conic("ref", "qpoases", {"h": f["h"].sparsity(), "a": f["a"].sparsity()},
+                      {"printLevel": "none", "enableRegularisation": True, "error_on_fail": False})
+    ref = solver(h=f["h"], a=f["a"], g=f["g"], lba=f["lba"], uba=f["uba"], lbx=f["lbx"], ubx=f["ubx"])
+    assert solver.stats()["success"]
+    return np.array(ref["x"]).ravel()
+
+
+def _random_dims(rng: np.random.Generator) -> OcpQPDims:
+    return OcpQPDims(N=int(rng.integers(1, 16)), nx=int(rng.integers(1, 5)), nu=int(rng.integers(1, 4)),
+                     nc=int(rng.integers(0, 5)), ncN=int(rng.integers(0, 3)))
+
+
+@settings(max_examples=40, derandomize=True, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(st.integers(min_value=0, max_value=2**31 - 1))
+def test_random_qps_match_qpoases_and_satisfy_kkt(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    dims = _random_dims(rng)
+    data = random_qp(dims, rng, scale=float(rng.uniform(0.3, 7.0)))
+    res = OcpQP(dims).solve(**data)
+    assert res.status == OK, (dims, res.status_name, res.residuals)
+    f = _full(dims, data)
+    w_ref = _qpoases(f)
+    scale = 1.0 + np.abs(w_ref).max()
+    assert np.abs(res.w - w_ref).max() <= 1e-6 * scale
+    j_ref = _objective(f, w_ref)
+    assert abs(_objective(f, res.w) - j_ref) <= 1e-8 * (1.0 + abs(j_ref))
+    assert _kkt_violation(f, res.w, _lam_a(f, res.pi, res.lam_c), res.lam_w) <= 1e-8 * scale
+    # x_0 is fixed and returned exactly
+    assert np.array_equal(res.w[:dims.nx], np.asarray(data["x0"]))
+
+
+def test_equality_rows_hold() -> None:
+    rng = np.random.default_rng(20261129)
+    dims = OcpQPDims(N=9, nx=3, nu=2, nc=3, ncN=1)
+    data = random_qp(dims, rng, equality_rows=1.0)  # every stage's first row an equality
+    f = _full(dims, data)
+    w_ref = _qpoases(f)
+    res = OcpQP(dims).solve(**data)
+    assert res.status == OK
+    Cw = f["A"][f["rows_c"]] @ res.w
+    eq = np.isclose(f["lba"][f["rows_c"]], f["uba"][f["rows_c"]])
+    assert eq.sum() == dims.N + 1
+    assert np.abs(Cw[eq] - f["lba"][f["rows_c"]][eq]).max() <= 1e-9
+    assert np.abs(res.w - w_ref).max() <= 1e-7 * (1 + np.abs(w_ref).max())
+    assert _kkt_violation(f, res.w, _lam_a(f, res.pi, res.lam_c), res.lam_w) <= 1e-8 * (1 + np.abs(w_ref).max())
+
+
+def _epigraph_qp(N: int = 12) -> tuple[OcpQPDims, dict[str, Any]]:
+    """x = (position gap, speed); u = (acceleration a, energy e); cost q (gap - 7.5)^2 + r a^2 + w_e e with e
+    entering only linearly, bounded below through two general rows e >= 2.3 a and e >= -0.4 a (the epigraph of
+    a convex piecewise-linear energy), and |a| <= 2.5."""
+    nx, nu, dt = 2, 2, 0.35
+    dims = OcpQPDims(N=N, nx=nx, nu=nu, nc=2)
+    A = np.array([[1.0, -dt], [0.0, 1.0]])
+    B = np.array([[-0.5 * dt * dt, 0.0], [dt, 0.0]])
+    Hk = np.diag([2 * 0.8, 2 * 0.05, 2 * 0.3, 0.0])
+    gk = np.array([-2 * 0.8 * 7.5, 0.0, 0.0, 0.6])
+    Ck = np.array([[0.0, 0.0, -2.3, 1.0], [0.0, 0.0, 0.4, 1.0]])
+    data = dict(H=[Hk] * N + [np.diag([1.6, 0.1])], g=[gk] * N + [np.array([-1.6 * 7.5, 0.0])],
+                E=[np.hstack([A, B])] * N, e=[np.zeros(nx)] * N, C=[Ck] * N + [np.zeros((0, nx))],
+                lc=[np.zeros(2)] * N + [np.zeros(0)], uc=[np.full(2, np.inf)] * N + [np.zeros(0)],
+                lbw=[np.array([-INF, -INF, -2.5, -INF])] * N + [np.full(nx, -INF)],
+                ubw=[np.array([INF, INF, 2.5, INF])] * N + [np.full(nx, INF)], x0=np.array([11.0, 1.7]))
+    return dims, data
+
+
+def test_a_control_entering_the_cost_linearly_is_solved() -> None:
+    dims, data = _epigraph_qp()
+    res = OcpQP(dims).solve(**data)
+    assert res.status == OK
+    f = _full(dims, data)
+    assert _kkt_violation(f, res.w, _lam_a(f, res.pi, res.lam_c), res.lam_w) <= 1e-8
+    nb = dims.nb
+    a = res.w[[k * nb + 2 for k in range(dims.N)]]
+    e = res.w[[k * nb + 3 for k in range(dims.N)]]
+    assert np.abs(e - np.maximum(2.3 * a, -0.4 * a)).max() <= 1e-8  # the epigraph is tight
+    assert np.abs(a).max() > 0.1  # and the problem is not trivial
+    w_ref = _qpoases(f)  # regularised by qpOASES (H is singular in e): agreement to its perturbation only
+    assert np.abs(res.w - w_ref).max() <= 1e-5 * (1 + np.abs(w_ref).max())
+    assert _objective(f, res.w) <= _objective(f, w_ref) + 1e-9
+
+
+def _lqr(N: int, nx: int, nu: int, rng: np.random.Generator) -> tuple[OcpQPDims, dict[str, Any]]:
+    dims = OcpQPDims(N=N, nx=nx, nu=nu)
+    nb = nx + nu
+    data: dict[str, Any] = dict(H=[], g=[], E=[], e=[], C=None, lc=None, uc=None, lbw=[], ubw=[],
+                                x0=rng.normal(size=nx) * 2.7)
+    for k in range(N + 1):
+        n = nb if k < N else nx
+        M = rng.normal(size=(n, n))
+        H = M @ M.T * 0.3
+        H[nx:, nx:] += np.eye(n - nx) * 0.7
+        data["H"].append(H)
+        data["g"].append(rng.normal(size=n) * 1.3)
+        data["lbw"].append(np.full(n, -np.inf))
+        data["ubw"].append(np.full(n, np.inf))
+        if k < N:
+            data["E"].append(rng.normal(size=(nx, nb)) * 0.6)
+            data["e"].append(rng.normal(size=nx) * 0.4)
+    return dims, data
+
+
+def _dense_kkt_solution(dims: OcpQPDims, data: dict[str, Any]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(w, pi, lam of x_0) from numpy's solve of the dense KKT system (equalities: dynamics and x_0 = x0)."""
+    f = _full(dims, data)
+    nx, nw = dims.nx, dims.nw
+    Aeq = np.vstack([f["A"][f["rows_pi"]], np.eye(nx, nw)])
+    beq = np.concatenate([f["lba"][f["rows_pi"]], np.asarray(data["x0"])])
+    K = np.block([[f["H"], Aeq.T], [Aeq, np.zeros((Aeq.shape[0],) * 2)]])
+    sol = np.linalg.solve(K, np.concatenate([-f["g"], beq]))
+    return sol[:nw], sol[nw:nw + dims.N * nx], sol[nw + dims.N * nx:]
+
+
+@pytest.mark.quick
+def test_lqr_is_one_newton_step_equal_to_the_dense_kkt_solve() -> None:
+    dims, data = _lqr(13, 3, 2, np.random.default_rng(7))
+    res = OcpQP(dims).solve(**data)
+    assert res.status == OK and res.iterations == 1
+    w, pi, lam0 = _dense_kkt_solution(dims, data)
+    assert np.abs(res.w - w).max() <= 1e-9 * (1 + np.abs(w).max())
+    assert np.abs(res.pi - pi).max() <= 1e-9 * (1 + np.abs(pi).max())
+    assert np.abs(res.lam_w[:dims.nx] - lam0).max() <= 1e-9 * (1 + np.abs(lam0).max())
+    assert np.abs(res.lam_w[dims.nx:]).max() == 0.0
+
+
+def test_no_controls_is_the_state_propagation() -> None:
+    dims, data = _lqr(6, 3, 0, np.random.default_rng(11))
+    res = OcpQP(dims).solve(**data)
+    assert res.status == OK
+    x = np.asarray(data["x0"])
+    for k in range(dims.N):
+        x = data["E"][k] @ x + data["e"][k]
+    assert np.abs(res.w[-dims.nx:] - x).max() <= 1e-10 * (1 + np.abs(x).max())
+    _, pi, _ = _dense_kkt_solution(dims, data)
+    assert np.abs(res.pi - pi).max() <= 1e-9 * (1 + np.abs(pi).max())
+
+
+@pytest.mark.quick
+def test_status_codes() -> None:
+    rng = np.random.default_rng(3)
+    dims, data = _lqr(5, 2, 1, rng)
+    bad = dict(data, H=[h.copy() for h in data["H"]])
+    bad["H"][2][2, 2] = -0.9  # a control with negative curvature and no bounds
+    assert OcpQP(dims).solve(**bad).status == FACTORIZATION
+    dims = OcpQPDims(N=6, nx=2, nu=1, nc=1)
+    data = random_qp(dims, rng)
+    assert OcpQP(dims).solve(**data).status == OK
+    crossed = dict(data, lbw=[v.copy() for v in data["lbw"]])
+    crossed["lbw"][3][2] = data["ubw"][3][2] + 0.25 if np.isfinite(data["ubw"][3][2]) else 3.0
+    if not np.isfinite(data["ubw"][3][2]):
+        crossed["ubw"] = [v.copy() for v in data["ubw"]]
+        crossed["ubw"][3][2] = 2.0
+    assert OcpQP(dims).solve(**crossed).status == INFEASIBLE
+    nan = dict(data, g=[v.copy() for v in data["g"]])
+    nan["g"][4][1] = np.nan
+    assert OcpQP(dims).solve(**nan).status == NONFINITE
+    limited = OcpQP(dims, OcpQPSettings(max_iter=1)).solve(**data)
+    assert limited.status == MAX_ITER and limited.iterations == 1
+
+
+@pytest.mark.quick
+def test_bad_sizes_name_the_argument() -> None:
+    dims = OcpQPDims(N=4, nx=2, nu=1, nc=1)
+    data = random_qp(dims, np.random.default_rng(5))
+    qp = OcpQP(dims)
+    with pytest.raises(ParameterError, match=r"^g must have 5 stage blocks, got 4"):
+        qp.solve(**dict(data, g=data["g"][:4]))
+    with pytest.raises(ParameterError, match=r"^E\[2\] must have shape \(2, 3\)"):
+        qp.solve(**dict(data, E=data["E"][:2] + [np.zeros((3, 2))] + data["E"][3:]))
+    with pytest.raises(ParameterError, match=r"^lbw must have 14 entries"):
+        qp.solve(**dict(data, lbw=np.zeros(13)))
+    with pytest.raises(ParameterError, match=r"^x0 must have nx = 2"):
+        qp.solve(**dict(data, x0=np.zeros(3)))
+    with pytest.raises(ParameterError, match=r"^C is required"):
+        qp.solve(**dict(data, C=None))
+    with pytest.raises(ParameterError, match=r"OcpQPDims.nx must be an integer >= 1"):
+        OcpQPDims(N=3, nx=0, nu=1)
+
+
+def test_compiled_in_dimensions_give_the_same_solution() -> None:
+    rng = np.random.default_rng(41)
+    dims = OcpQPDims(N=7, nx=3, nu=2, nc=2, ncN=1)
+    data = random_qp(dims, rng)
+    generic, fixed = OcpQP(dims).solve(**data), OcpQP(dims, specialise=True).solve(**data)
+    assert generic.status == fixed.status == OK and generic.iterations == fixed.iterations
+    assert np.abs(generic.w - fixed.w).max() <= 1e-12 * (1 + np.abs(generic.w).max())
+    assert np.abs(generic.lam_c - fixed.lam_c).max() <= 1e-10 * (1 + np.abs(generic.lam_c).max())
