@@ -234,6 +234,11 @@ def write_sources(c: "MPCController", folder: Path, description: str) -> None:
 
 
 # ---------------------------------------------------------------------------------------------- export
+def qp_dimension_defines(c: "MPCController") -> tuple[str, ...]:
+    """The macros that specialise ocp_qp.c to the controller's QP (OCPQP_NX, _NU, _NC, _NCN; ocp_qp.h)."""
+    return (f"OCPQP_NX={c.nx}", f"OCPQP_NU={c.nu}", f"OCPQP_NC={c._ng_stage - c.nx}", "OCPQP_NCN=0")
+
+
 def check_exportable(c: "MPCController") -> None:
     """ExportError (naming the cause) for what the exported step does not implement: terminal constraints
     (as the Python rti path; a terminal cost is fine)."""
@@ -247,8 +252,11 @@ def export_controller(c: "MPCController", out: Path, description: str) -> list[P
     check_exportable(c)
     out = Path(out)
     write_sources(c, out, description)
-    (out / "Makefile").write_text(_template("mpc_Makefile.in"), encoding="utf-8")
-    (out / "CMakeLists.txt").write_text(_template("mpc_CMakeLists.txt.in"), encoding="utf-8")
+    defs = qp_dimension_defines(c)
+    (out / "Makefile").write_text(_template("mpc_Makefile.in").replace("@QPDIMS@", " ".join(f"-D{d}" for d in defs)),
+                                  encoding="utf-8")
+    (out / "CMakeLists.txt").write_text(_template("mpc_CMakeLists.txt.in").replace("@QPDIMS_CMAKE@", ";".join(defs)),
+                                        encoding="utf-8")
     s, pr = c.settings, c.problem
     readme = _template("mpc_README.txt.in")
     subs = {"DESCRIPTION": description, "N": s.N, "DT": f"{s.dt:g}", "NX": pr.nx, "NU": pr.nu,
@@ -291,6 +299,18 @@ def export_mpc(scenario: Any, out: Path, settings: Any = None) -> list[Path]:
 
 
 # ---------------------------------------------------------------------------------------------- building
+def _config_qp_defines(src: Path) -> list[str]:
+    """-DOCPQP_* flags (qp_dimension_defines) from an export folder's mpc_config.h."""
+    import re
+
+    text = (src / "mpc_config.h").read_text(encoding="utf-8")
+    val = {k: int(v) for k, v in re.findall(r"#define AEV_MPC_(NX|NU|NG_STAGE) (\d+)", text)}
+    if len(val) != 3:
+        raise ExportError(f"{src / 'mpc_config.h'} does not define AEV_MPC_NX, AEV_MPC_NU and AEV_MPC_NG_STAGE")
+    return [f"-DOCPQP_NX={val['NX']}", f"-DOCPQP_NU={val['NU']}", f"-DOCPQP_NC={val['NG_STAGE'] - val['NX']}",
+            "-DOCPQP_NCN=0"]
+
+
 def build_library(src: Path, out_lib: Path, cc: str | None = None, flags: tuple[str, ...] = ("-O2",)) -> Path:
     """Compile the export folder's C sources into a shared library (ExportError naming the cause)."""
     from ..compiled import compiler
@@ -298,7 +318,8 @@ def build_library(src: Path, out_lib: Path, cc: str | None = None, flags: tuple[
     cc = cc or compiler()
     if cc is None:
         raise ExportError("no C compiler found (set $CC or install gcc/cc) to build the exported MPC")
-    cmd = [cc, *flags, "-fPIC", "-shared", "-o", str(out_lib), "mpc_casadi.c", "mpc_step.c", "ocp_qp.c", "-lm"]
+    cmd = [cc, *flags, *_config_qp_defines(Path(src)), "-fPIC", "-shared", "-o", str(out_lib), "mpc_casadi.c",
+           "mpc_step.c", "ocp_qp.c", "-lm"]
     proc = subprocess.run(cmd, cwd=src, capture_output=True, text=True, timeout=900)
     if proc.returncode != 0:
         last = (proc.stderr or proc.stdout).strip().splitlines()
@@ -439,7 +460,8 @@ class CompiledStep:
             files = {n: Path(tmp, n).read_text(encoding="utf-8") for n in ("mpc_config.h", "mpc_casadi.h", "mpc_step.h",
                                                                           "mpc_step.c", "ocp_qp.h", "ocp_qp.c")}
             main = Path(tmp, "mpc_casadi.c").read_text(encoding="utf-8")
-        built = compile_shared(main, "mpc_step", "mpc", companions=files)
+        built = compile_shared(main, "mpc_step", "mpc", companions=files,
+                               extra_flags=tuple(f"-D{d}" for d in qp_dimension_defines(c)))
         if built.path is None:
             warnings.warn(f"MPC codegen failed ({built.error}): using the interpreted CasADi functions instead",
                           RuntimeWarning, stacklevel=4)
