@@ -62,7 +62,7 @@ class CPolicy:
         if self.first is not None:
             sol = self.first.solve(obs.z, vm, vh)
             w = self.first._warm
-            self.step.set_warm(w["x"], w["lam_g"], w["lam_x"], drop_below=1e-8)
+            self.step.set_warm(w["x"], w["lam_g"], w["lam_x"])
             self.first, self.status = None, [0]
             return Command(float(sol.a[0]), True)
         u, st = self.step.step(obs.z, np.concatenate([vm, vh]))

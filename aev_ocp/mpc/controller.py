@@ -571,7 +571,7 @@ class MPCController:
         self._warm = ({"x": x, "lam_x": np.asarray(out["lam_x"]).ravel(), "lam_g": np.asarray(out["lam_g"]).ravel(),
                        "X1": X[:, 1]} if success else None)
         if self._cstep is not None and self._warm is not None:
-            self._cstep.set_warm(self._warm["x"], self._warm["lam_g"], self._warm["lam_x"], drop_below=1e-8)
+            self._cstep.set_warm(self._warm["x"], self._warm["lam_g"], self._warm["lam_x"])
         return MPCSolution(success, status, iters, dt_wall, X, a, float(out["f"]), viol, path,
                            {"t_wall_solver": float(st.get("t_wall_total", float("nan")))}, U)
 

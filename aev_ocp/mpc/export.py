@@ -1,6 +1,6 @@
 """The MPC step as self-contained C: the real-time iteration of :class:`~aev_ocp.mpc.controller.MPCController`
-(solver 'rti') with CasADi's active-set QP solver ``qrqp`` generated into the same C code, so that nothing
-of Python or CasADi is needed at run time.
+(solver 'rti') as CasADi-generated functions plus two hand-written C files, so that nothing of Python or
+CasADi is needed at run time.
 
 Five CasADi Functions are built from the controller's (any) :class:`~aev_ocp.ocp.problem.OCPProblem` and
 generated into ``mpc_casadi.c`` (:func:`rti_functions`):
@@ -9,27 +9,35 @@ generated into ``mpc_casadi.c`` (:func:`rti_functions`):
   :meth:`MPCController.guess`);
 * ``aev_cg_shift(x, lam_g, lam_x, z0, p) -> (x, lam_g, lam_x)``: the warm start shifted by one interval
   (as :meth:`MPCController._shift`);
-* ``aev_cg_sqp(x, lam_g, lam_x, p, reg) -> (x⁺, lam_g⁺, lam_x⁺, |dx|∞, max|A dx − b|)``: one full SQP step
-  (exact Lagrangian Hessian + reg·I, the QP solved by qrqp warm-started on the previous active set);
+* ``aev_cg_qpdata(x, p, lam_g) -> (H, g, E, e, C, lc, uc, lbw, ubw)`` (:func:`qp_data_function`): the QP of
+  one SQP step in stage blocks — the exact Lagrangian Hessian's stage blocks and the terminal cost's, the
+  dynamics' Jacobians [A B] and defects, the path constraints' Jacobians and offsets, the step bounds;
 * ``aev_cg_node0(x, p) -> (node-0 violation, u0)``: the applied control and its path constraints;
 * ``aev_cg_eval(x, p) -> (f, violation)``: the plan's cost and constraint violation (evaluated only when
   asked for, by ``aev_mpc_get_info``).
 
-The hand-written driver ``aev_ocp/c/mpc_step.c`` (header ``mpc_step.h``) runs them: a cold step iterates
-regularised SQP from the guess until the step is below ``tol`` (at most :data:`COLD_MAX_ITER` QPs), a warm step shifts
-and does ``rti_iterations`` SQP steps. The Python rti path with qp_solver 'qrqp' and codegen loads the
-same library (:class:`CompiledStep`), so the Python controller and the exported C run the same code.
+The hand-written driver ``aev_ocp/c/mpc_step.c`` (header ``mpc_step.h``) runs them and solves each QP with
+``aev_ocp/c/ocp_qp.c`` (``ocp_qp.h``): a primal-dual interior point (Mehrotra) whose Newton systems are
+solved by a Riccati recursion over the stages, built with the problem's dimensions as compile-time
+constants (:func:`qp_dimension_defines`). One SQP step: the QP data, each Hessian block projected onto
+the positive-definite cone in C when ``rti_hessian = 'projected'`` (``aev_mpc_project_pd``: the same
+floor as :func:`aev_ocp.mpc.controller._project_pd`), a full step. A warm step shifts and does
+``rti_iterations`` SQP steps; a cold step (the first, or after a failure) does ``rti_cold_iterations``
+SQP steps from the guess (the traffic formulation, as the Python rti path), or, for §9 (whose Python path
+starts with a cold IPOPT), Levenberg-Marquardt-regularised SQP until the step is below ``tol`` (at most
+:data:`COLD_MAX_ITER` QPs). The Python rti path with qp_solver 'riccati' and codegen loads the same
+library (:class:`CompiledStep`), so the Python controller and the exported C run the same code; without
+codegen it runs a Python twin of the driver on the same QP solver (:func:`riccati_solver`).
 
-:func:`export_mpc` writes the folder of ``aev-ocp mpc-export``: sources, header, generated config header,
+:func:`export_mpc` writes the folder of ``aev-ocp mpc-export``: sources, headers, generated config header,
 Makefile, CMakeLists.txt, a benchmark main and README.txt.
 
-Why qrqp: it is the QP solver whose C CasADi generates (no library at run time; HPIPM's sources may not be
-copied). It is an active-set method on a sparse QR of the KKT matrix: on the §9 problem (strictly convex
-QPs near the solution) it is as fast as HPIPM through ``ca.conic`` and warm-starts on the previous active
-set. Limits: it needs a nonsingular reduced Hessian — a problem whose controls enter the cost only
-linearly (the 'energy' objective's energy-rate control) makes it fail or hit its iteration limit (the
-Python controller then falls back to IPOPT / the closed-form law); use HPIPM for those. A structure-
-exploiting interior-point QP in C (Riccati recursion) would lift this and is the next step.
+Why our own QP solver: CasADi generates C for only one QP solver, qrqp (an active set on a sparse QR of the
+whole KKT matrix; HPIPM's sources may not be copied). qrqp took 70 % of the exported step (0.32 ms) and
+needs curvature in every control, so the traffic formulation (its energy epigraph control enters the
+cost linearly) could not be exported. The interior point takes linear-cost controls bounded through
+constraints, and its cost per iteration is linear in N. Its limit: every QP must be convex (an
+indefinite exact Hessian block can stall it: use the default projected Hessian).
 """
 
 from __future__ import annotations
@@ -59,9 +67,10 @@ EXPORT_FILES = ("mpc_casadi.c", "mpc_casadi.h", "mpc_config.h", "mpc_step.c", "m
 COLD_MAX_ITER = 100
 #: Cold start (Levenberg-Marquardt): the QP Hessian gets reg·I, reg = COLD_REG0 at first, divided by 10
 #: whenever max|dx| < COLD_REG_STEP (0 once below 1e-6), multiplied by 10 and the step retried when the QP
-#: fails (up to COLD_REG_MAX); full SQP steps. Without it qrqp fails within two iterations from the guess
-#: on the §9 problem (the exact Hessian is singular and, far from the solution, indefinite); with it the
-#: cold start reaches IPOPT's solution (max |dx| 4e-7 = IPOPT's tolerance) in 22 iterations.
+#: fails (up to COLD_REG_MAX); full SQP steps. Used by the §9 problem's exact Hessian, which far from the
+#: solution is indefinite (an interior-point QP needs convexity); with it the cold start of the canonical
+#: scenario converges (max |dx| < 1e-14) in 19-24 SQP iterations (116-166 QP iterations in all) from three
+#: different states.
 COLD_REG0 = 0.1
 COLD_REG_STEP = 1e-2
 COLD_REG_MAX = 1e3
@@ -403,8 +412,8 @@ class CStep:
 
     def set_warm(self, x: np.ndarray, lam_g: np.ndarray, lam_x: np.ndarray, drop_below: float = 0.0) -> None:
         """Start the next step from this primal-dual point (scaled NLP vector and multipliers).
-        ``drop_below``: multipliers of smaller magnitude are set to 0 — an interior-point solution (IPOPT)
-        has tiny nonzero multipliers on inactive constraints, which qrqp would take as its initial active set."""
+        ``drop_below``: multipliers of smaller magnitude are set to 0 (they enter the next step's Lagrangian
+        Hessian; default: kept as given)."""
         a, b, d = (np.array(v, float) for v in (x, lam_g, lam_x))
         if a.size != self.nv or b.size != self.ng or d.size != self.nv:
             raise ParameterError(f"CStep.set_warm: x, lam_g, lam_x must have {self.nv}, {self.ng}, {self.nv} values")
@@ -442,7 +451,7 @@ def riccati_solver(c: "MPCController") -> tuple[ca.Function, Any] | None:
 
 class CompiledStep:
     """The exported step's library built into the private cache (:func:`aev_ocp.compiled.compile_shared`,
-    keyed by a hash of the sources) for the Python rti path (qp_solver 'qrqp', codegen)."""
+    keyed by a hash of the sources) for the Python rti path (qp_solver 'riccati', codegen)."""
 
     @staticmethod
     def build(c: "MPCController") -> "CStep | None":
@@ -477,8 +486,8 @@ def build_parser() -> Any:
     p = OneLineParser(prog="aev-ocp mpc-export",
                       description="Export the MPC step of a scenario's [mpc] table as a self-contained C library "
                                   "(sources, header mpc_step.h, Makefile, CMakeLists.txt, README.txt; no Python or "
-                                  "CasADi at run time). The exported step is the real-time iteration with the "
-                                  "qrqp QP solver generated into the C code, whatever the scenario's solver.")
+                                  "CasADi at run time). The exported step is the real-time iteration with aev_ocp's "
+                                  "Riccati interior-point QP solver (ocp_qp.c), whatever the scenario's solver.")
     p.add_argument("scenario", help="scenario TOML file or shipped scenario name (e.g. mpc_paper_single)")
     p.add_argument("--out", required=True, help="output folder of the C sources (created; files replaced)")
     p.add_argument("--set", action="append", default=None, metavar="KEY=VALUE",
