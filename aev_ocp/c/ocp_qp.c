@@ -144,10 +144,21 @@ ocpqp_solver *ocpqp_create(const ocpqp_dims *dims, const ocpqp_settings *setting
 void ocpqp_free(ocpqp_solver *s) { free(s); }
 
 /* ------------------------------------------------------------------------------------------ kernels */
-/* y (m) += A (m x n, column-major) x; two columns per pass (half the loads and stores of y) */
+/* y (m) += A (m x n, column-major) x; four, then two columns per pass (fewer loads and stores of y) */
 static void gemv_n(int m, int n, const double *A, const double *x, double *y) {
-  int i, j;
-  for (j = 0; j + 1 < n; j += 2) {
+  int i, j = 0;
+  if (m == 1) {
+    double acc = y[0];
+    for (j = 0; j < n; ++j) acc += A[j] * x[j];
+    y[0] = acc;
+    return;
+  }
+  for (; j + 3 < n; j += 4) {
+    double x0 = x[j], x1 = x[j + 1], x2 = x[j + 2], x3 = x[j + 3];
+    const double *a0 = A + (size_t)j * m, *a1 = a0 + m, *a2 = a1 + m, *a3 = a2 + m;
+    for (i = 0; i < m; ++i) y[i] += (a0[i] * x0 + a1[i] * x1) + (a2[i] * x2 + a3[i] * x3);
+  }
+  for (; j + 1 < n; j += 2) {
     double x0 = x[j], x1 = x[j + 1];
     const double *a0 = A + (size_t)j * m, *a1 = a0 + m;
     for (i = 0; i < m; ++i) y[i] += a0[i] * x0 + a1[i] * x1;
