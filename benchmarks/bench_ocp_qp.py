@@ -12,7 +12,8 @@ per solve and per interior-point iteration; 'fixed': the same source compiled wi
 constants (-DOCPQP_NX=... , OcpQP(dims, specialise=True)); conic: median of >= 200 calls of the CasADi Function
 (including CasADi's conversion of the sparse data; a call slower than 2 ms, a failing solve, is
 repeated only for 0.5 s). 'agree' is max |w - w_conic| over the QP's variables
-(qrqp's and HPIPM's own accuracy included). Times on a shared machine are noisy: medians, and ratios
+(qrqp's and HPIPM's own accuracy included). Tolerances: ocp_qp.h's defaults (1e-10), and 1e-8 in the
+'tol 1e-8' rows. Times on a shared machine are noisy: medians, and ratios
 within one process.
 Usage: PYTHONPATH=. python benchmarks/bench_ocp_qp.py [--reps 300] [--out benchmarks/bench_ocp_qp.json]
 """
@@ -26,7 +27,7 @@ from typing import Any
 import casadi as ca
 import numpy as np
 
-from aev_ocp.mpc.ocpqp import OcpQP, OcpQPDims, random_qp, sparse_qp
+from aev_ocp.mpc.ocpqp import OcpQP, OcpQPDims, OcpQPSettings, random_qp, sparse_qp
 from aev_ocp.results import write_json
 
 RANDOM = {
@@ -116,13 +117,14 @@ def rti_qp(formulation: str, N: int) -> tuple[OcpQPDims, dict[str, Any]]:
     return blocks_from_full(N, nx, nu, seen[-1])
 
 
-def bench_one(name: str, dims: OcpQPDims, data: dict[str, Any], reps: int) -> dict[str, Any]:
-    solver, fixed = OcpQP(dims), OcpQP(dims, specialise=True)
+def bench_one(name: str, dims: OcpQPDims, data: dict[str, Any], reps: int, tol: float = 1e-10) -> dict[str, Any]:
+    st = OcpQPSettings(tol_stat=tol, tol_eq=tol, tol_ineq=tol, tol_comp=tol)
+    solver, fixed = OcpQP(dims, st), OcpQP(dims, st, specialise=True)
     res = solver.solve(**data)
     fixed.set_data(**data)
     t = float(np.median(solver.timed_calls(reps)))
     tf = float(np.median(fixed.timed_calls(reps)))
-    row: dict[str, Any] = {"problem": name, "N": dims.N, "nx": dims.nx, "nu": dims.nu, "nc": dims.nc,
+    row: dict[str, Any] = {"problem": name, "tol": tol, "N": dims.N, "nx": dims.nx, "nu": dims.nu, "nc": dims.nc,
                            "status": res.status_name, "iterations": res.iterations, "ocpqp_ms": t * 1e3,
                            "ocpqp_per_iter_us": t * 1e6 / max(1, res.iterations), "ocpqp_fixed_ms": tf * 1e3,
                            "fixed_same_w": bool(np.array_equal(fixed.solve_data().w, res.w))}
@@ -161,6 +163,7 @@ def main() -> None:
             try:
                 dims, data = rti_qp(form, N)
                 rows.append(bench_one(name, dims, data, a.reps))
+                rows.append(bench_one(name.replace("QP", "QP tol 1e-8"), dims, data, a.reps, tol=1e-8))
             except Exception as exc:  # reported, not fatal: the random rows stand on their own
                 rows.append({"problem": name, "error": f"{type(exc).__name__}: {str(exc).splitlines()[0][:200]}"})
     head = f"{'problem':30s} {'dims':>16s} {'status':>9s} {'it':>3s} {'ocpqp ms':>9s} {'us/it':>6s} {'fixed ms':>8s} " \
