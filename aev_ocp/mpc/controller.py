@@ -695,7 +695,12 @@ class MPCController:
         dt_wall = time.perf_counter() - t0
         x, lam_g, lam_x, info = cs.solution()
         if st != 0:
-            return self._failed(STATUS.get(st, f"status {st}"), info.iterations, dt_wall, info.node0_violation, "rti")
+            from .ocpqp import STATUS as QP_STATUS
+
+            why = STATUS.get(st, f"status {st}")
+            if st == 1:  # the QP solver's own status (ocp_qp.h)
+                why = f"{why} {QP_STATUS.get(info.qp_status, info.qp_status)}"
+            return self._failed(why, info.iterations, dt_wall, info.node0_violation, "rti")
         X, a, U = self.unpack(x)
         warm = {"x": x.copy(), "X1": X[:, 1]}  # (the library keeps its own warm start)
         if dt_wall * 1e3 > self.settings.max_step_ms:
