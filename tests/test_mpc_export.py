@@ -50,6 +50,7 @@ class CPolicy:
         self.step, self.policy, self.first = CStep(lib), policy, first
         self.name, self.dt = "exported C", policy.dt
         self.status: list[int] = []
+        self.retries: list[int] = []  # QPs re-solved with the projected Hessian (after the exact one failed)
 
     def reset(self) -> None:
         self.step.reset()
@@ -67,6 +68,7 @@ class CPolicy:
             return Command(float(sol.a[0]), True)
         u, st = self.step.step(obs.z, np.concatenate([vm, vh]))
         self.status.append(st)
+        self.retries.append(self.step.solution()[3].projected_retries)
         if st != 0:
             return self.policy._fallback.command(obs)
         return Command(float(u[0]), True)
@@ -88,13 +90,18 @@ def _compare(a: Any, b: Any) -> tuple[float, float]:
 
 
 def _c_run(lib: Path, settings: MPCSettings, vehicle: Any = None, first: Any = None,
-           loop: ClosedLoop | None = None, start: tuple[float, float, float] = (0.3, 1.87, T_END)) -> tuple[Any, list[int]]:
-    """The closed loop driven by the exported library (forecast from an MPC policy of the same settings)."""
+           loop: ClosedLoop | None = None, start: tuple[float, float, float] = (0.3, 1.87, T_END),
+           retries: list[int] | None = None) -> tuple[Any, list[int]]:
+    """The closed loop driven by the exported library (forecast from an MPC policy of the same settings);
+    ``retries`` (if given) receives the projected-Hessian retries per step."""
     loop = loop or _loop(vehicle or settings)
     pol = loop.ctrl[0]
     cp = CPolicy(lib, pol, first)
     loop.ctrl[0] = cp
-    return loop.run([start[0]], [start[1]], start[2]), cp.status
+    r = loop.run([start[0]], [start[1]], start[2])
+    if retries is not None:
+        retries.extend(cp.retries)
+    return r, cp.status
 
 
 @pytest.fixture(scope="module")
@@ -167,18 +174,28 @@ def _candidate(ev: EVParams, s: MPCSettings) -> Any:
 
 def test_soft_constraint_and_extra_state_problem(tmp_path: Path) -> None:
     ev = EVParams()
-    # the projected Hessian (the default): this problem's exact Hessian blocks are indefinite (min eigenvalue
-    # −0.05), which an interior-point QP cannot take
-    s = MPCSettings.from_dict({**CANON, "w_Q": 0.7, "h_min": -10.0, "rti_hessian": "projected"})
+    # the exact Hessian (CANON): this problem's blocks are indefinite (min eigenvalue −0.05) in most steps,
+    # which the interior point cannot take: those QPs are re-solved with the projected Hessian, the same
+    # rule in the C driver and in the Python one (MPCController._riccati_step)
+    s = MPCSettings.from_dict({**CANON, "w_Q": 0.7, "h_min": -10.0})
     prob = _candidate(ev, s)
     c = export_controller_settings(s, ev, problem=prob)
     assert c.nx == 6 and c.problem.control_names[-1] == "slack_headway"  # a_prev; the soft constraint's slack
     export_controller(c, tmp_path, "candidate")
     lib = build_library(tmp_path, tmp_path / "lib.so")
-    rc, st = _c_run(lib, s, MPCVehicle(s, problem=prob))
-    rp = _loop(MPCVehicle(s, problem=prob)).run([0.3], [1.87], T_END)
+    from aev_ocp.mpc.controller import MPCController
+
+    # against the Python driver (interpreted QP data, NumPy projection, the same QP solver), both from the
+    # same cold IPOPT step
+    si = s.with_(codegen=False)
+    ref = MPCController(si, ev, problem=prob)
+    assert ref._riccati is not None and ref._cstep is None
+    retries: list[int] = []
+    rc, st = _c_run(lib, si, MPCVehicle(si, problem=prob), first=ref, retries=retries)
+    rp = _loop(MPCVehicle(si, problem=prob)).run([0.3], [1.87], T_END)
     assert all(k == 0 for k in st)
     assert (rp.solver_stats[0] or {}).get("fallbacks") == 0
+    assert sum(retries) > 20  # the retry rule is exercised (indefinite exact Hessian blocks)
     du, dx = _compare(rc, rp)
     assert du <= TOL and dx <= TOL, (du, dx)
     # the soft constraint is active somewhere (the slack control is used): the test exercises it

@@ -246,6 +246,17 @@ int aev_mpc_project_pd(double *B, int n, double floor_rel) {
 }
 
 /* ---------------------------------------------------------------- one SQP step */
+/* The QP's Hessian blocks (stages and terminal) projected onto the PD cone in place; 1 if non-finite. */
+static int project_hessian(aev_mpc_workspace *ws) {
+  int k;
+  TIC(t1);
+  for (k = 0; k < AEV_MPC_N; ++k)
+    if (aev_mpc_project_pd(ws->H + k * NB * NB, NB, AEV_MPC_HESS_FLOOR) < 0) return 1;
+  if (aev_mpc_project_pd(ws->H + AEV_MPC_N * NB * NB, AEV_MPC_NX, AEV_MPC_HESS_FLOOR) < 0) return 1;
+  TOC(t1, t_project);
+  return 0;
+}
+
 /* One SQP step from (x, lam_g, lam_x) into the buffers, then swapped in. 0 ok, else a status. */
 static int sqp_step(aev_mpc_workspace *ws, double reg) {
   int k, i, flag;
@@ -260,13 +271,7 @@ static int sqp_step(aev_mpc_workspace *ws, double reg) {
   TOC(t0, t_qpdata);
   ws->info.iterations++;
   if (flag) return AEV_MPC_NONFINITE;
-  if (AEV_MPC_PROJECT) {
-    TIC(t1);
-    for (k = 0; k < AEV_MPC_N; ++k)
-      if (aev_mpc_project_pd(ws->H + k * NB * NB, NB, AEV_MPC_HESS_FLOOR) < 0) return AEV_MPC_NONFINITE;
-    if (aev_mpc_project_pd(ws->H + AEV_MPC_N * NB * NB, AEV_MPC_NX, AEV_MPC_HESS_FLOOR) < 0) return AEV_MPC_NONFINITE;
-    TOC(t1, t_project);
-  }
+  if (AEV_MPC_PROJECT && project_hessian(ws)) return AEV_MPC_NONFINITE;
   if (reg > 0.0) {
     for (k = 0; k < AEV_MPC_N; ++k)
       for (i = 0; i < NB; ++i) ws->H[k * NB * NB + i * (NB + 1)] += reg;
@@ -278,6 +283,18 @@ static int sqp_step(aev_mpc_workspace *ws, double reg) {
     TIC(t2);
     flag = ocpqp_solve(ws->qp, &d, ws->dw, ws->pi, ws->lam_x2, ws->lam_c, &qi);
     TOC(t2, t_qp);
+  }
+  if (!AEV_MPC_PROJECT && (flag == OCPQP_MAX_ITER || flag == OCPQP_FACTORIZATION)) {
+    /* the exact Hessian was not convex enough for the interior point: the same QP once more with its
+     * blocks projected onto the PD cone (as rti_hessian 'projected' always does) */
+    ws->info.qp_iterations += qi.iterations;
+    ws->info.projected_retries++;
+    if (project_hessian(ws)) return AEV_MPC_NONFINITE;
+    {
+      TIC(t3);
+      flag = ocpqp_solve(ws->qp, &d, ws->dw, ws->pi, ws->lam_x2, ws->lam_c, &qi);
+      TOC(t3, t_qp);
+    }
   }
   ws->info.qp_iterations += qi.iterations;
   ws->info.qp_status = flag;
@@ -345,7 +362,7 @@ static int cold_start(aev_mpc_workspace *ws) {
 
 int aev_mpc_step_full(aev_mpc_workspace *ws, const double *z0, const double *p, double *u_out, int *status) {
   int it, st = AEV_MPC_OK;
-  ws->info.iterations = ws->info.qp_iterations = ws->info.qp_status = 0;
+  ws->info.iterations = ws->info.qp_iterations = ws->info.qp_status = ws->info.projected_retries = 0;
   ws->info.t_shift = ws->info.t_qpdata = ws->info.t_project = ws->info.t_qp = ws->info.t_node0 = 0.0;
   ws->info.step_inf = ws->info.qp_residual = ws->info.cost = ws->info.violation = ws->info.node0_violation = NAN;
   if (!all_finite(z0, AEV_MPC_NX) || !all_finite(p, AEV_MPC_NP)) return finish(ws, AEV_MPC_BAD_INPUT, u_out, status);

@@ -2,7 +2,8 @@
  *
  * One real-time iteration of the receding-horizon controller per call: shift the previous plan by one
  * interval, linearise (exact Lagrangian Hessian, its stage blocks projected onto the positive-definite cone
- * when AEV_MPC_PROJECT), solve the QP with the Riccati interior point of ocp_qp.c, return the first control.
+ * when AEV_MPC_PROJECT; else projected only for a QP that the exact one makes fail: the interior point needs
+ * convexity), solve the QP with the Riccati interior point of ocp_qp.c, return the first control.
  * The first call (or the first after aev_mpc_reset or a failure) is a cold start from the closed-form law
  * rolled out over the horizon: AEV_MPC_COLD_ITER SQP steps, or (AEV_MPC_COLD_ITER = 0) regularised SQP
  * (Hessian + reg I from AEV_MPC_COLD_REG0) until max|dx| <= AEV_MPC_TOL. No allocation after aev_mpc_create;
@@ -38,6 +39,7 @@ typedef struct {
   int iterations;         /* SQP iterations (QPs) of the last step */
   int qp_iterations;      /* interior-point iterations of those QPs, summed */
   int qp_status;          /* ocpqp status of the last QP (ocp_qp.h: OCPQP_OK = 0) */
+  int projected_retries;  /* QPs re-solved with the projected Hessian after the exact one failed */
   int cold;               /* 1 if the last step was a cold start */
   double step_inf;        /* max |dx| of the last SQP iteration (scaled NLP variables) */
   double qp_residual;     /* max violation of the last QP's linear constraints */

@@ -672,11 +672,16 @@ class MPCController:
         fdata, qp = self._riccati
         N, nx, nb, ngs = self.settings.N, self.nx, self.nx + self.nu, self._ng_stage
         H, g, E, e, C, lc, uc, lbw, ubw = (np.asarray(v, float).ravel() for v in fdata(x, p, lam_g))
-        if self.settings.rti_hessian == "projected":
+
+        def projected(H: np.ndarray) -> np.ndarray:
             B = _project_pd(H[:N * nb * nb].reshape(N, nb, nb).transpose(0, 2, 1))
             HN = _project_pd(H[N * nb * nb:].reshape(1, nx, nx).transpose(0, 2, 1))
-            H = np.concatenate([B.transpose(0, 2, 1).ravel(), HN.transpose(0, 2, 1).ravel()])
-        r = qp.solve(H, g, E, e, C, lc, uc, lbw, ubw, np.zeros(nx))
+            return np.concatenate([B.transpose(0, 2, 1).ravel(), HN.transpose(0, 2, 1).ravel()])
+
+        exact = self.settings.rti_hessian == "exact"
+        r = qp.solve(H if exact else projected(H), g, E, e, C, lc, uc, lbw, ubw, np.zeros(nx))
+        if exact and r.status in (1, 2):  # MAX_ITER, FACTORIZATION: not convex enough (as mpc_step.c)
+            r = qp.solve(projected(H), g, E, e, C, lc, uc, lbw, ubw, np.zeros(nx))
         if r.status != 0:
             return r.w, lam_g, np.zeros(self.nv), f"ocp_qp {r.status_name}"
         lg = np.concatenate([r.pi.reshape(N, nx), r.lam_c.reshape(N, ngs - nx)], axis=1).ravel()

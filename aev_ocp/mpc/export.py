@@ -340,6 +340,7 @@ class Info(ctypes.Structure):
     """aev_mpc_info of mpc_step.h."""
 
     _fields_ = [("iterations", ctypes.c_int), ("qp_iterations", ctypes.c_int), ("qp_status", ctypes.c_int),
+                ("projected_retries", ctypes.c_int),
                 ("cold", ctypes.c_int),
                 ("step_inf", ctypes.c_double),
                 ("qp_residual", ctypes.c_double), ("cost", ctypes.c_double), ("violation", ctypes.c_double),

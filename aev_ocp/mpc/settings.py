@@ -28,7 +28,9 @@ from ..params import EVParams, ParameterError, PowertrainOptions, spec, validate
 SOLVER_PATHS = ("ipopt", "sqp", "ipopt-cold", "rti")
 #: The 'rti' path's QP Hessian: 'projected' (default): the exact Lagrangian Hessian's diagonal blocks
 #: projected onto the PD cone (eigenvalues raised to a floor), so every QP is convex; 'exact': as computed
-#: (the §9 scenarios state it, so their numbers stay as published; an indefinite block can then stall HPIPM).
+#: (the §9 scenarios state it, so their numbers stay as published; an indefinite block can then stall HPIPM;
+#: with qp_solver 'riccati' a QP that fails with the exact Hessian is re-solved once with the projected blocks,
+#: as the interior point needs a convex QP).
 RTI_HESSIANS = ("projected", "exact")
 #: QP solvers. 'riccati': aev_ocp's own structure-exploiting interior point (aev_ocp/c/ocp_qp.c, Riccati
 #: recursion over the stages), the 'rti' path only; with codegen the whole step is then one compiled C library,
