@@ -225,15 +225,19 @@ static void row_values(ocpqp_solver *s, const ocpqp_data *d, const double *w, do
   }
 }
 
-/* out (stage vector of length nw) = base + D' v (v per row); base may equal out */
+/* out (stage vector of length nw) = base + D' v (v per row); base may equal out, or be NULL (zero) */
 static void rows_transpose(ocpqp_solver *s, const double *v, const double *base, double *out) {
   int N = s->d.N, nx = DNX(s), nb = DNB(s), nc = DNC(s), ncN = DNCN(s), k, i;
   for (k = 0; k <= N; ++k) {
     int n = k < N ? nb : nx, m = k < N ? nc : ncN;
     const double *vk = v + (size_t)k * (nb + nc);
     double *ok = out + (size_t)k * nb;
-    const double *bk = base + (size_t)k * nb;
-    for (i = 0; i < n; ++i) ok[i] = bk[i] + vk[i];
+    if (base) {
+      const double *bk = base + (size_t)k * nb;
+      for (i = 0; i < n; ++i) ok[i] = bk[i] + vk[i];
+    } else {
+      for (i = 0; i < n; ++i) ok[i] = vk[i];
+    }
     gemv_n(n, m, s->CT + (size_t)k * nc * nb, vk + n, ok);
   }
 }
@@ -415,8 +419,8 @@ static int factor(ocpqp_solver *s, const ocpqp_data *d) {
   return 0;
 }
 
-/* one Newton solve for the residuals (rstat, req, r, rc) with the current factorisation (req NULL: zero;
- * r and rc both given or both NULL: zero): fills dw, dpi, ds, dz */
+/* one Newton solve for the residuals (rstat, req, r, rc) with the current factorisation (any of them NULL:
+ * zero): fills dw, dpi, ds, dz */
 static void solve_rhs(ocpqp_solver *s, const ocpqp_data *d, const double *rstat, const double *req,
                       const double *r, const double *rc, double *dw, double *dpi, double *ds, double *dz) {
   int N = s->d.N, nx = DNX(s), nu = DNU(s), nb = DNB(s), k, i, l;
@@ -424,6 +428,10 @@ static void solve_rhs(ocpqp_solver *s, const ocpqp_data *d, const double *rstat,
   for (i = 0; i < s->nrow; ++i) s->qrow[i] = 0.0;
   if (rc && r)
     for (i = 0; i < s->nside; ++i) s->qrow[s->srow[i]] += s->sg[i] * (rc[i] + s->z[i] * r[i]) * s->is[i];
+  else if (rc)
+    for (i = 0; i < s->nside; ++i) s->qrow[s->srow[i]] += s->sg[i] * rc[i] * s->is[i];
+  else if (r)
+    for (i = 0; i < s->nside; ++i) s->qrow[s->srow[i]] += s->sg[i] * s->z[i] * r[i] * s->is[i];
   rows_transpose(s, s->qrow, rstat, s->gt);
   /* backward: p_N = gt_N; h = gt_k + E'(P_{k+1} r_eq_k + p_{k+1}); ell = L^{-1} h_u; p_k = h_x - Y' ell */
   memcpy(s->p + (size_t)N * nx, s->gt + (size_t)N * nb, (size_t)nx * sizeof(double));
@@ -505,6 +513,61 @@ static double max_step(const ocpqp_solver *s, double amax) {
     if (s->dz[i] < 0.0 && -s->z[i] > a * s->dz[i]) a = -s->z[i] / s->dz[i];
   }
   return a;
+}
+
+/* Centrality correctors (Gondzio, Comput. Optim. Appl. 6, 1996; Colombo & Gondzio, Comput. Optim. Appl. 41,
+ * 2008). Mehrotra's direction alone can stall on degenerate QPs: on the MPC's energy epigraph (two rows
+ * e >= v a / eta and e >= eta v a of one stage, both active at a kink) the multiplier has to move from one row
+ * to the other; the Newton step overshoots, the step length is cut to 0.5-0.8 by the other row's pair, and
+ * the iterate oscillates between the rows with mu not decreasing (one pair s z hundreds of times mu, the
+ * other far below it). A corrector asks for a longer step alpha_t = alpha + OCPQP_CC_DELTA: at that trial
+ * point every pair outside [OCPQP_CC_BMIN, OCPQP_CC_BMAX] * sigma mu is pushed back to the interval (the
+ * push down capped at OCPQP_CC_BMAX sigma mu); the correction solves the Newton system for that
+ * complementarity right-hand side alone (one more right-hand side, same factorisation) and is kept if the
+ * step length grows by at least OCPQP_CC_GAMMA * OCPQP_CC_DELTA. Up to OCPQP_CORRECTORS correctors, only
+ * when Mehrotra's step is shorter than OCPQP_CC_TRIGGER (-DOCPQP_CORRECTORS=0 gives plain Mehrotra). */
+#ifndef OCPQP_CORRECTORS
+#define OCPQP_CORRECTORS 2
+#endif
+#define OCPQP_CC_TRIGGER 0.9
+#define OCPQP_CC_DELTA 0.3
+#define OCPQP_CC_BMIN 0.1
+#define OCPQP_CC_BMAX 10.0
+#define OCPQP_CC_GAMMA 0.1
+
+/* add (sign +1) or remove (-1) the correction (dw2, dpi2, ds2, dz2) to or from the step (dw, dpi, ds, dz) */
+static void add_correction(ocpqp_solver *s, double sign) {
+  int i, nw = s->nw, npi = s->d.N * DNX(s);
+  for (i = DNX(s); i < nw; ++i) s->dw[i] += sign * s->dw2[i];
+  for (i = 0; i < npi; ++i) s->dpi[i] += sign * s->dpi2[i];
+  for (i = 0; i < s->nside; ++i) {
+    s->ds[i] += sign * s->ds2[i];
+    s->dz[i] += sign * s->dz2[i];
+  }
+}
+
+/* centrality correctors of the step (dw, dpi, ds, dz) towards the target complementarity tmu (see above) */
+static void correct_centrality(ocpqp_solver *s, const ocpqp_data *d, double tmu) {
+  int kc, i;
+  double ap = max_step(s, 1.0), lo = OCPQP_CC_BMIN * tmu, hi = OCPQP_CC_BMAX * tmu;
+  for (kc = 0; kc < OCPQP_CORRECTORS && ap < OCPQP_CC_TRIGGER; ++kc) {
+    double at = ap + OCPQP_CC_DELTA, an;
+    if (at > 1.0) at = 1.0;
+    for (i = 0; i < s->nside; ++i) {
+      double v = (s->s[i] + at * s->ds[i]) * (s->z[i] + at * s->dz[i]), t = 0.0;
+      if (v < lo) t = lo - v;
+      else if (v > hi) t = v - hi < hi ? hi - v : -hi;
+      s->rc[i] = -t;  /* the Newton rows read z ds + s dz = -rc */
+    }
+    solve_rhs(s, d, NULL, NULL, NULL, s->rc, s->dw2, s->dpi2, s->ds2, s->dz2);
+    add_correction(s, 1.0);
+    an = max_step(s, 1.0);
+    if (an < ap + OCPQP_CC_GAMMA * OCPQP_CC_DELTA) {
+      add_correction(s, -1.0);
+      return;
+    }
+    ap = an;
+  }
 }
 
 /* ------------------------------------------------------------------------------------------ solve */
@@ -608,6 +671,7 @@ int ocpqp_solve(ocpqp_solver *s, const ocpqp_data *d, double *w, double *pi, dou
       /* corrector */
       for (i = 0; i < s->nside; ++i) s->rc[i] = s->s[i] * s->z[i] + s->ds[i] * s->dz[i] - sigma * mu;
       solve_rhs(s, d, s->rstat, s->req, s->r, s->rc, s->dw, s->dpi, s->ds, s->dz);
+      correct_centrality(s, d, sigma * mu);
       {
         /* refine only where the Newton step's error would matter: against the current residuals */
         double rmax = info->res_stat;
