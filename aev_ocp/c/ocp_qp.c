@@ -570,6 +570,31 @@ static void correct_centrality(ocpqp_solver *s, const ocpqp_data *d, double tmu)
   }
 }
 
+/* Wide neighbourhood of the central path (Wright, Primal-Dual Interior-Point Methods, SIAM 1997, ch. 5:
+ * N_-inf(gamma)): alpha is shortened (x OCPQP_NBH_SHRINK, at most OCPQP_NBH_TRIES times) until every pair
+ * (s_i + alpha ds_i)(z_i + alpha dz_i) is >= OCPQP_NBH_GAMMA times the mean of the new pairs (or, for a pair
+ * already below that, does not fall below its current value). Without it a pair can collapse onto its
+ * corner (s and z both ~ 0 while the solution needs its multiplier): Newton's linearisation of s z is then
+ * useless for it, the steps are cut short by it and the iterate zig-zags (the RTI QPs' epigraph rows). */
+#define OCPQP_NBH_GAMMA 0.01
+#define OCPQP_NBH_SHRINK 0.8
+#define OCPQP_NBH_TRIES 30
+
+static double neighbourhood_step(const ocpqp_solver *s, double alpha) {
+  int tries, i;
+  for (tries = 0; tries < OCPQP_NBH_TRIES; ++tries, alpha *= OCPQP_NBH_SHRINK) {
+    double m = 0.0;
+    for (i = 0; i < s->nside; ++i) m += (s->s[i] + alpha * s->ds[i]) * (s->z[i] + alpha * s->dz[i]);
+    m *= OCPQP_NBH_GAMMA / s->nside;
+    for (i = 0; i < s->nside; ++i) {
+      double pn = (s->s[i] + alpha * s->ds[i]) * (s->z[i] + alpha * s->dz[i]), p0 = s->s[i] * s->z[i];
+      if (pn < (m < p0 ? m : p0)) break;
+    }
+    if (i == s->nside) break;
+  }
+  return alpha;
+}
+
 /* ------------------------------------------------------------------------------------------ solve */
 int ocpqp_solve(ocpqp_solver *s, const ocpqp_data *d, double *w, double *pi, double *lam_w, double *lam_c,
                 ocpqp_info *info_out) {
@@ -689,6 +714,7 @@ int ocpqp_solve(ocpqp_solver *s, const ocpqp_data *d, double *w, double *pi, dou
       }
       alpha = 0.995 * max_step(s, 1.0 / 0.995);
       if (alpha > 1.0) alpha = 1.0;
+      alpha = neighbourhood_step(s, alpha);
     } else {
       alpha = 1.0;
     }
