@@ -8,10 +8,12 @@
 * An LQR (no inequalities): one Newton step, equal to numpy's solve of the dense KKT system.
 * nu = 0: the recursion is the state propagation.
 * Statuses: non-convex control block, lb > ub, a NaN, the iteration limit; wrongly sized arguments.
-* Real RTI QPs of the MPC (tests/data/ocp_qp_rti_*.npz, harvested from whole drive-cycle closed loops, on which
-  plain Mehrotra stalled: degenerate energy-epigraph rows): solved at the MPC's settings, and at a tight
-  tolerance equal to the exact solution (the KKT system of the active set solved by numpy, checked feasible
-  and sign-correct); the non-convex ones end with a failure status, never "ok".
+* Real RTI QPs of the MPC (tests/data/ocp_qp_rti_*.npz, harvested from closed loops, on which the solver
+  failed: plain Mehrotra stalled on degenerate energy-epigraph rows; the square-root Riccati could not take
+  indefinite Hessian blocks of QPs whose reduced Hessian is positive definite): solved at the MPC's settings,
+  and at a tight tolerance equal to the exact solution (the KKT system of the active set solved by numpy,
+  checked feasible and sign-correct).
+* A QP that is not convex (negative curvature along the dynamics) ends with a failure status, never "ok".
 """
 
 from __future__ import annotations
@@ -262,15 +264,16 @@ def test_compiled_in_dimensions_give_the_same_solution() -> None:
 
 # ---------------------------------------------------------------------------------------------- real RTI QPs
 DATA = Path(__file__).parent / "data"
-RTI_CONVEX = ["us06_constant_280", "us06_constant_6412", "us06_decaying_792", "us06_decaying_6410",
-              "udds_constant_2", "udds_constant_factorization"]
-RTI_NONCONVEX = ["nonconvex_cold_stall", "nonconvex_warm_maxiter"]
+RTI_EPIGRAPH = ["us06_constant_280", "us06_constant_6412", "us06_decaying_792", "us06_decaying_6410",
+                "udds_constant_2", "udds_constant_factorization"]  # traffic formulation, Hessian blocks PD
+RTI_INDEFINITE = ["indefinite_cold", "indefinite_warm",  # traffic, exact Hessian (blocks' min eig -0.08, -0.05)
+                  "paper_platoon_10", "paper_platoon_15", "paper_platoon_20"]  # canonical s9, min eig -0.011
+RTI_CASES = RTI_EPIGRAPH + RTI_INDEFINITE
 MPC_TOL, MPC_MAX_ITER = 1e-9, 50  # aev_ocp.mpc.export.QP_TOL, QP_MAX_ITER: the MPC's QP settings
 
 
 def _rti_case(name: str) -> tuple[OcpQPDims, dict[str, Any]]:
-    """A QP recorded from the exported MPC step (aev_mpc_last_qp: flat stage layout of ocp_qp.h, x_0 = 0; the
-    Hessian blocks of the convex ones projected onto the PD cone by the step)."""
+    """A QP recorded from the exported MPC step (aev_mpc_last_qp: flat stage layout of ocp_qp.h, x_0 = 0)."""
     with np.load(DATA / f"ocp_qp_rti_{name}.npz") as z:
         N, nx, nu, nc = (int(z[k]) for k in ("N", "nx", "nu", "nc"))
         data = {k: np.array(z[k]) for k in ("H", "g", "E", "e", "C", "lc", "uc", "lbw", "ubw")}
@@ -331,14 +334,14 @@ def _hpipm(f: dict[str, Any]) -> np.ndarray:
 @pytest.fixture(scope="module")
 def rti_exact() -> dict[str, np.ndarray]:
     out = {}
-    for name in RTI_CONVEX:
+    for name in RTI_CASES:
         dims, data = _rti_case(name)
         f = _full(dims, data)
         out[name] = _exact_solution(f, _hpipm(f))
     return out
 
 
-@pytest.mark.parametrize("name", RTI_CONVEX)
+@pytest.mark.parametrize("name", RTI_CASES)
 def test_real_rti_qps_solve_at_the_mpc_settings(name: str, rti_exact: dict[str, np.ndarray]) -> None:
     dims, data = _rti_case(name)
     res = OcpQP(dims, _solve_settings(MPC_TOL), specialise=True).solve(**data)
@@ -356,7 +359,7 @@ def test_real_rti_qps_solve_at_the_mpc_settings(name: str, rti_exact: dict[str, 
     assert _kkt_violation(f, res.w, _lam_a(f, res.pi, res.lam_c), res.lam_w) <= 1e-6
 
 
-@pytest.mark.parametrize("name", RTI_CONVEX)
+@pytest.mark.parametrize("name", RTI_CASES)
 def test_real_rti_qps_at_a_tight_tolerance_equal_the_exact_solution(name: str, rti_exact: dict[str, np.ndarray]) -> None:
     dims, data = _rti_case(name)
     res = OcpQP(dims, _solve_settings(1e-12), specialise=True).solve(**data)
@@ -364,11 +367,31 @@ def test_real_rti_qps_at_a_tight_tolerance_equal_the_exact_solution(name: str, r
     assert np.abs(res.w - rti_exact[name]).max() <= 1e-7
 
 
-@pytest.mark.parametrize("name", RTI_NONCONVEX)
-def test_nonconvex_rti_qps_fail_with_a_status(name: str) -> None:
+def _reduced_hessian_min_eig(dims: OcpQPDims, f: dict[str, Any]) -> float:
+    """Smallest eigenvalue of the Hessian on the null space of the dynamics and x_0 = x0 (numpy SVD)."""
+    A_eq = np.vstack([f["A"][f["rows_pi"]], np.eye(dims.nx, dims.nw)])
+    _, sv, vt = np.linalg.svd(A_eq)
+    Z = vt[int(np.sum(sv > 1e-10 * sv[0])):].T
+    return float(np.linalg.eigvalsh(Z.T @ f["H"] @ Z).min())
+
+
+@pytest.mark.parametrize("name", RTI_INDEFINITE)
+def test_indefinite_blocks_of_a_convex_qp(name: str) -> None:
+    """These cases are outside the old contract (every H_k PSD) but convex: P_k of the Riccati recursion is
+    then indefinite (solved without its square root) and every control block stays positive definite."""
     dims, data = _rti_case(name)
     nb = dims.nb
     blocks = data["H"][:dims.N * nb * nb].reshape(dims.N, nb, nb)
-    assert np.linalg.eigvalsh(blocks).min() < -0.04  # the exact Hessian, not projected: outside the contract
-    res = OcpQP(dims, _solve_settings(MPC_TOL), specialise=True).solve(**data)
-    assert res.status in (MAX_ITER, FACTORIZATION)
+    assert np.linalg.eigvalsh(blocks).min() < -0.01
+    assert _reduced_hessian_min_eig(dims, _full(dims, data)) > 1e-4
+
+
+def test_a_nonconvex_qp_fails_with_a_status() -> None:
+    """Negative curvature on the terminal state, no bounds: the reduced Hessian is indefinite; the Riccati
+    recursion finds a control block that is not positive definite."""
+    dims, data = _lqr(6, 2, 1, np.random.default_rng(17))
+    data["H"][-1] = -np.diag([4.5, 3.5])
+    f = _full(dims, data)
+    assert _reduced_hessian_min_eig(dims, f) < 0.0
+    res = OcpQP(dims).solve(**data)
+    assert res.status == FACTORIZATION

@@ -73,6 +73,7 @@ struct ocpqp_solver {
   double *is;     /* 1/s of the current factorisation */
   double *dw2, *dpi2, *ds2, *dz2, *rho, *lamrow2;  /* iterative refinement */
   int *srow;
+  int *pind;      /* N+1: P_k is indefinite (no square root; the stage before adds E' P_k E explicitly) */
   int nside;
   double sigmax;  /* largest barrier term z/s of the current factorisation */
 };
@@ -134,7 +135,7 @@ ocpqp_solver *ocpqp_create(const ocpqp_dims *dims, const ocpqp_settings *setting
   if (settings) probe.set = *settings; else ocpqp_default_settings(&probe.set);
   nd = layout(&probe, NULL);
   /* one block: the struct, the doubles, then the side -> row indices */
-  blk = (double *)malloc((head + nd) * sizeof(double) + (size_t)probe.nside_max * sizeof(int));
+  blk = (double *)malloc((head + nd) * sizeof(double) + (size_t)(probe.nside_max + dims->N + 1) * sizeof(int));
   if (!blk) return NULL;
   s = (ocpqp_solver *)(void *)blk;
   *s = probe;
@@ -142,6 +143,7 @@ ocpqp_solver *ocpqp_create(const ocpqp_dims *dims, const ocpqp_settings *setting
   memset(blk, 0, nd * sizeof(double));
   layout(s, blk);
   s->srow = (int *)(void *)(blk + nd);
+  s->pind = s->srow + s->nside_max;
   return s;
 }
 
@@ -292,7 +294,9 @@ static int residuals(ocpqp_solver *s, const ocpqp_data *d, ocpqp_info *info) {
 
 /* Cholesky factor Lp (n x n, lower) of a symmetric positive semidefinite A (lower triangle read, lda):
  * a pivot <= eps * (1 + |A_jj|) is a direction without curvature and its column is set to zero, so
- * Lp Lp' stays PSD under rounding. Returns 0, or OCPQP_NONFINITE on a NaN. */
+ * Lp Lp' stays PSD under rounding. Returns 0; OCPQP_CHOL_INDEFINITE if a pivot is negative beyond
+ * rounding (A is indefinite: Lp is then not used); OCPQP_NONFINITE on a NaN. */
+#define OCPQP_CHOL_INDEFINITE (-1)
 static int chol_psd(int n, const double *A, int lda, double *Lp) {
   int i, j, l;
   for (j = 0; j < n; ++j) {
@@ -300,6 +304,7 @@ static int chol_psd(int n, const double *A, int lda, double *Lp) {
     for (l = 0; l < j; ++l) dj -= Lp[j + l * n] * Lp[j + l * n];
     if (dj != dj) return OCPQP_NONFINITE;
     if (dj <= 1e-14 * (1.0 + fabs(A[j + j * lda]))) {
+      if (dj < -1e-9 * (1.0 + fabs(A[j + j * lda]))) return OCPQP_CHOL_INDEFINITE;
       for (i = j; i < n; ++i) Lp[i + j * n] = 0.0;
       continue;
     }
@@ -312,6 +317,14 @@ static int chol_psd(int n, const double *A, int lda, double *Lp) {
       Lp[i + j * n] = acc * dj;
     }
   }
+  return 0;
+}
+
+/* the factor of P_k (lower triangle of A, lda) into the solver, or its indefiniteness flag; 0 or a status */
+static int store_p(ocpqp_solver *s, int k, const double *A, int lda) {
+  int nx = DNX(s), st = chol_psd(nx, A, lda, s->P + (size_t)k * nx * nx);
+  if (st > 0) return st;
+  s->pind[k] = st == OCPQP_CHOL_INDEFINITE;
   return 0;
 }
 
@@ -347,17 +360,25 @@ static int factor(ocpqp_solver *s, const ocpqp_data *d) {
       for (i = 0; i < nx; ++i) F[i + l * nx] = CTN[i + l * nx] * a0;
     }
     syrk_ln(nx, ncN, F, G, nb);
-    if (chol_psd(nx, G, nb, s->P + (size_t)N * nx * nx)) return OCPQP_NONFINITE;
+    if (store_p(s, N, G, nb)) return OCPQP_NONFINITE;
     full_from_lower(nx, G, nb, s->Pf + (size_t)N * nx * nx);
   }
   for (k = N - 1; k >= 0; --k) {
     const double *Hk = d->H + (size_t)k * nb * nb;
     const double *L1 = s->P + (size_t)(k + 1) * nx * nx, *sr = s->sigrow + (size_t)k * nr;
     double *Lk = s->L + (size_t)k * nu * nu, *Yk = s->Y + (size_t)k * nu * nx, *Ldk = s->Ld + (size_t)k * nu;
-    /* F = [E_k' Lp_{k+1}, C_k' diag(sqrt(sig))] (nb x (nx + nc)), column by column as sums of columns */
+    /* F = [E_k' Lp_{k+1}, C_k' diag(sqrt(sig))] (nb x (nx + nc)), column by column as sums of columns;
+     * an indefinite P_{k+1} has no square root: F = [E_k' P_{k+1}, C_k' diag(sqrt(sig))] then */
+    const int ind = s->pind[k + 1];
+    const double *ETk = s->ET + (size_t)k * nx * nb;
     {
-      const double *ETk = s->ET + (size_t)k * nx * nb, *CTk = s->CT + (size_t)k * nc * nb;
-      for (l = 0; l < nx; ++l) {
+      const double *CTk = s->CT + (size_t)k * nc * nb, *P1 = s->Pf + (size_t)(k + 1) * nx * nx;
+      for (l = 0; ind && l < nx; ++l) {
+        double *Fl = F + (size_t)l * nb;
+        for (i = 0; i < nb; ++i) Fl[i] = 0.0;
+        gemv_n(nb, nx, ETk, P1 + (size_t)l * nx, Fl);
+      }
+      for (l = 0; !ind && l < nx; ++l) {
         double *Fl = F + (size_t)l * nb;
         const double *E0 = ETk + (size_t)l * nb;
         double a0 = L1[l + l * nx];
@@ -383,7 +404,17 @@ static int factor(ocpqp_solver *s, const ocpqp_data *d) {
     for (j = 0; j < nb; ++j)
       for (i = j; i < nb; ++i) G[i + j * nb] = Hk[i + j * nb];
     for (i = 0; i < nb; ++i) G[i + i * nb] += sr[i];
-    syrk_ln(nb, nx + nc, F, G, nb);
+    if (!ind) {
+      syrk_ln(nb, nx + nc, F, G, nb);
+    } else {  /* G += C' diag(sig) C + (E' P) E */
+      syrk_ln(nb, nc, F + (size_t)nx * nb, G, nb);
+      for (j = 0; j < nb; ++j)
+        for (l = 0; l < nx; ++l) {
+          double e = ETk[j + l * nb];
+          const double *Fl = F + (size_t)l * nb;
+          for (i = j; i < nb; ++i) G[i + j * nb] += Fl[i] * e;
+        }
+    }
     /* Cholesky of G_uu + reg I */
     for (j = 0; j < nu; ++j) {
       double dj = G[(nx + j) + (nx + j) * nb] + s->set.reg_prim;
@@ -413,7 +444,7 @@ static int factor(ocpqp_solver *s, const ocpqp_data *d) {
         for (l = 0; l < nu; ++l) acc -= Yk[l + i * nu] * Yk[l + j * nu];
         G[i + j * nb] = acc;
       }
-    if (chol_psd(nx, G, nb, s->P + (size_t)k * nx * nx)) return OCPQP_NONFINITE;
+    if (store_p(s, k, G, nb)) return OCPQP_NONFINITE;
     full_from_lower(nx, G, nb, s->Pf + (size_t)k * nx * nx);
   }
   return 0;
