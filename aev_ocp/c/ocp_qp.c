@@ -12,13 +12,21 @@
  * with M = H + D' diag(z/s) D and gt = r_stat + D' q, q_row = sum sg_i (rc_i + z_i r_i) / s_i, solved by
  * the Riccati recursion in square-root form (value function 1/2 x'P x + p'x with P = Lp Lp', so the
  * Newton matrices stay PSD under rounding when the barrier terms are large; dpi_k = P_{k+1} dx_{k+1} + p_{k+1}), then
- * ds_i = sg_i dd_row + r_i and dz_i = -(rc_i + z_i ds_i) / s_i.
+ * ds_i = sg_i dd_row + r_i and dz_i = -(rc_i + z_i ds_i) / s_i. A P_k that is indefinite (indefinite
+ * Hessian blocks, an exact Hessian, with a positive definite reduced Hessian) has no square root: the
+ * stage before then adds E_k' P_k E_k explicitly (only the control blocks L_k must be positive definite).
  * The factorisation (M, P_k, the Cholesky factor L_k of the control block and Y_k = L_k^{-1} G_ux) is
  * done once per iteration; the right-hand-side recursion runs twice (predictor, corrector), and again
  * (iterative refinement, at most 4 times) when the barrier terms z/s are so large that the reduced
  * solve's rounding would show in the stationarity residual (late iterations).
  * Start: w = 0 with x_0 = x0, pi = 0, s = max(slack, 1), z = sqrt(max(1, |g|inf)). One step length for
- * primal and dual variables, fraction to the boundary 0.995, centring sigma = (mu_aff / mu)^3.
+ * primal and dual variables, fraction to the boundary 0.995, centring sigma = (mu_aff / mu)^3. Two
+ * safeguards against the stall of plain Mehrotra on degenerate rows (below): the wide-neighbourhood step
+ * rule (neighbourhood_step, every iteration) and Gondzio's centrality correctors (correct_centrality, in the
+ * end game, once the residuals are below mu).
+ * Termination: every residual (inf-norms, complementarity as the mean of s z) below its tolerance. On
+ * degenerate rows (weakly active, or linearly dependent active rows) w is then O(sqrt(mean s z)) from the
+ * exact solution, e.g. up to 1e-4 at tolerances 1e-9 on the MPC's QPs, 4e-8 at 1e-12 (tests/test_ocp_qp.py).
  */
 #include <stdlib.h>
 #include <string.h>
@@ -556,7 +564,8 @@ static double max_step(const ocpqp_solver *s, double amax) {
  * push down capped at OCPQP_CC_BMAX sigma mu); the correction solves the Newton system for that
  * complementarity right-hand side alone (one more right-hand side, same factorisation) and is kept if the
  * step length grows by at least OCPQP_CC_GAMMA * OCPQP_CC_DELTA. Up to OCPQP_CORRECTORS correctors, only
- * when Mehrotra's step is shorter than OCPQP_CC_TRIGGER (-DOCPQP_CORRECTORS=0 gives plain Mehrotra). */
+ * when Mehrotra's step is shorter than OCPQP_CC_TRIGGER and the residuals are below mu (-DOCPQP_CORRECTORS=0:
+ * none). */
 #ifndef OCPQP_CORRECTORS
 #define OCPQP_CORRECTORS 2
 #endif
@@ -604,15 +613,20 @@ static void correct_centrality(ocpqp_solver *s, const ocpqp_data *d, double tmu)
 /* Wide neighbourhood of the central path (Wright, Primal-Dual Interior-Point Methods, SIAM 1997, ch. 5:
  * N_-inf(gamma)): alpha is shortened (x OCPQP_NBH_SHRINK, at most OCPQP_NBH_TRIES times) until every pair
  * (s_i + alpha ds_i)(z_i + alpha dz_i) is >= OCPQP_NBH_GAMMA times the mean of the new pairs (or, for a pair
- * already below that, does not fall below its current value). Without it a pair can collapse onto its
+ * already below that, does not fall below its current value); if no such alpha is found (Mehrotra's
+ * second-order term can shrink a pair for every alpha > 0), the step is not shortened (a safeguard that
+ * blocked every step would stall the iteration). Without it a pair can collapse onto its
  * corner (s and z both ~ 0 while the solution needs its multiplier): Newton's linearisation of s z is then
  * useless for it, the steps are cut short by it and the iterate zig-zags (the RTI QPs' epigraph rows). */
+#ifndef OCPQP_NBH_GAMMA
 #define OCPQP_NBH_GAMMA 0.01
+#endif
 #define OCPQP_NBH_SHRINK 0.8
-#define OCPQP_NBH_TRIES 30
+#define OCPQP_NBH_TRIES 10
 
-static double neighbourhood_step(const ocpqp_solver *s, double alpha) {
+static double neighbourhood_step(const ocpqp_solver *s, double alpha0) {
   int tries, i;
+  double alpha = alpha0;
   for (tries = 0; tries < OCPQP_NBH_TRIES; ++tries, alpha *= OCPQP_NBH_SHRINK) {
     double m = 0.0;
     for (i = 0; i < s->nside; ++i) m += (s->s[i] + alpha * s->ds[i]) * (s->z[i] + alpha * s->dz[i]);
@@ -621,9 +635,9 @@ static double neighbourhood_step(const ocpqp_solver *s, double alpha) {
       double pn = (s->s[i] + alpha * s->ds[i]) * (s->z[i] + alpha * s->dz[i]), p0 = s->s[i] * s->z[i];
       if (pn < (m < p0 ? m : p0)) break;
     }
-    if (i == s->nside) break;
+    if (i == s->nside) return alpha;
   }
-  return alpha;
+  return alpha0;
 }
 
 /* ------------------------------------------------------------------------------------------ solve */
@@ -727,7 +741,9 @@ int ocpqp_solve(ocpqp_solver *s, const ocpqp_data *d, double *w, double *pi, dou
       /* corrector */
       for (i = 0; i < s->nside; ++i) s->rc[i] = s->s[i] * s->z[i] + s->ds[i] * s->dz[i] - sigma * mu;
       solve_rhs(s, d, s->rstat, s->req, s->r, s->rc, s->dw, s->dpi, s->ds, s->dz);
-      correct_centrality(s, d, sigma * mu);
+      /* correctors only in the end game (residuals below mu): earlier they lengthen steps that the
+       * infeasibility, not the centrality, limits, and cost iterations (the paper's drive cycle) */
+      if (info->res_stat <= mu && info->res_eq <= mu && info->res_ineq <= mu) correct_centrality(s, d, sigma * mu);
       {
         /* refine only where the Newton step's error would matter: against the current residuals */
         double rmax = info->res_stat;
@@ -745,7 +761,7 @@ int ocpqp_solve(ocpqp_solver *s, const ocpqp_data *d, double *w, double *pi, dou
       }
       alpha = 0.995 * max_step(s, 1.0 / 0.995);
       if (alpha > 1.0) alpha = 1.0;
-      alpha = neighbourhood_step(s, alpha);
+      if (OCPQP_NBH_GAMMA > 0.0) alpha = neighbourhood_step(s, alpha);
     } else {
       alpha = 1.0;
     }
