@@ -265,7 +265,8 @@ def test_compiled_in_dimensions_give_the_same_solution() -> None:
 # ---------------------------------------------------------------------------------------------- real RTI QPs
 DATA = Path(__file__).parent / "data"
 RTI_EPIGRAPH = ["us06_constant_280", "us06_constant_6412", "us06_decaying_792", "us06_decaying_6410",
-                "udds_constant_2", "udds_constant_factorization"]  # traffic formulation, Hessian blocks PD
+                "udds_constant_2", "udds_constant_factorization",  # traffic formulation, Hessian blocks PD
+                "udds_constant_14268"]  # stalled (alpha 1e-3) an intermediate version, correctors in every phase
 RTI_INDEFINITE = ["indefinite_cold", "indefinite_warm",  # traffic, exact Hessian (blocks' min eig -0.08, -0.05)
                   "paper_platoon_10", "paper_platoon_15", "paper_platoon_20"]  # canonical s9, min eig -0.011
 RTI_CASES = RTI_EPIGRAPH + RTI_INDEFINITE
