@@ -628,9 +628,14 @@ static double neighbourhood_step(const ocpqp_solver *s, double alpha0) {
   int tries, i;
   double alpha = alpha0;
   for (tries = 0; tries < OCPQP_NBH_TRIES; ++tries, alpha *= OCPQP_NBH_SHRINK) {
-    double m = 0.0;
-    for (i = 0; i < s->nside; ++i) m += (s->s[i] + alpha * s->ds[i]) * (s->z[i] + alpha * s->dz[i]);
+    double m = 0.0, pmin = HUGE_VAL;
+    for (i = 0; i < s->nside; ++i) {
+      double pn = (s->s[i] + alpha * s->ds[i]) * (s->z[i] + alpha * s->dz[i]);
+      m += pn;
+      if (pn < pmin) pmin = pn;
+    }
     m *= OCPQP_NBH_GAMMA / s->nside;
+    if (pmin >= m) return alpha;  /* the usual case: every pair inside, one pass */
     for (i = 0; i < s->nside; ++i) {
       double pn = (s->s[i] + alpha * s->ds[i]) * (s->z[i] + alpha * s->dz[i]), p0 = s->s[i] * s->z[i];
       if (pn < (m < p0 ? m : p0)) break;
