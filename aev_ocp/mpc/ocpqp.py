@@ -7,6 +7,13 @@ The QP, stage k = 0..N-1 with w_k = (x_k, u_k) (nb = nx + nu) and the terminal w
     min  sum_k 1/2 w_k' H_k w_k + g_k' w_k + 1/2 x_N' H_N x_N + g_N' x_N
     s.t. x_{k+1} = E_k w_k + e_k,  x_0 = x0,  lbw <= w <= ubw,  lc <= C_k w_k <= uc
 
+The QP must be convex: its reduced Hessian (on the null space of the dynamics, x_0 fixed) positive definite;
+the blocks H_k may be indefinite (an exact Hessian). Otherwise the status is 'factorization' or 'max_iter',
+never 'ok'. Safeguards against the stall of Mehrotra's method on degenerate rows (ocp_qp.c): a wide
+neighbourhood step rule and Gondzio's centrality correctors. Termination: every residual below its
+tolerance (complementarity: the mean of s z); on degenerate rows w is then O(sqrt(tol)) from the exact
+solution (up to 1e-4 at 1e-9 on the MPC's QPs, 4e-8 at 1e-12).
+
 Multipliers follow CasADi's convention (``ca.conic``: lam > 0 on an active upper bound, < 0 on an
 active lower one); ``pi`` are the dynamics multipliers (Lagrangian term pi_k'(E_k w_k + e_k - x_{k+1})).
 Bounds with |value| >= 1e19 (and +-inf) are absent. The library is compiled once per process into the
