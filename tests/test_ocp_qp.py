@@ -365,7 +365,7 @@ def test_real_rti_qps_at_a_tight_tolerance_equal_the_exact_solution(name: str, r
     dims, data = _rti_case(name)
     res = OcpQP(dims, _solve_settings(1e-12), specialise=True).solve(**data)
     assert res.status == OK, (res.status_name, res.iterations, res.residuals)
-    assert np.abs(res.w - rti_exact[name]).max() <= 1e-7
+    assert np.abs(res.w - rti_exact[name]).max() <= 2e-7  # observed <= 8e-8 (us06_constant_6412)
 
 
 def _reduced_hessian_min_eig(dims: OcpQPDims, f: dict[str, Any]) -> float:
