@@ -8,10 +8,17 @@
 * An LQR (no inequalities): one Newton step, equal to numpy's solve of the dense KKT system.
 * nu = 0: the recursion is the state propagation.
 * Statuses: non-convex control block, lb > ub, a NaN, the iteration limit; wrongly sized arguments.
+* Real RTI QPs of the MPC (tests/data/ocp_qp_rti_*.npz, harvested from closed loops, on which the solver
+  failed: plain Mehrotra stalled on degenerate energy-epigraph rows; the square-root Riccati could not take
+  indefinite Hessian blocks of QPs whose reduced Hessian is positive definite): solved at the MPC's settings,
+  and at a tight tolerance equal to the exact solution (the KKT system of the active set solved by numpy,
+  checked feasible and sign-correct).
+* A QP that is not convex (negative curvature along the dynamics) ends with a failure status, never "ok".
 """
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -253,3 +260,139 @@ def test_compiled_in_dimensions_give_the_same_solution() -> None:
     assert generic.status == fixed.status == OK and generic.iterations == fixed.iterations
     assert np.abs(generic.w - fixed.w).max() <= 1e-12 * (1 + np.abs(generic.w).max())
     assert np.abs(generic.lam_c - fixed.lam_c).max() <= 1e-10 * (1 + np.abs(generic.lam_c).max())
+
+
+# ---------------------------------------------------------------------------------------------- real RTI QPs
+DATA = Path(__file__).parent / "data"
+RTI_EPIGRAPH = ["us06_constant_280", "us06_constant_6412", "us06_decaying_792", "us06_decaying_6410",
+                "udds_constant_2", "udds_constant_factorization",  # traffic formulation, Hessian blocks PD
+                "udds_constant_14268"]  # stalled (alpha 1e-3) an intermediate version, correctors in every phase
+RTI_INDEFINITE = ["indefinite_cold", "indefinite_warm",  # traffic, exact Hessian (blocks' min eig -0.08, -0.05)
+                  "paper_platoon_10", "paper_platoon_15", "paper_platoon_20"]  # canonical s9, min eig -0.011
+RTI_CASES = RTI_EPIGRAPH + RTI_INDEFINITE
+MPC_TOL, MPC_MAX_ITER = 1e-9, 50  # aev_ocp.mpc.export.QP_TOL, QP_MAX_ITER: the MPC's QP settings
+
+
+def _rti_case(name: str) -> tuple[OcpQPDims, dict[str, Any]]:
+    """A QP recorded from the exported MPC step (aev_mpc_last_qp: flat stage layout of ocp_qp.h, x_0 = 0)."""
+    with np.load(DATA / f"ocp_qp_rti_{name}.npz") as z:
+        N, nx, nu, nc = (int(z[k]) for k in ("N", "nx", "nu", "nc"))
+        data = {k: np.array(z[k]) for k in ("H", "g", "E", "e", "C", "lc", "uc", "lbw", "ubw")}
+    data["x0"] = np.zeros(nx)
+    return OcpQPDims(N=N, nx=nx, nu=nu, nc=nc), data
+
+
+def _solve_settings(tol: float) -> OcpQPSettings:
+    return OcpQPSettings(max_iter=MPC_MAX_ITER, tol_stat=tol, tol_eq=tol, tol_ineq=tol, tol_comp=tol)
+
+
+def _exact_solution(f: dict[str, Any], w_start: np.ndarray) -> np.ndarray:
+    """The QP's exact solution, independent of ocp_qp: starting from the constraints active at ``w_start``
+    (HPIPM's solution), the equality-constrained QP of the active set is solved through its KKT system
+    (numpy lstsq: the active rows may be linearly dependent, then five refinement steps); a violated
+    constraint is added, an active one whose multiplier has the wrong sign dropped, until the point is
+    feasible to 1e-11 with every multiplier of the right sign: the KKT conditions hold."""
+    H, A, g = f["H"], f["A"], f["g"]
+    n = H.shape[0]
+    G = np.vstack([A, np.eye(n)])
+    lo, up = np.concatenate([f["lba"], f["lbx"]]), np.concatenate([f["uba"], f["ubx"]])
+    gw = G @ w_start
+    act = {i: ("eq" if lo[i] == up[i] else "lo" if abs(gw[i] - lo[i]) < 1e-7 else "up")
+           for i in range(len(lo)) if lo[i] == up[i] or abs(gw[i] - lo[i]) < 1e-7 or abs(gw[i] - up[i]) < 1e-7}
+    for _ in range(40):
+        idx = sorted(act)
+        Ga = G[idx]
+        rhs = np.array([up[i] if act[i] == "up" else lo[i] for i in idx])
+        K = np.block([[H, Ga.T], [Ga, np.zeros((len(idx), len(idx)))]])
+        b = np.concatenate([-g, rhs])
+        sol = np.linalg.lstsq(K, b, rcond=1e-14)[0]
+        for _ in range(5):
+            sol += np.linalg.lstsq(K, b - K @ sol, rcond=1e-14)[0]
+        w, lam = sol[:n], sol[n:]  # H w + g + Ga' lam = 0: lam >= 0 on an upper bound, <= 0 on a lower one
+        gw = G @ w
+        viol = np.maximum(lo - gw, 0.0) + np.maximum(gw - up, 0.0)
+        wrong = [(abs(l), i) for i, l in zip(idx, lam) if (act[i] == "lo" and l > 1e-10) or (act[i] == "up" and l < -1e-10)]
+        if viol.max() < 1e-11 and not wrong:
+            assert np.abs(K @ sol - b).max() < 1e-10
+            return w
+        if viol.max() >= 1e-11:
+            j = int(np.argmax(viol))
+            act[j] = "lo" if gw[j] < lo[j] else "up"
+        else:
+            del act[max(wrong)[1]]
+    raise AssertionError("the active-set reference did not converge")
+
+
+def _hpipm(f: dict[str, Any]) -> np.ndarray:
+    import casadi as ca
+
+    solver = ca.conic("ref", "hpipm", {"h": f["h"].sparsity(), "a": f["a"].sparsity()}, {"error_on_fail": False})
+    ref = solver(h=f["h"], a=f["a"], g=f["g"], lba=f["lba"], uba=f["uba"], lbx=f["lbx"], ubx=f["ubx"])
+    assert solver.stats()["success"]
+    return np.array(ref["x"]).ravel()
+
+
+@pytest.fixture(scope="module")
+def rti_exact() -> dict[str, np.ndarray]:
+    out = {}
+    for name in RTI_CASES:
+        dims, data = _rti_case(name)
+        f = _full(dims, data)
+        out[name] = _exact_solution(f, _hpipm(f))
+    return out
+
+
+@pytest.mark.parametrize("name", RTI_CASES)
+def test_real_rti_qps_solve_at_the_mpc_settings(name: str, rti_exact: dict[str, np.ndarray]) -> None:
+    dims, data = _rti_case(name)
+    res = OcpQP(dims, _solve_settings(MPC_TOL), specialise=True).solve(**data)
+    assert res.status == OK, (res.status_name, res.iterations, res.residuals)
+    assert res.iterations <= 20  # plain Mehrotra: 50 (the limit), complementarity stuck at ~2e-4
+    assert max(res.residuals.values()) <= MPC_TOL
+    f = _full(dims, data)
+    w = rti_exact[name]
+    # degenerate (weakly active) rows: the interior point's w is O(sqrt(mean s z)) from the solution
+    assert np.abs(res.w - w).max() <= 3e-4
+    # the duality gap: sum of s z over the finite sides = their number times the mean (<= the tolerance)
+    n_sides = sum(int(np.isfinite(v).sum()) for v in (f["lbx"][dims.nx:], f["ubx"][dims.nx:], f["lba"][f["rows_c"]],
+                                                       f["uba"][f["rows_c"]]))
+    assert 0.0 <= _objective(f, res.w) - _objective(f, w) <= 1.01 * n_sides * MPC_TOL
+    assert _kkt_violation(f, res.w, _lam_a(f, res.pi, res.lam_c), res.lam_w) <= 1e-6
+
+
+@pytest.mark.parametrize("name", RTI_CASES)
+def test_real_rti_qps_at_a_tight_tolerance_equal_the_exact_solution(name: str, rti_exact: dict[str, np.ndarray]) -> None:
+    dims, data = _rti_case(name)
+    res = OcpQP(dims, _solve_settings(1e-12), specialise=True).solve(**data)
+    assert res.status == OK, (res.status_name, res.iterations, res.residuals)
+    assert np.abs(res.w - rti_exact[name]).max() <= 2e-7  # observed <= 8e-8 (us06_constant_6412)
+
+
+def _reduced_hessian_min_eig(dims: OcpQPDims, f: dict[str, Any]) -> float:
+    """Smallest eigenvalue of the Hessian on the null space of the dynamics and x_0 = x0 (numpy SVD)."""
+    A_eq = np.vstack([f["A"][f["rows_pi"]], np.eye(dims.nx, dims.nw)])
+    _, sv, vt = np.linalg.svd(A_eq)
+    Z = vt[int(np.sum(sv > 1e-10 * sv[0])):].T
+    return float(np.linalg.eigvalsh(Z.T @ f["H"] @ Z).min())
+
+
+@pytest.mark.parametrize("name", RTI_INDEFINITE)
+def test_indefinite_blocks_of_a_convex_qp(name: str) -> None:
+    """These cases are outside the old contract (every H_k PSD) but convex: P_k of the Riccati recursion is
+    then indefinite (solved without its square root) and every control block stays positive definite."""
+    dims, data = _rti_case(name)
+    nb = dims.nb
+    blocks = data["H"][:dims.N * nb * nb].reshape(dims.N, nb, nb)
+    assert np.linalg.eigvalsh(blocks).min() < -0.01
+    assert _reduced_hessian_min_eig(dims, _full(dims, data)) > 1e-4
+
+
+def test_a_nonconvex_qp_fails_with_a_status() -> None:
+    """Negative curvature on the terminal state, no bounds: the reduced Hessian is indefinite; the Riccati
+    recursion finds a control block that is not positive definite."""
+    dims, data = _lqr(6, 2, 1, np.random.default_rng(17))
+    data["H"][-1] = -np.diag([4.5, 3.5])
+    f = _full(dims, data)
+    assert _reduced_hessian_min_eig(dims, f) < 0.0
+    res = OcpQP(dims).solve(**data)
+    assert res.status == FACTORIZATION

@@ -20,9 +20,10 @@
  * + lam_c'(C w) + lam_w' w; lam > 0 where an upper bound is active, < 0 where a lower bound is):
  * at the solution  H w + g + [E' pi - pi shifted] + C' lam_c + lam_w = 0 stage by stage. lam_w of x_0
  * is the multiplier of the fixed initial state.
- * Convexity: every H_k must be positive semidefinite and the QP's reduced Hessian positive definite
- * (e.g. every control with curvature or a bound); otherwise the Riccati factorisation may fail
- * (status OCPQP_FACTORIZATION).
+ * Convexity: the QP's reduced Hessian (on the null space of the dynamics with x_0 fixed) must be positive
+ * definite, e.g. every control with curvature or a bound; the blocks H_k themselves may be indefinite (an
+ * exact Hessian). Otherwise the Riccati factorisation fails (status OCPQP_FACTORIZATION: a control block
+ * that is not positive definite) or the iteration does not converge (OCPQP_MAX_ITER); never OCPQP_OK.
  * Notes (ocp_qp.c): nu = 0 is supported (the recursion is then the state propagation). An equality
  * lc = uc (or lbw = ubw) is two inequalities. On OCPQP_BAD_DIMS, OCPQP_NONFINITE (in the data) and
  * OCPQP_INFEASIBLE (lb > ub) the outputs are not written. Compiling ocp_qp.c with -DOCPQP_NX=nx

@@ -7,6 +7,13 @@ The QP, stage k = 0..N-1 with w_k = (x_k, u_k) (nb = nx + nu) and the terminal w
     min  sum_k 1/2 w_k' H_k w_k + g_k' w_k + 1/2 x_N' H_N x_N + g_N' x_N
     s.t. x_{k+1} = E_k w_k + e_k,  x_0 = x0,  lbw <= w <= ubw,  lc <= C_k w_k <= uc
 
+The QP must be convex: its reduced Hessian (on the null space of the dynamics, x_0 fixed) positive definite;
+the blocks H_k may be indefinite (an exact Hessian). Otherwise the status is 'factorization' or 'max_iter',
+never 'ok'. Safeguards against the stall of Mehrotra's method on degenerate rows (ocp_qp.c): a wide
+neighbourhood step rule and Gondzio's centrality correctors. Termination: every residual below its
+tolerance (complementarity: the mean of s z); on degenerate rows w is then O(sqrt(tol)) from the exact
+solution (up to 1e-4 at 1e-9 on the MPC's QPs, 4e-8 at 1e-12).
+
 Multipliers follow CasADi's convention (``ca.conic``: lam > 0 on an active upper bound, < 0 on an
 active lower one); ``pi`` are the dynamics multipliers (Lagrangian term pi_k'(E_k w_k + e_k - x_{k+1})).
 Bounds with |value| >= 1e19 (and +-inf) are absent. The library is compiled once per process into the
@@ -122,7 +129,7 @@ class _Info(ctypes.Structure):
         (n, ctypes.c_double) for n in ("res_stat", "res_eq", "res_ineq", "res_comp")]
 
 
-_LIBS: dict[tuple[int, ...] | None, ctypes.CDLL] = {}
+_LIBS: dict[tuple[tuple[int, ...] | None, str | None], ctypes.CDLL] = {}
 
 
 def source_files() -> dict[str, str]:
@@ -131,14 +138,18 @@ def source_files() -> dict[str, str]:
     return {n: folder.joinpath(n).read_text(encoding="utf-8") for n in ("ocp_qp.c", "ocp_qp.h")}
 
 
-def library(fixed: tuple[int, int, int, int] | None = None) -> ctypes.CDLL:
+def library(fixed: tuple[int, int, int, int] | None = None, source: str | None = None) -> ctypes.CDLL:
     """The compiled solver (built once per process into the private cache); ``fixed`` = (nx, nu, nc, ncN)
-    compiles those dimensions in as constants (-DOCPQP_NX=... : faster, and only for those dimensions)."""
-    lib = _LIBS.get(fixed)
+    compiles those dimensions in as constants (-DOCPQP_NX=... : faster, and only for those dimensions);
+    ``source``: the text of another ocp_qp.c with the same interface (benchmarks: an older version in the
+    same process)."""
+    lib = _LIBS.get((fixed, source))
     if lib is None:
         from ..compiled import compile_shared
 
         src = source_files()
+        if source is not None:
+            src["ocp_qp.c"] = source
         flags = ("-std=c99",) if fixed is None else ("-std=c99", *(f"-DOCPQP_{n}={v}" for n, v in
                                                                  zip(("NX", "NU", "NC", "NCN"), fixed)))
         built = compile_shared(src["ocp_qp.c"], "ocp_qp", "ocpqp", extra_flags=flags,
@@ -153,7 +164,7 @@ def library(fixed: tuple[int, int, int, int] | None = None) -> ctypes.CDLL:
         lib.ocpqp_solve.restype = ctypes.c_int
         solve_args: list[Any] = [ctypes.c_void_p, ctypes.POINTER(_Data), *[ctypes.c_void_p] * 4, ctypes.POINTER(_Info)]
         lib.ocpqp_solve.argtypes = solve_args
-        _LIBS[fixed] = lib
+        _LIBS[(fixed, source)] = lib
     return lib
 
 
@@ -200,15 +211,17 @@ def _block_shapes(d: OcpQPDims) -> dict[str, list[tuple[int, int]]]:
 class OcpQP:
     """One solver instance (its memory allocated once in C) for fixed dimensions; see the module docstring."""
 
-    def __init__(self, dims: OcpQPDims, settings: OcpQPSettings | None = None, specialise: bool = False) -> None:
-        """``specialise``: a library compiled for exactly these nx, nu, nc, ncN (one more build, cached)."""
+    def __init__(self, dims: OcpQPDims, settings: OcpQPSettings | None = None, specialise: bool = False,
+                 source: str | None = None) -> None:
+        """``specialise``: a library compiled for exactly these nx, nu, nc, ncN (one more build, cached);
+        ``source``: another ocp_qp.c text (see :func:`library`)."""
         if not isinstance(dims, OcpQPDims):
             raise ParameterError(f"dims must be an OcpQPDims, got {type(dims).__name__}")
         settings = settings or OcpQPSettings()
         if not isinstance(settings, OcpQPSettings):
             raise ParameterError(f"settings must be an OcpQPSettings or None, got {type(settings).__name__}")
         self.dims, self.settings = dims, settings
-        self._lib = library((dims.nx, dims.nu, dims.nc, dims.ncN) if specialise else None)
+        self._lib = library((dims.nx, dims.nu, dims.nc, dims.ncN) if specialise else None, source)
         cd = _Dims(dims.N, dims.nx, dims.nu, dims.nc, dims.ncN)
         cs = _Settings(settings.max_iter, settings.tol_stat, settings.tol_eq, settings.tol_ineq,
                        settings.tol_comp, settings.reg_prim)
