@@ -3,12 +3,15 @@ compiler and driven through the CVODES plant via ctypes.
 
 * The canonical §9 scenario (200 of its 700 steps, t ∈ [0, 20], to keep the suite short): the C library
   called on (x_meas, forecast) through its own API — its own cold start included — against the Python
-  controller (rti, qrqp, codegen) in the closed loop; and, independently of the shared code, against the
-  Python rti path whose QP data come from the interpreted CasADi functions and whose QP is solved by
-  ``ca.conic('qrqp')`` (both loops start from the same cold IPOPT step, handed to the C by set_warm).
+  controller (rti, riccati, codegen: the same library) in the closed loop; and, independently of the shared
+  driver code, against the Python rti path whose QP data come from the interpreted CasADi functions and whose
+  QP goes to ocp_qp.c through ctypes (both loops start from the same cold IPOPT step, handed to the C by set_warm).
   Max |Δu| and max |Δx| over the closed loop <= 1e-8.
-* A second problem built with the ProblemBuilder with a soft constraint (a slack control) and an extra
-  state (a_prev with a jerk penalty): the same comparison.
+* A second problem built with the ProblemBuilder with a soft constraint (a slack control), an extra
+  state (a_prev with a jerk penalty) and a concave control term (the exact Hessian's projected-retry rule):
+  the C against the Python driver on the same QP solver.
+* The traffic formulation (the default) exported from mpc_udds_single against the Python driver.
+* The C Hessian projection against NumPy's.
 * Command-line errors: unknown scenario, a scenario without [mpc], no C compiler for --build.
 """
 
@@ -143,24 +146,28 @@ def test_canonical_closed_loop_matches_python_controller(canonical_lib: Path) ->
 
 
 def test_canonical_closed_loop_matches_interpreted_qp_path(canonical_lib: Path) -> None:
-    """Independent of the shared generated code: the Python rti path on interpreted CasADi functions with
-    ca.conic('qrqp') (numpy shift, separate QP-data function), both from the same cold IPOPT step."""
+    """Independent of the shared generated code: the Python rti path on interpreted CasADi functions (numpy
+    shift, separate QP-data function) with the same QP solver through ctypes, to 1e-8; and with another QP
+    solver, CasADi's active-set qrqp (exact on the active set), to 2e-6: the interior point stops at a mean
+    complementarity of 1e-9, which leaves about 1e-7 in the controls where active rows are degenerate (the
+    closed loop differs by 6e-7 in u, 2e-7 in the states). All three loops start from the same cold IPOPT step."""
     from aev_ocp.mpc.controller import MPCController
 
-    s = MPCSettings(**{**CANON, "codegen": False})
-    ref = MPCController(s)
-    assert ref._cstep is None  # the interpreted path, not the library
-    rc, st = _c_run(canonical_lib, s, first=ref)
-    rp = _loop(s).run([0.3], [1.87], T_END)
-    assert all(k == 0 for k in st)
-    du, dx = _compare(rc, rp)
-    assert du <= TOL and dx <= TOL, (du, dx)
+    for qp, tol in (("riccati", TOL), ("qrqp", 2e-6)):
+        s = MPCSettings(**{**CANON, "codegen": False, "qp_solver": qp})
+        ref = MPCController(s)
+        assert ref._cstep is None  # the interpreted path, not the library
+        rc, st = _c_run(canonical_lib, s, first=ref)
+        rp = _loop(s).run([0.3], [1.87], T_END)
+        assert all(k == 0 for k in st) and (rp.solver_stats[0] or {}).get("fallbacks") == 0
+        du, dx = _compare(rc, rp)
+        assert du <= tol and dx <= tol, (qp, du, dx)
 
 
 def _candidate(ev: EVParams, s: MPCSettings) -> Any:
     """A ProblemBuilder problem with a soft constraint (slack control) and an extra state: the §9 problem
-    (heat objective; the 'energy' objective's linear-cost control defeats qrqp, see export.py), a soft time-headway constraint h − 0.23 v >= 0.21 (penalty 37) and a jerk
-    penalty 0.013 ((a − a_prev)/dt)² through the own state a_prev (benchmarks/bench_mpc_cycles.py)."""
+    (heat objective), a soft time-headway constraint h − 0.23 v >= 0.21 (penalty 37) and a jerk penalty
+    0.013 ((a − a_prev)/dt)² through the own state a_prev."""
     from aev_ocp.ocp.following import following_problem
 
     pb = following_problem(ev, s.bounds, s.smooth, s.objective, name="export_candidate")
@@ -174,11 +181,12 @@ def _candidate(ev: EVParams, s: MPCSettings) -> Any:
 
 def test_soft_constraint_and_extra_state_problem(tmp_path: Path) -> None:
     ev = EVParams()
-    # the exact Hessian (CANON): this problem's blocks are indefinite (min eigenvalue −0.05) in most steps,
-    # which the interior point cannot take: those QPs are re-solved with the projected Hessian, the same
-    # rule in the C driver and in the Python one (MPCController._riccati_step)
+    # the exact Hessian (CANON) with a concave control term −0.3 a²: the control blocks of the exact Hessian
+    # are then indefinite in many steps, which the interior point cannot take: those QPs are re-solved with
+    # the projected Hessian, the same rule in the C driver and in the Python one (MPCController._riccati_step)
     s = MPCSettings.from_dict({**CANON, "w_Q": 0.7, "h_min": -10.0})
     prob = _candidate(ev, s)
+    prob.add_stage_cost(-0.3 * prob.u["a"] ** 2, name="concave")
     c = export_controller_settings(s, ev, problem=prob)
     assert c.nx == 6 and c.problem.control_names[-1] == "slack_headway"  # a_prev; the soft constraint's slack
     export_controller(c, tmp_path, "candidate")
@@ -195,7 +203,7 @@ def test_soft_constraint_and_extra_state_problem(tmp_path: Path) -> None:
     rp = _loop(MPCVehicle(si, problem=prob)).run([0.3], [1.87], T_END)
     assert all(k == 0 for k in st)
     assert (rp.solver_stats[0] or {}).get("fallbacks") == 0
-    assert sum(retries) > 20  # the retry rule is exercised (indefinite exact Hessian blocks)
+    assert sum(retries) > 20  # the retry rule is exercised (76 of 200 steps)
     du, dx = _compare(rc, rp)
     assert du <= TOL and dx <= TOL, (du, dx)
     # the soft constraint is active somewhere (the slack control is used): the test exercises it
