@@ -6,22 +6,25 @@ Prints a table and writes benchmarks/bench_mpc.json (atomically). Times are wall
 call measured by the closed loop (acados-style: median, p95, max in ms), on whatever machine runs this;
 'call' is the whole controller call per step (warm-start shift, parameters, solve, plan unpacking and
 the diagnostics). 'viol' counts plant constraint violations (gap, speed, |I| > 20C, collisions,
-infeasible current). The 'rti' paths do one QP per step (real-time iteration) after a cold IPOPT first
-step; the first step is included in max and p95.
-'breakdown' (the rti+codegen path, N = 40) splits the wall time of a closed-loop step into its parts
+infeasible current). The 'rti' paths do one QP per step (real-time iteration) after a cold first step
+(IPOPT, or the compiled step's own SQP cold start); the first step is included in max and p95.
+'breakdown' (the rti-hpipm+codegen path, N = 40) splits the wall time of a closed-loop step into its parts
 by timing wrappers around the compiled functions and the plant: forecast, QP data (one compiled call),
 the HPIPM solve, the node-0 check, the plan's cost/constraints, the plant (CVODES) and the Python rest.
+'breakdown_compiled' (the shipped path, rti-riccati+codegen: the whole step one compiled C library, QP by
+aev_ocp/c/ocp_qp.c) gives the controller call around the C step and, from the same C built with
+-DAEV_MPC_PROFILE on the recorded inputs, the step's parts timed inside the C (shift, QP data, Hessian
+projection, QP solve, node-0 check) and the QP iterations.
 'exported' (aev_ocp/mpc/export.py, the C of `aev-ocp mpc-export`): the canonical closed loop of the
-'rti-qrqp+codegen' path (which runs that same C library through ctypes) is recorded (measured state and
+compiled-step path (which runs that same C library through ctypes) is recorded (measured state and
 forecast per step) and replayed through the exported library built with `make`: from C (mpc_bench, the
 export's replay main, clock_gettime wall and CPU time per aev_mpc_step) and from Python (ctypes, one
-call per step); the replayed controls are compared with the closed loop's. 'breakdown_compiled' splits
-that path's controller call: the generated functions timed one by one through ca.external (shift, one
-SQP step = QP data + qrqp, node-0 check, the plan's cost — evaluated after the step, on demand) and the Python rest; 'scaling' gives its median for N = 40
-and N = 100. On a shared machine the wall-time p95 includes preemption (4 ms scheduler ticks): the CPU
-time per step is reported beside it.
+call per step); the replayed controls are compared with the closed loop's. 'traffic_udds' runs the
+shipped drive-cycle scenario mpc_udds_single (the traffic formulation) with the riccati and the HPIPM
+QP solvers. 'scaling' gives the compiled step's median for N = 40 and N = 100. On a shared machine the
+wall-time p95 includes preemption (4 ms scheduler ticks): the CPU time per step is reported beside it.
 Usage: python benchmarks/bench_mpc.py [--t-end 70] [--N 20 40 80] [--out benchmarks/bench_mpc.json]
-       [--skip-paths] (only the exported library, the breakdowns and the scaling)
+       [--skip-paths] (only the exported library, the breakdowns, the drive cycle and the scaling)
 """
 
 from __future__ import annotations
@@ -287,7 +290,7 @@ def main(argv: list[str] | None = None) -> int:
     rows = []
     if a.skip_paths:
         a.N = []
-    print(f"{'N':>3} {'path':20s} {'median':>7} {'p95':>7} {'max':>7} {'call':>6} {'it':>5} {'fb':>3} {'viol':>4} "
+    print(f"{'N':>3} {'path':36s} {'median':>7} {'p95':>7} {'max':>7} {'call':>6} {'it':>5} {'fb':>3} {'viol':>4} "
           f"{'speedup':>7} {'dcost %':>8}")
     for N in a.N:
         base = None
@@ -302,7 +305,7 @@ def main(argv: list[str] | None = None) -> int:
             row["cost_rel_to_ipopt_pct"] = (100 * (row["closed_loop_cost"] / ref_cost - 1)
                                             if ref_cost else float("nan"))
             rows.append(row)
-            print(f"{N:3d} {label:20s} {row['solve_ms_median']:7.2f} {row['solve_ms_p95']:7.2f} "
+            print(f"{N:3d} {label:36s} {row['solve_ms_median']:7.2f} {row['solve_ms_p95']:7.2f} "
                   f"{row['solve_ms_max']:7.2f} {row['call_ms_median']:6.2f} {row['iterations_mean']:5.2f} "
                   f"{row['fallbacks']:3d} {row['constraint_violations']:4d} {row['speedup_vs_cold_median']:7.1f} "
                   f"{row['cost_rel_to_ipopt_pct']:8.4f}", flush=True)
