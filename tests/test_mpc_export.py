@@ -133,7 +133,8 @@ def test_export_has_no_python_or_casadi_dependency(canonical_lib: Path) -> None:
 
 
 def test_canonical_closed_loop_matches_python_controller(canonical_lib: Path) -> None:
-    """C on (x_meas, forecast) with its own cold start vs the Python controller (rti, qrqp, codegen)."""
+    """C on (x_meas, forecast) with its own cold start vs the Python controller (rti, riccati, codegen: it loads
+    the same library, so this checks the Python wrapping and the export's API; the next test is independent)."""
     s = MPCSettings(**CANON)
     rc, st = _c_run(canonical_lib, s)
     rp = _loop(s).run([0.3], [1.87], T_END)
@@ -380,3 +381,30 @@ def test_export_refuses_what_the_step_does_not_implement(tmp_path: Path) -> None
     with pytest.raises(ExportError, match="terminal constraints"):
         export_controller(export_controller_settings(s, ev, problem=pb), tmp_path / "t", "x")
     assert not (tmp_path / "t").exists()
+
+def test_late_cold_start_of_the_compiled_step_warm_starts_the_next() -> None:
+    """§9 on the compiled step with a budget below its cold start (SQP to convergence, several ms) but far
+    above a warm step (0.2 ms): the first step is a 'budget' fallback whose plan warm-starts the next (it
+    used to crash with KeyError 'lam_x', taking the IPOPT branch with a warm start that has no multipliers)."""
+    s = MPCSettings(**{**CANON, "max_step_ms": 1.0})
+    r = ClosedLoop(PaperLeader(), [MPCVehicle(s)]).run([0.3], [1.87], 2.0)
+    st = r.solver_stats[0]
+    steps = r.meta["mpc_steps"][0]
+    assert r.status == "ok" and st["solver_path"] == "rti+codegen" and st["qp_solver"] == "riccati"
+    assert steps["status"][0].startswith("budget") and set(st["fallback_causes"]) == {"budget"}
+    assert sum(steps["ok"]) >= 10  # the following steps run warm (20 steps; a loaded machine may delay a few)
+
+
+def test_riccati_without_a_compiler_says_hpipm_runs(monkeypatch: pytest.MonkeyPatch) -> None:
+    """No C compiler: qp_solver 'riccati' cannot run; the rti path says so and HPIPM runs (qp_in_use)."""
+    import aev_ocp.compiled
+    import aev_ocp.mpc.ocpqp
+    from aev_ocp.mpc.controller import MPCController
+
+    monkeypatch.setattr(aev_ocp.compiled, "compiler", lambda: None)
+    monkeypatch.setattr(aev_ocp.mpc.ocpqp, "_LIBS", {})  # no library built earlier in this process
+    for codegen in (True, False):
+        with pytest.warns(RuntimeWarning, match="'riccati' is unavailable"):
+            c = MPCController(MPCSettings(**{**CANON, "N": 6, "codegen": codegen}))
+        assert c._cstep is None and c._riccati is None and c.qp_in_use == "hpipm"
+        assert c.solve(np.array([0.3, 1.87, 0.0, 0.0, 0.8]), np.full(6, 1.7), np.full(6, 1.7)).success

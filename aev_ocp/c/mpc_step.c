@@ -365,10 +365,10 @@ int aev_mpc_step_full(aev_mpc_workspace *ws, const double *z0, const double *p, 
   ws->info.iterations = ws->info.qp_iterations = ws->info.qp_status = ws->info.projected_retries = 0;
   ws->info.t_shift = ws->info.t_qpdata = ws->info.t_project = ws->info.t_qp = ws->info.t_node0 = 0.0;
   ws->info.step_inf = ws->info.qp_residual = ws->info.cost = ws->info.violation = ws->info.node0_violation = NAN;
+  ws->info.cold = !ws->warm;
   if (!all_finite(z0, AEV_MPC_NX) || !all_finite(p, AEV_MPC_NP)) return finish(ws, AEV_MPC_BAD_INPUT, u_out, status);
   if (p != ws->p) memcpy(ws->p, p, sizeof(double) * AEV_MPC_NP);
   if (z0 != ws->z0) memcpy(ws->z0, z0, sizeof(double) * AEV_MPC_NX);
-  ws->info.cold = !ws->warm;
   if (ws->warm) {
     TIC(t0);
     ws->arg[0] = ws->x; ws->arg[1] = ws->lam_g; ws->arg[2] = ws->lam_x; ws->arg[3] = ws->z0; ws->arg[4] = ws->p;

@@ -23,7 +23,9 @@
  * Convexity: the QP's reduced Hessian (on the null space of the dynamics with x_0 fixed) must be positive
  * definite, e.g. every control with curvature or a bound; the blocks H_k themselves may be indefinite (an
  * exact Hessian). Otherwise the Riccati factorisation fails (status OCPQP_FACTORIZATION: a control block
- * that is not positive definite) or the iteration does not converge (OCPQP_MAX_ITER); never OCPQP_OK.
+ * that is not positive definite) or the iteration does not converge (OCPQP_MAX_ITER), unless the iterate
+ * ends at a vertex where the barrier terms make the Newton matrices positive definite: then a local
+ * minimiser (that vertex) is returned with OCPQP_OK.
  * Notes (ocp_qp.c): nu = 0 is supported (the recursion is then the state propagation). An equality
  * lc = uc (or lbw = ubw) is two inequalities. On OCPQP_BAD_DIMS, OCPQP_NONFINITE (in the data) and
  * OCPQP_INFEASIBLE (lb > ub) the outputs are not written. Compiling ocp_qp.c with -DOCPQP_NX=nx

@@ -111,7 +111,7 @@ def _cli_mpc(argv: list[str]) -> int:
     c = run_comparison(sc, s, laws=laws, with_ocpd=not a.no_ocpd, log=say, progress=prog)
     write_outputs(c, out)
     save_output(out, "mpc", c.results, primary="mpc",
-                settings=settings_of(sc, solver=s.solver, qp_solver=s.qp_solver, codegen=s.codegen, t_end=sc.t_end,
+                settings=settings_of(sc, solver=s.solver, qp_solver=s.qp, codegen=s.codegen, t_end=sc.t_end,
                                      laws=list(laws), ocpd=not a.no_ocpd, sets=list(a.sets),
                                      time_limit_s=a.time_limit),
                 extra={"ocp_d": c.ocpd, "comparison_metrics": c.metrics, "timings_s": c.timings_s,

@@ -156,6 +156,8 @@ class MPCController:
         self.codegen_active = False
         self._cstep: Any = None  # the compiled whole step (export.CStep) of the rti path with qp_solver 'riccati'
         self._riccati: Any = None  # (QP-data Function, ocpqp.OcpQP) of the rti path with 'riccati' without codegen
+        #: the QP solver that runs ('riccati', a ca.conic/qpsol plugin, or '' for the IPOPT paths)
+        self.qp_in_use = self.settings.qp if self.settings.solver in ("rti", "sqp") else ""
         # the 'rti' path of the traffic formulation starts cold by RTI from the law's rollout; §9 keeps
         # its cold IPOPT first step (PROBLEM.md §9 numbers unchanged)
         self._rti_cold = self.settings.formulation != "s9"
@@ -354,9 +356,11 @@ class MPCController:
                 if self._cstep is not None:
                     self.codegen_active = True
                     return
-            else:  # the QP data interpreted, the QP solved by ocp_qp.c through ctypes (_solve_rti)
-                self._riccati = riccati_solver(self)
-            qp_plugin = "hpipm"  # (unused when self._riccati is set) no compiler: the interpreted path with HPIPM
+            # no codegen, or the whole step could not be built: the QP data interpreted (or compiled below),
+            # the QP solved by ocp_qp.c through ctypes (_solve_rti); HPIPM only if ocp_qp.c cannot be built
+            self._riccati = riccati_solver(self)
+            qp_plugin = "hpipm"  # the conic below: used only when ocp_qp.c could not be built (self._riccati None)
+        self.qp_in_use = "riccati" if self._riccati is not None else qp_plugin
         N, nx, nu, ngs = s.N, pr.nx, pr.nu, self._ng_stage
         nb = nx + nu
         zk, uk = ca.SX.sym("zk", nx), ca.SX.sym("uk", nu)
@@ -530,7 +534,8 @@ class MPCController:
         if self._cstep is not None:
             was_cold = self._warm is None
             sol = self._solve_cstep(z0, p)
-            if sol.success or not was_cold or self._rti_cold:
+            if sol.success or not was_cold or self._rti_cold or self._warm is not None:
+                # (a late cold start, cause 'budget', left its plan as the warm start: the next step is warm)
                 return sol  # a failed cold start of §9's compiled step falls back to the cold IPOPT below
         warm = self._warm is not None and s.solver != "ipopt-cold"
         if s.solver == "rti" and not warm and self._rti_cold and self._cstep is None:

@@ -165,7 +165,7 @@ def cycles_section(out_dir: Any, progress: Callable[[str], None], segment_s: flo
              f"over {seg_txt} (reproduce runs a segment to stay usable: the section took {elapsed:.0f} s here; the whole "
              "cycles run with `aev-ocp mpc mpc_udds_single` etc. and benchmarks/bench_mpc_cycles.py). MPC: the "
              f"MPCSettings() default formulation on the solver path {s.solver}"
-             f"{'+codegen' if s.codegen else ''} (qp {s.qp_solver}), N = {s.N}, dt = {s.dt:g}, with a measured forecast "
+             f"{'+codegen' if s.codegen else ''} (qp {s.qp}), N = {s.N}, dt = {s.dt:g}, with a measured forecast "
              f"({', '.join(predictors)}; no oracle); the laws do not forecast (—). Exact plant (CVODES). "
              "Per-km values divide by the follower's own distance. Solve p50/p99: per-step MPC solve time.", "",
              f"**Comparable results.** A row whose distance or duration differs from the proposed law's by more than "

@@ -444,8 +444,8 @@ def riccati_solver(c: "MPCController") -> tuple[ca.Function, Any] | None:
         qp = OcpQP(OcpQPDims(N, nx, nu, c._ng_stage - nx, 0),
                    OcpQPSettings(max_iter=QP_MAX_ITER, tol_stat=QP_TOL, tol_eq=QP_TOL, tol_ineq=QP_TOL, tol_comp=QP_TOL))
     except (OSError, RuntimeError, ParameterError) as exc:
-        warnings.warn(f"qp_solver 'riccati': ocp_qp.c could not be built ({exc}); using HPIPM instead",
-                      RuntimeWarning, stacklevel=4)
+        warnings.warn(f"qp_solver 'riccati' is unavailable: ocp_qp.c could not be built ({exc}); the rti path uses "
+                      "HPIPM through ca.conic instead", RuntimeWarning, stacklevel=4)
         return None
     return qp_data_function(c).expand(), qp
 
@@ -462,8 +462,8 @@ class CompiledStep:
         from ..compiled import compile_shared, compiler
 
         if compiler() is None:
-            warnings.warn("MPC codegen requested but no C compiler (gcc) was found: using the "
-                          "interpreted CasADi functions instead", RuntimeWarning, stacklevel=4)
+            warnings.warn("MPC codegen requested but no C compiler (gcc) was found: the rti step runs on "
+                          "interpreted CasADi functions instead of the compiled step", RuntimeWarning, stacklevel=4)
             return None
         with tempfile.TemporaryDirectory() as tmp:
             write_sources(c, Path(tmp), f"MPC controller {c.problem.name}")
@@ -473,7 +473,8 @@ class CompiledStep:
         built = compile_shared(main, "mpc_step", "mpc", companions=files,
                                extra_flags=tuple(f"-D{d}" for d in qp_dimension_defines(c)))
         if built.path is None:
-            warnings.warn(f"MPC codegen failed ({built.error}): using the interpreted CasADi functions instead",
+            warnings.warn(f"MPC codegen failed ({built.error}): the rti step runs on interpreted CasADi functions "
+                          "instead of the compiled step",
                           RuntimeWarning, stacklevel=4)
             return None
         return CStep(built.path)

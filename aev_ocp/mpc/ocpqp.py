@@ -9,7 +9,8 @@ The QP, stage k = 0..N-1 with w_k = (x_k, u_k) (nb = nx + nu) and the terminal w
 
 The QP must be convex: its reduced Hessian (on the null space of the dynamics, x_0 fixed) positive definite;
 the blocks H_k may be indefinite (an exact Hessian). Otherwise the status is 'factorization' or 'max_iter',
-never 'ok'. Safeguards against the stall of Mehrotra's method on degenerate rows (ocp_qp.c): a wide
+unless the iterate ends at a vertex where the barrier terms make the Newton matrices positive definite (then
+'ok' with that vertex, a local minimiser). Safeguards against the stall of Mehrotra's method on degenerate rows (ocp_qp.c): a wide
 neighbourhood step rule and Gondzio's centrality correctors. Termination: every residual below its
 tolerance (complementarity: the mean of s z); on degenerate rows w is then O(sqrt(tol)) from the exact
 solution (up to 1e-4 at 1e-9 on the MPC's QPs, 4e-8 at 1e-12).
