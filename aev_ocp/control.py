@@ -166,6 +166,7 @@ def _stats(rec: dict[str, list[Any]], ctrl: Controller) -> dict[str, Any]:
             # 'exception', or the NLP solver's return status)
             "fallback_causes": fallback_causes(rec["status"], rec["ok"]),
             "solver_path": d.get("solver_path", d.get("controller", "")),
+            "qp_solver": d.get("qp_in_use", ""),  # the MPC's QP solver that ran ('' for the others)
             "n_steps": len(rec["ok"]),
             # whole controller call: forecast, warm-start shift, parameters, solve, unpacking
             "call_ms_median": float(np.median(cm)) if cm.size else float("nan"),

@@ -415,7 +415,8 @@ class _Run:
                         else "the traffic formulation, aev_ocp/ocp/traffic.py")
                 mpc_line = (f"\nThe `mpc` rows are the scenario's own [mpc] closed loop ({form}, forecast "
                             f"{mpc_cfg.settings.predictor}) on the exact "
-                            f"plant: solver path {st[0]['solver_path'] if st else '?'}, "
+                            f"plant: solver path {st[0]['solver_path'] if st else '?'} "
+                            f"(QP {(st[0].get('qp_solver') or '—') if st else '?'}), "
                             f"{sum(x['fallbacks'] for x in st)} fallbacks in {sum(x['n_steps'] for x in st)} "
                             "solves.\n" if st else "")
             sub = out / "scenarios" / name

@@ -6,22 +6,25 @@ Prints a table and writes benchmarks/bench_mpc.json (atomically). Times are wall
 call measured by the closed loop (acados-style: median, p95, max in ms), on whatever machine runs this;
 'call' is the whole controller call per step (warm-start shift, parameters, solve, plan unpacking and
 the diagnostics). 'viol' counts plant constraint violations (gap, speed, |I| > 20C, collisions,
-infeasible current). The 'rti' paths do one QP per step (real-time iteration) after a cold IPOPT first
-step; the first step is included in max and p95.
-'breakdown' (the rti+codegen path, N = 40) splits the wall time of a closed-loop step into its parts
+infeasible current). The 'rti' paths do one QP per step (real-time iteration) after a cold first step
+(IPOPT, or the compiled step's own SQP cold start); the first step is included in max and p95.
+'breakdown' (the rti-hpipm+codegen path, N = 40) splits the wall time of a closed-loop step into its parts
 by timing wrappers around the compiled functions and the plant: forecast, QP data (one compiled call),
 the HPIPM solve, the node-0 check, the plan's cost/constraints, the plant (CVODES) and the Python rest.
+'breakdown_compiled' (the shipped path, rti-riccati+codegen: the whole step one compiled C library, QP by
+aev_ocp/c/ocp_qp.c) gives the controller call around the C step and, from the same C built with
+-DAEV_MPC_PROFILE on the recorded inputs, the step's parts timed inside the C (shift, QP data, Hessian
+projection, QP solve, node-0 check) and the QP iterations.
 'exported' (aev_ocp/mpc/export.py, the C of `aev-ocp mpc-export`): the canonical closed loop of the
-'rti-qrqp+codegen' path (which runs that same C library through ctypes) is recorded (measured state and
+compiled-step path (which runs that same C library through ctypes) is recorded (measured state and
 forecast per step) and replayed through the exported library built with `make`: from C (mpc_bench, the
 export's replay main, clock_gettime wall and CPU time per aev_mpc_step) and from Python (ctypes, one
-call per step); the replayed controls are compared with the closed loop's. 'breakdown_compiled' splits
-that path's controller call: the generated functions timed one by one through ca.external (shift, one
-SQP step = QP data + qrqp, node-0 check, the plan's cost — evaluated after the step, on demand) and the Python rest; 'scaling' gives its median for N = 40
-and N = 100. On a shared machine the wall-time p95 includes preemption (4 ms scheduler ticks): the CPU
-time per step is reported beside it.
+call per step); the replayed controls are compared with the closed loop's. 'traffic_udds' runs the
+shipped drive-cycle scenario mpc_udds_single (the traffic formulation) with the riccati and the HPIPM
+QP solvers. 'scaling' gives the compiled step's median for N = 40 and N = 100. On a shared machine the
+wall-time p95 includes preemption (4 ms scheduler ticks): the CPU time per step is reported beside it.
 Usage: python benchmarks/bench_mpc.py [--t-end 70] [--N 20 40 80] [--out benchmarks/bench_mpc.json]
-       [--skip-paths] (only the exported library, the breakdowns and the scaling)
+       [--skip-paths] (only the exported library, the breakdowns, the drive cycle and the scaling)
 """
 
 from __future__ import annotations
@@ -52,9 +55,11 @@ PATHS = {
     "sqp-hpipm+codegen": dict(solver="sqp", qp_solver="hpipm", codegen=True),
     "rti-hpipm": dict(solver="rti", qp_solver="hpipm"),
     "rti-hpipm+codegen": dict(solver="rti", qp_solver="hpipm", codegen=True),
-    "rti-qrqp+codegen (compiled step)": dict(solver="rti", qp_solver="qrqp", codegen=True),
+    "rti-qrqp+codegen": dict(solver="rti", qp_solver="qrqp", codegen=True),
+    "rti-riccati (Python driver)": dict(solver="rti", qp_solver="riccati", codegen=False),
+    "rti-riccati+codegen (compiled step)": dict(solver="rti", qp_solver="riccati", codegen=True),
 }
-COMPILED = dict(solver="rti", qp_solver="qrqp", codegen=True)
+COMPILED = dict(solver="rti", qp_solver="riccati", codegen=True)
 #: the canonical problem is PROBLEM.md §9 as in scenarios/mpc_paper_single.toml (the default is 'traffic')
 S9 = dict(formulation="s9", rti_hessian="exact", max_step_ms=10000.0)
 
@@ -188,47 +193,76 @@ def exported(t_end: float) -> dict:
 
 
 def breakdown_compiled(N: int, t_end: float) -> dict:
-    """The compiled-step path: its generated functions timed one by one (ca.external on the cached library,
-    the inputs of a recorded closed loop) against the whole controller call."""
-    import casadi as ca
-
+    """The compiled-step path (rti-riccati+codegen): the C step's parts timed inside the C (the export built
+    with -DAEV_MPC_PROFILE, aev_mpc_info.t_*) on the recorded closed loop's inputs replayed in order, and the
+    Python controller call around it in the closed loop."""
+    from aev_ocp.compiled import compiler
     from aev_ocp.control import ClosedLoop
+    from aev_ocp.mpc.export import CStep, build_library, export_mpc
+    from aev_ocp.scenarios import find_scenario, load_scenario
 
     loop = ClosedLoop(PaperLeader(), [MPCSettings(N=N, **S9, **COMPILED)])
     pol = loop.ctrl[0]
-    c = pol.controller  # type: ignore[union-attr]
-    lib = c._cstep.lib._name
-    f = {k: ca.external(f"aev_cg_{k}", lib) for k in ("shift", "sqp", "node0", "eval")}
-    pts: list[tuple] = []
-    step_full = c._cstep.step_full
-
-    def rec(z0: np.ndarray, p: np.ndarray) -> int:
-        prev = c._cstep.solution()
-        pts.append((prev[0].copy(), prev[1].copy(), prev[2].copy(), np.array(z0, float), np.array(p, float)))
-        return step_full(z0, p)
-
-    c._cstep.step_full = rec
     timers = {"controller_call": _Timed(pol.command), "forecast": _Timed(pol.forecast)}
-    pol.command, pol.forecast = timers["controller_call"], timers["forecast"]
+    pol.command, pol.forecast = timers["controller_call"], timers["forecast"]  # type: ignore[method-assign]
     r = loop.run([0.3], [1.87], t_end)
     solve_ms = np.asarray(r.meta["mpc_steps"][0]["solve_ms"])
-    parts = {"shift": [], "sqp_qpdata_and_qrqp": [], "node0": [], "plan_cost_eval": []}  # type: ignore[var-annotated]
-    for x, lg, lx, z0, p in pts[2:]:
-        for key, fn, args in (("shift", f["shift"], (x, lg, lx, z0, p)),
-                              ("sqp_qpdata_and_qrqp", f["sqp"], (x, lg, lx, p, 0.0)), ("node0", f["node0"], (x, p)),
-                              ("plan_cost_eval", f["eval"], (x, p))):
-            t0 = time.perf_counter()
-            fn(*args)
-            parts[key].append(time.perf_counter() - t0)
-    med = {k: 1e3 * float(np.median(v)) for k, v in parts.items()}
-    med["c_step_total (solve_ms)"] = float(np.median(solve_ms[1:]))  # plan_cost_eval is outside it
-    med["forecast"] = 1e3 * float(np.median(timers["forecast"].times))
-    med["controller_call"] = 1e3 * float(np.median(timers["controller_call"].times))
+    med: dict[str, float] = {"c_step_total (solve_ms)": float(np.median(solve_ms[1:])),
+                             "forecast": 1e3 * float(np.median(timers["forecast"].times)),
+                             "controller_call": 1e3 * float(np.median(timers["controller_call"].times))}
     med["python_rest"] = med["controller_call"] - med["c_step_total (solve_ms)"] - med["forecast"]
-    return {"N": N, "median_ms_per_call": med,
-            "note": "the parts are called through ca.external (each includes about 0.04 ms of CasADi call "
-                    "overhead: node0, a single interval, takes 0.05 ms); their QP data alone is the 'qp_data' "
-                    "of the rti-hpipm breakdown (the same stage computations), the rest of the SQP step is qrqp"}
+    out: dict = {"N": N, "median_ms_per_call": med}
+    if compiler() is None:
+        return out
+    inputs, _, _ = record_loop(N, t_end)
+    parts: dict[str, list[float]] = {k: [] for k in ("shift", "qp_data", "hessian_projection", "qp_solve", "node0",
+                                                    "step_total")}
+    qp_its: list[int] = []
+    with tempfile.TemporaryDirectory() as tmp:
+        export_mpc(load_scenario(find_scenario("mpc_paper_single")), Path(tmp), MPCSettings(N=N, **S9, **COMPILED))
+        cs = CStep(build_library(Path(tmp), Path(tmp) / "lib.so", flags=("-O2", "-fno-math-errno", "-DAEV_MPC_PROFILE")))
+        for k, row in enumerate(inputs):
+            t0 = time.perf_counter()
+            cs.step(row[:5], row[5:])
+            dt = time.perf_counter() - t0
+            info = cs.solution()[3]
+            if k == 0:
+                continue  # the cold start
+            for key, v in (("shift", info.t_shift), ("qp_data", info.t_qpdata), ("hessian_projection", info.t_project),
+                           ("qp_solve", info.t_qp), ("node0", info.t_node0), ("step_total", dt)):
+                parts[key].append(v)
+            qp_its.append(info.qp_iterations)
+    out["c_parts_median_ms"] = {k: 1e3 * float(np.median(v)) for k, v in parts.items()}
+    out["c_parts_median_ms"]["rest (ctypes call, copies)"] = out["c_parts_median_ms"]["step_total"] - sum(
+        v for k, v in out["c_parts_median_ms"].items() if k != "step_total")
+    out["qp_iterations_median"] = float(np.median(qp_its))
+    out["qp_iterations_max"] = int(np.max(qp_its))
+    return out
+
+
+def traffic_udds(qp_solvers: tuple[str, ...] = ("riccati", "hpipm")) -> dict:
+    """The shipped drive-cycle scenario mpc_udds_single (the default traffic formulation, decaying-acceleration
+    forecast, whole UDDS from rest) per QP solver: per-step solve and controller-call times, fallbacks, pack
+    heat per km (issue 12's traffic target: median <= 1 ms, p99 <= 3 ms)."""
+    from aev_ocp.mpc.scenario import MPCConfig, closed_loop_from_scenario
+    from aev_ocp.scenarios import find_scenario, load_scenario
+
+    sc = load_scenario(find_scenario("mpc_udds_single"))
+    base = sc.extra["mpc"].settings
+    out = {}
+    for q in qp_solvers:
+        s = base.with_(qp_solver=q)
+        t0 = time.perf_counter()
+        r = closed_loop_from_scenario(sc, MPCConfig(s)).run(list(sc.gaps0), list(sc.speeds0), sc.t_end)
+        wall = time.perf_counter() - t0
+        st = dict(r.solver_stats[0] or {})
+        ms = np.asarray(r.meta["mpc_steps"][0]["solve_ms"])
+        m = r.metrics()[0]
+        out[q] = {"steps": int(ms.size), "solve_ms_median": float(np.median(ms)), "solve_ms_p99": float(np.percentile(ms, 99)),
+                  "solve_ms_max": float(ms.max()), "call_ms_median": st.get("call_ms_median"),
+                  "fallbacks": st.get("fallbacks"), "heat_pack_J_per_km": m["heat_pack_J_per_km"],
+                  "distance_m": m["distance_m"], "min_gap_m": m["min_gap_m"], "run_wall_s": wall, "status": r.status}
+    return out
 
 
 def scaling(t_end: float, Ns: tuple[int, ...] = (40, 100)) -> dict:
@@ -256,7 +290,7 @@ def main(argv: list[str] | None = None) -> int:
     rows = []
     if a.skip_paths:
         a.N = []
-    print(f"{'N':>3} {'path':20s} {'median':>7} {'p95':>7} {'max':>7} {'call':>6} {'it':>5} {'fb':>3} {'viol':>4} "
+    print(f"{'N':>3} {'path':36s} {'median':>7} {'p95':>7} {'max':>7} {'call':>6} {'it':>5} {'fb':>3} {'viol':>4} "
           f"{'speedup':>7} {'dcost %':>8}")
     for N in a.N:
         base = None
@@ -271,7 +305,7 @@ def main(argv: list[str] | None = None) -> int:
             row["cost_rel_to_ipopt_pct"] = (100 * (row["closed_loop_cost"] / ref_cost - 1)
                                             if ref_cost else float("nan"))
             rows.append(row)
-            print(f"{N:3d} {label:20s} {row['solve_ms_median']:7.2f} {row['solve_ms_p95']:7.2f} "
+            print(f"{N:3d} {label:36s} {row['solve_ms_median']:7.2f} {row['solve_ms_p95']:7.2f} "
                   f"{row['solve_ms_max']:7.2f} {row['call_ms_median']:6.2f} {row['iterations_mean']:5.2f} "
                   f"{row['fallbacks']:3d} {row['constraint_violations']:4d} {row['speedup_vs_cold_median']:7.1f} "
                   f"{row['cost_rel_to_ipopt_pct']:8.4f}", flush=True)
@@ -295,9 +329,14 @@ def main(argv: list[str] | None = None) -> int:
     for k, v in sorted(bd["ms_per_step"].items(), key=lambda kv: -kv[1]):
         print(f"  {k:24s} {v:7.3f} {bd['median_ms_per_call'].get(k, float('nan')):8.3f}")
     bdc = breakdown_compiled(40, a.t_end)
-    print("\nbreakdown of the compiled-step path (rti-qrqp+codegen), N = 40: median ms per call")
+    print("\nbreakdown of the compiled-step path (rti-riccati+codegen), N = 40: median ms per call")
     for k, v in bdc["median_ms_per_call"].items():
         print(f"  {k:26s} {v:7.3f}")
+    if "c_parts_median_ms" in bdc:
+        print(f"  inside the C step (-DAEV_MPC_PROFILE; QP iterations median {bdc['qp_iterations_median']:.0f}, "
+              f"max {bdc['qp_iterations_max']}):")
+        for k, v in bdc["c_parts_median_ms"].items():
+            print(f"    {k:26s} {v:7.3f}")
     ex = exported(a.t_end)
     if "skipped" not in ex:
         print(f"\nexported C library ({ex['steps']} steps replayed; make took {ex['build_s']:.1f} s):")
@@ -309,10 +348,16 @@ def main(argv: list[str] | None = None) -> int:
               f"ctypes {ex['max_abs_du_ctypes_vs_closed_loop']:.2e}")
     else:
         print(f"\nexported C library: skipped ({ex['skipped']})")
+    tu = traffic_udds()
+    print("\ntraffic formulation, shipped mpc_udds_single (whole UDDS, decaying-acceleration forecast):")
+    for q, row in tu.items():
+        print(f"  {q:8s} solve median {row['solve_ms_median']:.3f}  p99 {row['solve_ms_p99']:.3f}  max "
+              f"{row['solve_ms_max']:.2f} ms, call median {row['call_ms_median']:.3f} ms, fallbacks {row['fallbacks']}, "
+              f"{row['heat_pack_J_per_km']:.0f} J/km over {row['distance_m']:.0f} m")
     sc = scaling(a.t_end)
     print(f"\nscaling (compiled step): N = 40 median {sc['40']['solve_ms_median']:.3f} ms, N = 100 "
           f"{sc['100']['solve_ms_median']:.3f} ms: ratio {sc['ratio']:.2f} (linear: {sc['linear_ratio']:.1f})")
-    comp = [r for r in rows if r["N"] == 40 and r["path"].startswith("rti-qrqp")]
+    comp = [r for r in rows if r["N"] == 40 and r["path"].startswith("rti-riccati+codegen")]
     ref = [r for r in rows if r["N"] == 40 and r["path"] == "ipopt (warm)"]
     issue = {"exported_c_median_ms": ex.get("from_c", {}).get("wall", {}).get("median_ms"),
              "exported_c_median_le_0.25ms": (ex["from_c"]["wall"]["median_ms"] <= 0.25) if "from_c" in ex else None,
@@ -325,6 +370,10 @@ def main(argv: list[str] | None = None) -> int:
         if ref:
             rel = comp[0]["closed_loop_cost"] / ref[0]["closed_loop_cost"] - 1
             issue.update({"cost_rel_to_ipopt": rel, "cost_within_1e-6": abs(rel) <= 1e-6})
+    tr = tu.get("riccati", {})
+    issue.update({"traffic_udds_median_ms": tr.get("solve_ms_median"), "traffic_udds_p99_ms": tr.get("solve_ms_p99"),
+                  "traffic_median_le_1ms": tr.get("solve_ms_median", 9.0) <= 1.0,
+                  "traffic_p99_le_3ms": tr.get("solve_ms_p99", 9.0) <= 3.0, "traffic_fallbacks": tr.get("fallbacks")})
     print("issue-12 targets:", issue)
     write_json(a.out, {"scenario": "mpc_paper_single (PROBLEM.md §9 canonical)", "t_end": a.t_end,
                        "machine": {"platform": platform.platform(), "python": sys.version.split()[0],
@@ -332,7 +381,7 @@ def main(argv: list[str] | None = None) -> int:
                        "note": "wall time of each solver call in the closed loop; the first solve of every "
                                "non-baseline path is a cold IPOPT solve and is included in the statistics",
                        "rows": rows, "targets": targets, "breakdown": bd, "breakdown_compiled": bdc,
-                       "exported": ex, "scaling": sc, "issue12_targets": issue})
+                       "exported": ex, "scaling": sc, "traffic_udds": tu, "issue12_targets": issue})
     print(f"wrote {a.out}")
     return 0
 

@@ -106,7 +106,7 @@ def test_mpc_table_messages_name_file_key_value_and_range(key, value, fragments)
 
 
 def test_mpc_table_accepts_valid_values_and_upper_case_choices() -> None:
-    s = parse_scenario(_mpc_doc(N=17, solver="SQP", w_a=0.25, smoothing_width_W=150), "ok.toml").extra["mpc"].settings
+    s = parse_scenario(_mpc_doc(N=17, solver="SQP", qp_solver="HPIPM", w_a=0.25, smoothing_width_W=150), "ok.toml").extra["mpc"].settings
     assert (s.N, s.solver, s.weights.w_a, s.smooth.smoothing_width_W) == (17, "sqp", 0.25, 150.0)
 
 

@@ -247,7 +247,8 @@ def test_rti_closed_loop_matches_ipopt_and_holds_constraints(codegen, tmp_path_f
     assert r.status == "ok" and st["fallbacks"] == 0 and st["n_steps"] == 100
     assert st["solver_path"] == ("rti+codegen" if codegen else "rti")
     steps = r.meta["mpc_steps"][0]
-    assert steps["status"][0] == "Solve_Succeeded"  # first step: cold IPOPT
+    # first step: the compiled step's own cold start (SQP to convergence), else a cold IPOPT
+    assert steps["status"][0] == ("RTI_Converged" if codegen else "Solve_Succeeded")
     assert all(s.startswith("RTI_") for s in steps["status"][1:]) and max(steps["iterations"][1:]) == 1
     np.testing.assert_allclose(r.accel[:, 0], ref.accel[:, 0], atol=2e-3)
     np.testing.assert_allclose(r.gap[:, 0], ref.gap[:, 0], atol=1e-4)
@@ -264,15 +265,16 @@ def test_rti_closed_loop_matches_ipopt_and_holds_constraints(codegen, tmp_path_f
     assert m["gap_violations"] == 0 and m["speed_violations"] == 0 and m["min_gap_model"] >= 0.2 - 1e-4
 
 
-def test_rti_failed_qp_is_a_failure_and_restarts_cold():
-    ctrl = MPCController(S9(N=10, solver="rti"), EV)
+@pytest.mark.parametrize("qp_solver", ["hpipm", "riccati"])
+def test_rti_failed_qp_is_a_failure_and_restarts_cold(qp_solver):
+    ctrl = MPCController(S9(N=10, solver="rti", qp_solver=qp_solver), EV)
     z0 = [0.5, 1.2, 0.0, 0.0, 0.8]
     fc = _forecast(0.0, 10)
     assert ctrl.solve(z0, *fc).path == "ipopt-cold"
     ok = ctrl.solve(z0, *fc)
     assert ok.success and ok.path == "rti" and ok.iterations == 1
 
-    class FailingQP:
+    class FailingQP:  # ca.conic's call and stats, or ocpqp.OcpQP's solve
         def __init__(self, qp):
             self.qp = qp
 
@@ -282,11 +284,24 @@ def test_rti_failed_qp_is_a_failure_and_restarts_cold():
         def stats(self):
             return {"success": False, "return_status": "forced"}
 
-    real = ctrl._rti_qp
-    ctrl._rti_qp = FailingQP(real)
+        def solve(self, *a):
+            r = self.qp.solve(*a)
+            r.status = 1  # OCPQP_MAX_ITER
+            return r
+
+    if qp_solver == "riccati":
+        real = ctrl._riccati
+        ctrl._riccati = (real[0], FailingQP(real[1]))
+    else:
+        real = ctrl._rti_qp
+        ctrl._rti_qp = FailingQP(real)
     bad = ctrl.solve(z0, *fc)
     assert not bad.success and "QP failed" in bad.status and np.all(np.isnan(bad.a))
-    ctrl._rti_qp = real
+    if qp_solver == "riccati":
+        assert "MAX_ITER" in bad.status.upper()
+        ctrl._riccati = real
+    else:
+        ctrl._rti_qp = real
     again = ctrl.solve(z0, *fc)  # warm start dropped: cold IPOPT, then RTI again
     assert again.success and again.path == "ipopt-cold"
     assert ctrl.solve(z0, *fc).path == "rti"

@@ -29,7 +29,7 @@ def test_shipped_mpc_scenarios_load():
     assert p.n_followers == 5 and p.extra["mpc"].follower_predictor == "cooperative"
     for sc in (s, p):  # the fast real-time-iteration path with compiled functions is the scenario default
         st = sc.extra["mpc"].settings
-        assert (st.solver, st.qp_solver, st.codegen, st.rti_iterations) == ("rti", "qrqp", True, 1)
+        assert (st.solver, st.qp_solver, st.qp, st.codegen, st.rti_iterations) == ("rti", "auto", "riccati", True, 1)
 
 
 @pytest.mark.parametrize("bad, word", [({"N": 0}, "N"), ({"w_Q": -1.0}, "w_Q"), ({"solver": "x"}, "solver"),

@@ -3,12 +3,15 @@ compiler and driven through the CVODES plant via ctypes.
 
 * The canonical §9 scenario (200 of its 700 steps, t ∈ [0, 20], to keep the suite short): the C library
   called on (x_meas, forecast) through its own API — its own cold start included — against the Python
-  controller (rti, qrqp, codegen) in the closed loop; and, independently of the shared code, against the
-  Python rti path whose QP data come from the interpreted CasADi functions and whose QP is solved by
-  ``ca.conic('qrqp')`` (both loops start from the same cold IPOPT step, handed to the C by set_warm).
+  controller (rti, riccati, codegen: the same library) in the closed loop; and, independently of the shared
+  driver code, against the Python rti path whose QP data come from the interpreted CasADi functions and whose
+  QP goes to ocp_qp.c through ctypes (both loops start from the same cold IPOPT step, handed to the C by set_warm).
   Max |Δu| and max |Δx| over the closed loop <= 1e-8.
-* A second problem built with the ProblemBuilder with a soft constraint (a slack control) and an extra
-  state (a_prev with a jerk penalty): the same comparison.
+* A second problem built with the ProblemBuilder with a soft constraint (a slack control), an extra
+  state (a_prev with a jerk penalty) and a concave control term (the exact Hessian's projected-retry rule):
+  the C against the Python driver on the same QP solver.
+* The traffic formulation (the default) exported from mpc_udds_single against the Python driver.
+* The C Hessian projection against NumPy's.
 * Command-line errors: unknown scenario, a scenario without [mpc], no C compiler for --build.
 """
 
@@ -38,7 +41,7 @@ T_END = 20.0  # 200 closed-loop steps of the canonical 700
 TOL = 1e-8
 # PROBLEM.md §9 as in scenarios/mpc_paper_single.toml (the default formulation is 'traffic')
 CANON = dict(formulation="s9", rti_hessian="exact", max_step_ms=10000.0, N=40, dt=0.1, solver="rti",
-             qp_solver="qrqp", codegen=True)
+             qp_solver="riccati", codegen=True)
 
 
 class CPolicy:
@@ -50,6 +53,7 @@ class CPolicy:
         self.step, self.policy, self.first = CStep(lib), policy, first
         self.name, self.dt = "exported C", policy.dt
         self.status: list[int] = []
+        self.retries: list[int] = []  # QPs re-solved with the projected Hessian (after the exact one failed)
 
     def reset(self) -> None:
         self.step.reset()
@@ -62,11 +66,12 @@ class CPolicy:
         if self.first is not None:
             sol = self.first.solve(obs.z, vm, vh)
             w = self.first._warm
-            self.step.set_warm(w["x"], w["lam_g"], w["lam_x"], drop_below=1e-8)
+            self.step.set_warm(w["x"], w["lam_g"], w["lam_x"])
             self.first, self.status = None, [0]
             return Command(float(sol.a[0]), True)
         u, st = self.step.step(obs.z, np.concatenate([vm, vh]))
         self.status.append(st)
+        self.retries.append(self.step.solution()[3].projected_retries)
         if st != 0:
             return self.policy._fallback.command(obs)
         return Command(float(u[0]), True)
@@ -87,13 +92,19 @@ def _compare(a: Any, b: Any) -> tuple[float, float]:
     return float(np.abs(ua - ub).max()), float(np.abs(xa - xb).max())
 
 
-def _c_run(lib: Path, settings: MPCSettings, vehicle: Any = None, first: Any = None) -> tuple[Any, list[int]]:
-    """The closed loop driven by the exported library (forecast from an MPC policy of the same settings)."""
-    loop = _loop(vehicle or settings)
+def _c_run(lib: Path, settings: MPCSettings, vehicle: Any = None, first: Any = None,
+           loop: ClosedLoop | None = None, start: tuple[float, float, float] = (0.3, 1.87, T_END),
+           retries: list[int] | None = None) -> tuple[Any, list[int]]:
+    """The closed loop driven by the exported library (forecast from an MPC policy of the same settings);
+    ``retries`` (if given) receives the projected-Hessian retries per step."""
+    loop = loop or _loop(vehicle or settings)
     pol = loop.ctrl[0]
     cp = CPolicy(lib, pol, first)
     loop.ctrl[0] = cp
-    return loop.run([0.3], [1.87], T_END), cp.status
+    r = loop.run([start[0]], [start[1]], start[2])
+    if retries is not None:
+        retries.extend(cp.retries)
+    return r, cp.status
 
 
 @pytest.fixture(scope="module")
@@ -122,7 +133,8 @@ def test_export_has_no_python_or_casadi_dependency(canonical_lib: Path) -> None:
 
 
 def test_canonical_closed_loop_matches_python_controller(canonical_lib: Path) -> None:
-    """C on (x_meas, forecast) with its own cold start vs the Python controller (rti, qrqp, codegen)."""
+    """C on (x_meas, forecast) with its own cold start vs the Python controller (rti, riccati, codegen: it loads
+    the same library, so this checks the Python wrapping and the export's API; the next test is independent)."""
     s = MPCSettings(**CANON)
     rc, st = _c_run(canonical_lib, s)
     rp = _loop(s).run([0.3], [1.87], T_END)
@@ -135,24 +147,28 @@ def test_canonical_closed_loop_matches_python_controller(canonical_lib: Path) ->
 
 
 def test_canonical_closed_loop_matches_interpreted_qp_path(canonical_lib: Path) -> None:
-    """Independent of the shared generated code: the Python rti path on interpreted CasADi functions with
-    ca.conic('qrqp') (numpy shift, separate QP-data function), both from the same cold IPOPT step."""
+    """Independent of the shared generated code: the Python rti path on interpreted CasADi functions (numpy
+    shift, separate QP-data function) with the same QP solver through ctypes, to 1e-8; and with another QP
+    solver, CasADi's active-set qrqp (exact on the active set), to 2e-6: the interior point stops at a mean
+    complementarity of 1e-9, which leaves about 1e-7 in the controls where active rows are degenerate (the
+    closed loop differs by 6e-7 in u, 2e-7 in the states). All three loops start from the same cold IPOPT step."""
     from aev_ocp.mpc.controller import MPCController
 
-    s = MPCSettings(**{**CANON, "codegen": False})
-    ref = MPCController(s)
-    assert ref._cstep is None  # the interpreted path, not the library
-    rc, st = _c_run(canonical_lib, s, first=ref)
-    rp = _loop(s).run([0.3], [1.87], T_END)
-    assert all(k == 0 for k in st)
-    du, dx = _compare(rc, rp)
-    assert du <= TOL and dx <= TOL, (du, dx)
+    for qp, tol in (("riccati", TOL), ("qrqp", 2e-6)):
+        s = MPCSettings(**{**CANON, "codegen": False, "qp_solver": qp})
+        ref = MPCController(s)
+        assert ref._cstep is None  # the interpreted path, not the library
+        rc, st = _c_run(canonical_lib, s, first=ref)
+        rp = _loop(s).run([0.3], [1.87], T_END)
+        assert all(k == 0 for k in st) and (rp.solver_stats[0] or {}).get("fallbacks") == 0
+        du, dx = _compare(rc, rp)
+        assert du <= tol and dx <= tol, (qp, du, dx)
 
 
 def _candidate(ev: EVParams, s: MPCSettings) -> Any:
     """A ProblemBuilder problem with a soft constraint (slack control) and an extra state: the §9 problem
-    (heat objective; the 'energy' objective's linear-cost control defeats qrqp, see export.py), a soft time-headway constraint h − 0.23 v >= 0.21 (penalty 37) and a jerk
-    penalty 0.013 ((a − a_prev)/dt)² through the own state a_prev (benchmarks/bench_mpc_cycles.py)."""
+    (heat objective), a soft time-headway constraint h − 0.23 v >= 0.21 (penalty 37) and a jerk penalty
+    0.013 ((a − a_prev)/dt)² through the own state a_prev."""
     from aev_ocp.ocp.following import following_problem
 
     pb = following_problem(ev, s.bounds, s.smooth, s.objective, name="export_candidate")
@@ -166,16 +182,29 @@ def _candidate(ev: EVParams, s: MPCSettings) -> Any:
 
 def test_soft_constraint_and_extra_state_problem(tmp_path: Path) -> None:
     ev = EVParams()
+    # the exact Hessian (CANON) with a concave control term −0.3 a²: the control blocks of the exact Hessian
+    # are then indefinite in many steps, which the interior point cannot take: those QPs are re-solved with
+    # the projected Hessian, the same rule in the C driver and in the Python one (MPCController._riccati_step)
     s = MPCSettings.from_dict({**CANON, "w_Q": 0.7, "h_min": -10.0})
     prob = _candidate(ev, s)
+    prob.add_stage_cost(-0.3 * prob.u["a"] ** 2, name="concave")
     c = export_controller_settings(s, ev, problem=prob)
     assert c.nx == 6 and c.problem.control_names[-1] == "slack_headway"  # a_prev; the soft constraint's slack
     export_controller(c, tmp_path, "candidate")
     lib = build_library(tmp_path, tmp_path / "lib.so")
-    rc, st = _c_run(lib, s, MPCVehicle(s, problem=prob))
-    rp = _loop(MPCVehicle(s, problem=prob)).run([0.3], [1.87], T_END)
+    from aev_ocp.mpc.controller import MPCController
+
+    # against the Python driver (interpreted QP data, NumPy projection, the same QP solver), both from the
+    # same cold IPOPT step
+    si = s.with_(codegen=False)
+    ref = MPCController(si, ev, problem=prob)
+    assert ref._riccati is not None and ref._cstep is None
+    retries: list[int] = []
+    rc, st = _c_run(lib, si, MPCVehicle(si, problem=prob), first=ref, retries=retries)
+    rp = _loop(MPCVehicle(si, problem=prob)).run([0.3], [1.87], T_END)
     assert all(k == 0 for k in st)
     assert (rp.solver_stats[0] or {}).get("fallbacks") == 0
+    assert sum(retries) > 20  # the retry rule is exercised (76 of 200 steps)
     du, dx = _compare(rc, rp)
     assert du <= TOL and dx <= TOL, (du, dx)
     # the soft constraint is active somewhere (the slack control is used): the test exercises it
@@ -218,9 +247,6 @@ def test_cli_errors(capsys: pytest.CaptureFixture[str], tmp_path: Path, monkeypa
     assert rc == 2 and "no_such_scenario" in one_error(err)
     rc, _, err = run_cli(["mpc-export", "table1", "--out", str(tmp_path / "b")], capsys)
     assert rc == 2 and "no [mpc] table" in one_error(err)
-    # the traffic formulation is refused by name (it used to export the §9 problem silently)
-    rc, _, err = run_cli(["mpc-export", "mpc_udds_single", "--out", str(tmp_path / "t")], capsys)
-    assert rc == 2 and "mpc.formulation = 'traffic'" in one_error(err) and not (tmp_path / "t").exists()
     import aev_ocp.compiled
 
     monkeypatch.setattr(aev_ocp.compiled, "compiler", lambda: None)
@@ -229,6 +255,75 @@ def test_cli_errors(capsys: pytest.CaptureFixture[str], tmp_path: Path, monkeypa
     assert rc == 2 and "no C compiler" in one_error(err)
     rc, _, err = run_cli(["mpc-export", "mpc_paper_single"], capsys)
     assert rc == 2 and "--out" in one_error(err)
+
+
+def test_traffic_formulation_exports_and_matches_the_python_driver(tmp_path: Path,
+                                                                   capsys: pytest.CaptureFixture[str]) -> None:
+    """The default traffic formulation (soft constraints with a linear-cost slack, the energy epigraph control
+    whose cost is linear, a terminal cost, the jerk state a_prev, projected Hessian, cold start by
+    rti_cold_iterations SQP steps) behind a UDDS segment with a constant-velocity forecast, from rest: the C
+    of `aev-ocp mpc-export mpc_udds_single` on (x_meas, forecast), its own cold start included, against the
+    Python rti path on the same QP solver but nothing else shared: the QP data from the interpreted CasADi
+    functions, the Hessian projected by NumPy (eigh), the shift and the multipliers' layout in NumPy."""
+    from aev_ocp.models import drive_cycle
+    from aev_ocp.mpc.controller import MPCController
+    from aev_ocp.params import Units
+
+    rc_cli, _, _ = run_cli(["mpc-export", "mpc_udds_single", "--out", str(tmp_path), "--set",
+                            "mpc.predictor=constant-velocity", "--set", "mpc.N=14"], capsys)
+    assert rc_cli == 0
+    lib = build_library(tmp_path, tmp_path / "lib.so")
+    ev = EVParams(units=Units(15.0, 17.0))
+    s = MPCSettings(N=14, predictor="constant-velocity", qp_solver="riccati", codegen=False)
+    assert MPCController(s, ev)._riccati is not None  # the Python driver, not the library
+    leader = drive_cycle("udds", ev.units)
+    t_end = 40.0  # model time: 35 s of UDDS, 400 steps (the leader starts at 20 s, 10 m/s at 31 s)
+    rc, st = _c_run(lib, s, loop=ClosedLoop(leader, [MPCVehicle(s)], ev), start=(0.8, 0.0, t_end))
+    rp = ClosedLoop(leader, [MPCVehicle(s)], ev).run([0.8], [0.0], t_end)
+    assert len(st) == 400 and all(k == 0 for k in st), st
+    assert (rp.solver_stats[0] or {}).get("fallbacks") == 0
+    du, dx = _compare(rc, rp)
+    assert du <= TOL and dx <= TOL, (du, dx)
+    assert rc.speed[:, 0].max() > 0.5  # the follower really drives off behind the leader
+
+
+def test_c_hessian_projection_equals_numpy(canonical_lib: Path) -> None:
+    """aev_mpc_project_pd (Jacobi eigenvalues, in C) against controller._project_pd (numpy.linalg.eigh) on
+    random symmetric blocks of sizes 1..9: indefinite, singular, PD with and without margin, badly scaled;
+    the result's eigenvalues are all >= the floor, and PD blocks come back unchanged (bit for bit)."""
+    import ctypes
+
+    from aev_ocp.mpc.controller import RTI_HESSIAN_FLOOR, _project_pd
+
+    lib = ctypes.CDLL(str(canonical_lib))
+    lib.aev_mpc_project_pd.argtypes = [ctypes.c_void_p, ctypes.c_int, ctypes.c_double]
+    lib.aev_mpc_project_pd.restype = ctypes.c_int
+    rng = np.random.default_rng(11)
+    projected = 0
+    for trial in range(300):
+        n = int(rng.integers(1, 7))  # the canonical export's blocks are 6 x 6 (AEV_MPC_PD_MAXN)
+        Q, _ = np.linalg.qr(rng.standard_normal((n, n)))
+        kind = trial % 4
+        lam = rng.uniform(-3.0, 7.0, n) * 10.0 ** rng.uniform(-3, 4, n)
+        if kind == 1:
+            lam = np.abs(lam) + 0.37  # PD with margin
+        elif kind == 2:
+            lam[0] = 0.0  # singular
+        B = (Q * lam) @ Q.T
+        B = 0.5 * (B + B.T) + (rng.standard_normal((n, n)) * 1e-9 if kind == 3 else 0.0)  # slightly asymmetric
+        ref = _project_pd(B[None].copy())[0]
+        got = np.asfortranarray(B.copy())
+        flag = lib.aev_mpc_project_pd(got.ctypes.data, n, RTI_HESSIAN_FLOOR)
+        assert flag in (0, 1)
+        projected += flag
+        scale = 1.0 + np.abs(np.linalg.eigvalsh(0.5 * (B + B.T))).max()
+        np.testing.assert_allclose(got, ref, rtol=0, atol=1e-11 * scale)
+        assert np.linalg.eigvalsh(0.5 * (got + got.T)).min() >= RTI_HESSIAN_FLOOR * scale * (1 - 1e-6) - 1e-12 * scale
+        if kind == 1:
+            assert flag == 0 and np.array_equal(got, 0.5 * (B + B.T))
+    assert 50 < projected < 300  # both branches exercised
+    bad = np.full((3, 3), np.nan)
+    assert lib.aev_mpc_project_pd(np.asfortranarray(bad).ctypes.data, 3, RTI_HESSIAN_FLOOR) == -1
 
 
 def test_two_workspaces_are_independent(canonical_lib: Path) -> None:
@@ -275,15 +370,41 @@ def test_piecewise_ocv_equals_the_bspline() -> None:
 
 
 def test_export_refuses_what_the_step_does_not_implement(tmp_path: Path) -> None:
-    """A terminal cost and the projected Hessian are refused by name (the step would drop or change them)."""
+    """Terminal constraints are refused by name (the exported step, like the Python rti path, has none)."""
     from aev_ocp.mpc.export import ExportError
     from aev_ocp.ocp.following import following_problem
 
     ev = EVParams()
     s = MPCSettings(**CANON)
-    with pytest.raises(ExportError, match="rti_hessian"):
-        export_controller(export_controller_settings(s.with_(rti_hessian="projected"), ev), tmp_path / "p", "x")
     pb = following_problem(ev, s.bounds, s.smooth, s.objective, name="with_terminal")
-    pb.add_terminal_cost(3.5 * (pb.x["v"] - 1.3) ** 2)
-    with pytest.raises(ExportError, match="terminal cost"):
+    pb.subject_to_terminal(pb.x["v"] - 1.3, lb=0.0, ub=0.0)
+    with pytest.raises(ExportError, match="terminal constraints"):
         export_controller(export_controller_settings(s, ev, problem=pb), tmp_path / "t", "x")
+    assert not (tmp_path / "t").exists()
+
+def test_late_cold_start_of_the_compiled_step_warm_starts_the_next() -> None:
+    """§9 on the compiled step with a budget below its cold start (SQP to convergence, several ms) but far
+    above a warm step (0.2 ms): the first step is a 'budget' fallback whose plan warm-starts the next (it
+    used to crash with KeyError 'lam_x', taking the IPOPT branch with a warm start that has no multipliers)."""
+    s = MPCSettings(**{**CANON, "max_step_ms": 1.0})
+    r = ClosedLoop(PaperLeader(), [MPCVehicle(s)]).run([0.3], [1.87], 2.0)
+    st = r.solver_stats[0]
+    steps = r.meta["mpc_steps"][0]
+    assert r.status == "ok" and st["solver_path"] == "rti+codegen" and st["qp_solver"] == "riccati"
+    assert steps["status"][0].startswith("budget") and set(st["fallback_causes"]) == {"budget"}
+    assert sum(steps["ok"]) >= 10  # the following steps run warm (20 steps; a loaded machine may delay a few)
+
+
+def test_riccati_without_a_compiler_says_hpipm_runs(monkeypatch: pytest.MonkeyPatch) -> None:
+    """No C compiler: qp_solver 'riccati' cannot run; the rti path says so and HPIPM runs (qp_in_use)."""
+    import aev_ocp.compiled
+    import aev_ocp.mpc.ocpqp
+    from aev_ocp.mpc.controller import MPCController
+
+    monkeypatch.setattr(aev_ocp.compiled, "compiler", lambda: None)
+    monkeypatch.setattr(aev_ocp.mpc.ocpqp, "_LIBS", {})  # no library built earlier in this process
+    for codegen in (True, False):
+        with pytest.warns(RuntimeWarning, match="'riccati' is unavailable"):
+            c = MPCController(MPCSettings(**{**CANON, "N": 6, "codegen": codegen}))
+        assert c._cstep is None and c._riccati is None and c.qp_in_use == "hpipm"
+        assert c.solve(np.array([0.3, 1.87, 0.0, 0.0, 0.8]), np.full(6, 1.7), np.full(6, 1.7)).success

@@ -229,11 +229,14 @@ def test_a_late_step_keeps_its_plan_as_the_next_warm_start() -> None:
     assert sols[0].iterations > 1 and [x.iterations for x in sols[1:]] == [1, 1]
 
 
-def test_qrqp_compiled_step_refuses_what_it_cannot_do() -> None:
-    """The compiled whole step (qrqp + codegen) refuses the traffic formulation by name, and is not used for
-    a problem with a terminal cost or the projected Hessian (the generic RTI path takes those)."""
+def test_qp_solver_choices_refuse_what_they_cannot_do() -> None:
+    """qrqp refuses the traffic formulation by name (its energy epigraph control has no curvature); the
+    compiled whole step (riccati + codegen) takes the traffic formulation (terminal cost, projected
+    Hessian); 'riccati' with the 'sqp' path (CasADi's sqpmethod) is refused by name."""
     ev = EVParams(units=Units(15.0, 17.0))
     with pytest.raises(ParameterError, match="qp_solver = 'qrqp'"):
         MPCController(MPCSettings(N=6, qp_solver="qrqp", codegen=True), ev)
-    s9 = MPCSettings(formulation="s9", N=6, qp_solver="qrqp", codegen=True, rti_hessian="projected")
-    assert MPCController(s9, ev)._cstep is None
+    with pytest.raises(ParameterError, match="qp_solver = 'riccati'.*'sqp'"):
+        MPCSettings(N=6, qp_solver="riccati", solver="sqp")
+    c = MPCController(MPCSettings(N=6, qp_solver="riccati", codegen=True), ev)
+    assert c._cstep is not None and c.problem.terminal_cost is not None

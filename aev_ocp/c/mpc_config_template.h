@@ -26,6 +26,12 @@
 #define AEV_MPC_COLD_REG_STEP @COLD_REG_STEP@
 #define AEV_MPC_COLD_REG_MAX @COLD_REG_MAX@ /* a failed QP of the cold start is retried with 10 reg up to this */
 #define AEV_MPC_RTI_REG @RTI_REG@   /* Hessian + RTI_REG I in the warm (RTI) steps */
+#define AEV_MPC_COLD_ITER @COLD_ITER@ /* > 0: the cold start is that many plain SQP steps; 0: the regularised loop */
+#define AEV_MPC_PROJECT @PROJECT@     /* 1: Hessian blocks projected onto the PD cone (rti_hessian 'projected') */
+#define AEV_MPC_HESS_FLOOR @HESS_FLOOR@ /* eigenvalue floor of the projection, relative to 1 + max|lambda| */
+#define AEV_MPC_PD_MAXN @PD_MAXN@     /* largest block the projection takes */
+#define AEV_MPC_QP_MAX_ITER @QP_MAX_ITER@ /* interior-point iterations per QP at most */
+#define AEV_MPC_QP_TOL @QP_TOL@       /* the QP's residual tolerances (ocp_qp.h) */
 #define AEV_MPC_TOL @TOL@             /* SQP stops when max|dx| <= TOL */
 #define AEV_MPC_PLAN_TOL @PLAN_TOL@   /* node-0 path constraints must hold to this (aev_ocp.plant.PLAN_TOLERANCE) */
 #define AEV_MPC_DT @DT@               /* control interval [model time] */

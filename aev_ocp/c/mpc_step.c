@@ -1,33 +1,59 @@
 /* mpc_step.c — driver of the exported MPC step of aev_ocp (hand-written; see mpc_step.h).
- * Runs the CasADi-generated functions of mpc_casadi.c (aev_ocp/mpc/export.py):
- *   aev_cg_guess(z0, p) -> x                          cold-start guess (closed-form law rolled out)
- *   aev_cg_shift(x, lam_g, lam_x, z0, p) -> x, lam_g, lam_x   warm start shifted by one interval
- *   aev_cg_sqp(x, lam_g, lam_x, p, reg) -> x+, lam_g+, lam_x+, |dx|inf, QP residual   one full SQP step
- *                                   (qrqp; Hessian + reg I, reg > 0 only in the cold start)
+ * Runs the CasADi-generated functions of mpc_casadi.c (aev_ocp/mpc/export.py) and the structure-exploiting
+ * QP solver of ocp_qp.c (Riccati interior point):
+ *   aev_cg_guess(z0, p) -> x                                 cold-start guess (closed-form law rolled out)
+ *   aev_cg_shift(x, lam_g, lam_x, z0, p) -> x, lam_g, lam_x  warm start shifted by one interval
+ *   aev_cg_qpdata(x, p, lam_g) -> H, g, E, e, C, lc, uc, lbw, ubw   the QP of one SQP step in stage blocks
+ *                                   (exact Lagrangian Hessian blocks; ocp_qp.h gives the layouts)
  *   aev_cg_node0(x, p) -> node-0 violation, u0
- *   aev_cg_eval(x, p) -> cost, violation                  (only in aev_mpc_get_info)
+ *   aev_cg_eval(x, p) -> cost, violation                     (only in aev_mpc_get_info)
+ * One SQP step: the QP data, the Hessian blocks projected onto the positive-definite cone (AEV_MPC_PROJECT;
+ * aev_mpc_project_pd) plus reg I (the cold start's Levenberg-Marquardt term), ocpqp_solve, a full step.
  * All memory is allocated in aev_mpc_create; a step allocates nothing.
  */
+#ifdef AEV_MPC_PROFILE  /* per-part wall times in aev_mpc_info (POSIX clock_gettime; off by default) */
+#define _POSIX_C_SOURCE 199309L
+#include <time.h>
+static double now_s(void) {
+  struct timespec t;
+  clock_gettime(CLOCK_MONOTONIC, &t);
+  return (double)t.tv_sec + 1e-9 * (double)t.tv_nsec;
+}
+#define TIC(v) double v = now_s()
+#define TOC(v, field) (ws->info.field += now_s() - (v))
+#else
+#define TIC(v) (void)0
+#define TOC(v, field) (void)0
+#endif
 #include <stdlib.h>
 #include <string.h>
 #include <math.h>
 
 #include "mpc_config.h"
 #include "mpc_casadi.h"
+#include "ocp_qp.h"
 #include "mpc_step.h"
 
 #define NB (AEV_MPC_NX + AEV_MPC_NU)
+#define NC (AEV_MPC_NG_STAGE - AEV_MPC_NX)
+#define NH (AEV_MPC_N * NB * NB + AEV_MPC_NX * AEV_MPC_NX)
+#define NE (AEV_MPC_N * AEV_MPC_NX * NB)
+#define NCM (AEV_MPC_N * NC * NB)
+#define NF 5                                /* generated functions: guess, shift, qpdata, node0, eval */
 
 typedef int (*cg_work_t)(casadi_int *, casadi_int *, casadi_int *, casadi_int *);
 
 struct aev_mpc_workspace {
   int warm;                           /* a warm start is available */
-  int mem[5];                         /* CasADi memory ids of guess, shift, sqp, node0, eval */
+  int mem[NF];                        /* CasADi memory ids of guess, shift, qpdata, node0, eval */
   int evaluated;                      /* cost and violation of the plan are up to date */
+  int created;                        /* the CasADi memories were checked out */
   double *x, *lam_g, *lam_x;          /* current primal-dual point */
   double *x2, *lam_g2, *lam_x2;       /* buffers of the next point (swapped) */
   double *p, *z0;
+  double *H, *g, *E, *e, *C, *lc, *uc, *lbw, *ubw, *x0, *dw, *pi, *lam_c;  /* QP data and solution */
   double *block;                      /* the one allocation of the arrays above */
+  ocpqp_solver *qp;
   const casadi_real **arg;
   casadi_real **res;
   casadi_int *iw;
@@ -51,44 +77,70 @@ static void grow(cg_work_t f, casadi_int *sz) {
 
 aev_mpc_workspace *aev_mpc_create(void) {
   casadi_int sz[4] = {0, 0, 0, 0};
+  ocpqp_dims dims;
+  ocpqp_settings qs;
+  double *b;
   aev_mpc_workspace *ws = (aev_mpc_workspace *)calloc(1, sizeof(aev_mpc_workspace));
   if (!ws) return NULL;
-  grow(aev_cg_guess_work, sz); grow(aev_cg_shift_work, sz); grow(aev_cg_sqp_work, sz);
+  grow(aev_cg_guess_work, sz); grow(aev_cg_shift_work, sz); grow(aev_cg_qpdata_work, sz);
   grow(aev_cg_node0_work, sz); grow(aev_cg_eval_work, sz);
-  ws->block = (double *)calloc(4 * AEV_MPC_NV + 2 * AEV_MPC_NG + AEV_MPC_NP + AEV_MPC_NX, sizeof(double));
-  ws->x = ws->block;
+  ws->block = (double *)calloc(8 * (size_t)AEV_MPC_NV + 2 * (size_t)AEV_MPC_NG + AEV_MPC_NP + 2 * AEV_MPC_NX + NH
+                               + NE + AEV_MPC_N * AEV_MPC_NX + NCM + 2 * AEV_MPC_N * NC
+                               + AEV_MPC_N * AEV_MPC_NX + AEV_MPC_N * NC + 2, sizeof(double));
   ws->arg = (const casadi_real **)calloc((size_t)sz[0] + 1, sizeof(casadi_real *));
   ws->res = (casadi_real **)calloc((size_t)sz[1] + 1, sizeof(casadi_real *));
   ws->iw = (casadi_int *)calloc((size_t)sz[2] + 1, sizeof(casadi_int));
   ws->w = (casadi_real *)calloc((size_t)sz[3] + 1, sizeof(casadi_real));
-  if (!ws->block || !ws->arg || !ws->res || !ws->iw || !ws->w) {
+  dims.N = AEV_MPC_N; dims.nx = AEV_MPC_NX; dims.nu = AEV_MPC_NU; dims.nc = NC; dims.ncN = 0;
+  ocpqp_default_settings(&qs);
+  qs.max_iter = AEV_MPC_QP_MAX_ITER;
+  qs.tol_stat = qs.tol_eq = qs.tol_ineq = qs.tol_comp = AEV_MPC_QP_TOL;
+  ws->qp = ocpqp_create(&dims, &qs);
+  if (!ws->block || !ws->arg || !ws->res || !ws->iw || !ws->w || !ws->qp) {
     aev_mpc_free(ws);
     return NULL;
   }
-  ws->lam_x = ws->x + AEV_MPC_NV;
-  ws->x2 = ws->lam_x + AEV_MPC_NV;
-  ws->lam_x2 = ws->x2 + AEV_MPC_NV;
-  ws->lam_g = ws->lam_x2 + AEV_MPC_NV;
-  ws->lam_g2 = ws->lam_g + AEV_MPC_NG;
-  ws->p = ws->lam_g2 + AEV_MPC_NG;
-  ws->z0 = ws->p + AEV_MPC_NP;
-  aev_cg_guess_incref(); aev_cg_shift_incref(); aev_cg_sqp_incref(); aev_cg_node0_incref(); aev_cg_eval_incref();
+  b = ws->block;
+  ws->x = b; b += AEV_MPC_NV;
+  ws->lam_x = b; b += AEV_MPC_NV;
+  ws->x2 = b; b += AEV_MPC_NV;
+  ws->lam_x2 = b; b += AEV_MPC_NV;
+  ws->lbw = b; b += AEV_MPC_NV;
+  ws->ubw = b; b += AEV_MPC_NV;
+  ws->g = b; b += AEV_MPC_NV;
+  ws->dw = b; b += AEV_MPC_NV;
+  ws->lam_g = b; b += AEV_MPC_NG;
+  ws->lam_g2 = b; b += AEV_MPC_NG;
+  ws->p = b; b += AEV_MPC_NP;
+  ws->z0 = b; b += AEV_MPC_NX;
+  ws->x0 = b; b += AEV_MPC_NX;          /* the QP's initial state: 0 (x_0 = z0 is already in x) */
+  ws->H = b; b += NH;
+  ws->E = b; b += NE;
+  ws->e = b; b += AEV_MPC_N * AEV_MPC_NX;
+  ws->C = b; b += NCM + 1;
+  ws->lc = b; b += AEV_MPC_N * NC;
+  ws->uc = b; b += AEV_MPC_N * NC;
+  ws->pi = b; b += AEV_MPC_N * AEV_MPC_NX;
+  ws->lam_c = b; b += AEV_MPC_N * NC + 1;
+  aev_cg_guess_incref(); aev_cg_shift_incref(); aev_cg_qpdata_incref(); aev_cg_node0_incref(); aev_cg_eval_incref();
   ws->mem[0] = aev_cg_guess_checkout();
   ws->mem[1] = aev_cg_shift_checkout();
-  ws->mem[2] = aev_cg_sqp_checkout();
+  ws->mem[2] = aev_cg_qpdata_checkout();
   ws->mem[3] = aev_cg_node0_checkout();
   ws->mem[4] = aev_cg_eval_checkout();
+  ws->created = 1;
   ws->warm = 0;
   return ws;
 }
 
 void aev_mpc_free(aev_mpc_workspace *ws) {
   if (!ws) return;
-  if (ws->arg && ws->block) {  /* fully created: give the CasADi memories back */
+  if (ws->created) {  /* give the CasADi memories back */
     aev_cg_guess_release(ws->mem[0]); aev_cg_shift_release(ws->mem[1]);
-    aev_cg_sqp_release(ws->mem[2]); aev_cg_node0_release(ws->mem[3]); aev_cg_eval_release(ws->mem[4]);
-    aev_cg_guess_decref(); aev_cg_shift_decref(); aev_cg_sqp_decref(); aev_cg_node0_decref(); aev_cg_eval_decref();
+    aev_cg_qpdata_release(ws->mem[2]); aev_cg_node0_release(ws->mem[3]); aev_cg_eval_release(ws->mem[4]);
+    aev_cg_guess_decref(); aev_cg_shift_decref(); aev_cg_qpdata_decref(); aev_cg_node0_decref(); aev_cg_eval_decref();
   }
+  ocpqp_free(ws->qp);
   free(ws->block); free((void *)ws->arg); free(ws->res); free(ws->iw); free(ws->w);
   free(ws);
 }
@@ -103,16 +155,162 @@ static int all_finite(const double *v, int n) {
   return 1;
 }
 
+/* ---------------------------------------------------------------- projection onto the PD cone */
+/* Cholesky of the n x n column-major A - shift I into L (lower); 1 if every pivot is > 0. */
+static int chol_ok(const double *A, int n, double shift, double *L) {
+  int i, j, k;
+  for (j = 0; j < n; ++j) {
+    double d = A[j + j * n] - shift;
+    for (k = 0; k < j; ++k) d -= L[j + k * n] * L[j + k * n];
+    if (!(d > 0.0)) return 0;
+    d = sqrt(d);
+    L[j + j * n] = d;
+    for (i = j + 1; i < n; ++i) {
+      double s = A[i + j * n];
+      for (k = 0; k < j; ++k) s -= L[i + k * n] * L[j + k * n];
+      L[i + j * n] = s / d;
+    }
+  }
+  return 1;
+}
+
+/* Eigen-decomposition of the symmetric n x n A (destroyed) by cyclic Jacobi rotations: eigenvalues in
+ * lam, eigenvectors in the columns of Q. */
+static void jacobi_eig(double *A, int n, double *lam, double *Q) {
+  int i, j, k, sweep;
+  for (i = 0; i < n * n; ++i) Q[i] = 0.0;
+  for (i = 0; i < n; ++i) Q[i + i * n] = 1.0;
+  for (sweep = 0; sweep < 100; ++sweep) {
+    double off = 0.0, tot = 0.0;
+    for (j = 0; j < n; ++j)
+      for (i = 0; i < n; ++i) {
+        double a2 = A[i + j * n] * A[i + j * n];
+        tot += a2;
+        if (i != j) off += a2;
+      }
+    if (off <= 1e-30 * tot || off == 0.0) break;
+    for (i = 0; i < n - 1; ++i)
+      for (j = i + 1; j < n; ++j) {
+        double aij = A[i + j * n], th, t, c, s;
+        if (aij == 0.0) continue;
+        th = (A[j + j * n] - A[i + i * n]) / (2.0 * aij);
+        t = (th >= 0.0 ? 1.0 : -1.0) / (fabs(th) + sqrt(th * th + 1.0));
+        c = 1.0 / sqrt(t * t + 1.0);
+        s = t * c;
+        for (k = 0; k < n; ++k) {  /* columns i, j */
+          double aki = A[k + i * n], akj = A[k + j * n];
+          A[k + i * n] = c * aki - s * akj;
+          A[k + j * n] = s * aki + c * akj;
+        }
+        for (k = 0; k < n; ++k) {  /* rows i, j */
+          double aik = A[i + k * n], ajk = A[j + k * n];
+          A[i + k * n] = c * aik - s * ajk;
+          A[j + k * n] = s * aik + c * ajk;
+        }
+        for (k = 0; k < n; ++k) {
+          double qki = Q[k + i * n], qkj = Q[k + j * n];
+          Q[k + i * n] = c * qki - s * qkj;
+          Q[k + j * n] = s * qki + c * qkj;
+        }
+      }
+  }
+  for (i = 0; i < n; ++i) lam[i] = A[i + i * n];
+}
+
+int aev_mpc_project_pd(double *B, int n, double floor_rel) {
+  double S[AEV_MPC_PD_MAXN * AEV_MPC_PD_MAXN], Q[AEV_MPC_PD_MAXN * AEV_MPC_PD_MAXN], lam[AEV_MPC_PD_MAXN];
+  double norm = 0.0, big = 0.0, fl;
+  int i, j, k, low = 0;
+  if (n <= 0 || n > AEV_MPC_PD_MAXN || !all_finite(B, n * n)) return -1;
+  for (j = 0; j < n; ++j)
+    for (i = 0; i < j; ++i) B[i + j * n] = B[j + i * n] = 0.5 * (B[i + j * n] + B[j + i * n]);
+  for (i = 0; i < n; ++i) {  /* max |lambda| <= the infinity norm: a PD test with the larger floor suffices */
+    double r = 0.0;
+    for (j = 0; j < n; ++j) r += fabs(B[i + j * n]);
+    if (r > norm) norm = r;
+  }
+  if (chol_ok(B, n, floor_rel * (1.0 + norm), S)) return 0;
+  memcpy(S, B, sizeof(double) * (size_t)(n * n));
+  jacobi_eig(S, n, lam, Q);
+  for (i = 0; i < n; ++i) if (fabs(lam[i]) > big) big = fabs(lam[i]);
+  fl = floor_rel * (1.0 + big);
+  for (i = 0; i < n; ++i) if (lam[i] < fl) { lam[i] = fl; low = 1; }
+  if (!low) return 0;  /* PD with margin after all: unchanged, as aev_ocp.mpc.controller._project_pd */
+  for (j = 0; j < n; ++j)
+    for (i = 0; i < n; ++i) {
+      double s = 0.0;
+      for (k = 0; k < n; ++k) s += Q[i + k * n] * lam[k] * Q[j + k * n];
+      B[i + j * n] = s;
+    }
+  return 1;
+}
+
+/* ---------------------------------------------------------------- one SQP step */
+/* The QP's Hessian blocks (stages and terminal) projected onto the PD cone in place; 1 if non-finite. */
+static int project_hessian(aev_mpc_workspace *ws) {
+  int k;
+  TIC(t1);
+  for (k = 0; k < AEV_MPC_N; ++k)
+    if (aev_mpc_project_pd(ws->H + k * NB * NB, NB, AEV_MPC_HESS_FLOOR) < 0) return 1;
+  if (aev_mpc_project_pd(ws->H + AEV_MPC_N * NB * NB, AEV_MPC_NX, AEV_MPC_HESS_FLOOR) < 0) return 1;
+  TOC(t1, t_project);
+  return 0;
+}
+
 /* One SQP step from (x, lam_g, lam_x) into the buffers, then swapped in. 0 ok, else a status. */
-static int sqp_step(aev_mpc_workspace *ws, const double *reg) {
-  int flag;
-  ws->arg[0] = ws->x; ws->arg[1] = ws->lam_g; ws->arg[2] = ws->lam_x; ws->arg[3] = ws->p; ws->arg[4] = reg;
-  ws->res[0] = ws->x2; ws->res[1] = ws->lam_g2; ws->res[2] = ws->lam_x2;
-  ws->res[3] = &ws->info.step_inf; ws->res[4] = &ws->info.qp_residual;
-  flag = aev_cg_sqp(ws->arg, ws->res, ws->iw, ws->w, ws->mem[2]);
+static int sqp_step(aev_mpc_workspace *ws, double reg) {
+  int k, i, flag;
+  ocpqp_data d;
+  ocpqp_info qi;
+  double step = 0.0;
+  TIC(t0);
+  ws->arg[0] = ws->x; ws->arg[1] = ws->p; ws->arg[2] = ws->lam_g;
+  ws->res[0] = ws->H; ws->res[1] = ws->g; ws->res[2] = ws->E; ws->res[3] = ws->e; ws->res[4] = ws->C;
+  ws->res[5] = ws->lc; ws->res[6] = ws->uc; ws->res[7] = ws->lbw; ws->res[8] = ws->ubw;
+  flag = aev_cg_qpdata(ws->arg, ws->res, ws->iw, ws->w, ws->mem[2]);
+  TOC(t0, t_qpdata);
   ws->info.iterations++;
-  if (flag) return AEV_MPC_QP_FAILED;
-  if (!isfinite(ws->info.step_inf) || !all_finite(ws->x2, AEV_MPC_NV)) return AEV_MPC_NONFINITE;
+  if (flag) return AEV_MPC_NONFINITE;
+  if (AEV_MPC_PROJECT && project_hessian(ws)) return AEV_MPC_NONFINITE;
+  if (reg > 0.0) {
+    for (k = 0; k < AEV_MPC_N; ++k)
+      for (i = 0; i < NB; ++i) ws->H[k * NB * NB + i * (NB + 1)] += reg;
+    for (i = 0; i < AEV_MPC_NX; ++i) ws->H[AEV_MPC_N * NB * NB + i * (AEV_MPC_NX + 1)] += reg;
+  }
+  d.H = ws->H; d.g = ws->g; d.E = ws->E; d.e = ws->e; d.C = ws->C; d.lc = ws->lc; d.uc = ws->uc;
+  d.lbw = ws->lbw; d.ubw = ws->ubw; d.x0 = ws->x0;
+  {
+    TIC(t2);
+    flag = ocpqp_solve(ws->qp, &d, ws->dw, ws->pi, ws->lam_x2, ws->lam_c, &qi);
+    TOC(t2, t_qp);
+  }
+  if (!AEV_MPC_PROJECT && (flag == OCPQP_MAX_ITER || flag == OCPQP_FACTORIZATION)) {
+    /* the exact Hessian was not convex enough for the interior point: the same QP once more with its
+     * blocks projected onto the PD cone (as rti_hessian 'projected' always does) */
+    ws->info.qp_iterations += qi.iterations;
+    ws->info.projected_retries++;
+    if (project_hessian(ws)) return AEV_MPC_NONFINITE;
+    {
+      TIC(t3);
+      flag = ocpqp_solve(ws->qp, &d, ws->dw, ws->pi, ws->lam_x2, ws->lam_c, &qi);
+      TOC(t3, t_qp);
+    }
+  }
+  ws->info.qp_iterations += qi.iterations;
+  ws->info.qp_status = flag;
+  ws->info.qp_residual = qi.res_eq > qi.res_ineq ? qi.res_eq : qi.res_ineq;
+  if (flag != OCPQP_OK) return flag == OCPQP_NONFINITE ? AEV_MPC_NONFINITE : AEV_MPC_QP_FAILED;
+  for (i = 0; i < AEV_MPC_NV; ++i) {
+    double di = ws->dw[i];
+    if (fabs(di) > step) step = fabs(di);
+    ws->x2[i] = ws->x[i] + di;
+  }
+  ws->info.step_inf = step;
+  if (!isfinite(step) || !all_finite(ws->x2, AEV_MPC_NV)) return AEV_MPC_NONFINITE;
+  for (k = 0; k < AEV_MPC_N; ++k) {  /* the NLP's constraints per interval: the gap (NX), then the path (NC) */
+    memcpy(ws->lam_g2 + k * AEV_MPC_NG_STAGE, ws->pi + k * AEV_MPC_NX, sizeof(double) * AEV_MPC_NX);
+    if (NC > 0) memcpy(ws->lam_g2 + k * AEV_MPC_NG_STAGE + AEV_MPC_NX, ws->lam_c + k * NC, sizeof(double) * NC);
+  }
   swap(&ws->x, &ws->x2); swap(&ws->lam_g, &ws->lam_g2); swap(&ws->lam_x, &ws->lam_x2);
   return AEV_MPC_OK;
 }
@@ -121,11 +319,13 @@ static int finish(aev_mpc_workspace *ws, int st, double *u_out, int *status) {
   int i;
   double u0[AEV_MPC_NU];
   if (st == AEV_MPC_OK) {
+    TIC(t0);
     ws->arg[0] = ws->x; ws->arg[1] = ws->p;
     ws->res[0] = &ws->info.node0_violation; ws->res[1] = u0;
     if (aev_cg_node0(ws->arg, ws->res, ws->iw, ws->w, ws->mem[3])) st = AEV_MPC_NONFINITE;
     else if (!isfinite(ws->info.node0_violation)) st = AEV_MPC_NONFINITE;
     else if (ws->info.node0_violation > AEV_MPC_PLAN_TOL) st = AEV_MPC_NODE0_VIOLATION;
+    TOC(t0, t_node0);
   }
   ws->warm = (st == AEV_MPC_OK);
   ws->evaluated = 0;
@@ -134,23 +334,50 @@ static int finish(aev_mpc_workspace *ws, int st, double *u_out, int *status) {
   return st;
 }
 
+/* The cold start. AEV_MPC_COLD_ITER > 0: that many plain SQP steps (the Python rti path's
+ * rti_cold_iterations, with the projected Hessian); 0: regularised SQP (Levenberg-Marquardt) until
+ * max|dx| <= AEV_MPC_TOL, at most AEV_MPC_COLD_MAX_ITER QPs (the exact, possibly indefinite Hessian). */
+static int cold_start(aev_mpc_workspace *ws) {
+  int it, st;
+  double reg = AEV_MPC_COLD_REG0;
+  if (AEV_MPC_COLD_ITER > 0) {
+    for (it = 0; it < AEV_MPC_COLD_ITER; ++it) {
+      st = sqp_step(ws, 0.0);
+      if (st != AEV_MPC_OK || ws->info.step_inf <= AEV_MPC_TOL) return st;
+    }
+    return AEV_MPC_OK;
+  }
+  for (it = 0; it < AEV_MPC_COLD_MAX_ITER; ++it) {
+    st = sqp_step(ws, reg);
+    if (st == AEV_MPC_QP_FAILED && reg > 0.0 && reg < AEV_MPC_COLD_REG_MAX) {  /* retry more regularised */
+      reg *= 10.0;
+      continue;
+    }
+    if (st != AEV_MPC_OK) return st;
+    if (reg == 0.0 && ws->info.step_inf <= AEV_MPC_TOL) return AEV_MPC_OK;
+    if (ws->info.step_inf < AEV_MPC_COLD_REG_STEP) reg = reg > 1e-6 ? 0.1 * reg : 0.0;
+  }
+  return AEV_MPC_COLD_NOT_CONVERGED;
+}
+
 int aev_mpc_step_full(aev_mpc_workspace *ws, const double *z0, const double *p, double *u_out, int *status) {
   int it, st = AEV_MPC_OK;
-  double reg = 0.0;
-  ws->info.iterations = 0;
+  ws->info.iterations = ws->info.qp_iterations = ws->info.qp_status = ws->info.projected_retries = 0;
+  ws->info.t_shift = ws->info.t_qpdata = ws->info.t_project = ws->info.t_qp = ws->info.t_node0 = 0.0;
   ws->info.step_inf = ws->info.qp_residual = ws->info.cost = ws->info.violation = ws->info.node0_violation = NAN;
+  ws->info.cold = !ws->warm;
   if (!all_finite(z0, AEV_MPC_NX) || !all_finite(p, AEV_MPC_NP)) return finish(ws, AEV_MPC_BAD_INPUT, u_out, status);
   if (p != ws->p) memcpy(ws->p, p, sizeof(double) * AEV_MPC_NP);
   if (z0 != ws->z0) memcpy(ws->z0, z0, sizeof(double) * AEV_MPC_NX);
-  ws->info.cold = !ws->warm;
   if (ws->warm) {
-    reg = AEV_MPC_RTI_REG;
+    TIC(t0);
     ws->arg[0] = ws->x; ws->arg[1] = ws->lam_g; ws->arg[2] = ws->lam_x; ws->arg[3] = ws->z0; ws->arg[4] = ws->p;
     ws->res[0] = ws->x2; ws->res[1] = ws->lam_g2; ws->res[2] = ws->lam_x2;
     if (aev_cg_shift(ws->arg, ws->res, ws->iw, ws->w, ws->mem[1])) return finish(ws, AEV_MPC_NONFINITE, u_out, status);
+    TOC(t0, t_shift);
     swap(&ws->x, &ws->x2); swap(&ws->lam_g, &ws->lam_g2); swap(&ws->lam_x, &ws->lam_x2);
     for (it = 0; it < AEV_MPC_RTI_ITER; ++it) {
-      st = sqp_step(ws, &reg);
+      st = sqp_step(ws, AEV_MPC_RTI_REG);
       if (st != AEV_MPC_OK || ws->info.step_inf <= AEV_MPC_TOL) break;
     }
   } else {
@@ -158,18 +385,7 @@ int aev_mpc_step_full(aev_mpc_workspace *ws, const double *z0, const double *p, 
     if (aev_cg_guess(ws->arg, ws->res, ws->iw, ws->w, ws->mem[0])) return finish(ws, AEV_MPC_NONFINITE, u_out, status);
     memset(ws->lam_g, 0, sizeof(double) * AEV_MPC_NG);
     memset(ws->lam_x, 0, sizeof(double) * AEV_MPC_NV);
-    st = AEV_MPC_COLD_NOT_CONVERGED;
-    reg = AEV_MPC_COLD_REG0;
-    for (it = 0; it < AEV_MPC_COLD_MAX_ITER; ++it) {
-      int s = sqp_step(ws, &reg);
-      if (s == AEV_MPC_QP_FAILED && reg > 0.0 && reg < AEV_MPC_COLD_REG_MAX) {  /* retry more regularised */
-        reg *= 10.0;
-        continue;
-      }
-      if (s != AEV_MPC_OK) { st = s; break; }
-      if (reg == 0.0 && ws->info.step_inf <= AEV_MPC_TOL) { st = AEV_MPC_OK; break; }
-      if (ws->info.step_inf < AEV_MPC_COLD_REG_STEP) reg = reg > 1e-6 ? 0.1 * reg : 0.0;
-    }
+    st = cold_start(ws);
   }
   return finish(ws, st, u_out, status);
 }
@@ -211,4 +427,17 @@ void aev_mpc_get_info(aev_mpc_workspace *ws, aev_mpc_info *info) {
     ws->evaluated = 1;
   }
   *info = ws->info;
+}
+
+void aev_mpc_last_qp(const aev_mpc_workspace *ws, double *H, double *g, double *E, double *e, double *C, double *lc,
+                     double *uc, double *lbw, double *ubw) {
+  if (H) memcpy(H, ws->H, sizeof(double) * NH);
+  if (g) memcpy(g, ws->g, sizeof(double) * AEV_MPC_NV);
+  if (E) memcpy(E, ws->E, sizeof(double) * NE);
+  if (e) memcpy(e, ws->e, sizeof(double) * AEV_MPC_N * AEV_MPC_NX);
+  if (C) memcpy(C, ws->C, sizeof(double) * NCM);
+  if (lc) memcpy(lc, ws->lc, sizeof(double) * AEV_MPC_N * NC);
+  if (uc) memcpy(uc, ws->uc, sizeof(double) * AEV_MPC_N * NC);
+  if (lbw) memcpy(lbw, ws->lbw, sizeof(double) * AEV_MPC_NV);
+  if (ubw) memcpy(ubw, ws->ubw, sizeof(double) * AEV_MPC_NV);
 }

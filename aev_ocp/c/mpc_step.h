@@ -1,10 +1,13 @@
 /* mpc_step.h — the exported MPC step of aev_ocp (hand-written driver, aev_ocp/c/mpc_step.h).
  *
  * One real-time iteration of the receding-horizon controller per call: shift the previous plan by one
- * interval, linearise (exact Lagrangian Hessian), solve the QP with CasADi's generated qrqp (active set,
- * warm-started on the previous active set), return the first control. The first call (or the first after
- * aev_mpc_reset or a failure) is a cold start: SQP iterations from the closed-form law rolled out over the
- * horizon (Hessian regularised, AEV_MPC_COLD_REG0) until max|dx| <= AEV_MPC_TOL. No allocation after aev_mpc_create; not thread-safe per workspace.
+ * interval, linearise (exact Lagrangian Hessian, its stage blocks projected onto the positive-definite cone
+ * when AEV_MPC_PROJECT; else projected only for a QP that the exact one makes fail: the interior point needs
+ * convexity), solve the QP with the Riccati interior point of ocp_qp.c, return the first control.
+ * The first call (or the first after aev_mpc_reset or a failure) is a cold start from the closed-form law
+ * rolled out over the horizon: AEV_MPC_COLD_ITER SQP steps, or (AEV_MPC_COLD_ITER = 0) regularised SQP
+ * (Hessian + reg I from AEV_MPC_COLD_REG0) until max|dx| <= AEV_MPC_TOL. No allocation after aev_mpc_create;
+ * not thread-safe per workspace.
  *
  * Units: the toolkit's model units (README.txt). Array layouts:
  *   x_meas   [AEV_MPC_NZ]      measured (h, v, V1, V2, S): gap, speed, RC voltages, state of charge
@@ -23,7 +26,7 @@ extern "C" {
 
 enum {
   AEV_MPC_OK = 0,              /* step done, node-0 path constraints hold */
-  AEV_MPC_QP_FAILED = 1,       /* the QP solver failed (infeasible or iteration limit) */
+  AEV_MPC_QP_FAILED = 1,       /* the QP solver failed (iteration limit, a non-convex QP, inconsistent bounds) */
   AEV_MPC_NONFINITE = 2,       /* a non-finite step or plan */
   AEV_MPC_NODE0_VIOLATION = 3, /* the applied control violates the path constraints */
   AEV_MPC_COLD_NOT_CONVERGED = 4, /* the cold start did not converge within AEV_MPC_COLD_MAX_ITER */
@@ -34,12 +37,18 @@ typedef struct aev_mpc_workspace aev_mpc_workspace;
 
 typedef struct {
   int iterations;         /* SQP iterations (QPs) of the last step */
+  int qp_iterations;      /* interior-point iterations of those QPs, summed */
+  int qp_status;          /* ocpqp status of the last QP (ocp_qp.h: OCPQP_OK = 0) */
+  int projected_retries;  /* QPs re-solved with the projected Hessian after the exact one failed */
   int cold;               /* 1 if the last step was a cold start */
   double step_inf;        /* max |dx| of the last SQP iteration (scaled NLP variables) */
   double qp_residual;     /* max violation of the last QP's linear constraints */
   double cost;            /* NLP objective of the plan (NaN after a failed step) */
   double violation;       /* max nonlinear constraint violation of the plan (NLP units; NaN after a failure) */
   double node0_violation; /* max violation of the path constraints at node 0 */
+  /* wall times [s] of the last step's parts (shift, QP data, Hessian projection, QP solves, node-0 check),
+   * measured only in a build with -DAEV_MPC_PROFILE (POSIX clock_gettime), else 0 */
+  double t_shift, t_qpdata, t_project, t_qp, t_node0;
 } aev_mpc_info;
 
 /* dims[8] = {N, NX, NU, NZ, NV, NG, NP, 2N (forecast length)} */
@@ -58,6 +67,15 @@ int aev_mpc_step_full(aev_mpc_workspace *ws, const double *z0, const double *p, 
 void aev_mpc_set_warm(aev_mpc_workspace *ws, const double *x, const double *lam_g, const double *lam_x);
 /* The last plan: x[NV] (scaled NLP vector), lam_g[NG], lam_x[NV] (any may be NULL). */
 void aev_mpc_get_solution(const aev_mpc_workspace *ws, double *x, double *lam_g, double *lam_x);
+/* Project the symmetric n x n column-major B (n <= AEV_MPC_PD_MAXN) onto the positive-definite cone in
+ * place: symmetrised, eigenvalues below floor_rel (1 + max|lambda|) raised to it; a block that is PD with
+ * that margin is left as it is. Returns 0 unchanged, 1 projected, -1 non-finite or n out of range. */
+int aev_mpc_project_pd(double *B, int n, double floor_rel);
+/* The last QP solved (or attempted), in the layouts of ocp_qp.h with nc = NG_STAGE - NX path constraints
+ * per stage and no terminal ones; its initial state is 0 (the step of x_0). Hessian as passed to the solver
+ * (projected, regularised). Any pointer may be NULL. */
+void aev_mpc_last_qp(const aev_mpc_workspace *ws, double *H, double *g, double *E, double *e, double *C, double *lc,
+                     double *uc, double *lbw, double *ubw);
 /* Diagnostics of the last step; the plan's cost and violation are evaluated here (not in the step). */
 void aev_mpc_get_info(aev_mpc_workspace *ws, aev_mpc_info *info);
 

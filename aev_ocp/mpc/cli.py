@@ -35,7 +35,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--solver", choices=SOLVER_PATHS, default=None,
                    help=f"solver path (default: the scenario's mpc.solver, else {_D.solver})")
     p.add_argument("--qp-solver", choices=QP_SOLVERS, default=None,
-                   help=f"QP solver of the sqp and rti paths (default: the scenario's mpc.qp_solver, else {_D.qp_solver})")
+                   help=f"QP solver of the sqp and rti paths (default: the scenario's mpc.qp_solver, else {_D.qp_solver}; "
+                        "'auto': 'riccati', aev_ocp's own, on the rti path, 'hpipm' on the sqp path)")
     cg = p.add_mutually_exclusive_group()
     cg.add_argument("--codegen", action="store_true", default=None,
                     help="compile the NLP functions to C with gcc (default: the scenario's mpc.codegen, else "
@@ -110,7 +111,7 @@ def _cli_mpc(argv: list[str]) -> int:
     c = run_comparison(sc, s, laws=laws, with_ocpd=not a.no_ocpd, log=say, progress=prog)
     write_outputs(c, out)
     save_output(out, "mpc", c.results, primary="mpc",
-                settings=settings_of(sc, solver=s.solver, qp_solver=s.qp_solver, codegen=s.codegen, t_end=sc.t_end,
+                settings=settings_of(sc, solver=s.solver, qp_solver=s.qp, codegen=s.codegen, t_end=sc.t_end,
                                      laws=list(laws), ocpd=not a.no_ocpd, sets=list(a.sets),
                                      time_limit_s=a.time_limit),
                 extra={"ocp_d": c.ocpd, "comparison_metrics": c.metrics, "timings_s": c.timings_s,

@@ -154,16 +154,19 @@ class MPCController:
         self.problem = problem.build() if isinstance(problem, ProblemBuilder) else problem
         self._check_layout(parameter_values or {}, initial_values or {})
         self.codegen_active = False
-        self._cstep: Any = None  # the compiled whole step (export.CStep) of the rti path with qrqp + codegen
+        self._cstep: Any = None  # the compiled whole step (export.CStep) of the rti path with qp_solver 'riccati'
+        self._riccati: Any = None  # (QP-data Function, ocpqp.OcpQP) of the rti path with 'riccati' without codegen
+        #: the QP solver that runs ('riccati', a ca.conic/qpsol plugin, or '' for the IPOPT paths)
+        self.qp_in_use = self.settings.qp if self.settings.solver in ("rti", "sqp") else ""
+        # the 'rti' path of the traffic formulation starts cold by RTI from the law's rollout; §9 keeps
+        # its cold IPOPT first step (PROBLEM.md §9 numbers unchanged)
+        self._rti_cold = self.settings.formulation != "s9"
         t0 = time.perf_counter()
         self._build_model()
         self._build_nlp()
         self._build_solvers()
         self.build_time_s = time.perf_counter() - t0
         self._warm: dict[str, np.ndarray] | None = None
-        # the 'rti' path of the traffic formulation starts cold by RTI from the law's rollout; §9 keeps
-        # its cold IPOPT first step (PROBLEM.md §9 numbers unchanged)
-        self._rti_cold = self.settings.formulation != "s9"
 
     def _check_layout(self, pvals: dict[str, float], xinit: dict[str, float]) -> None:
         """The closed-loop layout (see the module docstring) and the values of extra names."""
@@ -321,10 +324,10 @@ class MPCController:
         if s.solver == "ipopt":
             self._fast = self._ipopt("mpc_ipopt_warm", warm=True)
         elif s.solver == "sqp":
-            qp_opts = _qp_options(s.qp_solver)
-            if s.qp_solver == "osqp":
+            qp_opts = _qp_options(s.qp)
+            if s.qp == "osqp":
                 qp_opts["warm_start_primal"] = True
-            opts = {"qpsol": s.qp_solver, "qpsol_options": qp_opts,
+            opts = {"qpsol": s.qp, "qpsol_options": qp_opts,
                     "hessian_approximation": "exact", "max_iter": s.max_iter, "tol_pr": s.tol * 100,
                     "tol_du": s.tol * 100, "print_header": s.verbose, "print_iteration": s.verbose,
                     "print_status": s.verbose, "min_step_size": 1e-12, **_SQP_EXTRA}
@@ -340,18 +343,24 @@ class MPCController:
         function, compiled to C when codegen is on. The QP (step dx, new multipliers) is solved by
         ``ca.conic`` (HPIPM detects the OCP structure from the sparsity)."""
         s, pr = self.settings, self.problem
-        if s.qp_solver == "qrqp" and s.codegen and s.formulation == "traffic":
-            raise ParameterError("MPCSettings.qp_solver = 'qrqp' with codegen compiles the whole step (mpc/export.py), "
-                                 "which cannot take the traffic formulation: its energy epigraph control enters the "
-                                 "cost linearly and qrqp needs curvature in every control; use qp_solver = 'hpipm'")
-        if (s.qp_solver == "qrqp" and s.codegen and pr.terminal_cost is None
-                and s.rti_hessian == "exact"):  # the whole step compiled: the exported C (mpc/export.py)
-            from .export import CompiledStep
+        if s.qp == "qrqp" and s.formulation == "traffic":
+            raise ParameterError("MPCSettings.qp_solver = 'qrqp' cannot take the traffic formulation: its energy "
+                                 "epigraph control enters the cost linearly and qrqp needs curvature in every "
+                                 "control; use qp_solver = 'riccati' or 'hpipm'")
+        qp_plugin = s.qp
+        if s.qp == "riccati":
+            from .export import CompiledStep, riccati_solver
 
-            self._cstep = CompiledStep.build(self)
-            if self._cstep is not None:
-                self.codegen_active = True
-                return
+            if s.codegen:  # the whole step compiled: the exported C (mpc/export.py, ocp_qp.c)
+                self._cstep = CompiledStep.build(self)
+                if self._cstep is not None:
+                    self.codegen_active = True
+                    return
+            # no codegen, or the whole step could not be built: the QP data interpreted (or compiled below),
+            # the QP solved by ocp_qp.c through ctypes (_solve_rti); HPIPM only if ocp_qp.c cannot be built
+            self._riccati = riccati_solver(self)
+            qp_plugin = "hpipm"  # the conic below: used only when ocp_qp.c could not be built (self._riccati None)
+        self.qp_in_use = "riccati" if self._riccati is not None else qp_plugin
         N, nx, nu, ngs = s.N, pr.nx, pr.nu, self._ng_stage
         nb = nx + nu
         zk, uk = ca.SX.sym("zk", nx), ca.SX.sym("uk", nu)
@@ -413,8 +422,8 @@ class MPCController:
                 self._rti_path0 = ca.external("mpc_rti_path0", lib)
         if not self.codegen_active:
             self._rti_data, self._rti_fg, self._rti_path0 = qpdata.expand(), fg.expand(), p0.expand()
-        self._rti_qp = ca.conic("mpc_rti_qp", s.qp_solver, {"h": H.sparsity(), "a": A.sparsity()},
-                                _qp_options(s.qp_solver, HPIPM_INF_TRAFFIC if s.formulation == "traffic" else None))
+        self._rti_qp = ca.conic("mpc_rti_qp", qp_plugin, {"h": H.sparsity(), "a": A.sparsity()},
+                                _qp_options(qp_plugin, HPIPM_INF_TRAFFIC if s.formulation == "traffic" else None))
         self._rti_path0_lb = np.asarray(pr.path_lb, float)
         self._rti_path0_ub = np.asarray(pr.path_ub, float)
 
@@ -525,8 +534,9 @@ class MPCController:
         if self._cstep is not None:
             was_cold = self._warm is None
             sol = self._solve_cstep(z0, p)
-            if sol.success or not was_cold:
-                return sol  # a failed cold start of the compiled step falls back to the cold IPOPT below
+            if sol.success or not was_cold or self._rti_cold or self._warm is not None:
+                # (a late cold start, cause 'budget', left its plan as the warm start: the next step is warm)
+                return sol  # a failed cold start of §9's compiled step falls back to the cold IPOPT below
         warm = self._warm is not None and s.solver != "ipopt-cold"
         if s.solver == "rti" and not warm and self._rti_cold and self._cstep is None:
             # cold real-time iteration from the closed-form law's rollout (never a cold IPOPT)
@@ -566,7 +576,7 @@ class MPCController:
         self._warm = ({"x": x, "lam_x": np.asarray(out["lam_x"]).ravel(), "lam_g": np.asarray(out["lam_g"]).ravel(),
                        "X1": X[:, 1]} if success else None)
         if self._cstep is not None and self._warm is not None:
-            self._cstep.set_warm(self._warm["x"], self._warm["lam_g"], self._warm["lam_x"], drop_below=1e-8)
+            self._cstep.set_warm(self._warm["x"], self._warm["lam_g"], self._warm["lam_x"])
         return MPCSolution(success, status, iters, dt_wall, X, a, float(out["f"]), viol, path,
                            {"t_wall_solver": float(st.get("t_wall_total", float("nan")))}, U)
 
@@ -617,17 +627,23 @@ class MPCController:
         ok, status, it, step = True, "", 0, float("inf")
         try:
             while it < iterations:
-                d = data(x, p, lam_g, lbx, ubx)
-                H = self.regularised_hessian(d[0], d[1], project=s.rti_hessian == "projected")
-                out = qp(h=H, g=d[2], a=d[3], lba=d[4], uba=d[5], lbx=d[6], ubx=d[7])
+                if self._riccati is not None:
+                    dx, lam_g, lam_x, qst = self._riccati_step(x, p, lam_g)
+                    ok_qp = qst == ""
+                else:
+                    d = data(x, p, lam_g, lbx, ubx)
+                    H = self.regularised_hessian(d[0], d[1], project=s.rti_hessian == "projected")
+                    out = qp(h=H, g=d[2], a=d[3], lba=d[4], uba=d[5], lbx=d[6], ubx=d[7])
+                    st = qp.stats()
+                    dx = np.asarray(out["x"]).ravel()
+                    ok_qp, qst = bool(st.get("success", False)), str(st.get("return_status", ""))
+                    if ok_qp:
+                        lam_g, lam_x = np.asarray(out["lam_a"]).ravel(), np.asarray(out["lam_x"]).ravel()
                 it += 1
-                st = qp.stats()
-                dx = np.asarray(out["x"]).ravel()
-                if not st.get("success", False) or not np.all(np.isfinite(dx)):
-                    ok, status = False, f"QP failed: {st.get('return_status', '')}"
+                if not ok_qp or not np.all(np.isfinite(dx)):
+                    ok, status = False, f"QP failed: {qst}"
                     break
                 x = x + dx
-                lam_g, lam_x = np.asarray(out["lam_a"]).ravel(), np.asarray(out["lam_x"]).ravel()
                 step = float(np.abs(dx).max())
                 if step <= s.tol:
                     break
@@ -654,6 +670,28 @@ class MPCController:
         return MPCSolution(True, "RTI_Step" if step > s.tol else "RTI_Converged", it, dt_wall, X, a,
                            float(f), viol, "rti", {"step_inf": step, "node0_violation": viol0}, U)
 
+    def _riccati_step(self, x: np.ndarray, p: np.ndarray, lam_g: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, str]:
+        """One SQP step's QP in the stage layout (export.qp_data_function, interpreted), the Hessian blocks
+        projected in NumPy (rti_hessian 'projected'), solved by ocp_qp.c (ocpqp.OcpQP): (dx, lam_g, lam_x,
+        '' or the QP solver's status name) — the Python twin of the compiled step's sqp_step."""
+        fdata, qp = self._riccati
+        N, nx, nb, ngs = self.settings.N, self.nx, self.nx + self.nu, self._ng_stage
+        H, g, E, e, C, lc, uc, lbw, ubw = (np.asarray(v, float).ravel() for v in fdata(x, p, lam_g))
+
+        def projected(H: np.ndarray) -> np.ndarray:
+            B = _project_pd(H[:N * nb * nb].reshape(N, nb, nb).transpose(0, 2, 1))
+            HN = _project_pd(H[N * nb * nb:].reshape(1, nx, nx).transpose(0, 2, 1))
+            return np.concatenate([B.transpose(0, 2, 1).ravel(), HN.transpose(0, 2, 1).ravel()])
+
+        exact = self.settings.rti_hessian == "exact"
+        r = qp.solve(H if exact else projected(H), g, E, e, C, lc, uc, lbw, ubw, np.zeros(nx))
+        if exact and r.status in (1, 2):  # MAX_ITER, FACTORIZATION: not convex enough (as mpc_step.c)
+            r = qp.solve(projected(H), g, E, e, C, lc, uc, lbw, ubw, np.zeros(nx))
+        if r.status != 0:
+            return r.w, lam_g, np.zeros(self.nv), f"ocp_qp {r.status_name}"
+        lg = np.concatenate([r.pi.reshape(N, nx), r.lam_c.reshape(N, ngs - nx)], axis=1).ravel()
+        return r.w, lg, r.lam_w, ""
+
     def _solve_cstep(self, z0: np.ndarray, p: np.ndarray) -> MPCSolution:
         """One step of the compiled whole RTI step (:class:`aev_ocp.mpc.export.CStep`, the same C as
         ``aev-ocp mpc-export``): a cold start (SQP from the guess) when there is no warm start."""
@@ -667,7 +705,12 @@ class MPCController:
         dt_wall = time.perf_counter() - t0
         x, lam_g, lam_x, info = cs.solution()
         if st != 0:
-            return self._failed(STATUS.get(st, f"status {st}"), info.iterations, dt_wall, info.node0_violation, "rti")
+            from .ocpqp import STATUS as QP_STATUS
+
+            why = STATUS.get(st, f"status {st}")
+            if st == 1:  # the QP solver's own status (ocp_qp.h)
+                why = f"{why} {QP_STATUS.get(info.qp_status, info.qp_status)}"
+            return self._failed(why, info.iterations, dt_wall, info.node0_violation, "rti")
         X, a, U = self.unpack(x)
         warm = {"x": x.copy(), "X1": X[:, 1]}  # (the library keeps its own warm start)
         if dt_wall * 1e3 > self.settings.max_step_ms:

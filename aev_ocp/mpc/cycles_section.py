@@ -24,10 +24,11 @@ SEGMENT_S = 120.0
 #: Segment of the 5-follower UDDS platoon in ``reproduce`` [s] (five MPC solves per step), extended to the
 #: leader's first 20-s stop after it (145 s).
 PLATOON_SEGMENT_S = 60.0
-#: Solver path of the section: real-time iteration, HPIPM, compiled functions — the fast path of the
-#: shipped MPC scenarios (mpc_paper_single: closed-loop cost within 0.001 % of the IPOPT path's,
-#: benchmarks/bench_mpc.py). Only the path is set: the formulation is MPCSettings()'s default.
-SOLVER_PATH: dict[str, Any] = {"solver": "rti", "qp_solver": "hpipm", "codegen": True}
+#: Solver path of the section: real-time iteration, the whole step compiled with the Riccati interior-point
+#: QP ('auto' = 'riccati' on the rti path) — the fast path of the shipped MPC scenarios (mpc_paper_single:
+#: closed-loop cost within 0.001 % of the IPOPT path's, benchmarks/bench_mpc.py). Only the path is set: the
+#: formulation is MPCSettings()'s default.
+SOLVER_PATH: dict[str, Any] = {"solver": "rti", "qp_solver": "auto", "codegen": True}
 #: Progress lines the section reports (declared to the reproduce Progress counter).
 STEPS = 4 * 2 * 6 + 6 + 1  # 6 lines per MPC run (start + every 25 %), the platoon run, writing
 
@@ -164,7 +165,7 @@ def cycles_section(out_dir: Any, progress: Callable[[str], None], segment_s: flo
              f"over {seg_txt} (reproduce runs a segment to stay usable: the section took {elapsed:.0f} s here; the whole "
              "cycles run with `aev-ocp mpc mpc_udds_single` etc. and benchmarks/bench_mpc_cycles.py). MPC: the "
              f"MPCSettings() default formulation on the solver path {s.solver}"
-             f"{'+codegen' if s.codegen else ''} (qp {s.qp_solver}), N = {s.N}, dt = {s.dt:g}, with a measured forecast "
+             f"{'+codegen' if s.codegen else ''} (qp {s.qp}), N = {s.N}, dt = {s.dt:g}, with a measured forecast "
              f"({', '.join(predictors)}; no oracle); the laws do not forecast (—). Exact plant (CVODES). "
              "Per-km values divide by the follower's own distance. Solve p50/p99: per-step MPC solve time.", "",
              f"**Comparable results.** A row whose distance or duration differs from the proposed law's by more than "

@@ -1,6 +1,6 @@
 """The MPC step as self-contained C: the real-time iteration of :class:`~aev_ocp.mpc.controller.MPCController`
-(solver 'rti') with CasADi's active-set QP solver ``qrqp`` generated into the same C code, so that nothing
-of Python or CasADi is needed at run time.
+(solver 'rti') as CasADi-generated functions plus two hand-written C files, so that nothing of Python or
+CasADi is needed at run time.
 
 Five CasADi Functions are built from the controller's (any) :class:`~aev_ocp.ocp.problem.OCPProblem` and
 generated into ``mpc_casadi.c`` (:func:`rti_functions`):
@@ -9,27 +9,35 @@ generated into ``mpc_casadi.c`` (:func:`rti_functions`):
   :meth:`MPCController.guess`);
 * ``aev_cg_shift(x, lam_g, lam_x, z0, p) -> (x, lam_g, lam_x)``: the warm start shifted by one interval
   (as :meth:`MPCController._shift`);
-* ``aev_cg_sqp(x, lam_g, lam_x, p, reg) -> (x⁺, lam_g⁺, lam_x⁺, |dx|∞, max|A dx − b|)``: one full SQP step
-  (exact Lagrangian Hessian + reg·I, the QP solved by qrqp warm-started on the previous active set);
+* ``aev_cg_qpdata(x, p, lam_g) -> (H, g, E, e, C, lc, uc, lbw, ubw)`` (:func:`qp_data_function`): the QP of
+  one SQP step in stage blocks — the exact Lagrangian Hessian's stage blocks and the terminal cost's, the
+  dynamics' Jacobians [A B] and defects, the path constraints' Jacobians and offsets, the step bounds;
 * ``aev_cg_node0(x, p) -> (node-0 violation, u0)``: the applied control and its path constraints;
 * ``aev_cg_eval(x, p) -> (f, violation)``: the plan's cost and constraint violation (evaluated only when
   asked for, by ``aev_mpc_get_info``).
 
-The hand-written driver ``aev_ocp/c/mpc_step.c`` (header ``mpc_step.h``) runs them: a cold step iterates
-regularised SQP from the guess until the step is below ``tol`` (at most :data:`COLD_MAX_ITER` QPs), a warm step shifts
-and does ``rti_iterations`` SQP steps. The Python rti path with qp_solver 'qrqp' and codegen loads the
-same library (:class:`CompiledStep`), so the Python controller and the exported C run the same code.
+The hand-written driver ``aev_ocp/c/mpc_step.c`` (header ``mpc_step.h``) runs them and solves each QP with
+``aev_ocp/c/ocp_qp.c`` (``ocp_qp.h``): a primal-dual interior point (Mehrotra) whose Newton systems are
+solved by a Riccati recursion over the stages, built with the problem's dimensions as compile-time
+constants (:func:`qp_dimension_defines`). One SQP step: the QP data, each Hessian block projected onto
+the positive-definite cone in C when ``rti_hessian = 'projected'`` (``aev_mpc_project_pd``: the same
+floor as :func:`aev_ocp.mpc.controller._project_pd`), a full step. A warm step shifts and does
+``rti_iterations`` SQP steps; a cold step (the first, or after a failure) does ``rti_cold_iterations``
+SQP steps from the guess (the traffic formulation, as the Python rti path), or, for §9 (whose Python path
+starts with a cold IPOPT), Levenberg-Marquardt-regularised SQP until the step is below ``tol`` (at most
+:data:`COLD_MAX_ITER` QPs). The Python rti path with qp_solver 'riccati' and codegen loads the same
+library (:class:`CompiledStep`), so the Python controller and the exported C run the same code; without
+codegen it runs a Python twin of the driver on the same QP solver (:func:`riccati_solver`).
 
-:func:`export_mpc` writes the folder of ``aev-ocp mpc-export``: sources, header, generated config header,
+:func:`export_mpc` writes the folder of ``aev-ocp mpc-export``: sources, headers, generated config header,
 Makefile, CMakeLists.txt, a benchmark main and README.txt.
 
-Why qrqp: it is the QP solver whose C CasADi generates (no library at run time; HPIPM's sources may not be
-copied). It is an active-set method on a sparse QR of the KKT matrix: on the §9 problem (strictly convex
-QPs near the solution) it is as fast as HPIPM through ``ca.conic`` and warm-starts on the previous active
-set. Limits: it needs a nonsingular reduced Hessian — a problem whose controls enter the cost only
-linearly (the 'energy' objective's energy-rate control) makes it fail or hit its iteration limit (the
-Python controller then falls back to IPOPT / the closed-form law); use HPIPM for those. A structure-
-exploiting interior-point QP in C (Riccati recursion) would lift this and is the next step.
+Why our own QP solver: CasADi generates C for only one QP solver, qrqp (an active set on a sparse QR of the
+whole KKT matrix; HPIPM's sources may not be copied). qrqp took 70 % of the exported step (0.32 ms) and
+needs curvature in every control, so the traffic formulation (its energy epigraph control enters the
+cost linearly) could not be exported. The interior point takes linear-cost controls bounded through
+constraints, and its cost per iteration is linear in N. Its limit: every QP must be convex (an
+indefinite exact Hessian block can stall it: use the default projected Hessian).
 """
 
 from __future__ import annotations
@@ -51,26 +59,31 @@ if TYPE_CHECKING:  # pragma: no cover
     from .controller import MPCController
 
 #: Hand-written templates (package data under aev_ocp/c/) copied or filled into an export.
-TEMPLATES = ("mpc_step.c", "mpc_step.h", "mpc_bench_main.c")
+TEMPLATES = ("mpc_step.c", "mpc_step.h", "ocp_qp.c", "ocp_qp.h", "mpc_bench_main.c")
 #: Files of an export folder.
-EXPORT_FILES = ("mpc_casadi.c", "mpc_casadi.h", "mpc_config.h", "mpc_step.c", "mpc_step.h", "mpc_bench_main.c",
-                "Makefile", "CMakeLists.txt", "README.txt")
+EXPORT_FILES = ("mpc_casadi.c", "mpc_casadi.h", "mpc_config.h", "mpc_step.c", "mpc_step.h", "ocp_qp.c", "ocp_qp.h",
+                "mpc_bench_main.c", "Makefile", "CMakeLists.txt", "README.txt")
 #: At most this many SQP iterations from the cold-start guess (the first step, or after a failure).
 COLD_MAX_ITER = 100
 #: Cold start (Levenberg-Marquardt): the QP Hessian gets reg·I, reg = COLD_REG0 at first, divided by 10
 #: whenever max|dx| < COLD_REG_STEP (0 once below 1e-6), multiplied by 10 and the step retried when the QP
-#: fails (up to COLD_REG_MAX); full SQP steps. Without it qrqp fails within two iterations from the guess
-#: on the §9 problem (the exact Hessian is singular and, far from the solution, indefinite); with it the
-#: cold start reaches IPOPT's solution (max |dx| 4e-7 = IPOPT's tolerance) in 22 iterations.
+#: fails (up to COLD_REG_MAX); full SQP steps. Used by the §9 problem's exact Hessian, which far from the
+#: solution is indefinite (an interior-point QP needs convexity); with it the cold start of the canonical
+#: scenario converges (max |dx| < 1e-14) in 19-24 SQP iterations (116-166 QP iterations in all) from three
+#: different states.
 COLD_REG0 = 0.1
 COLD_REG_STEP = 1e-2
 COLD_REG_MAX = 1e3
 #: reg of the warm (RTI) steps: 0, the exact Hessian as in the Python rti path
 RTI_REG = 0.0
+#: Interior-point iterations per QP at most, and the QP's residual tolerances (ocp_qp.h; our choice: far
+#: below the SQP tolerance, so the exported step and the Python paths agree to 1e-8 over a closed loop).
+QP_MAX_ITER = 50
+QP_TOL = 1e-9
 #: Status codes of aev_mpc_step (mpc_step.h).
 #: Status codes of the exported step, worded with the Python path's fallback causes ('QP failed', 'path
 #: constraint', 'exception': the text before the first ':' is the cause counted in fallback_causes).
-STATUS = {0: "RTI_Step", 1: "QP failed: qrqp", 2: "QP failed: non-finite step",
+STATUS = {0: "RTI_Step", 1: "QP failed: ocp_qp", 2: "QP failed: non-finite step",
           3: "path constraint: the applied control violates them", 4: "QP failed: the cold start did not converge",
           5: "exception: non-finite input"}
 
@@ -84,14 +97,15 @@ def _template(name: str) -> str:
 
 
 # ---------------------------------------------------------------------------------------------- functions
-def rti_functions(c: "MPCController", qp_plugin: str = "qrqp", qp_options: dict[str, Any] | None = None) -> list[ca.Function]:
-    """The five CasADi Functions of the exported step (see the module docstring), from a built controller.
-    ``qp_plugin``/``qp_options``: another ``ca.conic`` plugin for comparisons (only qrqp generates C)."""
+def qp_data_function(c: "MPCController") -> ca.Function:
+    """``aev_cg_qpdata(x, p, lam_g) -> (H, g, E, e, C, lc, uc, lbw, ubw)``: the QP of one SQP step at the
+    primal-dual point (x, lam_g) of the controller's scaled NLP, in the stage layout of ``ocp_qp.h``
+    (nc = the path constraints per interval, no terminal constraint, x_0's step fixed at 0): the exact
+    Lagrangian Hessian's stage blocks (and the terminal cost's), the cost gradient, the dynamics'
+    Jacobians [A B] and defects, the path constraints' Jacobians and bound offsets, the step bounds."""
     s, pr = c.settings, c.problem
     N, nx, nu, ngs = s.N, pr.nx, pr.nu, c._ng_stage
     nb, nv, ng, npp = nx + nu, c.nv, c.ng, c.np_
-    xs, us = ca.DM(c.x_scale), ca.DM(c.u_scale)
-    # --- one SQP step: stage-wise Hessian/gradient/Jacobian as in MPCController._build_rti
     zk, uk = ca.SX.sym("zk", nx), ca.SX.sym("uk", nu)
     zn, w, pp = ca.SX.sym("zn", nx), ca.SX.sym("w", pr.nw), ca.SX.sym("p", pr.np_)
     sw, lk = ca.SX.sym("sw"), ca.SX.sym("lk", ngs)
@@ -103,35 +117,38 @@ def rti_functions(c: "MPCController", qp_plugin: str = "qrqp", qp_options: dict[
     Jk = ca.densify(ca.jacobian(ck, zu))
     gk = ck - ca.vertcat(zn, ca.SX.zeros(ngs - nx))
     stage = ca.Function("aev_cg_stage", [zk, uk, zn, w, pp, sw, lk], [Hk, ca.gradient(cost, zu), Jk, gk])
-    V, P = ca.MX.sym("x", nv), ca.MX.sym("p", npp)
-    LAM, LAMX = ca.MX.sym("lam_g", ng), ca.MX.sym("lam_x", nv)
+    V, P, LAM = ca.MX.sym("x", nv), ca.MX.sym("p", npp), ca.MX.sym("lam_g", ng)
     Xk, Uk, Xn, W, PP, SW = c._stage_inputs(V, P)
     Hs, Qs, Js, Gs = stage.map(N, "serial")(Xk, Uk, Xn, W, ca.repmat(PP, 1, N), SW, ca.reshape(LAM, ngs, N))
-    REG = ca.MX.sym("reg")  # Levenberg-Marquardt term reg·I (the cold start's iterations; 0 in RTI)
-    H = ca.diagcat(*ca.horzsplit(Hs, nb), ca.MX(nx, nx)) + REG * ca.MX(ca.DM.eye(nv))
-    E = ca.DM(ng, nv)  # −I of gap_k in z_{k+1}
-    for k in range(N):
-        for i in range(nx):
-            E[k * ngs + i, (k + 1) * nb + i] = -1.0
-    A = ca.horzcat(ca.diagcat(*ca.horzsplit(Js, nb)), ca.MX(ng, nx)) + ca.sparsify(E)
-    g = ca.vec(Gs)
-    # the initial state is fixed at x[:nx] (the shift or the guess put the measurement there)
-    lbx = ca.vertcat(V[:nx], ca.DM(c._lbx[nx:]))
-    ubx = ca.vertcat(V[:nx], ca.DM(c._ubx[nx:]))
-    qp = ca.conic("aev_cg_qp", qp_plugin, {"h": H.sparsity(), "a": A.sparsity()},
-                  qp_options if qp_options is not None else
-                  {"error_on_fail": True, "print_iter": False, "print_header": False, "print_info": False})
-    lba, uba = ca.DM(c._lbg) - g, ca.DM(c._ubg) - g
-    sol = qp(h=H, g=ca.vertcat(ca.vec(Qs), ca.MX.zeros(nx)), a=A, lba=lba, uba=uba, lbx=lbx - V, ubx=ubx - V,
-             lam_x0=LAMX, lam_a0=LAM)  # qrqp's initial active set: the nonzero multipliers (0.58 vs 0.75 ms)
-    dx = sol["x"]
-    Adx = ca.mtimes(A, dx)
-    qp_res = ca.mmax(ca.vertcat(ca.fmax(lba - Adx, 0), ca.fmax(Adx - uba, 0), ca.DM(0)))
-    sqp = ca.Function("aev_cg_sqp", [V, LAM, LAMX, P, REG], [V + dx, sol["lam_a"], sol["lam_x"], ca.norm_inf(dx), qp_res],
-                      ["x", "lam_g", "lam_x", "p", "reg"], ["x_next", "lam_g_next", "lam_x_next", "step_inf", "qp_residual"])
+    xNs, pT = ca.SX.sym("xN", nx), ca.SX.sym("pT", pr.np_)
+    mayer = pr.terminal_cost(xNs * ca.DM(c.x_scale), pT) if pr.terminal_cost is not None else ca.SX(0)
+    term = ca.Function("aev_cg_terminal", [xNs, pT], [ca.densify(ca.hessian(mayer, xNs)[0]), ca.gradient(mayer, xNs)])
+    HN, qN = term(V[nb * N:], PP)
+    path_lb = ca.repmat(ca.DM(np.asarray(pr.path_lb, float)), 1, N)
+    path_ub = ca.repmat(ca.DM(np.asarray(pr.path_ub, float)), 1, N)
+    cval = Gs[nx:, :]  # the path constraints' values at the point
+    return ca.Function("aev_cg_qpdata", [V, P, LAM],
+                       [ca.vertcat(ca.vec(Hs), ca.vec(HN)), ca.vertcat(ca.vec(Qs), qN), ca.vec(Js[:nx, :]),
+                        ca.vec(Gs[:nx, :]), ca.vec(Js[nx:, :]), ca.vec(path_lb - cval), ca.vec(path_ub - cval),
+                        ca.DM(c._lbx) - V, ca.DM(c._ubx) - V],
+                       ["x", "p", "lam_g"], ["H", "g", "E", "e", "C", "lc", "uc", "lbw", "ubw"])
+
+
+def rti_functions(c: "MPCController") -> list[ca.Function]:
+    """The five CasADi Functions of the exported step (see the module docstring), from a built controller."""
+    s, pr = c.settings, c.problem
+    N, nx, nu, ngs = s.N, pr.nx, pr.nu, c._ng_stage
+    nb, nv, ng, npp = nx + nu, c.nv, c.ng, c.np_
+    xs, us = ca.DM(c.x_scale), ca.DM(c.u_scale)
+    qpdata = qp_data_function(c)
+    V, P = ca.MX.sym("x", nv), ca.MX.sym("p", npp)
+    LAM, LAMX = ca.MX.sym("lam_g", ng), ca.MX.sym("lam_x", nv)
+    W, PP = c._stage_inputs(V, P)[3:5]
     # --- plan evaluation: cost, nonlinear violation, node-0 path violation, applied controls
     f_nlp = ca.Function("f", [c._nlp["x"], c._nlp["p"]], [c._nlp["f"], c._nlp["g"]])
     f, gg = f_nlp(V, P)
+    lbx = ca.vertcat(V[:nx], ca.DM(c._lbx[nx:]))  # the initial state is fixed at x[:nx]
+    ubx = ca.vertcat(V[:nx], ca.DM(c._ubx[nx:]))
     vg = ca.fmax(ca.fmax(ca.DM(c._lbg) - gg, gg - ca.DM(c._ubg)), 0)
     vx = ca.fmax(ca.fmax(lbx - V, V - ubx), 0)
     viol = ca.mmax(ca.vertcat(vg, vx, ca.DM(0)))
@@ -161,11 +178,11 @@ def rti_functions(c: "MPCController", qp_plugin: str = "qrqp", qp_options: dict[
     lam_g0 = ca.vertcat(LAM[ngs:N * ngs], LAM[(N - 1) * ngs:N * ngs], LAM[N * ngs:])
     shift = ca.Function("aev_cg_shift", [V, LAM, LAMX, Z0, P], [x0, lam_g0, shift_v(LAMX, LAMX[nb * N:])],
                         ["x", "lam_g", "lam_x", "z0", "p"], ["x0", "lam_g0", "lam_x0"])
-    return [guess, shift, sqp, node0, ev]
+    return [guess, shift, qpdata, node0, ev]
 
 
 def generate_casadi(c: "MPCController", folder: Path) -> None:
-    """Write mpc_casadi.c and mpc_casadi.h (the five functions, CasADi's generated C, qrqp included)."""
+    """Write mpc_casadi.c and mpc_casadi.h (the five functions, CasADi's generated C)."""
     cg = ca.CodeGenerator("mpc_casadi.c", {"with_header": True})
     for f in rti_functions(c):
         cg.add(f)
@@ -187,7 +204,7 @@ def _c_array(values: np.ndarray) -> str:
 
 def config_header(c: "MPCController", description: str) -> str:
     """mpc_config.h: dimensions and constants of the exported problem (filled template)."""
-    from .controller import NZ
+    from .controller import NZ, RTI_HESSIAN_FLOOR
 
     s, pr = c.settings, c.problem
     from ..ocp.following import weight_vector
@@ -197,6 +214,9 @@ def config_header(c: "MPCController", description: str) -> str:
             "NW": pr.nw, "NW_EXTRA": pr.nw - 2, "NPP": pr.np_, "NV": c.nv, "NG": c.ng, "NP": c.np_,
             "NG_STAGE": c._ng_stage, "RTI_ITER": s.rti_iterations, "COLD_MAX_ITER": COLD_MAX_ITER,
             "COLD_REG0": repr(COLD_REG0), "RTI_REG": repr(RTI_REG), "COLD_REG_MAX": repr(COLD_REG_MAX), "COLD_REG_STEP": repr(COLD_REG_STEP),
+            "COLD_ITER": s.rti_cold_iterations if c._rti_cold else 0,
+            "PROJECT": int(s.rti_hessian == "projected"), "HESS_FLOOR": repr(RTI_HESSIAN_FLOOR),
+            "PD_MAXN": max(pr.nx + pr.nu, 1), "QP_MAX_ITER": QP_MAX_ITER, "QP_TOL": repr(QP_TOL),
             "TOL": repr(float(s.tol)), "PLAN_TOL": repr(float(_plan_tolerance())), "DT": repr(float(s.dt)),
             "X_SCALE": _c_array(c.x_scale), "U_SCALE": _c_array(c.u_scale), "OWN0": _c_array(c._x_own0),
             "W_EXTRA": _c_array(c._w_extra), "P_CONST": _c_array(p_const),
@@ -223,15 +243,17 @@ def write_sources(c: "MPCController", folder: Path, description: str) -> None:
 
 
 # ---------------------------------------------------------------------------------------------- export
+def qp_dimension_defines(c: "MPCController") -> tuple[str, ...]:
+    """The macros that specialise ocp_qp.c to the controller's QP (OCPQP_NX, _NU, _NC, _NCN; ocp_qp.h)."""
+    return (f"OCPQP_NX={c.nx}", f"OCPQP_NU={c.nu}", f"OCPQP_NC={c._ng_stage - c.nx}", "OCPQP_NCN=0")
+
+
 def check_exportable(c: "MPCController") -> None:
-    """ExportError (naming the option) for what the exported step does not implement: a terminal (Mayer)
-    cost, and the projected Hessian (the step uses the exact one, as the §9 scenarios state)."""
-    if c.problem.terminal_cost is not None:
-        raise ExportError(f"problem {c.problem.name!r} has a terminal cost, which the exported step does not "
-                          "implement yet: make it a stage cost of the last interval, or run it in Python")
-    if c.settings.rti_hessian != "exact":
-        raise ExportError(f"mpc.rti_hessian = {c.settings.rti_hessian!r}: the exported step uses the exact Hessian; "
-                          "set mpc.rti_hessian = 'exact' (as scenarios/mpc_paper_single.toml does)")
+    """ExportError (naming the cause) for what the exported step does not implement: terminal constraints
+    (as the Python rti path; a terminal cost is fine)."""
+    if c.problem.terminal is not None:
+        raise ExportError(f"problem {c.problem.name!r} has terminal constraints, which the exported step (like the "
+                          "Python 'rti' path) does not implement: make them a soft terminal cost")
 
 
 def export_controller(c: "MPCController", out: Path, description: str) -> list[Path]:
@@ -239,8 +261,11 @@ def export_controller(c: "MPCController", out: Path, description: str) -> list[P
     check_exportable(c)
     out = Path(out)
     write_sources(c, out, description)
-    (out / "Makefile").write_text(_template("mpc_Makefile.in"), encoding="utf-8")
-    (out / "CMakeLists.txt").write_text(_template("mpc_CMakeLists.txt.in"), encoding="utf-8")
+    defs = qp_dimension_defines(c)
+    (out / "Makefile").write_text(_template("mpc_Makefile.in").replace("@QPDIMS@", " ".join(f"-D{d}" for d in defs)),
+                                  encoding="utf-8")
+    (out / "CMakeLists.txt").write_text(_template("mpc_CMakeLists.txt.in").replace("@QPDIMS_CMAKE@", ";".join(defs)),
+                                        encoding="utf-8")
     s, pr = c.settings, c.problem
     readme = _template("mpc_README.txt.in")
     subs = {"DESCRIPTION": description, "N": s.N, "DT": f"{s.dt:g}", "NX": pr.nx, "NU": pr.nu,
@@ -275,18 +300,26 @@ def export_mpc(scenario: Any, out: Path, settings: Any = None) -> list[Path]:
     if cfg is None:
         raise ExportError(f"scenario {scenario.name!r} has no [mpc] table: there is no MPC to export")
     s = settings or cfg.settings
-    if s.formulation != "s9":
-        raise ExportError(f"scenario {scenario.name!r}: mpc.formulation = {s.formulation!r} cannot be exported yet: "
-                          "its energy epigraph control enters the cost linearly, and the QP solver generated into "
-                          "the C (qrqp) needs curvature in every control; export a formulation = 's9' scenario "
-                          "(e.g. mpc_paper_single) or run this one in Python (rti + HPIPM)")
     c = export_controller_settings(s, scenario.ev)
-    desc = (f"MPC of scenario {scenario.name} (N = {s.N}, dt = {s.dt:g}, objective {s.objective}, "
-            f"rk4_substeps {s.rk4_substeps}, rti_iterations {s.rti_iterations})")
+    what = f"objective {s.objective}" if s.formulation == "s9" else "the traffic formulation"
+    desc = (f"MPC of scenario {scenario.name} (N = {s.N}, dt = {s.dt:g}, {what}, rk4_substeps {s.rk4_substeps}, "
+            f"rti_iterations {s.rti_iterations}, Hessian {s.rti_hessian})")
     return export_controller(c, out, desc)
 
 
 # ---------------------------------------------------------------------------------------------- building
+def _config_qp_defines(src: Path) -> list[str]:
+    """-DOCPQP_* flags (qp_dimension_defines) from an export folder's mpc_config.h."""
+    import re
+
+    text = (src / "mpc_config.h").read_text(encoding="utf-8")
+    val = {k: int(v) for k, v in re.findall(r"#define AEV_MPC_(NX|NU|NG_STAGE) (\d+)", text)}
+    if len(val) != 3:
+        raise ExportError(f"{src / 'mpc_config.h'} does not define AEV_MPC_NX, AEV_MPC_NU and AEV_MPC_NG_STAGE")
+    return [f"-DOCPQP_NX={val['NX']}", f"-DOCPQP_NU={val['NU']}", f"-DOCPQP_NC={val['NG_STAGE'] - val['NX']}",
+            "-DOCPQP_NCN=0"]
+
+
 def build_library(src: Path, out_lib: Path, cc: str | None = None, flags: tuple[str, ...] = ("-O2",)) -> Path:
     """Compile the export folder's C sources into a shared library (ExportError naming the cause)."""
     from ..compiled import compiler
@@ -294,7 +327,8 @@ def build_library(src: Path, out_lib: Path, cc: str | None = None, flags: tuple[
     cc = cc or compiler()
     if cc is None:
         raise ExportError("no C compiler found (set $CC or install gcc/cc) to build the exported MPC")
-    cmd = [cc, *flags, "-fPIC", "-shared", "-o", str(out_lib), "mpc_casadi.c", "mpc_step.c", "-lm"]
+    cmd = [cc, *flags, *_config_qp_defines(Path(src)), "-fPIC", "-shared", "-o", str(out_lib), "mpc_casadi.c",
+           "mpc_step.c", "ocp_qp.c", "-lm"]
     proc = subprocess.run(cmd, cwd=src, capture_output=True, text=True, timeout=900)
     if proc.returncode != 0:
         last = (proc.stderr or proc.stdout).strip().splitlines()
@@ -305,9 +339,13 @@ def build_library(src: Path, out_lib: Path, cc: str | None = None, flags: tuple[
 class Info(ctypes.Structure):
     """aev_mpc_info of mpc_step.h."""
 
-    _fields_ = [("iterations", ctypes.c_int), ("cold", ctypes.c_int), ("step_inf", ctypes.c_double),
+    _fields_ = [("iterations", ctypes.c_int), ("qp_iterations", ctypes.c_int), ("qp_status", ctypes.c_int),
+                ("projected_retries", ctypes.c_int),
+                ("cold", ctypes.c_int),
+                ("step_inf", ctypes.c_double),
                 ("qp_residual", ctypes.c_double), ("cost", ctypes.c_double), ("violation", ctypes.c_double),
-                ("node0_violation", ctypes.c_double)]
+                ("node0_violation", ctypes.c_double), ("t_shift", ctypes.c_double), ("t_qpdata", ctypes.c_double),
+                ("t_project", ctypes.c_double), ("t_qp", ctypes.c_double), ("t_node0", ctypes.c_double)]
 
 
 _VP = ctypes.c_void_p
@@ -375,8 +413,8 @@ class CStep:
 
     def set_warm(self, x: np.ndarray, lam_g: np.ndarray, lam_x: np.ndarray, drop_below: float = 0.0) -> None:
         """Start the next step from this primal-dual point (scaled NLP vector and multipliers).
-        ``drop_below``: multipliers of smaller magnitude are set to 0 — an interior-point solution (IPOPT)
-        has tiny nonzero multipliers on inactive constraints, which qrqp would take as its initial active set."""
+        ``drop_below``: multipliers of smaller magnitude are set to 0 (they enter the next step's Lagrangian
+        Hessian; default: kept as given)."""
         a, b, d = (np.array(v, float) for v in (x, lam_g, lam_x))
         if a.size != self.nv or b.size != self.ng or d.size != self.nv:
             raise ParameterError(f"CStep.set_warm: x, lam_g, lam_x must have {self.nv}, {self.ng}, {self.nv} values")
@@ -393,9 +431,28 @@ class CStep:
         return self.x, self.lam_g, self.lam_x, self._info
 
 
+def riccati_solver(c: "MPCController") -> tuple[ca.Function, Any] | None:
+    """(the QP-data Function, interpreted; an :class:`aev_ocp.mpc.ocpqp.OcpQP` of the controller's dimensions
+    with the exported step's QP settings) for the Python rti path with qp_solver 'riccati' and no codegen,
+    or None (with a warning) when ocp_qp.c cannot be compiled."""
+    import warnings
+
+    from .ocpqp import OcpQP, OcpQPDims, OcpQPSettings
+
+    N, nx, nu = c.settings.N, c.nx, c.nu
+    try:
+        qp = OcpQP(OcpQPDims(N, nx, nu, c._ng_stage - nx, 0),
+                   OcpQPSettings(max_iter=QP_MAX_ITER, tol_stat=QP_TOL, tol_eq=QP_TOL, tol_ineq=QP_TOL, tol_comp=QP_TOL))
+    except (OSError, RuntimeError, ParameterError) as exc:
+        warnings.warn(f"qp_solver 'riccati' is unavailable: ocp_qp.c could not be built ({exc}); the rti path uses "
+                      "HPIPM through ca.conic instead", RuntimeWarning, stacklevel=4)
+        return None
+    return qp_data_function(c).expand(), qp
+
+
 class CompiledStep:
     """The exported step's library built into the private cache (:func:`aev_ocp.compiled.compile_shared`,
-    keyed by a hash of the sources) for the Python rti path (qp_solver 'qrqp', codegen)."""
+    keyed by a hash of the sources) for the Python rti path (qp_solver 'riccati', codegen)."""
 
     @staticmethod
     def build(c: "MPCController") -> "CStep | None":
@@ -405,17 +462,19 @@ class CompiledStep:
         from ..compiled import compile_shared, compiler
 
         if compiler() is None:
-            warnings.warn("MPC codegen requested but no C compiler (gcc) was found: using the "
-                          "interpreted CasADi functions instead", RuntimeWarning, stacklevel=4)
+            warnings.warn("MPC codegen requested but no C compiler (gcc) was found: the rti step runs on "
+                          "interpreted CasADi functions instead of the compiled step", RuntimeWarning, stacklevel=4)
             return None
         with tempfile.TemporaryDirectory() as tmp:
             write_sources(c, Path(tmp), f"MPC controller {c.problem.name}")
-            files = {n: Path(tmp, n).read_text(encoding="utf-8") for n in ("mpc_config.h", "mpc_casadi.h",
-                                                                          "mpc_step.h", "mpc_step.c")}
+            files = {n: Path(tmp, n).read_text(encoding="utf-8") for n in ("mpc_config.h", "mpc_casadi.h", "mpc_step.h",
+                                                                          "mpc_step.c", "ocp_qp.h", "ocp_qp.c")}
             main = Path(tmp, "mpc_casadi.c").read_text(encoding="utf-8")
-        built = compile_shared(main, "mpc_step", "mpc", companions=files)
+        built = compile_shared(main, "mpc_step", "mpc", companions=files,
+                               extra_flags=tuple(f"-D{d}" for d in qp_dimension_defines(c)))
         if built.path is None:
-            warnings.warn(f"MPC codegen failed ({built.error}): using the interpreted CasADi functions instead",
+            warnings.warn(f"MPC codegen failed ({built.error}): the rti step runs on interpreted CasADi functions "
+                          "instead of the compiled step",
                           RuntimeWarning, stacklevel=4)
             return None
         return CStep(built.path)
@@ -429,8 +488,8 @@ def build_parser() -> Any:
     p = OneLineParser(prog="aev-ocp mpc-export",
                       description="Export the MPC step of a scenario's [mpc] table as a self-contained C library "
                                   "(sources, header mpc_step.h, Makefile, CMakeLists.txt, README.txt; no Python or "
-                                  "CasADi at run time). The exported step is the real-time iteration with the "
-                                  "qrqp QP solver generated into the C code, whatever the scenario's solver.")
+                                  "CasADi at run time). The exported step is the real-time iteration with aev_ocp's "
+                                  "Riccati interior-point QP solver (ocp_qp.c), whatever the scenario's solver.")
     p.add_argument("scenario", help="scenario TOML file or shipped scenario name (e.g. mpc_paper_single)")
     p.add_argument("--out", required=True, help="output folder of the C sources (created; files replaced)")
     p.add_argument("--set", action="append", default=None, metavar="KEY=VALUE",

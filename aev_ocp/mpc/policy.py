@@ -90,6 +90,7 @@ class MPCPolicy:
         p = self.predictor
         d["predictor"] = p if isinstance(p, str) else getattr(p, "name", type(p).__name__)
         d["solver_path"] = self.settings.solver + ("+codegen" if self.controller.codegen_active else "")
+        d["qp_in_use"] = self.controller.qp_in_use  # the QP solver that runs (qp_solver resolved, after fallbacks)
         d["problem"] = self.controller.problem.name
         eb = self.settings.effective_bounds(self.controller.ev)  # what the metrics count violations against
         d["bounds_model"] = {"h_min": eb.h_min, "v_max": eb.v_max}

@@ -287,7 +287,7 @@ def mpc_section(out_dir: Any, progress: Callable[[str], None]) -> str:
     lines = ["## MPC with the battery in the loop (PROBLEM.md §9)", "",
              f"Canonical scenario: one follower behind the Table 1 leader, h(0) = 0.3, v(0) = 1.87, oracle "
              f"forecast, N = 40, dt = 0.1, w = (1, 1, 1, 0.1), t ∈ [0, {sc.t_end:g}]. Exact plant (CVODES, "
-             f"unsmoothed η switch). Solver path {st.get('solver_path')}: median {st.get('solve_ms_median', float('nan')):.2f} ms, "
+             f"unsmoothed η switch). Solver path {st.get('solver_path')} (QP {st.get('qp_solver') or '—'}): median {st.get('solve_ms_median', float('nan')):.2f} ms, "
              f"p95 {st.get('solve_ms_p95', float('nan')):.2f} ms, max {st.get('solve_ms_max', float('nan')):.2f} ms per "
              f"step, {st.get('fallbacks')} fallbacks. `cost_s9` is Σ ℓ(z_k, a_k)·dt of §9 on the dt grid "
              "(smoothed η, as in OCP-D); OCP-D is the lower bound of that cost. `cost_s9_exact` is the same "

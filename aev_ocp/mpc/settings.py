@@ -28,9 +28,15 @@ from ..params import EVParams, ParameterError, PowertrainOptions, spec, validate
 SOLVER_PATHS = ("ipopt", "sqp", "ipopt-cold", "rti")
 #: The 'rti' path's QP Hessian: 'projected' (default): the exact Lagrangian Hessian's diagonal blocks
 #: projected onto the PD cone (eigenvalues raised to a floor), so every QP is convex; 'exact': as computed
-#: (the §9 scenarios state it, so their numbers stay as published; an indefinite block can then stall HPIPM).
+#: (the §9 scenarios state it, so their numbers stay as published; an indefinite block can then stall HPIPM;
+#: with qp_solver 'riccati' a QP that fails with the exact Hessian is re-solved once with the projected blocks,
+#: as the interior point needs a convex QP).
 RTI_HESSIANS = ("projected", "exact")
-QP_SOLVERS = ("qrqp", "osqp", "hpipm", "qpoases", "proxqp")
+#: QP solvers. 'riccati': aev_ocp's own structure-exploiting interior point (aev_ocp/c/ocp_qp.c, Riccati
+#: recursion over the stages), the 'rti' path only; with codegen the whole step is then one compiled C library,
+#: the one `aev-ocp mpc-export` writes (mpc/export.py). The others are CasADi's ca.conic / qpsol plugins.
+#: 'auto' (default): 'riccati' on the 'rti' path, 'hpipm' on the 'sqp' path (MPCSettings.qp).
+QP_SOLVERS = ("auto", "riccati", "qrqp", "osqp", "hpipm", "qpoases", "proxqp")
 PREDICTOR_NAMES = ("oracle", "constant-velocity", "constant-acceleration", "decaying-acceleration", "cooperative")
 
 
@@ -72,7 +78,7 @@ class MPCSettings:
                                      default_factory=PowertrainOptions)  # PROBLEM.md §7: 300 W
     rk4_substeps: int = spec(1, kind="integer", ge=1)
     solver: str = spec("rti", kind="choice", choices=SOLVER_PATHS)  # real-time iteration (issue 8: ≤ 2 ms/step)
-    qp_solver: str = spec("hpipm", kind="choice", choices=QP_SOLVERS)
+    qp_solver: str = spec("auto", kind="choice", choices=QP_SOLVERS)  # issue 12: riccati on the rti path
     codegen: bool = spec(True, kind="bool")  # C-compiled QP data (falls back to interpreted without gcc)
     tol: float = spec(1e-8, gt=0)
     max_iter: int = spec(200, kind="integer", ge=1)
@@ -87,6 +93,17 @@ class MPCSettings:
 
     def __post_init__(self) -> None:
         validate_fields(self)
+        if self.qp_solver == "riccati" and self.solver == "sqp":
+            raise ParameterError("MPCSettings.qp_solver = 'riccati' is the 'rti' path's QP solver (aev_ocp/c/ocp_qp.c); "
+                                 "the 'sqp' path (CasADi's sqpmethod) takes a CasADi QP solver: set qp_solver to one "
+                                 f"of {[q for q in QP_SOLVERS if q != 'riccati']}")
+
+    @property
+    def qp(self) -> str:
+        """The QP solver in use: ``qp_solver``, with 'auto' resolved ('riccati' on the 'rti' path, else 'hpipm')."""
+        if self.qp_solver != "auto":
+            return self.qp_solver
+        return "riccati" if self.solver == "rti" else "hpipm"
 
     def effective_bounds(self, ev: EVParams) -> FollowingBounds:
         """Model-unit bounds of the active formulation (traffic: from its SI parameters)."""

@@ -1,0 +1,798 @@
+/* ocp_qp.c — structure-exploiting interior-point QP solver of aev_ocp (hand-written C99; see ocp_qp.h).
+ *
+ * Inequalities. Every bound of w and every general row C w is a "row" (stage k < N: nb bound rows then
+ * nc general rows; stage N: nx bound rows then ncN general rows). Each finite side of a row is a "side"
+ * i with sign sg_i = +1 (lower bound b_i) or -1 (upper bound b_i), slack s_i = sg_i (d_row - b_i) >= 0
+ * and multiplier z_i >= 0; the row's CasADi multiplier is lam_row = sum over its sides of -sg_i z_i.
+ *
+ * Newton system (residuals r_stat = H w + g + E'pi - pi shifted + D' lam, r_eq_k = E_k w_k + e_k -
+ * x_{k+1}, r_i = sg_i (d_i - b_i) - s_i, rc_i = s_i z_i (- sigma mu + corrector)): eliminating ds, dz
+ * gives, stage by stage, the equality-constrained QP
+ *     min 1/2 dw' M dw + gt' dw  s.t.  dx_{k+1} = E_k dw_k + r_eq_k,  dx_0 = 0,
+ * with M = H + D' diag(z/s) D and gt = r_stat + D' q, q_row = sum sg_i (rc_i + z_i r_i) / s_i, solved by
+ * the Riccati recursion in square-root form (value function 1/2 x'P x + p'x with P = Lp Lp', so the
+ * Newton matrices stay PSD under rounding when the barrier terms are large; dpi_k = P_{k+1} dx_{k+1} + p_{k+1}), then
+ * ds_i = sg_i dd_row + r_i and dz_i = -(rc_i + z_i ds_i) / s_i. A P_k that is indefinite (indefinite
+ * Hessian blocks, an exact Hessian, with a positive definite reduced Hessian) has no square root: the
+ * stage before then adds E_k' P_k E_k explicitly (only the control blocks L_k must be positive definite).
+ * The factorisation (M, P_k, the Cholesky factor L_k of the control block and Y_k = L_k^{-1} G_ux) is
+ * done once per iteration; the right-hand-side recursion runs twice (predictor, corrector), and again
+ * (iterative refinement, at most 4 times) when the barrier terms z/s are so large that the reduced
+ * solve's rounding would show in the stationarity residual (late iterations).
+ * Start: w = 0 with x_0 = x0, pi = 0, s = max(slack, 1), z = 2 sqrt(max(1, |g|inf)) / s^(1/4). One step length for
+ * primal and dual variables, fraction to the boundary 0.995, centring sigma = (mu_aff / mu)^3. Two
+ * safeguards against the stall of plain Mehrotra on degenerate rows (below): the wide-neighbourhood step
+ * rule (neighbourhood_step, every iteration) and Gondzio's centrality correctors (correct_centrality, in the
+ * end game, once the residuals are below mu).
+ * Termination: every residual (inf-norms, complementarity as the mean of s z) below its tolerance. On
+ * degenerate rows (weakly active, or linearly dependent active rows) w is then O(sqrt(mean s z)) from the
+ * exact solution, e.g. up to 1e-4 at tolerances 1e-9 on the MPC's QPs, 4e-8 at 1e-12 (tests/test_ocp_qp.py).
+ */
+#include <stdlib.h>
+#include <string.h>
+#include <math.h>
+
+#include "ocp_qp.h"
+
+#define AMAX(acc, v) do { double a_ = fabs(v); if (a_ > (acc)) (acc) = a_; } while (0)
+
+/* Dimensions. Compiled with -DOCPQP_NX=.. -DOCPQP_NU=.. -DOCPQP_NC=.. -DOCPQP_NCN=.. (all four) they are
+ * compile-time constants (the small loops are then unrolled and vectorised: about 1.3x faster) and
+ * ocpqp_create accepts only those; otherwise they are the run-time values of ocpqp_create. */
+#if defined(OCPQP_NX) && defined(OCPQP_NU) && defined(OCPQP_NC) && defined(OCPQP_NCN)
+#define OCPQP_FIXED_DIMS 1
+#define DNX(s) (OCPQP_NX)
+#define DNU(s) (OCPQP_NU)
+#define DNC(s) (OCPQP_NC)
+#define DNCN(s) (OCPQP_NCN)
+#define DNB(s) (OCPQP_NX + OCPQP_NU)
+#else
+#define OCPQP_FIXED_DIMS 0
+#define DNX(s) ((s)->d.nx)
+#define DNU(s) ((s)->d.nu)
+#define DNC(s) ((s)->d.nc)
+#define DNCN(s) ((s)->d.ncN)
+#define DNB(s) ((s)->nb)
+#endif
+
+struct ocpqp_solver {
+  ocpqp_dims d;
+  ocpqp_settings set;
+  int nb, nw, nrow, nside_max;
+  /* factorisation */
+  double *P;      /* (N+1) nx x nx: lower Cholesky factors Lp_k of the Riccati matrices P_k */
+  double *Pf;     /* (N+1) nx x nx: the P_k themselves (both triangles; for the right-hand sides) */
+  double *L;      /* N nu x nu (lower Cholesky factor of the control block) */
+  double *Ld;     /* N nu: inverses of L's diagonal */
+  double *Y;      /* N nu x nx (L^{-1} G_ux) */
+  double *G;      /* nb x nb work */
+  double *ET, *CT; /* the data's E_k' (nb x nx) and C_k' (nb x nc, then nx x ncN), copied per solve */
+  double *F;      /* nb x (nx + nc) work ([E_k' Lp_{k+1}, C_k' sqrt(sig)]) */
+  /* right-hand side recursion */
+  double *p;      /* (N+1) nx */
+  double *ell;    /* N nu */
+  double *h;      /* nb work */
+  double *t;      /* nx work */
+  /* iterate and steps */
+  double *w, *pi, *dw, *dpi;
+  double *rstat, *req, *gt;
+  double *drow, *ddrow, *sigrow, *qrow, *lamrow;
+  double *s, *z, *b, *sg, *r, *rc, *ds, *dz;
+  double *is;     /* 1/s of the current factorisation */
+  double *dw2, *dpi2, *ds2, *dz2, *rho, *lamrow2;  /* iterative refinement */
+  int *srow;
+  int *pind;      /* N+1: P_k is indefinite (no square root; the stage before adds E' P_k E explicitly) */
+  int nside;
+  double sigmax;  /* largest barrier term z/s of the current factorisation */
+};
+
+void ocpqp_default_settings(ocpqp_settings *s) {
+  s->max_iter = 50;
+  s->tol_stat = 1e-10;
+  s->tol_eq = 1e-10;
+  s->tol_ineq = 1e-10;
+  s->tol_comp = 1e-10;
+  s->reg_prim = 1e-12;
+}
+
+/* Lay the solver's arrays out in blk (NULL: only count); returns the number of doubles. */
+static size_t layout(ocpqp_solver *s, double *blk) {
+  size_t N = (size_t)s->d.N, nx = (size_t)s->d.nx, nu = (size_t)s->d.nu, nb = nx + nu;
+  size_t nc = (size_t)s->d.nc, ncN = (size_t)s->d.ncN, nw = (size_t)s->nw, nrow = (size_t)s->nrow;
+  size_t nsm = (size_t)s->nside_max, off = 0, i;
+  double **per_nw[] = {&s->w, &s->dw, &s->rstat, &s->gt, &s->dw2, &s->rho};
+  double **per_pi[] = {&s->pi, &s->dpi, &s->req, &s->dpi2};
+  double **per_row[] = {&s->drow, &s->ddrow, &s->sigrow, &s->qrow, &s->lamrow, &s->lamrow2};
+  double **per_side[] = {&s->s, &s->z, &s->b, &s->sg, &s->r, &s->rc, &s->ds, &s->dz, &s->is, &s->ds2, &s->dz2};
+#define TAKE(ptr, n) do { (ptr) = blk ? blk + off : NULL; off += (n); } while (0)
+  TAKE(s->P, (N + 1) * nx * nx);
+  TAKE(s->Pf, (N + 1) * nx * nx);
+  TAKE(s->L, N * nu * nu);
+  TAKE(s->Y, N * nu * nx);
+  TAKE(s->Ld, N * nu);
+  TAKE(s->G, nb * nb);
+  TAKE(s->F, nb * (nx + nc + ncN));
+  TAKE(s->ET, N * nb * nx);
+  TAKE(s->CT, N * nb * nc + nx * ncN);
+  TAKE(s->p, (N + 1) * nx);
+  TAKE(s->ell, N * nu);
+  TAKE(s->h, nb);
+  TAKE(s->t, nx);
+  for (i = 0; i < sizeof per_nw / sizeof *per_nw; ++i) TAKE(*per_nw[i], nw);
+  for (i = 0; i < sizeof per_pi / sizeof *per_pi; ++i) TAKE(*per_pi[i], N * nx);
+  for (i = 0; i < sizeof per_row / sizeof *per_row; ++i) TAKE(*per_row[i], nrow);
+  for (i = 0; i < sizeof per_side / sizeof *per_side; ++i) TAKE(*per_side[i], nsm);
+#undef TAKE
+  return off;
+}
+
+ocpqp_solver *ocpqp_create(const ocpqp_dims *dims, const ocpqp_settings *settings) {
+  ocpqp_solver probe, *s;
+  size_t nd, head = (sizeof(ocpqp_solver) + sizeof(double) - 1) / sizeof(double);
+  double *blk;
+  if (!dims || dims->N < 1 || dims->nx < 1 || dims->nu < 0 || dims->nc < 0 || dims->ncN < 0) return NULL;
+#if OCPQP_FIXED_DIMS
+  if (dims->nx != OCPQP_NX || dims->nu != OCPQP_NU || dims->nc != OCPQP_NC || dims->ncN != OCPQP_NCN) return NULL;
+#endif
+  memset(&probe, 0, sizeof probe);
+  probe.d = *dims;
+  probe.nb = dims->nx + dims->nu;
+  probe.nw = dims->N * probe.nb + dims->nx;
+  probe.nrow = dims->N * (probe.nb + dims->nc) + dims->nx + dims->ncN;
+  probe.nside_max = 2 * probe.nrow;
+  if (settings) probe.set = *settings; else ocpqp_default_settings(&probe.set);
+  nd = layout(&probe, NULL);
+  /* one block: the struct, the doubles, then the side -> row indices */
+  blk = (double *)malloc((head + nd) * sizeof(double) + (size_t)(probe.nside_max + dims->N + 1) * sizeof(int));
+  if (!blk) return NULL;
+  s = (ocpqp_solver *)(void *)blk;
+  *s = probe;
+  blk += head;
+  memset(blk, 0, nd * sizeof(double));
+  layout(s, blk);
+  s->srow = (int *)(void *)(blk + nd);
+  s->pind = s->srow + s->nside_max;
+  return s;
+}
+
+void ocpqp_free(ocpqp_solver *s) { free(s); }
+
+/* ------------------------------------------------------------------------------------------ kernels */
+/* y (m) += A (m x n, column-major) x; four, then two columns per pass (fewer loads and stores of y) */
+static void gemv_n(int m, int n, const double *A, const double *x, double *y) {
+  int i, j = 0;
+  if (m == 1) {
+    double acc = y[0];
+    for (j = 0; j < n; ++j) acc += A[j] * x[j];
+    y[0] = acc;
+    return;
+  }
+  for (; j + 3 < n; j += 4) {
+    double x0 = x[j], x1 = x[j + 1], x2 = x[j + 2], x3 = x[j + 3];
+    const double *a0 = A + (size_t)j * m, *a1 = a0 + m, *a2 = a1 + m, *a3 = a2 + m;
+    for (i = 0; i < m; ++i) y[i] += (a0[i] * x0 + a1[i] * x1) + (a2[i] * x2 + a3[i] * x3);
+  }
+  for (; j + 1 < n; j += 2) {
+    double x0 = x[j], x1 = x[j + 1];
+    const double *a0 = A + (size_t)j * m, *a1 = a0 + m;
+    for (i = 0; i < m; ++i) y[i] += a0[i] * x0 + a1[i] * x1;
+  }
+  if (j < n) {
+    double x0 = x[j];
+    const double *a0 = A + (size_t)j * m;
+    for (i = 0; i < m; ++i) y[i] += a0[i] * x0;
+  }
+}
+
+/* G (n x n, lower triangle, leading dimension ldg) += A A', A n x k column-major (lda = n); two columns
+ * of A per pass */
+static void syrk_ln(int n, int k, const double *A, double *G, int ldg) {
+  int i, j, l;
+  for (l = 0; l + 1 < k; l += 2) {
+    const double *a0 = A + (size_t)l * n, *a1 = a0 + n;
+    for (j = 0; j < n; ++j) {
+      double b0 = a0[j], b1 = a1[j];
+      double *Gj = G + (size_t)j * ldg;
+      for (i = j; i < n; ++i) Gj[i] += a0[i] * b0 + a1[i] * b1;
+    }
+  }
+  if (l < k) {
+    const double *a0 = A + (size_t)l * n;
+    for (j = 0; j < n; ++j) {
+      double b0 = a0[j];
+      double *Gj = G + (size_t)j * ldg;
+      for (i = j; i < n; ++i) Gj[i] += a0[i] * b0;
+    }
+  }
+}
+
+static int all_finite(const double *x, size_t n) {
+  size_t i;
+  double acc = 0.0;
+  for (i = 0; i < n; ++i) acc += x[i] * 0.0;  /* NaN if any entry is NaN or +-inf */
+  return acc == 0.0;
+}
+
+static int no_nan(const double *x, size_t n) {
+  size_t i;
+  for (i = 0; i < n; ++i)
+    if (x[i] != x[i]) return 0;
+  return 1;
+}
+
+/* ------------------------------------------------------------------------------------------ pieces */
+/* row values d = D w (bound rows: w; general rows: C w) */
+static void row_values(ocpqp_solver *s, const ocpqp_data *d, const double *w, double *dr) {
+  int N = s->d.N, nx = DNX(s), nb = DNB(s), nc = DNC(s), ncN = DNCN(s), k, i;
+  for (k = 0; k <= N; ++k) {
+    int n = k < N ? nb : nx, m = k < N ? nc : ncN;
+    const double *wk = w + (size_t)k * nb;
+    double *rk = dr + (size_t)k * (nb + nc);
+    const double *Ck = d->C + (size_t)k * nc * nb;
+    for (i = 0; i < n; ++i) rk[i] = wk[i];
+    for (i = 0; i < m; ++i) rk[n + i] = 0.0;
+    gemv_n(m, n, Ck, wk, rk + n);
+  }
+}
+
+/* out (stage vector of length nw) = base + D' v (v per row); base may equal out, or be NULL (zero) */
+static void rows_transpose(ocpqp_solver *s, const double *v, const double *base, double *out) {
+  int N = s->d.N, nx = DNX(s), nb = DNB(s), nc = DNC(s), ncN = DNCN(s), k, i;
+  for (k = 0; k <= N; ++k) {
+    int n = k < N ? nb : nx, m = k < N ? nc : ncN;
+    const double *vk = v + (size_t)k * (nb + nc);
+    double *ok = out + (size_t)k * nb;
+    if (base) {
+      const double *bk = base + (size_t)k * nb;
+      for (i = 0; i < n; ++i) ok[i] = bk[i] + vk[i];
+    } else {
+      for (i = 0; i < n; ++i) ok[i] = vk[i];
+    }
+    gemv_n(n, m, s->CT + (size_t)k * nc * nb, vk + n, ok);
+  }
+}
+
+/* out = base + D' lam + H w + E' pi - pi shifted (per stage; lam per row) */
+static void stationarity(ocpqp_solver *s, const ocpqp_data *d, const double *w, const double *pi, const double *lam,
+                         const double *base, double *out) {
+  int N = s->d.N, nx = DNX(s), nb = DNB(s), k, i;
+  rows_transpose(s, lam, base, out);
+  for (k = 0; k <= N; ++k) {
+    int n = k < N ? nb : nx;
+    double *rk = out + (size_t)k * nb;
+    gemv_n(n, n, d->H + (size_t)k * nb * nb, w + (size_t)k * nb, rk);
+    if (k < N) gemv_n(nb, nx, s->ET + (size_t)k * nx * nb, pi + (size_t)k * nx, rk);
+    if (k > 0)
+      for (i = 0; i < nx; ++i) rk[i] -= pi[(size_t)(k - 1) * nx + i];
+  }
+}
+
+/* lam per row = sum over the row's sides of -sg z */
+static void row_multipliers(ocpqp_solver *s, const double *z, double *lam) {
+  int i;
+  memset(lam, 0, (size_t)s->nrow * sizeof(double));
+  for (i = 0; i < s->nside; ++i) lam[s->srow[i]] -= s->sg[i] * z[i];
+}
+
+/* residuals at (w, pi, s, z); returns 0, or OCPQP_NONFINITE */
+static int residuals(ocpqp_solver *s, const ocpqp_data *d, ocpqp_info *info) {
+  int N = s->d.N, nx = DNX(s), nb = DNB(s), nw = s->nw, k, i;
+  double rs = 0.0, re = 0.0, ri = 0.0, mu = 0.0;
+  row_multipliers(s, s->z, s->lamrow);
+  stationarity(s, d, s->w, s->pi, s->lamrow, d->g, s->rstat);
+  for (i = nx; i < nw; ++i) AMAX(rs, s->rstat[i]);
+  for (k = 0; k < N; ++k) {
+    double *rk = s->req + (size_t)k * nx;
+    const double *xn = s->w + (size_t)(k + 1) * nb;
+    for (i = 0; i < nx; ++i) rk[i] = d->e[(size_t)k * nx + i] - xn[i];
+    gemv_n(nx, nb, d->E + (size_t)k * nx * nb, s->w + (size_t)k * nb, rk);
+    for (i = 0; i < nx; ++i) AMAX(re, rk[i]);
+  }
+  row_values(s, d, s->w, s->drow);
+  for (i = 0; i < s->nside; ++i) {
+    s->r[i] = s->sg[i] * (s->drow[s->srow[i]] - s->b[i]) - s->s[i];
+    AMAX(ri, s->r[i]);
+    mu += s->s[i] * s->z[i];
+  }
+  if (s->nside > 0) mu /= s->nside;
+  info->res_stat = rs; info->res_eq = re; info->res_ineq = ri; info->res_comp = mu;
+  if (!(rs + re + ri + mu < HUGE_VAL)) return OCPQP_NONFINITE;
+  return 0;
+}
+
+/* Cholesky factor Lp (n x n, lower) of a symmetric positive semidefinite A (lower triangle read, lda):
+ * a pivot <= eps * (1 + |A_jj|) is a direction without curvature and its column is set to zero, so
+ * Lp Lp' stays PSD under rounding. Returns 0; OCPQP_CHOL_INDEFINITE if a pivot is negative beyond
+ * rounding (A is indefinite: Lp is then not used); OCPQP_NONFINITE on a NaN. */
+#define OCPQP_CHOL_INDEFINITE (-1)
+static int chol_psd(int n, const double *A, int lda, double *Lp) {
+  int i, j, l;
+  for (j = 0; j < n; ++j) {
+    double dj = A[j + j * lda];
+    for (l = 0; l < j; ++l) dj -= Lp[j + l * n] * Lp[j + l * n];
+    if (dj != dj) return OCPQP_NONFINITE;
+    if (dj <= 1e-14 * (1.0 + fabs(A[j + j * lda]))) {
+      if (dj < -1e-9 * (1.0 + fabs(A[j + j * lda]))) return OCPQP_CHOL_INDEFINITE;
+      for (i = j; i < n; ++i) Lp[i + j * n] = 0.0;
+      continue;
+    }
+    dj = sqrt(dj);
+    Lp[j + j * n] = dj;
+    dj = 1.0 / dj;
+    for (i = j + 1; i < n; ++i) {
+      double acc = A[i + j * lda];
+      for (l = 0; l < j; ++l) acc -= Lp[i + l * n] * Lp[j + l * n];
+      Lp[i + j * n] = acc * dj;
+    }
+  }
+  return 0;
+}
+
+/* the factor of P_k (lower triangle of A, lda) into the solver, or its indefiniteness flag; 0 or a status */
+static int store_p(ocpqp_solver *s, int k, const double *A, int lda) {
+  int nx = DNX(s), st = chol_psd(nx, A, lda, s->P + (size_t)k * nx * nx);
+  if (st > 0) return st;
+  s->pind[k] = st == OCPQP_CHOL_INDEFINITE;
+  return 0;
+}
+
+/* Pf (n x n, both triangles) from the lower triangle of A (leading dimension lda) */
+static void full_from_lower(int n, const double *A, int lda, double *Pf) {
+  int i, j;
+  for (j = 0; j < n; ++j)
+    for (i = j; i < n; ++i) Pf[i + j * n] = Pf[j + i * n] = A[i + j * lda];
+}
+
+/* Riccati factorisation of the Newton matrix (square-root form: P_k = Lp_k Lp_k'); 0 or a status */
+static int factor(ocpqp_solver *s, const ocpqp_data *d) {
+  int N = s->d.N, nx = DNX(s), nu = DNU(s), nb = DNB(s), nc = DNC(s), ncN = DNCN(s), k, i, j, l;
+  int nr = nb + nc;
+  double *G = s->G, *F = s->F;
+  for (i = 0; i < s->nrow; ++i) s->sigrow[i] = 0.0;
+  s->sigmax = 0.0;
+  for (i = 0; i < s->nside; ++i) {
+    double is = 1.0 / s->s[i], q = s->z[i] * is;
+    s->is[i] = is;
+    s->sigrow[s->srow[i]] += q;
+    if (q > s->sigmax) s->sigmax = q;
+  }
+  /* terminal: P_N = H_N + diag(sig) + C_N' diag(sig) C_N (lower triangle into G, ld nb) */
+  {
+    const double *HN = d->H + (size_t)N * nb * nb, *CTN = s->CT + (size_t)N * nc * nb;
+    const double *sr = s->sigrow + (size_t)N * nr;
+    for (j = 0; j < nx; ++j)
+      for (i = j; i < nx; ++i) G[i + j * nb] = HN[i + j * nx];
+    for (i = 0; i < nx; ++i) G[i + i * nb] += sr[i];
+    for (l = 0; l < ncN; ++l) {
+      double a0 = sqrt(sr[nx + l]);
+      for (i = 0; i < nx; ++i) F[i + l * nx] = CTN[i + l * nx] * a0;
+    }
+    syrk_ln(nx, ncN, F, G, nb);
+    if (store_p(s, N, G, nb)) return OCPQP_NONFINITE;
+    full_from_lower(nx, G, nb, s->Pf + (size_t)N * nx * nx);
+  }
+  for (k = N - 1; k >= 0; --k) {
+    const double *Hk = d->H + (size_t)k * nb * nb;
+    const double *L1 = s->P + (size_t)(k + 1) * nx * nx, *sr = s->sigrow + (size_t)k * nr;
+    double *Lk = s->L + (size_t)k * nu * nu, *Yk = s->Y + (size_t)k * nu * nx, *Ldk = s->Ld + (size_t)k * nu;
+    /* F = [E_k' Lp_{k+1}, C_k' diag(sqrt(sig))] (nb x (nx + nc)), column by column as sums of columns;
+     * an indefinite P_{k+1} has no square root: F = [E_k' P_{k+1}, C_k' diag(sqrt(sig))] then */
+    const int ind = s->pind[k + 1];
+    const double *ETk = s->ET + (size_t)k * nx * nb;
+    {
+      const double *CTk = s->CT + (size_t)k * nc * nb, *P1 = s->Pf + (size_t)(k + 1) * nx * nx;
+      for (l = 0; ind && l < nx; ++l) {
+        double *Fl = F + (size_t)l * nb;
+        for (i = 0; i < nb; ++i) Fl[i] = 0.0;
+        gemv_n(nb, nx, ETk, P1 + (size_t)l * nx, Fl);
+      }
+      for (l = 0; !ind && l < nx; ++l) {
+        double *Fl = F + (size_t)l * nb;
+        const double *E0 = ETk + (size_t)l * nb;
+        double a0 = L1[l + l * nx];
+        for (i = 0; i < nb; ++i) Fl[i] = E0[i] * a0;
+        for (j = l + 1; j + 1 < nx; j += 2) {
+          double b0 = L1[j + l * nx], b1 = L1[j + 1 + l * nx];
+          const double *Ej = ETk + (size_t)j * nb, *Ej1 = Ej + nb;
+          for (i = 0; i < nb; ++i) Fl[i] += Ej[i] * b0 + Ej1[i] * b1;
+        }
+        if (j < nx) {
+          double b0 = L1[j + l * nx];
+          const double *Ej = ETk + (size_t)j * nb;
+          for (i = 0; i < nb; ++i) Fl[i] += Ej[i] * b0;
+        }
+      }
+      for (l = 0; l < nc; ++l) {
+        double *Fl = F + (size_t)(nx + l) * nb, a0 = sqrt(sr[nb + l]);
+        const double *cl = CTk + (size_t)l * nb;
+        for (i = 0; i < nb; ++i) Fl[i] = cl[i] * a0;
+      }
+    }
+    /* G = H + diag(sig) + F F' (lower triangle) */
+    for (j = 0; j < nb; ++j)
+      for (i = j; i < nb; ++i) G[i + j * nb] = Hk[i + j * nb];
+    for (i = 0; i < nb; ++i) G[i + i * nb] += sr[i];
+    if (!ind) {
+      syrk_ln(nb, nx + nc, F, G, nb);
+    } else {  /* G += C' diag(sig) C + (E' P) E */
+      syrk_ln(nb, nc, F + (size_t)nx * nb, G, nb);
+      for (j = 0; j < nb; ++j)
+        for (l = 0; l < nx; ++l) {
+          double e = ETk[j + l * nb];
+          const double *Fl = F + (size_t)l * nb;
+          for (i = j; i < nb; ++i) G[i + j * nb] += Fl[i] * e;
+        }
+    }
+    /* Cholesky of G_uu + reg I */
+    for (j = 0; j < nu; ++j) {
+      double dj = G[(nx + j) + (nx + j) * nb] + s->set.reg_prim;
+      for (l = 0; l < j; ++l) dj -= Lk[j + l * nu] * Lk[j + l * nu];
+      if (!(dj > 0.0) || !(dj < HUGE_VAL)) return OCPQP_FACTORIZATION;
+      dj = sqrt(dj);
+      Lk[j + j * nu] = dj;
+      dj = Ldk[j] = 1.0 / dj;
+      for (i = j + 1; i < nu; ++i) {
+        double acc = G[(nx + i) + (nx + j) * nb];
+        for (l = 0; l < j; ++l) acc -= Lk[i + l * nu] * Lk[j + l * nu];
+        Lk[i + j * nu] = acc * dj;
+      }
+    }
+    /* Y = L^{-1} G_ux (nu x nx) */
+    for (j = 0; j < nx; ++j)
+      for (i = 0; i < nu; ++i) {
+        double acc = G[(nx + i) + j * nb];
+        for (l = 0; l < i; ++l) acc -= Lk[i + l * nu] * Yk[l + j * nu];
+        Yk[i + j * nu] = acc * Ldk[i];
+      }
+    if (k == 0) break;  /* x_0 is fixed: P_0 is not needed */
+    /* P_k = G_xx - Y'Y (lower, in place in G), then its Cholesky factor */
+    for (j = 0; j < nx; ++j)
+      for (i = j; i < nx; ++i) {
+        double acc = G[i + j * nb];
+        for (l = 0; l < nu; ++l) acc -= Yk[l + i * nu] * Yk[l + j * nu];
+        G[i + j * nb] = acc;
+      }
+    if (store_p(s, k, G, nb)) return OCPQP_NONFINITE;
+    full_from_lower(nx, G, nb, s->Pf + (size_t)k * nx * nx);
+  }
+  return 0;
+}
+
+/* one Newton solve for the residuals (rstat, req, r, rc) with the current factorisation (any of them NULL:
+ * zero): fills dw, dpi, ds, dz */
+static void solve_rhs(ocpqp_solver *s, const ocpqp_data *d, const double *rstat, const double *req,
+                      const double *r, const double *rc, double *dw, double *dpi, double *ds, double *dz) {
+  int N = s->d.N, nx = DNX(s), nu = DNU(s), nb = DNB(s), k, i, l;
+  double *h = s->h, *t = s->t;
+  for (i = 0; i < s->nrow; ++i) s->qrow[i] = 0.0;
+  if (rc && r)
+    for (i = 0; i < s->nside; ++i) s->qrow[s->srow[i]] += s->sg[i] * (rc[i] + s->z[i] * r[i]) * s->is[i];
+  else if (rc)
+    for (i = 0; i < s->nside; ++i) s->qrow[s->srow[i]] += s->sg[i] * rc[i] * s->is[i];
+  else if (r)
+    for (i = 0; i < s->nside; ++i) s->qrow[s->srow[i]] += s->sg[i] * s->z[i] * r[i] * s->is[i];
+  rows_transpose(s, s->qrow, rstat, s->gt);
+  /* backward: p_N = gt_N; h = gt_k + E'(P_{k+1} r_eq_k + p_{k+1}); ell = L^{-1} h_u; p_k = h_x - Y' ell */
+  memcpy(s->p + (size_t)N * nx, s->gt + (size_t)N * nb, (size_t)nx * sizeof(double));
+  for (k = N - 1; k >= 0; --k) {
+    const double *P1 = s->Pf + (size_t)(k + 1) * nx * nx, *p1 = s->p + (size_t)(k + 1) * nx;
+    const double *Lk = s->L + (size_t)k * nu * nu, *Yk = s->Y + (size_t)k * nu * nx, *Ldk = s->Ld + (size_t)k * nu;
+    double *ek = s->ell + (size_t)k * nu, *pk = s->p + (size_t)k * nx;
+    memcpy(t, p1, (size_t)nx * sizeof(double));
+    if (req) gemv_n(nx, nx, P1, req + (size_t)k * nx, t);
+    memcpy(h, s->gt + (size_t)k * nb, (size_t)nb * sizeof(double));
+    gemv_n(nb, nx, s->ET + (size_t)k * nx * nb, t, h);
+    for (i = 0; i < nu; ++i) {
+      double acc = h[nx + i];
+      for (l = 0; l < i; ++l) acc -= Lk[i + l * nu] * ek[l];
+      ek[i] = acc * Ldk[i];
+    }
+    if (k == 0) break;
+    for (i = 0; i < nx; ++i) {
+      double acc = h[i];
+      for (l = 0; l < nu; ++l) acc -= Yk[l + i * nu] * ek[l];
+      pk[i] = acc;
+    }
+  }
+  /* forward: dx_0 = 0; du = -L^{-T} (Y dx + ell); dx+ = E dw + r_eq; dpi = P+ dx+ + p+ */
+  for (i = 0; i < nx; ++i) dw[i] = 0.0;
+  for (k = 0; k < N; ++k) {
+    const double *Lk = s->L + (size_t)k * nu * nu, *Yk = s->Y + (size_t)k * nu * nx, *ek = s->ell + (size_t)k * nu;
+    const double *Ldk = s->Ld + (size_t)k * nu;
+    double *dwk = dw + (size_t)k * nb, *du = dwk + nx, *dxn = dw + (size_t)(k + 1) * nb;
+    double *dpk = dpi + (size_t)k * nx;
+    for (i = 0; i < nu; ++i) du[i] = ek[i];
+    gemv_n(nu, nx, Yk, dwk, du);
+    for (i = nu - 1; i >= 0; --i) {
+      double acc = du[i];
+      for (l = i + 1; l < nu; ++l) acc -= Lk[l + i * nu] * du[l];
+      du[i] = acc * Ldk[i];
+    }
+    for (i = 0; i < nu; ++i) du[i] = -du[i];
+    if (req) memcpy(dxn, req + (size_t)k * nx, (size_t)nx * sizeof(double));
+    else memset(dxn, 0, (size_t)nx * sizeof(double));
+    gemv_n(nx, nb, d->E + (size_t)k * nx * nb, dwk, dxn);
+    memcpy(dpk, s->p + (size_t)(k + 1) * nx, (size_t)nx * sizeof(double));
+    gemv_n(nx, nx, s->Pf + (size_t)(k + 1) * nx * nx, dxn, dpk);
+  }
+  row_values(s, d, dw, s->ddrow);
+  for (i = 0; i < s->nside; ++i) {
+    ds[i] = s->sg[i] * s->ddrow[s->srow[i]] + (r ? r[i] : 0.0);
+    dz[i] = -((rc ? rc[i] : 0.0) + s->z[i] * ds[i]) * s->is[i];
+  }
+}
+
+/* iterative refinement of (dw, dpi, ds, dz): the stationarity residual of the Newton system (the only
+ * block not satisfied exactly by construction; it grows with the barrier terms z/s) is solved for again
+ * and the correction added, up to max_ref times while it exceeds tol */
+static void refine(ocpqp_solver *s, const ocpqp_data *d, int max_ref, double tol) {
+  int i, j, nw = s->nw, nx = DNX(s), npi = s->d.N * DNX(s);
+  for (j = 0; j < max_ref; ++j) {
+    double rn = 0.0;
+    row_multipliers(s, s->dz, s->lamrow2);
+    stationarity(s, d, s->dw, s->dpi, s->lamrow2, s->rstat, s->rho);
+    for (i = nx; i < nw; ++i) AMAX(rn, s->rho[i]);
+    if (!(rn > tol)) return;
+    solve_rhs(s, d, s->rho, NULL, NULL, NULL, s->dw2, s->dpi2, s->ds2, s->dz2);
+    for (i = nx; i < nw; ++i) s->dw[i] += s->dw2[i];
+    for (i = 0; i < npi; ++i) s->dpi[i] += s->dpi2[i];
+    for (i = 0; i < s->nside; ++i) {
+      s->ds[i] += s->ds2[i];
+      s->dz[i] += s->dz2[i];
+    }
+  }
+}
+
+/* largest alpha in (0, amax] keeping s + alpha ds >= 0 and z + alpha dz >= 0 */
+static double max_step(const ocpqp_solver *s, double amax) {
+  double a = amax;
+  int i;
+  for (i = 0; i < s->nside; ++i) {
+    if (s->ds[i] < 0.0 && -s->s[i] > a * s->ds[i]) a = -s->s[i] / s->ds[i];
+    if (s->dz[i] < 0.0 && -s->z[i] > a * s->dz[i]) a = -s->z[i] / s->dz[i];
+  }
+  return a;
+}
+
+/* Centrality correctors (Gondzio, Comput. Optim. Appl. 6, 1996; Colombo & Gondzio, Comput. Optim. Appl. 41,
+ * 2008). Mehrotra's direction alone can stall on degenerate QPs: on the MPC's energy epigraph (two rows
+ * e >= v a / eta and e >= eta v a of one stage, both active at a kink) the multiplier has to move from one row
+ * to the other; the Newton step overshoots, the step length is cut to 0.5-0.8 by the other row's pair, and
+ * the iterate oscillates between the rows with mu not decreasing (one pair s z hundreds of times mu, the
+ * other far below it). A corrector asks for a longer step alpha_t = alpha + OCPQP_CC_DELTA: at that trial
+ * point every pair outside [OCPQP_CC_BMIN, OCPQP_CC_BMAX] * sigma mu is pushed back to the interval (the
+ * push down capped at OCPQP_CC_BMAX sigma mu); the correction solves the Newton system for that
+ * complementarity right-hand side alone (one more right-hand side, same factorisation) and is kept if the
+ * step length grows by at least OCPQP_CC_GAMMA * OCPQP_CC_DELTA. Up to OCPQP_CORRECTORS correctors, only
+ * when Mehrotra's step is shorter than OCPQP_CC_TRIGGER and the residuals are below mu (-DOCPQP_CORRECTORS=0:
+ * none). */
+#ifndef OCPQP_CORRECTORS
+#define OCPQP_CORRECTORS 2
+#endif
+#define OCPQP_CC_TRIGGER 0.9
+#define OCPQP_CC_DELTA 0.3
+#define OCPQP_CC_BMIN 0.1
+#define OCPQP_CC_BMAX 10.0
+#define OCPQP_CC_GAMMA 0.1
+
+/* add (sign +1) or remove (-1) the correction (dw2, dpi2, ds2, dz2) to or from the step (dw, dpi, ds, dz) */
+static void add_correction(ocpqp_solver *s, double sign) {
+  int i, nw = s->nw, npi = s->d.N * DNX(s);
+  for (i = DNX(s); i < nw; ++i) s->dw[i] += sign * s->dw2[i];
+  for (i = 0; i < npi; ++i) s->dpi[i] += sign * s->dpi2[i];
+  for (i = 0; i < s->nside; ++i) {
+    s->ds[i] += sign * s->ds2[i];
+    s->dz[i] += sign * s->dz2[i];
+  }
+}
+
+/* centrality correctors of the step (dw, dpi, ds, dz) towards the target complementarity tmu (see above) */
+static void correct_centrality(ocpqp_solver *s, const ocpqp_data *d, double tmu) {
+  int kc, i;
+  double ap = max_step(s, 1.0), lo = OCPQP_CC_BMIN * tmu, hi = OCPQP_CC_BMAX * tmu;
+  for (kc = 0; kc < OCPQP_CORRECTORS && ap < OCPQP_CC_TRIGGER; ++kc) {
+    double at = ap + OCPQP_CC_DELTA, an;
+    if (at > 1.0) at = 1.0;
+    for (i = 0; i < s->nside; ++i) {
+      double v = (s->s[i] + at * s->ds[i]) * (s->z[i] + at * s->dz[i]), t = 0.0;
+      if (v < lo) t = lo - v;
+      else if (v > hi) t = v - hi < hi ? hi - v : -hi;
+      s->rc[i] = -t;  /* the Newton rows read z ds + s dz = -rc */
+    }
+    solve_rhs(s, d, NULL, NULL, NULL, s->rc, s->dw2, s->dpi2, s->ds2, s->dz2);
+    add_correction(s, 1.0);
+    an = max_step(s, 1.0);
+    if (an < ap + OCPQP_CC_GAMMA * OCPQP_CC_DELTA) {
+      add_correction(s, -1.0);
+      return;
+    }
+    ap = an;
+  }
+}
+
+/* Wide neighbourhood of the central path (Wright, Primal-Dual Interior-Point Methods, SIAM 1997, ch. 5:
+ * N_-inf(gamma)): alpha is shortened (x OCPQP_NBH_SHRINK, at most OCPQP_NBH_TRIES times) until every pair
+ * (s_i + alpha ds_i)(z_i + alpha dz_i) is >= OCPQP_NBH_GAMMA times the mean of the new pairs (or, for a pair
+ * already below that, does not fall below its current value); if no such alpha is found (Mehrotra's
+ * second-order term can shrink a pair for every alpha > 0), the step is not shortened (a safeguard that
+ * blocked every step would stall the iteration). Without it a pair can collapse onto its
+ * corner (s and z both ~ 0 while the solution needs its multiplier): Newton's linearisation of s z is then
+ * useless for it, the steps are cut short by it and the iterate zig-zags (the RTI QPs' epigraph rows). */
+#ifndef OCPQP_NBH_GAMMA
+#define OCPQP_NBH_GAMMA 0.01
+#endif
+#define OCPQP_NBH_SHRINK 0.8
+#define OCPQP_NBH_TRIES 10
+
+static double neighbourhood_step(const ocpqp_solver *s, double alpha0) {
+  int tries, i;
+  double alpha = alpha0;
+  for (tries = 0; tries < OCPQP_NBH_TRIES; ++tries, alpha *= OCPQP_NBH_SHRINK) {
+    double m = 0.0, pmin = HUGE_VAL;
+    for (i = 0; i < s->nside; ++i) {
+      double pn = (s->s[i] + alpha * s->ds[i]) * (s->z[i] + alpha * s->dz[i]);
+      m += pn;
+      if (pn < pmin) pmin = pn;
+    }
+    m *= OCPQP_NBH_GAMMA / s->nside;
+    if (pmin >= m) return alpha;  /* the usual case: every pair inside, one pass */
+    for (i = 0; i < s->nside; ++i) {
+      double pn = (s->s[i] + alpha * s->ds[i]) * (s->z[i] + alpha * s->dz[i]), p0 = s->s[i] * s->z[i];
+      if (pn < (m < p0 ? m : p0)) break;
+    }
+    if (i == s->nside) return alpha;
+  }
+  return alpha0;
+}
+
+/* ------------------------------------------------------------------------------------------ solve */
+int ocpqp_solve(ocpqp_solver *s, const ocpqp_data *d, double *w, double *pi, double *lam_w, double *lam_c,
+                ocpqp_info *info_out) {
+  int N = s->d.N, nx = DNX(s), nu = DNU(s), nb = DNB(s), nc = DNC(s), ncN = DNCN(s), nw = s->nw;
+  int nr = nb + nc, k, i, it, st = OCPQP_OK;
+  double z0;
+  size_t nh = (size_t)N * nb * nb + (size_t)nx * nx, ncm = (size_t)N * nc * nb + (size_t)ncN * nx;
+  ocpqp_info info_local, *info = info_out ? info_out : &info_local;
+  info->iterations = 0;
+  info->res_stat = info->res_eq = info->res_ineq = info->res_comp = 0.0;
+  (void)nu;
+  if (!d || !w || !d->H || !d->g || !d->E || !d->e || !d->x0 || !d->lbw || !d->ubw
+      || ((nc > 0 || ncN > 0) && (!d->C || !d->lc || !d->uc))) {
+    info->status = OCPQP_BAD_DIMS;
+    return info->status;
+  }
+  /* data checks */
+  if (!all_finite(d->H, nh) || !all_finite(d->g, (size_t)nw) || !all_finite(d->E, (size_t)N * nx * nb)
+      || !all_finite(d->e, (size_t)N * nx) || !all_finite(d->x0, (size_t)nx) || !no_nan(d->lbw, (size_t)nw)
+      || !no_nan(d->ubw, (size_t)nw)
+      || (nc + ncN > 0 && (!all_finite(d->C, ncm) || !no_nan(d->lc, (size_t)N * nc + ncN)
+                           || !no_nan(d->uc, (size_t)N * nc + ncN)))) {
+    info->status = OCPQP_NONFINITE;
+    return info->status;
+  }
+  /* transposed copies of E and C (the kernels then run over contiguous columns) */
+  for (k = 0; k <= N; ++k) {
+    int n = k < N ? nb : nx, m = k < N ? nc : ncN, j;
+    if (m > 0) {
+      const double *Ck = d->C + (size_t)k * nc * nb;
+      double *CTk = s->CT + (size_t)k * nc * nb;
+      for (j = 0; j < n; ++j)
+        for (i = 0; i < m; ++i) CTk[j + i * n] = Ck[i + j * m];
+    }
+    if (k < N) {
+      const double *Ek = d->E + (size_t)k * nx * nb;
+      double *ETk = s->ET + (size_t)k * nx * nb;
+      for (j = 0; j < nb; ++j)
+        for (i = 0; i < nx; ++i) ETk[j + i * nb] = Ek[i + j * nx];
+    }
+  }
+  /* sides */
+  s->nside = 0;
+  for (k = 0; k <= N; ++k) {
+    int n = k < N ? nb : nx, m = k < N ? nc : ncN;
+    for (i = 0; i < n + m; ++i) {
+      double lo, up;
+      if (i < n) {
+        if (k == 0 && i < nx) continue;
+        lo = d->lbw[(size_t)k * nb + i]; up = d->ubw[(size_t)k * nb + i];
+      } else {
+        lo = d->lc[(size_t)k * nc + (i - n)]; up = d->uc[(size_t)k * nc + (i - n)];
+      }
+      if (lo > up && fabs(lo) < OCPQP_INF && fabs(up) < OCPQP_INF) { info->status = OCPQP_INFEASIBLE; return info->status; }
+      if (fabs(lo) < OCPQP_INF) { s->srow[s->nside] = k * nr + i; s->sg[s->nside] = 1.0; s->b[s->nside++] = lo; }
+      if (fabs(up) < OCPQP_INF) { s->srow[s->nside] = k * nr + i; s->sg[s->nside] = -1.0; s->b[s->nside++] = up; }
+    }
+  }
+  /* initial point: w = 0 with x_0 = x0, pi = 0, s = max(slack, 1), z = 2 z0 / s^(1/4) with z0 = sqrt(max(1,
+   * |g|inf)) (duals of the cost gradient's scale: fewer short first steps than z = 1 when the gradient is
+   * large; smaller on far bounds, so the first pairs s z are closer to each other: on the harvested RTI QPs
+   * of the drive cycles 1.1 fewer iterations on the paper's cycle than z = z0, tuned there among z0 s^-p) */
+  {
+    double gmax = 1.0;
+    for (i = 0; i < nw; ++i) AMAX(gmax, d->g[i]);
+    z0 = sqrt(gmax);
+  }
+  memset(s->w, 0, (size_t)nw * sizeof(double));
+  memcpy(s->w, d->x0, (size_t)nx * sizeof(double));
+  memset(s->pi, 0, (size_t)N * nx * sizeof(double));
+  row_values(s, d, s->w, s->drow);
+  for (i = 0; i < s->nside; ++i) {
+    double sl = s->sg[i] * (s->drow[s->srow[i]] - s->b[i]);
+    s->s[i] = sl > 1.0 ? sl : 1.0;
+    s->z[i] = 2.0 * z0 / sqrt(sqrt(s->s[i]));
+  }
+  for (it = 0;; ++it) {
+    double mu, alpha;
+    st = residuals(s, d, info);
+    if (st) break;
+    if (info->res_stat <= s->set.tol_stat && info->res_eq <= s->set.tol_eq && info->res_ineq <= s->set.tol_ineq
+        && info->res_comp <= s->set.tol_comp) {
+      st = OCPQP_OK;
+      break;
+    }
+    if (it >= s->set.max_iter) { st = OCPQP_MAX_ITER; break; }
+    st = factor(s, d);
+    if (st) break;
+    mu = info->res_comp;
+    /* predictor */
+    for (i = 0; i < s->nside; ++i) s->rc[i] = s->s[i] * s->z[i];
+    solve_rhs(s, d, s->rstat, s->req, s->r, s->rc, s->dw, s->dpi, s->ds, s->dz);
+    if (s->nside > 0) {
+      double mu_aff = 0.0, sigma;
+      alpha = max_step(s, 1.0);
+      for (i = 0; i < s->nside; ++i) mu_aff += (s->s[i] + alpha * s->ds[i]) * (s->z[i] + alpha * s->dz[i]);
+      mu_aff /= s->nside;
+      sigma = mu > 0.0 ? mu_aff / mu : 0.0;
+      sigma = sigma * sigma * sigma;
+      if (sigma > 1.0) sigma = 1.0;
+      /* corrector */
+      for (i = 0; i < s->nside; ++i) s->rc[i] = s->s[i] * s->z[i] + s->ds[i] * s->dz[i] - sigma * mu;
+      solve_rhs(s, d, s->rstat, s->req, s->r, s->rc, s->dw, s->dpi, s->ds, s->dz);
+      /* correctors only in the end game (residuals below mu): earlier they lengthen steps that the
+       * infeasibility, not the centrality, limits, and cost iterations (the paper's drive cycle) */
+      if (info->res_stat <= mu && info->res_eq <= mu && info->res_ineq <= mu) correct_centrality(s, d, sigma * mu);
+      {
+        /* refine only where the Newton step's error would matter: against the current residuals */
+        double rmax = info->res_stat;
+        if (info->res_eq > rmax) rmax = info->res_eq;
+        if (info->res_ineq > rmax) rmax = info->res_ineq;
+        if (mu > rmax) rmax = mu;
+        rmax *= 1e-3;
+        if (rmax < 0.1 * s->set.tol_stat) rmax = 0.1 * s->set.tol_stat;
+        /* the reduced solve's error grows like eps * max(z/s) * |dw|: skip the check while that is far below */
+        {
+          double dwmax = 0.0;
+          for (i = nx; i < nw; ++i) AMAX(dwmax, s->dw[i]);
+          if (1e-13 * s->sigmax * (1.0 + dwmax) > rmax) refine(s, d, 4, rmax);
+        }
+      }
+      alpha = 0.995 * max_step(s, 1.0 / 0.995);
+      if (alpha > 1.0) alpha = 1.0;
+      if (OCPQP_NBH_GAMMA > 0.0) alpha = neighbourhood_step(s, alpha);
+    } else {
+      alpha = 1.0;
+    }
+    for (i = nx; i < nw; ++i) s->w[i] += alpha * s->dw[i];
+    for (i = 0; i < N * nx; ++i) s->pi[i] += alpha * s->dpi[i];
+    for (i = 0; i < s->nside; ++i) {
+      s->s[i] += alpha * s->ds[i];
+      s->z[i] += alpha * s->dz[i];
+    }
+    info->iterations = it + 1;
+  }
+  /* outputs (the last iterate; lam of x_0 closes the stationarity of x_0) */
+  memcpy(w, s->w, (size_t)nw * sizeof(double));
+  if (pi) memcpy(pi, s->pi, (size_t)N * nx * sizeof(double));
+  if (lam_w || lam_c) {
+    for (k = 0; k <= N; ++k) {
+      int n = k < N ? nb : nx, m = k < N ? nc : ncN;
+      const double *lr = s->lamrow + (size_t)k * nr;
+      if (lam_w)
+        for (i = 0; i < n; ++i) lam_w[(size_t)k * nb + i] = (k == 0 && i < nx) ? -s->rstat[i] : lr[i];
+      if (lam_c)
+        for (i = 0; i < m; ++i) lam_c[(size_t)k * nc + i] = lr[n + i];
+    }
+  }
+  info->status = st;
+  return st;
+}
