@@ -61,7 +61,7 @@ PATHS = {
 }
 COMPILED = dict(solver="rti", qp_solver="riccati", codegen=True)
 #: the canonical problem is PROBLEM.md §9 as in scenarios/mpc_paper_single.toml (the default is 'traffic')
-S9 = dict(formulation="s9", rti_hessian="exact", max_step_ms=10000.0)
+S9 = dict(formulation="s9", rti_hessian="exact", max_step_ms=10000.0, predictor="oracle")
 
 
 def bench(N: int, label: str, kw: dict, t_end: float) -> dict:

@@ -31,7 +31,7 @@ def headway_problem(ev: EVParams, settings: MPCSettings) -> object:
 
 
 def main(quick: bool = False) -> dict[str, float]:
-    ev, s = EVParams(), MPCSettings(N=40)
+    ev, s = EVParams(), MPCSettings(N=40, predictor="oracle")  # §9's forecast, as its scenarios
     t_end = 6.0 if quick else 70.0
     runs = {"mpc (§9)": MPCVehicle(s), "mpc + headway": MPCVehicle(s, problem=headway_problem(ev, s))}
     out = {}

@@ -23,7 +23,7 @@ from aev_ocp.params import EVParams, ParameterError
 
 def S9(**kw) -> MPCSettings:
     """PROBLEM.md §9 settings with the path these tests were written for (IPOPT, interpreted) unless given."""
-    return MPCSettings(**{"formulation": "s9", "N": 40, "solver": "ipopt", "codegen": False, **kw})
+    return MPCSettings(**{"formulation": "s9", "N": 40, "solver": "ipopt", "codegen": False, "predictor": "oracle", **kw})
 
 EV = EVParams()
 

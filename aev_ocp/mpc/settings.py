@@ -87,7 +87,10 @@ class MPCSettings:
     rti_hessian: str = spec("projected", kind="choice", choices=RTI_HESSIANS)
     max_step_ms: float = spec(100.0, gt=0)  # our choice: 10x the p99 target; see the class docstring
     max_cpu_time_s: float = spec(10.0, gt=0)
-    predictor: str = spec("oracle", kind="choice", choices=PREDICTOR_NAMES)  # PROBLEM.md §9 canonical: oracle
+    # a forecast a car can make: the leader's measured speed and acceleration, the acceleration fading with
+    # tau = 2 s (our choice: the best measured-only predictor on the drive cycles, benchmarks/bench_mpc_cycles.py);
+    # PROBLEM.md §9's canonical problem uses the oracle, which its scenarios state
+    predictor: str = spec("decaying-acceleration", kind="choice", choices=PREDICTOR_NAMES)
     predictor_window: int = spec(5, kind="integer", ge=2)
     verbose: bool = spec(False, kind="bool")
 
