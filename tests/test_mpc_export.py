@@ -33,7 +33,7 @@ from aev_ocp.models.leader import PaperLeader
 from aev_ocp.mpc.export import EXPORT_FILES, CStep, build_library, export_controller, export_controller_settings
 from aev_ocp.mpc.policy import MPCVehicle
 from aev_ocp.mpc.settings import MPCSettings
-from aev_ocp.params import EVParams
+from aev_ocp.params import EVParams, ParameterError
 from cli_helpers import one_error, run_cli
 
 pytestmark = pytest.mark.skipif(compiler() is None, reason="no C compiler")
@@ -70,7 +70,9 @@ class CPolicy:
             self.step.set_warm(w["x"], w["lam_g"], w["lam_x"])
             self.first, self.status = None, [0]
             return Command(float(sol.a[0]), True)
-        u, st = self.step.step(obs.z, np.concatenate([vm, vh]))
+        # the own state a_prev is the command really applied last step, as the Python policy passes it
+        own = np.array([obs.a_prev]) if self.step.nx > 5 else None
+        u, st = self.step.step(obs.z, np.concatenate([vm, vh]), own)
         self.status.append(st)
         self.retries.append(self.step.solution()[3].projected_retries)
         if st != 0:
@@ -286,6 +288,18 @@ def test_traffic_formulation_exports_and_matches_the_python_driver(tmp_path: Pat
     du, dx = _compare(rc, rp)
     assert du <= TOL and dx <= TOL, (du, dx)
     assert rc.speed[:, 0].max() > 0.5  # the follower really drives off behind the leader
+    # aev_mpc_step_own: the own state a_prev given (e.g. after a fallback) is the one used, not the plan's
+    cs = CStep(lib)
+    xm, fc = np.array([0.9, 0.42, 0.003, 0.001, 0.79]), np.concatenate([np.full(14, 0.47), np.full(14, 0.45)])
+    assert cs.step(xm, fc)[1] == 0  # cold, then warm from here
+    u_own, st_own = cs.step(xm, fc, own=np.array([-0.21]))
+    assert st_own == 0
+    cs2 = CStep(lib)
+    cs2.step(xm, fc)
+    u_plan, _ = cs2.step(xm, fc)
+    assert abs(u_own[0] - u_plan[0]) > 1e-4  # a_prev matters through the jerk term
+    with pytest.raises(ParameterError, match="own must have 1"):
+        cs.step(xm, fc, own=np.zeros(2))
 
 
 def test_c_hessian_projection_equals_numpy(canonical_lib: Path) -> None:

@@ -391,11 +391,16 @@ int aev_mpc_step_full(aev_mpc_workspace *ws, const double *z0, const double *p, 
 }
 
 int aev_mpc_step(aev_mpc_workspace *ws, const double *x_meas, const double *forecast, double *u_out, int *status) {
+  return aev_mpc_step_own(ws, x_meas, NULL, forecast, u_out, status);
+}
+
+int aev_mpc_step_own(aev_mpc_workspace *ws, const double *x_meas, const double *own, const double *forecast,
+                     double *u_out, int *status) {
   int i, k, j;
   double *p = ws->p, *z0 = ws->z0;
   for (i = 0; i < AEV_MPC_NZ; ++i) z0[i] = x_meas[i];
-  for (i = AEV_MPC_NZ; i < AEV_MPC_NX; ++i)  /* own states: the previous plan's node 1, else initial values */
-    z0[i] = ws->warm ? ws->x[NB + i] * AEV_MPC_X_SCALE[i] : AEV_MPC_OWN0[i - AEV_MPC_NZ];
+  for (i = AEV_MPC_NZ; i < AEV_MPC_NX; ++i)  /* own states: given, else the previous plan's node 1, else initial */
+    z0[i] = own ? own[i - AEV_MPC_NZ] : ws->warm ? ws->x[NB + i] * AEV_MPC_X_SCALE[i] : AEV_MPC_OWN0[i - AEV_MPC_NZ];
   for (k = 0; k < AEV_MPC_N; ++k) {
     p[k * AEV_MPC_NW] = forecast[k];
     p[k * AEV_MPC_NW + 1] = forecast[AEV_MPC_N + k];

@@ -60,6 +60,10 @@ void aev_mpc_free(aev_mpc_workspace *ws);
 void aev_mpc_reset(aev_mpc_workspace *ws);
 /* The MPC step from the measured state and the forecast (layouts above); returns *status. */
 int aev_mpc_step(aev_mpc_workspace *ws, const double *x_meas, const double *forecast, double *u_out, int *status);
+/* The same with the controller's own states given: own[NX - NZ] (e.g. a_prev = the command really applied
+ * last step, which after a fallback is not the plan's; own = NULL: as aev_mpc_step). */
+int aev_mpc_step_own(aev_mpc_workspace *ws, const double *x_meas, const double *own, const double *forecast,
+                     double *u_out, int *status);
 /* The same from the full initial state z0[NX] (own states included) and the NLP parameter vector p[NP]
  * (stage parameters per interval, problem parameters, stage weights). */
 int aev_mpc_step_full(aev_mpc_workspace *ws, const double *z0, const double *p, double *u_out, int *status);

@@ -370,6 +370,8 @@ class CStep:
         for name in ("aev_mpc_step", "aev_mpc_step_full"):
             getattr(lib, name).argtypes = [_VP] * 5
             getattr(lib, name).restype = ctypes.c_int
+        lib.aev_mpc_step_own.argtypes = [_VP] * 6
+        lib.aev_mpc_step_own.restype = ctypes.c_int
         dims = np.zeros(8, dtype=np.intc)
         lib.aev_mpc_dims(dims.ctypes.data)
         self.N, self.nx, self.nu, self.nz, self.nv, self.ng, self.np_, self.nf = (int(d) for d in dims)
@@ -393,14 +395,22 @@ class CStep:
         """Forget the warm start (next step is a cold start)."""
         self.lib.aev_mpc_reset(self.ws)
 
-    def step(self, x_meas: np.ndarray, forecast: np.ndarray) -> tuple[np.ndarray, int]:
-        """(u0 (nu,), status) from the measured (h, v, V1, V2, S) and forecast (v̄_l (N), v̂_l (N))."""
+    def step(self, x_meas: np.ndarray, forecast: np.ndarray, own: np.ndarray | None = None) -> tuple[np.ndarray, int]:
+        """(u0 (nu,), status) from the measured (h, v, V1, V2, S) and forecast (v̄_l (N), v̂_l (N)); ``own``:
+        the controller's own states (nx − 5 values, e.g. a_prev), else the previous plan's (aev_mpc_step_own)."""
         xm = np.ascontiguousarray(x_meas, float)
         fc = np.ascontiguousarray(forecast, float)
         if xm.size != self.nz or fc.size != self.nf:
             raise ParameterError(f"CStep.step: x_meas must have {self.nz} and forecast {self.nf} values")
         a = self._a
-        self.lib.aev_mpc_step(self.ws, _addr(xm), _addr(fc), a["u"], a["status"])
+        if own is None:
+            self.lib.aev_mpc_step(self.ws, _addr(xm), _addr(fc), a["u"], a["status"])
+        else:
+            ow = np.ascontiguousarray(own, float)
+            if ow.size != self.nx - self.nz:
+                raise ParameterError(f"CStep.step: own must have {self.nx - self.nz} values (the own states)")
+            self.lib.aev_mpc_step_own(self.ws, _addr(xm), _addr(ow) if ow.size else None, _addr(fc), a["u"],
+                                      a["status"])
         return self._u.copy(), int(self._status[0])
 
     def step_full(self, z0: np.ndarray, p: np.ndarray) -> int:
