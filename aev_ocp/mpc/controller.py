@@ -341,7 +341,9 @@ class MPCController:
         H = ∇²_x(f + λ_gᵀg) (block diagonal: the stage (z_k, u_k) blocks; gap_k is linear in
         z_{k+1}), ∇f, A = ∂g/∂x (banded), g's bound offsets and the step bounds; one mapped stage
         function, compiled to C when codegen is on. The QP (step dx, new multipliers) is solved by
-        ``ca.conic`` (HPIPM detects the OCP structure from the sparsity)."""
+        ``ca.conic`` (HPIPM detects the OCP structure from the sparsity), or, with qp_solver 'riccati', by
+        aev_ocp/c/ocp_qp.c: with codegen the whole step is one compiled library (export.CompiledStep, the C of
+        ``aev-ocp mpc-export``), else its Python twin (:meth:`_riccati_step`, the QP data in stage blocks)."""
         s, pr = self.settings, self.problem
         if s.qp == "qrqp" and s.formulation == "traffic":
             raise ParameterError("MPCSettings.qp_solver = 'qrqp' cannot take the traffic formulation: its energy "
