@@ -131,15 +131,21 @@ def test_s9_comparison_keeps_its_ocpd(tmp_path) -> None:
 
 
 def test_coarse_grid_traffic_ocpd_is_a_reference(monkeypatch, paper_traffic) -> None:
-    """A traffic OCP-D on a coarser grid: its cost_traffic is its replay on the MPC's grid, said so."""
+    """A traffic OCP-D on a coarser grid: its controls are replayed on the MPC's grid (held, not interpolated)
+    and that replay's cost_traffic is reported, said so; the MPC-grid OCP-D stays below it (the bound)."""
     import aev_ocp.mpc.report as report
 
     sc, s, _ = paper_traffic
+    fine = run_comparison(sc.replace(t_end=2.0), s, laws=()).ocpd
     monkeypatch.setattr(report, "oracle_grid_dt", lambda t_end, dt, units: 2 * dt)
     c = run_comparison(sc.replace(t_end=2.0), s, laws=())
     o = c.ocpd
-    assert o["grid_dt"] == pytest.approx(2 * s.dt) and o["N"] == 10
+    assert o["grid_dt"] == pytest.approx(2 * s.dt) and o["N"] == 10 and fine["N"] == 20
+    np.testing.assert_allclose(np.diff(c.results["ocp-d"].t), s.dt, rtol=1e-9)  # replayed on the MPC's grid
+    a = c.results["ocp-d"].accel[:, 0]
+    np.testing.assert_array_equal(a[0:-1:2], a[1::2])  # each command held for two MPC steps
     assert o["cost_traffic"] == o["cost_traffic_replayed"] != o["cost_traffic_grid"]
+    assert fine["cost_traffic"] <= o["cost_traffic"]
     assert any("coarser grid" in w and "cost_traffic" in w for w in c.warnings)
 
 
@@ -155,3 +161,19 @@ def test_cli_writes_the_traffic_ocpd_row(tmp_path, capsys) -> None:
     assert res["ocp_d"]["objective"] == "traffic objective (the MPC's)"
     assert 0 < res["ocp_d"]["cost_traffic"] <= res["metrics"]["mpc"][0]["cost_traffic"]
     assert res["metrics"]["proposed"][0]["cost_traffic"] > 0
+
+
+def test_held_plan_never_commands_a_reverse() -> None:
+    """The coarse OCP-D's replay on the MPC's grid: the plan's a_k, but never below −v_k/dt (no reverse)."""
+    from aev_ocp.control import Observation
+    from aev_ocp.mpc.report import _HeldPlan, _on_grid
+
+    a = _on_grid(np.array([0.4, -2.5, 0.7]), 0.3, 0.1, 0.9)
+    np.testing.assert_array_equal(a, [0.4, 0.4, 0.4, -2.5, -2.5, -2.5, 0.7, 0.7, 0.7])
+    plan = _HeldPlan(tuple(a), 0.1, "ocp-d")
+
+    def obs(t: float, v: float) -> Observation:
+        return Observation(t, 0.1, 0, np.array([0.6, v, 0.0, 0.0, 0.8]), np.zeros(1), np.zeros(1))
+
+    assert plan.command(obs(0.4, 0.13)).a == pytest.approx(-1.3)  # −v/dt: stops in one step
+    assert plan.command(obs(0.4, 0.9)).a == -2.5 and plan.command(obs(0.7, 0.0)).a == 0.7
