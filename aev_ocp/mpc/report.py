@@ -13,12 +13,16 @@ import numpy as np
 
 from .. import interrupts
 from ..ocp.checks import GAP_RTOL as SMOOTHING_GAP_RTOL
-from ..ocp.oracle import DEFAULT_TIME_LIMIT_S, OracleSolver, oracle_grid_dt, scenario_oracle, stage_cost_of_result
-from ..control import ClosedLoop, ControlSequence
+from ..ocp.oracle import (DEFAULT_TIME_LIMIT_S, OBJECTIVE_NAMES, OracleSolver, oracle_grid_dt, scenario_oracle,
+                          stage_cost_of_result)
+from ..ocp.problem import OCPProblem
+from ..ocp.traffic_cost import cost_traffic_of_result
+from ..control import ClosedLoop, Command, ControlSequence, Observation
 from ..metrics import comparability
 from ..progress import Progress
 from ..results import SimulationResult, write_json
 from ..simulate import simulate_platoon
+from .controller import default_problem
 from .scenario import MPCConfig, closed_loop_from_scenario
 from .settings import MPCSettings
 
@@ -29,7 +33,7 @@ COMPARABILITY_ROWS = ["comparable", "distance_m", "distance_diff_pct", "duration
 METRIC_ROWS = COMPARABILITY_ROWS + ["omega_model", "omega_J_per_kg", "heat_pack_J", "heat_irr_pack_J", "delta_soc", "min_gap_model",
                "min_gap_m", "min_speed_model", "rms_ovm_error_model", "rms_rel_speed_model", "rms_jerk_model",
                "max_abs_current_A", "gap_violations", "speed_violations", "collisions", "infeasible_current",
-               "cost_s9", "cost_s9_exact", "smoothing_gap_pct", "forecast_rms", "solve_ms_median", "solve_ms_p95", "solve_ms_max", "iterations_mean", "iterations_max",
+               "cost_traffic", "cost_s9", "cost_s9_exact", "smoothing_gap_pct", "forecast_rms", "solve_ms_median", "solve_ms_p95", "solve_ms_max", "iterations_mean", "iterations_max",
                "fallbacks", "fallback_causes", "solver_path"]
 
 
@@ -104,6 +108,29 @@ def _cost_s9(r: SimulationResult, i: int, s: MPCSettings, exact: bool = False) -
     return stage_cost_of_result(r, i, s.dt, s.weights, None if exact else s.smooth, s.objective)
 
 
+def _cost_traffic(r: SimulationResult, i: int, s: MPCSettings, pr: OCPProblem | None) -> float | None:
+    """The traffic objective of follower i's run on the MPC's dt grid (:func:`aev_ocp.ocp.traffic_cost.
+    cost_traffic_of_result`, the MPC's own problem ``pr``), or None for the §9 formulation (pr None)."""
+    return None if pr is None else cost_traffic_of_result(r, i, s.dt, pr)["total"]
+
+
+def _on_grid(a: np.ndarray, dt_c: float, dt: float, t_end: float) -> np.ndarray:
+    """Commands held for dt_c [model time] as a sequence on the grid of step dt: each dt interval takes the
+    command of the dt_c interval holding its midpoint (a switch moves by at most dt/2). A traffic OCP-D on the
+    coarse grid is replayed so (not interpolated between its nodes, which would smooth its jerk away)."""
+    K = int(round(t_end / dt))
+    return a[np.minimum(((np.arange(K) + 0.5) * dt // dt_c).astype(int), a.size - 1)]
+
+
+class _HeldPlan(ControlSequence):
+    """A command sequence on the MPC's grid that never commands a reverse (a_k ≥ −v_k/dt, the MPC fallback's
+    rule): a coarse OCP-D's commands moved to the MPC's grid (:func:`_on_grid`) may brake up to dt/2 longer
+    than planned at a stop, which made the exact plant's speed negative (UDDS-300 s at t = 153)."""
+
+    def command(self, obs: Observation) -> Command:
+        return Command(max(float(self.a[int(round(obs.t / self.dt))]), min(0.0, -float(obs.z[1]) / self.dt)))
+
+
 def run_comparison(scenario: Any, settings: MPCSettings | None = None, laws: tuple[str, ...] = ("proposed", "ovfl"),
                    with_ocpd: bool = True, log: Callable[[str], None] | None = None,
                    progress: Progress | None = None) -> Comparison:
@@ -133,9 +160,14 @@ def run_comparison(scenario: Any, settings: MPCSettings | None = None, laws: tup
         tim[name] = time.perf_counter() - t0
     metrics = {}
     warn: list[str] = []
+    traffic = s.formulation == "traffic"
+    # the MPC's own problem (built as the controller builds it), for cost_traffic on its grid
+    pr = default_problem(scenario.ev, s).build() if traffic else None
     for lab, r in out.items():
         ms = r.metrics()
         for i, m in enumerate(ms):
+            if traffic:
+                m["cost_traffic"] = _cost_traffic(r, i, s, pr)
             m["cost_s9"], m["cost_s9_exact"] = _cost_s9(r, i, s), _cost_s9(r, i, s, exact=True)
             m["smoothing_gap_pct"] = 100 * (m["cost_s9"] / m["cost_s9_exact"] - 1) if m["cost_s9_exact"] else float("nan")
             st = (r.solver_stats or [None] * len(ms))[i]
@@ -152,9 +184,10 @@ def run_comparison(scenario: Any, settings: MPCSettings | None = None, laws: tup
         warn.append("OCP-D skipped: the time limit has passed")
     elif with_ocpd and scenario.n_followers == 1:
         t0 = time.perf_counter()
-        # a long run (e.g. a whole drive cycle) gets the coarser 1 s grid (oracle_grid_dt, meta 'grid_dt')
+        # a long run (e.g. a whole drive cycle) gets the coarser 1 s grid (oracle_grid_dt, meta 'grid_dt');
+        # a traffic MPC gets the OCP-D of its own problem (the jerk term on the OCP-D grid step)
         scn = scenario_oracle(scenario, oracle_grid_dt(scenario.t_end, s.dt, scenario.units), s.weights, s.bounds,
-                              s.smooth, s.objective)
+                              s.smooth, s.objective, formulation="traffic" if traffic else "s9", traffic=s.traffic)
         say(f"OCP-D lower bound (whole scenario, IPOPT, N = {scn.N}, dt = {scn.dt:.4g})")
         # IPOPT's wall-time limit: what is left of the run's time limit (at most the OCP-D default)
         left = progress.remaining_s() if progress is not None else math.inf
@@ -162,25 +195,32 @@ def run_comparison(scenario: Any, settings: MPCSettings | None = None, laws: tup
         interrupts.check()  # IPOPT turns Ctrl-C into a failed solve
         tim["ocpd"] = time.perf_counter() - t0
         # a failed or time-limited solve bounds nothing: no cost is reported for it
-        ocpd = {"success": res.success, "status": res.status, "cost_s9": res.objective if res.success else float("nan"),
-                "grid_dt": scn.dt, "objective": "PROBLEM.md §9 cost"}
-        if s.formulation != "s9":
-            warn.append(f"OCP-D is the offline optimum of PROBLEM.md §9's cost (its weights, bounds and objective): "
-                        f"a lower bound for the cost_s9 row only, not for the objective of the MPC's "
-                        f"{s.formulation!r} formulation")
+        key = "cost_traffic" if traffic else "cost_s9"
+        ocpd = {"success": res.success, "status": res.status, key: res.objective if res.success else float("nan"),
+                "grid_dt": scn.dt, "objective": "traffic objective (the MPC's)" if traffic else "PROBLEM.md §9 cost"}
+        if traffic:
+            ocpd.update({"objective_definition": OBJECTIVE_NAMES[scn.formulation], "N": scn.N,
+                         "solve_time_s": res.wall_time_s, "iterations": res.iterations})
         if res.success:
             # replay the optimal controls open loop through the same exact plant: every §10 metric
             say("OCP-D: replaying its controls through the exact plant")
-            seq = ControlSequence(tuple(np.asarray(res.controls["a"], float).ravel()), scn.dt, "ocp-d")
+            a_opt = np.asarray(res.controls["a"], float).ravel()
+            coarse = abs(scn.dt - s.dt) > 1e-9 * s.dt
+            seq = (_HeldPlan(tuple(_on_grid(a_opt, scn.dt, s.dt, scenario.t_end)), s.dt, "ocp-d")
+                   if traffic and coarse else ControlSequence(tuple(a_opt), scn.dt, "ocp-d"))
             r = ClosedLoop(scenario.leader, [seq], scenario.ev).run(list(scenario.gaps0), list(scenario.speeds0),
                                                                    scenario.t_end, progress=_progress(say, "ocp-d replay"))
             m = r.metrics()[0]
             m["cost_s9_replayed"] = _cost_s9(r, 0, s)  # the same cost on the exact plant's trajectory
+            if traffic:
+                m["cost_traffic_replayed"] = _cost_traffic(r, 0, s, pr)
             ocpd.update({k: v for k, v in m.items() if k not in ("vehicle", "controller")})
-            ocpd["cost_s9"] = res.objective
-            if abs(scn.dt - s.dt) > 1e-9 * s.dt:  # a coarser grid's optimum bounds nothing on the MPC's grid
-                ocpd["cost_s9_grid"], ocpd["cost_s9"] = res.objective, m["cost_s9_replayed"]
-                warn.append(f"OCP-D was solved on a coarser grid (dt = {scn.dt:.4g}, the MPC's {s.dt:g}): its cost_s9 "
+            ocpd[key] = res.objective
+            if traffic:  # §9's cost of the traffic optimum's replay: a number beside the others, not a bound
+                ocpd["cost_s9"] = m["cost_s9_replayed"]
+            if coarse:  # a coarser grid's optimum bounds nothing on the MPC's grid
+                ocpd[f"{key}_grid"], ocpd[key] = res.objective, m[f"{key}_replayed"]
+                warn.append(f"OCP-D was solved on a coarser grid (dt = {scn.dt:.4g}, the MPC's {s.dt:g}): its {key} "
                             f"is its controls replayed and costed on the MPC's grid, a reference, not a lower bound "
                             f"(its own grid's optimum: {res.objective:.6g})")
             ref = (metrics.get("proposed") or metrics["mpc"])[0]

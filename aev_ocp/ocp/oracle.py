@@ -25,6 +25,8 @@ from .following import (TERM_NAMES, FollowingBounds, FollowingWeights, following
                         weight_vector)
 from .problem import OCPProblem
 from .result import OCPResult
+from .traffic import FORMULATIONS, TrafficParams, traffic_bounds, traffic_problem
+from .traffic_cost import auxiliary_controls, cost_traffic_of_trajectory
 from .transcription import OCPSolver, TranscriptionOptions
 
 #: Default wall-time limit of one OCP-D solve [s]: the whole UDDS on the 1 s grid takes ~5 s
@@ -41,6 +43,9 @@ PROGRESS_EVERY_S = 3.0
 ORACLE_MAX_INTERVALS = 2000
 #: The coarse OCP-D grid [s]: the EPA cycles are sampled at 1 s (aev_ocp/data/cycles).
 COARSE_GRID_S = 1.0
+#: What OCP-D minimises, by formulation (OCPResult.objective_name, results.json ocp_d.objective).
+OBJECTIVE_NAMES = {"s9": "sum_k l(z_k, a_k) dt (PROBLEM.md §9)",
+                   "traffic": "traffic objective (aev_ocp/ocp/traffic.py, the MPC's): sum_k l(x_k, u_k) dt + terminal [J/kg]"}
 
 
 @dataclass(frozen=True)
@@ -62,6 +67,10 @@ class OracleScenario:
     smooth: PowertrainOptions = field(default_factory=PowertrainOptions)  # PROBLEM.md §7: optimisers smooth η
     objective: str = "heat"  # PROBLEM.md §9 default objective
     name: str = "canonical"
+    #: the problem: 's9' (PROBLEM.md §9, weights/bounds/objective above) or 'traffic' (aev_ocp/ocp/traffic.py
+    #: with ``traffic``, the MPC's default formulation; its jerk term uses dt; own state a_prev(0) = 0)
+    formulation: str = "s9"
+    traffic: TrafficParams = field(default_factory=TrafficParams)
 
     def __post_init__(self) -> None:
         for nm in ("t_end", "dt"):
@@ -75,6 +84,9 @@ class OracleScenario:
             raise ParameterError(f"OracleScenario.S0 = {self.S0!r} is not allowed: must be in [0, 1]")
         if not (math.isfinite(self.h0) and self.h0 > 0):
             raise ParameterError(f"OracleScenario.h0 = {self.h0!r} is not allowed: must be > 0")
+        if self.formulation not in FORMULATIONS:
+            raise ParameterError(f"OracleScenario.formulation = {self.formulation!r} is not allowed: must be one of "
+                                 f"{FORMULATIONS}")
 
     @property
     def N(self) -> int:
@@ -85,6 +97,17 @@ class OracleScenario:
     def z0(self) -> list[float]:
         """Initial state (h, v, V1, V2, S)."""
         return [self.h0, self.v0, self.V10, self.V20, self.S0]
+
+    @property
+    def x0(self) -> list[float]:
+        """The problem's initial state: z0, and for 'traffic' a_prev = 0 (the closed loop's first
+        ``Observation.a_prev``: no command before t = 0)."""
+        return self.z0 + ([0.0] if self.formulation == "traffic" else [])
+
+    @property
+    def effective_bounds(self) -> FollowingBounds:
+        """Model-unit bounds of the formulation (traffic: from its SI parameters)."""
+        return traffic_bounds(self.ev, self.traffic) if self.formulation == "traffic" else self.bounds
 
 
 def canonical_scenario() -> OracleScenario:
@@ -113,9 +136,17 @@ def leader_forecast(leader: LeaderProfile, t: np.ndarray) -> tuple[np.ndarray, n
 
 
 def oracle_problem(scn: OracleScenario) -> OCPProblem:
-    """OCP-D: the §9 problem (:func:`aev_ocp.ocp.following.following_problem`) over the whole scenario;
-    the weights are its parameter p (:func:`aev_ocp.ocp.following.weight_vector`)."""
+    """OCP-D over the whole scenario: the §9 problem (:func:`aev_ocp.ocp.following.following_problem`; the
+    weights are its parameter p, :func:`aev_ocp.ocp.following.weight_vector`) or, formulation 'traffic', the
+    traffic problem (:func:`aev_ocp.ocp.traffic.traffic_problem` on the grid step scn.dt, no parameter)."""
+    if scn.formulation == "traffic":
+        return traffic_problem(scn.ev, scn.traffic, scn.dt, scn.smooth, name="ocp_d_traffic").build()
     return following_problem(scn.ev, scn.bounds, scn.smooth, scn.objective, name="ocp_d").build()
+
+
+def oracle_parameters(scn: OracleScenario) -> list[float]:
+    """The global parameter p of :func:`oracle_problem`: §9's weights, none for 'traffic'."""
+    return weight_vector(scn.weights) if scn.formulation == "s9" else []
 
 
 def _step_function(scn: OracleScenario, policy: str, law: CarFollowingLaw | None, substeps: int) -> ca.Function:
@@ -126,9 +157,10 @@ def _step_function(scn: OracleScenario, policy: str, law: CarFollowingLaw | None
         a_raw = law.accel(ca.fmax(z[0], 1e-3), z[1], w[1])
     else:
         a_raw = (w[2] - z[1]) / scn.dt
-    a = ca.fmin(ca.fmax(a_raw, scn.bounds.a_min), scn.bounds.a_max)
+    b = scn.effective_bounds
+    a = ca.fmin(ca.fmax(a_raw, b.a_min), b.a_max)
     x, _ = rk4(lambda y: following_ode(y, a, w[0], scn.ev, scn.smooth), z, scn.dt, substeps)
-    x = ca.vertcat(ca.fmax(x[0], scn.bounds.h_min), ca.fmax(x[1], 0.0), x[2:])  # keep the guess in bounds
+    x = ca.vertcat(ca.fmax(x[0], b.h_min), ca.fmax(x[1], 0.0), x[2:])  # keep the guess in bounds
     return ca.Function("guess_step", [z, w], [x, a])
 
 
@@ -219,6 +251,11 @@ class _OracleOCPSolver(OCPSolver):
         # iterations; UDDS 60 time units at dt = 0.1: 112) where without them it converges to the same
         # optimum (objectives equal to 1e-10) in 45, 52 and 14 iterations; canonical and whole UDDS unchanged
         opts["ipopt"]["max_soc"] = 0
+        if "slack_gap" in self.problem.control_names:
+            # IPOPT relaxes every bound by 1e-8 (bound_relax_factor): the traffic problem's slack then sits at
+            # −1e-8 wherever its constraints are inactive, each interval earning −ρ_safe·1e-8·L·T·dt, so the
+            # NLP objective fell 4.5e-5 below the cost of its own trajectory (UDDS 20 time units): none here
+            opts["ipopt"]["bound_relax_factor"] = 0.0
         if self.time_limit_s is not None:
             opts["ipopt"]["max_wall_time"] = float(self.time_limit_s)
         if self.reporter is None:
@@ -287,7 +324,12 @@ class OracleSolver:
         guess = None
         if not warm:
             X, U = rollout_guess(scn, guess_law or Proposed())
-            if "energy_rate" in self.solver.problem.control_names:  # the epigraph variable at its optimum v g(a)
+            pr = self.solver.problem
+            if scn.formulation == "traffic":  # a_prev = the previous a; energy_rate, slack_gap at their optimum
+                X = np.vstack([X, np.concatenate([[0.0], U[0]])])
+                U = np.asarray(auxiliary_controls(pr).map(scn.N)(X[:, :-1], U, np.vstack([vm, vh]),
+                                                                 np.zeros((0, scn.N))))
+            elif "energy_rate" in pr.control_names:  # the epigraph variable at its optimum v g(a)
                 eta = scn.ev.vehicle.efficiency
                 U = np.vstack([U, X[1, :-1] * np.where(U[0] >= 0, U[0] / eta, eta * U[0])])
             guess = (X, U)
@@ -297,9 +339,8 @@ class OracleSolver:
             if rep.say is not None:
                 lim = f", time limit {self.time_limit_s:g} s" if self.time_limit_s is not None else ""
                 rep.say(f"OCP-D: {scn.name}, N = {scn.N} intervals of dt = {scn.dt:.4g} (model time), IPOPT{lim}")
-        res = self.solver.solve(scn.z0, scn.t_end, p=weight_vector(scn.weights), w=np.vstack([vm, vh]),
-                                guess=guess, warm=warm,
-                                objective_name="sum_k l(z_k, a_k) dt (PROBLEM.md §9)")
+        res = self.solver.solve(scn.x0, scn.t_end, p=oracle_parameters(scn), w=np.vstack([vm, vh]),
+                                guess=guess, warm=warm, objective_name=OBJECTIVE_NAMES[scn.formulation])
         if res.status == "time_limit":
             res.message = (f"OCP-D stopped at the time limit of {self.time_limit_s:g} s after {res.iterations} "
                            "iterations; the last iterate is not optimal")
@@ -308,9 +349,13 @@ class OracleSolver:
             rep.say(f"OCP-D: {res.status} after {res.iterations} iterations, {res.wall_time_s:.1f} s"
                     + ("" if res.success else f" ({res.message})"))
         res.meta.update({"scenario": scn.name, "dt": scn.dt, "leader_speed_mean": vm, "leader_speed_hat": vh,
-                         "time_limit_s": self.time_limit_s,
+                         "time_limit_s": self.time_limit_s, "formulation": scn.formulation,
                          "units": {"length_m": scn.ev.units.length_m, "speed_mps": scn.ev.units.speed_mps}})
-        if res.success:
+        if res.success and scn.formulation == "traffic":  # its own objective, re-evaluated on its trajectory
+            z = np.vstack([res.states[k] for k in ("h", "v", "V1", "V2", "S")])
+            res.meta["cost_terms"] = cost_traffic_of_trajectory(self.solver.problem, t, z, res.controls["a"],
+                                                                np.vstack([vm, vh]))
+        elif res.success:
             res.meta["cost_terms"] = stage_cost_of_trajectory(
                 t, res.states["h"], res.states["v"], res.states["V1"], res.states["V2"], res.states["S"],
                 res.controls["a"], vh, scn.weights, scn.ev, scn.smooth, scn.objective)
@@ -334,15 +379,18 @@ def oracle_grid_dt(t_end: float, dt: float, units: Units, max_intervals: int = O
 
 def scenario_oracle(sc: Any, dt: float, weights: FollowingWeights | None = None,
                     bounds: FollowingBounds | None = None, smooth: PowertrainOptions | None = None,
-                    objective: str = "heat") -> OracleScenario:
+                    objective: str = "heat", formulation: str = "s9",
+                    traffic: TrafficParams | None = None) -> OracleScenario:
     """OCP-D of a loaded scenario (:class:`aev_ocp.scenarios.Scenario`): its leader, t_end,
     vehicle/pack and follower 1's h(0), v(0), S(0), on the grid of step ``dt`` [model time] (adjusted to
-    divide t_end); weights, bounds, smoothing and objective default to PROBLEM.md §9."""
+    divide t_end); weights, bounds, smoothing and objective default to PROBLEM.md §9; formulation
+    'traffic' solves the traffic problem with ``traffic`` (default TrafficParams())."""
     n = max(1, round(sc.t_end / dt))
     return OracleScenario(leader=sc.leader, t_end=sc.t_end, dt=sc.t_end / n, h0=sc.gaps0[0], v0=sc.speeds0[0],
                           S0=sc.ev.cell.soc0, ev=sc.ev, weights=weights or FollowingWeights(),
                           bounds=bounds or FollowingBounds(), smooth=smooth if smooth is not None else PowertrainOptions(),
-                          objective=objective, name=sc.name)
+                          objective=objective, name=sc.name, formulation=formulation,
+                          traffic=traffic or TrafficParams())
 
 
 def stage_cost_of_trajectory(t: np.ndarray, h: np.ndarray, v: np.ndarray, V1: np.ndarray, V2: np.ndarray,
