@@ -272,6 +272,32 @@ codegen = false
     assert rows[(0.4, "proposed")]["task_hash"] == rows[(3.0, "proposed")]["task_hash"]
 
 
+def test_study_ocpd_beside_a_traffic_mpc_is_the_traffic_optimum(tmp_path):
+    """A study's OCP-D beside a traffic-formulation MPC solves the MPC's own problem (as `aev-ocp mpc` does):
+    its optimum equals run_comparison's traffic OCP-D on the same scenario (it used to solve §9's)."""
+    from aev_ocp.mpc.report import run_comparison
+
+    text = """
+scenarios = ["mpc_udds_single"]
+reference = "proposed"
+[overrides]
+"simulation.t_end" = 3.0
+"mpc.N" = 8
+[controllers]
+laws = ["proposed"]
+ocpd = true
+[[controllers.mpc]]
+label = "mpc"
+codegen = false
+"""
+    out = run_study(read_study(_study(tmp_path, text)), tmp_path / "o", executor="inprocess", report=False)
+    row = next(r for r in out.rows if r["controller"] == "ocp-d")
+    sc = load_scenario("mpc_udds_single").with_overrides({"simulation.t_end": 3.0, "mpc.N": 8, "mpc.codegen": False})
+    c = run_comparison(sc, laws=())
+    assert "cost_s9_optimum" not in row
+    assert row["cost_traffic_optimum"] == pytest.approx(c.ocpd["cost_traffic"], rel=1e-8)
+
+
 def test_interrupt_leaves_only_complete_results(tmp_path, monkeypatch):
     f = _study(tmp_path)
     real = runner_mod.run_task

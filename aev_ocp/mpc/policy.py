@@ -122,6 +122,9 @@ register_controller_adapter(MPCVehicle, _adapt)
 def run_single(settings: MPCSettings | None = None, leader: LeaderProfile | None = None, h0: float = 0.3,
                v0: float = 1.87, t_end: float = 70.0, ev: EVParams | None = None,
                fallback_law: CarFollowingLaw | None = None) -> SimulationResult:
-    """One MPC follower (defaults: the canonical MPC scenario of PROBLEM.md §9)."""
+    """One MPC follower behind ``leader`` (default the paper's Table 1 leader) from h0, v0 (model units; PROBLEM.md
+    §9's canonical start) over [0, t_end]; ``settings`` default MPCSettings() (the traffic formulation with a
+    measured forecast: for PROBLEM.md §9's canonical MPC pass formulation='s9', N=40, predictor='oracle', as
+    scenarios/mpc_paper_single.toml states)."""
     return run_closed_loop(leader or PaperLeader(), [settings or MPCSettings()], [h0], [v0], t_end, ev=ev,
                            fallback_law=fallback_law)

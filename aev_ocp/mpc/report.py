@@ -124,11 +124,14 @@ def _on_grid(a: np.ndarray, dt_c: float, dt: float, t_end: float) -> np.ndarray:
 
 class _HeldPlan(ControlSequence):
     """A command sequence on the MPC's grid that never commands a reverse (a_k ≥ −v_k/dt, the MPC fallback's
-    rule): a coarse OCP-D's commands moved to the MPC's grid (:func:`_on_grid`) may brake up to dt/2 longer
+    rule, and a_k ≥ 0 at a stop): a coarse OCP-D's commands moved to the MPC's grid (:func:`_on_grid`) may brake up to dt/2 longer
     than planned at a stop, which made the exact plant's speed negative (UDDS-300 s at t = 153)."""
 
     def command(self, obs: Observation) -> Command:
-        return Command(max(float(self.a[int(round(obs.t / self.dt))]), min(0.0, -float(obs.z[1]) / self.dt)))
+        a, v = float(self.a[int(round(obs.t / self.dt))]), float(obs.z[1])
+        # at a stop (v < 1e-9) no braking at all: −v/dt there would shrink v geometrically towards 0 without
+        # reaching it (2e-137 at t = 1171 of the whole UDDS, where CVODES failed)
+        return Command(max(a, 0.0) if v < 1e-9 else max(a, -v / self.dt))
 
 
 def run_comparison(scenario: Any, settings: MPCSettings | None = None, laws: tuple[str, ...] = ("proposed", "ovfl"),
@@ -165,10 +168,15 @@ def run_comparison(scenario: Any, settings: MPCSettings | None = None, laws: tup
     pr = default_problem(scenario.ev, s).build() if traffic else None
     for lab, r in out.items():
         ms = r.metrics()
+        whole = _covers(r, scenario.t_end)
+        if not whole:
+            warn.append(f"run {lab} stopped early ({_run_status(r)}): its costs (cost_s9, cost_traffic) cover only "
+                        "part of the horizon and are not reported")
         for i, m in enumerate(ms):
             if traffic:
-                m["cost_traffic"] = _cost_traffic(r, i, s, pr)
-            m["cost_s9"], m["cost_s9_exact"] = _cost_s9(r, i, s), _cost_s9(r, i, s, exact=True)
+                m["cost_traffic"] = _cost_traffic(r, i, s, pr) if whole else float("nan")
+            m["cost_s9"], m["cost_s9_exact"] = ((_cost_s9(r, i, s), _cost_s9(r, i, s, exact=True)) if whole
+                                                else (float("nan"), float("nan")))
             m["smoothing_gap_pct"] = 100 * (m["cost_s9"] / m["cost_s9_exact"] - 1) if m["cost_s9_exact"] else float("nan")
             st = (r.solver_stats or [None] * len(ms))[i]
             if st:
@@ -211,9 +219,13 @@ def run_comparison(scenario: Any, settings: MPCSettings | None = None, laws: tup
             r = ClosedLoop(scenario.leader, [seq], scenario.ev).run(list(scenario.gaps0), list(scenario.speeds0),
                                                                    scenario.t_end, progress=_progress(say, "ocp-d replay"))
             m = r.metrics()[0]
-            m["cost_s9_replayed"] = _cost_s9(r, 0, s)  # the same cost on the exact plant's trajectory
+            whole = _covers(r, scenario.t_end)
+            if not whole:
+                warn.append(f"the OCP-D replay stopped early ({_run_status(r)}): its replayed costs are not reported")
+            # the same cost on the exact plant's trajectory
+            m["cost_s9_replayed"] = _cost_s9(r, 0, s) if whole else float("nan")
             if traffic:
-                m["cost_traffic_replayed"] = _cost_traffic(r, 0, s, pr)
+                m["cost_traffic_replayed"] = _cost_traffic(r, 0, s, pr) if whole else float("nan")
             ocpd.update({k: v for k, v in m.items() if k not in ("vehicle", "controller")})
             ocpd[key] = res.objective
             if traffic:  # §9's cost of the traffic optimum's replay: a number beside the others, not a bound
@@ -229,6 +241,11 @@ def run_comparison(scenario: Any, settings: MPCSettings | None = None, laws: tup
     for w in warn:
         say(f"warning: {w}")
     return Comparison(out, metrics, ocpd, tim, warn)
+
+
+def _covers(r: SimulationResult, t_end: float) -> bool:
+    """The run reached t_end [model time] without an event (its costs cover the whole horizon)."""
+    return not r.events and r.t[-1] >= t_end - 1e-9 * max(1.0, abs(t_end))
 
 
 def _flag_comparability(metrics: dict[str, list[dict[str, Any]]]) -> None:

@@ -122,15 +122,17 @@ def _ocpd(sc: Any, s: Any) -> Any:
     from ..control import ClosedLoop, ControlSequence
     from ..ocp.oracle import OracleScenario, OracleSolver
 
+    # the MPC's own problem: PROBLEM.md §9's, or the traffic formulation's (its jerk term on this grid)
     scn = OracleScenario(leader=sc.leader, t_end=sc.t_end, dt=s.dt, h0=sc.gaps0[0], v0=sc.speeds0[0],
                          S0=sc.ev.cell.soc0, ev=sc.ev, weights=s.weights, bounds=s.bounds, smooth=s.smooth,
-                         objective=s.objective, name=sc.name)
+                         objective=s.objective, name=sc.name, formulation=s.formulation, traffic=s.traffic)
     res = OracleSolver(scn).solve()
     if not res.success:
         raise RuntimeError(f"OCP-D did not converge: {res.status}")
     seq = ControlSequence(tuple(np.asarray(res.controls["a"], float).ravel()), s.dt, "ocp-d")
     r = ClosedLoop(sc.leader, [seq], sc.ev).run(list(sc.gaps0), list(sc.speeds0), sc.t_end)
-    r.solver_stats = [{"cost_s9_optimum": float(res.objective)}]
+    key = "cost_traffic_optimum" if s.formulation == "traffic" else "cost_s9_optimum"
+    r.solver_stats = [{key: float(res.objective)}]
     return r
 
 
