@@ -75,18 +75,34 @@ static void grow(cg_work_t f, casadi_int *sz) {
   if (w > sz[3]) sz[3] = w;
 }
 
+/* The workspace's arrays in its one block: points them into b (b NULL: only counts); returns the doubles
+ * needed. The one place that lists them, so the allocation and the carving cannot disagree. */
+static size_t layout(aev_mpc_workspace *ws, double *b) {
+  struct { double **p; size_t n; } part[] = {
+    {&ws->x, AEV_MPC_NV}, {&ws->lam_x, AEV_MPC_NV}, {&ws->x2, AEV_MPC_NV}, {&ws->lam_x2, AEV_MPC_NV},
+    {&ws->lbw, AEV_MPC_NV}, {&ws->ubw, AEV_MPC_NV}, {&ws->g, AEV_MPC_NV}, {&ws->dw, AEV_MPC_NV},
+    {&ws->lam_g, AEV_MPC_NG}, {&ws->lam_g2, AEV_MPC_NG}, {&ws->p, AEV_MPC_NP}, {&ws->z0, AEV_MPC_NX},
+    {&ws->x0, AEV_MPC_NX},  /* the QP's initial state: 0 (x_0 = z0 is already in x) */
+    {&ws->H, NH}, {&ws->E, NE}, {&ws->e, AEV_MPC_N * AEV_MPC_NX}, {&ws->C, NCM + 1},
+    {&ws->lc, AEV_MPC_N * NC}, {&ws->uc, AEV_MPC_N * NC}, {&ws->pi, AEV_MPC_N * AEV_MPC_NX},
+    {&ws->lam_c, AEV_MPC_N * NC + 1}};
+  size_t i, total = 0;
+  for (i = 0; i < sizeof(part) / sizeof(part[0]); ++i) {
+    if (b) *part[i].p = b + total;
+    total += part[i].n;
+  }
+  return total;
+}
+
 aev_mpc_workspace *aev_mpc_create(void) {
   casadi_int sz[4] = {0, 0, 0, 0};
   ocpqp_dims dims;
   ocpqp_settings qs;
-  double *b;
   aev_mpc_workspace *ws = (aev_mpc_workspace *)calloc(1, sizeof(aev_mpc_workspace));
   if (!ws) return NULL;
   grow(aev_cg_guess_work, sz); grow(aev_cg_shift_work, sz); grow(aev_cg_qpdata_work, sz);
   grow(aev_cg_node0_work, sz); grow(aev_cg_eval_work, sz);
-  ws->block = (double *)calloc(8 * (size_t)AEV_MPC_NV + 2 * (size_t)AEV_MPC_NG + AEV_MPC_NP + 2 * AEV_MPC_NX + NH
-                               + NE + AEV_MPC_N * AEV_MPC_NX + NCM + 2 * AEV_MPC_N * NC
-                               + AEV_MPC_N * AEV_MPC_NX + AEV_MPC_N * NC + 2, sizeof(double));
+  ws->block = (double *)calloc(layout(ws, NULL), sizeof(double));
   ws->arg = (const casadi_real **)calloc((size_t)sz[0] + 1, sizeof(casadi_real *));
   ws->res = (casadi_real **)calloc((size_t)sz[1] + 1, sizeof(casadi_real *));
   ws->iw = (casadi_int *)calloc((size_t)sz[2] + 1, sizeof(casadi_int));
@@ -100,28 +116,7 @@ aev_mpc_workspace *aev_mpc_create(void) {
     aev_mpc_free(ws);
     return NULL;
   }
-  b = ws->block;
-  ws->x = b; b += AEV_MPC_NV;
-  ws->lam_x = b; b += AEV_MPC_NV;
-  ws->x2 = b; b += AEV_MPC_NV;
-  ws->lam_x2 = b; b += AEV_MPC_NV;
-  ws->lbw = b; b += AEV_MPC_NV;
-  ws->ubw = b; b += AEV_MPC_NV;
-  ws->g = b; b += AEV_MPC_NV;
-  ws->dw = b; b += AEV_MPC_NV;
-  ws->lam_g = b; b += AEV_MPC_NG;
-  ws->lam_g2 = b; b += AEV_MPC_NG;
-  ws->p = b; b += AEV_MPC_NP;
-  ws->z0 = b; b += AEV_MPC_NX;
-  ws->x0 = b; b += AEV_MPC_NX;          /* the QP's initial state: 0 (x_0 = z0 is already in x) */
-  ws->H = b; b += NH;
-  ws->E = b; b += NE;
-  ws->e = b; b += AEV_MPC_N * AEV_MPC_NX;
-  ws->C = b; b += NCM + 1;
-  ws->lc = b; b += AEV_MPC_N * NC;
-  ws->uc = b; b += AEV_MPC_N * NC;
-  ws->pi = b; b += AEV_MPC_N * AEV_MPC_NX;
-  ws->lam_c = b; b += AEV_MPC_N * NC + 1;
+  layout(ws, ws->block);
   aev_cg_guess_incref(); aev_cg_shift_incref(); aev_cg_qpdata_incref(); aev_cg_node0_incref(); aev_cg_eval_incref();
   ws->mem[0] = aev_cg_guess_checkout();
   ws->mem[1] = aev_cg_shift_checkout();
