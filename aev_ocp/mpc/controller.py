@@ -336,6 +336,32 @@ class MPCController:
             self._build_rti()
         # 'ipopt-cold': the cold IPOPT at every step
 
+    def rti_stage_functions(self) -> tuple[ca.Function, ca.Function]:
+        """The QP of one SQP step, stage by stage (SX, shared by :meth:`_build_rti` and the exported step's
+        ``aev_cg_qpdata``): ``mpc_rti_stage(z_k, u_k, z_{k+1}, w_k, p, stage weight, λ_k) -> (H_k, q_k, J_k, g_k,
+        cost_k)``: the Lagrangian Hessian block ∇²(cost + λ_kᵀc_k) in (z_k, u_k), the cost gradient, the
+        Jacobian of c_k = (interval end state; path constraints) and c_k − (z_{k+1}; 0); and
+        ``mpc_rti_terminal(x_N scaled, p) -> (H_N, q_N, terminal cost)``, the Mayer term's."""
+        s, pr = self.settings, self.problem
+        nx, nu, ngs = pr.nx, pr.nu, self._ng_stage
+        zk, uk = ca.SX.sym("zk", nx), ca.SX.sym("uk", nu)
+        zn, w, pp = ca.SX.sym("zn", nx), ca.SX.sym("w", pr.nw), ca.SX.sym("p", pr.np_)
+        sw, lk = ca.SX.sym("sw"), ca.SX.sym("lk", ngs)
+        u = ca.vertcat(zk, uk)
+        eq, path, J = self.F(zk, uk, ca.SX(0, 1), ca.SX.zeros(nx), w, pp, s.dt)
+        ck = ca.vertcat(eq, path)  # g_k + (z_{k+1}; 0): the interval's end state and the path constraints
+        cost = sw * J
+        Hk = ca.densify(ca.hessian(cost + ca.dot(lk, ck), u)[0])
+        Jk = ca.densify(ca.jacobian(ck, u))
+        gk = ck - ca.vertcat(zn, ca.SX.zeros(ngs - nx))
+        stage = ca.Function("mpc_rti_stage", [zk, uk, zn, w, pp, sw, lk], [Hk, ca.gradient(cost, u), Jk, gk, cost])
+        # terminal cost (Mayer) on the scaled x_N: its Hessian block and gradient
+        xNs, pT = ca.SX.sym("xN", nx), ca.SX.sym("pT", pr.np_)
+        mayer = pr.terminal_cost(xNs * ca.DM(self.x_scale), pT) if pr.terminal_cost is not None else ca.SX(0)
+        term = ca.Function("mpc_rti_terminal", [xNs, pT], [ca.densify(ca.hessian(mayer, xNs)[0]),
+                                                           ca.gradient(mayer, xNs), mayer])
+        return stage, term
+
     def _build_rti(self) -> None:
         """The QP of one SQP step at a primal-dual point (x, λ_g) of the scaled NLP, stage by stage:
         H = ∇²_x(f + λ_gᵀg) (block diagonal: the stage (z_k, u_k) blocks; gap_k is linear in
@@ -365,26 +391,11 @@ class MPCController:
         self.qp_in_use = "riccati" if self._riccati is not None else qp_plugin
         N, nx, nu, ngs = s.N, pr.nx, pr.nu, self._ng_stage
         nb = nx + nu
-        zk, uk = ca.SX.sym("zk", nx), ca.SX.sym("uk", nu)
-        zn, w, pp = ca.SX.sym("zn", nx), ca.SX.sym("w", pr.nw), ca.SX.sym("p", pr.np_)
-        sw, lk = ca.SX.sym("sw"), ca.SX.sym("lk", ngs)
-        u = ca.vertcat(zk, uk)
-        eq, path, J = self.F(zk, uk, ca.SX(0, 1), ca.SX.zeros(nx), w, pp, s.dt)
-        ck = ca.vertcat(eq, path)  # g_k + (z_{k+1}; 0): the interval's end state and the path constraints
-        cost = sw * J
-        Hk = ca.densify(ca.hessian(cost + ca.dot(lk, ck), u)[0])
-        Jk = ca.densify(ca.jacobian(ck, u))
-        gk = ck - ca.vertcat(zn, ca.SX.zeros(ngs - nx))
-        stage = ca.Function("mpc_rti_stage", [zk, uk, zn, w, pp, sw, lk], [Hk, ca.gradient(cost, u), Jk, gk, cost])
+        stage, term = self.rti_stage_functions()
         V, P = ca.MX.sym("x", self.nv), ca.MX.sym("p", self.np_)
         LAM, LBX, UBX = ca.MX.sym("lam_g", self.ng), ca.MX.sym("lbx", self.nv), ca.MX.sym("ubx", self.nv)
         Xk, Uk, Xn, W, PP, SW = self._stage_inputs(V, P)
         Hs, Qs, Js, Gs, Cs = stage.map(N, "serial")(Xk, Uk, Xn, W, ca.repmat(PP, 1, N), SW, ca.reshape(LAM, ngs, N))
-        # terminal cost (Mayer) on the scaled x_N: its Hessian block and gradient
-        xNs, pT = ca.SX.sym("xN", nx), ca.SX.sym("pT", pr.np_)
-        mayer = pr.terminal_cost(xNs * ca.DM(self.x_scale), pT) if pr.terminal_cost is not None else ca.SX(0)
-        term = ca.Function("mpc_rti_terminal", [xNs, pT], [ca.densify(ca.hessian(mayer, xNs)[0]),
-                                                           ca.gradient(mayer, xNs), mayer])
         HN, qN, cN = term(V[nb * N:], PP)
         H = ca.diagcat(*([ca.DM.ones(ca.Sparsity.dense(nb, nb))] * N), ca.DM.ones(ca.Sparsity.dense(nx, nx)))
         E = ca.DM(self.ng, self.nv)  # −I of gap_k in z_{k+1}
