@@ -44,6 +44,7 @@ class Check:
     le: float | None = None
     choices: tuple[Any, ...] | None = None
     cls: type | None = None
+    optional: bool = False  # None is allowed too (an optional limit: "no limit")
 
     def allowed(self) -> str:
         """What is allowed, in words (e.g. 'a finite number > 0', 'a finite number in (0, 1]')."""
@@ -64,6 +65,8 @@ class Check:
 
     def problem(self, value: Any) -> str | None:
         """None if ``value`` is allowed, else 'must be ...' (type errors included)."""
+        if value is None and self.optional:
+            return None
         if self.kind == "choice":
             if not isinstance(value, str) and all(isinstance(c, str) for c in self.choices or ()):
                 return f"expected {self.allowed()}, got {type_name(value)}"
@@ -83,9 +86,10 @@ class Check:
 
 def spec(default: Any = MISSING, *, kind: str = "number", gt: float | None = None, ge: float | None = None,
          lt: float | None = None, le: float | None = None, choices: Sequence[Any] | None = None,
-         cls: type | None = None, default_factory: Any = MISSING) -> Any:
-    """A dataclass field whose type and range are declared once (``metadata["check"]``)."""
-    check = Check(kind, gt, ge, lt, le, tuple(choices) if choices is not None else None, cls)
+         cls: type | None = None, default_factory: Any = MISSING, optional: bool = False) -> Any:
+    """A dataclass field whose type and range are declared once (``metadata["check"]``); ``optional``: None
+    is allowed too."""
+    check = Check(kind, gt, ge, lt, le, tuple(choices) if choices is not None else None, cls, optional)
     if default_factory is not MISSING:
         return field(default_factory=default_factory, metadata={"check": check})
     return field(default=default, metadata={"check": check})
@@ -286,13 +290,53 @@ class PowertrainOptions:
 
 
 @dataclass(frozen=True)
+class VehicleLimits:
+    """The physical limits of one vehicle's longitudinal motion, SI units, declared once and enforced by the
+    plant for every controller (closed-form laws, the MPC, replayed sequences, a user's own).
+
+    The commanded acceleration a_cmd is saturated to [a_min, a_max]; with ``lag_s`` > 0 the realised acceleration
+    follows it through a first-order actuator lag (da/dt = (a_cmd − a)/τ), its rate bounded by ``jerk_max_mps3``
+    when that is set; the speed never exceeds ``v_max_mps`` (the acceleration is cut to ≤ 0 there).
+    ``enabled = False`` switches every limit off: the paper's unbounded laws (its reproduction states this).
+    """
+
+    a_min_mps2: float = spec(-8.0, lt=0)  # tyre-road friction on dry asphalt, mu ~ 0.8: 0.8 g = 7.85 m/s^2 (emergency
+    # braking; Euro NCAP AEB tests reach 8-10 m/s^2 on their dry test tracks)
+    a_max_mps2: float = spec(4.0, gt=0)  # ISO 22179 (full-speed-range ACC): at most 4 m/s^2 at low speed
+    jerk_max_mps3: float | None = spec(None, gt=0, optional=True)  # None: no jerk limit (ISO 22179: 2.5 m/s^3
+    # averaged over 1 s for comfort, a choice left to the scenario)
+    lag_s: float = spec(0.0, ge=0)  # first-order actuator lag tau [s]; 0: ideal actuator (the paper's model)
+    v_max_mps: float = spec(62.5, gt=0)  # 2022 Tesla Model 3 RWD top speed, 225 km/h (manufacturer's data)
+    enabled: bool = spec(True, kind="bool")  # False: no limit at all (the paper's laws; stated by its scenarios)
+
+    def __post_init__(self) -> None:
+        validate_fields(self)
+
+    @property
+    def has_actuator_state(self) -> bool:
+        """True when the realised acceleration is a state of the plant (a lag or a jerk limit is set)."""
+        return self.enabled and (self.lag_s > 0 or self.jerk_max_mps3 is not None)
+
+    def accel_bounds_model(self, units: "Units") -> tuple[float, float]:
+        """(a_min, a_max) in model acceleration units (±inf when the limits are off)."""
+        if not self.enabled:
+            return -math.inf, math.inf
+        return float(units.accel_from_si(self.a_min_mps2)), float(units.accel_from_si(self.a_max_mps2))
+
+
+#: The paper's laws as printed: no physical limit (Table 1, Fig. 1-5 and §9's canonical MPC state this).
+UNLIMITED = VehicleLimits(enabled=False)
+
+
+@dataclass(frozen=True)
 class EVParams:
-    """Everything the battery side of one vehicle needs: units, vehicle, cell, pack."""
+    """Everything one vehicle needs besides its controller: units, vehicle, cell, pack, physical limits."""
 
     units: Units = field(default_factory=Units)
     vehicle: VehicleParams = field(default_factory=VehicleParams)
     cell: CellParams = field(default_factory=CellParams)
     pack: PackParams = field(default_factory=PackParams)
+    limits: VehicleLimits = field(default_factory=VehicleLimits)
 
 
 def as_dict(obj: Any) -> dict[str, Any]:
