@@ -370,9 +370,9 @@ class Scenario:
         return {"gaps0": list(self.gaps0), "speeds0": list(self.speeds0), "t_end": self.t_end,
                 "ev": self.ev, "dt_out": self.dt_out, "rtol": self.rtol, "atol": self.atol}
 
-    def run(self, progress: Callable[[str, float, float], None] | None = None,
+    def run(self, progress: Callable[[str, float, float], None] | None = None, *, only: str | None = None,
             **overrides: Any) -> dict[str, Any]:
-        """Simulate every run of :meth:`runs`; returns {label: SimulationResult}.
+        """Simulate every run of :meth:`runs` (``only``: just the run of that label); returns {label: SimulationResult}.
 
         progress(label, t, t_end) is called as each run advances [model time]; ``overrides`` replace
         keyword arguments of :func:`aev_ocp.simulate.simulate_platoon` (e.g. rtol, dt_out, t_end).
@@ -383,7 +383,12 @@ class Scenario:
         check_run_size(self.n_followers, float(base["t_end"]), float(base["dt_out"]),
                        str(self.source or self.name))
         out: dict[str, Any] = {}
-        for label, laws in self.runs():
+        runs = self.runs()
+        if only is not None and only not in dict(runs):
+            raise ScenarioError(f"{self.file_label}: no run {only!r}; runs: {[lab for lab, _ in runs]}")
+        for label, laws in runs:
+            if only is not None and label != only:
+                continue
             kwargs = dict(base)
             cb = (lambda t, te, _l=label: progress(_l, t, te)) if progress is not None else None
             out[label] = simulate_platoon(self.leader, list(laws), progress=cb, **kwargs)
