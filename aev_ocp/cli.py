@@ -289,6 +289,33 @@ def _dispatch(module: str, func: str, argv: list[str]) -> int:
     return int(rc or 0)
 
 
+#: Sub-commands with their own parser: name -> (module, function returning the parser).
+SUBCOMMAND_PARSERS: dict[str, tuple[str, str]] = {
+    "ocp": ("aev_ocp.ocp.cli", "_parser"), "mpc": ("aev_ocp.mpc.cli", "build_parser"),
+    "mpc-export": ("aev_ocp.mpc.export", "build_parser"), "stability": ("aev_ocp.stability.cli", "build_parser"),
+    "study": ("aev_ocp.study.cli", "build_parser")}
+
+
+def command_parser(name: str) -> argparse.ArgumentParser:
+    """The argument parser of sub-command ``name`` (``simulate``, ``mpc``, ...); KeyError if there is none."""
+    if name in SUBCOMMAND_PARSERS:
+        module, func = SUBCOMMAND_PARSERS[name]
+        parser: argparse.ArgumentParser = getattr(importlib.import_module(module), func)()
+        return parser
+    top = build_parser()
+    sub = next(a for a in top._actions if isinstance(a, argparse._SubParsersAction))
+    return sub.choices[name]  # type: ignore[no-any-return]
+
+
+def parse_command_line(argv: Sequence[str]) -> argparse.Namespace:
+    """Parse (never run) the arguments of an ``aev-ocp`` command line, e.g. ``["mpc", "x.toml", "--t-end", "60"]``;
+    a bad line raises SystemExit(2) after the one-line error, as the command would."""
+    args = list(argv)
+    if args and args[0] in SUBCOMMAND_PARSERS:
+        return command_parser(args[0]).parse_args(args[1:])
+    return build_parser().parse_args(args)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``aev-ocp``; returns the exit code (also raised as SystemExit by the script)."""
     args_list = list(sys.argv[1:] if argv is None else argv)
