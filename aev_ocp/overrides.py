@@ -87,8 +87,8 @@ def parse_assignment(item: str) -> tuple[str, Any]:
     if "=" not in item:
         raise OverrideError(f"override {item!r} is not KEY.PATH=VALUE (e.g. carfollowing.kappa=0.05)")
     key, _, raw = item.partition("=")
+    check_key(key.strip(" \t"))  # a line break in the key is refused, not stripped
     key = key.strip()
-    check_key(key)
     if not raw.strip():
         raise OverrideError(f"override {item!r} has no value after '='")
     try:

@@ -754,6 +754,7 @@ def _platoon(r: TableReader, leader: LeaderProfile, cf: CarFollowingParams,
         gaps = [first] + [others] * (n - 1)
 
     # initial speeds (speed0 / speeds0 or their SI twins speed0_mps / speeds0_mps [m/s])
+    r._twin("speed0"), r._twin("speeds0")  # a key and its SI twin together: an error naming both
     given = [k for k in ("speed0", "speed0_mps", "speed0_factor", "speeds0", "speeds0_mps") if r.has(k)]
     if len(given) != 1:
         raise ScenarioError(f"{r.file}: {r.path}: give exactly one of speed0 (model speed) or speed0_mps [m/s], "
