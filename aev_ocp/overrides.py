@@ -6,7 +6,16 @@ An override is ``key.path = value`` (``carfollowing.kappa=0.05``, ``mpc.w_Q=2``,
 :func:`aev_ocp.scenarios.parse_scenario`: every override meets the same checks, with the same
 messages naming file, key path, value and what is allowed, as the file itself.
 
+Precedence, one rule for every command: **command line over study file over scenario file**. A ``--set``
+replaces the file's value; in a study it is applied over the study's ``[overrides]`` and a scenario's own
+``overrides`` (noted in one line) and refused when an axis sweeps the key or a controller sets it
+(:func:`aev_ocp.study.spec.parse_study`); an option and a ``--set`` of the same key are refused.
+
 Rules beyond plain assignment:
+
+- A model-unit key and its SI twin (``simulation.t_end`` / ``simulation.t_end_s``,
+  :data:`aev_ocp.scenarios.SI_TWINS`) exclude each other: setting one removes the other.
+- A value that is not a finite number (``nan``, ``inf``) or holds a line break is refused.
 
 - Keys that exclude each other are swapped, not added: setting ``platoon.speed0`` removes
   ``speed0_factor``/``speeds0`` (likewise ``gaps0`` against ``gap0_first``/``gap0_others`` and
