@@ -160,7 +160,11 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--out", default=None, help="output folder (default: results/<scenario name>/)")
     s.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
     s.add_argument("--set", dest="sets", action="append", default=[], metavar="KEY=VALUE",
-                   help="override a scenario key, e.g. --set simulation.t_end=20 (repeatable; checked like the file)")
+                   help="override a scenario key, e.g. --set simulation.t_end_s=40 (SI) or --set simulation.t_end=20 "
+                        "(model time); repeatable, checked like the file, the command line over the file")
+    s.add_argument("--time-limit", type=float, default=None, metavar="S",
+                   help="wall-clock limit [s], checked between runs (one law's run is one compiled integration): "
+                        "runs not started by then are skipped, the finished ones written, exit 1 (default: none)")
     sub.add_parser("scenarios", help="list the shipped scenarios")
     sub.add_parser("ocp", help="optimal-control problems (see aev-ocp ocp --help)", add_help=False)
     sub.add_parser("mpc", help="model predictive control (see aev-ocp mpc --help)", add_help=False)
@@ -192,25 +196,41 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     from .results import claim_output_dir, default_output_dir
     from .saved import OUTPUT_FILES, save_output, settings_of
 
+    from .progress import TIME_LIMIT, Progress, check_time_limit
+
+    time_limit = check_time_limit(args.time_limit)
     scenario = _load_scenario_with_warnings(args.scenario, args.sets)
+    for sec in sorted(set(scenario.extra) & set(UNUSED_BY_SIMULATE)):
+        _warn(f"scenario {scenario.name}: simulate does not use the [{sec}] table (it runs the closed-form laws "
+              f"only); {UNUSED_BY_SIMULATE[sec].format(name=args.scenario)}")
     out = Path(args.out) if args.out else default_output_dir(scenario.name)
     labels = [label for label, _ in scenario.runs()]
     claim_output_dir(out, "simulate", scenario.name, str(scenario.source) if scenario.source else None,
                      [f"{lab}.{ext}" for lab in labels for ext in ("csv", "png")] + ["metrics.json", "metrics.md",
                                                                                     *OUTPUT_FILES])
-    from .progress import Progress
-
     bars: dict[str, Progress] = {}
+    T = scenario.units.time_s
+    clock = Progress("", time_limit_s=time_limit)
 
-    def progress(label: str, t: float, t_end: float) -> None:  # one line per run every 2 s, with an ETA
-        bar = bars.setdefault(label, Progress(f"{scenario.name}] [{label}", t_end, unit="model time"))
-        bar.update(t, t_end, "t =")
+    def progress(label: str, t: float, t_end: float) -> None:  # one line per run every 2 s, with an ETA, in s
+        bar = bars.setdefault(label, Progress(f"{scenario.name}] [{label}", t_end * T, unit="s"))
+        bar.update(t * T, t_end * T, "t [s] =")
 
-    results = scenario.run(progress=progress)
+    results: dict[str, Any] = {}
+    skipped: list[str] = []
+    for label, _ in scenario.runs():
+        if clock.expired():
+            skipped.append(label)
+            continue
+        results.update(scenario.run(progress=progress, only=label))
+    if not results:
+        _err(f"scenario {scenario.name}: --time-limit {time_limit:g} s passed before the first run; nothing written")
+        return EXIT_FAILED_RUN
     files = write_scenario_outputs(scenario.name, results, out, plots=not args.no_plots)
-    files += save_output(out, "simulate", results, settings=settings_of(scenario, sets=list(args.sets)))
+    files += save_output(out, "simulate", results, settings=settings_of(scenario, sets=list(args.sets),
+                                                                         time_limit_s=time_limit))
     headers, rows = scenario_metrics_rows(results)
-    keep = [0, 1, 2, 4, 6, 7, 9]
+    keep = [0, 1, 3, 4, 6, 7, 9]  # run, n, ω [J/kg], pack ∫Q [J], ΔSOC, min gap [m], status
     print("  ".join(f"{headers[k]:>12}" for k in keep))
     for row in rows:
         print("  ".join(f"{row[k]:>12}" for k in keep))
@@ -218,7 +238,14 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     failed = [(label, r.events[0]) for label, r in results.items() if r.events]
     for label, event in failed:
         _err(f"scenario {scenario.name}, run {label}: {event} (results up to that time written to {out}/)")
-    return EXIT_FAILED_RUN if failed else EXIT_OK
+    if skipped:
+        _err(f"scenario {scenario.name}: stopped by --time-limit {time_limit:g} s ({TIME_LIMIT}): runs "
+             f"{', '.join(skipped)} not started; the finished runs are written to {out}/")
+    return EXIT_FAILED_RUN if failed or skipped else EXIT_OK
+
+
+#: Scenario tables that ``simulate`` does not use, and where they are used (a one-line warning names them).
+UNUSED_BY_SIMULATE: dict[str, str] = {"mpc": "run 'aev-ocp mpc {name}' for the MPC closed loop"}
 
 
 def cmd_reproduce(args: argparse.Namespace) -> int:
@@ -260,6 +287,33 @@ def _dispatch(module: str, func: str, argv: list[str]) -> int:
         return EXIT_BAD_INPUT
     rc = fn(argv)
     return int(rc or 0)
+
+
+#: Sub-commands with their own parser: name -> (module, function returning the parser).
+SUBCOMMAND_PARSERS: dict[str, tuple[str, str]] = {
+    "ocp": ("aev_ocp.ocp.cli", "_parser"), "mpc": ("aev_ocp.mpc.cli", "build_parser"),
+    "mpc-export": ("aev_ocp.mpc.export", "build_parser"), "stability": ("aev_ocp.stability.cli", "build_parser"),
+    "study": ("aev_ocp.study.cli", "build_parser")}
+
+
+def command_parser(name: str) -> argparse.ArgumentParser:
+    """The argument parser of sub-command ``name`` (``simulate``, ``mpc``, ...); KeyError if there is none."""
+    if name in SUBCOMMAND_PARSERS:
+        module, func = SUBCOMMAND_PARSERS[name]
+        parser: argparse.ArgumentParser = getattr(importlib.import_module(module), func)()
+        return parser
+    top = build_parser()
+    sub = next(a for a in top._actions if isinstance(a, argparse._SubParsersAction))
+    return sub.choices[name]
+
+
+def parse_command_line(argv: Sequence[str]) -> argparse.Namespace:
+    """Parse (never run) the arguments of an ``aev-ocp`` command line, e.g. ``["mpc", "x.toml", "--t-end", "60"]``;
+    a bad line raises SystemExit(2) after the one-line error, as the command would."""
+    args = list(argv)
+    if args and args[0] in SUBCOMMAND_PARSERS:
+        return command_parser(args[0]).parse_args(args[1:])
+    return build_parser().parse_args(args)
 
 
 def main(argv: Sequence[str] | None = None) -> int:

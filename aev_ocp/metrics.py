@@ -104,10 +104,34 @@ def vehicle_metrics(r: SimulationResult, i: int) -> dict[str, Any]:
         "final_ovm_error_model": float(optimal_velocity(h[-1]) - v[-1]),
     }
     out.update(distance_metrics(r, i, duration))
+    out.update(si_twins(out, u))
     stats = r.solver_stats[i] if i < len(r.solver_stats) else None
     if stats:
         out.update(stats)
     return out
+
+
+#: SI twins of the model-unit metrics: model key -> (SI key, dimension). Distance, duration, gap, TTC and ω
+#: have their SI keys beside them already (distance_m, duration_s, min_gap_m, min_ttc_s, omega_J_per_kg).
+SI_METRICS: dict[str, tuple[str, str]] = {
+    "min_speed_model": ("min_speed_mps", "speed"), "max_speed_model": ("max_speed_mps", "speed"),
+    "rms_ovm_error_model": ("rms_ovm_error_mps", "speed"), "rms_rel_speed_model": ("rms_rel_speed_mps", "speed"),
+    "final_ovm_error_model": ("final_ovm_error_mps", "speed"), "rms_jerk_model": ("rms_jerk_mps3", "jerk"),
+}
+
+
+def si_twins(m: dict[str, Any], u: Any) -> dict[str, float]:
+    """The SI values of the model-unit metrics in ``m`` that have no SI key yet (:data:`SI_METRICS`), converted
+    with the units ``u`` (speed U [m/s], jerk U³/L² [m/s³])."""
+    factor = {"speed": u.speed_mps, "jerk": u.accel_mps2 / u.time_s}
+    return {si: float(m[k]) * factor[dim] for k, (si, dim) in SI_METRICS.items() if k in m and si not in m}
+
+
+def si_first(columns: list[str]) -> list[str]:
+    """Metric columns in a stable order with the model-unit ones (``*_model``, ``*_model_*``) after the others,
+    so that tables lead with SI."""
+    is_model = (lambda c: c.endswith("_model") or "_model_" in c)  # noqa: E731
+    return [c for c in columns if not is_model(c)] + [c for c in columns if is_model(c)]
 
 
 def metrics_table(r: SimulationResult) -> list[dict[str, Any]]:

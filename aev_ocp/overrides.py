@@ -6,7 +6,16 @@ An override is ``key.path = value`` (``carfollowing.kappa=0.05``, ``mpc.w_Q=2``,
 :func:`aev_ocp.scenarios.parse_scenario`: every override meets the same checks, with the same
 messages naming file, key path, value and what is allowed, as the file itself.
 
+Precedence, one rule for every command: **command line over study file over scenario file**. A ``--set``
+replaces the file's value; in a study it is applied over the study's ``[overrides]`` and a scenario's own
+``overrides`` (noted in one line) and refused when an axis sweeps the key or a controller sets it
+(:func:`aev_ocp.study.spec.parse_study`); an option and a ``--set`` of the same key are refused.
+
 Rules beyond plain assignment:
+
+- A model-unit key and its SI twin (``simulation.t_end`` / ``simulation.t_end_s``,
+  :data:`aev_ocp.scenarios.SI_TWINS`) exclude each other: setting one removes the other.
+- A value that is not a finite number (``nan``, ``inf``) or holds a line break is refused.
 
 - Keys that exclude each other are swapped, not added: setting ``platoon.speed0`` removes
   ``speed0_factor``/``speeds0`` (likewise ``gaps0`` against ``gap0_first``/``gap0_others`` and
@@ -25,17 +34,28 @@ arguments, then :func:`apply_to_scenario` / ``Scenario.with_overrides``).
 from __future__ import annotations
 
 import copy
+import math
 import tomllib
 from typing import TYPE_CHECKING, Any, Iterable, Mapping
 
 if TYPE_CHECKING:  # pragma: no cover
     from .scenarios import Scenario
 
-#: Keys of one table that exclude each other: setting one removes the others.
+#: Keys of one table that exclude each other: setting one removes the others. A model-unit key and its
+#: SI twin (:data:`aev_ocp.scenarios.SI_TWINS`, e.g. simulation.t_end and simulation.t_end_s) always do.
+_WHOLE_GAPS = ("gaps0", "gaps0_m", "gap0", "gap0_m")
 EXCLUSIVE: dict[str, tuple[tuple[str, ...], ...]] = {
-    "platoon": (("speed0", "speed0_factor", "speeds0"), ("gaps0", "gap0_first"), ("gaps0", "gap0_others"),
+    "platoon": (("speed0", "speed0_mps", "speed0_factor", "speeds0", "speeds0_mps"),
+                _WHOLE_GAPS + ("gap0_first", "gap0_first_m"), _WHOLE_GAPS + ("gap0_others", "gap0_others_m"),
                 ("law", "laws")),
 }
+
+
+def _exclusive_groups(table: str) -> tuple[tuple[str, ...], ...]:
+    from .scenarios import SI_TWINS
+
+    twins = tuple((model, si) for model, (si, _dim) in SI_TWINS.get(table, {}).items())
+    return EXCLUSIVE.get(table, ()) + twins
 
 
 class OverrideError(ValueError):
@@ -45,12 +65,30 @@ class OverrideError(ValueError):
 
 
 def parse_value(text: str) -> Any:
-    """A TOML value (``0.05``, ``2``, ``true``, ``"udds"``, ``[1, 2]``); anything else is a bare string."""
+    """A TOML value (``0.05``, ``2``, ``true``, ``"udds"``, ``[1, 2]``); anything else is a bare string.
+
+    A line break is refused (TOML would read the rest as further keys and drop them), and so is a
+    number that is not finite (``nan``, ``inf``): no scenario key takes one."""
+    if "\n" in text or "\r" in text:
+        raise OverrideError(f"override value {text!r} holds a line break; give one value per --set")
     text = text.strip()
     try:
-        return tomllib.loads(f"v = {text}")["v"]
+        value = tomllib.loads(f"v = {text}")["v"]
     except tomllib.TOMLDecodeError:
         return text
+    if not _all_finite(value):
+        raise OverrideError(f"override value {text!r} is not a finite number")
+    return value
+
+
+def _all_finite(value: Any) -> bool:
+    if isinstance(value, float):
+        return math.isfinite(value)
+    if isinstance(value, list):
+        return all(_all_finite(v) for v in value)
+    if isinstance(value, dict):
+        return all(_all_finite(v) for v in value.values())
+    return True
 
 
 def parse_assignment(item: str) -> tuple[str, Any]:
@@ -58,11 +96,14 @@ def parse_assignment(item: str) -> tuple[str, Any]:
     if "=" not in item:
         raise OverrideError(f"override {item!r} is not KEY.PATH=VALUE (e.g. carfollowing.kappa=0.05)")
     key, _, raw = item.partition("=")
+    check_key(key.strip(" \t"))  # a line break in the key is refused, not stripped
     key = key.strip()
-    check_key(key)
     if not raw.strip():
         raise OverrideError(f"override {item!r} has no value after '='")
-    return key, parse_value(raw)
+    try:
+        return key, parse_value(raw)
+    except OverrideError as exc:
+        raise OverrideError(f"--set {key}: {exc}") from None
 
 
 def parse_assignments(items: Iterable[str] | None) -> dict[str, Any]:
@@ -77,7 +118,7 @@ def parse_assignments(items: Iterable[str] | None) -> dict[str, Any]:
 def check_key(key: str) -> list[str]:
     """Split a dotted key path, rejecting empty parts; returns the parts."""
     parts = key.split(".")
-    if not key or any(not p.strip() for p in parts):
+    if not key or any(not p.strip() for p in parts) or any(c in key for c in "\r\n"):
         raise OverrideError(f"override key {key!r} is not a dotted key path (e.g. carfollowing.kappa)")
     return [p.strip() for p in parts]
 
@@ -107,7 +148,7 @@ def apply_to_document(doc: Mapping[str, Any], overrides: Mapping[str, Any], file
             node = nxt
         leaf = parts[-1]
         table = ".".join(parts[:-1])
-        for group in EXCLUSIVE.get(table, ()):
+        for group in _exclusive_groups(table):
             if leaf in group:
                 for other in group:
                     if other != leaf and f"{table}.{other}" not in overrides:

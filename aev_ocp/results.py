@@ -15,7 +15,7 @@ import re
 import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any, ClassVar, Iterator
 
 import numpy as np
 
@@ -230,26 +230,46 @@ class SimulationResult:
 
         return [vehicle_metrics(self, i) for i in range(self.n_vehicles)]
 
+    #: Trajectory CSV columns: (header, attribute, SI factor name or None). SI first, units in the names;
+    #: the model-unit columns follow with a ``_model`` suffix (the car-following model's own units).
+    CSV_COLUMNS: ClassVar[tuple[tuple[str, str, str | None], ...]] = (
+        ("gap_m", "gap", "length_m"), ("speed_mps", "speed", "speed_mps"), ("accel_mps2", "accel", "accel_mps2"),
+        ("V1_V", "V1", None), ("V2_V", "V2", None), ("soc", "S", None), ("current_A", "current_A", None),
+        ("omega_J_per_kg", "omega", "omega"), ("heat_J", "heat_J", None), ("heat_irr_J", "heat_irr_J", None),
+        ("gap_model", "gap", None), ("speed_model", "speed", None), ("accel_model", "accel", None),
+        ("omega_model", "omega", None))
+
     def to_csv(self, path: str | os.PathLike[str]) -> Path:
         """Long-format CSV (one row per time and vehicle), streamed to a temp file and moved into place
-        atomically. Memory stays O(samples of one vehicle) whatever the platoon size; each vehicle's
-        rows are formatted by one ``%`` operation (about 5x faster than a row-by-row writer)."""
-        cols = ["gap", "speed", "accel", "V1", "V2", "S", "current_A", "omega", "heat_J", "heat_irr_J"]
-        T = self.units.time_s
+        atomically. Columns: t_s, vehicle, controller, leader_speed_mps, then :attr:`CSV_COLUMNS` (SI first,
+        named with their units; battery states V1_V, V2_V [V], soc [-], current_A [A per cell], heat_J [J];
+        omega_J_per_kg [J/kg]), then t_model, leader_speed_model and the other ``_model`` columns. Memory stays
+        O(samples of one vehicle) whatever the platoon size; each vehicle's rows are formatted by one ``%``
+        operation."""
+        u = self.units
+        scale = {"length_m": u.length_m, "speed_mps": u.speed_mps, "accel_mps2": u.accel_mps2,
+                 "omega": u.speed_mps**2}  # ω [U²] -> J/kg (Units.energy_per_mass_to_si)
+        cols = self.CSV_COLUMNS
+        T = u.time_s
         t_txt = [f"{t:.6g}" for t in self.t]
         ts_txt = [f"{t * T:.6g}" for t in self.t]
+        vl_si = [f"{v * u.speed_mps:.10g}" for v in self.leader_speed]
         vl_txt = [f"{v:.10g}" for v in self.leader_speed]
-        row = "%s,%s,%d,%s,%s," + ",".join(["%.10g"] * len(cols)) + "\n"
+        n_si = sum(1 for c in cols if not c[0].endswith("_model"))
+        row = ("%s,%d,%s,%s," + ",".join(["%.10g"] * n_si) + ",%s,%s," + ",".join(["%.10g"] * (len(cols) - n_si))
+               + "\n")
         K = self.t.size
         with atomic_path(path) as tmp:
             with open(tmp, "w", newline="", encoding="utf-8") as fh:
-                fh.write(",".join(["t", "t_s", "vehicle", "controller", "leader_speed"] + cols) + "\n")
+                fh.write(",".join(["t_s", "vehicle", "controller", "leader_speed_mps"] + [c[0] for c in cols[:n_si]]
+                                  + ["t_model", "leader_speed_model"] + [c[0] for c in cols[n_si:]]) + "\n")
                 for i in range(self.n_vehicles):
                     name = self.controllers[i]
                     if any(ch in name for ch in ',"\r\n'):  # needs CSV quoting
                         name = '"' + name.replace('"', '""') + '"'
-                    arrs = [getattr(self, c)[:, i].tolist() for c in cols]
-                    flat = [x for r in zip(t_txt, ts_txt, [i + 1] * K, [name] * K, vl_txt, *arrs) for x in r]
+                    arrs = [(getattr(self, a)[:, i] * (scale[f] if f else 1.0)).tolist() for _, a, f in cols]
+                    flat = [x for r in zip(ts_txt, [i + 1] * K, [name] * K, vl_si, *arrs[:n_si], t_txt, vl_txt,
+                                               *arrs[n_si:]) for x in r]
                     fh.write((row * K) % tuple(flat))
         return Path(path)
 

@@ -22,11 +22,16 @@ Schema (model units unless a key says otherwise; see README.md "Scenario files")
                             speed_unit ("m/s" | "km/h" | "mph" | "ft/s"), position_unit ("m" | "km" |
                             "ft" | "mi"), max_gap_s (10), filter_column + filter_value (one vehicle's rows);
                             resampled as the cycles are (linear, held after the end)
-    [platoon]     followers, law | laws, gap0_first, gap0_others | gaps0,
+    [platoon]     followers, law | laws, gap0_first, gap0_others | gap0 | gaps0,
                   speed0 | speed0_factor | speeds0
     [carfollowing] alpha, beta, kappa, eps; a sub-table per law name holds that law's
                   coefficients, e.g. [carfollowing.idm] a_max = 1.0
     [simulation]  t_end [model time], dt_out, rtol, atol
+
+Every model-unit key has an SI twin (:data:`SI_TWINS`), converted with the file's ``[units]``:
+simulation.t_end_s, dt_out_s [s]; platoon.gap0_m, gap0_first_m, gap0_others_m, gaps0_m [m],
+speed0_mps, speeds0_mps [m/s]; leader.v_mps, v0_mps [m/s], amplitude_mps2 [m/s²], forcing_end_s,
+times_s [s], speeds_mps [m/s]. Give one key of a pair, not both.
     [vehicle] [cell] [pack]  fields of VehicleParams, CellParams, PackParams (SI names)
 
 Other top-level tables are rejected unless a module registered them with
@@ -77,6 +82,35 @@ class ScenarioWarning(UserWarning):
 
 
 _MISSING = object()
+
+#: SI twins of the model-unit keys: {table: {model key: (SI key, dimension)}}. A file, a study or a
+#: ``--set`` may give either key of a pair (not both); the SI value is converted with the scenario's
+#: ``[units]`` (dimension: "time" [s], "length" [m], "speed" [m/s], "accel" [m/s²]).
+SI_TWINS: dict[str, dict[str, tuple[str, str]]] = {
+    "simulation": {"t_end": ("t_end_s", "time"), "dt_out": ("dt_out_s", "time")},
+    "platoon": {"gap0": ("gap0_m", "length"), "gap0_first": ("gap0_first_m", "length"),
+                "gap0_others": ("gap0_others_m", "length"), "gaps0": ("gaps0_m", "length"),
+                "speed0": ("speed0_mps", "speed"), "speeds0": ("speeds0_mps", "speed")},
+    "leader": {"v": ("v_mps", "speed"), "v0": ("v0_mps", "speed"), "amplitude": ("amplitude_mps2", "accel"),
+               "forcing_end": ("forcing_end_s", "time"), "times": ("times_s", "time"),
+               "speeds": ("speeds_mps", "speed")},
+}
+
+
+def si_twin(key: str) -> str | None:
+    """The other key of an SI/model pair (``"simulation.t_end"`` <-> ``"simulation.t_end_s"``), else None."""
+    table, _, leaf = key.rpartition(".")
+    for model, (si, _dim) in SI_TWINS.get(table, {}).items():
+        if leaf == model:
+            return f"{table}.{si}"
+        if leaf == si:
+            return f"{table}.{model}"
+    return None
+
+
+def _from_si(units: Units, dim: str) -> Callable[[float], float]:
+    return {"time": units.time_from_si, "length": units.length_from_si, "speed": units.speed_from_si,
+            "accel": units.accel_from_si}[dim]
 
 
 def _type_name(value: Any) -> str:
@@ -193,6 +227,35 @@ class TableReader:
             raise self.error(key, value, f"needs at least {min_len} value(s)")
         return [self.check_number(f"{key}[{i}]", x, gt=gt, ge=ge) for i, x in enumerate(value)]
 
+    def _twin(self, key: str) -> tuple[str, str]:
+        si, dim = SI_TWINS[self.path][key]
+        if self.has(key) and self.has(si):
+            raise self.error(si, self.table[si], f"give either {self.key_path(key)} [model units] or "
+                                                 f"{self.key_path(si)} [SI], not both")
+        return si, dim
+
+    def has_quantity(self, key: str) -> bool:
+        """Whether the model-unit ``key`` or its SI twin (:data:`SI_TWINS`) is present."""
+        return self.has(key) or self.has(SI_TWINS[self.path][key][0])
+
+    def quantity(self, key: str, units: Units, default: Any = _MISSING, *, gt: float | None = None,
+                 ge: float | None = None) -> float:
+        """The model-unit number ``key`` or its SI twin converted with ``units`` (bounds 0 are the same in
+        both); both given is an error naming both keys."""
+        si, dim = self._twin(key)
+        if self.has(si):
+            return float(_from_si(units, dim)(self.number(si, gt=gt, ge=ge)))
+        return self.number(key, default, gt=gt, ge=ge)
+
+    def quantities(self, key: str, units: Units, default: Any = _MISSING, *, min_len: int = 1,
+                   gt: float | None = None, ge: float | None = None) -> list[float]:
+        """An array of model-unit numbers ``key`` or its SI twin converted with ``units``."""
+        si, dim = self._twin(key)
+        if self.has(si):
+            conv = _from_si(units, dim)
+            return [float(conv(x)) for x in self.numbers(si, min_len=min_len, gt=gt, ge=ge)]
+        return self.numbers(key, default, min_len=min_len, gt=gt, ge=ge)
+
     def strings(self, key: str, default: Any = _MISSING, *, choices: Sequence[str] | None = None) -> list[str]:
         """A non-empty array of strings, each one of ``choices`` if given (lower case)."""
         value = self._get(key, default)
@@ -307,9 +370,9 @@ class Scenario:
         return {"gaps0": list(self.gaps0), "speeds0": list(self.speeds0), "t_end": self.t_end,
                 "ev": self.ev, "dt_out": self.dt_out, "rtol": self.rtol, "atol": self.atol}
 
-    def run(self, progress: Callable[[str, float, float], None] | None = None,
+    def run(self, progress: Callable[[str, float, float], None] | None = None, *, only: str | None = None,
             **overrides: Any) -> dict[str, Any]:
-        """Simulate every run of :meth:`runs`; returns {label: SimulationResult}.
+        """Simulate every run of :meth:`runs` (``only``: just the run of that label); returns {label: SimulationResult}.
 
         progress(label, t, t_end) is called as each run advances [model time]; ``overrides`` replace
         keyword arguments of :func:`aev_ocp.simulate.simulate_platoon` (e.g. rtol, dt_out, t_end).
@@ -320,7 +383,12 @@ class Scenario:
         check_run_size(self.n_followers, float(base["t_end"]), float(base["dt_out"]),
                        str(self.source or self.name))
         out: dict[str, Any] = {}
-        for label, laws in self.runs():
+        runs = self.runs()
+        if only is not None and only not in dict(runs):
+            raise ScenarioError(f"{self.file_label}: no run {only!r}; runs: {[lab for lab, _ in runs]}")
+        for label, laws in runs:
+            if only is not None and label != only:
+                continue
             kwargs = dict(base)
             cb = (lambda t, te, _l=label: progress(_l, t, te)) if progress is not None else None
             out[label] = simulate_platoon(self.leader, list(laws), progress=cb, **kwargs)
@@ -574,17 +642,23 @@ def _leader(r: TableReader, units: Units, source: Path | None = None) -> LeaderP
         return leader
     try:
         if kind == "constant":
-            leader = ConstantSpeed(r.number("v", ge=0))
+            leader = ConstantSpeed(r.quantity("v", units, ge=0))  # or v_mps [m/s]
         elif kind == "paper":
             d = PaperLeader()
-            leader = PaperLeader(v0=r.number("v0", d.v0, ge=0), amplitude=r.number("amplitude", d.amplitude),
-                                 t_end=r.number("forcing_end", d.t_end, gt=0))
+            leader = PaperLeader(v0=r.quantity("v0", units, d.v0, ge=0),
+                                 amplitude=r.quantity("amplitude", units, d.amplitude),
+                                 t_end=r.quantity("forcing_end", units, d.t_end, gt=0))
         elif kind == "cycle":
             leader = drive_cycle(r.string("cycle", choices=CYCLES), units)
         else:
-            times = r.numbers("times", min_len=2)
-            speeds = r.numbers("speeds", min_len=2, ge=0)
+            twins = [SI_TWINS["leader"][k][0] for k in ("times", "speeds") if r.has(SI_TWINS["leader"][k][0])]
+            if twins and r.has("unit"):
+                raise r.error("unit", r.table["unit"], f"applies to leader.times/leader.speeds; {twins[0]} is in SI "
+                                                       "already: remove leader.unit or use the model keys")
             unit = r.string("unit", "model", choices=("model", "si"))
+            # unit = "si": times [s], speeds [m/s] (converted below); times_s / speeds_mps: converted here
+            times = r.quantities("times", units, min_len=2)
+            speeds = r.quantities("speeds", units, min_len=2, ge=0)
             if len(times) != len(speeds):
                 raise r.error("speeds", speeds, f"needs one value per entry of leader.times ({len(times)})")
             if times[0] != 0 or any(b <= a for a, b in zip(times, times[1:])):
@@ -627,7 +701,7 @@ def _per_vehicle(r: TableReader, n: int, list_key: str, values: list[float] | No
 
 def _platoon(r: TableReader, leader: LeaderProfile, cf: CarFollowingParams,
              overrides: dict[str, dict[str, float]], compare: tuple[str, ...] = (),
-             size: Callable[[int], None] | None = None
+             size: Callable[[int], None] | None = None, units: Units | None = None
              ) -> tuple[tuple[CarFollowingLaw, ...], list[float], list[float]]:
     laws_known = sorted(LAW_REGISTRY)
     if r.has("laws") and r.has("law"):
@@ -653,26 +727,43 @@ def _platoon(r: TableReader, leader: LeaderProfile, cf: CarFollowingParams,
         names = [law_name] * n
     laws = tuple(make_law(nm, cf, **overrides.get(nm, {})) for nm in names)
 
-    # initial gaps
-    if r.has("gaps0"):
-        for k in ("gap0_first", "gap0_others"):
-            if r.has(k):
-                raise r.error(k, r.table[k], "give either platoon.gaps0 or gap0_first/gap0_others, not both")
-        gaps = _per_vehicle(r, n, "gaps0", r.numbers("gaps0", gt=0))
+    # initial gaps (each key or its SI twin, e.g. gap0_first or gap0_first_m [m])
+    u = units if units is not None else Units()
+    tw = SI_TWINS["platoon"]
+    for g in ("gap0", "gaps0", "gap0_first", "gap0_others"):
+        r._twin(g)  # a key and its SI twin together: an error naming both
+    whole = [k for k in ("gap0", "gap0_m", "gaps0", "gaps0_m") if r.has(k)]
+    part = [k for k in ("gap0_first", "gap0_first_m", "gap0_others", "gap0_others_m") if r.has(k)]
+    if len(whole) > 1 or (whole and part):
+        other = (whole[1:] + part)[0]
+        raise r.error(other, r.table[other], f"give one of platoon.gap0 (every follower), platoon.gaps0 (one per "
+                                             f"follower) or gap0_first/gap0_others (each also in m as *_m); "
+                                             f"{r.key_path(whole[0])} is given too")
+    if r.has_quantity("gaps0"):
+        gaps = _per_vehicle(r, n, tw["gaps0"][0] if r.has(tw["gaps0"][0]) else "gaps0",
+                            r.quantities("gaps0", u, gt=0))
+    elif r.has_quantity("gap0"):
+        gaps = [r.quantity("gap0", u, gt=0)] * n
     else:
-        first = r.number("gap0_first", gt=0)
-        others = r.number("gap0_others", first, gt=0)
+        if not part:
+            raise ScenarioError(f"{r.file}: {r.path}: the initial gaps are missing: give gap0_first (model length) "
+                                "or gap0_first_m [m] (and optionally gap0_others / gap0_others_m), gap0 / gap0_m "
+                                "(every follower) or gaps0 / gaps0_m (one per follower)")
+        first = r.quantity("gap0_first", u, gt=0)
+        others = r.quantity("gap0_others", u, first, gt=0)
         gaps = [first] + [others] * (n - 1)
 
-    # initial speeds
-    given = [k for k in ("speed0", "speed0_factor", "speeds0") if r.has(k)]
+    # initial speeds (speed0 / speeds0 or their SI twins speed0_mps / speeds0_mps [m/s])
+    r._twin("speed0"), r._twin("speeds0")  # a key and its SI twin together: an error naming both
+    given = [k for k in ("speed0", "speed0_mps", "speed0_factor", "speeds0", "speeds0_mps") if r.has(k)]
     if len(given) != 1:
-        raise ScenarioError(f"{r.file}: {r.path}: give exactly one of speed0 (model speed), speed0_factor "
-                            f"(× the leader's initial speed) or speeds0 (one per follower); got {given or 'none'}")
-    if given[0] == "speeds0":
-        speeds = _per_vehicle(r, n, "speeds0", r.numbers("speeds0", ge=0))
-    elif given[0] == "speed0":
-        speeds = [r.number("speed0", ge=0)] * n
+        raise ScenarioError(f"{r.file}: {r.path}: give exactly one of speed0 (model speed) or speed0_mps [m/s], "
+                            f"speed0_factor (× the leader's initial speed) or speeds0 / speeds0_mps (one per "
+                            f"follower); got {given or 'none'}")
+    if given[0].startswith("speeds0"):
+        speeds = _per_vehicle(r, n, given[0], r.quantities("speeds0", u, ge=0))
+    elif given[0].startswith("speed0") and given[0] != "speed0_factor":
+        speeds = [r.quantity("speed0", u, ge=0)] * n
     else:
         v_l0 = float(leader.speed_np(0.0)[0])
         speeds = [r.number("speed0_factor", ge=0) * v_l0] * n
@@ -731,12 +822,18 @@ def parse_scenario(doc: dict[str, Any], file: str = "<scenario>", *, source: Pat
     ev = EVParams(units=units, vehicle=vehicle, cell=cell, pack=pack)
 
     sim = top.sub("simulation", required=True)
-    t_end = sim.number("t_end", gt=0)
+    t_end = sim.quantity("t_end", units, gt=0)  # or t_end_s [s]
     # dt_out, rtol, atol: types, ranges and defaults are SimOptions's (rtol/atol: what the integrators honour)
-    opts = dataclasses.replace(SimOptions(), **read_declared(SimOptions, sim, ("dt_out", "rtol", "atol")))
+    dt_si = sim.has(SI_TWINS["simulation"]["dt_out"][0])
+    declared = read_declared(SimOptions, sim, ("rtol", "atol") if dt_si else ("dt_out", "rtol", "atol"))
+    if dt_si:
+        declared["dt_out"] = sim.quantity("dt_out", units, gt=0)  # dt_out_s [s]
+    opts = dataclasses.replace(SimOptions(), **declared)
     dt_out, rtol, atol = opts.dt_out, opts.rtol, opts.atol
     if dt_out > t_end:
-        raise sim.error("dt_out", dt_out, f"must be <= simulation.t_end ({t_end:g})")
+        raise sim.error("dt_out_s" if dt_si else "dt_out", sim.table["dt_out_s" if dt_si else "dt_out"],
+                        f"must be <= the horizon (simulation.t_end = {t_end:g} model time = "
+                        f"{units.time_to_si(t_end):g} s)")
     sim.finish()
 
     cf, overrides = _carfollowing(top.sub("carfollowing"))
@@ -746,7 +843,7 @@ def parse_scenario(doc: dict[str, Any], file: str = "<scenario>", *, source: Pat
     def size(n: int) -> None:
         sized["dt_out"] = thinned_dt_out(n, t_end, dt_out, file)
 
-    laws, gaps, speeds = _platoon(top.sub("platoon", required=True), leader, cf, overrides, compare, size)
+    laws, gaps, speeds = _platoon(top.sub("platoon", required=True), leader, cf, overrides, compare, size, units)
     dt_out = sized.get("dt_out", dt_out)
     used = set(compare) | {law.name for law in laws} | {"proposed"}  # proposed: the MPC's fallback law
     for law_name in overrides:

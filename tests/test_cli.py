@@ -58,7 +58,7 @@ def test_simulate_writes_files(tmp_path: Path, capsys: pytest.CaptureFixture[str
     m = data["runs"]["proposed"]["metrics"]
     assert len(m) == 2 and {"omega_model", "heat_pack_J", "delta_soc", "min_gap_m"} <= set(m[0])
     header = (out / "proposed.csv").read_text().splitlines()[0]
-    assert header.startswith("t,t_s,vehicle,controller")
+    assert header.startswith("t_s,vehicle,controller,leader_speed_mps,gap_m,speed_mps")
     assert "proposed" in stdout and not list(out.glob(".*"))  # no temporary files left behind
 
 

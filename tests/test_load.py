@@ -60,7 +60,7 @@ def test_simulate_round_trip(tmp_path, capsys):
     label = list(runs)[1]
     with open(tmp_path / f"{label}.csv", newline="") as fh:
         rows = [r for r in csv.DictReader(fh) if r["vehicle"] == "3"]
-    np.testing.assert_allclose([float(r["speed"]) for r in rows], runs[label].speed[:, 2], rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose([float(r["speed_model"]) for r in rows], runs[label].speed[:, 2], rtol=1e-9, atol=1e-12)
 
 
 def test_mpc_round_trip_and_time_limit(tmp_path, capsys):
@@ -77,7 +77,7 @@ def test_mpc_round_trip_and_time_limit(tmp_path, capsys):
     assert _same(json.loads(json.dumps(aev_ocp.results.to_jsonable(r.metrics()[0]["omega_model"]))),
                  saved["metrics"]["mpc"][0]["omega_model"])
     with open(out / "trajectories_mpc.csv", newline="") as fh:
-        gap = np.array([float(row["gap"]) for row in csv.DictReader(fh)])
+        gap = np.array([float(row["gap_model"]) for row in csv.DictReader(fh)])
     np.testing.assert_allclose(gap, r.gap[:, 0], rtol=1e-9)
     assert r.solver_stats[0]["n_steps"] == 12
     law = aev_ocp.load(out, run="ovfl")

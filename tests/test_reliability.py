@@ -194,7 +194,7 @@ def test_sigterm_during_mpc_exits_130_and_leaves_no_temp_files(tmp_path: Path) -
     out = tmp_path / "o"
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     proc = subprocess.Popen([sys.executable, "-m", "aev_ocp.cli", "mpc", "mpc_paper_single", "--solver", "ipopt",
-                             "--no-codegen", "--t-end", "40", "--out", str(out)], cwd=ROOT, env=env,
+                             "--no-codegen", "--t-end", "80", "--out", str(out)], cwd=ROOT, env=env,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     t0 = time.time()
     while time.time() - t0 < 120:  # wait until the closed loop runs
@@ -413,9 +413,22 @@ def test_csv_round_trip_matches_the_arrays(tmp_path: Path) -> None:
     for i in (0, r.n_vehicles - 1):
         mine = [row for row in rows if int(row["vehicle"]) == i + 1]
         assert {row["controller"] for row in mine} == {"ovfl"}
-        for col in ("gap", "speed", "S", "heat_J"):
-            np.testing.assert_allclose([float(row[col]) for row in mine], getattr(r, col)[:, i], rtol=1e-9, atol=1e-12)
-        np.testing.assert_allclose([float(row["t"]) for row in mine], r.t, rtol=1e-5)
+        for col, attr in (("gap_model", "gap"), ("speed_model", "speed"), ("soc", "S"), ("heat_J", "heat_J")):
+            np.testing.assert_allclose([float(row[col]) for row in mine], getattr(r, attr)[:, i], rtol=1e-9, atol=1e-12)
+        np.testing.assert_allclose([float(row["t_model"]) for row in mine], r.t, rtol=1e-5)
+        # SI columns lead, named with their units, = the model arrays converted with the scenario's units
+        u = r.units
+        for col, attr, conv in (("gap_m", "gap", u.length_to_si), ("speed_mps", "speed", u.speed_to_si),
+                                ("accel_mps2", "accel", u.accel_to_si),
+                                ("omega_J_per_kg", "omega", u.energy_per_mass_to_si)):
+            np.testing.assert_allclose([float(row[col]) for row in mine], conv(getattr(r, attr)[:, i]),
+                                       rtol=1e-9, atol=1e-12)
+        np.testing.assert_allclose([float(row["t_s"]) for row in mine], u.time_to_si(r.t), rtol=1e-5)
+        np.testing.assert_allclose([float(row["leader_speed_mps"]) for row in mine], u.speed_to_si(r.leader_speed),
+                                   rtol=1e-9)
+    header = f.read_text(encoding="utf-8").splitlines()[0].split(",")
+    first_model = min(header.index(c) for c in header if c.endswith("_model"))
+    assert header[0] == "t_s" and all(not c.endswith("_model") for c in header[:first_model])
 
 
 # ----------------------------------------------------------------------------- siblings

@@ -30,8 +30,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", default=None, metavar="DIR",
                    help="output folder (default: results/mpc/<scenario name>/)")
     p.add_argument("--set", dest="sets", action="append", default=[], metavar="KEY=VALUE",
-                   help="override a scenario key, e.g. --set mpc.N=20 --set simulation.t_end=5 (repeatable; "
-                        "checked like the file; default: none)")
+                   help="override a scenario key, e.g. --set mpc.N=20 --set simulation.t_end_s=10 (repeatable; "
+                        "checked like the file; the command line over the file; a key that an option below "
+                        "also sets is refused; default: none)")
     p.add_argument("--solver", choices=SOLVER_PATHS, default=None,
                    help=f"solver path (default: the scenario's mpc.solver, else {_D.solver})")
     p.add_argument("--qp-solver", choices=QP_SOLVERS, default=None,
@@ -43,9 +44,12 @@ def build_parser() -> argparse.ArgumentParser:
                          f"{'on' if _D.codegen else 'off'})")
     cg.add_argument("--no-codegen", dest="codegen", action="store_false",
                     help="interpreted CasADi functions (overrides the scenario's mpc.codegen)")
-    p.add_argument("--t-end", type=_positive_float, default=None, metavar="T",
-                   help="shorter horizon [model time, 1 = L/U s] for a quick run (default: the scenario's "
-                        "simulation.t_end)")
+    te = p.add_mutually_exclusive_group()
+    te.add_argument("--t-end", type=_positive_float, default=None, metavar="S",
+                    help="simulated horizon [s], e.g. --t-end 120 for a quick run (default: the scenario's "
+                         "simulation.t_end_s or t_end)")
+    te.add_argument("--t-end-model", type=_positive_float, default=None, metavar="T",
+                    help="the horizon in model time instead (1 = L/U s with the scenario's [units])")
     p.add_argument("--laws", nargs="*", default=None, metavar="LAW",
                    help="closed-form laws to compare (default: the scenario's compare list, else proposed ovfl)")
     p.add_argument("--no-ocpd", action="store_true", help="skip the OCP-D lower bound (default: solved for a "
@@ -66,6 +70,27 @@ def _positive_float(text: str) -> float:
 
 
 _positive_float.__name__ = "positive number"  # argparse: "invalid positive number value: '-1'"
+
+
+#: Options that set a scenario key: (option dest, option text, the keys it sets). Giving the option and a
+#: --set of the same key is refused: one of them would be dropped.
+OPTION_KEYS: tuple[tuple[str, str, tuple[str, ...]], ...] = (
+    ("t_end", "--t-end", ("simulation.t_end", "simulation.t_end_s")),
+    ("t_end_model", "--t-end-model", ("simulation.t_end", "simulation.t_end_s")),
+    ("solver", "--solver", ("mpc.solver",)), ("qp_solver", "--qp-solver", ("mpc.qp_solver",)),
+    ("codegen", "--codegen/--no-codegen", ("mpc.codegen",)))
+
+
+def _refuse_doubled(a: argparse.Namespace) -> None:
+    from ..overrides import OverrideError, parse_assignments
+
+    sets = parse_assignments(a.sets)
+    for dest, opt, keys in OPTION_KEYS:
+        if getattr(a, dest) is None:
+            continue
+        hit = next((k for k in keys if k in sets), None)
+        if hit is not None:
+            raise OverrideError(f"{opt} and --set {hit} both set the same thing; give one of them")
 
 
 def cli_mpc(argv: list[str]) -> int:
@@ -89,6 +114,7 @@ def _cli_mpc(argv: list[str]) -> int:
     from .settings import MPCSettings
 
     a = build_parser().parse_args(argv)
+    _refuse_doubled(a)
     sc = load_with_sets(str(find_scenario(a.scenario)), a.sets)
     from ..provenance import declare
 
@@ -99,7 +125,9 @@ def _cli_mpc(argv: list[str]) -> int:
         changes["codegen"] = a.codegen
     s = cfg.settings.with_(**changes)
     if a.t_end is not None:
-        sc = sc.replace(t_end=a.t_end)
+        sc = sc.replace(t_end=float(sc.units.time_from_si(a.t_end)))
+    elif a.t_end_model is not None:
+        sc = sc.replace(t_end=a.t_end_model)
     laws = tuple(a.laws) if a.laws is not None else (tuple(sc.compare) or ("proposed", "ovfl"))
     check_mpc_scenario(sc, s, laws)  # bad input is refused before anything runs or is written
     out = Path(a.out) if a.out else default_output_dir("mpc", sc.name)
@@ -126,8 +154,10 @@ def _cli_mpc(argv: list[str]) -> int:
         if lab != "mpc" and res.events:
             warning_line(f"run {lab} stopped: {res.events[0]}")
     if r.status == TIME_LIMIT:
+        u = sc.units
         error_line(f"scenario {sc.name}, run mpc stopped by --time-limit {a.time_limit:g} s at t = "
-                   f"{r.events[0].time:.4g} of {sc.t_end:g}: partial result (status time_limit) written to {out}/")
+                   f"{u.time_to_si(r.events[0].time):.4g} s of {u.time_to_si(sc.t_end):.4g} s (model time "
+                   f"{r.events[0].time:.4g} of {sc.t_end:g}): partial result (status time_limit) written to {out}/")
         return 1
     if r.events:
         error_line(f"scenario {sc.name}, run mpc: {r.events[0]} (results up to that time written to {out}/)")

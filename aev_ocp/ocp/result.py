@@ -102,6 +102,8 @@ class OCPResult:
     def to_csv(self, path: str | os.PathLike[str]) -> Path:
         """One row per node: t, states, controls (held; last row repeats the last control), outputs.
 
+        A model-unit problem whose ``meta["units"]`` gives length_m and speed_mps leads with SI columns
+        (``t_s``, ``h_m``, ``v_mps``, ``a_mps2``); the converted model columns then end in ``_model``.
         Column names are unique: an output that repeats a state or control of the same name (OCP-B's
         current ``I`` is both its control and an output) is left out when its values are the same,
         and written as ``<name>_out`` otherwise."""
@@ -118,12 +120,29 @@ class OCPResult:
                 cols_o.append((f"{nm}_out", nm))
             else:
                 cols_o.append((nm, nm))
-        wr.writerow([f"t_{self.time_unit}"] + names_x + names_u + [c for c, _ in cols_o])
+        # a model-unit problem that states its units (meta["units"]: length_m, speed_mps) leads with SI columns
+        # (t_s, h_m, v_mps, a_mps2, ...) and keeps the model columns, with a _model suffix on those converted
+        units = self.meta.get("units") if self.time_unit == "model" else None
+        si: list[tuple[str, str, str, float]] = []  # (SI header, kind, name, factor)
+        if isinstance(units, dict) and {"length_m", "speed_mps"} <= set(units):
+            L, U = float(units["length_m"]), float(units["speed_mps"])
+            dims = {"h": ("m", L), "v": ("mps", U), "a": ("mps2", U * U / L), "a_prev": ("mps2", U * U / L)}
+            si = [(f"{nm}_{dims[nm][0]}", kind, nm, dims[nm][1]) for kind, names in (("x", names_x), ("u", names_u))
+                  for nm in names if nm in dims]
+        conv = {nm for _, _, nm, _ in si}
+        model = (lambda nm: f"{nm}_model" if nm in conv else nm)  # noqa: E731
+        head = (["t_s"] + [c for c, _, _, _ in si] if si else []) + [f"t_{self.time_unit}"]
+        wr.writerow(head + [model(nm) for nm in names_x + names_u] + [c for c, _ in cols_o])
         n = self.t.size
+        ctrl = (lambda nm, k: self.controls[nm][min(k, self.controls[nm].size - 1)])  # noqa: E731
         for k in range(n):
-            row = [f"{self.t[k]:.10g}"]
+            row = []
+            if si:
+                row = [f"{self.t[k] * L / U:.10g}"] + [f"{(self.states[nm][k] if kind == 'x' else ctrl(nm, k)) * f:.12g}"
+                                                        for _, kind, nm, f in si]
+            row += [f"{self.t[k]:.10g}"]
             row += [f"{self.states[nm][k]:.12g}" for nm in names_x]
-            row += [f"{self.controls[nm][min(k, self.controls[nm].size - 1)]:.12g}" for nm in names_u]
+            row += [f"{ctrl(nm, k):.12g}" for nm in names_u]
             row += [f"{self.outputs[nm][k]:.12g}" for _, nm in cols_o]
             wr.writerow(row)
         return write_atomic(path, buf.getvalue())

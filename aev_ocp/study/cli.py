@@ -32,7 +32,9 @@ def build_parser() -> argparse.ArgumentParser:
                     help="run on a running Dask scheduler, e.g. tcp://10.0.0.5:8786 (needs aev_ocp[dask])")
     ex.add_argument("--in-process", action="store_true", help="run every task in this process (debugging)")
     p.add_argument("--set", dest="sets", action="append", default=[], metavar="KEY=VALUE",
-                   help="override a scenario key at every point, e.g. --set simulation.t_end=20 (repeatable)")
+                   help="override a scenario key at every point, e.g. --set simulation.t_end_s=60 (repeatable). "
+                        "Precedence: command line over study file over scenario file; a key that an axis "
+                        "sweeps or a [[controllers.mpc]] entry sets is refused")
     p.add_argument("--no-report", action="store_true", help="write the table only (no figures, no report.md)")
     p.add_argument("--trajectories", action="store_true",
                    help="also save every task's trajectories (trajectories/<hash>/, loadable with aev_ocp.load or "
@@ -48,7 +50,6 @@ def cli_study(argv: list[str]) -> int:
     from ..overrides import OverrideError, parse_assignments
     from ..scenarios import ScenarioError
     from . import StudyError, TimeLimitStop, read_study, run_study
-    from .spec import parse_study
 
     try:
         a = build_parser().parse_args(argv)
@@ -63,11 +64,7 @@ def cli_study(argv: list[str]) -> int:
             _err(f"--{opt.replace('_', '-')} {n}: needs at least 1 worker")
             return EXIT_BAD_INPUT
     try:
-        sets = parse_assignments(a.sets)
-        if sets:
-            study = _with_sets(a.study, sets, parse_study)
-        else:
-            study = read_study(a.study)
+        study = read_study(a.study, sets=parse_assignments(a.sets))
     except (StudyError, ScenarioError, OverrideError) as exc:
         _err(str(exc))
         return EXIT_BAD_INPUT
@@ -110,19 +107,8 @@ def cli_study(argv: list[str]) -> int:
     return EXIT_FAILED_RUN if out.n_failed else EXIT_OK
 
 
-def _with_sets(path: str, sets: dict, parse_study):  # noqa: ANN001, ANN202
-    """The study with ``--set`` overrides added to its [overrides] table (validated at every point)."""
-    import tomllib
+def _with_sets(path: str, sets: dict, parse_study=None):  # noqa: ANN001, ANN202
+    """The study with ``--set`` overrides applied over the study file's (see :data:`aev_ocp.study.spec.PRECEDENCE`)."""
+    from . import read_study
 
-    from .spec import StudyError
-
-    try:
-        doc = tomllib.loads(Path(path).read_text(encoding="utf-8"))
-    except OSError as exc:
-        raise StudyError(f"{path}: cannot read the study file ({exc.strerror or exc})") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise StudyError(f"{path}: not valid TOML: {exc}") from None
-    ov = dict(doc.get("overrides") or {})
-    ov.update(sets)
-    doc["overrides"] = ov
-    return parse_study(doc, path, Path(path))
+    return read_study(path, sets=sets)

@@ -412,8 +412,10 @@ def _base(name: str, study_path: Path | None) -> Path:
     return find_scenario(name)
 
 
-def read_study(path: str | Path) -> Study:
-    """Read, expand and validate a study file (every point and controller; nothing runs)."""
+def read_study(path: str | Path, sets: dict[str, Any] | None = None) -> Study:
+    """Read, expand and validate a study file (every point and controller; nothing runs).
+
+    sets: command-line overrides ``{dotted key: value}`` (``--set``), the last layer (see :func:`parse_study`)."""
     file = str(path)
     try:
         text = Path(path).read_text(encoding="utf-8")
@@ -423,20 +425,65 @@ def read_study(path: str | Path) -> Study:
         doc = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise StudyError(f"{file}: not valid TOML: {exc}") from None
-    return parse_study(doc, file, Path(path))
+    return parse_study(doc, file, Path(path), sets=sets)
 
 
-def parse_study(doc: dict[str, Any], file: str = "<study>", path: Path | None = None) -> Study:
-    """Validate a parsed study document (see the module docstring)."""
+PRECEDENCE = ("command line (--set) over study file (per-scenario overrides over [overrides]) over scenario file; "
+              "a --set on a key that the study sweeps (an axis) or sets per controller is refused")
+
+
+def parse_study(doc: dict[str, Any], file: str = "<study>", path: Path | None = None,
+                sets: dict[str, Any] | None = None) -> Study:
+    """Validate a parsed study document (see the module docstring).
+
+    Layers, later over earlier (:data:`PRECEDENCE`): the base scenario file, the study's ``[overrides]``, a
+    base's own ``overrides``, then ``sets`` (the command line's ``--set``), then the point's axis values. A
+    ``set`` that an axis or a ``[[controllers.mpc]]`` entry would replace is refused (StudyError); one that
+    replaces a study-file override is applied and noted in ``Study.warnings``."""
     try:
-        return _parse_study(doc, file, path)
+        return _parse_study(doc, file, path, dict(sets or {}))
     except ScenarioError as exc:  # raised by a TableReader over the study file itself
         if isinstance(exc, StudyError):
             raise
         raise StudyError(str(exc)) from None
 
 
-def _parse_study(doc: dict[str, Any], file: str, path: Path | None) -> Study:
+def _family(key: str) -> set[str]:
+    """``key`` and every key that setting it would replace (its SI twin, keys of its exclusive group)."""
+    from ..overrides import _exclusive_groups
+
+    table, _, leaf = key.rpartition(".")
+    out = {key}
+    for group in _exclusive_groups(table):
+        if leaf in group:
+            out.update(f"{table}.{k}" if table else k for k in group)
+    return out
+
+
+def _check_sets(file: str, sets: dict[str, Any], axes: list[Axis], controllers: list[Controller],
+                layers: list[tuple[str, dict[str, Any]]]) -> list[str]:
+    """Refuse a --set that an axis or a controller would replace; note the study-file overrides it replaces."""
+    notes: list[str] = []
+    for key, value in sets.items():
+        fam = _family(key)
+        for i, a in enumerate(axes):
+            hit = next((k for k in a.keys if k in fam), None)
+            if hit is not None:
+                raise StudyError(f"{file}: --set {key} = {value!r} would be ignored: axes[{i}] sweeps {hit} at every "
+                                 f"point; change the axis values in the study file instead")
+        for c in controllers:
+            hit = next((f"mpc.{k}" for k, _ in c.settings if f"mpc.{k}" in fam), None)
+            if hit is not None:
+                raise StudyError(f"{file}: --set {key} = {value!r} would be ignored: controller {c.label!r} sets "
+                                 f"{hit}; change [[controllers.mpc]] in the study file instead")
+        for where, ov in layers:
+            for k in sorted(fam & set(ov)):
+                notes.append(f"{file}: --set {key} = {value!r} replaces {where} {k} = {ov[k]!r} (the command line "
+                             f"is applied over the study file)")
+    return notes
+
+
+def _parse_study(doc: dict[str, Any], file: str, path: Path | None, sets: dict[str, Any]) -> Study:
     top = TableReader(doc, "", file)
     name = top.string("name", path.stem if path is not None else "study")
     description = top.string("description", "")
@@ -475,14 +522,15 @@ def _parse_study(doc: dict[str, Any], file: str, path: Path | None) -> Study:
         docs[b] = (d, sc.file_label)
 
     points: list[Point] = []
-    found_warnings: list[str] = []
+    layers = [("[overrides]", overrides)] + [(f"scenario {b!r} overrides", base_overrides[b][1]) for b in bases]
+    found_warnings: list[str] = _check_sets(file, sets, axes, controllers, layers)
     combos = list(itertools.product(*[a.rows for a in axes])) if axes else [()]
     for b in bases:
         base_doc, base_file = docs[b]
         for combo in combos:
             values = {k: v for a, row in zip(axes, combo) for k, v in zip(a.keys, row)}
             pdoc = _point_document(file, base_doc, base_file, {**overrides, **base_overrides[b][1]}, values, axes, b,
-                                   len(points), found_warnings)
+                                   len(points), found_warnings, sets)
             points.append(Point(len(points), b, values, pdoc, base_file))
     study = Study(name, description, file, axes, controllers, reference, points, bases, report, found_warnings)
     _validate_controllers(study)
@@ -504,11 +552,15 @@ def _culprit(message: str, values: dict[str, Any], axes: list[Axis]) -> str:
 
 def _point_document(file: str, base_doc: dict[str, Any], base_file: str, overrides: dict[str, Any],
                     values: dict[str, Any], axes: list[Axis], base: str, index: int,
-                    sink: list[str]) -> dict[str, Any]:
-    """The point's document, validated by the scenario loader; errors name study file, axis, key."""
-    merged = {**overrides, **values}
+                    sink: list[str], sets: dict[str, Any] | None = None) -> dict[str, Any]:
+    """The point's document, validated by the scenario loader; errors name study file, axis, key.
+    Layers: study overrides, then ``sets`` (--set), then the axis values (see :func:`parse_study`)."""
+    sets = sets or {}
     try:
-        pdoc = apply_to_document(base_doc, merged, base_file)
+        pdoc = base_doc
+        for layer in (overrides, sets, values):
+            if layer:
+                pdoc = apply_to_document(pdoc, layer, base_file)
         _, found = parse_scenario_warnings(pdoc, base_file)
         for w in found:
             if w not in sink:
@@ -517,6 +569,8 @@ def _point_document(file: str, base_doc: dict[str, Any], base_file: str, overrid
         msg = str(exc)
         if any(k in msg for k in values):
             where = _culprit(msg, values, axes)
+        elif any(k in msg for k in sets):
+            where = "--set " + max((k for k in sets if k in msg), key=len)
         elif any(k in msg for k in overrides):
             where = "overrides, key " + max((k for k in overrides if k in msg), key=len)
         else:

@@ -18,7 +18,7 @@ from pathlib import Path
 from typing import Any
 
 from ..provenance import versions
-from ..metrics import comparability
+from ..metrics import comparability, si_first
 from ..results import write_atomic
 from .spec import Study
 
@@ -84,14 +84,14 @@ def build_rows(study: Study, results: dict[str, dict[str, Any]]) -> list[dict[st
 
 
 def columns(rows: list[dict[str, Any]], axis_keys: list[str]) -> list[str]:
-    """Column order: leading, axes, controller/flags, metrics (first-seen order), tail."""
+    """Column order: leading, axes, controller/flags, metrics (first-seen order, SI before ``_model``), tail."""
     fixed = set(_LEAD) | set(axis_keys) | set(_AFTER) | set(_TAIL)
     metrics: dict[str, None] = {}
     for r in rows:
         for k in r:
             if k not in fixed:
                 metrics.setdefault(k, None)
-    return list(_LEAD) + [k for k in axis_keys if k != "scenario"] + list(_AFTER) + list(metrics) + list(_TAIL)
+    return list(_LEAD) + [k for k in axis_keys if k != "scenario"] + list(_AFTER) + si_first(list(metrics)) + list(_TAIL)
 
 
 def write_table(rows: list[dict[str, Any]], out: str | Path, axis_keys: list[str]) -> tuple[Path, Path]:
