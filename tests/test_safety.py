@@ -122,15 +122,19 @@ def test_braking_leader_speed_position_accel() -> None:
 
 
 # ----------------------------------------------------------------------------- the safe controller
-def _end_of_step(h: float, v: float, vl: float, a: float, dt: float, b_l: float) -> tuple[float, float, float, float]:
-    """(min gap over the step, gap, v, v_l) after dt with the ego at a (stopping at 0) and the lead braking at b_l."""
+def _step(h: float, v: float, vl: float, a: float, dt: float, b_l: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(gap, v, v_l) on a fine grid of one step of dt with the ego at a (stopping at 0) and the lead braking at b_l."""
     ts = np.linspace(0.0, dt, 2001)
     te = ts if a >= 0 or v <= 0 else np.minimum(ts, v / -a)
     tl = np.minimum(ts, vl / b_l)
-    x_e = v * te + 0.5 * a * te**2
-    x_l = vl * tl - 0.5 * b_l * tl**2
-    g = h + x_l - x_e
-    return float(g.min()), float(g[-1]), float(v + a * te[-1]), float(vl - b_l * tl[-1])
+    g = h + (vl * tl - 0.5 * b_l * tl**2) - (v * te + 0.5 * a * te**2)
+    return g, v + a * te, vl - b_l * tl
+
+
+def _end_of_step(h: float, v: float, vl: float, a: float, dt: float, b_l: float) -> tuple[float, float, float, float]:
+    """(min gap over the step, gap, v, v_l) after the step (see _step)."""
+    g, ve, vle = _step(h, v, vl, a, dt, b_l)
+    return float(g.min()), float(g[-1]), float(ve[-1]), float(vle[-1])
 
 
 PARAMS = SafetyParams(standstill_gap_m=2.3, reaction_time_s=0.0, ego_brake_mps2=7.7, lead_brake_mps2=8.4,
@@ -152,6 +156,9 @@ def test_safe_never_accelerates_into_a_gap_it_cannot_stop_in(v: float, vl: float
         return
     g_min, g1, v1, vl1 = _end_of_step(h, v, vl, a, dt, b_l)
     assert g_min >= p.standstill_gap_m - 1e-6  # never below the floor during the step
+    g, ve, vle = _step(h, v, vl, a, dt, b_l)  # the condition itself holds at every instant of the step
+    cond = g - p.standstill_gap_m - (ve * t_r + ve**2 / (2 * p.ego_brake_mps2) - vle**2 / (2 * b_l))
+    assert cond.min() >= -1e-6
     # from the state after the step, braking at b_ego behind a lead braking at b_l keeps the floor (the bound)
     if v1 > 0 or vl1 > 0:
         rest = braking_bound(max(v1, 0.0), g1, max(vl1, 0.0), -b_l, a_min_mps2=-p.ego_brake_mps2)
@@ -160,6 +167,28 @@ def test_safe_never_accelerates_into_a_gap_it_cannot_stop_in(v: float, vl: float
         g_min2, g2, v2, vl2 = _end_of_step(h, v, vl, a + 0.02, dt, b_l)
         c2 = g2 - p.standstill_gap_m - (v2 * t_r + v2 * v2 / (2 * p.ego_brake_mps2) - vl2 * vl2 / (2 * b_l))
         assert c2 < 1e-6 or g_min2 < p.standstill_gap_m
+
+
+@settings(max_examples=200, deadline=None)
+@given(v=st.floats(0.0, 12.0), a=st.floats(-7.7, 3.6), dt=st.floats(0.05, 0.6), t_r=st.floats(0.0, 1.2))
+def test_stopping_point_peak_over_the_step(v: float, a: float, dt: float, t_r: float) -> None:
+    # the largest ego stopping point x + v t_r + v²/(2b) over a step with a held, against a fine grid
+    from aev_ocp.safety.fallback import _stopping_point_peak
+
+    b = 7.7
+    ts = np.linspace(0.0, dt, 20001)
+    te = ts if a >= 0 or v <= 0 else np.minimum(ts, v / -a)
+    ve = v + a * te
+    grid = np.max(v * te + 0.5 * a * te**2 + ve * t_r + ve**2 / (2 * b))
+    assert _stopping_point_peak(v, a, dt, t_r, b) == pytest.approx(grid, abs=1e-7)
+    # an interior peak: v = v* + 0.1 s × |a| with v* = −a t_r / (1 + a/b) (the braking ego's stopping point rises first)
+    a2, t_r2 = -3.1, 0.7
+    v2 = -a2 * t_r2 / (1 + a2 / b) + 0.1 * 3.1
+    ts = np.linspace(0.0, 0.3, 20001)
+    ve2 = v2 + a2 * ts
+    peak = np.max(v2 * ts + 0.5 * a2 * ts**2 + ve2 * t_r2 + ve2**2 / (2 * b))
+    assert peak > max(v2 * t_r2 + v2**2 / (2 * b), float((v2 * ts + 0.5 * a2 * ts**2 + ve2 * t_r2 + ve2**2 / (2 * b))[-1])) + 1e-4
+    assert _stopping_point_peak(v2, a2, 0.3, t_r2, b) == pytest.approx(peak, abs=1e-9)
 
 
 def test_safe_equals_the_law_when_far_and_brakes_when_close() -> None:
