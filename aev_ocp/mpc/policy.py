@@ -52,10 +52,10 @@ class MPCPolicy:
                  parameter_values: dict[str, float] | None = None) -> None:
         self.settings, self.fallback_law, self.predictor = settings, fallback_law, predictor
         self.controller = MPCController(settings, ev, fallback_law, problem, parameter_values)
-        # the fallback: min(the law on the measurements clipped to the a bounds, the safe controller); for the traffic
-        # formulation also a safety filter on every command (aev_ocp.safety.fallback)
+        # the fallback: min(the law on the measurements clipped to the a bounds, the safe controller); for the shipped
+        # traffic formulation (not a user's own problem) also a safety filter on every command (aev_ocp.safety.fallback)
         self._fallback = SafeFallback.for_mpc(fallback_law, settings, ev)
-        self._filter = settings.formulation == "traffic"
+        self._filter = settings.formulation == "traffic" and problem is None
         self.dt = settings.dt
         self.name = f"mpc(w_Q={settings.weights.w_Q:g})" if settings.formulation == "s9" else "mpc(traffic)"
 

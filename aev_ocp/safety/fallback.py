@@ -41,7 +41,7 @@ _DEFAULT_LIMITS = VehicleLimits()
 class SafetyParams:
     """The safe controller's parameters, SI. Sources beside each default."""
 
-    standstill_gap_m: float = spec(2.0, gt=0.0)  # s_min: the traffic MPC's standstill floor (TrafficParams)
+    standstill_gap_m: float = spec(2.0, ge=0.0)  # s_min: the traffic MPC's standstill floor (TrafficParams)
     reaction_time_s: float = spec(0.3, ge=0.0)  # t_r: the traffic MPC's braking-constraint reaction time (TrafficParams)
     ego_brake_mps2: float = spec(-_DEFAULT_LIMITS.a_min_mps2, gt=0.0)  # b_ego: VehicleLimits.a_min (dry-road friction)
     lead_brake_mps2: float = spec(-_DEFAULT_LIMITS.a_min_mps2, gt=0.0)  # b_lead: the same friction limit for the lead
@@ -147,13 +147,13 @@ class SafeFallback:
     @classmethod
     def for_mpc(cls, law: CarFollowingLaw, settings: Any, ev: EVParams) -> "SafeFallback":
         """The MPC's fallback and safety filter: the MPC's own a bounds (within the vehicle's limits) and floor
-        (its h_min), the traffic formulation's reaction time; ``settings`` an MPCSettings."""
+        (its h_min; 0 when a problem sets none), the traffic formulation's reaction time; ``settings`` an MPCSettings."""
         u, b = ev.units, settings.effective_bounds(ev)
         lim = ev.limits if ev.limits.enabled else _DEFAULT_LIMITS
         a_min = max(float(u.accel_to_si(b.a_min)), lim.a_min_mps2)
         a_max = min(float(u.accel_to_si(b.a_max)), lim.a_max_mps2)
         return cls(law, u, settings.dt, SafetyParams.from_limits(
-            ev.limits, standstill_gap_m=float(u.length_to_si(b.h_min)), a_min_mps2=a_min, a_max_mps2=a_max,
+            ev.limits, standstill_gap_m=max(float(u.length_to_si(b.h_min)), 0.0), a_min_mps2=a_min, a_max_mps2=a_max,
             ego_brake_mps2=-a_min, reaction_time_s=settings.traffic.reaction_time_s))
 
     def reset(self) -> None:
