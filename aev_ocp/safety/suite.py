@@ -8,7 +8,7 @@ simulator (:func:`simulate_platoon`) on the exact plant; nothing here integrates
 Per case and controller (SI): collision time [s] and impact speed [m/s] (the contact located on the last step,
 from the last sample before it, with the step's acceleration held and the lead's exact motion), min gap [m]
 (≤ 0 at contact), min TTC [s], peak deceleration [m/s²], peak jerk [m/s³] (sampled: Δa/Δt between samples),
-floor violations (samples with 0 < gap < the 2 m floor, and the time spent there [s]).
+floor violations (samples with gap < the 2 m floor, the contact counted as one, and the time spent there [s]).
 """
 
 from __future__ import annotations
@@ -151,11 +151,14 @@ def _row(case: SafetyCase, ctrl: str, r: SimulationResult, leader: BrakingLeader
     jerk = np.abs(np.diff(a)) / np.where(dts > 0, dts, np.inf) if a.size > 1 else np.zeros(1)
     below = (h < floor_m - 1e-9)
     viol_s = float(np.sum(dts[below[:-1]])) if h.size > 1 else 0.0
+    n_below = int(np.sum(below)) + int(coll)  # the contact itself is below the floor (it is not a sample of r)
+    if coll and math.isfinite(t_c):
+        viol_s += max(0.0, t_c - float(t_s[-1])) if below[-1] else 0.0
     st = (r.solver_stats or [None])[0] or {}
     desc = (r.meta.get("controllers") or [{}])[0] or {}
     return CaseRow(case.family, case.name, ctrl, bound.label, bound.min_gap_m, r.status, coll, t_c, v_imp, min_gap,
                    float(np.min(ttc)) if ttc.size else math.inf, float(max(0.0, -np.min(a))), float(np.max(jerk)) if jerk.size else 0.0,
-                   int(np.sum(below)), viol_s, case.v_ego_mps, case.gap_m, case.v_lead_mps, case.a_lead_mps2,
+                   n_below, viol_s, case.v_ego_mps, case.gap_m, case.v_lead_mps, case.a_lead_mps2,
                    int(st.get("fallbacks", 0) or 0), int((desc.get("safety") or {}).get("limited_steps", 0) or 0), wall,
                    str(r.events[0]) if r.events else "")
 
