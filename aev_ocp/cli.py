@@ -1,4 +1,4 @@
-"""Command line: ``aev-ocp reproduce | simulate | scenarios | ocp | mpc | mpc-export``.
+"""Command line: ``aev-ocp reproduce | simulate | scenarios | ocp | mpc | mpc-export | stability | study | safety``.
 
 A thin layer over the Python API (:mod:`aev_ocp.reproduce`, :mod:`aev_ocp.scenarios`,
 :mod:`aev_ocp.report`). Every subcommand reports errors the same way (:func:`guarded`): one line
@@ -172,6 +172,8 @@ def build_parser() -> argparse.ArgumentParser:
                    add_help=False)
     sub.add_parser("stability", help="string stability of a law or the MPC (see aev-ocp stability --help)", add_help=False)
     sub.add_parser("study", help="sweeps and Pareto fronts from a study file (see aev-ocp study --help)", add_help=False)
+    sub.add_parser("safety", help="the safety suite: braking, stationary, slower and cut-in cases for every controller "
+                   "(see aev-ocp safety --help)", add_help=False)
     return p
 
 
@@ -321,7 +323,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args_list = list(sys.argv[1:] if argv is None else argv)
     if args_list and args_list[0] == "mpc-export":
         return guarded(lambda: _dispatch("aev_ocp.mpc.export", "cli_mpc_export", args_list[1:]))
-    if args_list and args_list[0] in ("ocp", "mpc", "stability", "study"):
+    if args_list and args_list[0] in ("ocp", "mpc", "stability", "study", "safety"):
         name = args_list[0]
         return guarded(lambda: _dispatch(f"aev_ocp.{name}", f"cli_{name}", args_list[1:]))
     try:

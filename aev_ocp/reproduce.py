@@ -42,7 +42,7 @@ HEAD_FIG5 = "Fig. 5: the platoon under the proposed model"
 HEAD_HYP = "Table 1: why our ω are below the printed ones (hypotheses tested)"
 SectionFn = Callable[[Path, ProgressFn], str]
 SECTION_PROVIDERS: tuple[str, ...] = ("aev_ocp.claims", "aev_ocp.ocp", "aev_ocp.mpc", "aev_ocp.mpc.cycles_section",
-                                       "aev_ocp.stability")
+                                       "aev_ocp.stability", "aev_ocp.safety")
 
 
 @dataclass(frozen=True)

@@ -149,10 +149,16 @@ def test_forced_infeasible_step_triggers_counted_fallback():
     assert st["fallbacks"] >= 1 and st["n_steps"] == 10
     assert st["fallbacks"] == sum(1 for k in range(10) if steps["status"][k] not in ("Solve_Succeeded",
                                                                                       "Solved_To_Acceptable_Level"))
-    # the applied control on the first (failed) step is the proposed law at the measured state, clipped
+    # the applied control on the first (failed) step is the proposed law at the measured state, clipped, limited by
+    # the safe controller (aev_ocp.safety.fallback): 3 m behind at 9.35 m/s it brakes fully
+    from aev_ocp.safety import SafetyParams, safe_acceleration_mps2
+
     law = Proposed()
     a0 = float(law.accel(0.3, 1.87, 1.7))
-    assert r.accel[0, 0] == pytest.approx(min(max(a0, -3.0), 2.0), rel=1e-9)
+    u = EVParams().units
+    safe = safe_acceleration_mps2(3.0, 9.35, 8.5, 0.2, SafetyParams(a_min_mps2=-7.5, ego_brake_mps2=7.5, a_max_mps2=4.0))
+    assert safe == -7.5
+    assert r.accel[0, 0] == pytest.approx(min(max(a0, -3.0), 2.0, float(u.accel_from_si(safe))), rel=1e-9)
     assert r.status == "ok"
 
 

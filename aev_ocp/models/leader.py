@@ -144,6 +144,60 @@ class PaperLeader(LeaderProfile):
 
 
 @dataclass(frozen=True)
+class BrakingLeader(LeaderProfile):
+    """A lead vehicle at constant speed v0 until t_brake, then braking at a constant deceleration ``decel`` (≤ 0)
+    until it stops, then standing (model units: speed, acceleration, time). Euro NCAP's car-to-car rear braking
+    tests and a braking cut-in vehicle are of this kind; :meth:`from_si` takes m/s, m/s², s."""
+
+    v0: float
+    decel: float
+    t_brake: float = 0.0
+    name = "braking"
+
+    def __post_init__(self) -> None:
+        for nm, ok in (("v0", self.v0 >= 0), ("decel", self.decel <= 0), ("t_brake", self.t_brake >= 0)):
+            x = getattr(self, nm)
+            if not (isinstance(x, (int, float)) and math.isfinite(x) and ok):
+                rule = {"v0": ">= 0", "decel": "<= 0", "t_brake": ">= 0"}[nm]
+                raise ParameterError(f"BrakingLeader.{nm} = {x!r} is not allowed: must be a finite number {rule}")
+
+    @classmethod
+    def from_si(cls, v0_mps: float, decel_mps2: float, t_brake_s: float, units: Units) -> "BrakingLeader":
+        """From SI values [m/s], [m/s²], [s], converted with ``units``."""
+        return cls(float(units.speed_from_si(v0_mps)), float(units.accel_from_si(decel_mps2)),
+                   float(units.time_from_si(t_brake_s)))
+
+    @property
+    def t_stop(self) -> float:
+        """When the leader stands [model time] (inf if it never brakes)."""
+        if self.v0 == 0:
+            return 0.0
+        return self.t_brake + self.v0 / -self.decel if self.decel < 0 else math.inf
+
+    @property
+    def breakpoints(self) -> tuple[float, ...]:
+        return tuple(b for b in (self.t_brake, self.t_stop) if 0 < b < math.inf and self.v0 > 0 and self.decel < 0)
+
+    def speed(self, t: Any) -> Any:
+        return ca.fmax(self.v0 + self.decel * ca.fmax(t - self.t_brake, 0.0), 0.0)
+
+    def accel(self, t: Any) -> Any:
+        if self.decel == 0 or self.v0 == 0:
+            return 0.0 * t
+        return ca.if_else(ca.logic_and(t > self.t_brake, t < self.t_stop), self.decel, 0.0)
+
+    def position(self, t: np.ndarray | float) -> np.ndarray:
+        t = np.asarray(t, dtype=float)
+        s = np.clip(t - self.t_brake, 0.0, None)
+        if self.decel < 0:
+            s = np.minimum(s, self.v0 / -self.decel)
+        return self.v0 * np.minimum(t, self.t_brake) + self.v0 * s + 0.5 * self.decel * s * s
+
+    def describe(self) -> dict[str, Any]:
+        return {"profile": self.name, "v0": self.v0, "decel": self.decel, "t_brake": self.t_brake}
+
+
+@dataclass(frozen=True)
 class SpeedTrace(LeaderProfile):
     """A sampled speed trace, linearly interpolated; held at its last value after its end.
 

@@ -24,6 +24,7 @@ from ..models.leader import LeaderProfile, PaperLeader
 from ..ocp.problem import OCPProblem, ProblemBuilder
 from ..params import EVParams, ParameterError, as_dict
 from ..results import SimulationResult
+from ..safety.fallback import SafeFallback
 from .controller import MPCController
 from .predictors import LeaderPredictor, Measurements, forecast_intervals, make_predictor, plan_forecast
 from .settings import MPCSettings
@@ -51,14 +52,17 @@ class MPCPolicy:
                  parameter_values: dict[str, float] | None = None) -> None:
         self.settings, self.fallback_law, self.predictor = settings, fallback_law, predictor
         self.controller = MPCController(settings, ev, fallback_law, problem, parameter_values)
-        b = settings.effective_bounds(ev)  # the fallback: the law on the measurements, clipped to the a bounds
-        self._fallback = SampledLaw(fallback_law, settings.dt, b.a_min, b.a_max)
+        # the fallback: min(the law on the measurements clipped to the a bounds, the safe controller); for the shipped
+        # traffic formulation (not a user's own problem) also a safety filter on every command (aev_ocp.safety.fallback)
+        self._fallback = SafeFallback.for_mpc(fallback_law, settings, ev)
+        self._filter = settings.formulation == "traffic" and problem is None
         self.dt = settings.dt
         self.name = f"mpc(w_Q={settings.weights.w_Q:g})" if settings.formulation == "s9" else "mpc(traffic)"
 
     def reset(self) -> None:
         """Forget the warm start."""
         self.controller.reset()
+        self._fallback.reset()
 
     def forecast(self, obs: Observation) -> tuple[np.ndarray, np.ndarray]:
         """(v̄_l, v̂_l) per interval over the horizon [model speed]."""
@@ -77,7 +81,8 @@ class MPCPolicy:
         sol = self.controller.solve(obs.z, vm, vh, own={"a_prev": obs.a_prev})
         info = {"cost": sol.cost, "violation": sol.violation, "v_hat": vh}
         if sol.success:
-            return Command(float(sol.a[0]), True, sol.status, sol.solve_time_s, sol.iterations, sol.X[1], info)
+            a0 = self._fallback.limit(obs, float(sol.a[0])) if self._filter else float(sol.a[0])
+            return Command(a0, True, sol.status, sol.solve_time_s, sol.iterations, sol.X[1], info)
         # the fallback: the law on the measurements, clipped to the a bounds and so that the speed stays
         # >= 0 over the step (a plant never reverses; the law at a tiny gap may ask for a_min at v ≈ 0)
         a = max(self._fallback.command(obs).a, min(0.0, -float(obs.z[1]) / self.dt))
@@ -94,6 +99,7 @@ class MPCPolicy:
         d["problem"] = self.controller.problem.name
         eb = self.settings.effective_bounds(self.controller.ev)  # what the metrics count violations against
         d["bounds_model"] = {"h_min": eb.h_min, "v_max": eb.v_max}
+        d["safety"] = {**self._fallback.describe(), "filter": self._filter}
         return d
 
 

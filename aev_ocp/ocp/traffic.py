@@ -75,7 +75,7 @@ class TrafficParams:
     brake_decel_mps2: float = spec(6.0, gt=0.0)  # b [m/s²]: emergency braking both cars can do (dry road ≈ 8)
     safe_penalty: float = spec(100.0, gt=0.0)  # ρ_safe [W/kg per m of violation] (above every multiplier seen)
     v_max_mps: float = spec(45.0, gt=0.0)  # [m/s] (§9: 2 model = 10 m/s at L = 10, U = 5; 162 km/h here)
-    a_min_mps2: float = spec(-7.5)  # [m/s²] §9's −3 at the default units
+    a_min_mps2: float = spec(-8.0)  # [m/s²] VehicleLimits.a_min (dry-road friction, 0.8 g; was §9's −3 at the default units, −7.5)
     a_max_mps2: float = spec(5.0)  # [m/s²] §9's 2 at the default units
 
     def __post_init__(self) -> None:
