@@ -295,7 +295,7 @@ def _dispatch(module: str, func: str, argv: list[str]) -> int:
 SUBCOMMAND_PARSERS: dict[str, tuple[str, str]] = {
     "ocp": ("aev_ocp.ocp.cli", "_parser"), "mpc": ("aev_ocp.mpc.cli", "build_parser"),
     "mpc-export": ("aev_ocp.mpc.export", "build_parser"), "stability": ("aev_ocp.stability.cli", "build_parser"),
-    "study": ("aev_ocp.study.cli", "build_parser")}
+    "study": ("aev_ocp.study.cli", "build_parser"), "safety": ("aev_ocp.safety.cli", "build_parser")}
 
 
 def command_parser(name: str) -> argparse.ArgumentParser:
