@@ -288,7 +288,7 @@ def run_comparison(scenario: Any, settings: MPCSettings | None = None, laws: tup
                             f"is its controls replayed and costed on the MPC's grid, a reference, not a lower bound "
                             f"(its own grid's optimum: {res.objective:.6g})")
             else:
-                ocpd["role"], why = _bound_role(ocpd[key], metrics, key)
+                ocpd["role"], why = _bound_role(float(res.objective), metrics, key)
                 if why:
                     warn.append(why)
             ref = (metrics.get("proposed") or metrics["mpc"])[0]
