@@ -9,9 +9,10 @@ construction, and ranks them.
 
 Interpolation inside the sample interval [t_k, t_k+1] that holds the cut: positions and gaps by the cubic
 Hermite interpolant with their exact derivatives (ẋ = v, ḣ = v_ahead − v), speeds by the Hermite interpolant with
-v̇ = a (a held over the interval when the controller is sampled: exact), the held command itself, and linearly
-the cell states and the plant's cumulative quadratures (ω, pack ∫Q, ∫Q_irr, ∫ errors²): their error is
-O(Δt²·rate'), far below their sampling error (the plant samples every dt_out). Model units unless named.
+v̇ = a (a held over the interval when the controller is sampled: exact), the held command itself, and the cell
+states and the plant's cumulative quadratures (ω, pack ∫Q, ∫Q_irr, ∫ errors²) by the quadratic through the
+interval's ends and a third sample on the same smooth piece (the same held command), error O(Δt³); linearly
+when there is none. Model units unless named.
 """
 
 from __future__ import annotations
@@ -59,9 +60,14 @@ def truncate_at_time(r: SimulationResult, t_cut: float) -> SimulationResult:
         dt = float(t[k + 1] - t[k])
         s = (t_cut - float(t[k])) / dt
         cut: dict[str, Any] = {}
+        j = _third_node(r, k)
         for nm in _LINEAR:
             y = getattr(r, nm)
-            cut[nm] = y[k] + s * (y[k + 1] - y[k])
+            if j is None:
+                cut[nm] = y[k] + s * (y[k + 1] - y[k])
+            else:  # the quadratic through t_k, t_k+1 and a third node of the same smooth piece
+                n = (k, k + 1, j)
+                cut[nm] = sum(y[a] * math.prod((t_cut - t[b]) / (t[a] - t[b]) for b in n if b != a) for a in n)
         cut["leader_position"] = _hermite(r.leader_position[k], r.leader_position[k + 1], r.leader_speed[k],
                                           r.leader_speed[k + 1], dt, s)
         a0 = r.accel[k]
@@ -76,6 +82,18 @@ def truncate_at_time(r: SimulationResult, t_cut: float) -> SimulationResult:
         fields["t"] = np.concatenate([t[:k + 1], [t_cut]])
     meta = {**r.meta, "truncated_at_model": t_cut}
     return replace(r, **fields, events=[e for e in r.events if e.time <= t_cut + tol], solver_stats=[], meta=meta)
+
+
+def _third_node(r: SimulationResult, k: int) -> int | None:
+    """A third sample beside t_k, t_k+1 on the same smooth piece of the run (a sampled controller's command held
+    unchanged; a continuous law everywhere), for the quadratic interpolant; None if there is none."""
+    K = r.t.size
+    for j in (k - 1, k + 2):
+        if 0 <= j < K and (not r.jerk_sampled or np.array_equal(r.accel[j], r.accel[k])):
+            if r.jerk_sampled and j == k + 2 and not np.array_equal(r.accel[k + 1], r.accel[k]):
+                continue
+            return j
+    return None
 
 
 def distance_travelled(r: SimulationResult, i: int) -> np.ndarray:

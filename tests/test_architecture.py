@@ -95,8 +95,8 @@ def test_custom_term_example_runs() -> None:
     from custom_mpc_term import main
 
     out = main(quick=True)
-    assert out["mpc (§9)"] < 0.2 - 0.05
-    assert out["mpc + headway"] >= 0.2 - 1e-3
+    assert out["mpc (§9)"]["margin"] < 0.2 - 0.05 and out["mpc (§9)"]["formulation"] == "s9"
+    assert out["mpc (§9) + headway"]["margin"] >= 0.2 - 1e-3 and out["mpc (§9) + headway"]["family"] == "s9"
 
 
 def test_mpc_rejects_a_problem_without_the_closed_loop_layout() -> None:
