@@ -134,7 +134,7 @@ def truncate_at_distance(r: SimulationResult, i: int, distance_m: float) -> Simu
 VIEW_KEYS = ("heat_pack_J_per_km", "heat_pack_J", "omega_J_per_kg_per_km", "distance_m", "duration_s", "min_gap_m")
 
 
-def equal_views(results: Mapping[str, SimulationResult], vehicle: int = 0) -> dict[str, Any]:
+def equal_views(results: Mapping[Any, SimulationResult], vehicle: int = 0) -> dict[str, Any]:
     """Every run of follower ``vehicle`` evaluated up to the shortest common distance ('distance') and up to the
     common time ('time'), ranked by pack ∫Q/km (1 = lowest). Runs ended by an event are left out of the cut and
     not ranked. Returns {'distance': {'cut_m', 'runs': {label: metrics}}, 'time': {'cut_s', 'runs': …}}."""
