@@ -55,6 +55,18 @@ def min_gap_continuous(t: np.ndarray, h: np.ndarray, hdot: np.ndarray) -> float:
     return best
 
 
+def violation_bounds(r: SimulationResult, i: int) -> tuple[float, float]:
+    """(h_min, v_max) [model units] that follower i's gap and speed violations count against: its controller's
+    own declared bounds (``describe()['bounds_model']``, an MPC's formulation; a missing side: no bound, ∓inf),
+    else PROBLEM.md §9's (MPC_GAP_MIN, MPC_SPEED_MAX)."""
+    ctrls = r.meta.get("controllers") or []
+    own = ctrls[i].get("bounds_model") if i < len(ctrls) and isinstance(ctrls[i], dict) else None
+    if not own:
+        return MPC_GAP_MIN, MPC_SPEED_MAX
+    h, v = own.get("h_min"), own.get("v_max")
+    return (float(h) if h is not None else -math.inf), (float(v) if v is not None else math.inf)
+
+
 def vehicle_metrics(r: SimulationResult, i: int) -> dict[str, Any]:
     """All §10 metrics of follower i (0-based) as a flat dict; units in the key names."""
     u = r.units
@@ -63,12 +75,9 @@ def vehicle_metrics(r: SimulationResult, i: int) -> dict[str, Any]:
     v_lead = r.leader_speed if i == 0 else r.speed[:, i - 1]
     h, v = r.gap[:, i], r.speed[:, i]
     hdot = v_lead - v
-    # violations count against the vehicle's controller's own bounds (an MPC states them: the traffic
-    # formulation's 2 m floor and 45 m/s, in model units), else PROBLEM.md §9's
-    ctrls = r.meta.get("controllers") or []
-    own = ctrls[i].get("bounds_model") if i < len(ctrls) and isinstance(ctrls[i], dict) else None
-    h_min = float(own["h_min"]) if own else MPC_GAP_MIN
-    v_max = float(own["v_max"]) if own else MPC_SPEED_MAX
+    # violations count against the vehicle's controller's own bounds (an MPC states its formulation's: the
+    # traffic formulation's 2 m floor and 45 m/s, in model units; None = no such bound), else PROBLEM.md §9's
+    h_min, v_max = violation_bounds(r, i)
     rms = (lambda c: math.sqrt(max(float(c[-1, i]), 0.0) / duration) if duration > 0 else float("nan"))
     if r.jerk_sampled and t.size > 1:
         da = np.diff(r.accel[:, i]) / np.diff(t)

@@ -23,3 +23,34 @@ def rk4(f: Callable[[Any], Any], x: Any, h: Any, substeps: int = 1,
             q = q + dt / 6 * (g(x) + 2 * g(x + dt / 2 * k1) + 2 * g(x + dt / 2 * k2) + g(x + dt * k3))
         x = x + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
     return x, q
+
+
+def bracketed_root(f: Callable[[float], float], a: float, b: float, xtol: float = 1e-13, max_iter: int = 200) -> float:
+    """The root of a continuous scalar f on [a, b] where f(a) and f(b) differ in sign (or one is 0), by the
+    Illinois variant of regula falsi with a bisection step every third iteration (so the bracket at least halves
+    every three steps; no SciPy at run time); stops when the bracket is shorter than ``xtol`` (relative to
+    max(1, |x|)) or f is exactly 0, and returns the end with the smaller |f|."""
+    fa, fb = f(a), f(b)
+    if fa == 0.0:
+        return a
+    if fb == 0.0:
+        return b
+    if (fa < 0.0) == (fb < 0.0):
+        raise ValueError(f"bracketed_root: f({a!r}) = {fa!r} and f({b!r}) = {fb!r} have the same sign")
+    wa, wb = fa, fb  # the secant's weights (Illinois halves the weight of an end that stays)
+    for k in range(max_iter):
+        if abs(b - a) <= xtol * max(1.0, abs(a), abs(b)):
+            break
+        x = (a * wb - b * wa) / (wb - wa) if k % 3 != 2 else 0.5 * (a + b)
+        if not (min(a, b) < x < max(a, b)):
+            x = 0.5 * (a + b)
+        fx = f(x)
+        if fx == 0.0:
+            return x
+        if (fx < 0.0) != (fa < 0.0):  # the root is in [a, x]: b moves, a stays (signs compared: no underflow)
+            b, fb, wb = x, fx, fx
+            wa *= 0.5
+        else:  # the root is in [x, b]
+            a, fa, wa = x, fx, fx
+            wb *= 0.5
+    return a if abs(fa) <= abs(fb) else b

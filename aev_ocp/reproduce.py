@@ -411,7 +411,7 @@ class _Run:
                 r_mpc = self.simulate_mpc(s, progress, name)
                 res = {"mpc": r_mpc, **res}
                 st = [x for x in r_mpc.solver_stats if x]
-                form = ("PROBLEM.md §9" if mpc_cfg.settings.formulation == "s9"
+                form = ("PROBLEM.md §9" if mpc_cfg.formulation.kind == "s9"
                         else "the traffic formulation, aev_ocp/ocp/traffic.py")
                 mpc_line = (f"\nThe `mpc` rows are the scenario's own [mpc] closed loop ({form}, forecast "
                             f"{mpc_cfg.settings.predictor}) on the exact "

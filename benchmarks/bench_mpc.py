@@ -42,7 +42,8 @@ from pathlib import Path
 import numpy as np
 
 from aev_ocp.models.leader import PaperLeader
-from aev_ocp.mpc import run_single
+from aev_ocp.mpc import MPCVehicle, run_single
+from aev_ocp.ocp.formulation import s9_formulation
 from aev_ocp.mpc.settings import MPCSettings
 from aev_ocp.ocp.oracle import stage_cost_of_trajectory
 from aev_ocp.results import write_json
@@ -61,13 +62,14 @@ PATHS = {
 }
 COMPILED = dict(solver="rti", qp_solver="riccati", codegen=True)
 #: the canonical problem is PROBLEM.md §9 as in scenarios/mpc_paper_single.toml (the default is 'traffic')
-S9 = dict(formulation="s9", rti_hessian="exact", max_step_ms=10000.0, predictor="oracle")
+S9 = dict(rti_hessian="exact", max_step_ms=10000.0, predictor="oracle")
+F9 = s9_formulation()  # the problem
 
 
 def bench(N: int, label: str, kw: dict, t_end: float) -> dict:
     s = MPCSettings(N=N, **S9, **kw)
     t0 = time.perf_counter()
-    r = run_single(s, leader=PaperLeader(), t_end=t_end)
+    r = run_single(s, leader=PaperLeader(), t_end=t_end, formulation=F9)
     wall = time.perf_counter() - t0
     st = dict(r.solver_stats[0] or {})
     steps = np.asarray(r.meta["mpc_steps"][0]["solve_ms"])
@@ -108,7 +110,7 @@ def breakdown(N: int, t_end: float) -> dict:
     as the cold first solve included) and median ms per call of each part."""
     from aev_ocp.control import ClosedLoop
 
-    loop = ClosedLoop(PaperLeader(), [MPCSettings(N=N, **S9, solver="rti", qp_solver="hpipm", codegen=True)])
+    loop = ClosedLoop(PaperLeader(), [MPCVehicle(MPCSettings(N=N, **S9, solver="rti", qp_solver="hpipm", codegen=True), formulation=F9)])
     pol = loop.ctrl[0]
     c = pol.controller  # type: ignore[union-attr]
     parts = {"forecast": (pol, "forecast"), "qp_data": (c, "_rti_data"), "qp_solve": (c, "_rti_qp"),
@@ -143,7 +145,7 @@ def record_loop(N: int, t_end: float) -> tuple[np.ndarray, np.ndarray, object]:
     measured state and forecast per step, the applied controls (K,), the result)."""
     from aev_ocp.control import ClosedLoop
 
-    loop = ClosedLoop(PaperLeader(), [MPCSettings(N=N, **S9, **COMPILED)])
+    loop = ClosedLoop(PaperLeader(), [MPCVehicle(MPCSettings(N=N, **S9, **COMPILED), formulation=F9)])
     c = loop.ctrl[0].controller  # type: ignore[union-attr]
     rows: list[np.ndarray] = []
     solve = c.solve
@@ -201,7 +203,7 @@ def breakdown_compiled(N: int, t_end: float) -> dict:
     from aev_ocp.mpc.export import CStep, build_library, export_mpc
     from aev_ocp.scenarios import find_scenario, load_scenario
 
-    loop = ClosedLoop(PaperLeader(), [MPCSettings(N=N, **S9, **COMPILED)])
+    loop = ClosedLoop(PaperLeader(), [MPCVehicle(MPCSettings(N=N, **S9, **COMPILED), formulation=F9)])
     pol = loop.ctrl[0]
     timers = {"controller_call": _Timed(pol.command), "forecast": _Timed(pol.forecast)}
     pol.command, pol.forecast = timers["controller_call"], timers["forecast"]  # type: ignore[method-assign]
@@ -219,7 +221,7 @@ def breakdown_compiled(N: int, t_end: float) -> dict:
                                                     "step_total")}
     qp_its: list[int] = []
     with tempfile.TemporaryDirectory() as tmp:
-        export_mpc(load_scenario(find_scenario("mpc_paper_single")), Path(tmp), MPCSettings(N=N, **S9, **COMPILED))
+        export_mpc(load_scenario(find_scenario("mpc_paper_single")), Path(tmp), MPCSettings(N=N, **S9, **COMPILED), F9)
         cs = CStep(build_library(Path(tmp), Path(tmp) / "lib.so", flags=("-O2", "-fno-math-errno", "-DAEV_MPC_PROFILE")))
         for k, row in enumerate(inputs):
             t0 = time.perf_counter()
@@ -269,7 +271,7 @@ def scaling(t_end: float, Ns: tuple[int, ...] = (40, 100)) -> dict:
     """Median per-step time of the compiled-step path for N = 40 and N = 100."""
     out = {}
     for N in Ns:
-        r = run_single(MPCSettings(N=N, **S9, **COMPILED), leader=PaperLeader(), t_end=t_end)
+        r = run_single(MPCSettings(N=N, **S9, **COMPILED), leader=PaperLeader(), t_end=t_end, formulation=F9)
         st = dict(r.solver_stats[0] or {})
         out[str(N)] = {"solve_ms_median": st["solve_ms_median"], "solve_ms_p95": st["solve_ms_p95"],
                        "call_ms_median": st["call_ms_median"], "fallbacks": st["fallbacks"],

@@ -4,7 +4,7 @@ For each cycle (UDDS, HWFET, US06 with the shipped scenarios' units, and the pap
 non-oracle predictor, one follower from the scenario's initial state runs:
   * the proposed law and OVFL (closed-form, continuous),
   * the MPC with the default traffic formulation (``MPCSettings()``: aev_ocp.ocp.traffic, RTI + codegen),
-  * the MPC with the §9 formulation (``formulation = "s9"``, N = 40, same solver path) for reference.
+  * the MPC with the §9 formulation (``s9_formulation()``, N = 40, same solver path) for reference.
 One parameter set for every cycle (the defaults): no per-cycle tuning. With ``--platoon`` also the
 UDDS platoon (5 followers, MPC on all, cooperative forecasts behind the first) against the proposed law.
 Prints the table predictor × cycle × controller — pack ∫Q/km, ω/km, distance, min gap, min TTC, RMS
@@ -30,6 +30,7 @@ import numpy as np
 from aev_ocp.metrics import comparability
 from aev_ocp.models import OVFL, PaperLeader, Proposed, drive_cycle
 from aev_ocp.mpc import MPCSettings, MPCVehicle, run_closed_loop
+from aev_ocp.ocp.formulation import s9_formulation
 from aev_ocp.params import EVParams, Units
 from aev_ocp.results import write_json
 from aev_ocp.simulate import simulate_platoon
@@ -134,13 +135,13 @@ def main(argv: list[str] | None = None) -> int:
         ref_m = {**laws["proposed"][0].metrics()[0], "status": laws["proposed"][0].status}
         for pred in a.predictors:
             runs = dict(laws)
-            ctrls = [("mpc-traffic", traffic.with_(predictor=pred))]
+            ctrls = [("mpc-traffic", MPCVehicle(traffic.with_(predictor=pred)))]
             if not a.no_s9:
                 # §9's problem and horizon (N = 40) on the same real-time path (RTI + codegen, projected Hessian)
-                ctrls.append(("mpc-s9", traffic.with_(predictor=pred, formulation="s9", N=40)))
-            for name, s in ctrls:
+                ctrls.append(("mpc-s9", MPCVehicle(traffic.with_(predictor=pred, N=40), formulation=s9_formulation())))
+            for name, veh in ctrls:
                 t0 = time.perf_counter()
-                r = run_closed_loop(leader, [MPCVehicle(s)], [h0], [v0], t_end, ev=ev)
+                r = run_closed_loop(leader, [veh], [h0], [v0], t_end, ev=ev)
                 runs[name] = (r, time.perf_counter() - t0)
             for name, (r, wall) in runs.items():
                 row = _row(cyc, pred, name, r, 0, ref_m if name != "proposed" else None, wall)

@@ -99,8 +99,10 @@ def rti_qp(formulation: str, N: int) -> tuple[OcpQPDims, dict[str, Any]]:
     from aev_ocp.mpc.predictors import Measurements, OraclePredictor, forecast_intervals
     from aev_ocp.mpc.settings import MPCSettings
 
-    c = MPCController(MPCSettings(formulation=formulation, rti_hessian="exact", solver="rti", qp_solver="hpipm",
-                                  codegen=False, N=N, max_step_ms=1e4))
+    from aev_ocp.ocp.formulation import formulation_from_dict
+
+    c = MPCController(MPCSettings(rti_hessian="exact", solver="rti", qp_solver="hpipm",
+                                  codegen=False, N=N, max_step_ms=1e4), formulation=formulation_from_dict({"formulation": formulation}))
     seen: list[dict[str, Any]] = []
     qp = c._rti_qp
 

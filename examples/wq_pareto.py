@@ -19,6 +19,7 @@ from typing import Any
 from aev_ocp.models.carfollowing import OVFL, Proposed
 from aev_ocp.models.leader import PaperLeader
 from aev_ocp.mpc import MPCSettings, MPCVehicle, run_closed_loop
+from aev_ocp.ocp.formulation import s9_formulation
 from aev_ocp.params import EVParams
 from aev_ocp.plots import plt, save_figure
 from aev_ocp.simulate import simulate_platoon
@@ -33,11 +34,12 @@ def main(quick: bool = False, out: Path = Path("results/examples/wq_pareto")) ->
     t_end = 6.0 if quick else 70.0  # model time
     w_qs = (0.3, 1.0, 3.0) if quick else (0.1, 0.3, 1.0, 3.0, 10.0, 30.0)
     # PROBLEM.md §9's formulation, as in scenarios/mpc_paper_single.toml (w_Q is a §9 weight)
-    base = MPCSettings(formulation="s9", N=40, predictor="oracle", rti_hessian="exact", max_step_ms=1e4)
+    base = MPCSettings(N=40, predictor="oracle", rti_hessian="exact", max_step_ms=1e4)
+    f9 = s9_formulation()
     rows: list[dict[str, Any]] = []
     for w_q in w_qs:
-        s = dataclasses.replace(base, weights=dataclasses.replace(base.weights, w_Q=w_q))
-        r = run_closed_loop(leader, [MPCVehicle(s)], [H0], [V0], t_end, ev=ev)
+        f = f9.with_(weights=dataclasses.replace(f9.weights, w_Q=w_q))
+        r = run_closed_loop(leader, [MPCVehicle(base, formulation=f)], [H0], [V0], t_end, ev=ev)
         rows.append({"controller": f"mpc w_Q={w_q:g}", "w_Q": w_q, **_metrics(r)})
     for law in (Proposed(), OVFL()):
         r = simulate_platoon(leader, [law], [H0], [V0], t_end, ev=ev, dt_out=base.dt)

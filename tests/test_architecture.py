@@ -14,7 +14,8 @@ from aev_ocp.control import ClosedLoop, Command, ControlSequence, Observation, S
 from aev_ocp.models import OVFL, ConstantSpeed, PaperLeader, Proposed
 from aev_ocp.mpc import MPCController, MPCSettings, MPCVehicle, run_closed_loop
 from aev_ocp.ocp import OCPSolver, TranscriptionOptions, following_problem
-from aev_ocp.ocp.following import weight_vector
+from aev_ocp.ocp.following import FollowingWeights, weight_vector
+from aev_ocp.ocp.formulation import problem_formulation, s9_formulation
 from aev_ocp.ocp.problem import ProblemBuilder
 from aev_ocp.params import EVParams, ParameterError
 from aev_ocp.plant import EVENT_RULES, PLAN_TOLERANCE, event_header
@@ -67,8 +68,9 @@ def test_ocp_and_mpc_solve_the_same_custom_problem() -> None:
     whole-horizon OCP and the MPC: the MPC's first problem over the same horizon has the same optimum."""
     from custom_mpc_term import headway_problem
 
-    s = MPCSettings(N=30, weights=MPCSettings().weights.__class__(w_Q=1.7, w_V=0.6, w_r=2.2, w_a=0.35))
-    pb = headway_problem(EV, s)
+    s = MPCSettings(N=30)
+    f9 = s9_formulation(weights=FollowingWeights(w_Q=1.7, w_V=0.6, w_r=2.2, w_a=0.35))
+    pb = headway_problem(EV, f9)
     pr = pb.build()
     assert "slack_headway" in pr.control_names
     t = np.linspace(0.0, 3.0, 31)
@@ -77,9 +79,9 @@ def test_ocp_and_mpc_solve_the_same_custom_problem() -> None:
     vm, vh = np.diff(x) / 0.1, leader.speed_np(t[:-1])
     z0 = [0.45, 1.87, 0.0, 0.0, 0.8]
     ocp = OCPSolver(pr, TranscriptionOptions(N=30, rk4_substeps=1, tol=1e-10)).solve(
-        z0, 3.0, p=weight_vector(s.weights), w=np.vstack([vm, vh]))
+        z0, 3.0, p=weight_vector(f9.weights), w=np.vstack([vm, vh]))
     assert ocp.success
-    sol = MPCController(s, EV, problem=pb).solve(z0, vm, vh)
+    sol = MPCController(s, EV, formulation=problem_formulation(pb, weights=f9.weights)).solve(z0, vm, vh)
     assert sol.success
     assert sol.cost == pytest.approx(ocp.objective, rel=1e-6)
     np.testing.assert_allclose(sol.a, ocp.controls["a"], atol=1e-5)
@@ -93,8 +95,8 @@ def test_custom_term_example_runs() -> None:
     from custom_mpc_term import main
 
     out = main(quick=True)
-    assert out["mpc (§9)"] < 0.2 - 0.05
-    assert out["mpc + headway"] >= 0.2 - 1e-3
+    assert out["mpc (§9)"]["margin"] < 0.2 - 0.05 and out["mpc (§9)"]["formulation"] == "s9"
+    assert out["mpc (§9) + headway"]["margin"] >= 0.2 - 1e-3 and out["mpc (§9) + headway"]["family"] == "s9"
 
 
 def test_mpc_rejects_a_problem_without_the_closed_loop_layout() -> None:
@@ -140,10 +142,9 @@ def test_closed_loop_and_simulator_stop_at_the_same_rule() -> None:
 def test_a_plan_within_tolerance_never_stops_the_plant() -> None:
     """Issue 7's reproduction: the canonical scenario with the energy objective, w_Q = 5, N = 30 and
     IPOPT stopped at t = 1.5 on a speed of −6.4e-9 that the MPC had accepted as feasible."""
-    from aev_ocp.ocp.following import FollowingWeights
-
-    s = MPCSettings(objective="energy", weights=FollowingWeights(w_Q=5.0), N=30, solver="ipopt")
-    r = run_closed_loop(PaperLeader(), [s], [0.3], [1.87], 2.4, ev=EV)
+    s = MPCSettings(N=30, solver="ipopt")
+    f = s9_formulation(weights=FollowingWeights(w_Q=5.0), objective="energy")
+    r = run_closed_loop(PaperLeader(), [MPCVehicle(s, formulation=f)], [0.3], [1.87], 2.4, ev=EV)
     assert r.status == "ok", r.events
     assert r.speed[:, 0].min() > -PLAN_TOLERANCE
 
@@ -238,9 +239,10 @@ def test_discrete_state_gives_a_delta_u_penalty_in_ocp_and_mpc() -> None:
     problem in OCPSolver (both transcriptions) and the MPC has the same optimum, a_prev is exactly the
     previous control, and the penalty makes the closed loop smoother."""
     s = MPCSettings(N=20, predictor="oracle")  # the §9 problem's forecast (the numbers below were measured so)
+    f9 = s9_formulation()
 
     def jerky(w_j: float) -> ProblemBuilder:
-        pb = following_problem(EV, s.bounds, s.smooth, s.objective, name="mpc_jerk")
+        pb = following_problem(EV, f9.bounds, f9.smooth, f9.objective, name="mpc_jerk")
         a_prev = pb.state("a_prev")
         pb.set_next(a_prev, pb.u["a"])
         pb.add_stage_cost(w_j * ((pb.u["a"] - a_prev) / s.dt) ** 2, name="jerk")
@@ -253,7 +255,7 @@ def test_discrete_state_gives_a_delta_u_penalty_in_ocp_and_mpc() -> None:
     vm, vh = np.diff(leader.position(t)) / 0.1, leader.speed_np(t[:-1])
     z0 = [0.45, 1.87, 0.0, 0.0, 0.8, -0.37]
     res = {m: OCPSolver(pr, TranscriptionOptions(method=m, N=20, rk4_substeps=1, tol=1e-10)).solve(
-        z0, 2.0, p=weight_vector(s.weights), w=np.vstack([vm, vh])) for m in ("ms", "collocation")}
+        z0, 2.0, p=weight_vector(f9.weights), w=np.vstack([vm, vh])) for m in ("ms", "collocation")}
     for r in res.values():
         assert r.success
         np.testing.assert_allclose(r.states["a_prev"][1:], r.controls["a"], atol=1e-9)  # exact discrete update

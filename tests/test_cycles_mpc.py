@@ -113,6 +113,13 @@ def test_table_builder_flags_and_never_ranks_non_comparable_rows(tiny_runs: dict
     assert "MPC/constant-velocity not comparable" in text and "MPC/decaying-acceleration not comparable" in text
     assert "MPC/cooperative not comparable (event: negative_speed)" in text
     assert f"lowest pack ∫Q/km among comparable runs: {best}" in text  # a law here: the MPC rows are not ranked
+    # the equal-distance view ranks every run that did not end by an event (the MPC rows too), by its ∫Q/km
+    eq = {k: r for k, r in rows.items() if r["status"] == "ok"}
+    assert sorted(r["rank_eq_distance"] for r in eq.values()) == list(range(1, len(eq) + 1))
+    assert all(r["rank_eq_distance"] is None for r in rows.values() if r["status"] != "ok")
+    first = min(eq.values(), key=lambda r: r["heat_pack_J_per_km_eq_distance"])
+    assert first["rank_eq_distance"] == 1 and "Equal distance (every run up to" in text
+    assert min(r["distance_m"] for r in eq.values()) == pytest.approx(first["eq_distance_m"], rel=1e-9)
 
 
 def test_table_builder_without_reference_flags_every_row(tiny_runs: dict) -> None:

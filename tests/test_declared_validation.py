@@ -11,6 +11,7 @@ import pytest
 
 from aev_ocp.mpc.scenario import closed_loop_from_scenario, mpc_table_keys
 from aev_ocp.mpc.settings import MPCSettings
+from aev_ocp.ocp.formulation import Formulation
 from aev_ocp.ocp.traffic import TrafficParams
 from aev_ocp.params import (ATOL_RANGE, RTOL_RANGE, CarFollowingParams, CellParams, PackParams, ParameterError,
                             PowertrainOptions, SimOptions, Units, VehicleParams, field_checks)
@@ -67,8 +68,8 @@ def test_wrong_types_name_the_type() -> None:
         PackParams(n_series=2.0)
     with pytest.raises(ParameterError, match=r"VehicleParams\.efficiency = 'x' .*got a string"):
         VehicleParams(efficiency="x")
-    with pytest.raises(ParameterError, match=r"MPCSettings\.weights = .*FollowingWeights"):
-        MPCSettings(weights={"w_Q": 1.0})
+    with pytest.raises(ParameterError, match=r"Formulation\.weights = .*FollowingWeights"):
+        Formulation("s9", weights={"w_Q": 1.0})
 
 
 def _mpc_doc(**mpc):
@@ -79,8 +80,8 @@ def _mpc_doc(**mpc):
 
 def test_mpc_table_keys_derive_from_the_dataclasses() -> None:
     keys = set(mpc_table_keys())
-    own = {f.name for f in dataclasses.fields(MPCSettings)} - {"weights", "bounds", "smooth", "traffic"}
-    assert own | {"w_Q", "w_V", "w_r", "w_a", "h_min", "v_min", "v_max", "a_min", "a_max",
+    own = {f.name for f in dataclasses.fields(MPCSettings)}  # solver options, then the formulation's keys
+    assert own | {"formulation", "objective", "w_Q", "w_V", "w_r", "w_a", "h_min", "v_min", "v_max", "a_min", "a_max",
                   "smoothing_width_W"} | {f.name for f in dataclasses.fields(TrafficParams)} == keys
 
 
@@ -106,8 +107,9 @@ def test_mpc_table_messages_name_file_key_value_and_range(key, value, fragments)
 
 
 def test_mpc_table_accepts_valid_values_and_upper_case_choices() -> None:
-    s = parse_scenario(_mpc_doc(N=17, solver="SQP", qp_solver="HPIPM", w_a=0.25, smoothing_width_W=150), "ok.toml").extra["mpc"].settings
-    assert (s.N, s.solver, s.weights.w_a, s.smooth.smoothing_width_W) == (17, "sqp", 0.25, 150.0)
+    cfg = parse_scenario(_mpc_doc(N=17, solver="SQP", qp_solver="HPIPM", w_a=0.25, smoothing_width_W=150), "ok.toml").extra["mpc"]
+    s, f = cfg.settings, cfg.formulation
+    assert (s.N, s.solver, f.weights.w_a, f.smooth.smoothing_width_W, f.kind) == (17, "sqp", 0.25, 150.0, "s9")
 
 
 @pytest.mark.parametrize("mpc, fragments", [

@@ -67,11 +67,22 @@ def test_wq_pareto(tmp_path: Path) -> None:
 
 
 def test_custom_mpc_term(tmp_path: Path) -> None:
+    """The baseline labelled '§9' runs PROBLEM.md §9's problem (states h, v, V1, V2, S; no traffic a_prev, energy
+    epigraph or slack; the 'mpc' problem, §9's 0.2 floor and v_max = 2), and the '+ headway' run is §9 plus
+    headway: a user problem whose every derived item follows it (its own name, §9's bounds, the §9 family's cold
+    start), not the traffic formulation's (the MPC's default: problem mpc_traffic, h_min 2 m = 0.2, v_max 9)."""
     out = run_example("custom_mpc_term.py", tmp_path)
-    margins = {m.group(1).strip(): float(m.group(2))
-               for m in re.finditer(r"^\s*(.+?): status ok, min \(h - T_h v\) over the second half = ([-\d.]+)", out, re.M)}
-    assert set(margins) == {"mpc (§9)", "mpc + headway"}
-    assert margins["mpc + headway"] >= 0.2 - 2e-3 > margins["mpc (§9)"]  # the added constraint is active
+    runs = {m.group(1).strip(): m.groupdict() for m in re.finditer(
+        r"^\s*(.+?): status ok, min \(h - T_h v\) over the second half = (?P<margin>[-\d.]+) \(h_min = (?P<h_min>[-\d.e]+), "
+        r"v_max = (?P<v_max>[-\d.e]+)\).*controller (?P<ctrl>\S+), problem (?P<problem>\S+) \(formulation (?P<kind>\w+), "
+        r"family (?P<family>\w+)\)", out, re.M)}
+    assert set(runs) == {"mpc (§9)", "mpc (§9) + headway"}, out
+    base, hw = runs["mpc (§9)"], runs["mpc (§9) + headway"]
+    assert (base["ctrl"], base["problem"], base["kind"], base["family"]) == ("mpc(w_Q=1)", "mpc", "s9", "s9")
+    assert (hw["ctrl"], hw["problem"], hw["kind"], hw["family"]) == ("mpc(mpc_headway)", "mpc_headway", "problem", "s9")
+    for r in (base, hw):  # §9's bounds (the traffic formulation's v_max would be 45 m/s = 9 model)
+        assert float(r["h_min"]) == 0.2 and float(r["v_max"]) == 2.0
+    assert float(hw["margin"]) >= 0.2 - 2e-3 > float(base["margin"])  # the added constraint is active
 
 
 def test_docs_pages_take_their_sections_from_the_readme() -> None:

@@ -28,6 +28,7 @@ from aev_ocp.models import battery, powertrain
 from aev_ocp.models.carfollowing import CarFollowingLaw
 from aev_ocp.models.ego import battery_side, following_ode
 from aev_ocp.models.energy import g_exact, g_smooth
+from aev_ocp.ocp.formulation import s9_formulation
 from aev_ocp.numerics import rk4
 from aev_ocp.ocp.following import FollowingWeights, following_problem, weight_vector
 from aev_ocp.ocp.oracle import OracleScenario, OracleSolver, oracle_problem, stage_cost_of_trajectory
@@ -388,8 +389,10 @@ def test_collocation_interval_is_exact_on_a_polynomial(scheme: str) -> None:
 def mpc():
     from aev_ocp.mpc import MPCController, MPCSettings
 
-    return MPCController(MPCSettings(N=4, dt=0.1, weights=W, smooth=SMOOTH, formulation="s9", solver="ipopt",
-                                     codegen=False), ev=EV)
+    from aev_ocp.ocp.formulation import s9_formulation
+
+    return MPCController(MPCSettings(N=4, dt=0.1, solver="ipopt", codegen=False), ev=EV,
+                         formulation=s9_formulation(weights=W, smooth=SMOOTH))
 
 
 def test_following_step_of_ocp_and_mpc_is_rk4_of_the_independent_ode(mpc) -> None:
@@ -413,7 +416,8 @@ def test_following_step_of_ocp_and_mpc_is_rk4_of_the_independent_ode(mpc) -> Non
 def test_stage_cost_weights_reach_every_user(objective: str) -> None:
     """ℓ with weights (2, 0.5, 3, 0.7) and η = 0.73 in the problem (OCP-D's), in OCP-D's solver path and
     in stage_cost_of_trajectory, against NumPy; each weight moves only its own term."""
-    scn = OracleScenario(ev=EV, weights=W, smooth=SMOOTH, objective=objective, t_end=0.4, dt=0.1)
+    scn = OracleScenario(ev=EV, formulation=s9_formulation(weights=W, smooth=SMOOTH, objective=objective), t_end=0.4,
+                         dt=0.1)
     pr = oracle_problem(scn)
     Z = np.vstack([[1.3, 2.1, 0.7, 2.9], POINTS[:, 0], POINTS[:, 2], POINTS[:, 3], POINTS[:, 4]])  # h, v, V1, V2, S
     A = POINTS[:, 1].copy()
@@ -437,7 +441,8 @@ def test_stage_cost_weights_reach_every_user(objective: str) -> None:
 
 def test_ocp_d_objective_is_the_numpy_cost_with_distinct_weights() -> None:
     """A short OCP-D solve with weights (2, 0.5, 3, 0.7): its optimum's cost recomputed in NumPy."""
-    scn = OracleScenario(ev=EV, weights=W, smooth=SMOOTH, t_end=1.0, dt=0.1, h0=0.9, v0=1.6, S0=0.83)
+    scn = OracleScenario(ev=EV, formulation=s9_formulation(weights=W, smooth=SMOOTH), t_end=1.0, dt=0.1, h0=0.9,
+                         v0=1.6, S0=0.83)
     r = OracleSolver(scn).solve()
     assert r.success
     st = r.states

@@ -17,13 +17,18 @@ from aev_ocp.mpc.predictors import (ConstantAccelerationPredictor, ConstantVeloc
                                     OraclePredictor, forecast_intervals, plan_forecast)
 from aev_ocp.mpc.settings import MPCSettings
 from aev_ocp.ocp.following import FollowingBounds, FollowingWeights
+from aev_ocp.ocp.formulation import formulation_from_dict, s9_formulation
 from aev_ocp.ocp.oracle import OracleScenario, OracleSolver, stage_cost_of_trajectory
 from aev_ocp.params import EVParams, ParameterError
 
 
 def S9(**kw) -> MPCSettings:
-    """PROBLEM.md §9 settings with the path these tests were written for (IPOPT, interpreted) unless given."""
-    return MPCSettings(**{"formulation": "s9", "N": 40, "solver": "ipopt", "codegen": False, "predictor": "oracle", **kw})
+    """Solver settings of PROBLEM.md §9's scenarios with the path these tests were written for (IPOPT,
+    interpreted) unless given; the problem is the formulation F9."""
+    return MPCSettings(**{"N": 40, "solver": "ipopt", "codegen": False, "predictor": "oracle", **kw})
+
+
+F9 = s9_formulation()  # PROBLEM.md §9
 
 EV = EVParams()
 
@@ -56,7 +61,7 @@ def _stage_cost_numpy(h, v, V1, V2, S, a, vl, w=FollowingWeights(), width_W=300.
 @pytest.fixture(scope="module")
 def canonical10():
     """The canonical MPC scenario shortened to 10 time units (100 steps), IPOPT path."""
-    return run_single(S9(), t_end=10.0)
+    return run_single(S9(), formulation=F9, t_end=10.0)
 
 
 def test_closed_loop_matches_ocp_d_within_1_percent():
@@ -64,12 +69,12 @@ def test_closed_loop_matches_ocp_d_within_1_percent():
     ocpd = OracleSolver(OracleScenario(t_end=T)).solve()
     assert ocpd.success
     # the first MPC problem IS OCP-D on this scenario: same optimum
-    ctrl = MPCController(S9(N=40), EV)
+    ctrl = MPCController(S9(N=40), EV, formulation=F9)
     sol = ctrl.solve([0.3, 1.87, 0, 0, 0.8], *_forecast(0.0, 40))
     assert sol.success
     assert sol.cost == pytest.approx(ocpd.objective, rel=1e-6)
     # closed loop (receding horizon, exact plant) within 1 % of the lower bound, and not below it
-    r = run_single(S9(N=40), t_end=T)
+    r = run_single(S9(N=40), formulation=F9, t_end=T)
     c = stage_cost_of_trajectory(r.t, r.gap[:, 0], r.speed[:, 0], r.V1[:, 0], r.V2[:, 0], r.S[:, 0],
                                  r.accel[:-1, 0], r.leader_speed[:-1])
     assert abs(c["total"] / ocpd.objective - 1) < 0.01
@@ -93,7 +98,7 @@ def test_constraints_hold_in_every_closed_loop_step(canonical10):
 
 @pytest.mark.quick
 def test_stage_cost_and_constraints_rechecked_in_numpy():
-    ctrl = MPCController(S9(), EV)
+    ctrl = MPCController(S9(), EV, formulation=F9)
     vm, vh = _forecast(3.0, 40)
     sol = ctrl.solve([0.5, 1.2, 0.01, 0.005, 0.7], vm, vh)
     assert sol.success
@@ -120,8 +125,8 @@ def test_stage_cost_and_constraints_rechecked_in_numpy():
 def test_solver_paths_give_the_same_closed_loop(settings, tmp_path_factory, monkeypatch):
     monkeypatch.setenv("AEV_OCP_CACHE", str(tmp_path_factory.getbasetemp() / "cache"))
     T = 3.0
-    ref = run_single(S9(), t_end=T)
-    r = run_single(settings, t_end=T)
+    ref = run_single(S9(), formulation=F9, t_end=T)
+    r = run_single(settings, formulation=F9, t_end=T)
     assert r.status == "ok" and r.solver_stats[0]["fallbacks"] == 0
     np.testing.assert_allclose(r.accel[:, 0], ref.accel[:, 0], atol=2e-4)
     np.testing.assert_allclose(r.gap[:, 0], ref.gap[:, 0], atol=1e-5)
@@ -135,15 +140,15 @@ def test_codegen_without_compiler_falls_back_with_warning(monkeypatch):
 
     monkeypatch.setattr(B.shutil, "which", lambda name: None)
     with pytest.warns(RuntimeWarning, match="no C compiler"):
-        ctrl = MPCController(S9(N=5, solver="sqp", codegen=True), EV)
+        ctrl = MPCController(S9(N=5, solver="sqp", codegen=True), EV, formulation=F9)
     assert not ctrl.codegen_active
     assert ctrl.solve([0.5, 1.2, 0, 0, 0.8], *_forecast(0.0, 5)).success
 
 
 def test_forced_infeasible_step_triggers_counted_fallback():
     # h ≥ 0.5 at node 1 is impossible from h(0) = 0.3 closing at 0.17: every early solve fails
-    s = S9(bounds=FollowingBounds(h_min=0.5), max_iter=50)
-    r = run_single(s, t_end=1.0)
+    s = S9(max_iter=50)
+    r = run_single(s, t_end=1.0, formulation=s9_formulation(bounds=FollowingBounds(h_min=0.5)))
     st = r.solver_stats[0]
     steps = r.meta["mpc_steps"][0]
     assert st["fallbacks"] >= 1 and st["n_steps"] == 10
@@ -164,7 +169,6 @@ def test_forced_infeasible_step_triggers_counted_fallback():
 
 @pytest.mark.parametrize("kw, name", [({"N": 0}, "MPCSettings.N"), ({"dt": -0.1}, "MPCSettings.dt"),
                                       ({"solver": "magic"}, "MPCSettings.solver"), ({"rti_iterations": 0}, "MPCSettings.rti_iterations"),
-                                      ({"objective": "speed"}, "MPCSettings.objective"),
                                       ({"qp_solver": "gurobi"}, "MPCSettings.qp_solver"),
                                       ({"predictor": "psychic"}, "MPCSettings.predictor"),
                                       ({"codegen": "yes"}, "MPCSettings.codegen"),
@@ -176,15 +180,20 @@ def test_invalid_options_name_the_option(kw, name):
 
 def test_from_dict_errors_name_the_key():
     with pytest.raises(ParameterError, match="w_Q"):
-        MPCSettings.from_dict({"w_Q": -1.0})
+        formulation_from_dict({"formulation": "s9", "w_Q": -1.0})
+    with pytest.raises(ParameterError, match="Formulation.objective"):
+        formulation_from_dict({"formulation": "s9", "objective": "speed"})
     with pytest.raises(ParameterError, match="horizon_len"):
         MPCSettings.from_dict({"horizon_len": 3})
-    s = MPCSettings.from_dict({"N": 20, "w_Q": 2.0, "h_min": 0.3, "solver": "sqp"})
-    assert (s.N, s.weights.w_Q, s.bounds.h_min, s.solver) == (20, 2.0, 0.3, "sqp")
+    with pytest.raises(ParameterError, match="w_Q"):  # a problem parameter is not a solver option
+        MPCSettings.from_dict({"w_Q": 2.0})
+    s = MPCSettings.from_dict({"N": 20, "solver": "sqp"})
+    f = formulation_from_dict({"formulation": "s9", "w_Q": 2.0, "h_min": 0.3})
+    assert (s.N, f.weights.w_Q, f.bounds.h_min, s.solver) == (20, 2.0, 0.3, "sqp")
 
 
 def test_bad_forecast_shape_is_a_clear_error():
-    ctrl = MPCController(S9(N=5), EV)
+    ctrl = MPCController(S9(N=5), EV, formulation=F9)
     with pytest.raises(ParameterError, match="forecast"):
         ctrl.solve([0.5, 1.2, 0, 0, 0.8], np.ones(4), np.ones(5))
 
@@ -214,9 +223,9 @@ def test_predictors_exact_on_their_own_motion():
 
 def test_mixed_platoon_cooperative_and_laws():
     L = PaperLeader()
-    ctrls = [S9(N=20), Proposed(), OVFL(),
-             MPCVehicle(S9(N=20), predictor="constant-acceleration"),
-             MPCVehicle(S9(N=20), predictor="cooperative")]
+    ctrls = [MPCVehicle(S9(N=20), formulation=F9), Proposed(), OVFL(),
+             MPCVehicle(S9(N=20), formulation=F9, predictor="constant-acceleration"),
+             MPCVehicle(S9(N=20), formulation=F9, predictor="cooperative")]
     r = run_closed_loop(L, ctrls, [0.3, 3.5, 3.5, 3.5, 3.5], [1.87] * 5, 2.0)
     assert r.status == "ok" and r.controllers[1:3] == ["proposed", "ovfl"]
     assert [s is None for s in r.solver_stats] == [False, True, True, False, False]
@@ -232,13 +241,13 @@ def test_mixed_platoon_cooperative_and_laws():
 @pytest.mark.quick
 def test_bad_platoon_configuration_errors():
     with pytest.raises(ParameterError, match="cooperative"):
-        ClosedLoop(PaperLeader(), [Proposed(), MPCVehicle(S9(N=5), predictor="cooperative")])
+        ClosedLoop(PaperLeader(), [Proposed(), MPCVehicle(S9(N=5), formulation=F9, predictor="cooperative")])
     with pytest.raises(ParameterError, match="oracle"):
-        ClosedLoop(PaperLeader(), [S9(N=5), S9(N=5)])
+        ClosedLoop(PaperLeader(), [MPCVehicle(S9(N=5), formulation=F9), MPCVehicle(S9(N=5), formulation=F9)])
     with pytest.raises(ParameterError, match="same dt"):
-        ClosedLoop(PaperLeader(), [S9(N=5), MPCVehicle(S9(N=5, dt=0.2), "cooperative")])
+        ClosedLoop(PaperLeader(), [MPCVehicle(S9(N=5), formulation=F9), MPCVehicle(S9(N=5, dt=0.2), "cooperative", formulation=F9)])
     with pytest.raises(ParameterError, match="multiple of dt"):
-        run_single(S9(N=5), t_end=0.25)
+        run_single(S9(N=5), formulation=F9, t_end=0.25)
 
 
 @pytest.mark.parametrize("codegen", [True, False], ids=["codegen", "interpreted"])
@@ -247,8 +256,8 @@ def test_rti_closed_loop_matches_ipopt_and_holds_constraints(codegen, tmp_path_f
     scenario shortened to 10 time units: same closed loop as the IPOPT path within tolerance."""
     monkeypatch.setenv("AEV_OCP_CACHE", str(tmp_path_factory.getbasetemp() / "cache"))
     T = 10.0
-    ref = run_single(S9(), t_end=T)
-    r = run_single(S9(solver="rti", codegen=codegen), t_end=T)
+    ref = run_single(S9(), formulation=F9, t_end=T)
+    r = run_single(S9(solver="rti", codegen=codegen), formulation=F9, t_end=T)
     st = r.solver_stats[0]
     assert r.status == "ok" and st["fallbacks"] == 0 and st["n_steps"] == 100
     assert st["solver_path"] == ("rti+codegen" if codegen else "rti")
@@ -273,7 +282,7 @@ def test_rti_closed_loop_matches_ipopt_and_holds_constraints(codegen, tmp_path_f
 
 @pytest.mark.parametrize("qp_solver", ["hpipm", "riccati"])
 def test_rti_failed_qp_is_a_failure_and_restarts_cold(qp_solver):
-    ctrl = MPCController(S9(N=10, solver="rti", qp_solver=qp_solver), EV)
+    ctrl = MPCController(S9(N=10, solver="rti", qp_solver=qp_solver), EV, formulation=F9)
     z0 = [0.5, 1.2, 0.0, 0.0, 0.8]
     fc = _forecast(0.0, 10)
     assert ctrl.solve(z0, *fc).path == "ipopt-cold"
@@ -329,7 +338,7 @@ def test_rti_failure_in_closed_loop_applies_counted_fallback(monkeypatch):
         return sol
 
     monkeypatch.setattr(C.MPCController, "_solve_rti", flaky)
-    r = run_single(S9(N=10, solver="rti"), t_end=1.0)
+    r = run_single(S9(N=10, solver="rti"), formulation=F9, t_end=1.0)
     st, steps = r.solver_stats[0], r.meta["mpc_steps"][0]
     assert st["fallbacks"] == 1 and steps["status"][3] == "QP failed: forced"
     assert steps["status"][4] == "Solve_Succeeded" and steps["status"][5].startswith("RTI_")

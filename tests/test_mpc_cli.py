@@ -85,12 +85,12 @@ def test_mpc_comparison_reports_its_cost_on_the_exact_model_and_warns_on_a_smoot
     from aev_ocp.params import PowertrainOptions
 
     sc = load_scenario(find_scenario("mpc_paper_single")).replace(t_end=4.0)
-    s = sc.extra["mpc"].settings
+    s, f = sc.extra["mpc"].settings, sc.extra["mpc"].formulation
     c = run_comparison(sc, s, laws=(), with_ocpd=False)
     m = c.metrics["mpc"][0]
     assert abs(m["smoothing_gap_pct"]) < 0.05 and c.warnings == []
     assert m["forecast_rms"] < 1e-9  # the canonical scenario's oracle forecast
-    wide = s.with_(smooth=PowertrainOptions(smoothing_width_W=2e5))
-    c2 = run_comparison(sc, wide, laws=(), with_ocpd=False)
+    wide = f.with_(smooth=PowertrainOptions(smoothing_width_W=2e5))
+    c2 = run_comparison(sc, s, laws=(), with_ocpd=False, formulation=wide)
     m2 = c2.metrics["mpc"][0]
     assert abs(m2["smoothing_gap_pct"]) > 0.5 and len(c2.warnings) == 1 and "exact model" in c2.warnings[0]

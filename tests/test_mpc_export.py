@@ -33,6 +33,8 @@ from aev_ocp.models.leader import PaperLeader
 from aev_ocp.mpc.export import EXPORT_FILES, CStep, build_library, export_controller, export_controller_settings
 from aev_ocp.mpc.policy import MPCVehicle
 from aev_ocp.mpc.settings import MPCSettings
+from aev_ocp.ocp.following import FollowingBounds, FollowingWeights
+from aev_ocp.ocp.formulation import problem_formulation, s9_formulation
 from aev_ocp.params import EVParams, ParameterError
 from cli_helpers import one_error, run_cli
 
@@ -41,8 +43,9 @@ pytestmark = pytest.mark.skipif(compiler() is None, reason="no C compiler")
 T_END = 20.0  # 200 closed-loop steps of the canonical 700
 TOL = 1e-8
 # PROBLEM.md §9 as in scenarios/mpc_paper_single.toml (the default formulation is 'traffic')
-CANON = dict(formulation="s9", rti_hessian="exact", max_step_ms=10000.0, N=40, dt=0.1, solver="rti", predictor="oracle",
+CANON = dict(rti_hessian="exact", max_step_ms=10000.0, N=40, dt=0.1, solver="rti", predictor="oracle",
              qp_solver="riccati", codegen=True)
+F9 = s9_formulation()  # the problem: PROBLEM.md §9
 
 
 class CPolicy:
@@ -100,7 +103,7 @@ def _c_run(lib: Path, settings: MPCSettings, vehicle: Any = None, first: Any = N
            retries: list[int] | None = None) -> tuple[Any, list[int]]:
     """The closed loop driven by the exported library (forecast from an MPC policy of the same settings);
     ``retries`` (if given) receives the projected-Hessian retries per step."""
-    loop = loop or _loop(vehicle or settings)
+    loop = loop or _loop(vehicle or MPCVehicle(settings, formulation=F9))
     pol = loop.ctrl[0]
     cp = CPolicy(lib, pol, first)
     loop.ctrl[0] = cp
@@ -140,7 +143,7 @@ def test_canonical_closed_loop_matches_python_controller(canonical_lib: Path) ->
     the same library, so this checks the Python wrapping and the export's API; the next test is independent)."""
     s = MPCSettings(**CANON)
     rc, st = _c_run(canonical_lib, s)
-    rp = _loop(s).run([0.3], [1.87], T_END)
+    rp = _loop(MPCVehicle(s, formulation=F9)).run([0.3], [1.87], T_END)
     assert len(st) == 200 and all(k == 0 for k in st)
     assert (rp.solver_stats[0] or {}).get("fallbacks") == 0
     du, dx = _compare(rc, rp)
@@ -159,22 +162,22 @@ def test_canonical_closed_loop_matches_interpreted_qp_path(canonical_lib: Path) 
 
     for qp, tol in (("riccati", TOL), ("qrqp", 2e-6)):
         s = MPCSettings(**{**CANON, "codegen": False, "qp_solver": qp})
-        ref = MPCController(s)
+        ref = MPCController(s, formulation=F9)
         assert ref._cstep is None  # the interpreted path, not the library
         rc, st = _c_run(canonical_lib, s, first=ref)
-        rp = _loop(s).run([0.3], [1.87], T_END)
+        rp = _loop(MPCVehicle(s, formulation=F9)).run([0.3], [1.87], T_END)
         assert all(k == 0 for k in st) and (rp.solver_stats[0] or {}).get("fallbacks") == 0
         du, dx = _compare(rc, rp)
         assert du <= tol and dx <= tol, (qp, du, dx)
 
 
-def _candidate(ev: EVParams, s: MPCSettings) -> Any:
+def _candidate(ev: EVParams, s: MPCSettings, f: Any = F9) -> Any:
     """A ProblemBuilder problem with a soft constraint (slack control) and an extra state: the §9 problem
     (heat objective), a soft time-headway constraint h − 0.23 v >= 0.21 (penalty 37) and a jerk penalty
     0.013 ((a − a_prev)/dt)² through the own state a_prev."""
     from aev_ocp.ocp.following import following_problem
 
-    pb = following_problem(ev, s.bounds, s.smooth, s.objective, name="export_candidate")
+    pb = following_problem(ev, f.bounds, f.smooth, f.objective, name="export_candidate")
     h, v, a = pb.x["h"], pb.x["v"], pb.u["a"]
     pb.subject_to(h - 0.23 * v, lb=0.21, soft=37.0, name="headway")
     a_prev = pb.state("a_prev")
@@ -188,10 +191,12 @@ def test_soft_constraint_and_extra_state_problem(tmp_path: Path) -> None:
     # the exact Hessian (CANON) with a concave control term −0.3 a²: the control blocks of the exact Hessian
     # are then indefinite in many steps, which the interior point cannot take: those QPs are re-solved with
     # the projected Hessian, the same rule in the C driver and in the Python one (MPCController._riccati_step)
-    s = MPCSettings.from_dict({**CANON, "w_Q": 0.7, "h_min": -10.0})
-    prob = _candidate(ev, s)
+    s = MPCSettings(**CANON)
+    f = s9_formulation(weights=FollowingWeights(w_Q=0.7), bounds=FollowingBounds(h_min=-10.0))
+    prob = _candidate(ev, s, f)
     prob.add_stage_cost(-0.3 * prob.u["a"] ** 2, name="concave")
-    c = export_controller_settings(s, ev, problem=prob)
+    pf = problem_formulation(prob, weights=f.weights)  # the problem's parameters w_Q, ... take f's weights
+    c = export_controller_settings(s, ev, formulation=pf)
     assert c.nx == 6 and c.problem.control_names[-1] == "slack_headway"  # a_prev; the soft constraint's slack
     export_controller(c, tmp_path, "candidate")
     lib = build_library(tmp_path, tmp_path / "lib.so")
@@ -200,11 +205,11 @@ def test_soft_constraint_and_extra_state_problem(tmp_path: Path) -> None:
     # against the Python driver (interpreted QP data, NumPy projection, the same QP solver), both from the
     # same cold IPOPT step
     si = s.with_(codegen=False)
-    ref = MPCController(si, ev, problem=prob)
+    ref = MPCController(si, ev, formulation=pf)
     assert ref._riccati is not None and ref._cstep is None
     retries: list[int] = []
-    rc, st = _c_run(lib, si, MPCVehicle(si, problem=prob), first=ref, retries=retries)
-    rp = _loop(MPCVehicle(si, problem=prob)).run([0.3], [1.87], T_END)
+    rc, st = _c_run(lib, si, MPCVehicle(si, formulation=pf), first=ref, retries=retries)
+    rp = _loop(MPCVehicle(si, formulation=pf)).run([0.3], [1.87], T_END)
     assert all(k == 0 for k in st)
     assert (rp.solver_stats[0] or {}).get("fallbacks") == 0
     assert sum(retries) > 20  # the retry rule is exercised (76 of 200 steps)
@@ -391,7 +396,7 @@ def test_export_refuses_what_the_step_does_not_implement(tmp_path: Path) -> None
 
     ev = EVParams()
     s = MPCSettings(**CANON)
-    pb = following_problem(ev, s.bounds, s.smooth, s.objective, name="with_terminal")
+    pb = following_problem(ev, F9.bounds, F9.smooth, F9.objective, name="with_terminal")
     pb.subject_to_terminal(pb.x["v"] - 1.3, lb=0.0, ub=0.0)
     with pytest.raises(ExportError, match="terminal constraints"):
         export_controller(export_controller_settings(s, ev, problem=pb), tmp_path / "t", "x")
@@ -402,7 +407,7 @@ def test_late_cold_start_of_the_compiled_step_warm_starts_the_next() -> None:
     above a warm step (0.2 ms): the first step is a 'budget' fallback whose plan warm-starts the next (it
     used to crash with KeyError 'lam_x', taking the IPOPT branch with a warm start that has no multipliers)."""
     s = MPCSettings(**{**CANON, "max_step_ms": 1.0})
-    r = ClosedLoop(PaperLeader(), [MPCVehicle(s)]).run([0.3], [1.87], 2.0)
+    r = ClosedLoop(PaperLeader(), [MPCVehicle(s, formulation=F9)]).run([0.3], [1.87], 2.0)
     st = r.solver_stats[0]
     steps = r.meta["mpc_steps"][0]
     assert r.status == "ok" and st["solver_path"] == "rti+codegen" and st["qp_solver"] == "riccati"
@@ -421,7 +426,7 @@ def test_riccati_without_a_compiler_says_hpipm_runs(monkeypatch: pytest.MonkeyPa
     for codegen in (True, False):
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
-            c = MPCController(MPCSettings(**{**CANON, "N": 6, "codegen": codegen}))
+            c = MPCController(MPCSettings(**{**CANON, "N": 6, "codegen": codegen}), formulation=F9)
         assert any("'riccati' is unavailable" in str(w.message) for w in caught), [str(w.message) for w in caught]
         assert c._cstep is None and c._riccati is None and c.qp_in_use == "hpipm"
         assert c.solve(np.array([0.3, 1.87, 0.0, 0.0, 0.8]), np.full(6, 1.7), np.full(6, 1.7)).success

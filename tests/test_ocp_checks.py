@@ -18,6 +18,7 @@ from aev_ocp.ocp.checks import multistart, record_smoothing_gap, resimulate_cell
 from aev_ocp.ocp.current_profile import CurrentProfileSolver
 from aev_ocp.ocp.eco_trip import GUESSES, EcoTrip, EcoTripSolver, bang_cruise_bang
 from aev_ocp.ocp.oracle import OracleScenario, OracleSolver
+from aev_ocp.ocp.formulation import s9_formulation
 from aev_ocp.ocp.result import OCPResult
 from aev_ocp.params import CellParams, ParameterError, PowertrainOptions
 
@@ -108,7 +109,7 @@ def test_oracle_replay_gap_silent_and_fires_with_wide_smoothing():
     assert r.warnings == [] and r.objective_exact == pytest.approx(r.objective, rel=1e-3)
     assert rec["final_gap_exact"] == pytest.approx(rec["final_gap_nlp"], abs=1e-3)
     # constructed: η switch smoothed over 200 kW, so P_b is nearly the mean of P_w/η and ηP_w (2 % off)
-    wide = dataclasses.replace(scn, smooth=PowertrainOptions(200_000.0))
+    wide = dataclasses.replace(scn, formulation=s9_formulation(smooth=PowertrainOptions(200_000.0)))
     rw = OracleSolver(wide).solve()
     replay_exact(rw, wide)
     assert rw.success and rw.meta["smoothing_gap"]["warning"] and rw.meta["smoothing_gap"]["relative"] > 0.01
@@ -121,12 +122,12 @@ def test_oracle_energy_term_exact_by_epigraph_and_term_gap_fires_on_a_wide_smoot
     exact tracking terms dilute it in the total: the term check fires."""
     from aev_ocp.params import PowertrainOptions
 
-    scn = OracleScenario(t_end=30.0, objective="energy")
+    scn = OracleScenario(t_end=30.0, formulation=s9_formulation(objective="energy"))
     r = OracleSolver(scn).solve()
     replay_exact(r, scn)
     term = r.meta["smoothing_gap_terms"]["energy"]
     assert r.success and r.warnings == [] and not term["warning"] and abs(term["relative"]) < 1e-5
-    wide = OracleScenario(t_end=30.0, smooth=PowertrainOptions(smoothing_width_W=2e5))
+    wide = OracleScenario(t_end=30.0, formulation=s9_formulation(smooth=PowertrainOptions(smoothing_width_W=2e5)))
     w = OracleSolver(wide).solve()
     replay_exact(w, wide)
     assert w.success and w.meta["smoothing_gap_terms"]["energy"]["warning"]

@@ -13,6 +13,7 @@ from aev_ocp.models import drive_cycle
 from aev_ocp.models.leader import SpeedTrace
 from aev_ocp.mpc import MPCSettings, MPCVehicle, run_closed_loop
 from aev_ocp.mpc.controller import RTI_HESSIAN_FLOOR, MPCController
+from aev_ocp.ocp.formulation import formulation_from_dict, traffic_formulation
 from aev_ocp.ocp.traffic import TrafficParams, traffic_bounds
 from aev_ocp.params import EVParams, ParameterError, Units
 
@@ -28,10 +29,10 @@ def _si_leader(units: Units) -> SpeedTrace:
 def _run_si(units: Units, t_end_s: float) -> tuple[np.ndarray, ...]:
     ev = EVParams(units=units)
     dt = DT_S / units.time_s
-    s = MPCSettings(N=12, dt=dt, codegen=False, predictor="constant-velocity", rti_cold_iterations=30,
-                    traffic=TrafficParams(jerk_weight=0.37, heat_weight=13.0))
+    s = MPCSettings(N=12, dt=dt, codegen=False, predictor="constant-velocity", rti_cold_iterations=30)
+    f = traffic_formulation(TrafficParams(jerk_weight=0.37, heat_weight=13.0))
     h0, v0 = units.length_from_si(11.3), units.speed_from_si(6.1)
-    r = run_closed_loop(_si_leader(units), [MPCVehicle(s)], [h0], [v0], round(t_end_s / DT_S) * dt, ev=ev)
+    r = run_closed_loop(_si_leader(units), [MPCVehicle(s, formulation=f)], [h0], [v0], round(t_end_s / DT_S) * dt, ev=ev)
     t_s = r.t * units.time_s
     return (t_s, units.length_to_si(r.gap[:, 0]), units.speed_to_si(r.speed[:, 0]),
             units.accel_to_si(r.accel[:, 0]), float(r.heat_J[-1, 0]), r.solver_stats[0]["fallbacks"])
@@ -61,8 +62,8 @@ def test_soft_gap_constraint_slack_equals_violation(solver):
     units = Units(13.0, 11.0)
     ev = EVParams(units=units)
     tp = TrafficParams()
-    s = MPCSettings(N=8, codegen=False, solver=solver, traffic=tp)
-    c = MPCController(s, ev)
+    s = MPCSettings(N=8, codegen=False, solver=solver)
+    c = MPCController(s, ev, formulation=traffic_formulation(tp))
     h0_m, v0_ms, vl_ms = 5.1, 14.3, 9.7
     z0 = np.array([units.length_from_si(h0_m), units.speed_from_si(v0_ms), 0.0, 0.0, 0.8])
     vl = np.full(s.N, units.speed_from_si(vl_ms))
@@ -145,14 +146,15 @@ def test_drive_cycle_constant_velocity_no_fallback_and_gap_kept():
     st = r.solver_stats[0]
     assert st["fallbacks"] == 0, st["fallback_causes"]
     m = r.metrics()[0]
-    assert m["min_gap_m"] >= s.traffic.standstill_gap_m - 1e-6
+    tp = TrafficParams()  # the default formulation's
+    assert m["min_gap_m"] >= tp.standstill_gap_m - 1e-6
     assert m["min_speed_model"] >= -1e-9
     assert m["distance_m"] > 50.0  # it moved with the leader
     # violations are counted against the MPC's own floor (2 m), not §9's 0.2 L (3 m here): recounted
-    assert m["gap_violations"] == int(np.sum(r.gap[1:, 0] * units.length_m < s.traffic.standstill_gap_m - 1e-6)) == 0
+    assert m["gap_violations"] == int(np.sum(r.gap[1:, 0] * units.length_m < tp.standstill_gap_m - 1e-6)) == 0
     r.meta["controllers"][0]["bounds_model"]["h_min"] = 1.1  # a floor above part of the run: recounted
     assert r.metrics()[0]["gap_violations"] == int(np.sum(r.gap[1:, 0] < 1.1 - 1e-9)) > 0
-    assert traffic_bounds(ev, s.traffic).h_min == pytest.approx(2.0 / 15.0)
+    assert traffic_bounds(ev, tp).h_min == pytest.approx(2.0 / 15.0)
 
 
 def test_traffic_params_validated():
@@ -161,8 +163,10 @@ def test_traffic_params_validated():
     with pytest.raises(ParameterError, match="target_gap_m"):
         TrafficParams(target_gap_m=1.0)
     with pytest.raises(ParameterError, match="formulation"):
-        MPCSettings(formulation="highway")
-    assert MPCSettings.from_dict({"time_headway_s": 1.7}).traffic.time_headway_s == 1.7
+        formulation_from_dict({"formulation": "highway"})
+    with pytest.raises(ParameterError, match="formulation"):
+        MPCSettings().with_(formulation="s9")  # the problem is not a solver option
+    assert formulation_from_dict({"time_headway_s": 1.7}).traffic.time_headway_s == 1.7
 
 
 def test_comparison_table_flags_runs_of_different_duration():

@@ -12,6 +12,7 @@ from aev_ocp.mpc import MPCSettings
 from aev_ocp.mpc.report import run_comparison
 from aev_ocp.ocp.following import following_problem
 from aev_ocp.ocp.oracle import OracleScenario, OracleSolver, leader_forecast, scenario_oracle
+from aev_ocp.ocp.formulation import traffic_formulation
 from aev_ocp.ocp.traffic import TrafficParams, traffic_problem
 from aev_ocp.ocp.traffic_cost import cost_traffic_of_trajectory
 from aev_ocp.params import EVParams, ParameterError, PowertrainOptions, Units
@@ -74,7 +75,7 @@ def test_cost_traffic_refuses_a_problem_without_the_traffic_controls() -> None:
     with pytest.raises(ParameterError, match="energy_rate"):
         cost_traffic_of_trajectory(pr, t, z, np.zeros(3), np.ones((2, 3)))
     with pytest.raises(ParameterError, match="formulation"):
-        OracleScenario(formulation="traffik")
+        OracleScenario(formulation="traffic")  # a Formulation, not its name
 
 
 @pytest.fixture(scope="module")
@@ -82,7 +83,7 @@ def paper_traffic() -> object:
     """The paper leader, a traffic MPC on the oracle forecast, 4 time units (40 steps), vs the proposed law."""
     sc = load_scenario(find_scenario("mpc_paper_single")).replace(t_end=4.0)
     s = MPCSettings(N=15, predictor="oracle")
-    return sc, s, run_comparison(sc, s, laws=("proposed",))
+    return sc, s, run_comparison(sc, s, laws=("proposed",), formulation=traffic_formulation())
 
 
 def test_traffic_ocpd_bounds_the_traffic_mpc_on_its_grid(paper_traffic) -> None:
@@ -106,7 +107,8 @@ def test_cost_traffic_of_a_simulation_result_equals_numpy(paper_traffic) -> None
     from aev_ocp.ocp.traffic_cost import cost_traffic_of_result
 
     sc, s, c = paper_traffic
-    pr = traffic_problem(sc.ev, s.traffic, s.dt, s.smooth).build()
+    f = traffic_formulation()
+    pr = traffic_problem(sc.ev, f.traffic, s.dt, f.smooth).build()
     tg = np.arange(41) * s.dt
     for lab in ("mpc", "proposed"):
         r = c.results[lab]
@@ -117,7 +119,7 @@ def test_cost_traffic_of_a_simulation_result_equals_numpy(paper_traffic) -> None
             return np.interp(tg, r.t, y)
 
         z = np.vstack([at(r.gap[:, 0]), at(r.speed[:, 0]), at(r.V1[:, 0]), at(r.V2[:, 0]), at(r.S[:, 0])])
-        want = _numpy_traffic_cost(sc.ev, s.traffic, tg, z, at(r.accel[:, 0])[:-1], at(r.leader_speed)[:-1], s.smooth)
+        want = _numpy_traffic_cost(sc.ev, f.traffic, tg, z, at(r.accel[:, 0])[:-1], at(r.leader_speed)[:-1], f.smooth)
         got = cost_traffic_of_result(r, 0, s.dt, pr)["total"]
         assert got == pytest.approx(want, rel=1e-9), lab
         assert got == pytest.approx(c.metrics[lab][0]["cost_traffic"], rel=1e-12)
@@ -129,14 +131,14 @@ def test_traffic_ocpd_objective_equals_cost_traffic_of_its_own_trajectory(name: 
     recomputed, a_prev shifted), to the solver's tolerance; a different initial a_prev changes it. (Behind
     UDDS at rest the slack is inactive: IPOPT's default 1e-8 bound relaxation made it −1e-8 and the
     objective 4.5e-5 too low.)"""
-    sc, s = load_scenario(find_scenario(name)).replace(t_end=t_end), MPCSettings()
-    scn = scenario_oracle(sc, s.dt, smooth=s.smooth, formulation="traffic", traffic=s.traffic)
+    sc, s, f = load_scenario(find_scenario(name)).replace(t_end=t_end), MPCSettings(), traffic_formulation()
+    scn = scenario_oracle(sc, s.dt, f)
     res = OracleSolver(scn, time_limit_s=None).solve()
     assert res.success and abs(res.states["a_prev"][0]) < 1e-12
     t = np.linspace(0.0, scn.t_end, scn.N + 1)
     z = np.vstack([res.states[k] for k in ("h", "v", "V1", "V2", "S")])
     w = np.vstack(leader_forecast(scn.leader, t))
-    pr = traffic_problem(scn.ev, s.traffic, scn.dt, s.smooth).build()
+    pr = traffic_problem(scn.ev, f.traffic, scn.dt, f.smooth).build()
     got = cost_traffic_of_trajectory(pr, t, z, res.controls["a"], w)["total"]
     assert got == pytest.approx(res.objective, rel=1e-7)
     assert res.meta["cost_terms"]["total"] == pytest.approx(got, rel=1e-12)
@@ -147,11 +149,11 @@ def test_traffic_ocpd_objective_equals_cost_traffic_of_its_own_trajectory(name: 
 def test_s9_comparison_keeps_its_ocpd(tmp_path) -> None:
     """The §9 formulation: OCP-D of §9's cost as before, no cost_traffic anywhere."""
     sc = load_scenario(find_scenario("mpc_paper_single")).replace(t_end=1.0)
-    s = sc.extra["mpc"].settings
+    s, f = sc.extra["mpc"].settings, sc.extra["mpc"].formulation
     c = run_comparison(sc, laws=())
     assert c.ocpd["objective"] == "PROBLEM.md §9 cost" and "cost_traffic" not in c.ocpd
     assert "cost_traffic" not in c.metrics["mpc"][0]
-    direct = OracleSolver(scenario_oracle(sc, s.dt, s.weights, s.bounds, s.smooth, s.objective)).solve()
+    direct = OracleSolver(scenario_oracle(sc, s.dt, f)).solve()
     assert c.ocpd["cost_s9"] == direct.objective
 
 
@@ -161,9 +163,9 @@ def test_coarse_grid_traffic_ocpd_is_a_reference(monkeypatch, paper_traffic) -> 
     import aev_ocp.mpc.report as report
 
     sc, s, _ = paper_traffic
-    fine = run_comparison(sc.replace(t_end=2.0), s, laws=()).ocpd
-    monkeypatch.setattr(report, "oracle_grid_dt", lambda t_end, dt, units: 2 * dt)
-    c = run_comparison(sc.replace(t_end=2.0), s, laws=())
+    fine = run_comparison(sc.replace(t_end=2.0), s, laws=(), formulation=traffic_formulation()).ocpd
+    monkeypatch.setattr(report, "oracle_grid_dt", lambda t_end, dt, units, **kw: 2 * dt)
+    c = run_comparison(sc.replace(t_end=2.0), s, laws=(), formulation=traffic_formulation())
     o = c.ocpd
     assert o["grid_dt"] == pytest.approx(2 * s.dt) and o["N"] == 10 and fine["N"] == 20
     np.testing.assert_allclose(np.diff(c.results["ocp-d"].t), s.dt, rtol=1e-9)  # replayed on the MPC's grid
@@ -213,7 +215,7 @@ def test_runs_that_stop_early_report_no_cost() -> None:
     sc = load_scenario(find_scenario("mpc_paper_single")).replace(t_end=2.0)
     u = Units(15.0, 17.0)
     sc = sc.replace(ev=dataclasses.replace(sc.ev, units=u), units=u)
-    c = run_comparison(sc, MPCSettings(N=10, predictor="oracle"), laws=("proposed",))
+    c = run_comparison(sc, MPCSettings(N=10, predictor="oracle"), laws=("proposed",), formulation=traffic_formulation())
     assert c.results["mpc"].events and np.isnan(c.metrics["mpc"][0]["cost_traffic"])
     assert np.isnan(c.metrics["mpc"][0]["cost_s9"]) and np.isfinite(c.metrics["proposed"][0]["cost_traffic"])
     assert any(w.startswith("run mpc stopped early") for w in c.warnings)

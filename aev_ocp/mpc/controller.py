@@ -13,8 +13,8 @@ stage weights s_k (default 1). The measured initial state is fixed by equal simp
 variables are ordered (z_0, u_0, z_1, u_1, …, z_N) and constraints stage by stage, so the KKT system
 is banded and HPIPM detects the OCP structure.
 
-Formulations (``MPCSettings.formulation``): 'traffic' (default, :mod:`aev_ocp.ocp.traffic`) and 's9'
-(PROBLEM.md §9). The 'rti' path projects each diagonal block of the exact Lagrangian Hessian onto the PD
+Formulations (:class:`aev_ocp.ocp.formulation.Formulation`, one object for the problem and what follows from
+it): 'traffic' (default, :mod:`aev_ocp.ocp.traffic`), 's9' (PROBLEM.md §9) or a user problem. The 'rti' path projects each diagonal block of the exact Lagrangian Hessian onto the PD
 cone (``rti_hessian = 'projected'``, :meth:`MPCController.regularised_hessian`), handles terminal costs,
 starts cold by RTI iterations from the closed-form law's rollout (traffic; §9 keeps its cold IPOPT first
 step), and discards a step that took longer than ``max_step_ms`` (status 'budget: …', the policy applies
@@ -46,8 +46,8 @@ from ..models.battery import piecewise_ocv
 from ..models.carfollowing import CarFollowingLaw, Proposed
 from ..models.ego import STATE_NAMES
 from ..numerics import rk4
-from ..ocp.following import WEIGHT_NAMES, FollowingWeights, following_problem, weight_vector
-from ..ocp.traffic import traffic_problem
+from ..ocp.following import WEIGHT_NAMES, FollowingWeights, weight_vector
+from ..ocp.formulation import DEFAULT_FORMULATION, Formulation, problem_formulation
 from ..ocp.problem import OCPProblem, ProblemBuilder
 from ..ocp.transcription import TranscriptionOptions, interval_function, with_discrete_update
 from ..params import EVParams, ParameterError
@@ -121,19 +121,38 @@ def _project_pd(B: np.ndarray) -> np.ndarray:
     return B
 
 
-def default_problem(ev: EVParams, s: MPCSettings) -> ProblemBuilder:
-    """The MPC problem of the settings' formulation: 'traffic' (:func:`aev_ocp.ocp.traffic.traffic_problem`)
-    or 's9' (:func:`aev_ocp.ocp.following.following_problem`, PROBLEM.md §9)."""
-    if s.formulation == "traffic":
-        return traffic_problem(ev, s.traffic, s.dt, s.smooth, name="mpc_traffic")
-    return following_problem(ev, s.bounds, s.smooth, s.objective, name="mpc")
+def default_problem(ev: EVParams, s: MPCSettings, formulation: Formulation | None = None) -> OCPProblem | ProblemBuilder:
+    """The MPC problem of a formulation (default: the traffic formulation) on the settings' interval dt."""
+    return (formulation or DEFAULT_FORMULATION).builder(ev, s.dt)
+
+
+def resolve_formulation(formulation: Formulation | None, problem: OCPProblem | ProblemBuilder | None,
+                        parameter_values: dict[str, float] | None = None,
+                        initial_values: dict[str, float] | None = None) -> Formulation:
+    """The one formulation of an MPC: ``formulation``, or a user ``problem`` made one (every derived item then
+    follows the problem), or the default (traffic). Both at once is a ParameterError."""
+    if problem is not None:
+        if formulation is not None:
+            raise ParameterError("MPC: give problem= or formulation=, not both (a user problem is its own "
+                                 "formulation: aev_ocp.ocp.formulation.problem_formulation(problem))")
+        return problem_formulation(problem, parameter_values, initial_values)
+    f = formulation or DEFAULT_FORMULATION
+    if not isinstance(f, Formulation):
+        raise ParameterError(f"MPC: formulation must be a Formulation, got {type(f).__name__}")
+    if (parameter_values or initial_values) and f.kind == "problem":
+        f = f.with_(parameter_values={**f.parameter_values, **(parameter_values or {})},
+                    initial_values={**f.initial_values, **(initial_values or {})})
+    elif parameter_values or initial_values:
+        raise ParameterError(f"MPC: parameter_values/initial_values are for a user problem, not the {f.name} formulation")
+    return f
 
 
 class MPCController:
     """The MPC for one vehicle: build once, then :meth:`solve` at every step (warm-started).
 
-    ``problem``: an :class:`OCPProblem` or :class:`ProblemBuilder` (default: the §9 problem of the
-    settings' bounds, smoothing and objective); ``guess_law``: closed-form law rolled out over the
+    ``formulation``: the problem and everything derived from it (:class:`aev_ocp.ocp.formulation.Formulation`;
+    default the traffic formulation); ``problem``: a user :class:`OCPProblem` or :class:`ProblemBuilder`
+    instead (it becomes the formulation); ``guess_law``: closed-form law rolled out over the
     horizon as the cold-start guess (default the paper's proposed law); ``parameter_values`` /
     ``initial_values``: values of a user problem's extra parameters / own states by name.
     """
@@ -141,26 +160,27 @@ class MPCController:
     def __init__(self, settings: MPCSettings | None = None, ev: EVParams | None = None,
                  guess_law: CarFollowingLaw | None = None, problem: OCPProblem | ProblemBuilder | None = None,
                  parameter_values: dict[str, float] | None = None,
-                 initial_values: dict[str, float] | None = None) -> None:
+                 initial_values: dict[str, float] | None = None, formulation: Formulation | None = None) -> None:
         self.settings = settings or MPCSettings()
         if not isinstance(self.settings, MPCSettings):
             raise ParameterError(f"MPCController: settings must be an MPCSettings, got {type(settings).__name__}")
         self.ev = ev or EVParams()
         self.guess_law = guess_law or Proposed()
         s = self.settings
-        if problem is None:  # rti: the OCV as comparisons (same values, cheaper Hessians: models/battery.py)
-            with piecewise_ocv() if s.solver == "rti" else contextlib.nullcontext():
-                problem = default_problem(self.ev, s)
-        self.problem = problem.build() if isinstance(problem, ProblemBuilder) else problem
-        self._check_layout(parameter_values or {}, initial_values or {})
+        self.formulation = f = resolve_formulation(formulation, problem, parameter_values, initial_values)
+        # rti: a built-in problem with the OCV as comparisons (same values, cheaper Hessians: models/battery.py)
+        with piecewise_ocv() if s.solver == "rti" and f.kind != "problem" else contextlib.nullcontext():
+            built = f.builder(self.ev, s.dt)
+            self.problem = built.build() if isinstance(built, ProblemBuilder) else built
+        self._check_layout(dict(f.parameter_values), dict(f.initial_values))
         self.codegen_active = False
         self._cstep: Any = None  # the compiled whole step (export.CStep) of the rti path with qp_solver 'riccati'
         self._riccati: Any = None  # (QP-data Function, ocpqp.OcpQP) of the rti path with 'riccati' without codegen
         #: the QP solver that runs ('riccati', a ca.conic/qpsol plugin, or '' for the IPOPT paths)
         self.qp_in_use = self.settings.qp if self.settings.solver in ("rti", "sqp") else ""
-        # the 'rti' path of the traffic formulation starts cold by RTI from the law's rollout; §9 keeps
-        # its cold IPOPT first step (PROBLEM.md §9 numbers unchanged)
-        self._rti_cold = self.settings.formulation != "s9"
+        # the 'rti' path starts cold by RTI from the law's rollout; §9 (and a problem built from it) keeps
+        # its cold IPOPT first step (PROBLEM.md §9 numbers unchanged): the formulation says which
+        self._rti_cold = f.rti_cold_start
         t0 = time.perf_counter()
         self._build_model()
         self._build_nlp()
@@ -371,7 +391,7 @@ class MPCController:
         aev_ocp/c/ocp_qp.c: with codegen the whole step is one compiled library (export.CompiledStep, the C of
         ``aev-ocp mpc-export``), else its Python twin (:meth:`_riccati_step`, the QP data in stage blocks)."""
         s, pr = self.settings, self.problem
-        if s.qp == "qrqp" and s.formulation == "traffic":
+        if s.qp == "qrqp" and self.formulation.family == "traffic":
             raise ParameterError("MPCSettings.qp_solver = 'qrqp' cannot take the traffic formulation: its energy "
                                  "epigraph control enters the cost linearly and qrqp needs curvature in every "
                                  "control; use qp_solver = 'riccati' or 'hpipm'")
@@ -436,7 +456,7 @@ class MPCController:
         if not self.codegen_active:
             self._rti_data, self._rti_fg, self._rti_path0 = qpdata.expand(), fg.expand(), p0.expand()
         self._rti_qp = ca.conic("mpc_rti_qp", qp_plugin, {"h": H.sparsity(), "a": A.sparsity()},
-                                _qp_options(qp_plugin, HPIPM_INF_TRAFFIC if s.formulation == "traffic" else None))
+                                _qp_options(qp_plugin, HPIPM_INF_TRAFFIC if self.formulation.family == "traffic" else None))
         self._rti_path0_lb = np.asarray(pr.path_lb, float)
         self._rti_path0_ub = np.asarray(pr.path_ub, float)
 
@@ -445,7 +465,7 @@ class MPCController:
         """NLP parameter vector: stage parameters per interval (forecast, then the user's), the problem's
         parameters (the §9 weights, then the user's) and the stage weights."""
         N = self.settings.N
-        wt = weight_vector(weights or self.settings.weights)[:self._n_weights]
+        wt = weight_vector(weights or self.formulation.weights)[:self._n_weights]
         sw = np.ones(N) if stage_weights is None else np.asarray(stage_weights, float).ravel()
         if sw.size != N or not np.all(np.isfinite(sw)) or np.any(sw < 0):
             raise ParameterError(f"MPC stage_weights must be {N} finite numbers >= 0")
@@ -531,7 +551,7 @@ class MPCController:
               own: dict[str, float] | None = None) -> MPCSolution:
         """Solve from the measured state z0 = (h, v, V1, V2, S) with the forecast per interval:
         v_mean (N,) interval-mean leader speed and v_hat (N,) leader speed at the interval starts
-        [model speed]. ``weights`` overrides the settings' weights for this solve (no rebuild).
+        [model speed]. ``weights`` overrides the formulation's §9 weights for this solve (no rebuild).
         ``own``: values of the controller's own states by name (see :meth:`initial_state`).
         Never raises on solver failure: returns success=False with a status."""
         s = self.settings

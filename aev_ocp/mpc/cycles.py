@@ -22,6 +22,7 @@ import numpy as np
 from ..metrics import comparability
 from ..params import ParameterError
 from ..results import SimulationResult
+from ..truncation import equal_views
 
 #: The cycles of the section and their shipped single-follower MPC scenarios (``paper``: PROBLEM.md §9's
 #: Table 1 leader, mpc_paper_single, whose own [mpc] table is replaced by the defaults below).
@@ -39,7 +40,9 @@ REFERENCE = "proposed"
 COLUMNS: tuple[str, ...] = ("cycle", "vehicle", "controller", "predictor", "status", "heat_pack_J_per_km",
                             "omega_J_per_kg_per_km", "distance_m", "duration_s", "min_gap_m", "min_ttc_s",
                             "rms_jerk_model", "fallbacks", "solve_ms_p50", "solve_ms_p99", "forecast_rms",
-                            "distance_diff_pct", "duration_diff_pct", "comparable", "flags", "rank")
+                            "distance_diff_pct", "duration_diff_pct", "comparable", "flags", "rank",
+                            "eq_distance_m", "heat_pack_J_per_km_eq_distance", "rank_eq_distance",
+                            "eq_time_s", "heat_pack_J_per_km_eq_time", "rank_eq_time")
 
 
 #: A segment ends once the leader has stood still this long [s] (our choice: every follower of a 5-car
@@ -142,12 +145,23 @@ def cycle_rows(cycle: str, runs: Mapping[tuple[str, str | None], SimulationResul
     """One row per run and follower (0-based ``vehicles``, default all) with the columns of
     :data:`COLUMNS`; comparability (distance or duration > 1 % apart, or a run ended by an event) is
     judged against the same follower under the ``reference`` law (flagged 'no reference' if absent);
-    'flags' names what is off. Ranks are set by :func:`rank_rows`."""
+    'flags' names what is off. Ranks are set by :func:`rank_rows`. Every row also has the equal-distance and
+    equal-time views (:func:`aev_ocp.truncation.equal_views`: each run up to the shortest common distance and
+    the common time of the cycle's runs, where all are comparable): the cut, pack ∫Q/km up to it and its rank."""
     ref_run = runs.get((reference, None))
     rows = []
+    first = next(iter(runs.values()), None)
+    n = first.n_vehicles if first is not None else 0
+    views = {i: equal_views(runs, i)
+             for i in (range(n) if vehicles is None else vehicles)}
     for (ctrl, pred), r in runs.items():
         ms = r.metrics()
         for i in (range(r.n_vehicles) if vehicles is None else vehicles):
+            eq = {}
+            for view, cut, unit in (("distance", "cut_m", "eq_distance_m"), ("time", "cut_s", "eq_time_s")):
+                vr = views[i][view]["runs"].get((ctrl, pred)) or {}
+                eq.update({unit: views[i][view][cut], f"heat_pack_J_per_km_eq_{view}": vr.get("heat_pack_J_per_km", math.nan),
+                           f"rank_eq_{view}": vr.get("rank")})
             m = ms[i]
             ref = ref_run.metrics()[i] if ref_run is not None else None
             c = comparability(m, ref)
@@ -166,7 +180,8 @@ def cycle_rows(cycle: str, runs: Mapping[tuple[str, str | None], SimulationResul
                 "solve_ms_p50": p50, "solve_ms_p99": p99,
                 "forecast_rms": m.get("forecast_rms", math.nan) if ctrl == "mpc" else math.nan,
                 "distance_diff_pct": c["distance_diff_pct"], "duration_diff_pct": c["duration_diff_pct"],
-                "comparable": bool(c["comparable"]) and ref is not None, "flags": ", ".join(flags), "rank": None})
+                "comparable": bool(c["comparable"]) and ref is not None, "flags": ", ".join(flags), "rank": None,
+                **eq})
     return rows
 
 

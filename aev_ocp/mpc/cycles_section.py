@@ -51,7 +51,7 @@ def section_settings() -> Any:
 def _cell(key: str, v: Any) -> str:
     if key == "comparable":
         return "yes" if v else "**no**"
-    if key == "rank":
+    if key in ("rank", "rank_eq_distance", "rank_eq_time"):
         return "not ranked" if v is None else str(v)
     if isinstance(v, str):
         return v or "—"
@@ -67,11 +67,16 @@ HEADERS: dict[str, str] = {
     "duration_s": "duration [s]", "min_gap_m": "min gap [m]", "min_ttc_s": "min TTC [s]",
     "rms_jerk_model": "RMS jerk [model]", "fallbacks": "fallbacks", "solve_ms_p50": "solve p50 [ms]",
     "solve_ms_p99": "solve p99 [ms]", "forecast_rms": "forecast RMS [model]", "distance_diff_pct": "Δdistance [%]",
-    "duration_diff_pct": "Δduration [%]", "comparable": "comparable", "flags": "flags", "rank": "rank (∫Q/km)"}
+    "duration_diff_pct": "Δduration [%]", "comparable": "comparable", "flags": "flags", "rank": "rank (∫Q/km)",
+    "eq_distance_m": "equal distance [m]", "heat_pack_J_per_km_eq_distance": "∫Q/km to equal distance [J/km]",
+    "rank_eq_distance": "rank (equal distance)", "eq_time_s": "equal time [s]",
+    "heat_pack_J_per_km_eq_time": "∫Q/km to equal time [J/km]", "rank_eq_time": "rank (equal time)"}
 #: Columns of the Markdown table (the CSV/JSON have all of :data:`COLUMNS`).
 MD_COLUMNS: tuple[str, ...] = ("cycle", "controller", "predictor", "heat_pack_J_per_km", "omega_J_per_kg_per_km",
                                "distance_m", "min_gap_m", "min_ttc_s", "rms_jerk_model", "fallbacks", "solve_ms_p50",
-                               "solve_ms_p99", "forecast_rms", "comparable", "flags", "rank")
+                               "solve_ms_p99", "forecast_rms", "comparable", "flags", "rank",
+                               "heat_pack_J_per_km_eq_distance", "rank_eq_distance", "heat_pack_J_per_km_eq_time",
+                               "rank_eq_time")
 
 
 def write_tables(rows: Sequence[dict[str, Any]], platoon: Sequence[dict[str, Any]], out: Path,
@@ -117,7 +122,11 @@ def verdicts(rows: Sequence[dict[str, Any]]) -> list[str]:
         name = (lambda r: "MPC" if r["controller"] == "mpc" else r["controller"])  # noqa: E731
         lead = (f"lowest pack ∫Q/km among comparable runs: {name(best[0])}"
                 + (f"/{best[0]['predictor']}" if best[0]["predictor"] != "—" else "")) if best else "no comparable run"
-        lines.append(f"- **{cyc}**: {lead}; " + "; ".join(parts) + ".")
+        eq = [r for r in rs if r.get("rank_eq_distance") == 1]
+        eq_line = (f" Equal distance (every run up to {rs[0]['eq_distance_m']:.6g} m): lowest pack ∫Q/km "
+                   f"{name(eq[0])}" + (f"/{eq[0]['predictor']}" if eq[0]["predictor"] != "—" else "") + "."
+                   if eq and math.isfinite(float(rs[0].get("eq_distance_m", math.nan))) else "")
+        lines.append(f"- **{cyc}**: {lead}; " + "; ".join(parts) + "." + eq_line)
     return lines
 
 

@@ -196,7 +196,7 @@ def config_header(c: "MPCController", description: str) -> str:
     s, pr = c.settings, c.problem
     from ..ocp.following import weight_vector
 
-    p_const = np.concatenate([weight_vector(s.weights)[:c._n_weights], c._p_extra])
+    p_const = np.concatenate([weight_vector(c.formulation.weights)[:c._n_weights], c._p_extra])
     subs = {"DESCRIPTION": description.replace("*/", "* /"), "N": s.N, "NX": pr.nx, "NU": pr.nu, "NZ": NZ,
             "NW": pr.nw, "NW_EXTRA": pr.nw - 2, "NPP": pr.np_, "NV": c.nv, "NG": c.ng, "NP": c.np_,
             "NG_STAGE": c._ng_stage, "RTI_ITER": s.rti_iterations, "COLD_MAX_ITER": COLD_MAX_ITER,
@@ -267,28 +267,32 @@ def export_controller(c: "MPCController", out: Path, description: str) -> list[P
 
 def export_controller_settings(settings: Any, ev: Any = None, problem: Any = None,
                                parameter_values: dict[str, float] | None = None,
-                               initial_values: dict[str, float] | None = None) -> "MPCController":
-    """A controller built only for the export (cold IPOPT path, no codegen: nothing is compiled); the
-    default problem is built as the rti path builds it (the OCV as comparisons, models/battery.py)."""
+                               initial_values: dict[str, float] | None = None, formulation: Any = None) -> "MPCController":
+    """A controller built only for the export (cold IPOPT path, no codegen: nothing is compiled); a built-in
+    formulation's problem is built as the rti path builds it (the OCV as comparisons, models/battery.py), and
+    the controller keeps the formulation (its cold start: the exported step's COLD_ITER)."""
     from ..models.battery import piecewise_ocv
     from ..params import EVParams
-    from .controller import MPCController, default_problem
+    from .controller import MPCController, resolve_formulation
 
-    if problem is None:
+    f = resolve_formulation(formulation, problem, parameter_values, initial_values)
+    c: MPCController
+    if f.kind != "problem":
         with piecewise_ocv():
-            problem = default_problem(ev or EVParams(), settings)
-    return MPCController(settings.with_(solver="ipopt-cold", codegen=False), ev, problem=problem,
-                         parameter_values=parameter_values, initial_values=initial_values)
+            c = MPCController(settings.with_(solver="ipopt-cold", codegen=False), ev or EVParams(), formulation=f)
+        return c
+    return MPCController(settings.with_(solver="ipopt-cold", codegen=False), ev, formulation=f)
 
 
-def export_mpc(scenario: Any, out: Path, settings: Any = None) -> list[Path]:
+def export_mpc(scenario: Any, out: Path, settings: Any = None, formulation: Any = None) -> list[Path]:
     """Export the MPC of a loaded scenario (its ``[mpc]`` table; ExportError if it has none)."""
     cfg = scenario.extra.get("mpc")
     if cfg is None:
         raise ExportError(f"scenario {scenario.name!r} has no [mpc] table: there is no MPC to export")
     s = settings or cfg.settings
-    c = export_controller_settings(s, scenario.ev)
-    what = f"objective {s.objective}" if s.formulation == "s9" else "the traffic formulation"
+    f = formulation or cfg.formulation
+    c = export_controller_settings(s, scenario.ev, formulation=f)
+    what = f"§9, objective {f.objective}" if f.kind == "s9" else f"the {f.name} formulation"
     desc = (f"MPC of scenario {scenario.name} (N = {s.N}, dt = {s.dt:g}, {what}, rk4_substeps {s.rk4_substeps}, "
             f"rti_iterations {s.rti_iterations}, Hessian {s.rti_hessian})")
     return export_controller(c, out, desc)

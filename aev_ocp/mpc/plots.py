@@ -20,15 +20,16 @@ def plot_overlay(results: Mapping[str, SimulationResult], path: str | Path, vehi
 
     Each controller has its own colour and dash pattern and is drawn thinner than the one before it (so an
     identical run does not hide another); the vehicle ahead is a wide gray band behind them;
-    it is in the speed legend, and ``h_min`` [model length] (default: the first MPC
-    run's bound, if any) is drawn and labelled on the gap panel."""
+    it is in the speed legend, and ``h_min`` [model length] (default: the gap floor of the first run whose
+    follower ``vehicle`` runs an MPC: its formulation's, e.g. the traffic formulation's 2 m standstill floor)
+    is drawn and labelled on the gap panel."""
     if not results:
         raise ValueError("plot_overlay: no results to draw")
     first = next(iter(results.values()))
     au = AxisUnits.of(first.units, si)
     styles = controller_styles(list(results))
     if h_min is None:
-        h_min = _h_min_of(results)
+        h_min = _h_min_of(results, vehicle)
     fig, ax = plt.subplots(5, 1, figsize=(9, 11), sharex=True)
     i = vehicle
     for k, (label, r) in enumerate(results.items()):
@@ -61,14 +62,16 @@ def plot_overlay(results: Mapping[str, SimulationResult], path: str | Path, vehi
     return save_figure(fig, Path(path))
 
 
-def _h_min_of(results: Mapping[str, SimulationResult]) -> float | None:
-    """The minimum gap of the first run whose controllers record MPC bounds (``meta['controllers']``)."""
+def _h_min_of(results: Mapping[str, SimulationResult], vehicle: int = 0) -> float | None:
+    """The gap floor [model length] of the running formulation: the first run whose follower ``vehicle`` records
+    its formulation's bounds (``meta['controllers'][vehicle]['bounds_model']``, an MPC's); None if none does."""
     for r in results.values():
-        for c in r.meta.get("controllers") or []:
-            if isinstance(c, dict):
-                b = c.get("bounds")
-                if isinstance(b, dict) and "h_min" in b:
-                    return float(b["h_min"])
+        ctrls = r.meta.get("controllers") or []
+        c = ctrls[vehicle] if vehicle < len(ctrls) else None
+        if isinstance(c, dict):
+            b = c.get("bounds_model")
+            if isinstance(b, dict) and b.get("h_min") is not None:
+                return float(b["h_min"])
     return None
 
 

@@ -2,9 +2,10 @@
 
 At every step the policy forecasts its predecessor (a :class:`LeaderPredictor`, or the predecessor's
 published plan for 'cooperative'), solves its :class:`MPCController` and returns the first control.
-A failed solve applies the fallback law (the proposed law with the scenario's α, β, κ at the measured
-predecessor speed v_l(t_k), clipped to the a bounds; PROBLEM.md §9) and is counted as a fallback with
-its cause. :class:`MPCSettings` and :class:`MPCVehicle` are accepted by
+A failed solve applies the fallback: the smaller of the fallback law (the proposed law with the scenario's
+α, β, κ at the measured predecessor speed v_l(t_k), clipped to the a bounds) and the safe controller of
+:mod:`aev_ocp.safety.fallback` (never accelerates into a gap it could not stop in), counted as a fallback with
+its cause. With the traffic formulation every successful command passes the same safe bound (a safety filter). :class:`MPCSettings` and :class:`MPCVehicle` are accepted by
 :class:`aev_ocp.control.ClosedLoop` directly (registered adapters).
 """
 
@@ -18,14 +19,15 @@ import logging
 import numpy as np
 
 from ..limits import check_mpc_size
-from ..control import ClosedLoop, Command, Observation, SampledLaw, register_controller_adapter, run_closed_loop
+from ..control import ClosedLoop, Command, Observation, register_controller_adapter, run_closed_loop
 from ..models.carfollowing import CarFollowingLaw
 from ..models.leader import LeaderProfile, PaperLeader
+from ..ocp.formulation import Formulation
 from ..ocp.problem import OCPProblem, ProblemBuilder
 from ..params import EVParams, ParameterError, as_dict
 from ..results import SimulationResult
 from ..safety.fallback import SafeFallback
-from .controller import MPCController
+from .controller import MPCController, resolve_formulation
 from .predictors import LeaderPredictor, Measurements, forecast_intervals, make_predictor, plan_forecast
 from .settings import MPCSettings
 
@@ -35,13 +37,26 @@ _LOG = logging.getLogger("aev_ocp.mpc")  # one INFO record per fallback, with it
 
 @dataclass
 class MPCVehicle:
-    """An MPC follower: its settings, optionally its own predictor (default: settings.predictor;
-    'cooperative' = the predecessor's last MPC plan) and its own problem (default: the settings' formulation)."""
+    """An MPC follower: its solver settings, optionally its own predictor (default: settings.predictor;
+    'cooperative' = the predecessor's last MPC plan), and what it solves: a ``formulation``
+    (:class:`aev_ocp.ocp.formulation.Formulation`; default the traffic formulation) or a user ``problem``
+    (with ``parameter_values``), which then is its formulation (its bounds, name, cost and cold start)."""
 
     settings: MPCSettings = field(default_factory=MPCSettings)
     predictor: LeaderPredictor | str | None = None
     problem: OCPProblem | ProblemBuilder | None = None
     parameter_values: dict[str, float] | None = None
+    formulation: Formulation | None = None
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.settings, MPCSettings):
+            raise ParameterError(f"MPCVehicle.settings must be an MPCSettings, got {type(self.settings).__name__}")
+        resolve_formulation(self.formulation, self.problem, self.parameter_values)  # refuse a conflict now
+
+    @property
+    def resolved_formulation(self) -> Formulation:
+        """The one formulation this vehicle's MPC solves (see the class docstring)."""
+        return resolve_formulation(self.formulation, self.problem, self.parameter_values)
 
 
 class MPCPolicy:
@@ -49,15 +64,15 @@ class MPCPolicy:
 
     def __init__(self, settings: MPCSettings, ev: EVParams, fallback_law: CarFollowingLaw,
                  predictor: LeaderPredictor | str, problem: OCPProblem | ProblemBuilder | None = None,
-                 parameter_values: dict[str, float] | None = None) -> None:
+                 parameter_values: dict[str, float] | None = None, formulation: Formulation | None = None) -> None:
         self.settings, self.fallback_law, self.predictor = settings, fallback_law, predictor
-        self.controller = MPCController(settings, ev, fallback_law, problem, parameter_values)
-        # the fallback: min(the law on the measurements clipped to the a bounds, the safe controller); for the shipped
-        # traffic formulation (not a user's own problem) also a safety filter on every command (aev_ocp.safety.fallback)
-        self._fallback = SafeFallback.for_mpc(fallback_law, settings, ev)
-        self._filter = settings.formulation == "traffic" and problem is None
+        self.formulation = resolve_formulation(formulation, problem, parameter_values)
+        self.controller = MPCController(settings, ev, fallback_law, formulation=self.formulation)
+        self._fallback = fallback_controller(fallback_law, settings.dt, self.formulation, ev)
+        # for the shipped traffic formulation (not a user's own problem) also a safety filter on every command
+        self._filter = self.formulation.kind == "traffic"
         self.dt = settings.dt
-        self.name = f"mpc(w_Q={settings.weights.w_Q:g})" if settings.formulation == "s9" else "mpc(traffic)"
+        self.name = self.formulation.controller_name
 
     def reset(self) -> None:
         """Forget the warm start."""
@@ -92,15 +107,22 @@ class MPCPolicy:
 
     def describe(self) -> dict[str, Any]:
         d = as_dict(self.settings)
+        d["formulation"] = self.formulation.describe()
         p = self.predictor
         d["predictor"] = p if isinstance(p, str) else getattr(p, "name", type(p).__name__)
         d["solver_path"] = self.settings.solver + ("+codegen" if self.controller.codegen_active else "")
         d["qp_in_use"] = self.controller.qp_in_use  # the QP solver that runs (qp_solver resolved, after fallbacks)
         d["problem"] = self.controller.problem.name
-        eb = self.settings.effective_bounds(self.controller.ev)  # what the metrics count violations against
-        d["bounds_model"] = {"h_min": eb.h_min, "v_max": eb.v_max}
+        # what the metrics count violations against and the plots draw: the formulation's own bounds
+        d["bounds_model"] = self.formulation.bounds_model(self.controller.ev).as_dict()
         d["safety"] = {**self._fallback.describe(), "filter": self._filter}
         return d
+
+
+def fallback_controller(law: CarFollowingLaw, dt: float, formulation: Formulation, ev: EVParams) -> SafeFallback:
+    """The policy's fallback (the one place it is built): min(``law`` on the measurements sampled every dt [model
+    time] and clipped to the formulation's a bounds, the safe controller of :mod:`aev_ocp.safety.fallback`)."""
+    return SafeFallback.for_mpc(law, formulation, dt, ev)
 
 
 def _adapt(obj: MPCSettings | MPCVehicle, i: int, loop: ClosedLoop) -> MPCPolicy:
@@ -118,7 +140,7 @@ def _adapt(obj: MPCSettings | MPCVehicle, i: int, loop: ClosedLoop) -> MPCPolicy
                                  "follower (use 'cooperative' behind an MPC vehicle, or a measured predictor)")
         else:
             p = make_predictor(p, loop.leader, veh.settings.predictor_window, loop.ev.units.time_s)
-    return MPCPolicy(veh.settings, loop.ev, loop.fallback_law, p, veh.problem, veh.parameter_values)
+    return MPCPolicy(veh.settings, loop.ev, loop.fallback_law, p, formulation=veh.resolved_formulation)
 
 
 register_controller_adapter(MPCSettings, _adapt)
@@ -127,10 +149,10 @@ register_controller_adapter(MPCVehicle, _adapt)
 
 def run_single(settings: MPCSettings | None = None, leader: LeaderProfile | None = None, h0: float = 0.3,
                v0: float = 1.87, t_end: float = 70.0, ev: EVParams | None = None,
-               fallback_law: CarFollowingLaw | None = None) -> SimulationResult:
+               fallback_law: CarFollowingLaw | None = None, formulation: Formulation | None = None) -> SimulationResult:
     """One MPC follower behind ``leader`` (default the paper's Table 1 leader) from h0, v0 (model units; PROBLEM.md
-    §9's canonical start) over [0, t_end]; ``settings`` default MPCSettings() (the traffic formulation with a
-    measured forecast: for PROBLEM.md §9's canonical MPC pass formulation='s9', N=40, predictor='oracle', as
-    scenarios/mpc_paper_single.toml states)."""
-    return run_closed_loop(leader or PaperLeader(), [settings or MPCSettings()], [h0], [v0], t_end, ev=ev,
-                           fallback_law=fallback_law)
+    §9's canonical start) over [0, t_end]; ``settings`` default MPCSettings() and ``formulation`` default the traffic
+    formulation with a measured forecast: for PROBLEM.md §9's canonical MPC pass formulation=s9_formulation() and
+    MPCSettings(N=40, predictor='oracle'), as scenarios/mpc_paper_single.toml states."""
+    veh = MPCVehicle(settings or MPCSettings(), formulation=formulation)
+    return run_closed_loop(leader or PaperLeader(), [veh], [h0], [v0], t_end, ev=ev, fallback_law=fallback_law)

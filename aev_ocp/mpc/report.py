@@ -1,5 +1,13 @@
 """MPC beside the closed-form laws (and the OCP-D lower bound) on the same leader: one comparison used
-by ``aev-ocp mpc`` and by the ``reproduce`` report section."""
+by ``aev-ocp mpc`` and by the ``reproduce`` report section.
+
+Like with like (issue 20): every run is costed with the running formulation's own cost (``Formulation.cost_key``)
+on the MPC's grid; OCP-D solves the same formulation, on the MPC's grid whenever it fits
+(:data:`ORACLE_BOUND_MAX_INTERVALS`), and its column is a *bound* only when it is that optimum on that grid and
+its cost is at most every whole run's (checked); otherwise it is labelled 'reference'. Violations count against the
+running formulation's bounds for every column. Another formulation's cost (the §9 cost of a traffic MPC) is only in a
+secondary table. Equal-distance and equal-time views (:func:`aev_ocp.truncation.equal_views`) rank runs of
+different length."""
 
 from __future__ import annotations
 
@@ -13,16 +21,18 @@ import numpy as np
 
 from .. import interrupts
 from ..ocp.checks import GAP_RTOL as SMOOTHING_GAP_RTOL
-from ..ocp.oracle import (DEFAULT_TIME_LIMIT_S, OBJECTIVE_NAMES, OracleSolver, oracle_grid_dt, scenario_oracle,
-                          stage_cost_of_result)
+from ..ocp.formulation import Formulation, ModelBounds, s9_formulation
+from ..ocp.oracle import (DEFAULT_TIME_LIMIT_S, OBJECTIVE_NAMES, OracleSolver, oracle_grid_dt, oracle_parameters,
+                          scenario_oracle, stage_cost_of_result)
 from ..ocp.problem import OCPProblem
-from ..ocp.traffic_cost import cost_traffic_of_result
+from ..ocp.traffic_cost import cost_traffic_of_result, problem_cost_of_result
 from ..control import ClosedLoop, Command, ControlSequence, Observation
 from ..metrics import comparability
+from ..params import ParameterError
 from ..progress import Progress
 from ..results import SimulationResult, write_json
 from ..simulate import simulate_platoon
-from .controller import default_problem
+from ..truncation import VIEW_KEYS, equal_views
 from .scenario import MPCConfig, closed_loop_from_scenario
 from .settings import MPCSettings
 
@@ -33,8 +43,18 @@ COMPARABILITY_ROWS = ["comparable", "distance_m", "distance_diff_pct", "duration
 METRIC_ROWS = COMPARABILITY_ROWS + ["omega_model", "omega_J_per_kg", "heat_pack_J", "heat_irr_pack_J", "delta_soc", "min_gap_model",
                "min_gap_m", "min_speed_model", "rms_ovm_error_model", "rms_rel_speed_model", "rms_jerk_model",
                "max_abs_current_A", "gap_violations", "speed_violations", "collisions", "infeasible_current",
-               "cost_traffic", "cost_s9", "cost_s9_exact", "smoothing_gap_pct", "forecast_rms", "solve_ms_median", "solve_ms_p95", "solve_ms_max", "iterations_mean", "iterations_max",
+               "cost_traffic", "cost_s9", "cost_problem", "cost_s9_exact", "smoothing_gap_pct", "forecast_rms",
+               "solve_ms_median", "solve_ms_p95", "solve_ms_max", "iterations_mean", "iterations_max",
                "fallbacks", "fallback_causes", "solver_path"]
+#: rows of the §9 cost beside another formulation's run (a secondary table: never a verdict)
+S9_ROWS = ("cost_s9", "cost_s9_exact", "smoothing_gap_pct")
+#: OCP-D is solved on the MPC's own grid (a bound) up to this many intervals; beyond, on the coarse 1 s grid (a
+#: reference). Measured (this machine, 2 shared cores): the traffic OCP-D of the whole UDDS on the MPC's grid
+#: (15 516 intervals of 0.088 s) took 33 IPOPT iterations, 36 s and 0.73 GB peak memory.
+ORACLE_BOUND_MAX_INTERVALS = 20000
+#: A bound's cost may exceed a run's by this fraction (the exact plant vs the optimiser's RK4 and smoothed η
+#: switch; measured: 5e-7 on OCP-D's own replay); more and the OCP-D column is a 'reference', with a warning.
+BOUND_RTOL = 1e-4
 
 
 # Memory of building and solving the horizon-N NLP [bytes per interval]: 0.88-1.29 MB measured by
@@ -100,18 +120,35 @@ class Comparison:
     ocpd: dict[str, Any] | None = None
     timings_s: dict[str, float] = field(default_factory=dict)
     warnings: list[str] = field(default_factory=list)
+    formulation: Formulation = field(default_factory=s9_formulation)
+    #: per follower: the equal-distance and equal-time views (:func:`aev_ocp.truncation.equal_views`)
+    views: list[dict[str, Any]] = field(default_factory=list)
 
 
-def _cost_s9(r: SimulationResult, i: int, s: MPCSettings, exact: bool = False) -> float:
+def _cost_s9(r: SimulationResult, i: int, s: MPCSettings, f: Formulation, exact: bool = False) -> float:
     """§9 cost Σ ℓ(z_k, a_k)·dt on the dt grid (laws: sampled at the grid), with the optimiser's smoothed
-    η switch (as the MPC and OCP-D see it) or, ``exact``, the plant's exact switch."""
-    return stage_cost_of_result(r, i, s.dt, s.weights, None if exact else s.smooth, s.objective)
+    η switch (as the MPC and OCP-D see it) or, ``exact``, the plant's exact switch; §9's weights and objective
+    (the formulation's when it is §9, else PROBLEM.md §9's defaults)."""
+    g = f if f.kind == "s9" else s9_formulation(smooth=f.smooth)
+    return stage_cost_of_result(r, i, s.dt, g.weights, None if exact else g.smooth, g.objective)
 
 
-def _cost_traffic(r: SimulationResult, i: int, s: MPCSettings, pr: OCPProblem | None) -> float | None:
-    """The traffic objective of follower i's run on the MPC's dt grid (:func:`aev_ocp.ocp.traffic_cost.
-    cost_traffic_of_result`, the MPC's own problem ``pr``), or None for the §9 formulation (pr None)."""
-    return None if pr is None else cost_traffic_of_result(r, i, s.dt, pr)["total"]
+def _own_cost(r: SimulationResult, i: int, s: MPCSettings, f: Formulation, pr: OCPProblem, p: list[float]) -> float:
+    """The running formulation's own cost of follower i's run on the MPC's dt grid: §9's Σ ℓ·dt, the traffic
+    objective (:func:`aev_ocp.ocp.traffic_cost.cost_traffic_of_result`) or a user problem's objective."""
+    if f.kind == "s9":
+        return _cost_s9(r, i, s, f)
+    if f.kind == "traffic":
+        return cost_traffic_of_result(r, i, s.dt, pr)["total"]
+    return problem_cost_of_result(r, i, s.dt, pr, np.asarray(p, float))["total"]
+
+
+def _violations(r: SimulationResult, i: int, b: ModelBounds) -> tuple[int, int]:
+    """(gap, speed) violations of follower i's samples after t_0 against the bounds ``b`` [model units]."""
+    h, v = r.gap[1:, i], r.speed[1:, i]
+    gap = int(np.sum(h < b.h_min - 1e-9)) if b.h_min is not None else 0
+    vmax = b.v_max if b.v_max is not None else np.inf
+    return gap, int(np.sum((v < -1e-9) | (v > vmax + 1e-9)))
 
 
 def _on_grid(a: np.ndarray, dt_c: float, dt: float, t_end: float) -> np.ndarray:
@@ -136,19 +173,21 @@ class _HeldPlan(ControlSequence):
 
 def run_comparison(scenario: Any, settings: MPCSettings | None = None, laws: tuple[str, ...] = ("proposed", "ovfl"),
                    with_ocpd: bool = True, log: Callable[[str], None] | None = None,
-                   progress: Progress | None = None) -> Comparison:
-    """MPC closed loop on ``scenario`` (its [mpc] table, or ``settings``) beside each law in ``laws``
-    (whole platoon on that law, same leader and initial state) and OCP-D for a single follower.
+                   progress: Progress | None = None, formulation: Formulation | None = None) -> Comparison:
+    """MPC closed loop on ``scenario`` (its [mpc] table's settings and formulation, or ``settings`` /
+    ``formulation``) beside each law in ``laws`` (whole platoon on that law, same leader and initial state) and
+    OCP-D of the same formulation for a single follower (module docstring: bound or reference).
     progress: reports the MPC loop (step k/N, ETA) and holds its time limit: the loop then stops with
     status 'time_limit' (a partial result) and OCP-D is skipped."""
     cfg: MPCConfig = scenario.extra.get("mpc") or MPCConfig(MPCSettings())
     s = settings or cfg.settings
+    f = formulation or cfg.formulation
     say = log or (lambda m: None)
     out: dict[str, SimulationResult] = {}
     tim: dict[str, float] = {}
     t0 = time.perf_counter()
     say(f"MPC closed loop ({s.solver}{'+codegen' if s.codegen else ''}, N = {s.N}) on {scenario.name}")
-    out["mpc"] = closed_loop_from_scenario(scenario, cfg, s).run(list(scenario.gaps0), list(scenario.speeds0),
+    out["mpc"] = closed_loop_from_scenario(scenario, cfg, s, f).run(list(scenario.gaps0), list(scenario.speeds0),
                                                                  scenario.t_end,
                                                                  progress=(progress.closed_loop(s.dt) if progress
                                                                            else _progress(say, "mpc")))
@@ -163,25 +202,33 @@ def run_comparison(scenario: Any, settings: MPCSettings | None = None, laws: tup
         tim[name] = time.perf_counter() - t0
     metrics = {}
     warn: list[str] = []
-    traffic = s.formulation == "traffic"
-    # the MPC's own problem (built as the controller builds it), for cost_traffic on its grid
-    pr = default_problem(scenario.ev, s).build() if traffic else None
+    key = f.cost_key
+    # the MPC's own problem (built as the controller builds it) and its parameters, for its cost on its grid
+    pr = f.build(scenario.ev, s.dt)
+    pvec = f.parameter_vector(list(pr.meta.get("parameter_names", [])))
+    b = f.bounds_model(scenario.ev)
     for lab, r in out.items():
         ms = r.metrics()
         whole = _covers(r, scenario.t_end)
         if not whole:
-            warn.append(f"run {lab} stopped early ({_run_status(r)}): its costs (cost_s9, cost_traffic) cover only "
+            warn.append(f"run {lab} stopped early ({_run_status(r)}): its costs ({key}, cost_s9) cover only "
                         "part of the horizon and are not reported")
         for i, m in enumerate(ms):
-            if traffic:
-                m["cost_traffic"] = _cost_traffic(r, i, s, pr) if whole else float("nan")
-            m["cost_s9"], m["cost_s9_exact"] = ((_cost_s9(r, i, s), _cost_s9(r, i, s, exact=True)) if whole
+            try:
+                m[key] = _own_cost(r, i, s, f, pr, pvec) if whole else float("nan")
+            except ParameterError as exc:  # a user problem whose controls a run does not fix
+                m[key] = float("nan")
+                if lab == "mpc" and i == 0:
+                    warn.append(f"{key} is not reported: {exc}")
+            m["cost_s9"], m["cost_s9_exact"] = ((_cost_s9(r, i, s, f), _cost_s9(r, i, s, f, exact=True)) if whole
                                                 else (float("nan"), float("nan")))
             m["smoothing_gap_pct"] = 100 * (m["cost_s9"] / m["cost_s9_exact"] - 1) if m["cost_s9_exact"] else float("nan")
+            # like with like: every column's violations against the running formulation's bounds
+            m["gap_violations"], m["speed_violations"] = _violations(r, i, b)
             st = (r.solver_stats or [None] * len(ms))[i]
             if st:
                 m["forecast_rms"] = st.get("forecast_rms", float("nan"))
-            if lab == "mpc" and abs(m["smoothing_gap_pct"]) > 100 * SMOOTHING_GAP_RTOL:
+            if lab == "mpc" and f.kind == "s9" and abs(m["smoothing_gap_pct"]) > 100 * SMOOTHING_GAP_RTOL:
                 warn.append(f"vehicle {i + 1}: the MPC's §9 cost is {m['cost_s9']:.6g} with its smoothed η switch "
                             f"but {m['cost_s9_exact']:.6g} on the exact model ({m['smoothing_gap_pct']:+.2f} %): "
                             "the optimiser may exploit the smoothing (narrow mpc.smoothing_width_W)")
@@ -192,23 +239,24 @@ def run_comparison(scenario: Any, settings: MPCSettings | None = None, laws: tup
         warn.append("OCP-D skipped: the time limit has passed")
     elif with_ocpd and scenario.n_followers == 1:
         t0 = time.perf_counter()
-        # a long run (e.g. a whole drive cycle) gets the coarser 1 s grid (oracle_grid_dt, meta 'grid_dt');
-        # a traffic MPC gets the OCP-D of its own problem (the jerk term on the OCP-D grid step)
-        scn = scenario_oracle(scenario, oracle_grid_dt(scenario.t_end, s.dt, scenario.units), s.weights, s.bounds,
-                              s.smooth, s.objective, formulation="traffic" if traffic else "s9", traffic=s.traffic)
-        say(f"OCP-D lower bound (whole scenario, IPOPT, N = {scn.N}, dt = {scn.dt:.4g})")
+        # OCP-D of the MPC's own formulation on the MPC's grid (a bound); only a run too long for that
+        # (> ORACLE_BOUND_MAX_INTERVALS) gets the coarser 1 s grid (a reference; meta 'grid_dt')
+        scn = scenario_oracle(scenario, oracle_grid_dt(scenario.t_end, s.dt, scenario.units,
+                                                       max_intervals=ORACLE_BOUND_MAX_INTERVALS), f)
+        say(f"OCP-D of the MPC's formulation (whole scenario, IPOPT, N = {scn.N}, dt = {scn.dt:.4g})")
         # IPOPT's wall-time limit: what is left of the run's time limit (at most the OCP-D default)
         left = progress.remaining_s() if progress is not None else math.inf
         res = OracleSolver(scn, progress=say, time_limit_s=min(DEFAULT_TIME_LIMIT_S, max(left, 1e-3))).solve()
         interrupts.check()  # IPOPT turns Ctrl-C into a failed solve
         tim["ocpd"] = time.perf_counter() - t0
         # a failed or time-limited solve bounds nothing: no cost is reported for it
-        key = "cost_traffic" if traffic else "cost_s9"
+        traffic = f.kind == "traffic"
         ocpd = {"success": res.success, "status": res.status, key: res.objective if res.success else float("nan"),
-                "grid_dt": scn.dt, "objective": "traffic objective (the MPC's)" if traffic else "PROBLEM.md §9 cost"}
-        if traffic:
-            ocpd.update({"objective_definition": OBJECTIVE_NAMES[scn.formulation], "N": scn.N,
-                         "solve_time_s": res.wall_time_s, "iterations": res.iterations})
+                "grid_dt": scn.dt, "formulation": f.name,
+                "objective": {"traffic": "traffic objective (the MPC's)", "s9": "PROBLEM.md §9 cost"}.get(
+                    f.kind, f"the MPC's problem {f.name!r}"),
+                "objective_definition": OBJECTIVE_NAMES[f.kind], "N": scn.N,
+                "solve_time_s": res.wall_time_s, "iterations": res.iterations, "role": "reference"}
         if res.success:
             # replay the optimal controls open loop through the same exact plant: every §10 metric
             say("OCP-D: replaying its controls through the exact plant")
@@ -222,25 +270,47 @@ def run_comparison(scenario: Any, settings: MPCSettings | None = None, laws: tup
             whole = _covers(r, scenario.t_end)
             if not whole:
                 warn.append(f"the OCP-D replay stopped early ({_run_status(r)}): its replayed costs are not reported")
-            # the same cost on the exact plant's trajectory
-            m["cost_s9_replayed"] = _cost_s9(r, 0, s) if whole else float("nan")
-            if traffic:
-                m["cost_traffic_replayed"] = _cost_traffic(r, 0, s, pr) if whole else float("nan")
+            # the same costs on the exact plant's trajectory
+            m["cost_s9_replayed"] = _cost_s9(r, 0, s, f) if whole else float("nan")
+            if f.kind != "s9":
+                try:
+                    m[f"{key}_replayed"] = _own_cost(r, 0, s, f, pr, pvec) if whole else float("nan")
+                except ParameterError:
+                    m[f"{key}_replayed"] = float("nan")
+            m["gap_violations"], m["speed_violations"] = _violations(r, 0, b)
             ocpd.update({k: v for k, v in m.items() if k not in ("vehicle", "controller")})
             ocpd[key] = res.objective
-            if traffic:  # §9's cost of the traffic optimum's replay: a number beside the others, not a bound
+            if f.kind != "s9":  # §9's cost of the optimum's replay: a secondary number, not a bound
                 ocpd["cost_s9"] = m["cost_s9_replayed"]
             if coarse:  # a coarser grid's optimum bounds nothing on the MPC's grid
                 ocpd[f"{key}_grid"], ocpd[key] = res.objective, m[f"{key}_replayed"]
                 warn.append(f"OCP-D was solved on a coarser grid (dt = {scn.dt:.4g}, the MPC's {s.dt:g}): its {key} "
                             f"is its controls replayed and costed on the MPC's grid, a reference, not a lower bound "
                             f"(its own grid's optimum: {res.objective:.6g})")
+            else:
+                ocpd["role"], why = _bound_role(float(res.objective), metrics, key)
+                if why:
+                    warn.append(why)
             ref = (metrics.get("proposed") or metrics["mpc"])[0]
             ocpd.update({k: v for k, v in comparability(m, ref).items()})
             out["ocp-d"] = r
     for w in warn:
         say(f"warning: {w}")
-    return Comparison(out, metrics, ocpd, tim, warn)
+    views = [equal_views(out, i) for i in range(scenario.n_followers)]
+    return Comparison(out, metrics, ocpd, tim, warn, f, views)
+
+
+def _bound_role(cost: float, metrics: dict[str, list[dict[str, Any]]], key: str) -> tuple[str, str]:
+    """('bound', '') when the OCP-D optimum ``cost`` (same formulation, the MPC's grid) is at most every whole
+    run's ``key`` cost of follower 1 (within BOUND_RTOL), else ('reference', the warning naming the run)."""
+    for lab, ms in metrics.items():
+        c = ms[0].get(key)
+        if c is None or not math.isfinite(float(c)) or not math.isfinite(cost):
+            continue
+        if cost > float(c) + BOUND_RTOL * abs(float(c)):
+            return "reference", (f"OCP-D's {key} {cost:.6g} exceeds run {lab}'s {float(c):.6g}: it is not a lower "
+                                 "bound of it and is labelled 'reference'")
+    return ("bound", "") if math.isfinite(cost) else ("reference", "")
 
 
 def _covers(r: SimulationResult, t_end: float) -> bool:
@@ -276,26 +346,7 @@ def _run_status(r: SimulationResult) -> str:
     return f"{e.kind} at t = {e.time:.4g}" + (f" (vehicle {e.vehicle + 1})" if e.vehicle >= 0 else "")
 
 
-def comparison_table(c: Comparison, vehicle: int = 0, markdown: bool = False) -> str:
-    """Every §10 metric of follower ``vehicle`` side by side (MPC, laws, OCP-D)."""
-    labs = list(c.metrics)
-    cols = labs + (["ocp-d"] if c.ocpd and vehicle == 0 else [])
-    rows = []
-    for key in METRIC_ROWS:
-        vals = [c.metrics[lab][vehicle].get(key) for lab in labs]
-        if "ocp-d" in cols:
-            vals.append(c.ocpd.get(key) if c.ocpd else None)
-        if all(v is None for v in vals):
-            continue
-        rows.append([key] + [_fmt(v) for v in vals])
-    status = [_run_status(c.results[lab]) if lab in c.results else "—" for lab in labs]
-    flag = [c.metrics[lab][vehicle].get("comparable", True) for lab in labs]
-    if "ocp-d" in cols:
-        status.append(_run_status(c.results["ocp-d"]) if "ocp-d" in c.results else (c.ocpd or {}).get("status", "—"))
-        flag.append(bool((c.ocpd or {}).get("comparable", False)))
-    cols = [col if ok else f"{col} (NOT COMPARABLE)" for col, ok in zip(cols, flag)]
-    rows.insert(0, ["status"] + status)
-    head = ["metric"] + cols
+def _render(head: list[str], rows: list[list[str]], markdown: bool) -> str:
     if markdown:
         lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
         lines += ["| " + " | ".join(r) + " |" for r in rows]
@@ -303,6 +354,78 @@ def comparison_table(c: Comparison, vehicle: int = 0, markdown: bool = False) ->
     w = [max(len(str(x)) for x in col) for col in zip(head, *rows)]
     return "\n".join("  ".join(str(x).ljust(wi) if j == 0 else str(x).rjust(wi) for j, (x, wi) in enumerate(zip(r, w)))
                      for r in [head] + rows)
+
+
+def _ocpd_label(c: Comparison) -> str:
+    """'ocp-d (bound)' only for the same formulation's optimum on the MPC's grid that is ≤ every run's cost."""
+    return f"ocp-d ({(c.ocpd or {}).get('role', 'reference')})"
+
+
+def _floor_note(c: Comparison, vehicle: int) -> str:
+    """'h < 2 m' : what gap_violations count (the running formulation's floor, in SI)."""
+    r = c.results.get("mpc")
+    ctrls = (r.meta.get("controllers") or []) if r is not None else []
+    b = ctrls[vehicle].get("bounds_model") if vehicle < len(ctrls) and isinstance(ctrls[vehicle], dict) else None
+    if r is None or not b or b.get("h_min") is None:
+        return ""
+    return f" (h < {float(r.units.length_to_si(b['h_min'])):.3g} m)"
+
+
+def comparison_table(c: Comparison, vehicle: int = 0, markdown: bool = False, views: bool = True) -> str:
+    """Every §10 metric of follower ``vehicle`` side by side (MPC, laws, OCP-D of the same formulation: 'bound' or
+    'reference'), the running formulation's own cost as the only cost row; then, labelled, another formulation's
+    cost (PROBLEM.md §9's beside a traffic MPC: no verdict) and the equal-distance and equal-time views."""
+    f = c.formulation
+    labs = list(c.metrics)
+    with_d = bool(c.ocpd) and vehicle == 0
+    cols = labs + (["ocp-d"] if with_d else [])
+    other = [k for k in S9_ROWS if f.kind != "s9"]
+    own_cost_rows = {"cost_traffic", "cost_s9", "cost_problem"} - {f.cost_key}
+    rows, secondary = [], []
+    for key in METRIC_ROWS:
+        vals = [c.metrics[lab][vehicle].get(key) for lab in labs]
+        if with_d:
+            vals.append(c.ocpd.get(key) if c.ocpd else None)
+        if all(v is None for v in vals):
+            continue
+        name = key + (_floor_note(c, vehicle) if key == "gap_violations" else "")
+        if key in other:
+            secondary.append([key] + [_fmt(v) for v in vals])
+        elif key not in own_cost_rows:
+            rows.append([name] + [_fmt(v) for v in vals])
+    status = [_run_status(c.results[lab]) if lab in c.results else "—" for lab in labs]
+    flag = [c.metrics[lab][vehicle].get("comparable", True) for lab in labs]
+    if with_d:
+        status.append(_run_status(c.results["ocp-d"]) if "ocp-d" in c.results else (c.ocpd or {}).get("status", "—"))
+        flag.append(bool((c.ocpd or {}).get("comparable", False)))
+    heads = [_ocpd_label(c) if col == "ocp-d" else col for col in cols]
+    heads = [col if ok else f"{col} (NOT COMPARABLE)" for col, ok in zip(heads, flag)]
+    rows.insert(0, ["status"] + status)
+    text = [f"Whole runs (formulation {f.name}; its own cost {f.cost_key}; ranked only when comparable):",
+            _render(["metric"] + heads, rows, markdown)]
+    if secondary:
+        text += ["", "Another formulation's cost (PROBLEM.md §9's; this MPC does not optimise it: no verdict):",
+                 _render(["metric"] + heads, secondary, markdown)]
+    if views and vehicle < len(c.views):
+        text += ["", views_table(c.views[vehicle], markdown)]
+    return "\n".join(text)
+
+
+def views_table(v: dict[str, Any], markdown: bool = False) -> str:
+    """The equal-distance and equal-time views of one follower (:func:`aev_ocp.truncation.equal_views`), each
+    run evaluated up to the cut and ranked by pack ∫Q/km (1 = lowest)."""
+    out = []
+    for view, cut, unit in (("distance", "cut_m", "m"), ("time", "cut_s", "s")):
+        runs = v.get(view, {}).get("runs") or {}
+        if not runs:
+            continue
+        what = "shortest common distance" if view == "distance" else "common time"
+        out.append(f"Equal {view}: every run up to the {what}, {v[view][cut]:.6g} {unit} (all comparable; runs ended "
+                   "by an event left out):")
+        labs = list(runs)
+        rows = [[k] + [_fmt(runs[lab][k]) for lab in labs] for k in (*VIEW_KEYS, "rank")]
+        out += [_render(["metric"] + labs, rows, markdown), ""]
+    return "\n".join(out).rstrip()
 
 
 def write_outputs(c: Comparison, out: Path) -> list[Path]:
@@ -318,6 +441,7 @@ def write_outputs(c: Comparison, out: Path) -> list[Path]:
                                                               "events": [vars(e) for e in res.events]}
                                                         for lab, res in c.results.items()},
                                                "ocp_d": c.ocpd, "timings_s": c.timings_s, "warnings": c.warnings,
+                                               "formulation": c.formulation.describe(), "equal_views": c.views,
                                                "mpc_settings": r.meta.get("controllers"),
                                                "mpc_steps": r.meta.get("mpc_steps")})]
     files.append(r.to_csv(out / "trajectories_mpc.csv"))
@@ -353,6 +477,7 @@ def mpc_section(out_dir: Any, progress: Callable[[str], None]) -> str:
              "Plots: `mpc/overlay_vehicle1.png` (trajectories, current, SOC), `mpc/mpc_solve_times.png`.", ""]
     if c.ocpd and c.ocpd.get("success"):
         gap = 100 * (st["cost_s9"] / c.ocpd["cost_s9"] - 1)
-        lines.append(f"MPC's §9 cost is {gap:.3f} % above the OCP-D lower bound.")
+        what = "lower bound" if c.ocpd.get("role") == "bound" else "reference (not a bound, see the warnings)"
+        lines.append(f"MPC's §9 cost is {gap:.3f} % above the OCP-D {what}.")
     lines += [f"**Warning:** {w}" for w in c.warnings]
     return "\n".join(lines) + "\n"

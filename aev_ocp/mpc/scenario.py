@@ -1,9 +1,10 @@
 """The ``[mpc]`` table of scenario files, and building a closed loop from a scenario.
 
-Keys (all optional; defaults PROBLEM.md §9): every :class:`MPCSettings` option (N, dt, objective,
+Keys (all optional): every :class:`MPCSettings` solver option (N, dt,
 solver, qp_solver, codegen, tol, max_iter, rti_iterations, max_cpu_time_s, predictor, predictor_window, rk4_substeps,
-verbose), the weights w_Q, w_V, w_r, w_a, the bounds h_min, v_min, v_max, a_min, a_max,
-smoothing_width_W, plus ``vehicles`` ("all" or an array of 1-based follower numbers on MPC; the others
+verbose); the formulation's keys, routed into one :class:`aev_ocp.ocp.formulation.Formulation`: ``formulation``
+('traffic', the default, or 's9'), the traffic formulation's SI parameters (TrafficParams fields), §9's
+objective, weights w_Q, w_V, w_r, w_a and bounds h_min, v_min, v_max, a_min, a_max, and smoothing_width_W; plus ``vehicles`` ("all" or an array of 1-based follower numbers on MPC; the others
 keep the scenario's [platoon] law) and ``follower_predictor`` (forecast of an MPC follower behind
 another vehicle: "cooperative" behind an MPC vehicle by default, else "constant-velocity").
 """
@@ -14,13 +15,14 @@ from dataclasses import dataclass, fields
 from typing import Any
 
 from ..ocp.following import FollowingBounds, FollowingWeights
+from ..ocp.formulation import DEFAULT_FORMULATION, Formulation, formulation_from_dict, formulation_keys
 from ..ocp.traffic import TrafficParams
 from ..control import ClosedLoop
 from ..params import Check, ParameterError, PowertrainOptions, field_checks
 from .policy import MPCVehicle
 from .settings import MPCSettings
 
-#: Nested dataclasses of MPCSettings whose fields appear flat in the [mpc] table.
+#: Dataclasses of the formulation whose fields appear flat in the [mpc] table.
 _NESTED = {"weights": FollowingWeights, "bounds": FollowingBounds, "smooth": PowertrainOptions,
            "traffic": TrafficParams}
 #: The ``follower_predictor`` key: forecasts that make sense behind another vehicle.
@@ -29,17 +31,22 @@ FOLLOWER_PREDICTORS = ("cooperative", "constant-velocity", "constant-acceleratio
 
 @dataclass(frozen=True)
 class MPCConfig:
-    """Validated [mpc] table: settings, 0-based MPC vehicle indices (None = all), follower predictor."""
+    """Validated [mpc] table: solver settings, 0-based MPC vehicle indices (None = all), follower predictor,
+    and the formulation (the problem; default the traffic formulation)."""
 
     settings: MPCSettings
     vehicles: tuple[int, ...] | None = None
     follower_predictor: str | None = None
+    formulation: Formulation = DEFAULT_FORMULATION
 
 
 def mpc_table_keys() -> dict[str, Check | None]:
     """Keys of the [mpc] table (besides vehicles, follower_predictor) -> their declared Check (None: a
-    number checked by its dataclass). Derived from MPCSettings and its nested dataclasses, never listed by hand."""
+    number checked by its dataclass). Derived from MPCSettings and the formulation's dataclasses, never listed by hand."""
     keys: dict[str, Check | None] = {k: c for k, c in field_checks(MPCSettings).items() if c.kind != "instance"}
+    fc = field_checks(Formulation)
+    keys["formulation"] = Check("choice", choices=("traffic", "s9"))
+    keys["objective"] = fc["objective"]
     for cls in _NESTED.values():
         checks = field_checks(cls)
         keys.update({f.name: checks.get(f.name) for f in fields(cls)})
@@ -73,7 +80,7 @@ def validate_mpc_table(r: Any) -> MPCConfig:
             vehicles = tuple(sorted({int(x) - 1 for x in nums_v}))
     fp = r.string("follower_predictor", None, choices=list(FOLLOWER_PREDICTORS))
     r.finish(allowed_hint=sorted(keys) + ["follower_predictor", "vehicles"])
-    if d.get("formulation", MPCSettings().formulation) != "s9":  # §9-only keys would be silently ignored
+    if d.get("formulation", DEFAULT_FORMULATION.kind) != "s9":  # §9-only keys would be silently ignored
         s9_only = {f.name for c in (FollowingWeights, FollowingBounds) for f in fields(c)} | {"objective"}
         bad = [k for k in d if k in s9_only]
         if bad:
@@ -85,12 +92,14 @@ def validate_mpc_table(r: Any) -> MPCConfig:
         if bad:
             raise r.error(bad[0], d[bad[0]], "applies to the traffic formulation only (aev_ocp/ocp/traffic.py), "
                           "not to formulation = \"s9\"")
+    fkeys = formulation_keys()
     try:
-        settings = MPCSettings.from_dict(d)
+        settings = MPCSettings.from_dict({k: v for k, v in d.items() if k not in fkeys})
+        formulation = formulation_from_dict({k: v for k, v in d.items() if k in fkeys})
     except ParameterError as exc:  # a cross-field rule of a nested dataclass (e.g. v_min < v_max)
         key = next((k for k in d if f".{k} " in str(exc)), None)
         raise ScenarioError(f"{r.file}: {r.key_path(key) if key else r.path}: {exc}") from None
-    return MPCConfig(settings, vehicles, fp)
+    return MPCConfig(settings, vehicles, fp, formulation)
 
 
 def register() -> None:
@@ -100,14 +109,15 @@ def register() -> None:
     register_section("mpc", validate_mpc_table)
 
 
-def check_mpc_setup(scenario: Any, config: MPCConfig | None = None, settings: MPCSettings | None = None) -> None:
+def check_mpc_setup(scenario: Any, config: MPCConfig | None = None, settings: MPCSettings | None = None,
+                    formulation: Formulation | None = None) -> None:
     """Refuse an MPC setup that cannot run, before anything is built: MPC vehicles that do not exist, or an
     MPC vehicle whose initial gap is at or below h_min or whose initial speed is outside [v_min, v_max]
     (every NLP would be infeasible and every step would run on the fallback). ScenarioError naming the file."""
     from ..scenarios import ScenarioError
 
     cfg = config or scenario.extra.get("mpc") or MPCConfig(MPCSettings())
-    s = settings or cfg.settings
+    f = formulation or cfg.formulation
     file = str(scenario.source) if getattr(scenario, "source", None) is not None else scenario.name
     n = scenario.n_followers
     on = list(range(n)) if cfg.vehicles is None else list(cfg.vehicles)
@@ -115,36 +125,38 @@ def check_mpc_setup(scenario: Any, config: MPCConfig | None = None, settings: MP
     if missing:
         raise ScenarioError(f"{file}: mpc.vehicles = {[i + 1 for i in on]} is not allowed: follower(s) {missing} "
                             f"do not exist (platoon.followers = {n})")
-    b = s.effective_bounds(scenario.ev)
+    b = f.bounds_model(scenario.ev)
     for i in on:
         h0, v0 = scenario.gaps0[i], scenario.speeds0[i]
-        if s.formulation == "s9" and b.h_min >= h0:  # the traffic formulation's gap floor is soft
+        if f.kind == "s9" and b.h_min is not None and b.h_min >= h0:  # the traffic formulation's floor is soft
             raise ScenarioError(f"{file}: mpc.h_min = {b.h_min:g} is not allowed: it is at or above the initial gap "
                                 f"of follower {i + 1} ({h0:g}), so the MPC problem is infeasible from the first step")
-        if not b.v_min <= v0 <= b.v_max:
+        if b.v_min is not None and b.v_max is not None and not b.v_min <= v0 <= b.v_max:
             raise ScenarioError(f"{file}: mpc.v_min/v_max (traffic: 0, v_max_mps) = [{b.v_min:g}, {b.v_max:g}] is not allowed: the initial "
                                 f"speed of follower {i + 1} ({v0:g}) lies outside, so the MPC problem is infeasible")
 
 
 def closed_loop_from_scenario(scenario: Any, config: MPCConfig | None = None,
-                              settings: MPCSettings | None = None) -> ClosedLoop:
-    """A :class:`ClosedLoop` for a scenario: MPC on the configured followers, the scenario's laws on the
-    others, the proposed law with the scenario's α, β, κ as the fallback."""
+                              settings: MPCSettings | None = None, formulation: Formulation | None = None) -> ClosedLoop:
+    """A :class:`ClosedLoop` for a scenario: MPC on the configured followers (the config's formulation, unless
+    ``formulation`` is given), the scenario's laws on the others, the proposed law with the scenario's α, β, κ
+    as the fallback."""
     cfg = config or scenario.extra.get("mpc") or MPCConfig(MPCSettings())
     s = settings or cfg.settings
+    f = formulation or cfg.formulation
     n = scenario.n_followers
     on = set(range(n)) if cfg.vehicles is None else set(cfg.vehicles)
-    check_mpc_setup(scenario, cfg, s)
+    check_mpc_setup(scenario, cfg, s, f)
     ctrls: list[Any] = []
     for i in range(n):
         if i not in on:
             ctrls.append(scenario.laws[i])
         elif i == 0:
-            ctrls.append(MPCVehicle(s))
+            ctrls.append(MPCVehicle(s, formulation=f))
         else:
             p = cfg.follower_predictor or ("cooperative" if (i - 1) in on else "constant-velocity")
             if p == "cooperative" and (i - 1) not in on:
                 p = "constant-velocity"
-            ctrls.append(MPCVehicle(s, predictor=p))
+            ctrls.append(MPCVehicle(s, predictor=p, formulation=f))
     return ClosedLoop(scenario.leader, ctrls, scenario.ev, fallback_law=scenario.law("proposed"),
                       rtol=scenario.rtol, atol=scenario.atol)

@@ -1,4 +1,4 @@
-"""MPC settings (PROBLEM.md §9), validated in one place.
+"""MPC solver settings (PROBLEM.md §9), validated in one place (the problem: :mod:`aev_ocp.ocp.formulation`).
 
 Every option lives in :class:`MPCSettings`, a frozen dataclass whose fields declare their type and
 range (:func:`aev_ocp.params.spec`); the ``[mpc]`` scenario table reads those declarations. An invalid value raises
@@ -11,9 +11,7 @@ from __future__ import annotations
 from dataclasses import dataclass, fields, replace
 from typing import Any
 
-from ..ocp.following import OBJECTIVES, FollowingBounds, FollowingWeights
-from ..ocp.traffic import FORMULATIONS, TrafficParams, traffic_bounds
-from ..params import EVParams, ParameterError, PowertrainOptions, spec, validate_fields
+from ..params import ParameterError, spec, validate_fields
 
 #: Solver paths. 'ipopt': warm-started IPOPT (default). 'sqp': sqpmethod (exact Hessian, qpsol
 #: ``qp_solver``) warm-started from the shifted previous solution after a cold IPOPT first solve.
@@ -42,18 +40,16 @@ PREDICTOR_NAMES = ("oracle", "constant-velocity", "constant-acceleration", "deca
 
 @dataclass(frozen=True)
 class MPCSettings:
-    """Options of the receding-horizon controller.
+    """Solver options of the receding-horizon controller (which problem it solves is a
+    :class:`aev_ocp.ocp.formulation.Formulation`, given beside these: ``MPCVehicle(settings, formulation=...)``;
+    the default is the traffic formulation).
 
-    formulation: 'traffic' (default; :mod:`aev_ocp.ocp.traffic`, parameters ``traffic`` in SI) or 's9'
-    (PROBLEM.md §9 exactly: ``weights``, ``bounds`` and ``objective`` apply only to it);
-    traffic: the traffic formulation's SI parameters; max_step_ms: wall-clock budget of one step [ms]
+    max_step_ms: wall-clock budget of one step [ms]
     (the 'rti' paths: a step that takes longer is not applied: the fallback is, cause 'budget', and the
     late plan warm-starts the next step; the 'ipopt' and 'sqp' paths are bounded by max_cpu_time_s, IPOPT's
     wall-time limit); rti_cold_iterations: SQP steps of the 'rti' path when it starts cold;
     rti_hessian: 'projected' or 'exact' (RTI_HESSIANS);
-    N: horizon intervals; dt: interval length [model time]; weights: stage-cost weights (parameters of
-    the NLP, changeable per solve without rebuilding); bounds: h, v, a bounds; objective: 'heat'
-    (pack Q with the smoothed η switch) or 'energy' (v g̃(a)); smooth: η-switch smoothing (PROBLEM.md §7);
+    N: horizon intervals; dt: interval length [model time];
     rk4_substeps: RK4 steps per interval in the prediction model; solver: one of SOLVER_PATHS;
     qp_solver: QP solver of the 'sqp' and 'rti' paths; rti_iterations: SQP iterations per step of the
     'rti' path (1 = real-time iteration; fewer when the step falls below tol); codegen: compile the
@@ -64,18 +60,9 @@ class MPCSettings:
     constant-acceleration predictor; verbose: solver console output (silent by default).
     """
 
-    formulation: str = spec("traffic", kind="choice", choices=FORMULATIONS)  # issue 8 (§9: 's9')
-    traffic: TrafficParams = spec(kind="instance", cls=TrafficParams, default_factory=TrafficParams)
     N: int = spec(25, kind="integer", ge=1)  # our choice (§9: 40, stated by its scenarios): with the traffic
     # formulation's terminal cost 40 intervals saved nothing (UDDS-300 s: 2247 vs 2249 J/km) and cost ~60 % more time
     dt: float = spec(0.1, gt=0)  # PROBLEM.md §9 (0.2 s at L = 10 m, U = 5 m/s)
-    weights: FollowingWeights = spec(kind="instance", cls=FollowingWeights,
-                                     default_factory=FollowingWeights)  # PROBLEM.md §9: 1, 1, 1, 0.1
-    bounds: FollowingBounds = spec(kind="instance", cls=FollowingBounds,
-                                   default_factory=FollowingBounds)  # PROBLEM.md §9
-    objective: str = spec("heat", kind="choice", choices=OBJECTIVES)  # PROBLEM.md §9
-    smooth: PowertrainOptions = spec(kind="instance", cls=PowertrainOptions,
-                                     default_factory=PowertrainOptions)  # PROBLEM.md §7: 300 W
     rk4_substeps: int = spec(1, kind="integer", ge=1)
     solver: str = spec("rti", kind="choice", choices=SOLVER_PATHS)  # real-time iteration (issue 8: ≤ 2 ms/step)
     qp_solver: str = spec("auto", kind="choice", choices=QP_SOLVERS)  # issue 12: riccati on the rti path
@@ -108,10 +95,6 @@ class MPCSettings:
             return self.qp_solver
         return "riccati" if self.solver == "rti" else "hpipm"
 
-    def effective_bounds(self, ev: EVParams) -> FollowingBounds:
-        """Model-unit bounds of the active formulation (traffic: from its SI parameters)."""
-        return traffic_bounds(ev, self.traffic) if self.formulation == "traffic" else self.bounds
-
     @property
     def horizon(self) -> float:
         """Prediction horizon N·dt [model time]."""
@@ -119,37 +102,22 @@ class MPCSettings:
 
     def with_(self, **changes: Any) -> "MPCSettings":
         """A validated copy with some options changed."""
+        moved = sorted(set(changes) & MOVED_TO_FORMULATION)
+        if moved:
+            raise ParameterError(f"MPCSettings.{moved[0]} is not a solver option: the problem's parameters live in a "
+                                 "Formulation (aev_ocp.ocp.formulation: s9_formulation(...), traffic_formulation(...))")
         return replace(self, **changes)
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> "MPCSettings":
-        """Build from a flat dict: MPCSettings fields plus w_Q, w_V, w_r, w_a, h_min, v_min, v_max,
-        a_min, a_max (§9), the TrafficParams fields (traffic), smoothing_width_W. Unknown keys raise ParameterError naming the key."""
-        own = {f.name for f in fields(cls)} - {"weights", "bounds", "smooth", "traffic"}
-        wn = {f.name for f in fields(FollowingWeights)}
-        bn = {f.name for f in fields(FollowingBounds)}
-        tn = {f.name for f in fields(TrafficParams)}
-        kw: dict[str, Any] = {}
-        w: dict[str, Any] = {}
-        b: dict[str, Any] = {}
-        s: dict[str, Any] = {}
-        t: dict[str, Any] = {}
-        for k, v in d.items():
-            if k in own:
-                kw[k] = v
-            elif k in wn:
-                w[k] = v
-            elif k in bn:
-                b[k] = v
-            elif k in tn:
-                t[k] = v
-            elif k == "smoothing_width_W":
-                s[k] = v
-            else:
-                raise ParameterError(f"MPC option {k!r} is unknown: known options are "
-                                     f"{sorted(own | wn | bn | tn | {'smoothing_width_W'})}")
-        try:
-            return cls(weights=FollowingWeights(**w), bounds=FollowingBounds(**b), smooth=PowertrainOptions(**s),
-                       traffic=TrafficParams(**t), **kw)
-        except TypeError as exc:  # pragma: no cover - guarded above
-            raise ParameterError(f"MPC options: {exc}") from None
+        """Build from a flat dict of MPCSettings fields. Unknown keys raise ParameterError naming the key
+        (the formulation's keys: :func:`aev_ocp.ocp.formulation.formulation_from_dict`)."""
+        own = {f.name for f in fields(cls)}
+        bad = [k for k in d if k not in own]
+        if bad:
+            raise ParameterError(f"MPC option {bad[0]!r} is unknown: known options are {sorted(own)}")
+        return cls(**d)
+
+
+#: Former MPCSettings fields that describe the problem, now a Formulation's (a clear error instead of a TypeError).
+MOVED_TO_FORMULATION = {"formulation", "traffic", "weights", "bounds", "objective", "smooth"}

@@ -21,11 +21,10 @@ from ..models.leader import LeaderProfile, PaperLeader, drive_cycle
 from ..params import EVParams, ParameterError, PowertrainOptions, Units
 from ..models.ego import following_ode
 from ..numerics import rk4
-from .following import (TERM_NAMES, FollowingBounds, FollowingWeights, following_problem, following_stage_terms,
-                        weight_vector)
+from .following import TERM_NAMES, FollowingWeights, following_stage_terms, weight_vector
+from .formulation import Formulation, s9_formulation
 from .problem import OCPProblem
 from .result import OCPResult
-from .traffic import FORMULATIONS, TrafficParams, traffic_bounds, traffic_problem
 from .traffic_cost import auxiliary_controls, cost_traffic_of_trajectory
 from .transcription import OCPSolver, TranscriptionOptions
 
@@ -45,13 +44,16 @@ ORACLE_MAX_INTERVALS = 2000
 COARSE_GRID_S = 1.0
 #: What OCP-D minimises, by formulation (OCPResult.objective_name, results.json ocp_d.objective).
 OBJECTIVE_NAMES = {"s9": "sum_k l(z_k, a_k) dt (PROBLEM.md §9)",
-                   "traffic": "traffic objective (aev_ocp/ocp/traffic.py, the MPC's): sum_k l(x_k, u_k) dt + terminal [J/kg]"}
+                   "traffic": "traffic objective (aev_ocp/ocp/traffic.py, the MPC's): sum_k l(x_k, u_k) dt + terminal [J/kg]",
+                   "problem": "the user problem's objective: sum_k l(x_k, u_k) dt + terminal"}
 
 
 @dataclass(frozen=True)
 class OracleScenario:
     """One follower behind a known leader. Model units: t_end, dt (model time), h0, v0 (model);
-    V10, V20 [V]; S0 [-]. Defaults: the canonical scenario of PROBLEM.md §9."""
+    V10, V20 [V]; S0 [-]; ``formulation``: the problem (:class:`aev_ocp.ocp.formulation.Formulation`, default
+    PROBLEM.md §9's; the traffic formulation's jerk term uses dt; own state a_prev(0) = 0). Defaults: the
+    canonical scenario of PROBLEM.md §9."""
 
     leader: LeaderProfile = field(default_factory=PaperLeader)  # PROBLEM.md §9: Table 1 leader
     t_end: float = 70.0  # PROBLEM.md §9: 700 steps, t ∈ [0, 70]
@@ -62,15 +64,8 @@ class OracleScenario:
     V20: float = 0.0  # PROBLEM.md §9
     S0: float = 0.8  # PROBLEM.md §9 / §6
     ev: EVParams = field(default_factory=EVParams)
-    weights: FollowingWeights = field(default_factory=FollowingWeights)
-    bounds: FollowingBounds = field(default_factory=FollowingBounds)
-    smooth: PowertrainOptions = field(default_factory=PowertrainOptions)  # PROBLEM.md §7: optimisers smooth η
-    objective: str = "heat"  # PROBLEM.md §9 default objective
     name: str = "canonical"
-    #: the problem: 's9' (PROBLEM.md §9, weights/bounds/objective above) or 'traffic' (aev_ocp/ocp/traffic.py
-    #: with ``traffic``, the MPC's default formulation; its jerk term uses dt; own state a_prev(0) = 0)
-    formulation: str = "s9"
-    traffic: TrafficParams = field(default_factory=TrafficParams)
+    formulation: Formulation = field(default_factory=s9_formulation)  # PROBLEM.md §9
 
     def __post_init__(self) -> None:
         for nm in ("t_end", "dt"):
@@ -84,9 +79,9 @@ class OracleScenario:
             raise ParameterError(f"OracleScenario.S0 = {self.S0!r} is not allowed: must be in [0, 1]")
         if not (math.isfinite(self.h0) and self.h0 > 0):
             raise ParameterError(f"OracleScenario.h0 = {self.h0!r} is not allowed: must be > 0")
-        if self.formulation not in FORMULATIONS:
-            raise ParameterError(f"OracleScenario.formulation = {self.formulation!r} is not allowed: must be one of "
-                                 f"{FORMULATIONS}")
+        if not isinstance(self.formulation, Formulation):
+            raise ParameterError(f"OracleScenario.formulation = {self.formulation!r} is not allowed: must be a "
+                                 "Formulation (aev_ocp.ocp.formulation: s9_formulation(), traffic_formulation(), ...)")
 
     @property
     def N(self) -> int:
@@ -98,16 +93,26 @@ class OracleScenario:
         """Initial state (h, v, V1, V2, S)."""
         return [self.h0, self.v0, self.V10, self.V20, self.S0]
 
-    @property
-    def x0(self) -> list[float]:
-        """The problem's initial state: z0, and for 'traffic' a_prev = 0 (the closed loop's first
-        ``Observation.a_prev``: no command before t = 0)."""
-        return self.z0 + ([0.0] if self.formulation == "traffic" else [])
+    def x0_of(self, pr: OCPProblem) -> list[float]:
+        """The problem's initial state: z0, then its own states from the formulation's initial_values (default 0;
+        a_prev = 0 is the closed loop's first ``Observation.a_prev``: no command before t = 0)."""
+        own = list(pr.state_names[5:])
+        return self.z0 + [float(self.formulation.initial_values.get(k, 0.0)) for k in own]
 
     @property
-    def effective_bounds(self) -> FollowingBounds:
-        """Model-unit bounds of the formulation (traffic: from its SI parameters)."""
-        return traffic_bounds(self.ev, self.traffic) if self.formulation == "traffic" else self.bounds
+    def smooth(self) -> PowertrainOptions:
+        """The formulation's η-switch smoothing (PROBLEM.md §7)."""
+        return self.formulation.smooth
+
+    @property
+    def weights(self) -> FollowingWeights:
+        """The formulation's §9 weights."""
+        return self.formulation.weights
+
+    @property
+    def objective(self) -> str:
+        """The formulation's §9 objective ('heat' or 'energy')."""
+        return self.formulation.objective
 
 
 def canonical_scenario() -> OracleScenario:
@@ -136,17 +141,15 @@ def leader_forecast(leader: LeaderProfile, t: np.ndarray) -> tuple[np.ndarray, n
 
 
 def oracle_problem(scn: OracleScenario) -> OCPProblem:
-    """OCP-D over the whole scenario: the §9 problem (:func:`aev_ocp.ocp.following.following_problem`; the
-    weights are its parameter p, :func:`aev_ocp.ocp.following.weight_vector`) or, formulation 'traffic', the
-    traffic problem (:func:`aev_ocp.ocp.traffic.traffic_problem` on the grid step scn.dt, no parameter)."""
-    if scn.formulation == "traffic":
-        return traffic_problem(scn.ev, scn.traffic, scn.dt, scn.smooth, name="ocp_d_traffic").build()
-    return following_problem(scn.ev, scn.bounds, scn.smooth, scn.objective, name="ocp_d").build()
+    """OCP-D over the whole scenario: the formulation's problem on the grid step scn.dt
+    (:meth:`aev_ocp.ocp.formulation.Formulation.oracle_problem`; §9: the weights are its parameter p)."""
+    return scn.formulation.oracle_problem(scn.ev, scn.dt)
 
 
-def oracle_parameters(scn: OracleScenario) -> list[float]:
-    """The global parameter p of :func:`oracle_problem`: §9's weights, none for 'traffic'."""
-    return weight_vector(scn.weights) if scn.formulation == "s9" else []
+def oracle_parameters(scn: OracleScenario, pr: OCPProblem | None = None) -> list[float]:
+    """The global parameter p of :func:`oracle_problem` by name (§9's weights; a user problem's values)."""
+    pr = pr or oracle_problem(scn)
+    return scn.formulation.parameter_vector(list(pr.meta.get("parameter_names", [])))
 
 
 def _step_function(scn: OracleScenario, policy: str, law: CarFollowingLaw | None, substeps: int) -> ca.Function:
@@ -157,10 +160,11 @@ def _step_function(scn: OracleScenario, policy: str, law: CarFollowingLaw | None
         a_raw = law.accel(ca.fmax(z[0], 1e-3), z[1], w[1])
     else:
         a_raw = (w[2] - z[1]) / scn.dt
-    b = scn.effective_bounds
-    a = ca.fmin(ca.fmax(a_raw, b.a_min), b.a_max)
+    b = scn.formulation.bounds_model(scn.ev)
+    a = ca.fmin(ca.fmax(a_raw, b.a_min if b.a_min is not None else -ca.inf), b.a_max if b.a_max is not None else ca.inf)
     x, _ = rk4(lambda y: following_ode(y, a, w[0], scn.ev, scn.smooth), z, scn.dt, substeps)
-    x = ca.vertcat(ca.fmax(x[0], b.h_min), ca.fmax(x[1], 0.0), x[2:])  # keep the guess in bounds
+    h_floor = b.h_min if b.h_min is not None else 0.0
+    x = ca.vertcat(ca.fmax(x[0], h_floor), ca.fmax(x[1], 0.0), x[2:])  # keep the guess in bounds
     return ca.Function("guess_step", [z, w], [x, a])
 
 
@@ -325,13 +329,11 @@ class OracleSolver:
         if not warm:
             X, U = rollout_guess(scn, guess_law or Proposed())
             pr = self.solver.problem
-            if scn.formulation == "traffic":  # a_prev = the previous a; energy_rate, slack_gap at their optimum
+            if list(pr.state_names[5:]) == ["a_prev"]:  # a_prev = the previous a
                 X = np.vstack([X, np.concatenate([[0.0], U[0]])])
-                U = np.asarray(auxiliary_controls(pr).map(scn.N)(X[:, :-1], U, np.vstack([vm, vh]),
-                                                                 np.zeros((0, scn.N))))
-            elif "energy_rate" in pr.control_names:  # the epigraph variable at its optimum v g(a)
-                eta = scn.ev.vehicle.efficiency
-                U = np.vstack([U, X[1, :-1] * np.where(U[0] >= 0, U[0] / eta, eta * U[0])])
+            if pr.nu > 1:  # epigraph and slack controls (energy_rate, slack_gap, slack_<name>) at their optimum
+                P = np.repeat(np.asarray(oracle_parameters(scn, pr), float).reshape(-1, 1), scn.N, axis=1)
+                U = np.asarray(auxiliary_controls(pr, require_traffic=False).map(scn.N)(X[:, :-1], U, np.vstack([vm, vh]), P))
             guess = (X, U)
         rep = self.solver.reporter
         if rep is not None:
@@ -339,8 +341,10 @@ class OracleSolver:
             if rep.say is not None:
                 lim = f", time limit {self.time_limit_s:g} s" if self.time_limit_s is not None else ""
                 rep.say(f"OCP-D: {scn.name}, N = {scn.N} intervals of dt = {scn.dt:.4g} (model time), IPOPT{lim}")
-        res = self.solver.solve(scn.x0, scn.t_end, p=oracle_parameters(scn), w=np.vstack([vm, vh]),
-                                guess=guess, warm=warm, objective_name=OBJECTIVE_NAMES[scn.formulation])
+        pr = self.solver.problem
+        pvec = oracle_parameters(scn, pr)
+        res = self.solver.solve(scn.x0_of(pr), scn.t_end, p=pvec, w=np.vstack([vm, vh]),
+                                guess=guess, warm=warm, objective_name=OBJECTIVE_NAMES[scn.formulation.kind])
         if res.status == "time_limit":
             res.message = (f"OCP-D stopped at the time limit of {self.time_limit_s:g} s after {res.iterations} "
                            "iterations; the last iterate is not optimal")
@@ -349,16 +353,20 @@ class OracleSolver:
             rep.say(f"OCP-D: {res.status} after {res.iterations} iterations, {res.wall_time_s:.1f} s"
                     + ("" if res.success else f" ({res.message})"))
         res.meta.update({"scenario": scn.name, "dt": scn.dt, "leader_speed_mean": vm, "leader_speed_hat": vh,
-                         "time_limit_s": self.time_limit_s, "formulation": scn.formulation,
+                         "time_limit_s": self.time_limit_s, "formulation": scn.formulation.kind,
                          "units": {"length_m": scn.ev.units.length_m, "speed_mps": scn.ev.units.speed_mps}})
-        if res.success and scn.formulation == "traffic":  # its own objective, re-evaluated on its trajectory
+        f = scn.formulation
+        if res.success and f.kind != "s9":  # its own objective, re-evaluated on its trajectory
             z = np.vstack([res.states[k] for k in ("h", "v", "V1", "V2", "S")])
-            res.meta["cost_terms"] = cost_traffic_of_trajectory(self.solver.problem, t, z, res.controls["a"],
-                                                                np.vstack([vm, vh]))
+            try:
+                res.meta["cost_terms"] = cost_traffic_of_trajectory(pr, t, z, res.controls["a"], np.vstack([vm, vh]),
+                                                                    p=np.asarray(pvec), require_traffic=f.kind == "traffic")
+            except ParameterError:  # a user problem whose controls are not fixed by (x, a)
+                pass
         elif res.success:
             res.meta["cost_terms"] = stage_cost_of_trajectory(
                 t, res.states["h"], res.states["v"], res.states["V1"], res.states["V2"], res.states["S"],
-                res.controls["a"], vh, scn.weights, scn.ev, scn.smooth, scn.objective)
+                res.controls["a"], vh, f.weights, scn.ev, f.smooth, f.objective)
         return res
 
 
@@ -377,20 +385,13 @@ def oracle_grid_dt(t_end: float, dt: float, units: Units, max_intervals: int = O
     return t_end / max(1, round(t_end / step))
 
 
-def scenario_oracle(sc: Any, dt: float, weights: FollowingWeights | None = None,
-                    bounds: FollowingBounds | None = None, smooth: PowertrainOptions | None = None,
-                    objective: str = "heat", formulation: str = "s9",
-                    traffic: TrafficParams | None = None) -> OracleScenario:
+def scenario_oracle(sc: Any, dt: float, formulation: Formulation | None = None) -> OracleScenario:
     """OCP-D of a loaded scenario (:class:`aev_ocp.scenarios.Scenario`): its leader, t_end,
     vehicle/pack and follower 1's h(0), v(0), S(0), on the grid of step ``dt`` [model time] (adjusted to
-    divide t_end); weights, bounds, smoothing and objective default to PROBLEM.md §9; formulation
-    'traffic' solves the traffic problem with ``traffic`` (default TrafficParams())."""
+    divide t_end), solving ``formulation`` (default PROBLEM.md §9's; pass the MPC's for its bound)."""
     n = max(1, round(sc.t_end / dt))
     return OracleScenario(leader=sc.leader, t_end=sc.t_end, dt=sc.t_end / n, h0=sc.gaps0[0], v0=sc.speeds0[0],
-                          S0=sc.ev.cell.soc0, ev=sc.ev, weights=weights or FollowingWeights(),
-                          bounds=bounds or FollowingBounds(), smooth=smooth if smooth is not None else PowertrainOptions(),
-                          objective=objective, name=sc.name, formulation=formulation,
-                          traffic=traffic or TrafficParams())
+                          S0=sc.ev.cell.soc0, ev=sc.ev, name=sc.name, formulation=formulation or s9_formulation())
 
 
 def stage_cost_of_trajectory(t: np.ndarray, h: np.ndarray, v: np.ndarray, V1: np.ndarray, V2: np.ndarray,

@@ -33,14 +33,37 @@ AUXILIARY_CONTROLS: dict[str, tuple[tuple[str, ...], float]] = {
 }
 
 
-def auxiliary_controls(pr: OCPProblem) -> ca.Function:
+def _auxiliary_rows(pr: OCPProblem, require_traffic: bool) -> dict[str, tuple[tuple[str, ...], float]]:
+    """Every control but 'a' -> (its rows, its floor): the traffic problem's (AUXILIARY_CONTROLS; all required
+    when ``require_traffic``), or a soft constraint's slack ``slack_<name>`` (rows <name>_lb / <name>_ub,
+    ProblemBuilder.subject_to(soft=...); floor 0). Another control cannot be recovered from (x, a): ParameterError."""
+    names, rows = list(pr.control_names), list(pr.meta.get("path_names", []))
+    if require_traffic:
+        return dict(AUXILIARY_CONTROLS)
+    out: dict[str, tuple[tuple[str, ...], float]] = {}
+    for ctrl in names[1:]:
+        if ctrl in AUXILIARY_CONTROLS:
+            out[ctrl] = AUXILIARY_CONTROLS[ctrl]
+        elif ctrl.startswith("slack_") and any(f"{ctrl[6:]}_{s}" in rows for s in ("lb", "ub")):
+            out[ctrl] = (tuple(f"{ctrl[6:]}_{s}" for s in ("lb", "ub") if f"{ctrl[6:]}_{s}" in rows), 0.0)
+        else:
+            raise ParameterError(f"the cost of problem {pr.name!r} cannot be evaluated on a run: its control {ctrl!r} "
+                                 "is neither 'a' nor an epigraph or soft-constraint slack fixed by (x, a)")
+    return out
+
+
+def auxiliary_controls(pr: OCPProblem, require_traffic: bool = True) -> ca.Function:
     """Function (x, a, w, p) -> u: the problem's whole control vector (a first) with every auxiliary control
-    (AUXILIARY_CONTROLS) at its optimal value given (x, a). Its rows are affine in it: σ = max(floor,
-    max_r (lb_r − c_r(x, a, 0))/∂c_r/∂σ). Raises ParameterError if the problem lacks a control or row."""
+    (AUXILIARY_CONTROLS; with ``require_traffic`` False also any soft constraint's slack) at its optimal value
+    given (x, a). Its rows are affine in it: σ = max(floor, max_r (b_r − c_r(x, a, 0))/∂c_r/∂σ) with b_r the
+    row's finite bound. Raises ParameterError if the problem lacks a control or row."""
     names = list(pr.control_names)
     rows = list(pr.meta.get("path_names", []))
-    if not names or names[0] != "a" or pr.path is None:
+    if not names or names[0] != "a" or (pr.path is None and (require_traffic or pr.nu > 1)):
         raise ParameterError(f"cost_traffic: problem {pr.name!r} needs control 'a' first and path constraints")
+    if pr.path is None:
+        x, a, w, p = (ca.SX.sym(n, k) for n, k in (("x", pr.nx), ("a", 1), ("w", pr.nw), ("p", pr.np_)))
+        return ca.Function("aux_controls", [x, a, w, p], [a], ["x", "a", "w", "p"], ["u"])
     x, a, w, p = (ca.SX.sym(n, k) for n, k in (("x", pr.nx), ("a", 1), ("w", pr.nw), ("p", pr.np_)))
     u = ca.SX.sym("u", pr.nu)
     c = pr.path(x, u, w, p)
@@ -49,7 +72,7 @@ def auxiliary_controls(pr: OCPProblem) -> ca.Function:
     c0 = ca.substitute(c, u, u0)
     dc0 = ca.substitute(dc, u, u0)
     val = [a] + [ca.SX(0)] * (pr.nu - 1)
-    for ctrl, (need, floor) in AUXILIARY_CONTROLS.items():
+    for ctrl, (need, floor) in _auxiliary_rows(pr, require_traffic).items():
         missing = [n for n in (ctrl, *need) if n not in names + rows]
         if missing:
             raise ParameterError(f"cost_traffic: problem {pr.name!r} has no {missing} (the traffic formulation's "
@@ -57,14 +80,16 @@ def auxiliary_controls(pr: OCPProblem) -> ca.Function:
         j = names.index(ctrl)
         v: Any = ca.SX(floor) if np.isfinite(floor) else None
         for r in (rows.index(n) for n in need):
-            vr = (float(pr.path_lb[r]) - c0[r]) / dc0[r, j]
+            bound = float(pr.path_lb[r]) if np.isfinite(float(pr.path_lb[r])) else float(pr.path_ub[r])
+            vr = (bound - c0[r]) / dc0[r, j]
             v = vr if v is None else ca.fmax(v, vr)
         val[j] = v
     return ca.Function("aux_controls", [x, a, w, p], [ca.vertcat(*val)], ["x", "a", "w", "p"], ["u"])
 
 
 def cost_traffic_of_trajectory(pr: OCPProblem, t: np.ndarray, z: np.ndarray, a: np.ndarray, w: np.ndarray,
-                               a_prev0: float = 0.0, p: np.ndarray | None = None) -> dict[str, float]:
+                               a_prev0: float = 0.0, p: np.ndarray | None = None,
+                               require_traffic: bool = True) -> dict[str, float]:
     """The traffic objective of a sampled trajectory on the node times t (N+1) [model time].
 
     z: (5, N+1) states (h, v [model], V1, V2 [V], S [-]) at the nodes; a: (N,) acceleration applied on each
@@ -72,7 +97,8 @@ def cost_traffic_of_trajectory(pr: OCPProblem, t: np.ndarray, z: np.ndarray, a: 
     before t_0 (the closed loop's: 0). The own state a_prev is a shifted by one interval; the auxiliary
     controls are at their optimum given (z_k, a_k) (:func:`auxiliary_controls`). Returns 'stage' (Σ J_k
     through the problem's interval function, dt_k = t_{k+1} − t_k), 'terminal' (its terminal cost at z_N)
-    and 'total', in the problem's cost unit (traffic: J/kg)."""
+    and 'total', in the problem's cost unit (traffic: J/kg). ``require_traffic`` False: any problem whose extra
+    controls are epigraph or soft-constraint slacks (:func:`problem_cost_of_result`)."""
     t = np.asarray(t, float).ravel()
     N = t.size - 1
     z = np.asarray(z, float)
@@ -89,7 +115,7 @@ def cost_traffic_of_trajectory(pr: OCPProblem, t: np.ndarray, z: np.ndarray, a: 
     X = z if not own else np.vstack([z, np.concatenate([[a_prev0], a])])
     pp = np.zeros(pr.np_) if p is None else np.asarray(p, float).ravel()
     P = np.repeat(pp.reshape(-1, 1), N, axis=1)
-    U = np.asarray(auxiliary_controls(pr).map(N)(X[:, :N], a.reshape(1, -1), w, P))
+    U = np.asarray(auxiliary_controls(pr, require_traffic).map(N)(X[:, :N], a.reshape(1, -1), w, P))
     xs = np.asarray(pr.x_scale if pr.x_scale is not None else np.ones(pr.nx), float)[:, None]
     us = np.asarray(pr.u_scale if pr.u_scale is not None else np.ones(pr.nu), float)[:, None]
     F = interval_function(pr, TranscriptionOptions(method="ms", N=N, rk4_substeps=1)).map(N)
@@ -99,7 +125,8 @@ def cost_traffic_of_trajectory(pr: OCPProblem, t: np.ndarray, z: np.ndarray, a: 
     return {"stage": stage, "terminal": term, "total": stage + term}
 
 
-def cost_traffic_of_result(r: Any, i: int, dt: float, pr: OCPProblem) -> dict[str, float]:
+def cost_traffic_of_result(r: Any, i: int, dt: float, pr: OCPProblem, p: np.ndarray | None = None,
+                           require_traffic: bool = True) -> dict[str, float]:
     """``cost_traffic`` of follower i of a :class:`aev_ocp.results.SimulationResult` on the grid of step dt
     [model time] from the result's first time (the MPC's grid): states, the applied a_k and the predecessor's
     speed are the result's samples interpolated at the nodes (exact where the nodes are samples, as in a closed
@@ -116,4 +143,11 @@ def cost_traffic_of_result(r: Any, i: int, dt: float, pr: OCPProblem) -> dict[st
     vl = f(r.leader_speed if i == 0 else r.speed[:, i - 1])
     z = np.vstack([f(r.gap[:, i]), f(r.speed[:, i]), f(r.V1[:, i]), f(r.V2[:, i]), f(r.S[:, i])])
     w = np.vstack([0.5 * (vl[:-1] + vl[1:]), vl[:-1]])
-    return cost_traffic_of_trajectory(pr, tg, z, f(r.accel[:, i])[:-1], w)
+    return cost_traffic_of_trajectory(pr, tg, z, f(r.accel[:, i])[:-1], w, p=p, require_traffic=require_traffic)
+
+
+def problem_cost_of_result(r: Any, i: int, dt: float, pr: OCPProblem, p: np.ndarray | None = None) -> dict[str, float]:
+    """The objective of any problem ``pr`` (e.g. a user's, with global parameters ``p``) of follower i's run on
+    the grid of step dt [model time], as :func:`cost_traffic_of_result` (ParameterError if a control of the
+    problem is not fixed by (x, a))."""
+    return cost_traffic_of_result(r, i, dt, pr, p, require_traffic=False)

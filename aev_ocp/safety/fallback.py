@@ -145,16 +145,34 @@ class SafeFallback:
         return cls(law, ev.units, dt, SafetyParams.from_limits(ev.limits, **changes))
 
     @classmethod
-    def for_mpc(cls, law: CarFollowingLaw, settings: Any, ev: EVParams) -> "SafeFallback":
-        """The MPC's fallback and safety filter: the MPC's own a bounds (within the vehicle's limits) and floor
-        (its h_min; 0 when a problem sets none), the traffic formulation's reaction time; ``settings`` an MPCSettings."""
-        u, b = ev.units, settings.effective_bounds(ev)
+    def for_mpc(cls, law: CarFollowingLaw, formulation: Any, dt: float, ev: EVParams) -> "SafeFallback":
+        """The MPC's fallback and safety filter: the formulation's a bounds (within the vehicle's limits) and floor
+        (its h_min; 0 when a problem sets none), the traffic formulation's reaction time (its default for the other
+        formulations); ``formulation`` an :class:`aev_ocp.ocp.formulation.Formulation`, dt [model time]."""
+        from ..ocp.traffic import TrafficParams  # noqa: PLC0415 - the default reaction time only
+
+        u, b = ev.units, formulation.bounds_model(ev)
         lim = ev.limits if ev.limits.enabled else _DEFAULT_LIMITS
-        a_min = max(float(u.accel_to_si(b.a_min)), lim.a_min_mps2)
-        a_max = min(float(u.accel_to_si(b.a_max)), lim.a_max_mps2)
-        return cls(law, u, settings.dt, SafetyParams.from_limits(
-            ev.limits, standstill_gap_m=max(float(u.length_to_si(b.h_min)), 0.0), a_min_mps2=a_min, a_max_mps2=a_max,
-            ego_brake_mps2=-a_min, reaction_time_s=settings.traffic.reaction_time_s))
+        # the formulation's a bounds, within the vehicle's limits when it has them (the plant enforces those anyway)
+        a_min = float(u.accel_to_si(b.a_min)) if b.a_min is not None else lim.a_min_mps2
+        a_max = float(u.accel_to_si(b.a_max)) if b.a_max is not None else lim.a_max_mps2
+        if ev.limits.enabled:
+            a_min, a_max = max(a_min, lim.a_min_mps2), min(a_max, lim.a_max_mps2)
+        h_min = max(float(u.length_to_si(b.h_min)), 0.0) if b.h_min is not None else 0.0
+        t_r = (formulation.traffic if formulation.kind == "traffic" else TrafficParams()).reaction_time_s
+        return cls(law, u, dt, SafetyParams.from_limits(
+            ev.limits, standstill_gap_m=h_min, a_min_mps2=a_min, a_max_mps2=a_max, ego_brake_mps2=-a_min,
+            reaction_time_s=t_r))
+
+    @property
+    def a_min(self) -> float:
+        """The most braking it commands [model acceleration]."""
+        return float(self.units.accel_from_si(self.params.a_min_mps2))
+
+    @property
+    def a_max(self) -> float:
+        """The most acceleration it commands [model acceleration]."""
+        return float(self.units.accel_from_si(self.params.a_max_mps2))
 
     def reset(self) -> None:
         """Zero the counters."""

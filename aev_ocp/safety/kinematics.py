@@ -23,8 +23,8 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import brentq
 
+from ..numerics import bracketed_root
 from ..params import ParameterError
 
 AVOIDABLE = "avoidable"
@@ -91,7 +91,7 @@ class _Ego:
         else:  # v(t) = v0 + a_min (t − τ(1 − e^(−t/τ))) is decreasing: one root, bracketed
             f = self._v_raw
             hi = v0 / -a_min + tau
-            self.t_stop = brentq(f, 0.0, hi, xtol=1e-15, rtol=4 * np.finfo(float).eps, maxiter=200)
+            self.t_stop = bracketed_root(f, 0.0, hi, 1e-15)
 
     def _v_raw(self, t: float) -> float:
         lagged = t - self.tau * (-math.expm1(-t / self.tau)) if self.tau > 0 else t
@@ -167,7 +167,7 @@ def braking_bound(v_ego_mps: float, gap_m: float, v_lead_mps: float, a_lead_mps2
             if ra == 0.0:
                 cands.append(a)
             elif ra * rb < 0.0:
-                cands.append(brentq(rel, a, b, xtol=1e-15, rtol=4 * np.finfo(float).eps, maxiter=200))
+                cands.append(bracketed_root(rel, a, b, 1e-15))
     if not math.isfinite(lead.t_stop) and ego.t_stop < math.inf:
         pass  # after both cut points the lead drives on and the ego stands: the gap only grows
     cands = sorted(set(cands))
@@ -177,7 +177,7 @@ def braking_bound(v_ego_mps: float, gap_m: float, v_lead_mps: float, a_lead_mps2
     if g_min <= 0.0:  # the first contact: the gap is decreasing before t_min, so bracket its first zero
         prev = [t for t in cands if t < t_min and gap(t) > 0.0]
         t_lo = prev[-1] if prev else 0.0
-        t_min = brentq(gap, t_lo, t_min, xtol=1e-13, maxiter=200) if gap(t_lo) > 0.0 else t_lo
+        t_min = bracketed_root(gap, t_lo, t_min, 1e-13) if gap(t_lo) > 0.0 else t_lo
     return BrakingBound(g_min, t_min, ego.t_stop, lead.t_stop, fl, label_of(g_min, fl))
 
 

@@ -20,7 +20,6 @@ from typing import Any, Callable, Sequence
 
 import casadi as ca
 import numpy as np
-from scipy.optimize import brentq
 
 from ..control import ClosedLoop
 from ..models.carfollowing import IDM, OVFL, CarFollowingLaw, Proposed
@@ -28,6 +27,8 @@ from ..models.leader import BrakingLeader
 from ..mpc.policy import MPCPolicy
 from ..mpc.predictors import make_predictor
 from ..mpc.settings import MPCSettings
+from ..ocp.formulation import Formulation, traffic_formulation
+from ..numerics import bracketed_root
 from ..params import EVParams, ParameterError
 from ..results import SimulationResult
 from ..simulate import simulate_platoon
@@ -121,7 +122,7 @@ def locate_contact(r: SimulationResult, leader: BrakingLeader, dt_max: float) ->
         return t0, v0 - float(leader.speed_np(t0)[0])
     if gap(dt_max) > 0:
         return math.nan, math.nan
-    s = brentq(gap, 0.0, dt_max, xtol=1e-12)
+    s = bracketed_root(gap, 0.0, dt_max, 1e-12)
     return t0 + s, ego(s)[1] - float(leader.speed_np(t0 + s)[0])
 
 
@@ -178,24 +179,32 @@ class SuiteOutput:
 
 
 def run_suite(cases: Sequence[SafetyCase] | None = None, controllers: Sequence[str] = DEFAULT_CONTROLLERS, *,
-              ev: EVParams | None = None, settings: MPCSettings | None = None, quick: bool = False,
+              ev: EVParams | None = None, settings: MPCSettings | None = None,
+              formulation: Formulation | None = None, quick: bool = False,
               progress: Callable[[str], None] | None = None) -> SuiteOutput:
     """Every case × controller (module docstring). ev: units and vehicle limits (default the cases' units L = 15 m,
-    U = 17 m/s with the default :class:`VehicleLimits`); settings: the MPC's (default MPCSettings())."""
+    U = 17 m/s with the default :class:`VehicleLimits`); settings: the MPC's solver options (default MPCSettings());
+    formulation: the MPC's problem (default the traffic formulation), whose floor the cases are labelled against."""
     for c in controllers:
         if c not in CONTROLLERS:
             raise ParameterError(f"safety suite: controller {c!r} is not allowed: must be one of {CONTROLLERS}")
     cases = list(cases) if cases is not None else suite_cases(quick)
     ev = ev or EVParams(units=CASE_UNITS)
     settings = settings or MPCSettings()
+    formulation = formulation or traffic_formulation()
     u, lim = ev.units, ev.limits
-    floor_m = float(u.length_to_si(settings.effective_bounds(ev).h_min))
-    a_min = lim.a_min_mps2 if lim.enabled else float(u.accel_to_si(settings.effective_bounds(ev).a_min))
+    fb = formulation.bounds_model(ev)
+    floor_m = float(u.length_to_si(fb.h_min)) if fb.h_min is not None else 0.0
+    if lim.enabled or fb.a_min is None:
+        a_min = lim.a_min_mps2
+    else:
+        a_min = float(u.accel_to_si(fb.a_min))
     lag = lim.lag_s if lim.enabled else 0.0
     policy: MPCPolicy | None = None
     if "mpc" in controllers:  # built once, reset by every run (the same policy ClosedLoop would build)
         pred = settings.predictor if settings.predictor != "oracle" else "decaying-acceleration"
-        policy = MPCPolicy(settings, ev, Proposed(), make_predictor(pred, None, settings.predictor_window, u.time_s))
+        policy = MPCPolicy(settings, ev, Proposed(), make_predictor(pred, None, settings.predictor_window, u.time_s),
+                           formulation=formulation)
     rows: list[CaseRow] = []
     runs: dict[str, dict[str, SimulationResult]] = {}
     for k, case in enumerate(cases):

@@ -83,7 +83,7 @@ def _simulate(spec: dict[str, Any]) -> Any:
     cfg = sc.extra.get("mpc") or MPCConfig(MPCSettings())
     if ctrl.kind == "mpc":
         return closed_loop_from_scenario(sc, cfg).run(list(sc.gaps0), list(sc.speeds0), sc.t_end)
-    return _ocpd(sc, cfg.settings)
+    return _ocpd(sc, cfg.settings, cfg.formulation)
 
 
 _SIMULATORS: OrderedDict[Any, Any] = OrderedDict()  # per process: the last few built simulators
@@ -114,24 +114,23 @@ def _simulator(sc: Any, law: str) -> Any:
     return sim
 
 
-def _ocpd(sc: Any, s: Any) -> Any:
-    """OCP-D (the MPC's cost and constraints over the whole scenario), its optimal controls replayed
-    through the exact plant, as run by :func:`aev_ocp.mpc.report.run_comparison`."""
+def _ocpd(sc: Any, s: Any, f: Any) -> Any:
+    """OCP-D (the MPC's formulation ``f`` over the whole scenario, on the MPC's grid), its optimal controls
+    replayed through the exact plant, as run by :func:`aev_ocp.mpc.report.run_comparison`."""
     import numpy as np
 
     from ..control import ClosedLoop, ControlSequence
     from ..ocp.oracle import OracleScenario, OracleSolver
 
-    # the MPC's own problem: PROBLEM.md §9's, or the traffic formulation's (its jerk term on this grid)
+    # the MPC's own problem (the formulation's; the traffic formulation's jerk term on this grid)
     scn = OracleScenario(leader=sc.leader, t_end=sc.t_end, dt=s.dt, h0=sc.gaps0[0], v0=sc.speeds0[0],
-                         S0=sc.ev.cell.soc0, ev=sc.ev, weights=s.weights, bounds=s.bounds, smooth=s.smooth,
-                         objective=s.objective, name=sc.name, formulation=s.formulation, traffic=s.traffic)
+                         S0=sc.ev.cell.soc0, ev=sc.ev, name=sc.name, formulation=f)
     res = OracleSolver(scn).solve()
     if not res.success:
         raise RuntimeError(f"OCP-D did not converge: {res.status}")
     seq = ControlSequence(tuple(np.asarray(res.controls["a"], float).ravel()), s.dt, "ocp-d")
     r = ClosedLoop(sc.leader, [seq], sc.ev).run(list(sc.gaps0), list(sc.speeds0), sc.t_end)
-    key = "cost_traffic_optimum" if s.formulation == "traffic" else "cost_s9_optimum"
+    key = f"{f.cost_key}_optimum"
     r.solver_stats = [{key: float(res.objective)}]
     return r
 

@@ -1,0 +1,328 @@
+"""Which problem an MPC (and its OCP-D) solves, stated ONCE: :class:`Formulation`.
+
+A formulation is a frozen value that carries the problem builder's choice and parameters and everything
+derived from them, so no second setting beside it can disagree:
+
+* the problem itself, on a given interval dt (:meth:`Formulation.builder`, :meth:`Formulation.build`), the
+  same for the MPC and for OCP-D (:meth:`Formulation.oracle_problem`);
+* its model-unit bounds (:meth:`Formulation.bounds_model`): what the fallback clips to, what
+  ``gap_violations`` / ``speed_violations`` count against and what the plots draw;
+* its cold start (:attr:`Formulation.rti_cold_start`) and its family (the QP solvers' settings);
+* the name shown in tables (:attr:`Formulation.controller_name`), and which cost is its own
+  (:attr:`Formulation.cost_key`: the verdict) and which are another formulation's (:attr:`Formulation.other_costs`:
+  a labelled secondary table, never a verdict).
+
+Three kinds: ``traffic_formulation()`` (the default, :mod:`aev_ocp.ocp.traffic`, SI parameters),
+``s9_formulation()`` (PROBLEM.md §9 exactly: weights, bounds, objective) and ``problem_formulation(pb)`` (a user
+problem, e.g. the §9 problem plus a headway constraint: every derived item then follows that problem: its
+declared bounds, its name, its own cost). Model units throughout (PROBLEM.md §1) unless a name says otherwise.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any, Callable, Mapping
+
+from ..params import EVParams, ParameterError, PowertrainOptions, spec, validate_fields
+from .following import OBJECTIVES, WEIGHT_NAMES, FollowingBounds, FollowingWeights, following_problem, weight_vector
+from .problem import OCPProblem, ProblemBuilder
+from .traffic import TrafficParams, traffic_bounds, traffic_problem
+
+#: Kinds of formulation: 'traffic' (aev_ocp/ocp/traffic.py, the default), 's9' (PROBLEM.md §9), 'problem' (a user's).
+KINDS = ("traffic", "s9", "problem")
+#: The built-in problems' own costs (keys of the metrics): what OCP-D minimises and what is ranked.
+COST_KEYS = {"traffic": "cost_traffic", "s9": "cost_s9", "problem": "cost_problem"}
+
+#: A user problem: a builder, a built problem, or a function (ev, dt [model time]) -> either (rebuilt per grid).
+ProblemSource = OCPProblem | ProblemBuilder | Callable[[EVParams, float], OCPProblem | ProblemBuilder]
+
+
+@dataclass(frozen=True)
+class ModelBounds:
+    """A formulation's bounds in model units (None: that side has no hard bound): the gap floor h_min
+    (traffic: its soft standstill floor), v_min ≤ v ≤ v_max, a_min ≤ a ≤ a_max."""
+
+    h_min: float | None
+    v_min: float | None
+    v_max: float | None
+    a_min: float | None
+    a_max: float | None
+
+    def as_dict(self) -> dict[str, float | None]:
+        """{'h_min': …, 'v_min': …, 'v_max': …, 'a_min': …, 'a_max': …} [model units]."""
+        return {k: getattr(self, k) for k in ("h_min", "v_min", "v_max", "a_min", "a_max")}
+
+
+@dataclass(frozen=True)
+class Formulation:
+    """One MPC problem and everything derived from it (module docstring). Build it with
+    :func:`traffic_formulation`, :func:`s9_formulation` or :func:`problem_formulation`.
+
+    kind: one of KINDS; traffic: the traffic problem's SI parameters (kind 'traffic'); weights, bounds,
+    objective: PROBLEM.md §9's (kind 's9'; the weights are also the default values of a user problem's
+    parameters named w_Q, w_V, w_r, w_a); smooth: the optimiser's η-switch smoothing (PROBLEM.md §7; the
+    built-in kinds); problem: the user problem (kind 'problem'); parameter_values: values of a user problem's
+    further parameters by name; initial_values: initial values of its own states by name (default 0)."""
+
+    kind: str = spec("traffic", kind="choice", choices=KINDS)
+    traffic: TrafficParams = spec(kind="instance", cls=TrafficParams, default_factory=TrafficParams)
+    weights: FollowingWeights = spec(kind="instance", cls=FollowingWeights,
+                                     default_factory=FollowingWeights)  # PROBLEM.md §9: 1, 1, 1, 0.1
+    bounds: FollowingBounds = spec(kind="instance", cls=FollowingBounds,
+                                   default_factory=FollowingBounds)  # PROBLEM.md §9
+    objective: str = spec("heat", kind="choice", choices=OBJECTIVES)  # PROBLEM.md §9
+    smooth: PowertrainOptions = spec(kind="instance", cls=PowertrainOptions,
+                                     default_factory=PowertrainOptions)  # PROBLEM.md §7: 300 W
+    problem: Any = field(default=None, compare=False)
+    parameter_values: Mapping[str, float] = field(default_factory=dict, compare=False)
+    initial_values: Mapping[str, float] = field(default_factory=dict, compare=False)
+
+    def __post_init__(self) -> None:
+        validate_fields(self)
+        if (self.kind == "problem") != (self.problem is not None):
+            raise ParameterError("Formulation.problem must be given exactly for kind = 'problem' "
+                                 f"(kind = {self.kind!r}, problem {'given' if self.problem is not None else 'missing'})")
+        if self.problem is not None and not (isinstance(self.problem, (OCPProblem, ProblemBuilder))
+                                             or callable(self.problem)):
+            raise ParameterError(f"Formulation.problem must be a ProblemBuilder, an OCPProblem or a function (ev, dt) -> "
+                                 f"either, got {type(self.problem).__name__}")
+
+    # ------------------------------------------------------------------ the problem
+    def builder(self, ev: EVParams, dt: float, name: str | None = None) -> OCPProblem | ProblemBuilder:
+        """The problem on intervals of length dt [model time] (the traffic problem's jerk term uses dt).
+        A user's builder or built problem is returned as given (it was stated for the MPC's dt)."""
+        if self.kind == "traffic":
+            return traffic_problem(ev, self.traffic, dt, self.smooth, name=name or "mpc_traffic")
+        if self.kind == "s9":
+            return following_problem(ev, self.bounds, self.smooth, self.objective, name=name or "mpc")
+        p = self.problem
+        if isinstance(p, (OCPProblem, ProblemBuilder)):
+            return p
+        out = p(ev, dt)
+        if not isinstance(out, (OCPProblem, ProblemBuilder)):
+            raise ParameterError(f"Formulation.problem(ev, dt) must return a ProblemBuilder or an OCPProblem, got "
+                                 f"{type(out).__name__}")
+        return out
+
+    def build(self, ev: EVParams, dt: float, name: str | None = None) -> OCPProblem:
+        """:meth:`builder`, built."""
+        b = self.builder(ev, dt, name)
+        return b.build() if isinstance(b, ProblemBuilder) else b
+
+    def oracle_problem(self, ev: EVParams, dt: float) -> OCPProblem:
+        """OCP-D's problem: the same formulation on the OCP-D grid step dt [model time]."""
+        return self.build(ev, dt, name={"traffic": "ocp_d_traffic", "s9": "ocp_d"}.get(self.kind))
+
+    # ------------------------------------------------------------------ derived items
+    @property
+    def family(self) -> str:
+        """'traffic' or 's9': the built-in problem this one is (or, kind 'problem', was built from: its
+        builder's meta 'objective'); 'custom' when unknown. Decides the cold start and QP settings."""
+        if self.kind != "problem":
+            return self.kind
+        meta = _meta(self.problem)
+        obj = meta.get("objective")
+        return "traffic" if obj == "traffic" else "s9" if obj in OBJECTIVES else "custom"
+
+    @property
+    def rti_cold_start(self) -> bool:
+        """The 'rti' path starts cold by RTI iterations from the closed-form law's rollout (True), or by a cold
+        IPOPT solve (False: PROBLEM.md §9, so its published numbers stay as they are)."""
+        return self.family != "s9"
+
+    @property
+    def name(self) -> str:
+        """The formulation's name: 'traffic', 's9' or the user problem's name."""
+        if self.kind != "problem":
+            return self.kind
+        p = self.problem
+        return str(getattr(p, "name", None) or getattr(p, "__name__", "problem"))
+
+    @property
+    def controller_name(self) -> str:
+        """The MPC's name in tables and results: 'mpc(traffic)', 'mpc(w_Q=1)' (§9) or 'mpc(<problem name>)'."""
+        if self.kind == "s9":
+            return f"mpc(w_Q={self.weights.w_Q:g})"
+        return f"mpc({self.name})"
+
+    @property
+    def cost_key(self) -> str:
+        """The metrics key of this formulation's own cost: 'cost_traffic', 'cost_s9' or 'cost_problem'."""
+        return COST_KEYS[self.kind]
+
+    @property
+    def other_costs(self) -> tuple[str, ...]:
+        """Costs of another formulation reported beside this one's (a secondary table, never a verdict): the
+        PROBLEM.md §9 cost, unless this is §9."""
+        return () if self.kind == "s9" else ("cost_s9",)
+
+    def bounds_model(self, ev: EVParams) -> ModelBounds:
+        """The hard (traffic: its soft floor) bounds on h, v, a in model units. A user problem's are its declared
+        state/control bounds on h, v and a (finite ones), else its builder's meta 'bounds' (the built-ins'), else None."""
+        if self.kind == "traffic":
+            b = traffic_bounds(ev, self.traffic)
+            return ModelBounds(b.h_min, b.v_min, b.v_max, b.a_min, b.a_max)
+        if self.kind == "s9":
+            b = self.bounds
+            return ModelBounds(b.h_min, b.v_min, b.v_max, b.a_min, b.a_max)
+        meta_b = _meta(self.problem).get("bounds")
+        declared = _declared_bounds(self.problem)
+
+        def pick(key: str) -> float | None:
+            v = declared.get(key)
+            if v is not None and math.isfinite(v):
+                return float(v)
+            m = getattr(meta_b, key, None)
+            return float(m) if m is not None else None
+
+        return ModelBounds(*(pick(k) for k in ("h_min", "v_min", "v_max", "a_min", "a_max")))
+
+    def accel_bounds(self, ev: EVParams) -> tuple[float, float]:
+        """(a_min, a_max) [model acceleration] that the fallback clips to (±inf where the problem has none)."""
+        b = self.bounds_model(ev)
+        return (b.a_min if b.a_min is not None else -math.inf, b.a_max if b.a_max is not None else math.inf)
+
+    def parameter_vector(self, names: list[str], weights: FollowingWeights | None = None) -> list[float]:
+        """Values of a problem's global parameters by name: the §9 weights (``weights``, else this formulation's)
+        for w_Q, w_V, w_r, w_a, ``parameter_values`` for the others (ParameterError naming a missing one)."""
+        w = weights or self.weights
+        out = []
+        for k in names:
+            if k in WEIGHT_NAMES:
+                out.append(float(getattr(w, k)))
+            elif k in self.parameter_values:
+                out.append(float(self.parameter_values[k]))
+            else:
+                raise ParameterError(f"Formulation {self.name!r}: parameter {k!r} has no value: give "
+                                     f"parameter_values={{{k!r}: ...}}")
+        return out
+
+    def s9_weight_vector(self) -> list[float]:
+        """PROBLEM.md §9's p = (w_Q, w_V, w_r, w_a) of this formulation."""
+        return weight_vector(self.weights)
+
+    def describe(self) -> dict[str, Any]:
+        """A JSON-friendly summary: kind, name, family, cost key and the parameters of the kind."""
+        from ..params import as_dict
+
+        d: dict[str, Any] = {"kind": self.kind, "name": self.name, "family": self.family, "cost_key": self.cost_key}
+        if self.kind == "traffic":
+            d["traffic"] = as_dict(self.traffic)
+        elif self.kind == "s9":
+            d.update({"weights": as_dict(self.weights), "bounds": as_dict(self.bounds), "objective": self.objective})
+        if self.kind != "problem":
+            d["smoothing_width_W"] = self.smooth.smoothing_width_W
+        else:
+            d["parameter_values"] = dict(self.parameter_values)
+        return d
+
+    def with_(self, **changes: Any) -> "Formulation":
+        """A validated copy with some fields changed."""
+        from dataclasses import replace
+
+        return replace(self, **changes)
+
+
+def _meta(p: Any) -> dict[str, Any]:
+    return dict(getattr(p, "meta", None) or {})
+
+
+def _declared_bounds(p: Any) -> dict[str, float]:
+    """Declared bounds of states h, v and control a of a builder or built problem (none for a function)."""
+    out: dict[str, float] = {}
+    if isinstance(p, ProblemBuilder):
+        xi, ui = p._x_info, p._u_info
+        if "h" in xi:
+            out["h_min"] = xi["h"][0]
+        if "v" in xi:
+            out["v_min"], out["v_max"] = xi["v"][0], xi["v"][1]
+        if "a" in ui:
+            out["a_min"], out["a_max"] = ui["a"][0], ui["a"][1]
+    elif isinstance(p, OCPProblem):
+        sn, cn = list(p.state_names), list(p.control_names)
+        if p.x_lb is not None and "h" in sn:
+            out["h_min"] = float(p.x_lb[sn.index("h")])
+        if p.x_lb is not None and p.x_ub is not None and "v" in sn:
+            out["v_min"], out["v_max"] = float(p.x_lb[sn.index("v")]), float(p.x_ub[sn.index("v")])
+        if p.u_lb is not None and p.u_ub is not None and "a" in cn:
+            out["a_min"], out["a_max"] = float(p.u_lb[cn.index("a")]), float(p.u_ub[cn.index("a")])
+    return out
+
+
+def traffic_formulation(traffic: TrafficParams | None = None, smooth: PowertrainOptions | None = None) -> Formulation:
+    """The traffic formulation (aev_ocp/ocp/traffic.py; the default) with its SI parameters."""
+    return Formulation("traffic", traffic=traffic or TrafficParams(), smooth=smooth or PowertrainOptions())
+
+
+def s9_formulation(weights: FollowingWeights | None = None, bounds: FollowingBounds | None = None,
+                   objective: str = "heat", smooth: PowertrainOptions | None = None) -> Formulation:
+    """PROBLEM.md §9's formulation (defaults: §9's weights 1, 1, 1, 0.1, bounds and the heat objective)."""
+    return Formulation("s9", weights=weights or FollowingWeights(), bounds=bounds or FollowingBounds(),
+                       objective=objective, smooth=smooth or PowertrainOptions())
+
+
+def problem_formulation(problem: ProblemSource, parameter_values: Mapping[str, float] | None = None,
+                        initial_values: Mapping[str, float] | None = None,
+                        weights: FollowingWeights | None = None) -> Formulation:
+    """A user problem as a formulation: every derived item (bounds, name, cost, cold start) follows it.
+    ``weights``: values of its parameters named w_Q, w_V, w_r, w_a (default PROBLEM.md §9's)."""
+    if isinstance(problem, Formulation):
+        return problem
+    return Formulation("problem", problem=problem, parameter_values=dict(parameter_values or {}),
+                       initial_values=dict(initial_values or {}), weights=weights or FollowingWeights())
+
+
+#: The default formulation of an MPC (``MPCVehicle(settings)`` and an ``[mpc]`` table without formulation keys).
+DEFAULT_FORMULATION = traffic_formulation()
+
+def formulation_from_dict(d: Mapping[str, Any]) -> Formulation:
+    """A formulation from flat keys: ``formulation`` ('traffic' default, or 's9'), the TrafficParams fields
+    (traffic), w_Q, w_V, w_r, w_a, h_min, v_min, v_max, a_min, a_max and ``objective`` (§9), and
+    ``smoothing_width_W``. A key of the other kind raises ParameterError naming it (it would be ignored)."""
+    from dataclasses import fields
+
+    kind = d.get("formulation", "traffic")
+    if kind not in ("traffic", "s9"):
+        raise ParameterError(f"formulation = {kind!r} is not allowed: must be one of ('traffic', 's9')")
+    wn, bn = {f.name for f in fields(FollowingWeights)}, {f.name for f in fields(FollowingBounds)}
+    tn = {f.name for f in fields(TrafficParams)}
+    w: dict[str, Any] = {}
+    b: dict[str, Any] = {}
+    t: dict[str, Any] = {}
+    s: dict[str, Any] = {}
+    obj = "heat"
+    for k, v in d.items():
+        if k == "formulation":
+            continue
+        if k in wn or k in bn or k == "objective":
+            if kind != "s9":
+                raise ParameterError(f"{k} applies to the §9 formulation only: set formulation = \"s9\", or use the "
+                                     "traffic formulation's SI parameters (standstill_gap_m, time_headway_s, a_min_mps2, "
+                                     "...; see aev_ocp/ocp/traffic.py)")
+            if k == "objective":
+                obj = v
+            else:
+                (w if k in wn else b)[k] = v
+        elif k in tn:
+            if kind != "traffic":
+                raise ParameterError(f"{k} applies to the traffic formulation only (aev_ocp/ocp/traffic.py), not to "
+                                     "formulation = \"s9\"")
+            t[k] = v
+        elif k == "smoothing_width_W":
+            s[k] = v
+        else:
+            raise ParameterError(f"formulation option {k!r} is unknown: known options are "
+                                 f"{sorted(wn | bn | tn | {'formulation', 'objective', 'smoothing_width_W'})}")
+    smooth = PowertrainOptions(**s)
+    if kind == "traffic":
+        return traffic_formulation(TrafficParams(**t), smooth)
+    return s9_formulation(FollowingWeights(**w), FollowingBounds(**b), obj, smooth)
+
+
+def formulation_keys() -> set[str]:
+    """Every flat key :func:`formulation_from_dict` reads."""
+    from dataclasses import fields
+
+    return ({"formulation", "objective", "smoothing_width_W"} | {f.name for f in fields(FollowingWeights)}
+            | {f.name for f in fields(FollowingBounds)} | {f.name for f in fields(TrafficParams)})
