@@ -6,17 +6,20 @@ Concrete lines are parsed in full (parse only, nothing runs); synopsis lines (pl
 
 from __future__ import annotations
 
+import argparse
+
 import re
 import shlex
 from pathlib import Path
 
 import pytest
 
-from aev_ocp.cli import command_parser, parse_command_line
+from aev_ocp.cli import build_parser, command_parser, parse_command_line
 
 ROOT = Path(__file__).resolve().parents[1]
 DOCS = [ROOT / "README.md", *sorted((ROOT / "docs").rglob("*.md"))]
-SUBCOMMANDS = ("reproduce", "simulate", "scenarios", "ocp", "mpc", "mpc-export", "stability", "study")
+# every sub-command the top-level parser knows (a new one is checked without editing this file)
+SUBCOMMANDS = tuple(next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction)).choices)
 
 
 def command_lines(text: str) -> list[str]:
