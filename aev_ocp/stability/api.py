@@ -86,7 +86,8 @@ def study_metrics(law: CarFollowingLaw, v_star: float, amplitude: float | None =
     lin = analyse(law, v_star)
     band_hi = lin.unstable_band[1] if lin.unstable_band else 0.0
     row: dict[str, Any] = {"law": law.name, "v_star_mps": float(u.speed_to_si(v_star)),
-                           "h_star_m": float(u.length_to_si(lin.h_star)), "criterion_per_s2": lin.criterion / u.time_s**2,
+                           "h_star_m": float(u.length_to_si(lin.h_star)),
+                           "criterion_per_s2": lin.criterion / u.time_s**2,
                            "unstable_band_hi_rad_per_s": band_hi / u.time_s,
                            "string_stable": lin.string_stable, "locally_stable": lin.locally_stable,
                            "max_gain": lin.max_gain, "peak_gain": lin.peak_gain}

@@ -182,6 +182,7 @@ def cli_stability(argv: list[str]) -> int:
         if is_mpc and a.linear_only:
             raise ParameterError("--linear-only: the MPC has no linear analysis here; drop the option")
         out = Path(a.out) if a.out else Path("results") / "stability" / a.law.lower()
+        _check_speeds_and_amplitudes(a, law, speeds, mv["amplitude"], units)
         omega = mv["omega"] if mv["omega"] is not None else _OMEGA
         duration = mv["duration"] if mv["duration"] is not None else _DURATION
         doc = run_stability(law, speeds, out, amplitudes=mv["amplitude"], kind=a.kind, omega=omega,
@@ -206,6 +207,31 @@ def cli_stability(argv: list[str]) -> int:
     for e in events:
         _err(e)
     return EXIT_FAILED_RUN if events else EXIT_OK
+
+
+def _check_speeds_and_amplitudes(a: argparse.Namespace, law: Any, speeds: list[float], amplitudes: list[float] | None,
+                                 units: Units) -> None:
+    """Refuse, naming the option in its own units, a speed at which the law has no equilibrium gap and an
+    amplitude above a speed (the leader would drive backwards)."""
+    from .linear import equilibrium_gap_of
+
+    sp, amp = ("--speed-mps", "--amplitude-mps")
+    if a.speed_model is not None:
+        sp = "--speed-model"
+    if a.amplitude_model is not None:
+        amp = "--amplitude-model"
+    shown = lambda x: f"{units.speed_to_si(x):g} m/s ({x:g} model speed)"  # noqa: E731
+    for v in speeds:
+        if law is not None:
+            try:
+                equilibrium_gap_of(law, v)
+            except ParameterError:
+                raise ParameterError(f"{sp}: law {law.name!r} has no equilibrium gap at v* = {shown(v)} "
+                                     "(f(h, v*, v*) does not change sign for h in [1e-4, 1e3] model length)") from None
+        for x in amplitudes or []:
+            if x > v:
+                raise ParameterError(f"{amp}: amplitude {shown(x)} is above v* = {shown(v)} (the leader would drive "
+                                     "backwards)")
 
 
 def _units(a: argparse.Namespace) -> Units:
