@@ -20,6 +20,7 @@ from aev_ocp.models.carfollowing import (IDM, LAW_REGISTRY, OVFL, OVM, TANH2, Ca
                                          optimal_velocity, register_law)
 from aev_ocp.stability import (LinearizedLaw, PerturbedLeader, analyse, measure,
                                stability_map, string_stability_section, study_metrics, transfer)
+from aev_ocp.params import Units
 from aev_ocp.stability.linear import impulse_response
 
 speeds = st.floats(0.2, 1.9)  # inside the range of V, (tanh2 − 1, 1 + tanh2) = (−0.036, 1.964)
@@ -164,7 +165,7 @@ def test_user_law_everywhere(tmp_path: Path) -> None:
         m = stability_map(FVD(), 1.2, "a", [0.2, 0.6, 1.4], "lam", [0.0, 0.3])
         assert m["criterion"].shape == (2, 3)
         assert m["criterion"][1, 2] == pytest.approx(1.4**2 / 2 + 0.3 * 1.4 - 1.4 * v_prime(h), rel=1e-9)
-        rc = main(["stability", "--law", "fvd_test", "--set", "carfollowing.fvd_test.a=0.9", "--speed", "1.2",
+        rc = main(["stability", "--law", "fvd_test", "--set", "carfollowing.fvd_test.a=0.9", "--speed-model", "1.2",
                    "--linear-only", "--no-plots", "--out", str(tmp_path)])
         assert rc == 0
         doc = json.loads((tmp_path / "stability.json").read_text())
@@ -174,18 +175,20 @@ def test_user_law_everywhere(tmp_path: Path) -> None:
 
 
 def test_cli_writes_json_and_plots(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    rc = main(["stability", "--law", "ovfl", "--set", "carfollowing.ovfl.beta=2.5", "--speed", "1.1",
-               "--speed", "1.6", "--amplitude", "1e-4", "--amplitude", "0.3", "--followers", "6",
-               "--out", str(tmp_path)])
+    rc = main(["stability", "--law", "ovfl", "--set", "carfollowing.ovfl.beta=2.5", "--speed-mps", "5.5",
+               "--speed-mps", "8", "--amplitude-mps", "5e-4", "--amplitude-mps", "1.5", "--followers", "6",
+               "--out", str(tmp_path)])  # the paper's units: 1.1 and 1.6 model speed, A = 1e-4 and 0.3
     assert rc == 0
     doc = json.loads((tmp_path / "stability.json").read_text())
-    assert [e["v_star"] for e in doc["speeds"]] == [1.1, 1.6]
+    assert [e["v_star_model"] for e in doc["speeds"]] == pytest.approx([1.1, 1.6], rel=1e-15)
     for e in doc["speeds"]:
-        for key in ("criterion", "string_stable", "max_gain", "unstable_band", "measured", "linear_prediction"):
+        for key in ("criterion_model", "string_stable", "max_gain", "unstable_band_model", "measured",
+                    "linear_prediction"):
             assert key in e
-        assert [m["amplitude"] for m in e["measured"]] == [1e-4, 0.3]
+        assert [m["amplitude_model"] for m in e["measured"]] == pytest.approx([1e-4, 0.3], rel=1e-15)
         assert e["measured"][0]["agrees_with_linear"] is True  # OVFL at A = 1e-4 is in its linear range
-        assert e["criterion"] == pytest.approx(2 + 2 * 2.5 / e["h_star"] ** 2 - 2 * v_prime(e["h_star"]), rel=1e-9)
+        h = e["h_star_model"]
+        assert e["criterion_model"] == pytest.approx(2 + 2 * 2.5 / h**2 - 2 * v_prime(h), rel=1e-9)
     for name in ("gain.png", "stable_region.png", "attenuation.png"):
         assert (tmp_path / name).stat().st_size > 1000
     assert "criterion C" in capsys.readouterr().out
@@ -197,9 +200,15 @@ def test_cli_writes_json_and_plots(tmp_path: Path, capsys: pytest.CaptureFixture
     (["--law", "ovm", "--set", "carfollowing.ovm.alpha=x"], "carfollowing.ovm.alpha"),
     (["--law", "ovm", "--set", "carfollowing.ovfl.beta=1"], "--law"),
     (["--law", "proposed", "--set", "carfollowing.proposed.eps=0"], "eps"),
-    (["--law", "ovm", "--speed", "2.5", "--linear-only"], "v* = 2.5"),
-    (["--law", "ovm", "--speed", "nan"], "--speed"),
-    (["--law", "ovm", "--amplitude", "3"], "amplitude"),
+    (["--law", "ovm", "--speed-mps", "12.5", "--linear-only"], "v* = 12.5 m/s (2.5 model speed)"),
+    (["--law", "ovm", "--speed-model", "2.5", "--linear-only"], "--speed-model"),
+    (["--law", "ovm", "--speed-mps", "nan"], "--speed-mps"),
+    (["--law", "ovm", "--speed-mps", "-8"], "--speed-mps"),
+    (["--law", "ovm", "--amplitude-mps", "15"], "--amplitude-mps: amplitude 15 m/s (3 model speed)"),
+    (["--law", "ovm", "--duration-s", "0"], "--duration-s"),
+    (["--law", "ovm", "--omega-model", "inf"], "--omega-model"),
+    (["--law", "ovm", "--units-speed-mps", "0"], "--units-speed-mps"),
+    (["--law", "ovm", "--units-length-m", "nan"], "--units-length-m"),
     (["--law", "ovm", "--followers", "0"], "--followers"),
     (["--law", "mpc", "--predictor", "psychic"], "--predictor"),
 ])
@@ -231,6 +240,12 @@ def test_report_section_answers_fig5(tmp_path: Path) -> None:
     assert doc["linear"]["string_stable"] and doc["linear"]["criterion"] == pytest.approx(1.7767, abs=1e-4)
     assert doc["linear_agreement_up_to"] is not None and doc["linear_agreement_up_to"] < 1e-3
     assert "C = 1.7767 ≥ 0" in md and "Fig. 5's 0.88 → 1.19" in md
+    # SI twins beside the paper's model-unit columns (L = 10 m, U = 5 m/s): v* = 1.7 -> 8.5 m/s, h* = 2.9416 -> 29.42 m
+    assert "| v* [m/s] | h* [m] | v* (model) | h* (model) |" in md
+    assert "| proposed (paper) | 8.5 | 29.42 | 1.7 | 2.9416 |" in md
+    assert "| A [m/s] | A (model) |" in md and "\n| 0.0005 | 0.0001 | " in md
+    assert doc["v_star_mps"] == pytest.approx(5.0 * doc["v_star"])
+    assert doc["units"] == {"length_m": 10.0, "speed_mps": 5.0}
     assert (tmp_path / "string_stability.png").read_bytes()[:4] == b"\x89PNG"
     assert doc["fig5_origin"]["proposed"]["paper"][1] > doc["fig5_origin"]["proposed"]["paper"][0]
     eq = doc["fig5_origin"]["proposed"]["equilibrium"]
@@ -248,3 +263,103 @@ def test_mpc_platoon_measured_through_the_closed_loop() -> None:
     assert att.status == "ok" and base.status == "ok"
     assert att.peak[0] == pytest.approx(0.05, rel=1e-3)
     assert 0 < att.peak[2] < att.peak[1] < att.peak[0]
+
+
+# ----------------------------------------------------------------------------- SI options and columns (issue 20)
+L_M, U_MPS = 13.0, 7.0  # distinct, non-special units: T = 13/7 s
+T_S = L_M / U_MPS
+
+
+def _run(tmp_path: Path, name: str, args: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[dict, str]:
+    out = tmp_path / name
+    assert main(["stability", "--law", "ovfl", "--set", "carfollowing.ovfl.beta=2.6", "--followers", "3",
+                 "--units-length-m", str(L_M), "--units-speed-mps", str(U_MPS), "--no-plots", "--out", str(out),
+                 *args]) == 0
+    return json.loads((out / "stability.json").read_text()), capsys.readouterr().out
+
+
+@pytest.mark.parametrize("si, model", [
+    (["--speed-mps", "9.1", "--amplitude-mps", "0.0217", "--kind", "sine", "--omega-rad-per-s", "0.7"],
+     ["--speed-model", "1.3", "--amplitude-model", "0.0031", "--kind", "sine", "--omega-model", str(0.7 * T_S)]),
+    (["--speed-mps", "10.5", "--amplitude-mps", "0.35", "--duration-s", "5.2"],
+     ["--speed-model", "1.5", "--amplitude-model", "0.05", "--duration-model", "2.8"]),
+])
+def test_si_options_equal_the_model_options_after_conversion(si: list[str], model: list[str], tmp_path: Path,
+                                                            capsys: pytest.CaptureFixture[str]) -> None:
+    a, out_a = _run(tmp_path, "si", si, capsys)
+    b, out_b = _run(tmp_path, "model", model, capsys)
+    ea, eb = a["speeds"][0], b["speeds"][0]
+    assert a["units"] == {"length_m": L_M, "speed_mps": U_MPS, "time_s": pytest.approx(T_S, rel=1e-15)}
+    v = float(model[1])
+    assert ea["v_star_model"] == pytest.approx(v, rel=1e-14) and ea["v_star_mps"] == pytest.approx(float(si[1]))
+    # the same run: every model-unit number equal, whichever twin was given
+    for key in ("h_star_model", "criterion_model", "f_h_model", "f_v_model", "f_dv_model"):
+        assert ea[key] == pytest.approx(eb[key], rel=1e-9)
+    ma, mb = ea["measured"][0], eb["measured"][0]
+    for key in ("amplitude_model", "omega_model", "duration_model", "t_end_model", "ratio_peak", "ratio_l2",
+                "max_step_l2"):
+        assert ma[key] == pytest.approx(mb[key], rel=1e-9), key
+    assert ma["peak_model"] == pytest.approx(mb["peak_model"], rel=1e-7)
+    # the SI columns are the model columns converted with L = 13 m, U = 7 m/s (time unit 13/7 s)
+    h = ea["h_star_model"]
+    assert ea["criterion_model"] == pytest.approx(2 + 2 * 2.6 / h**2 - 2 * v_prime(h), rel=1e-9)  # closed form
+    assert ea["h_star_m"] == pytest.approx(13.0 * h, rel=1e-14)
+    assert ea["criterion_per_s2"] == pytest.approx(ea["criterion_model"] * 49.0 / 169.0, rel=1e-14)
+    assert ea["f_dv_per_s"] == pytest.approx(ea["f_dv_model"] * 7.0 / 13.0, rel=1e-14)
+    assert ma["amplitude_mps"] == pytest.approx(7.0 * ma["amplitude_model"], rel=1e-14)
+    assert ma["omega_rad_per_s"] == pytest.approx(ma["omega_model"] * 7.0 / 13.0, rel=1e-14)
+    assert ma["duration_s"] == pytest.approx(ma["duration_model"] * 13.0 / 7.0, rel=1e-14)
+    assert ma["t_end_s"] == pytest.approx(ma["t_end_model"] * 13.0 / 7.0, rel=1e-14)
+    assert ma["peak_mps"] == pytest.approx([7.0 * x for x in ma["peak_model"]], rel=1e-14)
+    assert ma["l2_m_per_sqrt_s"] == pytest.approx([7.0 * math.sqrt(13.0 / 7.0) * x for x in ma["l2_model"]], rel=1e-14)
+    if "--omega-rad-per-s" in si:
+        assert ma["omega_rad_per_s"] == pytest.approx(0.7, rel=1e-14)
+    else:
+        assert ma["duration_s"] == pytest.approx(5.2, rel=1e-14)
+    # printed: SI first, the model value in parentheses
+    assert f"v* = {float(si[1]):g} m/s ({v:g})" in out_a and f"m ({h:.6g})" in out_a
+    assert f"A = {float(si[3]):.4g} m/s ({float(model[3]):g})" in out_a
+    assert out_a.splitlines()[0] == out_b.splitlines()[0]
+
+
+@pytest.mark.parametrize("si, model", [("--speed-mps", "--speed-model"), ("--amplitude-mps", "--amplitude-model"),
+                                       ("--omega-rad-per-s", "--omega-model"), ("--duration-s", "--duration-model")])
+def test_both_twins_given_is_an_error_naming_both(si: str, model: str, tmp_path: Path,
+                                                  capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["stability", "--law", "ovm", si, "0.3", model, "0.2", "--out", str(tmp_path)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and si in err[0] and model in err[0]
+    assert not (tmp_path / "stability.json").exists()
+
+
+@pytest.mark.parametrize("old", ["--speed", "--amplitude", "--omega", "--duration"])
+def test_unitless_option_names_are_refused(old: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["stability", "--law", "ovm", old, "1.1", "--out", str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert f"{old}-model" in err and old in err
+
+
+def _dimensionless_or_si(key: str) -> bool:
+    return key in {"label", "kind", "n_followers", "status", "law", "string_stable", "locally_stable", "max_gain",
+                   "peak_gain", "agrees_with_linear", "string_stable_measured", "measured", "linear_prediction"} or \
+        key.startswith(("ratio_", "max_step_")) or key.endswith(("_mps", "_m", "_s", "_per_s", "_per_s2",
+                                                                   "_rad_per_s", "_m_per_sqrt_s"))
+
+
+def test_written_columns_lead_with_si_and_suffix_the_model_ones(tmp_path: Path,
+                                                                capsys: pytest.CaptureFixture[str]) -> None:
+    doc, _ = _run(tmp_path, "cols", ["--speed-mps", "9.8", "--amplitude-mps", "0.07"], capsys)
+    e = doc["speeds"][0]
+    for table in (e, e["measured"][0], e["linear_prediction"], doc["experiment"]):
+        keys = [k for k in table if k != "sizes"]
+        model = [k for k in keys if k.endswith("_model")]
+        assert model and all(_dimensionless_or_si(k) for k in keys if k not in model), keys
+        first_model = keys.index(model[0])
+        assert all(k.endswith("_model") for k in keys[first_model:] if k not in ("measured", "linear_prediction"))
+        assert keys[0] in ("v_star_mps", "label", "kind")
+    assert list(e)[:2] == ["v_star_mps", "h_star_m"]
+    assert e["measured"][0]["v_star_mps"] == pytest.approx(9.8)
+    row = study_metrics(OVFL(2.0, 3.0), 1.4, amplitude=1e-3, n_followers=3, units=Units(13.0, 7.0))
+    assert list(row)[1:3] == ["v_star_mps", "h_star_m"] and row["v_star_mps"] == pytest.approx(9.8)
+    assert row["amplitude_mps"] == pytest.approx(7e-3) and row["amplitude_model"] == 1e-3
+    assert row["criterion_per_s2"] == pytest.approx(row["criterion_model"] * 49.0 / 169.0, rel=1e-14)

@@ -1,10 +1,14 @@
-"""``aev-ocp stability --law NAME [--set carfollowing.NAME.param=value ...] [--speed V ...] [--out DIR]``.
+"""``aev-ocp stability --law NAME [--set carfollowing.NAME.param=value ...] [--speed-mps V ...] [--out DIR]``.
 
 Linear string-stability analysis of a law at each equilibrium speed, measured attenuation of a
 perturbation in a long platoon over a range of amplitudes, the linear prediction of the same
 experiment; writes stability.json, gain.png, stable_region.png and attenuation.png. ``--law mpc``
 measures the MPC platoon instead (closed loop, no linear analysis). Exit codes: 0 ok, 1 a measured
 run stopped on an event (collision, negative speed; its numbers are still written), 2 bad input.
+
+Options are SI (``--speed-mps``, ``--amplitude-mps``, ``--duration-s``, ``--omega-rad-per-s``), converted to
+the laws' model units with ``--units-length-m`` L and ``--units-speed-mps`` U (time unit L/U); each has a
+``*-model`` twin in model units, and giving both twins is an error naming both.
 """
 
 from __future__ import annotations
@@ -15,7 +19,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from ..params import ParameterError
+from ..params import ParameterError, Units
 
 # the command line's one error format, exit codes and parser (aev_ocp/cli.py)
 from ..cli import EXIT_BAD_INPUT, EXIT_FAILED_RUN, EXIT_OK
@@ -23,20 +27,70 @@ from ..cli import OneLineParser as _Parser
 from ..cli import error_line as _err
 
 
+_UNITS = Units()  # the paper's units (aev_ocp/params.py: L = 10 m, U = 5 m/s)
+_V_STAR = 1.7  # default equilibrium speed [model speed]: the paper leader's v_l(20)
+_OMEGA = 0.5 * math.pi  # default sinusoid frequency [rad/model time]: the paper leader's slow component sin(0.5πt)
+_DURATION = 4.0  # default dip duration [model time]: the period of that component
+_T = _UNITS.time_s
+
+#: (SI option name, metavar, dest stem, SI help, model-unit help) of the options that have a *-model twin.
+_TWINS = (
+    ("speed-mps", "V", "speed",
+     f"equilibrium speed v* [m/s] (repeatable; default {_V_STAR:g} model speed, the paper leader's v_l(20): "
+     f"{_V_STAR * _UNITS.speed_mps:g} m/s at the default units)",
+     "equilibrium speed v* in model speed instead (repeatable)"),
+    ("amplitude-mps", "A", "amplitude",
+     "disturbance amplitude [m/s] (repeatable; default 1e-6 … Fig. 5's size, in model speed, below 0.95 v*)",
+     "disturbance amplitude in model speed instead (repeatable)"),
+    ("omega-rad-per-s", "W", "omega",
+     f"sinusoid frequency [rad/s] (default {_OMEGA:g} rad per model time: {_OMEGA / _T:g} rad/s at the default "
+     "units)", "sinusoid frequency in rad per model time instead"),
+    ("duration-s", "D", "duration",
+     f"dip duration [s] (default {_DURATION:g} model time: {_DURATION * _T:g} s at the default units)",
+     "dip duration in model time instead"),
+)
+
+
+def _model_values(a: argparse.Namespace, units: Units) -> dict[str, Any]:
+    """speed, amplitude (lists or None), omega, duration in model units from the SI options or their *-model
+    twins (argparse already refused both); ParameterError names the option of a bad value."""
+    to_model = {"speed": units.speed_from_si, "amplitude": units.speed_from_si,
+                "omega": lambda w: w * units.time_s, "duration": units.time_from_si}
+    out: dict[str, Any] = {}
+    for name, _, dest, _, _ in _TWINS:
+        si, model = getattr(a, f"{dest}_si"), getattr(a, f"{dest}_model")
+        given, opt = (si, f"--{name}") if si is not None else (model, f"--{dest}-model")
+        if given is None:
+            out[dest] = None
+            continue
+        for x in given if isinstance(given, list) else [given]:
+            if not (math.isfinite(x) and x > 0):
+                raise ParameterError(f"{opt} {x!r}: must be a finite number > 0")
+        conv = to_model[dest] if si is not None else (lambda x: x)
+        out[dest] = [float(conv(x)) for x in given] if isinstance(given, list) else float(conv(given))
+    return out
+
+
 def build_parser() -> argparse.ArgumentParser:
     """Argument parser of ``aev-ocp stability``."""
-    p = _Parser(prog="aev-ocp stability", description=__doc__.splitlines()[0].strip("`"))
+    p = _Parser(prog="aev-ocp stability", description=__doc__.splitlines()[0].rstrip(".").strip("`"))
     p.add_argument("--law", required=True, help="a registered law (ovm, ovfl, proposed, idm, ...) or 'mpc'")
     p.add_argument("--set", action="append", default=[], metavar="carfollowing.LAW.PARAM=VALUE",
                    help="override a coefficient (also carfollowing.PARAM=VALUE for alpha, beta, kappa, eps)")
-    p.add_argument("--speed", action="append", type=float, default=None, metavar="V",
-                   help="equilibrium speed v* [model speed] (repeatable; default 1.7, the paper's v_l(20))")
-    p.add_argument("--amplitude", action="append", type=float, default=None, metavar="A",
-                   help="disturbance amplitude [model speed] (repeatable; default 1e-6 … Fig. 5's size)")
+    p.add_argument("--units-length-m", type=float, default=_UNITS.length_m, metavar="L",
+                   help=f"length unit L [m] of the laws' model units, for converting the SI options and columns "
+                        f"(default {_UNITS.length_m:g}, the paper's)")
+    p.add_argument("--units-speed-mps", type=float, default=_UNITS.speed_mps, metavar="U",
+                   help=f"speed unit U [m/s] (time unit L/U s; default {_UNITS.speed_mps:g}, the paper's)")
+    for name, metavar, dest, si_help, model_help in _TWINS:
+        g = p.add_mutually_exclusive_group()
+        action = "append" if dest in ("speed", "amplitude") else "store"
+        g.add_argument(f"--{name}", dest=f"{dest}_si", action=action, type=float, default=None, metavar=metavar,
+                       help=si_help)
+        g.add_argument(f"--{dest}-model", dest=f"{dest}_model", action=action, type=float, default=None,
+                       metavar=metavar.lower(), help=model_help)
     p.add_argument("--kind", choices=("pulse", "sine"), default="pulse",
                    help="leader perturbation: a smooth speed dip (pulse) or a sinusoid (default pulse)")
-    p.add_argument("--omega", type=float, default=0.5 * math.pi, help="sinusoid frequency [rad/model time]")
-    p.add_argument("--duration", type=float, default=4.0, help="dip duration [model time] (default 4)")
     p.add_argument("--followers", type=int, default=None, help="platoon size (default 50; 6 for --law mpc)")
     p.add_argument("--predictor", default="constant-velocity",
                    help="MPC leader forecast for --law mpc: constant-velocity, constant-acceleration, "
@@ -118,50 +172,102 @@ def cli_stability(argv: list[str]) -> int:
             raise ParameterError("--set: the MPC has no car-following coefficients to set")
         if is_mpc and a.predictor not in PREDICTOR_NAMES:
             raise ParameterError(f"--predictor {a.predictor!r}: must be one of {PREDICTOR_NAMES}")
+        units = _units(a)
         law = None if is_mpc else build_law(a.law, a.set)
-        speeds = a.speed or [1.7]
-        for v in speeds:
-            if not (math.isfinite(v) and v > 0):
-                raise ParameterError(f"--speed {v!r}: must be a finite number > 0")
+        mv = _model_values(a, units)
+        speeds = mv["speed"] or [_V_STAR]
         n = a.followers if a.followers is not None else (6 if is_mpc else 50)
         if n < 1 or n > 2000:
             raise ParameterError(f"--followers {n}: must be an integer in [1, 2000]")
-        for nm, val in (("--omega", a.omega), ("--duration", a.duration)):
-            if not (math.isfinite(val) and val > 0):
-                raise ParameterError(f"{nm} {val!r}: must be a finite number > 0")
         if is_mpc and a.linear_only:
             raise ParameterError("--linear-only: the MPC has no linear analysis here; drop the option")
         out = Path(a.out) if a.out else Path("results") / "stability" / a.law.lower()
-        doc = run_stability(law, speeds, out, amplitudes=a.amplitude, kind=a.kind, omega=a.omega,
-                            duration=a.duration, n_followers=n, measure_runs=not a.linear_only,
-                            mpc_predictor=a.predictor if is_mpc else None, plots=not a.no_plots, progress=say)
+        _check_speeds_and_amplitudes(a, law, speeds, mv["amplitude"], units)
+        omega = mv["omega"] if mv["omega"] is not None else _OMEGA
+        duration = mv["duration"] if mv["duration"] is not None else _DURATION
+        doc = run_stability(law, speeds, out, amplitudes=mv["amplitude"], kind=a.kind, omega=omega,
+                            duration=duration, n_followers=n, measure_runs=not a.linear_only,
+                            mpc_predictor=a.predictor if is_mpc else None, plots=not a.no_plots, progress=say,
+                            units=units)
     except ParameterError as exc:
         _err(str(exc))
         return EXIT_BAD_INPUT
     except OSError as exc:
         _err(f"{exc.strerror or exc}: {exc.filename}" if exc.filename else str(exc))
         return EXIT_BAD_INPUT
+    for line in summary_lines(doc):
+        print(line)
     events = []
     for e in doc["speeds"]:
-        head = f"v* = {e['v_star']:g}"
-        if "criterion" in e:
-            band = e["unstable_band"]
-            print(f"{head}: h* = {e['h_star']:.6g}, criterion C = {e['criterion']:.6g}, string stable: "
-                  f"{e['string_stable']}, platoon stable: {e['locally_stable']}, sup|G| = {e['max_gain']:.6g}"
-                  + (f" at ω = {e['omega_max_gain']:.4g}, |G| > 1 for ω < {band[1]:.4g}" if band else "")
-                  + f", ℓ∞ gain ∫|g| = {e['peak_gain']:.6g}")
-        if "linear_prediction" in e:
-            lp = e["linear_prediction"]
-            print(f"  linear prediction: mean peak ratio {lp['ratio_peak']:.4f}, max ℓ2 step {lp['max_step_l2']:.4f}")
         for m in e["measured"]:
-            print(f"  A = {m['amplitude']:<8g} mean peak ratio {m['ratio_peak']:.4f}  max peak step "
-                  f"{m['max_step_peak']:.4f}  max ℓ2 step {m['max_step_l2']:.4f}  measured string stable: "
-                  f"{m['string_stable_measured']}"
-                  + ("" if m.get("agrees_with_linear") is None else
-                     f"  linear: {'yes' if m['agrees_with_linear'] else 'no'}") + f"  ({m['status']})")
             if m["status"] != "ok":
-                events.append(f"{head}, A = {m['amplitude']:g}: run stopped ({m['status']})")
+                events.append(f"v* = {e['v_star_mps']:.6g} m/s ({e['v_star_model']:g}), A = {m['amplitude_mps']:.6g} "
+                              f"m/s ({m['amplitude_model']:g}): run stopped ({m['status']})")
     print(f"wrote {len(doc.get('files', []))} files to {out}/")
     for e in events:
         _err(e)
     return EXIT_FAILED_RUN if events else EXIT_OK
+
+
+def _check_speeds_and_amplitudes(a: argparse.Namespace, law: Any, speeds: list[float], amplitudes: list[float] | None,
+                                 units: Units) -> None:
+    """Refuse, naming the option in its own units, a speed at which the law has no equilibrium gap and an
+    amplitude above a speed (the leader would drive backwards)."""
+    from .linear import equilibrium_gap_of
+
+    sp, amp = ("--speed-mps", "--amplitude-mps")
+    if a.speed_model is not None:
+        sp = "--speed-model"
+    if a.amplitude_model is not None:
+        amp = "--amplitude-model"
+    shown = lambda x: f"{units.speed_to_si(x):g} m/s ({x:g} model speed)"  # noqa: E731
+    for v in speeds:
+        if law is not None:
+            try:
+                equilibrium_gap_of(law, v)
+            except ParameterError:
+                raise ParameterError(f"{sp}: law {law.name!r} has no equilibrium gap at v* = {shown(v)} "
+                                     "(f(h, v*, v*) does not change sign for h in [1e-4, 1e3] model length)") from None
+        for x in amplitudes or []:
+            if x > v:
+                raise ParameterError(f"{amp}: amplitude {shown(x)} is above v* = {shown(v)} (the leader would drive "
+                                     "backwards)")
+
+
+def _units(a: argparse.Namespace) -> Units:
+    """The [units] of --units-length-m and --units-speed-mps; ParameterError names the option."""
+    for opt, x in (("--units-length-m", a.units_length_m), ("--units-speed-mps", a.units_speed_mps)):
+        if not (math.isfinite(x) and x > 0):
+            raise ParameterError(f"{opt} {x!r}: must be a finite number > 0")
+    return Units(length_m=a.units_length_m, speed_mps=a.units_speed_mps)
+
+
+def summary_lines(doc: dict[str, Any]) -> list[str]:
+    """The lines ``aev-ocp stability`` prints for a stability.json document: SI first, the model value in
+    parentheses (criterion C in 1/s², frequencies in rad/s)."""
+    lines: list[str] = []
+    for e in doc["speeds"]:
+        head = f"v* = {e['v_star_mps']:.6g} m/s ({e['v_star_model']:g})"
+        if "criterion_per_s2" in e:
+            band, band_m = e["unstable_band_rad_per_s"], e["unstable_band_model"]
+            lines.append(
+                f"{head}: h* = {e['h_star_m']:.6g} m ({e['h_star_model']:.6g}), criterion C = "
+                f"{e['criterion_per_s2']:.6g} 1/s² ({e['criterion_model']:.6g}), string stable: {e['string_stable']}, "
+                f"platoon stable: {e['locally_stable']}, sup|G| = {e['max_gain']:.6g}"
+                + (f" at ω = {e['omega_max_gain_rad_per_s']:.4g} rad/s ({e['omega_max_gain_model']:.4g}), |G| > 1 "
+                   f"for ω < {band[1]:.4g} rad/s ({band_m[1]:.4g})" if band else "")
+                + f", ℓ∞ gain ∫|g| = {e['peak_gain']:.6g}")
+        else:
+            lines.append(f"{head}: {doc['law']['law']} (measured only)")
+        if "linear_prediction" in e:
+            lp = e["linear_prediction"]
+            lines.append(f"  linear prediction: mean peak ratio {lp['ratio_peak']:.4f}, max ℓ2 step "
+                         f"{lp['max_step_l2']:.4f}")
+        for m in e["measured"]:
+            amp = f"{m['amplitude_mps']:.4g} m/s ({m['amplitude_model']:g})"
+            lines.append(f"  A = {amp:<22} mean peak ratio {m['ratio_peak']:.4f}  max peak step "
+                         f"{m['max_step_peak']:.4f}  max ℓ2 step {m['max_step_l2']:.4f}  measured string stable: "
+                         f"{m['string_stable_measured']}"
+                         + ("" if m.get("agrees_with_linear") is None else
+                            f"  linear: {'yes' if m['agrees_with_linear'] else 'no'}") + f"  ({m['status']})")
+    return lines

@@ -32,7 +32,7 @@ import casadi as ca
 import numpy as np
 
 from ..models.carfollowing import CarFollowingLaw
-from ..params import ParameterError
+from ..params import ParameterError, Units
 
 _PARTIALS: dict[Any, ca.Function] = {}
 _GRID = np.logspace(-4, 3, 600)  # gaps scanned for a sign change of f(h, v*, v*) [model length]
@@ -226,6 +226,26 @@ class LinearStability:
         d["poles"] = [[p.real, p.imag] for p in self.poles]
         d["unstable_band"] = list(self.unstable_band) if self.unstable_band else None
         return d
+
+    def to_table(self, units: Units) -> dict[str, Any]:
+        """JSON-ready, SI first: every dimensional field with its unit in the name (v_star_mps, h_star_m,
+        f_h_per_s2, f_v_per_s, f_dv_per_s, criterion_per_s2, omega_max_gain_rad_per_s,
+        unstable_band_rad_per_s, poles_per_s) converted with ``units`` (time unit T = L/U), then the
+        dimensionless ones (string_stable, locally_stable, max_gain, peak_gain), then the model-unit values
+        with a ``_model`` suffix."""
+        d = self.to_dict()
+        T = units.time_s
+        per_s = {"f_h": ("f_h_per_s2", T**-2), "f_v": ("f_v_per_s", 1.0 / T), "f_dv": ("f_dv_per_s", 1.0 / T),
+                 "criterion": ("criterion_per_s2", T**-2), "omega_max_gain": ("omega_max_gain_rad_per_s", 1.0 / T)}
+        out: dict[str, Any] = {"law": d["law"], "v_star_mps": float(units.speed_to_si(self.v_star)),
+                               "h_star_m": float(units.length_to_si(self.h_star))}
+        out.update({si: d[k] * f for k, (si, f) in per_s.items()})
+        out["unstable_band_rad_per_s"] = [x / T for x in d["unstable_band"]] if d["unstable_band"] else None
+        out["poles_per_s"] = [[re / T, im / T] for re, im in d["poles"]]
+        out.update({k: d[k] for k in ("string_stable", "locally_stable", "max_gain", "peak_gain")})
+        out.update({f"{k}_model": d[k] for k in ("v_star", "h_star", "f_h", "f_v", "f_dv", "criterion",
+                                                 "omega_max_gain", "unstable_band", "poles")})
+        return out
 
 
 def analyse(law: CarFollowingLaw, v_star: float, h_star: float | None = None,

@@ -27,7 +27,7 @@ import numpy as np
 
 from ..models.carfollowing import CarFollowingLaw
 from ..models.leader import PaperLeader
-from ..params import ParameterError
+from ..params import ParameterError, Units
 from ..results import SimulationResult
 from ..simulate import simulate_platoon
 from .linear import LinearizedLaw, LinearStability, analyse
@@ -81,6 +81,25 @@ class Attenuation:
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready."""
         return asdict(self)
+
+    def to_table(self, units: Units) -> dict[str, Any]:
+        """JSON-ready, SI first: v_star_mps, amplitude_mps, omega_rad_per_s, duration_s, t_end_s and per vehicle
+        peak_mps, l2_m_per_sqrt_s (‖v_n − v*‖₂ = (∫ṽ² dt)^½), harmonic_mps, max_abs_rel_speed_mps, converted
+        with ``units``; then the dimensionless ratios and verdicts; then the model-unit values with a ``_model``
+        suffix."""
+        d = self.to_dict()
+        U, T = units.speed_mps, units.time_s
+        scale = {"v_star": ("v_star_mps", U), "amplitude": ("amplitude_mps", U), "omega": ("omega_rad_per_s", 1.0 / T),
+                 "duration": ("duration_s", T), "t_end": ("t_end_s", T), "peak": ("peak_mps", U),
+                 "l2": ("l2_m_per_sqrt_s", U * math.sqrt(T)), "harmonic": ("harmonic_mps", U),
+                 "max_abs_rel_speed": ("max_abs_rel_speed_mps", U)}
+        out: dict[str, Any] = {k: d[k] for k in ("label", "kind", "n_followers", "status")}
+        for k, (si, f) in scale.items():
+            x = d[k]
+            out[si] = None if x is None else [v * f for v in x] if isinstance(x, list) else x * f
+        out.update({k: v for k, v in d.items() if k not in scale and k not in out})
+        out.update({f"{k}_model": d[k] for k in scale})
+        return out
 
 
 class Sizes(TypedDict):
@@ -201,18 +220,21 @@ def sweep_amplitudes(law: CarFollowingLaw, v_star: float, amplitudes: Sequence[f
 def measure_mpc(v_star: float, amplitude: float, *, n_followers: int = 6, predictor: str = "constant-velocity",
                 kind: str = "pulse", omega: float = 0.5 * math.pi, duration: float = 4.0, t_start: float = 2.0,
                 t_end: float = 30.0, settings: Any = None, periods: int = 3,
-                baseline: SimulationResult | None = None) -> tuple[Attenuation, SimulationResult]:
+                baseline: SimulationResult | None = None, units: Units | None = None
+                ) -> tuple[Attenuation, SimulationResult]:
     """The MPC platoon (PROBLEM.md §9) in closed loop with the exact plant behind the perturbed leader.
 
     Every follower runs its own MPC (``settings``, default MPCSettings with the 'rti' path) and starts at
     (V⁻¹(v*), v*); predictor 'cooperative' means vehicles 2… use their predecessor's last plan and vehicle 1
     a constant-velocity forecast. The MPC's own steady state is not exactly (V⁻¹(v*), v*) (its cost also
     weighs the pack heat), so the deviations are taken from an unperturbed run (``baseline``, returned
-    for reuse) and measured from t_start on. Returns (attenuation, baseline result)."""
+    for reuse) and measured from t_start on. units: the vehicles' [units] (default the paper's), which the MPC's
+    SI-tuned formulation and the battery see. Returns (attenuation, baseline result)."""
     from dataclasses import replace
 
     from ..models.carfollowing import equilibrium_gap
     from ..mpc import MPCSettings, MPCVehicle, run_closed_loop
+    from ..params import EVParams
 
     st = settings or MPCSettings(solver="rti", codegen=True)
     if predictor == "cooperative":
@@ -222,8 +244,9 @@ def measure_mpc(v_star: float, amplitude: float, *, n_followers: int = 6, predic
         ctrl = [MPCVehicle(replace(st, predictor=predictor))] * n_followers
     leader = PerturbedLeader(v_star, amplitude, kind, omega=omega, duration=duration, t_start=t_start)
     h = equilibrium_gap(v_star)
+    ev = EVParams(units=units) if units is not None else None
     if baseline is None:
         calm = PerturbedLeader(v_star, 0.0, kind, omega=omega, duration=duration, t_start=t_start)
-        baseline = run_closed_loop(calm, ctrl, [h] * n_followers, [v_star] * n_followers, t_end)
-    res = run_closed_loop(leader, ctrl, [h] * n_followers, [v_star] * n_followers, t_end)
+        baseline = run_closed_loop(calm, ctrl, [h] * n_followers, [v_star] * n_followers, t_end, ev=ev)
+    res = run_closed_loop(leader, ctrl, [h] * n_followers, [v_star] * n_followers, t_end, ev=ev)
     return attenuation_of(res, f"mpc ({predictor})", v_star, leader, t_end, periods, baseline=baseline), baseline

@@ -13,6 +13,7 @@ import numpy as np
 
 from ..models.carfollowing import IDM, OVFL, OVM, Proposed, equilibrium_gap
 from ..models.leader import PaperLeader
+from ..params import Units
 from ..results import write_json
 from ..simulate import simulate_platoon
 from .linear import analyse
@@ -21,6 +22,7 @@ from .measure import fig5_amplitude, linear_agreement, linear_prediction, measur
 ProgressFn = Callable[[str], None]
 N_REPORT = 50  # followers in the report's measured platoon
 AMPLITUDES = (1e-6, 1e-5, 1e-4, 1e-3, 1e-2, 1e-1)
+UNITS = Units()  # the paper's units (L = 10 m, U = 5 m/s), for the SI twins of the model-unit columns
 
 
 def fig5_origin(law_factory: Callable[[], Any] = Proposed) -> dict[str, list[float]]:
@@ -60,7 +62,8 @@ def string_stability_section(out_dir: Path, progress: ProgressFn) -> str:
     rows = []
     for tag, ls in cases:
         band = f"(0, {ls.unstable_band[1]:.4f})" if ls.unstable_band else "—"
-        rows.append(f"| {tag} | {ls.v_star:g} | {ls.h_star:.4f} | {ls.f_h:.4f} | {ls.f_v:.4f} | {ls.f_dv:.4f} | "
+        rows.append(f"| {tag} | {UNITS.speed_to_si(ls.v_star):.4g} | {UNITS.length_to_si(ls.h_star):.4g} | "
+                    f"{ls.v_star:g} | {ls.h_star:.4f} | {ls.f_h:.4f} | {ls.f_v:.4f} | {ls.f_dv:.4f} | "
                     f"{ls.criterion:.4f} | {'yes' if ls.string_stable else 'no'} | {_f(ls.max_gain)} | {band} | "
                     f"{_f(ls.peak_gain)} |")
     grid = np.linspace(0.05, 1.95, 39)
@@ -79,7 +82,9 @@ def string_stability_section(out_dir: Path, progress: ProgressFn) -> str:
     agree = [m.amplitude for m in meas if linear_agreement(m, ref)]
     holds = max((a for a in amps if all(a2 in agree for a2 in amps if a2 <= a)), default=None)
     write_json(out_dir / "string_stability.json", {
-        "law": law.describe(), "v_star": v_star, "linear": lin.to_dict(), "linear_prediction": ref.to_dict(),
+        "law": law.describe(), "units": {"length_m": UNITS.length_m, "speed_mps": UNITS.speed_mps},
+        "v_star_mps": UNITS.speed_to_si(v_star), "v_star": v_star, "linear": lin.to_dict(),
+        "linear_prediction": ref.to_dict(),
         "measured": [m.to_dict() for m in meas], "ovfl_measured": [a.to_dict() for a in ovfl.values()],
         "fig5_origin": {"proposed": origin, "ovfl": origin_ovfl}, "linear_agreement_up_to": holds})
     from .plots import plot_attenuation
@@ -89,7 +94,8 @@ def string_stability_section(out_dir: Path, progress: ProgressFn) -> str:
                      f"Dip of depth A in {N_REPORT} followers at v* = {v_star:g} (dashed: linearisation)")
     mrows = []
     for m in meas:
-        mrows.append(f"| {m.amplitude:g} | {m.peak[1] / m.amplitude:.4g} | {m.ratio_peak:.4f} | {m.max_step_peak:.4g} | "
+        mrows.append(f"| {UNITS.speed_to_si(m.amplitude):.4g} | {m.amplitude:g} | {m.peak[1] / m.amplitude:.4g} | "
+                     f"{m.ratio_peak:.4f} | {m.max_step_peak:.4g} | "
                      f"{m.max_step_l2:.4g} | {m.peak[-1] / m.amplitude:.4g} | "
                      f"{'yes' if linear_agreement(m, ref) else 'no'} | {m.status} |")
     big = meas[-1]
@@ -120,8 +126,10 @@ def string_stability_section(out_dir: Path, progress: ProgressFn) -> str:
         f"{c_min.criterion:.4f} (at v* = {c_min.v_star:g}): "
         + ("the paper's coefficients are linearly string stable at every speed.\n\n" if c_min.criterion >= 0 else
            "the paper's coefficients are NOT linearly string stable at every speed.\n\n")
-        + "| law | v* | h* | f_h | f_v | f_Δv | C | string stable | sup\\|G\\| | \\|G\\| > 1 on ω ∈ | ∫\\|g\\| |\n"
-        "|---|---|---|---|---|---|---|---|---|---|---|\n" + "\n".join(rows) + "\n\n"
+        + f"Model units as in the paper; the SI columns use L = {UNITS.length_m:g} m, U = {UNITS.speed_mps:g} m/s.\n\n"
+        "| law | v* [m/s] | h* [m] | v* (model) | h* (model) | f_h | f_v | f_Δv | C | string stable | sup\\|G\\| | "
+        "\\|G\\| > 1 on ω ∈ | ∫\\|g\\| |\n"
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|\n" + "\n".join(rows) + "\n\n"
         f"**Measured.** The leader of {N_REPORT} followers, all at equilibrium, dips by A (smooth, duration 4 = the "
         "period of the paper leader's slow component) and returns to v*. Columns: follower 1's peak |v − v*| "
         "over A; the geometric-mean step ratio of peaks over the platoon; the largest step ratios of the peak and of "
@@ -130,8 +138,9 @@ def string_stability_section(out_dir: Path, progress: ProgressFn) -> str:
         f"{ref.max_step_peak:.4f} (peak) and {ref.max_step_l2:.4f} (ℓ2), last follower {ref.peak[-1] / ref.amplitude:.4g}. "
         "'Linear' = every follower's peak within 5 % of the prediction.\n\n"
         "![attenuation against amplitude](string_stability.png)\n\n"
-        "| A | follower 1 peak / A | mean peak ratio | max peak step | max ℓ2 step | last peak / A | linear | status |\n"
-        "|---|---|---|---|---|---|---|---|\n" + "\n".join(mrows) + "\n\n"
+        "| A [m/s] | A (model) | follower 1 peak / A | mean peak ratio | max peak step | max ℓ2 step | last peak / A | "
+        "linear | status |\n"
+        "|---|---|---|---|---|---|---|---|---|\n" + "\n".join(mrows) + "\n\n"
         f"OVFL, same runs: mean peak ratio {ovfl[1e-4].ratio_peak:.4f} at A = 1e-4 and {ovfl[top].ratio_peak:.4f} at "
         f"A = {top:g} (largest ℓ2 step {ovfl[1e-4].max_step_l2:.4f}, {ovfl[top].max_step_l2:.4f}): it attenuates at "
         "every size, as its linearisation says.\n\n"
