@@ -312,7 +312,7 @@ class Plant:
             tm = min(max(tm, lo + 1e-3 * w), hi - 1e-3 * w)
             xm, qm, ym = self._one_step(t0, tm, x0, q0, a_cmd)
             mm = float(self._margin(rule, i, xm, ym))
-            if bool(rule.violated(mm)):
+            if mm <= 0 if rule.strict else mm < 0:  # the rule fires at tm
                 hi, m_hi, best = tm, mm, (tm, xm, qm, ym)
                 if side == -1:
                     m_lo *= 0.5
