@@ -217,6 +217,9 @@ class PlatoonSimulator:
         head += f"#define OMEGA_A {0.5 * (1 / eta + eta)!r}\n#define OMEGA_B {0.5 * (1 / eta - eta)!r}\n"
         head += f"#define NX {self._nx}\n#define NQ {self._nq}\n#define NY 3\n#define BATTERY {int(self.battery)}\n"
         head += f"#define AEV_NP {n_par}\n"
+        # with vehicle limits the jerk integrand jumps at every saturation corner (0 ↔ the law's rate of change);
+        # the error test then cannot pass on ∫jerk² (steps underflow): it is integrated, not error-controlled
+        head += f"#define AEV_JERK_UNCONTROLLED {int(self.ev.limits.enabled)}\n"
         head += "#define AEV_LAW_SWITCH " + " ".join(f"case {k}: return aevsim_law{k}(c->arg, c->res, c->iw, c->w, 0);"
                                                      for k in range(len(distinct))) + "\n"
         head += event_header()

@@ -206,11 +206,14 @@ CASADI_SYMBOL_EXPORT int aevsim_run(int n, const int* law_idx, const double* par
       double nrm = 0;
       for (int j = 0; j < NZ; j++) {
         if (j == NX) continue;  /* ω is computed exactly from v below */
+#if AEV_JERK_UNCONTROLLED
+        if (j == NX + 3) continue;  /* ∫jerk²: its integrand jumps where a vehicle limit starts or stops acting */
+#endif
         double e = 0; for (int l = 0; l < 7; l++) e += DP_E[l] * k[l][j];
         double sc = atol + rtol * fmax(fabs(z[j]), fabs(zn[j]));
         e = h * e / sc; nrm += e * e;
       }
-      nrm = sqrt(nrm / (NZ - 1));
+      nrm = sqrt(nrm / (NZ - 1 - AEV_JERK_UNCONTROLLED));
       if (!isfinite(nrm)) nrm = INFINITY;
       if (nrm > 1) {
         nrej++;
