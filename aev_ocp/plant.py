@@ -11,6 +11,17 @@ A follower's acceleration is either its car-following law, evaluated continuousl
 integrator, or a commanded acceleration held constant over a sample interval (zero-order hold).
 Quadratures per follower (per model time unit): ω = ∫ v g(a), ∫(V(h) − v)², ∫(v_l − v)², ∫jerk²,
 pack ∫Q and ∫Q_irr [J], so the §10 metrics are exact across control jumps.
+
+Vehicle limits (``ev.limits``, :mod:`aev_ocp.models.actuator`) act on every controller alike, inside the
+right-hand side: the law's or the command's acceleration is saturated to [a_min, a_max], passes through the
+actuator state a_act (appended to x after the battery states) when a lag or jerk limit is set, and is cut
+at v_max and at standstill; a_act(0) = 0. ``enabled = False`` builds exactly the model without limits.
+
+Events are located on the integrator: the first sample where a rule fires brackets it, and a safeguarded
+regula falsi on a one-point CVODES integration from the sample before finds the time to 1e-12 (relative);
+the run ends with that sample (a collision: h ≤ 0 there; the event carries the time in s and the impact
+speed v − v_l in m/s). A controller that publishes its own hard floor (``describe()["bounds_model"]["h_min"]``)
+and goes below it gives the run status 'violated' and one warning (:func:`floor_violations`).
 """
 
 from __future__ import annotations
@@ -179,7 +190,8 @@ class Plant:
         a = self._accelerations(h, v, v_lead, p[2:])
         hdot = v_lead - v
         lim = ev.limits
-        act = dact = None
+        act: ca.SX | None = None
+        dact: Any = None
         if lim.enabled:  # the vehicle's limits (aev_ocp.models.actuator); off: the paper's laws, the same graph
             a_sat = saturate(a, lim, ev.units)
             if lim.has_actuator_state:
@@ -188,7 +200,7 @@ class Plant:
                 a_sat = act
             a = speed_cut(a_sat, v, lim, ev.units)
         # jerk = da/dt by the chain rule (forward AD), including the leader's explicit time dependence
-        if act is None:
+        if act is None or dact is None:
             jerk = ca.jtimes(a, ca.vertcat(h, v), ca.vertcat(hdot, a)) + ca.jacobian(a, s) / p[1]
         else:
             jerk = ca.jtimes(a, ca.vertcat(h, v, act), ca.vertcat(hdot, a, dact)) + ca.jacobian(a, s) / p[1]

@@ -158,7 +158,8 @@ class PlatoonSimulator:
         a = law.accel(h, v, vl)
         hdot = vl - v
         lim = ev.limits
-        act = dact = None
+        act: ca.SX | None = None
+        dact: Any = None
         if lim.enabled:  # the vehicle's limits, as in aev_ocp.plant.Plant (off: the same graph as before)
             a_sat = saturate(a, lim, ev.units)
             if lim.has_actuator_state:
@@ -167,7 +168,7 @@ class PlatoonSimulator:
                 a_sat = act
             a = speed_cut(a_sat, v, lim, ev.units)
         jerk = ca.jacobian(a, h) * hdot + ca.jacobian(a, v) * a + ca.jacobian(a, vl) * al
-        if act is not None:
+        if act is not None and dact is not None:
             jerk = jerk + ca.jacobian(a, act) * dact
         x, ode = [h, v], [hdot, a]
         quad = [v * energy.g_exact(a, eta), (optimal_velocity(h) - v) ** 2, hdot**2, jerk**2]

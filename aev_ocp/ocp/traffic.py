@@ -26,8 +26,11 @@ and converted with the scenario's units (so a user does not retune when L or U c
   floor h ≥ s_min (v ≥ 0 is hard). One slack σ ≥ 0 [m] enters both and the cost ρ_safe σ (+ 1e-3 σ²
   for a PD Hessian), so every QP is feasible; the L1 penalty is exact: for ρ_safe above the
   constraints' multipliers the slack is 0 whenever the hard problem is feasible. Hard: 0 ≤ v ≤ v_max,
-  a_min ≤ a ≤ a_max (SI), |I| ≤ 20C and the current map, as §9 (always satisfiable together: a = 0
-  keeps every one; at v = 0 braking is not possible and not needed).
+  a_min ≤ a ≤ a_max (SI; default: the vehicle's limits, EVParams.limits), |I| ≤ 20C and the current map,
+  as §9 (always satisfiable together: a = 0 keeps every one; at v = 0 braking is not possible and not needed).
+* **Actuator lag**: when the vehicle has one (VehicleLimits.lag_s, or a jerk limit), the prediction model
+  carries the plant's actuator state a_act (da_act/dt = (a − a_act)/τ, measured at every step) and the
+  motion, energy and battery terms use a_act; the jerk term stays on the command a.
 """
 
 from __future__ import annotations
