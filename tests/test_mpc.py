@@ -153,7 +153,8 @@ def test_forced_infeasible_step_triggers_counted_fallback():
     law = Proposed()
     a0 = float(law.accel(0.3, 1.87, 1.7))
     assert r.accel[0, 0] == pytest.approx(min(max(a0, -3.0), 2.0), rel=1e-9)
-    assert r.status == "ok"
+    # the run goes on, below the MPC's own floor h_min = 0.5 (it started at 0.3): flagged, not 'ok'
+    assert r.status == "violated" and not r.events and r.violations[0].vehicle == 0
 
 
 @pytest.mark.parametrize("kw, name", [({"N": 0}, "MPCSettings.N"), ({"dt": -0.1}, "MPCSettings.dt"),
