@@ -18,6 +18,7 @@ import numpy as np
 
 from .models.carfollowing import OVFL, Proposed
 from .models.leader import ConstantSpeed, LeaderProfile, PaperLeader
+from .params import UNLIMITED, EVParams
 from .simulate import PlatoonSimulator, SimOptions
 
 ProgressFn = Callable[[str], None]
@@ -54,8 +55,8 @@ def compare_laws(leader: LeaderProfile, gaps0: list[float], speeds0: list[float]
     out: dict[str, Any] = {}
     res = {}
     for law in (Proposed(alpha, beta, kappa), OVFL(alpha, beta)):
-        sim = PlatoonSimulator(leader, [law] * len(gaps0), options=SimOptions(dt_out=dt_out, rtol=rtol, atol=rtol, method=method),
-                               battery=False)
+        sim = PlatoonSimulator(leader, [law] * len(gaps0), EVParams(limits=UNLIMITED),  # the paper's unbounded laws
+                               options=SimOptions(dt_out=dt_out, rtol=rtol, atol=rtol, method=method), battery=False)
         res[law.name] = sim.run(gaps0, speeds0, t_end)
     p, o = res["proposed"], res["ovfl"]
     k = min(p.t.size, o.t.size)

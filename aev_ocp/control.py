@@ -34,7 +34,8 @@ class Observation:
     """What follower ``vehicle`` (0-based) knows at time t [model time]: its own state
     z = (h, v, V1, V2, S) (model units, V, -), the measured speeds of its predecessor at the
     sample times so far (oldest first, the last at t), the predecessor's latest plan of node speeds
-    at t, t + dt, … when the predecessor publishes one (V2V), and the command it applied last."""
+    at t, t + dt, … when the predecessor publishes one (V2V), the command it applied last (after the
+    vehicle's saturation) and, with an actuator lag, its realised acceleration a_act."""
 
     t: float
     dt: float
@@ -44,6 +45,7 @@ class Observation:
     meas_v: np.ndarray
     predecessor_plan: np.ndarray | None = None
     a_prev: float = 0.0
+    a_act: float | None = None  # the realised acceleration at t [model] when the vehicle has an actuator lag
 
 
 @dataclass
@@ -239,6 +241,8 @@ class ClosedLoop:
         sampled = [i for i, c in enumerate(self.ctrl) if c is not None]
         q = np.zeros(plant.nq)
         a_cmd = np.zeros(len(sampled))
+        a_app = np.zeros(len(sampled))  # the commands as the plant applied them (saturated) at the last node
+        a_bounds = self.ev.limits.accel_bounds_model(self.ev.units)
         y = plant.samples(np.array([0.0]), x[:, None], a_cmd)
         out: tuple[list, list, list, list] = ([np.array([0.0])], [x[:, None]], [q[:, None]], [y])
         applied: list[np.ndarray] = []
@@ -263,7 +267,8 @@ class ClosedLoop:
                 ctrl = self.ctrl[i]
                 assert ctrl is not None
                 obs = Observation(tk, dt, i, x[[i, n + i, 2 * n + i, 3 * n + i, 4 * n + i]], np.asarray(meas_t),
-                                  np.asarray(meas_v[i]), plans[i - 1] if i > 0 else None, float(a_cmd[j]))
+                                  np.asarray(meas_v[i]), plans[i - 1] if i > 0 else None, float(a_app[j]),
+                                  None if plant.act_row is None else float(x[plant.act_row + i]))
                 tc = time.perf_counter()
                 cmd = ctrl.command(obs)
                 rec[i]["call"].append(time.perf_counter() - tc)
@@ -279,7 +284,10 @@ class ClosedLoop:
                 events.append(ev)
                 break
             out[3][-1][:, -1] = y0[:, 0]  # the sample at t_k shows the applied command
-            applied.append(a_cmd.copy())
+            # what the vehicle really applies: the command after its limits (saturation, speed range) at t_k;
+            # with an actuator lag the command after saturation (the realised a_act lags behind it)
+            a_app = y0[sampled, 0].copy() if plant.act_row is None else np.clip(a_cmd, *a_bounds)
+            applied.append(a_app.copy())
             t1 = tk + dt if k < K - 1 else t_end
             cuts = [tk] + [b for b in bps if tk < b < t1 - 1e-12] + [t1]
             before = len(out[0])
@@ -302,7 +310,7 @@ class ClosedLoop:
         ts, xs, qs, ys = (np.concatenate(out[0]), np.hstack(out[1]), np.hstack(out[2]), np.hstack(out[3]))
         acc = ys[:n].T.copy()
         for j, i in enumerate(sampled):  # node k shows the command held from t_k on (the last node: the last one)
-            if applied:
+            if applied and plant.act_row is None:  # (with a lag the samples show the realised a_act itself)
                 cmds = np.array([a[j] for a in applied])
                 m = min(ts.size, cmds.size)
                 acc[:m, i] = cmds[:m]

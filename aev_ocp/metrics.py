@@ -90,7 +90,8 @@ def vehicle_metrics(r: SimulationResult, i: int) -> dict[str, Any]:
     out: dict[str, Any] = {
         "vehicle": i + 1,
         "controller": r.controllers[i],
-        "status": kinds[0] if kinds else "ok",
+        # the event that stopped this vehicle, else 'violated' (below its controller's own hard floor), else 'ok'
+        "status": kinds[0] if kinds else ("violated" if any(e.vehicle == i for e in r.violations) else "ok"),
         "run_status": r.status,  # 'ok' or the event that stopped the whole run (possibly another vehicle's)
         "duration_model": duration,
         "omega_model": omega,
@@ -214,9 +215,10 @@ def comparability(m: dict[str, Any], ref: dict[str, Any] | None,
 
     Returns distance_diff_pct and duration_diff_pct [%] (m relative to ref), and the flags
     flag_distance / flag_duration (differs by more than ``rel_tol``, or cannot be compared),
-    flag_event (m's run ended by an event: a collision, negative speed, ...) and comparable (no
+    flag_event (m's run ended by an event: a collision, negative speed, ...; a run that only went below its
+    controller's floor, status 'violated', ran to the end: its status column says so) and comparable (no
     flag set). A run is comparable with itself."""
-    ended = str(m.get("run_status", m.get("status", "ok"))) != "ok"
+    ended = str(m.get("run_status", m.get("status", "ok"))) not in ("ok", "violated")  # violated: ran to the end
     if ref is None:
         dd = du = float("nan")
     else:

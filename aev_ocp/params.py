@@ -289,6 +289,12 @@ class PowertrainOptions:
         validate_fields(self)
 
 
+#: τ [s] of the actuator when a jerk limit is set with lag_s = 0: the realised acceleration follows the command
+#: at the jerk limit and, near it, within jerk_max·τ (0.05 m/s² at 2.5 m/s³); 0.02 s is well below the
+#: 0.1–0.5 s of real brake and drive actuators, so it only makes the rate limiter a well-posed ODE.
+JERK_ONLY_LAG_S = 0.02
+
+
 @dataclass(frozen=True)
 class VehicleLimits:
     """The physical limits of one vehicle's longitudinal motion, SI units, declared once and enforced by the
@@ -311,6 +317,12 @@ class VehicleLimits:
 
     def __post_init__(self) -> None:
         validate_fields(self)
+
+    @property
+    def actuator_tau_s(self) -> float:
+        """τ of the actuator [s]: ``lag_s``, or :data:`JERK_ONLY_LAG_S` when only a jerk limit is set (a rate
+        limiter needs a state that follows the command; the small lag makes that state well defined)."""
+        return self.lag_s if self.lag_s > 0 else JERK_ONLY_LAG_S
 
     @property
     def has_actuator_state(self) -> bool:

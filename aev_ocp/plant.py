@@ -11,10 +11,22 @@ A follower's acceleration is either its car-following law, evaluated continuousl
 integrator, or a commanded acceleration held constant over a sample interval (zero-order hold).
 Quadratures per follower (per model time unit): ω = ∫ v g(a), ∫(V(h) − v)², ∫(v_l − v)², ∫jerk²,
 pack ∫Q and ∫Q_irr [J], so the §10 metrics are exact across control jumps.
+
+Vehicle limits (``ev.limits``, :mod:`aev_ocp.models.actuator`) act on every controller alike, inside the
+right-hand side: the law's or the command's acceleration is saturated to [a_min, a_max], passes through the
+actuator state a_act (appended to x after the battery states) when a lag or jerk limit is set, and is cut
+at v_max and at standstill; a_act(0) = 0. ``enabled = False`` builds exactly the model without limits.
+
+Events are located on the integrator: the first sample where a rule fires brackets it, and a safeguarded
+regula falsi on a one-point CVODES integration from the sample before finds the time to 1e-12 (relative);
+the run ends with that sample (a collision: h ≤ 0 there; the event carries the time in s and the impact
+speed v − v_l in m/s). A controller that publishes its own hard floor (``describe()["bounds_model"]["h_min"]``)
+and goes below it gives the run status 'violated' and one warning (:func:`floor_violations`).
 """
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 from typing import Any, Sequence
 
@@ -22,11 +34,12 @@ import casadi as ca
 import numpy as np
 
 from .models import energy
+from .models.actuator import actuator_rate, saturate, speed_cut
 from .models.carfollowing import CarFollowingLaw, optimal_velocity
 from .models.ego import battery_side
 from .models.leader import LeaderProfile
-from .params import EVParams, ParameterError
-from .results import Event, SimulationResult
+from .params import EVParams, ParameterError, Units
+from .results import VIOLATED, Event, SimulationResult
 
 # A controller's plan may violate a bound by at most this much (NLP units: model speed for v) and
 # still be applied; the plant's negative-speed rule uses the same number, so a plan accepted within
@@ -80,10 +93,56 @@ def event_header() -> str:
     return "".join(lines)
 
 
+def rule_of_code(code: int) -> EventRule:
+    """The rule of a compiled-cascade event code."""
+    return next(r for r in EVENT_RULES if r.code == code)
+
+
+def event_at(rule: EventRule, time: float, vehicle: int, units: Units, h: float, v: float, v_lead: float,
+             value: float) -> Event:
+    """The Event of ``rule`` located at ``time`` [model] for follower ``vehicle``, with its gap h, speed v, its
+    predecessor's speed v_lead (model units) and the rule's quantity ``value`` there; the message is SI first,
+    the model value in parentheses (a collision: the impact speed v − v_l and the gap at contact)."""
+    t_s = float(units.time_to_si(time))
+    if rule.kind == "collision":
+        dv = v - v_lead
+        dv_mps = float(units.speed_to_si(dv))
+        return Event(rule.kind, time, vehicle, f"impact speed {dv_mps:.3g} m/s ({dv:.4g} model), gap at contact "
+                     f"{float(units.length_to_si(h)):.3g} m ({h:.3g} model)", time_s=t_s, impact_speed_mps=dv_mps)
+    if rule.quantity == "v":
+        what = f"speed {float(units.speed_to_si(v)):.3g} m/s ({v:.4g} model)"
+    elif rule.quantity == "S":
+        what = f"S = {value:.6g}"
+    else:
+        what = f"E² − 4 R_s P_c = {value:.4g} V²"
+    return Event(rule.kind, time, vehicle, f"{rule.message}: {what}", time_s=t_s)
+
+
 def event_from_code(code: int, time: float, vehicle: int, value: float) -> Event:
-    """The Event of a compiled-cascade code (message from the table)."""
-    rule = next(r for r in EVENT_RULES if r.code == code)
+    """The Event of a compiled-cascade code (message from the table), when no state at the event is known."""
+    rule = rule_of_code(code)
     return Event(rule.kind, time, vehicle, f"{rule.message} (value {value:.4g} at the step ending after t = {time:.4f})")
+
+
+def floor_violations(t: np.ndarray, gap: np.ndarray, controllers: Sequence[Any], units: Units) -> list[Event]:
+    """One 'violated' Event per follower whose gap went below its controller's own hard floor (the
+    ``bounds_model`` → ``h_min`` of its ``describe()``, model units) by more than 1e-9: at the first such
+    sample, with the smallest gap and how many samples were below (SI first)."""
+    out: list[Event] = []
+    for i, d in enumerate(controllers):
+        own = d.get("bounds_model") if isinstance(d, dict) else None
+        if not own or own.get("h_min") is None or i >= gap.shape[1]:
+            continue
+        h_min = float(own["h_min"])
+        below = np.where(gap[1:, i] < h_min - 1e-9)[0] + 1
+        if below.size == 0:
+            continue
+        k, lo = int(below[0]), float(np.min(gap[:, i]))
+        L = units.length_to_si
+        out.append(Event(VIOLATED, float(t[k]), i, f"gap below the controller's hard floor {float(L(h_min)):.3g} m "
+                         f"({h_min:.4g} model) in {below.size} samples, smallest {float(L(lo)):.3g} m ({lo:.4g} model)",
+                         time_s=float(units.time_to_si(t[k]))))
+    return out
 
 
 class Plant:
@@ -108,7 +167,8 @@ class Plant:
         self._build(max_num_steps)
 
     def _accelerations(self, h: ca.SX, v: ca.SX, v_lead: ca.SX, a_cmd: ca.SX) -> ca.SX:
-        """Accelerations of all followers, vectorised over groups with the same law."""
+        """Commanded accelerations of all followers (their laws, or a_cmd), vectorised over groups with the same
+        law, before the vehicle's limits."""
         a = ca.SX.zeros(self.n)
         groups: dict[CarFollowingLaw, list[int]] = {}
         for i, law in enumerate(self.laws):
@@ -129,8 +189,21 @@ class Plant:
         v_lead = ca.vertcat(vl, v[:-1]) if n > 1 else vl
         a = self._accelerations(h, v, v_lead, p[2:])
         hdot = v_lead - v
+        lim = ev.limits
+        act: ca.SX | None = None
+        dact: Any = None
+        if lim.enabled:  # the vehicle's limits (aev_ocp.models.actuator); off: the paper's laws, the same graph
+            a_sat = saturate(a, lim, ev.units)
+            if lim.has_actuator_state:
+                act = ca.SX.sym("a_act", n)
+                dact = actuator_rate(a_sat, act, lim, ev.units)
+                a_sat = act
+            a = speed_cut(a_sat, v, lim, ev.units)
         # jerk = da/dt by the chain rule (forward AD), including the leader's explicit time dependence
-        jerk = ca.jtimes(a, ca.vertcat(h, v), ca.vertcat(hdot, a)) + ca.jacobian(a, s) / p[1]
+        if act is None or dact is None:
+            jerk = ca.jtimes(a, ca.vertcat(h, v), ca.vertcat(hdot, a)) + ca.jacobian(a, s) / p[1]
+        else:
+            jerk = ca.jtimes(a, ca.vertcat(h, v, act), ca.vertcat(hdot, a, dact)) + ca.jacobian(a, s) / p[1]
         x, ode = [h, v], [hdot, a]
         quad = [v * energy.g_exact(a, ev.vehicle.efficiency), (optimal_velocity(h) - v) ** 2, hdot**2, jerk**2]
         if self.battery:
@@ -142,13 +215,19 @@ class Plant:
             I, disc = b["I"], b["disc"]
         else:
             I = disc = ca.SX.zeros(n)
+        self.act_row: int | None = None  # first row of the actuator states a_act in x (after the battery's)
+        if act is not None:
+            self.act_row = sum(int(xx.numel()) for xx in x)
+            x.append(act)
+            ode.append(dact)
         X = ca.vertcat(*x)
         dae = {"x": X, "p": p, "t": s, "ode": p[1] * ca.vertcat(*ode), "quad": p[1] * ca.vertcat(*quad)}
         grid = np.linspace(0.0, 1.0, self.k + 1)[1:].tolist()
-        self.integrator = ca.integrator("plant", "cvodes", dae, 0.0, grid,
-                                        {"abstol": self.atol, "reltol": self.rtol, "max_num_steps": max_num_steps,
-                                         "quad_err_con": True, "disable_internal_warnings": True,
-                                         "show_eval_warnings": False})
+        self._dae = dae
+        self._int_opts = {"abstol": self.atol, "reltol": self.rtol, "max_num_steps": max_num_steps,
+                          "quad_err_con": True, "disable_internal_warnings": True, "show_eval_warnings": False}
+        self.integrator = ca.integrator("plant", "cvodes", dae, 0.0, grid, self._int_opts)
+        self._one: ca.Function | None = None  # one output point: locates events (built on first use)
         tt, ac = ca.SX.sym("t"), ca.SX.sym("a_cmd", len(self.commanded))
         y = ca.substitute(ca.vertcat(a, I, disc, vl), ca.vertcat(s, p), ca.vertcat(0, tt, 1, ac))
         self._samples = ca.Function("plant_samples", [tt, X, ac], [y])
@@ -197,27 +276,92 @@ class Plant:
         xk = np.asarray(res["xf"]).reshape(self.nx, -1)
         qk = q[:, None] + np.asarray(res["qf"]).reshape(self.nq, -1)
         yk = self.samples(tk, xk, a_cmd)
-        event = self.check(tk, xk, yk, (ts[-1][-1], xs[-1][:, -1], ys[-1][:, -1]))
-        if event is not None:
-            keep = tk < event.time
+        hit = self._first(tk, xk, yk, (ts[-1][-1], xs[-1][:, -1], ys[-1][:, -1]))
+        if hit is not None:
+            rule, i, j, t_lin = hit
+            keep = np.arange(tk.size) < j
             ts.append(tk[keep]); xs.append(xk[:, keep]); qs.append(qk[:, keep]); ys.append(yk[:, keep])  # noqa: E702
-            events.append(event)
+            # locate the event on the integrator: from the last sample before it, a root of the rule's margin
+            if j > 0:
+                t0, x0, q0 = float(tk[j - 1]), xk[:, j - 1], qk[:, j - 1]
+            else:  # the interval's start (a, x, q)
+                t0, x0, q0 = a, np.asarray(x, float), np.asarray(q, float)
+            te, xe, qe, ye = self._locate(rule, i, t0, x0, q0, float(tk[j]), xk[:, j], qk[:, j], yk[:, j], a_cmd)
+            ts.append(np.array([te])); xs.append(xe[:, None]); qs.append(qe[:, None]); ys.append(ye[:, None])  # noqa: E702
+            events.append(self._event(rule, te, i, xe, ye))
             return False
         ts.append(tk); xs.append(xk); qs.append(qk); ys.append(yk)  # noqa: E702
         return True
 
-    def check(self, tk: np.ndarray, xk: np.ndarray, yk: np.ndarray,
-              prev: tuple[float, np.ndarray, np.ndarray] | None = None) -> Event | None:
-        """First violation of :data:`EVENT_RULES` among the samples (tk, xk, yk), its time linearly
-        interpolated from the previous sample ``prev = (t, x, y)`` where there is one."""
+    def _one_step(self, t0: float, t1: float, x0: np.ndarray, q0: np.ndarray,
+                  a_cmd: np.ndarray | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(x, q, y) at t1 integrated from (x0, q0) at t0 with the commands held (one output point)."""
+        if self._one is None:
+            self._one = ca.integrator("plant_one", "cvodes", self._dae, 0.0, [1.0], self._int_opts)
+        ac = np.zeros(0) if a_cmd is None else np.asarray(a_cmd, float)
+        res = self._one(x0=x0, p=np.concatenate([[t0, t1 - t0], ac]))
+        x = np.asarray(res["xf"]).ravel()
+        q = q0 + np.asarray(res["qf"]).ravel()
+        return x, q, self.samples(np.array([t1]), x[:, None], a_cmd)[:, 0]
+
+    def _locate(self, rule: EventRule, i: int, t0: float, x0: np.ndarray, q0: np.ndarray, t1: float,
+                x1: np.ndarray, q1: np.ndarray, y1: np.ndarray,
+                a_cmd: np.ndarray | None) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
+        """The first time in (t0, t1] where ``rule`` fires for vehicle i, by a safeguarded regula falsi
+        (Illinois) on the integrator from the state (x0, q0) at t0, to |Δt| ≤ 1e-12 (1 + |t|): (t, x, q, y)
+        there, the rule firing (a collision: h ≤ 0). (t1, x1, q1, y1) is a sample where it fires."""
+        y0 = self.samples(np.array([t0]), x0[:, None], a_cmd)[:, 0]
+        m_lo, m_hi = float(self._margin(rule, i, x0, y0)), float(self._margin(rule, i, x1, y1))
+        lo, hi, best = t0, t1, (t1, x1, q1, y1)
+        if not m_lo > 0:
+            return best
+        side = 0
+        for _ in range(100):
+            if hi - lo <= 1e-12 * (1 + abs(hi)):
+                break
+            tm = hi - m_hi * (hi - lo) / (m_hi - m_lo) if m_hi != m_lo else 0.5 * (lo + hi)
+            w = hi - lo  # keep the trial inside, away from the ends (bisection when regula falsi stalls)
+            tm = min(max(tm, lo + 1e-3 * w), hi - 1e-3 * w)
+            xm, qm, ym = self._one_step(t0, tm, x0, q0, a_cmd)
+            mm = float(self._margin(rule, i, xm, ym))
+            if mm <= 0 if rule.strict else mm < 0:  # the rule fires at tm
+                hi, m_hi, best = tm, mm, (tm, xm, qm, ym)
+                if side == -1:
+                    m_lo *= 0.5
+                side = -1
+            else:
+                lo, m_lo = tm, mm
+                if side == 1:
+                    m_hi *= 0.5
+                side = 1
+        return best
+
+    def _margin(self, rule: EventRule, i: int, x: np.ndarray, y: np.ndarray) -> Any:
+        """The rule's margin for vehicle i at one state x and output y."""
+        return rule.margin(self._rows(rule.quantity, x[:, None], y[:, None])[i, 0])
+
+    def _rows(self, quantity: str, M: np.ndarray, Y: np.ndarray) -> np.ndarray:
+        """The rows of ``quantity`` ('h', 'v', 'disc', 'S') of states M and outputs Y (one column per sample)."""
         n = self.n
-        rows = {"h": lambda M, Y: M[:n], "v": lambda M, Y: M[n:2 * n],
-                "disc": lambda M, Y: Y[2 * n:3 * n], "S": lambda M, Y: M[4 * n:5 * n]}
-        first: Event | None = None
+        return {"h": M[:n], "v": M[n:2 * n], "disc": Y[2 * n:3 * n], "S": M[4 * n:5 * n] if self.battery else M[:0]}[quantity]
+
+    def _event(self, rule: EventRule, t: float, i: int, x: np.ndarray, y: np.ndarray) -> Event:
+        """The Event of ``rule`` for vehicle i at the state x, output y at time t (SI message)."""
+        n = self.n
+        v_lead = float(y[3 * n]) if i == 0 else float(x[n + i - 1])
+        return event_at(rule, t, i, self.ev.units, float(x[i]), float(x[n + i]), v_lead,
+                        float(self._rows(rule.quantity, x[:, None], y[:, None])[i, 0]))
+
+    def _first(self, tk: np.ndarray, xk: np.ndarray, yk: np.ndarray,
+               prev: tuple[float, np.ndarray, np.ndarray] | None = None) -> tuple[EventRule, int, int, float] | None:
+        """(rule, vehicle, sample index, time) of the first violation of :data:`EVENT_RULES` among the samples
+        (tk, xk, yk), its time linearly interpolated from the previous sample ``prev = (t, x, y)`` where there is
+        one (:meth:`advance` then locates it on the integrator)."""
+        first: tuple[EventRule, int, int, float] | None = None
         for rule in EVENT_RULES:
             if rule.quantity in BATTERY_QUANTITIES and not self.battery:
                 continue
-            cur = rows[rule.quantity](xk, yk)
+            cur = self._rows(rule.quantity, xk, yk)
             bad = rule.violated(cur)
             if not bad.any():
                 continue
@@ -227,14 +371,24 @@ class Plant:
             if j > 0:
                 t_prev, m0 = float(tk[j - 1]), rule.margin(cur[i, j - 1])
             elif prev is not None:
-                t_prev, m0 = prev[0], rule.margin(rows[rule.quantity](prev[1][:, None], prev[2][:, None])[i, 0])
+                t_prev, m0 = prev[0], rule.margin(self._rows(rule.quantity, prev[1][:, None], prev[2][:, None])[i, 0])
             else:
                 t_prev, m0 = t_ev, None
             if m0 is not None and m0 > 0:
                 t_ev = t_prev + (t_ev - t_prev) * m0 / (m0 - rule.margin(cur[i, j]))
-            if first is None or t_ev < first.time:
-                first = Event(rule.kind, t_ev, i, f"{rule.message} (value {cur[i, j]:.4g} at t = {tk[j]:.4f})")
+            if first is None or t_ev < first[3]:
+                first = (rule, i, j, t_ev)
         return first
+
+    def check(self, tk: np.ndarray, xk: np.ndarray, yk: np.ndarray,
+              prev: tuple[float, np.ndarray, np.ndarray] | None = None) -> Event | None:
+        """First violation of :data:`EVENT_RULES` among the samples (tk, xk, yk) as an Event (at the sample; a
+        run located inside an interval by :meth:`advance` gets the exact time instead)."""
+        hit = self._first(tk, xk, yk, prev)
+        if hit is None:
+            return None
+        rule, i, j, t_ev = hit
+        return self._event(rule, float(tk[j]) if prev is None else t_ev, i, xk[:, j], yk[:, j])
 
     # ---------------------------------------------------------------- results
     def result(self, t: np.ndarray, X: np.ndarray, Qc: np.ndarray, Y: np.ndarray, events: list[Event],
@@ -246,7 +400,7 @@ class Plant:
 
 def initial_state(n: int, ev: EVParams, battery: bool, gaps0: Sequence[float], speeds0: Sequence[float],
                   soc0: float | Sequence[float] | None = None, what: str = "plant") -> np.ndarray:
-    """x(0) = (h, v[, V1 = 0, V2 = 0, S]) stacked by quantity, validated: gaps > 0, speeds ≥ 0,
+    """x(0) = (h, v[, V1 = 0, V2 = 0, S][, a_act = 0]) stacked by quantity, validated: gaps > 0, speeds ≥ 0,
     S(0) ∈ [0, 1] (default the cell's soc0); errors name the vehicle and the value."""
     h0, v0 = np.asarray(gaps0, float).ravel(), np.asarray(speeds0, float).ravel()
     if h0.size != n or v0.size != n:
@@ -267,6 +421,8 @@ def initial_state(n: int, ev: EVParams, battery: bool, gaps0: Sequence[float], s
         if not np.all(np.isfinite(s0)) or np.any((s0 < 0) | (s0 > 1)):
             raise ParameterError(f"{what}: soc0 = {np.asarray(s0).tolist()!r} is not allowed: must be in [0, 1]")
         x += [np.zeros(n), np.zeros(n), np.array(s0, float)]
+    if ev.limits.has_actuator_state:  # a_act(0) = 0: every vehicle cruises (no acceleration) before t = 0
+        x.append(np.zeros(n))
     return np.concatenate(x)
 
 
@@ -280,6 +436,11 @@ def assemble_result(leader: LeaderProfile, ev: EVParams, battery: bool, t: np.nd
     n, K = len(controllers), t.size
     nan = np.full((K, n), np.nan)
     rows = lambda M, j: M[j * n:(j + 1) * n].T  # noqa: E731
+    # a run that went below a controller's own hard floor gets status 'violated' and one warning line
+    violations = floor_violations(t, rows(X, 0), meta.get("controllers") or [], ev.units)
+    for e in violations if not events else []:  # (an event that stopped the run is reported on its own)
+        warnings.warn(f"{controllers[e.vehicle]} (vehicle {e.vehicle + 1}) violated its gap floor: {e}", RuntimeWarning,
+                      stacklevel=3)
     return SimulationResult(
         t=t, leader_speed=Y[3 * n], leader_position=np.asarray(leader.position(t), float),
         gap=rows(X, 0), speed=rows(X, 1), accel=rows(Y, 0) if accel is None else accel,
@@ -289,4 +450,4 @@ def assemble_result(leader: LeaderProfile, ev: EVParams, battery: bool, t: np.nd
         heat_J=rows(Qc, 4) if battery else nan, heat_irr_J=rows(Qc, 5) if battery else nan,
         controllers=controllers, ev=ev, events=events, jerk_sampled=jerk_sampled,
         solver_stats=solver_stats if solver_stats is not None else [None] * n,
-        meta={"leader": leader.describe(), **meta})
+        meta={"leader": leader.describe(), **meta}, violations=violations)

@@ -26,6 +26,7 @@ os.umask(_UMASK)
 
 EVENT_KINDS = ("collision", "negative_speed", "infeasible_current", "soc_out_of_range", "integration_failed",
                "time_limit")  # time_limit: the run was stopped by its wall-clock limit (vehicle -1: the whole run)
+VIOLATED = "violated"  # status of a run that went below a controller's own hard gap floor (it did not stop)
 
 
 @contextlib.contextmanager
@@ -162,15 +163,21 @@ def write_json(path: str | os.PathLike[str], obj: Any, provenance: bool = True) 
 @dataclass
 class Event:
     """Something the simulation must not integrate through: kind, time [model], vehicle (0-based follower
-    index; -1 for the whole run, e.g. a time limit)."""
+    index; -1 for the whole run, e.g. a time limit). time_s: the same time [s] where the plant knew the units;
+    impact_speed_mps: for a collision, the closing speed v − v_l at contact [m/s]. A floor violation (kind
+    'violated', :attr:`SimulationResult.violations`) is reported the same way but did not stop the run."""
 
     kind: str
     time: float
     vehicle: int
     message: str
+    time_s: float | None = None
+    impact_speed_mps: float | None = None
 
     def __str__(self) -> str:
         who = f"vehicle {self.vehicle + 1}" if self.vehicle >= 0 else "whole run"
+        if self.time_s is not None and math.isfinite(self.time_s):  # SI first, the model time in parentheses
+            return f"{self.kind} at t = {self.time_s:.4g} s ({self.time:.6g} model), {who}: {self.message}"
         return f"{self.kind} at t = {self.time:.4f} ({who}): {self.message}"
 
 
@@ -204,11 +211,13 @@ class SimulationResult:
     jerk_sampled: bool = False
     solver_stats: list[dict[str, Any] | None] = field(default_factory=list)
     meta: dict[str, Any] = field(default_factory=dict)
+    violations: list[Event] = field(default_factory=list)
 
     @property
     def status(self) -> str:
-        """'ok', or the kind of the first event."""
-        return self.events[0].kind if self.events else "ok"
+        """The kind of the first event (the run stopped there), else 'violated' when a vehicle went below its
+        controller's own hard gap floor (:attr:`violations`, the run went on), else 'ok'."""
+        return self.events[0].kind if self.events else ("violated" if self.violations else "ok")
 
     @property
     def n_vehicles(self) -> int:
@@ -276,6 +285,7 @@ class SimulationResult:
     def summary(self) -> dict[str, Any]:
         """Status, events, metrics and settings as a JSON-ready dict."""
         return {"status": self.status, "events": [vars(e) for e in self.events],
+                "violations": [vars(e) for e in self.violations],
                 "controllers": self.controllers, "metrics": self.metrics(),
                 "units": as_dict(self.units), "meta": self.meta}
 

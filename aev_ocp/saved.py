@@ -26,7 +26,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from .params import CellParams, EVParams, PackParams, Units, VehicleParams, as_dict
+from .params import UNLIMITED, CellParams, EVParams, PackParams, Units, VehicleLimits, VehicleParams, as_dict
 from .results import Event, SimulationResult, atomic_path, to_jsonable, write_json
 
 FORMAT = "aev_ocp-output"
@@ -54,7 +54,8 @@ def _sim_record(label: str, r: SimulationResult, arrays: dict[str, np.ndarray]) 
     for name in SIM_ARRAYS:
         arrays[f"{label}/{name}"] = np.asarray(getattr(r, name))
     return {"type": "SimulationResult", "status": r.status, "controllers": list(r.controllers),
-            "events": [vars(e) for e in r.events], "ev": as_dict(r.ev), "jerk_sampled": bool(r.jerk_sampled),
+            "events": [vars(e) for e in r.events], "violations": [vars(e) for e in r.violations],
+            "ev": as_dict(r.ev), "jerk_sampled": bool(r.jerk_sampled),
             "solver_stats": r.solver_stats, "meta": _own_meta(r.meta), "metrics": r.metrics()}
 
 
@@ -170,12 +171,20 @@ def _nan(x: Any) -> float:
 
 def _sim_result(label: str, rec: dict[str, Any], arrays: dict[str, np.ndarray]) -> SimulationResult:
     ev = rec["ev"]
+    # a run saved before the vehicle limits existed ran without any (UNLIMITED)
+    limits = VehicleLimits(**ev["limits"]) if "limits" in ev else UNLIMITED
     evp = EVParams(units=Units(**ev["units"]), vehicle=VehicleParams(**ev["vehicle"]), cell=CellParams(**ev["cell"]),
-                   pack=PackParams(**ev["pack"]))
-    events = [Event(e["kind"], _nan(e["time"]), int(e["vehicle"]), e["message"]) for e in rec["events"]]
+                   pack=PackParams(**ev["pack"]), limits=limits)
+
+    def event(e: dict[str, Any]) -> Event:
+        return Event(e["kind"], _nan(e["time"]), int(e["vehicle"]), e["message"],
+                     None if e.get("time_s") is None else float(e["time_s"]),
+                     None if e.get("impact_speed_mps") is None else float(e["impact_speed_mps"]))
+
     return SimulationResult(**{n: arrays[f"{label}/{n}"] for n in SIM_ARRAYS}, controllers=list(rec["controllers"]),
-                            ev=evp, events=events, jerk_sampled=bool(rec["jerk_sampled"]),
-                            solver_stats=list(rec["solver_stats"] or []), meta=dict(rec["meta"] or {}))
+                            ev=evp, events=[event(e) for e in rec["events"]], jerk_sampled=bool(rec["jerk_sampled"]),
+                            solver_stats=list(rec["solver_stats"] or []), meta=dict(rec["meta"] or {}),
+                            violations=[event(e) for e in rec.get("violations") or []])
 
 
 def _ocp_result(label: str, rec: dict[str, Any], arrays: dict[str, np.ndarray]) -> Any:

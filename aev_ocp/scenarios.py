@@ -33,6 +33,9 @@ simulation.t_end_s, dt_out_s [s]; platoon.gap0_m, gap0_first_m, gap0_others_m, g
 speed0_mps, speeds0_mps [m/s]; leader.v_mps, v0_mps [m/s], amplitude_mps2 [m/s²], forcing_end_s,
 times_s [s], speeds_mps [m/s]. Give one key of a pair, not both.
     [vehicle] [cell] [pack]  fields of VehicleParams, CellParams, PackParams (SI names)
+    [limits]      fields of VehicleLimits (SI names): a_min_mps2, a_max_mps2, jerk_max_mps3, lag_s,
+                  v_max_mps, enabled; every vehicle's physical limits, enforced by the plant for every
+                  controller (default: VehicleLimits(); the paper's scenarios state enabled = false)
 
 Other top-level tables are rejected unless a module registered them with
 :func:`register_section`; their validated values land in ``Scenario.extra``.
@@ -58,7 +61,7 @@ from .models.carfollowing import LAW_REGISTRY, V_INF, CarFollowingLaw, make_law
 from .models.leader import (CYCLES, LENGTH_UNITS, MAX_GAP_S, SPEED_UNITS, TIME_UNITS, ConstantSpeed, LeaderProfile,
                             PaperLeader, SpeedTrace, drive_cycle, read_trace_csv, trace_leader)
 from .params import (CarFollowingParams, CellParams, Check, EVParams, PackParams, ParameterError, SimOptions,
-                     Units, VehicleParams, field_checks)
+                     Units, VehicleLimits, VehicleParams, field_checks)
 from .results import check_safe_name
 
 LEADER_KINDS = ("constant", "paper", "cycle", "array", "trace")
@@ -291,7 +294,7 @@ class TableReader:
 
 SectionValidator = Callable[[TableReader], Any]
 _SECTIONS: dict[str, SectionValidator] = {}
-_CORE_TABLES = ("units", "leader", "platoon", "carfollowing", "simulation", "vehicle", "cell", "pack")
+_CORE_TABLES = ("units", "leader", "platoon", "carfollowing", "simulation", "vehicle", "cell", "pack", "limits")
 _CORE_KEYS = ("name", "description", "compare")
 # Packages that register extra sections on import; imported on demand the first time their table
 # appears, so that a scenario with an [mpc] table loads whichever module the caller imported first.
@@ -819,7 +822,8 @@ def parse_scenario(doc: dict[str, Any], file: str = "<scenario>", *, source: Pat
     vehicle = _params(VehicleParams, top.sub("vehicle"))
     cell = _params(CellParams, top.sub("cell"))
     pack = _params(PackParams, top.sub("pack"))
-    ev = EVParams(units=units, vehicle=vehicle, cell=cell, pack=pack)
+    limits = _params(VehicleLimits, top.sub("limits"))
+    ev = EVParams(units=units, vehicle=vehicle, cell=cell, pack=pack, limits=limits)
 
     sim = top.sub("simulation", required=True)
     t_end = sim.quantity("t_end", units, gt=0)  # or t_end_s [s]

@@ -38,12 +38,13 @@ import numpy as np
 
 from .compiled import compile_shared
 from .models import energy
+from .models.actuator import actuator_rate, saturate, speed_cut
 from .models.carfollowing import CarFollowingLaw, optimal_velocity
 from .models.ego import battery_side
 from .models.leader import LeaderProfile
 from .limits import check_simulation_size
 from .params import METHODS, EVParams, ParameterError, SimOptions, check_argument
-from .plant import INTEGRATION_FAILED, Plant, assemble_result, event_from_code, event_header, initial_state
+from .plant import INTEGRATION_FAILED, Plant, assemble_result, event_at, event_header, initial_state, rule_of_code
 from .results import Event, SimulationResult
 
 ProgressFn = Callable[[float, float], None]
@@ -156,7 +157,19 @@ class PlatoonSimulator:
         h, v = ca.SX.sym("h"), ca.SX.sym("v")
         a = law.accel(h, v, vl)
         hdot = vl - v
+        lim = ev.limits
+        act: ca.SX | None = None
+        dact: Any = None
+        if lim.enabled:  # the vehicle's limits, as in aev_ocp.plant.Plant (off: the same graph as before)
+            a_sat = saturate(a, lim, ev.units)
+            if lim.has_actuator_state:
+                act = ca.SX.sym("a_act")
+                dact = actuator_rate(a_sat, act, lim, ev.units)
+                a_sat = act
+            a = speed_cut(a_sat, v, lim, ev.units)
         jerk = ca.jacobian(a, h) * hdot + ca.jacobian(a, v) * a + ca.jacobian(a, vl) * al
+        if act is not None and dact is not None:
+            jerk = jerk + ca.jacobian(a, act) * dact
         x, ode = [h, v], [hdot, a]
         quad = [v * energy.g_exact(a, eta), (optimal_velocity(h) - v) ** 2, hdot**2, jerk**2]
         if self.battery:
@@ -168,6 +181,9 @@ class PlatoonSimulator:
             y = [a, b["I"], b["disc"]]
         else:
             y = [a, ca.SX(0), ca.SX(0)]
+        if act is not None:  # the actuator state last (after the battery's), as in the plant
+            x.append(act)
+            ode.append(dact)
         return ca.Function(f"aevsim_law{k}", [u, ca.vertcat(*x), p], [ca.vertcat(*ode, *quad), ca.vertcat(*y)])
 
     def _build_cascade(self) -> None:
@@ -190,7 +206,7 @@ class PlatoonSimulator:
         t = ca.SX.sym("t")
         vl = self.leader.speed(t)
         funcs.append(ca.Function("aevsim_leader", [t], [ca.vertcat(vl, ca.jacobian(vl, t))]))
-        self._nx = 5 if self.battery else 2
+        self._nx = (5 if self.battery else 2) + int(self.ev.limits.has_actuator_state)
         self._nq = 6 if self.battery else 4
         cg = ca.CodeGenerator("aevsim_rhs.c", {"with_header": False})
         for f in funcs:
@@ -202,6 +218,9 @@ class PlatoonSimulator:
         head += f"#define OMEGA_A {0.5 * (1 / eta + eta)!r}\n#define OMEGA_B {0.5 * (1 / eta - eta)!r}\n"
         head += f"#define NX {self._nx}\n#define NQ {self._nq}\n#define NY 3\n#define BATTERY {int(self.battery)}\n"
         head += f"#define AEV_NP {n_par}\n"
+        # with vehicle limits the jerk integrand jumps at every saturation corner (0 ↔ the law's rate of change);
+        # the error test then cannot pass on ∫jerk² (steps underflow): it is integrated, not error-controlled
+        head += f"#define AEV_JERK_UNCONTROLLED {int(self.ev.limits.enabled)}\n"
         head += "#define AEV_LAW_SWITCH " + " ".join(f"case {k}: return aevsim_law{k}(c->arg, c->res, c->iw, c->w, 0);"
                                                      for k in range(len(distinct))) + "\n"
         head += event_header()
@@ -213,7 +232,7 @@ class PlatoonSimulator:
         fn = lib.aevsim_run
         dp, ip, lp = (np.ctypeslib.ndpointer(dtype=d, flags="C_CONTIGUOUS") for d in (np.float64, np.int32, np.int64))
         fn.argtypes = [ctypes.c_int, ip, dp, dp, ctypes.c_int, dp, ctypes.c_int, dp, ctypes.c_double, ctypes.c_double,
-                       ctypes.c_int64, dp, ip, ip, dp, dp, lp]
+                       ctypes.c_int64, dp, ip, ip, dp, dp, lp, dp]
         fn.restype = ctypes.c_int
         self._lib, self._run_c = lib, fn
 
@@ -232,16 +251,12 @@ class PlatoonSimulator:
         K = ts.size
         stops = np.asarray(sorted({b for b in self.leader.breakpoints if 0.0 < b < t_end} | {t_end}), float)
         out = np.empty((n, K, ncol))
-        nsamp, kind = np.zeros(n, np.int32), np.zeros(n, np.int32)
-        ev_time, ev_val, stats = np.zeros(n), np.zeros(n), np.zeros((n, 3), np.int64)
         x0v = np.ascontiguousarray(x0.reshape(nx, n).T)
-        rc = self._run_c(n, np.asarray(self._law_of, np.int32), np.ascontiguousarray(self._params), x0v, stops.size, stops, K, ts, self.opts.rtol,
-                         self.opts.atol, self.opts.max_num_steps, out, nsamp, kind, ev_time, ev_val, stats)
-        if rc != 0:
-            raise MemoryError("simulate: the cascade integrator ran out of memory")
+        nsamp, kind, ev_time, ev_val, stats, last = self._call_c(n, x0v, stops, ts, out)
         events: list[Event] = []
         hit = np.where(kind > 0)[0]
         keep = K
+        end_col: np.ndarray | None = None  # the platoon's state at a located event: the run's last sample
         if hit.size:
             i = int(hit[np.argmin(ev_time[hit])])  # first in time; ties -> the vehicle nearest the leader
             t_ev = float(ev_time[i])
@@ -252,19 +267,50 @@ class PlatoonSimulator:
                                     + (" (near collision)" if h < 0.05 else "")
                                     + " (step size underflow or step limit: loosen rtol/atol or raise max_num_steps)"))
             else:
-                events.append(event_from_code(int(kind[i]), t_ev, i, float(ev_val[i])))
+                # vehicles from i on ended at t_ev (i at its event on the dense output, those behind at their last
+                # step); the vehicles ahead went on, so they are integrated again to end exactly at t_ev (their steps
+                # before it are the same, so are their samples)
+                rows = last.copy()
+                if i > 0 and t_ev > 0:
+                    out2 = np.empty((i, 2, ncol))
+                    stops2 = np.asarray(sorted({b for b in stops if b < t_ev} | {t_ev}), float)
+                    self._call_c(i, np.ascontiguousarray(x0v[:i]), stops2, np.array([0.0, t_ev]), out2)
+                    rows[:i, :ncol] = out2[:, 1]
+                end_col = rows[:, :ncol].T.reshape(-1)  # row c·n + i = column c of vehicle i
+                rule = rule_of_code(int(kind[i]))
+                events.append(event_at(rule, t_ev, i, self.ev.units, float(rows[i, 0]), float(rows[i, 1]),
+                                       float(rows[i, ncol]) if i == 0 else float(rows[i - 1, 1]),
+                                       float({"h": rows[i, 0], "v": rows[i, 1], "S": rows[i, 4] if self.battery else math.nan,
+                                              "disc": rows[i, nx + nq + 2]}[rule.quantity])))
             keep = max(1, int(np.searchsorted(ts, t_ev, side="left")))
         out = out[:, :keep]
         if progress is not None:
             progress(float(ts[keep - 1]), t_end)
         tk = ts[:keep]
         Z = out.transpose(2, 0, 1).reshape(ncol * n, keep)  # row c·n + i = column c of vehicle i
+        if end_col is not None and t_ev > tk[-1]:
+            tk, Z = np.append(tk, t_ev), np.hstack([Z, end_col[:, None]])
+            keep += 1
         vl = self.leader.speed_np(tk).reshape(1, -1)  # the leader caches its mapped Function per size
         Y = np.vstack([Z[(nx + nq) * n:], vl])
         return assemble_result(self.leader, self.ev, self.battery, tk, Z[:nx * n], Z[nx * n:(nx + nq) * n], Y, events,
                                [law.name for law in self.laws], self._meta("cascade-dopri5"),
                                solver_stats=[{"nsteps": int(s[0]), "nrejected": int(s[1]), "nfev": int(s[2])}
                                              for s in stats])
+
+    def _call_c(self, n: int, x0v: np.ndarray, stops: np.ndarray, ts: np.ndarray, out: np.ndarray) -> tuple[np.ndarray, ...]:
+        """Run the compiled cascade for the first n vehicles from x0v (n, nx) with samples at ts into ``out``:
+        (nsamp, kind, ev_time, ev_val, stats, last) (see aevsim_run in cascade.c)."""
+        ncol = self._nx + self._nq + 3
+        nsamp, kind = np.zeros(n, np.int32), np.zeros(n, np.int32)
+        ev_time, ev_val, stats = np.zeros(n), np.zeros(n), np.zeros((n, 3), np.int64)
+        last = np.zeros((n, ncol + 1))
+        rc = self._run_c(n, np.asarray(self._law_of[:n], np.int32), np.ascontiguousarray(self._params[:n]), x0v,
+                         stops.size, stops, ts.size, ts, self.opts.rtol, self.opts.atol, self.opts.max_num_steps, out,
+                         nsamp, kind, ev_time, ev_val, stats, last)
+        if rc != 0:
+            raise MemoryError("simulate: the cascade integrator ran out of memory")
+        return nsamp, kind, ev_time, ev_val, stats, last
 
     def _meta(self, integrator: str) -> dict[str, object]:
         return {"integrator": integrator, "rtol": self.opts.rtol, "atol": self.opts.atol, "dt_out": self.opts.dt_out,

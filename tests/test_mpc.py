@@ -164,7 +164,8 @@ def test_forced_infeasible_step_triggers_counted_fallback():
     safe = safe_acceleration_mps2(3.0, 9.35, 8.5, 0.2, SafetyParams(a_min_mps2=-7.5, ego_brake_mps2=7.5, a_max_mps2=4.0))
     assert safe == -7.5
     assert r.accel[0, 0] == pytest.approx(min(max(a0, -3.0), 2.0, float(u.accel_from_si(safe))), rel=1e-9)
-    assert r.status == "ok"
+    # the run goes on, below the MPC's own floor h_min = 0.5 (it started at 0.3): flagged, not 'ok'
+    assert r.status == "violated" and not r.events and r.violations[0].vehicle == 0
 
 
 @pytest.mark.parametrize("kw, name", [({"N": 0}, "MPCSettings.N"), ({"dt": -0.1}, "MPCSettings.dt"),

@@ -14,12 +14,13 @@ from aev_ocp.metrics import _hermite_min, min_gap_continuous
 from aev_ocp.models import OVFL, OVM, ConstantSpeed, PaperLeader, Proposed
 from aev_ocp.models.battery import stored_energy_J
 from aev_ocp.models.carfollowing import CarFollowingLaw
-from aev_ocp.params import CellParams, EVParams, PackParams, ParameterError
+from aev_ocp.params import UNLIMITED, CellParams, EVParams, PackParams, ParameterError
 from aev_ocp.plant import PLAN_TOLERANCE
 from aev_ocp.reference import simulate_reference
 from aev_ocp.simulate import PlatoonSimulator, SimOptions, simulate_platoon
 
 GAPS = np.array([0.3, 3.5, 3.5, 3.5, 3.5])
+PAPER = EVParams(limits=UNLIMITED)  # the paper's laws as printed (no vehicle limits), as the references integrate them
 SPEEDS = np.full(5, 1.1 * 1.7)
 
 
@@ -41,7 +42,7 @@ def table1(request: pytest.FixtureRequest) -> dict[str, Any]:
     """Table 1 runs with each integrator (the compiled cascade and CVODES)."""
     L = PaperLeader()
     return {law.name: simulate_platoon(L, [law] * 5, GAPS, SPEEDS, 70.0, rtol=1e-10, atol=1e-10,
-                                       method=request.param)
+                                       method=request.param, ev=PAPER)
             for law in (Proposed(), OVFL())}
 
 
@@ -73,7 +74,7 @@ def test_charge_balance(method: str) -> None:
     errs = []
     for dt in (0.01, 0.002):
         r = simulate_platoon(PaperLeader(), [OVFL()] * 5, GAPS, SPEEDS, 70.0, dt_out=dt, rtol=1e-9, atol=1e-9,
-                             method=method)
+                             method=method, ev=PAPER)  # (saturation kinks the current: no second order)
         charge = np.trapezoid(r.current_A, r.t * r.units.time_s, axis=0)
         dS = -charge / (3600 * r.ev.cell.capacity_Ah)
         errs.append(np.abs((r.S[-1] - r.S[0] - dS) / dS).max())
@@ -84,7 +85,8 @@ def test_charge_balance(method: str) -> None:
 @pytest.mark.quick
 def test_table1_converged_across_tolerances(table1: dict[str, Any]) -> None:
     r = table1["proposed"]
-    loose = simulate_platoon(PaperLeader(), [Proposed()] * 5, GAPS, SPEEDS, 70.0, rtol=1e-8, atol=1e-8, dt_out=0.02)
+    loose = simulate_platoon(PaperLeader(), [Proposed()] * 5, GAPS, SPEEDS, 70.0, rtol=1e-8, atol=1e-8, dt_out=0.02,
+                             ev=PAPER)
     np.testing.assert_allclose(loose.omega[-1], r.omega[-1], atol=5e-6)
 
 
@@ -112,7 +114,7 @@ def test_collision_detected_with_time_and_vehicle(method: str) -> None:
     with SciPy's event location on the same ODE."""
     from scipy.integrate import solve_ivp
 
-    r = simulate_platoon(ConstantSpeed(0.0), [OVM()], [0.5], [2.0], 10.0, battery=False, method=method)
+    r = simulate_platoon(ConstantSpeed(0.0), [OVM()], [0.5], [2.0], 10.0, battery=False, method=method, ev=PAPER)
     assert r.status == "collision"
     ev = r.events[0]
     assert ev.vehicle == 0
@@ -123,8 +125,11 @@ def test_collision_detected_with_time_and_vehicle(method: str) -> None:
     hit = lambda t, y: y[0]  # noqa: E731
     hit.terminal = True
     sol = solve_ivp(f, (0, 10), [0.5, 2.0], events=hit, rtol=1e-10, atol=1e-12)
-    assert ev.time == pytest.approx(sol.t_events[0][0], abs=1e-4)
-    assert r.t[-1] < ev.time and np.all(r.gap > 0)
+    assert ev.time == pytest.approx(sol.t_events[0][0], abs=1e-8)  # located on the integrator, not a sample
+    # the trajectory ends at the contact: gap <= 0 there, so the run's min gap says so; impact speed in m/s
+    assert r.t[-1] == ev.time and r.gap[-1, 0] <= 0 and np.all(r.gap[:-1] > 0)
+    assert r.metrics()[0]["min_gap_m"] <= 0
+    assert ev.impact_speed_mps == pytest.approx(r.units.speed_to_si(sol.y_events[0][0][1]), rel=1e-6)
 
 
 @dataclass(frozen=True)
@@ -141,8 +146,8 @@ class Brake(CarFollowingLaw):
 @pytest.mark.parametrize("method", METHODS)
 def test_negative_speed_detected(method: str) -> None:
     """v = 0.65 − 1.3 t crosses the plant's threshold −PLAN_TOLERANCE (the table's rule) at 0.5 + tol/1.3."""
-    r = simulate_platoon(ConstantSpeed(1.0), [Brake()], [5.0], [0.65], 3.0, battery=False, method=method)
-    assert r.status == "negative_speed"
+    r = simulate_platoon(ConstantSpeed(1.0), [Brake()], [5.0], [0.65], 3.0, battery=False, method=method, ev=PAPER)
+    assert r.status == "negative_speed"  # (with vehicle limits the brakes hold a stopped car: no reversing)
     assert r.events[0].time == pytest.approx(0.5 + PLAN_TOLERANCE / 1.3, abs=1e-9)
 
 
@@ -202,7 +207,7 @@ def test_cascade_and_cvodes_agree_on_a_mixed_platoon() -> None:
     """The two integrators share no stepping code: their trajectories and integrals must agree."""
     laws = [Proposed(), OVFL(), OVM(alpha=1.5), Proposed(kappa=0.1)]
     res = {m: simulate_platoon(PaperLeader(), laws, [0.3, 3.5, 3.5, 3.5], [1.87] * 4, 40.0, dt_out=0.05,
-                               rtol=1e-10, atol=1e-10, method=m) for m in METHODS}
+                               rtol=1e-10, atol=1e-10, method=m, ev=PAPER) for m in METHODS}
     a, b = res["cascade"], res["cvodes"]
     np.testing.assert_allclose(a.t, b.t, atol=1e-12)
     for name in ("gap", "speed", "S", "omega", "heat_J", "heat_irr_J", "int_ovm_err2", "int_rel_speed2"):

@@ -14,7 +14,7 @@ from scipy.integrate import solve_ivp
 
 from aev_ocp.models.carfollowing import OVFL, Proposed
 from aev_ocp.models.leader import PaperLeader
-from aev_ocp.params import EVParams, ParameterError, VehicleParams
+from aev_ocp.params import UNLIMITED, EVParams, ParameterError, VehicleParams
 from aev_ocp.simulate import simulate_platoon
 from aev_ocp import table1_hypotheses as th
 
@@ -82,7 +82,7 @@ def test_every_g_variant_matches_scipy(traj: th.Trajectory) -> None:
 
 def test_baseline_is_the_simulators_omega(traj: th.Trajectory) -> None:
     s = _setup()
-    ev = EVParams(vehicle=VehicleParams(efficiency=ETA))
+    ev = EVParams(vehicle=VehicleParams(efficiency=ETA), limits=UNLIMITED)  # Table 1's laws: no vehicle limits
     r = simulate_platoon(s.leader, list(s.laws), list(GAPS), list(SPEEDS), 26.0, ev=ev, dt_out=0.1, rtol=1e-10,
                          atol=1e-10)
     np.testing.assert_allclose(traj.omega["exact"][-1], r.omega[-1], rtol=1e-6, atol=1e-7)

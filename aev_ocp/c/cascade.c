@@ -133,11 +133,23 @@ static double aev_omega_inc(double v0, const double* q, double h, double th_end)
   return OMEGA_A * (we - 0.5 * v0 * v0) + OMEGA_B * tv;
 }
 
+/* the row (z, y, v_l) of a vehicle at theta in a step: dense z, exact omega, outputs of the law there */
+static void aev_row(aev_ctx* c, aev_traj* prev, int i, int law, const double* par, const double* z,
+                    const double (*Q)[4], double t, double h, double th, double* row) {
+  double u[2], dz[NZ];
+  aev_dense(z, Q, h, th, row);
+  row[NX] = z[NX] + aev_omega_inc(z[1], Q[1], h, th);
+  aev_input(c, prev, i, t + th * h, u); aev_law(c, law, par, u, row, dz, row + NZ);
+  row[NCOL] = u[0];
+}
+
 /* Returns 0 on success, 1 on out-of-memory. Event kinds: 0 none, 1 collision, 2 negative_speed,
- * 3 infeasible_current, 4 soc below 0, 5 soc above 1, 6 integration failed. */
+ * 3 infeasible_current, 4 soc below 0, 5 soc above 1, 6 integration failed.
+ * last (n x (NCOL + 1)): each vehicle's row (z, y, v_l) where its integration ended: at its event (on the
+ * dense output, the rule firing there: a collision has h <= 0), else at its last step's end. */
 CASADI_SYMBOL_EXPORT int aevsim_run(int n, const int* law_idx, const double* params, const double* x0, int nstop, const double* stops,
     int K, const double* ts, double rtol, double atol, int64_t max_steps,
-    double* out, int* nsamp, int* ev_kind, double* ev_time, double* ev_val, int64_t* stats) {
+    double* out, int* nsamp, int* ev_kind, double* ev_time, double* ev_val, int64_t* stats, double* last) {
   aev_ctx* c = malloc(sizeof(aev_ctx));
   aev_traj tr[2] = {{0}, {0}};
   if (!c) return 1;
@@ -162,6 +174,7 @@ CASADI_SYMBOL_EXPORT int aevsim_run(int n, const int* law_idx, const double* par
       u[0] = x0[(i - 1) * NX + 1]; u[1] = 0;
       aev_law(c, law, par, u, z, k[0], y);
       memcpy(o, z, NZ * sizeof(double)); memcpy(o + NZ, y, NY * sizeof(double));
+      memcpy(last + (int64_t)i * (NCOL + 1), o, NCOL * sizeof(double)); last[(int64_t)i * (NCOL + 1) + NCOL] = u[0];
       nsamp[i] = 1; ev_kind[i] = 0; ev_time[i] = 0; ev_val[i] = 0;
       stats[3 * i] = 0; stats[3 * i + 1] = 0; stats[3 * i + 2] = 1;
       continue;
@@ -193,11 +206,14 @@ CASADI_SYMBOL_EXPORT int aevsim_run(int n, const int* law_idx, const double* par
       double nrm = 0;
       for (int j = 0; j < NZ; j++) {
         if (j == NX) continue;  /* ω is computed exactly from v below */
+#if AEV_JERK_UNCONTROLLED
+        if (j == NX + 3) continue;  /* ∫jerk²: its integrand jumps where a vehicle limit starts or stops acting */
+#endif
         double e = 0; for (int l = 0; l < 7; l++) e += DP_E[l] * k[l][j];
         double sc = atol + rtol * fmax(fabs(z[j]), fabs(zn[j]));
         e = h * e / sc; nrm += e * e;
       }
-      nrm = sqrt(nrm / (NZ - 1));
+      nrm = sqrt(nrm / (NZ - 1 - AEV_JERK_UNCONTROLLED));
       if (!isfinite(nrm)) nrm = INFINITY;
       if (nrm > 1) {
         nrej++;
@@ -251,7 +267,7 @@ CASADI_SYMBOL_EXPORT int aevsim_run(int n, const int* law_idx, const double* par
         s++;
       }
       nst++;
-      if (kind) break;
+      if (kind) { aev_row(c, prev, i, law, par, z, Q, t, h, th_ev, last + (int64_t)i * (NCOL + 1)); break; }
       t = tend;
       memcpy(z, zn, sizeof z); memcpy(y, yn, sizeof y); memcpy(k[0], k[6], sizeof k[0]);
       if (hit && t < tmax) {  /* restart at a breakpoint: the leader's acceleration may jump there */
@@ -259,6 +275,11 @@ CASADI_SYMBOL_EXPORT int aevsim_run(int n, const int* law_idx, const double* par
       }
       h *= nrm == 0 ? 10 : fmin(10, 0.9 * pow(nrm, -0.2));
       if (nst + nrej > max_steps) { kind = AEV_EV_FAILED; tev = t; val = z[0]; }
+    }
+    if (kind == 0 || kind == AEV_EV_FAILED || (s == 1 && tev == 0)) {  /* ended at t (or failed/stopped at t = 0) */
+      double* row = last + (int64_t)i * (NCOL + 1);
+      memcpy(row, z, NZ * sizeof(double));
+      aev_input(c, prev, i, t, u); aev_law(c, law, par, u, z, k[0], row + NZ); row[NCOL] = u[0];
     }
     nsamp[i] = s; ev_kind[i] = kind; ev_time[i] = kind ? tev : t; ev_val[i] = val;
     stats[3 * i] = nst; stats[3 * i + 1] = nrej; stats[3 * i + 2] = nfev;

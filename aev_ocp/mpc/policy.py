@@ -93,7 +93,8 @@ class MPCPolicy:
     def command(self, obs: Observation) -> Command:
         vm, vh = self.forecast(obs)
         # an own state named 'a_prev' (a Δa penalty) starts from the command really applied last step
-        sol = self.controller.solve(obs.z, vm, vh, own={"a_prev": obs.a_prev})
+        # ('a_act': the realised acceleration of a vehicle with an actuator lag, when the problem models it)
+        sol = self.controller.solve(obs.z, vm, vh, own={"a_prev": obs.a_prev, "a_act": obs.a_act or 0.0})
         info = {"cost": sol.cost, "violation": sol.violation, "v_hat": vh}
         if sol.success:
             a0 = self._fallback.limit(obs, float(sol.a[0])) if self._filter else float(sol.a[0])

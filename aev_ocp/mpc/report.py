@@ -341,9 +341,10 @@ def _fmt(x: Any) -> str:
 def _run_status(r: SimulationResult) -> str:
     """'ok', or where the run stopped: 'collision at t = 12.3 (vehicle 2)'."""
     if not r.events:
-        return "ok"
+        return "ok" if not r.violations else "violated (" + ", ".join(f"vehicle {e.vehicle + 1}" for e in r.violations) + ")"
     e = r.events[0]
-    return f"{e.kind} at t = {e.time:.4g}" + (f" (vehicle {e.vehicle + 1})" if e.vehicle >= 0 else "")
+    when = f"{e.time_s:.4g} s ({e.time:.4g} model)" if e.time_s is not None else f"{e.time:.4g}"
+    return f"{e.kind} at t = {when}" + (f" (vehicle {e.vehicle + 1})" if e.vehicle >= 0 else "")
 
 
 def _render(head: list[str], rows: list[list[str]], markdown: bool) -> str:

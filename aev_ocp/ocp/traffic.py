@@ -26,8 +26,11 @@ and converted with the scenario's units (so a user does not retune when L or U c
   floor h ≥ s_min (v ≥ 0 is hard). One slack σ ≥ 0 [m] enters both and the cost ρ_safe σ (+ 1e-3 σ²
   for a PD Hessian), so every QP is feasible; the L1 penalty is exact: for ρ_safe above the
   constraints' multipliers the slack is 0 whenever the hard problem is feasible. Hard: 0 ≤ v ≤ v_max,
-  a_min ≤ a ≤ a_max (SI), |I| ≤ 20C and the current map, as §9 (always satisfiable together: a = 0
-  keeps every one; at v = 0 braking is not possible and not needed).
+  a_min ≤ a ≤ a_max (SI; default: the vehicle's limits, EVParams.limits), |I| ≤ 20C and the current map,
+  as §9 (always satisfiable together: a = 0 keeps every one; at v = 0 braking is not possible and not needed).
+* **Actuator lag**: when the vehicle has one (VehicleLimits.lag_s, or a jerk limit), the prediction model
+  carries the plant's actuator state a_act (da_act/dt = (a − a_act)/τ, measured at every step) and the
+  motion, energy and battery terms use a_act; the jerk term stays on the command a.
 """
 
 from __future__ import annotations
@@ -37,6 +40,7 @@ from typing import Any
 
 import casadi as ca
 
+from ..models.actuator import actuator_rate
 from ..models.ego import STATE_NAMES, battery_side, following_ode
 from ..params import EVParams, ParameterError, PowertrainOptions, spec, validate_fields
 from .following import FollowingBounds
@@ -75,24 +79,54 @@ class TrafficParams:
     brake_decel_mps2: float = spec(6.0, gt=0.0)  # b [m/s²]: emergency braking both cars can do (dry road ≈ 8)
     safe_penalty: float = spec(100.0, gt=0.0)  # ρ_safe [W/kg per m of violation] (above every multiplier seen)
     v_max_mps: float = spec(45.0, gt=0.0)  # [m/s] (§9: 2 model = 10 m/s at L = 10, U = 5; 162 km/h here)
-    a_min_mps2: float = spec(-8.0)  # [m/s²] VehicleLimits.a_min (dry-road friction, 0.8 g; was §9's −3 at the default units, −7.5)
-    a_max_mps2: float = spec(5.0)  # [m/s²] §9's 2 at the default units
+    # a bounds [m/s²]: None = the vehicle's (EVParams.limits: a_min_mps2, a_max_mps2); an explicit value must lie
+    # inside the vehicle's limits. A vehicle without limits (UNLIMITED) gets UNLIMITED_A_BOUNDS_MPS2.
+    a_min_mps2: float | None = spec(None, lt=0.0, optional=True)
+    a_max_mps2: float | None = spec(None, gt=0.0, optional=True)
 
     def __post_init__(self) -> None:
         validate_fields(self)
-        if not self.a_min_mps2 < 0.0 < self.a_max_mps2:
-            raise ParameterError(f"TrafficParams: a_min_mps2 = {self.a_min_mps2} must be < 0 < a_max_mps2 = {self.a_max_mps2}")
         if self.target_gap_m < self.standstill_gap_m:
             raise ParameterError(f"TrafficParams.target_gap_m = {self.target_gap_m} must be >= standstill_gap_m = "
                                  f"{self.standstill_gap_m}")
 
 
+#: (a_min, a_max) [m/s²] of the formulation on a vehicle without limits (UNLIMITED): §9's −3 and 2 at the
+#: default units (L = 10 m, U = 5 m/s), the bounds this formulation had before vehicles had limits
+UNLIMITED_A_BOUNDS_MPS2 = (-7.5, 5.0)
+
+
+def traffic_accel_bounds_mps2(ev: EVParams, tp: TrafficParams) -> tuple[float, float]:
+    """(a_min, a_max) [m/s²] of the formulation: TrafficParams' values, None meaning the vehicle's limits; an
+    explicit value outside the vehicle's limits is a ParameterError naming both."""
+    lim = ev.limits
+    veh = (lim.a_min_mps2, lim.a_max_mps2) if lim.enabled else UNLIMITED_A_BOUNDS_MPS2
+    a_min = veh[0] if tp.a_min_mps2 is None else tp.a_min_mps2
+    a_max = veh[1] if tp.a_max_mps2 is None else tp.a_max_mps2
+    if lim.enabled and a_min < lim.a_min_mps2:
+        raise ParameterError(f"TrafficParams.a_min_mps2 = {a_min:g} is outside the vehicle's limits: it must be >= "
+                             f"VehicleLimits.a_min_mps2 = {lim.a_min_mps2:g} (the plant cannot brake harder)")
+    if lim.enabled and a_max > lim.a_max_mps2:
+        raise ParameterError(f"TrafficParams.a_max_mps2 = {a_max:g} is outside the vehicle's limits: it must be <= "
+                             f"VehicleLimits.a_max_mps2 = {lim.a_max_mps2:g} (the plant cannot accelerate harder)")
+    return a_min, a_max
+
+
 def traffic_bounds(ev: EVParams, tp: TrafficParams) -> FollowingBounds:
     """The model-unit bounds of the traffic formulation (h_min = the standstill floor, which is soft)."""
     u = ev.units
+    a_min, a_max = traffic_accel_bounds_mps2(ev, tp)
     return FollowingBounds(h_min=float(u.length_from_si(tp.standstill_gap_m)), v_min=0.0,
-                           v_max=float(u.speed_from_si(tp.v_max_mps)), a_min=float(u.accel_from_si(tp.a_min_mps2)),
-                           a_max=float(u.accel_from_si(tp.a_max_mps2)))
+                           v_max=float(u.speed_from_si(tp.v_max_mps)), a_min=float(u.accel_from_si(a_min)),
+                           a_max=float(u.accel_from_si(a_max)))
+
+
+def models_lag(ev: EVParams, dt: float) -> bool:
+    """True when the prediction model carries the actuator state a_act (the vehicle has a lag, or a jerk limit,
+    and τ ≥ dt/2.5 [model time], so that the prediction's RK4 step dt stays stable on it; a shorter lag is
+    below the prediction's resolution and the model treats the actuator as ideal, the plant still has it)."""
+    lim = ev.limits
+    return lim.has_actuator_state and float(ev.units.time_from_si(lim.actuator_tau_s)) >= dt / 2.5
 
 
 def desired_gap_m(v_mps: Any, tp: TrafficParams) -> Any:
@@ -116,16 +150,21 @@ def traffic_problem(ev: EVParams, tp: TrafficParams | None = None, dt: float = 0
                    pb.state("V2", scale=0.01), pb.state("S", 0.0, 1.0))
     a = pb.control("a", b.a_min, b.a_max)
     v_mean, v_hat = pb.stage_parameter("v_l_mean"), pb.stage_parameter("v_l_hat")
-    rhs = following_ode(z, a, v_mean, ev, smooth)
-    for i, nm in enumerate(STATE_NAMES):
-        pb.set_der(pb.x[nm], rhs[i])
     a_prev = pb.state("a_prev")
     pb.set_next(a_prev, a)
-    # SI quantities of the stage
-    h_m, v_ms, a_ms2 = u.length_to_si(z[0]), u.speed_to_si(z[1]), u.accel_to_si(a)
+    a_real = a  # the acceleration the car realises: the command, or its actuator's state (a lag)
+    if models_lag(ev, dt):
+        lo, hi = ev.limits.accel_bounds_model(u)  # the plant's a_act, measured at every step
+        a_real = pb.state("a_act", lo, hi)
+        pb.set_der(a_real, actuator_rate(a, a_real, ev.limits, u))
+    rhs = following_ode(z, a_real, v_mean, ev, smooth)
+    for i, nm in enumerate(STATE_NAMES):
+        pb.set_der(pb.x[nm], rhs[i])
+    # SI quantities of the stage (the jerk penalised is the command's, Δa/dt)
+    h_m, v_ms, a_ms2 = u.length_to_si(z[0]), u.speed_to_si(z[1]), u.accel_to_si(a_real)
     vl_ms = u.speed_to_si(v_hat)
-    jerk = (a_ms2 - u.accel_to_si(a_prev)) / (dt * T)
-    cell = battery_side(z[1], a, z[2], z[3], z[4], ev, smooth)
+    jerk = (u.accel_to_si(a) - u.accel_to_si(a_prev)) / (dt * T)
+    cell = battery_side(z[1], a_real, z[2], z[3], z[4], ev, smooth)
     # exact v g(a) [W/kg] by an epigraph (the energy_rate control, in W/kg)
     e = pb.control("energy_rate", -ENERGY_RATE_MAX_W_PER_KG, ENERGY_RATE_MAX_W_PER_KG, scale=10.0)
     pb.subject_to(e - v_ms * a_ms2 / eta, 0.0, ca.inf, name="energy_epi_drive")

@@ -27,7 +27,7 @@ import numpy as np
 
 from ..models.carfollowing import CarFollowingLaw
 from ..models.leader import PaperLeader
-from ..params import ParameterError, Units
+from ..params import UNLIMITED, EVParams, ParameterError, Units
 from ..results import SimulationResult
 from ..simulate import simulate_platoon
 from .linear import LinearizedLaw, LinearStability, analyse
@@ -171,7 +171,8 @@ def measure(law: CarFollowingLaw, v_star: float, amplitude: float, *, kind: str 
     rtol = min(1e-9, 1e-5 * amplitude) if rtol is None else rtol
     atol = min(1e-11, 1e-8 * amplitude) if atol is None else atol
     res = simulate_platoon(leader, [law] * n_followers, [lin.h_star] * n_followers, [v_star] * n_followers, T,
-                           battery=False, dt_out=dt_out, rtol=rtol, atol=atol, method=method)
+                           battery=False, dt_out=dt_out, rtol=rtol, atol=atol, method=method,
+                           ev=EVParams(limits=UNLIMITED))  # the law as linearised: no vehicle limits
     return attenuation_of(res, label or law.name, v_star, leader, T, periods, tol)
 
 

@@ -13,7 +13,7 @@ import numpy as np
 
 from ..models.carfollowing import IDM, OVFL, OVM, Proposed, equilibrium_gap
 from ..models.leader import PaperLeader
-from ..params import Units
+from ..params import UNLIMITED, EVParams, Units
 from ..results import write_json
 from ..simulate import simulate_platoon
 from .linear import analyse
@@ -38,7 +38,7 @@ def fig5_origin(law_factory: Callable[[], Any] = Proposed) -> dict[str, list[flo
     out: dict[str, list[float]] = {}
     for name, (g, v) in cases.items():
         r = simulate_platoon(PaperLeader(), [law] * 5, g, v, 70.0, battery=False, dt_out=0.01, rtol=1e-10,
-                             atol=1e-10)
+                             atol=1e-10, ev=EVParams(limits=UNLIMITED))  # the paper's run: no vehicle limits
         s = np.column_stack([r.leader_speed, r.speed])
         out[name] = np.max(np.abs(s[:, :-1] - s[:, 1:]), axis=0).tolist()
         if name == "paper":

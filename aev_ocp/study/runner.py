@@ -42,7 +42,7 @@ def run_task(spec: dict[str, Any]) -> dict[str, Any]:
     try:
         result = _simulate(spec)
         metrics = result.metrics()
-        out.update(status=result.status, message="; ".join(str(e) for e in result.events), metrics=metrics)
+        out.update(status=result.status, message="; ".join(str(e) for e in result.events + result.violations), metrics=metrics)
         if spec.get("trajectories"):  # optional: the run's trajectories, loadable by aev_ocp.load
             from ..saved import save_output
 
