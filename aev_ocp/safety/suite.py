@@ -5,8 +5,7 @@ forecast, its safe fallback and safety filter), the proposed law and OVFL (conti
 to the vehicle's [a_min, a_max]), optionally IDM. Each run is the existing closed loop (:class:`ClosedLoop`) or
 simulator (:func:`simulate_platoon`) on the exact plant; nothing here integrates.
 
-Per case and controller (SI): collision time [s] and impact speed [m/s] (the contact located on the last step,
-from the last sample before it, with the step's acceleration held and the lead's exact motion), min gap [m]
+Per case and controller (SI): collision time [s] and impact speed [m/s] (the plant's located contact event), min gap [m]
 (≤ 0 at contact), min TTC [s], peak deceleration [m/s²], peak jerk [m/s³] (sampled: Δa/Δt between samples),
 floor violations (samples with gap < the 2 m floor, the contact counted as one, and the time spent there [s]).
 """
@@ -15,10 +14,9 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any, Callable, Sequence
 
-import casadi as ca
 import numpy as np
 
 from ..control import ClosedLoop
@@ -28,7 +26,6 @@ from ..mpc.policy import MPCPolicy
 from ..mpc.predictors import make_predictor
 from ..mpc.settings import MPCSettings
 from ..ocp.formulation import Formulation, traffic_formulation
-from ..numerics import bracketed_root
 from ..params import EVParams, ParameterError
 from ..results import SimulationResult
 from ..simulate import simulate_platoon
@@ -40,32 +37,10 @@ DEFAULT_CONTROLLERS = ("mpc", "proposed", "ovfl")
 LAW_DT_OUT = 0.01  # output spacing of the laws' runs [model time] (8.8 ms at the case units)
 
 
-@dataclass(frozen=True)
-class SaturatedLaw(CarFollowingLaw):
-    """A law saturated to [a_min, a_max] (model acceleration): how a law drives a car with physical limits. The
-    plant applies the vehicle's limits itself once it enforces them; clipping twice changes nothing."""
-
-    law: CarFollowingLaw = field(default_factory=Proposed)
-    a_min: float = -1.0
-    a_max: float = 1.0
-
-    @property
-    def name(self) -> str:  # type: ignore[override]
-        return self.law.name
-
-    def accel(self, h: Any, v: Any, v_l: Any) -> Any:
-        return ca.fmin(ca.fmax(self.law.accel(h, v, v_l), self.a_min), self.a_max)
-
-    def describe(self) -> dict[str, Any]:
-        return {**self.law.describe(), "a_min": self.a_min, "a_max": self.a_max}
-
-
-def _law(name: str, ev: EVParams) -> CarFollowingLaw:
+def _law(name: str) -> CarFollowingLaw:
+    """The law by name; the plant saturates it to the vehicle's limits like every other controller."""
     law: CarFollowingLaw = {"proposed": Proposed(), "ovfl": OVFL(), "idm": IDM()}[name]
-    if not ev.limits.enabled:
-        return law
-    lo, hi = ev.limits.accel_bounds_model(ev.units)
-    return SaturatedLaw(law, lo, hi)
+    return law
 
 
 @dataclass
@@ -102,32 +77,8 @@ class CaseRow:
         return self.label == AVOIDABLE and (self.collision or self.floor_violation_samples > 0)
 
 
-def locate_contact(r: SimulationResult, leader: BrakingLeader, dt_max: float) -> tuple[float, float]:
-    """(time [model], impact speed v_e − v_l [model]) of the first contact after the last sample of ``r``: the ego
-    holds its last sampled acceleration (exact for a zero-order hold; one output step of a law), never reversing;
-    the lead moves exactly. (nan, nan) when no contact lies within dt_max [model time]."""
-    t0, h0, v0, a0 = float(r.t[-1]), float(r.gap[-1, 0]), float(r.speed[-1, 0]), float(r.accel[-1, 0])
-    x_l0 = float(leader.position(t0))
-
-    def ego(s: float) -> tuple[float, float]:
-        if a0 < 0 and v0 + a0 * s < 0:
-            s_stop = v0 / -a0
-            return v0 * s_stop + 0.5 * a0 * s_stop**2, 0.0
-        return v0 * s + 0.5 * a0 * s * s, v0 + a0 * s
-
-    def gap(s: float) -> float:
-        return h0 + float(leader.position(t0 + s)) - x_l0 - ego(s)[0]
-
-    if h0 <= 0:
-        return t0, v0 - float(leader.speed_np(t0)[0])
-    if gap(dt_max) > 0:
-        return math.nan, math.nan
-    s = bracketed_root(gap, 0.0, dt_max, 1e-12)
-    return t0 + s, ego(s)[1] - float(leader.speed_np(t0 + s)[0])
-
-
-def _row(case: SafetyCase, ctrl: str, r: SimulationResult, leader: BrakingLeader, ev: EVParams, bound: Any,
-         dt_contact: float, wall: float, floor_m: float) -> CaseRow:
+def _row(case: SafetyCase, ctrl: str, r: SimulationResult, ev: EVParams, bound: Any, wall: float,
+         floor_m: float) -> CaseRow:
     u = ev.units
     t_s = u.time_to_si(r.t)
     h = u.length_to_si(r.gap[:, 0])
@@ -137,14 +88,11 @@ def _row(case: SafetyCase, ctrl: str, r: SimulationResult, leader: BrakingLeader
     coll = r.status == "collision"
     t_c = v_imp = math.nan
     min_gap = float(np.min(h))
-    if coll:
-        tc, vi = locate_contact(r, leader, dt_contact)
-        if math.isfinite(tc):
-            t_c, v_imp = float(u.time_to_si(tc)), float(u.speed_to_si(vi))
-            min_gap = min(min_gap, 0.0)
-        else:  # the plant's event time and the closing speed at the last sample
-            ev0 = r.events[0]
-            t_c, v_imp, min_gap = float(u.time_to_si(ev0.time)), float(v[-1] - vl[-1]), min(min_gap, 0.0)
+    if coll:  # the plant located the contact (event detection): the run ends there, with gap <= 0
+        ev0 = r.events[0]
+        t_c = float(ev0.time_s) if ev0.time_s is not None else float(u.time_to_si(ev0.time))
+        v_imp = float(ev0.impact_speed_mps) if ev0.impact_speed_mps is not None else float(v[-1] - vl[-1])
+        min_gap = min(min_gap, 0.0)
     closing = v - vl
     with np.errstate(divide="ignore", invalid="ignore"):
         ttc = np.where(closing > 1e-9, h / closing, np.inf)
@@ -220,12 +168,10 @@ def run_suite(cases: Sequence[SafetyCase] | None = None, controllers: Sequence[s
                 dt = settings.dt
                 t_end = dt * max(1, round(float(u.time_from_si(case.t_end_s)) / dt))
                 r = ClosedLoop(leader, [policy], ev).run([h0], [v0], t_end)
-                dt_contact = dt
             else:
-                r = simulate_platoon(leader, [_law(ctrl, ev)], [h0], [v0], float(u.time_from_si(case.t_end_s)), ev=ev,
+                r = simulate_platoon(leader, [_law(ctrl)], [h0], [v0], float(u.time_from_si(case.t_end_s)), ev=ev,
                                      dt_out=LAW_DT_OUT)
-                dt_contact = LAW_DT_OUT
-            row = _row(case, ctrl, r, leader, ev, bound, dt_contact, time.perf_counter() - tic, floor_m)
+            row = _row(case, ctrl, r, ev, bound, time.perf_counter() - tic, floor_m)
             rows.append(row)
             runs[case.name][ctrl] = r
         if progress is not None:
