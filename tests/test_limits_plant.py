@@ -273,19 +273,20 @@ def test_traffic_prediction_knows_the_lag() -> None:
     assert errs["with"] < 2e-4 < 0.02 < errs["without"]
 
 
-@pytest.mark.parametrize("v0", [3.7e-10, 1e-140, 2.9e-144])
-def test_a_braking_command_at_a_crawl_is_held_not_integrated_through_round_off(v0: float) -> None:
-    """A controller that brakes to a stop with a >= -v/dt leaves v decaying geometrically (1e-86, 1e-144, ...):
-    CVODES failed (CV_TOO_MUCH_WORK) at such speeds in the safety suite. At or below V_STOP the brakes hold the car:
-    the step integrates, the speed stays where it was and the applied acceleration is 0."""
+def test_braking_to_a_stop_with_a_never_reversing_command_is_held_at_a_crawl() -> None:
+    """A controller that brakes to a stop with a = -v/dt (never reversing over its step) leaves v decaying
+    geometrically over its steps (1e-86, 1e-144, ...): CVODES failed (CV_TOO_MUCH_WORK) at such speeds in the safety
+    suite. At or below V_STOP the brakes hold the car: every step integrates, the speed stops decaying there."""
     from aev_ocp.models.actuator import V_STOP
     from aev_ocp.models.leader import BrakingLeader
     from aev_ocp.plant import Plant
 
-    assert v0 <= V_STOP
-    ev = _ev()
-    plant = Plant(BrakingLeader.from_si(0.0, -3.0, 0.0, UNITS), [None], ev)
-    x = np.array([0.0435, v0, -0.0166, -0.00164, 0.802])
-    res = plant.integrator(x0=x, p=np.array([4.8, 0.1, -v0 / 0.1]))
-    xf = np.asarray(res["xf"]).ravel()
-    assert xf[1] == v0 and xf[0] == pytest.approx(x[0] - v0 * 0.1, abs=1e-15)  # the gap closes at v0 only
+    plant = Plant(BrakingLeader.from_si(0.0, -3.0, 0.0, UNITS), [None], _ev())
+    x = np.array([0.0435, 0.37, -0.0166, -0.00164, 0.802])
+    dt, speeds = 0.1, []
+    for k in range(40):
+        res = plant.integrator(x0=x, p=np.array([4.8 + k * dt, dt, -x[1] / dt]))
+        x = np.asarray(res["xf"]).ravel()
+        speeds.append(x[1])
+    assert 0.0 <= speeds[-1] <= V_STOP and speeds[-1] > 1e-30  # held at a crawl, not decayed to round-off
+    assert speeds[-1] == speeds[-2]
