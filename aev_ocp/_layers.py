@@ -46,7 +46,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
     )),
     ("outputs", (
         "aev_ocp.plots", "aev_ocp.ocp_plots", "aev_ocp.mpc.plots", "aev_ocp.stability.plots", "aev_ocp.report",
-        "aev_ocp.report_html", "aev_ocp.saved",
+        "aev_ocp.report_html", "aev_ocp.saved", "aev_ocp.study.table",
     )),
     ("applications", (
         "aev_ocp.report_sections", "aev_ocp.claims", "aev_ocp.table1_hypotheses",
@@ -54,7 +54,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
         "aev_ocp.mpc.report", "aev_ocp.mpc.cycles", "aev_ocp.mpc.cycles_section",
         "aev_ocp.stability.api", "aev_ocp.stability.report",
         "aev_ocp.safety.suite", "aev_ocp.safety.report", "aev_ocp.safety.section",
-        "aev_ocp.study", "aev_ocp.study.runner", "aev_ocp.study.table", "aev_ocp.study.report",
+        "aev_ocp.study", "aev_ocp.study.runner", "aev_ocp.study.report",
     )),
     ("entry points", (
         "aev_ocp", "aev_ocp.console", "aev_ocp.reproduce", "aev_ocp.cli", "aev_ocp.ocp.cli", "aev_ocp.mpc.cli",
