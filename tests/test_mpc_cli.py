@@ -6,7 +6,7 @@ import json
 
 import pytest
 
-import aev_ocp.mpc  # noqa: F401  (registers the [mpc] table)
+import aev_ocp.mpc.report  # noqa: F401  (its REPRODUCE_SECTIONS)
 from aev_ocp.mpc.cli import cli_mpc
 from aev_ocp.scenarios import ScenarioError, find_scenario, load_scenario, parse_scenario
 
