@@ -14,14 +14,13 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import importlib
-import os
 import sys
 import warnings
 from pathlib import Path
-from typing import Any, Callable, Sequence
+from typing import Any, Sequence
 
-from .console import (EXIT_BAD_INPUT, EXIT_FAILED_RUN, EXIT_INTERRUPTED, EXIT_OK, OneLineParser, error_line,
-                      guarded, warning_line)
+from .console import EXIT_INTERRUPTED as EXIT_INTERRUPTED  # re-exported with the other exit codes
+from .console import EXIT_BAD_INPUT, EXIT_FAILED_RUN, EXIT_OK, OneLineParser, error_line, guarded, warning_line
 
 _err, _warn, _Parser = error_line, warning_line, OneLineParser
 

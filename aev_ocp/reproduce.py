@@ -19,7 +19,7 @@ import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Sequence
+from typing import Any, Sequence
 
 import numpy as np
 
@@ -30,9 +30,11 @@ from .plots import (plot_compare_omega, plot_leader, plot_percent_change, plot_p
                     plot_space_time)
 from .report import (OVER_LIMIT_MARK, PAPER_TABLE1, PRINTED_HALF_ULP, markdown_table, fmt, platoon_checks,
                      scenario_metrics_rows, table1_disagreements, table1_summary, write_table1, write_text)
-from .report_sections import (SECTION_PROVIDERS, Claim, ProgressFn, ReportSectionError, ReproduceConfig, Section,
-                              SectionContext, SectionFn, _REGISTRY, cause, load_providers, register_section,
-                              summary_section)
+from .report_sections import SECTION_PROVIDERS as SECTION_PROVIDERS  # re-exported: the public names of sections
+from .report_sections import SectionFn as SectionFn
+from .report_sections import register_section as register_section
+from .report_sections import (_REGISTRY, Claim, ProgressFn, ReportSectionError, ReproduceConfig, Section,
+                              SectionContext, cause, load_providers, summary_section)
 from .results import SimulationResult, write_json
 from .scenarios import Scenario, iter_shipped, load_scenario
 from .simulate import simulate_platoon

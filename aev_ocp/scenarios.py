@@ -60,10 +60,12 @@ from typing import Any, Callable, Iterable, Iterator, Mapping, Sequence
 from .models.carfollowing import LAW_REGISTRY, V_INF, CarFollowingLaw, make_law
 from .models.leader import (CYCLES, LENGTH_UNITS, MAX_GAP_S, SPEED_UNITS, TIME_UNITS, ConstantSpeed, LeaderProfile,
                             PaperLeader, SpeedTrace, drive_cycle, read_trace_csv, trace_leader)
-from .overrides import SI_TWINS, apply_to_document, parse_assignments, si_twin
+from .overrides import SI_TWINS, apply_to_document, parse_assignments
+from .overrides import si_twin as si_twin  # re-exported
 from .params import (CarFollowingParams, CellParams, Check, EVParams, PackParams, ParameterError, SimOptions,
                      Units, VehicleLimits, VehicleParams, field_checks)
-from .limits import BYTES_PER_SAMPLE, DEFAULT_MEMORY_LIMIT_GB, estimate_run_bytes, memory_limit_bytes, n_samples
+from .limits import DEFAULT_MEMORY_LIMIT_GB as DEFAULT_MEMORY_LIMIT_GB  # re-exported: the budget lives in limits
+from .limits import BYTES_PER_SAMPLE, estimate_run_bytes, memory_limit_bytes, n_samples
 from .results import check_safe_name
 
 LEADER_KINDS = ("constant", "paper", "cycle", "array", "trace")

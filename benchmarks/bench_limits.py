@@ -9,7 +9,6 @@ imports. Prints a table and writes results/bench_limits.json.
 
 from __future__ import annotations
 
-import json
 import subprocess
 import sys
 from pathlib import Path

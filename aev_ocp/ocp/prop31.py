@@ -18,7 +18,6 @@ capacitors), Q = Q_irr + dW/dt, so ∫Q dt = ∫Q_irr dt + W(t_f) − W(0) ≥ R
 from __future__ import annotations
 
 import math
-from pathlib import Path
 from typing import Any, Callable
 
 import casadi as ca
@@ -28,7 +27,7 @@ from ..models import battery
 from ..params import CellParams, ParameterError
 from .cell import cell_problem
 from .checks import record_refinement, record_smoothing_gap, resimulate_cell_current
-from .result import OCPResult, write_json_atomic
+from .result import OCPResult
 from .transcription import OCPSolver, TranscriptionOptions
 
 T_F_S = 60.0  # PROBLEM.md §8: t_f = 60 s

@@ -7,7 +7,6 @@ from __future__ import annotations
 import argparse
 import math
 import sys
-from pathlib import Path
 
 # the command line's one error format, exit codes and parser (aev_ocp/cli.py)
 from ..console import EXIT_BAD_INPUT, EXIT_FAILED_RUN, EXIT_OK
