@@ -200,3 +200,14 @@ def test_importing_the_problem_description_stays_small(module: str, limit: int) 
                          cwd=PACKAGE_DIR.parent)
     loaded = eval(out.stdout)  # a printed list of str
     assert len(loaded) <= limit, f"import {module} loads {len(loaded)} aev_ocp modules: {loaded}"
+
+
+def test_the_docs_page_lists_the_same_table() -> None:
+    """docs/guide/layers.md states the table of aev_ocp._layers row by row (layer name and its modules)."""
+    page = PACKAGE_DIR.parent / "docs" / "guide" / "layers.md"
+    if not page.is_file():
+        pytest.skip("documentation not shipped with this installation")
+    rows = [ln for ln in page.read_text(encoding="utf-8").splitlines() if ln.startswith("| ") and "`aev_ocp" in ln]
+    table = [(cells[2], [m.strip(" `") for m in cells[3].split(",")])
+             for cells in ([c.strip() for c in ln.split("|")] for ln in rows)]
+    assert table == [(name, list(mods)) for name, mods in LAYERS]
