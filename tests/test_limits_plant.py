@@ -15,7 +15,6 @@ from scipy.integrate import solve_ivp
 
 from aev_ocp.control import ClosedLoop, Command, ControlSequence, Observation
 from aev_ocp.models import ConstantSpeed, PaperLeader, Proposed
-from aev_ocp.models.carfollowing import optimal_velocity
 from aev_ocp.params import UNLIMITED, EVParams, ParameterError, Units, VehicleLimits
 from aev_ocp.simulate import simulate_platoon
 

@@ -22,11 +22,11 @@ import numpy as np
 from .. import interrupts
 from ..ocp.checks import GAP_RTOL as SMOOTHING_GAP_RTOL
 from ..ocp.formulation import Formulation, ModelBounds, s9_formulation
-from ..ocp.oracle import (DEFAULT_TIME_LIMIT_S, OBJECTIVE_NAMES, OracleSolver, oracle_grid_dt, oracle_parameters,
-                          scenario_oracle, stage_cost_of_result)
+from ..ocp.oracle import (DEFAULT_TIME_LIMIT_S, OBJECTIVE_NAMES, OracleSolver, oracle_grid_dt, scenario_oracle, stage_cost_of_result)
 from ..ocp.problem import OCPProblem
 from ..ocp.traffic_cost import cost_traffic_of_result, problem_cost_of_result
 from ..control import ClosedLoop, Command, ControlSequence, Observation
+from ..limits import MPC_BYTES_PER_INTERVAL, memory_limit_bytes
 from ..metrics import comparability
 from ..params import ParameterError
 from ..progress import Progress
@@ -57,9 +57,6 @@ ORACLE_BOUND_MAX_INTERVALS = 20000
 BOUND_RTOL = 1e-4
 
 
-# Memory of building and solving the horizon-N NLP [bytes per interval]: 0.88-1.29 MB measured by
-# benchmarks/bench_limits.py (peak RSS of MPCController construction + one solve, ipopt and rti, N = 40 ... 1600).
-MPC_BYTES_PER_INTERVAL = 1_000_000
 MAX_CLOSED_LOOP_STEPS = 10**6  # each step is one NLP solve: 10^6 steps are hours even on the fastest path
 
 
@@ -71,7 +68,7 @@ def check_mpc_scenario(scenario: Any, settings: MPCSettings, laws: tuple[str, ..
     unknown or repeated comparison laws, a horizon or a number of steps too large for memory or time.
     """
     from ..models.carfollowing import LAW_REGISTRY
-    from ..scenarios import ScenarioError, check_run_size, memory_limit_bytes
+    from ..scenarios import ScenarioError, check_run_size
     from .scenario import check_mpc_setup
 
     file = str(scenario.source or scenario.name)
@@ -482,3 +479,6 @@ def mpc_section(out_dir: Any, progress: Callable[[str], None]) -> str:
         lines.append(f"MPC's §9 cost is {gap:.3f} % above the OCP-D {what}.")
     lines += [f"**Warning:** {w}" for w in c.warnings]
     return "\n".join(lines) + "\n"
+
+
+REPRODUCE_SECTIONS = [("mpc", mpc_section, 15)]  # 3 runs x 4 progress lines + OCP-D + replay + writing

@@ -22,9 +22,9 @@ from typing import Any
 from ..params import ParameterError, Units
 
 # the command line's one error format, exit codes and parser (aev_ocp/cli.py)
-from ..cli import EXIT_BAD_INPUT, EXIT_FAILED_RUN, EXIT_OK
-from ..cli import OneLineParser as _Parser
-from ..cli import error_line as _err
+from ..console import EXIT_BAD_INPUT, EXIT_FAILED_RUN, EXIT_OK
+from ..console import OneLineParser as _Parser
+from ..console import error_line as _err
 
 
 _UNITS = Units()  # the paper's units (aev_ocp/params.py: L = 10 m, U = 5 m/s)
