@@ -30,7 +30,7 @@ from ..limits import MPC_BYTES_PER_INTERVAL, memory_limit_bytes
 from ..metrics import comparability
 from ..params import ParameterError
 from ..progress import Progress
-from ..results import SimulationResult, write_json
+from ..results import SimulationResult, fmt_value, require_pandas, summary_html, summary_text, write_json
 from ..simulate import simulate_platoon
 from ..truncation import VIEW_KEYS, equal_views
 from .scenario import MPCConfig, closed_loop_from_scenario
@@ -120,6 +120,39 @@ class Comparison:
     formulation: Formulation = field(default_factory=s9_formulation)
     #: per follower: the equal-distance and equal-time views (:func:`aev_ocp.truncation.equal_views`)
     views: list[dict[str, Any]] = field(default_factory=list)
+
+    def _repr_rows(self) -> list[dict[str, Any]]:
+        return [{"run": label, "vehicle": m.get("vehicle"), "status": m.get("status"),
+                 "omega_J_per_kg": m.get("omega_J_per_kg"), "heat_pack_J": m.get("heat_pack_J"),
+                 "min_gap_m": m.get("min_gap_m"), "cost_s9": m.get("cost_s9")}
+                for label, ms in self.metrics.items() for m in ms[:2]]
+
+    def _repr_title(self) -> str:
+        n = max((r.n_vehicles for r in self.results.values()), default=0)
+        return f"Comparison ({self.formulation.kind} formulation): {', '.join(self.results)} on {n} follower(s)"
+
+    def __repr__(self) -> str:
+        """A few lines: per run (first two vehicles) the status, ω [J/kg], pack ∫Q [J], min gap [m], §9 cost."""
+        lines = [f"{r['run']} vehicle {r['vehicle']}: {r['status']}, ω {fmt_value(r['omega_J_per_kg'])} J/kg, "
+                 f"pack ∫Q {fmt_value(r['heat_pack_J'])} J, min gap {fmt_value(r['min_gap_m'])} m, "
+                 f"cost {fmt_value(r['cost_s9'])}" for r in self._repr_rows()]
+        if self.ocpd:
+            lines.append(f"OCP-D: {self.ocpd.get('status')}, cost {fmt_value(self.ocpd.get('cost_s9'))} "
+                         f"({self.ocpd.get('role', 'bound')})")
+        lines += [f"warning: {w}" for w in self.warnings[:2]]
+        return summary_text(self._repr_title(), lines)
+
+    def _repr_html_(self) -> str:
+        fields: list[tuple[str, Any]] = [(f"{k} time [s]", v) for k, v in self.timings_s.items()]
+        if self.ocpd:
+            fields.append(("OCP-D cost", self.ocpd.get("cost_s9")))
+        return summary_html(self._repr_title(), fields, self._repr_rows())
+
+    def to_dataframe(self) -> Any:
+        """Every run's per-vehicle metrics, one row per run × vehicle (column ``run``). Needs pandas
+        (``pip install 'aev_ocp[pandas]'``)."""
+        pd = require_pandas("Comparison.to_dataframe()")
+        return pd.DataFrame([{"run": label, **m} for label, ms in self.metrics.items() for m in ms])
 
 
 def _cost_s9(r: SimulationResult, i: int, s: MPCSettings, f: Formulation, exact: bool = False) -> float:
