@@ -476,10 +476,12 @@ def write_outputs(c: Comparison, out: Path) -> list[Path]:
                                                "mpc_settings": r.meta.get("controllers"),
                                                "mpc_steps": r.meta.get("mpc_steps")})]
     files.append(r.to_csv(out / "trajectories_mpc.csv"))
-    files.append(plot_trajectories(r, out / "mpc_trajectories.png"))
-    files.append(plot_solve_times(r, out / "mpc_solve_times.png"))
+    for png, plot in ((out / "mpc_trajectories.png", plot_trajectories), (out / "mpc_solve_times.png", plot_solve_times)):
+        plot(r, png)
+        files.append(png)
     for i in range(r.n_vehicles):
-        files.append(plot_overlay(c.results, out / f"overlay_vehicle{i + 1}.png", vehicle=i))
+        plot_overlay(c.results, png := out / f"overlay_vehicle{i + 1}.png", vehicle=i)
+        files.append(png)
         if i >= 1 and r.n_vehicles > 3 and i != r.n_vehicles - 1:
             continue
     return files
