@@ -27,10 +27,11 @@ _CONTEXT: contextvars.ContextVar[dict[str, Any]] = contextvars.ContextVar("aev_o
 BUILD_INFO = "_build_info.json"  # written into the built package by setup.py's build hook
 
 
-def _built_commit() -> str | None:
-    """The commit recorded when this copy was built (``pip install .`` from a clone), else None."""
+def _built_commit(folder: Path | None = None) -> str | None:
+    """The commit recorded when this copy was built (``pip install .`` from a clone), else None. folder: where
+    ``_build_info.json`` is (default: beside this module)."""
     try:
-        info = json.loads((Path(__file__).resolve().parent / BUILD_INFO).read_text(encoding="utf-8"))
+        info = json.loads(((folder or Path(__file__).resolve().parent) / BUILD_INFO).read_text(encoding="utf-8"))
     except (OSError, ValueError):
         return None
     commit = info.get("git_commit") if isinstance(info, dict) else None
