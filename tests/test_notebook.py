@@ -107,8 +107,11 @@ def test_without_pandas_the_error_says_how_to_get_it(run, tmp_path, monkeypatch,
          "study": StudyOutput(tmp_path, [], [], 0, 0).to_dataframe,
          "table": lambda: load_table(tmp_path, as_dataframe=True)}[call]
     with pytest.raises(ImportError, match=r"needs pandas, which is not installed; install it with: "
-                                          r"pip install 'aev_ocp\[pandas\]'"):
+                                          r"pip install 'aev_ocp\[pandas\]'") as err:
         f()
+    name = {"sim": "SimulationResult.to_dataframe()", "ocp": "OCPResult.to_dataframe()",
+            "study": "StudyOutput.to_dataframe()", "table": "load_table(as_dataframe=True)"}[call]
+    assert str(err.value).startswith(f"{name} needs pandas")  # it names the call
 
 
 def test_dataframes_hold_what_the_csv_files_hold(run, tmp_path) -> None:  # noqa: ANN001
