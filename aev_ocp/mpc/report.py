@@ -497,6 +497,10 @@ def mpc_section(out_dir: Any, progress: Callable[[str], None]) -> str:
     c = run_comparison(sc, log=progress)
     progress("MPC: writing tables and plots")
     write_outputs(c, out)
+    from ..saved import save_output, settings_of
+
+    save_output(out, "mpc", c.results, primary="mpc", settings=settings_of(sc),  # aev_ocp.load(".../mpc")
+                extra={"ocp_d": c.ocpd, "comparison_metrics": c.metrics, "timings_s": c.timings_s, "warnings": c.warnings})
     st = c.metrics["mpc"][0]
     lines = ["## MPC with the battery in the loop (PROBLEM.md §9)", "",
              f"Canonical scenario: one follower behind the Table 1 leader, h(0) = 0.3, v(0) = 1.87, oracle "
@@ -507,7 +511,9 @@ def mpc_section(out_dir: Any, progress: Callable[[str], None]) -> str:
              "(smoothed η, as in OCP-D); OCP-D is the lower bound of that cost. `cost_s9_exact` is the same "
              "cost with the exact η switch; `smoothing_gap_pct` their difference (a warning above 0.5 %).", "",
              comparison_table(c, 0, markdown=True), "",
-             "Plots: `mpc/overlay_vehicle1.png` (trajectories, current, SOC), `mpc/mpc_solve_times.png`.", ""]
+             "![MPC and the laws: gap, speed, acceleration, current, SOC](mpc/overlay_vehicle1.png)", "",
+             "![MPC trajectories](mpc/mpc_trajectories.png)", "", "![MPC solve time per step](mpc/mpc_solve_times.png)", "",
+             "The runs load back with `aev_ocp.load(\"mpc\")` (the MPC) and `aev_ocp.load_all(\"mpc\")` (every run).", ""]
     if c.ocpd and c.ocpd.get("success"):
         gap = 100 * (st["cost_s9"] / c.ocpd["cost_s9"] - 1)
         what = "lower bound" if c.ocpd.get("role") == "bound" else "reference (not a bound, see the warnings)"
