@@ -1,7 +1,7 @@
 """One result type for every controller (closed-form law, MPC, offline optimum) and atomic writers.
 
 A :class:`SimulationResult` holds sampled trajectories of a platoon (model units unless the name
-says otherwise) and the *cumulative* integrals that the metrics of PROBLEM.md §10 need, integrated
+says otherwise) and the *cumulative* integrals that the metrics of model guide §10 need, integrated
 by the plant's own quadrature (exact across control jumps, unlike a trapezoid on samples).
 """
 
@@ -284,7 +284,7 @@ class SimulationResult:
         return self.leader_position[:, None] - np.cumsum(self.gap, axis=1)
 
     def metrics(self) -> list[dict[str, Any]]:
-        """Per-vehicle metrics of PROBLEM.md §10 (see :mod:`aev_ocp.metrics`)."""
+        """Per-vehicle metrics of model guide §10 (see :mod:`aev_ocp.metrics`)."""
         from .metrics import vehicle_metrics
 
         return [vehicle_metrics(self, i) for i in range(self.n_vehicles)]

@@ -1,4 +1,4 @@
-"""2-RC equivalent-circuit cell (paper §3, PROBLEM.md §6), SI units, time in seconds, I > 0 discharges.
+"""2-RC equivalent-circuit cell (paper §3, model guide §6), SI units, time in seconds, I > 0 discharges.
 
 The OCV curve is a cubic B-spline interpolant of the A123 ANR26650 table shipped in
 ``aev_ocp/data/a123_ocv_25C.csv`` (provenance in ``aev_ocp/data/README.md``).
@@ -30,7 +30,7 @@ def ocv_table() -> tuple[np.ndarray, np.ndarray]:
 
 @lru_cache(maxsize=1)
 def ocv_function() -> ca.Function:
-    """OCV(S) [V] as a CasADi cubic B-spline interpolant (PROBLEM.md §6). Defined on S ∈ [0, 1];
+    """OCV(S) [V] as a CasADi cubic B-spline interpolant (model guide §6). Defined on S ∈ [0, 1];
     callers check S stays there (the simulator reports it, the optimisers constrain it)."""
     soc, ocv = ocv_table()
     return ca.interpolant("ocv", "bspline", [soc], ocv)
@@ -103,7 +103,7 @@ def heat_Q(V1: Any, V2: Any, I: Any, p: CellParams) -> Any:
 
 
 def heat_irreversible(V1: Any, V2: Any, I: Any, p: CellParams) -> Any:
-    """Dissipated heat Q_irr = R_s I² + V1²/R1 + V2²/R2 ≥ 0 [W per cell] (PROBLEM.md §6)."""
+    """Dissipated heat Q_irr = R_s I² + V1²/R1 + V2²/R2 ≥ 0 [W per cell] (model guide §6)."""
     return p.R_s_ohm * I**2 + V1**2 / p.R1_ohm + V2**2 / p.R2_ohm
 
 

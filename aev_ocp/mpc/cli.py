@@ -26,7 +26,7 @@ def build_parser() -> argparse.ArgumentParser:
                              "130 interrupted. Load the results with aev_ocp.load(OUT).")
     p.add_argument("scenario", help="scenario TOML file or shipped scenario name (e.g. mpc_paper_single); its [mpc] "
                    "table holds the controller settings (defaults: MPCSettings(), the traffic formulation "
-                   "aev_ocp/ocp/traffic.py; formulation = \"s9\" for PROBLEM.md §9)")
+                   "aev_ocp/ocp/traffic.py; formulation = \"s9\" for model guide §9)")
     p.add_argument("--out", default=None, metavar="DIR",
                    help="output folder (default: results/mpc/<scenario name>/)")
     p.add_argument("--set", dest="sets", action="append", default=[], metavar="KEY=VALUE",

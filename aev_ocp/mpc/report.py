@@ -158,7 +158,7 @@ class Comparison:
 def _cost_s9(r: SimulationResult, i: int, s: MPCSettings, f: Formulation, exact: bool = False) -> float:
     """§9 cost Σ ℓ(z_k, a_k)·dt on the dt grid (laws: sampled at the grid), with the optimiser's smoothed
     η switch (as the MPC and OCP-D see it) or, ``exact``, the plant's exact switch; §9's weights and objective
-    (the formulation's when it is §9, else PROBLEM.md §9's defaults)."""
+    (the formulation's when it is §9, else model guide §9's defaults)."""
     g = f if f.kind == "s9" else s9_formulation(smooth=f.smooth)
     return stage_cost_of_result(r, i, s.dt, g.weights, None if exact else g.smooth, g.objective)
 
@@ -283,7 +283,7 @@ def run_comparison(scenario: Any, settings: MPCSettings | None = None, laws: tup
         traffic = f.kind == "traffic"
         ocpd = {"success": res.success, "status": res.status, key: res.objective if res.success else float("nan"),
                 "grid_dt": scn.dt, "formulation": f.name,
-                "objective": {"traffic": "traffic objective (the MPC's)", "s9": "PROBLEM.md §9 cost"}.get(
+                "objective": {"traffic": "traffic objective (the MPC's)", "s9": "model guide §9 cost"}.get(
                     f.kind, f"the MPC's problem {f.name!r}"),
                 "objective_definition": OBJECTIVE_NAMES[f.kind], "N": scn.N,
                 "solve_time_s": res.wall_time_s, "iterations": res.iterations, "role": "reference"}
@@ -405,7 +405,7 @@ def _floor_note(c: Comparison, vehicle: int) -> str:
 def comparison_table(c: Comparison, vehicle: int = 0, markdown: bool = False, views: bool = True) -> str:
     """Every §10 metric of follower ``vehicle`` side by side (MPC, laws, OCP-D of the same formulation: 'bound' or
     'reference'), the running formulation's own cost as the only cost row; then, labelled, another formulation's
-    cost (PROBLEM.md §9's beside a traffic MPC: no verdict) and the equal-distance and equal-time views."""
+    cost (model guide §9's beside a traffic MPC: no verdict) and the equal-distance and equal-time views."""
     f = c.formulation
     labs = list(c.metrics)
     with_d = bool(c.ocpd) and vehicle == 0
@@ -435,7 +435,7 @@ def comparison_table(c: Comparison, vehicle: int = 0, markdown: bool = False, vi
     text = [f"Whole runs (formulation {f.name}; its own cost {f.cost_key}; ranked only when comparable):",
             _render(["metric"] + heads, rows, markdown)]
     if secondary:
-        text += ["", "Another formulation's cost (PROBLEM.md §9's; this MPC does not optimise it: no verdict):",
+        text += ["", "Another formulation's cost (model guide §9's; this MPC does not optimise it: no verdict):",
                  _render(["metric"] + heads, secondary, markdown)]
     if views and vehicle < len(c.views):
         text += ["", views_table(c.views[vehicle], markdown)]
@@ -488,7 +488,7 @@ def write_outputs(c: Comparison, out: Path) -> list[Path]:
 
 
 def mpc_section(out_dir: Any, progress: Callable[[str], None]) -> str:
-    """Reproduce section: the canonical MPC (PROBLEM.md §9) beside the proposed law and OVFL (and OCP-D)."""
+    """Reproduce section: the canonical MPC (model guide §9) beside the proposed law and OVFL (and OCP-D)."""
     from ..scenarios import find_scenario, load_scenario
 
     out = Path(out_dir) / "mpc"
@@ -502,7 +502,7 @@ def mpc_section(out_dir: Any, progress: Callable[[str], None]) -> str:
     save_output(out, "mpc", c.results, primary="mpc", settings=settings_of(sc),  # aev_ocp.load(".../mpc")
                 extra={"ocp_d": c.ocpd, "comparison_metrics": c.metrics, "timings_s": c.timings_s, "warnings": c.warnings})
     st = c.metrics["mpc"][0]
-    lines = ["## MPC with the battery in the loop (PROBLEM.md §9)", "",
+    lines = ["## MPC with the battery in the loop (model guide §9)", "",
              f"Canonical scenario: one follower behind the Table 1 leader, h(0) = 0.3, v(0) = 1.87, oracle "
              f"forecast, N = 40, dt = 0.1, w = (1, 1, 1, 0.1), t ∈ [0, {sc.t_end:g}]. Exact plant (CVODES, "
              f"unsmoothed η switch). Solver path {st.get('solver_path')} (QP {st.get('qp_solver') or '—'}): median {st.get('solve_ms_median', float('nan')):.2f} ms, "
