@@ -8,6 +8,7 @@ import io
 import json
 import math
 import os
+import re
 import runpy
 import shutil
 import subprocess
@@ -189,3 +190,21 @@ def test_the_build_hook_records_the_commit_and_never_fails(tmp_path: Path, monke
     assert info() == {"git_commit": None}
     info.__globals__["ROOT"] = tmp_path / "no_git_here"  # a copy without .git
     assert info() == {"git_commit": None}
+
+
+# ----------------------------------------------------------------------------- no silent waits
+@pytest.mark.skipif(shutil.which(os.environ.get("CC") or "gcc") is None and shutil.which("cc") is None,
+                    reason="needs a C compiler")
+def test_a_compilation_says_so_and_a_cache_hit_is_quiet(tmp_path: Path, monkeypatch, capsys) -> None:  # noqa: ANN001
+    from aev_ocp.compiled import compile_shared
+
+    cache = tmp_path / "cache"
+    cache.mkdir(mode=0o700)
+    monkeypatch.setenv("AEV_OCP_CACHE", str(cache))
+    src = "double aev_twice(double x) { return 2.5 * x; }\n"
+    assert compile_shared(src, "twice_test", "t").path is not None
+    err = capsys.readouterr().err.splitlines()
+    assert len(err) == 2 and err[0].startswith("aev_ocp: compiling twice_test with ") and str(cache) in err[0]
+    assert re.fullmatch(r"aev_ocp: compiled twice_test in \d+\.\d s", err[1])
+    assert compile_shared(src, "twice_test", "t").path is not None  # cached: nothing to wait for, nothing said
+    assert capsys.readouterr().err == ""

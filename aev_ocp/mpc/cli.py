@@ -137,6 +137,7 @@ def _cli_mpc(argv: list[str]) -> int:
     say = (lambda m: print(f"[mpc] {m}", file=sys.stderr, flush=True))  # noqa: E731
     prog = Progress("", unit="steps", time_limit_s=a.time_limit, every_s=a.progress_every, say=say)
     c = run_comparison(sc, s, laws=laws, with_ocpd=not a.no_ocpd, log=say, progress=prog)
+    say(f"writing tables, figures and the saved runs into {out} …")
     write_outputs(c, out)
     save_output(out, "mpc", c.results, primary="mpc",
                 settings=settings_of(sc, solver=s.solver, qp_solver=s.qp, codegen=s.codegen, t_end=sc.t_end,
