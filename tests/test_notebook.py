@@ -208,3 +208,25 @@ def test_a_compilation_says_so_and_a_cache_hit_is_quiet(tmp_path: Path, monkeypa
     assert re.fullmatch(r"aev_ocp: compiled twice_test in \d+\.\d s", err[1])
     assert compile_shared(src, "twice_test", "t").path is not None  # cached: nothing to wait for, nothing said
     assert capsys.readouterr().err == ""
+
+
+def test_comparison_and_safety_suite_reprs(run) -> None:  # noqa: ANN001
+    from aev_ocp.mpc.report import Comparison
+    from aev_ocp.safety.cases import suite_cases
+    from aev_ocp.safety.suite import run_suite
+
+    one = simulate_platoon(ConstantSpeed(1.3), [Proposed()], [1.1], [1.2], 3.7, ev=EVParams(units=UNITS), dt_out=0.1)
+    ms = {"proposed": [{**m, "cost_s9": 0.375} for m in one.metrics()]}
+    c = Comparison({"proposed": one}, ms, ocpd={"status": "optimal", "cost_s9": 0.3125, "role": "bound"})
+    text = repr(c)
+    assert text.splitlines()[0] == "Comparison (s9 formulation): proposed on 1 follower(s)"
+    assert f"ω {ms['proposed'][0]['omega_J_per_kg']:.4g} J/kg" in text and "cost 0.375" in text
+    assert "OCP-D: optimal, cost 0.3125 (bound)" in text and "<table>" in c._repr_html_()
+    cases = [c for c in suite_cases(quick=True) if c.family == "CCRs"][:2]
+    out = run_suite(cases, ("proposed",))
+    text = repr(out)
+    lines = text.splitlines()
+    assert lines[0] == "SuiteOutput: 2 safety cases × 1 controllers" and len(lines) == 2
+    assert lines[1].startswith(f"  proposed: {len(out.failures('proposed'))} failed of 2 cases, "
+                               f"{sum(r.collision for r in out.rows)} collisions, min gap "
+                               f"{min(r.min_gap_m for r in out.rows):.3g} m")
