@@ -422,7 +422,7 @@ class RingSimulator:
             for i in range(n):
                 pr = i - 1 if i > 0 else n - 1
                 u = ca.vertcat(Zr[1, pr], P[self.n_par * n + i])
-                cols.append(self.funcs[int(self.law_of[i])](u, Zr[:, i], P[i * self.n_par:(i + 1) * self.n_par])[0])
+                cols.append(self.funcs[int(self.law_of[i])](u, Zr[:self.nx, i], P[i * self.n_par:(i + 1) * self.n_par])[0])
             dae = {"x": Z, "p": P, "ode": ca.vertcat(*cols)}
             fn = ca.integrator("ring", "cvodes", dae, 0.0, dt, {"abstol": self.opts.atol, "reltol": self.opts.rtol,
                                                                   "max_num_steps": 10**6})
