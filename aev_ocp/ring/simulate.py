@@ -138,19 +138,22 @@ class RingRoad:
 @dataclass(frozen=True)
 class RingOptions:
     """Integration settings: tolerances, sample spacing of the output [s] (thin it for big rings), step limit
-    per integration call and the integrator (RING_METHODS)."""
+    per integration call, the integrator (RING_METHODS), ``local_factor`` (the error norm is max(ring RMS,
+    largest vehicle RMS / local_factor): 1 = every vehicle within the tolerance; big jammed rings run several
+    times faster with 30, see benchmarks/bench_ring.py) and OpenMP ``threads``."""
 
     rtol: float = 1e-8  # converged ring metrics to < 1e-5 relative (tests compare with 1e-10)
     atol: float = 1e-8
     dt_out_s: float = 0.5
     max_num_steps: int = 10_000_000
     method: str = "auto"
+    local_factor: float = 1.0  # the error norm: max(ring RMS, largest vehicle RMS / local_factor); see ring.c
     threads: int = 1  # OpenMP threads over the vehicles (rings of >= 256 vehicles); 1 on a shared machine
 
     def __post_init__(self) -> None:
         if not (isinstance(self.threads, int) and not isinstance(self.threads, bool) and 1 <= self.threads <= 256):
             raise ParameterError(f"RingOptions.threads = {self.threads!r} is not allowed: must be an integer in [1, 256]")
-        for name in ("rtol", "atol", "dt_out_s"):
+        for name in ("rtol", "atol", "dt_out_s", "local_factor"):
             x = getattr(self, name)
             if not (isinstance(x, (int, float)) and math.isfinite(x) and x > 0):
                 raise ParameterError(f"RingOptions.{name} = {x!r} is not allowed: must be a finite number > 0")
@@ -380,7 +383,8 @@ class RingSimulator:
         head = (f"#define SZ_ARG {max(3, *(f.sz_arg() for f in fs))}\n#define SZ_RES {max(2, *(f.sz_res() for f in fs))}\n"
                 f"#define SZ_IW {max(f.sz_iw() for f in fs)}\n#define SZ_W {max(f.sz_w() for f in fs)}\n"
                 f"#define NX {self.nx}\n#define NCTRL {2 + int(self.nx > 5)}\n#define NQ {self.nq}\n#define NY {self.ny}\n#define BATTERY 1\n"
-                f"#define AEV_NP {self.n_par}\n#define SPEED_FLOOR {int(self.ev.limits.enabled)}\n")
+                f"#define AEV_NP {self.n_par}\n#define SPEED_FLOOR {int(self.ev.limits.enabled)}\n"
+                f"#define LOCAL_FACTOR {float(self.opts.local_factor)!r}\n")
         head += "#define AEV_LAW_SWITCH " + " ".join(
             f"case {k}: return aevring_law{k}(c->arg, c->res, c->iw, c->w, 0);" for k in range(len(fs))) + "\n"
         head += event_header()
