@@ -45,7 +45,7 @@ def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--sizes", type=int, nargs="+", default=[22, 1000, 10000])
     p.add_argument("--t-end-s", type=float, default=600.0)
-    p.add_argument("--threads", type=int, default=2)
+    p.add_argument("--threads", type=int, default=1)  # 2 only on an idle machine: OpenMP barriers stall when the cores are shared
     p.add_argument("--out", default="results/bench_ring.json")
     a = p.parse_args()
     rows = []

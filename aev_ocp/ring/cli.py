@@ -84,10 +84,10 @@ def cli_ring(argv: list[str]) -> int:
             runs = []
             for L in lengths:
                 base = human_ring(L, seed=a.seed)
-                r = 0.85 * uniform_speed_mps(base)
+                r_mps = 0.85 * uniform_speed_mps(base)
                 for k in pens:
                     idx = sorted({int(round(j * 22 / k)) for j in range(k)}) if k else []
-                    ring = human_ring(L, aevs={i: make_aev(a.aev, base.ev, r) for i in idx}, seed=a.seed)
+                    ring = human_ring(L, aevs={i: make_aev(a.aev, base.ev, r_mps) for i in idx}, seed=a.seed)
                     runs.append(run_ring(ring, a.t_end_s, label=f"L={L:g} m, {k} AEV"))
                     runs[-1].fleet.update({"length_m": L, "density_per_km": ring.density_per_km, "aevs": k})
         out.mkdir(parents=True, exist_ok=True)

@@ -93,7 +93,8 @@ class FollowerStopper(CarFollowingLaw):
         """From SI (defaults: Stern et al. 2018 §3.1; r_mps the desired speed [m/s])."""
         lx = [float(units.length_from_si(x)) for x in dx0_m]
         dd = [float(units.accel_from_si(x)) for x in d_mps2]
-        return cls(float(units.speed_from_si(r_mps)), *lx, *dd, float(units.time_from_si(tau_s)))
+        return cls(r=float(units.speed_from_si(r_mps)), dx1=lx[0], dx2=lx[1], dx3=lx[2], d1=dd[0], d2=dd[1], d3=dd[2],
+                   tau=float(units.time_from_si(tau_s)))
 
     def accel(self, h: Any, v: Any, v_l: Any) -> Any:
         vc = follower_stopper_speed(h, v, v_l, self.r, (self.dx1, self.dx2, self.dx3), (self.d1, self.d2, self.d3))

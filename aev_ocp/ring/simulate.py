@@ -110,8 +110,8 @@ class RingRoad:
                                      f"got {type(c).__name__}")
         if self.human is not None:
             object.__setattr__(self, "human", tuple(bool(x) for x in self.human))
-            if len(self.human) != n:  # type: ignore[arg-type]
-                raise ParameterError(f"ring: human needs {n} flags (one per vehicle), got {len(self.human)}")  # type: ignore[arg-type]
+            if len(self.human) != n:
+                raise ParameterError(f"ring: human needs {n} flags (one per vehicle), got {len(self.human)}")
 
     @property
     def n(self) -> int:
@@ -220,7 +220,7 @@ def uniform_flow(ring: RingRoad, speed_mps: float | None = None, shift_m: float 
     return RingInitial(tuple(x), tuple(vs), soc0, what)
 
 
-def gaps_from_positions(ring: RingRoad, positions_m: Sequence[float]) -> np.ndarray:
+def gaps_from_positions(ring: RingRoad, positions_m: Sequence[float] | np.ndarray) -> np.ndarray:
     """Bumper-to-bumper gaps [m] of every vehicle to its predecessor on the ring."""
     x = np.asarray(positions_m, float)
     return (np.roll(x, 1) - x) % ring.length_m - ring.vehicle_length_m
@@ -587,10 +587,10 @@ class RingSimulator:
                     + q["distance"][:, -1])
         names = [getattr(c, "name", type(c).__name__) for c in self.ring.vehicles]
         settings = [c.describe() for c in self.ring.vehicles]
-        solver = [None] * n
+        solver: list[dict[str, Any] | None] = [None] * n
         for i, st in ctrl_stats.items():
             call = np.asarray(st["call"]) * 1e3
-            solver[i] = {"steps": len(call), "call_ms_median": float(np.median(call)) if call.size else math.nan,  # type: ignore[call-overload]
+            solver[i] = {"steps": len(call), "call_ms_median": float(np.median(call)) if call.size else math.nan,
                          "call_ms_max": float(np.max(call)) if call.size else math.nan,
                          "fallbacks": int(sum(1 for ok in st["ok"] if not ok))}
         sim = SimulationResult(

@@ -178,7 +178,7 @@ def ring_jacobian(law: CarFollowingLaw, n: int, length_m: float, vehicle_length_
             rhs_a.append((f - A[i]) / tau)
         else:
             rhs_v.append(f)
-    x = ca.vertcat(H, V, *( [A] if lag else []))
+    x = ca.vertcat(H, V, A) if A is not None else ca.vertcat(H, V)
     J = ca.Function("J", [x], [ca.jacobian(ca.vertcat(*rhs_h, *rhs_v, *rhs_a), x)])
     x0 = np.concatenate([np.full(n, h0), np.full(n, v0)] + ([np.zeros(n)] if lag else []))
     return np.asarray(J(x0)) / u.time_s
