@@ -15,9 +15,9 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from ..cli import EXIT_BAD_INPUT, EXIT_FAILED_RUN, EXIT_OK
-from ..cli import OneLineParser as _Parser
-from ..cli import error_line as _err
+from ..console import EXIT_BAD_INPUT, EXIT_FAILED_RUN, EXIT_OK
+from ..console import OneLineParser as _Parser
+from ..console import error_line as _err
 from ..params import ParameterError
 
 COLUMNS = ("speed_std_mps", "mean_speed_mps", "vehicles_stopped", "braking_events", "energy_J_per_km",
