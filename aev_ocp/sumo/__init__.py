@@ -56,4 +56,11 @@ def sumo_binary(tool: str) -> str:
     return path
 
 
-__all__ = ["INSTALL_HINT", "SumoError", "require_sumo", "sumo_available", "sumo_binary"]
+def cli_sumo(argv: list[str]) -> int:
+    """``aev-ocp sumo …`` (see :mod:`aev_ocp.sumo.cli`)."""
+    from .cli import cli_sumo as run
+
+    return run(argv)
+
+
+__all__ = ["cli_sumo", "INSTALL_HINT", "SumoError", "require_sumo", "sumo_available", "sumo_binary"]
