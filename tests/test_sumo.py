@@ -74,8 +74,9 @@ def test_ring_converges_to_the_ring_ode_at_first_order():
         t, V = _ring_speeds(run, RING.vehicles)
         keep = t <= T + 1e-9
         errs.append(float(np.max(np.abs(V[:, keep] - sol.sol(t[keep])[RING.vehicles:]))))
+    print("max speed difference [m/s] at dt = 0.1, 0.05, 0.025 s:", errs)
     assert errs[0] / errs[1] >= 1.8 and errs[1] / errs[2] >= 1.8, errs
-    assert errs[2] < 0.1, errs  # m/s, at dt = 0.025 s
+    assert errs[2] < 0.09, errs  # m/s, at dt = 0.025 s (measured 0.068: 0.43, 0.15, 0.068 at the three steps)
 
 
 @needs_sumo
@@ -238,6 +239,8 @@ def test_merge_vehicles_leave_the_network_and_save_load(tmp_path):
 @needs_sumo
 def test_ctrl_c_closes_sumo():
     """An interrupt inside the loop leaves run_sumo with SUMO closed: the next run in the same process starts."""
+    import libsumo
+
     from aev_ocp.sumo.run import run_sumo
 
     def stop(t: float, t_end: float) -> None:
@@ -245,6 +248,7 @@ def test_ctrl_c_closes_sumo():
 
     with pytest.raises(KeyboardInterrupt):
         run_sumo(parse_sumo_scenario(_ring_doc(0.1, 5.0)), progress=stop)
+    assert not libsumo.simulation.isLoaded()
     assert run_sumo(parse_sumo_scenario(_ring_doc(0.1, 1.0))).steps == 10
 
 
