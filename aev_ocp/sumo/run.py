@@ -112,6 +112,7 @@ class SumoRun:
     offsets_m: dict[str, float] = field(default_factory=dict)
     ring_length_m: float | None = None
     interrupted: bool = False
+    build_s: float = 0.0
 
     @property
     def realtime_factor(self) -> float:
@@ -324,9 +325,11 @@ def _loop(ts: Any, sc: SumoScenario, progress: ProgressFn | None) -> SumoRun:
     min_gaps: dict[str, float] = {}
     ring = s.ring if s.network == "ring" else None
     offsets: dict[str, float] = {}
+    lane_ends: dict[tuple[str, int, str], float | None] = {}
     V = ts.vehicle
     t0 = time.perf_counter()
     t_ctrl = 0.0
+    t_build = 0.0  # building sampled controllers (an MPC builds its NLP once per vehicle)
     k = 0
     K = int(round(s.t_end_s / dt))
     next_progress = 1.0
@@ -365,8 +368,10 @@ def _loop(ts: Any, sc: SumoScenario, progress: ProgressFn | None) -> SumoRun:
                         tr.law, tr.controller = law, law.name
                     else:
                         assert factory is not None
+                        tb = time.perf_counter()
                         tr.ctrl = factory()
                         tr.ctrl.reset()
+                        t_build += time.perf_counter() - tb
                         tr.controller = tr.ctrl.name
                         ctrl_every = max(1, int(round(tr.ctrl.dt * u.time_s / dt)))
                 else:
@@ -409,7 +414,7 @@ def _loop(ts: Any, sc: SumoScenario, progress: ProgressFn | None) -> SumoRun:
                 else:
                     g, vl = math.nan, math.nan
                 if tr.controlled:  # a lane that ends (no continuation on the route) is a standing obstacle
-                    left = _lane_end_m(V, vid)
+                    left = _lane_end_m(V, vid, tr.route, lane_ends)
                     if left is not None and left < s.lookahead_m and not (g <= left):
                         g, vl = left, 0.0
                 tr.t_s.append(t_s)
@@ -476,17 +481,21 @@ def _loop(ts: Any, sc: SumoScenario, progress: ProgressFn | None) -> SumoRun:
         vehicles[tr.vid] = _result(tr, ev, s.lookahead_m, dt, s.record_every)
         controlled[tr.vid] = tr.controlled
     return SumoRun(sc.name, sc, vehicles, controlled, fleet_events, k * dt, dt, k, wall, t_ctrl,
-                   {v: offsets[v] for v in vehicles}, ring.length_m if ring is not None else None, interrupted)
+                   {v: offsets[v] for v in vehicles}, ring.length_m if ring is not None else None, interrupted,
+                   t_build)
 
 
-def _lane_end_m(V: Any, vid: str) -> float | None:
+def _lane_end_m(V: Any, vid: str, route: str, cache: dict[tuple[str, int, str], float | None]) -> float | None:
     """Distance [m] from the vehicle's front to the end of the lane sequence it can drive without changing lanes,
-    when its route goes on beyond (a merge lane ending), else None."""
+    when its route goes on beyond (a merge lane ending), else None. SUMO's best-lane length counts from the lane's
+    start, so it is cached per (route, route index, lane)."""
     lane = V.getLaneID(vid)
-    for b in V.getBestLanes(vid):
-        if b[0] == lane:
-            return float(b[1]) - V.getLanePosition(vid) if _route_goes_on(V, vid, b) else None
-    return None
+    key = (route, V.getRouteIndex(vid), lane)
+    if key not in cache:
+        b = next((b for b in V.getBestLanes(vid) if b[0] == lane), None)
+        cache[key] = float(b[1]) if b is not None and _route_goes_on(V, vid, b) else None
+    end = cache[key]
+    return None if end is None else end - V.getLanePosition(vid)
 
 
 def _route_goes_on(V: Any, vid: str, best: Any) -> bool:
@@ -583,7 +592,7 @@ def _result(tr: _Track, ev: EVParams, lookahead_m: float, dt: float, every: int)
     events = tr.events[:1]
     meta = {"sumo_id": tr.vid, "vtype": tr.vtype, "route": tr.route, "controlled": tr.controlled,
             "depart_s": tr.depart_s, "end": tr.end or "running", "end_s": tr.end_s, "step_s": dt,
-            "lookahead_m": lookahead_m, "lanes": sorted(set(tr.lane)),
+            "lookahead_m": lookahead_m, "lanes": sorted(set(tr.lane)), "call_s_total": float(sum(tr.rec["call"])),
             "controllers": [tr.ctrl.describe() if tr.ctrl is not None else
                             (tr.law.describe() if tr.law is not None else {"controller": "sumo", "vtype": tr.vtype})]}
     return SimulationResult(
