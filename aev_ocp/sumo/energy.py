@@ -10,6 +10,7 @@ is O((dt/τ)^5)), and ω = ∫ v g(a) dt is exact for the constant a: g(a) (v0 +
 from __future__ import annotations
 
 from functools import lru_cache
+from typing import Any
 
 import casadi as ca
 import numpy as np
@@ -30,7 +31,7 @@ def battery_step(ev: EVParams) -> ca.Function:
     v0, a, dt = ca.SX.sym("v0"), ca.SX.sym("a"), ca.SX.sym("dt_s")
     T = ev.units.time_s
 
-    def rhs(t_s: ca.SX, y: ca.SX) -> tuple[ca.SX, ca.SX, ca.SX]:
+    def rhs(t_s: Any, y: ca.SX) -> tuple[ca.SX, ca.SX, ca.SX]:
         b = battery_side(v0 + a * t_s / T, a, y[0], y[1], y[2], ev)
         return ca.vertcat(b["dV1"], b["dV2"], b["dS"], b["Q_pack"], b["Q_irr_pack"]), b["I"], b["disc"]
 

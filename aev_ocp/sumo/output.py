@@ -119,7 +119,7 @@ def plot_space_time(run: SumoRun) -> dict[str, Any]:
                 seg, vv = seg[keep], v[:-1][keep]
             else:
                 vv = v[:-1]
-            lc = LineCollection(seg, cmap="viridis", norm=plt.Normalize(0, vmax),
+            lc = LineCollection(list(seg), cmap="viridis", norm=plt.Normalize(0, vmax),
                                 linewidths=1.8 if run.controlled.get(vid) else 0.6)
             lc.set_array(vv)
             ax.add_collection(lc)
