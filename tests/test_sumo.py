@@ -124,7 +124,7 @@ def test_battery_on_sumo_motion_matches_the_plant():
 @settings(max_examples=60, deadline=None)
 def test_share_selection_is_reproducible_and_nested(ids, s1, s2):
     lo, hi = sorted((s1, s2))
-    sc = lambda s: parse_sumo_scenario({"sumo": {"network": "ring", "t_end_s": 10.0, "share": s, "seed": 7}})  # noqa: E731
+    sc = lambda s: parse_sumo_scenario({"sumo": {"network": "merge", "t_end_s": 10.0, "share": s, "seed": 7}})  # noqa: E731
     a, b = sc(lo), sc(hi)
     sel_lo = {i for i in ids if is_controlled(i, "t", a)}
     sel_hi = {i for i in ids if is_controlled(i, "t", b)}
@@ -133,12 +133,16 @@ def test_share_selection_is_reproducible_and_nested(ids, s1, s2):
 
 
 def test_share_selection_draws_the_share():
-    sc = parse_sumo_scenario({"sumo": {"network": "ring", "t_end_s": 10.0, "share": 0.3, "seed": 3}})
+    sc = parse_sumo_scenario({"sumo": {"network": "merge", "t_end_s": 10.0, "share": 0.3, "seed": 3}})
     n = sum(is_controlled(f"flow.{k}", "t", sc) for k in range(4000))
     assert abs(n / 4000 - 0.3) < 4 * math.sqrt(0.3 * 0.7 / 4000)  # 4 sigma
     by_id = parse_sumo_scenario({"sumo": {"network": "ring", "t_end_s": 10.0, "ids": ["x.1"], "vtypes": ["aev"]}})
     assert is_controlled("x.1", "car", by_id) and is_controlled("y", "aev", by_id)
     assert not is_controlled("y", "car", by_id)
+    ring = lambda s: {f"ring.{i}" for i in range(22) if is_controlled(f"ring.{i}", "t",  # noqa: E731
+                      parse_sumo_scenario({"sumo": {"network": "ring", "t_end_s": 1.0, "share": s}}))}
+    assert [len(ring(s)) for s in (0.05, 0.25, 0.5, 1.0)] == [1, 6, 11, 22]  # round(share · 22) on the ring
+    assert ring(0.05) <= ring(0.25) <= ring(0.5)
 
 
 @pytest.mark.parametrize("sumo, key", [({"network": "ring", "t_end_s": 10.0, "share": 1.3}, "sumo.share"),

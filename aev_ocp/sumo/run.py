@@ -28,6 +28,7 @@ import tempfile
 import time
 from collections import deque
 from dataclasses import dataclass, field
+from functools import lru_cache
 from pathlib import Path
 from typing import Any, Callable
 
@@ -47,16 +48,31 @@ ProgressFn = Callable[[float, float], None]
 MEASUREMENT_WINDOW = 100  # leader-speed samples a controller keeps (the MPC's predictors use the last few)
 
 
+def _draw(seed: int, vid: str) -> float:
+    """A uniform number in [0, 1) from a hash of (seed, vehicle id): the same for the same seed and id."""
+    return int.from_bytes(hashlib.sha256(f"{seed}:{vid}".encode()).digest()[:8], "big") / 2.0**64
+
+
 def is_controlled(vid: str, vtype: str, scenario: SumoScenario) -> bool:
-    """Whether the toolkit drives vehicle ``vid`` of type ``vtype``: listed by id or type, or drawn with probability
-    ``share`` by a hash of (seed, id) — the same vehicles for the same seed, and a larger share a superset."""
+    """Whether the toolkit drives vehicle ``vid`` of type ``vtype``: listed by id or type, or drawn by ``share``.
+
+    Flows (vehicles not known in advance): each vehicle with probability ``share``, drawn by a hash of (seed, id).
+    The shipped ring (its n cars known): exactly round(share·n) cars, those with the smallest draws. Either way the
+    same vehicles for the same seed, and a larger share controls a superset."""
     s = scenario.spec
     if vid in s.ids or vtype in s.vtypes:
         return True
     if s.share <= 0:
         return False
-    u = int.from_bytes(hashlib.sha256(f"{s.seed}:{vid}".encode()).digest()[:8], "big") / 2.0**64
-    return u < s.share
+    if s.network == "ring" and s.ring is not None:
+        return vid in _ring_selection(s.seed, s.ring.vehicles, s.share)
+    return _draw(s.seed, vid) < s.share
+
+
+@lru_cache(maxsize=64)
+def _ring_selection(seed: int, n: int, share: float) -> frozenset[str]:
+    ids = sorted((f"ring.{i}" for i in range(n)), key=lambda v: _draw(seed, v))
+    return frozenset(ids[:int(round(share * n))])
 
 
 @dataclass

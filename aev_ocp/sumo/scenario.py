@@ -9,8 +9,9 @@ Top level: ``name``, ``description``; the vehicle tables every scenario knows (`
   scenario file;
 * ``t_end_s`` [s] and ``step_s`` [s] (default 0.1 s, SUMO's own default step);
 * which vehicles the toolkit controls: ``ids`` (vehicle ids), ``vtypes`` (vehicle types) and/or ``share`` (each
-  vehicle is controlled with probability ``share``, decided by a hash of ``seed`` and its id: reproducible, and a
-  larger share controls a superset); none of them: SUMO drives everything (the baseline);
+  vehicle of a flow is controlled with probability ``share``, decided by a hash of ``seed`` and its id; on the
+  shipped ring exactly round(share × cars) cars: reproducible, and a larger share controls a superset); none of
+  them: SUMO drives everything (the baseline);
 * ``controller``: a car-following law by name (``proposed``, ``ovfl``, ``ovm``, ``idm``, …), ``"mpc"`` (the MPC with
   a measured forecast, settings from ``[mpc]``), or ``"module:function"`` (``function(ev)`` returns a new
   :class:`aev_ocp.control.Controller` for one vehicle);
