@@ -205,7 +205,7 @@ def parse_sumo_scenario(doc: dict[str, Any], file: str = "<sumo scenario>", sour
             from ..mpc.scenario import MPCConfig
             from ..mpc.settings import MPCSettings
 
-            # the MPC's own default interval, 0.2 s (PROBLEM.md §9), rounded to whole SUMO steps
+            # the MPC settings' default interval, 0.2 s at the default units, rounded to whole SUMO steps
             mpc = MPCConfig(MPCSettings(dt=max(1, round(0.2 / spec.step_s)) * spec.step_s / ev.units.time_s))
         k = mpc.settings.dt * ev.units.time_s / spec.step_s
         if abs(k - round(k)) > 1e-9 or round(k) < 1:
