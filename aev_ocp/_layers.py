@@ -19,7 +19,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
     ("physics", (
         "aev_ocp.models", "aev_ocp.models.actuator", "aev_ocp.models.battery", "aev_ocp.models.carfollowing",
         "aev_ocp.models.ego", "aev_ocp.models.energy", "aev_ocp.models.leader", "aev_ocp.models.powertrain",
-        "aev_ocp.models.vehicle", "aev_ocp.reference", "aev_ocp.safety.kinematics",
+        "aev_ocp.models.vehicle", "aev_ocp.reference", "aev_ocp.safety.kinematics", "aev_ocp.sumo.energy",
     )),
     ("results", (
         "aev_ocp.results", "aev_ocp.metrics", "aev_ocp.truncation", "aev_ocp.ocp.result",
@@ -43,7 +43,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
     )),
     ("configuration", (
         "aev_ocp.scenarios", "aev_ocp.overrides", "aev_ocp.mpc.scenario", "aev_ocp.safety.cases",
-        "aev_ocp.study.spec",
+        "aev_ocp.study.spec", "aev_ocp.sumo", "aev_ocp.sumo.networks", "aev_ocp.sumo.scenario",
     )),
     ("outputs", (
         "aev_ocp.plots", "aev_ocp.ocp_plots", "aev_ocp.mpc.plots", "aev_ocp.stability.plots", "aev_ocp.report",
@@ -56,12 +56,12 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
         "aev_ocp.stability.api", "aev_ocp.stability.report",
         "aev_ocp.safety.suite", "aev_ocp.safety.report", "aev_ocp.safety.section",
         "aev_ocp.study", "aev_ocp.study.runner", "aev_ocp.study.report",
-        "aev_ocp.ring.experiments",
+        "aev_ocp.ring.experiments", "aev_ocp.sumo.run", "aev_ocp.sumo.output",
     )),
     ("entry points", (
         "aev_ocp", "aev_ocp.console", "aev_ocp.reproduce", "aev_ocp.cli", "aev_ocp.ocp.cli", "aev_ocp.mpc.cli",
         "aev_ocp.mpc.export", "aev_ocp.stability.cli", "aev_ocp.safety.cli", "aev_ocp.study.cli",
-        "aev_ocp.ring.cli",
+        "aev_ocp.ring.cli", "aev_ocp.sumo.cli",
     )),
 )
 
