@@ -19,13 +19,13 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
     ("physics", (
         "aev_ocp.models", "aev_ocp.models.actuator", "aev_ocp.models.battery", "aev_ocp.models.carfollowing",
         "aev_ocp.models.ego", "aev_ocp.models.energy", "aev_ocp.models.leader", "aev_ocp.models.powertrain",
-        "aev_ocp.models.vehicle", "aev_ocp.reference", "aev_ocp.safety.kinematics",
+        "aev_ocp.models.vehicle", "aev_ocp.reference", "aev_ocp.safety.kinematics", "aev_ocp.sumo.energy",
     )),
     ("results", (
         "aev_ocp.results", "aev_ocp.metrics", "aev_ocp.truncation", "aev_ocp.ocp.result",
     )),
     ("plant and closed loop", (
-        "aev_ocp.plant", "aev_ocp.control", "aev_ocp.simulate",
+        "aev_ocp.plant", "aev_ocp.control", "aev_ocp.simulate", "aev_ocp.ring.simulate",
     )),
     ("problem description", (
         "aev_ocp.ocp.problem", "aev_ocp.ocp.following", "aev_ocp.ocp.formulation", "aev_ocp.ocp.traffic",
@@ -39,14 +39,15 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
         "aev_ocp.safety", "aev_ocp.safety.fallback",
         "aev_ocp.stability", "aev_ocp.stability.linear", "aev_ocp.stability.perturbation",
         "aev_ocp.stability.measure",
+        "aev_ocp.ring", "aev_ocp.ring.laws", "aev_ocp.ring.stability",
     )),
     ("configuration", (
         "aev_ocp.scenarios", "aev_ocp.overrides", "aev_ocp.mpc.scenario", "aev_ocp.safety.cases",
-        "aev_ocp.study.spec",
+        "aev_ocp.study.spec", "aev_ocp.sumo", "aev_ocp.sumo.networks", "aev_ocp.sumo.scenario",
     )),
     ("outputs", (
         "aev_ocp.plots", "aev_ocp.ocp_plots", "aev_ocp.mpc.plots", "aev_ocp.stability.plots", "aev_ocp.report",
-        "aev_ocp.report_html", "aev_ocp.saved", "aev_ocp.study.table",
+        "aev_ocp.report_html", "aev_ocp.saved", "aev_ocp.study.table", "aev_ocp.ring.plots",
     )),
     ("applications", (
         "aev_ocp.report_sections", "aev_ocp.claims", "aev_ocp.table1_hypotheses",
@@ -55,10 +56,12 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
         "aev_ocp.stability.api", "aev_ocp.stability.report",
         "aev_ocp.safety.suite", "aev_ocp.safety.report", "aev_ocp.safety.section",
         "aev_ocp.study", "aev_ocp.study.runner", "aev_ocp.study.report",
+        "aev_ocp.ring.experiments", "aev_ocp.sumo.run", "aev_ocp.sumo.output",
     )),
     ("entry points", (
         "aev_ocp", "aev_ocp.console", "aev_ocp.reproduce", "aev_ocp.cli", "aev_ocp.ocp.cli", "aev_ocp.mpc.cli",
         "aev_ocp.mpc.export", "aev_ocp.stability.cli", "aev_ocp.safety.cli", "aev_ocp.study.cli",
+        "aev_ocp.ring.cli", "aev_ocp.sumo.cli",
     )),
 )
 
@@ -69,3 +72,12 @@ def layer_of(module: str) -> int:
         if module in modules:
             return i
     raise KeyError(f"{module} is in no layer of aev_ocp._layers.LAYERS; add it to one")
+
+
+def markdown_rows() -> list[str]:
+    """The table's rows as docs/guide/layers.md writes them (``| # | layer | modules |``)."""
+    return [f"| {i} | {name} | " + ", ".join(f"`{m}`" for m in mods) + " |" for i, (name, mods) in enumerate(LAYERS)]
+
+
+if __name__ == "__main__":  # python -m aev_ocp._layers: the rows to paste into docs/guide/layers.md
+    print("\n".join(markdown_rows()))
