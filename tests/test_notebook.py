@@ -230,3 +230,16 @@ def test_comparison_and_safety_suite_reprs(run) -> None:  # noqa: ANN001
     assert lines[1].startswith(f"  proposed: {len(out.failures('proposed'))} failed of 2 cases, "
                                f"{sum(r.collision for r in out.rows)} collisions, min gap "
                                f"{min(r.min_gap_m for r in out.rows):.3g} m")
+
+
+def test_ring_result_repr() -> None:
+    from aev_ocp.ring.experiments import human_ring, run_ring
+
+    res = run_ring(human_ring(230.0, 7, seed=3), 12.5).result
+    lines = repr(res).splitlines()
+    v = res.speed_mps[res.speed_mps.shape[0] // 2:]
+    assert lines[0] == f"RingResult: 7 vehicles (0 AEV) on 230 m, status {res.status}"
+    assert lines[1] == f"  duration_s {float(res.t_s[-1]):.4g}, samples {res.t_s.size}"
+    assert lines[2] == (f"  mean speed, second half [m/s] {v.mean():.4g}, speed std, second half [m/s] {v.std():.4g}, "
+                        f"min gap [m] {res.gap_m.min():.4g}")
+    assert "<table>" in res._repr_html_()
