@@ -13,16 +13,16 @@ from __future__ import annotations
 #: The layers from the bottom up: (name, modules). Every module of ``aev_ocp`` is in exactly one.
 LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
     ("foundation", (
-        "aev_ocp._layers", "aev_ocp._version", "aev_ocp.params", "aev_ocp.numerics", "aev_ocp.compiled",
+        "aev_ocp._layers", "aev_ocp._version", "aev_ocp.params", "aev_ocp.numerics", "aev_ocp.compiled", "aev_ocp.cells",
         "aev_ocp.limits", "aev_ocp.progress", "aev_ocp.provenance", "aev_ocp.interrupts",
     )),
     ("physics", (
         "aev_ocp.models", "aev_ocp.models.actuator", "aev_ocp.models.battery", "aev_ocp.models.carfollowing",
         "aev_ocp.models.ego", "aev_ocp.models.energy", "aev_ocp.models.leader", "aev_ocp.models.powertrain",
-        "aev_ocp.models.vehicle", "aev_ocp.reference", "aev_ocp.safety.kinematics",
+        "aev_ocp.models.vehicle", "aev_ocp.models.thermal", "aev_ocp.reference", "aev_ocp.safety.kinematics",
     )),
     ("results", (
-        "aev_ocp.results", "aev_ocp.metrics", "aev_ocp.truncation", "aev_ocp.ocp.result",
+        "aev_ocp.results", "aev_ocp.metrics", "aev_ocp.truncation", "aev_ocp.ocp.result", "aev_ocp.life",
     )),
     ("plant and closed loop", (
         "aev_ocp.plant", "aev_ocp.control", "aev_ocp.simulate",

@@ -1,0 +1,122 @@
+"""Lumped pack thermal model (aev_ocp.models.thermal) in the model, the plant and the metrics."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import casadi as ca
+import numpy as np
+import pytest
+
+from aev_ocp.metrics import vehicle_metrics
+from aev_ocp.models import battery, thermal
+from aev_ocp.models.carfollowing import make_law
+from aev_ocp.models.leader import ConstantSpeed
+from aev_ocp.params import (CarFollowingParams, CellParams, EVParams, PackParams, ParameterError, SimOptions,
+                            ThermalParams)
+from aev_ocp.plant import Plant
+from aev_ocp.simulate import simulate_platoon
+
+CELL = CellParams(heat_capacity_JpK=71.3, surface_area_m2=5.9e-3)
+PACK = PackParams(n_series=7, n_parallel=3)
+TH = ThermalParams(enabled=True, ambient_K=301.7, h_Wpm2K=37.3)
+
+
+def test_constant_heat_load_matches_closed_form_to_1e9() -> None:
+    """C dT/dt = Q − hA (T − T_amb), Q constant, T(0) = T_amb: T = T_amb + Q/hA (1 − e^{−t hA/C}) to 1e-9 K."""
+    Q = 123.45  # W per pack
+    C = PACK.n_cells * CELL.heat_capacity_JpK
+    hA = PACK.n_cells * TH.h_Wpm2K * CELL.surface_area_m2
+    T = ca.SX.sym("T")
+    ts = np.linspace(0.0, 3 * C / hA, 31)
+    F = ca.integrator("th", "cvodes", {"x": T, "ode": thermal.temperature_rate_Kps(T, Q, CELL, PACK, TH)}, 0.0,
+                      ts[1:], {"abstol": 1e-12, "reltol": 1e-14})
+    num = np.concatenate([[TH.ambient_K], np.asarray(F(x0=TH.ambient_K)["xf"]).ravel()])
+    exact = TH.ambient_K + Q / hA * (1 - np.exp(-ts * hA / C))
+    assert np.max(np.abs(num - exact)) < 1e-9
+    assert np.max(np.abs(thermal.step_response_K(ts, Q, CELL, PACK, TH) - exact)) < 1e-9
+    assert exact[-1] - TH.ambient_K > 0.9 * Q / hA  # three time constants: 95 % of the rise
+
+
+def test_plant_standing_pack_with_cooling_matches_closed_form() -> None:
+    """A vehicle at standstill draws no current (Q_irr = 0); with cooling power P and T(0) ≠ T_amb the plant's
+    temperature is T_∞ + (T0 − T_∞) e^{−t/τ}, T_∞ = T_amb − P/hA, to 1e-9 K."""
+    th = dataclasses.replace(TH, cooling_power_W=17.5, T0_K=309.2)
+    ev = EVParams(cell=CELL, pack=PACK, thermal=th)
+    plant = Plant(ConstantSpeed(0.0), [None], ev, rtol=1e-13, atol=1e-12, samples=20)
+    x0 = plant.initial_state([1.7], [0.0])
+    assert x0.size == 6 and x0[5] == pytest.approx(309.2)
+    out: tuple[list, list, list, list] = ([np.array([0.0])], [x0[:, None]], [np.zeros((plant.nq, 1))],
+                                          [plant.samples(np.array([0.0]), x0[:, None], np.zeros(1))])
+    t_end = 600.0 / ev.units.time_s  # 600 s
+    assert plant.advance(0.0, t_end, x0, np.zeros(plant.nq), np.zeros(1), out, [])
+    t_s = np.concatenate(out[0]) * ev.units.time_s
+    T = np.concatenate(out[1], axis=1)[5]
+    hA = PACK.n_cells * th.h_Wpm2K * CELL.surface_area_m2
+    tau = PACK.n_cells * CELL.heat_capacity_JpK / hA
+    T_inf = th.ambient_K - 17.5 / hA
+    assert np.max(np.abs(T - (T_inf + (309.2 - T_inf) * np.exp(-t_s / tau)))) < 1e-9
+
+
+def _drive(th: ThermalParams, cell: CellParams = CELL, method: str = "auto"):
+    ev = EVParams(cell=cell, pack=PackParams(n_series=96, n_parallel=31), thermal=th)
+    law = make_law("ovfl", CarFollowingParams())
+    return simulate_platoon(ConstantSpeed(1.7), [law, law], [1.3, 0.6], [0.4, 1.9], 12.0, ev=ev,
+                            dt_out=0.005, rtol=1e-11, atol=1e-11, method=method)
+
+
+def test_driving_pack_energy_balance_with_arrhenius() -> None:
+    """C (T(t) − T0) = ∫Q_irr − hA ∫(T − T_amb) − P t along a drive (temperature-dependent resistances on):
+    the temperature state is driven by exactly the plant's dissipated heat."""
+    cell = dataclasses.replace(CELL, activation_energy_Jpmol=2.37e4, T_ref_K=296.0)
+    th = dataclasses.replace(TH, cooling_power_W=3.1, T0_K=305.0)
+    r = _drive(th, cell)
+    assert r.status == "ok" and r.meta.get("plant", "").startswith("cvodes")
+    ev = r.ev
+    t_s = ev.units.time_to_si(r.t)
+    C = thermal.heat_capacity_JpK(cell, ev.pack)
+    hA = thermal.conductance_WpK(cell, ev.pack, th)
+    for i in range(2):
+        T = r.temperature_K[:, i]
+        lhs = C * (T[-1] - T[0])
+        rhs = r.heat_irr_J[-1, i] - hA * np.trapezoid(T - th.ambient_K, t_s) - th.cooling_power_W * t_s[-1]
+        assert lhs == pytest.approx(rhs, rel=1e-6, abs=1e-6 * r.heat_irr_J[-1, i])
+        m = vehicle_metrics(r, i)
+        assert m["peak_temperature_K"] == pytest.approx(np.max(T))
+        assert m["time_above_T_max_s"] == 0.0
+
+
+def test_arrhenius_resistances() -> None:
+    cell = dataclasses.replace(CELL, activation_energy_Jpmol=3.1e4, T_ref_K=296.0)
+    hot = battery.cell_at(cell, 318.4)
+    f = math.exp(3.1e4 / 8.314462618 * (1 / 318.4 - 1 / 296.0))
+    assert hot.R_s_ohm == pytest.approx(cell.R_s_ohm * f, rel=1e-14) and f < 1  # hotter: lower resistance
+    assert hot.R2_ohm == pytest.approx(cell.R2_ohm * f, rel=1e-14) and hot.C1_F == cell.C1_F
+    assert battery.cell_at(cell, 296.0).R1_ohm == pytest.approx(cell.R1_ohm, rel=1e-15)
+    assert battery.cell_at(CELL, 318.4) is CELL  # no activation energy: the cell itself
+
+
+def test_thermal_off_changes_nothing() -> None:
+    r = _drive(ThermalParams())
+    assert r.temperature_K is None and "peak_temperature_K" not in vehicle_metrics(r, 0)
+
+
+def test_cascade_refuses_thermal() -> None:
+    with pytest.raises(ParameterError, match="thermal"):
+        _drive(TH, method="cascade")
+
+
+def test_temperature_metrics_by_hand() -> None:
+    t = np.array([0.0, 10.0, 20.0, 30.0])
+    T = np.array([300.0, 320.0, 300.0, 300.0])
+    m = thermal.temperature_metrics(t, T, 310.0)
+    assert m["peak_K"] == 320.0 and m["mean_K"] == pytest.approx((10 * 310 + 10 * 310 + 10 * 300) / 30)
+    assert m["time_above_s"] == pytest.approx(10.0)  # 5 s either side of the peak
+
+
+def test_thermal_params_validated() -> None:
+    with pytest.raises(ParameterError, match="h_Wpm2K"):
+        ThermalParams(h_Wpm2K=0.0)
+    with pytest.raises(ParameterError, match="cooling_power_W"):
+        ThermalParams(cooling_power_W=-1.0)
