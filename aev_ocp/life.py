@@ -103,6 +103,29 @@ def blast_available() -> bool:
     return True
 
 
+class _NumpyWithTrapz:
+    """numpy as BLAST-Lite 1.1 expects it: ``np.trapz`` (removed in numpy 2.4) is ``np.trapezoid``, the same
+    function under its new name; everything else is numpy itself."""
+
+    trapz = staticmethod(np.trapezoid)
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(np, name)
+
+
+def _numpy_compat() -> None:
+    """Give BLAST-Lite's modules (which pin numpy < 2 and call np.trapz) a numpy with trapz, without touching
+    numpy itself."""
+    if hasattr(np, "trapz"):
+        return
+    import sys
+
+    shim = _NumpyWithTrapz()
+    for name, mod in list(sys.modules.items()):
+        if (name == "blast" or name.startswith("blast.")) and getattr(mod, "np", None) is np:
+            mod.np = shim  # type: ignore[attr-defined]
+
+
 def blast_model(chemistry: str) -> Any:
     """A fresh BLAST-Lite model for a cell chemistry ('LFP', 'NMC', 'NCA'); ParameterError naming how to install
     BLAST-Lite when it is missing."""
@@ -112,6 +135,7 @@ def blast_model(chemistry: str) -> Any:
         from blast import models
     except ImportError:
         raise ParameterError(INSTALL_HINT) from None
+    _numpy_compat()
     return getattr(models, BLAST_MODELS[chemistry])()
 
 
