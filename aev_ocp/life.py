@@ -1,5 +1,5 @@
 """Battery life per controller: a run's SOC and temperature, repeated as a stated daily schedule over years,
-through NREL's BLAST-Lite (optional extra: ``pip install blast-lite``, import name ``blast``).
+through NREL's BLAST-Lite (optional, import name ``blast``; install it as :data:`INSTALL_HINT` says).
 
 The daily schedule (:class:`DailySchedule`, our statement, SI): the run's drive (its SOC and pack temperature
 history, resampled at ``sample_s``) is driven ``len(trip_start_h)`` times a day starting at the stated hours;
@@ -27,7 +27,10 @@ from .params import ParameterError, spec, validate_fields
 
 BLAST_MODELS = {"LFP": "Lfp_Gr_SonyMurata3Ah_Battery", "NMC": "Nmc811_GrSi_LGMJ1_4Ah_Battery",
                 "NCA": "Nca_Gr_Panasonic3Ah_Battery"}
-INSTALL_HINT = "battery life needs NREL's BLAST-Lite: pip install blast-lite"
+#: blast-lite 1.1.1 declares numpy < 2 but runs on numpy 2 (see _numpy_compat); a plain ``pip install blast-lite``
+#: downgrades numpy below what the toolkit needs, so its own dependencies are installed first and it without them.
+INSTALL_HINT = ("battery life needs NREL's BLAST-Lite: pip install pandas h5pyd geopy && "
+                "pip install --no-deps blast-lite")
 REPORT_YEARS = (1.0, 5.0, 10.0)
 END_OF_LIFE = 0.8  # 80 % of the new capacity: the usual EV end-of-life criterion (e.g. USABC)
 

@@ -251,8 +251,8 @@ class CellParams:
     activation_energy_Jpmol: float | None = spec(None, gt=0, optional=True)  # None: R_s, R1, R2 independent of T
     T_ref_K: float = spec(298.15, gt=0)  # temperature at which R_s, R1, R2 were identified (25 °C, as above)
     # OCV table (SOC grid 0..1, volts); None: the shipped A123 table aev_ocp/data/a123_ocv_25C.csv
-    ocv_soc: tuple[float, ...] | None = None
-    ocv_V: tuple[float, ...] | None = None
+    ocv_soc: tuple[float, ...] | None = spec(None, kind="instance", cls=tuple, optional=True)
+    ocv_V: tuple[float, ...] | None = spec(None, kind="instance", cls=tuple, optional=True)
 
     def __post_init__(self) -> None:
         validate_fields(self)

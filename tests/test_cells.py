@@ -112,3 +112,22 @@ def test_scenario_cell_errors(tmp_path: Path) -> None:
         load_scenario(_write(tmp_path, base + '\n[cell]\nname = "a123_anr26650"\nfile = "x.toml"\n'))
     with pytest.raises(ScenarioError, match=r"thermal\.h_Wpm2K"):
         parse_scenario({**__import__("tomllib").loads(base), "thermal": {"h_Wpm2K": -3.0}}, "s.toml")
+
+
+def test_prop31_battery_numbers_are_parameters(tmp_path: Path) -> None:
+    """OCP-A's S(0), initial polarisation and cell are arguments: the relaxing case's unconstrained optimum
+    equals the independent LQ solution for a user cell, another S(0) and another V(0); bad values are one line."""
+    from aev_ocp.ocp.prop31 import run_prop31
+    from aev_ocp.params import ParameterError
+
+    cell = load_cell(_write(tmp_path, USER_CELL))
+    out = run_prop31(N=40, cell=cell, refine=False, soc0=0.37, v_relax_V=(0.013, 0.041))
+    e = out["relaxing"]
+    assert e["V0"] == [0.013, 0.041] and e["result"].states["S"][0] == pytest.approx(0.37)
+    assert e["objective_J"] == pytest.approx(e["lq_exact_discrete_J"], rel=1e-4)
+    W0 = 0.5 * cell.C1_F * 0.013**2 + 0.5 * cell.C2_F * 0.041**2
+    assert e["stored_rc_energy_W0_J"] == pytest.approx(W0, rel=1e-12)
+    with pytest.raises(ParameterError, match="soc0"):
+        run_prop31(N=10, refine=False, soc0=1.3)
+    with pytest.raises(ParameterError, match="v_relax_V"):
+        run_prop31(N=10, refine=False, v_relax_V=(0.0, 0.0))

@@ -52,7 +52,8 @@ def test_without_blast_lite_one_line_install_hint(monkeypatch: pytest.MonkeyPatc
     monkeypatch.setattr(builtins, "__import__", no_blast)
     with pytest.raises(ParameterError) as exc:
         life.blast_model("LFP")
-    assert str(exc.value) == "battery life needs NREL's BLAST-Lite: pip install blast-lite"
+    assert str(exc.value) == ("battery life needs NREL's BLAST-Lite: pip install pandas h5pyd geopy && "
+                              "pip install --no-deps blast-lite")
     assert not life.blast_available()
 
 
