@@ -111,6 +111,8 @@ def parse_cell(doc: dict[str, Any], file: str = "<cell>", base_dir: Path | None 
         raise CellFileError(f"{file}: unknown key ocv.{sorted(extra)[0]}; allowed: file, soc, ocv_V, source")
     if not isinstance(ocv.get("source"), str) or not ocv["source"].strip():
         raise CellFileError(f"{file}: ocv.source is missing (required: where the curve comes from)")
+    soc: Any
+    volts: Any
     if "file" in ocv:
         if "soc" in ocv or "ocv_V" in ocv:
             raise CellFileError(f"{file}: ocv: give file or soc/ocv_V, not both")

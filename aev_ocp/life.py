@@ -55,7 +55,8 @@ class DailySchedule:
                                  f"after the last trip ({hs[-1]:g} h)")
 
 
-def daily_profile(t_s: Sequence[float], soc: Sequence[float], T_K: Sequence[float], ambient_K: float,
+def daily_profile(t_s: Sequence[float] | np.ndarray, soc: Sequence[float] | np.ndarray,
+                  T_K: Sequence[float] | np.ndarray, ambient_K: float,
                   schedule: DailySchedule | None = None) -> dict[str, np.ndarray]:
     """One day (86 400 s) of SOC [-] and temperature [°C] under ``schedule`` from one drive (t_s [s], soc, T_K
     [K]); the BLAST-Lite input: {'Time_s', 'SOC', 'Temperature_C'}. ParameterError when the drives do not fit."""
@@ -100,7 +101,7 @@ def daily_profile(t_s: Sequence[float], soc: Sequence[float], T_K: Sequence[floa
 def blast_available() -> bool:
     """Whether BLAST-Lite (import name ``blast``) is installed."""
     try:
-        import blast  # noqa: F401
+        import blast  # type: ignore[import-untyped]  # noqa: F401
     except ImportError:
         return False
     return True
@@ -135,7 +136,7 @@ def blast_model(chemistry: str) -> Any:
     if chemistry not in BLAST_MODELS:
         raise ParameterError(f"battery life: chemistry = {chemistry!r} is not allowed: one of {tuple(BLAST_MODELS)}")
     try:
-        from blast import models
+        from blast import models  # type: ignore[import-untyped, unused-ignore]
     except ImportError:
         raise ParameterError(INSTALL_HINT) from None
     _numpy_compat()

@@ -13,8 +13,7 @@ from aev_ocp.metrics import vehicle_metrics
 from aev_ocp.models import battery, thermal
 from aev_ocp.models.carfollowing import make_law
 from aev_ocp.models.leader import ConstantSpeed
-from aev_ocp.params import (CarFollowingParams, CellParams, EVParams, PackParams, ParameterError, SimOptions,
-                            ThermalParams)
+from aev_ocp.params import (CarFollowingParams, CellParams, EVParams, PackParams, ParameterError, ThermalParams)
 from aev_ocp.plant import Plant
 from aev_ocp.simulate import simulate_platoon
 
