@@ -119,3 +119,72 @@ def test_thermal_params_validated() -> None:
         ThermalParams(h_Wpm2K=0.0)
     with pytest.raises(ParameterError, match="cooling_power_W"):
         ThermalParams(cooling_power_W=-1.0)
+
+
+# ----------------------------------------------------------------------------- the temperature in the OCPs
+def _ocp_ev(T_max_K: float = 340.0) -> EVParams:
+    cell = dataclasses.replace(CELL, activation_energy_Jpmol=2.6e4, T_ref_K=297.0)
+    return EVParams(cell=cell, pack=PackParams(n_series=96, n_parallel=31),
+                    thermal=dataclasses.replace(TH, T_max_K=T_max_K, cooling_power_W=4.4))
+
+
+@pytest.mark.parametrize("builder", ["following", "traffic"])
+def test_problem_temperature_state_is_the_thermal_model(builder: str) -> None:
+    """With with_temperature the problem's last state is T [K]: its derivative (model time) is T_unit ·
+    (Q_irr_pack − hA (T − T_amb) − P)/C with the problem's own Q_irr output, the cell's dV1/dt uses R1(T)
+    (Arrhenius), and T ≤ T_max is the state's upper bound."""
+    from aev_ocp.ocp.following import following_problem
+    from aev_ocp.ocp.traffic import traffic_problem
+
+    ev = _ocp_ev()
+    pb = following_problem(ev, with_temperature=True) if builder == "following" else traffic_problem(
+        ev, with_temperature=True)
+    pr = pb.build()
+    names = list(pr.state_names)
+    assert names[-1] == "T" and pr.x_ub[-1] == ev.thermal.T_max_K
+    x = np.zeros(len(names))
+    x[:5] = [1.3, 1.1, 0.017, 0.006, 0.71]
+    x[-1] = 312.6
+    u = np.zeros(len(pr.control_names))
+    u[0] = 0.43
+    w, p = [1.2, 1.15], np.ones(pr.np_)
+    dx = np.asarray(pr.ode(x, u, w, p)).ravel()
+    outs = dict(zip([pr.outputs.name_out(i) for i in range(pr.outputs.n_out())], pr.outputs(x, u, w, p)))
+    Q, I = float(outs["Q_irr_pack_W"]), float(outs["I"])
+    C = ev.pack.n_cells * ev.cell.heat_capacity_JpK
+    hA = ev.pack.n_cells * ev.thermal.h_Wpm2K * ev.cell.surface_area_m2
+    Tu = ev.units.time_s
+    assert dx[-1] == pytest.approx(Tu * (Q - hA * (312.6 - ev.thermal.ambient_K) - 4.4) / C, rel=1e-12)
+    f = math.exp(2.6e4 / 8.314462618 * (1 / 312.6 - 1 / 297.0))
+    R1 = ev.cell.R1_ohm * f
+    assert dx[2] == pytest.approx(Tu * (-0.017 / (R1 * ev.cell.C1_F) + I / ev.cell.C1_F), rel=1e-12)
+    assert float(outs["T_K"]) == 312.6
+
+
+def test_with_temperature_needs_the_thermal_model() -> None:
+    from aev_ocp.ocp.following import following_problem
+
+    with pytest.raises(ParameterError, match="thermal"):
+        following_problem(EVParams(), with_temperature=True)
+
+
+def test_ocp_respects_a_temperature_limit() -> None:
+    """OCP with T ≤ T_max: where the unconstrained optimum heats the pack past T_max, the constrained one stays
+    at or below it (IPOPT bound tolerance) and costs more; a looser limit costs less than a tighter one."""
+    from aev_ocp.ocp.following import FollowingWeights, following_problem, weight_vector
+    from aev_ocp.ocp.transcription import OCPSolver, TranscriptionOptions
+
+    cell = dataclasses.replace(CellParams(), heat_capacity_JpK=0.04, surface_area_m2=2.1e-5)  # a hot toy pack
+    N, w = 30, np.full((2, 30), 1.9)
+    out = {}
+    for T_max in (400.0, 303.6, 303.3):
+        ev = EVParams(cell=cell, pack=PackParams(n_series=96, n_parallel=31),
+                      thermal=ThermalParams(enabled=True, ambient_K=301.7, h_Wpm2K=37.3, T0_K=303.0, T_max_K=T_max))
+        s = OCPSolver(following_problem(ev, with_temperature=True).build(), TranscriptionOptions(method="ms", N=N))
+        r = s.solve([2.5, 1.0, 0.0, 0.0, 0.7, 303.0], 6.0, p=weight_vector(FollowingWeights(w_Q=0.02)), w=w)
+        assert r.success
+        out[T_max] = (r.objective, float(np.max(r.states["T"])))
+    assert out[400.0][1] > 305.0  # unconstrained: well above both limits
+    for T_max in (303.6, 303.3):
+        assert out[T_max][1] <= T_max + 1e-5
+    assert out[400.0][0] < out[303.6][0] < out[303.3][0]

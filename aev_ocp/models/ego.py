@@ -49,9 +49,11 @@ def battery_side(v: Any, a: Any, V1: Any, V2: Any, S: Any, ev: EVParams,
     return out
 
 
-def following_ode(z: Any, a: Any, v_l: Any, ev: EVParams, smooth: PowertrainOptions | None = None) -> Any:
+def following_ode(z: Any, a: Any, v_l: Any, ev: EVParams, smooth: PowertrainOptions | None = None,
+                  T_K: Any = None) -> Any:
     """dz/dt in model time for z = (h, v, V1, V2, S): ḣ = v_l − v, v̇ = a, and the cell ODE
-    (paper eqs. V_1_V_2, change_SOC) scaled by the time unit T [s]."""
-    b = battery_side(z[1], a, z[2], z[3], z[4], ev, smooth)
+    (paper eqs. V_1_V_2, change_SOC) scaled by the time unit T [s]; T_K: the pack temperature [K] that sets the
+    cell's resistances (None: their reference values)."""
+    b = battery_side(z[1], a, z[2], z[3], z[4], ev, smooth, T_K)
     T = ev.units.time_s
     return ca.vertcat(v_l - z[1], a, T * b["dV1"], T * b["dV2"], T * b["dS"])
