@@ -53,7 +53,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
         "aev_ocp.ocp.api", "aev_ocp.ocp.report_section",
         "aev_ocp.mpc.report", "aev_ocp.mpc.cycles", "aev_ocp.mpc.cycles_section",
         "aev_ocp.stability.api", "aev_ocp.stability.report",
-        "aev_ocp.safety.suite", "aev_ocp.safety.report", "aev_ocp.safety.section",
+        "aev_ocp.safety.suite", "aev_ocp.safety.report", "aev_ocp.safety.section", "aev_ocp.life_section",
         "aev_ocp.study", "aev_ocp.study.runner", "aev_ocp.study.report",
     )),
     ("entry points", (

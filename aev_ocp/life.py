@@ -18,6 +18,7 @@ Which BLAST-Lite model stands for which cell (:data:`BLAST_MODELS`, by the cell 
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import dataclass
 from typing import Any, Sequence
 
@@ -101,7 +102,9 @@ def daily_profile(t_s: Sequence[float] | np.ndarray, soc: Sequence[float] | np.n
 def blast_available() -> bool:
     """Whether BLAST-Lite (import name ``blast``) is installed."""
     try:
-        import blast  # type: ignore[import-untyped]  # noqa: F401
+        with warnings.catch_warnings():  # its h5pyd dependency warns about distutils on import
+            warnings.simplefilter("ignore", DeprecationWarning)
+            import blast  # type: ignore[import-untyped]  # noqa: F401
     except ImportError:
         return False
     return True
@@ -136,7 +139,9 @@ def blast_model(chemistry: str) -> Any:
     if chemistry not in BLAST_MODELS:
         raise ParameterError(f"battery life: chemistry = {chemistry!r} is not allowed: one of {tuple(BLAST_MODELS)}")
     try:
-        from blast import models  # type: ignore[import-untyped, unused-ignore]
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", DeprecationWarning)
+            from blast import models  # type: ignore[import-untyped, unused-ignore]
     except ImportError:
         raise ParameterError(INSTALL_HINT) from None
     _numpy_compat()
