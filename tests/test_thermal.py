@@ -188,3 +188,15 @@ def test_ocp_respects_a_temperature_limit() -> None:
     for T_max in (303.6, 303.3):
         assert out[T_max][1] <= T_max + 1e-5
     assert out[400.0][0] < out[303.6][0] < out[303.3][0]
+
+
+def test_saved_run_keeps_temperature_cell_and_thermal(tmp_path) -> None:
+    """A thermal run with a cell of its own (OCV table) saved and loaded: the same temperatures and parameters."""
+    from aev_ocp.saved import load, save_output
+
+    cell = dataclasses.replace(CELL, ocv_soc=(0.0, 0.3, 0.6, 1.0), ocv_V=(3.1, 3.55, 3.8, 4.15),
+                               activation_energy_Jpmol=2.2e4)
+    r = _drive(dataclasses.replace(TH, T0_K=304.4), cell)
+    save_output(tmp_path / "run", "simulate", {"run": r})
+    back = load(tmp_path / "run")
+    assert back.ev == r.ev and np.array_equal(back.temperature_K, r.temperature_K)
