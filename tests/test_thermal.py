@@ -200,3 +200,22 @@ def test_saved_run_keeps_temperature_cell_and_thermal(tmp_path) -> None:
     save_output(tmp_path / "run", "simulate", {"run": r})
     back = load(tmp_path / "run")
     assert back.ev == r.ev and np.array_equal(back.temperature_K, r.temperature_K)
+
+
+def test_trajectory_plot_shows_the_temperature(tmp_path, monkeypatch: pytest.MonkeyPatch) -> None:
+    import matplotlib.pyplot as plt
+
+    from aev_ocp import plots
+
+    r = _drive(dataclasses.replace(TH, T0_K=304.4))
+    labels: list[str] = []
+    orig = plots.save_figure
+
+    def keep(fig, path):  # type: ignore[no-untyped-def]
+        labels.extend(ax.get_ylabel() for ax in fig.axes)
+        return orig(fig, path)
+
+    monkeypatch.setattr(plots, "save_figure", keep)
+    plots.plot_trajectories(r, tmp_path / "t.png")
+    plt.close("all")
+    assert "pack temperature T [K]" in labels and (tmp_path / "t.png").stat().st_size > 0
