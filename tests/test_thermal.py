@@ -175,7 +175,7 @@ def test_ocp_respects_a_temperature_limit() -> None:
     from aev_ocp.ocp.transcription import OCPSolver, TranscriptionOptions
 
     cell = dataclasses.replace(CellParams(), heat_capacity_JpK=0.04, surface_area_m2=2.1e-5)  # a hot toy pack
-    N, w = 30, np.full((2, 30), 1.9)
+    N, w = 20, np.full((2, 20), 1.9)
     out = {}
     for T_max in (400.0, 303.6, 303.3):
         ev = EVParams(cell=cell, pack=PackParams(n_series=96, n_parallel=31),
