@@ -325,3 +325,55 @@ def test_cli_ring_stability_and_errors(tmp_path):
     assert p.returncode == 2 and "--spacing-m" in p.stderr and "Traceback" not in p.stderr
     p = run("ring", "sweep", "--penetration", "30", "--out", str(tmp_path))
     assert p.returncode == 2 and "--penetration 30" in p.stderr and "Traceback" not in p.stderr
+
+
+# ------------------------------------------------------------------------------------------- the MPC as a ring AEV
+class _Recorder:
+    """A Controller that records what the wrapped one observed (time, own z, last measured predecessor speed)."""
+
+    def __init__(self, inner):
+        self.inner, self.name, self.dt, self.seen = inner, inner.name, inner.dt, []
+
+    def reset(self):
+        self.inner.reset()
+        self.seen = []
+
+    def command(self, obs):
+        self.seen.append((obs.t, obs.z.copy(), float(obs.meas_v[-1]), obs.meas_v.size))
+        return self.inner.command(obs)
+
+    def describe(self):
+        return self.inner.describe()
+
+
+def test_mpc_ring_aev_measures_its_predecessor_and_stays_safe():
+    from aev_ocp.ring.experiments import ring_mpc
+
+    base = human_ring(240.0, seed=3)
+    pol = ring_mpc(EV)
+    assert pol.describe()["predictor"] != "oracle" and pol.formulation.kind == "traffic"
+    rec = _Recorder(pol)
+    ring = human_ring(240.0, aevs={5: rec}, seed=3)
+    res = RingSimulator(ring, RingOptions(dt_out_s=0.2)).run(uniform_flow(base, shift_m=1.5), 40.0)
+    f = fleet_metrics(res, t_from_s=0.0)
+    assert res.status == "ok" and f["collisions"] == 0
+    st_ = res.sim.solver_stats[5]
+    assert st_["steps"] == len(rec.seen) == 200 and st_["fallbacks"] == 0
+    # the observation: the predecessor's (vehicle 5, index 4) measured speed and the AEV's own state at t_k
+    t = res.t_s
+    for tk, z, v_meas, k in rec.seen[::17]:
+        j = int(np.argmin(np.abs(t - tk * EV.units.time_s)))
+        assert abs(t[j] - tk * EV.units.time_s) < 1e-9
+        assert v_meas * EV.units.speed_mps == pytest.approx(res.speed_mps[j, 4], abs=1e-9)
+        assert z[1] * EV.units.speed_mps == pytest.approx(res.speed_mps[j, 5], abs=1e-9)
+        assert z[0] * EV.units.length_m == pytest.approx(res.gap_m[j, 5], abs=1e-9)
+        assert k == int(round(tk / pol.dt)) + 1  # every sample so far
+    # the MPC's own gap keeps above its formulation's floor (2 m) with the safety filter
+    assert res.gap_m[:, 5].min() > 2.0
+
+
+def test_mpc_ring_refuses_the_oracle():
+    from aev_ocp.ring.experiments import ring_mpc
+
+    with pytest.raises(ParameterError, match="predictor"):
+        ring_mpc(EV, predictor="oracle")

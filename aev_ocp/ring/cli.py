@@ -31,7 +31,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--t-end-s", type=float, default=600.0, help="simulated time [s] (default 600)")
     p.add_argument("--seed", type=int, default=0, help="seed of the human drivers' acceleration noise (default 0)")
     p.add_argument("--aev", default="followerstopper",
-                   help="sweep: the AEV controller (followerstopper, pi-saturation, proposed, ovfl; default "
+                   help="sweep: the AEV controller (followerstopper, pi-saturation, proposed, ovfl, mpc; default "
                         "followerstopper)")
     p.add_argument("--penetration", type=int, action="append", default=None, metavar="K",
                    help="sweep: number of AEVs among the 22 (repeatable; default 0 1 2 3 4 5)")
