@@ -347,7 +347,7 @@ class _Recorder:
 
 
 def test_mpc_ring_aev_measures_its_predecessor_and_stays_safe():
-    from aev_ocp.ring.experiments import ring_mpc
+    from aev_ocp.ring.laws import ring_mpc
 
     base = human_ring(240.0, seed=3)
     pol = ring_mpc(EV)
@@ -373,7 +373,7 @@ def test_mpc_ring_aev_measures_its_predecessor_and_stays_safe():
 
 
 def test_mpc_ring_refuses_the_oracle():
-    from aev_ocp.ring.experiments import ring_mpc
+    from aev_ocp.ring.laws import ring_mpc
 
     with pytest.raises(ParameterError, match="predictor"):
         ring_mpc(EV, predictor="oracle")

@@ -21,9 +21,9 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from ..models.carfollowing import OVFL, CarFollowingLaw, Proposed
+from ..models.carfollowing import CarFollowingLaw
 from ..params import EVParams, ParameterError
-from .laws import FollowerStopper, PISaturation, idm_si
+from .laws import AEV_CONTROLLERS, RING_PREDICTORS, idm_si, make_aev, ring_mpc  # noqa: F401 (re-exported)
 from .simulate import RingOptions, RingResult, RingRoad, RingSimulator, uniform_flow
 
 SUGIYAMA_LENGTH_M = 230.0  # Sugiyama et al. 2008 (New J. Phys. 10:033001): 22 cars on a 230 m circuit
@@ -34,10 +34,7 @@ NOISE_DT_S = 0.5
 STOP_SPEED_MPS = 0.1  # a vehicle below this speed counts as stopped
 BRAKING_MPS2 = -1.0  # a braking event: the acceleration drops below this (harder than IDM's comfortable b = 1.5 m/s²
 # at most moments of a calm ring, reached in every stop-and-go wave)
-AEV_CONTROLLERS = ("followerstopper", "pi-saturation", "proposed", "ovfl", "mpc")
-#: predictors a ring MPC may use: forecasts from its own measurements of the predecessor (a ring has no
-#: prescribed leader, so no 'oracle'; 'cooperative' would need the predecessor's plan)
-RING_PREDICTORS = ("decaying-acceleration", "constant-velocity", "constant-acceleration")
+
 
 
 def human_ring(length_m: float = SUGIYAMA_LENGTH_M, n: int = SUGIYAMA_N, *, aevs: dict[int, Any] | None = None,
@@ -63,45 +60,6 @@ def human_ring(length_m: float = SUGIYAMA_LENGTH_M, n: int = SUGIYAMA_N, *, aevs
         human.append(True)
     return RingRoad(length_m, tuple(vehicles), ev=ev, human=tuple(human), noise_mps2=noise_mps2,
                     noise_dt_s=NOISE_DT_S, seed=seed)
-
-
-def ring_mpc(ev: EVParams, settings: Any = None, predictor: str | None = None) -> Any:
-    """The toolkit's MPC as a ring AEV: :class:`aev_ocp.mpc.policy.MPCPolicy` with ``settings`` (default
-    ``MPCSettings()``), the default traffic formulation (its 2 m gap floor; every command through the safety
-    filter) and a forecast of the predecessor from the AEV's own measurements (``predictor``, one of
-    :data:`RING_PREDICTORS`; default the settings' 'decaying-acceleration'). Fallback law: the proposed law."""
-    from ..mpc.policy import MPCPolicy
-    from ..mpc.predictors import make_predictor
-    from ..mpc.settings import MPCSettings
-    from ..ocp.formulation import traffic_formulation
-
-    s = settings if settings is not None else MPCSettings()
-    if not isinstance(s, MPCSettings):
-        raise ParameterError(f"ring: mpc settings must be an MPCSettings, got {type(s).__name__}")
-    name = predictor if predictor is not None else s.predictor
-    if name not in RING_PREDICTORS:
-        raise ParameterError(f"ring: mpc predictor = {name!r} is not allowed on a ring: must be one of "
-                             f"{RING_PREDICTORS} (forecasts from the AEV's own measurements)")
-    pred = make_predictor(name, None, s.predictor_window, ev.units.time_s)
-    return MPCPolicy(s, ev, Proposed(), pred, formulation=traffic_formulation())
-
-
-def make_aev(name: str, ev: EVParams, r_mps: float) -> Any:
-    """An AEV controller by name: 'followerstopper' (desired speed r_mps), 'pi-saturation', 'proposed' (the
-    paper's law), 'ovfl', 'mpc' (:func:`ring_mpc` with its defaults), or any registered law name."""
-    key = name.lower()
-    if key == "mpc":
-        return ring_mpc(ev)
-    if key == "followerstopper":
-        return FollowerStopper.from_si(ev.units, r_mps)
-    if key == "pi-saturation":
-        return PISaturation(units=ev.units)
-    if key == "proposed":
-        return Proposed()
-    if key == "ovfl":
-        return OVFL()
-    from ..models.carfollowing import make_law
-    return make_law(key)
 
 
 def _wave_speed(res: RingResult, sel: np.ndarray) -> float:
