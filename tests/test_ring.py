@@ -377,3 +377,91 @@ def test_mpc_ring_refuses_the_oracle():
 
     with pytest.raises(ParameterError, match="predictor"):
         ring_mpc(EV, predictor="oracle")
+
+
+# ------------------------------------------------------------------------------------------- the [ring] scenario form
+def _ring_doc(**ring):
+    base = {"length_m": 247.0, "vehicles": 19, "t_end_s": 30.0, "noise_mps2": 0.13, "seed": 5}
+    base.update(ring)
+    return {"name": "r", "ring": base}
+
+
+def test_ring_scenario_builds_the_ring_of_the_experiments():
+    from aev_ocp.ring.scenario import build_ring, load_ring_scenario, parse_ring_scenario
+
+    sc = load_ring_scenario("ring_stern")
+    assert sc.spec.controllers == ("followerstopper", "pi-saturation", "proposed", "ovfl", "mpc")
+    assert sc.spec.aev_vehicles == (0,) and sc.spec.length_m == 230.0 and sc.spec.vehicles == 22
+    ring, init = build_ring(sc, None)
+    ref = human_ring(230.0, seed=0)
+    assert ring.vehicles == ref.vehicles and ring.noise_mps2 == ref.noise_mps2 and ring.seed == ref.seed
+    assert init == uniform_flow(ref, shift_m=2.0)
+    ring, _ = build_ring(sc, "followerstopper")
+    r_mps = 0.85 * uniform_speed_mps(ref)
+    assert ring.vehicles[0] == make_aev("followerstopper", EV, r_mps) and ring.vehicles[1:] == ref.vehicles[1:]
+    assert not ring.is_human(0) and ring.is_human(1)
+    # density_per_km is the same ring as its length; an OVM ring with α in 1/s; given positions and speeds
+    a = parse_ring_scenario(_ring_doc(), "a.toml")
+    dens = {k: v for k, v in _ring_doc(density_per_km=1000 * 19 / 247.0)["ring"].items() if k != "length_m"}
+    b = parse_ring_scenario({"ring": dens}, "b.toml")
+    assert b.spec.length_m == pytest.approx(a.spec.length_m, rel=1e-14)
+    o = parse_ring_scenario(_ring_doc(human="ovm", ovm={"alpha_per_s": 0.65}), "o.toml")
+    assert build_ring(o, None)[0].vehicles[3] == OVM(alpha=0.65 * EV.units.time_s)
+    pos = [(-i * 13.0) % 247.0 for i in range(19)]
+    g = parse_ring_scenario(_ring_doc(initial={"positions_m": pos, "speeds_mps": [2.5] * 19}), "g.toml")
+    assert build_ring(g, None)[1].positions_m == tuple(pos)
+
+
+@pytest.mark.parametrize("ring, match", [
+    ({"aev": {"vehicles": [30], "controllers": ["mpc"]}}, r"g.toml: ring.aev.vehicles = \[30\]"),
+    ({"aev": {"vehicles": [2], "controllers": ["warp"]}}, "g.toml: ring.aev.controllers"),
+    ({"density_per_km": 40.0}, "give exactly one"),
+    ({"length_m": 90.0}, "g.toml: ring.length_m = 90.0 is not allowed: 19 vehicles of 5 m do not fit"),
+    ({"idm": {"T_s": -1.0}}, "g.toml: ring.idm.T_s"),
+    ({"ovm": {"alpha_per_s": 1.0}}, "g.toml: ring.ovm"),
+    ({"perturbation": {"shift_m": 9.0}}, "g.toml: ring.perturbation.shift_m"),
+    ({"perturbation": {"vehicle": 20}}, "g.toml: ring.perturbation.vehicle"),
+    ({"initial": {"positions_m": [0.0] * 19, "speeds_mps": [1.0] * 19}}, "g.toml: ring.initial.positions_m.*overlaps"),
+    ({"t_end_s": 0}, "g.toml: ring.t_end_s"),
+    ({"speed": 3}, "g.toml: unknown key 'ring.speed'"),
+])
+def test_ring_scenario_errors_name_file_and_key(ring, match):
+    from aev_ocp.ring.scenario import parse_ring_scenario
+    from aev_ocp.scenarios import ScenarioError
+
+    with pytest.raises(ScenarioError, match=match):
+        parse_ring_scenario(_ring_doc(**ring), "g.toml")
+
+
+def test_ring_scenario_mpc_table_and_the_platoon_loader():
+    from aev_ocp.ring.scenario import parse_ring_scenario
+    from aev_ocp.scenarios import ScenarioError, parse_scenario, shipped_scenarios
+
+    doc = _ring_doc(aev={"vehicles": [3], "controllers": ["mpc"]}) | {"mpc": {"N": 17}}
+    sc = parse_ring_scenario(doc, "m.toml")
+    assert sc.mpc.settings.N == 17
+    with pytest.raises(ScenarioError, match="m.toml: mpc.predictor = 'oracle' is not allowed on a ring"):
+        parse_ring_scenario(doc | {"mpc": {"predictor": "oracle"}}, "m.toml")
+    with pytest.raises(ScenarioError, match="m.toml: a ring scenario .*aev-ocp ring m.toml"):
+        parse_scenario(doc, "m.toml")
+    assert {"ring_stern", "ring_sugiyama"} <= set(shipped_scenarios("ring"))
+    assert not {"ring_stern", "ring_sugiyama"} & set(shipped_scenarios())
+
+
+def test_cli_ring_scenario(tmp_path):
+    f = tmp_path / "small.toml"
+    f.write_text('[ring]\nlength_m = 263.0\nvehicles = 21\nt_end_s = 24.0\n[ring.aev]\nvehicles = [4]\n'
+                 'controllers = ["pi-saturation"]\n', encoding="utf-8")
+    run = lambda *a: subprocess.run([sys.executable, "-m", "aev_ocp.cli", "ring", *a], capture_output=True,  # noqa: E731
+                                    text=True, timeout=300, cwd=tmp_path)
+    p = run(str(f), "--no-plots", "--out", str(tmp_path / "o"))
+    assert p.returncode == 0, p.stderr
+    assert "all human" in p.stdout and "pi-saturation" in p.stdout
+    import json
+    doc = json.loads((tmp_path / "o" / "ring.json").read_text())
+    assert [r["label"] for r in doc["runs"]] == ["all human", "pi-saturation"] and doc["runs"][1]["aevs"] == 1
+    f.write_text('[ring]\nlength_m = 263.0\nvehicles = 21\nt_end_s = 24.0\nseed = -1\n', encoding="utf-8")
+    p = run(str(f))
+    assert p.returncode == 2 and "small.toml: ring.seed = -1" in p.stderr and "Traceback" not in p.stderr
+    p = run("no_such_ring")
+    assert p.returncode == 2 and "ring_stern" in p.stderr

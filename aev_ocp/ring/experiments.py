@@ -118,7 +118,9 @@ def run_ring(ring: RingRoad, t_end_s: float, *, shift_m: float = 2.0, options: R
              label: str = "") -> RingExperiment:
     """Uniform flow perturbed by moving vehicle 1 back ``shift_m`` [m]; fleet metrics over the second half."""
     res = RingSimulator(ring, options).run(uniform_flow(ring, shift_m=shift_m), t_end_s)
-    return RingExperiment(label, res, fleet_metrics(res))
+    fleet = fleet_metrics(res)
+    _add_controller_stats(res, fleet)
+    return RingExperiment(label, res, fleet)
 
 
 def sugiyama(t_end_s: float = 600.0, *, seed: int = 0, options: RingOptions | None = None) -> list[RingExperiment]:
@@ -152,3 +154,34 @@ def relative_to(base: dict[str, Any], other: dict[str, Any]) -> dict[str, float]
 
 
 _ = CarFollowingLaw
+
+
+def run_ring_scenario(sc: Any, options: RingOptions | None = None, t_end_s: float | None = None) -> list[RingExperiment]:
+    """Every run of a ring scenario (:class:`aev_ocp.ring.scenario.RingScenario`): all human first when it asks
+    for it, then one run per AEV controller; fleet metrics from ``metrics_from_s`` (default the second half).
+    ``t_end_s`` overrides the scenario's horizon [s]."""
+    from .scenario import build_ring, scenario_runs
+
+    s = sc.spec
+    t_end = s.t_end_s if t_end_s is None else float(t_end_s)
+    opts = options or RingOptions(dt_out_s=min(s.dt_out_s, t_end))
+    t_from = s.metrics_from_s if s.metrics_from_s is not None and s.metrics_from_s < t_end else None
+    out = []
+    for ctrl in scenario_runs(sc):
+        ring, init = build_ring(sc, ctrl)
+        res = RingSimulator(ring, opts).run(init, t_end)
+        fleet = fleet_metrics(res, t_from)
+        fleet.update({"length_m": ring.length_m, "density_per_km": ring.density_per_km,
+                      "aevs": 0 if ctrl is None else len(s.aev_vehicles), "controller": ctrl or "human"})
+        _add_controller_stats(res, fleet)
+        out.append(RingExperiment("all human" if ctrl is None else ctrl, res, fleet))
+    return out
+
+
+def _add_controller_stats(res: RingResult, fleet: dict[str, Any]) -> None:
+    """Fallbacks and call times [ms] of the sampled controllers (the MPC's solve times) into the fleet metrics."""
+    st = [s for s in res.sim.solver_stats if s]
+    if st:
+        fleet["fallbacks"] = int(sum(s["fallbacks"] for s in st))
+        fleet["call_ms_median"] = float(np.median([s["call_ms_median"] for s in st]))
+        fleet["call_ms_max"] = float(max(s["call_ms_max"] for s in st))
