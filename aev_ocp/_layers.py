@@ -57,7 +57,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
         "aev_ocp.stability.api", "aev_ocp.stability.report",
         "aev_ocp.safety.suite", "aev_ocp.safety.report", "aev_ocp.safety.section",
         "aev_ocp.study", "aev_ocp.study.runner", "aev_ocp.study.report",
-        "aev_ocp.ring.experiments", "aev_ocp.sumo.run", "aev_ocp.sumo.output",
+        "aev_ocp.ring.experiments", "aev_ocp.ring.report", "aev_ocp.sumo.run", "aev_ocp.sumo.output",
     )),
     ("entry points", (
         "aev_ocp", "aev_ocp.console", "aev_ocp.reproduce", "aev_ocp.cli", "aev_ocp.ocp.cli", "aev_ocp.mpc.cli",

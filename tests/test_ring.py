@@ -465,3 +465,30 @@ def test_cli_ring_scenario(tmp_path):
     assert p.returncode == 2 and "small.toml: ring.seed = -1" in p.stderr and "Traceback" not in p.stderr
     p = run("no_such_ring")
     assert p.returncode == 2 and "ring_stern" in p.stderr
+
+
+# ------------------------------------------------------------------------------------------- the report section
+def test_ring_report_section(tmp_path):
+    import json
+
+    from aev_ocp.report_sections import SECTION_PROVIDERS, ReproduceConfig, SectionContext, load_providers
+    from aev_ocp.ring.report import QUICK_T_END_S, ring_section
+
+    assert "aev_ocp.ring.report" in SECTION_PROVIDERS and "aev_ocp.ring.report" in load_providers()
+    lines: list[str] = []
+    md = ring_section(tmp_path, SectionContext(lines.append, ReproduceConfig.quick()))
+    assert len(lines) == 3 and "### Sugiyama" in md and "### Stern" in md and "ring_space_time.png" in md
+    assert (tmp_path / "ring_space_time.png").read_bytes()[:4] == b"\x89PNG"
+    doc = json.loads((tmp_path / "ring.json").read_text())
+    jam, calm = doc["sugiyama"]
+    for s in (jam, calm):  # the linear theory's growth rate and the measured one
+        assert s["measured"]["measured_per_s"] == pytest.approx(s["predicted_growth_per_s"], rel=0.05)
+    assert jam["predicted_growth_per_s"] > 0 > calm["predicted_growth_per_s"]
+    labels = [r["label"] for r in doc["stern"]]
+    assert labels == ["all human", "followerstopper", "pi-saturation", "proposed", "ovfl", "mpc"]
+    # the all-human row is the experiments' ring, run independently of the scenario file
+    ref = run_ring(human_ring(230.0, seed=0), QUICK_T_END_S).fleet
+    for k in ("speed_std_mps", "energy_J_per_km", "heat_pack_J_per_km", "braking_events"):
+        assert doc["stern"][0][k] == pytest.approx(ref[k], rel=1e-9)
+    assert all(r["collisions"] == 0 for r in doc["stern"])
+    assert doc["stern"][-1]["fallbacks"] == 0 and doc["stern"][-1]["call_ms_median"] > 0
