@@ -492,3 +492,27 @@ def test_ring_report_section(tmp_path):
         assert doc["stern"][0][k] == pytest.approx(ref[k], rel=1e-9)
     assert all(r["collisions"] == 0 for r in doc["stern"])
     assert doc["stern"][-1]["fallbacks"] == 0 and doc["stern"][-1]["call_ms_median"] > 0
+
+
+def test_ring_scenario_sweep_penetration_by_density():
+    from aev_ocp.ring.experiments import relative_to, run_ring_scenario
+    from aev_ocp.ring.scenario import load_ring_scenario, parse_ring_scenario, scenario_runs, spread
+    from aev_ocp.scenarios import ScenarioError
+
+    shipped = load_ring_scenario("ring_penetration")
+    runs = scenario_runs(shipped)
+    assert len(runs) == 4 * (1 + 5 * 2)  # per density: all human once, then 1-5 AEVs × 2 controllers
+    assert sorted({r.length_m for r in runs}) == pytest.approx(sorted(22000 / d for d in (95.65, 84.6, 73.3, 62.9)))
+    assert spread(3, 22) == (0, 7, 15) and spread(0, 22) == () and spread(5, 22) == (0, 4, 9, 13, 18)
+    doc = _ring_doc(t_end_s=20.0, sweep={"aevs": [0, 2], "length_m": [247.0, 301.0], "controllers": ["pi-saturation"]})
+    sc = parse_ring_scenario(doc, "s.toml")
+    out = run_ring_scenario(sc)
+    assert [(e.fleet["length_m"], e.fleet["aevs"]) for e in out] == [(247.0, 0), (247.0, 2), (301.0, 0), (301.0, 2)]
+    assert [i for i in range(19) if not out[1].result.ring.is_human(i)] == [0, 10]  # round(j 19 / 2)
+    assert out[3].fleet["change_heat_pack_J_per_km"] == relative_to(out[2].fleet, out[3].fleet)["heat_pack_J_per_km"]
+    assert out[3].result.ring.length_m == 301.0 and out[3].result.ring.vehicles[10].name == "pi-saturation"
+    for bad, match in ((dict(sweep={"aevs": [0, 25]}), "s.toml: ring.sweep.aevs"),
+                       (dict(sweep={"aevs": [1], "density_per_km": [300.0]}), "s.toml: ring.sweep.density_per_km"),
+                       (dict(sweep={"aevs": [1]}, aev={"vehicles": [1], "controllers": ["mpc"]}), "not both")):
+        with pytest.raises(ScenarioError, match=match):
+            parse_ring_scenario(_ring_doc(**bad), "s.toml")

@@ -111,7 +111,7 @@ def cli_ring(argv: list[str]) -> int:
         out.mkdir(parents=True, exist_ok=True)
         doc["runs"] = [{"label": r.label, **r.fleet} for r in runs]
         files = [write_json(out / "ring.json", doc)]
-        if not a.no_plots and a.experiment != "sweep":
+        if not a.no_plots and a.experiment != "sweep" and not (sc is not None and sc.spec.sweep_aevs):
             from .plots import space_time
 
             for r in runs:

@@ -167,14 +167,18 @@ def run_ring_scenario(sc: Any, options: RingOptions | None = None, t_end_s: floa
     opts = options or RingOptions(dt_out_s=min(s.dt_out_s, t_end))
     t_from = s.metrics_from_s if s.metrics_from_s is not None and s.metrics_from_s < t_end else None
     out = []
-    for ctrl in scenario_runs(sc):
-        ring, init = build_ring(sc, ctrl)
+    for run in scenario_runs(sc):
+        ring, init = build_ring(sc, run.controller, run.length_m, run.aevs)
         res = RingSimulator(ring, opts).run(init, t_end)
         fleet = fleet_metrics(res, t_from)
-        fleet.update({"length_m": ring.length_m, "density_per_km": ring.density_per_km,
-                      "aevs": 0 if ctrl is None else len(s.aev_vehicles), "controller": ctrl or "human"})
+        fleet.update({"length_m": ring.length_m, "density_per_km": ring.density_per_km, "aevs": len(run.aevs)
+                      if run.controller is not None else 0, "controller": run.controller or "human"})
         _add_controller_stats(res, fleet)
-        out.append(RingExperiment("all human" if ctrl is None else ctrl, res, fleet))
+        out.append(RingExperiment(run.label, res, fleet))
+    for e in out:  # relative changes against the all-human run on the same ring (−0.5 = 50 % lower)
+        human = next((h for h in out if h.fleet["aevs"] == 0 and h.fleet["length_m"] == e.fleet["length_m"]), None)
+        if human is not None and e is not human:
+            e.fleet.update({f"change_{k}": v for k, v in relative_to(human.fleet, e.fleet).items()})
     return out
 
 

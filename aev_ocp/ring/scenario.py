@@ -15,6 +15,10 @@ A ring scenario file has ``name``, ``description``, the vehicle tables every sce
 * ``[ring.aev]`` (optional): ``vehicles`` (1-based vehicle numbers driven by an AEV), ``controllers`` (one run per
   name, :data:`aev_ocp.ring.laws.AEV_CONTROLLERS`), ``r_fraction`` (FollowerStopper's desired speed as a share of
   the uniform-flow speed, default 0.85), ``all_human`` (also run the ring with no AEV first, default true);
+* ``[ring.sweep]`` (optional, instead of ``[ring.aev]``): ``aevs`` (numbers of AEVs, spread evenly around the
+  ring: vehicles round(j n / k) + 1), ``density_per_km`` or ``length_m`` (an array: the rings; default the one
+  of ``[ring]``), ``controllers`` (default ["followerstopper"]) and ``r_fraction``: one run per ring, AEV count
+  and controller (the AEV count 0, all human, once per ring);
 * the start: ``[ring.perturbation]`` (uniform flow, then ``vehicle`` (1-based, default 1) moved back ``shift_m``
   [m] (default 2) and slowed by ``speed_dip_mps`` [m/s] (default 0)), or ``[ring.initial]`` with ``positions_m``
   and ``speeds_mps`` (one per vehicle; vehicle i − 1 ahead of vehicle i).
@@ -69,6 +73,19 @@ class RingSpec:
     speed_dip_mps: float = 0.0
     positions_m: tuple[float, ...] | None = None
     speeds_mps: tuple[float, ...] | None = None
+    sweep_aevs: tuple[int, ...] = ()  # [ring.sweep]: AEV counts
+    sweep_length_m: tuple[float, ...] = ()  # [ring.sweep]: ring lengths [m]
+
+
+@dataclass(frozen=True)
+class RingRun:
+    """One run of a ring scenario: its label, the ring's length [m], the 0-based AEV vehicles and their
+    controller (None: all human)."""
+
+    label: str
+    length_m: float
+    aevs: tuple[int, ...]
+    controller: str | None
 
 
 @dataclass(frozen=True)
@@ -140,6 +157,35 @@ def validate_ring_table(r: TableReader) -> RingSpec:
         kw["r_fraction"] = a.number("r_fraction", 0.85, gt=0, le=1.5)
         kw["all_human"] = a.boolean("all_human", True)
         a.finish()
+    if r.has("sweep"):
+        if r.has("initial"):
+            raise r.error("sweep", r.table["sweep"], "a sweep starts every ring from uniform flow and "
+                          "[ring.perturbation]; [ring.initial] gives one ring's positions")
+        if r.has("aev"):
+            raise r.error("sweep", r.table["sweep"], "give [ring.aev] (one ring, AEVs at given vehicles) or "
+                          "[ring.sweep] (AEV counts × rings), not both")
+        sw = r.sub("sweep")
+        counts = sw.numbers("aevs", ge=0)
+        if any(int(x) != x or x > n for x in counts) or len(set(counts)) != len(counts):
+            raise sw.error("aevs", sw.table["aevs"], f"must be distinct whole numbers of AEVs in 0 … {n}")
+        if sw.has("length_m") and sw.has("density_per_km"):
+            raise sw.error("length_m", sw.table["length_m"], "give length_m or density_per_km, not both")
+        if sw.has("density_per_km"):
+            lengths = [1000.0 * n / d for d in sw.numbers("density_per_km", gt=0)]
+            key = "density_per_km"
+        else:
+            lengths = sw.numbers("length_m", [length], gt=0)
+            key = "length_m"
+        for L in lengths:
+            if n * ell >= L:
+                raise sw.error(key, sw.table[key], f"{n} vehicles of {ell:g} m do not fit on a ring of {L:g} m")
+        ctrls = sw.strings("controllers", ["followerstopper"], choices=list(AEV_CONTROLLERS))
+        if len(set(ctrls)) != len(ctrls):
+            raise sw.error("controllers", sw.table["controllers"], "names a controller twice; each runs once")
+        kw.update(sweep_aevs=tuple(int(x) for x in counts), sweep_length_m=tuple(lengths), controllers=tuple(ctrls),
+                  r_fraction=sw.number("r_fraction", 0.85, gt=0, le=1.5))
+        sw.finish()
+        length = min(lengths)  # the perturbation must fit on every ring
     if r.has("perturbation") and r.has("initial"):
         raise r.error("initial", r.table["initial"], "give [ring.perturbation] or [ring.initial], not both")
     if r.has("initial"):
@@ -230,13 +276,17 @@ def load_ring_scenario(path: str | Path) -> RingScenario:
     return parse_ring_scenario(doc, file, p)
 
 
-def build_ring(sc: RingScenario, controller: str | None) -> tuple[Any, Any]:
-    """(RingRoad, RingInitial) of the scenario with its AEVs under ``controller`` (None: all human)."""
+def build_ring(sc: RingScenario, controller: str | None, length_m: float | None = None,
+               aevs: tuple[int, ...] | None = None) -> tuple[Any, Any]:
+    """(RingRoad, RingInitial) of the scenario with its AEVs (default ``[ring.aev]``'s vehicles; 0-based) under
+    ``controller`` (None: all human), on a ring of ``length_m`` [m] (default the scenario's)."""
     from .laws import idm_si, make_aev
     from .simulate import RingInitial, RingRoad, uniform_flow, uniform_speed_mps
     from ..models.carfollowing import OVM
 
     s, ev = sc.spec, sc.ev
+    length = s.length_m if length_m is None else float(length_m)
+    on = s.aev_vehicles if aevs is None else tuple(aevs)
     rng = np.random.default_rng(s.seed + 7919)  # the same draws as aev_ocp.ring.experiments.human_ring
     humans: list[Any] = []
     for _ in range(s.vehicles):
@@ -245,7 +295,7 @@ def build_ring(sc: RingScenario, controller: str | None) -> tuple[Any, Any]:
             humans.append(idm_si(ev.units, *[v * fk for v, fk in zip(s.human_params.values(), f)]))
         else:
             humans.append(OVM(alpha=float(s.human_params["alpha_per_s"] * f[0] * ev.units.time_s)))
-    base = RingRoad(s.length_m, tuple(humans), s.vehicle_length_m, ev, tuple([True] * s.vehicles), s.noise_mps2,
+    base = RingRoad(length, tuple(humans), s.vehicle_length_m, ev, tuple([True] * s.vehicles), s.noise_mps2,
                     s.noise_dt_s, s.seed)
     vehicles, human = list(humans), [True] * s.vehicles
     if controller is not None:
@@ -254,21 +304,36 @@ def build_ring(sc: RingScenario, controller: str | None) -> tuple[Any, Any]:
         except ParameterError as exc:
             raise ScenarioError(f"{sc.source or sc.name}: {exc}") from None
         mpc = (sc.mpc.settings, sc.mpc.formulation) if sc.mpc is not None else None
-        for i in s.aev_vehicles:
+        for i in on:
             vehicles[i] = make_aev(controller, ev, r_mps, mpc)
             human[i] = False
-    ring = RingRoad(s.length_m, tuple(vehicles), s.vehicle_length_m, ev, tuple(human), s.noise_mps2, s.noise_dt_s,
+    ring = RingRoad(length, tuple(vehicles), s.vehicle_length_m, ev, tuple(human), s.noise_mps2, s.noise_dt_s,
                     s.seed)
-    if s.positions_m is not None and s.speeds_mps is not None:
+    if s.positions_m is not None and s.speeds_mps is not None and length == s.length_m:
         init = RingInitial(s.positions_m, s.speeds_mps, None, "given positions and speeds")
     else:
         init = uniform_flow(base, shift_m=s.shift_m, vehicle=s.perturbed_vehicle, speed_dip_mps=s.speed_dip_mps)
     return ring, init
 
 
-def scenario_runs(sc: RingScenario) -> list[str | None]:
-    """The runs of a scenario: None (all human) first when asked for, then one per AEV controller."""
+def spread(k: int, n: int) -> tuple[int, ...]:
+    """k AEV positions (0-based) spread evenly over n vehicles: round(j n / k), j = 0 … k − 1."""
+    return tuple(sorted({int(round(j * n / k)) for j in range(k)})) if k else ()
+
+
+def scenario_runs(sc: RingScenario) -> list[RingRun]:
+    """The runs of a scenario: all human first when asked for, then one per AEV controller; with
+    ``[ring.sweep]`` one per ring × AEV count × controller (count 0 once per ring)."""
     s = sc.spec
-    runs: list[str | None] = [None] if (s.all_human or not s.controllers) else []
-    return runs + list(s.controllers)
+    if s.sweep_aevs:
+        out = []
+        for L in s.sweep_length_m:
+            dens = 1000.0 * s.vehicles / L
+            for k in s.sweep_aevs:
+                for c in (s.controllers[:1] if k == 0 else s.controllers):
+                    out.append(RingRun(f"{dens:.4g}/km, {k} {'human' if k == 0 else c}", L, spread(k, s.vehicles),
+                                       None if k == 0 else c))
+        return out
+    runs = [RingRun("all human", s.length_m, (), None)] if (s.all_human or not s.controllers) else []
+    return runs + [RingRun(c, s.length_m, s.aev_vehicles, c) for c in s.controllers]
 
