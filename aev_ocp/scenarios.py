@@ -11,7 +11,7 @@ Schema (model units unless a key says otherwise; see README.md "Scenario files")
     description = "..."                 # optional
     compare = ["proposed", "ovfl"]      # optional: run the whole platoon once per law
 
-    [units]       length_m, speed_mps                       (PROBLEM.md §1)
+    [units]       length_m, speed_mps                       (model guide §1)
     [leader]      kind = "constant" | "paper" | "cycle" | "array"
                   constant: v                               [model speed]
                   paper:    v0, amplitude, forcing_end      (paper eq. acc5; forcing_end [model time])
@@ -32,6 +32,7 @@ Every model-unit key has an SI twin (:data:`SI_TWINS`), converted with the file'
 simulation.t_end_s, dt_out_s [s]; platoon.gap0_m, gap0_first_m, gap0_others_m, gaps0_m [m],
 speed0_mps, speeds0_mps [m/s]; leader.v_mps, v0_mps [m/s], amplitude_mps2 [m/s²], forcing_end_s,
 times_s [s], speeds_mps [m/s]. Give one key of a pair, not both.
+
     [vehicle] [cell] [pack]  fields of VehicleParams, CellParams, PackParams (SI names); [cell] name = "<shipped
                   cell>" (aev_ocp/data/cells/, e.g. "a123_anr26650") or file = "<cell file>" selects a cell file
                   (aev_ocp.cells), its other keys override it; the pack layout stays in [pack]

@@ -116,7 +116,8 @@ def cli_ring(argv: list[str]) -> int:
 
             for r in runs:
                 name = "space_time_" + "".join(c if c.isalnum() else "_" for c in r.label) + ".png"
-                files.append(space_time(r.result, out / name, r.label))
+                space_time(r.result, out / name, r.label)
+                files.append(out / name)
     except (ParameterError, ScenarioError) as exc:
         _err(str(exc))
         return EXIT_BAD_INPUT

@@ -6,19 +6,15 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from matplotlib.figure import Figure
 
 from .simulate import RingResult
 
 
-def space_time(res: RingResult, path: str | Path, title: str = "") -> Path:
+def space_time(res: RingResult, path: str | Path | None = None, title: str = "") -> Figure:
     """Every vehicle's position along the ring [m] against time [s], coloured by its speed [m/s]; the AEVs (not
-    human) drawn as black lines. Written to ``path`` (PNG) and returned."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from ..results import save_figure_atomic
+    human) drawn as black lines. Returns the matplotlib Figure; given a ``path`` it also writes it there (PNG)."""
+    from ..plots import plt, save_figure
 
     t, x, v = res.t_s, res.positions_m(), res.speed_mps
     fig, ax = plt.subplots(figsize=(8, 4.5))
@@ -34,20 +30,15 @@ def space_time(res: RingResult, path: str | Path, title: str = "") -> Path:
     ax.set_ylabel("position on the ring [m]")
     ax.set_title(title or f"{res.ring.n} vehicles on {res.ring.length_m:g} m")
     fig.tight_layout()
-    out = save_figure_atomic(fig, path, dpi=110)
-    plt.close(fig)
-    return Path(out)
+    return save_figure(fig, path)
 
 
-def space_time_panels(runs: list[tuple[str, RingResult]], path: str | Path, t_from_s: float = 0.0) -> Path:
+def space_time_panels(runs: list[tuple[str, RingResult]], path: str | Path | None = None,
+                      t_from_s: float = 0.0) -> Figure:
     """The space-time diagrams of several ring runs side by side (one panel per (label, result), the same
-    speed colour scale, from ``t_from_s`` [s] on); the AEVs drawn as black lines. Written to ``path`` (PNG)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from ..results import save_figure_atomic
+    speed colour scale, from ``t_from_s`` [s] on); the AEVs drawn as black lines. Returns the Figure; given a
+    ``path`` it also writes it there (PNG)."""
+    from ..plots import plt, save_figure
 
     k = len(runs)
     cols = min(3, k)
@@ -73,6 +64,4 @@ def space_time_panels(runs: list[tuple[str, RingResult]], path: str | Path, t_fr
     for ax in axes.ravel()[k:]:
         ax.axis("off")
     fig.colorbar(sc, ax=axes.ravel().tolist(), label="speed [m/s]")
-    out = save_figure_atomic(fig, path, dpi=100)
-    plt.close(fig)
-    return Path(out)
+    return save_figure(fig, path)

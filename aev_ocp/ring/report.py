@@ -84,8 +84,8 @@ def ring_section(out_dir: Path, progress: Callable[[str], None]) -> str:
                       _pct(rel.get("heat_pack_J_per_km", math.nan)), f["collisions"], f.get("fallbacks", "–"),
                       _g(f.get("call_ms_median", math.nan), ".3g") if "call_ms_median" in f else "–"])
     ctx("ring: space-time diagrams")
-    fig = space_time_panels([(r.label, r.result) for r in runs], out_dir / "ring_space_time.png",
-                            t_from_s=float(runs[0].fleet["window_s"][0]))
+    png = out_dir / "ring_space_time.png"
+    space_time_panels([(r.label, r.result) for r in runs], png, t_from_s=float(runs[0].fleet["window_s"][0]))
     write_json(out_dir / "ring.json", {"sugiyama": doc_sug, "stern": [{"label": r.label, **r.fleet} for r in runs]})
     md += ["### Stern: one AEV (vehicle 1) among 21 human drivers\n\n",
            "Each row against the all-human ring (Δ: relative change). Energy: battery energy per km of the whole "
@@ -94,7 +94,7 @@ def ring_section(out_dir: Path, progress: Callable[[str], None]) -> str:
            "formulation's 2 m floor and its safety filter; call: median controller call [ms].\n\n",
            markdown_table(["AEV controller", "speed std [m/s]", "Δ", "braking events", "energy [kJ/km]", "Δ",
                            "pack heat [J/km]", "Δ", "collisions", "fallbacks", "call [ms]"], srows),
-           f"\n![space-time diagrams of the ring runs]({fig.name})\n\n"
+           f"\n![space-time diagrams of the ring runs]({png.name})\n\n"
            "Files: ring.json (every fleet metric, SI), ring_space_time.png.\n"]
     return "".join(md)
 

@@ -50,7 +50,7 @@ from ..models.battery import piecewise_ocv
 from ..models.ego import battery_side
 from ..params import EVParams, ParameterError, check_argument
 from ..plant import EVENT_RULES, event_at, event_header, rule_of_code
-from ..results import Event, SimulationResult
+from ..results import Event, SimulationResult, fmt_value, summary_html, summary_text
 from ..simulate import _law_template
 
 RING_METHODS = ("auto", "compiled", "cvodes")
@@ -265,6 +265,25 @@ class RingResult:
     def accel_mps2(self) -> np.ndarray:
         """Realised accelerations (K, n) [m/s²]."""
         return np.asarray(self.sim.accel * self.ring.ev.units.accel_mps2)
+
+    def _repr_fields(self) -> tuple[str, list[tuple[str, Any]]]:
+        v = self.speed_mps
+        half = v[v.shape[0] // 2:]
+        aevs = sum(not self.ring.is_human(i) for i in range(self.ring.n))
+        return (f"RingResult: {self.ring.n} vehicles ({aevs} AEV) on {self.ring.length_m:g} m, status {self.status}",
+                [("duration_s", float(self.t_s[-1])), ("samples", int(self.t_s.size)),
+                 ("mean speed, second half [m/s]", float(half.mean())),
+                 ("speed std, second half [m/s]", float(half.std())), ("min gap [m]", float(self.gap_m.min()))])
+
+    def __repr__(self) -> str:
+        """A few lines: the ring, the status, duration [s], the speeds over the second half [m/s], the min gap [m]."""
+        title, fields = self._repr_fields()
+        return summary_text(title, [", ".join(f"{k} {fmt_value(x)}" for k, x in fields[:2]),
+                                    ", ".join(f"{k} {fmt_value(x)}" for k, x in fields[2:])])
+
+    def _repr_html_(self) -> str:
+        title, fields = self._repr_fields()
+        return summary_html(title, fields)
 
     def positions_m(self, wrap: bool = True) -> np.ndarray:
         """Positions (K, n) [m] along the ring (in [0, L) when ``wrap``)."""
