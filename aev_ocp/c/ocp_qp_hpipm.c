@@ -50,8 +50,15 @@ struct ocpqp_solver {
   int *nbx, *nbu;      /* (N+1) */
   double *buf;         /* scratch: matrices and vectors of one stage */
   double *bl, *bu, *ml, *mu;  /* one stage's box bounds and masks */
+  double *gml, *gmu;          /* one stage's general-row masks */
   double *u, *x, *pi, *llb, *lub, *llg, *lug;  /* one stage's solution */
 };
+
+/* Dimensions this glue refuses (ocpqp_hpipm_create returns NULL): nx = 1 with nx + nu a multiple of 4 (nu = 3,
+ * 7, ...). Measured on the casadi 3.7 wheel's libhpipm: the controls of stages 1..N-1 come out wrong even for
+ * an unconstrained QP with diagonal R (stage 0, whose x_0 is eliminated, is right), in every mode; every other
+ * nx in 1..5 with nu in 0..9 agrees with ocp_qp.c to 1e-9 (tests/test_ocp_qp.py). Cause not found. */
+int ocpqp_hpipm_unsupported(const ocpqp_dims *d) { return d->nx == 1 && (d->nx + d->nu) % 4 == 0; }
 
 static size_t align8(size_t n) { return (n + 63) & ~(size_t)63; }
 
@@ -60,6 +67,7 @@ static int finite_bound(double v) { return isfinite(v) && fabs(v) < OCPQP_INF; }
 ocpqp_solver *ocpqp_hpipm_create(const ocpqp_dims *dims, const ocpqp_settings *settings, int mode) {
   if (!dims || dims->N < 1 || dims->nx < 1 || dims->nu < 0 || dims->nc < 0 || dims->ncN < 0) return NULL;
   if (mode != SPEED && mode != BALANCE && mode != ROBUST && mode != SPEED_ABS) return NULL;
+  if (ocpqp_hpipm_unsupported(dims)) return NULL;
   ocpqp_solver *s = (ocpqp_solver *)calloc(1, sizeof(ocpqp_solver));
   if (!s) return NULL;
   int N = dims->N, nx = dims->nx, nu = dims->nu, nb = nx + nu, k;
@@ -75,11 +83,12 @@ ocpqp_solver *ocpqp_hpipm_create(const ocpqp_dims *dims, const ocpqp_settings *s
   size_t nbuf = (size_t)nb * nb + (size_t)ngmax * nb + (size_t)nx * nb + 4 * (size_t)nb + 2 * (size_t)ngmax;
   s->buf = (double *)calloc(nbuf, sizeof(double));
   s->bl = (double *)calloc((size_t)nb * 4, sizeof(double));
-  s->u = (double *)calloc((size_t)(nb * 5 + 2 * ngmax + 1), sizeof(double));
+  s->u = (double *)calloc((size_t)(nb * 5 + 4 * ngmax + 2), sizeof(double));
   if (!s->hnx || !s->hnu || !s->nbx || !s->nbu || !s->idx || !s->buf || !s->bl || !s->u) { ocpqp_free(s); return NULL; }
   s->bu = s->bl + nb; s->ml = s->bu + nb; s->mu = s->ml + nb;
   s->x = s->u + nb; s->pi = s->x + nb; s->llb = s->pi + nb; s->lub = s->llb + nb; s->llg = s->lub + nb;
   s->lug = s->llg + ngmax + 1;
+  s->gml = s->lug + ngmax + 1; s->gmu = s->gml + ngmax;
   for (k = 0; k <= N; ++k) { s->hnx[k] = k == 0 ? 0 : nx; s->hnu[k] = k < N ? nu : 0; }
   /* dims: box rows are set per solve only through the masks, so every variable is a box row here */
   size_t sz_dim = align8(d_ocp_qp_dim_memsize(N));
@@ -202,25 +211,26 @@ int ocpqp_solve(ocpqp_solver *s, const ocpqp_data *d, double *w, double *pi, dou
     const double *lb = d->lbw + (size_t)k * nb, *ub = d->ubw + (size_t)k * nb;
     int a, b;
     /* cost: Q (x block), S (u x), R (u block); q, r (stage 0: x0 folded into r) */
+    /* (matrices first, then the vectors: HPIPM keeps r and q in the last row of one RSQrq matrix) */
     if (kx) {
       for (b = 0; b < nx; ++b) for (a = 0; a < nx; ++a) M[(size_t)b * nx + a] = H[(size_t)b * n + a];
       d_ocp_qp_set_Q(k, M, &s->qp);
-      d_ocp_qp_set_q(k, (double *)g, &s->qp);
     }
     if (ku) {
       for (b = 0; b < nu; ++b) for (a = 0; a < nu; ++a) M[(size_t)b * nu + a] = H[(size_t)(nx + b) * n + nx + a];
       d_ocp_qp_set_R(k, M, &s->qp);
+      if (kx) {
+        for (b = 0; b < nx; ++b) for (a = 0; a < nu; ++a) M[(size_t)b * nu + a] = H[(size_t)b * n + nx + a];
+        d_ocp_qp_set_S(k, M, &s->qp);
+      }
       for (a = 0; a < nu; ++a) {
         double r = g[nx + a];
         if (k == 0) for (b = 0; b < nx; ++b) r += H[(size_t)b * n + nx + a] * x0[b];
         v1[a] = r;
       }
       d_ocp_qp_set_r(k, v1, &s->qp);
-      if (kx) {
-        for (b = 0; b < nx; ++b) for (a = 0; a < nu; ++a) M[(size_t)b * nu + a] = H[(size_t)b * n + nx + a];
-        d_ocp_qp_set_S(k, M, &s->qp);
-      }
     }
+    if (kx) d_ocp_qp_set_q(k, (double *)g, &s->qp);
     /* dynamics: A (x), B (u), b (stage 0: + A x0) */
     if (k < N) {
       const double *E = d->E + (size_t)k * nx * nb, *e = d->e + (size_t)k * nx;
@@ -237,7 +247,7 @@ int ocpqp_solve(ocpqp_solver *s, const ocpqp_data *d, double *w, double *pi, dou
     if (m) {
       const double *Ck = k < N ? C : d->C + (size_t)N * nc * nb;
       const double *lck = k < N ? lc : d->lc + (size_t)N * nc, *uck = k < N ? uc : d->uc + (size_t)N * nc;
-      double *ml = s->ml, *mu = s->mu;
+      double *ml = s->gml, *mu = s->gmu;
       for (a = 0; a < m; ++a) {
         double shift = 0.0;
         if (k == 0) for (b = 0; b < nx; ++b) shift += Ck[(size_t)b * m + a] * x0[b];

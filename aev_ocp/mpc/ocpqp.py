@@ -187,6 +187,8 @@ def hpipm_library() -> ctypes.CDLL | str:
     _declare(lib)
     lib.ocpqp_hpipm_create.restype = ctypes.c_void_p
     lib.ocpqp_hpipm_create.argtypes = [ctypes.POINTER(_Dims), ctypes.POINTER(_Settings), ctypes.c_int]
+    lib.ocpqp_hpipm_unsupported.restype = ctypes.c_int
+    lib.ocpqp_hpipm_unsupported.argtypes = [ctypes.POINTER(_Dims)]
     _HPIPM_LIB.append(lib)
     return lib
 
@@ -298,6 +300,9 @@ class OcpQP:
             lib = hpipm_library()
             if isinstance(lib, str):
                 raise OcpQPError(f"the HPIPM backend is unavailable: {lib}")
+            if lib.ocpqp_hpipm_unsupported(ctypes.byref(cd)):
+                raise OcpQPError(f"the HPIPM backend refuses nx = 1 with nx + nu a multiple of 4 ({dims}): the "
+                                 "shipped libhpipm returns wrong controls there (aev_ocp/c/ocp_qp_hpipm.c)")
             self._lib = lib
             self._ptr = lib.ocpqp_hpipm_create(ctypes.byref(cd), ctypes.byref(cs), HPIPM_MODES[hpipm_mode])
         else:
