@@ -349,3 +349,31 @@ def test_chunks_cover_every_task_once(tmp_path):
     single = [runner_mod.run_task(s) for s in specs]
     strip = lambda rs: [{k: v for k, v in r.items() if k != "wall_s"} for r in rs]  # noqa: E731
     assert strip(batch) == strip(single)
+
+
+def test_study_ocpd_is_the_same_solve_and_replay_as_aev_ocp_mpc_on_a_coarse_grid(tmp_path, monkeypatch):
+    """The study's OCP-D runs aev-ocp mpc's solve-and-replay: a run too long for the MPC's grid gets the coarse
+    grid there too (said in 'grid_dt' and 'coarse'), and its replay equals run_comparison's to the bit."""
+    import aev_ocp.ocp.oracle as oracle
+    from aev_ocp.mpc.report import run_comparison
+
+    monkeypatch.setattr(oracle, "ORACLE_BOUND_MAX_INTERVALS", 20)  # the run is too long for the MPC's grid
+    text = """
+scenarios = ["mpc_udds_single"]
+reference = "proposed"
+[overrides]
+"simulation.t_end" = 2.7
+"mpc.N" = 8
+[controllers]
+laws = ["proposed"]
+ocpd = true
+"""
+    out = run_study(read_study(_study(tmp_path, text)), tmp_path / "o", executor="inprocess", report=False)
+    row = next(r for r in out.rows if r["controller"] == "ocp-d")
+    sc = load_scenario("mpc_udds_single").with_overrides({"simulation.t_end": 2.7, "mpc.N": 8})
+    c = run_comparison(sc, laws=(), with_ocpd=True)
+    assert row["coarse"] is True and row["grid_dt"] == pytest.approx(c.ocpd["grid_dt"], rel=1e-12)
+    assert c.ocpd["grid_dt"] == pytest.approx(sc.t_end / 2, rel=1e-12)  # the 1 s grid (1.3 model time, 2 intervals)
+    assert row["cost_traffic_optimum"] == c.ocpd["cost_traffic_grid"]
+    for k in ("heat_pack_J", "omega_model", "rms_jerk_model", "distance_m"):
+        assert row[k] == c.ocpd[k], k
