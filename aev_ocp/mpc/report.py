@@ -3,8 +3,8 @@ by ``aev-ocp mpc`` and by the ``reproduce`` report section.
 
 Like with like (issue 20): every run is costed with the running formulation's own cost (``Formulation.cost_key``)
 on the MPC's grid; OCP-D solves the same formulation, on the MPC's grid whenever it fits
-(:data:`aev_ocp.ocp.oracle.ORACLE_BOUND_MAX_INTERVALS`), and its column is a *bound* only when it is that optimum on that grid and
-its cost is at most every whole run's (checked); otherwise it is labelled 'reference'. Violations count against the
+(:data:`aev_ocp.ocp.oracle.ORACLE_BOUND_MAX_INTERVALS`; :func:`aev_ocp.ocp.oracle.solve_and_replay`), and its
+column is a *bound* only when it is that optimum on that grid and its cost is at most every whole run's (checked); otherwise it is labelled 'reference'. Violations count against the
 running formulation's bounds for every column. Another formulation's cost (the §9 cost of a traffic MPC) is only in a
 secondary table. Equal-distance and equal-time views (:func:`aev_ocp.truncation.equal_views`) rank runs of
 different length."""

@@ -464,7 +464,8 @@ def solve_and_replay(sc: Any, dt: float, formulation: Formulation, *, time_limit
     controller's grid of step ``dt`` [model time] — or, a run longer than ``max_intervals`` (default
     :data:`ORACLE_BOUND_MAX_INTERVALS`) intervals (the memory check), on the coarse 1 s grid
     (:func:`oracle_grid_dt`) — then the optimum replayed through the exact plant on
-    the grid of step dt (:func:`replay`; a coarse §9 optimum is held over its own grid). The one OCP-D solve-and-replay of ``aev-ocp mpc``, studies and
+    the grid of step dt (:func:`replay`; a coarse §9 optimum is held over its own grid). The one OCP-D
+    solve-and-replay of ``aev-ocp mpc``, studies and
     ``reproduce``. ``time_limit_s``: IPOPT's wall-time limit [s]; ``progress``: IPOPT's progress lines;
     ``replay_progress``: the replay's (t, t_end)."""
     scn = ocpd_scenario(sc, dt, formulation, max_intervals)
