@@ -43,7 +43,7 @@ RANDOM = {
     "traffic N=25 (random)": OcpQPDims(N=25, nx=6, nu=3, nc=6),
 }
 DATA = Path(__file__).resolve().parent.parent / "tests" / "data"
-CONIC = {"hpipm": {"hpipm": {"iter_max": 100, "warm_start": 0}},  # as aev_ocp.mpc.controller._qp_options
+CONIC = {"hpipm": {"hpipm": {"iter_max": 100, "warm_start": 0}},  # as aev_ocp.mpc.rti.qp_options
          "qrqp": {"print_iter": False, "print_header": False, "print_info": False}}
 
 
@@ -104,7 +104,8 @@ def rti_qp(formulation: str, N: int) -> tuple[OcpQPDims, dict[str, Any]]:
     c = MPCController(MPCSettings(rti_hessian="exact", solver="rti", qp_solver="hpipm",
                                   codegen=False, N=N, max_step_ms=1e4), formulation=formulation_from_dict({"formulation": formulation}))
     seen: list[dict[str, Any]] = []
-    qp = c._rti_qp
+    assert c.rti is not None
+    qp = c.rti.qp
 
     class Recorder:
         def __call__(self, **kw: Any) -> Any:
@@ -114,7 +115,7 @@ def rti_qp(formulation: str, N: int) -> tuple[OcpQPDims, dict[str, Any]]:
         def stats(self) -> Any:
             return qp.stats()
 
-    c._rti_qp = Recorder()
+    c.rti.qp = Recorder()
     dt = c.settings.dt
     z = np.array([0.6, 1.7, 0.0, 0.0, 0.8])
     for step in range(3):
