@@ -30,7 +30,7 @@ from ..compiled import compile_shared, compiler
 from ..models.carfollowing import CarFollowingLaw
 from ..numerics import rk4
 from ..ocp.problem import OCPProblem
-from ..ocp.transcription import TranscriptionOptions, interval_function, with_discrete_update
+from ..ocp.transcription import TranscriptionOptions, horizon_nlp, interval_function, with_discrete_update
 from .settings import MPCSettings
 
 _SQP_EXTRA: dict[str, Any] = {}
@@ -93,25 +93,16 @@ class HorizonNLP:
         s, pr = self.settings, self.problem
         N, nx, nu = s.N, pr.nx, pr.nu
         nb = nx + nu
-        xs = ca.DM(self.x_scale)
         V = ca.MX.sym("V", nb * N + nx)
         P = ca.MX.sym("p", pr.nw * N + pr.np_ + N)  # stage parameters per interval, p, stage weights
-        Xk, Uk, Xn, W, PP, SW = self.stage_inputs(V, P)
-        eq, path, J = self.F.map(N, "serial")(Xk, Uk, ca.MX(0, N), Xn, W, ca.repmat(PP, 1, N), s.dt)
-        f, g = ca.sum2(J * SW), [ca.vec(ca.vertcat(eq, path))]
-        lbg_k = np.concatenate([np.zeros(nx), np.asarray(pr.path_lb, float)])
-        ubg_k = np.concatenate([np.zeros(nx), np.asarray(pr.path_ub, float)])
-        lbg, ubg = [np.tile(lbg_k, N)], [np.tile(ubg_k, N)]
-        xN = V[nb * N:] * xs
-        if pr.terminal_cost is not None:
-            f = f + pr.terminal_cost(xN, PP)
-        if pr.terminal is not None:
-            g.append(pr.terminal(xN, PP))
-            lbg.append(np.asarray(pr.terminal_lb, float))
-            ubg.append(np.asarray(pr.terminal_ub, float))
-        self.nlp = {"x": V, "p": P, "f": f, "g": ca.vertcat(*g)}
-        self.lbg, self.ubg = np.concatenate(lbg), np.concatenate(ubg)
-        self.ng_stage = lbg_k.size
+        W, PP, SW = self.stage_inputs(V, P)[3:]
+        # the one horizon NLP of the transcription (as OCP-D's), on the MPC's parameters and stage weights; the
+        # measured initial state is fixed by equal simple bounds (per solve)
+        hz = horizon_nlp(pr, TranscriptionOptions(method="ms", N=N, rk4_substeps=s.rk4_substeps), V, W, PP, s.dt,
+                         stage_weights=SW, interval=self.F)
+        self.nlp = {"x": V, "p": P, "f": hz.objective, "g": ca.vertcat(*hz.g)}
+        self.lbg, self.ubg = np.concatenate(hz.lbg), np.concatenate(hz.ubg)
+        self.ng_stage = hz.n_eq + hz.n_path
         (xl, xu), (ul, uu) = self._xb, self._ub
         xl_s, xu_s = xl / self.x_scale, xu / self.x_scale
         self.lbx = np.concatenate([np.tile(np.concatenate([xl_s, ul / self.u_scale]), N), xl_s])
