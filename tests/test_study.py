@@ -377,3 +377,41 @@ ocpd = true
     assert row["cost_traffic_optimum"] == c.ocpd["cost_traffic_grid"]
     for k in ("heat_pack_J", "omega_model", "rms_jerk_model", "distance_m"):
         assert row[k] == c.ocpd[k], k
+
+
+def test_study_ocpd_row_gets_the_bound_check_of_aev_ocp_mpc(tmp_path, monkeypatch):
+    """The study's OCP-D row is a 'bound' only when its optimum is at most every MPC run's own cost on the same
+    grid (as run_comparison's ocpd['role']); a planted optimum above an MPC run's cost makes it a 'reference'
+    naming that run; a coarse grid is always a 'reference'."""
+    import aev_ocp.study.table as table
+
+    text = """
+scenarios = ["mpc_udds_single"]
+reference = "proposed"
+[overrides]
+"simulation.t_end" = 2.6
+"mpc.N" = 7
+[controllers]
+laws = ["proposed"]
+ocpd = true
+[[controllers.mpc]]
+label = "mpc-a"
+codegen = false
+"""
+    study = read_study(_study(tmp_path, text))
+    out = run_study(study, tmp_path / "o", executor="inprocess", report=False)
+    rows = {r["controller"]: r for r in out.rows}
+    mpc, ocpd = rows["mpc-a"], rows["ocp-d"]
+    assert mpc["cost_traffic"] > ocpd["cost_traffic_optimum"] > 0  # the MPC's own cost on its grid, and the optimum
+    assert ocpd["ocpd_role"] == "bound" and ocpd["ocpd_role_reason"] == "" and ocpd["coarse"] is False
+    # the same check with the optimum moved above the MPC's cost (a solve that is no optimum of that grid)
+    planted = [dict(r) for r in out.rows]
+    for r in planted:
+        if r["controller"] == "ocp-d":
+            r["cost_traffic_optimum"] = 1.01 * mpc["cost_traffic"]
+    table._ocpd_roles(study, planted)
+    bad = next(r for r in planted if r["controller"] == "ocp-d")
+    assert bad["ocpd_role"] == "reference" and "mpc-a" in bad["ocpd_role_reason"]
+    coarse = [dict(r, coarse=True) if r["controller"] == "ocp-d" else dict(r) for r in out.rows]
+    table._ocpd_roles(study, coarse)
+    assert next(r for r in coarse if r["controller"] == "ocp-d")["ocpd_role"] == "reference"

@@ -138,6 +138,15 @@ def _own_cost(r: SimulationResult, i: int, s: MPCSettings, f: Formulation, pr: O
     return problem_cost_of_result(r, i, s.dt, pr, np.asarray(p, float))["total"]
 
 
+def own_cost(r: SimulationResult, i: int, s: MPCSettings, f: Formulation, ev: Any) -> float:
+    """The formulation ``f``'s own cost of follower i's run ``r`` on the MPC's grid (settings ``s``), as the MPC
+    comparison reports it (``f.cost_key``); NaN when the run did not cover its horizon (an event)."""
+    if r.events:
+        return float("nan")
+    pr = f.build(ev, s.dt)
+    return _own_cost(r, i, s, f, pr, f.parameter_vector(list(pr.meta.get("parameter_names", []))))
+
+
 def _violations(r: SimulationResult, i: int, b: ModelBounds) -> tuple[int, int]:
     """(gap, speed) violations of follower i's samples after t_0 against the bounds ``b`` [model units]."""
     h, v = r.gap[1:, i], r.speed[1:, i]
@@ -256,7 +265,7 @@ def run_comparison(scenario: Any, settings: MPCSettings | None = None, laws: tup
                             f"is its controls replayed and costed on the MPC's grid, a reference, not a lower bound "
                             f"(its own grid's optimum: {res.objective:.6g})")
             else:
-                ocpd["role"], why = _bound_role(float(res.objective), metrics, key)
+                ocpd["role"], why = bound_role(float(res.objective), metrics, key)
                 if why:
                     warn.append(why)
             ref = (metrics.get("proposed") or metrics["mpc"])[0]
@@ -268,7 +277,7 @@ def run_comparison(scenario: Any, settings: MPCSettings | None = None, laws: tup
     return Comparison(out, metrics, ocpd, tim, warn, f, views)
 
 
-def _bound_role(cost: float, metrics: dict[str, list[dict[str, Any]]], key: str) -> tuple[str, str]:
+def bound_role(cost: float, metrics: dict[str, list[dict[str, Any]]], key: str) -> tuple[str, str]:
     """('bound', '') when the OCP-D optimum ``cost`` (same formulation, the MPC's grid) is at most every whole
     run's ``key`` cost of follower 1 (within BOUND_RTOL), else ('reference', the warning naming the run)."""
     for lab, ms in metrics.items():

@@ -82,7 +82,15 @@ def _simulate(spec: dict[str, Any]) -> Any:
 
     cfg = sc.extra.get("mpc") or MPCConfig(MPCSettings())
     if ctrl.kind == "mpc":
-        return closed_loop_from_scenario(sc, cfg).run(list(sc.gaps0), list(sc.speeds0), sc.t_end)
+        r = closed_loop_from_scenario(sc, cfg).run(list(sc.gaps0), list(sc.speeds0), sc.t_end)
+        if spec.get("own_cost"):  # the study has an OCP-D: its bound check needs follower 1's own cost
+            from ..mpc.report import own_cost
+
+            f = cfg.formulation
+            st = dict(r.solver_stats[0] or {}) if r.solver_stats else {}
+            st[f.cost_key] = own_cost(r, 0, cfg.settings, f, sc.ev)
+            r.solver_stats = [st, *r.solver_stats[1:]]
+        return r
     return _ocpd(sc, cfg.settings, cfg.formulation)
 
 
