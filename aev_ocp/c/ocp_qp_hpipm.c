@@ -3,7 +3,7 @@
  * them; hand-written C99 glue, linked with -lhpipm -lblasfeo).
  *
  * What it does: x_0 is eliminated (HPIPM's stage 0 has no states: b_0 += A_0 x0, r_0 += S_0 x0,
- * lg/ug_0 -= C_0x x0), every bound with at least one finite side (|value| < OCPQP_INF) becomes an HPIPM box
+ * lg/ug_0 -= C_0x x0), every variable with at least one finite bound side (|value| < OCPQP_INF) is an HPIPM box
  * row (idxbx/idxbu), an absent side is masked (d_ocp_qp_set_lb_mask/ub_mask: its multiplier is zero); the
  * general rows are HPIPM's C x + D u rows. d_ocp_qp_ipm_solve runs with the mode given at creation
  * (SPEED, BALANCE or ROBUST: HPIPM's d_ocp_qp_ipm_arg_set_default) and ocp_qp.h's iteration limit,
@@ -14,7 +14,9 @@
  * NAN_SOL -> OCPQP_NONFINITE, INCONS_EQ -> OCPQP_INFEASIBLE; non-finite data -> OCPQP_NONFINITE and
  * lb > ub -> OCPQP_INFEASIBLE before any solve (outputs then not written), as ocp_qp.c. Like ocp_qp.c it does
  * not detect primal infeasibility of consistent bounds: such a QP ends at the iteration limit.
- * Memory: all HPIPM structures and the copy buffers are allocated once in ocpqp_hpipm_create.
+ * Memory: the copy buffers are allocated in ocpqp_hpipm_create; HPIPM's structures there (every variable a box
+ * row) and again whenever the pattern of finite bounds changes (the first solve, then only if it changes: the
+ * MPC's QPs keep theirs), which is the only allocation in ocpqp_solve (out of memory: OCPQP_BAD_DIMS).
  */
 #include <stdlib.h>
 #include <string.h>
@@ -44,9 +46,11 @@ struct ocpqp_solver {
   struct d_ocp_qp_sol sol;
   struct d_ocp_qp_ipm_arg arg;
   struct d_ocp_qp_ipm_ws ws;
-  void *mem;           /* one block for the HPIPM structures */
+  void *mem;           /* the HPIPM structures' three blocks (dims; qp, sol, arg; ws) */
   int *hnx, *hnu;      /* HPIPM's per-stage dims (N+1) */
   int *idx;            /* (N+1) * nb: box-row indices of the stage, HPIPM order (u first, then x) */
+  unsigned char *pat, *newpat;  /* (N+1) * nb: the variables with a finite bound side (box rows), this solve's */
+  int mode;
   int *nbx, *nbu;      /* (N+1) */
   double *buf;         /* scratch: matrices and vectors of one stage */
   double *bl, *bu, *ml, *mu;  /* one stage's box bounds and masks */
@@ -64,6 +68,68 @@ static size_t align8(size_t n) { return (n + 63) & ~(size_t)63; }
 
 static int finite_bound(double v) { return isfinite(v) && fabs(v) < OCPQP_INF; }
 
+/* The HPIPM structures for the box rows of the pattern s->pat (1: the variable has a finite side); the old ones
+ * are freed first. 0 on success, -1 out of memory. */
+static void release_hpipm(ocpqp_solver *s) {
+  if (s->mem) {
+    void **b = (void **)s->mem;
+    free(b[0]); free(b[1]); free(b[2]); free(b);
+    s->mem = NULL;
+  }
+}
+
+static int build_hpipm(ocpqp_solver *s) {
+  const int N = s->d.N, nx = s->d.nx, nb = s->nb;
+  int k, i;
+  release_hpipm(s);
+  void **blocks = (void **)calloc(3, sizeof(void *));
+  if (!blocks) return -1;
+  s->mem = blocks;
+  blocks[0] = malloc(align8(d_ocp_qp_dim_memsize(N)));
+  if (!blocks[0]) return -1;
+  d_ocp_qp_dim_create(N, &s->dim, blocks[0]);
+  for (k = 0; k <= N; ++k) {
+    const unsigned char *pk = s->pat + (size_t)k * nb;
+    int *ix = s->idx + (size_t)k * nb;
+    s->nbu[k] = s->nbx[k] = 0;
+    for (i = 0; i < s->hnu[k]; ++i) if (pk[nx + i]) ix[s->nbu[k]++] = i;
+    for (i = 0; i < s->hnx[k]; ++i) if (pk[i]) ix[s->nbu[k] + s->nbx[k]++] = i;
+    d_ocp_qp_dim_set_nx(k, s->hnx[k], &s->dim);
+    d_ocp_qp_dim_set_nu(k, s->hnu[k], &s->dim);
+    d_ocp_qp_dim_set_nbx(k, s->nbx[k], &s->dim);
+    d_ocp_qp_dim_set_nbu(k, s->nbu[k], &s->dim);
+    d_ocp_qp_dim_set_ng(k, k < N ? s->d.nc : s->d.ncN, &s->dim);
+    d_ocp_qp_dim_set_ns(k, 0, &s->dim);
+  }
+  size_t sz_qp = align8(d_ocp_qp_memsize(&s->dim)), sz_sol = align8(d_ocp_qp_sol_memsize(&s->dim));
+  size_t sz_arg = align8(d_ocp_qp_ipm_arg_memsize(&s->dim));
+  char *m = (char *)malloc(sz_qp + sz_sol + sz_arg);
+  if (!m) return -1;
+  blocks[1] = m;
+  d_ocp_qp_create(&s->dim, &s->qp, m);
+  d_ocp_qp_sol_create(&s->dim, &s->sol, m + sz_qp);
+  d_ocp_qp_ipm_arg_create(&s->dim, &s->arg, m + sz_qp + sz_sol);
+  d_ocp_qp_ipm_arg_set_default((enum hpipm_mode)s->mode, &s->arg);
+  int it = s->set.max_iter, ws0 = 0;
+  d_ocp_qp_ipm_arg_set_iter_max(&it, &s->arg);
+  d_ocp_qp_ipm_arg_set_tol_stat(&s->set.tol_stat, &s->arg);
+  d_ocp_qp_ipm_arg_set_tol_eq(&s->set.tol_eq, &s->arg);
+  d_ocp_qp_ipm_arg_set_tol_ineq(&s->set.tol_ineq, &s->arg);
+  d_ocp_qp_ipm_arg_set_tol_comp(&s->set.tol_comp, &s->arg);
+  d_ocp_qp_ipm_arg_set_reg_prim(&s->set.reg_prim, &s->arg);
+  d_ocp_qp_ipm_arg_set_warm_start(&ws0, &s->arg);
+  blocks[2] = malloc(align8(d_ocp_qp_ipm_ws_memsize(&s->dim, &s->arg)));
+  if (!blocks[2]) return -1;
+  d_ocp_qp_ipm_ws_create(&s->dim, &s->arg, &s->ws, blocks[2]);
+  /* box-row indices: HPIPM's idxbu/idxbx are stage-local (u: 0..nu-1, x: 0..nx-1) */
+  for (k = 0; k <= N; ++k) {
+    int *ix = s->idx + (size_t)k * nb;
+    if (s->nbu[k]) d_ocp_qp_set_idxbu(k, ix, &s->qp);
+    if (s->nbx[k]) d_ocp_qp_set_idxbx(k, ix + s->nbu[k], &s->qp);
+  }
+  return 0;
+}
+
 ocpqp_solver *ocpqp_hpipm_create(const ocpqp_dims *dims, const ocpqp_settings *settings, int mode) {
   if (!dims || dims->N < 1 || dims->nx < 1 || dims->nu < 0 || dims->nc < 0 || dims->ncN < 0) return NULL;
   if (mode != SPEED && mode != BALANCE && mode != ROBUST && mode != SPEED_ABS) return NULL;
@@ -73,6 +139,7 @@ ocpqp_solver *ocpqp_hpipm_create(const ocpqp_dims *dims, const ocpqp_settings *s
   int N = dims->N, nx = dims->nx, nu = dims->nu, nb = nx + nu, k;
   int ngmax = dims->nc > dims->ncN ? dims->nc : dims->ncN;
   s->d = *dims;
+  s->mode = mode;
   if (settings) s->set = *settings; else ocpqp_default_settings(&s->set);
   s->nb = nb;
   s->hnx = (int *)calloc((size_t)(N + 1), sizeof(int));
@@ -80,65 +147,24 @@ ocpqp_solver *ocpqp_hpipm_create(const ocpqp_dims *dims, const ocpqp_settings *s
   s->nbx = (int *)calloc((size_t)(N + 1), sizeof(int));
   s->nbu = (int *)calloc((size_t)(N + 1), sizeof(int));
   s->idx = (int *)calloc((size_t)(N + 1) * (size_t)nb, sizeof(int));
+  s->pat = (unsigned char *)calloc((size_t)(N + 1) * (size_t)nb, 1);
+  s->newpat = (unsigned char *)calloc((size_t)(N + 1) * (size_t)nb, 1);
   size_t nbuf = (size_t)nb * nb + (size_t)ngmax * nb + (size_t)nx * nb + 4 * (size_t)nb + 2 * (size_t)ngmax;
   s->buf = (double *)calloc(nbuf, sizeof(double));
   s->bl = (double *)calloc((size_t)nb * 4, sizeof(double));
   s->u = (double *)calloc((size_t)(nb * 5 + 4 * ngmax + 2), sizeof(double));
-  if (!s->hnx || !s->hnu || !s->nbx || !s->nbu || !s->idx || !s->buf || !s->bl || !s->u) { ocpqp_free(s); return NULL; }
+  if (!s->hnx || !s->hnu || !s->nbx || !s->nbu || !s->idx || !s->pat || !s->newpat || !s->buf || !s->bl || !s->u) {
+    ocpqp_free(s);
+    return NULL;
+  }
   s->bu = s->bl + nb; s->ml = s->bu + nb; s->mu = s->ml + nb;
   s->x = s->u + nb; s->pi = s->x + nb; s->llb = s->pi + nb; s->lub = s->llb + nb; s->llg = s->lub + nb;
   s->lug = s->llg + ngmax + 1;
   s->gml = s->lug + ngmax + 1; s->gmu = s->gml + ngmax;
   for (k = 0; k <= N; ++k) { s->hnx[k] = k == 0 ? 0 : nx; s->hnu[k] = k < N ? nu : 0; }
-  /* dims: box rows are set per solve only through the masks, so every variable is a box row here */
-  size_t sz_dim = align8(d_ocp_qp_dim_memsize(N));
-  s->mem = NULL;
-  void *mdim = malloc(sz_dim);
-  if (!mdim) { ocpqp_free(s); return NULL; }
-  d_ocp_qp_dim_create(N, &s->dim, mdim);
-  for (k = 0; k <= N; ++k) {
-    s->nbu[k] = s->hnu[k];
-    s->nbx[k] = s->hnx[k];
-    d_ocp_qp_dim_set_nx(k, s->hnx[k], &s->dim);
-    d_ocp_qp_dim_set_nu(k, s->hnu[k], &s->dim);
-    d_ocp_qp_dim_set_nbx(k, s->nbx[k], &s->dim);
-    d_ocp_qp_dim_set_nbu(k, s->nbu[k], &s->dim);
-    d_ocp_qp_dim_set_ng(k, k < N ? dims->nc : dims->ncN, &s->dim);
-    d_ocp_qp_dim_set_ns(k, 0, &s->dim);
-  }
-  size_t sz_qp = align8(d_ocp_qp_memsize(&s->dim)), sz_sol = align8(d_ocp_qp_sol_memsize(&s->dim));
-  size_t sz_arg = align8(d_ocp_qp_ipm_arg_memsize(&s->dim));
-  char *m = (char *)malloc(sz_qp + sz_sol + sz_arg);
-  if (!m) { free(mdim); ocpqp_free(s); return NULL; }
-  d_ocp_qp_create(&s->dim, &s->qp, m);
-  d_ocp_qp_sol_create(&s->dim, &s->sol, m + sz_qp);
-  d_ocp_qp_ipm_arg_create(&s->dim, &s->arg, m + sz_qp + sz_sol);
-  d_ocp_qp_ipm_arg_set_default((enum hpipm_mode)mode, &s->arg);
-  int it = s->set.max_iter, ws0 = 0;
-  d_ocp_qp_ipm_arg_set_iter_max(&it, &s->arg);
-  d_ocp_qp_ipm_arg_set_tol_stat(&s->set.tol_stat, &s->arg);
-  d_ocp_qp_ipm_arg_set_tol_eq(&s->set.tol_eq, &s->arg);
-  d_ocp_qp_ipm_arg_set_tol_ineq(&s->set.tol_ineq, &s->arg);
-  d_ocp_qp_ipm_arg_set_tol_comp(&s->set.tol_comp, &s->arg);
-  d_ocp_qp_ipm_arg_set_reg_prim(&s->set.reg_prim, &s->arg);
-  d_ocp_qp_ipm_arg_set_warm_start(&ws0, &s->arg);
-  size_t sz_ws = align8(d_ocp_qp_ipm_ws_memsize(&s->dim, &s->arg));
-  void *mws = malloc(sz_ws);
-  if (!mws) { free(mdim); free(m); ocpqp_free(s); return NULL; }
-  d_ocp_qp_ipm_ws_create(&s->dim, &s->arg, &s->ws, mws);
-  /* keep the three blocks: mem[0] = dims, then the rest (freed in ocpqp_free) */
-  void **blocks = (void **)malloc(3 * sizeof(void *));
-  if (!blocks) { free(mdim); free(m); free(mws); ocpqp_free(s); return NULL; }
-  blocks[0] = mdim; blocks[1] = m; blocks[2] = mws;
-  s->mem = blocks;
-  /* box-row indices: HPIPM's idxbu/idxbx are stage-local (u: 0..nu-1, x: 0..nx-1) */
-  for (k = 0; k <= N; ++k) {
-    int i, *ix = s->idx + (size_t)k * nb;
-    for (i = 0; i < s->nbu[k]; ++i) ix[i] = i;
-    if (s->nbu[k]) d_ocp_qp_set_idxbu(k, ix, &s->qp);
-    for (i = 0; i < s->nbx[k]; ++i) ix[s->nbu[k] + i] = i;
-    if (s->nbx[k]) d_ocp_qp_set_idxbx(k, ix + s->nbu[k], &s->qp);
-  }
+  /* every variable a box row until the first solve shows which have a finite side */
+  memset(s->pat, 1, (size_t)(N + 1) * (size_t)nb);
+  if (build_hpipm(s) != 0) { ocpqp_free(s); return NULL; }
   return s;
 }
 
@@ -154,11 +180,9 @@ void ocpqp_default_settings(ocpqp_settings *s) {
 
 void ocpqp_free(ocpqp_solver *s) {
   if (!s) return;
-  if (s->mem) {
-    void **b = (void **)s->mem;
-    free(b[0]); free(b[1]); free(b[2]); free(b);
-  }
-  free(s->hnx); free(s->hnu); free(s->nbx); free(s->nbu); free(s->idx); free(s->buf); free(s->bl); free(s->u);
+  release_hpipm(s);
+  free(s->hnx); free(s->hnu); free(s->nbx); free(s->nbu); free(s->idx); free(s->pat); free(s->newpat);
+  free(s->buf); free(s->bl); free(s->u);
   free(s);
 }
 
@@ -197,6 +221,18 @@ int ocpqp_solve(ocpqp_solver *s, const ocpqp_data *d, double *w, double *pi, dou
       if (isnan(lo) || isnan(up)) { info->status = OCPQP_NONFINITE; return info->status; }
       if (lo > up && finite_bound(lo) && finite_bound(up)) { info->status = OCPQP_INFEASIBLE; return info->status; }
     }
+  }
+  /* the box rows: the variables with a finite side; HPIPM's structures are rebuilt when that changes */
+  for (k = 0; k <= N; ++k) {
+    const int n = k < N ? nb : nx;
+    for (j = 0; j < (size_t)nb; ++j) {
+      size_t q = (size_t)k * nb + j;
+      s->newpat[q] = (unsigned char)(k > 0 || j >= (size_t)nx ? (j < (size_t)n && (finite_bound(d->lbw[q]) || finite_bound(d->ubw[q]))) : 0);
+    }
+  }
+  if (memcmp(s->newpat, s->pat, (size_t)(N + 1) * (size_t)nb) != 0) {
+    memcpy(s->pat, s->newpat, (size_t)(N + 1) * (size_t)nb);
+    if (build_hpipm(s) != 0) { info->status = OCPQP_BAD_DIMS; return info->status; }  /* out of memory */
   }
   double *M = s->buf;                       /* nb*nb */
   double *G = M + (size_t)nb * nb;          /* ngmax*nb */
@@ -263,10 +299,18 @@ int ocpqp_solve(ocpqp_solver *s, const ocpqp_data *d, double *w, double *pi, dou
       d_ocp_qp_set_lg_mask(k, ml, &s->qp);
       d_ocp_qp_set_ug_mask(k, mu, &s->qp);
     }
-    /* boxes: HPIPM orders the stage's box rows u first, then x; every variable is a row, absent sides masked */
-    if (ku + kx) {
-      for (a = 0; a < ku; ++a) { side(lb[nx + a], -1.0, s->bl + a, s->ml + a); side(ub[nx + a], 1.0, s->bu + a, s->mu + a); }
-      for (a = 0; a < kx; ++a) { side(lb[a], -1.0, s->bl + ku + a, s->ml + ku + a); side(ub[a], 1.0, s->bu + ku + a, s->mu + ku + a); }
+    /* boxes: HPIPM orders the stage's box rows u first, then x (the variables with a finite side); an absent
+     * side is masked */
+    if (s->nbu[k] + s->nbx[k]) {
+      const int *ix = s->idx + (size_t)k * nb, nbu = s->nbu[k];
+      for (a = 0; a < nbu; ++a) {
+        side(lb[nx + ix[a]], -1.0, s->bl + a, s->ml + a);
+        side(ub[nx + ix[a]], 1.0, s->bu + a, s->mu + a);
+      }
+      for (a = 0; a < s->nbx[k]; ++a) {
+        side(lb[ix[nbu + a]], -1.0, s->bl + nbu + a, s->ml + nbu + a);
+        side(ub[ix[nbu + a]], 1.0, s->bu + nbu + a, s->mu + nbu + a);
+      }
       d_ocp_qp_set_lb(k, s->bl, &s->qp);
       d_ocp_qp_set_ub(k, s->bu, &s->qp);
       d_ocp_qp_set_lb_mask(k, s->ml, &s->qp);
@@ -296,11 +340,15 @@ int ocpqp_solve(ocpqp_solver *s, const ocpqp_data *d, double *w, double *pi, dou
       d_ocp_qp_sol_get_pi(k, &s->sol, s->pi);
       for (a = 0; a < nx; ++a) pi[(size_t)k * nx + a] = s->pi[a];  /* HPIPM: the same sign */
     }
-    if (lam_w && ku + kx) {
-      d_ocp_qp_sol_get_lam_lb(k, &s->sol, s->llb);
-      d_ocp_qp_sol_get_lam_ub(k, &s->sol, s->lub);
-      for (a = 0; a < ku; ++a) lam_w[(size_t)k * nb + nx + a] = s->lub[a] - s->llb[a];
-      for (a = 0; a < kx; ++a) lam_w[(size_t)k * nb + a] = s->lub[ku + a] - s->llb[ku + a];
+    if (lam_w) {
+      const int *ix = s->idx + (size_t)k * nb, nbu = s->nbu[k];
+      for (a = 0; a < kx + ku; ++a) lam_w[(size_t)k * nb + (k == 0 ? nx : 0) + a] = 0.0;  /* no box row: 0 */
+      if (nbu + s->nbx[k]) {
+        d_ocp_qp_sol_get_lam_lb(k, &s->sol, s->llb);
+        d_ocp_qp_sol_get_lam_ub(k, &s->sol, s->lub);
+        for (a = 0; a < nbu; ++a) lam_w[(size_t)k * nb + nx + ix[a]] = s->lub[a] - s->llb[a];
+        for (a = 0; a < s->nbx[k]; ++a) lam_w[(size_t)k * nb + ix[nbu + a]] = s->lub[nbu + a] - s->llb[nbu + a];
+      }
     }
     if (lam_c && m) {
       d_ocp_qp_sol_get_lam_lg(k, &s->sol, s->llg);
