@@ -121,7 +121,7 @@ def theorem41_section(out_dir: Path, progress: ProgressFn, n_cases: int = 60) ->
     from .plots import plot_theorem41
     from .report import markdown_table
     from .provenance import provenance
-    from .reproduce import record_claim
+    from .report_sections import SectionContext
     from .results import write_json
 
     progress("Theorem 4.1 on the paper's platoon")
@@ -143,11 +143,11 @@ def theorem41_section(out_dir: Path, progress: ProgressFn, n_cases: int = 60) ->
              + f", h(0) = {w['gap0']:.4f}, v(0) = {w['speed0']:.4f}, κ = {w['kappa']:g}: ω(proposed) = "
              f"{w['omega_proposed']:.6f} vs ω(OVFL) = {w['omega_ovfl']:.6f}." if w else "")
     n_bad, n_ok = summary["n_violating_theorem"], summary["n_completed"]
-    record_claim("Theorem 4.1: ω(proposed) ≤ ω(OVFL) for the same leader and initial condition",
-                 "fails" if n_bad else "holds",
-                 f"contradicted by {n_bad} of {n_ok} random single-follower cases (largest excess "
-                 f"{(w['omega_proposed'] - w['omega_ovfl']) if w else float('nan'):.3g}); the proof's step Δv ≥ 0 "
-                 f"fails in {summary['n_violating_speed_ordering']}", HEAD_THEOREM41)
+    SectionContext.of(progress).record_claim(
+        "Theorem 4.1: ω(proposed) ≤ ω(OVFL) for the same leader and initial condition", "fails" if n_bad else "holds",
+        f"contradicted by {n_bad} of {n_ok} random single-follower cases (largest excess "
+        f"{(w['omega_proposed'] - w['omega_ovfl']) if w else float('nan'):.3g}); the proof's step Δv ≥ 0 "
+        f"fails in {summary['n_violating_speed_ordering']}", HEAD_THEOREM41)
     return (
         f"## {HEAD_THEOREM41}\n\n"
         "Same leader, same initial condition, both laws integrated with CVODES at rtol = atol = 1e-10 "

@@ -1,4 +1,4 @@
-"""Command line: ``aev-ocp reproduce | simulate | scenarios | ocp | mpc | mpc-export | stability | study | safety``.
+"""Command line: ``aev-ocp reproduce | simulate | scenarios | ocp | mpc | mpc-export | stability | study | safety | sumo``.
 
 A thin layer over the Python API (:mod:`aev_ocp.reproduce`, :mod:`aev_ocp.scenarios`,
 :mod:`aev_ocp.report`). Every subcommand reports errors the same way (:func:`guarded`): one line
@@ -14,115 +14,15 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import importlib
-import os
 import sys
 import warnings
 from pathlib import Path
-from typing import Any, Callable, Sequence
+from typing import Any, Sequence
 
-from . import interrupts
-from .params import ParameterError
+from .console import EXIT_INTERRUPTED as EXIT_INTERRUPTED  # re-exported with the other exit codes
+from .console import EXIT_BAD_INPUT, EXIT_FAILED_RUN, EXIT_OK, OneLineParser, error_line, guarded, warning_line
 
-EXIT_OK, EXIT_FAILED_RUN, EXIT_BAD_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 130
-
-
-def _err(message: str) -> None:
-    first = " ".join(str(message).split())  # one line, whatever the message holds
-    print(f"aev-ocp: error: {first}", file=sys.stderr, flush=True)
-
-
-error_line = _err  # public name, used by the ocp and mpc subcommands
-
-
-def _warn(message: str) -> None:
-    print(f"aev-ocp: warning: {' '.join(str(message).split())}", file=sys.stderr, flush=True)
-
-
-warning_line = _warn  # public name, used by the subcommands
-
-
-def _show_warning(message: Warning | str, category: type[Warning], filename: str, lineno: int,
-                  file: object = None, line: str | None = None) -> None:
-    _warn(str(message))
-
-
-class _Parser(argparse.ArgumentParser):
-    """argparse with the one-line error format and exit code 2."""
-
-    def error(self, message: str) -> None:  # type: ignore[override]
-        _err(f"{message} (try '{self.prog} --help')")
-        raise SystemExit(EXIT_BAD_INPUT)
-
-
-OneLineParser = _Parser  # public name, used by the ocp and mpc subcommands
-
-
-def guarded(run: Callable[[], int]) -> int:
-    """Run one command with the one error behaviour of every subcommand; returns the exit code.
-
-    Bad input (ScenarioError, ParameterError, OutputError, TypeError/ValueError from argument checks,
-    unreadable files) -> one line, exit 2; a failed run (RuntimeError, MemoryError) -> one line,
-    exit 1; Ctrl-C or SIGTERM -> 'interrupted', exit 130, also when a solver swallowed the signal.
-    """
-    # Already inside a guarded command (main -> cli_mpc): the outer one reports. The depth lives in
-    # aev_ocp.interrupts, imported once even when this file also runs as __main__ (python -m).
-    if interrupts._state.get("depth", 0):
-        return int(run() or 0)
-    debug = os.environ.get("AEV_OCP_DEBUG", "") not in ("", "0")
-    interrupts._state["depth"] = 1
-    try:
-        return _guarded(run, debug)
-    finally:
-        interrupts._state["depth"] = 0
-
-
-def _guarded(run: Callable[[], int], debug: bool) -> int:
-    from .overrides import OverrideError
-    from .results import OutputError
-    from .scenarios import ScenarioError
-
-    with interrupts.handle_signals(), warnings.catch_warnings():
-        warnings.showwarning = _show_warning  # every warning is one line 'aev-ocp: warning: ...'
-        try:
-            rc = int(run() or 0)
-            interrupts.check()  # a signal that a solver turned into a failed solve
-            return rc
-        except SystemExit as exc:
-            interrupts.check()
-            return int(exc.code) if isinstance(exc.code, int) else (EXIT_BAD_INPUT if exc.code else EXIT_OK)
-        except KeyboardInterrupt:
-            _err("interrupted")
-            return EXIT_INTERRUPTED
-        except (ScenarioError, ParameterError, OutputError, OverrideError) as exc:
-            _err(str(exc))
-            return EXIT_BAD_INPUT
-        except BrokenPipeError:  # output piped into e.g. `head`: stop quietly, as Unix tools do
-            try:
-                sys.stdout = open(os.devnull, "w")  # noqa: SIM115 - nothing more may reach the closed pipe
-            except OSError:
-                pass
-            return EXIT_OK
-        except OSError as exc:
-            _err(f"{exc.strerror or exc}: {exc.filename}" if exc.filename else str(exc))
-            return EXIT_BAD_INPUT
-        except MemoryError:
-            _err("run failed: out of memory (lower platoon.followers or simulation.t_end, or raise simulation.dt_out)")
-            return EXIT_FAILED_RUN
-        except RuntimeError as exc:  # a solver failure that the simulator could not turn into an event
-            if debug:
-                raise
-            _err(f"run failed: {exc}")
-            return EXIT_FAILED_RUN
-        except (TypeError, ValueError, RecursionError) as exc:
-            if debug:
-                raise
-            _err(f"{type(exc).__name__}: {exc}")
-            return EXIT_BAD_INPUT
-        except Exception as exc:  # noqa: BLE001 - never a traceback on the command line
-            if debug:
-                raise
-            _err(f"internal error ({type(exc).__name__}: {exc}); please report it, AEV_OCP_DEBUG=1 shows the traceback")
-            return EXIT_FAILED_RUN
+_err, _warn, _Parser = error_line, warning_line, OneLineParser
 
 
 def _version_line() -> str:
@@ -172,13 +72,17 @@ def build_parser() -> argparse.ArgumentParser:
                    add_help=False)
     sub.add_parser("stability", help="string stability of a law or the MPC (see aev-ocp stability --help)", add_help=False)
     sub.add_parser("study", help="sweeps and Pareto fronts from a study file (see aev-ocp study --help)", add_help=False)
+    sub.add_parser("ring", help="mixed traffic on a ring road: Sugiyama, Stern, penetration sweep (see aev-ocp ring "
+                   "--help)", add_help=False)
     sub.add_parser("safety", help="the safety suite: braking, stationary, slower and cut-in cases for every controller "
                    "(see aev-ocp safety --help)", add_help=False)
+    sub.add_parser("sumo", help="drive the toolkit's controllers inside SUMO (optional extra [sumo]; see aev-ocp sumo "
+                   "--help)", add_help=False)
     return p
 
 
 def _load_scenario_with_warnings(path: str, sets: Sequence[str] = ()):  # noqa: ANN202 - returns Scenario
-    from .overrides import load_with_sets
+    from .scenarios import load_with_sets
 
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
@@ -285,7 +189,7 @@ def _dispatch(module: str, func: str, argv: list[str]) -> int:
         mod = importlib.import_module(module)
         fn = getattr(mod, func)
     except (ImportError, AttributeError) as exc:
-        _err(f"'{module.rsplit('.', 1)[-1]}' commands are not available in this installation ({exc})")
+        _err(f"'{module.split('.')[1]}' commands are not available in this installation ({exc})")
         return EXIT_BAD_INPUT
     rc = fn(argv)
     return int(rc or 0)
@@ -295,7 +199,8 @@ def _dispatch(module: str, func: str, argv: list[str]) -> int:
 SUBCOMMAND_PARSERS: dict[str, tuple[str, str]] = {
     "ocp": ("aev_ocp.ocp.cli", "_parser"), "mpc": ("aev_ocp.mpc.cli", "build_parser"),
     "mpc-export": ("aev_ocp.mpc.export", "build_parser"), "stability": ("aev_ocp.stability.cli", "build_parser"),
-    "study": ("aev_ocp.study.cli", "build_parser"), "safety": ("aev_ocp.safety.cli", "build_parser")}
+    "study": ("aev_ocp.study.cli", "build_parser"), "safety": ("aev_ocp.safety.cli", "build_parser"),
+    "ring": ("aev_ocp.ring.cli", "build_parser"), "sumo": ("aev_ocp.sumo.cli", "build_parser")}
 
 
 def command_parser(name: str) -> argparse.ArgumentParser:
@@ -323,9 +228,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     args_list = list(sys.argv[1:] if argv is None else argv)
     if args_list and args_list[0] == "mpc-export":
         return guarded(lambda: _dispatch("aev_ocp.mpc.export", "cli_mpc_export", args_list[1:]))
-    if args_list and args_list[0] in ("ocp", "mpc", "stability", "study", "safety"):
+    if args_list and args_list[0] in ("ocp", "mpc", "stability", "study", "safety", "ring", "sumo"):
         name = args_list[0]
-        return guarded(lambda: _dispatch(f"aev_ocp.{name}", f"cli_{name}", args_list[1:]))
+        return guarded(lambda: _dispatch(f"aev_ocp.{name}.cli", f"cli_{name}", args_list[1:]))
     try:
         args = build_parser().parse_args(args_list)
     except SystemExit as exc:

@@ -4,9 +4,9 @@ One place that answers "will this fit?" for every kind of run, against one budge
 (:func:`memory_limit_bytes`: ``$AEV_OCP_MAX_MEMORY_GB``, default 3 GB):
 
 * platoon simulation (closed-form laws): followers × samples × bytes per sample
-  (:func:`aev_ocp.scenarios.estimate_run_bytes`; the scenario layer thins ``dt_out`` where a large
+  (:func:`estimate_run_bytes`; the scenario layer thins ``dt_out`` where a large
   platoon is legitimate, :func:`aev_ocp.scenarios.thinned_dt_out`);
-* MPC: horizon N × bytes per interval of the NLP (:data:`aev_ocp.mpc.report.MPC_BYTES_PER_INTERVAL`);
+* MPC: horizon N × bytes per interval of the NLP (:data:`MPC_BYTES_PER_INTERVAL`);
 * OCP (``aev-ocp ocp``): intervals N × bytes per interval of the transcribed NLP (this module's table).
 
 Each ``check_*`` raises :class:`~aev_ocp.params.ParameterError` with one line that says how much, the
@@ -16,8 +16,17 @@ limit, and which key or argument to change; it returns the estimate [bytes] when
 from __future__ import annotations
 
 import math
+import os
 
-from .params import ParameterError
+from .params import ParameterError, SimOptions
+
+# Peak memory of a simulation per (sample x follower): 255 B measured with the cascade on the Table 1
+# platoon (200 and 1000 followers, 7001 samples, peak RSS after run + metrics); 300 B leaves a margin.
+BYTES_PER_SAMPLE = 300
+DEFAULT_MEMORY_LIMIT_GB = 3.0  # default budget of one run's arrays; $AEV_OCP_MAX_MEMORY_GB overrides
+# Memory of building and solving the horizon-N NLP [bytes per interval]: 0.88-1.29 MB measured by
+# benchmarks/bench_limits.py (peak RSS of MPCController construction + one solve, ipopt and rti, N = 40 ... 1600).
+MPC_BYTES_PER_INTERVAL = 1_000_000
 
 #: Peak resident memory of building and solving one OCP, per interval of the grid [bytes]: the slope of
 #: peak RSS between two N (ms: prop31 200/800, current-profile 200/800, eco-trip 100/300, oracle
@@ -37,10 +46,23 @@ OCP_BASE_BYTES = 0.15e9
 
 
 def memory_limit_bytes() -> float:
-    """The memory budget of one run [bytes] ($AEV_OCP_MAX_MEMORY_GB, see :mod:`aev_ocp.scenarios`)."""
-    from .scenarios import memory_limit_bytes as budget
+    """The memory budget of one run [bytes]: $AEV_OCP_MAX_MEMORY_GB, default DEFAULT_MEMORY_LIMIT_GB."""
+    raw = os.environ.get("AEV_OCP_MAX_MEMORY_GB", "")
+    try:
+        gb = float(raw) if raw else DEFAULT_MEMORY_LIMIT_GB
+    except ValueError:
+        gb = DEFAULT_MEMORY_LIMIT_GB
+    return (gb if math.isfinite(gb) and gb > 0 else DEFAULT_MEMORY_LIMIT_GB) * 1e9
 
-    return budget()
+
+def n_samples(t_end: float, dt_out: float) -> float:
+    """Samples per follower of a run [-]: one per dt_out and at least one per integrator chunk."""
+    return math.ceil(t_end / min(dt_out, SimOptions().chunk)) + 1.0
+
+
+def estimate_run_bytes(n_followers: int, t_end: float, dt_out: float) -> float:
+    """Estimated peak memory of simulating ``n_followers`` over [0, t_end] sampled every dt_out [bytes]."""
+    return BYTES_PER_SAMPLE * float(n_followers) * n_samples(t_end, dt_out)
 
 
 def _gb(x: float) -> str:
@@ -87,8 +109,6 @@ def oracle_intervals(t_end: float, dt: float) -> int:
 def check_simulation_size(n_followers: int, t_end: float, dt_out: float) -> float:
     """For :meth:`aev_ocp.simulate.PlatoonSimulator.run` (Python API): raise ParameterError naming the
     arguments if the sampled output of a platoon simulation would exceed the budget; returns the estimate."""
-    from .scenarios import estimate_run_bytes, n_samples
-
     need, limit = estimate_run_bytes(n_followers, t_end, dt_out), memory_limit_bytes()
     if need <= limit:
         return need
@@ -102,8 +122,6 @@ def check_simulation_size(n_followers: int, t_end: float, dt_out: float) -> floa
 def check_mpc_size(N: int, n_mpc_vehicles: int = 1) -> float:
     """For :class:`aev_ocp.control.ClosedLoop` (Python API): raise ParameterError if the MPC NLPs
     (one per MPC vehicle, horizon N) exceed the budget; returns the estimate [bytes]."""
-    from .mpc.report import MPC_BYTES_PER_INTERVAL
-
     need, limit = float(MPC_BYTES_PER_INTERVAL) * N * max(n_mpc_vehicles, 1), memory_limit_bytes()
     if need <= limit:
         return need

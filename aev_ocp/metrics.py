@@ -14,7 +14,10 @@ from typing import Any
 import numpy as np
 
 from .models.carfollowing import optimal_velocity
-from .results import SimulationResult
+
+#: A :class:`aev_ocp.results.SimulationResult`. Not imported: ``SimulationResult.metrics()`` imports this module,
+#: and the layer table allows no cycle (tests/test_layers.py); the functions read its attributes only.
+SimulationResult = Any
 
 MPC_GAP_MIN = 0.2  # PROBLEM.md §9: h ≥ 0.2 (2 m)
 MPC_SPEED_MAX = 2.0  # PROBLEM.md §9: 0 ≤ v ≤ 2
@@ -78,7 +81,10 @@ def vehicle_metrics(r: SimulationResult, i: int) -> dict[str, Any]:
     # violations count against the vehicle's controller's own bounds (an MPC states its formulation's: the
     # traffic formulation's 2 m floor and 45 m/s, in model units; None = no such bound), else PROBLEM.md §9's
     h_min, v_max = violation_bounds(r, i)
-    rms = (lambda c: math.sqrt(max(float(c[-1, i]), 0.0) / duration) if duration > 0 else float("nan"))
+
+    def rms(c: np.ndarray) -> float:
+        return math.sqrt(max(float(c[-1, i]), 0.0) / duration) if duration > 0 else float("nan")
+
     if r.jerk_sampled and t.size > 1:
         da = np.diff(r.accel[:, i]) / np.diff(t)
         rms_jerk = float(math.sqrt(np.sum(da**2 * np.diff(t)) / duration))
@@ -179,7 +185,10 @@ def distance_metrics(r: SimulationResult, i: int, duration: float | None = None)
     dist = float(x[-1] - x[0]) if t.size > 1 else 0.0
     dist_m = float(u.length_to_si(dist))
     km = dist_m / 1000.0
-    per_km = (lambda q: q / km if km > 1e-12 else float("nan"))
+
+    def per_km(q: float) -> float:
+        return q / km if km > 1e-12 else float("nan")
+
     omega = float(r.omega[-1, i])
     v_lead = r.leader_speed if i == 0 else r.speed[:, i - 1]
     ttc = min_time_to_collision(t, r.gap[:, i], r.speed[:, i] - v_lead)

@@ -11,7 +11,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from .models.battery import stored_energy_J
-from .ocp.result import OCPResult
+from .ocp.result import OCPResult, write_json_atomic
 from .params import CellParams
 from .plots import plt, save_figure
 
@@ -172,3 +172,16 @@ def plot_current_profile_sweep(rows: list[dict[str, Any]], path: str | Path) -> 
     ax.legend(fontsize=7)
     fig.tight_layout()
     return save_figure(fig, path)
+
+
+def write_prop31_outputs(cases: dict[str, dict[str, Any]], out_dir: str | Path) -> dict[str, Path]:
+    """prop31.json (one entry per case, without the trajectories) and prop31_currents.png."""
+    out_dir = Path(out_dir)
+    keep = ("objective_J", "max_abs_current_A", "zero_heat_alternative_objective_J",
+            "zero_heat_alternative_max_abs_current_A", "switched_alternative_objective_J", "status",
+            "iterations", "solve_time_s", "max_violation", "stored_rc_energy_W0_J", "Q_nonneg_constraint",
+            "V0", "lq_exact_discrete_J", "objective_exact_J", "objective_2N_J", "warnings", "verdict")
+    js = {c: {k: e[k] for k in keep if k in e} for c, e in cases.items()}
+    paths = {"json": write_json_atomic(out_dir / "prop31.json", js)}
+    paths["png"] = plot_prop31(cases, out_dir / "prop31_currents.png")
+    return paths

@@ -14,7 +14,7 @@ replaces the file's value; in a study it is applied over the study's ``[override
 Rules beyond plain assignment:
 
 - A model-unit key and its SI twin (``simulation.t_end`` / ``simulation.t_end_s``,
-  :data:`aev_ocp.scenarios.SI_TWINS`) exclude each other: setting one removes the other.
+  :data:`SI_TWINS`) exclude each other: setting one removes the other.
 - A value that is not a finite number (``nan``, ``inf``) or holds a line break is refused.
 
 - Keys that exclude each other are swapped, not added: setting ``platoon.speed0`` removes
@@ -27,8 +27,9 @@ Rules beyond plain assignment:
 - An override the scenario would ignore is an error: ``platoon.law``/``platoon.laws`` while
   ``compare`` is set (every run then uses the ``compare`` laws).
 
-Command lines call :func:`load_with_sets` (or :func:`parse_assignments` on their ``--set KEY=VALUE``
-arguments, then :func:`apply_to_scenario` / ``Scenario.with_overrides``).
+Command lines call :func:`aev_ocp.scenarios.load_with_sets` (or :func:`parse_assignments` on their
+``--set KEY=VALUE`` arguments, then :func:`aev_ocp.scenarios.apply_to_scenario` / ``Scenario.with_overrides``).
+This module works on TOML documents only and knows nothing of :class:`~aev_ocp.scenarios.Scenario`.
 """
 
 from __future__ import annotations
@@ -36,13 +37,35 @@ from __future__ import annotations
 import copy
 import math
 import tomllib
-from typing import TYPE_CHECKING, Any, Iterable, Mapping
+from typing import Any, Iterable, Mapping
 
-if TYPE_CHECKING:  # pragma: no cover
-    from .scenarios import Scenario
+#: SI twins of the model-unit keys: {table: {model key: (SI key, dimension)}}. A file, a study or a
+#: ``--set`` may give either key of a pair (not both); the SI value is converted with the scenario's
+#: ``[units]`` (dimension: "time" [s], "length" [m], "speed" [m/s], "accel" [m/s²]).
+SI_TWINS: dict[str, dict[str, tuple[str, str]]] = {
+    "simulation": {"t_end": ("t_end_s", "time"), "dt_out": ("dt_out_s", "time")},
+    "platoon": {"gap0": ("gap0_m", "length"), "gap0_first": ("gap0_first_m", "length"),
+                "gap0_others": ("gap0_others_m", "length"), "gaps0": ("gaps0_m", "length"),
+                "speed0": ("speed0_mps", "speed"), "speeds0": ("speeds0_mps", "speed")},
+    "leader": {"v": ("v_mps", "speed"), "v0": ("v0_mps", "speed"), "amplitude": ("amplitude_mps2", "accel"),
+               "forcing_end": ("forcing_end_s", "time"), "times": ("times_s", "time"),
+               "speeds": ("speeds_mps", "speed")},
+}
+
+
+def si_twin(key: str) -> str | None:
+    """The other key of an SI/model pair (``"simulation.t_end"`` <-> ``"simulation.t_end_s"``), else None."""
+    table, _, leaf = key.rpartition(".")
+    for model, (si, _dim) in SI_TWINS.get(table, {}).items():
+        if leaf == model:
+            return f"{table}.{si}"
+        if leaf == si:
+            return f"{table}.{model}"
+    return None
+
 
 #: Keys of one table that exclude each other: setting one removes the others. A model-unit key and its
-#: SI twin (:data:`aev_ocp.scenarios.SI_TWINS`, e.g. simulation.t_end and simulation.t_end_s) always do.
+#: SI twin (:data:`SI_TWINS`, e.g. simulation.t_end and simulation.t_end_s) always do.
 _WHOLE_GAPS = ("gaps0", "gaps0_m", "gap0", "gap0_m")
 EXCLUSIVE: dict[str, tuple[tuple[str, ...], ...]] = {
     "platoon": (("speed0", "speed0_mps", "speed0_factor", "speeds0", "speeds0_mps"),
@@ -52,8 +75,6 @@ EXCLUSIVE: dict[str, tuple[tuple[str, ...], ...]] = {
 
 
 def _exclusive_groups(table: str) -> tuple[tuple[str, ...], ...]:
-    from .scenarios import SI_TWINS
-
     twins = tuple((model, si) for model, (si, _dim) in SI_TWINS.get(table, {}).items())
     return EXCLUSIVE.get(table, ()) + twins
 
@@ -163,31 +184,3 @@ def apply_to_document(doc: Mapping[str, Any], overrides: Mapping[str, Any], file
                             f"scenario sets compare = {out['compare']!r}, so every run uses those laws; "
                             f"override 'compare' instead (e.g. compare=[\"ovfl\"])")
     return out
-
-
-def apply_to_scenario(scenario: "Scenario", overrides: Mapping[str, Any]) -> "Scenario":
-    """``scenario`` with ``overrides`` applied to its TOML document and re-validated (see module docstring).
-
-    The scenario must come from a document (a file, or :func:`aev_ocp.scenarios.parse_scenario`)."""
-    from .scenarios import ScenarioError, parse_scenario
-
-    if scenario.document is None:
-        raise ScenarioError(f"{scenario.name}: overrides need the scenario's TOML document; this scenario was "
-                            "built in Python or changed with replace(leader=..., laws=..., ...), which no "
-                            "document describes")
-    file = scenario.file_label
-    doc = apply_to_document(scenario.document, overrides, file)
-    return parse_scenario(doc, file, source=scenario.source)
-
-
-def load_with_sets(path: str, sets: Iterable[str] | None) -> "Scenario":
-    """``load_scenario(path)`` with every ``--set KEY=VALUE`` applied and validated like the file.
-
-    The one call a command needs for its ``--set`` flags (``action="append"``); raises ScenarioError
-    (invalid value, unknown key) or OverrideError (malformed or ignored override), both ValueErrors
-    whose message names the file and the key."""
-    from .scenarios import load_scenario
-
-    scenario = load_scenario(path)
-    overrides = parse_assignments(sets)
-    return apply_to_scenario(scenario, overrides) if overrides else scenario

@@ -19,7 +19,7 @@ from functools import lru_cache
 from pathlib import Path
 from typing import Any, Iterator
 
-from . import __version__
+from ._version import __version__
 
 _CONTEXT: contextvars.ContextVar[dict[str, Any]] = contextvars.ContextVar("aev_ocp_provenance", default={})
 

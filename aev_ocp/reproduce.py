@@ -1,10 +1,11 @@
 """``aev-ocp reproduce``: every figure and table of the paper, the tolerance study, the battery side of
 every shipped scenario, and a report.md that states where the numbers disagree with the paper.
 
-The report is a list of sections. Each section is a function ``fn(out_dir, progress) -> str`` that
-writes its own files into ``out_dir`` and returns Markdown; ``progress(message)`` prints one line on
+The report is a list of sections (:mod:`aev_ocp.report_sections`: what a section is, the registry, the
+:class:`SectionContext` a section runs in). Each section is a function ``fn(out_dir, ctx) -> str`` that
+writes its own files into ``out_dir`` and returns Markdown; ``ctx(message)`` prints one line on
 stderr. Other modules add sections with :func:`register_section`, either directly or by defining
-``REPRODUCE_SECTIONS = [(name, fn, steps), ...]`` in a provider package listed in
+``REPRODUCE_SECTIONS = [(name, fn, steps), ...]`` in a provider module listed in
 :data:`SECTION_PROVIDERS` (imported lazily). A provider that is not installed at all adds no section
 (a log line says so); a provider that fails to import, or a section that raises, stops ``reproduce``
 with :class:`ReportSectionError` naming the section and the cause (the CLI exits 1), so a section can
@@ -14,120 +15,35 @@ never vanish from the report while the run exits 0.
 from __future__ import annotations
 
 import math
-
-import importlib
 import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Sequence
+from typing import Any, Sequence
 
 import numpy as np
 
-from . import __version__
+from ._version import __version__
 from .models.carfollowing import V_INF
 from .params import VehicleLimits
 from .plots import (plot_compare_omega, plot_leader, plot_percent_change, plot_phase_planes, plot_platoon,
                     plot_space_time)
 from .report import (OVER_LIMIT_MARK, PAPER_TABLE1, PRINTED_HALF_ULP, markdown_table, fmt, platoon_checks,
                      scenario_metrics_rows, table1_disagreements, table1_summary, write_table1, write_text)
-from .report_html import heading_anchor
+from .report_sections import SECTION_PROVIDERS as SECTION_PROVIDERS  # re-exported: the public names of sections
+from .report_sections import SectionFn as SectionFn
+from .report_sections import register_section as register_section
+from .report_sections import (_REGISTRY, Claim, ProgressFn, ReportSectionError, ReproduceConfig, Section,
+                              SectionContext, cause, load_providers, summary_section)
 from .results import SimulationResult, write_json
 from .scenarios import Scenario, iter_shipped, load_scenario
 from .simulate import simulate_platoon
 
-ProgressFn = Callable[[str], None]
 _LIM = VehicleLimits()  # the default limits the report names
 HEAD_FIG12 = "Fig. 1 and Fig. 2: phase planes (a_l = 0)"
 HEAD_TABLE1 = "Table 1: energy per unit mass ω (platoon of 6, paper leader, t ∈ [0, 70])"
 HEAD_FIG5 = "Fig. 5: the platoon under the proposed model"
 HEAD_HYP = "Table 1: why our ω are below the printed ones (hypotheses tested)"
-SectionFn = Callable[[Path, ProgressFn], str]
-SECTION_PROVIDERS: tuple[str, ...] = ("aev_ocp.claims", "aev_ocp.ocp", "aev_ocp.mpc", "aev_ocp.mpc.cycles_section",
-                                       "aev_ocp.stability", "aev_ocp.safety")
-
-
-@dataclass(frozen=True)
-class Section:
-    """A report section: name, function, and how many progress steps it reports."""
-
-    name: str
-    fn: SectionFn
-    steps: int = 1
-
-
-_REGISTRY: dict[str, Section] = {}
-
-
-def register_section(name: str, fn: SectionFn, steps: int = 1) -> None:
-    """Add (or replace) a report section after the built-in ones; ``fn(out_dir, progress) -> markdown``."""
-    _REGISTRY[name] = Section(name, fn, max(1, int(steps)))
-
-
-class ReportSectionError(RuntimeError):
-    """A report section (or its provider package) failed; the message names it and the cause."""
-
-
-@dataclass(frozen=True)
-class Claim:
-    """One paper claim as checked by a section: the claim, the verdict ('holds', 'fails', 'partly', or a
-    short phrase), one line of evidence, and the heading of the section that shows it."""
-
-    claim: str
-    verdict: str
-    evidence: str
-    where: str
-
-
-_CLAIMS: list[Claim] = []
-
-
-def record_claim(claim: str, verdict: str, evidence: str, where: str) -> None:
-    """Called by a section while it runs: adds a row to the summary at the top of the report.
-
-    where: the section's heading text (without '#'), linked from the summary."""
-    _CLAIMS.append(Claim(claim, verdict, evidence, where))
-
-
-def summary_section(claims: Sequence[Claim]) -> str:
-    """The report's opening table: each paper claim, its verdict and a link to where it is shown."""
-    if not claims:
-        return ""
-    rows = [[c.claim, f"**{c.verdict}**", c.evidence, f"[{c.where}](#{heading_anchor(c.where)})"] for c in claims]
-    n_fail = sum(c.verdict.lower().startswith(("fails", "disagrees")) for c in claims)
-    return ("## Summary: the paper's claims and what the computations say\n\n"
-            f"{len(claims)} claims checked; {n_fail} fail or disagree. Each row links to the section with the "
-            "numbers and figures.\n\n"
-            + markdown_table(["paper claim", "verdict", "evidence", "where"], rows))
-
-
-def _cause(exc: BaseException) -> str:
-    return " ".join(f"{type(exc).__name__}: {exc}".split())
-
-
-def load_providers(providers: Sequence[str] = SECTION_PROVIDERS, log: Callable[[str], None] | None = None) -> list[str]:
-    """Import provider packages so they can register sections; returns the ones that loaded.
-
-    A provider module that does not exist is skipped (logged); one that exists but fails to import
-    raises :class:`ReportSectionError` (its sections would otherwise vanish silently)."""
-    loaded = []
-    for mod_name in providers:
-        try:
-            mod = importlib.import_module(mod_name)
-        except ModuleNotFoundError as exc:
-            if exc.name is None or not (mod_name == exc.name or mod_name.startswith(exc.name + ".")):
-                raise ReportSectionError(f"report section provider {mod_name} failed to import: {_cause(exc)}") from exc
-            if log is not None:
-                log(f"section provider {mod_name} is not installed; its sections are skipped")
-            continue
-        except Exception as exc:
-            raise ReportSectionError(f"report section provider {mod_name} failed to import: {_cause(exc)}") from exc
-        for entry in getattr(mod, "REPRODUCE_SECTIONS", ()):
-            register_section(*entry)
-        loaded.append(mod_name)
-    return loaded
-
-
 class Progress:
     """Prints ``[k/N] message`` lines on stderr. N is fixed: a section that reports more lines than it
     declared (e.g. OCP-D's iteration lines, one every few seconds) keeps k at its last declared step
@@ -147,37 +63,6 @@ class Progress:
         self.total = max(self.total, self.k)
         print(f"[{self.k}/{self.total}] {message} ({time.perf_counter() - self.t0:.1f} s)", file=self.stream,
               flush=True)
-
-
-@dataclass(frozen=True)
-class ReproduceConfig:
-    """What to compute. The defaults are the full reproduction; :meth:`quick` is a cheap smoke run.
-
-    tolerances: rtol = atol values of the Table 1 tolerance study; fig12_t_end: horizon of Fig. 1/2
-    [model time] (None: the scenario's, 700); scenario_t_end_max: cap on every shipped scenario's
-    horizon in the battery section [model time] (None: full); mpc_scenario_max_s: cap on the horizon of
-    the shipped scenarios with an [mpc] table in that section [s] (None: full; the default 150 s keeps the
-    paper's MPC scenarios whole, 140 s, and runs the first 150 s of the MPC drive-cycle scenarios, whose
-    whole cycles take minutes: the UDDS platoon of five MPC followers alone runs 15 516 steps each; the
-    "MPC on drive cycles" section and benchmarks/bench_mpc_cycles.py --full measure the whole cycles);
-    scenarios: names for that section (None: all shipped); si_units: figure axes in s, m, km/h (False:
-    the paper's model units).
-    """
-
-    tolerances: tuple[float, ...] = (1e-6, 1e-8, 1e-10, 1e-12)
-    fig12_t_end: float | None = None
-    scenario_t_end_max: float | None = None
-    mpc_scenario_max_s: float | None = 150.0
-    scenarios: tuple[str, ...] | None = None
-    builtin: tuple[str, ...] = ("fig1-2", "fig3", "table1", "table1-hypotheses", "tolerance", "scenarios",
-                                "disagreements")
-    si_units: bool = True
-
-    @classmethod
-    def quick(cls) -> "ReproduceConfig":
-        """A cheap configuration for tests (short horizons, two tolerances, two scenarios)."""
-        return cls(tolerances=(1e-6, 1e-8), fig12_t_end=20.0, scenario_t_end_max=10.0,
-                   scenarios=("table1", "udds_platoon"))
 
 
 @dataclass
@@ -239,10 +124,12 @@ class _Run:
         plot_phase_planes(panels2, out / "fig2_phase_plane_vs_ovfl.png", "Fig. 2: proposed vs OVFL, a_l = 0", si=si)
         table = markdown_table(["case", "law", "status", "min gap", "h(T) − V⁻¹(v_l)", "v_l − v at T", "ω"], facts)
         bad = self.notes[n_notes:]
-        record_claim("Fig. 1/2: from both initial conditions the follower reaches the equilibrium (V⁻¹(v_l), 0) "
-                     "without crossing h = 0", "holds" if not bad else "fails",
-                     f"{len(facts)} runs (2 cases × proposed, OVFL): " + ("all end at the equilibrium (|h − V⁻¹(v_l)| "
-                     "< 1e-3) with min gap > 0" if not bad else "; ".join(bad)), HEAD_FIG12)
+        ctx = SectionContext.of(progress)
+        ctx.record_claim("Fig. 1/2: from both initial conditions the follower reaches the equilibrium (V⁻¹(v_l), 0) "
+                         "without crossing h = 0", "holds" if not bad else "fails",
+                         f"{len(facts)} runs (2 cases × proposed, OVFL): "
+                         + ("all end at the equilibrium (|h − V⁻¹(v_l)| < 1e-3) with min gap > 0" if not bad
+                            else "; ".join(bad)), HEAD_FIG12)
         return (f"## {HEAD_FIG12}\n\n"
                 "One follower behind a constant-speed leader, α = 2, β = 3, κ = 0.03, horizon "
                 f"{load_scenario('fig1a').t_end if self.config.fig12_t_end is None else self.config.fig12_t_end:g}. "
@@ -279,7 +166,7 @@ class _Run:
                            reference=PAPER_TABLE1, title="Table 1: ω per follower")
         plot_percent_change(summary["percent_change"], summary["paper_percent_change"], out / "table1_percent.png",
                             title="Table 1: % change of ω, proposed vs OVFL, per follower")
-        self._table1_claims(summary, chk)
+        self._table1_claims(summary, chk, SectionContext.of(progress))
         self.fig5_checks = chk
         n = s.n_followers
         bat = markdown_table(["law"] + [f"n = {i + 1}" for i in range(n)],
@@ -309,28 +196,28 @@ class _Run:
                                   "Δv(70)"], fig5_rows)
                 + f"\nEquilibrium for v_l(20) = {chk['v_eq']:.4f}: gap V⁻¹(v_l(20)) = {chk['h_eq']:.4f}.\n")
 
-    def _table1_claims(self, summary: dict[str, Any], chk: dict[str, Any]) -> None:
+    def _table1_claims(self, summary: dict[str, Any], chk: dict[str, Any], ctx: SectionContext) -> None:
         """Summary rows for Table 1 and Fig. 5."""
         dev = {k: [100 * (a - b) / b for a, b in zip(summary[f"{k}_omega"], summary[f"paper_{k}_omega"])]
                for k in ("proposed", "ovfl")}
         far = any(abs(a - b) > PRINTED_HALF_ULP for k in dev
                   for a, b in zip(summary[f"{k}_omega"], summary[f"paper_{k}_omega"]))
-        record_claim("Table 1: the printed ω per follower", "disagrees" if far else "holds",
-                     "ours are " + ", ".join(f"{min(v):+.1f} … {max(v):+.1f} % ({k})" for k, v in dev.items())
-                     + " from the printed values; hypotheses for the gap are tested", HEAD_TABLE1)
+        ctx.record_claim("Table 1: the printed ω per follower", "disagrees" if far else "holds",
+                         "ours are " + ", ".join(f"{min(v):+.1f} … {max(v):+.1f} % ({k})" for k, v in dev.items())
+                         + " from the printed values; hypotheses for the gap are tested", HEAD_TABLE1)
         pc = summary["percent_change"]
         worse = [i + 1 for i, x in enumerate(pc) if x > 0]
-        record_claim("Table 1: the proposed law uses less energy ω than OVFL for every follower",
-                     "fails" if worse else "holds",
-                     "% change " + ", ".join(f"{x:+.2f}" for x in pc)
-                     + (f"; follower(s) {worse} use more" if worse else ""), HEAD_TABLE1)
+        ctx.record_claim("Table 1: the proposed law uses less energy ω than OVFL for every follower",
+                         "fails" if worse else "holds",
+                         "% change " + ", ".join(f"{x:+.2f}" for x in pc)
+                         + (f"; follower(s) {worse} use more" if worse else ""), HEAD_TABLE1)
         safe = chk["status"] == "ok" and min(chk["min_gap"]) > 0 and min(chk["min_speed"]) >= 0
-        record_claim("Fig. 5: no collision and no negative speed in the platoon", "holds" if safe else "fails",
-                     f"min gap {min(chk['min_gap']):.3g}, min speed {min(chk['min_speed']):.3g} [model]", HEAD_FIG5)
-        record_claim("Fig. 5: the perturbation attenuates along the platoon",
-                     "holds" if chk["attenuates"] else "partly",
-                     "peak |v_(n−1) − v_n| per follower " + ", ".join(f"{x:.3f}" for x in chk["peak_abs_rel_speed"])
-                     + ("" if chk["attenuates"] else " (grows from follower 1 to 2, then decreases)"), HEAD_FIG5)
+        ctx.record_claim("Fig. 5: no collision and no negative speed in the platoon", "holds" if safe else "fails",
+                         f"min gap {min(chk['min_gap']):.3g}, min speed {min(chk['min_speed']):.3g} [model]", HEAD_FIG5)
+        ctx.record_claim("Fig. 5: the perturbation attenuates along the platoon",
+                         "holds" if chk["attenuates"] else "partly",
+                         "peak |v_(n−1) − v_n| per follower " + ", ".join(f"{x:.3f}" for x in chk["peak_abs_rel_speed"])
+                         + ("" if chk["attenuates"] else " (grows from follower 1 to 2, then decreases)"), HEAD_FIG5)
 
     def table1_hypotheses(self, out: Path, progress: ProgressFn) -> str:
         from .table1_hypotheses import hypotheses_markdown, run_hypotheses, table1_setups
@@ -344,13 +231,14 @@ class _Run:
             for law, (hyps, extra) in res.items()})
         fits = [f"{law}: {h.description}" for law, (hyps, _) in res.items() for h in hyps[1:] if h.fits]
         c = {law: extra["fitted_regeneration"] for law, (_, extra) in res.items()}
-        record_claim("Table 1 (our question): is the gap to the printed ω a different g, η convention, window, "
-                     "integrator or sampling?", "explained" if fits else "not explained",
-                     ("fits: " + "; ".join(fits)) if fits else
-                     f"none of {sum(len(h) - 1 for h, _ in res.values())} computed variants is within 1 % of every "
-                     "printed value; the braking efficiency that would fit ranges "
-                     f"{min(float(min(v)) for v in c.values()):.3f}–{max(float(max(v)) for v in c.values()):.3f} "
-                     "across followers", HEAD_HYP)
+        ctx = SectionContext.of(progress)
+        ctx.record_claim("Table 1 (our question): is the gap to the printed ω a different g, η convention, window, "
+                         "integrator or sampling?", "explained" if fits else "not explained",
+                         ("fits: " + "; ".join(fits)) if fits else
+                         f"none of {sum(len(h) - 1 for h, _ in res.values())} computed variants is within 1 % of every "
+                         "printed value; the braking efficiency that would fit ranges "
+                         f"{min(float(min(v)) for v in c.values()):.3f}–{max(float(max(v)) for v in c.values()):.3f} "
+                         "across followers", HEAD_HYP)
         return (f"## {HEAD_HYP}\n\n"
                 "Each candidate explanation of the 3–20 % gap, computed (not assumed): the Table 1 platoon is "
                 "integrated once more by one CVODES integrator of the whole platoon with one quadrature "
@@ -496,15 +384,6 @@ class _Run:
         return [table[k] for k in self.config.builtin]
 
 
-_ACTIVE: list[ReproduceConfig] = []
-
-
-def active_config() -> ReproduceConfig:
-    """The configuration of the running :func:`reproduce` (the full one outside it), for registered
-    sections that honour it (e.g. scenario_t_end_max caps the horizons of "MPC on drive cycles")."""
-    return _ACTIVE[-1] if _ACTIVE else ReproduceConfig()
-
-
 def reproduce(out_dir: str | Path = "results", config: ReproduceConfig | None = None, *,
               registered: bool = True, stream: Any = None) -> Path:
     """Run every section, write all files into ``out_dir`` and return the path of report.md.
@@ -517,7 +396,7 @@ def reproduce(out_dir: str | Path = "results", config: ReproduceConfig | None = 
     stream = stream if stream is not None else sys.stderr
     log = lambda m: print(f"aev-ocp: {m}", file=stream, flush=True)  # noqa: E731
     run = _Run(config)
-    _CLAIMS.clear()
+    claims: list[Claim] = []
     sections = run.sections()
     if registered:
         load_providers(log=log)
@@ -542,21 +421,18 @@ def reproduce(out_dir: str | Path = "results", config: ReproduceConfig | None = 
     for sec in sections:
         end = progress.k + sec.steps
         progress.limit = end
-        _ACTIVE.append(config)
         try:
-            md = sec.fn(out, _prefixed(progress, sec.name))
+            md = sec.fn(out, SectionContext(_prefixed(progress, sec.name), config, claims))
         except ReportSectionError:
             raise
         except Exception as exc:  # KeyboardInterrupt/SystemExit pass through untouched
-            raise ReportSectionError(f"report section {sec.name!r} failed: {_cause(exc)} "
+            raise ReportSectionError(f"report section {sec.name!r} failed: {cause(exc)} "
                                      f"(no report.md written)") from exc
-        finally:
-            _ACTIVE.pop()
         if md:
             parts.append("\n" + md.rstrip() + "\n")
         progress.skip_to(end)
-    _claims_from_outputs(out, parts)
-    parts.insert(1, "\n" + summary_section(_CLAIMS))
+    _claims_from_outputs(out, parts, claims)
+    parts.insert(1, "\n" + summary_section(claims))
     progress.limit = progress.total
     progress.skip_to(progress.total - 1)
     progress("writing report.md and report.html")
@@ -572,7 +448,7 @@ def _prefixed(progress: ProgressFn, name: str) -> ProgressFn:
     return lambda msg: progress(msg if msg.startswith(name) else f"{name}: {msg}")
 
 
-def _claims_from_outputs(out: Path, parts: Sequence[str]) -> None:
+def _claims_from_outputs(out: Path, parts: Sequence[str], claims: list[Claim]) -> None:
     """Summary rows for sections that record no claim themselves, read from the files they wrote
     (string_stability.json: the §6 claim). A file that is missing or has another layout adds no row."""
     import json
@@ -590,6 +466,6 @@ def _claims_from_outputs(out: Path, parts: Sequence[str]) -> None:
     except (KeyError, TypeError, ValueError):
         return
     verdict = "holds" if stable and not grows else ("partly" if stable else "fails")
-    record_claim("§6: the energy term keeps the platoon string stable (disturbances attenuate)", verdict,
-                 f"linear criterion C = {crit:.3g} ({'stable' if stable else 'unstable'}); measured growth along "
-                 f"the platoon for dip amplitudes {', '.join(f'{a:g}' for a in grows) or 'none'}", head)
+    claims.append(Claim("§6: the energy term keeps the platoon string stable (disturbances attenuate)", verdict,
+                        f"linear criterion C = {crit:.3g} ({'stable' if stable else 'unstable'}); measured growth "
+                        f"along the platoon for dip amplitudes {', '.join(f'{a:g}' for a in grows) or 'none'}", head))

@@ -21,6 +21,7 @@ import hashlib
 import io
 import json
 import math
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping
 
@@ -33,7 +34,7 @@ FORMAT = "aev_ocp-output"
 FORMAT_VERSION = 1
 MANIFEST = "manifest.json"
 ARRAYS = "trajectories.npz"
-KINDS = ("simulate", "mpc", "ocp", "study")
+KINDS = ("simulate", "mpc", "ocp", "study", "sumo")
 SIM_ARRAYS = ("t", "leader_speed", "leader_position", "gap", "speed", "accel", "V1", "V2", "S", "current_A", "omega",
               "heat_J", "heat_irr_J", "int_ovm_err2", "int_rel_speed2", "int_jerk2")
 OCP_SCALARS = ("objective", "objective_exact", "max_violation", "wall_time_s", "solver_time_s")
@@ -235,8 +236,6 @@ def load(path: str | Path, run: str | None = None) -> Any:
     """
     m, folder = read_manifest(path)
     if m["kind"] == "study":
-        from .study import load_study_output
-
         return load_study_output(m, folder)
     runs = m.get("runs") or {}
     label = run if run is not None else m.get("primary")
@@ -252,3 +251,52 @@ def settings_of(scenario: Any, **options: Any) -> dict[str, Any]:
         out.update(scenario=scenario.name, source=str(scenario.source) if scenario.source else None,
                    document=scenario.document)
     return out
+
+
+# ----------------------------------------------------------------------------- studies
+TRAJECTORIES = "trajectories"  # sub-folder of a study's output: one loadable folder per task hash
+
+
+@dataclass
+class StudyOutput:
+    """What :func:`aev_ocp.study.run_study` produced (or :func:`aev_ocp.load` read back): folder, rows (one per point ×
+    controller × vehicle, see :mod:`aev_ocp.study.table`), files written, counts; meta: the manifest's
+    settings (the study file's document and path) and provenance, and ``output`` when loaded."""
+
+    folder: Path
+    rows: list[dict[str, Any]]
+    files: list[Path]
+    n_tasks: int
+    n_failed: int
+    meta: dict[str, Any] = field(default_factory=dict)
+
+    def metrics(self) -> list[dict[str, Any]]:
+        """The table rows (every §10 metric per point × controller × vehicle)."""
+        return self.rows
+
+    def trajectory(self, point: int, controller: str) -> Any:
+        """The SimulationResult of one point under one controller, saved by ``run_study(...,
+        trajectories=True)`` (``aev-ocp study --trajectories``); LoadError if it was not saved."""
+        keys = {r["task_hash"] for r in self.rows if r["point"] == point and r["controller"] == controller}
+        if not keys:
+            raise LoadError(f"{self.folder}: no row for point {point} and controller {controller!r}")
+        path = self.folder / TRAJECTORIES / keys.pop()
+        if not path.is_dir():
+            raise LoadError(f"{self.folder}: no trajectories saved for point {point}, controller {controller!r}; "
+                            "rerun the study with --trajectories (trajectories=True)")
+        return load(path)
+
+
+def load_study_output(manifest: dict[str, Any], folder: Path) -> StudyOutput:
+    """The :class:`StudyOutput` of a study folder from its manifest (used by :func:`aev_ocp.load`)."""
+    from .study.table import load_table
+
+    table = folder / Path(str(manifest.get("table") or "table.jsonl")).name
+    if not table.is_file():
+        raise LoadError(f"{folder}: the study's table {table.name} is missing")
+    rows = load_table(table)
+    files = sorted(p for p in folder.iterdir() if p.is_file())
+    meta = {"settings": manifest.get("settings", {}),
+            "output": {"path": str(folder), "kind": "study", "settings": manifest.get("settings", {}),
+                       "provenance": manifest.get("provenance")}}
+    return StudyOutput(folder, rows, files, int(manifest.get("n_tasks", 0)), int(manifest.get("n_failed", 0)), meta)

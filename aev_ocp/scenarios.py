@@ -55,23 +55,23 @@ import warnings
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
-from typing import Any, Callable, Iterator, Sequence
+from typing import Any, Callable, Iterable, Iterator, Mapping, Sequence
 
 from .models.carfollowing import LAW_REGISTRY, V_INF, CarFollowingLaw, make_law
 from .models.leader import (CYCLES, LENGTH_UNITS, MAX_GAP_S, SPEED_UNITS, TIME_UNITS, ConstantSpeed, LeaderProfile,
                             PaperLeader, SpeedTrace, drive_cycle, read_trace_csv, trace_leader)
+from .overrides import SI_TWINS, apply_to_document, parse_assignments
+from .overrides import si_twin as si_twin  # re-exported
 from .params import (CarFollowingParams, CellParams, Check, EVParams, PackParams, ParameterError, SimOptions,
                      Units, VehicleLimits, VehicleParams, field_checks)
+from .limits import DEFAULT_MEMORY_LIMIT_GB as DEFAULT_MEMORY_LIMIT_GB  # re-exported: the budget lives in limits
+from .limits import BYTES_PER_SAMPLE, estimate_run_bytes, memory_limit_bytes, n_samples
 from .results import check_safe_name
 
 LEADER_KINDS = ("constant", "paper", "cycle", "array", "trace")
 SCENARIO_DIR_NAME = "scenarios"  # the repository's folder of scenario files
 PACKAGED_DIR_NAME = "scenario_files"  # inside the package: a link to the repository's folder
 MAX_FILE_BYTES = 16 * 2**20  # a scenario file is a hand-edited TOML file; a bigger one is a mistake
-# Peak memory of a simulation per (sample x follower): 255 B measured with the cascade on the Table 1
-# platoon (200 and 1000 followers, 7001 samples, peak RSS after run + metrics); 300 B leaves a margin.
-BYTES_PER_SAMPLE = 300
-DEFAULT_MEMORY_LIMIT_GB = 3.0  # default budget of one run's arrays; $AEV_OCP_MAX_MEMORY_GB overrides
 MIN_SAMPLES = 100  # thinning never leaves fewer output intervals than this
 MAX_SAMPLES = 1_000_000  # samples per follower (t_end/dt_out); shipped scenarios need 7 001 ... 70 001
 
@@ -85,31 +85,6 @@ class ScenarioWarning(UserWarning):
 
 
 _MISSING = object()
-
-#: SI twins of the model-unit keys: {table: {model key: (SI key, dimension)}}. A file, a study or a
-#: ``--set`` may give either key of a pair (not both); the SI value is converted with the scenario's
-#: ``[units]`` (dimension: "time" [s], "length" [m], "speed" [m/s], "accel" [m/s²]).
-SI_TWINS: dict[str, dict[str, tuple[str, str]]] = {
-    "simulation": {"t_end": ("t_end_s", "time"), "dt_out": ("dt_out_s", "time")},
-    "platoon": {"gap0": ("gap0_m", "length"), "gap0_first": ("gap0_first_m", "length"),
-                "gap0_others": ("gap0_others_m", "length"), "gaps0": ("gaps0_m", "length"),
-                "speed0": ("speed0_mps", "speed"), "speeds0": ("speeds0_mps", "speed")},
-    "leader": {"v": ("v_mps", "speed"), "v0": ("v0_mps", "speed"), "amplitude": ("amplitude_mps2", "accel"),
-               "forcing_end": ("forcing_end_s", "time"), "times": ("times_s", "time"),
-               "speeds": ("speeds_mps", "speed")},
-}
-
-
-def si_twin(key: str) -> str | None:
-    """The other key of an SI/model pair (``"simulation.t_end"`` <-> ``"simulation.t_end_s"``), else None."""
-    table, _, leaf = key.rpartition(".")
-    for model, (si, _dim) in SI_TWINS.get(table, {}).items():
-        if leaf == model:
-            return f"{table}.{si}"
-        if leaf == si:
-            return f"{table}.{model}"
-    return None
-
 
 def _from_si(units: Units, dim: str) -> Callable[[float], float]:
     return {"time": units.time_from_si, "length": units.length_from_si, "speed": units.speed_from_si,
@@ -296,9 +271,9 @@ SectionValidator = Callable[[TableReader], Any]
 _SECTIONS: dict[str, SectionValidator] = {}
 _CORE_TABLES = ("units", "leader", "platoon", "carfollowing", "simulation", "vehicle", "cell", "pack", "limits")
 _CORE_KEYS = ("name", "description", "compare")
-# Packages that register extra sections on import; imported on demand the first time their table
-# appears, so that a scenario with an [mpc] table loads whichever module the caller imported first.
-SECTION_PROVIDERS: dict[str, str] = {"mpc": "aev_ocp.mpc"}
+# Modules that register extra sections on import; imported on demand the first time their table
+# appears (the loader's registry: it imports no section's code itself).
+SECTION_PROVIDERS: dict[str, str] = {"mpc": "aev_ocp.mpc.scenario"}
 
 
 def register_section(name: str, validator: SectionValidator) -> None:
@@ -400,8 +375,6 @@ class Scenario:
     def with_overrides(self, overrides: dict[str, Any]) -> "Scenario":
         """A copy with dotted-path overrides ({"carfollowing.kappa": 0.05, "mpc.w_Q": 2}) applied to the
         scenario's TOML document and validated exactly like the file (see :mod:`aev_ocp.overrides`)."""
-        from .overrides import apply_to_scenario
-
         return apply_to_scenario(self, overrides)
 
     def replace(self, **changes: Any) -> "Scenario":
@@ -488,26 +461,6 @@ def _replace_without_document(sc: "Scenario", keyed: dict[str, Any]) -> "Scenari
 
 
 # ----------------------------------------------------------------------------- size of a run
-def memory_limit_bytes() -> float:
-    """The memory budget of one run [bytes]: $AEV_OCP_MAX_MEMORY_GB, default DEFAULT_MEMORY_LIMIT_GB."""
-    raw = os.environ.get("AEV_OCP_MAX_MEMORY_GB", "")
-    try:
-        gb = float(raw) if raw else DEFAULT_MEMORY_LIMIT_GB
-    except ValueError:
-        gb = DEFAULT_MEMORY_LIMIT_GB
-    return (gb if math.isfinite(gb) and gb > 0 else DEFAULT_MEMORY_LIMIT_GB) * 1e9
-
-
-def n_samples(t_end: float, dt_out: float) -> float:
-    """Samples per follower of a run [-]: one per dt_out and at least one per integrator chunk."""
-    return math.ceil(t_end / min(dt_out, SimOptions().chunk)) + 1.0
-
-
-def estimate_run_bytes(n_followers: int, t_end: float, dt_out: float) -> float:
-    """Estimated peak memory of simulating ``n_followers`` over [0, t_end] sampled every dt_out [bytes]."""
-    return BYTES_PER_SAMPLE * float(n_followers) * n_samples(t_end, dt_out)
-
-
 def _round_up(x: float) -> float:
     """The smallest number of 3 significant digits >= x (x > 0)."""
     step = 10.0 ** (math.floor(math.log10(x)) - 2)
@@ -1006,3 +959,28 @@ def find_scenario(name_or_path: str | Path) -> Path:
 def iter_shipped() -> Iterator[tuple[str, Path]]:
     """(name, path) of every shipped scenario."""
     yield from shipped_scenarios().items()
+
+
+# ----------------------------------------------------------------------------- overrides of a scenario
+def apply_to_scenario(scenario: Scenario, overrides: Mapping[str, Any]) -> Scenario:
+    """``scenario`` with ``overrides`` applied to its TOML document and re-validated (see :mod:`aev_ocp.overrides`).
+
+    The scenario must come from a document (a file, or :func:`aev_ocp.scenarios.parse_scenario`)."""
+    if scenario.document is None:
+        raise ScenarioError(f"{scenario.name}: overrides need the scenario's TOML document; this scenario was "
+                            "built in Python or changed with replace(leader=..., laws=..., ...), which no "
+                            "document describes")
+    file = scenario.file_label
+    doc = apply_to_document(scenario.document, overrides, file)
+    return parse_scenario(doc, file, source=scenario.source)
+
+
+def load_with_sets(path: str, sets: Iterable[str] | None) -> Scenario:
+    """``load_scenario(path)`` with every ``--set KEY=VALUE`` applied and validated like the file.
+
+    The one call a command needs for its ``--set`` flags (``action="append"``); raises ScenarioError
+    (invalid value, unknown key) or OverrideError (malformed or ignored override), both ValueErrors
+    whose message names the file and the key."""
+    scenario = load_scenario(path)
+    overrides = parse_assignments(sets)
+    return apply_to_scenario(scenario, overrides) if overrides else scenario

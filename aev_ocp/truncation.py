@@ -164,3 +164,63 @@ def equal_views(results: Mapping[Any, SimulationResult], vehicle: int = 0) -> di
             rows[lab]["rank"] = order.index(lab) + 1 if lab in order else None
         out[view]["runs"] = rows
     return out
+
+
+# ----------------------------------------------------------------------------- compact profiles (studies)
+#: Samples a study keeps of each run (every k-th output sample and the last) to evaluate it later at a cut.
+PROFILE_POINTS = 1001
+PROFILE_VIEW_KEY = "heat_pack_J_per_km"
+
+
+def cumulative_profile(r: SimulationResult, i: int, points: int = PROFILE_POINTS) -> dict[str, list[float]]:
+    """Follower i's distance travelled [m], time [s] and cumulative pack ∫Q [J] at no more than ``points``
+    samples of the run (every k-th and the last): what a study task keeps so that the runs of one point, made in
+    different processes, can be cut at their common distance or time afterwards (:func:`equal_profile_views`)."""
+    if points < 2:
+        raise ParameterError(f"cumulative_profile: points = {points!r} must be >= 2")
+    u = r.units
+    d = np.asarray(u.length_to_si(distance_travelled(r, i)), float)
+    t = np.asarray(u.time_to_si(r.t - r.t[0]), float)
+    q = np.asarray(r.heat_J[:, i] - r.heat_J[0, i], float)
+    step = max(1, -(-(t.size - 1) // (points - 1)))
+    idx = np.unique(np.append(np.arange(0, t.size, step), t.size - 1))
+    return {"distance_m": d[idx].tolist(), "t_s": t[idx].tolist(), "heat_pack_J": q[idx].tolist()}
+
+
+def _heat_at(profile: Mapping[str, Any], key: str, cut: float) -> float:
+    """Cumulative pack ∫Q [J] of a profile at distance or time ``cut`` (linear between its samples; the first time
+    the distance is reached)."""
+    x = np.asarray(profile[key], float)
+    q = np.asarray(profile["heat_pack_J"], float)
+    if key == "distance_m":  # standing still repeats a distance: keep the first sample of each
+        x, first = np.unique(x, return_index=True)
+        q = q[first]
+    return float(np.interp(cut, x, q))
+
+
+def equal_profile_views(profiles: Mapping[str, Mapping[str, Any]]) -> dict[str, Any]:
+    """The study twin of :func:`equal_views` on compact profiles ({label: :func:`cumulative_profile`}) of the runs of
+    one point: pack ∫Q per km up to the shortest common distance ('distance', cut_m) and up to the common time
+    ('time', cut_s), each ranked (1 = lowest). The cut value is interpolated linearly between the kept samples
+    (≤ PROFILE_POINTS per run), so it is a table's evaluation, not :func:`truncate_at_time`'s exact one."""
+    out: dict[str, Any] = {"distance": {"cut_m": math.nan, "runs": {}}, "time": {"cut_s": math.nan, "runs": {}}}
+    ok = {lab: p for lab, p in profiles.items() if p and len(p.get("t_s", [])) > 1}
+    if not ok:
+        return out
+    d_cut = min(float(p["distance_m"][-1]) for p in ok.values())
+    t_cut = min(float(p["t_s"][-1]) for p in ok.values())
+    for view, key, cut, cut_key in (("distance", "distance_m", d_cut, "cut_m"), ("time", "t_s", t_cut, "cut_s")):
+        if not cut > 0:
+            continue
+        out[view][cut_key] = cut
+        rows: dict[str, dict[str, Any]] = {}
+        for lab, p in ok.items():
+            dist = cut if view == "distance" else float(np.interp(cut, np.asarray(p["t_s"]), np.asarray(p["distance_m"])))
+            heat = _heat_at(p, key, cut)
+            rows[lab] = {PROFILE_VIEW_KEY: heat / (dist / 1000.0) if dist > 0 else math.nan, "heat_pack_J": heat}
+        order = sorted((lab for lab in rows if math.isfinite(rows[lab][PROFILE_VIEW_KEY])),
+                       key=lambda x: rows[x][PROFILE_VIEW_KEY])
+        for lab in rows:
+            rows[lab]["rank"] = order.index(lab) + 1 if lab in order else None
+        out[view]["runs"] = rows
+    return out

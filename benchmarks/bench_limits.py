@@ -1,5 +1,5 @@
 """Memory of the MPC's horizon-N NLP and of platoon simulations: calibrates the size limits of issue 11
-(aev_ocp.mpc.report.MPC_BYTES_PER_INTERVAL, aev_ocp.scenarios.BYTES_PER_SAMPLE).
+(aev_ocp.limits.MPC_BYTES_PER_INTERVAL, aev_ocp.limits.BYTES_PER_SAMPLE).
 
 Each measurement runs in a fresh process and reports its peak RSS (ru_maxrss) above the baseline after
 imports. Prints a table and writes results/bench_limits.json.
@@ -9,7 +9,6 @@ imports. Prints a table and writes results/bench_limits.json.
 
 from __future__ import annotations
 
-import json
 import subprocess
 import sys
 from pathlib import Path

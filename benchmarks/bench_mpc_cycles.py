@@ -30,7 +30,7 @@ import numpy as np
 from aev_ocp.metrics import comparability
 from aev_ocp.models import OVFL, PaperLeader, Proposed, drive_cycle
 from aev_ocp.mpc import MPCSettings, MPCVehicle, run_closed_loop
-from aev_ocp.ocp.formulation import s9_formulation
+from aev_ocp.ocp.formulation import s9_formulation, traffic_formulation
 from aev_ocp.params import EVParams, Units
 from aev_ocp.results import write_json
 from aev_ocp.simulate import simulate_platoon
@@ -116,10 +116,11 @@ def main(argv: list[str] | None = None) -> int:
           f"{'ω/km':>7s} {'gap m':>6s} {'TTC s':>6s} {'jerk':>7s} {'fb':>4s} {'p50':>6s} {'p99':>6s} {'max':>6s} "
           f"{'fc RMS':>7s} cmp")
     traffic = MPCSettings()
+    tform = traffic_formulation()  # the default formulation's SI parameters (its standstill floor)
     for cyc in a.cycles:
         units, h0, v0 = CYCLES[cyc]
         ev = EVParams(units=units)
-        h_min_m[cyc] = traffic.traffic.standstill_gap_m
+        h_min_m[cyc] = tform.traffic.standstill_gap_m
         leader = PaperLeader() if cyc == "paper" else drive_cycle(cyc, units)
         dt = traffic.dt
         if cyc == "paper":
@@ -152,7 +153,7 @@ def main(argv: list[str] | None = None) -> int:
         from aev_ocp.mpc.scenario import MPCConfig, closed_loop_from_scenario
 
         sc = load_scenario(find_scenario("udds_platoon"))
-        h_min_m["platoon"] = traffic.traffic.standstill_gap_m
+        h_min_m["platoon"] = tform.traffic.standstill_gap_m
         dt = traffic.dt
         t_s = sc.leader.times[-1] * sc.ev.units.time_s if a.full else a.t_end_s
         t_end = round(sc.ev.units.time_from_si(t_s) / dt) * dt
@@ -174,7 +175,7 @@ def main(argv: list[str] | None = None) -> int:
     miss = targets(rows, h_min_m)
     print("targets: all met" if not miss else "targets missed:\n  " + "\n  ".join(miss))
     write_json(a.out, {"t_end_s": "full" if a.full else a.t_end_s, "rows": rows, "targets_missed": miss,
-                       "settings": {"traffic": vars(traffic.traffic), "N": traffic.N, "dt": traffic.dt,
+                       "settings": {"traffic": vars(tform.traffic), "N": traffic.N, "dt": traffic.dt,
                                     "solver": traffic.solver, "codegen": traffic.codegen,
                                     "max_step_ms": traffic.max_step_ms},
                        "machine": {"platform": platform.platform(), "python": sys.version.split()[0],

@@ -86,7 +86,7 @@ def test_mpc_table_keys_route_into_the_formulation() -> None:
 
 
 def test_bound_role_is_checked_against_every_run() -> None:
-    from aev_ocp.mpc.report import bound_role as _bound_role
+    from aev_ocp.ocp.oracle import bound_role as _bound_role
 
     ms = {"mpc": [{"cost_traffic": 874.69}], "proposed": [{"cost_traffic": 1201.3}]}
     assert _bound_role(874.6, ms, "cost_traffic") == ("bound", "")

@@ -15,7 +15,6 @@ from scipy.integrate import solve_ivp
 
 from aev_ocp.control import ClosedLoop, Command, ControlSequence, Observation
 from aev_ocp.models import ConstantSpeed, PaperLeader, Proposed
-from aev_ocp.models.carfollowing import optimal_velocity
 from aev_ocp.params import UNLIMITED, EVParams, ParameterError, Units, VehicleLimits
 from aev_ocp.simulate import simulate_platoon
 
@@ -271,3 +270,22 @@ def test_traffic_prediction_knows_the_lag() -> None:
         r = ClosedLoop(ConstantSpeed(1.3), [seq], lagged).run([z0[0]], [z0[1]], 12 * s.dt)
         errs[tag] = float(np.max(np.abs(r.speed[:, 0] - sol.X[1])))
     assert errs["with"] < 2e-4 < 0.02 < errs["without"]
+
+
+def test_braking_to_a_stop_with_a_never_reversing_command_is_held_at_a_crawl() -> None:
+    """A controller that brakes to a stop with a = -v/dt (never reversing over its step) leaves v decaying
+    geometrically over its steps (1e-86, 1e-144, ...): CVODES failed (CV_TOO_MUCH_WORK) at such speeds in the safety
+    suite. At or below V_STOP the brakes hold the car: every step integrates, the speed stops decaying there."""
+    from aev_ocp.models.actuator import V_STOP
+    from aev_ocp.models.leader import BrakingLeader
+    from aev_ocp.plant import Plant
+
+    plant = Plant(BrakingLeader.from_si(0.0, -3.0, 0.0, UNITS), [None], _ev())
+    x = np.array([0.0435, 0.37, -0.0166, -0.00164, 0.802])
+    dt, speeds = 0.1, []
+    for k in range(40):
+        res = plant.integrator(x0=x, p=np.array([4.8 + k * dt, dt, -x[1] / dt]))
+        x = np.asarray(res["xf"]).ravel()
+        speeds.append(x[1])
+    assert 0.0 <= speeds[-1] <= V_STOP and speeds[-1] > 1e-30  # held at a crawl, not decayed to round-off
+    assert speeds[-1] == speeds[-2]

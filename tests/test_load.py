@@ -14,7 +14,7 @@ import aev_ocp
 from aev_ocp.cli import main
 from aev_ocp.saved import ARRAYS, MANIFEST, SIM_ARRAYS, LoadError, load_all
 from aev_ocp.scenarios import find_scenario
-from aev_ocp.overrides import load_with_sets
+from aev_ocp.scenarios import load_with_sets
 
 
 def _same(a, b) -> bool:
@@ -64,7 +64,7 @@ def test_simulate_round_trip(tmp_path, capsys):
 
 
 def test_mpc_round_trip_and_time_limit(tmp_path, capsys):
-    from aev_ocp.mpc import cli_mpc
+    from aev_ocp.mpc.cli import cli_mpc
 
     out = tmp_path / "full"
     rc = cli_mpc(["mpc_paper_single", "--out", str(out), "--set", "simulation.t_end=1.2", "--solver", "sqp",

@@ -6,8 +6,8 @@ import json
 
 import pytest
 
-import aev_ocp.mpc  # noqa: F401  (registers the [mpc] table)
-from aev_ocp.mpc import cli_mpc
+import aev_ocp.mpc.report  # noqa: F401  (its REPRODUCE_SECTIONS)
+from aev_ocp.mpc.cli import cli_mpc
 from aev_ocp.scenarios import ScenarioError, find_scenario, load_scenario, parse_scenario
 
 try:
@@ -75,7 +75,7 @@ def test_cli_bad_input_is_exit_2(capsys):
 
 
 def test_reproduce_section_is_provided():
-    assert [s[0] for s in aev_ocp.mpc.REPRODUCE_SECTIONS] == ["mpc"]
+    assert [s[0] for s in aev_ocp.mpc.report.REPRODUCE_SECTIONS] == ["mpc"]
 
 
 def test_mpc_comparison_reports_its_cost_on_the_exact_model_and_warns_on_a_smoothing_gap() -> None:

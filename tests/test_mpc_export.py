@@ -284,7 +284,6 @@ def test_traffic_formulation_exports_and_matches_the_python_driver(tmp_path: Pat
     Python rti path on the same QP solver but nothing else shared: the QP data from the interpreted CasADi
     functions, the Hessian projected by NumPy (eigh), the shift and the multipliers' layout in NumPy."""
     from aev_ocp.models import drive_cycle
-    from aev_ocp.mpc.controller import MPCController
     from aev_ocp.params import Units
 
     rc_cli, _, _ = run_cli(["mpc-export", "mpc_udds_single", "--out", str(tmp_path), "--set",

@@ -82,7 +82,7 @@ def test_ocp_b_infeasible_demand_reports_status(ocp_b):
 
 def test_warm_start_resolve(ocp_b):
     s = ocp_b["collocation"]
-    r1 = s.solve(E_req=2500.0, t_f=60.0)
+    s.solve(E_req=2500.0, t_f=60.0)  # the solve the next one warm-starts from
     r2 = s.solve(E_req=2600.0, t_f=60.0, warm=True)
     r3 = s.solve(E_req=2600.0, t_f=60.0)
     assert r2.status == "optimal" and r2.objective == pytest.approx(r3.objective, rel=1e-7)
@@ -93,7 +93,6 @@ def resim_vehicle(t, a, trip, exact=True):
     """scipy re-simulation of the eco-trip with the exact η switch: x, v, cell, pack ∫Q."""
     veh, cell, n = EV.vehicle, EV.cell, EV.pack.n_cells
     y = np.array([0, trip.v0_mps, 0, 0, trip.S0, 0], float)
-    minI, maxI, mindisc = 0.0, 0.0, np.inf
     for k in range(a.size):
         ak = a[k]
 

@@ -119,7 +119,7 @@ def test_zero_heat_alternative_is_a_distinct_minimiser(cases):
 
 
 def test_outputs_written(tmp_path):
-    from aev_ocp.ocp import cli_ocp
+    from aev_ocp.ocp.cli import cli_ocp
     import json
 
     rc = cli_ocp(["prop31", "--out", str(tmp_path), "--method", "ms"])

@@ -97,7 +97,7 @@ def test_parse_assignments():
 
 
 def test_load_with_sets():
-    from aev_ocp.overrides import load_with_sets
+    from aev_ocp.scenarios import load_with_sets
 
     sc = load_with_sets("table1", ["carfollowing.kappa=0.071", "simulation.t_end=12.5"])
     assert sc.law("proposed").kappa == 0.071 and sc.t_end == 12.5

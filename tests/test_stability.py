@@ -18,8 +18,9 @@ from hypothesis import strategies as st
 from aev_ocp.cli import main
 from aev_ocp.models.carfollowing import (IDM, LAW_REGISTRY, OVFL, OVM, TANH2, CarFollowingLaw, Proposed,
                                          optimal_velocity, register_law)
-from aev_ocp.stability import (LinearizedLaw, PerturbedLeader, analyse, measure,
-                               stability_map, string_stability_section, study_metrics, transfer)
+from aev_ocp.stability import LinearizedLaw, PerturbedLeader, analyse, measure, transfer
+from aev_ocp.stability.api import stability_map, study_metrics
+from aev_ocp.stability.report import string_stability_section
 from aev_ocp.params import Units
 from aev_ocp.stability.linear import impulse_response
 

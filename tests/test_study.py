@@ -351,6 +351,38 @@ def test_chunks_cover_every_task_once(tmp_path):
     assert strip(batch) == strip(single)
 
 
+def test_equal_distance_and_time_columns_equal_the_exact_cut_of_direct_runs(tmp_path):
+    """The table's eq_distance_* / eq_time_* columns (issue 21 item 5): every run of a point cut at the shortest
+    distance (common time) of that point's runs, from the compact profiles the tasks keep, against the exact
+    truncation (aev_ocp.truncation.equal_views) of the same runs simulated directly; ranks by ∫Q/km."""
+    from aev_ocp.truncation import equal_views
+
+    out = run_study(read_study(_study(tmp_path)), tmp_path / "out", executor="inprocess", report=True,
+                    progress_stream=sys.stderr)
+    base = load_scenario("table1")
+    gap, kappa = 0.9, 0.26
+    sc = base.with_overrides({"simulation.t_end": 2.5, "simulation.dt_out": 0.05, "platoon.followers": 3,
+                              "platoon.gap0_first": gap, "carfollowing.kappa": kappa})
+    runs = {law: simulate_platoon(sc.leader, [sc.law(law)] * 3, **sc.simulate_kwargs()) for law in ("proposed", "ovfl")}
+    for vehicle in (1, 3):
+        exact = equal_views(runs, vehicle - 1)
+        got = {r["controller"]: r for r in out.rows if r["vehicle"] == vehicle and r["platoon.gap0_first"] == gap
+               and r["carfollowing.kappa"] == kappa}
+        assert got["ovfl"]["eq_distance_cut_m"] == pytest.approx(exact["distance"]["cut_m"], rel=1e-12)
+        assert got["ovfl"]["eq_time_cut_s"] == pytest.approx(exact["time"]["cut_s"], rel=1e-12)
+        for law in ("proposed", "ovfl"):
+            for view in ("distance", "time"):
+                want = exact[view]["runs"][law]
+                # linear interpolation between the kept samples (every 0.1 s here) against the exact cut
+                assert got[law][f"eq_{view}_heat_pack_J_per_km"] == pytest.approx(want["heat_pack_J_per_km"], rel=2e-3)
+                assert got[law][f"eq_{view}_rank"] == want["rank"]
+        d_prop = got["proposed"]["eq_distance_heat_pack_J_per_km"]
+        d_ref = got["ovfl"]["eq_distance_heat_pack_J_per_km"]
+        assert got["proposed"]["eq_distance_heat_pack_J_per_km_change_pct"] == pytest.approx(100 * (d_prop / d_ref - 1))
+    report = (tmp_path / "out" / "report.md").read_text()
+    assert "## Equal-distance view, follower 1" in report
+
+
 def test_study_ocpd_is_the_same_solve_and_replay_as_aev_ocp_mpc_on_a_coarse_grid(tmp_path, monkeypatch):
     """The study's OCP-D runs aev-ocp mpc's solve-and-replay: a run too long for the MPC's grid gets the coarse
     grid there too (said in 'grid_dt' and 'coarse'), and its replay equals run_comparison's to the bit."""

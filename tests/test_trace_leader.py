@@ -171,7 +171,7 @@ def test_position_trace_of_a_vehicle_starting_from_rest(tmp_path):
 
 def test_traffic_keys_under_the_s9_formulation_are_an_error(tmp_path):
     """The mirror of the §9-keys check: a TrafficParams key with formulation = "s9" would be ignored."""
-    from aev_ocp.overrides import load_with_sets
+    from aev_ocp.scenarios import load_with_sets
 
     with pytest.raises(ScenarioError, match="time_headway_s"):
         load_with_sets(find_scenario("mpc_paper_single"), ["mpc.time_headway_s=3.0"])

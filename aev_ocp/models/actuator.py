@@ -5,8 +5,10 @@ The plant applies them to every controller's command, in this order:
 1. saturation: a_sat = min(max(a_cmd, a_min), a_max);
 2. actuator (when ``limits.has_actuator_state``): the realised acceleration a_act is a state,
    da_act/dt = (a_sat − a_act)/τ, the rate clipped to ±jerk_max when a jerk limit is set; else a_act = a_sat;
-3. speed range: the realised acceleration is cut to ≤ 0 at v ≥ v_max (top speed) and to ≥ 0 at v ≤ 0
-   (the brakes hold a stopped car, they never reverse it). Both are one-sided switches of the right-hand side
+3. speed range: the realised acceleration is cut to ≤ 0 at v ≥ v_max (top speed) and to ≥ 0 at v ≤ V_STOP
+   (the brakes hold a stopped car, they never reverse it; V_STOP is a speed far below any sensor's resolution,
+   so a controller that brakes to a stop with a ≥ −v/dt, which leaves v decaying geometrically over its steps,
+   is held there instead of driving the integrator through speeds of 1e-140 where CVODES fails). Both are one-sided switches of the right-hand side
    (an ``if_else`` on v): a trajectory reaching v_max or 0 stays there (dv/dt = 0), so adaptive integrators
    cross each switch once, with one rejected step, and never chatter.
 
@@ -22,6 +24,10 @@ from typing import Any
 import casadi as ca
 
 from ..params import Units, VehicleLimits
+
+#: The speed [model] at or below which a car with limits is stopped: the brakes hold it (see module docstring).
+#: 1e-9 model speed is 5e-9 m/s at the default units (a metre in 6 years); below it v only matters to round-off.
+V_STOP = 1e-9
 
 
 def saturate(a_cmd: Any, limits: VehicleLimits, units: Units) -> Any:
@@ -43,8 +49,8 @@ def actuator_rate(a_sat: Any, a_act: Any, limits: VehicleLimits, units: Units) -
 
 
 def speed_cut(a: Any, v: Any, limits: VehicleLimits, units: Units) -> Any:
-    """The acceleration the car realises at speed v [model]: a cut to ≤ 0 at v ≥ v_max and to ≥ 0 at v ≤ 0."""
+    """The acceleration the car realises at speed v [model]: a cut to ≤ 0 at v ≥ v_max and to ≥ 0 at v ≤ V_STOP."""
     if not limits.enabled:
         return a
     v_max = float(units.speed_from_si(limits.v_max_mps))
-    return ca.if_else(v >= v_max, ca.fmin(a, 0), ca.if_else(v <= 0, ca.fmax(a, 0), a))
+    return ca.if_else(v >= v_max, ca.fmin(a, 0), ca.if_else(v <= V_STOP, ca.fmax(a, 0), a))

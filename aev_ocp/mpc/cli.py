@@ -16,7 +16,7 @@ OUTPUT_FILES = ("results.json", "trajectories_mpc.csv", "mpc_trajectories.png", 
 
 def build_parser() -> argparse.ArgumentParser:
     """Argument parser of ``aev-ocp mpc`` (every option with its unit and default)."""
-    from ..cli import OneLineParser
+    from ..console import OneLineParser
 
     p = OneLineParser(prog="aev-ocp mpc", description="The MPC closed loop of a scenario beside the closed-form laws (and the "
                       "OCP-D lower bound for a single follower); writes results.json, trajectories_mpc.csv, plots, "
@@ -97,15 +97,15 @@ def cli_mpc(argv: list[str]) -> int:
     """Entry point; returns the exit code: 0 ok, 1 the MPC run stopped on an event (collision,
     infeasible current, ...; results up to then are written) or a solver failed, 2 bad input,
     130 interrupted. Errors are one line ``aev-ocp: error: ...`` as for every subcommand."""
-    from ..cli import guarded
+    from ..console import guarded
 
     return guarded(lambda: _cli_mpc(argv))
 
 
 def _cli_mpc(argv: list[str]) -> int:
-    from ..cli import error_line, warning_line
+    from ..console import error_line, warning_line
     from ..results import claim_output_dir, default_output_dir
-    from ..overrides import load_with_sets
+    from ..scenarios import load_with_sets
     from ..progress import TIME_LIMIT, Progress
     from ..saved import OUTPUT_FILES as SAVED_FILES, save_output, settings_of
     from ..scenarios import find_scenario

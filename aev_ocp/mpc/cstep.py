@@ -22,7 +22,7 @@ The hand-written driver ``aev_ocp/c/mpc_step.c`` (header ``mpc_step.h``) runs th
 solved by a Riccati recursion over the stages, built with the problem's dimensions as compile-time
 constants (:func:`qp_dimension_defines`). One SQP step: the QP data, each Hessian block projected onto
 the positive-definite cone in C when ``rti_hessian = 'projected'`` (``aev_mpc_project_pd``: the same
-floor as :func:`aev_ocp.mpc.rti.project_pd`), a full step. A warm step shifts and does
+floor as :func:`aev_ocp.mpc.nlp.project_pd`), a full step. A warm step shifts and does
 ``rti_iterations`` SQP steps; a cold step (the first, or after a failure) does ``rti_cold_iterations``
 SQP steps from the guess (the traffic formulation, as the Python rti path), or, for §9 (whose Python path
 starts with a cold IPOPT), Levenberg-Marquardt-regularised SQP until the step is below ``tol`` (at most
@@ -55,7 +55,7 @@ import casadi as ca
 import numpy as np
 
 from ..params import ParameterError
-from .nlp import HorizonNLP, rti_stage_functions
+from .nlp import RTI_HESSIAN_FLOOR, HorizonNLP, rti_stage_functions
 
 
 class ExportableController(Protocol):
@@ -234,7 +234,6 @@ def _c_array(values: np.ndarray) -> str:
 def config_header(c: ExportableController, description: str) -> str:
     """mpc_config.h: dimensions and constants of the exported problem (filled template)."""
     from ..models.ego import STATE_NAMES
-    from .rti import RTI_HESSIAN_FLOOR
 
     s, pr = c.settings, c.problem
     NZ = len(STATE_NAMES)  # the measured states at the front of every MPC problem

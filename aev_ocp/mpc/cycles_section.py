@@ -198,12 +198,12 @@ def cycles_section(out_dir: Any, progress: Callable[[str], None], segment_s: flo
 def _reproduce_section(out_dir: Any, progress: Callable[[str], None]) -> str:
     """The section as ``reproduce`` runs it: a reduced configuration's scenario_t_end_max [model time]
     caps every segment (e.g. ReproduceConfig.quick(): 10 time units)."""
-    from ..reproduce import active_config
+    from ..report_sections import SectionContext
 
-    cap = active_config().scenario_t_end_max
+    cap = SectionContext.of(progress).config.scenario_t_end_max
     if cap is None:
         return cycles_section(out_dir, progress)
     return cycles_section(out_dir, progress, t_end_max=cap)
 
 
-REPRODUCE_SECTIONS = [("mpc-cycles", _reproduce_section, STEPS)]  # listed in aev_ocp.reproduce.SECTION_PROVIDERS
+REPRODUCE_SECTIONS = [("mpc-cycles", _reproduce_section, STEPS)]  # listed in aev_ocp.report_sections.SECTION_PROVIDERS

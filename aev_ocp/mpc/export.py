@@ -54,7 +54,7 @@ def export_mpc(scenario: Any, out: Path, settings: Any = None, formulation: Any 
 # ---------------------------------------------------------------------------------------------- command line
 def build_parser() -> Any:
     """Argument parser of ``aev-ocp mpc-export``."""
-    from ..cli import OneLineParser
+    from ..console import OneLineParser
 
     p = OneLineParser(prog="aev-ocp mpc-export",
                       description="Export the MPC step of a scenario's [mpc] table as a self-contained C library "
@@ -73,13 +73,13 @@ def build_parser() -> Any:
 def cli_mpc_export(argv: list[str]) -> int:
     """Entry point of ``aev-ocp mpc-export``; exit 0 ok, 2 bad input (unknown scenario, no [mpc] table,
     no C compiler for --build), 1 a failed build."""
-    from ..cli import guarded
+    from ..console import guarded
 
     return guarded(lambda: _cli(argv))
 
 
 def _cli(argv: list[str]) -> int:
-    from ..overrides import load_with_sets
+    from ..scenarios import load_with_sets
     from ..scenarios import find_scenario
 
     a = build_parser().parse_args(argv)

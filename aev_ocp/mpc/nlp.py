@@ -256,3 +256,21 @@ def rti_stage_functions(nlp: HorizonNLP) -> tuple[ca.Function, ca.Function]:
     term = ca.Function("mpc_rti_terminal", [xNs, pT], [ca.densify(ca.hessian(mayer, xNs)[0]),
                                                        ca.gradient(mayer, xNs), mayer])
     return stage, term
+
+
+#: Eigenvalue floor of the RTI Hessian's diagonal blocks, relative to (1 + the block's max |λ|) (our choice:
+#: far below the curvature of every cost term, so PD blocks are unchanged and the step is undamped).
+RTI_HESSIAN_FLOOR = 1e-8
+
+
+def project_pd(B: np.ndarray) -> np.ndarray:
+    """Symmetric matrices B (k, n, n) with eigenvalues raised to RTI_HESSIAN_FLOOR·(1 + max|λ|); blocks
+    that are PD with margin are returned unchanged (only the others are rebuilt from their eigenpairs)."""
+    B = 0.5 * (B + B.transpose(0, 2, 1))
+    lam, Q = np.linalg.eigh(B)
+    floor = RTI_HESSIAN_FLOOR * (1.0 + np.abs(lam).max(axis=1, keepdims=True))
+    bad = np.any(lam < floor, axis=1)
+    if np.any(bad):
+        lb, Qb = np.maximum(lam[bad], floor[bad]), Q[bad]
+        B[bad] = (Qb * lb[:, None, :]) @ Qb.transpose(0, 2, 1)
+    return B

@@ -22,10 +22,11 @@ import numpy as np
 from .. import interrupts
 from ..ocp.checks import GAP_RTOL as SMOOTHING_GAP_RTOL
 from ..ocp.formulation import Formulation, ModelBounds, s9_formulation
-from ..ocp.oracle import (DEFAULT_TIME_LIMIT_S, OBJECTIVE_NAMES, ocpd_scenario, oracle_parameters, solve_and_replay,
-                          stage_cost_of_result)
+from ..ocp.oracle import (DEFAULT_TIME_LIMIT_S, OBJECTIVE_NAMES, bound_role, ocpd_scenario,
+                          solve_and_replay, stage_cost_of_result)
 from ..ocp.problem import OCPProblem
 from ..ocp.traffic_cost import cost_traffic_of_result, problem_cost_of_result
+from ..limits import MPC_BYTES_PER_INTERVAL, memory_limit_bytes
 from ..metrics import comparability
 from ..params import ParameterError
 from ..progress import Progress
@@ -47,14 +48,8 @@ METRIC_ROWS = COMPARABILITY_ROWS + ["omega_model", "omega_J_per_kg", "heat_pack_
                "fallbacks", "fallback_causes", "solver_path"]
 #: rows of the §9 cost beside another formulation's run (a secondary table: never a verdict)
 S9_ROWS = ("cost_s9", "cost_s9_exact", "smoothing_gap_pct")
-#: A bound's cost may exceed a run's by this fraction (the exact plant vs the optimiser's RK4 and smoothed η
-#: switch; measured: 5e-7 on OCP-D's own replay); more and the OCP-D column is a 'reference', with a warning.
-BOUND_RTOL = 1e-4
 
 
-# Memory of building and solving the horizon-N NLP [bytes per interval]: 0.88-1.29 MB measured by
-# benchmarks/bench_limits.py (peak RSS of MPCController construction + one solve, ipopt and rti, N = 40 ... 1600).
-MPC_BYTES_PER_INTERVAL = 1_000_000
 MAX_CLOSED_LOOP_STEPS = 10**6  # each step is one NLP solve: 10^6 steps are hours even on the fastest path
 
 
@@ -66,7 +61,7 @@ def check_mpc_scenario(scenario: Any, settings: MPCSettings, laws: tuple[str, ..
     unknown or repeated comparison laws, a horizon or a number of steps too large for memory or time.
     """
     from ..models.carfollowing import LAW_REGISTRY
-    from ..scenarios import ScenarioError, check_run_size, memory_limit_bytes
+    from ..scenarios import ScenarioError, check_run_size
     from .scenario import check_mpc_setup
 
     file = str(scenario.source or scenario.name)
@@ -277,19 +272,6 @@ def run_comparison(scenario: Any, settings: MPCSettings | None = None, laws: tup
     return Comparison(out, metrics, ocpd, tim, warn, f, views)
 
 
-def bound_role(cost: float, metrics: dict[str, list[dict[str, Any]]], key: str) -> tuple[str, str]:
-    """('bound', '') when the OCP-D optimum ``cost`` (same formulation, the MPC's grid) is at most every whole
-    run's ``key`` cost of follower 1 (within BOUND_RTOL), else ('reference', the warning naming the run)."""
-    for lab, ms in metrics.items():
-        c = ms[0].get(key)
-        if c is None or not math.isfinite(float(c)) or not math.isfinite(cost):
-            continue
-        if cost > float(c) + BOUND_RTOL * abs(float(c)):
-            return "reference", (f"OCP-D's {key} {cost:.6g} exceeds run {lab}'s {float(c):.6g}: it is not a lower "
-                                 "bound of it and is labelled 'reference'")
-    return ("bound", "") if math.isfinite(cost) else ("reference", "")
-
-
 def _covers(r: SimulationResult, t_end: float) -> bool:
     """The run reached t_end [model time] without an event (its costs cover the whole horizon)."""
     return not r.events and r.t[-1] >= t_end - 1e-9 * max(1.0, abs(t_end))
@@ -459,3 +441,6 @@ def mpc_section(out_dir: Any, progress: Callable[[str], None]) -> str:
         lines.append(f"MPC's §9 cost is {gap:.3f} % above the OCP-D {what}.")
     lines += [f"**Warning:** {w}" for w in c.warnings]
     return "\n".join(lines) + "\n"
+
+
+REPRODUCE_SECTIONS = [("mpc", mpc_section, 15)]  # 3 runs x 4 progress lines + OCP-D + replay + writing

@@ -20,7 +20,7 @@ step, and discard a step longer than ``max_step_ms`` (cause 'budget', :mod:`aev_
 from __future__ import annotations
 
 import time
-from typing import TYPE_CHECKING, Any
+from typing import Any, Protocol
 
 import casadi as ca
 import numpy as np
@@ -28,22 +28,30 @@ import numpy as np
 from ..params import ParameterError
 from ..plant import PLAN_TOLERANCE
 from .cstep import STATUS as STEP_STATUS
-from .nlp import HorizonNLP, compile_c, rti_stage_functions
+from .nlp import RTI_HESSIAN_FLOOR, HorizonNLP, compile_c, project_pd, rti_stage_functions  # noqa: F401
 from .ocpqp import STATUS as QP_STATUS
 from .solution import MPCSolution
 
-if TYPE_CHECKING:  # pragma: no cover
-    from .controller import MPCController
+
+
+class RTIHost(Protocol):
+    """What the RTI step needs of its controller (:class:`aev_ocp.mpc.controller.MPCController`; a Protocol, so
+    this module does not import the controller): the warm start it keeps, its failed and late results, its
+    horizon NLP, settings and compiled step."""
+
+    warm: dict[str, np.ndarray] | None
+    nlp: HorizonNLP
+    settings: Any
+    compiled_step: Any
+
+    def failed(self, status: str, iters: int, dt_wall: float, viol: float, path: str) -> MPCSolution: ...
+
+    def late(self, warm: dict[str, Any], iters: int, dt_wall: float, viol: float, path: str) -> MPCSolution: ...
 
 #: HPIPM's stand-in for an infinite bound in the traffic formulation's QPs (CasADi's default 1e8 next to
 #: O(1…1e3) scaled variables stalls HPIPM at its iteration limit (status 1) on the slack and epigraph
 #: controls, which have no upper bound; measured: 100 iterations without convergence vs 14).
 HPIPM_INF_TRAFFIC = 1e5
-
-#: Eigenvalue floor of the RTI Hessian's diagonal blocks, relative to (1 + the block's max |λ|) (our choice:
-#: far below the curvature of every cost term, so PD blocks are unchanged and the step is undamped).
-RTI_HESSIAN_FLOOR = 1e-8
-
 
 def qp_options(qp_solver: str, hpipm_inf: float | None = None) -> dict[str, Any]:
     """Silent, tight options of a QP solver (the 'sqp' path's qpsol and the 'rti' path's conic)."""
@@ -59,19 +67,6 @@ def qp_options(qp_solver: str, hpipm_inf: float | None = None) -> dict[str, Any]
     elif qp_solver == "qpoases":
         opts.update({"printLevel": "none", "sparse": True})
     return opts
-
-
-def project_pd(B: np.ndarray) -> np.ndarray:
-    """Symmetric matrices B (k, n, n) with eigenvalues raised to RTI_HESSIAN_FLOOR·(1 + max|λ|); blocks
-    that are PD with margin are returned unchanged (only the others are rebuilt from their eigenpairs)."""
-    B = 0.5 * (B + B.transpose(0, 2, 1))
-    lam, Q = np.linalg.eigh(B)
-    floor = RTI_HESSIAN_FLOOR * (1.0 + np.abs(lam).max(axis=1, keepdims=True))
-    bad = np.any(lam < floor, axis=1)
-    if np.any(bad):
-        lb, Qb = np.maximum(lam[bad], floor[bad]), Q[bad]
-        B[bad] = (Qb * lb[:, None, :]) @ Qb.transpose(0, 2, 1)
-    return B
 
 
 class RTIStep:
@@ -165,7 +160,7 @@ class RTIStep:
             lam_g, lam_x = np.asarray(out["lam_a"]).ravel(), np.asarray(out["lam_x"]).ravel()
         return dx, lam_g, lam_x, ok_qp, qst
 
-    def solve(self, c: "MPCController", args: dict[str, np.ndarray], p: np.ndarray, lbx: np.ndarray,
+    def solve(self, c: RTIHost, args: dict[str, np.ndarray], p: np.ndarray, lbx: np.ndarray,
               ubx: np.ndarray, iterations: int) -> MPCSolution:
         """Up to ``iterations`` full SQP steps from ``args`` (the shifted previous solution, or the cold
         guess), each QP by :meth:`qp_step`. Success: every QP solved, a finite step, the applied control's
@@ -220,7 +215,7 @@ def check_rti_qp(qp_solver: str, family: str) -> None:
                              "control; use qp_solver = 'riccati' or 'hpipm'")
 
 
-def solve_compiled(c: "MPCController", z0: np.ndarray, p: np.ndarray) -> MPCSolution:
+def solve_compiled(c: RTIHost, z0: np.ndarray, p: np.ndarray) -> MPCSolution:
     """One step of the compiled whole RTI step (:class:`aev_ocp.mpc.export.CStep`, the same C as
     ``aev-ocp mpc-export``): a cold start (SQP from the guess) when the controller has no warm start."""
     cs = c.compiled_step

@@ -160,3 +160,6 @@ def closed_loop_from_scenario(scenario: Any, config: MPCConfig | None = None,
             ctrls.append(MPCVehicle(s, predictor=p, formulation=f))
     return ClosedLoop(scenario.leader, ctrls, scenario.ev, fallback_law=scenario.law("proposed"),
                       rtol=scenario.rtol, atol=scenario.atol)
+
+
+register()  # the scenario loader imports this module when a file has an [mpc] table

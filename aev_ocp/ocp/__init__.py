@@ -4,18 +4,35 @@ OCP-D (oracle following, the lower bound). Nothing here plots; see :mod:`aev_ocp
 
 The §9 problem shared with the MPC is stated once in :mod:`aev_ocp.ocp.following`; the problem
 description (:class:`OCPProblem`, :class:`ProblemBuilder`) lives in :mod:`aev_ocp.ocp.problem`.
+The runs that write files (``run_prop31``, ``run_oracle``, …) are in :mod:`aev_ocp.ocp.api`, the
+``aev-ocp ocp`` command in :mod:`aev_ocp.ocp.cli`, the report section in :mod:`aev_ocp.ocp.report_section`.
+
+The names below are imported on first use, so ``import aev_ocp.ocp.problem`` loads the problem
+description only (docs/guide/layers.md).
 """
 
-from .api import run_current_profile, run_eco_trip, run_oracle, run_prop31
-from .cli import cli_ocp
-from .following import FollowingBounds, FollowingWeights, following_problem, following_stage_terms
-from .oracle import OracleScenario, OracleSolver, canonical_scenario, stage_cost_of_trajectory
-from .report_section import REPRODUCE_SECTIONS
-from .result import OCPResult
-from .problem import OCPProblem, ProblemBuilder
-from .transcription import OCPSolver, TranscriptionOptions
+from __future__ import annotations
 
-__all__ = ["REPRODUCE_SECTIONS", "OCPResult", "OCPProblem", "OCPSolver", "TranscriptionOptions", "cli_ocp", "run_prop31",
-           "run_current_profile", "run_eco_trip", "run_oracle", "FollowingBounds", "FollowingWeights",
-           "following_problem", "following_stage_terms", "ProblemBuilder", "OracleScenario",
-           "OracleSolver", "canonical_scenario", "stage_cost_of_trajectory"]
+import importlib
+from typing import Any
+
+#: name -> submodule that defines it (problem description and solvers only: the package's own layers)
+_EXPORTS = {
+    "OCPResult": "result", "OCPProblem": "problem", "ProblemBuilder": "problem",
+    "OCPSolver": "transcription", "TranscriptionOptions": "transcription",
+    "FollowingBounds": "following", "FollowingWeights": "following", "following_problem": "following",
+    "following_stage_terms": "following",
+    "OracleScenario": "oracle", "OracleSolver": "oracle", "canonical_scenario": "oracle",
+    "stage_cost_of_trajectory": "oracle",
+}
+__all__ = list(_EXPORTS)
+
+
+def __getattr__(name: str) -> Any:
+    if name in _EXPORTS:
+        return getattr(importlib.import_module(f".{_EXPORTS[name]}", __name__), name)
+    raise AttributeError(f"module 'aev_ocp.ocp' has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(__all__))

@@ -16,7 +16,7 @@ COMMANDS = ("prop31", "current-profile", "eco-trip", "oracle")
 
 
 def _parser() -> argparse.ArgumentParser:
-    from ..cli import OneLineParser
+    from ..console import OneLineParser
 
     ap = OneLineParser(prog="aev-ocp ocp", description="Optimal-control problems OCP-A..D (PROBLEM.md §8).")
     ap.add_argument("problem", choices=COMMANDS)
@@ -114,7 +114,7 @@ def _check_size(args: argparse.Namespace) -> None:
 def cli_ocp(argv: list[str]) -> int:
     """Run one OCP from the command line; returns the exit code (0 ok, 1 solver failure, 2 bad input,
     130 interrupted). Errors are one line ``aev-ocp: error: ...`` as for every subcommand."""
-    from ..cli import guarded
+    from ..console import guarded
 
     return guarded(lambda: _cli_ocp(argv))
 
@@ -158,8 +158,10 @@ def _cli_ocp(argv: list[str]) -> int:
     if args.problem == "prop31":
         from .prop31 import prop31_table
 
-        cases = api.run_prop31(args.method, out_dir=out, refine=not args.no_refine,
-                               **({"N": args.N} if args.N is not None else {}))
+        from ..ocp_plots import write_prop31_outputs
+
+        cases = api.run_prop31(args.method, refine=not args.no_refine, **({"N": args.N} if args.N is not None else {}))
+        write_prop31_outputs(cases, out)
         print(prop31_table(cases))
         ok = all(e["status"] in ("optimal", "acceptable") for e in cases.values())
         runs = {case: e["result"] for case, e in cases.items() if "result" in e}
@@ -199,12 +201,12 @@ def _cli_ocp(argv: list[str]) -> int:
                 extra={"time_limit": stopped, "sweep": rep.get("sweep") if args.problem != "prop31" else None})
     print(f"wrote results to {out} (aev_ocp.load('{out}'))")
     if stopped:
-        from ..cli import error_line
+        from ..console import error_line
 
         error_line(f"ocp {args.problem}: stopped by --time-limit {args.time_limit:g} s: partial sweep written to {out}")
         return 1
     if not ok:
-        from ..cli import error_line
+        from ..console import error_line
 
         if args.problem == "oracle" and rep["time_limit"]:
             error_line(f"ocp oracle: {rep['result'].message} (no lower bound; raise --time-limit)")

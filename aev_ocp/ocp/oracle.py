@@ -456,6 +456,25 @@ def ocpd_scenario(sc: Any, dt: float, formulation: Formulation, max_intervals: i
     return scenario_oracle(sc, oracle_grid_dt(sc.t_end, dt, sc.units, max_intervals=n_max), formulation)
 
 
+#: A bound's cost may exceed a run's by this fraction (the exact plant vs the optimiser's RK4 and smoothed η
+#: switch; measured: 5e-7 on OCP-D's own replay); more and the OCP-D column is a 'reference', with a warning.
+BOUND_RTOL = 1e-4
+
+
+def bound_role(cost: float, metrics: dict[str, list[dict[str, Any]]], key: str) -> tuple[str, str]:
+    """('bound', '') when the OCP-D optimum ``cost`` (same formulation, the MPC's grid) is at most every whole
+    run's ``key`` cost of follower 1 (``metrics``: {run label: [follower metrics]}, within BOUND_RTOL), else
+    ('reference', the warning naming the run). The check of ``aev-ocp mpc`` and of a study's OCP-D row."""
+    for lab, ms in metrics.items():
+        c = ms[0].get(key)
+        if c is None or not math.isfinite(float(c)) or not math.isfinite(cost):
+            continue
+        if cost > float(c) + BOUND_RTOL * abs(float(c)):
+            return "reference", (f"OCP-D's {key} {cost:.6g} exceeds run {lab}'s {float(c):.6g}: it is not a lower "
+                                 "bound of it and is labelled 'reference'")
+    return ("bound", "") if math.isfinite(cost) else ("reference", "")
+
+
 def solve_and_replay(sc: Any, dt: float, formulation: Formulation, *, time_limit_s: float = DEFAULT_TIME_LIMIT_S,
                      progress: Callable[[str], None] | None = None,
                      replay_progress: Callable[[float, float], None] | None = None,

@@ -88,6 +88,15 @@ class OCPProblem:
         """Size of the global parameter p."""
         return int(self.ode.size1_in(3))
 
+    def state_indices(self, names: Sequence[str]) -> list[int]:
+        """Positions of the states ``names`` in x (e.g. the measured states of a closed loop, mapped by name,
+        never by position); ParameterError naming the first state the problem does not have."""
+        have = list(self.state_names)
+        missing = [n for n in names if n not in have]
+        if missing:
+            raise ParameterError(f"{self.name}: no state named {missing[0]!r}; its states are {have}")
+        return [have.index(n) for n in names]
+
     def validate(self) -> None:
         """Check the shapes of the functions and bounds; raise ParameterError naming the field."""
         nx, nu = self.nx, self.nu
@@ -126,6 +135,12 @@ class ProblemBuilder:
     Time is in the problem's own unit (``time_unit``). Stage costs are sampled at the start of each
     interval and summed with weight h (the interval length); integral costs are integrated by the
     transcription; path constraints hold at the start of every interval.
+
+    Every name is used once: variables (states, controls, stage parameters, parameters) share one set of
+    names; cost terms and outputs share another (every term is also an output); path constraints and
+    terminal constraints have one each. A name given twice raises ParameterError, except a cost term or
+    an output given again with ``replace=True`` (e.g. ``add_stage_cost(expr, "accel", replace=True)``
+    replaces §9's ``w_a·a²``; without it, the call is refused instead of silently replacing the term).
     """
 
     def __init__(self, name: str, time_unit: str = "s") -> None:
@@ -150,20 +165,36 @@ class ProblemBuilder:
     def _new(self, table: dict[str, ca.SX], kind: str, name: str) -> ca.SX:
         if not isinstance(name, str) or not name.isidentifier():
             raise ParameterError(f"{self.name}: {kind} name {name!r} must be an identifier")
-        if any(name in t for t in (self.x, self.u, self.w, self.p)):
-            raise ParameterError(f"{self.name}: a variable named {name!r} exists already")
+        for other, t in (("state", self.x), ("control", self.u), ("stage parameter", self.w), ("parameter", self.p)):
+            if name in t:
+                raise ParameterError(f"{self.name}: {kind} {name!r}: a {other} named {name!r} exists already")
         table[name] = ca.SX.sym(name)
         return table[name]
 
+    def _bounds(self, what: str, lb: Any, ub: Any) -> tuple[float, float]:
+        """(lb, ub) as floats with lb ≤ ub (±inf allowed, NaN not); ParameterError naming ``what``."""
+        try:
+            lo, hi = float(lb), float(ub)
+        except (TypeError, ValueError):
+            raise ParameterError(f"{self.name}: {what}: bounds must be numbers, got lb = {lb!r}, ub = {ub!r}") from None
+        if not lo <= hi:  # also catches NaN
+            raise ParameterError(f"{self.name}: {what} has lb = {lo} > ub = {hi}" if lo == lo and hi == hi else
+                                 f"{self.name}: {what}: bounds must not be NaN, got lb = {lb!r}, ub = {ub!r}")
+        return lo, hi
+
     def state(self, name: str, lb: float = -ca.inf, ub: float = ca.inf, scale: float = 1.0) -> ca.SX:
         """A state with simple bounds (nodes 1…N) and a nominal magnitude ``scale``."""
-        self._x_info[name] = (lb, ub, scale)
-        return self._new(self.x, "state", name)
+        lo, hi = self._bounds(f"state {name!r}", lb, ub)
+        sym = self._new(self.x, "state", name)
+        self._x_info[name] = (lo, hi, scale)
+        return sym
 
     def control(self, name: str, lb: float = -ca.inf, ub: float = ca.inf, scale: float = 1.0) -> ca.SX:
         """A piecewise-constant control with simple bounds."""
-        self._u_info[name] = (lb, ub, scale)
-        return self._new(self.u, "control", name)
+        lo, hi = self._bounds(f"control {name!r}", lb, ub)
+        sym = self._new(self.u, "control", name)
+        self._u_info[name] = (lo, hi, scale)
+        return sym
 
     def stage_parameter(self, name: str) -> ca.SX:
         """A parameter with one value per interval (e.g. a forecast)."""
@@ -194,13 +225,34 @@ class ProblemBuilder:
             raise ParameterError(f"{self.name}: {what} needs a state made by state(), got {x}")
         return name
 
-    def add_stage_cost(self, expr: Any, name: str | None = None) -> None:
-        """Add ℓ(x_k, u_k, w_k, p) to the stage cost Σ_k ℓ·h."""
-        self.stage_terms[name or f"stage{len(self.stage_terms)}"] = expr
+    def _term_name(self, kind: str, name: str | None, default: str, replace: bool) -> str:
+        """The name of a new cost term or output: unique among terms and outputs unless ``replace``."""
+        taken = {**self._outputs, **self.stage_terms, **self.integral_terms}
+        if name is None:
+            k = 0
+            while f"{default}{k}" in taken:
+                k += 1
+            return f"{default}{k}"
+        if not isinstance(name, str) or not name.isidentifier():
+            raise ParameterError(f"{self.name}: {kind} name {name!r} must be an identifier")
+        if name in taken and not replace:
+            where = ("a stage cost term" if name in self.stage_terms else
+                     "an integral cost term" if name in self.integral_terms else "an output")
+            raise ParameterError(f"{self.name}: {kind} {name!r}: {where} named {name!r} exists already; "
+                                 f"pass replace=True to replace it, or choose another name")
+        for table in (self._outputs, self.stage_terms, self.integral_terms):
+            table.pop(name, None)  # replace=True: the old term goes, whichever kind it was
+        return name
 
-    def add_integral_cost(self, expr: Any, name: str | None = None) -> None:
-        """Add ∫ expr dt (integrated by the transcription's quadrature)."""
-        self.integral_terms[name or f"integral{len(self.integral_terms)}"] = expr
+    def add_stage_cost(self, expr: Any, name: str | None = None, *, replace: bool = False) -> None:
+        """Add ℓ(x_k, u_k, w_k, p) to the stage cost Σ_k ℓ·h as the term ``name``; a name that exists already
+        (e.g. §9's "accel") is refused unless ``replace=True``."""
+        self.stage_terms[self._term_name("stage cost term", name, "stage", replace)] = expr
+
+    def add_integral_cost(self, expr: Any, name: str | None = None, *, replace: bool = False) -> None:
+        """Add ∫ expr dt (integrated by the transcription's quadrature) as the term ``name``; a name that
+        exists already is refused unless ``replace=True``."""
+        self.integral_terms[self._term_name("integral cost term", name, "integral", replace)] = expr
 
     def add_terminal_cost(self, expr: Any) -> None:
         """Add a cost on the final state (expression of states and global parameters)."""
@@ -210,28 +262,69 @@ class ProblemBuilder:
                    soft_quadratic: float = 1e-3, name: str | None = None) -> None:
         """lb ≤ expr ≤ ub at the start of every interval; ``soft`` = L1 penalty per unit of violation
         (per unit time) of a soft constraint, which then never makes the problem infeasible."""
-        name = name or f"c{len(self._path)}"
-        if not (lb <= ub):
-            raise ParameterError(f"{self.name}: constraint {name!r} has lb = {lb} > ub = {ub}")
+        name, lb, ub = self._constraint("constraint", self._path, expr, lb, ub, name, "c",
+                                        (*self.x.values(), *self.u.values(), *self.w.values(), *self.p.values()))
         if soft is None:
             self._path.append((name, expr, lb, ub))
             return
-        if not (soft > 0 and soft_quadratic >= 0):
-            raise ParameterError(f"{self.name}: soft constraint {name!r} needs a penalty soft > 0, got {soft!r}")
+        if not (isinstance(soft, (int, float)) and isinstance(soft_quadratic, (int, float))
+                and soft > 0 and soft_quadratic >= 0):
+            raise ParameterError(f"{self.name}: soft constraint {name!r} needs a penalty soft > 0 and soft_quadratic "
+                                 f">= 0, got soft = {soft!r}, soft_quadratic = {soft_quadratic!r}")
+        taken = {c[0] for c in self._path}
+        parts = [f"{name}_{side}" for side, on in (("lb", lb > -ca.inf), ("ub", ub < ca.inf)) if on]
+        clash = [p for p in parts if p in taken]
+        if clash:
+            raise ParameterError(f"{self.name}: soft constraint {name!r}: a constraint named {clash[0]!r} exists already")
+        self._term_name("stage cost term", f"penalty_{name}", "stage", False)  # refused before anything is added
         sigma = self.control(f"slack_{name}", 0.0, ca.inf)
+        self.add_stage_cost(soft * sigma + soft_quadratic * sigma**2, f"penalty_{name}")
         if lb > -ca.inf:
             self._path.append((f"{name}_lb", expr + sigma, lb, ca.inf))
         if ub < ca.inf:
             self._path.append((f"{name}_ub", expr - sigma, -ca.inf, ub))
-        self.add_stage_cost(soft * sigma + soft_quadratic * sigma**2, f"penalty_{name}")
 
     def subject_to_terminal(self, expr: Any, lb: float = -ca.inf, ub: float = ca.inf, name: str | None = None) -> None:
-        """lb ≤ expr(x_N, p) ≤ ub at the final node."""
-        self._terminal.append((name or f"t{len(self._terminal)}", expr, lb, ub))
+        """lb ≤ expr(x_N, p) ≤ ub at the final node (an expression of states and global parameters only);
+        checked like a path constraint: a unique name, lb ≤ ub, a scalar expression."""
+        name, lb, ub = self._constraint("terminal constraint", self._terminal, expr, lb, ub, name, "t",
+                                        (*self.x.values(), *self.p.values()))
+        self._terminal.append((name, expr, lb, ub))
 
-    def add_output(self, name: str, expr: Any) -> None:
-        """A named quantity reported at the nodes of a solution (e.g. the cell current)."""
-        self._outputs[name] = expr
+    def _constraint(self, kind: str, table: list[tuple[str, Any, float, float]], expr: Any, lb: Any, ub: Any,
+                    name: str | None, default: str, allowed: Sequence[ca.SX]) -> tuple[str, float, float]:
+        """The checks every constraint meets, path or terminal: a new identifier name, numeric lb ≤ ub, a scalar
+        expression of the allowed symbols only. Returns (name, lb, ub)."""
+        taken = {c[0] for c in table}
+        if name is None:
+            k = len(table)
+            while f"{default}{k}" in taken:
+                k += 1
+            name = f"{default}{k}"
+        elif not isinstance(name, str) or not name.isidentifier():
+            raise ParameterError(f"{self.name}: {kind} name {name!r} must be an identifier")
+        elif name in taken:
+            raise ParameterError(f"{self.name}: {kind} {name!r}: a {kind} named {name!r} exists already")
+        lo, hi = self._bounds(f"{kind} {name!r}", lb, ub)
+        try:
+            e = ca.SX(expr)
+        except Exception:  # noqa: BLE001 - any non-expression: one clear message
+            raise ParameterError(f"{self.name}: {kind} {name!r} must be a CasADi SX expression, got "
+                                 f"{type(expr).__name__}") from None
+        if e.numel() != 1:
+            raise ParameterError(f"{self.name}: {kind} {name!r} must be a scalar expression, got {e.numel()} entries "
+                                 "(state one constraint per entry)")
+        free = [str(s) for s in ca.symvar(e) if not any(ca.is_equal(s, a) for a in allowed)]
+        if free:
+            what = "states and parameters" if kind.startswith("terminal") else "the problem's variables"
+            raise ParameterError(f"{self.name}: {kind} {name!r} depends on {free[0]!r}, which is not one of "
+                                 f"{what}")
+        return name, lo, hi
+
+    def add_output(self, name: str, expr: Any, *, replace: bool = False) -> None:
+        """A named quantity reported at the nodes of a solution (e.g. the cell current); names are shared
+        with the cost terms, and one that exists already is refused unless ``replace=True``."""
+        self._outputs[self._term_name("output", name, "output", replace)] = expr
 
     # ---------------------------------------------------------------- build
     def build(self, path_at_collocation: bool = False) -> OCPProblem:

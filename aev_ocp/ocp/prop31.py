@@ -18,7 +18,6 @@ capacitors), Q = Q_irr + dW/dt, so ∫Q dt = ∫Q_irr dt + W(t_f) − W(0) ≥ R
 from __future__ import annotations
 
 import math
-from pathlib import Path
 from typing import Any, Callable
 
 import casadi as ca
@@ -28,7 +27,7 @@ from ..models import battery
 from ..params import CellParams, ParameterError
 from .cell import cell_problem
 from .checks import record_refinement, record_smoothing_gap, resimulate_cell_current
-from .result import OCPResult, write_json_atomic
+from .result import OCPResult
 from .transcription import OCPSolver, TranscriptionOptions
 
 T_F_S = 60.0  # PROBLEM.md §8: t_f = 60 s
@@ -137,14 +136,15 @@ def _verdict(case: str, V0: tuple[float, float], q_nonneg: bool, res: OCPResult,
     return f"J* = {J:.6g} J with max |I*| = {Imax:.3g} A: the optimiser did not find I* = 0"
 
 
-def run_prop31(method: str = "ms", out_dir: str | Path | None = None, N: int = 200,
+def run_prop31(method: str = "ms", N: int = 200,
                cell: CellParams | None = None, t_f: float = T_F_S, refine: bool = True) -> dict[str, dict[str, Any]]:
     """Solve OCP-A's four cases and test the uniqueness claim of Proposition 3.1.
 
     method: 'ms' or 'collocation'; N: intervals over t_f [s]. Returns {case: entry} with entry keys
     objective_J, max_abs_current_A, zero_heat_alternative_objective_J, status, iterations, verdict,
     plus details (alternative currents, LQ reference for the cases without Q ≥ 0, stored energy
-    W(0) [J], result: the OCPResult). Writes prop31.json and prop31_currents.png into out_dir if given.
+    W(0) [J], result: the OCPResult). :func:`aev_ocp.ocp_plots.write_prop31_outputs` writes prop31.json and
+    prop31_currents.png.
     Each result also carries its exact re-simulation (CVODES along I*: objective_exact_J, smoothing-gap
     record; OCP-A has no smoothing, so the gap is the transcription's) and, with ``refine``, the
     objective with 2N intervals (objective_2N_J).
@@ -193,8 +193,6 @@ def run_prop31(method: str = "ms", out_dir: str | Path | None = None, N: int = 2
         entry["result"] = res
         entry["alternatives"] = alt
         out[case] = entry
-    if out_dir is not None:
-        write_prop31_outputs(out, out_dir)
     return out
 
 
@@ -212,18 +210,3 @@ def prop31_table(cases: dict[str, dict[str, Any]]) -> str:
     lines += [f"{case}: {e['verdict']}" for case, e in cases.items()]
     lines += [f"{case}: WARNING {w}" for case, e in cases.items() for w in e.get("warnings", [])]
     return "\n".join(lines)
-
-
-def write_prop31_outputs(cases: dict[str, dict[str, Any]], out_dir: str | Path) -> dict[str, Path]:
-    """prop31.json (one entry per case, without the trajectories) and prop31_currents.png."""
-    out_dir = Path(out_dir)
-    keep = ("objective_J", "max_abs_current_A", "zero_heat_alternative_objective_J",
-            "zero_heat_alternative_max_abs_current_A", "switched_alternative_objective_J", "status",
-            "iterations", "solve_time_s", "max_violation", "stored_rc_energy_W0_J", "Q_nonneg_constraint",
-            "V0", "lq_exact_discrete_J", "objective_exact_J", "objective_2N_J", "warnings", "verdict")
-    js = {c: {k: e[k] for k in keep if k in e} for c, e in cases.items()}
-    paths = {"json": write_json_atomic(out_dir / "prop31.json", js)}
-    from ..ocp_plots import plot_prop31  # plotting lives outside the solver package
-
-    paths["png"] = plot_prop31(cases, out_dir / "prop31_currents.png")
-    return paths

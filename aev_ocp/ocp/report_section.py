@@ -8,9 +8,11 @@ from pathlib import Path
 from typing import Any, Callable
 
 from ..report import markdown_table
+from ..report_sections import SectionContext
 from .current_profile import CurrentProfileSolver
 from .eco_trip import EcoTrip, EcoTripSolver
-from .prop31 import run_prop31, write_prop31_outputs
+from ..ocp_plots import write_prop31_outputs
+from .prop31 import run_prop31
 from .result import OCPResult, write_json_atomic
 
 HEAD_PROP31 = "Proposition 3.1: is I* = 0 the unique minimiser of ∫Q dt?"
@@ -34,7 +36,7 @@ def prop31_section(out_dir: Path, progress: Callable[[str], None]) -> str:
     table = markdown_table(["case", "J* [J] (multiple shooting)", "J* [J] (collocation)", "J* exact LQ [J]",
                             "∫Q of I* re-simulated [J]", "J* with 2N [J]", "max |I*| [A]", "∫Q of I = −(V1+V2)/R_s [J]", "status / iterations"], rows)
     verdicts = "".join(f"- **{case}**: {e['verdict']}\n" for case, e in ms.items())
-    _prop31_claim(ms)
+    _prop31_claim(ms, SectionContext.of(progress))
     verdicts += "".join(f"- **{case}** ({m}): WARNING {w}\n" for m, cs in (("ms", ms), ("collocation", col))
                         for case, e in cs.items() for w in e.get("warnings", []))
     return (f"## {HEAD_PROP31}\n\n"
@@ -52,11 +54,9 @@ def prop31_section(out_dir: Path, progress: Callable[[str], None]) -> str:
             "I = −(V1+V2)/R_s, so it is not unique.\n\n![Proposition 3.1 currents](prop31_currents.png)\n")
 
 
-def _prop31_claim(ms: dict[str, dict[str, Any]]) -> None:
+def _prop31_claim(ms: dict[str, dict[str, Any]], ctx: SectionContext) -> None:
     """Summary row: I* = 0 is the unique minimiser from rest; with polarisation the optimum is negative
     (I* ≠ 0) without Q ≥ 0, and not unique with it."""
-    from ..reproduce import record_claim
-
     neg = [c for c, e in ms.items() if e["objective_J"] < -1e-6]
     tied = [c for c, e in ms.items() if e["Q_nonneg_constraint"] and abs(e["zero_heat_alternative_objective_J"]
                                                                        - e["objective_J"]) <= 1e-6
@@ -66,8 +66,8 @@ def _prop31_claim(ms: dict[str, dict[str, Any]]) -> None:
                 + (f"{', '.join(neg)}: J* < 0 with I* ≠ 0; " if neg else "")
                 + (f"{', '.join(tied)}: the non-zero I = −(V1+V2)/R_s gives the same ∫Q, so not unique" if tied else ""))
     verdict = "holds" if rest_zero and not neg and not tied else ("partly" if rest_zero else "fails")
-    record_claim("Proposition 3.1: I* = 0 is the unique minimiser of ∫Q dt", verdict, evidence.rstrip("; "),
-                 HEAD_PROP31)
+    ctx.record_claim("Proposition 3.1: I* = 0 is the unique minimiser of ∫Q dt", verdict, evidence.rstrip("; "),
+                     HEAD_PROP31)
 
 
 def _eco_row(label: str, r: OCPResult) -> list[str]:

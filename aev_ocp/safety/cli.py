@@ -12,9 +12,9 @@ import argparse
 import sys
 from pathlib import Path
 
-from ..cli import EXIT_FAILED_RUN, EXIT_OK
-from ..cli import OneLineParser as _Parser
-from ..cli import error_line as _err
+from ..console import EXIT_FAILED_RUN, EXIT_OK
+from ..console import OneLineParser as _Parser
+from ..console import error_line as _err
 
 
 def build_parser() -> argparse.ArgumentParser:

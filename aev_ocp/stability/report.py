@@ -101,7 +101,6 @@ def string_stability_section(out_dir: Path, progress: ProgressFn) -> str:
     big = meas[-1]
     amplified = [m for m in meas if m.max_step_peak > 1 + 1e-3 or m.max_step_l2 > 1 + 1e-3]
     worst = max(amplified, key=lambda m: m.max_step_peak) if amplified else None
-    big_ok = big.max_step_peak <= 1 + 1e-3 and big.max_step_l2 <= 1 + 1e-3
     big_dev = float(np.max(np.abs(np.asarray(big.peak) / big.amplitude - np.asarray(ref.peak) / ref.amplitude)
                            / (np.asarray(ref.peak) / ref.amplitude)))
     ov_big = ovfl[top]

@@ -7,13 +7,12 @@ from __future__ import annotations
 import argparse
 import math
 import sys
-from pathlib import Path
 
 # the command line's one error format, exit codes and parser (aev_ocp/cli.py)
-from ..cli import EXIT_BAD_INPUT, EXIT_FAILED_RUN, EXIT_OK
-from ..cli import OneLineParser as _Parser
-from ..cli import error_line as _err
-from ..cli import warning_line
+from ..console import EXIT_BAD_INPUT, EXIT_FAILED_RUN, EXIT_OK
+from ..console import OneLineParser as _Parser
+from ..console import error_line as _err
+from ..console import warning_line
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -18,6 +18,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
 from ..results import write_atomic  # noqa: E402
+from .table import EQUAL_METRIC
 from .spec import Study  # noqa: E402
 
 
@@ -142,9 +143,11 @@ def _fmt(x: Any) -> str:
     return str(x)
 
 
-def change_table(study: Study, rows: list[dict[str, Any]], metric: str, vehicle: int = 1) -> list[str]:
+def change_table(study: Study, rows: list[dict[str, Any]], metric: str, vehicle: int = 1,
+                 mark_comparable: bool = True) -> list[str]:
     """% change of ``metric`` against the reference over the first two numeric axes (one table per
-    other controller; '*' marks a point that is not comparable), and where the sign changes."""
+    other controller; with ``mark_comparable`` '*' marks a point whose whole runs are not comparable), and where the
+    sign changes."""
     col = f"{metric}_change_pct"
     axes = _primary_axes(study)
     lines: list[str] = []
@@ -167,7 +170,7 @@ def change_table(study: Study, rows: list[dict[str, Any]], metric: str, vehicle:
             continue
         cell = {(r[ax1], r.get(ax2) if ax2 else None): r for r in sub}
         lines += [f"% change of {metric} of **{c}** against **{study.reference}** (follower "
-                  f"{vehicle}; * = not comparable):", ""]
+                  f"{vehicle}" + ("; * = not comparable):" if mark_comparable else "):"), ""]
         lines.append(f"| {ax1} \\ {ax2} | " + " | ".join(_fmt(y) for y in ys) + " |" if ax2
                      else f"| {ax1} | % change |")
         lines.append("|---" * (len(ys) + 1) + "|")
@@ -179,7 +182,7 @@ def change_table(study: Study, rows: list[dict[str, Any]], metric: str, vehicle:
                 if r is None or v is None:
                     vals.append("—")
                 else:
-                    vals.append(f"{v:+.2f}%" + ("" if r.get("comparable") else "*"))
+                    vals.append(f"{v:+.2f}%" + ("" if r.get("comparable") or not mark_comparable else "*"))
             lines.append(f"| {_fmt(x)} | " + " | ".join(vals) + " |")
         lines.append("")
         lines += _sign_changes(sub, col, ax1, ax2, xs, ys, c) if signs else []
@@ -285,6 +288,14 @@ def write_report(study: Study, rows_all: list[dict[str, Any]], out: str | Path) 
                           study.report.get("change_metric", "omega_model"), v)
         if ch:
             lines += [f"## Change against the reference, follower {v}", ""] + ch
+        eq = change_table(study, [r for r in rows_all if r.get("vehicle") == v], f"eq_distance_{EQUAL_METRIC}", v,
+                          mark_comparable=False)
+        if eq:
+            lines += [f"## Equal-distance view, follower {v}", "",
+                      "Pack ∫Q per km of every run of a point up to the shortest distance all its runs covered "
+                      "(columns `eq_distance_*` of the table; runs ended by an event or a failure are left out), so "
+                      "runs of different length compare like with like; the same up to the common time: `eq_time_*`.",
+                      ""] + eq
     for mx, my, base, f, front in fronts:
         lines += [f"## Pareto front: {mx} vs {my}{', ' + base if base else ''} (both minimised, "
                   f"follower {veh}; comparable rows only)", ""]

@@ -24,6 +24,7 @@ from pathlib import Path
 from typing import Any, Callable, Iterable
 
 from ..progress import Progress, TimeLimitReached
+from ..truncation import cumulative_profile
 from ..results import to_jsonable, write_atomic
 from .spec import Task
 
@@ -43,6 +44,8 @@ def run_task(spec: dict[str, Any]) -> dict[str, Any]:
         result = _simulate(spec)
         metrics = result.metrics()
         out.update(status=result.status, message="; ".join(str(e) for e in result.events + result.violations), metrics=metrics)
+        # compact cumulative profiles, so the table can cut this point's runs at their common distance and time
+        out["profiles"] = [cumulative_profile(result, i) for i in range(result.n_vehicles)] if result.t.size > 1 else []
         if spec.get("trajectories"):  # optional: the run's trajectories, loadable by aev_ocp.load
             from ..saved import save_output
 

@@ -59,7 +59,7 @@ from typing import Any, Iterator
 
 import numpy as np
 
-from .. import __version__
+from .._version import __version__
 from ..models.carfollowing import LAW_REGISTRY
 from ..overrides import OverrideError, apply_to_document, check_key
 from ..params import ParameterError

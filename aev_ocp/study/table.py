@@ -20,14 +20,21 @@ from typing import Any
 from ..provenance import versions
 from ..metrics import comparability, si_first
 from ..results import write_atomic
+from ..truncation import equal_profile_views
 from .spec import Study
 
 TABLE_JSONL = "table.jsonl"
 TABLE_CSV = "table.csv"
 CHANGE_METRICS = ("omega_model", "heat_pack_J", "heat_pack_J_per_km")
+#: Columns of the equal-distance and equal-time views (issue 21 item 5): pack ∫Q per km of every run of a point up
+#: to the shortest common distance / the common time of that point's runs, and its rank (1 = lowest).
+EQUAL_VIEWS = (("eq_distance", "distance", "cut_m"), ("eq_time", "time", "cut_s"))
+EQUAL_METRIC = "heat_pack_J_per_km"
 _LEAD = ("study", "point", "scenario")
 _AFTER = ("controller", "vehicle", "status", "message", "comparable", "flag_distance", "flag_duration", "flag_event",
-          "distance_diff_pct", "duration_diff_pct") + tuple(f"{m}_change_pct" for m in CHANGE_METRICS)
+          "distance_diff_pct", "duration_diff_pct") + tuple(f"{m}_change_pct" for m in CHANGE_METRICS) + tuple(
+          c for p, _, cut in EQUAL_VIEWS for c in (f"{p}_{cut}", f"{p}_{EQUAL_METRIC}", f"{p}_rank",
+                                                   f"{p}_{EQUAL_METRIC}_change_pct"))
 _TAIL = ("wall_s", "task_hash", "aev_ocp_version", "casadi_version", "git_commit")
 
 
@@ -44,6 +51,19 @@ def _pct(a: Any, b: Any) -> float | None:
     return x if math.isfinite(x) else None
 
 
+def _equal_views(results: dict[str, Any], labels: dict[str, str]) -> dict[Any, dict[str, Any]]:
+    """{vehicle: equal_profile_views} of one point's runs ({label: task key}); runs that failed or ended by an
+    event are left out of the cut (as in the whole-run comparability check)."""
+    by_vehicle: dict[Any, dict[str, Any]] = {}
+    for lab, key in labels.items():
+        res = results.get(key) or {}
+        if res.get("status") not in ("ok", "violated"):
+            continue
+        for m, prof in zip(res.get("metrics") or [], res.get("profiles") or []):
+            by_vehicle.setdefault(m.get("vehicle"), {})[lab] = prof
+    return {v: equal_profile_views(p) for v, p in by_vehicle.items()}
+
+
 def build_rows(study: Study, results: dict[str, dict[str, Any]]) -> list[dict[str, Any]]:
     """The tidy rows of a study from its task results ({hash: result})."""
     prov = provenance()
@@ -52,6 +72,7 @@ def build_rows(study: Study, results: dict[str, dict[str, Any]]) -> list[dict[st
     for p in study.points:
         ref = results.get(tasks[(p.index, study.reference)].key)
         ref_by_vehicle = {m["vehicle"]: m for m in (ref or {}).get("metrics", [])} if ref else {}
+        views = _equal_views(results, {c.label: tasks[(p.index, c.label)].key for c in study.controllers})
         for c in study.controllers:
             t = tasks[(p.index, c.label)]
             res = results.get(t.key)
@@ -74,6 +95,15 @@ def build_rows(study: Study, results: dict[str, dict[str, Any]]) -> list[dict[st
                 row.update(flags)
                 for k in CHANGE_METRICS:
                     row[f"{k}_change_pct"] = _pct(m.get(k), r.get(k)) if r else None
+                for prefix, view, cut in EQUAL_VIEWS:
+                    vw = views.get(m.get("vehicle"), {}).get(view, {})
+                    mine, ref_v = vw.get("runs", {}).get(c.label), vw.get("runs", {}).get(study.reference)
+                    cut_value = vw.get(cut) if mine else None
+                    row[f"{prefix}_{cut}"] = cut_value if cut_value is not None and math.isfinite(cut_value) else None
+                    row[f"{prefix}_{EQUAL_METRIC}"] = mine[EQUAL_METRIC] if mine else None
+                    row[f"{prefix}_rank"] = mine["rank"] if mine else None
+                    row[f"{prefix}_{EQUAL_METRIC}_change_pct"] = (_pct(mine[EQUAL_METRIC], ref_v[EQUAL_METRIC])
+                                                                  if mine and ref_v else None)
                 row.update({k: v for k, v in m.items() if k not in ("vehicle", "controller", "status")})
                 row["vehicle_status"] = m.get("status")
                 row["wall_s"] = res.get("wall_s")
@@ -85,11 +115,11 @@ def build_rows(study: Study, results: dict[str, dict[str, Any]]) -> list[dict[st
 
 
 def _ocpd_roles(study: Study, rows: list[dict[str, Any]]) -> None:
-    """The OCP-D rows' bound check, as ``aev-ocp mpc``'s (:func:`aev_ocp.mpc.report.bound_role`): 'ocpd_role'
+    """The OCP-D rows' bound check, as ``aev-ocp mpc``'s (:func:`aev_ocp.ocp.oracle.bound_role`): 'ocpd_role'
     'bound' only when OCP-D was solved on the MPC's grid and its optimum is at most the own cost of every MPC run
     of the same point and vehicle (within BOUND_RTOL), else 'reference' with 'ocpd_role_reason'. The laws' rows
     carry no cost on the MPC's grid (their task does not read the [mpc] table) and are not part of the check."""
-    from ..mpc.report import bound_role
+    from ..ocp.oracle import bound_role
 
     kind = {c.label: c.kind for c in study.controllers}
     for r in rows:
