@@ -34,11 +34,15 @@ without codegen; the test suite keeps a Python twin of the driver, tests/rti_twi
 headers, generated config header, Makefile, CMakeLists.txt, a benchmark main and README.txt.
 
 Why our own QP solver: CasADi generates C for only one QP solver, qrqp (an active set on a sparse QR of the
-whole KKT matrix; HPIPM's sources may not be copied). qrqp took 70 % of the exported step (0.32 ms) and
-needs curvature in every control, so the traffic formulation (its energy epigraph control enters the
-cost linearly) could not be exported. The interior point takes linear-cost controls bounded through
-constraints, and its cost per iteration is linear in N. Its limit: every QP must be convex (an
-indefinite exact Hessian block can stall it: use the default projected Hessian).
+whole KKT matrix). qrqp took 70 % of the exported step (0.32 ms) and needs curvature in every control, so the
+traffic formulation (its energy epigraph control enters the cost linearly) could not be exported. The interior
+point takes linear-cost controls bounded through constraints, and its cost per iteration is linear in N. Its
+limit: every QP must be convex (an indefinite exact Hessian block can stall it: use the default projected
+Hessian). HPIPM's C API (the libhpipm.so of the casadi wheel) is the other backend of the same interface
+ocp_qp.h (aev_ocp/c/ocp_qp_hpipm.c, :class:`aev_ocp.mpc.ocpqp.OcpQP` with backend 'hpipm'); on the 12 recorded
+RTI QPs (benchmarks/bench_ocp_qp.py --only-harvested) it solves 6-7 in mode SPEED, 10 in BALANCE and 12 in
+ROBUST, at a median 1.5-2.4 times ocp_qp.c's time, and it would make the export depend on HPIPM and BLASFEO:
+the step keeps ocp_qp.c (12 of 12).
 """
 
 from __future__ import annotations
