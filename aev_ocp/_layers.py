@@ -13,16 +13,17 @@ from __future__ import annotations
 #: The layers from the bottom up: (name, modules). Every module of ``aev_ocp`` is in exactly one.
 LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
     ("foundation", (
-        "aev_ocp._layers", "aev_ocp._version", "aev_ocp.params", "aev_ocp.numerics", "aev_ocp.compiled",
+        "aev_ocp._layers", "aev_ocp._version", "aev_ocp.params", "aev_ocp.numerics", "aev_ocp.compiled", "aev_ocp.cells",
         "aev_ocp.limits", "aev_ocp.progress", "aev_ocp.provenance", "aev_ocp.interrupts",
     )),
     ("physics", (
         "aev_ocp.models", "aev_ocp.models.actuator", "aev_ocp.models.battery", "aev_ocp.models.carfollowing",
         "aev_ocp.models.ego", "aev_ocp.models.energy", "aev_ocp.models.leader", "aev_ocp.models.powertrain",
-        "aev_ocp.models.vehicle", "aev_ocp.reference", "aev_ocp.safety.kinematics", "aev_ocp.sumo.energy",
+        "aev_ocp.models.vehicle", "aev_ocp.models.thermal", "aev_ocp.reference", "aev_ocp.safety.kinematics",
+        "aev_ocp.sumo.energy",
     )),
     ("results", (
-        "aev_ocp.results", "aev_ocp.metrics", "aev_ocp.truncation", "aev_ocp.ocp.result",
+        "aev_ocp.results", "aev_ocp.metrics", "aev_ocp.truncation", "aev_ocp.ocp.result", "aev_ocp.life",
     )),
     ("plant and closed loop", (
         "aev_ocp.plant", "aev_ocp.control", "aev_ocp.simulate", "aev_ocp.ring.simulate",
@@ -45,6 +46,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
     ("configuration", (
         "aev_ocp.scenarios", "aev_ocp.overrides", "aev_ocp.mpc.scenario", "aev_ocp.safety.cases",
         "aev_ocp.study.spec", "aev_ocp.sumo", "aev_ocp.sumo.networks", "aev_ocp.sumo.scenario",
+        "aev_ocp.ring.scenario",
     )),
     ("outputs", (
         "aev_ocp.plots", "aev_ocp.ocp_plots", "aev_ocp.mpc.plots", "aev_ocp.stability.plots", "aev_ocp.report",
@@ -55,9 +57,9 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
         "aev_ocp.ocp.api", "aev_ocp.ocp.report_section",
         "aev_ocp.mpc.report", "aev_ocp.mpc.cycles", "aev_ocp.mpc.cycles_section",
         "aev_ocp.stability.api", "aev_ocp.stability.report",
-        "aev_ocp.safety.suite", "aev_ocp.safety.report", "aev_ocp.safety.section",
+        "aev_ocp.safety.suite", "aev_ocp.safety.report", "aev_ocp.safety.section", "aev_ocp.life_section",
         "aev_ocp.study", "aev_ocp.study.runner", "aev_ocp.study.report",
-        "aev_ocp.ring.experiments", "aev_ocp.sumo.run", "aev_ocp.sumo.output",
+        "aev_ocp.ring.experiments", "aev_ocp.ring.report", "aev_ocp.sumo.run", "aev_ocp.sumo.output",
     )),
     ("entry points", (
         "aev_ocp", "aev_ocp.console", "aev_ocp.reproduce", "aev_ocp.cli", "aev_ocp.ocp.cli", "aev_ocp.mpc.cli",

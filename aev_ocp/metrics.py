@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 
 from .models.carfollowing import optimal_velocity
+from .models.thermal import temperature_metrics
 
 #: A :class:`aev_ocp.results.SimulationResult`. Not imported: ``SimulationResult.metrics()`` imports this module,
 #: and the layer table allows no cycle (tests/test_layers.py); the functions read its attributes only.
@@ -119,6 +120,10 @@ def vehicle_metrics(r: SimulationResult, i: int) -> dict[str, Any]:
         "infeasible_current": kinds.count("infeasible_current"),
         "final_ovm_error_model": float(optimal_velocity(h[-1]) - v[-1]),
     }
+    if r.temperature_K is not None:  # the lumped pack temperature: peak, time-mean, time above the limit
+        tm = temperature_metrics(u.time_to_si(t), r.temperature_K[:, i], r.ev.thermal.T_max_K)
+        out.update({"peak_temperature_K": tm["peak_K"], "mean_temperature_K": tm["mean_K"],
+                    "time_above_T_max_s": tm["time_above_s"]})
     out.update(distance_metrics(r, i, duration))
     out.update(si_twins(out, u))
     stats = r.solver_stats[i] if i < len(r.solver_stats) else None

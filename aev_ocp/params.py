@@ -244,9 +244,22 @@ class CellParams:
     C2_F: float = spec(10_000.0, gt=0)  # representative, Lin et al. 2014: C2 tens of kF (tau2 = 100 s; not fitted)
     soc0: float = spec(0.8, ge=0, le=1)  # PROBLEM.md §6: S(0) = 0.8
     max_current_A: float = spec(46.0, gt=0)  # PROBLEM.md §8: 20C = 20 × 2.3 A
+    # thermal properties of one cell (used only when EVParams.thermal.enabled)
+    heat_capacity_JpK: float = spec(67.2, gt=0)  # Lin et al. 2014 (J. Power Sources 257:1-11), A123 26650:
+    # core + surface heat capacities Cc + Cs = 62.7 + 4.5 J/K (lumped into one node here)
+    surface_area_m2: float = spec(6.37e-3, gt=0)  # 26650 geometry (d = 26 mm, L = 65 mm): π d L + 2 π (d/2)²
+    activation_energy_Jpmol: float | None = spec(None, gt=0, optional=True)  # None: R_s, R1, R2 independent of T
+    T_ref_K: float = spec(298.15, gt=0)  # temperature at which R_s, R1, R2 were identified (25 °C, as above)
+    # OCV table (SOC grid 0..1, volts); None: the shipped A123 table aev_ocp/data/a123_ocv_25C.csv
+    ocv_soc: tuple[float, ...] | None = spec(None, kind="instance", cls=tuple, optional=True)
+    ocv_V: tuple[float, ...] | None = spec(None, kind="instance", cls=tuple, optional=True)
 
     def __post_init__(self) -> None:
         validate_fields(self)
+        if (self.ocv_soc is None) != (self.ocv_V is None):
+            raise ParameterError("CellParams.ocv_soc and CellParams.ocv_V: give both or neither")
+        if self.ocv_soc is not None and self.ocv_V is not None:
+            check_ocv_table(self.ocv_soc, self.ocv_V, "CellParams")
 
     @property
     def tau1_s(self) -> float:
@@ -257,6 +270,52 @@ class CellParams:
     def tau2_s(self) -> float:
         """R2·C2 [s]."""
         return self.R2_ohm * self.C2_F
+
+
+def check_ocv_table(soc: Sequence[Any], ocv_V: Sequence[Any], where: str) -> None:
+    """An OCV table: ≥ 4 points, SOC strictly increasing from 0 to 1, OCV finite and > 0 [V]; ParameterError
+    '<where>.ocv_soc …' otherwise."""
+    s = [float(x) for x in soc]
+    v = [float(x) for x in ocv_V]
+    if len(s) != len(v) or len(s) < 4:
+        raise ParameterError(f"{where}.ocv_soc / ocv_V: need the same number of points (at least 4), got "
+                             f"{len(s)} and {len(v)}")
+    if not all(math.isfinite(x) for x in s + v) or any(b <= a for a, b in zip(s, s[1:])):
+        raise ParameterError(f"{where}.ocv_soc = {s!r:.80} is not allowed: must be finite and strictly increasing")
+    if s[0] != 0.0 or s[-1] != 1.0:
+        raise ParameterError(f"{where}.ocv_soc is not allowed: must run from 0 to 1, got {s[0]:g} … {s[-1]:g}")
+    if any(x <= 0 for x in v):
+        raise ParameterError(f"{where}.ocv_V is not allowed: every voltage must be > 0 V")
+
+
+#: Molar gas constant [J/(mol K)] (CODATA 2018, exact).
+R_GAS_JPMOLK = 8.314462618
+
+
+@dataclass(frozen=True)
+class ThermalParams:
+    """Lumped thermal model of the pack (one temperature node per vehicle's pack), SI units.
+
+    C_pack dT/dt = Q_irr_pack − hA (T − T_amb) − P_cool with C_pack = n_cells · cell.heat_capacity_JpK and
+    hA = n_cells · h · cell.surface_area_m2 (:mod:`aev_ocp.models.thermal`). ``enabled = False`` (default):
+    no temperature state; every run is exactly the model without it.
+    """
+
+    enabled: bool = spec(False, kind="bool")  # off by default: the paper's model has no temperature
+    ambient_K: float = spec(298.15, gt=0)  # 25 °C: the temperature of the cell tables (T_ref_K)
+    T0_K: float | None = spec(None, gt=0, optional=True)  # initial pack temperature; None: ambient
+    h_Wpm2K: float = spec(51.0, gt=0)  # forced air: Lin et al. 2014 measured R_u = 3.08 K/W for an A123 26650
+    # in their fan-cooled fixture, i.e. h = 1/(R_u A) = 1/(3.08 × 6.37e-3 m²) ≈ 51 W/(m² K)
+    cooling_power_W: float = spec(0.0, ge=0)  # extra heat removed from the pack [W] (active cooling); 0: none
+    T_max_K: float = spec(328.15, gt=0)  # A123 ANR26650M1-B datasheet: discharge operating limit 55 °C
+
+    def __post_init__(self) -> None:
+        validate_fields(self)
+
+    @property
+    def initial_K(self) -> float:
+        """T(0) [K]: T0_K, or the ambient."""
+        return self.ambient_K if self.T0_K is None else self.T0_K
 
 
 @dataclass(frozen=True)
@@ -349,6 +408,7 @@ class EVParams:
     cell: CellParams = field(default_factory=CellParams)
     pack: PackParams = field(default_factory=PackParams)
     limits: VehicleLimits = field(default_factory=VehicleLimits)
+    thermal: ThermalParams = field(default_factory=ThermalParams)
 
 
 def as_dict(obj: Any) -> dict[str, Any]:

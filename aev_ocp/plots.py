@@ -243,12 +243,13 @@ def plot_space_time(r: SimulationResult, path: str | os.PathLike[str], title: st
 
 def plot_trajectories(r: SimulationResult, path: str | os.PathLike[str], title: str | None = None,
                       si: bool = True, h_min: float | None = None) -> Path:
-    """Gaps, speeds (with the leader's), accelerations, cell current [A], SOC and pack heat over time for
-    one run (any controller: closed-form laws, MPC, replayed controls; sampled controls drawn as steps).
+    """Gaps, speeds (with the leader's), accelerations, cell current [A], SOC and pack heat over time (with the
+    thermal model also the pack temperature [K] and the dissipated heat) for one run (any controller: closed-form laws, MPC, replayed controls; sampled controls drawn as steps).
     Platoons above MAX_TRAJECTORY_LINES vehicles are drawn as an even subset, first and last included.
     h_min: a minimum gap [model length] drawn and labelled; axes in s, m, km/h (``si=False``: model)."""
     au = AxisUnits.of(r.units, si)
-    fig, axes = plt.subplots(3, 2, figsize=(11, 9.5), sharex=True)
+    hot = r.temperature_K is not None  # the thermal model: a fourth row with the pack temperature
+    fig, axes = plt.subplots(4 if hot else 3, 2, figsize=(11, 12.5 if hot else 9.5), sharex=True)
     cmap = plt.get_cmap("viridis")
     n = r.n_vehicles
     t = au.t * r.t
@@ -266,6 +267,15 @@ def plot_trajectories(r: SimulationResult, path: str | os.PathLike[str], title: 
         axes[1, 1].plot(t, r.current_A[:, i], color=c, lw=0.9, label=lab)
         axes[2, 0].plot(t, r.S[:, i], color=c, lw=0.9, label=lab)
         axes[2, 1].plot(t, r.heat_J[:, i], color=c, lw=0.9, label=lab)
+        if r.temperature_K is not None:
+            axes[3, 0].plot(t, r.temperature_K[:, i], color=c, lw=0.9, label=lab)
+            axes[3, 1].plot(t, r.heat_irr_J[:, i], color=c, lw=0.9, label=lab)
+    if hot:
+        th = r.ev.thermal
+        axes[3, 0].axhline(th.ambient_K, color="gray", ls="--", lw=1.0, label=f"ambient {th.ambient_K:.5g} K")
+        axes[3, 0].set_ylabel("pack temperature T [K]")
+        axes[3, 0].legend(fontsize=7)
+        axes[3, 1].set_ylabel("pack dissipated heat ∫Q_irr dt [J]")
     axes[0, 1].plot(t, au.v * r.leader_speed, color="black", lw=1.2, ls="--", label="leader")
     axes[0, 0].axhline(0.0, color="gray", ls="--", lw=1.0, label="collision (h = 0)")
     if h_min is not None:
@@ -276,7 +286,7 @@ def plot_trajectories(r: SimulationResult, path: str | os.PathLike[str], title: 
     axes[1, 1].set_ylabel("cell current I [A] (> 0 discharges)")
     axes[2, 0].set_ylabel("state of charge S [-]")
     axes[2, 1].set_ylabel("pack heat ∫Q dt [J]")
-    for ax in axes[2]:
+    for ax in axes[-1]:
         ax.set_xlabel(f"t [{au.t_label}]")
     for ax in axes.ravel():
         ax.grid(alpha=0.3)

@@ -212,6 +212,7 @@ class SimulationResult:
     solver_stats: list[dict[str, Any] | None] = field(default_factory=list)
     meta: dict[str, Any] = field(default_factory=dict)
     violations: list[Event] = field(default_factory=list)
+    temperature_K: np.ndarray | None = None  # (K, n) pack temperature [K] when the thermal model is on, else None
 
     @property
     def status(self) -> str:
@@ -259,6 +260,9 @@ class SimulationResult:
         scale = {"length_m": u.length_m, "speed_mps": u.speed_mps, "accel_mps2": u.accel_mps2,
                  "omega": u.speed_mps**2}  # ω [U²] -> J/kg (Units.energy_per_mass_to_si)
         cols = self.CSV_COLUMNS
+        if self.temperature_K is not None:  # the pack temperature [K] after the heat columns
+            k = [c[0] for c in cols].index("heat_irr_J") + 1
+            cols = cols[:k] + (("temperature_K", "temperature_K", None),) + cols[k:]
         T = u.time_s
         t_txt = [f"{t:.6g}" for t in self.t]
         ts_txt = [f"{t * T:.6g}" for t in self.t]

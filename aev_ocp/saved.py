@@ -27,7 +27,8 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from .params import UNLIMITED, CellParams, EVParams, PackParams, Units, VehicleLimits, VehicleParams, as_dict
+from .params import (UNLIMITED, CellParams, EVParams, PackParams, ThermalParams, Units, VehicleLimits, VehicleParams,
+                     as_dict)
 from .results import Event, SimulationResult, atomic_path, to_jsonable, write_json
 
 FORMAT = "aev_ocp-output"
@@ -54,6 +55,8 @@ def _own_meta(meta: dict[str, Any]) -> dict[str, Any]:
 def _sim_record(label: str, r: SimulationResult, arrays: dict[str, np.ndarray]) -> dict[str, Any]:
     for name in SIM_ARRAYS:
         arrays[f"{label}/{name}"] = np.asarray(getattr(r, name))
+    if r.temperature_K is not None:  # the pack temperature [K] of a run with the thermal model
+        arrays[f"{label}/temperature_K"] = np.asarray(r.temperature_K)
     return {"type": "SimulationResult", "status": r.status, "controllers": list(r.controllers),
             "events": [vars(e) for e in r.events], "violations": [vars(e) for e in r.violations],
             "ev": as_dict(r.ev), "jerk_sampled": bool(r.jerk_sampled),
@@ -174,8 +177,11 @@ def _sim_result(label: str, rec: dict[str, Any], arrays: dict[str, np.ndarray]) 
     ev = rec["ev"]
     # a run saved before the vehicle limits existed ran without any (UNLIMITED)
     limits = VehicleLimits(**ev["limits"]) if "limits" in ev else UNLIMITED
-    evp = EVParams(units=Units(**ev["units"]), vehicle=VehicleParams(**ev["vehicle"]), cell=CellParams(**ev["cell"]),
-                   pack=PackParams(**ev["pack"]), limits=limits)
+    cell: dict[str, Any] = {k: tuple(v) if k in ("ocv_soc", "ocv_V") and v is not None else v
+                            for k, v in ev["cell"].items()}
+    evp = EVParams(units=Units(**ev["units"]), vehicle=VehicleParams(**ev["vehicle"]), cell=CellParams(**cell),
+                   pack=PackParams(**ev["pack"]), limits=limits,
+                   thermal=ThermalParams(**ev["thermal"]) if "thermal" in ev else ThermalParams())
 
     def event(e: dict[str, Any]) -> Event:
         return Event(e["kind"], _nan(e["time"]), int(e["vehicle"]), e["message"],
@@ -185,7 +191,8 @@ def _sim_result(label: str, rec: dict[str, Any], arrays: dict[str, np.ndarray]) 
     return SimulationResult(**{n: arrays[f"{label}/{n}"] for n in SIM_ARRAYS}, controllers=list(rec["controllers"]),
                             ev=evp, events=[event(e) for e in rec["events"]], jerk_sampled=bool(rec["jerk_sampled"]),
                             solver_stats=list(rec["solver_stats"] or []), meta=dict(rec["meta"] or {}),
-                            violations=[event(e) for e in rec.get("violations") or []])
+                            violations=[event(e) for e in rec.get("violations") or []],
+                            temperature_K=arrays.get(f"{label}/temperature_K"))
 
 
 def _ocp_result(label: str, rec: dict[str, Any], arrays: dict[str, np.ndarray]) -> Any:

@@ -43,7 +43,7 @@ def _cell_sim(cell: CellParams, mode: str) -> ca.Function:
         I = val
         disc = ca.SX(1.0)
     else:
-        E = battery.ocv(x[2]) - x[0] - x[1]
+        E = battery.ocv(x[2], cell) - x[0] - x[1]
         disc = current_discriminant(val, E, cell)
         # physical root of P = I (E − R_s I) (PROBLEM.md §7); sqrt floored at 1e-12 V² so that an
         # infeasible demand is recorded by the disc quadrature instead of producing NaN Jacobians

@@ -66,7 +66,7 @@ class FollowingBounds:
 
 def following_stage_terms(z: Any, a: Any, v_l_hat: Any, ev: EVParams,
                           smooth: PowertrainOptions | None = PowertrainOptions(),
-                          objective: str = "heat") -> dict[str, Any]:
+                          objective: str = "heat", T_K: Any = None) -> dict[str, Any]:
     """The four UNWEIGHTED terms of ℓ (PROBLEM.md §9) [model units; multiply by dt in model time]:
     'energy' Q_pack/(1 kW) (objective 'heat', η switch smoothed by ``smooth``) or v g(a) (objective
     'energy', the exact g, η = ev.vehicle.efficiency), 'ovm' (V(h) − v)², 'relative' (v̂_l − v)², 'accel' a².
@@ -76,10 +76,26 @@ def following_stage_terms(z: Any, a: Any, v_l_hat: Any, ev: EVParams,
         raise ParameterError(f"objective = {objective!r} is not allowed: must be one of {OBJECTIVES}")
     h, v = z[0], z[1]
     if objective == "heat":
-        e = battery_side(v, a, z[2], z[3], z[4], ev, smooth)["Q_pack"] / 1000.0
+        e = battery_side(v, a, z[2], z[3], z[4], ev, smooth, T_K)["Q_pack"] / 1000.0
     else:
         e = v * energy.g_exact(a, ev.vehicle.efficiency)
     return {"energy": e, "ovm": (optimal_velocity(h) - v) ** 2, "relative": (v_l_hat - v) ** 2, "accel": a**2}
+
+
+def add_temperature_state(pb: ProblemBuilder, ev: EVParams) -> Any:
+    """The pack temperature T [K] as a state of ``pb`` (after the others), bounded by T ≤ ev.thermal.T_max_K,
+    for problems built ``with_temperature``; ParameterError when ``ev.thermal`` is off. Its derivative is set
+    by :func:`set_temperature_rate` once the battery side is known."""
+    if not ev.thermal.enabled:
+        raise ParameterError("with_temperature needs the thermal model: ev.thermal.enabled = True ([thermal] "
+                             "enabled = true)")
+    return pb.state("T", 0.0, ev.thermal.T_max_K, scale=100.0)
+
+
+def set_temperature_rate(pb: ProblemBuilder, T_state: Any, cell: dict[str, Any], ev: EVParams) -> None:
+    """dT/dt of the lumped pack model (model time) from the battery side ``cell`` (its 'dT'), and the output T_K."""
+    pb.set_der(T_state, ev.units.time_s * cell["dT"])
+    pb.add_output("T_K", T_state)
 
 
 def weight_vector(weights: FollowingWeights) -> list[float]:
@@ -89,7 +105,7 @@ def weight_vector(weights: FollowingWeights) -> list[float]:
 
 def following_problem(ev: EVParams, bounds: FollowingBounds | None = None,
                       smooth: PowertrainOptions | None = PowertrainOptions(), objective: str = "heat",
-                      name: str = "following") -> ProblemBuilder:
+                      name: str = "following", with_temperature: bool = False) -> ProblemBuilder:
     """The §9 problem as a builder (model units, time in model time units):
 
     states z = (h, v, V1, V2, S) (scales 1, 1, 0.01 V, 0.01 V, 1); control a; stage parameters
@@ -99,18 +115,22 @@ def following_problem(ev: EVParams, bounds: FollowingBounds | None = None,
     the start of every interval. ``smooth``: η-switch smoothing of the optimiser (PROBLEM.md §7).
     Objective 'energy': v g(a) through an epigraph control ``energy_rate`` ≥ v a/η, ≥ η v a (exact).
     Outputs: I [A], Q [W per cell], Q_pack_W, Q_irr_pack_W, disc [V²] and each weighted term.
+    ``with_temperature``: the lumped pack temperature T [K] (:mod:`aev_ocp.models.thermal`) is a 6th state
+    with T ≤ ev.thermal.T_max_K, setting the cell's resistances when the cell has an activation energy
+    (needs ``ev.thermal.enabled``); output T_K.
     """
     b = bounds or FollowingBounds()
     pb = ProblemBuilder(name, time_unit="model")
     z = ca.vertcat(pb.state("h", b.h_min), pb.state("v", b.v_min, b.v_max), pb.state("V1", scale=0.01),
                    pb.state("V2", scale=0.01), pb.state("S", 0.0, 1.0))
+    Tst = add_temperature_state(pb, ev) if with_temperature else None
     a = pb.control("a", b.a_min, b.a_max)
     v_mean, v_hat = pb.stage_parameter("v_l_mean"), pb.stage_parameter("v_l_hat")
     wt = [pb.parameter(k) for k in WEIGHT_NAMES]
-    rhs = following_ode(z, a, v_mean, ev, smooth)
+    rhs = following_ode(z, a, v_mean, ev, smooth, Tst)
     for i, nm in enumerate(STATE_NAMES):
         pb.set_der(pb.x[nm], rhs[i])
-    terms = following_stage_terms(z, a, v_hat, ev, smooth, objective)
+    terms = following_stage_terms(z, a, v_hat, ev, smooth, objective, Tst)
     if objective == "energy":
         # v g(a) = max(v a/η, η v a) for v ≥ 0: minimising an epigraph variable e ≥ both is exact and
         # smooth (no width to exploit, PROBLEM.md §9 deviation: §9 smooths g; see README)
@@ -121,7 +141,9 @@ def following_problem(ev: EVParams, bounds: FollowingBounds | None = None,
         terms["energy"] = e
     for wk, nm in zip(wt, TERM_NAMES):
         pb.add_stage_cost(wk * terms[nm], nm)
-    cell = battery_side(z[1], a, z[2], z[3], z[4], ev, smooth)
+    cell = battery_side(z[1], a, z[2], z[3], z[4], ev, smooth, Tst)
+    if Tst is not None:
+        set_temperature_rate(pb, Tst, cell, ev)
     Imax = ev.cell.max_current_A
     pb.subject_to(cell["I"], -Imax, Imax, name="I")  # |I| ≤ 20C (PROBLEM.md §9)
     pb.subject_to(cell["disc"], 0.0, ca.inf, name="disc")  # current map feasible (PROBLEM.md §7)
