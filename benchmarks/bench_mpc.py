@@ -113,8 +113,9 @@ def breakdown(N: int, t_end: float) -> dict:
     loop = ClosedLoop(PaperLeader(), [MPCVehicle(MPCSettings(N=N, **S9, solver="rti", qp_solver="hpipm", codegen=True), formulation=F9)])
     pol = loop.ctrl[0]
     c = pol.controller  # type: ignore[union-attr]
-    parts = {"forecast": (pol, "forecast"), "qp_data": (c, "_rti_data"), "qp_solve": (c, "_rti_qp"),
-             "node0_check": (c, "_rti_path0"), "plan_cost": (c, "_rti_fg"), "warm_shift_step": (c, "step"),
+    rti = c.rti
+    parts = {"forecast": (pol, "forecast"), "qp_data": (rti, "data"), "qp_solve": (rti, "qp"),
+             "node0_check": (rti, "path0"), "plan_cost": (rti, "fg"), "warm_shift_step": (c.nlp, "step"),
              "plant": (loop.plant, "advance"), "plant_samples": (loop.plant, "samples"),
              "events": (loop.plant, "check"), "controller_call": (pol, "command")}
     timers = {k: _Timed(getattr(o, a)) for k, (o, a) in parts.items()}

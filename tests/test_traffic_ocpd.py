@@ -160,11 +160,11 @@ def test_s9_comparison_keeps_its_ocpd(tmp_path) -> None:
 def test_coarse_grid_traffic_ocpd_is_a_reference(monkeypatch, paper_traffic) -> None:
     """A traffic OCP-D on a coarser grid: its controls are replayed on the MPC's grid (held, not interpolated)
     and that replay's cost_traffic is reported, said so; the MPC-grid OCP-D stays below it (the bound)."""
-    import aev_ocp.mpc.report as report
+    import aev_ocp.ocp.oracle as oracle
 
     sc, s, _ = paper_traffic
     fine = run_comparison(sc.replace(t_end=2.0), s, laws=(), formulation=traffic_formulation()).ocpd
-    monkeypatch.setattr(report, "oracle_grid_dt", lambda t_end, dt, units, **kw: 2 * dt)
+    monkeypatch.setattr(oracle, "oracle_grid_dt", lambda t_end, dt, units, **kw: 2 * dt)
     c = run_comparison(sc.replace(t_end=2.0), s, laws=(), formulation=traffic_formulation())
     o = c.ocpd
     assert o["grid_dt"] == pytest.approx(2 * s.dt) and o["N"] == 10 and fine["N"] == 20
@@ -193,7 +193,7 @@ def test_cli_writes_the_traffic_ocpd_row(tmp_path, capsys) -> None:
 def test_held_plan_never_commands_a_reverse() -> None:
     """The coarse OCP-D's replay on the MPC's grid: the plan's a_k, but never below −v_k/dt (no reverse)."""
     from aev_ocp.control import Observation
-    from aev_ocp.mpc.report import _HeldPlan, _on_grid
+    from aev_ocp.ocp.oracle import HeldPlan as _HeldPlan, on_grid as _on_grid
 
     a = _on_grid(np.array([0.4, -2.5, 0.7]), 0.3, 0.1, 0.9)
     np.testing.assert_array_equal(a, [0.4, 0.4, 0.4, -2.5, -2.5, -2.5, 0.7, 0.7, 0.7])
@@ -227,7 +227,7 @@ def test_held_plan_never_brakes_at_a_stop() -> None:
     """A coarse plan replayed on the MPC's grid: no command below −v/dt, and none below 0 at a stop (a tiny
     speed would otherwise shrink geometrically without reaching 0 and stall the plant's integrator)."""
     from aev_ocp.control import Observation
-    from aev_ocp.mpc.report import _HeldPlan
+    from aev_ocp.ocp.oracle import HeldPlan as _HeldPlan
 
     plan = _HeldPlan((-2.5, -2.5, 0.7), 0.1, "ocp-d")
 

@@ -31,9 +31,10 @@ SOLVER_PATHS = ("ipopt", "sqp", "ipopt-cold", "rti")
 #: as the interior point needs a convex QP).
 RTI_HESSIANS = ("projected", "exact")
 #: QP solvers. 'riccati': aev_ocp's own structure-exploiting interior point (aev_ocp/c/ocp_qp.c, Riccati
-#: recursion over the stages), the 'rti' path only; with codegen the whole step is then one compiled C library,
-#: the one `aev-ocp mpc-export` writes (mpc/export.py). The others are CasADi's ca.conic / qpsol plugins.
-#: 'auto' (default): 'riccati' on the 'rti' path, 'hpipm' on the 'sqp' path (MPCSettings.qp).
+#: recursion over the stages), the 'rti' path only; the whole step is then one compiled C library, the one
+#: `aev-ocp mpc-export` writes (mpc/cstep.py; compiled whatever ``codegen`` says: ocp_qp.c is C). The others are
+#: CasADi's ca.conic / qpsol plugins (the 'rti' path's Python step, mpc/rti.py). 'auto' (default): 'riccati' on
+#: the 'rti' path with codegen, 'hpipm' without codegen and on the 'sqp' path (MPCSettings.qp).
 QP_SOLVERS = ("auto", "riccati", "qrqp", "osqp", "hpipm", "qpoases", "proxqp")
 PREDICTOR_NAMES = ("oracle", "constant-velocity", "constant-acceleration", "decaying-acceleration", "cooperative")
 
@@ -90,10 +91,11 @@ class MPCSettings:
 
     @property
     def qp(self) -> str:
-        """The QP solver in use: ``qp_solver``, with 'auto' resolved ('riccati' on the 'rti' path, else 'hpipm')."""
+        """The QP solver in use: ``qp_solver``, with 'auto' resolved ('riccati' on the 'rti' path with codegen: the
+        compiled step; else 'hpipm')."""
         if self.qp_solver != "auto":
             return self.qp_solver
-        return "riccati" if self.solver == "rti" else "hpipm"
+        return "riccati" if self.solver == "rti" and self.codegen else "hpipm"
 
     @property
     def horizon(self) -> float:

@@ -19,7 +19,7 @@ from .current_profile import E_REQ_J, SOC0, T_F_S, CurrentProfileSolver, compare
 from .checks import GAP_RTOL, multistart_line, record_smoothing_gap, record_term_gap, refinement_line
 from .checks import multistart as run_multistart
 from .eco_trip import GUESSES, EcoTrip, EcoTripSolver
-from .oracle import (COARSE_GRID_S, DEFAULT_TIME_LIMIT_S, PROGRESS_EVERY_S, OracleScenario, OracleSolver,
+from .oracle import (COARSE_GRID_S, DEFAULT_TIME_LIMIT_S, PROGRESS_EVERY_S, OracleScenario, OracleSolver, replay,
                      canonical_scenario, drive_cycle_scenario, scenario_oracle, stage_cost_of_result,
                      stage_cost_of_trajectory)
 from .prop31 import run_prop31
@@ -259,10 +259,7 @@ def replay_exact(res: OCPResult, scn: OracleScenario, gap_rtol: float = GAP_RTOL
     and evaluate the same §9 cost on that trajectory with the exact η switch (and the exact g for the
     'energy' objective). Stores meta['replay'], the smoothing-gap record of the total and of the energy
     term (the only smoothed one); returns the replay record."""
-    from ..control import ClosedLoop, ControlSequence
-
-    seq = ControlSequence(tuple(np.asarray(res.controls["a"], float).ravel()), scn.dt, "ocp-d")
-    r = ClosedLoop(scn.leader, [seq], scn.ev).run([scn.h0], [scn.v0], scn.t_end, soc0=scn.S0)
+    r = replay(res, scn)
     rec: dict[str, Any] = {"status": r.status}
     if r.status != "ok" or r.t[-1] < scn.t_end - 1e-9:
         res.meta["replay"] = rec
