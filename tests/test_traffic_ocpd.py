@@ -98,6 +98,12 @@ def test_traffic_ocpd_bounds_the_traffic_mpc_on_its_grid(paper_traffic) -> None:
     # the exact plant vs the optimiser's RK4 and smoothed η switch)
     assert o["cost_traffic_replayed"] == pytest.approx(o["cost_traffic"], rel=1e-5)
     assert "cost_s9" in o and "cost_s9" in c.metrics["mpc"][0]  # §9's cost stays beside it
+    # ... in a secondary table only, where OCP-D is not called a bound (it does not optimise §9's cost)
+    from aev_ocp.mpc.report import comparison_table
+
+    whole, other = comparison_table(c, views=False).split("Another formulation's cost")
+    assert "ocp-d (bound)" in whole and "cost_s9" not in whole
+    assert "cost_s9" in other and "(bound)" not in other and "no verdict" in other
 
 
 def test_cost_traffic_of_a_simulation_result_equals_numpy(paper_traffic) -> None:

@@ -397,8 +397,10 @@ def comparison_table(c: Comparison, vehicle: int = 0, markdown: bool = False, vi
     text = [f"Whole runs (formulation {f.name}; its own cost {f.cost_key}; ranked only when comparable):",
             _render(["metric"] + heads, rows, markdown)]
     if secondary:
-        text += ["", "Another formulation's cost (model guide §9's; this MPC does not optimise it: no verdict):",
-                 _render(["metric"] + heads, secondary, markdown)]
+        # OCP-D optimises this formulation's cost, not the other one: no 'bound' label in this table
+        other_heads = ["ocp-d" if col == "ocp-d" else h for col, h in zip(cols, heads)]
+        text += ["", "Another formulation's cost (model guide §9's; neither this MPC nor its OCP-D optimises it: "
+                     "no verdict):", _render(["metric"] + other_heads, secondary, markdown)]
     if views and vehicle < len(c.views):
         text += ["", views_table(c.views[vehicle], markdown)]
     return "\n".join(text)
