@@ -32,6 +32,7 @@ import casadi as ca
 import numpy as np
 
 from ..models.carfollowing import CarFollowingLaw
+from ..numerics import bracketed_root
 from ..params import ParameterError, Units
 
 _PARTIALS: dict[Any, ca.Function] = {}
@@ -74,7 +75,7 @@ def equilibrium_gap_of(law: CarFollowingLaw, v_star: float, tol: float = 1e-13) 
 
     A bracketed solve, valid for any law (with or without an optimal-velocity function, e.g. IDM): the
     first sign change from f < 0 (too close: brake) to f > 0 on a log grid of h ∈ [1e-4, 1e3], then
-    bisection with secant steps (Illinois) to |Δh| ≤ tol·(1 + h). Raises ParameterError if none exists.
+    :func:`aev_ocp.numerics.bracketed_root` (Illinois) to |Δh| ≤ tol·max(1, h). Raises ParameterError if none exists.
     """
     if not (isinstance(v_star, (int, float)) and math.isfinite(v_star) and v_star >= 0):
         raise ParameterError(f"stability: speed v* = {v_star!r} is not allowed: must be a finite number >= 0")
@@ -85,30 +86,7 @@ def equilibrium_gap_of(law: CarFollowingLaw, v_star: float, tol: float = 1e-13) 
         raise ParameterError(f"stability: law {law.name!r} has no equilibrium gap at speed v* = {v_star:g} "
                              "(f(h, v*, v*) does not change sign for h in [1e-4, 1e3])")
     a, b = float(grid[idx[0]]), float(grid[idx[0] + 1])
-    fa, fb = float(fv[idx[0]]), float(fv[idx[0] + 1])
-    if fb == 0.0:
-        return b
-    side = 0
-    for _ in range(200):
-        c = (a * fb - b * fa) / (fb - fa)
-        if not (a < c < b):
-            c = 0.5 * (a + b)
-        fc = _accel(law, c, v_star)
-        if fc == 0.0:
-            return c
-        if (fc < 0) == (fa < 0):
-            a, fa = c, fc
-            if side == -1:
-                fb *= 0.5
-            side = -1
-        else:
-            b, fb = c, fc
-            if side == 1:
-                fa *= 0.5
-            side = 1
-        if b - a <= tol * (1.0 + b):
-            break
-    return 0.5 * (a + b)
+    return bracketed_root(lambda h: _accel(law, h, v_star), a, b, tol)
 
 
 def transfer(f_h: float, f_v: float, f_dv: float, omega: np.ndarray | float) -> np.ndarray:
