@@ -25,6 +25,8 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
         "aev_ocp.results", "aev_ocp.metrics", "aev_ocp.truncation", "aev_ocp.ocp.result",
     )),
     ("plant and closed loop", (
+        "aev_ocp.estimation", "aev_ocp.estimation.sensors", "aev_ocp.estimation.mismatch", "aev_ocp.estimation.base",
+        "aev_ocp.estimation.kalman", "aev_ocp.estimation.mhe",
         "aev_ocp.plant", "aev_ocp.control", "aev_ocp.simulate",
     )),
     ("problem description", (
