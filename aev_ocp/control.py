@@ -307,7 +307,8 @@ class ClosedLoop:
         y = plant.samples(np.array([0.0]), x[:, None], a_cmd)
         out: tuple[list, list, list, list] = ([np.array([0.0])], [x[:, None]], [q[:, None]], [y])
         applied: list[np.ndarray] = []
-        rec: list[dict[str, list[Any]]] = [{"solve": [], "call": [], "iters": [], "ok": [], "status": [], "info": []} for _ in range(n)]
+        rec: list[dict[str, list[Any]]] = [{"solve": [], "call": [], "iters": [], "ok": [], "status": [], "info": [],
+                                            "est": []} for _ in range(n)]
         meas_t: list[float] = []
         meas_v: list[list[float]] = [[] for _ in range(n)]
         u = self.ev.units
@@ -339,7 +340,9 @@ class ClosedLoop:
                 z = x[[i, n + i, 2 * n + i, 3 * n + i, 4 * n + i]]
                 m = e = None
                 if sm is not None:
+                    te = time.perf_counter()
                     z, m, e = self._sensed(sm, ests[i], i, k, tk, float(a_app[j]))
+                    rec[i]["est"].append(time.perf_counter() - te)
                     meas_v[i].append(float(u.speed_from_si(e.lead_speed_mps if e is not None else m.lead_speed_mps)))
                     v_true = vl_k if i == 0 else float(x[n + i - 1])
                     if e is not None:
@@ -403,6 +406,10 @@ class ClosedLoop:
                 st["forecast_rms"] = forecast_rms(ts, v_pred, dt, [info.get("v_hat") for info in rec[i]["info"]])
                 if err[i]:
                     st["estimation"] = estimation_errors(np.array(err[i]), u.time_to_si(dt))
+                if rec[i]["est"]:  # the sensors' read-out and the estimator's update, and with the controller's call
+                    te = np.asarray(rec[i]["est"], float) * 1e3
+                    st["estimator_ms_median"] = float(np.median(te))
+                    st["estimator_plus_call_ms_median"] = float(np.median(te + np.asarray(rec[i]["call"]) * 1e3))
         steps = [{"solve_ms": (np.asarray(rec[i]["solve"], float) * 1e3).tolist(), "iterations": rec[i]["iters"],
                   "status": rec[i]["status"], "call_ms": (np.asarray(rec[i]["call"]) * 1e3).tolist(),
                   "ok": rec[i]["ok"]} if stats[i] is not None else None for i in range(n)]
@@ -419,8 +426,8 @@ class ClosedLoop:
         n, u, ev = self.n, self.ev.units, self.ev
         v_lead = np.concatenate([[vl], x[n:2 * n - 1]])
         I = y[n:2 * n]
-        vt = np.array([float(battery.terminal_voltage(x[4 * n + i], x[2 * n + i], x[3 * n + i], I[i], ev.cell))
-                       for i in range(n)])
+        ocv = np.asarray(battery.ocv_function()(np.clip(x[4 * n:5 * n], 0.0, 1.0).reshape(1, -1))).ravel()
+        vt = ocv - x[2 * n:3 * n] - x[3 * n:4 * n] - ev.cell.R_s_ohm * I  # battery.terminal_voltage, vectorised
         return np.column_stack([u.length_to_si(x[:n]), u.speed_to_si(x[n:2 * n]), u.speed_to_si(v_lead),
                                 ev.pack.n_series * vt, ev.pack.n_parallel * I])
 

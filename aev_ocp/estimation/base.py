@@ -35,6 +35,9 @@ LEAD_ACCEL_SIGMA_MPS2 = 1.0
 #: hysteresis in the 20-90 % plateau (Roscher & Sauer, J. Power Sources 196 (2011) 331); 0.5 mV is kept for
 #: the part an estimator cannot model (the hysteresis itself is not modelled)
 OCV_MODEL_SIGMA_V = 0.5e-3
+#: the model's own process-noise rates [state²/s] of S, V1, V2, h, v_l (a_l: the Singer model): SOC drift from
+#: a ~1 % capacity error at a few amperes, V1/V2 at 0.02 mV/√s (the RC model's error), h and v_l at 0.01 /√s
+OWN_NOISE_RATES = ((1e-6) ** 2, (2e-5) ** 2, (2e-5) ** 2, 1e-4, 1e-4)
 STATE_NAMES = ("S", "V1", "V2", "h", "v_l", "a_l")
 
 
@@ -107,6 +110,34 @@ class EstimationModel:
         # input noise: the pack current's per parallel cell, the own speed's
         self.Su = np.diag([sensors.variance("current") / npar**2, sensors.variance("speed")])
 
+    def ekf_step(self, iterations: int) -> ca.Function:
+        """One EKF step as ONE CasADi Function (x, P, u_prev, u, y, dt) -> (x⁺, P⁺): the time update over dt [s]
+        with the mean of the two inputs held, then the measurement update iterated ``iterations`` times
+        (Gauss–Newton on h; SOC clamped to [0, 1]) and the Joseph-form covariance. dt = 0: the update only."""
+        x, P = ca.SX.sym("x", 6), ca.SX.sym("P", 6, 6)
+        u0, u1, ym, dt = ca.SX.sym("u0", 2), ca.SX.sym("u1", 2), ca.SX.sym("y", 3), ca.SX.sym("dt")
+        um = 0.5 * (u0 + u1)
+        xp, A, B = self.F(x, um, dt)
+        Pp = A @ P @ A.T + self.process_noise_sx(dt, B)
+        hx = ca.Function("h", [self.x, self.u], [self.h_sym, ca.jacobian(self.h_sym, self.x)])
+        R = ca.DM(self.R)
+        xi = xp
+        C = K = None
+        for _ in range(iterations):
+            yh, C = hx(xi, u1)
+            K = ca.solve(C @ Pp @ C.T + R, C @ Pp).T
+            xi = xp + K @ (ym - yh - C @ (xp - xi))
+            xi = ca.vertcat(ca.fmin(ca.fmax(xi[0], 0.0), 1.0), xi[1:])
+        IKC = ca.DM.eye(6) - K @ C
+        Pn = IKC @ Pp @ IKC.T + K @ R @ K.T
+        return ca.Function("ekf_step", [x, P, u0, u1, ym, dt], [xi, Pn])
+
+    def process_noise_sx(self, dt: Any, Bu: Any) -> Any:
+        """:meth:`process_noise` as a CasADi expression of dt [s] and B."""
+        q_acc = LEAD_ACCEL_SIGMA_MPS2**2 * (1.0 - ca.exp(-2.0 * dt / LEAD_ACCEL_TAU_S))
+        own = ca.diag(ca.vertcat(*(q * dt for q in OWN_NOISE_RATES), q_acc))
+        return Bu @ ca.DM(self.Su) @ Bu.T + own
+
     def inputs(self, y: Measurement) -> np.ndarray:
         """u = (cell current [A], own speed [m/s]) from a measurement."""
         return np.array([y.current_A / self.n_parallel, y.speed_mps])
@@ -116,11 +147,9 @@ class EstimationModel:
         return np.array([y.voltage_V / self.n_series, y.gap_m, y.lead_speed_mps])
 
     def process_noise(self, dt_s: float, Bu: np.ndarray) -> np.ndarray:
-        """Q [per step] over dt_s: the input noise through B plus the model's own uncertainty (SOC drift from a
-        ~1 % capacity error at a few amperes, V1/V2 at 0.02 mV/√s, the Singer acceleration)."""
-        q_acc = LEAD_ACCEL_SIGMA_MPS2**2 * (1.0 - np.exp(-2.0 * dt_s / LEAD_ACCEL_TAU_S))
-        own = np.diag([(1e-6) ** 2 * dt_s, (2e-5) ** 2 * dt_s, (2e-5) ** 2 * dt_s, 1e-4 * dt_s, 1e-4 * dt_s, q_acc])
-        return Bu @ self.Su @ Bu.T + own
+        """Q [per step] over dt_s: the input noise through B plus the model's own uncertainty (:data:`OWN_NOISE_RATES`,
+        the Singer acceleration)."""
+        return np.asarray(self.process_noise_sx(dt_s, ca.DM(Bu)))
 
     def initial(self, y: Measurement, soc0: float | None) -> tuple[np.ndarray, np.ndarray]:
         """(x0, P0) from the first measurement: the gap and predecessor speed measured, a_l = 0, V1 = V2 = 0,

@@ -13,7 +13,7 @@ from .sensors import Measurement, Sensors
 
 
 #: iterations of the measurement update (an iterated EKF; 1 = the plain EKF)
-ITERATIONS = 5
+ITERATIONS = 3
 
 
 class EKF:
@@ -31,49 +31,22 @@ class EKF:
         self.P = np.eye(6)
         self.t_s = 0.0
         self.u = np.zeros(2)
+        self._fn = self.model.ekf_step(ITERATIONS)  # the whole step: one CasADi call
 
     def reset(self, first: Measurement) -> Estimate:
         """x0, P0 from the first measurement (:meth:`EstimationModel.initial`), then its update."""
         self.x, self.P = self.model.initial(first, self.soc0)
         self.t_s, self.u = first.t_s, self.model.inputs(first)
-        self._correct(first)
-        return self.estimate()
+        return self._step(first, 0.0)
 
-    def predict(self, dt_s: float, u: np.ndarray | None = None) -> None:
-        """The time update over dt_s [s] with the inputs ``u`` held (default those of the last measurement)."""
-        xn, A, B = self.model.F(self.x, self.u if u is None else u, dt_s)
-        A, B = np.asarray(A), np.asarray(B)
-        self.x = np.asarray(xn).ravel()
-        self.P = A @ self.P @ A.T + self.model.process_noise(dt_s, B)
-
-    def _correct(self, y: Measurement) -> None:
-        """The measurement update, iterated (Gauss–Newton on the OCV curve, :data:`ITERATIONS`): the OCV's slope
-        changes tenfold between 70 and 80 % SOC, and one linearisation far from the truth collapses P_S."""
+    def _step(self, y: Measurement, dt_s: float) -> Estimate:
         u = self.model.inputs(y)
-        xp, Pp, R, ym = self.x.copy(), self.P, self.model.R, self.model.outputs(y)
-        xi = xp.copy()
-        for _ in range(ITERATIONS):
-            yh, C = self.model.H(xi, u)
-            C = np.asarray(C)
-            K = np.linalg.solve(C @ Pp @ C.T + R, C @ Pp).T
-            xn = xp + K @ (ym - np.asarray(yh).ravel() - C @ (xp - xi))
-            xn[0] = min(max(xn[0], 0.0), 1.0)
-            done = abs(xn[0] - xi[0]) < 1e-6
-            xi = xn
-            if done:
-                break
-        IKC = np.eye(6) - K @ C
-        self.x = xi
-        self.P = IKC @ Pp @ IKC.T + K @ R @ K.T  # Joseph form: stays symmetric positive
-        self.u = u
+        x, P = self._fn(self.x, self.P, self.u, u, self.model.outputs(y), dt_s)
+        self.x, self.P, self.u, self.t_s = np.asarray(x).ravel(), np.asarray(P), u, y.t_s
+        return self.estimate()
 
     def update(self, y: Measurement) -> Estimate:
-        dt_s = y.t_s - self.t_s
-        if dt_s > 0:  # the inputs over the interval: the mean of its two ends (trapezoidal coulomb counting)
-            self.predict(dt_s, 0.5 * (self.u + self.model.inputs(y)))
-        self.t_s = y.t_s
-        self._correct(y)
-        return self.estimate()
+        return self._step(y, max(y.t_s - self.t_s, 0.0))
 
     def estimate(self) -> Estimate:
         """The current estimate, the gap and predecessor motion predicted over the radar's delay."""

@@ -12,6 +12,7 @@ the closed loop's nodes are interpolated linearly (exact when the delay is a mul
 
 from __future__ import annotations
 
+import bisect
 import math
 from dataclasses import dataclass, replace
 from typing import Any
@@ -136,10 +137,10 @@ class SensorModel:
         self.battery.append(np.asarray(battery, float).reshape(self.n, 3))
 
     def _true_at(self, i: int, c: int, t: float) -> float:
-        tt = np.asarray(self.t)
+        tt = self.t
         if t <= tt[0]:
             return float(self.true[0][i, c])
-        k = min(int(np.searchsorted(tt, t, side="right")) - 1, len(tt) - 1)
+        k = min(bisect.bisect_right(tt, t) - 1, len(tt) - 1)
         if k == len(tt) - 1 or t <= tt[k]:
             return float(self.true[k][i, c])
         w = (t - tt[k]) / (tt[k + 1] - tt[k])
