@@ -467,11 +467,12 @@ class ClosedLoop:
 
 def estimation_errors(err: np.ndarray, dt_s: float) -> dict[str, float]:
     """Summary of estimate − truth per step (columns S, V1, V2, gap, predecessor speed; the step dt_s [s]): RMS,
-    the largest |SOC error| after 60 s and the final one [% SOC], V1/V2 RMS [mV], gap [m] and speed [m/s] RMS."""
+    the largest |SOC error| overall and after 60 s and the final one [% SOC], V1/V2 RMS [mV], gap [m] and speed [m/s] RMS."""
     t = dt_s * np.arange(err.shape[0])
     late = err[t >= 60.0, 0]
     rms = np.sqrt(np.mean(err**2, axis=0))
     return {"soc_err_rms_pct": 100 * float(rms[0]), "soc_err_final_pct": 100 * float(err[-1, 0]),
+            "soc_err_max_pct": 100 * float(np.abs(err[:, 0]).max()),
             "soc_err_max_after_60s_pct": 100 * float(np.abs(late).max()) if late.size else float("nan"),
             "V1_err_rms_mV": 1e3 * float(rms[1]), "V2_err_rms_mV": 1e3 * float(rms[2]),
             "gap_err_rms_m": float(rms[3]), "lead_speed_err_rms_mps": float(rms[4])}
