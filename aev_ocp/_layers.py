@@ -44,7 +44,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
     )),
     ("configuration", (
         "aev_ocp.scenarios", "aev_ocp.overrides", "aev_ocp.mpc.scenario", "aev_ocp.safety.cases",
-        "aev_ocp.study.spec",
+        "aev_ocp.study.spec", "aev_ocp.estimation.scenario",
     )),
     ("outputs", (
         "aev_ocp.plots", "aev_ocp.ocp_plots", "aev_ocp.mpc.plots", "aev_ocp.stability.plots", "aev_ocp.report",

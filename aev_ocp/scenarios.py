@@ -273,7 +273,8 @@ _CORE_TABLES = ("units", "leader", "platoon", "carfollowing", "simulation", "veh
 _CORE_KEYS = ("name", "description", "compare")
 # Modules that register extra sections on import; imported on demand the first time their table
 # appears (the loader's registry: it imports no section's code itself).
-SECTION_PROVIDERS: dict[str, str] = {"mpc": "aev_ocp.mpc.scenario"}
+SECTION_PROVIDERS: dict[str, str] = {"mpc": "aev_ocp.mpc.scenario", "mismatch": "aev_ocp.estimation.scenario",
+                                     "sensors": "aev_ocp.estimation.scenario"}
 
 
 def register_section(name: str, validator: SectionValidator) -> None:

@@ -79,7 +79,7 @@ def test_sensors_refuse_bad_values_and_scale() -> None:
         Sensors(voltage_delay_s=float("nan"))
     s = Sensors().scaled(2.5, 0.17)
     assert s.gap_noise_m == pytest.approx(2.5 * Sensors().gap_noise_m)
-    assert s.current_delay_s == 0.17 and s.gap_quantum_m == Sensors().gap_quantum_m
+    assert s.current_delay_s == 0.17 and s.gap_quantum_m == pytest.approx(2.5 * Sensors().gap_quantum_m)
     assert not Sensors.ideal().degraded and Sensors().degraded
 
 

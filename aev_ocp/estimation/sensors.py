@@ -73,10 +73,12 @@ class Sensors:
         return Sensors(**zero, battery_states_observed=True)  # type: ignore[arg-type]
 
     def scaled(self, noise_factor: float = 1.0, delay_s: float | None = None) -> "Sensors":
-        """Every noise standard deviation times ``noise_factor`` and (if given) every delay set to ``delay_s``."""
+        """Every noise standard deviation and quantum times ``noise_factor`` (0: exact values) and (if given) every
+        delay set to ``delay_s`` [s]."""
         if not (math.isfinite(noise_factor) and noise_factor >= 0):
             raise ParameterError(f"Sensors.scaled: noise_factor = {noise_factor!r} must be a finite number >= 0")
-        kw: dict[str, Any] = {f"{c}_noise_{_UNIT[c]}": noise_factor * self.noise(c) for c in CHANNELS}
+        kw: dict[str, Any] = {f"{c}_{k}_{_UNIT[c]}": noise_factor * float(getattr(self, f"{c}_{k}_{_UNIT[c]}"))
+                              for c in CHANNELS for k in ("noise", "quantum")}
         if delay_s is not None:
             kw.update({f"{c}_delay_s": delay_s for c in CHANNELS})
         return replace(self, **kw)
