@@ -15,7 +15,7 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass, field
-from typing import Any, Callable, Protocol, Sequence, runtime_checkable
+from typing import Any, Callable, Protocol, Sequence, cast, runtime_checkable
 
 import numpy as np
 
@@ -23,7 +23,7 @@ from .estimation.base import Estimate, Estimator
 from .estimation.kalman import EKF
 from .estimation.mhe import MHE
 from .estimation.mismatch import Mismatch
-from .estimation.sensors import CHANNELS, Measurement, SensorModel, Sensors
+from .estimation.sensors import Measurement, SensorModel, Sensors
 from .models import battery
 from .models.carfollowing import CarFollowingLaw, Proposed
 from .models.leader import LeaderProfile
@@ -248,7 +248,7 @@ class ClosedLoop:
             lo, hi = self.ev.limits.accel_bounds_model(self.ev.units)
             for i, law in enumerate(self.laws):
                 if law is not None:
-                    self.ctrl[i], self.laws[i] = SampledLaw(law, dt_law, lo, hi), None
+                    self.ctrl[i], self.laws[i] = cast(Controller, SampledLaw(law, dt_law, lo, hi)), None
             dts = {c.dt for c in self.ctrl if c is not None}
         if not dts:
             raise ParameterError("ClosedLoop: no sampled controller; use aev_ocp.simulate for closed-form laws only")
@@ -338,19 +338,20 @@ class ClosedLoop:
                 ctrl = self.ctrl[i]
                 assert ctrl is not None
                 z = x[[i, n + i, 2 * n + i, 3 * n + i, 4 * n + i]]
-                m = e = None
+                meas: Measurement | None = None
+                e: Estimate | None = None
                 if sm is not None:
                     te = time.perf_counter()
-                    z, m, e = self._sensed(sm, ests[i], i, k, tk, float(a_app[j]))
+                    z, meas, e = self._sensed(sm, ests[i], i, k, tk, float(a_app[j]))
                     rec[i]["est"].append(time.perf_counter() - te)
-                    meas_v[i].append(float(u.speed_from_si(e.lead_speed_mps if e is not None else m.lead_speed_mps)))
+                    meas_v[i].append(float(u.speed_from_si(e.lead_speed_mps if e is not None else meas.lead_speed_mps)))
                     v_true = vl_k if i == 0 else float(x[n + i - 1])
                     if e is not None:
                         err[i].append(np.array([e.soc - x[4 * n + i], e.V1_V - x[2 * n + i], e.V2_V - x[3 * n + i],
                                                 e.gap_m - u.length_to_si(x[i]), e.lead_speed_mps - u.speed_to_si(v_true)]))
                 obs = Observation(tk, dt, i, z, np.asarray(meas_t),
                                   np.asarray(meas_v[i]), plans[i - 1] if i > 0 else None, float(a_app[j]),
-                                  None if plant.act_row is None else float(x[plant.act_row + i]), m, e)
+                                  None if plant.act_row is None else float(x[plant.act_row + i]), meas, e)
                 tc = time.perf_counter()
                 cmd = ctrl.command(obs)
                 rec[i]["call"].append(time.perf_counter() - tc)
@@ -407,9 +408,9 @@ class ClosedLoop:
                 if err[i]:
                     st["estimation"] = estimation_errors(np.array(err[i]), u.time_to_si(dt))
                 if rec[i]["est"]:  # the sensors' read-out and the estimator's update, and with the controller's call
-                    te = np.asarray(rec[i]["est"], float) * 1e3
-                    st["estimator_ms_median"] = float(np.median(te))
-                    st["estimator_plus_call_ms_median"] = float(np.median(te + np.asarray(rec[i]["call"]) * 1e3))
+                    te_ms = np.asarray(rec[i]["est"], float) * 1e3
+                    st["estimator_ms_median"] = float(np.median(te_ms))
+                    st["estimator_plus_call_ms_median"] = float(np.median(te_ms + np.asarray(rec[i]["call"]) * 1e3))
         steps = [{"solve_ms": (np.asarray(rec[i]["solve"], float) * 1e3).tolist(), "iterations": rec[i]["iters"],
                   "status": rec[i]["status"], "call_ms": (np.asarray(rec[i]["call"]) * 1e3).tolist(),
                   "ok": rec[i]["ok"]} if stats[i] is not None else None for i in range(n)]

@@ -274,3 +274,45 @@ def test_estimation_errors_summary() -> None:
     assert out["soc_err_max_after_60s_pct"] == pytest.approx(0.6)
     assert out["soc_err_final_pct"] == pytest.approx(-0.6)
     assert out["V2_err_rms_mV"] == pytest.approx(1.3)
+
+
+# ----------------------------------------------------------------------------- scenario tables (study axes)
+def _doc(**tables: Any) -> dict[str, Any]:
+    import tomllib
+
+    from aev_ocp.scenarios import find_scenario
+
+    doc = tomllib.loads(find_scenario("mpc_udds_single").read_text())
+    doc.update(tables)
+    return doc
+
+
+def test_scenario_tables_build_the_realism_arguments() -> None:
+    from aev_ocp.estimation.scenario import measurements_degraded, realism_kwargs
+    from aev_ocp.scenarios import parse_scenario
+
+    sc = parse_scenario(_doc(mismatch={"mass_rel": 0.11, "distribution": "fixed"},
+                             sensors={"noise_scale": 1.7, "delay_s": 0.23, "estimator": "mhe", "soc0_error": 0.13}))
+    kw = realism_kwargs(sc)
+    assert kw["mismatch"].model_ev(sc.ev, 0).vehicle.mass_kg == pytest.approx(1.11 * sc.ev.vehicle.mass_kg)
+    assert kw["sensors"].gap_noise_m == pytest.approx(1.7 * Sensors().gap_noise_m)
+    assert kw["sensors"].voltage_delay_s == 0.23 and measurements_degraded(sc)
+    est = kw["estimator"](sc.ev, kw["sensors"], 0.0, 0)
+    assert isinstance(est, MHE) and est.ekf.soc0 == pytest.approx(sc.ev.cell.soc0 - 0.13)
+    exact = parse_scenario(_doc(sensors={"noise_scale": 0.0, "delay_s": 0.0, "battery_states_observed": True,
+                                         "estimator": "none"}))
+    assert not measurements_degraded(exact) and realism_kwargs(exact)["estimator"] is None
+
+
+@pytest.mark.parametrize("tables, key", [
+    ({"mismatch": {"mass_rel": -1.5}}, "mismatch.mass_rel"),
+    ({"mismatch": {"mass": 0.1}}, "mass"),
+    ({"sensors": {"gap_noise_m": -0.2}}, "sensors.gap_noise_m"),
+    ({"sensors": {"estimator": "ukf"}}, "sensors.estimator"),
+    ({"sensors": {"estimator": "none"}}, "sensors.estimator"),
+])
+def test_scenario_tables_refuse_bad_values(tables: dict[str, Any], key: str) -> None:
+    from aev_ocp.scenarios import ScenarioError, parse_scenario
+
+    with pytest.raises(ScenarioError, match=key.replace(".", r"\.")):
+        parse_scenario(_doc(**tables))

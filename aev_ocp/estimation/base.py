@@ -122,7 +122,10 @@ class EstimationModel:
         hx = ca.Function("h", [self.x, self.u], [self.h_sym, ca.jacobian(self.h_sym, self.x)])
         R = ca.DM(self.R)
         xi = xp
-        C = K = None
+        if iterations < 1:
+            raise ParameterError(f"ekf_step: iterations = {iterations!r} must be >= 1")
+        C: Any = None
+        K: Any = None
         for _ in range(iterations):
             yh, C = hx(xi, u1)
             K = ca.solve(C @ Pp @ C.T + R, C @ Pp).T

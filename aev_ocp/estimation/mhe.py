@@ -53,7 +53,7 @@ class MHE:
         for k in range(M + 1):
             J += ca.sumsqr(LR @ (Y[:, k] - Hs(X[:, k], U[:, k])))
         p = ca.vertcat(x0b, ca.vec(L0), ca.vec(U), ca.vec(Y), DT, ca.vec(LQ), ca.vec(LR))
-        opts = {"ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes", "ipopt.max_iter": 30,
+        opts: dict[str, Any] = {"ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes", "ipopt.max_iter": 30,
                 "ipopt.tol": 1e-8, "ipopt.warm_start_init_point": "yes"}
         self.solver = ca.nlpsol("mhe", "ipopt", {"x": ca.vec(X), "f": J, "p": p}, opts)
         self.cost = ca.Function("mhe_cost", [ca.vec(X), p], [J])

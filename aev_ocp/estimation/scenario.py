@@ -58,7 +58,7 @@ def validate_mismatch_table(r: Any) -> Mismatch:
     """Validator of ``[mismatch]`` (a TableReader): the fields of Mismatch."""
     m = _dataclass_from(r, Mismatch)
     r.finish(allowed_hint=[f.name for f in fields(Mismatch)])
-    return m  # type: ignore[no-any-return]
+    return m
 
 
 def validate_sensors_table(r: Any) -> SensorsConfig:
@@ -96,10 +96,11 @@ def realism_kwargs(scenario: Any) -> dict[str, Any]:
     return out
 
 
-def degraded(scenario: Any) -> bool:
-    """True when the scenario's closed loop is not the ideal one (a mismatch or measurements that are not exact)."""
-    mm, cfg = scenario.extra.get("mismatch"), scenario.extra.get("sensors")
-    return (mm is not None and mm.active) or (cfg is not None and cfg.sensors.degraded)
+def measurements_degraded(scenario: Any) -> bool:
+    """True when the scenario's measurements are not the exact, instantaneous states (then its laws run sampled on
+    them; a model mismatch alone leaves a law as it is: a law has no model)."""
+    cfg = scenario.extra.get("sensors")
+    return cfg is not None and bool(cfg.sensors.degraded)
 
 
 def register() -> None:

@@ -169,5 +169,6 @@ class SensorModel:
             if s.sample_period_s > 0:
                 self._held[key] = x
             vals.append(x)
-        bat = tuple(float(b) for b in self.battery[-1][i]) if s.battery_states_observed else None
-        return Measurement(t_s, *vals, battery=bat)  # type: ignore[arg-type]
+        b = self.battery[-1][i]
+        bat = (float(b[0]), float(b[1]), float(b[2])) if s.battery_states_observed else None
+        return Measurement(t_s, vals[0], vals[1], vals[2], vals[3], vals[4], bat)

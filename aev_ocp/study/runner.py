@@ -81,12 +81,12 @@ def _simulate(spec: dict[str, Any]) -> Any:
     ctrl = Controller(c["label"], c["kind"], c["name"], tuple(sorted(c["settings"].items())))
     doc = controller_document(spec["document"], ctrl, spec["file"])
     sc = parse_scenario_quiet(doc, spec["file"])
-    from ..estimation.scenario import degraded, realism_kwargs
+    from ..estimation.scenario import measurements_degraded, realism_kwargs
     from ..mpc.scenario import MPCConfig, closed_loop_from_scenario
     from ..mpc.settings import MPCSettings
 
     cfg = sc.extra.get("mpc") or MPCConfig(MPCSettings())
-    if ctrl.kind == "law" and degraded(sc):  # the law sampled at the MPC's step on the same measurements
+    if ctrl.kind == "law" and measurements_degraded(sc):  # the law sampled at the MPC's step on the same measurements
         from ..control import ClosedLoop
 
         return ClosedLoop(sc.leader, [sc.law(ctrl.name)] * sc.n_followers, sc.ev, rtol=sc.rtol, atol=sc.atol,
