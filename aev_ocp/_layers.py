@@ -56,7 +56,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
         "aev_ocp.mpc.report", "aev_ocp.mpc.cycles", "aev_ocp.mpc.cycles_section",
         "aev_ocp.stability.api", "aev_ocp.stability.report",
         "aev_ocp.safety.suite", "aev_ocp.safety.report", "aev_ocp.safety.section",
-        "aev_ocp.study", "aev_ocp.study.runner", "aev_ocp.study.report",
+        "aev_ocp.study", "aev_ocp.study.runner", "aev_ocp.study.report", "aev_ocp.robustness",
     )),
     ("entry points", (
         "aev_ocp", "aev_ocp.console", "aev_ocp.reproduce", "aev_ocp.cli", "aev_ocp.ocp.cli", "aev_ocp.mpc.cli",

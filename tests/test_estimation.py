@@ -316,3 +316,21 @@ def test_scenario_tables_refuse_bad_values(tables: dict[str, Any], key: str) -> 
 
     with pytest.raises(ScenarioError, match=key.replace(".", r"\.")):
         parse_scenario(_doc(**tables))
+
+
+def test_robustness_margins_and_targets() -> None:
+    from aev_ocp.robustness import margins, targets
+
+    def row(cond: str, ctrl: str, q: float, ms: float | None = None) -> dict[str, Any]:
+        return {"cycle": "udds", "condition": cond, "seed": None if cond == "ideal" else 3, "controller": ctrl,
+                "heat_pack_J_per_km": q, "status": "ok", "collisions": 0, "estimator_plus_call_ms_median": ms}
+
+    rows = [row("ideal", "mpc", 1800.0), row("ideal", "proposed", 2400.0), row("ideal", "ovfl", 2250.0),
+            row("real", "mpc", 2000.0, 0.83), row("real", "proposed", 1900.0, 0.2), row("real", "ovfl", 2500.0, 0.2)]
+    mg = {m["condition"]: m for m in margins(rows)}
+    assert mg["ideal"]["margin_vs_proposed_pct"] == pytest.approx(25.0)
+    assert mg["ideal"]["margin_vs_ovfl_pct"] == pytest.approx(20.0)
+    assert mg["real"]["margin_vs_proposed_pct"] == pytest.approx(-100 / 19)
+    tg = targets(rows, list(mg.values()))
+    assert tg["no_collision_or_event_real"] and not tg["mpc_below_both_laws_real"]
+    assert tg["estimator_plus_mpc_ms_median_max"] == 0.83
