@@ -202,6 +202,14 @@ class ClosedLoop:
     controllers[i]: a CarFollowingLaw, a Controller, or an object with a registered adapter
     (MPCSettings, MPCVehicle). fallback_law: the law an MPC applies when a solve fails (default the
     proposed law with the paper's α, β, κ); rtol/atol: plant CVODES tolerances.
+
+    A car's view (docs/guide/realism.md): ``mismatch`` (:class:`~aev_ocp.estimation.mismatch.Mismatch`) gives each
+    follower's controller and estimator a model that differs from the plant (``ev``); ``sensors``
+    (:class:`~aev_ocp.estimation.sensors.Sensors`) makes the measurements noisy, quantised and late, with V1, V2, S
+    unmeasured by default; ``estimator`` ('ekf', 'mhe', None, or a callable (model_ev, sensors, ocv_offset_V,
+    vehicle) -> Estimator) turns them into the controllers' states. With degraded sensors every law runs as a
+    :class:`SampledLaw` at the controllers' dt (``law_dt`` [model time] when no other controller is sampled),
+    clipped to the vehicle's acceleration limits, on the same observations.
     """
 
     def __init__(self, leader: LeaderProfile, controllers: Sequence[Any], ev: EVParams | None = None,
