@@ -44,8 +44,8 @@ class Observation:
     vehicle's saturation) and, with an actuator lag, its realised acceleration a_act.
 
     With sensors (:class:`aev_ocp.estimation.sensors.Sensors`) z and meas_v are what the car knows, not the
-    plant's state: h, the predecessor speeds and V1, V2, S from the estimator, v the measured own speed
-    (its delay bridged with the acceleration applied last)."""
+    plant's state: h, v, the predecessor speeds and V1, V2, S from the estimator (each bridged over its
+    sensor's delay)."""
 
     t: float
     dt: float
@@ -442,16 +442,19 @@ class ClosedLoop:
 
     def _sensed(self, sm: SensorModel, est: Estimator | None, i: int, k: int, tk: float,
                 a_prev: float) -> tuple[np.ndarray, Measurement, Estimate | None]:
-        """(z [model], measurement, estimate) of follower i at step k: the estimator's gap and cell states (the
-        measured ones without an estimator; the cell's read exactly when observed), the measured own speed
-        bridged over its delay with the acceleration applied last."""
+        """(z [model], measurement, estimate) of follower i at step k: the estimator's gap, own speed and cell states
+        (without an estimator: the measured gap, the measured own speed bridged over its delay with the acceleration
+        applied last; the cell's states read exactly when observed)."""
         u = self.ev.units
-        m = sm.measure(i, u.time_to_si(tk))
+        a_si = float(u.accel_to_si(a_prev)) if math.isfinite(a_prev) else 0.0
+        m = sm.measure(i, u.time_to_si(tk), a_si)
         e: Estimate | None = None
         if est is not None:
             e = est.reset(m) if k == 0 else est.update(m)
-        delay_v = sm.sensors.delay("speed")
-        v = max(m.speed_mps + u.accel_to_si(a_prev) * delay_v, 0.0)
+        if e is not None and math.isfinite(e.speed_mps):
+            v = e.speed_mps
+        else:
+            v = max(m.speed_mps + a_si * sm.sensors.delay("speed"), 0.0)
         gap = e.gap_m if e is not None else m.gap_m
         if m.battery is not None:
             cell = m.battery

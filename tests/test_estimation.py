@@ -18,7 +18,7 @@ from scipy.linalg import expm
 
 from aev_ocp.control import ClosedLoop, Command, Observation, SampledLaw, estimation_errors
 from aev_ocp.estimation import EKF, MHE, Estimate, Measurement, Mismatch, SensorModel, Sensors
-from aev_ocp.estimation.base import LEAD_ACCEL_SIGMA_MPS2, LEAD_ACCEL_TAU_S, OWN_NOISE_RATES
+from aev_ocp.estimation.base import LEAD_ACCEL_SIGMA_MPS2, LEAD_ACCEL_TAU_S, OWN_NOISE_RATES, OWN_SPEED_NOISE_RATE
 from aev_ocp.models import ConstantSpeed, Proposed
 from aev_ocp.mpc.cycles import cycle_scenario
 from aev_ocp.params import EVParams, ParameterError, Units
@@ -137,49 +137,50 @@ def test_the_mpc_is_built_on_its_vehicles_model() -> None:
 
 # ----------------------------------------------------------------------------- estimators
 def _linear_lead_kf(ys: list[Measurement], s: Sensors) -> np.ndarray:
-    """A hand-written linear Kalman filter of (h, v_l, a_l) with ḣ = v_l − v (v the mean own speed of the
-    interval), v̇_l = a_l, ȧ_l = −a_l/τ: exact discretisation by expm; the EKF's noise model."""
-    Ac = np.array([[0, 1, 0], [0, 0, 1], [0, 0, -1 / LEAD_ACCEL_TAU_S]], float)
-    R = np.diag([s.variance("gap") + 1e-6, s.variance("lead_speed") + 1e-6])
-    C = np.array([[1.0, 0, 0], [0, 1.0, 0]])
-    x = np.array([ys[0].gap_m, ys[0].lead_speed_mps, 0.0])
-    P = np.diag([R[0, 0] + 0.01, R[1, 1] + 0.01, 1.0])
+    """A hand-written linear Kalman filter of (h, v_l, a_l, v) with ḣ = v_l − v, v̇_l = a_l, ȧ_l = −a_l/τ, v̇ = a
+    (a the mean applied acceleration of the interval): exact discretisation by expm; the EKF's noise model."""
+    Ac = np.array([[0, 1, 0, -1], [0, 0, 1, 0], [0, 0, -1 / LEAD_ACCEL_TAU_S, 0], [0, 0, 0, 0]], float)
+    Bc = np.array([[0.0], [0], [0], [1]])
+    R = np.diag([s.variance("gap") + 1e-6, s.variance("lead_speed") + 1e-6, s.variance("speed") + 1e-6])
+    C = np.array([[1.0, 0, 0, 0], [0, 1.0, 0, 0], [0, 0, 0, 1.0]])
+    x = np.array([ys[0].gap_m, ys[0].lead_speed_mps, 0.0, ys[0].speed_mps])
+    P = np.diag([R[0, 0] + 0.01, R[1, 1] + 0.01, 1.0, R[2, 2] + 0.01])
     out = []
     for k, y in enumerate(ys):
         if k:
             dt = y.t_s - ys[k - 1].t_s
-            M = expm(np.block([[Ac, np.array([[-1.0], [0], [0]])], [np.zeros((1, 4))]]) * dt)
-            A, b = M[:3, :3], M[:3, 3]
-            v = 0.5 * (ys[k - 1].speed_mps + y.speed_mps)
-            x = A @ x + b * v
+            M = expm(np.block([[Ac, Bc], [np.zeros((1, 5))]]) * dt)
+            A, b = M[:4, :4], M[:4, 4]
+            x = A @ x + b * 0.5 * (ys[k - 1].accel_cmd_mps2 + y.accel_cmd_mps2)
             q_acc = LEAD_ACCEL_SIGMA_MPS2**2 * (1 - math.exp(-2 * dt / LEAD_ACCEL_TAU_S))
-            Q = np.diag([OWN_NOISE_RATES[3] * dt, OWN_NOISE_RATES[4] * dt, q_acc])
-            Q[0, 0] += dt**2 * s.variance("speed")  # own-speed noise through ḣ (B = −dt)
+            Q = np.diag([OWN_NOISE_RATES[3] * dt, OWN_NOISE_RATES[4] * dt, q_acc, OWN_SPEED_NOISE_RATE * dt])
             P = A @ P @ A.T + Q
         K = np.linalg.solve(C @ P @ C.T + R, C @ P).T
-        x = x + K @ (np.array([y.gap_m, y.lead_speed_mps]) - C @ x)
-        P = (np.eye(3) - K @ C) @ P @ (np.eye(3) - K @ C).T + K @ R @ K.T
+        x = x + K @ (np.array([y.gap_m, y.lead_speed_mps, y.speed_mps]) - C @ x)
+        P = (np.eye(4) - K @ C) @ P @ (np.eye(4) - K @ C).T + K @ R @ K.T
         out.append(x.copy())
     return np.array(out)
 
 
 def test_ekf_lead_part_equals_a_linear_kalman_filter() -> None:
-    """The EKF's predecessor states decouple from the battery's and are linear: they equal a hand-written linear
-    KF with exact (expm) discretisation up to the RK4 step error."""
-    s = Sensors(seed=3, gap_delay_s=0.0, lead_speed_delay_s=0.0)
+    """The EKF's motion states (gap, predecessor speed and acceleration, own speed) decouple from the battery's and
+    are linear: they equal a hand-written linear KF with exact (expm) discretisation up to the RK4 step error."""
+    s = Sensors(seed=3, gap_delay_s=0.0, lead_speed_delay_s=0.0, speed_delay_s=0.0)
     rng = np.random.default_rng(11)
     t = 0.2 * np.arange(120)
     vl = 9.0 + 2.0 * np.sin(0.3 * t)
     v = 8.5 + 1.5 * np.sin(0.3 * t - 0.4)
+    a = 0.45 * np.cos(0.3 * t - 0.4)
     ys = [Measurement(float(tk), 14.0 + 0.5 * math.sin(0.2 * tk) + 0.2 * rng.standard_normal(),
                       float(v[k]) + 0.05 * rng.standard_normal(), float(vl[k]) + 0.1 * rng.standard_normal(),
-                      350.0, 21.0) for k, tk in enumerate(t)]
+                      350.0, 21.0, accel_cmd_mps2=float(a[k])) for k, tk in enumerate(t)]
     ekf = EKF(EVParams(units=UNITS), s, soc0=0.63)
     est = [ekf.reset(ys[0])] + [ekf.update(y) for y in ys[1:]]
     ref = _linear_lead_kf(ys, s)
     np.testing.assert_allclose([e.gap_m for e in est], ref[:, 0], atol=2e-5)
     np.testing.assert_allclose([e.lead_speed_mps for e in est], ref[:, 1], atol=2e-5)
     np.testing.assert_allclose([e.lead_accel_mps2 for e in est], ref[:, 2], atol=2e-5)
+    np.testing.assert_allclose([e.speed_mps for e in est], ref[:, 3], atol=2e-5)
 
 
 @pytest.mark.parametrize("cycle, soc_guess", [("us06", 0.7), ("udds", 0.9)])

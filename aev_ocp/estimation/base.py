@@ -8,9 +8,10 @@ and acceleration. Plug your own in wherever ``estimator=`` is accepted (an objec
 :class:`EstimationModel` is the discrete model of both shipped estimators, built with CasADi from the same
 description as the controller's (:func:`aev_ocp.models.battery.cell_derivatives` and
 :func:`~aev_ocp.models.battery.terminal_voltage` of the 2-RC cell, with the model's CellParams): states
-x = (S, V1 [V], V2 [V], h [m], v_l [m/s], a_l [m/s²]), inputs u = (I [A per cell], v [m/s], own speed), outputs
-y = (cell terminal voltage [V], h [m], v_l [m/s]); one RK4 step of length dt_s with u held; the predecessor's
-acceleration is a Singer process (da_l/dt = −a_l/τ_a, τ_a = :data:`LEAD_ACCEL_TAU_S`).
+x = (S, V1 [V], V2 [V], h [m], v_l [m/s], a_l [m/s²], v [m/s], own speed), inputs u = (I [A per cell], a [m/s²], the
+acceleration the car applied last), outputs y = (cell terminal voltage [V], h [m], v_l [m/s], v [m/s]); one RK4 step
+of length dt_s with u held; the predecessor's acceleration is a Singer process (da_l/dt = −a_l/τ_a,
+τ_a = :data:`LEAD_ACCEL_TAU_S`), the own speed follows the applied acceleration (dv/dt = a).
 """
 
 from __future__ import annotations
@@ -38,13 +39,18 @@ OCV_MODEL_SIGMA_V = 0.5e-3
 #: the model's own process-noise rates [state²/s] of S, V1, V2, h, v_l (a_l: the Singer model): SOC drift from
 #: a ~1 % capacity error at a few amperes, V1/V2 at 0.02 mV/√s (the RC model's error), h and v_l at 0.01 /√s
 OWN_NOISE_RATES = ((1e-6) ** 2, (2e-5) ** 2, (2e-5) ** 2, 1e-4, 1e-4)
-STATE_NAMES = ("S", "V1", "V2", "h", "v_l", "a_l")
+#: rate [m²/s³] of the own speed's process noise: the applied acceleration is not the realised one (the actuator's
+#: lag and saturation, road grade, wind): ~0.3 m/s² over a 0.2 s step -> 0.3² × 0.2 ... taken as 0.05 m²/s³
+OWN_SPEED_NOISE_RATE = 0.05
+NX = 7  # states of the estimation model
+STATE_NAMES = ("S", "V1", "V2", "h", "v_l", "a_l", "v")
 
 
 @dataclass(frozen=True)
 class Estimate:
-    """What an estimator believes at the measurement time (SI): SOC [-], V1, V2 [V], gap [m], predecessor speed
-    [m/s] and acceleration [m/s²]; ``std``: 1-σ of each (the same order; NaN when unknown)."""
+    """What an estimator believes (SI): SOC [-], V1, V2 [V], gap [m], predecessor speed [m/s] and acceleration
+    [m/s²], own speed [m/s] (NaN: not estimated, the measured one is used); ``std``: 1-σ of each (the order of
+    :data:`STATE_NAMES`; empty when unknown)."""
 
     soc: float
     V1_V: float
@@ -52,6 +58,7 @@ class Estimate:
     gap_m: float
     lead_speed_mps: float
     lead_accel_mps2: float
+    speed_mps: float = float("nan")
     std: tuple[float, ...] = ()
 
 
@@ -85,11 +92,11 @@ class EstimationModel:
     def __init__(self, ev: EVParams, sensors: Sensors, ocv_offset_V: float = 0.0) -> None:
         self.ev, self.sensors, self.ocv_offset_V = ev, sensors, float(ocv_offset_V)
         cell, pack = ev.cell, ev.pack
-        x, u, dt = ca.SX.sym("x", 6), ca.SX.sym("u", 2), ca.SX.sym("dt")
+        x, u, dt = ca.SX.sym("x", NX), ca.SX.sym("u", 2), ca.SX.sym("dt")
 
         def f(x: Any, u: Any) -> Any:
             dV1, dV2, dS = battery.cell_derivatives(x[1], x[2], u[0], cell)
-            return ca.vertcat(dS, dV1, dV2, x[4] - u[1], x[5], -x[5] / LEAD_ACCEL_TAU_S)
+            return ca.vertcat(dS, dV1, dV2, x[4] - x[6], x[5], -x[5] / LEAD_ACCEL_TAU_S, u[1])
 
         k1 = f(x, u)
         k2 = f(x + dt / 2 * k1, u)
@@ -97,25 +104,26 @@ class EstimationModel:
         k4 = f(x + dt * k3, u)
         xn = x + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
         y = ca.vertcat(battery.terminal_voltage(ca.fmin(ca.fmax(x[0], 0.0), 1.0), x[1], x[2], u[0], cell)
-                       + self.ocv_offset_V, x[3], x[4])
+                       + self.ocv_offset_V, x[3], x[4], x[6])
         self.F = ca.Function("est_F", [x, u, dt], [xn, ca.jacobian(xn, x), ca.jacobian(xn, u)])
         self.H = ca.Function("est_H", [x, u], [y, ca.jacobian(y, x)])
         self.f_sym, self.h_sym, self.x, self.u, self.dt = xn, y, x, u, dt
         ns, npar = pack.n_series, pack.n_parallel
         self.n_series, self.n_parallel = ns, npar
         # measurement noise of y: the pack voltage's per series cell plus the OCV table's own error, the radar's
-        # gap and predecessor speed
+        # gap and predecessor speed, the own speed
         self.R = np.diag([sensors.variance("voltage") / ns**2 + OCV_MODEL_SIGMA_V**2, sensors.variance("gap") + 1e-6,
-                          sensors.variance("lead_speed") + 1e-6])
-        # input noise: the pack current's per parallel cell, the own speed's
-        self.Su = np.diag([sensors.variance("current") / npar**2, sensors.variance("speed")])
+                          sensors.variance("lead_speed") + 1e-6, sensors.variance("speed") + 1e-6])
+        # input noise: the pack current's per parallel cell (the applied acceleration is known; its error is in
+        # OWN_SPEED_NOISE_RATE)
+        self.Su = np.diag([sensors.variance("current") / npar**2, 0.0])
 
     def ekf_step(self, iterations: int) -> ca.Function:
         """One EKF step as ONE CasADi Function (x, P, u_prev, u, y, dt) -> (x⁺, P⁺): the time update over dt [s]
         with the mean of the two inputs held, then the measurement update iterated ``iterations`` times
         (Gauss–Newton on h; SOC clamped to [0, 1]) and the Joseph-form covariance. dt = 0: the update only."""
-        x, P = ca.SX.sym("x", 6), ca.SX.sym("P", 6, 6)
-        u0, u1, ym, dt = ca.SX.sym("u0", 2), ca.SX.sym("u1", 2), ca.SX.sym("y", 3), ca.SX.sym("dt")
+        x, P = ca.SX.sym("x", NX), ca.SX.sym("P", NX, NX)
+        u0, u1, ym, dt = ca.SX.sym("u0", 2), ca.SX.sym("u1", 2), ca.SX.sym("y", 4), ca.SX.sym("dt")
         um = 0.5 * (u0 + u1)
         xp, A, B = self.F(x, um, dt)
         Pp = A @ P @ A.T + self.process_noise_sx(dt, B)
@@ -131,23 +139,23 @@ class EstimationModel:
             K = ca.solve(C @ Pp @ C.T + R, C @ Pp).T
             xi = xp + K @ (ym - yh - C @ (xp - xi))
             xi = ca.vertcat(ca.fmin(ca.fmax(xi[0], 0.0), 1.0), xi[1:])
-        IKC = ca.DM.eye(6) - K @ C
+        IKC = ca.DM.eye(NX) - K @ C
         Pn = IKC @ Pp @ IKC.T + K @ R @ K.T
         return ca.Function("ekf_step", [x, P, u0, u1, ym, dt], [xi, Pn])
 
     def process_noise_sx(self, dt: Any, Bu: Any) -> Any:
         """:meth:`process_noise` as a CasADi expression of dt [s] and B."""
         q_acc = LEAD_ACCEL_SIGMA_MPS2**2 * (1.0 - ca.exp(-2.0 * dt / LEAD_ACCEL_TAU_S))
-        own = ca.diag(ca.vertcat(*(q * dt for q in OWN_NOISE_RATES), q_acc))
+        own = ca.diag(ca.vertcat(*(q * dt for q in OWN_NOISE_RATES), q_acc, OWN_SPEED_NOISE_RATE * dt))
         return Bu @ ca.DM(self.Su) @ Bu.T + own
 
     def inputs(self, y: Measurement) -> np.ndarray:
-        """u = (cell current [A], own speed [m/s]) from a measurement."""
-        return np.array([y.current_A / self.n_parallel, y.speed_mps])
+        """u = (cell current [A], applied acceleration [m/s²]) from a measurement."""
+        return np.array([y.current_A / self.n_parallel, y.accel_cmd_mps2])
 
     def outputs(self, y: Measurement) -> np.ndarray:
-        """The measured y = (cell voltage [V], gap [m], predecessor speed [m/s])."""
-        return np.array([y.voltage_V / self.n_series, y.gap_m, y.lead_speed_mps])
+        """The measured y = (cell voltage [V], gap [m], predecessor speed [m/s], own speed [m/s])."""
+        return np.array([y.voltage_V / self.n_series, y.gap_m, y.lead_speed_mps, y.speed_mps])
 
     def process_noise(self, dt_s: float, Bu: np.ndarray) -> np.ndarray:
         """Q [per step] over dt_s: the input noise through B plus the model's own uncertainty (:data:`OWN_NOISE_RATES`,
@@ -155,19 +163,19 @@ class EstimationModel:
         return np.asarray(self.process_noise_sx(dt_s, ca.DM(Bu)))
 
     def initial(self, y: Measurement, soc0: float | None) -> tuple[np.ndarray, np.ndarray]:
-        """(x0, P0) from the first measurement: the gap and predecessor speed measured, a_l = 0, V1 = V2 = 0,
+        """(x0, P0) from the first measurement: the gap and both speeds measured, a_l = 0, V1 = V2 = 0,
         SOC = ``soc0`` or the OCV inverted at the first voltage (rest assumed), with σ_S = 0.1 and
         σ_V1 = σ_V2 = 1 mV (a car starts after a rest: the RC voltages have relaxed)."""
         if soc0 is not None and not (0.0 <= soc0 <= 1.0):
             raise ParameterError(f"estimator: soc0 = {soc0!r} is not allowed: must be in [0, 1]")
         v_cell = y.voltage_V / self.n_series + self.ev.cell.R_s_ohm * y.current_A / self.n_parallel
         s0 = soc_from_rest_voltage(v_cell - self.ocv_offset_V) if soc0 is None else soc0
-        x0 = np.array([s0, 0.0, 0.0, y.gap_m, y.lead_speed_mps, 0.0])
-        P0 = np.diag([0.1**2, 0.001**2, 0.001**2, self.R[1, 1] + 0.01, self.R[2, 2] + 0.01, 1.0])
+        x0 = np.array([s0, 0.0, 0.0, y.gap_m, y.lead_speed_mps, 0.0, y.speed_mps])
+        P0 = np.diag([0.1**2, 0.001**2, 0.001**2, self.R[1, 1] + 0.01, self.R[2, 2] + 0.01, 1.0, self.R[3, 3] + 0.01])
         return x0, P0
 
 
 def estimate_of(x: np.ndarray, P: np.ndarray | None = None) -> Estimate:
     """An :class:`Estimate` from a state vector (and its covariance)."""
     std = tuple(float(s) for s in np.sqrt(np.maximum(np.diag(P), 0.0))) if P is not None else ()
-    return Estimate(float(x[0]), float(x[1]), float(x[2]), float(x[3]), float(x[4]), float(x[5]), std)
+    return Estimate(float(x[0]), float(x[1]), float(x[2]), float(x[3]), float(x[4]), float(x[5]), float(x[6]), std)

@@ -10,8 +10,8 @@ import casadi as ca
 import numpy as np
 
 from ..params import EVParams, ParameterError
-from .base import Estimate, estimate_of
-from .kalman import EKF
+from .base import NX, Estimate, estimate_of
+from .kalman import EKF, bridge_delays
 from .sensors import Measurement, Sensors
 
 
@@ -35,15 +35,15 @@ class MHE:
         self._build()
         self.buf: deque[tuple[np.ndarray, np.ndarray, float, np.ndarray, np.ndarray]] = deque(maxlen=window + 1)
         self._guess: np.ndarray | None = None
-        self.x = np.zeros(6)
+        self.x = np.zeros(NX)
         self.fails = 0
 
     def _build(self) -> None:
         M, m = self.M, self.model
-        X = ca.SX.sym("X", 6, M + 1)
-        x0b, L0 = ca.SX.sym("x0b", 6), ca.SX.sym("L0", 6, 6)  # L0: Cholesky factor of P_0⁻¹ (upper)
-        U, Y, DT = ca.SX.sym("U", 2, M + 1), ca.SX.sym("Y", 3, M + 1), ca.SX.sym("DT", M)
-        LQ, LR = ca.SX.sym("LQ", 6, 6), ca.SX.sym("LR", 3, 3)
+        X = ca.SX.sym("X", NX, M + 1)
+        x0b, L0 = ca.SX.sym("x0b", NX), ca.SX.sym("L0", NX, NX)  # L0: Cholesky factor of P_0⁻¹ (upper)
+        U, Y, DT = ca.SX.sym("U", 2, M + 1), ca.SX.sym("Y", 4, M + 1), ca.SX.sym("DT", M)
+        LQ, LR = ca.SX.sym("LQ", NX, NX), ca.SX.sym("LR", 4, 4)
         Fs = ca.Function("Fs", [m.x, m.u, m.dt], [m.f_sym])
         Hs = ca.Function("Hs", [m.x, m.u], [m.h_sym])
         r0 = L0 @ (X[:, 0] - x0b)
@@ -57,7 +57,7 @@ class MHE:
                 "ipopt.tol": 1e-8, "ipopt.warm_start_init_point": "yes"}
         self.solver = ca.nlpsol("mhe", "ipopt", {"x": ca.vec(X), "f": J, "p": p}, opts)
         self.cost = ca.Function("mhe_cost", [ca.vec(X), p], [J])
-        lb, ub = -np.inf * np.ones((6, M + 1)), np.inf * np.ones((6, M + 1))
+        lb, ub = -np.inf * np.ones((NX, M + 1)), np.inf * np.ones((NX, M + 1))
         lb[0, :], ub[0, :] = 0.0, 1.0
         self.lbx, self.ubx = lb.ravel(order="F"), ub.ravel(order="F")
 
@@ -96,22 +96,19 @@ class MHE:
                             LQ.ravel(order="F"), LR.ravel(order="F")])
         guess = np.column_stack([b[3] for b in self.buf]).ravel(order="F")
         if self._guess is not None:  # the last solution shifted by one step, the EKF's newest state appended
-            guess = np.concatenate([self._guess[6:], self.ekf.x])
+            guess = np.concatenate([self._guess[NX:], self.ekf.x])
         sol = self.solver(x0=guess, p=p, lbx=self.lbx, ubx=self.ubx)
         if not self.solver.stats()["success"]:
             self.fails += 1
         xs = np.asarray(sol["x"]).ravel()
         self._guess = xs
-        self.x = xs[-6:]
+        self.x = xs[-NX:]
         return self.estimate()
 
     def estimate(self) -> Estimate:
-        """The last window node, the gap and predecessor motion predicted over the radar's delay (as the EKF)."""
-        x, d = self.x.copy(), self.ekf.lead_delay_s
-        if d > 0:
-            x[3] += (x[4] - self.ekf.u[1]) * d + 0.5 * x[5] * d**2
-            x[4] += x[5] * d
-        return estimate_of(x, self.ekf.P)
+        """The last window node predicted over the sensors' delays (as the EKF)."""
+        return estimate_of(bridge_delays(self.x, self.ekf.u[1], self.ekf.lead_delay_s, self.ekf.speed_delay_s),
+                           self.ekf.P)
 
     def describe(self) -> dict[str, Any]:
         return {**self.ekf.describe(), "estimator": self.name, "window": self.M, "solver": "ipopt",

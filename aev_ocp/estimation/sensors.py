@@ -109,7 +109,8 @@ class Sensors:
 @dataclass(frozen=True)
 class Measurement:
     """One vehicle's measurements at controller time ``t_s`` (SI; pack voltage and current, current > 0
-    discharges). ``battery``: (V1 [V], V2 [V], SOC [-]) of the cell when the battery states are observed."""
+    discharges). ``battery``: (V1 [V], V2 [V], SOC [-]) of the cell when the battery states are observed;
+    ``accel_cmd_mps2``: the acceleration the vehicle applied over the last step (its own command, known exactly)."""
 
     t_s: float
     gap_m: float
@@ -118,6 +119,7 @@ class Measurement:
     voltage_V: float
     current_A: float
     battery: tuple[float, float, float] | None = None
+    accel_cmd_mps2: float = 0.0
 
 
 class SensorModel:
@@ -148,8 +150,9 @@ class SensorModel:
         w = (t - tt[k]) / (tt[k + 1] - tt[k])
         return float((1 - w) * self.true[k][i, c] + w * self.true[k + 1][i, c])
 
-    def measure(self, i: int, t_s: float) -> Measurement:
-        """What vehicle ``i`` measures at t_s (after :meth:`record` of every node up to t_s)."""
+    def measure(self, i: int, t_s: float, accel_cmd_mps2: float = 0.0) -> Measurement:
+        """What vehicle ``i`` measures at t_s (after :meth:`record` of every node up to t_s); ``accel_cmd_mps2``: the
+        acceleration it applied last [m/s²] (passed through)."""
         s, vals = self.sensors, []
         for c, name in enumerate(CHANNELS):
             tm = t_s - s.delay(name)
@@ -171,4 +174,4 @@ class SensorModel:
             vals.append(x)
         b = self.battery[-1][i]
         bat = (float(b[0]), float(b[1]), float(b[2])) if s.battery_states_observed else None
-        return Measurement(t_s, vals[0], vals[1], vals[2], vals[3], vals[4], bat)
+        return Measurement(t_s, vals[0], vals[1], vals[2], vals[3], vals[4], bat, float(accel_cmd_mps2))
