@@ -336,3 +336,20 @@ def test_robustness_margins_and_targets() -> None:
     tg = targets(rows, list(mg.values()))
     assert tg["no_collision_or_event_real"] and not tg["mpc_below_both_laws_real"]
     assert tg["estimator_plus_mpc_ms_median_max"] == 0.83
+
+
+def test_ekf_learns_the_plants_ohmic_resistance() -> None:
+    """The model's R0 is 17 % too high (a fixed mismatch): the EKF's R0 scale ρ converges to the plant's ratio
+    1/1.17 on 90 s of US06, and the SOC stays within 1 %."""
+    sc = cycle_scenario("us06", 90.0)
+    made: list[EKF] = []
+
+    def factory(ev: EVParams, s: Sensors, off: float, i: int) -> EKF:
+        made.append(EKF(ev, s, soc0=sc.ev.cell.soc0, ocv_offset_V=off))
+        return made[-1]
+
+    r = ClosedLoop(sc.leader, [sc.law("ovfl")], sc.ev, sensors=Sensors(seed=4), mismatch=Mismatch(R0_rel=0.17),
+                   estimator=factory, law_dt=0.2).run(sc.gaps0, sc.speeds0, sc.t_end)
+    assert made[0].model.ev.cell.R_s_ohm == pytest.approx(1.17 * sc.ev.cell.R_s_ohm)
+    assert made[0].x[7] == pytest.approx(1 / 1.17, abs=0.02)
+    assert r.solver_stats[0]["estimation"]["soc_err_max_after_60s_pct"] < 1.0

@@ -8,7 +8,8 @@ and acceleration. Plug your own in wherever ``estimator=`` is accepted (an objec
 :class:`EstimationModel` is the discrete model of both shipped estimators, built with CasADi from the same
 description as the controller's (:func:`aev_ocp.models.battery.cell_derivatives` and
 :func:`~aev_ocp.models.battery.terminal_voltage` of the 2-RC cell, with the model's CellParams): states
-x = (S, V1 [V], V2 [V], h [m], v_l [m/s], a_l [m/s²], v [m/s], own speed), inputs u = (I [A per cell], a [m/s²], the
+x = (S, V1 [V], V2 [V], h [m], v_l [m/s], a_l [m/s²], v [m/s], own speed, ρ: the cell's R0 is ρ·R0 of the model, a
+slow random walk: the ohmic resistance is learnt from the voltage's response to current steps), inputs u = (I [A per cell], a [m/s²], the
 acceleration the car applied last), outputs y = (cell terminal voltage [V], h [m], v_l [m/s], v [m/s]); one RK4 step
 of length dt_s with u held; the predecessor's acceleration is a Singer process (da_l/dt = −a_l/τ_a,
 τ_a = :data:`LEAD_ACCEL_TAU_S`), the own speed follows the applied acceleration (dv/dt = a).
@@ -42,8 +43,13 @@ OWN_NOISE_RATES = ((1e-6) ** 2, (2e-5) ** 2, (2e-5) ** 2, 1e-4, 1e-4)
 #: rate [m²/s³] of the own speed's process noise: the applied acceleration is not the realised one (the actuator's
 #: lag and saturation, road grade, wind): ~0.3 m/s² over a 0.2 s step -> 0.3² × 0.2 ... taken as 0.05 m²/s³
 OWN_SPEED_NOISE_RATE = 0.05
-NX = 7  # states of the estimation model
-STATE_NAMES = ("S", "V1", "V2", "h", "v_l", "a_l", "v")
+#: σ of the initial R0 scale ρ (the estimator's R0 = ρ·R0 of its model): cell-to-cell and ageing spread of the
+#: ohmic resistance, ±20 % (the mismatch the issue declares); its random-walk rate [1/s] (R0 drifts with temperature
+#: over minutes)
+R0_SCALE_SIGMA = 0.2
+R0_SCALE_RATE = 1e-5
+NX = 8  # states of the estimation model
+STATE_NAMES = ("S", "V1", "V2", "h", "v_l", "a_l", "v", "rho")
 
 
 @dataclass(frozen=True)
@@ -96,7 +102,7 @@ class EstimationModel:
 
         def f(x: Any, u: Any) -> Any:
             dV1, dV2, dS = battery.cell_derivatives(x[1], x[2], u[0], cell)
-            return ca.vertcat(dS, dV1, dV2, x[4] - x[6], x[5], -x[5] / LEAD_ACCEL_TAU_S, u[1])
+            return ca.vertcat(dS, dV1, dV2, x[4] - x[6], x[5], -x[5] / LEAD_ACCEL_TAU_S, u[1], 0.0)
 
         k1 = f(x, u)
         k2 = f(x + dt / 2 * k1, u)
@@ -104,7 +110,7 @@ class EstimationModel:
         k4 = f(x + dt * k3, u)
         xn = x + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
         y = ca.vertcat(battery.terminal_voltage(ca.fmin(ca.fmax(x[0], 0.0), 1.0), x[1], x[2], u[0], cell)
-                       + self.ocv_offset_V, x[3], x[4], x[6])
+                       - (x[7] - 1.0) * cell.R_s_ohm * u[0] + self.ocv_offset_V, x[3], x[4], x[6])
         self.F = ca.Function("est_F", [x, u, dt], [xn, ca.jacobian(xn, x), ca.jacobian(xn, u)])
         self.H = ca.Function("est_H", [x, u], [y, ca.jacobian(y, x)])
         self.f_sym, self.h_sym, self.x, self.u, self.dt = xn, y, x, u, dt
@@ -146,7 +152,8 @@ class EstimationModel:
     def process_noise_sx(self, dt: Any, Bu: Any) -> Any:
         """:meth:`process_noise` as a CasADi expression of dt [s] and B."""
         q_acc = LEAD_ACCEL_SIGMA_MPS2**2 * (1.0 - ca.exp(-2.0 * dt / LEAD_ACCEL_TAU_S))
-        own = ca.diag(ca.vertcat(*(q * dt for q in OWN_NOISE_RATES), q_acc, OWN_SPEED_NOISE_RATE * dt))
+        own = ca.diag(ca.vertcat(*(q * dt for q in OWN_NOISE_RATES), q_acc, OWN_SPEED_NOISE_RATE * dt,
+                                 R0_SCALE_RATE**2 * dt))
         return Bu @ ca.DM(self.Su) @ Bu.T + own
 
     def inputs(self, y: Measurement) -> np.ndarray:
@@ -170,8 +177,9 @@ class EstimationModel:
             raise ParameterError(f"estimator: soc0 = {soc0!r} is not allowed: must be in [0, 1]")
         v_cell = y.voltage_V / self.n_series + self.ev.cell.R_s_ohm * y.current_A / self.n_parallel
         s0 = soc_from_rest_voltage(v_cell - self.ocv_offset_V) if soc0 is None else soc0
-        x0 = np.array([s0, 0.0, 0.0, y.gap_m, y.lead_speed_mps, 0.0, y.speed_mps])
-        P0 = np.diag([0.1**2, 0.001**2, 0.001**2, self.R[1, 1] + 0.01, self.R[2, 2] + 0.01, 1.0, self.R[3, 3] + 0.01])
+        x0 = np.array([s0, 0.0, 0.0, y.gap_m, y.lead_speed_mps, 0.0, y.speed_mps, 1.0])
+        P0 = np.diag([0.1**2, 0.001**2, 0.001**2, self.R[1, 1] + 0.01, self.R[2, 2] + 0.01, 1.0, self.R[3, 3] + 0.01,
+                      R0_SCALE_SIGMA**2])
         return x0, P0
 
 
