@@ -130,11 +130,11 @@ def markdown(rows: Sequence[dict[str, Any]], mg: Sequence[dict[str, Any]]) -> st
 
 
 def robustness_section(out_dir: Path, progress: Callable[[str], None]) -> str:
-    """Reproduce section: UDDS and US06, first 300 s to the leader's next stop (a reduced configuration: UDDS, 20 s),
+    """Reproduce section: UDDS and US06, first 300 s to the leader's next stop (a reduced configuration: UDDS, 60 s),
     ideal vs real."""
     ctx = SectionContext.of(progress)
     full = ctx.config.is_full
-    cycles, seg = (("udds", "us06"), 300.0) if full else (("udds",), 20.0)
+    cycles, seg = (("udds", "us06"), 300.0) if full else (("udds",), 60.0)
     rows: list[dict[str, Any]] = []
     for c in cycles:
         rows += run_robustness(c, seg, log=ctx, end_at_rest=full)
