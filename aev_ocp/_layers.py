@@ -13,21 +13,22 @@ from __future__ import annotations
 #: The layers from the bottom up: (name, modules). Every module of ``aev_ocp`` is in exactly one.
 LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
     ("foundation", (
-        "aev_ocp._layers", "aev_ocp._version", "aev_ocp.params", "aev_ocp.numerics", "aev_ocp.compiled",
+        "aev_ocp._layers", "aev_ocp._version", "aev_ocp.params", "aev_ocp.numerics", "aev_ocp.compiled", "aev_ocp.cells",
         "aev_ocp.limits", "aev_ocp.progress", "aev_ocp.provenance", "aev_ocp.interrupts",
     )),
     ("physics", (
         "aev_ocp.models", "aev_ocp.models.actuator", "aev_ocp.models.battery", "aev_ocp.models.carfollowing",
         "aev_ocp.models.ego", "aev_ocp.models.energy", "aev_ocp.models.leader", "aev_ocp.models.powertrain",
-        "aev_ocp.models.vehicle", "aev_ocp.reference", "aev_ocp.safety.kinematics",
+        "aev_ocp.models.vehicle", "aev_ocp.models.thermal", "aev_ocp.reference", "aev_ocp.safety.kinematics",
+        "aev_ocp.sumo.energy",
     )),
     ("results", (
-        "aev_ocp.results", "aev_ocp.metrics", "aev_ocp.truncation", "aev_ocp.ocp.result",
+        "aev_ocp.results", "aev_ocp.metrics", "aev_ocp.truncation", "aev_ocp.ocp.result", "aev_ocp.life",
     )),
     ("plant and closed loop", (
         "aev_ocp.estimation", "aev_ocp.estimation.sensors", "aev_ocp.estimation.mismatch", "aev_ocp.estimation.base",
         "aev_ocp.estimation.kalman", "aev_ocp.estimation.mhe",
-        "aev_ocp.plant", "aev_ocp.control", "aev_ocp.simulate",
+        "aev_ocp.plant", "aev_ocp.control", "aev_ocp.simulate", "aev_ocp.ring.simulate",
     )),
     ("problem description", (
         "aev_ocp.ocp.problem", "aev_ocp.ocp.following", "aev_ocp.ocp.formulation", "aev_ocp.ocp.traffic",
@@ -37,30 +38,35 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
         "aev_ocp.ocp", "aev_ocp.ocp.oracle", "aev_ocp.ocp.prop31", "aev_ocp.ocp.current_profile",
         "aev_ocp.ocp.eco_trip",
         "aev_ocp.mpc", "aev_ocp.mpc.settings", "aev_ocp.mpc.controller", "aev_ocp.mpc.ocpqp", "aev_ocp.mpc.policy",
-        "aev_ocp.mpc.predictors",
+        "aev_ocp.mpc.predictors", "aev_ocp.mpc.nlp", "aev_ocp.mpc.rti", "aev_ocp.mpc.fallback", "aev_ocp.mpc.solution",
+        "aev_ocp.mpc.cstep",
         "aev_ocp.safety", "aev_ocp.safety.fallback",
         "aev_ocp.stability", "aev_ocp.stability.linear", "aev_ocp.stability.perturbation",
         "aev_ocp.stability.measure",
+        "aev_ocp.ring", "aev_ocp.ring.laws", "aev_ocp.ring.stability",
     )),
     ("configuration", (
         "aev_ocp.scenarios", "aev_ocp.overrides", "aev_ocp.mpc.scenario", "aev_ocp.safety.cases",
-        "aev_ocp.study.spec", "aev_ocp.estimation.scenario",
+        "aev_ocp.study.spec", "aev_ocp.sumo", "aev_ocp.sumo.networks", "aev_ocp.sumo.scenario",
+        "aev_ocp.ring.scenario", "aev_ocp.estimation.scenario",
     )),
     ("outputs", (
         "aev_ocp.plots", "aev_ocp.ocp_plots", "aev_ocp.mpc.plots", "aev_ocp.stability.plots", "aev_ocp.report",
-        "aev_ocp.report_html", "aev_ocp.saved", "aev_ocp.study.table",
+        "aev_ocp.report_html", "aev_ocp.saved", "aev_ocp.study.table", "aev_ocp.ring.plots",
     )),
     ("applications", (
         "aev_ocp.report_sections", "aev_ocp.claims", "aev_ocp.table1_hypotheses",
         "aev_ocp.ocp.api", "aev_ocp.ocp.report_section",
         "aev_ocp.mpc.report", "aev_ocp.mpc.cycles", "aev_ocp.mpc.cycles_section",
         "aev_ocp.stability.api", "aev_ocp.stability.report",
-        "aev_ocp.safety.suite", "aev_ocp.safety.report", "aev_ocp.safety.section",
-        "aev_ocp.study", "aev_ocp.study.runner", "aev_ocp.study.report", "aev_ocp.robustness",
+        "aev_ocp.safety.suite", "aev_ocp.safety.report", "aev_ocp.safety.section", "aev_ocp.life_section",
+        "aev_ocp.study", "aev_ocp.study.runner", "aev_ocp.study.report",
+        "aev_ocp.ring.experiments", "aev_ocp.ring.report", "aev_ocp.sumo.run", "aev_ocp.sumo.output", "aev_ocp.robustness",
     )),
     ("entry points", (
         "aev_ocp", "aev_ocp.console", "aev_ocp.reproduce", "aev_ocp.cli", "aev_ocp.ocp.cli", "aev_ocp.mpc.cli",
         "aev_ocp.mpc.export", "aev_ocp.stability.cli", "aev_ocp.safety.cli", "aev_ocp.study.cli",
+        "aev_ocp.ring.cli", "aev_ocp.sumo.cli",
     )),
 )
 
@@ -71,3 +77,12 @@ def layer_of(module: str) -> int:
         if module in modules:
             return i
     raise KeyError(f"{module} is in no layer of aev_ocp._layers.LAYERS; add it to one")
+
+
+def markdown_rows() -> list[str]:
+    """The table's rows as docs/guide/layers.md writes them (``| # | layer | modules |``)."""
+    return [f"| {i} | {name} | " + ", ".join(f"`{m}`" for m in mods) + " |" for i, (name, mods) in enumerate(LAYERS)]
+
+
+if __name__ == "__main__":  # python -m aev_ocp._layers: the rows to paste into docs/guide/layers.md
+    print("\n".join(markdown_rows()))

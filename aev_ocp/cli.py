@@ -1,4 +1,4 @@
-"""Command line: ``aev-ocp reproduce | simulate | scenarios | ocp | mpc | mpc-export | stability | study | safety``.
+"""Command line: ``aev-ocp reproduce | simulate | scenarios | ocp | mpc | mpc-export | stability | study | safety | sumo``.
 
 A thin layer over the Python API (:mod:`aev_ocp.reproduce`, :mod:`aev_ocp.scenarios`,
 :mod:`aev_ocp.report`). Every subcommand reports errors the same way (:func:`guarded`): one line
@@ -72,8 +72,12 @@ def build_parser() -> argparse.ArgumentParser:
                    add_help=False)
     sub.add_parser("stability", help="string stability of a law or the MPC (see aev-ocp stability --help)", add_help=False)
     sub.add_parser("study", help="sweeps and Pareto fronts from a study file (see aev-ocp study --help)", add_help=False)
+    sub.add_parser("ring", help="mixed traffic on a ring road: Sugiyama, Stern, penetration sweep (see aev-ocp ring "
+                   "--help)", add_help=False)
     sub.add_parser("safety", help="the safety suite: braking, stationary, slower and cut-in cases for every controller "
                    "(see aev-ocp safety --help)", add_help=False)
+    sub.add_parser("sumo", help="drive the toolkit's controllers inside SUMO (optional extra [sumo]; see aev-ocp sumo "
+                   "--help)", add_help=False)
     return p
 
 
@@ -133,6 +137,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
                                                                          time_limit_s=time_limit))
     headers, rows = scenario_metrics_rows(results)
     keep = [0, 1, 3, 4, 6, 7, 9]  # run, n, ω [J/kg], pack ∫Q [J], ΔSOC, min gap [m], status
+    keep += list(range(10, len(headers)))  # the thermal model's peak temperature [K], time above T_max [s]
     print("  ".join(f"{headers[k]:>12}" for k in keep))
     for row in rows:
         print("  ".join(f"{row[k]:>12}" for k in keep))
@@ -195,7 +200,8 @@ def _dispatch(module: str, func: str, argv: list[str]) -> int:
 SUBCOMMAND_PARSERS: dict[str, tuple[str, str]] = {
     "ocp": ("aev_ocp.ocp.cli", "_parser"), "mpc": ("aev_ocp.mpc.cli", "build_parser"),
     "mpc-export": ("aev_ocp.mpc.export", "build_parser"), "stability": ("aev_ocp.stability.cli", "build_parser"),
-    "study": ("aev_ocp.study.cli", "build_parser"), "safety": ("aev_ocp.safety.cli", "build_parser")}
+    "study": ("aev_ocp.study.cli", "build_parser"), "safety": ("aev_ocp.safety.cli", "build_parser"),
+    "ring": ("aev_ocp.ring.cli", "build_parser"), "sumo": ("aev_ocp.sumo.cli", "build_parser")}
 
 
 def command_parser(name: str) -> argparse.ArgumentParser:
@@ -223,7 +229,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args_list = list(sys.argv[1:] if argv is None else argv)
     if args_list and args_list[0] == "mpc-export":
         return guarded(lambda: _dispatch("aev_ocp.mpc.export", "cli_mpc_export", args_list[1:]))
-    if args_list and args_list[0] in ("ocp", "mpc", "stability", "study", "safety"):
+    if args_list and args_list[0] in ("ocp", "mpc", "stability", "study", "safety", "ring", "sumo"):
         name = args_list[0]
         return guarded(lambda: _dispatch(f"aev_ocp.{name}.cli", f"cli_{name}", args_list[1:]))
     try:

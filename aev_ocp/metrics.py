@@ -1,4 +1,4 @@
-"""Per-vehicle metrics of PROBLEM.md §10, computed from a :class:`SimulationResult`.
+"""Per-vehicle metrics of model guide §10, computed from a :class:`SimulationResult`.
 
 Integrals (ω, pack ∫Q, ∫Q_irr, RMS errors, RMS jerk of smooth laws) come from the plant's own
 quadratures, so they are exact across control jumps. The minimum gap is taken over the continuous
@@ -14,13 +14,14 @@ from typing import Any
 import numpy as np
 
 from .models.carfollowing import optimal_velocity
+from .models.thermal import temperature_metrics
 
 #: A :class:`aev_ocp.results.SimulationResult`. Not imported: ``SimulationResult.metrics()`` imports this module,
 #: and the layer table allows no cycle (tests/test_layers.py); the functions read its attributes only.
 SimulationResult = Any
 
-MPC_GAP_MIN = 0.2  # PROBLEM.md §9: h ≥ 0.2 (2 m)
-MPC_SPEED_MAX = 2.0  # PROBLEM.md §9: 0 ≤ v ≤ 2
+MPC_GAP_MIN = 0.2  # model guide §9: h ≥ 0.2 (2 m)
+MPC_SPEED_MAX = 2.0  # model guide §9: 0 ≤ v ≤ 2
 
 
 def _hermite_min(t0: float, t1: float, y0: float, y1: float, d0: float, d1: float) -> float:
@@ -61,7 +62,7 @@ def min_gap_continuous(t: np.ndarray, h: np.ndarray, hdot: np.ndarray) -> float:
 def violation_bounds(r: SimulationResult, i: int) -> tuple[float, float]:
     """(h_min, v_max) [model units] that follower i's gap and speed violations count against: its controller's
     own declared bounds (``describe()['bounds_model']``, an MPC's formulation; a missing side: no bound, ∓inf),
-    else PROBLEM.md §9's (MPC_GAP_MIN, MPC_SPEED_MAX)."""
+    else model guide §9's (MPC_GAP_MIN, MPC_SPEED_MAX)."""
     ctrls = r.meta.get("controllers") or []
     own = ctrls[i].get("bounds_model") if i < len(ctrls) and isinstance(ctrls[i], dict) else None
     if not own:
@@ -79,7 +80,7 @@ def vehicle_metrics(r: SimulationResult, i: int) -> dict[str, Any]:
     h, v = r.gap[:, i], r.speed[:, i]
     hdot = v_lead - v
     # violations count against the vehicle's controller's own bounds (an MPC states its formulation's: the
-    # traffic formulation's 2 m floor and 45 m/s, in model units; None = no such bound), else PROBLEM.md §9's
+    # traffic formulation's 2 m floor and 45 m/s, in model units; None = no such bound), else model guide §9's
     h_min, v_max = violation_bounds(r, i)
 
     def rms(c: np.ndarray) -> float:
@@ -119,6 +120,10 @@ def vehicle_metrics(r: SimulationResult, i: int) -> dict[str, Any]:
         "infeasible_current": kinds.count("infeasible_current"),
         "final_ovm_error_model": float(optimal_velocity(h[-1]) - v[-1]),
     }
+    if r.temperature_K is not None:  # the lumped pack temperature: peak, time-mean, time above the limit
+        tm = temperature_metrics(u.time_to_si(t), r.temperature_K[:, i], r.ev.thermal.T_max_K)
+        out.update({"peak_temperature_K": tm["peak_K"], "mean_temperature_K": tm["mean_K"],
+                    "time_above_T_max_s": tm["time_above_s"]})
     out.update(distance_metrics(r, i, duration))
     out.update(si_twins(out, u))
     stats = r.solver_stats[i] if i < len(r.solver_stats) else None

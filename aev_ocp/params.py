@@ -1,7 +1,7 @@
 """Parameter sets: frozen dataclasses with SI units in the field names and the source of each default.
 
-Every numeric default cites where it comes from (``../shared/PROBLEM.md`` is the project's problem
-card; section numbers below refer to it). Validation happens in ``__post_init__`` and raises
+Every numeric default cites where it comes from; section numbers "§" refer to the model guide
+(docs/guide/model.md, "The model" in the documentation). Validation happens in ``__post_init__`` and raises
 :class:`ParameterError`, whose message names the field, the value and what is allowed.
 
 The car-following model is dimensionless (the paper's units). :class:`Units` is the one place
@@ -130,14 +130,14 @@ def validate_fields(obj: Any) -> None:
 
 @dataclass(frozen=True)
 class Units:
-    """Scaling between the paper's dimensionless car-following units and SI (PROBLEM.md §1).
+    """Scaling between the paper's dimensionless car-following units and SI (model guide §1).
 
     length_m: length unit L [m]; speed_mps: speed unit U [m/s]. Time unit T = L/U [s],
     acceleration unit U²/L [m/s²].
     """
 
-    length_m: float = spec(10.0, gt=0)  # PROBLEM.md §1 default L = 10 m
-    speed_mps: float = spec(5.0, gt=0)  # PROBLEM.md §1 default U = 5 m/s (paper's v_l = 1.7 -> 8.5 m/s)
+    length_m: float = spec(10.0, gt=0)  # model guide §1 default L = 10 m
+    speed_mps: float = spec(5.0, gt=0)  # model guide §1 default U = 5 m/s (paper's v_l = 1.7 -> 8.5 m/s)
 
     def __post_init__(self) -> None:
         validate_fields(self)
@@ -192,7 +192,7 @@ class Units:
 
 @dataclass(frozen=True)
 class CarFollowingParams:
-    """Coefficients of OVM / OVFL / the proposed law (paper eq. main_dynamics; PROBLEM.md §2).
+    """Coefficients of OVM / OVFL / the proposed law (paper eq. main_dynamics; model guide §2).
 
     alpha: relaxation rate to V(h) [1/model time]; beta: follow-the-leader gain
     [model length²/model time]; kappa: weight of the deceleration term [1/model length];
@@ -210,7 +210,7 @@ class CarFollowingParams:
 
 @dataclass(frozen=True)
 class VehicleParams:
-    """Longitudinal vehicle and powertrain parameters (PROBLEM.md §5), SI units.
+    """Longitudinal vehicle and powertrain parameters (model guide §5), SI units.
 
     Defaults: 2022 Tesla Model 3 RWD (LFP), NREL FASTSim vehicle file; eta is the paper's.
     """
@@ -221,9 +221,9 @@ class VehicleParams:
     rolling_coefficient: float = spec(0.007, ge=0)  # FASTSim 2022 Tesla Model 3 RWD
     air_density_kgpm3: float = spec(1.225, gt=0)  # ISA sea level
     gravity_mps2: float = spec(9.81, gt=0)  # paper §3.3
-    grade_rad: float = spec(0.0, gt=-math.pi / 2, lt=math.pi / 2)  # flat road (PROBLEM.md §5)
+    grade_rad: float = spec(0.0, gt=-math.pi / 2, lt=math.pi / 2)  # flat road (model guide §5)
     efficiency: float = spec(0.8, gt=0, le=1)  # paper eq. g_function / Table 1 (eta = 80 %)
-    aux_power_W: float = spec(0.0, ge=0)  # PROBLEM.md §5 (P_aux = 0 by default)
+    aux_power_W: float = spec(0.0, ge=0)  # model guide §5 (P_aux = 0 by default)
 
     def __post_init__(self) -> None:
         validate_fields(self)
@@ -231,7 +231,7 @@ class VehicleParams:
 
 @dataclass(frozen=True)
 class CellParams:
-    """2-RC equivalent-circuit cell (paper §3; PROBLEM.md §6), SI units. I > 0 discharges.
+    """2-RC equivalent-circuit cell (paper §3; model guide §6), SI units. I > 0 discharges.
 
     Defaults: A123 ANR26650 LFP at 25 °C.
     """
@@ -242,11 +242,24 @@ class CellParams:
     C1_F: float = spec(460.0, gt=0)  # same model: tau1 = 3.92 s -> C1 = tau1/R1 ≈ 460 F
     R2_ohm: float = spec(0.010, gt=0)  # representative, inside Lin et al. 2014 range R2 = 5-45 mΩ (not fitted)
     C2_F: float = spec(10_000.0, gt=0)  # representative, Lin et al. 2014: C2 tens of kF (tau2 = 100 s; not fitted)
-    soc0: float = spec(0.8, ge=0, le=1)  # PROBLEM.md §6: S(0) = 0.8
-    max_current_A: float = spec(46.0, gt=0)  # PROBLEM.md §8: 20C = 20 × 2.3 A
+    soc0: float = spec(0.8, ge=0, le=1)  # model guide §6: S(0) = 0.8
+    max_current_A: float = spec(46.0, gt=0)  # model guide §8: 20C = 20 × 2.3 A
+    # thermal properties of one cell (used only when EVParams.thermal.enabled)
+    heat_capacity_JpK: float = spec(67.2, gt=0)  # Lin et al. 2014 (J. Power Sources 257:1-11), A123 26650:
+    # core + surface heat capacities Cc + Cs = 62.7 + 4.5 J/K (lumped into one node here)
+    surface_area_m2: float = spec(6.37e-3, gt=0)  # 26650 geometry (d = 26 mm, L = 65 mm): π d L + 2 π (d/2)²
+    activation_energy_Jpmol: float | None = spec(None, gt=0, optional=True)  # None: R_s, R1, R2 independent of T
+    T_ref_K: float = spec(298.15, gt=0)  # temperature at which R_s, R1, R2 were identified (25 °C, as above)
+    # OCV table (SOC grid 0..1, volts); None: the shipped A123 table aev_ocp/data/a123_ocv_25C.csv
+    ocv_soc: tuple[float, ...] | None = spec(None, kind="instance", cls=tuple, optional=True)
+    ocv_V: tuple[float, ...] | None = spec(None, kind="instance", cls=tuple, optional=True)
 
     def __post_init__(self) -> None:
         validate_fields(self)
+        if (self.ocv_soc is None) != (self.ocv_V is None):
+            raise ParameterError("CellParams.ocv_soc and CellParams.ocv_V: give both or neither")
+        if self.ocv_soc is not None and self.ocv_V is not None:
+            check_ocv_table(self.ocv_soc, self.ocv_V, "CellParams")
 
     @property
     def tau1_s(self) -> float:
@@ -259,13 +272,59 @@ class CellParams:
         return self.R2_ohm * self.C2_F
 
 
+def check_ocv_table(soc: Sequence[Any], ocv_V: Sequence[Any], where: str) -> None:
+    """An OCV table: ≥ 4 points, SOC strictly increasing from 0 to 1, OCV finite and > 0 [V]; ParameterError
+    '<where>.ocv_soc …' otherwise."""
+    s = [float(x) for x in soc]
+    v = [float(x) for x in ocv_V]
+    if len(s) != len(v) or len(s) < 4:
+        raise ParameterError(f"{where}.ocv_soc / ocv_V: need the same number of points (at least 4), got "
+                             f"{len(s)} and {len(v)}")
+    if not all(math.isfinite(x) for x in s + v) or any(b <= a for a, b in zip(s, s[1:])):
+        raise ParameterError(f"{where}.ocv_soc = {s!r:.80} is not allowed: must be finite and strictly increasing")
+    if s[0] != 0.0 or s[-1] != 1.0:
+        raise ParameterError(f"{where}.ocv_soc is not allowed: must run from 0 to 1, got {s[0]:g} … {s[-1]:g}")
+    if any(x <= 0 for x in v):
+        raise ParameterError(f"{where}.ocv_V is not allowed: every voltage must be > 0 V")
+
+
+#: Molar gas constant [J/(mol K)] (CODATA 2018, exact).
+R_GAS_JPMOLK = 8.314462618
+
+
+@dataclass(frozen=True)
+class ThermalParams:
+    """Lumped thermal model of the pack (one temperature node per vehicle's pack), SI units.
+
+    C_pack dT/dt = Q_irr_pack − hA (T − T_amb) − P_cool with C_pack = n_cells · cell.heat_capacity_JpK and
+    hA = n_cells · h · cell.surface_area_m2 (:mod:`aev_ocp.models.thermal`). ``enabled = False`` (default):
+    no temperature state; every run is exactly the model without it.
+    """
+
+    enabled: bool = spec(False, kind="bool")  # off by default: the paper's model has no temperature
+    ambient_K: float = spec(298.15, gt=0)  # 25 °C: the temperature of the cell tables (T_ref_K)
+    T0_K: float | None = spec(None, gt=0, optional=True)  # initial pack temperature; None: ambient
+    h_Wpm2K: float = spec(51.0, gt=0)  # forced air: Lin et al. 2014 measured R_u = 3.08 K/W for an A123 26650
+    # in their fan-cooled fixture, i.e. h = 1/(R_u A) = 1/(3.08 × 6.37e-3 m²) ≈ 51 W/(m² K)
+    cooling_power_W: float = spec(0.0, ge=0)  # extra heat removed from the pack [W] (active cooling); 0: none
+    T_max_K: float = spec(328.15, gt=0)  # A123 ANR26650M1-B datasheet: discharge operating limit 55 °C
+
+    def __post_init__(self) -> None:
+        validate_fields(self)
+
+    @property
+    def initial_K(self) -> float:
+        """T(0) [K]: T0_K, or the ambient."""
+        return self.ambient_K if self.T0_K is None else self.T0_K
+
+
 @dataclass(frozen=True)
 class PackParams:
-    """Pack of n_series × n_parallel identical cells (PROBLEM.md §5: 106s70p ≈ 350 V, 161 Ah, 56 kWh,
+    """Pack of n_series × n_parallel identical cells (model guide §5: 106s70p ≈ 350 V, 161 Ah, 56 kWh,
     chosen to mirror the 2022 Model 3 RWD LFP pack)."""
 
-    n_series: int = spec(106, kind="integer", ge=1)  # PROBLEM.md §5
-    n_parallel: int = spec(70, kind="integer", ge=1)  # PROBLEM.md §5
+    n_series: int = spec(106, kind="integer", ge=1)  # model guide §5
+    n_parallel: int = spec(70, kind="integer", ge=1)  # model guide §5
 
     def __post_init__(self) -> None:
         validate_fields(self)
@@ -278,12 +337,12 @@ class PackParams:
 
 @dataclass(frozen=True)
 class PowertrainOptions:
-    """How optimisers smooth the eta switch (PROBLEM.md §7).
+    """How optimisers smooth the eta switch (model guide §7).
 
-    smoothing_width_W: width w of sigma = ½(1 + tanh(P_w / w)) [W] (default 300 W, PROBLEM.md §7).
+    smoothing_width_W: width w of sigma = ½(1 + tanh(P_w / w)) [W] (default 300 W, model guide §7).
     """
 
-    smoothing_width_W: float = spec(300.0, gt=0)  # PROBLEM.md §7
+    smoothing_width_W: float = spec(300.0, gt=0)  # model guide §7
 
     def __post_init__(self) -> None:
         validate_fields(self)
@@ -349,6 +408,7 @@ class EVParams:
     cell: CellParams = field(default_factory=CellParams)
     pack: PackParams = field(default_factory=PackParams)
     limits: VehicleLimits = field(default_factory=VehicleLimits)
+    thermal: ThermalParams = field(default_factory=ThermalParams)
 
 
 def as_dict(obj: Any) -> dict[str, Any]:

@@ -5,8 +5,9 @@ Every run of the toolkit (closed-form laws in :mod:`aev_ocp.simulate`, the MPC a
 model and stops at the events of :data:`EVENT_RULES`. The compiled cascade (``aev_ocp/c/cascade.c``)
 gets its thresholds and event codes from the same table (:func:`event_header`).
 
-Model (PROBLEM.md §2, §5–§7): per follower the gap h and speed v (model units) and the cell's
-V1, V2 [V], S [-]; the exact η switch and the exact current map (:func:`aev_ocp.models.ego.battery_side`).
+Model (model guide §2, §5–§7): per follower the gap h and speed v (model units) and the cell's
+V1, V2 [V], S [-] (and, with ``ev.thermal.enabled``, the pack temperature T [K] of
+:mod:`aev_ocp.models.thermal`, after S); the exact η switch and the exact current map (:func:`aev_ocp.models.ego.battery_side`).
 A follower's acceleration is either its car-following law, evaluated continuously inside the
 integrator, or a commanded acceleration held constant over a sample interval (zero-order hold).
 Quadratures per follower (per model time unit): ω = ∫ v g(a), ∫(V(h) − v)², ∫(v_l − v)², ∫jerk²,
@@ -43,7 +44,7 @@ from .results import VIOLATED, Event, SimulationResult
 
 # A controller's plan may violate a bound by at most this much (NLP units: model speed for v) and
 # still be applied; the plant's negative-speed rule uses the same number, so a plan accepted within
-# tolerance never stops the plant (PROBLEM.md §9: "negative speed in the plant is reported").
+# tolerance never stops the plant (model guide §9: "negative speed in the plant is reported").
 PLAN_TOLERANCE = 1e-6
 
 
@@ -206,11 +207,16 @@ class Plant:
             jerk = ca.jtimes(a, ca.vertcat(h, v, act), ca.vertcat(hdot, a, dact)) + ca.jacobian(a, s) / p[1]
         x, ode = [h, v], [hdot, a]
         quad = [v * energy.g_exact(a, ev.vehicle.efficiency), (optimal_velocity(h) - v) ** 2, hdot**2, jerk**2]
+        self.thermal = self.battery and ev.thermal.enabled
         if self.battery:
             V1, V2, S = ca.SX.sym("V1", n), ca.SX.sym("V2", n), ca.SX.sym("S", n)
-            b = battery_side(v, a, V1, V2, S, ev)
+            Tk = ca.SX.sym("T", n) if self.thermal else None  # pack temperature [K] (after S, before a_act)
+            b = battery_side(v, a, V1, V2, S, ev, T_K=Tk)
             x += [V1, V2, S]
             ode += [T * b["dV1"], T * b["dV2"], T * b["dS"]]
+            if Tk is not None:
+                x.append(Tk)
+                ode.append(T * b["dT"])
             quad += [T * b["Q_pack"], T * b["Q_irr_pack"]]
             I, disc = b["I"], b["disc"]
         else:
@@ -421,6 +427,8 @@ def initial_state(n: int, ev: EVParams, battery: bool, gaps0: Sequence[float], s
         if not np.all(np.isfinite(s0)) or np.any((s0 < 0) | (s0 > 1)):
             raise ParameterError(f"{what}: soc0 = {np.asarray(s0).tolist()!r} is not allowed: must be in [0, 1]")
         x += [np.zeros(n), np.zeros(n), np.array(s0, float)]
+        if ev.thermal.enabled:  # the pack temperature T(0) [K] (ThermalParams.T0_K, default the ambient)
+            x.append(np.full(n, ev.thermal.initial_K))
     if ev.limits.has_actuator_state:  # a_act(0) = 0: every vehicle cruises (no acceleration) before t = 0
         x.append(np.zeros(n))
     return np.concatenate(x)
@@ -448,6 +456,7 @@ def assemble_result(leader: LeaderProfile, ev: EVParams, battery: bool, t: np.nd
         current_A=rows(Y, 1) if battery else nan,
         omega=rows(Qc, 0), int_ovm_err2=rows(Qc, 1), int_rel_speed2=rows(Qc, 2), int_jerk2=rows(Qc, 3),
         heat_J=rows(Qc, 4) if battery else nan, heat_irr_J=rows(Qc, 5) if battery else nan,
+        temperature_K=rows(X, 5) if battery and ev.thermal.enabled else None,
         controllers=controllers, ev=ev, events=events, jerk_sampled=jerk_sampled,
         solver_stats=solver_stats if solver_stats is not None else [None] * n,
         meta={"leader": leader.describe(), **meta}, violations=violations)

@@ -35,11 +35,12 @@ def law_accel(kind: str, p: CarFollowingParams, h: np.ndarray, v: np.ndarray, vl
     return a
 
 
-def make_ocv_numpy() -> Callable[[np.ndarray], np.ndarray]:
-    """Not-a-knot cubic spline of the OCV table (scipy's CubicSpline), independent of CasADi's B-spline."""
+def make_ocv_numpy(cell: Any = None) -> Callable[[np.ndarray], np.ndarray]:
+    """Not-a-knot cubic spline of the cell's OCV table (scipy's CubicSpline), independent of CasADi's B-spline
+    (None: the shipped A123 table)."""
     from scipy.interpolate import CubicSpline
 
-    soc, ocv = ocv_table()
+    soc, ocv = ocv_table(cell)
     return CubicSpline(soc, ocv, bc_type="not-a-knot")
 
 
@@ -48,7 +49,7 @@ def platoon_rhs_factory(kind: str, n: int, leader_speed: Callable[[float], float
     """RHS f(t, y) with y = [h(n), v(n), V1, V2, S (n each if battery), ω(n), heat_J(n)]."""
     p = p or CarFollowingParams()
     u, veh, cell, pack = ev.units, ev.vehicle, ev.cell, ev.pack
-    ocv = make_ocv_numpy()
+    ocv = make_ocv_numpy(cell)
     T = u.time_s
     eta = veh.efficiency
 

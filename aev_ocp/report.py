@@ -200,6 +200,17 @@ def scenario_metrics_rows(results: Mapping[str, SimulationResult], i_max_A: floa
             rows.append([f"**{label}: platoon**", f"Σ {len(ms)}", fmt(tot["omega_model"]), fmt(tot["omega_J_per_kg"]),
                          fmt(tot["heat_pack_J"]), fmt(tot["heat_irr_pack_J"]), fmt(tot["delta_soc"], 3),
                          fmt(tot["min_gap_m"]) + " (min)", fmt(tot["max_abs_current_A"]) + " (max)", r.status])
+    if any(r.temperature_K is not None for r in results.values()):  # the thermal model: peak pack temperature
+        headers += ["peak T [K]", "time > T_max [s]"]
+        k = 0
+        for r in results.values():
+            ms = r.metrics()
+            for m in ms:
+                rows[k] += [fmt(m.get("peak_temperature_K", math.nan), 7), fmt(m.get("time_above_T_max_s", math.nan))]
+                k += 1
+            if totals and len(ms) > 1:
+                rows[k] += ["", ""]
+                k += 1
     return headers, rows
 
 
@@ -226,9 +237,11 @@ def write_scenario_outputs(name: str, results: Mapping[str, SimulationResult], o
         if plots:
             from .plots import plot_space_time, plot_trajectories
 
-            written.append(plot_trajectories(r, out / f"{label}.png", title=f"{name}: {label}"))
+            plot_trajectories(r, png := out / f"{label}.png", title=f"{name}: {label}")
+            written.append(png)
             if r.n_vehicles > 1:
-                written.append(plot_space_time(r, out / f"{label}_space_time.png", title=f"{name}: {label}"))
+                plot_space_time(r, png := out / f"{label}_space_time.png", title=f"{name}: {label}")
+                written.append(png)
     written.append(write_json(out / "metrics.json", {"scenario": name,
                                                      "runs": {k: r.summary() for k, r in results.items()}}))
     headers, rows = scenario_metrics_rows(results)

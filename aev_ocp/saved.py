@@ -27,14 +27,16 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from .params import UNLIMITED, CellParams, EVParams, PackParams, Units, VehicleLimits, VehicleParams, as_dict
-from .results import Event, SimulationResult, atomic_path, to_jsonable, write_json
+from .params import (UNLIMITED, CellParams, EVParams, PackParams, ThermalParams, Units, VehicleLimits, VehicleParams,
+                     as_dict)
+from .results import (Event, SimulationResult, atomic_path, fmt_value, require_pandas, summary_html, summary_text,
+                      to_jsonable, write_json)
 
 FORMAT = "aev_ocp-output"
 FORMAT_VERSION = 1
 MANIFEST = "manifest.json"
 ARRAYS = "trajectories.npz"
-KINDS = ("simulate", "mpc", "ocp", "study")
+KINDS = ("simulate", "mpc", "ocp", "study", "sumo")
 SIM_ARRAYS = ("t", "leader_speed", "leader_position", "gap", "speed", "accel", "V1", "V2", "S", "current_A", "omega",
               "heat_J", "heat_irr_J", "int_ovm_err2", "int_rel_speed2", "int_jerk2")
 OCP_SCALARS = ("objective", "objective_exact", "max_violation", "wall_time_s", "solver_time_s")
@@ -54,6 +56,8 @@ def _own_meta(meta: dict[str, Any]) -> dict[str, Any]:
 def _sim_record(label: str, r: SimulationResult, arrays: dict[str, np.ndarray]) -> dict[str, Any]:
     for name in SIM_ARRAYS:
         arrays[f"{label}/{name}"] = np.asarray(getattr(r, name))
+    if r.temperature_K is not None:  # the pack temperature [K] of a run with the thermal model
+        arrays[f"{label}/temperature_K"] = np.asarray(r.temperature_K)
     return {"type": "SimulationResult", "status": r.status, "controllers": list(r.controllers),
             "events": [vars(e) for e in r.events], "violations": [vars(e) for e in r.violations],
             "ev": as_dict(r.ev), "jerk_sampled": bool(r.jerk_sampled),
@@ -174,8 +178,11 @@ def _sim_result(label: str, rec: dict[str, Any], arrays: dict[str, np.ndarray]) 
     ev = rec["ev"]
     # a run saved before the vehicle limits existed ran without any (UNLIMITED)
     limits = VehicleLimits(**ev["limits"]) if "limits" in ev else UNLIMITED
-    evp = EVParams(units=Units(**ev["units"]), vehicle=VehicleParams(**ev["vehicle"]), cell=CellParams(**ev["cell"]),
-                   pack=PackParams(**ev["pack"]), limits=limits)
+    cell: dict[str, Any] = {k: tuple(v) if k in ("ocv_soc", "ocv_V") and v is not None else v
+                            for k, v in ev["cell"].items()}
+    evp = EVParams(units=Units(**ev["units"]), vehicle=VehicleParams(**ev["vehicle"]), cell=CellParams(**cell),
+                   pack=PackParams(**ev["pack"]), limits=limits,
+                   thermal=ThermalParams(**ev["thermal"]) if "thermal" in ev else ThermalParams())
 
     def event(e: dict[str, Any]) -> Event:
         return Event(e["kind"], _nan(e["time"]), int(e["vehicle"]), e["message"],
@@ -185,7 +192,8 @@ def _sim_result(label: str, rec: dict[str, Any], arrays: dict[str, np.ndarray]) 
     return SimulationResult(**{n: arrays[f"{label}/{n}"] for n in SIM_ARRAYS}, controllers=list(rec["controllers"]),
                             ev=evp, events=[event(e) for e in rec["events"]], jerk_sampled=bool(rec["jerk_sampled"]),
                             solver_stats=list(rec["solver_stats"] or []), meta=dict(rec["meta"] or {}),
-                            violations=[event(e) for e in rec.get("violations") or []])
+                            violations=[event(e) for e in rec.get("violations") or []],
+                            temperature_K=arrays.get(f"{label}/temperature_K"))
 
 
 def _ocp_result(label: str, rec: dict[str, Any], arrays: dict[str, np.ndarray]) -> Any:
@@ -273,6 +281,26 @@ class StudyOutput:
     def metrics(self) -> list[dict[str, Any]]:
         """The table rows (every §10 metric per point × controller × vehicle)."""
         return self.rows
+
+    def _repr_fields(self) -> tuple[str, list[tuple[str, Any]]]:
+        ctrls = sorted({str(r.get("controller")) for r in self.rows})
+        points = {r.get("point") for r in self.rows}
+        return (f"StudyOutput: {len(points)} points × {len(ctrls)} controllers ({', '.join(ctrls)}), "
+                f"{self.n_failed} of {self.n_tasks} tasks failed",
+                [("folder", str(self.folder)), ("rows", len(self.rows)), ("files", len(self.files))])
+
+    def __repr__(self) -> str:
+        """A few lines: points, controllers, failed tasks, the folder and the row count."""
+        title, fields = self._repr_fields()
+        return summary_text(title, [f"{k}: {fmt_value(v)}" for k, v in fields])
+
+    def _repr_html_(self) -> str:
+        title, fields = self._repr_fields()
+        return summary_html(title, fields)
+
+    def to_dataframe(self) -> Any:
+        """The table rows as a pandas DataFrame. Needs pandas (``pip install 'aev_ocp[pandas]'``)."""
+        return require_pandas("StudyOutput.to_dataframe()").DataFrame(self.rows)
 
     def trajectory(self, point: int, controller: str) -> Any:
         """The SimulationResult of one point under one controller, saved by ``run_study(...,

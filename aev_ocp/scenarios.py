@@ -11,7 +11,7 @@ Schema (model units unless a key says otherwise; see README.md "Scenario files")
     description = "..."                 # optional
     compare = ["proposed", "ovfl"]      # optional: run the whole platoon once per law
 
-    [units]       length_m, speed_mps                       (PROBLEM.md §1)
+    [units]       length_m, speed_mps                       (model guide §1)
     [leader]      kind = "constant" | "paper" | "cycle" | "array"
                   constant: v                               [model speed]
                   paper:    v0, amplitude, forcing_end      (paper eq. acc5; forcing_end [model time])
@@ -32,7 +32,12 @@ Every model-unit key has an SI twin (:data:`SI_TWINS`), converted with the file'
 simulation.t_end_s, dt_out_s [s]; platoon.gap0_m, gap0_first_m, gap0_others_m, gaps0_m [m],
 speed0_mps, speeds0_mps [m/s]; leader.v_mps, v0_mps [m/s], amplitude_mps2 [m/s²], forcing_end_s,
 times_s [s], speeds_mps [m/s]. Give one key of a pair, not both.
-    [vehicle] [cell] [pack]  fields of VehicleParams, CellParams, PackParams (SI names)
+
+    [vehicle] [cell] [pack]  fields of VehicleParams, CellParams, PackParams (SI names); [cell] name = "<shipped
+                  cell>" (aev_ocp/data/cells/, e.g. "a123_anr26650") or file = "<cell file>" selects a cell file
+                  (aev_ocp.cells), its other keys override it; the pack layout stays in [pack]
+    [thermal]     fields of ThermalParams: enabled, ambient_K, T0_K, h_Wpm2K, cooling_power_W, T_max_K (the lumped
+                  pack temperature, aev_ocp.models.thermal; off by default)
     [limits]      fields of VehicleLimits (SI names): a_min_mps2, a_max_mps2, jerk_max_mps3, lag_s,
                   v_max_mps, enabled; every vehicle's physical limits, enforced by the plant for every
                   controller (default: VehicleLimits(); the paper's scenarios state enabled = false)
@@ -62,8 +67,9 @@ from .models.leader import (CYCLES, LENGTH_UNITS, MAX_GAP_S, SPEED_UNITS, TIME_U
                             PaperLeader, SpeedTrace, drive_cycle, read_trace_csv, trace_leader)
 from .overrides import SI_TWINS, apply_to_document, parse_assignments
 from .overrides import si_twin as si_twin  # re-exported
+from .cells import CellFileError, load_cell_file, shipped_cells
 from .params import (CarFollowingParams, CellParams, Check, EVParams, PackParams, ParameterError, SimOptions,
-                     Units, VehicleLimits, VehicleParams, field_checks)
+                     ThermalParams, Units, VehicleLimits, VehicleParams, field_checks)
 from .limits import DEFAULT_MEMORY_LIMIT_GB as DEFAULT_MEMORY_LIMIT_GB  # re-exported: the budget lives in limits
 from .limits import BYTES_PER_SAMPLE, estimate_run_bytes, memory_limit_bytes, n_samples
 from .results import check_safe_name
@@ -269,12 +275,17 @@ class TableReader:
 
 SectionValidator = Callable[[TableReader], Any]
 _SECTIONS: dict[str, SectionValidator] = {}
-_CORE_TABLES = ("units", "leader", "platoon", "carfollowing", "simulation", "vehicle", "cell", "pack", "limits")
+_CORE_TABLES = ("units", "leader", "platoon", "carfollowing", "simulation", "vehicle", "cell", "pack", "limits",
+                "thermal")
 _CORE_KEYS = ("name", "description", "compare")
 # Modules that register extra sections on import; imported on demand the first time their table
 # appears (the loader's registry: it imports no section's code itself).
-SECTION_PROVIDERS: dict[str, str] = {"mpc": "aev_ocp.mpc.scenario", "mismatch": "aev_ocp.estimation.scenario",
-                                     "sensors": "aev_ocp.estimation.scenario"}
+SECTION_PROVIDERS: dict[str, str] = {"mpc": "aev_ocp.mpc.scenario", "ring": "aev_ocp.ring.scenario",
+                                     "mismatch": "aev_ocp.estimation.scenario", "sensors": "aev_ocp.estimation.scenario"}
+#: Registered sections that describe a whole run of their own (no [leader], [platoon], [simulation]; their own
+#: loader) -> the command that runs such a file. The platoon loader refuses them with that pointer, and
+#: :func:`shipped_scenarios` lists them only when asked.
+STANDALONE_SECTIONS: dict[str, str] = {"ring": "aev-ocp ring"}
 
 
 def register_section(name: str, validator: SectionValidator) -> None:
@@ -555,6 +566,24 @@ def _params(cls: type, reader: TableReader, base: Any = None) -> Any:
         raise _rewrap(reader, exc, list(kwargs)) from None
 
 
+def _cell(r: TableReader, source: Path | None) -> CellParams:
+    """[cell]: ``name`` (a shipped cell, aev_ocp/data/cells/) or ``file`` (a cell file, relative to the scenario),
+    then any CellParams field overriding it (e.g. soc0); neither: CellParams() (the A123 defaults)."""
+    base = None
+    if r.has("name") and r.has("file"):
+        raise r.error("file", r.table["file"], "give [cell] name or file, not both")
+    for key in ("name", "file"):
+        if r.has(key):
+            ref = r.string(key)
+            try:
+                if key == "name" and ref not in shipped_cells():
+                    raise CellFileError(f"not a shipped cell; shipped: {', '.join(shipped_cells())}")
+                base = load_cell_file(ref, source.parent if (key == "file" and source is not None) else None).cell
+            except CellFileError as exc:
+                raise r.error(key, ref, str(exc)) from None
+    return _params(CellParams, r, base)
+
+
 def _trace(r: TableReader, units: Units, source: Path | None) -> LeaderProfile:
     """[leader] kind = "trace": a recorded trajectory in a CSV file, relative to the scenario file."""
     file = r.string("file")
@@ -755,6 +784,10 @@ def _check_top_level(doc: dict[str, Any], file: str) -> None:
 
 def parse_scenario(doc: dict[str, Any], file: str = "<scenario>", *, source: Path | None = None) -> Scenario:
     """Validate a parsed TOML document (``file`` names it in messages) into a :class:`Scenario`."""
+    for key, command in STANDALONE_SECTIONS.items():
+        if key in doc:
+            raise ScenarioError(f"{file}: a {key} scenario (it has a [{key}] table), not a platoon: run it with "
+                                f"'{command} {file}'")
     _check_top_level(doc, file)
     top = TableReader(doc, "", file)
     if top.has("name"):
@@ -774,10 +807,11 @@ def parse_scenario(doc: dict[str, Any], file: str = "<scenario>", *, source: Pat
 
     units = _params(Units, top.sub("units"))
     vehicle = _params(VehicleParams, top.sub("vehicle"))
-    cell = _params(CellParams, top.sub("cell"))
+    cell = _cell(top.sub("cell"), source)
     pack = _params(PackParams, top.sub("pack"))
     limits = _params(VehicleLimits, top.sub("limits"))
-    ev = EVParams(units=units, vehicle=vehicle, cell=cell, pack=pack, limits=limits)
+    thermal = _params(ThermalParams, top.sub("thermal"))
+    ev = EVParams(units=units, vehicle=vehicle, cell=cell, pack=pack, limits=limits, thermal=thermal)
 
     sim = top.sub("simulation", required=True)
     t_end = sim.quantity("t_end", units, gt=0)  # or t_end_s [s]
@@ -918,14 +952,27 @@ def scenario_dirs() -> list[Path]:
     return out
 
 
-def shipped_scenarios() -> dict[str, Path]:
-    """Shipped scenario names -> files (the first folder of :func:`scenario_dirs` that has each name)."""
+def shipped_scenarios(kind: str = "platoon") -> dict[str, Path]:
+    """Shipped scenario names -> files (the first folder of :func:`scenario_dirs` that has each name) of one
+    ``kind``: "platoon" (the default), a key of :data:`STANDALONE_SECTIONS` ("ring"), or "all"."""
     found: dict[str, Path] = {}
     for d in scenario_dirs():
         if d.is_dir():
             for f in sorted(d.glob("*.toml")):
                 found.setdefault(f.stem, f)
+    if kind != "all":
+        found = {k: f for k, f in found.items() if _file_kind(f) == kind}
     return dict(sorted(found.items()))
+
+
+def _file_kind(path: Path) -> str:
+    """'platoon', or the standalone section a scenario file has (an unreadable file counts as a platoon: the
+    platoon loader then reports what is wrong with it)."""
+    try:
+        doc = tomllib.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError, RecursionError):
+        return "platoon"
+    return next((k for k in STANDALONE_SECTIONS if isinstance(doc.get(k), dict)), "platoon")
 
 
 def find_scenario(name_or_path: str | Path) -> Path:

@@ -129,7 +129,11 @@ class PlatoonSimulator:
         self.k = max(1, math.ceil(self.opts.chunk / self.opts.dt_out - 1e-9))
         self._lib: ctypes.CDLL | None = None
         self._build_error = ""
-        if self.opts.method in ("auto", "cascade"):
+        thermal = battery and self.ev.thermal.enabled
+        if thermal and self.opts.method == "cascade":  # the compiled cascade has no temperature state
+            raise ParameterError("SimOptions.method = 'cascade' does not integrate the thermal model "
+                                 "(thermal.enabled = true); use method='cvodes' or 'auto'")
+        if self.opts.method in ("auto", "cascade") and not thermal:  # thermal runs: the CVODES plant
             self._build_cascade()
             if self._lib is None and self.opts.method == "cascade":
                 raise ParameterError("SimOptions.method = 'cascade' needs a working C compiler (gcc/cc): "

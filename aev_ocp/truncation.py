@@ -51,7 +51,8 @@ def truncate_at_time(r: SimulationResult, t_cut: float) -> SimulationResult:
     k = int(np.searchsorted(t, t_cut, side="right")) - 1  # t[k] <= t_cut < t[k+1]
     tol = 1e-12 * max(1.0, abs(t_cut))
     fields: dict[str, Any] = {}
-    names = ("leader_position", "gap", "speed", "accel") + _LINEAR
+    lin = _LINEAR + (("temperature_K",) if r.temperature_K is not None else ())
+    names = ("leader_position", "gap", "speed", "accel") + lin
     if abs(t[k] - t_cut) <= tol or k == t.size - 1:
         for nm in names:
             fields[nm] = getattr(r, nm)[:k + 1].copy()
@@ -61,7 +62,7 @@ def truncate_at_time(r: SimulationResult, t_cut: float) -> SimulationResult:
         s = (t_cut - float(t[k])) / dt
         cut: dict[str, Any] = {}
         j = _third_node(r, k)
-        for nm in _LINEAR:
+        for nm in lin:
             y = getattr(r, nm)
             if j is None:
                 cut[nm] = y[k] + s * (y[k + 1] - y[k])

@@ -2,7 +2,7 @@
 aev_ocp.mpc.ocpqp) against ``ca.conic`` HPIPM and qrqp on the same QPs in the same process.
 
 Problems: random convex OCP QPs (aev_ocp.mpc.ocpqp.random_qp, feasible by construction, values of order
-3) on the two reference dimensions of the project's MPC — canonical (PROBLEM.md §9: N = 40, nx = 5,
+3) on the two reference dimensions of the project's MPC — canonical (model guide §9: N = 40, nx = 5,
 nu = 1, nc = 2, bounds on some stage variables), the same with N = 100, traffic (N = 25, nx = 6, nu = 3,
 nc = 6) — and the real RTI QPs of the controller (MPCController, solver 'rti', the QP of the third
 closed-loop step recorded from its ``ca.conic`` call and split into stage blocks).
@@ -34,7 +34,7 @@ from typing import Any
 import casadi as ca
 import numpy as np
 
-from aev_ocp.mpc.ocpqp import OcpQP, OcpQPDims, OcpQPSettings, random_qp, sparse_qp
+from aev_ocp.mpc.ocpqp import HPIPM_MODES, OcpQP, OcpQPDims, OcpQPError, OcpQPSettings, random_qp, sparse_qp
 from aev_ocp.results import write_json
 
 RANDOM = {
@@ -43,7 +43,7 @@ RANDOM = {
     "traffic N=25 (random)": OcpQPDims(N=25, nx=6, nu=3, nc=6),
 }
 DATA = Path(__file__).resolve().parent.parent / "tests" / "data"
-CONIC = {"hpipm": {"hpipm": {"iter_max": 100, "warm_start": 0}},  # as aev_ocp.mpc.controller._qp_options
+CONIC = {"hpipm": {"hpipm": {"iter_max": 100, "warm_start": 0}},  # as aev_ocp.mpc.rti.qp_options
          "qrqp": {"print_iter": False, "print_header": False, "print_info": False}}
 
 
@@ -104,7 +104,8 @@ def rti_qp(formulation: str, N: int) -> tuple[OcpQPDims, dict[str, Any]]:
     c = MPCController(MPCSettings(rti_hessian="exact", solver="rti", qp_solver="hpipm",
                                   codegen=False, N=N, max_step_ms=1e4), formulation=formulation_from_dict({"formulation": formulation}))
     seen: list[dict[str, Any]] = []
-    qp = c._rti_qp
+    assert c.rti is not None
+    qp = c.rti.qp
 
     class Recorder:
         def __call__(self, **kw: Any) -> Any:
@@ -114,7 +115,7 @@ def rti_qp(formulation: str, N: int) -> tuple[OcpQPDims, dict[str, Any]]:
         def stats(self) -> Any:
             return qp.stats()
 
-    c._rti_qp = Recorder()
+    c.rti.qp = Recorder()
     dt = c.settings.dt
     z = np.array([0.6, 1.7, 0.0, 0.0, 0.8])
     for step in range(3):
@@ -159,7 +160,30 @@ def bench_case(name: str, dims: OcpQPDims, data: dict[str, Any], reps: int, base
                            "status": res.status_name, "iterations": res.iterations,
                            "ocpqp_fixed_ms": float(np.median(fixed.timed_calls(reps))) * 1e3}
     _baseline(row, dims, st, data, reps, base_src)
+    for mode in HPIPM_MODES:  # the second backend of ocp_qp.h: HPIPM's C API, same data, same settings
+        try:
+            hp = OcpQP(dims, st, backend="hpipm", hpipm_mode=mode)
+        except OcpQPError as exc:
+            row[f"hpipm_{mode}_error"] = str(exc)[:200]
+            continue
+        r = hp.solve(**data)
+        row[f"hpipm_{mode}_status"] = r.status_name
+        row[f"hpipm_{mode}_iterations"] = r.iterations
+        row[f"hpipm_{mode}_ms"] = float(np.median(hp.timed_calls(reps))) * 1e3
+        row[f"hpipm_{mode}_dw"] = float(np.abs(r.w - res.w).max())
     return row
+
+
+def backend_summary(cases: list[dict[str, Any]]) -> dict[str, Any]:
+    """Per backend (ocp_qp.c, HPIPM in each mode) on the harvested QPs: how many solved ('ok'), and the
+    median over the QPs both solved of its time / ocp_qp.c's time."""
+    out: dict[str, Any] = {"ocp_qp": {"solved": sum(r["status"] == "ok" for r in cases), "of": len(cases)}}
+    for mode in HPIPM_MODES:
+        both = [r for r in cases if r["status"] == "ok" and r.get(f"hpipm_{mode}_status") == "ok"]
+        out[f"hpipm_{mode}"] = {"solved": sum(r.get(f"hpipm_{mode}_status") == "ok" for r in cases), "of": len(cases),
+                                "median_time_ratio_vs_ocp_qp": float(np.median([r[f"hpipm_{mode}_ms"] / r["ocpqp_fixed_ms"]
+                                                                                for r in both])) if both else None}
+    return out
 
 
 def bench_one(name: str, dims: OcpQPDims, data: dict[str, Any], reps: int, tol: float = 1e-10,
@@ -202,13 +226,14 @@ def main() -> None:
     ap.add_argument("--out", default="benchmarks/bench_ocp_qp.json")
     ap.add_argument("--skip-rti", action="store_true", help="only the random QPs and the harvested ones")
     ap.add_argument("--baseline-src", default=None, help="another ocp_qp.c to compare in the same process")
+    ap.add_argument("--only-harvested", action="store_true", help="only the harvested RTI QPs (the backends' comparison)")
     a = ap.parse_args()
     base_src = Path(a.baseline_src).read_text(encoding="utf-8") if a.baseline_src else None
     rows = []
-    for name, dims in RANDOM.items():
+    for name, dims in ({} if a.only_harvested else RANDOM).items():
         rows.append(bench_one(name, dims, random_qp(dims, np.random.default_rng(2026), equality_rows=0.0), a.reps,
                               base_src=base_src))
-    if not a.skip_rti:
+    if not (a.skip_rti or a.only_harvested):
         for name, form, N in (("canonical RTI QP (s9, N=40)", "s9", 40), ("traffic RTI QP (N=25)", "traffic", 25)):
             try:
                 dims, data = rti_qp(form, N)
@@ -233,10 +258,14 @@ def main() -> None:
     cases = [bench_case(name, dims, data, a.reps, base_src) for name, dims, data in rti_cases()]
     print("\nharvested RTI QPs (tests/data; tol 1e-9, 50 iterations, dimensions compiled in)")
     print(f"{'case':30s} {'dims':>12s} {'status':>9s} {'it':>3s} {'fixed ms':>8s}"
+          + "".join(f" {'hpipm ' + m:>14s} {'it':>3s} {'ms':>7s}" for m in HPIPM_MODES)
           + (f" {'base status':>11s} {'it':>3s} {'base ms':>8s} {'base/new':>8s}" if base_src else ""))
     for r in cases:
         line = (f"{r['problem']:30s} {r['N']}/{r['nx']}/{r['nu']}/{r['nc']:<3d} {r['status']:>9s} {r['iterations']:3d} "
                 f"{r['ocpqp_fixed_ms']:8.4f}")
+        for m in HPIPM_MODES:
+            line += (f" {r[f'hpipm_{m}_status']:>14s} {r[f'hpipm_{m}_iterations']:3d} {r[f'hpipm_{m}_ms']:7.4f}"
+                     if f"hpipm_{m}_status" in r else f" {'n/a':>14s} {'':3s} {'':7s}")
         if base_src:
             line += (f" {r['base_status']:>11s} {r['base_iterations']:3d} {r['base_fixed_ms']:8.4f} "
                      f"{r['base_fixed_ms'] / r['ocpqp_fixed_ms']:8.2f}")
@@ -250,8 +279,13 @@ def main() -> None:
         rows_ok = [r for r in cases if r["status"] == "ok"]
         print(f"harvested: {len(rows_ok)}/{len(cases)} ok (baseline "
               f"{sum(r['base_status'] == 'ok' for r in cases)}/{len(cases)})")
+    summary = backend_summary(cases)
+    print("\nbackends on the harvested QPs (solved of 12; median time ratio to ocp_qp.c over the QPs both solved):")
+    for k, v in summary.items():
+        ratio = v.get("median_time_ratio_vs_ocp_qp")
+        print(f"  {k:15s} {v['solved']:2d}/{v['of']}" + (f"  x{ratio:.2f}" if ratio is not None else ""))
     rows.extend(cases)
-    write_json(a.out, {"benchmark": "bench_ocp_qp", "reps": a.reps, "rows": rows,
+    write_json(a.out, {"benchmark": "bench_ocp_qp", "reps": a.reps, "rows": rows, "backends": summary,
                        "note": "dims = N/nx/nu/nc; times are medians (ms); 'x hpipm' = hpipm_ms / ocpqp_ms"})
     print(f"wrote {a.out}")
 

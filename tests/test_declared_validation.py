@@ -14,13 +14,13 @@ from aev_ocp.mpc.settings import MPCSettings
 from aev_ocp.ocp.formulation import Formulation
 from aev_ocp.ocp.traffic import TrafficParams
 from aev_ocp.params import (ATOL_RANGE, RTOL_RANGE, CarFollowingParams, CellParams, PackParams, ParameterError,
-                            PowertrainOptions, SimOptions, Units, VehicleParams, field_checks)
+                            PowertrainOptions, SimOptions, ThermalParams, Units, VehicleParams, field_checks)
 from aev_ocp.scenarios import ScenarioError, find_scenario, parse_scenario
 
 pytestmark = pytest.mark.quick  # the whole module runs in the sub-minute subset (pytest -m quick)
 
 DATACLASSES = (Units, CarFollowingParams, VehicleParams, CellParams, PackParams, PowertrainOptions, SimOptions,
-               MPCSettings)
+               MPCSettings, ThermalParams)
 
 
 @pytest.mark.parametrize("cls", DATACLASSES)

@@ -38,7 +38,7 @@ def test_a_user_problem_is_its_own_formulation_every_derived_item_follows() -> N
     pol = MPCPolicy(s, EV, Proposed(), "constant-velocity", problem=_headway(f9))
     f = pol.formulation
     assert (f.kind, f.family, f.name, f.cost_key) == ("problem", "s9", "s9_headway", "cost_problem")
-    assert pol.name == "mpc(s9_headway)" and not pol.controller._rti_cold  # §9's cold IPOPT start
+    assert pol.name == "mpc(s9_headway)" and not pol.controller.rti_cold_start  # §9's cold IPOPT start
     bm = pol.describe()["bounds_model"]
     assert (bm["h_min"], bm["v_max"], bm["a_min"], bm["a_max"]) == (0.23, 1.7, -2.6, 1.45)
     acc = 7.0**2 / 12.0  # the acceleration unit [m/s²]
@@ -51,7 +51,7 @@ def test_a_user_problem_is_its_own_formulation_every_derived_item_follows() -> N
     # the default is the traffic formulation: different everything (its bounds from its SI parameters)
     t = MPCPolicy(s, EV, Proposed(), "constant-velocity")
     tb = t.describe()["bounds_model"]
-    assert t.name == "mpc(traffic)" and t.controller._rti_cold and t.formulation.cost_key == "cost_traffic"
+    assert t.name == "mpc(traffic)" and t.controller.rti_cold_start and t.formulation.cost_key == "cost_traffic"
     assert tb["h_min"] == pytest.approx(2.0 / 12.0) and tb["v_max"] == pytest.approx(45.0 / 7.0)
     lim = EV.limits
     assert (t._fallback.a_min, t._fallback.a_max) == pytest.approx((lim.a_min_mps2 / acc, lim.a_max_mps2 / acc))
@@ -86,7 +86,7 @@ def test_mpc_table_keys_route_into_the_formulation() -> None:
 
 
 def test_bound_role_is_checked_against_every_run() -> None:
-    from aev_ocp.mpc.report import _bound_role
+    from aev_ocp.ocp.oracle import bound_role as _bound_role
 
     ms = {"mpc": [{"cost_traffic": 874.69}], "proposed": [{"cost_traffic": 1201.3}]}
     assert _bound_role(874.6, ms, "cost_traffic") == ("bound", "")

@@ -19,9 +19,6 @@ PACKAGE_DIR = Path(aev_ocp.__file__).resolve().parent
 #: Edges still open on this branch, each with its owner; the lead removes an entry when its fix is merged.
 #: (importer, imported): why it is still here.
 ALLOWED: dict[tuple[str, str], str] = {
-    # issue 27 item 2/3 (the `solvers` branch splits mpc/controller.py): the controller builds its C step
-    # through mpc.export, which reads the controller's private attributes.
-    ("aev_ocp.mpc.controller", "aev_ocp.mpc.export"): "solvers: mpc.controller <-> mpc.export",
 }
 
 

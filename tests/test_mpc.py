@@ -1,4 +1,4 @@
-"""MPC of PROBLEM.md §9 and its closed loop: checked against OCP-D, NumPy re-computations of the cost
+"""MPC of model guide §9 and its closed loop: checked against OCP-D, NumPy re-computations of the cost
 and constraints, closed-form laws and each other (solver paths)."""
 
 from __future__ import annotations
@@ -23,12 +23,12 @@ from aev_ocp.params import EVParams, ParameterError
 
 
 def S9(**kw) -> MPCSettings:
-    """Solver settings of PROBLEM.md §9's scenarios with the path these tests were written for (IPOPT,
+    """Solver settings of model guide §9's scenarios with the path these tests were written for (IPOPT,
     interpreted) unless given; the problem is the formulation F9."""
     return MPCSettings(**{"N": 40, "solver": "ipopt", "codegen": False, "predictor": "oracle", **kw})
 
 
-F9 = s9_formulation()  # PROBLEM.md §9
+F9 = s9_formulation()  # model guide §9
 
 EV = EVParams()
 
@@ -39,7 +39,7 @@ def _forecast(t0: float, N: int, dt: float = 0.1, leader=PaperLeader()):
 
 
 def _stage_cost_numpy(h, v, V1, V2, S, a, vl, w=FollowingWeights(), width_W=300.0):
-    """ℓ of PROBLEM.md §9 written out in NumPy (SciPy not-a-knot cubic for OCV), independent of CasADi."""
+    """ℓ of model guide §9 written out in NumPy (SciPy not-a-knot cubic for OCV), independent of CasADi."""
     u, veh, cell, n = EV.units, EV.vehicle, EV.cell, EV.pack.n_cells
     soc, ocv_v = ocv_table()
     ocv = make_interp_spline(soc, ocv_v, k=3)(S)
@@ -258,7 +258,9 @@ def test_rti_closed_loop_matches_ipopt_and_holds_constraints(codegen, tmp_path_f
     monkeypatch.setenv("AEV_OCP_CACHE", str(tmp_path_factory.getbasetemp() / "cache"))
     T = 10.0
     ref = run_single(S9(), formulation=F9, t_end=T)
-    r = run_single(S9(solver="rti", codegen=codegen), formulation=F9, t_end=T)
+    # compiled: the whole step in C (qp_solver 'riccati'); interpreted: the Python RTI step on ca.conic (HPIPM)
+    r = run_single(S9(solver="rti", codegen=codegen, qp_solver="riccati" if codegen else "hpipm"), formulation=F9,
+                   t_end=T)
     st = r.solver_stats[0]
     assert r.status == "ok" and st["fallbacks"] == 0 and st["n_steps"] == 100
     assert st["solver_path"] == ("rti+codegen" if codegen else "rti")
@@ -283,7 +285,11 @@ def test_rti_closed_loop_matches_ipopt_and_holds_constraints(codegen, tmp_path_f
 
 @pytest.mark.parametrize("qp_solver", ["hpipm", "riccati"])
 def test_rti_failed_qp_is_a_failure_and_restarts_cold(qp_solver):
+    from rti_twin import install
+
     ctrl = MPCController(S9(N=10, solver="rti", qp_solver=qp_solver), EV, formulation=F9)
+    if qp_solver == "riccati":  # the Python twin of the compiled step (its QP solver ocp_qp.c can be made to fail)
+        install(ctrl)
     z0 = [0.5, 1.2, 0.0, 0.0, 0.8]
     fc = _forecast(0.0, 10)
     assert ctrl.solve(z0, *fc).path == "ipopt-cold"
@@ -306,18 +312,18 @@ def test_rti_failed_qp_is_a_failure_and_restarts_cold(qp_solver):
             return r
 
     if qp_solver == "riccati":
-        real = ctrl._riccati
-        ctrl._riccati = (real[0], FailingQP(real[1]))
+        real = ctrl.rti.ocp_qp
+        ctrl.rti.ocp_qp = FailingQP(real)
     else:
-        real = ctrl._rti_qp
-        ctrl._rti_qp = FailingQP(real)
+        real = ctrl.rti.qp
+        ctrl.rti.qp = FailingQP(real)
     bad = ctrl.solve(z0, *fc)
     assert not bad.success and "QP failed" in bad.status and np.all(np.isnan(bad.a))
     if qp_solver == "riccati":
         assert "MAX_ITER" in bad.status.upper()
-        ctrl._riccati = real
+        ctrl.rti.ocp_qp = real
     else:
-        ctrl._rti_qp = real
+        ctrl.rti.qp = real
     again = ctrl.solve(z0, *fc)  # warm start dropped: cold IPOPT, then RTI again
     assert again.success and again.path == "ipopt-cold"
     assert ctrl.solve(z0, *fc).path == "rti"
@@ -325,21 +331,21 @@ def test_rti_failed_qp_is_a_failure_and_restarts_cold(qp_solver):
 
 @pytest.mark.quick
 def test_rti_failure_in_closed_loop_applies_counted_fallback(monkeypatch):
-    import aev_ocp.mpc.controller as C
+    import aev_ocp.mpc.rti as R
 
-    real = C.MPCController._solve_rti
+    real = R.RTIStep.solve
     calls = {"n": 0}
 
-    def flaky(self, *a, **kw):
+    def flaky(self, c, *a, **kw):
         calls["n"] += 1
-        sol = real(self, *a, **kw)
+        sol = real(self, c, *a, **kw)
         if calls["n"] == 3:  # third RTI step fails
-            self._warm = None
+            c.warm = None
             sol.success, sol.status = False, "QP failed: forced"
         return sol
 
-    monkeypatch.setattr(C.MPCController, "_solve_rti", flaky)
-    r = run_single(S9(N=10, solver="rti"), formulation=F9, t_end=1.0)
+    monkeypatch.setattr(R.RTIStep, "solve", flaky)
+    r = run_single(S9(N=10, solver="rti", qp_solver="hpipm"), formulation=F9, t_end=1.0)
     st, steps = r.solver_stats[0], r.meta["mpc_steps"][0]
     assert st["fallbacks"] == 1 and steps["status"][3] == "QP failed: forced"
     assert steps["status"][4] == "Solve_Succeeded" and steps["status"][5].startswith("RTI_")
@@ -350,7 +356,7 @@ def test_ocpd_controls_replayed_through_the_exact_plant() -> None:
     """OCP-D's controls, replayed open loop through the closed loop's exact plant (ControlSequence),
     reproduce its predicted gaps and speeds at the nodes: with a piecewise-constant a and the
     interval-mean leader speed these are exact in the transcription, so they must agree closely; the
-    battery states differ only by the η smoothing (PROBLEM.md §7)."""
+    battery states differ only by the η smoothing (model guide §7)."""
     from aev_ocp.control import ControlSequence
 
     scn = OracleScenario(leader=PaperLeader(), t_end=4.0, dt=0.1, h0=0.3, v0=1.87)

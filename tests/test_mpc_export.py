@@ -42,10 +42,10 @@ pytestmark = pytest.mark.skipif(compiler() is None, reason="no C compiler")
 
 T_END = 20.0  # 200 closed-loop steps of the canonical 700
 TOL = 1e-8
-# PROBLEM.md §9 as in scenarios/mpc_paper_single.toml (the default formulation is 'traffic')
+# model guide §9 as in scenarios/mpc_paper_single.toml (the default formulation is 'traffic')
 CANON = dict(rti_hessian="exact", max_step_ms=10000.0, N=40, dt=0.1, solver="rti", predictor="oracle",
              qp_solver="riccati", codegen=True)
-F9 = s9_formulation()  # the problem: PROBLEM.md §9
+F9 = s9_formulation()  # the problem: model guide §9
 
 
 class CPolicy:
@@ -69,7 +69,7 @@ class CPolicy:
         vm, vh = self.policy.forecast(obs)
         if self.first is not None:
             sol = self.first.solve(obs.z, vm, vh)
-            w = self.first._warm
+            w = self.first.warm
             self.step.set_warm(w["x"], w["lam_g"], w["lam_x"])
             self.first, self.status = None, [0]
             return Command(float(sol.a[0]), True)
@@ -158,14 +158,21 @@ def test_canonical_closed_loop_matches_interpreted_qp_path(canonical_lib: Path) 
     solver, CasADi's active-set qrqp (exact on the active set), to 2e-6: the interior point stops at a mean
     complementarity of 1e-9, which leaves about 1e-7 in the controls where active rows are degenerate (the
     closed loop differs by 6e-7 in u, 2e-7 in the states). All three loops start from the same cold IPOPT step."""
+    from rti_twin import install
+
     from aev_ocp.mpc.controller import MPCController
 
     for qp, tol in (("riccati", TOL), ("qrqp", 2e-6)):
         s = MPCSettings(**{**CANON, "codegen": False, "qp_solver": qp})
         ref = MPCController(s, formulation=F9)
-        assert ref._cstep is None  # the interpreted path, not the library
+        if qp == "riccati":
+            install(ref)  # the Python twin of the C driver (tests/rti_twin.py), not the library
+        assert ref.compiled_step is None and ref.rti is not None  # the interpreted path, not the library
         rc, st = _c_run(canonical_lib, s, first=ref)
-        rp = _loop(MPCVehicle(s, formulation=F9)).run([0.3], [1.87], T_END)
+        loop = _loop(MPCVehicle(s, formulation=F9))
+        if qp == "riccati":
+            install(loop.ctrl[0])
+        rp = loop.run([0.3], [1.87], T_END)
         assert all(k == 0 for k in st) and (rp.solver_stats[0] or {}).get("fallbacks") == 0
         du, dx = _compare(rc, rp)
         assert du <= tol and dx <= tol, (qp, du, dx)
@@ -190,7 +197,7 @@ def test_soft_constraint_and_extra_state_problem(tmp_path: Path) -> None:
     ev = EVParams()
     # the exact Hessian (CANON) with a concave control term −0.3 a²: the control blocks of the exact Hessian
     # are then indefinite in many steps, which the interior point cannot take: those QPs are re-solved with
-    # the projected Hessian, the same rule in the C driver and in the Python one (MPCController._riccati_step)
+    # the projected Hessian, the same rule in the C driver and in its Python twin (tests/rti_twin.py)
     s = MPCSettings(**CANON)
     f = s9_formulation(weights=FollowingWeights(w_Q=0.7), bounds=FollowingBounds(h_min=-10.0))
     prob = _candidate(ev, s, f)
@@ -205,11 +212,14 @@ def test_soft_constraint_and_extra_state_problem(tmp_path: Path) -> None:
     # against the Python driver (interpreted QP data, NumPy projection, the same QP solver), both from the
     # same cold IPOPT step
     si = s.with_(codegen=False)
-    ref = MPCController(si, ev, formulation=pf)
-    assert ref._riccati is not None and ref._cstep is None
+    from rti_twin import install
+
+    ref = install(MPCController(si, ev, formulation=pf))
     retries: list[int] = []
     rc, st = _c_run(lib, si, MPCVehicle(si, formulation=pf), first=ref, retries=retries)
-    rp = _loop(MPCVehicle(si, formulation=pf)).run([0.3], [1.87], T_END)
+    loop = _loop(MPCVehicle(si, formulation=pf))
+    install(loop.ctrl[0])
+    rp = loop.run([0.3], [1.87], T_END)
     assert all(k == 0 for k in st)
     assert (rp.solver_stats[0] or {}).get("fallbacks") == 0
     assert sum(retries) > 20  # the retry rule is exercised (76 of 200 steps)
@@ -274,7 +284,6 @@ def test_traffic_formulation_exports_and_matches_the_python_driver(tmp_path: Pat
     Python rti path on the same QP solver but nothing else shared: the QP data from the interpreted CasADi
     functions, the Hessian projected by NumPy (eigh), the shift and the multipliers' layout in NumPy."""
     from aev_ocp.models import drive_cycle
-    from aev_ocp.mpc.controller import MPCController
     from aev_ocp.params import Units
 
     rc_cli, _, _ = run_cli(["mpc-export", "mpc_udds_single", "--out", str(tmp_path), "--set",
@@ -282,12 +291,15 @@ def test_traffic_formulation_exports_and_matches_the_python_driver(tmp_path: Pat
     assert rc_cli == 0
     lib = build_library(tmp_path, tmp_path / "lib.so")
     ev = EVParams(units=Units(15.0, 17.0))
+    from rti_twin import install
+
     s = MPCSettings(N=14, predictor="constant-velocity", qp_solver="riccati", codegen=False)
-    assert MPCController(s, ev)._riccati is not None  # the Python driver, not the library
     leader = drive_cycle("udds", ev.units)
     t_end = 40.0  # model time: 35 s of UDDS, 400 steps (the leader starts at 20 s, 10 m/s at 31 s)
     rc, st = _c_run(lib, s, loop=ClosedLoop(leader, [MPCVehicle(s)], ev), start=(0.8, 0.0, t_end))
-    rp = ClosedLoop(leader, [MPCVehicle(s)], ev).run([0.8], [0.0], t_end)
+    loop = ClosedLoop(leader, [MPCVehicle(s)], ev)
+    assert install(loop.ctrl[0]).compiled_step is None  # the Python twin of the driver, not the library
+    rp = loop.run([0.8], [0.0], t_end)
     assert len(st) == 400 and all(k == 0 for k in st), st
     assert (rp.solver_stats[0] or {}).get("fallbacks") == 0
     du, dx = _compare(rc, rp)
@@ -308,7 +320,7 @@ def test_traffic_formulation_exports_and_matches_the_python_driver(tmp_path: Pat
 
 
 def test_c_hessian_projection_equals_numpy(canonical_lib: Path) -> None:
-    """aev_mpc_project_pd (Jacobi eigenvalues, in C) against controller._project_pd (numpy.linalg.eigh) on
+    """aev_mpc_project_pd (Jacobi eigenvalues, in C) against rti.project_pd (numpy.linalg.eigh) on
     random symmetric blocks of sizes 1..9: indefinite, singular, PD with and without margin, badly scaled;
     the result's eigenvalues are all >= the floor, and PD blocks come back unchanged (bit for bit)."""
     import ctypes
@@ -428,5 +440,5 @@ def test_riccati_without_a_compiler_says_hpipm_runs(monkeypatch: pytest.MonkeyPa
             warnings.simplefilter("always")
             c = MPCController(MPCSettings(**{**CANON, "N": 6, "codegen": codegen}), formulation=F9)
         assert any("'riccati' is unavailable" in str(w.message) for w in caught), [str(w.message) for w in caught]
-        assert c._cstep is None and c._riccati is None and c.qp_in_use == "hpipm"
+        assert c.compiled_step is None and c.rti is not None and c.qp_in_use == "hpipm"
         assert c.solve(np.array([0.3, 1.87, 0.0, 0.0, 0.8]), np.full(6, 1.7), np.full(6, 1.7)).success

@@ -27,7 +27,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from aev_ocp.compiled import compiler
-from aev_ocp.mpc.ocpqp import INF, OcpQP, OcpQPDims, OcpQPSettings, random_qp, sparse_qp
+from aev_ocp.mpc.ocpqp import INF, OcpQP, OcpQPDims, OcpQPSettings, hpipm_library, random_qp, sparse_qp
 from aev_ocp.params import ParameterError
 
 pytestmark = pytest.mark.skipif(compiler() is None, reason="no C compiler")
@@ -396,3 +396,90 @@ def test_a_nonconvex_qp_fails_with_a_status() -> None:
     assert _reduced_hessian_min_eig(dims, f) < 0.0
     res = OcpQP(dims).solve(**data)
     assert res.status == FACTORIZATION
+
+
+# ---------------------------------------------------------------------------------------------- HPIPM backend
+# The second backend of ocp_qp.h (aev_ocp/c/ocp_qp_hpipm.c, HPIPM's C API as the casadi wheel ships it): the same
+# data and outputs; checked against the same independent references (qpOASES, the active-set exact solution,
+# the KKT conditions with its multipliers).
+_HPIPM_WHY = hpipm_library()
+needs_hpipm = pytest.mark.skipif(isinstance(_HPIPM_WHY, str), reason=f"HPIPM backend unavailable: {_HPIPM_WHY}")
+
+
+@needs_hpipm
+@settings(max_examples=15, derandomize=True, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(st.integers(min_value=0, max_value=2**31 - 1))
+def test_hpipm_backend_random_qps_match_qpoases_and_satisfy_kkt(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    dims = _random_dims(rng)
+    if dims.nx == 1 and dims.nu == 3:  # refused by the backend (test_hpipm_backend_refuses_...)
+        dims = OcpQPDims(dims.N, 2, dims.nu, dims.nc, dims.ncN)
+    data = random_qp(dims, rng, scale=float(rng.uniform(0.3, 7.0)))
+    res = OcpQP(dims, backend="hpipm", hpipm_mode="robust").solve(**data)
+    assert res.status == OK, (dims, res.status_name, res.residuals)
+    f = _full(dims, data)
+    w_ref = _qpoases(f)
+    scale = 1.0 + np.abs(w_ref).max()
+    assert np.abs(res.w - w_ref).max() <= 1e-6 * scale
+    assert _kkt_violation(f, res.w, _lam_a(f, res.pi, res.lam_c), res.lam_w) <= 1e-7 * scale
+    assert np.array_equal(res.w[:dims.nx], np.asarray(data["x0"]))
+
+
+@needs_hpipm
+@pytest.mark.parametrize("name", RTI_CASES)
+def test_hpipm_backend_on_the_recorded_rti_qps(name: str, rti_exact: dict[str, np.ndarray]) -> None:
+    """Mode ROBUST solves every recorded QP at the MPC's settings; every mode's 'ok' is the solution (the
+    same bounds as ocp_qp.c's test above), its multipliers satisfy the KKT conditions."""
+    dims, data = _rti_case(name)
+    f = _full(dims, data)
+    w = rti_exact[name]
+    for mode in ("speed", "balance", "robust"):
+        res = OcpQP(dims, _solve_settings(MPC_TOL), backend="hpipm", hpipm_mode=mode).solve(**data)
+        if mode == "robust":
+            assert res.status == OK, (res.status_name, res.iterations, res.residuals)
+        if res.status != OK:
+            continue
+        assert np.abs(res.w - w).max() <= 3e-4, mode
+        assert _kkt_violation(f, res.w, _lam_a(f, res.pi, res.lam_c), res.lam_w) <= 1e-6, mode
+
+
+@needs_hpipm
+def test_hpipm_backend_status_codes() -> None:
+    rng = np.random.default_rng(31)
+    dims = OcpQPDims(N=6, nx=2, nu=1, nc=1)
+    data = random_qp(dims, rng)
+    qp = OcpQP(dims, backend="hpipm")
+    assert qp.solve(**data).status == OK
+    crossed = dict(data, lbw=[v.copy() for v in data["lbw"]], ubw=[v.copy() for v in data["ubw"]])
+    crossed["ubw"][3][2], crossed["lbw"][3][2] = 2.0, 2.25
+    assert qp.solve(**crossed).status == INFEASIBLE
+    nan = dict(data, g=[v.copy() for v in data["g"]])
+    nan["g"][4][1] = np.nan
+    assert qp.solve(**nan).status == NONFINITE
+    limited = OcpQP(dims, OcpQPSettings(max_iter=1), backend="hpipm").solve(**data)
+    assert limited.status == MAX_ITER and limited.iterations == 1
+
+
+@pytest.mark.quick
+def test_unknown_backend_or_mode_is_a_parameter_error() -> None:
+    dims = OcpQPDims(N=3, nx=2, nu=1)
+    with pytest.raises(ParameterError, match="backend"):
+        OcpQP(dims, backend="qpoases")
+    with pytest.raises(ParameterError, match="hpipm_mode"):
+        OcpQP(dims, backend="hpipm", hpipm_mode="fast")
+
+
+@needs_hpipm
+def test_hpipm_backend_refuses_the_dimensions_it_gets_wrong() -> None:
+    """nx = 1 with nx + nu a multiple of 4: the shipped libhpipm's controls are wrong there (ocp_qp_hpipm.c);
+    the backend refuses them with a stated reason, and its neighbours agree with ocp_qp.c."""
+    from aev_ocp.mpc.ocpqp import OcpQPError
+
+    with pytest.raises(OcpQPError, match="nx = 1"):
+        OcpQP(OcpQPDims(N=3, nx=1, nu=3), backend="hpipm")
+    for nx, nu in ((1, 2), (1, 4), (2, 2), (3, 5)):
+        dims = OcpQPDims(N=3, nx=nx, nu=nu)
+        data = random_qp(dims, np.random.default_rng(7), absent=1.0)
+        ref = OcpQP(dims).solve(**data)
+        res = OcpQP(dims, backend="hpipm").solve(**data)
+        assert res.status == OK and np.abs(res.w - ref.w).max() <= 1e-8 * (1 + np.abs(ref.w).max())

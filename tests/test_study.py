@@ -381,3 +381,69 @@ def test_equal_distance_and_time_columns_equal_the_exact_cut_of_direct_runs(tmp_
         assert got["proposed"]["eq_distance_heat_pack_J_per_km_change_pct"] == pytest.approx(100 * (d_prop / d_ref - 1))
     report = (tmp_path / "out" / "report.md").read_text()
     assert "## Equal-distance view, follower 1" in report
+
+
+def test_study_ocpd_is_the_same_solve_and_replay_as_aev_ocp_mpc_on_a_coarse_grid(tmp_path, monkeypatch):
+    """The study's OCP-D runs aev-ocp mpc's solve-and-replay: a run too long for the MPC's grid gets the coarse
+    grid there too (said in 'grid_dt' and 'coarse'), and its replay equals run_comparison's to the bit."""
+    import aev_ocp.ocp.oracle as oracle
+    from aev_ocp.mpc.report import run_comparison
+
+    monkeypatch.setattr(oracle, "ORACLE_BOUND_MAX_INTERVALS", 20)  # the run is too long for the MPC's grid
+    text = """
+scenarios = ["mpc_udds_single"]
+reference = "proposed"
+[overrides]
+"simulation.t_end" = 2.7
+"mpc.N" = 8
+[controllers]
+laws = ["proposed"]
+ocpd = true
+"""
+    out = run_study(read_study(_study(tmp_path, text)), tmp_path / "o", executor="inprocess", report=False)
+    row = next(r for r in out.rows if r["controller"] == "ocp-d")
+    sc = load_scenario("mpc_udds_single").with_overrides({"simulation.t_end": 2.7, "mpc.N": 8})
+    c = run_comparison(sc, laws=(), with_ocpd=True)
+    assert row["coarse"] is True and row["grid_dt"] == pytest.approx(c.ocpd["grid_dt"], rel=1e-12)
+    assert c.ocpd["grid_dt"] == pytest.approx(sc.t_end / 2, rel=1e-12)  # the 1 s grid (1.3 model time, 2 intervals)
+    assert row["cost_traffic_optimum"] == c.ocpd["cost_traffic_grid"]
+    for k in ("heat_pack_J", "omega_model", "rms_jerk_model", "distance_m"):
+        assert row[k] == c.ocpd[k], k
+
+
+def test_study_ocpd_row_gets_the_bound_check_of_aev_ocp_mpc(tmp_path, monkeypatch):
+    """The study's OCP-D row is a 'bound' only when its optimum is at most every MPC run's own cost on the same
+    grid (as run_comparison's ocpd['role']); a planted optimum above an MPC run's cost makes it a 'reference'
+    naming that run; a coarse grid is always a 'reference'."""
+    import aev_ocp.study.table as table
+
+    text = """
+scenarios = ["mpc_udds_single"]
+reference = "proposed"
+[overrides]
+"simulation.t_end" = 2.6
+"mpc.N" = 7
+[controllers]
+laws = ["proposed"]
+ocpd = true
+[[controllers.mpc]]
+label = "mpc-a"
+codegen = false
+"""
+    study = read_study(_study(tmp_path, text))
+    out = run_study(study, tmp_path / "o", executor="inprocess", report=False)
+    rows = {r["controller"]: r for r in out.rows}
+    mpc, ocpd = rows["mpc-a"], rows["ocp-d"]
+    assert mpc["cost_traffic"] > ocpd["cost_traffic_optimum"] > 0  # the MPC's own cost on its grid, and the optimum
+    assert ocpd["ocpd_role"] == "bound" and ocpd["ocpd_role_reason"] == "" and ocpd["coarse"] is False
+    # the same check with the optimum moved above the MPC's cost (a solve that is no optimum of that grid)
+    planted = [dict(r) for r in out.rows]
+    for r in planted:
+        if r["controller"] == "ocp-d":
+            r["cost_traffic_optimum"] = 1.01 * mpc["cost_traffic"]
+    table._ocpd_roles(study, planted)
+    bad = next(r for r in planted if r["controller"] == "ocp-d")
+    assert bad["ocpd_role"] == "reference" and "mpc-a" in bad["ocpd_role_reason"]
+    coarse = [dict(r, coarse=True) if r["controller"] == "ocp-d" else dict(r) for r in out.rows]
+    table._ocpd_roles(study, coarse)
+    assert next(r for r in coarse if r["controller"] == "ocp-d")["ocpd_role"] == "reference"

@@ -84,7 +84,7 @@ def test_rti_hessian_projection_makes_the_reduced_hessian_pd():
     indefinite on the null space of the QP's equality constraints; the block-wise projection makes it PD,
     and each projected block has the exact block's eigenvectors with eigenvalues max(λ, floor)."""
     ev = EVParams(units=Units(15.0, 17.0))
-    s = MPCSettings(N=5, codegen=False)
+    s = MPCSettings(N=5, codegen=False, qp_solver="hpipm")  # the Python RTI step (its QP data in one function)
     c = MPCController(s, ev)
     z0 = np.array([0.9, 0.6, 0.0, 0.0, 0.8, 0.05])
     vl = np.full(s.N, 0.55)
@@ -92,16 +92,16 @@ def test_rti_hessian_projection_makes_the_reduced_hessian_pd():
     x = c.guess(z0, p)
     lam = np.zeros(c.ng)
     names = c.problem.meta["path_names"]
-    ngs, nx = c._ng_stage, c.nx
+    ngs, nx = c.nlp.ng_stage, c.nx
     for k in range(s.N):
         lam[k * ngs + nx + names.index("energy_epi_drive")] = -523.0
-    lbx, ubx = c._lbx.copy(), c._ubx.copy()
+    lbx, ubx = c.nlp.lbx.copy(), c.nlp.ubx.copy()
     lbx[:nx] = ubx[:nx] = z0 / c.x_scale
-    d = c._rti_data(x, p, lam, lbx, ubx)
+    d = c.rti.data(x, p, lam, lbx, ubx)
     nb = c.nx + c.nu
     blocks = np.asarray(d[0]).reshape(nb, s.N, nb).transpose(1, 0, 2)
     H_exact = scipy.linalg.block_diag(*blocks, np.asarray(d[1]))
-    H_reg = np.asarray(c.regularised_hessian(d[0], d[1]).full())
+    H_reg = np.asarray(c.rti.regularised_hessian(d[0], d[1]).full())
     # equality constraints of the QP: dynamics rows (lba = uba) and the fixed initial state (lbdx = ubdx)
     A = np.asarray(d[3].full())
     eq = np.asarray(d[4]).ravel() == np.asarray(d[5]).ravel()
@@ -199,7 +199,7 @@ def test_after_a_failure_the_rti_path_restarts_by_rti_not_ipopt():
     vl = np.full(s.N, 0.45)
     first = c.solve(z0, vl, vl, own={"a_prev": 0.0})
     assert first.success and first.path == "rti" and 1 <= first.iterations <= 3
-    c._failed("QP failed: planted", 1, 0.0, float("inf"), "rti")  # what a failed step leaves behind
+    c.failed("QP failed: planted", 1, 0.0, float("inf"), "rti")  # what a failed step leaves behind
     again = c.solve(z0, vl, vl, own={"a_prev": 0.0})
     assert again.success and again.path == "rti" and 1 <= again.iterations <= 3
     np.testing.assert_allclose(again.a, first.a, rtol=1e-9, atol=1e-12)
@@ -243,4 +243,4 @@ def test_qp_solver_choices_refuse_what_they_cannot_do() -> None:
     with pytest.raises(ParameterError, match="qp_solver = 'riccati'.*'sqp'"):
         MPCSettings(N=6, qp_solver="riccati", solver="sqp")
     c = MPCController(MPCSettings(N=6, qp_solver="riccati", codegen=True), ev)
-    assert c._cstep is not None and c.problem.terminal_cost is not None
+    assert c.compiled_step is not None and c.problem.terminal_cost is not None

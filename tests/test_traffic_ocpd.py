@@ -98,6 +98,12 @@ def test_traffic_ocpd_bounds_the_traffic_mpc_on_its_grid(paper_traffic) -> None:
     # the exact plant vs the optimiser's RK4 and smoothed η switch)
     assert o["cost_traffic_replayed"] == pytest.approx(o["cost_traffic"], rel=1e-5)
     assert "cost_s9" in o and "cost_s9" in c.metrics["mpc"][0]  # §9's cost stays beside it
+    # ... in a secondary table only, where OCP-D is not called a bound (it does not optimise §9's cost)
+    from aev_ocp.mpc.report import comparison_table
+
+    whole, other = comparison_table(c, views=False).split("Another formulation's cost")
+    assert "ocp-d (bound)" in whole and "cost_s9" not in whole
+    assert "cost_s9" in other and "(bound)" not in other and "no verdict" in other
 
 
 def test_cost_traffic_of_a_simulation_result_equals_numpy(paper_traffic) -> None:
@@ -151,7 +157,7 @@ def test_s9_comparison_keeps_its_ocpd(tmp_path) -> None:
     sc = load_scenario(find_scenario("mpc_paper_single")).replace(t_end=1.0)
     s, f = sc.extra["mpc"].settings, sc.extra["mpc"].formulation
     c = run_comparison(sc, laws=())
-    assert c.ocpd["objective"] == "PROBLEM.md §9 cost" and "cost_traffic" not in c.ocpd
+    assert c.ocpd["objective"] == "model guide §9 cost" and "cost_traffic" not in c.ocpd
     assert "cost_traffic" not in c.metrics["mpc"][0]
     direct = OracleSolver(scenario_oracle(sc, s.dt, f)).solve()
     assert c.ocpd["cost_s9"] == direct.objective
@@ -160,11 +166,11 @@ def test_s9_comparison_keeps_its_ocpd(tmp_path) -> None:
 def test_coarse_grid_traffic_ocpd_is_a_reference(monkeypatch, paper_traffic) -> None:
     """A traffic OCP-D on a coarser grid: its controls are replayed on the MPC's grid (held, not interpolated)
     and that replay's cost_traffic is reported, said so; the MPC-grid OCP-D stays below it (the bound)."""
-    import aev_ocp.mpc.report as report
+    import aev_ocp.ocp.oracle as oracle
 
     sc, s, _ = paper_traffic
     fine = run_comparison(sc.replace(t_end=2.0), s, laws=(), formulation=traffic_formulation()).ocpd
-    monkeypatch.setattr(report, "oracle_grid_dt", lambda t_end, dt, units, **kw: 2 * dt)
+    monkeypatch.setattr(oracle, "oracle_grid_dt", lambda t_end, dt, units, **kw: 2 * dt)
     c = run_comparison(sc.replace(t_end=2.0), s, laws=(), formulation=traffic_formulation())
     o = c.ocpd
     assert o["grid_dt"] == pytest.approx(2 * s.dt) and o["N"] == 10 and fine["N"] == 20
@@ -193,7 +199,7 @@ def test_cli_writes_the_traffic_ocpd_row(tmp_path, capsys) -> None:
 def test_held_plan_never_commands_a_reverse() -> None:
     """The coarse OCP-D's replay on the MPC's grid: the plan's a_k, but never below −v_k/dt (no reverse)."""
     from aev_ocp.control import Observation
-    from aev_ocp.mpc.report import _HeldPlan, _on_grid
+    from aev_ocp.ocp.oracle import HeldPlan as _HeldPlan, on_grid as _on_grid
 
     a = _on_grid(np.array([0.4, -2.5, 0.7]), 0.3, 0.1, 0.9)
     np.testing.assert_array_equal(a, [0.4, 0.4, 0.4, -2.5, -2.5, -2.5, 0.7, 0.7, 0.7])
@@ -227,7 +233,7 @@ def test_held_plan_never_brakes_at_a_stop() -> None:
     """A coarse plan replayed on the MPC's grid: no command below −v/dt, and none below 0 at a stop (a tiny
     speed would otherwise shrink geometrically without reaching 0 and stall the plant's integrator)."""
     from aev_ocp.control import Observation
-    from aev_ocp.mpc.report import _HeldPlan
+    from aev_ocp.ocp.oracle import HeldPlan as _HeldPlan
 
     plan = _HeldPlan((-2.5, -2.5, 0.7), 0.1, "ocp-d")
 

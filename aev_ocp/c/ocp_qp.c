@@ -1,4 +1,6 @@
-/* ocp_qp.c — structure-exploiting interior-point QP solver of aev_ocp (hand-written C99; see ocp_qp.h).
+/* ocp_qp.c — structure-exploiting interior-point QP solver of aev_ocp (hand-written C99; see ocp_qp.h), the
+ * default backend of the ocp_qp.h interface (the other: ocp_qp_hpipm.c). It does not detect primal
+ * infeasibility: only inconsistent bounds (lb > ub, checked before the solve) give OCPQP_INFEASIBLE.
  *
  * Inequalities. Every bound of w and every general row C w is a "row" (stage k < N: nb bound rows then
  * nc general rows; stage N: nx bound rows then ncN general rows). Each finite side of a row is a "side"

@@ -1,7 +1,13 @@
-/* ocp_qp.h — structure-exploiting QP solver of aev_ocp for optimal-control QPs (hand-written C99, no
- * allocation after ocpqp_create, no dependency but libm). Primal-dual interior point (Mehrotra
- * predictor-corrector); each Newton system is solved by a Riccati recursion over the stages, so a
- * solve costs O(N (nx+nu)^3) per iteration.
+/* ocp_qp.h — the OCP QP interface of aev_ocp: one header, two backends with the same data, outputs and status
+ * codes (aev_ocp.mpc.ocpqp.OcpQP(backend=...)):
+ *   ocp_qp.c       (ours, the default; the only one in the exported MPC step): hand-written C99, no
+ *                  allocation after ocpqp_create, no dependency but libm. Primal-dual interior point (Mehrotra
+ *                  predictor-corrector); each Newton system is solved by a Riccati recursion over the stages,
+ *                  so a solve costs O(N (nx+nu)^3) per iteration.
+ *   ocp_qp_hpipm.c HPIPM's C API (d_ocp_qp_ipm_solve, mode SPEED, BALANCE or ROBUST) linked with the
+ *                  libhpipm.so of the casadi wheel; ocpqp_create = mode BALANCE, ocpqp_hpipm_create(.., mode).
+ * Neither detects primal infeasibility: inconsistent bounds (lb > ub) are OCPQP_INFEASIBLE before the solve;
+ * a QP whose consistent constraints have no common point ends at the iteration limit (OCPQP_MAX_ITER).
  *
  * The QP (stage k = 0..N-1, w_k = (x_k, u_k) in R^nb, nb = nx + nu; the terminal w_N = x_N):
  *   min  sum_{k<N} 1/2 w_k' H_k w_k + g_k' w_k  +  1/2 x_N' H_N x_N + g_N' x_N
@@ -46,7 +52,7 @@ enum {
   OCPQP_MAX_ITER = 1,       /* iteration limit reached (the returned point is the last iterate) */
   OCPQP_FACTORIZATION = 2,  /* a Riccati block was not positive definite (a non-convex QP) */
   OCPQP_NONFINITE = 3,      /* a non-finite number in the data or the iterates */
-  OCPQP_INFEASIBLE = 4,     /* inconsistent bounds (lb > ub) or detected primal infeasibility */
+  OCPQP_INFEASIBLE = 4,     /* inconsistent bounds (lb > ub; HPIPM: also its INCONS_EQ) */
   OCPQP_BAD_DIMS = 5
 };
 

@@ -26,13 +26,15 @@ from __future__ import annotations
 import ctypes
 from dataclasses import dataclass, field
 from importlib import resources
+from pathlib import Path
 from typing import Any, Sequence
 
 import numpy as np
 
 from ..params import ParameterError
 
-__all__ = ["OcpQP", "OcpQPDims", "OcpQPSettings", "OcpQPResult", "OcpQPError", "STATUS", "INF"]
+__all__ = ["OcpQP", "OcpQPDims", "OcpQPSettings", "OcpQPResult", "OcpQPError", "STATUS", "INF", "BACKENDS",
+           "HPIPM_MODES", "hpipm_library"]
 
 INF = 1e19  # OCPQP_INF: a bound at least this large in magnitude is absent
 STATUS = {0: "ok", 1: "max_iter", 2: "factorization", 3: "nonfinite", 4: "infeasible", 5: "bad_dims"}
@@ -132,6 +134,75 @@ class _Info(ctypes.Structure):
 
 _LIBS: dict[tuple[tuple[int, ...] | None, str | None], ctypes.CDLL] = {}
 
+#: The QP backends of the interface ocp_qp.h: 'ocp_qp' (aev_ocp/c/ocp_qp.c, ours: the default; see
+#: benchmarks/bench_ocp_qp.py) and 'hpipm' (aev_ocp/c/ocp_qp_hpipm.c: HPIPM's C API, the libhpipm.so that the
+#: casadi wheel ships).
+BACKENDS = ("ocp_qp", "hpipm")
+#: HPIPM's modes (d_ocp_qp_ipm_arg_set_default; values of enum hpipm_mode in hpipm_common.h).
+HPIPM_MODES = {"speed": 1, "balance": 2, "robust": 3}
+_HPIPM_LIB: list[Any] = []  # [CDLL] once built, [str] the reason it cannot be
+
+
+def hpipm_paths() -> tuple[Path, Path] | str:
+    """(the folder with libhpipm.so and libblasfeo.so, the folder with their headers) of the installed casadi
+    wheel, or why not (one line)."""
+    try:
+        import casadi
+    except ImportError:  # pragma: no cover - casadi is a dependency
+        return "casadi is not installed"
+    root = Path(casadi.__file__).resolve().parent
+    inc = root / "include"
+    if not (root / "libhpipm.so").exists() or not (root / "libblasfeo.so").exists():
+        return f"the casadi wheel at {root} ships no libhpipm.so/libblasfeo.so"
+    if not (inc / "hpipm_d_ocp_qp_ipm.h").exists():
+        return f"the casadi wheel at {root} ships no HPIPM headers (include/hpipm_d_ocp_qp_ipm.h)"
+    return root, inc
+
+
+def hpipm_library() -> ctypes.CDLL | str:
+    """The HPIPM backend (aev_ocp/c/ocp_qp_hpipm.c linked with the casadi wheel's libhpipm.so), built once per
+    process into the private cache, or why it cannot be built or loaded (one line)."""
+    if _HPIPM_LIB:
+        return _HPIPM_LIB[0]
+    where = hpipm_paths()
+    if isinstance(where, str):
+        _HPIPM_LIB.append(where)
+        return where
+    root, inc = where
+    from ..compiled import compile_shared
+
+    folder = resources.files("aev_ocp").joinpath("c")
+    src = folder.joinpath("ocp_qp_hpipm.c").read_text(encoding="utf-8")
+    flags = ("-std=c99", f"-I{inc}", "-Wl,--no-as-needed", f"-L{root}", "-lhpipm", "-lblasfeo", f"-Wl,-rpath,{root}")
+    built = compile_shared(src, "ocp_qp_hpipm", "ocpqp", extra_flags=flags,
+                           companions={"ocp_qp.h": folder.joinpath("ocp_qp.h").read_text(encoding="utf-8")})
+    if built.path is None:
+        _HPIPM_LIB.append(f"ocp_qp_hpipm.c cannot be built against {root}: {built.error}")
+        return _HPIPM_LIB[0]
+    try:
+        lib = ctypes.CDLL(str(built.path))
+    except OSError as exc:
+        _HPIPM_LIB.append(f"the HPIPM backend does not load: {str(exc)[:200]}")
+        return _HPIPM_LIB[0]
+    _declare(lib)
+    lib.ocpqp_hpipm_create.restype = ctypes.c_void_p
+    lib.ocpqp_hpipm_create.argtypes = [ctypes.POINTER(_Dims), ctypes.POINTER(_Settings), ctypes.c_int]
+    lib.ocpqp_hpipm_unsupported.restype = ctypes.c_int
+    lib.ocpqp_hpipm_unsupported.argtypes = [ctypes.POINTER(_Dims)]
+    _HPIPM_LIB.append(lib)
+    return lib
+
+
+def _declare(lib: ctypes.CDLL) -> None:
+    """Argument and result types of the ocp_qp.h interface (every backend)."""
+    lib.ocpqp_create.restype = ctypes.c_void_p
+    lib.ocpqp_create.argtypes = [ctypes.POINTER(_Dims), ctypes.POINTER(_Settings)]
+    lib.ocpqp_free.restype = None
+    lib.ocpqp_free.argtypes = [ctypes.c_void_p]
+    lib.ocpqp_solve.restype = ctypes.c_int
+    solve_args: list[Any] = [ctypes.c_void_p, ctypes.POINTER(_Data), *[ctypes.c_void_p] * 4, ctypes.POINTER(_Info)]
+    lib.ocpqp_solve.argtypes = solve_args
+
 
 def source_files() -> dict[str, str]:
     """The solver's C sources (package data): {'ocp_qp.c': ..., 'ocp_qp.h': ...}."""
@@ -158,13 +229,7 @@ def library(fixed: tuple[int, int, int, int] | None = None, source: str | None =
         if built.path is None:
             raise OcpQPError(f"the OCP QP solver cannot be built: {built.error}")
         lib = ctypes.CDLL(str(built.path))
-        lib.ocpqp_create.restype = ctypes.c_void_p
-        lib.ocpqp_create.argtypes = [ctypes.POINTER(_Dims), ctypes.POINTER(_Settings)]
-        lib.ocpqp_free.restype = None
-        lib.ocpqp_free.argtypes = [ctypes.c_void_p]
-        lib.ocpqp_solve.restype = ctypes.c_int
-        solve_args: list[Any] = [ctypes.c_void_p, ctypes.POINTER(_Data), *[ctypes.c_void_p] * 4, ctypes.POINTER(_Info)]
-        lib.ocpqp_solve.argtypes = solve_args
+        _declare(lib)
         _LIBS[(fixed, source)] = lib
     return lib
 
@@ -213,20 +278,36 @@ class OcpQP:
     """One solver instance (its memory allocated once in C) for fixed dimensions; see the module docstring."""
 
     def __init__(self, dims: OcpQPDims, settings: OcpQPSettings | None = None, specialise: bool = False,
-                 source: str | None = None) -> None:
+                 source: str | None = None, backend: str = "ocp_qp", hpipm_mode: str = "balance") -> None:
         """``specialise``: a library compiled for exactly these nx, nu, nc, ncN (one more build, cached);
-        ``source``: another ocp_qp.c text (see :func:`library`)."""
+        ``source``: another ocp_qp.c text (see :func:`library`); ``backend``: one of :data:`BACKENDS`
+        ('hpipm': OcpQPError naming the cause when HPIPM cannot be built or loaded; ``specialise`` and
+        ``source`` are then ignored); ``hpipm_mode``: 'speed', 'balance' or 'robust'."""
         if not isinstance(dims, OcpQPDims):
             raise ParameterError(f"dims must be an OcpQPDims, got {type(dims).__name__}")
         settings = settings or OcpQPSettings()
         if not isinstance(settings, OcpQPSettings):
             raise ParameterError(f"settings must be an OcpQPSettings or None, got {type(settings).__name__}")
-        self.dims, self.settings = dims, settings
-        self._lib = library((dims.nx, dims.nu, dims.nc, dims.ncN) if specialise else None, source)
+        if backend not in BACKENDS:
+            raise ParameterError(f"backend = {backend!r} is not allowed: must be one of {BACKENDS}")
+        if hpipm_mode not in HPIPM_MODES:
+            raise ParameterError(f"hpipm_mode = {hpipm_mode!r} is not allowed: must be one of {tuple(HPIPM_MODES)}")
+        self.dims, self.settings, self.backend = dims, settings, backend
         cd = _Dims(dims.N, dims.nx, dims.nu, dims.nc, dims.ncN)
         cs = _Settings(settings.max_iter, settings.tol_stat, settings.tol_eq, settings.tol_ineq,
                        settings.tol_comp, settings.reg_prim)
-        self._ptr = self._lib.ocpqp_create(ctypes.byref(cd), ctypes.byref(cs))
+        if backend == "hpipm":
+            lib = hpipm_library()
+            if isinstance(lib, str):
+                raise OcpQPError(f"the HPIPM backend is unavailable: {lib}")
+            if lib.ocpqp_hpipm_unsupported(ctypes.byref(cd)):
+                raise OcpQPError(f"the HPIPM backend refuses nx = 1 with nx + nu a multiple of 4 ({dims}): the "
+                                 "shipped libhpipm returns wrong controls there (aev_ocp/c/ocp_qp_hpipm.c)")
+            self._lib = lib
+            self._ptr = lib.ocpqp_hpipm_create(ctypes.byref(cd), ctypes.byref(cs), HPIPM_MODES[hpipm_mode])
+        else:
+            self._lib = library((dims.nx, dims.nu, dims.nc, dims.ncN) if specialise else None, source)
+            self._ptr = self._lib.ocpqp_create(ctypes.byref(cd), ctypes.byref(cs))
         if not self._ptr:
             raise OcpQPError(f"ocpqp_create failed for {dims} (out of memory?)")
         self._data = _Data()

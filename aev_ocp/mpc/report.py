@@ -3,8 +3,8 @@ by ``aev-ocp mpc`` and by the ``reproduce`` report section.
 
 Like with like (issue 20): every run is costed with the running formulation's own cost (``Formulation.cost_key``)
 on the MPC's grid; OCP-D solves the same formulation, on the MPC's grid whenever it fits
-(:data:`ORACLE_BOUND_MAX_INTERVALS`), and its column is a *bound* only when it is that optimum on that grid and
-its cost is at most every whole run's (checked); otherwise it is labelled 'reference'. Violations count against the
+(:data:`aev_ocp.ocp.oracle.ORACLE_BOUND_MAX_INTERVALS`; :func:`aev_ocp.ocp.oracle.solve_and_replay`), and its
+column is a *bound* only when it is that optimum on that grid and its cost is at most every whole run's (checked); otherwise it is labelled 'reference'. Violations count against the
 running formulation's bounds for every column. Another formulation's cost (the §9 cost of a traffic MPC) is only in a
 secondary table. Equal-distance and equal-time views (:func:`aev_ocp.truncation.equal_views`) rank runs of
 different length."""
@@ -22,15 +22,15 @@ import numpy as np
 from .. import interrupts
 from ..ocp.checks import GAP_RTOL as SMOOTHING_GAP_RTOL
 from ..ocp.formulation import Formulation, ModelBounds, s9_formulation
-from ..ocp.oracle import (DEFAULT_TIME_LIMIT_S, OBJECTIVE_NAMES, OracleSolver, oracle_grid_dt, scenario_oracle, stage_cost_of_result)
+from ..ocp.oracle import (DEFAULT_TIME_LIMIT_S, OBJECTIVE_NAMES, bound_role, ocpd_scenario,
+                          solve_and_replay, stage_cost_of_result)
 from ..ocp.problem import OCPProblem
 from ..ocp.traffic_cost import cost_traffic_of_result, problem_cost_of_result
-from ..control import ClosedLoop, Command, ControlSequence, Observation
 from ..limits import MPC_BYTES_PER_INTERVAL, memory_limit_bytes
 from ..metrics import comparability
 from ..params import ParameterError
 from ..progress import Progress
-from ..results import SimulationResult, write_json
+from ..results import SimulationResult, fmt_value, require_pandas, summary_html, summary_text, write_json
 from ..simulate import simulate_platoon
 from ..truncation import VIEW_KEYS, equal_views
 from .scenario import MPCConfig, closed_loop_from_scenario
@@ -48,13 +48,6 @@ METRIC_ROWS = COMPARABILITY_ROWS + ["omega_model", "omega_J_per_kg", "heat_pack_
                "fallbacks", "fallback_causes", "solver_path"]
 #: rows of the §9 cost beside another formulation's run (a secondary table: never a verdict)
 S9_ROWS = ("cost_s9", "cost_s9_exact", "smoothing_gap_pct")
-#: OCP-D is solved on the MPC's own grid (a bound) up to this many intervals; beyond, on the coarse 1 s grid (a
-#: reference). Measured (this machine, 2 shared cores): the traffic OCP-D of the whole UDDS on the MPC's grid
-#: (15 516 intervals of 0.088 s) took 33 IPOPT iterations, 36 s and 0.73 GB peak memory.
-ORACLE_BOUND_MAX_INTERVALS = 20000
-#: A bound's cost may exceed a run's by this fraction (the exact plant vs the optimiser's RK4 and smoothed η
-#: switch; measured: 5e-7 on OCP-D's own replay); more and the OCP-D column is a 'reference', with a warning.
-BOUND_RTOL = 1e-4
 
 
 MAX_CLOSED_LOOP_STEPS = 10**6  # each step is one NLP solve: 10^6 steps are hours even on the fastest path
@@ -121,11 +114,44 @@ class Comparison:
     #: per follower: the equal-distance and equal-time views (:func:`aev_ocp.truncation.equal_views`)
     views: list[dict[str, Any]] = field(default_factory=list)
 
+    def _repr_rows(self) -> list[dict[str, Any]]:
+        return [{"run": label, "vehicle": m.get("vehicle"), "status": m.get("status"),
+                 "omega_J_per_kg": m.get("omega_J_per_kg"), "heat_pack_J": m.get("heat_pack_J"),
+                 "min_gap_m": m.get("min_gap_m"), "cost_s9": m.get("cost_s9")}
+                for label, ms in self.metrics.items() for m in ms[:2]]
+
+    def _repr_title(self) -> str:
+        n = max((r.n_vehicles for r in self.results.values()), default=0)
+        return f"Comparison ({self.formulation.kind} formulation): {', '.join(self.results)} on {n} follower(s)"
+
+    def __repr__(self) -> str:
+        """A few lines: per run (first two vehicles) the status, ω [J/kg], pack ∫Q [J], min gap [m], §9 cost."""
+        lines = [f"{r['run']} vehicle {r['vehicle']}: {r['status']}, ω {fmt_value(r['omega_J_per_kg'])} J/kg, "
+                 f"pack ∫Q {fmt_value(r['heat_pack_J'])} J, min gap {fmt_value(r['min_gap_m'])} m, "
+                 f"cost {fmt_value(r['cost_s9'])}" for r in self._repr_rows()]
+        if self.ocpd:
+            lines.append(f"OCP-D: {self.ocpd.get('status')}, cost {fmt_value(self.ocpd.get('cost_s9'))} "
+                         f"({self.ocpd.get('role', 'bound')})")
+        lines += [f"warning: {w}" for w in self.warnings[:2]]
+        return summary_text(self._repr_title(), lines)
+
+    def _repr_html_(self) -> str:
+        fields: list[tuple[str, Any]] = [(f"{k} time [s]", v) for k, v in self.timings_s.items()]
+        if self.ocpd:
+            fields.append(("OCP-D cost", self.ocpd.get("cost_s9")))
+        return summary_html(self._repr_title(), fields, self._repr_rows())
+
+    def to_dataframe(self) -> Any:
+        """Every run's per-vehicle metrics, one row per run × vehicle (column ``run``). Needs pandas
+        (``pip install 'aev_ocp[pandas]'``)."""
+        pd = require_pandas("Comparison.to_dataframe()")
+        return pd.DataFrame([{"run": label, **m} for label, ms in self.metrics.items() for m in ms])
+
 
 def _cost_s9(r: SimulationResult, i: int, s: MPCSettings, f: Formulation, exact: bool = False) -> float:
     """§9 cost Σ ℓ(z_k, a_k)·dt on the dt grid (laws: sampled at the grid), with the optimiser's smoothed
     η switch (as the MPC and OCP-D see it) or, ``exact``, the plant's exact switch; §9's weights and objective
-    (the formulation's when it is §9, else PROBLEM.md §9's defaults)."""
+    (the formulation's when it is §9, else model guide §9's defaults)."""
     g = f if f.kind == "s9" else s9_formulation(smooth=f.smooth)
     return stage_cost_of_result(r, i, s.dt, g.weights, None if exact else g.smooth, g.objective)
 
@@ -140,32 +166,21 @@ def _own_cost(r: SimulationResult, i: int, s: MPCSettings, f: Formulation, pr: O
     return problem_cost_of_result(r, i, s.dt, pr, np.asarray(p, float))["total"]
 
 
+def own_cost(r: SimulationResult, i: int, s: MPCSettings, f: Formulation, ev: Any) -> float:
+    """The formulation ``f``'s own cost of follower i's run ``r`` on the MPC's grid (settings ``s``), as the MPC
+    comparison reports it (``f.cost_key``); NaN when the run did not cover its horizon (an event)."""
+    if r.events:
+        return float("nan")
+    pr = f.build(ev, s.dt)
+    return _own_cost(r, i, s, f, pr, f.parameter_vector(list(pr.meta.get("parameter_names", []))))
+
+
 def _violations(r: SimulationResult, i: int, b: ModelBounds) -> tuple[int, int]:
     """(gap, speed) violations of follower i's samples after t_0 against the bounds ``b`` [model units]."""
     h, v = r.gap[1:, i], r.speed[1:, i]
     gap = int(np.sum(h < b.h_min - 1e-9)) if b.h_min is not None else 0
     vmax = b.v_max if b.v_max is not None else np.inf
     return gap, int(np.sum((v < -1e-9) | (v > vmax + 1e-9)))
-
-
-def _on_grid(a: np.ndarray, dt_c: float, dt: float, t_end: float) -> np.ndarray:
-    """Commands held for dt_c [model time] as a sequence on the grid of step dt: each dt interval takes the
-    command of the dt_c interval holding its midpoint (a switch moves by at most dt/2). A traffic OCP-D on the
-    coarse grid is replayed so (not interpolated between its nodes, which would smooth its jerk away)."""
-    K = int(round(t_end / dt))
-    return a[np.minimum(((np.arange(K) + 0.5) * dt // dt_c).astype(int), a.size - 1)]
-
-
-class _HeldPlan(ControlSequence):
-    """A command sequence on the MPC's grid that never commands a reverse (a_k ≥ −v_k/dt, the MPC fallback's
-    rule, and a_k ≥ 0 at a stop): a coarse OCP-D's commands moved to the MPC's grid (:func:`_on_grid`) may brake up to dt/2 longer
-    than planned at a stop, which made the exact plant's speed negative (UDDS-300 s at t = 153)."""
-
-    def command(self, obs: Observation) -> Command:
-        a, v = float(self.a[int(round(obs.t / self.dt))]), float(obs.z[1])
-        # at a stop (v < 1e-9) no braking at all: −v/dt there would shrink v geometrically towards 0 without
-        # reaching it (2e-137 at t = 1171 of the whole UDDS, where CVODES failed)
-        return Command(max(a, 0.0) if v < 1e-9 else max(a, -v / self.dt))
 
 
 def run_comparison(scenario: Any, settings: MPCSettings | None = None, laws: tuple[str, ...] = ("proposed", "ovfl"),
@@ -238,31 +253,24 @@ def run_comparison(scenario: Any, settings: MPCSettings | None = None, laws: tup
         t0 = time.perf_counter()
         # OCP-D of the MPC's own formulation on the MPC's grid (a bound); only a run too long for that
         # (> ORACLE_BOUND_MAX_INTERVALS) gets the coarser 1 s grid (a reference; meta 'grid_dt')
-        scn = scenario_oracle(scenario, oracle_grid_dt(scenario.t_end, s.dt, scenario.units,
-                                                       max_intervals=ORACLE_BOUND_MAX_INTERVALS), f)
-        say(f"OCP-D of the MPC's formulation (whole scenario, IPOPT, N = {scn.N}, dt = {scn.dt:.4g})")
+        grid = ocpd_scenario(scenario, s.dt, f)
+        say(f"OCP-D of the MPC's formulation (whole scenario, IPOPT, N = {grid.N}, dt = {grid.dt:.4g})")
         # IPOPT's wall-time limit: what is left of the run's time limit (at most the OCP-D default)
         left = progress.remaining_s() if progress is not None else math.inf
-        res = OracleSolver(scn, progress=say, time_limit_s=min(DEFAULT_TIME_LIMIT_S, max(left, 1e-3))).solve()
-        interrupts.check()  # IPOPT turns Ctrl-C into a failed solve
+        sr = solve_and_replay(scenario, s.dt, f, time_limit_s=min(DEFAULT_TIME_LIMIT_S, max(left, 1e-3)), progress=say,
+                              replay_progress=_progress(say, "ocp-d replay"))
+        scn, res, coarse = sr.scenario, sr.result, sr.coarse
         tim["ocpd"] = time.perf_counter() - t0
         # a failed or time-limited solve bounds nothing: no cost is reported for it
-        traffic = f.kind == "traffic"
         ocpd = {"success": res.success, "status": res.status, key: res.objective if res.success else float("nan"),
                 "grid_dt": scn.dt, "formulation": f.name,
-                "objective": {"traffic": "traffic objective (the MPC's)", "s9": "PROBLEM.md §9 cost"}.get(
+                "objective": {"traffic": "traffic objective (the MPC's)", "s9": "model guide §9 cost"}.get(
                     f.kind, f"the MPC's problem {f.name!r}"),
                 "objective_definition": OBJECTIVE_NAMES[f.kind], "N": scn.N,
                 "solve_time_s": res.wall_time_s, "iterations": res.iterations, "role": "reference"}
-        if res.success:
-            # replay the optimal controls open loop through the same exact plant: every §10 metric
-            say("OCP-D: replaying its controls through the exact plant")
-            a_opt = np.asarray(res.controls["a"], float).ravel()
-            coarse = abs(scn.dt - s.dt) > 1e-9 * s.dt
-            seq = (_HeldPlan(tuple(_on_grid(a_opt, scn.dt, s.dt, scenario.t_end)), s.dt, "ocp-d")
-                   if traffic and coarse else ControlSequence(tuple(a_opt), scn.dt, "ocp-d"))
-            r = ClosedLoop(scenario.leader, [seq], scenario.ev).run(list(scenario.gaps0), list(scenario.speeds0),
-                                                                   scenario.t_end, progress=_progress(say, "ocp-d replay"))
+        if sr.replay is not None:
+            # the optimal controls replayed open loop through the same exact plant: every §10 metric
+            r = sr.replay
             m = r.metrics()[0]
             whole = _covers(r, scenario.t_end)
             if not whole:
@@ -285,7 +293,7 @@ def run_comparison(scenario: Any, settings: MPCSettings | None = None, laws: tup
                             f"is its controls replayed and costed on the MPC's grid, a reference, not a lower bound "
                             f"(its own grid's optimum: {res.objective:.6g})")
             else:
-                ocpd["role"], why = _bound_role(float(res.objective), metrics, key)
+                ocpd["role"], why = bound_role(float(res.objective), metrics, key)
                 if why:
                     warn.append(why)
             ref = (metrics.get("proposed") or metrics["mpc"])[0]
@@ -295,19 +303,6 @@ def run_comparison(scenario: Any, settings: MPCSettings | None = None, laws: tup
         say(f"warning: {w}")
     views = [equal_views(out, i) for i in range(scenario.n_followers)]
     return Comparison(out, metrics, ocpd, tim, warn, f, views)
-
-
-def _bound_role(cost: float, metrics: dict[str, list[dict[str, Any]]], key: str) -> tuple[str, str]:
-    """('bound', '') when the OCP-D optimum ``cost`` (same formulation, the MPC's grid) is at most every whole
-    run's ``key`` cost of follower 1 (within BOUND_RTOL), else ('reference', the warning naming the run)."""
-    for lab, ms in metrics.items():
-        c = ms[0].get(key)
-        if c is None or not math.isfinite(float(c)) or not math.isfinite(cost):
-            continue
-        if cost > float(c) + BOUND_RTOL * abs(float(c)):
-            return "reference", (f"OCP-D's {key} {cost:.6g} exceeds run {lab}'s {float(c):.6g}: it is not a lower "
-                                 "bound of it and is labelled 'reference'")
-    return ("bound", "") if math.isfinite(cost) else ("reference", "")
 
 
 def _covers(r: SimulationResult, t_end: float) -> bool:
@@ -372,7 +367,7 @@ def _floor_note(c: Comparison, vehicle: int) -> str:
 def comparison_table(c: Comparison, vehicle: int = 0, markdown: bool = False, views: bool = True) -> str:
     """Every §10 metric of follower ``vehicle`` side by side (MPC, laws, OCP-D of the same formulation: 'bound' or
     'reference'), the running formulation's own cost as the only cost row; then, labelled, another formulation's
-    cost (PROBLEM.md §9's beside a traffic MPC: no verdict) and the equal-distance and equal-time views."""
+    cost (model guide §9's beside a traffic MPC: no verdict) and the equal-distance and equal-time views."""
     f = c.formulation
     labs = list(c.metrics)
     with_d = bool(c.ocpd) and vehicle == 0
@@ -402,8 +397,10 @@ def comparison_table(c: Comparison, vehicle: int = 0, markdown: bool = False, vi
     text = [f"Whole runs (formulation {f.name}; its own cost {f.cost_key}; ranked only when comparable):",
             _render(["metric"] + heads, rows, markdown)]
     if secondary:
-        text += ["", "Another formulation's cost (PROBLEM.md §9's; this MPC does not optimise it: no verdict):",
-                 _render(["metric"] + heads, secondary, markdown)]
+        # OCP-D optimises this formulation's cost, not the other one: no 'bound' label in this table
+        other_heads = ["ocp-d" if col == "ocp-d" else h for col, h in zip(cols, heads)]
+        text += ["", "Another formulation's cost (model guide §9's; neither this MPC nor its OCP-D optimises it: "
+                     "no verdict):", _render(["metric"] + other_heads, secondary, markdown)]
     if views and vehicle < len(c.views):
         text += ["", views_table(c.views[vehicle], markdown)]
     return "\n".join(text)
@@ -443,17 +440,19 @@ def write_outputs(c: Comparison, out: Path) -> list[Path]:
                                                "mpc_settings": r.meta.get("controllers"),
                                                "mpc_steps": r.meta.get("mpc_steps")})]
     files.append(r.to_csv(out / "trajectories_mpc.csv"))
-    files.append(plot_trajectories(r, out / "mpc_trajectories.png"))
-    files.append(plot_solve_times(r, out / "mpc_solve_times.png"))
+    for png, plot in ((out / "mpc_trajectories.png", plot_trajectories), (out / "mpc_solve_times.png", plot_solve_times)):
+        plot(r, png)
+        files.append(png)
     for i in range(r.n_vehicles):
-        files.append(plot_overlay(c.results, out / f"overlay_vehicle{i + 1}.png", vehicle=i))
+        plot_overlay(c.results, png := out / f"overlay_vehicle{i + 1}.png", vehicle=i)
+        files.append(png)
         if i >= 1 and r.n_vehicles > 3 and i != r.n_vehicles - 1:
             continue
     return files
 
 
 def mpc_section(out_dir: Any, progress: Callable[[str], None]) -> str:
-    """Reproduce section: the canonical MPC (PROBLEM.md §9) beside the proposed law and OVFL (and OCP-D)."""
+    """Reproduce section: the canonical MPC (model guide §9) beside the proposed law and OVFL (and OCP-D)."""
     from ..scenarios import find_scenario, load_scenario
 
     out = Path(out_dir) / "mpc"
@@ -462,8 +461,12 @@ def mpc_section(out_dir: Any, progress: Callable[[str], None]) -> str:
     c = run_comparison(sc, log=progress)
     progress("MPC: writing tables and plots")
     write_outputs(c, out)
+    from ..saved import save_output, settings_of
+
+    save_output(out, "mpc", c.results, primary="mpc", settings=settings_of(sc),  # aev_ocp.load(".../mpc")
+                extra={"ocp_d": c.ocpd, "comparison_metrics": c.metrics, "timings_s": c.timings_s, "warnings": c.warnings})
     st = c.metrics["mpc"][0]
-    lines = ["## MPC with the battery in the loop (PROBLEM.md §9)", "",
+    lines = ["## MPC with the battery in the loop (model guide §9)", "",
              f"Canonical scenario: one follower behind the Table 1 leader, h(0) = 0.3, v(0) = 1.87, oracle "
              f"forecast, N = 40, dt = 0.1, w = (1, 1, 1, 0.1), t ∈ [0, {sc.t_end:g}]. Exact plant (CVODES, "
              f"unsmoothed η switch). Solver path {st.get('solver_path')} (QP {st.get('qp_solver') or '—'}): median {st.get('solve_ms_median', float('nan')):.2f} ms, "
@@ -472,7 +475,9 @@ def mpc_section(out_dir: Any, progress: Callable[[str], None]) -> str:
              "(smoothed η, as in OCP-D); OCP-D is the lower bound of that cost. `cost_s9_exact` is the same "
              "cost with the exact η switch; `smoothing_gap_pct` their difference (a warning above 0.5 %).", "",
              comparison_table(c, 0, markdown=True), "",
-             "Plots: `mpc/overlay_vehicle1.png` (trajectories, current, SOC), `mpc/mpc_solve_times.png`.", ""]
+             "![MPC and the laws: gap, speed, acceleration, current, SOC](mpc/overlay_vehicle1.png)", "",
+             "![MPC trajectories](mpc/mpc_trajectories.png)", "", "![MPC solve time per step](mpc/mpc_solve_times.png)", "",
+             "The runs load back with `aev_ocp.load(\"mpc\")` (the MPC) and `aev_ocp.load_all(\"mpc\")` (every run).", ""]
     if c.ocpd and c.ocpd.get("success"):
         gap = 100 * (st["cost_s9"] / c.ocpd["cost_s9"] - 1)
         what = "lower bound" if c.ocpd.get("role") == "bound" else "reference (not a bound, see the warnings)"

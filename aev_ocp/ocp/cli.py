@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
+from typing import Any
 
 COMMANDS = ("prop31", "current-profile", "eco-trip", "oracle")
 
@@ -18,7 +19,7 @@ COMMANDS = ("prop31", "current-profile", "eco-trip", "oracle")
 def _parser() -> argparse.ArgumentParser:
     from ..console import OneLineParser
 
-    ap = OneLineParser(prog="aev-ocp ocp", description="Optimal-control problems OCP-A..D (PROBLEM.md §8).")
+    ap = OneLineParser(prog="aev-ocp ocp", description="Optimal-control problems OCP-A..D (model guide §8).")
     ap.add_argument("problem", choices=COMMANDS)
     ap.add_argument("scenario", nargs="?", default=None, help="scenario TOML (oracle: default canonical scenario)")
     ap.add_argument("--method", choices=("ms", "collocation"), default="ms", help="transcription (default ms)")
@@ -40,6 +41,11 @@ def _parser() -> argparse.ArgumentParser:
                     help="current-profile, eco-trip: wall-clock limit [s]; the sweep stops cleanly after the solve "
                          "that passes it, the output is flagged partial (default: none). oracle: IPOPT's wall-time "
                          "limit (default 600 s); a solve stopped there is reported as not optimal, with no bound")
+    ap.add_argument("--cell", default=None, metavar="NAME|FILE",
+                    help="prop31: the cell (a shipped cell name, e.g. a123_anr26650, or a cell file; default the A123)")
+    ap.add_argument("--soc0", type=float, default=None, metavar="S", help="prop31: initial SOC S(0) (default 0.5)")
+    ap.add_argument("--v-relax-V", default=None, metavar="V1,V2",
+                    help="prop31: the relaxing cases' initial polarisation V1(0),V2(0) [V] (default 0.02,0.03)")
     ap.add_argument("--progress-every", type=float, default=2.0, metavar="S",
                     help="seconds between progress lines (solve k/n, elapsed, ETA; oracle: IPOPT iteration, "
                          "objective, infeasibility) on stderr (default: 2)")
@@ -130,7 +136,11 @@ def _cli_ocp(argv: list[str]) -> int:
     if args.N is not None and args.N < 1:
         raise ParameterError(f"ocp {args.problem}: --N = {args.N} is not allowed: must be an integer >= 1")
     if args.problem in ("prop31",) and args.scenario is not None:
-        raise ParameterError("ocp prop31: prop31 takes no scenario (OCP-A is the single cell of PROBLEM.md §8)")
+        raise ParameterError("ocp prop31: prop31 takes no scenario (OCP-A is the single cell of model guide §8)")
+    for flag, value in (("--cell", args.cell), ("--soc0", args.soc0), ("--v-relax-V", args.v_relax_V)):
+        if value is not None and args.problem != "prop31":
+            raise ParameterError(f"ocp {args.problem}: {flag} applies to prop31 only (the scenario's [cell] sets the "
+                                 "cell of the other problems)")
     if args.multistart and args.problem not in ("eco-trip", "oracle"):
         raise ParameterError(f"ocp {args.problem}: --multistart applies to eco-trip and oracle only")
     if args.problem == "oracle" and args.N is not None:
@@ -160,7 +170,20 @@ def _cli_ocp(argv: list[str]) -> int:
 
         from ..ocp_plots import write_prop31_outputs
 
-        cases = api.run_prop31(args.method, refine=not args.no_refine, **({"N": args.N} if args.N is not None else {}))
+        kw: dict[str, Any] = {"N": args.N} if args.N is not None else {}
+        if args.cell is not None:
+            from ..cells import load_cell
+
+            kw["cell"] = load_cell(args.cell)
+        if args.soc0 is not None:
+            kw["soc0"] = args.soc0
+        if args.v_relax_V is not None:
+            try:
+                kw["v_relax_V"] = tuple(float(v) for v in args.v_relax_V.split(","))
+            except ValueError:
+                raise ParameterError(f"ocp prop31: --v-relax-V = {args.v_relax_V!r} is not allowed: two voltages "
+                                     "V1,V2 [V]") from None
+        cases = api.run_prop31(args.method, refine=not args.no_refine, **kw)
         write_prop31_outputs(cases, out)
         print(prop31_table(cases))
         ok = all(e["status"] in ("optimal", "acceptable") for e in cases.values())

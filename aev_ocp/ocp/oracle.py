@@ -1,4 +1,4 @@
-"""OCP-D: oracle following (PROBLEM.md §8 OCP-D with the cost and constraints of §9).
+"""OCP-D: oracle following (model guide §8 OCP-D with the cost and constraints of §9).
 
 The leader's whole trajectory is known; the ego state z = (h, v, V1, V2, S) and the piecewise-constant
 acceleration a are optimised over the whole scenario. This is the lower bound that the MPC and the
@@ -16,11 +16,14 @@ from typing import Any, Callable, Sequence
 import casadi as ca
 import numpy as np
 
+from .. import interrupts
+from ..control import ClosedLoop, Command, ControlSequence, Observation
 from ..models.carfollowing import CarFollowingLaw, Proposed
 from ..models.leader import LeaderProfile, PaperLeader, drive_cycle
 from ..params import EVParams, ParameterError, PowertrainOptions, Units
 from ..models.ego import following_ode
 from ..numerics import rk4
+from ..results import SimulationResult
 from .following import TERM_NAMES, FollowingWeights, following_stage_terms, weight_vector
 from .formulation import Formulation, s9_formulation
 from .problem import OCPProblem
@@ -43,7 +46,7 @@ ORACLE_MAX_INTERVALS = 2000
 #: The coarse OCP-D grid [s]: the EPA cycles are sampled at 1 s (aev_ocp/data/cycles).
 COARSE_GRID_S = 1.0
 #: What OCP-D minimises, by formulation (OCPResult.objective_name, results.json ocp_d.objective).
-OBJECTIVE_NAMES = {"s9": "sum_k l(z_k, a_k) dt (PROBLEM.md §9)",
+OBJECTIVE_NAMES = {"s9": "sum_k l(z_k, a_k) dt (model guide §9)",
                    "traffic": "traffic objective (aev_ocp/ocp/traffic.py, the MPC's): sum_k l(x_k, u_k) dt + terminal [J/kg]",
                    "problem": "the user problem's objective: sum_k l(x_k, u_k) dt + terminal"}
 
@@ -52,20 +55,20 @@ OBJECTIVE_NAMES = {"s9": "sum_k l(z_k, a_k) dt (PROBLEM.md §9)",
 class OracleScenario:
     """One follower behind a known leader. Model units: t_end, dt (model time), h0, v0 (model);
     V10, V20 [V]; S0 [-]; ``formulation``: the problem (:class:`aev_ocp.ocp.formulation.Formulation`, default
-    PROBLEM.md §9's; the traffic formulation's jerk term uses dt; own state a_prev(0) = 0). Defaults: the
-    canonical scenario of PROBLEM.md §9."""
+    model guide §9's; the traffic formulation's jerk term uses dt; own state a_prev(0) = 0). Defaults: the
+    canonical scenario of model guide §9."""
 
-    leader: LeaderProfile = field(default_factory=PaperLeader)  # PROBLEM.md §9: Table 1 leader
-    t_end: float = 70.0  # PROBLEM.md §9: 700 steps, t ∈ [0, 70]
-    dt: float = 0.1  # PROBLEM.md §9
-    h0: float = 0.3  # PROBLEM.md §9
-    v0: float = 1.87  # PROBLEM.md §9 (1.1 × 1.7)
-    V10: float = 0.0  # PROBLEM.md §9
-    V20: float = 0.0  # PROBLEM.md §9
-    S0: float = 0.8  # PROBLEM.md §9 / §6
+    leader: LeaderProfile = field(default_factory=PaperLeader)  # model guide §9: Table 1 leader
+    t_end: float = 70.0  # model guide §9: 700 steps, t ∈ [0, 70]
+    dt: float = 0.1  # model guide §9
+    h0: float = 0.3  # model guide §9
+    v0: float = 1.87  # model guide §9 (1.1 × 1.7)
+    V10: float = 0.0  # model guide §9
+    V20: float = 0.0  # model guide §9
+    S0: float = 0.8  # model guide §9 / §6
     ev: EVParams = field(default_factory=EVParams)
     name: str = "canonical"
-    formulation: Formulation = field(default_factory=s9_formulation)  # PROBLEM.md §9
+    formulation: Formulation = field(default_factory=s9_formulation)  # model guide §9
 
     def __post_init__(self) -> None:
         for nm in ("t_end", "dt"):
@@ -101,7 +104,7 @@ class OracleScenario:
 
     @property
     def smooth(self) -> PowertrainOptions:
-        """The formulation's η-switch smoothing (PROBLEM.md §7)."""
+        """The formulation's η-switch smoothing (model guide §7)."""
         return self.formulation.smooth
 
     @property
@@ -116,14 +119,14 @@ class OracleScenario:
 
 
 def canonical_scenario() -> OracleScenario:
-    """PROBLEM.md §9 canonical scenario: Table 1 leader, h(0) = 0.3, v(0) = 1.87, S(0) = 0.8, N = 700."""
+    """model guide §9 canonical scenario: Table 1 leader, h(0) = 0.3, v(0) = 1.87, S(0) = 0.8, N = 700."""
     return OracleScenario()
 
 
 def drive_cycle_scenario(cycle: str = "udds", duration_s: float = 600.0, speed_unit_mps: float = 13.0,
                          dt_s: float = 1.0, h0: float = 0.5, v0: float = 0.0) -> OracleScenario:
     """Follower behind an EPA cycle (first ``duration_s`` seconds). U = 13 m/s so that V∞·U = 25.5 m/s
-    exceeds UDDS top speed 25.35 m/s (PROBLEM.md §1); L = 10 m; dt_s = 1 s (the cycles are
+    exceeds UDDS top speed 25.35 m/s (model guide §1); L = 10 m; dt_s = 1 s (the cycles are
     sampled at 1 s). h0, v0 in model units (UDDS starts at rest)."""
     units = Units(10.0, speed_unit_mps)
     leader = drive_cycle(cycle, units)
@@ -135,7 +138,7 @@ def drive_cycle_scenario(cycle: str = "udds", duration_s: float = 600.0, speed_u
 
 def leader_forecast(leader: LeaderProfile, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Oracle forecast on node times t (N+1): interval-mean speed (x_l(t_{k+1}) − x_l(t_k))/dt_k and
-    v_l(t_k), both (N,) [model speed] (PROBLEM.md §9)."""
+    v_l(t_k), both (N,) [model speed] (model guide §9)."""
     x = np.asarray(leader.position(t), float)
     return np.diff(x) / np.diff(t), leader.speed_np(t[:-1])
 
@@ -388,10 +391,112 @@ def oracle_grid_dt(t_end: float, dt: float, units: Units, max_intervals: int = O
 def scenario_oracle(sc: Any, dt: float, formulation: Formulation | None = None) -> OracleScenario:
     """OCP-D of a loaded scenario (:class:`aev_ocp.scenarios.Scenario`): its leader, t_end,
     vehicle/pack and follower 1's h(0), v(0), S(0), on the grid of step ``dt`` [model time] (adjusted to
-    divide t_end), solving ``formulation`` (default PROBLEM.md §9's; pass the MPC's for its bound)."""
+    divide t_end), solving ``formulation`` (default model guide §9's; pass the MPC's for its bound)."""
     n = max(1, round(sc.t_end / dt))
     return OracleScenario(leader=sc.leader, t_end=sc.t_end, dt=sc.t_end / n, h0=sc.gaps0[0], v0=sc.speeds0[0],
                           S0=sc.ev.cell.soc0, ev=sc.ev, name=sc.name, formulation=formulation or s9_formulation())
+
+
+#: OCP-D is solved on the controller's own grid (a bound) up to this many intervals; beyond, on the coarse 1 s
+#: grid (a reference): the memory check of OCP-D. Measured (this machine, 2 shared cores): the traffic OCP-D of
+#: the whole UDDS on the MPC's grid (15 516 intervals of 0.088 s) took 33 IPOPT iterations, 36 s and 0.73 GB peak
+#: memory.
+ORACLE_BOUND_MAX_INTERVALS = 20000
+
+
+def on_grid(a: np.ndarray, dt_c: float, dt: float, t_end: float) -> np.ndarray:
+    """Commands held for dt_c [model time] as a sequence on the grid of step dt: each dt interval takes the
+    command of the dt_c interval holding its midpoint (a switch moves by at most dt/2). A traffic OCP-D on the
+    coarse grid is replayed so (not interpolated between its nodes, which would smooth its jerk away)."""
+    K = int(round(t_end / dt))
+    return a[np.minimum(((np.arange(K) + 0.5) * dt // dt_c).astype(int), a.size - 1)]
+
+
+class HeldPlan(ControlSequence):
+    """A command sequence on the MPC's grid that never commands a reverse (a_k ≥ −v_k/dt, the MPC fallback's
+    rule, and a_k ≥ 0 at a stop): a coarse OCP-D's commands moved to the MPC's grid (:func:`on_grid`) may brake
+    up to dt/2 longer than planned at a stop, which made the exact plant's speed negative (UDDS-300 s at t = 153)."""
+
+    def command(self, obs: Observation) -> Command:
+        a, v = float(self.a[int(round(obs.t / self.dt))]), float(obs.z[1])
+        # at a stop (v < 1e-9) no braking at all: −v/dt there would shrink v geometrically towards 0 without
+        # reaching it (2e-137 at t = 1171 of the whole UDDS, where CVODES failed)
+        return Command(max(a, 0.0) if v < 1e-9 else max(a, -v / self.dt))
+
+
+def replay(res: OCPResult, scn: OracleScenario, hold_dt: float | None = None,
+           progress: Callable[[float, float], None] | None = None) -> SimulationResult:
+    """OCP-D's optimal controls ``res`` (solved for ``scn``) replayed open loop through the exact plant
+    (aev_ocp.control.ClosedLoop: CVODES, exact η switch, the vehicle's limits) from scn's initial state: held
+    over scn.dt, or, ``hold_dt`` [model time] given, moved to the grid of that step (:func:`on_grid`,
+    :class:`HeldPlan`: never a reverse command; a coarse traffic OCP-D, whose jerk is costed on the MPC's grid)."""
+    a_opt = np.asarray(res.controls["a"], float).ravel()
+    seq = (HeldPlan(tuple(on_grid(a_opt, scn.dt, hold_dt, scn.t_end)), hold_dt, "ocp-d") if hold_dt is not None
+           else ControlSequence(tuple(a_opt), scn.dt, "ocp-d"))
+    return ClosedLoop(scn.leader, [seq], scn.ev).run([scn.h0], [scn.v0], scn.t_end, soc0=scn.S0, progress=progress)
+
+
+@dataclass
+class SolvedAndReplayed:
+    """OCP-D of a scenario's follower solved (``result``, on the grid of ``scenario``) and its optimal controls
+    replayed through the exact plant on the controller's grid (``replay``; None when the solve failed).
+    ``coarse``: solved on a coarser grid than the controller's dt (a reference, never a bound on that grid)."""
+
+    scenario: OracleScenario
+    result: OCPResult
+    replay: SimulationResult | None
+    coarse: bool
+
+
+def ocpd_scenario(sc: Any, dt: float, formulation: Formulation, max_intervals: int | None = None) -> OracleScenario:
+    """The OCP-D of :func:`solve_and_replay`: ``formulation`` over the loaded scenario ``sc`` on the grid of step
+    ``dt`` [model time], or the coarse grid when that has more than ``max_intervals`` (default
+    :data:`ORACLE_BOUND_MAX_INTERVALS`) intervals."""
+    n_max = ORACLE_BOUND_MAX_INTERVALS if max_intervals is None else max_intervals
+    return scenario_oracle(sc, oracle_grid_dt(sc.t_end, dt, sc.units, max_intervals=n_max), formulation)
+
+
+#: A bound's cost may exceed a run's by this fraction (the exact plant vs the optimiser's RK4 and smoothed η
+#: switch; measured: 5e-7 on OCP-D's own replay); more and the OCP-D column is a 'reference', with a warning.
+BOUND_RTOL = 1e-4
+
+
+def bound_role(cost: float, metrics: dict[str, list[dict[str, Any]]], key: str) -> tuple[str, str]:
+    """('bound', '') when the OCP-D optimum ``cost`` (same formulation, the MPC's grid) is at most every whole
+    run's ``key`` cost of follower 1 (``metrics``: {run label: [follower metrics]}, within BOUND_RTOL), else
+    ('reference', the warning naming the run). The check of ``aev-ocp mpc`` and of a study's OCP-D row."""
+    for lab, ms in metrics.items():
+        c = ms[0].get(key)
+        if c is None or not math.isfinite(float(c)) or not math.isfinite(cost):
+            continue
+        if cost > float(c) + BOUND_RTOL * abs(float(c)):
+            return "reference", (f"OCP-D's {key} {cost:.6g} exceeds run {lab}'s {float(c):.6g}: it is not a lower "
+                                 "bound of it and is labelled 'reference'")
+    return ("bound", "") if math.isfinite(cost) else ("reference", "")
+
+
+def solve_and_replay(sc: Any, dt: float, formulation: Formulation, *, time_limit_s: float = DEFAULT_TIME_LIMIT_S,
+                     progress: Callable[[str], None] | None = None,
+                     replay_progress: Callable[[float, float], None] | None = None,
+                     max_intervals: int | None = None) -> SolvedAndReplayed:
+    """OCP-D of ``formulation`` over a loaded scenario ``sc`` (its leader, horizon and follower 1) on the
+    controller's grid of step ``dt`` [model time] — or, a run longer than ``max_intervals`` (default
+    :data:`ORACLE_BOUND_MAX_INTERVALS`) intervals (the memory check), on the coarse 1 s grid
+    (:func:`oracle_grid_dt`) — then the optimum replayed through the exact plant on
+    the grid of step dt (:func:`replay`; a coarse §9 optimum is held over its own grid). The one OCP-D
+    solve-and-replay of ``aev-ocp mpc``, studies and
+    ``reproduce``. ``time_limit_s``: IPOPT's wall-time limit [s]; ``progress``: IPOPT's progress lines;
+    ``replay_progress``: the replay's (t, t_end)."""
+    scn = ocpd_scenario(sc, dt, formulation, max_intervals)
+    res = OracleSolver(scn, progress=progress, time_limit_s=time_limit_s).solve()
+    interrupts.check()  # IPOPT turns Ctrl-C into a failed solve
+    coarse = abs(scn.dt - dt) > 1e-9 * dt
+    if not res.success:
+        return SolvedAndReplayed(scn, res, None, coarse)
+    if progress is not None:
+        progress("OCP-D: replaying its controls through the exact plant")
+    hold = dt if coarse and formulation.kind == "traffic" else None
+    return SolvedAndReplayed(scn, res, replay(res, scn, hold, replay_progress), coarse)
 
 
 def stage_cost_of_trajectory(t: np.ndarray, h: np.ndarray, v: np.ndarray, V1: np.ndarray, V2: np.ndarray,
@@ -405,8 +510,8 @@ def stage_cost_of_trajectory(t: np.ndarray, h: np.ndarray, v: np.ndarray, V1: np
     t: node times t_0 … t_N [model time] (N+1); h, v [model], V1, V2 [V], S [-]: states at the nodes
     (at least the first N are used); a: acceleration held on [t_k, t_{k+1}) [model] (N); v_l_hat:
     leader speed v_l(t_k) at the start of each interval [model] (N). weights/ev: as in the OCP
-    (defaults PROBLEM.md §9). smooth: η-switch smoothing used in Q_pack (default the optimiser's,
-    PROBLEM.md §7; None = exact switch). Returns total and the four weighted terms, each Σ·dt.
+    (defaults model guide §9). smooth: η-switch smoothing used in Q_pack (default the optimiser's,
+    model guide §7; None = exact switch). Returns total and the four weighted terms, each Σ·dt.
     """
     weights, ev = weights or FollowingWeights(), ev or EVParams()
     t = np.asarray(t, float).ravel()

@@ -1,4 +1,4 @@
-"""OCP-A: numerical check of the paper's Proposition 3.1 (paper §3, eq. opt_prob; PROBLEM.md §8).
+"""OCP-A: numerical check of the paper's Proposition 3.1 (paper §3, eq. opt_prob; model guide §8).
 
 Four cases: rest (V1(0) = V2(0) = 0) and relaxing polarisation (V1(0) = 0.02 V, V2(0) = 0.03 V),
 each with and without the paper's constraint Q ≥ 0; t_f = 60 s, S(0) = 0.5, |I| ≤ 46 A.
@@ -24,21 +24,26 @@ import casadi as ca
 import numpy as np
 
 from ..models import battery
-from ..params import CellParams, ParameterError
+from ..params import CellParams, ParameterError, check_declared
 from .cell import cell_problem
 from .checks import record_refinement, record_smoothing_gap, resimulate_cell_current
 from .result import OCPResult
 from .transcription import OCPSolver, TranscriptionOptions
 
-T_F_S = 60.0  # PROBLEM.md §8: t_f = 60 s
-SOC0 = 0.5  # PROBLEM.md §8: S(0) = 0.5
-V_RELAX = (0.02, 0.03)  # PROBLEM.md §8: relaxing polarisation V1(0) = 0.02 V, V2(0) = 0.03 V
+T_F_S = 60.0  # model guide §8: t_f = 60 s
+SOC0 = 0.5  # model guide §8: S(0) = 0.5
+V_RELAX = (0.02, 0.03)  # model guide §8: relaxing polarisation V1(0) = 0.02 V, V2(0) = 0.03 V
 CASES: dict[str, tuple[tuple[float, float], bool]] = {
     "rest": ((0.0, 0.0), False),
     "rest_Q_nonneg": ((0.0, 0.0), True),
     "relaxing": (V_RELAX, False),
     "relaxing_Q_nonneg": (V_RELAX, True),
 }
+
+
+def prop31_cases(v_relax_V: tuple[float, float] = V_RELAX) -> dict[str, tuple[tuple[float, float], bool]]:
+    """The four cases {name: ((V1(0), V2(0)) [V], Q ≥ 0 imposed)} with the relaxing polarisation ``v_relax_V``."""
+    return {case: (v_relax_V if V0 != (0.0, 0.0) else V0, qn) for case, (V0, qn) in CASES.items()}
 
 
 def lq_discrete_exact(cell: CellParams, V0: tuple[float, float], t_f: float, N: int) -> tuple[float, np.ndarray]:
@@ -137,10 +142,12 @@ def _verdict(case: str, V0: tuple[float, float], q_nonneg: bool, res: OCPResult,
 
 
 def run_prop31(method: str = "ms", N: int = 200,
-               cell: CellParams | None = None, t_f: float = T_F_S, refine: bool = True) -> dict[str, dict[str, Any]]:
+               cell: CellParams | None = None, t_f: float = T_F_S, refine: bool = True, soc0: float = SOC0,
+               v_relax_V: tuple[float, float] = V_RELAX) -> dict[str, dict[str, Any]]:
     """Solve OCP-A's four cases and test the uniqueness claim of Proposition 3.1.
 
-    method: 'ms' or 'collocation'; N: intervals over t_f [s]. Returns {case: entry} with entry keys
+    method: 'ms' or 'collocation'; N: intervals over t_f [s]; cell: the cell (default CellParams(), the
+    A123); soc0: S(0) [-]; v_relax_V: the relaxing cases' initial polarisation (V1(0), V2(0)) [V]. Returns {case: entry} with entry keys
     objective_J, max_abs_current_A, zero_heat_alternative_objective_J, status, iterations, verdict,
     plus details (alternative currents, LQ reference for the cases without Q ≥ 0, stored energy
     W(0) [J], result: the OCPResult). :func:`aev_ocp.ocp_plots.write_prop31_outputs` writes prop31.json and
@@ -150,6 +157,15 @@ def run_prop31(method: str = "ms", N: int = 200,
     objective with 2N intervals (objective_2N_J).
     """
     cell = cell or CellParams()
+    check_declared(CellParams, "soc0", soc0, "run_prop31")
+    try:
+        v_relax = (float(v_relax_V[0]), float(v_relax_V[1]))
+        ok = len(v_relax_V) == 2 and all(math.isfinite(v) for v in v_relax) and v_relax != (0.0, 0.0)
+    except (TypeError, ValueError, IndexError):
+        ok = False
+    if not ok:
+        raise ParameterError(f"run_prop31: v_relax_V = {v_relax_V!r} is not allowed: two finite voltages [V], "
+                             "not both 0")
     if method not in ("ms", "collocation"):
         raise ParameterError(f"run_prop31: method = {method!r} is not allowed: must be 'ms' or 'collocation'")
     opts = TranscriptionOptions(method=method, N=N)
@@ -158,19 +174,19 @@ def run_prop31(method: str = "ms", N: int = 200,
     fine = {qn: OCPSolver(cell_problem(cell, qn, name=f"ocp_a2{'_qnn' if qn else ''}"),
                           TranscriptionOptions(method=method, N=2 * N, mx_map=True)) for qn in (False, True)} if refine else {}
     out: dict[str, dict[str, Any]] = {}
-    for case, (V0, qn) in CASES.items():
-        res = solvers[qn].solve([V0[0], V0[1], SOC0], t_f)
+    for case, (V0, qn) in prop31_cases(v_relax).items():
+        res = solvers[qn].solve([V0[0], V0[1], soc0], t_f)
         if res.success:
             # |ΔJ| ≤ 1e-6 J: the solver-tolerance level of the Q ≥ 0 cases (see _verdict)
-            ex = resimulate_cell_current(cell, res.t, res.controls["I"], [V0[0], V0[1], SOC0])
+            ex = resimulate_cell_current(cell, res.t, res.controls["I"], [V0[0], V0[1], soc0])
             record_smoothing_gap(res, ex["heat_J"], "no smoothing; CVODES re-simulation", atol=1e-6)
             if refine:
-                res2 = fine[qn].solve([V0[0], V0[1], SOC0], t_f)
+                res2 = fine[qn].solve([V0[0], V0[1], soc0], t_f)
                 if res2.success:
-                    ex2 = resimulate_cell_current(cell, res2.t, res2.controls["I"], [V0[0], V0[1], SOC0])
+                    ex2 = resimulate_cell_current(cell, res2.t, res2.controls["I"], [V0[0], V0[1], soc0])
                     res2.objective_exact = ex2["heat_J"]
                 record_refinement(res, res2)
-        alt = zero_heat_alternatives(cell, V0, t_f)
+        alt = zero_heat_alternatives(cell, V0, t_f, soc0)
         W0 = float(battery.stored_energy_J(V0[0], V0[1], cell))
         entry: dict[str, Any] = {
             "objective_J": res.objective,

@@ -3,13 +3,13 @@
 An :class:`OCPProblem` describes a problem on a fixed grid of ``N`` intervals of length
 ``h = t_f / N`` (time in the problem's own unit): the ODE right-hand side, an integrated
 (Lagrange) cost and/or a cost sampled at the start of each interval (``stage(x_k, u_k)·h``, as in
-PROBLEM.md §9), path constraints at the nodes ``k = 0 … N−1`` (optionally also at collocation
+model guide §9), path constraints at the nodes ``k = 0 … N−1`` (optionally also at collocation
 points), terminal constraints, and simple bounds on states (nodes ``1 … N`` and collocation
 points; the initial state is fixed by an equality constraint) and on controls. Controls are
 piecewise constant. Every function takes ``(x, u, w, p)``: ``w`` is a per-interval parameter
 (e.g. the leader's interval-mean speed) and ``p`` a global one.
 
-Two transcriptions (PROBLEM.md §8, "multiple shooting and collocation, selectable"):
+Two transcriptions (model guide §8, "multiple shooting and collocation, selectable"):
 
 * ``method="ms"``: direct multiple shooting, RK4 with ``rk4_substeps`` sub-steps per interval;
   the Lagrange cost is integrated by the same RK4 as an extra quadrature state.
@@ -198,6 +198,61 @@ def interval_function(pr: OCPProblem, o: TranscriptionOptions) -> ca.Function:
                        ["xk", "uk", "xc", "xn", "w", "p", "h"], ["eq", "path", "J"], {"cse": True})
 
 
+@dataclass
+class HorizonNLP:
+    """The horizon NLP of a problem on the transcription's interval function (:func:`horizon_nlp`), on the
+    caller's symbols: node states ``X`` (nx, N+1), controls ``U`` (nu, N), collocation states ``Xc`` (nx·d, N)
+    (all scaled), the objective, the constraint parts ``g`` (the intervals' equations and path constraints
+    stage by stage, then the terminal constraints) with their bounds ``lbg``/``ubg``, and ``n_eq``, ``n_path``
+    rows per interval."""
+
+    X: Any
+    U: Any
+    Xc: Any
+    objective: Any
+    g: list[Any]
+    lbg: list[np.ndarray]
+    ubg: list[np.ndarray]
+    n_eq: int
+    n_path: int
+
+
+def horizon_nlp(pr: OCPProblem, o: TranscriptionOptions, V: Any, W: Any, p: Any, h: Any,
+                stage_weights: Any = None, interval: ca.Function | None = None) -> HorizonNLP:
+    """The one assembly of a problem's horizon NLP, shared by :class:`OCPSolver` (OCP-D and every OCP) and the
+    MPC (:class:`aev_ocp.mpc.nlp.HorizonNLP`): the decision vector ``V`` = (x_0, u_0, xc_0, x_1, …, x_N) scaled
+    (blocks of nx + nu + nx·d per interval, then x_N), the stage parameters ``W`` (nw, N), the parameters ``p``
+    and the interval length ``h`` (a scalar or (1, N)), all symbols of one class (SX or MX); the interval
+    function mapped over the N intervals; the objective Σ_k J_k (or Σ_k s_k J_k with ``stage_weights`` (1, N))
+    plus the terminal cost; the terminal constraints last. The initial state is the caller's (an equality
+    constraint for OCPSolver, equal simple bounds for the MPC). ``interval``: the problem's
+    :func:`interval_function` for ``o`` when the caller has built it already."""
+    nx, nu, N = pr.nx, pr.nu, o.N
+    d = o.degree if o.method == "collocation" else 0
+    nb = nx + nu + nx * d
+    blocks = ca.reshape(V[:nb * N], nb, N)
+    X = ca.horzcat(blocks[:nx, :], V[nb * N:])
+    U = blocks[nx:nx + nu, :]
+    Xc = blocks[nx + nu:, :]
+    F = (interval if interval is not None else interval_function(pr, o)).map(N)
+    eq, path, J = F(X[:, :N], U, Xc, X[:, 1:], W, ca.repmat(p, 1, N), h)
+    xs = ca.DM(_vec(pr.x_scale, nx, 1.0))
+    n_eq, n_path = eq.size1(), path.size1()
+    lbg_k = np.concatenate([np.zeros(n_eq), np.tile(np.asarray(pr.path_lb, float), n_path // max(len(pr.path_lb), 1))
+                            if n_path else np.zeros(0)])
+    ubg_k = np.concatenate([np.zeros(n_eq), np.tile(np.asarray(pr.path_ub, float), n_path // max(len(pr.path_ub), 1))
+                            if n_path else np.zeros(0)])
+    g, lbg, ubg = [ca.vec(ca.vertcat(eq, path))], [np.tile(lbg_k, N)], [np.tile(ubg_k, N)]
+    obj = ca.sum2(J) if stage_weights is None else ca.sum2(J * stage_weights)
+    if pr.terminal_cost is not None:
+        obj = obj + pr.terminal_cost(X[:, N] * xs, p)
+    if pr.terminal is not None:
+        g.append(pr.terminal(X[:, N] * xs, p))
+        lbg.append(np.asarray(pr.terminal_lb, float))
+        ubg.append(np.asarray(pr.terminal_ub, float))
+    return HorizonNLP(X, U, Xc, obj, g, lbg, ubg, n_eq, n_path)
+
+
 class OCPSolver:
     """A transcribed OCP with its IPOPT solver, built once; :meth:`solve` re-solves with new data.
 
@@ -227,36 +282,22 @@ class OCPSolver:
         # MX | SX, so the symbols (and the expressions built from them) are typed Any
         SYM: Any = ca.MX if o.mx_map else ca.SX
         V = SYM.sym("V", nv)
-        blocks = ca.reshape(V[:nb * N], nb, N)
-        Xs = ca.horzcat(blocks[:nx, :], V[nb * N:])
-        Us = blocks[nx:nx + nu, :]
-        Xcs = blocks[nx + nu:, :]
         P_x0 = SYM.sym("x0", nx)
         P_p = SYM.sym("p", npar)
         P_w = SYM.sym("w", nw * N)
         P_tf = SYM.sym("tf")
         h = P_tf / N
         W = ca.reshape(P_w, nw, N)
-        F = interval_function(pr, o).map(N)
-        eq, path, J = F(Xs[:, :N], Us, Xcs, Xs[:, 1:], W, ca.repmat(P_p, 1, N), ca.repmat(h, 1, N))
+        hz = horizon_nlp(pr, o, V, W, P_p, ca.repmat(h, 1, N))
+        Xs, Us, Xcs = hz.X, hz.U, hz.Xc
         xs = ca.DM(_vec(pr.x_scale, nx, 1.0))
-        n_eq, n_path = eq.size1(), path.size1()
-        g_parts = [(Xs[:, 0] * xs - P_x0) / xs, ca.vec(ca.vertcat(eq, path))]
-        lbg_k = np.concatenate([np.zeros(n_eq), np.tile(np.asarray(pr.path_lb, float), n_path // max(len(pr.path_lb), 1))
-                                if n_path else np.zeros(0)])
-        ubg_k = np.concatenate([np.zeros(n_eq), np.tile(np.asarray(pr.path_ub, float), n_path // max(len(pr.path_ub), 1))
-                                if n_path else np.zeros(0)])
-        lbg = [np.zeros(nx), np.tile(lbg_k, N)]
-        ubg = [np.zeros(nx), np.tile(ubg_k, N)]
-        obj = ca.sum2(J)
-        if pr.terminal_cost is not None:
-            obj = obj + pr.terminal_cost(Xs[:, N] * xs, P_p)
-        if pr.terminal is not None:
-            g_parts.append(pr.terminal(Xs[:, N] * xs, P_p))
-            lbg.append(np.asarray(pr.terminal_lb, float))
-            ubg.append(np.asarray(pr.terminal_ub, float))
+        # the initial state: an equality constraint (x0 is a parameter), first
+        g_parts = [(Xs[:, 0] * xs - P_x0) / xs, *hz.g]
+        lbg = [np.zeros(nx), *hz.lbg]
+        ubg = [np.zeros(nx), *hz.ubg]
+        obj = hz.objective
         self._lbg, self._ubg = np.concatenate(lbg), np.concatenate(ubg)
-        self._n_eq, self._n_path = n_eq, n_path
+        self._n_eq, self._n_path = hz.n_eq, hz.n_path
         # simple bounds (scaled): initial state free (fixed by g), nodes 1..N and collocation states bounded
         us = _vec(pr.u_scale, nu, 1.0)
         xl = _vec(pr.x_lb, nx, -np.inf) / xs.full().ravel()

@@ -95,6 +95,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--predictor", default="constant-velocity",
                    help="MPC leader forecast for --law mpc: constant-velocity, constant-acceleration, "
                         "cooperative, oracle")
+    p.add_argument("--ring", type=int, default=None, metavar="N",
+                   help="linear stability of uniform flow on a ring of N vehicles of this law instead (aev_ocp.ring)")
+    ring = p.add_mutually_exclusive_group()
+    ring.add_argument("--spacing-m", type=float, default=None, help="--ring: spacing L/N front to front [m]")
+    ring.add_argument("--density-per-km", type=float, default=None, help="--ring: vehicles per km")
+    p.add_argument("--vehicle-length-m", type=float, default=5.0, help="--ring: vehicle length [m] (default 5)")
     p.add_argument("--linear-only", action="store_true", help="skip the simulations")
     p.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
     p.add_argument("--out", default=None, help="output folder (default results/stability/<law>)")
@@ -174,6 +180,14 @@ def cli_stability(argv: list[str]) -> int:
             raise ParameterError(f"--predictor {a.predictor!r}: must be one of {PREDICTOR_NAMES}")
         units = _units(a)
         law = None if is_mpc else build_law(a.law, a.set)
+        if a.ring is not None:  # the ring's modes (aev_ocp.ring.stability)
+            from ..ring.cli import cli_ring_stability
+
+            if law is None:
+                raise ParameterError("--ring: needs a car-following law (--law), not the MPC")
+            return cli_ring_stability(law, a.ring, a.spacing_m, a.density_per_km, a.vehicle_length_m, units,
+                                      Path(a.out) if a.out else Path("results") / "stability" / f"ring_{a.law.lower()}",
+                                      not a.linear_only)
         mv = _model_values(a, units)
         speeds = mv["speed"] or [_V_STAR]
         n = a.followers if a.followers is not None else (6 if is_mpc else 50)

@@ -94,7 +94,15 @@ def _simulate(spec: dict[str, Any]) -> Any:
     if ctrl.kind == "law":
         return _simulator(sc, ctrl.name).run(list(sc.gaps0), list(sc.speeds0), sc.t_end)
     if ctrl.kind == "mpc":
-        return closed_loop_from_scenario(sc, cfg).run(list(sc.gaps0), list(sc.speeds0), sc.t_end)
+        r = closed_loop_from_scenario(sc, cfg).run(list(sc.gaps0), list(sc.speeds0), sc.t_end)
+        if spec.get("own_cost"):  # the study has an OCP-D: its bound check needs follower 1's own cost
+            from ..mpc.report import own_cost
+
+            f = cfg.formulation
+            st = dict(r.solver_stats[0] or {}) if r.solver_stats else {}
+            st[f.cost_key] = own_cost(r, 0, cfg.settings, f, sc.ev)
+            r.solver_stats = [st, *r.solver_stats[1:]]
+        return r
     return _ocpd(sc, cfg.settings, cfg.formulation)
 
 
@@ -127,23 +135,19 @@ def _simulator(sc: Any, law: str) -> Any:
 
 
 def _ocpd(sc: Any, s: Any, f: Any) -> Any:
-    """OCP-D (the MPC's formulation ``f`` over the whole scenario, on the MPC's grid), its optimal controls
-    replayed through the exact plant, as run by :func:`aev_ocp.mpc.report.run_comparison`."""
-    import numpy as np
+    """OCP-D (the MPC's formulation ``f`` over the whole scenario, on the MPC's grid, or the coarse grid when that
+    is too large) with its optimal controls replayed through the exact plant: the solve-and-replay of
+    :func:`aev_ocp.mpc.report.run_comparison` (:func:`aev_ocp.ocp.oracle.solve_and_replay`). solver_stats holds
+    the optimum ('<cost_key>_optimum'), its grid step 'grid_dt' [model time] and 'coarse' (a coarse grid's optimum
+    is a reference, never a bound)."""
+    from ..ocp.oracle import solve_and_replay
 
-    from ..control import ClosedLoop, ControlSequence
-    from ..ocp.oracle import OracleScenario, OracleSolver
-
-    # the MPC's own problem (the formulation's; the traffic formulation's jerk term on this grid)
-    scn = OracleScenario(leader=sc.leader, t_end=sc.t_end, dt=s.dt, h0=sc.gaps0[0], v0=sc.speeds0[0],
-                         S0=sc.ev.cell.soc0, ev=sc.ev, name=sc.name, formulation=f)
-    res = OracleSolver(scn).solve()
-    if not res.success:
-        raise RuntimeError(f"OCP-D did not converge: {res.status}")
-    seq = ControlSequence(tuple(np.asarray(res.controls["a"], float).ravel()), s.dt, "ocp-d")
-    r = ClosedLoop(sc.leader, [seq], sc.ev).run(list(sc.gaps0), list(sc.speeds0), sc.t_end)
-    key = f"{f.cost_key}_optimum"
-    r.solver_stats = [{key: float(res.objective)}]
+    sr = solve_and_replay(sc, s.dt, f)
+    if sr.replay is None:
+        raise RuntimeError(f"OCP-D did not converge: {sr.result.status}")
+    r = sr.replay
+    r.solver_stats = [{f"{f.cost_key}_optimum": float(sr.result.objective), "grid_dt": sr.scenario.dt,
+                       "coarse": sr.coarse}]
     return r
 
 

@@ -139,7 +139,9 @@ class Study:
     def tasks(self) -> list[Task]:
         """Every point × controller as a task (tasks with equal specifications share one hash)."""
         if self._tasks is None:
-            self._tasks = [make_task(p, c) for p in self.points for c in self.controllers]
+            own_cost = any(c.kind == "ocpd" for c in self.controllers)  # OCP-D's bound check needs the MPC's cost
+            self._tasks = [make_task(p, c, own_cost=own_cost and c.kind == "mpc") for p in self.points
+                           for c in self.controllers]
         return list(self._tasks)
 
     @property
@@ -168,8 +170,9 @@ def _law_fingerprint(doc: dict[str, Any], law: str) -> dict[str, Any]:
     return {"law": law, "coefficients": {f.name: getattr(obj, f.name) for f in dataclasses.fields(obj)}}
 
 
-def make_task(p: Point, c: Controller) -> Task:
-    """The task of point ``p`` under controller ``c`` and its hash.
+def make_task(p: Point, c: Controller, own_cost: bool = False) -> Task:
+    """The task of point ``p`` under controller ``c`` and its hash; ``own_cost``: an MPC task also reports its
+    formulation's own cost of follower 1 (``<cost_key>``; the OCP-D bound check of :func:`build_rows`).
 
     The hash covers the full normalised specification: the scenario document (without what cannot
     change this run: name, description, compare, and for a closed-form law the [mpc] table and the
@@ -188,11 +191,13 @@ def make_task(p: Point, c: Controller) -> Task:
         identity = {"document": doc}
     identity.update({"controller": {"kind": c.kind, "name": c.name, "settings": dict(c.settings)},
                      "version": __version__})
+    if own_cost:  # (only then in the hash: other tasks keep theirs)
+        identity["own_cost"] = True
     trace = _trace_file(p.document, p.file)
     if trace is not None:  # a recorded leader: its data, not only its file name, decides the result
         identity["leader_trace_sha256"] = hashlib.sha256(trace.read_bytes()).hexdigest() if trace.is_file() else None
     key = hashlib.sha256(canonical_json(identity).encode()).hexdigest()
-    spec = {"document": p.document, "file": p.file, "controller": c.as_dict(), "key": key}
+    spec = {"document": p.document, "file": p.file, "controller": c.as_dict(), "key": key, "own_cost": own_cost}
     return Task(p.index, c.label, spec, key)
 
 

@@ -110,7 +110,31 @@ def build_rows(study: Study, results: dict[str, dict[str, Any]]) -> list[dict[st
                 row["task_hash"] = t.key
                 row.update(prov)
                 rows.append(row)
+    _ocpd_roles(study, rows)
     return rows
+
+
+def _ocpd_roles(study: Study, rows: list[dict[str, Any]]) -> None:
+    """The OCP-D rows' bound check, as ``aev-ocp mpc``'s (:func:`aev_ocp.ocp.oracle.bound_role`): 'ocpd_role'
+    'bound' only when OCP-D was solved on the MPC's grid and its optimum is at most the own cost of every MPC run
+    of the same point and vehicle (within BOUND_RTOL), else 'reference' with 'ocpd_role_reason'. The laws' rows
+    carry no cost on the MPC's grid (their task does not read the [mpc] table) and are not part of the check."""
+    from ..ocp.oracle import bound_role
+
+    kind = {c.label: c.kind for c in study.controllers}
+    for r in rows:
+        if kind.get(r["controller"]) != "ocpd" or r["status"] == "error":
+            continue
+        key = next((k[:-len("_optimum")] for k in r if k.endswith("_optimum")), None)
+        if key is None:
+            continue
+        if r.get("coarse"):
+            r["ocpd_role"], r["ocpd_role_reason"] = "reference", (
+                f"OCP-D was solved on a coarser grid (dt = {r.get('grid_dt')}): it bounds nothing on the MPC's grid")
+            continue
+        runs = {x["controller"]: [x] for x in rows if x["point"] == r["point"] and x.get("vehicle") == r.get("vehicle")
+                and kind.get(x["controller"]) == "mpc" and x["status"] != "error"}
+        r["ocpd_role"], r["ocpd_role_reason"] = bound_role(float(r[f"{key}_optimum"]), runs, key)
 
 
 def columns(rows: list[dict[str, Any]], axis_keys: list[str]) -> list[str]:
@@ -167,7 +191,7 @@ def load_table(path: str | Path, as_dataframe: bool = False) -> Any:
     else:
         rows = [json.loads(line) for line in p.read_text(encoding="utf-8").splitlines() if line.strip()]
     if as_dataframe:
-        import pandas as pd
+        from ..results import require_pandas
 
-        return pd.DataFrame(rows)
+        return require_pandas("load_table(as_dataframe=True)").DataFrame(rows)
     return rows

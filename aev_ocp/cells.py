@@ -1,0 +1,163 @@
+"""Cells as data: a cell parameter file (TOML) → :class:`~aev_ocp.params.CellParams`.
+
+A cell file holds one cell's 2-RC values, OCV curve, capacity, current limit and thermal properties, every
+number with its unit in the key and its source beside it::
+
+    name = "a123_anr26650"            # the name scenarios use: [cell] name = "a123_anr26650"
+    chemistry = "LFP"                 # LFP, NMC or NCA (picks the battery-life model, aev_ocp.life)
+    description = "..."
+    capacity_Ah = { value = 2.3, source = "A123 ANR26650M1-B datasheet" }
+    R_s_ohm = { value = 0.010, source = "..." }
+    ...                               # any CellParams field but soc0 (the scenario's initial state)
+    [ocv]                             # the OCV curve: a CSV beside the file (columns soc, ocv_V) ...
+    file = "a123_ocv_25C.csv"
+    source = "..."
+    # ... or inline: soc = [0.0, ..., 1.0]  ocv_V = [..]
+
+Shipped cells live in ``aev_ocp/data/cells/``; :func:`load_cell` takes a shipped name or a path. Every key is
+checked against the CellParams declaration; errors are one line naming the file and the key.
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import tomllib
+from dataclasses import dataclass
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+from .params import CellParams, ParameterError, check_ocv_table, field_checks
+
+CHEMISTRIES = ("LFP", "NMC", "NCA")
+#: CellParams fields a cell file may set (soc0 is the scenario's initial state, the OCV comes from [ocv]).
+CELL_KEYS = tuple(f.name for f in dataclasses.fields(CellParams) if f.name not in ("soc0", "ocv_soc", "ocv_V"))
+
+
+class CellFileError(ParameterError):
+    """A cell file is invalid; the message names the file and the key."""
+
+
+@dataclass(frozen=True)
+class CellFile:
+    """A loaded cell file: the cell, its name, chemistry, description, the source of every value and the path."""
+
+    cell: CellParams
+    name: str
+    chemistry: str
+    description: str
+    sources: dict[str, str]
+    path: str
+
+
+def cell_dir() -> Path:
+    """The folder of the shipped cell files."""
+    return Path(str(resources.files("aev_ocp") / "data" / "cells"))
+
+
+def shipped_cells() -> dict[str, Path]:
+    """{name: path} of the shipped cell files."""
+    return {p.stem: p for p in sorted(cell_dir().glob("*.toml"))}
+
+
+def _read_csv(path: Path, file: str) -> tuple[list[float], list[float]]:
+    try:
+        with path.open(newline="", encoding="utf-8") as fh:
+            rows = list(csv.DictReader(fh))
+    except OSError as exc:
+        raise CellFileError(f"{file}: ocv.file = {str(path)!r} cannot be read: {exc.strerror or exc}") from None
+    try:
+        return [float(r["soc"]) for r in rows], [float(r["ocv_V"]) for r in rows]
+    except (KeyError, TypeError, ValueError):
+        raise CellFileError(f"{file}: ocv.file = {str(path)!r} is not allowed: needs numeric columns soc, ocv_V") from None
+
+
+def parse_cell(doc: dict[str, Any], file: str = "<cell>", base_dir: Path | None = None) -> CellFile:
+    """Validate a parsed cell document (``file`` names it in messages; ``base_dir`` resolves ``ocv.file``)."""
+    allowed = ("name", "chemistry", "description", "ocv") + CELL_KEYS
+    for key in doc:
+        if key not in allowed:
+            raise CellFileError(f"{file}: unknown key {key!r}; allowed: {sorted(allowed)}")
+    name = doc.get("name")
+    if not isinstance(name, str) or not name:
+        raise CellFileError(f"{file}: name = {name!r} is not allowed: a non-empty string is required")
+    chem = doc.get("chemistry")
+    if chem not in CHEMISTRIES:
+        raise CellFileError(f"{file}: chemistry = {chem!r} is not allowed: one of {CHEMISTRIES}")
+    checks = field_checks(CellParams)
+    values: dict[str, Any] = {}
+    sources: dict[str, str] = {}
+    for key in CELL_KEYS:
+        if key not in doc:
+            raise CellFileError(f"{file}: {key} is missing (required, as {{ value = ..., source = \"...\" }})")
+        entry = doc[key]
+        if not isinstance(entry, dict) or set(entry) - {"value", "source"} or "source" not in entry:
+            raise CellFileError(f"{file}: {key} = {entry!r:.60} is not allowed: must be {{ value = ..., "
+                                "source = \"...\" }} (value may be left out only where None is allowed)")
+        if not isinstance(entry["source"], str) or not entry["source"].strip():
+            raise CellFileError(f"{file}: {key}.source is not allowed: a non-empty string is required")
+        value = entry.get("value")
+        problem = checks[key].problem(value)
+        if problem is not None:
+            raise CellFileError(f"{file}: {key}.value = {value!r} is not allowed: {problem}")
+        values[key] = float(value) if isinstance(value, int) and not isinstance(value, bool) else value
+        sources[key] = entry["source"]
+    ocv = doc.get("ocv")
+    if not isinstance(ocv, dict):
+        raise CellFileError(f"{file}: [ocv] is missing (required: file = \"x.csv\" or soc = [...], ocv_V = [...])")
+    extra = set(ocv) - {"file", "soc", "ocv_V", "source"}
+    if extra:
+        raise CellFileError(f"{file}: unknown key ocv.{sorted(extra)[0]}; allowed: file, soc, ocv_V, source")
+    if not isinstance(ocv.get("source"), str) or not ocv["source"].strip():
+        raise CellFileError(f"{file}: ocv.source is missing (required: where the curve comes from)")
+    soc: Any
+    volts: Any
+    if "file" in ocv:
+        if "soc" in ocv or "ocv_V" in ocv:
+            raise CellFileError(f"{file}: ocv: give file or soc/ocv_V, not both")
+        p = Path(str(ocv["file"]))
+        soc, volts = _read_csv(p if p.is_absolute() else (base_dir or Path.cwd()) / p, file)
+    else:
+        soc, volts = ocv.get("soc"), ocv.get("ocv_V")
+        if not isinstance(soc, list) or not isinstance(volts, list) or not all(
+                isinstance(x, (int, float)) and not isinstance(x, bool) for x in soc + volts):
+            raise CellFileError(f"{file}: ocv.soc and ocv.ocv_V must be arrays of numbers")
+    try:
+        check_ocv_table(soc, volts, "ocv")
+        cell = CellParams(**values, ocv_soc=tuple(float(x) for x in soc), ocv_V=tuple(float(x) for x in volts))
+    except ParameterError as exc:
+        raise CellFileError(f"{file}: {exc}") from None
+    sources["ocv"] = ocv["source"]
+    return CellFile(cell, name, chem, str(doc.get("description", "")), sources, file)
+
+
+def find_cell(name_or_path: str | Path) -> Path:
+    """The path of a shipped cell name or of a cell file; CellFileError listing the shipped names otherwise."""
+    shipped = shipped_cells()
+    if str(name_or_path) in shipped:
+        return shipped[str(name_or_path)]
+    p = Path(name_or_path)
+    if p.is_file():
+        return p
+    raise CellFileError(f"cell {str(name_or_path)!r} is neither a shipped cell ({', '.join(shipped)}) nor a file")
+
+
+def load_cell_file(name_or_path: str | Path, base_dir: Path | None = None) -> CellFile:
+    """Load a shipped cell by name or a cell file by path (relative paths: to ``base_dir``, else the cwd)."""
+    p = Path(name_or_path)
+    if base_dir is not None and not p.is_absolute() and str(name_or_path) not in shipped_cells():
+        p = base_dir / p
+    path = find_cell(p if p.is_file() else name_or_path)
+    try:
+        doc = tomllib.loads(path.read_text(encoding="utf-8"))
+    except tomllib.TOMLDecodeError as exc:
+        raise CellFileError(f"{path}: not valid TOML: {exc}") from None
+    except OSError as exc:
+        raise CellFileError(f"{path}: cannot be read: {exc.strerror or exc}") from None
+    return parse_cell(doc, str(path), path.parent)
+
+
+def load_cell(name_or_path: str | Path) -> CellParams:
+    """The CellParams of a shipped cell name (e.g. 'a123_anr26650') or a cell file path."""
+    return load_cell_file(name_or_path).cell

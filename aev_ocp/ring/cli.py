@@ -1,0 +1,172 @@
+"""``aev-ocp ring sugiyama | stern | sweep | SCENARIO.toml [--t-end-s S] [--seed K] [--out DIR] [--no-plots]``.
+
+The ring experiments (see :mod:`aev_ocp.ring.experiments`): ``sugiyama`` (22 human drivers on 230 m: the jam
+emerges; and on 600 m, where uniform flow is linearly stable: it does not), ``stern`` (the same ring all-human
+and with one AEV under each AEV controller, with a space-time diagram of each run), ``sweep`` (penetration
+0–5 AEVs of 22, spread evenly, × ring lengths; ``--aev`` the controller). Writes ring.json (fleet metrics, SI)
+and the PNGs to ``--out``; prints the fleet table. A ring scenario file (:mod:`aev_ocp.ring.scenario`; shipped:
+``ring_sugiyama``, ``ring_stern``) runs its own runs (``--t-end-s`` overrides its horizon; ``--seed`` is the file's). Exit codes: 0 ok, 1 a run stopped on an event, 2 bad input.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+from pathlib import Path
+from typing import Any
+
+from ..console import EXIT_BAD_INPUT, EXIT_FAILED_RUN, EXIT_OK
+from ..console import OneLineParser as _Parser
+from ..console import error_line as _err
+from ..params import ParameterError
+from ..scenarios import ScenarioError
+
+COLUMNS = ("speed_std_mps", "mean_speed_mps", "vehicles_stopped", "braking_events", "energy_J_per_km",
+           "heat_pack_J_per_km", "soc_used_mean", "min_gap_m", "wave_speed_mps", "status")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """Argument parser of ``aev-ocp ring``."""
+    p = _Parser(prog="aev-ocp ring", description="mixed traffic on a ring road: the Sugiyama and Stern experiments")
+    p.add_argument("experiment", metavar="EXPERIMENT|SCENARIO",
+                   help="sugiyama, stern, sweep, or a ring scenario file / shipped name (ring_sugiyama, ring_stern)")
+    p.add_argument("--t-end-s", type=float, default=None, help="simulated time [s] (default 600, or the scenario's)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the human drivers' acceleration noise (default 0)")
+    p.add_argument("--aev", default="followerstopper",
+                   help="sweep: the AEV controller (followerstopper, pi-saturation, proposed, ovfl, mpc; default "
+                        "followerstopper)")
+    p.add_argument("--penetration", type=int, action="append", default=None, metavar="K",
+                   help="sweep: number of AEVs among the 22 (repeatable; default 0 1 2 3 4 5)")
+    p.add_argument("--length-m", type=float, action="append", default=None, metavar="L",
+                   help="sweep: ring length [m] (repeatable; default 230 260 300)")
+    p.add_argument("--no-plots", action="store_true", help="skip the space-time diagrams")
+    p.add_argument("--out", default=None, help="output folder (default results/ring/<experiment>)")
+    return p
+
+
+def _row(label: str, fleet: dict[str, Any]) -> str:
+    cells = []
+    for k in COLUMNS:
+        v = fleet[k]
+        cells.append(f"{v:.4g}" if isinstance(v, float) else str(v))
+    return f"{label:<24}" + "  ".join(f"{c:>10}" for c in cells)
+
+
+def cli_ring(argv: list[str]) -> int:
+    """Entry point of ``aev-ocp ring``; returns the exit code."""
+    from ..results import write_json
+    from .experiments import STABLE_LENGTH_M, human_ring, make_aev, relative_to, run_ring, stern, sugiyama
+    from .simulate import uniform_speed_mps
+
+    try:
+        a = build_parser().parse_args(argv)
+    except SystemExit as exc:
+        return int(exc.code or 0)
+    try:
+        if a.t_end_s is not None and not (math.isfinite(a.t_end_s) and 0 < a.t_end_s <= 36_000):
+            raise ParameterError(f"--t-end-s {a.t_end_s!r}: must be in (0, 36000] s")
+        sc = None
+        if a.experiment not in ("sugiyama", "stern", "sweep"):
+            from .experiments import run_ring_scenario
+            from .scenario import load_ring_scenario
+
+            sc = load_ring_scenario(a.experiment)
+        else:
+            a.t_end_s = 600.0 if a.t_end_s is None else a.t_end_s
+        out = Path(a.out) if a.out else Path("results") / "ring" / (sc.name if sc is not None else a.experiment)
+        runs: list[Any]
+        doc: dict[str, Any] = {"experiment": a.experiment, "t_end_s": a.t_end_s, "seed": a.seed}
+        if sc is not None:
+            runs = run_ring_scenario(sc, t_end_s=a.t_end_s)
+            doc.update({"experiment": sc.name, "scenario": str(sc.source), "t_end_s": runs[0].result.t_s[-1]
+                        if a.t_end_s is None else a.t_end_s, "seed": sc.spec.seed,
+                        "initial": runs[0].result.initial.perturbation})
+            if runs[0].label == "all human" and len(runs) > 1:
+                doc["relative_to_all_human"] = {r.label: relative_to(runs[0].fleet, r.fleet) for r in runs[1:]}
+        elif a.experiment == "sugiyama":
+            runs = sugiyama(a.t_end_s, seed=a.seed)
+            doc["stable_length_m"] = STABLE_LENGTH_M
+        elif a.experiment == "stern":
+            runs = stern(t_end_s=a.t_end_s, seed=a.seed)
+            doc["relative_to_all_human"] = {r.label: relative_to(runs[0].fleet, r.fleet) for r in runs[1:]}
+        else:
+            pens = a.penetration if a.penetration is not None else [0, 1, 2, 3, 4, 5]
+            lengths = a.length_m if a.length_m is not None else [230.0, 260.0, 300.0]
+            for k in pens:
+                if not 0 <= k <= 22:
+                    raise ParameterError(f"--penetration {k}: must be an integer in [0, 22]")
+            for L in lengths:
+                if not (math.isfinite(L) and L > 22 * 5.0):
+                    raise ParameterError(f"--length-m {L!r}: must exceed 110 m (22 vehicles of 5 m)")
+            runs = []
+            for L in lengths:
+                base = human_ring(L, seed=a.seed)
+                r_mps = 0.85 * uniform_speed_mps(base)
+                for k in pens:
+                    idx = sorted({int(round(j * 22 / k)) for j in range(k)}) if k else []
+                    ring = human_ring(L, aevs={i: make_aev(a.aev, base.ev, r_mps) for i in idx}, seed=a.seed)
+                    runs.append(run_ring(ring, a.t_end_s, label=f"L={L:g} m, {k} AEV"))
+                    runs[-1].fleet.update({"length_m": L, "density_per_km": ring.density_per_km, "aevs": k})
+        out.mkdir(parents=True, exist_ok=True)
+        doc["runs"] = [{"label": r.label, **r.fleet} for r in runs]
+        files = [write_json(out / "ring.json", doc)]
+        if not a.no_plots and a.experiment != "sweep" and not (sc is not None and sc.spec.sweep_aevs):
+            from .plots import space_time
+
+            for r in runs:
+                name = "space_time_" + "".join(c if c.isalnum() else "_" for c in r.label) + ".png"
+                space_time(r.result, out / name, r.label)
+                files.append(out / name)
+    except (ParameterError, ScenarioError) as exc:
+        _err(str(exc))
+        return EXIT_BAD_INPUT
+    except OSError as exc:
+        _err(f"{exc.strerror or exc}: {exc.filename}" if exc.filename else str(exc))
+        return EXIT_BAD_INPUT
+    print(f"{'run':<24}" + "  ".join(f"{c[:10]:>10}" for c in COLUMNS))
+    for r in runs:
+        print(_row(r.label, r.fleet))
+    print(f"wrote {len(files)} files to {out}/")
+    bad = [r for r in runs if r.fleet["status"] != "ok"]
+    for r in bad:
+        print(f"aev-ocp ring: {r.label}: run stopped ({r.fleet['status']})", file=sys.stderr)
+    return EXIT_FAILED_RUN if bad else EXIT_OK
+
+
+def cli_ring_stability(law: Any, n: int, spacing_m: float | None, density_per_km: float | None,
+                       vehicle_length_m: float, units: Any, out: Path, measure: bool) -> int:
+    """``aev-ocp stability --ring N``: the ring's modes, growth rate, wavelength, n → ∞ limit and the head-to-tail
+    criterion, with the measured growth beside them; writes ring_stability.json."""
+    from ..params import EVParams
+    from ..results import write_json
+    from .stability import measured_growth, ring_stability
+
+    if (spacing_m is None) == (density_per_km is None):
+        raise ParameterError("--ring: give the spacing with --spacing-m or the density with --density-per-km (one)")
+    spacing = spacing_m if spacing_m is not None else 1000.0 / float(density_per_km)  # type: ignore[arg-type]
+    if not (math.isfinite(spacing) and spacing > vehicle_length_m):
+        raise ParameterError(f"--spacing-m/--density-per-km: spacing {spacing:g} m must exceed the vehicle length "
+                             f"{vehicle_length_m:g} m (--vehicle-length-m)")
+    if not (2 <= n <= 100_000):
+        raise ParameterError(f"--ring {n}: must be an integer in [2, 100000]")
+    ev = EVParams(units=units)
+    rs = ring_stability(law, n, n * spacing, vehicle_length_m, ev)
+    doc: dict[str, Any] = rs.to_dict()
+    if n > 200:
+        doc["modes"] = doc["modes"][:100]  # thinned for the file
+    meas = measured_growth(law, n, n * spacing, vehicle_length_m, ev) if measure and n <= 2000 else None
+    doc["measured"] = meas
+    out.mkdir(parents=True, exist_ok=True)
+    write_json(out / "ring_stability.json", doc)
+    print(f"ring of {n} × {law.name} at spacing {spacing:.6g} m (gap {rs.gap_m:.6g} m, {1000 / spacing:.6g} veh/km): "
+          f"uniform speed {rs.v_star_mps:.6g} m/s")
+    print(f"  growth rate {rs.growth_rate_per_s:.6g} 1/s (mode k = {rs.most_unstable_k}, wavelength "
+          f"{rs.wavelength_m:.6g} m, wave speed {rs.wave_speed_mps:.4g} m/s); ring stable: {rs.ring_stable}")
+    print(f"  n → ∞: growth {rs.limit_growth_rate_per_s:.6g} 1/s at θ = {rs.limit_theta:.4g}; head-to-tail C = "
+          f"{rs.criterion_per_s2:.6g} 1/s², string stable: {rs.string_stable}")
+    if meas is not None:
+        print(f"  measured growth {meas['measured_per_s']:.6g} 1/s (predicted {meas['predicted_per_s']:.6g}, relative "
+              f"error {meas['relative_error']:.2g}, run {meas['t_end_s']:.4g} s: {meas['status']})")
+    print(f"wrote 1 file to {out}/")
+    return EXIT_OK

@@ -1,0 +1,694 @@
+"""Ring roads and their simulation: a closed chain of vehicles, each with its own controller and its EV + battery.
+
+Geometry (SI): a ring of length ``length_m`` with n vehicles of length ``vehicle_length_m``; vehicle i follows
+vehicle i − 1 and vehicle 0 follows vehicle n − 1. Vehicle i's gap (bumper to bumper) is
+h_i = x_{i−1} − x_i − ℓ (mod the ring), so Σ h_i = L − n ℓ at all times.
+
+State per vehicle (model units of ``ev.units`` for h, v): h, v, V1, V2 [V], S [-] (the 2-RC cell of
+:func:`aev_ocp.models.ego.battery_side`, every vehicle carries the pack), the actuator state when the vehicle
+limits have one; quadratures: distance, the paper's ω, battery energy ∫P_b [J], pack heat ∫Q and ∫Q_irr [J],
+∫(v_l − v)² and ∫(V(h) − v)². The vehicle limits (``ev.limits``, :mod:`aev_ocp.models.actuator`) act on every
+vehicle's command as in the open-chain plant.
+
+Controllers: a :class:`~aev_ocp.models.carfollowing.CarFollowingLaw` is integrated continuously; any sampled
+:class:`~aev_ocp.control.Controller` (Stern's PI with saturation, the MPC, a user's own) is a zero-order hold:
+every dt it receives an :class:`~aev_ocp.control.Observation` (its own state, the measured speeds of its
+predecessor so far) and its command is held over the next dt while the whole ring is integrated — the ring
+closed loop (the open-chain :class:`~aev_ocp.control.ClosedLoop` runs behind a prescribed leader, which a
+ring does not have, so the ring has its own loop over the same Controller protocol).
+
+Human drivers may get seeded acceleration noise: N(0, σ²) [m/s²] per human vehicle, held over ``noise_dt_s``.
+
+Integrators (:class:`RingOptions.method`): "compiled" (``aev_ocp/c/ring.c``: one adaptive Dormand–Prince 5(4)
+over the whole ring with the CasADi-generated per-vehicle right-hand side, OpenMP over vehicles; why one
+system and not the cascade's vehicle-by-vehicle sweep: the ring's closure would need a fixed-point iteration
+of whole trajectories around the ring, each sweep costing a full cascade run, and its convergence degrades
+exactly where waves grow) or "cvodes" (the same right-hand side in one CasADi CVODES integrator: the
+independent check, for small rings).
+"""
+
+from __future__ import annotations
+
+import ctypes
+import dataclasses
+import math
+import time
+import warnings
+from dataclasses import dataclass, field
+from importlib import resources
+from typing import Any, Callable, Sequence
+
+import casadi as ca
+import numpy as np
+
+from ..compiled import compile_shared
+from ..control import Command, Controller, Observation
+from ..models import energy
+from ..models.actuator import actuator_rate, saturate, speed_cut
+from ..models.carfollowing import CarFollowingLaw, optimal_velocity
+from ..models.battery import piecewise_ocv
+from ..models.ego import battery_side
+from ..params import EVParams, ParameterError, check_argument
+from ..plant import EVENT_RULES, event_at, event_header, rule_of_code
+from ..results import Event, SimulationResult, fmt_value, summary_html, summary_text
+from ..simulate import _law_template
+
+RING_METHODS = ("auto", "compiled", "cvodes")
+#: columns of one vehicle in a sample: states, quadratures, outputs
+QUAD_NAMES = ("distance", "omega", "energy_J", "heat_J", "heat_irr_J", "rel_speed2", "ovm_err2")
+OUT_NAMES = ("a", "I", "disc")
+_BUILT: dict[Any, Any] = {}
+
+
+@dataclass(frozen=True)
+class HeldCommand(CarFollowingLaw):
+    """A sampled controller's command held over a sample interval (the ring loop sets ``a_cmd`` every dt)."""
+
+    a_cmd: float = 0.0
+    name = "held"
+
+    def accel(self, h: Any, v: Any, v_l: Any) -> Any:
+        return self.a_cmd + 0 * h
+
+
+@dataclass(frozen=True)
+class RingRoad:
+    """A ring road: its length [m], one controller per vehicle (a law or a sampled Controller; vehicle i follows
+    vehicle i − 1, vehicle 0 follows the last), the vehicles' length [m], the EV model every vehicle carries,
+    which vehicles are human (they get the acceleration noise) and the noise: standard deviation [m/s²], hold
+    time [s] and seed."""
+
+    length_m: float
+    vehicles: tuple[Any, ...]
+    vehicle_length_m: float = 5.0  # the ring benchmarks of Wu et al. 2017 (Flow); a 2022 Model 3 is 4.69 m long
+    ev: EVParams = field(default_factory=EVParams)
+    human: tuple[bool, ...] | None = None  # None: every vehicle that is a law and not an AEV law (see is_human)
+    noise_mps2: float = 0.0
+    noise_dt_s: float = 0.5
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "vehicles", tuple(self.vehicles))
+        n = len(self.vehicles)
+        if n < 2:
+            raise ParameterError(f"ring: vehicles needs at least 2 vehicles, got {n}")
+        for name in ("length_m", "noise_dt_s"):
+            x = getattr(self, name)
+            if not (isinstance(x, (int, float)) and math.isfinite(x) and x > 0):
+                raise ParameterError(f"ring: {name} = {x!r} is not allowed: must be a finite number > 0")
+        for name in ("vehicle_length_m", "noise_mps2"):
+            x = getattr(self, name)
+            if not (isinstance(x, (int, float)) and math.isfinite(x) and x >= 0):
+                raise ParameterError(f"ring: {name} = {x!r} is not allowed: must be a finite number >= 0")
+        if n * self.vehicle_length_m >= self.length_m:
+            raise ParameterError(f"ring: {n} vehicles of {self.vehicle_length_m:g} m do not fit on length_m = "
+                                 f"{self.length_m:g} (need length_m > n × vehicle_length_m)")
+        check_argument("ring", "ev", self.ev, EVParams)
+        for i, c in enumerate(self.vehicles):
+            if not isinstance(c, (CarFollowingLaw, Controller)):
+                raise ParameterError(f"ring: vehicle {i + 1} must be a CarFollowingLaw or a Controller, "
+                                     f"got {type(c).__name__}")
+        if self.human is not None:
+            object.__setattr__(self, "human", tuple(bool(x) for x in self.human))
+            if len(self.human) != n:
+                raise ParameterError(f"ring: human needs {n} flags (one per vehicle), got {len(self.human)}")
+
+    @property
+    def n(self) -> int:
+        """Number of vehicles."""
+        return len(self.vehicles)
+
+    @property
+    def spacing_m(self) -> float:
+        """Mean spacing (front to front) L/n [m]."""
+        return self.length_m / self.n
+
+    @property
+    def density_per_km(self) -> float:
+        """Vehicles per km."""
+        return 1000.0 * self.n / self.length_m
+
+    def is_human(self, i: int) -> bool:
+        """Whether vehicle i is a human driver (default: an OVM or IDM law)."""
+        if self.human is not None:
+            return self.human[i]
+        return isinstance(self.vehicles[i], CarFollowingLaw) and self.vehicles[i].name in ("ovm", "idm")
+
+
+@dataclass(frozen=True)
+class RingOptions:
+    """Integration settings: tolerances, sample spacing of the output [s] (thin it for big rings), step limit
+    per integration call, the integrator (RING_METHODS), ``local_factor`` (the error norm is max(ring RMS,
+    largest vehicle RMS / local_factor): 1 = every vehicle within the tolerance; big jammed rings run several
+    times faster with 30, see benchmarks/bench_ring.py) and OpenMP ``threads``."""
+
+    rtol: float = 1e-8  # converged ring metrics to < 1e-5 relative (tests compare with 1e-10)
+    atol: float = 1e-8
+    dt_out_s: float = 0.5
+    max_num_steps: int = 10_000_000
+    method: str = "auto"
+    local_factor: float = 1.0  # the error norm: max(ring RMS, largest vehicle RMS / local_factor); see ring.c
+    threads: int = 1  # OpenMP threads over the vehicles (rings of >= 256 vehicles); 1 on a shared machine
+
+    def __post_init__(self) -> None:
+        if not (isinstance(self.threads, int) and not isinstance(self.threads, bool) and 1 <= self.threads <= 256):
+            raise ParameterError(f"RingOptions.threads = {self.threads!r} is not allowed: must be an integer in [1, 256]")
+        for name in ("rtol", "atol", "dt_out_s", "local_factor"):
+            x = getattr(self, name)
+            if not (isinstance(x, (int, float)) and math.isfinite(x) and x > 0):
+                raise ParameterError(f"RingOptions.{name} = {x!r} is not allowed: must be a finite number > 0")
+        if self.method not in RING_METHODS:
+            raise ParameterError(f"RingOptions.method = {self.method!r} is not allowed: must be one of {RING_METHODS}")
+
+
+@dataclass(frozen=True)
+class RingInitial:
+    """Initial positions [m] along the ring (vehicle i − 1 ahead of vehicle i) and speeds [m/s]; soc0 (None: the
+    cell's S(0)). ``perturbation`` says in words what was perturbed (for reports)."""
+
+    positions_m: tuple[float, ...]
+    speeds_mps: tuple[float, ...]
+    soc0: float | None = None
+    perturbation: str = "given positions and speeds"
+
+
+def _equilibrium_speed(law: CarFollowingLaw, gap: float, v_hi: float) -> float:
+    """The speed v [model] with law(gap, v, v) = 0 (bisection on [0, v_hi]); 0 when the law brakes at every speed."""
+    f = law.function
+    lo, hi = 0.0, v_hi
+    if float(f(gap, lo, lo)) <= 0:
+        return 0.0
+    if float(f(gap, hi, hi)) >= 0:
+        return hi
+    for _ in range(200):
+        mid = 0.5 * (lo + hi)
+        if float(f(gap, mid, mid)) > 0:
+            lo = mid
+        else:
+            hi = mid
+        if hi - lo < 1e-14 * (1 + hi):
+            break
+    return 0.5 * (lo + hi)
+
+
+def uniform_speed_mps(ring: RingRoad) -> float:
+    """The uniform-flow speed [m/s] of the ring's first law-driven human vehicle at the mean gap L/n − ℓ."""
+    u = ring.ev.units
+    gap = float(u.length_from_si(ring.spacing_m - ring.vehicle_length_m))
+    laws = [c for i, c in enumerate(ring.vehicles) if isinstance(c, CarFollowingLaw) and ring.is_human(i)]
+    laws = laws or [c for c in ring.vehicles if isinstance(c, CarFollowingLaw)]
+    if not laws:
+        raise ParameterError("ring: no vehicle drives a law; give the initial speeds (RingInitial)")
+    v_hi = float(u.speed_from_si(ring.ev.limits.v_max_mps))
+    return float(u.speed_to_si(_equilibrium_speed(laws[0], gap, v_hi)))
+
+
+def uniform_flow(ring: RingRoad, speed_mps: float | None = None, shift_m: float = 0.0, vehicle: int = 0,
+                 speed_dip_mps: float = 0.0, soc0: float | None = None) -> RingInitial:
+    """Equal spacing L/n at one speed (default :func:`uniform_speed_mps`), then the stated perturbation: vehicle
+    ``vehicle`` (0-based) moved back by ``shift_m`` and slowed by ``speed_dip_mps``."""
+    n, s = ring.n, ring.spacing_m
+    v = uniform_speed_mps(ring) if speed_mps is None else float(speed_mps)
+    if not (0 <= vehicle < n):
+        raise ParameterError(f"ring: perturbed vehicle {vehicle + 1} is not on the ring of {n} vehicles")
+    x = [-(i * s) % ring.length_m for i in range(n)]
+    vs = [v] * n
+    x[vehicle] = (x[vehicle] - shift_m) % ring.length_m
+    vs[vehicle] = max(0.0, v - speed_dip_mps)
+    what = (f"uniform flow at {v:.4g} m/s, spacing {s:.4g} m; vehicle {vehicle + 1} moved back {shift_m:g} m"
+            f" and slowed by {speed_dip_mps:g} m/s")
+    return RingInitial(tuple(x), tuple(vs), soc0, what)
+
+
+def gaps_from_positions(ring: RingRoad, positions_m: Sequence[float] | np.ndarray) -> np.ndarray:
+    """Bumper-to-bumper gaps [m] of every vehicle to its predecessor on the ring."""
+    x = np.asarray(positions_m, float)
+    return (np.roll(x, 1) - x) % ring.length_m - ring.vehicle_length_m
+
+
+# ----------------------------------------------------------------------------------------------- results
+@dataclass
+class RingResult:
+    """A ring run. ``sim``: per-vehicle trajectories as the toolkit's one result type (model units; the
+    'leader' of vehicle 0 is the ring's last vehicle), so :mod:`aev_ocp.metrics` applies unchanged;
+    ``distance``, ``energy_J``: cumulative distance [model length] and battery energy [J] per vehicle (K, n)."""
+
+    ring: RingRoad
+    initial: RingInitial
+    sim: SimulationResult
+    distance: np.ndarray
+    energy_J: np.ndarray
+    wall_s: float = math.nan
+    stats: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def t_s(self) -> np.ndarray:
+        """Sample times [s]."""
+        return np.asarray(self.sim.t * self.ring.ev.units.time_s)
+
+    @property
+    def status(self) -> str:
+        """'ok' or the first event's kind."""
+        return self.sim.status
+
+    @property
+    def speed_mps(self) -> np.ndarray:
+        """Speeds (K, n) [m/s]."""
+        return np.asarray(self.sim.speed * self.ring.ev.units.speed_mps)
+
+    @property
+    def gap_m(self) -> np.ndarray:
+        """Gaps (K, n) [m]."""
+        return np.asarray(self.sim.gap * self.ring.ev.units.length_m)
+
+    @property
+    def accel_mps2(self) -> np.ndarray:
+        """Realised accelerations (K, n) [m/s²]."""
+        return np.asarray(self.sim.accel * self.ring.ev.units.accel_mps2)
+
+    def _repr_fields(self) -> tuple[str, list[tuple[str, Any]]]:
+        v = self.speed_mps
+        half = v[v.shape[0] // 2:]
+        aevs = sum(not self.ring.is_human(i) for i in range(self.ring.n))
+        return (f"RingResult: {self.ring.n} vehicles ({aevs} AEV) on {self.ring.length_m:g} m, status {self.status}",
+                [("duration_s", float(self.t_s[-1])), ("samples", int(self.t_s.size)),
+                 ("mean speed, second half [m/s]", float(half.mean())),
+                 ("speed std, second half [m/s]", float(half.std())), ("min gap [m]", float(self.gap_m.min()))])
+
+    def __repr__(self) -> str:
+        """A few lines: the ring, the status, duration [s], the speeds over the second half [m/s], the min gap [m]."""
+        title, fields = self._repr_fields()
+        return summary_text(title, [", ".join(f"{k} {fmt_value(x)}" for k, x in fields[:2]),
+                                    ", ".join(f"{k} {fmt_value(x)}" for k, x in fields[2:])])
+
+    def _repr_html_(self) -> str:
+        title, fields = self._repr_fields()
+        return summary_html(title, fields)
+
+    def positions_m(self, wrap: bool = True) -> np.ndarray:
+        """Positions (K, n) [m] along the ring (in [0, L) when ``wrap``)."""
+        x = np.asarray(self.initial.positions_m)[None, :] + self.distance * self.ring.ev.units.length_m
+        return x % self.ring.length_m if wrap else x
+
+    def metrics(self) -> list[dict[str, Any]]:
+        """Per-vehicle metrics (aev_ocp.metrics.vehicle_metrics) plus battery energy per km [J/km]."""
+        out = self.sim.metrics()
+        for i, m in enumerate(out):
+            d_km = float(self.distance[-1, i] * self.ring.ev.units.length_m) / 1000.0
+            m["energy_J"] = float(self.energy_J[-1, i])
+            m["energy_J_per_km"] = m["energy_J"] / d_km if d_km > 0 else math.nan
+            m["heat_pack_J_per_km"] = m["heat_pack_J"] / d_km if d_km > 0 else math.nan
+        return out
+
+
+# ----------------------------------------------------------------------------------------------- simulator
+_ARCH: list[str] = []
+
+
+def native_arch() -> str:
+    """The CPU the C compiler targets with -march=native, resolved to its name (e.g. 'znver3'), or '' when the
+    compiler cannot tell. The resolved name, not 'native', goes into the compile flags and so into the cache key
+    of the built library: a cache shared by two machines never hands one the other's instructions."""
+    if not _ARCH:
+        import subprocess
+
+        from ..compiled import compiler
+
+        arch = ""
+        cc = compiler()
+        if cc is not None:
+            try:
+                out = subprocess.run([cc, "-march=native", "-Q", "--help=target"], capture_output=True, text=True,
+                                     timeout=30).stdout
+                for line in out.splitlines():
+                    parts = line.split()
+                    if len(parts) == 2 and parts[0] == "-march=" and parts[1].replace("-", "").isalnum():
+                        arch = parts[1]
+                        break
+            except (OSError, subprocess.SubprocessError):
+                arch = ""
+        _ARCH.append(arch)
+    return _ARCH[0]
+
+
+def _compile(source: str, stem: str) -> tuple[ctypes.CDLL | None, str]:
+    """Compile with -O3 for the resolved native CPU and OpenMP (1 000 vehicles × 600 s: ~20 % less CPU than -O2
+    generic; benchmarks/bench_ring.py), falling back to OpenMP at -O2, then to a plain build."""
+    last = ""
+    arch = native_arch()
+    tuned = (("-fopenmp", "-O3", f"-march={arch}"),) if arch else ()
+    for flags in (*tuned, ("-fopenmp",), ()):
+        with warnings.catch_warnings():
+            if flags:
+                warnings.simplefilter("ignore")
+            built = compile_shared(source, stem, "ring", extra_flags=flags)
+        if built.path is not None:
+            try:
+                return ctypes.CDLL(str(built.path)), ""
+            except OSError as exc:
+                last = f"cannot load {built.path}: {exc}"
+                continue
+        last = built.error
+    return None, last
+
+
+class RingSimulator:
+    """A ring road built once (compiled right-hand sides), run from any initial state.
+
+    ``run(initial, t_end_s)`` returns a :class:`RingResult`; the run stops at the first event of
+    :data:`aev_ocp.plant.EVENT_RULES` (collision located on the dense output, with the impact speed)."""
+
+    def __init__(self, ring: RingRoad, options: RingOptions | None = None) -> None:
+        check_argument("ring", "ring", ring, RingRoad)
+        check_argument("ring", "options", options, (RingOptions, type(None)))
+        self.ring, self.opts = ring, options or RingOptions()
+        self.ev, self.n = ring.ev, ring.n
+        self.sampled = [i for i, c in enumerate(ring.vehicles) if not isinstance(c, CarFollowingLaw)]
+        dts = {float(ring.vehicles[i].dt) for i in self.sampled}
+        if len(dts) > 1:
+            raise ParameterError(f"ring: every sampled controller must use the same dt, got {sorted(dts)}")
+        self.dt = dts.pop() if dts else None  # model time
+        self.laws: list[CarFollowingLaw] = [c if isinstance(c, CarFollowingLaw) else HeldCommand()
+                                            for c in ring.vehicles]
+        templates = [_law_template(law) for law in self.laws]
+        distinct: dict[Any, int] = {}
+        first: dict[int, Any] = {}
+        self.law_of = np.zeros(self.n, np.int32)
+        n_par = max(1, *(len(t[2]) for t in templates))
+        self.params = np.zeros((self.n, n_par))
+        for i, (key, make, values) in enumerate(templates):
+            k = distinct.setdefault(key, len(distinct))
+            first.setdefault(k, make)
+            self.law_of[i] = k
+            self.params[i, :len(values)] = values
+        self.n_par = n_par
+        p = ca.SX.sym("p", n_par)
+        self._split: list[ca.Function] = []  # the motion part of each law (ring.c), filled by _vehicle_function
+        self.nx = 5 + int(self.ev.limits.has_actuator_state)
+        self.funcs = [self._vehicle_function(make(p), k, p) for k, make in first.items()]
+        self.nq, self.ny = len(QUAD_NAMES), len(OUT_NAMES)
+        self.nz = self.nx + self.nq
+        self._lib: ctypes.CDLL | None = None
+        self.build_error = ""
+        if self.opts.method in ("auto", "compiled"):
+            self._build()
+            if self._lib is None and self.opts.method == "compiled":
+                raise ParameterError(f"ring: method 'compiled' needs a working C compiler: {self.build_error}")
+            if self._lib is None:
+                warnings.warn(f"ring: the compiled ring is unavailable ({self.build_error}); using CVODES (slower)",
+                              RuntimeWarning, stacklevel=2)
+        self.method = "compiled" if self._lib is not None else "cvodes"
+        self._cvodes: dict[float, Any] = {}
+
+    def _vehicle_function(self, law: CarFollowingLaw, k: int, p: ca.SX) -> ca.Function:
+        """(u = (v_l, noise), x, p) -> (dz = (ẋ, quadrature integrands), y = (a, I, disc)), model units; the
+        quadratures per model time unit (energy and heat in J per model time unit)."""
+        ev, T = self.ev, self.ev.units.time_s
+        u = ca.SX.sym("u", 2)
+        vl, noise = u[0], u[1]
+        h, v, V1, V2, S = (ca.SX.sym(s) for s in ("h", "v", "V1", "V2", "S"))
+        a = law.accel(h, v, vl) + noise
+        lim = ev.limits
+        x = [h, v, V1, V2, S]
+        extra: list[Any] = []
+        if lim.enabled:  # the vehicle's limits, exactly as the open-chain plant applies them
+            a = saturate(a, lim, ev.units)
+            if lim.has_actuator_state:
+                act = ca.SX.sym("a_act")
+                extra = [actuator_rate(a, act, lim, ev.units)]
+                x.append(act)
+                a = act
+            a = speed_cut(a, v, lim, ev.units)
+        with piecewise_ocv():  # the same OCV as the B-spline (1e-14 V), as plain SX arithmetic: cheaper in C
+            b = battery_side(v, a, V1, V2, S, ev)
+        ode = [vl - v, a, T * b["dV1"], T * b["dV2"], T * b["dS"], *extra]
+        quad = [v, v * energy.g_exact(a, ev.vehicle.efficiency), T * b["P_b"], T * b["Q_pack"],
+                T * b["Q_irr_pack"], (vl - v) ** 2, (optimal_velocity(h) - v) ** 2]
+        self._split.append(ca.Function(f"aevring_mot{k}", [u, ca.vertcat(*x), p],
+                                       [ca.vertcat(vl - v, a, *extra), ca.vertcat(h, v, vl, a)]))
+        return ca.Function(f"aevring_law{k}", [u, ca.vertcat(*x), p], [ca.vertcat(*ode, *quad),
+                                                                        ca.vertcat(a, b["I"], b["disc"])])
+
+    def _battery_function(self) -> ca.Function:
+        """The battery and quadrature part of every vehicle's right-hand side, the same for every law:
+        (w = (h, v, v_l, a), x) -> ((V̇1, V̇2, Ṡ, quadrature integrands), y = (a, I, disc)). The compiled ring
+        evaluates it only on accepted steps (the step size is set by the motion alone, see ring.c)."""
+        ev, T = self.ev, self.ev.units.time_s
+        w = ca.SX.sym("w", 4)
+        h, v, vl, a = w[0], w[1], w[2], w[3]
+        x = ca.SX.sym("x", self.nx)
+        with piecewise_ocv():
+            b = battery_side(v, a, x[2], x[3], x[4], ev)
+        quad = [v, v * energy.g_exact(a, ev.vehicle.efficiency), T * b["P_b"], T * b["Q_pack"],
+                T * b["Q_irr_pack"], (vl - v) ** 2, (optimal_velocity(h) - v) ** 2]
+        return ca.Function("aevring_bat", [w, x], [ca.vertcat(T * b["dV1"], T * b["dV2"], T * b["dS"], *quad),
+                                                   ca.vertcat(a, b["I"], b["disc"])])
+
+    def _build(self) -> None:
+        cg = ca.CodeGenerator("aevring_rhs.c", {"with_header": False})
+        fs = [*self.funcs, *self._split, self._battery_function()]
+        for f in fs:
+            cg.add(f)
+        head = (f"#define SZ_ARG {max(3, *(f.sz_arg() for f in fs))}\n#define SZ_RES {max(2, *(f.sz_res() for f in fs))}\n"
+                f"#define SZ_IW {max(f.sz_iw() for f in fs)}\n#define SZ_W {max(f.sz_w() for f in fs)}\n"
+                f"#define NX {self.nx}\n#define NCTRL {2 + int(self.nx > 5)}\n#define NQ {self.nq}\n#define NY {self.ny}\n#define BATTERY 1\n"
+                f"#define AEV_NP {self.n_par}\n#define SPEED_FLOOR {int(self.ev.limits.enabled)}\n"
+                f"#define LOCAL_FACTOR {float(self.opts.local_factor)!r}\n")
+        head += "#define AEV_LAW_SWITCH " + " ".join(
+            f"case {k}: return aevring_law{k}(c->arg, c->res, c->iw, c->w, 0);" for k in range(len(self.funcs))) + "\n"
+        head += "#define AEV_MOT_SWITCH " + " ".join(
+            f"case {k}: return aevring_mot{k}(c->arg, c->res, c->iw, c->w, 0);" for k in range(len(self.funcs))) + "\n"
+        mot = [0, 1] + ([self.nx - 1] if self.nx > 5 else [])
+        bat = [j for j in range(self.nz) if j not in mot]
+        head += (f"#define MOT_IDX_INIT {{{', '.join(map(str, mot))}}}\n#define NB {len(bat)}\n"
+                 f"#define BAT_IDX_INIT {{{', '.join(map(str, bat))}}}\n")
+        head += event_header()
+        source = cg.dump() + "\n" + head + (resources.files("aev_ocp") / "c" / "ring.c").read_text()
+        lib = _BUILT.get(source)
+        if lib is None:
+            lib, self.build_error = _compile(source, "aevring")
+            if lib is None:
+                return
+            fn = lib.aevring_advance
+            dp, ip, lp = (np.ctypeslib.ndpointer(dtype=d, flags="C_CONTIGUOUS") for d in (np.float64, np.int32, np.int64))
+            fn.argtypes = [ctypes.c_int, ip, dp, dp, dp, ctypes.c_double, ctypes.c_double, ctypes.c_int64, dp, dp,
+                           ctypes.c_double, ctypes.c_double, ctypes.c_int64, dp, dp, lp, ctypes.c_int]
+            fn.restype = ctypes.c_int64
+            _BUILT[source] = lib
+        self._lib = lib
+
+    # ------------------------------------------------------------------ one interval
+    def _advance_compiled(self, z: np.ndarray, noise: np.ndarray, t0: float, t1: float, ts: np.ndarray,
+                          out: np.ndarray, h_io: np.ndarray, stats: np.ndarray) -> tuple[int, np.ndarray]:
+        ev = np.zeros(4)
+        assert self._lib is not None
+        m = self._lib.aevring_advance(self.n, self.law_of, self.params, noise, z, t0, t1, ts.size, ts, out,
+                                      self.opts.rtol, self.opts.atol, self.opts.max_num_steps, h_io, ev, stats,
+                                      self.opts.threads)
+        if m < 0:
+            raise MemoryError("ring: the compiled ring ran out of memory")
+        return int(m), ev
+
+    def _cvodes_fn(self, dt: float) -> Any:
+        """CVODES integrator of the whole ring over dt (model time), parameters: all coefficients and noise."""
+        fn = self._cvodes.get(dt)
+        if fn is None:
+            n, nz = self.n, self.nz
+            Z = ca.MX.sym("Z", nz * n)
+            P = ca.MX.sym("P", self.n_par * n + n)
+            Zr = ca.reshape(Z, nz, n)
+            cols = []
+            for i in range(n):
+                pr = i - 1 if i > 0 else n - 1
+                u = ca.vertcat(Zr[1, pr], P[self.n_par * n + i])
+                cols.append(self.funcs[int(self.law_of[i])](u, Zr[:self.nx, i], P[i * self.n_par:(i + 1) * self.n_par])[0])
+            dae = {"x": Z, "p": P, "ode": ca.vertcat(*cols)}
+            fn = ca.integrator("ring", "cvodes", dae, 0.0, dt, {"abstol": self.opts.atol, "reltol": self.opts.rtol,
+                                                                  "max_num_steps": 10**6})
+            self._cvodes[dt] = fn
+        return fn
+
+    def _outputs(self, z: np.ndarray, noise: np.ndarray) -> np.ndarray:
+        """(n, ny) outputs at state z (n, nz)."""
+        y = np.zeros((self.n, self.ny))
+        for i in range(self.n):
+            pr = i - 1 if i > 0 else self.n - 1
+            _, yi = self.funcs[int(self.law_of[i])]([z[pr, 1], noise[i]], z[i, :self.nx], self.params[i])
+            y[i] = np.asarray(yi).ravel()
+        return y
+
+    def _advance_cvodes(self, z: np.ndarray, noise: np.ndarray, t0: float, t1: float, ts: np.ndarray,
+                        out: np.ndarray) -> tuple[int, np.ndarray]:
+        ev = np.zeros(4)
+        grid = np.concatenate([[t0], ts[(ts > t0) & (ts <= t1 + 1e-12)], [t1]])
+        P = np.concatenate([self.params.ravel(), noise])
+        m = 0
+        for a, b in zip(grid[:-1], grid[1:]):
+            if b - a <= 1e-12:
+                continue
+            fn = self._cvodes_fn(round(b - a, 12))
+            zf = np.asarray(fn(x0=z.ravel(), p=P)["xf"]).ravel().reshape(self.n, self.nz)
+            z[:] = zf
+            if m < ts.size and abs(b - ts[m]) <= 1e-12 * (1 + abs(b)):
+                y = self._outputs(z, noise)
+                out[m] = np.hstack([z, y])
+                m += 1
+            bad = self._check(z, self._outputs(z, noise))
+            if bad is not None:
+                ev[:] = [bad[0], bad[1], b, bad[2]]
+                break
+        return m, ev
+
+    def _check(self, z: np.ndarray, y: np.ndarray) -> tuple[int, int, float] | None:
+        """(code, vehicle, value) of the first rule of EVENT_RULES violated at a sample, else None."""
+        q = {"h": z[:, 0], "v": z[:, 1], "disc": y[:, 2], "S": z[:, 4]}
+        for r in EVENT_RULES:
+            hit = np.flatnonzero(r.violated(q[r.quantity]))
+            if hit.size:
+                return r.code, int(hit[0]), float(q[r.quantity][hit[0]])
+        return None
+
+    # ------------------------------------------------------------------ running
+    def run(self, initial: RingInitial, t_end_s: float) -> RingResult:
+        """Integrate the ring from ``initial`` over [0, t_end_s] [s]."""
+        check_argument("ring", "initial", initial, RingInitial)
+        if not (isinstance(t_end_s, (int, float)) and math.isfinite(t_end_s) and t_end_s > 0):
+            raise ParameterError(f"ring: t_end_s = {t_end_s!r} is not allowed: must be a finite number > 0")
+        ring, u, n = self.ring, self.ev.units, self.n
+        x0 = np.asarray(initial.positions_m, float)
+        v0 = np.asarray(initial.speeds_mps, float)
+        if x0.size != n or v0.size != n:
+            raise ParameterError(f"ring: the initial state needs {n} positions and speeds, got {x0.size} and {v0.size}")
+        if not (np.all(np.isfinite(x0)) and np.all(np.isfinite(v0)) and np.all(v0 >= 0)):
+            raise ParameterError("ring: initial positions must be finite and speeds finite and >= 0")
+        gaps = gaps_from_positions(ring, x0)
+        if np.any(gaps <= 0):
+            i = int(np.argmin(gaps))
+            raise ParameterError(f"ring: initial gap of vehicle {i + 1} is {gaps[i]:.4g} m: vehicles overlap "
+                                 f"(positions must leave > 0 m between vehicles of {ring.vehicle_length_m:g} m)")
+        soc0 = self.ev.cell.soc0 if initial.soc0 is None else initial.soc0
+        if not (0 <= soc0 <= 1):
+            raise ParameterError(f"ring: soc0 = {soc0!r} is not allowed: must be in [0, 1]")
+        T = u.time_s
+        t_end = t_end_s / T
+        z = np.zeros((n, self.nz))
+        z[:, 0], z[:, 1], z[:, 4] = u.length_from_si(gaps), u.speed_from_si(v0), soc0
+        # the time grid: samples, control instants, noise changes
+        dt_out = self.opts.dt_out_s / T
+        ts = np.linspace(0.0, t_end, max(1, int(math.ceil(t_end / dt_out - 1e-9))) + 1)
+        cuts = {t_end}
+        if self.dt is not None:
+            k = int(round(t_end / self.dt))
+            cuts |= {j * self.dt for j in range(1, k) if j * self.dt < t_end - 1e-12}
+        noisy = np.array([ring.is_human(i) for i in range(n)], bool)
+        use_noise = ring.noise_mps2 > 0 and noisy.any()
+        ndt = ring.noise_dt_s / T
+        if use_noise:
+            cuts |= {j * ndt for j in range(1, int(math.ceil(t_end / ndt))) if j * ndt < t_end - 1e-12}
+        grid = np.array(sorted(cuts))
+        rng = np.random.default_rng(ring.seed)
+        sigma = float(u.accel_from_si(ring.noise_mps2))
+        out = np.zeros((ts.size, n, self.nz + self.ny))
+        noise = np.zeros(n)
+        out[0] = np.hstack([z, self._outputs(z, noise)])
+        h_io, stats = np.zeros(1), np.zeros(3, np.int64)
+        ctrl = {i: ring.vehicles[i] for i in self.sampled}
+        for c in ctrl.values():
+            c.reset()
+        meas_t: list[float] = []
+        meas_v: dict[int, list[float]] = {i: [] for i in ctrl}
+        a_prev = dict.fromkeys(ctrl, 0.0)
+        ctrl_stats: dict[int, dict[str, list[Any]]] = {i: {"call": [], "solve": [], "ok": []} for i in ctrl}
+        events: list[Event] = []
+        s_done, t0, k_noise = 1, 0.0, -1
+        wall = time.perf_counter()
+        for t1 in grid:
+            if use_noise:
+                kn = int(math.floor(t0 / ndt + 1e-9))
+                if kn != k_noise:
+                    k_noise = kn
+                    noise = np.where(noisy, rng.normal(0.0, sigma, n), 0.0)
+            if ctrl and self.dt is not None and abs(t0 / self.dt - round(t0 / self.dt)) < 1e-9:
+                meas_t.append(t0)
+                for i, c in ctrl.items():
+                    pr = i - 1 if i > 0 else n - 1
+                    meas_v[i].append(float(z[pr, 1]))
+                    obs = Observation(t0, self.dt, i, z[i, :5].copy(), np.asarray(meas_t), np.asarray(meas_v[i]),
+                                      None, a_prev[i], float(z[i, 5]) if self.nx > 5 else None)
+                    tc = time.perf_counter()
+                    cmd: Command = c.command(obs)
+                    ctrl_stats[i]["call"].append(time.perf_counter() - tc)
+                    ctrl_stats[i]["solve"].append(cmd.solve_time_s)
+                    ctrl_stats[i]["ok"].append(cmd.ok)
+                    self.params[i, 0] = cmd.a
+                    a_prev[i] = cmd.a
+            sel = (ts > t0 + 1e-12 * (1 + t0)) & (ts <= t1 + 1e-12 * (1 + t1))
+            tsel = np.ascontiguousarray(ts[sel])
+            buf = np.zeros((tsel.size, n, self.nz + self.ny))
+            if self.method == "compiled":
+                m, ev = self._advance_compiled(z, noise, t0, t1, tsel, buf, h_io, stats)
+            else:
+                m, ev = self._advance_cvodes(z, noise, t0, t1, tsel, buf)
+            out[s_done:s_done + m] = buf[:m]
+            s_done += m
+            if ev[0]:
+                code, who, t_ev = int(ev[0]), int(ev[1]), float(ev[2])
+                if code in [r.code for r in EVENT_RULES]:
+                    rule = rule_of_code(code)
+                    pr = who - 1 if who > 0 else n - 1
+                    events.append(event_at(rule, t_ev, who, u, float(z[who, 0]), float(z[who, 1]), float(z[pr, 1]),
+                                           float({"h": z[who, 0], "v": z[who, 1], "S": z[who, 4], "disc": ev[3]}[rule.quantity])))
+                else:
+                    events.append(Event("integration_failed", t_ev, who, "the ring integrator failed (step size underflow "
+                                        "or the step limit)", time_s=t_ev * T))
+                if t_ev > ts[s_done - 1]:  # the state at the event is the run's last sample
+                    ts = np.concatenate([ts[:s_done], [t_ev]])
+                    out[s_done] = np.hstack([z, self._outputs(z, noise)])
+                    s_done += 1
+                break
+            t0 = float(t1)
+        wall = time.perf_counter() - wall
+        ts, out = ts[:s_done], out[:s_done]
+        return self._result(initial, ts, out, events, wall, stats, ctrl_stats)
+
+    def _result(self, initial: RingInitial, ts: np.ndarray, out: np.ndarray, events: list[Event], wall: float,
+                stats: np.ndarray, ctrl_stats: dict[int, dict[str, list[Any]]]) -> RingResult:
+        nx, n = self.nx, self.n
+        col = lambda j: np.ascontiguousarray(out[:, :, j])  # noqa: E731
+        q = {name: col(nx + j) for j, name in enumerate(QUAD_NAMES)}
+        y = {name: col(self.nz + j) for j, name in enumerate(OUT_NAMES)}
+        speed = col(1)
+        lead_pos = (np.asarray(self.ring.length_m if False else initial.positions_m[-1]) / self.ev.units.length_m
+                    + q["distance"][:, -1])
+        names = [getattr(c, "name", type(c).__name__) for c in self.ring.vehicles]
+        settings = [c.describe() for c in self.ring.vehicles]
+        solver: list[dict[str, Any] | None] = [None] * n
+        for i, st in ctrl_stats.items():
+            call = np.asarray(st["call"]) * 1e3
+            solver[i] = {"steps": len(call), "call_ms_median": float(np.median(call)) if call.size else math.nan,
+                         "call_ms_max": float(np.max(call)) if call.size else math.nan,
+                         "fallbacks": int(sum(1 for ok in st["ok"] if not ok))}
+        sim = SimulationResult(
+            t=ts, leader_speed=speed[:, -1], leader_position=lead_pos, gap=col(0), speed=speed, accel=y["a"],
+            V1=col(2), V2=col(3), S=col(4), current_A=y["I"], omega=q["omega"], heat_J=q["heat_J"],
+            heat_irr_J=q["heat_irr_J"], int_ovm_err2=q["ovm_err2"], int_rel_speed2=q["rel_speed2"],
+            int_jerk2=np.zeros_like(speed), controllers=names, ev=self.ev, events=events, jerk_sampled=True,
+            solver_stats=solver,
+            meta={"plant": f"ring ({self.method})", "rtol": self.opts.rtol, "atol": self.opts.atol,
+                  "controllers": settings, "ring_length_m": self.ring.length_m,
+                  "vehicle_length_m": self.ring.vehicle_length_m, "initial": initial.perturbation})
+        return RingResult(self.ring, initial, sim, q["distance"], q["energy_J"], wall,
+                          {"steps": int(stats[0]), "rejected": int(stats[1]), "rhs_evaluations": int(stats[2]),
+                           "method": self.method})
+
+
+def simulate_ring(ring: RingRoad, t_end_s: float, initial: RingInitial | None = None,
+                  options: RingOptions | None = None) -> RingResult:
+    """Simulate ``ring`` over [0, t_end_s] [s] from ``initial`` (default :func:`uniform_flow` unperturbed)."""
+    sim = RingSimulator(ring, options)
+    return sim.run(initial if initial is not None else uniform_flow(ring), t_end_s)
+
+
+__all__ = ["HeldCommand", "RingInitial", "RingOptions", "RingResult", "RingRoad", "RingSimulator", "gaps_from_positions",
+           "simulate_ring", "uniform_flow", "uniform_speed_mps"]
+_ = (dataclasses, Callable)

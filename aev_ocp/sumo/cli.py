@@ -1,0 +1,130 @@
+"""``aev-ocp sumo SCENARIO.toml``: one SUMO run, or ``--sweep`` over share × controller in worker processes."""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import sys
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from pathlib import Path
+from typing import Any
+
+from ..results import claim_output_dir, default_output_dir
+from . import SumoError, require_sumo
+from .scenario import SumoScenario, load_sumo_scenario
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser of ``aev-ocp sumo``."""
+    p = argparse.ArgumentParser(prog="aev-ocp sumo", description="Drive the toolkit's controllers inside SUMO: a "
+                                "scenario file with a [sumo] table (shipped: sumo_ring, sumo_merge).")
+    p.add_argument("scenario", help="a SUMO scenario .toml file, or the name of a shipped one (sumo_ring, sumo_merge)")
+    p.add_argument("--out", default=None, help="output folder (default: results/<scenario name>/)")
+    p.add_argument("--t-end-s", type=float, default=None, metavar="S", help="simulated time [s] (over sumo.t_end_s)")
+    p.add_argument("--share", type=float, default=None, help="share of vehicles the toolkit drives, 0-1 (over sumo.share)")
+    p.add_argument("--controller", default=None, help="law name, 'mpc' or 'module:function' (over sumo.controller)")
+    p.add_argument("--sweep", action="store_true", help="run every share × controller of [sumo.sweep] (one SUMO per "
+                   "worker process)")
+    p.add_argument("--workers", type=int, default=None, help="worker processes of --sweep (default: the cores)")
+    p.add_argument("--no-plots", action="store_true", help="skip the space-time diagrams")
+    return p
+
+
+def _with_options(sc: SumoScenario, args: argparse.Namespace) -> SumoScenario:
+    import dataclasses
+
+    from .scenario import _controller
+    from ..scenarios import TableReader
+
+    spec = sc.spec
+    if args.t_end_s is not None:
+        if not (math.isfinite(args.t_end_s) and args.t_end_s >= spec.step_s):
+            raise SumoError(f"--t-end-s = {args.t_end_s!r} is not allowed: must be >= sumo.step_s = {spec.step_s:g}")
+        spec = dataclasses.replace(spec, t_end_s=args.t_end_s)
+    if args.share is not None:
+        if not (0 <= args.share <= 1):
+            raise SumoError(f"--share = {args.share!r} is not allowed: must be in [0, 1]")
+        spec = dataclasses.replace(spec, share=args.share)
+    if args.controller is not None:
+        spec = dataclasses.replace(spec, controller=_controller(TableReader({}, "", "--controller"), "controller",
+                                                                args.controller))
+    return dataclasses.replace(sc, spec=spec)
+
+
+def run_one(sc: SumoScenario, out: Path, plots: bool = True, progress: Any = None) -> Any:
+    """Run one scenario and write its folder; returns the SumoRun."""
+    from .output import save_space_time, save_sumo, write_report
+    from .run import run_sumo
+
+    run = run_sumo(sc, out / "network", progress=progress)
+    save_sumo(run, out)
+    figs = save_space_time(run, out) if plots else []
+    write_report(run, out, figs)
+    return run
+
+
+def _point(sc: SumoScenario, share: float, controller: str, out: str, plots: bool) -> dict[str, Any]:
+    """One sweep point in a worker process (one SUMO per process)."""
+    from .output import sweep_row
+
+    label = f"share{share:g}_{controller.replace(':', '_')}"
+    try:
+        run = run_one(sc.with_point(share, controller), Path(out) / "points" / label, plots)
+        return sweep_row(share, controller, run)
+    except SumoError as exc:
+        return sweep_row(share, controller, None, str(exc))
+
+
+def cli_sumo(argv: list[str]) -> int:
+    """Entry of ``aev-ocp sumo``; returns the exit code (errors are raised for the CLI's one-line handler)."""
+    args = build_parser().parse_args(argv)
+    require_sumo()
+    sc = _with_options(load_sumo_scenario(args.scenario), args)
+    out = Path(args.out) if args.out else default_output_dir(sc.name)
+    claim_output_dir(out, "sumo", sc.name, str(sc.source) if sc.source else None)
+    if not args.sweep:
+        def progress(t: float, t_end: float) -> None:
+            if sys.stderr.isatty():
+                print(f"\r{t:.0f}/{t_end:.0f} s simulated", end="", file=sys.stderr, flush=True)
+
+        run = run_one(sc, out, not args.no_plots, progress)
+        if sys.stderr.isatty():
+            print(file=sys.stderr)
+        ft = run.fleet_totals()
+        print(f"{run!r}\n  energy {ft['all']['energy_kJ_per_km']:.4g} kJ/km (toolkit's vehicles "
+              f"{ft['controlled']['energy_kJ_per_km']:.4g}, SUMO's {ft['sumo']['energy_kJ_per_km']:.4g}), mean speed "
+              f"{ft['all']['mean_speed_mps']:.4g} m/s, collisions {ft['all']['collisions']}, teleports "
+              f"{ft['all']['teleports']}\n  wrote {out}/ (report.md, metrics.csv, fleet.json, manifest.json)")
+        return 0
+    from .output import write_sweep
+
+    s = sc.spec
+    shares = list(s.sweep_share) or [s.share]
+    ctrls = list(s.sweep_controller) or [s.controller]
+    points = [(sh, c) for c in ctrls for sh in shares]
+    rows: list[dict[str, Any]] = []
+    workers = args.workers or min(len(points), os.cpu_count() or 1)
+    if workers < 1:
+        raise SumoError(f"--workers = {args.workers} is not allowed: must be >= 1")
+    with ProcessPoolExecutor(max_workers=workers) as pool:
+        futs = {pool.submit(_point, sc, sh, c, str(out), not args.no_plots): (sh, c) for sh, c in points}
+        try:
+            for f in as_completed(futs):
+                rows.append(f.result())
+                r = rows[-1]
+                print(f"share {r['share']:g}, {r['controller']}: {r['status']}"
+                      + (f", {r['energy_kJ_per_km']:.4g} kJ/km, {r['mean_speed_mps']:.4g} m/s"
+                         if r["status"] == "ok" else f" ({r.get('message', '')})"), flush=True)
+        except KeyboardInterrupt:
+            for f in futs:
+                f.cancel()
+            raise
+    order = {p: i for i, p in enumerate(points)}
+    rows.sort(key=lambda r: order[(r["share"], r["controller"])])
+    write_sweep(rows, out, sc.name)
+    print(f"wrote {out}/sweep.md, sweep.csv ({len(rows)} points)")
+    return 0 if all(r["status"] == "ok" for r in rows) else 1
+
+
+__all__ = ["build_parser", "cli_sumo", "run_one"]

@@ -1,0 +1,176 @@
+"""Shipped SUMO networks, built at run time by SUMO's own netconvert from small plain-XML files written here.
+
+* ``ring``: the Sugiyama ring (Sugiyama et al. 2008, New J. Phys. 10 033001: one lane, 230 m, 22 vehicles), two
+  half-circle edges of exactly half the circumference each, no internal junction links, so a lane position
+  continues exactly across the junction. Every vehicle's route repeats the ring often enough for the run.
+* ``merge``: a straight highway with an on-ramp: two main lanes, a single-lane ramp joining an acceleration lane,
+  from which ramp vehicles must change lanes before it ends (lane changes and mixed flow); flows on the main road
+  and the ramp (vehicles per hour) with SUMO's own human-driver model.
+
+Each builder writes the plain XML (``*.nod.xml``, ``*.edg.xml``, ``*.con.xml``), the network and the routes into a
+folder and returns their paths; the same parameters give the same files.
+"""
+
+from __future__ import annotations
+
+import math
+import subprocess
+from dataclasses import dataclass
+from pathlib import Path
+
+from . import SumoError, sumo_binary
+
+#: Length of the toolkit's vehicle: 2022 Tesla Model 3 (manufacturer's data: 4694 mm), the car of
+#: aev_ocp.params.VehicleParams.
+VEHICLE_LENGTH_M = 4.694
+
+
+@dataclass(frozen=True)
+class RingNetwork:
+    """The single-lane ring. length_m: circumference [m]; vehicles: how many, equally spaced; perturbation_m:
+    vehicle 0 starts this far behind its equal-spacing place (the wave's seed); speed0_mps: every vehicle's
+    initial speed [m/s]; lane_speed_mps: the lane's speed limit [m/s] (high, so that only the controllers and
+    SUMO's drivers set the speed)."""
+
+    length_m: float = 230.0  # Sugiyama et al. 2008
+    vehicles: int = 22  # Sugiyama et al. 2008
+    perturbation_m: float = 0.0
+    speed0_mps: float = 0.0  # Sugiyama et al. 2008 start from rest
+    vehicle_length_m: float = VEHICLE_LENGTH_M
+    lane_speed_mps: float = 40.0
+
+    def __post_init__(self) -> None:
+        if not (self.length_m > 0 and math.isfinite(self.length_m)):
+            raise SumoError(f"sumo.ring.length_m = {self.length_m!r} is not allowed: must be > 0")
+        if not (isinstance(self.vehicles, int) and self.vehicles >= 1):
+            raise SumoError(f"sumo.ring.vehicles = {self.vehicles!r} is not allowed: must be an integer >= 1")
+        if self.vehicles * self.vehicle_length_m >= self.length_m:
+            raise SumoError(f"sumo.ring.vehicles = {self.vehicles} cars of {self.vehicle_length_m} m do not fit "
+                            f"on a ring of {self.length_m} m")
+        if not (0 <= self.perturbation_m < self.length_m / self.vehicles - self.vehicle_length_m):
+            raise SumoError(f"sumo.ring.perturbation_m = {self.perturbation_m!r} is not allowed: must be >= 0 "
+                            "and below the equal bumper-to-bumper gap")
+
+    def positions_m(self) -> list[float]:
+        """Initial arc positions of the vehicles' fronts [m], vehicle 0 first (the ring's own coordinate)."""
+        s = self.length_m / self.vehicles
+        return [(i * s - (self.perturbation_m if i == 0 else 0.0)) % self.length_m for i in range(self.vehicles)]
+
+
+@dataclass(frozen=True)
+class MergeNetwork:
+    """The highway on-ramp merge. main_flow_vph / ramp_flow_vph: flows [vehicles/h]; main_length_m: road length
+    before the merge [m]; accel_lane_m: acceleration-lane length [m]; after_m: road after it [m]; speeds [m/s]."""
+
+    main_flow_vph: float = 2400.0  # 1200 veh/h/lane: a busy but free-flowing two-lane motorway (HCM LOS C-D)
+    ramp_flow_vph: float = 500.0  # a busy on-ramp (HCM ramp capacity ~ 1800 veh/h)
+    main_length_m: float = 800.0
+    accel_lane_m: float = 250.0  # German RAA 2008: 250 m acceleration lane for a motorway entry
+    after_m: float = 1000.0
+    main_speed_mps: float = 33.33  # 120 km/h motorway limit
+    ramp_speed_mps: float = 22.22  # 80 km/h ramp limit
+
+    def __post_init__(self) -> None:
+        for k in ("main_flow_vph", "ramp_flow_vph"):
+            if not (getattr(self, k) >= 0 and math.isfinite(getattr(self, k))):
+                raise SumoError(f"sumo.merge.{k} = {getattr(self, k)!r} is not allowed: must be >= 0")
+        for k in ("main_length_m", "accel_lane_m", "after_m", "main_speed_mps", "ramp_speed_mps"):
+            if not (getattr(self, k) > 0 and math.isfinite(getattr(self, k))):
+                raise SumoError(f"sumo.merge.{k} = {getattr(self, k)!r} is not allowed: must be > 0")
+
+
+def run_tool(args: list[str], what: str) -> None:
+    """Run a SUMO tool; its first error line becomes a one-line :class:`SumoError`."""
+    proc = subprocess.run(args, capture_output=True, text=True, check=False)
+    if proc.returncode != 0:
+        raise SumoError(f"{what}: {first_error(proc.stderr + proc.stdout)}")
+
+
+def first_error(text: str) -> str:
+    """The first 'Error: ...' line of a SUMO tool's output (else its last non-empty line), stripped."""
+    lines = [ln.strip() for ln in text.splitlines() if ln.strip()]
+    err = next((ln for ln in lines if ln.startswith("Error")), lines[-1] if lines else "failed without a message")
+    return err.removeprefix("Error:").strip()
+
+
+def _write(path: Path, text: str) -> Path:
+    path.write_text(text, encoding="utf-8")
+    return path
+
+
+def build_ring(net: RingNetwork, folder: Path, t_end_s: float) -> tuple[Path, list[Path]]:
+    """Write the ring's plain XML, netconvert it and write routes for a run of t_end_s [s]: (net, [routes])."""
+    folder.mkdir(parents=True, exist_ok=True)
+    R = net.length_m / (2 * math.pi)
+    half = net.length_m / 2
+
+    def arc(a0: float, a1: float, n: int = 12) -> str:
+        return " ".join(f"{R * math.cos(a0 + (a1 - a0) * k / n):.4f},{R * math.sin(a0 + (a1 - a0) * k / n):.4f}"
+                        for k in range(n + 1))
+
+    _write(folder / "ring.nod.xml", f'<nodes>\n  <node id="a" x="{R:.4f}" y="0" type="priority"/>\n'
+                                    f'  <node id="b" x="{-R:.4f}" y="0" type="priority"/>\n</nodes>\n')
+    edge = ('  <edge id="{id}" from="{f}" to="{t}" numLanes="1" speed="{v}" length="{L!r}" shape="{s}"/>\n')
+    _write(folder / "ring.edg.xml", "<edges>\n" + edge.format(id="top", f="a", t="b", v=net.lane_speed_mps, L=half,
+                                                               s=arc(0, math.pi))
+           + edge.format(id="bottom", f="b", t="a", v=net.lane_speed_mps, L=half, s=arc(math.pi, 2 * math.pi))
+           + "</edges>\n")
+    out = folder / "ring.net.xml"
+    run_tool([sumo_binary("netconvert"), "-n", str(folder / "ring.nod.xml"), "-e", str(folder / "ring.edg.xml"),
+              "-o", str(out), "--no-internal-links", "--no-turnarounds", "--no-warnings"], "netconvert (ring)")
+    laps = int(math.ceil(t_end_s * net.lane_speed_mps / net.length_m)) + 2
+    rows = ['<routes>',
+            f'  <vType id="ring_car" length="{net.vehicle_length_m!r}" minGap="0" maxSpeed="{net.lane_speed_mps}" '
+            'accel="2.6" decel="4.5" sigma="0.5"/>',  # SUMO's Krauss defaults (accel, decel, sigma)
+            f'  <route id="from_top" edges="{" ".join(["top bottom"] * laps)}"/>',
+            f'  <route id="from_bottom" edges="{" ".join(["bottom top"] * laps)}"/>']
+    for i, x in enumerate(net.positions_m()):
+        route, pos = ("from_top", x) if x < half else ("from_bottom", x - half)
+        rows.append(f'  <vehicle id="ring.{i}" type="ring_car" route="{route}" depart="0" departPos="{pos!r}" '
+                    f'departSpeed="{net.speed0_mps!r}" insertionChecks="none"/>')
+    rows.append("</routes>\n")
+    return out, [_write(folder / "ring.rou.xml", "\n".join(rows))]
+
+
+def build_merge(net: MergeNetwork, folder: Path, t_end_s: float) -> tuple[Path, list[Path]]:
+    """Write the on-ramp merge's plain XML, netconvert it and write its flows: (net, [routes])."""
+    folder.mkdir(parents=True, exist_ok=True)
+    x1 = net.main_length_m
+    x2 = x1 + net.accel_lane_m
+    x3 = x2 + net.after_m
+    _write(folder / "merge.nod.xml", "<nodes>\n"
+           f'  <node id="west" x="0" y="0"/>\n  <node id="merge" x="{x1}" y="0" type="priority"/>\n'
+           f'  <node id="accel_end" x="{x2}" y="0" type="priority"/>\n  <node id="east" x="{x3}" y="0"/>\n'
+           f'  <node id="ramp_start" x="{x1 - 400}" y="-60"/>\n</nodes>\n')
+    _write(folder / "merge.edg.xml", "<edges>\n"
+           f'  <edge id="main" from="west" to="merge" numLanes="2" speed="{net.main_speed_mps}" priority="3"/>\n'
+           f'  <edge id="ramp" from="ramp_start" to="merge" numLanes="1" speed="{net.ramp_speed_mps}" priority="1"/>\n'
+           f'  <edge id="accel" from="merge" to="accel_end" numLanes="3" speed="{net.main_speed_mps}" priority="3"/>\n'
+           f'  <edge id="after" from="accel_end" to="east" numLanes="2" speed="{net.main_speed_mps}" priority="3"/>\n'
+           "</edges>\n")
+    _write(folder / "merge.con.xml", "<connections>\n"
+           '  <connection from="main" to="accel" fromLane="0" toLane="1"/>\n'
+           '  <connection from="main" to="accel" fromLane="1" toLane="2"/>\n'
+           '  <connection from="ramp" to="accel" fromLane="0" toLane="0"/>\n'
+           '  <connection from="accel" to="after" fromLane="1" toLane="0"/>\n'
+           '  <connection from="accel" to="after" fromLane="2" toLane="1"/>\n'
+           "</connections>\n")
+    out = folder / "merge.net.xml"
+    run_tool([sumo_binary("netconvert"), "-n", str(folder / "merge.nod.xml"), "-e", str(folder / "merge.edg.xml"),
+              "-x", str(folder / "merge.con.xml"), "-o", str(out), "--no-turnarounds", "--no-warnings"],
+             "netconvert (merge)")
+    rows = ['<routes>',
+            '  <vType id="human" length="4.694" sigma="0.5"/>',  # SUMO's Krauss driver (sigma default 0.5)
+            '  <route id="main_route" edges="main accel after"/>',
+            '  <route id="ramp_route" edges="ramp accel after"/>']
+    if net.main_flow_vph > 0:
+        rows.append(f'  <flow id="main" type="human" route="main_route" begin="0" end="{t_end_s!r}" '
+                    f'vehsPerHour="{net.main_flow_vph!r}" departLane="best" departSpeed="max"/>')
+    if net.ramp_flow_vph > 0:
+        rows.append(f'  <flow id="ramp" type="human" route="ramp_route" begin="0" end="{t_end_s!r}" '
+                    f'vehsPerHour="{net.ramp_flow_vph!r}" departLane="best" departSpeed="max"/>')
+    rows.append("</routes>\n")
+    return out, [_write(folder / "merge.rou.xml", "\n".join(rows))]
+
+
+NETWORKS = ("ring", "merge")

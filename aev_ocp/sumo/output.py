@@ -1,0 +1,249 @@
+"""Saving, loading, plotting and reporting SUMO runs (the toolkit's saved-run format, kind ``sumo``).
+
+The folder holds ``manifest.json`` + ``trajectories.npz`` (:mod:`aev_ocp.saved`: one run per vehicle, labelled by
+its SUMO id), ``metrics.csv`` (the usual metrics of every vehicle, SI first), ``fleet.json`` (fleet totals and the
+fleet's events), one space-time diagram per route (``spacetime_<route>.png``; the ring: one) and ``report.md``.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import math
+import re
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..metrics import si_first
+from ..results import save_figure_atomic, to_jsonable, write_atomic, write_json
+from ..saved import LoadError, load_all, read_manifest, save_output
+from .run import SumoRun
+
+FILES = ("manifest.json", "trajectories.npz", "metrics.csv", "fleet.json", "report.md")
+
+
+def _label(vid: str) -> str:
+    return vid.replace("/", "_")
+
+
+def save_sumo(run: SumoRun, out: str | Path) -> list[Path]:
+    """Write the run into ``out`` (see the module docstring); returns the files written (figures not included)."""
+    out = Path(out)
+    runs = {_label(v): r for v, r in run.vehicles.items()}
+    primary = next((_label(v) for v, c in run.controlled.items() if c), next(iter(runs), None))
+    sc = run.scenario
+    extra = {"sumo": {"name": run.name, "controlled": {_label(k): v for k, v in run.controlled.items()},
+                      "events": run.events, "t_end_s": run.t_end_s, "step_s": run.step_s, "steps": run.steps,
+                      "wall_s": run.wall_s, "controller_s": run.controller_s, "interrupted": run.interrupted,
+                      "offsets_m": {_label(k): v for k, v in run.offsets_m.items()},
+                      "ring_length_m": run.ring_length_m, "fleet": run.fleet_totals()}}
+    settings = {"scenario": sc.name, "source": str(sc.source) if sc.source else None, "document": sc.document}
+    files = save_output(out, "sumo", runs, primary=primary, settings=settings, extra=extra)
+    files.append(write_metrics_csv(run, out / "metrics.csv"))
+    files.append(write_json(out / "fleet.json", {"fleet": run.fleet_totals(), "events": run.events}))
+    return files
+
+
+def write_metrics_csv(run: SumoRun, path: Path) -> Path:
+    """Per-vehicle metrics, one row per vehicle (SI columns first)."""
+    rows = run.metrics()
+    keys: list[str] = []
+    for m in rows:
+        keys += [k for k, v in m.items() if k not in keys and not isinstance(v, (dict, list))]
+    lead = ["sumo_id", "controlled", "controller", "route", "status"]
+    cols = lead + si_first([k for k in keys if k not in lead])
+    buf = io.StringIO()
+    w = csv.DictWriter(buf, cols, extrasaction="ignore")
+    w.writeheader()
+    for m in rows:
+        w.writerow({k: to_jsonable(m.get(k)) for k in cols})
+    return write_atomic(path, buf.getvalue())
+
+
+def load_sumo(path: str | Path) -> SumoRun:
+    """A saved SUMO run back as a :class:`SumoRun` (its scenario re-validated from the saved document)."""
+    from .scenario import parse_sumo_scenario
+
+    m, folder = read_manifest(path)
+    if m.get("kind") != "sumo":
+        raise LoadError(f"{folder}: kind = {m.get('kind')!r}, not a SUMO run")
+    s = m["sumo"]
+    runs = load_all(folder)
+    sc = parse_sumo_scenario(m["settings"]["document"], str(m["settings"].get("source") or folder))
+    return SumoRun(s["name"], sc, runs, {k: bool(v) for k, v in s["controlled"].items()}, s["events"],
+                   float(s["t_end_s"]), float(s["step_s"]), int(s["steps"]), float(s["wall_s"]),
+                   float(s["controller_s"]), {k: float(v) for k, v in s["offsets_m"].items()},
+                   s.get("ring_length_m"), bool(s.get("interrupted", False)))
+
+
+# ----------------------------------------------------------------------------- space-time diagrams
+def space_time_groups(run: SumoRun) -> dict[str, list[tuple[str, np.ndarray, np.ndarray, np.ndarray]]]:
+    """{panel: [(vehicle id, t [s], position [m], speed [m/s])]}: one panel per route (the ring: one panel,
+    positions wrapped to the circumference); position = distance driven + the lane position at departure."""
+    out: dict[str, list[tuple[str, np.ndarray, np.ndarray, np.ndarray]]] = {}
+    for vid, r in run.vehicles.items():
+        u = r.units
+        t = np.asarray(u.time_to_si(r.t), float)
+        x = np.asarray(u.length_to_si(r.positions()[:, 0]), float)
+        x = x - x[0] + run.offsets_m.get(vid, 0.0)
+        key = "ring" if run.ring_length_m else str(r.meta.get("route", "route"))
+        if run.ring_length_m:
+            x = np.mod(x, run.ring_length_m)
+        out.setdefault(key, []).append((vid, t, x, np.asarray(u.speed_to_si(r.speed[:, 0]), float)))
+    return out
+
+
+def plot_space_time(run: SumoRun) -> dict[str, Any]:
+    """{panel: Figure}: every vehicle's position over time coloured by its speed; the toolkit's vehicles drawn
+    thicker. Nothing is written."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.collections import LineCollection
+
+    figs: dict[str, Any] = {}
+    vmax = max((float(np.nanmax(s)) for g in space_time_groups(run).values() for _, _, _, s in g), default=1.0)
+    for key, rows in space_time_groups(run).items():
+        fig, ax = plt.subplots(figsize=(8, 4.5))
+        lc = None
+        for vid, t, x, v in rows:
+            if t.size < 2:
+                continue
+            seg = np.stack([np.column_stack([t[:-1], x[:-1]]), np.column_stack([t[1:], x[1:]])], axis=1)
+            if run.ring_length_m:  # no line across the wrap
+                keep = np.abs(np.diff(x)) < run.ring_length_m / 2
+                seg, vv = seg[keep], v[:-1][keep]
+            else:
+                vv = v[:-1]
+            lc = LineCollection(list(seg), cmap="viridis", norm=plt.Normalize(0, vmax),
+                                linewidths=1.8 if run.controlled.get(vid) else 0.6)
+            lc.set_array(vv)
+            ax.add_collection(lc)
+        ax.autoscale()
+        ax.set_xlabel("time [s]")
+        ax.set_ylabel("position on the ring [m]" if run.ring_length_m else f"position along route {key} [m]")
+        n_c = sum(1 for vid, *_ in rows if run.controlled.get(vid))
+        ax.set_title(f"{run.name}: {key} ({len(rows)} vehicles, {n_c} driven by the toolkit: thick)")
+        if lc is not None:
+            fig.colorbar(lc, ax=ax, label="speed [m/s]")
+        fig.tight_layout()
+        figs[key] = fig
+    return figs
+
+
+def save_space_time(run: SumoRun, out: Path) -> list[Path]:
+    """Write ``spacetime_<panel>.png`` files; returns their paths."""
+    import matplotlib.pyplot as plt
+
+    paths = []
+    for key, fig in plot_space_time(run).items():
+        paths.append(save_figure_atomic(fig, out / f"spacetime_{re.sub(r'[^A-Za-z0-9._-]', '_', key)}.png", dpi=110))
+        plt.close(fig)
+    return paths
+
+
+# ----------------------------------------------------------------------------- report
+def _fmt(x: Any) -> str:
+    if isinstance(x, bool) or x is None:
+        return str(x)
+    if isinstance(x, (int, np.integer)):
+        return str(int(x))
+    if isinstance(x, float):
+        return "–" if not math.isfinite(x) else f"{x:.4g}"
+    return str(x)
+
+
+def report_markdown(run: SumoRun, figures: list[Path] | None = None) -> str:
+    """The run's Markdown report: setup, fleet totals, the controlled vehicles' metrics, events, figures."""
+    s = run.scenario.spec
+    ft = run.fleet_totals()
+    where = s.network or str(s.config_file or s.net_file)
+    lines = [f"# SUMO run: {run.name}", "",
+             f"Network: {where}; {run.t_end_s:g} s simulated at steps of {run.step_s:g} s in {run.wall_s:.3g} s "
+             f"wall-clock ({run.realtime_factor:.3g}× real time; controllers {run.controller_s:.3g} s). "
+             f"Controller of the toolkit's vehicles: {s.controller}; SUMO speed mode {s.speed_mode}; "
+             f"share {s.share:g}" + (f", ids {list(s.ids)}" if s.ids else "") + (f", types {list(s.vtypes)}"
+                                                                                  if s.vtypes else "") + ".",
+             ""]
+    if run.interrupted:
+        lines += ["**Interrupted**: the run covers only the simulated time above.", ""]
+    cols = ["vehicles", "distance_km", "energy_kJ_per_km", "heat_pack_J_per_km", "mean_speed_mps", "min_gap_m",
+            "collisions", "teleports"]
+    lines += ["## Fleet totals", "", "| group | " + " | ".join(cols) + " |", "|---" * (len(cols) + 1) + "|"]
+    for g in ("all", "controlled", "sumo"):
+        lines.append(f"| {g} | " + " | ".join(_fmt(ft[g][c]) for c in cols) + " |")
+    lines += ["", f"Vehicles that left the network: {ft['left_network']}. Energy: ω × vehicle mass (energy at the "
+              "wheels after η, the paper's measure); pack heat from the 2-RC cell on the realised motion.", ""]
+    rows = [m for m in run.metrics() if m["controlled"]]
+    if rows:
+        mc = ["sumo_id", "status", "distance_m", "omega_J_per_kg_per_km", "heat_pack_J_per_km", "min_gap_m",
+              "min_ttc_s", "rms_jerk_mps3", "mean_speed_mps"]
+        lines += ["## Vehicles driven by the toolkit", "", "| " + " | ".join(mc) + " |", "|---" * len(mc) + "|"]
+        for m in rows[:40]:
+            lines.append("| " + " | ".join(_fmt(m.get(c)) for c in mc) + " |")
+        if len(rows) > 40:
+            lines.append(f"\n({len(rows) - 40} more in metrics.csv)")
+        lines.append("")
+    ev = [e for e in run.events if e["kind"] != "left_network"]
+    lines += ["## Events", ""]
+    lines += [f"- {e['kind']} at {e['t_s']:.4g} s: {e.get('vehicle')}"
+              + (f" hit {e['victim']} at {e['impact_speed_mps']:.3g} m/s" if e["kind"] == "collision" else "")
+              for e in ev[:50]] or ["None (no collision, no teleport)."]
+    lines.append("")
+    if figures:
+        lines += ["## Space-time diagrams", ""] + [f"![{p.stem}]({p.name})" for p in figures] + [""]
+    return "\n".join(lines)
+
+
+def write_report(run: SumoRun, out: Path, figures: list[Path] | None = None) -> Path:
+    """``report.md`` in ``out``."""
+    return write_atomic(out / "report.md", report_markdown(run, figures))
+
+
+def sweep_markdown(rows: list[dict[str, Any]], name: str) -> str:
+    """The sweep's table (share × controller) as Markdown."""
+    cols = ["share", "controller", "status", "vehicles", "controlled", "energy_kJ_per_km", "energy_ctrl_kJ_per_km",
+            "energy_sumo_kJ_per_km", "heat_pack_J_per_km", "mean_speed_mps", "min_gap_m", "collisions", "teleports",
+            "realtime_factor"]
+    lines = [f"# SUMO sweep: {name}", "", "Fleet totals per point (all vehicles; ctrl = driven by the toolkit, "
+             "sumo = SUMO's drivers).", "", "| " + " | ".join(cols) + " |", "|---" * len(cols) + "|"]
+    for r in rows:
+        lines.append("| " + " | ".join(_fmt(r.get(c)) for c in cols) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def sweep_row(share: float, controller: str, run: SumoRun | None, error: str = "") -> dict[str, Any]:
+    """One row of the sweep table from a run (None: the point failed with ``error``)."""
+    if run is None:
+        return {"share": share, "controller": controller, "status": "error", "message": error}
+    ft = run.fleet_totals()
+    return {"share": share, "controller": controller, "status": "interrupted" if run.interrupted else "ok",
+            "vehicles": ft["all"]["vehicles"], "controlled": ft["controlled"]["vehicles"],
+            "energy_kJ_per_km": ft["all"]["energy_kJ_per_km"],
+            "energy_ctrl_kJ_per_km": ft["controlled"]["energy_kJ_per_km"],
+            "energy_sumo_kJ_per_km": ft["sumo"]["energy_kJ_per_km"],
+            "heat_pack_J_per_km": ft["all"]["heat_pack_J_per_km"], "mean_speed_mps": ft["all"]["mean_speed_mps"],
+            "min_gap_m": ft["all"]["min_gap_m"], "collisions": ft["all"]["collisions"],
+            "teleports": ft["all"]["teleports"], "realtime_factor": ft["realtime_factor"]}
+
+
+def write_sweep(rows: list[dict[str, Any]], out: Path, name: str) -> list[Path]:
+    """``sweep.csv``, ``sweep.json`` and ``sweep.md`` in ``out``."""
+    keys: list[str] = []
+    for r in rows:
+        keys += [k for k in r if k not in keys]
+    buf = io.StringIO()
+    w = csv.DictWriter(buf, keys)
+    w.writeheader()
+    for r in rows:
+        w.writerow({k: to_jsonable(r.get(k)) for k in keys})
+    return [write_atomic(out / "sweep.csv", buf.getvalue()), write_json(out / "sweep.json", {"rows": rows}),
+            write_atomic(out / "sweep.md", sweep_markdown(rows, name))]
+
+
+def read_json(path: Path) -> Any:
+    return json.loads(path.read_text(encoding="utf-8"))

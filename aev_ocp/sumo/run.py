@@ -1,0 +1,622 @@
+"""One SUMO run with the toolkit's controllers in the loop (libsumo in-process; one SUMO per process).
+
+Each SUMO step (length dt [s], ballistic position update: a speed set for the step is reached linearly, so the
+command is an acceleration held over the step, exactly the toolkit's zero-order hold):
+
+1. SUMO advances; the toolkit reads every vehicle's speed, odometer and lane, records departures, arrivals (the
+   vehicle left the network), teleports and collisions (the last two are events that end the vehicle's record);
+2. the battery of every vehicle is integrated over the step on the motion SUMO realised (:mod:`.energy`);
+3. every controlled vehicle observes what a car can: its leader's bumper-to-bumper gap and speed from SUMO
+   (``getLeader`` within ``lookahead_m``; no leader: gap = lookahead and leader speed = own speed, i.e. free road;
+   a lane that ends before the leader: a standing obstacle at its end) and its own speed; its controller commands
+   an acceleration, saturated to the vehicle's [limits] (and never below standstill), and ``setSpeed`` hands SUMO
+   the speed reached at the end of the next step.
+
+The speed mode of controlled vehicles (default 24, :data:`.scenario.DEFAULT_SPEED_MODE`) switches off SUMO's own
+safe speed and acceleration bounds, so the controller alone decides (and a collision is possible: it is an
+event). Ctrl-C (or any error) closes SUMO before the exception leaves :func:`run_sumo`.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import importlib
+import math
+import os
+import subprocess
+import tempfile
+import time
+from collections import deque
+from dataclasses import dataclass, field
+from functools import lru_cache
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+from .. import interrupts
+from ..control import Command, Controller, Observation, _stats
+from ..models.carfollowing import CarFollowingLaw, make_law, optimal_velocity
+from ..params import EVParams
+from ..results import Event, SimulationResult
+from . import SumoError, require_sumo, sumo_binary
+from . import energy
+from .networks import build_merge, build_ring, first_error
+from .scenario import SumoScenario
+
+ProgressFn = Callable[[float, float], None]
+MEASUREMENT_WINDOW = 100  # leader-speed samples a controller keeps (the MPC's predictors use the last few)
+
+
+def _draw(seed: int, vid: str) -> float:
+    """A uniform number in [0, 1) from a hash of (seed, vehicle id): the same for the same seed and id."""
+    return int.from_bytes(hashlib.sha256(f"{seed}:{vid}".encode()).digest()[:8], "big") / 2.0**64
+
+
+def is_controlled(vid: str, vtype: str, scenario: SumoScenario) -> bool:
+    """Whether the toolkit drives vehicle ``vid`` of type ``vtype``: listed by id or type, or drawn by ``share``.
+
+    Flows (vehicles not known in advance): each vehicle with probability ``share``, drawn by a hash of (seed, id).
+    The shipped ring (its n cars known): exactly round(share·n) cars, those with the smallest draws. Either way the
+    same vehicles for the same seed, and a larger share controls a superset."""
+    s = scenario.spec
+    if vid in s.ids or vtype in s.vtypes:
+        return True
+    if s.share <= 0:
+        return False
+    if s.network == "ring" and s.ring is not None:
+        return vid in _ring_selection(s.seed, s.ring.vehicles, s.share)
+    return _draw(s.seed, vid) < s.share
+
+
+@lru_cache(maxsize=64)
+def _ring_selection(seed: int, n: int, share: float) -> frozenset[str]:
+    ids = sorted((f"ring.{i}" for i in range(n)), key=lambda v: _draw(seed, v))
+    return frozenset(ids[:int(round(share * n))])
+
+
+@dataclass
+class _Track:
+    """What one vehicle did (SI, as read from SUMO) and its controller's bookkeeping."""
+
+    vid: str
+    vtype: str
+    route: str
+    controlled: bool
+    controller: str
+    min_gap_m: float
+    depart_s: float
+    t_s: list[float] = field(default_factory=list)
+    v: list[float] = field(default_factory=list)
+    odo: list[float] = field(default_factory=list)
+    gap: list[float] = field(default_factory=list)
+    v_lead: list[float] = field(default_factory=list)
+    lane: list[str] = field(default_factory=list)
+    lane_pos0: float = 0.0
+    x_bat: list[np.ndarray] = field(default_factory=list)
+    current: list[float] = field(default_factory=list)
+    events: list[Event] = field(default_factory=list)
+    end: str = ""  # '' while live; 'arrived', 'teleport', 'collision', or a battery event
+    end_s: float = math.nan
+    ctrl: Controller | None = None
+    law: CarFollowingLaw | None = None
+    a_cmd_mps2: float = 0.0
+    meas_t: deque[float] = field(default_factory=lambda: deque(maxlen=MEASUREMENT_WINDOW))
+    meas_v: deque[float] = field(default_factory=lambda: deque(maxlen=MEASUREMENT_WINDOW))
+    rec: dict[str, list[Any]] = field(default_factory=lambda: {k: [] for k in ("solve", "call", "iters", "ok",
+                                                                               "status", "info")})
+    a_prev: float = 0.0
+
+
+@dataclass
+class SumoRun:
+    """A finished SUMO run: one :class:`SimulationResult` per vehicle (keyed by SUMO id; a single follower each,
+    its leader whoever SUMO reported), which of them the toolkit controlled, fleet-level events (departures are
+    not events; arrivals, teleports, collisions are), wall time and SUMO time, the space-time offsets and the ring
+    length (for wrapping positions; None off the ring)."""
+
+    name: str
+    scenario: SumoScenario
+    vehicles: dict[str, SimulationResult]
+    controlled: dict[str, bool]
+    events: list[dict[str, Any]]
+    t_end_s: float
+    step_s: float
+    steps: int
+    wall_s: float
+    controller_s: float
+    offsets_m: dict[str, float] = field(default_factory=dict)
+    ring_length_m: float | None = None
+    interrupted: bool = False
+    build_s: float = 0.0
+
+    @property
+    def realtime_factor(self) -> float:
+        """Simulated seconds per wall-clock second."""
+        return self.t_end_s / self.wall_s if self.wall_s > 0 else math.inf
+
+    def metrics(self) -> list[dict[str, Any]]:
+        """The usual per-vehicle metrics (:func:`aev_ocp.metrics.vehicle_metrics`) of every vehicle, with its SUMO
+        id, route, type and whether the toolkit drove it."""
+        rows = []
+        for vid, r in self.vehicles.items():
+            m = r.metrics()[0]
+            m.update(sumo_id=vid, controlled=self.controlled[vid], vtype=r.meta.get("vtype"),
+                     route=r.meta.get("route"), mean_speed_mps=_mean_speed(r))
+            rows.append(m)
+        return rows
+
+    def fleet_totals(self) -> dict[str, Any]:
+        """Totals over all vehicles and over the controlled / SUMO-driven groups: count, distance [km], energy at
+        the wheels after η (ω × mass [MJ]), pack heat [kJ], their per-km values, mean speed [m/s], collisions,
+        teleports, vehicles that left the network."""
+        rows = self.metrics()
+        mass = self.scenario.ev.vehicle.mass_kg
+
+        def group(sel: list[dict[str, Any]]) -> dict[str, Any]:
+            km = sum(_f(m["distance_m"]) for m in sel) / 1000.0
+            e_J = sum(_f(m["omega_J_per_kg"]) * mass for m in sel)
+            q_J = sum(_f(m["heat_pack_J"]) for m in sel)
+            dur = sum(_f(m["duration_s"]) for m in sel)
+            return {"vehicles": len(sel), "distance_km": km, "energy_MJ": e_J / 1e6, "heat_pack_kJ": q_J / 1e3,
+                    "energy_kJ_per_km": e_J / 1e3 / km if km > 0 else math.nan,
+                    "heat_pack_J_per_km": q_J / km if km > 0 else math.nan,
+                    "mean_speed_mps": 1000 * km / dur if dur > 0 else math.nan,
+                    "min_gap_m": min((_f(m["min_gap_m"]) for m in sel), default=math.nan),
+                    "collisions": sum(1 for m in sel if m["status"] == "collision"),
+                    "teleports": sum(1 for m in sel if m["status"] == "teleport")}
+
+        return {"all": group(rows), "controlled": group([m for m in rows if m["controlled"]]),
+                "sumo": group([m for m in rows if not m["controlled"]]),
+                "left_network": sum(1 for e in self.events if e["kind"] == "left_network"),
+                "realtime_factor": self.realtime_factor, "wall_s": self.wall_s, "controller_s": self.controller_s}
+
+    def __repr__(self) -> str:
+        n_c = sum(self.controlled.values())
+        return (f"SumoRun({self.name!r}: {len(self.vehicles)} vehicles, {n_c} controlled, {self.t_end_s:g} s "
+                f"simulated in {self.wall_s:.3g} s)")
+
+
+def _f(x: Any) -> float:
+    try:
+        return float(x) if x is not None else math.nan
+    except (TypeError, ValueError):
+        return math.nan
+
+
+def _mean_speed(r: SimulationResult) -> float:
+    d = float(r.t[-1] - r.t[0]) if r.t.size > 1 else 0.0
+    return float(r.units.speed_to_si(np.trapezoid(r.speed[:, 0], r.t) / d)) if d > 0 else float(
+        r.units.speed_to_si(r.speed[0, 0]))
+
+
+# ----------------------------------------------------------------------------- network and SUMO start
+def prepare_inputs(scenario: SumoScenario, folder: Path) -> list[str]:
+    """SUMO's input options of the scenario (a shipped network is built into ``folder``); user files are checked
+    first by a separate SUMO process (which loads every route), so that a bad file gives SUMO's message as one
+    line here and never reaches the in-process SUMO (a failed libsumo start cannot be retried in a process)."""
+    s = scenario.spec
+    if s.network == "ring":
+        assert s.ring is not None
+        net, routes = build_ring(s.ring, folder, s.t_end_s)
+        return ["-n", str(net), "-r", ",".join(map(str, routes))]
+    if s.network == "merge":
+        assert s.merge is not None
+        net, routes = build_merge(s.merge, folder, s.t_end_s)
+        return ["-n", str(net), "-r", ",".join(map(str, routes))]
+    if s.config_file is not None:
+        args = ["-c", str(s.config_file)]
+        files = [s.config_file]
+    else:
+        assert s.net_file is not None
+        args = ["-n", str(s.net_file)] + (["-r", ",".join(map(str, s.route_files))] if s.route_files else [])
+        files = [s.net_file, *s.route_files]
+    for f in files:
+        if not Path(f).is_file():
+            raise SumoError(f"{f}: no such file")
+    check_inputs(args)
+    return args
+
+
+def check_inputs(args: list[str]) -> None:
+    """Load the network and every route with the ``sumo`` binary (no simulation); SumoError with SUMO's message."""
+    cmd = [sumo_binary("sumo"), *args, "--end", "0", "--route-steps", "0", "--no-step-log", "true"]
+    try:
+        proc = subprocess.run(cmd, capture_output=True, text=True, check=False, timeout=300, env=_env())
+    except subprocess.TimeoutExpired:
+        raise SumoError("SUMO took more than 300 s to load the network and routes") from None
+    if proc.returncode < 0:
+        raise SumoError(f"SUMO crashed (signal {-proc.returncode}) reading {' '.join(args[1::2])}: a malformed "
+                        "network or route file?")
+    if proc.returncode != 0:
+        raise SumoError(f"SUMO: {first_error(proc.stderr + proc.stdout)}")
+
+
+def _env() -> dict[str, str]:
+    import sumo
+
+    return {**os.environ, "SUMO_HOME": sumo.SUMO_HOME}
+
+
+def _start(ts: Any, args: list[str]) -> None:
+    """libsumo.start with SUMO's stderr captured: a failure is a one-line SumoError with SUMO's message."""
+    import sumo
+
+    os.environ.setdefault("SUMO_HOME", sumo.SUMO_HOME)
+    with tempfile.TemporaryFile(mode="w+b") as err:
+        saved = os.dup(2)
+        try:
+            os.dup2(err.fileno(), 2)
+            try:
+                ts.start(args)
+                failed = None
+            except Exception as exc:  # noqa: BLE001 - libsumo raises TraCIException / FatalTraCIError
+                failed = exc
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+        if failed is not None:
+            err.seek(0)
+            raise SumoError(f"SUMO: {first_error(err.read().decode(errors='replace'))}")
+
+
+# ----------------------------------------------------------------------------- controllers
+def make_controller_factory(scenario: SumoScenario) -> tuple[CarFollowingLaw | None, Callable[[], Controller] | None]:
+    """(law, None) for a law by name (evaluated for all its vehicles at once every step), else (None, factory)
+    giving one new Controller per controlled vehicle."""
+    name = scenario.spec.controller
+    ev = scenario.ev
+    if name == "mpc":
+        from ..mpc.policy import MPCPolicy
+        from ..mpc.predictors import make_predictor
+        from ..models.carfollowing import Proposed
+
+        cfg = scenario.mpc
+        cf = scenario.cf
+        fallback = Proposed(alpha=cf.alpha, beta=cf.beta, kappa=cf.kappa, eps=cf.eps)
+
+        def mpc() -> Controller:
+            pred = make_predictor(cfg.settings.predictor, None, cfg.settings.predictor_window, ev.units.time_s)
+            return MPCPolicy(cfg.settings, ev, fallback, pred, formulation=cfg.formulation)
+
+        return None, mpc
+    if ":" in name:
+        mod, fn = name.split(":", 1)
+        try:
+            factory = getattr(importlib.import_module(mod), fn)
+        except (ImportError, AttributeError) as exc:
+            raise SumoError(f"sumo.controller = {name!r}: cannot import it ({exc})") from None
+
+        def user() -> Controller:
+            c = factory(ev)
+            if not isinstance(c, Controller):
+                raise SumoError(f"sumo.controller = {name!r} returned a {type(c).__name__}, not a Controller "
+                                "(name, dt, reset, command, describe)")
+            return c
+
+        return None, user
+    return make_law(name, scenario.cf), None
+
+
+# ----------------------------------------------------------------------------- the run
+def run_sumo(scenario: SumoScenario, workdir: str | Path | None = None, *, progress: ProgressFn | None = None,
+             gui: bool = False) -> SumoRun:
+    """Run ``scenario`` in SUMO with its controlled vehicles driven by the toolkit; returns a :class:`SumoRun`.
+
+    workdir: where a shipped network is built (default a temporary folder). progress(t_s, t_end_s) is called
+    every simulated second. Bad SUMO inputs raise :class:`aev_ocp.sumo.SumoError` (SUMO's message, one line)."""
+    ts = require_sumo()
+    s = scenario.spec
+    tmp = None
+    if workdir is None:
+        tmp = tempfile.TemporaryDirectory(prefix="aev_ocp_sumo_")
+        workdir = tmp.name
+    try:
+        inputs = prepare_inputs(scenario, Path(workdir))
+        args = [sumo_binary("sumo-gui" if gui else "sumo"), *inputs, "--step-length", repr(s.step_s),
+                "--step-method.ballistic", "true", "--collision.action", s.collision_action,
+                "--seed", str(s.seed), "--no-step-log", "true", "--no-warnings", "true", "--end", repr(s.t_end_s),
+                *s.sumo_args]
+        _start(ts, args)
+        try:
+            return _loop(ts, scenario, progress)
+        finally:
+            ts.close()
+    finally:
+        if tmp is not None:
+            tmp.cleanup()
+
+
+def _loop(ts: Any, sc: SumoScenario, progress: ProgressFn | None) -> SumoRun:
+    s, ev = sc.spec, sc.ev
+    u = ev.units
+    dt = s.step_s
+    law, factory = make_controller_factory(sc)
+    a_lo, a_hi = (ev.limits.a_min_mps2, ev.limits.a_max_mps2) if ev.limits.enabled else (-math.inf, math.inf)
+    v_max = ev.limits.v_max_mps if ev.limits.enabled else math.inf
+    ctrl_every = 1
+    tracks: dict[str, _Track] = {}
+    done: list[_Track] = []
+    fleet_events: list[dict[str, Any]] = []
+    min_gaps: dict[str, float] = {}
+    ring = s.ring if s.network == "ring" else None
+    offsets: dict[str, float] = {}
+    lane_ends: dict[tuple[str, int, str], float | None] = {}
+    V = ts.vehicle
+    t0 = time.perf_counter()
+    t_ctrl = 0.0
+    t_build = 0.0  # building sampled controllers (an MPC builds its NLP once per vehicle)
+    k = 0
+    K = int(round(s.t_end_s / dt))
+    next_progress = 1.0
+    interrupted = False
+
+    def finish(tr: _Track, why: str, t_s: float) -> None:
+        tr.end, tr.end_s = why, t_s
+        tracks.pop(tr.vid, None)
+        done.append(tr)
+
+    def release(vid: str) -> None:  # give a vehicle whose record ended back to SUMO
+        try:
+            V.setSpeed(vid, -1)
+            V.setSpeedMode(vid, 31)
+        except Exception:  # noqa: BLE001 - it may have left already
+            pass
+
+    try:
+        while k < K:
+            interrupts.check()
+            ts.simulationStep()
+            k += 1
+            t_s = ts.simulation.getTime()
+            for vid in ts.simulation.getDepartedIDList():
+                vt = V.getTypeID(vid)
+                if vt not in min_gaps:
+                    min_gaps[vt] = ts.vehicletype.getMinGap(vt)
+                ctl = is_controlled(vid, vt, sc)
+                tr = _Track(vid, vt, V.getRouteID(vid), ctl, "", min_gaps[vt], t_s, lane_pos0=V.getLanePosition(vid))
+                if ring is not None:
+                    tr.lane_pos0 += ring.length_m / 2 if V.getRoadID(vid) == "bottom" else 0.0
+                offsets[vid] = tr.lane_pos0
+                if ctl:
+                    V.setSpeedMode(vid, s.speed_mode)
+                    if law is not None:
+                        tr.law, tr.controller = law, law.name
+                    else:
+                        assert factory is not None
+                        tb = time.perf_counter()
+                        tr.ctrl = factory()
+                        tr.ctrl.reset()
+                        t_build += time.perf_counter() - tb
+                        tr.controller = tr.ctrl.name
+                        ctrl_every = max(1, int(round(tr.ctrl.dt * u.time_s / dt)))
+                else:
+                    tr.controller = f"sumo:{vt}"  # SUMO's own driver model of the vehicle's type
+                tracks[vid] = tr
+            for vid in ts.simulation.getStartingTeleportIDList():
+                if vid in tracks:
+                    tr = tracks[vid]
+                    tr.events.append(Event("teleport", u.time_from_si(t_s), 0, "SUMO teleported the vehicle (a jam "
+                                           "or a lane it could not leave); its record ends here", time_s=t_s))
+                    fleet_events.append({"kind": "teleport", "t_s": t_s, "vehicle": vid, "controlled": tr.controlled})
+                    finish(tr, "teleport", t_s)
+                    release(vid)
+            for c in ts.simulation.getCollisions():
+                dv = c.colliderSpeed - c.victimSpeed
+                fleet_events.append({"kind": "collision", "t_s": t_s, "vehicle": c.collider, "victim": c.victim,
+                                     "impact_speed_mps": dv, "type": c.type})
+                for vid in (c.collider, c.victim):
+                    if vid in tracks:
+                        tr = tracks[vid]
+                        tr.events.append(Event("collision", u.time_from_si(t_s), 0,
+                                               f"{'hit ' + c.victim if vid == c.collider else 'hit by ' + c.collider} "
+                                               f"at {dv:.3g} m/s ({c.type})", time_s=t_s, impact_speed_mps=dv))
+                        finish(tr, "collision", t_s)
+                        release(vid)
+            for vid in ts.simulation.getArrivedIDList():
+                if vid in tracks:
+                    tr = tracks[vid]
+                    fleet_events.append({"kind": "left_network", "t_s": t_s, "vehicle": vid,
+                                         "controlled": tr.controlled})
+                    finish(tr, "arrived", t_s)
+            live = list(tracks.values())
+            # read the state SUMO reached at t_s
+            for tr in live:
+                vid = tr.vid
+                v = V.getSpeed(vid)
+                lead = V.getLeader(vid, s.lookahead_m)
+                if lead and lead[0]:
+                    g, vl = lead[1] + tr.min_gap_m, V.getSpeed(lead[0])
+                else:
+                    g, vl = math.nan, math.nan
+                if tr.controlled:  # a lane that ends (no continuation on the route) is a standing obstacle
+                    left = _lane_end_m(V, vid, tr.route, lane_ends)
+                    if left is not None and left < s.lookahead_m and not (g <= left):
+                        g, vl = left, 0.0
+                tr.t_s.append(t_s)
+                tr.v.append(v)
+                tr.odo.append(V.getDistance(vid))
+                tr.gap.append(g)
+                tr.v_lead.append(vl)
+                tr.lane.append(V.getLaneID(vid))
+            # battery over the step just made
+            _battery(ev, live, dt)
+            for tr in [tr for tr in live if tr.events]:
+                finish(tr, tr.events[-1].kind, t_s)
+                if tr.controlled:
+                    release(tr.vid)
+            live = [tr for tr in live if not tr.end]
+            # commands for [t_s, t_s + dt]
+            tc = time.perf_counter()
+            ctl_live = [tr for tr in live if tr.controlled]
+            if ctl_live:
+                gaps = np.array([tr.gap[-1] for tr in ctl_live])
+                vs = np.array([tr.v[-1] for tr in ctl_live])
+                vls = np.array([tr.v_lead[-1] for tr in ctl_live])
+                free = ~np.isfinite(gaps)
+                gaps = np.where(free, s.lookahead_m, gaps)
+                vls = np.where(free, vs, vls)
+                a = np.empty(len(ctl_live))
+                law_idx = [i for i, tr in enumerate(ctl_live) if tr.law is not None]
+                if law_idx:
+                    assert law is not None
+                    h = u.length_from_si(np.maximum(gaps[law_idx], 1e-6))
+                    a_model = np.asarray(law.function(h[None, :], u.speed_from_si(vs[law_idx])[None, :],
+                                                      u.speed_from_si(vls[law_idx])[None, :])).ravel()
+                    a[law_idx] = u.accel_to_si(a_model)
+                for i, tr in enumerate(ctl_live):
+                    if tr.ctrl is None:
+                        continue
+                    tr.meas_t.append(u.time_from_si(t_s))
+                    tr.meas_v.append(u.speed_from_si(vls[i]))
+                    if (len(tr.t_s) - 1) % ctrl_every == 0:  # every controller dt since the vehicle departed
+                        tr.a_cmd_mps2 = _call(tr, u, vs[i], gaps[i], ev)
+                    a[i] = tr.a_cmd_mps2
+                a = np.where(np.isfinite(a), a, a_lo if math.isfinite(a_lo) else -9.0)
+                a = np.clip(a, a_lo, a_hi)
+                v_next = np.clip(vs + a * dt, 0.0, np.maximum(v_max, vs))
+                for i, tr in enumerate(ctl_live):
+                    V.setSpeed(tr.vid, float(v_next[i]))
+                    tr.a_prev = float(u.accel_from_si(a[i]))
+            t_ctrl += time.perf_counter() - tc
+            if progress is not None and t_s >= next_progress:
+                next_progress = math.floor(t_s) + 1.0
+                progress(t_s, s.t_end_s)
+    except KeyboardInterrupt:
+        interrupted = True
+        raise
+    finally:
+        wall = time.perf_counter() - t0
+    for tr in list(tracks.values()):
+        finish(tr, "", math.nan)
+    vehicles: dict[str, SimulationResult] = {}
+    controlled: dict[str, bool] = {}
+    for tr in done:
+        if len(tr.t_s) < 1:
+            continue
+        vehicles[tr.vid] = _result(tr, ev, s.lookahead_m, dt, s.record_every)
+        controlled[tr.vid] = tr.controlled
+    return SumoRun(sc.name, sc, vehicles, controlled, fleet_events, k * dt, dt, k, wall, t_ctrl,
+                   {v: offsets[v] for v in vehicles}, ring.length_m if ring is not None else None, interrupted,
+                   t_build)
+
+
+def _lane_end_m(V: Any, vid: str, route: str, cache: dict[tuple[str, int, str], float | None]) -> float | None:
+    """Distance [m] from the vehicle's front to the end of the lane sequence it can drive without changing lanes,
+    when its route goes on beyond (a merge lane ending), else None. SUMO's best-lane length counts from the lane's
+    start, so it is cached per (route, route index, lane)."""
+    lane = V.getLaneID(vid)
+    key = (route, V.getRouteIndex(vid), lane)
+    if key not in cache:
+        b = next((b for b in V.getBestLanes(vid) if b[0] == lane), None)
+        cache[key] = float(b[1]) if b is not None and _route_goes_on(V, vid, b) else None
+    end = cache[key]
+    return None if end is None else end - V.getLanePosition(vid)
+
+
+def _route_goes_on(V: Any, vid: str, best: Any) -> bool:
+    """Whether the route continues past the end of the lane sequence ``best`` (else the lane end is the route's)."""
+    edges = V.getRoute(vid)
+    idx = V.getRouteIndex(vid)
+    last = best[5][-1] if best[5] else best[0]
+    edge = last.rsplit("_", 1)[0]
+    return edge in edges[idx:] and edges.index(edge, idx) < len(edges) - 1
+
+
+def _call(tr: _Track, u: Any, v: float, gap: float, ev: EVParams) -> float:
+    """One call of a sampled Controller on the vehicle's measurements; returns its acceleration [m/s²]."""
+    assert tr.ctrl is not None
+    x = tr.x_bat[-1]
+    z = np.array([u.length_from_si(gap), u.speed_from_si(v), x[0], x[1], x[2]])
+    obs = Observation(tr.meas_t[-1], tr.ctrl.dt, 0, z, np.asarray(tr.meas_t), np.asarray(tr.meas_v), None, tr.a_prev)
+    t0 = time.perf_counter()
+    cmd: Command = tr.ctrl.command(obs)
+    tr.rec["call"].append(time.perf_counter() - t0)
+    for key, val in (("solve", cmd.solve_time_s), ("iters", cmd.iterations), ("ok", cmd.ok), ("status", cmd.status),
+                     ("info", {})):
+        tr.rec[key].append(val)
+    return float(u.accel_to_si(cmd.a))
+
+
+def _battery(ev: EVParams, live: list[_Track], dt: float) -> None:
+    """Integrate every live vehicle's battery over the last step (new vehicles start from rest at soc0)."""
+    u = ev.units
+    new = [tr for tr in live if not tr.x_bat]
+    if new:
+        x0 = energy.initial_state(ev, len(new))
+        for j, tr in enumerate(new):
+            tr.x_bat.append(x0[:, j].copy())
+            tr.current.append(0.0)
+    old = [tr for tr in live if len(tr.x_bat) < len(tr.t_s)]
+    if not old:
+        return
+    x = np.stack([tr.x_bat[-1] for tr in old], axis=1)
+    v0 = np.array([tr.v[-2] for tr in old])
+    v1 = np.array([tr.v[-1] for tr in old])
+    a = (v1 - v0) / dt
+    x1, I, disc = energy.step(ev, x, u.speed_from_si(v0), u.accel_from_si(a), dt)
+    for j, tr in enumerate(old):
+        tr.x_bat.append(x1[:, j])
+        tr.current[-1] = float(I[j])  # the current at the start of the step belongs to the previous sample
+        tr.current.append(float(I[j]))
+        if disc[j] < 0:
+            tr.events.append(Event("infeasible_current", u.time_from_si(tr.t_s[-1]), 0, "cell cannot deliver the "
+                                   "power demand (E² < 4 R_s P_c)", time_s=tr.t_s[-1]))
+        elif not (0.0 <= x1[2, j] <= 1.0):
+            tr.events.append(Event("soc_out_of_range", u.time_from_si(tr.t_s[-1]), 0, f"S = {x1[2, j]:.6g}",
+                                   time_s=tr.t_s[-1]))
+
+
+def _result(tr: _Track, ev: EVParams, lookahead_m: float, dt: float, every: int) -> SimulationResult:
+    """The vehicle's record as a one-follower SimulationResult (model units; its leader: whoever SUMO reported;
+    no leader within the lookahead: gap = lookahead, leader speed = own speed)."""
+    u = ev.units
+    n = min(len(tr.t_s), len(tr.x_bat))
+    t_s = np.asarray(tr.t_s[:n])
+    v = np.asarray(tr.v[:n])
+    gap = np.asarray(tr.gap[:n])
+    vl = np.asarray(tr.v_lead[:n])
+    free = ~np.isfinite(gap)
+    gap = np.where(free, lookahead_m, gap)
+    vl = np.where(free, v, vl)
+    a = np.zeros(n)
+    if n > 1:
+        a[:-1] = np.diff(v) / dt
+        a[-1] = a[-2]
+    xb = np.stack(tr.x_bat[:n], axis=1)
+    t = u.time_from_si(t_s)
+    h, vm, vlm, am = u.length_from_si(gap), u.speed_from_si(v), u.speed_from_si(vl), u.accel_from_si(a)
+    ovm = np.asarray(optimal_velocity(h), float).ravel() - vm
+
+    def cum(y: np.ndarray) -> np.ndarray:
+        out = np.zeros(n)
+        if n > 1:
+            out[1:] = np.cumsum((y[1:] + y[:-1]) / 2 * np.diff(t))
+        return out
+
+    jerk2 = np.zeros(n)
+    if n > 1:
+        jerk2[1:] = np.cumsum(np.diff(am) ** 2 / np.diff(t))
+    pos = u.length_from_si(np.asarray(tr.odo[:n]))
+    sel = np.arange(0, n, every)
+    if sel[-1] != n - 1:
+        sel = np.append(sel, n - 1)
+
+    def col(y: Any) -> np.ndarray:
+        return np.asarray(y, float)[sel][:, None]
+
+    stats: list[dict[str, Any] | None] = [None]
+    if tr.ctrl is not None and tr.rec["ok"]:
+        stats = [_stats(tr.rec, tr.ctrl)]
+    events = tr.events[:1]
+    meta = {"sumo_id": tr.vid, "vtype": tr.vtype, "route": tr.route, "controlled": tr.controlled,
+            "depart_s": tr.depart_s, "end": tr.end or "running", "end_s": tr.end_s, "step_s": dt,
+            "lookahead_m": lookahead_m, "lanes": sorted(set(tr.lane)), "call_s_total": float(sum(tr.rec["call"])),
+            "controllers": [tr.ctrl.describe() if tr.ctrl is not None else
+                            (tr.law.describe() if tr.law is not None else {"controller": "sumo", "vtype": tr.vtype})]}
+    return SimulationResult(
+        t=t[sel], leader_speed=vlm[sel], leader_position=(pos + h)[sel], gap=col(h), speed=col(vm), accel=col(am),
+        V1=col(xb[0]), V2=col(xb[1]), S=col(xb[2]), current_A=col(np.asarray(tr.current[:n])), omega=col(xb[3]),
+        heat_J=col(xb[4]), heat_irr_J=col(xb[5]), int_ovm_err2=col(cum(ovm**2)), int_rel_speed2=col(cum((vlm - vm) ** 2)),
+        int_jerk2=col(jerk2), controllers=[tr.controller], ev=ev, events=events, jerk_sampled=True,
+        solver_stats=stats, meta=meta)

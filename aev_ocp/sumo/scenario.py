@@ -1,0 +1,244 @@
+"""The SUMO scenario file: a ``[sumo]`` table plus the toolkit's own parameter tables.
+
+Top level: ``name``, ``description``; the vehicle tables every scenario knows (``[units]``, ``[vehicle]``, ``[cell]``,
+``[pack]``, ``[limits]``, ``[carfollowing]``: the controlled cars' and every car's battery), an optional ``[mpc]``
+(the MPC's settings, when ``sumo.controller = "mpc"``) and ``[sumo]``:
+
+* the network: ``network = "ring" | "merge"`` (shipped, built by netconvert; its parameters in
+  ``[sumo.ring]`` or ``[sumo.merge]``), or ``net_file`` with ``route_files``, or ``config_file`` (a .sumocfg); paths relative to the
+  scenario file;
+* ``t_end_s`` [s] and ``step_s`` [s] (default 0.1 s, SUMO's own default step);
+* which vehicles the toolkit controls: ``ids`` (vehicle ids), ``vtypes`` (vehicle types) and/or ``share`` (each
+  vehicle of a flow is controlled with probability ``share``, decided by a hash of ``seed`` and its id; on the
+  shipped ring exactly round(share × cars) cars: reproducible, and a larger share controls a superset); none of
+  them: SUMO drives everything (the baseline);
+* ``controller``: a car-following law by name (``proposed``, ``ovfl``, ``ovm``, ``idm``, …), ``"mpc"`` (the MPC with
+  a measured forecast, settings from ``[mpc]``), or ``"module:function"`` (``function(ev)`` returns a new
+  :class:`aev_ocp.control.Controller` for one vehicle);
+* ``speed_mode`` (default 24: SUMO still obeys right of way and red lights at junctions, the toolkit alone sets the
+  speed: no SUMO safe-speed cap, no SUMO acceleration bounds, the vehicle's ``[limits]`` apply instead),
+  ``collision_action`` (SUMO's, default ``remove``), ``lookahead_m`` (how far a car sees its leader, default 250 m),
+  ``seed``, ``record_every`` (keep every k-th step), ``sumo_args`` (more SUMO options);
+* ``[sumo.sweep]``: ``share = [...]`` and/or ``controller = [...]``: ``aev-ocp sumo FILE --sweep`` runs every pair.
+"""
+
+from __future__ import annotations
+
+import copy
+import dataclasses
+import re
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from ..models.carfollowing import LAW_REGISTRY
+from ..params import CarFollowingParams, CellParams, EVParams, PackParams, Units, VehicleLimits, VehicleParams
+from ..results import check_safe_name
+from ..scenarios import ScenarioError, TableReader, _params
+from . import SumoError
+from .networks import NETWORKS, MergeNetwork, RingNetwork
+
+#: SUMO speed mode of controlled vehicles: bits 3 (right of way at junctions) and 4 (brake at red lights) on; safe
+#: speed (bit 0) and SUMO's acceleration/deceleration bounds (bits 1, 2) off: the controller and the vehicle's own
+#: [limits] decide (SUMO TraCI documentation, "speed mode" bit table).
+DEFAULT_SPEED_MODE = 24
+STEP_S = 0.1  # SUMO's default step length
+COLLISION_ACTIONS = ("remove", "warn", "teleport", "none")  # SUMO's --collision.action
+_TOP = ("name", "description", "units", "vehicle", "cell", "pack", "limits", "carfollowing", "mpc", "sumo")
+
+
+@dataclass(frozen=True)
+class SumoSpec:
+    """The validated ``[sumo]`` table (see the module docstring); times in s, lengths in m."""
+
+    t_end_s: float
+    network: str | None = None
+    ring: RingNetwork | None = None
+    merge: MergeNetwork | None = None
+    net_file: Path | None = None
+    route_files: tuple[Path, ...] = ()
+    config_file: Path | None = None
+    step_s: float = STEP_S
+    controller: str = "proposed"
+    ids: tuple[str, ...] = ()
+    vtypes: tuple[str, ...] = ()
+    share: float = 0.0
+    speed_mode: int = DEFAULT_SPEED_MODE
+    collision_action: str = "remove"
+    lookahead_m: float = 250.0  # a long-range automotive radar sees ~250 m (e.g. Bosch LRR4)
+    seed: int = 42
+    record_every: int = 1
+    sumo_args: tuple[str, ...] = ()
+    sweep_share: tuple[float, ...] = ()
+    sweep_controller: tuple[str, ...] = ()
+
+
+@dataclass(frozen=True)
+class SumoScenario:
+    """A SUMO scenario: name, description, the [sumo] spec, the vehicles' parameters, the law coefficients,
+    the [mpc] configuration (None without one), the source file and the TOML document."""
+
+    name: str
+    spec: SumoSpec
+    ev: EVParams = field(default_factory=EVParams)
+    cf: CarFollowingParams = field(default_factory=CarFollowingParams)
+    mpc: Any = None
+    description: str = ""
+    source: Path | None = None
+    document: dict[str, Any] = field(default_factory=dict)
+
+    def with_point(self, share: float | None = None, controller: str | None = None) -> "SumoScenario":
+        """The same scenario with another share and/or controller (a sweep point)."""
+        kw: dict[str, Any] = {}
+        if share is not None:
+            kw["share"] = share
+        if controller is not None:
+            kw["controller"] = controller
+        return dataclasses.replace(self, spec=dataclasses.replace(self.spec, **kw))
+
+
+def _controller(r: TableReader, key: str, value: Any) -> str:
+    if not isinstance(value, str) or not value:
+        raise r.error(key, value, "expected a law name, \"mpc\" or \"module:function\"")
+    v = value.strip()
+    if v.lower() in LAW_REGISTRY or v.lower() == "mpc":
+        return v.lower()
+    if re.fullmatch(r"[A-Za-z_][\w.]*:[A-Za-z_]\w*", v):
+        return v
+    raise r.error(key, value, f"must be a law ({sorted(LAW_REGISTRY)}), \"mpc\" or \"module:function\"")
+
+
+def _path(r: TableReader, key: str, value: Any, base: Path | None) -> Path:
+    if not isinstance(value, str) or not value:
+        raise r.error(key, value, "expected a file path (a string)")
+    p = Path(value)
+    return p if p.is_absolute() or base is None else base / p
+
+
+def _network(r: TableReader, name: str) -> RingNetwork | MergeNetwork:
+    cls: type = RingNetwork if name == "ring" else MergeNetwork
+    sub = r.sub(name)
+    kw: dict[str, Any] = {}
+    for f in dataclasses.fields(cls):
+        if sub.has(f.name):
+            kw[f.name] = sub.integer(f.name, ge=1) if f.name == "vehicles" else sub.number(f.name)
+    sub.finish(allowed_hint=[f.name for f in dataclasses.fields(cls)])
+    try:
+        net: RingNetwork | MergeNetwork = cls(**kw)
+    except SumoError as exc:
+        raise ScenarioError(f"{r.file}: {exc}") from None
+    return net
+
+
+def parse_sumo_table(r: TableReader, base: Path | None) -> SumoSpec:
+    """Validate the ``[sumo]`` table (``base``: folder that relative paths start from)."""
+    kw: dict[str, Any] = {"t_end_s": r.number("t_end_s", gt=0)}
+    sources = [k for k in ("network", "net_file", "config_file") if r.has(k)]
+    if len(sources) != 1:
+        raise ScenarioError(f"{r.file}: [sumo] needs exactly one of network (\"ring\" or \"merge\"), net_file "
+                            f"(with route_files) or config_file; found {sources or 'none'}")
+    if r.has("network"):
+        name = r.string("network", choices=list(NETWORKS))
+        kw["network"] = name
+        kw[name] = _network(r, name)
+    elif r.has("net_file"):
+        kw["net_file"] = _path(r, "net_file", r.string("net_file"), base)
+        routes = ([r.string("route_files")] if isinstance(r.table.get("route_files"), str)
+                  else r.strings("route_files", []))
+        kw["route_files"] = tuple(_path(r, "route_files", x, base) for x in routes)
+    else:
+        kw["config_file"] = _path(r, "config_file", r.string("config_file"), base)
+    kw["step_s"] = r.number("step_s", STEP_S, gt=0, le=1.0)
+    if kw["step_s"] > kw["t_end_s"]:
+        raise r.error("step_s", kw["step_s"], f"must be <= sumo.t_end_s = {kw['t_end_s']:g}")
+    if r.has("controller"):
+        kw["controller"] = _controller(r, "controller", r.string("controller"))
+    kw["ids"] = tuple(r.strings("ids", []))
+    kw["vtypes"] = tuple(r.strings("vtypes", []))
+    kw["share"] = r.number("share", 0.0, ge=0, le=1)
+    mode = r.integer("speed_mode", DEFAULT_SPEED_MODE, ge=0)
+    if mode > 63:
+        raise r.error("speed_mode", mode, "must be an integer 0-63 (SUMO's speed-mode bits)")
+    kw["speed_mode"] = mode
+    kw["collision_action"] = r.string("collision_action", "remove", choices=list(COLLISION_ACTIONS))
+    kw["lookahead_m"] = r.number("lookahead_m", 250.0, gt=0)
+    kw["seed"] = r.integer("seed", 42, ge=0)
+    kw["record_every"] = r.integer("record_every", 1, ge=1)
+    kw["sumo_args"] = tuple(r.strings("sumo_args", []))
+    sw = r.sub("sweep")
+    kw["sweep_share"] = tuple(sw.numbers("share", [], ge=0))
+    if any(s > 1 for s in kw["sweep_share"]):
+        raise sw.error("share", sw.table["share"], "every share must be in [0, 1]")
+    if sw.has("controller"):
+        kw["sweep_controller"] = tuple(_controller(sw, "controller", c) for c in sw.strings("controller"))
+    sw.finish(allowed_hint=["share", "controller"])
+    r.finish()
+    return SumoSpec(**kw)
+
+
+def parse_sumo_scenario(doc: dict[str, Any], file: str = "<sumo scenario>", source: Path | None = None) -> SumoScenario:
+    """Validate a parsed TOML document into a :class:`SumoScenario` (errors name the file and key)."""
+    for key in doc:
+        if key not in _TOP:
+            raise ScenarioError(f"{file}: unknown top-level key or table {key!r}; allowed: {sorted(_TOP)}")
+    top = TableReader(doc, "", file)
+    stem = source.stem if source is not None else "sumo"
+    name = top.string("name", re.sub(r"[^A-Za-z0-9._+-]", "_", stem).lstrip("._+-")[:100] or "sumo")
+    try:
+        check_safe_name(name)
+    except ValueError as exc:
+        raise top.error("name", name, str(exc).split("is not allowed: ", 1)[-1]) from None
+    description = top.string("description", "")
+    ev = EVParams(units=_params(Units, top.sub("units")), vehicle=_params(VehicleParams, top.sub("vehicle")),
+                  cell=_params(CellParams, top.sub("cell")), pack=_params(PackParams, top.sub("pack")),
+                  limits=_params(VehicleLimits, top.sub("limits")))
+    cf = _params(CarFollowingParams, top.sub("carfollowing"))
+    spec = parse_sumo_table(top.sub("sumo", required=True), source.parent if source is not None else None)
+    mpc = None
+    if "mpc" in doc:
+        from ..mpc.scenario import validate_mpc_table
+
+        mpc = validate_mpc_table(top.sub("mpc"))
+    if "mpc" in (spec.controller, *spec.sweep_controller):
+        if mpc is None:
+            from ..mpc.scenario import MPCConfig
+            from ..mpc.settings import MPCSettings
+
+            # the MPC settings' default interval, 0.2 s at the default units, rounded to whole SUMO steps
+            mpc = MPCConfig(MPCSettings(dt=max(1, round(0.2 / spec.step_s)) * spec.step_s / ev.units.time_s))
+        k = mpc.settings.dt * ev.units.time_s / spec.step_s
+        if abs(k - round(k)) > 1e-9 or round(k) < 1:
+            raise ScenarioError(f"{file}: mpc.dt = {mpc.settings.dt:g} model time = "
+                                f"{mpc.settings.dt * ev.units.time_s:g} s must be a whole number of SUMO steps "
+                                f"(sumo.step_s = {spec.step_s:g} s)")
+        if mpc.settings.predictor in ("oracle", "cooperative"):
+            raise ScenarioError(f"{file}: mpc.predictor = {mpc.settings.predictor!r} is not available in SUMO (a car "
+                                "measures its leader): use a measured predictor (constant-velocity, "
+                                "constant-acceleration, decaying-acceleration)")
+    top.finish()
+    return SumoScenario(name=name, spec=spec, ev=ev, cf=cf, mpc=mpc, description=description, source=source,
+                        document=copy.deepcopy(doc))
+
+
+def load_sumo_scenario(path: str | Path) -> SumoScenario:
+    """Read and validate a SUMO scenario file; a name without a path finds a shipped one (e.g. ``sumo_ring``)."""
+    p = Path(path)
+    if not p.exists() and p.suffix == "" and (Path(__file__).parent / "scenarios" / f"{p.name}.toml").is_file():
+        p = Path(__file__).parent / "scenarios" / f"{p.name}.toml"
+    try:
+        text = p.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise ScenarioError(f"{path}: cannot read the scenario ({exc.strerror or exc})") from None
+    try:
+        doc = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ScenarioError(f"{path}: not valid TOML ({exc})") from None
+    return parse_sumo_scenario(doc, str(path), p.resolve())
+
+
+def shipped_sumo_scenarios() -> dict[str, Path]:
+    """{name: path} of the SUMO scenarios shipped with the package."""
+    folder = Path(__file__).parent / "scenarios"
+    return {p.stem: p for p in sorted(folder.glob("*.toml"))}
+

@@ -1,0 +1,109 @@
+"""SUMO coupling speed (issue 24 targets): 100 vehicles on closed-form laws faster than 50× real time with one SUMO
+per core (two processes at once on 2 cores), and the MPC's extra cost per controlled vehicle and step no more than its
+own call time.
+
+1. laws: a 1100 m single-lane ring with 100 cars, every car on the proposed law (and on IDM), 120 s simulated; run
+   alone and as two processes at once. Real-time factor = simulated s / wall s of the SUMO loop.
+2. MPC: the 230 m ring with 22 cars, k of them on the MPC (the traffic formulation, N = 20, every 0.2 s), the rest on
+   SUMO's drivers, 30 s; the same run with those k cars on the proposed law. The MPC's extra wall time per call beyond
+   its own call time = (wall_mpc − wall_law − Σ MPC call time) / calls (the NLP build is timed apart: build_s).
+
+Prints a table and writes results/bench_sumo.json.
+
+    python benchmarks/bench_sumo.py [--quick]
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+LAW_CHILD = """
+import json, sys
+from aev_ocp.sumo.scenario import parse_sumo_scenario
+from aev_ocp.sumo.run import run_sumo
+law, t_end = sys.argv[1], float(sys.argv[2])
+doc = {"units": {"length_m": 2.5}, "sumo": {"network": "ring", "t_end_s": t_end, "share": 1.0, "controller": law,
+       "ring": {"length_m": 1100.0, "vehicles": 100, "perturbation_m": 1.0, "speed0_mps": 5.0}}}
+r = run_sumo(parse_sumo_scenario(doc))
+print(json.dumps({"law": law, "vehicles": len(r.vehicles), "t_end_s": r.t_end_s, "wall_s": r.wall_s,
+                  "controller_s": r.controller_s, "realtime_factor": r.realtime_factor}))
+"""
+
+MPC_CHILD = """
+import json, sys
+from aev_ocp.sumo.scenario import parse_sumo_scenario
+from aev_ocp.sumo.run import run_sumo
+k, t_end = int(sys.argv[1]), float(sys.argv[2])
+ids = [f"ring.{3 + 5 * i}" for i in range(k)]
+out = {}
+for ctrl in ("proposed", "mpc"):
+    doc = {"units": {"length_m": 2.5}, "mpc": {"N": 20, "dt": 0.4},
+           "sumo": {"network": "ring", "t_end_s": t_end, "ids": ids, "controller": ctrl,
+                    "ring": {"speed0_mps": 4.0, "perturbation_m": 1.0}}}
+    r = run_sumo(parse_sumo_scenario(doc))
+    stats = [r.vehicles[i].solver_stats[0] for i in ids]
+    out[ctrl] = {"wall_s": r.wall_s, "build_s": r.build_s, "controller_s": r.controller_s,
+                 "calls": sum(s["n_steps"] for s in stats if s),
+                 "call_s_total": sum(r.vehicles[i].meta.get("call_s_total", 0.0) for i in ids),
+                 "solve_ms_median": [s["solve_ms_median"] for s in stats if s],
+                 "call_ms_median": [s["call_ms_median"] for s in stats if s],
+                 "fallbacks": sum(s["fallbacks"] for s in stats if s)}
+print(json.dumps(out))
+"""
+
+
+def _child(code: str, *args: str) -> dict:
+    p = subprocess.run([sys.executable, "-c", code, *args], capture_output=True, text=True, cwd=ROOT, check=True)
+    return json.loads(p.stdout.strip().splitlines()[-1])
+
+
+def _children(code: str, argsets: list[tuple[str, ...]]) -> list[dict]:
+    procs = [subprocess.Popen([sys.executable, "-c", code, *a], stdout=subprocess.PIPE, text=True, cwd=ROOT)
+             for a in argsets]
+    return [json.loads(p.communicate()[0].strip().splitlines()[-1]) for p in procs]
+
+
+def main() -> None:
+    quick = "--quick" in sys.argv
+    t_law = "30" if quick else "120"
+    rows = []
+    for law in ("proposed", "idm"):
+        r = _child(LAW_CHILD, law, t_law)
+        rows.append({"case": f"100 cars, {law}, 1 process", **r})
+    for r in _children(LAW_CHILD, [("proposed", t_law), ("proposed", t_law)]):
+        rows.append({"case": "100 cars, proposed, 2 processes at once", **r})
+    print(f"{'case':45} {'sim s':>6} {'wall s':>7} {'ctrl s':>7} {'x real time':>12}")
+    for r in rows:
+        print(f"{r['case']:45} {r['t_end_s']:6.0f} {r['wall_s']:7.2f} {r['controller_s']:7.2f} {r['realtime_factor']:12.1f}")
+    mpc_rows = []
+    for k in ((1,) if quick else (1, 3)):
+        m = _child(MPC_CHILD, str(k), "10" if quick else "30")
+        law, mpc = m["proposed"], m["mpc"]
+        calls = max(mpc["calls"], 1)
+        extra_ms = 1e3 * (mpc["wall_s"] - mpc["build_s"] - law["wall_s"]) / calls  # what the MPC added per call
+        own_ms = 1e3 * mpc["call_s_total"] / calls  # its own call (forecast, solve, unpacking), mean
+        mpc_rows.append({"mpc_vehicles": k, "calls": mpc["calls"], "wall_law_s": law["wall_s"],
+                         "wall_mpc_s": mpc["wall_s"], "build_s": mpc["build_s"],
+                         "controller_s": mpc["controller_s"], "solve_ms_median": mpc["solve_ms_median"],
+                         "call_ms_median": mpc["call_ms_median"], "fallbacks": mpc["fallbacks"],
+                         "added_wall_ms_per_call": extra_ms, "own_call_ms_mean": own_ms,
+                         "within_target": extra_ms <= own_ms * 1.1 + 0.05})
+    print(f"\n{'MPC cars':>8} {'calls':>6} {'wall law s':>10} {'wall MPC s':>10} {'build s':>8} {'ctrl s':>7} "
+          f"{'solve ms (median)':>17} {'own call ms':>12} {'added ms/call':>14}")
+    for r in mpc_rows:
+        print(f"{r['mpc_vehicles']:8d} {r['calls']:6d} {r['wall_law_s']:10.2f} {r['wall_mpc_s']:10.2f} "
+              f"{r['build_s']:8.2f} {r['controller_s']:7.2f} {max(r['solve_ms_median']):17.3f} "
+              f"{r['own_call_ms_mean']:12.3f} {r['added_wall_ms_per_call']:14.3f}")
+    out = ROOT / "results" / "bench_sumo.json"
+    out.parent.mkdir(exist_ok=True)
+    out.write_text(json.dumps({"laws": rows, "mpc": mpc_rows, "quick": quick}, indent=2) + "\n")
+    print(f"\nwrote {out}")
+
+
+if __name__ == "__main__":
+    main()
