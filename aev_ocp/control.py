@@ -435,8 +435,11 @@ class ClosedLoop:
         n, u, ev = self.n, self.ev.units, self.ev
         v_lead = np.concatenate([[vl], x[n:2 * n - 1]])
         I = y[n:2 * n]
-        ocv = np.asarray(battery.ocv_function()(np.clip(x[4 * n:5 * n], 0.0, 1.0).reshape(1, -1))).ravel()
-        vt = ocv - x[2 * n:3 * n] - x[3 * n:4 * n] - ev.cell.R_s_ohm * I  # battery.terminal_voltage, vectorised
+        ocv = np.asarray(battery.ocv_function(ev.cell)(np.clip(x[4 * n:5 * n], 0.0, 1.0).reshape(1, -1))).ravel()
+        R_s = np.full(n, ev.cell.R_s_ohm)
+        if getattr(self.plant, "thermal", False):  # the pack temperatures follow S in x: R_s at each one
+            R_s = np.array([float(battery.cell_at(ev.cell, float(x[5 * n + i])).R_s_ohm) for i in range(n)])
+        vt = ocv - x[2 * n:3 * n] - x[3 * n:4 * n] - R_s * I  # battery.terminal_voltage, vectorised
         return np.column_stack([u.length_to_si(x[:n]), u.speed_to_si(x[n:2 * n]), u.speed_to_si(v_lead),
                                 ev.pack.n_series * vt, ev.pack.n_parallel * I])
 

@@ -84,10 +84,10 @@ class Estimator(Protocol):
         """Settings, for results."""
 
 
-def soc_from_rest_voltage(v_cell: float) -> float:
-    """SOC [-] whose OCV equals ``v_cell`` [V] (the OCV table inverted; clipped to [0, 1]): a BMS's start-up
-    guess after a rest (the OCV is monotone, very flat between 40 and 90 % for this LFP cell)."""
-    s, o = battery.ocv_table()
+def soc_from_rest_voltage(v_cell: float, cell: Any = None) -> float:
+    """SOC [-] whose OCV equals ``v_cell`` [V] (``cell``'s OCV table inverted, default the shipped one; clipped to
+    [0, 1]): a BMS's start-up guess after a rest (the shipped LFP cell's OCV is very flat between 40 and 90 %)."""
+    s, o = battery.ocv_table(cell)
     return float(np.interp(v_cell, o, s))
 
 
@@ -176,7 +176,7 @@ class EstimationModel:
         if soc0 is not None and not (0.0 <= soc0 <= 1.0):
             raise ParameterError(f"estimator: soc0 = {soc0!r} is not allowed: must be in [0, 1]")
         v_cell = y.voltage_V / self.n_series + self.ev.cell.R_s_ohm * y.current_A / self.n_parallel
-        s0 = soc_from_rest_voltage(v_cell - self.ocv_offset_V) if soc0 is None else soc0
+        s0 = soc_from_rest_voltage(v_cell - self.ocv_offset_V, self.ev.cell) if soc0 is None else soc0
         x0 = np.array([s0, 0.0, 0.0, y.gap_m, y.lead_speed_mps, 0.0, y.speed_mps, 1.0])
         P0 = np.diag([0.1**2, 0.001**2, 0.001**2, self.R[1, 1] + 0.01, self.R[2, 2] + 0.01, 1.0, self.R[3, 3] + 0.01,
                       R0_SCALE_SIGMA**2])

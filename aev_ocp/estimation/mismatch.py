@@ -75,7 +75,7 @@ class Mismatch:
     def model_ev(self, plant: EVParams, vehicle: int) -> EVParams:
         """The model of follower ``vehicle``: ``plant`` with its parameters scaled by (1 + δ)."""
         d = self.draws(vehicle)
-        parts: dict[str, dict[str, float]] = {"vehicle": {}, "cell": {}}
+        parts: dict[str, dict[str, Any]] = {"vehicle": {}, "cell": {}}
         for k, (part, name) in PARAMETERS.items():
             parts[part][name] = getattr(getattr(plant, part), name) * (1.0 + d[k])
         eff = parts["vehicle"]["efficiency"]
