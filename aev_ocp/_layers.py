@@ -26,6 +26,8 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
         "aev_ocp.results", "aev_ocp.metrics", "aev_ocp.truncation", "aev_ocp.ocp.result", "aev_ocp.life",
     )),
     ("plant and closed loop", (
+        "aev_ocp.estimation", "aev_ocp.estimation.sensors", "aev_ocp.estimation.mismatch", "aev_ocp.estimation.base",
+        "aev_ocp.estimation.kalman", "aev_ocp.estimation.mhe",
         "aev_ocp.plant", "aev_ocp.control", "aev_ocp.simulate", "aev_ocp.ring.simulate",
     )),
     ("problem description", (
@@ -46,7 +48,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
     ("configuration", (
         "aev_ocp.scenarios", "aev_ocp.overrides", "aev_ocp.mpc.scenario", "aev_ocp.safety.cases",
         "aev_ocp.study.spec", "aev_ocp.sumo", "aev_ocp.sumo.networks", "aev_ocp.sumo.scenario",
-        "aev_ocp.ring.scenario",
+        "aev_ocp.ring.scenario", "aev_ocp.estimation.scenario",
     )),
     ("outputs", (
         "aev_ocp.plots", "aev_ocp.ocp_plots", "aev_ocp.mpc.plots", "aev_ocp.stability.plots", "aev_ocp.report",
@@ -59,7 +61,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
         "aev_ocp.stability.api", "aev_ocp.stability.report",
         "aev_ocp.safety.suite", "aev_ocp.safety.report", "aev_ocp.safety.section", "aev_ocp.life_section",
         "aev_ocp.study", "aev_ocp.study.runner", "aev_ocp.study.report",
-        "aev_ocp.ring.experiments", "aev_ocp.ring.report", "aev_ocp.sumo.run", "aev_ocp.sumo.output",
+        "aev_ocp.ring.experiments", "aev_ocp.ring.report", "aev_ocp.sumo.run", "aev_ocp.sumo.output", "aev_ocp.robustness",
     )),
     ("entry points", (
         "aev_ocp", "aev_ocp.console", "aev_ocp.reproduce", "aev_ocp.cli", "aev_ocp.ocp.cli", "aev_ocp.mpc.cli",

@@ -15,13 +15,19 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass, field
-from typing import Any, Callable, Protocol, Sequence, runtime_checkable
+from typing import Any, Callable, Protocol, Sequence, cast, runtime_checkable
 
 import numpy as np
 
+from .estimation.base import Estimate, Estimator
+from .estimation.kalman import EKF
+from .estimation.mhe import MHE
+from .estimation.mismatch import Mismatch
+from .estimation.sensors import Measurement, SensorModel, Sensors
+from .models import battery
 from .models.carfollowing import CarFollowingLaw, Proposed
 from .models.leader import LeaderProfile
-from .params import EVParams, ParameterError, SimOptions, check_argument
+from .params import EVParams, ParameterError, SimOptions, as_dict, check_argument
 from .plant import Plant
 from .progress import TimeLimitReached
 from .results import Event, SimulationResult
@@ -35,7 +41,11 @@ class Observation:
     z = (h, v, V1, V2, S) (model units, V, -), the measured speeds of its predecessor at the
     sample times so far (oldest first, the last at t), the predecessor's latest plan of node speeds
     at t, t + dt, … when the predecessor publishes one (V2V), the command it applied last (after the
-    vehicle's saturation) and, with an actuator lag, its realised acceleration a_act."""
+    vehicle's saturation) and, with an actuator lag, its realised acceleration a_act.
+
+    With sensors (:class:`aev_ocp.estimation.sensors.Sensors`) z and meas_v are what the car knows, not the
+    plant's state: h, v, the predecessor speeds and V1, V2, S from the estimator (each bridged over its
+    sensor's delay)."""
 
     t: float
     dt: float
@@ -46,6 +56,8 @@ class Observation:
     predecessor_plan: np.ndarray | None = None
     a_prev: float = 0.0
     a_act: float | None = None  # the realised acceleration at t [model] when the vehicle has an actuator lag
+    measurement: Measurement | None = None  # with sensors: the raw (noisy, late) measurement, SI
+    estimate: Estimate | None = None  # with sensors and an estimator: its estimate, SI
 
 
 @dataclass
@@ -130,6 +142,14 @@ class SampledLaw:
         return {"controller": self.name, **self.law.describe()}
 
 
+EstimatorFactory = Callable[[EVParams, Sensors, float, int], Estimator]  # (model ev, sensors, OCV offset, vehicle)
+#: the shipped estimators by name (:mod:`aev_ocp.estimation`)
+ESTIMATORS: dict[str, EstimatorFactory] = {
+    "ekf": lambda ev, s, off, i: EKF(ev, s, ocv_offset_V=off),
+    "mhe": lambda ev, s, off, i: MHE(ev, s, ocv_offset_V=off),
+}
+
+
 # adapters from settings objects to Controllers (the MPC registers MPCSettings and MPCVehicle)
 AdapterFn = Callable[[Any, int, "ClosedLoop"], Controller]
 _ADAPTERS: dict[type, AdapterFn] = {}
@@ -182,19 +202,40 @@ class ClosedLoop:
     controllers[i]: a CarFollowingLaw, a Controller, or an object with a registered adapter
     (MPCSettings, MPCVehicle). fallback_law: the law an MPC applies when a solve fails (default the
     proposed law with the paper's α, β, κ); rtol/atol: plant CVODES tolerances.
+
+    A car's view (docs/guide/realism.md): ``mismatch`` (:class:`~aev_ocp.estimation.mismatch.Mismatch`) gives each
+    follower's controller and estimator a model that differs from the plant (``ev``); ``sensors``
+    (:class:`~aev_ocp.estimation.sensors.Sensors`) makes the measurements noisy, quantised and late, with V1, V2, S
+    unmeasured by default; ``estimator`` ('ekf', 'mhe', None, or a callable (model_ev, sensors, ocv_offset_V,
+    vehicle) -> Estimator) turns them into the controllers' states. With degraded sensors every law runs as a
+    :class:`SampledLaw` at the controllers' dt (``law_dt`` [model time] when no other controller is sampled),
+    clipped to the vehicle's acceleration limits, on the same observations.
     """
 
     def __init__(self, leader: LeaderProfile, controllers: Sequence[Any], ev: EVParams | None = None,
-                 fallback_law: CarFollowingLaw | None = None, rtol: float = 1e-10, atol: float = 1e-10) -> None:
+                 fallback_law: CarFollowingLaw | None = None, rtol: float = 1e-10, atol: float = 1e-10, *,
+                 mismatch: Mismatch | None = None, sensors: Sensors | None = None,
+                 estimator: str | EstimatorFactory | None = "ekf", law_dt: float = 0.1) -> None:
         check_argument("closed loop", "leader", leader, LeaderProfile)
         check_argument("closed loop", "ev", ev, (EVParams, type(None)))
         check_argument("closed loop", "fallback_law", fallback_law, (CarFollowingLaw, type(None)))
+        check_argument("closed loop", "mismatch", mismatch, (Mismatch, type(None)))
+        check_argument("closed loop", "sensors", sensors, (Sensors, type(None)))
+        if not (estimator is None or callable(estimator) or estimator in ESTIMATORS):
+            raise ParameterError(f"closed loop: estimator = {estimator!r} is not allowed: must be one of "
+                                 f"{sorted(ESTIMATORS)}, None or a callable (model_ev, sensors, ocv_offset_V, vehicle)")
+        if not (isinstance(law_dt, (int, float)) and math.isfinite(law_dt) and law_dt > 0):
+            raise ParameterError(f"closed loop: law_dt = {law_dt!r} is not allowed: must be > 0")
+        self.mismatch, self.sensors, self.estimator_spec = mismatch, sensors, estimator
         SimOptions(rtol=rtol, atol=atol)  # the plant's tolerances, validated like a scenario's [simulation]
         if len(controllers) < 1:
             raise ParameterError("ClosedLoop: the platoon needs at least one follower (controllers is empty)")
         self.leader, self.ev = leader, ev or EVParams()
         self.fallback_law = fallback_law or Proposed()
         self.n = len(controllers)
+        # plant ≠ model: follower i's controller (and estimator) model; the plant is self.ev
+        self.model_evs = [mismatch.model_ev(self.ev, i) if mismatch is not None else self.ev for i in range(self.n)]
+        degraded = sensors is not None and sensors.degraded
         self.laws: list[CarFollowingLaw | None] = []
         self.ctrl: list[Controller | None] = []
         for i, c in enumerate(controllers):
@@ -210,6 +251,13 @@ class ClosedLoop:
             self.laws.append(None)
             self.ctrl.append(c)
         dts = {c.dt for c in self.ctrl if c is not None}
+        if degraded:  # a continuous law cannot see sampled measurements: it runs as a sampled law (like an ECU)
+            dt_law = dts.copy().pop() if len(dts) == 1 else law_dt
+            lo, hi = self.ev.limits.accel_bounds_model(self.ev.units)
+            for i, law in enumerate(self.laws):
+                if law is not None:
+                    self.ctrl[i], self.laws[i] = cast(Controller, SampledLaw(law, dt_law, lo, hi)), None
+            dts = {c.dt for c in self.ctrl if c is not None}
         if not dts:
             raise ParameterError("ClosedLoop: no sampled controller; use aev_ocp.simulate for closed-form laws only")
         if len(dts) != 1:
@@ -217,6 +265,27 @@ class ClosedLoop:
         self.dt = dts.pop()
         self.rtol, self.atol = rtol, atol
         self.plant = Plant(leader, self.laws, self.ev, rtol=rtol, atol=atol)
+
+    def model_ev(self, vehicle: int) -> EVParams:
+        """The EVParams follower ``vehicle`` (0-based)'s controller and estimator believe (the plant's without a
+        mismatch)."""
+        return self.model_evs[vehicle]
+
+    def _estimators(self) -> list[Estimator | None]:
+        """A fresh estimator per sampled follower (None without degraded sensors or with estimator=None)."""
+        s, spec = self.sensors, self.estimator_spec
+        if s is None or not s.degraded or spec is None:
+            return [None] * self.n
+        out: list[Estimator | None] = []
+        for i, c in enumerate(self.ctrl):
+            off = self.mismatch.draws(i)["ocv_offset_V"] if self.mismatch is not None else 0.0
+            fac = ESTIMATORS[spec] if isinstance(spec, str) else spec
+            est = fac(self.model_evs[i], s, off, i) if c is not None else None
+            if est is not None and not isinstance(est, Estimator):
+                raise ParameterError(f"closed loop: the estimator of vehicle {i + 1} must have name, reset, update "
+                                     f"and describe, got {type(est).__name__}")
+            out.append(est)
+        return out
 
     def run(self, gaps0: Sequence[float], speeds0: Sequence[float], t_end: float, *,
             soc0: float | Sequence[float] | None = None, progress: ProgressFn | None = None) -> SimulationResult:
@@ -246,9 +315,15 @@ class ClosedLoop:
         y = plant.samples(np.array([0.0]), x[:, None], a_cmd)
         out: tuple[list, list, list, list] = ([np.array([0.0])], [x[:, None]], [q[:, None]], [y])
         applied: list[np.ndarray] = []
-        rec: list[dict[str, list[Any]]] = [{"solve": [], "call": [], "iters": [], "ok": [], "status": [], "info": []} for _ in range(n)]
+        rec: list[dict[str, list[Any]]] = [{"solve": [], "call": [], "iters": [], "ok": [], "status": [], "info": [],
+                                            "est": []} for _ in range(n)]
         meas_t: list[float] = []
         meas_v: list[list[float]] = [[] for _ in range(n)]
+        u = self.ev.units
+        sensed = self.sensors is not None and self.sensors.degraded
+        sm = SensorModel(self.sensors, n) if sensed and self.sensors is not None else None
+        ests = self._estimators()
+        err: list[list[np.ndarray]] = [[] for _ in range(n)]  # estimate − truth per step: S, V1, V2, h, v_l
         events: list[Event] = []
         bps = [b for b in self.leader.breakpoints if 0 < b < t_end]
         ev0 = plant.check(np.array([0.0]), x[:, None], y)
@@ -260,15 +335,31 @@ class ClosedLoop:
             x = out[1][-1][:, -1]
             vl_k = float(self.leader.speed_np(tk)[0])
             meas_t.append(tk)
-            for i in range(n):
-                meas_v[i].append(vl_k if i == 0 else float(x[n + i - 1]))
+            if sm is None:
+                for i in range(n):
+                    meas_v[i].append(vl_k if i == 0 else float(x[n + i - 1]))
+            else:
+                sm.record(u.time_to_si(tk), self._channels(x, vl_k, out[3][-1][:, -1]),
+                          np.column_stack([x[2 * n:3 * n], x[3 * n:4 * n], x[4 * n:5 * n]]))
             plans: list[np.ndarray | None] = [None] * n
             for j, i in enumerate(sampled):
                 ctrl = self.ctrl[i]
                 assert ctrl is not None
-                obs = Observation(tk, dt, i, x[[i, n + i, 2 * n + i, 3 * n + i, 4 * n + i]], np.asarray(meas_t),
+                z = x[[i, n + i, 2 * n + i, 3 * n + i, 4 * n + i]]
+                meas: Measurement | None = None
+                e: Estimate | None = None
+                if sm is not None:
+                    te = time.perf_counter()
+                    z, meas, e = self._sensed(sm, ests[i], i, k, tk, float(a_app[j]))
+                    rec[i]["est"].append(time.perf_counter() - te)
+                    meas_v[i].append(float(u.speed_from_si(e.lead_speed_mps if e is not None else meas.lead_speed_mps)))
+                    v_true = vl_k if i == 0 else float(x[n + i - 1])
+                    if e is not None:
+                        err[i].append(np.array([e.soc - x[4 * n + i], e.V1_V - x[2 * n + i], e.V2_V - x[3 * n + i],
+                                                e.gap_m - u.length_to_si(x[i]), e.lead_speed_mps - u.speed_to_si(v_true)]))
+                obs = Observation(tk, dt, i, z, np.asarray(meas_t),
                                   np.asarray(meas_v[i]), plans[i - 1] if i > 0 else None, float(a_app[j]),
-                                  None if plant.act_row is None else float(x[plant.act_row + i]))
+                                  None if plant.act_row is None else float(x[plant.act_row + i]), meas, e)
                 tc = time.perf_counter()
                 cmd = ctrl.command(obs)
                 rec[i]["call"].append(time.perf_counter() - tc)
@@ -322,6 +413,12 @@ class ClosedLoop:
             if st is not None:
                 v_pred = ys[3 * n] if i == 0 else xs[n + i - 1]
                 st["forecast_rms"] = forecast_rms(ts, v_pred, dt, [info.get("v_hat") for info in rec[i]["info"]])
+                if err[i]:
+                    st["estimation"] = estimation_errors(np.array(err[i]), u.time_to_si(dt))
+                if rec[i]["est"]:  # the sensors' read-out and the estimator's update, and with the controller's call
+                    te_ms = np.asarray(rec[i]["est"], float) * 1e3
+                    st["estimator_ms_median"] = float(np.median(te_ms))
+                    st["estimator_plus_call_ms_median"] = float(np.median(te_ms + np.asarray(rec[i]["call"]) * 1e3))
         steps = [{"solve_ms": (np.asarray(rec[i]["solve"], float) * 1e3).tolist(), "iterations": rec[i]["iters"],
                   "status": rec[i]["status"], "call_ms": (np.asarray(rec[i]["call"]) * 1e3).tolist(),
                   "ok": rec[i]["ok"]} if stats[i] is not None else None for i in range(n)]
@@ -329,8 +426,71 @@ class ClosedLoop:
                     for c, law in zip(self.ctrl, self.laws)]
         return plant.result(ts, xs, qs, ys, events, names,
                             {"dt": dt, "controllers": settings, "mpc_steps": steps,
-                             "fallback_law": self.fallback_law.describe()},
+                             "fallback_law": self.fallback_law.describe(), **self._realism(ests)},
                             accel=acc, jerk_sampled=True, solver_stats=stats)
+
+    def _channels(self, x: np.ndarray, vl: float, y: np.ndarray) -> np.ndarray:
+        """The true channel values (n, 5) [SI, CHANNELS order] at a node: gap, own speed, predecessor speed, pack
+        voltage and current (the cell current of the last sample ``y``, i.e. of the command held up to the node)."""
+        n, u, ev = self.n, self.ev.units, self.ev
+        v_lead = np.concatenate([[vl], x[n:2 * n - 1]])
+        I = y[n:2 * n]
+        ocv = np.asarray(battery.ocv_function(ev.cell)(np.clip(x[4 * n:5 * n], 0.0, 1.0).reshape(1, -1))).ravel()
+        R_s = np.full(n, ev.cell.R_s_ohm)
+        if getattr(self.plant, "thermal", False):  # the pack temperatures follow S in x: R_s at each one
+            R_s = np.array([float(battery.cell_at(ev.cell, float(x[5 * n + i])).R_s_ohm) for i in range(n)])
+        vt = ocv - x[2 * n:3 * n] - x[3 * n:4 * n] - R_s * I  # battery.terminal_voltage, vectorised
+        return np.column_stack([u.length_to_si(x[:n]), u.speed_to_si(x[n:2 * n]), u.speed_to_si(v_lead),
+                                ev.pack.n_series * vt, ev.pack.n_parallel * I])
+
+    def _sensed(self, sm: SensorModel, est: Estimator | None, i: int, k: int, tk: float,
+                a_prev: float) -> tuple[np.ndarray, Measurement, Estimate | None]:
+        """(z [model], measurement, estimate) of follower i at step k: the estimator's gap, own speed and cell states
+        (without an estimator: the measured gap, the measured own speed bridged over its delay with the acceleration
+        applied last; the cell's states read exactly when observed)."""
+        u = self.ev.units
+        a_si = float(u.accel_to_si(a_prev)) if math.isfinite(a_prev) else 0.0
+        m = sm.measure(i, u.time_to_si(tk), a_si)
+        e: Estimate | None = None
+        if est is not None:
+            e = est.reset(m) if k == 0 else est.update(m)
+        if e is not None and math.isfinite(e.speed_mps):
+            v = e.speed_mps
+        else:
+            v = max(m.speed_mps + a_si * sm.sensors.delay("speed"), 0.0)
+        gap = e.gap_m if e is not None else m.gap_m
+        if m.battery is not None:
+            cell = m.battery
+        elif e is not None:
+            cell = (e.V1_V, e.V2_V, e.soc)
+        else:
+            raise ParameterError("closed loop: the battery states are not observed (sensors.battery_states_observed "
+                                 "= false) and no estimator is set: pass estimator='ekf' or 'mhe'")
+        z = np.array([max(float(u.length_from_si(gap)), 1e-6), float(u.speed_from_si(v)), *cell])
+        return z, m, e
+
+    def _realism(self, ests: Sequence[Estimator | None]) -> dict[str, Any]:
+        """What the results state about plant ≠ model, sensors and estimators ({} without any)."""
+        out: dict[str, Any] = {}
+        if self.mismatch is not None:
+            out["mismatch"] = self.mismatch.describe(self.ev, self.n)
+        if self.sensors is not None:
+            out["sensors"] = as_dict(self.sensors)
+            out["estimators"] = [e.describe() if e is not None else None for e in ests]
+        return out
+
+
+def estimation_errors(err: np.ndarray, dt_s: float) -> dict[str, float]:
+    """Summary of estimate − truth per step (columns S, V1, V2, gap, predecessor speed; the step dt_s [s]): RMS,
+    the largest |SOC error| overall and after 60 s and the final one [% SOC], V1/V2 RMS [mV], gap [m] and speed [m/s] RMS."""
+    t = dt_s * np.arange(err.shape[0])
+    late = err[t >= 60.0, 0]
+    rms = np.sqrt(np.mean(err**2, axis=0))
+    return {"soc_err_rms_pct": 100 * float(rms[0]), "soc_err_final_pct": 100 * float(err[-1, 0]),
+            "soc_err_max_pct": 100 * float(np.abs(err[:, 0]).max()),
+            "soc_err_max_after_60s_pct": 100 * float(np.abs(late).max()) if late.size else float("nan"),
+            "V1_err_rms_mV": 1e3 * float(rms[1]), "V2_err_rms_mV": 1e3 * float(rms[2]),
+            "gap_err_rms_m": float(rms[3]), "lead_speed_err_rms_mps": float(rms[4])}
 
 
 def forecast_rms(t: np.ndarray, v_actual: np.ndarray, dt: float, forecasts: Sequence[np.ndarray | None]) -> float:
@@ -353,6 +513,8 @@ def forecast_rms(t: np.ndarray, v_actual: np.ndarray, dt: float, forecasts: Sequ
 def run_closed_loop(leader: LeaderProfile, controllers: Sequence[Any], gaps0: Sequence[float],
                     speeds0: Sequence[float], t_end: float, *, ev: EVParams | None = None,
                     soc0: float | Sequence[float] | None = None, fallback_law: CarFollowingLaw | None = None,
-                    progress: ProgressFn | None = None) -> SimulationResult:
+                    progress: ProgressFn | None = None, mismatch: Mismatch | None = None,
+                    sensors: Sensors | None = None, estimator: str | EstimatorFactory | None = "ekf") -> SimulationResult:
     """Build a :class:`ClosedLoop` and run it once (model units; see the class)."""
-    return ClosedLoop(leader, controllers, ev, fallback_law).run(gaps0, speeds0, t_end, soc0=soc0, progress=progress)
+    return ClosedLoop(leader, controllers, ev, fallback_law, mismatch=mismatch, sensors=sensors,
+                      estimator=estimator).run(gaps0, speeds0, t_end, soc0=soc0, progress=progress)

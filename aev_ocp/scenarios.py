@@ -280,7 +280,8 @@ _CORE_TABLES = ("units", "leader", "platoon", "carfollowing", "simulation", "veh
 _CORE_KEYS = ("name", "description", "compare")
 # Modules that register extra sections on import; imported on demand the first time their table
 # appears (the loader's registry: it imports no section's code itself).
-SECTION_PROVIDERS: dict[str, str] = {"mpc": "aev_ocp.mpc.scenario", "ring": "aev_ocp.ring.scenario"}
+SECTION_PROVIDERS: dict[str, str] = {"mpc": "aev_ocp.mpc.scenario", "ring": "aev_ocp.ring.scenario",
+                                     "mismatch": "aev_ocp.estimation.scenario", "sensors": "aev_ocp.estimation.scenario"}
 #: Registered sections that describe a whole run of their own (no [leader], [platoon], [simulation]; their own
 #: loader) -> the command that runs such a file. The platoon loader refuses them with that pointer, and
 #: :func:`shipped_scenarios` lists them only when asked.

@@ -141,7 +141,7 @@ def _adapt(obj: MPCSettings | MPCVehicle, i: int, loop: ClosedLoop) -> MPCPolicy
                                  "follower (use 'cooperative' behind an MPC vehicle, or a measured predictor)")
         else:
             p = make_predictor(p, loop.leader, veh.settings.predictor_window, loop.ev.units.time_s)
-    return MPCPolicy(veh.settings, loop.ev, loop.fallback_law, p, formulation=veh.resolved_formulation)
+    return MPCPolicy(veh.settings, loop.model_ev(i), loop.fallback_law, p, formulation=veh.resolved_formulation)
 
 
 register_controller_adapter(MPCSettings, _adapt)

@@ -158,8 +158,10 @@ def closed_loop_from_scenario(scenario: Any, config: MPCConfig | None = None,
             if p == "cooperative" and (i - 1) not in on:
                 p = "constant-velocity"
             ctrls.append(MPCVehicle(s, predictor=p, formulation=f))
+    from ..estimation.scenario import realism_kwargs  # [mismatch], [sensors]: plant ≠ model, measurements
+
     return ClosedLoop(scenario.leader, ctrls, scenario.ev, fallback_law=scenario.law("proposed"),
-                      rtol=scenario.rtol, atol=scenario.atol)
+                      rtol=scenario.rtol, atol=scenario.atol, law_dt=s.dt, **realism_kwargs(scenario))
 
 
 register()  # the scenario loader imports this module when a file has an [mpc] table

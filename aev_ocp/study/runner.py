@@ -43,6 +43,9 @@ def run_task(spec: dict[str, Any]) -> dict[str, Any]:
     try:
         result = _simulate(spec)
         metrics = result.metrics()
+        for m, st in zip(metrics, result.solver_stats or []):  # estimation errors beside the closed-loop metrics
+            for k, v in ((st or {}).get("estimation") or {}).items():
+                m[f"est_{k}"] = v
         out.update(status=result.status, message="; ".join(str(e) for e in result.events + result.violations), metrics=metrics)
         # compact cumulative profiles, so the table can cut this point's runs at their common distance and time
         out["profiles"] = [cumulative_profile(result, i) for i in range(result.n_vehicles)] if result.t.size > 1 else []
@@ -78,12 +81,18 @@ def _simulate(spec: dict[str, Any]) -> Any:
     ctrl = Controller(c["label"], c["kind"], c["name"], tuple(sorted(c["settings"].items())))
     doc = controller_document(spec["document"], ctrl, spec["file"])
     sc = parse_scenario_quiet(doc, spec["file"])
-    if ctrl.kind == "law":
-        return _simulator(sc, ctrl.name).run(list(sc.gaps0), list(sc.speeds0), sc.t_end)
+    from ..estimation.scenario import measurements_degraded, realism_kwargs
     from ..mpc.scenario import MPCConfig, closed_loop_from_scenario
     from ..mpc.settings import MPCSettings
 
     cfg = sc.extra.get("mpc") or MPCConfig(MPCSettings())
+    if ctrl.kind == "law" and measurements_degraded(sc):  # the law sampled at the MPC's step on the same measurements
+        from ..control import ClosedLoop
+
+        return ClosedLoop(sc.leader, [sc.law(ctrl.name)] * sc.n_followers, sc.ev, rtol=sc.rtol, atol=sc.atol,
+                          law_dt=cfg.settings.dt, **realism_kwargs(sc)).run(list(sc.gaps0), list(sc.speeds0), sc.t_end)
+    if ctrl.kind == "law":
+        return _simulator(sc, ctrl.name).run(list(sc.gaps0), list(sc.speeds0), sc.t_end)
     if ctrl.kind == "mpc":
         r = closed_loop_from_scenario(sc, cfg).run(list(sc.gaps0), list(sc.speeds0), sc.t_end)
         if spec.get("own_cost"):  # the study has an OCP-D: its bound check needs follower 1's own cost

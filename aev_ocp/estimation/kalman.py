@@ -1,0 +1,73 @@
+"""An extended Kalman filter on :class:`~aev_ocp.estimation.base.EstimationModel` (SOC, V1, V2 from pack voltage and
+current; gap, predecessor speed and acceleration from the radar and the own speed)."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from ..params import EVParams
+from .base import NX, Estimate, EstimationModel, estimate_of
+from .sensors import Measurement, Sensors
+
+
+def bridge_delays(x: np.ndarray, a_cmd_mps2: float, lead_delay_s: float, speed_delay_s: float) -> np.ndarray:
+    """The state x (at the measurements' time) predicted to now: the own speed over its delay with the applied
+    acceleration, the gap and the predecessor's motion over the radar's delay (the battery's states move slowly and
+    are left)."""
+    x = np.array(x, float)
+    d, ds = lead_delay_s, speed_delay_s
+    if d > 0:
+        x[3] += (x[4] - x[6]) * d + 0.5 * (x[5] - a_cmd_mps2) * d**2
+        x[4] += x[5] * d
+    if ds > 0:
+        x[6] = max(x[6] + a_cmd_mps2 * ds, 0.0)
+    return x
+
+
+#: iterations of the measurement update (an iterated EKF; 1 = the plain EKF)
+ITERATIONS = 3
+
+
+class EKF:
+    """Extended Kalman filter (SI). ``soc0``: the initial SOC guess (None: the OCV inverted at the first
+    voltage); the inputs over an interval are the mean of the measurements at its ends; the estimate is the filtered
+    state predicted over the sensors' delays (:func:`bridge_delays`)."""
+
+    name = "ekf"
+
+    def __init__(self, ev: EVParams, sensors: Sensors, soc0: float | None = None, ocv_offset_V: float = 0.0) -> None:
+        self.model = EstimationModel(ev, sensors, ocv_offset_V)
+        self.soc0 = soc0
+        self.lead_delay_s = sensors.delay("gap")
+        self.x = np.zeros(NX)
+        self.P = np.eye(NX)
+        self.speed_delay_s = sensors.delay("speed")
+        self.t_s = 0.0
+        self.u = np.zeros(2)
+        self._fn = self.model.ekf_step(ITERATIONS)  # the whole step: one CasADi call
+
+    def reset(self, first: Measurement) -> Estimate:
+        """x0, P0 from the first measurement (:meth:`EstimationModel.initial`), then its update."""
+        self.x, self.P = self.model.initial(first, self.soc0)
+        self.t_s, self.u = first.t_s, self.model.inputs(first)
+        return self._step(first, 0.0)
+
+    def _step(self, y: Measurement, dt_s: float) -> Estimate:
+        u = self.model.inputs(y)
+        x, P = self._fn(self.x, self.P, self.u, u, self.model.outputs(y), dt_s)
+        self.x, self.P, self.u, self.t_s = np.asarray(x).ravel(), np.asarray(P), u, y.t_s
+        return self.estimate()
+
+    def update(self, y: Measurement) -> Estimate:
+        return self._step(y, max(y.t_s - self.t_s, 0.0))
+
+    def estimate(self) -> Estimate:
+        """The current estimate, predicted over the sensors' delays (:func:`bridge_delays`)."""
+        return estimate_of(bridge_delays(self.x, self.u[1], self.lead_delay_s, self.speed_delay_s), self.P)
+
+    def describe(self) -> dict[str, Any]:
+        return {"estimator": self.name, "soc0": self.soc0, "ocv_offset_V": self.model.ocv_offset_V,
+                "states": "S, V1, V2, h, v_l, a_l, v, R0 scale", "measurements": "pack V, gap, predecessor speed, own speed",
+                "inputs": "pack current, applied acceleration"}
