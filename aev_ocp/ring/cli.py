@@ -19,6 +19,7 @@ from ..console import EXIT_BAD_INPUT, EXIT_FAILED_RUN, EXIT_OK
 from ..console import OneLineParser as _Parser
 from ..console import error_line as _err
 from ..params import ParameterError
+from ..results import claim_output_dir
 
 COLUMNS = ("speed_std_mps", "mean_speed_mps", "vehicles_stopped", "braking_events", "energy_J_per_km",
            "heat_pack_J_per_km", "soc_used_mean", "min_gap_m", "wave_speed_mps", "status")
@@ -64,6 +65,7 @@ def cli_ring(argv: list[str]) -> int:
         if not (math.isfinite(a.t_end_s) and 0 < a.t_end_s <= 36_000):
             raise ParameterError(f"--t-end-s {a.t_end_s!r}: must be in (0, 36000] s")
         out = Path(a.out) if a.out else Path("results") / "ring" / a.experiment
+        claim_output_dir(out, "ring", a.experiment, None, ["ring.json"])  # before any work
         runs: list[Any]
         doc: dict[str, Any] = {"experiment": a.experiment, "t_end_s": a.t_end_s, "seed": a.seed}
         if a.experiment == "sugiyama":
@@ -131,6 +133,7 @@ def cli_ring_stability(law: Any, n: int, spacing_m: float | None, density_per_km
                              f"{vehicle_length_m:g} m (--vehicle-length-m)")
     if not (2 <= n <= 100_000):
         raise ParameterError(f"--ring {n}: must be an integer in [2, 100000]")
+    claim_output_dir(out, "stability --ring", law.name, None, ["ring_stability.json"])  # before any work
     ev = EVParams(units=units)
     rs = ring_stability(law, n, n * spacing, vehicle_length_m, ev)
     doc: dict[str, Any] = rs.to_dict()
