@@ -34,6 +34,8 @@ _EXPORTS = {
     "MPCPolicy": "mpc",
     # scenarios
     "load_scenario": "scenarios", "Scenario": "scenarios",
+    # figures (each returns a matplotlib Figure; given a path it also writes the PNG)
+    "plot_trajectories": "plots", "plot_space_time": "plots",
     # saved outputs (every command's folder loads back)
     "load": "saved", "load_all": "saved", "LoadError": "saved",
 }

@@ -45,6 +45,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
     ("configuration", (
         "aev_ocp.scenarios", "aev_ocp.overrides", "aev_ocp.mpc.scenario", "aev_ocp.safety.cases",
         "aev_ocp.study.spec", "aev_ocp.sumo", "aev_ocp.sumo.networks", "aev_ocp.sumo.scenario",
+        "aev_ocp.ring.scenario",
     )),
     ("outputs", (
         "aev_ocp.plots", "aev_ocp.ocp_plots", "aev_ocp.mpc.plots", "aev_ocp.stability.plots", "aev_ocp.report",
@@ -57,7 +58,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
         "aev_ocp.stability.api", "aev_ocp.stability.report",
         "aev_ocp.safety.suite", "aev_ocp.safety.report", "aev_ocp.safety.section", "aev_ocp.life_section",
         "aev_ocp.study", "aev_ocp.study.runner", "aev_ocp.study.report",
-        "aev_ocp.ring.experiments", "aev_ocp.sumo.run", "aev_ocp.sumo.output",
+        "aev_ocp.ring.experiments", "aev_ocp.ring.report", "aev_ocp.sumo.run", "aev_ocp.sumo.output",
     )),
     ("entry points", (
         "aev_ocp", "aev_ocp.console", "aev_ocp.reproduce", "aev_ocp.cli", "aev_ocp.ocp.cli", "aev_ocp.mpc.cli",

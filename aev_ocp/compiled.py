@@ -24,13 +24,20 @@ import os
 import shutil
 import stat
 import subprocess
+import sys
 import tempfile
+import time
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
 FLAGS = ("-O2", "-fPIC", "-shared", "-fno-math-errno")
 SIDECAR_SUFFIX = ".sha256"
+
+
+def announce(message: str) -> None:
+    """One progress line on stderr (``aev_ocp: …``): a compilation takes seconds and must not look like a hang."""
+    print(f"aev_ocp: {message}", file=sys.stderr, flush=True)
 
 
 class CompileWarning(RuntimeWarning):
@@ -172,6 +179,8 @@ def compile_shared(source: str, stem: str, sub: str = "", extra_flags: tuple[str
         for name, text in comp.items():
             (build_dir / name).write_text(text)
         more = [k for k in comp if k.endswith(".c")]
+        announce(f"compiling {stem} with {Path(cc).name} (once: the library is cached in {d}) …")
+        t0 = time.perf_counter()
         proc = subprocess.run([cc, *flags, "-o", str(tmp), c_file.name, *more, "-lm"], capture_output=True, text=True,
                               timeout=timeout_s, cwd=build_dir)
         if proc.returncode != 0:
@@ -179,6 +188,7 @@ def compile_shared(source: str, stem: str, sub: str = "", extra_flags: tuple[str
             err = f"{Path(cc).name} failed: {last[-1] if last else 'exit ' + str(proc.returncode)}"
             _warn_once(stem, f"compiling {stem} failed ({err}); the caller falls back to its uncompiled path")
             return BuildResult(None, err, rebuilt)
+        announce(f"compiled {stem} in {time.perf_counter() - t0:.1f} s")
         tmp_side.write_text(_digest(tmp) + "\n", encoding="ascii")
         os.replace(tmp, lib)
         os.replace(tmp_side, side)  # after the library: a sidecar never vouches for a missing library

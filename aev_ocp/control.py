@@ -112,8 +112,8 @@ class SampledLaw:
 
     law: CarFollowingLaw
     dt: float
-    a_min: float = -3.0  # PROBLEM.md §9
-    a_max: float = 2.0  # PROBLEM.md §9
+    a_min: float = -3.0  # model guide §9
+    a_max: float = 2.0  # model guide §9
 
     @property
     def name(self) -> str:

@@ -1,4 +1,4 @@
-"""Per-vehicle metrics of PROBLEM.md §10, computed from a :class:`SimulationResult`.
+"""Per-vehicle metrics of model guide §10, computed from a :class:`SimulationResult`.
 
 Integrals (ω, pack ∫Q, ∫Q_irr, RMS errors, RMS jerk of smooth laws) come from the plant's own
 quadratures, so they are exact across control jumps. The minimum gap is taken over the continuous
@@ -20,8 +20,8 @@ from .models.thermal import temperature_metrics
 #: and the layer table allows no cycle (tests/test_layers.py); the functions read its attributes only.
 SimulationResult = Any
 
-MPC_GAP_MIN = 0.2  # PROBLEM.md §9: h ≥ 0.2 (2 m)
-MPC_SPEED_MAX = 2.0  # PROBLEM.md §9: 0 ≤ v ≤ 2
+MPC_GAP_MIN = 0.2  # model guide §9: h ≥ 0.2 (2 m)
+MPC_SPEED_MAX = 2.0  # model guide §9: 0 ≤ v ≤ 2
 
 
 def _hermite_min(t0: float, t1: float, y0: float, y1: float, d0: float, d1: float) -> float:
@@ -62,7 +62,7 @@ def min_gap_continuous(t: np.ndarray, h: np.ndarray, hdot: np.ndarray) -> float:
 def violation_bounds(r: SimulationResult, i: int) -> tuple[float, float]:
     """(h_min, v_max) [model units] that follower i's gap and speed violations count against: its controller's
     own declared bounds (``describe()['bounds_model']``, an MPC's formulation; a missing side: no bound, ∓inf),
-    else PROBLEM.md §9's (MPC_GAP_MIN, MPC_SPEED_MAX)."""
+    else model guide §9's (MPC_GAP_MIN, MPC_SPEED_MAX)."""
     ctrls = r.meta.get("controllers") or []
     own = ctrls[i].get("bounds_model") if i < len(ctrls) and isinstance(ctrls[i], dict) else None
     if not own:
@@ -80,7 +80,7 @@ def vehicle_metrics(r: SimulationResult, i: int) -> dict[str, Any]:
     h, v = r.gap[:, i], r.speed[:, i]
     hdot = v_lead - v
     # violations count against the vehicle's controller's own bounds (an MPC states its formulation's: the
-    # traffic formulation's 2 m floor and 45 m/s, in model units; None = no such bound), else PROBLEM.md §9's
+    # traffic formulation's 2 m floor and 45 m/s, in model units; None = no such bound), else model guide §9's
     h_min, v_max = violation_bounds(r, i)
 
     def rms(c: np.ndarray) -> float:

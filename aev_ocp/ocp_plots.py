@@ -13,7 +13,7 @@ import numpy as np
 from .models.battery import stored_energy_J
 from .ocp.result import OCPResult, write_json_atomic
 from .params import CellParams
-from .plots import plt, save_figure
+from .plots import Figure, plt, save_figure
 
 # name in an OCPResult -> (readable name, unit for a time unit in seconds, unit for model time)
 QUANTITY_LABELS: dict[str, tuple[str, str, str]] = {
@@ -44,7 +44,7 @@ def _stairs(ax: Any, t: np.ndarray, u: np.ndarray, **kw: Any) -> None:
     ax.step(t, np.append(u, u[-1]), where="post", **kw)
 
 
-def plot_prop31(cases: dict[str, dict[str, Any]], path: str | Path, cell: CellParams | None = None) -> Path:
+def plot_prop31(cases: dict[str, dict[str, Any]], path: str | Path | None = None, cell: CellParams | None = None) -> Figure:
     """Proposition 3.1 (OCP-A), one column per case: top, the optimal current I*(t) [A] beside the zero-heat
     alternative I = −(V1+V2)/R_s (a current below ZERO_CURRENT_A is drawn as 0 and labelled 'numerically
     zero' with its largest magnitude); bottom, the stored RC energy W(t) = ½C1V1² + ½C2V2² [J] under both,
@@ -108,7 +108,7 @@ def _j(x: float) -> str:
     return "0" if abs(x) < 1e-12 else f"{x:.1e} ≈ 0"
 
 
-def plot_result(res: OCPResult, path: str | Path, names: Sequence[str] | None = None) -> Path:
+def plot_result(res: OCPResult, path: str | Path | None = None, names: Sequence[str] | None = None) -> Figure:
     """States, controls and outputs of one OCPResult against time, one panel per quantity, each with a
     readable name and its unit (controls as piecewise-constant steps)."""
     items: list[tuple[str, np.ndarray, bool]] = []
@@ -148,7 +148,7 @@ CURRENT_PROFILE_REFERENCES = {"constant_current_heat_J": ("constant current", "o
                               "constant_power_heat_J": ("constant power", "s--")}
 
 
-def plot_current_profile_sweep(rows: list[dict[str, Any]], path: str | Path) -> Path:
+def plot_current_profile_sweep(rows: list[dict[str, Any]], path: str | Path | None = None) -> Figure:
     """OCP-B sweep: the heat the optimal current profile saves against the constant-current and the
     constant-power profile delivering the same energy, 100 (∫Q_ref − ∫Q*)/∫Q_ref [%] against the required
     energy E_req [J], one colour per horizon t_f [s]. Rows need E_req_J, t_f_s, optimal_heat_J and the
@@ -183,5 +183,6 @@ def write_prop31_outputs(cases: dict[str, dict[str, Any]], out_dir: str | Path) 
             "V0", "lq_exact_discrete_J", "objective_exact_J", "objective_2N_J", "warnings", "verdict")
     js = {c: {k: e[k] for k in keep if k in e} for c, e in cases.items()}
     paths = {"json": write_json_atomic(out_dir / "prop31.json", js)}
-    paths["png"] = plot_prop31(cases, out_dir / "prop31_currents.png")
+    paths["png"] = out_dir / "prop31_currents.png"
+    plot_prop31(cases, paths["png"])
     return paths

@@ -1,7 +1,7 @@
 """Parameter sets: frozen dataclasses with SI units in the field names and the source of each default.
 
-Every numeric default cites where it comes from (``../shared/PROBLEM.md`` is the project's problem
-card; section numbers below refer to it). Validation happens in ``__post_init__`` and raises
+Every numeric default cites where it comes from; section numbers "§" refer to the model guide
+(docs/guide/model.md, "The model" in the documentation). Validation happens in ``__post_init__`` and raises
 :class:`ParameterError`, whose message names the field, the value and what is allowed.
 
 The car-following model is dimensionless (the paper's units). :class:`Units` is the one place
@@ -130,14 +130,14 @@ def validate_fields(obj: Any) -> None:
 
 @dataclass(frozen=True)
 class Units:
-    """Scaling between the paper's dimensionless car-following units and SI (PROBLEM.md §1).
+    """Scaling between the paper's dimensionless car-following units and SI (model guide §1).
 
     length_m: length unit L [m]; speed_mps: speed unit U [m/s]. Time unit T = L/U [s],
     acceleration unit U²/L [m/s²].
     """
 
-    length_m: float = spec(10.0, gt=0)  # PROBLEM.md §1 default L = 10 m
-    speed_mps: float = spec(5.0, gt=0)  # PROBLEM.md §1 default U = 5 m/s (paper's v_l = 1.7 -> 8.5 m/s)
+    length_m: float = spec(10.0, gt=0)  # model guide §1 default L = 10 m
+    speed_mps: float = spec(5.0, gt=0)  # model guide §1 default U = 5 m/s (paper's v_l = 1.7 -> 8.5 m/s)
 
     def __post_init__(self) -> None:
         validate_fields(self)
@@ -192,7 +192,7 @@ class Units:
 
 @dataclass(frozen=True)
 class CarFollowingParams:
-    """Coefficients of OVM / OVFL / the proposed law (paper eq. main_dynamics; PROBLEM.md §2).
+    """Coefficients of OVM / OVFL / the proposed law (paper eq. main_dynamics; model guide §2).
 
     alpha: relaxation rate to V(h) [1/model time]; beta: follow-the-leader gain
     [model length²/model time]; kappa: weight of the deceleration term [1/model length];
@@ -210,7 +210,7 @@ class CarFollowingParams:
 
 @dataclass(frozen=True)
 class VehicleParams:
-    """Longitudinal vehicle and powertrain parameters (PROBLEM.md §5), SI units.
+    """Longitudinal vehicle and powertrain parameters (model guide §5), SI units.
 
     Defaults: 2022 Tesla Model 3 RWD (LFP), NREL FASTSim vehicle file; eta is the paper's.
     """
@@ -221,9 +221,9 @@ class VehicleParams:
     rolling_coefficient: float = spec(0.007, ge=0)  # FASTSim 2022 Tesla Model 3 RWD
     air_density_kgpm3: float = spec(1.225, gt=0)  # ISA sea level
     gravity_mps2: float = spec(9.81, gt=0)  # paper §3.3
-    grade_rad: float = spec(0.0, gt=-math.pi / 2, lt=math.pi / 2)  # flat road (PROBLEM.md §5)
+    grade_rad: float = spec(0.0, gt=-math.pi / 2, lt=math.pi / 2)  # flat road (model guide §5)
     efficiency: float = spec(0.8, gt=0, le=1)  # paper eq. g_function / Table 1 (eta = 80 %)
-    aux_power_W: float = spec(0.0, ge=0)  # PROBLEM.md §5 (P_aux = 0 by default)
+    aux_power_W: float = spec(0.0, ge=0)  # model guide §5 (P_aux = 0 by default)
 
     def __post_init__(self) -> None:
         validate_fields(self)
@@ -231,7 +231,7 @@ class VehicleParams:
 
 @dataclass(frozen=True)
 class CellParams:
-    """2-RC equivalent-circuit cell (paper §3; PROBLEM.md §6), SI units. I > 0 discharges.
+    """2-RC equivalent-circuit cell (paper §3; model guide §6), SI units. I > 0 discharges.
 
     Defaults: A123 ANR26650 LFP at 25 °C.
     """
@@ -242,8 +242,8 @@ class CellParams:
     C1_F: float = spec(460.0, gt=0)  # same model: tau1 = 3.92 s -> C1 = tau1/R1 ≈ 460 F
     R2_ohm: float = spec(0.010, gt=0)  # representative, inside Lin et al. 2014 range R2 = 5-45 mΩ (not fitted)
     C2_F: float = spec(10_000.0, gt=0)  # representative, Lin et al. 2014: C2 tens of kF (tau2 = 100 s; not fitted)
-    soc0: float = spec(0.8, ge=0, le=1)  # PROBLEM.md §6: S(0) = 0.8
-    max_current_A: float = spec(46.0, gt=0)  # PROBLEM.md §8: 20C = 20 × 2.3 A
+    soc0: float = spec(0.8, ge=0, le=1)  # model guide §6: S(0) = 0.8
+    max_current_A: float = spec(46.0, gt=0)  # model guide §8: 20C = 20 × 2.3 A
     # thermal properties of one cell (used only when EVParams.thermal.enabled)
     heat_capacity_JpK: float = spec(67.2, gt=0)  # Lin et al. 2014 (J. Power Sources 257:1-11), A123 26650:
     # core + surface heat capacities Cc + Cs = 62.7 + 4.5 J/K (lumped into one node here)
@@ -320,11 +320,11 @@ class ThermalParams:
 
 @dataclass(frozen=True)
 class PackParams:
-    """Pack of n_series × n_parallel identical cells (PROBLEM.md §5: 106s70p ≈ 350 V, 161 Ah, 56 kWh,
+    """Pack of n_series × n_parallel identical cells (model guide §5: 106s70p ≈ 350 V, 161 Ah, 56 kWh,
     chosen to mirror the 2022 Model 3 RWD LFP pack)."""
 
-    n_series: int = spec(106, kind="integer", ge=1)  # PROBLEM.md §5
-    n_parallel: int = spec(70, kind="integer", ge=1)  # PROBLEM.md §5
+    n_series: int = spec(106, kind="integer", ge=1)  # model guide §5
+    n_parallel: int = spec(70, kind="integer", ge=1)  # model guide §5
 
     def __post_init__(self) -> None:
         validate_fields(self)
@@ -337,12 +337,12 @@ class PackParams:
 
 @dataclass(frozen=True)
 class PowertrainOptions:
-    """How optimisers smooth the eta switch (PROBLEM.md §7).
+    """How optimisers smooth the eta switch (model guide §7).
 
-    smoothing_width_W: width w of sigma = ½(1 + tanh(P_w / w)) [W] (default 300 W, PROBLEM.md §7).
+    smoothing_width_W: width w of sigma = ½(1 + tanh(P_w / w)) [W] (default 300 W, model guide §7).
     """
 
-    smoothing_width_W: float = spec(300.0, gt=0)  # PROBLEM.md §7
+    smoothing_width_W: float = spec(300.0, gt=0)  # model guide §7
 
     def __post_init__(self) -> None:
         validate_fields(self)

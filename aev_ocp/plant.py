@@ -5,7 +5,7 @@ Every run of the toolkit (closed-form laws in :mod:`aev_ocp.simulate`, the MPC a
 model and stops at the events of :data:`EVENT_RULES`. The compiled cascade (``aev_ocp/c/cascade.c``)
 gets its thresholds and event codes from the same table (:func:`event_header`).
 
-Model (PROBLEM.md §2, §5–§7): per follower the gap h and speed v (model units) and the cell's
+Model (model guide §2, §5–§7): per follower the gap h and speed v (model units) and the cell's
 V1, V2 [V], S [-] (and, with ``ev.thermal.enabled``, the pack temperature T [K] of
 :mod:`aev_ocp.models.thermal`, after S); the exact η switch and the exact current map (:func:`aev_ocp.models.ego.battery_side`).
 A follower's acceleration is either its car-following law, evaluated continuously inside the
@@ -44,7 +44,7 @@ from .results import VIOLATED, Event, SimulationResult
 
 # A controller's plan may violate a bound by at most this much (NLP units: model speed for v) and
 # still be applied; the plant's negative-speed rule uses the same number, so a plan accepted within
-# tolerance never stops the plant (PROBLEM.md §9: "negative speed in the plant is reported").
+# tolerance never stops the plant (model guide §9: "negative speed in the plant is reported").
 PLAN_TOLERANCE = 1e-6
 
 

@@ -1,23 +1,25 @@
 """Figures of the paper and per-scenario trajectory plots (matplotlib, Agg backend only).
 
-Every function takes results or arrays and a path, writes one PNG atomically (temporary file in
-the same folder, then ``os.replace``) and returns the path. Axes are in SI (s, m, km/h, m/s²) through
+Every function takes results or arrays and returns a matplotlib ``Figure`` (a notebook shows it); given a
+``path`` it also writes one PNG there atomically (temporary file in the same folder, then ``os.replace``). Axes are in SI (s, m, km/h, m/s²) through
 the scenario's :class:`~aev_ocp.params.Units` by default; ``si=False`` draws the paper's model units.
 """
 
 from __future__ import annotations
 
 import os
-from pathlib import Path
+import sys
 from dataclasses import dataclass
 from typing import Any, Mapping, Sequence
 
 import matplotlib
 
-matplotlib.use("Agg")
+if "ipykernel" not in sys.modules:  # files only, no window; a notebook keeps its inline backend
+    matplotlib.use("Agg")
 import casadi as ca  # noqa: E402
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
+from matplotlib.figure import Figure  # noqa: E402
 
 from .models.carfollowing import equilibrium_gap  # noqa: E402
 from .models.leader import LeaderProfile  # noqa: E402
@@ -58,16 +60,19 @@ class AxisUnits:
         return cls(u.time_s, u.length_m, u.speed_mps * KMH_PER_MPS, u.accel_mps2, "s", "m", "km/h", "m/s²")
 
 
-def save_figure(fig: Any, path: str | os.PathLike[str]) -> Path:
-    """Write ``fig`` as PNG to ``path`` atomically (unique temp name, mode as open() gives) and close it."""
+def save_figure(fig: Figure, path: str | os.PathLike[str] | None) -> Figure:
+    """Write ``fig`` as PNG to ``path`` atomically (unique temp name, mode as open() gives) when a path is given;
+    returns the figure, released by pyplot (it is drawn where it is returned, e.g. in a notebook, and never twice)."""
     try:
-        return save_figure_atomic(fig, path, dpi=DPI, format="png")
+        if path is not None:
+            save_figure_atomic(fig, path, dpi=DPI, format="png")
     finally:
         plt.close(fig)
+    return fig
 
 
-def _finish_single(fig: Any, ax: Any, path: str | os.PathLike[str], title: str | None) -> Path:
-    """Grid, legend and title of a one-axes figure, then write it (atomically)."""
+def _finish_single(fig: Figure, ax: Any, path: str | os.PathLike[str] | None, title: str | None) -> Figure:
+    """Grid, legend and title of a one-axes figure, then write it (atomically) when a path is given."""
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
     if title:
@@ -100,8 +105,8 @@ def _leader_speed_of(r: SimulationResult, i: int) -> np.ndarray:
 
 
 # ----------------------------------------------------------------------------- Fig. 1 / Fig. 2
-def plot_phase_planes(panels: Sequence[tuple[str, Mapping[str, SimulationResult]]], path: str | os.PathLike[str],
-                      title: str | None = None, si: bool = True) -> Path:
+def plot_phase_planes(panels: Sequence[tuple[str, Mapping[str, SimulationResult]]], path: str | os.PathLike[str] | None = None,
+                      title: str | None = None, si: bool = True) -> Figure:
     """Phase planes of one follower: gap h vs relative velocity v_l − v (paper Fig. 1, Fig. 2).
 
     panels: (caption, {law label: result}) per panel. The initial condition is a red dot, the
@@ -142,8 +147,8 @@ def leader_arrays(leader: LeaderProfile, t_end: float, n: int = 7001) -> tuple[n
     return t, np.asarray(acc(t.reshape(1, -1))).ravel(), leader.speed_np(t)
 
 
-def plot_leader(leader: LeaderProfile, t_end: float, path: str | os.PathLike[str], title: str | None = None,
-                units: Units | None = None, si: bool = True) -> Path:
+def plot_leader(leader: LeaderProfile, t_end: float, path: str | os.PathLike[str] | None = None, title: str | None = None,
+                units: Units | None = None, si: bool = True) -> Figure:
     """The leader's acceleration a_l(t) and speed v_l(t) (paper Fig. 3), in SI through ``units`` (default
     units if None) or in model units with ``si=False``."""
     t, a, v = leader_arrays(leader, t_end)
@@ -165,8 +170,8 @@ def plot_leader(leader: LeaderProfile, t_end: float, path: str | os.PathLike[str
 
 
 # ----------------------------------------------------------------------------- Fig. 5
-def plot_platoon(r: SimulationResult, path: str | os.PathLike[str], *, v_eq: float | None = None,
-                 title: str | None = None, si: bool = True) -> Path:
+def plot_platoon(r: SimulationResult, path: str | os.PathLike[str] | None = None, *, v_eq: float | None = None,
+                 title: str | None = None, si: bool = True) -> Figure:
     """Gaps h_n(t) and relative velocities v_{n−1} − v_n of every follower (paper Fig. 5).
 
     v_eq: the speed [model] whose equilibrium (V⁻¹(v_eq), 0) is drawn as gray dashed lines (the paper
@@ -209,8 +214,8 @@ def _shown(n: int) -> list[int]:
             else sorted({int(round(k)) for k in np.linspace(0, n - 1, MAX_TRAJECTORY_LINES)}))
 
 
-def plot_space_time(r: SimulationResult, path: str | os.PathLike[str], title: str | None = None,
-                    si: bool = True) -> Path:
+def plot_space_time(r: SimulationResult, path: str | os.PathLike[str] | None = None, title: str | None = None,
+                    si: bool = True) -> Figure:
     """Space-time diagram: the position x_n(t) of the leader and every follower (the standard traffic
     figure; parallel lines = steady flow, bunching = a disturbance travelling through the platoon),
     coloured by speed. Positions are relative to the leader's start; s and m (``si=False``: model units)."""
@@ -241,8 +246,8 @@ def plot_space_time(r: SimulationResult, path: str | os.PathLike[str], title: st
     return _finish_single(fig, ax, path, title)
 
 
-def plot_trajectories(r: SimulationResult, path: str | os.PathLike[str], title: str | None = None,
-                      si: bool = True, h_min: float | None = None) -> Path:
+def plot_trajectories(r: SimulationResult, path: str | os.PathLike[str] | None = None, title: str | None = None,
+                      si: bool = True, h_min: float | None = None) -> Figure:
     """Gaps, speeds (with the leader's), accelerations, cell current [A], SOC and pack heat over time (with the
     thermal model also the pack temperature [K] and the dissipated heat) for one run (any controller: closed-form laws, MPC, replayed controls; sampled controls drawn as steps).
     Platoons above MAX_TRAJECTORY_LINES vehicles are drawn as an even subset, first and last included.
@@ -303,8 +308,8 @@ def plot_trajectories(r: SimulationResult, path: str | os.PathLike[str], title: 
     return save_figure(fig, path)
 
 
-def plot_percent_change(ours: Sequence[float], paper: Sequence[float] | None, path: str | os.PathLike[str],
-                        title: str | None = None, label: str = "ω(proposed) vs ω(OVFL)") -> Path:
+def plot_percent_change(ours: Sequence[float], paper: Sequence[float] | None, path: str | os.PathLike[str] | None = None,
+                        title: str | None = None, label: str = "ω(proposed) vs ω(OVFL)") -> Figure:
     """Per-follower % change (signed bars: below zero = the proposed law saves energy), ours beside the
     paper's printed row; each bar carries its value with its sign."""
     fig, ax = plt.subplots(figsize=(6.5, 4))
@@ -330,8 +335,8 @@ def plot_percent_change(ours: Sequence[float], paper: Sequence[float] | None, pa
     return _finish_single(fig, ax, path, title)
 
 
-def plot_compare_omega(omegas: Mapping[str, Sequence[float]], path: str | os.PathLike[str],
-                       reference: Mapping[str, Sequence[float]] | None = None, title: str | None = None) -> Path:
+def plot_compare_omega(omegas: Mapping[str, Sequence[float]], path: str | os.PathLike[str] | None = None,
+                       reference: Mapping[str, Sequence[float]] | None = None, title: str | None = None) -> Figure:
     """Energy per unit mass ω per follower for several laws, optionally beside reference values."""
     fig, ax = plt.subplots(figsize=(6.5, 4))
     for label, om in omegas.items():
@@ -346,7 +351,7 @@ def plot_compare_omega(omegas: Mapping[str, Sequence[float]], path: str | os.Pat
 
 
 def plot_theorem41(kappa: Sequence[float], d_omega: Sequence[float], leader: Sequence[str],
-                   path: str | os.PathLike[str], title: str | None = None) -> Path:
+                   path: str | os.PathLike[str] | None = None, title: str | None = None) -> Figure:
     """ω(proposed) − ω(OVFL) of random cases against κ; points above zero contradict Theorem 4.1."""
     fig, ax = plt.subplots(figsize=(6.5, 4))
     k, d, lab = np.asarray(kappa, float), np.asarray(d_omega, float), np.asarray(leader)

@@ -24,9 +24,22 @@ from ._version import __version__
 _CONTEXT: contextvars.ContextVar[dict[str, Any]] = contextvars.ContextVar("aev_ocp_provenance", default={})
 
 
-@lru_cache(maxsize=1)
-def git_commit() -> str | None:
-    """The commit of the source checkout the package runs from (None when installed or not a git tree).
+BUILD_INFO = "_build_info.json"  # written into the built package by setup.py's build hook
+
+
+def _built_commit(folder: Path | None = None) -> str | None:
+    """The commit recorded when this copy was built (``pip install .`` from a clone), else None. folder: where
+    ``_build_info.json`` is (default: beside this module)."""
+    try:
+        info = json.loads(((folder or Path(__file__).resolve().parent) / BUILD_INFO).read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+    commit = info.get("git_commit") if isinstance(info, dict) else None
+    return commit if isinstance(commit, str) and commit else None
+
+
+def _checkout_commit() -> str | None:
+    """The commit of the source checkout the package runs from (None when not in an aev_ocp git tree).
     Only a tree whose pyproject.toml names aev_ocp counts (an installed copy inside another repository
     must not report that repository's commit)."""
     root = Path(__file__).resolve().parents[1]
@@ -41,6 +54,14 @@ def git_commit() -> str | None:
     if p.returncode != 0 or not p.stdout.strip():
         return None
     return p.stdout.strip() + ("+dirty" if dirty.returncode == 0 and dirty.stdout.strip() else "")
+
+
+@lru_cache(maxsize=1)
+def git_commit() -> str | None:
+    """The commit of the running code: its source checkout's (run from a clone or an editable install), else the
+    one recorded when it was built (``pip install .`` from a clone; ``+dirty`` when built from changed files),
+    else None (built without git)."""
+    return _checkout_commit() or _built_commit()
 
 
 @lru_cache(maxsize=1)

@@ -237,9 +237,11 @@ def write_scenario_outputs(name: str, results: Mapping[str, SimulationResult], o
         if plots:
             from .plots import plot_space_time, plot_trajectories
 
-            written.append(plot_trajectories(r, out / f"{label}.png", title=f"{name}: {label}"))
+            plot_trajectories(r, png := out / f"{label}.png", title=f"{name}: {label}")
+            written.append(png)
             if r.n_vehicles > 1:
-                written.append(plot_space_time(r, out / f"{label}_space_time.png", title=f"{name}: {label}"))
+                plot_space_time(r, png := out / f"{label}_space_time.png", title=f"{name}: {label}")
+                written.append(png)
     written.append(write_json(out / "metrics.json", {"scenario": name,
                                                      "runs": {k: r.summary() for k, r in results.items()}}))
     headers, rows = scenario_metrics_rows(results)

@@ -27,7 +27,7 @@ ProgressFn = Callable[[str], None]
 #: Modules whose ``REPRODUCE_SECTIONS`` are added after the built-in sections, in this order.
 SECTION_PROVIDERS: tuple[str, ...] = ("aev_ocp.claims", "aev_ocp.ocp.report_section", "aev_ocp.mpc.report",
                                        "aev_ocp.mpc.cycles_section", "aev_ocp.stability.report",
-                                       "aev_ocp.safety.section", "aev_ocp.life_section")
+                                       "aev_ocp.safety.section", "aev_ocp.ring.report", "aev_ocp.life_section")
 
 
 @dataclass(frozen=True)

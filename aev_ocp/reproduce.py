@@ -36,6 +36,7 @@ from .report_sections import register_section as register_section
 from .report_sections import (_REGISTRY, Claim, ProgressFn, ReportSectionError, ReproduceConfig, Section,
                               SectionContext, cause, load_providers, summary_section)
 from .results import SimulationResult, write_json
+from .saved import save_output, settings_of
 from .scenarios import Scenario, iter_shipped, load_scenario
 from .simulate import simulate_platoon
 
@@ -45,22 +46,31 @@ HEAD_TABLE1 = "Table 1: energy per unit mass ω (platoon of 6, paper leader, t �
 HEAD_FIG5 = "Fig. 5: the platoon under the proposed model"
 HEAD_HYP = "Table 1: why our ω are below the printed ones (hypotheses tested)"
 class Progress:
-    """Prints ``[k/N] message`` lines on stderr. N is fixed: a section that reports more lines than it
-    declared (e.g. OCP-D's iteration lines, one every few seconds) keeps k at its last declared step
-    (``limit``), so the counter never runs past N and ends at N/N."""
+    """Prints ``[k/N] message`` lines on stderr; k counts every line reported, one by one. N starts as the
+    steps the sections declare and follows what they really report: a section that reports fewer lines than
+    it declared (e.g. cached runs) lowers N when it ends, one that reports more (e.g. OCP-D's iteration
+    lines) raises it, so the counter never jumps and ends at N/N."""
 
     def __init__(self, total: int, stream: Any = None) -> None:
         self.total, self.k, self.stream = total, 0, stream if stream is not None else sys.stderr
-        self.limit = total
+        self.left = 0  # declared lines of the running section not reported yet
         self.t0 = time.perf_counter()
 
-    def skip_to(self, k: int) -> None:
-        """A section reported fewer steps than it declared (e.g. cached runs): count the rest as done."""
-        self.k = max(self.k, k)
+    def begin(self, steps: int) -> None:
+        """A section that declared ``steps`` lines starts (its steps are part of N already)."""
+        self.left = steps
+
+    def end(self) -> None:
+        """The section ended: the lines it declared but did not report leave N."""
+        self.total -= self.left
+        self.left = 0
 
     def __call__(self, message: str) -> None:
-        self.k = min(self.k + 1, max(self.limit, self.k))
-        self.total = max(self.total, self.k)
+        self.k += 1
+        if self.left > 0:
+            self.left -= 1
+        else:  # one more line than the section declared
+            self.total += 1
         print(f"[{self.k}/{self.total}] {message} ({time.perf_counter() - self.t0:.1f} s)", file=self.stream,
               flush=True)
 
@@ -104,6 +114,7 @@ class _Run:
             if self.config.fig12_t_end is not None:
                 s = s.replace(t_end=min(s.t_end, self.config.fig12_t_end))
             runs[name] = res = self.simulate(s, progress, name)
+            save_output(out / name, "simulate", res, settings=settings_of(s))  # aev_ocp.load(out / name)
             cap = f"({name[-1]}) {s.description.split(': ', 1)[-1]}"
             panels1.append((cap, {"proposed": res["proposed"]}))
             panels2.append((cap, res))
@@ -153,6 +164,7 @@ class _Run:
         res = self.simulate(s, progress, "table1")
         summary = table1_summary(res)
         write_table1(out, summary)
+        save_output(out / "table1", "simulate", res, settings=settings_of(s))  # aev_ocp.load(out / "table1")
         self.table1_summary = summary
         progress("table1: Fig. 5 and ω plot")
         chk = platoon_checks(res["proposed"], t_eq=20.0)
@@ -281,7 +293,7 @@ class _Run:
         parts = ["## Battery side of every shipped scenario\n\n"
                  "Pack ∫Q (the paper's power loss, unclipped) and ∫Q_irr (the heat actually dissipated), "
                  "ΔSOC = S_end − S_0, per follower, each scenario under its own units. Per-run metrics: "
-                 "scenarios/<name>/metrics.json.\n"]
+                 "scenarios/<name>/metrics.json; the runs themselves: `aev_ocp.load(\"scenarios/<name>\")`.\n"]
         names = self.config.scenarios
         for name, path in iter_shipped():
             if names is not None and name not in names:
@@ -301,7 +313,7 @@ class _Run:
                 r_mpc = self.simulate_mpc(s, progress, name)
                 res = {"mpc": r_mpc, **res}
                 st = [x for x in r_mpc.solver_stats if x]
-                form = ("PROBLEM.md §9" if mpc_cfg.formulation.kind == "s9"
+                form = ("model guide §9" if mpc_cfg.formulation.kind == "s9"
                         else "the traffic formulation, aev_ocp/ocp/traffic.py")
                 mpc_line = (f"\nThe `mpc` rows are the scenario's own [mpc] closed loop ({form}, forecast "
                             f"{mpc_cfg.settings.predictor}) on the exact "
@@ -311,6 +323,7 @@ class _Run:
                             "solves.\n" if st else "")
             sub = out / "scenarios" / name
             write_json(sub / "metrics.json", {"scenario": name, "runs": {k: r.summary() for k, r in res.items()}})
+            save_output(sub, "mpc" if "mpc" in res else "simulate", res, settings=settings_of(s))  # aev_ocp.load(sub)
             i_max = s.ev.cell.max_current_A
             headers, rows = scenario_metrics_rows(res, i_max_A=i_max, totals=True)
             u = s.units
@@ -404,7 +417,7 @@ def reproduce(out_dir: str | Path = "results", config: ReproduceConfig | None = 
     progress = Progress(sum(s.steps for s in sections) + 1, stream)
     parts = [f"# aev_ocp {__version__}: reproduction of Yeo et al. (2025)\n\n"
              "Generated by `aev-ocp reproduce`. Tables: model (dimensionless) units as in the paper unless a "
-             "column says otherwise; the battery side uses each scenario's units L, U (PROBLEM.md §1). Figures: "
+             "column says otherwise; the battery side uses each scenario's units L, U (§1 of the model guide, docs/guide/model.md). Figures: "
              + ("s, m, km/h through the scenario's units" if config.si_units else "model units") + ". "
              "The same report with its figures embedded: report.html. "
              "The paper's figures, Table 1 and its MPC scenarios run the paper's laws as printed, without vehicle "
@@ -419,8 +432,7 @@ def reproduce(out_dir: str | Path = "results", config: ReproduceConfig | None = 
     parts.append("\nProvenance: " + ", ".join(f"{k} `{v}`" for k, v in prov.items() if v is not None)
                  + "; random seeds are in each section's JSON (e.g. `theorem41.json`).\n")
     for sec in sections:
-        end = progress.k + sec.steps
-        progress.limit = end
+        progress.begin(sec.steps)
         try:
             md = sec.fn(out, SectionContext(_prefixed(progress, sec.name), config, claims))
         except ReportSectionError:
@@ -430,12 +442,12 @@ def reproduce(out_dir: str | Path = "results", config: ReproduceConfig | None = 
                                      f"(no report.md written)") from exc
         if md:
             parts.append("\n" + md.rstrip() + "\n")
-        progress.skip_to(end)
+        progress.end()
     _claims_from_outputs(out, parts, claims)
     parts.insert(1, "\n" + summary_section(claims))
-    progress.limit = progress.total
-    progress.skip_to(progress.total - 1)
+    progress.begin(1)
     progress("writing report.md and report.html")
+    progress.end()
     text = "".join(parts)
     from .report_html import write_report_html
 

@@ -1,7 +1,7 @@
 """One result type for every controller (closed-form law, MPC, offline optimum) and atomic writers.
 
 A :class:`SimulationResult` holds sampled trajectories of a platoon (model units unless the name
-says otherwise) and the *cumulative* integrals that the metrics of PROBLEM.md §10 need, integrated
+says otherwise) and the *cumulative* integrals that the metrics of model guide §10 need, integrated
 by the plant's own quadrature (exact across control jumps, unlike a trapezoid on samples).
 """
 
@@ -69,6 +69,56 @@ def save_figure_atomic(fig: Any, path: str | os.PathLike[str], **savefig_kwargs:
     with atomic_path(path) as tmp:
         fig.savefig(tmp, format=fmt, **savefig_kwargs)
     return path
+
+
+# ----------------------------------------------------------------------------- notebook display
+PANDAS_HINT = "pip install 'aev_ocp[pandas]'  (or: pip install pandas)"
+
+
+def require_pandas(what: str) -> Any:
+    """The pandas module, or ImportError with the one line that installs it (pandas is an optional extra)."""
+    try:
+        import pandas
+    except ImportError:
+        raise ImportError(f"{what} needs pandas, which is not installed; install it with: {PANDAS_HINT}") from None
+    return pandas
+
+
+def fmt_value(x: Any) -> str:
+    """A short text of a number (4 significant digits) or of anything else (its str, cut at 60 characters)."""
+    if isinstance(x, bool) or x is None:
+        return str(x)
+    if isinstance(x, (int, np.integer)):
+        return str(int(x))
+    if isinstance(x, (float, np.floating)):
+        return f"{float(x):.4g}"
+    text = str(x)
+    return text if len(text) <= 60 else text[:57] + "..."
+
+
+def summary_text(title: str, lines: list[str]) -> str:
+    """A short ``repr``: the title, then each line indented by two spaces."""
+    return "\n".join([title, *("  " + ln for ln in lines)])
+
+
+def summary_html(title: str, fields: list[tuple[str, Any]], rows: list[dict[str, Any]] | None = None) -> str:
+    """A short HTML ``_repr_html_``: the title, a two-column table of ``fields`` and an optional table of ``rows``
+    (at most 20 shown), every value escaped."""
+    from html import escape
+
+    parts = [f"<div><strong>{escape(title)}</strong>", "<table>"]
+    parts += [f"<tr><th style='text-align:left'>{escape(k)}</th><td style='text-align:left'>{escape(fmt_value(v))}</td></tr>"
+              for k, v in fields]
+    parts.append("</table>")
+    if rows:
+        cols = list(rows[0])
+        parts.append("<table><tr>" + "".join(f"<th>{escape(c)}</th>" for c in cols) + "</tr>")
+        parts += ["<tr>" + "".join(f"<td>{escape(fmt_value(r.get(c)))}</td>" for c in cols) + "</tr>" for r in rows[:20]]
+        parts.append("</table>")
+        if len(rows) > 20:
+            parts.append(f"<p>… {len(rows) - 20} more rows</p>")
+    parts.append("</div>")
+    return "\n".join(parts)
 
 
 # ----------------------------------------------------------------------------- output folders
@@ -261,7 +311,7 @@ class SimulationResult:
         return self.leader_position[:, None] - np.cumsum(self.gap, axis=1)
 
     def metrics(self) -> list[dict[str, Any]]:
-        """Per-vehicle metrics of PROBLEM.md §10 (see :mod:`aev_ocp.metrics`)."""
+        """Per-vehicle metrics of model guide §10 (see :mod:`aev_ocp.metrics`)."""
         from .metrics import vehicle_metrics
 
         return [vehicle_metrics(self, i) for i in range(self.n_vehicles)]
@@ -311,6 +361,64 @@ class SimulationResult:
                                                *arrs[n_si:]) for x in r]
                     fh.write((row * K) % tuple(flat))
         return Path(path)
+
+    #: how many vehicles a ``repr`` lists (the others are counted)
+    REPR_VEHICLES: ClassVar[int] = 4
+
+    def _repr_fields(self) -> tuple[str, list[tuple[str, Any]], list[dict[str, Any]]]:
+        from .metrics import vehicle_metrics
+
+        u = self.units
+        names = sorted(set(self.controllers))
+        title = (f"SimulationResult: {self.n_vehicles} follower{'s' if self.n_vehicles != 1 else ''} "
+                 f"({', '.join(names)}), status {self.status}")
+        t_s = float(u.time_to_si(self.t[-1])) if self.t.size else 0.0
+        fields: list[tuple[str, Any]] = [("duration_s", t_s), ("samples", int(self.t.size))]
+        if self.events:
+            fields.append(("event", str(self.events[0])))
+        if self.violations:
+            fields.append(("floor violations", len(self.violations)))
+        rows = []
+        for i in range(min(self.n_vehicles, self.REPR_VEHICLES)):
+            m = vehicle_metrics(self, i)
+            rows.append({"vehicle": i + 1, "controller": m["controller"], "status": m["status"],
+                         "omega_J_per_kg": m["omega_J_per_kg"], "heat_pack_J": m["heat_pack_J"],
+                         "min_gap_m": m["min_gap_m"], "delta_soc": m["delta_soc"]})
+        return title, fields, rows
+
+    def __repr__(self) -> str:
+        """A few lines: who ran, the status, duration [s] and each vehicle's key metrics in SI."""
+        title, fields, rows = self._repr_fields()
+        lines = [", ".join(f"{k} {fmt_value(v)}" for k, v in fields)]
+        lines += [f"vehicle {r['vehicle']} ({r['controller']}): {r['status']}, ω {fmt_value(r['omega_J_per_kg'])} J/kg, "
+                  f"pack ∫Q {fmt_value(r['heat_pack_J'])} J, min gap {fmt_value(r['min_gap_m'])} m, "
+                  f"ΔSOC {fmt_value(r['delta_soc'])}" for r in rows]
+        if self.n_vehicles > len(rows):
+            lines.append(f"… {self.n_vehicles - len(rows)} more vehicles (.metrics() has them all)")
+        return summary_text(title, lines)
+
+    def _repr_html_(self) -> str:
+        title, fields, rows = self._repr_fields()
+        if self.n_vehicles > len(rows):
+            fields.append(("vehicles not shown", self.n_vehicles - len(rows)))
+        return summary_html(title, fields, rows)
+
+    def to_dataframe(self) -> Any:
+        """The trajectories as a long pandas DataFrame (one row per time and vehicle), with the columns of
+        :meth:`to_csv`: t_s, vehicle, controller, leader_speed_mps, then SI columns (gap_m, speed_mps, …) and the
+        model-unit ones (``_model``). Needs pandas (``pip install 'aev_ocp[pandas]'``)."""
+        pd = require_pandas("SimulationResult.to_dataframe()")
+        u = self.units
+        scale = {"length_m": u.length_m, "speed_mps": u.speed_mps, "accel_mps2": u.accel_mps2, "omega": u.speed_mps**2}
+        K, n = self.t.size, self.n_vehicles
+        data: dict[str, Any] = {"t_s": np.tile(self.t * u.time_s, n), "vehicle": np.repeat(np.arange(1, n + 1), K),
+                                "controller": np.repeat(np.asarray(self.controllers, dtype=object), K),
+                                "leader_speed_mps": np.tile(self.leader_speed * u.speed_mps, n)}
+        model_cols: dict[str, Any] = {"t_model": np.tile(self.t, n), "leader_speed_model": np.tile(self.leader_speed, n)}
+        for name, attr, f in self.CSV_COLUMNS:
+            col = (np.asarray(getattr(self, attr)) * (scale[f] if f else 1.0)).T.reshape(-1)
+            (model_cols if name.endswith("_model") else data)[name] = col
+        return pd.DataFrame({**data, **model_cols})
 
     def summary(self) -> dict[str, Any]:
         """Status, events, metrics and settings as a JSON-ready dict."""

@@ -33,7 +33,8 @@ import numpy as np
 from .limits import memory_limit_bytes
 from .params import (UNLIMITED, CellParams, EVParams, PackParams, ThermalParams, Units, VehicleLimits, VehicleParams,
                      as_dict)
-from .results import Event, SimulationResult, atomic_path, to_jsonable, write_json
+from .results import (Event, SimulationResult, atomic_path, fmt_value, require_pandas, summary_html, summary_text,
+                      to_jsonable, write_json)
 
 FORMAT = "aev_ocp-output"
 FORMAT_VERSION = 1
@@ -343,6 +344,26 @@ class StudyOutput:
     def metrics(self) -> list[dict[str, Any]]:
         """The table rows (every §10 metric per point × controller × vehicle)."""
         return self.rows
+
+    def _repr_fields(self) -> tuple[str, list[tuple[str, Any]]]:
+        ctrls = sorted({str(r.get("controller")) for r in self.rows})
+        points = {r.get("point") for r in self.rows}
+        return (f"StudyOutput: {len(points)} points × {len(ctrls)} controllers ({', '.join(ctrls)}), "
+                f"{self.n_failed} of {self.n_tasks} tasks failed",
+                [("folder", str(self.folder)), ("rows", len(self.rows)), ("files", len(self.files))])
+
+    def __repr__(self) -> str:
+        """A few lines: points, controllers, failed tasks, the folder and the row count."""
+        title, fields = self._repr_fields()
+        return summary_text(title, [f"{k}: {fmt_value(v)}" for k, v in fields])
+
+    def _repr_html_(self) -> str:
+        title, fields = self._repr_fields()
+        return summary_html(title, fields)
+
+    def to_dataframe(self) -> Any:
+        """The table rows as a pandas DataFrame. Needs pandas (``pip install 'aev_ocp[pandas]'``)."""
+        return require_pandas("StudyOutput.to_dataframe()").DataFrame(self.rows)
 
     def trajectory(self, point: int, controller: str) -> Any:
         """The SimulationResult of one point under one controller, saved by ``run_study(...,

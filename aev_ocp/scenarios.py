@@ -11,7 +11,7 @@ Schema (model units unless a key says otherwise; see README.md "Scenario files")
     description = "..."                 # optional
     compare = ["proposed", "ovfl"]      # optional: run the whole platoon once per law
 
-    [units]       length_m, speed_mps                       (PROBLEM.md §1)
+    [units]       length_m, speed_mps                       (model guide §1)
     [leader]      kind = "constant" | "paper" | "cycle" | "array"
                   constant: v                               [model speed]
                   paper:    v0, amplitude, forcing_end      (paper eq. acc5; forcing_end [model time])
@@ -32,6 +32,7 @@ Every model-unit key has an SI twin (:data:`SI_TWINS`), converted with the file'
 simulation.t_end_s, dt_out_s [s]; platoon.gap0_m, gap0_first_m, gap0_others_m, gaps0_m [m],
 speed0_mps, speeds0_mps [m/s]; leader.v_mps, v0_mps [m/s], amplitude_mps2 [m/s²], forcing_end_s,
 times_s [s], speeds_mps [m/s]. Give one key of a pair, not both.
+
     [vehicle] [cell] [pack]  fields of VehicleParams, CellParams, PackParams (SI names); [cell] name = "<shipped
                   cell>" (aev_ocp/data/cells/, e.g. "a123_anr26650") or file = "<cell file>" selects a cell file
                   (aev_ocp.cells), its other keys override it; the pack layout stays in [pack]
@@ -279,7 +280,11 @@ _CORE_TABLES = ("units", "leader", "platoon", "carfollowing", "simulation", "veh
 _CORE_KEYS = ("name", "description", "compare")
 # Modules that register extra sections on import; imported on demand the first time their table
 # appears (the loader's registry: it imports no section's code itself).
-SECTION_PROVIDERS: dict[str, str] = {"mpc": "aev_ocp.mpc.scenario"}
+SECTION_PROVIDERS: dict[str, str] = {"mpc": "aev_ocp.mpc.scenario", "ring": "aev_ocp.ring.scenario"}
+#: Registered sections that describe a whole run of their own (no [leader], [platoon], [simulation]; their own
+#: loader) -> the command that runs such a file. The platoon loader refuses them with that pointer, and
+#: :func:`shipped_scenarios` lists them only when asked.
+STANDALONE_SECTIONS: dict[str, str] = {"ring": "aev-ocp ring"}
 
 
 def register_section(name: str, validator: SectionValidator) -> None:
@@ -778,6 +783,10 @@ def _check_top_level(doc: dict[str, Any], file: str) -> None:
 
 def parse_scenario(doc: dict[str, Any], file: str = "<scenario>", *, source: Path | None = None) -> Scenario:
     """Validate a parsed TOML document (``file`` names it in messages) into a :class:`Scenario`."""
+    for key, command in STANDALONE_SECTIONS.items():
+        if key in doc:
+            raise ScenarioError(f"{file}: a {key} scenario (it has a [{key}] table), not a platoon: run it with "
+                                f"'{command} {file}'")
     _check_top_level(doc, file)
     top = TableReader(doc, "", file)
     if top.has("name"):
@@ -942,14 +951,27 @@ def scenario_dirs() -> list[Path]:
     return out
 
 
-def shipped_scenarios() -> dict[str, Path]:
-    """Shipped scenario names -> files (the first folder of :func:`scenario_dirs` that has each name)."""
+def shipped_scenarios(kind: str = "platoon") -> dict[str, Path]:
+    """Shipped scenario names -> files (the first folder of :func:`scenario_dirs` that has each name) of one
+    ``kind``: "platoon" (the default), a key of :data:`STANDALONE_SECTIONS` ("ring"), or "all"."""
     found: dict[str, Path] = {}
     for d in scenario_dirs():
         if d.is_dir():
             for f in sorted(d.glob("*.toml")):
                 found.setdefault(f.stem, f)
+    if kind != "all":
+        found = {k: f for k, f in found.items() if _file_kind(f) == kind}
     return dict(sorted(found.items()))
+
+
+def _file_kind(path: Path) -> str:
+    """'platoon', or the standalone section a scenario file has (an unreadable file counts as a platoon: the
+    platoon loader then reports what is wrong with it)."""
+    try:
+        doc = tomllib.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError, RecursionError):
+        return "platoon"
+    return next((k for k in STANDALONE_SECTIONS if isinstance(doc.get(k), dict)), "platoon")
 
 
 def find_scenario(name_or_path: str | Path) -> Path:

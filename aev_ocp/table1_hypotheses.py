@@ -4,7 +4,7 @@ The paper's platoon (scenario ``table1``) is integrated once more, here as one C
 the whole platoon (leader included) with a quadrature v_n·g(a_n) per follower for every candidate g, so
 every variant of ω comes from the same accurate trajectory:
 
-* **g**: the smoothed g̃ of the optimisers (PROBLEM.md §7) instead of the exact leaky ReLU;
+* **g**: the smoothed g̃ of the optimisers (model guide §7) instead of the exact leaky ReLU;
 * **η convention for regeneration**: braking credited with η² (η applied twice), with 100 % (no loss),
   or not at all; and the single regeneration efficiency c that would reproduce each printed value
   (g = a/η for a ≥ 0, c·a for a < 0: ω is linear in c);
@@ -31,7 +31,7 @@ from .models.leader import LeaderProfile, PaperLeader
 from .params import ParameterError
 
 GFn = Callable[[Any], Any]
-SMOOTH_WIDTH = 0.01  # g_smooth's default width [model acceleration] (models/energy.py, PROBLEM.md §7)
+SMOOTH_WIDTH = 0.01  # g_smooth's default width [model acceleration] (models/energy.py, model guide §7)
 FIT_TOLERANCE_PCT = 1.0  # a hypothesis 'fits' if every follower is within 1 % of the printed value
 
 
@@ -199,7 +199,7 @@ def run_hypotheses(setup: PlatoonSetup, printed: Sequence[float], t_end: float =
     traj = integrate(setup, max([t_end, *ends]), dt_grid=0.1)
     H = [Hypothesis("baseline", f"exact g, η = {setup.eta:g} both ways, [0, {t_end:g}], CVODES (ours)",
                     traj.window("exact", 0, t_end), P),
-         Hypothesis("smoothed_g", f"smoothed g̃ (width {SMOOTH_WIDTH:g}, PROBLEM.md §7)", traj.window("smoothed", 0, t_end), P),
+         Hypothesis("smoothed_g", f"smoothed g̃ (width {SMOOTH_WIDTH:g}, model guide §7)", traj.window("smoothed", 0, t_end), P),
          Hypothesis("regen_eta2", "braking credited with η² (η applied twice)", traj.window("regen_eta2", 0, t_end), P),
          Hypothesis("regen_full", "braking credited at 100 %", traj.window("regen_full", 0, t_end), P),
          Hypothesis("no_regen", "no regeneration (g = 0 when braking)", traj.window("no_regen", 0, t_end), P)]

@@ -1,5 +1,5 @@
 """Per-step MPC solve time on the canonical single-follower scenario (scenarios/mpc_paper_single.toml,
-PROBLEM.md §9) for N = 20, 40, 80 and each solver path, against a plain IPOPT re-solve of the same NLP
+model guide §9) for N = 20, 40, 80 and each solver path, against a plain IPOPT re-solve of the same NLP
 from the closed-form-law guess without warm start ('ipopt-cold', the baseline) in the same process.
 
 Prints a table and writes benchmarks/bench_mpc.json (atomically). Times are wall times of the solver
@@ -61,7 +61,7 @@ PATHS = {
     "rti-riccati+codegen (compiled step)": dict(solver="rti", qp_solver="riccati", codegen=True),
 }
 COMPILED = dict(solver="rti", qp_solver="riccati", codegen=True)
-#: the canonical problem is PROBLEM.md §9 as in scenarios/mpc_paper_single.toml (the default is 'traffic')
+#: the canonical problem is model guide §9 as in scenarios/mpc_paper_single.toml (the default is 'traffic')
 S9 = dict(rti_hessian="exact", max_step_ms=10000.0, predictor="oracle")
 F9 = s9_formulation()  # the problem
 
@@ -377,7 +377,7 @@ def main(argv: list[str] | None = None) -> int:
                   "traffic_median_le_1ms": tr.get("solve_ms_median", 9.0) <= 1.0,
                   "traffic_p99_le_3ms": tr.get("solve_ms_p99", 9.0) <= 3.0, "traffic_fallbacks": tr.get("fallbacks")})
     print("issue-12 targets:", issue)
-    write_json(a.out, {"scenario": "mpc_paper_single (PROBLEM.md §9 canonical)", "t_end": a.t_end,
+    write_json(a.out, {"scenario": "mpc_paper_single (model guide §9 canonical)", "t_end": a.t_end,
                        "machine": {"platform": platform.platform(), "python": sys.version.split()[0],
                                    "cpus": os.cpu_count()},
                        "note": "wall time of each solver call in the closed loop; the first solve of every "

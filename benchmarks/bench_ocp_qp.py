@@ -2,7 +2,7 @@
 aev_ocp.mpc.ocpqp) against ``ca.conic`` HPIPM and qrqp on the same QPs in the same process.
 
 Problems: random convex OCP QPs (aev_ocp.mpc.ocpqp.random_qp, feasible by construction, values of order
-3) on the two reference dimensions of the project's MPC — canonical (PROBLEM.md §9: N = 40, nx = 5,
+3) on the two reference dimensions of the project's MPC — canonical (model guide §9: N = 40, nx = 5,
 nu = 1, nc = 2, bounds on some stage variables), the same with N = 100, traffic (N = 25, nx = 6, nu = 3,
 nc = 6) — and the real RTI QPs of the controller (MPCController, solver 'rti', the QP of the third
 closed-loop step recorded from its ``ca.conic`` call and split into stage blocks).

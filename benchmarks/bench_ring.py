@@ -3,7 +3,8 @@
 
 Targets (issue 22): 22 vehicles ≤ 1 s, 1 000 ≤ 10 s, 10 000 ≤ 120 s and ≤ 4 GB, on 2 cores. Prints a table and
 writes JSON (``--out``, default results/bench_ring.json): wall time, steps, rejected steps, right-hand-side
-evaluations, peak resident memory, and the fleet's speed std. The big rings use rtol = atol = 1e-5 with
+evaluations, peak resident memory, and the fleet's speed std; beside the wall time the process CPU time and the
+1-minute load average when the run started (on a shared machine the wall time is the CPU time the scheduler gave). The big rings use rtol = atol = 1e-5 with
 RingOptions.local_factor = 30 (the step is set by the ring's RMS error, a single vehicle may reach 30× the
 tolerance at a kink: a stop, a saturation) and thinned output (5 s): on 1 000 vehicles × 600 s their fleet speed
 std and energy per km agree with the strict per-vehicle norm (local_factor 1) to 2e-5 and 1e-4 relative.
@@ -15,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import resource
 import time
 from pathlib import Path
@@ -32,11 +34,15 @@ def run(n: int, t_end_s: float, threads: int, tol: float, lf: float = 1.0) -> di
     t0 = time.perf_counter()
     sim = RingSimulator(ring, opts)
     build = time.perf_counter() - t0
+    c0, load = time.process_time(), os.getloadavg()[0]
+    t1 = time.perf_counter()
     res = sim.run(uniform_flow(ring, shift_m=2.0), t_end_s)
-    wall = time.perf_counter() - t0 - build
+    wall = time.perf_counter() - t1
+    cpu = time.process_time() - c0
     f = fleet_metrics(res)
     rss_gb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024**2
     return {"vehicles": n, "t_end_s": t_end_s, "rtol": tol, "threads": threads, "build_s": build, "run_s": wall,
+            "cpu_s": cpu, "load_1min": load,
             "target_s": TARGET_S.get(n), "peak_rss_GB": rss_gb, "status": res.status, **res.stats,
             "speed_std_mps": f["speed_std_mps"], "energy_J_per_km": f["energy_J_per_km"]}
 
@@ -49,13 +55,13 @@ def main() -> None:
     p.add_argument("--out", default="results/bench_ring.json")
     a = p.parse_args()
     rows = []
-    print(f"{'vehicles':>9} {'tol':>7} {'run [s]':>9} {'target':>7} {'steps':>8} {'rejected':>8} {'RSS [GB]':>9} "
+    print(f"{'vehicles':>9} {'tol':>7} {'run [s]':>9} {'cpu [s]':>8} {'load':>5} {'target':>7} {'steps':>8} {'rejected':>8} {'RSS [GB]':>9} "
           f"{'speed std':>9} {'E [J/km]':>10} status")
     for n in a.sizes:
         tol = 1e-8 if n <= 100 else 1e-5
         r = run(n, a.t_end_s, a.threads, tol, 1.0 if n <= 100 else 30.0)
         rows.append(r)
-        print(f"{n:>9} {tol:>7.0e} {r['run_s']:>9.3f} {r['target_s'] or float('nan'):>7g} {r['steps']:>8} "
+        print(f"{n:>9} {tol:>7.0e} {r['run_s']:>9.3f} {r['cpu_s']:>8.3f} {r['load_1min']:>5.2f} {r['target_s'] or float('nan'):>7g} {r['steps']:>8} "
               f"{r['rejected']:>8} {r['peak_rss_GB']:>9.3f} {r['speed_std_mps']:>9.4f} {r['energy_J_per_km']:>10.5g} "
               f"{r['status']}", flush=True)
     out = Path(a.out)

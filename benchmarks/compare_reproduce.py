@@ -19,7 +19,9 @@ from pathlib import Path
 from typing import Any, Iterator
 
 #: Keys whose values are timings or describe the run's machine, not its results.
-TIMING = re.compile(r"^(provenance|git_commit|platform|timings_s|solve_time_s|solver_time_s)$|wall|cpu|(^|_)ms($|_)")
+#: ``arrays_sha256`` (a saved output's manifest) hashes float arrays bit for bit: no tolerance applies to it.
+TIMING = re.compile(r"^(provenance|git_commit|platform|timings_s|solve_time_s|solver_time_s|arrays_sha256)$|wall|cpu"
+                    r"|(^|_)ms($|_)")
 
 
 def differences(a: Any, b: Any, path: str, rtol: float, atol: float) -> Iterator[str]:

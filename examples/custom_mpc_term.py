@@ -3,7 +3,7 @@
 The §9 problem is a ProblemBuilder: add a constraint, a cost term or a state with one line each,
 then give it to the MPC (or to OCPSolver for the whole-horizon optimum). Here: a time-headway
 constraint h ≥ h_min + T_h·v, soft with an exact L1 penalty (never infeasible), and a cost on
-speeds above a limit. The baseline is PROBLEM.md §9's formulation itself (``s9_formulation()``: the
+speeds above a limit. The baseline is model guide §9's formulation itself (``s9_formulation()``: the
 MPC's default is the traffic formulation), and the user problem becomes the MPC's formulation: its
 bounds, name, cold start and cost follow it. Run: python examples/custom_mpc_term.py [--quick]
 """

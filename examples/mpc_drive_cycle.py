@@ -4,7 +4,7 @@ The leader is a shipped EPA cycle mapped to model units (``drive_cycle``); the M
 measured-speed predictor (constant velocity: it does not know the cycle in advance), the laws react to it
 as usual, and all runs share the exact plant and the §10 metrics. The MPC runs the default formulation
 (``MPCSettings()``: the traffic formulation of aev_ocp/ocp/traffic.py, SI weights, soft headway and
-braking-distance constraints, jerk penalty, RTI on the compiled Riccati step). PROBLEM.md §9's formulation
+braking-distance constraints, jerk penalty, RTI on the compiled Riccati step). model guide §9's formulation
 (``formulation="s9"``, weights tuned on the paper's units) tracks tightly here and dissipated about 3.6
 times the laws' pack heat behind the first 300 time units of US06 (155 kJ against 43 kJ); the default
 formulation uses 37.8 kJ there (proposed law 42.6 kJ, OVFL 41.8 kJ), ω 843 J/kg against 925 and 893,

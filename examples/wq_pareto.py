@@ -25,7 +25,7 @@ from aev_ocp.plots import plt, save_figure
 from aev_ocp.simulate import simulate_platoon
 from aev_ocp.study.report import pareto_mask
 
-H0, V0 = 0.3, 1.87  # PROBLEM.md §9 canonical initial state
+H0, V0 = 0.3, 1.87  # model guide §9 canonical initial state
 
 
 def main(quick: bool = False, out: Path = Path("results/examples/wq_pareto")) -> list[dict[str, Any]]:
@@ -33,7 +33,7 @@ def main(quick: bool = False, out: Path = Path("results/examples/wq_pareto")) ->
     leader = PaperLeader()
     t_end = 6.0 if quick else 70.0  # model time
     w_qs = (0.3, 1.0, 3.0) if quick else (0.1, 0.3, 1.0, 3.0, 10.0, 30.0)
-    # PROBLEM.md §9's formulation, as in scenarios/mpc_paper_single.toml (w_Q is a §9 weight)
+    # model guide §9's formulation, as in scenarios/mpc_paper_single.toml (w_Q is a §9 weight)
     base = MPCSettings(N=40, predictor="oracle", rti_hessian="exact", max_step_ms=1e4)
     f9 = s9_formulation()
     rows: list[dict[str, Any]] = []

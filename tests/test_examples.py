@@ -67,7 +67,7 @@ def test_wq_pareto(tmp_path: Path) -> None:
 
 
 def test_custom_mpc_term(tmp_path: Path) -> None:
-    """The baseline labelled '§9' runs PROBLEM.md §9's problem (states h, v, V1, V2, S; no traffic a_prev, energy
+    """The baseline labelled '§9' runs model guide §9's problem (states h, v, V1, V2, S; no traffic a_prev, energy
     epigraph or slack; the 'mpc' problem, §9's 0.2 floor and v_max = 2), and the '+ headway' run is §9 plus
     headway: a user problem whose every derived item follows it (its own name, §9's bounds, the §9 family's cold
     start), not the traffic formulation's (the MPC's default: problem mpc_traffic, h_min 2 m = 0.2, v_max 9)."""
@@ -83,26 +83,3 @@ def test_custom_mpc_term(tmp_path: Path) -> None:
     for r in (base, hw):  # §9's bounds (the traffic formulation's v_max would be 45 m/s = 9 model)
         assert float(r["h_min"]) == 0.2 and float(r["v_max"]) == 2.0
     assert float(hw["margin"]) >= 0.2 - 2e-3 > float(base["margin"])  # the added constraint is active
-
-
-def test_docs_pages_take_their_sections_from_the_readme() -> None:
-    """docs/hooks/readme_sections.py (the MkDocs build hook) inserts README sections verbatim and refuses an
-    unknown section title; every marker in docs/ names a README section."""
-    import importlib.util
-    from types import SimpleNamespace
-
-    spec = importlib.util.spec_from_file_location("readme_sections", ROOT / "docs" / "hooks" / "readme_sections.py")
-    assert spec is not None and spec.loader is not None
-    hook = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(hook)
-    readme = (ROOT / "README.md").read_text(encoding="utf-8")
-    config = {"config_file_path": str(ROOT / "mkdocs.yml")}
-    page = SimpleNamespace(file=SimpleNamespace(src_uri="guide/x.md"))
-    out = hook.on_page_markdown("# T\n\n<!-- readme: Set up -->\n", page, config, None)
-    body = readme.split("\n## Set up\n", 1)[1].split("\n## ", 1)[0]
-    assert out.startswith("# T\n\n## Set up\n") and body.strip() in out
-    with pytest.raises(KeyError, match="No such section"):
-        hook.on_page_markdown("<!-- readme: No such section -->\n", page, config, None)
-    marks = [m for f in (ROOT / "docs").rglob("*.md") for m in re.findall(r"<!-- readme: (.+?) -->", f.read_text())]
-    titles = set(re.findall(r"^## (.+)$", readme, re.M)) | {"intro"}
-    assert marks and set(marks) <= titles

@@ -74,7 +74,7 @@ def test_trajectories_in_si_or_model_units(run, figs, tmp_path, si: bool) -> Non
 
 
 def test_space_time_diagram_is_the_positions(run, figs, tmp_path) -> None:  # noqa: ANN001
-    path = plots.plot_space_time(run, tmp_path / "st.png")
+    plots.plot_space_time(run, path := tmp_path / "st.png")
     assert path.read_bytes()[:4] == b"\x89PNG"
     ax = figs[-1].axes[0]
     segs = [np.asarray(c.get_segments()) for c in ax.collections]

@@ -68,7 +68,7 @@ def np_ocv(S):
 
 
 def np_battery(v, a, V1, V2, S, ev=EV, width=None):
-    """The battery side of a motion, PROBLEM.md §5–§7, written out in NumPy; width=None: exact η switch.
+    """The battery side of a motion, model guide §5–§7, written out in NumPy; width=None: exact η switch.
     The current is the SMALL root of R_s I² − E I + P_c = 0 by the other quadratic formula."""
     u, veh, c = ev.units, ev.vehicle, ev.cell
     vs, as_ = v * u.speed_mps, a * u.speed_mps**2 / u.length_m
@@ -98,7 +98,7 @@ def np_battery(v, a, V1, V2, S, ev=EV, width=None):
 
 
 def np_stage(h, v, V1, V2, S, a, vl_hat, weights=W, ev=EV, width=SMOOTH.smoothing_width_W, objective="heat"):
-    """ℓ of PROBLEM.md §9 with the given weights (nothing hard-coded)."""
+    """ℓ of model guide §9 with the given weights (nothing hard-coded)."""
     if objective == "heat":
         e = np_battery(v, a, V1, V2, S, ev, width)["Q_pack"] / 1000.0
     else:  # the exact g (the problem states v g(a) exactly, by an epigraph)

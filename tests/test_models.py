@@ -136,7 +136,7 @@ def test_current_map_infeasible_signal() -> None:
     assert float(disc) > 0
 
 
-# sup_x x/(1 + e^{2x}): the largest relative smoothing error; PROBLEM.md §7 prints it rounded down as 0.139
+# sup_x x/(1 + e^{2x}): the largest relative smoothing error; model guide §7 prints it rounded down as 0.139
 _X = np.linspace(0.0, 3.0, 300001)
 SMOOTHING_SUP = float(np.max(_X / (1 + np.exp(2 * _X))))
 
@@ -144,7 +144,7 @@ SMOOTHING_SUP = float(np.max(_X / (1 + np.exp(2 * _X))))
 @settings(max_examples=200, deadline=None)
 @given(P_w=st.floats(-5e4, 5e4), width=st.floats(10.0, 2000.0))
 def test_smoothing_error_bound(P_w: float, width: float) -> None:
-    """PROBLEM.md §7: |P_b,smooth − P_b| ≤ c (1/η − η) × width with c = sup x/(1+e^{2x}) ≈ 0.13923."""
+    """model guide §7: |P_b,smooth − P_b| ≤ c (1/η − η) × width with c = sup x/(1+e^{2x}) ≈ 0.13923."""
     p = VehicleParams()
     exact = float(powertrain.battery_power_W(P_w, p))
     smooth = float(powertrain.battery_power_smooth_W(P_w, p, PowertrainOptions(width)))

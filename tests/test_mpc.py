@@ -1,4 +1,4 @@
-"""MPC of PROBLEM.md §9 and its closed loop: checked against OCP-D, NumPy re-computations of the cost
+"""MPC of model guide §9 and its closed loop: checked against OCP-D, NumPy re-computations of the cost
 and constraints, closed-form laws and each other (solver paths)."""
 
 from __future__ import annotations
@@ -23,12 +23,12 @@ from aev_ocp.params import EVParams, ParameterError
 
 
 def S9(**kw) -> MPCSettings:
-    """Solver settings of PROBLEM.md §9's scenarios with the path these tests were written for (IPOPT,
+    """Solver settings of model guide §9's scenarios with the path these tests were written for (IPOPT,
     interpreted) unless given; the problem is the formulation F9."""
     return MPCSettings(**{"N": 40, "solver": "ipopt", "codegen": False, "predictor": "oracle", **kw})
 
 
-F9 = s9_formulation()  # PROBLEM.md §9
+F9 = s9_formulation()  # model guide §9
 
 EV = EVParams()
 
@@ -39,7 +39,7 @@ def _forecast(t0: float, N: int, dt: float = 0.1, leader=PaperLeader()):
 
 
 def _stage_cost_numpy(h, v, V1, V2, S, a, vl, w=FollowingWeights(), width_W=300.0):
-    """ℓ of PROBLEM.md §9 written out in NumPy (SciPy not-a-knot cubic for OCV), independent of CasADi."""
+    """ℓ of model guide §9 written out in NumPy (SciPy not-a-knot cubic for OCV), independent of CasADi."""
     u, veh, cell, n = EV.units, EV.vehicle, EV.cell, EV.pack.n_cells
     soc, ocv_v = ocv_table()
     ocv = make_interp_spline(soc, ocv_v, k=3)(S)
@@ -350,7 +350,7 @@ def test_ocpd_controls_replayed_through_the_exact_plant() -> None:
     """OCP-D's controls, replayed open loop through the closed loop's exact plant (ControlSequence),
     reproduce its predicted gaps and speeds at the nodes: with a piecewise-constant a and the
     interval-mean leader speed these are exact in the transcription, so they must agree closely; the
-    battery states differ only by the η smoothing (PROBLEM.md §7)."""
+    battery states differ only by the η smoothing (model guide §7)."""
     from aev_ocp.control import ControlSequence
 
     scn = OracleScenario(leader=PaperLeader(), t_end=4.0, dt=0.1, h0=0.3, v0=1.87)

@@ -42,10 +42,10 @@ pytestmark = pytest.mark.skipif(compiler() is None, reason="no C compiler")
 
 T_END = 20.0  # 200 closed-loop steps of the canonical 700
 TOL = 1e-8
-# PROBLEM.md §9 as in scenarios/mpc_paper_single.toml (the default formulation is 'traffic')
+# model guide §9 as in scenarios/mpc_paper_single.toml (the default formulation is 'traffic')
 CANON = dict(rti_hessian="exact", max_step_ms=10000.0, N=40, dt=0.1, solver="rti", predictor="oracle",
              qp_solver="riccati", codegen=True)
-F9 = s9_formulation()  # the problem: PROBLEM.md §9
+F9 = s9_formulation()  # the problem: model guide §9
 
 
 class CPolicy:

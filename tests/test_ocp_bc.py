@@ -139,7 +139,7 @@ def test_ocp_c_agree_and_resimulate(ocp_c):
     assert ye[0] == pytest.approx(trip.distance_m, rel=1e-9)
     assert abs(ye[5] / 1000 - a.objective) < 0.05 * a.objective
     # the reported metrics are the exact model's: heat as SciPy's exact re-simulation, and ω by the
-    # closed form Σ g(a_k)(v_k + v_k+1)/2·dt for piecewise-constant a (PROBLEM.md §10)
+    # closed form Σ g(a_k)(v_k + v_k+1)/2·dt for piecewise-constant a (model guide §10)
     assert a.meta["pack_heat_J"] == pytest.approx(ye[5], rel=1e-6)
     eta, ak, v = trip.ev.vehicle.efficiency, a.controls["a"], a.states["v"]
     g = np.where(ak >= 0, ak / eta, eta * ak)

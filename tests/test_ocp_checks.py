@@ -24,7 +24,7 @@ from aev_ocp.params import CellParams, ParameterError, PowertrainOptions
 
 CELL = CellParams()
 OCV = ocv_function()
-ETA = 0.8  # PROBLEM.md §4
+ETA = 0.8  # model guide §4
 
 
 def grid_bang_cruise_bang(D: float, T: float, a_max: float, a_min: float, N: int) -> tuple[float, float]:
@@ -80,7 +80,7 @@ def test_smoothing_gap_fires_on_smoothed_g_and_wide_eta_smoothing_silent_on_ship
     # a too-wide η smoothing (20 kW) in the heat objective: the NLP under-counts braking losses
     wide = EcoTripSolver(EcoTrip(smooth=PowertrainOptions(20_000.0)), "ms", 100, mx_map=True).solve()
     assert wide.success and wide.meta["smoothing_gap"]["warning"] and len(wide.warnings) == 1
-    # the shipped forms (PROBLEM.md §7 width, exact ω) stay silent
+    # the shipped forms (model guide §7 width, exact ω) stay silent
     for obj in ("heat", "energy"):
         r = EcoTripSolver(EcoTrip(objective=obj), "ms", 100, mx_map=True).solve()
         assert r.success and r.warnings == [] and r.meta["smoothing_gap"]["relative"] < 1e-3

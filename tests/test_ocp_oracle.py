@@ -1,4 +1,4 @@
-"""OCP-D (oracle following, PROBLEM.md §9): both transcriptions, constraints, independent
+"""OCP-D (oracle following, model guide §9): both transcriptions, constraints, independent
 re-simulation with scipy, independent cost evaluation, and the lower-bound property against the
 closed-form OVFL / proposed laws integrated here with piecewise-constant a sampled per dt."""
 
@@ -22,7 +22,7 @@ OCV = ocv_function()
 
 
 def np_current(v, a, V1, V2, S, ev=EV, smooth_W=300.0):
-    """Independent numpy current map (PROBLEM.md §5, §7); smooth_W=None: exact η switch."""
+    """Independent numpy current map (model guide §5, §7); smooth_W=None: exact η switch."""
     u, veh, cell = ev.units, ev.vehicle, ev.cell
     v_si, a_si = v * u.speed_mps, a * u.accel_mps2
     F = 0.5 * veh.air_density_kgpm3 * veh.frontal_area_m2 * veh.drag_coefficient * v_si**2 \

@@ -111,18 +111,18 @@ def test_study_time_limit_stores_finished_tasks_and_resumes(tmp_path):
     assert out.n_tasks == 36 and f"({stored} stored" in buf.getvalue() and "ETA" in buf.getvalue()
 
 
-def test_reproduce_counter_stays_within_its_total() -> None:
-    """aev_ocp.reproduce.Progress: a section that reports more lines than it declared keeps k at its last
-    declared step, so N never grows and the counter ends at N/N."""
+def test_reproduce_counter_counts_every_line() -> None:
+    """aev_ocp.reproduce.Progress: k counts every line one by one (no jump); N grows when a section reports more
+    lines than it declared, shrinks when one reports fewer, and the counter ends at N/N."""
     from aev_ocp.reproduce import Progress as ReproduceProgress
 
     buf = io.StringIO()
-    p = ReproduceProgress(6, stream=buf)
-    p.limit = 2  # a section that declared 2 steps reports 4 lines
-    for m in ("a", "b", "c", "d"):
-        p(m)
-    p.limit = p.total
-    p.skip_to(p.total - 1)
-    p("writing")
+    p = ReproduceProgress(2 + 3 + 4 + 1, stream=buf)  # sections declaring 2, 3 and 4 lines, then the final line
+    for steps, lines in ((2, 4), (3, 1), (4, 4), (1, 1)):  # reports more, fewer, exactly, the final line
+        p.begin(steps)
+        for _ in range(lines):
+            p("x")
+        p.end()
     heads = [line.split("]")[0] + "]" for line in buf.getvalue().splitlines()]
-    assert heads == ["[1/6]", "[2/6]", "[2/6]", "[2/6]", "[6/6]"]
+    assert heads == ["[1/10]", "[2/10]", "[3/11]", "[4/12]", "[5/12]", "[6/10]", "[7/10]", "[8/10]", "[9/10]",
+                     "[10/10]"]

@@ -74,3 +74,48 @@ def test_failing_provider_adds_no_section() -> None:
     log: list[str] = []
     assert rp.load_providers(("aev_ocp.no_such_module",), log=log.append) == []
     assert log and "skipped" in log[0]
+
+
+def test_every_section_run_loads_back_with_the_numbers_of_the_report(quick_report: tuple[Path, str]) -> None:
+    """The runs reproduce made are saved outputs: aev_ocp.load reads each folder, and the loaded runs give the
+    numbers the report's own files state (issue 26)."""
+    import re
+
+    import aev_ocp
+
+    out, _ = quick_report
+    t1 = json.loads((out / "table1.json").read_text())
+    runs = aev_ocp.load_all(out / "table1")
+    assert set(runs) == {"proposed", "ovfl"}
+    for law in ("proposed", "ovfl"):  # ω [model] per follower, recomputed from the loaded trajectories
+        assert [m["omega_model"] for m in runs[law].metrics()] == pytest.approx(t1[f"{law}_omega"], rel=1e-12)
+    for name in ("fig1a", "fig1b"):
+        assert aev_ocp.load(out / name).status == "ok"
+    udds = json.loads((out / "scenarios" / "udds_platoon" / "metrics.json").read_text())
+    for label, r in aev_ocp.load_all(out / "scenarios" / "udds_platoon").items():
+        assert [m["heat_pack_J"] for m in r.metrics()] == pytest.approx(
+            [m["heat_pack_J"] for m in udds["runs"][label]["metrics"]], rel=1e-12)
+    mpc = aev_ocp.load(out / "mpc")  # the issue's example: aev_ocp.load("results/mpc")
+    res = json.loads((out / "mpc" / "results.json").read_text())
+    assert mpc.meta["output"]["label"] == "mpc" and mpc.status == res["status"]
+    assert mpc.metrics()[0]["omega_J_per_kg"] == pytest.approx(res["metrics"]["mpc"][0]["omega_J_per_kg"], rel=1e-12)
+    cyc = [p.parent for p in (out / "mpc_cycles").glob("*/manifest.json")]
+    assert len(cyc) >= 2
+    for folder in cyc:
+        labels = set(aev_ocp.load_all(folder))
+        assert any(lab.startswith("mpc+") for lab in labels) and "proposed" in labels
+    text = (out / "report.md").read_text()
+    assert "aev_ocp.load" in text
+    # every figure of the MPC and drive-cycle sections is in the report and embedded in report.html
+    shown = set(re.findall(r"!\[[^\]]*\]\(([^)]+)\)", text))
+    for png in [*(out / "mpc").glob("*.png"), *(out / "mpc_cycles").glob("*/overlay.png")]:
+        assert png.relative_to(out).as_posix() in shown, png
+    html = (out / "report.html").read_text()
+    assert html.count("data:image/png;base64,") == len(shown)
+
+
+def test_the_counter_counts_every_line(quick_report: tuple[Path, str]) -> None:
+    _, log = quick_report
+    heads = [tuple(map(int, ln[1:ln.index("]")].split("/"))) for ln in log.splitlines() if ln.startswith("[")]
+    assert [k for k, _ in heads] == list(range(1, len(heads) + 1))  # one by one, no jump
+    assert heads[-1][0] == heads[-1][1]  # ends at N/N

@@ -65,8 +65,12 @@ def test_limit_growth_agrees_with_head_to_tail_criterion(spacing, t_h):
     assert (rs.limit_growth_rate_per_s > 1e-12) == (rs.criterion_per_s2 < 0)
     # a finite ring's modes are among the limit's θ: its growth never exceeds the limit
     assert rs.growth_rate_per_s <= rs.limit_growth_rate_per_s + 1e-12
-    # the limit is the sup of the modes of ever larger rings (stable: the longest wave's decay ∝ 1/n² → 0)
-    big = ring_stability(law, 1500, 1500 * spacing, ev=EV).growth_rate_per_s
+    # the limit is the sup of the modes of ever larger rings (stable: the longest wave's decay ∝ 1/n² → 0); a ring
+    # large enough that its mode spacing 2π/n resolves the limit's wavenumber θ* to a tenth (a narrow unstable band
+    # near θ = 0 needs thousands of cars: n = 1500 missed the sup by 6 % at θ* = 0.0145)
+    theta = float(rs.limit_theta) if rs.criterion_per_s2 < 0 else 1.0
+    n_big = min(20_000, max(1500, math.ceil(20 * math.pi / theta)))
+    big = ring_stability(law, n_big, n_big * spacing, ev=EV).growth_rate_per_s
     if rs.criterion_per_s2 < 0:
         assert 0.98 * rs.limit_growth_rate_per_s <= big <= rs.limit_growth_rate_per_s + 1e-12
     else:
@@ -325,3 +329,201 @@ def test_cli_ring_stability_and_errors(tmp_path):
     assert p.returncode == 2 and "--spacing-m" in p.stderr and "Traceback" not in p.stderr
     p = run("ring", "sweep", "--penetration", "30", "--out", str(tmp_path / "sweep"))
     assert p.returncode == 2 and "--penetration 30" in p.stderr and "Traceback" not in p.stderr
+
+
+# ------------------------------------------------------------------------------------------- the MPC as a ring AEV
+class _Recorder:
+    """A Controller that records what the wrapped one observed (time, own z, last measured predecessor speed)."""
+
+    def __init__(self, inner):
+        self.inner, self.name, self.dt, self.seen = inner, inner.name, inner.dt, []
+
+    def reset(self):
+        self.inner.reset()
+        self.seen = []
+
+    def command(self, obs):
+        self.seen.append((obs.t, obs.z.copy(), float(obs.meas_v[-1]), obs.meas_v.size))
+        return self.inner.command(obs)
+
+    def describe(self):
+        return self.inner.describe()
+
+
+def test_mpc_ring_aev_measures_its_predecessor_and_stays_safe():
+    from aev_ocp.ring.laws import ring_mpc
+
+    base = human_ring(240.0, seed=3)
+    pol = ring_mpc(EV)
+    assert pol.describe()["predictor"] != "oracle" and pol.formulation.kind == "traffic"
+    rec = _Recorder(pol)
+    ring = human_ring(240.0, aevs={5: rec}, seed=3)
+    res = RingSimulator(ring, RingOptions(dt_out_s=0.2)).run(uniform_flow(base, shift_m=1.5), 40.0)
+    f = fleet_metrics(res, t_from_s=0.0)
+    assert res.status == "ok" and f["collisions"] == 0
+    st_ = res.sim.solver_stats[5]
+    assert st_["steps"] == len(rec.seen) == 200 and st_["fallbacks"] == 0
+    # the observation: the predecessor's (vehicle 5, index 4) measured speed and the AEV's own state at t_k
+    t = res.t_s
+    for tk, z, v_meas, k in rec.seen[::17]:
+        j = int(np.argmin(np.abs(t - tk * EV.units.time_s)))
+        assert abs(t[j] - tk * EV.units.time_s) < 1e-9
+        assert v_meas * EV.units.speed_mps == pytest.approx(res.speed_mps[j, 4], abs=1e-9)
+        assert z[1] * EV.units.speed_mps == pytest.approx(res.speed_mps[j, 5], abs=1e-9)
+        assert z[0] * EV.units.length_m == pytest.approx(res.gap_m[j, 5], abs=1e-9)
+        assert k == int(round(tk / pol.dt)) + 1  # every sample so far
+    # the MPC's own gap keeps above its formulation's floor (2 m) with the safety filter
+    assert res.gap_m[:, 5].min() > 2.0
+
+
+def test_mpc_ring_refuses_the_oracle():
+    from aev_ocp.ring.laws import ring_mpc
+
+    with pytest.raises(ParameterError, match="predictor"):
+        ring_mpc(EV, predictor="oracle")
+
+
+# ------------------------------------------------------------------------------------------- the [ring] scenario form
+def _ring_doc(**ring):
+    base = {"length_m": 247.0, "vehicles": 19, "t_end_s": 30.0, "noise_mps2": 0.13, "seed": 5}
+    base.update(ring)
+    return {"name": "r", "ring": base}
+
+
+def test_ring_scenario_builds_the_ring_of_the_experiments():
+    from aev_ocp.ring.scenario import build_ring, load_ring_scenario, parse_ring_scenario
+
+    sc = load_ring_scenario("ring_stern")
+    assert sc.spec.controllers == ("followerstopper", "pi-saturation", "proposed", "ovfl", "mpc")
+    assert sc.spec.aev_vehicles == (0,) and sc.spec.length_m == 230.0 and sc.spec.vehicles == 22
+    ring, init = build_ring(sc, None)
+    ref = human_ring(230.0, seed=0)
+    assert ring.vehicles == ref.vehicles and ring.noise_mps2 == ref.noise_mps2 and ring.seed == ref.seed
+    assert init == uniform_flow(ref, shift_m=2.0)
+    ring, _ = build_ring(sc, "followerstopper")
+    r_mps = 0.85 * uniform_speed_mps(ref)
+    assert ring.vehicles[0] == make_aev("followerstopper", EV, r_mps) and ring.vehicles[1:] == ref.vehicles[1:]
+    assert not ring.is_human(0) and ring.is_human(1)
+    # density_per_km is the same ring as its length; an OVM ring with α in 1/s; given positions and speeds
+    a = parse_ring_scenario(_ring_doc(), "a.toml")
+    dens = {k: v for k, v in _ring_doc(density_per_km=1000 * 19 / 247.0)["ring"].items() if k != "length_m"}
+    b = parse_ring_scenario({"ring": dens}, "b.toml")
+    assert b.spec.length_m == pytest.approx(a.spec.length_m, rel=1e-14)
+    o = parse_ring_scenario(_ring_doc(human="ovm", ovm={"alpha_per_s": 0.65}), "o.toml")
+    assert build_ring(o, None)[0].vehicles[3] == OVM(alpha=0.65 * EV.units.time_s)
+    pos = [(-i * 13.0) % 247.0 for i in range(19)]
+    g = parse_ring_scenario(_ring_doc(initial={"positions_m": pos, "speeds_mps": [2.5] * 19}), "g.toml")
+    assert build_ring(g, None)[1].positions_m == tuple(pos)
+
+
+@pytest.mark.parametrize("ring, match", [
+    ({"aev": {"vehicles": [30], "controllers": ["mpc"]}}, r"g.toml: ring.aev.vehicles = \[30\]"),
+    ({"aev": {"vehicles": [2], "controllers": ["warp"]}}, "g.toml: ring.aev.controllers"),
+    ({"density_per_km": 40.0}, "give exactly one"),
+    ({"length_m": 90.0}, "g.toml: ring.length_m = 90.0 is not allowed: 19 vehicles of 5 m do not fit"),
+    ({"idm": {"T_s": -1.0}}, "g.toml: ring.idm.T_s"),
+    ({"ovm": {"alpha_per_s": 1.0}}, "g.toml: ring.ovm"),
+    ({"perturbation": {"shift_m": 9.0}}, "g.toml: ring.perturbation.shift_m"),
+    ({"perturbation": {"vehicle": 20}}, "g.toml: ring.perturbation.vehicle"),
+    ({"initial": {"positions_m": [0.0] * 19, "speeds_mps": [1.0] * 19}}, "g.toml: ring.initial.positions_m.*overlaps"),
+    ({"t_end_s": 0}, "g.toml: ring.t_end_s"),
+    ({"speed": 3}, "g.toml: unknown key 'ring.speed'"),
+])
+def test_ring_scenario_errors_name_file_and_key(ring, match):
+    from aev_ocp.ring.scenario import parse_ring_scenario
+    from aev_ocp.scenarios import ScenarioError
+
+    with pytest.raises(ScenarioError, match=match):
+        parse_ring_scenario(_ring_doc(**ring), "g.toml")
+
+
+def test_ring_scenario_mpc_table_and_the_platoon_loader():
+    from aev_ocp.ring.scenario import parse_ring_scenario
+    from aev_ocp.scenarios import ScenarioError, parse_scenario, shipped_scenarios
+
+    doc = _ring_doc(aev={"vehicles": [3], "controllers": ["mpc"]}) | {"mpc": {"N": 17}}
+    sc = parse_ring_scenario(doc, "m.toml")
+    assert sc.mpc.settings.N == 17
+    with pytest.raises(ScenarioError, match="m.toml: mpc.predictor = 'oracle' is not allowed on a ring"):
+        parse_ring_scenario(doc | {"mpc": {"predictor": "oracle"}}, "m.toml")
+    with pytest.raises(ScenarioError, match="m.toml: a ring scenario .*aev-ocp ring m.toml"):
+        parse_scenario(doc, "m.toml")
+    assert {"ring_stern", "ring_sugiyama"} <= set(shipped_scenarios("ring"))
+    assert not {"ring_stern", "ring_sugiyama"} & set(shipped_scenarios())
+
+
+def test_cli_ring_scenario(tmp_path):
+    f = tmp_path / "small.toml"
+    f.write_text('[ring]\nlength_m = 263.0\nvehicles = 21\nt_end_s = 24.0\n[ring.aev]\nvehicles = [4]\n'
+                 'controllers = ["pi-saturation"]\n', encoding="utf-8")
+    run = lambda *a: subprocess.run([sys.executable, "-m", "aev_ocp.cli", "ring", *a], capture_output=True,  # noqa: E731
+                                    text=True, timeout=300, cwd=tmp_path)
+    p = run(str(f), "--no-plots", "--out", str(tmp_path / "o"))
+    assert p.returncode == 0, p.stderr
+    assert "all human" in p.stdout and "pi-saturation" in p.stdout
+    import json
+    doc = json.loads((tmp_path / "o" / "ring.json").read_text())
+    assert [r["label"] for r in doc["runs"]] == ["all human", "pi-saturation"] and doc["runs"][1]["aevs"] == 1
+    f.write_text('[ring]\nlength_m = 263.0\nvehicles = 21\nt_end_s = 24.0\nseed = -1\n', encoding="utf-8")
+    p = run(str(f))
+    assert p.returncode == 2 and "small.toml: ring.seed = -1" in p.stderr and "Traceback" not in p.stderr
+    p = run("no_such_ring")
+    assert p.returncode == 2 and "ring_stern" in p.stderr
+
+
+# ------------------------------------------------------------------------------------------- the report section
+def test_ring_report_section(tmp_path):
+    import json
+
+    from aev_ocp.report_sections import SECTION_PROVIDERS, ReproduceConfig, SectionContext, load_providers
+    from aev_ocp.ring.report import QUICK_T_END_S, ring_section
+
+    assert "aev_ocp.ring.report" in SECTION_PROVIDERS and "aev_ocp.ring.report" in load_providers()
+    lines: list[str] = []
+    md = ring_section(tmp_path, SectionContext(lines.append, ReproduceConfig.quick()))
+    assert len(lines) == 3 and "### Sugiyama" in md and "### Stern" in md and "ring_space_time.png" in md
+    assert (tmp_path / "ring_space_time.png").read_bytes()[:4] == b"\x89PNG"
+    doc = json.loads((tmp_path / "ring.json").read_text())
+    jam, calm = doc["sugiyama"]
+    for s in (jam, calm):  # the linear theory's growth rate and the measured one
+        assert s["measured"]["measured_per_s"] == pytest.approx(s["predicted_growth_per_s"], rel=0.05)
+    assert jam["predicted_growth_per_s"] > 0 > calm["predicted_growth_per_s"]
+    labels = [r["label"] for r in doc["stern"]]
+    assert labels == ["all human", "followerstopper", "pi-saturation", "proposed", "ovfl", "mpc"]
+    # the all-human row is the experiments' ring, run independently of the scenario file
+    ref = run_ring(human_ring(230.0, seed=0), QUICK_T_END_S).fleet
+    for k in ("speed_std_mps", "energy_J_per_km", "heat_pack_J_per_km", "braking_events"):
+        assert doc["stern"][0][k] == pytest.approx(ref[k], rel=1e-9)
+    assert all(r["collisions"] == 0 for r in doc["stern"])
+    assert doc["stern"][-1]["fallbacks"] == 0 and doc["stern"][-1]["call_ms_median"] > 0
+
+
+def test_ring_scenario_sweep_penetration_by_density():
+    from aev_ocp.ring.experiments import relative_to, run_ring_scenario
+    from aev_ocp.ring.scenario import load_ring_scenario, parse_ring_scenario, scenario_runs, spread
+    from aev_ocp.scenarios import ScenarioError
+
+    shipped = load_ring_scenario("ring_penetration")
+    runs = scenario_runs(shipped)
+    assert len(runs) == 4 * (1 + 5 * 2)  # per density: all human once, then 1-5 AEVs × 2 controllers
+    assert sorted({r.length_m for r in runs}) == pytest.approx(sorted(22000 / d for d in (95.65, 84.6, 73.3, 62.9)))
+    assert spread(3, 22) == (0, 7, 15) and spread(0, 22) == () and spread(5, 22) == (0, 4, 9, 13, 18)
+    doc = _ring_doc(t_end_s=20.0, sweep={"aevs": [0, 2], "length_m": [247.0, 301.0], "controllers": ["pi-saturation"]})
+    sc = parse_ring_scenario(doc, "s.toml")
+    out = run_ring_scenario(sc)
+    assert [(e.fleet["length_m"], e.fleet["aevs"]) for e in out] == [(247.0, 0), (247.0, 2), (301.0, 0), (301.0, 2)]
+    assert [i for i in range(19) if not out[1].result.ring.is_human(i)] == [0, 10]  # round(j 19 / 2)
+    assert out[3].fleet["change_heat_pack_J_per_km"] == relative_to(out[2].fleet, out[3].fleet)["heat_pack_J_per_km"]
+    assert out[3].result.ring.length_m == 301.0 and out[3].result.ring.vehicles[10].name == "pi-saturation"
+    for bad, match in ((dict(sweep={"aevs": [0, 25]}), "s.toml: ring.sweep.aevs"),
+                       (dict(sweep={"aevs": [1], "density_per_km": [300.0]}), "s.toml: ring.sweep.density_per_km"),
+                       (dict(sweep={"aevs": [1]}, aev={"vehicles": [1], "controllers": ["mpc"]}), "not both")):
+        with pytest.raises(ScenarioError, match=match):
+            parse_ring_scenario(_ring_doc(**bad), "s.toml")
+
+
+def test_compiled_ring_is_built_for_a_named_cpu():
+    from aev_ocp.ring.simulate import native_arch
+
+    arch = native_arch()  # the resolved name goes into the compile flags and so into the library's cache key
+    assert arch == "" or ("native" not in arch and arch.replace("-", "").isalnum())

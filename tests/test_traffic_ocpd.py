@@ -151,7 +151,7 @@ def test_s9_comparison_keeps_its_ocpd(tmp_path) -> None:
     sc = load_scenario(find_scenario("mpc_paper_single")).replace(t_end=1.0)
     s, f = sc.extra["mpc"].settings, sc.extra["mpc"].formulation
     c = run_comparison(sc, laws=())
-    assert c.ocpd["objective"] == "PROBLEM.md §9 cost" and "cost_traffic" not in c.ocpd
+    assert c.ocpd["objective"] == "model guide §9 cost" and "cost_traffic" not in c.ocpd
     assert "cost_traffic" not in c.metrics["mpc"][0]
     direct = OracleSolver(scenario_oracle(sc, s.dt, f)).solve()
     assert c.ocpd["cost_s9"] == direct.objective

@@ -32,7 +32,8 @@ def test_mpc_module_has_no_second_trajectory_plot() -> None:
 def test_one_plot_for_a_law_run_and_a_sampled_run(tmp_path, monkeypatch) -> None:
     figs = _capture(monkeypatch)
     r = simulate_platoon(ConstantSpeed(1.3), [Proposed(), OVFL()], [1.1, 1.6], [1.2, 1.25], 2.0, dt_out=0.1)
-    p = plots.plot_trajectories(r, tmp_path / "law.png")
+    fig = plots.plot_trajectories(r, p := tmp_path / "law.png")
+    assert fig is figs[-1][0]  # the figure drawn is the one returned
     assert p.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     labels = figs[-1][1]
     assert any("acceleration" in lab for lab in labels) and any("current" in lab for lab in labels)

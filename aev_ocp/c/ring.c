@@ -49,6 +49,8 @@ static const double DP_P[7][4] = {
   {0, -282668133.0/205662961, 2019193451.0/616988883, -1453857185.0/822651844},
   {0, 40617522.0/29380423, -110615467.0/29380423, 69997945.0/29380423}};
 
+static int ring_threads = 1;
+
 static int ring_law(ring_ctx* c, int law, const double* par, const double* u, const double* x, double* dz, double* y) {
   c->arg[0] = u; c->arg[1] = x; c->arg[2] = par; c->res[0] = dz; c->res[1] = y;
   switch (law) {
@@ -57,10 +59,75 @@ AEV_LAW_SWITCH
   return 1;
 }
 
+/* The split right-hand side: the motion (h, v[, a_act]) of every law, which alone sets the step (the error norm), and
+ * the battery and quadratures (one function for every law, from w = (h, v, v_l, a) of the motion and the cell
+ * states), evaluated only once a step is accepted: a rejected step costs the motion alone, ~10 % of the whole. */
+static const int MOT_IDX[NCTRL] = MOT_IDX_INIT;
+static const int BAT_IDX[NB] = BAT_IDX_INIT;
+
+static int ring_mot(ring_ctx* c, int law, const double* par, const double* u, const double* x, double* dm, double* w) {
+  c->arg[0] = u; c->arg[1] = x; c->arg[2] = par; c->res[0] = dm; c->res[1] = w;
+  switch (law) {
+AEV_MOT_SWITCH
+  }
+  return 1;
+}
+
+/* motion rates of every vehicle at Z into D's motion entries; w = (h, v, v_l, a) into W (n x 4) */
+static void ring_motion(ring_ctx* ctx, int n, const int* law_idx, const double* params, const double* noise,
+                        const double* Z, double* D, double* W) {
+#ifdef _OPENMP
+#pragma omp parallel for schedule(static) num_threads(ring_threads) if (n >= 256 && ring_threads > 1)
+#endif
+  for (int i = 0; i < n; i++) {
+#ifdef _OPENMP
+    ring_ctx* c = ctx + omp_get_thread_num();
+#else
+    ring_ctx* c = ctx;
+#endif
+    double u[2], dm[NCTRL];
+    int p = i == 0 ? n - 1 : i - 1;
+    u[0] = Z[(int64_t)p * NZ + 1]; u[1] = noise[i];
+    ring_mot(c, law_idx[i], params + (int64_t)i * AEV_NP, u, Z + (int64_t)i * NZ, dm, W + 4 * (int64_t)i);
+    for (int j = 0; j < NCTRL; j++) D[(int64_t)i * NZ + MOT_IDX[j]] = dm[j];
+  }
+}
+
+/* battery and quadrature rates of every vehicle at Z (its cell states) and W (its motion) into D's other entries;
+ * outputs (a, I, disc) into Y when given */
+static void ring_battery(ring_ctx* ctx, int n, const double* Z, const double* W, double* D, double* Y) {
+#ifdef _OPENMP
+#pragma omp parallel for schedule(static) num_threads(ring_threads) if (n >= 256 && ring_threads > 1)
+#endif
+  for (int i = 0; i < n; i++) {
+#ifdef _OPENMP
+    ring_ctx* c = ctx + omp_get_thread_num();
+#else
+    ring_ctx* c = ctx;
+#endif
+    double db[NB], ybuf[NY];
+    c->arg[0] = W + 4 * (int64_t)i; c->arg[1] = Z + (int64_t)i * NZ; c->res[0] = db; c->res[1] = Y ? Y + (int64_t)i * NY : ybuf;
+    aevring_bat(c->arg, c->res, c->iw, c->w, 0);
+    for (int j = 0; j < NB; j++) D[(int64_t)i * NZ + BAT_IDX[j]] = db[j];
+  }
+}
+
+/* z + h sum_l coef[l] k[l] on the given entries of every vehicle (idx: cnt entries per vehicle) into dst */
+static void ring_stage(int n, const int* idx, int cnt, const double* z, double* const* k, const double* coef, int ns,
+                       double h, double* dst) {
+#ifdef _OPENMP
+#pragma omp parallel for schedule(static) num_threads(ring_threads) if (n >= 256 && ring_threads > 1)
+#endif
+  for (int i = 0; i < n; i++)
+    for (int jj = 0; jj < cnt; jj++) {
+      int64_t j = (int64_t)i * NZ + idx[jj];
+      double acc = 0; for (int l = 0; l < ns; l++) acc += coef[l] * k[l][j];
+      dst[j] = z[j] + h * acc;
+    }
+}
+
 /* the ring's right-hand side at state Z (n x NZ, vehicle-major) into D (n x NZ); outputs into Y when given.
  * u = (v_l, noise): the predecessor's speed and the vehicle's additive acceleration noise. */
-static int ring_threads = 1;
-
 static void ring_rhs(ring_ctx* ctx, int n, const int* law_idx, const double* params, const double* noise,
                      const double* Z, double* D, double* Y) {
 #ifdef _OPENMP
@@ -78,6 +145,14 @@ static void ring_rhs(ring_ctx* ctx, int n, const int* law_idx, const double* par
     ring_law(c, law_idx[i], params + (int64_t)i * AEV_NP, u, Z + (int64_t)i * NZ, D + (int64_t)i * NZ,
              Y ? Y + (int64_t)i * NY : ybuf);
   }
+}
+
+static void ring_dense_coef(int64_t N, double* const* k, double* Q) {
+  for (int64_t j = 0; j < N; j++)
+    for (int m = 0; m < 4; m++) {
+      double acc = 0; for (int l = 0; l < 7; l++) acc += k[l][j] * DP_P[l][m];
+      Q[4 * j + m] = acc;
+    }
 }
 
 static void ring_dense1(const double* z, const double* Q, double h, double th, double* out) {
@@ -111,11 +186,12 @@ CASADI_SYMBOL_EXPORT int64_t aevring_advance(int n, const int* law_idx, const do
   ring_threads = nth;
   int64_t N = (int64_t)n * NZ, ncol = NZ + NY;
   ring_ctx* ctx = malloc(sizeof(ring_ctx) * nth);
-  double* buf = malloc(sizeof(double) * (N * 7 + N * 3 + N * 4 + (int64_t)n * NY * 2));
+  double* buf = malloc(sizeof(double) * (N * 7 + N * 3 + N * 4 + (int64_t)n * NY * 2 + (int64_t)n * 4 * 7));
   if (!ctx || !buf) { free(ctx); free(buf); return -1; }
   double* k[7];
   for (int s = 0; s < 7; s++) k[s] = buf + s * N;
   double *zt = buf + 7 * N, *zn = zt + N, *zs = zn + N, *Q = zs + N, *Y = Q + 4 * N, *Ys = Y + (int64_t)n * NY;
+  double* W = Ys + (int64_t)n * NY;  /* w = (h, v, v_l, a) of every vehicle at stages 1..6 (7 x n x 4) */
   int64_t s_out = 0, nst = 0, nrej = 0, nfev = 0;
   int rejected_last = 0;
   double t = t0, h = *h_io > 0 ? *h_io : 1e-3, h_want = h;
@@ -125,18 +201,9 @@ CASADI_SYMBOL_EXPORT int64_t aevring_advance(int n, const int* law_idx, const do
     int hit = 0;
     h_want = h;
     if (t + h >= t1 - 1e-12 * (1 + fabs(t1))) { h = t1 - t; hit = 1; }
-    for (int st = 1; st < 7; st++) {
-      double* dst = st < 6 ? zt : zn;
-      const double* coef = st < 6 ? DP_A[st] : DP_B;
-      int ns = st < 6 ? st : 6;
-#ifdef _OPENMP
-#pragma omp parallel for schedule(static) num_threads(ring_threads) if (n >= 256 && ring_threads > 1)
-#endif
-      for (int64_t j = 0; j < N; j++) {
-        double acc = 0; for (int l = 0; l < ns; l++) acc += coef[l] * k[l][j];
-        dst[j] = z[j] + h * acc;
-      }
-      ring_rhs(ctx, n, law_idx, params, noise, dst, k[st], st == 6 ? Y : NULL);
+    for (int st = 1; st < 7; st++) {  /* the motion stages */
+      ring_stage(n, MOT_IDX, NCTRL, z, k, st < 6 ? DP_A[st] : DP_B, st < 6 ? st : 6, h, st < 6 ? zt : zn);
+      ring_motion(ctx, n, law_idx, params, noise, st < 6 ? zt : zn, k[st], W + (int64_t)st * n * 4);
     }
     nfev += 6;
     /* error: the largest per-vehicle RMS over the ODE states */
@@ -162,11 +229,12 @@ CASADI_SYMBOL_EXPORT int64_t aevring_advance(int n, const int* law_idx, const do
       if (h < 1e-14 * (1 + fabs(t)) || nst + nrej > max_steps) { ev[0] = AEV_EV_FAILED; ev[1] = -1; ev[2] = t; }
       continue;
     }
-    for (int64_t j = 0; j < N; j++)
-      for (int m = 0; m < 4; m++) {
-        double acc = 0; for (int l = 0; l < 7; l++) acc += k[l][j] * DP_P[l][m];
-        Q[4 * j + m] = acc;
-      }
+    for (int st = 1; st < 7; st++) {  /* accepted: the battery and quadrature stages on the motion's stages */
+      ring_stage(n, BAT_IDX, NB, z, k, st < 6 ? DP_A[st] : DP_B, st < 6 ? st : 6, h, st < 6 ? zt : zn);
+      ring_battery(ctx, n, st < 6 ? zt : zn, W + (int64_t)st * n * 4, k[st], st == 6 ? Y : NULL);
+    }
+    int q_ready = 0;  /* the dense output's coefficients, computed only when a sample or an event needs them */
+#define RING_NEED_Q() if (!q_ready) { ring_dense_coef(N, k, Q); q_ready = 1; }
 #if SPEED_FLOOR
     /* with the vehicle limits on, the brakes hold a stopped car (speed_cut): a step that crosses v = 0 ends a
      * hair below it (the cut switches inside the step); project it back onto v >= 0, an error below the step's */
@@ -177,12 +245,12 @@ CASADI_SYMBOL_EXPORT int64_t aevring_advance(int n, const int* law_idx, const do
     for (int i = 0; i < n; i++) {
       const double* zi = z + (int64_t)i * NZ; const double* zni = zn + (int64_t)i * NZ;
       const double* Qi = Q + 4 * (int64_t)i * NZ; const double* yi = Y + (int64_t)i * NY;
-      if (AEV_EV1_SIGN * zni[0] - AEV_EV1_OFFSET <= 0) { double th = ring_root(zi, Qi, h, 0, AEV_EV1_SIGN, AEV_EV1_OFFSET); if (th < th_ev) { th_ev = th; kind = 1; who = i; val = zni[0]; } }
-      if (AEV_EV2_SIGN * zni[1] - AEV_EV2_OFFSET < 0) { double th = ring_root(zi, Qi, h, 1, AEV_EV2_SIGN, AEV_EV2_OFFSET); if (th < th_ev) { th_ev = th; kind = 2; who = i; val = zni[1]; } }
+      if (AEV_EV1_SIGN * zni[0] - AEV_EV1_OFFSET <= 0) { RING_NEED_Q(); double th = ring_root(zi, Qi, h, 0, AEV_EV1_SIGN, AEV_EV1_OFFSET); if (th < th_ev) { th_ev = th; kind = 1; who = i; val = zni[0]; } }
+      if (AEV_EV2_SIGN * zni[1] - AEV_EV2_OFFSET < 0) { RING_NEED_Q(); double th = ring_root(zi, Qi, h, 1, AEV_EV2_SIGN, AEV_EV2_OFFSET); if (th < th_ev) { th_ev = th; kind = 2; who = i; val = zni[1]; } }
       if (AEV_EV3_SIGN * yi[2] - AEV_EV3_OFFSET < 0 && 1.0 < th_ev) { th_ev = 1.0; kind = 3; who = i; val = yi[2]; }
 #if BATTERY
-      if (AEV_EV4_SIGN * zni[4] - AEV_EV4_OFFSET < 0) { double th = ring_root(zi, Qi, h, 4, AEV_EV4_SIGN, AEV_EV4_OFFSET); if (th < th_ev) { th_ev = th; kind = 4; who = i; val = zni[4]; } }
-      if (AEV_EV5_SIGN * zni[4] - AEV_EV5_OFFSET < 0) { double th = ring_root(zi, Qi, h, 4, AEV_EV5_SIGN, AEV_EV5_OFFSET); if (th < th_ev) { th_ev = th; kind = 5; who = i; val = zni[4]; } }
+      if (AEV_EV4_SIGN * zni[4] - AEV_EV4_OFFSET < 0) { RING_NEED_Q(); double th = ring_root(zi, Qi, h, 4, AEV_EV4_SIGN, AEV_EV4_OFFSET); if (th < th_ev) { th_ev = th; kind = 4; who = i; val = zni[4]; } }
+      if (AEV_EV5_SIGN * zni[4] - AEV_EV5_OFFSET < 0) { RING_NEED_Q(); double th = ring_root(zi, Qi, h, 4, AEV_EV5_SIGN, AEV_EV5_OFFSET); if (th < th_ev) { th_ev = th; kind = 5; who = i; val = zni[4]; } }
 #endif
     }
     double tend = hit ? t1 : t + h;
@@ -190,6 +258,7 @@ CASADI_SYMBOL_EXPORT int64_t aevring_advance(int n, const int* law_idx, const do
     while (s_out < K && (kind ? ts[s_out] < tlim : ts[s_out] <= tlim + 1e-12 * (1 + fabs(tlim)))) {
       double th = (ts[s_out] - t) / h;
       if (th > 1) th = 1;
+      RING_NEED_Q();
       double* o = out + s_out * (int64_t)n * ncol;
       for (int i = 0; i < n; i++) ring_dense1(z + (int64_t)i * NZ, Q + 4 * (int64_t)i * NZ, h, th, zs + (int64_t)i * NZ);
       ring_rhs(ctx, n, law_idx, params, noise, zs, zt, Ys); nfev++;
@@ -201,6 +270,7 @@ CASADI_SYMBOL_EXPORT int64_t aevring_advance(int n, const int* law_idx, const do
     }
     nst++;
     if (kind) {
+      RING_NEED_Q();
       for (int i = 0; i < n; i++) ring_dense1(z + (int64_t)i * NZ, Q + 4 * (int64_t)i * NZ, h, th_ev, zs + (int64_t)i * NZ);
       memcpy(z, zs, N * sizeof(double));
       ev[0] = kind; ev[1] = who; ev[2] = tlim; ev[3] = val;

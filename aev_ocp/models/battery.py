@@ -1,4 +1,4 @@
-"""2-RC equivalent-circuit cell (paper §3, PROBLEM.md §6), SI units, time in seconds, I > 0 discharges.
+"""2-RC equivalent-circuit cell (paper §3, model guide §6), SI units, time in seconds, I > 0 discharges.
 
 The OCV curve is a cubic B-spline interpolant of the cell's table (``CellParams.ocv_soc``/``ocv_V``; a cell
 file's OCV, :mod:`aev_ocp.cells`), by default the A123 ANR26650 table shipped in
@@ -51,7 +51,7 @@ def _ocv_function(key: tuple[tuple[float, ...], tuple[float, ...]] | None) -> ca
 
 
 def ocv_function(cell: CellParams | None = None) -> ca.Function:
-    """OCV(S) [V] of ``cell`` as a CasADi cubic B-spline interpolant (PROBLEM.md §6). Defined on S ∈ [0, 1];
+    """OCV(S) [V] of ``cell`` as a CasADi cubic B-spline interpolant (model guide §6). Defined on S ∈ [0, 1];
     callers check S stays there (the simulator reports it, the optimisers constrain it)."""
     return _ocv_function(_key(cell))
 
@@ -155,7 +155,7 @@ def heat_Q(V1: Any, V2: Any, I: Any, p: CellParams) -> Any:
 
 
 def heat_irreversible(V1: Any, V2: Any, I: Any, p: CellParams) -> Any:
-    """Dissipated heat Q_irr = R_s I² + V1²/R1 + V2²/R2 ≥ 0 [W per cell] (PROBLEM.md §6)."""
+    """Dissipated heat Q_irr = R_s I² + V1²/R1 + V2²/R2 ≥ 0 [W per cell] (model guide §6)."""
     return p.R_s_ohm * I**2 + V1**2 / p.R1_ohm + V2**2 / p.R2_ohm
 
 

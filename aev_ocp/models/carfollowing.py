@@ -1,4 +1,4 @@
-"""Car-following laws in the paper's dimensionless units (paper §2, PROBLEM.md §2).
+"""Car-following laws in the paper's dimensionless units (paper §2, model guide §2).
 
 A law maps (gap h, own speed v, leader speed v_l) to the acceleration v̇. Every law works on
 floats, numpy arrays and CasADi SX/MX expressions alike, so the same law feeds the simulator,

@@ -1,12 +1,12 @@
 """The ego vehicle with its battery pack: the battery side of a motion and the following dynamics.
 
 One place for the physics that the plant (simulation, closed loops), the OCPs and the MPC share
-(PROBLEM.md §5–§7, §9). Speeds, gaps and accelerations are in model units (converted with
+(model guide §5–§7, §9). Speeds, gaps and accelerations are in model units (converted with
 ``ev.units``); the cell states V1, V2 [V] and S [-] evolve in seconds.
 
 Policies stated once:
 * the η switch is EXACT unless ``smooth`` (a :class:`~aev_ocp.params.PowertrainOptions`) is given;
-  optimisers pass it (PROBLEM.md §7), the plant never does;
+  optimisers pass it (model guide §7), the plant never does;
 * the OCV is evaluated at S clamped to the table's range [0, 1] (the plant reports S leaving [0, 1]
   as an event, optimisers bound S), so right-hand sides stay finite up to an event;
 * the current root uses :data:`aev_ocp.models.powertrain.DISC_FLOOR_V2`.
@@ -31,7 +31,7 @@ def battery_side(v: Any, a: Any, V1: Any, V2: Any, S: Any, ev: EVParams,
     no thermal state; the cell's resistances at their reference temperature).
 
     Returns I [A per cell], disc [V²] (E² − 4 R_s P_c; < 0 = infeasible demand), P_b [W],
-    dV1, dV2 [V/s], dS [1/s], Q [W per cell], Q_pack [W] and Q_irr_pack [W] (PROBLEM.md §6), and with T_K
+    dV1, dV2 [V/s], dS [1/s], Q [W per cell], Q_pack [W] and Q_irr_pack [W] (model guide §6), and with T_K
     dT [K/s] of the lumped thermal model (:mod:`aev_ocp.models.thermal`).
     """
     u = ev.units

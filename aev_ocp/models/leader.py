@@ -1,4 +1,4 @@
-"""Leader profiles (PROBLEM.md §2): the lead vehicle's speed and position as functions of time.
+"""Leader profiles (model guide §2): the lead vehicle's speed and position as functions of time.
 
 All quantities are in model units. ``speed(t)`` and ``accel(t)`` accept floats or CasADi
 expressions; ``position(t)`` and ``speed_np``/``position_np`` are numeric. ``breakpoints`` lists

@@ -1,4 +1,4 @@
-"""Powertrain and the current map between vehicle motion and cell current (PROBLEM.md §5, §7).
+"""Powertrain and the current map between vehicle motion and cell current (model guide §5, §7).
 
 The paper's current equation (paper eq. current_dynamics) is implicit because V_T depends on I.
 It is solved exactly: with E = OCV(S) − V1 − V2, P_c = I (E − R_s I) gives the physical root
@@ -9,7 +9,7 @@ simulator can report it and an optimiser can constrain it.
 One floor policy: the square root is taken of max(disc, DISC_FLOOR_V2), so every user (plant,
 OCP, MPC) evaluates the same finite root up to an event (the plant reports disc < 0, optimisers
 constrain disc ≥ 0). One η-switch default: the models use the EXACT switch unless a caller passes
-:class:`~aev_ocp.params.PowertrainOptions` (optimisers do, PROBLEM.md §7).
+:class:`~aev_ocp.params.PowertrainOptions` (optimisers do, model guide §7).
 """
 
 from __future__ import annotations
@@ -25,12 +25,12 @@ DISC_FLOOR_V2 = 1e-12  # [V²] floor under the discriminant's square root (keeps
 
 
 def battery_power_W(P_w: Any, p: VehicleParams) -> Any:
-    """Exact η switch (PROBLEM.md §5): P_b = P_w/η if P_w > 0 else η P_w, plus P_aux [W]."""
+    """Exact η switch (model guide §5): P_b = P_w/η if P_w > 0 else η P_w, plus P_aux [W]."""
     return ca.if_else(P_w > 0, P_w / p.efficiency, p.efficiency * P_w) + p.aux_power_W
 
 
 def battery_power_smooth_W(P_w: Any, p: VehicleParams, opts: PowertrainOptions | None = None) -> Any:
-    """Smoothed η switch for optimisers (PROBLEM.md §7): P_b = P_w (σ/η + (1−σ)η) + P_aux,
+    """Smoothed η switch for optimisers (model guide §7): P_b = P_w (σ/η + (1−σ)η) + P_aux,
     σ = ½(1 + tanh(P_w / width)) [W]."""
     w = (opts or PowertrainOptions()).smoothing_width_W
     sigma = 0.5 * (1 + ca.tanh(P_w / w))

@@ -1,4 +1,4 @@
-"""Longitudinal vehicle model (paper §3.3, PROBLEM.md §5), SI units.
+"""Longitudinal vehicle model (paper §3.3, model guide §5), SI units.
 
 Functions accept floats, numpy arrays or CasADi expressions.
 """

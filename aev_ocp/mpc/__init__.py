@@ -1,4 +1,4 @@
-"""Receding-horizon MPC of the ego vehicle with the battery in the loop (PROBLEM.md §9).
+"""Receding-horizon MPC of the ego vehicle with the battery in the loop (model guide §9).
 
 Problem (:func:`aev_ocp.ocp.following.following_problem`, shared with OCP-D), controller
 (:class:`MPCController`, built once from the problem), policy (:class:`MPCPolicy`: forecast, solve,

@@ -26,7 +26,7 @@ def build_parser() -> argparse.ArgumentParser:
                              "130 interrupted. Load the results with aev_ocp.load(OUT).")
     p.add_argument("scenario", help="scenario TOML file or shipped scenario name (e.g. mpc_paper_single); its [mpc] "
                    "table holds the controller settings (defaults: MPCSettings(), the traffic formulation "
-                   "aev_ocp/ocp/traffic.py; formulation = \"s9\" for PROBLEM.md §9)")
+                   "aev_ocp/ocp/traffic.py; formulation = \"s9\" for model guide §9)")
     p.add_argument("--out", default=None, metavar="DIR",
                    help="output folder (default: results/mpc/<scenario name>/)")
     p.add_argument("--set", dest="sets", action="append", default=[], metavar="KEY=VALUE",
@@ -137,6 +137,7 @@ def _cli_mpc(argv: list[str]) -> int:
     say = (lambda m: print(f"[mpc] {m}", file=sys.stderr, flush=True))  # noqa: E731
     prog = Progress("", unit="steps", time_limit_s=a.time_limit, every_s=a.progress_every, say=say)
     c = run_comparison(sc, s, laws=laws, with_ocpd=not a.no_ocpd, log=say, progress=prog)
+    say(f"writing tables, figures and the saved runs into {out} …")
     write_outputs(c, out)
     save_output(out, "mpc", c.results, primary="mpc",
                 settings=settings_of(sc, solver=s.solver, qp_solver=s.qp, codegen=s.codegen, t_end=sc.t_end,

@@ -1,4 +1,4 @@
-"""The receding-horizon controller of PROBLEM.md §9, built ONCE as a parametric NLP from an
+"""The receding-horizon controller of model guide §9, built ONCE as a parametric NLP from an
 :class:`~aev_ocp.ocp.problem.OCPProblem` — by default the §9 problem of
 :func:`aev_ocp.ocp.following.following_problem`, the same description OCP-D is built from — and
 discretised by the same interval function as the whole-horizon transcription
@@ -14,7 +14,7 @@ variables are ordered (z_0, u_0, z_1, u_1, …, z_N) and constraints stage by st
 is banded and HPIPM detects the OCP structure.
 
 Formulations (:class:`aev_ocp.ocp.formulation.Formulation`, one object for the problem and what follows from
-it): 'traffic' (default, :mod:`aev_ocp.ocp.traffic`), 's9' (PROBLEM.md §9) or a user problem. The 'rti' path projects each diagonal block of the exact Lagrangian Hessian onto the PD
+it): 'traffic' (default, :mod:`aev_ocp.ocp.traffic`), 's9' (model guide §9) or a user problem. The 'rti' path projects each diagonal block of the exact Lagrangian Hessian onto the PD
 cone (``rti_hessian = 'projected'``, :meth:`MPCController.regularised_hessian`), handles terminal costs,
 starts cold by RTI iterations from the closed-form law's rollout (traffic; §9 keeps its cold IPOPT first
 step), and discards a step that took longer than ``max_step_ms`` (status 'budget: …', the policy applies
@@ -179,7 +179,7 @@ class MPCController:
         #: the QP solver that runs ('riccati', a ca.conic/qpsol plugin, or '' for the IPOPT paths)
         self.qp_in_use = self.settings.qp if self.settings.solver in ("rti", "sqp") else ""
         # the 'rti' path starts cold by RTI from the law's rollout; §9 (and a problem built from it) keeps
-        # its cold IPOPT first step (PROBLEM.md §9 numbers unchanged): the formulation says which
+        # its cold IPOPT first step (model guide §9 numbers unchanged): the formulation says which
         self._rti_cold = f.rti_cold_start
         t0 = time.perf_counter()
         self._build_model()

@@ -24,7 +24,7 @@ from ..params import ParameterError
 from ..results import SimulationResult
 from ..truncation import equal_views
 
-#: The cycles of the section and their shipped single-follower MPC scenarios (``paper``: PROBLEM.md §9's
+#: The cycles of the section and their shipped single-follower MPC scenarios (``paper``: model guide §9's
 #: Table 1 leader, mpc_paper_single, whose own [mpc] table is replaced by the defaults below).
 CYCLE_SCENARIOS: dict[str, str] = {"udds": "mpc_udds_single", "hwfet": "mpc_hwfet_single", "us06": "mpc_us06_single",
                                    "paper": "mpc_paper_single"}

@@ -130,6 +130,20 @@ def verdicts(rows: Sequence[dict[str, Any]]) -> list[str]:
     return lines
 
 
+def _save_cycle(runs: dict[tuple[str, Any], Any], folder: Path, sc: Any, title: str) -> str:
+    """Save one cycle's runs (loadable: labels ``mpc+<forecast>`` and the laws' names) and their overlay figure
+    ``overlay.png`` into ``folder``; returns the Markdown image line (path relative to the report)."""
+    from ..saved import save_output, settings_of
+    from .plots import plot_overlay
+
+    labelled = {(name if pred is None else f"{name}+{pred}"): r for (name, pred), r in runs.items()}
+    primary = next((k for k in labelled if k.startswith("mpc")), None)
+    save_output(folder, "mpc" if primary else "simulate", labelled, primary=primary, settings=settings_of(sc))
+    plot_overlay(labelled, folder / "overlay.png", vehicle=0)
+    rel = f"{folder.parent.name}/{folder.name}/overlay.png"
+    return f"![{title}]({rel})"
+
+
 def cycles_section(out_dir: Any, progress: Callable[[str], None], segment_s: float | None = SEGMENT_S,
                    platoon_segment_s: float | None = PLATOON_SEGMENT_S,
                    cycles: Sequence[str] = tuple(CYCLE_SCENARIOS), predictors: Sequence[str] = PREDICTORS,
@@ -141,6 +155,7 @@ def cycles_section(out_dir: Any, progress: Callable[[str], None], segment_s: flo
     s = settings if settings is not None else section_settings()
     t0 = time.perf_counter()
     rows: list[dict[str, Any]] = []
+    figures: list[str] = []  # Markdown image lines, one per cycle
     wall: dict[str, dict[str, float]] = {}
     seg_model: dict[str, float] = {}
     seg_s: dict[str, float] = {}  # the same segments in seconds (each cycle's own units)
@@ -149,12 +164,14 @@ def cycles_section(out_dir: Any, progress: Callable[[str], None], segment_s: flo
         seg_model[cyc], seg_s[cyc] = sc.t_end, sc.units.time_to_si(sc.t_end)
         runs, wall[cyc] = run_cycle(sc, predictors, settings=s, log=_prefixed(progress, f"MPC cycles, {cyc}: "))
         rows += cycle_rows(cyc, runs, vehicles=[0])
+        figures.append(_save_cycle(runs, out / cyc, sc, f"{cyc}: every controller"))
     rank_rows(rows)
     sc = _capped(cycle_scenario("udds", platoon_segment_s, platoon=True, end_at_rest=True), t_end_max)
     seg_model["udds_platoon"] = sc.t_end
     pred = sc.extra["mpc"].settings.predictor
     runs, wall["udds_platoon"] = run_cycle(sc, (pred,), laws=(REFERENCE,), settings=s,
                                            log=_prefixed(progress, "MPC cycles, UDDS platoon: "))
+    figures.append(_save_cycle(runs, out / "udds_platoon", sc, "UDDS platoon, follower 1"))
     plat = platoon_rows(runs, ("mpc", pred))
     elapsed = time.perf_counter() - t0
     progress("MPC cycles: writing tables")
@@ -190,8 +207,11 @@ def cycles_section(out_dir: Any, progress: Callable[[str], None], segment_s: flo
                   "aev_ocp/ocp/traffic.py) while the laws creep towards h = V⁻¹(0) = 0, and the difference adds up "
                   "along the platoon. Over the whole cycle it is a small fraction of the distance: "
                   "`python benchmarks/bench_mpc_cycles.py --full --cycles udds --platoon`.", ""]
+    lines += ["Gap, speed, acceleration, current and SOC of follower 1 under every controller, per cycle:", ""]
+    lines += [f + "\n" for f in figures]
     lines += ["Files: `mpc_cycles/cycles.csv`, `mpc_cycles/cycles.json` (every column, the platoon rows, run wall "
-             "times), `mpc_cycles/cycles.md`.", ""]
+             "times), `mpc_cycles/cycles.md`; each cycle's runs load back with `aev_ocp.load_all(\"mpc_cycles/<cycle>\")` "
+             "(run labels `mpc+<forecast>` and the laws' names).", ""]
     return "\n".join(lines)
 
 

@@ -10,12 +10,12 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from ..plots import AxisUnits, controller_styles, plt, save_figure
+from ..plots import AxisUnits, Figure, controller_styles, plt, save_figure
 from ..results import SimulationResult
 
 
-def plot_overlay(results: Mapping[str, SimulationResult], path: str | Path, vehicle: int = 0,
-                 h_min: float | None = None, si: bool = True) -> Path:
+def plot_overlay(results: Mapping[str, SimulationResult], path: str | Path | None = None, vehicle: int = 0,
+                 h_min: float | None = None, si: bool = True) -> Figure:
     """Gap, speed, acceleration, cell current and SOC of follower ``vehicle`` for each controller.
 
     Each controller has its own colour and dash pattern and is drawn thinner than the one before it (so an
@@ -59,7 +59,7 @@ def plot_overlay(results: Mapping[str, SimulationResult], path: str | Path, vehi
     ax[-1].set_xlabel(f"t [{au.t_label}]")
     fig.suptitle(f"follower {vehicle + 1}")
     fig.tight_layout()
-    return save_figure(fig, Path(path))
+    return save_figure(fig, path)
 
 
 def _h_min_of(results: Mapping[str, SimulationResult], vehicle: int = 0) -> float | None:
@@ -86,7 +86,7 @@ def fallback_steps(step_record: Mapping[str, Any]) -> np.ndarray:
     return np.flatnonzero(~np.asarray(ok, dtype=bool))
 
 
-def plot_solve_times(r: SimulationResult, path: str | Path, si: bool = True) -> Path:
+def plot_solve_times(r: SimulationResult, path: str | Path | None = None, si: bool = True) -> Figure:
     """Solve wall time per step [ms] of every MPC follower (log scale); steps that really fell back
     (the controller's ``ok`` flag False, the same count as the report's 'fallbacks') marked with red ×."""
     au = AxisUnits.of(r.units, si)
@@ -111,4 +111,4 @@ def plot_solve_times(r: SimulationResult, path: str | Path, si: bool = True) -> 
     ax.grid(alpha=0.3, which="both")
     ax.legend(fontsize=7)
     fig.tight_layout()
-    return save_figure(fig, Path(path))
+    return save_figure(fig, path)

@@ -127,7 +127,7 @@ def fallback_controller(law: CarFollowingLaw, dt: float, formulation: Formulatio
 
 
 def _adapt(obj: MPCSettings | MPCVehicle, i: int, loop: ClosedLoop) -> MPCPolicy:
-    """MPCSettings / MPCVehicle of follower i -> MPCPolicy (predictor rules of PROBLEM.md §9)."""
+    """MPCSettings / MPCVehicle of follower i -> MPCPolicy (predictor rules of model guide §9)."""
     veh = obj if isinstance(obj, MPCVehicle) else MPCVehicle(obj)
     n_mpc = 1 + sum(isinstance(c, MPCPolicy) for c in loop.ctrl)
     check_mpc_size(veh.settings.N, n_mpc)  # the NLPs built so far and this one fit the memory budget
@@ -151,9 +151,9 @@ register_controller_adapter(MPCVehicle, _adapt)
 def run_single(settings: MPCSettings | None = None, leader: LeaderProfile | None = None, h0: float = 0.3,
                v0: float = 1.87, t_end: float = 70.0, ev: EVParams | None = None,
                fallback_law: CarFollowingLaw | None = None, formulation: Formulation | None = None) -> SimulationResult:
-    """One MPC follower behind ``leader`` (default the paper's Table 1 leader) from h0, v0 (model units; PROBLEM.md
+    """One MPC follower behind ``leader`` (default the paper's Table 1 leader) from h0, v0 (model units; model guide
     §9's canonical start) over [0, t_end]; ``settings`` default MPCSettings() and ``formulation`` default the traffic
-    formulation with a measured forecast: for PROBLEM.md §9's canonical MPC pass formulation=s9_formulation() and
+    formulation with a measured forecast: for model guide §9's canonical MPC pass formulation=s9_formulation() and
     MPCSettings(N=40, predictor='oracle'), as scenarios/mpc_paper_single.toml states."""
     veh = MPCVehicle(settings or MPCSettings(), formulation=formulation)
     return run_closed_loop(leader or PaperLeader(), [veh], [h0], [v0], t_end, ev=ev, fallback_law=fallback_law)

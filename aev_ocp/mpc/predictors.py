@@ -1,4 +1,4 @@
-"""Leader (predecessor) forecasts for the MPC (PROBLEM.md §9).
+"""Leader (predecessor) forecasts for the MPC (model guide §9).
 
 A predictor returns, on the horizon grid t_j = t_0 + j·dt (j = 0…N), the predicted position
 x̂_l(t_j) relative to x̂_l(t_0) = 0 [model length] and speed v̂_l(t_j) [model speed]. The MPC uses
@@ -37,7 +37,7 @@ class LeaderPredictor(ABC):
 
 
 class OraclePredictor(LeaderPredictor):
-    """The true future of a known leader profile (PROBLEM.md §9 'oracle')."""
+    """The true future of a known leader profile (model guide §9 'oracle')."""
 
     name = "oracle"
 
@@ -51,7 +51,7 @@ class OraclePredictor(LeaderPredictor):
 
 
 class ConstantVelocityPredictor(LeaderPredictor):
-    """v̂_l(t) = the last measured speed (PROBLEM.md §9 'constant-velocity')."""
+    """v̂_l(t) = the last measured speed (model guide §9 'constant-velocity')."""
 
     name = "constant-velocity"
 
@@ -63,7 +63,7 @@ class ConstantVelocityPredictor(LeaderPredictor):
 
 class ConstantAccelerationPredictor(LeaderPredictor):
     """v̂_l(t) = v_0 + â (t − t_0), â the least-squares slope of the last ``window`` measured speeds,
-    stopped at v = 0 (a vehicle does not reverse) (PROBLEM.md §9 'constant-acceleration')."""
+    stopped at v = 0 (a vehicle does not reverse) (model guide §9 'constant-acceleration')."""
 
     name = "constant-acceleration"
 
@@ -145,7 +145,7 @@ def plan_forecast(speeds: np.ndarray, dt: float, N: int) -> tuple[np.ndarray, np
 
 
 def forecast_intervals(x_hat: np.ndarray, v_hat: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
-    """Per interval: mean speed (x̂(t_{j+1}) − x̂(t_j))/dt and v̂(t_j), both (N,) (PROBLEM.md §9)."""
+    """Per interval: mean speed (x̂(t_{j+1}) − x̂(t_j))/dt and v̂(t_j), both (N,) (model guide §9)."""
     x_hat, v_hat = np.asarray(x_hat, float), np.asarray(v_hat, float)
     return np.diff(x_hat) / dt, v_hat[:-1]
 

@@ -30,7 +30,7 @@ from ..limits import MPC_BYTES_PER_INTERVAL, memory_limit_bytes
 from ..metrics import comparability
 from ..params import ParameterError
 from ..progress import Progress
-from ..results import SimulationResult, write_json
+from ..results import SimulationResult, fmt_value, require_pandas, summary_html, summary_text, write_json
 from ..simulate import simulate_platoon
 from ..truncation import VIEW_KEYS, equal_views
 from .scenario import MPCConfig, closed_loop_from_scenario
@@ -121,11 +121,44 @@ class Comparison:
     #: per follower: the equal-distance and equal-time views (:func:`aev_ocp.truncation.equal_views`)
     views: list[dict[str, Any]] = field(default_factory=list)
 
+    def _repr_rows(self) -> list[dict[str, Any]]:
+        return [{"run": label, "vehicle": m.get("vehicle"), "status": m.get("status"),
+                 "omega_J_per_kg": m.get("omega_J_per_kg"), "heat_pack_J": m.get("heat_pack_J"),
+                 "min_gap_m": m.get("min_gap_m"), "cost_s9": m.get("cost_s9")}
+                for label, ms in self.metrics.items() for m in ms[:2]]
+
+    def _repr_title(self) -> str:
+        n = max((r.n_vehicles for r in self.results.values()), default=0)
+        return f"Comparison ({self.formulation.kind} formulation): {', '.join(self.results)} on {n} follower(s)"
+
+    def __repr__(self) -> str:
+        """A few lines: per run (first two vehicles) the status, ω [J/kg], pack ∫Q [J], min gap [m], §9 cost."""
+        lines = [f"{r['run']} vehicle {r['vehicle']}: {r['status']}, ω {fmt_value(r['omega_J_per_kg'])} J/kg, "
+                 f"pack ∫Q {fmt_value(r['heat_pack_J'])} J, min gap {fmt_value(r['min_gap_m'])} m, "
+                 f"cost {fmt_value(r['cost_s9'])}" for r in self._repr_rows()]
+        if self.ocpd:
+            lines.append(f"OCP-D: {self.ocpd.get('status')}, cost {fmt_value(self.ocpd.get('cost_s9'))} "
+                         f"({self.ocpd.get('role', 'bound')})")
+        lines += [f"warning: {w}" for w in self.warnings[:2]]
+        return summary_text(self._repr_title(), lines)
+
+    def _repr_html_(self) -> str:
+        fields: list[tuple[str, Any]] = [(f"{k} time [s]", v) for k, v in self.timings_s.items()]
+        if self.ocpd:
+            fields.append(("OCP-D cost", self.ocpd.get("cost_s9")))
+        return summary_html(self._repr_title(), fields, self._repr_rows())
+
+    def to_dataframe(self) -> Any:
+        """Every run's per-vehicle metrics, one row per run × vehicle (column ``run``). Needs pandas
+        (``pip install 'aev_ocp[pandas]'``)."""
+        pd = require_pandas("Comparison.to_dataframe()")
+        return pd.DataFrame([{"run": label, **m} for label, ms in self.metrics.items() for m in ms])
+
 
 def _cost_s9(r: SimulationResult, i: int, s: MPCSettings, f: Formulation, exact: bool = False) -> float:
     """§9 cost Σ ℓ(z_k, a_k)·dt on the dt grid (laws: sampled at the grid), with the optimiser's smoothed
     η switch (as the MPC and OCP-D see it) or, ``exact``, the plant's exact switch; §9's weights and objective
-    (the formulation's when it is §9, else PROBLEM.md §9's defaults)."""
+    (the formulation's when it is §9, else model guide §9's defaults)."""
     g = f if f.kind == "s9" else s9_formulation(smooth=f.smooth)
     return stage_cost_of_result(r, i, s.dt, g.weights, None if exact else g.smooth, g.objective)
 
@@ -250,7 +283,7 @@ def run_comparison(scenario: Any, settings: MPCSettings | None = None, laws: tup
         traffic = f.kind == "traffic"
         ocpd = {"success": res.success, "status": res.status, key: res.objective if res.success else float("nan"),
                 "grid_dt": scn.dt, "formulation": f.name,
-                "objective": {"traffic": "traffic objective (the MPC's)", "s9": "PROBLEM.md §9 cost"}.get(
+                "objective": {"traffic": "traffic objective (the MPC's)", "s9": "model guide §9 cost"}.get(
                     f.kind, f"the MPC's problem {f.name!r}"),
                 "objective_definition": OBJECTIVE_NAMES[f.kind], "N": scn.N,
                 "solve_time_s": res.wall_time_s, "iterations": res.iterations, "role": "reference"}
@@ -372,7 +405,7 @@ def _floor_note(c: Comparison, vehicle: int) -> str:
 def comparison_table(c: Comparison, vehicle: int = 0, markdown: bool = False, views: bool = True) -> str:
     """Every §10 metric of follower ``vehicle`` side by side (MPC, laws, OCP-D of the same formulation: 'bound' or
     'reference'), the running formulation's own cost as the only cost row; then, labelled, another formulation's
-    cost (PROBLEM.md §9's beside a traffic MPC: no verdict) and the equal-distance and equal-time views."""
+    cost (model guide §9's beside a traffic MPC: no verdict) and the equal-distance and equal-time views."""
     f = c.formulation
     labs = list(c.metrics)
     with_d = bool(c.ocpd) and vehicle == 0
@@ -402,7 +435,7 @@ def comparison_table(c: Comparison, vehicle: int = 0, markdown: bool = False, vi
     text = [f"Whole runs (formulation {f.name}; its own cost {f.cost_key}; ranked only when comparable):",
             _render(["metric"] + heads, rows, markdown)]
     if secondary:
-        text += ["", "Another formulation's cost (PROBLEM.md §9's; this MPC does not optimise it: no verdict):",
+        text += ["", "Another formulation's cost (model guide §9's; this MPC does not optimise it: no verdict):",
                  _render(["metric"] + heads, secondary, markdown)]
     if views and vehicle < len(c.views):
         text += ["", views_table(c.views[vehicle], markdown)]
@@ -443,17 +476,19 @@ def write_outputs(c: Comparison, out: Path) -> list[Path]:
                                                "mpc_settings": r.meta.get("controllers"),
                                                "mpc_steps": r.meta.get("mpc_steps")})]
     files.append(r.to_csv(out / "trajectories_mpc.csv"))
-    files.append(plot_trajectories(r, out / "mpc_trajectories.png"))
-    files.append(plot_solve_times(r, out / "mpc_solve_times.png"))
+    for png, plot in ((out / "mpc_trajectories.png", plot_trajectories), (out / "mpc_solve_times.png", plot_solve_times)):
+        plot(r, png)
+        files.append(png)
     for i in range(r.n_vehicles):
-        files.append(plot_overlay(c.results, out / f"overlay_vehicle{i + 1}.png", vehicle=i))
+        plot_overlay(c.results, png := out / f"overlay_vehicle{i + 1}.png", vehicle=i)
+        files.append(png)
         if i >= 1 and r.n_vehicles > 3 and i != r.n_vehicles - 1:
             continue
     return files
 
 
 def mpc_section(out_dir: Any, progress: Callable[[str], None]) -> str:
-    """Reproduce section: the canonical MPC (PROBLEM.md §9) beside the proposed law and OVFL (and OCP-D)."""
+    """Reproduce section: the canonical MPC (model guide §9) beside the proposed law and OVFL (and OCP-D)."""
     from ..scenarios import find_scenario, load_scenario
 
     out = Path(out_dir) / "mpc"
@@ -462,8 +497,12 @@ def mpc_section(out_dir: Any, progress: Callable[[str], None]) -> str:
     c = run_comparison(sc, log=progress)
     progress("MPC: writing tables and plots")
     write_outputs(c, out)
+    from ..saved import save_output, settings_of
+
+    save_output(out, "mpc", c.results, primary="mpc", settings=settings_of(sc),  # aev_ocp.load(".../mpc")
+                extra={"ocp_d": c.ocpd, "comparison_metrics": c.metrics, "timings_s": c.timings_s, "warnings": c.warnings})
     st = c.metrics["mpc"][0]
-    lines = ["## MPC with the battery in the loop (PROBLEM.md §9)", "",
+    lines = ["## MPC with the battery in the loop (model guide §9)", "",
              f"Canonical scenario: one follower behind the Table 1 leader, h(0) = 0.3, v(0) = 1.87, oracle "
              f"forecast, N = 40, dt = 0.1, w = (1, 1, 1, 0.1), t ∈ [0, {sc.t_end:g}]. Exact plant (CVODES, "
              f"unsmoothed η switch). Solver path {st.get('solver_path')} (QP {st.get('qp_solver') or '—'}): median {st.get('solve_ms_median', float('nan')):.2f} ms, "
@@ -472,7 +511,9 @@ def mpc_section(out_dir: Any, progress: Callable[[str], None]) -> str:
              "(smoothed η, as in OCP-D); OCP-D is the lower bound of that cost. `cost_s9_exact` is the same "
              "cost with the exact η switch; `smoothing_gap_pct` their difference (a warning above 0.5 %).", "",
              comparison_table(c, 0, markdown=True), "",
-             "Plots: `mpc/overlay_vehicle1.png` (trajectories, current, SOC), `mpc/mpc_solve_times.png`.", ""]
+             "![MPC and the laws: gap, speed, acceleration, current, SOC](mpc/overlay_vehicle1.png)", "",
+             "![MPC trajectories](mpc/mpc_trajectories.png)", "", "![MPC solve time per step](mpc/mpc_solve_times.png)", "",
+             "The runs load back with `aev_ocp.load(\"mpc\")` (the MPC) and `aev_ocp.load_all(\"mpc\")` (every run).", ""]
     if c.ocpd and c.ocpd.get("success"):
         gap = 100 * (st["cost_s9"] / c.ocpd["cost_s9"] - 1)
         what = "lower bound" if c.ocpd.get("role") == "bound" else "reference (not a bound, see the warnings)"

@@ -1,9 +1,9 @@
-"""MPC solver settings (PROBLEM.md §9), validated in one place (the problem: :mod:`aev_ocp.ocp.formulation`).
+"""MPC solver settings (model guide §9), validated in one place (the problem: :mod:`aev_ocp.ocp.formulation`).
 
 Every option lives in :class:`MPCSettings`, a frozen dataclass whose fields declare their type and
 range (:func:`aev_ocp.params.spec`); the ``[mpc]`` scenario table reads those declarations. An invalid value raises
 :class:`aev_ocp.params.ParameterError` naming the option (``MPCSettings.N = 0 is not allowed: ...``).
-Model units throughout (PROBLEM.md §1): ``dt`` in model time units (0.1 = 0.2 s at the default units).
+Model units throughout (model guide §1): ``dt`` in model time units (0.1 = 0.2 s at the default units).
 """
 
 from __future__ import annotations
@@ -62,7 +62,7 @@ class MPCSettings:
 
     N: int = spec(25, kind="integer", ge=1)  # our choice (§9: 40, stated by its scenarios): with the traffic
     # formulation's terminal cost 40 intervals saved nothing (UDDS-300 s: 2247 vs 2249 J/km) and cost ~60 % more time
-    dt: float = spec(0.1, gt=0)  # PROBLEM.md §9 (0.2 s at L = 10 m, U = 5 m/s)
+    dt: float = spec(0.1, gt=0)  # model guide §9 (0.2 s at L = 10 m, U = 5 m/s)
     rk4_substeps: int = spec(1, kind="integer", ge=1)
     solver: str = spec("rti", kind="choice", choices=SOLVER_PATHS)  # real-time iteration (issue 8: ≤ 2 ms/step)
     qp_solver: str = spec("auto", kind="choice", choices=QP_SOLVERS)  # issue 12: riccati on the rti path
@@ -76,7 +76,7 @@ class MPCSettings:
     max_cpu_time_s: float = spec(10.0, gt=0)
     # a forecast a car can make: the leader's measured speed and acceleration, the acceleration fading with
     # tau = 2 s (our choice: the best measured-only predictor on the drive cycles, benchmarks/bench_mpc_cycles.py);
-    # PROBLEM.md §9's canonical problem uses the oracle, which its scenarios state
+    # model guide §9's canonical problem uses the oracle, which its scenarios state
     predictor: str = spec("decaying-acceleration", kind="choice", choices=PREDICTOR_NAMES)
     predictor_window: int = spec(5, kind="integer", ge=2)
     verbose: bool = spec(False, kind="bool")

@@ -1,4 +1,4 @@
-"""Optimal control (PROBLEM.md §8–§9): a transcription layer (multiple shooting / collocation, IPOPT)
+"""Optimal control (model guide §8–§9): a transcription layer (multiple shooting / collocation, IPOPT)
 and the four problems OCP-A (Proposition 3.1), OCP-B (current profile), OCP-C (eco-trip) and
 OCP-D (oracle following, the lower bound). Nothing here plots; see :mod:`aev_ocp.ocp_plots`.
 

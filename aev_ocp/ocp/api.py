@@ -45,7 +45,7 @@ def scenario_ev(scenario: str | Path | None) -> EVParams:
 
 def oracle_scenario_from_file(path: str | Path, dt: float = 0.1) -> OracleScenario:
     """OCP-D scenario from a scenario TOML: its leader, t_end, units/vehicle/cell/pack, and follower 1's
-    h(0), v(0), S(0); dt [model time] (PROBLEM.md §9 default 0.1) is adjusted to divide t_end. A drive-cycle
+    h(0), v(0), S(0); dt [model time] (model guide §9 default 0.1) is adjusted to divide t_end. A drive-cycle
     (speed-trace) leader uses dt = 1 s instead, the cycles' sampling (as drive_cycle_scenario; a 0.1 grid
     over a whole cycle would be an NLP of ~15 000 intervals)."""
     from ..models.leader import SpeedTrace
@@ -299,7 +299,7 @@ def run_oracle(method: str = "ms", out_dir: str | Path | None = None, scenario: 
                which: str = "canonical", multistart: bool = False, time_limit_s: float | None = DEFAULT_TIME_LIMIT_S,
                progress: Callable[[str], None] | bool | None = None,
                progress_every_s: float = PROGRESS_EVERY_S) -> dict[str, Any]:
-    """OCP-D lower bound. scenario: a TOML file, else ``which`` = 'canonical' (PROBLEM.md §9) or
+    """OCP-D lower bound. scenario: a TOML file, else ``which`` = 'canonical' (model guide §9) or
     'udds' (first 600 s of UDDS, U = 13 m/s, dt = 1 s). Also reports the same §9 cost of the
     proposed law and OVFL sampled per dt (when the sampled law is stable, α·dt < 1).
     The optimum is replayed through the exact plant (:func:`replay_exact`, smoothing-gap check).

@@ -1,4 +1,4 @@
-"""Cell-level OCPs (PROBLEM.md §8 OCP-A and OCP-B): states of the 2-RC cell, control = cell current.
+"""Cell-level OCPs (model guide §8 OCP-A and OCP-B): states of the 2-RC cell, control = cell current.
 
 Time is in seconds, current in A (I > 0 discharges), voltages in V, Q in W per cell.
 """
@@ -42,7 +42,7 @@ def cell_problem(cell: CellParams, q_nonneg: bool, energy_state: bool = False,
         ode=ode, lagrange=lagrange, outputs=outputs,
         x_lb=[-ca.inf, -ca.inf, 0.0] + ([-ca.inf] if energy_state else []),  # S ∈ [0, 1] (paper eq. opt_prob)
         x_ub=[ca.inf, ca.inf, 1.0] + ([ca.inf] if energy_state else []),
-        u_lb=[-cell.max_current_A], u_ub=[cell.max_current_A],  # |I| ≤ 20C (PROBLEM.md §8)
+        u_lb=[-cell.max_current_A], u_ub=[cell.max_current_A],  # |I| ≤ 20C (model guide §8)
         x_scale=[0.01, 0.01, 1.0] + ([1000.0] if energy_state else []), u_scale=[10.0], time_unit="s")
     if q_nonneg:
         pr.path = ca.Function(f"{name}_Qpath", args, [Q], names, ["Q"])

@@ -80,7 +80,7 @@ def record_smoothing_gap(res: OCPResult, exact: float, what: str, rtol: float = 
 def resimulate_cell_current(cell: CellParams, t_s: np.ndarray, I_A: np.ndarray,
                             x0: Sequence[float]) -> dict[str, float]:
     """A piecewise-constant cell current I_k [A] on [t_k, t_{k+1}) [s] applied to the 2-RC cell from
-    x0 = (V1 [V], V2 [V], S), integrated exactly by CVODES interval by interval (PROBLEM.md §6).
+    x0 = (V1 [V], V2 [V], S), integrated exactly by CVODES interval by interval (model guide §6).
 
     Returns heat_J (∫Q), heat_irr_J (∫Q_irr), energy_J (∫I V_T) per cell and the final V1, V2, S.
     """

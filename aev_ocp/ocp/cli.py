@@ -19,7 +19,7 @@ COMMANDS = ("prop31", "current-profile", "eco-trip", "oracle")
 def _parser() -> argparse.ArgumentParser:
     from ..console import OneLineParser
 
-    ap = OneLineParser(prog="aev-ocp ocp", description="Optimal-control problems OCP-A..D (PROBLEM.md §8).")
+    ap = OneLineParser(prog="aev-ocp ocp", description="Optimal-control problems OCP-A..D (model guide §8).")
     ap.add_argument("problem", choices=COMMANDS)
     ap.add_argument("scenario", nargs="?", default=None, help="scenario TOML (oracle: default canonical scenario)")
     ap.add_argument("--method", choices=("ms", "collocation"), default="ms", help="transcription (default ms)")
@@ -136,7 +136,7 @@ def _cli_ocp(argv: list[str]) -> int:
     if args.N is not None and args.N < 1:
         raise ParameterError(f"ocp {args.problem}: --N = {args.N} is not allowed: must be an integer >= 1")
     if args.problem in ("prop31",) and args.scenario is not None:
-        raise ParameterError("ocp prop31: prop31 takes no scenario (OCP-A is the single cell of PROBLEM.md §8)")
+        raise ParameterError("ocp prop31: prop31 takes no scenario (OCP-A is the single cell of model guide §8)")
     for flag, value in (("--cell", args.cell), ("--soc0", args.soc0), ("--v-relax-V", args.v_relax_V)):
         if value is not None and args.problem != "prop31":
             raise ParameterError(f"ocp {args.problem}: {flag} applies to prop31 only (the scenario's [cell] sets the "

@@ -1,10 +1,10 @@
-"""OCP-B: the optimal cell-current profile (PROBLEM.md §8).
+"""OCP-B: the optimal cell-current profile (model guide §8).
 
 Deliver E_req [J] at the terminals over [0, t_f] (∫ I V_T dt = E_req) with minimum ∫Q dt, and
 compare with a constant current and a constant power delivering the same energy, both simulated
 with the same cell model (CVODES): the constant current is found by root finding on
 E(t_f; I_c) = E_req; constant power P = E_req/t_f takes at each instant the physical root of
-P = I (E − R_s I) (PROBLEM.md §7).
+P = I (E − R_s I) (model guide §7).
 
 OCP-B has no smoothing (the cell model is smooth), so its smoothing-gap check measures the
 transcription alone: the NLP's ∫Q against CVODES along the optimal piecewise-constant current.
@@ -29,8 +29,8 @@ from .result import OCPResult
 from .transcription import OCPProblem, OCPSolver, TranscriptionOptions
 
 E_REQ_J = 3000.0  # default demand: 50 W average per cell over 60 s (≈ 15 A, 6.5C); our choice
-T_F_S = 60.0  # same horizon as OCP-A (PROBLEM.md §8)
-SOC0 = 0.5  # same initial SOC as OCP-A (PROBLEM.md §8)
+T_F_S = 60.0  # same horizon as OCP-A (model guide §8)
+SOC0 = 0.5  # same initial SOC as OCP-A (model guide §8)
 
 
 def _cell_sim(cell: CellParams, mode: str) -> ca.Function:
@@ -45,7 +45,7 @@ def _cell_sim(cell: CellParams, mode: str) -> ca.Function:
     else:
         E = battery.ocv(x[2], cell) - x[0] - x[1]
         disc = current_discriminant(val, E, cell)
-        # physical root of P = I (E − R_s I) (PROBLEM.md §7); sqrt floored at 1e-12 V² so that an
+        # physical root of P = I (E − R_s I) (model guide §7); sqrt floored at 1e-12 V² so that an
         # infeasible demand is recorded by the disc quadrature instead of producing NaN Jacobians
         I = 2.0 * val / (E + ca.sqrt(ca.fmax(disc, 1e-12)))
     dV1, dV2, dS = battery.cell_derivatives(x[0], x[1], I, cell)

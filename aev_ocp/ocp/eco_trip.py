@@ -1,4 +1,4 @@
-"""OCP-C: eco-trip (PROBLEM.md §8). Vehicle + pack, SI units, time in seconds.
+"""OCP-C: eco-trip (model guide §8). Vehicle + pack, SI units, time in seconds.
 
 State (x [m], v [m/s], V1 [V], V2 [V], S [-]); control a [m/s²] piecewise constant. Cover D [m]
 in t_f [s] from v0 to vf, minimising pack ∫Q dt (objective 'heat', reported in kJ) or the
@@ -17,7 +17,7 @@ optimiser creeps at ±0.015 m/s² where g̃ < g, issue 13: 24.14 J/kg in the NLP
 No exact reformulation exists for the η switch inside the heat objective: P_b = max(P_w/η, η P_w)
 is convex in P_w, but it enters Q through the nonlinear current map I(P_c, E) and the RC states,
 so ∫Q is not a maximum of smooth pieces and an epigraph slack would not be tight. The heat
-objective keeps the smoothed switch of PROBLEM.md §7; the smoothing-gap check
+objective keeps the smoothed switch of model guide §7; the smoothing-gap check
 (:func:`aev_ocp.ocp.checks.record_smoothing_gap`) compares it with the exact re-simulation.
 """
 
@@ -46,8 +46,8 @@ GUESSES = ("sine", "trapezoid", "constant", "bang")
 
 @dataclass(frozen=True)
 class EcoTrip:
-    """Trip data (SI). Defaults are our choice (PROBLEM.md §8 gives none): 1 km in 100 s from rest
-    to rest; v ≤ 30 m/s; −3 ≤ a ≤ 2 m/s² (comfortable driving); S(0) = 0.8 (PROBLEM.md §6).
+    """Trip data (SI). Defaults are our choice (model guide §8 gives none): 1 km in 100 s from rest
+    to rest; v ≤ 30 m/s; −3 ≤ a ≤ 2 m/s² (comfortable driving); S(0) = 0.8 (model guide §6).
     omega_form: 'epigraph' (exact, default) or 'smooth' (g̃ of width g_width_mps2, kept to show the
     smoothing gap)."""
 
@@ -58,10 +58,10 @@ class EcoTrip:
     v_max_mps: float = 30.0
     a_min_mps2: float = -3.0
     a_max_mps2: float = 2.0
-    S0: float = 0.8  # PROBLEM.md §6
+    S0: float = 0.8  # model guide §6
     objective: str = "heat"
     ev: EVParams = field(default_factory=EVParams)
-    smooth: PowertrainOptions = field(default_factory=PowertrainOptions)  # PROBLEM.md §7
+    smooth: PowertrainOptions = field(default_factory=PowertrainOptions)  # model guide §7
     g_width_mps2: float = 0.025  # smoothing width of g ('smooth' only): 0.01 model acceleration at default units
     omega_form: str = "epigraph"  # issue 13: exact epigraph reformulation of ∫ v g(a) dt
 
@@ -252,7 +252,7 @@ class EcoTripSolver:
 
 
 def resimulate_exact(trip: EcoTrip, a_mps2: np.ndarray, t_s: np.ndarray) -> dict[str, float]:
-    """Metrics of a piecewise-constant acceleration profile under the EXACT model (PROBLEM.md §10).
+    """Metrics of a piecewise-constant acceleration profile under the EXACT model (model guide §10).
 
     The vehicle and cell are re-integrated by CVODES, interval by interval with that interval's own
     control, with the exact η switch and the exact g: pack ∫Q and ∫Q_irr [J], ω [J/kg] and the final

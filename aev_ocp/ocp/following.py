@@ -1,14 +1,14 @@
-"""The car-following problem of PROBLEM.md §9 — stated ONCE, as a :class:`ProblemBuilder`.
+"""The car-following problem of model guide §9 — stated ONCE, as a :class:`ProblemBuilder`.
 
 OCP-D (the oracle lower bound, :mod:`aev_ocp.ocp.oracle`) and the MPC (:mod:`aev_ocp.mpc`) are both
 built from :func:`following_problem`, so they solve the same problem; a user adds a cost term, a
 constraint or a state to the builder before building either (README, "Your own MPC terms").
 
-Model units throughout (PROBLEM.md §1): gap h, speed v, acceleration a, time in model time units;
+Model units throughout (model guide §1): gap h, speed v, acceleration a, time in model time units;
 the cell states V1, V2 [V] and S [-] evolve in seconds, converted with ``ev.units.time_s``.
 State ``z = (h, v, V1, V2, S)``; control ``a`` held constant over each interval of length dt.
 
-Stage cost (PROBLEM.md §9):
+Stage cost (model guide §9):
     ℓ = w_Q Q_pack/(1 kW) + w_V (V(h) − v)² + w_r (v̂_l − v)² + w_a a²,
 summed as Σ ℓ(z_k, a_k)·dt (dt in model time units), evaluated at the start of each interval.
 ``objective="energy"`` replaces Q_pack/(1 kW) by v g̃(a) (smoothed g, model units).
@@ -34,12 +34,12 @@ OBJECTIVES = ("heat", "energy")
 
 @dataclass(frozen=True)
 class FollowingWeights:
-    """Stage-cost weights (PROBLEM.md §9 defaults w_Q = 1, w_V = 1, w_r = 1, w_a = 0.1), each a finite number >= 0."""
+    """Stage-cost weights (model guide §9 defaults w_Q = 1, w_V = 1, w_r = 1, w_a = 0.1), each a finite number >= 0."""
 
-    w_Q: float = spec(1.0, ge=0.0)  # PROBLEM.md §9
-    w_V: float = spec(1.0, ge=0.0)  # PROBLEM.md §9
-    w_r: float = spec(1.0, ge=0.0)  # PROBLEM.md §9
-    w_a: float = spec(0.1, ge=0.0)  # PROBLEM.md §9
+    w_Q: float = spec(1.0, ge=0.0)  # model guide §9
+    w_V: float = spec(1.0, ge=0.0)  # model guide §9
+    w_r: float = spec(1.0, ge=0.0)  # model guide §9
+    w_a: float = spec(0.1, ge=0.0)  # model guide §9
 
     def __post_init__(self) -> None:
         validate_fields(self)
@@ -47,14 +47,14 @@ class FollowingWeights:
 
 @dataclass(frozen=True)
 class FollowingBounds:
-    """Bounds of PROBLEM.md §9 (model units): h ≥ h_min and v_min ≤ v ≤ v_max at nodes 1…N,
+    """Bounds of model guide §9 (model units): h ≥ h_min and v_min ≤ v ≤ v_max at nodes 1…N,
     a_min ≤ a ≤ a_max; |I| ≤ cell.max_current_A and disc ≥ 0 at the start of every interval."""
 
-    h_min: float = spec(0.2)  # PROBLEM.md §9 (2 m at L = 10 m)
-    v_min: float = spec(0.0)  # PROBLEM.md §9
-    v_max: float = spec(2.0)  # PROBLEM.md §9
-    a_min: float = spec(-3.0)  # PROBLEM.md §9 (−7.5 m/s² at default units)
-    a_max: float = spec(2.0)  # PROBLEM.md §9 (5 m/s² at default units)
+    h_min: float = spec(0.2)  # model guide §9 (2 m at L = 10 m)
+    v_min: float = spec(0.0)  # model guide §9
+    v_max: float = spec(2.0)  # model guide §9
+    a_min: float = spec(-3.0)  # model guide §9 (−7.5 m/s² at default units)
+    a_max: float = spec(2.0)  # model guide §9 (5 m/s² at default units)
 
     def __post_init__(self) -> None:
         validate_fields(self)
@@ -67,7 +67,7 @@ class FollowingBounds:
 def following_stage_terms(z: Any, a: Any, v_l_hat: Any, ev: EVParams,
                           smooth: PowertrainOptions | None = PowertrainOptions(),
                           objective: str = "heat", T_K: Any = None) -> dict[str, Any]:
-    """The four UNWEIGHTED terms of ℓ (PROBLEM.md §9) [model units; multiply by dt in model time]:
+    """The four UNWEIGHTED terms of ℓ (model guide §9) [model units; multiply by dt in model time]:
     'energy' Q_pack/(1 kW) (objective 'heat', η switch smoothed by ``smooth``) or v g(a) (objective
     'energy', the exact g, η = ev.vehicle.efficiency), 'ovm' (V(h) − v)², 'relative' (v̂_l − v)², 'accel' a².
     The optimisers never see the non-smooth v g(a): :func:`following_problem` states it exactly by an
@@ -112,7 +112,7 @@ def following_problem(ev: EVParams, bounds: FollowingBounds | None = None,
     (v̄_l interval-mean leader speed, v̂_l(t_k)); parameters p = (w_Q, w_V, w_r, w_a);
     stage cost Σ_k (w_Q·energy + w_V·ovm + w_r·relative + w_a·accel)·dt; bounds h ≥ h_min,
     v_min ≤ v ≤ v_max, S ∈ [0, 1] at nodes 1…N, a_min ≤ a ≤ a_max; |I| ≤ I_max and disc ≥ 0 at
-    the start of every interval. ``smooth``: η-switch smoothing of the optimiser (PROBLEM.md §7).
+    the start of every interval. ``smooth``: η-switch smoothing of the optimiser (model guide §7).
     Objective 'energy': v g(a) through an epigraph control ``energy_rate`` ≥ v a/η, ≥ η v a (exact).
     Outputs: I [A], Q [W per cell], Q_pack_W, Q_irr_pack_W, disc [V²] and each weighted term.
     ``with_temperature``: the lumped pack temperature T [K] (:mod:`aev_ocp.models.thermal`) is a 6th state
@@ -133,7 +133,7 @@ def following_problem(ev: EVParams, bounds: FollowingBounds | None = None,
     terms = following_stage_terms(z, a, v_hat, ev, smooth, objective, Tst)
     if objective == "energy":
         # v g(a) = max(v a/η, η v a) for v ≥ 0: minimising an epigraph variable e ≥ both is exact and
-        # smooth (no width to exploit, PROBLEM.md §9 deviation: §9 smooths g; see README)
+        # smooth (no width to exploit, model guide §9 deviation: §9 smooths g; see README)
         e = pb.control("energy_rate")
         eta = ev.vehicle.efficiency
         pb.subject_to(e - z[1] * a / eta, 0.0, ca.inf, name="energy_epi_drive")
@@ -145,8 +145,8 @@ def following_problem(ev: EVParams, bounds: FollowingBounds | None = None,
     if Tst is not None:
         set_temperature_rate(pb, Tst, cell, ev)
     Imax = ev.cell.max_current_A
-    pb.subject_to(cell["I"], -Imax, Imax, name="I")  # |I| ≤ 20C (PROBLEM.md §9)
-    pb.subject_to(cell["disc"], 0.0, ca.inf, name="disc")  # current map feasible (PROBLEM.md §7)
+    pb.subject_to(cell["I"], -Imax, Imax, name="I")  # |I| ≤ 20C (model guide §9)
+    pb.subject_to(cell["disc"], 0.0, ca.inf, name="disc")  # current map feasible (model guide §7)
     for nm, key in (("I", "I"), ("Q", "Q"), ("Q_pack_W", "Q_pack"), ("Q_irr_pack_W", "Q_irr_pack"), ("disc", "disc")):
         pb.add_output(nm, cell[key])
     pb.meta.update({"objective": objective, "bounds": b})

@@ -13,9 +13,9 @@ derived from them, so no second setting beside it can disagree:
   a labelled secondary table, never a verdict).
 
 Three kinds: ``traffic_formulation()`` (the default, :mod:`aev_ocp.ocp.traffic`, SI parameters),
-``s9_formulation()`` (PROBLEM.md §9 exactly: weights, bounds, objective) and ``problem_formulation(pb)`` (a user
+``s9_formulation()`` (model guide §9 exactly: weights, bounds, objective) and ``problem_formulation(pb)`` (a user
 problem, e.g. the §9 problem plus a headway constraint: every derived item then follows that problem: its
-declared bounds, its name, its own cost). Model units throughout (PROBLEM.md §1) unless a name says otherwise.
+declared bounds, its name, its own cost). Model units throughout (model guide §1) unless a name says otherwise.
 """
 
 from __future__ import annotations
@@ -29,7 +29,7 @@ from .following import OBJECTIVES, WEIGHT_NAMES, FollowingBounds, FollowingWeigh
 from .problem import OCPProblem, ProblemBuilder
 from .traffic import TrafficParams, traffic_bounds, traffic_problem
 
-#: Kinds of formulation: 'traffic' (aev_ocp/ocp/traffic.py, the default), 's9' (PROBLEM.md §9), 'problem' (a user's).
+#: Kinds of formulation: 'traffic' (aev_ocp/ocp/traffic.py, the default), 's9' (model guide §9), 'problem' (a user's).
 KINDS = ("traffic", "s9", "problem")
 #: The built-in problems' own costs (keys of the metrics): what OCP-D minimises and what is ranked.
 COST_KEYS = {"traffic": "cost_traffic", "s9": "cost_s9", "problem": "cost_problem"}
@@ -60,20 +60,20 @@ class Formulation:
     :func:`traffic_formulation`, :func:`s9_formulation` or :func:`problem_formulation`.
 
     kind: one of KINDS; traffic: the traffic problem's SI parameters (kind 'traffic'); weights, bounds,
-    objective: PROBLEM.md §9's (kind 's9'; the weights are also the default values of a user problem's
-    parameters named w_Q, w_V, w_r, w_a); smooth: the optimiser's η-switch smoothing (PROBLEM.md §7; the
+    objective: model guide §9's (kind 's9'; the weights are also the default values of a user problem's
+    parameters named w_Q, w_V, w_r, w_a); smooth: the optimiser's η-switch smoothing (model guide §7; the
     built-in kinds); problem: the user problem (kind 'problem'); parameter_values: values of a user problem's
     further parameters by name; initial_values: initial values of its own states by name (default 0)."""
 
     kind: str = spec("traffic", kind="choice", choices=KINDS)
     traffic: TrafficParams = spec(kind="instance", cls=TrafficParams, default_factory=TrafficParams)
     weights: FollowingWeights = spec(kind="instance", cls=FollowingWeights,
-                                     default_factory=FollowingWeights)  # PROBLEM.md §9: 1, 1, 1, 0.1
+                                     default_factory=FollowingWeights)  # model guide §9: 1, 1, 1, 0.1
     bounds: FollowingBounds = spec(kind="instance", cls=FollowingBounds,
-                                   default_factory=FollowingBounds)  # PROBLEM.md §9
-    objective: str = spec("heat", kind="choice", choices=OBJECTIVES)  # PROBLEM.md §9
+                                   default_factory=FollowingBounds)  # model guide §9
+    objective: str = spec("heat", kind="choice", choices=OBJECTIVES)  # model guide §9
     smooth: PowertrainOptions = spec(kind="instance", cls=PowertrainOptions,
-                                     default_factory=PowertrainOptions)  # PROBLEM.md §7: 300 W
+                                     default_factory=PowertrainOptions)  # model guide §7: 300 W
     problem: Any = field(default=None, compare=False)
     parameter_values: Mapping[str, float] = field(default_factory=dict, compare=False)
     initial_values: Mapping[str, float] = field(default_factory=dict, compare=False)
@@ -128,7 +128,7 @@ class Formulation:
     @property
     def rti_cold_start(self) -> bool:
         """The 'rti' path starts cold by RTI iterations from the closed-form law's rollout (True), or by a cold
-        IPOPT solve (False: PROBLEM.md §9, so its published numbers stay as they are)."""
+        IPOPT solve (False: model guide §9, so its published numbers stay as they are)."""
         return self.family != "s9"
 
     @property
@@ -154,7 +154,7 @@ class Formulation:
     @property
     def other_costs(self) -> tuple[str, ...]:
         """Costs of another formulation reported beside this one's (a secondary table, never a verdict): the
-        PROBLEM.md §9 cost, unless this is §9."""
+        model guide §9 cost, unless this is §9."""
         return () if self.kind == "s9" else ("cost_s9",)
 
     def bounds_model(self, ev: EVParams) -> ModelBounds:
@@ -199,7 +199,7 @@ class Formulation:
         return out
 
     def s9_weight_vector(self) -> list[float]:
-        """PROBLEM.md §9's p = (w_Q, w_V, w_r, w_a) of this formulation."""
+        """model guide §9's p = (w_Q, w_V, w_r, w_a) of this formulation."""
         return weight_vector(self.weights)
 
     def describe(self) -> dict[str, Any]:
@@ -257,7 +257,7 @@ def traffic_formulation(traffic: TrafficParams | None = None, smooth: Powertrain
 
 def s9_formulation(weights: FollowingWeights | None = None, bounds: FollowingBounds | None = None,
                    objective: str = "heat", smooth: PowertrainOptions | None = None) -> Formulation:
-    """PROBLEM.md §9's formulation (defaults: §9's weights 1, 1, 1, 0.1, bounds and the heat objective)."""
+    """model guide §9's formulation (defaults: §9's weights 1, 1, 1, 0.1, bounds and the heat objective)."""
     return Formulation("s9", weights=weights or FollowingWeights(), bounds=bounds or FollowingBounds(),
                        objective=objective, smooth=smooth or PowertrainOptions())
 
@@ -266,7 +266,7 @@ def problem_formulation(problem: ProblemSource, parameter_values: Mapping[str, f
                         initial_values: Mapping[str, float] | None = None,
                         weights: FollowingWeights | None = None) -> Formulation:
     """A user problem as a formulation: every derived item (bounds, name, cost, cold start) follows it.
-    ``weights``: values of its parameters named w_Q, w_V, w_r, w_a (default PROBLEM.md §9's)."""
+    ``weights``: values of its parameters named w_Q, w_V, w_r, w_a (default model guide §9's)."""
     if isinstance(problem, Formulation):
         return problem
     return Formulation("problem", problem=problem, parameter_values=dict(parameter_values or {}),

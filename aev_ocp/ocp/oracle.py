@@ -1,4 +1,4 @@
-"""OCP-D: oracle following (PROBLEM.md §8 OCP-D with the cost and constraints of §9).
+"""OCP-D: oracle following (model guide §8 OCP-D with the cost and constraints of §9).
 
 The leader's whole trajectory is known; the ego state z = (h, v, V1, V2, S) and the piecewise-constant
 acceleration a are optimised over the whole scenario. This is the lower bound that the MPC and the
@@ -43,7 +43,7 @@ ORACLE_MAX_INTERVALS = 2000
 #: The coarse OCP-D grid [s]: the EPA cycles are sampled at 1 s (aev_ocp/data/cycles).
 COARSE_GRID_S = 1.0
 #: What OCP-D minimises, by formulation (OCPResult.objective_name, results.json ocp_d.objective).
-OBJECTIVE_NAMES = {"s9": "sum_k l(z_k, a_k) dt (PROBLEM.md §9)",
+OBJECTIVE_NAMES = {"s9": "sum_k l(z_k, a_k) dt (model guide §9)",
                    "traffic": "traffic objective (aev_ocp/ocp/traffic.py, the MPC's): sum_k l(x_k, u_k) dt + terminal [J/kg]",
                    "problem": "the user problem's objective: sum_k l(x_k, u_k) dt + terminal"}
 
@@ -52,20 +52,20 @@ OBJECTIVE_NAMES = {"s9": "sum_k l(z_k, a_k) dt (PROBLEM.md §9)",
 class OracleScenario:
     """One follower behind a known leader. Model units: t_end, dt (model time), h0, v0 (model);
     V10, V20 [V]; S0 [-]; ``formulation``: the problem (:class:`aev_ocp.ocp.formulation.Formulation`, default
-    PROBLEM.md §9's; the traffic formulation's jerk term uses dt; own state a_prev(0) = 0). Defaults: the
-    canonical scenario of PROBLEM.md §9."""
+    model guide §9's; the traffic formulation's jerk term uses dt; own state a_prev(0) = 0). Defaults: the
+    canonical scenario of model guide §9."""
 
-    leader: LeaderProfile = field(default_factory=PaperLeader)  # PROBLEM.md §9: Table 1 leader
-    t_end: float = 70.0  # PROBLEM.md §9: 700 steps, t ∈ [0, 70]
-    dt: float = 0.1  # PROBLEM.md §9
-    h0: float = 0.3  # PROBLEM.md §9
-    v0: float = 1.87  # PROBLEM.md §9 (1.1 × 1.7)
-    V10: float = 0.0  # PROBLEM.md §9
-    V20: float = 0.0  # PROBLEM.md §9
-    S0: float = 0.8  # PROBLEM.md §9 / §6
+    leader: LeaderProfile = field(default_factory=PaperLeader)  # model guide §9: Table 1 leader
+    t_end: float = 70.0  # model guide §9: 700 steps, t ∈ [0, 70]
+    dt: float = 0.1  # model guide §9
+    h0: float = 0.3  # model guide §9
+    v0: float = 1.87  # model guide §9 (1.1 × 1.7)
+    V10: float = 0.0  # model guide §9
+    V20: float = 0.0  # model guide §9
+    S0: float = 0.8  # model guide §9 / §6
     ev: EVParams = field(default_factory=EVParams)
     name: str = "canonical"
-    formulation: Formulation = field(default_factory=s9_formulation)  # PROBLEM.md §9
+    formulation: Formulation = field(default_factory=s9_formulation)  # model guide §9
 
     def __post_init__(self) -> None:
         for nm in ("t_end", "dt"):
@@ -101,7 +101,7 @@ class OracleScenario:
 
     @property
     def smooth(self) -> PowertrainOptions:
-        """The formulation's η-switch smoothing (PROBLEM.md §7)."""
+        """The formulation's η-switch smoothing (model guide §7)."""
         return self.formulation.smooth
 
     @property
@@ -116,14 +116,14 @@ class OracleScenario:
 
 
 def canonical_scenario() -> OracleScenario:
-    """PROBLEM.md §9 canonical scenario: Table 1 leader, h(0) = 0.3, v(0) = 1.87, S(0) = 0.8, N = 700."""
+    """model guide §9 canonical scenario: Table 1 leader, h(0) = 0.3, v(0) = 1.87, S(0) = 0.8, N = 700."""
     return OracleScenario()
 
 
 def drive_cycle_scenario(cycle: str = "udds", duration_s: float = 600.0, speed_unit_mps: float = 13.0,
                          dt_s: float = 1.0, h0: float = 0.5, v0: float = 0.0) -> OracleScenario:
     """Follower behind an EPA cycle (first ``duration_s`` seconds). U = 13 m/s so that V∞·U = 25.5 m/s
-    exceeds UDDS top speed 25.35 m/s (PROBLEM.md §1); L = 10 m; dt_s = 1 s (the cycles are
+    exceeds UDDS top speed 25.35 m/s (model guide §1); L = 10 m; dt_s = 1 s (the cycles are
     sampled at 1 s). h0, v0 in model units (UDDS starts at rest)."""
     units = Units(10.0, speed_unit_mps)
     leader = drive_cycle(cycle, units)
@@ -135,7 +135,7 @@ def drive_cycle_scenario(cycle: str = "udds", duration_s: float = 600.0, speed_u
 
 def leader_forecast(leader: LeaderProfile, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Oracle forecast on node times t (N+1): interval-mean speed (x_l(t_{k+1}) − x_l(t_k))/dt_k and
-    v_l(t_k), both (N,) [model speed] (PROBLEM.md §9)."""
+    v_l(t_k), both (N,) [model speed] (model guide §9)."""
     x = np.asarray(leader.position(t), float)
     return np.diff(x) / np.diff(t), leader.speed_np(t[:-1])
 
@@ -388,7 +388,7 @@ def oracle_grid_dt(t_end: float, dt: float, units: Units, max_intervals: int = O
 def scenario_oracle(sc: Any, dt: float, formulation: Formulation | None = None) -> OracleScenario:
     """OCP-D of a loaded scenario (:class:`aev_ocp.scenarios.Scenario`): its leader, t_end,
     vehicle/pack and follower 1's h(0), v(0), S(0), on the grid of step ``dt`` [model time] (adjusted to
-    divide t_end), solving ``formulation`` (default PROBLEM.md §9's; pass the MPC's for its bound)."""
+    divide t_end), solving ``formulation`` (default model guide §9's; pass the MPC's for its bound)."""
     n = max(1, round(sc.t_end / dt))
     return OracleScenario(leader=sc.leader, t_end=sc.t_end, dt=sc.t_end / n, h0=sc.gaps0[0], v0=sc.speeds0[0],
                           S0=sc.ev.cell.soc0, ev=sc.ev, name=sc.name, formulation=formulation or s9_formulation())
@@ -405,8 +405,8 @@ def stage_cost_of_trajectory(t: np.ndarray, h: np.ndarray, v: np.ndarray, V1: np
     t: node times t_0 … t_N [model time] (N+1); h, v [model], V1, V2 [V], S [-]: states at the nodes
     (at least the first N are used); a: acceleration held on [t_k, t_{k+1}) [model] (N); v_l_hat:
     leader speed v_l(t_k) at the start of each interval [model] (N). weights/ev: as in the OCP
-    (defaults PROBLEM.md §9). smooth: η-switch smoothing used in Q_pack (default the optimiser's,
-    PROBLEM.md §7; None = exact switch). Returns total and the four weighted terms, each Σ·dt.
+    (defaults model guide §9). smooth: η-switch smoothing used in Q_pack (default the optimiser's,
+    model guide §7; None = exact switch). Returns total and the four weighted terms, each Σ·dt.
     """
     weights, ev = weights or FollowingWeights(), ev or EVParams()
     t = np.asarray(t, float).ravel()

@@ -1,4 +1,4 @@
-"""OCP-A: numerical check of the paper's Proposition 3.1 (paper §3, eq. opt_prob; PROBLEM.md §8).
+"""OCP-A: numerical check of the paper's Proposition 3.1 (paper §3, eq. opt_prob; model guide §8).
 
 Four cases: rest (V1(0) = V2(0) = 0) and relaxing polarisation (V1(0) = 0.02 V, V2(0) = 0.03 V),
 each with and without the paper's constraint Q ≥ 0; t_f = 60 s, S(0) = 0.5, |I| ≤ 46 A.
@@ -30,9 +30,9 @@ from .checks import record_refinement, record_smoothing_gap, resimulate_cell_cur
 from .result import OCPResult
 from .transcription import OCPSolver, TranscriptionOptions
 
-T_F_S = 60.0  # PROBLEM.md §8: t_f = 60 s
-SOC0 = 0.5  # PROBLEM.md §8: S(0) = 0.5
-V_RELAX = (0.02, 0.03)  # PROBLEM.md §8: relaxing polarisation V1(0) = 0.02 V, V2(0) = 0.03 V
+T_F_S = 60.0  # model guide §8: t_f = 60 s
+SOC0 = 0.5  # model guide §8: S(0) = 0.5
+V_RELAX = (0.02, 0.03)  # model guide §8: relaxing polarisation V1(0) = 0.02 V, V2(0) = 0.03 V
 CASES: dict[str, tuple[tuple[float, float], bool]] = {
     "rest": ((0.0, 0.0), False),
     "rest_Q_nonneg": ((0.0, 0.0), True),

@@ -40,7 +40,7 @@ def prop31_section(out_dir: Path, progress: Callable[[str], None]) -> str:
     verdicts += "".join(f"- **{case}** ({m}): WARNING {w}\n" for m, cs in (("ms", ms), ("collocation", col))
                         for case, e in cs.items() for w in e.get("warnings", []))
     return (f"## {HEAD_PROP31}\n\n"
-            "OCP-A (PROBLEM.md §8): one A123 cell, t_f = 60 s, S(0) = 0.5, |I| ≤ 46 A, N = 200 intervals, "
+            "OCP-A (model guide §8): one A123 cell, t_f = 60 s, S(0) = 0.5, |I| ≤ 46 A, N = 200 intervals, "
             "IPOPT with exact Hessian. Cases: rest (V1 = V2 = 0) and relaxing polarisation (V1 = 0.02 V, "
             "V2 = 0.03 V), each with and without the constraint Q ≥ 0. The cases without Q ≥ 0 are "
             "linear-quadratic and are checked against an exact discrete Riccati solution. Files: prop31.json, "
@@ -119,7 +119,7 @@ def ocp_checks_section(out_dir: Path, progress: Callable[[str], None]) -> str:
               f"{me.get('max_energy_J', float('nan')):.6g} J (max-energy solve; constant 46 A: "
               f"{me.get('constant_Imax_energy_J', float('nan')):.6g} J).")
     return ("## Optimal control: the NLP objective against the exact model\n\n"
-            "Every OCP result reports its objective twice: as the NLP saw it (smoothed η switch, PROBLEM.md §7, "
+            "Every OCP result reports its objective twice: as the NLP saw it (smoothed η switch, model guide §7, "
             "and the transcription's integrator) and re-evaluated on the exact, unsmoothed model along the "
             "applied piecewise-constant controls (CVODES interval by interval; OCP-D: replayed through the "
             "exact plant). A difference above 0.5 % puts a warning on the result. OCP-C, 1 km in 100 s from "

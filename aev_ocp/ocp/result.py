@@ -12,7 +12,7 @@ from typing import Any
 
 import numpy as np
 
-from ..results import to_jsonable, write_atomic, write_json
+from ..results import fmt_value, require_pandas, summary_html, summary_text, to_jsonable, write_atomic, write_json
 
 
 # one implementation of atomic writes and JSON conversion for the whole package
@@ -88,6 +88,36 @@ class OCPResult:
                 "objective": self.objective, "objective_name": self.objective_name,
                 "objective_exact": self.objective_exact, "warnings": list(self.warnings)}
 
+    def _repr_fields(self) -> tuple[str, list[tuple[str, Any]]]:
+        title = f"OCPResult {self.problem} ({self.method}, N = {self.N}): {self.status}"
+        t_end = float(self.t[-1]) if self.t.size else math.nan
+        fields: list[tuple[str, Any]] = [
+            (self.objective_name, self.objective), ("iterations", self.iterations), ("wall_time_s", self.wall_time_s),
+            ("max_violation", self.max_violation), (f"horizon [{self.time_unit}]", t_end),
+            ("states", ", ".join(self.states) or "-"), ("controls", ", ".join(self.controls) or "-"),
+            ("outputs", ", ".join(self.outputs) or "-")]
+        if math.isfinite(self.objective_exact):
+            fields.insert(1, ("objective on the exact model", self.objective_exact))
+        if not self.success:
+            fields.append(("message", self.message))
+        fields += [("warning", w) for w in self.warnings[:3]]
+        return title, fields
+
+    def __repr__(self) -> str:
+        """A few lines: the problem, method, status, objective, iterations, wall time [s] and the variable names."""
+        title, fields = self._repr_fields()
+        return summary_text(title, [f"{k}: {fmt_value(v)}" for k, v in fields])
+
+    def _repr_html_(self) -> str:
+        title, fields = self._repr_fields()
+        return summary_html(title, fields)
+
+    def to_dataframe(self) -> Any:
+        """One row per node, the columns of :meth:`to_csv` (SI columns first when the units are known; controls
+        held, the last row repeating the last control). Needs pandas (``pip install 'aev_ocp[pandas]'``)."""
+        pd = require_pandas("OCPResult.to_dataframe()")
+        return pd.read_csv(io.StringIO(self._csv_text()))
+
     def summary(self) -> dict[str, Any]:
         """Statistics plus the trajectories, JSON-ready."""
         out = self.stats()
@@ -107,6 +137,9 @@ class OCPResult:
         Column names are unique: an output that repeats a state or control of the same name (OCP-B's
         current ``I`` is both its control and an output) is left out when its values are the same,
         and written as ``<name>_out`` otherwise."""
+        return write_atomic(path, self._csv_text())
+
+    def _csv_text(self) -> str:
         buf = io.StringIO()
         wr = csv.writer(buf)
         names_x, names_u = list(self.states), list(self.controls)
@@ -145,4 +178,4 @@ class OCPResult:
             row += [f"{ctrl(nm, k):.12g}" for nm in names_u]
             row += [f"{self.outputs[nm][k]:.12g}" for _, nm in cols_o]
             wr.writerow(row)
-        return write_atomic(path, buf.getvalue())
+        return buf.getvalue()

@@ -1,6 +1,6 @@
 """The car-following MPC problem for real traffic (issue 8) — the default formulation of ``[mpc]``.
 
-PROBLEM.md §9 states the canonical MPC: model-unit weights, a hard gap bound h ≥ 0.2, the OVM
+model guide §9 states the canonical MPC: model-unit weights, a hard gap bound h ≥ 0.2, the OVM
 tracking term (V(h) − v)² and no terminal ingredient. Under an imperfect forecast (a drive cycle
 with a constant-velocity forecast) that problem closes to h_min at every stop, brakes hard when the
 forecast is wrong, and its weights change meaning with ``[units]``. :func:`traffic_problem` keeps
@@ -11,7 +11,7 @@ and converted with the scenario's units (so a user does not retune when L or U c
 * **Cost [W/kg·s = J/kg].** ℓ = w_E·e + w_Q·Q_pack/m + w_a a² + w_j ȧ² + w_r (v̂_l − v)² + w_g (h − h_des(v))²
   with every quantity in SI, integrated over time in seconds (the model-time sum Σ ℓ·dt is multiplied by
   the time unit T). e ≥ v a/η, e ≥ η v a is the exact battery-side specific power of the inertial
-  term, v g(a) of PROBLEM.md §4 (§9: smoothed g weighted in model units). Q_pack/m is the pack heat per
+  term, v g(a) of model guide §4 (§9: smoothed g weighted in model units). Q_pack/m is the pack heat per
   vehicle mass (§9: Q_pack/1 kW). w_j penalises Δa/dt (jerk; §9 has none) through an own state
   ``a_prev`` (the command applied last step). w_r and w_g replace §9's OVM term: the gap is drawn to
   h_des(v) = s_0 + T_des·v (a constant-time-gap policy in SI; §9's V(h) is a model-unit curve whose
@@ -46,7 +46,7 @@ from ..params import EVParams, ParameterError, PowertrainOptions, spec, validate
 from .following import FollowingBounds, add_temperature_state, set_temperature_rate
 from .problem import ProblemBuilder
 
-FORMULATIONS = ("traffic", "s9")  # 'traffic': this module (default); 's9': PROBLEM.md §9 exactly
+FORMULATIONS = ("traffic", "s9")  # 'traffic': this module (default); 's9': model guide §9 exactly
 #: Finite upper bounds of the epigraph and slack controls (never active: |v g(a)| ≤ 45 m/s × 7.5 m/s² / 0.8
 #: = 422 W/kg; a gap 1 km short of its bound is not a traffic situation): finite bounds keep the QP solver's
 #: stand-in for infinity away from the variables' scale.
@@ -192,8 +192,8 @@ def traffic_problem(ev: EVParams, tp: TrafficParams | None = None, dt: float = 0
                   s_min, ca.inf, name="braking")
     pb.add_stage_cost(T * (tp.safe_penalty * sig_m + 1e-3 * sig_m**2), "penalty_gap")
     Imax = ev.cell.max_current_A
-    pb.subject_to(cell["I"], -Imax, Imax, name="I")  # |I| ≤ 20C (PROBLEM.md §9)
-    pb.subject_to(cell["disc"], 0.0, ca.inf, name="disc")  # current map feasible (PROBLEM.md §7)
+    pb.subject_to(cell["I"], -Imax, Imax, name="I")  # |I| ≤ 20C (model guide §9)
+    pb.subject_to(cell["disc"], 0.0, ca.inf, name="disc")  # current map feasible (model guide §7)
     hN_m, vN_ms = u.length_to_si(pb.x["h"]), u.speed_to_si(pb.x["v"])
     pb.add_terminal_cost(tp.terminal_gap_weight * (hN_m - desired_gap_m(vN_ms, tp)) ** 2)
     for nm, key in (("I", "I"), ("Q", "Q"), ("Q_pack_W", "Q_pack"), ("Q_irr_pack_W", "Q_irr_pack"), ("disc", "disc")):

@@ -3,13 +3,13 @@
 An :class:`OCPProblem` describes a problem on a fixed grid of ``N`` intervals of length
 ``h = t_f / N`` (time in the problem's own unit): the ODE right-hand side, an integrated
 (Lagrange) cost and/or a cost sampled at the start of each interval (``stage(x_k, u_k)·h``, as in
-PROBLEM.md §9), path constraints at the nodes ``k = 0 … N−1`` (optionally also at collocation
+model guide §9), path constraints at the nodes ``k = 0 … N−1`` (optionally also at collocation
 points), terminal constraints, and simple bounds on states (nodes ``1 … N`` and collocation
 points; the initial state is fixed by an equality constraint) and on controls. Controls are
 piecewise constant. Every function takes ``(x, u, w, p)``: ``w`` is a per-interval parameter
 (e.g. the leader's interval-mean speed) and ``p`` a global one.
 
-Two transcriptions (PROBLEM.md §8, "multiple shooting and collocation, selectable"):
+Two transcriptions (model guide §8, "multiple shooting and collocation, selectable"):
 
 * ``method="ms"``: direct multiple shooting, RK4 with ``rk4_substeps`` sub-steps per interval;
   the Lagrange cost is integrated by the same RK4 as an extra quadrature state.

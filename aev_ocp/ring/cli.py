@@ -1,10 +1,11 @@
-"""``aev-ocp ring sugiyama | stern | sweep [--t-end-s S] [--seed K] [--out DIR] [--no-plots]``.
+"""``aev-ocp ring sugiyama | stern | sweep | SCENARIO.toml [--t-end-s S] [--seed K] [--out DIR] [--no-plots]``.
 
 The ring experiments (see :mod:`aev_ocp.ring.experiments`): ``sugiyama`` (22 human drivers on 230 m: the jam
 emerges; and on 600 m, where uniform flow is linearly stable: it does not), ``stern`` (the same ring all-human
 and with one AEV under each AEV controller, with a space-time diagram of each run), ``sweep`` (penetration
 0–5 AEVs of 22, spread evenly, × ring lengths; ``--aev`` the controller). Writes ring.json (fleet metrics, SI)
-and the PNGs to ``--out``; prints the fleet table. Exit codes: 0 ok, 1 a run stopped on an event, 2 bad input.
+and the PNGs to ``--out``; prints the fleet table. A ring scenario file (:mod:`aev_ocp.ring.scenario`; shipped:
+``ring_sugiyama``, ``ring_stern``) runs its own runs (``--t-end-s`` overrides its horizon; ``--seed`` is the file's). Exit codes: 0 ok, 1 a run stopped on an event, 2 bad input.
 """
 
 from __future__ import annotations
@@ -19,7 +20,8 @@ from ..console import EXIT_BAD_INPUT, EXIT_FAILED_RUN, EXIT_OK
 from ..console import OneLineParser as _Parser
 from ..console import error_line as _err
 from ..params import ParameterError
-from ..results import claim_output_dir
+from ..results import claim_output_dir, default_output_dir
+from ..scenarios import ScenarioError
 
 COLUMNS = ("speed_std_mps", "mean_speed_mps", "vehicles_stopped", "braking_events", "energy_J_per_km",
            "heat_pack_J_per_km", "soc_used_mean", "min_gap_m", "wave_speed_mps", "status")
@@ -28,11 +30,12 @@ COLUMNS = ("speed_std_mps", "mean_speed_mps", "vehicles_stopped", "braking_event
 def build_parser() -> argparse.ArgumentParser:
     """Argument parser of ``aev-ocp ring``."""
     p = _Parser(prog="aev-ocp ring", description="mixed traffic on a ring road: the Sugiyama and Stern experiments")
-    p.add_argument("experiment", choices=("sugiyama", "stern", "sweep"))
-    p.add_argument("--t-end-s", type=float, default=600.0, help="simulated time [s] (default 600)")
+    p.add_argument("experiment", metavar="EXPERIMENT|SCENARIO",
+                   help="sugiyama, stern, sweep, or a ring scenario file / shipped name (ring_sugiyama, ring_stern)")
+    p.add_argument("--t-end-s", type=float, default=None, help="simulated time [s] (default 600, or the scenario's)")
     p.add_argument("--seed", type=int, default=0, help="seed of the human drivers' acceleration noise (default 0)")
     p.add_argument("--aev", default="followerstopper",
-                   help="sweep: the AEV controller (followerstopper, pi-saturation, proposed, ovfl; default "
+                   help="sweep: the AEV controller (followerstopper, pi-saturation, proposed, ovfl, mpc; default "
                         "followerstopper)")
     p.add_argument("--penetration", type=int, action="append", default=None, metavar="K",
                    help="sweep: number of AEVs among the 22 (repeatable; default 0 1 2 3 4 5)")
@@ -62,13 +65,29 @@ def cli_ring(argv: list[str]) -> int:
     except SystemExit as exc:
         return int(exc.code or 0)
     try:
-        if not (math.isfinite(a.t_end_s) and 0 < a.t_end_s <= 36_000):
+        if a.t_end_s is not None and not (math.isfinite(a.t_end_s) and 0 < a.t_end_s <= 36_000):
             raise ParameterError(f"--t-end-s {a.t_end_s!r}: must be in (0, 36000] s")
-        out = Path(a.out) if a.out else Path("results") / "ring" / a.experiment
-        claim_output_dir(out, "ring", a.experiment, None, ["ring.json"])  # before any work
+        sc = None
+        if a.experiment not in ("sugiyama", "stern", "sweep"):
+            from .experiments import run_ring_scenario
+            from .scenario import load_ring_scenario
+
+            sc = load_ring_scenario(a.experiment)
+        else:
+            a.t_end_s = 600.0 if a.t_end_s is None else a.t_end_s
+        out = Path(a.out) if a.out else default_output_dir("ring", sc.name if sc is not None else a.experiment)
+        claim_output_dir(out, "ring", sc.name if sc is not None else a.experiment,  # before any work
+                         str(sc.source) if sc is not None and sc.source else None, ["ring.json"])
         runs: list[Any]
         doc: dict[str, Any] = {"experiment": a.experiment, "t_end_s": a.t_end_s, "seed": a.seed}
-        if a.experiment == "sugiyama":
+        if sc is not None:
+            runs = run_ring_scenario(sc, t_end_s=a.t_end_s)
+            doc.update({"experiment": sc.name, "scenario": str(sc.source), "t_end_s": runs[0].result.t_s[-1]
+                        if a.t_end_s is None else a.t_end_s, "seed": sc.spec.seed,
+                        "initial": runs[0].result.initial.perturbation})
+            if runs[0].label == "all human" and len(runs) > 1:
+                doc["relative_to_all_human"] = {r.label: relative_to(runs[0].fleet, r.fleet) for r in runs[1:]}
+        elif a.experiment == "sugiyama":
             runs = sugiyama(a.t_end_s, seed=a.seed)
             doc["stable_length_m"] = STABLE_LENGTH_M
         elif a.experiment == "stern":
@@ -95,13 +114,14 @@ def cli_ring(argv: list[str]) -> int:
         out.mkdir(parents=True, exist_ok=True)
         doc["runs"] = [{"label": r.label, **r.fleet} for r in runs]
         files = [write_json(out / "ring.json", doc)]
-        if not a.no_plots and a.experiment != "sweep":
+        if not a.no_plots and a.experiment != "sweep" and not (sc is not None and sc.spec.sweep_aevs):
             from .plots import space_time
 
             for r in runs:
                 name = "space_time_" + "".join(c if c.isalnum() else "_" for c in r.label) + ".png"
-                files.append(space_time(r.result, out / name, r.label))
-    except ParameterError as exc:
+                space_time(r.result, out / name, r.label)
+                files.append(out / name)
+    except (ParameterError, ScenarioError) as exc:
         _err(str(exc))
         return EXIT_BAD_INPUT
     except OSError as exc:

@@ -21,9 +21,9 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from ..models.carfollowing import OVFL, CarFollowingLaw, Proposed
+from ..models.carfollowing import CarFollowingLaw
 from ..params import EVParams, ParameterError
-from .laws import FollowerStopper, PISaturation, idm_si
+from .laws import AEV_CONTROLLERS, RING_PREDICTORS, idm_si, make_aev, ring_mpc  # noqa: F401 (re-exported)
 from .simulate import RingOptions, RingResult, RingRoad, RingSimulator, uniform_flow
 
 SUGIYAMA_LENGTH_M = 230.0  # Sugiyama et al. 2008 (New J. Phys. 10:033001): 22 cars on a 230 m circuit
@@ -34,7 +34,7 @@ NOISE_DT_S = 0.5
 STOP_SPEED_MPS = 0.1  # a vehicle below this speed counts as stopped
 BRAKING_MPS2 = -1.0  # a braking event: the acceleration drops below this (harder than IDM's comfortable b = 1.5 m/s²
 # at most moments of a calm ring, reached in every stop-and-go wave)
-AEV_CONTROLLERS = ("followerstopper", "pi-saturation", "proposed", "ovfl")
+
 
 
 def human_ring(length_m: float = SUGIYAMA_LENGTH_M, n: int = SUGIYAMA_N, *, aevs: dict[int, Any] | None = None,
@@ -60,22 +60,6 @@ def human_ring(length_m: float = SUGIYAMA_LENGTH_M, n: int = SUGIYAMA_N, *, aevs
         human.append(True)
     return RingRoad(length_m, tuple(vehicles), ev=ev, human=tuple(human), noise_mps2=noise_mps2,
                     noise_dt_s=NOISE_DT_S, seed=seed)
-
-
-def make_aev(name: str, ev: EVParams, r_mps: float) -> Any:
-    """An AEV controller by name: 'followerstopper' (desired speed r_mps), 'pi-saturation', 'proposed' (the
-    paper's law), 'ovfl', or any registered law name."""
-    key = name.lower()
-    if key == "followerstopper":
-        return FollowerStopper.from_si(ev.units, r_mps)
-    if key == "pi-saturation":
-        return PISaturation(units=ev.units)
-    if key == "proposed":
-        return Proposed()
-    if key == "ovfl":
-        return OVFL()
-    from ..models.carfollowing import make_law
-    return make_law(key)
 
 
 def _wave_speed(res: RingResult, sel: np.ndarray) -> float:
@@ -134,7 +118,9 @@ def run_ring(ring: RingRoad, t_end_s: float, *, shift_m: float = 2.0, options: R
              label: str = "") -> RingExperiment:
     """Uniform flow perturbed by moving vehicle 1 back ``shift_m`` [m]; fleet metrics over the second half."""
     res = RingSimulator(ring, options).run(uniform_flow(ring, shift_m=shift_m), t_end_s)
-    return RingExperiment(label, res, fleet_metrics(res))
+    fleet = fleet_metrics(res)
+    _add_controller_stats(res, fleet)
+    return RingExperiment(label, res, fleet)
 
 
 def sugiyama(t_end_s: float = 600.0, *, seed: int = 0, options: RingOptions | None = None) -> list[RingExperiment]:
@@ -168,3 +154,38 @@ def relative_to(base: dict[str, Any], other: dict[str, Any]) -> dict[str, float]
 
 
 _ = CarFollowingLaw
+
+
+def run_ring_scenario(sc: Any, options: RingOptions | None = None, t_end_s: float | None = None) -> list[RingExperiment]:
+    """Every run of a ring scenario (:class:`aev_ocp.ring.scenario.RingScenario`): all human first when it asks
+    for it, then one run per AEV controller; fleet metrics from ``metrics_from_s`` (default the second half).
+    ``t_end_s`` overrides the scenario's horizon [s]."""
+    from .scenario import build_ring, scenario_runs
+
+    s = sc.spec
+    t_end = s.t_end_s if t_end_s is None else float(t_end_s)
+    opts = options or RingOptions(dt_out_s=min(s.dt_out_s, t_end))
+    t_from = s.metrics_from_s if s.metrics_from_s is not None and s.metrics_from_s < t_end else None
+    out = []
+    for run in scenario_runs(sc):
+        ring, init = build_ring(sc, run.controller, run.length_m, run.aevs)
+        res = RingSimulator(ring, opts).run(init, t_end)
+        fleet = fleet_metrics(res, t_from)
+        fleet.update({"length_m": ring.length_m, "density_per_km": ring.density_per_km, "aevs": len(run.aevs)
+                      if run.controller is not None else 0, "controller": run.controller or "human"})
+        _add_controller_stats(res, fleet)
+        out.append(RingExperiment(run.label, res, fleet))
+    for e in out:  # relative changes against the all-human run on the same ring (−0.5 = 50 % lower)
+        human = next((h for h in out if h.fleet["aevs"] == 0 and h.fleet["length_m"] == e.fleet["length_m"]), None)
+        if human is not None and e is not human:
+            e.fleet.update({f"change_{k}": v for k, v in relative_to(human.fleet, e.fleet).items()})
+    return out
+
+
+def _add_controller_stats(res: RingResult, fleet: dict[str, Any]) -> None:
+    """Fallbacks and call times [ms] of the sampled controllers (the MPC's solve times) into the fleet metrics."""
+    st = [s for s in res.sim.solver_stats if s]
+    if st:
+        fleet["fallbacks"] = int(sum(s["fallbacks"] for s in st))
+        fleet["call_ms_median"] = float(np.median([s["call_ms_median"] for s in st]))
+        fleet["call_ms_max"] = float(max(s["call_ms_max"] for s in st))

@@ -26,8 +26,8 @@ import casadi as ca
 import numpy as np
 
 from ..control import Command, Observation
-from ..models.carfollowing import IDM, CarFollowingLaw, register_law
-from ..params import ParameterError, Units
+from ..models.carfollowing import IDM, OVFL, CarFollowingLaw, Proposed, register_law
+from ..params import EVParams, ParameterError, Units
 
 #: τ [s] of the speed loop that tracks a commanded speed: a = (v_cmd − v)/τ. Our choice (Stern et al. 2018 drove
 #: a production car's velocity controller, not published); 0.6 s is a typical ACC speed-loop time constant.
@@ -165,3 +165,51 @@ class PISaturation:
     def describe(self) -> dict[str, Any]:
         return {"controller": self.name, "dt_s": self.dt_s, "window_s": self.window_s, "g_l_m": self.g_l_m,
                 "g_u_m": self.g_u_m, "v_catch_mps": self.v_catch_mps, "gamma_m": self.gamma_m, "tau_s": self.tau_s}
+
+
+#: AEV controllers by name (:func:`make_aev`)
+AEV_CONTROLLERS = ("followerstopper", "pi-saturation", "proposed", "ovfl", "mpc")
+#: predictors a ring MPC may use: forecasts from its own measurements of the predecessor (a ring has no
+#: prescribed leader, so no 'oracle'; 'cooperative' would need the predecessor's plan)
+RING_PREDICTORS = ("decaying-acceleration", "constant-velocity", "constant-acceleration")
+
+
+def ring_mpc(ev: EVParams, settings: Any = None, predictor: str | None = None, formulation: Any = None) -> Any:
+    """The toolkit's MPC as a ring AEV: :class:`aev_ocp.mpc.policy.MPCPolicy` with ``settings`` (default
+    ``MPCSettings()``), ``formulation`` (default the traffic formulation: its 2 m gap floor, every command
+    through the safety filter) and a forecast of the predecessor from the AEV's own measurements (``predictor``, one of
+    :data:`RING_PREDICTORS`; default the settings' 'decaying-acceleration'). Fallback law: the proposed law."""
+    from ..mpc.policy import MPCPolicy
+    from ..mpc.predictors import make_predictor
+    from ..mpc.settings import MPCSettings
+    from ..ocp.formulation import traffic_formulation
+
+    s = settings if settings is not None else MPCSettings()
+    if not isinstance(s, MPCSettings):
+        raise ParameterError(f"ring: mpc settings must be an MPCSettings, got {type(s).__name__}")
+    name = predictor if predictor is not None else s.predictor
+    if name not in RING_PREDICTORS:
+        raise ParameterError(f"ring: mpc predictor = {name!r} is not allowed on a ring: must be one of "
+                             f"{RING_PREDICTORS} (forecasts from the AEV's own measurements)")
+    pred = make_predictor(name, None, s.predictor_window, ev.units.time_s)
+    return MPCPolicy(s, ev, Proposed(), pred, formulation=formulation or traffic_formulation())
+
+
+def make_aev(name: str, ev: EVParams, r_mps: float, mpc: Any = None) -> Any:
+    """An AEV controller by name: 'followerstopper' (desired speed r_mps), 'pi-saturation', 'proposed' (the
+    paper's law), 'ovfl', 'mpc' (:func:`ring_mpc`; ``mpc`` an optional (settings, formulation) pair, default
+    MPCSettings() and the traffic formulation), or any registered law name."""
+    key = name.lower()
+    if key == "mpc":
+        s, f = mpc if mpc is not None else (None, None)
+        return ring_mpc(ev, s, None, f)
+    if key == "followerstopper":
+        return FollowerStopper.from_si(ev.units, r_mps)
+    if key == "pi-saturation":
+        return PISaturation(units=ev.units)
+    if key == "proposed":
+        return Proposed()
+    if key == "ovfl":
+        return OVFL()
+    from ..models.carfollowing import make_law
+    return make_law(key)

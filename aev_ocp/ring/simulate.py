@@ -50,7 +50,7 @@ from ..models.battery import piecewise_ocv
 from ..models.ego import battery_side
 from ..params import EVParams, ParameterError, check_argument
 from ..plant import EVENT_RULES, event_at, event_header, rule_of_code
-from ..results import Event, SimulationResult
+from ..results import Event, SimulationResult, fmt_value, summary_html, summary_text
 from ..simulate import _law_template
 
 RING_METHODS = ("auto", "compiled", "cvodes")
@@ -266,6 +266,25 @@ class RingResult:
         """Realised accelerations (K, n) [m/s²]."""
         return np.asarray(self.sim.accel * self.ring.ev.units.accel_mps2)
 
+    def _repr_fields(self) -> tuple[str, list[tuple[str, Any]]]:
+        v = self.speed_mps
+        half = v[v.shape[0] // 2:]
+        aevs = sum(not self.ring.is_human(i) for i in range(self.ring.n))
+        return (f"RingResult: {self.ring.n} vehicles ({aevs} AEV) on {self.ring.length_m:g} m, status {self.status}",
+                [("duration_s", float(self.t_s[-1])), ("samples", int(self.t_s.size)),
+                 ("mean speed, second half [m/s]", float(half.mean())),
+                 ("speed std, second half [m/s]", float(half.std())), ("min gap [m]", float(self.gap_m.min()))])
+
+    def __repr__(self) -> str:
+        """A few lines: the ring, the status, duration [s], the speeds over the second half [m/s], the min gap [m]."""
+        title, fields = self._repr_fields()
+        return summary_text(title, [", ".join(f"{k} {fmt_value(x)}" for k, x in fields[:2]),
+                                    ", ".join(f"{k} {fmt_value(x)}" for k, x in fields[2:])])
+
+    def _repr_html_(self) -> str:
+        title, fields = self._repr_fields()
+        return summary_html(title, fields)
+
     def positions_m(self, wrap: bool = True) -> np.ndarray:
         """Positions (K, n) [m] along the ring (in [0, L) when ``wrap``)."""
         x = np.asarray(self.initial.positions_m)[None, :] + self.distance * self.ring.ev.units.length_m
@@ -283,10 +302,42 @@ class RingResult:
 
 
 # ----------------------------------------------------------------------------------------------- simulator
+_ARCH: list[str] = []
+
+
+def native_arch() -> str:
+    """The CPU the C compiler targets with -march=native, resolved to its name (e.g. 'znver3'), or '' when the
+    compiler cannot tell. The resolved name, not 'native', goes into the compile flags and so into the cache key
+    of the built library: a cache shared by two machines never hands one the other's instructions."""
+    if not _ARCH:
+        import subprocess
+
+        from ..compiled import compiler
+
+        arch = ""
+        cc = compiler()
+        if cc is not None:
+            try:
+                out = subprocess.run([cc, "-march=native", "-Q", "--help=target"], capture_output=True, text=True,
+                                     timeout=30).stdout
+                for line in out.splitlines():
+                    parts = line.split()
+                    if len(parts) == 2 and parts[0] == "-march=" and parts[1].replace("-", "").isalnum():
+                        arch = parts[1]
+                        break
+            except (OSError, subprocess.SubprocessError):
+                arch = ""
+        _ARCH.append(arch)
+    return _ARCH[0]
+
+
 def _compile(source: str, stem: str) -> tuple[ctypes.CDLL | None, str]:
-    """Compile with OpenMP (falls back to a single-threaded build)."""
+    """Compile with -O3 for the resolved native CPU and OpenMP (1 000 vehicles × 600 s: ~20 % less CPU than -O2
+    generic; benchmarks/bench_ring.py), falling back to OpenMP at -O2, then to a plain build."""
     last = ""
-    for flags in (("-fopenmp",), ()):
+    arch = native_arch()
+    tuned = (("-fopenmp", "-O3", f"-march={arch}"),) if arch else ()
+    for flags in (*tuned, ("-fopenmp",), ()):
         with warnings.catch_warnings():
             if flags:
                 warnings.simplefilter("ignore")
@@ -332,8 +383,9 @@ class RingSimulator:
             self.params[i, :len(values)] = values
         self.n_par = n_par
         p = ca.SX.sym("p", n_par)
-        self.funcs = [self._vehicle_function(make(p), k, p) for k, make in first.items()]
+        self._split: list[ca.Function] = []  # the motion part of each law (ring.c), filled by _vehicle_function
         self.nx = 5 + int(self.ev.limits.has_actuator_state)
+        self.funcs = [self._vehicle_function(make(p), k, p) for k, make in first.items()]
         self.nq, self.ny = len(QUAD_NAMES), len(OUT_NAMES)
         self.nz = self.nx + self.nq
         self._lib: ctypes.CDLL | None = None
@@ -372,21 +424,44 @@ class RingSimulator:
         ode = [vl - v, a, T * b["dV1"], T * b["dV2"], T * b["dS"], *extra]
         quad = [v, v * energy.g_exact(a, ev.vehicle.efficiency), T * b["P_b"], T * b["Q_pack"],
                 T * b["Q_irr_pack"], (vl - v) ** 2, (optimal_velocity(h) - v) ** 2]
+        self._split.append(ca.Function(f"aevring_mot{k}", [u, ca.vertcat(*x), p],
+                                       [ca.vertcat(vl - v, a, *extra), ca.vertcat(h, v, vl, a)]))
         return ca.Function(f"aevring_law{k}", [u, ca.vertcat(*x), p], [ca.vertcat(*ode, *quad),
                                                                         ca.vertcat(a, b["I"], b["disc"])])
 
+    def _battery_function(self) -> ca.Function:
+        """The battery and quadrature part of every vehicle's right-hand side, the same for every law:
+        (w = (h, v, v_l, a), x) -> ((V̇1, V̇2, Ṡ, quadrature integrands), y = (a, I, disc)). The compiled ring
+        evaluates it only on accepted steps (the step size is set by the motion alone, see ring.c)."""
+        ev, T = self.ev, self.ev.units.time_s
+        w = ca.SX.sym("w", 4)
+        h, v, vl, a = w[0], w[1], w[2], w[3]
+        x = ca.SX.sym("x", self.nx)
+        with piecewise_ocv():
+            b = battery_side(v, a, x[2], x[3], x[4], ev)
+        quad = [v, v * energy.g_exact(a, ev.vehicle.efficiency), T * b["P_b"], T * b["Q_pack"],
+                T * b["Q_irr_pack"], (vl - v) ** 2, (optimal_velocity(h) - v) ** 2]
+        return ca.Function("aevring_bat", [w, x], [ca.vertcat(T * b["dV1"], T * b["dV2"], T * b["dS"], *quad),
+                                                   ca.vertcat(a, b["I"], b["disc"])])
+
     def _build(self) -> None:
         cg = ca.CodeGenerator("aevring_rhs.c", {"with_header": False})
-        for f in self.funcs:
+        fs = [*self.funcs, *self._split, self._battery_function()]
+        for f in fs:
             cg.add(f)
-        fs = self.funcs
         head = (f"#define SZ_ARG {max(3, *(f.sz_arg() for f in fs))}\n#define SZ_RES {max(2, *(f.sz_res() for f in fs))}\n"
                 f"#define SZ_IW {max(f.sz_iw() for f in fs)}\n#define SZ_W {max(f.sz_w() for f in fs)}\n"
                 f"#define NX {self.nx}\n#define NCTRL {2 + int(self.nx > 5)}\n#define NQ {self.nq}\n#define NY {self.ny}\n#define BATTERY 1\n"
                 f"#define AEV_NP {self.n_par}\n#define SPEED_FLOOR {int(self.ev.limits.enabled)}\n"
                 f"#define LOCAL_FACTOR {float(self.opts.local_factor)!r}\n")
         head += "#define AEV_LAW_SWITCH " + " ".join(
-            f"case {k}: return aevring_law{k}(c->arg, c->res, c->iw, c->w, 0);" for k in range(len(fs))) + "\n"
+            f"case {k}: return aevring_law{k}(c->arg, c->res, c->iw, c->w, 0);" for k in range(len(self.funcs))) + "\n"
+        head += "#define AEV_MOT_SWITCH " + " ".join(
+            f"case {k}: return aevring_mot{k}(c->arg, c->res, c->iw, c->w, 0);" for k in range(len(self.funcs))) + "\n"
+        mot = [0, 1] + ([self.nx - 1] if self.nx > 5 else [])
+        bat = [j for j in range(self.nz) if j not in mot]
+        head += (f"#define MOT_IDX_INIT {{{', '.join(map(str, mot))}}}\n#define NB {len(bat)}\n"
+                 f"#define BAT_IDX_INIT {{{', '.join(map(str, bat))}}}\n")
         head += event_header()
         source = cg.dump() + "\n" + head + (resources.files("aev_ocp") / "c" / "ring.c").read_text()
         lib = _BUILT.get(source)

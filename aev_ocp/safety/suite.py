@@ -27,7 +27,7 @@ from ..mpc.predictors import make_predictor
 from ..mpc.settings import MPCSettings
 from ..ocp.formulation import Formulation, traffic_formulation
 from ..params import EVParams, ParameterError
-from ..results import SimulationResult
+from ..results import SimulationResult, require_pandas, summary_html, summary_text
 from ..simulate import simulate_platoon
 from .cases import CASE_UNITS, SafetyCase, suite_cases
 from .kinematics import AVOIDABLE, braking_bound
@@ -120,6 +120,34 @@ class SuiteOutput:
     settings: dict[str, Any]
     runs: dict[str, dict[str, SimulationResult]]
     cases: list[SafetyCase]
+
+    def _repr_fields(self) -> tuple[str, list[tuple[str, Any]]]:
+        ctrls = list(dict.fromkeys(r.controller for r in self.rows))
+        fields: list[tuple[str, Any]] = []
+        for c in ctrls:
+            mine = [r for r in self.rows if r.controller == c]
+            coll = sum(r.collision for r in mine)
+            fields.append((c, f"{len(self.failures(c))} failed of {len(mine)} cases, {coll} collisions, "
+                              f"min gap {min(r.min_gap_m for r in mine):.3g} m"))
+        return f"SuiteOutput: {len(self.cases)} safety cases × {len(ctrls)} controllers", fields
+
+    def __repr__(self) -> str:
+        """A few lines: per controller the failures, collisions and smallest gap [m]."""
+        title, fields = self._repr_fields()
+        return summary_text(title, [f"{k}: {v}" for k, v in fields])
+
+    def _repr_html_(self) -> str:
+        title, fields = self._repr_fields()
+        return summary_html(title, fields, [{k: getattr(r, k) for k in ("case", "controller", "label", "status",
+                                                                       "min_gap_m", "bound_min_gap_m")}
+                                            for r in self.rows])
+
+    def to_dataframe(self) -> Any:
+        """One row per case × controller (the :class:`CaseRow` fields, SI). Needs pandas
+        (``pip install 'aev_ocp[pandas]'``)."""
+        from dataclasses import asdict
+
+        return require_pandas("SuiteOutput.to_dataframe()").DataFrame([asdict(r) for r in self.rows])
 
     def failures(self, controller: str = "mpc") -> list[CaseRow]:
         """Rows of ``controller`` that collided or dipped below the floor in an avoidable case."""

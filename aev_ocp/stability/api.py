@@ -179,7 +179,8 @@ def run_stability(law: CarFollowingLaw | None, speeds: Sequence[float], out_dir:
 
             if lins:
                 assert law is not None  # lins holds the linear analyses of a law
-                files.append(str(plot_gain(lins, out / "gain.png", f"|G(iω)| of {law.name}")))
+                plot_gain(lins, out / "gain.png", f"|G(iω)| of {law.name}")
+                files.append(str(out / "gain.png"))
                 names = coefficient_names(law)
                 if region is None and len(names) >= 2:
                     region = (names[0], names[1])
@@ -190,17 +191,18 @@ def run_stability(law: CarFollowingLaw | None, speeds: Sequence[float], out_dir:
                     v_map = float(speeds[0])
                     say(f"stable region in ({region[0]}, {region[1]}) at v* = {si_v(v_map)}")
                     smap = stability_map(law, v_map, region[0], xs, region[1], ys)
-                    files.append(str(plot_region(xs, ys, smap["criterion"], smap["locally_stable"], region[0],
-                                                 region[1], out / "stable_region.png",
-                                                 f"{law.name}: string-stable region at v* = {si_v(v_map)}"
-                                                 + "".join(f", {k} = {getattr(law, k):g}" for k in names
-                                                           if k not in region), mark=(x0, y0))))
+                    plot_region(xs, ys, smap["criterion"], smap["locally_stable"], region[0], region[1],
+                                out / "stable_region.png", f"{law.name}: string-stable region at v* = {si_v(v_map)}"
+                                + "".join(f", {k} = {getattr(law, k):g}" for k in names if k not in region),
+                                mark=(x0, y0))
+                    files.append(str(out / "stable_region.png"))
                     doc["stable_region"] = {"x": region[0], "y": region[1], "v_star_mps": float(u.speed_to_si(v_map)),
                                             "v_star_model": v_map, "xs": xs.tolist(),
                                             "ys": ys.tolist(), "criterion": smap["criterion"].tolist()}
             if any(series.values()):
-                files.append(str(plot_attenuation(series, linear_refs, out / "attenuation.png",
-                                                  f"{doc['law']['law']}: attenuation vs amplitude ({kind})")))
+                plot_attenuation(series, linear_refs, out / "attenuation.png",
+                                 f"{doc['law']['law']}: attenuation vs amplitude ({kind})")
+                files.append(str(out / "attenuation.png"))
         doc["files"] = files + [str(out / "stability.json")]
         write_json(out / "stability.json", doc)
     return doc

@@ -223,7 +223,7 @@ def measure_mpc(v_star: float, amplitude: float, *, n_followers: int = 6, predic
                 t_end: float = 30.0, settings: Any = None, periods: int = 3,
                 baseline: SimulationResult | None = None, units: Units | None = None
                 ) -> tuple[Attenuation, SimulationResult]:
-    """The MPC platoon (PROBLEM.md §9) in closed loop with the exact plant behind the perturbed leader.
+    """The MPC platoon (model guide §9) in closed loop with the exact plant behind the perturbed leader.
 
     Every follower runs its own MPC (``settings``, default MPCSettings with the 'rti' path) and starts at
     (V⁻¹(v*), v*); predictor 'cooperative' means vehicles 2… use their predecessor's last plan and vehicle 1

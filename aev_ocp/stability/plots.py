@@ -7,7 +7,7 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
-from ..plots import _finish_single, plt, save_figure
+from ..plots import Figure, _finish_single, plt, save_figure
 from .linear import LinearStability
 from .measure import Attenuation
 
@@ -16,7 +16,7 @@ COEFFICIENT_LABELS = {"alpha": "α [1/model time]", "beta": "β [model length²/
                       "kappa": "κ [1/model length]", "eps": "ε [model speed²]"}
 
 
-def plot_gain(lins: Sequence[LinearStability], path: str | Path, title: str | None = None) -> Path:
+def plot_gain(lins: Sequence[LinearStability], path: str | Path | None = None, title: str | None = None) -> Figure:
     """|G(iω)| against ω for each analysis (one line per equilibrium speed / law)."""
     fig, ax = plt.subplots(figsize=(6.4, 4.0))
     w = np.logspace(-2.5, 1.5, 800)
@@ -31,7 +31,7 @@ def plot_gain(lins: Sequence[LinearStability], path: str | Path, title: str | No
 
 
 def plot_region(xs: np.ndarray, ys: np.ndarray, criterion: np.ndarray, local: np.ndarray, x_name: str,
-                y_name: str, path: str | Path, title: str, mark: tuple[float, float] | None = None) -> Path:
+                y_name: str, path: str | Path | None, title: str, mark: tuple[float, float] | None = None) -> Figure:
     """Stable region in a parameter plane: criterion C ≥ 0 (string stable) shaded, C = 0 contour drawn.
 
     criterion, local: arrays of shape (len(ys), len(xs))."""
@@ -54,8 +54,8 @@ def plot_region(xs: np.ndarray, ys: np.ndarray, criterion: np.ndarray, local: np
     return save_figure(fig, path)
 
 
-def plot_attenuation(series: Mapping[str, Sequence[Attenuation]], linear: Mapping[str, Attenuation], path: str | Path,
-                     title: str | None = None) -> Path:
+def plot_attenuation(series: Mapping[str, Sequence[Attenuation]], linear: Mapping[str, Attenuation], path: str | Path | None = None,
+                     title: str | None = None) -> Figure:
     """Measured attenuation against disturbance amplitude: geometric-mean step ratio of the peak |ṽ|
     (solid) and the largest step ratio of ‖ṽ‖₂ (dotted); dashed: the linearised law's values."""
     fig, ax = plt.subplots(figsize=(6.4, 4.0))

@@ -167,7 +167,7 @@ def load_table(path: str | Path, as_dataframe: bool = False) -> Any:
     else:
         rows = [json.loads(line) for line in p.read_text(encoding="utf-8").splitlines() if line.strip()]
     if as_dataframe:
-        import pandas as pd
+        from ..results import require_pandas
 
-        return pd.DataFrame(rows)
+        return require_pandas("load_table(as_dataframe=True)").DataFrame(rows)
     return rows

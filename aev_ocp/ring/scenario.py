@@ -1,0 +1,339 @@
+"""The ``[ring]`` scenario form: a ring road, its drivers, its AEVs and its start, in SI keys.
+
+A ring scenario file has ``name``, ``description``, the vehicle tables every scenario knows (``[units]``,
+``[vehicle]``, ``[cell]``, ``[pack]``, ``[limits]``: every vehicle carries that EV and battery), an optional
+``[mpc]`` (the MPC's solver settings and formulation, when an AEV runs "mpc"; a measured predictor only) and
+``[ring]`` (registered with the scenario loader, :func:`aev_ocp.scenarios.register_section`):
+
+* ``length_m`` [m] or ``density_per_km`` [1/km] (one of them), ``vehicles`` (how many), ``vehicle_length_m`` [m]
+  (default 5), ``t_end_s`` [s], ``dt_out_s`` [s] (default 0.5), ``metrics_from_s`` [s] (fleet metrics from this
+  time on; default the second half);
+* the human drivers: ``human = "idm" | "ovm"`` with ``[ring.idm]`` (``a_mps2``, ``b_mps2``, ``v0_mps``, ``s0_m``,
+  ``T_s``; defaults :data:`aev_ocp.ring.laws.IDM_SI`) or ``[ring.ovm]`` (``alpha_per_s``; V(h) the paper's),
+  ``heterogeneity`` (each human's parameters scaled by independent factors uniform in [1 − h, 1 + h]),
+  ``noise_mps2`` [m/s²], ``noise_dt_s`` [s] and ``seed`` (the seeded acceleration noise);
+* ``[ring.aev]`` (optional): ``vehicles`` (1-based vehicle numbers driven by an AEV), ``controllers`` (one run per
+  name, :data:`aev_ocp.ring.laws.AEV_CONTROLLERS`), ``r_fraction`` (FollowerStopper's desired speed as a share of
+  the uniform-flow speed, default 0.85), ``all_human`` (also run the ring with no AEV first, default true);
+* ``[ring.sweep]`` (optional, instead of ``[ring.aev]``): ``aevs`` (numbers of AEVs, spread evenly around the
+  ring: vehicles round(j n / k) + 1), ``density_per_km`` or ``length_m`` (an array: the rings; default the one
+  of ``[ring]``), ``controllers`` (default ["followerstopper"]) and ``r_fraction``: one run per ring, AEV count
+  and controller (the AEV count 0, all human, once per ring);
+* the start: ``[ring.perturbation]`` (uniform flow, then ``vehicle`` (1-based, default 1) moved back ``shift_m``
+  [m] (default 2) and slowed by ``speed_dip_mps`` [m/s] (default 0)), or ``[ring.initial]`` with ``positions_m``
+  and ``speeds_mps`` (one per vehicle; vehicle i − 1 ahead of vehicle i).
+
+Errors are one line naming the file and the key (``ring_x.toml: ring.aev.vehicles = [30] is not allowed: ...``).
+``aev-ocp ring FILE`` runs it.
+"""
+
+from __future__ import annotations
+
+import copy
+import re
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..params import CellParams, EVParams, PackParams, ParameterError, Units, VehicleLimits, VehicleParams
+from ..results import check_safe_name
+from ..scenarios import ScenarioError, TableReader, _params, find_scenario, read_scenario_text, register_section
+from .laws import AEV_CONTROLLERS, IDM_SI, RING_PREDICTORS
+
+HUMAN_MODELS = ("idm", "ovm")
+OVM_ALPHA_PER_S = 1.0  # the paper's OVM α = 2 (model, 1/T) at T = 2 s: 1 1/s
+_TOP = ("name", "description", "units", "vehicle", "cell", "pack", "limits", "mpc", "ring")
+
+
+@dataclass(frozen=True)
+class RingSpec:
+    """The validated ``[ring]`` table (SI)."""
+
+    length_m: float
+    vehicles: int
+    t_end_s: float
+    vehicle_length_m: float = 5.0  # the ring benchmarks of Wu et al. 2017 (Flow), as RingRoad
+    dt_out_s: float = 0.5
+    metrics_from_s: float | None = None
+    human: str = "idm"
+    human_params: dict[str, float] = field(default_factory=dict)
+    heterogeneity: float = 0.0
+    noise_mps2: float = 0.1  # aev_ocp.ring.experiments.NOISE_MPS2 (our choice, see there)
+    noise_dt_s: float = 0.5
+    seed: int = 0
+    aev_vehicles: tuple[int, ...] = ()  # 0-based
+    controllers: tuple[str, ...] = ()
+    r_fraction: float = 0.85  # FollowerStopper's r as a share of the uniform speed (aev_ocp.ring.experiments.stern)
+    all_human: bool = True
+    perturbed_vehicle: int = 0  # 0-based
+    shift_m: float = 2.0
+    speed_dip_mps: float = 0.0
+    positions_m: tuple[float, ...] | None = None
+    speeds_mps: tuple[float, ...] | None = None
+    sweep_aevs: tuple[int, ...] = ()  # [ring.sweep]: AEV counts
+    sweep_length_m: tuple[float, ...] = ()  # [ring.sweep]: ring lengths [m]
+
+
+@dataclass(frozen=True)
+class RingRun:
+    """One run of a ring scenario: its label, the ring's length [m], the 0-based AEV vehicles and their
+    controller (None: all human)."""
+
+    label: str
+    length_m: float
+    aevs: tuple[int, ...]
+    controller: str | None
+
+
+@dataclass(frozen=True)
+class RingScenario:
+    """A ring scenario: name, description, the EV every vehicle carries, the [ring] spec, the [mpc] config (or
+    None) and the TOML document it came from."""
+
+    name: str
+    spec: RingSpec
+    ev: EVParams
+    mpc: Any = None
+    description: str = ""
+    source: Path | None = None
+    document: dict[str, Any] | None = field(default=None, compare=False, repr=False)
+
+    @property
+    def density_per_km(self) -> float:
+        """Vehicles per km."""
+        return 1000.0 * self.spec.vehicles / self.spec.length_m
+
+
+def validate_ring_table(r: TableReader) -> RingSpec:
+    """Validator of the ``[ring]`` table (registered with the scenario loader)."""
+    kw: dict[str, Any] = {}
+    n = r.integer("vehicles", ge=2)
+    kw["vehicles"] = n
+    if r.has("length_m") == r.has("density_per_km"):
+        raise ScenarioError(f"{r.file}: {r.key_path('length_m')} / {r.key_path('density_per_km')}: give exactly one "
+                            "(the ring's length [m] or its density [vehicles per km])")
+    length = r.number("length_m", gt=0) if r.has("length_m") else 1000.0 * n / r.number("density_per_km", gt=0)
+    ell = r.number("vehicle_length_m", 5.0, ge=0)
+    if n * ell >= length:
+        key = "length_m" if r.has("length_m") else "density_per_km"
+        raise r.error(key, r.table[key], f"{n} vehicles of {ell:g} m do not fit on a ring of {length:g} m "
+                      "(need length > vehicles × vehicle_length_m)")
+    kw.update(length_m=length, vehicle_length_m=ell)
+    kw["t_end_s"] = r.number("t_end_s", gt=0, le=36_000)
+    kw["dt_out_s"] = r.number("dt_out_s", 0.5, gt=0, le=kw["t_end_s"])
+    if r.has("metrics_from_s"):
+        kw["metrics_from_s"] = r.number("metrics_from_s", ge=0, lt=kw["t_end_s"])
+    human = r.string("human", "idm", choices=HUMAN_MODELS)
+    kw["human"] = human
+    for other in HUMAN_MODELS:
+        if other != human and r.has(other):
+            raise r.error(other, r.table[other], f"sets the {other.upper()}, but ring.human = {human!r}")
+    hp = r.sub(human)
+    if human == "idm":
+        kw["human_params"] = {k: hp.number(k, v, ge=0 if k == "s0_m" else None, gt=None if k == "s0_m" else 0)
+                              for k, v in IDM_SI.items()}
+    else:
+        kw["human_params"] = {"alpha_per_s": hp.number("alpha_per_s", OVM_ALPHA_PER_S, gt=0)}
+    hp.finish(allowed_hint=list(IDM_SI) if human == "idm" else ["alpha_per_s"])
+    kw["heterogeneity"] = r.number("heterogeneity", 0.0, ge=0, lt=1)
+    kw["noise_mps2"] = r.number("noise_mps2", 0.1, ge=0)
+    kw["noise_dt_s"] = r.number("noise_dt_s", 0.5, gt=0)
+    kw["seed"] = r.integer("seed", 0, ge=0)
+    if r.has("aev"):
+        a = r.sub("aev")
+        nums = a.numbers("vehicles", ge=1)
+        if any(int(x) != x or x > n for x in nums):
+            raise a.error("vehicles", a.table["vehicles"], f"must be vehicle numbers 1 … {n} (ring.vehicles)")
+        if len(set(nums)) != len(nums):
+            raise a.error("vehicles", a.table["vehicles"], "lists a vehicle twice")
+        kw["aev_vehicles"] = tuple(sorted(int(x) - 1 for x in nums))
+        ctrls = a.strings("controllers", choices=list(AEV_CONTROLLERS))
+        if len(set(ctrls)) != len(ctrls):
+            raise a.error("controllers", a.table["controllers"], "names a controller twice; each runs once")
+        kw["controllers"] = tuple(ctrls)
+        kw["r_fraction"] = a.number("r_fraction", 0.85, gt=0, le=1.5)
+        kw["all_human"] = a.boolean("all_human", True)
+        a.finish()
+    if r.has("sweep"):
+        if r.has("initial"):
+            raise r.error("sweep", r.table["sweep"], "a sweep starts every ring from uniform flow and "
+                          "[ring.perturbation]; [ring.initial] gives one ring's positions")
+        if r.has("aev"):
+            raise r.error("sweep", r.table["sweep"], "give [ring.aev] (one ring, AEVs at given vehicles) or "
+                          "[ring.sweep] (AEV counts × rings), not both")
+        sw = r.sub("sweep")
+        counts = sw.numbers("aevs", ge=0)
+        if any(int(x) != x or x > n for x in counts) or len(set(counts)) != len(counts):
+            raise sw.error("aevs", sw.table["aevs"], f"must be distinct whole numbers of AEVs in 0 … {n}")
+        if sw.has("length_m") and sw.has("density_per_km"):
+            raise sw.error("length_m", sw.table["length_m"], "give length_m or density_per_km, not both")
+        if sw.has("density_per_km"):
+            lengths = [1000.0 * n / d for d in sw.numbers("density_per_km", gt=0)]
+            key = "density_per_km"
+        else:
+            lengths = sw.numbers("length_m", [length], gt=0)
+            key = "length_m"
+        for L in lengths:
+            if n * ell >= L:
+                raise sw.error(key, sw.table[key], f"{n} vehicles of {ell:g} m do not fit on a ring of {L:g} m")
+        ctrls = sw.strings("controllers", ["followerstopper"], choices=list(AEV_CONTROLLERS))
+        if len(set(ctrls)) != len(ctrls):
+            raise sw.error("controllers", sw.table["controllers"], "names a controller twice; each runs once")
+        kw.update(sweep_aevs=tuple(int(x) for x in counts), sweep_length_m=tuple(lengths), controllers=tuple(ctrls),
+                  r_fraction=sw.number("r_fraction", 0.85, gt=0, le=1.5))
+        sw.finish()
+        length = min(lengths)  # the perturbation must fit on every ring
+    if r.has("perturbation") and r.has("initial"):
+        raise r.error("initial", r.table["initial"], "give [ring.perturbation] or [ring.initial], not both")
+    if r.has("initial"):
+        ini = r.sub("initial")
+        pos = ini.numbers("positions_m", min_len=n, ge=0)
+        spd = ini.numbers("speeds_mps", min_len=n, ge=0)
+        for key, vals in (("positions_m", pos), ("speeds_mps", spd)):
+            if len(vals) != n:
+                raise ini.error(key, ini.table[key], f"needs {n} values (ring.vehicles), got {len(vals)}")
+        if any(x >= length for x in pos):
+            raise ini.error("positions_m", ini.table["positions_m"], f"must lie in [0, {length:g}) m (the ring)")
+        x = np.asarray(pos)
+        gaps = (np.roll(x, 1) - x) % length - ell
+        if np.any(gaps <= 0):
+            i = int(np.argmin(gaps))
+            raise ini.error("positions_m", ini.table["positions_m"], f"vehicle {i + 1} overlaps its predecessor "
+                            f"(gap {gaps[i]:.4g} m; vehicle i − 1 must be ahead of vehicle i, vehicles "
+                            f"{ell:g} m long)")
+        kw.update(positions_m=tuple(pos), speeds_mps=tuple(spd))
+        ini.finish()
+    else:
+        p = r.sub("perturbation")
+        veh = p.integer("vehicle", 1, ge=1)
+        if veh > n:
+            raise p.error("vehicle", veh, f"must be a vehicle number 1 … {n} (ring.vehicles)")
+        kw.update(perturbed_vehicle=veh - 1, shift_m=p.number("shift_m", 2.0, ge=0, lt=length / n - ell),
+                  speed_dip_mps=p.number("speed_dip_mps", 0.0, ge=0))
+        p.finish()
+    r.finish()
+    return RingSpec(**kw)
+
+
+register_section("ring", validate_ring_table)
+
+
+def parse_ring_scenario(doc: dict[str, Any], file: str = "<ring scenario>", source: Path | None = None) -> RingScenario:
+    """Validate a parsed TOML document into a :class:`RingScenario` (errors name the file and key)."""
+    for key in doc:
+        if key not in _TOP:
+            raise ScenarioError(f"{file}: unknown top-level key or table {key!r} in a ring scenario; allowed: "
+                                f"{sorted(_TOP)}")
+    top = TableReader(doc, "", file)
+    stem = source.stem if source is not None else "ring"
+    name = top.string("name", re.sub(r"[^A-Za-z0-9._+-]", "_", stem).lstrip("._+-")[:100] or "ring")
+    try:
+        check_safe_name(name)
+    except ValueError as exc:
+        raise top.error("name", name, str(exc).split("is not allowed: ", 1)[-1]) from None
+    description = top.string("description", "")
+    ev = EVParams(units=_params(Units, top.sub("units")), vehicle=_params(VehicleParams, top.sub("vehicle")),
+                  cell=_params(CellParams, top.sub("cell")), pack=_params(PackParams, top.sub("pack")),
+                  limits=_params(VehicleLimits, top.sub("limits")))
+    spec = validate_ring_table(top.sub("ring", required=True))
+    mpc = None
+    if "mpc" in doc:
+        from ..mpc.scenario import validate_mpc_table
+
+        mpc = validate_mpc_table(top.sub("mpc"))
+        if mpc.vehicles is not None or mpc.follower_predictor is not None:
+            raise ScenarioError(f"{file}: mpc.vehicles / mpc.follower_predictor do not apply to a ring: the MPC "
+                                "drives the vehicles of ring.aev.vehicles whose controller is \"mpc\"")
+        if mpc.settings.predictor not in RING_PREDICTORS:
+            raise ScenarioError(f"{file}: mpc.predictor = {mpc.settings.predictor!r} is not allowed on a ring: must "
+                                f"be one of {list(RING_PREDICTORS)} (an AEV forecasts its predecessor from its "
+                                "own measurements)")
+    top.finish()
+    return RingScenario(name, spec, ev, mpc, description, source, copy.deepcopy(doc))
+
+
+def load_ring_scenario(path: str | Path) -> RingScenario:
+    """Read and validate a ring scenario file (a path, or a shipped name such as ``ring_stern``)."""
+    try:
+        p = find_scenario(path)
+    except ScenarioError:
+        from ..scenarios import shipped_scenarios
+
+        raise ScenarioError(f"{path}: no such ring scenario file (shipped ring scenarios: "
+                            f"{', '.join(shipped_scenarios('ring')) or 'none found'})") from None
+    file = str(path)
+    text = read_scenario_text(p, file)
+    try:
+        doc = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ScenarioError(f"{file}: not valid TOML: {exc}") from None
+    if "ring" not in doc:
+        raise ScenarioError(f"{file}: not a ring scenario (no [ring] table); run a platoon scenario with "
+                            "'aev-ocp simulate'")
+    return parse_ring_scenario(doc, file, p)
+
+
+def build_ring(sc: RingScenario, controller: str | None, length_m: float | None = None,
+               aevs: tuple[int, ...] | None = None) -> tuple[Any, Any]:
+    """(RingRoad, RingInitial) of the scenario with its AEVs (default ``[ring.aev]``'s vehicles; 0-based) under
+    ``controller`` (None: all human), on a ring of ``length_m`` [m] (default the scenario's)."""
+    from .laws import idm_si, make_aev
+    from .simulate import RingInitial, RingRoad, uniform_flow, uniform_speed_mps
+    from ..models.carfollowing import OVM
+
+    s, ev = sc.spec, sc.ev
+    length = s.length_m if length_m is None else float(length_m)
+    on = s.aev_vehicles if aevs is None else tuple(aevs)
+    rng = np.random.default_rng(s.seed + 7919)  # the same draws as aev_ocp.ring.experiments.human_ring
+    humans: list[Any] = []
+    for _ in range(s.vehicles):
+        f = 1 + s.heterogeneity * rng.uniform(-1, 1, 5) if s.heterogeneity > 0 else np.ones(5)
+        if s.human == "idm":
+            humans.append(idm_si(ev.units, *[v * fk for v, fk in zip(s.human_params.values(), f)]))
+        else:
+            humans.append(OVM(alpha=float(s.human_params["alpha_per_s"] * f[0] * ev.units.time_s)))
+    base = RingRoad(length, tuple(humans), s.vehicle_length_m, ev, tuple([True] * s.vehicles), s.noise_mps2,
+                    s.noise_dt_s, s.seed)
+    vehicles, human = list(humans), [True] * s.vehicles
+    if controller is not None:
+        try:
+            r_mps = s.r_fraction * uniform_speed_mps(base)
+        except ParameterError as exc:
+            raise ScenarioError(f"{sc.source or sc.name}: {exc}") from None
+        mpc = (sc.mpc.settings, sc.mpc.formulation) if sc.mpc is not None else None
+        for i in on:
+            vehicles[i] = make_aev(controller, ev, r_mps, mpc)
+            human[i] = False
+    ring = RingRoad(length, tuple(vehicles), s.vehicle_length_m, ev, tuple(human), s.noise_mps2, s.noise_dt_s,
+                    s.seed)
+    if s.positions_m is not None and s.speeds_mps is not None and length == s.length_m:
+        init = RingInitial(s.positions_m, s.speeds_mps, None, "given positions and speeds")
+    else:
+        init = uniform_flow(base, shift_m=s.shift_m, vehicle=s.perturbed_vehicle, speed_dip_mps=s.speed_dip_mps)
+    return ring, init
+
+
+def spread(k: int, n: int) -> tuple[int, ...]:
+    """k AEV positions (0-based) spread evenly over n vehicles: round(j n / k), j = 0 … k − 1."""
+    return tuple(sorted({int(round(j * n / k)) for j in range(k)})) if k else ()
+
+
+def scenario_runs(sc: RingScenario) -> list[RingRun]:
+    """The runs of a scenario: all human first when asked for, then one per AEV controller; with
+    ``[ring.sweep]`` one per ring × AEV count × controller (count 0 once per ring)."""
+    s = sc.spec
+    if s.sweep_aevs:
+        out = []
+        for L in s.sweep_length_m:
+            dens = 1000.0 * s.vehicles / L
+            for k in s.sweep_aevs:
+                for c in (s.controllers[:1] if k == 0 else s.controllers):
+                    out.append(RingRun(f"{dens:.4g}/km, {k} {'human' if k == 0 else c}", L, spread(k, s.vehicles),
+                                       None if k == 0 else c))
+        return out
+    runs = [RingRun("all human", s.length_m, (), None)] if (s.all_human or not s.controllers) else []
+    return runs + [RingRun(c, s.length_m, s.aev_vehicles, c) for c in s.controllers]
+

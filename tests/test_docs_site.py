@@ -1,0 +1,69 @@
+"""The documentation stands on its own (issue 26): no text refers to a file outside the repository, the site's
+pages own their text (nothing is pulled from README.md at build time), and every notebook is listed, stored
+without outputs and executed by the build with errors failing it."""
+
+from __future__ import annotations
+
+import json
+import re
+from pathlib import Path
+
+ROOT = Path(__file__).parents[1]
+TEXT = {".py", ".md", ".toml", ".yml", ".yaml", ".txt", ".ipynb", ".json", ".c", ".h", ".in", ".csv"}
+
+
+def _repo_files() -> list[Path]:
+    out = [ROOT / "README.md", ROOT / "mkdocs.yml", ROOT / "pyproject.toml", ROOT / "setup.py"]
+    for d in ("aev_ocp", "docs", "examples", "scenarios", "studies", "benchmarks", ".ci"):
+        out += [p for p in (ROOT / d).rglob("*") if p.is_file() and (p.suffix in TEXT or p.parent.name == ".ci")
+                and "__pycache__" not in p.parts]
+    return out
+
+
+def test_no_text_refers_to_the_problem_card_or_to_files_outside_the_repository() -> None:
+    bad = []
+    for p in _repo_files():
+        text = p.read_text(encoding="utf-8", errors="replace")
+        for pat in ("PROBLEM.md", "../shared/", "paper.tex"):
+            if pat in text:
+                bad.append(f"{p.relative_to(ROOT)}: {pat}")
+    assert not bad, bad
+
+
+def test_section_numbers_name_the_model_page() -> None:
+    """'model guide §N' and the site's links point at a section the model page has (§1-§12)."""
+    model = (ROOT / "docs" / "guide" / "model.md").read_text(encoding="utf-8")
+    have = {int(n) for n in re.findall(r"^## §(\d+) ", model, re.M)}
+    assert have == set(range(1, 13))
+    slugs = {re.sub(r"[-\s]+", "-", re.sub(r"[^\w\s-]", "", h).strip().lower())
+             for h in re.findall(r"^## (§\d+ .+)$", model, re.M)}
+    for p in _repo_files():
+        text = p.read_text(encoding="utf-8", errors="replace")
+        for n in re.findall(r"model guide §(\d+)", text):
+            assert int(n) in have, f"{p.relative_to(ROOT)}: model guide §{n}"
+        for anchor in re.findall(r"model\.md#([\w-]+)", text):
+            assert anchor in slugs, f"{p.relative_to(ROOT)}: model.md#{anchor}"
+
+
+def test_the_site_owns_its_pages_and_executes_every_notebook() -> None:
+    cfg = (ROOT / "mkdocs.yml").read_text(encoding="utf-8")
+    assert "hooks:" not in cfg and not (ROOT / "docs" / "hooks").exists()
+    pages = sorted(p.relative_to(ROOT / "docs").as_posix() for p in (ROOT / "docs").rglob("*")
+                   if p.suffix in (".md", ".ipynb"))
+    for page in pages:
+        assert f": {page}" in cfg or f"- {page}" in cfg, f"{page} is not in the site's nav"
+        if page.endswith(".md"):
+            assert "<!-- readme:" not in (ROOT / "docs" / page).read_text(encoding="utf-8"), page
+    notebooks = [p for p in pages if p.endswith(".ipynb")]
+    assert len(notebooks) >= 3
+    plugin = cfg.split("- mkdocs-jupyter:", 1)[1].split("\n  - ", 1)[0]
+    assert re.search(r"^\s+execute: true$", plugin, re.M) and re.search(r"^\s+allow_errors: false$", plugin, re.M)
+    for nb in notebooks:  # stored without outputs: what the site shows is what the build computed
+        cells = json.loads((ROOT / "docs" / nb).read_text(encoding="utf-8"))["cells"]
+        code = [c for c in cells if c["cell_type"] == "code"]
+        assert code and all(not c.get("outputs") and c.get("execution_count") is None for c in code), nb
+    toml = (ROOT / "pyproject.toml").read_text(encoding="utf-8")  # the docs extra brings what the build needs
+    docs_extra = toml.split("\ndocs = [", 1)[1].split("\n[", 1)[0].split("]\n", 1)[0]
+    for pkg in ("mkdocs", "mkdocstrings[python]", "mkdocs-jupyter", "nbformat", "ipykernel", "pandas"):
+        assert f'"{pkg}>=' in docs_extra, pkg
+    assert "mkdocs build --strict" in (ROOT / ".ci" / "run").read_text(encoding="utf-8")
