@@ -454,3 +454,28 @@ def test_fuzz_study_toml_is_valid_or_one_clear_error(tmp_path, lines, noise):
         read_study(f)
     except (StudyError, ScenarioError, OverrideError, ParameterError) as exc:  # exit 2 with one line on the CLI
         assert str(exc)
+
+
+# ----------------------------------------------------------------------------- mpc-export (1, 2, 9)
+def test_mpc_export_refuses_a_users_folder_and_a_huge_horizon_before_generating(tmp_path, capsys):
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "Makefile").write_text("all:\n\techo mine\n")
+    rc, _, err = run_cli(["mpc-export", "mpc_paper_single", "--out", str(mine)], capsys)
+    assert rc == 2 and "Makefile" in one_error(err) and sorted(p.name for p in mine.iterdir()) == ["Makefile"]
+    t0 = time.perf_counter()
+    rc, _, err = run_cli(["mpc-export", "mpc_paper_single", "--out", str(tmp_path / "big"), "--set", "mpc.N=100000"],
+                         capsys)
+    assert rc == 2 and "mpc.N = 100000" in one_error(err) and time.perf_counter() - t0 < 10.0
+    assert not (tmp_path / "big").exists()
+
+
+def test_mpc_export_builds_into_a_relative_out(tmp_path, capsys, monkeypatch):
+    from aev_ocp.compiled import compiler
+
+    if compiler() is None:
+        pytest.skip("no C compiler")
+    monkeypatch.chdir(tmp_path)
+    rc, out, err = run_cli(["mpc-export", "mpc_paper_single", "--out", "rel_dir", "--build"], capsys)
+    assert rc == 0, err
+    assert (tmp_path / "rel_dir" / "libaev_mpc.so").is_file() and "built" in out
