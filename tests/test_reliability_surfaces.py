@@ -479,3 +479,52 @@ def test_mpc_export_builds_into_a_relative_out(tmp_path, capsys, monkeypatch):
     rc, out, err = run_cli(["mpc-export", "mpc_paper_single", "--out", "rel_dir", "--build"], capsys)
     assert rc == 0, err
     assert (tmp_path / "rel_dir" / "libaev_mpc.so").is_file() and "built" in out
+
+
+# ----------------------------------------------------------------------------- 10. the C API's plain step
+@pytest.mark.skipif(shutil.which("cc") is None and shutil.which("gcc") is None, reason="no C compiler")
+def test_plain_c_step_with_own_states_matches_the_python_controller_in_closed_loop(tmp_path, capsys):
+    """aev_mpc_step (no own states given: a_prev taken from the previous plan, node 1) driven in a closed loop on
+    the traffic formulation (nx = 6) against the Python controller, and aev_mpc_step_own beside it; a one-node
+    shift of the own state in mpc_step.c makes every command after the first differ."""
+    from test_mpc_export import TOL, CPolicy, _compare
+
+    from aev_ocp.control import ClosedLoop
+    from aev_ocp.models import drive_cycle
+    from aev_ocp.mpc.export import CStep, build_library
+    from aev_ocp.mpc.policy import MPCVehicle
+    from aev_ocp.mpc.settings import MPCSettings
+    from aev_ocp.params import EVParams, Units
+
+    rc, _, err = run_cli(["mpc-export", "mpc_udds_single", "--out", str(tmp_path / "x"), "--set",
+                          "mpc.predictor=constant-velocity", "--set", "mpc.N=14"], capsys)
+    assert rc == 0, err
+    lib = build_library(tmp_path / "x", tmp_path / "x" / "lib.so")
+    ev = EVParams(units=Units(15.0, 17.0))
+    s = MPCSettings(N=14, predictor="constant-velocity", qp_solver="riccati", codegen=False)
+    leader = drive_cycle("udds", ev.units)
+    t_end = 40.0  # 400 steps; the leader drives off at 20 s (model 40 = 35 s of UDDS)
+
+    class Plain(CStep):  # the documented entry point: never passes the own states
+        calls = 0
+
+        def step(self, x_meas, forecast, own=None):  # noqa: ANN001, ANN202
+            Plain.calls += 1
+            return super().step(x_meas, forecast, None)
+
+    runs = {}
+    for name in ("plain", "own"):
+        loop = ClosedLoop(leader, [MPCVehicle(s)], ev)
+        cp = CPolicy(lib, loop.ctrl[0])
+        if name == "plain":
+            cp.step = Plain(lib)
+        assert cp.step.nx == 6  # the jerk state a_prev: an own state the plain step must take from its plan
+        loop.ctrl[0] = cp
+        runs[name] = (loop.run([0.8], [0.0], t_end), cp.status)
+    rp = ClosedLoop(leader, [MPCVehicle(s)], ev).run([0.8], [0.0], t_end)
+    assert Plain.calls == 400
+    for name, (r, st) in runs.items():
+        assert all(k == 0 for k in st), (name, st)
+        du, dx = _compare(r, rp)
+        assert du <= TOL and dx <= TOL, (name, du, dx)
+    assert np.abs(np.diff(rp.accel[:, 0])).max() > 1e-3  # a_prev changes: a shifted node would be seen
