@@ -7,7 +7,6 @@ from __future__ import annotations
 import json
 import os
 import shutil
-import sys
 import time
 import tracemalloc
 import zipfile
@@ -523,8 +522,8 @@ def test_plain_c_step_with_own_states_matches_the_python_controller_in_closed_lo
         runs[name] = (loop.run([0.8], [0.0], t_end), cp.status)
     rp = ClosedLoop(leader, [MPCVehicle(s)], ev).run([0.8], [0.0], t_end)
     assert Plain.calls == 400
-    for name, (r, st) in runs.items():
-        assert all(k == 0 for k in st), (name, st)
+    for name, (r, status) in runs.items():
+        assert all(k == 0 for k in status), (name, status)
         du, dx = _compare(r, rp)
         assert du <= TOL and dx <= TOL, (name, du, dx)
     assert np.abs(np.diff(rp.accel[:, 0])).max() > 1e-3  # a_prev changes: a shifted node would be seen
