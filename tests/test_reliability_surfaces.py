@@ -527,3 +527,39 @@ def test_plain_c_step_with_own_states_matches_the_python_controller_in_closed_lo
         du, dx = _compare(r, rp)
         assert du <= TOL and dx <= TOL, (name, du, dx)
     assert np.abs(np.diff(rp.accel[:, 0])).max() > 1e-3  # a_prev changes: a shifted node would be seen
+
+
+# ----------------------------------------------------------------------------- 5. a scheduler that never answers
+def test_a_silent_scheduler_fails_after_the_connect_timeout(monkeypatch):
+    pytest.importorskip("dask.distributed")
+    import socket
+    import threading
+
+    from aev_ocp.study import runner
+
+    srv = socket.socket()
+    srv.bind(("127.0.0.1", 0))
+    srv.listen(8)
+    held: list[socket.socket] = []
+    stop = threading.Event()
+
+    def accept() -> None:  # accepts every connection and never says a word
+        srv.settimeout(0.2)
+        while not stop.is_set():
+            try:
+                held.append(srv.accept()[0])
+            except OSError:
+                pass
+
+    threading.Thread(target=accept, daemon=True).start()
+    monkeypatch.setattr(runner, "SCHEDULER_CONNECT_TIMEOUT_S", 2.0)
+    t0 = time.perf_counter()
+    try:
+        with pytest.raises(RuntimeError, match="did not answer within 2 s"):
+            runner._run_dask([{"key": "k"}], None, f"tcp://127.0.0.1:{srv.getsockname()[1]}", lambda r: None)
+    finally:
+        stop.set()
+        for c in held:
+            c.close()
+        srv.close()
+    assert time.perf_counter() - t0 < 15.0 and held  # it did connect, and gave up on its own

@@ -323,6 +323,30 @@ SCHEDULER_CONNECT_TIMEOUT_S = 20.0  # connecting to a Dask scheduler (Dask's own
 SCHEDULER_HEARTBEAT_TIMEOUT_S = 60.0  # a connection silent this long is dropped (Dask's tcp timeout, default 30 s) [s]
 
 
+def _connect(client_type: Any, scheduler: str) -> Any:
+    """A Dask client of ``scheduler``, or RuntimeError once SCHEDULER_CONNECT_TIMEOUT_S has passed: the connect
+    runs in a daemon thread, so a peer that accepts and never completes the handshake cannot hang the study."""
+    import threading
+
+    box: dict[str, Any] = {}
+
+    def go() -> None:
+        try:
+            box["client"] = client_type(scheduler, timeout=SCHEDULER_CONNECT_TIMEOUT_S)
+        except BaseException as exc:  # noqa: BLE001 - reported below, in the caller's thread
+            box["error"] = exc
+
+    t = threading.Thread(target=go, name="aev-ocp-dask-connect", daemon=True)
+    t.start()
+    t.join(SCHEDULER_CONNECT_TIMEOUT_S + 1.0)
+    if t.is_alive() or "error" in box:
+        exc = box.get("error")
+        why = f" ({type(exc).__name__}: {exc})" if exc is not None else ""
+        raise RuntimeError(f"the Dask scheduler {scheduler} did not answer within {SCHEDULER_CONNECT_TIMEOUT_S:g} s"
+                           f"{why}")
+    return box["client"]
+
+
 def dask_missing_message() -> str:
     """What to do when Dask is not installed."""
     return ("Dask is not installed: the Dask executor (--dask-local N, --scheduler ADDRESS) needs "
@@ -346,11 +370,7 @@ def _run_dask(specs: list[dict[str, Any]], workers: int | None, scheduler: str |
                            "distributed.comm.timeouts.tcp": f"{SCHEDULER_HEARTBEAT_TIMEOUT_S}s"})
     try:
         if scheduler:
-            try:
-                client = Client(scheduler, timeout=SCHEDULER_CONNECT_TIMEOUT_S)
-            except (OSError, TimeoutError) as exc:
-                raise RuntimeError(f"the Dask scheduler {scheduler} did not answer within "
-                                   f"{SCHEDULER_CONNECT_TIMEOUT_S:g} s ({type(exc).__name__}: {exc})") from None
+            client = _connect(Client, scheduler)
         else:
             _export_path()
             cluster = LocalCluster(n_workers=n_local, threads_per_worker=1, processes=True,
