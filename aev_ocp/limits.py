@@ -128,3 +128,51 @@ def check_mpc_size(N: int, n_mpc_vehicles: int = 1) -> float:
     raise ParameterError(f"mpc: {n_mpc_vehicles} MPC vehicle(s) with horizon N = {N} need about {_gb(need)}, more than "
                          f"the limit of {_gb(limit)} ($AEV_OCP_MAX_MEMORY_GB): lower MPCSettings.N to at most "
                          f"{int(limit // (MPC_BYTES_PER_INTERVAL * max(n_mpc_vehicles, 1)))}")
+
+
+# ----------------------------------------------------------------------------- studies
+#: Peak memory of reading and validating one study point [bytes]: 19.8 kB measured (tracemalloc peak of
+#: read_study on a 30 x 30 random grid of the Table 1 scenario, 900 points: 17.8 MB), rounded up.
+STUDY_BYTES_PER_POINT = 25_000
+#: Most tasks (points x controllers) one study may hold: validation costs ~1-6 ms per point (measured on the
+#: 30 x 30 grid above, 5.6 s for 900 points under tracemalloc), so 10^5 tasks already take minutes to check
+#: and hours to run; split a larger sweep into several studies.
+MAX_STUDY_TASKS = 100_000
+
+
+def check_study_size(n_points: int, n_controllers: int, where: str) -> float:
+    """Raise ParameterError naming ``where`` (the study file and the axes that set the size) if a study of
+    ``n_points`` points x ``n_controllers`` controllers exceeds :data:`MAX_STUDY_TASKS` or the memory budget,
+    before any point is built; returns the estimated memory [bytes]."""
+    n_tasks = n_points * max(n_controllers, 1)
+    need, limit = STUDY_BYTES_PER_POINT * float(n_points), memory_limit_bytes()
+    if n_tasks > MAX_STUDY_TASKS:
+        raise ParameterError(f"{where}: {n_points:.4g} points x {n_controllers} controllers = {n_tasks:.4g} tasks, more "
+                             f"than the {MAX_STUDY_TASKS} a study may hold: use fewer values or a smaller random n, "
+                             "or split the sweep into several studies")
+    if need > limit:
+        raise ParameterError(f"{where}: {n_points:.4g} points need about {_gb(need)} to validate, more than the limit "
+                             f"of {_gb(limit)} ($AEV_OCP_MAX_MEMORY_GB): use fewer values or a smaller random n")
+    return need
+
+
+#: Local worker processes per core at most (``--workers``, ``--dask-local``): each worker imports CasADi and
+#: NumPy (~150 MB resident) and opens a few pipes; past a few per core they only contend for the cores and
+#: for file descriptors (10 000 requested ones ended in "Too many open files").
+MAX_WORKERS_PER_CORE = 4
+
+
+def max_local_workers() -> int:
+    """The most local worker processes a study may start: :data:`MAX_WORKERS_PER_CORE` x the core count."""
+    return MAX_WORKERS_PER_CORE * (os.cpu_count() or 1)
+
+
+def check_local_workers(n: int | None, key: str = "--workers") -> int | None:
+    """``n`` if it is None or 1 ... :func:`max_local_workers`, else ParameterError naming ``key``."""
+    if n is None:
+        return None
+    cap = max_local_workers()
+    if isinstance(n, bool) or not isinstance(n, int) or not 1 <= n <= cap:
+        raise ParameterError(f"{key} {n!r}: must be an integer from 1 to {cap} ({MAX_WORKERS_PER_CORE} per core on "
+                             f"this machine's {os.cpu_count() or 1} cores)")
+    return n

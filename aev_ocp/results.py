@@ -179,6 +179,32 @@ def claim_output_dir(out: str | os.PathLike[str], command: str, scenario: str, s
     return out
 
 
+LOCK = ".aev-ocp.lock"  # held (flock) by the one run writing into a folder
+
+
+@contextlib.contextmanager
+def output_lock(out: str | os.PathLike[str]) -> Iterator[Path]:
+    """Hold an exclusive lock on the folder ``out`` (created if needed) for the block: a second run into the
+    same folder gets an :class:`OutputError` at once instead of mixing its files with the first one's.
+    The lock is an flock on ``out/.aev-ocp.lock``: the system releases it when the process ends, however."""
+    import fcntl
+
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    fd = os.open(out / LOCK, os.O_RDWR | os.O_CREAT, 0o666 & ~_UMASK)
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            raise OutputError(f"output folder {out} is in use by another aev-ocp run (pid in {out / LOCK}); wait for "
+                              "it to finish or choose another --out") from None
+        os.ftruncate(fd, 0)
+        os.write(fd, f"{os.getpid()}\n".encode())
+        yield out
+    finally:
+        os.close(fd)
+
+
 def to_jsonable(x: Any) -> Any:
     """numpy arrays/scalars -> lists/floats, non-finite floats -> None, dataclasses -> dicts, recursively."""
     if isinstance(x, dict):

@@ -21,12 +21,16 @@ import hashlib
 import io
 import json
 import math
+import os
+import stat
+import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping
 
 import numpy as np
 
+from .limits import memory_limit_bytes
 from .params import (UNLIMITED, CellParams, EVParams, PackParams, ThermalParams, Units, VehicleLimits, VehicleParams,
                      as_dict)
 from .results import (Event, SimulationResult, atomic_path, fmt_value, require_pandas, summary_html, summary_text,
@@ -132,14 +136,15 @@ def read_manifest(path: str | Path) -> tuple[dict[str, Any], Path]:
         folder, file = p, p / MANIFEST
     else:
         folder, file = p.parent, p
-    if not file.is_file():
+    if not file.exists():
         hint = (" (written by aev-ocp before outputs became loadable? rerun the command)"
                 if folder.is_dir() and (folder / "aev-ocp-run.json").is_file() else "")
         raise LoadError(f"{path}: not an aev_ocp output: no {MANIFEST} found{hint}")
+    text = read_regular(file, MAX_MANIFEST_BYTES, "manifest")
     try:
-        m = json.loads(file.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, ValueError) as exc:
-        raise LoadError(f"{file}: not an aev_ocp output: cannot read it as JSON ({exc})") from None
+        m = json.loads(text.decode("utf-8"))
+    except (UnicodeDecodeError, ValueError, RecursionError) as exc:
+        raise LoadError(f"{file}: not an aev_ocp output: cannot read it as JSON ({type(exc).__name__})") from None
     if not isinstance(m, dict) or m.get("format") != FORMAT:
         raise LoadError(f"{file}: not an aev_ocp output (format is {m.get('format') if isinstance(m, dict) else None!r}, "
                         f"expected {FORMAT!r})")
@@ -159,15 +164,51 @@ def _arrays(m: dict[str, Any], folder: Path) -> dict[str, np.ndarray]:
     if not name:
         return {}
     f = folder / Path(str(name)).name  # never outside the folder
-    try:
-        data = f.read_bytes()
-    except OSError as exc:
-        raise LoadError(f"{folder}: the output's arrays file {f.name} cannot be read ({exc.strerror or exc})") from None
+    limit = int(memory_limit_bytes())
+    data = read_regular(f, limit, "arrays file")
     if hashlib.sha256(data).hexdigest() != m.get("arrays_sha256"):
         raise LoadError(f"{f}: its SHA-256 differs from the one in {MANIFEST}: the arrays belong to another run "
                         "(an interrupted rerun?); rerun the command")
-    with np.load(io.BytesIO(data), allow_pickle=False) as z:
-        return {k: z[k] for k in z.files}
+    try:
+        with zipfile.ZipFile(io.BytesIO(data)) as zf:  # sizes from the zip directory, before inflating anything
+            total = sum(i.file_size for i in zf.infolist())
+        if total > limit:
+            raise LoadError(f"{f}: its arrays would take {total / 1e9:.3g} GB once unpacked, more than the limit of "
+                            f"{limit / 1e9:.3g} GB ($AEV_OCP_MAX_MEMORY_GB); not loaded")
+        with np.load(io.BytesIO(data), allow_pickle=False) as z:
+            return {k: z[k] for k in z.files}
+    except LoadError:
+        raise
+    except (zipfile.BadZipFile, ValueError, OSError, EOFError, KeyError, NotImplementedError, RuntimeError) as exc:
+        raise LoadError(f"{f}: not a readable NumPy .npz file ({type(exc).__name__}: {exc})") from None
+
+
+MAX_MANIFEST_BYTES = 200_000_000  # a manifest is JSON metadata (kB to a few MB for a study); larger is not one of ours
+
+
+def read_regular(f: Path, max_bytes: int, what: str) -> bytes:
+    """The bytes of ``f`` if it is a regular file (a symlink to one is fine) of at most ``max_bytes``, checked
+    BEFORE reading: a FIFO would hang, /dev/zero never ends; LoadError otherwise."""
+    try:
+        fd = os.open(f, os.O_RDONLY | os.O_NONBLOCK)  # O_NONBLOCK: opening a FIFO must not wait for a writer
+    except OSError as exc:
+        raise LoadError(f"{f}: the output's {what} cannot be read ({exc.strerror or exc})") from None
+    try:
+        st = os.fstat(fd)
+        if not stat.S_ISREG(st.st_mode):
+            raise LoadError(f"{f}: the output's {what} is not a regular file (a FIFO, device or folder); not read")
+        if st.st_size > max_bytes:
+            raise LoadError(f"{f}: the output's {what} is {st.st_size / 1e9:.3g} GB, more than the "
+                            f"{max_bytes / 1e9:.3g} GB it may hold; not read")
+        with os.fdopen(fd, "rb", closefd=False) as fh:
+            data = fh.read(max_bytes + 1)
+    except OSError as exc:
+        raise LoadError(f"{f}: the output's {what} cannot be read ({exc.strerror or exc})") from None
+    finally:
+        os.close(fd)
+    if len(data) > max_bytes:
+        raise LoadError(f"{f}: the output's {what} grew past {max_bytes / 1e9:.3g} GB while read; not read")
+    return data
 
 
 def _nan(x: Any) -> float:
@@ -223,8 +264,25 @@ def _build(label: str, m: dict[str, Any], arrays: dict[str, np.ndarray], folder:
     return obj
 
 
+def _damaged(path: str | Path, fn: Any) -> Any:
+    """``fn()``, with anything a damaged folder can raise (a wrong type deep in the manifest, a missing array,
+    a RecursionError, a MemoryError) turned into one :class:`LoadError` naming ``path``."""
+    try:
+        return fn()
+    except LoadError:
+        raise
+    except (KeyError, TypeError, ValueError, AttributeError, IndexError, RecursionError, MemoryError,
+            OverflowError, OSError, UnicodeError, zipfile.BadZipFile, EOFError) as exc:
+        raise LoadError(f"{path}: not a loadable aev_ocp output: it is damaged ({type(exc).__name__}: "
+                        f"{str(exc)[:200]})") from None
+
+
 def load_all(path: str | Path) -> dict[str, Any]:
     """Every run of an output folder: {label: SimulationResult or OCPResult} (a study: {} – use :func:`load`)."""
+    return _damaged(path, lambda: _load_all(path))
+
+
+def _load_all(path: str | Path) -> dict[str, Any]:
     m, folder = read_manifest(path)
     arrays = _arrays(m, folder)
     return {label: _build(label, m, arrays, folder) for label in m.get("runs", {})}
@@ -240,8 +298,13 @@ def load(path: str | Path, run: str | None = None) -> Any:
     (simulate: the first law; mpc: the MPC; ocp: the main solve). The object's
     ``meta["output"]`` holds the folder, the run labels, the settings, the provenance and the metrics
     as saved; :meth:`SimulationResult.metrics` recomputes them from the loaded trajectories.
-    Raises :class:`LoadError` for a path that is not an aev_ocp output, a damaged one or a newer format.
+    Raises :class:`LoadError` for a path that is not an aev_ocp output, a damaged one or a newer format; the
+    files are checked before they are read (regular files only, sizes within $AEV_OCP_MAX_MEMORY_GB).
     """
+    return _damaged(path, lambda: _load(path, run))
+
+
+def _load(path: str | Path, run: str | None) -> Any:
     m, folder = read_manifest(path)
     if m["kind"] == "study":
         return load_study_output(m, folder)
@@ -317,12 +380,13 @@ class StudyOutput:
 
 def load_study_output(manifest: dict[str, Any], folder: Path) -> StudyOutput:
     """The :class:`StudyOutput` of a study folder from its manifest (used by :func:`aev_ocp.load`)."""
-    from .study.table import load_table
-
     table = folder / Path(str(manifest.get("table") or "table.jsonl")).name
-    if not table.is_file():
+    if not table.exists():
         raise LoadError(f"{folder}: the study's table {table.name} is missing")
-    rows = load_table(table)
+    data = read_regular(table, int(memory_limit_bytes()) // 4, "table")  # a FIFO or device is refused, unread
+    rows = [json.loads(line) for line in data.decode("utf-8").splitlines() if line.strip()]  # as load_table reads it
+    if not all(isinstance(r, dict) for r in rows):
+        raise LoadError(f"{table}: a line of the study's table is not a row (a JSON object); the table is damaged")
     files = sorted(p for p in folder.iterdir() if p.is_file())
     meta = {"settings": manifest.get("settings", {}),
             "output": {"path": str(folder), "kind": "study", "settings": manifest.get("settings", {}),

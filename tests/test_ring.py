@@ -327,7 +327,7 @@ def test_cli_ring_stability_and_errors(tmp_path):
     assert "growth rate" in p.stdout and "measured growth" in p.stdout and (tmp_path / "ring_stability.json").exists()
     p = run("stability", "--law", "ovm", "--ring", "22", "--out", str(tmp_path))
     assert p.returncode == 2 and "--spacing-m" in p.stderr and "Traceback" not in p.stderr
-    p = run("ring", "sweep", "--penetration", "30", "--out", str(tmp_path))
+    p = run("ring", "sweep", "--penetration", "30", "--out", str(tmp_path / "sweep"))
     assert p.returncode == 2 and "--penetration 30" in p.stderr and "Traceback" not in p.stderr
 
 

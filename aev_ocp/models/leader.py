@@ -8,8 +8,11 @@ the times where the acceleration jumps, so an integrator can split its interval 
 from __future__ import annotations
 
 import csv
+import re
+import stat
 import math
 from abc import ABC, abstractmethod
+from array import array
 from dataclasses import dataclass
 from functools import cached_property
 from importlib import resources
@@ -278,9 +281,16 @@ LENGTH_UNITS = {"m": 1.0, "km": 1000.0, "ft": 0.3048, "mi": 1609.344}
 MAX_GAP_S = 10.0  # default largest sampling gap of a trace [s] (our choice: longer is a hole in the data)
 
 
+_HEADER_NAME = re.compile(r"[\w .()/%+\-\[\]]{1,64}")  # what a column name of a CSV header looks like
+
+
 def _column(header: list[str], name: str, what: str, where: str) -> int:
     if name not in header:
-        raise ParameterError(f"{where}: {what} = {name!r} is not a column of the file; its columns are {header}")
+        if len(header) <= 50 and all(_HEADER_NAME.fullmatch(h) for h in header):
+            raise ParameterError(f"{where}: {what} = {name!r} is not a column of the file; its columns are {header}")
+        # never echo a first line that is no CSV header (a file given by mistake may hold anything)
+        raise ParameterError(f"{where}: {what} = {name!r} is not a column of the file, and its first line does not "
+                             "look like a CSV header (comma-separated column names): is it a CSV trace file?")
     return header.index(name)
 
 
@@ -307,25 +317,42 @@ def read_trace_csv(source: Any, *, time_column: str = "time", speed_column: str 
             raise ParameterError(f"trace {name}: {what} = {unit!r} is not allowed: must be one of {list(table)}")
     if not hasattr(source, "open"):  # a str or os.PathLike path (a resource Traversable has .open)
         source = Path(source)
+    if isinstance(source, Path):  # a FIFO or a device would hang or never end: only regular files
+        try:
+            if not stat.S_ISREG(source.stat().st_mode):
+                raise ParameterError(f"trace {name}: not a regular file")
+        except OSError as exc:
+            raise ParameterError(f"trace {name}: cannot read the file ({exc.strerror or exc})") from None
     try:
-        with source.open(newline="", encoding="utf-8") as fh:
-            rows = list(csv.reader(fh))
+        with source.open(newline="", encoding="utf-8-sig") as fh:  # utf-8-sig: a BOM (spreadsheet export) is fine
+            try:
+                return _trace_rows(csv.reader(fh), name, time_column, speed_column, position_column, time_unit,
+                                   speed_unit, position_unit, max_gap_s, filter_column, filter_value)
+            except csv.Error as exc:  # e.g. a field longer than csv.field_size_limit() (128 KiB)
+                raise ParameterError(f"trace {name}: not a valid CSV file ({exc})") from None
     except OSError as exc:
         raise ParameterError(f"trace {name}: cannot read the file ({exc.strerror or exc})") from None
     except UnicodeDecodeError:
         raise ParameterError(f"trace {name}: not a text (UTF-8) CSV file") from None
-    if not rows:
+
+
+def _trace_rows(reader: Any, name: str, time_column: str, speed_column: str | None, position_column: str | None,
+                time_unit: str, speed_unit: str, position_unit: str, max_gap_s: float | None,
+                filter_column: str | None, filter_value: Any) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`read_trace_csv` on a csv.reader, row by row (memory: two float64 per kept sample)."""
+    first = next(reader, None)
+    if first is None:
         raise ParameterError(f"trace {name}: the file is empty (expected a header row, then one row per sample)")
-    header = [h.strip() for h in rows[0]]
+    header = [h.strip() for h in first]
     col_t = _column(header, time_column, "time_column", f"trace {name}")
     value_col, value_what = ((speed_column, "speed_column") if speed_column is not None
                              else (position_column, "position_column"))
     col_v = _column(header, str(value_col), value_what, f"trace {name}")
     col_f = _column(header, filter_column, "filter_column", f"trace {name}") if filter_column is not None else None
-    t_list: list[float] = []
-    v_list: list[float] = []
-    line_no: list[int] = []
-    for k, row in enumerate(rows[1:], start=2):
+    t_list = array("d")
+    v_list = array("d")
+    line_no = array("q")
+    for k, row in enumerate(reader, start=2):
         if not row or all(not c.strip() for c in row):
             continue  # blank line
         if col_f is not None and not _matches(row[col_f] if col_f < len(row) else "", filter_value):

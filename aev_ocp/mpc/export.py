@@ -87,14 +87,33 @@ def _cli(argv: list[str]) -> int:
     out = Path(a.out)
     if out.exists() and not out.is_dir():
         raise ExportError(f"--out {out} exists and is not a folder")
+    _check_export(sc, out)
     files = export_mpc(sc, out)
     print(f"wrote {len(files)} files to {out}/ ({', '.join(f.name for f in files)})")
     if a.build:
         try:
-            lib = build_library(out, out / "libaev_mpc.so")
+            lib = build_library(out.resolve(), out.resolve() / "libaev_mpc.so")  # the compiler runs inside out
         except ExportError as exc:
             if "no C compiler" in str(exc):
                 raise
             raise RuntimeError(str(exc)) from None
         print(f"built {lib}")
     return 0
+
+
+def _check_export(sc: Any, out: Path) -> None:
+    """Before any code is generated: the horizon within the memory budget (naming mpc.N), and ``out`` not a
+    folder of another run or of the user's own files (aev_ocp.results.claim_output_dir)."""
+    from ..limits import check_mpc_size
+    from ..params import ParameterError
+    from ..results import claim_output_dir
+
+    cfg = sc.extra.get("mpc")
+    N = int(cfg.settings.N) if cfg is not None else None
+    if N is not None:
+        try:
+            check_mpc_size(N, 1)
+        except ParameterError as exc:
+            raise ParameterError(f"mpc-export: mpc.N = {N} (--set mpc.N or [mpc] N): {exc}") from None
+    claim_output_dir(out, "mpc-export", sc.name, str(sc.source) if sc.source else None,
+                     [*EXPORT_FILES, "libaev_mpc.so"])

@@ -20,6 +20,7 @@ from ..console import EXIT_BAD_INPUT, EXIT_FAILED_RUN, EXIT_OK
 from ..console import OneLineParser as _Parser
 from ..console import error_line as _err
 from ..params import ParameterError
+from ..results import claim_output_dir, default_output_dir
 from ..scenarios import ScenarioError
 
 COLUMNS = ("speed_std_mps", "mean_speed_mps", "vehicles_stopped", "braking_events", "energy_J_per_km",
@@ -74,7 +75,9 @@ def cli_ring(argv: list[str]) -> int:
             sc = load_ring_scenario(a.experiment)
         else:
             a.t_end_s = 600.0 if a.t_end_s is None else a.t_end_s
-        out = Path(a.out) if a.out else Path("results") / "ring" / (sc.name if sc is not None else a.experiment)
+        out = Path(a.out) if a.out else default_output_dir("ring", sc.name if sc is not None else a.experiment)
+        claim_output_dir(out, "ring", sc.name if sc is not None else a.experiment,  # before any work
+                         str(sc.source) if sc is not None and sc.source else None, ["ring.json"])
         runs: list[Any]
         doc: dict[str, Any] = {"experiment": a.experiment, "t_end_s": a.t_end_s, "seed": a.seed}
         if sc is not None:
@@ -150,6 +153,7 @@ def cli_ring_stability(law: Any, n: int, spacing_m: float | None, density_per_km
                              f"{vehicle_length_m:g} m (--vehicle-length-m)")
     if not (2 <= n <= 100_000):
         raise ParameterError(f"--ring {n}: must be an integer in [2, 100000]")
+    claim_output_dir(out, "stability --ring", law.name, None, ["ring_stability.json"])  # before any work
     ev = EVParams(units=units)
     rs = ring_stability(law, n, n * spacing, vehicle_length_m, ev)
     doc: dict[str, Any] = rs.to_dict()

@@ -162,9 +162,14 @@ def build_law(name: str, sets: list[str]) -> Any:
     return law
 
 
+#: Files ``aev-ocp stability`` writes (a foreign folder holding one of them is refused).
+STABILITY_FILES = ("stability.json", "gain.png", "attenuation.png", "stable_region.png")
+
+
 def cli_stability(argv: list[str]) -> int:
     """Entry point of ``aev-ocp stability``; returns the exit code."""
     from ..mpc.settings import PREDICTOR_NAMES
+    from ..results import OutputError, claim_output_dir
     from .api import run_stability
 
     try:
@@ -196,6 +201,8 @@ def cli_stability(argv: list[str]) -> int:
         if is_mpc and a.linear_only:
             raise ParameterError("--linear-only: the MPC has no linear analysis here; drop the option")
         out = Path(a.out) if a.out else Path("results") / "stability" / a.law.lower()
+        # before any work: a folder of another run or of the user's own files is refused
+        claim_output_dir(out, "stability", a.law.lower(), None, STABILITY_FILES)
         _check_speeds_and_amplitudes(a, law, speeds, mv["amplitude"], units)
         omega = mv["omega"] if mv["omega"] is not None else _OMEGA
         duration = mv["duration"] if mv["duration"] is not None else _DURATION
@@ -203,7 +210,7 @@ def cli_stability(argv: list[str]) -> int:
                             duration=duration, n_followers=n, measure_runs=not a.linear_only,
                             mpc_predictor=a.predictor if is_mpc else None, plots=not a.no_plots, progress=say,
                             units=units)
-    except ParameterError as exc:
+    except (ParameterError, OutputError) as exc:
         _err(str(exc))
         return EXIT_BAD_INPUT
     except OSError as exc:

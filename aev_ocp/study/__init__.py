@@ -32,7 +32,23 @@ def run_study(study: Study | str | Path, out: str | Path | None = None, *, execu
     :meth:`StudyOutput.trajectory`)."""
     if not isinstance(study, Study):
         study = read_study(study)
-    folder = Path(out) if out is not None else Path("results") / "study" / study.name
+    from ..results import claim_output_dir, default_output_dir, output_lock
+
+    folder = Path(out) if out is not None else default_output_dir("study", study.name)
+    with output_lock(folder):  # one study at a time per folder
+        # a folder of another study or of the user's own files is refused; the same study resumes
+        claim_output_dir(folder, "study", study.name, study.file if Path(study.file).is_file() else None,
+                         list(STUDY_FILES))
+        return _run_study(study, folder, executor=executor, workers=workers, scheduler=scheduler, report=report,
+                          progress_stream=progress_stream, time_limit_s=time_limit_s, trajectories=trajectories)
+
+
+#: Files of a study folder that a foreign folder must not already hold (besides figures).
+STUDY_FILES = ("table.csv", "table.jsonl", "report.md", "manifest.json")
+
+
+def _run_study(study: Study, folder: Path, *, executor: str, workers: int | None, scheduler: str | None,
+               report: bool, progress_stream: Any, time_limit_s: float | None, trajectories: bool) -> StudyOutput:
     tasks = study.tasks()
     results = execute(tasks, Store(folder), executor=executor, workers=workers, scheduler=scheduler,
                       name=study.name, progress_stream=progress_stream, time_limit_s=time_limit_s,

@@ -57,10 +57,14 @@ def cli_study(argv: list[str]) -> int:
     if a.time_limit is not None and not (math.isfinite(a.time_limit) and a.time_limit > 0):
         _err(f"--time-limit {a.time_limit:g}: must be a number of seconds > 0")
         return EXIT_BAD_INPUT
+    from ..limits import check_local_workers
+    from ..params import ParameterError
+
     for opt in ("workers", "dask_local"):
-        n = getattr(a, opt)
-        if n is not None and n < 1:
-            _err(f"--{opt.replace('_', '-')} {n}: needs at least 1 worker")
+        try:
+            check_local_workers(getattr(a, opt), f"--{opt.replace('_', '-')}")
+        except ParameterError as exc:
+            _err(str(exc))
             return EXIT_BAD_INPUT
     try:
         study = read_study(a.study, sets=parse_assignments(a.sets))

@@ -17,7 +17,7 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
-from ..results import write_atomic  # noqa: E402
+from ..results import save_figure_atomic, write_atomic  # noqa: E402
 from .table import EQUAL_METRIC
 from .spec import Study  # noqa: E402
 
@@ -45,10 +45,10 @@ def _primary_axes(study: Study) -> list[str]:
 
 def _save(fig: Any, path: Path) -> Path:
     fig.tight_layout()
-    tmp = path.with_name(f".{path.stem}.tmp.png")
-    fig.savefig(tmp, dpi=120)
-    plt.close(fig)
-    tmp.replace(path)
+    try:  # a unique temporary name beside path, removed on any failure (Ctrl-C included)
+        save_figure_atomic(fig, path, dpi=120)
+    finally:
+        plt.close(fig)
     return path
 
 

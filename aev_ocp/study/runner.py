@@ -15,6 +15,7 @@ does not stop the others. Ctrl-C cancels what is pending and leaves only complet
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import time
@@ -153,25 +154,54 @@ def _ocpd(sc: Any, s: Any, f: Any) -> Any:
 
 # ----------------------------------------------------------------------------- store
 class Store:
-    """Task results under ``<root>/points/<hash>.json`` (atomic writes; unreadable files count as missing)."""
+    """Task results under ``<root>/points/<hash>.json`` (atomic writes). Each entry holds its task's key and
+    the SHA-256 of its content (:data:`HASH_FIELD`); an entry that is unreadable, not a result, filed under
+    another task's name or whose content does not match its hash counts as missing and is computed again."""
+
+    HASH_FIELD = "content_sha256"
+    FIELDS = ("key", "controller", "status", "message", "metrics")  # what a stored result must hold
 
     def __init__(self, root: str | os.PathLike[str]) -> None:
         self.dir = Path(root) / "points"
+        self.damaged: list[str] = []  # keys whose stored entry was rejected by get()
 
     def path(self, key: str) -> Path:
         """File of the task with hash ``key``."""
         return self.dir / f"{key}.json"
 
+    @classmethod
+    def digest(cls, result: dict[str, Any]) -> str:
+        """SHA-256 of a result's canonical JSON, without the hash field itself and the wall time (so that every
+        executor stores the same bytes apart from ``wall_s``)."""
+        body = {k: v for k, v in result.items() if k not in (cls.HASH_FIELD, "wall_s")}
+        return hashlib.sha256(json.dumps(body, sort_keys=True).encode()).hexdigest()
+
     def get(self, key: str) -> dict[str, Any] | None:
-        """The stored result, or None if missing or unreadable (e.g. written by another tool)."""
+        """The stored result, or None if missing, unreadable or damaged (see the class docstring)."""
+        f = self.path(key)
         try:
-            return json.loads(self.path(key).read_text(encoding="utf-8"))
-        except (OSError, ValueError):
+            if not f.is_file() or f.stat().st_size > MAX_ENTRY_BYTES:
+                raise ValueError("not a regular file of a sane size")
+            got = json.loads(f.read_text(encoding="utf-8"))
+            if (not isinstance(got, dict) or got.get("key") != key or any(k not in got for k in self.FIELDS)
+                    or not isinstance(got["metrics"], list) or got.get(self.HASH_FIELD) != self.digest(got)):
+                raise ValueError("damaged entry")
+        except FileNotFoundError:
             return None
+        except (OSError, ValueError, RecursionError):
+            if f.exists() or f.is_symlink():
+                self.damaged.append(key)
+            return None
+        return {k: v for k, v in got.items() if k != self.HASH_FIELD}
 
     def put(self, key: str, result: dict[str, Any]) -> None:
-        """Store a result atomically."""
-        write_atomic(self.path(key), json.dumps(result, sort_keys=True) + "\n")
+        """Store a result atomically, with its key and content hash."""
+        entry = {**result, "key": key}
+        entry[self.HASH_FIELD] = self.digest(entry)
+        write_atomic(self.path(key), json.dumps(entry, sort_keys=True) + "\n")
+
+
+MAX_ENTRY_BYTES = 50_000_000  # a stored task result is a few kB (metrics + profiles); larger is not one of ours
 
 
 # ----------------------------------------------------------------------------- time limit
@@ -213,6 +243,12 @@ def execute(tasks: list[Task], store: Store, *, executor: str = "pool", workers:
                                 or (Path(trajectories_dir) / key / MANIFEST).is_file()):
             results[key] = got
     missing = [t for k, t in todo.items() if k not in results]
+    if store.damaged:
+        import warnings
+
+        warnings.warn(f"study {name}: {len(store.damaged)} stored result(s) in {store.dir} were damaged (not a "
+                      f"result, another task's, or content not matching its hash; first {store.damaged[0]}.json): "
+                      "computing them again", stacklevel=2)
     prog = Progress(f"study {name}", len(todo), unit="tasks", time_limit_s=time_limit_s, every_s=every_s,
                     stream=progress_stream)
     cached, failed = len(results), [0]
@@ -248,7 +284,9 @@ def _run_pool(specs: list[dict[str, Any]], workers: int | None, done: Callable[[
     import multiprocessing as mp
     from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 
-    n = workers or os.cpu_count() or 1
+    from ..limits import check_local_workers
+
+    n = check_local_workers(workers, "workers") or os.cpu_count() or 1
     _export_path()
     ex = ProcessPoolExecutor(max_workers=n, mp_context=mp.get_context("spawn"))
     try:
@@ -262,9 +300,28 @@ def _run_pool(specs: list[dict[str, Any]], workers: int | None, done: Callable[[
                     raise RuntimeError(f"a worker process failed ({type(exc).__name__}: {exc})") from exc
                 done(res)
     except BaseException:
-        ex.shutdown(wait=False, cancel_futures=True)
+        _stop_pool(ex)
         raise
     ex.shutdown(wait=True)
+
+
+STOP_GRACE_S = 5.0  # how long a stopped worker may take to exit after SIGTERM before it is killed [s]
+
+
+def _stop_pool(ex: Any) -> None:
+    """Stop a process pool now: cancel pending tasks AND end the worker processes that are computing
+    (``shutdown(wait=False, cancel_futures=True)`` alone lets them finish their tasks, for minutes)."""
+    procs = list((getattr(ex, "_processes", None) or {}).values())
+    ex.shutdown(wait=False, cancel_futures=True)
+    for p in procs:
+        if p.is_alive():
+            p.terminate()
+    deadline = time.monotonic() + STOP_GRACE_S
+    for p in procs:
+        p.join(max(0.0, deadline - time.monotonic()))
+        if p.is_alive():
+            p.kill()
+            p.join(1.0)
 
 
 def _export_path() -> None:
@@ -273,6 +330,34 @@ def _export_path() -> None:
     parts = [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p]
     if root not in parts:
         os.environ["PYTHONPATH"] = os.pathsep.join([root] + parts)
+
+
+SCHEDULER_CONNECT_TIMEOUT_S = 20.0  # connecting to a Dask scheduler (Dask's own default is 30 s) [s]
+SCHEDULER_HEARTBEAT_TIMEOUT_S = 60.0  # a connection silent this long is dropped (Dask's tcp timeout, default 30 s) [s]
+
+
+def _connect(client_type: Any, scheduler: str) -> Any:
+    """A Dask client of ``scheduler``, or RuntimeError once SCHEDULER_CONNECT_TIMEOUT_S has passed: the connect
+    runs in a daemon thread, so a peer that accepts and never completes the handshake cannot hang the study."""
+    import threading
+
+    box: dict[str, Any] = {}
+
+    def go() -> None:
+        try:
+            box["client"] = client_type(scheduler, timeout=SCHEDULER_CONNECT_TIMEOUT_S)
+        except BaseException as exc:  # noqa: BLE001 - reported below, in the caller's thread
+            box["error"] = exc
+
+    t = threading.Thread(target=go, name="aev-ocp-dask-connect", daemon=True)
+    t.start()
+    t.join(SCHEDULER_CONNECT_TIMEOUT_S + 1.0)
+    if t.is_alive() or "error" in box:
+        exc = box.get("error")
+        why = f" ({type(exc).__name__}: {exc})" if exc is not None else ""
+        raise RuntimeError(f"the Dask scheduler {scheduler} did not answer within {SCHEDULER_CONNECT_TIMEOUT_S:g} s"
+                           f"{why}")
+    return box["client"]
 
 
 def dask_missing_message() -> str:
@@ -287,14 +372,26 @@ def _run_dask(specs: list[dict[str, Any]], workers: int | None, scheduler: str |
         from dask.distributed import Client, LocalCluster, as_completed
     except ImportError:
         raise RuntimeError(dask_missing_message()) from None
+    import dask
+
+    from ..limits import check_local_workers
+
+    n_local = check_local_workers(workers, "dask workers") or os.cpu_count() or 1
     cluster = None
-    if scheduler:
-        client = Client(scheduler)
-    else:
-        _export_path()
-        cluster = LocalCluster(n_workers=workers or os.cpu_count() or 1, threads_per_worker=1, processes=True,
-                               dashboard_address=None, silence_logs=40)
-        client = Client(cluster)
+    # a scheduler that accepts and then stays silent must not hang the study (issue 28)
+    cfg = dask.config.set({"distributed.comm.timeouts.connect": f"{SCHEDULER_CONNECT_TIMEOUT_S}s",
+                           "distributed.comm.timeouts.tcp": f"{SCHEDULER_HEARTBEAT_TIMEOUT_S}s"})
+    try:
+        if scheduler:
+            client = _connect(Client, scheduler)
+        else:
+            _export_path()
+            cluster = LocalCluster(n_workers=n_local, threads_per_worker=1, processes=True,
+                                   dashboard_address=None, silence_logs=40)
+            client = Client(cluster, timeout=SCHEDULER_CONNECT_TIMEOUT_S)
+    except BaseException:
+        cfg.__exit__(None, None, None)
+        raise
     try:
         slots = max(1, sum(client.nthreads().values()))
         size = chunk_size(len(specs), slots)
@@ -316,4 +413,5 @@ def _run_dask(specs: list[dict[str, Any]], workers: int | None, scheduler: str |
     finally:
         client.close()
         if cluster is not None:
-            cluster.close()
+            cluster.close()  # ends the worker processes this study started, computing or not
+        cfg.__exit__(None, None, None)

@@ -50,6 +50,7 @@ import dataclasses
 import hashlib
 import itertools
 import json
+import math
 import tomllib
 import warnings
 from dataclasses import dataclass, field
@@ -62,7 +63,10 @@ import numpy as np
 from .._version import __version__
 from ..models.carfollowing import LAW_REGISTRY
 from ..overrides import OverrideError, apply_to_document, check_key
+from ..limits import check_study_size
 from ..params import ParameterError
+from ..progress import Progress
+from ..results import check_safe_name
 from ..scenarios import Scenario, ScenarioError, TableReader, find_scenario, load_scenario, parse_scenario
 
 
@@ -305,6 +309,7 @@ def _axis(r: TableReader, i: int) -> Axis:
         return Axis(tuple(keys), rows, kind)
     rnd = r.sub("random", required=True)
     n = rnd.integer("n", ge=1)
+    check_study_size(n, 1, f"{r.file}: {where} ({', '.join(keys)}): random.n = {n}")  # before drawing n samples
     seed = rnd.integer("seed", ge=0)
     log = rnd.boolean("log", False)
     lows = _bounds(rnd, "low", len(keys))
@@ -451,6 +456,8 @@ def parse_study(doc: dict[str, Any], file: str = "<study>", path: Path | None = 
         if isinstance(exc, StudyError):
             raise
         raise StudyError(str(exc)) from None
+    except ParameterError as exc:  # the size check (aev_ocp.limits.check_study_size), before any point is built
+        raise StudyError(str(exc)) from None
 
 
 def _family(key: str) -> set[str]:
@@ -491,6 +498,10 @@ def _check_sets(file: str, sets: dict[str, Any], axes: list[Axis], controllers: 
 def _parse_study(doc: dict[str, Any], file: str, path: Path | None, sets: dict[str, Any]) -> Study:
     top = TableReader(doc, "", file)
     name = top.string("name", path.stem if path is not None else "study")
+    try:
+        check_safe_name(name, "name")  # it names the output folder results/study/<name>
+    except ValueError as exc:
+        raise StudyError(f"{file}: {exc}") from None
     description = top.string("description", "")
     bases, base_overrides = _bases(top)
     common = top.sub("overrides")
@@ -529,10 +540,16 @@ def _parse_study(doc: dict[str, Any], file: str, path: Path | None, sets: dict[s
     points: list[Point] = []
     layers = [("[overrides]", overrides)] + [(f"scenario {b!r} overrides", base_overrides[b][1]) for b in bases]
     found_warnings: list[str] = _check_sets(file, sets, axes, controllers, layers)
+    n_points = len(bases) * math.prod(len(a.rows) for a in axes)
+    sizes = " x ".join([f"{len(bases)} scenarios"] * (len(bases) > 1) + [f"{len(a.rows)} ({a.label})" for a in axes])
+    check_study_size(n_points, len(controllers), f"{file}: axes {sizes or '(none)'}")
     combos = list(itertools.product(*[a.rows for a in axes])) if axes else [()]
+    prog = Progress(f"study {name}", n_points, unit="points", every_s=2.0)
+    prog._last = prog.clock()  # a line only once validation has taken 2 s (a 100 x 100 grid takes ~10 s)
     for b in bases:
         base_doc, base_file = docs[b]
         for combo in combos:
+            prog.update(len(points), what="validating")
             values = {k: v for a, row in zip(axes, combo) for k, v in zip(a.keys, row)}
             pdoc = _point_document(file, base_doc, base_file, {**overrides, **base_overrides[b][1]}, values, axes, b,
                                    len(points), found_warnings, sets)

@@ -1,0 +1,565 @@
+"""Issue 28: the commands added since issue 11 (study, stability, ring, the loader, trace leaders, --set) keep the
+same promises: foreign folders refused, safe names, sizes checked before work, workers stopped, damaged stores
+and saved folders detected, one error line with exit 2 for bad input. One test per cause of the probe."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import time
+import tracemalloc
+import zipfile
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from cli_helpers import one_error, run_cli
+
+STUDY = """
+name = "{name}"
+scenarios = ["table1"]
+reference = "ovfl"
+[overrides]
+"simulation.t_end" = 1.5
+"simulation.dt_out" = 0.05
+"platoon.followers" = 2
+[[axes]]
+key = "platoon.gap0_first"
+values = [0.35, 0.9]
+[controllers]
+laws = ["proposed", "ovfl"]
+"""
+
+
+def _study(tmp_path: Path, name: str = "tiny", text: str = STUDY) -> Path:
+    f = tmp_path / f"{name.replace('/', '_')}.toml"
+    f.write_text(text.replace("{name}", name))
+    return f
+
+
+def _run_study(tmp_path: Path, f: Path, out: Path, capsys, *extra: str) -> tuple[int, str]:
+    rc, _, err = run_cli(["study", str(f), "--out", str(out), "--in-process", "--no-report", *extra], capsys)
+    return rc, err
+
+
+# ----------------------------------------------------------------------------- 1. folders
+def test_study_refuses_a_users_folder_and_another_study_but_resumes_its_own(tmp_path, capsys):
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "table.csv").write_text("my,own\n1,2\n")
+    f = _study(tmp_path)
+    rc, err = _run_study(tmp_path, f, mine, capsys)
+    assert rc == 2 and "table.csv" in one_error(err)
+    assert (mine / "table.csv").read_text() == "my,own\n1,2\n" and not (mine / "points").exists()
+    out = tmp_path / "o"
+    assert _run_study(tmp_path, f, out, capsys)[0] == 0
+    before = (out / "table.jsonl").read_text()
+    other = _study(tmp_path, "other")
+    rc, err = _run_study(tmp_path, other, out, capsys)
+    assert rc == 2 and "tiny" in one_error(err) and (out / "table.jsonl").read_text() == before
+    rc, err = _run_study(tmp_path, f, out, capsys)  # the same study resumes: nothing recomputed
+    assert rc == 0 and "(4 stored, 0 failed)" in err
+
+
+@pytest.mark.parametrize("name", ["../../../escaped", "/tmp/abs_study_name", ".hidden", "a/b"])
+def test_study_name_must_not_lead_outside_results(tmp_path, capsys, monkeypatch, name):
+    monkeypatch.chdir(tmp_path)
+    f = tmp_path / "s.toml"
+    f.write_text(STUDY.replace("{name}", name))
+    rc, _, err = run_cli(["study", str(f), "--in-process"], capsys)
+    assert rc == 2 and "name = " in one_error(err)
+    assert not (tmp_path / "results").exists() and not Path("/tmp/abs_study_name/points").exists()
+
+
+@pytest.mark.parametrize("argv, claimed", [
+    (["stability", "--law", "ovm", "--linear-only"], "gain.png"),
+    (["ring", "sugiyama", "--t-end-s", "5"], "ring.json"),
+    (["stability", "--law", "ovm", "--ring", "22", "--density-per-km", "47"], "ring_stability.json"),
+])
+def test_stability_and_ring_refuse_a_users_folder_before_any_work(tmp_path, capsys, argv, claimed):
+    (tmp_path / claimed).write_bytes(b"mine")
+    t0 = time.perf_counter()
+    rc, _, err = run_cli([*argv, "--out", str(tmp_path)], capsys)
+    assert rc == 2 and claimed in one_error(err) and (tmp_path / claimed).read_bytes() == b"mine"
+    assert time.perf_counter() - t0 < 5.0  # refused before the analysis, not after
+
+
+# ----------------------------------------------------------------------------- 2. sizes
+@pytest.mark.parametrize("axes, key", [
+    ('[[axes]]\nkey = "carfollowing.kappa"\nrandom = { n = 1000000000, seed = 1, low = [0.0], high = [0.5] }\n',
+     "random.n"),
+    ("".join(f'[[axes]]\nkey = "carfollowing.{k}"\nvalues = [{", ".join(str(0.5 + 0.001 * i) for i in range(1000))}]\n'
+             for k in ("kappa", "alpha", "beta")), "carfollowing.beta"),
+])
+def test_study_too_large_is_refused_before_any_point_is_built(tmp_path, capsys, axes, key):
+    text = STUDY.replace('[[axes]]\nkey = "platoon.gap0_first"\nvalues = [0.35, 0.9]\n', axes)
+    assert text != STUDY
+    t0 = time.perf_counter()
+    rc, err = _run_study(tmp_path, _study(tmp_path, text=text), tmp_path / "o", capsys)
+    line = one_error(err)
+    assert rc == 2 and key in line and "100000" in line and time.perf_counter() - t0 < 5.0
+
+
+@pytest.mark.parametrize("opt", ["--dask-local", "--workers"])
+def test_local_workers_are_capped(tmp_path, capsys, opt):
+    from aev_ocp.limits import max_local_workers
+
+    f = _study(tmp_path)
+    rc, _, err = run_cli(["study", str(f), "--out", str(tmp_path / "o"), opt, "10000"], capsys)
+    assert rc == 2 and opt in one_error(err) and str(max_local_workers()) in one_error(err)
+    assert not (tmp_path / "o").exists()  # refused before the folder is touched
+
+
+def test_validation_reports_progress_when_slow(tmp_path, capsys, monkeypatch):
+    import functools
+    import itertools
+
+    from aev_ocp import progress
+    from aev_ocp.study import read_study, spec
+
+    ticks = itertools.count(0, 3)  # a clock that advances 3 s per reading: validation looks slow
+    monkeypatch.setattr(spec, "Progress", functools.partial(progress.Progress, clock=lambda: float(next(ticks))))
+    read_study(_study(tmp_path))
+    err = capsys.readouterr().err
+    assert "[study tiny] validating 1/2 (50 %)" in err
+
+
+# ----------------------------------------------------------------------------- 3. workers, locks, temporaries
+def test_stopping_a_pool_ends_its_computing_workers():
+    import multiprocessing as mp
+    from concurrent.futures import ProcessPoolExecutor
+
+    from aev_ocp.study.runner import _stop_pool
+
+    ex = ProcessPoolExecutor(max_workers=2, mp_context=mp.get_context("fork"))
+    futs = [ex.submit(time.sleep, 60.0) for _ in range(6)]
+    deadline = time.monotonic() + 10
+    while not all(f.running() for f in futs[:2]) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    procs = list(ex._processes.values())
+    assert len(procs) == 2 and all(p.is_alive() for p in procs)
+    t0 = time.perf_counter()
+    _stop_pool(ex)
+    assert not any(p.is_alive() for p in procs) and time.perf_counter() - t0 < 8.0
+    deadline = time.monotonic() + 5.0  # every task ends (cancelled, or failed with its worker), none computes on
+    while not all(f.done() for f in futs) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert [f._state for f in futs if not f.done()] == []
+
+
+def test_a_second_study_into_a_locked_folder_is_refused(tmp_path, capsys):
+    from aev_ocp.results import output_lock
+
+    out = tmp_path / "o"
+    with output_lock(out):
+        rc, err = _run_study(tmp_path, _study(tmp_path), out, capsys)
+    assert rc == 2 and "in use by another aev-ocp run" in one_error(err) and not (out / "points").exists()
+    assert _run_study(tmp_path, _study(tmp_path), out, capsys)[0] == 0  # released with the block
+
+
+def test_figures_use_unique_temporaries_and_leave_none_on_interrupt(tmp_path, monkeypatch):
+    import matplotlib.figure
+
+    from aev_ocp.study.report import _save
+
+    names = []
+    real = matplotlib.figure.Figure.savefig
+
+    def spy(self, fname, *a, **k):  # noqa: ANN001
+        names.append(Path(fname).name)
+        real(self, fname, *a, **k)
+
+    monkeypatch.setattr(matplotlib.figure.Figure, "savefig", spy)
+    import matplotlib.pyplot as plt
+
+    for _ in range(2):
+        _save(plt.figure(), tmp_path / "fig_a.png")
+    assert len(set(names)) == 2 and all(n != "fig_a.png" for n in names)
+
+    def boom(self, fname, *a, **k):  # noqa: ANN001
+        Path(fname).write_bytes(b"half")
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(matplotlib.figure.Figure, "savefig", boom)
+    with pytest.raises(KeyboardInterrupt):
+        _save(plt.figure(), tmp_path / "fig_b.png")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["fig_a.png"]
+
+
+# ----------------------------------------------------------------------------- 4. damaged store
+def test_damaged_store_entries_are_detected_and_recomputed(tmp_path):
+    from aev_ocp.study import read_study, run_study
+
+    study = read_study(_study(tmp_path))
+    out = tmp_path / "o"
+    first = run_study(study, out, executor="inprocess", report=False)
+    files = sorted((out / "points").glob("*.json"))
+    assert len(files) == 4
+    a, b = files[0].read_bytes(), files[1].read_bytes()
+    files[0].write_bytes(b)  # two results swapped between files
+    files[1].write_bytes(a)
+    files[2].write_text("{}")
+    files[3].write_text("[1, 2, 3]")
+    with pytest.warns(UserWarning, match="4 stored result"):
+        again = run_study(study, out, executor="inprocess", report=False)
+    drop = lambda rows: [{k: v for k, v in r.items() if k != "wall_s"} for r in rows]  # noqa: E731
+    assert drop(again.rows) == drop(first.rows)
+    # an entry whose content no longer matches its hash (a metric edited) is recomputed too
+    entry = json.loads(files[0].read_text())
+    entry["metrics"][0]["omega_model"] = 1.2345
+    files[0].write_text(json.dumps(entry))
+    with pytest.warns(UserWarning, match="1 stored result"):
+        third = run_study(study, out, executor="inprocess", report=False)
+    assert drop(third.rows) == drop(first.rows)
+
+
+# ----------------------------------------------------------------------------- 6. the loader
+@pytest.fixture(scope="module")
+def saved(tmp_path_factory):
+    from aev_ocp.models.carfollowing import Proposed
+    from aev_ocp.models.leader import ConstantSpeed
+    from aev_ocp.saved import save_output
+    from aev_ocp.simulate import simulate_platoon
+
+    d = tmp_path_factory.mktemp("saved")
+    r = simulate_platoon(ConstantSpeed(1.3), [Proposed()], gaps0=[0.8], speeds0=[1.1], t_end=0.7)
+    save_output(d, "simulate", {"proposed": r})
+    return d
+
+
+def _copy(saved: Path, tmp_path: Path) -> Path:
+    d = tmp_path / "copy"
+    shutil.copytree(saved, d)
+    return d
+
+
+def test_loader_refuses_a_fifo_without_hanging(saved, tmp_path):
+    from aev_ocp import load
+    from aev_ocp.saved import ARRAYS, LoadError
+
+    d = _copy(saved, tmp_path)
+    (d / ARRAYS).unlink()
+    os.mkfifo(d / ARRAYS)
+    t0 = time.perf_counter()
+    with pytest.raises(LoadError, match="not a regular file"):
+        load(d)
+    assert time.perf_counter() - t0 < 2.0
+
+
+@pytest.mark.parametrize("member", ["trajectories.npz", "manifest.json"])
+def test_loader_refuses_a_symlink_to_dev_zero(saved, tmp_path, member):
+    from aev_ocp import load
+    from aev_ocp.saved import LoadError
+
+    d = _copy(saved, tmp_path)
+    (d / member).unlink()
+    (d / member).symlink_to("/dev/zero")
+    with pytest.raises(LoadError, match="not a regular file"):
+        load(d)
+
+
+def test_loader_refuses_a_zip_bomb_member_before_inflating_it(saved, tmp_path, monkeypatch):
+    import hashlib
+
+    from aev_ocp import load
+    from aev_ocp.saved import ARRAYS, MANIFEST, LoadError
+
+    d = _copy(saved, tmp_path)
+    with zipfile.ZipFile(d / ARRAYS, "a", compression=zipfile.ZIP_DEFLATED) as z:  # 3 MB of zeros, ~3 kB packed
+        z.writestr("proposed/bomb.npy", b"\0" * 3_000_000)
+    m = json.loads((d / MANIFEST).read_text())
+    m["arrays_sha256"] = hashlib.sha256((d / ARRAYS).read_bytes()).hexdigest()
+    (d / MANIFEST).write_text(json.dumps(m))
+    assert (d / ARRAYS).stat().st_size < 100_000
+    monkeypatch.setenv("AEV_OCP_MAX_MEMORY_GB", "0.002")  # 2 MB: the member's stated size is above it
+    with pytest.raises(LoadError, match="once unpacked"):
+        load(d)
+    monkeypatch.setenv("AEV_OCP_MAX_MEMORY_GB", "0.01")
+    assert load(d).status == "ok"  # within the budget the same folder loads (extra member ignored)
+
+
+def _mutate(d: Path, data: st.DataObject) -> None:
+    from aev_ocp.saved import ARRAYS, MANIFEST
+
+    name = data.draw(st.sampled_from([ARRAYS, MANIFEST]))
+    f = d / name
+    raw = f.read_bytes()
+    how = data.draw(st.sampled_from(["truncate", "bytes", "rename", "json", "npz", "member"]))
+    if how in ("npz", "member"):  # damage inside the arrays file, its SHA-256 updated (the check passes)
+        import hashlib
+        import io
+
+        a = d / ARRAYS
+        z = a.read_bytes()
+        if how == "npz":
+            at = data.draw(st.integers(0, len(z) - 1))
+            z = z[:at] + data.draw(st.binary(min_size=1, max_size=64)) + z[at + 64:]
+        else:
+            src, buf = zipfile.ZipFile(io.BytesIO(z)), io.BytesIO()
+            names = src.namelist()
+            victim = data.draw(st.sampled_from(names))
+            with zipfile.ZipFile(buf, "w") as dst:
+                for n in names:
+                    body = src.read(n)
+                    if n == victim:
+                        n, body = data.draw(st.sampled_from([("proposed/renamed.npy", body),
+                                                             (n, body[:len(body) // 2]), (n, b"\x93NUMPY junk")]))
+                    dst.writestr(n, body)
+            z = buf.getvalue()
+        a.write_bytes(z)
+        m = json.loads((d / MANIFEST).read_text())
+        m["arrays_sha256"] = hashlib.sha256(z).hexdigest()
+        (d / MANIFEST).write_text(json.dumps(m))
+    elif how == "truncate":
+        f.write_bytes(raw[:data.draw(st.integers(0, len(raw) - 1))])
+    elif how == "bytes":
+        at = data.draw(st.integers(0, len(raw) - 1))
+        f.write_bytes(raw[:at] + data.draw(st.binary(min_size=1, max_size=16)) + raw[at + 16:])
+    elif how == "rename":
+        f.rename(d / data.draw(st.sampled_from(["other.npz", "manifest.json.bak"])))
+    else:  # a structurally valid manifest with a field of the wrong type
+        m = json.loads((d / MANIFEST).read_text())
+        run = m["runs"]["proposed"]
+        key = data.draw(st.sampled_from(["runs", "ev", "events", "controllers", "meta", "solver_stats", "type"]))
+        junk = data.draw(st.sampled_from([{}, [], None, 3, "x", [[{}]], {"a": []}]))
+        (m if key == "runs" else run)[key] = junk
+        (d / MANIFEST).write_text(json.dumps(m))
+
+
+@settings(max_examples=80, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(data=st.data())
+def test_fuzz_damaged_saved_folders_give_load_error_only(saved, tmp_path, data):
+    from aev_ocp import load
+    from aev_ocp.saved import LoadError, load_all
+
+    import tempfile
+
+    d = Path(tempfile.mkdtemp(dir=tmp_path)) / "c"
+    shutil.copytree(saved, d)
+    try:
+        _mutate(d, data)
+        for fn in (load, load_all):
+            try:
+                fn(d)
+            except LoadError as exc:  # the only exception allowed; it names the folder or one of its files
+                assert str(d) in str(exc)
+    finally:
+        shutil.rmtree(d.parent)
+
+
+def test_deeply_nested_manifest_is_a_load_error(saved, tmp_path):
+    from aev_ocp import load
+    from aev_ocp.saved import MANIFEST, LoadError
+
+    d = _copy(saved, tmp_path)
+    (d / MANIFEST).write_text("[" * 100_000 + "]" * 100_000)
+    with pytest.raises(LoadError):
+        load(d)
+
+
+# ----------------------------------------------------------------------------- 7. overrides
+def test_set_on_an_axis_key_nan_and_newline_are_refused(tmp_path, capsys):
+    f = _study(tmp_path)
+    for sets, word in ((["platoon.gap0_first=0.5"], "platoon.gap0_first"), (["carfollowing.alpha=nan"], "nan"),
+                       (["simulation.t_end=2\nplatoon.followers=9"], "line break")):
+        rc, err = _run_study(tmp_path, f, tmp_path / "o", capsys, *[x for s in sets for x in ("--set", s)])
+        assert rc == 2 and word in one_error(err), err
+    assert not (tmp_path / "o").exists()
+
+
+# ----------------------------------------------------------------------------- 8. trace CSV
+def _trace_scenario(tmp_path: Path, trace: Path) -> Path:
+    f = tmp_path / "trace.toml"
+    f.write_text(f'name = "tr"\n[leader]\nkind = "trace"\nfile = "{trace}"\ntime_column = "t"\n'
+                 'speed_column = "v"\n[platoon]\nfollowers = 1\n[simulation]\nt_end_s = 2.0\n')
+    return f
+
+
+def test_trace_field_too_long_is_bad_input(tmp_path, capsys):
+    trace = tmp_path / "long.csv"
+    trace.write_text("t,v\n0," + "1" * 200_000 + "\n1,2\n")
+    rc, _, err = run_cli(["simulate", str(_trace_scenario(tmp_path, trace)), "--no-plots", "--out",
+                          str(tmp_path / "o")], capsys)
+    line = one_error(err)
+    assert rc == 2 and "not a valid CSV" in line and "internal error" not in line
+
+
+def test_trace_with_bom_is_read_and_passwd_is_not_echoed(tmp_path):
+    from aev_ocp.models.leader import read_trace_csv
+    from aev_ocp.params import ParameterError
+
+    f = tmp_path / "bom.csv"
+    f.write_bytes("\ufefft,v\n0,1.5\n0.5,2.5\n".encode())
+    t, v = read_trace_csv(f, time_column="t", speed_column="v")
+    np.testing.assert_array_equal(v, [1.5, 2.5])
+    secret = tmp_path / "passwd"
+    secret.write_text("root:x:0:0:root:/root:/bin/bash\ndaemon:x:1:1::/usr/sbin:/usr/sbin/nologin\n")
+    with pytest.raises(ParameterError) as info:
+        read_trace_csv(secret, time_column="t", speed_column="v")
+    assert "root" not in str(info.value) and "CSV" in str(info.value)
+
+
+def test_a_fifo_trace_is_refused(tmp_path):
+    from aev_ocp.models.leader import read_trace_csv
+    from aev_ocp.params import ParameterError
+
+    os.mkfifo(tmp_path / "fifo.csv")
+    with pytest.raises(ParameterError, match="not a regular file"):
+        read_trace_csv(tmp_path / "fifo.csv", time_column="t", speed_column="v")
+
+
+def test_long_trace_is_streamed(tmp_path):
+    from aev_ocp.models.leader import read_trace_csv
+
+    n = 50_000
+    f = tmp_path / "long.csv"
+    with f.open("w") as fh:
+        fh.write("t,v,lane\n")
+        fh.writelines(f"{0.1 * i:.1f},{10 + (i % 7) * 0.25},3\n" for i in range(n))
+    tracemalloc.start()
+    t, v = read_trace_csv(f, time_column="t", speed_column="v")
+    peak = tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    assert t.size == n and v[8] == 10.25
+    assert peak < 60 * n  # 60 B per row: the old list of row lists took ~370 B per row
+
+
+# ----------------------------------------------------------------------------- fuzz: study TOML
+_TOKENS = ["name = \"z\"", "scenarios = [\"table1\"]", "[[axes]]", "key = \"carfollowing.kappa\"",
+           "keys = [\"carfollowing.kappa\", \"carfollowing.alpha\"]", "values = [0.1, 0.2]", "values = []",
+           "values = [[0.1], [1.5, 2]]", "random = { n = 3, seed = 1, low = [0.0], high = [0.5] }",
+           "random = { n = -1, seed = 1, low = 0.5, high = 0.1 }", "random = { n = 1e300 }", "[controllers]",
+           "laws = [\"proposed\"]", "laws = [\"nope\"]", "laws = 3", "[overrides]", "\"platoon.followers\" = 2",
+           "\"simulation.t_end\" = nan", "reference = \"ovfl\"", "[report]", "metrics = [1]", "name = \"../x\"",
+           "[[controllers.mpc]]", "N = 100000000", "= =", "[axes]", "description = \"\\u0000\""]
+
+
+@settings(max_examples=80, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(lines=st.lists(st.sampled_from(_TOKENS), max_size=12),
+       noise=st.text(alphabet=st.characters(blacklist_categories=("Cs",)), max_size=20))
+def test_fuzz_study_toml_is_valid_or_one_clear_error(tmp_path, lines, noise):
+    from aev_ocp.overrides import OverrideError
+    from aev_ocp.params import ParameterError
+    from aev_ocp.scenarios import ScenarioError
+    from aev_ocp.study import StudyError, read_study
+
+    f = tmp_path / "fz.toml"
+    f.write_text("\n".join(lines) + "\n" + noise, encoding="utf-8")
+    try:
+        read_study(f)
+    except (StudyError, ScenarioError, OverrideError, ParameterError) as exc:  # exit 2 with one line on the CLI
+        assert str(exc)
+
+
+# ----------------------------------------------------------------------------- mpc-export (1, 2, 9)
+def test_mpc_export_refuses_a_users_folder_and_a_huge_horizon_before_generating(tmp_path, capsys):
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "Makefile").write_text("all:\n\techo mine\n")
+    rc, _, err = run_cli(["mpc-export", "mpc_paper_single", "--out", str(mine)], capsys)
+    assert rc == 2 and "Makefile" in one_error(err) and sorted(p.name for p in mine.iterdir()) == ["Makefile"]
+    t0 = time.perf_counter()
+    rc, _, err = run_cli(["mpc-export", "mpc_paper_single", "--out", str(tmp_path / "big"), "--set", "mpc.N=100000"],
+                         capsys)
+    assert rc == 2 and "mpc.N = 100000" in one_error(err) and time.perf_counter() - t0 < 10.0
+    assert not (tmp_path / "big").exists()
+
+
+def test_mpc_export_builds_into_a_relative_out(tmp_path, capsys, monkeypatch):
+    from aev_ocp.compiled import compiler
+
+    if compiler() is None:
+        pytest.skip("no C compiler")
+    monkeypatch.chdir(tmp_path)
+    rc, out, err = run_cli(["mpc-export", "mpc_paper_single", "--out", "rel_dir", "--build"], capsys)
+    assert rc == 0, err
+    assert (tmp_path / "rel_dir" / "libaev_mpc.so").is_file() and "built" in out
+
+
+# ----------------------------------------------------------------------------- 10. the C API's plain step
+@pytest.mark.skipif(shutil.which("cc") is None and shutil.which("gcc") is None, reason="no C compiler")
+def test_plain_c_step_with_own_states_matches_the_python_controller_in_closed_loop(tmp_path, capsys):
+    """aev_mpc_step (no own states given: a_prev taken from the previous plan, node 1) driven in a closed loop on
+    the traffic formulation (nx = 6) against the Python controller, and aev_mpc_step_own beside it; a one-node
+    shift of the own state in mpc_step.c makes every command after the first differ."""
+    from test_mpc_export import TOL, CPolicy, _compare
+
+    from aev_ocp.control import ClosedLoop
+    from aev_ocp.models import drive_cycle
+    from aev_ocp.mpc.export import CStep, build_library
+    from aev_ocp.mpc.policy import MPCVehicle
+    from aev_ocp.mpc.settings import MPCSettings
+    from aev_ocp.params import EVParams, Units
+
+    rc, _, err = run_cli(["mpc-export", "mpc_udds_single", "--out", str(tmp_path / "x"), "--set",
+                          "mpc.predictor=constant-velocity", "--set", "mpc.N=14"], capsys)
+    assert rc == 0, err
+    lib = build_library(tmp_path / "x", tmp_path / "x" / "lib.so")
+    ev = EVParams(units=Units(15.0, 17.0))
+    s = MPCSettings(N=14, predictor="constant-velocity", qp_solver="riccati", codegen=False)
+    leader = drive_cycle("udds", ev.units)
+    t_end = 40.0  # 400 steps; the leader drives off at 20 s (model 40 = 35 s of UDDS)
+
+    class Plain(CStep):  # the documented entry point: never passes the own states
+        calls = 0
+
+        def step(self, x_meas, forecast, own=None):  # noqa: ANN001, ANN202
+            Plain.calls += 1
+            return super().step(x_meas, forecast, None)
+
+    runs = {}
+    for name in ("plain", "own"):
+        loop = ClosedLoop(leader, [MPCVehicle(s)], ev)
+        cp = CPolicy(lib, loop.ctrl[0])
+        if name == "plain":
+            cp.step = Plain(lib)
+        assert cp.step.nx == 6  # the jerk state a_prev: an own state the plain step must take from its plan
+        loop.ctrl[0] = cp
+        runs[name] = (loop.run([0.8], [0.0], t_end), cp.status)
+    rp = ClosedLoop(leader, [MPCVehicle(s)], ev).run([0.8], [0.0], t_end)
+    assert Plain.calls == 400
+    for name, (r, status) in runs.items():
+        assert all(k == 0 for k in status), (name, status)
+        du, dx = _compare(r, rp)
+        assert du <= TOL and dx <= TOL, (name, du, dx)
+    assert np.abs(np.diff(rp.accel[:, 0])).max() > 1e-3  # a_prev changes: a shifted node would be seen
+
+
+# ----------------------------------------------------------------------------- 5. a scheduler that never answers
+def test_a_silent_scheduler_fails_after_the_connect_timeout(monkeypatch):
+    pytest.importorskip("dask.distributed")
+    import socket
+    import threading
+
+    from aev_ocp.study import runner
+
+    srv = socket.socket()
+    srv.bind(("127.0.0.1", 0))
+    srv.listen(8)
+    held: list[socket.socket] = []
+    stop = threading.Event()
+
+    def accept() -> None:  # accepts every connection and never says a word
+        srv.settimeout(0.2)
+        while not stop.is_set():
+            try:
+                held.append(srv.accept()[0])
+            except OSError:
+                pass
+
+    threading.Thread(target=accept, daemon=True).start()
+    monkeypatch.setattr(runner, "SCHEDULER_CONNECT_TIMEOUT_S", 2.0)
+    t0 = time.perf_counter()
+    try:
+        with pytest.raises(RuntimeError, match="did not answer within 2 s"):
+            runner._run_dask([{"key": "k"}], None, f"tcp://127.0.0.1:{srv.getsockname()[1]}", lambda r: None)
+    finally:
+        stop.set()
+        for c in held:
+            c.close()
+        srv.close()
+    assert time.perf_counter() - t0 < 15.0 and held  # it did connect, and gave up on its own
