@@ -584,6 +584,32 @@ def _cell(r: TableReader, source: Path | None) -> CellParams:
     return _params(CellParams, r, base)
 
 
+def read_ev(top: TableReader, source: Path | None) -> EVParams:
+    """The vehicle tables every scenario form shares (platoon, ring, SUMO): [units], [vehicle], [cell] (a shipped
+    ``name`` or a ``file``, then field overrides), [pack], [limits], [thermal]; absent tables give the defaults."""
+    return EVParams(units=_params(Units, top.sub("units")), vehicle=_params(VehicleParams, top.sub("vehicle")),
+                    cell=_cell(top.sub("cell"), source), pack=_params(PackParams, top.sub("pack")),
+                    limits=_params(VehicleLimits, top.sub("limits")), thermal=_params(ThermalParams, top.sub("thermal")))
+
+
+def standalone_header(doc: dict[str, Any], file: str, source: Path | None, allowed: Any,
+                      kind: str) -> tuple[TableReader, str, str, EVParams]:
+    """The head of a scenario form with its own command (``kind``: 'ring', 'sumo'): top-level keys checked against
+    ``allowed``, then (reader, name, description, EVParams); the name defaults to the file stem made safe."""
+    for key in doc:
+        if key not in allowed:
+            raise ScenarioError(f"{file}: unknown top-level key or table {key!r} in a {kind} scenario; allowed: "
+                                f"{sorted(allowed)}")
+    top = TableReader(doc, "", file)
+    stem = source.stem if source is not None else kind
+    name = top.string("name", re.sub(r"[^A-Za-z0-9._+-]", "_", stem).lstrip("._+-")[:100] or kind)
+    try:
+        check_safe_name(name)
+    except ValueError as exc:
+        raise top.error("name", name, str(exc).split("is not allowed: ", 1)[-1]) from None
+    return top, name, top.string("description", ""), read_ev(top, source)
+
+
 def _trace(r: TableReader, units: Units, source: Path | None) -> LeaderProfile:
     """[leader] kind = "trace": a recorded trajectory in a CSV file, relative to the scenario file."""
     file = r.string("file")
@@ -805,13 +831,8 @@ def parse_scenario(doc: dict[str, Any], file: str = "<scenario>", *, source: Pat
     if dups:
         raise top.error("compare", doc["compare"], f"names {dups[0]!r} twice; each law runs once")
 
-    units = _params(Units, top.sub("units"))
-    vehicle = _params(VehicleParams, top.sub("vehicle"))
-    cell = _cell(top.sub("cell"), source)
-    pack = _params(PackParams, top.sub("pack"))
-    limits = _params(VehicleLimits, top.sub("limits"))
-    thermal = _params(ThermalParams, top.sub("thermal"))
-    ev = EVParams(units=units, vehicle=vehicle, cell=cell, pack=pack, limits=limits, thermal=thermal)
+    ev = read_ev(top, source)
+    units = ev.units
 
     sim = top.sub("simulation", required=True)
     t_end = sim.quantity("t_end", units, gt=0)  # or t_end_s [s]

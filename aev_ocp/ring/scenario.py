@@ -30,7 +30,6 @@ Errors are one line naming the file and the key (``ring_x.toml: ring.aev.vehicle
 from __future__ import annotations
 
 import copy
-import re
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -38,9 +37,9 @@ from typing import Any
 
 import numpy as np
 
-from ..params import CellParams, EVParams, PackParams, ParameterError, Units, VehicleLimits, VehicleParams
-from ..results import check_safe_name
-from ..scenarios import ScenarioError, TableReader, _params, find_scenario, read_scenario_text, register_section
+from ..params import EVParams, ParameterError
+from ..scenarios import (ScenarioError, TableReader, find_scenario, read_scenario_text, register_section,
+                         standalone_header)
 from .laws import AEV_CONTROLLERS, IDM_SI, RING_PREDICTORS
 
 HUMAN_MODELS = ("idm", "ovm")
@@ -223,21 +222,7 @@ register_section("ring", validate_ring_table)
 
 def parse_ring_scenario(doc: dict[str, Any], file: str = "<ring scenario>", source: Path | None = None) -> RingScenario:
     """Validate a parsed TOML document into a :class:`RingScenario` (errors name the file and key)."""
-    for key in doc:
-        if key not in _TOP:
-            raise ScenarioError(f"{file}: unknown top-level key or table {key!r} in a ring scenario; allowed: "
-                                f"{sorted(_TOP)}")
-    top = TableReader(doc, "", file)
-    stem = source.stem if source is not None else "ring"
-    name = top.string("name", re.sub(r"[^A-Za-z0-9._+-]", "_", stem).lstrip("._+-")[:100] or "ring")
-    try:
-        check_safe_name(name)
-    except ValueError as exc:
-        raise top.error("name", name, str(exc).split("is not allowed: ", 1)[-1]) from None
-    description = top.string("description", "")
-    ev = EVParams(units=_params(Units, top.sub("units")), vehicle=_params(VehicleParams, top.sub("vehicle")),
-                  cell=_params(CellParams, top.sub("cell")), pack=_params(PackParams, top.sub("pack")),
-                  limits=_params(VehicleLimits, top.sub("limits")))
+    top, name, description, ev = standalone_header(doc, file, source, _TOP, "ring")
     spec = validate_ring_table(top.sub("ring", required=True))
     mpc = None
     if "mpc" in doc:

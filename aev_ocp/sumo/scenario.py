@@ -33,9 +33,8 @@ from pathlib import Path
 from typing import Any
 
 from ..models.carfollowing import LAW_REGISTRY
-from ..params import CarFollowingParams, CellParams, EVParams, PackParams, Units, VehicleLimits, VehicleParams
-from ..results import check_safe_name
-from ..scenarios import ScenarioError, TableReader, _params
+from ..params import CarFollowingParams, EVParams
+from ..scenarios import ScenarioError, TableReader, _params, standalone_header
 from . import SumoError
 from .networks import NETWORKS, MergeNetwork, RingNetwork
 
@@ -179,20 +178,7 @@ def parse_sumo_table(r: TableReader, base: Path | None) -> SumoSpec:
 
 def parse_sumo_scenario(doc: dict[str, Any], file: str = "<sumo scenario>", source: Path | None = None) -> SumoScenario:
     """Validate a parsed TOML document into a :class:`SumoScenario` (errors name the file and key)."""
-    for key in doc:
-        if key not in _TOP:
-            raise ScenarioError(f"{file}: unknown top-level key or table {key!r}; allowed: {sorted(_TOP)}")
-    top = TableReader(doc, "", file)
-    stem = source.stem if source is not None else "sumo"
-    name = top.string("name", re.sub(r"[^A-Za-z0-9._+-]", "_", stem).lstrip("._+-")[:100] or "sumo")
-    try:
-        check_safe_name(name)
-    except ValueError as exc:
-        raise top.error("name", name, str(exc).split("is not allowed: ", 1)[-1]) from None
-    description = top.string("description", "")
-    ev = EVParams(units=_params(Units, top.sub("units")), vehicle=_params(VehicleParams, top.sub("vehicle")),
-                  cell=_params(CellParams, top.sub("cell")), pack=_params(PackParams, top.sub("pack")),
-                  limits=_params(VehicleLimits, top.sub("limits")))
+    top, name, description, ev = standalone_header(doc, file, source, _TOP, "sumo")
     cf = _params(CarFollowingParams, top.sub("carfollowing"))
     spec = parse_sumo_table(top.sub("sumo", required=True), source.parent if source is not None else None)
     mpc = None
