@@ -104,7 +104,7 @@ def blast_available() -> bool:
     try:
         with warnings.catch_warnings():  # its h5pyd dependency warns about distutils on import
             warnings.simplefilter("ignore", DeprecationWarning)
-            import blast  # type: ignore[import-untyped]  # noqa: F401
+            import blast  # noqa: F401
     except ImportError:
         return False
     return True
@@ -141,7 +141,7 @@ def blast_model(chemistry: str) -> Any:
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", DeprecationWarning)
-            from blast import models  # type: ignore[import-untyped, unused-ignore]
+            from blast import models
     except ImportError:
         raise ParameterError(INSTALL_HINT) from None
     _numpy_compat()
