@@ -130,6 +130,23 @@ class OutputError(ValueError):
     """An output folder cannot be used (it holds another run's files); the message says which and why."""
 
 
+
+class FieldsRepr:
+    """``__repr__`` and ``_repr_html_`` of a result that states itself as ``_repr_fields() -> (title, [(name,
+    value), ...])``: the title, then one ``name: value`` line (text) or table row (HTML) per field."""
+
+    def _repr_fields(self) -> tuple[str, list[tuple[str, Any]]]:
+        raise NotImplementedError
+
+    def __repr__(self) -> str:
+        title, fields = self._repr_fields()
+        return summary_text(title, [f"{k}: {fmt_value(v)}" for k, v in fields])
+
+    def _repr_html_(self) -> str:
+        title, fields = self._repr_fields()
+        return summary_html(title, fields)
+
+
 def check_safe_name(name: str, what: str = "name") -> str:
     """``name`` if it is a safe single folder name (1-100 of A-Z a-z 0-9 . _ + -, not starting with
     '.', '_', '+' or '-'), else ValueError: a name must never lead outside the output folder."""

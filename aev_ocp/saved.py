@@ -33,8 +33,7 @@ import numpy as np
 from .limits import memory_limit_bytes
 from .params import (UNLIMITED, CellParams, EVParams, PackParams, ThermalParams, Units, VehicleLimits, VehicleParams,
                      as_dict)
-from .results import (Event, SimulationResult, atomic_path, fmt_value, require_pandas, summary_html, summary_text,
-                      to_jsonable, write_json)
+from .results import (Event, FieldsRepr, SimulationResult, atomic_path, require_pandas, to_jsonable, write_json)
 
 FORMAT = "aev_ocp-output"
 FORMAT_VERSION = 1
@@ -328,8 +327,8 @@ def settings_of(scenario: Any, **options: Any) -> dict[str, Any]:
 TRAJECTORIES = "trajectories"  # sub-folder of a study's output: one loadable folder per task hash
 
 
-@dataclass
-class StudyOutput:
+@dataclass(repr=False)  # the short repr of FieldsRepr, not the dataclass's field dump
+class StudyOutput(FieldsRepr):
     """What :func:`aev_ocp.study.run_study` produced (or :func:`aev_ocp.load` read back): folder, rows (one per point ×
     controller × vehicle, see :mod:`aev_ocp.study.table`), files written, counts; meta: the manifest's
     settings (the study file's document and path) and provenance, and ``output`` when loaded."""
@@ -351,15 +350,6 @@ class StudyOutput:
         return (f"StudyOutput: {len(points)} points × {len(ctrls)} controllers ({', '.join(ctrls)}), "
                 f"{self.n_failed} of {self.n_tasks} tasks failed",
                 [("folder", str(self.folder)), ("rows", len(self.rows)), ("files", len(self.files))])
-
-    def __repr__(self) -> str:
-        """A few lines: points, controllers, failed tasks, the folder and the row count."""
-        title, fields = self._repr_fields()
-        return summary_text(title, [f"{k}: {fmt_value(v)}" for k, v in fields])
-
-    def _repr_html_(self) -> str:
-        title, fields = self._repr_fields()
-        return summary_html(title, fields)
 
     def to_dataframe(self) -> Any:
         """The table rows as a pandas DataFrame. Needs pandas (``pip install 'aev_ocp[pandas]'``)."""

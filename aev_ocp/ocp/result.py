@@ -12,15 +12,15 @@ from typing import Any
 
 import numpy as np
 
-from ..results import fmt_value, require_pandas, summary_html, summary_text, to_jsonable, write_atomic, write_json
+from ..results import FieldsRepr, require_pandas, to_jsonable, write_atomic, write_json
 
 
 # one implementation of atomic writes and JSON conversion for the whole package
 write_json_atomic = write_json
 
 
-@dataclass
-class OCPResult:
+@dataclass(repr=False)  # the short repr of FieldsRepr, not the dataclass's field dump
+class OCPResult(FieldsRepr):
     """Solution of one OCP.
 
     t: node times (N+1) [time_unit]; states: name -> (N+1) values at the nodes; controls: name -> (N)
@@ -102,15 +102,6 @@ class OCPResult:
             fields.append(("message", self.message))
         fields += [("warning", w) for w in self.warnings[:3]]
         return title, fields
-
-    def __repr__(self) -> str:
-        """A few lines: the problem, method, status, objective, iterations, wall time [s] and the variable names."""
-        title, fields = self._repr_fields()
-        return summary_text(title, [f"{k}: {fmt_value(v)}" for k, v in fields])
-
-    def _repr_html_(self) -> str:
-        title, fields = self._repr_fields()
-        return summary_html(title, fields)
 
     def to_dataframe(self) -> Any:
         """One row per node, the columns of :meth:`to_csv` (SI columns first when the units are known; controls
