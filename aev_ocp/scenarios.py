@@ -936,17 +936,23 @@ def _os_reason(exc: OSError) -> str:
     return exc.strerror or str(exc)
 
 
-def load_scenario(path: str | Path) -> Scenario:
-    """Read and validate a scenario file (a path, or the name of a shipped scenario, see :func:`find_scenario`)."""
-    p = find_scenario(path)
-    file = str(path)
+def read_scenario_doc(p: Path, file: str) -> dict[str, Any]:
+    """The TOML document of scenario file ``p`` (``file`` names it in messages), for every scenario form: the file
+    checked and read by :func:`read_scenario_text`, then parsed; bad TOML or too deep nesting is a ScenarioError."""
     text = read_scenario_text(p, file)
     try:
-        doc = tomllib.loads(text)
+        return tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise ScenarioError(f"{file}: not valid TOML: {exc}") from None
     except RecursionError:
         raise ScenarioError(f"{file}: not valid TOML for a scenario: arrays or tables nested too deeply") from None
+
+
+def load_scenario(path: str | Path) -> Scenario:
+    """Read and validate a scenario file (a path, or the name of a shipped scenario, see :func:`find_scenario`)."""
+    p = find_scenario(path)
+    file = str(path)
+    doc = read_scenario_doc(p, file)
     try:
         return parse_scenario(doc, file, source=p)
     except RecursionError:

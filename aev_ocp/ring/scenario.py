@@ -30,7 +30,6 @@ Errors are one line naming the file and the key (``ring_x.toml: ring.aev.vehicle
 from __future__ import annotations
 
 import copy
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -38,7 +37,7 @@ from typing import Any
 import numpy as np
 
 from ..params import EVParams, ParameterError
-from ..scenarios import (ScenarioError, TableReader, find_scenario, read_scenario_text, register_section,
+from ..scenarios import (ScenarioError, TableReader, find_scenario, read_scenario_doc, register_section,
                          standalone_header)
 from .laws import AEV_CONTROLLERS, IDM_SI, RING_PREDICTORS
 
@@ -250,11 +249,7 @@ def load_ring_scenario(path: str | Path) -> RingScenario:
         raise ScenarioError(f"{path}: no such ring scenario file (shipped ring scenarios: "
                             f"{', '.join(shipped_scenarios('ring')) or 'none found'})") from None
     file = str(path)
-    text = read_scenario_text(p, file)
-    try:
-        doc = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise ScenarioError(f"{file}: not valid TOML: {exc}") from None
+    doc = read_scenario_doc(p, file)
     if "ring" not in doc:
         raise ScenarioError(f"{file}: not a ring scenario (no [ring] table); run a platoon scenario with "
                             "'aev-ocp simulate'")

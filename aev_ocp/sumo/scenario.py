@@ -27,14 +27,13 @@ from __future__ import annotations
 import copy
 import dataclasses
 import re
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from ..models.carfollowing import LAW_REGISTRY
 from ..params import CarFollowingParams, EVParams
-from ..scenarios import ScenarioError, TableReader, _params, standalone_header
+from ..scenarios import ScenarioError, TableReader, _params, read_scenario_doc, standalone_header
 from . import SumoError
 from .networks import NETWORKS, MergeNetwork, RingNetwork
 
@@ -212,14 +211,7 @@ def load_sumo_scenario(path: str | Path) -> SumoScenario:
     p = Path(path)
     if not p.exists() and p.suffix == "" and (Path(__file__).parent / "scenarios" / f"{p.name}.toml").is_file():
         p = Path(__file__).parent / "scenarios" / f"{p.name}.toml"
-    try:
-        text = p.read_text(encoding="utf-8")
-    except OSError as exc:
-        raise ScenarioError(f"{path}: cannot read the scenario ({exc.strerror or exc})") from None
-    try:
-        doc = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise ScenarioError(f"{path}: not valid TOML ({exc})") from None
+    doc = read_scenario_doc(p, str(path))  # a regular file of a stated size, parsed like every scenario file
     return parse_sumo_scenario(doc, str(path), p.resolve())
 
 
