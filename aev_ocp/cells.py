@@ -22,12 +22,14 @@ from __future__ import annotations
 
 import csv
 import dataclasses
+import io
 import tomllib
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
 from typing import Any
 
+from .limits import read_regular_file
 from .params import CellParams, ParameterError, check_ocv_table, field_checks
 
 CHEMISTRIES = ("LFP", "NMC", "NCA")
@@ -63,8 +65,10 @@ def shipped_cells() -> dict[str, Path]:
 
 def _read_csv(path: Path, file: str) -> tuple[list[float], list[float]]:
     try:
-        with path.open(newline="", encoding="utf-8") as fh:
-            rows = list(csv.DictReader(fh))
+        text = read_regular_file(path, "OCV table", CellFileError, label=f"{file}: ocv.file = {str(path)!r}")
+        rows = list(csv.DictReader(io.StringIO(text.decode("utf-8"), newline="")))
+    except (UnicodeDecodeError, csv.Error) as exc:
+        raise CellFileError(f"{file}: ocv.file = {str(path)!r} is not a UTF-8 CSV table: {exc}") from None
     except OSError as exc:
         raise CellFileError(f"{file}: ocv.file = {str(path)!r} cannot be read: {exc.strerror or exc}") from None
     try:
@@ -150,11 +154,9 @@ def load_cell_file(name_or_path: str | Path, base_dir: Path | None = None) -> Ce
         p = base_dir / p
     path = find_cell(p if p.is_file() else name_or_path)
     try:
-        doc = tomllib.loads(path.read_text(encoding="utf-8"))
-    except tomllib.TOMLDecodeError as exc:
-        raise CellFileError(f"{path}: not valid TOML: {exc}") from None
-    except OSError as exc:
-        raise CellFileError(f"{path}: cannot be read: {exc.strerror or exc}") from None
+        doc = tomllib.loads(read_regular_file(path, "cell file", CellFileError).decode("utf-8"))
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError, RecursionError) as exc:
+        raise CellFileError(f"{path}: not valid UTF-8 TOML: {exc}") from None
     return parse_cell(doc, str(path), path.parent)
 
 

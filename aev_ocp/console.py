@@ -15,7 +15,7 @@ from typing import Callable
 from . import interrupts
 from .overrides import OverrideError
 from .params import ParameterError
-from .results import OutputError
+from .results import OutputError, release_output_locks
 from .scenarios import ScenarioError
 
 EXIT_OK, EXIT_FAILED_RUN, EXIT_BAD_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 130
@@ -69,6 +69,7 @@ def guarded(run: Callable[[], int]) -> int:
         return _guarded(run, debug)
     finally:
         interrupts._state["depth"] = 0
+        release_output_locks()  # the output folders this command claimed are free for the next run
 
 
 def _guarded(run: Callable[[], int], debug: bool) -> int:
@@ -76,6 +77,8 @@ def _guarded(run: Callable[[], int], debug: bool) -> int:
         warnings.showwarning = _show_warning  # every warning is one line 'aev-ocp: warning: ...'
         try:
             rc = int(run() or 0)
+            if rc == EXIT_INTERRUPTED and interrupts.interrupted():
+                return rc  # the command caught the interrupt and said so itself: one line, not two
             interrupts.check()  # a signal that a solver turned into a failed solve
             return rc
         except SystemExit as exc:

@@ -15,8 +15,11 @@ limit, and which key or argument to change; it returns the estimate [bytes] when
 
 from __future__ import annotations
 
+import errno
 import math
 import os
+import stat
+from typing import Callable
 
 from .params import ParameterError, SimOptions
 
@@ -56,8 +59,10 @@ def memory_limit_bytes() -> float:
 
 
 def n_samples(t_end: float, dt_out: float) -> float:
-    """Samples per follower of a run [-]: one per dt_out and at least one per integrator chunk."""
-    return math.ceil(t_end / min(dt_out, SimOptions().chunk)) + 1.0
+    """Samples per follower of a run [-]: one per dt_out and at least one per integrator chunk (inf when the
+    ratio overflows, e.g. t_end = 1e308: such a run is refused by the size checks, never rounded)."""
+    ratio = t_end / min(dt_out, SimOptions().chunk)
+    return math.ceil(ratio) + 1.0 if math.isfinite(ratio) else math.inf
 
 
 def estimate_run_bytes(n_followers: int, t_end: float, dt_out: float) -> float:
@@ -176,3 +181,44 @@ def check_local_workers(n: int | None, key: str = "--workers") -> int | None:
         raise ParameterError(f"{key} {n!r}: must be an integer from 1 to {cap} ({MAX_WORKERS_PER_CORE} per core on "
                              f"this machine's {os.cpu_count() or 1} cores)")
     return n
+
+
+# ----------------------------------------------------------------------------- input files
+#: Largest input file (scenario, study, cell, grid file) that is read [bytes]: such files are a few kB of TOML,
+#: JSON or CSV; anything larger is not one of them, and is refused before it is read.
+MAX_INPUT_FILE_BYTES = 16 * 2**20
+
+
+def read_regular_file(path: str | os.PathLike[str], what: str, error: Callable[[str], Exception],
+                      max_bytes: int = MAX_INPUT_FILE_BYTES, label: str | None = None) -> bytes:
+    """The bytes of the file ``path`` (a symlink to one is fine) if it is a regular file of at most ``max_bytes``
+    [bytes], checked BEFORE reading: a FIFO would block the open or the read, /dev/zero never ends. Otherwise
+    ``raise error(message)``, one line naming ``label`` (default the path) and ``what`` (e.g. 'study file')."""
+    name = str(path) if label is None else label
+    try:
+        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))  # O_NONBLOCK: a FIFO must not block the open
+    except OSError as exc:
+        raise error(f"{name}: cannot read the {what} ({_os_reason(exc)})") from None
+    try:
+        st = os.fstat(fd)
+        if not stat.S_ISREG(st.st_mode):
+            kind = "a folder" if stat.S_ISDIR(st.st_mode) else "not a regular file: a FIFO, device or socket"
+            raise error(f"{name}: cannot read the {what} (it is {kind})")
+        if st.st_size > max_bytes:
+            raise error(f"{name}: the {what} is {st.st_size} bytes, more than the {max_bytes} it may have; not read")
+        with os.fdopen(fd, "rb", closefd=False) as fh:
+            data = fh.read(max_bytes + 1)
+    except OSError as exc:
+        raise error(f"{name}: cannot read the {what} ({_os_reason(exc)})") from None
+    finally:
+        os.close(fd)
+    if len(data) > max_bytes:
+        raise error(f"{name}: the {what} grew past {max_bytes} bytes while it was read; not read")
+    return data
+
+
+def _os_reason(exc: OSError) -> str:
+    """An OSError in a few words ('a loop of symbolic links' for ELOOP, else the system's message)."""
+    if exc.errno == errno.ELOOP:
+        return "a loop of symbolic links"
+    return exc.strerror or str(exc)

@@ -21,8 +21,6 @@ import hashlib
 import io
 import json
 import math
-import os
-import stat
 import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -30,7 +28,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from .limits import memory_limit_bytes
+from .limits import memory_limit_bytes, read_regular_file
 from .params import (UNLIMITED, CellParams, EVParams, PackParams, ThermalParams, Units, VehicleLimits, VehicleParams,
                      as_dict)
 from .results import (Event, FieldsRepr, SimulationResult, atomic_path, require_pandas, to_jsonable, write_json)
@@ -188,26 +186,7 @@ MAX_MANIFEST_BYTES = 200_000_000  # a manifest is JSON metadata (kB to a few MB 
 def read_regular(f: Path, max_bytes: int, what: str) -> bytes:
     """The bytes of ``f`` if it is a regular file (a symlink to one is fine) of at most ``max_bytes``, checked
     BEFORE reading: a FIFO would hang, /dev/zero never ends; LoadError otherwise."""
-    try:
-        fd = os.open(f, os.O_RDONLY | os.O_NONBLOCK)  # O_NONBLOCK: opening a FIFO must not wait for a writer
-    except OSError as exc:
-        raise LoadError(f"{f}: the output's {what} cannot be read ({exc.strerror or exc})") from None
-    try:
-        st = os.fstat(fd)
-        if not stat.S_ISREG(st.st_mode):
-            raise LoadError(f"{f}: the output's {what} is not a regular file (a FIFO, device or folder); not read")
-        if st.st_size > max_bytes:
-            raise LoadError(f"{f}: the output's {what} is {st.st_size / 1e9:.3g} GB, more than the "
-                            f"{max_bytes / 1e9:.3g} GB it may hold; not read")
-        with os.fdopen(fd, "rb", closefd=False) as fh:
-            data = fh.read(max_bytes + 1)
-    except OSError as exc:
-        raise LoadError(f"{f}: the output's {what} cannot be read ({exc.strerror or exc})") from None
-    finally:
-        os.close(fd)
-    if len(data) > max_bytes:
-        raise LoadError(f"{f}: the output's {what} grew past {max_bytes / 1e9:.3g} GB while read; not read")
-    return data
+    return read_regular_file(f, f"output's {what}", LoadError, max_bytes)
 
 
 def _nan(x: Any) -> float:
@@ -229,11 +208,30 @@ def _sim_result(label: str, rec: dict[str, Any], arrays: dict[str, np.ndarray]) 
                      None if e.get("time_s") is None else float(e["time_s"]),
                      None if e.get("impact_speed_mps") is None else float(e["impact_speed_mps"]))
 
+    _check_sim_arrays(label, arrays)
     return SimulationResult(**{n: arrays[f"{label}/{n}"] for n in SIM_ARRAYS}, controllers=list(rec["controllers"]),
                             ev=evp, events=[event(e) for e in rec["events"]], jerk_sampled=bool(rec["jerk_sampled"]),
                             solver_stats=list(rec["solver_stats"] or []), meta=dict(rec["meta"] or {}),
                             violations=[event(e) for e in rec.get("violations") or []],
                             temperature_K=arrays.get(f"{label}/temperature_K"))
+
+
+def _check_sim_arrays(label: str, arrays: dict[str, np.ndarray]) -> None:
+    """ValueError unless run ``label``'s arrays have the shapes a SimulationResult has: numbers, t of n >= 1
+    samples, the leader's (n,), every per-vehicle array (n, vehicles) like gap (a damaged or edited file whose
+    SHA-256 was updated would otherwise load as a run with silently wrong numbers)."""
+    t, gap = arrays[f"{label}/t"], arrays[f"{label}/gap"]
+    n = t.shape[0] if t.ndim == 1 else -1
+    want = {"t": (n,), "leader_speed": (n,), "leader_position": (n,), "temperature_K": gap.shape}
+    for name in (*SIM_ARRAYS, "temperature_K"):
+        a = arrays.get(f"{label}/{name}")
+        if a is None and name == "temperature_K":
+            continue
+        shape = want.get(name, gap.shape)
+        if a is None or a.dtype.kind not in "fiub" or a.shape != shape or n < 1 or gap.ndim != 2 or gap.shape[0] != n:
+            got = "missing" if a is None else f"{a.dtype} {a.shape}"
+            raise ValueError(f"array {name!r} is {got}; expected numbers of shape {shape} (t has {n} samples, gap "
+                             f"{gap.shape})")
 
 
 def _ocp_result(label: str, rec: dict[str, Any], arrays: dict[str, np.ndarray]) -> Any:

@@ -71,7 +71,7 @@ from .cells import CellFileError, load_cell_file, shipped_cells
 from .params import (CarFollowingParams, CellParams, Check, EVParams, PackParams, ParameterError, SimOptions,
                      ThermalParams, Units, VehicleLimits, VehicleParams, field_checks)
 from .limits import DEFAULT_MEMORY_LIMIT_GB as DEFAULT_MEMORY_LIMIT_GB  # re-exported: the budget lives in limits
-from .limits import BYTES_PER_SAMPLE, estimate_run_bytes, memory_limit_bytes, n_samples
+from .limits import BYTES_PER_SAMPLE, estimate_run_bytes, memory_limit_bytes, n_samples, read_regular_file
 from .results import check_safe_name
 
 LEADER_KINDS = ("constant", "paper", "cycle", "array", "trace")
@@ -617,7 +617,8 @@ def _trace(r: TableReader, units: Units, source: Path | None) -> LeaderProfile:
     if not path.is_absolute():
         path = (source.parent if source is not None else Path.cwd()) / path
     if not path.is_file():
-        raise r.error("file", file, f"no such file ({path}); a relative path starts at the scenario file's folder")
+        raise r.error("file", file, f"not a regular file ({path}: a FIFO, device or folder)" if path.exists() else
+                      f"no such file ({path}); a relative path starts at the scenario file's folder")
     speed, position = r.string("speed_column", None), r.string("position_column", None)
     if speed is not None and position is not None:
         raise r.error("position_column", position, "give speed_column or position_column, not both")
@@ -902,38 +903,13 @@ def check_leader_speed(scenario: Scenario, file: str = "<scenario>") -> float:
 def read_scenario_text(p: Path, file: str) -> str:
     """The text of scenario file ``p`` (``file`` names it in messages): a regular file of at most
     MAX_FILE_BYTES, UTF-8; anything else is a ScenarioError."""
-    try:
-        fd = os.open(p, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))  # a FIFO must not block the open
-    except OSError as exc:
-        raise ScenarioError(f"{file}: cannot read the scenario file ({_os_reason(exc)})") from None
-    try:
-        st = os.fstat(fd)
-        if not stat.S_ISREG(st.st_mode):
-            kind = "a folder" if stat.S_ISDIR(st.st_mode) else "not a regular file"
-            raise ScenarioError(f"{file}: cannot read the scenario file (it is {kind})")
-        if st.st_size > MAX_FILE_BYTES:
-            raise ScenarioError(f"{file}: the scenario file is {st.st_size} bytes, more than the "
-                                f"{MAX_FILE_BYTES} a scenario may have")
-        with os.fdopen(fd, "rb", closefd=False) as fh:
-            data = fh.read(MAX_FILE_BYTES + 1)
-    except OSError as exc:
-        raise ScenarioError(f"{file}: cannot read the scenario file ({_os_reason(exc)})") from None
-    finally:
-        os.close(fd)
-    if len(data) > MAX_FILE_BYTES:
-        raise ScenarioError(f"{file}: the scenario file is larger than the {MAX_FILE_BYTES} bytes a scenario may have")
+    data = read_regular_file(p, "scenario file", ScenarioError, MAX_FILE_BYTES, label=file)
     try:
         return data.decode("utf-8")
     except UnicodeDecodeError as exc:
         line = data[:exc.start].count(b"\n") + 1
         raise ScenarioError(f"{file}: not a text file in UTF-8 (byte 0x{data[exc.start]:02x} at line {line}); "
                             "scenario files are UTF-8 TOML") from None
-
-
-def _os_reason(exc: OSError) -> str:
-    if exc.errno == errno.ELOOP:
-        return "a loop of symbolic links"
-    return exc.strerror or str(exc)
 
 
 def read_scenario_doc(p: Path, file: str) -> dict[str, Any]:

@@ -164,14 +164,28 @@ def test_stopping_a_pool_ends_its_computing_workers():
     assert [f._state for f in futs if not f.done()] == []
 
 
-def test_a_second_study_into_a_locked_folder_is_refused(tmp_path, capsys):
-    from aev_ocp.results import output_lock
+def _foreign_lock(out: Path) -> int:
+    """Hold the folder lock as another process would: an flock on a descriptor of our own (output_lock is
+    re-entrant within one process, so it cannot stand for a second run)."""
+    import fcntl
 
+    from aev_ocp.results import LOCK
+
+    out.mkdir(parents=True, exist_ok=True)
+    fd = os.open(out / LOCK, os.O_RDWR | os.O_CREAT)
+    fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    return fd
+
+
+def test_a_second_study_into_a_locked_folder_is_refused(tmp_path, capsys):
     out = tmp_path / "o"
-    with output_lock(out):
+    fd = _foreign_lock(out)
+    try:
         rc, err = _run_study(tmp_path, _study(tmp_path), out, capsys)
+    finally:
+        os.close(fd)
     assert rc == 2 and "in use by another aev-ocp run" in one_error(err) and not (out / "points").exists()
-    assert _run_study(tmp_path, _study(tmp_path), out, capsys)[0] == 0  # released with the block
+    assert _run_study(tmp_path, _study(tmp_path), out, capsys)[0] == 0  # released with the other run
 
 
 def test_figures_use_unique_temporaries_and_leave_none_on_interrupt(tmp_path, monkeypatch):

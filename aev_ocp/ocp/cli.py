@@ -65,10 +65,13 @@ def parse_grids(problem: str, items: list[str], file: str | None) -> dict[str, l
 
     raw: dict[str, object] = {}
     if file is not None:
-        text = Path(file).read_text(encoding="utf-8")
+        from ..limits import read_regular_file
+
+        data = read_regular_file(file, "grid file (--grid-file)", ParameterError)  # a FIFO or device: refused
         try:
+            text = data.decode("utf-8")
             raw.update(json.loads(text) if file.endswith(".json") else tomllib.loads(text))
-        except (ValueError, tomllib.TOMLDecodeError) as exc:
+        except (ValueError, tomllib.TOMLDecodeError, RecursionError) as exc:
             raise ParameterError(f"--grid-file {file}: not valid {'JSON' if file.endswith('.json') else 'TOML'}: "
                                  f"{exc}") from None
     for item in items:

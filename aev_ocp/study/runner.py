@@ -18,6 +18,8 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import shutil
+import tempfile
 import time
 import traceback
 from collections import OrderedDict
@@ -195,10 +197,16 @@ class Store:
         return {k: v for k, v in got.items() if k != self.HASH_FIELD}
 
     def put(self, key: str, result: dict[str, Any]) -> None:
-        """Store a result atomically, with its key and content hash."""
+        """Store a result atomically, with its key and content hash (a damaged entry that is not a file, e.g. a
+        folder or a FIFO under the entry's name, or a ``points`` that is not a folder, is replaced)."""
         entry = {**result, "key": key}
         entry[self.HASH_FIELD] = self.digest(entry)
-        write_atomic(self.path(key), json.dumps(entry, sort_keys=True) + "\n")
+        f = self.path(key)
+        if self.dir.is_symlink() or (self.dir.exists() and not self.dir.is_dir()):
+            self.dir.unlink()  # points/ is the store's own folder: a file or a link in its place is damage
+        if f.is_dir() and not f.is_symlink():
+            shutil.rmtree(f)  # a folder under an entry's name (os.replace cannot replace it; a FIFO or link it can)
+        write_atomic(f, json.dumps(entry, sort_keys=True) + "\n")
 
 
 MAX_ENTRY_BYTES = 50_000_000  # a stored task result is a few kB (metrics + profiles); larger is not one of ours
@@ -378,19 +386,30 @@ def _run_dask(specs: list[dict[str, Any]], workers: int | None, scheduler: str |
 
     n_local = check_local_workers(workers, "dask workers") or os.cpu_count() or 1
     cluster = None
+    # the workers' scratch space (Dask's default: <tmp>/dask-scratch-space, left behind) is ours, removed at the end
+    scratch = None if scheduler else tempfile.mkdtemp(prefix="aev_ocp_dask_")
     # a scheduler that accepts and then stays silent must not hang the study (issue 28)
     cfg = dask.config.set({"distributed.comm.timeouts.connect": f"{SCHEDULER_CONNECT_TIMEOUT_S}s",
-                           "distributed.comm.timeouts.tcp": f"{SCHEDULER_HEARTBEAT_TIMEOUT_S}s"})
+                           "distributed.comm.timeouts.tcp": f"{SCHEDULER_HEARTBEAT_TIMEOUT_S}s",
+                           **({"temporary-directory": scratch} if scratch else {})})
+
+    def release() -> None:
+        cfg.__exit__(None, None, None)
+        if scratch is not None:
+            shutil.rmtree(scratch, ignore_errors=True)
+
     try:
         if scheduler:
             client = _connect(Client, scheduler)
         else:
             _export_path()
             cluster = LocalCluster(n_workers=n_local, threads_per_worker=1, processes=True,
-                                   dashboard_address=None, silence_logs=40)
+                                   dashboard_address=None, silence_logs=40, local_directory=scratch)
             client = Client(cluster, timeout=SCHEDULER_CONNECT_TIMEOUT_S)
     except BaseException:
-        cfg.__exit__(None, None, None)
+        if cluster is not None:
+            cluster.close()  # the Client failed: the workers already started must not outlive the study
+        release()
         raise
     try:
         slots = max(1, sum(client.nthreads().values()))
@@ -414,4 +433,4 @@ def _run_dask(specs: list[dict[str, Any]], workers: int | None, scheduler: str |
         client.close()
         if cluster is not None:
             cluster.close()  # ends the worker processes this study started, computing or not
-        cfg.__exit__(None, None, None)
+        release()
