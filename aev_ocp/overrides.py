@@ -97,6 +97,9 @@ def parse_value(text: str) -> Any:
         value = tomllib.loads(f"v = {text}")["v"]
     except tomllib.TOMLDecodeError:
         return text
+    except (ValueError, RecursionError) as exc:  # an integer of > 4300 digits, arrays nested thousands deep
+        raise OverrideError(f"override value {text[:40]!r}{'...' if len(text) > 40 else ''} cannot be read "
+                            f"({type(exc).__name__}: {str(exc)[:80]})") from None
     if not _all_finite(value):
         raise OverrideError(f"override value {text!r} is not a finite number")
     return value

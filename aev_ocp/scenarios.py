@@ -610,7 +610,7 @@ def standalone_header(doc: dict[str, Any], file: str, source: Path | None, allow
     return top, name, top.string("description", ""), read_ev(top, source)
 
 
-def _trace(r: TableReader, units: Units, source: Path | None) -> LeaderProfile:
+def _trace(r: TableReader, units: Units, source: Path | None, t_max_s: float | None = None) -> LeaderProfile:
     """[leader] kind = "trace": a recorded trajectory in a CSV file, relative to the scenario file."""
     file = r.string("file")
     path = Path(file)
@@ -640,17 +640,30 @@ def _trace(r: TableReader, units: Units, source: Path | None) -> LeaderProfile:
             raise r.error("filter_value", value, "expected a string or a number")
         kw["filter_value"] = value
     try:
-        t, v = read_trace_csv(path, label=file, **kw)
+        t, v = read_trace_csv(path, label=file, t_max_s=t_max_s, **kw)
     except ParameterError as exc:
         raise ScenarioError(f"{r.file}: {r.key_path('file')}: {exc}") from None
     return trace_leader(t, v, units, "trace")
 
 
-def _leader(r: TableReader, units: Units, source: Path | None = None) -> LeaderProfile:
+def trace_read_s(doc: dict[str, Any], t_end: float, units: Units) -> float:
+    """How much of a trace leader's file a run reads [s]: twice (the horizon t_end [model time] + the MPC's look-ahead
+    N·dt of the [mpc] table, at least MPCSettings' default): a 10^7-row recording is not read to its end for a
+    2 s run, and an MPC forecast or a longer horizon set in Python still finds the recorded speeds."""
+    from .mpc.settings import MPCSettings
+
+    d, mpc = MPCSettings(), doc.get("mpc") if isinstance(doc.get("mpc"), dict) else {}
+    n, dt = mpc.get("N", d.N), mpc.get("dt", d.dt)
+    ok = all(isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) and x > 0 for x in (n, dt))
+    look = max(float(n) * float(dt) if ok else 0.0, d.N * d.dt)
+    return 2.0 * units.time_to_si(t_end + look)
+
+
+def _leader(r: TableReader, units: Units, source: Path | None = None, t_max_s: float | None = None) -> LeaderProfile:
     kind = r.string("kind", choices=LEADER_KINDS)
     leader: LeaderProfile
     if kind == "trace":
-        leader = _trace(r, units, source)
+        leader = _trace(r, units, source, t_max_s)
         r.finish()
         return leader
     try:
@@ -851,7 +864,7 @@ def parse_scenario(doc: dict[str, Any], file: str = "<scenario>", *, source: Pat
     sim.finish()
 
     cf, overrides = _carfollowing(top.sub("carfollowing"))
-    leader = _leader(top.sub("leader", required=True), units, source)
+    leader = _leader(top.sub("leader", required=True), units, source, trace_read_s(doc, t_end, units))
     sized: dict[str, float] = {}
 
     def size(n: int) -> None:

@@ -402,7 +402,8 @@ def test_set_on_an_axis_key_nan_and_newline_are_refused(tmp_path, capsys):
 def _trace_scenario(tmp_path: Path, trace: Path) -> Path:
     f = tmp_path / "trace.toml"
     f.write_text(f'name = "tr"\n[leader]\nkind = "trace"\nfile = "{trace}"\ntime_column = "t"\n'
-                 'speed_column = "v"\n[platoon]\nfollowers = 1\n[simulation]\nt_end_s = 2.0\n')
+                 'speed_column = "v"\n[platoon]\nfollowers = 1\ngap0_first = 1.0\nspeed0_factor = 1.0\n[simulation]\n'
+                 't_end_s = 2.0\n')
     return f
 
 
@@ -590,3 +591,31 @@ def test_a_silent_scheduler_fails_after_the_connect_timeout(monkeypatch):
             c.close()
         srv.close()
     assert time.perf_counter() - t0 < 15.0 and held  # it did connect, and gave up on its own
+
+
+# ----------------------------------------------------------------------------- re-probe (issue 28, second round)
+def test_trace_is_read_only_as_far_as_the_run_needs(tmp_path, capsys):
+    """A trace leader is read up to twice (t_end + the MPC look-ahead): a damaged row far past that is never read
+    (so the file is not read to its end), while the samples the run uses are exactly those of a full read."""
+    from aev_ocp.models.leader import read_trace_csv
+    from aev_ocp.params import ParameterError
+    from aev_ocp.scenarios import load_scenario
+
+    f = tmp_path / "long.csv"
+    rows = [f"{0.1 * i:.1f},{10 + (i % 7) * 0.25}" for i in range(3000)]  # 300 s at 0.1 s
+    rows[2500] = "250.0,not-a-number"  # at 250 s: far past what a 3.5 s run needs
+    f.write_text("t,v\n" + "\n".join(rows) + "\n")
+    with pytest.raises(ParameterError, match="row 2502"):
+        read_trace_csv(f, time_column="t", speed_column="v")  # the whole file: the damaged row is found
+    t, v = read_trace_csv(f, time_column="t", speed_column="v", t_max_s=7.25)
+    assert t.size == 74 and t[-1] == pytest.approx(7.3) and v[73] == 10 + (73 % 7) * 0.25
+    sc = _trace_scenario(tmp_path, f)
+    sc.write_text(sc.read_text().replace("t_end_s = 2.0", "t_end_s = 3.5"))
+    s = load_scenario(sc)
+    need_s = 2 * (3.5 + s.units.time_to_si(25 * 0.1))  # twice (t_end + MPCSettings' default look-ahead N dt)
+    assert s.leader.times[-1] * s.units.time_s == pytest.approx(np.ceil(need_s * 10 - 1e-9) / 10)  # 1st sample past it
+    rc, _, err = run_cli(["simulate", str(sc), "--no-plots", "--out", str(tmp_path / "o")], capsys)
+    assert rc == 0, err
+    sc.write_text(sc.read_text().replace("t_end_s = 3.5", "t_end_s = 260.0"))  # a run that reaches the bad row
+    rc, _, err = run_cli(["simulate", str(sc), "--no-plots", "--out", str(tmp_path / "o2")], capsys)
+    assert rc == 2 and "row 2502" in one_error(err)
