@@ -144,6 +144,8 @@ def find_cell(name_or_path: str | Path) -> Path:
     p = Path(name_or_path)
     if p.is_file():
         return p
+    if p.exists():  # a FIFO, device or folder: never opened (a FIFO would hang the read)
+        raise CellFileError(f"cell {str(name_or_path)!r}: cannot read the cell file (it is not a regular file)")
     raise CellFileError(f"cell {str(name_or_path)!r} is neither a shipped cell ({', '.join(shipped)}) nor a file")
 
 

@@ -98,8 +98,9 @@ def parse_value(text: str) -> Any:
     except tomllib.TOMLDecodeError:
         return text
     except (ValueError, RecursionError) as exc:  # an integer of > 4300 digits, arrays nested thousands deep
-        raise OverrideError(f"override value {text[:40]!r}{'...' if len(text) > 40 else ''} cannot be read "
-                            f"({type(exc).__name__}: {str(exc)[:80]})") from None
+        why = "arrays nested too deeply" if isinstance(exc, RecursionError) else "a number of too many digits"
+        raise OverrideError(f"override value {text[:40]!r}{'...' if len(text) > 40 else ''} is not a value any "
+                            f"scenario key takes ({why})") from None
     if not _all_finite(value):
         raise OverrideError(f"override value {text!r} is not a finite number")
     return value

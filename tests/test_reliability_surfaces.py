@@ -619,3 +619,288 @@ def test_trace_is_read_only_as_far_as_the_run_needs(tmp_path, capsys):
     sc.write_text(sc.read_text().replace("t_end_s = 3.5", "t_end_s = 260.0"))  # a run that reaches the bad row
     rc, _, err = run_cli(["simulate", str(sc), "--no-plots", "--out", str(tmp_path / "o2")], capsys)
     assert rc == 2 and "row 2502" in one_error(err)
+
+
+@pytest.mark.parametrize("argv, what", [
+    (["study", "{f}", "--in-process"], "study file"),
+    (["ocp", "current-profile", "--grid-file", "{f}", "--out", "{d}/o"], "grid file"),
+    (["ocp", "prop31", "--cell", "{f}", "--out", "{d}/o"], "cell file"),
+])
+@pytest.mark.parametrize("kind", ["fifo", "dev-zero"])
+def test_input_files_that_are_no_regular_files_are_refused_unread(tmp_path, capsys, argv, what, kind):
+    f = tmp_path / "input.toml"
+    if kind == "fifo":
+        os.mkfifo(f)
+    else:
+        f.symlink_to("/dev/zero")
+    t0 = time.perf_counter()
+    rc, _, err = run_cli([a.replace("{f}", str(f)).replace("{d}", str(tmp_path)) for a in argv], capsys)
+    line = one_error(err)
+    assert rc == 2 and what in line and "not a regular file" in line and time.perf_counter() - t0 < 5.0
+
+
+def test_input_file_size_is_checked_before_reading(tmp_path, monkeypatch):
+    from aev_ocp import limits
+    from aev_ocp.study import StudyError, read_study
+
+    f = tmp_path / "big.toml"
+    with f.open("wb") as fh:  # sparse: 20 MB stated, nothing written
+        fh.truncate(20 * 2**20)
+    reads = []
+    monkeypatch.setattr(limits.os, "fdopen", lambda *a, **k: reads.append(a) or open(*a, **k))  # noqa: SIM115
+    with pytest.raises(StudyError, match=f"is {20 * 2**20} bytes, more than the {limits.MAX_INPUT_FILE_BYTES}"):
+        read_study(f)
+    assert reads == []  # refused from its stated size, not read
+
+
+@pytest.mark.parametrize("argv", [
+    ["simulate", "table1", "--set", "simulation.t_end=1.5", "--set", "platoon.followers=2", "--no-plots"],
+    ["mpc-export", "mpc_paper_single"],
+    ["stability", "--law", "ovm", "--linear-only", "--no-plots"],
+    ["ring", "sugiyama", "--t-end-s", "3", "--no-plots"],
+])
+def test_every_command_refuses_a_folder_another_run_is_writing(tmp_path, capsys, argv):
+    out = tmp_path / "o"
+    fd = _foreign_lock(out)
+    try:
+        rc, _, err = run_cli([*argv, "--out", str(out)], capsys)
+    finally:
+        os.close(fd)
+    assert rc == 2 and "in use by another aev-ocp run" in one_error(err)
+    assert sorted(p.name for p in out.iterdir()) == [".aev-ocp.lock"]  # nothing written beside the lock
+
+
+def test_claim_holds_the_lock_until_the_command_ends_and_is_reentrant(tmp_path, capsys):
+    import fcntl
+
+    from aev_ocp.results import LOCK, claim_output_dir, output_lock, release_output_locks
+
+    done = tmp_path / "done"  # a command that returned has released its folder: a second process may write
+    assert run_cli(["stability", "--law", "ovm", "--linear-only", "--no-plots", "--out", str(done)], capsys)[0] == 0
+    os.close(_foreign_lock(done))
+    out = tmp_path / "o"
+    with output_lock(out):  # a study holds the lock and claims its own folder inside it
+        claim_output_dir(out, "study", "s", None, ["table.csv"])
+    fd = os.open(out / LOCK, os.O_RDWR)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)  # released with the block
+        fcntl.flock(fd, fcntl.LOCK_UN)
+        claim_output_dir(out, "study", "s", None, ["table.csv"])
+        with pytest.raises(BlockingIOError):  # held after the claim returned: the command is still running
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        release_output_locks()
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    finally:
+        os.close(fd)
+
+
+@pytest.mark.parametrize("setup, argv, word", [
+    ("fifo-marker", ["simulate", "table1", "--no-plots", "--set", "simulation.t_end=1.5"], "not a file aev-ocp wrote"),
+    ("prop31.json", ["ocp", "prop31", "--N", "20", "--no-refine"], "prop31.json"),
+    ("notes.txt", ["ocp", "prop31", "--N", "20", "--no-refine"], "notes.txt"),
+    ("space_time_all_human.png", ["ring", "sugiyama", "--t-end-s", "3"], "space_time_all_human.png"),
+])
+def test_outputs_not_listed_or_odd_markers_never_replace_a_users_entry(tmp_path, capsys, setup, argv, word):
+    from aev_ocp.results import MARKER
+
+    out = tmp_path / "o"
+    out.mkdir()
+    f = out / (MARKER if setup == "fifo-marker" else setup)
+    if setup == "fifo-marker":
+        os.mkfifo(f)
+    else:
+        f.write_bytes(b"mine")
+    rc, _, err = run_cli([*argv, "--out", str(out)], capsys)
+    assert rc == 2 and word in one_error(err)
+    assert sorted(p.name for p in out.iterdir()) == [f.name]
+    assert setup == "fifo-marker" or f.read_bytes() == b"mine"
+
+
+@pytest.mark.parametrize("argv, word", [
+    (["simulate", "table1", "--set", "simulation.t_end=1e308"], "simulation.t_end"),
+    (["stability", "--law", "ovm", "--ring", "22", "--density-per-km", "0"], "--density-per-km"),
+    (["stability", "--law", "ovm", "--ring", "22", "--density-per-km", "nan"], "--density-per-km"),
+    (["ring", "sugiyama", "--seed", "-1"], "--seed"),
+    (["simulate", "table1", "--set", "simulation.t_end=" + "9" * 5000], "simulation.t_end"),
+])
+def test_absurd_numbers_are_bad_input(tmp_path, capsys, argv, word):
+    rc, _, err = run_cli([*argv, "--out", str(tmp_path / "o")], capsys)
+    line = one_error(err)
+    assert rc == 2 and word in line and "internal error" not in line and "Error:" not in line
+
+
+def test_study_mpc_horizon_over_the_budget_is_refused_before_any_task(tmp_path, capsys):
+    f = _study(tmp_path, text=STUDY + '[[controllers.mpc]]\nlabel = "m"\nN = 100000000\n')
+    rc, err = _run_study(tmp_path, f, tmp_path / "o", capsys)
+    line = one_error(err)
+    assert rc == 2 and "controller m" in line and "N = 100000000" in line and not (tmp_path / "o").exists()
+
+
+def test_store_rebuilds_a_folder_entry_and_a_points_file(tmp_path):
+    from aev_ocp.study import read_study, run_study
+
+    study = read_study(_study(tmp_path))
+    out = tmp_path / "o"
+    first = run_study(study, out, executor="inprocess", report=False)
+    drop = lambda rows: [{k: v for k, v in r.items() if k != "wall_s"} for r in rows]  # noqa: E731
+    f = sorted((out / "points").glob("*.json"))[0]
+    f.unlink()
+    (f / "inner").mkdir(parents=True)  # a folder under an entry's name
+    with pytest.warns(UserWarning, match="1 stored result"):
+        again = run_study(study, out, executor="inprocess", report=False)
+    assert drop(again.rows) == drop(first.rows) and f.is_file()
+    shutil.rmtree(out / "points")
+    (out / "points").write_text("not a folder")
+    third = run_study(study, out, executor="inprocess", report=False)
+    assert drop(third.rows) == drop(first.rows) and len(list((out / "points").glob("*.json"))) == 4
+
+
+@pytest.mark.parametrize("name, bad", [("t", np.arange(3.0)), ("gap", np.zeros((2, 2, 2))), ("speed", np.array(["a"])),
+                                       ("heat_J", None)])
+def test_saved_arrays_of_the_wrong_shape_or_type_are_a_load_error(saved, tmp_path, name, bad):
+    import hashlib
+    import io
+
+    from aev_ocp import load
+    from aev_ocp.saved import ARRAYS, MANIFEST, LoadError
+
+    d = _copy(saved, tmp_path)
+    with zipfile.ZipFile(d / ARRAYS) as z:
+        members = {n: z.read(n) for n in z.namelist()}
+    key = f"proposed/{name}.npy"
+    if bad is None:
+        del members[key]
+    else:
+        buf = io.BytesIO()
+        np.save(buf, bad)
+        members[key] = buf.getvalue()
+    with zipfile.ZipFile(d / ARRAYS, "w") as z:
+        for n, b in members.items():
+            z.writestr(n, b)
+    m = json.loads((d / MANIFEST).read_text())
+    m["arrays_sha256"] = hashlib.sha256((d / ARRAYS).read_bytes()).hexdigest()  # the SHA check passes
+    (d / MANIFEST).write_text(json.dumps(m))
+    with pytest.raises(LoadError, match=name):
+        load(d)
+
+
+def test_unknown_report_metrics_are_named_in_a_warning(tmp_path, capsys):
+    f = _study(tmp_path, text=STUDY + '[report]\nmetrics = ["omega_model", "omgea_model"]\npareto = [["heat_pack_J", "frob"]]\n')
+    rc, _, err = run_cli(["study", str(f), "--out", str(tmp_path / "o"), "--in-process"], capsys)
+    warn = [ln for ln in err.splitlines() if "not columns of the table" in ln]
+    assert rc == 0 and len(warn) == 1 and "'frob', 'omgea_model'" in warn[0] and "heat_pack_J'" not in warn[0]
+
+
+def test_an_interrupt_the_command_reported_is_one_line(capsys):
+    import signal
+
+    from aev_ocp.console import EXIT_INTERRUPTED, guarded, error_line
+
+    def command() -> int:
+        try:
+            os.kill(os.getpid(), signal.SIGINT)
+            time.sleep(1.0)
+        except KeyboardInterrupt:
+            error_line("interrupted: finished tasks are stored")
+            return EXIT_INTERRUPTED
+        return 0
+
+    assert guarded(command) == EXIT_INTERRUPTED
+    err = capsys.readouterr().err
+    assert err.count("aev-ocp: error:") == 1 and "finished tasks are stored" in err
+
+
+def _group_alive(pgid: int) -> list[int]:
+    """Live (non-zombie) processes of process group ``pgid`` (Linux /proc)."""
+    alive = []
+    for p in Path("/proc").iterdir():
+        if p.name.isdigit():
+            try:
+                stat = (p / "stat").read_text().rsplit(")", 1)[-1].split()
+            except OSError:
+                continue
+            if int(stat[2]) == pgid and stat[0] not in ("Z", "X"):
+                alive.append(int(p.name))
+    return alive
+
+
+def test_an_interrupted_dask_local_study_stops_its_cluster(tmp_path):
+    """Ctrl-C while a --dask-local 2 study computes: exit 130, one error line, and within a few seconds no process
+    of the study's process group is left (the LocalCluster's scheduler, nannies and workers), no Dask scratch
+    folder in $TMPDIR and no temporary file in the output folder; the finished tasks are stored."""
+    pytest.importorskip("dask.distributed")
+    import signal
+    import subprocess
+    import sys
+
+    values = ", ".join(f"{0.3 + 0.01 * i:.2f}" for i in range(40))
+    text = STUDY.replace("[0.35, 0.9]", f"[{values}]").replace('"simulation.t_end" = 1.5', '"simulation.t_end" = 60.0')
+    f = _study(tmp_path, text=text)
+    out, tmp = tmp_path / "o", tmp_path / "tmp"
+    tmp.mkdir()
+    env = {**os.environ, "TMPDIR": str(tmp), "PYTHONPATH": str(Path(__file__).resolve().parents[1])}
+    p = subprocess.Popen([sys.executable, "-m", "aev_ocp.cli", "study", str(f), "--out", str(out), "--dask-local", "2",
+                          "--no-report"], env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                         start_new_session=True)
+    try:
+        deadline = time.monotonic() + 90.0  # the cluster has started and computes: the first results are stored
+        while not list((out / "points").glob("*.json")) and time.monotonic() < deadline and p.poll() is None:
+            time.sleep(0.2)
+        assert p.poll() is None and len(_group_alive(p.pid)) >= 3  # the study, and its cluster's processes
+        p.send_signal(signal.SIGINT)
+        _, err = p.communicate(timeout=60)
+        deadline = time.monotonic() + 10.0
+        while _group_alive(p.pid) and time.monotonic() < deadline:
+            time.sleep(0.2)
+        left = _group_alive(p.pid)
+    finally:
+        if p.poll() is None:
+            os.killpg(p.pid, signal.SIGKILL)
+        for pid in _group_alive(p.pid):
+            os.kill(pid, signal.SIGKILL)
+    assert p.returncode == 130 and "interrupted" in one_error(err)
+    assert left == [], f"{len(left)} process(es) of the study still running"
+    assert list(tmp.iterdir()) == [] and not [q for q in out.rglob("*") if ".tmp" in q.name]
+    assert 0 < len(list((out / "points").glob("*.json"))) < 80  # stored so far; a rerun resumes
+
+
+def _descendants(pid: int) -> set[int]:
+    """Live processes below ``pid`` (Linux /proc), but multiprocessing's resource tracker (one per process, for
+    the process's whole life: not a worker)."""
+    parent: dict[int, int] = {}
+    for p in Path("/proc").iterdir():
+        if p.name.isdigit():
+            try:
+                stat = (p / "stat").read_text().rsplit(")", 1)[-1].split()
+                tracker = b"resource_tracker" in (p / "cmdline").read_bytes()
+            except OSError:
+                continue
+            if stat[0] not in ("Z", "X") and not tracker:
+                parent[int(p.name)] = int(stat[1])
+    out, frontier = set(), {pid}
+    while frontier:
+        frontier = {c for c, pp in parent.items() if pp in frontier} - out
+        out |= frontier
+    return out
+
+
+def test_run_dask_closes_the_local_cluster_it_started_when_interrupted(tmp_path):
+    """In-process: the interrupt reaches _run_dask while the cluster computes; before this process ends, the
+    cluster's processes are gone (closed by the study, not reaped at exit)."""
+    pytest.importorskip("dask.distributed")
+    from aev_ocp.study import read_study
+    from aev_ocp.study.runner import _run_dask
+
+    specs = [t.spec for t in read_study(_study(tmp_path)).tasks()]
+    before = _descendants(os.getpid())
+
+    def done(res: dict) -> None:  # Ctrl-C as the first result arrives
+        assert _descendants(os.getpid()) - before  # the cluster runs
+        raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        _run_dask(specs, 2, None, done)
+    deadline = time.monotonic() + 10.0
+    while _descendants(os.getpid()) - before and time.monotonic() < deadline:
+        time.sleep(0.2)
+    assert _descendants(os.getpid()) - before == set()
