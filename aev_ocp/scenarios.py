@@ -652,7 +652,8 @@ def trace_read_s(doc: dict[str, Any], t_end: float, units: Units) -> float:
     2 s run, and an MPC forecast or a longer horizon set in Python still finds the recorded speeds."""
     from .mpc.settings import MPCSettings
 
-    d, mpc = MPCSettings(), doc.get("mpc") if isinstance(doc.get("mpc"), dict) else {}
+    d = MPCSettings()
+    mpc: dict[str, Any] = doc["mpc"] if isinstance(doc.get("mpc"), dict) else {}
     n, dt = mpc.get("N", d.N), mpc.get("dt", d.dt)
     ok = all(isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) and x > 0 for x in (n, dt))
     look = max(float(n) * float(dt) if ok else 0.0, d.N * d.dt)

@@ -99,18 +99,16 @@ def _env(d: Path, extra: dict[str, str] | None = None) -> dict[str, str]:
 
 
 def _group_pids(pgid: int) -> list[int]:
-    """Live (non-zombie) processes of process group ``pgid`` (Linux /proc)."""
-    pids = []
-    for p in Path("/proc").iterdir():
-        if not p.name.isdigit():
-            continue
+    """Live (non-zombie) processes of process group ``pgid`` (Linux /proc: state and pgrp of /proc/PID/stat)."""
+    def state_pgrp(pid: str) -> tuple[str, int]:
         try:
-            stat = (p / "stat").read_text().rsplit(")", 1)[-1].split()
+            fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[-1].split()
         except OSError:
-            continue
-        if int(stat[2]) == pgid and stat[0] not in ("Z", "X"):
-            pids.append(int(p.name))
-    return pids
+            return "X", -1
+        return fields[0], int(fields[2])
+
+    return [int(pid) for pid in os.listdir("/proc") if pid.isdigit()
+            and (sp := state_pgrp(pid))[1] == pgid and sp[0] not in "ZX"]
 
 
 def run(d: Path, argv: list[str], timeout_s: float = 60.0, *, sigint_after_s: float | None = None,
@@ -445,8 +443,8 @@ def register_cli_tries() -> None:
                      ("simulation.t_end=2\nplatoon.followers=9", "line"), ("simulation.t_end_s=3", None),
                      ("thermal.enabled=\"yes\"", "thermal.enabled"), ("carfollowing.alpha=1e400", "alpha")]:
         ok = word is None
-        add(S, f"--set {kv[:40]!r}", ["simulate", "table1", "--no-plots", "--out", "{d}/o", "--set", kv]
-            + (["--set", "platoon.followers=2"] if ok else ["--set", "simulation.t_end=1.5"]),
+        small = ["--set", "platoon.followers=2"] if ok else ["--set", "simulation.t_end=1.5"]  # before kv: kv wins
+        add(S, f"--set {kv[:40]!r}", ["simulate", "table1", "--no-plots", "--out", "{d}/o", *small, "--set", kv],
             (0,) if ok else (2,), words=() if ok else (word,))
     for tl in ("nan", "-1", "0", "inf", "abc"):
         add(S, f"--time-limit {tl}", ["simulate", "table1", *SIM_SMALL, "--time-limit", tl, "--out", "{d}/o"],
@@ -581,39 +579,44 @@ def register_study_tries() -> None:
             words=(word,), setup=write("s.toml", text), max_wall_s=10)
 
     base = study_text()
-    bad("unknown top-level key", base + "\nfrob = 1\n", "frob")
-    bad("name with a slash", base.replace('name = "tiny"', 'name = "a/b"'), "name")
-    bad("name of 500 characters", base.replace('name = "tiny"', f'name = "{"n" * 500}"'), "name")
-    bad("unicode name", base.replace('name = "tiny"', 'name = "Studie ü"'), "name")
-    bad("scenarios empty", base.replace('scenarios = ["table1"]', "scenarios = []"), "scenarios")
-    bad("scenario missing", base.replace('scenarios = ["table1"]', 'scenarios = ["nope"]'), "nope")
-    bad("scenario /dev/zero", base.replace('scenarios = ["table1"]', 'scenarios = ["/dev/zero"]'), "zero")
-    bad("axis values empty", base.replace("[0.35, 0.9]", "[]"), "values")
-    bad("axis values nan", base.replace("[0.35, 0.9]", "[nan, 0.5]"), "nan")
-    bad("axis values inf", base.replace("[0.35, 0.9]", "[inf]"), "inf")
-    bad("axis values strings", base.replace("[0.35, 0.9]", '["a", "b"]'), "gap0_first")
-    bad("axis values negative gap", base.replace("[0.35, 0.9]", "[-0.5]"), "gap0_first")
-    bad("axis key unknown", base.replace("platoon.gap0_first", "platoon.frob"), "frob")
-    bad("axis key empty", base.replace("platoon.gap0_first", ""), "key")
-    bad("two axes on one key", base + '[[axes]]\nkey = "platoon.gap0_first"\nvalues = [0.5]\n', "gap0_first")
-    bad("random n = 0", base.replace('values = [0.35, 0.9]', "random = { n = 0, seed = 1, low = [0.3], high = [0.5] }"), "n")
-    bad("random n = -3", base.replace('values = [0.35, 0.9]', "random = { n = -3, seed = 1, low = [0.3], high = [0.5] }"), "n")
-    bad("random n = 2.5", base.replace('values = [0.35, 0.9]', "random = { n = 2.5, seed = 1, low = [0.3], high = [0.5] }"), "n")
-    bad("random n = 10^12", base.replace('values = [0.35, 0.9]', "random = { n = 1000000000000, seed = 1, low = [0.3], high = [0.5] }"), "n")
-    bad("random low > high", base.replace('values = [0.35, 0.9]', "random = { n = 3, seed = 1, low = [0.5], high = [0.3] }"), "low")
-    bad("random seed -1", base.replace('values = [0.35, 0.9]', "random = { n = 3, seed = -1, low = [0.3], high = [0.5] }"), "seed")
-    bad("random low nan", base.replace('values = [0.35, 0.9]', "random = { n = 3, seed = 1, low = [nan], high = [0.5] }"), "low")
-    bad("random and values both", base.replace('values = [0.35, 0.9]', "values = [0.4]\nrandom = { n = 3, seed = 1, low = [0.3], high = [0.5] }"), "random")
-    bad("laws empty", base.replace('laws = ["proposed", "ovfl"]', "laws = []"), "laws")
-    bad("laws unknown", base.replace('laws = ["proposed", "ovfl"]', 'laws = ["teleport"]'), "teleport")
-    bad("laws a number", base.replace('laws = ["proposed", "ovfl"]', "laws = 3"), "laws")
-    bad("reference not a controller", base.replace('reference = "ovfl"', 'reference = "idm"'), "reference")
-    bad("overrides unknown key", base.replace('"platoon.followers" = 2', '"platoon.frob" = 2'), "frob")
-    bad("overrides followers 10^8", base.replace('"platoon.followers" = 2', '"platoon.followers" = 100000000'), "followers")
-    bad("mpc controller N = 10^8", base + "[[controllers.mpc]]\nlabel = \"m\"\nN = 100000000\n", "N")
-    bad("mpc controller unknown key", base + "[[controllers.mpc]]\nlabel = \"m\"\nfrob = 1\n", "frob")
-    bad("mpc controller label clash", base + "[[controllers.mpc]]\nlabel = \"ovfl\"\n", "ovfl")
-    bad("report metric unknown", base + "[report]\nmetrics = [\"frob\"]\n", "frob")
+    for what, text, word in [
+        ("unknown top-level key", base + "\nfrob = 1\n", "frob"),
+        ("name with a slash", base.replace('name = "tiny"', 'name = "a/b"'), "name"),
+        ("name of 500 characters", base.replace('name = "tiny"', f'name = "{"n" * 500}"'), "name"),
+        ("unicode name", base.replace('name = "tiny"', 'name = "Studie ü"'), "name"),
+        ("scenarios empty", base.replace('scenarios = ["table1"]', "scenarios = []"), "scenarios"),
+        ("scenario missing", base.replace('scenarios = ["table1"]', 'scenarios = ["nope"]'), "nope"),
+        ("scenario /dev/zero", base.replace('scenarios = ["table1"]', 'scenarios = ["/dev/zero"]'), "zero"),
+        ("axis values empty", base.replace("[0.35, 0.9]", "[]"), "values"),
+        ("axis values nan", base.replace("[0.35, 0.9]", "[nan, 0.5]"), "nan"),
+        ("axis values inf", base.replace("[0.35, 0.9]", "[inf]"), "inf"),
+        ("axis values strings", base.replace("[0.35, 0.9]", '["a", "b"]'), "gap0_first"),
+        ("axis values negative gap", base.replace("[0.35, 0.9]", "[-0.5]"), "gap0_first"),
+        ("axis key unknown", base.replace("platoon.gap0_first", "platoon.frob"), "frob"),
+        ("axis key empty", base.replace("platoon.gap0_first", ""), "key"),
+        ("two axes on one key", base + '[[axes]]\nkey = "platoon.gap0_first"\nvalues = [0.5]\n', "gap0_first"),
+        ("laws empty", base.replace('laws = ["proposed", "ovfl"]', "laws = []"), "laws"),
+        ("laws unknown", base.replace('laws = ["proposed", "ovfl"]', 'laws = ["teleport"]'), "teleport"),
+        ("laws a number", base.replace('laws = ["proposed", "ovfl"]', "laws = 3"), "laws"),
+        ("reference not a controller", base.replace('reference = "ovfl"', 'reference = "idm"'), "reference"),
+        ("overrides unknown key", base.replace('"platoon.followers" = 2', '"platoon.frob" = 2'), "frob"),
+        ("overrides followers 10^8", base.replace('"platoon.followers" = 2', '"platoon.followers" = 100000000'), "followers"),
+        ("mpc controller N = 10^8", base + "[[controllers.mpc]]\nlabel = \"m\"\nN = 100000000\n", "N"),
+        ("mpc controller unknown key", base + "[[controllers.mpc]]\nlabel = \"m\"\nfrob = 1\n", "frob"),
+        ("mpc controller label clash", base + "[[controllers.mpc]]\nlabel = \"ovfl\"\n", "ovfl"),
+        ("report metric unknown", base + "[report]\nmetrics = [\"frob\"]\n", "frob"),
+    ]:
+        bad(what, text, word)
+    for what, rnd, word in [("n = 0", "n = 0, seed = 1, low = [0.3], high = [0.5]", "n"),
+                            ("n = -3", "n = -3, seed = 1, low = [0.3], high = [0.5]", "n"),
+                            ("n = 2.5", "n = 2.5, seed = 1, low = [0.3], high = [0.5]", "n"),
+                            ("n = 10^12", "n = 1000000000000, seed = 1, low = [0.3], high = [0.5]", "n"),
+                            ("low > high", "n = 3, seed = 1, low = [0.5], high = [0.3]", "low"),
+                            ("seed -1", "n = 3, seed = -1, low = [0.3], high = [0.5]", "seed"),
+                            ("low nan", "n = 3, seed = 1, low = [nan], high = [0.5]", "low")]:
+        bad(f"random {what}", base.replace("values = [0.35, 0.9]", f"random = {{ {rnd} }}"), word)
+    bad("random and values both", base.replace("values = [0.35, 0.9]", "values = [0.4]\nrandom = { n = 3, seed = 1, "
+                                               "low = [0.3], high = [0.5] }"), "random")
     bad("1000 x 1000 grid", base.replace('key = "platoon.gap0_first"\nvalues = [0.35, 0.9]', "".join(
         f'key = "carfollowing.{k}"\nvalues = [' + ", ".join(f"{0.01 + 1e-5 * i:.6f}" for i in range(1000)) + ']\n'
         + ("[[axes]]\n" if k == "kappa" else "") for k in ("kappa", "alpha"))), "100000")
