@@ -604,7 +604,6 @@ def register_study_tries() -> None:
         ("mpc controller N = 10^8", base + "[[controllers.mpc]]\nlabel = \"m\"\nN = 100000000\n", "N"),
         ("mpc controller unknown key", base + "[[controllers.mpc]]\nlabel = \"m\"\nfrob = 1\n", "frob"),
         ("mpc controller label clash", base + "[[controllers.mpc]]\nlabel = \"ovfl\"\n", "ovfl"),
-        ("report metric unknown", base + "[report]\nmetrics = [\"frob\"]\n", "frob"),
     ]:
         bad(what, text, word)
     for what, rnd, word in [("n = 0", "n = 0, seed = 1, low = [0.3], high = [0.5]", "n"),
@@ -620,6 +619,8 @@ def register_study_tries() -> None:
     bad("1000 x 1000 grid", base.replace('key = "platoon.gap0_first"\nvalues = [0.35, 0.9]', "".join(
         f'key = "carfollowing.{k}"\nvalues = [' + ", ".join(f"{0.01 + 1e-5 * i:.6f}" for i in range(1000)) + ']\n'
         + ("[[axes]]\n" if k == "kappa" else "") for k in ("kappa", "alpha"))), "100000")
+    add(A, "report metric unknown (a warning names it)", ["study", "{d}/s.toml", "--out", "{d}/o", "--in-process"], (0,),
+        words=("frob",), setup=write("s.toml", base + "[report]\nmetrics = [\"frob\"]\n"))
     bad("study file of binary junk", os.urandom(2000).decode("latin-1"), "s.toml")
     bad("--set on the axis key", base, "gap0_first", ("--set", "platoon.gap0_first=0.5"))
     bad("--set kappa = nan", base, "nan", ("--set", "carfollowing.kappa=nan"))

@@ -904,3 +904,26 @@ def test_run_dask_closes_the_local_cluster_it_started_when_interrupted(tmp_path)
     while _descendants(os.getpid()) - before and time.monotonic() < deadline:
         time.sleep(0.2)
     assert _descendants(os.getpid()) - before == set()
+
+
+def test_a_stopped_compiler_takes_its_children_and_temporaries_with_it(tmp_path):
+    """run_tool (every C build: the cached libraries and mpc-export --build) stops the compiler's whole process
+    group: a child it started (cc1/as in gcc's case) does not run on, and the TERM it gets first lets it remove
+    its temporary file, as gcc does."""
+    import subprocess
+
+    from aev_ocp.compiled import run_tool
+
+    tmpf, pidf = tmp_path / "cc123.s", tmp_path / "child.pid"
+    script = (f'trap "rm -f {tmpf}; exit 143" TERM; touch {tmpf}; sleep 60 & echo $! > {pidf}; wait')
+    t0 = time.perf_counter()
+    with pytest.raises(subprocess.TimeoutExpired):
+        run_tool(["sh", "-c", script], tmp_path, 1.0)
+    assert time.perf_counter() - t0 < 1.0 + 3.0
+    child = int(pidf.read_text())
+    deadline = time.monotonic() + 3.0
+    while _computing(child) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert not _computing(child) and not tmpf.exists()
+    ok = run_tool(["sh", "-c", "echo built; echo warn >&2"], tmp_path, 10.0)
+    assert (ok.returncode, ok.stdout, ok.stderr) == (0, "built\n", "warn\n")
