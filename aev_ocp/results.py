@@ -19,6 +19,7 @@ from typing import Any, ClassVar, Iterator
 
 import numpy as np
 
+from . import interrupts
 from .limits import read_regular_file
 from .params import EVParams, Units, as_dict
 
@@ -40,18 +41,22 @@ def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp_name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp" + path.suffix, dir=path.parent)
-    os.close(fd)
-    tmp = Path(tmp_name)
+    tmp: Path | None = None
     try:
+        with interrupts.deferred():  # a Ctrl-C right after mkstemp created the file must not leak it
+            fd, tmp_name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp" + path.suffix, dir=path.parent)
+            os.close(fd)
+            tmp = Path(tmp_name)
         os.chmod(tmp, 0o666 & ~_UMASK)
         yield tmp
         os.replace(tmp, path)
     finally:
-        try:
-            tmp.unlink()
-        except FileNotFoundError:
-            pass
+        if tmp is not None:
+            with interrupts.deferred():
+                try:
+                    tmp.unlink()
+                except FileNotFoundError:
+                    pass
 
 
 def write_atomic(path: str | os.PathLike[str], data: str | bytes) -> Path:

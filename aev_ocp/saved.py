@@ -209,9 +209,12 @@ def _sim_result(label: str, rec: dict[str, Any], arrays: dict[str, np.ndarray]) 
                      None if e.get("impact_speed_mps") is None else float(e["impact_speed_mps"]))
 
     _check_sim_arrays(label, arrays)
+    stats = rec["solver_stats"] or []
+    if not isinstance(stats, list) or not all(s is None or isinstance(s, dict) for s in stats):
+        raise ValueError(f"solver_stats = {str(stats)[:60]!r} is not a list of per-vehicle tables")
     return SimulationResult(**{n: arrays[f"{label}/{n}"] for n in SIM_ARRAYS}, controllers=list(rec["controllers"]),
                             ev=evp, events=[event(e) for e in rec["events"]], jerk_sampled=bool(rec["jerk_sampled"]),
-                            solver_stats=list(rec["solver_stats"] or []), meta=dict(rec["meta"] or {}),
+                            solver_stats=list(stats), meta=dict(rec["meta"] or {}),
                             violations=[event(e) for e in rec.get("violations") or []],
                             temperature_K=arrays.get(f"{label}/temperature_K"))
 

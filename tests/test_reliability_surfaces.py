@@ -315,8 +315,8 @@ def _mutate(d: Path, data: st.DataObject) -> None:
     name = data.draw(st.sampled_from([ARRAYS, MANIFEST]))
     f = d / name
     raw = f.read_bytes()
-    how = data.draw(st.sampled_from(["truncate", "bytes", "rename", "json", "npz", "member"]))
-    if how in ("npz", "member"):  # damage inside the arrays file, its SHA-256 updated (the check passes)
+    how = data.draw(st.sampled_from(["truncate", "bytes", "rename", "json", "npz", "member", "array"]))
+    if how in ("npz", "member", "array"):  # damage inside the arrays file, its SHA-256 updated (the check passes)
         import hashlib
         import io
 
@@ -332,7 +332,13 @@ def _mutate(d: Path, data: st.DataObject) -> None:
             with zipfile.ZipFile(buf, "w") as dst:
                 for n in names:
                     body = src.read(n)
-                    if n == victim:
+                    if n == victim and how == "array":  # a valid .npy of another shape or type
+                        arr = np.zeros(data.draw(st.lists(st.integers(0, 4), max_size=3)),
+                                       dtype=data.draw(st.sampled_from(["f8", "i4", "U2", "c16", "?"])))
+                        out = io.BytesIO()
+                        np.save(out, arr)
+                        body = out.getvalue()
+                    elif n == victim:
                         n, body = data.draw(st.sampled_from([("proposed/renamed.npy", body),
                                                              (n, body[:len(body) // 2]), (n, b"\x93NUMPY junk")]))
                     dst.writestr(n, body)
@@ -371,9 +377,14 @@ def test_fuzz_damaged_saved_folders_give_load_error_only(saved, tmp_path, data):
         _mutate(d, data)
         for fn in (load, load_all):
             try:
-                fn(d)
+                got = fn(d)
             except LoadError as exc:  # the only exception allowed; it names the folder or one of its files
                 assert str(d) in str(exc)
+                continue
+            for r in got.values() if isinstance(got, dict) else [got]:  # what loads is a consistent run
+                n = r.t.shape[0]
+                assert r.t.shape == (n,) and r.leader_speed.shape == (n,) and r.gap.shape == r.speed.shape == (n, 1)
+                assert np.isfinite(r.metrics()[0]["omega_model"])
     finally:
         shutil.rmtree(d.parent)
 
@@ -927,3 +938,89 @@ def test_a_stopped_compiler_takes_its_children_and_temporaries_with_it(tmp_path)
     assert not _computing(child) and not tmpf.exists()
     ok = run_tool(["sh", "-c", "echo built; echo warn >&2"], tmp_path, 10.0)
     assert (ok.returncode, ok.stdout, ok.stderr) == (0, "built\n", "warn\n")
+
+
+_ENTRY_DAMAGE = st.sampled_from(["empty", "junk", "list", "nested", "swap", "edit", "folder", "fifo", "link", "utf16",
+                                 "missing_key", "huge_number"])
+
+
+@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(damage=st.lists(st.tuples(st.integers(0, 3), _ENTRY_DAMAGE), min_size=1, max_size=4))
+def test_fuzz_damaged_store_entries_are_recomputed_to_the_same_table(stored_study, tmp_path, damage):
+    """Whatever happens to a finished study's stored entries, a rerun gives the same table (wall times aside) and
+    leaves a store whose every entry verifies."""
+    import tempfile
+
+    from aev_ocp.study import Store, run_study
+
+    study, first = stored_study
+    out = Path(tempfile.mkdtemp(dir=tmp_path)) / "o"
+    shutil.copytree(first.folder, out)
+    files = sorted((out / "points").glob("*.json"))
+    for k, how in damage:
+        f = files[k]
+        if f.is_dir():
+            shutil.rmtree(f)
+        elif f.exists() or f.is_symlink():
+            text = f.read_text(errors="replace") if f.is_file() else "{}"
+            f.unlink()
+            if how == "swap":
+                f.write_bytes(files[(k + 1) % 4].read_bytes() if files[(k + 1) % 4].is_file() else b"{}")
+            elif how == "edit":
+                f.write_text(text.replace('"omega_model": ', '"omega_model": 1', 1))
+            elif how == "huge_number":
+                f.write_text(text.replace('"status": "ok"', '"status": 1' + "0" * 5000, 1))
+            elif how == "missing_key":
+                f.write_text(text.replace('"metrics"', '"metricz"', 1))
+            else:
+                {"empty": lambda: f.write_bytes(b""), "junk": lambda: f.write_bytes(b"\xff\x00junk"),
+                 "list": lambda: f.write_text("[1, 2]"), "nested": lambda: f.write_text("[" * 50_000 + "]" * 50_000),
+                 "folder": lambda: (f / "x").mkdir(parents=True), "fifo": lambda: os.mkfifo(f),
+                 "link": lambda: f.symlink_to("/dev/zero"), "utf16": lambda: f.write_bytes(text.encode("utf-16"))}[how]()
+    again = run_study(study, out, executor="inprocess", report=False)
+    drop = lambda rows: [{k: v for k, v in r.items() if k != "wall_s"} for r in rows]  # noqa: E731
+    assert drop(again.rows) == drop(first.rows)
+    store = Store(out)
+    assert all(store.get(f.stem) is not None for f in files) and store.damaged == []
+
+
+@pytest.fixture(scope="module")
+def stored_study(tmp_path_factory):
+    """A finished tiny study (4 tasks), read once for the store fuzz."""
+    from aev_ocp.study import read_study, run_study
+
+    d = tmp_path_factory.mktemp("study")
+    study = read_study(_study(d))
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return study, run_study(study, d / "o", executor="inprocess", report=False)
+
+
+def test_an_interrupt_right_after_the_temporary_is_created_leaves_nothing(tmp_path, monkeypatch):
+    """The window between mkstemp creating the file and the code that removes it: a Ctrl-C there is held back
+    (interrupts.deferred) until the removal is armed, so it still interrupts and leaves no temporary."""
+    import signal
+    import tempfile
+
+    from aev_ocp import interrupts
+    from aev_ocp.results import write_atomic
+
+    real = tempfile.mkstemp
+
+    def mkstemp(*a, **k):  # noqa: ANN002, ANN003, ANN202
+        out = real(*a, **k)
+        os.kill(os.getpid(), signal.SIGINT)  # Python runs the handler at the next instruction: before the return
+        return out
+
+    monkeypatch.setattr(tempfile, "mkstemp", mkstemp)
+    with interrupts.handle_signals():
+        with pytest.raises(KeyboardInterrupt):
+            write_atomic(tmp_path / "x.json", "{}")
+        assert interrupts.interrupted() == signal.SIGINT
+    assert list(tmp_path.iterdir()) == []
+    monkeypatch.setattr(tempfile, "mkstemp", real)
+    with interrupts.handle_signals():  # no signal: deferred() changes nothing
+        write_atomic(tmp_path / "x.json", "{}")
+    assert [p.name for p in tmp_path.iterdir()] == ["x.json"]

@@ -26,6 +26,7 @@ from collections import OrderedDict
 from pathlib import Path
 from typing import Any, Callable, Iterable
 
+from .. import interrupts
 from ..progress import Progress, TimeLimitReached
 from ..truncation import cumulative_profile
 from ..results import to_jsonable, write_atomic
@@ -403,9 +404,11 @@ def _run_dask(specs: list[dict[str, Any]], workers: int | None, scheduler: str |
             client = _connect(Client, scheduler)
         else:
             _export_path()
-            cluster = LocalCluster(n_workers=n_local, threads_per_worker=1, processes=True,
-                                   dashboard_address=None, silence_logs=40, local_directory=scratch)
-            client = Client(cluster, timeout=SCHEDULER_CONNECT_TIMEOUT_S)
+            with interrupts.deferred():  # Ctrl-C while the cluster starts: honoured once it can be closed cleanly
+                cluster = LocalCluster(n_workers=n_local, threads_per_worker=1, processes=True,
+                                       dashboard_address=None, silence_logs=40, local_directory=scratch)
+            with interrupts.deferred():
+                client = Client(cluster, timeout=SCHEDULER_CONNECT_TIMEOUT_S)
     except BaseException:
         if cluster is not None:
             cluster.close()  # the Client failed: the workers already started must not outlive the study
