@@ -1024,3 +1024,23 @@ def test_an_interrupt_right_after_the_temporary_is_created_leaves_nothing(tmp_pa
     with interrupts.handle_signals():  # no signal: deferred() changes nothing
         write_atomic(tmp_path / "x.json", "{}")
     assert [p.name for p in tmp_path.iterdir()] == ["x.json"]
+
+
+def test_ctrl_c_while_the_command_is_still_importing_is_one_line_and_130(tmp_path):
+    """A Ctrl-C in the first ~0.3 s of 'aev-ocp ...' lands in the imports of NumPy and CasADi: one line, exit 130,
+    no traceback (the signal is sent from inside the import of aev_ocp.console, deterministically)."""
+    import subprocess
+    import sys
+
+    code = ("import importlib.abc, os, signal, sys\n"
+            "class Hook(importlib.abc.MetaPathFinder):\n"
+            "    def find_spec(self, name, path, target=None):\n"
+            "        if name == 'aev_ocp.console':\n"
+            "            os.kill(os.getpid(), signal.SIGINT)\n"
+            "        return None\n"
+            "sys.meta_path.insert(0, Hook())\n"
+            "sys.argv = ['aev-ocp', 'scenarios']\n"
+            "import runpy; runpy.run_module('aev_ocp.cli', run_name='__main__')\n")
+    env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])}
+    p = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=60, cwd=tmp_path)
+    assert (p.returncode, p.stderr) == (130, "aev-ocp: error: interrupted\n")
