@@ -74,3 +74,5 @@ def handle_signals() -> Iterator[None]:
     finally:
         for s, h in old.items():
             signal.signal(s, h if h is not None else signal.SIG_DFL)
+        _state["signal"] = 0  # handled within the block: a later check() outside it must not raise it again
+        _state.pop("pending", None)

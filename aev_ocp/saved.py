@@ -212,6 +212,9 @@ def _sim_result(label: str, rec: dict[str, Any], arrays: dict[str, np.ndarray]) 
     stats = rec["solver_stats"] or []
     if not isinstance(stats, list) or not all(s is None or isinstance(s, dict) for s in stats):
         raise ValueError(f"solver_stats = {str(stats)[:60]!r} is not a list of per-vehicle tables")
+    ctrls, n_veh = rec["controllers"], arrays[f"{label}/gap"].shape[1]
+    if not isinstance(ctrls, list) or len(ctrls) != n_veh or not all(isinstance(c, str) for c in ctrls):
+        raise ValueError(f"controllers = {str(ctrls)[:60]!r} is not a list of {n_veh} controller names, one per vehicle")
     return SimulationResult(**{n: arrays[f"{label}/{n}"] for n in SIM_ARRAYS}, controllers=list(rec["controllers"]),
                             ev=evp, events=[event(e) for e in rec["events"]], jerk_sampled=bool(rec["jerk_sampled"]),
                             solver_stats=list(stats), meta=dict(rec["meta"] or {}),

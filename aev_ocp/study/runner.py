@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import logging
 import os
 import shutil
 import tempfile
@@ -405,8 +406,8 @@ def _run_dask(specs: list[dict[str, Any]], workers: int | None, scheduler: str |
         else:
             _export_path()
             with interrupts.deferred():  # Ctrl-C while the cluster starts: honoured once it can be closed cleanly
-                cluster = LocalCluster(n_workers=n_local, threads_per_worker=1, processes=True,
-                                       dashboard_address=None, silence_logs=40, local_directory=scratch)
+                cluster = LocalCluster(n_workers=n_local, threads_per_worker=1, processes=True, dashboard_address=None,
+                                       silence_logs=logging.CRITICAL, local_directory=scratch)
             with interrupts.deferred():
                 client = Client(cluster, timeout=SCHEDULER_CONNECT_TIMEOUT_S)
     except BaseException:
@@ -433,7 +434,13 @@ def _run_dask(specs: list[dict[str, Any]], workers: int | None, scheduler: str |
             client.cancel(futures)
             raise
     finally:
-        client.close()
-        if cluster is not None:
-            cluster.close()  # ends the worker processes this study started, computing or not
-        release()
+        quiet = logging.getLogger("distributed")  # closing after Ctrl-C: the heartbeats' "stream closed" are no news
+        level = quiet.level
+        quiet.setLevel(logging.CRITICAL)
+        try:
+            client.close()
+            if cluster is not None:
+                cluster.close()  # ends the worker processes this study started, computing or not
+        finally:
+            quiet.setLevel(level)
+            release()
