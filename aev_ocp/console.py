@@ -10,7 +10,7 @@ import argparse
 import os
 import sys
 import warnings
-from typing import Callable
+from typing import Any, Callable
 
 from . import interrupts
 from .overrides import OverrideError
@@ -47,6 +47,14 @@ class _Parser(argparse.ArgumentParser):
     def error(self, message: str) -> None:  # type: ignore[override]
         _err(f"{message} (try '{self.prog} --help')")
         raise SystemExit(EXIT_BAD_INPUT)
+
+    def parse_known_args(self, args: Any = None, namespace: Any = None) -> Any:
+        """argparse's, and ``--out ''`` refused (every command's output folder: an empty name, e.g. an unset
+        shell variable, would silently mean the default folder or the current one)."""
+        ns, rest = super().parse_known_args(args, namespace)
+        if getattr(ns, "out", None) == "":
+            self.error("argument --out: an empty folder name (give a folder, or leave --out out for the default)")
+        return ns, rest
 
 
 OneLineParser = _Parser  # public name, used by the ocp and mpc subcommands

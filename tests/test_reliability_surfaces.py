@@ -1048,3 +1048,30 @@ def test_ctrl_c_while_the_command_is_still_importing_is_one_line_and_130(tmp_pat
     env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])}
     p = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=60, cwd=tmp_path)
     assert (p.returncode, p.stderr) == (130, "aev-ocp: error: interrupted\n")
+
+
+@pytest.mark.parametrize("argv, word", [
+    (["simulate", "table1", "--out", ""], "--out: an empty folder name"),
+    (["study", "studies/kappa_alpha_table1.toml", "--out", ""], "--out: an empty folder name"),
+    (["stability", "--law", "ovm", "--out", ""], "--out: an empty folder name"),
+    (["sumo", "sumo_ring", "--out", ""], "--out: an empty folder name"),
+    (["sumo", "sumo_ring", "--bogus"], "unrecognized arguments: --bogus"),
+    (["study", "{study}", "--scheduler", "nonsense", "--out", "{d}/o"], "is not a Dask scheduler address"),
+    (["ocp", "current-profile", "--grid-file", "{grid}", "--out", "{d}/o"], "--grid-file {grid}: grid E_req"),
+    (["ocp", "current-profile", "--grid-file", "{json}", "--out", "{d}/o"], "--grid-file {json}: not valid JSON"),
+])
+def test_more_bad_input_is_one_line_naming_it(tmp_path, capsys, monkeypatch, argv, word):
+    monkeypatch.chdir(Path(__file__).resolve().parents[1])  # studies/ and the shipped names
+    (tmp_path / "g.toml").write_text("E_req = [1e400]\n")
+    (tmp_path / "g.json").write_text("[1, 2]\n")
+    subs = {"{d}": str(tmp_path), "{grid}": str(tmp_path / "g.toml"), "{json}": str(tmp_path / "g.json"),
+            "{study}": str(_study(tmp_path))}
+
+    def fill(a: str) -> str:
+        for k, v in subs.items():
+            a = a.replace(k, v)
+        return a
+
+    rc, _, err = run_cli([fill(a) for a in argv], capsys)
+    assert rc == 2 and fill(word) in one_error(err)
+    assert not (tmp_path / "o").exists()

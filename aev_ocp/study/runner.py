@@ -362,12 +362,34 @@ def _connect(client_type: Any, scheduler: str) -> Any:
     t = threading.Thread(target=go, name="aev-ocp-dask-connect", daemon=True)
     t.start()
     t.join(SCHEDULER_CONNECT_TIMEOUT_S + 1.0)
-    if t.is_alive() or "error" in box:
-        exc = box.get("error")
-        why = f" ({type(exc).__name__}: {exc})" if exc is not None else ""
-        raise RuntimeError(f"the Dask scheduler {scheduler} did not answer within {SCHEDULER_CONNECT_TIMEOUT_S:g} s"
-                           f"{why}")
+    exc = box.get("error")
+    if isinstance(exc, (ValueError, TypeError)):  # the address itself: bad input, not a scheduler that failed
+        raise _bad_address(scheduler, exc)
+    if t.is_alive() or exc is not None:
+        how = (f"could not be reached ({type(exc).__name__}: {exc})" if exc is not None else
+               f"did not answer within {SCHEDULER_CONNECT_TIMEOUT_S:g} s")
+        raise RuntimeError(f"the Dask scheduler {scheduler} {how}")
     return box["client"]
+
+
+def _bad_address(scheduler: str, exc: Exception) -> Exception:
+    from ..params import ParameterError
+
+    return ParameterError(f"--scheduler {scheduler!r} is not a Dask scheduler address (e.g. tcp://10.0.0.5:8786): {exc}")
+
+
+def check_scheduler_address(scheduler: str) -> str:
+    """``scheduler`` if Dask reads it as an address with a host and a port, else ParameterError naming --scheduler
+    (checked before the study claims its folder; whether anything answers there is found out by connecting)."""
+    from distributed.comm.addressing import parse_address, parse_host_port
+
+    try:
+        scheme, loc = parse_address(scheduler)
+        if scheme in ("tcp", "tls"):
+            parse_host_port(loc)
+    except (ValueError, TypeError) as exc:
+        raise _bad_address(scheduler, exc) from None
+    return scheduler
 
 
 def dask_missing_message() -> str:
