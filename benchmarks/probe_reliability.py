@@ -572,6 +572,12 @@ def register_cli_tries() -> None:
     add("other", "safety --out under a file", ["safety", "--quick", "--out", "{d}/f/x"], (2,), setup=write("f", "x"))
     add("other", "sumo with a missing scenario", ["sumo", "{d}/nope.toml"], (2,), words=("nope",))
     add("other", "scenarios (lists)", ["scenarios"], (0,))
+    add("other", "sumo with an unknown option", ["sumo", "sumo_ring", "--bogus"], (2,), words=("--bogus",))
+    add("other", "ocp --grid-file holding a JSON list", ["ocp", "current-profile", "--grid-file", "{d}/g.json", "--out",
+                                                         "{d}/o"], (2,), words=("g.json",), setup=write("g.json", "[1, 2]"))
+    for cmd in (["study", "{d}/s.toml"], ["mpc", "mpc_paper_single"], ["ring", "sugiyama"], ["ocp", "prop31"]):
+        add("other", f"{cmd[0]} --out ''", [*cmd, "--out", ""], (2,), words=("--out",),
+            setup=write("s.toml", study_text()))
 
 
 def register_study_tries() -> None:
