@@ -84,7 +84,11 @@ def _guarded(run: Callable[[], int], debug: bool) -> int:
     with interrupts.handle_signals(), warnings.catch_warnings():
         warnings.showwarning = _show_warning  # every warning is one line 'aev-ocp: warning: ...'
         try:
-            rc = int(run() or 0)
+            try:
+                rc = int(run() or 0)
+            except Exception:
+                interrupts.check()  # a Ctrl-C that a library turned into another error (CasADi: SystemError)
+                raise
             if rc == EXIT_INTERRUPTED and interrupts.interrupted():
                 return rc  # the command caught the interrupt and said so itself: one line, not two
             interrupts.check()  # a signal that a solver turned into a failed solve

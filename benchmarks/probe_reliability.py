@@ -149,6 +149,12 @@ def run(d: Path, argv: list[str], timeout_s: float = 60.0, *, sigint_after_s: fl
     return Run(rc, out, err, wall, left, signalled)
 
 
+def _ended_with(r: Run, delay_s: float) -> bool:
+    """Whether the run ended within 0.5 s of its SIGINT (it may have been finishing: exit 0 is then right; a run
+    that computes on for longer after the signal lost it)."""
+    return r.wall_s - delay_s < 0.5
+
+
 def temporaries(d: Path) -> list[str]:
     """Temporary files (atomic-write leftovers, figure temporaries, temp folders) anywhere under ``d``."""
     bad = []
@@ -728,7 +734,7 @@ def register_study_tries() -> None:
             (d / "s.toml").write_text(text or study_text(**LONG))
             delay = RNG.uniform(lo, hi)
             r = run(d, ["study", str(d / "s.toml"), "--out", str(d / "o"), *argv_extra], timeout_s, sigint_after_s=delay)
-            v = judge(r, expect if r.signalled else (0,), d)  # a run that ended before the signal: exit 0
+            v = judge(r, expect if r.signalled and not _ended_with(r, delay) else (0, *expect), d)
             return v[0], f"SIGINT after {delay:.1f} s: {v[1]}"
         TRIES.append(Try("interrupt", what, fn, timeout_s + 10))
 
@@ -755,7 +761,7 @@ def register_study_tries() -> None:
         def fn(d: Path) -> tuple[str, str]:
             delay = RNG.uniform(lo, hi)
             r = run(d, [a.replace("{d}", str(d)) for a in argv], 120, sigint_after_s=delay)
-            v = judge(r, (130,) if r.signalled else (0,), d)
+            v = judge(r, (130,) if r.signalled and not _ended_with(r, delay) else (0, 130), d)
             return v[0], f"SIGINT after {delay:.1f} s: {v[1]}"
         TRIES.append(Try("interrupt", what, fn, 130))
 

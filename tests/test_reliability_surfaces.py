@@ -762,7 +762,8 @@ def test_store_rebuilds_a_folder_entry_and_a_points_file(tmp_path):
     assert drop(again.rows) == drop(first.rows) and f.is_file()
     shutil.rmtree(out / "points")
     (out / "points").write_text("not a folder")
-    third = run_study(study, out, executor="inprocess", report=False)
+    with pytest.warns(UserWarning, match="4 stored result"):
+        third = run_study(study, out, executor="inprocess", report=False)
     assert drop(third.rows) == drop(first.rows) and len(list((out / "points").glob("*.json"))) == 4
 
 
@@ -1075,3 +1076,54 @@ def test_more_bad_input_is_one_line_naming_it(tmp_path, capsys, monkeypatch, arg
     rc, _, err = run_cli([fill(a) for a in argv], capsys)
     assert rc == 2 and fill(word) in one_error(err)
     assert not (tmp_path / "o").exists()
+
+
+def test_ctrl_c_while_the_pool_starts_its_workers_waits_until_all_can_be_stopped(tmp_path, monkeypatch):
+    """submit() starts the pool's worker processes: a Ctrl-C in the middle (which left a half-started worker the
+    pool did not know, and the exit hung on it) is raised once every task is submitted; then every worker stops."""
+    import signal
+    from concurrent.futures import ProcessPoolExecutor
+
+    from aev_ocp import interrupts
+    from aev_ocp.study import read_study
+    from aev_ocp.study.runner import _run_pool
+
+    specs = [t.spec for t in read_study(_study(tmp_path)).tasks()]
+    real, calls = ProcessPoolExecutor.submit, []
+
+    def submit(self, *a, **k):  # noqa: ANN001, ANN002, ANN003, ANN202
+        calls.append(1)
+        if len(calls) == 1:
+            os.kill(os.getpid(), signal.SIGINT)
+        return real(self, *a, **k)
+
+    monkeypatch.setattr(ProcessPoolExecutor, "submit", submit)
+    before = _descendants(os.getpid())
+    with interrupts.handle_signals():
+        with pytest.raises(KeyboardInterrupt):
+            _run_pool(specs, 2, lambda res: None)
+    assert len(calls) == len(specs) == 4
+    deadline = time.monotonic() + 10.0
+    while _descendants(os.getpid()) - before and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert _descendants(os.getpid()) - before == set()
+
+
+def test_a_ctrl_c_a_library_turned_into_another_error_is_an_interrupt(capsys):
+    """CasADi's SWIG layer turns a KeyboardInterrupt raised inside DM.__array__ into a SystemError: still exit 130
+    and 'interrupted', not 'internal error'."""
+    import signal
+
+    from aev_ocp.console import EXIT_INTERRUPTED, guarded
+
+    def command() -> int:
+        try:
+            os.kill(os.getpid(), signal.SIGINT)
+            time.sleep(1.0)
+        except KeyboardInterrupt:
+            raise SystemError("<function DM.__array__> returned a result with an exception set") from None
+        return 0
+
+    assert guarded(command) == EXIT_INTERRUPTED
+    err = capsys.readouterr().err
+    assert err == "aev-ocp: error: interrupted\n"

@@ -193,7 +193,7 @@ class Store:
         except FileNotFoundError:
             return None
         except (OSError, ValueError, RecursionError):
-            if f.exists() or f.is_symlink():
+            if f.exists() or f.is_symlink() or (self.dir.exists() and not self.dir.is_dir()):
                 self.damaged.append(key)
             return None
         return {k: v for k, v in got.items() if k != self.HASH_FIELD}
@@ -300,7 +300,10 @@ def _run_pool(specs: list[dict[str, Any]], workers: int | None, done: Callable[[
     _export_path()
     ex = ProcessPoolExecutor(max_workers=n, mp_context=mp.get_context("spawn"))
     try:
-        pending = {ex.submit(run_task, sp) for sp in specs}
+        # submit() starts the worker processes: a Ctrl-C while one is half started left a process the pool did not
+        # know, and the exit then waited for it for ever; it is honoured once every worker can be stopped
+        with interrupts.deferred():
+            pending = {ex.submit(run_task, sp) for sp in specs}
         while pending:
             finished, pending = wait(pending, return_when=FIRST_COMPLETED)
             for f in finished:
