@@ -36,7 +36,7 @@ from typing import Callable
 
 ROOT = Path(os.environ.get("AEV_PROBE_ROOT") or Path(__file__).resolve().parents[1])  # the checkout probed
 PY = sys.executable
-RNG = random.Random(28)  # the interrupt delays are drawn from this seed: a rerun repeats them
+RNG = random.Random(int(os.environ.get("AEV_PROBE_SEED", "28")))  # interrupt delays: a rerun repeats them
 
 STUDY = """
 name = "{name}"
