@@ -114,7 +114,10 @@ class _NumpyWithTrapz:
     """numpy as BLAST-Lite 1.1 expects it: ``np.trapz`` (removed in numpy 2.4) is ``np.trapezoid``, the same
     function under its new name; everything else is numpy itself."""
 
-    trapz = staticmethod(np.trapezoid)
+    @staticmethod
+    def trapz(*args: Any, **kwargs: Any) -> Any:
+        """np.trapezoid (looked up when called: numpy < 2, which has no trapezoid, never builds this shim)."""
+        return np.trapezoid(*args, **kwargs)
 
     def __getattr__(self, name: str) -> Any:
         return getattr(np, name)
