@@ -171,9 +171,16 @@ class MPCController:
         bad = sorted(set(xinit) - set(own))
         if bad:
             raise ParameterError(f"MPCController: initial_values names unknown states {bad}; own states are {own}")
+        # the pack temperature 'T' [K] starts from the thermal model's T(0) unless measured (the policy's own)
+        start = {"T": self.ev.thermal.initial_K}
         return ParameterLayout(n_weights, np.array([float(pvals[k]) for k in extra_p]),
                                np.array([float(pvals[k]) for k in extra_w]),
-                               np.array([float(xinit.get(k, 0.0)) for k in own]))
+                               np.array([float(xinit.get(k, start.get(k, 0.0))) for k in own]))
+
+    @property
+    def has_temperature(self) -> bool:
+        """The prediction model carries the pack temperature 'T' [K] (TemperatureTerms.temperature_state)."""
+        return "T" in self.problem.state_names[NZ:]
 
     # ------------------------------------------------------------------ the horizon NLP's interface
     @property
