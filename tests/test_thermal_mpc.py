@@ -145,3 +145,15 @@ def test_mpc_keys_in_a_scenario(tmp_path: Path) -> None:
     # off by default: the formulation and its problem are the ones without temperature
     assert formulation_from_dict({}) == traffic_formulation()
     assert "T" not in traffic_formulation().build(EV, 0.1).state_names
+
+
+def test_a_plant_without_temperature_is_a_clear_error() -> None:
+    """The ring road has no thermal model: an MPC that predicts T refuses to run there, naming what is missing."""
+    from aev_ocp.control import Observation
+    from aev_ocp.ring.laws import ring_mpc
+
+    pol = ring_mpc(EV, MPCSettings(N=4, codegen=False), "constant-velocity",
+                   traffic_formulation(temperature=TemperatureTerms(temperature_state=True)))
+    obs = Observation(0.0, 0.1, 0, np.array([1.3, 0.9, 0.0, 0.0, 0.62]), np.array([0.0]), np.array([0.9]))
+    with pytest.raises(ParameterError, match="Observation.T_K"):
+        pol.command(obs)

@@ -99,8 +99,9 @@ class MPCPolicy:
         if obs.T_K is not None:
             own["T"] = obs.T_K
         elif self.controller.has_temperature:
-            raise ParameterError("MPC: the formulation's temperature_state needs the pack temperature: the plant has "
-                                 "no thermal model ([thermal] enabled = true)")
+            raise ParameterError("MPC: temperature_state needs the measured pack temperature (Observation.T_K), which "
+                                 "this plant does not give: turn on [thermal] (enabled = true) in a platoon scenario "
+                                 "(the ring road and SUMO have no thermal model)")
         sol = self.controller.solve(obs.z, vm, vh, own=own)
         info = {"cost": sol.cost, "violation": sol.violation, "v_hat": vh}
         if sol.success:
