@@ -213,7 +213,7 @@ def _memoised_leader_check() -> Iterator[None]:
     """parse_scenario checks the leader's top speed by sampling it (tens of ms); study points share a few
     leaders, so the check is computed once per (leader, t_end, units) in this process and its warnings
     replayed. Everything else of parse_scenario runs as usual."""
-    from .. import scenarios as scn
+    from ..scenarios import platoon as scn  # the module whose parse_scenario calls check_leader_speed
 
     orig = scn.check_leader_speed
 
