@@ -48,8 +48,10 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
     ("configuration", (
         "aev_ocp.scenarios", "aev_ocp.scenarios.tables", "aev_ocp.scenarios.sections", "aev_ocp.scenarios.size",
         "aev_ocp.scenarios.vehicle", "aev_ocp.scenarios.leader", "aev_ocp.scenarios.followers",
-        "aev_ocp.scenarios.platoon", "aev_ocp.scenarios.shipped", "aev_ocp.scenarios.files", "aev_ocp.overrides", "aev_ocp.mpc.scenario", "aev_ocp.safety.cases",
-        "aev_ocp.study.spec", "aev_ocp.sumo", "aev_ocp.sumo.networks", "aev_ocp.sumo.scenario",
+        "aev_ocp.scenarios.platoon", "aev_ocp.scenarios.shipped", "aev_ocp.scenarios.files", "aev_ocp.overrides",
+        "aev_ocp.mpc.scenario", "aev_ocp.safety.cases",
+        "aev_ocp.study.spec", "aev_ocp.study.model", "aev_ocp.study.tasks", "aev_ocp.study.points",
+        "aev_ocp.study.tables", "aev_ocp.sumo", "aev_ocp.sumo.networks", "aev_ocp.sumo.scenario",
         "aev_ocp.ring.scenario", "aev_ocp.estimation.scenario",
     )),
     ("outputs", (
