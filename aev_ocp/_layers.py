@@ -59,7 +59,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
         "aev_ocp.report_html", "aev_ocp.saved", "aev_ocp.study.table", "aev_ocp.ring.plots",
     )),
     ("applications", (
-        "aev_ocp.report_sections", "aev_ocp.claims", "aev_ocp.table1_hypotheses",
+        "aev_ocp.report_sections", "aev_ocp.paper_sections", "aev_ocp.claims", "aev_ocp.table1_hypotheses",
         "aev_ocp.ocp.api", "aev_ocp.ocp.report_section",
         "aev_ocp.mpc.report", "aev_ocp.mpc.cycles", "aev_ocp.mpc.cycles_section",
         "aev_ocp.stability.api", "aev_ocp.stability.report",
