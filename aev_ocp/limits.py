@@ -15,8 +15,10 @@ limit, and which key or argument to change; it returns the estimate [bytes] when
 
 from __future__ import annotations
 
+import errno
 import math
 import os
+import stat
 
 from .params import ParameterError, SimOptions
 
@@ -176,3 +178,42 @@ def check_local_workers(n: int | None, key: str = "--workers") -> int | None:
         raise ParameterError(f"{key} {n!r}: must be an integer from 1 to {cap} ({MAX_WORKERS_PER_CORE} per core on "
                              f"this machine's {os.cpu_count() or 1} cores)")
     return n
+
+
+# ----------------------------------------------------------------------------- reading a file of a bounded size
+class FileRefused(Exception):
+    """A file :func:`read_regular_file` did not read; the message says why in a few words, for the caller to put
+    after its own name of the file ("cannot read the scenario file (it is a folder)")."""
+
+
+def read_regular_file(path: str | os.PathLike[str], max_bytes: int) -> bytes:
+    """The bytes of ``path`` if it is a regular file (a symbolic link to one is fine) of at most ``max_bytes``
+    [bytes], checked BEFORE reading: a FIFO would hang the read, /dev/zero never ends. :class:`FileRefused`
+    otherwise, also for a file that cannot be opened or read (its message is the system's reason)."""
+    try:
+        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))  # opening a FIFO must not wait for a writer
+    except OSError as exc:
+        raise FileRefused(_os_reason(exc)) from None
+    try:
+        st = os.fstat(fd)
+        if not stat.S_ISREG(st.st_mode):
+            raise FileRefused("it is a folder" if stat.S_ISDIR(st.st_mode)
+                              else "it is not a regular file but a FIFO, device or socket")
+        if st.st_size > max_bytes:
+            raise FileRefused(f"it is {st.st_size} bytes, more than the {max_bytes} it may have")
+        with os.fdopen(fd, "rb", closefd=False) as fh:
+            data = fh.read(max_bytes + 1)
+    except OSError as exc:
+        raise FileRefused(_os_reason(exc)) from None
+    finally:
+        os.close(fd)
+    if len(data) > max_bytes:
+        raise FileRefused(f"it grew past {max_bytes} bytes while read")
+    return data
+
+
+def _os_reason(exc: OSError) -> str:
+    """The system's reason for an OSError, in words ("a loop of symbolic links" for ELOOP)."""
+    if exc.errno == errno.ELOOP:
+        return "a loop of symbolic links"
+    return exc.strerror or str(exc)

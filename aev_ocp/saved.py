@@ -21,8 +21,6 @@ import hashlib
 import io
 import json
 import math
-import os
-import stat
 import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -30,7 +28,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from .limits import memory_limit_bytes
+from .limits import FileRefused, memory_limit_bytes, read_regular_file
 from .params import (UNLIMITED, CellParams, EVParams, PackParams, ThermalParams, Units, VehicleLimits, VehicleParams,
                      as_dict)
 from .results import (Event, FieldsRepr, SimulationResult, atomic_path, require_pandas, to_jsonable, write_json)
@@ -187,27 +185,11 @@ MAX_MANIFEST_BYTES = 200_000_000  # a manifest is JSON metadata (kB to a few MB 
 
 def read_regular(f: Path, max_bytes: int, what: str) -> bytes:
     """The bytes of ``f`` if it is a regular file (a symlink to one is fine) of at most ``max_bytes``, checked
-    BEFORE reading: a FIFO would hang, /dev/zero never ends; LoadError otherwise."""
+    BEFORE reading (:func:`aev_ocp.limits.read_regular_file`); LoadError otherwise."""
     try:
-        fd = os.open(f, os.O_RDONLY | os.O_NONBLOCK)  # O_NONBLOCK: opening a FIFO must not wait for a writer
-    except OSError as exc:
-        raise LoadError(f"{f}: the output's {what} cannot be read ({exc.strerror or exc})") from None
-    try:
-        st = os.fstat(fd)
-        if not stat.S_ISREG(st.st_mode):
-            raise LoadError(f"{f}: the output's {what} is not a regular file (a FIFO, device or folder); not read")
-        if st.st_size > max_bytes:
-            raise LoadError(f"{f}: the output's {what} is {st.st_size / 1e9:.3g} GB, more than the "
-                            f"{max_bytes / 1e9:.3g} GB it may hold; not read")
-        with os.fdopen(fd, "rb", closefd=False) as fh:
-            data = fh.read(max_bytes + 1)
-    except OSError as exc:
-        raise LoadError(f"{f}: the output's {what} cannot be read ({exc.strerror or exc})") from None
-    finally:
-        os.close(fd)
-    if len(data) > max_bytes:
-        raise LoadError(f"{f}: the output's {what} grew past {max_bytes / 1e9:.3g} GB while read; not read")
-    return data
+        return read_regular_file(f, max_bytes)
+    except FileRefused as exc:
+        raise LoadError(f"{f}: the output's {what} was not read ({exc})") from None
 
 
 def _nan(x: Any) -> float:
