@@ -8,7 +8,7 @@ from typing import Any
 import numpy as np
 
 from ..params import EVParams
-from .base import NX, Estimate, EstimationModel, estimate_of
+from .base import NX, STATE_NAMES, Estimate, EstimationModel, estimate_of
 from .sensors import Measurement, Sensors
 
 
@@ -69,5 +69,5 @@ class EKF:
 
     def describe(self) -> dict[str, Any]:
         return {"estimator": self.name, "soc0": self.soc0, "ocv_offset_V": self.model.ocv_offset_V,
-                "states": "S, V1, V2, h, v_l, a_l, v, R0 scale", "measurements": "pack V, gap, predecessor speed, own speed",
+                "states": ", ".join(STATE_NAMES), "measurements": "pack V, gap, predecessor speed, own speed",
                 "inputs": "pack current, applied acceleration"}
