@@ -8,11 +8,19 @@ and acceleration. Plug your own in wherever ``estimator=`` is accepted (an objec
 :class:`EstimationModel` is the discrete model of both shipped estimators, built with CasADi from the same
 description as the controller's (:func:`aev_ocp.models.battery.cell_derivatives` and
 :func:`~aev_ocp.models.battery.terminal_voltage` of the 2-RC cell, with the model's CellParams): states
-x = (S, V1 [V], V2 [V], h [m], v_l [m/s], a_l [m/s²], v [m/s], own speed, ρ: the cell's R0 is ρ·R0 of the model, a
-slow random walk: the ohmic resistance is learnt from the voltage's response to current steps), inputs u = (I [A per cell], a [m/s²], the
-acceleration the car applied last), outputs y = (cell terminal voltage [V], h [m], v_l [m/s], v [m/s]); one RK4 step
-of length dt_s with u held; the predecessor's acceleration is a Singer process (da_l/dt = −a_l/τ_a,
-τ_a = :data:`LEAD_ACCEL_TAU_S`), the own speed follows the applied acceleration (dv/dt = a).
+x = (S, V1 [V], V2 [V], h [m], v_l [m/s], a_l [m/s²], v [m/s] own speed, ρ0, ρ1, κ1, ρ2, κ2), the last five the
+cell's parameters as scales of the model's (R0 = ρ0·R0, R1 = ρ1·R1, C1 = C1/κ1, R2 = ρ2·R2, C2 = C2/κ2: slow
+random walks, learnt from the voltage's response to the current: a resistance or capacitance mismatch stays out of
+the SOC); inputs u = (I [A per cell], a [m/s²], the acceleration the car applied last), outputs y = (cell terminal
+voltage [V], h [m], v_l [m/s], v [m/s]); one RK4 step of length dt_s with u held; the predecessor's acceleration is
+a Singer process (da_l/dt = −a_l/τ_a, τ_a = :data:`LEAD_ACCEL_TAU_S`), the own speed follows the applied
+acceleration (dv/dt = a).
+
+What 60 s of driving can and cannot tell on the flat LFP plateau (docs/guide/realism.md has the numbers): R0, R1,
+C1 are observable (the voltage's response to current steps within seconds); C2 and R2 partly (V2 grows with the
+charge and relaxes over τ2 ≈ 100 s); the capacity not at all (60 s move the SOC by < 1 %, and on the plateau that
+is < 0.5 mV); an OCV offset not at all: it is indistinguishable from an SOC error, 1/OCV'(S) ≈ 2 % SOC per mV at
+S = 0.8 on the shipped cell.
 """
 
 from __future__ import annotations
@@ -161,7 +169,9 @@ class EstimationModel:
 
     def ekf_step(self, iterations: int) -> ca.Function:
         """One EKF step as ONE CasADi Function (x, P, u_prev, u, y, dt) -> (x⁺, P⁺): the time update over dt [s]
-        with the mean of the two inputs held, then the measurement update, and the Joseph-form covariance. The
+        with the inputs held (the cell current at its value at the interval's end: the command is held over the
+        interval and the current sampled at its end belongs to it; the applied acceleration as the mean of the
+        interval's two samples), then the measurement update, and the Joseph-form covariance. The
         battery's part (S, V1, V2, the scales; the cell voltage) and the motion part (h, v_l, a_l, v; gap and both
         speeds) do not interact and are updated separately (P stays block-diagonal); the battery's update is
         iterated ``iterations`` times (Gauss–Newton on h; SOC clamped to [0, 1], the scales to

@@ -16,6 +16,9 @@ from .kalman import EKF, bridge_delays
 from .sensors import Measurement, Sensors
 
 ND = NX - len(PARAM_NAMES)  # the dynamic states the window optimises (S, V1, V2, h, v_l, a_l, v)
+#: the unit of each of those states in the NLP (1 % SOC, 1 mV, 1 m, 1 m/s, 1 m/s², 1 m/s): IPOPT sees variables of
+#: order one (in SI units V1 and V2 are ~1e-3 and their model-error weights ~1e5, and its steps stall)
+MHE_SCALE = (0.01, 1e-3, 1e-3, 1.0, 1.0, 1.0, 1.0)
 
 
 class MHE:
@@ -45,7 +48,8 @@ class MHE:
 
     def _build(self) -> None:
         M, m, nd = self.M, self.model, ND
-        X = ca.SX.sym("X", nd, M + 1)
+        Z = ca.SX.sym("Z", nd, M + 1)  # the decision variables: the states in units of MHE_SCALE
+        X = ca.diag(ca.DM(MHE_SCALE)) @ Z
         th = ca.SX.sym("theta", NX - nd)
         x0b, L0 = ca.SX.sym("x0b", nd), ca.SX.sym("L0", nd, nd)  # L0: Cholesky factor of P_0⁻¹ (upper)
         U, Y, DT = ca.SX.sym("U", 2, M + 1), ca.SX.sym("Y", 4, M + 1), ca.SX.sym("DT", M)
@@ -55,16 +59,17 @@ class MHE:
         r0 = L0 @ (X[:, 0] - x0b)
         J = ca.sumsqr(r0)
         for k in range(M):
-            J += ca.sumsqr(LQ @ (X[:, k + 1] - Fs(ca.vertcat(X[:, k], th), U[:, k], DT[k])))
+            uk = ca.vertcat(U[0, k + 1], 0.5 * (U[1, k] + U[1, k + 1]))  # the inputs of the interval, as the EKF's
+            J += ca.sumsqr(LQ @ (X[:, k + 1] - Fs(ca.vertcat(X[:, k], th), uk, DT[k])))
         for k in range(M + 1):
             J += ca.sumsqr(LR @ (Y[:, k] - Hs(ca.vertcat(X[:, k], th), U[:, k])))
         p = ca.vertcat(x0b, ca.vec(L0), ca.vec(U), ca.vec(Y), DT, ca.vec(LQ), ca.vec(LR), th)
         opts: dict[str, Any] = {"ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes", "ipopt.max_iter": 30,
                 "ipopt.tol": 1e-8, "ipopt.warm_start_init_point": "yes"}
-        self.solver = ca.nlpsol("mhe", "ipopt", {"x": ca.vec(X), "f": J, "p": p}, opts)
-        self.cost = ca.Function("mhe_cost", [ca.vec(X), p], [J])
+        self.solver = ca.nlpsol("mhe", "ipopt", {"x": ca.vec(Z), "f": J, "p": p}, opts)
+        self.cost = ca.Function("mhe_cost", [ca.vec(Z), p], [J])
         lb, ub = -np.inf * np.ones((nd, M + 1)), np.inf * np.ones((nd, M + 1))
-        lb[0, :], ub[0, :] = 0.0, 1.0
+        lb[0, :], ub[0, :] = 0.0, 1.0 / MHE_SCALE[0]
         self.lbx, self.ubx = lb.ravel(order="F"), ub.ravel(order="F")
 
     def reset(self, first: Measurement) -> Estimate:
@@ -102,15 +107,16 @@ class MHE:
         LR = np.linalg.cholesky(np.linalg.inv(self.model.R)).T
         p = np.concatenate([x0b, L0.ravel(order="F"), U.ravel(order="F"), Yv.ravel(order="F"), DT,
                             LQ.ravel(order="F"), LR.ravel(order="F"), theta])
-        guess = np.column_stack([b[3][:nd] for b in self.buf]).ravel(order="F")
+        scale = np.asarray(MHE_SCALE)
+        guess = np.column_stack([b[3][:nd] / scale for b in self.buf]).ravel(order="F")
         if self._guess is not None:  # the last solution shifted by one step, the EKF's newest state appended
-            guess = np.concatenate([self._guess[nd:], self.ekf.x[:nd]])
+            guess = np.concatenate([self._guess[nd:], self.ekf.x[:nd] / scale])
         sol = self.solver(x0=guess, p=p, lbx=self.lbx, ubx=self.ubx)
         if not self.solver.stats()["success"]:
             self.fails += 1
         xs = np.asarray(sol["x"]).ravel()
         self._guess = xs
-        self.x = np.concatenate([xs[-nd:], theta])
+        self.x = np.concatenate([xs[-nd:] * scale, theta])
         return self.estimate()
 
     def estimate(self) -> Estimate:
