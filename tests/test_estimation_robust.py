@@ -101,13 +101,13 @@ def test_an_ocv_offset_becomes_an_soc_error_of_offset_over_slope() -> None:
     """On the flat plateau an OCV offset δ of the model is not observable: the SOC estimate moves by −δ/OCV'(S)
     (the model reads OCV(Ŝ) + δ = OCV(S)), with OCV'(S) from the cell's spline at the true SOC. Checked for
     δ = +0.37 mV and −0.29 mV against the same run without an offset (same noise)."""
-    r0, _ = _run("udds", None, 0.9, 3, segment_s=50.0)
+    r0, _ = _run("udds", None, 0.9, 3, segment_s=60.0)
     e0 = r0.solver_stats[0]["estimation"]["soc_err_final_pct"]
     s_true = float(r0.S[-1, 0])
     ocv = battery.ocv_function(r0.ev.cell)
     slope_V = (float(ocv(s_true + 1e-3)) - float(ocv(s_true - 1e-3))) / 2e-3  # [V per unit SOC]
     for delta_V in (3.7e-4, -2.9e-4):
-        r, _ = _run("udds", Mismatch(ocv_offset_V=delta_V), 0.9, 3, segment_s=50.0)
+        r, _ = _run("udds", Mismatch(ocv_offset_V=delta_V), 0.9, 3, segment_s=60.0)
         shift_pct = r.solver_stats[0]["estimation"]["soc_err_final_pct"] - e0
         assert shift_pct == pytest.approx(-100 * delta_V / slope_V, rel=0.15)
 
