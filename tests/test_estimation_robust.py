@@ -67,7 +67,7 @@ def test_draws_cover_both_directions_within_the_bounds() -> None:
 def test_soc_error_below_one_percent_after_60_s_for_drawn_mismatches(cycle: str, seed: int) -> None:
     """Every draw: the estimator starts 10 % off (alternately above and below the true 0.8), the laws drive
     (alternately the proposed law and OVFL, sampled on the noisy, late measurements), and from 60 s on the EKF's
-    SOC is within 1 % of the plant's. HWFET's first draw runs the thermal plant with temperature-dependent
+    SOC is within 1 % of the plant's, and its R0 and R1 scales are the plant's ratios. HWFET's first draw runs the thermal plant with temperature-dependent
     resistances (E_a = 24 kJ/mol: −3 %/K at 25 °C; a warm pack at 27 °C, so the plant's resistances are a further
     ~6 % below the model's and drift as it cools)."""
     for i, d in enumerate(draws(N_DRAWS, seed)):
@@ -84,7 +84,12 @@ def test_soc_error_below_one_percent_after_60_s_for_drawn_mismatches(cycle: str,
         if ev.thermal.enabled:
             assert np.ptp(r.temperature_K[:, 0]) > 0.0
         assert est["soc_err_max_after_60s_pct"] < 1.0, (cycle, i, d, est)
-        assert np.all(made[0].x[7:] > 0.5) and np.all(made[0].x[7:] < 2.0)  # the scales stay physical
+        x = made[0].x
+        assert np.all(x[7:] > 0.5) and np.all(x[7:] < 2.0)  # the scales stay physical
+        # R0 and R1 are observable within the run: the scales reach the plant's ratios (at its final temperature)
+        f = battery.arrhenius_factor(float(r.temperature_K[-1, 0]), ev.cell) if ev.thermal.enabled else 1.0
+        assert x[7] == pytest.approx(f / (1 + d["R0_rel"]), abs=0.03), (cycle, i, d)
+        assert x[8] == pytest.approx(f / (1 + d["R1_rel"]), abs=0.08), (cycle, i, d)
 
 
 def test_the_ekf_learns_the_plants_resistances() -> None:
