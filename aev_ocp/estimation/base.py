@@ -139,7 +139,7 @@ class EstimationModel:
         cell, pack = ev.cell, ev.pack
         x, u, dt = ca.SX.sym("x", NX), ca.SX.sym("u", 2), ca.SX.sym("dt")
 
-        def scaled(x: Any) -> ScaledCell:
+        def scaled(x: Any) -> Any:  # a ScaledCell, read where a CellParams is (as battery.cell_at)
             return ScaledCell(cell, *(x[k] for k in range(7, NX)))
 
         def f(x: Any, u: Any) -> Any:
