@@ -92,6 +92,19 @@ def test_soc_error_below_one_percent_after_60_s_for_drawn_mismatches(cycle: str,
         assert x[8] == pytest.approx(f / (1 + d["R1_rel"]), abs=0.08), (cycle, i, d)
 
 
+@pytest.mark.parametrize("true_soc", [0.35, 0.55])
+def test_soc_error_below_one_percent_elsewhere_on_the_plateau(true_soc: float) -> None:
+    """The same target away from the test's S = 0.8: at 0.55 (the flattest part of the LFP plateau, 2.9 % SOC per
+    mV) and 0.35, four fresh draws on US06, the estimator starting 10 % above or below."""
+    for i, d in enumerate(draws(N_DRAWS, 31)):
+        sc = cycle_scenario("us06", SEGMENT_S)
+        ev = dataclasses.replace(sc.ev, cell=dataclasses.replace(sc.ev.cell, soc0=true_soc))
+        guess = true_soc - 0.1 if i % 2 else true_soc + 0.1
+        r, _ = _run("us06", Mismatch(**d), guess, 300 + i, "proposed", ev)
+        assert r.status == "ok" and r.S[0, 0] == pytest.approx(true_soc)
+        assert r.solver_stats[0]["estimation"]["soc_err_max_after_60s_pct"] < 1.0, (true_soc, i, d)
+
+
 def test_the_ekf_learns_the_plants_resistances() -> None:
     """Fixed errors R0 −13 %, R1 +17 % (model against plant): on 90 s of US06 the EKF's scales converge to the
     plant's ratios 1/0.87 and 1/1.17, and the SOC stays within 1 %."""
