@@ -46,8 +46,12 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
         "aev_ocp.ring", "aev_ocp.ring.laws", "aev_ocp.ring.stability",
     )),
     ("configuration", (
-        "aev_ocp.scenarios", "aev_ocp.overrides", "aev_ocp.mpc.scenario", "aev_ocp.safety.cases",
-        "aev_ocp.study.spec", "aev_ocp.sumo", "aev_ocp.sumo.networks", "aev_ocp.sumo.scenario",
+        "aev_ocp.scenarios", "aev_ocp.scenarios.tables", "aev_ocp.scenarios.sections", "aev_ocp.scenarios.size",
+        "aev_ocp.scenarios.vehicle", "aev_ocp.scenarios.leader", "aev_ocp.scenarios.followers",
+        "aev_ocp.scenarios.platoon", "aev_ocp.scenarios.shipped", "aev_ocp.scenarios.files", "aev_ocp.overrides",
+        "aev_ocp.mpc.scenario", "aev_ocp.safety.cases",
+        "aev_ocp.study.spec", "aev_ocp.study.model", "aev_ocp.study.tasks", "aev_ocp.study.points",
+        "aev_ocp.study.tables", "aev_ocp.sumo", "aev_ocp.sumo.networks", "aev_ocp.sumo.scenario",
         "aev_ocp.ring.scenario", "aev_ocp.estimation.scenario",
     )),
     ("outputs", (
@@ -55,7 +59,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
         "aev_ocp.report_html", "aev_ocp.saved", "aev_ocp.study.table", "aev_ocp.ring.plots",
     )),
     ("applications", (
-        "aev_ocp.report_sections", "aev_ocp.claims", "aev_ocp.table1_hypotheses",
+        "aev_ocp.report_sections", "aev_ocp.paper_sections", "aev_ocp.claims", "aev_ocp.table1_hypotheses",
         "aev_ocp.ocp.api", "aev_ocp.ocp.report_section",
         "aev_ocp.mpc.report", "aev_ocp.mpc.cycles", "aev_ocp.mpc.cycles_section",
         "aev_ocp.stability.api", "aev_ocp.stability.report",

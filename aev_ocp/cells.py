@@ -29,7 +29,7 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
-from .limits import read_regular_file
+from .limits import read_input_file
 from .params import CellParams, ParameterError, check_ocv_table, field_checks
 
 CHEMISTRIES = ("LFP", "NMC", "NCA")
@@ -65,7 +65,7 @@ def shipped_cells() -> dict[str, Path]:
 
 def _read_csv(path: Path, file: str) -> tuple[list[float], list[float]]:
     try:
-        text = read_regular_file(path, "OCV table", CellFileError, label=f"{file}: ocv.file = {str(path)!r}")
+        text = read_input_file(path, "OCV table", CellFileError, label=f"{file}: ocv.file = {str(path)!r}")
         rows = list(csv.DictReader(io.StringIO(text.decode("utf-8"), newline="")))
     except (UnicodeDecodeError, csv.Error) as exc:
         raise CellFileError(f"{file}: ocv.file = {str(path)!r} is not a UTF-8 CSV table: {exc}") from None
@@ -156,7 +156,7 @@ def load_cell_file(name_or_path: str | Path, base_dir: Path | None = None) -> Ce
         p = base_dir / p
     path = find_cell(p if p.is_file() else name_or_path)
     try:
-        doc = tomllib.loads(read_regular_file(path, "cell file", CellFileError).decode("utf-8"))
+        doc = tomllib.loads(read_input_file(path, "cell file", CellFileError).decode("utf-8"))
     except (tomllib.TOMLDecodeError, UnicodeDecodeError, RecursionError) as exc:
         raise CellFileError(f"{path}: not valid UTF-8 TOML: {exc}") from None
     return parse_cell(doc, str(path), path.parent)

@@ -21,6 +21,7 @@ import atexit
 import ctypes
 import hashlib
 import os
+import re
 import shutil
 import stat
 import subprocess
@@ -29,6 +30,7 @@ import tempfile
 import time
 import warnings
 from dataclasses import dataclass
+from importlib import resources
 from pathlib import Path
 
 FLAGS = ("-O2", "-fPIC", "-shared", "-fno-math-errno")
@@ -172,6 +174,25 @@ def _warn_once(stem: str, message: str) -> None:
     if (stem, message) not in _WARNED:
         _WARNED.add((stem, message))
         warnings.warn(CompileWarning(message), stacklevel=3)
+
+
+_LOCAL_INCLUDE = re.compile(r'^#include "([A-Za-z0-9_]+\.h)"[^\n]*$', re.MULTILINE)
+
+
+def driver_source(name: str) -> str:
+    """The text of the package's C file ``aev_ocp/c/<name>`` with each ``#include "<header>.h"`` of a header of
+    that folder replaced by the header's text (once each), so one self-contained source is compiled and the cache
+    key of :func:`compile_shared` covers the headers too."""
+    folder = resources.files("aev_ocp") / "c"
+    seen: set[str] = set()
+
+    def inline(m: re.Match[str]) -> str:
+        if m.group(1) in seen:
+            return ""
+        seen.add(m.group(1))
+        return _LOCAL_INCLUDE.sub(inline, (folder / m.group(1)).read_text())
+
+    return _LOCAL_INCLUDE.sub(inline, (folder / name).read_text())
 
 
 def compile_shared(source: str, stem: str, sub: str = "", extra_flags: tuple[str, ...] = (),

@@ -36,6 +36,18 @@ def _warn(message: str) -> None:
 warning_line = _warn  # public name, used by the subcommands
 
 
+def os_error_text(exc: OSError) -> str:
+    """An OSError in one line: the system's reason and the file it names, when it names one."""
+    return f"{exc.strerror or exc}: {exc.filename}" if getattr(exc, "filename", None) else str(exc)
+
+
+def bad_input(exc: Exception) -> int:
+    """Report ``exc`` (bad input: an invalid value, an unreadable file) as the one error line; returns
+    EXIT_BAD_INPUT, for a command that handles it itself instead of leaving it to :func:`guarded`."""
+    _err(os_error_text(exc) if isinstance(exc, OSError) else str(exc))
+    return EXIT_BAD_INPUT
+
+
 def _show_warning(message: Warning | str, category: type[Warning], filename: str, lineno: int,
                   file: object = None, line: str | None = None) -> None:
     _warn(str(message))
@@ -100,8 +112,7 @@ def _guarded(run: Callable[[], int], debug: bool) -> int:
             _err("interrupted")
             return EXIT_INTERRUPTED
         except (ScenarioError, ParameterError, OutputError, OverrideError) as exc:
-            _err(str(exc))
-            return EXIT_BAD_INPUT
+            return bad_input(exc)
         except BrokenPipeError:  # output piped into e.g. `head`: stop quietly, as Unix tools do
             try:
                 sys.stdout = open(os.devnull, "w")  # noqa: SIM115 - nothing more may reach the closed pipe
@@ -109,8 +120,7 @@ def _guarded(run: Callable[[], int], debug: bool) -> int:
                 pass
             return EXIT_OK
         except OSError as exc:
-            _err(f"{exc.strerror or exc}: {exc.filename}" if exc.filename else str(exc))
-            return EXIT_BAD_INPUT
+            return bad_input(exc)
         except MemoryError:
             _err("run failed: out of memory (lower platoon.followers or simulation.t_end, or raise simulation.dt_out)")
             return EXIT_FAILED_RUN

@@ -41,7 +41,8 @@ class Observation:
     z = (h, v, V1, V2, S) (model units, V, -), the measured speeds of its predecessor at the
     sample times so far (oldest first, the last at t), the predecessor's latest plan of node speeds
     at t, t + dt, … when the predecessor publishes one (V2V), the command it applied last (after the
-    vehicle's saturation) and, with an actuator lag, its realised acceleration a_act.
+    vehicle's saturation), with an actuator lag its realised acceleration a_act and, with the thermal model
+    (``[thermal] enabled``), its pack temperature T_K [K] (a temperature sensor: read exactly, with sensors too).
 
     With sensors (:class:`aev_ocp.estimation.sensors.Sensors`) z and meas_v are what the car knows, not the
     plant's state: h, v, the predecessor speeds and V1, V2, S from the estimator (each bridged over its
@@ -58,6 +59,7 @@ class Observation:
     a_act: float | None = None  # the realised acceleration at t [model] when the vehicle has an actuator lag
     measurement: Measurement | None = None  # with sensors: the raw (noisy, late) measurement, SI
     estimate: Estimate | None = None  # with sensors and an estimator: its estimate, SI
+    T_K: float | None = None  # the pack temperature at t [K] when the plant has the thermal model
 
 
 @dataclass
@@ -359,7 +361,8 @@ class ClosedLoop:
                                                 e.gap_m - u.length_to_si(x[i]), e.lead_speed_mps - u.speed_to_si(v_true)]))
                 obs = Observation(tk, dt, i, z, np.asarray(meas_t),
                                   np.asarray(meas_v[i]), plans[i - 1] if i > 0 else None, float(a_app[j]),
-                                  None if plant.act_row is None else float(x[plant.act_row + i]), meas, e)
+                                  None if plant.act_row is None else float(x[plant.act_row + i]), meas, e,
+                                  float(x[5 * n + i]) if getattr(plant, "thermal", False) else None)
                 tc = time.perf_counter()
                 cmd = ctrl.command(obs)
                 rec[i]["call"].append(time.perf_counter() - tc)

@@ -28,10 +28,11 @@ from .params import ParameterError, spec, validate_fields
 
 BLAST_MODELS = {"LFP": "Lfp_Gr_SonyMurata3Ah_Battery", "NMC": "Nmc811_GrSi_LGMJ1_4Ah_Battery",
                 "NCA": "Nca_Gr_Panasonic3Ah_Battery"}
-#: blast-lite 1.1.1 declares numpy < 2 but runs on numpy 2 (see _numpy_compat); a plain ``pip install blast-lite``
-#: downgrades numpy below what the toolkit needs, so its own dependencies are installed first and it without them.
-INSTALL_HINT = ("battery life needs NREL's BLAST-Lite: pip install pandas h5pyd geopy && "
-                "pip install --no-deps blast-lite")
+#: The ``life`` extra (pyproject.toml) is blast-lite >= 1.1.1, which pins numpy < 2: pip then installs numpy 1.26
+#: (Python 3.11 wheels; the toolkit needs numpy >= 1.24 and runs on both). To keep numpy 2 instead, install its
+#: dependencies and then blast-lite without them (``pip install pandas h5pyd geopy && pip install --no-deps
+#: blast-lite``): it runs on numpy 2 too (see _numpy_compat).
+INSTALL_HINT = "battery life needs NREL's BLAST-Lite: pip install 'aev_ocp[life]'"
 REPORT_YEARS = (1.0, 5.0, 10.0)
 END_OF_LIFE = 0.8  # 80 % of the new capacity: the usual EV end-of-life criterion (e.g. USABC)
 
@@ -114,7 +115,10 @@ class _NumpyWithTrapz:
     """numpy as BLAST-Lite 1.1 expects it: ``np.trapz`` (removed in numpy 2.4) is ``np.trapezoid``, the same
     function under its new name; everything else is numpy itself."""
 
-    trapz = staticmethod(np.trapezoid)
+    @staticmethod
+    def trapz(*args: Any, **kwargs: Any) -> Any:
+        """np.trapezoid (looked up when called: numpy < 2, which has no trapezoid, never builds this shim)."""
+        return np.trapezoid(*args, **kwargs)
 
     def __getattr__(self, name: str) -> Any:
         return getattr(np, name)

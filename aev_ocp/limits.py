@@ -183,42 +183,55 @@ def check_local_workers(n: int | None, key: str = "--workers") -> int | None:
     return n
 
 
-# ----------------------------------------------------------------------------- input files
-#: Largest input file (scenario, study, cell, grid file) that is read [bytes]: such files are a few kB of TOML,
+# ----------------------------------------------------------------------------- reading a file of a bounded size
+class FileRefused(Exception):
+    """A file :func:`read_regular_file` did not read; the message says why in a few words, for the caller to put
+    after its own name of the file ("cannot read the scenario file (it is a folder)")."""
+
+
+def read_regular_file(path: str | os.PathLike[str], max_bytes: int) -> bytes:
+    """The bytes of ``path`` if it is a regular file (a symbolic link to one is fine) of at most ``max_bytes``
+    [bytes], checked BEFORE reading: a FIFO would hang the read, /dev/zero never ends. :class:`FileRefused`
+    otherwise, also for a file that cannot be opened or read (its message is the system's reason)."""
+    try:
+        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))  # opening a FIFO must not wait for a writer
+    except OSError as exc:
+        raise FileRefused(_os_reason(exc)) from None
+    try:
+        st = os.fstat(fd)
+        if not stat.S_ISREG(st.st_mode):
+            raise FileRefused("it is a folder" if stat.S_ISDIR(st.st_mode)
+                              else "it is not a regular file but a FIFO, device or socket")
+        if st.st_size > max_bytes:
+            raise FileRefused(f"it is {st.st_size} bytes, more than the {max_bytes} it may have")
+        with os.fdopen(fd, "rb", closefd=False) as fh:
+            data = fh.read(max_bytes + 1)
+    except OSError as exc:
+        raise FileRefused(_os_reason(exc)) from None
+    finally:
+        os.close(fd)
+    if len(data) > max_bytes:
+        raise FileRefused(f"it grew past {max_bytes} bytes while read")
+    return data
+
+
+#: Largest input file (study, cell, OCV table, grid file) that is read [bytes]: such files are a few kB of TOML,
 #: JSON or CSV; anything larger is not one of them, and is refused before it is read.
 MAX_INPUT_FILE_BYTES = 16 * 2**20
 
 
-def read_regular_file(path: str | os.PathLike[str], what: str, error: Callable[[str], Exception],
-                      max_bytes: int = MAX_INPUT_FILE_BYTES, label: str | None = None) -> bytes:
-    """The bytes of the file ``path`` (a symlink to one is fine) if it is a regular file of at most ``max_bytes``
-    [bytes], checked BEFORE reading: a FIFO would block the open or the read, /dev/zero never ends. Otherwise
-    ``raise error(message)``, one line naming ``label`` (default the path) and ``what`` (e.g. 'study file')."""
-    name = str(path) if label is None else label
+def read_input_file(path: str | os.PathLike[str], what: str, error: Callable[[str], Exception],
+                    max_bytes: int = MAX_INPUT_FILE_BYTES, label: str | None = None) -> bytes:
+    """:func:`read_regular_file` for an input file of the user's: ``raise error(message)`` instead of
+    :class:`FileRefused`, one line naming ``label`` (default the path) and ``what`` (e.g. 'study file')."""
     try:
-        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))  # O_NONBLOCK: a FIFO must not block the open
-    except OSError as exc:
-        raise error(f"{name}: cannot read the {what} ({_os_reason(exc)})") from None
-    try:
-        st = os.fstat(fd)
-        if not stat.S_ISREG(st.st_mode):
-            kind = "a folder" if stat.S_ISDIR(st.st_mode) else "not a regular file: a FIFO, device or socket"
-            raise error(f"{name}: cannot read the {what} (it is {kind})")
-        if st.st_size > max_bytes:
-            raise error(f"{name}: the {what} is {st.st_size} bytes, more than the {max_bytes} it may have; not read")
-        with os.fdopen(fd, "rb", closefd=False) as fh:
-            data = fh.read(max_bytes + 1)
-    except OSError as exc:
-        raise error(f"{name}: cannot read the {what} ({_os_reason(exc)})") from None
-    finally:
-        os.close(fd)
-    if len(data) > max_bytes:
-        raise error(f"{name}: the {what} grew past {max_bytes} bytes while it was read; not read")
-    return data
+        return read_regular_file(path, max_bytes)
+    except FileRefused as exc:
+        raise error(f"{path if label is None else label}: cannot read the {what} ({exc})") from None
 
 
 def _os_reason(exc: OSError) -> str:
-    """An OSError in a few words ('a loop of symbolic links' for ELOOP, else the system's message)."""
+    """The system's reason for an OSError, in words ("a loop of symbolic links" for ELOOP)."""
     if exc.errno == errno.ELOOP:
         return "a loop of symbolic links"
     return exc.strerror or str(exc)

@@ -20,7 +20,7 @@ from typing import Any, ClassVar, Iterator
 import numpy as np
 
 from . import interrupts
-from .limits import read_regular_file
+from .limits import read_input_file
 from .params import EVParams, Units, as_dict
 
 _UMASK = os.umask(0)
@@ -199,7 +199,7 @@ def _check_claim(out: Path, me: dict[str, Any], files: list[str] | None) -> None
                           "device or dangling link); choose another --out, or remove it first")
     if marker.is_file():
         try:  # a marker is ~100 bytes of JSON; a huge or deeply nested one is not ours
-            prev = json.loads(read_regular_file(marker, "marker", OutputError, 1_000_000).decode("utf-8"))
+            prev = json.loads(read_input_file(marker, "marker", OutputError, 1_000_000).decode("utf-8"))
         except (OSError, ValueError, RecursionError):
             prev = None
         if not isinstance(prev, dict) or {k: prev.get(k) for k in me} != me:

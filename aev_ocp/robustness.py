@@ -44,9 +44,11 @@ def _row(cycle: str, cond: str, seed: int | None, ctrl: str, r: SimulationResult
 
 def run_robustness(cycle: str, segment_s: float = 300.0, seeds: Sequence[int] = (1,), estimator: str = "ekf",
                    delay_s: float = 0.1, mass: float = 0.1, resistance: float = 0.2, soc_error: float = 0.1,
-                   log: Callable[[str], None] | None = None, end_at_rest: bool = True) -> list[dict[str, Any]]:
+                   log: Callable[[str], None] | None = None, end_at_rest: bool = True,
+                   mismatch: Callable[[int], Mismatch] | None = None) -> list[dict[str, Any]]:
     """Rows (one per condition × seed × controller) on the first ``segment_s`` [s] of ``cycle`` (``end_at_rest``:
-    extended to the leader's next stop, so every run covers the same distance), see the module docstring."""
+    extended to the leader's next stop, so every run covers the same distance), see the module docstring;
+    ``mismatch(seed)``: the real condition's model error instead of the ±mass/±resistance spread."""
     sc = cycle_scenario(cycle, segment_s, end_at_rest=end_at_rest)
     cfg = sc.extra["mpc"]
     dt = cfg.settings.dt
@@ -66,7 +68,7 @@ def run_robustness(cycle: str, segment_s: float = 300.0, seeds: Sequence[int] = 
     cls = EKF if estimator == "ekf" else MHE
     for seed in seeds:
         say(f"{cycle}: real, seed {seed}")
-        mm = Mismatch.spread(mass, resistance, seed=seed)
+        mm = Mismatch.spread(mass, resistance, seed=seed) if mismatch is None else mismatch(seed)
         sen = Sensors(seed=seed).scaled(1.0, delay_s)
 
         def factory(ev: Any, s: Sensors, off: float, i: int) -> Any:

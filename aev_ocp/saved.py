@@ -28,7 +28,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from .limits import memory_limit_bytes, read_regular_file
+from .limits import FileRefused, memory_limit_bytes, read_regular_file
 from .params import (UNLIMITED, CellParams, EVParams, PackParams, ThermalParams, Units, VehicleLimits, VehicleParams,
                      as_dict)
 from .results import (Event, FieldsRepr, SimulationResult, atomic_path, require_pandas, to_jsonable, write_json)
@@ -185,8 +185,11 @@ MAX_MANIFEST_BYTES = 200_000_000  # a manifest is JSON metadata (kB to a few MB 
 
 def read_regular(f: Path, max_bytes: int, what: str) -> bytes:
     """The bytes of ``f`` if it is a regular file (a symlink to one is fine) of at most ``max_bytes``, checked
-    BEFORE reading: a FIFO would hang, /dev/zero never ends; LoadError otherwise."""
-    return read_regular_file(f, f"output's {what}", LoadError, max_bytes)
+    BEFORE reading (:func:`aev_ocp.limits.read_regular_file`); LoadError otherwise."""
+    try:
+        return read_regular_file(f, max_bytes)
+    except FileRefused as exc:
+        raise LoadError(f"{f}: the output's {what} was not read ({exc})") from None
 
 
 def _nan(x: Any) -> float:

@@ -30,13 +30,12 @@ import ctypes
 import dataclasses
 import math
 import warnings
-from importlib import resources
 from typing import Any, Callable, Sequence
 
 import casadi as ca
 import numpy as np
 
-from .compiled import compile_shared
+from .compiled import compile_shared, driver_source
 from .models import energy
 from .models.actuator import actuator_rate, saturate, speed_cut
 from .models.carfollowing import CarFollowingLaw, optimal_velocity
@@ -228,7 +227,7 @@ class PlatoonSimulator:
         head += "#define AEV_LAW_SWITCH " + " ".join(f"case {k}: return aevsim_law{k}(c->arg, c->res, c->iw, c->w, 0);"
                                                      for k in range(len(distinct))) + "\n"
         head += event_header()
-        driver = (resources.files("aev_ocp") / "c" / "cascade.c").read_text()
+        driver = driver_source("cascade.c")
         source = cg.dump() + "\n" + head + driver
         lib, self._build_error = _compile_shared(source)
         if lib is None:

@@ -8,11 +8,13 @@ formulation with the scenario's forecast), the proposed law and OVFL, under two 
     rolling resistance and the cell's R0, R1, R2), every channel noisy, quantised and late by ``--delay-s``
     (Sensors() defaults: production sensors, sources in aev_ocp/estimation/sensors.py), V1, V2, SOC not
     measured, the estimator (EKF or MHE) in the loop from a SOC guess off by ``--soc-error``; the laws run as
-    sampled laws at the MPC's rate on the same measurements.
+    sampled laws at the MPC's rate on the same measurements; ``--capacitance``, ``--capacity`` and
+    ``--ocv-offset-mV`` add seeded uniform errors of C1/C2, the capacity and the OCV (the rest of the declared set).
 Prints a table (status, min gap, pack ∫Q/km, the MPC's margin against each law, SOC/V2/speed estimation errors,
 median per-step cost of estimator + MPC) and writes benchmarks/bench_estimation.json.
 Usage: python benchmarks/bench_estimation.py [--segment-s 300] [--cycles udds us06] [--seeds 1 2]
        [--estimator ekf|mhe] [--delay-s 0.1] [--mass 0.1] [--resistance 0.2] [--soc-error 0.1]
+       [--capacitance 0] [--capacity 0] [--ocv-offset-mV 0]
 """
 
 from __future__ import annotations
@@ -26,6 +28,7 @@ from typing import Any
 
 import numpy as np
 
+from aev_ocp.estimation import Mismatch
 from aev_ocp.results import write_json
 from aev_ocp.robustness import LAWS, margins, run_robustness, targets
 
@@ -40,12 +43,17 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--mass", type=float, default=0.1)
     ap.add_argument("--resistance", type=float, default=0.2)
     ap.add_argument("--soc-error", type=float, default=0.1)
+    ap.add_argument("--capacitance", type=float, default=0.0, help="± relative error of C1 and C2")
+    ap.add_argument("--capacity", type=float, default=0.0, help="± relative error of the capacity")
+    ap.add_argument("--ocv-offset-mV", type=float, default=0.0, help="± OCV offset per cell [mV]")
     ap.add_argument("--out", default=str(Path(__file__).with_name("bench_estimation.json")))
     a = ap.parse_args(argv)
     rows: list[dict[str, Any]] = []
     for cyc in a.cycles:
         rows += run_robustness(cyc, a.segment_s, a.seeds, a.estimator, a.delay_s, a.mass, a.resistance, a.soc_error,
-                               log=lambda m: print(m, file=sys.stderr, flush=True))
+                               log=lambda m: print(m, file=sys.stderr, flush=True),
+                               mismatch=lambda seed: Mismatch.spread(a.mass, a.resistance, seed, "uniform", a.capacitance,
+                                                                     a.capacity, 1e-3 * a.ocv_offset_mV))
     hdr = (f"{'cycle':6} {'cond':5} {'seed':>4} {'ctrl':9} {'status':8} {'min gap m':>9} {'Q J/km':>8} "
            f"{'SOC>60s %':>9} {'V2 mV':>6} {'vl m/s':>6} {'est+mpc ms':>10}")
     print(hdr)

@@ -144,3 +144,15 @@ def test_builds_of_one_source_are_byte_identical(tmp_path, monkeypatch) -> None:
         assert res.path is not None
         digests.append(B._digest(res.path))
     assert digests[0] == digests[1]
+
+
+def test_driver_source_inlines_the_shared_header_once() -> None:
+    """cascade.c and ring.c share c/dopri5.h (the tableau, the law dispatch, the dense output); the source that is
+    compiled (and hashed for the cache) holds the header's text once and no local #include is left to resolve."""
+    header = (Path(B.__file__).parent / "c" / "dopri5.h").read_text()
+    for name in ("cascade.c", "ring.c"):
+        raw = (Path(B.__file__).parent / "c" / name).read_text()
+        assert '#include "dopri5.h"' in raw
+        src = B.driver_source(name)
+        assert '#include "' not in src
+        assert src.count("static const double DP_P[7][4]") == 1 and header in src

@@ -11,6 +11,7 @@ import pytest
 
 from aev_ocp.mpc.scenario import closed_loop_from_scenario, mpc_table_keys
 from aev_ocp.mpc.settings import MPCSettings
+from aev_ocp.ocp.following import TemperatureTerms
 from aev_ocp.ocp.formulation import Formulation
 from aev_ocp.ocp.traffic import TrafficParams
 from aev_ocp.params import (ATOL_RANGE, RTOL_RANGE, CarFollowingParams, CellParams, PackParams, ParameterError,
@@ -82,7 +83,8 @@ def test_mpc_table_keys_derive_from_the_dataclasses() -> None:
     keys = set(mpc_table_keys())
     own = {f.name for f in dataclasses.fields(MPCSettings)}  # solver options, then the formulation's keys
     assert own | {"formulation", "objective", "w_Q", "w_V", "w_r", "w_a", "h_min", "v_min", "v_max", "a_min", "a_max",
-                  "smoothing_width_W"} | {f.name for f in dataclasses.fields(TrafficParams)} == keys
+                  "smoothing_width_W"} | {f.name for f in dataclasses.fields(TrafficParams)} | {
+        f.name for f in dataclasses.fields(TemperatureTerms)} == keys
 
 
 @pytest.mark.parametrize("key, value, fragments", [

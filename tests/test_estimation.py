@@ -186,14 +186,15 @@ def test_ekf_lead_part_equals_a_linear_kalman_filter() -> None:
 @pytest.mark.parametrize("cycle, soc_guess", [("us06", 0.7), ("udds", 0.9)])
 def test_ekf_soc_error_below_one_percent_after_60_s(cycle: str, soc_guess: float) -> None:
     """From a 10 % SOC error (true 0.8, on the flat LFP plateau) with production sensor noise and 0.1 s delays,
-    the EKF's SOC stays within 1 % of the plant's true SOC from 60 s on (the proposed law drives the cycle)."""
+    the EKF's SOC stays within 1 % of the plant's true SOC from 60 s on (the proposed law drives the cycle). The
+    car starts at rest, so the first voltage is the OCV and the first update already removes most of the error."""
     sc = cycle_scenario(cycle, 90.0)
     loop = ClosedLoop(sc.leader, [sc.law("proposed")], sc.ev, sensors=Sensors(seed=7),
                       estimator=lambda ev, s, off, i: EKF(ev, s, soc0=soc_guess), law_dt=0.2)
     r = loop.run(sc.gaps0, sc.speeds0, sc.t_end)
     est = r.solver_stats[0]["estimation"]
     assert r.status == "ok" and r.controllers[0].startswith("proposed@")  # the law ran sampled on the measurements
-    assert r.meta["estimators"][0]["soc0"] == soc_guess and est["soc_err_max_pct"] > 1.0  # it did start far off
+    assert r.meta["estimators"][0]["soc0"] == soc_guess  # it did start 10 % off
     assert est["soc_err_max_after_60s_pct"] < 1.0
     assert est["lead_speed_err_rms_mps"] < 0.2 and est["gap_err_rms_m"] < 0.2
 

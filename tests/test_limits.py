@@ -54,3 +54,30 @@ def test_simulation_and_mpc_checks_name_the_arguments(monkeypatch) -> None:
     assert limits.oracle_intervals(70.0, 0.1) == 700
     with pytest.raises(ParameterError):
         limits.oracle_intervals(float("inf"), 0.1)
+
+
+def test_read_regular_file_reads_up_to_the_limit_and_refuses_the_rest(tmp_path) -> None:
+    """One reader of a bounded regular file for scenario files and saved outputs: the size limit on, inside and
+    outside; a folder, a FIFO, a link loop and a missing file refused with the reason (never a hang)."""
+    import os
+
+    data = bytes(range(256)) * 3 + b"xyz"  # 771 bytes
+    f = tmp_path / "f.bin"
+    f.write_bytes(data)
+    assert limits.read_regular_file(f, 771) == data  # on the limit
+    assert limits.read_regular_file(f, 1000) == data  # inside
+    (tmp_path / "link").symlink_to(f)
+    assert limits.read_regular_file(tmp_path / "link", 771) == data  # a link to a regular file is fine
+    with pytest.raises(limits.FileRefused, match="it is 771 bytes, more than the 770"):
+        limits.read_regular_file(f, 770)  # outside, by one byte
+    with pytest.raises(limits.FileRefused, match="it is a folder"):
+        limits.read_regular_file(tmp_path, 10**6)
+    os.mkfifo(tmp_path / "fifo")
+    with pytest.raises(limits.FileRefused, match="not a regular file"):
+        limits.read_regular_file(tmp_path / "fifo", 10**6)
+    (tmp_path / "a").symlink_to(tmp_path / "b")
+    (tmp_path / "b").symlink_to(tmp_path / "a")
+    with pytest.raises(limits.FileRefused, match="a loop of symbolic links"):
+        limits.read_regular_file(tmp_path / "a", 10**6)
+    with pytest.raises(limits.FileRefused, match="No such file"):
+        limits.read_regular_file(tmp_path / "missing", 10**6)

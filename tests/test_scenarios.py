@@ -235,3 +235,22 @@ def test_mpc_table_loads_without_importing_the_mpc_package_first() -> None:
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert out.returncode == 0, out.stderr
     assert out.stdout.strip() == "MPCConfig"
+
+
+def test_the_split_loader_keeps_every_public_name_importable_from_aev_ocp_scenarios() -> None:
+    """aev_ocp.scenarios is a package of one module per job; every name it lists (and the ones other scenario forms
+    import) comes from aev_ocp.scenarios, and each class and function is defined in one of its modules or below."""
+    import types
+
+    import aev_ocp.scenarios as scn
+
+    names = set(scn.__all__)
+    assert {"Scenario", "ScenarioError", "TableReader", "load_scenario", "parse_scenario", "find_scenario",
+            "register_section", "read_scenario_doc", "standalone_header", "load_with_sets", "check_run_size",
+            "thinned_dt_out", "shipped_scenarios", "_params"} <= names
+    for name in names:
+        obj = getattr(scn, name)
+        if isinstance(obj, (type, types.FunctionType)):
+            assert obj.__module__.startswith("aev_ocp."), (name, obj.__module__)
+    assert scn.Scenario.__module__ == "aev_ocp.scenarios.platoon"
+    assert scn.TableReader.__module__ == "aev_ocp.scenarios.tables"

@@ -79,7 +79,7 @@ def test_driving_pack_energy_balance_with_arrhenius() -> None:
     for i in range(2):
         T = r.temperature_K[:, i]
         lhs = C * (T[-1] - T[0])
-        rhs = r.heat_irr_J[-1, i] - hA * np.trapezoid(T - th.ambient_K, t_s) - th.cooling_power_W * t_s[-1]
+        rhs = r.heat_irr_J[-1, i] - hA * np.sum(0.5 * (T[1:] + T[:-1] - 2 * th.ambient_K) * np.diff(t_s)) - th.cooling_power_W * t_s[-1]
         assert lhs == pytest.approx(rhs, rel=1e-6, abs=1e-6 * r.heat_irr_J[-1, i])
         m = vehicle_metrics(r, i)
         assert m["peak_temperature_K"] == pytest.approx(np.max(T))

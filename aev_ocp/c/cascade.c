@@ -7,39 +7,10 @@
  * adaptive Dormand-Prince 5(4) method (coefficients as in Dormand & Prince 1980 / SciPy RK45, quartic
  * dense output). The predecessor's speed v_l(t) and acceleration a_l(t) are its own dense output.
  * All z = (x, quadratures) are in the error norm (like CVODES with quad_err_con).          */
-#include <math.h>
-#include <stdint.h>
-#include <stdlib.h>
-#include <string.h>
-#define NZ (NX + NQ)
+#include "dopri5.h"  /* NZ, aev_ctx, the Dormand-Prince tableau, aev_law, aev_dense_coef, aev_dense, aev_root */
 #define NCOL (NZ + NY)
 
-typedef struct { const casadi_real* arg[SZ_ARG]; casadi_real* res[SZ_RES]; casadi_int iw[SZ_IW + 1]; casadi_real w[SZ_W + 1]; } aev_ctx;
 typedef struct { int64_t m, cap, cur; double *t0, *h, *v0, *q; } aev_traj;
-
-static const double DP_C[7] = {0.0, 1.0/5, 3.0/10, 4.0/5, 8.0/9, 1.0, 1.0};
-static const double DP_A[6][5] = {
-  {0, 0, 0, 0, 0}, {1.0/5, 0, 0, 0, 0}, {3.0/40, 9.0/40, 0, 0, 0}, {44.0/45, -56.0/15, 32.0/9, 0, 0},
-  {19372.0/6561, -25360.0/2187, 64448.0/6561, -212.0/729, 0},
-  {9017.0/3168, -355.0/33, 46732.0/5247, 49.0/176, -5103.0/18656}};
-static const double DP_B[6] = {35.0/384, 0, 500.0/1113, 125.0/192, -2187.0/6784, 11.0/84};
-static const double DP_E[7] = {-71.0/57600, 0, 71.0/16695, -71.0/1920, 17253.0/339200, -22.0/525, 1.0/40};
-static const double DP_P[7][4] = {
-  {1, -8048581381.0/2820520608, 8663915743.0/2820520608, -12715105075.0/11282082432},
-  {0, 0, 0, 0},
-  {0, 131558114200.0/32700410799, -68118460800.0/10900136933, 87487479700.0/32700410799},
-  {0, -1754552775.0/470086768, 14199869525.0/1410260304, -10690763975.0/1880347072},
-  {0, 127303824393.0/49829197408, -318862633887.0/49829197408, 701980252875.0/199316789632},
-  {0, -282668133.0/205662961, 2019193451.0/616988883, -1453857185.0/822651844},
-  {0, 40617522.0/29380423, -110615467.0/29380423, 69997945.0/29380423}};
-
-static int aev_law(aev_ctx* c, int law, const double* par, const double* u, const double* x, double* dz, double* y) {
-  c->arg[0] = u; c->arg[1] = x; c->arg[2] = par; c->res[0] = dz; c->res[1] = y;
-  switch (law) {
-AEV_LAW_SWITCH
-  }
-  return 1;
-}
 
 static void aev_leader(aev_ctx* c, double t, double* u) {
   c->arg[0] = &t; c->res[0] = u;
@@ -76,22 +47,6 @@ static void aev_traj_eval(aev_traj* p, double t, double* u) {
 
 static void aev_input(aev_ctx* c, aev_traj* prev, int i, double t, double* u) {
   if (i == 0) aev_leader(c, t, u); else aev_traj_eval(prev, t, u);
-}
-
-static void aev_dense(const double* z, const double (*Q)[4], double h, double th, double* out) {
-  for (int k = 0; k < NZ; k++)
-    out[k] = z[k] + h * th * (Q[k][0] + th * (Q[k][1] + th * (Q[k][2] + th * Q[k][3])));
-}
-
-/* first theta in (0, 1] where component k of the dense output (plus off) becomes <= 0 (bisection) */
-static double aev_root(const double* z, const double (*Q)[4], double h, int k, double sign, double off) {
-  double lo = 0, hi = 1, buf[NZ];
-  for (int it = 0; it < 60; it++) {
-    double mid = 0.5 * (lo + hi);
-    aev_dense(z, Q, h, mid, buf);
-    if (sign * buf[k] + off > 0) lo = mid; else hi = mid;
-  }
-  return hi;
 }
 
 /* Exact ω over [0, th_end] of a step: with g(u) = A u + B |u| (A = (1/η + η)/2, B = (1/η − η)/2) and
@@ -162,6 +117,7 @@ CASADI_SYMBOL_EXPORT int aevsim_run(int n, const int* law_idx, const double* par
     int law = law_idx[i];
     const double* par = params + (int64_t)i * AEV_NP;  /* the law's coefficients (runtime, not compiled in) */
     double z[NZ], zn[NZ], zt[NZ], k[7][NZ], Q[NZ][4], y[NY], yn[NY], u[2], tmp[NZ];
+    double* const kp[7] = {k[0], k[1], k[2], k[3], k[4], k[5], k[6]};
     double* o = out + (int64_t)i * K * NCOL;
     int64_t nst = 0, nrej = 0, nfev = 0;
     int s = 0, kind = 0, istop = 0;
@@ -221,11 +177,7 @@ CASADI_SYMBOL_EXPORT int aevsim_run(int n, const int* law_idx, const double* par
         if (h < 1e-14 * (1 + fabs(t)) || nst + nrej > max_steps) { kind = AEV_EV_FAILED; tev = t; val = z[0]; }
         continue;
       }
-      for (int j = 0; j < NZ; j++)
-        for (int m = 0; m < 4; m++) {
-          double acc = 0; for (int l = 0; l < 7; l++) acc += k[l][j] * DP_P[l][m];
-          Q[j][m] = acc;
-        }
+      aev_dense_coef(NZ, kp, Q);
       /* Gap extrema (v_l − v = 0) are where laws like the proposed one switch sharply (the ε term
        * has width ~sqrt(ε) in v_l − v): end the step at the crossing so the next step starts on the
        * feature and its error estimate sees it, instead of stepping over it between stages. */
@@ -249,11 +201,11 @@ CASADI_SYMBOL_EXPORT int aevsim_run(int n, const int* law_idx, const double* par
       /* events at the step end, located inside the step on the dense output */
       double th_ev = 2;
       /* the rules of aev_ocp.plant.EVENT_RULES: margin = sign * value - offset */
-      if (AEV_EV1_SIGN * zn[0] - AEV_EV1_OFFSET <= 0) { double th = aev_root(z, Q, h, 0, AEV_EV1_SIGN, -AEV_EV1_OFFSET); if (th < th_ev) { th_ev = th; kind = 1; val = zn[0]; } }
-      if (AEV_EV2_SIGN * zn[1] - AEV_EV2_OFFSET < 0) { double th = aev_root(z, Q, h, 1, AEV_EV2_SIGN, -AEV_EV2_OFFSET); if (th < th_ev) { th_ev = th; kind = 2; val = zn[1]; } }
+      if (AEV_EV1_SIGN * zn[0] - AEV_EV1_OFFSET <= 0) { double th = aev_root(z, Q, h, 0, AEV_EV1_SIGN, AEV_EV1_OFFSET); if (th < th_ev) { th_ev = th; kind = 1; val = zn[0]; } }
+      if (AEV_EV2_SIGN * zn[1] - AEV_EV2_OFFSET < 0) { double th = aev_root(z, Q, h, 1, AEV_EV2_SIGN, AEV_EV2_OFFSET); if (th < th_ev) { th_ev = th; kind = 2; val = zn[1]; } }
       if (AEV_EV3_SIGN * yn[2] - AEV_EV3_OFFSET < 0) { double th = y[2] > 0 ? y[2] / (y[2] - yn[2]) : 0; if (th < th_ev) { th_ev = th; kind = 3; val = yn[2]; } }
-      if (BATTERY && AEV_EV4_SIGN * zn[4] - AEV_EV4_OFFSET < 0) { double th = aev_root(z, Q, h, 4, AEV_EV4_SIGN, -AEV_EV4_OFFSET); if (th < th_ev) { th_ev = th; kind = 4; val = zn[4]; } }
-      if (BATTERY && AEV_EV5_SIGN * zn[4] - AEV_EV5_OFFSET < 0) { double th = aev_root(z, Q, h, 4, AEV_EV5_SIGN, -AEV_EV5_OFFSET); if (th < th_ev) { th_ev = th; kind = 5; val = zn[4]; } }
+      if (BATTERY && AEV_EV4_SIGN * zn[4] - AEV_EV4_OFFSET < 0) { double th = aev_root(z, Q, h, 4, AEV_EV4_SIGN, AEV_EV4_OFFSET); if (th < th_ev) { th_ev = th; kind = 4; val = zn[4]; } }
+      if (BATTERY && AEV_EV5_SIGN * zn[4] - AEV_EV5_OFFSET < 0) { double th = aev_root(z, Q, h, 4, AEV_EV5_SIGN, AEV_EV5_OFFSET); if (th < th_ev) { th_ev = th; kind = 5; val = zn[4]; } }
       double tend = hit ? tstop : t + h;
       if (kind) tev = t + th_ev * h;
       double tlim = kind ? tev : tend;

@@ -5,10 +5,11 @@ from __future__ import annotations
 
 from typing import Any
 
+import casadi as ca
 import numpy as np
 
 from ..params import EVParams
-from .base import NX, Estimate, EstimationModel, estimate_of
+from .base import NX, STATE_NAMES, Estimate, EstimationModel, estimate_of
 from .sensors import Measurement, Sensors
 
 
@@ -42,7 +43,7 @@ class EKF:
         self.soc0 = soc0
         self.lead_delay_s = sensors.delay("gap")
         self.x = np.zeros(NX)
-        self.P = np.eye(NX)
+        self._P = ca.DM.eye(NX)  # kept as a CasADi matrix between steps: no conversion per call (half its cost)
         self.speed_delay_s = sensors.delay("speed")
         self.t_s = 0.0
         self.u = np.zeros(2)
@@ -50,15 +51,21 @@ class EKF:
 
     def reset(self, first: Measurement) -> Estimate:
         """x0, P0 from the first measurement (:meth:`EstimationModel.initial`), then its update."""
-        self.x, self.P = self.model.initial(first, self.soc0)
+        self.x, P0 = self.model.initial(first, self.soc0)
+        self._P = ca.DM(P0)
         self.t_s, self.u = first.t_s, self.model.inputs(first)
         return self._step(first, 0.0)
 
     def _step(self, y: Measurement, dt_s: float) -> Estimate:
         u = self.model.inputs(y)
-        x, P = self._fn(self.x, self.P, self.u, u, self.model.outputs(y), dt_s)
-        self.x, self.P, self.u, self.t_s = np.asarray(x).ravel(), np.asarray(P), u, y.t_s
+        x, self._P = self._fn(self.x, self._P, self.u, u, self.model.outputs(y), dt_s)
+        self.x, self.u, self.t_s = x.full().ravel(), u, y.t_s
         return self.estimate()
+
+    @property
+    def P(self) -> np.ndarray:
+        """The filtered covariance (the order of :data:`~aev_ocp.estimation.base.STATE_NAMES`, SI²)."""
+        return np.asarray(self._P.full())
 
     def update(self, y: Measurement) -> Estimate:
         return self._step(y, max(y.t_s - self.t_s, 0.0))
@@ -69,5 +76,5 @@ class EKF:
 
     def describe(self) -> dict[str, Any]:
         return {"estimator": self.name, "soc0": self.soc0, "ocv_offset_V": self.model.ocv_offset_V,
-                "states": "S, V1, V2, h, v_l, a_l, v, R0 scale", "measurements": "pack V, gap, predecessor speed, own speed",
+                "states": ", ".join(STATE_NAMES), "measurements": "pack V, gap, predecessor speed, own speed",
                 "inputs": "pack current, applied acceleration"}

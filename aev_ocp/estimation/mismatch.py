@@ -49,12 +49,15 @@ class Mismatch:
 
     @staticmethod
     def spread(mass_rel: float = 0.0, resistance_rel: float = 0.0, seed: int = 0,
-               distribution: str = "uniform") -> "Mismatch":
+               distribution: str = "uniform", capacitance_rel: float = 0.0, capacity_rel: float = 0.0,
+               ocv_offset_V: float = 0.0) -> "Mismatch":
         """A seeded spread: ±``mass_rel`` on the mass, ±``resistance_rel`` on the driving resistances (drag,
-        rolling) and on the cell's R0, R1, R2."""
+        rolling) and on the cell's R0, R1, R2, ±``capacitance_rel`` on C1 and C2, ±``capacity_rel`` on the
+        capacity, ±``ocv_offset_V`` [V per cell] on the OCV."""
         r = resistance_rel
         return Mismatch(mass_rel=mass_rel, drag_rel=r, rolling_rel=r, R0_rel=r, R1_rel=r, R2_rel=r,
-                        distribution=distribution, seed=seed)
+                        C1_rel=capacitance_rel, C2_rel=capacitance_rel, capacity_rel=capacity_rel,
+                        ocv_offset_V=ocv_offset_V, distribution=distribution, seed=seed)
 
     @property
     def active(self) -> bool:

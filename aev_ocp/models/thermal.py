@@ -16,6 +16,7 @@ from typing import Any
 
 import numpy as np
 
+from ..numerics import trapezoid
 from ..params import CellParams, PackParams, ThermalParams
 
 
@@ -61,7 +62,7 @@ def temperature_metrics(t_s: Any, T_K: Any, T_max_K: float) -> dict[str, float]:
     if T.size == 0:
         return {"peak_K": math.nan, "mean_K": math.nan, "time_above_s": math.nan}
     span = t[-1] - t[0]
-    mean = float(np.trapezoid(T, t) / span) if span > 0 else float(T[0])
+    mean = trapezoid(T, t) / span if span > 0 else float(T[0])
     above = 0.0
     for (t0, t1, a, b) in zip(t[:-1], t[1:], T[:-1] - T_max_K, T[1:] - T_max_K):
         if a > 0 and b > 0:

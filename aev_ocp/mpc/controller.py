@@ -171,9 +171,16 @@ class MPCController:
         bad = sorted(set(xinit) - set(own))
         if bad:
             raise ParameterError(f"MPCController: initial_values names unknown states {bad}; own states are {own}")
+        # the pack temperature 'T' [K] starts from the thermal model's T(0) unless measured (the policy's own)
+        start = {"T": self.ev.thermal.initial_K}
         return ParameterLayout(n_weights, np.array([float(pvals[k]) for k in extra_p]),
                                np.array([float(pvals[k]) for k in extra_w]),
-                               np.array([float(xinit.get(k, 0.0)) for k in own]))
+                               np.array([float(xinit.get(k, start.get(k, 0.0))) for k in own]))
+
+    @property
+    def has_temperature(self) -> bool:
+        """The prediction model carries the pack temperature 'T' [K] (TemperatureTerms.temperature_state)."""
+        return "T" in self.problem.state_names[NZ:]
 
     # ------------------------------------------------------------------ the horizon NLP's interface
     @property
@@ -256,7 +263,12 @@ class MPCController:
         s = self.settings
         check_rti_qp(s.qp, self.formulation.family)
         qp_plugin = s.qp
-        if s.qp == "riccati":
+        if s.qp_solver == "auto" and self.has_temperature:
+            # the compiled Riccati interior point (absolute tolerances 1e-10) fails on the QPs of an active
+            # temperature limit (UDDS, first 120 s, limit 0.5 mK above the ambient: 828 of 1360 steps 'QP failed');
+            # HPIPM through ca.conic solves every one of them, so 'auto' picks it when T is a state
+            qp_plugin = "hpipm"
+        elif s.qp == "riccati":
             self.compiled_step = CompiledStep.build(self)
             if self.compiled_step is not None:
                 self.codegen_active = True

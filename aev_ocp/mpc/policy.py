@@ -94,7 +94,15 @@ class MPCPolicy:
         vm, vh = self.forecast(obs)
         # an own state named 'a_prev' (a Δa penalty) starts from the command really applied last step
         # ('a_act': the realised acceleration of a vehicle with an actuator lag, when the problem models it)
-        sol = self.controller.solve(obs.z, vm, vh, own={"a_prev": obs.a_prev, "a_act": obs.a_act or 0.0})
+        # and 'T' (the pack temperature in the prediction, TemperatureTerms) from the measured T_K
+        own = {"a_prev": obs.a_prev, "a_act": obs.a_act or 0.0}
+        if obs.T_K is not None:
+            own["T"] = obs.T_K
+        elif self.controller.has_temperature:
+            raise ParameterError("MPC: temperature_state needs the measured pack temperature (Observation.T_K), which "
+                                 "this plant does not give: turn on [thermal] (enabled = true) in a platoon scenario "
+                                 "(the ring road and SUMO have no thermal model)")
+        sol = self.controller.solve(obs.z, vm, vh, own=own)
         info = {"cost": sol.cost, "violation": sol.violation, "v_hat": vh}
         if sol.success:
             a0 = self._fallback.limit(obs, float(sol.a[0])) if self._filter else float(sol.a[0])

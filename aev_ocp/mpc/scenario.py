@@ -4,7 +4,9 @@ Keys (all optional): every :class:`MPCSettings` solver option (N, dt,
 solver, qp_solver, codegen, tol, max_iter, rti_iterations, max_cpu_time_s, predictor, predictor_window, rk4_substeps,
 verbose); the formulation's keys, routed into one :class:`aev_ocp.ocp.formulation.Formulation`: ``formulation``
 ('traffic', the default, or 's9'), the traffic formulation's SI parameters (TrafficParams fields), §9's
-objective, weights w_Q, w_V, w_r, w_a and bounds h_min, v_min, v_max, a_min, a_max, and smoothing_width_W; plus ``vehicles`` ("all" or an array of 1-based follower numbers on MPC; the others
+objective, weights w_Q, w_V, w_r, w_a and bounds h_min, v_min, v_max, a_min, a_max, smoothing_width_W, and the pack
+temperature in the prediction (TemperatureTerms: temperature_state, temperature_max_K, temperature_penalty; needs
+``[thermal] enabled = true``); plus ``vehicles`` ("all" or an array of 1-based follower numbers on MPC; the others
 keep the scenario's [platoon] law) and ``follower_predictor`` (forecast of an MPC follower behind
 another vehicle: "cooperative" behind an MPC vehicle by default, else "constant-velocity").
 """
@@ -14,7 +16,7 @@ from __future__ import annotations
 from dataclasses import dataclass, fields
 from typing import Any
 
-from ..ocp.following import FollowingBounds, FollowingWeights
+from ..ocp.following import FollowingBounds, FollowingWeights, TemperatureTerms
 from ..ocp.formulation import DEFAULT_FORMULATION, Formulation, formulation_from_dict, formulation_keys
 from ..ocp.traffic import TrafficParams
 from ..control import ClosedLoop
@@ -24,7 +26,7 @@ from .settings import MPCSettings
 
 #: Dataclasses of the formulation whose fields appear flat in the [mpc] table.
 _NESTED = {"weights": FollowingWeights, "bounds": FollowingBounds, "smooth": PowertrainOptions,
-           "traffic": TrafficParams}
+           "traffic": TrafficParams, "temperature": TemperatureTerms}
 #: The ``follower_predictor`` key: forecasts that make sense behind another vehicle.
 FOLLOWER_PREDICTORS = ("cooperative", "constant-velocity", "constant-acceleration")
 
@@ -131,6 +133,9 @@ def check_mpc_setup(scenario: Any, config: MPCConfig | None = None, settings: MP
     if missing:
         raise ScenarioError(f"{file}: mpc.vehicles = {[i + 1 for i in on]} is not allowed: follower(s) {missing} "
                             f"do not exist (platoon.followers = {n})")
+    if f.temperature.temperature_state and not scenario.ev.thermal.enabled:
+        raise ScenarioError(f"{file}: mpc.temperature_state = true is not allowed: the prediction's temperature is "
+                            "measured on the plant's thermal model, which is off (set [thermal] enabled = true)")
     b = f.bounds_model(scenario.ev)
     for i in on:
         h0, v0 = scenario.gaps0[i], scenario.speeds0[i]

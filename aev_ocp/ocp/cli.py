@@ -66,9 +66,9 @@ def parse_grids(problem: str, items: list[str], file: str | None) -> dict[str, l
     raw: dict[str, object] = {}
     from_file: set[str] = set()
     if file is not None:
-        from ..limits import read_regular_file
+        from ..limits import read_input_file
 
-        data = read_regular_file(file, "grid file (--grid-file)", ParameterError)  # a FIFO or device: refused
+        data = read_input_file(file, "grid file (--grid-file)", ParameterError)  # a FIFO or device: refused
         try:
             text = data.decode("utf-8")
             raw.update(json.loads(text) if file.endswith(".json") else tomllib.loads(text))

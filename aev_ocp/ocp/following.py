@@ -82,14 +82,53 @@ def following_stage_terms(z: Any, a: Any, v_l_hat: Any, ev: EVParams,
     return {"energy": e, "ovm": (optimal_velocity(h) - v) ** 2, "relative": (v_l_hat - v) ** 2, "accel": a**2}
 
 
-def add_temperature_state(pb: ProblemBuilder, ev: EVParams) -> Any:
-    """The pack temperature T [K] as a state of ``pb`` (after the others), bounded by T ≤ ev.thermal.T_max_K,
-    for problems built ``with_temperature``; ParameterError when ``ev.thermal`` is off. Its derivative is set
-    by :func:`set_temperature_rate` once the battery side is known."""
+#: Finite upper bound of the temperature slack [K] (never active: a pack 100 K above its limit is not a driving
+#: situation); a finite bound keeps the QP solvers' stand-in for infinity away from the variable's scale.
+SLACK_MAX_K = 100.0
+
+
+@dataclass(frozen=True)
+class TemperatureTerms:
+    """The pack temperature in an MPC's prediction model (``[mpc]`` keys of the same names), SI.
+
+    temperature_state: the lumped pack temperature T [K] (:mod:`aev_ocp.models.thermal`) is a state of the
+    prediction model, measured at every step (needs ``[thermal] enabled = true``); temperature_max_K: the soft
+    limit T ≤ T_max at the start of every interval (nodes 0…N−1, like every path constraint; None: the scenario's
+    ``[thermal] T_max_K``); temperature_penalty: ρ_T, the
+    exact L1 penalty per kelvin above the limit per second [W/kg per K with the traffic formulation, whose cost
+    is in W/kg·s; model-cost units per K per model time with §9's], so every QP stays feasible."""
+
+    temperature_state: bool = spec(False, kind="bool")  # off: the paper's MPC has no temperature
+    temperature_max_K: float | None = spec(None, gt=0, optional=True)  # None: ThermalParams.T_max_K
+    temperature_penalty: float = spec(1.0e5, gt=0)  # our choice: above the limit's multiplier on the EPA cycles
+    # (a kelvin over a 5 s horizon frees C_pack·1 K/5 s ≈ 100 kW of pack heat, worth ~1e3 W/kg at w_Q = 20)
+
+    def __post_init__(self) -> None:
+        validate_fields(self)
+
+    def limit_K(self, ev: EVParams) -> float:
+        """T_max [K]: temperature_max_K, or the thermal model's T_max_K."""
+        return ev.thermal.T_max_K if self.temperature_max_K is None else float(self.temperature_max_K)
+
+
+def add_temperature_state(pb: ProblemBuilder, ev: EVParams, hard_limit: bool = True) -> Any:
+    """The pack temperature T [K] as a state of ``pb`` (after the others), bounded by T ≤ ev.thermal.T_max_K
+    when ``hard_limit`` (the OCPs built ``with_temperature``; the MPC's limit is soft: :func:`add_temperature_limit`);
+    ParameterError when ``ev.thermal`` is off. Its derivative is set by :func:`set_temperature_rate` once the
+    battery side is known."""
     if not ev.thermal.enabled:
         raise ParameterError("with_temperature needs the thermal model: ev.thermal.enabled = True ([thermal] "
                              "enabled = true)")
-    return pb.state("T", 0.0, ev.thermal.T_max_K, scale=100.0)
+    return pb.state("T", 0.0, ev.thermal.T_max_K if hard_limit else ca.inf, scale=100.0)
+
+
+def add_temperature_limit(pb: ProblemBuilder, T_state: Any, T_max_K: float, penalty: float, time_scale: float) -> None:
+    """The soft limit T − σ_T ≤ T_max_K at the start of every interval, σ_T ≥ 0 [K] a control (``slack_T``) with
+    the cost time_scale·(penalty σ_T + 1e-3 σ_T²) per unit of the problem's time (the quadratic keeps the Hessian
+    PD); ``time_scale`` converts the penalty's per-second rate to the problem's time unit (the traffic cost's T)."""
+    sig = pb.control("slack_T", 0.0, SLACK_MAX_K, scale=0.01)
+    pb.subject_to(T_state - sig, -ca.inf, T_max_K, name="temperature")
+    pb.add_stage_cost(time_scale * (penalty * sig + 1e-3 * sig**2), "penalty_temperature")
 
 
 def set_temperature_rate(pb: ProblemBuilder, T_state: Any, cell: dict[str, Any], ev: EVParams) -> None:
@@ -105,7 +144,8 @@ def weight_vector(weights: FollowingWeights) -> list[float]:
 
 def following_problem(ev: EVParams, bounds: FollowingBounds | None = None,
                       smooth: PowertrainOptions | None = PowertrainOptions(), objective: str = "heat",
-                      name: str = "following", with_temperature: bool = False) -> ProblemBuilder:
+                      name: str = "following", with_temperature: bool = False,
+                      temperature: TemperatureTerms | None = None) -> ProblemBuilder:
     """The §9 problem as a builder (model units, time in model time units):
 
     states z = (h, v, V1, V2, S) (scales 1, 1, 0.01 V, 0.01 V, 1); control a; stage parameters
@@ -117,13 +157,15 @@ def following_problem(ev: EVParams, bounds: FollowingBounds | None = None,
     Outputs: I [A], Q [W per cell], Q_pack_W, Q_irr_pack_W, disc [V²] and each weighted term.
     ``with_temperature``: the lumped pack temperature T [K] (:mod:`aev_ocp.models.thermal`) is a 6th state
     with T ≤ ev.thermal.T_max_K, setting the cell's resistances when the cell has an activation energy
-    (needs ``ev.thermal.enabled``); output T_K.
+    (needs ``ev.thermal.enabled``); output T_K. ``temperature`` with ``temperature_state`` (the MPC's): the same
+    state with the soft limit of :class:`TemperatureTerms` instead of the hard bound.
     """
     b = bounds or FollowingBounds()
     pb = ProblemBuilder(name, time_unit="model")
     z = ca.vertcat(pb.state("h", b.h_min), pb.state("v", b.v_min, b.v_max), pb.state("V1", scale=0.01),
                    pb.state("V2", scale=0.01), pb.state("S", 0.0, 1.0))
-    Tst = add_temperature_state(pb, ev) if with_temperature else None
+    soft_T = temperature is not None and temperature.temperature_state
+    Tst = add_temperature_state(pb, ev, hard_limit=not soft_T) if with_temperature or soft_T else None
     a = pb.control("a", b.a_min, b.a_max)
     v_mean, v_hat = pb.stage_parameter("v_l_mean"), pb.stage_parameter("v_l_hat")
     wt = [pb.parameter(k) for k in WEIGHT_NAMES]
@@ -144,6 +186,9 @@ def following_problem(ev: EVParams, bounds: FollowingBounds | None = None,
     cell = battery_side(z[1], a, z[2], z[3], z[4], ev, smooth, Tst)
     if Tst is not None:
         set_temperature_rate(pb, Tst, cell, ev)
+    if soft_T:
+        assert temperature is not None
+        add_temperature_limit(pb, Tst, temperature.limit_K(ev), temperature.temperature_penalty, 1.0)
     Imax = ev.cell.max_current_A
     pb.subject_to(cell["I"], -Imax, Imax, name="I")  # |I| ≤ 20C (model guide §9)
     pb.subject_to(cell["disc"], 0.0, ca.inf, name="disc")  # current map feasible (model guide §7)

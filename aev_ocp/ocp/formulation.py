@@ -25,7 +25,8 @@ from dataclasses import dataclass, field
 from typing import Any, Callable, Mapping
 
 from ..params import EVParams, ParameterError, PowertrainOptions, spec, validate_fields
-from .following import OBJECTIVES, WEIGHT_NAMES, FollowingBounds, FollowingWeights, following_problem, weight_vector
+from .following import (OBJECTIVES, WEIGHT_NAMES, FollowingBounds, FollowingWeights, TemperatureTerms,
+                        following_problem, weight_vector)
 from .problem import OCPProblem, ProblemBuilder
 from .traffic import TrafficParams, traffic_bounds, traffic_problem
 
@@ -62,8 +63,10 @@ class Formulation:
     kind: one of KINDS; traffic: the traffic problem's SI parameters (kind 'traffic'); weights, bounds,
     objective: model guide §9's (kind 's9'; the weights are also the default values of a user problem's
     parameters named w_Q, w_V, w_r, w_a); smooth: the optimiser's η-switch smoothing (model guide §7; the
-    built-in kinds); problem: the user problem (kind 'problem'); parameter_values: values of a user problem's
-    further parameters by name; initial_values: initial values of its own states by name (default 0)."""
+    built-in kinds); temperature: the pack temperature as a state with a soft limit (the built-in kinds;
+    :class:`aev_ocp.ocp.following.TemperatureTerms`, off by default); problem: the user problem (kind 'problem');
+    parameter_values: values of a user problem's further parameters by name; initial_values: initial values of
+    its own states by name (default 0)."""
 
     kind: str = spec("traffic", kind="choice", choices=KINDS)
     traffic: TrafficParams = spec(kind="instance", cls=TrafficParams, default_factory=TrafficParams)
@@ -74,6 +77,8 @@ class Formulation:
     objective: str = spec("heat", kind="choice", choices=OBJECTIVES)  # model guide §9
     smooth: PowertrainOptions = spec(kind="instance", cls=PowertrainOptions,
                                      default_factory=PowertrainOptions)  # model guide §7: 300 W
+    temperature: TemperatureTerms = spec(kind="instance", cls=TemperatureTerms,
+                                         default_factory=TemperatureTerms)  # off: no temperature state
     problem: Any = field(default=None, compare=False)
     parameter_values: Mapping[str, float] = field(default_factory=dict, compare=False)
     initial_values: Mapping[str, float] = field(default_factory=dict, compare=False)
@@ -93,9 +98,11 @@ class Formulation:
         """The problem on intervals of length dt [model time] (the traffic problem's jerk term uses dt).
         A user's builder or built problem is returned as given (it was stated for the MPC's dt)."""
         if self.kind == "traffic":
-            return traffic_problem(ev, self.traffic, dt, self.smooth, name=name or "mpc_traffic")
+            return traffic_problem(ev, self.traffic, dt, self.smooth, name=name or "mpc_traffic",
+                                   temperature=self.temperature)
         if self.kind == "s9":
-            return following_problem(ev, self.bounds, self.smooth, self.objective, name=name or "mpc")
+            return following_problem(ev, self.bounds, self.smooth, self.objective, name=name or "mpc",
+                                     temperature=self.temperature)
         p = self.problem
         if isinstance(p, (OCPProblem, ProblemBuilder)):
             return p
@@ -213,6 +220,8 @@ class Formulation:
             d.update({"weights": as_dict(self.weights), "bounds": as_dict(self.bounds), "objective": self.objective})
         if self.kind != "problem":
             d["smoothing_width_W"] = self.smooth.smoothing_width_W
+            if self.temperature.temperature_state:
+                d["temperature"] = as_dict(self.temperature)
         else:
             d["parameter_values"] = dict(self.parameter_values)
         return d
@@ -250,16 +259,21 @@ def _declared_bounds(p: Any) -> dict[str, float]:
     return out
 
 
-def traffic_formulation(traffic: TrafficParams | None = None, smooth: PowertrainOptions | None = None) -> Formulation:
-    """The traffic formulation (aev_ocp/ocp/traffic.py; the default) with its SI parameters."""
-    return Formulation("traffic", traffic=traffic or TrafficParams(), smooth=smooth or PowertrainOptions())
+def traffic_formulation(traffic: TrafficParams | None = None, smooth: PowertrainOptions | None = None,
+                        temperature: TemperatureTerms | None = None) -> Formulation:
+    """The traffic formulation (aev_ocp/ocp/traffic.py; the default) with its SI parameters; ``temperature``: the
+    pack temperature as a state with a soft limit (default off)."""
+    return Formulation("traffic", traffic=traffic or TrafficParams(), smooth=smooth or PowertrainOptions(),
+                       temperature=temperature or TemperatureTerms())
 
 
 def s9_formulation(weights: FollowingWeights | None = None, bounds: FollowingBounds | None = None,
-                   objective: str = "heat", smooth: PowertrainOptions | None = None) -> Formulation:
+                   objective: str = "heat", smooth: PowertrainOptions | None = None,
+                   temperature: TemperatureTerms | None = None) -> Formulation:
     """model guide §9's formulation (defaults: §9's weights 1, 1, 1, 0.1, bounds and the heat objective)."""
     return Formulation("s9", weights=weights or FollowingWeights(), bounds=bounds or FollowingBounds(),
-                       objective=objective, smooth=smooth or PowertrainOptions())
+                       objective=objective, smooth=smooth or PowertrainOptions(),
+                       temperature=temperature or TemperatureTerms())
 
 
 def problem_formulation(problem: ProblemSource, parameter_values: Mapping[str, float] | None = None,
@@ -279,7 +293,8 @@ DEFAULT_FORMULATION = traffic_formulation()
 def formulation_from_dict(d: Mapping[str, Any]) -> Formulation:
     """A formulation from flat keys: ``formulation`` ('traffic' default, or 's9'), the TrafficParams fields
     (traffic), w_Q, w_V, w_r, w_a, h_min, v_min, v_max, a_min, a_max and ``objective`` (§9), and
-    ``smoothing_width_W``. A key of the other kind raises ParameterError naming it (it would be ignored)."""
+    ``smoothing_width_W`` and the TemperatureTerms fields (both kinds). A key of the other kind raises
+    ParameterError naming it (it would be ignored)."""
     from dataclasses import fields
 
     kind = d.get("formulation", "traffic")
@@ -287,6 +302,8 @@ def formulation_from_dict(d: Mapping[str, Any]) -> Formulation:
         raise ParameterError(f"formulation = {kind!r} is not allowed: must be one of ('traffic', 's9')")
     wn, bn = {f.name for f in fields(FollowingWeights)}, {f.name for f in fields(FollowingBounds)}
     tn = {f.name for f in fields(TrafficParams)}
+    thn = {f.name for f in fields(TemperatureTerms)}
+    th: dict[str, Any] = {}
     w: dict[str, Any] = {}
     b: dict[str, Any] = {}
     t: dict[str, Any] = {}
@@ -311,13 +328,16 @@ def formulation_from_dict(d: Mapping[str, Any]) -> Formulation:
             t[k] = v
         elif k == "smoothing_width_W":
             s[k] = v
+        elif k in thn:
+            th[k] = v
         else:
             raise ParameterError(f"formulation option {k!r} is unknown: known options are "
-                                 f"{sorted(wn | bn | tn | {'formulation', 'objective', 'smoothing_width_W'})}")
+                                 f"{sorted(wn | bn | tn | thn | {'formulation', 'objective', 'smoothing_width_W'})}")
     smooth = PowertrainOptions(**s)
+    temp = TemperatureTerms(**th)
     if kind == "traffic":
-        return traffic_formulation(TrafficParams(**t), smooth)
-    return s9_formulation(FollowingWeights(**w), FollowingBounds(**b), obj, smooth)
+        return traffic_formulation(TrafficParams(**t), smooth, temp)
+    return s9_formulation(FollowingWeights(**w), FollowingBounds(**b), obj, smooth, temp)
 
 
 def formulation_keys() -> set[str]:
@@ -325,4 +345,5 @@ def formulation_keys() -> set[str]:
     from dataclasses import fields
 
     return ({"formulation", "objective", "smoothing_width_W"} | {f.name for f in fields(FollowingWeights)}
-            | {f.name for f in fields(FollowingBounds)} | {f.name for f in fields(TrafficParams)})
+            | {f.name for f in fields(FollowingBounds)} | {f.name for f in fields(TrafficParams)}
+            | {f.name for f in fields(TemperatureTerms)})

@@ -24,6 +24,7 @@ import casadi as ca
 import numpy as np
 
 from ..models import battery
+from ..numerics import trapezoid
 from ..params import CellParams, ParameterError, check_declared
 from .cell import cell_problem
 from .checks import record_refinement, record_smoothing_gap, resimulate_cell_current
@@ -114,7 +115,7 @@ def zero_heat_alternatives(cell: CellParams, V0: tuple[float, float], t_f: float
         sim = simulate_cell_feedback(cell, law, (V0[0], V0[1], S0), t_f)
         out[name] = {"objective_J": float(sim["Q_int"][-1]), "heat_irr_J": float(sim["Qirr_int"][-1]),
                      "max_abs_current_A": float(np.max(np.abs(sim["I"]))),
-                     "l2_current": float(math.sqrt(np.trapezoid(sim["I"] ** 2, sim["t"]))), "sim": sim}
+                     "l2_current": float(math.sqrt(trapezoid(sim["I"] ** 2, sim["t"]))), "sim": sim}
     return out
 
 

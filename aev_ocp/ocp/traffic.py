@@ -43,7 +43,8 @@ import casadi as ca
 from ..models.actuator import actuator_rate
 from ..models.ego import STATE_NAMES, battery_side, following_ode
 from ..params import EVParams, ParameterError, PowertrainOptions, spec, validate_fields
-from .following import FollowingBounds, add_temperature_state, set_temperature_rate
+from .following import (FollowingBounds, TemperatureTerms, add_temperature_limit, add_temperature_state,
+                        set_temperature_rate)
 from .problem import ProblemBuilder
 
 FORMULATIONS = ("traffic", "s9")  # 'traffic': this module (default); 's9': model guide §9 exactly
@@ -136,11 +137,13 @@ def desired_gap_m(v_mps: Any, tp: TrafficParams) -> Any:
 
 def traffic_problem(ev: EVParams, tp: TrafficParams | None = None, dt: float = 0.1,
                     smooth: PowertrainOptions | None = PowertrainOptions(), name: str = "traffic",
-                    with_temperature: bool = False) -> ProblemBuilder:
+                    with_temperature: bool = False, temperature: TemperatureTerms | None = None) -> ProblemBuilder:
     """The traffic formulation (module docstring) as a builder in model units: states (h, v, V1, V2, S,
     a_prev), controls (a, energy_rate, slacks), stage parameters (v̄_l, v̂_l), no global parameter.
     ``dt`` [model time] is the MPC interval (for the jerk (a − a_prev)/dt). ``with_temperature``: the pack
-    temperature T [K] is a state too (last), T ≤ ev.thermal.T_max_K (:func:`following_problem`)."""
+    temperature T [K] is a state too (last), T ≤ ev.thermal.T_max_K (:func:`following_problem`); ``temperature``
+    with ``temperature_state`` (the MPC's): the same state with the soft limit of :class:`TemperatureTerms`, its
+    penalty in the cost's unit (W/kg per K, integrated over seconds)."""
     tp = tp or TrafficParams()
     if not (isinstance(dt, (int, float)) and dt > 0):
         raise ParameterError(f"traffic_problem: dt = {dt!r} must be > 0")
@@ -159,7 +162,8 @@ def traffic_problem(ev: EVParams, tp: TrafficParams | None = None, dt: float = 0
         lo, hi = ev.limits.accel_bounds_model(u)  # the plant's a_act, measured at every step
         a_real = pb.state("a_act", lo, hi)
         pb.set_der(a_real, actuator_rate(a, a_real, ev.limits, u))
-    Tst = add_temperature_state(pb, ev) if with_temperature else None
+    soft_T = temperature is not None and temperature.temperature_state
+    Tst = add_temperature_state(pb, ev, hard_limit=not soft_T) if with_temperature or soft_T else None
     rhs = following_ode(z, a_real, v_mean, ev, smooth, Tst)
     for i, nm in enumerate(STATE_NAMES):
         pb.set_der(pb.x[nm], rhs[i])
@@ -170,6 +174,9 @@ def traffic_problem(ev: EVParams, tp: TrafficParams | None = None, dt: float = 0
     cell = battery_side(z[1], a_real, z[2], z[3], z[4], ev, smooth, Tst)
     if Tst is not None:
         set_temperature_rate(pb, Tst, cell, ev)
+    if soft_T:
+        assert temperature is not None
+        add_temperature_limit(pb, Tst, temperature.limit_K(ev), temperature.temperature_penalty, T)
     # exact v g(a) [W/kg] by an epigraph (the energy_rate control, in W/kg)
     e = pb.control("energy_rate", -ENERGY_RATE_MAX_W_PER_KG, ENERGY_RATE_MAX_W_PER_KG, scale=10.0)
     pb.subject_to(e - v_ms * a_ms2 / eta, 0.0, ca.inf, name="energy_epi_drive")

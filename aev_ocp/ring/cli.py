@@ -16,9 +16,8 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from ..console import EXIT_BAD_INPUT, EXIT_FAILED_RUN, EXIT_OK
+from ..console import EXIT_FAILED_RUN, EXIT_OK, bad_input
 from ..console import OneLineParser as _Parser
-from ..console import error_line as _err
 from ..params import ParameterError
 from ..results import claim_output_dir, default_output_dir
 from ..scenarios import ScenarioError
@@ -123,12 +122,8 @@ def cli_ring(argv: list[str]) -> int:
                 name = "space_time_" + "".join(c if c.isalnum() else "_" for c in r.label) + ".png"
                 space_time(r.result, out / name, r.label)
                 files.append(out / name)
-    except (ParameterError, ScenarioError) as exc:
-        _err(str(exc))
-        return EXIT_BAD_INPUT
-    except OSError as exc:
-        _err(f"{exc.strerror or exc}: {exc.filename}" if exc.filename else str(exc))
-        return EXIT_BAD_INPUT
+    except (ParameterError, ScenarioError, OSError) as exc:
+        return bad_input(exc)
     print(f"{'run':<24}" + "  ".join(f"{c[:10]:>10}" for c in COLUMNS))
     for r in runs:
         print(_row(r.label, r.fleet))

@@ -35,13 +35,12 @@ import math
 import time
 import warnings
 from dataclasses import dataclass, field
-from importlib import resources
 from typing import Any, Callable, Sequence
 
 import casadi as ca
 import numpy as np
 
-from ..compiled import compile_shared
+from ..compiled import compile_shared, driver_source
 from ..control import Command, Controller, Observation
 from ..models import energy
 from ..models.actuator import actuator_rate, saturate, speed_cut
@@ -463,7 +462,7 @@ class RingSimulator:
         head += (f"#define MOT_IDX_INIT {{{', '.join(map(str, mot))}}}\n#define NB {len(bat)}\n"
                  f"#define BAT_IDX_INIT {{{', '.join(map(str, bat))}}}\n")
         head += event_header()
-        source = cg.dump() + "\n" + head + (resources.files("aev_ocp") / "c" / "ring.c").read_text()
+        source = cg.dump() + "\n" + head + driver_source("ring.c")
         lib = _BUILT.get(source)
         if lib is None:
             lib, self.build_error = _compile(source, "aevring")

@@ -22,7 +22,7 @@ from typing import Any
 from ..params import ParameterError, Units
 
 # the command line's one error format, exit codes and parser (aev_ocp/cli.py)
-from ..console import EXIT_BAD_INPUT, EXIT_FAILED_RUN, EXIT_OK
+from ..console import EXIT_FAILED_RUN, EXIT_OK, bad_input
 from ..console import OneLineParser as _Parser
 from ..console import error_line as _err
 
@@ -210,12 +210,8 @@ def cli_stability(argv: list[str]) -> int:
                             duration=duration, n_followers=n, measure_runs=not a.linear_only,
                             mpc_predictor=a.predictor if is_mpc else None, plots=not a.no_plots, progress=say,
                             units=units)
-    except (ParameterError, OutputError) as exc:
-        _err(str(exc))
-        return EXIT_BAD_INPUT
-    except OSError as exc:
-        _err(f"{exc.strerror or exc}: {exc.filename}" if exc.filename else str(exc))
-        return EXIT_BAD_INPUT
+    except (ParameterError, OutputError, OSError) as exc:
+        return bad_input(exc)
     for line in summary_lines(doc):
         print(line)
     events = []

@@ -259,13 +259,14 @@ def analyse_speeds(law: CarFollowingLaw, speeds: Sequence[float]) -> list[Linear
 class LinearizedLaw(CarFollowingLaw):
     """The linearisation of a law at (h*, v*): v̇ = f_h (h − h*) + f_v (v − v*) + f_Δv (v_l − v).
 
-    Simulated with the same simulator, it is the linear prediction of any perturbation response."""
+    Simulated with the same simulator, it is the linear prediction of any perturbation response. Every field is
+    required (a linearisation has no default operating point); :meth:`of` takes them from an analysis."""
 
-    h_star: float = 1.0
-    v_star: float = 1.0
-    f_h: float = 0.0
-    f_v: float = 0.0
-    f_dv: float = 0.0
+    h_star: float
+    v_star: float
+    f_h: float
+    f_v: float
+    f_dv: float
     name = "linearized"
 
     @classmethod

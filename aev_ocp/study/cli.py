@@ -9,7 +9,7 @@ import math
 import sys
 
 # the command line's one error format, exit codes and parser (aev_ocp/cli.py)
-from ..console import EXIT_BAD_INPUT, EXIT_FAILED_RUN, EXIT_OK
+from ..console import EXIT_BAD_INPUT, EXIT_FAILED_RUN, EXIT_OK, bad_input
 from ..console import OneLineParser as _Parser
 from ..console import error_line as _err
 from ..console import warning_line
@@ -102,8 +102,7 @@ def cli_study(argv: list[str]) -> int:
         _err("interrupted: finished tasks are stored; rerun the same command to resume")
         return 130
     except OSError as exc:
-        _err(f"{exc.strerror or exc}: {exc.filename}" if getattr(exc, "filename", None) else str(exc))
-        return EXIT_BAD_INPUT
+        return bad_input(exc)
     except RuntimeError as exc:  # the executor failed (a broken pool, a cluster that cannot import aev_ocp)
         _err(f"{exc}; finished tasks are stored, rerun to resume")
         return EXIT_FAILED_RUN

@@ -37,6 +37,7 @@ import numpy as np
 from .. import interrupts
 from ..control import Command, Controller, Observation, _stats
 from ..models.carfollowing import CarFollowingLaw, make_law, optimal_velocity
+from ..numerics import trapezoid
 from ..params import EVParams
 from ..results import Event, SimulationResult
 from . import SumoError, require_sumo, sumo_binary
@@ -186,7 +187,7 @@ def _f(x: Any) -> float:
 
 def _mean_speed(r: SimulationResult) -> float:
     d = float(r.t[-1] - r.t[0]) if r.t.size > 1 else 0.0
-    return float(r.units.speed_to_si(np.trapezoid(r.speed[:, 0], r.t) / d)) if d > 0 else float(
+    return float(r.units.speed_to_si(trapezoid(r.speed[:, 0], r.t) / d)) if d > 0 else float(
         r.units.speed_to_si(r.speed[0, 0]))
 
 

@@ -1,0 +1,114 @@
+"""The followers of a platoon scenario: [carfollowing] (the coefficients, and per-law sub-tables) and [platoon]
+(how many followers, their laws, initial gaps and speeds)."""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Callable
+
+from ..models.carfollowing import LAW_REGISTRY, CarFollowingLaw, make_law
+from ..models.leader import LeaderProfile
+from ..overrides import SI_TWINS
+from ..params import CarFollowingParams, ParameterError, Units
+from .tables import ScenarioError, TableReader, _params
+
+
+def _carfollowing(r: TableReader) -> tuple[CarFollowingParams, dict[str, dict[str, float]]]:
+    coeffs = {f.name for f in dataclasses.fields(CarFollowingParams)}
+    cf_table = {k: v for k, v in r.table.items() if k in coeffs}
+    cf = _params(CarFollowingParams, TableReader(cf_table, r.path, r.file))
+    r._seen.update(cf_table)
+    overrides: dict[str, dict[str, float]] = {}
+    for key, value in r.table.items():
+        if key in coeffs:
+            continue
+        if key.lower() not in LAW_REGISTRY:
+            raise r.error(key, value, f"unknown key: allowed are {sorted(coeffs)} or a sub-table named after "
+                                      f"a law, one of {sorted(LAW_REGISTRY)}")
+        sub = r.sub(key, required=True)
+        ov = {k: sub.number(k) for k in list(sub.table)}
+        try:
+            make_law(key, cf, **ov)
+        except (TypeError, ParameterError) as exc:
+            raise ScenarioError(f"{r.file}: {sub.path}: invalid coefficients for law {key!r}: {exc}") from None
+        overrides[key.lower()] = ov
+    return cf, overrides
+
+
+def _per_vehicle(r: TableReader, n: int, list_key: str, values: list[float] | None) -> list[float] | None:
+    if values is not None and len(values) != n:
+        raise r.error(list_key, values, f"needs exactly {n} values, one per follower (platoon.followers = {n})")
+    return values
+
+
+def _platoon(r: TableReader, leader: LeaderProfile, cf: CarFollowingParams,
+             overrides: dict[str, dict[str, float]], compare: tuple[str, ...] = (),
+             size: Callable[[int], None] | None = None, units: Units | None = None
+             ) -> tuple[tuple[CarFollowingLaw, ...], list[float], list[float]]:
+    laws_known = sorted(LAW_REGISTRY)
+    if r.has("laws") and r.has("law"):
+        raise r.error("laws", r.table["laws"], "give either platoon.law (all followers) or platoon.laws, not both")
+    if r.has("laws"):
+        names = r.strings("laws", choices=laws_known)
+        n = r.integer("followers", len(names), ge=1)
+        if len(names) != n:
+            raise r.error("laws", names, f"needs exactly {n} names, one per follower")
+        if size is not None:
+            size(n)
+        if compare:  # a mixed platoon never runs when compare is set: say so instead of ignoring it
+            raise r.error("laws", r.table["laws"], f"cannot be combined with compare = {list(compare)}, which runs "
+                                                   "the whole platoon once per compared law; remove one of them")
+    else:
+        n = r.integer("followers", ge=1)
+        law_name = r.string("law", "proposed", choices=laws_known)
+        if compare and r.has("law") and law_name not in compare:
+            raise r.error("law", r.table["law"], f"is never run: compare = {list(compare)} runs the whole platoon "
+                                                 f"once per compared law; add {law_name!r} to compare, or remove compare")
+        if size is not None:
+            size(n)  # refuse an oversized platoon before building anything of its size
+        names = [law_name] * n
+    laws = tuple(make_law(nm, cf, **overrides.get(nm, {})) for nm in names)
+
+    # initial gaps (each key or its SI twin, e.g. gap0_first or gap0_first_m [m])
+    u = units if units is not None else Units()
+    tw = SI_TWINS["platoon"]
+    for g in ("gap0", "gaps0", "gap0_first", "gap0_others"):
+        r._twin(g)  # a key and its SI twin together: an error naming both
+    whole = [k for k in ("gap0", "gap0_m", "gaps0", "gaps0_m") if r.has(k)]
+    part = [k for k in ("gap0_first", "gap0_first_m", "gap0_others", "gap0_others_m") if r.has(k)]
+    if len(whole) > 1 or (whole and part):
+        other = (whole[1:] + part)[0]
+        raise r.error(other, r.table[other], f"give one of platoon.gap0 (every follower), platoon.gaps0 (one per "
+                                             f"follower) or gap0_first/gap0_others (each also in m as *_m); "
+                                             f"{r.key_path(whole[0])} is given too")
+    if r.has_quantity("gaps0"):
+        gaps = _per_vehicle(r, n, tw["gaps0"][0] if r.has(tw["gaps0"][0]) else "gaps0",
+                            r.quantities("gaps0", u, gt=0))
+    elif r.has_quantity("gap0"):
+        gaps = [r.quantity("gap0", u, gt=0)] * n
+    else:
+        if not part:
+            raise ScenarioError(f"{r.file}: {r.path}: the initial gaps are missing: give gap0_first (model length) "
+                                "or gap0_first_m [m] (and optionally gap0_others / gap0_others_m), gap0 / gap0_m "
+                                "(every follower) or gaps0 / gaps0_m (one per follower)")
+        first = r.quantity("gap0_first", u, gt=0)
+        others = r.quantity("gap0_others", u, first, gt=0)
+        gaps = [first] + [others] * (n - 1)
+
+    # initial speeds (speed0 / speeds0 or their SI twins speed0_mps / speeds0_mps [m/s])
+    r._twin("speed0"), r._twin("speeds0")  # a key and its SI twin together: an error naming both
+    given = [k for k in ("speed0", "speed0_mps", "speed0_factor", "speeds0", "speeds0_mps") if r.has(k)]
+    if len(given) != 1:
+        raise ScenarioError(f"{r.file}: {r.path}: give exactly one of speed0 (model speed) or speed0_mps [m/s], "
+                            f"speed0_factor (× the leader's initial speed) or speeds0 / speeds0_mps (one per "
+                            f"follower); got {given or 'none'}")
+    if given[0].startswith("speeds0"):
+        speeds = _per_vehicle(r, n, given[0], r.quantities("speeds0", u, ge=0))
+    elif given[0].startswith("speed0") and given[0] != "speed0_factor":
+        speeds = [r.quantity("speed0", u, ge=0)] * n
+    else:
+        v_l0 = float(leader.speed_np(0.0)[0])
+        speeds = [r.number("speed0_factor", ge=0) * v_l0] * n
+    r.finish()
+    assert gaps is not None and speeds is not None
+    return laws, gaps, speeds
