@@ -23,7 +23,9 @@ def _interrupted_while_starting(signum: int, frame: Any) -> None:  # noqa: ARG00
     raise SystemExit(130)
 
 
-_ON_MAIN = threading.current_thread() is threading.main_thread()  # handlers can only be set there
+# handlers can only be set on the main thread; a worker process that multiprocessing starts re-imports this module
+# as __mp_main__, and a pool stopping it (SIGTERM) must not make it print the command's 'interrupted' line
+_ON_MAIN = threading.current_thread() is threading.main_thread() and __name__ != "__mp_main__"
 _BEFORE = {s: signal.signal(s, _interrupted_while_starting) for s in (signal.SIGINT, signal.SIGTERM)} if _ON_MAIN else {}
 
 import argparse  # noqa: E402 - after the handler: these imports can be interrupted too
