@@ -22,12 +22,14 @@ from __future__ import annotations
 
 import csv
 import dataclasses
+import io
 import tomllib
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
 from typing import Any
 
+from .limits import read_input_file
 from .params import CellParams, ParameterError, check_ocv_table, field_checks
 
 CHEMISTRIES = ("LFP", "NMC", "NCA")
@@ -63,8 +65,10 @@ def shipped_cells() -> dict[str, Path]:
 
 def _read_csv(path: Path, file: str) -> tuple[list[float], list[float]]:
     try:
-        with path.open(newline="", encoding="utf-8") as fh:
-            rows = list(csv.DictReader(fh))
+        text = read_input_file(path, "OCV table", CellFileError, label=f"{file}: ocv.file = {str(path)!r}")
+        rows = list(csv.DictReader(io.StringIO(text.decode("utf-8"), newline="")))
+    except (UnicodeDecodeError, csv.Error) as exc:
+        raise CellFileError(f"{file}: ocv.file = {str(path)!r} is not a UTF-8 CSV table: {exc}") from None
     except OSError as exc:
         raise CellFileError(f"{file}: ocv.file = {str(path)!r} cannot be read: {exc.strerror or exc}") from None
     try:
@@ -140,6 +144,8 @@ def find_cell(name_or_path: str | Path) -> Path:
     p = Path(name_or_path)
     if p.is_file():
         return p
+    if p.exists():  # a FIFO, device or folder: never opened (a FIFO would hang the read)
+        raise CellFileError(f"cell {str(name_or_path)!r}: cannot read the cell file (it is not a regular file)")
     raise CellFileError(f"cell {str(name_or_path)!r} is neither a shipped cell ({', '.join(shipped)}) nor a file")
 
 
@@ -150,11 +156,9 @@ def load_cell_file(name_or_path: str | Path, base_dir: Path | None = None) -> Ce
         p = base_dir / p
     path = find_cell(p if p.is_file() else name_or_path)
     try:
-        doc = tomllib.loads(path.read_text(encoding="utf-8"))
-    except tomllib.TOMLDecodeError as exc:
-        raise CellFileError(f"{path}: not valid TOML: {exc}") from None
-    except OSError as exc:
-        raise CellFileError(f"{path}: cannot be read: {exc.strerror or exc}") from None
+        doc = tomllib.loads(read_input_file(path, "cell file", CellFileError).decode("utf-8"))
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError, RecursionError) as exc:
+        raise CellFileError(f"{path}: not valid UTF-8 TOML: {exc}") from None
     return parse_cell(doc, str(path), path.parent)
 
 

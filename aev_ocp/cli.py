@@ -11,16 +11,36 @@ never left behind). Set ``AEV_OCP_DEBUG=1`` to get the traceback of an unexpecte
 
 from __future__ import annotations
 
-import argparse
-import dataclasses
-import importlib
+import signal
 import sys
-import warnings
-from pathlib import Path
-from typing import Any, Sequence
+import threading
+from typing import Any
 
-from .console import EXIT_INTERRUPTED as EXIT_INTERRUPTED  # re-exported with the other exit codes
-from .console import EXIT_BAD_INPUT, EXIT_FAILED_RUN, EXIT_OK, OneLineParser, error_line, guarded, warning_line
+
+def _interrupted_while_starting(signum: int, frame: Any) -> None:  # noqa: ARG001 - signal handler signature
+    """Ctrl-C or SIGTERM while the command still imports NumPy, CasADi, ...: the one line, exit 130, no traceback."""
+    print("aev-ocp: error: interrupted", file=sys.stderr, flush=True)
+    raise SystemExit(130)
+
+
+# handlers can only be set on the main thread; a worker process that multiprocessing starts re-imports this module
+# as __mp_main__, and a pool stopping it (SIGTERM) must not make it print the command's 'interrupted' line
+_ON_MAIN = threading.current_thread() is threading.main_thread() and __name__ != "__mp_main__"
+_BEFORE = {s: signal.signal(s, _interrupted_while_starting) for s in (signal.SIGINT, signal.SIGTERM)} if _ON_MAIN else {}
+
+import argparse  # noqa: E402 - after the handler: these imports can be interrupted too
+import dataclasses  # noqa: E402
+import importlib  # noqa: E402
+import warnings  # noqa: E402
+from pathlib import Path  # noqa: E402
+from typing import Sequence  # noqa: E402
+
+from .console import EXIT_INTERRUPTED as EXIT_INTERRUPTED  # noqa: E402 - re-exported with the other exit codes
+from .console import (EXIT_BAD_INPUT, EXIT_FAILED_RUN, EXIT_OK, OneLineParser, error_line, guarded,  # noqa: E402
+                      warning_line)
+
+for _sig, _handler in _BEFORE.items():  # the modules are in: guarded() handles signals from here on
+    signal.signal(_sig, _handler if _handler is not None else signal.SIG_DFL)
 
 _err, _warn, _Parser = error_line, warning_line, OneLineParser
 

@@ -62,6 +62,35 @@ def compiler() -> str | None:
     return shutil.which(cc) or shutil.which("cc")
 
 
+#: How long an interrupted compiler may take to clean up (its temporary .s/.o files) after SIGTERM [s].
+TOOL_STOP_GRACE_S = 2.0
+
+
+def run_tool(cmd: list[str], cwd: str | os.PathLike[str], timeout_s: float) -> subprocess.CompletedProcess[str]:
+    """Run a build tool (the C compiler) with its output captured, in a process group of its own: on a timeout,
+    Ctrl-C or any other exception the WHOLE group gets SIGTERM (gcc then removes its temporary files), SIGKILL
+    after TOOL_STOP_GRACE_S [s], and is reaped before the exception propagates. Killing gcc alone (what
+    subprocess.run does) leaves its cc1/as/ld children running and their temporaries in $TMPDIR."""
+    import signal
+
+    p = subprocess.Popen(cmd, cwd=cwd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                         start_new_session=True)
+    try:
+        out, err = p.communicate(timeout=timeout_s)
+    except BaseException:
+        for sig, wait_s in ((signal.SIGTERM, TOOL_STOP_GRACE_S), (signal.SIGKILL, None)):
+            try:
+                os.killpg(p.pid, sig)
+                p.communicate(timeout=wait_s)
+                break
+            except ProcessLookupError:
+                break
+            except subprocess.TimeoutExpired:
+                continue
+        raise
+    return subprocess.CompletedProcess(cmd, p.returncode, out, err)
+
+
 def _private(d: Path) -> bool:
     """d is a folder owned by us that group/others cannot write to."""
     try:
@@ -202,8 +231,7 @@ def compile_shared(source: str, stem: str, sub: str = "", extra_flags: tuple[str
         more = [k for k in comp if k.endswith(".c")]
         announce(f"compiling {stem} with {Path(cc).name} (once: the library is cached in {d}) …")
         t0 = time.perf_counter()
-        proc = subprocess.run([cc, *flags, "-o", str(tmp), c_file.name, *more, "-lm"], capture_output=True, text=True,
-                              timeout=timeout_s, cwd=build_dir)
+        proc = run_tool([cc, *flags, "-o", str(tmp), c_file.name, *more, "-lm"], build_dir, timeout_s)
         if proc.returncode != 0:
             last = (proc.stderr or proc.stdout).strip().splitlines()
             err = f"{Path(cc).name} failed: {last[-1] if last else 'exit ' + str(proc.returncode)}"

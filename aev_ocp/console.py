@@ -10,12 +10,12 @@ import argparse
 import os
 import sys
 import warnings
-from typing import Callable
+from typing import Any, Callable
 
 from . import interrupts
 from .overrides import OverrideError
 from .params import ParameterError
-from .results import OutputError
+from .results import OutputError, release_output_locks
 from .scenarios import ScenarioError
 
 EXIT_OK, EXIT_FAILED_RUN, EXIT_BAD_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 130
@@ -60,6 +60,14 @@ class _Parser(argparse.ArgumentParser):
         _err(f"{message} (try '{self.prog} --help')")
         raise SystemExit(EXIT_BAD_INPUT)
 
+    def parse_known_args(self, args: Any = None, namespace: Any = None) -> Any:
+        """argparse's, and ``--out ''`` refused (every command's output folder: an empty name, e.g. an unset
+        shell variable, would silently mean the default folder or the current one)."""
+        ns, rest = super().parse_known_args(args, namespace)
+        if getattr(ns, "out", None) == "":
+            self.error("argument --out: an empty folder name (give a folder, or leave --out out for the default)")
+        return ns, rest
+
 
 OneLineParser = _Parser  # public name, used by the ocp and mpc subcommands
 
@@ -81,13 +89,20 @@ def guarded(run: Callable[[], int]) -> int:
         return _guarded(run, debug)
     finally:
         interrupts._state["depth"] = 0
+        release_output_locks()  # the output folders this command claimed are free for the next run
 
 
 def _guarded(run: Callable[[], int], debug: bool) -> int:
     with interrupts.handle_signals(), warnings.catch_warnings():
         warnings.showwarning = _show_warning  # every warning is one line 'aev-ocp: warning: ...'
         try:
-            rc = int(run() or 0)
+            try:
+                rc = int(run() or 0)
+            except Exception:
+                interrupts.check()  # a Ctrl-C that a library turned into another error (CasADi: SystemError)
+                raise
+            if rc == EXIT_INTERRUPTED and interrupts.interrupted():
+                return rc  # the command caught the interrupt and said so itself: one line, not two
             interrupts.check()  # a signal that a solver turned into a failed solve
             return rc
         except SystemExit as exc:

@@ -34,7 +34,26 @@ def check() -> None:
 
 def _handler(signum: int, frame: Any) -> None:  # noqa: ARG001 - signal handler signature
     _state["signal"] = signum
+    if _state.get("defer", 0):  # inside deferred(): raised when the block ends
+        _state["pending"] = signum
+        return
     raise Interrupted(signal.Signals(signum).name)
+
+
+@contextlib.contextmanager
+def deferred() -> Iterator[None]:
+    """A block that a signal must not cut in half (creating a temporary file and entering the code that removes
+    it, starting a cluster that must then be stopped): under :func:`handle_signals`, a SIGINT/SIGTERM arriving
+    inside is recorded and raised as :class:`Interrupted` when the outermost such block ends."""
+    depth = _state.get("defer", 0)
+    _state["defer"] = depth + 1
+    try:
+        yield
+    finally:
+        _state["defer"] = depth
+    pending = _state.pop("pending", 0) if depth == 0 else 0
+    if pending:
+        raise Interrupted(signal.Signals(pending).name)
 
 
 @contextlib.contextmanager
@@ -46,6 +65,7 @@ def handle_signals() -> Iterator[None]:
         yield
         return
     _state["signal"] = 0
+    _state.pop("pending", None)
     old = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
     try:
         for s in old:
@@ -54,3 +74,5 @@ def handle_signals() -> Iterator[None]:
     finally:
         for s, h in old.items():
             signal.signal(s, h if h is not None else signal.SIG_DFL)
+        _state["signal"] = 0  # handled within the block: a later check() outside it must not raise it again
+        _state.pop("pending", None)

@@ -19,6 +19,7 @@ import errno
 import math
 import os
 import stat
+from typing import Callable
 
 from .params import ParameterError, SimOptions
 
@@ -58,8 +59,10 @@ def memory_limit_bytes() -> float:
 
 
 def n_samples(t_end: float, dt_out: float) -> float:
-    """Samples per follower of a run [-]: one per dt_out and at least one per integrator chunk."""
-    return math.ceil(t_end / min(dt_out, SimOptions().chunk)) + 1.0
+    """Samples per follower of a run [-]: one per dt_out and at least one per integrator chunk (inf when the
+    ratio overflows, e.g. t_end = 1e308: such a run is refused by the size checks, never rounded)."""
+    ratio = t_end / min(dt_out, SimOptions().chunk)
+    return math.ceil(ratio) + 1.0 if math.isfinite(ratio) else math.inf
 
 
 def estimate_run_bytes(n_followers: int, t_end: float, dt_out: float) -> float:
@@ -210,6 +213,21 @@ def read_regular_file(path: str | os.PathLike[str], max_bytes: int) -> bytes:
     if len(data) > max_bytes:
         raise FileRefused(f"it grew past {max_bytes} bytes while read")
     return data
+
+
+#: Largest input file (study, cell, OCV table, grid file) that is read [bytes]: such files are a few kB of TOML,
+#: JSON or CSV; anything larger is not one of them, and is refused before it is read.
+MAX_INPUT_FILE_BYTES = 16 * 2**20
+
+
+def read_input_file(path: str | os.PathLike[str], what: str, error: Callable[[str], Exception],
+                    max_bytes: int = MAX_INPUT_FILE_BYTES, label: str | None = None) -> bytes:
+    """:func:`read_regular_file` for an input file of the user's: ``raise error(message)`` instead of
+    :class:`FileRefused`, one line naming ``label`` (default the path) and ``what`` (e.g. 'study file')."""
+    try:
+        return read_regular_file(path, max_bytes)
+    except FileRefused as exc:
+        raise error(f"{path if label is None else label}: cannot read the {what} ({exc})") from None
 
 
 def _os_reason(exc: OSError) -> str:

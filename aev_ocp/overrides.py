@@ -97,6 +97,10 @@ def parse_value(text: str) -> Any:
         value = tomllib.loads(f"v = {text}")["v"]
     except tomllib.TOMLDecodeError:
         return text
+    except (ValueError, RecursionError) as exc:  # an integer of > 4300 digits, arrays nested thousands deep
+        why = "arrays nested too deeply" if isinstance(exc, RecursionError) else "a number of too many digits"
+        raise OverrideError(f"override value {text[:40]!r}{'...' if len(text) > 40 else ''} is not a value any "
+                            f"scenario key takes ({why})") from None
     if not _all_finite(value):
         raise OverrideError(f"override value {text!r} is not a finite number")
     return value

@@ -19,6 +19,8 @@ from typing import Any, ClassVar, Iterator
 
 import numpy as np
 
+from . import interrupts
+from .limits import read_input_file
 from .params import EVParams, Units, as_dict
 
 _UMASK = os.umask(0)
@@ -39,18 +41,22 @@ def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp_name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp" + path.suffix, dir=path.parent)
-    os.close(fd)
-    tmp = Path(tmp_name)
+    tmp: Path | None = None
     try:
+        with interrupts.deferred():  # a Ctrl-C right after mkstemp created the file must not leak it
+            fd, tmp_name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp" + path.suffix, dir=path.parent)
+            os.close(fd)
+            tmp = Path(tmp_name)
         os.chmod(tmp, 0o666 & ~_UMASK)
         yield tmp
         os.replace(tmp, path)
     finally:
-        try:
-            tmp.unlink()
-        except FileNotFoundError:
-            pass
+        if tmp is not None:
+            with interrupts.deferred():
+                try:
+                    tmp.unlink()
+                except FileNotFoundError:
+                    pass
 
 
 def write_atomic(path: str | os.PathLike[str], data: str | bytes) -> Path:
@@ -164,22 +170,37 @@ def default_output_dir(*parts: str, root: str | os.PathLike[str] = "results") ->
 
 
 def claim_output_dir(out: str | os.PathLike[str], command: str, scenario: str, source: str | None,
-                     files: Iterator[str] | list[str] | tuple[str, ...] = ()) -> Path:
+                     files: Iterator[str] | list[str] | tuple[str, ...] | None = None) -> Path:
     """Make ``out`` ready for the files of one run, never clobbering another run's files silently.
 
     The folder gets a marker naming the command, the scenario and its source file. If it already holds
-    a marker of a *different* command/scenario/source, or (without a marker) any of ``files``, an
+    a marker of a *different* command/scenario/source, or (without a marker) any of ``files`` (names or glob
+    patterns such as ``space_time_*.png``; None: the run's files are not listed, so any entry at all), an
     :class:`OutputError` says so: re-running the same scenario into its own folder replaces its files.
     """
     out = Path(out)
     if out.exists() and not out.is_dir():
         raise OutputError(f"output folder {out} exists and is not a folder")
     me = {"command": command, "scenario": scenario, "source": str(Path(source).resolve()) if source else None}
+    files = None if files is None else list(files)
+    _check_claim(out, me, files)  # before anything is written: a refused folder stays as it was
+    out.mkdir(parents=True, exist_ok=True)
+    _acquire_lock(out)  # held until the command ends (release_output_locks): a second run is refused at once
+    _check_claim(out, me, files)  # again under the lock: a run that started meanwhile has written its marker
+    write_json(out / MARKER, me, provenance=False)
+    return out
+
+
+def _check_claim(out: Path, me: dict[str, Any], files: list[str] | None) -> None:
+    """OutputError if ``out`` holds another run's marker or (without a marker) files it did not write."""
     marker = out / MARKER
+    if (marker.exists() or marker.is_symlink()) and not marker.is_file():  # a FIFO, folder, device: not ours
+        raise OutputError(f"output folder {out} holds {MARKER}, which is not a file aev-ocp wrote (a folder, FIFO, "
+                          "device or dangling link); choose another --out, or remove it first")
     if marker.is_file():
-        try:
-            prev = json.loads(marker.read_text(encoding="utf-8"))
-        except (OSError, ValueError):
+        try:  # a marker is ~100 bytes of JSON; a huge or deeply nested one is not ours
+            prev = json.loads(read_input_file(marker, "marker", OutputError, 1_000_000).decode("utf-8"))
+        except (OSError, ValueError, RecursionError):
             prev = None
         if not isinstance(prev, dict) or {k: prev.get(k) for k in me} != me:
             who = (f"'aev-ocp {prev.get('command')}' of scenario {prev.get('scenario')!r} ({prev.get('source')})"
@@ -187,39 +208,68 @@ def claim_output_dir(out: str | os.PathLike[str], command: str, scenario: str, s
             raise OutputError(f"output folder {out} holds the results of {who}; choose another --out, or "
                               f"remove {out} first (files of other runs are never replaced)")
     elif out.is_dir():
-        clash = sorted(f for f in files if (out / f).exists())
+        clash = sorted({p.name for p in out.iterdir() if p.name != LOCK} if files is None else
+                       {p.name for pattern in files for p in out.glob(pattern)})
         if clash:
             raise OutputError(f"output folder {out} already holds {clash[0]}"
-                              f"{f' and {len(clash) - 1} more of the files this run writes' if len(clash) > 1 else ''}, "
+                              f"{f' and {len(clash) - 1} more' if len(clash) > 1 else ''}"
+                              f"{' of the files this run writes' if files is not None else ''}, "
                               "not written by aev-ocp; choose another --out, or remove them first")
-    write_json(marker, me, provenance=False)
-    return out
 
 
 LOCK = ".aev-ocp.lock"  # held (flock) by the one run writing into a folder
+
+
+_HELD_LOCKS: dict[str, int] = {}  # resolved folder -> descriptor of the lock this process holds on it
+
+
+def _acquire_lock(out: Path) -> str | None:
+    """Lock folder ``out`` (it exists) for this process: its key, or None if this process holds it already;
+    OutputError at once if another process holds it."""
+    import fcntl
+
+    key = str(out.resolve())
+    if key in _HELD_LOCKS:
+        return None
+    fd = os.open(out / LOCK, os.O_RDWR | os.O_CREAT, 0o666 & ~_UMASK)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        os.ftruncate(fd, 0)
+        os.write(fd, f"{os.getpid()}\n".encode())
+    except BlockingIOError:
+        os.close(fd)
+        raise OutputError(f"output folder {out} is in use by another aev-ocp run (pid in {out / LOCK}); wait for "
+                          "it to finish or choose another --out") from None
+    except BaseException:
+        os.close(fd)
+        raise
+    _HELD_LOCKS[key] = fd
+    return key
+
+
+def release_output_locks(key: str | None = None) -> None:
+    """Release the folder lock ``key`` (from :func:`_acquire_lock`), or every lock this process holds (None:
+    the end of a command, :func:`aev_ocp.console.guarded`)."""
+    for k in [key] if key is not None else list(_HELD_LOCKS):
+        fd = _HELD_LOCKS.pop(k, None)
+        if fd is not None:
+            os.close(fd)
 
 
 @contextlib.contextmanager
 def output_lock(out: str | os.PathLike[str]) -> Iterator[Path]:
     """Hold an exclusive lock on the folder ``out`` (created if needed) for the block: a second run into the
     same folder gets an :class:`OutputError` at once instead of mixing its files with the first one's.
-    The lock is an flock on ``out/.aev-ocp.lock``: the system releases it when the process ends, however."""
-    import fcntl
-
+    The lock is an flock on ``out/.aev-ocp.lock``: the system releases it when the process ends, however.
+    (:func:`claim_output_dir` takes the same lock; inside this block it is already held.)"""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    fd = os.open(out / LOCK, os.O_RDWR | os.O_CREAT, 0o666 & ~_UMASK)
+    key = _acquire_lock(out)
     try:
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            raise OutputError(f"output folder {out} is in use by another aev-ocp run (pid in {out / LOCK}); wait for "
-                              "it to finish or choose another --out") from None
-        os.ftruncate(fd, 0)
-        os.write(fd, f"{os.getpid()}\n".encode())
         yield out
     finally:
-        os.close(fd)
+        if key is not None:  # a lock this block took (not one its caller holds)
+            release_output_locks(key)
 
 
 def to_jsonable(x: Any) -> Any:

@@ -211,11 +211,36 @@ def _sim_result(label: str, rec: dict[str, Any], arrays: dict[str, np.ndarray]) 
                      None if e.get("time_s") is None else float(e["time_s"]),
                      None if e.get("impact_speed_mps") is None else float(e["impact_speed_mps"]))
 
+    _check_sim_arrays(label, arrays)
+    stats = rec["solver_stats"] or []
+    if not isinstance(stats, list) or not all(s is None or isinstance(s, dict) for s in stats):
+        raise ValueError(f"solver_stats = {str(stats)[:60]!r} is not a list of per-vehicle tables")
+    ctrls, n_veh = rec["controllers"], arrays[f"{label}/gap"].shape[1]
+    if not isinstance(ctrls, list) or len(ctrls) != n_veh or not all(isinstance(c, str) for c in ctrls):
+        raise ValueError(f"controllers = {str(ctrls)[:60]!r} is not a list of {n_veh} controller names, one per vehicle")
     return SimulationResult(**{n: arrays[f"{label}/{n}"] for n in SIM_ARRAYS}, controllers=list(rec["controllers"]),
                             ev=evp, events=[event(e) for e in rec["events"]], jerk_sampled=bool(rec["jerk_sampled"]),
-                            solver_stats=list(rec["solver_stats"] or []), meta=dict(rec["meta"] or {}),
+                            solver_stats=list(stats), meta=dict(rec["meta"] or {}),
                             violations=[event(e) for e in rec.get("violations") or []],
                             temperature_K=arrays.get(f"{label}/temperature_K"))
+
+
+def _check_sim_arrays(label: str, arrays: dict[str, np.ndarray]) -> None:
+    """ValueError unless run ``label``'s arrays have the shapes a SimulationResult has: numbers, t of n >= 1
+    samples, the leader's (n,), every per-vehicle array (n, vehicles) like gap (a damaged or edited file whose
+    SHA-256 was updated would otherwise load as a run with silently wrong numbers)."""
+    t, gap = arrays[f"{label}/t"], arrays[f"{label}/gap"]
+    n = t.shape[0] if t.ndim == 1 else -1
+    want = {"t": (n,), "leader_speed": (n,), "leader_position": (n,), "temperature_K": gap.shape}
+    for name in (*SIM_ARRAYS, "temperature_K"):
+        a = arrays.get(f"{label}/{name}")
+        if a is None and name == "temperature_K":
+            continue
+        shape = want.get(name, gap.shape)
+        if a is None or a.dtype.kind not in "fiub" or a.shape != shape or n < 1 or gap.ndim != 2 or gap.shape[0] != n:
+            got = "missing" if a is None else f"{a.dtype} {a.shape}"
+            raise ValueError(f"array {name!r} is {got}; expected numbers of shape {shape} (t has {n} samples, gap "
+                             f"{gap.shape})")
 
 
 def _ocp_result(label: str, rec: dict[str, Any], arrays: dict[str, np.ndarray]) -> Any:

@@ -120,7 +120,8 @@ def canonical_lib(tmp_path_factory: pytest.TempPathFactory) -> Path:
     from aev_ocp.cli import main
 
     assert main(["mpc-export", "mpc_paper_single", "--out", str(out)]) == 0
-    assert sorted(p.name for p in out.iterdir()) == sorted([*EXPORT_FILES, "aev-ocp-run.json"])  # + the folder marker
+    # + the folder marker and its lock
+    assert sorted(p.name for p in out.iterdir()) == sorted([*EXPORT_FILES, "aev-ocp-run.json", ".aev-ocp.lock"])
     if shutil.which("make"):
         proc = subprocess.run(["make", "-s", "libaev_mpc.so", "mpc_bench"], cwd=out, capture_output=True, text=True)
         assert proc.returncode == 0, proc.stderr

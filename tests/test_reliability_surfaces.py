@@ -164,14 +164,28 @@ def test_stopping_a_pool_ends_its_computing_workers():
     assert [f._state for f in futs if not f.done()] == []
 
 
-def test_a_second_study_into_a_locked_folder_is_refused(tmp_path, capsys):
-    from aev_ocp.results import output_lock
+def _foreign_lock(out: Path) -> int:
+    """Hold the folder lock as another process would: an flock on a descriptor of our own (output_lock is
+    re-entrant within one process, so it cannot stand for a second run)."""
+    import fcntl
 
+    from aev_ocp.results import LOCK
+
+    out.mkdir(parents=True, exist_ok=True)
+    fd = os.open(out / LOCK, os.O_RDWR | os.O_CREAT)
+    fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    return fd
+
+
+def test_a_second_study_into_a_locked_folder_is_refused(tmp_path, capsys):
     out = tmp_path / "o"
-    with output_lock(out):
+    fd = _foreign_lock(out)
+    try:
         rc, err = _run_study(tmp_path, _study(tmp_path), out, capsys)
+    finally:
+        os.close(fd)
     assert rc == 2 and "in use by another aev-ocp run" in one_error(err) and not (out / "points").exists()
-    assert _run_study(tmp_path, _study(tmp_path), out, capsys)[0] == 0  # released with the block
+    assert _run_study(tmp_path, _study(tmp_path), out, capsys)[0] == 0  # released with the other run
 
 
 def test_figures_use_unique_temporaries_and_leave_none_on_interrupt(tmp_path, monkeypatch):
@@ -301,8 +315,8 @@ def _mutate(d: Path, data: st.DataObject) -> None:
     name = data.draw(st.sampled_from([ARRAYS, MANIFEST]))
     f = d / name
     raw = f.read_bytes()
-    how = data.draw(st.sampled_from(["truncate", "bytes", "rename", "json", "npz", "member"]))
-    if how in ("npz", "member"):  # damage inside the arrays file, its SHA-256 updated (the check passes)
+    how = data.draw(st.sampled_from(["truncate", "bytes", "rename", "json", "npz", "member", "array"]))
+    if how in ("npz", "member", "array"):  # damage inside the arrays file, its SHA-256 updated (the check passes)
         import hashlib
         import io
 
@@ -318,7 +332,13 @@ def _mutate(d: Path, data: st.DataObject) -> None:
             with zipfile.ZipFile(buf, "w") as dst:
                 for n in names:
                     body = src.read(n)
-                    if n == victim:
+                    if n == victim and how == "array":  # a valid .npy of another shape or type
+                        arr = np.zeros(data.draw(st.lists(st.integers(0, 4), max_size=3)),
+                                       dtype=data.draw(st.sampled_from(["f8", "i4", "U2", "c16", "?"])))
+                        out = io.BytesIO()
+                        np.save(out, arr)
+                        body = out.getvalue()
+                    elif n == victim:
                         n, body = data.draw(st.sampled_from([("proposed/renamed.npy", body),
                                                              (n, body[:len(body) // 2]), (n, b"\x93NUMPY junk")]))
                     dst.writestr(n, body)
@@ -357,9 +377,14 @@ def test_fuzz_damaged_saved_folders_give_load_error_only(saved, tmp_path, data):
         _mutate(d, data)
         for fn in (load, load_all):
             try:
-                fn(d)
+                got = fn(d)
             except LoadError as exc:  # the only exception allowed; it names the folder or one of its files
                 assert str(d) in str(exc)
+                continue
+            for r in got.values() if isinstance(got, dict) else [got]:  # what loads is a consistent run
+                n = r.t.shape[0]
+                assert r.t.shape == (n,) and r.leader_speed.shape == (n,) and r.gap.shape == r.speed.shape == (n, 1)
+                assert np.isfinite(r.metrics()[0]["omega_model"])
     finally:
         shutil.rmtree(d.parent)
 
@@ -388,7 +413,8 @@ def test_set_on_an_axis_key_nan_and_newline_are_refused(tmp_path, capsys):
 def _trace_scenario(tmp_path: Path, trace: Path) -> Path:
     f = tmp_path / "trace.toml"
     f.write_text(f'name = "tr"\n[leader]\nkind = "trace"\nfile = "{trace}"\ntime_column = "t"\n'
-                 'speed_column = "v"\n[platoon]\nfollowers = 1\n[simulation]\nt_end_s = 2.0\n')
+                 'speed_column = "v"\n[platoon]\nfollowers = 1\ngap0_first = 1.0\nspeed0_factor = 1.0\n[simulation]\n'
+                 't_end_s = 2.0\n')
     return f
 
 
@@ -576,3 +602,528 @@ def test_a_silent_scheduler_fails_after_the_connect_timeout(monkeypatch):
             c.close()
         srv.close()
     assert time.perf_counter() - t0 < 15.0 and held  # it did connect, and gave up on its own
+
+
+# ----------------------------------------------------------------------------- re-probe (issue 28, second round)
+def test_trace_is_read_only_as_far_as_the_run_needs(tmp_path, capsys):
+    """A trace leader is read up to twice (t_end + the MPC look-ahead): a damaged row far past that is never read
+    (so the file is not read to its end), while the samples the run uses are exactly those of a full read."""
+    from aev_ocp.models.leader import read_trace_csv
+    from aev_ocp.params import ParameterError
+    from aev_ocp.scenarios import load_scenario
+
+    f = tmp_path / "long.csv"
+    rows = [f"{0.1 * i:.1f},{10 + (i % 7) * 0.25}" for i in range(3000)]  # 300 s at 0.1 s
+    rows[2500] = "250.0,not-a-number"  # at 250 s: far past what a 3.5 s run needs
+    f.write_text("t,v\n" + "\n".join(rows) + "\n")
+    with pytest.raises(ParameterError, match="row 2502"):
+        read_trace_csv(f, time_column="t", speed_column="v")  # the whole file: the damaged row is found
+    t, v = read_trace_csv(f, time_column="t", speed_column="v", t_max_s=7.25)
+    assert t.size == 74 and t[-1] == pytest.approx(7.3) and v[73] == 10 + (73 % 7) * 0.25
+    sc = _trace_scenario(tmp_path, f)
+    sc.write_text(sc.read_text().replace("t_end_s = 2.0", "t_end_s = 3.5"))
+    s = load_scenario(sc)
+    need_s = 2 * (3.5 + s.units.time_to_si(25 * 0.1))  # twice (t_end + MPCSettings' default look-ahead N dt)
+    assert s.leader.times[-1] * s.units.time_s == pytest.approx(np.ceil(need_s * 10 - 1e-9) / 10)  # 1st sample past it
+    rc, _, err = run_cli(["simulate", str(sc), "--no-plots", "--out", str(tmp_path / "o")], capsys)
+    assert rc == 0, err
+    sc.write_text(sc.read_text().replace("t_end_s = 3.5", "t_end_s = 260.0"))  # a run that reaches the bad row
+    rc, _, err = run_cli(["simulate", str(sc), "--no-plots", "--out", str(tmp_path / "o2")], capsys)
+    assert rc == 2 and "row 2502" in one_error(err)
+
+
+@pytest.mark.parametrize("argv, what", [
+    (["study", "{f}", "--in-process"], "study file"),
+    (["ocp", "current-profile", "--grid-file", "{f}", "--out", "{d}/o"], "grid file"),
+    (["ocp", "prop31", "--cell", "{f}", "--out", "{d}/o"], "cell file"),
+])
+@pytest.mark.parametrize("kind", ["fifo", "dev-zero"])
+def test_input_files_that_are_no_regular_files_are_refused_unread(tmp_path, capsys, argv, what, kind):
+    f = tmp_path / "input.toml"
+    if kind == "fifo":
+        os.mkfifo(f)
+    else:
+        f.symlink_to("/dev/zero")
+    t0 = time.perf_counter()
+    rc, _, err = run_cli([a.replace("{f}", str(f)).replace("{d}", str(tmp_path)) for a in argv], capsys)
+    line = one_error(err)
+    assert rc == 2 and what in line and "not a regular file" in line and time.perf_counter() - t0 < 5.0
+
+
+def test_input_file_size_is_checked_before_reading(tmp_path, monkeypatch):
+    from aev_ocp import limits
+    from aev_ocp.study import StudyError, read_study
+
+    f = tmp_path / "big.toml"
+    with f.open("wb") as fh:  # sparse: 20 MB stated, nothing written
+        fh.truncate(20 * 2**20)
+    reads = []
+    monkeypatch.setattr(limits.os, "fdopen", lambda *a, **k: reads.append(a) or open(*a, **k))  # noqa: SIM115
+    with pytest.raises(StudyError, match=f"is {20 * 2**20} bytes, more than the {limits.MAX_INPUT_FILE_BYTES}"):
+        read_study(f)
+    assert reads == []  # refused from its stated size, not read
+
+
+@pytest.mark.parametrize("argv", [
+    ["simulate", "table1", "--set", "simulation.t_end=1.5", "--set", "platoon.followers=2", "--no-plots"],
+    ["mpc-export", "mpc_paper_single"],
+    ["stability", "--law", "ovm", "--linear-only", "--no-plots"],
+    ["ring", "sugiyama", "--t-end-s", "3", "--no-plots"],
+])
+def test_every_command_refuses_a_folder_another_run_is_writing(tmp_path, capsys, argv):
+    out = tmp_path / "o"
+    fd = _foreign_lock(out)
+    try:
+        rc, _, err = run_cli([*argv, "--out", str(out)], capsys)
+    finally:
+        os.close(fd)
+    assert rc == 2 and "in use by another aev-ocp run" in one_error(err)
+    assert sorted(p.name for p in out.iterdir()) == [".aev-ocp.lock"]  # nothing written beside the lock
+
+
+def test_claim_holds_the_lock_until_the_command_ends_and_is_reentrant(tmp_path, capsys):
+    import fcntl
+
+    from aev_ocp.results import LOCK, claim_output_dir, output_lock, release_output_locks
+
+    done = tmp_path / "done"  # a command that returned has released its folder: a second process may write
+    assert run_cli(["stability", "--law", "ovm", "--linear-only", "--no-plots", "--out", str(done)], capsys)[0] == 0
+    os.close(_foreign_lock(done))
+    out = tmp_path / "o"
+    with output_lock(out):  # a study holds the lock and claims its own folder inside it
+        claim_output_dir(out, "study", "s", None, ["table.csv"])
+    fd = os.open(out / LOCK, os.O_RDWR)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)  # released with the block
+        fcntl.flock(fd, fcntl.LOCK_UN)
+        claim_output_dir(out, "study", "s", None, ["table.csv"])
+        with pytest.raises(BlockingIOError):  # held after the claim returned: the command is still running
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        release_output_locks()
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    finally:
+        os.close(fd)
+
+
+@pytest.mark.parametrize("setup, argv, word", [
+    ("fifo-marker", ["simulate", "table1", "--no-plots", "--set", "simulation.t_end=1.5"], "not a file aev-ocp wrote"),
+    ("prop31.json", ["ocp", "prop31", "--N", "20", "--no-refine"], "prop31.json"),
+    ("notes.txt", ["ocp", "prop31", "--N", "20", "--no-refine"], "notes.txt"),
+    ("space_time_all_human.png", ["ring", "sugiyama", "--t-end-s", "3"], "space_time_all_human.png"),
+])
+def test_outputs_not_listed_or_odd_markers_never_replace_a_users_entry(tmp_path, capsys, setup, argv, word):
+    from aev_ocp.results import MARKER
+
+    out = tmp_path / "o"
+    out.mkdir()
+    f = out / (MARKER if setup == "fifo-marker" else setup)
+    if setup == "fifo-marker":
+        os.mkfifo(f)
+    else:
+        f.write_bytes(b"mine")
+    rc, _, err = run_cli([*argv, "--out", str(out)], capsys)
+    assert rc == 2 and word in one_error(err)
+    assert sorted(p.name for p in out.iterdir()) == [f.name]
+    assert setup == "fifo-marker" or f.read_bytes() == b"mine"
+
+
+@pytest.mark.parametrize("argv, word", [
+    (["simulate", "table1", "--set", "simulation.t_end=1e308"], "simulation.t_end"),
+    (["stability", "--law", "ovm", "--ring", "22", "--density-per-km", "0"], "--density-per-km"),
+    (["stability", "--law", "ovm", "--ring", "22", "--density-per-km", "nan"], "--density-per-km"),
+    (["ring", "sugiyama", "--seed", "-1"], "--seed"),
+    (["simulate", "table1", "--set", "simulation.t_end=" + "9" * 5000], "simulation.t_end"),
+])
+def test_absurd_numbers_are_bad_input(tmp_path, capsys, argv, word):
+    rc, _, err = run_cli([*argv, "--out", str(tmp_path / "o")], capsys)
+    line = one_error(err)
+    assert rc == 2 and word in line and "internal error" not in line and "Error:" not in line
+
+
+def test_study_mpc_horizon_over_the_budget_is_refused_before_any_task(tmp_path, capsys):
+    f = _study(tmp_path, text=STUDY + '[[controllers.mpc]]\nlabel = "m"\nN = 100000000\n')
+    rc, err = _run_study(tmp_path, f, tmp_path / "o", capsys)
+    line = one_error(err)
+    assert rc == 2 and "controller m" in line and "N = 100000000" in line and not (tmp_path / "o").exists()
+
+
+def test_store_rebuilds_a_folder_entry_and_a_points_file(tmp_path):
+    from aev_ocp.study import read_study, run_study
+
+    study = read_study(_study(tmp_path))
+    out = tmp_path / "o"
+    first = run_study(study, out, executor="inprocess", report=False)
+    drop = lambda rows: [{k: v for k, v in r.items() if k != "wall_s"} for r in rows]  # noqa: E731
+    f = sorted((out / "points").glob("*.json"))[0]
+    f.unlink()
+    (f / "inner").mkdir(parents=True)  # a folder under an entry's name
+    with pytest.warns(UserWarning, match="1 stored result"):
+        again = run_study(study, out, executor="inprocess", report=False)
+    assert drop(again.rows) == drop(first.rows) and f.is_file()
+    shutil.rmtree(out / "points")
+    (out / "points").write_text("not a folder")
+    with pytest.warns(UserWarning, match="4 stored result"):
+        third = run_study(study, out, executor="inprocess", report=False)
+    assert drop(third.rows) == drop(first.rows) and len(list((out / "points").glob("*.json"))) == 4
+
+
+@pytest.mark.parametrize("name, bad", [("t", np.arange(3.0)), ("gap", np.zeros((2, 2, 2))), ("speed", np.array(["a"])),
+                                       ("heat_J", None)])
+def test_saved_arrays_of_the_wrong_shape_or_type_are_a_load_error(saved, tmp_path, name, bad):
+    import hashlib
+    import io
+
+    from aev_ocp import load
+    from aev_ocp.saved import ARRAYS, MANIFEST, LoadError
+
+    d = _copy(saved, tmp_path)
+    with zipfile.ZipFile(d / ARRAYS) as z:
+        members = {n: z.read(n) for n in z.namelist()}
+    key = f"proposed/{name}.npy"
+    if bad is None:
+        del members[key]
+    else:
+        buf = io.BytesIO()
+        np.save(buf, bad)
+        members[key] = buf.getvalue()
+    with zipfile.ZipFile(d / ARRAYS, "w") as z:
+        for n, b in members.items():
+            z.writestr(n, b)
+    m = json.loads((d / MANIFEST).read_text())
+    m["arrays_sha256"] = hashlib.sha256((d / ARRAYS).read_bytes()).hexdigest()  # the SHA check passes
+    (d / MANIFEST).write_text(json.dumps(m))
+    with pytest.raises(LoadError, match=name):
+        load(d)
+
+
+def test_unknown_report_metrics_are_named_in_a_warning(tmp_path, capsys):
+    f = _study(tmp_path, text=STUDY + '[report]\nmetrics = ["omega_model", "omgea_model"]\npareto = [["heat_pack_J", "frob"]]\n')
+    rc, _, err = run_cli(["study", str(f), "--out", str(tmp_path / "o"), "--in-process"], capsys)
+    warn = [ln for ln in err.splitlines() if "not columns of the table" in ln]
+    assert rc == 0 and len(warn) == 1 and "'frob', 'omgea_model'" in warn[0] and "heat_pack_J'" not in warn[0]
+
+
+def test_an_interrupt_the_command_reported_is_one_line(capsys):
+    import signal
+
+    from aev_ocp.console import EXIT_INTERRUPTED, guarded, error_line
+
+    def command() -> int:
+        try:
+            os.kill(os.getpid(), signal.SIGINT)
+            time.sleep(1.0)
+        except KeyboardInterrupt:
+            error_line("interrupted: finished tasks are stored")
+            return EXIT_INTERRUPTED
+        return 0
+
+    assert guarded(command) == EXIT_INTERRUPTED
+    from aev_ocp import interrupts
+
+    interrupts.check()  # handled: a later check (a study's progress in this process) does not raise it again
+    err = capsys.readouterr().err
+    assert err.count("aev-ocp: error:") == 1 and "finished tasks are stored" in err
+
+
+def _group_alive(pgid: int) -> list[int]:
+    """Live (non-zombie) processes of process group ``pgid`` (Linux /proc)."""
+    alive = []
+    for p in Path("/proc").iterdir():
+        if p.name.isdigit():
+            try:
+                stat = (p / "stat").read_text().rsplit(")", 1)[-1].split()
+            except OSError:
+                continue
+            if int(stat[2]) == pgid and stat[0] not in ("Z", "X"):
+                alive.append(int(p.name))
+    return alive
+
+
+def test_an_interrupted_dask_local_study_stops_its_cluster(tmp_path):
+    """Ctrl-C while a --dask-local 2 study computes: exit 130, one error line, and within a few seconds no process
+    of the study's process group is left (the LocalCluster's scheduler, nannies and workers), no Dask scratch
+    folder in $TMPDIR and no temporary file in the output folder; the finished tasks are stored."""
+    pytest.importorskip("dask.distributed")
+    import signal
+    import subprocess
+    import sys
+
+    values = ", ".join(f"{0.3 + 0.01 * i:.2f}" for i in range(40))
+    text = STUDY.replace("[0.35, 0.9]", f"[{values}]").replace('"simulation.t_end" = 1.5', '"simulation.t_end" = 60.0')
+    f = _study(tmp_path, text=text)
+    out, tmp = tmp_path / "o", tmp_path / "tmp"
+    tmp.mkdir()
+    env = {**os.environ, "TMPDIR": str(tmp), "PYTHONPATH": str(Path(__file__).resolve().parents[1])}
+    p = subprocess.Popen([sys.executable, "-m", "aev_ocp.cli", "study", str(f), "--out", str(out), "--dask-local", "2",
+                          "--no-report"], env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                         start_new_session=True)
+    try:
+        deadline = time.monotonic() + 90.0  # the cluster has started and computes: the first results are stored
+        while not list((out / "points").glob("[0-9a-f]*.json")) and time.monotonic() < deadline and p.poll() is None:
+            time.sleep(0.2)
+        assert p.poll() is None and len(_group_alive(p.pid)) >= 3  # the study, and its cluster's processes
+        p.send_signal(signal.SIGINT)
+        _, err = p.communicate(timeout=60)
+        deadline = time.monotonic() + 10.0
+        while _group_alive(p.pid) and time.monotonic() < deadline:
+            time.sleep(0.2)
+        left = _group_alive(p.pid)
+    finally:
+        if p.poll() is None:
+            os.killpg(p.pid, signal.SIGKILL)
+        for pid in _group_alive(p.pid):
+            os.kill(pid, signal.SIGKILL)
+    assert p.returncode == 130 and "interrupted" in one_error(err)
+    assert left == [], f"{len(left)} process(es) of the study still running"
+    assert list(tmp.iterdir()) == [] and not [q for q in out.rglob("*") if ".tmp" in q.name]
+    assert 0 < len(list((out / "points").glob("[0-9a-f]*.json"))) < 80  # stored so far; a rerun resumes
+
+
+def _descendants(pid: int) -> set[int]:
+    """Live processes below ``pid`` (Linux /proc), but multiprocessing's resource tracker (one per process, for
+    the process's whole life: not a worker)."""
+    parent: dict[int, int] = {}
+    for p in Path("/proc").iterdir():
+        if p.name.isdigit():
+            try:
+                stat = (p / "stat").read_text().rsplit(")", 1)[-1].split()
+                tracker = b"resource_tracker" in (p / "cmdline").read_bytes()
+            except OSError:
+                continue
+            if stat[0] not in ("Z", "X") and not tracker:
+                parent[int(p.name)] = int(stat[1])
+    out, frontier = set(), {pid}
+    while frontier:
+        frontier = {c for c, pp in parent.items() if pp in frontier} - out
+        out |= frontier
+    return out
+
+
+def test_run_dask_closes_the_local_cluster_it_started_when_interrupted(tmp_path):
+    """In-process: the interrupt reaches _run_dask while the cluster computes; before this process ends, the
+    cluster's processes are gone (closed by the study, not reaped at exit)."""
+    pytest.importorskip("dask.distributed")
+    from aev_ocp.study import read_study
+    from aev_ocp.study.runner import _run_dask
+
+    specs = [t.spec for t in read_study(_study(tmp_path)).tasks()]
+    before = _descendants(os.getpid())
+
+    def done(res: dict) -> None:  # Ctrl-C as the first result arrives
+        assert _descendants(os.getpid()) - before  # the cluster runs
+        raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        _run_dask(specs, 2, None, done)
+    deadline = time.monotonic() + 10.0
+    while _descendants(os.getpid()) - before and time.monotonic() < deadline:
+        time.sleep(0.2)
+    assert _descendants(os.getpid()) - before == set()
+
+
+def test_a_stopped_compiler_takes_its_children_and_temporaries_with_it(tmp_path):
+    """run_tool (every C build: the cached libraries and mpc-export --build) stops the compiler's whole process
+    group: a child it started (cc1/as in gcc's case) does not run on, and the TERM it gets first lets it remove
+    its temporary file, as gcc does."""
+    import subprocess
+
+    from aev_ocp.compiled import run_tool
+
+    tmpf, pidf = tmp_path / "cc123.s", tmp_path / "child.pid"
+    script = (f'trap "rm -f {tmpf}; exit 143" TERM; touch {tmpf}; sleep 60 & echo $! > {pidf}; wait')
+    t0 = time.perf_counter()
+    with pytest.raises(subprocess.TimeoutExpired):
+        run_tool(["sh", "-c", script], tmp_path, 1.0)
+    assert time.perf_counter() - t0 < 1.0 + 3.0
+    child = int(pidf.read_text())
+    deadline = time.monotonic() + 3.0
+    while _computing(child) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert not _computing(child) and not tmpf.exists()
+    ok = run_tool(["sh", "-c", "echo built; echo warn >&2"], tmp_path, 10.0)
+    assert (ok.returncode, ok.stdout, ok.stderr) == (0, "built\n", "warn\n")
+
+
+_ENTRY_DAMAGE = st.sampled_from(["empty", "junk", "list", "nested", "swap", "edit", "folder", "fifo", "link", "utf16",
+                                 "missing_key", "huge_number"])
+
+
+@pytest.mark.filterwarnings("ignore:study tiny")  # the rerun says which entries it computes again
+@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(damage=st.lists(st.tuples(st.integers(0, 3), _ENTRY_DAMAGE), min_size=1, max_size=4))
+def test_fuzz_damaged_store_entries_are_recomputed_to_the_same_table(stored_study, tmp_path, damage):
+    """Whatever happens to a finished study's stored entries, a rerun gives the same table (wall times aside) and
+    leaves a store whose every entry verifies."""
+    import tempfile
+
+    from aev_ocp.study import Store, run_study
+
+    study, first = stored_study
+    out = Path(tempfile.mkdtemp(dir=tmp_path)) / "o"
+    shutil.copytree(first.folder, out)
+    files = sorted((out / "points").glob("*.json"))
+    for k, how in damage:
+        f = files[k]
+        if f.is_dir():
+            shutil.rmtree(f)
+        elif f.exists() or f.is_symlink():
+            text = f.read_text(errors="replace") if f.is_file() else "{}"
+            f.unlink()
+            if how == "swap":
+                f.write_bytes(files[(k + 1) % 4].read_bytes() if files[(k + 1) % 4].is_file() else b"{}")
+            elif how == "edit":
+                f.write_text(text.replace('"omega_model": ', '"omega_model": 1', 1))
+            elif how == "huge_number":
+                f.write_text(text.replace('"status": "ok"', '"status": 1' + "0" * 5000, 1))
+            elif how == "missing_key":
+                f.write_text(text.replace('"metrics"', '"metricz"', 1))
+            else:
+                {"empty": lambda: f.write_bytes(b""), "junk": lambda: f.write_bytes(b"\xff\x00junk"),
+                 "list": lambda: f.write_text("[1, 2]"), "nested": lambda: f.write_text("[" * 50_000 + "]" * 50_000),
+                 "folder": lambda: (f / "x").mkdir(parents=True), "fifo": lambda: os.mkfifo(f),
+                 "link": lambda: f.symlink_to("/dev/zero"), "utf16": lambda: f.write_bytes(text.encode("utf-16"))}[how]()
+    again = run_study(study, out, executor="inprocess", report=False)
+    drop = lambda rows: [{k: v for k, v in r.items() if k != "wall_s"} for r in rows]  # noqa: E731
+    assert drop(again.rows) == drop(first.rows)
+    store = Store(out)
+    assert all(store.get(f.stem) is not None for f in files) and store.damaged == []
+
+
+@pytest.fixture(scope="module")
+def stored_study(tmp_path_factory):
+    """A finished tiny study (4 tasks), read once for the store fuzz."""
+    from aev_ocp.study import read_study, run_study
+
+    d = tmp_path_factory.mktemp("study")
+    study = read_study(_study(d))
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return study, run_study(study, d / "o", executor="inprocess", report=False)
+
+
+def test_an_interrupt_right_after_the_temporary_is_created_leaves_nothing(tmp_path, monkeypatch):
+    """The window between mkstemp creating the file and the code that removes it: a Ctrl-C there is held back
+    (interrupts.deferred) until the removal is armed, so it still interrupts and leaves no temporary."""
+    import signal
+    import tempfile
+
+    from aev_ocp import interrupts
+    from aev_ocp.results import write_atomic
+
+    real = tempfile.mkstemp
+
+    def mkstemp(*a, **k):  # noqa: ANN002, ANN003, ANN202
+        out = real(*a, **k)
+        os.kill(os.getpid(), signal.SIGINT)  # Python runs the handler at the next instruction: before the return
+        return out
+
+    monkeypatch.setattr(tempfile, "mkstemp", mkstemp)
+    with interrupts.handle_signals():
+        with pytest.raises(KeyboardInterrupt):
+            write_atomic(tmp_path / "x.json", "{}")
+        assert interrupts.interrupted() == signal.SIGINT
+    assert list(tmp_path.iterdir()) == []
+    monkeypatch.setattr(tempfile, "mkstemp", real)
+    with interrupts.handle_signals():  # no signal: deferred() changes nothing
+        write_atomic(tmp_path / "x.json", "{}")
+    assert [p.name for p in tmp_path.iterdir()] == ["x.json"]
+
+
+def test_ctrl_c_while_the_command_is_still_importing_is_one_line_and_130(tmp_path):
+    """A Ctrl-C in the first ~0.3 s of 'aev-ocp ...' lands in the imports of NumPy and CasADi: one line, exit 130,
+    no traceback (the signal is sent from inside the import of aev_ocp.console, deterministically)."""
+    import subprocess
+    import sys
+
+    code = ("import importlib.abc, os, signal, sys\n"
+            "class Hook(importlib.abc.MetaPathFinder):\n"
+            "    def find_spec(self, name, path, target=None):\n"
+            "        if name == 'aev_ocp.console':\n"
+            "            os.kill(os.getpid(), signal.SIGINT)\n"
+            "        return None\n"
+            "sys.meta_path.insert(0, Hook())\n"
+            "sys.argv = ['aev-ocp', 'scenarios']\n"
+            "import runpy; runpy.run_module('aev_ocp.cli', run_name='__main__')\n")
+    env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])}
+    p = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=60, cwd=tmp_path)
+    assert (p.returncode, p.stderr) == (130, "aev-ocp: error: interrupted\n")
+
+
+@pytest.mark.parametrize("argv, word", [
+    (["simulate", "table1", "--out", ""], "--out: an empty folder name"),
+    (["study", "studies/kappa_alpha_table1.toml", "--out", ""], "--out: an empty folder name"),
+    (["stability", "--law", "ovm", "--out", ""], "--out: an empty folder name"),
+    (["sumo", "sumo_ring", "--out", ""], "--out: an empty folder name"),
+    (["sumo", "sumo_ring", "--bogus"], "unrecognized arguments: --bogus"),
+    (["study", "{study}", "--scheduler", "nonsense", "--out", "{d}/o"], "is not a Dask scheduler address"),
+    (["ocp", "current-profile", "--grid-file", "{grid}", "--out", "{d}/o"], "--grid-file {grid}: grid E_req"),
+    (["ocp", "current-profile", "--grid-file", "{json}", "--out", "{d}/o"], "--grid-file {json}: not valid JSON"),
+])
+def test_more_bad_input_is_one_line_naming_it(tmp_path, capsys, monkeypatch, argv, word):
+    monkeypatch.chdir(Path(__file__).resolve().parents[1])  # studies/ and the shipped names
+    (tmp_path / "g.toml").write_text("E_req = [1e400]\n")
+    (tmp_path / "g.json").write_text("[1, 2]\n")
+    subs = {"{d}": str(tmp_path), "{grid}": str(tmp_path / "g.toml"), "{json}": str(tmp_path / "g.json"),
+            "{study}": str(_study(tmp_path))}
+
+    def fill(a: str) -> str:
+        for k, v in subs.items():
+            a = a.replace(k, v)
+        return a
+
+    rc, _, err = run_cli([fill(a) for a in argv], capsys)
+    assert rc == 2 and fill(word) in one_error(err)
+    assert not (tmp_path / "o").exists()
+
+
+def test_ctrl_c_while_the_pool_starts_its_workers_waits_until_all_can_be_stopped(tmp_path, monkeypatch):
+    """submit() starts the pool's worker processes: a Ctrl-C in the middle (which left a half-started worker the
+    pool did not know, and the exit hung on it) is raised once every task is submitted; then every worker stops."""
+    import signal
+    from concurrent.futures import ProcessPoolExecutor
+
+    from aev_ocp import interrupts
+    from aev_ocp.study import read_study
+    from aev_ocp.study.runner import _run_pool
+
+    specs = [t.spec for t in read_study(_study(tmp_path)).tasks()]
+    real, calls = ProcessPoolExecutor.submit, []
+
+    def submit(self, *a, **k):  # noqa: ANN001, ANN002, ANN003, ANN202
+        calls.append(1)
+        if len(calls) == 1:
+            os.kill(os.getpid(), signal.SIGINT)
+        return real(self, *a, **k)
+
+    monkeypatch.setattr(ProcessPoolExecutor, "submit", submit)
+    before = _descendants(os.getpid())
+    with interrupts.handle_signals():
+        with pytest.raises(KeyboardInterrupt):
+            _run_pool(specs, 2, lambda res: None)
+    assert len(calls) == len(specs) == 4
+    deadline = time.monotonic() + 10.0
+    while _descendants(os.getpid()) - before and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert _descendants(os.getpid()) - before == set()
+
+
+def test_a_ctrl_c_a_library_turned_into_another_error_is_an_interrupt(capsys):
+    """CasADi's SWIG layer turns a KeyboardInterrupt raised inside DM.__array__ into a SystemError: still exit 130
+    and 'interrupted', not 'internal error'."""
+    import signal
+
+    from aev_ocp.console import EXIT_INTERRUPTED, guarded
+
+    def command() -> int:
+        try:
+            os.kill(os.getpid(), signal.SIGINT)
+            time.sleep(1.0)
+        except KeyboardInterrupt:
+            raise SystemError("<function DM.__array__> returned a result with an exception set") from None
+        return 0
+
+    assert guarded(command) == EXIT_INTERRUPTED
+    err = capsys.readouterr().err
+    assert err == "aev-ocp: error: interrupted\n"

@@ -297,7 +297,8 @@ def _column(header: list[str], name: str, what: str, where: str) -> int:
 def read_trace_csv(source: Any, *, time_column: str = "time", speed_column: str | None = None,
                    position_column: str | None = None, time_unit: str = "s", speed_unit: str = "m/s",
                    position_unit: str = "m", max_gap_s: float | None = MAX_GAP_S, filter_column: str | None = None,
-                   filter_value: Any = None, label: str | None = None) -> tuple[np.ndarray, np.ndarray]:
+                   filter_value: Any = None, label: str | None = None,
+                   t_max_s: float | None = None) -> tuple[np.ndarray, np.ndarray]:
     """A recorded trajectory from a CSV file (header row, then one row per sample): times [s] from 0 and
     speeds [m/s], validated.
 
@@ -307,7 +308,9 @@ def read_trace_csv(source: Any, *, time_column: str = "time", speed_column: str 
     filter_column/filter_value keep only the rows of one vehicle (NGSIM/highD files hold many).
     Times are shifted to start at 0. ParameterError names the file, the row (as a spreadsheet counts
     them: the header is row 1) and the column for a missing or non-finite value, a time that does not
-    increase, a negative speed or a sampling gap larger than ``max_gap_s`` [s] (None: no check)."""
+    increase, a negative speed or a sampling gap larger than ``max_gap_s`` [s] (None: no check).
+    t_max_s [s]: read only up to the first sample at or past t_max_s after the first one (what a run of that
+    length needs); later rows are neither read nor checked (None: the whole file)."""
     name = label or str(getattr(source, "name", source))
     if (speed_column is None) == (position_column is None):
         raise ParameterError(f"trace {name}: give exactly one of speed_column and position_column")
@@ -327,7 +330,7 @@ def read_trace_csv(source: Any, *, time_column: str = "time", speed_column: str 
         with source.open(newline="", encoding="utf-8-sig") as fh:  # utf-8-sig: a BOM (spreadsheet export) is fine
             try:
                 return _trace_rows(csv.reader(fh), name, time_column, speed_column, position_column, time_unit,
-                                   speed_unit, position_unit, max_gap_s, filter_column, filter_value)
+                                   speed_unit, position_unit, max_gap_s, filter_column, filter_value, t_max_s)
             except csv.Error as exc:  # e.g. a field longer than csv.field_size_limit() (128 KiB)
                 raise ParameterError(f"trace {name}: not a valid CSV file ({exc})") from None
     except OSError as exc:
@@ -338,8 +341,10 @@ def read_trace_csv(source: Any, *, time_column: str = "time", speed_column: str 
 
 def _trace_rows(reader: Any, name: str, time_column: str, speed_column: str | None, position_column: str | None,
                 time_unit: str, speed_unit: str, position_unit: str, max_gap_s: float | None,
-                filter_column: str | None, filter_value: Any) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`read_trace_csv` on a csv.reader, row by row (memory: two float64 per kept sample)."""
+                filter_column: str | None, filter_value: Any,
+                t_max_s: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`read_trace_csv` on a csv.reader, row by row (memory: two float64 per kept sample), stopping after
+    the first sample at or past ``t_max_s`` [s] from the first one."""
     first = next(reader, None)
     if first is None:
         raise ParameterError(f"trace {name}: the file is empty (expected a header row, then one row per sample)")
@@ -370,6 +375,8 @@ def _trace_rows(reader: Any, name: str, time_column: str, speed_column: str | No
         t_list.append(vals[0])
         v_list.append(vals[1])
         line_no.append(k)
+        if t_max_s is not None and (vals[0] - t_list[0]) * TIME_UNITS[time_unit] >= t_max_s and len(t_list) >= 2:
+            break  # the run needs no later sample
     what = f" with {filter_column} = {filter_value!r}" if filter_column is not None else ""
     if len(t_list) < 2:
         raise ParameterError(f"trace {name}: needs at least 2 samples{what}, found {len(t_list)}")

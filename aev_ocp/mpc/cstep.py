@@ -325,14 +325,17 @@ def _config_qp_defines(src: Path) -> list[str]:
 
 def build_library(src: Path, out_lib: Path, cc: str | None = None, flags: tuple[str, ...] = ("-O2",)) -> Path:
     """Compile the export folder's C sources into a shared library (ExportError naming the cause)."""
-    from ..compiled import compiler
+    from ..compiled import compiler, run_tool
 
     cc = cc or compiler()
     if cc is None:
         raise ExportError("no C compiler found (set $CC or install gcc/cc) to build the exported MPC")
     cmd = [cc, *flags, *_config_qp_defines(Path(src)), "-fPIC", "-shared", "-o", str(out_lib), "mpc_casadi.c",
            "mpc_step.c", "ocp_qp.c", "-lm"]
-    proc = subprocess.run(cmd, cwd=src, capture_output=True, text=True, timeout=900)
+    try:
+        proc = run_tool(cmd, src, 900.0)
+    except subprocess.TimeoutExpired:
+        raise ExportError("building the exported MPC took more than 900 s; stopped") from None
     if proc.returncode != 0:
         last = (proc.stderr or proc.stdout).strip().splitlines()
         raise ExportError(f"building the exported MPC failed: {last[-1] if last else proc.returncode}")

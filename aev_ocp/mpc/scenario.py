@@ -101,6 +101,12 @@ def validate_mpc_table(r: Any) -> MPCConfig:
     except ParameterError as exc:  # a cross-field rule of a nested dataclass (e.g. v_min < v_max)
         key = next((k for k in d if f".{k} " in str(exc)), None)
         raise ScenarioError(f"{r.file}: {r.key_path(key) if key else r.path}: {exc}") from None
+    from ..limits import check_mpc_size
+
+    try:  # one MPC vehicle's NLP within the memory budget, wherever an [mpc] table is read (mpc, mpc-export, study)
+        check_mpc_size(settings.N, 1)
+    except ParameterError as exc:
+        raise r.error("N", settings.N, str(exc)) from None
     return MPCConfig(settings, vehicles, fp, formulation)
 
 

@@ -64,21 +64,27 @@ def parse_grids(problem: str, items: list[str], file: str | None) -> dict[str, l
     from .api import GRIDS
 
     raw: dict[str, object] = {}
+    from_file: set[str] = set()
     if file is not None:
-        text = Path(file).read_text(encoding="utf-8")
+        from ..limits import read_input_file
+
+        data = read_input_file(file, "grid file (--grid-file)", ParameterError)  # a FIFO or device: refused
         try:
+            text = data.decode("utf-8")
             raw.update(json.loads(text) if file.endswith(".json") else tomllib.loads(text))
-        except (ValueError, tomllib.TOMLDecodeError) as exc:
+        except (ValueError, TypeError, tomllib.TOMLDecodeError, RecursionError) as exc:  # TypeError: JSON not a table
             raise ParameterError(f"--grid-file {file}: not valid {'JSON' if file.endswith('.json') else 'TOML'}: "
                                  f"{exc}") from None
+        from_file = set(raw)
     for item in items:
         name, sep, spec = item.partition("=")
         if not sep or not spec.strip():
             raise ParameterError(f"--grid {item!r} is not NAME=V1,V2,... (e.g. --grid E_req=1000,2000)")
         raw[name.strip()] = [v.strip() for v in spec.split(",")]
+        from_file.discard(name.strip())  # the command line over the file
     out: dict[str, list[float]] = {}
     for name, vals in raw.items():
-        where = f"grid {name}"
+        where = f"--grid-file {file}: grid {name}" if name in from_file else f"grid {name}"
         if name not in GRIDS:
             raise ParameterError(f"{where}: unknown grid; known grids are {sorted(GRIDS)} "
                                  f"({', '.join(f'{k} [{u}]' for k, (u, _) in GRIDS.items())})")

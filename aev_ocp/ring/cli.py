@@ -66,6 +66,8 @@ def cli_ring(argv: list[str]) -> int:
     try:
         if a.t_end_s is not None and not (math.isfinite(a.t_end_s) and 0 < a.t_end_s <= 36_000):
             raise ParameterError(f"--t-end-s {a.t_end_s!r}: must be in (0, 36000] s")
+        if a.seed is not None and a.seed < 0:  # NumPy's generators take seeds >= 0 only
+            raise ParameterError(f"--seed {a.seed}: must be an integer >= 0")
         sc = None
         if a.experiment not in ("sugiyama", "stern", "sweep"):
             from .experiments import run_ring_scenario
@@ -76,7 +78,7 @@ def cli_ring(argv: list[str]) -> int:
             a.t_end_s = 600.0 if a.t_end_s is None else a.t_end_s
         out = Path(a.out) if a.out else default_output_dir("ring", sc.name if sc is not None else a.experiment)
         claim_output_dir(out, "ring", sc.name if sc is not None else a.experiment,  # before any work
-                         str(sc.source) if sc is not None and sc.source else None, ["ring.json"])
+                         str(sc.source) if sc is not None and sc.source else None, ["ring.json", "space_time_*.png"])
         runs: list[Any]
         doc: dict[str, Any] = {"experiment": a.experiment, "t_end_s": a.t_end_s, "seed": a.seed}
         if sc is not None:
@@ -142,6 +144,8 @@ def cli_ring_stability(law: Any, n: int, spacing_m: float | None, density_per_km
 
     if (spacing_m is None) == (density_per_km is None):
         raise ParameterError("--ring: give the spacing with --spacing-m or the density with --density-per-km (one)")
+    if density_per_km is not None and not (math.isfinite(density_per_km) and density_per_km > 0):
+        raise ParameterError(f"--density-per-km {density_per_km!r}: must be a finite number of vehicles per km > 0")
     spacing = spacing_m if spacing_m is not None else 1000.0 / float(density_per_km)  # type: ignore[arg-type]
     if not (math.isfinite(spacing) and spacing > vehicle_length_m):
         raise ParameterError(f"--spacing-m/--density-per-km: spacing {spacing:g} m must exceed the vehicle length "

@@ -3,6 +3,7 @@ the paper's leader, a drive cycle, arrays of times and speeds, or a recorded tra
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import Any
 
@@ -15,14 +16,15 @@ from .tables import ScenarioError, TableReader
 LEADER_KINDS = ("constant", "paper", "cycle", "array", "trace")
 
 
-def _trace(r: TableReader, units: Units, source: Path | None) -> LeaderProfile:
+def _trace(r: TableReader, units: Units, source: Path | None, t_max_s: float | None = None) -> LeaderProfile:
     """[leader] kind = "trace": a recorded trajectory in a CSV file, relative to the scenario file."""
     file = r.string("file")
     path = Path(file)
     if not path.is_absolute():
         path = (source.parent if source is not None else Path.cwd()) / path
     if not path.is_file():
-        raise r.error("file", file, f"no such file ({path}); a relative path starts at the scenario file's folder")
+        raise r.error("file", file, f"not a regular file ({path}: a FIFO, device or folder)" if path.exists() else
+                      f"no such file ({path}); a relative path starts at the scenario file's folder")
     speed, position = r.string("speed_column", None), r.string("position_column", None)
     if speed is not None and position is not None:
         raise r.error("position_column", position, "give speed_column or position_column, not both")
@@ -44,17 +46,31 @@ def _trace(r: TableReader, units: Units, source: Path | None) -> LeaderProfile:
             raise r.error("filter_value", value, "expected a string or a number")
         kw["filter_value"] = value
     try:
-        t, v = read_trace_csv(path, label=file, **kw)
+        t, v = read_trace_csv(path, label=file, t_max_s=t_max_s, **kw)
     except ParameterError as exc:
         raise ScenarioError(f"{r.file}: {r.key_path('file')}: {exc}") from None
     return trace_leader(t, v, units, "trace")
 
 
-def _leader(r: TableReader, units: Units, source: Path | None = None) -> LeaderProfile:
+def trace_read_s(doc: dict[str, Any], t_end: float, units: Units) -> float:
+    """How much of a trace leader's file a run reads [s]: twice (the horizon t_end [model time] + the MPC's look-ahead
+    N·dt of the [mpc] table, at least MPCSettings' default): a 10^7-row recording is not read to its end for a
+    2 s run, and an MPC forecast or a longer horizon set in Python still finds the recorded speeds."""
+    from ..mpc.settings import MPCSettings
+
+    d = MPCSettings()
+    mpc: dict[str, Any] = doc["mpc"] if isinstance(doc.get("mpc"), dict) else {}
+    n, dt = mpc.get("N", d.N), mpc.get("dt", d.dt)
+    ok = all(isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) and x > 0 for x in (n, dt))
+    look = max(float(n) * float(dt) if ok else 0.0, d.N * d.dt)
+    return 2.0 * units.time_to_si(t_end + look)
+
+
+def _leader(r: TableReader, units: Units, source: Path | None = None, t_max_s: float | None = None) -> LeaderProfile:
     kind = r.string("kind", choices=LEADER_KINDS)
     leader: LeaderProfile
     if kind == "trace":
-        leader = _trace(r, units, source)
+        leader = _trace(r, units, source, t_max_s)
         r.finish()
         return leader
     try:

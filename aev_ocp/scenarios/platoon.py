@@ -18,7 +18,7 @@ from ..overrides import SI_TWINS, apply_to_document
 from ..params import CarFollowingParams, EVParams, ParameterError, SimOptions, Units
 from ..results import check_safe_name
 from .followers import _carfollowing, _platoon
-from .leader import _leader
+from .leader import _leader, trace_read_s
 from .sections import _SECTIONS, STANDALONE_SECTIONS, _check_top_level
 from .size import check_run_size, thinned_dt_out
 from .tables import ScenarioError, ScenarioWarning, TableReader, read_declared
@@ -234,7 +234,7 @@ def parse_scenario(doc: dict[str, Any], file: str = "<scenario>", *, source: Pat
     sim.finish()
 
     cf, overrides = _carfollowing(top.sub("carfollowing"))
-    leader = _leader(top.sub("leader", required=True), units, source)
+    leader = _leader(top.sub("leader", required=True), units, source, trace_read_s(doc, t_end, units))
     sized: dict[str, float] = {}
 
     def size(n: int) -> None:

@@ -83,6 +83,10 @@ def cli_study(argv: list[str]) -> int:
 
             _err(dask_missing_message())
             return EXIT_BAD_INPUT
+        if a.scheduler is not None:
+            from .runner import check_scheduler_address
+
+            check_scheduler_address(a.scheduler)  # before the folder is claimed
         kw = {"executor": "dask", "workers": a.dask_local, "scheduler": a.scheduler}
     else:
         kw = {"executor": "pool", "workers": a.workers}

@@ -236,12 +236,28 @@ def _pareto_groups(study: Study, rows: list[dict[str, Any]]) -> list[tuple[str, 
             for key, g in groups.items()]
 
 
+def _warn_unknown_metrics(study: Study, rows: list[dict[str, Any]]) -> None:
+    """A [report] metric that is no column of the table (a typo) gives no figure: say so, once, instead of nothing."""
+    columns = {k for r in rows for k in r}
+    rep = study.report
+    asked = [*rep.get("metrics", []), *(m for pair in rep.get("pareto", []) for m in pair),
+             rep.get("change_metric", "omega_model"), *rep.get("pareto_by", [])]
+    unknown = sorted({m for m in asked if m not in columns})
+    if rows and unknown:
+        import warnings
+
+        metrics = sorted(k for k in columns if isinstance(rows[0].get(k), float))[:12]
+        warnings.warn(f"study {study.name}: [report] names {unknown}, not columns of the table: no figure or table for "
+                      f"them (metric columns include {metrics}; see table.csv)", stacklevel=2)
+
+
 def write_report(study: Study, rows_all: list[dict[str, Any]], out: str | Path) -> list[Path]:
     """Figures and report.md into ``out``; returns the files written."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     veh = study.report.get("vehicle", 1)
     rows = [r for r in rows_all if r.get("vehicle") in (veh, None)]
+    _warn_unknown_metrics(study, rows_all)
     files: list[Path] = []
     figs: list[Path] = []
     for m in study.report.get("metrics", []):

@@ -17,13 +17,17 @@ from __future__ import annotations
 
 import hashlib
 import json
+import logging
 import os
+import shutil
+import tempfile
 import time
 import traceback
 from collections import OrderedDict
 from pathlib import Path
 from typing import Any, Callable, Iterable
 
+from .. import interrupts
 from ..progress import Progress, TimeLimitReached
 from ..truncation import cumulative_profile
 from ..results import to_jsonable, write_atomic
@@ -189,16 +193,22 @@ class Store:
         except FileNotFoundError:
             return None
         except (OSError, ValueError, RecursionError):
-            if f.exists() or f.is_symlink():
+            if f.exists() or f.is_symlink() or (self.dir.exists() and not self.dir.is_dir()):
                 self.damaged.append(key)
             return None
         return {k: v for k, v in got.items() if k != self.HASH_FIELD}
 
     def put(self, key: str, result: dict[str, Any]) -> None:
-        """Store a result atomically, with its key and content hash."""
+        """Store a result atomically, with its key and content hash (a damaged entry that is not a file, e.g. a
+        folder or a FIFO under the entry's name, or a ``points`` that is not a folder, is replaced)."""
         entry = {**result, "key": key}
         entry[self.HASH_FIELD] = self.digest(entry)
-        write_atomic(self.path(key), json.dumps(entry, sort_keys=True) + "\n")
+        f = self.path(key)
+        if self.dir.is_symlink() or (self.dir.exists() and not self.dir.is_dir()):
+            self.dir.unlink()  # points/ is the store's own folder: a file or a link in its place is damage
+        if f.is_dir() and not f.is_symlink():
+            shutil.rmtree(f)  # a folder under an entry's name (os.replace cannot replace it; a FIFO or link it can)
+        write_atomic(f, json.dumps(entry, sort_keys=True) + "\n")
 
 
 MAX_ENTRY_BYTES = 50_000_000  # a stored task result is a few kB (metrics + profiles); larger is not one of ours
@@ -290,7 +300,10 @@ def _run_pool(specs: list[dict[str, Any]], workers: int | None, done: Callable[[
     _export_path()
     ex = ProcessPoolExecutor(max_workers=n, mp_context=mp.get_context("spawn"))
     try:
-        pending = {ex.submit(run_task, sp) for sp in specs}
+        # submit() starts the worker processes: a Ctrl-C while one is half started left a process the pool did not
+        # know, and the exit then waited for it for ever; it is honoured once every worker can be stopped
+        with interrupts.deferred():
+            pending = {ex.submit(run_task, sp) for sp in specs}
         while pending:
             finished, pending = wait(pending, return_when=FIRST_COMPLETED)
             for f in finished:
@@ -352,12 +365,34 @@ def _connect(client_type: Any, scheduler: str) -> Any:
     t = threading.Thread(target=go, name="aev-ocp-dask-connect", daemon=True)
     t.start()
     t.join(SCHEDULER_CONNECT_TIMEOUT_S + 1.0)
-    if t.is_alive() or "error" in box:
-        exc = box.get("error")
-        why = f" ({type(exc).__name__}: {exc})" if exc is not None else ""
-        raise RuntimeError(f"the Dask scheduler {scheduler} did not answer within {SCHEDULER_CONNECT_TIMEOUT_S:g} s"
-                           f"{why}")
+    exc = box.get("error")
+    if isinstance(exc, (ValueError, TypeError)):  # the address itself: bad input, not a scheduler that failed
+        raise _bad_address(scheduler, exc)
+    if t.is_alive() or exc is not None:
+        how = (f"could not be reached ({type(exc).__name__}: {exc})" if exc is not None else
+               f"did not answer within {SCHEDULER_CONNECT_TIMEOUT_S:g} s")
+        raise RuntimeError(f"the Dask scheduler {scheduler} {how}")
     return box["client"]
+
+
+def _bad_address(scheduler: str, exc: Exception) -> Exception:
+    from ..params import ParameterError
+
+    return ParameterError(f"--scheduler {scheduler!r} is not a Dask scheduler address (e.g. tcp://10.0.0.5:8786): {exc}")
+
+
+def check_scheduler_address(scheduler: str) -> str:
+    """``scheduler`` if Dask reads it as an address with a host and a port, else ParameterError naming --scheduler
+    (checked before the study claims its folder; whether anything answers there is found out by connecting)."""
+    from distributed.comm.addressing import parse_address, parse_host_port
+
+    try:
+        scheme, loc = parse_address(scheduler)
+        if scheme in ("tcp", "tls"):
+            parse_host_port(loc)
+    except (ValueError, TypeError) as exc:
+        raise _bad_address(scheduler, exc) from None
+    return scheduler
 
 
 def dask_missing_message() -> str:
@@ -378,19 +413,32 @@ def _run_dask(specs: list[dict[str, Any]], workers: int | None, scheduler: str |
 
     n_local = check_local_workers(workers, "dask workers") or os.cpu_count() or 1
     cluster = None
+    # the workers' scratch space (Dask's default: <tmp>/dask-scratch-space, left behind) is ours, removed at the end
+    scratch = None if scheduler else tempfile.mkdtemp(prefix="aev_ocp_dask_")
     # a scheduler that accepts and then stays silent must not hang the study (issue 28)
     cfg = dask.config.set({"distributed.comm.timeouts.connect": f"{SCHEDULER_CONNECT_TIMEOUT_S}s",
-                           "distributed.comm.timeouts.tcp": f"{SCHEDULER_HEARTBEAT_TIMEOUT_S}s"})
+                           "distributed.comm.timeouts.tcp": f"{SCHEDULER_HEARTBEAT_TIMEOUT_S}s",
+                           **({"temporary-directory": scratch} if scratch else {})})
+
+    def release() -> None:
+        cfg.__exit__(None, None, None)
+        if scratch is not None:
+            shutil.rmtree(scratch, ignore_errors=True)
+
     try:
         if scheduler:
             client = _connect(Client, scheduler)
         else:
             _export_path()
-            cluster = LocalCluster(n_workers=n_local, threads_per_worker=1, processes=True,
-                                   dashboard_address=None, silence_logs=40)
-            client = Client(cluster, timeout=SCHEDULER_CONNECT_TIMEOUT_S)
+            with interrupts.deferred():  # Ctrl-C while the cluster starts: honoured once it can be closed cleanly
+                cluster = LocalCluster(n_workers=n_local, threads_per_worker=1, processes=True, dashboard_address=None,
+                                       silence_logs=logging.CRITICAL, local_directory=scratch)
+            with interrupts.deferred():
+                client = Client(cluster, timeout=SCHEDULER_CONNECT_TIMEOUT_S)
     except BaseException:
-        cfg.__exit__(None, None, None)
+        if cluster is not None:
+            cluster.close()  # the Client failed: the workers already started must not outlive the study
+        release()
         raise
     try:
         slots = max(1, sum(client.nthreads().values()))
@@ -411,7 +459,13 @@ def _run_dask(specs: list[dict[str, Any]], workers: int | None, scheduler: str |
             client.cancel(futures)
             raise
     finally:
-        client.close()
-        if cluster is not None:
-            cluster.close()  # ends the worker processes this study started, computing or not
-        cfg.__exit__(None, None, None)
+        quiet = logging.getLogger("distributed")  # closing after Ctrl-C: the heartbeats' "stream closed" are no news
+        level = quiet.level
+        quiet.setLevel(logging.CRITICAL)
+        try:
+            client.close()
+            if cluster is not None:
+                cluster.close()  # ends the worker processes this study started, computing or not
+        finally:
+            quiet.setLevel(level)
+            release()

@@ -108,14 +108,14 @@ def read_study(path: str | Path, sets: dict[str, Any] | None = None) -> Study:
 
     sets: command-line overrides ``{dotted key: value}`` (``--set``), the last layer (see :func:`parse_study`)."""
     file = str(path)
+    from ..limits import read_input_file
+
+    data = read_input_file(path, "study file", StudyError, label=file)  # a FIFO or /dev/zero: refused, unread
     try:
-        text = Path(path).read_text(encoding="utf-8")
-    except OSError as exc:
-        raise StudyError(f"{file}: cannot read the study file ({exc.strerror or exc})") from None
-    try:
-        doc = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise StudyError(f"{file}: not valid TOML: {exc}") from None
+        doc = tomllib.loads(data.decode("utf-8"))
+    except (UnicodeDecodeError, tomllib.TOMLDecodeError, RecursionError) as exc:
+        why = exc if isinstance(exc, tomllib.TOMLDecodeError) else type(exc).__name__
+        raise StudyError(f"{file}: not valid UTF-8 TOML: {why}") from None
     return parse_study(doc, file, Path(path), sets=sets)
 
 

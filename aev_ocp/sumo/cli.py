@@ -10,6 +10,7 @@ from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 from typing import Any
 
+from ..console import OneLineParser
 from ..results import claim_output_dir, default_output_dir
 from . import SumoError, require_sumo
 from .scenario import SumoScenario, load_sumo_scenario
@@ -17,7 +18,7 @@ from .scenario import SumoScenario, load_sumo_scenario
 
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of ``aev-ocp sumo``."""
-    p = argparse.ArgumentParser(prog="aev-ocp sumo", description="Drive the toolkit's controllers inside SUMO: a "
+    p = OneLineParser(prog="aev-ocp sumo", description="Drive the toolkit's controllers inside SUMO: a "
                                 "scenario file with a [sumo] table (shipped: sumo_ring, sumo_merge).")
     p.add_argument("scenario", help="a SUMO scenario .toml file, or the name of a shipped one (sumo_ring, sumo_merge)")
     p.add_argument("--out", default=None, help="output folder (default: results/<scenario name>/)")
