@@ -74,7 +74,9 @@ def _read_csv(path: Path, file: str) -> tuple[list[float], list[float]]:
     try:
         return [float(r["soc"]) for r in rows], [float(r["ocv_V"]) for r in rows]
     except (KeyError, TypeError, ValueError):
-        raise CellFileError(f"{file}: ocv.file = {str(path)!r} is not allowed: needs numeric columns soc, ocv_V") from None
+        raise CellFileError(
+            f"{file}: ocv.file = {str(path)!r} is not allowed: needs numeric columns soc, ocv_V"
+        ) from None
 
 
 def parse_cell(doc: dict[str, Any], file: str = "<cell>", base_dir: Path | None = None) -> CellFile:
@@ -94,11 +96,13 @@ def parse_cell(doc: dict[str, Any], file: str = "<cell>", base_dir: Path | None 
     sources: dict[str, str] = {}
     for key in CELL_KEYS:
         if key not in doc:
-            raise CellFileError(f"{file}: {key} is missing (required, as {{ value = ..., source = \"...\" }})")
+            raise CellFileError(f'{file}: {key} is missing (required, as {{ value = ..., source = "..." }})')
         entry = doc[key]
         if not isinstance(entry, dict) or set(entry) - {"value", "source"} or "source" not in entry:
-            raise CellFileError(f"{file}: {key} = {entry!r:.60} is not allowed: must be {{ value = ..., "
-                                "source = \"...\" }} (value may be left out only where None is allowed)")
+            raise CellFileError(
+                f"{file}: {key} = {entry!r:.60} is not allowed: must be {{ value = ..., "
+                'source = "..." }} (value may be left out only where None is allowed)'
+            )
         if not isinstance(entry["source"], str) or not entry["source"].strip():
             raise CellFileError(f"{file}: {key}.source is not allowed: a non-empty string is required")
         value = entry.get("value")
@@ -109,7 +113,7 @@ def parse_cell(doc: dict[str, Any], file: str = "<cell>", base_dir: Path | None 
         sources[key] = entry["source"]
     ocv = doc.get("ocv")
     if not isinstance(ocv, dict):
-        raise CellFileError(f"{file}: [ocv] is missing (required: file = \"x.csv\" or soc = [...], ocv_V = [...])")
+        raise CellFileError(f'{file}: [ocv] is missing (required: file = "x.csv" or soc = [...], ocv_V = [...])')
     extra = set(ocv) - {"file", "soc", "ocv_V", "source"}
     if extra:
         raise CellFileError(f"{file}: unknown key ocv.{sorted(extra)[0]}; allowed: file, soc, ocv_V, source")
@@ -124,8 +128,11 @@ def parse_cell(doc: dict[str, Any], file: str = "<cell>", base_dir: Path | None 
         soc, volts = _read_csv(p if p.is_absolute() else (base_dir or Path.cwd()) / p, file)
     else:
         soc, volts = ocv.get("soc"), ocv.get("ocv_V")
-        if not isinstance(soc, list) or not isinstance(volts, list) or not all(
-                isinstance(x, (int, float)) and not isinstance(x, bool) for x in soc + volts):
+        if (
+            not isinstance(soc, list)
+            or not isinstance(volts, list)
+            or not all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in soc + volts)
+        ):
             raise CellFileError(f"{file}: ocv.soc and ocv.ocv_V must be arrays of numbers")
     try:
         check_ocv_table(soc, volts, "ocv")

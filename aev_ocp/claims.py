@@ -44,9 +44,18 @@ class Theorem41Case:
         return self.omega_proposed > self.omega_ovfl + 1e-6
 
 
-def compare_laws(leader: LeaderProfile, gaps0: list[float], speeds0: list[float], t_end: float,
-                 kappa: float = 0.03, alpha: float = 2.0, beta: float = 3.0, rtol: float = 1e-10,
-                 dt_out: float = 0.01, method: str = "cvodes") -> dict[str, Any]:
+def compare_laws(
+    leader: LeaderProfile,
+    gaps0: list[float],
+    speeds0: list[float],
+    t_end: float,
+    kappa: float = 0.03,
+    alpha: float = 2.0,
+    beta: float = 3.0,
+    rtol: float = 1e-10,
+    dt_out: float = 0.01,
+    method: str = "cvodes",
+) -> dict[str, Any]:
     """Run the proposed law and OVFL on the same platoon; ω per follower and the speed ordering.
 
     method: the simulator's integrator. CVODES by default: each random case has its own leader and κ,
@@ -55,8 +64,13 @@ def compare_laws(leader: LeaderProfile, gaps0: list[float], speeds0: list[float]
     out: dict[str, Any] = {}
     res = {}
     for law in (Proposed(alpha, beta, kappa), OVFL(alpha, beta)):
-        sim = PlatoonSimulator(leader, [law] * len(gaps0), EVParams(limits=UNLIMITED),  # the paper's unbounded laws
-                               options=SimOptions(dt_out=dt_out, rtol=rtol, atol=rtol, method=method), battery=False)
+        sim = PlatoonSimulator(
+            leader,
+            [law] * len(gaps0),
+            EVParams(limits=UNLIMITED),  # the paper's unbounded laws
+            options=SimOptions(dt_out=dt_out, rtol=rtol, atol=rtol, method=method),
+            battery=False,
+        )
         res[law.name] = sim.run(gaps0, speeds0, t_end)
     p, o = res["proposed"], res["ovfl"]
     k = min(p.t.size, o.t.size)
@@ -72,8 +86,9 @@ def paper_platoon_check() -> dict[str, Any]:
     gaps = [0.3] + [3.5] * 4
     speeds = [1.1 * 1.7] * 5
     r = compare_laws(PaperLeader(), gaps, speeds, 70.0)
-    r["violating_followers"] = [i + 1 for i, (a, b) in enumerate(zip(r["omega_proposed"], r["omega_ovfl"]))
-                                if a > b + 1e-6]
+    r["violating_followers"] = [
+        i + 1 for i, (a, b) in enumerate(zip(r["omega_proposed"], r["omega_ovfl"])) if a > b + 1e-6
+    ]
     r["followers_faster_under_proposed"] = [i + 1 for i, d in enumerate(r["max_speed_excess"]) if d > 1e-9]
     return r
 
@@ -82,8 +97,9 @@ HEAD_THEOREM41 = "Theorem 4.1 checked numerically (ω(proposed) ≤ ω(OVFL)?)"
 THEOREM41_SEED = 2025  # the random Theorem 4.1 cases (recorded in theorem41.json's provenance)
 
 
-def random_cases(n_cases: int = 60, seed: int = THEOREM41_SEED, t_end: float = 70.0,
-                 progress: ProgressFn | None = None) -> list[Theorem41Case]:
+def random_cases(
+    n_cases: int = 60, seed: int = THEOREM41_SEED, t_end: float = 70.0, progress: ProgressFn | None = None
+) -> list[Theorem41Case]:
     """Random single-follower cases: paper leader or a constant leader, random gap, speed and κ."""
     rng = np.random.default_rng(seed)
     cases = []
@@ -94,10 +110,19 @@ def random_cases(n_cases: int = 60, seed: int = THEOREM41_SEED, t_end: float = 7
         speed0 = float(rng.uniform(0.2, 1.95))
         kappa = float(rng.choice([0.01, 0.03, 0.1, 0.3]))
         r = compare_laws(leader, [gap0], [speed0], t_end, kappa=kappa, dt_out=0.05)
-        cases.append(Theorem41Case("paper" if paper else "constant", None if paper else float(leader.speed(0.0)),
-                                   gap0, speed0, kappa,
-                                   r["omega_proposed"][0], r["omega_ovfl"][0], r["max_speed_excess"][0],
-                                   r["status"]))
+        cases.append(
+            Theorem41Case(
+                "paper" if paper else "constant",
+                None if paper else float(leader.speed(0.0)),
+                gap0,
+                speed0,
+                kappa,
+                r["omega_proposed"][0],
+                r["omega_ovfl"][0],
+                r["max_speed_excess"][0],
+                r["status"],
+            )
+        )
         if progress is not None and (j + 1) % 10 == 0:
             progress(f"Theorem 4.1 random cases: {j + 1}/{n_cases}")
     return cases
@@ -128,26 +153,46 @@ def theorem41_section(out_dir: Path, progress: ProgressFn, n_cases: int = 60) ->
     platoon = paper_platoon_check()
     cases = random_cases(n_cases, seed=THEOREM41_SEED, progress=progress)
     summary = theorem41_summary(cases)
-    write_json(out_dir / "theorem41.json", {"provenance": provenance(seeds={"theorem41_random_cases": THEOREM41_SEED}),
-                                            "paper_platoon": platoon, "random": summary,
-                                            "cases": [vars(c) for c in cases]})
-    plot_theorem41([c.kappa for c in cases], [c.omega_proposed - c.omega_ovfl for c in cases],
-                   [c.leader for c in cases], out_dir / "theorem41.png",
-                   "Theorem 4.1 on random single-follower cases (red: contradicts it)")
-    rows = [[f"n = {i + 1}", f"{a:.6f}", f"{b:.6f}", f"{a - b:+.2e}", f"{d:.4f}"]
-            for i, (a, b, d) in enumerate(zip(platoon["omega_proposed"], platoon["omega_ovfl"],
-                                                platoon["max_speed_excess"]))]
+    write_json(
+        out_dir / "theorem41.json",
+        {
+            "provenance": provenance(seeds={"theorem41_random_cases": THEOREM41_SEED}),
+            "paper_platoon": platoon,
+            "random": summary,
+            "cases": [vars(c) for c in cases],
+        },
+    )
+    plot_theorem41(
+        [c.kappa for c in cases],
+        [c.omega_proposed - c.omega_ovfl for c in cases],
+        [c.leader for c in cases],
+        out_dir / "theorem41.png",
+        "Theorem 4.1 on random single-follower cases (red: contradicts it)",
+    )
+    rows = [
+        [f"n = {i + 1}", f"{a:.6f}", f"{b:.6f}", f"{a - b:+.2e}", f"{d:.4f}"]
+        for i, (a, b, d) in enumerate(
+            zip(platoon["omega_proposed"], platoon["omega_ovfl"], platoon["max_speed_excess"])
+        )
+    ]
     w = summary["worst_case"]
-    worst = (f"The largest excess: {w['leader']} leader"
-             + (f" at v_l = {w['leader_speed']:.4f}" if w["leader_speed"] is not None else "")
-             + f", h(0) = {w['gap0']:.4f}, v(0) = {w['speed0']:.4f}, κ = {w['kappa']:g}: ω(proposed) = "
-             f"{w['omega_proposed']:.6f} vs ω(OVFL) = {w['omega_ovfl']:.6f}." if w else "")
+    worst = (
+        f"The largest excess: {w['leader']} leader"
+        + (f" at v_l = {w['leader_speed']:.4f}" if w["leader_speed"] is not None else "")
+        + f", h(0) = {w['gap0']:.4f}, v(0) = {w['speed0']:.4f}, κ = {w['kappa']:g}: ω(proposed) = "
+        f"{w['omega_proposed']:.6f} vs ω(OVFL) = {w['omega_ovfl']:.6f}."
+        if w
+        else ""
+    )
     n_bad, n_ok = summary["n_violating_theorem"], summary["n_completed"]
     SectionContext.of(progress).record_claim(
-        "Theorem 4.1: ω(proposed) ≤ ω(OVFL) for the same leader and initial condition", "fails" if n_bad else "holds",
+        "Theorem 4.1: ω(proposed) ≤ ω(OVFL) for the same leader and initial condition",
+        "fails" if n_bad else "holds",
         f"contradicted by {n_bad} of {n_ok} random single-follower cases (largest excess "
         f"{(w['omega_proposed'] - w['omega_ovfl']) if w else float('nan'):.3g}); the proof's step Δv ≥ 0 "
-        f"fails in {summary['n_violating_speed_ordering']}", HEAD_THEOREM41)
+        f"fails in {summary['n_violating_speed_ordering']}",
+        HEAD_THEOREM41,
+    )
     return (
         f"## {HEAD_THEOREM41}\n\n"
         "Same leader, same initial condition, both laws integrated with CVODES at rtol = atol = 1e-10 "
@@ -167,7 +212,8 @@ def theorem41_section(out_dir: Path, progress: ProgressFn, n_cases: int = 60) ->
         "system (a follower that brakes harder falls back, its gap grows, and OV/FTL terms then make it "
         "accelerate harder than the OVFL follower); and even with Δv ≥ 0 and Δv̇ ≥ 0, v g(v̇) is not "
         "monotone in the pair when v̇ < 0 (regeneration is credited with η).\n\n"
-        "![Theorem 4.1](theorem41.png)\n")
+        "![Theorem 4.1](theorem41.png)\n"
+    )
 
 
 REPRODUCE_SECTIONS = [("theorem41", theorem41_section, 7)]  # 1 + 60 cases / 10

@@ -26,7 +26,9 @@ def _interrupted_while_starting(signum: int, frame: Any) -> None:  # noqa: ARG00
 # handlers can only be set on the main thread; a worker process that multiprocessing starts re-imports this module
 # as __mp_main__, and a pool stopping it (SIGTERM) must not make it print the command's 'interrupted' line
 _ON_MAIN = threading.current_thread() is threading.main_thread() and __name__ != "__mp_main__"
-_BEFORE = {s: signal.signal(s, _interrupted_while_starting) for s in (signal.SIGINT, signal.SIGTERM)} if _ON_MAIN else {}
+_BEFORE = (
+    {s: signal.signal(s, _interrupted_while_starting) for s in (signal.SIGINT, signal.SIGTERM)} if _ON_MAIN else {}
+)
 
 import argparse  # noqa: E402 - after the handler: these imports can be interrupted too
 import dataclasses  # noqa: E402
@@ -36,8 +38,15 @@ from pathlib import Path  # noqa: E402
 from typing import Sequence  # noqa: E402
 
 from .console import EXIT_INTERRUPTED as EXIT_INTERRUPTED  # noqa: E402 - re-exported with the other exit codes
-from .console import (EXIT_BAD_INPUT, EXIT_FAILED_RUN, EXIT_OK, OneLineParser, error_line, guarded,  # noqa: E402
-                      warning_line)
+from .console import (  # noqa: E402
+    EXIT_BAD_INPUT,
+    EXIT_FAILED_RUN,
+    EXIT_OK,
+    OneLineParser,
+    error_line,
+    guarded,  # noqa: E402
+    warning_line,
+)
 
 for _sig, _handler in _BEFORE.items():  # the modules are in: guarded() handles signals from here on
     signal.signal(_sig, _handler if _handler is not None else signal.SIG_DFL)
@@ -50,8 +59,10 @@ def _version_line() -> str:
 
     v = versions()
     commit = f", commit {v['git_commit']}" if v["git_commit"] else ""
-    return (f"aev-ocp {v['aev_ocp']}{commit} (CasADi {v['casadi']}, NumPy {v['numpy']}, Python {v['python']}, "
-            f"{v['platform']})")
+    return (
+        f"aev-ocp {v['aev_ocp']}{commit} (CasADi {v['casadi']}, NumPy {v['numpy']}, Python {v['python']}, "
+        f"{v['platform']})"
+    )
 
 
 class _VersionAction(argparse.Action):
@@ -73,31 +84,60 @@ def build_parser() -> argparse.ArgumentParser:
     r = sub.add_parser("reproduce", help="reproduce the paper's figures and Table 1, write report.md")
     r.add_argument("--out", default="results", help="output folder (default: results/)")
     r.add_argument("--quick", action="store_true", help="a cheap smoke run (short horizons), not the reproduction")
-    r.add_argument("--model-units", action="store_true",
-                   help="figure axes in the paper's model units (default: s, m, km/h through each scenario's units)")
+    r.add_argument(
+        "--model-units",
+        action="store_true",
+        help="figure axes in the paper's model units (default: s, m, km/h through each scenario's units)",
+    )
     s = sub.add_parser("simulate", help="simulate a scenario file: trajectories CSV, metrics JSON, plots")
     s.add_argument("scenario", help="a scenario .toml file or the name of a shipped scenario (e.g. table1)")
     s.add_argument("--out", default=None, help="output folder (default: results/<scenario name>/)")
     s.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
-    s.add_argument("--set", dest="sets", action="append", default=[], metavar="KEY=VALUE",
-                   help="override a scenario key, e.g. --set simulation.t_end_s=40 (SI) or --set simulation.t_end=20 "
-                        "(model time); repeatable, checked like the file, the command line over the file")
-    s.add_argument("--time-limit", type=float, default=None, metavar="S",
-                   help="wall-clock limit [s], checked between runs (one law's run is one compiled integration): "
-                        "runs not started by then are skipped, the finished ones written, exit 1 (default: none)")
+    s.add_argument(
+        "--set",
+        dest="sets",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="override a scenario key, e.g. --set simulation.t_end_s=40 (SI) or --set simulation.t_end=20 "
+        "(model time); repeatable, checked like the file, the command line over the file",
+    )
+    s.add_argument(
+        "--time-limit",
+        type=float,
+        default=None,
+        metavar="S",
+        help="wall-clock limit [s], checked between runs (one law's run is one compiled integration): "
+        "runs not started by then are skipped, the finished ones written, exit 1 (default: none)",
+    )
     sub.add_parser("scenarios", help="list the shipped scenarios")
     sub.add_parser("ocp", help="optimal-control problems (see aev-ocp ocp --help)", add_help=False)
     sub.add_parser("mpc", help="model predictive control (see aev-ocp mpc --help)", add_help=False)
-    sub.add_parser("mpc-export", help="export a scenario's MPC step as a C library (see aev-ocp mpc-export --help)",
-                   add_help=False)
-    sub.add_parser("stability", help="string stability of a law or the MPC (see aev-ocp stability --help)", add_help=False)
-    sub.add_parser("study", help="sweeps and Pareto fronts from a study file (see aev-ocp study --help)", add_help=False)
-    sub.add_parser("ring", help="mixed traffic on a ring road: Sugiyama, Stern, penetration sweep (see aev-ocp ring "
-                   "--help)", add_help=False)
-    sub.add_parser("safety", help="the safety suite: braking, stationary, slower and cut-in cases for every controller "
-                   "(see aev-ocp safety --help)", add_help=False)
-    sub.add_parser("sumo", help="drive the toolkit's controllers inside SUMO (optional extra [sumo]; see aev-ocp sumo "
-                   "--help)", add_help=False)
+    sub.add_parser(
+        "mpc-export", help="export a scenario's MPC step as a C library (see aev-ocp mpc-export --help)", add_help=False
+    )
+    sub.add_parser(
+        "stability", help="string stability of a law or the MPC (see aev-ocp stability --help)", add_help=False
+    )
+    sub.add_parser(
+        "study", help="sweeps and Pareto fronts from a study file (see aev-ocp study --help)", add_help=False
+    )
+    sub.add_parser(
+        "ring",
+        help="mixed traffic on a ring road: Sugiyama, Stern, penetration sweep (see aev-ocp ring --help)",
+        add_help=False,
+    )
+    sub.add_parser(
+        "safety",
+        help="the safety suite: braking, stationary, slower and cut-in cases for every controller "
+        "(see aev-ocp safety --help)",
+        add_help=False,
+    )
+    sub.add_parser(
+        "sumo",
+        help="drive the toolkit's controllers inside SUMO (optional extra [sumo]; see aev-ocp sumo --help)",
+        add_help=False,
+    )
     return p
 
 
@@ -127,13 +167,19 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     time_limit = check_time_limit(args.time_limit)
     scenario = _load_scenario_with_warnings(args.scenario, args.sets)
     for sec in sorted(set(scenario.extra) & set(UNUSED_BY_SIMULATE)):
-        _warn(f"scenario {scenario.name}: simulate does not use the [{sec}] table (it runs the closed-form laws "
-              f"only); {UNUSED_BY_SIMULATE[sec].format(name=args.scenario)}")
+        _warn(
+            f"scenario {scenario.name}: simulate does not use the [{sec}] table (it runs the closed-form laws "
+            f"only); {UNUSED_BY_SIMULATE[sec].format(name=args.scenario)}"
+        )
     out = Path(args.out) if args.out else default_output_dir(scenario.name)
     labels = [label for label, _ in scenario.runs()]
-    claim_output_dir(out, "simulate", scenario.name, str(scenario.source) if scenario.source else None,
-                     [f"{lab}.{ext}" for lab in labels for ext in ("csv", "png")] + ["metrics.json", "metrics.md",
-                                                                                    *OUTPUT_FILES])
+    claim_output_dir(
+        out,
+        "simulate",
+        scenario.name,
+        str(scenario.source) if scenario.source else None,
+        [f"{lab}.{ext}" for lab in labels for ext in ("csv", "png")] + ["metrics.json", "metrics.md", *OUTPUT_FILES],
+    )
     bars: dict[str, Progress] = {}
     T = scenario.units.time_s
     clock = Progress("", time_limit_s=time_limit)
@@ -153,8 +199,9 @@ def cmd_simulate(args: argparse.Namespace) -> int:
         _err(f"scenario {scenario.name}: --time-limit {time_limit:g} s passed before the first run; nothing written")
         return EXIT_FAILED_RUN
     files = write_scenario_outputs(scenario.name, results, out, plots=not args.no_plots)
-    files += save_output(out, "simulate", results, settings=settings_of(scenario, sets=list(args.sets),
-                                                                         time_limit_s=time_limit))
+    files += save_output(
+        out, "simulate", results, settings=settings_of(scenario, sets=list(args.sets), time_limit_s=time_limit)
+    )
     headers, rows = scenario_metrics_rows(results)
     keep = [0, 1, 3, 4, 6, 7, 9]  # run, n, ω [J/kg], pack ∫Q [J], ΔSOC, min gap [m], status
     keep += list(range(10, len(headers)))  # the thermal model's peak temperature [K], time above T_max [s]
@@ -166,8 +213,10 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     for label, event in failed:
         _err(f"scenario {scenario.name}, run {label}: {event} (results up to that time written to {out}/)")
     if skipped:
-        _err(f"scenario {scenario.name}: stopped by --time-limit {time_limit:g} s ({TIME_LIMIT}): runs "
-             f"{', '.join(skipped)} not started; the finished runs are written to {out}/")
+        _err(
+            f"scenario {scenario.name}: stopped by --time-limit {time_limit:g} s ({TIME_LIMIT}): runs "
+            f"{', '.join(skipped)} not started; the finished runs are written to {out}/"
+        )
     return EXIT_FAILED_RUN if failed or skipped else EXIT_OK
 
 
@@ -218,10 +267,15 @@ def _dispatch(module: str, func: str, argv: list[str]) -> int:
 
 #: Sub-commands with their own parser: name -> (module, function returning the parser).
 SUBCOMMAND_PARSERS: dict[str, tuple[str, str]] = {
-    "ocp": ("aev_ocp.ocp.cli", "_parser"), "mpc": ("aev_ocp.mpc.cli", "build_parser"),
-    "mpc-export": ("aev_ocp.mpc.export", "build_parser"), "stability": ("aev_ocp.stability.cli", "build_parser"),
-    "study": ("aev_ocp.study.cli", "build_parser"), "safety": ("aev_ocp.safety.cli", "build_parser"),
-    "ring": ("aev_ocp.ring.cli", "build_parser"), "sumo": ("aev_ocp.sumo.cli", "build_parser")}
+    "ocp": ("aev_ocp.ocp.cli", "_parser"),
+    "mpc": ("aev_ocp.mpc.cli", "build_parser"),
+    "mpc-export": ("aev_ocp.mpc.export", "build_parser"),
+    "stability": ("aev_ocp.stability.cli", "build_parser"),
+    "study": ("aev_ocp.study.cli", "build_parser"),
+    "safety": ("aev_ocp.safety.cli", "build_parser"),
+    "ring": ("aev_ocp.ring.cli", "build_parser"),
+    "sumo": ("aev_ocp.sumo.cli", "build_parser"),
+}
 
 
 def command_parser(name: str) -> argparse.ArgumentParser:

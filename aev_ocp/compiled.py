@@ -73,8 +73,9 @@ def run_tool(cmd: list[str], cwd: str | os.PathLike[str], timeout_s: float) -> s
     subprocess.run does) leaves its cc1/as/ld children running and their temporaries in $TMPDIR."""
     import signal
 
-    p = subprocess.Popen(cmd, cwd=cwd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                         start_new_session=True)
+    p = subprocess.Popen(
+        cmd, cwd=cwd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True
+    )
     try:
         out, err = p.communicate(timeout=timeout_s)
     except BaseException:
@@ -116,7 +117,8 @@ def _process_temp_dir() -> Path:
 def cache_dir(sub: str = "") -> Path:
     """A private cache folder (created with mode 0700), or this process's private temp folder if that fails."""
     base = os.environ.get("AEV_OCP_CACHE") or os.path.join(
-        os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache"), "aev_ocp")
+        os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache"), "aev_ocp"
+    )
     d = Path(base) / sub if sub else Path(base)
     try:
         d.mkdir(parents=True, exist_ok=True, mode=0o700)
@@ -195,8 +197,14 @@ def driver_source(name: str) -> str:
     return _LOCAL_INCLUDE.sub(inline, (folder / name).read_text())
 
 
-def compile_shared(source: str, stem: str, sub: str = "", extra_flags: tuple[str, ...] = (),
-                   timeout_s: float = 600.0, companions: dict[str, str] | None = None) -> BuildResult:
+def compile_shared(
+    source: str,
+    stem: str,
+    sub: str = "",
+    extra_flags: tuple[str, ...] = (),
+    timeout_s: float = 600.0,
+    companions: dict[str, str] | None = None,
+) -> BuildResult:
     """Compile C ``source`` into ``<cache>/<stem>_<hash>.so`` unless a verified copy is already there.
     ``companions``: further files by name (headers, and ``.c`` files compiled into the same library),
     written beside the source and part of the cache key."""
@@ -205,7 +213,9 @@ def compile_shared(source: str, stem: str, sub: str = "", extra_flags: tuple[str
         return BuildResult(None, "no C compiler found (set $CC or install gcc)")
     flags = FLAGS + tuple(extra_flags)
     comp = dict(sorted((companions or {}).items()))
-    key = hashlib.sha256("\0".join((source, cc, *flags, *(f"{k}\0{v}" for k, v in comp.items()))).encode()).hexdigest()[:24]
+    key = hashlib.sha256("\0".join((source, cc, *flags, *(f"{k}\0{v}" for k, v in comp.items()))).encode()).hexdigest()[
+        :24
+    ]
     d = cache_dir(sub)
     lib = d / f"{stem}_{key}.so"
     side = lib.with_name(lib.name + SIDECAR_SUFFIX)
@@ -214,8 +224,12 @@ def compile_shared(source: str, stem: str, sub: str = "", extra_flags: tuple[str
         why = verify_library(lib)
         if not why:
             return BuildResult(lib)
-        _warn_once(stem, f"cached library {lib} cannot be verified ({why}; built by an older version?); rebuilding it"
-                   if why.startswith("no readable checksum") else f"cached library {lib} is damaged ({why}); rebuilding it")
+        _warn_once(
+            stem,
+            f"cached library {lib} cannot be verified ({why}; built by an older version?); rebuilding it"
+            if why.startswith("no readable checksum")
+            else f"cached library {lib} is damaged ({why}); rebuilding it",
+        )
         _remove(lib, side)
         rebuilt = True
     tag = f".{stem}_{key}_{os.getpid()}"

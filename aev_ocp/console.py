@@ -48,8 +48,14 @@ def bad_input(exc: Exception) -> int:
     return EXIT_BAD_INPUT
 
 
-def _show_warning(message: Warning | str, category: type[Warning], filename: str, lineno: int,
-                  file: object = None, line: str | None = None) -> None:
+def _show_warning(
+    message: Warning | str,
+    category: type[Warning],
+    filename: str,
+    lineno: int,
+    file: object = None,
+    line: str | None = None,
+) -> None:
     _warn(str(message))
 
 

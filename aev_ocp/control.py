@@ -180,21 +180,23 @@ def _stats(rec: dict[str, list[Any]], ctrl: Controller) -> dict[str, Any]:
     it = np.asarray(rec["iters"], float)
     ok = ms.size > 0
     d = ctrl.describe()
-    return {"solve_ms_median": float(np.median(ms)) if ok else float("nan"),
-            "solve_ms_p95": float(np.percentile(ms, 95)) if ok else float("nan"),
-            "solve_ms_max": float(ms.max()) if ok else float("nan"),
-            "iterations_mean": float(it.mean()) if it.size else float("nan"),
-            "iterations_max": int(it.max()) if it.size else 0,
-            "fallbacks": int(sum(not k for k in rec["ok"])),
-            # cause of each fallback: the status up to its first ':' ('QP failed', 'budget', 'path constraint',
-            # 'exception', or the NLP solver's return status)
-            "fallback_causes": fallback_causes(rec["status"], rec["ok"]),
-            "solver_path": d.get("solver_path", d.get("controller", "")),
-            "qp_solver": d.get("qp_in_use", ""),  # the MPC's QP solver that ran ('' for the others)
-            "n_steps": len(rec["ok"]),
-            # whole controller call: forecast, warm-start shift, parameters, solve, unpacking
-            "call_ms_median": float(np.median(cm)) if cm.size else float("nan"),
-            "call_ms_p95": float(np.percentile(cm, 95)) if cm.size else float("nan")}
+    return {
+        "solve_ms_median": float(np.median(ms)) if ok else float("nan"),
+        "solve_ms_p95": float(np.percentile(ms, 95)) if ok else float("nan"),
+        "solve_ms_max": float(ms.max()) if ok else float("nan"),
+        "iterations_mean": float(it.mean()) if it.size else float("nan"),
+        "iterations_max": int(it.max()) if it.size else 0,
+        "fallbacks": int(sum(not k for k in rec["ok"])),
+        # cause of each fallback: the status up to its first ':' ('QP failed', 'budget', 'path constraint',
+        # 'exception', or the NLP solver's return status)
+        "fallback_causes": fallback_causes(rec["status"], rec["ok"]),
+        "solver_path": d.get("solver_path", d.get("controller", "")),
+        "qp_solver": d.get("qp_in_use", ""),  # the MPC's QP solver that ran ('' for the others)
+        "n_steps": len(rec["ok"]),
+        # whole controller call: forecast, warm-start shift, parameters, solve, unpacking
+        "call_ms_median": float(np.median(cm)) if cm.size else float("nan"),
+        "call_ms_p95": float(np.percentile(cm, 95)) if cm.size else float("nan"),
+    }
 
 
 class ClosedLoop:
@@ -214,18 +216,30 @@ class ClosedLoop:
     clipped to the vehicle's acceleration limits, on the same observations.
     """
 
-    def __init__(self, leader: LeaderProfile, controllers: Sequence[Any], ev: EVParams | None = None,
-                 fallback_law: CarFollowingLaw | None = None, rtol: float = 1e-10, atol: float = 1e-10, *,
-                 mismatch: Mismatch | None = None, sensors: Sensors | None = None,
-                 estimator: str | EstimatorFactory | None = "ekf", law_dt: float = 0.1) -> None:
+    def __init__(
+        self,
+        leader: LeaderProfile,
+        controllers: Sequence[Any],
+        ev: EVParams | None = None,
+        fallback_law: CarFollowingLaw | None = None,
+        rtol: float = 1e-10,
+        atol: float = 1e-10,
+        *,
+        mismatch: Mismatch | None = None,
+        sensors: Sensors | None = None,
+        estimator: str | EstimatorFactory | None = "ekf",
+        law_dt: float = 0.1,
+    ) -> None:
         check_argument("closed loop", "leader", leader, LeaderProfile)
         check_argument("closed loop", "ev", ev, (EVParams, type(None)))
         check_argument("closed loop", "fallback_law", fallback_law, (CarFollowingLaw, type(None)))
         check_argument("closed loop", "mismatch", mismatch, (Mismatch, type(None)))
         check_argument("closed loop", "sensors", sensors, (Sensors, type(None)))
         if not (estimator is None or callable(estimator) or estimator in ESTIMATORS):
-            raise ParameterError(f"closed loop: estimator = {estimator!r} is not allowed: must be one of "
-                                 f"{sorted(ESTIMATORS)}, None or a callable (model_ev, sensors, ocv_offset_V, vehicle)")
+            raise ParameterError(
+                f"closed loop: estimator = {estimator!r} is not allowed: must be one of "
+                f"{sorted(ESTIMATORS)}, None or a callable (model_ev, sensors, ocv_offset_V, vehicle)"
+            )
         if not (isinstance(law_dt, (int, float)) and math.isfinite(law_dt) and law_dt > 0):
             raise ParameterError(f"closed loop: law_dt = {law_dt!r} is not allowed: must be > 0")
         self.mismatch, self.sensors, self.estimator_spec = mismatch, sensors, estimator
@@ -248,8 +262,10 @@ class ClosedLoop:
             adapter = next((fn for cls, fn in _ADAPTERS.items() if isinstance(c, cls)), None)
             c = adapter(c, i, self) if adapter is not None else c
             if not isinstance(c, Controller):
-                raise ParameterError(f"ClosedLoop: controller of vehicle {i + 1} must be a CarFollowingLaw or a "
-                                     f"Controller (name, dt, reset, command, describe), got {type(c).__name__}")
+                raise ParameterError(
+                    f"ClosedLoop: controller of vehicle {i + 1} must be a CarFollowingLaw or a "
+                    f"Controller (name, dt, reset, command, describe), got {type(c).__name__}"
+                )
             self.laws.append(None)
             self.ctrl.append(c)
         dts = {c.dt for c in self.ctrl if c is not None}
@@ -284,13 +300,22 @@ class ClosedLoop:
             fac = ESTIMATORS[spec] if isinstance(spec, str) else spec
             est = fac(self.model_evs[i], s, off, i) if c is not None else None
             if est is not None and not isinstance(est, Estimator):
-                raise ParameterError(f"closed loop: the estimator of vehicle {i + 1} must have name, reset, update "
-                                     f"and describe, got {type(est).__name__}")
+                raise ParameterError(
+                    f"closed loop: the estimator of vehicle {i + 1} must have name, reset, update "
+                    f"and describe, got {type(est).__name__}"
+                )
             out.append(est)
         return out
 
-    def run(self, gaps0: Sequence[float], speeds0: Sequence[float], t_end: float, *,
-            soc0: float | Sequence[float] | None = None, progress: ProgressFn | None = None) -> SimulationResult:
+    def run(
+        self,
+        gaps0: Sequence[float],
+        speeds0: Sequence[float],
+        t_end: float,
+        *,
+        soc0: float | Sequence[float] | None = None,
+        progress: ProgressFn | None = None,
+    ) -> SimulationResult:
         """Closed loop over [0, t_end] (model time, a multiple of dt) from the initial gaps and speeds
         (model units), V1 = V2 = 0 and S = soc0 (default the cell's S(0)). ``progress(t, t_end)`` is called
         after every step; if it raises :class:`aev_ocp.progress.TimeLimitReached` the loop stops there and
@@ -303,8 +328,9 @@ class ClosedLoop:
             raise ParameterError(f"closed loop: t_end = {t_end} must be a multiple of dt = {dt}")
         for i, c in enumerate(self.ctrl):
             if isinstance(c, ControlSequence) and len(c.a) < K:
-                raise ParameterError(f"closed loop: the control sequence of vehicle {i + 1} has {len(c.a)} "
-                                     f"values, {K} steps are needed")
+                raise ParameterError(
+                    f"closed loop: the control sequence of vehicle {i + 1} has {len(c.a)} values, {K} steps are needed"
+                )
         x = plant.initial_state(gaps0, speeds0, soc0, "closed loop")
         for c in self.ctrl:
             if c is not None:
@@ -317,8 +343,9 @@ class ClosedLoop:
         y = plant.samples(np.array([0.0]), x[:, None], a_cmd)
         out: tuple[list, list, list, list] = ([np.array([0.0])], [x[:, None]], [q[:, None]], [y])
         applied: list[np.ndarray] = []
-        rec: list[dict[str, list[Any]]] = [{"solve": [], "call": [], "iters": [], "ok": [], "status": [], "info": [],
-                                            "est": []} for _ in range(n)]
+        rec: list[dict[str, list[Any]]] = [
+            {"solve": [], "call": [], "iters": [], "ok": [], "status": [], "info": [], "est": []} for _ in range(n)
+        ]
         meas_t: list[float] = []
         meas_v: list[list[float]] = [[] for _ in range(n)]
         u = self.ev.units
@@ -341,8 +368,11 @@ class ClosedLoop:
                 for i in range(n):
                     meas_v[i].append(vl_k if i == 0 else float(x[n + i - 1]))
             else:
-                sm.record(u.time_to_si(tk), self._channels(x, vl_k, out[3][-1][:, -1]),
-                          np.column_stack([x[2 * n:3 * n], x[3 * n:4 * n], x[4 * n:5 * n]]))
+                sm.record(
+                    u.time_to_si(tk),
+                    self._channels(x, vl_k, out[3][-1][:, -1]),
+                    np.column_stack([x[2 * n : 3 * n], x[3 * n : 4 * n], x[4 * n : 5 * n]]),
+                )
             plans: list[np.ndarray | None] = [None] * n
             for j, i in enumerate(sampled):
                 ctrl = self.ctrl[i]
@@ -357,17 +387,41 @@ class ClosedLoop:
                     meas_v[i].append(float(u.speed_from_si(e.lead_speed_mps if e is not None else meas.lead_speed_mps)))
                     v_true = vl_k if i == 0 else float(x[n + i - 1])
                     if e is not None:
-                        err[i].append(np.array([e.soc - x[4 * n + i], e.V1_V - x[2 * n + i], e.V2_V - x[3 * n + i],
-                                                e.gap_m - u.length_to_si(x[i]), e.lead_speed_mps - u.speed_to_si(v_true)]))
-                obs = Observation(tk, dt, i, z, np.asarray(meas_t),
-                                  np.asarray(meas_v[i]), plans[i - 1] if i > 0 else None, float(a_app[j]),
-                                  None if plant.act_row is None else float(x[plant.act_row + i]), meas, e,
-                                  float(x[5 * n + i]) if getattr(plant, "thermal", False) else None)
+                        err[i].append(
+                            np.array(
+                                [
+                                    e.soc - x[4 * n + i],
+                                    e.V1_V - x[2 * n + i],
+                                    e.V2_V - x[3 * n + i],
+                                    e.gap_m - u.length_to_si(x[i]),
+                                    e.lead_speed_mps - u.speed_to_si(v_true),
+                                ]
+                            )
+                        )
+                obs = Observation(
+                    tk,
+                    dt,
+                    i,
+                    z,
+                    np.asarray(meas_t),
+                    np.asarray(meas_v[i]),
+                    plans[i - 1] if i > 0 else None,
+                    float(a_app[j]),
+                    None if plant.act_row is None else float(x[plant.act_row + i]),
+                    meas,
+                    e,
+                    float(x[5 * n + i]) if getattr(plant, "thermal", False) else None,
+                )
                 tc = time.perf_counter()
                 cmd = ctrl.command(obs)
                 rec[i]["call"].append(time.perf_counter() - tc)
-                for key, val in (("solve", cmd.solve_time_s), ("iters", cmd.iterations), ("ok", cmd.ok),
-                                 ("status", cmd.status), ("info", cmd.info)):
+                for key, val in (
+                    ("solve", cmd.solve_time_s),
+                    ("iters", cmd.iterations),
+                    ("ok", cmd.ok),
+                    ("status", cmd.status),
+                    ("info", cmd.info),
+                ):
                     rec[i][key].append(val)
                 a_cmd[j] = cmd.a
                 plans[i] = cmd.plan
@@ -388,7 +442,9 @@ class ClosedLoop:
             for a0, b0 in zip(cuts[:-1], cuts[1:]):
                 if not plant.advance(a0, b0, out[1][-1][:, -1], out[2][-1][:, -1], a_cmd, out, events):
                     break
-            if len(out[0]) - before > 1 and not events:  # keep only the node sample (sampled jerk is Δa/dt between nodes)
+            if (
+                len(out[0]) - before > 1 and not events
+            ):  # keep only the node sample (sampled jerk is Δa/dt between nodes)
                 for lst in out:
                     last = lst[-1]
                     del lst[before:]
@@ -399,8 +455,14 @@ class ClosedLoop:
                 try:
                     progress(t_now, t_end)
                 except TimeLimitReached as stop:  # stop cleanly: a partial result, flagged by its status
-                    events.append(Event(stop.kind, t_now, -1, f"{stop}; the run covers [0, {t_now:g}] of "
-                                                              f"[0, {t_end:g}] (partial result)"))
+                    events.append(
+                        Event(
+                            stop.kind,
+                            t_now,
+                            -1,
+                            f"{stop}; the run covers [0, {t_now:g}] of [0, {t_end:g}] (partial result)",
+                        )
+                    )
         ts, xs, qs, ys = (np.concatenate(out[0]), np.hstack(out[1]), np.hstack(out[2]), np.hstack(out[3]))
         acc = ys[:n].T.copy()
         for j, i in enumerate(sampled):  # node k shows the command held from t_k on (the last node: the last one)
@@ -410,8 +472,10 @@ class ClosedLoop:
                 acc[:m, i] = cmds[:m]
                 acc[m:, i] = cmds[m - 1]
         names = [c.name if c is not None else law.name for c, law in zip(self.ctrl, self.laws)]  # type: ignore[union-attr]
-        stats = [_stats(rec[i], c) if c is not None and not isinstance(c, ControlSequence) else None
-                 for i, c in enumerate(self.ctrl)]
+        stats = [
+            _stats(rec[i], c) if c is not None and not isinstance(c, ControlSequence) else None
+            for i, c in enumerate(self.ctrl)
+        ]
         for i, st in enumerate(stats):
             if st is not None:
                 v_pred = ys[3 * n] if i == 0 else xs[n + i - 1]
@@ -422,32 +486,65 @@ class ClosedLoop:
                     te_ms = np.asarray(rec[i]["est"], float) * 1e3
                     st["estimator_ms_median"] = float(np.median(te_ms))
                     st["estimator_plus_call_ms_median"] = float(np.median(te_ms + np.asarray(rec[i]["call"]) * 1e3))
-        steps = [{"solve_ms": (np.asarray(rec[i]["solve"], float) * 1e3).tolist(), "iterations": rec[i]["iters"],
-                  "status": rec[i]["status"], "call_ms": (np.asarray(rec[i]["call"]) * 1e3).tolist(),
-                  "ok": rec[i]["ok"]} if stats[i] is not None else None for i in range(n)]
-        settings = [c.describe() if c is not None else law.describe()  # type: ignore[union-attr]
-                    for c, law in zip(self.ctrl, self.laws)]
-        return plant.result(ts, xs, qs, ys, events, names,
-                            {"dt": dt, "controllers": settings, "mpc_steps": steps,
-                             "fallback_law": self.fallback_law.describe(), **self._realism(ests)},
-                            accel=acc, jerk_sampled=True, solver_stats=stats)
+        steps = [
+            {
+                "solve_ms": (np.asarray(rec[i]["solve"], float) * 1e3).tolist(),
+                "iterations": rec[i]["iters"],
+                "status": rec[i]["status"],
+                "call_ms": (np.asarray(rec[i]["call"]) * 1e3).tolist(),
+                "ok": rec[i]["ok"],
+            }
+            if stats[i] is not None
+            else None
+            for i in range(n)
+        ]
+        settings = [
+            c.describe() if c is not None else law.describe()  # type: ignore[union-attr]
+            for c, law in zip(self.ctrl, self.laws)
+        ]
+        return plant.result(
+            ts,
+            xs,
+            qs,
+            ys,
+            events,
+            names,
+            {
+                "dt": dt,
+                "controllers": settings,
+                "mpc_steps": steps,
+                "fallback_law": self.fallback_law.describe(),
+                **self._realism(ests),
+            },
+            accel=acc,
+            jerk_sampled=True,
+            solver_stats=stats,
+        )
 
     def _channels(self, x: np.ndarray, vl: float, y: np.ndarray) -> np.ndarray:
         """The true channel values (n, 5) [SI, CHANNELS order] at a node: gap, own speed, predecessor speed, pack
         voltage and current (the cell current of the last sample ``y``, i.e. of the command held up to the node)."""
         n, u, ev = self.n, self.ev.units, self.ev
-        v_lead = np.concatenate([[vl], x[n:2 * n - 1]])
-        I = y[n:2 * n]
-        ocv = np.asarray(battery.ocv_function(ev.cell)(np.clip(x[4 * n:5 * n], 0.0, 1.0).reshape(1, -1))).ravel()
+        v_lead = np.concatenate([[vl], x[n : 2 * n - 1]])
+        I = y[n : 2 * n]
+        ocv = np.asarray(battery.ocv_function(ev.cell)(np.clip(x[4 * n : 5 * n], 0.0, 1.0).reshape(1, -1))).ravel()
         R_s = np.full(n, ev.cell.R_s_ohm)
         if getattr(self.plant, "thermal", False):  # the pack temperatures follow S in x: R_s at each one
             R_s = np.array([float(battery.cell_at(ev.cell, float(x[5 * n + i])).R_s_ohm) for i in range(n)])
-        vt = ocv - x[2 * n:3 * n] - x[3 * n:4 * n] - R_s * I  # battery.terminal_voltage, vectorised
-        return np.column_stack([u.length_to_si(x[:n]), u.speed_to_si(x[n:2 * n]), u.speed_to_si(v_lead),
-                                ev.pack.n_series * vt, ev.pack.n_parallel * I])
+        vt = ocv - x[2 * n : 3 * n] - x[3 * n : 4 * n] - R_s * I  # battery.terminal_voltage, vectorised
+        return np.column_stack(
+            [
+                u.length_to_si(x[:n]),
+                u.speed_to_si(x[n : 2 * n]),
+                u.speed_to_si(v_lead),
+                ev.pack.n_series * vt,
+                ev.pack.n_parallel * I,
+            ]
+        )
 
-    def _sensed(self, sm: SensorModel, est: Estimator | None, i: int, k: int, tk: float,
-                a_prev: float) -> tuple[np.ndarray, Measurement, Estimate | None]:
+    def _sensed(
+        self, sm: SensorModel, est: Estimator | None, i: int, k: int, tk: float, a_prev: float
+    ) -> tuple[np.ndarray, Measurement, Estimate | None]:
         """(z [model], measurement, estimate) of follower i at step k: the estimator's gap, own speed and cell states
         (without an estimator: the measured gap, the measured own speed bridged over its delay with the acceleration
         applied last; the cell's states read exactly when observed)."""
@@ -467,8 +564,10 @@ class ClosedLoop:
         elif e is not None:
             cell = (e.V1_V, e.V2_V, e.soc)
         else:
-            raise ParameterError("closed loop: the battery states are not observed (sensors.battery_states_observed "
-                                 "= false) and no estimator is set: pass estimator='ekf' or 'mhe'")
+            raise ParameterError(
+                "closed loop: the battery states are not observed (sensors.battery_states_observed "
+                "= false) and no estimator is set: pass estimator='ekf' or 'mhe'"
+            )
         z = np.array([max(float(u.length_from_si(gap)), 1e-6), float(u.speed_from_si(v)), *cell])
         return z, m, e
 
@@ -489,11 +588,16 @@ def estimation_errors(err: np.ndarray, dt_s: float) -> dict[str, float]:
     t = dt_s * np.arange(err.shape[0])
     late = err[t >= 60.0, 0]
     rms = np.sqrt(np.mean(err**2, axis=0))
-    return {"soc_err_rms_pct": 100 * float(rms[0]), "soc_err_final_pct": 100 * float(err[-1, 0]),
-            "soc_err_max_pct": 100 * float(np.abs(err[:, 0]).max()),
-            "soc_err_max_after_60s_pct": 100 * float(np.abs(late).max()) if late.size else float("nan"),
-            "V1_err_rms_mV": 1e3 * float(rms[1]), "V2_err_rms_mV": 1e3 * float(rms[2]),
-            "gap_err_rms_m": float(rms[3]), "lead_speed_err_rms_mps": float(rms[4])}
+    return {
+        "soc_err_rms_pct": 100 * float(rms[0]),
+        "soc_err_final_pct": 100 * float(err[-1, 0]),
+        "soc_err_max_pct": 100 * float(np.abs(err[:, 0]).max()),
+        "soc_err_max_after_60s_pct": 100 * float(np.abs(late).max()) if late.size else float("nan"),
+        "V1_err_rms_mV": 1e3 * float(rms[1]),
+        "V2_err_rms_mV": 1e3 * float(rms[2]),
+        "gap_err_rms_m": float(rms[3]),
+        "lead_speed_err_rms_mps": float(rms[4]),
+    }
 
 
 def forecast_rms(t: np.ndarray, v_actual: np.ndarray, dt: float, forecasts: Sequence[np.ndarray | None]) -> float:
@@ -513,11 +617,22 @@ def forecast_rms(t: np.ndarray, v_actual: np.ndarray, dt: float, forecasts: Sequ
     return float(np.sqrt(np.mean(e**2)))
 
 
-def run_closed_loop(leader: LeaderProfile, controllers: Sequence[Any], gaps0: Sequence[float],
-                    speeds0: Sequence[float], t_end: float, *, ev: EVParams | None = None,
-                    soc0: float | Sequence[float] | None = None, fallback_law: CarFollowingLaw | None = None,
-                    progress: ProgressFn | None = None, mismatch: Mismatch | None = None,
-                    sensors: Sensors | None = None, estimator: str | EstimatorFactory | None = "ekf") -> SimulationResult:
+def run_closed_loop(
+    leader: LeaderProfile,
+    controllers: Sequence[Any],
+    gaps0: Sequence[float],
+    speeds0: Sequence[float],
+    t_end: float,
+    *,
+    ev: EVParams | None = None,
+    soc0: float | Sequence[float] | None = None,
+    fallback_law: CarFollowingLaw | None = None,
+    progress: ProgressFn | None = None,
+    mismatch: Mismatch | None = None,
+    sensors: Sensors | None = None,
+    estimator: str | EstimatorFactory | None = "ekf",
+) -> SimulationResult:
     """Build a :class:`ClosedLoop` and run it once (model units; see the class)."""
-    return ClosedLoop(leader, controllers, ev, fallback_law, mismatch=mismatch, sensors=sensors,
-                      estimator=estimator).run(gaps0, speeds0, t_end, soc0=soc0, progress=progress)
+    return ClosedLoop(
+        leader, controllers, ev, fallback_law, mismatch=mismatch, sensors=sensors, estimator=estimator
+    ).run(gaps0, speeds0, t_end, soc0=soc0, progress=progress)

@@ -26,8 +26,11 @@ import numpy as np
 
 from .params import ParameterError, spec, validate_fields
 
-BLAST_MODELS = {"LFP": "Lfp_Gr_SonyMurata3Ah_Battery", "NMC": "Nmc811_GrSi_LGMJ1_4Ah_Battery",
-                "NCA": "Nca_Gr_Panasonic3Ah_Battery"}
+BLAST_MODELS = {
+    "LFP": "Lfp_Gr_SonyMurata3Ah_Battery",
+    "NMC": "Nmc811_GrSi_LGMJ1_4Ah_Battery",
+    "NCA": "Nca_Gr_Panasonic3Ah_Battery",
+}
 #: The ``life`` extra (pyproject.toml) is blast-lite >= 1.1.1, which pins numpy < 2: pip then installs numpy 1.26
 #: (Python 3.11 wheels; the toolkit needs numpy >= 1.24 and runs on both). To keep numpy 2 instead, install its
 #: dependencies and then blast-lite without them (``pip install pandas h5pyd geopy && pip install --no-deps
@@ -53,13 +56,19 @@ class DailySchedule:
         if not hs or any(not (0 <= h < 24) for h in hs) or any(b <= a for a, b in zip(hs, hs[1:])):
             raise ParameterError(f"DailySchedule.trip_start_h = {hs!r} is not allowed: increasing hours in [0, 24)")
         if self.charge_start_h <= hs[-1]:
-            raise ParameterError(f"DailySchedule.charge_start_h = {self.charge_start_h!r} is not allowed: must be "
-                                 f"after the last trip ({hs[-1]:g} h)")
+            raise ParameterError(
+                f"DailySchedule.charge_start_h = {self.charge_start_h!r} is not allowed: must be "
+                f"after the last trip ({hs[-1]:g} h)"
+            )
 
 
-def daily_profile(t_s: Sequence[float] | np.ndarray, soc: Sequence[float] | np.ndarray,
-                  T_K: Sequence[float] | np.ndarray, ambient_K: float,
-                  schedule: DailySchedule | None = None) -> dict[str, np.ndarray]:
+def daily_profile(
+    t_s: Sequence[float] | np.ndarray,
+    soc: Sequence[float] | np.ndarray,
+    T_K: Sequence[float] | np.ndarray,
+    ambient_K: float,
+    schedule: DailySchedule | None = None,
+) -> dict[str, np.ndarray]:
     """One day (86 400 s) of SOC [-] and temperature [°C] under ``schedule`` from one drive (t_s [s], soc, T_K
     [K]); the BLAST-Lite input: {'Time_s', 'SOC', 'Temperature_C'}. ParameterError when the drives do not fit."""
     sch = schedule or DailySchedule()
@@ -90,8 +99,9 @@ def daily_profile(t_s: Sequence[float] | np.ndarray, soc: Sequence[float] | np.n
     t_charge = (ds[0] - level) / sch.charge_C * 3600.0  # constant current: SOC rises at charge_C per hour
     c0 = sch.charge_start_h * 3600.0
     if c0 + t_charge >= 86400.0:
-        raise ParameterError(f"daily_profile: charging {ds[0] - level:.3g} of SOC at {sch.charge_C:g}C does not "
-                             "finish before midnight")
+        raise ParameterError(
+            f"daily_profile: charging {ds[0] - level:.3g} of SOC at {sch.charge_C:g}C does not finish before midnight"
+        )
     times += [c0, c0 + t_charge, 86400.0]
     socs += [level, float(ds[0]), float(ds[0])]
     temps += [ambient_K] * 3
@@ -184,13 +194,17 @@ def battery_life(profile: dict[str, np.ndarray], chemistry: str, years: float = 
     return life_from_model(model, years)
 
 
-def life_of_run(result: Any, vehicle: int, chemistry: str, schedule: DailySchedule | None = None,
-                years: float = 10.0) -> dict[str, Any]:
+def life_of_run(
+    result: Any, vehicle: int, chemistry: str, schedule: DailySchedule | None = None, years: float = 10.0
+) -> dict[str, Any]:
     """Battery life of follower ``vehicle`` (0-based) of a SimulationResult with the thermal model on (its pack
     temperature; without it the pack is taken at the ambient of ``result.ev.thermal``)."""
     ev = result.ev
     t_s = np.asarray(ev.units.time_to_si(result.t), float)
-    T = (result.temperature_K[:, vehicle] if result.temperature_K is not None
-         else np.full(t_s.size, ev.thermal.ambient_K))
+    T = (
+        result.temperature_K[:, vehicle]
+        if result.temperature_K is not None
+        else np.full(t_s.size, ev.thermal.ambient_K)
+    )
     prof = daily_profile(t_s, result.S[:, vehicle], T, ev.thermal.ambient_K, schedule)
     return battery_life(prof, chemistry, years)

@@ -28,9 +28,14 @@ YEARS = 10.0
 STEPS = len(CYCLES) * len(AMBIENTS_K) + 1
 
 
-def life_rows(cycles: tuple[str, ...] = CYCLES, ambients_K: dict[str, float] | None = None,
-              segment_s: float = SEGMENT_S, years: float = YEARS, schedule: DailySchedule | None = None,
-              log: Callable[[str], None] | None = None) -> list[dict[str, Any]]:
+def life_rows(
+    cycles: tuple[str, ...] = CYCLES,
+    ambients_K: dict[str, float] | None = None,
+    segment_s: float = SEGMENT_S,
+    years: float = YEARS,
+    schedule: DailySchedule | None = None,
+    log: Callable[[str], None] | None = None,
+) -> list[dict[str, Any]]:
     """One row per cycle × ambient × controller: pack heat, temperature metrics and (with BLAST-Lite) the battery
     life of the drive repeated by ``schedule``."""
     from .metrics import vehicle_metrics
@@ -52,11 +57,20 @@ def life_rows(cycles: tuple[str, ...] = CYCLES, ambients_K: dict[str, float] | N
             for (ctrl, _pred), r in runs.items():
                 m = vehicle_metrics(r, 0)
                 row: dict[str, Any] = {
-                    "cycle": cyc, "ambient": label, "ambient_K": T_amb, "controller": ctrl, "status": r.status,
-                    "duration_s": m["duration_s"], "distance_m": m["distance_m"],
-                    "heat_pack_J_per_km": m["heat_pack_J_per_km"], "heat_irr_pack_J": m["heat_irr_pack_J"],
-                    "peak_temperature_K": m["peak_temperature_K"], "mean_temperature_K": m["mean_temperature_K"],
-                    "time_above_T_max_s": m["time_above_T_max_s"], "chemistry": chem}
+                    "cycle": cyc,
+                    "ambient": label,
+                    "ambient_K": T_amb,
+                    "controller": ctrl,
+                    "status": r.status,
+                    "duration_s": m["duration_s"],
+                    "distance_m": m["distance_m"],
+                    "heat_pack_J_per_km": m["heat_pack_J_per_km"],
+                    "heat_irr_pack_J": m["heat_irr_pack_J"],
+                    "peak_temperature_K": m["peak_temperature_K"],
+                    "mean_temperature_K": m["mean_temperature_K"],
+                    "time_above_T_max_s": m["time_above_T_max_s"],
+                    "chemistry": chem,
+                }
                 if with_life:
                     row.update(life_of_run(r, 0, chem, schedule, years))
                 rows.append(row)
@@ -69,15 +83,28 @@ def _chemistry(cell: Any) -> str:
 
     for name in shipped_cells():
         cf = load_cell_file(name)
-        same = all(getattr(cf.cell, k) == getattr(cell, k) for k in ("capacity_Ah", "R_s_ohm", "R1_ohm", "C1_F",
-                                                                       "R2_ohm", "C2_F"))
+        same = all(
+            getattr(cf.cell, k) == getattr(cell, k)
+            for k in ("capacity_Ah", "R_s_ohm", "R1_ohm", "C1_F", "R2_ohm", "C2_F")
+        )
         if same:
             return str(cf.chemistry)
     return "LFP"  # the default cell is the A123 (LFP)
 
 
-COLUMNS = ("cycle", "ambient", "controller", "heat_pack_J_per_km", "peak_temperature_K", "mean_temperature_K",
-           "capacity_1y", "capacity_5y", "capacity_10y", "resistance_10y", "years_to_80pct")
+COLUMNS = (
+    "cycle",
+    "ambient",
+    "controller",
+    "heat_pack_J_per_km",
+    "peak_temperature_K",
+    "mean_temperature_K",
+    "capacity_1y",
+    "capacity_5y",
+    "capacity_10y",
+    "resistance_10y",
+    "years_to_80pct",
+)
 
 
 def _fmt(v: Any) -> str:
@@ -86,8 +113,14 @@ def _fmt(v: Any) -> str:
     return v if isinstance(v, str) else fmt(v)
 
 
-def life_section(out_dir: Any, progress: Callable[[str], None], *, segment_s: float = SEGMENT_S,
-                 years: float = YEARS, cycles: tuple[str, ...] = CYCLES) -> str:
+def life_section(
+    out_dir: Any,
+    progress: Callable[[str], None],
+    *,
+    segment_s: float = SEGMENT_S,
+    years: float = YEARS,
+    cycles: tuple[str, ...] = CYCLES,
+) -> str:
     """Run :func:`life_rows`, write battery_life/{life.csv, life.json, life.md}, return the Markdown."""
     out = Path(out_dir) / "battery_life"
     out.mkdir(parents=True, exist_ok=True)
@@ -98,19 +131,32 @@ def life_section(out_dir: Any, progress: Callable[[str], None], *, segment_s: fl
     cols = [c for c in COLUMNS if any(c in r for r in rows)]
     table = markdown_table(cols, [[_fmt(r.get(c, math.nan)) for c in cols] for r in rows])
     write_text(out / "life.csv", csv_text(cols, [[r.get(c, "") for c in cols] for r in rows]))
-    write_json(out / "life.json", {"rows": rows, "schedule": vars(sch), "segment_s": segment_s, "years": years,
-                                   "blast_models": BLAST_MODELS, "wall_time_s": time.perf_counter() - t0})
+    write_json(
+        out / "life.json",
+        {
+            "rows": rows,
+            "schedule": vars(sch),
+            "segment_s": segment_s,
+            "years": years,
+            "blast_models": BLAST_MODELS,
+            "wall_time_s": time.perf_counter() - t0,
+        },
+    )
     write_text(out / "life.md", table)
-    lines = ["## Battery life", "",
-             f"One follower over the first {segment_s:g} s of {', '.join(c.upper() for c in cycles)} with the lumped pack thermal model on "
-             f"(aev_ocp/models/thermal.py; ambient hot {AMBIENTS_K['hot']:g} K, cold {AMBIENTS_K['cold']:g} K, "
-             "T(0) = ambient), the proposed law, OVFL and the MPC (the cycles section's solver path). Capacity and "
-             "resistance are relative to new, from NREL's BLAST-Lite "
-             f"({', '.join(f'{k}: {v}' for k, v in BLAST_MODELS.items())}) fed the drive's SOC and pack temperature, "
-             f"repeated as a daily schedule: drives at {', '.join(f'{h:g} h' for h in sch.trip_start_h)}, rest at the "
-             f"ambient, charging back at {sch.charge_C:g}C from {sch.charge_start_h:g} h; {years:g} years. "
-             "Years to 80 %: '> 10' when not reached. At 10 °C BLAST-Lite's LFP model extrapolates (its cycling "
-             "data span 20-40 °C).", ""]
+    lines = [
+        "## Battery life",
+        "",
+        f"One follower over the first {segment_s:g} s of {', '.join(c.upper() for c in cycles)} with the lumped pack thermal model on "
+        f"(aev_ocp/models/thermal.py; ambient hot {AMBIENTS_K['hot']:g} K, cold {AMBIENTS_K['cold']:g} K, "
+        "T(0) = ambient), the proposed law, OVFL and the MPC (the cycles section's solver path). Capacity and "
+        "resistance are relative to new, from NREL's BLAST-Lite "
+        f"({', '.join(f'{k}: {v}' for k, v in BLAST_MODELS.items())}) fed the drive's SOC and pack temperature, "
+        f"repeated as a daily schedule: drives at {', '.join(f'{h:g} h' for h in sch.trip_start_h)}, rest at the "
+        f"ambient, charging back at {sch.charge_C:g}C from {sch.charge_start_h:g} h; {years:g} years. "
+        "Years to 80 %: '> 10' when not reached. At 10 °C BLAST-Lite's LFP model extrapolates (its cycling "
+        "data span 20-40 °C).",
+        "",
+    ]
     if not blast_available():
         lines += [INSTALL_HINT + " (the life columns are left out).", ""]
     lines += [table, "", "Files: `battery_life/life.csv`, `battery_life/life.json`, `battery_life/life.md`.", ""]
@@ -130,4 +176,6 @@ def _reproduce_section(out_dir: Any, progress: Callable[[str], None]) -> str:
     return life_section(out_dir, progress, segment_s=20.0, years=1.0, cycles=("us06",))
 
 
-REPRODUCE_SECTIONS = [("battery-life", _reproduce_section, STEPS)]  # listed in aev_ocp.report_sections.SECTION_PROVIDERS
+REPRODUCE_SECTIONS = [
+    ("battery-life", _reproduce_section, STEPS)
+]  # listed in aev_ocp.report_sections.SECTION_PROVIDERS

@@ -39,10 +39,14 @@ MPC_BYTES_PER_INTERVAL = 1_000_000
 #: The oracle (OCP-D) keeps its NLP as one mapped interval Function (no SX expansion): measured on UDDS at
 #: N = 300/1200, 66/93 MB (ms) and 90/187 MB (collocation), i.e. 30 kB and 107 kB per interval.
 OCP_BYTES_PER_INTERVAL: dict[tuple[str, str], float] = {
-    ("prop31", "ms"): 0.65e6, ("prop31", "collocation"): 0.65e6,
-    ("current-profile", "ms"): 0.8e6, ("current-profile", "collocation"): 0.25e6,
-    ("eco-trip", "ms"): 4.2e6, ("eco-trip", "collocation"): 0.75e6,
-    ("oracle", "ms"): 0.04e6, ("oracle", "collocation"): 0.135e6,
+    ("prop31", "ms"): 0.65e6,
+    ("prop31", "collocation"): 0.65e6,
+    ("current-profile", "ms"): 0.8e6,
+    ("current-profile", "collocation"): 0.25e6,
+    ("eco-trip", "ms"): 4.2e6,
+    ("eco-trip", "collocation"): 0.75e6,
+    ("oracle", "ms"): 0.04e6,
+    ("oracle", "collocation"): 0.135e6,
 }
 #: Fixed part of an OCP run (CasADi, IPOPT, the OCV spline, plots) [bytes], measured at small N.
 OCP_BASE_BYTES = 0.15e9
@@ -79,8 +83,10 @@ def estimate_ocp_bytes(problem: str, N: int, method: str = "ms") -> float:
     try:
         per = OCP_BYTES_PER_INTERVAL[(problem, method)]
     except KeyError:
-        raise ParameterError(f"ocp: no memory model for problem {problem!r} with method {method!r}; known: "
-                             f"{sorted({p for p, _ in OCP_BYTES_PER_INTERVAL})} x ['ms', 'collocation']") from None
+        raise ParameterError(
+            f"ocp: no memory model for problem {problem!r} with method {method!r}; known: "
+            f"{sorted({p for p, _ in OCP_BYTES_PER_INTERVAL})} x ['ms', 'collocation']"
+        ) from None
     return OCP_BASE_BYTES + per * float(N)
 
 
@@ -98,9 +104,11 @@ def check_ocp_size(problem: str, N: int, method: str = "ms", key: str = "--N") -
     need, limit = estimate_ocp_bytes(problem, N, method), memory_limit_bytes()
     if need <= limit:
         return need
-    raise ParameterError(f"ocp {problem}: N = {N} intervals ({method}) need about {_gb(need)}, more than the limit of "
-                         f"{_gb(limit)} ($AEV_OCP_MAX_MEMORY_GB): lower {key} so that N <= "
-                         f"{max_ocp_intervals(problem, method)}")
+    raise ParameterError(
+        f"ocp {problem}: N = {N} intervals ({method}) need about {_gb(need)}, more than the limit of "
+        f"{_gb(limit)} ($AEV_OCP_MAX_MEMORY_GB): lower {key} so that N <= "
+        f"{max_ocp_intervals(problem, method)}"
+    )
 
 
 def oracle_intervals(t_end: float, dt: float) -> int:
@@ -118,10 +126,12 @@ def check_simulation_size(n_followers: int, t_end: float, dt_out: float) -> floa
     if need <= limit:
         return need
     per_vehicle = need / max(n_followers, 1)
-    raise ParameterError(f"simulate: {n_followers} followers x {n_samples(t_end, dt_out):.3g} samples (t_end = {t_end:g}, "
-                         f"dt_out = {dt_out:g}) need about {_gb(need)}, more than the limit of {_gb(limit)} "
-                         f"($AEV_OCP_MAX_MEMORY_GB): raise dt_out, lower t_end, or simulate at most "
-                         f"{int(limit // per_vehicle)} followers")
+    raise ParameterError(
+        f"simulate: {n_followers} followers x {n_samples(t_end, dt_out):.3g} samples (t_end = {t_end:g}, "
+        f"dt_out = {dt_out:g}) need about {_gb(need)}, more than the limit of {_gb(limit)} "
+        f"($AEV_OCP_MAX_MEMORY_GB): raise dt_out, lower t_end, or simulate at most "
+        f"{int(limit // per_vehicle)} followers"
+    )
 
 
 def check_mpc_size(N: int, n_mpc_vehicles: int = 1) -> float:
@@ -130,9 +140,11 @@ def check_mpc_size(N: int, n_mpc_vehicles: int = 1) -> float:
     need, limit = float(MPC_BYTES_PER_INTERVAL) * N * max(n_mpc_vehicles, 1), memory_limit_bytes()
     if need <= limit:
         return need
-    raise ParameterError(f"mpc: {n_mpc_vehicles} MPC vehicle(s) with horizon N = {N} need about {_gb(need)}, more than "
-                         f"the limit of {_gb(limit)} ($AEV_OCP_MAX_MEMORY_GB): lower MPCSettings.N to at most "
-                         f"{int(limit // (MPC_BYTES_PER_INTERVAL * max(n_mpc_vehicles, 1)))}")
+    raise ParameterError(
+        f"mpc: {n_mpc_vehicles} MPC vehicle(s) with horizon N = {N} need about {_gb(need)}, more than "
+        f"the limit of {_gb(limit)} ($AEV_OCP_MAX_MEMORY_GB): lower MPCSettings.N to at most "
+        f"{int(limit // (MPC_BYTES_PER_INTERVAL * max(n_mpc_vehicles, 1)))}"
+    )
 
 
 # ----------------------------------------------------------------------------- studies
@@ -152,12 +164,16 @@ def check_study_size(n_points: int, n_controllers: int, where: str) -> float:
     n_tasks = n_points * max(n_controllers, 1)
     need, limit = STUDY_BYTES_PER_POINT * float(n_points), memory_limit_bytes()
     if n_tasks > MAX_STUDY_TASKS:
-        raise ParameterError(f"{where}: {n_points:.4g} points x {n_controllers} controllers = {n_tasks:.4g} tasks, more "
-                             f"than the {MAX_STUDY_TASKS} a study may hold: use fewer values or a smaller random n, "
-                             "or split the sweep into several studies")
+        raise ParameterError(
+            f"{where}: {n_points:.4g} points x {n_controllers} controllers = {n_tasks:.4g} tasks, more "
+            f"than the {MAX_STUDY_TASKS} a study may hold: use fewer values or a smaller random n, "
+            "or split the sweep into several studies"
+        )
     if need > limit:
-        raise ParameterError(f"{where}: {n_points:.4g} points need about {_gb(need)} to validate, more than the limit "
-                             f"of {_gb(limit)} ($AEV_OCP_MAX_MEMORY_GB): use fewer values or a smaller random n")
+        raise ParameterError(
+            f"{where}: {n_points:.4g} points need about {_gb(need)} to validate, more than the limit "
+            f"of {_gb(limit)} ($AEV_OCP_MAX_MEMORY_GB): use fewer values or a smaller random n"
+        )
     return need
 
 
@@ -178,8 +194,10 @@ def check_local_workers(n: int | None, key: str = "--workers") -> int | None:
         return None
     cap = max_local_workers()
     if isinstance(n, bool) or not isinstance(n, int) or not 1 <= n <= cap:
-        raise ParameterError(f"{key} {n!r}: must be an integer from 1 to {cap} ({MAX_WORKERS_PER_CORE} per core on "
-                             f"this machine's {os.cpu_count() or 1} cores)")
+        raise ParameterError(
+            f"{key} {n!r}: must be an integer from 1 to {cap} ({MAX_WORKERS_PER_CORE} per core on "
+            f"this machine's {os.cpu_count() or 1} cores)"
+        )
     return n
 
 
@@ -200,8 +218,11 @@ def read_regular_file(path: str | os.PathLike[str], max_bytes: int) -> bytes:
     try:
         st = os.fstat(fd)
         if not stat.S_ISREG(st.st_mode):
-            raise FileRefused("it is a folder" if stat.S_ISDIR(st.st_mode)
-                              else "it is not a regular file but a FIFO, device or socket")
+            raise FileRefused(
+                "it is a folder"
+                if stat.S_ISDIR(st.st_mode)
+                else "it is not a regular file but a FIFO, device or socket"
+            )
         if st.st_size > max_bytes:
             raise FileRefused(f"it is {st.st_size} bytes, more than the {max_bytes} it may have")
         with os.fdopen(fd, "rb", closefd=False) as fh:
@@ -220,8 +241,13 @@ def read_regular_file(path: str | os.PathLike[str], max_bytes: int) -> bytes:
 MAX_INPUT_FILE_BYTES = 16 * 2**20
 
 
-def read_input_file(path: str | os.PathLike[str], what: str, error: Callable[[str], Exception],
-                    max_bytes: int = MAX_INPUT_FILE_BYTES, label: str | None = None) -> bytes:
+def read_input_file(
+    path: str | os.PathLike[str],
+    what: str,
+    error: Callable[[str], Exception],
+    max_bytes: int = MAX_INPUT_FILE_BYTES,
+    label: str | None = None,
+) -> bytes:
     """:func:`read_regular_file` for an input file of the user's: ``raise error(message)`` instead of
     :class:`FileRefused`, one line naming ``label`` (default the path) and ``what`` (e.g. 'study file')."""
     try:

@@ -113,7 +113,9 @@ def vehicle_metrics(r: SimulationResult, i: int) -> dict[str, Any]:
         "rms_ovm_error_model": rms(r.int_ovm_err2),
         "rms_rel_speed_model": rms(r.int_rel_speed2),
         "rms_jerk_model": rms_jerk,
-        "max_abs_current_A": float(np.nanmax(np.abs(r.current_A[:, i]))) if np.isfinite(r.current_A[:, i]).any() else float("nan"),
+        "max_abs_current_A": float(np.nanmax(np.abs(r.current_A[:, i])))
+        if np.isfinite(r.current_A[:, i]).any()
+        else float("nan"),
         "gap_violations": int(np.sum(h[1:] < h_min - 1e-9)),
         "speed_violations": int(np.sum((v[1:] < -1e-9) | (v[1:] > v_max + 1e-9))),
         "collisions": kinds.count("collision"),
@@ -122,8 +124,13 @@ def vehicle_metrics(r: SimulationResult, i: int) -> dict[str, Any]:
     }
     if r.temperature_K is not None:  # the lumped pack temperature: peak, time-mean, time above the limit
         tm = temperature_metrics(u.time_to_si(t), r.temperature_K[:, i], r.ev.thermal.T_max_K)
-        out.update({"peak_temperature_K": tm["peak_K"], "mean_temperature_K": tm["mean_K"],
-                    "time_above_T_max_s": tm["time_above_s"]})
+        out.update(
+            {
+                "peak_temperature_K": tm["peak_K"],
+                "mean_temperature_K": tm["mean_K"],
+                "time_above_T_max_s": tm["time_above_s"],
+            }
+        )
     out.update(distance_metrics(r, i, duration))
     out.update(si_twins(out, u))
     stats = r.solver_stats[i] if i < len(r.solver_stats) else None
@@ -135,9 +142,12 @@ def vehicle_metrics(r: SimulationResult, i: int) -> dict[str, Any]:
 #: SI twins of the model-unit metrics: model key -> (SI key, dimension). Distance, duration, gap, TTC and ω
 #: have their SI keys beside them already (distance_m, duration_s, min_gap_m, min_ttc_s, omega_J_per_kg).
 SI_METRICS: dict[str, tuple[str, str]] = {
-    "min_speed_model": ("min_speed_mps", "speed"), "max_speed_model": ("max_speed_mps", "speed"),
-    "rms_ovm_error_model": ("rms_ovm_error_mps", "speed"), "rms_rel_speed_model": ("rms_rel_speed_mps", "speed"),
-    "final_ovm_error_model": ("final_ovm_error_mps", "speed"), "rms_jerk_model": ("rms_jerk_mps3", "jerk"),
+    "min_speed_model": ("min_speed_mps", "speed"),
+    "max_speed_model": ("max_speed_mps", "speed"),
+    "rms_ovm_error_model": ("rms_ovm_error_mps", "speed"),
+    "rms_rel_speed_model": ("rms_rel_speed_mps", "speed"),
+    "final_ovm_error_model": ("final_ovm_error_mps", "speed"),
+    "rms_jerk_model": ("rms_jerk_mps3", "jerk"),
 }
 
 
@@ -151,7 +161,7 @@ def si_twins(m: dict[str, Any], u: Any) -> dict[str, float]:
 def si_first(columns: list[str]) -> list[str]:
     """Metric columns in a stable order with the model-unit ones (``*_model``, ``*_model_*``) after the others,
     so that tables lead with SI."""
-    is_model = (lambda c: c.endswith("_model") or "_model_" in c)  # noqa: E731
+    is_model = lambda c: c.endswith("_model") or "_model_" in c  # noqa: E731
     return [c for c in columns if not is_model(c)] + [c for c in columns if is_model(c)]
 
 
@@ -222,8 +232,7 @@ def _rel_diff(a: Any, b: Any) -> float:
     return (a - b) / abs(b)
 
 
-def comparability(m: dict[str, Any], ref: dict[str, Any] | None,
-                  rel_tol: float = COMPARABLE_REL_TOL) -> dict[str, Any]:
+def comparability(m: dict[str, Any], ref: dict[str, Any] | None, rel_tol: float = COMPARABLE_REL_TOL) -> dict[str, Any]:
     """Whether the metrics ``m`` of one vehicle can be ranked beside those of the same vehicle under the
     reference controller (``ref``; None when the reference run is missing or failed).
 
@@ -240,5 +249,11 @@ def comparability(m: dict[str, Any], ref: dict[str, Any] | None,
         du = _rel_diff(m.get("duration_s"), ref.get("duration_s"))
     flag_d = not (math.isfinite(dd) and abs(dd) <= rel_tol)
     flag_t = not (math.isfinite(du) and abs(du) <= rel_tol)
-    return {"distance_diff_pct": 100 * dd, "duration_diff_pct": 100 * du, "flag_distance": flag_d,
-            "flag_duration": flag_t, "flag_event": ended, "comparable": not (flag_d or flag_t or ended)}
+    return {
+        "distance_diff_pct": 100 * dd,
+        "duration_diff_pct": 100 * du,
+        "flag_distance": flag_d,
+        "flag_duration": flag_t,
+        "flag_event": ended,
+        "comparable": not (flag_d or flag_t or ended),
+    }

@@ -5,8 +5,9 @@ from __future__ import annotations
 from typing import Any, Callable
 
 
-def rk4(f: Callable[[Any], Any], x: Any, h: Any, substeps: int = 1,
-        g: Callable[[Any], Any] | None = None) -> tuple[Any, Any]:
+def rk4(
+    f: Callable[[Any], Any], x: Any, h: Any, substeps: int = 1, g: Callable[[Any], Any] | None = None
+) -> tuple[Any, Any]:
     """Classical Runge–Kutta 4 over one interval of length h with ``substeps`` equal steps.
 
     f(x) -> ẋ; g(x) -> integrand of an optional quadrature ∫g dt over the interval (same stages).

@@ -17,13 +17,22 @@ from .plots import Figure, plt, save_figure
 
 # name in an OCPResult -> (readable name, unit for a time unit in seconds, unit for model time)
 QUANTITY_LABELS: dict[str, tuple[str, str, str]] = {
-    "x": ("position x", "m", "model length"), "h": ("gap h", "m", "model length"),
-    "v": ("speed v", "m/s", "model speed"), "a": ("acceleration a", "m/s²", "model acceleration"),
-    "V1": ("RC voltage V1", "V", "V"), "V2": ("RC voltage V2", "V", "V"), "S": ("state of charge S", "-", "-"),
-    "E": ("delivered energy E", "J", "J"), "I": ("cell current I", "A", "A"), "Q": ("cell heat rate Q", "W", "W"),
-    "Q_pack_W": ("pack heat rate", "W", "W"), "P_w_W": ("wheel power P_w", "W", "W"),
-    "P_b_W": ("battery power P_b", "W", "W"), "disc": ("current-map discriminant E² − 4R_sP_c", "V²", "V²"),
-    "omega_rate": ("energy rate v·g(a)", "W/kg", "model units"), "s": ("epigraph variable s (≥ v·g(a))", "W/kg", "model"),
+    "x": ("position x", "m", "model length"),
+    "h": ("gap h", "m", "model length"),
+    "v": ("speed v", "m/s", "model speed"),
+    "a": ("acceleration a", "m/s²", "model acceleration"),
+    "V1": ("RC voltage V1", "V", "V"),
+    "V2": ("RC voltage V2", "V", "V"),
+    "S": ("state of charge S", "-", "-"),
+    "E": ("delivered energy E", "J", "J"),
+    "I": ("cell current I", "A", "A"),
+    "Q": ("cell heat rate Q", "W", "W"),
+    "Q_pack_W": ("pack heat rate", "W", "W"),
+    "P_w_W": ("wheel power P_w", "W", "W"),
+    "P_b_W": ("battery power P_b", "W", "W"),
+    "disc": ("current-map discriminant E² − 4R_sP_c", "V²", "V²"),
+    "omega_rate": ("energy rate v·g(a)", "W/kg", "model units"),
+    "s": ("epigraph variable s (≥ v·g(a))", "W/kg", "model"),
     "energy_rate": ("energy rate", "W/kg", "model units"),
 }
 # A current below this magnitude [A] is drawn and labelled as 0: IPOPT's tol 1e-8 on the scaled current
@@ -44,7 +53,9 @@ def _stairs(ax: Any, t: np.ndarray, u: np.ndarray, **kw: Any) -> None:
     ax.step(t, np.append(u, u[-1]), where="post", **kw)
 
 
-def plot_prop31(cases: dict[str, dict[str, Any]], path: str | Path | None = None, cell: CellParams | None = None) -> Figure:
+def plot_prop31(
+    cases: dict[str, dict[str, Any]], path: str | Path | None = None, cell: CellParams | None = None
+) -> Figure:
     """Proposition 3.1 (OCP-A), one column per case: top, the optimal current I*(t) [A] beside the zero-heat
     alternative I = −(V1+V2)/R_s (a current below ZERO_CURRENT_A is drawn as 0 and labelled 'numerically
     zero' with its largest magnitude); bottom, the stored RC energy W(t) = ½C1V1² + ½C2V2² [J] under both,
@@ -60,21 +71,31 @@ def plot_prop31(cases: dict[str, dict[str, Any]], path: str | Path | None = None
         alt_I = np.asarray(sim["I"], float)
         if float(np.max(np.abs(alt_I))) < ZERO_CURRENT_A:
             alt_I = np.zeros_like(alt_I)
-        ax_i.plot(sim["t"], alt_I, color="tab:orange", ls="--", lw=1.4,
-                  label=f"I = −(V1+V2)/R_s: ∫Q = {_j(alt_J)} J")
-        ax_w.plot(sim["t"], stored_energy_J(np.asarray(sim["V1"]), np.asarray(sim["V2"]), cell), color="tab:orange",
-                  ls="--", lw=1.4, label="I = −(V1+V2)/R_s")
+        ax_i.plot(sim["t"], alt_I, color="tab:orange", ls="--", lw=1.4, label=f"I = −(V1+V2)/R_s: ∫Q = {_j(alt_J)} J")
+        ax_w.plot(
+            sim["t"],
+            stored_energy_J(np.asarray(sim["V1"]), np.asarray(sim["V2"]), cell),
+            color="tab:orange",
+            ls="--",
+            lw=1.4,
+            label="I = −(V1+V2)/R_s",
+        )
         if res.success:
             I = np.asarray(res.controls["I"], float)
             peak = float(np.max(np.abs(I)))
             zero = peak < ZERO_CURRENT_A
-            lab = (f"I* = 0 (numerically: max |I*| = {peak:.1e} A)" if zero else f"I* (max |I*| = {peak:.3g} A)")
+            lab = f"I* = 0 (numerically: max |I*| = {peak:.1e} A)" if zero else f"I* (max |I*| = {peak:.3g} A)"
             _stairs(ax_i, res.t, np.zeros_like(I) if zero else I, color="tab:blue", lw=1.6, label=lab)
             ax_i.plot([], [], " ", label=f"J* = ∫Q dt = {_j(res.objective)} J")
             zero_all = zero and float(np.max(np.abs(alt_I))) == 0.0
             if "V1" in res.states and "V2" in res.states:
-                ax_w.plot(res.t, stored_energy_J(res.states["V1"], res.states["V2"], cell), color="tab:blue", lw=1.6,
-                          label="I*")
+                ax_w.plot(
+                    res.t,
+                    stored_energy_J(res.states["V1"], res.states["V2"], cell),
+                    color="tab:blue",
+                    lw=1.6,
+                    label="I*",
+                )
         else:
             zero_all = False
             ax_i.plot([], [], " ", label=f"no optimum: {res.status}")
@@ -94,8 +115,9 @@ def plot_prop31(cases: dict[str, dict[str, Any]], path: str | Path | None = None
             ax_w.set_ylabel("stored RC energy W [J]")
         for ax in (ax_i, ax_w):
             ax.grid(alpha=0.3)
-    fig.suptitle("OCP-A (Proposition 3.1): optimal cell current (top) and the RC energy W it drains (bottom)",
-                 fontsize=10)
+    fig.suptitle(
+        "OCP-A (Proposition 3.1): optimal cell current (top) and the RC energy W it drains (bottom)", fontsize=10
+    )
     fig.tight_layout()
     return save_figure(fig, path)
 
@@ -133,8 +155,11 @@ def plot_result(res: OCPResult, path: str | Path | None = None, names: Sequence[
         ax.grid(alpha=0.3)
     for ax in axes[-1]:
         ax.set_xlabel(f"t [{res.time_unit}]")
-    fig.suptitle(f"{res.problem} ({res.method}, N = {res.N}): {res.status}, objective {res.objective:.6g}"
-                 + (f" ({res.objective_name})" if res.objective_name else ""), fontsize=10)
+    fig.suptitle(
+        f"{res.problem} ({res.method}, N = {res.N}): {res.status}, objective {res.objective:.6g}"
+        + (f" ({res.objective_name})" if res.objective_name else ""),
+        fontsize=10,
+    )
     fig.tight_layout()
     return save_figure(fig, path)
 
@@ -144,8 +169,10 @@ def percent_saving(optimal: float, reference: float) -> float:
     return 100.0 * (reference - optimal) / reference
 
 
-CURRENT_PROFILE_REFERENCES = {"constant_current_heat_J": ("constant current", "o-"),
-                              "constant_power_heat_J": ("constant power", "s--")}
+CURRENT_PROFILE_REFERENCES = {
+    "constant_current_heat_J": ("constant current", "o-"),
+    "constant_power_heat_J": ("constant power", "s--"),
+}
 
 
 def plot_current_profile_sweep(rows: list[dict[str, Any]], path: str | Path | None = None) -> Figure:
@@ -156,11 +183,16 @@ def plot_current_profile_sweep(rows: list[dict[str, Any]], path: str | Path | No
     fig, ax = plt.subplots(figsize=(7, 4.5))
     horizons = sorted({r["t_f_s"] for r in rows})
     for k, tf in enumerate(horizons):
-        sel = sorted((r for r in rows if r["t_f_s"] == tf and math.isfinite(r.get("optimal_heat_J", math.nan))),
-                     key=lambda r: r["E_req_J"])
+        sel = sorted(
+            (r for r in rows if r["t_f_s"] == tf and math.isfinite(r.get("optimal_heat_J", math.nan))),
+            key=lambda r: r["E_req_J"],
+        )
         for key, (name, fmt) in CURRENT_PROFILE_REFERENCES.items():
-            pts = [(r["E_req_J"], percent_saving(r["optimal_heat_J"], r[key])) for r in sel
-                   if math.isfinite(r.get(key, math.nan)) and r[key] > 0]
+            pts = [
+                (r["E_req_J"], percent_saving(r["optimal_heat_J"], r[key]))
+                for r in sel
+                if math.isfinite(r.get(key, math.nan)) and r[key] > 0
+            ]
             if pts:
                 xs, ys = zip(*pts)
                 ax.plot(xs, ys, fmt, color=f"C{k}", label=f"vs {name}, t_f = {tf:g} s")
@@ -177,10 +209,25 @@ def plot_current_profile_sweep(rows: list[dict[str, Any]], path: str | Path | No
 def write_prop31_outputs(cases: dict[str, dict[str, Any]], out_dir: str | Path) -> dict[str, Path]:
     """prop31.json (one entry per case, without the trajectories) and prop31_currents.png."""
     out_dir = Path(out_dir)
-    keep = ("objective_J", "max_abs_current_A", "zero_heat_alternative_objective_J",
-            "zero_heat_alternative_max_abs_current_A", "switched_alternative_objective_J", "status",
-            "iterations", "solve_time_s", "max_violation", "stored_rc_energy_W0_J", "Q_nonneg_constraint",
-            "V0", "lq_exact_discrete_J", "objective_exact_J", "objective_2N_J", "warnings", "verdict")
+    keep = (
+        "objective_J",
+        "max_abs_current_A",
+        "zero_heat_alternative_objective_J",
+        "zero_heat_alternative_max_abs_current_A",
+        "switched_alternative_objective_J",
+        "status",
+        "iterations",
+        "solve_time_s",
+        "max_violation",
+        "stored_rc_energy_W0_J",
+        "Q_nonneg_constraint",
+        "V0",
+        "lq_exact_discrete_J",
+        "objective_exact_J",
+        "objective_2N_J",
+        "warnings",
+        "verdict",
+    )
     js = {c: {k: e[k] for k in keep if k in e} for c, e in cases.items()}
     paths = {"json": write_json_atomic(out_dir / "prop31.json", js)}
     paths["png"] = out_dir / "prop31_currents.png"

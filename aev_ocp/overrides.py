@@ -44,12 +44,22 @@ from typing import Any, Iterable, Mapping
 #: ``[units]`` (dimension: "time" [s], "length" [m], "speed" [m/s], "accel" [m/s²]).
 SI_TWINS: dict[str, dict[str, tuple[str, str]]] = {
     "simulation": {"t_end": ("t_end_s", "time"), "dt_out": ("dt_out_s", "time")},
-    "platoon": {"gap0": ("gap0_m", "length"), "gap0_first": ("gap0_first_m", "length"),
-                "gap0_others": ("gap0_others_m", "length"), "gaps0": ("gaps0_m", "length"),
-                "speed0": ("speed0_mps", "speed"), "speeds0": ("speeds0_mps", "speed")},
-    "leader": {"v": ("v_mps", "speed"), "v0": ("v0_mps", "speed"), "amplitude": ("amplitude_mps2", "accel"),
-               "forcing_end": ("forcing_end_s", "time"), "times": ("times_s", "time"),
-               "speeds": ("speeds_mps", "speed")},
+    "platoon": {
+        "gap0": ("gap0_m", "length"),
+        "gap0_first": ("gap0_first_m", "length"),
+        "gap0_others": ("gap0_others_m", "length"),
+        "gaps0": ("gaps0_m", "length"),
+        "speed0": ("speed0_mps", "speed"),
+        "speeds0": ("speeds0_mps", "speed"),
+    },
+    "leader": {
+        "v": ("v_mps", "speed"),
+        "v0": ("v0_mps", "speed"),
+        "amplitude": ("amplitude_mps2", "accel"),
+        "forcing_end": ("forcing_end_s", "time"),
+        "times": ("times_s", "time"),
+        "speeds": ("speeds_mps", "speed"),
+    },
 }
 
 
@@ -68,9 +78,12 @@ def si_twin(key: str) -> str | None:
 #: SI twin (:data:`SI_TWINS`, e.g. simulation.t_end and simulation.t_end_s) always do.
 _WHOLE_GAPS = ("gaps0", "gaps0_m", "gap0", "gap0_m")
 EXCLUSIVE: dict[str, tuple[tuple[str, ...], ...]] = {
-    "platoon": (("speed0", "speed0_mps", "speed0_factor", "speeds0", "speeds0_mps"),
-                _WHOLE_GAPS + ("gap0_first", "gap0_first_m"), _WHOLE_GAPS + ("gap0_others", "gap0_others_m"),
-                ("law", "laws")),
+    "platoon": (
+        ("speed0", "speed0_mps", "speed0_factor", "speeds0", "speeds0_mps"),
+        _WHOLE_GAPS + ("gap0_first", "gap0_first_m"),
+        _WHOLE_GAPS + ("gap0_others", "gap0_others_m"),
+        ("law", "laws"),
+    ),
 }
 
 
@@ -99,8 +112,10 @@ def parse_value(text: str) -> Any:
         return text
     except (ValueError, RecursionError) as exc:  # an integer of > 4300 digits, arrays nested thousands deep
         why = "arrays nested too deeply" if isinstance(exc, RecursionError) else "a number of too many digits"
-        raise OverrideError(f"override value {text[:40]!r}{'...' if len(text) > 40 else ''} is not a value any "
-                            f"scenario key takes ({why})") from None
+        raise OverrideError(
+            f"override value {text[:40]!r}{'...' if len(text) > 40 else ''} is not a value any "
+            f"scenario key takes ({why})"
+        ) from None
     if not _all_finite(value):
         raise OverrideError(f"override value {text!r} is not a finite number")
     return value
@@ -167,9 +182,8 @@ def apply_to_document(doc: Mapping[str, Any], overrides: Mapping[str, Any], file
             if nxt is None:
                 nxt = node[part] = {}
             if not isinstance(nxt, dict):
-                where = ".".join(parts[:depth + 1])
-                raise OverrideError(f"{file}: override {key} = {value!r}: {where} is a value "
-                                    f"({nxt!r}), not a table")
+                where = ".".join(parts[: depth + 1])
+                raise OverrideError(f"{file}: override {key} = {value!r}: {where} is a value ({nxt!r}), not a table")
             node = nxt
         leaf = parts[-1]
         table = ".".join(parts[:-1])
@@ -184,7 +198,9 @@ def apply_to_document(doc: Mapping[str, Any], overrides: Mapping[str, Any], file
             node[leaf] = copy.deepcopy(value)
     ignored = [k for k in overrides if k in ("platoon.law", "platoon.laws")]
     if ignored and out.get("compare"):
-        raise OverrideError(f"{file}: override {ignored[0]} = {overrides[ignored[0]]!r} would be ignored: the "
-                            f"scenario sets compare = {out['compare']!r}, so every run uses those laws; "
-                            f"override 'compare' instead (e.g. compare=[\"ovfl\"])")
+        raise OverrideError(
+            f"{file}: override {ignored[0]} = {overrides[ignored[0]]!r} would be ignored: the "
+            f"scenario sets compare = {out['compare']!r}, so every run uses those laws; "
+            f"override 'compare' instead (e.g. compare=[\"ovfl\"])"
+        )
     return out

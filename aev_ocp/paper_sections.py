@@ -13,10 +13,26 @@ from typing import Any
 import numpy as np
 
 from .models.carfollowing import V_INF
-from .plots import (plot_compare_omega, plot_leader, plot_percent_change, plot_phase_planes, plot_platoon,
-                    plot_space_time)
-from .report import (OVER_LIMIT_MARK, PAPER_TABLE1, PRINTED_HALF_ULP, markdown_table, fmt, platoon_checks,
-                     scenario_metrics_rows, table1_disagreements, table1_summary, write_table1)
+from .plots import (
+    plot_compare_omega,
+    plot_leader,
+    plot_percent_change,
+    plot_phase_planes,
+    plot_platoon,
+    plot_space_time,
+)
+from .report import (
+    OVER_LIMIT_MARK,
+    PAPER_TABLE1,
+    PRINTED_HALF_ULP,
+    markdown_table,
+    fmt,
+    platoon_checks,
+    scenario_metrics_rows,
+    table1_disagreements,
+    table1_summary,
+    write_table1,
+)
 from .report_sections import ProgressFn, ReproduceConfig, Section, SectionContext
 from .results import SimulationResult, write_json
 from .saved import save_output, settings_of
@@ -76,43 +92,70 @@ class PaperRun:
             for label, r in res.items():
                 chk = platoon_checks(r, t_eq=0.0)
                 m = r.metrics()[0]
-                facts.append([name, label, r.status, fmt(m["min_gap_model"]), fmt(chk["final_gap_error"][0], 3),
-                              fmt(chk["final_rel_speed"][0], 3), fmt(m["omega_model"])])
+                facts.append(
+                    [
+                        name,
+                        label,
+                        r.status,
+                        fmt(m["min_gap_model"]),
+                        fmt(chk["final_gap_error"][0], 3),
+                        fmt(chk["final_rel_speed"][0], 3),
+                        fmt(m["omega_model"]),
+                    ]
+                )
                 if r.status != "ok" or m["min_gap_model"] <= 0:
-                    self.notes.append(f"Fig. 1/2 {name}, {label}: the paper says the trajectory reaches the "
-                                      f"equilibrium without crossing h = 0; ours ends with status {r.status} "
-                                      f"(min gap {m['min_gap_model']:.4g}).")
+                    self.notes.append(
+                        f"Fig. 1/2 {name}, {label}: the paper says the trajectory reaches the "
+                        f"equilibrium without crossing h = 0; ours ends with status {r.status} "
+                        f"(min gap {m['min_gap_model']:.4g})."
+                    )
                 elif abs(chk["final_gap_error"][0]) > 1e-3 or abs(chk["final_rel_speed"][0]) > 1e-3:
-                    self.notes.append(f"Fig. 1/2 {name}, {label}: not at the equilibrium at t = {s.t_end:g} "
-                                      f"(gap error {chk['final_gap_error'][0]:.3g}).")
+                    self.notes.append(
+                        f"Fig. 1/2 {name}, {label}: not at the equilibrium at t = {s.t_end:g} "
+                        f"(gap error {chk['final_gap_error'][0]:.3g})."
+                    )
         si = self.config.si_units
         plot_phase_planes(panels1, out / "fig1_phase_plane.png", "Fig. 1: proposed model, a_l = 0", si=si)
         plot_phase_planes(panels2, out / "fig2_phase_plane_vs_ovfl.png", "Fig. 2: proposed vs OVFL, a_l = 0", si=si)
         table = markdown_table(["case", "law", "status", "min gap", "h(T) − V⁻¹(v_l)", "v_l − v at T", "ω"], facts)
         bad = self.notes[n_notes:]
         ctx = SectionContext.of(progress)
-        ctx.record_claim("Fig. 1/2: from both initial conditions the follower reaches the equilibrium (V⁻¹(v_l), 0) "
-                         "without crossing h = 0", "holds" if not bad else "fails",
-                         f"{len(facts)} runs (2 cases × proposed, OVFL): "
-                         + ("all end at the equilibrium (|h − V⁻¹(v_l)| < 1e-3) with min gap > 0" if not bad
-                            else "; ".join(bad)), HEAD_FIG12)
-        return (f"## {HEAD_FIG12}\n\n"
-                "One follower behind a constant-speed leader, α = 2, β = 3, κ = 0.03, horizon "
-                f"{load_scenario('fig1a').t_end if self.config.fig12_t_end is None else self.config.fig12_t_end:g}. "
-                "Red dot: initial condition; magenta ×: equilibrium (V⁻¹(v_l), 0); gray dashed: h = 0.\n\n"
-                "![Fig. 1](fig1_phase_plane.png)\n\n![Fig. 2](fig2_phase_plane_vs_ovfl.png)\n\n" + table +
-                "\nThe minimum gap is over the continuous trajectory (Hermite refinement of the samples).\n")
+        ctx.record_claim(
+            "Fig. 1/2: from both initial conditions the follower reaches the equilibrium (V⁻¹(v_l), 0) "
+            "without crossing h = 0",
+            "holds" if not bad else "fails",
+            f"{len(facts)} runs (2 cases × proposed, OVFL): "
+            + ("all end at the equilibrium (|h − V⁻¹(v_l)| < 1e-3) with min gap > 0" if not bad else "; ".join(bad)),
+            HEAD_FIG12,
+        )
+        return (
+            f"## {HEAD_FIG12}\n\n"
+            "One follower behind a constant-speed leader, α = 2, β = 3, κ = 0.03, horizon "
+            f"{load_scenario('fig1a').t_end if self.config.fig12_t_end is None else self.config.fig12_t_end:g}. "
+            "Red dot: initial condition; magenta ×: equilibrium (V⁻¹(v_l), 0); gray dashed: h = 0.\n\n"
+            "![Fig. 1](fig1_phase_plane.png)\n\n![Fig. 2](fig2_phase_plane_vs_ovfl.png)\n\n"
+            + table
+            + "\nThe minimum gap is over the continuous trajectory (Hermite refinement of the samples).\n"
+        )
 
     def fig3(self, out: Path, progress: ProgressFn) -> str:
         s = load_scenario("table1")
         progress("fig3: leader profile")
-        plot_leader(s.leader, s.t_end, out / "fig3_leader.png", "Fig. 3: the paper's leader", units=s.units,
-                    si=self.config.si_units)
+        plot_leader(
+            s.leader,
+            s.t_end,
+            out / "fig3_leader.png",
+            "Fig. 3: the paper's leader",
+            units=s.units,
+            si=self.config.si_units,
+        )
         v = s.leader.speed_np(np.linspace(0, s.t_end, 7001))
-        return ("## Fig. 3: the leader\n\n"
-                "a_l(t) = −(1.65/1.37)(sin(0.5πt) + cos(3.2πt)) on [0, 20], 0 after; v_l(0) = 1.7. "
-                f"Speed range on [0, {s.t_end:g}]: {v.min():.4f} … {v.max():.4f} (V∞ = {V_INF:.4f}); "
-                f"v_l(20) = {float(s.leader.speed_np(20.0)[0]):.4f}.\n\n![Fig. 3](fig3_leader.png)\n")
+        return (
+            "## Fig. 3: the leader\n\n"
+            "a_l(t) = −(1.65/1.37)(sin(0.5πt) + cos(3.2πt)) on [0, 20], 0 after; v_l(0) = 1.7. "
+            f"Speed range on [0, {s.t_end:g}]: {v.min():.4f} … {v.max():.4f} (V∞ = {V_INF:.4f}); "
+            f"v_l(20) = {float(s.leader.speed_np(20.0)[0]):.4f}.\n\n![Fig. 3](fig3_leader.png)\n"
+        )
 
     def table1(self, out: Path, progress: ProgressFn) -> str:
         s = load_scenario("table1")
@@ -124,95 +167,165 @@ class PaperRun:
         progress("table1: Fig. 5 and ω plot")
         chk = platoon_checks(res["proposed"], t_eq=20.0)
         si = self.config.si_units
-        plot_platoon(res["proposed"], out / "fig5_platoon.png", v_eq=chk["v_eq"], si=si,
-                     title="Fig. 5: platoon under the proposed model (gray: equilibrium for v_l(20))")
+        plot_platoon(
+            res["proposed"],
+            out / "fig5_platoon.png",
+            v_eq=chk["v_eq"],
+            si=si,
+            title="Fig. 5: platoon under the proposed model (gray: equilibrium for v_l(20))",
+        )
         for law, r in res.items():
-            plot_space_time(r, out / f"table1_space_time_{law}.png", si=si,
-                            title=f"Table 1 platoon under {law}: space-time diagram")
-        plot_compare_omega({k: summary[f"{k}_omega"] for k in ("proposed", "ovfl")}, out / "table1_omega.png",
-                           reference=PAPER_TABLE1, title="Table 1: ω per follower")
-        plot_percent_change(summary["percent_change"], summary["paper_percent_change"], out / "table1_percent.png",
-                            title="Table 1: % change of ω, proposed vs OVFL, per follower")
+            plot_space_time(
+                r, out / f"table1_space_time_{law}.png", si=si, title=f"Table 1 platoon under {law}: space-time diagram"
+            )
+        plot_compare_omega(
+            {k: summary[f"{k}_omega"] for k in ("proposed", "ovfl")},
+            out / "table1_omega.png",
+            reference=PAPER_TABLE1,
+            title="Table 1: ω per follower",
+        )
+        plot_percent_change(
+            summary["percent_change"],
+            summary["paper_percent_change"],
+            out / "table1_percent.png",
+            title="Table 1: % change of ω, proposed vs OVFL, per follower",
+        )
         self._table1_claims(summary, chk, SectionContext.of(progress))
         self.fig5_checks = chk
         n = s.n_followers
-        bat = markdown_table(["law"] + [f"n = {i + 1}" for i in range(n)],
-                             [[f"{k} pack ∫Q [J]"] + [fmt(x) for x in summary["pack_heat_J"][k]] for k in res]
-                             + [[f"{k} pack ∫Q_irr [J]"] + [fmt(x) for x in summary["pack_heat_irr_J"][k]] for k in res]
-                             + [[f"{k} ΔSOC"] + [fmt(x, 3) for x in summary["delta_soc"][k]] for k in res]
-                             + [[f"{k} ω [J/kg]"] + [fmt(x) for x in summary["omega_J_per_kg"][k]] for k in res])
+        bat = markdown_table(
+            ["law"] + [f"n = {i + 1}" for i in range(n)],
+            [[f"{k} pack ∫Q [J]"] + [fmt(x) for x in summary["pack_heat_J"][k]] for k in res]
+            + [[f"{k} pack ∫Q_irr [J]"] + [fmt(x) for x in summary["pack_heat_irr_J"][k]] for k in res]
+            + [[f"{k} ΔSOC"] + [fmt(x, 3) for x in summary["delta_soc"][k]] for k in res]
+            + [[f"{k} ω [J/kg]"] + [fmt(x) for x in summary["omega_J_per_kg"][k]] for k in res],
+        )
         table_md = (out / "table1.md").read_text()
         u = s.units
-        fig5_rows = [[f"n = {i + 1}", fmt(chk["min_gap"][i]), fmt(chk["min_speed"][i]), fmt(chk["peak_abs_rel_speed"][i]),
-                      fmt(chk["final_gap_error"][i], 3), fmt(chk["final_rel_speed"][i], 3)] for i in range(n)]
-        return (f"## {HEAD_TABLE1}\n\n"
-                f"Converged values (integrator {res['proposed'].meta.get('integrator', '?')}, rtol = atol = "
-                f"{s.rtol:g}; the exact, non-smooth g is used — the cascade evaluates ω exactly from v at the "
-                "zeros of v̇, CVODES integrates it as an error-controlled quadrature — and the run is split at "
-                "the leader's switch t = 20; the tolerance study below and the test suite cross-check both "
-                "integrators and an independent SciPy integration). "
-                "Files: table1.csv, table1.md, table1.json.\n\n" + table_md +
-                "\n![Table 1 ω](table1_omega.png)\n\n![Table 1 % change](table1_percent.png)\n\n"
-                f"### Battery side of Table 1 (units L = {u.length_m:g} m, U = {u.speed_mps:g} m/s, T = {u.time_s:g} s; "
-                "pack of 106s70p A123 cells)\n\n" + bat +
-                f"\n## {HEAD_FIG5}\n\n![Fig. 5](fig5_platoon.png)\n\n"
-                "Space-time diagrams of the same platoon (positions relative to the leader's start, coloured by "
-                "speed):\n\n![space-time, proposed](table1_space_time_proposed.png)\n\n"
-                "![space-time, OVFL](table1_space_time_ovfl.png)\n\n"
-                + markdown_table(["follower", "min gap", "min speed", "max |Δv|", "h(70) − V⁻¹(v_l(20))",
-                                  "Δv(70)"], fig5_rows)
-                + f"\nEquilibrium for v_l(20) = {chk['v_eq']:.4f}: gap V⁻¹(v_l(20)) = {chk['h_eq']:.4f}.\n")
+        fig5_rows = [
+            [
+                f"n = {i + 1}",
+                fmt(chk["min_gap"][i]),
+                fmt(chk["min_speed"][i]),
+                fmt(chk["peak_abs_rel_speed"][i]),
+                fmt(chk["final_gap_error"][i], 3),
+                fmt(chk["final_rel_speed"][i], 3),
+            ]
+            for i in range(n)
+        ]
+        return (
+            f"## {HEAD_TABLE1}\n\n"
+            f"Converged values (integrator {res['proposed'].meta.get('integrator', '?')}, rtol = atol = "
+            f"{s.rtol:g}; the exact, non-smooth g is used — the cascade evaluates ω exactly from v at the "
+            "zeros of v̇, CVODES integrates it as an error-controlled quadrature — and the run is split at "
+            "the leader's switch t = 20; the tolerance study below and the test suite cross-check both "
+            "integrators and an independent SciPy integration). "
+            "Files: table1.csv, table1.md, table1.json.\n\n"
+            + table_md
+            + "\n![Table 1 ω](table1_omega.png)\n\n![Table 1 % change](table1_percent.png)\n\n"
+            f"### Battery side of Table 1 (units L = {u.length_m:g} m, U = {u.speed_mps:g} m/s, T = {u.time_s:g} s; "
+            "pack of 106s70p A123 cells)\n\n" + bat + f"\n## {HEAD_FIG5}\n\n![Fig. 5](fig5_platoon.png)\n\n"
+            "Space-time diagrams of the same platoon (positions relative to the leader's start, coloured by "
+            "speed):\n\n![space-time, proposed](table1_space_time_proposed.png)\n\n"
+            "![space-time, OVFL](table1_space_time_ovfl.png)\n\n"
+            + markdown_table(
+                ["follower", "min gap", "min speed", "max |Δv|", "h(70) − V⁻¹(v_l(20))", "Δv(70)"], fig5_rows
+            )
+            + f"\nEquilibrium for v_l(20) = {chk['v_eq']:.4f}: gap V⁻¹(v_l(20)) = {chk['h_eq']:.4f}.\n"
+        )
 
     def _table1_claims(self, summary: dict[str, Any], chk: dict[str, Any], ctx: SectionContext) -> None:
         """Summary rows for Table 1 and Fig. 5."""
-        dev = {k: [100 * (a - b) / b for a, b in zip(summary[f"{k}_omega"], summary[f"paper_{k}_omega"])]
-               for k in ("proposed", "ovfl")}
-        far = any(abs(a - b) > PRINTED_HALF_ULP for k in dev
-                  for a, b in zip(summary[f"{k}_omega"], summary[f"paper_{k}_omega"]))
-        ctx.record_claim("Table 1: the printed ω per follower", "disagrees" if far else "holds",
-                         "ours are " + ", ".join(f"{min(v):+.1f} … {max(v):+.1f} % ({k})" for k, v in dev.items())
-                         + " from the printed values; hypotheses for the gap are tested", HEAD_TABLE1)
+        dev = {
+            k: [100 * (a - b) / b for a, b in zip(summary[f"{k}_omega"], summary[f"paper_{k}_omega"])]
+            for k in ("proposed", "ovfl")
+        }
+        far = any(
+            abs(a - b) > PRINTED_HALF_ULP
+            for k in dev
+            for a, b in zip(summary[f"{k}_omega"], summary[f"paper_{k}_omega"])
+        )
+        ctx.record_claim(
+            "Table 1: the printed ω per follower",
+            "disagrees" if far else "holds",
+            "ours are "
+            + ", ".join(f"{min(v):+.1f} … {max(v):+.1f} % ({k})" for k, v in dev.items())
+            + " from the printed values; hypotheses for the gap are tested",
+            HEAD_TABLE1,
+        )
         pc = summary["percent_change"]
         worse = [i + 1 for i, x in enumerate(pc) if x > 0]
-        ctx.record_claim("Table 1: the proposed law uses less energy ω than OVFL for every follower",
-                         "fails" if worse else "holds",
-                         "% change " + ", ".join(f"{x:+.2f}" for x in pc)
-                         + (f"; follower(s) {worse} use more" if worse else ""), HEAD_TABLE1)
+        ctx.record_claim(
+            "Table 1: the proposed law uses less energy ω than OVFL for every follower",
+            "fails" if worse else "holds",
+            "% change " + ", ".join(f"{x:+.2f}" for x in pc) + (f"; follower(s) {worse} use more" if worse else ""),
+            HEAD_TABLE1,
+        )
         safe = chk["status"] == "ok" and min(chk["min_gap"]) > 0 and min(chk["min_speed"]) >= 0
-        ctx.record_claim("Fig. 5: no collision and no negative speed in the platoon", "holds" if safe else "fails",
-                         f"min gap {min(chk['min_gap']):.3g}, min speed {min(chk['min_speed']):.3g} [model]", HEAD_FIG5)
-        ctx.record_claim("Fig. 5: the perturbation attenuates along the platoon",
-                         "holds" if chk["attenuates"] else "partly",
-                         "peak |v_(n−1) − v_n| per follower " + ", ".join(f"{x:.3f}" for x in chk["peak_abs_rel_speed"])
-                         + ("" if chk["attenuates"] else " (grows from follower 1 to 2, then decreases)"), HEAD_FIG5)
+        ctx.record_claim(
+            "Fig. 5: no collision and no negative speed in the platoon",
+            "holds" if safe else "fails",
+            f"min gap {min(chk['min_gap']):.3g}, min speed {min(chk['min_speed']):.3g} [model]",
+            HEAD_FIG5,
+        )
+        ctx.record_claim(
+            "Fig. 5: the perturbation attenuates along the platoon",
+            "holds" if chk["attenuates"] else "partly",
+            "peak |v_(n−1) − v_n| per follower "
+            + ", ".join(f"{x:.3f}" for x in chk["peak_abs_rel_speed"])
+            + ("" if chk["attenuates"] else " (grows from follower 1 to 2, then decreases)"),
+            HEAD_FIG5,
+        )
 
     def table1_hypotheses(self, out: Path, progress: ProgressFn) -> str:
         from .table1_hypotheses import hypotheses_markdown, run_hypotheses, table1_setups
 
         progress("table1 hypotheses: g, η convention, window, integrator, sampling")
         res = {law: run_hypotheses(setup, PAPER_TABLE1[law]) for law, setup in table1_setups().items()}
-        write_json(out / "table1_hypotheses.json", {
-            law: {"hypotheses": [{"key": h.key, "description": h.description, "omega": h.omega,
-                                  "deviation_pct": h.deviation_pct, "fits": h.fits} for h in hyps],
-                  "printed": hyps[0].printed, "fitted_regeneration_efficiency": extra["fitted_regeneration"]}
-            for law, (hyps, extra) in res.items()})
+        write_json(
+            out / "table1_hypotheses.json",
+            {
+                law: {
+                    "hypotheses": [
+                        {
+                            "key": h.key,
+                            "description": h.description,
+                            "omega": h.omega,
+                            "deviation_pct": h.deviation_pct,
+                            "fits": h.fits,
+                        }
+                        for h in hyps
+                    ],
+                    "printed": hyps[0].printed,
+                    "fitted_regeneration_efficiency": extra["fitted_regeneration"],
+                }
+                for law, (hyps, extra) in res.items()
+            },
+        )
         fits = [f"{law}: {h.description}" for law, (hyps, _) in res.items() for h in hyps[1:] if h.fits]
         c = {law: extra["fitted_regeneration"] for law, (_, extra) in res.items()}
         ctx = SectionContext.of(progress)
-        ctx.record_claim("Table 1 (our question): is the gap to the printed ω a different g, η convention, window, "
-                         "integrator or sampling?", "explained" if fits else "not explained",
-                         ("fits: " + "; ".join(fits)) if fits else
-                         f"none of {sum(len(h) - 1 for h, _ in res.values())} computed variants is within 1 % of every "
-                         "printed value; the braking efficiency that would fit ranges "
-                         f"{min(float(min(v)) for v in c.values()):.3f}–{max(float(max(v)) for v in c.values()):.3f} "
-                         "across followers", HEAD_HYP)
-        return (f"## {HEAD_HYP}\n\n"
-                "Each candidate explanation of the 3–20 % gap, computed (not assumed): the Table 1 platoon is "
-                "integrated once more by one CVODES integrator of the whole platoon with one quadrature "
-                "v·g(a) per candidate g (its baseline row reproduces Table 1 from a second integrator), forward "
-                "Euler runs of the whole platoon (CasADi mapaccum), and Riemann sums of the sampled trajectory. "
-                "Entries: ω and its deviation from the printed value. `aev_ocp.table1_hypotheses` recomputes "
-                "every row; file: table1_hypotheses.json.\n\n" + hypotheses_markdown(res))
+        ctx.record_claim(
+            "Table 1 (our question): is the gap to the printed ω a different g, η convention, window, "
+            "integrator or sampling?",
+            "explained" if fits else "not explained",
+            ("fits: " + "; ".join(fits))
+            if fits
+            else f"none of {sum(len(h) - 1 for h, _ in res.values())} computed variants is within 1 % of every "
+            "printed value; the braking efficiency that would fit ranges "
+            f"{min(float(min(v)) for v in c.values()):.3f}–{max(float(max(v)) for v in c.values()):.3f} "
+            "across followers",
+            HEAD_HYP,
+        )
+        return (
+            f"## {HEAD_HYP}\n\n"
+            "Each candidate explanation of the 3–20 % gap, computed (not assumed): the Table 1 platoon is "
+            "integrated once more by one CVODES integrator of the whole platoon with one quadrature "
+            "v·g(a) per candidate g (its baseline row reproduces Table 1 from a second integrator), forward "
+            "Euler runs of the whole platoon (CasADi mapaccum), and Riemann sums of the sampled trajectory. "
+            "Entries: ω and its deviation from the printed value. `aev_ocp.table1_hypotheses` recomputes "
+            "every row; file: table1_hypotheses.json.\n\n" + hypotheses_markdown(res)
+        )
 
     def tolerance(self, out: Path, progress: ProgressFn) -> str:
         s = load_scenario("table1")
@@ -220,13 +333,22 @@ class PaperRun:
         json_rows: list[dict[str, Any]] = []
         settings = [(tol, s.dt_out) for tol in self.config.tolerances] + [(s.rtol, s.dt_out / 2)]
         for tol, dt in settings:
-            res = self.simulate(s, progress, f"tolerance rtol=atol={tol:g}, dt_out={dt:g}", rtol=tol, atol=tol,
-                                dt_out=dt)
+            res = self.simulate(
+                s, progress, f"tolerance rtol=atol={tol:g}, dt_out={dt:g}", rtol=tol, atol=tol, dt_out=dt
+            )
             for label, r in res.items():
                 om = [float(x) for x in r.omega[-1]]
                 rows.append([f"{tol:g}", f"{dt:g}", label] + [f"{x:.6f}" for x in om])
-                json_rows.append({"rtol": tol, "atol": tol, "dt_out": dt, "law": label, "omega": om,
-                                  "pack_heat_J": [float(x) for x in r.heat_J[-1]]})
+                json_rows.append(
+                    {
+                        "rtol": tol,
+                        "atol": tol,
+                        "dt_out": dt,
+                        "law": label,
+                        "omega": om,
+                        "pack_heat_J": [float(x) for x in r.heat_J[-1]],
+                    }
+                )
         write_json(out / "tolerance_study.json", json_rows)
         ref = {(d["law"]): d["omega"] for d in json_rows if d["rtol"] == min(self.config.tolerances)}
         spread = {}
@@ -235,20 +357,24 @@ class PaperRun:
             spread[law] = float(np.max(np.ptp(np.array(tight), axis=0))) if len(tight) > 1 else float("nan")
         self.tol_spread = spread
         n = s.n_followers
-        text = ("## Tolerance study (Table 1 ω)\n\n"
-                "The same Table 1 runs at several integrator tolerances (rtol = atol) and with the output "
-                "spacing dt_out halved. File: tolerance_study.json.\n\n"
-                + markdown_table(["rtol = atol", "dt_out", "law"] + [f"n = {i + 1}" for i in range(n)], rows)
-                + "\nLargest change of any ω among the runs with rtol ≤ 1e-8: "
-                + ", ".join(f"{k}: {v:.2e}" for k, v in spread.items())
-                + ". The printed table has 3 decimals, so the converged values are settled far below that.\n")
+        text = (
+            "## Tolerance study (Table 1 ω)\n\n"
+            "The same Table 1 runs at several integrator tolerances (rtol = atol) and with the output "
+            "spacing dt_out halved. File: tolerance_study.json.\n\n"
+            + markdown_table(["rtol = atol", "dt_out", "law"] + [f"n = {i + 1}" for i in range(n)], rows)
+            + "\nLargest change of any ω among the runs with rtol ≤ 1e-8: "
+            + ", ".join(f"{k}: {v:.2e}" for k, v in spread.items())
+            + ". The printed table has 3 decimals, so the converged values are settled far below that.\n"
+        )
         return text
 
     def scenarios(self, out: Path, progress: ProgressFn) -> str:
-        parts = ["## Battery side of every shipped scenario\n\n"
-                 "Pack ∫Q (the paper's power loss, unclipped) and ∫Q_irr (the heat actually dissipated), "
-                 "ΔSOC = S_end − S_0, per follower, each scenario under its own units. Per-run metrics: "
-                 "scenarios/<name>/metrics.json; the runs themselves: `aev_ocp.load(\"scenarios/<name>\")`.\n"]
+        parts = [
+            "## Battery side of every shipped scenario\n\n"
+            "Pack ∫Q (the paper's power loss, unclipped) and ∫Q_irr (the heat actually dissipated), "
+            "ΔSOC = S_end − S_0, per follower, each scenario under its own units. Per-run metrics: "
+            'scenarios/<name>/metrics.json; the runs themselves: `aev_ocp.load("scenarios/<name>")`.\n'
+        ]
         names = self.config.scenarios
         for name, path in iter_shipped():
             if names is not None and name not in names:
@@ -268,14 +394,21 @@ class PaperRun:
                 r_mpc = self.simulate_mpc(s, progress, name)
                 res = {"mpc": r_mpc, **res}
                 st = [x for x in r_mpc.solver_stats if x]
-                form = ("model guide §9" if mpc_cfg.formulation.kind == "s9"
-                        else "the traffic formulation, aev_ocp/ocp/traffic.py")
-                mpc_line = (f"\nThe `mpc` rows are the scenario's own [mpc] closed loop ({form}, forecast "
-                            f"{mpc_cfg.settings.predictor}) on the exact "
-                            f"plant: solver path {st[0]['solver_path'] if st else '?'} "
-                            f"(QP {(st[0].get('qp_solver') or '—') if st else '?'}), "
-                            f"{sum(x['fallbacks'] for x in st)} fallbacks in {sum(x['n_steps'] for x in st)} "
-                            "solves.\n" if st else "")
+                form = (
+                    "model guide §9"
+                    if mpc_cfg.formulation.kind == "s9"
+                    else "the traffic formulation, aev_ocp/ocp/traffic.py"
+                )
+                mpc_line = (
+                    f"\nThe `mpc` rows are the scenario's own [mpc] closed loop ({form}, forecast "
+                    f"{mpc_cfg.settings.predictor}) on the exact "
+                    f"plant: solver path {st[0]['solver_path'] if st else '?'} "
+                    f"(QP {(st[0].get('qp_solver') or '—') if st else '?'}), "
+                    f"{sum(x['fallbacks'] for x in st)} fallbacks in {sum(x['n_steps'] for x in st)} "
+                    "solves.\n"
+                    if st
+                    else ""
+                )
             sub = out / "scenarios" / name
             write_json(sub / "metrics.json", {"scenario": name, "runs": {k: r.summary() for k, r in res.items()}})
             save_output(sub, "mpc" if "mpc" in res else "simulate", res, settings=settings_of(s))  # aev_ocp.load(sub)
@@ -283,32 +416,47 @@ class PaperRun:
             headers, rows = scenario_metrics_rows(res, i_max_A=i_max, totals=True)
             u = s.units
             v_max = s.leader.max_speed(s.t_end)
-            parts.append(f"\n### {name}\n\n{s.description}. Units L = {u.length_m:g} m, U = {u.speed_mps:g} m/s "
-                         f"(T = {u.time_s:.4g} s); horizon {s.t_end:g} model time = {u.time_to_si(s.t_end):.4g} s"
-                         + (f" (the first part of the scenario's {u.time_to_si(t_full):.4g} s, to keep reproduce short)"
-                            if s.t_end < t_full else "") + "; "
-                         f"leader top speed {v_max:.4f} model = {u.speed_to_si(v_max):.4g} m/s "
-                         f"(V∞·U = {u.speed_to_si(V_INF):.4g} m/s).\n\n" + markdown_table(headers, rows) + mpc_line)
+            parts.append(
+                f"\n### {name}\n\n{s.description}. Units L = {u.length_m:g} m, U = {u.speed_mps:g} m/s "
+                f"(T = {u.time_s:.4g} s); horizon {s.t_end:g} model time = {u.time_to_si(s.t_end):.4g} s"
+                + (
+                    f" (the first part of the scenario's {u.time_to_si(t_full):.4g} s, to keep reproduce short)"
+                    if s.t_end < t_full
+                    else ""
+                )
+                + "; "
+                f"leader top speed {v_max:.4f} model = {u.speed_to_si(v_max):.4g} m/s "
+                f"(V∞·U = {u.speed_to_si(V_INF):.4g} m/s).\n\n" + markdown_table(headers, rows) + mpc_line
+            )
             over = sorted({r[0] for r in rows if OVER_LIMIT_MARK in r[8]})
             if over:
-                parts.append(f"\n{OVER_LIMIT_MARK} The cell current exceeds the 20C limit ({i_max:g} A) in run(s) "
-                             f"{over}: the battery columns marked {OVER_LIMIT_MARK} are outside the cell model's "
-                             "validity and have no physical meaning (the closed-form laws do not know that limit; "
-                             "the simulator only stops on an infeasible demand, E² < 4 R_s P_c).\n")
+                parts.append(
+                    f"\n{OVER_LIMIT_MARK} The cell current exceeds the 20C limit ({i_max:g} A) in run(s) "
+                    f"{over}: the battery columns marked {OVER_LIMIT_MARK} are outside the cell model's "
+                    "validity and have no physical meaning (the closed-form laws do not know that limit; "
+                    "the simulator only stops on an infeasible demand, E² < 4 R_s P_c).\n"
+                )
             if s.n_followers > 1:
                 for label, r in res.items():
                     f = sub / f"{label}_space_time.png"
                     plot_space_time(r, f, si=self.config.si_units, title=f"{name}: {label}")
-                parts.append("\n" + " ".join(f"![{name} {label} space-time](scenarios/{name}/{label}_space_time.png)"
-                                             for label in res) + "\n")
+                parts.append(
+                    "\n"
+                    + " ".join(
+                        f"![{name} {label} space-time](scenarios/{name}/{label}_space_time.png)" for label in res
+                    )
+                    + "\n"
+                )
             bad = {k: r.status for k, r in res.items() if r.status != "ok"}
             if bad:
                 self.notes.append(f"Scenario {name}: runs ended early: {bad}.")
             p_heat = {k: float(np.sum(r.heat_J[-1])) for k, r in res.items()}
             if "proposed" in p_heat and "ovfl" in p_heat and p_heat["proposed"] > p_heat["ovfl"] * (1 + 1e-3):
-                self.notes.append(f"Scenario {name}: the proposed law's platoon dissipates MORE pack heat ∫Q than "
-                                  f"OVFL's ({p_heat['proposed']:.5g} J vs {p_heat['ovfl']:.5g} J summed over "
-                                  "followers): the paper's efficiency claim is about ω, not ∫Q.")
+                self.notes.append(
+                    f"Scenario {name}: the proposed law's platoon dissipates MORE pack heat ∫Q than "
+                    f"OVFL's ({p_heat['proposed']:.5g} J vs {p_heat['ovfl']:.5g} J summed over "
+                    "followers): the paper's efficiency claim is about ω, not ∫Q."
+                )
         return "".join(parts)
 
     def disagreements(self, out: Path, progress: ProgressFn) -> str:
@@ -319,34 +467,51 @@ class PaperRun:
         if hasattr(self, "fig5_checks"):
             c = self.fig5_checks
             if c["status"] != "ok" or min(c["min_gap"]) <= 0 or min(c["min_speed"]) < 0:
-                lines.append(f"Fig. 5: the paper reports no collision or negative speed; ours: status {c['status']}, "
-                             f"min gap {min(c['min_gap']):.4g}, min speed {min(c['min_speed']):.4g}.")
+                lines.append(
+                    f"Fig. 5: the paper reports no collision or negative speed; ours: status {c['status']}, "
+                    f"min gap {min(c['min_gap']):.4g}, min speed {min(c['min_speed']):.4g}."
+                )
             else:
                 lines.append("Fig. 5 agrees: no collision and no negative speed in the platoon.")
-            lines.append("Fig. 5: the peak |relative velocity| " + ("decreases" if c["attenuates"] else
-                         "does NOT decrease monotonically") + " along the platoon ("
-                         + ", ".join(f"{x:.3f}" for x in c["peak_abs_rel_speed"]) + "); the paper says the "
-                         "perturbation attenuates.")
+            lines.append(
+                "Fig. 5: the peak |relative velocity| "
+                + ("decreases" if c["attenuates"] else "does NOT decrease monotonically")
+                + " along the platoon ("
+                + ", ".join(f"{x:.3f}" for x in c["peak_abs_rel_speed"])
+                + "); the paper says the "
+                "perturbation attenuates."
+            )
             far = [i + 1 for i, e in enumerate(c["final_gap_error"]) if abs(e) > 1e-2]
-            lines.append("Fig. 5: at t = 70 " + ("every follower is within 0.01 of the equilibrium gap for v_l(20)."
-                         if not far else f"follower(s) {far} are still more than 0.01 from the equilibrium gap "
-                         f"V⁻¹(v_l(20)) = {c['h_eq']:.4f}."))
+            lines.append(
+                "Fig. 5: at t = 70 "
+                + (
+                    "every follower is within 0.01 of the equilibrium gap for v_l(20)."
+                    if not far
+                    else f"follower(s) {far} are still more than 0.01 from the equilibrium gap "
+                    f"V⁻¹(v_l(20)) = {c['h_eq']:.4f}."
+                )
+            )
         lines += self.notes
         if not lines:
             return ""
-        return ("## Where the numbers disagree with the paper (computed)\n\n"
-                + "".join(f"- {x}\n" for x in lines))
+        return "## Where the numbers disagree with the paper (computed)\n\n" + "".join(f"- {x}\n" for x in lines)
 
     def sections(self) -> list[Section]:
         t1 = load_scenario("table1")
         n_tol = len([tol for tol in self.config.tolerances if (tol, tol) != (t1.rtol, t1.atol)]) + 1
-        shipped = [load_scenario(p) for name, p in iter_shipped()
-                   if self.config.scenarios is None or name in self.config.scenarios]
+        shipped = [
+            load_scenario(p)
+            for name, p in iter_shipped()
+            if self.config.scenarios is None or name in self.config.scenarios
+        ]
         n_scen = sum(len(s.runs()) + (s.extra.get("mpc") is not None) for s in shipped)
-        table = {"fig1-2": Section("fig1-2", self.fig12, 4), "fig3": Section("fig3", self.fig3, 1),
-                 "table1": Section("table1", self.table1, 3),
-                 "table1-hypotheses": Section("table1-hypotheses", self.table1_hypotheses, 1),
-                 "tolerance": Section("tolerance", self.tolerance, 2 * n_tol),
-                 "scenarios": Section("scenarios", self.scenarios, n_scen),
-                 "disagreements": Section("disagreements", self.disagreements, 1)}
+        table = {
+            "fig1-2": Section("fig1-2", self.fig12, 4),
+            "fig3": Section("fig3", self.fig3, 1),
+            "table1": Section("table1", self.table1, 3),
+            "table1-hypotheses": Section("table1-hypotheses", self.table1_hypotheses, 1),
+            "tolerance": Section("tolerance", self.tolerance, 2 * n_tol),
+            "scenarios": Section("scenarios", self.scenarios, n_scen),
+            "disagreements": Section("disagreements", self.disagreements, 1),
+        }
         return [table[k] for k in self.config.builtin]

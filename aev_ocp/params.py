@@ -22,8 +22,7 @@ class ParameterError(ValueError):
 # ----------------------------------------------------------------------------- declared validation
 def type_name(value: Any) -> str:
     """'a string', 'an integer', ... for messages (TOML's names for Python types)."""
-    names = {bool: "a boolean", int: "an integer", float: "a float", str: "a string", list: "an array",
-             dict: "a table"}
+    names = {bool: "a boolean", int: "an integer", float: "a float", str: "a string", list: "an array", dict: "a table"}
     return names.get(type(value), f"a {type(value).__name__}")
 
 
@@ -55,12 +54,27 @@ class Check:
         if self.kind == "instance":
             return f"a {getattr(self.cls, '__name__', self.cls)}"
         what = "an integer" if self.kind == "integer" else "a finite number"
-        lo = (f"({self.gt:g}", self.gt) if self.gt is not None else (f"[{self.ge:g}", self.ge) if self.ge is not None else None
-        hi = (f"{self.lt:g})", self.lt) if self.lt is not None else (f"{self.le:g}]", self.le) if self.le is not None else None
+        lo = (
+            (f"({self.gt:g}", self.gt)
+            if self.gt is not None
+            else (f"[{self.ge:g}", self.ge)
+            if self.ge is not None
+            else None
+        )
+        hi = (
+            (f"{self.lt:g})", self.lt)
+            if self.lt is not None
+            else (f"{self.le:g}]", self.le)
+            if self.le is not None
+            else None
+        )
         if lo and hi:
             return f"{what} in {lo[0]}, {hi[0]}"
-        bounds = [f"{op} {b:g}" for op, b in ((">", self.gt), (">=", self.ge), ("<", self.lt), ("<=", self.le))
-                  if b is not None]
+        bounds = [
+            f"{op} {b:g}"
+            for op, b in ((">", self.gt), (">=", self.ge), ("<", self.lt), ("<=", self.le))
+            if b is not None
+        ]
         return what + (" " + " and ".join(bounds) if bounds else "")
 
     def problem(self, value: Any) -> str | None:
@@ -75,18 +89,36 @@ class Check:
             return None if isinstance(value, bool) else f"must be {self.allowed()}, got {type_name(value)}"
         if self.kind == "instance":
             return None if self.cls is not None and isinstance(value, self.cls) else f"must be {self.allowed()}"
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or (
-                self.kind == "integer" and not isinstance(value, int)):
+        if (
+            isinstance(value, bool)
+            or not isinstance(value, (int, float))
+            or (self.kind == "integer" and not isinstance(value, int))
+        ):
             return f"expected {self.allowed()}, got {type_name(value)}"
         x = float(value)
-        ok = (math.isfinite(x) and (self.gt is None or x > self.gt) and (self.ge is None or x >= self.ge)
-              and (self.lt is None or x < self.lt) and (self.le is None or x <= self.le))
+        ok = (
+            math.isfinite(x)
+            and (self.gt is None or x > self.gt)
+            and (self.ge is None or x >= self.ge)
+            and (self.lt is None or x < self.lt)
+            and (self.le is None or x <= self.le)
+        )
         return None if ok else f"must be {self.allowed()}"
 
 
-def spec(default: Any = MISSING, *, kind: str = "number", gt: float | None = None, ge: float | None = None,
-         lt: float | None = None, le: float | None = None, choices: Sequence[Any] | None = None,
-         cls: type | None = None, default_factory: Any = MISSING, optional: bool = False) -> Any:
+def spec(
+    default: Any = MISSING,
+    *,
+    kind: str = "number",
+    gt: float | None = None,
+    ge: float | None = None,
+    lt: float | None = None,
+    le: float | None = None,
+    choices: Sequence[Any] | None = None,
+    cls: type | None = None,
+    default_factory: Any = MISSING,
+    optional: bool = False,
+) -> Any:
     """A dataclass field whose type and range are declared once (``metadata["check"]``); ``optional``: None
     is allowed too."""
     check = Check(kind, gt, ge, lt, le, tuple(choices) if choices is not None else None, cls, optional)
@@ -278,8 +310,9 @@ def check_ocv_table(soc: Sequence[Any], ocv_V: Sequence[Any], where: str) -> Non
     s = [float(x) for x in soc]
     v = [float(x) for x in ocv_V]
     if len(s) != len(v) or len(s) < 4:
-        raise ParameterError(f"{where}.ocv_soc / ocv_V: need the same number of points (at least 4), got "
-                             f"{len(s)} and {len(v)}")
+        raise ParameterError(
+            f"{where}.ocv_soc / ocv_V: need the same number of points (at least 4), got {len(s)} and {len(v)}"
+        )
     if not all(math.isfinite(x) for x in s + v) or any(b <= a for a, b in zip(s, s[1:])):
         raise ParameterError(f"{where}.ocv_soc = {s!r:.80} is not allowed: must be finite and strictly increasing")
     if s[0] != 0.0 or s[-1] != 1.0:

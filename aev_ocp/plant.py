@@ -74,8 +74,9 @@ class EventRule:
 EVENT_RULES: tuple[EventRule, ...] = (
     EventRule(1, "collision", "h", 1.0, 0.0, True, "gap h reached 0"),
     EventRule(2, "negative_speed", "v", 1.0, -PLAN_TOLERANCE, False, "speed became negative"),
-    EventRule(3, "infeasible_current", "disc", 1.0, 0.0, False,
-              "cell cannot deliver the power demand (E² < 4 R_s P_c)"),
+    EventRule(
+        3, "infeasible_current", "disc", 1.0, 0.0, False, "cell cannot deliver the power demand (E² < 4 R_s P_c)"
+    ),
     EventRule(4, "soc_out_of_range", "S", 1.0, 0.0, False, "state of charge fell below 0"),
     EventRule(5, "soc_out_of_range", "S", -1.0, -1.0, False, "state of charge rose above 1"),
 )
@@ -99,8 +100,9 @@ def rule_of_code(code: int) -> EventRule:
     return next(r for r in EVENT_RULES if r.code == code)
 
 
-def event_at(rule: EventRule, time: float, vehicle: int, units: Units, h: float, v: float, v_lead: float,
-             value: float) -> Event:
+def event_at(
+    rule: EventRule, time: float, vehicle: int, units: Units, h: float, v: float, v_lead: float, value: float
+) -> Event:
     """The Event of ``rule`` located at ``time`` [model] for follower ``vehicle``, with its gap h, speed v, its
     predecessor's speed v_lead (model units) and the rule's quantity ``value`` there; the message is SI first,
     the model value in parentheses (a collision: the impact speed v − v_l and the gap at contact)."""
@@ -108,8 +110,15 @@ def event_at(rule: EventRule, time: float, vehicle: int, units: Units, h: float,
     if rule.kind == "collision":
         dv = v - v_lead
         dv_mps = float(units.speed_to_si(dv))
-        return Event(rule.kind, time, vehicle, f"impact speed {dv_mps:.3g} m/s ({dv:.4g} model), gap at contact "
-                     f"{float(units.length_to_si(h)):.3g} m ({h:.3g} model)", time_s=t_s, impact_speed_mps=dv_mps)
+        return Event(
+            rule.kind,
+            time,
+            vehicle,
+            f"impact speed {dv_mps:.3g} m/s ({dv:.4g} model), gap at contact "
+            f"{float(units.length_to_si(h)):.3g} m ({h:.3g} model)",
+            time_s=t_s,
+            impact_speed_mps=dv_mps,
+        )
     if rule.quantity == "v":
         what = f"speed {float(units.speed_to_si(v)):.3g} m/s ({v:.4g} model)"
     elif rule.quantity == "S":
@@ -122,7 +131,9 @@ def event_at(rule: EventRule, time: float, vehicle: int, units: Units, h: float,
 def event_from_code(code: int, time: float, vehicle: int, value: float) -> Event:
     """The Event of a compiled-cascade code (message from the table), when no state at the event is known."""
     rule = rule_of_code(code)
-    return Event(rule.kind, time, vehicle, f"{rule.message} (value {value:.4g} at the step ending after t = {time:.4f})")
+    return Event(
+        rule.kind, time, vehicle, f"{rule.message} (value {value:.4g} at the step ending after t = {time:.4f})"
+    )
 
 
 def floor_violations(t: np.ndarray, gap: np.ndarray, controllers: Sequence[Any], units: Units) -> list[Event]:
@@ -140,9 +151,16 @@ def floor_violations(t: np.ndarray, gap: np.ndarray, controllers: Sequence[Any],
             continue
         k, lo = int(below[0]), float(np.min(gap[:, i]))
         L = units.length_to_si
-        out.append(Event(VIOLATED, float(t[k]), i, f"gap below the controller's hard floor {float(L(h_min)):.3g} m "
-                         f"({h_min:.4g} model) in {below.size} samples, smallest {float(L(lo)):.3g} m ({lo:.4g} model)",
-                         time_s=float(units.time_to_si(t[k]))))
+        out.append(
+            Event(
+                VIOLATED,
+                float(t[k]),
+                i,
+                f"gap below the controller's hard floor {float(L(h_min)):.3g} m "
+                f"({h_min:.4g} model) in {below.size} samples, smallest {float(L(lo)):.3g} m ({lo:.4g} model)",
+                time_s=float(units.time_to_si(t[k])),
+            )
+        )
     return out
 
 
@@ -156,9 +174,18 @@ class Plant:
     h and v only (and ω, the tracking errors and jerk).
     """
 
-    def __init__(self, leader: LeaderProfile, laws: Sequence[CarFollowingLaw | None], ev: EVParams | None = None,
-                 *, battery: bool = True, rtol: float = 1e-10, atol: float = 1e-10, max_num_steps: int = 200_000,
-                 samples: int = 1) -> None:
+    def __init__(
+        self,
+        leader: LeaderProfile,
+        laws: Sequence[CarFollowingLaw | None],
+        ev: EVParams | None = None,
+        *,
+        battery: bool = True,
+        rtol: float = 1e-10,
+        atol: float = 1e-10,
+        max_num_steps: int = 200_000,
+        samples: int = 1,
+    ) -> None:
         if len(laws) < 1:
             raise ParameterError("plant: the platoon needs at least one follower")
         self.leader, self.laws, self.ev = leader, list(laws), ev or EVParams()
@@ -230,8 +257,14 @@ class Plant:
         dae = {"x": X, "p": p, "t": s, "ode": p[1] * ca.vertcat(*ode), "quad": p[1] * ca.vertcat(*quad)}
         grid = np.linspace(0.0, 1.0, self.k + 1)[1:].tolist()
         self._dae = dae
-        self._int_opts = {"abstol": self.atol, "reltol": self.rtol, "max_num_steps": max_num_steps,
-                          "quad_err_con": True, "disable_internal_warnings": True, "show_eval_warnings": False}
+        self._int_opts = {
+            "abstol": self.atol,
+            "reltol": self.rtol,
+            "max_num_steps": max_num_steps,
+            "quad_err_con": True,
+            "disable_internal_warnings": True,
+            "show_eval_warnings": False,
+        }
         self.integrator = ca.integrator("plant", "cvodes", dae, 0.0, grid, self._int_opts)
         self._one: ca.Function | None = None  # one output point: locates events (built on first use)
         tt, ac = ca.SX.sym("t"), ca.SX.sym("a_cmd", len(self.commanded))
@@ -241,23 +274,40 @@ class Plant:
         self.nx, self.nq = X.numel(), len(quad) * n
 
     # ---------------------------------------------------------------- state
-    def initial_state(self, gaps0: Sequence[float], speeds0: Sequence[float],
-                      soc0: float | Sequence[float] | None = None, what: str = "plant") -> np.ndarray:
+    def initial_state(
+        self,
+        gaps0: Sequence[float],
+        speeds0: Sequence[float],
+        soc0: float | Sequence[float] | None = None,
+        what: str = "plant",
+    ) -> np.ndarray:
         """x(0) of this plant (see :func:`initial_state`)."""
         return initial_state(self.n, self.ev, self.battery, gaps0, speeds0, soc0, what)
 
     def samples(self, t: np.ndarray, X: np.ndarray, a_cmd: np.ndarray | None = None) -> np.ndarray:
         """(a, I, disc, v_l) stacked by quantity ((3n + 1), K) at the times t (K,) and states X (nx, K)."""
         t = np.atleast_1d(np.asarray(t, float))
-        ac = np.zeros((len(self.commanded), t.size)) if a_cmd is None else np.repeat(
-            np.asarray(a_cmd, float).reshape(-1, 1), t.size, axis=1)
+        ac = (
+            np.zeros((len(self.commanded), t.size))
+            if a_cmd is None
+            else np.repeat(np.asarray(a_cmd, float).reshape(-1, 1), t.size, axis=1)
+        )
         if t.size not in self._sample_maps:  # built once per sample count
             self._sample_maps[t.size] = self._samples.map(t.size)
         return np.asarray(self._sample_maps[t.size](t.reshape(1, -1), X, ac))
 
     # ---------------------------------------------------------------- integration
-    def advance(self, a: float, b: float, x: np.ndarray, q: np.ndarray, a_cmd: np.ndarray | None,
-                out: tuple[list, list, list, list], events: list[Event], depth: int = 0) -> bool:
+    def advance(
+        self,
+        a: float,
+        b: float,
+        x: np.ndarray,
+        q: np.ndarray,
+        a_cmd: np.ndarray | None,
+        out: tuple[list, list, list, list],
+        events: list[Event],
+        depth: int = 0,
+    ) -> bool:
         """Integrate [a, b] from (x, q) with the commands a_cmd held, append the samples to
         out = (ts, xs, qs, ys) and check the event rules. On a solver failure the interval is
         subdivided (3 levels) to locate it. Returns False when the run must stop."""
@@ -268,15 +318,23 @@ class Plant:
         except RuntimeError as exc:
             if depth < 3:
                 for lo, hi in zip(np.linspace(a, b, 11)[:-1], np.linspace(a, b, 11)[1:]):
-                    if not self.advance(float(lo), float(hi), xs[-1][:, -1], qs[-1][:, -1], a_cmd, out, events,
-                                        depth + 1):
+                    if not self.advance(
+                        float(lo), float(hi), xs[-1][:, -1], qs[-1][:, -1], a_cmd, out, events, depth + 1
+                    ):
                         return False
                 return True
             hh = x[: self.n]
             i = int(np.argmin(hh))
             near = " (near collision)" if hh[i] < 0.05 else ""
-            events.append(Event("integration_failed", a, i, f"CVODES failed on [{a:.4f}, {b:.4f}] with gap "
-                                f"h = {hh[i]:.3g}{near} (CasADi: {str(exc).splitlines()[0][:120]})"))
+            events.append(
+                Event(
+                    "integration_failed",
+                    a,
+                    i,
+                    f"CVODES failed on [{a:.4f}, {b:.4f}] with gap "
+                    f"h = {hh[i]:.3g}{near} (CasADi: {str(exc).splitlines()[0][:120]})",
+                )
+            )
             return False
         tk = a + (b - a) * np.linspace(0.0, 1.0, self.k + 1)[1:]
         xk = np.asarray(res["xf"]).reshape(self.nx, -1)
@@ -286,21 +344,31 @@ class Plant:
         if hit is not None:
             rule, i, j, t_lin = hit
             keep = np.arange(tk.size) < j
-            ts.append(tk[keep]); xs.append(xk[:, keep]); qs.append(qk[:, keep]); ys.append(yk[:, keep])  # noqa: E702
+            ts.append(tk[keep])
+            xs.append(xk[:, keep])
+            qs.append(qk[:, keep])
+            ys.append(yk[:, keep])  # noqa: E702
             # locate the event on the integrator: from the last sample before it, a root of the rule's margin
             if j > 0:
                 t0, x0, q0 = float(tk[j - 1]), xk[:, j - 1], qk[:, j - 1]
             else:  # the interval's start (a, x, q)
                 t0, x0, q0 = a, np.asarray(x, float), np.asarray(q, float)
             te, xe, qe, ye = self._locate(rule, i, t0, x0, q0, float(tk[j]), xk[:, j], qk[:, j], yk[:, j], a_cmd)
-            ts.append(np.array([te])); xs.append(xe[:, None]); qs.append(qe[:, None]); ys.append(ye[:, None])  # noqa: E702
+            ts.append(np.array([te]))
+            xs.append(xe[:, None])
+            qs.append(qe[:, None])
+            ys.append(ye[:, None])  # noqa: E702
             events.append(self._event(rule, te, i, xe, ye))
             return False
-        ts.append(tk); xs.append(xk); qs.append(qk); ys.append(yk)  # noqa: E702
+        ts.append(tk)
+        xs.append(xk)
+        qs.append(qk)
+        ys.append(yk)  # noqa: E702
         return True
 
-    def _one_step(self, t0: float, t1: float, x0: np.ndarray, q0: np.ndarray,
-                  a_cmd: np.ndarray | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def _one_step(
+        self, t0: float, t1: float, x0: np.ndarray, q0: np.ndarray, a_cmd: np.ndarray | None
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(x, q, y) at t1 integrated from (x0, q0) at t0 with the commands held (one output point)."""
         if self._one is None:
             self._one = ca.integrator("plant_one", "cvodes", self._dae, 0.0, [1.0], self._int_opts)
@@ -310,9 +378,19 @@ class Plant:
         q = q0 + np.asarray(res["qf"]).ravel()
         return x, q, self.samples(np.array([t1]), x[:, None], a_cmd)[:, 0]
 
-    def _locate(self, rule: EventRule, i: int, t0: float, x0: np.ndarray, q0: np.ndarray, t1: float,
-                x1: np.ndarray, q1: np.ndarray, y1: np.ndarray,
-                a_cmd: np.ndarray | None) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
+    def _locate(
+        self,
+        rule: EventRule,
+        i: int,
+        t0: float,
+        x0: np.ndarray,
+        q0: np.ndarray,
+        t1: float,
+        x1: np.ndarray,
+        q1: np.ndarray,
+        y1: np.ndarray,
+        a_cmd: np.ndarray | None,
+    ) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
         """The first time in (t0, t1] where ``rule`` fires for vehicle i, by a safeguarded regula falsi
         (Illinois) on the integrator from the state (x0, q0) at t0, to |Δt| ≤ 1e-12 (1 + |t|): (t, x, q, y)
         there, the rule firing (a collision: h ≤ 0). (t1, x1, q1, y1) is a sample where it fires."""
@@ -349,17 +427,31 @@ class Plant:
     def _rows(self, quantity: str, M: np.ndarray, Y: np.ndarray) -> np.ndarray:
         """The rows of ``quantity`` ('h', 'v', 'disc', 'S') of states M and outputs Y (one column per sample)."""
         n = self.n
-        return {"h": M[:n], "v": M[n:2 * n], "disc": Y[2 * n:3 * n], "S": M[4 * n:5 * n] if self.battery else M[:0]}[quantity]
+        return {
+            "h": M[:n],
+            "v": M[n : 2 * n],
+            "disc": Y[2 * n : 3 * n],
+            "S": M[4 * n : 5 * n] if self.battery else M[:0],
+        }[quantity]
 
     def _event(self, rule: EventRule, t: float, i: int, x: np.ndarray, y: np.ndarray) -> Event:
         """The Event of ``rule`` for vehicle i at the state x, output y at time t (SI message)."""
         n = self.n
         v_lead = float(y[3 * n]) if i == 0 else float(x[n + i - 1])
-        return event_at(rule, t, i, self.ev.units, float(x[i]), float(x[n + i]), v_lead,
-                        float(self._rows(rule.quantity, x[:, None], y[:, None])[i, 0]))
+        return event_at(
+            rule,
+            t,
+            i,
+            self.ev.units,
+            float(x[i]),
+            float(x[n + i]),
+            v_lead,
+            float(self._rows(rule.quantity, x[:, None], y[:, None])[i, 0]),
+        )
 
-    def _first(self, tk: np.ndarray, xk: np.ndarray, yk: np.ndarray,
-               prev: tuple[float, np.ndarray, np.ndarray] | None = None) -> tuple[EventRule, int, int, float] | None:
+    def _first(
+        self, tk: np.ndarray, xk: np.ndarray, yk: np.ndarray, prev: tuple[float, np.ndarray, np.ndarray] | None = None
+    ) -> tuple[EventRule, int, int, float] | None:
         """(rule, vehicle, sample index, time) of the first violation of :data:`EVENT_RULES` among the samples
         (tk, xk, yk), its time linearly interpolated from the previous sample ``prev = (t, x, y)`` where there is
         one (:meth:`advance` then locates it on the integrator)."""
@@ -386,8 +478,9 @@ class Plant:
                 first = (rule, i, j, t_ev)
         return first
 
-    def check(self, tk: np.ndarray, xk: np.ndarray, yk: np.ndarray,
-              prev: tuple[float, np.ndarray, np.ndarray] | None = None) -> Event | None:
+    def check(
+        self, tk: np.ndarray, xk: np.ndarray, yk: np.ndarray, prev: tuple[float, np.ndarray, np.ndarray] | None = None
+    ) -> Event | None:
         """First violation of :data:`EVENT_RULES` among the samples (tk, xk, yk) as an Event (at the sample; a
         run located inside an interval by :meth:`advance` gets the exact time instead)."""
         hit = self._first(tk, xk, yk, prev)
@@ -397,21 +490,49 @@ class Plant:
         return self._event(rule, float(tk[j]) if prev is None else t_ev, i, xk[:, j], yk[:, j])
 
     # ---------------------------------------------------------------- results
-    def result(self, t: np.ndarray, X: np.ndarray, Qc: np.ndarray, Y: np.ndarray, events: list[Event],
-               controllers: list[str], meta: dict[str, Any], **kw: Any) -> SimulationResult:
+    def result(
+        self,
+        t: np.ndarray,
+        X: np.ndarray,
+        Qc: np.ndarray,
+        Y: np.ndarray,
+        events: list[Event],
+        controllers: list[str],
+        meta: dict[str, Any],
+        **kw: Any,
+    ) -> SimulationResult:
         """The run as a :class:`SimulationResult` (see :func:`assemble_result`)."""
-        return assemble_result(self.leader, self.ev, self.battery, t, X, Qc, Y, events, controllers,
-                               {"plant": "cvodes, exact eta switch", "rtol": self.rtol, "atol": self.atol, **meta}, **kw)
+        return assemble_result(
+            self.leader,
+            self.ev,
+            self.battery,
+            t,
+            X,
+            Qc,
+            Y,
+            events,
+            controllers,
+            {"plant": "cvodes, exact eta switch", "rtol": self.rtol, "atol": self.atol, **meta},
+            **kw,
+        )
 
 
-def initial_state(n: int, ev: EVParams, battery: bool, gaps0: Sequence[float], speeds0: Sequence[float],
-                  soc0: float | Sequence[float] | None = None, what: str = "plant") -> np.ndarray:
+def initial_state(
+    n: int,
+    ev: EVParams,
+    battery: bool,
+    gaps0: Sequence[float],
+    speeds0: Sequence[float],
+    soc0: float | Sequence[float] | None = None,
+    what: str = "plant",
+) -> np.ndarray:
     """x(0) = (h, v[, V1 = 0, V2 = 0, S][, a_act = 0]) stacked by quantity, validated: gaps > 0, speeds ≥ 0,
     S(0) ∈ [0, 1] (default the cell's soc0); errors name the vehicle and the value."""
     h0, v0 = np.asarray(gaps0, float).ravel(), np.asarray(speeds0, float).ravel()
     if h0.size != n or v0.size != n:
-        raise ParameterError(f"{what}: gaps0 and speeds0 need {n} values (one per follower), "
-                             f"got {h0.size} and {v0.size}")
+        raise ParameterError(
+            f"{what}: gaps0 and speeds0 need {n} values (one per follower), got {h0.size} and {v0.size}"
+        )
     if not np.all(np.isfinite(h0)) or np.any(h0 <= 0):
         i = int(np.argmin(np.where(np.isfinite(h0), h0, -np.inf)))
         raise ParameterError(f"{what}: initial gap of vehicle {i + 1} is {h0[i]!r}: must be > 0")
@@ -423,7 +544,9 @@ def initial_state(n: int, ev: EVParams, battery: bool, gaps0: Sequence[float], s
         try:
             s0 = np.broadcast_to(np.asarray(ev.cell.soc0 if soc0 is None else soc0, float), (n,))
         except (TypeError, ValueError):
-            raise ParameterError(f"{what}: soc0 = {soc0!r} is not allowed: one number or {n} numbers in [0, 1]") from None
+            raise ParameterError(
+                f"{what}: soc0 = {soc0!r} is not allowed: one number or {n} numbers in [0, 1]"
+            ) from None
         if not np.all(np.isfinite(s0)) or np.any((s0 < 0) | (s0 > 1)):
             raise ParameterError(f"{what}: soc0 = {np.asarray(s0).tolist()!r} is not allowed: must be in [0, 1]")
         x += [np.zeros(n), np.zeros(n), np.array(s0, float)]
@@ -434,29 +557,59 @@ def initial_state(n: int, ev: EVParams, battery: bool, gaps0: Sequence[float], s
     return np.concatenate(x)
 
 
-def assemble_result(leader: LeaderProfile, ev: EVParams, battery: bool, t: np.ndarray, X: np.ndarray,
-                    Qc: np.ndarray, Y: np.ndarray, events: list[Event], controllers: list[str],
-                    meta: dict[str, Any], *, accel: np.ndarray | None = None, jerk_sampled: bool = False,
-                    solver_stats: list[Any] | None = None) -> SimulationResult:
+def assemble_result(
+    leader: LeaderProfile,
+    ev: EVParams,
+    battery: bool,
+    t: np.ndarray,
+    X: np.ndarray,
+    Qc: np.ndarray,
+    Y: np.ndarray,
+    events: list[Event],
+    controllers: list[str],
+    meta: dict[str, Any],
+    *,
+    accel: np.ndarray | None = None,
+    jerk_sampled: bool = False,
+    solver_stats: list[Any] | None = None,
+) -> SimulationResult:
     """A run as a :class:`SimulationResult`: X (states), Qc (quadratures) and Y = (a, I, disc, v_l)
     stacked by quantity with one column per sample time t; ``accel`` (K, n) overrides the sampled
     accelerations (e.g. with a controller's applied ones)."""
     n, K = len(controllers), t.size
     nan = np.full((K, n), np.nan)
-    rows = lambda M, j: M[j * n:(j + 1) * n].T  # noqa: E731
+    rows = lambda M, j: M[j * n : (j + 1) * n].T  # noqa: E731
     # a run that went below a controller's own hard floor gets status 'violated' and one warning line
     violations = floor_violations(t, rows(X, 0), meta.get("controllers") or [], ev.units)
     for e in violations if not events else []:  # (an event that stopped the run is reported on its own)
-        warnings.warn(f"{controllers[e.vehicle]} (vehicle {e.vehicle + 1}) violated its gap floor: {e}", RuntimeWarning,
-                      stacklevel=3)
+        warnings.warn(
+            f"{controllers[e.vehicle]} (vehicle {e.vehicle + 1}) violated its gap floor: {e}",
+            RuntimeWarning,
+            stacklevel=3,
+        )
     return SimulationResult(
-        t=t, leader_speed=Y[3 * n], leader_position=np.asarray(leader.position(t), float),
-        gap=rows(X, 0), speed=rows(X, 1), accel=rows(Y, 0) if accel is None else accel,
-        V1=rows(X, 2) if battery else nan, V2=rows(X, 3) if battery else nan, S=rows(X, 4) if battery else nan,
+        t=t,
+        leader_speed=Y[3 * n],
+        leader_position=np.asarray(leader.position(t), float),
+        gap=rows(X, 0),
+        speed=rows(X, 1),
+        accel=rows(Y, 0) if accel is None else accel,
+        V1=rows(X, 2) if battery else nan,
+        V2=rows(X, 3) if battery else nan,
+        S=rows(X, 4) if battery else nan,
         current_A=rows(Y, 1) if battery else nan,
-        omega=rows(Qc, 0), int_ovm_err2=rows(Qc, 1), int_rel_speed2=rows(Qc, 2), int_jerk2=rows(Qc, 3),
-        heat_J=rows(Qc, 4) if battery else nan, heat_irr_J=rows(Qc, 5) if battery else nan,
+        omega=rows(Qc, 0),
+        int_ovm_err2=rows(Qc, 1),
+        int_rel_speed2=rows(Qc, 2),
+        int_jerk2=rows(Qc, 3),
+        heat_J=rows(Qc, 4) if battery else nan,
+        heat_irr_J=rows(Qc, 5) if battery else nan,
         temperature_K=rows(X, 5) if battery and ev.thermal.enabled else None,
-        controllers=controllers, ev=ev, events=events, jerk_sampled=jerk_sampled,
+        controllers=controllers,
+        ev=ev,
+        events=events,
+        jerk_sampled=jerk_sampled,
         solver_stats=solver_stats if solver_stats is not None else [None] * n,
-        meta={"leader": leader.describe(), **meta}, violations=violations)
+        meta={"leader": leader.describe(), **meta},
+        violations=violations,
+    )

@@ -26,12 +26,22 @@ from .models.leader import LeaderProfile  # noqa: E402
 from .params import Units  # noqa: E402
 from .results import SimulationResult, save_figure_atomic  # noqa: E402
 
-LAW_STYLE: dict[str, dict[str, Any]] = {"proposed": {"color": "tab:blue", "ls": "-"}, "ovfl": {"color": "tab:orange", "ls": "--"},
-             "ovm": {"color": "tab:green", "ls": "-."}, "idm": {"color": "tab:purple", "ls": ":"},
-             "mpc": {"color": "tab:red", "ls": "-"}, "ocp-d": {"color": "black", "ls": (0, (1, 1))}}
+LAW_STYLE: dict[str, dict[str, Any]] = {
+    "proposed": {"color": "tab:blue", "ls": "-"},
+    "ovfl": {"color": "tab:orange", "ls": "--"},
+    "ovm": {"color": "tab:green", "ls": "-."},
+    "idm": {"color": "tab:purple", "ls": ":"},
+    "mpc": {"color": "tab:red", "ls": "-"},
+    "ocp-d": {"color": "black", "ls": (0, (1, 1))},
+}
 # further controllers cycle through these (colour, dash) pairs so that no overlaid line hides another
-EXTRA_STYLES = [("tab:brown", (0, (5, 1, 1, 1))), ("tab:pink", (0, (3, 1, 1, 1, 1, 1))), ("tab:olive", (0, (8, 2))),
-                ("tab:cyan", (0, (2, 2))), ("tab:gray", (0, (4, 1, 1, 1, 1, 1, 1, 1)))]
+EXTRA_STYLES = [
+    ("tab:brown", (0, (5, 1, 1, 1))),
+    ("tab:pink", (0, (3, 1, 1, 1, 1, 1))),
+    ("tab:olive", (0, (8, 2))),
+    ("tab:cyan", (0, (2, 2))),
+    ("tab:gray", (0, (4, 1, 1, 1, 1, 1, 1, 1))),
+]
 DPI = 120
 KMH_PER_MPS = 3.6
 
@@ -105,8 +115,12 @@ def _leader_speed_of(r: SimulationResult, i: int) -> np.ndarray:
 
 
 # ----------------------------------------------------------------------------- Fig. 1 / Fig. 2
-def plot_phase_planes(panels: Sequence[tuple[str, Mapping[str, SimulationResult]]], path: str | os.PathLike[str] | None = None,
-                      title: str | None = None, si: bool = True) -> Figure:
+def plot_phase_planes(
+    panels: Sequence[tuple[str, Mapping[str, SimulationResult]]],
+    path: str | os.PathLike[str] | None = None,
+    title: str | None = None,
+    si: bool = True,
+) -> Figure:
     """Phase planes of one follower: gap h vs relative velocity v_l − v (paper Fig. 1, Fig. 2).
 
     panels: (caption, {law label: result}) per panel. The initial condition is a red dot, the
@@ -124,8 +138,9 @@ def plot_phase_planes(panels: Sequence[tuple[str, Mapping[str, SimulationResult]
         h0, rel0 = first.gap[0, 0], first.leader_speed[0] - first.speed[0, 0]
         ax.plot([au.x * h0], [au.v * rel0], "o", color="red", ms=7, label="initial condition", zorder=5)
         v_l = float(first.leader_speed[-1])
-        ax.plot([au.x * equilibrium_gap(v_l)], [0.0], "x", color="magenta", ms=10, mew=2.5, label="equilibrium",
-                zorder=6)
+        ax.plot(
+            [au.x * equilibrium_gap(v_l)], [0.0], "x", color="magenta", ms=10, mew=2.5, label="equilibrium", zorder=6
+        )
         ax.axvline(0.0, color="gray", ls="--", lw=1.2, label="collision (h = 0)")
         ax.set_xlabel(f"gap h = x_l − x [{au.x_label}]")
         ax.set_ylabel(f"relative velocity v_l − v [{au.v_label}]")
@@ -147,8 +162,14 @@ def leader_arrays(leader: LeaderProfile, t_end: float, n: int = 7001) -> tuple[n
     return t, np.asarray(acc(t.reshape(1, -1))).ravel(), leader.speed_np(t)
 
 
-def plot_leader(leader: LeaderProfile, t_end: float, path: str | os.PathLike[str] | None = None, title: str | None = None,
-                units: Units | None = None, si: bool = True) -> Figure:
+def plot_leader(
+    leader: LeaderProfile,
+    t_end: float,
+    path: str | os.PathLike[str] | None = None,
+    title: str | None = None,
+    units: Units | None = None,
+    si: bool = True,
+) -> Figure:
     """The leader's acceleration a_l(t) and speed v_l(t) (paper Fig. 3), in SI through ``units`` (default
     units if None) or in model units with ``si=False``."""
     t, a, v = leader_arrays(leader, t_end)
@@ -170,8 +191,14 @@ def plot_leader(leader: LeaderProfile, t_end: float, path: str | os.PathLike[str
 
 
 # ----------------------------------------------------------------------------- Fig. 5
-def plot_platoon(r: SimulationResult, path: str | os.PathLike[str] | None = None, *, v_eq: float | None = None,
-                 title: str | None = None, si: bool = True) -> Figure:
+def plot_platoon(
+    r: SimulationResult,
+    path: str | os.PathLike[str] | None = None,
+    *,
+    v_eq: float | None = None,
+    title: str | None = None,
+    si: bool = True,
+) -> Figure:
     """Gaps h_n(t) and relative velocities v_{n−1} − v_n of every follower (paper Fig. 5).
 
     v_eq: the speed [model] whose equilibrium (V⁻¹(v_eq), 0) is drawn as gray dashed lines (the paper
@@ -187,8 +214,13 @@ def plot_platoon(r: SimulationResult, path: str | os.PathLike[str] | None = None
         ax1.plot(t, au.x * r.gap[:, i], color=c, lw=1.1, label=f"n = {i + 1}")
         ax2.plot(t, au.v * (_leader_speed_of(r, i) - r.speed[:, i]), color=c, lw=1.1, label=f"n = {i + 1}")
     if v_eq is not None:
-        ax1.axhline(au.x * equilibrium_gap(v_eq), color="gray", ls="--", lw=1.2,
-                    label=f"V⁻¹(v_eq), v_eq = {au.v * v_eq:.3g} {au.v_label}")
+        ax1.axhline(
+            au.x * equilibrium_gap(v_eq),
+            color="gray",
+            ls="--",
+            lw=1.2,
+            label=f"V⁻¹(v_eq), v_eq = {au.v * v_eq:.3g} {au.v_label}",
+        )
         ax2.axhline(0.0, color="gray", ls="--", lw=1.2, label="0")
     ax1.set_ylabel(f"spacing x(n−1) − x(n) [{au.x_label}]")
     ax1.set_title("(a) spacing", fontsize=10)
@@ -210,12 +242,16 @@ MAX_TRAJECTORY_LINES = 50  # vehicles drawn per panel; a larger platoon is shown
 
 def _shown(n: int) -> list[int]:
     """Indices of the vehicles drawn: all up to MAX_TRAJECTORY_LINES, else an even subset (ends included)."""
-    return (list(range(n)) if n <= MAX_TRAJECTORY_LINES
-            else sorted({int(round(k)) for k in np.linspace(0, n - 1, MAX_TRAJECTORY_LINES)}))
+    return (
+        list(range(n))
+        if n <= MAX_TRAJECTORY_LINES
+        else sorted({int(round(k)) for k in np.linspace(0, n - 1, MAX_TRAJECTORY_LINES)})
+    )
 
 
-def plot_space_time(r: SimulationResult, path: str | os.PathLike[str] | None = None, title: str | None = None,
-                    si: bool = True) -> Figure:
+def plot_space_time(
+    r: SimulationResult, path: str | os.PathLike[str] | None = None, title: str | None = None, si: bool = True
+) -> Figure:
     """Space-time diagram: the position x_n(t) of the leader and every follower (the standard traffic
     figure; parallel lines = steady flow, bunching = a disturbance travelling through the platoon),
     coloured by speed. Positions are relative to the leader's start; s and m (``si=False``: model units)."""
@@ -240,14 +276,20 @@ def plot_space_time(r: SimulationResult, path: str | os.PathLike[str] | None = N
         fig.colorbar(lc, ax=ax, label=f"follower speed [{au.v_label}]")
     ax.set_xlabel(f"t [{au.t_label}]")
     ax.set_ylabel(f"position x [{au.x_label}]")
-    note = f"{r.n_vehicles} followers" + ("" if r.n_vehicles <= MAX_TRAJECTORY_LINES else
-                                          f" ({len(_shown(r.n_vehicles))} shown, evenly spaced)")
+    note = f"{r.n_vehicles} followers" + (
+        "" if r.n_vehicles <= MAX_TRAJECTORY_LINES else f" ({len(_shown(r.n_vehicles))} shown, evenly spaced)"
+    )
     ax.plot([], [], color=plt.get_cmap("viridis")(0.6), label=note)
     return _finish_single(fig, ax, path, title)
 
 
-def plot_trajectories(r: SimulationResult, path: str | os.PathLike[str] | None = None, title: str | None = None,
-                      si: bool = True, h_min: float | None = None) -> Figure:
+def plot_trajectories(
+    r: SimulationResult,
+    path: str | os.PathLike[str] | None = None,
+    title: str | None = None,
+    si: bool = True,
+    h_min: float | None = None,
+) -> Figure:
     """Gaps, speeds (with the leader's), accelerations, cell current [A], SOC and pack heat over time (with the
     thermal model also the pack temperature [K] and the dissipated heat) for one run (any controller: closed-form laws, MPC, replayed controls; sampled controls drawn as steps).
     Platoons above MAX_TRAJECTORY_LINES vehicles are drawn as an even subset, first and last included.
@@ -284,7 +326,9 @@ def plot_trajectories(r: SimulationResult, path: str | os.PathLike[str] | None =
     axes[0, 1].plot(t, au.v * r.leader_speed, color="black", lw=1.2, ls="--", label="leader")
     axes[0, 0].axhline(0.0, color="gray", ls="--", lw=1.0, label="collision (h = 0)")
     if h_min is not None:
-        axes[0, 0].axhline(au.x * h_min, color="tab:red", ls=":", lw=1.2, label=f"h_min = {au.x * h_min:.3g} {au.x_label}")
+        axes[0, 0].axhline(
+            au.x * h_min, color="tab:red", ls=":", lw=1.2, label=f"h_min = {au.x * h_min:.3g} {au.x_label}"
+        )
     axes[0, 0].set_ylabel(f"gap [{au.x_label}]")
     axes[0, 1].set_ylabel(f"speed [{au.v_label}]")
     axes[1, 0].set_ylabel(f"acceleration [{au.a_label}]")
@@ -308,8 +352,13 @@ def plot_trajectories(r: SimulationResult, path: str | os.PathLike[str] | None =
     return save_figure(fig, path)
 
 
-def plot_percent_change(ours: Sequence[float], paper: Sequence[float] | None, path: str | os.PathLike[str] | None = None,
-                        title: str | None = None, label: str = "ω(proposed) vs ω(OVFL)") -> Figure:
+def plot_percent_change(
+    ours: Sequence[float],
+    paper: Sequence[float] | None,
+    path: str | os.PathLike[str] | None = None,
+    title: str | None = None,
+    label: str = "ω(proposed) vs ω(OVFL)",
+) -> Figure:
     """Per-follower % change (signed bars: below zero = the proposed law saves energy), ours beside the
     paper's printed row; each bar carries its value with its sign."""
     fig, ax = plt.subplots(figsize=(6.5, 4))
@@ -321,9 +370,15 @@ def plot_percent_change(ours: Sequence[float], paper: Sequence[float] | None, pa
     for name, vals, col, off in series:
         bars = ax.bar(n + off, vals, width=w, color=col, label=name, edgecolor="black", lw=0.5)
         for b, v in zip(bars, vals):
-            ax.annotate(f"{v:+.2f}%", (b.get_x() + b.get_width() / 2, v), ha="center",
-                        va="bottom" if v >= 0 else "top", fontsize=7, xytext=(0, 2 if v >= 0 else -2),
-                        textcoords="offset points")
+            ax.annotate(
+                f"{v:+.2f}%",
+                (b.get_x() + b.get_width() / 2, v),
+                ha="center",
+                va="bottom" if v >= 0 else "top",
+                fontsize=7,
+                xytext=(0, 2 if v >= 0 else -2),
+                textcoords="offset points",
+            )
     ax.axhline(0.0, color="black", lw=0.8)
     lo = min(min(ours), min(paper) if paper is not None else 0.0, 0.0)
     hi = max(max(ours), max(paper) if paper is not None else 0.0, 0.0)
@@ -335,8 +390,12 @@ def plot_percent_change(ours: Sequence[float], paper: Sequence[float] | None, pa
     return _finish_single(fig, ax, path, title)
 
 
-def plot_compare_omega(omegas: Mapping[str, Sequence[float]], path: str | os.PathLike[str] | None = None,
-                       reference: Mapping[str, Sequence[float]] | None = None, title: str | None = None) -> Figure:
+def plot_compare_omega(
+    omegas: Mapping[str, Sequence[float]],
+    path: str | os.PathLike[str] | None = None,
+    reference: Mapping[str, Sequence[float]] | None = None,
+    title: str | None = None,
+) -> Figure:
     """Energy per unit mass ω per follower for several laws, optionally beside reference values."""
     fig, ax = plt.subplots(figsize=(6.5, 4))
     for label, om in omegas.items():
@@ -350,8 +409,13 @@ def plot_compare_omega(omegas: Mapping[str, Sequence[float]], path: str | os.Pat
     return _finish_single(fig, ax, path, title)
 
 
-def plot_theorem41(kappa: Sequence[float], d_omega: Sequence[float], leader: Sequence[str],
-                   path: str | os.PathLike[str] | None = None, title: str | None = None) -> Figure:
+def plot_theorem41(
+    kappa: Sequence[float],
+    d_omega: Sequence[float],
+    leader: Sequence[str],
+    path: str | os.PathLike[str] | None = None,
+    title: str | None = None,
+) -> Figure:
     """ω(proposed) − ω(OVFL) of random cases against κ; points above zero contradict Theorem 4.1."""
     fig, ax = plt.subplots(figsize=(6.5, 4))
     k, d, lab = np.asarray(kappa, float), np.asarray(d_omega, float), np.asarray(leader)
@@ -359,8 +423,15 @@ def plot_theorem41(kappa: Sequence[float], d_omega: Sequence[float], leader: Seq
     jitter = np.exp(rng.uniform(-0.12, 0.12, k.size))
     for name, marker in (("paper", "o"), ("constant", "^")):
         m = lab == name
-        ax.scatter(k[m] * jitter[m], d[m], marker=marker, s=22, alpha=0.8, label=f"{name} leader",
-                   c=np.where(d[m] > 1e-6, "tab:red", "tab:blue"))
+        ax.scatter(
+            k[m] * jitter[m],
+            d[m],
+            marker=marker,
+            s=22,
+            alpha=0.8,
+            label=f"{name} leader",
+            c=np.where(d[m] > 1e-6, "tab:red", "tab:blue"),
+        )
     ax.axhline(0.0, color="gray", ls="--", lw=1)
     ax.set_xscale("log")
     ax.set_yscale("symlog", linthresh=1e-3)

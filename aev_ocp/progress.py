@@ -57,16 +57,28 @@ class Progress:
     lines go (default stderr; ``say`` instead receives each line); clock: a monotonic clock [s] (tests).
     """
 
-    def __init__(self, label: str, total: float | None = None, *, unit: str = "steps",
-                 time_limit_s: float | None = None, every_s: float = 2.0, stream: Any = None,
-                 say: Callable[[str], None] | None = None, clock: Callable[[], float] = time.perf_counter,
-                 deadline: float | None = None) -> None:
+    def __init__(
+        self,
+        label: str,
+        total: float | None = None,
+        *,
+        unit: str = "steps",
+        time_limit_s: float | None = None,
+        every_s: float = 2.0,
+        stream: Any = None,
+        say: Callable[[str], None] | None = None,
+        clock: Callable[[], float] = time.perf_counter,
+        deadline: float | None = None,
+    ) -> None:
         self.label, self.total, self.unit, self.every_s = label, total, unit, every_s
         self.clock = clock
         self.t0 = clock()
         self.time_limit_s = check_time_limit(time_limit_s, "time limit")
-        self.deadline = deadline if deadline is not None else (
-            self.t0 + self.time_limit_s if self.time_limit_s is not None else None)
+        self.deadline = (
+            deadline
+            if deadline is not None
+            else (self.t0 + self.time_limit_s if self.time_limit_s is not None else None)
+        )
         self._stream = stream
         self._say = say
         self._last = -math.inf
@@ -104,8 +116,16 @@ class Progress:
 
     def child(self, label: str, total: float | None = None, unit: str = "steps") -> "Progress":
         """A progress for a part of this run: same stream, same deadline."""
-        return Progress(label, total, unit=unit, every_s=self.every_s, stream=self._stream, say=self._say,
-                        clock=self.clock, deadline=self.deadline)
+        return Progress(
+            label,
+            total,
+            unit=unit,
+            every_s=self.every_s,
+            stream=self._stream,
+            say=self._say,
+            clock=self.clock,
+            deadline=self.deadline,
+        )
 
     # ------------------------------------------------------------------ output
     def line(self, what: str = "", note: str = "") -> str:
@@ -120,8 +140,10 @@ class Progress:
         if self.total:
             tail += f", ETA {format_seconds(self.eta_s())}"
         if self.deadline is not None:
-            tail += f", time limit {format_seconds(self.time_limit_s or (self.deadline - self.t0))} " \
-                    f"({format_seconds(max(self.remaining_s(), 0.0))} left)"
+            tail += (
+                f", time limit {format_seconds(self.time_limit_s or (self.deadline - self.t0))} "
+                f"({format_seconds(max(self.remaining_s(), 0.0))} left)"
+            )
         return head + tail + (f" {note}" if note else "")
 
     def say(self, text: str) -> None:
@@ -137,11 +159,20 @@ class Progress:
         """Raise on Ctrl-C/SIGTERM (:class:`aev_ocp.interrupts.Interrupted`) or a passed time limit."""
         interrupts.check()
         if self.expired():
-            raise TimeLimitReached(f"time limit of {format_seconds(self.time_limit_s or 0.0)} reached after "
-                                   f"{self.done:.4g}/{self.total if self.total is not None else '?'} {self.unit}")
+            raise TimeLimitReached(
+                f"time limit of {format_seconds(self.time_limit_s or 0.0)} reached after "
+                f"{self.done:.4g}/{self.total if self.total is not None else '?'} {self.unit}"
+            )
 
-    def update(self, done: float, total: float | None = None, what: str = "", force: bool = False,
-               note: str = "", check: bool = True) -> None:
+    def update(
+        self,
+        done: float,
+        total: float | None = None,
+        what: str = "",
+        force: bool = False,
+        note: str = "",
+        check: bool = True,
+    ) -> None:
         """Record progress (``done`` of ``total``), print a line when one is due (``what`` before the count,
         ``note`` after the times), then :meth:`check` (unless ``check`` is False)."""
         self.done = float(done)

@@ -47,8 +47,12 @@ def _checkout_commit() -> str | None:
         if 'name = "aev_ocp"' not in (root / "pyproject.toml").read_text(encoding="utf-8"):
             return None
         p = subprocess.run(["git", "-C", str(root), "rev-parse", "HEAD"], capture_output=True, text=True, timeout=5)
-        dirty = subprocess.run(["git", "-C", str(root), "status", "--porcelain", "--untracked-files=no"],
-                               capture_output=True, text=True, timeout=5)
+        dirty = subprocess.run(
+            ["git", "-C", str(root), "status", "--porcelain", "--untracked-files=no"],
+            capture_output=True,
+            text=True,
+            timeout=5,
+        )
     except (OSError, subprocess.SubprocessError):
         return None
     if p.returncode != 0 or not p.stdout.strip():
@@ -72,8 +76,14 @@ def versions() -> dict[str, Any]:
 
     # CasADi 3.8's stubs omit __version__ (casadi/__init__.py sets it at import time)
     casadi_version: str = casadi.__version__  # type: ignore[attr-defined]
-    return {"aev_ocp": __version__, "git_commit": git_commit(), "casadi": casadi_version,
-            "numpy": numpy.__version__, "python": sys.version.split()[0], "platform": platform.platform()}
+    return {
+        "aev_ocp": __version__,
+        "git_commit": git_commit(),
+        "casadi": casadi_version,
+        "numpy": numpy.__version__,
+        "python": sys.version.split()[0],
+        "platform": platform.platform(),
+    }
 
 
 def scenario_sha256(scenario: Any) -> str | None:
@@ -110,8 +120,12 @@ def provenance(scenario: Any = None, seeds: dict[str, int] | None = None) -> dic
 def declare(scenario: Any = None, **seeds: int) -> None:
     """For a command-line process: from now on every provenance record names ``scenario`` and ``seeds``."""
     outer = _CONTEXT.get()
-    _CONTEXT.set({"scenario": scenario if scenario is not None else outer.get("scenario"),
-                  "seeds": {**outer.get("seeds", {}), **seeds}})
+    _CONTEXT.set(
+        {
+            "scenario": scenario if scenario is not None else outer.get("scenario"),
+            "seeds": {**outer.get("seeds", {}), **seeds},
+        }
+    )
 
 
 @contextmanager
@@ -119,8 +133,12 @@ def context(scenario: Any = None, **seeds: int) -> Iterator[None]:
     """Within the block, every provenance record names ``scenario`` and the ``seeds`` given (nested
     contexts add to the outer one)."""
     outer = _CONTEXT.get()
-    token = _CONTEXT.set({"scenario": scenario if scenario is not None else outer.get("scenario"),
-                          "seeds": {**outer.get("seeds", {}), **seeds}})
+    token = _CONTEXT.set(
+        {
+            "scenario": scenario if scenario is not None else outer.get("scenario"),
+            "seeds": {**outer.get("seeds", {}), **seeds},
+        }
+    )
     try:
         yield
     finally:

@@ -21,7 +21,9 @@ TANH2 = math.tanh(2.0)
 def paper_leader_speed(t: float, v0: float = 1.7, c: float = 1.65 / 1.37, t_end: float = 20.0) -> float:
     """The paper leader's speed, written independently of aev_ocp.models.leader."""
     tt = min(t, t_end)
-    return v0 - c * ((1 - math.cos(0.5 * math.pi * tt)) / (0.5 * math.pi) + math.sin(3.2 * math.pi * tt) / (3.2 * math.pi))
+    return v0 - c * (
+        (1 - math.cos(0.5 * math.pi * tt)) / (0.5 * math.pi) + math.sin(3.2 * math.pi * tt) / (3.2 * math.pi)
+    )
 
 
 def law_accel(kind: str, p: CarFollowingParams, h: np.ndarray, v: np.ndarray, vl: np.ndarray) -> np.ndarray:
@@ -44,8 +46,14 @@ def make_ocv_numpy(cell: Any = None) -> Callable[[np.ndarray], np.ndarray]:
     return CubicSpline(soc, ocv, bc_type="not-a-knot")
 
 
-def platoon_rhs_factory(kind: str, n: int, leader_speed: Callable[[float], float], ev: EVParams,
-                        p: CarFollowingParams | None = None, battery: bool = True) -> Callable[[float, np.ndarray], np.ndarray]:
+def platoon_rhs_factory(
+    kind: str,
+    n: int,
+    leader_speed: Callable[[float], float],
+    ev: EVParams,
+    p: CarFollowingParams | None = None,
+    battery: bool = True,
+) -> Callable[[float, np.ndarray], np.ndarray]:
     """RHS f(t, y) with y = [h(n), v(n), V1, V2, S (n each if battery), ω(n), heat_J(n)]."""
     p = p or CarFollowingParams()
     u, veh, cell, pack = ev.units, ev.vehicle, ev.cell, ev.pack
@@ -54,7 +62,7 @@ def platoon_rhs_factory(kind: str, n: int, leader_speed: Callable[[float], float
     eta = veh.efficiency
 
     def rhs(t: float, y: np.ndarray) -> np.ndarray:
-        h, v = y[:n], y[n:2 * n]
+        h, v = y[:n], y[n : 2 * n]
         vl = np.empty(n)
         vl[0] = leader_speed(t)
         vl[1:] = v[:-1]
@@ -62,20 +70,24 @@ def platoon_rhs_factory(kind: str, n: int, leader_speed: Callable[[float], float
         g = np.where(a >= 0, a / eta, eta * a)
         out = [vl - v, a]
         if battery:
-            V1, V2, S = y[2 * n:3 * n], y[3 * n:4 * n], y[4 * n:5 * n]
+            V1, V2, S = y[2 * n : 3 * n], y[3 * n : 4 * n], y[4 * n : 5 * n]
             vs, as_ = v * u.speed_mps, a * u.accel_mps2
-            Fres = (0.5 * veh.air_density_kgpm3 * veh.frontal_area_m2 * veh.drag_coefficient * vs**2
-                    + veh.rolling_coefficient * veh.mass_kg * veh.gravity_mps2
-                    + veh.mass_kg * veh.gravity_mps2 * math.sin(veh.grade_rad))
+            Fres = (
+                0.5 * veh.air_density_kgpm3 * veh.frontal_area_m2 * veh.drag_coefficient * vs**2
+                + veh.rolling_coefficient * veh.mass_kg * veh.gravity_mps2
+                + veh.mass_kg * veh.gravity_mps2 * math.sin(veh.grade_rad)
+            )
             Pw = (veh.mass_kg * as_ + Fres) * vs
             Pb = np.where(Pw > 0, Pw / eta, eta * Pw) + veh.aux_power_W
             Pc = Pb / (pack.n_series * pack.n_parallel)
             E = ocv(S) - V1 - V2
             I = 2 * Pc / (E + np.sqrt(np.maximum(E**2 - 4 * cell.R_s_ohm * Pc, 0.0)))
             Q = I * (V1 + V2) + cell.R_s_ohm * I**2
-            out += [T * (-V1 / (cell.R1_ohm * cell.C1_F) + I / cell.C1_F),
-                    T * (-V2 / (cell.R2_ohm * cell.C2_F) + I / cell.C2_F),
-                    T * (-I / (3600 * cell.capacity_Ah))]
+            out += [
+                T * (-V1 / (cell.R1_ohm * cell.C1_F) + I / cell.C1_F),
+                T * (-V2 / (cell.R2_ohm * cell.C2_F) + I / cell.C2_F),
+                T * (-I / (3600 * cell.capacity_Ah)),
+            ]
         out.append(v * g)
         if battery:
             out.append(T * pack.n_series * pack.n_parallel * Q)
@@ -84,18 +96,32 @@ def platoon_rhs_factory(kind: str, n: int, leader_speed: Callable[[float], float
     return rhs
 
 
-def simulate_reference(kind: str, gaps0: np.ndarray, speeds0: np.ndarray, t_end: float, ev: EVParams | None = None,
-                       leader_speed: Callable[[float], float] = paper_leader_speed, breakpoints: tuple[float, ...] = (20.0,),
-                       rtol: float = 1e-10, atol: float = 1e-10, method: str = "DOP853", battery: bool = True,
-                       p: CarFollowingParams | None = None) -> dict[str, Any]:
+def simulate_reference(
+    kind: str,
+    gaps0: np.ndarray,
+    speeds0: np.ndarray,
+    t_end: float,
+    ev: EVParams | None = None,
+    leader_speed: Callable[[float], float] = paper_leader_speed,
+    breakpoints: tuple[float, ...] = (20.0,),
+    rtol: float = 1e-10,
+    atol: float = 1e-10,
+    method: str = "DOP853",
+    battery: bool = True,
+    p: CarFollowingParams | None = None,
+) -> dict[str, Any]:
     """Integrate the platoon with solve_ivp, split at the leader's breakpoints. Returns final ω, heat_J, S and nfev."""
     from scipy.integrate import solve_ivp
 
     ev = ev or EVParams()
     n = len(gaps0)
     rhs = platoon_rhs_factory(kind, n, leader_speed, ev, p, battery)
-    y = np.concatenate([gaps0, speeds0] + ([np.zeros(n), np.zeros(n), np.full(n, ev.cell.soc0)] if battery else [])
-                       + [np.zeros(n)] + ([np.zeros(n)] if battery else []))
+    y = np.concatenate(
+        [gaps0, speeds0]
+        + ([np.zeros(n), np.zeros(n), np.full(n, ev.cell.soc0)] if battery else [])
+        + [np.zeros(n)]
+        + ([np.zeros(n)] if battery else [])
+    )
     cuts = [0.0] + [b for b in breakpoints if 0 < b < t_end] + [t_end]
     nfev = 0
     for a, b in zip(cuts[:-1], cuts[1:]):
@@ -104,7 +130,7 @@ def simulate_reference(kind: str, gaps0: np.ndarray, speeds0: np.ndarray, t_end:
             raise RuntimeError(sol.message)
         y, nfev = sol.y[:, -1], nfev + sol.nfev
     k = 5 * n if battery else 2 * n
-    out = {"omega": y[k:k + n], "gap": y[:n], "speed": y[n:2 * n], "nfev": nfev}
+    out = {"omega": y[k : k + n], "gap": y[:n], "speed": y[n : 2 * n], "nfev": nfev}
     if battery:
-        out.update(heat_J=y[k + n:k + 2 * n], S=y[4 * n:5 * n])
+        out.update(heat_J=y[k + n : k + 2 * n], S=y[4 * n : 5 * n])
     return out

@@ -80,16 +80,21 @@ def table1_summary(results: Mapping[str, SimulationResult]) -> dict[str, Any]:
         "paper_proposed_omega": list(PAPER_TABLE1["proposed"]),
         "paper_ovfl_omega": list(PAPER_TABLE1["ovfl"]),
         "paper_percent_change": list(PAPER_PERCENT),
-        "omega_J_per_kg": {k: [float(r.units.energy_per_mass_to_si(x)) for x in r.omega[-1]]
-                           for k, r in results.items()},
+        "omega_J_per_kg": {
+            k: [float(r.units.energy_per_mass_to_si(x)) for x in r.omega[-1]] for k, r in results.items()
+        },
         "pack_heat_J": {k: [float(x) for x in r.heat_J[-1]] for k, r in results.items()},
         "pack_heat_irr_J": {k: [float(x) for x in r.heat_irr_J[-1]] for k, r in results.items()},
         "delta_soc": {k: [float(x) for x in r.S[-1] - r.S[0]] for k, r in results.items()},
         "status": {k: r.status for k, r in results.items()},
-        "units": {"omega": "model units (U^2); omega_J_per_kg in J/kg", "pack_heat_J": "J",
-                  "delta_soc": "-", "length_m": prop.units.length_m, "speed_mps": prop.units.speed_mps},
-        "settings": {"rtol": prop.meta.get("rtol"), "atol": prop.meta.get("atol"),
-                     "dt_out": prop.meta.get("dt_out")},
+        "units": {
+            "omega": "model units (U^2); omega_J_per_kg in J/kg",
+            "pack_heat_J": "J",
+            "delta_soc": "-",
+            "length_m": prop.units.length_m,
+            "speed_mps": prop.units.speed_mps,
+        },
+        "settings": {"rtol": prop.meta.get("rtol"), "atol": prop.meta.get("atol"), "dt_out": prop.meta.get("dt_out")},
     }
     return out
 
@@ -117,9 +122,11 @@ def write_table1(out_dir: str | os.PathLike[str], summary: Mapping[str, Any]) ->
     """table1.csv, table1.md and table1.json in ``out_dir``."""
     out = Path(out_dir)
     headers, rows = table1_rows(summary)
-    return [write_text(out / "table1.csv", csv_text(headers, rows)),
-            write_text(out / "table1.md", markdown_table(headers, rows)),
-            write_json(out / "table1.json", summary)]
+    return [
+        write_text(out / "table1.csv", csv_text(headers, rows)),
+        write_text(out / "table1.md", markdown_table(headers, rows)),
+        write_json(out / "table1.json", summary),
+    ]
 
 
 def table1_disagreements(summary: Mapping[str, Any]) -> list[str]:
@@ -130,25 +137,35 @@ def table1_disagreements(summary: Mapping[str, Any]) -> list[str]:
         bad = [(i + 1, a, b) for i, (a, b) in enumerate(zip(ours, paper)) if abs(a - b) > PRINTED_HALF_ULP]
         if bad:
             items = ", ".join(f"n = {i}: {a:.4f} vs {b:.3f} ({100 * (a - b) / b:+.1f}%)" for i, a, b in bad)
-            notes.append(f"{label} ω differs from the printed value beyond rounding for {len(bad)} of "
-                         f"{len(ours)} followers: {items}.")
+            notes.append(
+                f"{label} ω differs from the printed value beyond rounding for {len(bad)} of "
+                f"{len(ours)} followers: {items}."
+            )
         else:
             notes.append(f"{label} ω agrees with the printed values to their 3 decimals.")
     pc, ppc = summary["percent_change"], summary["paper_percent_change"]
     bad = [(i + 1, a, b) for i, (a, b) in enumerate(zip(pc, ppc)) if abs(a - b) > PERCENT_HALF_ULP]
     if bad:
-        notes.append("The % change row differs from the printed one: "
-                     + ", ".join(f"n = {i}: {a:+.2f}% vs {b:+.2f}%" for i, a, b in bad) + ".")
+        notes.append(
+            "The % change row differs from the printed one: "
+            + ", ".join(f"n = {i}: {a:+.2f}% vs {b:+.2f}%" for i, a, b in bad)
+            + "."
+        )
     paper_pc = percent_change(summary["paper_proposed_omega"], summary["paper_ovfl_omega"])
     inconsistent = [i + 1 for i, (a, b) in enumerate(zip(paper_pc, ppc)) if abs(a - b) > PERCENT_HALF_ULP + 0.01]
-    notes.append("The paper's printed % row is " + ("consistent" if not inconsistent else
-                 f"NOT consistent (n = {inconsistent})") + " with its own printed ω rows.")
+    notes.append(
+        "The paper's printed % row is "
+        + ("consistent" if not inconsistent else f"NOT consistent (n = {inconsistent})")
+        + " with its own printed ω rows."
+    )
     worse = [i + 1 for i, a in enumerate(pc) if a > 0]
     if worse:
-        notes.append(f"For follower(s) n = {worse} the proposed law uses MORE energy than OVFL "
-                     f"(% change > 0), whereas the paper reports a saving for every follower. In a "
-                     f"platoon each follower's leader differs between the two runs, so Theorem 4.1 "
-                     f"(same leader trajectory) does not apply beyond n = 1.")
+        notes.append(
+            f"For follower(s) n = {worse} the proposed law uses MORE energy than OVFL "
+            f"(% change > 0), whereas the paper reports a saving for every follower. In a "
+            f"platoon each follower's leader differs between the two runs, so Theorem 4.1 "
+            f"(same leader trajectory) does not apply beyond n = 1."
+        )
     else:
         notes.append("The proposed law uses less energy than OVFL for every follower, as in the paper.")
     return notes
@@ -162,7 +179,8 @@ def platoon_checks(r: SimulationResult, t_eq: float = 20.0) -> dict[str, Any]:
     rel = np.column_stack([(r.leader_speed if i == 0 else r.speed[:, i - 1]) - r.speed[:, i] for i in range(n)])
     peak_rel = np.max(np.abs(rel), axis=0)
     return {
-        "v_eq": v_eq, "h_eq": h_eq,
+        "v_eq": v_eq,
+        "h_eq": h_eq,
         "min_gap": [float(x) for x in r.gap.min(axis=0)],
         "min_speed": [float(x) for x in r.speed.min(axis=0)],
         "peak_abs_rel_speed": [float(x) for x in peak_rel],
@@ -177,29 +195,62 @@ def platoon_checks(r: SimulationResult, t_eq: float = 20.0) -> dict[str, Any]:
 OVER_LIMIT_MARK = "†"  # marks battery numbers of a vehicle whose cell current exceeded the cell's limit
 
 
-def scenario_metrics_rows(results: Mapping[str, SimulationResult], i_max_A: float | None = None,
-                          totals: bool = False) -> tuple[list[str], list[list[str]]]:
+def scenario_metrics_rows(
+    results: Mapping[str, SimulationResult], i_max_A: float | None = None, totals: bool = False
+) -> tuple[list[str], list[list[str]]]:
     """Per law and follower: ω, pack ∫Q, ∫Q_irr, ΔSOC, min gap, max |I|, status.
 
     i_max_A: the cell's current limit [A]; the battery columns (∫Q, ∫Q_irr, ΔSOC, max |I|) of a vehicle
     whose current exceeded it get OVER_LIMIT_MARK (the cell model is not valid there). totals: a
     'platoon' row per run after its followers (:func:`platoon_totals`)."""
-    headers = ["run", "n", "ω [model]", "ω [J/kg]", "pack ∫Q [J]", "pack ∫Q_irr [J]", "ΔSOC",
-               "min gap [m]", "max |I| [A/cell]", "status"]
+    headers = [
+        "run",
+        "n",
+        "ω [model]",
+        "ω [J/kg]",
+        "pack ∫Q [J]",
+        "pack ∫Q_irr [J]",
+        "ΔSOC",
+        "min gap [m]",
+        "max |I| [A/cell]",
+        "status",
+    ]
     rows: list[list[str]] = []
     for label, r in results.items():
         ms = r.metrics()
         for m in ms:
             over = i_max_A is not None and float(m["max_abs_current_A"]) > i_max_A
             mk = (lambda x: x + " " + OVER_LIMIT_MARK) if over else (lambda x: x)  # noqa: E731
-            rows.append([label, str(m["vehicle"]), fmt(m["omega_model"]), fmt(m["omega_J_per_kg"]),
-                         mk(fmt(m["heat_pack_J"])), mk(fmt(m["heat_irr_pack_J"])), mk(fmt(m["delta_soc"], 3)),
-                         fmt(m["min_gap_m"]), mk(fmt(m["max_abs_current_A"])), m["status"]])
+            rows.append(
+                [
+                    label,
+                    str(m["vehicle"]),
+                    fmt(m["omega_model"]),
+                    fmt(m["omega_J_per_kg"]),
+                    mk(fmt(m["heat_pack_J"])),
+                    mk(fmt(m["heat_irr_pack_J"])),
+                    mk(fmt(m["delta_soc"], 3)),
+                    fmt(m["min_gap_m"]),
+                    mk(fmt(m["max_abs_current_A"])),
+                    m["status"],
+                ]
+            )
         if totals and len(ms) > 1:
             tot = platoon_totals(r)
-            rows.append([f"**{label}: platoon**", f"Σ {len(ms)}", fmt(tot["omega_model"]), fmt(tot["omega_J_per_kg"]),
-                         fmt(tot["heat_pack_J"]), fmt(tot["heat_irr_pack_J"]), fmt(tot["delta_soc"], 3),
-                         fmt(tot["min_gap_m"]) + " (min)", fmt(tot["max_abs_current_A"]) + " (max)", r.status])
+            rows.append(
+                [
+                    f"**{label}: platoon**",
+                    f"Σ {len(ms)}",
+                    fmt(tot["omega_model"]),
+                    fmt(tot["omega_J_per_kg"]),
+                    fmt(tot["heat_pack_J"]),
+                    fmt(tot["heat_irr_pack_J"]),
+                    fmt(tot["delta_soc"], 3),
+                    fmt(tot["min_gap_m"]) + " (min)",
+                    fmt(tot["max_abs_current_A"]) + " (max)",
+                    r.status,
+                ]
+            )
     if any(r.temperature_K is not None for r in results.values()):  # the thermal model: peak pack temperature
         headers += ["peak T [K]", "time > T_max [s]"]
         k = 0
@@ -218,15 +269,18 @@ def platoon_totals(r: SimulationResult) -> dict[str, float]:
     """Whole-platoon figures of one run: sums over followers of ω [model and J/kg], pack ∫Q and ∫Q_irr [J]
     and ΔSOC; the smallest gap [m] and the largest |I| [A per cell] of any follower."""
     ms = r.metrics()
-    total = {k: float(sum(m[k] for m in ms)) for k in ("omega_model", "omega_J_per_kg", "heat_pack_J",
-                                                        "heat_irr_pack_J", "delta_soc")}
+    total = {
+        k: float(sum(m[k] for m in ms))
+        for k in ("omega_model", "omega_J_per_kg", "heat_pack_J", "heat_irr_pack_J", "delta_soc")
+    }
     total["min_gap_m"] = float(min(m["min_gap_m"] for m in ms))
     total["max_abs_current_A"] = float(max(m["max_abs_current_A"] for m in ms))
     return total
 
 
-def write_scenario_outputs(name: str, results: Mapping[str, SimulationResult], out_dir: str | os.PathLike[str],
-                           plots: bool = True) -> list[Path]:
+def write_scenario_outputs(
+    name: str, results: Mapping[str, SimulationResult], out_dir: str | os.PathLike[str], plots: bool = True
+) -> list[Path]:
     """For each run: ``<label>.csv`` (trajectories), ``<label>.png`` (gaps, speeds, current, SOC), for a
     platoon ``<label>_space_time.png``;
     plus ``metrics.json`` (status, events and metrics of every run) and ``metrics.md``."""
@@ -242,8 +296,9 @@ def write_scenario_outputs(name: str, results: Mapping[str, SimulationResult], o
             if r.n_vehicles > 1:
                 plot_space_time(r, png := out / f"{label}_space_time.png", title=f"{name}: {label}")
                 written.append(png)
-    written.append(write_json(out / "metrics.json", {"scenario": name,
-                                                     "runs": {k: r.summary() for k, r in results.items()}}))
+    written.append(
+        write_json(out / "metrics.json", {"scenario": name, "runs": {k: r.summary() for k, r in results.items()}})
+    )
     headers, rows = scenario_metrics_rows(results)
     written.append(write_text(out / "metrics.md", f"# {name}\n\n" + markdown_table(headers, rows)))
     return written

@@ -53,7 +53,7 @@ def _inline(text: str, base: Path) -> str:
     out: list[str] = []
     pos = 0
     for m in _IMG.finditer(text):  # images first: their alt text and path must not be re-parsed
-        out.append(_inline_plain(text[pos:m.start()]))
+        out.append(_inline_plain(text[pos : m.start()]))
         out.append(f'<img alt="{html.escape(m.group(1))}" src="{_data_uri(base, m.group(2))}">')
         pos = m.end()
     out.append(_inline_plain(text[pos:]))
@@ -125,11 +125,14 @@ def markdown_to_html(text: str, base: str | os.PathLike[str], title: str = "repo
             para.append(ln.strip())
         i += 1
     flush()
-    return (f'<!DOCTYPE html>\n<html lang="en"><head><meta charset="utf-8"><title>{html.escape(title)}</title>'
-            f"<style>{STYLE}</style></head><body>\n" + "\n".join(body) + "\n</body></html>\n")
+    return (
+        f'<!DOCTYPE html>\n<html lang="en"><head><meta charset="utf-8"><title>{html.escape(title)}</title>'
+        f"<style>{STYLE}</style></head><body>\n" + "\n".join(body) + "\n</body></html>\n"
+    )
 
 
-def write_report_html(markdown: str, base: str | os.PathLike[str], path: str | os.PathLike[str],
-                      title: str = "report") -> Path:
+def write_report_html(
+    markdown: str, base: str | os.PathLike[str], path: str | os.PathLike[str], title: str = "report"
+) -> Path:
     """Convert ``markdown`` (figures relative to ``base``) and write it atomically to ``path``."""
     return write_atomic(path, markdown_to_html(markdown, base, title))

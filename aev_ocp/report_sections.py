@@ -25,10 +25,17 @@ from .report_html import heading_anchor
 ProgressFn = Callable[[str], None]
 
 #: Modules whose ``REPRODUCE_SECTIONS`` are added after the built-in sections, in this order.
-SECTION_PROVIDERS: tuple[str, ...] = ("aev_ocp.claims", "aev_ocp.ocp.report_section", "aev_ocp.mpc.report",
-                                       "aev_ocp.mpc.cycles_section", "aev_ocp.stability.report",
-                                       "aev_ocp.safety.section", "aev_ocp.ring.report", "aev_ocp.life_section",
-                                       "aev_ocp.robustness")
+SECTION_PROVIDERS: tuple[str, ...] = (
+    "aev_ocp.claims",
+    "aev_ocp.ocp.report_section",
+    "aev_ocp.mpc.report",
+    "aev_ocp.mpc.cycles_section",
+    "aev_ocp.stability.report",
+    "aev_ocp.safety.section",
+    "aev_ocp.ring.report",
+    "aev_ocp.life_section",
+    "aev_ocp.robustness",
+)
 
 
 @dataclass(frozen=True)
@@ -51,15 +58,23 @@ class ReproduceConfig:
     scenario_t_end_max: float | None = None
     mpc_scenario_max_s: float | None = 150.0
     scenarios: tuple[str, ...] | None = None
-    builtin: tuple[str, ...] = ("fig1-2", "fig3", "table1", "table1-hypotheses", "tolerance", "scenarios",
-                                "disagreements")
+    builtin: tuple[str, ...] = (
+        "fig1-2",
+        "fig3",
+        "table1",
+        "table1-hypotheses",
+        "tolerance",
+        "scenarios",
+        "disagreements",
+    )
     si_units: bool = True
 
     @classmethod
     def quick(cls) -> "ReproduceConfig":
         """A cheap configuration for tests (short horizons, two tolerances, two scenarios)."""
-        return cls(tolerances=(1e-6, 1e-8), fig12_t_end=20.0, scenario_t_end_max=10.0,
-                   scenarios=("table1", "udds_platoon"))
+        return cls(
+            tolerances=(1e-6, 1e-8), fig12_t_end=20.0, scenario_t_end_max=10.0, scenarios=("table1", "udds_platoon")
+        )
 
     @property
     def is_full(self) -> bool:
@@ -165,7 +180,8 @@ def summary_section(claims: Sequence[Claim]) -> str:
         return ""
     rows = [[c.claim, f"**{c.verdict}**", c.evidence, f"[{c.where}](#{heading_anchor(c.where)})"] for c in claims]
     n_fail = sum(c.verdict.lower().startswith(("fails", "disagrees")) for c in claims)
-    return ("## Summary: the paper's claims and what the computations say\n\n"
-            f"{len(claims)} claims checked; {n_fail} fail or disagree. Each row links to the section with the "
-            "numbers and figures.\n\n"
-            + markdown_table(["paper claim", "verdict", "evidence", "where"], rows))
+    return (
+        "## Summary: the paper's claims and what the computations say\n\n"
+        f"{len(claims)} claims checked; {n_fail} fail or disagree. Each row links to the section with the "
+        "numbers and figures.\n\n" + markdown_table(["paper claim", "verdict", "evidence", "where"], rows)
+    )

@@ -26,8 +26,14 @@ from .params import EVParams, Units, as_dict
 _UMASK = os.umask(0)
 os.umask(_UMASK)
 
-EVENT_KINDS = ("collision", "negative_speed", "infeasible_current", "soc_out_of_range", "integration_failed",
-               "time_limit")  # time_limit: the run was stopped by its wall-clock limit (vehicle -1: the whole run)
+EVENT_KINDS = (
+    "collision",
+    "negative_speed",
+    "infeasible_current",
+    "soc_out_of_range",
+    "integration_failed",
+    "time_limit",
+)  # time_limit: the run was stopped by its wall-clock limit (vehicle -1: the whole run)
 VIOLATED = "violated"  # status of a run that went below a controller's own hard gap floor (it did not stop)
 
 
@@ -63,7 +69,9 @@ def write_atomic(path: str | os.PathLike[str], data: str | bytes) -> Path:
     """Write ``data`` to ``path`` atomically (unique temp file in the same folder, then os.replace)."""
     path = Path(path)
     with atomic_path(path) as tmp:
-        with open(tmp, "wb" if isinstance(data, bytes) else "w", encoding=None if isinstance(data, bytes) else "utf-8") as fh:
+        with open(
+            tmp, "wb" if isinstance(data, bytes) else "w", encoding=None if isinstance(data, bytes) else "utf-8"
+        ) as fh:
             fh.write(data)
     return path
 
@@ -113,13 +121,17 @@ def summary_html(title: str, fields: list[tuple[str, Any]], rows: list[dict[str,
     from html import escape
 
     parts = [f"<div><strong>{escape(title)}</strong>", "<table>"]
-    parts += [f"<tr><th style='text-align:left'>{escape(k)}</th><td style='text-align:left'>{escape(fmt_value(v))}</td></tr>"
-              for k, v in fields]
+    parts += [
+        f"<tr><th style='text-align:left'>{escape(k)}</th><td style='text-align:left'>{escape(fmt_value(v))}</td></tr>"
+        for k, v in fields
+    ]
     parts.append("</table>")
     if rows:
         cols = list(rows[0])
         parts.append("<table><tr>" + "".join(f"<th>{escape(c)}</th>" for c in cols) + "</tr>")
-        parts += ["<tr>" + "".join(f"<td>{escape(fmt_value(r.get(c)))}</td>" for c in cols) + "</tr>" for r in rows[:20]]
+        parts += [
+            "<tr>" + "".join(f"<td>{escape(fmt_value(r.get(c)))}</td>" for c in cols) + "</tr>" for r in rows[:20]
+        ]
         parts.append("</table>")
         if len(rows) > 20:
             parts.append(f"<p>… {len(rows) - 20} more rows</p>")
@@ -134,7 +146,6 @@ MARKER = "aev-ocp-run.json"  # which command and scenario wrote this folder
 
 class OutputError(ValueError):
     """An output folder cannot be used (it holds another run's files); the message says which and why."""
-
 
 
 class FieldsRepr:
@@ -157,8 +168,10 @@ def check_safe_name(name: str, what: str = "name") -> str:
     """``name`` if it is a safe single folder name (1-100 of A-Z a-z 0-9 . _ + -, not starting with
     '.', '_', '+' or '-'), else ValueError: a name must never lead outside the output folder."""
     if not isinstance(name, str) or not _SAFE_NAME.fullmatch(name) or name in (".", ".."):
-        raise ValueError(f"{what} = {name!r} is not allowed: must be 1-100 characters of letters, digits, "
-                         "'.', '_', '+', '-', starting with a letter or digit (it names a folder under results/)")
+        raise ValueError(
+            f"{what} = {name!r} is not allowed: must be 1-100 characters of letters, digits, "
+            "'.', '_', '+', '-', starting with a letter or digit (it names a folder under results/)"
+        )
     return name
 
 
@@ -169,8 +182,13 @@ def default_output_dir(*parts: str, root: str | os.PathLike[str] = "results") ->
     return Path(root).joinpath(*parts)
 
 
-def claim_output_dir(out: str | os.PathLike[str], command: str, scenario: str, source: str | None,
-                     files: Iterator[str] | list[str] | tuple[str, ...] | None = None) -> Path:
+def claim_output_dir(
+    out: str | os.PathLike[str],
+    command: str,
+    scenario: str,
+    source: str | None,
+    files: Iterator[str] | list[str] | tuple[str, ...] | None = None,
+) -> Path:
     """Make ``out`` ready for the files of one run, never clobbering another run's files silently.
 
     The folder gets a marker naming the command, the scenario and its source file. If it already holds
@@ -195,26 +213,38 @@ def _check_claim(out: Path, me: dict[str, Any], files: list[str] | None) -> None
     """OutputError if ``out`` holds another run's marker or (without a marker) files it did not write."""
     marker = out / MARKER
     if (marker.exists() or marker.is_symlink()) and not marker.is_file():  # a FIFO, folder, device: not ours
-        raise OutputError(f"output folder {out} holds {MARKER}, which is not a file aev-ocp wrote (a folder, FIFO, "
-                          "device or dangling link); choose another --out, or remove it first")
+        raise OutputError(
+            f"output folder {out} holds {MARKER}, which is not a file aev-ocp wrote (a folder, FIFO, "
+            "device or dangling link); choose another --out, or remove it first"
+        )
     if marker.is_file():
         try:  # a marker is ~100 bytes of JSON; a huge or deeply nested one is not ours
             prev = json.loads(read_input_file(marker, "marker", OutputError, 1_000_000).decode("utf-8"))
         except (OSError, ValueError, RecursionError):
             prev = None
         if not isinstance(prev, dict) or {k: prev.get(k) for k in me} != me:
-            who = (f"'aev-ocp {prev.get('command')}' of scenario {prev.get('scenario')!r} ({prev.get('source')})"
-                   if isinstance(prev, dict) else "an unreadable marker")
-            raise OutputError(f"output folder {out} holds the results of {who}; choose another --out, or "
-                              f"remove {out} first (files of other runs are never replaced)")
+            who = (
+                f"'aev-ocp {prev.get('command')}' of scenario {prev.get('scenario')!r} ({prev.get('source')})"
+                if isinstance(prev, dict)
+                else "an unreadable marker"
+            )
+            raise OutputError(
+                f"output folder {out} holds the results of {who}; choose another --out, or "
+                f"remove {out} first (files of other runs are never replaced)"
+            )
     elif out.is_dir():
-        clash = sorted({p.name for p in out.iterdir() if p.name != LOCK} if files is None else
-                       {p.name for pattern in files for p in out.glob(pattern)})
+        clash = sorted(
+            {p.name for p in out.iterdir() if p.name != LOCK}
+            if files is None
+            else {p.name for pattern in files for p in out.glob(pattern)}
+        )
         if clash:
-            raise OutputError(f"output folder {out} already holds {clash[0]}"
-                              f"{f' and {len(clash) - 1} more' if len(clash) > 1 else ''}"
-                              f"{' of the files this run writes' if files is not None else ''}, "
-                              "not written by aev-ocp; choose another --out, or remove them first")
+            raise OutputError(
+                f"output folder {out} already holds {clash[0]}"
+                f"{f' and {len(clash) - 1} more' if len(clash) > 1 else ''}"
+                f"{' of the files this run writes' if files is not None else ''}, "
+                "not written by aev-ocp; choose another --out, or remove them first"
+            )
 
 
 LOCK = ".aev-ocp.lock"  # held (flock) by the one run writing into a folder
@@ -238,8 +268,10 @@ def _acquire_lock(out: Path) -> str | None:
         os.write(fd, f"{os.getpid()}\n".encode())
     except BlockingIOError:
         os.close(fd)
-        raise OutputError(f"output folder {out} is in use by another aev-ocp run (pid in {out / LOCK}); wait for "
-                          "it to finish or choose another --out") from None
+        raise OutputError(
+            f"output folder {out} is in use by another aev-ocp run (pid in {out / LOCK}); wait for "
+            "it to finish or choose another --out"
+        ) from None
     except BaseException:
         os.close(fd)
         raise
@@ -386,11 +418,21 @@ class SimulationResult:
     #: Trajectory CSV columns: (header, attribute, SI factor name or None). SI first, units in the names;
     #: the model-unit columns follow with a ``_model`` suffix (the car-following model's own units).
     CSV_COLUMNS: ClassVar[tuple[tuple[str, str, str | None], ...]] = (
-        ("gap_m", "gap", "length_m"), ("speed_mps", "speed", "speed_mps"), ("accel_mps2", "accel", "accel_mps2"),
-        ("V1_V", "V1", None), ("V2_V", "V2", None), ("soc", "S", None), ("current_A", "current_A", None),
-        ("omega_J_per_kg", "omega", "omega"), ("heat_J", "heat_J", None), ("heat_irr_J", "heat_irr_J", None),
-        ("gap_model", "gap", None), ("speed_model", "speed", None), ("accel_model", "accel", None),
-        ("omega_model", "omega", None))
+        ("gap_m", "gap", "length_m"),
+        ("speed_mps", "speed", "speed_mps"),
+        ("accel_mps2", "accel", "accel_mps2"),
+        ("V1_V", "V1", None),
+        ("V2_V", "V2", None),
+        ("soc", "S", None),
+        ("current_A", "current_A", None),
+        ("omega_J_per_kg", "omega", "omega"),
+        ("heat_J", "heat_J", None),
+        ("heat_irr_J", "heat_irr_J", None),
+        ("gap_model", "gap", None),
+        ("speed_model", "speed", None),
+        ("accel_model", "accel", None),
+        ("omega_model", "omega", None),
+    )
 
     def to_csv(self, path: str | os.PathLike[str]) -> Path:
         """Long-format CSV (one row per time and vehicle), streamed to a temp file and moved into place
@@ -400,8 +442,12 @@ class SimulationResult:
         O(samples of one vehicle) whatever the platoon size; each vehicle's rows are formatted by one ``%``
         operation."""
         u = self.units
-        scale = {"length_m": u.length_m, "speed_mps": u.speed_mps, "accel_mps2": u.accel_mps2,
-                 "omega": u.speed_mps**2}  # ω [U²] -> J/kg (Units.energy_per_mass_to_si)
+        scale = {
+            "length_m": u.length_m,
+            "speed_mps": u.speed_mps,
+            "accel_mps2": u.accel_mps2,
+            "omega": u.speed_mps**2,
+        }  # ω [U²] -> J/kg (Units.energy_per_mass_to_si)
         cols = self.CSV_COLUMNS
         if self.temperature_K is not None:  # the pack temperature [K] after the heat columns
             k = [c[0] for c in cols].index("heat_irr_J") + 1
@@ -412,20 +458,29 @@ class SimulationResult:
         vl_si = [f"{v * u.speed_mps:.10g}" for v in self.leader_speed]
         vl_txt = [f"{v:.10g}" for v in self.leader_speed]
         n_si = sum(1 for c in cols if not c[0].endswith("_model"))
-        row = ("%s,%d,%s,%s," + ",".join(["%.10g"] * n_si) + ",%s,%s," + ",".join(["%.10g"] * (len(cols) - n_si))
-               + "\n")
+        row = "%s,%d,%s,%s," + ",".join(["%.10g"] * n_si) + ",%s,%s," + ",".join(["%.10g"] * (len(cols) - n_si)) + "\n"
         K = self.t.size
         with atomic_path(path) as tmp:
             with open(tmp, "w", newline="", encoding="utf-8") as fh:
-                fh.write(",".join(["t_s", "vehicle", "controller", "leader_speed_mps"] + [c[0] for c in cols[:n_si]]
-                                  + ["t_model", "leader_speed_model"] + [c[0] for c in cols[n_si:]]) + "\n")
+                fh.write(
+                    ",".join(
+                        ["t_s", "vehicle", "controller", "leader_speed_mps"]
+                        + [c[0] for c in cols[:n_si]]
+                        + ["t_model", "leader_speed_model"]
+                        + [c[0] for c in cols[n_si:]]
+                    )
+                    + "\n"
+                )
                 for i in range(self.n_vehicles):
                     name = self.controllers[i]
                     if any(ch in name for ch in ',"\r\n'):  # needs CSV quoting
                         name = '"' + name.replace('"', '""') + '"'
                     arrs = [(getattr(self, a)[:, i] * (scale[f] if f else 1.0)).tolist() for _, a, f in cols]
-                    flat = [x for r in zip(ts_txt, [i + 1] * K, [name] * K, vl_si, *arrs[:n_si], t_txt, vl_txt,
-                                               *arrs[n_si:]) for x in r]
+                    flat = [
+                        x
+                        for r in zip(ts_txt, [i + 1] * K, [name] * K, vl_si, *arrs[:n_si], t_txt, vl_txt, *arrs[n_si:])
+                        for x in r
+                    ]
                     fh.write((row * K) % tuple(flat))
         return Path(path)
 
@@ -437,8 +492,10 @@ class SimulationResult:
 
         u = self.units
         names = sorted(set(self.controllers))
-        title = (f"SimulationResult: {self.n_vehicles} follower{'s' if self.n_vehicles != 1 else ''} "
-                 f"({', '.join(names)}), status {self.status}")
+        title = (
+            f"SimulationResult: {self.n_vehicles} follower{'s' if self.n_vehicles != 1 else ''} "
+            f"({', '.join(names)}), status {self.status}"
+        )
         t_s = float(u.time_to_si(self.t[-1])) if self.t.size else 0.0
         fields: list[tuple[str, Any]] = [("duration_s", t_s), ("samples", int(self.t.size))]
         if self.events:
@@ -448,18 +505,29 @@ class SimulationResult:
         rows = []
         for i in range(min(self.n_vehicles, self.REPR_VEHICLES)):
             m = vehicle_metrics(self, i)
-            rows.append({"vehicle": i + 1, "controller": m["controller"], "status": m["status"],
-                         "omega_J_per_kg": m["omega_J_per_kg"], "heat_pack_J": m["heat_pack_J"],
-                         "min_gap_m": m["min_gap_m"], "delta_soc": m["delta_soc"]})
+            rows.append(
+                {
+                    "vehicle": i + 1,
+                    "controller": m["controller"],
+                    "status": m["status"],
+                    "omega_J_per_kg": m["omega_J_per_kg"],
+                    "heat_pack_J": m["heat_pack_J"],
+                    "min_gap_m": m["min_gap_m"],
+                    "delta_soc": m["delta_soc"],
+                }
+            )
         return title, fields, rows
 
     def __repr__(self) -> str:
         """A few lines: who ran, the status, duration [s] and each vehicle's key metrics in SI."""
         title, fields, rows = self._repr_fields()
         lines = [", ".join(f"{k} {fmt_value(v)}" for k, v in fields)]
-        lines += [f"vehicle {r['vehicle']} ({r['controller']}): {r['status']}, ω {fmt_value(r['omega_J_per_kg'])} J/kg, "
-                  f"pack ∫Q {fmt_value(r['heat_pack_J'])} J, min gap {fmt_value(r['min_gap_m'])} m, "
-                  f"ΔSOC {fmt_value(r['delta_soc'])}" for r in rows]
+        lines += [
+            f"vehicle {r['vehicle']} ({r['controller']}): {r['status']}, ω {fmt_value(r['omega_J_per_kg'])} J/kg, "
+            f"pack ∫Q {fmt_value(r['heat_pack_J'])} J, min gap {fmt_value(r['min_gap_m'])} m, "
+            f"ΔSOC {fmt_value(r['delta_soc'])}"
+            for r in rows
+        ]
         if self.n_vehicles > len(rows):
             lines.append(f"… {self.n_vehicles - len(rows)} more vehicles (.metrics() has them all)")
         return summary_text(title, lines)
@@ -478,10 +546,16 @@ class SimulationResult:
         u = self.units
         scale = {"length_m": u.length_m, "speed_mps": u.speed_mps, "accel_mps2": u.accel_mps2, "omega": u.speed_mps**2}
         K, n = self.t.size, self.n_vehicles
-        data: dict[str, Any] = {"t_s": np.tile(self.t * u.time_s, n), "vehicle": np.repeat(np.arange(1, n + 1), K),
-                                "controller": np.repeat(np.asarray(self.controllers, dtype=object), K),
-                                "leader_speed_mps": np.tile(self.leader_speed * u.speed_mps, n)}
-        model_cols: dict[str, Any] = {"t_model": np.tile(self.t, n), "leader_speed_model": np.tile(self.leader_speed, n)}
+        data: dict[str, Any] = {
+            "t_s": np.tile(self.t * u.time_s, n),
+            "vehicle": np.repeat(np.arange(1, n + 1), K),
+            "controller": np.repeat(np.asarray(self.controllers, dtype=object), K),
+            "leader_speed_mps": np.tile(self.leader_speed * u.speed_mps, n),
+        }
+        model_cols: dict[str, Any] = {
+            "t_model": np.tile(self.t, n),
+            "leader_speed_model": np.tile(self.leader_speed, n),
+        }
         for name, attr, f in self.CSV_COLUMNS:
             col = (np.asarray(getattr(self, attr)) * (scale[f] if f else 1.0)).T.reshape(-1)
             (model_cols if name.endswith("_model") else data)[name] = col
@@ -489,10 +563,15 @@ class SimulationResult:
 
     def summary(self) -> dict[str, Any]:
         """Status, events, metrics and settings as a JSON-ready dict."""
-        return {"status": self.status, "events": [vars(e) for e in self.events],
-                "violations": [vars(e) for e in self.violations],
-                "controllers": self.controllers, "metrics": self.metrics(),
-                "units": as_dict(self.units), "meta": self.meta}
+        return {
+            "status": self.status,
+            "events": [vars(e) for e in self.events],
+            "violations": [vars(e) for e in self.violations],
+            "controllers": self.controllers,
+            "metrics": self.metrics(),
+            "units": as_dict(self.units),
+            "meta": self.meta,
+        }
 
     def to_json(self, path: str | os.PathLike[str]) -> Path:
         """Metrics and events as JSON, written atomically."""

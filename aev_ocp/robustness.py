@@ -32,20 +32,42 @@ def _row(cycle: str, cond: str, seed: int | None, ctrl: str, r: SimulationResult
     m = r.metrics()[0]
     st = (r.solver_stats or [None])[0] or {}
     est = st.get("estimation", {})
-    return {"cycle": cycle, "condition": cond, "seed": seed, "controller": ctrl, "status": r.status,
-            "collisions": m.get("collisions"), "min_gap_m": m.get("min_gap_m"), "distance_m": m.get("distance_m"),
-            "heat_pack_J_per_km": m.get("heat_pack_J_per_km"), "fallbacks": st.get("fallbacks"),
-            "soc_err_max_after_60s_pct": est.get("soc_err_max_after_60s_pct"),
-            "soc_err_rms_pct": est.get("soc_err_rms_pct"), "V2_err_rms_mV": est.get("V2_err_rms_mV"),
-            "lead_speed_err_rms_mps": est.get("lead_speed_err_rms_mps"), "gap_err_rms_m": est.get("gap_err_rms_m"),
-            "call_ms_median": st.get("call_ms_median"), "estimator_ms_median": st.get("estimator_ms_median"),
-            "estimator_plus_call_ms_median": st.get("estimator_plus_call_ms_median"), "wall_s": wall}
+    return {
+        "cycle": cycle,
+        "condition": cond,
+        "seed": seed,
+        "controller": ctrl,
+        "status": r.status,
+        "collisions": m.get("collisions"),
+        "min_gap_m": m.get("min_gap_m"),
+        "distance_m": m.get("distance_m"),
+        "heat_pack_J_per_km": m.get("heat_pack_J_per_km"),
+        "fallbacks": st.get("fallbacks"),
+        "soc_err_max_after_60s_pct": est.get("soc_err_max_after_60s_pct"),
+        "soc_err_rms_pct": est.get("soc_err_rms_pct"),
+        "V2_err_rms_mV": est.get("V2_err_rms_mV"),
+        "lead_speed_err_rms_mps": est.get("lead_speed_err_rms_mps"),
+        "gap_err_rms_m": est.get("gap_err_rms_m"),
+        "call_ms_median": st.get("call_ms_median"),
+        "estimator_ms_median": st.get("estimator_ms_median"),
+        "estimator_plus_call_ms_median": st.get("estimator_plus_call_ms_median"),
+        "wall_s": wall,
+    }
 
 
-def run_robustness(cycle: str, segment_s: float = 300.0, seeds: Sequence[int] = (1,), estimator: str = "ekf",
-                   delay_s: float = 0.1, mass: float = 0.1, resistance: float = 0.2, soc_error: float = 0.1,
-                   log: Callable[[str], None] | None = None, end_at_rest: bool = True,
-                   mismatch: Callable[[int], Mismatch] | None = None) -> list[dict[str, Any]]:
+def run_robustness(
+    cycle: str,
+    segment_s: float = 300.0,
+    seeds: Sequence[int] = (1,),
+    estimator: str = "ekf",
+    delay_s: float = 0.1,
+    mass: float = 0.1,
+    resistance: float = 0.2,
+    soc_error: float = 0.1,
+    log: Callable[[str], None] | None = None,
+    end_at_rest: bool = True,
+    mismatch: Callable[[int], Mismatch] | None = None,
+) -> list[dict[str, Any]]:
     """Rows (one per condition × seed × controller) on the first ``segment_s`` [s] of ``cycle`` (``end_at_rest``:
     extended to the leader's next stop, so every run covers the same distance), see the module docstring;
     ``mismatch(seed)``: the real condition's model error instead of the ±mass/±resistance spread."""
@@ -61,8 +83,7 @@ def run_robustness(cycle: str, segment_s: float = 300.0, seeds: Sequence[int] = 
     rows.append(_row(cycle, "ideal", None, "mpc", r, time.perf_counter() - t0))
     for law in LAWS:
         t0 = time.perf_counter()
-        r = simulate_platoon(sc.leader, [sc.law(law)], list(sc.gaps0), list(sc.speeds0), sc.t_end, ev=sc.ev,
-                             dt_out=dt)
+        r = simulate_platoon(sc.leader, [sc.law(law)], list(sc.gaps0), list(sc.speeds0), sc.t_end, ev=sc.ev, dt_out=dt)
         rows.append(_row(cycle, "ideal", None, law, r, time.perf_counter() - t0))
     soc0 = min(max(sc.ev.cell.soc0 - soc_error, 0.0), 1.0)
     cls = EKF if estimator == "ekf" else MHE
@@ -77,8 +98,16 @@ def run_robustness(cycle: str, segment_s: float = 300.0, seeds: Sequence[int] = 
         for ctrl in ("mpc", *LAWS):
             c: Any = mpc if ctrl == "mpc" else sc.law(ctrl)
             t0 = time.perf_counter()
-            r = ClosedLoop(sc.leader, [c], sc.ev, fallback_law=sc.law("proposed"), mismatch=mm, sensors=sen,
-                           estimator=factory, law_dt=dt).run(sc.gaps0, sc.speeds0, sc.t_end)
+            r = ClosedLoop(
+                sc.leader,
+                [c],
+                sc.ev,
+                fallback_law=sc.law("proposed"),
+                mismatch=mm,
+                sensors=sen,
+                estimator=factory,
+                law_dt=dt,
+            ).run(sc.gaps0, sc.speeds0, sc.t_end)
             rows.append(_row(cycle, "real", seed, ctrl, r, time.perf_counter() - t0))
     return rows
 
@@ -88,12 +117,25 @@ def margins(rows: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
     out = []
     keys = sorted({(r["cycle"], r["condition"], -1 if r["seed"] is None else r["seed"]) for r in rows})
     for cyc, cond, seed in keys:
-        grp = {r["controller"]: r for r in rows if r["cycle"] == cyc and r["condition"] == cond
-               and (-1 if r["seed"] is None else r["seed"]) == seed}
+        grp = {
+            r["controller"]: r
+            for r in rows
+            if r["cycle"] == cyc and r["condition"] == cond and (-1 if r["seed"] is None else r["seed"]) == seed
+        }
         q = grp["mpc"]["heat_pack_J_per_km"]
-        out.append({"cycle": cyc, "condition": cond, "seed": None if seed < 0 else seed,
-                    **{f"margin_vs_{law}_pct": 100.0 * (grp[law]["heat_pack_J_per_km"] - q) / grp[law]["heat_pack_J_per_km"]
-                       for law in LAWS}})
+        out.append(
+            {
+                "cycle": cyc,
+                "condition": cond,
+                "seed": None if seed < 0 else seed,
+                **{
+                    f"margin_vs_{law}_pct": 100.0
+                    * (grp[law]["heat_pack_J_per_km"] - q)
+                    / grp[law]["heat_pack_J_per_km"]
+                    for law in LAWS
+                },
+            }
+        )
     return out
 
 
@@ -102,10 +144,13 @@ def targets(rows: Sequence[dict[str, Any]], mg: Sequence[dict[str, Any]]) -> dic
     median per-step cost [ms]."""
     real = [r for r in rows if r["condition"] == "real"]
     cost = [r["estimator_plus_call_ms_median"] for r in real if r["controller"] == "mpc"]
-    return {"no_collision_or_event_real": all(not r["collisions"] and r["status"] == "ok" for r in real),
-            "mpc_below_both_laws_real": all(m[f"margin_vs_{law}_pct"] > 0 for m in mg if m["condition"] == "real"
-                                            for law in LAWS),
-            "estimator_plus_mpc_ms_median_max": max(cost) if cost else None}
+    return {
+        "no_collision_or_event_real": all(not r["collisions"] and r["status"] == "ok" for r in real),
+        "mpc_below_both_laws_real": all(
+            m[f"margin_vs_{law}_pct"] > 0 for m in mg if m["condition"] == "real" for law in LAWS
+        ),
+        "estimator_plus_mpc_ms_median_max": max(cost) if cost else None,
+    }
 
 
 def _f(x: Any, fmt: str) -> str:
@@ -115,20 +160,51 @@ def _f(x: Any, fmt: str) -> str:
 def markdown(rows: Sequence[dict[str, Any]], mg: Sequence[dict[str, Any]]) -> str:
     """The rows, the margins beside the ideal ones and the targets, as Markdown."""
     t = markdown_table(
-        ["cycle", "condition", "seed", "controller", "status", "min gap [m]", "pack ∫Q/km [J/km]",
-         "max |SOC err| after 60 s [%]", "v_l err RMS [m/s]", "estimator + controller [ms, median]"],
-        [[r["cycle"], r["condition"], "–" if r["seed"] is None else str(r["seed"]), r["controller"], r["status"],
-          _f(r["min_gap_m"], ".2f"), _f(r["heat_pack_J_per_km"], ".0f"), _f(r["soc_err_max_after_60s_pct"], ".2f"),
-          _f(r["lead_speed_err_rms_mps"], ".3f"), _f(r["estimator_plus_call_ms_median"], ".3f")] for r in rows])
-    m = markdown_table(["cycle", "condition", "seed"] + [f"MPC below {law} [%]" for law in LAWS],
-                       [[x["cycle"], x["condition"], "–" if x["seed"] is None else str(x["seed"])]
-                        + [_f(x[f"margin_vs_{law}_pct"], "+.1f") for law in LAWS] for x in mg])
+        [
+            "cycle",
+            "condition",
+            "seed",
+            "controller",
+            "status",
+            "min gap [m]",
+            "pack ∫Q/km [J/km]",
+            "max |SOC err| after 60 s [%]",
+            "v_l err RMS [m/s]",
+            "estimator + controller [ms, median]",
+        ],
+        [
+            [
+                r["cycle"],
+                r["condition"],
+                "–" if r["seed"] is None else str(r["seed"]),
+                r["controller"],
+                r["status"],
+                _f(r["min_gap_m"], ".2f"),
+                _f(r["heat_pack_J_per_km"], ".0f"),
+                _f(r["soc_err_max_after_60s_pct"], ".2f"),
+                _f(r["lead_speed_err_rms_mps"], ".3f"),
+                _f(r["estimator_plus_call_ms_median"], ".3f"),
+            ]
+            for r in rows
+        ],
+    )
+    m = markdown_table(
+        ["cycle", "condition", "seed"] + [f"MPC below {law} [%]" for law in LAWS],
+        [
+            [x["cycle"], x["condition"], "–" if x["seed"] is None else str(x["seed"])]
+            + [_f(x[f"margin_vs_{law}_pct"], "+.1f") for law in LAWS]
+            for x in mg
+        ],
+    )
     tg = targets(rows, mg)
-    return (t + "\n\nThe MPC's pack heat per km below each law (ideal: today's comparison; real: the same cycle with "
-            "the model ≠ the plant, production sensors and the estimator):\n\n" + m
-            + f"\n\nReal runs without collision or other event: **{tg['no_collision_or_event_real']}**; MPC below both "
-            f"laws in every real run: **{tg['mpc_below_both_laws_real']}**; estimator + MPC per step (median, "
-            f"largest run): {_f(tg['estimator_plus_mpc_ms_median_max'], '.3f')} ms.\n")
+    return (
+        t + "\n\nThe MPC's pack heat per km below each law (ideal: today's comparison; real: the same cycle with "
+        "the model ≠ the plant, production sensors and the estimator):\n\n"
+        + m
+        + f"\n\nReal runs without collision or other event: **{tg['no_collision_or_event_real']}**; MPC below both "
+        f"laws in every real run: **{tg['mpc_below_both_laws_real']}**; estimator + MPC per step (median, "
+        f"largest run): {_f(tg['estimator_plus_mpc_ms_median_max'], '.3f')} ms.\n"
+    )
 
 
 def robustness_section(out_dir: Path, progress: Callable[[str], None]) -> str:
@@ -143,14 +219,20 @@ def robustness_section(out_dir: Path, progress: Callable[[str], None]) -> str:
     mg = margins(rows)
     out_dir.mkdir(parents=True, exist_ok=True)
     write_json(out_dir / "robustness.json", {"rows": rows, "margins": mg, "targets": targets(rows, mg)})
-    return ("## Robustness: model mismatch, noisy and late measurements, state estimation\n\n"
-            f"One follower on the first {seg:g} s of {', '.join(c.upper() for c in cycles)}"
-            + (" (to the leader's next stop)" if full else " (a reduced run: the full reproduction drives 300 s of UDDS "
-               "and US06)") + ". *ideal*: the plant's exact parameters and states. *real*: each controller's model off by seeded "
-            "uniform ±10 % mass and ±20 % drag, rolling resistance, R0, R1, R2; production sensors (noise, quanta, "
-            "0.1 s delays; sources in aev_ocp/estimation/sensors.py); V1, V2, SOC estimated by the EKF from a SOC "
-            "guess 10 % off; the laws run sampled at the MPC's step on the same measurements. Files: "
-            "`robustness.json`.\n\n" + markdown(rows, mg))
+    return (
+        "## Robustness: model mismatch, noisy and late measurements, state estimation\n\n"
+        f"One follower on the first {seg:g} s of {', '.join(c.upper() for c in cycles)}"
+        + (
+            " (to the leader's next stop)"
+            if full
+            else " (a reduced run: the full reproduction drives 300 s of UDDS and US06)"
+        )
+        + ". *ideal*: the plant's exact parameters and states. *real*: each controller's model off by seeded "
+        "uniform ±10 % mass and ±20 % drag, rolling resistance, R0, R1, R2; production sensors (noise, quanta, "
+        "0.1 s delays; sources in aev_ocp/estimation/sensors.py); V1, V2, SOC estimated by the EKF from a SOC "
+        "guess 10 % off; the laws run sampled at the MPC's step on the same measurements. Files: "
+        "`robustness.json`.\n\n" + markdown(rows, mg)
+    )
 
 
 REPRODUCE_SECTIONS = [("robustness", robustness_section, 2)]  # listed in aev_ocp.report_sections.SECTION_PROVIDERS

@@ -29,17 +29,42 @@ from typing import Any, Mapping
 import numpy as np
 
 from .limits import FileRefused, memory_limit_bytes, read_regular_file
-from .params import (UNLIMITED, CellParams, EVParams, PackParams, ThermalParams, Units, VehicleLimits, VehicleParams,
-                     as_dict)
-from .results import (Event, FieldsRepr, SimulationResult, atomic_path, require_pandas, to_jsonable, write_json)
+from .params import (
+    UNLIMITED,
+    CellParams,
+    EVParams,
+    PackParams,
+    ThermalParams,
+    Units,
+    VehicleLimits,
+    VehicleParams,
+    as_dict,
+)
+from .results import Event, FieldsRepr, SimulationResult, atomic_path, require_pandas, to_jsonable, write_json
 
 FORMAT = "aev_ocp-output"
 FORMAT_VERSION = 1
 MANIFEST = "manifest.json"
 ARRAYS = "trajectories.npz"
 KINDS = ("simulate", "mpc", "ocp", "study", "sumo")
-SIM_ARRAYS = ("t", "leader_speed", "leader_position", "gap", "speed", "accel", "V1", "V2", "S", "current_A", "omega",
-              "heat_J", "heat_irr_J", "int_ovm_err2", "int_rel_speed2", "int_jerk2")
+SIM_ARRAYS = (
+    "t",
+    "leader_speed",
+    "leader_position",
+    "gap",
+    "speed",
+    "accel",
+    "V1",
+    "V2",
+    "S",
+    "current_A",
+    "omega",
+    "heat_J",
+    "heat_irr_J",
+    "int_ovm_err2",
+    "int_rel_speed2",
+    "int_jerk2",
+)
 OCP_SCALARS = ("objective", "objective_exact", "max_violation", "wall_time_s", "solver_time_s")
 OUTPUT_FILES = (MANIFEST, ARRAYS)  # what :func:`save_output` writes (for claim_output_dir)
 
@@ -59,10 +84,18 @@ def _sim_record(label: str, r: SimulationResult, arrays: dict[str, np.ndarray]) 
         arrays[f"{label}/{name}"] = np.asarray(getattr(r, name))
     if r.temperature_K is not None:  # the pack temperature [K] of a run with the thermal model
         arrays[f"{label}/temperature_K"] = np.asarray(r.temperature_K)
-    return {"type": "SimulationResult", "status": r.status, "controllers": list(r.controllers),
-            "events": [vars(e) for e in r.events], "violations": [vars(e) for e in r.violations],
-            "ev": as_dict(r.ev), "jerk_sampled": bool(r.jerk_sampled),
-            "solver_stats": r.solver_stats, "meta": _own_meta(r.meta), "metrics": r.metrics()}
+    return {
+        "type": "SimulationResult",
+        "status": r.status,
+        "controllers": list(r.controllers),
+        "events": [vars(e) for e in r.events],
+        "violations": [vars(e) for e in r.violations],
+        "ev": as_dict(r.ev),
+        "jerk_sampled": bool(r.jerk_sampled),
+        "solver_stats": r.solver_stats,
+        "meta": _own_meta(r.meta),
+        "metrics": r.metrics(),
+    }
 
 
 def _ocp_record(label: str, r: Any, arrays: dict[str, np.ndarray]) -> dict[str, Any]:
@@ -74,16 +107,36 @@ def _ocp_record(label: str, r: Any, arrays: dict[str, np.ndarray]) -> dict[str, 
         arrays[f"{label}/t_colloc"] = np.asarray(r.t_colloc, float)
     for name in OCP_SCALARS:
         arrays[f"{label}/{name}"] = np.asarray(float(getattr(r, name)))
-    return {"type": "OCPResult", "problem": r.problem, "method": r.method, "N": r.N, "time_unit": r.time_unit,
-            "objective_name": r.objective_name, "status": r.status, "success": r.success, "message": r.message,
-            "solver_status": r.solver_status, "iterations": r.iterations, "warnings": list(r.warnings),
-            "states": list(r.states), "controls": list(r.controls), "outputs": list(r.outputs),
-            "meta": _own_meta(r.meta),
-            "metrics": r.stats()}
+    return {
+        "type": "OCPResult",
+        "problem": r.problem,
+        "method": r.method,
+        "N": r.N,
+        "time_unit": r.time_unit,
+        "objective_name": r.objective_name,
+        "status": r.status,
+        "success": r.success,
+        "message": r.message,
+        "solver_status": r.solver_status,
+        "iterations": r.iterations,
+        "warnings": list(r.warnings),
+        "states": list(r.states),
+        "controls": list(r.controls),
+        "outputs": list(r.outputs),
+        "meta": _own_meta(r.meta),
+        "metrics": r.stats(),
+    }
 
 
-def save_output(out: str | Path, kind: str, runs: Mapping[str, Any], *, primary: str | None = None,
-                settings: Mapping[str, Any] | None = None, extra: Mapping[str, Any] | None = None) -> list[Path]:
+def save_output(
+    out: str | Path,
+    kind: str,
+    runs: Mapping[str, Any],
+    *,
+    primary: str | None = None,
+    settings: Mapping[str, Any] | None = None,
+    extra: Mapping[str, Any] | None = None,
+) -> list[Path]:
     """Write ``trajectories.npz`` (if any run) and ``manifest.json`` into ``out``; returns the paths.
 
     runs: {label: SimulationResult or OCPResult}; primary: the label :func:`load` returns by default
@@ -106,10 +159,16 @@ def save_output(out: str | Path, kind: str, runs: Mapping[str, Any], *, primary:
         else:
             raise TypeError(f"save_output: run {label!r} is a {type(r).__name__}, not a SimulationResult or OCPResult")
     files: list[Path] = []
-    manifest: dict[str, Any] = {"format": FORMAT, "format_version": FORMAT_VERSION, "kind": kind,
-                                "primary": primary if primary is not None else next(iter(records), None),
-                                "arrays": None, "arrays_sha256": None, "runs": records,
-                                "settings": dict(settings or {})}
+    manifest: dict[str, Any] = {
+        "format": FORMAT,
+        "format_version": FORMAT_VERSION,
+        "kind": kind,
+        "primary": primary if primary is not None else next(iter(records), None),
+        "arrays": None,
+        "arrays_sha256": None,
+        "runs": records,
+        "settings": dict(settings or {}),
+    }
     if arrays:
         buf = io.BytesIO()
         # no allow_pickle keyword: NumPy < 2.2 would store it as an array (the stubs of newer NumPy see the
@@ -134,8 +193,11 @@ def read_manifest(path: str | Path) -> tuple[dict[str, Any], Path]:
     else:
         folder, file = p.parent, p
     if not file.exists():
-        hint = (" (written by aev-ocp before outputs became loadable? rerun the command)"
-                if folder.is_dir() and (folder / "aev-ocp-run.json").is_file() else "")
+        hint = (
+            " (written by aev-ocp before outputs became loadable? rerun the command)"
+            if folder.is_dir() and (folder / "aev-ocp-run.json").is_file()
+            else ""
+        )
         raise LoadError(f"{path}: not an aev_ocp output: no {MANIFEST} found{hint}")
     text = read_regular(file, MAX_MANIFEST_BYTES, "manifest")
     try:
@@ -143,14 +205,18 @@ def read_manifest(path: str | Path) -> tuple[dict[str, Any], Path]:
     except (UnicodeDecodeError, ValueError, RecursionError) as exc:
         raise LoadError(f"{file}: not an aev_ocp output: cannot read it as JSON ({type(exc).__name__})") from None
     if not isinstance(m, dict) or m.get("format") != FORMAT:
-        raise LoadError(f"{file}: not an aev_ocp output (format is {m.get('format') if isinstance(m, dict) else None!r}, "
-                        f"expected {FORMAT!r})")
+        raise LoadError(
+            f"{file}: not an aev_ocp output (format is {m.get('format') if isinstance(m, dict) else None!r}, "
+            f"expected {FORMAT!r})"
+        )
     ver = m.get("format_version")
     if not isinstance(ver, int) or isinstance(ver, bool) or ver < 1:
         raise LoadError(f"{file}: format_version = {ver!r} is not a known version of {FORMAT}")
     if ver > FORMAT_VERSION:
-        raise LoadError(f"{file}: format_version {ver} is newer than this aev_ocp reads ({FORMAT_VERSION}); "
-                        "upgrade aev_ocp to load it")
+        raise LoadError(
+            f"{file}: format_version {ver} is newer than this aev_ocp reads ({FORMAT_VERSION}); "
+            "upgrade aev_ocp to load it"
+        )
     if m.get("kind") not in KINDS:
         raise LoadError(f"{file}: kind = {m.get('kind')!r} is not one of {KINDS}")
     return m, folder
@@ -164,14 +230,18 @@ def _arrays(m: dict[str, Any], folder: Path) -> dict[str, np.ndarray]:
     limit = int(memory_limit_bytes())
     data = read_regular(f, limit, "arrays file")
     if hashlib.sha256(data).hexdigest() != m.get("arrays_sha256"):
-        raise LoadError(f"{f}: its SHA-256 differs from the one in {MANIFEST}: the arrays belong to another run "
-                        "(an interrupted rerun?); rerun the command")
+        raise LoadError(
+            f"{f}: its SHA-256 differs from the one in {MANIFEST}: the arrays belong to another run "
+            "(an interrupted rerun?); rerun the command"
+        )
     try:
         with zipfile.ZipFile(io.BytesIO(data)) as zf:  # sizes from the zip directory, before inflating anything
             total = sum(i.file_size for i in zf.infolist())
         if total > limit:
-            raise LoadError(f"{f}: its arrays would take {total / 1e9:.3g} GB once unpacked, more than the limit of "
-                            f"{limit / 1e9:.3g} GB ($AEV_OCP_MAX_MEMORY_GB); not loaded")
+            raise LoadError(
+                f"{f}: its arrays would take {total / 1e9:.3g} GB once unpacked, more than the limit of "
+                f"{limit / 1e9:.3g} GB ($AEV_OCP_MAX_MEMORY_GB); not loaded"
+            )
         with np.load(io.BytesIO(data), allow_pickle=False) as z:
             return {k: z[k] for k in z.files}
     except LoadError:
@@ -200,16 +270,27 @@ def _sim_result(label: str, rec: dict[str, Any], arrays: dict[str, np.ndarray]) 
     ev = rec["ev"]
     # a run saved before the vehicle limits existed ran without any (UNLIMITED)
     limits = VehicleLimits(**ev["limits"]) if "limits" in ev else UNLIMITED
-    cell: dict[str, Any] = {k: tuple(v) if k in ("ocv_soc", "ocv_V") and v is not None else v
-                            for k, v in ev["cell"].items()}
-    evp = EVParams(units=Units(**ev["units"]), vehicle=VehicleParams(**ev["vehicle"]), cell=CellParams(**cell),
-                   pack=PackParams(**ev["pack"]), limits=limits,
-                   thermal=ThermalParams(**ev["thermal"]) if "thermal" in ev else ThermalParams())
+    cell: dict[str, Any] = {
+        k: tuple(v) if k in ("ocv_soc", "ocv_V") and v is not None else v for k, v in ev["cell"].items()
+    }
+    evp = EVParams(
+        units=Units(**ev["units"]),
+        vehicle=VehicleParams(**ev["vehicle"]),
+        cell=CellParams(**cell),
+        pack=PackParams(**ev["pack"]),
+        limits=limits,
+        thermal=ThermalParams(**ev["thermal"]) if "thermal" in ev else ThermalParams(),
+    )
 
     def event(e: dict[str, Any]) -> Event:
-        return Event(e["kind"], _nan(e["time"]), int(e["vehicle"]), e["message"],
-                     None if e.get("time_s") is None else float(e["time_s"]),
-                     None if e.get("impact_speed_mps") is None else float(e["impact_speed_mps"]))
+        return Event(
+            e["kind"],
+            _nan(e["time"]),
+            int(e["vehicle"]),
+            e["message"],
+            None if e.get("time_s") is None else float(e["time_s"]),
+            None if e.get("impact_speed_mps") is None else float(e["impact_speed_mps"]),
+        )
 
     _check_sim_arrays(label, arrays)
     stats = rec["solver_stats"] or []
@@ -217,12 +298,20 @@ def _sim_result(label: str, rec: dict[str, Any], arrays: dict[str, np.ndarray]) 
         raise ValueError(f"solver_stats = {str(stats)[:60]!r} is not a list of per-vehicle tables")
     ctrls, n_veh = rec["controllers"], arrays[f"{label}/gap"].shape[1]
     if not isinstance(ctrls, list) or len(ctrls) != n_veh or not all(isinstance(c, str) for c in ctrls):
-        raise ValueError(f"controllers = {str(ctrls)[:60]!r} is not a list of {n_veh} controller names, one per vehicle")
-    return SimulationResult(**{n: arrays[f"{label}/{n}"] for n in SIM_ARRAYS}, controllers=list(rec["controllers"]),
-                            ev=evp, events=[event(e) for e in rec["events"]], jerk_sampled=bool(rec["jerk_sampled"]),
-                            solver_stats=list(stats), meta=dict(rec["meta"] or {}),
-                            violations=[event(e) for e in rec.get("violations") or []],
-                            temperature_K=arrays.get(f"{label}/temperature_K"))
+        raise ValueError(
+            f"controllers = {str(ctrls)[:60]!r} is not a list of {n_veh} controller names, one per vehicle"
+        )
+    return SimulationResult(
+        **{n: arrays[f"{label}/{n}"] for n in SIM_ARRAYS},
+        controllers=list(rec["controllers"]),
+        ev=evp,
+        events=[event(e) for e in rec["events"]],
+        jerk_sampled=bool(rec["jerk_sampled"]),
+        solver_stats=list(stats),
+        meta=dict(rec["meta"] or {}),
+        violations=[event(e) for e in rec.get("violations") or []],
+        temperature_K=arrays.get(f"{label}/temperature_K"),
+    )
 
 
 def _check_sim_arrays(label: str, arrays: dict[str, np.ndarray]) -> None:
@@ -239,8 +328,9 @@ def _check_sim_arrays(label: str, arrays: dict[str, np.ndarray]) -> None:
         shape = want.get(name, gap.shape)
         if a is None or a.dtype.kind not in "fiub" or a.shape != shape or n < 1 or gap.ndim != 2 or gap.shape[0] != n:
             got = "missing" if a is None else f"{a.dtype} {a.shape}"
-            raise ValueError(f"array {name!r} is {got}; expected numbers of shape {shape} (t has {n} samples, gap "
-                             f"{gap.shape})")
+            raise ValueError(
+                f"array {name!r} is {got}; expected numbers of shape {shape} (t has {n} samples, gap {gap.shape})"
+            )
 
 
 def _ocp_result(label: str, rec: dict[str, Any], arrays: dict[str, np.ndarray]) -> Any:
@@ -248,14 +338,30 @@ def _ocp_result(label: str, rec: dict[str, Any], arrays: dict[str, np.ndarray]) 
 
     group = {g: {n: arrays[f"{label}/{g}/{n}"] for n in rec[g]} for g in ("states", "controls", "outputs")}
     scal = {n: float(arrays[f"{label}/{n}"]) for n in OCP_SCALARS}
-    return OCPResult(problem=rec["problem"], method=rec["method"], N=int(rec["N"]), t=arrays[f"{label}/t"],
-                     time_unit=rec["time_unit"], states=group["states"], controls=group["controls"],
-                     outputs=group["outputs"], objective_name=rec["objective_name"], status=rec["status"],
-                     success=bool(rec["success"]), message=rec["message"], solver_status=rec["solver_status"],
-                     iterations=int(rec["iterations"]), t_colloc=arrays.get(f"{label}/t_colloc"),
-                     meta=dict(rec["meta"] or {}), warnings=list(rec["warnings"]), objective=scal["objective"],
-                     objective_exact=scal["objective_exact"], max_violation=scal["max_violation"],
-                     wall_time_s=scal["wall_time_s"], solver_time_s=scal["solver_time_s"])
+    return OCPResult(
+        problem=rec["problem"],
+        method=rec["method"],
+        N=int(rec["N"]),
+        t=arrays[f"{label}/t"],
+        time_unit=rec["time_unit"],
+        states=group["states"],
+        controls=group["controls"],
+        outputs=group["outputs"],
+        objective_name=rec["objective_name"],
+        status=rec["status"],
+        success=bool(rec["success"]),
+        message=rec["message"],
+        solver_status=rec["solver_status"],
+        iterations=int(rec["iterations"]),
+        t_colloc=arrays.get(f"{label}/t_colloc"),
+        meta=dict(rec["meta"] or {}),
+        warnings=list(rec["warnings"]),
+        objective=scal["objective"],
+        objective_exact=scal["objective_exact"],
+        max_violation=scal["max_violation"],
+        wall_time_s=scal["wall_time_s"],
+        solver_time_s=scal["solver_time_s"],
+    )
 
 
 def _build(label: str, m: dict[str, Any], arrays: dict[str, np.ndarray], folder: Path) -> Any:
@@ -263,10 +369,18 @@ def _build(label: str, m: dict[str, Any], arrays: dict[str, np.ndarray], folder:
     try:
         obj = (_sim_result if rec["type"] == "SimulationResult" else _ocp_result)(label, rec, arrays)
     except (KeyError, TypeError, ValueError) as exc:
-        raise LoadError(f"{folder / MANIFEST}: run {label!r} is incomplete or damaged ({type(exc).__name__}: {exc})") from None
-    obj.meta["output"] = {"path": str(folder), "kind": m["kind"], "label": label, "runs": list(m["runs"]),
-                          "settings": m.get("settings", {}), "provenance": m.get("provenance"),
-                          "saved_metrics": rec.get("metrics")}
+        raise LoadError(
+            f"{folder / MANIFEST}: run {label!r} is incomplete or damaged ({type(exc).__name__}: {exc})"
+        ) from None
+    obj.meta["output"] = {
+        "path": str(folder),
+        "kind": m["kind"],
+        "label": label,
+        "runs": list(m["runs"]),
+        "settings": m.get("settings", {}),
+        "provenance": m.get("provenance"),
+        "saved_metrics": rec.get("metrics"),
+    }
     return obj
 
 
@@ -277,10 +391,23 @@ def _damaged(path: str | Path, fn: Any) -> Any:
         return fn()
     except LoadError:
         raise
-    except (KeyError, TypeError, ValueError, AttributeError, IndexError, RecursionError, MemoryError,
-            OverflowError, OSError, UnicodeError, zipfile.BadZipFile, EOFError) as exc:
-        raise LoadError(f"{path}: not a loadable aev_ocp output: it is damaged ({type(exc).__name__}: "
-                        f"{str(exc)[:200]})") from None
+    except (
+        KeyError,
+        TypeError,
+        ValueError,
+        AttributeError,
+        IndexError,
+        RecursionError,
+        MemoryError,
+        OverflowError,
+        OSError,
+        UnicodeError,
+        zipfile.BadZipFile,
+        EOFError,
+    ) as exc:
+        raise LoadError(
+            f"{path}: not a loadable aev_ocp output: it is damaged ({type(exc).__name__}: {str(exc)[:200]})"
+        ) from None
 
 
 def load_all(path: str | Path) -> dict[str, Any]:
@@ -325,8 +452,9 @@ def settings_of(scenario: Any, **options: Any) -> dict[str, Any]:
     """The ``settings`` entry of a manifest: the scenario (name, file, TOML document) and the options."""
     out: dict[str, Any] = {"options": to_jsonable(options)}
     if scenario is not None:
-        out.update(scenario=scenario.name, source=str(scenario.source) if scenario.source else None,
-                   document=scenario.document)
+        out.update(
+            scenario=scenario.name, source=str(scenario.source) if scenario.source else None, document=scenario.document
+        )
     return out
 
 
@@ -354,9 +482,11 @@ class StudyOutput(FieldsRepr):
     def _repr_fields(self) -> tuple[str, list[tuple[str, Any]]]:
         ctrls = sorted({str(r.get("controller")) for r in self.rows})
         points = {r.get("point") for r in self.rows}
-        return (f"StudyOutput: {len(points)} points × {len(ctrls)} controllers ({', '.join(ctrls)}), "
-                f"{self.n_failed} of {self.n_tasks} tasks failed",
-                [("folder", str(self.folder)), ("rows", len(self.rows)), ("files", len(self.files))])
+        return (
+            f"StudyOutput: {len(points)} points × {len(ctrls)} controllers ({', '.join(ctrls)}), "
+            f"{self.n_failed} of {self.n_tasks} tasks failed",
+            [("folder", str(self.folder)), ("rows", len(self.rows)), ("files", len(self.files))],
+        )
 
     def to_dataframe(self) -> Any:
         """The table rows as a pandas DataFrame. Needs pandas (``pip install 'aev_ocp[pandas]'``)."""
@@ -370,8 +500,10 @@ class StudyOutput(FieldsRepr):
             raise LoadError(f"{self.folder}: no row for point {point} and controller {controller!r}")
         path = self.folder / TRAJECTORIES / keys.pop()
         if not path.is_dir():
-            raise LoadError(f"{self.folder}: no trajectories saved for point {point}, controller {controller!r}; "
-                            "rerun the study with --trajectories (trajectories=True)")
+            raise LoadError(
+                f"{self.folder}: no trajectories saved for point {point}, controller {controller!r}; "
+                "rerun the study with --trajectories (trajectories=True)"
+            )
         return load(path)
 
 
@@ -385,7 +517,13 @@ def load_study_output(manifest: dict[str, Any], folder: Path) -> StudyOutput:
     if not all(isinstance(r, dict) for r in rows):
         raise LoadError(f"{table}: a line of the study's table is not a row (a JSON object); the table is damaged")
     files = sorted(p for p in folder.iterdir() if p.is_file())
-    meta = {"settings": manifest.get("settings", {}),
-            "output": {"path": str(folder), "kind": "study", "settings": manifest.get("settings", {}),
-                       "provenance": manifest.get("provenance")}}
+    meta = {
+        "settings": manifest.get("settings", {}),
+        "output": {
+            "path": str(folder),
+            "kind": "study",
+            "settings": manifest.get("settings", {}),
+            "provenance": manifest.get("provenance"),
+        },
+    }
     return StudyOutput(folder, rows, files, int(manifest.get("n_tasks", 0)), int(manifest.get("n_failed", 0)), meta)

@@ -57,9 +57,13 @@ def _law_template(law: CarFollowingLaw) -> tuple[Any, Callable[[ca.SX], CarFollo
     their numbers. Dataclass laws whose accel works on symbolic coefficients get this; any other law
     (or one whose accel needs numbers) is compiled with its coefficients as constants (key = the law)."""
     if dataclasses.is_dataclass(law):
-        names = [f.name for f in dataclasses.fields(law)
-                 if isinstance(getattr(law, f.name), float) and not isinstance(getattr(law, f.name), bool)]
+        names = [
+            f.name
+            for f in dataclasses.fields(law)
+            if isinstance(getattr(law, f.name), float) and not isinstance(getattr(law, f.name), bool)
+        ]
         if names:
+
             def make(p: ca.SX, _law: CarFollowingLaw = law, _names: tuple[str, ...] = tuple(names)) -> CarFollowingLaw:
                 twin = copy.copy(_law)
                 for j, nm in enumerate(_names):
@@ -71,8 +75,10 @@ def _law_template(law: CarFollowingLaw) -> tuple[Any, Callable[[ca.SX], CarFollo
                 h, v, vl, p = ca.SX.sym("h"), ca.SX.sym("v"), ca.SX.sym("vl"), ca.SX.sym("p", len(names))
                 f = ca.Function("probe", [h, v, vl, p], [make(p).accel(h, v, vl)])
                 pts = ((1.3, 0.9, 1.1), (2.7, 1.6, 1.45), (0.6, 0.2, 0.35))
-                ok = all(abs(float(f(*pt, values)) - float(law.accel(*pt))) <= 1e-12 * (1 + abs(float(law.accel(*pt))))
-                         for pt in pts)
+                ok = all(
+                    abs(float(f(*pt, values)) - float(law.accel(*pt))) <= 1e-12 * (1 + abs(float(law.accel(*pt))))
+                    for pt in pts
+                )
             except (TypeError, ValueError, RuntimeError, ParameterError):
                 ok = False
             if ok:
@@ -109,8 +115,14 @@ class PlatoonSimulator:
     Vehicle i (0-based) follows vehicle i − 1; vehicle 0 follows the leader.
     """
 
-    def __init__(self, leader: LeaderProfile, laws: Sequence[CarFollowingLaw], ev: EVParams | None = None,
-                 options: SimOptions | None = None, battery: bool = True) -> None:
+    def __init__(
+        self,
+        leader: LeaderProfile,
+        laws: Sequence[CarFollowingLaw],
+        ev: EVParams | None = None,
+        options: SimOptions | None = None,
+        battery: bool = True,
+    ) -> None:
         check_argument("simulate", "leader", leader, LeaderProfile)
         check_argument("simulate", "ev", ev, (EVParams, type(None)))
         check_argument("simulate", "options", options, (SimOptions, type(None)))
@@ -130,22 +142,38 @@ class PlatoonSimulator:
         self._build_error = ""
         thermal = battery and self.ev.thermal.enabled
         if thermal and self.opts.method == "cascade":  # the compiled cascade has no temperature state
-            raise ParameterError("SimOptions.method = 'cascade' does not integrate the thermal model "
-                                 "(thermal.enabled = true); use method='cvodes' or 'auto'")
+            raise ParameterError(
+                "SimOptions.method = 'cascade' does not integrate the thermal model "
+                "(thermal.enabled = true); use method='cvodes' or 'auto'"
+            )
         if self.opts.method in ("auto", "cascade") and not thermal:  # thermal runs: the CVODES plant
             self._build_cascade()
             if self._lib is None and self.opts.method == "cascade":
-                raise ParameterError("SimOptions.method = 'cascade' needs a working C compiler (gcc/cc): "
-                                     f"{self._build_error}; use method='cvodes' or 'auto'")
+                raise ParameterError(
+                    "SimOptions.method = 'cascade' needs a working C compiler (gcc/cc): "
+                    f"{self._build_error}; use method='cvodes' or 'auto'"
+                )
             if self._lib is None and self._build_error not in _FALLBACK_WARNED:  # say it, once per cause
                 # (a failed build was already reported by aev_ocp.compiled; this says what happens next)
                 _FALLBACK_WARNED.add(self._build_error)
-                warnings.warn(f"simulate: the compiled cascade is unavailable ({self._build_error}); "
-                              "integrating with CVODES instead (slower, same results)", RuntimeWarning, stacklevel=3)
+                warnings.warn(
+                    f"simulate: the compiled cascade is unavailable ({self._build_error}); "
+                    "integrating with CVODES instead (slower, same results)",
+                    RuntimeWarning,
+                    stacklevel=3,
+                )
         self.method = "cascade" if self._lib is not None else "cvodes"
         if self.method == "cvodes":
-            self.plant = Plant(self.leader, self.laws, self.ev, battery=battery, rtol=self.opts.rtol,
-                               atol=self.opts.atol, max_num_steps=self.opts.max_num_steps, samples=self.k)
+            self.plant = Plant(
+                self.leader,
+                self.laws,
+                self.ev,
+                battery=battery,
+                rtol=self.opts.rtol,
+                atol=self.opts.atol,
+                max_num_steps=self.opts.max_num_steps,
+                samples=self.k,
+            )
 
     # ------------------------------------------------------------------ compiled cascade
     def _vehicle_function(self, law: CarFollowingLaw, k: int, p: ca.SX) -> ca.Function:
@@ -203,7 +231,7 @@ class PlatoonSimulator:
             k = distinct.setdefault(key, len(distinct))
             first.setdefault(k, (make, len(values)))
             self._law_of.append(k)
-            self._params[i, :len(values)] = values
+            self._params[i, : len(values)] = values
         p = ca.SX.sym("p", n_par)
         funcs = [self._vehicle_function(make(p), k, p) for k, (make, _) in first.items()]
         t = ca.SX.sym("t")
@@ -214,8 +242,12 @@ class PlatoonSimulator:
         cg = ca.CodeGenerator("aevsim_rhs.c", {"with_header": False})
         for f in funcs:
             cg.add(f)
-        sizes = {"SZ_ARG": max(3, *(f.sz_arg() for f in funcs)), "SZ_RES": max(2, *(f.sz_res() for f in funcs)),
-                 "SZ_IW": max(f.sz_iw() for f in funcs), "SZ_W": max(f.sz_w() for f in funcs)}
+        sizes = {
+            "SZ_ARG": max(3, *(f.sz_arg() for f in funcs)),
+            "SZ_RES": max(2, *(f.sz_res() for f in funcs)),
+            "SZ_IW": max(f.sz_iw() for f in funcs),
+            "SZ_W": max(f.sz_w() for f in funcs),
+        }
         head = "".join(f"#define {k} {v}\n" for k, v in sizes.items())
         eta = self.ev.vehicle.efficiency
         head += f"#define OMEGA_A {0.5 * (1 / eta + eta)!r}\n#define OMEGA_B {0.5 * (1 / eta - eta)!r}\n"
@@ -224,8 +256,11 @@ class PlatoonSimulator:
         # with vehicle limits the jerk integrand jumps at every saturation corner (0 ↔ the law's rate of change);
         # the error test then cannot pass on ∫jerk² (steps underflow): it is integrated, not error-controlled
         head += f"#define AEV_JERK_UNCONTROLLED {int(self.ev.limits.enabled)}\n"
-        head += "#define AEV_LAW_SWITCH " + " ".join(f"case {k}: return aevsim_law{k}(c->arg, c->res, c->iw, c->w, 0);"
-                                                     for k in range(len(distinct))) + "\n"
+        head += (
+            "#define AEV_LAW_SWITCH "
+            + " ".join(f"case {k}: return aevsim_law{k}(c->arg, c->res, c->iw, c->w, 0);" for k in range(len(distinct)))
+            + "\n"
+        )
         head += event_header()
         driver = driver_source("cascade.c")
         source = cg.dump() + "\n" + head + driver
@@ -234,8 +269,26 @@ class PlatoonSimulator:
             return
         fn = lib.aevsim_run
         dp, ip, lp = (np.ctypeslib.ndpointer(dtype=d, flags="C_CONTIGUOUS") for d in (np.float64, np.int32, np.int64))
-        fn.argtypes = [ctypes.c_int, ip, dp, dp, ctypes.c_int, dp, ctypes.c_int, dp, ctypes.c_double, ctypes.c_double,
-                       ctypes.c_int64, dp, ip, ip, dp, dp, lp, dp]
+        fn.argtypes = [
+            ctypes.c_int,
+            ip,
+            dp,
+            dp,
+            ctypes.c_int,
+            dp,
+            ctypes.c_int,
+            dp,
+            ctypes.c_double,
+            ctypes.c_double,
+            ctypes.c_int64,
+            dp,
+            ip,
+            ip,
+            dp,
+            dp,
+            lp,
+            dp,
+        ]
         fn.restype = ctypes.c_int
         self._lib, self._run_c = lib, fn
 
@@ -265,10 +318,16 @@ class PlatoonSimulator:
             t_ev = float(ev_time[i])
             if kind[i] == INTEGRATION_FAILED:
                 h = float(ev_val[i])
-                events.append(Event("integration_failed", t_ev, i,
-                                    f"the integrator failed at t = {t_ev:.4f} with gap h = {h:.3g}"
-                                    + (" (near collision)" if h < 0.05 else "")
-                                    + " (step size underflow or step limit: loosen rtol/atol or raise max_num_steps)"))
+                events.append(
+                    Event(
+                        "integration_failed",
+                        t_ev,
+                        i,
+                        f"the integrator failed at t = {t_ev:.4f} with gap h = {h:.3g}"
+                        + (" (near collision)" if h < 0.05 else "")
+                        + " (step size underflow or step limit: loosen rtol/atol or raise max_num_steps)",
+                    )
+                )
             else:
                 # vehicles from i on ended at t_ev (i at its event on the dense output, those behind at their last
                 # step); the vehicles ahead went on, so they are integrated again to end exactly at t_ev (their steps
@@ -281,10 +340,25 @@ class PlatoonSimulator:
                     rows[:i, :ncol] = out2[:, 1]
                 end_col = rows[:, :ncol].T.reshape(-1)  # row c·n + i = column c of vehicle i
                 rule = rule_of_code(int(kind[i]))
-                events.append(event_at(rule, t_ev, i, self.ev.units, float(rows[i, 0]), float(rows[i, 1]),
-                                       float(rows[i, ncol]) if i == 0 else float(rows[i - 1, 1]),
-                                       float({"h": rows[i, 0], "v": rows[i, 1], "S": rows[i, 4] if self.battery else math.nan,
-                                              "disc": rows[i, nx + nq + 2]}[rule.quantity])))
+                events.append(
+                    event_at(
+                        rule,
+                        t_ev,
+                        i,
+                        self.ev.units,
+                        float(rows[i, 0]),
+                        float(rows[i, 1]),
+                        float(rows[i, ncol]) if i == 0 else float(rows[i - 1, 1]),
+                        float(
+                            {
+                                "h": rows[i, 0],
+                                "v": rows[i, 1],
+                                "S": rows[i, 4] if self.battery else math.nan,
+                                "disc": rows[i, nx + nq + 2],
+                            }[rule.quantity]
+                        ),
+                    )
+                )
             keep = max(1, int(np.searchsorted(ts, t_ev, side="left")))
         out = out[:, :keep]
         if progress is not None:
@@ -295,33 +369,73 @@ class PlatoonSimulator:
             tk, Z = np.append(tk, t_ev), np.hstack([Z, end_col[:, None]])
             keep += 1
         vl = self.leader.speed_np(tk).reshape(1, -1)  # the leader caches its mapped Function per size
-        Y = np.vstack([Z[(nx + nq) * n:], vl])
-        return assemble_result(self.leader, self.ev, self.battery, tk, Z[:nx * n], Z[nx * n:(nx + nq) * n], Y, events,
-                               [law.name for law in self.laws], self._meta("cascade-dopri5"),
-                               solver_stats=[{"nsteps": int(s[0]), "nrejected": int(s[1]), "nfev": int(s[2])}
-                                             for s in stats])
+        Y = np.vstack([Z[(nx + nq) * n :], vl])
+        return assemble_result(
+            self.leader,
+            self.ev,
+            self.battery,
+            tk,
+            Z[: nx * n],
+            Z[nx * n : (nx + nq) * n],
+            Y,
+            events,
+            [law.name for law in self.laws],
+            self._meta("cascade-dopri5"),
+            solver_stats=[{"nsteps": int(s[0]), "nrejected": int(s[1]), "nfev": int(s[2])} for s in stats],
+        )
 
-    def _call_c(self, n: int, x0v: np.ndarray, stops: np.ndarray, ts: np.ndarray, out: np.ndarray) -> tuple[np.ndarray, ...]:
+    def _call_c(
+        self, n: int, x0v: np.ndarray, stops: np.ndarray, ts: np.ndarray, out: np.ndarray
+    ) -> tuple[np.ndarray, ...]:
         """Run the compiled cascade for the first n vehicles from x0v (n, nx) with samples at ts into ``out``:
         (nsamp, kind, ev_time, ev_val, stats, last) (see aevsim_run in cascade.c)."""
         ncol = self._nx + self._nq + 3
         nsamp, kind = np.zeros(n, np.int32), np.zeros(n, np.int32)
         ev_time, ev_val, stats = np.zeros(n), np.zeros(n), np.zeros((n, 3), np.int64)
         last = np.zeros((n, ncol + 1))
-        rc = self._run_c(n, np.asarray(self._law_of[:n], np.int32), np.ascontiguousarray(self._params[:n]), x0v,
-                         stops.size, stops, ts.size, ts, self.opts.rtol, self.opts.atol, self.opts.max_num_steps, out,
-                         nsamp, kind, ev_time, ev_val, stats, last)
+        rc = self._run_c(
+            n,
+            np.asarray(self._law_of[:n], np.int32),
+            np.ascontiguousarray(self._params[:n]),
+            x0v,
+            stops.size,
+            stops,
+            ts.size,
+            ts,
+            self.opts.rtol,
+            self.opts.atol,
+            self.opts.max_num_steps,
+            out,
+            nsamp,
+            kind,
+            ev_time,
+            ev_val,
+            stats,
+            last,
+        )
         if rc != 0:
             raise MemoryError("simulate: the cascade integrator ran out of memory")
         return nsamp, kind, ev_time, ev_val, stats, last
 
     def _meta(self, integrator: str) -> dict[str, object]:
-        return {"integrator": integrator, "rtol": self.opts.rtol, "atol": self.opts.atol, "dt_out": self.opts.dt_out,
-                "laws": [law.describe() for law in self.laws]}
+        return {
+            "integrator": integrator,
+            "rtol": self.opts.rtol,
+            "atol": self.opts.atol,
+            "dt_out": self.opts.dt_out,
+            "laws": [law.describe() for law in self.laws],
+        }
 
     # ------------------------------------------------------------------ running
-    def run(self, gaps0: Sequence[float], speeds0: Sequence[float], t_end: float, *,
-            soc0: float | Sequence[float] | None = None, progress: ProgressFn | None = None) -> SimulationResult:
+    def run(
+        self,
+        gaps0: Sequence[float],
+        speeds0: Sequence[float],
+        t_end: float,
+        *,
+        soc0: float | Sequence[float] | None = None,
+        progress: ProgressFn | None = None,
+    ) -> SimulationResult:
         """Integrate from the initial gaps/speeds (model units) over [0, t_end] (model time)."""
         if not (isinstance(t_end, (int, float)) and math.isfinite(t_end) and t_end > 0):
             raise ParameterError(f"simulate: t_end = {t_end!r} is not allowed: must be > 0")
@@ -347,13 +461,26 @@ class PlatoonSimulator:
         ts, xs, qs, ys = (np.concatenate(out[0]), np.hstack(out[1]), np.hstack(out[2]), np.hstack(out[3]))
         return plant.result(ts, xs, qs, ys, events, [law.name for law in self.laws], self._meta("cvodes"))
 
-def simulate_platoon(leader: LeaderProfile, laws: Sequence[CarFollowingLaw], gaps0: Sequence[float],
-                     speeds0: Sequence[float], t_end: float, *, ev: EVParams | None = None,
-                     soc0: float | Sequence[float] | None = None, dt_out: float = 0.01, rtol: float = 1e-10,
-                     atol: float = 1e-10, battery: bool = True, progress: ProgressFn | None = None,
-                     method: str = "auto") -> SimulationResult:
+
+def simulate_platoon(
+    leader: LeaderProfile,
+    laws: Sequence[CarFollowingLaw],
+    gaps0: Sequence[float],
+    speeds0: Sequence[float],
+    t_end: float,
+    *,
+    ev: EVParams | None = None,
+    soc0: float | Sequence[float] | None = None,
+    dt_out: float = 0.01,
+    rtol: float = 1e-10,
+    atol: float = 1e-10,
+    battery: bool = True,
+    progress: ProgressFn | None = None,
+    method: str = "auto",
+) -> SimulationResult:
     """Simulate followers behind ``leader`` (model units) over [0, t_end]; see :class:`PlatoonSimulator`.
     method: "auto" (compiled cascade when a C compiler works, else CVODES), "cascade" or "cvodes"."""
-    sim = PlatoonSimulator(leader, laws, ev, SimOptions(dt_out=dt_out, rtol=rtol, atol=atol, method=method),
-                           battery=battery)
+    sim = PlatoonSimulator(
+        leader, laws, ev, SimOptions(dt_out=dt_out, rtol=rtol, atol=atol, method=method), battery=battery
+    )
     return sim.run(gaps0, speeds0, t_end, soc0=soc0, progress=progress)

@@ -63,8 +63,10 @@ class PlatoonSetup:
     def __post_init__(self) -> None:
         n = len(self.laws)
         if n == 0 or len(self.gaps0) != n or len(self.speeds0) != n:
-            raise ParameterError(f"PlatoonSetup: laws, gaps0 and speeds0 need one entry per follower "
-                                 f"(got {n}, {len(self.gaps0)}, {len(self.speeds0)})")
+            raise ParameterError(
+                f"PlatoonSetup: laws, gaps0 and speeds0 need one entry per follower "
+                f"(got {n}, {len(self.gaps0)}, {len(self.speeds0)})"
+            )
         if not 0 < self.eta <= 1:
             raise ParameterError(f"PlatoonSetup.eta = {self.eta!r} is not allowed: must be in (0, 1]")
 
@@ -81,7 +83,7 @@ class PlatoonSetup:
     def rhs(self, t: Any, x: Any) -> tuple[Any, Any]:
         """(ẋ, a) of the platoon state (CasADi): a = the followers' accelerations."""
         n = self.n
-        xl, vl, pos, vel = x[0], x[1], x[2:2 + n], x[2 + n:]
+        xl, vl, pos, vel = x[0], x[1], x[2 : 2 + n], x[2 + n :]
         ahead_x = ca.vertcat(xl, pos[:-1]) if n > 1 else xl
         ahead_v = ca.vertcat(vl, vel[:-1]) if n > 1 else vl
         a = ca.vertcat(*[self.laws[i].accel(ahead_x[i] - pos[i], vel[i], ahead_v[i]) for i in range(n)])
@@ -102,18 +104,25 @@ class Trajectory:
         """ω over [t0, t1] of variant ``name`` (t0, t1 on the grid)."""
         k0, k1 = (int(np.argmin(np.abs(self.t - s))) for s in (t0, t1))
         if abs(self.t[k0] - t0) > 1e-9 or abs(self.t[k1] - t1) > 1e-9:
-            raise ParameterError(f"window [{t0:g}, {t1:g}] is not on the output grid (spacing {self.t[1] - self.t[0]:g})")
+            raise ParameterError(
+                f"window [{t0:g}, {t1:g}] is not on the output grid (spacing {self.t[1] - self.t[0]:g})"
+            )
         return self.omega[name][k1] - self.omega[name][k0]
 
 
-def integrate(setup: PlatoonSetup, t_end: float, dt_grid: float = 0.1, rtol: float = 1e-10,
-              variants: Mapping[str, GFn] | None = None) -> Trajectory:
+def integrate(
+    setup: PlatoonSetup,
+    t_end: float,
+    dt_grid: float = 0.1,
+    rtol: float = 1e-10,
+    variants: Mapping[str, GFn] | None = None,
+) -> Trajectory:
     """The platoon by CVODES (restarted at the leader's switch times) with one quadrature per g variant."""
     variants = variants or g_variants(setup.eta)
     m = 2 + 2 * setup.n
     x, t = ca.SX.sym("x", m), ca.SX.sym("t")
     f, a = setup.rhs(t, x)
-    vel = x[2 + setup.n:]
+    vel = x[2 + setup.n :]
     quad = ca.vertcat(*[vel * g(a) for g in variants.values()])
     acc = ca.Function("acc", [t, x], [a])
     K = int(round(t_end / dt_grid))
@@ -122,8 +131,14 @@ def integrate(setup: PlatoonSetup, t_end: float, dt_grid: float = 0.1, rtol: flo
     xs, qs = [setup.x0()], [np.zeros(quad.numel())]
     for lo, hi in zip(cuts[:-1], cuts[1:]):
         tout = [s for s in grid if lo < s <= hi + 1e-12]
-        F = ca.integrator("table1_hyp", "cvodes", {"x": x, "t": t, "ode": f, "quad": quad}, lo, tout,
-                          {"abstol": rtol, "reltol": rtol, "max_num_steps": 200000, "quad_err_con": True})
+        F = ca.integrator(
+            "table1_hyp",
+            "cvodes",
+            {"x": x, "t": t, "ode": f, "quad": quad},
+            lo,
+            tout,
+            {"abstol": rtol, "reltol": rtol, "max_num_steps": 200000, "quad_err_con": True},
+        )
         r = F(x0=xs[-1])
         X, Q = np.asarray(r["xf"]), np.asarray(r["qf"])
         xs += list(X.T)
@@ -131,7 +146,7 @@ def integrate(setup: PlatoonSetup, t_end: float, dt_grid: float = 0.1, rtol: flo
     X, Q = np.array(xs), np.array(qs)
     A = np.asarray(acc.map(grid.size)(grid.reshape(1, -1), X.T)).T
     n = setup.n
-    omega = {name: Q[:, j * n:(j + 1) * n] for j, name in enumerate(variants)}
+    omega = {name: Q[:, j * n : (j + 1) * n] for j, name in enumerate(variants)}
     return Trajectory(grid, X, A, omega)
 
 
@@ -141,7 +156,7 @@ def euler_omega(setup: PlatoonSetup, t_end: float, h: float) -> np.ndarray:
     m = 2 + 2 * setup.n
     x, t = ca.SX.sym("x", m + setup.n), ca.SX.sym("t")
     f, a = setup.rhs(t, x[:m])
-    vel = x[2 + setup.n:m]
+    vel = x[2 + setup.n : m]
     step = ca.Function("euler_step", [x, t], [ca.vertcat(x[:m] + h * f, x[m:] + h * vel * g_exact(a, setup.eta))])
     K = int(round(t_end / h))
     if abs(K * h - t_end) > 1e-9 * t_end:
@@ -190,26 +205,55 @@ class Hypothesis:
         return bool(np.all(np.abs(self.deviation_pct) <= FIT_TOLERANCE_PCT))
 
 
-def run_hypotheses(setup: PlatoonSetup, printed: Sequence[float], t_end: float = 70.0,
-                   ends: Sequence[float] = (40.0, 60.0, 100.0), starts: Sequence[float] = (0.5, 1.0, 2.0),
-                   euler_steps: Sequence[float] = (0.1, 0.05, 0.02, 0.01),
-                   sample_steps: Sequence[float] = (0.1, 0.5)) -> tuple[list[Hypothesis], dict[str, Any]]:
+def run_hypotheses(
+    setup: PlatoonSetup,
+    printed: Sequence[float],
+    t_end: float = 70.0,
+    ends: Sequence[float] = (40.0, 60.0, 100.0),
+    starts: Sequence[float] = (0.5, 1.0, 2.0),
+    euler_steps: Sequence[float] = (0.1, 0.05, 0.02, 0.01),
+    sample_steps: Sequence[float] = (0.1, 0.5),
+) -> tuple[list[Hypothesis], dict[str, Any]]:
     """Every hypothesis for one law's platoon against its printed Table 1 row; also the fitted c."""
     P = np.asarray(printed, float)
     traj = integrate(setup, max([t_end, *ends]), dt_grid=0.1)
-    H = [Hypothesis("baseline", f"exact g, η = {setup.eta:g} both ways, [0, {t_end:g}], CVODES (ours)",
-                    traj.window("exact", 0, t_end), P),
-         Hypothesis("smoothed_g", f"smoothed g̃ (width {SMOOTH_WIDTH:g}, model guide §7)", traj.window("smoothed", 0, t_end), P),
-         Hypothesis("regen_eta2", "braking credited with η² (η applied twice)", traj.window("regen_eta2", 0, t_end), P),
-         Hypothesis("regen_full", "braking credited at 100 %", traj.window("regen_full", 0, t_end), P),
-         Hypothesis("no_regen", "no regeneration (g = 0 when braking)", traj.window("no_regen", 0, t_end), P)]
+    H = [
+        Hypothesis(
+            "baseline",
+            f"exact g, η = {setup.eta:g} both ways, [0, {t_end:g}], CVODES (ours)",
+            traj.window("exact", 0, t_end),
+            P,
+        ),
+        Hypothesis(
+            "smoothed_g", f"smoothed g̃ (width {SMOOTH_WIDTH:g}, model guide §7)", traj.window("smoothed", 0, t_end), P
+        ),
+        Hypothesis("regen_eta2", "braking credited with η² (η applied twice)", traj.window("regen_eta2", 0, t_end), P),
+        Hypothesis("regen_full", "braking credited at 100 %", traj.window("regen_full", 0, t_end), P),
+        Hypothesis("no_regen", "no regeneration (g = 0 when braking)", traj.window("no_regen", 0, t_end), P),
+    ]
     H += [Hypothesis(f"window_0_{T:g}", f"window [0, {T:g}]", traj.window("exact", 0, T), P) for T in ends]
-    H += [Hypothesis(f"window_{t0:g}_{t_end:g}", f"window [{t0:g}, {t_end:g}] (initial transient left out)",
-                     traj.window("exact", t0, t_end), P) for t0 in starts]
-    H += [Hypothesis(f"euler_{h:g}", f"forward Euler, step {h:g} (leader too)", euler_omega(setup, t_end, h), P)
-          for h in euler_steps]
-    H += [Hypothesis(f"sampled_{d:g}", f"ω as a left Riemann sum of the exact trajectory sampled every {d:g}",
-                     riemann_omega(traj, setup.eta, d, t_end), P) for d in sample_steps]
+    H += [
+        Hypothesis(
+            f"window_{t0:g}_{t_end:g}",
+            f"window [{t0:g}, {t_end:g}] (initial transient left out)",
+            traj.window("exact", t0, t_end),
+            P,
+        )
+        for t0 in starts
+    ]
+    H += [
+        Hypothesis(f"euler_{h:g}", f"forward Euler, step {h:g} (leader too)", euler_omega(setup, t_end, h), P)
+        for h in euler_steps
+    ]
+    H += [
+        Hypothesis(
+            f"sampled_{d:g}",
+            f"ω as a left Riemann sum of the exact trajectory sampled every {d:g}",
+            riemann_omega(traj, setup.eta, d, t_end),
+            P,
+        )
+        for d in sample_steps
+    ]
     return H, {"fitted_regeneration": fitted_regeneration(traj, P, t_end), "trajectory": traj}
 
 
@@ -219,8 +263,10 @@ def table1_setups() -> dict[str, PlatoonSetup]:
 
     s = load_scenario("table1")
     switch = (s.leader.t_end,) if isinstance(s.leader, PaperLeader) else ()  # a_l switches off at t_end
-    return {label: PlatoonSetup(s.leader, tuple(laws), tuple(s.gaps0), tuple(s.speeds0),
-                                s.ev.vehicle.efficiency, switch) for label, laws in s.runs()}
+    return {
+        label: PlatoonSetup(s.leader, tuple(laws), tuple(s.gaps0), tuple(s.speeds0), s.ev.vehicle.efficiency, switch)
+        for label, laws in s.runs()
+    }
 
 
 def hypotheses_markdown(results: Mapping[str, tuple[list[Hypothesis], dict[str, Any]]]) -> str:
@@ -231,7 +277,9 @@ def hypotheses_markdown(results: Mapping[str, tuple[list[Hypothesis], dict[str, 
     fitting: list[str] = []
     for law, (hyps, extra) in results.items():
         for h in hyps:
-            om = ["diverges" if not np.isfinite(x) else f"{x:.4f} ({d:+.1f} %)" for x, d in zip(h.omega, h.deviation_pct)]
+            om = [
+                "diverges" if not np.isfinite(x) else f"{x:.4f} ({d:+.1f} %)" for x, d in zip(h.omega, h.deviation_pct)
+            ]
             dev = h.deviation_pct[np.isfinite(h.deviation_pct)]
             worst = f"{np.max(np.abs(dev)):.1f}" if dev.size == h.omega.size else "—"
             rows.append([law, h.description] + om + [worst, "**yes**" if h.fits else "no"])
@@ -240,13 +288,22 @@ def hypotheses_markdown(results: Mapping[str, tuple[list[Hypothesis], dict[str, 
         P = hyps[0].printed
         rows.append([law, "printed (paper)"] + [f"{x:.3f}" for x in P] + ["", ""])
     n = len(next(iter(results.values()))[0][0].omega)
-    table = markdown_table(["law", "hypothesis"] + [f"n = {i + 1}: ω (vs printed)" for i in range(n)]
-                           + ["worst |dev| [%]", f"fits (all ≤ {FIT_TOLERANCE_PCT:g} %)"], rows)
-    fits = "; ".join(f"{law}: " + ", ".join(f"{c:.3f}" for c in extra["fitted_regeneration"])
-                     for law, (_, extra) in results.items())
-    verdict = ("No single tested hypothesis reproduces the printed row within "
-               f"{FIT_TOLERANCE_PCT:g} % for every follower." if not fitting else
-               "Hypotheses that reproduce the printed row: " + "; ".join(fitting) + ".")
-    return (table + "\n" + verdict + " The regeneration efficiency c that would reproduce each printed value "
-            f"(g = a/η when accelerating, c·a when braking) is, per follower, {fits}: not one constant, so a "
-            "different η convention alone does not explain the gap either.\n")
+    table = markdown_table(
+        ["law", "hypothesis"]
+        + [f"n = {i + 1}: ω (vs printed)" for i in range(n)]
+        + ["worst |dev| [%]", f"fits (all ≤ {FIT_TOLERANCE_PCT:g} %)"],
+        rows,
+    )
+    fits = "; ".join(
+        f"{law}: " + ", ".join(f"{c:.3f}" for c in extra["fitted_regeneration"]) for law, (_, extra) in results.items()
+    )
+    verdict = (
+        f"No single tested hypothesis reproduces the printed row within {FIT_TOLERANCE_PCT:g} % for every follower."
+        if not fitting
+        else "Hypotheses that reproduce the printed row: " + "; ".join(fitting) + "."
+    )
+    return (
+        table + "\n" + verdict + " The regeneration efficiency c that would reproduce each printed value "
+        f"(g = a/η when accelerating, c·a when braking) is, per follower, {fits}: not one constant, so a "
+        "different η convention alone does not explain the gap either.\n"
+    )

@@ -26,8 +26,19 @@ import numpy as np
 from .params import ParameterError
 from .results import SimulationResult
 
-_LINEAR = ("V1", "V2", "S", "current_A", "omega", "heat_J", "heat_irr_J", "int_ovm_err2", "int_rel_speed2",
-           "int_jerk2", "leader_speed")
+_LINEAR = (
+    "V1",
+    "V2",
+    "S",
+    "current_A",
+    "omega",
+    "heat_J",
+    "heat_irr_J",
+    "int_ovm_err2",
+    "int_rel_speed2",
+    "int_jerk2",
+    "leader_speed",
+)
 
 
 def _hermite(y0: Any, y1: Any, d0: Any, d1: Any, dt: float, s: float) -> Any:
@@ -55,8 +66,8 @@ def truncate_at_time(r: SimulationResult, t_cut: float) -> SimulationResult:
     names = ("leader_position", "gap", "speed", "accel") + lin
     if abs(t[k] - t_cut) <= tol or k == t.size - 1:
         for nm in names:
-            fields[nm] = getattr(r, nm)[:k + 1].copy()
-        fields["t"] = t[:k + 1].copy()
+            fields[nm] = getattr(r, nm)[: k + 1].copy()
+        fields["t"] = t[: k + 1].copy()
     else:
         dt = float(t[k + 1] - t[k])
         s = (t_cut - float(t[k])) / dt
@@ -69,8 +80,9 @@ def truncate_at_time(r: SimulationResult, t_cut: float) -> SimulationResult:
             else:  # the quadratic through t_k, t_k+1 and a third node of the same smooth piece
                 n = (k, k + 1, j)
                 cut[nm] = sum(y[a] * math.prod((t_cut - t[b]) / (t[a] - t[b]) for b in n if b != a) for a in n)
-        cut["leader_position"] = _hermite(r.leader_position[k], r.leader_position[k + 1], r.leader_speed[k],
-                                          r.leader_speed[k + 1], dt, s)
+        cut["leader_position"] = _hermite(
+            r.leader_position[k], r.leader_position[k + 1], r.leader_speed[k], r.leader_speed[k + 1], dt, s
+        )
         a0 = r.accel[k]
         a1 = r.accel[k] if r.jerk_sampled else r.accel[k + 1]  # a held over the interval: v is linear in it
         cut["speed"] = _hermite(r.speed[k], r.speed[k + 1], a0, a1, dt, s)
@@ -79,8 +91,8 @@ def truncate_at_time(r: SimulationResult, t_cut: float) -> SimulationResult:
         cut["gap"] = _hermite(r.gap[k], r.gap[k + 1], va[k] - r.speed[k], va[k + 1] - r.speed[k + 1], dt, s)
         for nm in names:
             y = getattr(r, nm)
-            fields[nm] = np.concatenate([y[:k + 1], np.asarray(cut[nm])[None, ...]], axis=0)
-        fields["t"] = np.concatenate([t[:k + 1], [t_cut]])
+            fields[nm] = np.concatenate([y[: k + 1], np.asarray(cut[nm])[None, ...]], axis=0)
+        fields["t"] = np.concatenate([t[: k + 1], [t_cut]])
     meta = {**r.meta, "truncated_at_model": t_cut}
     return replace(r, **fields, events=[e for e in r.events if e.time <= t_cut + tol], solver_stats=[], meta=meta)
 
@@ -108,8 +120,10 @@ def time_at_distance(r: SimulationResult, i: int, distance: float) -> float:
     interpolant of its position with ẋ = v, solved by bisection); ParameterError if it never does."""
     d = distance_travelled(r, i)
     if not (math.isfinite(distance) and 0.0 < distance <= d[-1] * (1 + 1e-12)):
-        raise ParameterError(f"truncate: distance {distance!r} must lie in (0, {d[-1]:g}] (follower {i + 1}'s "
-                             "distance travelled, model length)")
+        raise ParameterError(
+            f"truncate: distance {distance!r} must lie in (0, {d[-1]:g}] (follower {i + 1}'s "
+            "distance travelled, model length)"
+        )
     distance = min(distance, float(d[-1]))
     k = int(np.searchsorted(d, distance, side="left"))  # d[k-1] < distance <= d[k]
     if k == 0 or d[k] == distance:
@@ -160,7 +174,9 @@ def equal_views(results: Mapping[Any, SimulationResult], vehicle: int = 0) -> di
         for lab, tr in runs.items():
             m = vehicle_metrics(tr, vehicle)
             rows[lab] = {k: m[k] for k in VIEW_KEYS}
-        order = sorted((lab for lab in rows if math.isfinite(rows[lab][VIEW_KEYS[0]])), key=lambda x: rows[x][VIEW_KEYS[0]])
+        order = sorted(
+            (lab for lab in rows if math.isfinite(rows[lab][VIEW_KEYS[0]])), key=lambda x: rows[x][VIEW_KEYS[0]]
+        )
         for lab in rows:
             rows[lab]["rank"] = order.index(lab) + 1 if lab in order else None
         out[view]["runs"] = rows
@@ -216,11 +232,14 @@ def equal_profile_views(profiles: Mapping[str, Mapping[str, Any]]) -> dict[str, 
         out[view][cut_key] = cut
         rows: dict[str, dict[str, Any]] = {}
         for lab, p in ok.items():
-            dist = cut if view == "distance" else float(np.interp(cut, np.asarray(p["t_s"]), np.asarray(p["distance_m"])))
+            dist = (
+                cut if view == "distance" else float(np.interp(cut, np.asarray(p["t_s"]), np.asarray(p["distance_m"])))
+            )
             heat = _heat_at(p, key, cut)
             rows[lab] = {PROFILE_VIEW_KEY: heat / (dist / 1000.0) if dist > 0 else math.nan, "heat_pack_J": heat}
-        order = sorted((lab for lab in rows if math.isfinite(rows[lab][PROFILE_VIEW_KEY])),
-                       key=lambda x: rows[x][PROFILE_VIEW_KEY])
+        order = sorted(
+            (lab for lab in rows if math.isfinite(rows[lab][PROFILE_VIEW_KEY])), key=lambda x: rows[x][PROFILE_VIEW_KEY]
+        )
         for lab in rows:
             rows[lab]["rank"] = order.index(lab) + 1 if lab in order else None
         out[view]["runs"] = rows

@@ -50,32 +50,58 @@ def main(argv: list[str] | None = None) -> int:
     a = ap.parse_args(argv)
     rows: list[dict[str, Any]] = []
     for cyc in a.cycles:
-        rows += run_robustness(cyc, a.segment_s, a.seeds, a.estimator, a.delay_s, a.mass, a.resistance, a.soc_error,
-                               log=lambda m: print(m, file=sys.stderr, flush=True),
-                               mismatch=lambda seed: Mismatch.spread(a.mass, a.resistance, seed, "uniform", a.capacitance,
-                                                                     a.capacity, 1e-3 * a.ocv_offset_mV))
-    hdr = (f"{'cycle':6} {'cond':5} {'seed':>4} {'ctrl':9} {'status':8} {'min gap m':>9} {'Q J/km':>8} "
-           f"{'SOC>60s %':>9} {'V2 mV':>6} {'vl m/s':>6} {'est+mpc ms':>10}")
+        rows += run_robustness(
+            cyc,
+            a.segment_s,
+            a.seeds,
+            a.estimator,
+            a.delay_s,
+            a.mass,
+            a.resistance,
+            a.soc_error,
+            log=lambda m: print(m, file=sys.stderr, flush=True),
+            mismatch=lambda seed: Mismatch.spread(
+                a.mass, a.resistance, seed, "uniform", a.capacitance, a.capacity, 1e-3 * a.ocv_offset_mV
+            ),
+        )
+    hdr = (
+        f"{'cycle':6} {'cond':5} {'seed':>4} {'ctrl':9} {'status':8} {'min gap m':>9} {'Q J/km':>8} "
+        f"{'SOC>60s %':>9} {'V2 mV':>6} {'vl m/s':>6} {'est+mpc ms':>10}"
+    )
     print(hdr)
 
     def f(x: Any, fmt: str) -> str:
         return format(x, fmt) if isinstance(x, (int, float)) and x is not None and np.isfinite(x) else "-"
+
     for r in rows:
-        print(f"{r['cycle']:6} {r['condition']:5} {r['seed'] if r['seed'] is not None else '-':>4} {r['controller']:9} "
-              f"{r['status']:8} {f(r['min_gap_m'], '9.2f')} {f(r['heat_pack_J_per_km'], '8.0f')} "
-              f"{f(r['soc_err_max_after_60s_pct'], '9.2f')} {f(r['V2_err_rms_mV'], '6.2f')} "
-              f"{f(r['lead_speed_err_rms_mps'], '6.3f')} {f(r['estimator_plus_call_ms_median'], '10.3f')}")
+        print(
+            f"{r['cycle']:6} {r['condition']:5} {r['seed'] if r['seed'] is not None else '-':>4} {r['controller']:9} "
+            f"{r['status']:8} {f(r['min_gap_m'], '9.2f')} {f(r['heat_pack_J_per_km'], '8.0f')} "
+            f"{f(r['soc_err_max_after_60s_pct'], '9.2f')} {f(r['V2_err_rms_mV'], '6.2f')} "
+            f"{f(r['lead_speed_err_rms_mps'], '6.3f')} {f(r['estimator_plus_call_ms_median'], '10.3f')}"
+        )
     mg = margins(rows)
     print("\nMPC pack heat per km below the laws [%]:")
     for m in mg:
-        print(f"  {m['cycle']:6} {m['condition']:5} seed {m['seed'] if m['seed'] is not None else '-':>4}: "
-              + ", ".join(f"{law} {m[f'margin_vs_{law}_pct']:+.1f} %" for law in LAWS))
+        print(
+            f"  {m['cycle']:6} {m['condition']:5} seed {m['seed'] if m['seed'] is not None else '-':>4}: "
+            + ", ".join(f"{law} {m[f'margin_vs_{law}_pct']:+.1f} %" for law in LAWS)
+        )
     tg = targets(rows, mg)
-    tg["cost_target_1ms_met"] = tg["estimator_plus_mpc_ms_median_max"] is not None and tg["estimator_plus_mpc_ms_median_max"] <= 1.0
+    tg["cost_target_1ms_met"] = (
+        tg["estimator_plus_mpc_ms_median_max"] is not None and tg["estimator_plus_mpc_ms_median_max"] <= 1.0
+    )
     print("\ntargets:", tg)
-    write_json(a.out, {"rows": rows, "margins": mg, "targets": tg, "args": vars(a),
-                       "machine": {"platform": platform.platform(), "python": sys.version.split()[0],
-                                   "cpus": os.cpu_count()}})
+    write_json(
+        a.out,
+        {
+            "rows": rows,
+            "margins": mg,
+            "targets": tg,
+            "args": vars(a),
+            "machine": {"platform": platform.platform(), "python": sys.version.split()[0], "cpus": os.cpu_count()},
+        },
+    )
     return 0
 
 

@@ -42,8 +42,14 @@ print((resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - base) * 1024 / (n * 
 
 
 def child(code: str, *args: str) -> float:
-    out = subprocess.run([sys.executable, "-c", code, *args], cwd=ROOT, capture_output=True, text=True, check=True,
-                         env={"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin"})
+    out = subprocess.run(
+        [sys.executable, "-c", code, *args],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        check=True,
+        env={"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin"},
+    )
     return float(out.stdout.strip().splitlines()[-1])
 
 
@@ -51,10 +57,10 @@ def main() -> None:
     quick = "--quick" in sys.argv
     rows = []
     for solver in ("ipopt", "rti"):
-        for N in ((40, 400) if quick else (40, 400, 1600)):
+        for N in (40, 400) if quick else (40, 400, 1600):
             b = child(MPC_CHILD, str(N), solver)
             rows.append({"what": f"MPC {solver}", "size": N, "bytes": b, "bytes_per_unit": b / N})
-    for n in ((50,) if quick else (200, 1000)):
+    for n in (50,) if quick else (200, 1000):
         per = child(SIM_CHILD, str(n), "0.01")
         rows.append({"what": "simulate table1", "size": n, "bytes": per * n * 7001, "bytes_per_unit": per})
     print(f"{'what':18s} {'size':>6s} {'peak MB':>9s} {'B per unit':>11s}")
@@ -64,7 +70,9 @@ def main() -> None:
     sys.path.insert(0, str(ROOT))
     from aev_ocp.results import write_json
 
-    write_json(out, {"rows": rows, "units": {"MPC": "bytes per horizon interval", "simulate": "bytes per sample x follower"}})
+    write_json(
+        out, {"rows": rows, "units": {"MPC": "bytes per horizon interval", "simulate": "bytes per sample x follower"}}
+    )
     print(f"wrote {out}")
 
 

@@ -36,8 +36,12 @@ from aev_ocp.results import write_json
 from aev_ocp.simulate import simulate_platoon
 
 # the shipped drive-cycle scenarios' units and start (scenarios/*_platoon.toml): from rest, 0.8 L apart
-CYCLES = {"udds": (Units(15.0, 17.0), 0.8, 0.0), "hwfet": (Units(15.0, 17.0), 0.8, 0.0),
-          "us06": (Units(20.0, 22.0), 0.8, 0.0), "paper": (Units(10.0, 5.0), 0.3, 1.87)}
+CYCLES = {
+    "udds": (Units(15.0, 17.0), 0.8, 0.0),
+    "hwfet": (Units(15.0, 17.0), 0.8, 0.0),
+    "us06": (Units(20.0, 22.0), 0.8, 0.0),
+    "paper": (Units(10.0, 5.0), 0.3, 1.87),
+}
 
 
 def _row(cycle: str, predictor: str, ctrl: str, r: Any, i: int, ref: dict | None, wall: float) -> dict:
@@ -46,15 +50,37 @@ def _row(cycle: str, predictor: str, ctrl: str, r: Any, i: int, ref: dict | None
     steps = (r.meta.get("mpc_steps") or [None] * (i + 1))[i]
     ms = np.asarray(steps["solve_ms"], float) if steps else np.zeros(0)
     causes = Counter(str(sv).split(":")[0] for sv, ok in zip(steps["status"], steps["ok"]) if not ok) if steps else {}
-    row = {"cycle": cycle, "predictor": predictor, "controller": ctrl, "vehicle": i + 1, "status": r.status,
-           "wall_s": wall, **{k: m.get(k) for k in ("distance_m", "duration_s", "heat_pack_J_per_km",
-                                                   "omega_model_per_km", "min_gap_m", "min_speed_model", "min_ttc_s",
-                                                   "rms_jerk_model", "collisions")},
-           "fallbacks": st.get("fallbacks"), "fallback_causes": dict(causes), "forecast_rms": st.get("forecast_rms"),
-           "solve_ms_p50": float(np.median(ms)) if ms.size else None,
-           "solve_ms_p99": float(np.percentile(ms, 99)) if ms.size else None,
-           "solve_ms_max": float(ms.max()) if ms.size else None}
-    row["comparable"] = comparability({**m, "status": r.status}, ref)["comparable"] if ref is not None else r.status == "ok"
+    row = {
+        "cycle": cycle,
+        "predictor": predictor,
+        "controller": ctrl,
+        "vehicle": i + 1,
+        "status": r.status,
+        "wall_s": wall,
+        **{
+            k: m.get(k)
+            for k in (
+                "distance_m",
+                "duration_s",
+                "heat_pack_J_per_km",
+                "omega_model_per_km",
+                "min_gap_m",
+                "min_speed_model",
+                "min_ttc_s",
+                "rms_jerk_model",
+                "collisions",
+            )
+        },
+        "fallbacks": st.get("fallbacks"),
+        "fallback_causes": dict(causes),
+        "forecast_rms": st.get("forecast_rms"),
+        "solve_ms_p50": float(np.median(ms)) if ms.size else None,
+        "solve_ms_p99": float(np.percentile(ms, 99)) if ms.size else None,
+        "solve_ms_max": float(ms.max()) if ms.size else None,
+    }
+    row["comparable"] = (
+        comparability({**m, "status": r.status}, ref)["comparable"] if ref is not None else r.status == "ok"
+    )
     return row
 
 
@@ -63,12 +89,15 @@ def _fmt(x: Any, p: int = 1) -> str:
 
 
 def _print(row: dict) -> None:
-    print(f"{row['cycle']:6s} {row['predictor']:22s} {row['controller']:11s} {row['vehicle']:2d} {row['status']:>8s} "
-          f"{_fmt(row['distance_m'] / 1000, 3):>6s} {_fmt(row['heat_pack_J_per_km'], 0):>8s} "
-          f"{_fmt(row['omega_model_per_km'], 4):>7s} {_fmt(row['min_gap_m'], 2):>6s} {_fmt(row['min_ttc_s'], 1):>6s} "
-          f"{_fmt(row['rms_jerk_model'], 4):>7s} {str(row['fallbacks'] if row['fallbacks'] is not None else '—'):>4s} "
-          f"{_fmt(row['solve_ms_p50'], 2):>6s} {_fmt(row['solve_ms_p99'], 1):>6s} {_fmt(row['solve_ms_max'], 1):>6s} "
-          f"{_fmt(row['forecast_rms'], 4):>7s} {'' if row['comparable'] else 'NOT COMPARABLE'}", flush=True)
+    print(
+        f"{row['cycle']:6s} {row['predictor']:22s} {row['controller']:11s} {row['vehicle']:2d} {row['status']:>8s} "
+        f"{_fmt(row['distance_m'] / 1000, 3):>6s} {_fmt(row['heat_pack_J_per_km'], 0):>8s} "
+        f"{_fmt(row['omega_model_per_km'], 4):>7s} {_fmt(row['min_gap_m'], 2):>6s} {_fmt(row['min_ttc_s'], 1):>6s} "
+        f"{_fmt(row['rms_jerk_model'], 4):>7s} {str(row['fallbacks'] if row['fallbacks'] is not None else '—'):>4s} "
+        f"{_fmt(row['solve_ms_p50'], 2):>6s} {_fmt(row['solve_ms_p99'], 1):>6s} {_fmt(row['solve_ms_max'], 1):>6s} "
+        f"{_fmt(row['forecast_rms'], 4):>7s} {'' if row['comparable'] else 'NOT COMPARABLE'}",
+        flush=True,
+    )
 
 
 def targets(rows: list[dict], h_min_m: dict[str, float]) -> list[str]:
@@ -112,9 +141,11 @@ def main(argv: list[str] | None = None) -> int:
     a = ap.parse_args(argv)
     rows: list[dict] = []
     h_min_m: dict[str, float] = {}
-    print(f"{'cycle':6s} {'predictor':22s} {'controller':11s} {'#':>2s} {'status':>8s} {'km':>6s} {'Q J/km':>8s} "
-          f"{'ω/km':>7s} {'gap m':>6s} {'TTC s':>6s} {'jerk':>7s} {'fb':>4s} {'p50':>6s} {'p99':>6s} {'max':>6s} "
-          f"{'fc RMS':>7s} cmp")
+    print(
+        f"{'cycle':6s} {'predictor':22s} {'controller':11s} {'#':>2s} {'status':>8s} {'km':>6s} {'Q J/km':>8s} "
+        f"{'ω/km':>7s} {'gap m':>6s} {'TTC s':>6s} {'jerk':>7s} {'fb':>4s} {'p50':>6s} {'p99':>6s} {'max':>6s} "
+        f"{'fc RMS':>7s} cmp"
+    )
     traffic = MPCSettings()
     tform = traffic_formulation()  # the default formulation's SI parameters (its standstill floor)
     for cyc in a.cycles:
@@ -131,8 +162,10 @@ def main(argv: list[str] | None = None) -> int:
         laws = {}
         for law in (Proposed(), OVFL()):
             t0 = time.perf_counter()
-            laws[law.name] = (simulate_platoon(leader, [law], [h0], [v0], t_end, ev=ev, dt_out=dt),
-                              time.perf_counter() - t0)
+            laws[law.name] = (
+                simulate_platoon(leader, [law], [h0], [v0], t_end, ev=ev, dt_out=dt),
+                time.perf_counter() - t0,
+            )
         ref_m = {**laws["proposed"][0].metrics()[0], "status": laws["proposed"][0].status}
         for pred in a.predictors:
             runs = dict(laws)
@@ -158,28 +191,54 @@ def main(argv: list[str] | None = None) -> int:
         t_s = sc.leader.times[-1] * sc.ev.units.time_s if a.full else a.t_end_s
         t_end = round(sc.ev.units.time_from_si(t_s) / dt) * dt
         t0 = time.perf_counter()
-        law = simulate_platoon(sc.leader, [sc.law("proposed")] * sc.n_followers, list(sc.gaps0), list(sc.speeds0),
-                               t_end, ev=sc.ev, dt_out=dt)
+        law = simulate_platoon(
+            sc.leader,
+            [sc.law("proposed")] * sc.n_followers,
+            list(sc.gaps0),
+            list(sc.speeds0),
+            t_end,
+            ev=sc.ev,
+            dt_out=dt,
+        )
         wl = time.perf_counter() - t0
         t0 = time.perf_counter()
         r = closed_loop_from_scenario(sc, MPCConfig(traffic.with_(predictor="constant-velocity"))).run(
-            list(sc.gaps0), list(sc.speeds0), t_end)
+            list(sc.gaps0), list(sc.speeds0), t_end
+        )
         wm = time.perf_counter() - t0
         for i in range(sc.n_followers):
             ref = {**law.metrics()[i], "status": law.status}
             for name, res, w in (("proposed", law, wl), ("mpc-traffic", r, wm)):
-                row = _row("platoon", "cooperative" if i else "constant-velocity", name, res, i,
-                           ref if name != "proposed" else None, w)
+                row = _row(
+                    "platoon",
+                    "cooperative" if i else "constant-velocity",
+                    name,
+                    res,
+                    i,
+                    ref if name != "proposed" else None,
+                    w,
+                )
                 rows.append(row)
                 _print(row)
     miss = targets(rows, h_min_m)
     print("targets: all met" if not miss else "targets missed:\n  " + "\n  ".join(miss))
-    write_json(a.out, {"t_end_s": "full" if a.full else a.t_end_s, "rows": rows, "targets_missed": miss,
-                       "settings": {"traffic": vars(tform.traffic), "N": traffic.N, "dt": traffic.dt,
-                                    "solver": traffic.solver, "codegen": traffic.codegen,
-                                    "max_step_ms": traffic.max_step_ms},
-                       "machine": {"platform": platform.platform(), "python": sys.version.split()[0],
-                                   "cpus": os.cpu_count()}})
+    write_json(
+        a.out,
+        {
+            "t_end_s": "full" if a.full else a.t_end_s,
+            "rows": rows,
+            "targets_missed": miss,
+            "settings": {
+                "traffic": vars(tform.traffic),
+                "N": traffic.N,
+                "dt": traffic.dt,
+                "solver": traffic.solver,
+                "codegen": traffic.codegen,
+                "max_step_ms": traffic.max_step_ms,
+            },
+            "machine": {"platform": platform.platform(), "python": sys.version.split()[0], "cpus": os.cpu_count()},
+        },
+    )
     print(f"wrote {a.out}")
     return 0
 

@@ -71,18 +71,28 @@ def whole_udds_child(variant: str, scenario: str = "udds_platoon") -> dict[str, 
     scn = oracle_scenario_from_file(find_scenario(scenario))
     d = OracleSolver(scn, mx_map=(variant == "mx"))
     res = d.solve()
-    return {"variant": variant, "scenario": scenario, "N": scn.N, "dt_s": scn.dt * scn.ev.units.time_s, "build_s": d.build_time_s,
-            "solve_s": res.wall_time_s, "total_s": time.perf_counter() - t0, "iterations": res.iterations,
-            "status": res.status, "objective": res.objective,
-            "peak_rss_GB": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024 / 1e9}
+    return {
+        "variant": variant,
+        "scenario": scenario,
+        "N": scn.N,
+        "dt_s": scn.dt * scn.ev.units.time_s,
+        "build_s": d.build_time_s,
+        "solve_s": res.wall_time_s,
+        "total_s": time.perf_counter() - t0,
+        "iterations": res.iterations,
+        "status": res.status,
+        "objective": res.objective,
+        "peak_rss_GB": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024 / 1e9,
+    }
 
 
 def whole_udds(cases: tuple[tuple[str, str], ...] = WHOLE_CYCLES) -> list[dict[str, Any]]:
     """Each (variant, scenario) of :func:`whole_udds_child` in a fresh Python process (its own peak RSS)."""
     out = []
     for v, sc in cases:
-        p = subprocess.run([sys.executable, __file__, "--child-udds", v, sc], capture_output=True, text=True,
-                           check=True)
+        p = subprocess.run(
+            [sys.executable, __file__, "--child-udds", v, sc], capture_output=True, text=True, check=True
+        )
         out.append(json.loads(p.stdout.strip().splitlines()[-1]))
     return out
 
@@ -90,15 +100,23 @@ def whole_udds(cases: tuple[tuple[str, str], ...] = WHOLE_CYCLES) -> list[dict[s
 def print_udds(rows: list[dict[str, Any]]) -> dict[str, Any]:
     """Print the whole-cycle lines; returns the target record of the default (mx) variant on UDDS."""
     print(f"\nOCP-D, whole cycles on the 1 s grid (dt = {rows[0]['dt_s']:.3g} s):")
-    print(f"{'scenario':<15}{'variant':<9}{'N':>6}{'build [s]':>10}{'solve [s]':>10}{'total [s]':>10}{'iter':>6}"
-          f"{'peak RSS [GB]':>15}  status")
+    print(
+        f"{'scenario':<15}{'variant':<9}{'N':>6}{'build [s]':>10}{'solve [s]':>10}{'total [s]':>10}{'iter':>6}"
+        f"{'peak RSS [GB]':>15}  status"
+    )
     for r in rows:
-        print(f"{r['scenario']:<15}{r['variant']:<9}{r['N']:>6}{r['build_s']:>10.2f}{r['solve_s']:>10.2f}{r['total_s']:>10.2f}{r['iterations']:>6}"
-              f"{r['peak_rss_GB']:>15.3f}  {r['status']}")
+        print(
+            f"{r['scenario']:<15}{r['variant']:<9}{r['N']:>6}{r['build_s']:>10.2f}{r['solve_s']:>10.2f}{r['total_s']:>10.2f}{r['iterations']:>6}"
+            f"{r['peak_rss_GB']:>15.3f}  {r['status']}"
+        )
     mx = rows[0]
-    return {"value": mx["total_s"], "peak_rss_GB": mx["peak_rss_GB"], "target": UDDS_TARGET_S,
-            "target_GB": UDDS_TARGET_GB, "met": mx["total_s"] < UDDS_TARGET_S and mx["peak_rss_GB"] < UDDS_TARGET_GB
-            and mx["status"] == "optimal"}
+    return {
+        "value": mx["total_s"],
+        "peak_rss_GB": mx["peak_rss_GB"],
+        "target": UDDS_TARGET_S,
+        "target_GB": UDDS_TARGET_GB,
+        "met": mx["total_s"] < UDDS_TARGET_S and mx["peak_rss_GB"] < UDDS_TARGET_GB and mx["status"] == "optimal",
+    }
 
 
 def slope(ns: list[int], ts: list[float]) -> float:
@@ -113,8 +131,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--repeats", type=int, default=2)
     ap.add_argument("--quick", action="store_true", help="N up to 400 only")
     ap.add_argument("--out", default=str(Path(__file__).with_name("bench_ocp.json")))
-    ap.add_argument("--udds-only", action="store_true",
-                    help="only OCP-D on the whole cycles (UDDS mapped and expanded, HWFET, US06)")
+    ap.add_argument(
+        "--udds-only",
+        action="store_true",
+        help="only OCP-D on the whole cycles (UDDS mapped and expanded, HWFET, US06)",
+    )
     ap.add_argument("--child-udds", nargs=2, default=None, help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     if args.child_udds:
@@ -123,8 +144,10 @@ def main(argv: list[str] | None = None) -> int:
     if args.udds_only:
         udds = whole_udds()
         target = print_udds(udds)
-        print(f"  ocp_d_whole_udds: {target['value']:.1f} s, {target['peak_rss_GB']:.3f} GB (target < 60 s, "
-              f"< 2 GB): {'met' if target['met'] else 'NOT met'}")
+        print(
+            f"  ocp_d_whole_udds: {target['value']:.1f} s, {target['peak_rss_GB']:.3f} GB (target < 60 s, "
+            f"< 2 GB): {'met' if target['met'] else 'NOT met'}"
+        )
         out = Path(args.out).with_name("bench_ocp_udds.json")
         write_json_atomic(out, {"whole_udds": udds, "target": target, "python": sys.version.split()[0]})
         print(f"wrote {out}")
@@ -142,12 +165,23 @@ def main(argv: list[str] | None = None) -> int:
                 for _ in range(args.repeats):
                     res = solve()
                     times.append(res.wall_time_s)
-                row = {"ocp": problem, "method": method, "N": N, "build_s": build,
-                       "solve_median_s": statistics.median(times), "solve_times_s": times,
-                       "iterations": res.iterations, "status": res.status, "objective": res.objective}
+                row = {
+                    "ocp": problem,
+                    "method": method,
+                    "N": N,
+                    "build_s": build,
+                    "solve_median_s": statistics.median(times),
+                    "solve_times_s": times,
+                    "iterations": res.iterations,
+                    "status": res.status,
+                    "objective": res.objective,
+                }
                 rows.append(row)
-                print(f"{problem:<4}{method:<12}{N:>6}{build:>11.3f}{row['solve_median_s']:>11.3f}"
-                      f"{res.iterations:>6}  {res.status}", flush=True)
+                print(
+                    f"{problem:<4}{method:<12}{N:>6}{build:>11.3f}{row['solve_median_s']:>11.3f}"
+                    f"{res.iterations:>6}  {res.status}",
+                    flush=True,
+                )
                 if time.perf_counter() - t0 > BUDGET_S:
                     print(f"     (skipping larger N for OCP-{problem} {method}: over {BUDGET_S:g} s)")
                     break
@@ -159,8 +193,12 @@ def main(argv: list[str] | None = None) -> int:
     for method in METHODS:
         d = OracleSolver(canonical_scenario(), method=method)
         td = statistics.median(d.solve().wall_time_s for _ in range(args.repeats))
-        targets[f"ocp_d_{method}_N700_solve_s"] = {"value": td, "build_s": d.build_time_s, "target": 3.0,
-                                                   "met": td < 3.0}
+        targets[f"ocp_d_{method}_N700_solve_s"] = {
+            "value": td,
+            "build_s": d.build_time_s,
+            "target": 3.0,
+            "met": td < 3.0,
+        }
     udds = whole_udds()
     targets["ocp_d_whole_udds_total_s"] = print_udds(udds)
     slopes: dict[str, dict[str, float]] = {}
@@ -172,16 +210,27 @@ def main(argv: list[str] | None = None) -> int:
             s_build = slope([r["N"] for r in sel], [r["build_s"] for r in sel])
             per_it = slope([r["N"] for r in sel], [r["solve_median_s"] / max(r["iterations"], 1) for r in sel])
             slopes[f"{problem}_{method}"] = {"solve": s_solve, "build": s_build, "solve_per_iteration": per_it}
-            print(f"  OCP-{problem} {method:<12} solve {s_solve:5.2f}   per iteration {per_it:5.2f}   build {s_build:5.2f}")
+            print(
+                f"  OCP-{problem} {method:<12} solve {s_solve:5.2f}   per iteration {per_it:5.2f}   build {s_build:5.2f}"
+            )
     print("\ntargets:")
     for k, v in targets.items():
         gb = f", peak RSS {v['peak_rss_GB']:.3f} GB (target < {v['target_GB']} GB)" if "peak_rss_GB" in v else ""
         print(f"  {k}: {v['value']:.3f} s (target < {v['target']} s){gb}: {'met' if v['met'] else 'NOT met'}")
     total = time.perf_counter() - t_start
     print(f"\ntotal benchmark time {total:.1f} s")
-    write_json_atomic(args.out, {"rows": rows, "slopes": slopes, "targets": targets, "whole_udds": udds,
-                                 "repeats": args.repeats,
-                                 "total_time_s": total, "python": sys.version.split()[0]})
+    write_json_atomic(
+        args.out,
+        {
+            "rows": rows,
+            "slopes": slopes,
+            "targets": targets,
+            "whole_udds": udds,
+            "repeats": args.repeats,
+            "total_time_s": total,
+            "python": sys.version.split()[0],
+        },
+    )
     print(f"wrote {args.out}")
     return 0
 

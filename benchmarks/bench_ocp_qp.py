@@ -43,8 +43,10 @@ RANDOM = {
     "traffic N=25 (random)": OcpQPDims(N=25, nx=6, nu=3, nc=6),
 }
 DATA = Path(__file__).resolve().parent.parent / "tests" / "data"
-CONIC = {"hpipm": {"hpipm": {"iter_max": 100, "warm_start": 0}},  # as aev_ocp.mpc.rti.qp_options
-         "qrqp": {"print_iter": False, "print_header": False, "print_info": False}}
+CONIC = {
+    "hpipm": {"hpipm": {"iter_max": 100, "warm_start": 0}},  # as aev_ocp.mpc.rti.qp_options
+    "qrqp": {"print_iter": False, "print_header": False, "print_info": False},
+}
 
 
 def _median_call(f: Any, reps: int) -> float:
@@ -71,19 +73,22 @@ def blocks_from_full(N: int, nx: int, nu: int, q: dict[str, Any]) -> tuple[OcpQP
     d: dict[str, Any] = {k: [] for k in ("H", "g", "E", "e", "C", "lc", "uc", "lbw", "ubw")}
     for k in range(N + 1):
         o, n = k * nb, (nb if k < N else nx)
-        d["H"].append(H[o:o + n, o:o + n])
-        d["g"].append(g[o:o + n])
-        d["lbw"].append(lbx[o:o + n])
-        d["ubw"].append(ubx[o:o + n])
+        d["H"].append(H[o : o + n, o : o + n])
+        d["g"].append(g[o : o + n])
+        d["lbw"].append(lbx[o : o + n])
+        d["ubw"].append(ubx[o : o + n])
         if k < N:
             r = k * ngs
-            if np.abs(A[r:r + nx, o + nb:o + nb + nx] + np.eye(nx)).max() > 0 or np.abs(lba[r:r + nx] - uba[r:r + nx]).max() > 0:
+            if (
+                np.abs(A[r : r + nx, o + nb : o + nb + nx] + np.eye(nx)).max() > 0
+                or np.abs(lba[r : r + nx] - uba[r : r + nx]).max() > 0
+            ):
                 raise ValueError(f"stage {k}: not the dynamics layout (-I on x_k+1, equality rows)")
-            d["E"].append(A[r:r + nx, o:o + nb])
-            d["e"].append(-lba[r:r + nx])
-            d["C"].append(A[r + nx:r + ngs, o:o + nb])
-            d["lc"].append(lba[r + nx:r + ngs])
-            d["uc"].append(uba[r + nx:r + ngs])
+            d["E"].append(A[r : r + nx, o : o + nb])
+            d["e"].append(-lba[r : r + nx])
+            d["C"].append(A[r + nx : r + ngs, o : o + nb])
+            d["lc"].append(lba[r + nx : r + ngs])
+            d["uc"].append(uba[r + nx : r + ngs])
         else:
             d["C"].append(np.zeros((0, nx)))
             d["lc"].append(np.zeros(0))
@@ -101,8 +106,10 @@ def rti_qp(formulation: str, N: int) -> tuple[OcpQPDims, dict[str, Any]]:
 
     from aev_ocp.ocp.formulation import formulation_from_dict
 
-    c = MPCController(MPCSettings(rti_hessian="exact", solver="rti", qp_solver="hpipm",
-                                  codegen=False, N=N, max_step_ms=1e4), formulation=formulation_from_dict({"formulation": formulation}))
+    c = MPCController(
+        MPCSettings(rti_hessian="exact", solver="rti", qp_solver="hpipm", codegen=False, N=N, max_step_ms=1e4),
+        formulation=formulation_from_dict({"formulation": formulation}),
+    )
     seen: list[dict[str, Any]] = []
     assert c.rti is not None
     qp = c.rti.qp
@@ -128,15 +135,19 @@ def rti_qp(formulation: str, N: int) -> tuple[OcpQPDims, dict[str, Any]]:
     return blocks_from_full(N, nx, nu, seen[-1])
 
 
-def _baseline(row: dict[str, Any], dims: OcpQPDims, st: OcpQPSettings, data: dict[str, Any], reps: int,
-              base_src: str | None) -> None:
+def _baseline(
+    row: dict[str, Any], dims: OcpQPDims, st: OcpQPSettings, data: dict[str, Any], reps: int, base_src: str | None
+) -> None:
     """The baseline source's status, iterations and median time (dimensions compiled in) into ``row``."""
     if base_src is None:
         return
     base = OcpQP(dims, st, specialise=True, source=base_src)
     res = base.solve(**data)
-    row.update(base_status=res.status_name, base_iterations=res.iterations,
-               base_fixed_ms=float(np.median(base.timed_calls(reps))) * 1e3)
+    row.update(
+        base_status=res.status_name,
+        base_iterations=res.iterations,
+        base_fixed_ms=float(np.median(base.timed_calls(reps))) * 1e3,
+    )
 
 
 def rti_cases() -> list[tuple[str, OcpQPDims, dict[str, Any]]]:
@@ -156,9 +167,16 @@ def bench_case(name: str, dims: OcpQPDims, data: dict[str, Any], reps: int, base
     st = OcpQPSettings(max_iter=50, tol_stat=1e-9, tol_eq=1e-9, tol_ineq=1e-9, tol_comp=1e-9)
     fixed = OcpQP(dims, st, specialise=True)
     res = fixed.solve(**data)
-    row: dict[str, Any] = {"problem": name, "N": dims.N, "nx": dims.nx, "nu": dims.nu, "nc": dims.nc,
-                           "status": res.status_name, "iterations": res.iterations,
-                           "ocpqp_fixed_ms": float(np.median(fixed.timed_calls(reps))) * 1e3}
+    row: dict[str, Any] = {
+        "problem": name,
+        "N": dims.N,
+        "nx": dims.nx,
+        "nu": dims.nu,
+        "nc": dims.nc,
+        "status": res.status_name,
+        "iterations": res.iterations,
+        "ocpqp_fixed_ms": float(np.median(fixed.timed_calls(reps))) * 1e3,
+    }
     _baseline(row, dims, st, data, reps, base_src)
     for mode in HPIPM_MODES:  # the second backend of ocp_qp.h: HPIPM's C API, same data, same settings
         try:
@@ -180,31 +198,50 @@ def backend_summary(cases: list[dict[str, Any]]) -> dict[str, Any]:
     out: dict[str, Any] = {"ocp_qp": {"solved": sum(r["status"] == "ok" for r in cases), "of": len(cases)}}
     for mode in HPIPM_MODES:
         both = [r for r in cases if r["status"] == "ok" and r.get(f"hpipm_{mode}_status") == "ok"]
-        out[f"hpipm_{mode}"] = {"solved": sum(r.get(f"hpipm_{mode}_status") == "ok" for r in cases), "of": len(cases),
-                                "median_time_ratio_vs_ocp_qp": float(np.median([r[f"hpipm_{mode}_ms"] / r["ocpqp_fixed_ms"]
-                                                                                for r in both])) if both else None}
+        out[f"hpipm_{mode}"] = {
+            "solved": sum(r.get(f"hpipm_{mode}_status") == "ok" for r in cases),
+            "of": len(cases),
+            "median_time_ratio_vs_ocp_qp": float(np.median([r[f"hpipm_{mode}_ms"] / r["ocpqp_fixed_ms"] for r in both]))
+            if both
+            else None,
+        }
     return out
 
 
-def bench_one(name: str, dims: OcpQPDims, data: dict[str, Any], reps: int, tol: float = 1e-10,
-              base_src: str | None = None) -> dict[str, Any]:
+def bench_one(
+    name: str, dims: OcpQPDims, data: dict[str, Any], reps: int, tol: float = 1e-10, base_src: str | None = None
+) -> dict[str, Any]:
     st = OcpQPSettings(tol_stat=tol, tol_eq=tol, tol_ineq=tol, tol_comp=tol)
     solver, fixed = OcpQP(dims, st), OcpQP(dims, st, specialise=True)
     res = solver.solve(**data)
     fixed.set_data(**data)
     t = float(np.median(solver.timed_calls(reps)))
     tf = float(np.median(fixed.timed_calls(reps)))
-    row: dict[str, Any] = {"problem": name, "tol": tol, "N": dims.N, "nx": dims.nx, "nu": dims.nu, "nc": dims.nc,
-                           "status": res.status_name, "iterations": res.iterations, "ocpqp_ms": t * 1e3,
-                           "ocpqp_per_iter_us": t * 1e6 / max(1, res.iterations), "ocpqp_fixed_ms": tf * 1e3,
-                           "fixed_same_w": bool(np.array_equal(fixed.solve_data().w, res.w))}
+    row: dict[str, Any] = {
+        "problem": name,
+        "tol": tol,
+        "N": dims.N,
+        "nx": dims.nx,
+        "nu": dims.nu,
+        "nc": dims.nc,
+        "status": res.status_name,
+        "iterations": res.iterations,
+        "ocpqp_ms": t * 1e3,
+        "ocpqp_per_iter_us": t * 1e6 / max(1, res.iterations),
+        "ocpqp_fixed_ms": tf * 1e3,
+        "fixed_same_w": bool(np.array_equal(fixed.solve_data().w, res.w)),
+    }
     _baseline(row, dims, st, data, reps, base_src)
     sq = sparse_qp(dims, data)
     args = dict(h=sq["h"], a=sq["a"], g=sq["g"], lba=sq["lba"], uba=sq["uba"], lbx=sq["lbx"], ubx=sq["ubx"])
     for plugin, opts in CONIC.items():
         try:
-            f = ca.conic(f"bench_{plugin}", plugin, {"h": sq["h"].sparsity(), "a": sq["a"].sparsity()},
-                         {**opts, "error_on_fail": False})
+            f = ca.conic(
+                f"bench_{plugin}",
+                plugin,
+                {"h": sq["h"].sparsity(), "a": sq["a"].sparsity()},
+                {**opts, "error_on_fail": False},
+            )
             t0 = time.perf_counter()
             out = f(**args)
             once = time.perf_counter() - t0
@@ -226,67 +263,98 @@ def main() -> None:
     ap.add_argument("--out", default="benchmarks/bench_ocp_qp.json")
     ap.add_argument("--skip-rti", action="store_true", help="only the random QPs and the harvested ones")
     ap.add_argument("--baseline-src", default=None, help="another ocp_qp.c to compare in the same process")
-    ap.add_argument("--only-harvested", action="store_true", help="only the harvested RTI QPs (the backends' comparison)")
+    ap.add_argument(
+        "--only-harvested", action="store_true", help="only the harvested RTI QPs (the backends' comparison)"
+    )
     a = ap.parse_args()
     base_src = Path(a.baseline_src).read_text(encoding="utf-8") if a.baseline_src else None
     rows = []
     for name, dims in ({} if a.only_harvested else RANDOM).items():
-        rows.append(bench_one(name, dims, random_qp(dims, np.random.default_rng(2026), equality_rows=0.0), a.reps,
-                              base_src=base_src))
+        rows.append(
+            bench_one(
+                name, dims, random_qp(dims, np.random.default_rng(2026), equality_rows=0.0), a.reps, base_src=base_src
+            )
+        )
     if not (a.skip_rti or a.only_harvested):
         for name, form, N in (("canonical RTI QP (s9, N=40)", "s9", 40), ("traffic RTI QP (N=25)", "traffic", 25)):
             try:
                 dims, data = rti_qp(form, N)
                 rows.append(bench_one(name, dims, data, a.reps, base_src=base_src))
-                rows.append(bench_one(name.replace("QP", "QP tol 1e-8"), dims, data, a.reps, tol=1e-8,
-                                      base_src=base_src))
+                rows.append(
+                    bench_one(name.replace("QP", "QP tol 1e-8"), dims, data, a.reps, tol=1e-8, base_src=base_src)
+                )
             except Exception as exc:  # reported, not fatal: the random rows stand on their own
                 rows.append({"problem": name, "error": f"{type(exc).__name__}: {str(exc).splitlines()[0][:200]}"})
-    head = f"{'problem':30s} {'dims':>16s} {'status':>9s} {'it':>3s} {'ocpqp ms':>9s} {'us/it':>6s} {'fixed ms':>8s} " \
-           f"{'hpipm ms':>9s} {'qrqp ms':>9s} {'x hpipm':>7s} {'x qrqp':>7s}  agree(hpipm, qrqp)"
+    head = (
+        f"{'problem':30s} {'dims':>16s} {'status':>9s} {'it':>3s} {'ocpqp ms':>9s} {'us/it':>6s} {'fixed ms':>8s} "
+        f"{'hpipm ms':>9s} {'qrqp ms':>9s} {'x hpipm':>7s} {'x qrqp':>7s}  agree(hpipm, qrqp)"
+    )
     print(head)
     for r in rows:
         if "error" in r:
             print(f"{r['problem']:30s} error: {r['error']}")
             continue
         dims = f"{r['N']}/{r['nx']}/{r['nu']}/{r['nc']}"
-        print(f"{r['problem']:30s} {dims:>16s} {r['status']:>9s} {r['iterations']:3d} {r['ocpqp_ms']:9.4f} "
-              f"{r['ocpqp_per_iter_us']:6.2f} {r['ocpqp_fixed_ms']:8.4f} {r['hpipm_ms']:9.4f} {r['qrqp_ms']:9.4f} "
-              f"{r['hpipm_ms'] / r['ocpqp_ms']:7.1f} {r['qrqp_ms'] / r['ocpqp_ms']:7.1f}  "
-              f"{r.get('hpipm_agree', float('nan')):.1e}{'' if r['hpipm_ok'] else '(fail)'}, "
-              f"{r.get('qrqp_agree', float('nan')):.1e}{'' if r['qrqp_ok'] else '(fail)'}")
+        print(
+            f"{r['problem']:30s} {dims:>16s} {r['status']:>9s} {r['iterations']:3d} {r['ocpqp_ms']:9.4f} "
+            f"{r['ocpqp_per_iter_us']:6.2f} {r['ocpqp_fixed_ms']:8.4f} {r['hpipm_ms']:9.4f} {r['qrqp_ms']:9.4f} "
+            f"{r['hpipm_ms'] / r['ocpqp_ms']:7.1f} {r['qrqp_ms'] / r['ocpqp_ms']:7.1f}  "
+            f"{r.get('hpipm_agree', float('nan')):.1e}{'' if r['hpipm_ok'] else '(fail)'}, "
+            f"{r.get('qrqp_agree', float('nan')):.1e}{'' if r['qrqp_ok'] else '(fail)'}"
+        )
     cases = [bench_case(name, dims, data, a.reps, base_src) for name, dims, data in rti_cases()]
     print("\nharvested RTI QPs (tests/data; tol 1e-9, 50 iterations, dimensions compiled in)")
-    print(f"{'case':30s} {'dims':>12s} {'status':>9s} {'it':>3s} {'fixed ms':>8s}"
-          + "".join(f" {'hpipm ' + m:>14s} {'it':>3s} {'ms':>7s}" for m in HPIPM_MODES)
-          + (f" {'base status':>11s} {'it':>3s} {'base ms':>8s} {'base/new':>8s}" if base_src else ""))
+    print(
+        f"{'case':30s} {'dims':>12s} {'status':>9s} {'it':>3s} {'fixed ms':>8s}"
+        + "".join(f" {'hpipm ' + m:>14s} {'it':>3s} {'ms':>7s}" for m in HPIPM_MODES)
+        + (f" {'base status':>11s} {'it':>3s} {'base ms':>8s} {'base/new':>8s}" if base_src else "")
+    )
     for r in cases:
-        line = (f"{r['problem']:30s} {r['N']}/{r['nx']}/{r['nu']}/{r['nc']:<3d} {r['status']:>9s} {r['iterations']:3d} "
-                f"{r['ocpqp_fixed_ms']:8.4f}")
+        line = (
+            f"{r['problem']:30s} {r['N']}/{r['nx']}/{r['nu']}/{r['nc']:<3d} {r['status']:>9s} {r['iterations']:3d} "
+            f"{r['ocpqp_fixed_ms']:8.4f}"
+        )
         for m in HPIPM_MODES:
-            line += (f" {r[f'hpipm_{m}_status']:>14s} {r[f'hpipm_{m}_iterations']:3d} {r[f'hpipm_{m}_ms']:7.4f}"
-                     if f"hpipm_{m}_status" in r else f" {'n/a':>14s} {'':3s} {'':7s}")
+            line += (
+                f" {r[f'hpipm_{m}_status']:>14s} {r[f'hpipm_{m}_iterations']:3d} {r[f'hpipm_{m}_ms']:7.4f}"
+                if f"hpipm_{m}_status" in r
+                else f" {'n/a':>14s} {'':3s} {'':7s}"
+            )
         if base_src:
-            line += (f" {r['base_status']:>11s} {r['base_iterations']:3d} {r['base_fixed_ms']:8.4f} "
-                     f"{r['base_fixed_ms'] / r['ocpqp_fixed_ms']:8.2f}")
+            line += (
+                f" {r['base_status']:>11s} {r['base_iterations']:3d} {r['base_fixed_ms']:8.4f} "
+                f"{r['base_fixed_ms'] / r['ocpqp_fixed_ms']:8.2f}"
+            )
         print(line)
     if base_src:
         print("\nbaseline (same process) on the rows above: base it -> it, base fixed ms -> fixed ms (ratio base/new)")
         for r in rows:
             if "base_fixed_ms" in r:
-                print(f"{r['problem']:30s} {r['base_iterations']:3d} -> {r['iterations']:3d}  {r['base_fixed_ms']:8.4f} -> "
-                      f"{r['ocpqp_fixed_ms']:8.4f}  ({r['base_fixed_ms'] / r['ocpqp_fixed_ms']:.2f})")
+                print(
+                    f"{r['problem']:30s} {r['base_iterations']:3d} -> {r['iterations']:3d}  {r['base_fixed_ms']:8.4f} -> "
+                    f"{r['ocpqp_fixed_ms']:8.4f}  ({r['base_fixed_ms'] / r['ocpqp_fixed_ms']:.2f})"
+                )
         rows_ok = [r for r in cases if r["status"] == "ok"]
-        print(f"harvested: {len(rows_ok)}/{len(cases)} ok (baseline "
-              f"{sum(r['base_status'] == 'ok' for r in cases)}/{len(cases)})")
+        print(
+            f"harvested: {len(rows_ok)}/{len(cases)} ok (baseline "
+            f"{sum(r['base_status'] == 'ok' for r in cases)}/{len(cases)})"
+        )
     summary = backend_summary(cases)
     print("\nbackends on the harvested QPs (solved of 12; median time ratio to ocp_qp.c over the QPs both solved):")
     for k, v in summary.items():
         ratio = v.get("median_time_ratio_vs_ocp_qp")
         print(f"  {k:15s} {v['solved']:2d}/{v['of']}" + (f"  x{ratio:.2f}" if ratio is not None else ""))
     rows.extend(cases)
-    write_json(a.out, {"benchmark": "bench_ocp_qp", "reps": a.reps, "rows": rows, "backends": summary,
-                       "note": "dims = N/nx/nu/nc; times are medians (ms); 'x hpipm' = hpipm_ms / ocpqp_ms"})
+    write_json(
+        a.out,
+        {
+            "benchmark": "bench_ocp_qp",
+            "reps": a.reps,
+            "rows": rows,
+            "backends": summary,
+            "note": "dims = N/nx/nu/nc; times are medians (ms); 'x hpipm' = hpipm_ms / ocpqp_ms",
+        },
+    )
     print(f"wrote {a.out}")
 
 

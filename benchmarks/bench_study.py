@@ -38,8 +38,14 @@ OUT = Path(__file__).with_name("bench_study.json")
 
 
 def _doc(axes: list[dict[str, Any]], laws: list[str], overrides: dict[str, Any] | None = None) -> dict[str, Any]:
-    return {"name": "bench", "scenarios": ["table1"], "reference": laws[-1], "overrides": overrides or {},
-            "axes": axes, "controllers": {"laws": laws}}
+    return {
+        "name": "bench",
+        "scenarios": ["table1"],
+        "reference": laws[-1],
+        "overrides": overrides or {},
+        "axes": axes,
+        "controllers": {"laws": laws},
+    }
 
 
 def _timed(study: Any, out: Path, **kw: Any) -> tuple[float, Any]:
@@ -52,14 +58,26 @@ def closed_form(n_gap: int, n_speed: int, tmp: Path) -> dict[str, Any]:
     """Part 1 and 2."""
     gaps = np.round(np.linspace(0.25, 1.2, n_gap), 6).tolist()
     speeds = np.round(np.linspace(0.9, 1.2, n_speed), 6).tolist()
-    study = parse_study(_doc([{"key": "platoon.gap0_first", "values": gaps},
-                              {"key": "platoon.speed0_factor", "values": speeds}], ["proposed"],
-                             {"simulation.dt_out": 0.05}), "bench_closed_form.toml")
+    study = parse_study(
+        _doc(
+            [{"key": "platoon.gap0_first", "values": gaps}, {"key": "platoon.speed0_factor", "values": speeds}],
+            ["proposed"],
+            {"simulation.dt_out": 0.05},
+        ),
+        "bench_closed_form.toml",
+    )
     n = len(study.points)
     # warm the compile cache once (the same law everywhere), untimed
-    run_study(parse_study(_doc([{"key": "platoon.gap0_first", "values": [0.3]}], ["proposed"],
-                               {"simulation.dt_out": 0.05}), "warm.toml"), tmp / "warm", executor="inprocess",
-              report=False, progress_stream=io.StringIO())
+    run_study(
+        parse_study(
+            _doc([{"key": "platoon.gap0_first", "values": [0.3]}], ["proposed"], {"simulation.dt_out": 0.05}),
+            "warm.toml",
+        ),
+        tmp / "warm",
+        executor="inprocess",
+        report=False,
+        progress_stream=io.StringIO(),
+    )
     out: dict[str, Any] = {"points": n}
     out["inprocess_s"], res = _timed(study, tmp / "inproc", executor="inprocess")
     out["task_wall_sum_s"] = float(sum(r["wall_s"] for r in _task_results(tmp / "inproc")))
@@ -68,8 +86,12 @@ def closed_form(n_gap: int, n_speed: int, tmp: Path) -> dict[str, Any]:
     from aev_ocp.simulate import PlatoonSimulator, SimOptions
 
     scs = [parse_scenario(p.document, p.file) for p in study.points]  # parsed beforehand, untimed
-    sim = PlatoonSimulator(scs[0].leader, [scs[0].law("proposed")] * scs[0].n_followers, scs[0].ev,
-                           SimOptions(dt_out=scs[0].dt_out, rtol=scs[0].rtol, atol=scs[0].atol))
+    sim = PlatoonSimulator(
+        scs[0].leader,
+        [scs[0].law("proposed")] * scs[0].n_followers,
+        scs[0].ev,
+        SimOptions(dt_out=scs[0].dt_out, rtol=scs[0].rtol, atol=scs[0].atol),
+    )
     t0 = time.perf_counter()  # the best a hand-written loop can do: one simulator, run per initial state
     for sc in scs:
         sim.run(list(sc.gaps0), list(sc.speeds0), sc.t_end).metrics()
@@ -98,8 +120,10 @@ def _dask_startup(n: int) -> float:
     from dask.distributed import Client, LocalCluster
 
     t0 = time.perf_counter()
-    with LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
-                      silence_logs=40) as cl, Client(cl) as c:
+    with (
+        LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None, silence_logs=40) as cl,
+        Client(cl) as c,
+    ):
         c.run(lambda: 0)  # every worker is up
     return time.perf_counter() - t0
 
@@ -114,9 +138,14 @@ def kappa_alpha(n_kappa: int, n_alpha: int, tmp: Path) -> dict[str, Any]:
     """Part 3 and 4."""
     kappas = np.round(np.linspace(0.0, 0.5, n_kappa), 6).tolist()
     alphas = np.round(np.linspace(1.0, 3.0, n_alpha), 6).tolist()
-    study = parse_study(_doc([{"key": "carfollowing.kappa", "values": kappas},
-                              {"key": "carfollowing.alpha", "values": alphas}], ["proposed", "ovfl"],
-                             {"simulation.dt_out": 0.05}), "bench_kappa_alpha.toml")
+    study = parse_study(
+        _doc(
+            [{"key": "carfollowing.kappa", "values": kappas}, {"key": "carfollowing.alpha", "values": alphas}],
+            ["proposed", "ovfl"],
+            {"simulation.dt_out": 0.05},
+        ),
+        "bench_kappa_alpha.toml",
+    )
     cache = tmp / "cache"
     os.environ["AEV_OCP_CACHE"] = str(cache)  # empty: every law is compiled (workers inherit it)
     out: dict[str, Any] = {"points": len(study.points), "tasks_unique": len({t.key for t in study.tasks()})}
@@ -134,18 +163,32 @@ def kappa_alpha(n_kappa: int, n_alpha: int, tmp: Path) -> dict[str, Any]:
 def _sign_changes(rows: list[dict[str, Any]], kappas: list[float], alphas: list[float]) -> dict[str, Any]:
     """Per follower: the α values at which ω(proposed) − ω(OVFL) changes sign along κ, and where."""
     out: dict[str, Any] = {}
-    by = {(r["carfollowing.kappa"], r["carfollowing.alpha"], r["vehicle"]): r for r in rows
-          if r["controller"] == "proposed"}
+    by = {
+        (r["carfollowing.kappa"], r["carfollowing.alpha"], r["vehicle"]): r
+        for r in rows
+        if r["controller"] == "proposed"
+    }
     for veh in sorted({r["vehicle"] for r in rows}):
         found = []
         for a in alphas:
             seq = [(k, by[(k, a, veh)]) for k in kappas if (k, a, veh) in by]
-            seq = [(k, r["omega_model_change_pct"], r["comparable"]) for k, r in seq
-                   if r["omega_model_change_pct"] is not None and abs(r["omega_model_change_pct"]) > 1e-9]
+            seq = [
+                (k, r["omega_model_change_pct"], r["comparable"])
+                for k, r in seq
+                if r["omega_model_change_pct"] is not None and abs(r["omega_model_change_pct"]) > 1e-9
+            ]
             for (k0, c0, ok0), (k1, c1, ok1) in zip(seq, seq[1:]):
                 if c0 * c1 < 0:
-                    found.append({"alpha": a, "kappa_from": k0, "kappa_to": k1, "change_from_pct": c0,
-                                  "change_to_pct": c1, "comparable": bool(ok0 and ok1)})
+                    found.append(
+                        {
+                            "alpha": a,
+                            "kappa_from": k0,
+                            "kappa_to": k1,
+                            "change_from_pct": c0,
+                            "change_to_pct": c1,
+                            "comparable": bool(ok0 and ok1),
+                        }
+                    )
         out[f"follower_{veh}"] = found
     return out
 
@@ -157,27 +200,44 @@ def main() -> None:
     ap.add_argument("--closed-form-only", action="store_true", help="parts 1 and 2 only (skip the κ × α grid)")
     args = ap.parse_args()
     root = str(Path(__file__).resolve().parents[1])
-    os.environ["PYTHONPATH"] = os.pathsep.join([root] + [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p])
+    os.environ["PYTHONPATH"] = os.pathsep.join(
+        [root] + [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p]
+    )
     with tempfile.TemporaryDirectory(prefix="bench_study_") as d:
         tmp = Path(d)
         cf = closed_form(8 if args.quick else 20, 5 if args.quick else 10, tmp)
-        print(f"closed-form study, {cf['points']} points: 1 worker {cf['pool1_s']:.2f} s, 2 workers {cf['pool2_s']:.2f} s "
-              f"({cf['speedup_pool2']:.2f}x), Dask 2 {cf['dask2_s'] or float('nan'):.2f} s "
-              f"({cf['speedup_dask2'] or float('nan'):.2f}x), in-process {cf['inprocess_s']:.2f} s", file=sys.stderr)
+        print(
+            f"closed-form study, {cf['points']} points: 1 worker {cf['pool1_s']:.2f} s, 2 workers {cf['pool2_s']:.2f} s "
+            f"({cf['speedup_pool2']:.2f}x), Dask 2 {cf['dask2_s'] or float('nan'):.2f} s "
+            f"({cf['speedup_dask2'] or float('nan'):.2f}x), in-process {cf['inprocess_s']:.2f} s",
+            file=sys.stderr,
+        )
         if args.closed_form_only:
-            print(f"pool(2) vs pool(1) {cf['speedup_pool2']:.2f}x, Dask(2) vs pool(1) {cf['speedup_dask2'] or float('nan'):.2f}x "
-                  f"({cf.get('speedup_dask2_without_start') or float('nan'):.2f}x without its "
-                  f"{cf.get('dask_cluster_start_s') or float('nan'):.1f} s start-up), overhead "
-                  f"{cf['overhead_ms_per_point']:.1f} ms/point, tables identical {cf['tables_identical']}, "
-                  f"load average {os.getloadavg()[0]:.1f}")
-            write_json(args.out, {"closed_form": cf, "machine": {"cpus": os.cpu_count(), "load_average_at_end": os.getloadavg()}})
+            print(
+                f"pool(2) vs pool(1) {cf['speedup_pool2']:.2f}x, Dask(2) vs pool(1) {cf['speedup_dask2'] or float('nan'):.2f}x "
+                f"({cf.get('speedup_dask2_without_start') or float('nan'):.2f}x without its "
+                f"{cf.get('dask_cluster_start_s') or float('nan'):.1f} s start-up), overhead "
+                f"{cf['overhead_ms_per_point']:.1f} ms/point, tables identical {cf['tables_identical']}, "
+                f"load average {os.getloadavg()[0]:.1f}"
+            )
+            write_json(
+                args.out,
+                {"closed_form": cf, "machine": {"cpus": os.cpu_count(), "load_average_at_end": os.getloadavg()}},
+            )
             print(f"wrote {args.out}")
             return
         ka = kappa_alpha(10 if args.quick else 40, 10 if args.quick else 25, tmp)
-    res = {"closed_form": cf, "kappa_alpha": ka, "machine": {"cpus": os.cpu_count(), "python": platform.python_version(),
-                                                             "platform": platform.platform(),
-                                                             "load_average_at_end": os.getloadavg()},
-           "quick": args.quick}
+    res = {
+        "closed_form": cf,
+        "kappa_alpha": ka,
+        "machine": {
+            "cpus": os.cpu_count(),
+            "python": platform.python_version(),
+            "platform": platform.platform(),
+            "load_average_at_end": os.getloadavg(),
+        },
+        "quick": args.quick,
+    }
     rows = [
         ("pool(2) speed-up vs pool(1)", f"{cf['speedup_pool2']:.2f}x", ">= 1.7x"),
         ("Dask LocalCluster(2) vs pool(1)", f"{cf['speedup_dask2'] or float('nan'):.2f}x", ">= 1.5x"),
@@ -192,13 +252,20 @@ def main() -> None:
     print(f"{'measure':{w}}  {'measured':>12}  target")
     for name, val, tgt in rows:
         print(f"{name:{w}}  {val:>12}  {tgt}")
-    print(f"(closed-form: {cf['points']} points, 1 worker {cf['pool1_s']:.2f} s, 2 workers {cf['pool2_s']:.2f} s, "
-          f"Dask {cf['dask2_s'] or float('nan'):.2f} s, in-process {cf['inprocess_s']:.2f} s, direct {cf['direct_s']:.2f} s; "
-          f"κ×α median task {ka['task_wall_median_s']:.2f} s)")
+    print(
+        f"(closed-form: {cf['points']} points, 1 worker {cf['pool1_s']:.2f} s, 2 workers {cf['pool2_s']:.2f} s, "
+        f"Dask {cf['dask2_s'] or float('nan'):.2f} s, in-process {cf['inprocess_s']:.2f} s, direct {cf['direct_s']:.2f} s; "
+        f"κ×α median task {ka['task_wall_median_s']:.2f} s)"
+    )
     for veh, found in ka["sign_changes"].items():
-        txt = "; ".join(f"α={f['alpha']:g}: κ {f['kappa_from']:g}→{f['kappa_to']:g} "
-                        f"({f['change_from_pct']:+.2f}% → {f['change_to_pct']:+.2f}%{'' if f['comparable'] else ', not comparable'})"
-                        for f in found) or "none"
+        txt = (
+            "; ".join(
+                f"α={f['alpha']:g}: κ {f['kappa_from']:g}→{f['kappa_to']:g} "
+                f"({f['change_from_pct']:+.2f}% → {f['change_to_pct']:+.2f}%{'' if f['comparable'] else ', not comparable'})"
+                for f in found
+            )
+            or "none"
+        )
         print(f"sign change of ω saving, {veh}: {txt}")
     write_json(args.out, res)
     print(f"wrote {args.out}")

@@ -63,8 +63,9 @@ def _child(code: str, *args: str) -> dict:
 
 
 def _children(code: str, argsets: list[tuple[str, ...]]) -> list[dict]:
-    procs = [subprocess.Popen([sys.executable, "-c", code, *a], stdout=subprocess.PIPE, text=True, cwd=ROOT)
-             for a in argsets]
+    procs = [
+        subprocess.Popen([sys.executable, "-c", code, *a], stdout=subprocess.PIPE, text=True, cwd=ROOT) for a in argsets
+    ]
     return [json.loads(p.communicate()[0].strip().splitlines()[-1]) for p in procs]
 
 
@@ -79,26 +80,42 @@ def main() -> None:
         rows.append({"case": "100 cars, proposed, 2 processes at once", **r})
     print(f"{'case':45} {'sim s':>6} {'wall s':>7} {'ctrl s':>7} {'x real time':>12}")
     for r in rows:
-        print(f"{r['case']:45} {r['t_end_s']:6.0f} {r['wall_s']:7.2f} {r['controller_s']:7.2f} {r['realtime_factor']:12.1f}")
+        print(
+            f"{r['case']:45} {r['t_end_s']:6.0f} {r['wall_s']:7.2f} {r['controller_s']:7.2f} {r['realtime_factor']:12.1f}"
+        )
     mpc_rows = []
-    for k in ((1,) if quick else (1, 3)):
+    for k in (1,) if quick else (1, 3):
         m = _child(MPC_CHILD, str(k), "10" if quick else "30")
         law, mpc = m["proposed"], m["mpc"]
         calls = max(mpc["calls"], 1)
         extra_ms = 1e3 * (mpc["wall_s"] - mpc["build_s"] - law["wall_s"]) / calls  # what the MPC added per call
         own_ms = 1e3 * mpc["call_s_total"] / calls  # its own call (forecast, solve, unpacking), mean
-        mpc_rows.append({"mpc_vehicles": k, "calls": mpc["calls"], "wall_law_s": law["wall_s"],
-                         "wall_mpc_s": mpc["wall_s"], "build_s": mpc["build_s"],
-                         "controller_s": mpc["controller_s"], "solve_ms_median": mpc["solve_ms_median"],
-                         "call_ms_median": mpc["call_ms_median"], "fallbacks": mpc["fallbacks"],
-                         "added_wall_ms_per_call": extra_ms, "own_call_ms_mean": own_ms,
-                         "within_target": extra_ms <= own_ms * 1.1 + 0.05})
-    print(f"\n{'MPC cars':>8} {'calls':>6} {'wall law s':>10} {'wall MPC s':>10} {'build s':>8} {'ctrl s':>7} "
-          f"{'solve ms (median)':>17} {'own call ms':>12} {'added ms/call':>14}")
+        mpc_rows.append(
+            {
+                "mpc_vehicles": k,
+                "calls": mpc["calls"],
+                "wall_law_s": law["wall_s"],
+                "wall_mpc_s": mpc["wall_s"],
+                "build_s": mpc["build_s"],
+                "controller_s": mpc["controller_s"],
+                "solve_ms_median": mpc["solve_ms_median"],
+                "call_ms_median": mpc["call_ms_median"],
+                "fallbacks": mpc["fallbacks"],
+                "added_wall_ms_per_call": extra_ms,
+                "own_call_ms_mean": own_ms,
+                "within_target": extra_ms <= own_ms * 1.1 + 0.05,
+            }
+        )
+    print(
+        f"\n{'MPC cars':>8} {'calls':>6} {'wall law s':>10} {'wall MPC s':>10} {'build s':>8} {'ctrl s':>7} "
+        f"{'solve ms (median)':>17} {'own call ms':>12} {'added ms/call':>14}"
+    )
     for r in mpc_rows:
-        print(f"{r['mpc_vehicles']:8d} {r['calls']:6d} {r['wall_law_s']:10.2f} {r['wall_mpc_s']:10.2f} "
-              f"{r['build_s']:8.2f} {r['controller_s']:7.2f} {max(r['solve_ms_median']):17.3f} "
-              f"{r['own_call_ms_mean']:12.3f} {r['added_wall_ms_per_call']:14.3f}")
+        print(
+            f"{r['mpc_vehicles']:8d} {r['calls']:6d} {r['wall_law_s']:10.2f} {r['wall_mpc_s']:10.2f} "
+            f"{r['build_s']:8.2f} {r['controller_s']:7.2f} {max(r['solve_ms_median']):17.3f} "
+            f"{r['own_call_ms_mean']:12.3f} {r['added_wall_ms_per_call']:14.3f}"
+        )
     out = ROOT / "results" / "bench_sumo.json"
     out.parent.mkdir(exist_ok=True)
     out.write_text(json.dumps({"laws": rows, "mpc": mpc_rows, "quick": quick}, indent=2) + "\n")

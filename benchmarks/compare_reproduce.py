@@ -20,8 +20,10 @@ from typing import Any, Iterator
 
 #: Keys whose values are timings or describe the run's machine, not its results.
 #: ``arrays_sha256`` (a saved output's manifest) hashes float arrays bit for bit: no tolerance applies to it.
-TIMING = re.compile(r"^(provenance|git_commit|platform|timings_s|solve_time_s|solver_time_s|arrays_sha256)$|wall|cpu"
-                    r"|(^|_)ms($|_)")
+TIMING = re.compile(
+    r"^(provenance|git_commit|platform|timings_s|solve_time_s|solver_time_s|arrays_sha256)$|wall|cpu"
+    r"|(^|_)ms($|_)"
+)
 
 
 def differences(a: Any, b: Any, path: str, rtol: float, atol: float) -> Iterator[str]:
@@ -40,8 +42,12 @@ def differences(a: Any, b: Any, path: str, rtol: float, atol: float) -> Iterator
             return
         for i, (x, y) in enumerate(zip(a, b)):
             yield from differences(x, y, f"{path}[{i}]", rtol, atol)
-    elif isinstance(a, (int, float)) and isinstance(b, (int, float)) and not isinstance(a, bool) \
-            and not isinstance(b, bool):
+    elif (
+        isinstance(a, (int, float))
+        and isinstance(b, (int, float))
+        and not isinstance(a, bool)
+        and not isinstance(b, bool)
+    ):
         fa, fb = float(a), float(b)
         if not (fa == fb or (math.isfinite(fa) and math.isfinite(fb) and abs(fa - fb) <= atol + rtol * abs(fb))):
             yield f"{path}: {a!r} != {b!r}"
@@ -51,7 +57,9 @@ def differences(a: Any, b: Any, path: str, rtol: float, atol: float) -> Iterator
 
 def compare(base: Path, new: Path, rtol: float = 1e-9, atol: float = 1e-9) -> list[str]:
     """Every difference between the JSON files under ``base`` and ``new`` (a file missing on either side too)."""
-    files = sorted({p.relative_to(base) for p in base.rglob("*.json")} | {p.relative_to(new) for p in new.rglob("*.json")})
+    files = sorted(
+        {p.relative_to(base) for p in base.rglob("*.json")} | {p.relative_to(new) for p in new.rglob("*.json")}
+    )
     out: list[str] = []
     for rel in files:
         if not (base / rel).is_file() or not (new / rel).is_file():

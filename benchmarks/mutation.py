@@ -54,87 +54,262 @@ class Mutation:
 
 MUTATIONS: tuple[Mutation, ...] = (
     # the eight of issue 15, at their current locations
-    Mutation("M1", "stage cost uses w_V where w_r belongs", "aev_ocp/ocp/following.py",
-             "pb.add_stage_cost(wk * terms[nm], nm)",
-             'pb.add_stage_cost((wt[1] if nm == "relative" else wk) * terms[nm], nm)'),
-    Mutation("M2", "eta and 1/eta swapped in the exact powertrain switch", "aev_ocp/models/powertrain.py",
-             "ca.if_else(P_w > 0, P_w / p.efficiency, p.efficiency * P_w)",
-             "ca.if_else(P_w > 0, p.efficiency * P_w, P_w / p.efficiency)"),
-    Mutation("M3", "factor 2 dropped from the current root", "aev_ocp/models/powertrain.py",
-             "return 2.0 * P_c / (E + ca.sqrt(", "return 1.0 * P_c / (E + ca.sqrt("),
-    Mutation("M4", "R2 in the V1 branch of the cell", "aev_ocp/models/battery.py",
-             "-V1 / (p.R1_ohm * p.C1_F)", "-V1 / (p.R2_ohm * p.C1_F)"),
-    Mutation("M5", "kappa v^2 -> kappa v in the proposed law", "aev_ocp/models/carfollowing.py",
-             "return -kappa * v**2 * dv2", "return -kappa * v * dv2"),
-    Mutation("M6", "OMEGA_A / OMEGA_B swapped in the compiled omega", "aev_ocp/simulate.py",
-             "#define OMEGA_A {0.5 * (1 / eta + eta)!r}\\n#define OMEGA_B {0.5 * (1 / eta - eta)!r}",
-             "#define OMEGA_A {0.5 * (1 / eta - eta)!r}\\n#define OMEGA_B {0.5 * (1 / eta + eta)!r}"),
-    Mutation("M7", "RK4 weights (1,2,2,1)/6 -> (1,1,1,1)/4", "aev_ocp/numerics.py",
-             "x = x + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4)", "x = x + dt / 4 * (k1 + k2 + k3 + k4)"),
-    Mutation("M8", "time unit T = U/L instead of L/U in the following ODE", "aev_ocp/models/ego.py",
-             "T = ev.units.time_s", "T = ev.units.speed_mps / ev.units.length_m"),
+    Mutation(
+        "M1",
+        "stage cost uses w_V where w_r belongs",
+        "aev_ocp/ocp/following.py",
+        "pb.add_stage_cost(wk * terms[nm], nm)",
+        'pb.add_stage_cost((wt[1] if nm == "relative" else wk) * terms[nm], nm)',
+    ),
+    Mutation(
+        "M2",
+        "eta and 1/eta swapped in the exact powertrain switch",
+        "aev_ocp/models/powertrain.py",
+        "ca.if_else(P_w > 0, P_w / p.efficiency, p.efficiency * P_w)",
+        "ca.if_else(P_w > 0, p.efficiency * P_w, P_w / p.efficiency)",
+    ),
+    Mutation(
+        "M3",
+        "factor 2 dropped from the current root",
+        "aev_ocp/models/powertrain.py",
+        "return 2.0 * P_c / (E + ca.sqrt(",
+        "return 1.0 * P_c / (E + ca.sqrt(",
+    ),
+    Mutation(
+        "M4",
+        "R2 in the V1 branch of the cell",
+        "aev_ocp/models/battery.py",
+        "-V1 / (p.R1_ohm * p.C1_F)",
+        "-V1 / (p.R2_ohm * p.C1_F)",
+    ),
+    Mutation(
+        "M5",
+        "kappa v^2 -> kappa v in the proposed law",
+        "aev_ocp/models/carfollowing.py",
+        "return -kappa * v**2 * dv2",
+        "return -kappa * v * dv2",
+    ),
+    Mutation(
+        "M6",
+        "OMEGA_A / OMEGA_B swapped in the compiled omega",
+        "aev_ocp/simulate.py",
+        "#define OMEGA_A {0.5 * (1 / eta + eta)!r}\\n#define OMEGA_B {0.5 * (1 / eta - eta)!r}",
+        "#define OMEGA_A {0.5 * (1 / eta - eta)!r}\\n#define OMEGA_B {0.5 * (1 / eta + eta)!r}",
+    ),
+    Mutation(
+        "M7",
+        "RK4 weights (1,2,2,1)/6 -> (1,1,1,1)/4",
+        "aev_ocp/numerics.py",
+        "x = x + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4)",
+        "x = x + dt / 4 * (k1 + k2 + k3 + k4)",
+    ),
+    Mutation(
+        "M8",
+        "time unit T = U/L instead of L/U in the following ODE",
+        "aev_ocp/models/ego.py",
+        "T = ev.units.time_s",
+        "T = ev.units.speed_mps / ev.units.length_m",
+    ),
     # more of the same kind
-    Mutation("M9", "R1 <-> R2 in Q_irr", "aev_ocp/models/battery.py",
-             "V1**2 / p.R1_ohm + V2**2 / p.R2_ohm", "V1**2 / p.R2_ohm + V2**2 / p.R1_ohm"),
-    Mutation("M10", "sign of the beta term (OVFL)", "aev_ocp/models/carfollowing.py",
-             "self.beta * (v_l - v) / h**2", "self.beta * (v - v_l) / h**2"),
-    Mutation("M11", "epsilon placement (eps v^2 in the denominator)", "aev_ocp/models/carfollowing.py",
-             "dv2 / (dv2 + eps)", "dv2 / (dv2 + eps * v**2)"),
-    Mutation("M12", "C1 in place of C2 in the V2 branch", "aev_ocp/models/battery.py",
-             "+ I / p.C2_F,", "+ I / p.C1_F,"),
-    Mutation("M13", "Q_irr missing the V2 term", "aev_ocp/models/battery.py",
-             "p.R_s_ohm * I**2 + V1**2 / p.R1_ohm + V2**2 / p.R2_ohm", "p.R_s_ohm * I**2 + V1**2 / p.R1_ohm"),
-    Mutation("M14", "OCV evaluated at 1 - S in the current map", "aev_ocp/models/powertrain.py",
-             "E = battery.ocv(S) - V1 - V2", "E = battery.ocv(1 - S) - V1 - V2"),
-    Mutation("M15", "soft-constraint penalty sign", "aev_ocp/ocp/problem.py",
-             "self.add_stage_cost(soft * sigma +", "self.add_stage_cost(-soft * sigma +"),
-    Mutation("M16", "plant event rule offset sign (negative speed)", "aev_ocp/plant.py",
-             '"v", 1.0, -PLAN_TOLERANCE, False', '"v", 1.0, PLAN_TOLERANCE, False'),
-    Mutation("M17", "smoothed eta switch: sigma on the wrong branch", "aev_ocp/models/powertrain.py",
-             "P_w * (sigma / p.efficiency + (1 - sigma) * p.efficiency)",
-             "P_w * ((1 - sigma) / p.efficiency + sigma * p.efficiency)"),
-    Mutation("M18", "eta and 1/eta swapped in g (plant omega, energy objective)", "aev_ocp/models/energy.py",
-             "ca.if_else(u >= 0, u / eta, eta * u)", "ca.if_else(u >= 0, eta * u, u / eta)"),
-    Mutation("M19", "SOC rate in minutes (360 for 3600)", "aev_ocp/models/battery.py",
-             "-I / (3600.0 * p.capacity_Ah)", "-I / (360.0 * p.capacity_Ah)"),
-    Mutation("M20", "RK4 quadrature weights (1,2,2,1) -> (1,1,1,1) (Lagrange cost)", "aev_ocp/numerics.py",
-             "q = q + dt / 6 * (g(x) + 2 * g(x + dt / 2 * k1) + 2 * g(x + dt / 2 * k2) + g(x + dt * k3))",
-             "q = q + dt / 4 * (g(x) + g(x + dt / 2 * k1) + g(x + dt / 2 * k2) + g(x + dt * k3))"),
-    Mutation("M21", "sign of V2 in Q", "aev_ocp/models/battery.py",
-             "return I * (V1 + V2) + p.R_s_ohm * I**2", "return I * (V1 - V2) + p.R_s_ohm * I**2"),
-    Mutation("M22", "cell power divided by N_s only", "aev_ocp/models/powertrain.py",
-             "return P_b / pack.n_cells", "return P_b / pack.n_series"),
-    Mutation("M23", "w_r term uses the interval-mean leader speed", "aev_ocp/ocp/following.py",
-             "terms = following_stage_terms(z, a, v_hat,", "terms = following_stage_terms(z, a, v_mean,"),
-    Mutation("M24", "gap dynamics use v_hat instead of the interval mean", "aev_ocp/ocp/following.py",
-             "rhs = following_ode(z, a, v_mean, ev, smooth)", "rhs = following_ode(z, a, v_hat, ev, smooth)"),
-    Mutation("M25", "plant's pack heat quadrature not scaled by T", "aev_ocp/plant.py",
-             'quad += [T * b["Q_pack"], T * b["Q_irr_pack"]]', 'quad += [b["Q_pack"], T * b["Q_irr_pack"]]'),
-    Mutation("M26", "cascade's Q and Q_irr quadratures swapped", "aev_ocp/simulate.py",
-             'quad += [T * b["Q_pack"], T * b["Q_irr_pack"]]', 'quad += [T * b["Q_irr_pack"], T * b["Q_pack"]]'),
-    Mutation("M27", "acceleration unit U/L instead of U^2/L", "aev_ocp/params.py",
-             "return self.speed_mps**2 / self.length_m", "return self.speed_mps / self.length_m"),
-    Mutation("M28", "OCP-D solves with the default weights, not the scenario's", "aev_ocp/ocp/oracle.py",
-             "p=weight_vector(scn.weights)", "p=weight_vector(FollowingWeights())"),
-    Mutation("M29", "MPC ignores the per-solve weights", "aev_ocp/mpc/controller.py",
-             "wt = weight_vector(weights or self.settings.weights)", "wt = weight_vector(self.settings.weights)"),
-    Mutation("M30", "a Dormand-Prince weight in the C cascade (500/1113 -> 500/1112)", "aev_ocp/c/cascade.c",
-             "DP_B[6] = {35.0/384, 0, 500.0/1113,", "DP_B[6] = {35.0/384, 0, 500.0/1112,"),
-    Mutation("M31", "optimal-velocity offset 2 -> 2.2", "aev_ocp/models/carfollowing.py",
-             "return ca.tanh(h - 2.0) + TANH2", "return ca.tanh(h - 2.2) + TANH2"),
-    Mutation("M32", "plant checks the gap row for negative speed", "aev_ocp/plant.py",
-             '"v": lambda M, Y: M[n:2 * n]', '"v": lambda M, Y: M[:n]'),
-    Mutation("M33", "paper leader amplitude 1.65/1.37 -> 1.37/1.65", "aev_ocp/models/leader.py",
-             "amplitude: float = 1.65 / 1.37", "amplitude: float = 1.37 / 1.65"),
-    Mutation("M34", "collocation's Lagrange quadrature without the interval length", "aev_ocp/ocp/transcription.py",
-             "J = J + B[j] * ell(Xc[j]) * h", "J = J + B[j] * ell(Xc[j])"),
-    Mutation("M35", "plant's jerk: leader time derivative scaled by L, not 1/L", "aev_ocp/plant.py",
-             "+ ca.jacobian(a, s) / p[1]", "+ ca.jacobian(a, s) * p[1]"),
-    Mutation("M36", "cascade's jerk without the predecessor-acceleration term", "aev_ocp/simulate.py",
-             "jerk = ca.jacobian(a, h) * hdot + ca.jacobian(a, v) * a + ca.jacobian(a, vl) * al",
-             "jerk = ca.jacobian(a, h) * hdot + ca.jacobian(a, v) * a"),
-    Mutation("M37", "RMS metrics: square root taken before dividing by the duration", "aev_ocp/metrics.py",
-             "math.sqrt(max(float(c[-1, i]), 0.0) / duration)", "math.sqrt(max(float(c[-1, i]), 0.0)) / duration"),
+    Mutation(
+        "M9",
+        "R1 <-> R2 in Q_irr",
+        "aev_ocp/models/battery.py",
+        "V1**2 / p.R1_ohm + V2**2 / p.R2_ohm",
+        "V1**2 / p.R2_ohm + V2**2 / p.R1_ohm",
+    ),
+    Mutation(
+        "M10",
+        "sign of the beta term (OVFL)",
+        "aev_ocp/models/carfollowing.py",
+        "self.beta * (v_l - v) / h**2",
+        "self.beta * (v - v_l) / h**2",
+    ),
+    Mutation(
+        "M11",
+        "epsilon placement (eps v^2 in the denominator)",
+        "aev_ocp/models/carfollowing.py",
+        "dv2 / (dv2 + eps)",
+        "dv2 / (dv2 + eps * v**2)",
+    ),
+    Mutation(
+        "M12", "C1 in place of C2 in the V2 branch", "aev_ocp/models/battery.py", "+ I / p.C2_F,", "+ I / p.C1_F,"
+    ),
+    Mutation(
+        "M13",
+        "Q_irr missing the V2 term",
+        "aev_ocp/models/battery.py",
+        "p.R_s_ohm * I**2 + V1**2 / p.R1_ohm + V2**2 / p.R2_ohm",
+        "p.R_s_ohm * I**2 + V1**2 / p.R1_ohm",
+    ),
+    Mutation(
+        "M14",
+        "OCV evaluated at 1 - S in the current map",
+        "aev_ocp/models/powertrain.py",
+        "E = battery.ocv(S) - V1 - V2",
+        "E = battery.ocv(1 - S) - V1 - V2",
+    ),
+    Mutation(
+        "M15",
+        "soft-constraint penalty sign",
+        "aev_ocp/ocp/problem.py",
+        "self.add_stage_cost(soft * sigma +",
+        "self.add_stage_cost(-soft * sigma +",
+    ),
+    Mutation(
+        "M16",
+        "plant event rule offset sign (negative speed)",
+        "aev_ocp/plant.py",
+        '"v", 1.0, -PLAN_TOLERANCE, False',
+        '"v", 1.0, PLAN_TOLERANCE, False',
+    ),
+    Mutation(
+        "M17",
+        "smoothed eta switch: sigma on the wrong branch",
+        "aev_ocp/models/powertrain.py",
+        "P_w * (sigma / p.efficiency + (1 - sigma) * p.efficiency)",
+        "P_w * ((1 - sigma) / p.efficiency + sigma * p.efficiency)",
+    ),
+    Mutation(
+        "M18",
+        "eta and 1/eta swapped in g (plant omega, energy objective)",
+        "aev_ocp/models/energy.py",
+        "ca.if_else(u >= 0, u / eta, eta * u)",
+        "ca.if_else(u >= 0, eta * u, u / eta)",
+    ),
+    Mutation(
+        "M19",
+        "SOC rate in minutes (360 for 3600)",
+        "aev_ocp/models/battery.py",
+        "-I / (3600.0 * p.capacity_Ah)",
+        "-I / (360.0 * p.capacity_Ah)",
+    ),
+    Mutation(
+        "M20",
+        "RK4 quadrature weights (1,2,2,1) -> (1,1,1,1) (Lagrange cost)",
+        "aev_ocp/numerics.py",
+        "q = q + dt / 6 * (g(x) + 2 * g(x + dt / 2 * k1) + 2 * g(x + dt / 2 * k2) + g(x + dt * k3))",
+        "q = q + dt / 4 * (g(x) + g(x + dt / 2 * k1) + g(x + dt / 2 * k2) + g(x + dt * k3))",
+    ),
+    Mutation(
+        "M21",
+        "sign of V2 in Q",
+        "aev_ocp/models/battery.py",
+        "return I * (V1 + V2) + p.R_s_ohm * I**2",
+        "return I * (V1 - V2) + p.R_s_ohm * I**2",
+    ),
+    Mutation(
+        "M22",
+        "cell power divided by N_s only",
+        "aev_ocp/models/powertrain.py",
+        "return P_b / pack.n_cells",
+        "return P_b / pack.n_series",
+    ),
+    Mutation(
+        "M23",
+        "w_r term uses the interval-mean leader speed",
+        "aev_ocp/ocp/following.py",
+        "terms = following_stage_terms(z, a, v_hat,",
+        "terms = following_stage_terms(z, a, v_mean,",
+    ),
+    Mutation(
+        "M24",
+        "gap dynamics use v_hat instead of the interval mean",
+        "aev_ocp/ocp/following.py",
+        "rhs = following_ode(z, a, v_mean, ev, smooth)",
+        "rhs = following_ode(z, a, v_hat, ev, smooth)",
+    ),
+    Mutation(
+        "M25",
+        "plant's pack heat quadrature not scaled by T",
+        "aev_ocp/plant.py",
+        'quad += [T * b["Q_pack"], T * b["Q_irr_pack"]]',
+        'quad += [b["Q_pack"], T * b["Q_irr_pack"]]',
+    ),
+    Mutation(
+        "M26",
+        "cascade's Q and Q_irr quadratures swapped",
+        "aev_ocp/simulate.py",
+        'quad += [T * b["Q_pack"], T * b["Q_irr_pack"]]',
+        'quad += [T * b["Q_irr_pack"], T * b["Q_pack"]]',
+    ),
+    Mutation(
+        "M27",
+        "acceleration unit U/L instead of U^2/L",
+        "aev_ocp/params.py",
+        "return self.speed_mps**2 / self.length_m",
+        "return self.speed_mps / self.length_m",
+    ),
+    Mutation(
+        "M28",
+        "OCP-D solves with the default weights, not the scenario's",
+        "aev_ocp/ocp/oracle.py",
+        "p=weight_vector(scn.weights)",
+        "p=weight_vector(FollowingWeights())",
+    ),
+    Mutation(
+        "M29",
+        "MPC ignores the per-solve weights",
+        "aev_ocp/mpc/controller.py",
+        "wt = weight_vector(weights or self.settings.weights)",
+        "wt = weight_vector(self.settings.weights)",
+    ),
+    Mutation(
+        "M30",
+        "a Dormand-Prince weight in the C cascade (500/1113 -> 500/1112)",
+        "aev_ocp/c/cascade.c",
+        "DP_B[6] = {35.0/384, 0, 500.0/1113,",
+        "DP_B[6] = {35.0/384, 0, 500.0/1112,",
+    ),
+    Mutation(
+        "M31",
+        "optimal-velocity offset 2 -> 2.2",
+        "aev_ocp/models/carfollowing.py",
+        "return ca.tanh(h - 2.0) + TANH2",
+        "return ca.tanh(h - 2.2) + TANH2",
+    ),
+    Mutation(
+        "M32",
+        "plant checks the gap row for negative speed",
+        "aev_ocp/plant.py",
+        '"v": lambda M, Y: M[n:2 * n]',
+        '"v": lambda M, Y: M[:n]',
+    ),
+    Mutation(
+        "M33",
+        "paper leader amplitude 1.65/1.37 -> 1.37/1.65",
+        "aev_ocp/models/leader.py",
+        "amplitude: float = 1.65 / 1.37",
+        "amplitude: float = 1.37 / 1.65",
+    ),
+    Mutation(
+        "M34",
+        "collocation's Lagrange quadrature without the interval length",
+        "aev_ocp/ocp/transcription.py",
+        "J = J + B[j] * ell(Xc[j]) * h",
+        "J = J + B[j] * ell(Xc[j])",
+    ),
+    Mutation(
+        "M35",
+        "plant's jerk: leader time derivative scaled by L, not 1/L",
+        "aev_ocp/plant.py",
+        "+ ca.jacobian(a, s) / p[1]",
+        "+ ca.jacobian(a, s) * p[1]",
+    ),
+    Mutation(
+        "M36",
+        "cascade's jerk without the predecessor-acceleration term",
+        "aev_ocp/simulate.py",
+        "jerk = ca.jacobian(a, h) * hdot + ca.jacobian(a, v) * a + ca.jacobian(a, vl) * al",
+        "jerk = ca.jacobian(a, h) * hdot + ca.jacobian(a, v) * a",
+    ),
+    Mutation(
+        "M37",
+        "RMS metrics: square root taken before dividing by the duration",
+        "aev_ocp/metrics.py",
+        "math.sqrt(max(float(c[-1, i]), 0.0) / duration)",
+        "math.sqrt(max(float(c[-1, i]), 0.0)) / duration",
+    ),
 )
 
 
@@ -151,8 +326,13 @@ class Outcome:
 
 
 def repo_files(root: Path) -> list[str]:
-    out = subprocess.run(["git", "ls-files", "--cached", "--others", "--exclude-standard"], cwd=root,
-                         capture_output=True, text=True, check=True).stdout.split("\n")
+    out = subprocess.run(
+        ["git", "ls-files", "--cached", "--others", "--exclude-standard"],
+        cwd=root,
+        capture_output=True,
+        text=True,
+        check=True,
+    ).stdout.split("\n")
     return [f for f in out if f and (root / f).is_file()]
 
 
@@ -224,8 +404,9 @@ def table(rows: list[Outcome]) -> str:
     lines = [head, "-" * len(head)]
     for r in rows:
         mark = ("FAILS" if r.caught else "passes") if r.key == "base" else ("yes" if r.caught else "NO")
-        lines.append(f"{r.key:<5} {r.what[:58]:<58} {r.path:<30} {mark:<7} "
-                     f"{r.stage:<6} {r.seconds:6.0f}  {r.first_failure}")
+        lines.append(
+            f"{r.key:<5} {r.what[:58]:<58} {r.path:<30} {mark:<7} {r.stage:<6} {r.seconds:6.0f}  {r.first_failure}"
+        )
     return "\n".join(lines)
 
 
@@ -254,19 +435,30 @@ def main() -> int:
     for m in plan:
         r = run_one(m, files, a.full or m is None, a.timeout)
         rows.append(r)
-        verdict = ("FAILS (the unmutated suite must pass)" if r.caught else "passes") if m is None else (
-            "caught" if r.caught else "SURVIVED")
-        print(f"[{time.perf_counter() - t0:7.0f} s] {r.key}: {verdict} "
-              f"({r.stage}, {r.seconds:.0f} s) {r.first_failure} {r.message[:160]}", flush=True)
+        verdict = (
+            ("FAILS (the unmutated suite must pass)" if r.caught else "passes")
+            if m is None
+            else ("caught" if r.caught else "SURVIVED")
+        )
+        print(
+            f"[{time.perf_counter() - t0:7.0f} s] {r.key}: {verdict} "
+            f"({r.stage}, {r.seconds:.0f} s) {r.first_failure} {r.message[:160]}",
+            flush=True,
+        )
     print()
     print(table(rows))
     total = time.perf_counter() - t0
     n_mut = sum(1 for r in rows if r.key != "base")
     n_caught = sum(1 for r in rows if r.key != "base" and r.caught)
     print(f"\n{n_caught}/{n_mut} mutations caught in {total:.0f} s")
-    out = {"when": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()), "total_s": total,
-           "python": sys.version.split()[0], "cpus": os.cpu_count(), "fast_files": list(FAST_FILES),
-           "results": [asdict(r) for r in rows]}
+    out = {
+        "when": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+        "total_s": total,
+        "python": sys.version.split()[0],
+        "cpus": os.cpu_count(),
+        "fast_files": list(FAST_FILES),
+        "results": [asdict(r) for r in rows],
+    }
     tmp = Path(a.json).with_suffix(".json.tmp")
     tmp.write_text(json.dumps(out, indent=2) + "\n")
     tmp.replace(a.json)

@@ -38,20 +38,30 @@ def main(quick: bool = False) -> dict[str, dict[str, Any]]:
     ev, s9 = EVParams(), s9_formulation()
     s = MPCSettings(N=40, predictor="oracle")  # solver options only; §9's forecast, as its scenarios
     t_end = 6.0 if quick else 70.0
-    runs = {"mpc (§9)": MPCVehicle(s, formulation=s9),
-            "mpc (§9) + headway": MPCVehicle(s, problem=headway_problem(ev, s9))}
+    runs = {
+        "mpc (§9)": MPCVehicle(s, formulation=s9),
+        "mpc (§9) + headway": MPCVehicle(s, problem=headway_problem(ev, s9)),
+    }
     out = {}
     for name, veh in runs.items():
         r = run_closed_loop(PaperLeader(), [veh], [0.3], [1.87], t_end, ev=ev)
         margin = (r.gap[:, 0] - T_HEADWAY * r.speed[:, 0])[r.t >= t_end / 2].min()
         d = r.meta["controllers"][0]
-        out[name] = {"margin": float(margin), "controller": r.controllers[0], "problem": d["problem"],
-                     "formulation": d["formulation"]["kind"], "family": d["formulation"]["family"],
-                     "bounds_model": d["bounds_model"], "status": r.status}
-        print(f"{name:>18}: status {r.status}, min (h - T_h v) over the second half = {margin:.3f} "
-              f"(h_min = {d['bounds_model']['h_min']:g}, v_max = {d['bounds_model']['v_max']:g}), pack heat "
-              f"{r.metrics()[0]['heat_pack_J']:.0f} J; controller {r.controllers[0]}, problem {d['problem']} "
-              f"(formulation {d['formulation']['kind']}, family {d['formulation']['family']})")
+        out[name] = {
+            "margin": float(margin),
+            "controller": r.controllers[0],
+            "problem": d["problem"],
+            "formulation": d["formulation"]["kind"],
+            "family": d["formulation"]["family"],
+            "bounds_model": d["bounds_model"],
+            "status": r.status,
+        }
+        print(
+            f"{name:>18}: status {r.status}, min (h - T_h v) over the second half = {margin:.3f} "
+            f"(h_min = {d['bounds_model']['h_min']:g}, v_max = {d['bounds_model']['v_max']:g}), pack heat "
+            f"{r.metrics()[0]['heat_pack_J']:.0f} J; controller {r.controllers[0]}, problem {d['problem']} "
+            f"(formulation {d['formulation']['kind']}, family {d['formulation']['family']})"
+        )
     return out
 
 

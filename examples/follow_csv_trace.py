@@ -29,21 +29,33 @@ def main(quick: bool = False, out: str | None = None) -> dict[str, object]:
     if quick:
         sc = sc.with_overrides({"simulation.t_end": 4.0})
     # the same vehicle's positions [ft], differentiated: agrees with its recorded speed to the rounding
-    from_pos = csv_trace(HERE / "data" / "ngsim_style_trace.csv", sc.units, time_column="Global_Time", time_unit="ms",
-                         position_column="Local_Y", position_unit="ft", filter_column="Vehicle_ID", filter_value=1042)
+    from_pos = csv_trace(
+        HERE / "data" / "ngsim_style_trace.csv",
+        sc.units,
+        time_column="Global_Time",
+        time_unit="ms",
+        position_column="Local_Y",
+        position_unit="ft",
+        filter_column="Vehicle_ID",
+        filter_value=1042,
+    )
     t = np.linspace(0.0, sc.t_end, 2001)
     dv = float(np.max(np.abs(from_pos.speed_np(t) - sc.leader.speed_np(t)))) * sc.units.speed_mps
     results = sc.run()
-    print(f"leader: {sc.leader.times[-1] * sc.units.time_s:g} s of vehicle 1042, top speed "
-          f"{max(sc.leader.speeds) * sc.units.speed_mps:.3g} m/s; speed column vs d/dt(position column): "
-          f"max difference {dv:.2g} m/s")
+    print(
+        f"leader: {sc.leader.times[-1] * sc.units.time_s:g} s of vehicle 1042, top speed "
+        f"{max(sc.leader.speeds) * sc.units.speed_mps:.3g} m/s; speed column vs d/dt(position column): "
+        f"max difference {dv:.2g} m/s"
+    )
     print(f"{'law':>10} {'vehicle':>8} {'ω [J/kg]':>10} {'pack ∫Q [J]':>12} {'min gap [m]':>12}")
     metrics = {}
     for label, r in results.items():
         metrics[label] = r.metrics()
         for m in metrics[label]:
-            print(f"{label:>10} {m['vehicle']:>8} {m['omega_J_per_kg']:>10.4g} {m['heat_pack_J']:>12.5g} "
-                  f"{m['min_gap_m']:>12.4g}")
+            print(
+                f"{label:>10} {m['vehicle']:>8} {m['omega_J_per_kg']:>10.4g} {m['heat_pack_J']:>12.5g} "
+                f"{m['min_gap_m']:>12.4g}"
+            )
     if out is not None:
         from aev_ocp.saved import save_output, settings_of
 

@@ -28,11 +28,21 @@ from aev_ocp.mpc.plots import plot_overlay
 from aev_ocp.params import EVParams, Units
 from aev_ocp.simulate import simulate_platoon
 
-KEEP = ("omega_J_per_kg", "heat_pack_J", "delta_soc", "min_gap_m", "rms_rel_speed_model", "rms_jerk_model",
-        "max_abs_current_A", "status")
+KEEP = (
+    "omega_J_per_kg",
+    "heat_pack_J",
+    "delta_soc",
+    "min_gap_m",
+    "rms_rel_speed_model",
+    "rms_jerk_model",
+    "max_abs_current_A",
+    "status",
+)
 
 
-def main(quick: bool = False, cycle: str = "us06", out: Path = Path("results/examples/mpc_drive_cycle")) -> dict[str, Any]:
+def main(
+    quick: bool = False, cycle: str = "us06", out: Path = Path("results/examples/mpc_drive_cycle")
+) -> dict[str, Any]:
     units = Units(length_m=20.0, speed_mps=22.0)  # as scenario us06_platoon (highway speeds stay below V∞·U)
     ev = EVParams(units=units)
     leader = drive_cycle(cycle, units)
@@ -47,11 +57,14 @@ def main(quick: bool = False, cycle: str = "us06", out: Path = Path("results/exa
     metrics["mpc"].update({"solve_ms_median": stats.get("solve_ms_median"), "fallbacks": stats.get("fallbacks")})
     out.mkdir(parents=True, exist_ok=True)
     plot_overlay(runs, out / "overlay.png", vehicle=0)  # draws the running formulation's gap floor (2 m)
-    (out / "mpc_drive_cycle.json").write_text(json.dumps({"cycle": cycle, "t_end_s": units.time_to_si(t_end),
-                                                          "metrics": metrics}, indent=1))
+    (out / "mpc_drive_cycle.json").write_text(
+        json.dumps({"cycle": cycle, "t_end_s": units.time_to_si(t_end), "metrics": metrics}, indent=1)
+    )
     for k, m in metrics.items():
-        print(f"{k:>9}: {m['status']}, ω {m['omega_J_per_kg']:.2f} J/kg, pack heat {m['heat_pack_J']:.0f} J, "
-              f"min gap {m['min_gap_m']:.2f} m, RMS jerk {m['rms_jerk_model']:.3g}")
+        print(
+            f"{k:>9}: {m['status']}, ω {m['omega_J_per_kg']:.2f} J/kg, pack heat {m['heat_pack_J']:.0f} J, "
+            f"min gap {m['min_gap_m']:.2f} m, RMS jerk {m['rms_jerk_model']:.3g}"
+        )
     return metrics
 
 

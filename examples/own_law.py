@@ -55,14 +55,20 @@ def main(quick: bool = False, out: Path = Path("results/examples/own_law")) -> d
         law = make_law(name)
         r = simulate_platoon(leader, [law] * n, [0.8] * n, [0.0] * n, t_end, ev=ev, dt_out=0.1)
         ms = r.metrics()
-        summary[name] = {"status": r.status, "omega_J_per_kg": sum(m["omega_J_per_kg"] for m in ms),
-                         "heat_pack_J": sum(m["heat_pack_J"] for m in ms), "min_gap_m": min(m["min_gap_m"] for m in ms),
-                         "max_abs_accel_mps2": max(float(units.accel_to_si(abs(r.accel).max())), 0.0)}
+        summary[name] = {
+            "status": r.status,
+            "omega_J_per_kg": sum(m["omega_J_per_kg"] for m in ms),
+            "heat_pack_J": sum(m["heat_pack_J"] for m in ms),
+            "min_gap_m": min(m["min_gap_m"] for m in ms),
+            "max_abs_accel_mps2": max(float(units.accel_to_si(abs(r.accel).max())), 0.0),
+        }
         if name == "gentle_ovfl":
             plot_space_time(r, out / "own_law_space_time.png", title=f"{n} GentleOVFL followers behind UDDS")
-        print(f"{name:>12}: status {r.status}, Σω = {summary[name]['omega_J_per_kg']:.1f} J/kg, "
-              f"pack heat {summary[name]['heat_pack_J']:.0f} J, min gap {summary[name]['min_gap_m']:.2f} m, "
-              f"max |a| {summary[name]['max_abs_accel_mps2']:.2f} m/s²")
+        print(
+            f"{name:>12}: status {r.status}, Σω = {summary[name]['omega_J_per_kg']:.1f} J/kg, "
+            f"pack heat {summary[name]['heat_pack_J']:.0f} J, min gap {summary[name]['min_gap_m']:.2f} m, "
+            f"max |a| {summary[name]['max_abs_accel_mps2']:.2f} m/s²"
+        )
     out.mkdir(parents=True, exist_ok=True)
     (out / "own_law.json").write_text(json.dumps(summary, indent=1))
     return summary

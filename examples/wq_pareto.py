@@ -51,8 +51,10 @@ def main(quick: bool = False, out: Path = Path("results/examples/wq_pareto")) ->
     (out / "wq_pareto.json").write_text(json.dumps(rows, indent=1))
     _plot(rows, out / "wq_pareto.png")
     for r in rows:
-        print(f"{r['controller']:>14}: pack heat {r['heat_pack_J']:8.1f} J, RMS rel. speed "
-              f"{r['rms_rel_speed_model']:.4f}{'  (front)' if r.get('pareto') else ''}")
+        print(
+            f"{r['controller']:>14}: pack heat {r['heat_pack_J']:8.1f} J, RMS rel. speed "
+            f"{r['rms_rel_speed_model']:.4f}{'  (front)' if r.get('pareto') else ''}"
+        )
     return rows
 
 
@@ -64,11 +66,21 @@ def _metrics(r: Any) -> dict[str, Any]:
 def _plot(rows: list[dict[str, Any]], path: Path) -> None:
     fig, ax = plt.subplots(figsize=(6.5, 4.2))
     mpc = sorted((r for r in rows if r["w_Q"] is not None), key=lambda r: r["heat_pack_J"])
-    ax.plot([r["heat_pack_J"] for r in mpc], [r["rms_rel_speed_model"] for r in mpc], "o-", color="tab:red",
-            label="MPC, w_Q swept")
+    ax.plot(
+        [r["heat_pack_J"] for r in mpc],
+        [r["rms_rel_speed_model"] for r in mpc],
+        "o-",
+        color="tab:red",
+        label="MPC, w_Q swept",
+    )
     for r in mpc:
-        ax.annotate(f"w_Q = {r['w_Q']:g}", (r["heat_pack_J"], r["rms_rel_speed_model"]), fontsize=7,
-                    xytext=(4, 4), textcoords="offset points")
+        ax.annotate(
+            f"w_Q = {r['w_Q']:g}",
+            (r["heat_pack_J"], r["rms_rel_speed_model"]),
+            fontsize=7,
+            xytext=(4, 4),
+            textcoords="offset points",
+        )
     for r, marker in zip([r for r in rows if r["w_Q"] is None], ("s", "^")):
         ax.plot([r["heat_pack_J"]], [r["rms_rel_speed_model"]], marker, ms=8, label=r["controller"])
     ax.set_xlabel("pack heat ∫Q dt [J]")

@@ -25,19 +25,21 @@ class TwinRTIStep(RTIStep):
         super().__init__(c.nlp, "hpipm", HPIPM_INF_TRAFFIC if c.formulation.family == "traffic" else None, False)
         N, nx, nu = c.settings.N, c.nx, c.nu
         self.fdata = qp_data_function(c).expand()
-        self.ocp_qp = OcpQP(OcpQPDims(N, nx, nu, c.nlp.ng_stage - nx, 0),
-                            OcpQPSettings(max_iter=QP_MAX_ITER, tol_stat=QP_TOL, tol_eq=QP_TOL, tol_ineq=QP_TOL,
-                                          tol_comp=QP_TOL))
+        self.ocp_qp = OcpQP(
+            OcpQPDims(N, nx, nu, c.nlp.ng_stage - nx, 0),
+            OcpQPSettings(max_iter=QP_MAX_ITER, tol_stat=QP_TOL, tol_eq=QP_TOL, tol_ineq=QP_TOL, tol_comp=QP_TOL),
+        )
 
-    def qp_step(self, x: np.ndarray, p: np.ndarray, lam_g: np.ndarray, lam_x: np.ndarray, lbx: np.ndarray,
-                ubx: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool, str]:
+    def qp_step(
+        self, x: np.ndarray, p: np.ndarray, lam_g: np.ndarray, lam_x: np.ndarray, lbx: np.ndarray, ubx: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool, str]:
         nlp = self.nlp
         N, nx, nb, ngs = nlp.settings.N, nlp.nx, nlp.nx + nlp.nu, nlp.ng_stage
         H, g, E, e, C, lc, uc, lbw, ubw = (np.asarray(v, float).ravel() for v in self.fdata(x, p, lam_g))
 
         def projected(H: np.ndarray) -> np.ndarray:
-            B = project_pd(H[:N * nb * nb].reshape(N, nb, nb).transpose(0, 2, 1))
-            HN = project_pd(H[N * nb * nb:].reshape(1, nx, nx).transpose(0, 2, 1))
+            B = project_pd(H[: N * nb * nb].reshape(N, nb, nb).transpose(0, 2, 1))
+            HN = project_pd(H[N * nb * nb :].reshape(1, nx, nx).transpose(0, 2, 1))
             return np.concatenate([B.transpose(0, 2, 1).ravel(), HN.transpose(0, 2, 1).ravel()])
 
         exact = nlp.settings.rti_hessian == "exact"

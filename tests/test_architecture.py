@@ -38,12 +38,15 @@ def _tracking_problem(soft: float | None) -> ProblemBuilder:
     return pb
 
 
-@pytest.mark.parametrize("soft, expected", [
-    (None, 1.1),  # hard: the bound; its multiplier is 2 (2.3 − 1.1) = 2.4 per unit time
-    (5.7, 1.1),  # exact penalty: a penalty above the multiplier recovers the hard optimum exactly
-    # below it the optimum of (u − 2.3)² + ρ σ + q σ² with σ = u − 1.1: 2(u − 2.3) + ρ + 2q(u − 1.1) = 0
-    (1.3, (4.6 - 1.3 + 2 * 0.004 * 1.1) / (2 + 2 * 0.004)),
-])
+@pytest.mark.parametrize(
+    "soft, expected",
+    [
+        (None, 1.1),  # hard: the bound; its multiplier is 2 (2.3 − 1.1) = 2.4 per unit time
+        (5.7, 1.1),  # exact penalty: a penalty above the multiplier recovers the hard optimum exactly
+        # below it the optimum of (u − 2.3)² + ρ σ + q σ² with σ = u − 1.1: 2(u − 2.3) + ρ + 2q(u − 1.1) = 0
+        (1.3, (4.6 - 1.3 + 2 * 0.004 * 1.1) / (2 + 2 * 0.004)),
+    ],
+)
 def test_soft_constraint_is_an_exact_penalty(soft: float | None, expected: float) -> None:
     pr = _tracking_problem(soft).build()
     res = OCPSolver(pr, TranscriptionOptions(N=6)).solve([0.37], 2.5)
@@ -80,7 +83,8 @@ def test_ocp_and_mpc_solve_the_same_custom_problem() -> None:
     vm, vh = np.diff(x) / 0.1, leader.speed_np(t[:-1])
     z0 = [0.45, 1.87, 0.0, 0.0, 0.8]
     ocp = OCPSolver(pr, TranscriptionOptions(N=30, rk4_substeps=1, tol=1e-10)).solve(
-        z0, 3.0, p=weight_vector(f9.weights), w=np.vstack([vm, vh]))
+        z0, 3.0, p=weight_vector(f9.weights), w=np.vstack([vm, vh])
+    )
     assert ocp.success
     sol = MPCController(s, EV, formulation=problem_formulation(pb, weights=f9.weights)).solve(z0, vm, vh)
     assert sol.success
@@ -187,7 +191,9 @@ def test_a_users_controller_runs_on_any_vehicle() -> None:
     # the laws around it are untouched: the first follower equals a simulation without the ACC
     ref = simulate_platoon(PaperLeader(), [Proposed(kappa=0.041)], [0.5], [1.7], 6.0, dt_out=0.2, method="cvodes")
     common = np.isin(np.round(ref.t, 9), np.round(r.t, 9))
-    np.testing.assert_allclose(r.speed[np.isin(np.round(r.t, 9), np.round(ref.t, 9)), 0], ref.speed[common, 0], atol=1e-7)
+    np.testing.assert_allclose(
+        r.speed[np.isin(np.round(r.t, 9), np.round(ref.t, 9)), 0], ref.speed[common, 0], atol=1e-7
+    )
 
 
 @pytest.mark.quick
@@ -256,8 +262,12 @@ def test_discrete_state_gives_a_delta_u_penalty_in_ocp_and_mpc() -> None:
     leader = PaperLeader()
     vm, vh = np.diff(leader.position(t)) / 0.1, leader.speed_np(t[:-1])
     z0 = [0.45, 1.87, 0.0, 0.0, 0.8, -0.37]
-    res = {m: OCPSolver(pr, TranscriptionOptions(method=m, N=20, rk4_substeps=1, tol=1e-10)).solve(
-        z0, 2.0, p=weight_vector(f9.weights), w=np.vstack([vm, vh])) for m in ("ms", "collocation")}
+    res = {
+        m: OCPSolver(pr, TranscriptionOptions(method=m, N=20, rk4_substeps=1, tol=1e-10)).solve(
+            z0, 2.0, p=weight_vector(f9.weights), w=np.vstack([vm, vh])
+        )
+        for m in ("ms", "collocation")
+    }
     for r in res.values():
         assert r.success
         np.testing.assert_allclose(r.states["a_prev"][1:], r.controls["a"], atol=1e-9)  # exact discrete update

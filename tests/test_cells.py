@@ -66,6 +66,7 @@ def test_user_cell_file_and_its_ocv(tmp_path: Path) -> None:
     assert abs(float(battery.ocv(0.45, c)) - float(battery.ocv(0.45))) > 0.3
     # the piecewise form of the MPC agrees with the B-spline for this cell too
     import casadi as ca
+
     S = ca.SX.sym("S")
     f = ca.Function("f", [S], [battery.ocv_piecewise(S, c)])
     for s in (0.05, 0.33, 0.81):
@@ -82,17 +83,20 @@ def test_scenario_selects_cell_by_name_and_file(tmp_path: Path) -> None:
     assert by_name.ev.cell.capacity_Ah == 2.3 and cell_path.exists()
 
 
-@pytest.mark.parametrize("edit, where", [
-    (("R1_ohm = { value = 0.0117, source = \"test\" }", "R1_ohm = 0.0117"), "R1_ohm"),
-    (("R1_ohm = { value = 0.0117,", "R1_ohm = { value = -0.0117,"), "R1_ohm.value"),
-    (("C1_F = { value = 1730.0, source = \"test\" }", "C1_F = { value = 1730.0, source = \"\" }"), "C1_F.source"),
-    (("chemistry = \"NMC\"", "chemistry = \"LMO\""), "chemistry"),
-    (("name = \"test_nmc\"", "name = \"test_nmc\"\nwidth_m = 0.02"), "width_m"),
-    (("0.45, 0.7", "0.75, 0.7"), "ocv_soc"),
-    (("soc = [0.0,", "soc = [0.1,"), "ocv_soc"),
-    (("4.17]\nsource = \"test\"", "4.17]"), "ocv.source"),
-    (("T_ref_K = { value = 296.15, source = \"test\" }\n", ""), "T_ref_K is missing"),
-])
+@pytest.mark.parametrize(
+    "edit, where",
+    [
+        (('R1_ohm = { value = 0.0117, source = "test" }', "R1_ohm = 0.0117"), "R1_ohm"),
+        (("R1_ohm = { value = 0.0117,", "R1_ohm = { value = -0.0117,"), "R1_ohm.value"),
+        (('C1_F = { value = 1730.0, source = "test" }', 'C1_F = { value = 1730.0, source = "" }'), "C1_F.source"),
+        (('chemistry = "NMC"', 'chemistry = "LMO"'), "chemistry"),
+        (('name = "test_nmc"', 'name = "test_nmc"\nwidth_m = 0.02'), "width_m"),
+        (("0.45, 0.7", "0.75, 0.7"), "ocv_soc"),
+        (("soc = [0.0,", "soc = [0.1,"), "ocv_soc"),
+        (('4.17]\nsource = "test"', "4.17]"), "ocv.source"),
+        (('T_ref_K = { value = 296.15, source = "test" }\n', ""), "T_ref_K is missing"),
+    ],
+)
 def test_bad_cell_files_one_line_errors(tmp_path: Path, edit: tuple[str, str], where: str) -> None:
     assert edit[0] in USER_CELL
     p = _write(tmp_path, USER_CELL.replace(*edit))

@@ -32,9 +32,20 @@ def test_random_counterexample_confirmed_by_scipy() -> None:
     bad = next(c for c in cases if c.violates and c.leader == "constant")
     v_l = bad.leader_speed
     from aev_ocp.params import CarFollowingParams
+
     p = CarFollowingParams(kappa=bad.kappa)
-    ref = {k: simulate_reference(k, np.array([bad.gap0]), np.array([bad.speed0]), 70.0, battery=False,
-                                 leader_speed=lambda t: v_l, breakpoints=(), p=p)["omega"][0]
-           for k in ("proposed", "ovfl")}
+    ref = {
+        k: simulate_reference(
+            k,
+            np.array([bad.gap0]),
+            np.array([bad.speed0]),
+            70.0,
+            battery=False,
+            leader_speed=lambda t: v_l,
+            breakpoints=(),
+            p=p,
+        )["omega"][0]
+        for k in ("proposed", "ovfl")
+    }
     np.testing.assert_allclose([ref["proposed"], ref["ovfl"]], [bad.omega_proposed, bad.omega_ovfl], atol=1e-6)
     assert ref["proposed"] > ref["ovfl"] + 1e-5

@@ -43,8 +43,6 @@ t_end = 5.0
 """
 
 
-
-
 def test_simulate_writes_files(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     scen = tmp_path / "small.toml"
     scen.write_text(SMALL)
@@ -100,8 +98,9 @@ def test_failed_run_still_writes_and_exits_1(tmp_path: Path, capsys: pytest.Capt
 def test_console_script_subprocess(tmp_path: Path) -> None:
     scen = tmp_path / "bad.toml"
     scen.write_text("[leader\n")
-    proc = subprocess.run([sys.executable, "-m", "aev_ocp.cli", "simulate", str(scen)], capture_output=True,
-                          text=True, timeout=120)
+    proc = subprocess.run(
+        [sys.executable, "-m", "aev_ocp.cli", "simulate", str(scen)], capture_output=True, text=True, timeout=120
+    )
     assert proc.returncode == EXIT_BAD_INPUT
     assert proc.stderr.strip().count("\n") == 0 and proc.stderr.startswith("aev-ocp: error:")
     assert "not valid TOML" in proc.stderr

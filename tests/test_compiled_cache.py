@@ -79,13 +79,20 @@ def test_failed_build_warns(tmp_path, monkeypatch) -> None:
 def test_truncated_simulator_cache_is_rebuilt_and_the_cascade_still_runs(tmp_path) -> None:
     """End to end in fresh interpreters: build the cascade, truncate its .so, run again -> rebuilt, cascade."""
     env = {**os.environ, "AEV_OCP_CACHE": str(tmp_path / "cache"), "PYTHONPATH": str(Path(__file__).parents[1])}
-    code = ("import warnings; warnings.simplefilter('always');"
-            "from aev_ocp.simulate import simulate_platoon; from aev_ocp.models.leader import ConstantSpeed;"
-            "from aev_ocp.models.carfollowing import Proposed;"
-            "r = simulate_platoon(ConstantSpeed(1.3), [Proposed()], [1.1], [1.2], 2.0, dt_out=0.5);"
-            "print(r.meta['integrator'], round(float(r.gap[-1, 0]), 6))")
-    run = lambda: subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env,  # noqa: E731
-                                 timeout=300)
+    code = (
+        "import warnings; warnings.simplefilter('always');"
+        "from aev_ocp.simulate import simulate_platoon; from aev_ocp.models.leader import ConstantSpeed;"
+        "from aev_ocp.models.carfollowing import Proposed;"
+        "r = simulate_platoon(ConstantSpeed(1.3), [Proposed()], [1.1], [1.2], 2.0, dt_out=0.5);"
+        "print(r.meta['integrator'], round(float(r.gap[-1, 0]), 6))"
+    )
+    run = lambda: subprocess.run(  # noqa: E731
+        [sys.executable, "-c", code],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=300,
+    )
     a = run()
     assert a.returncode == 0, a.stderr
     libs = list((tmp_path / "cache" / "simulate").glob("aevsim_*.so"))
@@ -102,12 +109,18 @@ def test_unusable_cache_folder_uses_one_temp_folder_removed_at_exit(tmp_path) ->
     blocker.write_text("not a folder")
     tmpdir = tmp_path / "tmp"
     tmpdir.mkdir()
-    env = {**os.environ, "AEV_OCP_CACHE": str(blocker / "cache"), "TMPDIR": str(tmpdir),
-           "PYTHONPATH": str(Path(__file__).parents[1])}
-    code = ("import aev_ocp.compiled as B;"
-            "a = B.compile_shared('double f(double x){return x;}', 'aevleak', 'x');"
-            "b = B.compile_shared('double g(double x){return x;}', 'aevleak', 'x');"
-            "assert a.path and b.path and a.path.parent == b.path.parent, (a, b); print(a.path.parent)")
+    env = {
+        **os.environ,
+        "AEV_OCP_CACHE": str(blocker / "cache"),
+        "TMPDIR": str(tmpdir),
+        "PYTHONPATH": str(Path(__file__).parents[1]),
+    }
+    code = (
+        "import aev_ocp.compiled as B;"
+        "a = B.compile_shared('double f(double x){return x;}', 'aevleak', 'x');"
+        "b = B.compile_shared('double g(double x){return x;}', 'aevleak', 'x');"
+        "assert a.path and b.path and a.path.parent == b.path.parent, (a, b); print(a.path.parent)"
+    )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=120)
     assert out.returncode == 0, out.stderr
     assert out.stdout.strip().startswith(str(tmpdir))
@@ -118,11 +131,17 @@ def test_concurrent_builds_of_one_library_all_succeed_without_warnings(tmp_path)
     """Four processes build the same (new) library into one empty cache at once: each gets a verified
     library, none warns, and no temporary file is left."""
     env = {**os.environ, "AEV_OCP_CACHE": str(tmp_path / "cache"), "PYTHONPATH": str(Path(__file__).parents[1])}
-    code = ("import warnings, aev_ocp.compiled as B; warnings.simplefilter('error', B.CompileWarning);"
-            "r = B.compile_shared('double aev_conc(double x){return 3.0*x - 0.125;}', 'aevconc', 'c');"
-            "assert r.path is not None and not r.rebuilt, r; print(B.verify_library(r.path) or 'verified')")
-    procs = [subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                              text=True, env=env) for _ in range(4)]
+    code = (
+        "import warnings, aev_ocp.compiled as B; warnings.simplefilter('error', B.CompileWarning);"
+        "r = B.compile_shared('double aev_conc(double x){return 3.0*x - 0.125;}', 'aevconc', 'c');"
+        "assert r.path is not None and not r.rebuilt, r; print(B.verify_library(r.path) or 'verified')"
+    )
+    procs = [
+        subprocess.Popen(
+            [sys.executable, "-c", code], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env
+        )
+        for _ in range(4)
+    ]
     outs = [p.communicate(timeout=300) for p in procs]
     assert all(p.returncode == 0 for p in procs), outs
     assert [o.strip() for o, _ in outs] == ["verified"] * 4

@@ -23,8 +23,12 @@ from aev_ocp.results import Event
 from aev_ocp.scenarios import ScenarioWarning, find_scenario, load_scenario, shipped_scenarios
 from aev_ocp.simulate import simulate_platoon
 
-NEW = {"mpc_udds_single": ("udds", 1, 15.0, 17.0, 1369.0), "mpc_hwfet_single": ("hwfet", 1, 15.0, 17.0, 765.0),
-       "mpc_us06_single": ("us06", 1, 20.0, 22.0, 600.0), "mpc_udds_platoon": ("udds", 5, 15.0, 17.0, 1369.0)}
+NEW = {
+    "mpc_udds_single": ("udds", 1, 15.0, 17.0, 1369.0),
+    "mpc_hwfet_single": ("hwfet", 1, 15.0, 17.0, 765.0),
+    "mpc_us06_single": ("us06", 1, 20.0, 22.0, 600.0),
+    "mpc_udds_platoon": ("udds", 5, 15.0, 17.0, 1369.0),
+}
 
 
 @pytest.mark.parametrize("name", sorted(NEW))
@@ -86,8 +90,13 @@ def tiny_runs() -> dict:
     assert crash.status != "ok" and crash.t[-1] < 3.0  # the constructed event
     # ended by an event at t_end: same duration and distance as OVFL, only the event flag can catch it
     ended = dataclasses.replace(ovfl, events=[Event("negative_speed", 3.0, 0, "constructed")])
-    return {("proposed", None): ref, ("ovfl", None): ovfl, ("mpc", "constant-velocity"): short,
-            ("mpc", "decaying-acceleration"): crash, ("mpc", "cooperative"): ended}
+    return {
+        ("proposed", None): ref,
+        ("ovfl", None): ovfl,
+        ("mpc", "constant-velocity"): short,
+        ("mpc", "decaying-acceleration"): crash,
+        ("mpc", "cooperative"): ended,
+    }
 
 
 def test_table_builder_flags_and_never_ranks_non_comparable_rows(tiny_runs: dict) -> None:
@@ -95,7 +104,9 @@ def test_table_builder_flags_and_never_ranks_non_comparable_rows(tiny_runs: dict
     ref, ovfl = rows[("proposed", "—")], rows[("ovfl", "—")]
     short, crash = rows[("mpc", "constant-velocity")], rows[("mpc", "decaying-acceleration")]
     assert ref["comparable"] and ovfl["comparable"] and ref["flags"] == ""
-    assert not short["comparable"] and "duration" in short["flags"] and short["duration_diff_pct"] == pytest.approx(-20.0)
+    assert (
+        not short["comparable"] and "duration" in short["flags"] and short["duration_diff_pct"] == pytest.approx(-20.0)
+    )
     assert not crash["comparable"] and "event" in crash["flags"]
     ended = rows[("mpc", "cooperative")]
     assert not ended["comparable"] and ended["flags"] == "event: negative_speed" and ended["rank"] is None
@@ -167,7 +178,10 @@ def test_cycles_section_runs_end_to_end(tmp_path: Path) -> None:
     """The section on a tiny cap (every run 1.5 model time units): text, tables and the segment sentence."""
     from aev_ocp.mpc.cycles_section import cycles_section
 
-    txt = cycles_section(tmp_path, lambda m: None, cycles=("udds",), predictors=("constant-velocity",),
-                         t_end_max=1.5)
-    assert txt.startswith("## MPC on drive cycles") and "stood still for 20 s" in txt and "udds 1 s, capped at t = 1.5" in txt
+    txt = cycles_section(tmp_path, lambda m: None, cycles=("udds",), predictors=("constant-velocity",), t_end_max=1.5)
+    assert (
+        txt.startswith("## MPC on drive cycles")
+        and "stood still for 20 s" in txt
+        and "udds 1 s, capped at t = 1.5" in txt
+    )
     assert (tmp_path / "mpc_cycles" / "cycles.csv").stat().st_size > 0

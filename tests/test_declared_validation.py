@@ -14,14 +14,35 @@ from aev_ocp.mpc.settings import MPCSettings
 from aev_ocp.ocp.following import TemperatureTerms
 from aev_ocp.ocp.formulation import Formulation
 from aev_ocp.ocp.traffic import TrafficParams
-from aev_ocp.params import (ATOL_RANGE, RTOL_RANGE, CarFollowingParams, CellParams, PackParams, ParameterError,
-                            PowertrainOptions, SimOptions, ThermalParams, Units, VehicleParams, field_checks)
+from aev_ocp.params import (
+    ATOL_RANGE,
+    RTOL_RANGE,
+    CarFollowingParams,
+    CellParams,
+    PackParams,
+    ParameterError,
+    PowertrainOptions,
+    SimOptions,
+    ThermalParams,
+    Units,
+    VehicleParams,
+    field_checks,
+)
 from aev_ocp.scenarios import ScenarioError, find_scenario, parse_scenario
 
 pytestmark = pytest.mark.quick  # the whole module runs in the sub-minute subset (pytest -m quick)
 
-DATACLASSES = (Units, CarFollowingParams, VehicleParams, CellParams, PackParams, PowertrainOptions, SimOptions,
-               MPCSettings, ThermalParams)
+DATACLASSES = (
+    Units,
+    CarFollowingParams,
+    VehicleParams,
+    CellParams,
+    PackParams,
+    PowertrainOptions,
+    SimOptions,
+    MPCSettings,
+    ThermalParams,
+)
 
 
 @pytest.mark.parametrize("cls", DATACLASSES)
@@ -82,23 +103,43 @@ def _mpc_doc(**mpc):
 def test_mpc_table_keys_derive_from_the_dataclasses() -> None:
     keys = set(mpc_table_keys())
     own = {f.name for f in dataclasses.fields(MPCSettings)}  # solver options, then the formulation's keys
-    assert own | {"formulation", "objective", "w_Q", "w_V", "w_r", "w_a", "h_min", "v_min", "v_max", "a_min", "a_max",
-                  "smoothing_width_W"} | {f.name for f in dataclasses.fields(TrafficParams)} | {
-        f.name for f in dataclasses.fields(TemperatureTerms)} == keys
+    assert (
+        own
+        | {
+            "formulation",
+            "objective",
+            "w_Q",
+            "w_V",
+            "w_r",
+            "w_a",
+            "h_min",
+            "v_min",
+            "v_max",
+            "a_min",
+            "a_max",
+            "smoothing_width_W",
+        }
+        | {f.name for f in dataclasses.fields(TrafficParams)}
+        | {f.name for f in dataclasses.fields(TemperatureTerms)}
+        == keys
+    )
 
 
-@pytest.mark.parametrize("key, value, fragments", [
-    ("N", 0, ["mpc.N = 0", "an integer >= 1"]),
-    ("N", 2.5, ["mpc.N = 2.5", "got a float"]),
-    ("predictor_window", 1, ["mpc.predictor_window = 1", ">= 2"]),
-    ("dt", -0.1, ["mpc.dt = -0.1", "> 0"]),
-    ("solver", "warp", ["mpc.solver = 'warp'", "rti"]),
-    ("codegen", "yes", ["mpc.codegen = 'yes'", "true or false"]),
-    ("max_cpu_time_s", float("inf"), ["mpc.max_cpu_time_s = inf", "finite"]),
-    ("w_Q", -2.0, ["mpc.w_Q", "-2.0", ">= 0"]),
-    ("v_min", 2.5, ["mpc.v_min", "2.5", "v_max"]),
-    ("smoothing_width_W", 0.0, ["mpc.smoothing_width_W = 0.0", "> 0"]),
-])
+@pytest.mark.parametrize(
+    "key, value, fragments",
+    [
+        ("N", 0, ["mpc.N = 0", "an integer >= 1"]),
+        ("N", 2.5, ["mpc.N = 2.5", "got a float"]),
+        ("predictor_window", 1, ["mpc.predictor_window = 1", ">= 2"]),
+        ("dt", -0.1, ["mpc.dt = -0.1", "> 0"]),
+        ("solver", "warp", ["mpc.solver = 'warp'", "rti"]),
+        ("codegen", "yes", ["mpc.codegen = 'yes'", "true or false"]),
+        ("max_cpu_time_s", float("inf"), ["mpc.max_cpu_time_s = inf", "finite"]),
+        ("w_Q", -2.0, ["mpc.w_Q", "-2.0", ">= 0"]),
+        ("v_min", 2.5, ["mpc.v_min", "2.5", "v_max"]),
+        ("smoothing_width_W", 0.0, ["mpc.smoothing_width_W = 0.0", "> 0"]),
+    ],
+)
 def test_mpc_table_messages_name_file_key_value_and_range(key, value, fragments) -> None:
     with pytest.raises(ScenarioError) as info:
         parse_scenario(_mpc_doc(**{key: value}), "my.toml")
@@ -109,17 +150,22 @@ def test_mpc_table_messages_name_file_key_value_and_range(key, value, fragments)
 
 
 def test_mpc_table_accepts_valid_values_and_upper_case_choices() -> None:
-    cfg = parse_scenario(_mpc_doc(N=17, solver="SQP", qp_solver="HPIPM", w_a=0.25, smoothing_width_W=150), "ok.toml").extra["mpc"]
+    cfg = parse_scenario(
+        _mpc_doc(N=17, solver="SQP", qp_solver="HPIPM", w_a=0.25, smoothing_width_W=150), "ok.toml"
+    ).extra["mpc"]
     s, f = cfg.settings, cfg.formulation
     assert (s.N, s.solver, f.weights.w_a, f.smooth.smoothing_width_W, f.kind) == (17, "sqp", 0.25, 150.0, "s9")
 
 
-@pytest.mark.parametrize("mpc, fragments", [
-    ({"vehicles": [7]}, ["mpc.vehicles = [7]", "platoon.followers = 1"]),
-    ({"h_min": 0.45}, ["mpc.h_min = 0.45", "initial gap", "infeasible"]),
-    ({"v_max": 1.5}, ["initial speed of follower 1", "1.87", "infeasible"]),
-    ({"h_min": 0.3}, ["mpc.h_min = 0.3", "at or above the initial gap"]),
-])
+@pytest.mark.parametrize(
+    "mpc, fragments",
+    [
+        ({"vehicles": [7]}, ["mpc.vehicles = [7]", "platoon.followers = 1"]),
+        ({"h_min": 0.45}, ["mpc.h_min = 0.45", "initial gap", "infeasible"]),
+        ({"v_max": 1.5}, ["initial speed of follower 1", "1.87", "infeasible"]),
+        ({"h_min": 0.3}, ["mpc.h_min = 0.3", "at or above the initial gap"]),
+    ],
+)
 def test_mpc_setup_errors_name_the_file(mpc, fragments) -> None:
     """Issue 11 minor: [mpc] vehicles = [7] did not name the file; h_min above h(0) ran on the fallback."""
     src = find_scenario("mpc_paper_single")
@@ -132,12 +178,24 @@ def test_mpc_setup_errors_name_the_file(mpc, fragments) -> None:
         assert f in msg, msg
 
 
-SMALL_DOC = {"leader": {"kind": "constant", "v": 1.0}, "platoon": {"followers": 1, "gap0_first": 1.0, "speed0": 1.0},
-             "simulation": {"t_end": 1.0}}
+SMALL_DOC = {
+    "leader": {"kind": "constant", "v": 1.0},
+    "platoon": {"followers": 1, "gap0_first": 1.0, "speed0": 1.0},
+    "simulation": {"t_end": 1.0},
+}
 
 
-@pytest.mark.parametrize("table, cls", [("simulation", SimOptions), ("vehicle", VehicleParams), ("cell", CellParams),
-                                        ("units", Units), ("pack", PackParams), ("carfollowing", CarFollowingParams)])
+@pytest.mark.parametrize(
+    "table, cls",
+    [
+        ("simulation", SimOptions),
+        ("vehicle", VehicleParams),
+        ("cell", CellParams),
+        ("units", Units),
+        ("pack", PackParams),
+        ("carfollowing", CarFollowingParams),
+    ],
+)
 def test_toml_tables_derive_their_ranges_from_the_dataclass(table, cls) -> None:
     """Every declared bound of the dataclass is the TOML table's bound, with the same words in the message."""
     checked = 0
@@ -147,7 +205,9 @@ def test_toml_tables_derive_their_ranges_from_the_dataclass(table, cls) -> None:
         for bound, sign, strict in ((c.gt, -1, True), (c.ge, -1, False), (c.lt, +1, True), (c.le, +1, False)):
             if bound is None:
                 continue
-            outside = bound if strict else (bound + sign if c.kind == "integer" else bound + sign * max(abs(bound), 1) * 1e-3)
+            outside = (
+                bound if strict else (bound + sign if c.kind == "integer" else bound + sign * max(abs(bound), 1) * 1e-3)
+            )
             doc = {k: dict(v) for k, v in SMALL_DOC.items()}
             doc.setdefault(table, {})[name] = outside
             with pytest.raises(ScenarioError) as info:

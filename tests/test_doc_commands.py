@@ -66,8 +66,11 @@ def problems(cmd: str) -> list[str]:
         return []
     if is_synopsis(cmd):
         known = set(command_parser(name)._option_string_actions)
-        return [f"{cmd}: {name} has no option {flag}" for flag in re.findall(r"(?<![\w-])--[a-z][a-z0-9-]*", cmd)
-                if flag not in known]
+        return [
+            f"{cmd}: {name} has no option {flag}"
+            for flag in re.findall(r"(?<![\w-])--[a-z][a-z0-9-]*", cmd)
+            if flag not in known
+        ]
     try:
         parse_command_line(shlex.split(cmd)[1:])
     except SystemExit as exc:
@@ -89,19 +92,28 @@ def test_every_documented_command_line_parses(where: str, cmd: str, capsys: pyte
     assert problems(cmd) == [], where
 
 
-@pytest.mark.parametrize("cmd, word", [
-    ("aev-ocp simulate table1 --time-limt 30", "refused"),  # a typo in a concrete line
-    ("aev-ocp simulate SCENARIO [--out DIR] [--no-such-flag S]", "--no-such-flag"),  # an option a synopsis invents
-    ("aev-ocp simulat table1", "unknown sub-command"),
-    ("aev-ocp mpc mpc_paper_single --t-end -3", "refused"),
-])
+@pytest.mark.parametrize(
+    "cmd, word",
+    [
+        ("aev-ocp simulate table1 --time-limt 30", "refused"),  # a typo in a concrete line
+        ("aev-ocp simulate SCENARIO [--out DIR] [--no-such-flag S]", "--no-such-flag"),  # an option a synopsis invents
+        ("aev-ocp simulat table1", "unknown sub-command"),
+        ("aev-ocp mpc mpc_paper_single --t-end -3", "refused"),
+    ],
+)
 def test_the_check_catches_a_bad_line(cmd: str, word: str, capsys: pytest.CaptureFixture[str]) -> None:
     assert any(word in p for p in problems(cmd))
 
 
 def test_the_extractor_reads_code_blocks_continuations_and_inline_code() -> None:
-    text = ("run `aev-ocp mpc x.toml --t-end 60` now\n```\naev-ocp ocp prop31 [--out DIR]\n"
-            "            [--N N]   # comment\npip install . && aev-ocp reproduce\n```\n")
+    text = (
+        "run `aev-ocp mpc x.toml --t-end 60` now\n```\naev-ocp ocp prop31 [--out DIR]\n"
+        "            [--N N]   # comment\npip install . && aev-ocp reproduce\n```\n"
+    )
     text += "and `aev-ocp study s.toml\n--set a.b=1` too\n"
-    assert command_lines(text) == ["aev-ocp ocp prop31 [--out DIR] [--N N]", "aev-ocp reproduce",
-                                   "aev-ocp mpc x.toml --t-end 60", "aev-ocp study s.toml --set a.b=1"]
+    assert command_lines(text) == [
+        "aev-ocp ocp prop31 [--out DIR] [--N N]",
+        "aev-ocp reproduce",
+        "aev-ocp mpc x.toml --t-end 60",
+        "aev-ocp study s.toml --set a.b=1",
+    ]

@@ -15,8 +15,11 @@ TEXT = {".py", ".md", ".toml", ".yml", ".yaml", ".txt", ".ipynb", ".json", ".c",
 def _repo_files() -> list[Path]:
     out = [ROOT / "README.md", ROOT / "mkdocs.yml", ROOT / "pyproject.toml", ROOT / "setup.py"]
     for d in ("aev_ocp", "docs", "examples", "scenarios", "studies", "benchmarks", ".ci"):
-        out += [p for p in (ROOT / d).rglob("*") if p.is_file() and (p.suffix in TEXT or p.parent.name == ".ci")
-                and "__pycache__" not in p.parts]
+        out += [
+            p
+            for p in (ROOT / d).rglob("*")
+            if p.is_file() and (p.suffix in TEXT or p.parent.name == ".ci") and "__pycache__" not in p.parts
+        ]
     return out
 
 
@@ -35,8 +38,10 @@ def test_section_numbers_name_the_model_page() -> None:
     model = (ROOT / "docs" / "guide" / "model.md").read_text(encoding="utf-8")
     have = {int(n) for n in re.findall(r"^## §(\d+) ", model, re.M)}
     assert have == set(range(1, 13))
-    slugs = {re.sub(r"[-\s]+", "-", re.sub(r"[^\w\s-]", "", h).strip().lower())
-             for h in re.findall(r"^## (§\d+ .+)$", model, re.M)}
+    slugs = {
+        re.sub(r"[-\s]+", "-", re.sub(r"[^\w\s-]", "", h).strip().lower())
+        for h in re.findall(r"^## (§\d+ .+)$", model, re.M)
+    }
     for p in _repo_files():
         text = p.read_text(encoding="utf-8", errors="replace")
         for n in re.findall(r"model guide §(\d+)", text):
@@ -48,8 +53,9 @@ def test_section_numbers_name_the_model_page() -> None:
 def test_the_site_owns_its_pages_and_executes_every_notebook() -> None:
     cfg = (ROOT / "mkdocs.yml").read_text(encoding="utf-8")
     assert "hooks:" not in cfg and not (ROOT / "docs" / "hooks").exists()
-    pages = sorted(p.relative_to(ROOT / "docs").as_posix() for p in (ROOT / "docs").rglob("*")
-                   if p.suffix in (".md", ".ipynb"))
+    pages = sorted(
+        p.relative_to(ROOT / "docs").as_posix() for p in (ROOT / "docs").rglob("*") if p.suffix in (".md", ".ipynb")
+    )
     for page in pages:
         assert f": {page}" in cfg or f"- {page}" in cfg, f"{page} is not in the site's nav"
         if page.endswith(".md"):

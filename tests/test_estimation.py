@@ -89,8 +89,12 @@ def test_exact_sensor_path_reproduces_the_plain_closed_loop() -> None:
     measures the first)."""
     ev = EVParams(units=UNITS)
     exact = dataclasses.replace(Sensors.ideal(), sample_period_s=UNITS.time_to_si(0.1))
-    runs = [ClosedLoop(ConstantSpeed(1.3), [SampledLaw(LAW, 0.1), SampledLaw(LAW, 0.1)], ev, sensors=s,
-                       estimator=None).run([1.1, 0.9], [1.6, 1.2], 4.0) for s in (None, exact)]
+    runs = [
+        ClosedLoop(ConstantSpeed(1.3), [SampledLaw(LAW, 0.1), SampledLaw(LAW, 0.1)], ev, sensors=s, estimator=None).run(
+            [1.1, 0.9], [1.6, 1.2], 4.0
+        )
+        for s in (None, exact)
+    ]
     assert runs[1].meta["sensors"]["sample_period_s"] > 0
     np.testing.assert_allclose(runs[1].gap, runs[0].gap, rtol=0, atol=1e-9)  # SI round trips
     np.testing.assert_allclose(runs[1].S, runs[0].S, rtol=0, atol=1e-9)
@@ -171,9 +175,18 @@ def test_ekf_lead_part_equals_a_linear_kalman_filter() -> None:
     vl = 9.0 + 2.0 * np.sin(0.3 * t)
     v = 8.5 + 1.5 * np.sin(0.3 * t - 0.4)
     a = 0.45 * np.cos(0.3 * t - 0.4)
-    ys = [Measurement(float(tk), 14.0 + 0.5 * math.sin(0.2 * tk) + 0.2 * rng.standard_normal(),
-                      float(v[k]) + 0.05 * rng.standard_normal(), float(vl[k]) + 0.1 * rng.standard_normal(),
-                      350.0, 21.0, accel_cmd_mps2=float(a[k])) for k, tk in enumerate(t)]
+    ys = [
+        Measurement(
+            float(tk),
+            14.0 + 0.5 * math.sin(0.2 * tk) + 0.2 * rng.standard_normal(),
+            float(v[k]) + 0.05 * rng.standard_normal(),
+            float(vl[k]) + 0.1 * rng.standard_normal(),
+            350.0,
+            21.0,
+            accel_cmd_mps2=float(a[k]),
+        )
+        for k, tk in enumerate(t)
+    ]
     ekf = EKF(EVParams(units=UNITS), s, soc0=0.63)
     est = [ekf.reset(ys[0])] + [ekf.update(y) for y in ys[1:]]
     ref = _linear_lead_kf(ys, s)
@@ -189,8 +202,14 @@ def test_ekf_soc_error_below_one_percent_after_60_s(cycle: str, soc_guess: float
     the EKF's SOC stays within 1 % of the plant's true SOC from 60 s on (the proposed law drives the cycle). The
     car starts at rest, so the first voltage is the OCV and the first update already removes most of the error."""
     sc = cycle_scenario(cycle, 90.0)
-    loop = ClosedLoop(sc.leader, [sc.law("proposed")], sc.ev, sensors=Sensors(seed=7),
-                      estimator=lambda ev, s, off, i: EKF(ev, s, soc0=soc_guess), law_dt=0.2)
+    loop = ClosedLoop(
+        sc.leader,
+        [sc.law("proposed")],
+        sc.ev,
+        sensors=Sensors(seed=7),
+        estimator=lambda ev, s, off, i: EKF(ev, s, soc0=soc_guess),
+        law_dt=0.2,
+    )
     r = loop.run(sc.gaps0, sc.speeds0, sc.t_end)
     est = r.solver_stats[0]["estimation"]
     assert r.status == "ok" and r.controllers[0].startswith("proposed@")  # the law ran sampled on the measurements
@@ -201,8 +220,9 @@ def test_ekf_soc_error_below_one_percent_after_60_s(cycle: str, soc_guess: float
 
 def test_mhe_tracks_like_the_ekf_and_refuses_a_bad_window() -> None:
     sc = cycle_scenario("udds", 40.0)
-    r = ClosedLoop(sc.leader, [sc.law("ovfl")], sc.ev, sensors=Sensors(seed=2), estimator="mhe",
-                   law_dt=0.2).run(sc.gaps0, sc.speeds0, sc.t_end)
+    r = ClosedLoop(sc.leader, [sc.law("ovfl")], sc.ev, sensors=Sensors(seed=2), estimator="mhe", law_dt=0.2).run(
+        sc.gaps0, sc.speeds0, sc.t_end
+    )
     est = r.solver_stats[0]["estimation"]
     assert r.meta["estimators"][0]["estimator"] == "mhe" and r.meta["estimators"][0]["failed_solves"] == 0
     assert est["lead_speed_err_rms_mps"] < 0.2 and est["V1_err_rms_mV"] < 1.0
@@ -294,26 +314,34 @@ def test_scenario_tables_build_the_realism_arguments() -> None:
     from aev_ocp.estimation.scenario import measurements_degraded, realism_kwargs
     from aev_ocp.scenarios import parse_scenario
 
-    sc = parse_scenario(_doc(mismatch={"mass_rel": 0.11, "distribution": "fixed"},
-                             sensors={"noise_scale": 1.7, "delay_s": 0.23, "estimator": "mhe", "soc0_error": 0.13}))
+    sc = parse_scenario(
+        _doc(
+            mismatch={"mass_rel": 0.11, "distribution": "fixed"},
+            sensors={"noise_scale": 1.7, "delay_s": 0.23, "estimator": "mhe", "soc0_error": 0.13},
+        )
+    )
     kw = realism_kwargs(sc)
     assert kw["mismatch"].model_ev(sc.ev, 0).vehicle.mass_kg == pytest.approx(1.11 * sc.ev.vehicle.mass_kg)
     assert kw["sensors"].gap_noise_m == pytest.approx(1.7 * Sensors().gap_noise_m)
     assert kw["sensors"].voltage_delay_s == 0.23 and measurements_degraded(sc)
     est = kw["estimator"](sc.ev, kw["sensors"], 0.0, 0)
     assert isinstance(est, MHE) and est.ekf.soc0 == pytest.approx(sc.ev.cell.soc0 - 0.13)
-    exact = parse_scenario(_doc(sensors={"noise_scale": 0.0, "delay_s": 0.0, "battery_states_observed": True,
-                                         "estimator": "none"}))
+    exact = parse_scenario(
+        _doc(sensors={"noise_scale": 0.0, "delay_s": 0.0, "battery_states_observed": True, "estimator": "none"})
+    )
     assert not measurements_degraded(exact) and realism_kwargs(exact)["estimator"] is None
 
 
-@pytest.mark.parametrize("tables, key", [
-    ({"mismatch": {"mass_rel": -1.5}}, "mismatch.mass_rel"),
-    ({"mismatch": {"mass": 0.1}}, "mass"),
-    ({"sensors": {"gap_noise_m": -0.2}}, "sensors.gap_noise_m"),
-    ({"sensors": {"estimator": "ukf"}}, "sensors.estimator"),
-    ({"sensors": {"estimator": "none"}}, "sensors.estimator"),
-])
+@pytest.mark.parametrize(
+    "tables, key",
+    [
+        ({"mismatch": {"mass_rel": -1.5}}, "mismatch.mass_rel"),
+        ({"mismatch": {"mass": 0.1}}, "mass"),
+        ({"sensors": {"gap_noise_m": -0.2}}, "sensors.gap_noise_m"),
+        ({"sensors": {"estimator": "ukf"}}, "sensors.estimator"),
+        ({"sensors": {"estimator": "none"}}, "sensors.estimator"),
+    ],
+)
 def test_scenario_tables_refuse_bad_values(tables: dict[str, Any], key: str) -> None:
     from aev_ocp.scenarios import ScenarioError, parse_scenario
 
@@ -325,11 +353,25 @@ def test_robustness_margins_and_targets() -> None:
     from aev_ocp.robustness import margins, targets
 
     def row(cond: str, ctrl: str, q: float, ms: float | None = None) -> dict[str, Any]:
-        return {"cycle": "udds", "condition": cond, "seed": None if cond == "ideal" else 3, "controller": ctrl,
-                "heat_pack_J_per_km": q, "status": "ok", "collisions": 0, "estimator_plus_call_ms_median": ms}
+        return {
+            "cycle": "udds",
+            "condition": cond,
+            "seed": None if cond == "ideal" else 3,
+            "controller": ctrl,
+            "heat_pack_J_per_km": q,
+            "status": "ok",
+            "collisions": 0,
+            "estimator_plus_call_ms_median": ms,
+        }
 
-    rows = [row("ideal", "mpc", 1800.0), row("ideal", "proposed", 2400.0), row("ideal", "ovfl", 2250.0),
-            row("real", "mpc", 2000.0, 0.83), row("real", "proposed", 1900.0, 0.2), row("real", "ovfl", 2500.0, 0.2)]
+    rows = [
+        row("ideal", "mpc", 1800.0),
+        row("ideal", "proposed", 2400.0),
+        row("ideal", "ovfl", 2250.0),
+        row("real", "mpc", 2000.0, 0.83),
+        row("real", "proposed", 1900.0, 0.2),
+        row("real", "ovfl", 2500.0, 0.2),
+    ]
     mg = {m["condition"]: m for m in margins(rows)}
     assert mg["ideal"]["margin_vs_proposed_pct"] == pytest.approx(25.0)
     assert mg["ideal"]["margin_vs_ovfl_pct"] == pytest.approx(20.0)
@@ -349,8 +391,15 @@ def test_ekf_learns_the_plants_ohmic_resistance() -> None:
         made.append(EKF(ev, s, soc0=sc.ev.cell.soc0, ocv_offset_V=off))
         return made[-1]
 
-    r = ClosedLoop(sc.leader, [sc.law("ovfl")], sc.ev, sensors=Sensors(seed=4), mismatch=Mismatch(R0_rel=0.17),
-                   estimator=factory, law_dt=0.2).run(sc.gaps0, sc.speeds0, sc.t_end)
+    r = ClosedLoop(
+        sc.leader,
+        [sc.law("ovfl")],
+        sc.ev,
+        sensors=Sensors(seed=4),
+        mismatch=Mismatch(R0_rel=0.17),
+        estimator=factory,
+        law_dt=0.2,
+    ).run(sc.gaps0, sc.speeds0, sc.t_end)
     assert made[0].model.ev.cell.R_s_ohm == pytest.approx(1.17 * sc.ev.cell.R_s_ohm)
     assert made[0].x[7] == pytest.approx(1 / 1.17, abs=0.02)
     assert r.solver_stats[0]["estimation"]["soc_err_max_after_60s_pct"] < 1.0

@@ -40,8 +40,16 @@ def draws(n: int, seed: int) -> list[dict[str, float]]:
     return [{k: float(signs[k][i] * rng.uniform(0.3, 1.0) * b) for k, b in bounds.items()} for i in range(n)]
 
 
-def _run(cycle: str, mm: Mismatch | None, soc_guess: float, seed: int, law: str = "proposed",
-         ev: EVParams | None = None, estimator: type = EKF, segment_s: float = SEGMENT_S) -> tuple[Any, list[Any]]:
+def _run(
+    cycle: str,
+    mm: Mismatch | None,
+    soc_guess: float,
+    seed: int,
+    law: str = "proposed",
+    ev: EVParams | None = None,
+    estimator: type = EKF,
+    segment_s: float = SEGMENT_S,
+) -> tuple[Any, list[Any]]:
     sc = cycle_scenario(cycle, segment_s)
     made: list[Any] = []
 
@@ -49,8 +57,9 @@ def _run(cycle: str, mm: Mismatch | None, soc_guess: float, seed: int, law: str 
         made.append(estimator(model_ev, s, soc0=soc_guess, ocv_offset_V=off))
         return made[-1]
 
-    r = ClosedLoop(sc.leader, [sc.law(law)], ev or sc.ev, sensors=Sensors(seed=seed), mismatch=mm,
-                   estimator=factory, law_dt=0.2).run(sc.gaps0, sc.speeds0, sc.t_end)
+    r = ClosedLoop(
+        sc.leader, [sc.law(law)], ev or sc.ev, sensors=Sensors(seed=seed), mismatch=mm, estimator=factory, law_dt=0.2
+    ).run(sc.gaps0, sc.speeds0, sc.t_end)
     return r, made
 
 
@@ -75,8 +84,11 @@ def test_soc_error_below_one_percent_after_60_s_for_drawn_mismatches(cycle: str,
         sc = cycle_scenario(cycle, SEGMENT_S)
         ev = sc.ev
         if cycle == "hwfet" and i == 0:
-            ev = dataclasses.replace(ev, thermal=ThermalParams(enabled=True, T0_K=300.15),
-                                     cell=dataclasses.replace(ev.cell, activation_energy_Jpmol=2.4e4))
+            ev = dataclasses.replace(
+                ev,
+                thermal=ThermalParams(enabled=True, T0_K=300.15),
+                cell=dataclasses.replace(ev.cell, activation_energy_Jpmol=2.4e4),
+            )
         r, made = _run(cycle, Mismatch(**d), guess, 100 + i, "proposed" if i % 3 else "ovfl", ev)
         est = r.solver_stats[0]["estimation"]
         assert r.status == "ok"

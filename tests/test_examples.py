@@ -18,8 +18,14 @@ EXAMPLES = ROOT / "examples"
 
 def run_example(name: str, tmp_path: Path, *args: str) -> str:
     env = {**os.environ, "PYTHONPATH": str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""), "MPLBACKEND": "Agg"}
-    p = subprocess.run([sys.executable, str(EXAMPLES / name), "--quick", *args], cwd=tmp_path, env=env,
-                       capture_output=True, text=True, timeout=600)
+    p = subprocess.run(
+        [sys.executable, str(EXAMPLES / name), "--quick", *args],
+        cwd=tmp_path,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
     assert p.returncode == 0, p.stderr[-3000:]
     return p.stdout
 
@@ -58,10 +64,13 @@ def test_wq_pareto(tmp_path: Path) -> None:
     assert heat == sorted(heat, reverse=True)  # a larger heat weight never buys more heat
     assert heat[0] > heat[-1] * (1 + 1e-3)  # ... and w_Q really acts (a front of one point is a bug)
     for r in mpc:  # the 'pareto' flag is exactly non-domination, checked by hand
-        dominated = any(o is not r and o["heat_pack_J"] <= r["heat_pack_J"]
-                        and o["rms_rel_speed_model"] <= r["rms_rel_speed_model"]
-                        and (o["heat_pack_J"], o["rms_rel_speed_model"]) != (r["heat_pack_J"], r["rms_rel_speed_model"])
-                        for o in mpc)
+        dominated = any(
+            o is not r
+            and o["heat_pack_J"] <= r["heat_pack_J"]
+            and o["rms_rel_speed_model"] <= r["rms_rel_speed_model"]
+            and (o["heat_pack_J"], o["rms_rel_speed_model"]) != (r["heat_pack_J"], r["rms_rel_speed_model"])
+            for o in mpc
+        )
         assert r["pareto"] == (not dominated)
     assert _png(tmp_path / "w" / "wq_pareto.png")
 
@@ -72,10 +81,16 @@ def test_custom_mpc_term(tmp_path: Path) -> None:
     headway: a user problem whose every derived item follows it (its own name, §9's bounds, the §9 family's cold
     start), not the traffic formulation's (the MPC's default: problem mpc_traffic, h_min 2 m = 0.2, v_max 9)."""
     out = run_example("custom_mpc_term.py", tmp_path)
-    runs = {m.group(1).strip(): m.groupdict() for m in re.finditer(
-        r"^\s*(.+?): status ok, min \(h - T_h v\) over the second half = (?P<margin>[-\d.]+) \(h_min = (?P<h_min>[-\d.e]+), "
-        r"v_max = (?P<v_max>[-\d.e]+)\).*controller (?P<ctrl>\S+), problem (?P<problem>\S+) \(formulation (?P<kind>\w+), "
-        r"family (?P<family>\w+)\)", out, re.M)}
+    runs = {
+        m.group(1).strip(): m.groupdict()
+        for m in re.finditer(
+            r"^\s*(.+?): status ok, min \(h - T_h v\) over the second half = (?P<margin>[-\d.]+) \(h_min = (?P<h_min>[-\d.e]+), "
+            r"v_max = (?P<v_max>[-\d.e]+)\).*controller (?P<ctrl>\S+), problem (?P<problem>\S+) \(formulation (?P<kind>\w+), "
+            r"family (?P<family>\w+)\)",
+            out,
+            re.M,
+        )
+    }
     assert set(runs) == {"mpc (§9)", "mpc (§9) + headway"}, out
     base, hw = runs["mpc (§9)"], runs["mpc (§9) + headway"]
     assert (base["ctrl"], base["problem"], base["kind"], base["family"]) == ("mpc(w_Q=1)", "mpc", "s9", "s9")

@@ -40,8 +40,9 @@ def figs(monkeypatch: pytest.MonkeyPatch) -> list:
 
 @pytest.fixture(scope="module")
 def run():  # noqa: ANN201
-    return simulate_platoon(PaperLeader(), [Proposed()] * 3, [0.7, 2.9, 3.1], [1.8, 1.75, 1.72], 6.0,
-                            ev=EVParams(units=UNITS), dt_out=0.05)
+    return simulate_platoon(
+        PaperLeader(), [Proposed()] * 3, [0.7, 2.9, 3.1], [1.8, 1.75, 1.72], 6.0, ev=EVParams(units=UNITS), dt_out=0.05
+    )
 
 
 def _axis(fig, word: str):  # noqa: ANN001, ANN202
@@ -98,8 +99,9 @@ def test_overlay_styles_are_distinct_and_legend_names_leader_and_h_min(run, figs
     mpc_plots.plot_overlay(results, tmp_path / "o.png", vehicle=0, h_min=0.41)
     fig = figs[-1]
     # Line2D has no public getter of the dash sequence; _dash_pattern is (offset, on/off lengths)
-    got = {ln.get_label(): (ln.get_color(), str(ln._dash_pattern)) for ln in fig.axes[0].lines
-           if ln.get_label() in labels}
+    got = {
+        ln.get_label(): (ln.get_color(), str(ln._dash_pattern)) for ln in fig.axes[0].lines if ln.get_label() in labels
+    }
     assert len(set(got.values())) == 4  # four controllers, four distinct (colour, dash) pairs
     widths = [ln.get_linewidth() for ln in fig.axes[0].lines if ln.get_label() in labels]
     assert widths == sorted(widths, reverse=True) and len(set(widths)) == 4  # each drawn over a wider one
@@ -112,8 +114,9 @@ def test_overlay_styles_are_distinct_and_legend_names_leader_and_h_min(run, figs
 
 def _with_steps(r, ok: list[bool], status: list[str]):  # noqa: ANN001, ANN202
     steps = {"solve_ms": list(np.linspace(0.7, 1.9, len(ok))), "status": status, "ok": ok, "iterations": [1] * len(ok)}
-    return dataclasses.replace(r, meta={**r.meta, "mpc_steps": [steps, None, None]},
-                               solver_stats=[{"solver_path": "rti"}, None, None])
+    return dataclasses.replace(
+        r, meta={**r.meta, "mpc_steps": [steps, None, None]}, solver_stats=[{"solver_path": "rti"}, None, None]
+    )
 
 
 def test_solve_time_plot_marks_only_real_fallbacks(run, figs, tmp_path) -> None:  # noqa: ANN001
@@ -150,8 +153,14 @@ def test_percent_change_bars_keep_their_sign(figs, tmp_path) -> None:  # noqa: A
 def _ocp_result(I: np.ndarray, V1: np.ndarray, V2: np.ndarray, J: float) -> OCPResult:
     t = np.linspace(0.0, 60.0, I.size + 1)
     base = OCPResult.failed("ocp_a", "ms", I.size, "optimal", 0.1, t, "s")
-    return dataclasses.replace(base, states={"V1": V1, "V2": V2, "S": np.full(t.size, 0.5)}, controls={"I": I},
-                               objective=J, success=True, status="optimal")
+    return dataclasses.replace(
+        base,
+        states={"V1": V1, "V2": V2, "S": np.full(t.size, 0.5)},
+        controls={"I": I},
+        objective=J,
+        success=True,
+        status="optimal",
+    )
 
 
 def test_prop31_zero_current_is_drawn_as_zero_and_w_is_the_stored_energy(figs, tmp_path) -> None:  # noqa: ANN001
@@ -162,14 +171,22 @@ def test_prop31_zero_current_is_drawn_as_zero_and_w_is_the_stored_energy(figs, t
     V1s, V2s = np.linspace(0.021, 0.004, n + 1), np.linspace(0.033, 0.02, n + 1)
     tiny = 3.7e-7 * np.sin(np.arange(n) + 0.3)
     cases = {
-        "relaxing_Q_nonneg": {"result": _ocp_result(tiny, V1s, V2s, -4.1e-7), "V0": [0.021, 0.033],
-                              "zero_heat_alternative_objective_J": 2.4e-18,
-                              "alternatives": {"neg_polarisation": {"sim": {"t": t_alt, "I": -(V1a + V2a) / 0.011,
-                                                                             "V1": V1a, "V2": V2a}}}},
-        "relaxing": {"result": _ocp_result(np.linspace(-1.8, -0.4, n), V1s, V2s, -0.467), "V0": [0.021, 0.033],
-                     "zero_heat_alternative_objective_J": 2.4e-18,
-                     "alternatives": {"neg_polarisation": {"sim": {"t": t_alt, "I": -(V1a + V2a) / 0.011,
-                                                                    "V1": V1a, "V2": V2a}}}},
+        "relaxing_Q_nonneg": {
+            "result": _ocp_result(tiny, V1s, V2s, -4.1e-7),
+            "V0": [0.021, 0.033],
+            "zero_heat_alternative_objective_J": 2.4e-18,
+            "alternatives": {
+                "neg_polarisation": {"sim": {"t": t_alt, "I": -(V1a + V2a) / 0.011, "V1": V1a, "V2": V2a}}
+            },
+        },
+        "relaxing": {
+            "result": _ocp_result(np.linspace(-1.8, -0.4, n), V1s, V2s, -0.467),
+            "V0": [0.021, 0.033],
+            "zero_heat_alternative_objective_J": 2.4e-18,
+            "alternatives": {
+                "neg_polarisation": {"sim": {"t": t_alt, "I": -(V1a + V2a) / 0.011, "V1": V1a, "V2": V2a}}
+            },
+        },
     }
     ocp_plots.plot_prop31(cases, tmp_path / "p.png", cell=cell)
     fig = figs[-1]
@@ -187,10 +204,15 @@ def test_prop31_zero_current_is_drawn_as_zero_and_w_is_the_stored_energy(figs, t
 
 
 def test_current_profile_sweep_is_percent_saving(figs, tmp_path) -> None:  # noqa: ANN001
-    rows = [{"E_req_J": e, "t_f_s": tf, "optimal_heat_J": q, "constant_current_heat_J": cc,
-             "constant_power_heat_J": cp}
-            for e, tf, q, cc, cp in [(1300.0, 45.0, 71.0, 77.5, 79.1), (2600.0, 45.0, 301.0, 334.0, 352.0),
-                                     (1300.0, 90.0, 33.0, 35.1, 35.9), (3900.0, 90.0, float("nan"), 95.0, 97.0)]]
+    rows = [
+        {"E_req_J": e, "t_f_s": tf, "optimal_heat_J": q, "constant_current_heat_J": cc, "constant_power_heat_J": cp}
+        for e, tf, q, cc, cp in [
+            (1300.0, 45.0, 71.0, 77.5, 79.1),
+            (2600.0, 45.0, 301.0, 334.0, 352.0),
+            (1300.0, 90.0, 33.0, 35.1, 35.9),
+            (3900.0, 90.0, float("nan"), 95.0, 97.0),
+        ]
+    ]
     ocp_plots.plot_current_profile_sweep(rows, tmp_path / "sw.png")
     ax = figs[-1].axes[0]
     line = next(ln for ln in ax.lines if ln.get_label() == "vs constant current, t_f = 45 s")

@@ -13,8 +13,13 @@ from aev_ocp.models import PaperLeader, Proposed
 from aev_ocp.mpc import MPCSettings, MPCVehicle, run_closed_loop
 from aev_ocp.mpc.policy import MPCPolicy
 from aev_ocp.ocp.following import FollowingBounds, FollowingWeights, following_problem
-from aev_ocp.ocp.formulation import (Formulation, formulation_from_dict, problem_formulation, s9_formulation,
-                                     traffic_formulation)
+from aev_ocp.ocp.formulation import (
+    Formulation,
+    formulation_from_dict,
+    problem_formulation,
+    s9_formulation,
+    traffic_formulation,
+)
 from aev_ocp.ocp.traffic import TrafficParams
 from aev_ocp.params import UNLIMITED, EVParams, ParameterError, Units
 from aev_ocp.simulate import simulate_platoon
@@ -72,9 +77,16 @@ def test_violations_are_counted_against_the_running_formulations_bounds() -> Non
 
 
 def test_mpc_table_keys_route_into_the_formulation() -> None:
-    f = formulation_from_dict({"formulation": "s9", "w_Q": 2.5, "h_min": 0.31, "objective": "energy",
-                               "smoothing_width_W": 170.0})
-    assert (f.kind, f.weights.w_Q, f.bounds.h_min, f.objective, f.smooth.smoothing_width_W) == ("s9", 2.5, 0.31, "energy", 170.0)
+    f = formulation_from_dict(
+        {"formulation": "s9", "w_Q": 2.5, "h_min": 0.31, "objective": "energy", "smoothing_width_W": 170.0}
+    )
+    assert (f.kind, f.weights.w_Q, f.bounds.h_min, f.objective, f.smooth.smoothing_width_W) == (
+        "s9",
+        2.5,
+        0.31,
+        "energy",
+        170.0,
+    )
     assert formulation_from_dict({"time_headway_s": 1.3}).traffic == TrafficParams(time_headway_s=1.3)
     with pytest.raises(ParameterError, match="w_Q applies to the §9 formulation only"):
         formulation_from_dict({"w_Q": 2.0})
@@ -110,8 +122,18 @@ def law_runs():
 #: measured: ≤ 5e-5 relative (ω of follower 1, whose a crosses 0 near the cut: the η switch's kink inside the
 #: interval); taking the nearest sample instead is off by ~4e-3
 RTOL_CUT = 1e-4
-KEYS = ("omega_model", "heat_pack_J", "heat_irr_pack_J", "delta_soc", "distance_m", "duration_s", "min_gap_model",
-        "rms_ovm_error_model", "rms_rel_speed_model", "heat_pack_J_per_km")
+KEYS = (
+    "omega_model",
+    "heat_pack_J",
+    "heat_irr_pack_J",
+    "delta_soc",
+    "distance_m",
+    "duration_s",
+    "min_gap_model",
+    "rms_ovm_error_model",
+    "rms_rel_speed_model",
+    "heat_pack_J_per_km",
+)
 
 
 def test_truncation_at_a_time_equals_a_run_that_stops_there(law_runs) -> None:

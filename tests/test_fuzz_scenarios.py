@@ -63,8 +63,24 @@ def to_toml(doc: dict[str, Any], prefix: str = "") -> str:
 
 
 # ----------------------------------------------------------------------------- strategies
-SPECIAL_STR = ["", "../../x", "/tmp/abs", "idm", "ovfl", "proposed", "all", "cycle", "udds", "si", "paper",
-               "constant", "array", "nan", "é✓", "a" * 300]
+SPECIAL_STR = [
+    "",
+    "../../x",
+    "/tmp/abs",
+    "idm",
+    "ovfl",
+    "proposed",
+    "all",
+    "cycle",
+    "udds",
+    "si",
+    "paper",
+    "constant",
+    "array",
+    "nan",
+    "é✓",
+    "a" * 300,
+]
 scalars = st.one_of(
     st.integers(min_value=-(2**63), max_value=2**63 - 1),
     st.sampled_from([0, 1, -1, 2**62, 10**7, 10**9]),
@@ -74,9 +90,11 @@ scalars = st.one_of(
     st.sampled_from(SPECIAL_STR),
     st.text(max_size=12),
 )
-values = st.recursive(scalars, lambda inner: st.one_of(st.lists(inner, max_size=4),
-                                                      st.dictionaries(st.text(max_size=6), inner, max_size=3)),
-                      max_leaves=6)
+values = st.recursive(
+    scalars,
+    lambda inner: st.one_of(st.lists(inner, max_size=4), st.dictionaries(st.text(max_size=6), inner, max_size=3)),
+    max_leaves=6,
+)
 
 
 def _paths(doc: dict[str, Any], prefix: tuple[str, ...] = ()) -> list[tuple[str, ...]]:
@@ -109,8 +127,27 @@ def mutated_docs(draw: Any) -> dict[str, Any]:
             parent.pop(path[-1], None)
         else:
             target = parent if isinstance(parent, dict) else doc
-            target[draw(st.sampled_from(["extra", "rtol", "atol", "law", "laws", "followers", "compare",
-                                         "dt_out", "name", "mpc", "N", "kind", "v0"]))] = draw(values)
+            target[
+                draw(
+                    st.sampled_from(
+                        [
+                            "extra",
+                            "rtol",
+                            "atol",
+                            "law",
+                            "laws",
+                            "followers",
+                            "compare",
+                            "dt_out",
+                            "name",
+                            "mpc",
+                            "N",
+                            "kind",
+                            "v0",
+                        ]
+                    )
+                )
+            ] = draw(values)
     return doc
 
 
@@ -150,7 +187,7 @@ def scenario_bytes(draw: Any) -> bytes:
         elif op == "insert":
             data[i:i] = draw(st.binary(min_size=1, max_size=8))
         else:
-            del data[i:i + draw(st.integers(1, 40))]
+            del data[i : i + draw(st.integers(1, 40))]
     return bytes(data)
 
 
@@ -166,8 +203,11 @@ def _clamp(doc: Any) -> Any:
 
 
 # ----------------------------------------------------------------------------- the properties
-@settings(max_examples=int(os.environ.get("AEV_OCP_FUZZ_LOADER", 300)), deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture,
-                                                                   HealthCheck.too_slow])
+@settings(
+    max_examples=int(os.environ.get("AEV_OCP_FUZZ_LOADER", 300)),
+    deadline=None,
+    suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow],
+)
 @given(data=scenario_bytes())
 def test_loader_returns_a_scenario_or_a_scenario_error(tmp_path: Path, data: bytes) -> None:
     p = tmp_path / "fuzz.toml"
@@ -184,11 +224,15 @@ def test_loader_returns_a_scenario_or_a_scenario_error(tmp_path: Path, data: byt
     assert isinstance(s, Scenario) and s.n_followers >= 1 and s.t_end > 0 and s.dt_out > 0
 
 
-@settings(max_examples=int(os.environ.get("AEV_OCP_FUZZ_CLI", 15)), deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture,
-                                                                  HealthCheck.too_slow])
+@settings(
+    max_examples=int(os.environ.get("AEV_OCP_FUZZ_CLI", 15)),
+    deadline=None,
+    suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow],
+)
 @given(doc=st.one_of(mutated_docs(), plausible_docs()))
-def test_simulate_exits_cleanly_on_any_mutated_scenario(tmp_path_factory: pytest.TempPathFactory,
-                                                        capsys: pytest.CaptureFixture[str], doc: dict[str, Any]) -> None:
+def test_simulate_exits_cleanly_on_any_mutated_scenario(
+    tmp_path_factory: pytest.TempPathFactory, capsys: pytest.CaptureFixture[str], doc: dict[str, Any]
+) -> None:
     d = tmp_path_factory.mktemp("fz")
     p = d / "fuzz.toml"
     p.write_text(to_toml(_clamp(doc)), encoding="utf-8", errors="surrogatepass")
@@ -210,5 +254,7 @@ def test_simulate_exits_cleanly_on_any_mutated_scenario(tmp_path_factory: pytest
 
 def test_report_fuzz_counts() -> None:
     """Prints how many inputs the fuzz tests above tried (run with -s to see it)."""
-    print(f"\nfuzz: loader {COUNTS['loader']} inputs ({COUNTS['loader_valid']} valid), "
-          f"CLI {COUNTS['cli']} runs, exit codes {COUNTS['cli_rc']}")
+    print(
+        f"\nfuzz: loader {COUNTS['loader']} inputs ({COUNTS['loader_valid']} valid), "
+        f"CLI {COUNTS['cli']} runs, exit codes {COUNTS['cli_rc']}"
+    )

@@ -52,10 +52,14 @@ W = FollowingWeights(w_Q=2.0, w_V=0.5, w_r=3.0, w_a=0.7)
 SMOOTH = PowertrainOptions(230.0)
 
 # (v, a, V1, V2, S) in model units / V / -: traction, braking, coasting-ish, with S ≠ 1/2
-POINTS = np.array([[1.45, 0.62, 0.013, -0.021, 0.83],
-                   [0.55, -1.3, -0.008, 0.027, 0.37],
-                   [1.9, 0.004, 0.031, 0.011, 0.61],
-                   [0.83, 1.7, -0.017, -0.005, 0.22]])
+POINTS = np.array(
+    [
+        [1.45, 0.62, 0.013, -0.021, 0.83],
+        [0.55, -1.3, -0.008, 0.027, 0.37],
+        [1.9, 0.004, 0.031, 0.011, 0.61],
+        [0.83, 1.7, -0.017, -0.005, 0.22],
+    ]
+)
 
 with (Path(__file__).resolve().parents[1] / "aev_ocp" / "data" / "a123_ocv_25C.csv").open() as _fh:
     _rows = list(csv.DictReader(_fh))
@@ -72,9 +76,11 @@ def np_battery(v, a, V1, V2, S, ev=EV, width=None):
     The current is the SMALL root of R_s I² − E I + P_c = 0 by the other quadratic formula."""
     u, veh, c = ev.units, ev.vehicle, ev.cell
     vs, as_ = v * u.speed_mps, a * u.speed_mps**2 / u.length_m
-    F = (0.5 * veh.air_density_kgpm3 * veh.frontal_area_m2 * veh.drag_coefficient * vs**2
-         + veh.rolling_coefficient * veh.mass_kg * veh.gravity_mps2
-         + veh.mass_kg * veh.gravity_mps2 * math.sin(veh.grade_rad))
+    F = (
+        0.5 * veh.air_density_kgpm3 * veh.frontal_area_m2 * veh.drag_coefficient * vs**2
+        + veh.rolling_coefficient * veh.mass_kg * veh.gravity_mps2
+        + veh.mass_kg * veh.gravity_mps2 * math.sin(veh.grade_rad)
+    )
     Pw = (veh.mass_kg * as_ + F) * vs
     eta = veh.efficiency
     if width is None:
@@ -91,10 +97,20 @@ def np_battery(v, a, V1, V2, S, ev=EV, width=None):
     VT = ocv - V1 - V2 - c.R_s_ohm * I
     n = ev.pack.n_series * ev.pack.n_parallel
     Q = I * (ocv - VT)
-    return {"P_w": Pw, "P_b": Pb, "P_c": Pc, "E": E, "disc": disc, "I": I,
-            "dV1": (I - V1 / c.R1_ohm) / c.C1_F, "dV2": (I - V2 / c.R2_ohm) / c.C2_F,
-            "dS": -I / (c.capacity_Ah * 3600.0), "Q": Q, "Q_pack": n * Q,
-            "Q_irr_pack": n * (c.R_s_ohm * I**2 + V1**2 / c.R1_ohm + V2**2 / c.R2_ohm)}
+    return {
+        "P_w": Pw,
+        "P_b": Pb,
+        "P_c": Pc,
+        "E": E,
+        "disc": disc,
+        "I": I,
+        "dV1": (I - V1 / c.R1_ohm) / c.C1_F,
+        "dV2": (I - V2 / c.R2_ohm) / c.C2_F,
+        "dS": -I / (c.capacity_Ah * 3600.0),
+        "Q": Q,
+        "Q_pack": n * Q,
+        "Q_irr_pack": n * (c.R_s_ohm * I**2 + V1**2 / c.R1_ohm + V2**2 / c.R2_ohm),
+    }
 
 
 def np_stage(h, v, V1, V2, S, a, vl_hat, weights=W, ev=EV, width=SMOOTH.smoothing_width_W, objective="heat"):
@@ -262,8 +278,10 @@ def test_simulators_integrate_a_linear_law_exactly(method: str) -> None:
 def runs():
     """A Proposed-law follower behind the paper leader (η = 0.73, P_aux, L = 12 m, U = 4 m/s), both integrators."""
     law = Proposed(AL, BE, KA, EP)
-    return {m: simulate_platoon(PaperLeader(), [law], [0.9], [1.6], 4.0, ev=EV, dt_out=0.002, method=m)
-            for m in ("cascade", "cvodes")}
+    return {
+        m: simulate_platoon(PaperLeader(), [law], [0.9], [1.6], 4.0, ev=EV, dt_out=0.002, method=m)
+        for m in ("cascade", "cvodes")
+    }
 
 
 @pytest.mark.parametrize("method", ["cascade", "cvodes"])
@@ -393,8 +411,11 @@ def mpc():
 
     from aev_ocp.ocp.formulation import s9_formulation
 
-    return MPCController(MPCSettings(N=4, dt=0.1, solver="ipopt", codegen=False), ev=EV,
-                         formulation=s9_formulation(weights=W, smooth=SMOOTH))
+    return MPCController(
+        MPCSettings(N=4, dt=0.1, solver="ipopt", codegen=False),
+        ev=EV,
+        formulation=s9_formulation(weights=W, smooth=SMOOTH),
+    )
 
 
 def test_following_step_of_ocp_and_mpc_is_rk4_of_the_independent_ode(mpc) -> None:
@@ -418,8 +439,9 @@ def test_following_step_of_ocp_and_mpc_is_rk4_of_the_independent_ode(mpc) -> Non
 def test_stage_cost_weights_reach_every_user(objective: str) -> None:
     """ℓ with weights (2, 0.5, 3, 0.7) and η = 0.73 in the problem (OCP-D's), in OCP-D's solver path and
     in stage_cost_of_trajectory, against NumPy; each weight moves only its own term."""
-    scn = OracleScenario(ev=EV, formulation=s9_formulation(weights=W, smooth=SMOOTH, objective=objective), t_end=0.4,
-                         dt=0.1)
+    scn = OracleScenario(
+        ev=EV, formulation=s9_formulation(weights=W, smooth=SMOOTH, objective=objective), t_end=0.4, dt=0.1
+    )
     pr = oracle_problem(scn)
     Z = np.vstack([[1.3, 2.1, 0.7, 2.9], POINTS[:, 0], POINTS[:, 2], POINTS[:, 3], POINTS[:, 4]])  # h, v, V1, V2, S
     A = POINTS[:, 1].copy()
@@ -443,8 +465,9 @@ def test_stage_cost_weights_reach_every_user(objective: str) -> None:
 
 def test_ocp_d_objective_is_the_numpy_cost_with_distinct_weights() -> None:
     """A short OCP-D solve with weights (2, 0.5, 3, 0.7): its optimum's cost recomputed in NumPy."""
-    scn = OracleScenario(ev=EV, formulation=s9_formulation(weights=W, smooth=SMOOTH), t_end=1.0, dt=0.1, h0=0.9,
-                         v0=1.6, S0=0.83)
+    scn = OracleScenario(
+        ev=EV, formulation=s9_formulation(weights=W, smooth=SMOOTH), t_end=1.0, dt=0.1, h0=0.9, v0=1.6, S0=0.83
+    )
     r = OracleSolver(scn).solve()
     assert r.success
     st = r.states
@@ -484,7 +507,8 @@ def test_soft_constraint_adds_a_positive_l1_penalty() -> None:
     assert list(pr.control_names) == ["u", "slack_cap"]
     u0, s0 = 1.6, 0.45
     assert float(pr.stage(0.2, [u0, s0], ca.DM(0, 1), ca.DM(0, 1))) == pytest.approx(
-        (u0 - 2.3) ** 2 + 5.7 * s0 + 0.004 * s0**2, rel=1e-14)
+        (u0 - 2.3) ** 2 + 5.7 * s0 + 0.004 * s0**2, rel=1e-14
+    )
     assert float(pr.path(0.2, [u0, s0], ca.DM(0, 1), ca.DM(0, 1))) == pytest.approx(u0 - s0, rel=1e-14)
 
 
@@ -535,7 +559,15 @@ def test_plant_stops_where_the_speed_crosses_the_tolerance(method: str) -> None:
         def accel(self, h, v, v_l):  # type: ignore[no-untyped-def]
             return -1.7 + 0 * h
 
-    r = simulate_platoon(ConstantSpeed(1.1), [Brake()], [4.3], [0.85], 2.0, ev=dataclasses.replace(EV, limits=UNLIMITED),
-                         battery=False, method=method)  # (with vehicle limits the brakes hold a stopped car)
+    r = simulate_platoon(
+        ConstantSpeed(1.1),
+        [Brake()],
+        [4.3],
+        [0.85],
+        2.0,
+        ev=dataclasses.replace(EV, limits=UNLIMITED),
+        battery=False,
+        method=method,
+    )  # (with vehicle limits the brakes hold a stopped car)
     assert r.status == "negative_speed" and r.events[0].vehicle == 0
     assert r.events[0].time == pytest.approx(0.5 + PLAN_TOLERANCE / 1.7, abs=1e-9)

@@ -18,8 +18,7 @@ PACKAGE_DIR = Path(aev_ocp.__file__).resolve().parent
 
 #: Edges still open on this branch, each with its owner; the lead removes an entry when its fix is merged.
 #: (importer, imported): why it is still here.
-ALLOWED: dict[tuple[str, str], str] = {
-}
+ALLOWED: dict[tuple[str, str], str] = {}
 
 
 def module_name(path: Path, root: Path) -> str:
@@ -68,8 +67,12 @@ def import_edges(module: str, path: Path, modules: dict[str, Path]) -> list[tupl
                 if name.startswith("."):
                     name = ".".join(package) + name
                 targets.append((name, node.lineno))
-        elif (isinstance(node, ast.Assign) and path.name == "__init__.py" and isinstance(node.value, ast.Dict)
-              and any(isinstance(t, ast.Name) and t.id == "_EXPORTS" for t in node.targets)):
+        elif (
+            isinstance(node, ast.Assign)
+            and path.name == "__init__.py"
+            and isinstance(node.value, ast.Dict)
+            and any(isinstance(t, ast.Name) and t.id == "_EXPORTS" for t in node.targets)
+        ):
             for v in node.value.values:  # lazy exports: {"Name": "submodule"}
                 if isinstance(v, ast.Constant) and isinstance(v.value, str):
                     targets.append((".".join(package) + "." + v.value.lstrip("."), node.lineno))
@@ -115,7 +118,7 @@ def find_cycle(graph: dict[str, dict[str, int]]) -> list[str] | None:
             if (a, b) in ALLOWED:
                 continue
             if state.get(b) == 1:
-                return stack[stack.index(b):] + [b]
+                return stack[stack.index(b) :] + [b]
             if b not in state:
                 found = visit(b)
                 if found:
@@ -169,9 +172,13 @@ def test_the_walker_sees_every_kind_of_import(tmp_path: Path) -> None:
     _write(tmp_path, "aev_ocp/__init__.py", '_EXPORTS = {"Thing": "low", "Other": "sub.deep"}\n')
     _write(tmp_path, "aev_ocp/low.py", "def f():\n    from .sub import deep\n")
     _write(tmp_path, "aev_ocp/sub/__init__.py", "")
-    _write(tmp_path, "aev_ocp/sub/deep.py", "from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n"
-                                            "    from ..low import f\nimport importlib\n"
-                                            "importlib.import_module('aev_ocp.other')\n")
+    _write(
+        tmp_path,
+        "aev_ocp/sub/deep.py",
+        "from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n"
+        "    from ..low import f\nimport importlib\n"
+        "importlib.import_module('aev_ocp.other')\n",
+    )
     _write(tmp_path, "aev_ocp/other.py", "from aev_ocp.sub.deep import x as y\nfrom . import low\n")
     graph = package_graph(pkg)
     assert graph["aev_ocp"] == {"aev_ocp.low": 1, "aev_ocp.sub.deep": 1}
@@ -186,15 +193,17 @@ def test_an_upward_import_is_named() -> None:
     graph = package_graph()
     before = set(upward_edges(graph))
     graph["aev_ocp.params"] = {**graph["aev_ocp.params"], "aev_ocp.plots": 7}
-    assert set(upward_edges(graph)) - before == {"aev_ocp.params (foundation) imports aev_ocp.plots (outputs) at line 7"}
+    assert set(upward_edges(graph)) - before == {
+        "aev_ocp.params (foundation) imports aev_ocp.plots (outputs) at line 7"
+    }
 
 
 @pytest.mark.parametrize("module, limit", [("aev_ocp.ocp.problem", 12)])
 def test_importing_the_problem_description_stays_small(module: str, limit: int) -> None:
-    code = (f"import sys, {module}\n"
-            "print(sorted(m for m in sys.modules if m == 'aev_ocp' or m.startswith('aev_ocp.')))")
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
-                         cwd=PACKAGE_DIR.parent)
+    code = f"import sys, {module}\nprint(sorted(m for m in sys.modules if m == 'aev_ocp' or m.startswith('aev_ocp.')))"
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=PACKAGE_DIR.parent
+    )
     loaded = eval(out.stdout)  # a printed list of str
     assert len(loaded) <= limit, f"import {module} loads {len(loaded)} aev_ocp modules: {loaded}"
 
@@ -204,6 +213,8 @@ def test_the_docs_page_lists_the_same_table() -> None:
     page = Path(__file__).resolve().parents[1] / "docs" / "guide" / "layers.md"  # the checkout's docs
     assert page.is_file(), f"{page} is missing"
     rows = [ln for ln in page.read_text(encoding="utf-8").splitlines() if ln.startswith("| ") and "`aev_ocp" in ln]
-    table = [(cells[2], [m.strip(" `") for m in cells[3].split(",")])
-             for cells in ([c.strip() for c in ln.split("|")] for ln in rows)]
+    table = [
+        (cells[2], [m.strip(" `") for m in cells[3].split(",")])
+        for cells in ([c.strip() for c in ln.split("|")] for ln in rows)
+    ]
     assert table == [(name, list(mods)) for name, mods in LAYERS]

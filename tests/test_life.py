@@ -37,8 +37,13 @@ def test_daily_profile_errors() -> None:
     with pytest.raises(ParameterError, match="charge_start_h"):
         life.DailySchedule(trip_start_h=(8.0, 23.0), charge_start_h=22.0)
     with pytest.raises(ParameterError, match="does not fit"):
-        life.daily_profile(np.linspace(0, 7200.0, 50), np.linspace(0.8, 0.7, 50), np.full(50, 300.0), 300.0,
-                           life.DailySchedule(trip_start_h=(8.0, 9.0)))
+        life.daily_profile(
+            np.linspace(0, 7200.0, 50),
+            np.linspace(0.8, 0.7, 50),
+            np.full(50, 300.0),
+            300.0,
+            life.DailySchedule(trip_start_h=(8.0, 9.0)),
+        )
 
 
 def test_without_blast_lite_one_line_install_hint(monkeypatch: pytest.MonkeyPatch) -> None:

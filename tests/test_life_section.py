@@ -15,8 +15,9 @@ def test_life_section_reduced(tmp_path: Path) -> None:
     md = ls.life_section(tmp_path, lines.append, segment_s=12.0, years=1.0, cycles=("us06",))
     data = json.loads((tmp_path / "battery_life" / "life.json").read_text())
     rows = data["rows"]
-    assert {(r["ambient"], r["controller"]) for r in rows} == {(a, c) for a in ("hot", "cold")
-                                                              for c in ("mpc", "proposed", "ovfl")}
+    assert {(r["ambient"], r["controller"]) for r in rows} == {
+        (a, c) for a in ("hot", "cold") for c in ("mpc", "proposed", "ovfl")
+    }
     for r in rows:
         assert r["status"] == "ok" and r["peak_temperature_K"] >= r["ambient_K"] - 1e-9
         assert r["mean_temperature_K"] <= r["peak_temperature_K"]

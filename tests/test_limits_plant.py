@@ -55,8 +55,12 @@ def test_saturated_law_matches_scipy(method: str) -> None:
 def test_cascade_and_cvodes_agree_with_saturation_active() -> None:
     """The two integrators (no shared stepping code) agree on a platoon whose laws saturate (Table 1's start)."""
     ev = EVParams(limits=VehicleLimits(a_min_mps2=-5.5))
-    res = {m: simulate_platoon(PaperLeader(), [Proposed()] * 3, [0.3, 3.5, 3.5], [1.87] * 3, 12.0, ev=ev,
-                               dt_out=0.05, method=m) for m in ("cascade", "cvodes")}
+    res = {
+        m: simulate_platoon(
+            PaperLeader(), [Proposed()] * 3, [0.3, 3.5, 3.5], [1.87] * 3, 12.0, ev=ev, dt_out=0.05, method=m
+        )
+        for m in ("cascade", "cvodes")
+    }
     a, b = res["cascade"], res["cvodes"]
     assert a.status == b.status == "ok"
     assert a.accel.min() == pytest.approx(-5.5 / 2.5, abs=1e-9)  # saturated (the unbounded law: −3.9 model)
@@ -96,8 +100,11 @@ class _Step:
         return Command(self.a)
 
     def describe(self) -> dict[str, Any]:
-        return {"controller": self.name} if self.h_min is None else {"controller": self.name,
-                                                                    "bounds_model": {"h_min": self.h_min, "v_max": 9.0}}
+        return (
+            {"controller": self.name}
+            if self.h_min is None
+            else {"controller": self.name, "bounds_model": {"h_min": self.h_min, "v_max": 9.0}}
+        )
 
 
 def test_lag_step_response_matches_the_closed_form() -> None:
@@ -131,8 +138,10 @@ def test_jerk_limit_ramps_then_follows_the_stated_small_lag() -> None:
 def test_lag_cascade_equals_cvodes() -> None:
     """A law through a lag (an actuator state in the compiled cascade too) against the CVODES plant."""
     ev = _ev(lag_s=0.45, a_min_mps2=-6.0)
-    res = {m: simulate_platoon(ConstantSpeed(1.3), [LAW, LAW], [1.1, 2.2], [3.0, 2.6], 8.0, ev=ev, dt_out=0.05,
-                               method=m) for m in ("cascade", "cvodes")}
+    res = {
+        m: simulate_platoon(ConstantSpeed(1.3), [LAW, LAW], [1.1, 2.2], [3.0, 2.6], 8.0, ev=ev, dt_out=0.05, method=m)
+        for m in ("cascade", "cvodes")
+    }
     a, b = res["cascade"], res["cvodes"]
     assert a.status == b.status == "ok"
     for name in ("gap", "speed", "accel", "omega", "heat_J"):
@@ -207,14 +216,20 @@ def test_limits_table_validated_and_round_tripped(tmp_path: Any) -> None:
     from aev_ocp.saved import load, save_output
     from aev_ocp.scenarios import ScenarioError, load_scenario
 
-    text = (tmp_path / "s.toml")
-    base = ('name = "lim"\n[leader]\nkind = "constant"\nv = 1.2\n[platoon]\nfollowers = 1\nlaw = "proposed"\n'
-            'gap0_first = 2.3\nspeed0 = 1.2\n[simulation]\nt_end = 2.0\n')
+    text = tmp_path / "s.toml"
+    base = (
+        'name = "lim"\n[leader]\nkind = "constant"\nv = 1.2\n[platoon]\nfollowers = 1\nlaw = "proposed"\n'
+        "gap0_first = 2.3\nspeed0 = 1.2\n[simulation]\nt_end = 2.0\n"
+    )
     text.write_text(base + "[limits]\na_min_mps2 = -6.5\nlag_s = 0.3\njerk_max_mps3 = 3.5\n")
     s = load_scenario(text)
     assert s.ev.limits == VehicleLimits(a_min_mps2=-6.5, lag_s=0.3, jerk_max_mps3=3.5)
-    for bad, where in (("a_min_mps2 = 1.5", "limits.a_min_mps2"), ("lag_s = -0.1", "limits.lag_s"),
-                       ("enabled = 0", "limits.enabled"), ("vmax = 3.0", "limits.vmax")):
+    for bad, where in (
+        ("a_min_mps2 = 1.5", "limits.a_min_mps2"),
+        ("lag_s = -0.1", "limits.lag_s"),
+        ("enabled = 0", "limits.enabled"),
+        ("vmax = 3.0", "limits.vmax"),
+    ):
         text.write_text(base + f"[limits]\n{bad}\n")
         with pytest.raises(ScenarioError, match=where.replace(".", r"\.")):
             load_scenario(text)

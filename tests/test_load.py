@@ -23,7 +23,7 @@ def _same(a, b) -> bool:
         return a.keys() == b.keys() and all(_same(a[k], b[k]) for k in a)
     if isinstance(a, (list, tuple)) and isinstance(b, (list, tuple)):
         return len(a) == len(b) and all(_same(x, y) for x, y in zip(a, b))
-    nan = (lambda x: x is None or (isinstance(x, float) and math.isnan(x)))  # noqa: E731
+    nan = lambda x: x is None or (isinstance(x, float) and math.isnan(x))  # noqa: E731
     if nan(a) or nan(b):
         return nan(a) and nan(b)
     return a == b
@@ -67,15 +67,30 @@ def test_mpc_round_trip_and_time_limit(tmp_path, capsys):
     from aev_ocp.mpc.cli import cli_mpc
 
     out = tmp_path / "full"
-    rc = cli_mpc(["mpc_paper_single", "--out", str(out), "--set", "simulation.t_end=1.2", "--solver", "sqp",
-                  "--no-codegen", "--no-ocpd", "--laws", "ovfl"])
+    rc = cli_mpc(
+        [
+            "mpc_paper_single",
+            "--out",
+            str(out),
+            "--set",
+            "simulation.t_end=1.2",
+            "--solver",
+            "sqp",
+            "--no-codegen",
+            "--no-ocpd",
+            "--laws",
+            "ovfl",
+        ]
+    )
     assert rc == 0
     r = aev_ocp.load(out)
     assert r.meta["output"]["runs"] == ["mpc", "ovfl"] and r.controllers[0].startswith("mpc")
     saved = json.loads((out / "results.json").read_text())
     _check_metrics(r)
-    assert _same(json.loads(json.dumps(aev_ocp.results.to_jsonable(r.metrics()[0]["omega_model"]))),
-                 saved["metrics"]["mpc"][0]["omega_model"])
+    assert _same(
+        json.loads(json.dumps(aev_ocp.results.to_jsonable(r.metrics()[0]["omega_model"]))),
+        saved["metrics"]["mpc"][0]["omega_model"],
+    )
     with open(out / "trajectories_mpc.csv", newline="") as fh:
         gap = np.array([float(row["gap_model"]) for row in csv.DictReader(fh)])
     np.testing.assert_allclose(gap, r.gap[:, 0], rtol=1e-9)
@@ -89,14 +104,29 @@ def test_mpc_round_trip_and_time_limit(tmp_path, capsys):
     # first part of the full run (same controller, same steps)
     part = tmp_path / "part"
     capsys.readouterr()
-    rc = cli_mpc(["mpc_paper_single", "--out", str(part), "--set", "simulation.t_end=1.2", "--solver", "sqp",
-                  "--no-codegen", "--no-ocpd", "--laws", "ovfl", "--time-limit", "1e-9"])
+    rc = cli_mpc(
+        [
+            "mpc_paper_single",
+            "--out",
+            str(part),
+            "--set",
+            "simulation.t_end=1.2",
+            "--solver",
+            "sqp",
+            "--no-codegen",
+            "--no-ocpd",
+            "--laws",
+            "ovfl",
+            "--time-limit",
+            "1e-9",
+        ]
+    )
     err = capsys.readouterr().err
     assert rc == 1 and "time_limit" in err and "partial" in err
     p = aev_ocp.load(part)
     assert p.status == "time_limit" and p.events[0].vehicle == -1 and p.t[-1] < 1.2
     k = p.t.size
-    np.testing.assert_array_equal(p.gap[:k - 1], r.gap[:k - 1])
+    np.testing.assert_array_equal(p.gap[: k - 1], r.gap[: k - 1])
     assert p.metrics()[0]["run_status"] == "time_limit"
 
 
@@ -104,16 +134,29 @@ def test_mpc_round_trip_and_time_limit(tmp_path, capsys):
 def test_ocp_round_trip_with_grid(tmp_path, capsys):
     from aev_ocp.ocp.cli import cli_ocp
 
-    rc = cli_ocp(["current-profile", "--N", "20", "--no-refine", "--grid", "E_req=1500,2500", "--grid", "t_f=45",
-                  "--out", str(tmp_path)])
+    rc = cli_ocp(
+        [
+            "current-profile",
+            "--N",
+            "20",
+            "--no-refine",
+            "--grid",
+            "E_req=1500,2500",
+            "--grid",
+            "t_f=45",
+            "--out",
+            str(tmp_path),
+        ]
+    )
     assert rc == 0
     main_r = aev_ocp.load(tmp_path)
     saved = json.loads((tmp_path / "current_profile.json").read_text())  # the JSON written beside it
     np.testing.assert_array_equal(main_r.t, saved["t"])
     np.testing.assert_array_equal(main_r.controls["I"], saved["controls"]["I"])
     assert main_r.objective == saved["objective"] and main_r.status == saved["status"]
-    assert _same(json.loads(json.dumps(aev_ocp.results.to_jsonable(main_r.stats()))),
-                 main_r.meta["output"]["saved_metrics"])
+    assert _same(
+        json.loads(json.dumps(aev_ocp.results.to_jsonable(main_r.stats()))), main_r.meta["output"]["saved_metrics"]
+    )
     runs = load_all(tmp_path)
     assert list(runs) == ["main", "sweep000", "sweep001"]
     sweep = json.loads((tmp_path / "current_profile_sweep.json").read_text())["sweep"]
@@ -125,8 +168,16 @@ def test_ocp_round_trip_with_grid(tmp_path, capsys):
 
 
 @pytest.mark.quick
-@pytest.mark.parametrize("grid, word", [(["E_req=1,x"], "value 2"), (["D=100"], "does not apply"),
-                                        (["Z=1"], "unknown grid"), (["E_req=-5"], "> 0"), (["E_req"], "NAME=V1")])
+@pytest.mark.parametrize(
+    "grid, word",
+    [
+        (["E_req=1,x"], "value 2"),
+        (["D=100"], "does not apply"),
+        (["Z=1"], "unknown grid"),
+        (["E_req=-5"], "> 0"),
+        (["E_req"], "NAME=V1"),
+    ],
+)
 def test_ocp_grid_errors(tmp_path, capsys, grid, word):
     from aev_ocp.ocp.cli import cli_ocp
 
@@ -140,7 +191,10 @@ def test_ocp_grid_file(tmp_path):
 
     (tmp_path / "g.toml").write_text("D = [500, 750.5]\nt_f = [60]\n")
     (tmp_path / "g.json").write_text('{"E_req": [1200, 3400]}')
-    assert parse_grids("eco-trip", ["t_f=70,80"], str(tmp_path / "g.toml")) == {"D": [500.0, 750.5], "t_f": [70.0, 80.0]}
+    assert parse_grids("eco-trip", ["t_f=70,80"], str(tmp_path / "g.toml")) == {
+        "D": [500.0, 750.5],
+        "t_f": [70.0, 80.0],
+    }
     assert parse_grids("current-profile", [], str(tmp_path / "g.json")) == {"E_req": [1200.0, 3400.0]}
 
 
@@ -148,18 +202,33 @@ def test_study_round_trip(tmp_path, capsys):
     from aev_ocp.study import load_table
     from aev_ocp.study.cli import cli_study
 
-    rc = cli_study(["studies/kappa_alpha_table1.toml", "--in-process", "--no-report", "--out", str(tmp_path),
-                    "--set", "simulation.t_end=1.5"])
+    rc = cli_study(
+        [
+            "studies/kappa_alpha_table1.toml",
+            "--in-process",
+            "--no-report",
+            "--out",
+            str(tmp_path),
+            "--set",
+            "simulation.t_end=1.5",
+        ]
+    )
     assert rc == 0
     o = aev_ocp.load(tmp_path)
     assert o.rows == load_table(tmp_path) and o.n_tasks == 36 and o.n_failed == 0
     assert o.meta["output"]["settings"]["study"] == "kappa_alpha_table1" and o.meta["output"]["provenance"]
     # a row's metrics are those of the simulation it names, run again independently
     row = next(r for r in o.rows if r["controller"] == "proposed" and r["vehicle"] == 2 and r["point"] == 5)
-    sc = load_with_sets(str(find_scenario("table1")), [f"carfollowing.kappa={row['carfollowing.kappa']!r}",
-                                                     f"carfollowing.alpha={row['carfollowing.alpha']!r}",
-                                                     "simulation.t_end=1.5", "simulation.dt_out=0.05",
-                                                     "compare=[\"proposed\"]"])
+    sc = load_with_sets(
+        str(find_scenario("table1")),
+        [
+            f"carfollowing.kappa={row['carfollowing.kappa']!r}",
+            f"carfollowing.alpha={row['carfollowing.alpha']!r}",
+            "simulation.t_end=1.5",
+            "simulation.dt_out=0.05",
+            'compare=["proposed"]',
+        ],
+    )
     m = sc.run()["proposed"].metrics()[1]
     assert row["omega_model"] == pytest.approx(m["omega_model"], rel=1e-12)
 
@@ -194,8 +263,9 @@ def test_ocp_eco_trip_time_limit_writes_a_flagged_partial_sweep(tmp_path, capsys
     the energy objective and the D sweep not run, the manifest flagged."""
     from aev_ocp.ocp.cli import cli_ocp
 
-    rc = cli_ocp(["eco-trip", "--N", "20", "--no-refine", "--grid", "D=800,900", "--time-limit", "1e-9",
-                  "--out", str(tmp_path)])
+    rc = cli_ocp(
+        ["eco-trip", "--N", "20", "--no-refine", "--grid", "D=800,900", "--time-limit", "1e-9", "--out", str(tmp_path)]
+    )
     err = capsys.readouterr().err
     assert rc == 1 and "stopped by --time-limit" in err and "partial" in err
     m = json.loads((tmp_path / MANIFEST).read_text())

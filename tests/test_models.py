@@ -14,8 +14,16 @@ from aev_ocp.models import OVFL, OVM, Proposed, equilibrium_gap, make_law, optim
 from aev_ocp.models import battery, powertrain, vehicle
 from aev_ocp.models.energy import g_exact, g_smooth
 from aev_ocp.models.leader import PaperLeader, SpeedTrace, drive_cycle, load_cycle_si
-from aev_ocp.params import (CarFollowingParams, CellParams, EVParams, PackParams, ParameterError,
-                            PowertrainOptions, Units, VehicleParams)
+from aev_ocp.params import (
+    CarFollowingParams,
+    CellParams,
+    EVParams,
+    PackParams,
+    ParameterError,
+    PowertrainOptions,
+    Units,
+    VehicleParams,
+)
 
 pytestmark = pytest.mark.quick  # the whole module runs in the sub-minute subset (pytest -m quick)
 
@@ -52,8 +60,10 @@ def test_jacobians_equal_at_equilibrium(vbar: float) -> None:
     """Paper §6: the proposed model linearises to OVFL at (V⁻¹(v̄), v̄, v̄)."""
     x = ca.SX.sym("x", 3)
     point = [equilibrium_gap(vbar), vbar, vbar]
-    J = [ca.Function("J", [x], [ca.jacobian(law.accel(x[0], x[1], x[2]), x)])(point).full()
-         for law in (OVFL(), Proposed())]
+    J = [
+        ca.Function("J", [x], [ca.jacobian(law.accel(x[0], x[1], x[2]), x)])(point).full()
+        for law in (OVFL(), Proposed())
+    ]
     np.testing.assert_allclose(J[0], J[1], rtol=0, atol=1e-12)
     # and both vanish: the equilibrium is one
     assert float(Proposed().accel(*point)) == pytest.approx(0.0, abs=1e-12)
@@ -155,7 +165,9 @@ def test_smoothing_error_bound_is_attained() -> None:
     assert SMOOTHING_SUP == pytest.approx(0.13923, abs=1e-5)
     p, w = VehicleParams(), 300.0
     x = _X[np.argmax(_X / (1 + np.exp(2 * _X)))]
-    err = float(powertrain.battery_power_W(x * w, p) - powertrain.battery_power_smooth_W(x * w, p, PowertrainOptions(w)))
+    err = float(
+        powertrain.battery_power_W(x * w, p) - powertrain.battery_power_smooth_W(x * w, p, PowertrainOptions(w))
+    )
     assert abs(err) == pytest.approx(SMOOTHING_SUP * (1 / p.efficiency - p.efficiency) * w, rel=1e-9)
 
 
@@ -178,8 +190,11 @@ def test_cell_constant_current_closed_form() -> None:
     V1 = I0 * p.R1_ohm * (1 - math.exp(-tf / t1))
     V2 = I0 * p.R2_ohm * (1 - math.exp(-tf / t2))
     S = 0.8 - I0 * tf / (3600 * p.capacity_Ah)
-    heat = (p.R_s_ohm * I0**2 * tf + I0**2 * p.R1_ohm * (tf - t1 * (1 - math.exp(-tf / t1)))
-            + I0**2 * p.R2_ohm * (tf - t2 * (1 - math.exp(-tf / t2))))
+    heat = (
+        p.R_s_ohm * I0**2 * tf
+        + I0**2 * p.R1_ohm * (tf - t1 * (1 - math.exp(-tf / t1)))
+        + I0**2 * p.R2_ohm * (tf - t2 * (1 - math.exp(-tf / t2)))
+    )
     np.testing.assert_allclose(xf, [V1, V2, S, heat], rtol=1e-9)
 
 
@@ -192,11 +207,21 @@ def test_ocv_interpolant_matches_table_and_is_monotone() -> None:
     assert np.all(np.diff(vals) > 0)  # the table is increasing and the spline keeps it so
 
 
-@pytest.mark.parametrize("cls,field,value", [
-    (VehicleParams, "mass_kg", -1.0), (VehicleParams, "efficiency", 1.5), (CellParams, "R_s_ohm", 0.0),
-    (CellParams, "soc0", 1.2), (PackParams, "n_series", 0), (CarFollowingParams, "kappa", -0.1),
-    (Units, "speed_mps", float("nan")), (Proposed, "eps", 0.0), (OVFL, "beta", -3.0), (OVM, "alpha", float("inf")),
-])
+@pytest.mark.parametrize(
+    "cls,field,value",
+    [
+        (VehicleParams, "mass_kg", -1.0),
+        (VehicleParams, "efficiency", 1.5),
+        (CellParams, "R_s_ohm", 0.0),
+        (CellParams, "soc0", 1.2),
+        (PackParams, "n_series", 0),
+        (CarFollowingParams, "kappa", -0.1),
+        (Units, "speed_mps", float("nan")),
+        (Proposed, "eps", 0.0),
+        (OVFL, "beta", -3.0),
+        (OVM, "alpha", float("inf")),
+    ],
+)
 def test_parameter_validation_names_field(cls, field: str, value: float) -> None:
     with pytest.raises(ParameterError, match=rf"{cls.__name__}\.{field} = "):
         cls(**{field: value})

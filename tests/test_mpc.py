@@ -13,8 +13,14 @@ from aev_ocp.models.carfollowing import OVFL, Proposed
 from aev_ocp.models.leader import ConstantSpeed, PaperLeader
 from aev_ocp.mpc import ClosedLoop, MPCVehicle, run_closed_loop, run_single
 from aev_ocp.mpc.controller import MPCController
-from aev_ocp.mpc.predictors import (ConstantAccelerationPredictor, ConstantVelocityPredictor, Measurements,
-                                    OraclePredictor, forecast_intervals, plan_forecast)
+from aev_ocp.mpc.predictors import (
+    ConstantAccelerationPredictor,
+    ConstantVelocityPredictor,
+    Measurements,
+    OraclePredictor,
+    forecast_intervals,
+    plan_forecast,
+)
 from aev_ocp.mpc.settings import MPCSettings
 from aev_ocp.ocp.following import FollowingBounds, FollowingWeights
 from aev_ocp.ocp.formulation import formulation_from_dict, s9_formulation
@@ -44,8 +50,10 @@ def _stage_cost_numpy(h, v, V1, V2, S, a, vl, w=FollowingWeights(), width_W=300.
     soc, ocv_v = ocv_table()
     ocv = make_interp_spline(soc, ocv_v, k=3)(S)
     vs, as_ = v * u.speed_mps, a * u.accel_mps2
-    Fres = 0.5 * veh.air_density_kgpm3 * veh.frontal_area_m2 * veh.drag_coefficient * vs**2 \
+    Fres = (
+        0.5 * veh.air_density_kgpm3 * veh.frontal_area_m2 * veh.drag_coefficient * vs**2
         + veh.rolling_coefficient * veh.mass_kg * veh.gravity_mps2
+    )
     Pw = (veh.mass_kg * as_ + Fres) * vs
     sig = 0.5 * (1 + np.tanh(Pw / width_W))
     Pc = Pw * (sig / veh.efficiency + (1 - sig) * veh.efficiency) / n
@@ -75,8 +83,9 @@ def test_closed_loop_matches_ocp_d_within_1_percent():
     assert sol.cost == pytest.approx(ocpd.objective, rel=1e-6)
     # closed loop (receding horizon, exact plant) within 1 % of the lower bound, and not below it
     r = run_single(S9(N=40), formulation=F9, t_end=T)
-    c = stage_cost_of_trajectory(r.t, r.gap[:, 0], r.speed[:, 0], r.V1[:, 0], r.V2[:, 0], r.S[:, 0],
-                                 r.accel[:-1, 0], r.leader_speed[:-1])
+    c = stage_cost_of_trajectory(
+        r.t, r.gap[:, 0], r.speed[:, 0], r.V1[:, 0], r.V2[:, 0], r.S[:, 0], r.accel[:-1, 0], r.leader_speed[:-1]
+    )
     assert abs(c["total"] / ocpd.objective - 1) < 0.01
     assert c["total"] > ocpd.objective * (1 - 1e-4)
 
@@ -111,17 +120,30 @@ def test_stage_cost_and_constraints_rechecked_in_numpy():
     np.testing.assert_allclose(np.diff(X[0]), (vm - 0.5 * (X[1, :-1] + X[1, 1:])) * 0.1, atol=1e-9)
     # weights are parameters: a different w_Q changes the optimum without a rebuild
     sol2 = ctrl.solve([0.5, 1.2, 0.01, 0.005, 0.7], vm, vh, weights=FollowingWeights(w_Q=20.0))
-    ell2, _, _ = _stage_cost_numpy(sol2.X[0, :-1], sol2.X[1, :-1], sol2.X[2, :-1], sol2.X[3, :-1], sol2.X[4, :-1],
-                                   sol2.a, vh, FollowingWeights(w_Q=20.0))
+    ell2, _, _ = _stage_cost_numpy(
+        sol2.X[0, :-1],
+        sol2.X[1, :-1],
+        sol2.X[2, :-1],
+        sol2.X[3, :-1],
+        sol2.X[4, :-1],
+        sol2.a,
+        vh,
+        FollowingWeights(w_Q=20.0),
+    )
     assert np.sum(ell2) * 0.1 == pytest.approx(sol2.cost, rel=1e-4)
     assert not np.allclose(sol2.a, a, atol=1e-3)
 
 
-@pytest.mark.parametrize("settings", [S9(solver="sqp", qp_solver="hpipm"),
-                                      S9(solver="sqp", qp_solver="qrqp"),
-                                      S9(solver="sqp", qp_solver="hpipm", codegen=True),
-                                      S9(solver="ipopt-cold")],
-                         ids=["sqp-hpipm", "sqp-qrqp", "sqp-hpipm-codegen", "ipopt-cold"])
+@pytest.mark.parametrize(
+    "settings",
+    [
+        S9(solver="sqp", qp_solver="hpipm"),
+        S9(solver="sqp", qp_solver="qrqp"),
+        S9(solver="sqp", qp_solver="hpipm", codegen=True),
+        S9(solver="ipopt-cold"),
+    ],
+    ids=["sqp-hpipm", "sqp-qrqp", "sqp-hpipm-codegen", "ipopt-cold"],
+)
 def test_solver_paths_give_the_same_closed_loop(settings, tmp_path_factory, monkeypatch):
     monkeypatch.setenv("AEV_OCP_CACHE", str(tmp_path_factory.getbasetemp() / "cache"))
     T = 3.0
@@ -152,8 +174,9 @@ def test_forced_infeasible_step_triggers_counted_fallback():
     st = r.solver_stats[0]
     steps = r.meta["mpc_steps"][0]
     assert st["fallbacks"] >= 1 and st["n_steps"] == 10
-    assert st["fallbacks"] == sum(1 for k in range(10) if steps["status"][k] not in ("Solve_Succeeded",
-                                                                                      "Solved_To_Acceptable_Level"))
+    assert st["fallbacks"] == sum(
+        1 for k in range(10) if steps["status"][k] not in ("Solve_Succeeded", "Solved_To_Acceptable_Level")
+    )
     # the applied control on the first (failed) step is the proposed law at the measured state, clipped, limited by
     # the safe controller (aev_ocp.safety.fallback): 3 m behind at 9.35 m/s it brakes fully
     from aev_ocp.safety import SafetyParams, safe_acceleration_mps2
@@ -161,19 +184,28 @@ def test_forced_infeasible_step_triggers_counted_fallback():
     law = Proposed()
     a0 = float(law.accel(0.3, 1.87, 1.7))
     u = EVParams().units
-    safe = safe_acceleration_mps2(3.0, 9.35, 8.5, 0.2, SafetyParams(a_min_mps2=-7.5, ego_brake_mps2=7.5, a_max_mps2=4.0))
+    safe = safe_acceleration_mps2(
+        3.0, 9.35, 8.5, 0.2, SafetyParams(a_min_mps2=-7.5, ego_brake_mps2=7.5, a_max_mps2=4.0)
+    )
     assert safe == -7.5
     assert r.accel[0, 0] == pytest.approx(min(max(a0, -3.0), 2.0, float(u.accel_from_si(safe))), rel=1e-9)
     # the run goes on, below the MPC's own floor h_min = 0.5 (it started at 0.3): flagged, not 'ok'
     assert r.status == "violated" and not r.events and r.violations[0].vehicle == 0
 
 
-@pytest.mark.parametrize("kw, name", [({"N": 0}, "MPCSettings.N"), ({"dt": -0.1}, "MPCSettings.dt"),
-                                      ({"solver": "magic"}, "MPCSettings.solver"), ({"rti_iterations": 0}, "MPCSettings.rti_iterations"),
-                                      ({"qp_solver": "gurobi"}, "MPCSettings.qp_solver"),
-                                      ({"predictor": "psychic"}, "MPCSettings.predictor"),
-                                      ({"codegen": "yes"}, "MPCSettings.codegen"),
-                                      ({"tol": float("nan")}, "MPCSettings.tol")])
+@pytest.mark.parametrize(
+    "kw, name",
+    [
+        ({"N": 0}, "MPCSettings.N"),
+        ({"dt": -0.1}, "MPCSettings.dt"),
+        ({"solver": "magic"}, "MPCSettings.solver"),
+        ({"rti_iterations": 0}, "MPCSettings.rti_iterations"),
+        ({"qp_solver": "gurobi"}, "MPCSettings.qp_solver"),
+        ({"predictor": "psychic"}, "MPCSettings.predictor"),
+        ({"codegen": "yes"}, "MPCSettings.codegen"),
+        ({"tol": float("nan")}, "MPCSettings.tol"),
+    ],
+)
 def test_invalid_options_name_the_option(kw, name):
     with pytest.raises(ParameterError, match=name.replace(".", r"\.")):
         MPCSettings(**kw)
@@ -224,9 +256,13 @@ def test_predictors_exact_on_their_own_motion():
 
 def test_mixed_platoon_cooperative_and_laws():
     L = PaperLeader()
-    ctrls = [MPCVehicle(S9(N=20), formulation=F9), Proposed(), OVFL(),
-             MPCVehicle(S9(N=20), formulation=F9, predictor="constant-acceleration"),
-             MPCVehicle(S9(N=20), formulation=F9, predictor="cooperative")]
+    ctrls = [
+        MPCVehicle(S9(N=20), formulation=F9),
+        Proposed(),
+        OVFL(),
+        MPCVehicle(S9(N=20), formulation=F9, predictor="constant-acceleration"),
+        MPCVehicle(S9(N=20), formulation=F9, predictor="cooperative"),
+    ]
     r = run_closed_loop(L, ctrls, [0.3, 3.5, 3.5, 3.5, 3.5], [1.87] * 5, 2.0)
     assert r.status == "ok" and r.controllers[1:3] == ["proposed", "ovfl"]
     assert [s is None for s in r.solver_stats] == [False, True, True, False, False]
@@ -246,7 +282,10 @@ def test_bad_platoon_configuration_errors():
     with pytest.raises(ParameterError, match="oracle"):
         ClosedLoop(PaperLeader(), [MPCVehicle(S9(N=5), formulation=F9), MPCVehicle(S9(N=5), formulation=F9)])
     with pytest.raises(ParameterError, match="same dt"):
-        ClosedLoop(PaperLeader(), [MPCVehicle(S9(N=5), formulation=F9), MPCVehicle(S9(N=5, dt=0.2), "cooperative", formulation=F9)])
+        ClosedLoop(
+            PaperLeader(),
+            [MPCVehicle(S9(N=5), formulation=F9), MPCVehicle(S9(N=5, dt=0.2), "cooperative", formulation=F9)],
+        )
     with pytest.raises(ParameterError, match="multiple of dt"):
         run_single(S9(N=5), formulation=F9, t_end=0.25)
 
@@ -259,8 +298,9 @@ def test_rti_closed_loop_matches_ipopt_and_holds_constraints(codegen, tmp_path_f
     T = 10.0
     ref = run_single(S9(), formulation=F9, t_end=T)
     # compiled: the whole step in C (qp_solver 'riccati'); interpreted: the Python RTI step on ca.conic (HPIPM)
-    r = run_single(S9(solver="rti", codegen=codegen, qp_solver="riccati" if codegen else "hpipm"), formulation=F9,
-                   t_end=T)
+    r = run_single(
+        S9(solver="rti", codegen=codegen, qp_solver="riccati" if codegen else "hpipm"), formulation=F9, t_end=T
+    )
     st = r.solver_stats[0]
     assert r.status == "ok" and st["fallbacks"] == 0 and st["n_steps"] == 100
     assert st["solver_path"] == ("rti+codegen" if codegen else "rti")
@@ -272,8 +312,9 @@ def test_rti_closed_loop_matches_ipopt_and_holds_constraints(codegen, tmp_path_f
     np.testing.assert_allclose(r.gap[:, 0], ref.gap[:, 0], atol=1e-4)
 
     def cost(x):
-        return stage_cost_of_trajectory(x.t, x.gap[:, 0], x.speed[:, 0], x.V1[:, 0], x.V2[:, 0], x.S[:, 0],
-                                        x.accel[:-1, 0], x.leader_speed[:-1])["total"]
+        return stage_cost_of_trajectory(
+            x.t, x.gap[:, 0], x.speed[:, 0], x.V1[:, 0], x.V2[:, 0], x.S[:, 0], x.accel[:-1, 0], x.leader_speed[:-1]
+        )["total"]
 
     assert cost(r) == pytest.approx(cost(ref), rel=1e-3)
     h, v, a, I = r.gap[:, 0], r.speed[:, 0], r.accel[:, 0], r.current_A[:, 0]

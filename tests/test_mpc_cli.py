@@ -32,8 +32,16 @@ def test_shipped_mpc_scenarios_load():
         assert (st.solver, st.qp_solver, st.qp, st.codegen, st.rti_iterations) == ("rti", "auto", "riccati", True, 1)
 
 
-@pytest.mark.parametrize("bad, word", [({"N": 0}, "N"), ({"w_Q": -1.0}, "w_Q"), ({"solver": "x"}, "solver"),
-                                       ({"horizon": 3}, "horizon"), ({"vehicles": [0]}, "vehicles")])
+@pytest.mark.parametrize(
+    "bad, word",
+    [
+        ({"N": 0}, "N"),
+        ({"w_Q": -1.0}, "w_Q"),
+        ({"solver": "x"}, "solver"),
+        ({"horizon": 3}, "horizon"),
+        ({"vehicles": [0]}, "vehicles"),
+    ],
+)
 def test_bad_mpc_table_names_the_key(bad, word):
     with pytest.raises(ScenarioError, match=word):
         parse_scenario(_doc(**bad), "x.toml")
@@ -41,8 +49,20 @@ def test_bad_mpc_table_names_the_key(bad, word):
 
 def test_cli_writes_results_and_compares(tmp_path, capsys):
     # --t-end is in seconds: 2 s = 1 model time unit (L/U = 10 m / 5 m/s) = 10 MPC steps of dt = 0.1
-    rc = cli_mpc(["mpc_paper_single", "--out", str(tmp_path), "--t-end", "2.0", "--solver", "sqp", "--qp-solver", "hpipm",
-                  "--no-codegen"])
+    rc = cli_mpc(
+        [
+            "mpc_paper_single",
+            "--out",
+            str(tmp_path),
+            "--t-end",
+            "2.0",
+            "--solver",
+            "sqp",
+            "--qp-solver",
+            "hpipm",
+            "--no-codegen",
+        ]
+    )
     assert rc == 0
     out = capsys.readouterr().out
     assert "proposed" in out and "ovfl" in out and "ocp-d" in out and "solve_ms_median" in out
@@ -57,13 +77,28 @@ def test_cli_writes_results_and_compares(tmp_path, capsys):
 
 def test_cli_scenario_default_rti_path(tmp_path, capsys, monkeypatch, tmp_path_factory):
     monkeypatch.setenv("AEV_OCP_CACHE", str(tmp_path_factory.getbasetemp() / "cache"))
-    rc = cli_mpc(["mpc_paper_single", "--out", str(tmp_path), "--t-end-model", "1.0", "--no-ocpd", "--laws", "proposed"])
+    rc = cli_mpc(
+        ["mpc_paper_single", "--out", str(tmp_path), "--t-end-model", "1.0", "--no-ocpd", "--laws", "proposed"]
+    )
     assert rc == 0
     m = json.loads((tmp_path / "results.json").read_text())["metrics"]["mpc"][0]
     assert m["n_steps"] == 10 and m["fallbacks"] == 0 and m["solver_path"] == "rti+codegen"
     assert m["gap_violations"] == 0 and m["speed_violations"] == 0
-    rc = cli_mpc(["mpc_paper_single", "--out", str(tmp_path / "b"), "--t-end", "1.0", "--no-ocpd", "--laws",
-                  "proposed", "--solver", "rti", "--no-codegen"])
+    rc = cli_mpc(
+        [
+            "mpc_paper_single",
+            "--out",
+            str(tmp_path / "b"),
+            "--t-end",
+            "1.0",
+            "--no-ocpd",
+            "--laws",
+            "proposed",
+            "--solver",
+            "rti",
+            "--no-codegen",
+        ]
+    )
     assert rc == 0
     m = json.loads((tmp_path / "b" / "results.json").read_text())["metrics"]["mpc"][0]
     assert m["solver_path"] == "rti" and m["fallbacks"] == 0

@@ -43,8 +43,16 @@ pytestmark = pytest.mark.skipif(compiler() is None, reason="no C compiler")
 T_END = 20.0  # 200 closed-loop steps of the canonical 700
 TOL = 1e-8
 # model guide §9 as in scenarios/mpc_paper_single.toml (the default formulation is 'traffic')
-CANON = dict(rti_hessian="exact", max_step_ms=10000.0, N=40, dt=0.1, solver="rti", predictor="oracle",
-             qp_solver="riccati", codegen=True)
+CANON = dict(
+    rti_hessian="exact",
+    max_step_ms=10000.0,
+    N=40,
+    dt=0.1,
+    solver="rti",
+    predictor="oracle",
+    qp_solver="riccati",
+    codegen=True,
+)
 F9 = s9_formulation()  # the problem: model guide §9
 
 
@@ -98,9 +106,15 @@ def _compare(a: Any, b: Any) -> tuple[float, float]:
     return float(np.abs(ua - ub).max()), float(np.abs(xa - xb).max())
 
 
-def _c_run(lib: Path, settings: MPCSettings, vehicle: Any = None, first: Any = None,
-           loop: ClosedLoop | None = None, start: tuple[float, float, float] = (0.3, 1.87, T_END),
-           retries: list[int] | None = None) -> tuple[Any, list[int]]:
+def _c_run(
+    lib: Path,
+    settings: MPCSettings,
+    vehicle: Any = None,
+    first: Any = None,
+    loop: ClosedLoop | None = None,
+    start: tuple[float, float, float] = (0.3, 1.87, T_END),
+    retries: list[int] | None = None,
+) -> tuple[Any, list[int]]:
     """The closed loop driven by the exported library (forecast from an MPC policy of the same settings);
     ``retries`` (if given) receives the projected-Hessian retries per step."""
     loop = loop or _loop(vehicle or MPCVehicle(settings, formulation=F9))
@@ -232,7 +246,7 @@ def test_soft_constraint_and_extra_state_problem(tmp_path: Path) -> None:
     u, status = cs.step(z0, np.full(2 * s.N, 1.7))
     x, *_ = cs.solution()
     nb = c.nx + c.nu
-    slack = x[:nb * s.N].reshape(s.N, nb)[:, nb - 1] * c.u_scale[-1]
+    slack = x[: nb * s.N].reshape(s.N, nb)[:, nb - 1] * c.u_scale[-1]
     assert status == 0 and slack.max() > 1e-4
 
 
@@ -251,8 +265,9 @@ def test_replay_benchmark_matches_library(canonical_lib: Path, tmp_path: Path) -
         rows.append(np.concatenate([zk, fc]))
         us.append(cs.step(zk, fc))
     np.savetxt(tmp_path / "in.txt", np.array(rows), fmt="%.17g")
-    proc = subprocess.run([str(bench), str(tmp_path / "in.txt"), str(tmp_path / "out.txt")], capture_output=True,
-                          text=True)
+    proc = subprocess.run(
+        [str(bench), str(tmp_path / "in.txt"), str(tmp_path / "out.txt")], capture_output=True, text=True
+    )
     assert proc.returncode == 0, proc.stderr
     assert "median_ms" in proc.stdout
     got = np.loadtxt(tmp_path / "out.txt")
@@ -269,15 +284,17 @@ def test_cli_errors(capsys: pytest.CaptureFixture[str], tmp_path: Path, monkeypa
     import aev_ocp.compiled
 
     monkeypatch.setattr(aev_ocp.compiled, "compiler", lambda: None)
-    rc, _, err = run_cli(["mpc-export", "mpc_paper_single", "--out", str(tmp_path / "c"), "--set", "mpc.N=7",
-                          "--build"], capsys)
+    rc, _, err = run_cli(
+        ["mpc-export", "mpc_paper_single", "--out", str(tmp_path / "c"), "--set", "mpc.N=7", "--build"], capsys
+    )
     assert rc == 2 and "no C compiler" in one_error(err)
     rc, _, err = run_cli(["mpc-export", "mpc_paper_single"], capsys)
     assert rc == 2 and "--out" in one_error(err)
 
 
-def test_traffic_formulation_exports_and_matches_the_python_driver(tmp_path: Path,
-                                                                   capsys: pytest.CaptureFixture[str]) -> None:
+def test_traffic_formulation_exports_and_matches_the_python_driver(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     """The default traffic formulation (soft constraints with a linear-cost slack, the energy epigraph control
     whose cost is linear, a terminal cost, the jerk state a_prev, projected Hessian, cold start by
     rti_cold_iterations SQP steps) behind a UDDS segment with a constant-velocity forecast, from rest: the C
@@ -287,8 +304,19 @@ def test_traffic_formulation_exports_and_matches_the_python_driver(tmp_path: Pat
     from aev_ocp.models import drive_cycle
     from aev_ocp.params import Units
 
-    rc_cli, _, _ = run_cli(["mpc-export", "mpc_udds_single", "--out", str(tmp_path), "--set",
-                            "mpc.predictor=constant-velocity", "--set", "mpc.N=14"], capsys)
+    rc_cli, _, _ = run_cli(
+        [
+            "mpc-export",
+            "mpc_udds_single",
+            "--out",
+            str(tmp_path),
+            "--set",
+            "mpc.predictor=constant-velocity",
+            "--set",
+            "mpc.N=14",
+        ],
+        capsys,
+    )
     assert rc_cli == 0
     lib = build_library(tmp_path, tmp_path / "lib.so")
     ev = EVParams(units=Units(15.0, 17.0))
@@ -362,8 +390,15 @@ def test_c_hessian_projection_equals_numpy(canonical_lib: Path) -> None:
 def test_two_workspaces_are_independent(canonical_lib: Path) -> None:
     """Two controllers on one library (a platoon): interleaved steps give each one's own sequence."""
     rng = np.random.default_rng(3)
-    rows = [np.concatenate([[0.62 + 0.01 * k, 1.71 - 0.02 * k, 0.001 * k, 0.0005 * k, 0.8 - 1e-4 * k],
-                            1.7 + 0.05 * rng.standard_normal(80)]) for k in range(8)]
+    rows = [
+        np.concatenate(
+            [
+                [0.62 + 0.01 * k, 1.71 - 0.02 * k, 0.001 * k, 0.0005 * k, 0.8 - 1e-4 * k],
+                1.7 + 0.05 * rng.standard_normal(80),
+            ]
+        )
+        for k in range(8)
+    ]
 
     def alone(seq: list[np.ndarray]) -> list[float]:
         cs = CStep(canonical_lib)
@@ -414,6 +449,7 @@ def test_export_refuses_what_the_step_does_not_implement(tmp_path: Path) -> None
     with pytest.raises(ExportError, match="terminal constraints"):
         export_controller(export_controller_settings(s, ev, problem=pb), tmp_path / "t", "x")
     assert not (tmp_path / "t").exists()
+
 
 def test_late_cold_start_of_the_compiled_step_warm_starts_the_next() -> None:
     """§9 on the compiled step with a budget below its cold start (SQP to convergence, several ms) but far

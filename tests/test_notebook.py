@@ -38,8 +38,15 @@ def run():  # noqa: ANN201
     """Six followers (two laws) behind a leader at 1.3, from distinct gaps and speeds."""
     ev = EVParams(units=UNITS)
     n = 6
-    return simulate_platoon(ConstantSpeed(1.3), [Proposed(), OVFL()] * 3, [1.1 + 0.07 * i for i in range(n)],
-                            [1.2 + 0.01 * i for i in range(n)], 3.7, ev=ev, dt_out=0.1)
+    return simulate_platoon(
+        ConstantSpeed(1.3),
+        [Proposed(), OVFL()] * 3,
+        [1.1 + 0.07 * i for i in range(n)],
+        [1.2 + 0.01 * i for i in range(n)],
+        3.7,
+        ev=ev,
+        dt_out=0.1,
+    )
 
 
 def test_simulation_repr_is_a_few_lines_with_the_metrics_in_si(run) -> None:  # noqa: ANN001
@@ -49,8 +56,10 @@ def test_simulation_repr_is_a_few_lines_with_the_metrics_in_si(run) -> None:  # 
     assert lines[0] == "SimulationResult: 6 followers (ovfl, proposed), status ok"
     assert f"duration_s {3.7 * UNITS.time_s:.4g}" in lines[1] and f"samples {run.t.size}" in lines[1]
     for i, m in enumerate(run.metrics()[:4]):  # the numbers are the metrics', in SI
-        assert (f"vehicle {i + 1} ({m['controller']}): ok, ω {m['omega_J_per_kg']:.4g} J/kg, pack ∫Q "
-                f"{m['heat_pack_J']:.4g} J, min gap {m['min_gap_m']:.4g} m") in lines[2 + i]
+        assert (
+            f"vehicle {i + 1} ({m['controller']}): ok, ω {m['omega_J_per_kg']:.4g} J/kg, pack ∫Q "
+            f"{m['heat_pack_J']:.4g} J, min gap {m['min_gap_m']:.4g} m"
+        ) in lines[2 + i]
     assert lines[-1].strip().startswith("… 2 more vehicles")
     html = run._repr_html_()
     assert html.count("<tr>") == 3 + 1 + 4 and "min_gap_m" in html and f"{run.metrics()[0]['min_gap_m']:.4g}" in html
@@ -66,11 +75,26 @@ def test_a_stopped_run_names_its_event(run) -> None:  # noqa: ANN001
 
 def _ocp_result() -> OCPResult:
     t = np.linspace(0.0, 4.3, 6)
-    return OCPResult(problem="ocp-b", method="collocation", N=5, t=t, time_unit="s",
-                     states={"V1": 0.01 * t, "V2": 0.02 * t}, controls={"I": np.full(5, 7.5)},
-                     outputs={"Q": 0.3 * t}, objective=12.345678, objective_name="heat_J", status="optimal",
-                     success=True, message="ok", solver_status="Solve_Succeeded", iterations=17, wall_time_s=0.0432,
-                     solver_time_s=0.04, max_violation=3.2e-9)
+    return OCPResult(
+        problem="ocp-b",
+        method="collocation",
+        N=5,
+        t=t,
+        time_unit="s",
+        states={"V1": 0.01 * t, "V2": 0.02 * t},
+        controls={"I": np.full(5, 7.5)},
+        outputs={"Q": 0.3 * t},
+        objective=12.345678,
+        objective_name="heat_J",
+        status="optimal",
+        success=True,
+        message="ok",
+        solver_status="Solve_Succeeded",
+        iterations=17,
+        wall_time_s=0.0432,
+        solver_time_s=0.04,
+        max_violation=3.2e-9,
+    )
 
 
 def test_ocp_result_repr() -> None:
@@ -84,8 +108,11 @@ def test_ocp_result_repr() -> None:
 
 
 def test_study_output_repr(tmp_path: Path) -> None:
-    rows = [{"point": p, "controller": c, "vehicle": 1, "task_hash": f"{p}{c}"} for p in range(3)
-            for c in ("proposed", "mpc")]
+    rows = [
+        {"point": p, "controller": c, "vehicle": 1, "task_hash": f"{p}{c}"}
+        for p in range(3)
+        for c in ("proposed", "mpc")
+    ]
     out = StudyOutput(tmp_path, rows, [tmp_path / "table.csv"], n_tasks=6, n_failed=1)
     assert repr(out).splitlines()[0] == "StudyOutput: 3 points × 2 controllers (mpc, proposed), 1 of 6 tasks failed"
     assert "rows: 6" in repr(out)
@@ -104,14 +131,24 @@ def test_without_pandas_the_error_says_how_to_get_it(run, tmp_path, monkeypatch,
 
     (tmp_path / "table.jsonl").write_text('{"point": 0}\n')
     monkeypatch.setitem(sys.modules, "pandas", None)  # import pandas -> ImportError
-    f = {"sim": run.to_dataframe, "ocp": _ocp_result().to_dataframe,
-         "study": StudyOutput(tmp_path, [], [], 0, 0).to_dataframe,
-         "table": lambda: load_table(tmp_path, as_dataframe=True)}[call]
-    with pytest.raises(ImportError, match=r"needs pandas, which is not installed; install it with: "
-                                          r"pip install 'aev_ocp\[pandas\]'") as err:
+    f = {
+        "sim": run.to_dataframe,
+        "ocp": _ocp_result().to_dataframe,
+        "study": StudyOutput(tmp_path, [], [], 0, 0).to_dataframe,
+        "table": lambda: load_table(tmp_path, as_dataframe=True),
+    }[call]
+    with pytest.raises(
+        ImportError,
+        match=r"needs pandas, which is not installed; install it with: "
+        r"pip install 'aev_ocp\[pandas\]'",
+    ) as err:
         f()
-    name = {"sim": "SimulationResult.to_dataframe()", "ocp": "OCPResult.to_dataframe()",
-            "study": "StudyOutput.to_dataframe()", "table": "load_table(as_dataframe=True)"}[call]
+    name = {
+        "sim": "SimulationResult.to_dataframe()",
+        "ocp": "OCPResult.to_dataframe()",
+        "study": "StudyOutput.to_dataframe()",
+        "table": "load_table(as_dataframe=True)",
+    }[call]
     assert str(err.value).startswith(f"{name} needs pandas")  # it names the call
 
 
@@ -176,8 +213,13 @@ def test_the_build_hook_records_the_commit_and_never_fails(tmp_path: Path, monke
     info = g["build_info"]
     repo = tmp_path / "clone"
     repo.mkdir()
-    env = {**os.environ, "GIT_AUTHOR_NAME": "t", "GIT_AUTHOR_EMAIL": "t@t", "GIT_COMMITTER_NAME": "t",
-           "GIT_COMMITTER_EMAIL": "t@t"}
+    env = {
+        **os.environ,
+        "GIT_AUTHOR_NAME": "t",
+        "GIT_AUTHOR_EMAIL": "t@t",
+        "GIT_COMMITTER_NAME": "t",
+        "GIT_COMMITTER_EMAIL": "t@t",
+    }
     for cmd in (["init", "-q"], ["add", "-A"], ["commit", "-q", "--allow-empty", "-m", "x"]):
         subprocess.run(["git", "-C", str(repo), *cmd], check=True, env=env, capture_output=True)
     head = subprocess.run(["git", "-C", str(repo), "rev-parse", "HEAD"], capture_output=True, text=True).stdout.strip()
@@ -193,8 +235,9 @@ def test_the_build_hook_records_the_commit_and_never_fails(tmp_path: Path, monke
 
 
 # ----------------------------------------------------------------------------- no silent waits
-@pytest.mark.skipif(shutil.which(os.environ.get("CC") or "gcc") is None and shutil.which("cc") is None,
-                    reason="needs a C compiler")
+@pytest.mark.skipif(
+    shutil.which(os.environ.get("CC") or "gcc") is None and shutil.which("cc") is None, reason="needs a C compiler"
+)
 def test_a_compilation_says_so_and_a_cache_hit_is_quiet(tmp_path: Path, monkeypatch, capsys) -> None:  # noqa: ANN001
     from aev_ocp.compiled import compile_shared
 
@@ -227,9 +270,11 @@ def test_comparison_and_safety_suite_reprs(run) -> None:  # noqa: ANN001
     text = repr(out)
     lines = text.splitlines()
     assert lines[0] == "SuiteOutput: 2 safety cases × 1 controllers" and len(lines) == 2
-    assert lines[1].startswith(f"  proposed: {len(out.failures('proposed'))} failed of 2 cases, "
-                               f"{sum(r.collision for r in out.rows)} collisions, min gap "
-                               f"{min(r.min_gap_m for r in out.rows):.3g} m")
+    assert lines[1].startswith(
+        f"  proposed: {len(out.failures('proposed'))} failed of 2 cases, "
+        f"{sum(r.collision for r in out.rows)} collisions, min gap "
+        f"{min(r.min_gap_m for r in out.rows):.3g} m"
+    )
 
 
 def test_ring_result_repr() -> None:
@@ -237,9 +282,11 @@ def test_ring_result_repr() -> None:
 
     res = run_ring(human_ring(230.0, 7, seed=3), 12.5).result
     lines = repr(res).splitlines()
-    v = res.speed_mps[res.speed_mps.shape[0] // 2:]
+    v = res.speed_mps[res.speed_mps.shape[0] // 2 :]
     assert lines[0] == f"RingResult: 7 vehicles (0 AEV) on 230 m, status {res.status}"
     assert lines[1] == f"  duration_s {float(res.t_s[-1]):.4g}, samples {res.t_s.size}"
-    assert lines[2] == (f"  mean speed, second half [m/s] {v.mean():.4g}, speed std, second half [m/s] {v.std():.4g}, "
-                        f"min gap [m] {res.gap_m.min():.4g}")
+    assert lines[2] == (
+        f"  mean speed, second half [m/s] {v.mean():.4g}, speed std, second half [m/s] {v.std():.4g}, "
+        f"min gap [m] {res.gap_m.min():.4g}"
+    )
     assert "<table>" in res._repr_html_()

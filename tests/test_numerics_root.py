@@ -16,9 +16,14 @@ def test_odd_power_root(r: float, lo: float, hi: float, p: int) -> None:
     assert abs(x - r) <= 1e-9 * max(1.0, abs(r))
 
 
-@pytest.mark.parametrize("f,a,b,root", [(lambda t: math.cos(t) - t, 0.0, 1.3, 0.7390851332151607),
-                                       (lambda t: math.exp(t) - 2.7e-6, -30.0, 4.0, math.log(2.7e-6)),
-                                       (lambda t: t**3 - 2.0, 0.0, 3.0, 2.0 ** (1 / 3))])
+@pytest.mark.parametrize(
+    "f,a,b,root",
+    [
+        (lambda t: math.cos(t) - t, 0.0, 1.3, 0.7390851332151607),
+        (lambda t: math.exp(t) - 2.7e-6, -30.0, 4.0, math.log(2.7e-6)),
+        (lambda t: t**3 - 2.0, 0.0, 3.0, 2.0 ** (1 / 3)),
+    ],
+)
 def test_closed_forms(f, a, b, root) -> None:
     assert bracketed_root(f, a, b, 1e-15) == pytest.approx(root, abs=1e-13)
 

@@ -26,8 +26,14 @@ def cell_rhs(I):
     def f(_t, y):
         V1, V2, S, E, Q = y
         VT = float(OCV(S)) - V1 - V2 - CELL.R_s_ohm * I
-        return [-V1 / CELL.tau1_s + I / CELL.C1_F, -V2 / CELL.tau2_s + I / CELL.C2_F,
-                -I / (3600 * CELL.capacity_Ah), I * VT, I * (V1 + V2) + CELL.R_s_ohm * I**2]
+        return [
+            -V1 / CELL.tau1_s + I / CELL.C1_F,
+            -V2 / CELL.tau2_s + I / CELL.C2_F,
+            -I / (3600 * CELL.capacity_Ah),
+            I * VT,
+            I * (V1 + V2) + CELL.R_s_ohm * I**2,
+        ]
+
     return f
 
 
@@ -53,9 +59,11 @@ def test_ocp_b_resimulated_and_beats_references(ocp_b):
     assert y[3] == pytest.approx(3000.0, rel=1e-6)  # delivers E_req
     assert y[4] == pytest.approx(r.objective, rel=1e-6)  # same ∫Q
     assert np.max(np.abs(r.controls["I"])) <= 46 + 1e-9
+
     # constant current, found independently with brentq + solve_ivp
     def energy(I):
         return solve_ivp(cell_rhs(I), (0, 60), [0, 0, 0.5, 0, 0], rtol=1e-10, atol=1e-12).y[3, -1] - 3000.0
+
     Ic = brentq(energy, 1.0, 46.0, xtol=1e-10)
     q_cc = solve_ivp(cell_rhs(Ic), (0, 60), [0, 0, 0.5, 0, 0], rtol=1e-10, atol=1e-12).y[4, -1]
     ref = out["ms"]["references"]
@@ -98,8 +106,11 @@ def resim_vehicle(t, a, trip, exact=True):
 
         def f(_t, z):
             x, v, V1, V2, S, _ = z
-            Pw = (veh.mass_kg * ak + 0.5 * veh.air_density_kgpm3 * veh.frontal_area_m2 * veh.drag_coefficient * v**2
-                  + veh.rolling_coefficient * veh.mass_kg * veh.gravity_mps2) * v
+            Pw = (
+                veh.mass_kg * ak
+                + 0.5 * veh.air_density_kgpm3 * veh.frontal_area_m2 * veh.drag_coefficient * v**2
+                + veh.rolling_coefficient * veh.mass_kg * veh.gravity_mps2
+            ) * v
             if exact:
                 Pb = Pw / veh.efficiency if Pw > 0 else veh.efficiency * Pw
             else:
@@ -108,8 +119,14 @@ def resim_vehicle(t, a, trip, exact=True):
             Pc = Pb / n
             E = float(OCV(S)) - V1 - V2
             I = 2 * Pc / (E + np.sqrt(max(E**2 - 4 * cell.R_s_ohm * Pc, 0)))
-            return [v, ak, -V1 / cell.tau1_s + I / cell.C1_F, -V2 / cell.tau2_s + I / cell.C2_F,
-                    -I / (3600 * cell.capacity_Ah), n * (I * (V1 + V2) + cell.R_s_ohm * I**2)]
+            return [
+                v,
+                ak,
+                -V1 / cell.tau1_s + I / cell.C1_F,
+                -V2 / cell.tau2_s + I / cell.C2_F,
+                -I / (3600 * cell.capacity_Ah),
+                n * (I * (V1 + V2) + cell.R_s_ohm * I**2),
+            ]
 
         y = solve_ivp(f, (t[k], t[k + 1]), y, rtol=1e-10, atol=1e-10, max_step=0.05).y[:, -1]
     return y

@@ -44,11 +44,14 @@ def grid_bang_cruise_bang(D: float, T: float, a_max: float, a_min: float, N: int
     return V, (1 / ETA - ETA) * V**2 / 2
 
 
-@pytest.mark.parametrize("D, T, a_max, a_min, N, method", [
-    (1000.0, 100.0, 2.0, -3.0, 200, "ms"),  # the shipped default trip (issue 13: 24.60 J/kg at N = 200)
-    (730.0, 80.0, 1.7, -2.6, 64, "ms"),
-    (730.0, 80.0, 1.7, -2.6, 64, "collocation"),
-])
+@pytest.mark.parametrize(
+    "D, T, a_max, a_min, N, method",
+    [
+        (1000.0, 100.0, 2.0, -3.0, 200, "ms"),  # the shipped default trip (issue 13: 24.60 J/kg at N = 200)
+        (730.0, 80.0, 1.7, -2.6, 64, "ms"),
+        (730.0, 80.0, 1.7, -2.6, 64, "collocation"),
+    ],
+)
 def test_epigraph_omega_is_the_bang_cruise_bang_optimum(D, T, a_max, a_min, N, method):
     trip = EcoTrip(distance_m=D, t_f_s=T, a_max_mps2=a_max, a_min_mps2=a_min, objective="energy")
     r = EcoTripSolver(trip, method, N, mx_map=True).solve()
@@ -88,12 +91,18 @@ def test_smoothing_gap_fires_on_smoothed_g_and_wide_eta_smoothing_silent_on_ship
 
 def test_record_smoothing_gap_threshold():
     def res(obj):
-        return OCPResult("p", "ms", 1, np.zeros(2), "s", {}, {}, {}, obj, "J", "optimal", True, "", "", 1,
-                         0.0, 0.0, 0.0)
+        return OCPResult(
+            "p", "ms", 1, np.zeros(2), "s", {}, {}, {}, obj, "J", "optimal", True, "", "", 1, 0.0, 0.0, 0.0
+        )
 
-    for nlp, exact, rtol, atol, fires in ((1.0, 1.006, 5e-3, 0.0, True), (1.0, 1.004, 5e-3, 0.0, False),
-                                          (-2.0, -2.03, 1e-2, 0.0, True), (0.0, 3e-7, 5e-3, 1e-6, False),
-                                          (0.0, 3e-6, 5e-3, 1e-6, True), (1.0, math.nan, 5e-3, 0.0, True)):
+    for nlp, exact, rtol, atol, fires in (
+        (1.0, 1.006, 5e-3, 0.0, True),
+        (1.0, 1.004, 5e-3, 0.0, False),
+        (-2.0, -2.03, 1e-2, 0.0, True),
+        (0.0, 3e-7, 5e-3, 1e-6, False),
+        (0.0, 3e-6, 5e-3, 1e-6, True),
+        (1.0, math.nan, 5e-3, 0.0, True),
+    ):
         r = res(nlp)
         rec = record_smoothing_gap(r, exact, "test", rtol, atol)
         assert rec["warning"] is fires and (len(r.warnings) == 1) is fires
@@ -138,8 +147,14 @@ def cell_rhs(I):
     def f(_t, y):
         V1, V2, S = y[:3]
         VT = float(OCV(S)) - V1 - V2 - CELL.R_s_ohm * I
-        return [-V1 / CELL.tau1_s + I / CELL.C1_F, -V2 / CELL.tau2_s + I / CELL.C2_F,
-                -I / (3600 * CELL.capacity_Ah), I * VT, I * (V1 + V2) + CELL.R_s_ohm * I**2]
+        return [
+            -V1 / CELL.tau1_s + I / CELL.C1_F,
+            -V2 / CELL.tau2_s + I / CELL.C2_F,
+            -I / (3600 * CELL.capacity_Ah),
+            I * VT,
+            I * (V1 + V2) + CELL.R_s_ohm * I**2,
+        ]
+
     return f
 
 
@@ -200,8 +215,26 @@ def test_multistart_keeps_the_best_and_reports_the_spread():
     def fake(g):
         obj = {"a": 3.0, "b": 1.5, "c": 0.5}[g]
         ok = g != "c"
-        return OCPResult("p", "ms", 1, np.zeros(2), "s", {}, {}, {}, obj, "J", "optimal" if ok else "infeasible",
-                         ok, "", "", 1, 0.0, 0.0, 0.0)
+        return OCPResult(
+            "p",
+            "ms",
+            1,
+            np.zeros(2),
+            "s",
+            {},
+            {},
+            {},
+            obj,
+            "J",
+            "optimal" if ok else "infeasible",
+            ok,
+            "",
+            "",
+            1,
+            0.0,
+            0.0,
+            0.0,
+        )
 
     b, rec = multistart(fake, ["a", "b", "c"])
     assert rec["best"] == "b" and b.objective == 1.5 and rec["spread"] == pytest.approx(1.5)

@@ -25,8 +25,10 @@ def np_current(v, a, V1, V2, S, ev=EV, smooth_W=300.0):
     """Independent numpy current map (model guide §5, §7); smooth_W=None: exact η switch."""
     u, veh, cell = ev.units, ev.vehicle, ev.cell
     v_si, a_si = v * u.speed_mps, a * u.accel_mps2
-    F = 0.5 * veh.air_density_kgpm3 * veh.frontal_area_m2 * veh.drag_coefficient * v_si**2 \
+    F = (
+        0.5 * veh.air_density_kgpm3 * veh.frontal_area_m2 * veh.drag_coefficient * v_si**2
         + veh.rolling_coefficient * veh.mass_kg * veh.gravity_mps2
+    )
     Pw = (veh.mass_kg * a_si + F) * v_si
     eta = veh.efficiency
     if smooth_W is None:
@@ -69,8 +71,11 @@ def simulate_pc(scn, a_fn, smooth_W=None):
         def f(tau, y):
             vv = v + ak * tau
             I, _ = np_current(vv, ak, y[0], y[1], y[2], smooth_W=smooth_W)
-            return [T * (-y[0] / cell.tau1_s + I / cell.C1_F), T * (-y[1] / cell.tau2_s + I / cell.C2_F),
-                    -T * I / (3600 * cell.capacity_Ah)]
+            return [
+                T * (-y[0] / cell.tau1_s + I / cell.C1_F),
+                T * (-y[1] / cell.tau2_s + I / cell.C2_F),
+                -T * I / (3600 * cell.capacity_Ah),
+            ]
 
         y = solve_ivp(f, (0, dt), [V1, V2, S], rtol=1e-10, atol=1e-13).y[:, -1]
         X[0, k + 1] = h + (xl[k + 1] - xl[k]) - (v * dt + 0.5 * ak * dt**2)
@@ -103,8 +108,9 @@ def test_constraints_hold(sols, scn):
         assert np.all(r.states["h"][1:] >= 0.2 - 1e-7)
         assert np.all(r.states["v"][1:] >= -1e-7) and np.all(r.states["v"][1:] <= 2 + 1e-7)
         assert np.all(r.controls["a"] >= -3 - 1e-7) and np.all(r.controls["a"] <= 2 + 1e-7)
-        I, disc = np_current(r.states["v"][:-1], r.controls["a"], r.states["V1"][:-1], r.states["V2"][:-1],
-                             r.states["S"][:-1])
+        I, disc = np_current(
+            r.states["v"][:-1], r.controls["a"], r.states["V1"][:-1], r.states["V2"][:-1], r.states["S"][:-1]
+        )
         assert np.max(np.abs(I)) <= 46 + 1e-6 and np.min(disc) >= -1e-9
         assert r.max_violation < 1e-6
 
@@ -113,8 +119,16 @@ def test_objective_matches_independent_cost_and_resimulation(sols, scn):
     r = sols["ms"]
     vh = r.meta["leader_speed_hat"]
     # independent numpy evaluation of the §9 cost on the optimiser's own trajectory
-    ell = np_stage_cost(r.states["h"][:-1], r.states["v"][:-1], r.states["V1"][:-1], r.states["V2"][:-1],
-                        r.states["S"][:-1], r.controls["a"], vh, weights=scn.weights)
+    ell = np_stage_cost(
+        r.states["h"][:-1],
+        r.states["v"][:-1],
+        r.states["V1"][:-1],
+        r.states["V2"][:-1],
+        r.states["S"][:-1],
+        r.controls["a"],
+        vh,
+        weights=scn.weights,
+    )
     assert float(np.sum(ell) * scn.dt) == pytest.approx(r.objective, rel=1e-9)
     # re-simulate a* with scipy and the SAME smoothed model: states agree, cost agrees
     a_opt = r.controls["a"]
@@ -131,14 +145,20 @@ def test_objective_matches_independent_cost_and_resimulation(sols, scn):
 
 
 @pytest.mark.parametrize("law", [Proposed(), OVFL()], ids=["proposed", "ovfl"])
-def test_lower_bound_vs_closed_form_laws(sols, scn, law, ):
+def test_lower_bound_vs_closed_form_laws(
+    sols,
+    scn,
+    law,
+):
     def a_fn(k, h, v, vlk):
         return float(np.clip(law.accel(h, v, vlk), -3, 2))
 
     t, X, A, vl = simulate_pc(scn, a_fn, smooth_W=300.0)
     assert np.min(X[0]) > 0.2  # the law's trajectory is feasible for OCP-D
     c = stage_cost_of_trajectory(t, *X, A, vl)
-    assert c["total"] == pytest.approx(float(np.sum(np_stage_cost(*X[:, :-1], A, vl, weights=scn.weights)) * scn.dt), rel=1e-9)
+    assert c["total"] == pytest.approx(
+        float(np.sum(np_stage_cost(*X[:, :-1], A, vl, weights=scn.weights)) * scn.dt), rel=1e-9
+    )
     assert sols["ms"].objective <= c["total"]
     assert sols["ms"].objective < 0.95 * c["total"]  # and the bound is informative
 

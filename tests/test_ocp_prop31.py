@@ -28,7 +28,7 @@ def riccati_continuous_J(cell: CellParams, V0: tuple[float, float], t_f: float) 
 
     def rhs(_t: float, p: np.ndarray) -> np.ndarray:  # backward time s = t_f − t
         P = p.reshape(2, 2)
-        K = (P @ B + Nc)
+        K = P @ B + Nc
         return (A.T @ P + P @ A - K @ K.T / R).ravel()
 
     sol = solve_ivp(rhs, (0, t_f), np.zeros(4), rtol=1e-12, atol=1e-14, method="LSODA")
@@ -88,8 +88,12 @@ def test_resimulate_optimal_current_with_solve_ivp(cases):
 
         def f(_t, y):
             V1, V2, S, _ = y
-            return [-V1 / CELL.tau1_s + Ik / CELL.C1_F, -V2 / CELL.tau2_s + Ik / CELL.C2_F,
-                    -Ik / (3600 * CELL.capacity_Ah), Ik * (V1 + V2) + CELL.R_s_ohm * Ik**2]
+            return [
+                -V1 / CELL.tau1_s + Ik / CELL.C1_F,
+                -V2 / CELL.tau2_s + Ik / CELL.C2_F,
+                -Ik / (3600 * CELL.capacity_Ah),
+                Ik * (V1 + V2) + CELL.R_s_ohm * Ik**2,
+            ]
 
         x = solve_ivp(f, (t[k], t[k + 1]), x, rtol=1e-11, atol=1e-14).y[:, -1]
         assert abs(Ik) <= CELL.max_current_A + 1e-9
@@ -106,8 +110,11 @@ def test_zero_heat_alternative_is_a_distinct_minimiser(cases):
     def f(_t, y):
         V1, V2, _ = y
         Ialt = -(V1 + V2) / Rs
-        return [-V1 / CELL.tau1_s + Ialt / CELL.C1_F, -V2 / CELL.tau2_s + Ialt / CELL.C2_F,
-                Ialt * (V1 + V2) + Rs * Ialt**2]
+        return [
+            -V1 / CELL.tau1_s + Ialt / CELL.C1_F,
+            -V2 / CELL.tau2_s + Ialt / CELL.C2_F,
+            Ialt * (V1 + V2) + Rs * Ialt**2,
+        ]
 
     sol = solve_ivp(f, (0, 60), [V_RELAX[0], V_RELAX[1], 0.0], rtol=1e-11, atol=1e-14, method="LSODA")
     assert abs(sol.y[2, -1]) < 1e-9

@@ -73,16 +73,25 @@ def _lam_a(f: dict[str, Any], pi: np.ndarray, lam_c: np.ndarray) -> np.ndarray:
 def _qpoases(f: dict[str, Any]) -> np.ndarray:
     import casadi as ca
 
-    solver = ca.conic("ref", "qpoases", {"h": f["h"].sparsity(), "a": f["a"].sparsity()},
-                      {"printLevel": "none", "enableRegularisation": True, "error_on_fail": False})
+    solver = ca.conic(
+        "ref",
+        "qpoases",
+        {"h": f["h"].sparsity(), "a": f["a"].sparsity()},
+        {"printLevel": "none", "enableRegularisation": True, "error_on_fail": False},
+    )
     ref = solver(h=f["h"], a=f["a"], g=f["g"], lba=f["lba"], uba=f["uba"], lbx=f["lbx"], ubx=f["ubx"])
     assert solver.stats()["success"]
     return np.array(ref["x"]).ravel()
 
 
 def _random_dims(rng: np.random.Generator) -> OcpQPDims:
-    return OcpQPDims(N=int(rng.integers(1, 16)), nx=int(rng.integers(1, 5)), nu=int(rng.integers(1, 4)),
-                     nc=int(rng.integers(0, 5)), ncN=int(rng.integers(0, 3)))
+    return OcpQPDims(
+        N=int(rng.integers(1, 16)),
+        nx=int(rng.integers(1, 5)),
+        nu=int(rng.integers(1, 4)),
+        nc=int(rng.integers(0, 5)),
+        ncN=int(rng.integers(0, 3)),
+    )
 
 
 @settings(max_examples=40, derandomize=True, deadline=None, suppress_health_check=[HealthCheck.too_slow])
@@ -101,7 +110,7 @@ def test_random_qps_match_qpoases_and_satisfy_kkt(seed: int) -> None:
     assert abs(_objective(f, res.w) - j_ref) <= 1e-8 * (1.0 + abs(j_ref))
     assert _kkt_violation(f, res.w, _lam_a(f, res.pi, res.lam_c), res.lam_w) <= 1e-8 * scale
     # x_0 is fixed and returned exactly
-    assert np.array_equal(res.w[:dims.nx], np.asarray(data["x0"]))
+    assert np.array_equal(res.w[: dims.nx], np.asarray(data["x0"]))
 
 
 def test_equality_rows_hold() -> None:
@@ -131,11 +140,18 @@ def _epigraph_qp(N: int = 12) -> tuple[OcpQPDims, dict[str, Any]]:
     Hk = np.diag([2 * 0.8, 2 * 0.05, 2 * 0.3, 0.0])
     gk = np.array([-2 * 0.8 * 7.5, 0.0, 0.0, 0.6])
     Ck = np.array([[0.0, 0.0, -2.3, 1.0], [0.0, 0.0, 0.4, 1.0]])
-    data = dict(H=[Hk] * N + [np.diag([1.6, 0.1])], g=[gk] * N + [np.array([-1.6 * 7.5, 0.0])],
-                E=[np.hstack([A, B])] * N, e=[np.zeros(nx)] * N, C=[Ck] * N + [np.zeros((0, nx))],
-                lc=[np.zeros(2)] * N + [np.zeros(0)], uc=[np.full(2, np.inf)] * N + [np.zeros(0)],
-                lbw=[np.array([-INF, -INF, -2.5, -INF])] * N + [np.full(nx, -INF)],
-                ubw=[np.array([INF, INF, 2.5, INF])] * N + [np.full(nx, INF)], x0=np.array([11.0, 1.7]))
+    data = dict(
+        H=[Hk] * N + [np.diag([1.6, 0.1])],
+        g=[gk] * N + [np.array([-1.6 * 7.5, 0.0])],
+        E=[np.hstack([A, B])] * N,
+        e=[np.zeros(nx)] * N,
+        C=[Ck] * N + [np.zeros((0, nx))],
+        lc=[np.zeros(2)] * N + [np.zeros(0)],
+        uc=[np.full(2, np.inf)] * N + [np.zeros(0)],
+        lbw=[np.array([-INF, -INF, -2.5, -INF])] * N + [np.full(nx, -INF)],
+        ubw=[np.array([INF, INF, 2.5, INF])] * N + [np.full(nx, INF)],
+        x0=np.array([11.0, 1.7]),
+    )
     return dims, data
 
 
@@ -158,8 +174,9 @@ def test_a_control_entering_the_cost_linearly_is_solved() -> None:
 def _lqr(N: int, nx: int, nu: int, rng: np.random.Generator) -> tuple[OcpQPDims, dict[str, Any]]:
     dims = OcpQPDims(N=N, nx=nx, nu=nu)
     nb = nx + nu
-    data: dict[str, Any] = dict(H=[], g=[], E=[], e=[], C=None, lc=None, uc=None, lbw=[], ubw=[],
-                                x0=rng.normal(size=nx) * 2.7)
+    data: dict[str, Any] = dict(
+        H=[], g=[], E=[], e=[], C=None, lc=None, uc=None, lbw=[], ubw=[], x0=rng.normal(size=nx) * 2.7
+    )
     for k in range(N + 1):
         n = nb if k < N else nx
         M = rng.normal(size=(n, n))
@@ -183,7 +200,7 @@ def _dense_kkt_solution(dims: OcpQPDims, data: dict[str, Any]) -> tuple[np.ndarr
     beq = np.concatenate([f["lba"][f["rows_pi"]], np.asarray(data["x0"])])
     K = np.block([[f["H"], Aeq.T], [Aeq, np.zeros((Aeq.shape[0],) * 2)]])
     sol = np.linalg.solve(K, np.concatenate([-f["g"], beq]))
-    return sol[:nw], sol[nw:nw + dims.N * nx], sol[nw + dims.N * nx:]
+    return sol[:nw], sol[nw : nw + dims.N * nx], sol[nw + dims.N * nx :]
 
 
 @pytest.mark.quick
@@ -194,8 +211,8 @@ def test_lqr_is_one_newton_step_equal_to_the_dense_kkt_solve() -> None:
     w, pi, lam0 = _dense_kkt_solution(dims, data)
     assert np.abs(res.w - w).max() <= 1e-9 * (1 + np.abs(w).max())
     assert np.abs(res.pi - pi).max() <= 1e-9 * (1 + np.abs(pi).max())
-    assert np.abs(res.lam_w[:dims.nx] - lam0).max() <= 1e-9 * (1 + np.abs(lam0).max())
-    assert np.abs(res.lam_w[dims.nx:]).max() == 0.0
+    assert np.abs(res.lam_w[: dims.nx] - lam0).max() <= 1e-9 * (1 + np.abs(lam0).max())
+    assert np.abs(res.lam_w[dims.nx :]).max() == 0.0
 
 
 def test_no_controls_is_the_state_propagation() -> None:
@@ -205,7 +222,7 @@ def test_no_controls_is_the_state_propagation() -> None:
     x = np.asarray(data["x0"])
     for k in range(dims.N):
         x = data["E"][k] @ x + data["e"][k]
-    assert np.abs(res.w[-dims.nx:] - x).max() <= 1e-10 * (1 + np.abs(x).max())
+    assert np.abs(res.w[-dims.nx :] - x).max() <= 1e-10 * (1 + np.abs(x).max())
     _, pi, _ = _dense_kkt_solution(dims, data)
     assert np.abs(res.pi - pi).max() <= 1e-9 * (1 + np.abs(pi).max())
 
@@ -264,11 +281,22 @@ def test_compiled_in_dimensions_give_the_same_solution() -> None:
 
 # ---------------------------------------------------------------------------------------------- real RTI QPs
 DATA = Path(__file__).parent / "data"
-RTI_EPIGRAPH = ["us06_constant_280", "us06_constant_6412", "us06_decaying_792", "us06_decaying_6410",
-                "udds_constant_2", "udds_constant_factorization",  # traffic formulation, Hessian blocks PD
-                "udds_constant_14268"]  # stalled (alpha 1e-3) an intermediate version, correctors in every phase
-RTI_INDEFINITE = ["indefinite_cold", "indefinite_warm",  # traffic, exact Hessian (blocks' min eig -0.08, -0.05)
-                  "paper_platoon_10", "paper_platoon_15", "paper_platoon_20"]  # canonical s9, min eig -0.011
+RTI_EPIGRAPH = [
+    "us06_constant_280",
+    "us06_constant_6412",
+    "us06_decaying_792",
+    "us06_decaying_6410",
+    "udds_constant_2",
+    "udds_constant_factorization",  # traffic formulation, Hessian blocks PD
+    "udds_constant_14268",
+]  # stalled (alpha 1e-3) an intermediate version, correctors in every phase
+RTI_INDEFINITE = [
+    "indefinite_cold",
+    "indefinite_warm",  # traffic, exact Hessian (blocks' min eig -0.08, -0.05)
+    "paper_platoon_10",
+    "paper_platoon_15",
+    "paper_platoon_20",
+]  # canonical s9, min eig -0.011
 RTI_CASES = RTI_EPIGRAPH + RTI_INDEFINITE
 MPC_TOL, MPC_MAX_ITER = 1e-9, 50  # aev_ocp.mpc.export.QP_TOL, QP_MAX_ITER: the MPC's QP settings
 
@@ -297,8 +325,11 @@ def _exact_solution(f: dict[str, Any], w_start: np.ndarray) -> np.ndarray:
     G = np.vstack([A, np.eye(n)])
     lo, up = np.concatenate([f["lba"], f["lbx"]]), np.concatenate([f["uba"], f["ubx"]])
     gw = G @ w_start
-    act = {i: ("eq" if lo[i] == up[i] else "lo" if abs(gw[i] - lo[i]) < 1e-7 else "up")
-           for i in range(len(lo)) if lo[i] == up[i] or abs(gw[i] - lo[i]) < 1e-7 or abs(gw[i] - up[i]) < 1e-7}
+    act = {
+        i: ("eq" if lo[i] == up[i] else "lo" if abs(gw[i] - lo[i]) < 1e-7 else "up")
+        for i in range(len(lo))
+        if lo[i] == up[i] or abs(gw[i] - lo[i]) < 1e-7 or abs(gw[i] - up[i]) < 1e-7
+    }
     for _ in range(40):
         idx = sorted(act)
         Ga = G[idx]
@@ -311,7 +342,9 @@ def _exact_solution(f: dict[str, Any], w_start: np.ndarray) -> np.ndarray:
         w, lam = sol[:n], sol[n:]  # H w + g + Ga' lam = 0: lam >= 0 on an upper bound, <= 0 on a lower one
         gw = G @ w
         viol = np.maximum(lo - gw, 0.0) + np.maximum(gw - up, 0.0)
-        wrong = [(abs(l), i) for i, l in zip(idx, lam) if (act[i] == "lo" and l > 1e-10) or (act[i] == "up" and l < -1e-10)]
+        wrong = [
+            (abs(l), i) for i, l in zip(idx, lam) if (act[i] == "lo" and l > 1e-10) or (act[i] == "up" and l < -1e-10)
+        ]
         if viol.max() < 1e-11 and not wrong:
             assert np.abs(K @ sol - b).max() < 1e-10
             return w
@@ -354,14 +387,18 @@ def test_real_rti_qps_solve_at_the_mpc_settings(name: str, rti_exact: dict[str, 
     # degenerate (weakly active) rows: the interior point's w is O(sqrt(mean s z)) from the solution
     assert np.abs(res.w - w).max() <= 3e-4
     # the duality gap: sum of s z over the finite sides = their number times the mean (<= the tolerance)
-    n_sides = sum(int(np.isfinite(v).sum()) for v in (f["lbx"][dims.nx:], f["ubx"][dims.nx:], f["lba"][f["rows_c"]],
-                                                       f["uba"][f["rows_c"]]))
+    n_sides = sum(
+        int(np.isfinite(v).sum())
+        for v in (f["lbx"][dims.nx :], f["ubx"][dims.nx :], f["lba"][f["rows_c"]], f["uba"][f["rows_c"]])
+    )
     assert 0.0 <= _objective(f, res.w) - _objective(f, w) <= 1.01 * n_sides * MPC_TOL
     assert _kkt_violation(f, res.w, _lam_a(f, res.pi, res.lam_c), res.lam_w) <= 1e-6
 
 
 @pytest.mark.parametrize("name", RTI_CASES)
-def test_real_rti_qps_at_a_tight_tolerance_equal_the_exact_solution(name: str, rti_exact: dict[str, np.ndarray]) -> None:
+def test_real_rti_qps_at_a_tight_tolerance_equal_the_exact_solution(
+    name: str, rti_exact: dict[str, np.ndarray]
+) -> None:
     dims, data = _rti_case(name)
     res = OcpQP(dims, _solve_settings(1e-12), specialise=True).solve(**data)
     assert res.status == OK, (res.status_name, res.iterations, res.residuals)
@@ -372,7 +409,7 @@ def _reduced_hessian_min_eig(dims: OcpQPDims, f: dict[str, Any]) -> float:
     """Smallest eigenvalue of the Hessian on the null space of the dynamics and x_0 = x0 (numpy SVD)."""
     A_eq = np.vstack([f["A"][f["rows_pi"]], np.eye(dims.nx, dims.nw)])
     _, sv, vt = np.linalg.svd(A_eq)
-    Z = vt[int(np.sum(sv > 1e-10 * sv[0])):].T
+    Z = vt[int(np.sum(sv > 1e-10 * sv[0])) :].T
     return float(np.linalg.eigvalsh(Z.T @ f["H"] @ Z).min())
 
 
@@ -382,7 +419,7 @@ def test_indefinite_blocks_of_a_convex_qp(name: str) -> None:
     then indefinite (solved without its square root) and every control block stays positive definite."""
     dims, data = _rti_case(name)
     nb = dims.nb
-    blocks = data["H"][:dims.N * nb * nb].reshape(dims.N, nb, nb)
+    blocks = data["H"][: dims.N * nb * nb].reshape(dims.N, nb, nb)
     assert np.linalg.eigvalsh(blocks).min() < -0.01
     assert _reduced_hessian_min_eig(dims, _full(dims, data)) > 1e-4
 
@@ -422,7 +459,7 @@ def test_hpipm_backend_random_qps_match_qpoases_and_satisfy_kkt(seed: int) -> No
     scale = 1.0 + np.abs(w_ref).max()
     assert np.abs(res.w - w_ref).max() <= 1e-6 * scale
     assert _kkt_violation(f, res.w, _lam_a(f, res.pi, res.lam_c), res.lam_w) <= 1e-7 * scale
-    assert np.array_equal(res.w[:dims.nx], np.asarray(data["x0"]))
+    assert np.array_equal(res.w[: dims.nx], np.asarray(data["x0"]))
 
 
 @needs_hpipm

@@ -10,8 +10,14 @@ import pytest
 
 from aev_ocp.ocp.api import run_oracle
 from aev_ocp.ocp.cli import cli_ocp
-from aev_ocp.ocp.oracle import (COARSE_GRID_S, ORACLE_MAX_INTERVALS, OracleSolver, canonical_scenario,
-                                drive_cycle_scenario, oracle_grid_dt)
+from aev_ocp.ocp.oracle import (
+    COARSE_GRID_S,
+    ORACLE_MAX_INTERVALS,
+    OracleSolver,
+    canonical_scenario,
+    drive_cycle_scenario,
+    oracle_grid_dt,
+)
 from aev_ocp.params import ParameterError, Units
 
 
@@ -68,8 +74,10 @@ def test_progress_is_throttled(short_scn) -> None:
 def test_time_limit_stops_with_a_clear_status(short_scn) -> None:
     res = OracleSolver(short_scn, time_limit_s=1e-4).solve()
     assert res.status == "time_limit" and not res.success
-    assert res.message == (f"OCP-D stopped at the time limit of 0.0001 s after {res.iterations} iterations; "
-                           "the last iterate is not optimal")
+    assert res.message == (
+        f"OCP-D stopped at the time limit of 0.0001 s after {res.iterations} iterations; "
+        "the last iterate is not optimal"
+    )
     assert res.message in res.warnings and "cost_terms" not in res.meta
     with pytest.raises(ParameterError, match="time limit"):
         OracleSolver(short_scn, time_limit_s=-2.0)

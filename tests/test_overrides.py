@@ -49,20 +49,24 @@ def test_exclusive_keys_are_swapped_not_added():
 
 
 def test_leader_kind_change_clears_the_old_kind_keys():
-    sc = load_scenario("table1").with_overrides({"leader.kind": "cycle", "leader.cycle": "hwfet",
-                                                 "units.length_m": 15.0, "units.speed_mps": 17.0})
+    sc = load_scenario("table1").with_overrides(
+        {"leader.kind": "cycle", "leader.cycle": "hwfet", "units.length_m": 15.0, "units.speed_mps": 17.0}
+    )
     ref = load_scenario("hwfet_platoon")
     assert sc.leader == ref.leader and sc.units == ref.units
 
 
-@pytest.mark.parametrize("key, value, needle", [
-    ("carfollowing.kappa", -0.2, "carfollowing.kappa"),
-    ("carfollowing.kapa", 0.1, "carfollowing.kapa"),
-    ("vehicle.efficiency", 1.3, "vehicle.efficiency"),
-    ("units.length_m", "ten", "units.length_m"),
-    ("mpc.N", 0, "N"),
-    ("mpc.w_Q", -1.5, "w_Q"),
-])
+@pytest.mark.parametrize(
+    "key, value, needle",
+    [
+        ("carfollowing.kappa", -0.2, "carfollowing.kappa"),
+        ("carfollowing.kapa", 0.1, "carfollowing.kapa"),
+        ("vehicle.efficiency", 1.3, "vehicle.efficiency"),
+        ("units.length_m", "ten", "units.length_m"),
+        ("mpc.N", 0, "N"),
+        ("mpc.w_Q", -1.5, "w_Q"),
+    ],
+)
 def test_bad_override_names_file_and_key(key, value, needle):
     with pytest.raises(ScenarioError) as exc:
         load_scenario("mpc_paper_single").with_overrides({key: value})

@@ -8,8 +8,13 @@ from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
 from aev_ocp.control import forecast_rms
-from aev_ocp.mpc.predictors import (ConstantAccelerationPredictor, ConstantVelocityPredictor,
-                                    DecayingAccelerationPredictor, Measurements, make_predictor)
+from aev_ocp.mpc.predictors import (
+    ConstantAccelerationPredictor,
+    ConstantVelocityPredictor,
+    DecayingAccelerationPredictor,
+    Measurements,
+    make_predictor,
+)
 from aev_ocp.params import ParameterError
 
 
@@ -72,7 +77,9 @@ def test_forecast_rms_is_zero_for_the_truth_and_closed_form_for_constant_velocit
 
 def test_decaying_acceleration_at_standstill_predicts_standstill() -> None:
     t = 0.1 * np.arange(5)
-    x, v = DecayingAccelerationPredictor(1.1, 4).predict(0.4, 0.1, 12, Measurements(t, np.array([0.2, 0.1, 0.0, -1e-9, -2e-9])))
+    x, v = DecayingAccelerationPredictor(1.1, 4).predict(
+        0.4, 0.1, 12, Measurements(t, np.array([0.2, 0.1, 0.0, -1e-9, -2e-9]))
+    )
     assert np.all(x == 0) and np.all(v == 0)
 
 
@@ -80,7 +87,9 @@ def test_closed_loop_reports_the_forecast_error_of_each_predictor() -> None:
     """The oracle's forecast is the truth (error 0 to round-off); a measured predictor's is not."""
     from aev_ocp.mpc import MPCSettings, run_single
 
-    rms = {p: run_single(MPCSettings(N=15, predictor=p), t_end=1.5).solver_stats[0]["forecast_rms"]
-           for p in ("oracle", "constant-velocity")}
+    rms = {
+        p: run_single(MPCSettings(N=15, predictor=p), t_end=1.5).solver_stats[0]["forecast_rms"]
+        for p in ("oracle", "constant-velocity")
+    }
     assert rms["oracle"] < 1e-9
     assert rms["constant-velocity"] > 1e-2

@@ -25,9 +25,16 @@ def _small() -> ProblemBuilder:
     return pb
 
 
-@pytest.mark.parametrize("make", [
-    lambda pb: pb.state("x"), lambda pb: pb.control("x"), lambda pb: pb.parameter("u"),
-    lambda pb: pb.stage_parameter("k"), lambda pb: pb.state("k")])
+@pytest.mark.parametrize(
+    "make",
+    [
+        lambda pb: pb.state("x"),
+        lambda pb: pb.control("x"),
+        lambda pb: pb.parameter("u"),
+        lambda pb: pb.stage_parameter("k"),
+        lambda pb: pb.state("k"),
+    ],
+)
 def test_a_variable_name_is_used_once(make) -> None:
     pb = _small()
     with pytest.raises(ParameterError, match="exists already"):
@@ -35,9 +42,14 @@ def test_a_variable_name_is_used_once(make) -> None:
     assert list(pb.x) == ["x", "y"] and list(pb.u) == ["u"] and list(pb.p) == ["k"]  # nothing half-added
 
 
-@pytest.mark.parametrize("add", [
-    lambda pb, e: pb.add_stage_cost(e, "track"), lambda pb, e: pb.add_integral_cost(e, "track"),
-    lambda pb, e: pb.add_output("track", e)])
+@pytest.mark.parametrize(
+    "add",
+    [
+        lambda pb, e: pb.add_stage_cost(e, "track"),
+        lambda pb, e: pb.add_integral_cost(e, "track"),
+        lambda pb, e: pb.add_output("track", e),
+    ],
+)
 def test_a_cost_term_or_output_name_is_used_once(add) -> None:
     pb = _small()
     with pytest.raises(ParameterError, match="'track' exists already; pass replace=True"):
@@ -72,8 +84,9 @@ def test_the_s9_accel_term_is_not_replaced_silently() -> None:
     u = [0.31] + [0.0] * (len(pb.u) - 1)
     w = [1.05, 1.02]
     wts = [1.3, 0.45, 0.8, 2.2]
-    outs_b = dict(zip([before.outputs.name_out(i) for i in range(before.outputs.n_out())],
-                      before.outputs(z, u, w, wts)))
+    outs_b = dict(
+        zip([before.outputs.name_out(i) for i in range(before.outputs.n_out())], before.outputs(z, u, w, wts))
+    )
     others = sum(float(outs_b[nm]) for nm in TERM_NAMES if nm != "accel")
     assert float(after.stage(z, u, w, wts)) == pytest.approx(others + 0.37 * 0.31**4, rel=1e-12)
     assert float(outs_b["accel"]) == pytest.approx(2.2 * 0.31**2, rel=1e-12)  # w_a a² before
@@ -98,13 +111,15 @@ def test_terminal_and_path_constraints_are_checked_alike(terminal: bool) -> None
     kind = "terminal constraint" if terminal else "constraint"
     x = pb.x["x"]
     add(x, -1.0, 1.0, name="box")
-    cases = [((x, -1.0, 1.0, "box"), f"toy: {kind} 'box': a {kind} named 'box' exists already"),
-             ((x, 2.5, 1.5, "inv"), f"toy: {kind} 'inv' has lb = 2.5 > ub = 1.5"),
-             ((x, float("nan"), 1.0, "nan"), f"toy: {kind} 'nan': bounds must not be NaN"),
-             ((x, "low", 1.0, "txt"), f"toy: {kind} 'txt': bounds must be numbers"),
-             ((ca.vertcat(x, x), 0.0, 1.0, "vec"), f"toy: {kind} 'vec' must be a scalar expression"),
-             ((x, 0.0, 1.0, "not a name"), f"toy: {kind} name 'not a name' must be an identifier"),
-             ((ca.SX.sym("stray"), 0.0, 1.0, "free"), f"toy: {kind} 'free' depends on 'stray'")]
+    cases = [
+        ((x, -1.0, 1.0, "box"), f"toy: {kind} 'box': a {kind} named 'box' exists already"),
+        ((x, 2.5, 1.5, "inv"), f"toy: {kind} 'inv' has lb = 2.5 > ub = 1.5"),
+        ((x, float("nan"), 1.0, "nan"), f"toy: {kind} 'nan': bounds must not be NaN"),
+        ((x, "low", 1.0, "txt"), f"toy: {kind} 'txt': bounds must be numbers"),
+        ((ca.vertcat(x, x), 0.0, 1.0, "vec"), f"toy: {kind} 'vec' must be a scalar expression"),
+        ((x, 0.0, 1.0, "not a name"), f"toy: {kind} name 'not a name' must be an identifier"),
+        ((ca.SX.sym("stray"), 0.0, 1.0, "free"), f"toy: {kind} 'free' depends on 'stray'"),
+    ]
     for (e, lb, ub, name), msg in cases:
         with pytest.raises(ParameterError) as err:
             add(e, lb, ub, name=name)

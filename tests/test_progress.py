@@ -65,8 +65,13 @@ def test_time_limit_raises_after_it_passes_and_children_share_it():
 
 
 def test_format_seconds():
-    assert [format_seconds(x) for x in (3.25, 42.4, 185.0, 7325.0, math.nan)] == \
-        ["3.2 s", "42 s", "3 min 05 s", "2 h 02 min", "?"]
+    assert [format_seconds(x) for x in (3.25, 42.4, 185.0, 7325.0, math.nan)] == [
+        "3.2 s",
+        "42 s",
+        "3 min 05 s",
+        "2 h 02 min",
+        "?",
+    ]
 
 
 def test_closed_loop_stops_at_the_time_limit_with_the_prefix_of_the_full_run():
@@ -102,8 +107,7 @@ def test_study_time_limit_stores_finished_tasks_and_resumes(tmp_path):
     study = _with_sets("studies/kappa_alpha_table1.toml", {"simulation.t_end": 1.0}, parse_study)
     assert read_study("studies/kappa_alpha_table1.toml").name == study.name
     with pytest.raises(TimeLimitStop, match=r"\d+ of 36 tasks stored"):
-        run_study(study, tmp_path, executor="inprocess", report=False, time_limit_s=1e-9,
-                  progress_stream=io.StringIO())
+        run_study(study, tmp_path, executor="inprocess", report=False, time_limit_s=1e-9, progress_stream=io.StringIO())
     stored = len(list((tmp_path / "points").glob("*.json")))
     assert 1 <= stored < 36
     buf = io.StringIO()
@@ -124,5 +128,15 @@ def test_reproduce_counter_counts_every_line() -> None:
             p("x")
         p.end()
     heads = [line.split("]")[0] + "]" for line in buf.getvalue().splitlines()]
-    assert heads == ["[1/10]", "[2/10]", "[3/11]", "[4/12]", "[5/12]", "[6/10]", "[7/10]", "[8/10]", "[9/10]",
-                     "[10/10]"]
+    assert heads == [
+        "[1/10]",
+        "[2/10]",
+        "[3/11]",
+        "[4/12]",
+        "[5/12]",
+        "[6/10]",
+        "[7/10]",
+        "[8/10]",
+        "[9/10]",
+        "[10/10]",
+    ]

@@ -48,21 +48,32 @@ dt_out = {dt_out}
 """
 
 
-def small(tmp_path: Path, fname: str = "s.toml", *, name: str = "small", law: str = "proposed", compare: str = "",
-          followers: int | str = 2, t_end: float | str = 3.0, dt_out: float | str = 0.05, extra: str = "") -> Path:
+def small(
+    tmp_path: Path,
+    fname: str = "s.toml",
+    *,
+    name: str = "small",
+    law: str = "proposed",
+    compare: str = "",
+    followers: int | str = 2,
+    t_end: float | str = 3.0,
+    dt_out: float | str = 0.05,
+    extra: str = "",
+) -> Path:
     p = tmp_path / fname
-    p.write_text(SMALL.format(name=name, law=law, compare=compare, followers=followers, t_end=t_end,
-                              dt_out=dt_out) + extra, encoding="utf-8")
+    p.write_text(
+        SMALL.format(name=name, law=law, compare=compare, followers=followers, t_end=t_end, dt_out=dt_out) + extra,
+        encoding="utf-8",
+    )
     return p
-
-
 
 
 # ----------------------------------------------------------------------------- 1. where files land
 @pytest.mark.quick
 @pytest.mark.parametrize("bad", ["ABSOLUTE", "../../../escape", "", "a/b", "..", ".hidden"])
-def test_scenario_name_cannot_choose_a_folder_outside_results(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
-                                                               capsys: pytest.CaptureFixture[str], bad: str) -> None:
+def test_scenario_name_cannot_choose_a_folder_outside_results(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str], bad: str
+) -> None:
     work = tmp_path / "a" / "b" / "c"
     work.mkdir(parents=True)
     monkeypatch.chdir(work)
@@ -77,8 +88,9 @@ def test_scenario_name_cannot_choose_a_folder_outside_results(tmp_path: Path, mo
 
 
 @pytest.mark.quick
-def test_output_folder_of_another_run_is_never_clobbered(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
-                                                        capsys: pytest.CaptureFixture[str]) -> None:
+def test_output_folder_of_another_run_is_never_clobbered(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
     monkeypatch.chdir(tmp_path)
     a = small(tmp_path, "a.toml", name="same")
     b = small(tmp_path, "b.toml", name="same", law="ovfl")
@@ -124,10 +136,13 @@ def test_law_that_compare_would_ignore_is_refused(tmp_path: Path, capsys: pytest
 
 
 @pytest.mark.quick
-@pytest.mark.parametrize("compare, platoon_extra, match", [
-    ('compare = ["ovfl", "ovfl"]', "", "compare.*twice"),
-    ('compare = ["ovfl", "proposed"]', 'laws = ["ovfl", "proposed"]', "platoon.laws.*compare"),
-])
+@pytest.mark.parametrize(
+    "compare, platoon_extra, match",
+    [
+        ('compare = ["ovfl", "ovfl"]', "", "compare.*twice"),
+        ('compare = ["ovfl", "proposed"]', 'laws = ["ovfl", "proposed"]', "platoon.laws.*compare"),
+    ],
+)
 def test_compare_siblings(tmp_path: Path, compare: str, platoon_extra: str, match: str) -> None:
     text = SMALL.format(name="c", law="proposed", compare=compare, followers=2, t_end=1.0, dt_out=0.1)
     if platoon_extra:
@@ -167,8 +182,14 @@ def test_api_with_tiny_tolerances_raises_instead_of_crashing() -> None:
         except ParameterError as exc:
             print("refused:", exc)
     """)
-    proc = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=300,
-                          env={**os.environ, "PYTHONPATH": str(ROOT)})
+    proc = subprocess.run(
+        [sys.executable, "-c", code],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=300,
+        env={**os.environ, "PYTHONPATH": str(ROOT)},
+    )
     assert proc.returncode == 0, (proc.returncode, proc.stderr[-500:])
     assert proc.stdout.startswith("refused:") and "rtol" in proc.stdout
 
@@ -193,9 +214,27 @@ def test_an_interrupt_a_solver_swallowed_is_not_lost(capsys: pytest.CaptureFixtu
 def test_sigterm_during_mpc_exits_130_and_leaves_no_temp_files(tmp_path: Path) -> None:
     out = tmp_path / "o"
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
-    proc = subprocess.Popen([sys.executable, "-m", "aev_ocp.cli", "mpc", "mpc_paper_single", "--solver", "ipopt",
-                             "--no-codegen", "--t-end", "80", "--out", str(out)], cwd=ROOT, env=env,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "aev_ocp.cli",
+            "mpc",
+            "mpc_paper_single",
+            "--solver",
+            "ipopt",
+            "--no-codegen",
+            "--t-end",
+            "80",
+            "--out",
+            str(out),
+        ],
+        cwd=ROOT,
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     t0 = time.time()
     while time.time() - t0 < 120:  # wait until the closed loop runs
         if out.exists():
@@ -249,15 +288,18 @@ def test_failed_figure_write_leaves_no_temp_file(tmp_path: Path) -> None:
 
 # ----------------------------------------------------------------------------- 6. size limits
 @pytest.mark.quick
-@pytest.mark.parametrize("followers, t_end, dt_out, key", [
-    (10**7, 3.0, 0.05, "platoon.followers"),
-    (2**62, 3.0, 0.05, "platoon.followers"),
-    (2, "1e12", 0.05, "simulation.t_end"),
-    (2, 70.0, "1e-9", "simulation.dt_out"),
-])
-def test_runs_too_large_for_memory_are_refused_before_they_start(tmp_path: Path, capsys: pytest.CaptureFixture[str],
-                                                                  followers: int, t_end: object, dt_out: object,
-                                                                  key: str) -> None:
+@pytest.mark.parametrize(
+    "followers, t_end, dt_out, key",
+    [
+        (10**7, 3.0, 0.05, "platoon.followers"),
+        (2**62, 3.0, 0.05, "platoon.followers"),
+        (2, "1e12", 0.05, "simulation.t_end"),
+        (2, 70.0, "1e-9", "simulation.dt_out"),
+    ],
+)
+def test_runs_too_large_for_memory_are_refused_before_they_start(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], followers: int, t_end: object, dt_out: object, key: str
+) -> None:
     scen = small(tmp_path, followers=followers, t_end=t_end, dt_out=dt_out)
     t0 = time.perf_counter()
     rc, _, err = run_cli(["simulate", str(scen), "--out", str(tmp_path / "o")], capsys)
@@ -280,7 +322,7 @@ def test_ten_thousand_followers_are_thinned_to_fit(tmp_path: Path, monkeypatch: 
 
 @pytest.mark.quick
 def test_mpc_horizon_too_large_is_refused(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    scen = small(tmp_path, followers=1, extra="[mpc]\nN = 1000000000\nsolver = \"ipopt\"\n")
+    scen = small(tmp_path, followers=1, extra='[mpc]\nN = 1000000000\nsolver = "ipopt"\n')
     rc, _, err = run_cli(["mpc", str(scen), "--out", str(tmp_path / "o")], capsys)
     assert rc == EXIT_BAD_INPUT and "mpc.N" in one_error(err)
     assert not (tmp_path / "o").exists()
@@ -290,7 +332,7 @@ def test_mpc_horizon_too_large_is_refused(tmp_path: Path, capsys: pytest.Capture
 @pytest.mark.quick
 def test_unreadable_scenario_files_are_one_line_bad_input(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     cases = {}
-    (tmp_path / "bin.toml").write_bytes(b"name = \"x\"\n\xff\xfe\x00\x01binary")
+    (tmp_path / "bin.toml").write_bytes(b'name = "x"\n\xff\xfe\x00\x01binary')
     cases["bin.toml"] = "UTF-8"
     (tmp_path / "deep.toml").write_text("a = " + "[" * 3000 + "]" * 3000 + "\n")
     cases["deep.toml"] = "nested too deeply"
@@ -311,8 +353,9 @@ def test_unreadable_scenario_files_are_one_line_bad_input(tmp_path: Path, capsys
             assert name in line and what in line, line
 
 
-def test_a_broken_local_scenario_does_not_hide_the_shipped_ones(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
-                                                               capsys: pytest.CaptureFixture[str]) -> None:
+def test_a_broken_local_scenario_does_not_hide_the_shipped_ones(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
     monkeypatch.chdir(tmp_path)
     (tmp_path / "scenarios").mkdir()
     (tmp_path / "scenarios" / "table1.toml").write_bytes(b"\xff broken")
@@ -327,10 +370,12 @@ def test_api_type_errors_name_the_argument() -> None:
 
 
 # ----------------------------------------------------------------------------- 8. exit codes of mpc
-def test_mpc_run_stopped_by_an_event_exits_1_with_one_error_line(tmp_path: Path,
-                                                                capsys: pytest.CaptureFixture[str]) -> None:
+def test_mpc_run_stopped_by_an_event_exits_1_with_one_error_line(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     scen = tmp_path / "crash.toml"
-    scen.write_text(textwrap.dedent("""\
+    scen.write_text(
+        textwrap.dedent("""\
         name = "crash"
         [leader]
         kind = "constant"
@@ -344,9 +389,23 @@ def test_mpc_run_stopped_by_an_event_exits_1_with_one_error_line(tmp_path: Path,
         t_end = 1.0
         [limits]
         enabled = false
-    """))  # (without limits the law brakes at -43 m/s² and stops in time; with them it collides too)
-    rc, out, err = run_cli(["mpc", str(scen), "--solver", "ipopt", "--no-codegen", "--no-ocpd", "--laws", "proposed",
-                            "--out", str(tmp_path / "o")], capsys)
+    """)
+    )  # (without limits the law brakes at -43 m/s² and stops in time; with them it collides too)
+    rc, out, err = run_cli(
+        [
+            "mpc",
+            str(scen),
+            "--solver",
+            "ipopt",
+            "--no-codegen",
+            "--no-ocpd",
+            "--laws",
+            "proposed",
+            "--out",
+            str(tmp_path / "o"),
+        ],
+        capsys,
+    )
     assert rc == EXIT_FAILED_RUN, err
     line = one_error(err)
     assert "collision at t = " in line and "vehicle 1" in line
@@ -357,13 +416,17 @@ def test_mpc_run_stopped_by_an_event_exits_1_with_one_error_line(tmp_path: Path,
 
 
 @pytest.mark.quick
-@pytest.mark.parametrize("extra, match", [
-    ("[mpc]\nvehicles = [7]\n", r"s\.toml: mpc\.vehicles = \[7\].*do not exist"),
-    ("[mpc]\nformulation = \"s9\"\nh_min = 2.5\n", r"mpc\.h_min = 2\.5.*infeasible"),
-    ("[mpc]\nh_min = 2.5\n", r"mpc\.h_min = 2\.5.*§9 formulation only"),
-])
-def test_mpc_infeasible_or_missing_vehicles_are_bad_input(tmp_path: Path, capsys: pytest.CaptureFixture[str],
-                                                         extra: str, match: str) -> None:
+@pytest.mark.parametrize(
+    "extra, match",
+    [
+        ("[mpc]\nvehicles = [7]\n", r"s\.toml: mpc\.vehicles = \[7\].*do not exist"),
+        ('[mpc]\nformulation = "s9"\nh_min = 2.5\n', r"mpc\.h_min = 2\.5.*infeasible"),
+        ("[mpc]\nh_min = 2.5\n", r"mpc\.h_min = 2\.5.*§9 formulation only"),
+    ],
+)
+def test_mpc_infeasible_or_missing_vehicles_are_bad_input(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], extra: str, match: str
+) -> None:
     scen = small(tmp_path, followers=1, extra=extra)
     rc, _, err = run_cli(["mpc", str(scen), "--out", str(tmp_path / "o")], capsys)
     assert rc == EXIT_BAD_INPUT
@@ -374,11 +437,20 @@ def test_mpc_infeasible_or_missing_vehicles_are_bad_input(tmp_path: Path, capsys
 
 # ----------------------------------------------------------------------------- 10. one error style
 @pytest.mark.quick
-@pytest.mark.parametrize("argv", [
-    ["mpc"], ["mpc", "mpc_paper_single", "--solver", "nope"], ["mpc", "mpc_paper_single", "--t-end", "-1"],
-    ["ocp"], ["ocp", "nope"], ["ocp", "prop31", "--N", "0"], ["ocp", "prop31", "table1"],
-    ["simulate"], ["frobnicate"],
-])
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["mpc"],
+        ["mpc", "mpc_paper_single", "--solver", "nope"],
+        ["mpc", "mpc_paper_single", "--t-end", "-1"],
+        ["ocp"],
+        ["ocp", "nope"],
+        ["ocp", "prop31", "--N", "0"],
+        ["ocp", "prop31", "table1"],
+        ["simulate"],
+        ["frobnicate"],
+    ],
+)
 def test_every_subcommand_reports_bad_input_in_one_line(argv: list[str], capsys: pytest.CaptureFixture[str]) -> None:
     rc, out, err = run_cli(argv, capsys)
     assert rc == EXIT_BAD_INPUT
@@ -420,14 +492,19 @@ def test_csv_round_trip_matches_the_arrays(tmp_path: Path) -> None:
         np.testing.assert_allclose([float(row["t_model"]) for row in mine], r.t, rtol=1e-5)
         # SI columns lead, named with their units, = the model arrays converted with the scenario's units
         u = r.units
-        for col, attr, conv in (("gap_m", "gap", u.length_to_si), ("speed_mps", "speed", u.speed_to_si),
-                                ("accel_mps2", "accel", u.accel_to_si),
-                                ("omega_J_per_kg", "omega", u.energy_per_mass_to_si)):
-            np.testing.assert_allclose([float(row[col]) for row in mine], conv(getattr(r, attr)[:, i]),
-                                       rtol=1e-9, atol=1e-12)
+        for col, attr, conv in (
+            ("gap_m", "gap", u.length_to_si),
+            ("speed_mps", "speed", u.speed_to_si),
+            ("accel_mps2", "accel", u.accel_to_si),
+            ("omega_J_per_kg", "omega", u.energy_per_mass_to_si),
+        ):
+            np.testing.assert_allclose(
+                [float(row[col]) for row in mine], conv(getattr(r, attr)[:, i]), rtol=1e-9, atol=1e-12
+            )
         np.testing.assert_allclose([float(row["t_s"]) for row in mine], u.time_to_si(r.t), rtol=1e-5)
-        np.testing.assert_allclose([float(row["leader_speed_mps"]) for row in mine], u.speed_to_si(r.leader_speed),
-                                   rtol=1e-9)
+        np.testing.assert_allclose(
+            [float(row["leader_speed_mps"]) for row in mine], u.speed_to_si(r.leader_speed), rtol=1e-9
+        )
     header = f.read_text(encoding="utf-8").splitlines()[0].split(",")
     first_model = min(header.index(c) for c in header if c.endswith("_model"))
     assert header[0] == "t_s" and all(not c.endswith("_model") for c in header[:first_model])

@@ -75,11 +75,14 @@ def test_study_name_must_not_lead_outside_results(tmp_path, capsys, monkeypatch,
     assert not (tmp_path / "results").exists() and not Path("/tmp/abs_study_name/points").exists()
 
 
-@pytest.mark.parametrize("argv, claimed", [
-    (["stability", "--law", "ovm", "--linear-only"], "gain.png"),
-    (["ring", "sugiyama", "--t-end-s", "5"], "ring.json"),
-    (["stability", "--law", "ovm", "--ring", "22", "--density-per-km", "47"], "ring_stability.json"),
-])
+@pytest.mark.parametrize(
+    "argv, claimed",
+    [
+        (["stability", "--law", "ovm", "--linear-only"], "gain.png"),
+        (["ring", "sugiyama", "--t-end-s", "5"], "ring.json"),
+        (["stability", "--law", "ovm", "--ring", "22", "--density-per-km", "47"], "ring_stability.json"),
+    ],
+)
 def test_stability_and_ring_refuse_a_users_folder_before_any_work(tmp_path, capsys, argv, claimed):
     (tmp_path / claimed).write_bytes(b"mine")
     t0 = time.perf_counter()
@@ -89,12 +92,22 @@ def test_stability_and_ring_refuse_a_users_folder_before_any_work(tmp_path, caps
 
 
 # ----------------------------------------------------------------------------- 2. sizes
-@pytest.mark.parametrize("axes, key", [
-    ('[[axes]]\nkey = "carfollowing.kappa"\nrandom = { n = 1000000000, seed = 1, low = [0.0], high = [0.5] }\n',
-     "random.n"),
-    ("".join(f'[[axes]]\nkey = "carfollowing.{k}"\nvalues = [{", ".join(str(0.5 + 0.001 * i) for i in range(1000))}]\n'
-             for k in ("kappa", "alpha", "beta")), "carfollowing.beta"),
-])
+@pytest.mark.parametrize(
+    "axes, key",
+    [
+        (
+            '[[axes]]\nkey = "carfollowing.kappa"\nrandom = { n = 1000000000, seed = 1, low = [0.0], high = [0.5] }\n',
+            "random.n",
+        ),
+        (
+            "".join(
+                f'[[axes]]\nkey = "carfollowing.{k}"\nvalues = [{", ".join(str(0.5 + 0.001 * i) for i in range(1000))}]\n'
+                for k in ("kappa", "alpha", "beta")
+            ),
+            "carfollowing.beta",
+        ),
+    ],
+)
 def test_study_too_large_is_refused_before_any_point_is_built(tmp_path, capsys, axes, key):
     text = STUDY.replace('[[axes]]\nkey = "platoon.gap0_first"\nvalues = [0.35, 0.9]\n', axes)
     assert text != STUDY
@@ -324,7 +337,7 @@ def _mutate(d: Path, data: st.DataObject) -> None:
         z = a.read_bytes()
         if how == "npz":
             at = data.draw(st.integers(0, len(z) - 1))
-            z = z[:at] + data.draw(st.binary(min_size=1, max_size=64)) + z[at + 64:]
+            z = z[:at] + data.draw(st.binary(min_size=1, max_size=64)) + z[at + 64 :]
         else:
             src, buf = zipfile.ZipFile(io.BytesIO(z)), io.BytesIO()
             names = src.namelist()
@@ -333,14 +346,19 @@ def _mutate(d: Path, data: st.DataObject) -> None:
                 for n in names:
                     body = src.read(n)
                     if n == victim and how == "array":  # a valid .npy of another shape or type
-                        arr = np.zeros(data.draw(st.lists(st.integers(0, 4), max_size=3)),
-                                       dtype=data.draw(st.sampled_from(["f8", "i4", "U2", "c16", "?"])))
+                        arr = np.zeros(
+                            data.draw(st.lists(st.integers(0, 4), max_size=3)),
+                            dtype=data.draw(st.sampled_from(["f8", "i4", "U2", "c16", "?"])),
+                        )
                         out = io.BytesIO()
                         np.save(out, arr)
                         body = out.getvalue()
                     elif n == victim:
-                        n, body = data.draw(st.sampled_from([("proposed/renamed.npy", body),
-                                                             (n, body[:len(body) // 2]), (n, b"\x93NUMPY junk")]))
+                        n, body = data.draw(
+                            st.sampled_from(
+                                [("proposed/renamed.npy", body), (n, body[: len(body) // 2]), (n, b"\x93NUMPY junk")]
+                            )
+                        )
                     dst.writestr(n, body)
             z = buf.getvalue()
         a.write_bytes(z)
@@ -348,10 +366,10 @@ def _mutate(d: Path, data: st.DataObject) -> None:
         m["arrays_sha256"] = hashlib.sha256(z).hexdigest()
         (d / MANIFEST).write_text(json.dumps(m))
     elif how == "truncate":
-        f.write_bytes(raw[:data.draw(st.integers(0, len(raw) - 1))])
+        f.write_bytes(raw[: data.draw(st.integers(0, len(raw) - 1))])
     elif how == "bytes":
         at = data.draw(st.integers(0, len(raw) - 1))
-        f.write_bytes(raw[:at] + data.draw(st.binary(min_size=1, max_size=16)) + raw[at + 16:])
+        f.write_bytes(raw[:at] + data.draw(st.binary(min_size=1, max_size=16)) + raw[at + 16 :])
     elif how == "rename":
         f.rename(d / data.draw(st.sampled_from(["other.npz", "manifest.json.bak"])))
     else:  # a structurally valid manifest with a field of the wrong type
@@ -402,8 +420,11 @@ def test_deeply_nested_manifest_is_a_load_error(saved, tmp_path):
 # ----------------------------------------------------------------------------- 7. overrides
 def test_set_on_an_axis_key_nan_and_newline_are_refused(tmp_path, capsys):
     f = _study(tmp_path)
-    for sets, word in ((["platoon.gap0_first=0.5"], "platoon.gap0_first"), (["carfollowing.alpha=nan"], "nan"),
-                       (["simulation.t_end=2\nplatoon.followers=9"], "line break")):
+    for sets, word in (
+        (["platoon.gap0_first=0.5"], "platoon.gap0_first"),
+        (["carfollowing.alpha=nan"], "nan"),
+        (["simulation.t_end=2\nplatoon.followers=9"], "line break"),
+    ):
         rc, err = _run_study(tmp_path, f, tmp_path / "o", capsys, *[x for s in sets for x in ("--set", s)])
         assert rc == 2 and word in one_error(err), err
     assert not (tmp_path / "o").exists()
@@ -412,17 +433,20 @@ def test_set_on_an_axis_key_nan_and_newline_are_refused(tmp_path, capsys):
 # ----------------------------------------------------------------------------- 8. trace CSV
 def _trace_scenario(tmp_path: Path, trace: Path) -> Path:
     f = tmp_path / "trace.toml"
-    f.write_text(f'name = "tr"\n[leader]\nkind = "trace"\nfile = "{trace}"\ntime_column = "t"\n'
-                 'speed_column = "v"\n[platoon]\nfollowers = 1\ngap0_first = 1.0\nspeed0_factor = 1.0\n[simulation]\n'
-                 't_end_s = 2.0\n')
+    f.write_text(
+        f'name = "tr"\n[leader]\nkind = "trace"\nfile = "{trace}"\ntime_column = "t"\n'
+        'speed_column = "v"\n[platoon]\nfollowers = 1\ngap0_first = 1.0\nspeed0_factor = 1.0\n[simulation]\n'
+        "t_end_s = 2.0\n"
+    )
     return f
 
 
 def test_trace_field_too_long_is_bad_input(tmp_path, capsys):
     trace = tmp_path / "long.csv"
     trace.write_text("t,v\n0," + "1" * 200_000 + "\n1,2\n")
-    rc, _, err = run_cli(["simulate", str(_trace_scenario(tmp_path, trace)), "--no-plots", "--out",
-                          str(tmp_path / "o")], capsys)
+    rc, _, err = run_cli(
+        ["simulate", str(_trace_scenario(tmp_path, trace)), "--no-plots", "--out", str(tmp_path / "o")], capsys
+    )
     line = one_error(err)
     assert rc == 2 and "not a valid CSV" in line and "internal error" not in line
 
@@ -468,18 +492,42 @@ def test_long_trace_is_streamed(tmp_path):
 
 
 # ----------------------------------------------------------------------------- fuzz: study TOML
-_TOKENS = ["name = \"z\"", "scenarios = [\"table1\"]", "[[axes]]", "key = \"carfollowing.kappa\"",
-           "keys = [\"carfollowing.kappa\", \"carfollowing.alpha\"]", "values = [0.1, 0.2]", "values = []",
-           "values = [[0.1], [1.5, 2]]", "random = { n = 3, seed = 1, low = [0.0], high = [0.5] }",
-           "random = { n = -1, seed = 1, low = 0.5, high = 0.1 }", "random = { n = 1e300 }", "[controllers]",
-           "laws = [\"proposed\"]", "laws = [\"nope\"]", "laws = 3", "[overrides]", "\"platoon.followers\" = 2",
-           "\"simulation.t_end\" = nan", "reference = \"ovfl\"", "[report]", "metrics = [1]", "name = \"../x\"",
-           "[[controllers.mpc]]", "N = 100000000", "= =", "[axes]", "description = \"\\u0000\""]
+_TOKENS = [
+    'name = "z"',
+    'scenarios = ["table1"]',
+    "[[axes]]",
+    'key = "carfollowing.kappa"',
+    'keys = ["carfollowing.kappa", "carfollowing.alpha"]',
+    "values = [0.1, 0.2]",
+    "values = []",
+    "values = [[0.1], [1.5, 2]]",
+    "random = { n = 3, seed = 1, low = [0.0], high = [0.5] }",
+    "random = { n = -1, seed = 1, low = 0.5, high = 0.1 }",
+    "random = { n = 1e300 }",
+    "[controllers]",
+    'laws = ["proposed"]',
+    'laws = ["nope"]',
+    "laws = 3",
+    "[overrides]",
+    '"platoon.followers" = 2',
+    '"simulation.t_end" = nan',
+    'reference = "ovfl"',
+    "[report]",
+    "metrics = [1]",
+    'name = "../x"',
+    "[[controllers.mpc]]",
+    "N = 100000000",
+    "= =",
+    "[axes]",
+    'description = "\\u0000"',
+]
 
 
 @settings(max_examples=80, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
-@given(lines=st.lists(st.sampled_from(_TOKENS), max_size=12),
-       noise=st.text(alphabet=st.characters(blacklist_categories=("Cs",)), max_size=20))
+@given(
+    lines=st.lists(st.sampled_from(_TOKENS), max_size=12),
+    noise=st.text(alphabet=st.characters(blacklist_categories=("Cs",)), max_size=20),
+)
 def test_fuzz_study_toml_is_valid_or_one_clear_error(tmp_path, lines, noise):
     from aev_ocp.overrides import OverrideError
     from aev_ocp.params import ParameterError
@@ -502,8 +550,9 @@ def test_mpc_export_refuses_a_users_folder_and_a_huge_horizon_before_generating(
     rc, _, err = run_cli(["mpc-export", "mpc_paper_single", "--out", str(mine)], capsys)
     assert rc == 2 and "Makefile" in one_error(err) and sorted(p.name for p in mine.iterdir()) == ["Makefile"]
     t0 = time.perf_counter()
-    rc, _, err = run_cli(["mpc-export", "mpc_paper_single", "--out", str(tmp_path / "big"), "--set", "mpc.N=100000"],
-                         capsys)
+    rc, _, err = run_cli(
+        ["mpc-export", "mpc_paper_single", "--out", str(tmp_path / "big"), "--set", "mpc.N=100000"], capsys
+    )
     assert rc == 2 and "mpc.N = 100000" in one_error(err) and time.perf_counter() - t0 < 10.0
     assert not (tmp_path / "big").exists()
 
@@ -534,8 +583,19 @@ def test_plain_c_step_with_own_states_matches_the_python_controller_in_closed_lo
     from aev_ocp.mpc.settings import MPCSettings
     from aev_ocp.params import EVParams, Units
 
-    rc, _, err = run_cli(["mpc-export", "mpc_udds_single", "--out", str(tmp_path / "x"), "--set",
-                          "mpc.predictor=constant-velocity", "--set", "mpc.N=14"], capsys)
+    rc, _, err = run_cli(
+        [
+            "mpc-export",
+            "mpc_udds_single",
+            "--out",
+            str(tmp_path / "x"),
+            "--set",
+            "mpc.predictor=constant-velocity",
+            "--set",
+            "mpc.N=14",
+        ],
+        capsys,
+    )
     assert rc == 0, err
     lib = build_library(tmp_path / "x", tmp_path / "x" / "lib.so")
     ev = EVParams(units=Units(15.0, 17.0))
@@ -632,11 +692,14 @@ def test_trace_is_read_only_as_far_as_the_run_needs(tmp_path, capsys):
     assert rc == 2 and "row 2502" in one_error(err)
 
 
-@pytest.mark.parametrize("argv, what", [
-    (["study", "{f}", "--in-process"], "study file"),
-    (["ocp", "current-profile", "--grid-file", "{f}", "--out", "{d}/o"], "grid file"),
-    (["ocp", "prop31", "--cell", "{f}", "--out", "{d}/o"], "cell file"),
-])
+@pytest.mark.parametrize(
+    "argv, what",
+    [
+        (["study", "{f}", "--in-process"], "study file"),
+        (["ocp", "current-profile", "--grid-file", "{f}", "--out", "{d}/o"], "grid file"),
+        (["ocp", "prop31", "--cell", "{f}", "--out", "{d}/o"], "cell file"),
+    ],
+)
 @pytest.mark.parametrize("kind", ["fifo", "dev-zero"])
 def test_input_files_that_are_no_regular_files_are_refused_unread(tmp_path, capsys, argv, what, kind):
     f = tmp_path / "input.toml"
@@ -664,12 +727,15 @@ def test_input_file_size_is_checked_before_reading(tmp_path, monkeypatch):
     assert reads == []  # refused from its stated size, not read
 
 
-@pytest.mark.parametrize("argv", [
-    ["simulate", "table1", "--set", "simulation.t_end=1.5", "--set", "platoon.followers=2", "--no-plots"],
-    ["mpc-export", "mpc_paper_single"],
-    ["stability", "--law", "ovm", "--linear-only", "--no-plots"],
-    ["ring", "sugiyama", "--t-end-s", "3", "--no-plots"],
-])
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["simulate", "table1", "--set", "simulation.t_end=1.5", "--set", "platoon.followers=2", "--no-plots"],
+        ["mpc-export", "mpc_paper_single"],
+        ["stability", "--law", "ovm", "--linear-only", "--no-plots"],
+        ["ring", "sugiyama", "--t-end-s", "3", "--no-plots"],
+    ],
+)
 def test_every_command_refuses_a_folder_another_run_is_writing(tmp_path, capsys, argv):
     out = tmp_path / "o"
     fd = _foreign_lock(out)
@@ -705,12 +771,19 @@ def test_claim_holds_the_lock_until_the_command_ends_and_is_reentrant(tmp_path, 
         os.close(fd)
 
 
-@pytest.mark.parametrize("setup, argv, word", [
-    ("fifo-marker", ["simulate", "table1", "--no-plots", "--set", "simulation.t_end=1.5"], "not a file aev-ocp wrote"),
-    ("prop31.json", ["ocp", "prop31", "--N", "20", "--no-refine"], "prop31.json"),
-    ("notes.txt", ["ocp", "prop31", "--N", "20", "--no-refine"], "notes.txt"),
-    ("space_time_all_human.png", ["ring", "sugiyama", "--t-end-s", "3"], "space_time_all_human.png"),
-])
+@pytest.mark.parametrize(
+    "setup, argv, word",
+    [
+        (
+            "fifo-marker",
+            ["simulate", "table1", "--no-plots", "--set", "simulation.t_end=1.5"],
+            "not a file aev-ocp wrote",
+        ),
+        ("prop31.json", ["ocp", "prop31", "--N", "20", "--no-refine"], "prop31.json"),
+        ("notes.txt", ["ocp", "prop31", "--N", "20", "--no-refine"], "notes.txt"),
+        ("space_time_all_human.png", ["ring", "sugiyama", "--t-end-s", "3"], "space_time_all_human.png"),
+    ],
+)
 def test_outputs_not_listed_or_odd_markers_never_replace_a_users_entry(tmp_path, capsys, setup, argv, word):
     from aev_ocp.results import MARKER
 
@@ -727,13 +800,16 @@ def test_outputs_not_listed_or_odd_markers_never_replace_a_users_entry(tmp_path,
     assert setup == "fifo-marker" or f.read_bytes() == b"mine"
 
 
-@pytest.mark.parametrize("argv, word", [
-    (["simulate", "table1", "--set", "simulation.t_end=1e308"], "simulation.t_end"),
-    (["stability", "--law", "ovm", "--ring", "22", "--density-per-km", "0"], "--density-per-km"),
-    (["stability", "--law", "ovm", "--ring", "22", "--density-per-km", "nan"], "--density-per-km"),
-    (["ring", "sugiyama", "--seed", "-1"], "--seed"),
-    (["simulate", "table1", "--set", "simulation.t_end=" + "9" * 5000], "simulation.t_end"),
-])
+@pytest.mark.parametrize(
+    "argv, word",
+    [
+        (["simulate", "table1", "--set", "simulation.t_end=1e308"], "simulation.t_end"),
+        (["stability", "--law", "ovm", "--ring", "22", "--density-per-km", "0"], "--density-per-km"),
+        (["stability", "--law", "ovm", "--ring", "22", "--density-per-km", "nan"], "--density-per-km"),
+        (["ring", "sugiyama", "--seed", "-1"], "--seed"),
+        (["simulate", "table1", "--set", "simulation.t_end=" + "9" * 5000], "simulation.t_end"),
+    ],
+)
 def test_absurd_numbers_are_bad_input(tmp_path, capsys, argv, word):
     rc, _, err = run_cli([*argv, "--out", str(tmp_path / "o")], capsys)
     line = one_error(err)
@@ -767,8 +843,9 @@ def test_store_rebuilds_a_folder_entry_and_a_points_file(tmp_path):
     assert drop(third.rows) == drop(first.rows) and len(list((out / "points").glob("*.json"))) == 4
 
 
-@pytest.mark.parametrize("name, bad", [("t", np.arange(3.0)), ("gap", np.zeros((2, 2, 2))), ("speed", np.array(["a"])),
-                                       ("heat_J", None)])
+@pytest.mark.parametrize(
+    "name, bad", [("t", np.arange(3.0)), ("gap", np.zeros((2, 2, 2))), ("speed", np.array(["a"])), ("heat_J", None)]
+)
 def test_saved_arrays_of_the_wrong_shape_or_type_are_a_load_error(saved, tmp_path, name, bad):
     import hashlib
     import io
@@ -797,7 +874,10 @@ def test_saved_arrays_of_the_wrong_shape_or_type_are_a_load_error(saved, tmp_pat
 
 
 def test_unknown_report_metrics_are_named_in_a_warning(tmp_path, capsys):
-    f = _study(tmp_path, text=STUDY + '[report]\nmetrics = ["omega_model", "omgea_model"]\npareto = [["heat_pack_J", "frob"]]\n')
+    f = _study(
+        tmp_path,
+        text=STUDY + '[report]\nmetrics = ["omega_model", "omgea_model"]\npareto = [["heat_pack_J", "frob"]]\n',
+    )
     rc, _, err = run_cli(["study", str(f), "--out", str(tmp_path / "o"), "--in-process"], capsys)
     warn = [ln for ln in err.splitlines() if "not columns of the table" in ln]
     assert rc == 0 and len(warn) == 1 and "'frob', 'omgea_model'" in warn[0] and "heat_pack_J'" not in warn[0]
@@ -854,9 +934,14 @@ def test_an_interrupted_dask_local_study_stops_its_cluster(tmp_path):
     out, tmp = tmp_path / "o", tmp_path / "tmp"
     tmp.mkdir()
     env = {**os.environ, "TMPDIR": str(tmp), "PYTHONPATH": str(Path(__file__).resolve().parents[1])}
-    p = subprocess.Popen([sys.executable, "-m", "aev_ocp.cli", "study", str(f), "--out", str(out), "--dask-local", "2",
-                          "--no-report"], env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                         start_new_session=True)
+    p = subprocess.Popen(
+        [sys.executable, "-m", "aev_ocp.cli", "study", str(f), "--out", str(out), "--dask-local", "2", "--no-report"],
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=True,
+    )
     try:
         deadline = time.monotonic() + 90.0  # the cluster has started and computes: the first results are stored
         while not list((out / "points").glob("[0-9a-f]*.json")) and time.monotonic() < deadline and p.poll() is None:
@@ -930,7 +1015,7 @@ def test_a_stopped_compiler_takes_its_children_and_temporaries_with_it(tmp_path)
     from aev_ocp.compiled import run_tool
 
     tmpf, pidf = tmp_path / "cc123.s", tmp_path / "child.pid"
-    script = (f'trap "rm -f {tmpf}; exit 143" TERM; touch {tmpf}; sleep 60 & echo $! > {pidf}; wait')
+    script = f'trap "rm -f {tmpf}; exit 143" TERM; touch {tmpf}; sleep 60 & echo $! > {pidf}; wait'
     t0 = time.perf_counter()
     with pytest.raises(subprocess.TimeoutExpired):
         run_tool(["sh", "-c", script], tmp_path, 1.0)
@@ -944,8 +1029,9 @@ def test_a_stopped_compiler_takes_its_children_and_temporaries_with_it(tmp_path)
     assert (ok.returncode, ok.stdout, ok.stderr) == (0, "built\n", "warn\n")
 
 
-_ENTRY_DAMAGE = st.sampled_from(["empty", "junk", "list", "nested", "swap", "edit", "folder", "fifo", "link", "utf16",
-                                 "missing_key", "huge_number"])
+_ENTRY_DAMAGE = st.sampled_from(
+    ["empty", "junk", "list", "nested", "swap", "edit", "folder", "fifo", "link", "utf16", "missing_key", "huge_number"]
+)
 
 
 @pytest.mark.filterwarnings("ignore:study tiny")  # the rerun says which entries it computes again
@@ -978,10 +1064,16 @@ def test_fuzz_damaged_store_entries_are_recomputed_to_the_same_table(stored_stud
             elif how == "missing_key":
                 f.write_text(text.replace('"metrics"', '"metricz"', 1))
             else:
-                {"empty": lambda: f.write_bytes(b""), "junk": lambda: f.write_bytes(b"\xff\x00junk"),
-                 "list": lambda: f.write_text("[1, 2]"), "nested": lambda: f.write_text("[" * 50_000 + "]" * 50_000),
-                 "folder": lambda: (f / "x").mkdir(parents=True), "fifo": lambda: os.mkfifo(f),
-                 "link": lambda: f.symlink_to("/dev/zero"), "utf16": lambda: f.write_bytes(text.encode("utf-16"))}[how]()
+                {
+                    "empty": lambda: f.write_bytes(b""),
+                    "junk": lambda: f.write_bytes(b"\xff\x00junk"),
+                    "list": lambda: f.write_text("[1, 2]"),
+                    "nested": lambda: f.write_text("[" * 50_000 + "]" * 50_000),
+                    "folder": lambda: (f / "x").mkdir(parents=True),
+                    "fifo": lambda: os.mkfifo(f),
+                    "link": lambda: f.symlink_to("/dev/zero"),
+                    "utf16": lambda: f.write_bytes(text.encode("utf-16")),
+                }[how]()
     again = run_study(study, out, executor="inprocess", report=False)
     drop = lambda rows: [{k: v for k, v in r.items() if k != "wall_s"} for r in rows]  # noqa: E731
     assert drop(again.rows) == drop(first.rows)
@@ -1037,36 +1129,45 @@ def test_ctrl_c_while_the_command_is_still_importing_is_one_line_and_130(tmp_pat
     import subprocess
     import sys
 
-    code = ("import importlib.abc, os, signal, sys\n"
-            "class Hook(importlib.abc.MetaPathFinder):\n"
-            "    def find_spec(self, name, path, target=None):\n"
-            "        if name == 'aev_ocp.console':\n"
-            "            os.kill(os.getpid(), signal.SIGINT)\n"
-            "        return None\n"
-            "sys.meta_path.insert(0, Hook())\n"
-            "sys.argv = ['aev-ocp', 'scenarios']\n"
-            "import runpy; runpy.run_module('aev_ocp.cli', run_name='__main__')\n")
+    code = (
+        "import importlib.abc, os, signal, sys\n"
+        "class Hook(importlib.abc.MetaPathFinder):\n"
+        "    def find_spec(self, name, path, target=None):\n"
+        "        if name == 'aev_ocp.console':\n"
+        "            os.kill(os.getpid(), signal.SIGINT)\n"
+        "        return None\n"
+        "sys.meta_path.insert(0, Hook())\n"
+        "sys.argv = ['aev-ocp', 'scenarios']\n"
+        "import runpy; runpy.run_module('aev_ocp.cli', run_name='__main__')\n"
+    )
     env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])}
     p = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=60, cwd=tmp_path)
     assert (p.returncode, p.stderr) == (130, "aev-ocp: error: interrupted\n")
 
 
-@pytest.mark.parametrize("argv, word", [
-    (["simulate", "table1", "--out", ""], "--out: an empty folder name"),
-    (["study", "studies/kappa_alpha_table1.toml", "--out", ""], "--out: an empty folder name"),
-    (["stability", "--law", "ovm", "--out", ""], "--out: an empty folder name"),
-    (["sumo", "sumo_ring", "--out", ""], "--out: an empty folder name"),
-    (["sumo", "sumo_ring", "--bogus"], "unrecognized arguments: --bogus"),
-    (["study", "{study}", "--scheduler", "nonsense", "--out", "{d}/o"], "is not a Dask scheduler address"),
-    (["ocp", "current-profile", "--grid-file", "{grid}", "--out", "{d}/o"], "--grid-file {grid}: grid E_req"),
-    (["ocp", "current-profile", "--grid-file", "{json}", "--out", "{d}/o"], "--grid-file {json}: not valid JSON"),
-])
+@pytest.mark.parametrize(
+    "argv, word",
+    [
+        (["simulate", "table1", "--out", ""], "--out: an empty folder name"),
+        (["study", "studies/kappa_alpha_table1.toml", "--out", ""], "--out: an empty folder name"),
+        (["stability", "--law", "ovm", "--out", ""], "--out: an empty folder name"),
+        (["sumo", "sumo_ring", "--out", ""], "--out: an empty folder name"),
+        (["sumo", "sumo_ring", "--bogus"], "unrecognized arguments: --bogus"),
+        (["study", "{study}", "--scheduler", "nonsense", "--out", "{d}/o"], "is not a Dask scheduler address"),
+        (["ocp", "current-profile", "--grid-file", "{grid}", "--out", "{d}/o"], "--grid-file {grid}: grid E_req"),
+        (["ocp", "current-profile", "--grid-file", "{json}", "--out", "{d}/o"], "--grid-file {json}: not valid JSON"),
+    ],
+)
 def test_more_bad_input_is_one_line_naming_it(tmp_path, capsys, monkeypatch, argv, word):
     monkeypatch.chdir(Path(__file__).resolve().parents[1])  # studies/ and the shipped names
     (tmp_path / "g.toml").write_text("E_req = [1e400]\n")
     (tmp_path / "g.json").write_text("[1, 2]\n")
-    subs = {"{d}": str(tmp_path), "{grid}": str(tmp_path / "g.toml"), "{json}": str(tmp_path / "g.json"),
-            "{study}": str(_study(tmp_path))}
+    subs = {
+        "{d}": str(tmp_path),
+        "{grid}": str(tmp_path / "g.toml"),
+        "{json}": str(tmp_path / "g.json"),
+        "{study}": str(_study(tmp_path)),
+    }
 
     def fill(a: str) -> str:
         for k, v in subs.items():

@@ -27,8 +27,17 @@ def quick_report(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, str]:
 
 def test_reproduce_writes_all_files(quick_report: tuple[Path, str]) -> None:
     out, _ = quick_report
-    for name in ("fig1_phase_plane.png", "fig2_phase_plane_vs_ovfl.png", "fig3_leader.png", "fig5_platoon.png",
-                 "table1.csv", "table1.md", "table1.json", "tolerance_study.json", "report.md"):
+    for name in (
+        "fig1_phase_plane.png",
+        "fig2_phase_plane_vs_ovfl.png",
+        "fig3_leader.png",
+        "fig5_platoon.png",
+        "table1.csv",
+        "table1.md",
+        "table1.json",
+        "tolerance_study.json",
+        "report.md",
+    ):
         path = out / name
         assert path.stat().st_size > 0, name
         if name.endswith(".png"):
@@ -50,17 +59,29 @@ def test_table1_json_keys_and_shapes(quick_report: tuple[Path, str]) -> None:
 def test_report_text_and_progress(quick_report: tuple[Path, str]) -> None:
     out, log = quick_report
     text = (out / "report.md").read_text()
-    for fragment in ("Table 1", "1.827", "Tolerance study", "disagree", "## Extra section", "fig5_platoon.png",
-                     "udds_platoon", "Reduced configuration"):
+    for fragment in (
+        "Table 1",
+        "1.827",
+        "Tolerance study",
+        "disagree",
+        "## Extra section",
+        "fig5_platoon.png",
+        "udds_platoon",
+        "Reduced configuration",
+    ):
         assert fragment in text, fragment
     lines = [line for line in log.splitlines() if line.startswith("[")]
     assert lines and lines[0].startswith("[1/") and "extra" in log
 
 
 def test_disagreement_statements_are_computed() -> None:
-    same = {"proposed_omega": list(PAPER_TABLE1["proposed"]), "ovfl_omega": list(PAPER_TABLE1["ovfl"]),
-            "paper_proposed_omega": list(PAPER_TABLE1["proposed"]), "paper_ovfl_omega": list(PAPER_TABLE1["ovfl"]),
-            "paper_percent_change": [-1.56, -2.67, -3.47, -2.21, -1.66]}
+    same = {
+        "proposed_omega": list(PAPER_TABLE1["proposed"]),
+        "ovfl_omega": list(PAPER_TABLE1["ovfl"]),
+        "paper_proposed_omega": list(PAPER_TABLE1["proposed"]),
+        "paper_ovfl_omega": list(PAPER_TABLE1["ovfl"]),
+        "paper_percent_change": [-1.56, -2.67, -3.47, -2.21, -1.66],
+    }
     same["percent_change"] = percent_change(same["proposed_omega"], same["ovfl_omega"])
     notes = " ".join(table1_disagreements(same))
     assert "agrees" in notes and "MORE" not in notes
@@ -94,7 +115,8 @@ def test_every_section_run_loads_back_with_the_numbers_of_the_report(quick_repor
     udds = json.loads((out / "scenarios" / "udds_platoon" / "metrics.json").read_text())
     for label, r in aev_ocp.load_all(out / "scenarios" / "udds_platoon").items():
         assert [m["heat_pack_J"] for m in r.metrics()] == pytest.approx(
-            [m["heat_pack_J"] for m in udds["runs"][label]["metrics"]], rel=1e-12)
+            [m["heat_pack_J"] for m in udds["runs"][label]["metrics"]], rel=1e-12
+        )
     mpc = aev_ocp.load(out / "mpc")  # the example: aev_ocp.load("results/mpc")
     res = json.loads((out / "mpc" / "results.json").read_text())
     assert mpc.meta["output"]["label"] == "mpc" and mpc.status == res["status"]
@@ -116,6 +138,6 @@ def test_every_section_run_loads_back_with_the_numbers_of_the_report(quick_repor
 
 def test_the_counter_counts_every_line(quick_report: tuple[Path, str]) -> None:
     _, log = quick_report
-    heads = [tuple(map(int, ln[1:ln.index("]")].split("/"))) for ln in log.splitlines() if ln.startswith("[")]
+    heads = [tuple(map(int, ln[1 : ln.index("]")].split("/"))) for ln in log.splitlines() if ln.startswith("[")]
     assert [k for k, _ in heads] == list(range(1, len(heads) + 1))  # one by one, no jump
     assert heads[-1][0] == heads[-1][1]  # ends at N/N

@@ -19,8 +19,13 @@ from aev_ocp.report import OVER_LIMIT_MARK, platoon_totals, scenario_metrics_row
 from aev_ocp.report_html import ReportHTMLError, heading_anchor, markdown_to_html
 from aev_ocp.simulate import simulate_platoon
 
-SMALL = rp.ReproduceConfig(tolerances=(1e-8,), fig12_t_end=15.0, scenario_t_end_max=5.0, scenarios=("table1",),
-                           builtin=("fig1-2", "table1", "scenarios"))
+SMALL = rp.ReproduceConfig(
+    tolerances=(1e-8,),
+    fig12_t_end=15.0,
+    scenario_t_end_max=5.0,
+    scenarios=("table1",),
+    builtin=("fig1-2", "table1", "scenarios"),
+)
 
 
 @pytest.fixture(scope="module")
@@ -52,7 +57,7 @@ def test_html_embeds_every_figure_of_the_report(small_report) -> None:  # noqa: 
     html = (out / "report.html").read_text()
     figs = re.findall(r"!\[[^\]]*\]\(([^)]+)\)", md)
     imgs = re.findall(r'<img alt="[^"]*" src="data:image/png;base64,([^"]+)"', html)
-    assert len(figs) == len(imgs) >= 5 and 'src="data' in html and "src=\"fig" not in html
+    assert len(figs) == len(imgs) >= 5 and 'src="data' in html and 'src="fig' not in html
     for f, b64 in zip(figs, imgs):
         assert base64.b64decode(b64) == (out / f).read_bytes()
     assert html.count("<table>") == md.count("\n|---")
@@ -65,8 +70,10 @@ def test_html_embeds_every_figure_of_the_report(small_report) -> None:  # noqa: 
 def test_markdown_to_html_by_hand(tmp_path: Path) -> None:
     png = b"\x89PNG\r\n\x1a\nnot really a picture"
     (tmp_path / "a.png").write_bytes(png)
-    md = ("# Title\n\n## Section: one (x ≤ 2)\n\nText with `a|b`, **bold** and [a link](#section-one-x--2).\n\n"
-          "| h1 | h2 |\n|---|---|\n| 1 \\| 2 | <b> |\n\n- item *one*\n- item two\n\n![alt text](a.png)\n")
+    md = (
+        "# Title\n\n## Section: one (x ≤ 2)\n\nText with `a|b`, **bold** and [a link](#section-one-x--2).\n\n"
+        "| h1 | h2 |\n|---|---|\n| 1 \\| 2 | <b> |\n\n- item *one*\n- item two\n\n![alt text](a.png)\n"
+    )
     html = markdown_to_html(md, tmp_path, "t")
     assert '<h2 id="section-one-x--2">' in html and '<a href="#section-one-x--2">a link</a>' in html
     assert "<td>1 | 2</td><td>&lt;b&gt;</td>" in html and "<code>a|b</code>" in html and "<strong>bold</strong>" in html
@@ -82,8 +89,10 @@ def test_heading_anchor() -> None:
 
 
 def test_over_limit_battery_columns_are_marked_and_totals_are_sums() -> None:
-    runs = {law.name: simulate_platoon(ConstantSpeed(1.4), [law] * 3, [0.9, 2.2, 2.6], [1.9, 1.5, 1.45], 3.0,
-                                       dt_out=0.05) for law in (Proposed(), OVFL())}
+    runs = {
+        law.name: simulate_platoon(ConstantSpeed(1.4), [law] * 3, [0.9, 2.2, 2.6], [1.9, 1.5, 1.45], 3.0, dt_out=0.05)
+        for law in (Proposed(), OVFL())
+    }
     peaks = {k: np.max(np.abs(r.current_A), axis=0) for k, r in runs.items()}
     limit = float(np.median(np.concatenate(list(peaks.values()))))  # some vehicles above, some below
     headers, rows = scenario_metrics_rows(runs, i_max_A=limit, totals=True)

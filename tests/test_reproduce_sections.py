@@ -48,8 +48,10 @@ def test_a_provider_that_fails_to_import_fails_reproduce(monkeypatch) -> None:
                 return None
             import importlib.machinery
 
-            loader = types.SimpleNamespace(create_module=lambda spec: None,
-                                           exec_module=lambda m: (_ for _ in ()).throw(NameError("name 'x' is not defined")))
+            loader = types.SimpleNamespace(
+                create_module=lambda spec: None,
+                exec_module=lambda m: (_ for _ in ()).throw(NameError("name 'x' is not defined")),
+            )
             return importlib.machinery.ModuleSpec(name, loader)
 
     monkeypatch.setattr(sys, "meta_path", [Finder(), *sys.meta_path])

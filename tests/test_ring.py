@@ -18,8 +18,15 @@ from aev_ocp.models.carfollowing import OVM, Proposed
 from aev_ocp.params import UNLIMITED, EVParams, ParameterError, VehicleLimits
 from aev_ocp.ring.experiments import fleet_metrics, human_ring, make_aev, run_ring
 from aev_ocp.ring.laws import FollowerStopper, PISaturation, follower_stopper_speed, idm_si
-from aev_ocp.ring.simulate import (RingInitial, RingOptions, RingRoad, RingSimulator, gaps_from_positions,
-                                   uniform_flow, uniform_speed_mps)
+from aev_ocp.ring.simulate import (
+    RingInitial,
+    RingOptions,
+    RingRoad,
+    RingSimulator,
+    gaps_from_positions,
+    uniform_flow,
+    uniform_speed_mps,
+)
 from aev_ocp.ring.stability import measured_growth, ring_jacobian, ring_stability
 
 EV = EVParams()
@@ -35,13 +42,16 @@ def _match(a: np.ndarray, b: np.ndarray) -> float:
 
 
 # ------------------------------------------------------------------------------------------- stability
-@pytest.mark.parametrize("law, n, length_m, ev", [
-    (idm_si(EV.units), 22, 230.0, EV),                       # unstable (Sugiyama)
-    (idm_si(EV.units, T_s=1.3), 17, 263.0, EV),              # another IDM, another ring
-    (OVM(alpha=1.3), 31, 470.0, EV),                         # OVM
-    (Proposed(alpha=1.7, beta=2.3, kappa=0.04), 9, 170.0, EV),
-    (idm_si(EV.units), 13, 187.0, EVParams(limits=VehicleLimits(lag_s=0.35))),  # actuator lag: cubic modes
-])
+@pytest.mark.parametrize(
+    "law, n, length_m, ev",
+    [
+        (idm_si(EV.units), 22, 230.0, EV),  # unstable (Sugiyama)
+        (idm_si(EV.units, T_s=1.3), 17, 263.0, EV),  # another IDM, another ring
+        (OVM(alpha=1.3), 31, 470.0, EV),  # OVM
+        (Proposed(alpha=1.7, beta=2.3, kappa=0.04), 9, 170.0, EV),
+        (idm_si(EV.units), 13, 187.0, EVParams(limits=VehicleLimits(lag_s=0.35))),  # actuator lag: cubic modes
+    ],
+)
 def test_ring_eigenvalues_equal_the_full_jacobian(law, n, length_m, ev):
     rs = ring_stability(law, n, length_m, ev=ev)
     lam = np.array([complex(*p) for m in rs.modes for p in m])
@@ -77,11 +87,14 @@ def test_limit_growth_agrees_with_head_to_tail_criterion(spacing, t_h):
         assert rs.growth_rate_per_s < big <= 0
 
 
-@pytest.mark.parametrize("law, length_m, ev", [
-    (idm_si(EV.units), 230.0, EV),           # growing
-    (idm_si(EV.units), 600.0, EV),           # decaying
-    (idm_si(EV.units), 230.0, EVParams(limits=VehicleLimits(lag_s=0.4))),
-])
+@pytest.mark.parametrize(
+    "law, length_m, ev",
+    [
+        (idm_si(EV.units), 230.0, EV),  # growing
+        (idm_si(EV.units), 600.0, EV),  # decaying
+        (idm_si(EV.units), 230.0, EVParams(limits=VehicleLimits(lag_s=0.4))),
+    ],
+)
 def test_measured_growth_within_5_percent(law, length_m, ev):
     m = measured_growth(law, 22, length_m, ev=ev)
     assert m["status"] == "ok"
@@ -129,32 +142,64 @@ def _scipy_ring(ring: RingRoad, init: RingInitial, t_end_s: float) -> dict[str, 
         x1, x2, x3 = (x0 + dvm**2 / (2 * d) for x0, d in ((4.5, 1.5), (5.25, 1.0), (6.0, 0.5)))
         vb = min(max(vl[5], 0.0), 5.3)
         g = h[5]
-        vc = 0.0 if g <= x1 else vb * (g - x1) / (x2 - x1) if g <= x2 else vb + (5.3 - vb) * (g - x2) / (x3 - x2) if g <= x3 else 5.3
+        vc = (
+            0.0
+            if g <= x1
+            else vb * (g - x1) / (x2 - x1)
+            if g <= x2
+            else vb + (5.3 - vb) * (g - x2) / (x3 - x2)
+            if g <= x3
+            else 5.3
+        )
         a[5] = (vc - v[5]) / 0.6
         return np.clip(a, -8.0, 4.0)
 
     def rhs(t, y):
-        h, v, V1, V2, S = (y[k * n:(k + 1) * n] for k in range(5))
+        h, v, V1, V2, S = (y[k * n : (k + 1) * n] for k in range(5))
         vl = np.roll(v, 1)
         a = accel(h, v, vl)
-        Fres = 0.5 * veh.air_density_kgpm3 * veh.frontal_area_m2 * veh.drag_coefficient * v**2 \
+        Fres = (
+            0.5 * veh.air_density_kgpm3 * veh.frontal_area_m2 * veh.drag_coefficient * v**2
             + veh.rolling_coefficient * veh.mass_kg * veh.gravity_mps2
+        )
         Pw = (veh.mass_kg * a + Fres) * v
         Pb = np.where(Pw > 0, Pw / veh.efficiency, veh.efficiency * Pw)
         Pc = Pb / ncell
         E = ocv(S) - V1 - V2
         I = 2 * Pc / (E + np.sqrt(np.maximum(E**2 - 4 * cell.R_s_ohm * Pc, 0.0)))
         Q = I * (V1 + V2) + cell.R_s_ohm * I**2
-        return np.concatenate([vl - v, a, -V1 / (cell.R1_ohm * cell.C1_F) + I / cell.C1_F,
-                               -V2 / (cell.R2_ohm * cell.C2_F) + I / cell.C2_F, -I / (3600 * cell.capacity_Ah),
-                               ncell * Q, Pb, v])
+        return np.concatenate(
+            [
+                vl - v,
+                a,
+                -V1 / (cell.R1_ohm * cell.C1_F) + I / cell.C1_F,
+                -V2 / (cell.R2_ohm * cell.C2_F) + I / cell.C2_F,
+                -I / (3600 * cell.capacity_Ah),
+                ncell * Q,
+                Pb,
+                v,
+            ]
+        )
 
-    y0 = np.concatenate([gaps_from_positions(ring, init.positions_m), init.speeds_mps, np.zeros(2 * n),
-                         np.full(n, cell.soc0), np.zeros(3 * n)])
+    y0 = np.concatenate(
+        [
+            gaps_from_positions(ring, init.positions_m),
+            init.speeds_mps,
+            np.zeros(2 * n),
+            np.full(n, cell.soc0),
+            np.zeros(3 * n),
+        ]
+    )
     sol = solve_ivp(rhs, (0, t_end_s), y0, method="DOP853", rtol=1e-11, atol=1e-11)
     y = sol.y[:, -1]
-    return {"gap": y[:n], "speed": y[n:2 * n], "S": y[4 * n:5 * n], "heat": y[5 * n:6 * n], "energy": y[6 * n:7 * n],
-            "distance": y[7 * n:]}
+    return {
+        "gap": y[:n],
+        "speed": y[n : 2 * n],
+        "S": y[4 * n : 5 * n],
+        "heat": y[5 * n : 6 * n],
+        "energy": y[6 * n : 7 * n],
+        "distance": y[7 * n :],
+    }
 
 
 def test_compiled_ring_equals_an_independent_scipy_integration():
@@ -187,8 +232,9 @@ def test_noise_is_seeded_and_only_on_humans():
     a = RingSimulator(ring, opt).run(uniform_flow(ring), 20.0)
     b = RingSimulator(ring, opt).run(uniform_flow(ring), 20.0)
     np.testing.assert_array_equal(a.speed_mps, b.speed_mps)
-    c = RingSimulator(human_ring(230.0, aevs={0: FollowerStopper.from_si(EV.units, 3.1)}, noise_mps2=0.3, seed=12),
-                      opt).run(uniform_flow(ring), 20.0)
+    c = RingSimulator(
+        human_ring(230.0, aevs={0: FollowerStopper.from_si(EV.units, 3.1)}, noise_mps2=0.3, seed=12), opt
+    ).run(uniform_flow(ring), 20.0)
     assert np.max(np.abs(c.speed_mps - a.speed_mps)) > 1e-3
     assert not ring.is_human(0) and ring.is_human(1)
 
@@ -227,20 +273,30 @@ def test_unbounded_laws_report_negative_speed():
     assert res.speed_mps[-1].min() == pytest.approx(-1e-6 * EV.units.speed_mps, rel=1e-6)  # located on the rule
     # with the vehicle limits the brakes hold the stopped cars instead
     held = RingSimulator(RingRoad(6 * 6.5, tuple([idm_si(EV.units)] * 6), ev=EV), RingOptions(dt_out_s=0.5)).run(
-        uniform_flow(ring, speed_mps=0.4), 30.0)
+        uniform_flow(ring, speed_mps=0.4), 30.0
+    )
     assert held.status == "ok" and held.speed_mps.min() >= -1e-9
 
 
 # ------------------------------------------------------------------------------------------- Stern's laws
-@pytest.mark.parametrize("gap, v, vl", [(4.1, 3.3, 2.9), (4.9, 3.3, 3.6), (5.6, 2.2, 2.5), (5.6, 4.4, 3.1),
-                                       (9.3, 3.7, 1.9), (12.7, 3.7, 4.2)])
+@pytest.mark.parametrize(
+    "gap, v, vl",
+    [(4.1, 3.3, 2.9), (4.9, 3.3, 3.6), (5.6, 2.2, 2.5), (5.6, 4.4, 3.1), (9.3, 3.7, 1.9), (12.7, 3.7, 4.2)],
+)
 def test_follower_stopper_equations(gap, v, vl):
     r = 4.6
     dvm = min(vl - v, 0.0)
     x = [x0 + dvm**2 / (2 * d) for x0, d in ((4.5, 1.5), (5.25, 1.0), (6.0, 0.5))]
     vb = min(max(vl, 0), r)
-    want = (0.0 if gap <= x[0] else vb * (gap - x[0]) / (x[1] - x[0]) if gap <= x[1]
-            else vb + (r - vb) * (gap - x[1]) / (x[2] - x[1]) if gap <= x[2] else r)
+    want = (
+        0.0
+        if gap <= x[0]
+        else vb * (gap - x[0]) / (x[1] - x[0])
+        if gap <= x[1]
+        else vb + (r - vb) * (gap - x[1]) / (x[2] - x[1])
+        if gap <= x[2]
+        else r
+    )
     got = float(follower_stopper_speed(gap, v, vl, r, (4.5, 5.25, 6.0), (1.5, 1.0, 0.5)))
     assert got == pytest.approx(want, abs=1e-12)
     law = FollowerStopper.from_si(EV.units, r, tau_s=0.8)
@@ -252,8 +308,14 @@ def test_follower_stopper_equations(gap, v, vl):
 def test_pi_saturation_equations():
     c = PISaturation(units=EV.units, dt_s=0.1, window_s=0.3)
     u = EV.units
-    obs = lambda gap, v, vl: Observation(0.0, c.dt, 0, np.array([u.length_from_si(gap), u.speed_from_si(v), 0, 0, 0.8]),  # noqa: E731
-                                         np.array([0.0]), np.array([u.speed_from_si(vl)]))
+    obs = lambda gap, v, vl: Observation(  # noqa: E731
+        0.0,
+        c.dt,
+        0,
+        np.array([u.length_from_si(gap), u.speed_from_si(v), 0, 0, 0.8]),
+        np.array([0.0]),
+        np.array([u.speed_from_si(vl)]),
+    )
     vs, v_cmd = [], None
     for gap, v, vl in ((11.5, 3.2, 3.9), (6.1, 3.6, 2.4), (25.0, 2.9, 3.1), (40.0, 4.3, 3.5)):
         cmd = c.command(obs(gap, v, vl))
@@ -293,7 +355,8 @@ def test_one_aev_dissolves_the_jam(aev):
 
 def test_fleet_metrics_totals():
     res = RingSimulator(human_ring(300.0, noise_mps2=0.0), RingOptions(dt_out_s=1.0)).run(
-        uniform_flow(human_ring(300.0)), 50.0)
+        uniform_flow(human_ring(300.0)), 50.0
+    )
     f = fleet_metrics(res, t_from_s=0.0)
     m = res.metrics()
     assert f["distance_km"] == pytest.approx(sum(x["distance_m"] for x in m) / 1000, rel=1e-9)
@@ -303,26 +366,46 @@ def test_fleet_metrics_totals():
 
 
 # ------------------------------------------------------------------------------------------- bad input
-@pytest.mark.parametrize("make, match", [
-    (lambda: RingRoad(100.0, tuple([OVM()] * 22)), "do not fit"),
-    (lambda: RingRoad(-5.0, (OVM(), OVM())), "length_m"),
-    (lambda: RingRoad(100.0, (OVM(), "idm")), "vehicle 2"),
-    (lambda: RingOptions(threads=0), "threads"),
-    (lambda: RingSimulator(RingRoad(100.0, (OVM(), OVM()))).run(RingInitial((0.0, 2.0), (1.0, 1.0)), 10.0),
-     "overlap"),
-    (lambda: human_ring(230.0, heterogeneity=1.5), "heterogeneity"),
-    (lambda: ring_stability(idm_si(EV.units), 22, 22 * 6.5), "no moving uniform flow"),
-])
+@pytest.mark.parametrize(
+    "make, match",
+    [
+        (lambda: RingRoad(100.0, tuple([OVM()] * 22)), "do not fit"),
+        (lambda: RingRoad(-5.0, (OVM(), OVM())), "length_m"),
+        (lambda: RingRoad(100.0, (OVM(), "idm")), "vehicle 2"),
+        (lambda: RingOptions(threads=0), "threads"),
+        (
+            lambda: RingSimulator(RingRoad(100.0, (OVM(), OVM()))).run(RingInitial((0.0, 2.0), (1.0, 1.0)), 10.0),
+            "overlap",
+        ),
+        (lambda: human_ring(230.0, heterogeneity=1.5), "heterogeneity"),
+        (lambda: ring_stability(idm_si(EV.units), 22, 22 * 6.5), "no moving uniform flow"),
+    ],
+)
 def test_bad_input_is_one_clear_line(make, match):
     with pytest.raises(ParameterError, match=match):
         make()
 
 
 def test_cli_ring_stability_and_errors(tmp_path):
-    run = lambda *a: subprocess.run([sys.executable, "-m", "aev_ocp.cli", *a], capture_output=True, text=True,  # noqa: E731
-                                    timeout=300)
-    p = run("stability", "--law", "ovm", "--set", "carfollowing.ovm.alpha=1.3", "--ring", "22", "--density-per-km",
-            "47", "--out", str(tmp_path))
+    run = lambda *a: subprocess.run(  # noqa: E731
+        [sys.executable, "-m", "aev_ocp.cli", *a],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    p = run(
+        "stability",
+        "--law",
+        "ovm",
+        "--set",
+        "carfollowing.ovm.alpha=1.3",
+        "--ring",
+        "22",
+        "--density-per-km",
+        "47",
+        "--out",
+        str(tmp_path),
+    )
     assert p.returncode == 0, p.stderr
     assert "growth rate" in p.stdout and "measured growth" in p.stdout and (tmp_path / "ring_stability.json").exists()
     p = run("stability", "--law", "ovm", "--ring", "22", "--out", str(tmp_path))
@@ -416,19 +499,25 @@ def test_ring_scenario_builds_the_ring_of_the_experiments():
     assert build_ring(g, None)[1].positions_m == tuple(pos)
 
 
-@pytest.mark.parametrize("ring, match", [
-    ({"aev": {"vehicles": [30], "controllers": ["mpc"]}}, r"g.toml: ring.aev.vehicles = \[30\]"),
-    ({"aev": {"vehicles": [2], "controllers": ["warp"]}}, "g.toml: ring.aev.controllers"),
-    ({"density_per_km": 40.0}, "give exactly one"),
-    ({"length_m": 90.0}, "g.toml: ring.length_m = 90.0 is not allowed: 19 vehicles of 5 m do not fit"),
-    ({"idm": {"T_s": -1.0}}, "g.toml: ring.idm.T_s"),
-    ({"ovm": {"alpha_per_s": 1.0}}, "g.toml: ring.ovm"),
-    ({"perturbation": {"shift_m": 9.0}}, "g.toml: ring.perturbation.shift_m"),
-    ({"perturbation": {"vehicle": 20}}, "g.toml: ring.perturbation.vehicle"),
-    ({"initial": {"positions_m": [0.0] * 19, "speeds_mps": [1.0] * 19}}, "g.toml: ring.initial.positions_m.*overlaps"),
-    ({"t_end_s": 0}, "g.toml: ring.t_end_s"),
-    ({"speed": 3}, "g.toml: unknown key 'ring.speed'"),
-])
+@pytest.mark.parametrize(
+    "ring, match",
+    [
+        ({"aev": {"vehicles": [30], "controllers": ["mpc"]}}, r"g.toml: ring.aev.vehicles = \[30\]"),
+        ({"aev": {"vehicles": [2], "controllers": ["warp"]}}, "g.toml: ring.aev.controllers"),
+        ({"density_per_km": 40.0}, "give exactly one"),
+        ({"length_m": 90.0}, "g.toml: ring.length_m = 90.0 is not allowed: 19 vehicles of 5 m do not fit"),
+        ({"idm": {"T_s": -1.0}}, "g.toml: ring.idm.T_s"),
+        ({"ovm": {"alpha_per_s": 1.0}}, "g.toml: ring.ovm"),
+        ({"perturbation": {"shift_m": 9.0}}, "g.toml: ring.perturbation.shift_m"),
+        ({"perturbation": {"vehicle": 20}}, "g.toml: ring.perturbation.vehicle"),
+        (
+            {"initial": {"positions_m": [0.0] * 19, "speeds_mps": [1.0] * 19}},
+            "g.toml: ring.initial.positions_m.*overlaps",
+        ),
+        ({"t_end_s": 0}, "g.toml: ring.t_end_s"),
+        ({"speed": 3}, "g.toml: unknown key 'ring.speed'"),
+    ],
+)
 def test_ring_scenario_errors_name_file_and_key(ring, match):
     from aev_ocp.ring.scenario import parse_ring_scenario
     from aev_ocp.scenarios import ScenarioError
@@ -454,17 +543,26 @@ def test_ring_scenario_mpc_table_and_the_platoon_loader():
 
 def test_cli_ring_scenario(tmp_path):
     f = tmp_path / "small.toml"
-    f.write_text('[ring]\nlength_m = 263.0\nvehicles = 21\nt_end_s = 24.0\n[ring.aev]\nvehicles = [4]\n'
-                 'controllers = ["pi-saturation"]\n', encoding="utf-8")
-    run = lambda *a: subprocess.run([sys.executable, "-m", "aev_ocp.cli", "ring", *a], capture_output=True,  # noqa: E731
-                                    text=True, timeout=300, cwd=tmp_path)
+    f.write_text(
+        "[ring]\nlength_m = 263.0\nvehicles = 21\nt_end_s = 24.0\n[ring.aev]\nvehicles = [4]\n"
+        'controllers = ["pi-saturation"]\n',
+        encoding="utf-8",
+    )
+    run = lambda *a: subprocess.run(  # noqa: E731
+        [sys.executable, "-m", "aev_ocp.cli", "ring", *a],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        cwd=tmp_path,
+    )
     p = run(str(f), "--no-plots", "--out", str(tmp_path / "o"))
     assert p.returncode == 0, p.stderr
     assert "all human" in p.stdout and "pi-saturation" in p.stdout
     import json
+
     doc = json.loads((tmp_path / "o" / "ring.json").read_text())
     assert [r["label"] for r in doc["runs"]] == ["all human", "pi-saturation"] and doc["runs"][1]["aevs"] == 1
-    f.write_text('[ring]\nlength_m = 263.0\nvehicles = 21\nt_end_s = 24.0\nseed = -1\n', encoding="utf-8")
+    f.write_text("[ring]\nlength_m = 263.0\nvehicles = 21\nt_end_s = 24.0\nseed = -1\n", encoding="utf-8")
     p = run(str(f))
     assert p.returncode == 2 and "small.toml: ring.seed = -1" in p.stderr and "Traceback" not in p.stderr
     p = run("no_such_ring")
@@ -515,9 +613,11 @@ def test_ring_scenario_sweep_penetration_by_density():
     assert [i for i in range(19) if not out[1].result.ring.is_human(i)] == [0, 10]  # round(j 19 / 2)
     assert out[3].fleet["change_heat_pack_J_per_km"] == relative_to(out[2].fleet, out[3].fleet)["heat_pack_J_per_km"]
     assert out[3].result.ring.length_m == 301.0 and out[3].result.ring.vehicles[10].name == "pi-saturation"
-    for bad, match in ((dict(sweep={"aevs": [0, 25]}), "s.toml: ring.sweep.aevs"),
-                       (dict(sweep={"aevs": [1], "density_per_km": [300.0]}), "s.toml: ring.sweep.density_per_km"),
-                       (dict(sweep={"aevs": [1]}, aev={"vehicles": [1], "controllers": ["mpc"]}), "not both")):
+    for bad, match in (
+        (dict(sweep={"aevs": [0, 25]}), "s.toml: ring.sweep.aevs"),
+        (dict(sweep={"aevs": [1], "density_per_km": [300.0]}), "s.toml: ring.sweep.density_per_km"),
+        (dict(sweep={"aevs": [1]}, aev={"vehicles": [1], "controllers": ["mpc"]}), "not both"),
+    ):
         with pytest.raises(ScenarioError, match=match):
             parse_ring_scenario(_ring_doc(**bad), "s.toml")
 

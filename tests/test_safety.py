@@ -16,8 +16,16 @@ from aev_ocp.cli import main
 from aev_ocp.control import ClosedLoop, Observation
 from aev_ocp.models import BrakingLeader, Proposed
 from aev_ocp.params import EVParams, ParameterError, Units
-from aev_ocp.safety import (AVOIDABLE, COLLISION_AVOIDABLE_ONLY, UNAVOIDABLE, SafeFallback, SafetyParams,
-                            braking_bound, label_of, safe_acceleration_mps2)
+from aev_ocp.safety import (
+    AVOIDABLE,
+    COLLISION_AVOIDABLE_ONLY,
+    UNAVOIDABLE,
+    SafeFallback,
+    SafetyParams,
+    braking_bound,
+    label_of,
+    safe_acceleration_mps2,
+)
 from aev_ocp.safety.cases import CASE_UNITS, SafetyCase, suite_cases
 from aev_ocp.safety.fallback import effective_reaction_s
 
@@ -25,6 +33,7 @@ from aev_ocp.safety.fallback import effective_reaction_s
 # ----------------------------------------------------------------------------- the bound
 def _scipy_min_gap(v0: float, g0: float, vl0: float, al: float, tb: float, am: float, tau: float) -> float:
     """The same motion integrated by SciPy (RK45, max step 0.5 ms): h, v_e, a_e (lagged), v_l; no reverse."""
+
     def f(t: float, y: np.ndarray) -> list[float]:
         h, v, a, vl = y
         a_l = al if (t > tb and vl > 0) else 0.0
@@ -38,19 +47,29 @@ def _scipy_min_gap(v0: float, g0: float, vl0: float, al: float, tb: float, am: f
 
     stop_e.terminal = stop_l.terminal = False  # type: ignore[attr-defined]
     t_end = max(v0 / -am + 3 * tau, tb + (vl0 / -al if al < 0 else 0.0)) + 1.0
-    sol = solve_ivp(f, (0, t_end), [g0, v0, 0.0 if tau > 0 else am, vl0], max_step=5e-4, rtol=1e-10, atol=1e-12,
-                    events=[stop_e, stop_l])
+    sol = solve_ivp(
+        f,
+        (0, t_end),
+        [g0, v0, 0.0 if tau > 0 else am, vl0],
+        max_step=5e-4,
+        rtol=1e-10,
+        atol=1e-12,
+        events=[stop_e, stop_l],
+    )
     return float(sol.y[0].min())
 
 
-@pytest.mark.parametrize("case", [
-    (24.3, 8.7, 24.3, -9.2, 0.0, -7.7, 0.0),     # cut-in, the lead brakes harder than the ego can
-    (24.3, 8.7, 24.3, -9.2, 0.0, -7.7, 0.35),    # the same with an actuator lag
-    (13.9, 12.0, 13.9, -6.0, 0.0, -8.0, 0.2),    # CCRb, ego brakes harder
-    (19.4, 21.3, 5.6, 0.0, 0.0, -7.3, 0.45),     # slower moving target
-    (16.7, 18.2, 16.7, -5.3, 1.35, -6.9, 0.25),  # the lead brakes late
-    (11.1, 3.7, 0.0, 0.0, 0.0, -8.0, 0.15),      # stationary target, contact
-])
+@pytest.mark.parametrize(
+    "case",
+    [
+        (24.3, 8.7, 24.3, -9.2, 0.0, -7.7, 0.0),  # cut-in, the lead brakes harder than the ego can
+        (24.3, 8.7, 24.3, -9.2, 0.0, -7.7, 0.35),  # the same with an actuator lag
+        (13.9, 12.0, 13.9, -6.0, 0.0, -8.0, 0.2),  # CCRb, ego brakes harder
+        (19.4, 21.3, 5.6, 0.0, 0.0, -7.3, 0.45),  # slower moving target
+        (16.7, 18.2, 16.7, -5.3, 1.35, -6.9, 0.25),  # the lead brakes late
+        (11.1, 3.7, 0.0, 0.0, 0.0, -8.0, 0.15),  # stationary target, contact
+    ],
+)
 def test_bound_matches_scipy(case: tuple[float, ...]) -> None:
     v0, g0, vl0, al, tb, am, tau = case
     b = braking_bound(v0, g0, vl0, al, t_brake_s=tb, a_min_mps2=am, lag_s=tau)
@@ -93,9 +112,16 @@ def test_labels_on_inside_outside_the_floor() -> None:
     assert label_of(-0.7, 2.0) == UNAVOIDABLE
 
 
-@pytest.mark.parametrize("kw, name", [({"gap_m": 0.0}, "gap_m"), ({"a_lead_mps2": 1.5}, "a_lead_mps2"),
-                                      ({"a_min_mps2": 0.0}, "a_min_mps2"), ({"lag_s": -0.1}, "lag_s"),
-                                      ({"v_ego_mps": math.nan}, "v_ego_mps")])
+@pytest.mark.parametrize(
+    "kw, name",
+    [
+        ({"gap_m": 0.0}, "gap_m"),
+        ({"a_lead_mps2": 1.5}, "a_lead_mps2"),
+        ({"a_min_mps2": 0.0}, "a_min_mps2"),
+        ({"lag_s": -0.1}, "lag_s"),
+        ({"v_ego_mps": math.nan}, "v_ego_mps"),
+    ],
+)
 def test_bound_bad_input_names_the_field(kw: dict, name: str) -> None:
     args = {"v_ego_mps": 12.0, "gap_m": 9.0, "v_lead_mps": 10.0, "a_lead_mps2": -2.0, **kw}
     with pytest.raises(ParameterError, match=name):
@@ -113,8 +139,9 @@ def test_braking_leader_speed_position_accel() -> None:
     v_si = 22.0 - 6.5 * np.clip(u.time_to_si(ts) - 1.3, 0, None)
     assert u.speed_to_si(v) == pytest.approx(np.maximum(v_si, 0.0), abs=1e-12)
     for t in ts[1:]:  # position = ∫ speed
-        assert float(lead.position(t)) == pytest.approx(quad(lambda s: float(lead.speed_np(s)[0]), 0, t,
-                                                             points=lead.breakpoints, limit=200)[0], abs=1e-9)
+        assert float(lead.position(t)) == pytest.approx(
+            quad(lambda s: float(lead.speed_np(s)[0]), 0, t, points=lead.breakpoints, limit=200)[0], abs=1e-9
+        )
     assert float(lead.accel(float(u.time_from_si(2.0)))) == pytest.approx(float(u.accel_from_si(-6.5)))
     assert float(lead.accel(float(u.time_from_si(0.7)))) == 0.0 and float(lead.accel(t_stop + 1)) == 0.0
     with pytest.raises(ParameterError, match="decel"):
@@ -137,15 +164,23 @@ def _end_of_step(h: float, v: float, vl: float, a: float, dt: float, b_l: float)
     return float(g.min()), float(g[-1]), float(ve[-1]), float(vle[-1])
 
 
-PARAMS = SafetyParams(standstill_gap_m=2.3, reaction_time_s=0.0, ego_brake_mps2=7.7, lead_brake_mps2=8.4,
-                      a_min_mps2=-7.7, a_max_mps2=3.6)
+PARAMS = SafetyParams(
+    standstill_gap_m=2.3, reaction_time_s=0.0, ego_brake_mps2=7.7, lead_brake_mps2=8.4, a_min_mps2=-7.7, a_max_mps2=3.6
+)
 
 
 @settings(max_examples=150, deadline=None)
-@given(v=st.floats(0.0, 35.0), vl=st.floats(0.0, 35.0), h=st.floats(2.4, 80.0), dt=st.floats(0.04, 0.3),
-       t_r=st.sampled_from([0.0, 0.45]), a_l=st.floats(-11.0, 2.0))
-def test_safe_never_accelerates_into_a_gap_it_cannot_stop_in(v: float, vl: float, h: float, dt: float, t_r: float,
-                                                              a_l: float) -> None:
+@given(
+    v=st.floats(0.0, 35.0),
+    vl=st.floats(0.0, 35.0),
+    h=st.floats(2.4, 80.0),
+    dt=st.floats(0.04, 0.3),
+    t_r=st.sampled_from([0.0, 0.45]),
+    a_l=st.floats(-11.0, 2.0),
+)
+def test_safe_never_accelerates_into_a_gap_it_cannot_stop_in(
+    v: float, vl: float, h: float, dt: float, t_r: float, a_l: float
+) -> None:
     p = SafetyParams(**{**vars(PARAMS), "reaction_time_s": t_r})
     b_l = max(p.lead_brake_mps2, -a_l)
     holds = h - p.standstill_gap_m >= v * t_r + v * v / (2 * p.ego_brake_mps2) - vl * vl / (2 * b_l)
@@ -187,7 +222,11 @@ def test_stopping_point_peak_over_the_step(v: float, a: float, dt: float, t_r: f
     ts = np.linspace(0.0, 0.3, 20001)
     ve2 = v2 + a2 * ts
     peak = np.max(v2 * ts + 0.5 * a2 * ts**2 + ve2 * t_r2 + ve2**2 / (2 * b))
-    assert peak > max(v2 * t_r2 + v2**2 / (2 * b), float((v2 * ts + 0.5 * a2 * ts**2 + ve2 * t_r2 + ve2**2 / (2 * b))[-1])) + 1e-4
+    assert (
+        peak
+        > max(v2 * t_r2 + v2**2 / (2 * b), float((v2 * ts + 0.5 * a2 * ts**2 + ve2 * t_r2 + ve2**2 / (2 * b))[-1]))
+        + 1e-4
+    )
     assert _stopping_point_peak(v2, a2, 0.3, t_r2, b) == pytest.approx(peak, abs=1e-9)
 
 
@@ -220,8 +259,9 @@ def _run(case: SafetyCase, controller: object, ev: EVParams) -> tuple[float, boo
     lead = BrakingLeader.from_si(case.v_lead_mps, case.a_lead_mps2, case.t_brake_s, u)
     dt = 0.1
     t_end = dt * round(float(u.time_from_si(case.t_end_s)) / dt)
-    r = ClosedLoop(lead, [controller], ev).run([float(u.length_from_si(case.gap_m))],
-                                               [float(u.speed_from_si(case.v_ego_mps))], t_end)
+    r = ClosedLoop(lead, [controller], ev).run(
+        [float(u.length_from_si(case.gap_m))], [float(u.speed_from_si(case.v_ego_mps))], t_end
+    )
     return float(u.length_to_si(r.gap[:, 0].min())), r.status == "collision"
 
 
@@ -234,13 +274,23 @@ def test_safe_fallback_alone_in_a_hard_cut_in() -> None:
     assert not coll and 2.0 <= gap <= bound.min_gap_m + 1e-6
 
 
-@pytest.mark.parametrize("name", ["CCRb_50kmh_12m_-6mps2", "CCRs_50kmh", "CCRm_70kmh", "cutin_20mps_lead20mps_5m_-9mps2"])
+@pytest.mark.parametrize(
+    "name", ["CCRb_50kmh_12m_-6mps2", "CCRs_50kmh", "CCRm_70kmh", "cutin_20mps_lead20mps_5m_-9mps2"]
+)
 def test_mpc_one_case_per_family(name: str) -> None:
     from aev_ocp.safety.suite import run_suite
 
     case = next(c for c in suite_cases() if c.name == name)
-    short = SafetyCase(case.family, case.name, case.v_ego_mps, case.gap_m, case.v_lead_mps, case.a_lead_mps2,
-                       case.t_brake_s, 4.0 if case.family == "cut-in" else 6.0)
+    short = SafetyCase(
+        case.family,
+        case.name,
+        case.v_ego_mps,
+        case.gap_m,
+        case.v_lead_mps,
+        case.a_lead_mps2,
+        case.t_brake_s,
+        4.0 if case.family == "cut-in" else 6.0,
+    )
     out = run_suite([short], controllers=("mpc", "proposed"))
     for row in out.rows:
         assert row.label == AVOIDABLE

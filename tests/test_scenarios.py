@@ -10,8 +10,15 @@ import pytest
 
 from aev_ocp.models.carfollowing import V_INF, OVFL, Proposed
 from aev_ocp.models.leader import PaperLeader, SpeedTrace
-from aev_ocp.scenarios import (ScenarioError, ScenarioWarning, TableReader, find_scenario, load_scenario,
-                               register_section, shipped_scenarios)
+from aev_ocp.scenarios import (
+    ScenarioError,
+    ScenarioWarning,
+    TableReader,
+    find_scenario,
+    load_scenario,
+    register_section,
+    shipped_scenarios,
+)
 
 pytestmark = pytest.mark.quick  # the whole module runs in the sub-minute subset (pytest -m quick)
 
@@ -128,10 +135,13 @@ def test_negative_kappa(tmp_path: Path) -> None:
     expect_error(tmp_path, edit("kappa = 0.03", "kappa = -0.1"), "carfollowing.kappa", "-0.1", ">= 0")
 
 
-@pytest.mark.parametrize("old,new,key,value", [
-    ("gap0_first = 0.3", "gap0_first = 0.0", "platoon.gap0_first", "0.0"),
-    ("gap0_others = 3.5", "gap0_others = -1.0", "platoon.gap0_others", "-1.0"),
-])
+@pytest.mark.parametrize(
+    "old,new,key,value",
+    [
+        ("gap0_first = 0.3", "gap0_first = 0.0", "platoon.gap0_first", "0.0"),
+        ("gap0_others = 3.5", "gap0_others = -1.0", "platoon.gap0_others", "-1.0"),
+    ],
+)
 def test_gap_not_positive(tmp_path: Path, old: str, new: str, key: str, value: str) -> None:
     expect_error(tmp_path, edit(old, new), key, value, "> 0")
 
@@ -151,8 +161,9 @@ def test_unknown_law(tmp_path: Path) -> None:
 
 
 def test_unknown_law_in_compare(tmp_path: Path) -> None:
-    expect_error(tmp_path, edit('compare = ["proposed", "ovfl"]', 'compare = ["ovfl", "bogus"]'),
-                 "compare[1]", "'bogus'")
+    expect_error(
+        tmp_path, edit('compare = ["proposed", "ovfl"]', 'compare = ["ovfl", "bogus"]'), "compare[1]", "'bogus'"
+    )
 
 
 def test_unknown_cycle(tmp_path: Path) -> None:
@@ -230,8 +241,10 @@ def test_mpc_table_loads_without_importing_the_mpc_package_first() -> None:
     import subprocess
     import sys
 
-    code = ("from aev_ocp.scenarios import load_scenario; s = load_scenario('mpc_paper_single'); "
-            "print(type(s.extra['mpc']).__name__)")
+    code = (
+        "from aev_ocp.scenarios import load_scenario; s = load_scenario('mpc_paper_single'); "
+        "print(type(s.extra['mpc']).__name__)"
+    )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert out.returncode == 0, out.stderr
     assert out.stdout.strip() == "MPCConfig"
@@ -245,9 +258,22 @@ def test_the_split_loader_keeps_every_public_name_importable_from_aev_ocp_scenar
     import aev_ocp.scenarios as scn
 
     names = set(scn.__all__)
-    assert {"Scenario", "ScenarioError", "TableReader", "load_scenario", "parse_scenario", "find_scenario",
-            "register_section", "read_scenario_doc", "standalone_header", "load_with_sets", "check_run_size",
-            "thinned_dt_out", "shipped_scenarios", "_params"} <= names
+    assert {
+        "Scenario",
+        "ScenarioError",
+        "TableReader",
+        "load_scenario",
+        "parse_scenario",
+        "find_scenario",
+        "register_section",
+        "read_scenario_doc",
+        "standalone_header",
+        "load_with_sets",
+        "check_run_size",
+        "thinned_dt_out",
+        "shipped_scenarios",
+        "_params",
+    } <= names
     for name in names:
         obj = getattr(scn, name)
         if isinstance(obj, (type, types.FunctionType)):

@@ -22,10 +22,12 @@ UNITS = Units(length_m=13.0, speed_mps=7.0)  # distinct, non-special: T = 13/7 s
 
 
 def _doc() -> dict:
-    return {"units": {"length_m": UNITS.length_m, "speed_mps": UNITS.speed_mps},
-            "leader": {"kind": "paper", "v0": 1.3, "amplitude": 0.7, "forcing_end": 4.5},
-            "platoon": {"followers": 3, "law": "ovfl", "gap0_first": 0.45, "gap0_others": 2.2, "speed0": 1.25},
-            "simulation": {"t_end": 6.5, "dt_out": 0.05}}
+    return {
+        "units": {"length_m": UNITS.length_m, "speed_mps": UNITS.speed_mps},
+        "leader": {"kind": "paper", "v0": 1.3, "amplitude": 0.7, "forcing_end": 4.5},
+        "platoon": {"followers": 3, "law": "ovfl", "gap0_first": 0.45, "gap0_others": 2.2, "speed0": 1.25},
+        "simulation": {"t_end": 6.5, "dt_out": 0.05},
+    }
 
 
 def _si(doc: dict, table: str, model_key: str, si_key: str, to_si) -> dict:  # noqa: ANN001
@@ -35,12 +37,16 @@ def _si(doc: dict, table: str, model_key: str, si_key: str, to_si) -> dict:  # n
     return out
 
 
-CASES = [("simulation", "t_end", "t_end_s", UNITS.time_to_si), ("simulation", "dt_out", "dt_out_s", UNITS.time_to_si),
-         ("platoon", "gap0_first", "gap0_first_m", UNITS.length_to_si),
-         ("platoon", "gap0_others", "gap0_others_m", UNITS.length_to_si),
-         ("platoon", "speed0", "speed0_mps", UNITS.speed_to_si), ("leader", "v0", "v0_mps", UNITS.speed_to_si),
-         ("leader", "amplitude", "amplitude_mps2", UNITS.accel_to_si),
-         ("leader", "forcing_end", "forcing_end_s", UNITS.time_to_si)]
+CASES = [
+    ("simulation", "t_end", "t_end_s", UNITS.time_to_si),
+    ("simulation", "dt_out", "dt_out_s", UNITS.time_to_si),
+    ("platoon", "gap0_first", "gap0_first_m", UNITS.length_to_si),
+    ("platoon", "gap0_others", "gap0_others_m", UNITS.length_to_si),
+    ("platoon", "speed0", "speed0_mps", UNITS.speed_to_si),
+    ("leader", "v0", "v0_mps", UNITS.speed_to_si),
+    ("leader", "amplitude", "amplitude_mps2", UNITS.accel_to_si),
+    ("leader", "forcing_end", "forcing_end_s", UNITS.time_to_si),
+]
 
 
 @pytest.mark.parametrize("table, model_key, si_key, to_si", CASES)
@@ -70,8 +76,10 @@ def test_list_and_whole_platoon_si_keys() -> None:
     assert parse_scenario(d, "x.toml").leader.speed_np(np.array([1.0]))[0] == pytest.approx(1.5)
 
 
-@pytest.mark.parametrize("table, model_key, si_key", [(c[0], c[1], c[2]) for c in CASES] +
-                         [("platoon", "gaps0", "gaps0_m"), ("platoon", "gap0_first", "gap0_m")])
+@pytest.mark.parametrize(
+    "table, model_key, si_key",
+    [(c[0], c[1], c[2]) for c in CASES] + [("platoon", "gaps0", "gaps0_m"), ("platoon", "gap0_first", "gap0_m")],
+)
 def test_both_keys_given_is_an_error_naming_both(table: str, model_key: str, si_key: str) -> None:
     d = _doc()
     d[table].setdefault(model_key, [0.5, 0.6, 0.7] if model_key == "gaps0" else 0.5)
@@ -95,10 +103,17 @@ def test_an_override_replaces_the_twin_of_the_file() -> None:
         parse_scenario(apply_to_document(_doc(), {"simulation.t_end": 3.0, "simulation.t_end_s": 26.0}), "x.toml")
 
 
-@pytest.mark.parametrize("item, word", [("carfollowing.kappa=nan", "finite"), ("carfollowing.kappa=inf", "finite"),
-                                        ("carfollowing.kappa=-inf", "finite"), ("platoon.gaps0=[0.3, nan]", "finite"),
-                                        ("carfollowing.kappa=0.05\nalpha = 3", "line break"),
-                                        ("carfollowing.kappa\n=0.05", "dotted key")])
+@pytest.mark.parametrize(
+    "item, word",
+    [
+        ("carfollowing.kappa=nan", "finite"),
+        ("carfollowing.kappa=inf", "finite"),
+        ("carfollowing.kappa=-inf", "finite"),
+        ("platoon.gaps0=[0.3, nan]", "finite"),
+        ("carfollowing.kappa=0.05\nalpha = 3", "line break"),
+        ("carfollowing.kappa\n=0.05", "dotted key"),
+    ],
+)
 def test_set_refuses_non_finite_numbers_and_line_breaks(item: str, word: str) -> None:
     with pytest.raises(OverrideError, match=word):
         parse_assignment(item)
@@ -116,12 +131,16 @@ def _study(tmp_path: Path, body: str) -> Path:
     return p
 
 
-BASE = ('scenarios = [{ scenario = "table1", label = "t", overrides = { "simulation.t_end" = 3.5, '
-        '"platoon.followers" = 2 } }]\n[overrides]\n"simulation.dt_out" = 0.07\n')
+BASE = (
+    'scenarios = [{ scenario = "table1", label = "t", overrides = { "simulation.t_end" = 3.5, '
+    '"platoon.followers" = 2 } }]\n[overrides]\n"simulation.dt_out" = 0.07\n'
+)
 
 
 def test_command_line_over_study_file_over_scenario_file(tmp_path: Path) -> None:
-    p = _study(tmp_path, BASE + '[[axes]]\nkey = "carfollowing.kappa"\nvalues = [0.02, 0.05]\n[controllers]\nlaws = ["ovfl"]\n')
+    p = _study(
+        tmp_path, BASE + '[[axes]]\nkey = "carfollowing.kappa"\nvalues = [0.02, 0.05]\n[controllers]\nlaws = ["ovfl"]\n'
+    )
     plain = read_study(p)
     assert {pt.document["simulation"]["t_end"] for pt in plain.points} == {3.5}  # study file over scenario (70)
     st = read_study(p, sets=parse_assignments(["simulation.t_end=1.75", "simulation.dt_out_s=0.3"]))
@@ -144,13 +163,21 @@ def test_shipped_predictor_study_takes_the_command_line_t_end(tmp_path: Path) ->
         assert parse_scenario(pt.document, "x.toml").t_end == pytest.approx(60.0 * u["speed_mps"] / u["length_m"])
 
 
-@pytest.mark.parametrize("item, word", [("carfollowing.kappa=0.5", "axes[0] sweeps carfollowing.kappa"),
-                                        ("platoon.speed0_mps=9.0", "axes[1] sweeps platoon.speed0_factor"),
-                                        ("mpc.solver='sqp'", "controller 'mpc' sets mpc.solver")])
+@pytest.mark.parametrize(
+    "item, word",
+    [
+        ("carfollowing.kappa=0.5", "axes[0] sweeps carfollowing.kappa"),
+        ("platoon.speed0_mps=9.0", "axes[1] sweeps platoon.speed0_factor"),
+        ("mpc.solver='sqp'", "controller 'mpc' sets mpc.solver"),
+    ],
+)
 def test_set_that_the_study_would_override_is_refused(tmp_path: Path, item: str, word: str) -> None:
-    p = _study(tmp_path, BASE + '[[axes]]\nkey = "carfollowing.kappa"\nvalues = [0.02, 0.05]\n'
-                                '[[axes]]\nkey = "platoon.speed0_factor"\nvalues = [1.05]\n'
-                                '[controllers]\nlaws = ["ovfl"]\n[[controllers.mpc]]\nlabel = "mpc"\nsolver = "rti"\n')
+    p = _study(
+        tmp_path,
+        BASE + '[[axes]]\nkey = "carfollowing.kappa"\nvalues = [0.02, 0.05]\n'
+        '[[axes]]\nkey = "platoon.speed0_factor"\nvalues = [1.05]\n'
+        '[controllers]\nlaws = ["ovfl"]\n[[controllers.mpc]]\nlabel = "mpc"\nsolver = "rti"\n',
+    )
     with pytest.raises(StudyError) as err:
         read_study(p, sets=parse_assignments([item]))
     assert word in str(err.value) and "would be ignored" in str(err.value)
@@ -171,20 +198,35 @@ def test_study_cli_refuses_nan_and_axis_keys(capsys: pytest.CaptureFixture[str])
 def test_mpc_option_and_set_of_the_same_key_are_refused(capsys: pytest.CaptureFixture[str]) -> None:
     from aev_ocp.cli import main
 
-    for argv, word in ((["--t-end", "3", "--set", "simulation.t_end=1.5"], "--t-end"),
-                       (["--t-end-model", "3", "--set", "simulation.t_end_s=1.5"], "--t-end-model"),
-                       (["--solver", "sqp", "--set", "mpc.solver='rti'"], "--solver")):
+    for argv, word in (
+        (["--t-end", "3", "--set", "simulation.t_end=1.5"], "--t-end"),
+        (["--t-end-model", "3", "--set", "simulation.t_end_s=1.5"], "--t-end-model"),
+        (["--solver", "sqp", "--set", "mpc.solver='rti'"], "--solver"),
+    ):
         assert main(["mpc", "mpc_paper_single", "--no-ocpd", *argv]) == 2
         err = capsys.readouterr().err
         assert err.count("\n") == 1 and word in err and "--set" in err
     assert main(["mpc", "mpc_paper_single", "--t-end", "3", "--t-end-model", "2"]) == 2  # one of the two
 
 
-def test_simulate_warns_about_the_mpc_table_and_takes_seconds(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+def test_simulate_warns_about_the_mpc_table_and_takes_seconds(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     from aev_ocp.cli import main
 
-    rc = main(["simulate", "mpc_paper_single", "--out", str(tmp_path), "--no-plots", "--set", "simulation.t_end_s=3.3",
-               "--time-limit", "600"])
+    rc = main(
+        [
+            "simulate",
+            "mpc_paper_single",
+            "--out",
+            str(tmp_path),
+            "--no-plots",
+            "--set",
+            "simulation.t_end_s=3.3",
+            "--time-limit",
+            "600",
+        ]
+    )
     assert rc == 0
     err = capsys.readouterr().err
     assert "warning" in err and "[mpc]" in err and "aev-ocp mpc" in err and "t [s] = 3.3/3.3" in err
@@ -216,11 +258,27 @@ def test_si_metrics_are_the_model_metrics_converted() -> None:
 
 def test_ocp_csv_of_a_model_problem_leads_with_si(tmp_path: Path) -> None:
     t = np.array([0.0, 0.5, 1.0])
-    r = OCPResult(problem="p", method="ms", N=2, t=t, time_unit="model", states={"h": np.array([0.3, 0.4, 0.5]),
-                  "v": np.array([1.1, 1.2, 1.3]), "S": np.array([0.8, 0.8, 0.79])}, controls={"a": np.array([0.2, -0.1])},
-                  outputs={}, objective=1.0, objective_name="J", success=True, status="optimal", message="",
-                  solver_status="Solve_Succeeded", iterations=3, wall_time_s=0.1, solver_time_s=0.1, max_violation=0.0,
-                  meta={"units": {"length_m": 13.0, "speed_mps": 7.0}})
+    r = OCPResult(
+        problem="p",
+        method="ms",
+        N=2,
+        t=t,
+        time_unit="model",
+        states={"h": np.array([0.3, 0.4, 0.5]), "v": np.array([1.1, 1.2, 1.3]), "S": np.array([0.8, 0.8, 0.79])},
+        controls={"a": np.array([0.2, -0.1])},
+        outputs={},
+        objective=1.0,
+        objective_name="J",
+        success=True,
+        status="optimal",
+        message="",
+        solver_status="Solve_Succeeded",
+        iterations=3,
+        wall_time_s=0.1,
+        solver_time_s=0.1,
+        max_violation=0.0,
+        meta={"units": {"length_m": 13.0, "speed_mps": 7.0}},
+    )
     lines = r.to_csv(tmp_path / "o.csv").read_text().splitlines()
     head = lines[0].split(",")
     assert head[:5] == ["t_s", "h_m", "v_mps", "a_mps2", "t_model"] and "h_model" in head and "S" in head

@@ -41,9 +41,12 @@ if not _has_compiler():  # the compiled cascade needs gcc/cc; CVODES is then the
 def table1(request: pytest.FixtureRequest) -> dict[str, Any]:
     """Table 1 runs with each integrator (the compiled cascade and CVODES)."""
     L = PaperLeader()
-    return {law.name: simulate_platoon(L, [law] * 5, GAPS, SPEEDS, 70.0, rtol=1e-10, atol=1e-10,
-                                       method=request.param, ev=PAPER)
-            for law in (Proposed(), OVFL())}
+    return {
+        law.name: simulate_platoon(
+            L, [law] * 5, GAPS, SPEEDS, 70.0, rtol=1e-10, atol=1e-10, method=request.param, ev=PAPER
+        )
+        for law in (Proposed(), OVFL())
+    }
 
 
 @pytest.mark.parametrize("kind", ["proposed", "ovfl"])
@@ -73,8 +76,9 @@ def test_charge_balance(method: str) -> None:
     sample spacing) to the integrated S."""
     errs = []
     for dt in (0.01, 0.002):
-        r = simulate_platoon(PaperLeader(), [OVFL()] * 5, GAPS, SPEEDS, 70.0, dt_out=dt, rtol=1e-9, atol=1e-9,
-                             method=method, ev=PAPER)  # (saturation kinks the current: no second order)
+        r = simulate_platoon(
+            PaperLeader(), [OVFL()] * 5, GAPS, SPEEDS, 70.0, dt_out=dt, rtol=1e-9, atol=1e-9, method=method, ev=PAPER
+        )  # (saturation kinks the current: no second order)
         charge = np.trapezoid(r.current_A, r.t * r.units.time_s, axis=0)
         dS = -charge / (3600 * r.ev.cell.capacity_Ah)
         errs.append(np.abs((r.S[-1] - r.S[0] - dS) / dS).max())
@@ -85,8 +89,9 @@ def test_charge_balance(method: str) -> None:
 @pytest.mark.quick
 def test_table1_converged_across_tolerances(table1: dict[str, Any]) -> None:
     r = table1["proposed"]
-    loose = simulate_platoon(PaperLeader(), [Proposed()] * 5, GAPS, SPEEDS, 70.0, rtol=1e-8, atol=1e-8, dt_out=0.02,
-                             ev=PAPER)
+    loose = simulate_platoon(
+        PaperLeader(), [Proposed()] * 5, GAPS, SPEEDS, 70.0, rtol=1e-8, atol=1e-8, dt_out=0.02, ev=PAPER
+    )
     np.testing.assert_allclose(loose.omega[-1], r.omega[-1], atol=5e-6)
 
 
@@ -178,10 +183,15 @@ def test_mixed_platoon_and_reuse() -> None:
     np.testing.assert_array_equal(a.omega, b.omega)
 
 
-@pytest.mark.parametrize("gaps,speeds,match", [
-    ([0.0], [1.0], "initial gap of vehicle 1"), ([-1.0], [1.0], "initial gap"),
-    ([1.0], [-0.1], "initial speed of vehicle 1"), ([1.0, 1.0], [1.0], "one per follower"),
-])
+@pytest.mark.parametrize(
+    "gaps,speeds,match",
+    [
+        ([0.0], [1.0], "initial gap of vehicle 1"),
+        ([-1.0], [1.0], "initial gap"),
+        ([1.0], [-0.1], "initial speed of vehicle 1"),
+        ([1.0, 1.0], [1.0], "one per follower"),
+    ],
+)
 def test_bad_initial_conditions(gaps: list[float], speeds: list[float], match: str) -> None:
     with pytest.raises(ParameterError, match=match):
         simulate_platoon(ConstantSpeed(1.0), [Proposed()], gaps, speeds, 1.0)
@@ -206,8 +216,21 @@ def test_min_gap_continuous_below_samples(table1: dict[str, Any]) -> None:
 def test_cascade_and_cvodes_agree_on_a_mixed_platoon() -> None:
     """The two integrators share no stepping code: their trajectories and integrals must agree."""
     laws = [Proposed(), OVFL(), OVM(alpha=1.5), Proposed(kappa=0.1)]
-    res = {m: simulate_platoon(PaperLeader(), laws, [0.3, 3.5, 3.5, 3.5], [1.87] * 4, 40.0, dt_out=0.05,
-                               rtol=1e-10, atol=1e-10, method=m, ev=PAPER) for m in METHODS}
+    res = {
+        m: simulate_platoon(
+            PaperLeader(),
+            laws,
+            [0.3, 3.5, 3.5, 3.5],
+            [1.87] * 4,
+            40.0,
+            dt_out=0.05,
+            rtol=1e-10,
+            atol=1e-10,
+            method=m,
+            ev=PAPER,
+        )
+        for m in METHODS
+    }
     a, b = res["cascade"], res["cvodes"]
     np.testing.assert_allclose(a.t, b.t, atol=1e-12)
     for name in ("gap", "speed", "S", "omega", "heat_J", "heat_irr_J", "int_ovm_err2", "int_rel_speed2"):
@@ -221,8 +244,10 @@ def test_event_time_is_located_between_samples() -> None:
     """A 106s1p pack cannot follow the paper leader: both integrators place the infeasible-current event
     at the same time, well inside a sample interval (dt_out = 0.01)."""
     ev = EVParams(pack=PackParams(106, 1))
-    times = {m: simulate_platoon(PaperLeader(), [Proposed()] * 5, GAPS, SPEEDS, 70.0, ev=ev, method=m).events[0]
-             for m in METHODS}
+    times = {
+        m: simulate_platoon(PaperLeader(), [Proposed()] * 5, GAPS, SPEEDS, 70.0, ev=ev, method=m).events[0]
+        for m in METHODS
+    }
     for e in times.values():
         assert e.kind == "infeasible_current" and e.vehicle == 0
     t = [e.time for e in times.values()]
@@ -262,8 +287,11 @@ def test_cascade_driver_compiles_cleanly_with_all_warnings(tmp_path: Path) -> No
         S._compile_shared = orig  # type: ignore[assignment]
     c = tmp_path / "cascade_full.c"
     c.write_text(sources[0])
-    res = subprocess.run([cc, "-Wall", "-Werror", "-O1", "-fPIC", "-shared", "-o", str(tmp_path / "x.so"), str(c)],
-                         capture_output=True, text=True)
+    res = subprocess.run(
+        [cc, "-Wall", "-Werror", "-O1", "-fPIC", "-shared", "-o", str(tmp_path / "x.so"), str(c)],
+        capture_output=True,
+        text=True,
+    )
     assert res.returncode == 0, res.stderr[-2000:]
 
 
@@ -275,11 +303,13 @@ def test_first_vehicle_stopped_at_t0_does_not_crash_the_cascade() -> None:
     import subprocess
     import sys
 
-    code = ("from aev_ocp.simulate import simulate_platoon; from aev_ocp.models import PaperLeader, Proposed; "
-            "from aev_ocp.params import EVParams, PackParams; "
-            "r = simulate_platoon(PaperLeader(), [Proposed()] * 3, [0.3, 3.5, 3.5], [1.87] * 3, 9.0, "
-            "ev=EVParams(pack=PackParams(1, 1)), method='cascade'); "
-            "print(r.status, r.events[0].vehicle, r.t.size, r.speed[0].tolist())")
+    code = (
+        "from aev_ocp.simulate import simulate_platoon; from aev_ocp.models import PaperLeader, Proposed; "
+        "from aev_ocp.params import EVParams, PackParams; "
+        "r = simulate_platoon(PaperLeader(), [Proposed()] * 3, [0.3, 3.5, 3.5], [1.87] * 3, 9.0, "
+        "ev=EVParams(pack=PackParams(1, 1)), method='cascade'); "
+        "print(r.status, r.events[0].vehicle, r.t.size, r.speed[0].tolist())"
+    )
     res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=Path(__file__).parents[1])
     assert res.returncode == 0, res.stderr[-1500:]
     assert res.stdout.split()[:3] == ["infeasible_current", "1", "1"]
@@ -296,13 +326,28 @@ def test_law_coefficients_are_runtime_parameters_of_the_cascade() -> None:
     orig = S._compile_shared
     S._compile_shared = lambda src: (sources.append(src), orig(src))[1]  # type: ignore[assignment]
     try:
-        runs = {k: simulate_platoon(PaperLeader(), [Proposed(kappa=k, alpha=1.9), OVFL(beta=2.6)], [0.3, 3.1],
-                                    [1.87, 1.8], 25.0, method="cascade") for k in (0.0217, 0.0731)}
+        runs = {
+            k: simulate_platoon(
+                PaperLeader(),
+                [Proposed(kappa=k, alpha=1.9), OVFL(beta=2.6)],
+                [0.3, 3.1],
+                [1.87, 1.8],
+                25.0,
+                method="cascade",
+            )
+            for k in (0.0217, 0.0731)
+        }
     finally:
         S._compile_shared = orig  # type: ignore[assignment]
     assert len(sources) == 2 and sources[0] == sources[1]
     assert abs(runs[0.0217].omega[-1, 0] - runs[0.0731].omega[-1, 0]) > 1e-3
     for k, r in runs.items():
-        ref = simulate_platoon(PaperLeader(), [Proposed(kappa=k, alpha=1.9), OVFL(beta=2.6)], [0.3, 3.1], [1.87, 1.8],
-                               25.0, method="cvodes")
+        ref = simulate_platoon(
+            PaperLeader(),
+            [Proposed(kappa=k, alpha=1.9), OVFL(beta=2.6)],
+            [0.3, 3.1],
+            [1.87, 1.8],
+            25.0,
+            method="cvodes",
+        )
         np.testing.assert_allclose(r.omega[-1], ref.omega[-1], rtol=1e-6, atol=1e-7)

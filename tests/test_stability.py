@@ -16,8 +16,17 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from aev_ocp.cli import main
-from aev_ocp.models.carfollowing import (IDM, LAW_REGISTRY, OVFL, OVM, TANH2, CarFollowingLaw, Proposed,
-                                         optimal_velocity, register_law)
+from aev_ocp.models.carfollowing import (
+    IDM,
+    LAW_REGISTRY,
+    OVFL,
+    OVM,
+    TANH2,
+    CarFollowingLaw,
+    Proposed,
+    optimal_velocity,
+    register_law,
+)
 from aev_ocp.stability import LinearizedLaw, PerturbedLeader, analyse, measure, transfer
 from aev_ocp.stability.api import stability_map, study_metrics
 from aev_ocp.stability.report import string_stability_section
@@ -166,8 +175,21 @@ def test_user_law_everywhere(tmp_path: Path) -> None:
         m = stability_map(FVD(), 1.2, "a", [0.2, 0.6, 1.4], "lam", [0.0, 0.3])
         assert m["criterion"].shape == (2, 3)
         assert m["criterion"][1, 2] == pytest.approx(1.4**2 / 2 + 0.3 * 1.4 - 1.4 * v_prime(h), rel=1e-9)
-        rc = main(["stability", "--law", "fvd_test", "--set", "carfollowing.fvd_test.a=0.9", "--speed-model", "1.2",
-                   "--linear-only", "--no-plots", "--out", str(tmp_path)])
+        rc = main(
+            [
+                "stability",
+                "--law",
+                "fvd_test",
+                "--set",
+                "carfollowing.fvd_test.a=0.9",
+                "--speed-model",
+                "1.2",
+                "--linear-only",
+                "--no-plots",
+                "--out",
+                str(tmp_path),
+            ]
+        )
         assert rc == 0
         doc = json.loads((tmp_path / "stability.json").read_text())
         assert doc["law"]["a"] == 0.9 and doc["speeds"][0]["measured"] == []
@@ -176,15 +198,39 @@ def test_user_law_everywhere(tmp_path: Path) -> None:
 
 
 def test_cli_writes_json_and_plots(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    rc = main(["stability", "--law", "ovfl", "--set", "carfollowing.ovfl.beta=2.5", "--speed-mps", "5.5",
-               "--speed-mps", "8", "--amplitude-mps", "5e-4", "--amplitude-mps", "1.5", "--followers", "6",
-               "--out", str(tmp_path)])  # the paper's units: 1.1 and 1.6 model speed, A = 1e-4 and 0.3
+    rc = main(
+        [
+            "stability",
+            "--law",
+            "ovfl",
+            "--set",
+            "carfollowing.ovfl.beta=2.5",
+            "--speed-mps",
+            "5.5",
+            "--speed-mps",
+            "8",
+            "--amplitude-mps",
+            "5e-4",
+            "--amplitude-mps",
+            "1.5",
+            "--followers",
+            "6",
+            "--out",
+            str(tmp_path),
+        ]
+    )  # the paper's units: 1.1 and 1.6 model speed, A = 1e-4 and 0.3
     assert rc == 0
     doc = json.loads((tmp_path / "stability.json").read_text())
     assert [e["v_star_model"] for e in doc["speeds"]] == pytest.approx([1.1, 1.6], rel=1e-15)
     for e in doc["speeds"]:
-        for key in ("criterion_model", "string_stable", "max_gain", "unstable_band_model", "measured",
-                    "linear_prediction"):
+        for key in (
+            "criterion_model",
+            "string_stable",
+            "max_gain",
+            "unstable_band_model",
+            "measured",
+            "linear_prediction",
+        ):
             assert key in e
         assert [m["amplitude_model"] for m in e["measured"]] == pytest.approx([1e-4, 0.3], rel=1e-15)
         assert e["measured"][0]["agrees_with_linear"] is True  # OVFL at A = 1e-4 is in its linear range
@@ -195,26 +241,30 @@ def test_cli_writes_json_and_plots(tmp_path: Path, capsys: pytest.CaptureFixture
     assert "criterion C" in capsys.readouterr().out
 
 
-@pytest.mark.parametrize("argv, field", [
-    (["--law", "nope"], "--law"),
-    (["--law", "ovm", "--set", "carfollowing.ovm.gamma=1"], "gamma"),
-    (["--law", "ovm", "--set", "carfollowing.ovm.alpha=x"], "carfollowing.ovm.alpha"),
-    (["--law", "ovm", "--set", "carfollowing.ovfl.beta=1"], "--law"),
-    (["--law", "proposed", "--set", "carfollowing.proposed.eps=0"], "eps"),
-    (["--law", "ovm", "--speed-mps", "12.5", "--linear-only"], "v* = 12.5 m/s (2.5 model speed)"),
-    (["--law", "ovm", "--speed-model", "2.5", "--linear-only"], "--speed-model"),
-    (["--law", "ovm", "--speed-mps", "nan"], "--speed-mps"),
-    (["--law", "ovm", "--speed-mps", "-8"], "--speed-mps"),
-    (["--law", "ovm", "--amplitude-mps", "15"], "--amplitude-mps: amplitude 15 m/s (3 model speed)"),
-    (["--law", "ovm", "--duration-s", "0"], "--duration-s"),
-    (["--law", "ovm", "--omega-model", "inf"], "--omega-model"),
-    (["--law", "ovm", "--units-speed-mps", "0"], "--units-speed-mps"),
-    (["--law", "ovm", "--units-length-m", "nan"], "--units-length-m"),
-    (["--law", "ovm", "--followers", "0"], "--followers"),
-    (["--law", "mpc", "--predictor", "psychic"], "--predictor"),
-])
-def test_cli_bad_input_is_one_line_exit_2(argv: list[str], field: str, tmp_path: Path,
-                                          capsys: pytest.CaptureFixture[str]) -> None:
+@pytest.mark.parametrize(
+    "argv, field",
+    [
+        (["--law", "nope"], "--law"),
+        (["--law", "ovm", "--set", "carfollowing.ovm.gamma=1"], "gamma"),
+        (["--law", "ovm", "--set", "carfollowing.ovm.alpha=x"], "carfollowing.ovm.alpha"),
+        (["--law", "ovm", "--set", "carfollowing.ovfl.beta=1"], "--law"),
+        (["--law", "proposed", "--set", "carfollowing.proposed.eps=0"], "eps"),
+        (["--law", "ovm", "--speed-mps", "12.5", "--linear-only"], "v* = 12.5 m/s (2.5 model speed)"),
+        (["--law", "ovm", "--speed-model", "2.5", "--linear-only"], "--speed-model"),
+        (["--law", "ovm", "--speed-mps", "nan"], "--speed-mps"),
+        (["--law", "ovm", "--speed-mps", "-8"], "--speed-mps"),
+        (["--law", "ovm", "--amplitude-mps", "15"], "--amplitude-mps: amplitude 15 m/s (3 model speed)"),
+        (["--law", "ovm", "--duration-s", "0"], "--duration-s"),
+        (["--law", "ovm", "--omega-model", "inf"], "--omega-model"),
+        (["--law", "ovm", "--units-speed-mps", "0"], "--units-speed-mps"),
+        (["--law", "ovm", "--units-length-m", "nan"], "--units-length-m"),
+        (["--law", "ovm", "--followers", "0"], "--followers"),
+        (["--law", "mpc", "--predictor", "psychic"], "--predictor"),
+    ],
+)
+def test_cli_bad_input_is_one_line_exit_2(
+    argv: list[str], field: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     rc = main(["stability", *argv, "--out", str(tmp_path)])
     err = capsys.readouterr().err.strip().splitlines()
     assert rc == 2
@@ -223,8 +273,10 @@ def test_cli_bad_input_is_one_line_exit_2(argv: list[str], field: str, tmp_path:
 
 
 def test_perturbed_leader_is_consistent() -> None:
-    for ld in (PerturbedLeader(1.3, 0.4, "sine", omega=1.7, t_start=0.5),
-               PerturbedLeader(1.3, 0.4, "pulse", duration=3.0, t_start=0.5)):
+    for ld in (
+        PerturbedLeader(1.3, 0.4, "sine", omega=1.7, t_start=0.5),
+        PerturbedLeader(1.3, 0.4, "pulse", duration=3.0, t_start=0.5),
+    ):
         t = np.random.default_rng(7).uniform(0.01, 5.9, 300)
         t = t[np.min(np.abs(t[:, None] - np.array([0.5, 3.5])[None, :]), axis=1) > 2e-3]  # away from the kinks
         d = 1e-4
@@ -259,8 +311,9 @@ def test_mpc_platoon_measured_through_the_closed_loop() -> None:
     from aev_ocp.stability import measure_mpc
 
     st_ = MPCSettings(N=15, solver="rti", codegen=False)
-    att, base = measure_mpc(1.5, 0.05, n_followers=2, predictor="cooperative", duration=2.0, t_start=0.5,
-                            t_end=5.0, settings=st_)
+    att, base = measure_mpc(
+        1.5, 0.05, n_followers=2, predictor="cooperative", duration=2.0, t_start=0.5, t_end=5.0, settings=st_
+    )
     assert att.status == "ok" and base.status == "ok"
     assert att.peak[0] == pytest.approx(0.05, rel=1e-3)
     assert 0 < att.peak[2] < att.peak[1] < att.peak[0]
@@ -273,20 +326,47 @@ T_S = L_M / U_MPS
 
 def _run(tmp_path: Path, name: str, args: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[dict, str]:
     out = tmp_path / name
-    assert main(["stability", "--law", "ovfl", "--set", "carfollowing.ovfl.beta=2.6", "--followers", "3",
-                 "--units-length-m", str(L_M), "--units-speed-mps", str(U_MPS), "--no-plots", "--out", str(out),
-                 *args]) == 0
+    assert (
+        main(
+            [
+                "stability",
+                "--law",
+                "ovfl",
+                "--set",
+                "carfollowing.ovfl.beta=2.6",
+                "--followers",
+                "3",
+                "--units-length-m",
+                str(L_M),
+                "--units-speed-mps",
+                str(U_MPS),
+                "--no-plots",
+                "--out",
+                str(out),
+                *args,
+            ]
+        )
+        == 0
+    )
     return json.loads((out / "stability.json").read_text()), capsys.readouterr().out
 
 
-@pytest.mark.parametrize("si, model", [
-    (["--speed-mps", "9.1", "--amplitude-mps", "0.0217", "--kind", "sine", "--omega-rad-per-s", "0.7"],
-     ["--speed-model", "1.3", "--amplitude-model", "0.0031", "--kind", "sine", "--omega-model", str(0.7 * T_S)]),
-    (["--speed-mps", "10.5", "--amplitude-mps", "0.35", "--duration-s", "5.2"],
-     ["--speed-model", "1.5", "--amplitude-model", "0.05", "--duration-model", "2.8"]),
-])
-def test_si_options_equal_the_model_options_after_conversion(si: list[str], model: list[str], tmp_path: Path,
-                                                            capsys: pytest.CaptureFixture[str]) -> None:
+@pytest.mark.parametrize(
+    "si, model",
+    [
+        (
+            ["--speed-mps", "9.1", "--amplitude-mps", "0.0217", "--kind", "sine", "--omega-rad-per-s", "0.7"],
+            ["--speed-model", "1.3", "--amplitude-model", "0.0031", "--kind", "sine", "--omega-model", str(0.7 * T_S)],
+        ),
+        (
+            ["--speed-mps", "10.5", "--amplitude-mps", "0.35", "--duration-s", "5.2"],
+            ["--speed-model", "1.5", "--amplitude-model", "0.05", "--duration-model", "2.8"],
+        ),
+    ],
+)
+def test_si_options_equal_the_model_options_after_conversion(
+    si: list[str], model: list[str], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     a, out_a = _run(tmp_path, "si", si, capsys)
     b, out_b = _run(tmp_path, "model", model, capsys)
     ea, eb = a["speeds"][0], b["speeds"][0]
@@ -297,8 +377,15 @@ def test_si_options_equal_the_model_options_after_conversion(si: list[str], mode
     for key in ("h_star_model", "criterion_model", "f_h_model", "f_v_model", "f_dv_model"):
         assert ea[key] == pytest.approx(eb[key], rel=1e-9)
     ma, mb = ea["measured"][0], eb["measured"][0]
-    for key in ("amplitude_model", "omega_model", "duration_model", "t_end_model", "ratio_peak", "ratio_l2",
-                "max_step_l2"):
+    for key in (
+        "amplitude_model",
+        "omega_model",
+        "duration_model",
+        "t_end_model",
+        "ratio_peak",
+        "ratio_l2",
+        "max_step_l2",
+    ):
         assert ma[key] == pytest.approx(mb[key], rel=1e-9), key
     assert ma["peak_model"] == pytest.approx(mb["peak_model"], rel=1e-7)
     # the SI columns are the model columns converted with L = 13 m, U = 7 m/s (time unit 13/7 s)
@@ -323,10 +410,18 @@ def test_si_options_equal_the_model_options_after_conversion(si: list[str], mode
     assert out_a.splitlines()[0] == out_b.splitlines()[0]
 
 
-@pytest.mark.parametrize("si, model", [("--speed-mps", "--speed-model"), ("--amplitude-mps", "--amplitude-model"),
-                                       ("--omega-rad-per-s", "--omega-model"), ("--duration-s", "--duration-model")])
-def test_both_twins_given_is_an_error_naming_both(si: str, model: str, tmp_path: Path,
-                                                  capsys: pytest.CaptureFixture[str]) -> None:
+@pytest.mark.parametrize(
+    "si, model",
+    [
+        ("--speed-mps", "--speed-model"),
+        ("--amplitude-mps", "--amplitude-model"),
+        ("--omega-rad-per-s", "--omega-model"),
+        ("--duration-s", "--duration-model"),
+    ],
+)
+def test_both_twins_given_is_an_error_naming_both(
+    si: str, model: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     assert main(["stability", "--law", "ovm", si, "0.3", model, "0.2", "--out", str(tmp_path)]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and si in err[0] and model in err[0]
@@ -341,14 +436,31 @@ def test_unitless_option_names_are_refused(old: str, tmp_path: Path, capsys: pyt
 
 
 def _dimensionless_or_si(key: str) -> bool:
-    return key in {"label", "kind", "n_followers", "status", "law", "string_stable", "locally_stable", "max_gain",
-                   "peak_gain", "agrees_with_linear", "string_stable_measured", "measured", "linear_prediction"} or \
-        key.startswith(("ratio_", "max_step_")) or key.endswith(("_mps", "_m", "_s", "_per_s", "_per_s2",
-                                                                   "_rad_per_s", "_m_per_sqrt_s"))
+    return (
+        key
+        in {
+            "label",
+            "kind",
+            "n_followers",
+            "status",
+            "law",
+            "string_stable",
+            "locally_stable",
+            "max_gain",
+            "peak_gain",
+            "agrees_with_linear",
+            "string_stable_measured",
+            "measured",
+            "linear_prediction",
+        }
+        or key.startswith(("ratio_", "max_step_"))
+        or key.endswith(("_mps", "_m", "_s", "_per_s", "_per_s2", "_rad_per_s", "_m_per_sqrt_s"))
+    )
 
 
-def test_written_columns_lead_with_si_and_suffix_the_model_ones(tmp_path: Path,
-                                                                capsys: pytest.CaptureFixture[str]) -> None:
+def test_written_columns_lead_with_si_and_suffix_the_model_ones(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     doc, _ = _run(tmp_path, "cols", ["--speed-mps", "9.8", "--amplitude-mps", "0.07"], capsys)
     e = doc["speeds"][0]
     for table in (e, e["measured"][0], e["linear_prediction"], doc["experiment"]):

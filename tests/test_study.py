@@ -55,30 +55,61 @@ def _stable(rows: list[dict]) -> str:
 
 @pytest.mark.quick
 def test_points_equal_direct_simulations(tmp_path):
-    out = run_study(read_study(_study(tmp_path)), tmp_path / "out", executor="inprocess", report=False,
-                    progress_stream=sys.stderr)
+    out = run_study(
+        read_study(_study(tmp_path)), tmp_path / "out", executor="inprocess", report=False, progress_stream=sys.stderr
+    )
     rows = out.rows
     assert len(rows) == 4 * 2 * 3  # points × controllers × vehicles
     # OVFL does not read kappa: its two kappa values share one task (one hash), 6 tasks in all
     assert out.n_tasks == 6
     base = load_scenario("table1")
     for gap, kappa in ((0.35, 0.26), (0.9, 0.03)):
-        sc = base.with_overrides({"simulation.t_end": 2.5, "simulation.dt_out": 0.05, "platoon.followers": 3,
-                                  "platoon.gap0_first": gap, "carfollowing.kappa": kappa})
+        sc = base.with_overrides(
+            {
+                "simulation.t_end": 2.5,
+                "simulation.dt_out": 0.05,
+                "platoon.followers": 3,
+                "platoon.gap0_first": gap,
+                "carfollowing.kappa": kappa,
+            }
+        )
         for law in ("proposed", "ovfl"):
             direct = simulate_platoon(sc.leader, [sc.law(law)] * 3, **sc.simulate_kwargs()).metrics()
-            got = [r for r in rows if r["platoon.gap0_first"] == gap and r["carfollowing.kappa"] == kappa
-                   and r["controller"] == law]
+            got = [
+                r
+                for r in rows
+                if r["platoon.gap0_first"] == gap and r["carfollowing.kappa"] == kappa and r["controller"] == law
+            ]
             assert [r["vehicle"] for r in got] == [1, 2, 3]
             for r, m in zip(got, direct):
-                for k in ("omega_model", "heat_pack_J", "min_gap_model", "rms_jerk_model", "distance_m",
-                          "heat_pack_J_per_km", "min_ttc_s", "delta_soc"):
+                for k in (
+                    "omega_model",
+                    "heat_pack_J",
+                    "min_gap_model",
+                    "rms_jerk_model",
+                    "distance_m",
+                    "heat_pack_J_per_km",
+                    "min_ttc_s",
+                    "delta_soc",
+                ):
                     assert r[k] == m[k], (law, gap, kappa, k)
     # % change and comparability against the reference run of the same point and vehicle
-    r = next(r for r in rows if r["controller"] == "proposed" and r["vehicle"] == 2 and r["carfollowing.kappa"] == 0.26
-             and r["platoon.gap0_first"] == 0.9)
-    ref = next(x for x in rows if x["controller"] == "ovfl" and x["vehicle"] == 2 and x["carfollowing.kappa"] == 0.26
-               and x["platoon.gap0_first"] == 0.9)
+    r = next(
+        r
+        for r in rows
+        if r["controller"] == "proposed"
+        and r["vehicle"] == 2
+        and r["carfollowing.kappa"] == 0.26
+        and r["platoon.gap0_first"] == 0.9
+    )
+    ref = next(
+        x
+        for x in rows
+        if x["controller"] == "ovfl"
+        and x["vehicle"] == 2
+        and x["carfollowing.kappa"] == 0.26
+        and x["platoon.gap0_first"] == 0.9
+    )
     assert r["omega_model_change_pct"] == pytest.approx(100 * (r["omega_model"] / ref["omega_model"] - 1), rel=1e-12)
     assert r["distance_diff_pct"] == pytest.approx(100 * (r["distance_m"] / ref["distance_m"] - 1), rel=1e-12)
     assert r["comparable"] == (abs(r["distance_diff_pct"]) <= 1.0)
@@ -94,8 +125,10 @@ def test_executors_identical_and_dask_local_cluster(tmp_path):
         out = run_study(read_study(f), tmp_path / ex, executor=ex, report=False, **kw)
         tables[ex] = _stable(out.rows)
         # the stored task files hold the same bytes apart from the wall time
-        stored = sorted((p.name, {k: v for k, v in json.loads(p.read_text()).items() if k not in VOLATILE})
-                        for p in (tmp_path / ex / "points").glob("*.json"))
+        stored = sorted(
+            (p.name, {k: v for k, v in json.loads(p.read_text()).items() if k not in VOLATILE})
+            for p in (tmp_path / ex / "points").glob("*.json")
+        )
         tables[ex + "-store"] = json.dumps(stored, sort_keys=True)
     assert tables["pool"] == tables["inprocess"] == tables["dask"]
     assert tables["pool-store"] == tables["inprocess-store"] == tables["dask-store"]
@@ -119,14 +152,19 @@ def test_resume_recomputes_only_what_is_missing(tmp_path, monkeypatch):
     assert _stable(out3.rows) == _stable(out1.rows)
     # extending the study (a third kappa) computes only the new proposed runs
     calls.clear()
-    run_study(read_study(_study(tmp_path, STUDY.replace("[0.03, 0.26]", "[0.03, 0.26, 0.11]"))), tmp_path / "o",
-              executor="inprocess", report=False)
+    run_study(
+        read_study(_study(tmp_path, STUDY.replace("[0.03, 0.26]", "[0.03, 0.26, 0.11]"))),
+        tmp_path / "o",
+        executor="inprocess",
+        report=False,
+    )
     assert len(calls) == 2  # two gaps × proposed(κ = 0.11); OVFL is already stored
 
 
 def test_failures_and_events_are_recorded(tmp_path, monkeypatch):
-    text = STUDY.replace("values = [0.35, 0.9]", "values = [0.35, 0.9, 0.0004]").replace('"platoon.followers" = 3',
-                                                                                         '"platoon.followers" = 1')
+    text = STUDY.replace("values = [0.35, 0.9]", "values = [0.35, 0.9, 0.0004]").replace(
+        '"platoon.followers" = 3', '"platoon.followers" = 1'
+    )
     study = read_study(_study(tmp_path, text))
     real = runner_mod._simulate
     doomed = next(t.key for t in study.tasks() if t.controller == "proposed" and t.point == 1)
@@ -182,18 +220,27 @@ laws = ["proposed"]
     assert len(s1.points) == 10
     ks = [p.values["carfollowing.kappa"] for p in s1.points]
     assert all(0.01 <= k <= 0.2 for k in ks) and len(set(ks)) == 5
-    assert {(p.values["platoon.gap0_first"], p.values["platoon.gap0_others"]) for p in s1.points} == {(0.3, 3.5), (0.6, 2.9)}
+    assert {(p.values["platoon.gap0_first"], p.values["platoon.gap0_others"]) for p in s1.points} == {
+        (0.3, 3.5),
+        (0.6, 2.9),
+    }
     s3 = read_study(_study(tmp_path, text.replace("seed = 7", "seed = 8"), "other.toml"))
     assert [p.values for p in s3.points] != [p.values for p in s1.points]
 
 
-@pytest.mark.parametrize("edit, needles", [
-    (('key = "carfollowing.kappa"', 'key = "carfollowing.kapa"'), ["tiny.toml", "axis carfollowing.kapa", "kapa"]),
-    (("values = [0.03, 0.26]", "values = [0.03, -0.26]"), ["tiny.toml", "axis carfollowing.kappa", "point 1", "-0.26"]),
-    (('laws = ["proposed", "ovfl"]', 'laws = ["proposed", "ovlf"]'), ["tiny.toml", "controllers.laws"]),
-    (('"simulation.t_end" = 2.5', '"simulation.t_end" = "long"'), ["tiny.toml", "overrides", "simulation.t_end"]),
-    (('reference = "ovfl"', 'reference = "mpc"'), ["tiny.toml", "reference"]),
-])
+@pytest.mark.parametrize(
+    "edit, needles",
+    [
+        (('key = "carfollowing.kappa"', 'key = "carfollowing.kapa"'), ["tiny.toml", "axis carfollowing.kapa", "kapa"]),
+        (
+            ("values = [0.03, 0.26]", "values = [0.03, -0.26]"),
+            ["tiny.toml", "axis carfollowing.kappa", "point 1", "-0.26"],
+        ),
+        (('laws = ["proposed", "ovfl"]', 'laws = ["proposed", "ovlf"]'), ["tiny.toml", "controllers.laws"]),
+        (('"simulation.t_end" = 2.5', '"simulation.t_end" = "long"'), ["tiny.toml", "overrides", "simulation.t_end"]),
+        (('reference = "ovfl"', 'reference = "mpc"'), ["tiny.toml", "reference"]),
+    ],
+)
 def test_bad_study_is_one_line_naming_file_axis_key(tmp_path, capsys, edit, needles):
     f = _study(tmp_path, STUDY.replace(*edit))
     with pytest.raises(StudyError) as exc:
@@ -209,8 +256,9 @@ def test_bad_study_is_one_line_naming_file_axis_key(tmp_path, capsys, edit, need
 @pytest.mark.quick
 def test_cli_set_and_mpc_validation(tmp_path, capsys):
     f = _study(tmp_path)
-    rc = main(["study", str(f), "--out", str(tmp_path / "o"), "--in-process", "--set", "simulation.t_end=1.5",
-               "--no-report"])
+    rc = main(
+        ["study", str(f), "--out", str(tmp_path / "o"), "--in-process", "--set", "simulation.t_end=1.5", "--no-report"]
+    )
     assert rc == 0
     rows = load_table(tmp_path / "o")
     assert {r["duration_model"] for r in rows} == {1.5}
@@ -259,7 +307,8 @@ codegen = false
     assert all(r["status"] == "ok" for r in out.rows) and len(rows) == 6
     for wq in (0.4, 3.0):
         sc = load_scenario("mpc_paper_single").with_overrides(
-            {"simulation.t_end": 1.2, "mpc.N": 8, "mpc.w_Q": wq, "mpc.solver": "ipopt", "mpc.codegen": False})
+            {"simulation.t_end": 1.2, "mpc.N": 8, "mpc.w_Q": wq, "mpc.solver": "ipopt", "mpc.codegen": False}
+        )
         m = closed_loop_from_scenario(sc).run(list(sc.gaps0), list(sc.speeds0), sc.t_end).metrics()[0]
         r = rows[(wq, "mpc-ipopt")]
         for k in ("heat_pack_J", "omega_model", "rms_jerk_model", "min_gap_model", "distance_m", "fallbacks"):
@@ -326,13 +375,15 @@ def test_dask_scheduler_address(tmp_path):
     f = _study(tmp_path, STUDY.replace("values = [0.35, 0.9]", "values = [0.35]"))
     ref = run_study(read_study(f), tmp_path / "ref", executor="inprocess", report=False)
     with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=None) as cl:
-        out = run_study(read_study(f), tmp_path / "sched", executor="dask", scheduler=cl.scheduler_address,
-                        report=False)
+        out = run_study(
+            read_study(f), tmp_path / "sched", executor="dask", scheduler=cl.scheduler_address, report=False
+        )
     assert _stable(out.rows) == _stable(ref.rows)
 
 
-@pytest.mark.parametrize("name, points, controllers", [("kappa_alpha_table1", 32, 2), ("wq_pareto_mpc", 10, 3),
-                                                       ("predictor_cycle", 9, 3)])
+@pytest.mark.parametrize(
+    "name, points, controllers", [("kappa_alpha_table1", 32, 2), ("wq_pareto_mpc", 10, 3), ("predictor_cycle", 9, 3)]
+)
 def test_shipped_studies_validate(name, points, controllers):
     study = read_study(Path(__file__).resolve().parents[1] / "studies" / f"{name}.toml")
     assert len(study.points) == points and len(study.controllers) == controllers
@@ -357,17 +408,28 @@ def test_equal_distance_and_time_columns_equal_the_exact_cut_of_direct_runs(tmp_
     truncation (aev_ocp.truncation.equal_views) of the same runs simulated directly; ranks by ∫Q/km."""
     from aev_ocp.truncation import equal_views
 
-    out = run_study(read_study(_study(tmp_path)), tmp_path / "out", executor="inprocess", report=True,
-                    progress_stream=sys.stderr)
+    out = run_study(
+        read_study(_study(tmp_path)), tmp_path / "out", executor="inprocess", report=True, progress_stream=sys.stderr
+    )
     base = load_scenario("table1")
     gap, kappa = 0.9, 0.26
-    sc = base.with_overrides({"simulation.t_end": 2.5, "simulation.dt_out": 0.05, "platoon.followers": 3,
-                              "platoon.gap0_first": gap, "carfollowing.kappa": kappa})
+    sc = base.with_overrides(
+        {
+            "simulation.t_end": 2.5,
+            "simulation.dt_out": 0.05,
+            "platoon.followers": 3,
+            "platoon.gap0_first": gap,
+            "carfollowing.kappa": kappa,
+        }
+    )
     runs = {law: simulate_platoon(sc.leader, [sc.law(law)] * 3, **sc.simulate_kwargs()) for law in ("proposed", "ovfl")}
     for vehicle in (1, 3):
         exact = equal_views(runs, vehicle - 1)
-        got = {r["controller"]: r for r in out.rows if r["vehicle"] == vehicle and r["platoon.gap0_first"] == gap
-               and r["carfollowing.kappa"] == kappa}
+        got = {
+            r["controller"]: r
+            for r in out.rows
+            if r["vehicle"] == vehicle and r["platoon.gap0_first"] == gap and r["carfollowing.kappa"] == kappa
+        }
         assert got["ovfl"]["eq_distance_cut_m"] == pytest.approx(exact["distance"]["cut_m"], rel=1e-12)
         assert got["ovfl"]["eq_time_cut_s"] == pytest.approx(exact["time"]["cut_s"], rel=1e-12)
         for law in ("proposed", "ovfl"):

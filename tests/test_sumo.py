@@ -28,9 +28,19 @@ LAW = Proposed(alpha=2.0, beta=3.0, kappa=0.03)
 
 
 def _ring_doc(dt: float, t_end_s: float, **sumo: object) -> dict:
-    return {"units": {"length_m": U.length_m, "speed_mps": U.speed_mps}, "limits": {"enabled": False},
-            "sumo": {"network": "ring", "t_end_s": t_end_s, "step_s": dt, "share": 1.0, "controller": "proposed",
-                     "ring": {"perturbation_m": RING.perturbation_m, "speed0_mps": RING.speed0_mps}, **sumo}}
+    return {
+        "units": {"length_m": U.length_m, "speed_mps": U.speed_mps},
+        "limits": {"enabled": False},
+        "sumo": {
+            "network": "ring",
+            "t_end_s": t_end_s,
+            "step_s": dt,
+            "share": 1.0,
+            "controller": "proposed",
+            "ring": {"perturbation_m": RING.perturbation_m, "speed0_mps": RING.speed0_mps},
+            **sumo,
+        },
+    }
 
 
 def _accel_si(h_m: np.ndarray, v: np.ndarray, vl: np.ndarray) -> np.ndarray:
@@ -56,8 +66,15 @@ def _ring_ode(t_end: float):
         x, v = y[:n], y[n:]
         return np.concatenate([v, _accel_si((np.roll(x, -1) - x - ell) % C, v, np.roll(v, -1))])
 
-    return solve_ivp(f, (0.0, t_end), np.concatenate([x0, np.full(n, RING.speed0_mps)]), method="DOP853",
-                     rtol=1e-11, atol=1e-11, dense_output=True)
+    return solve_ivp(
+        f,
+        (0.0, t_end),
+        np.concatenate([x0, np.full(n, RING.speed0_mps)]),
+        method="DOP853",
+        rtol=1e-11,
+        atol=1e-11,
+        dense_output=True,
+    )
 
 
 @needs_sumo
@@ -73,7 +90,7 @@ def test_ring_converges_to_the_ring_ode_at_first_order():
         run = run_sumo(parse_sumo_scenario(_ring_doc(dt, T + dt)))
         t, V = _ring_speeds(run, RING.vehicles)
         keep = t <= T + 1e-9
-        errs.append(float(np.max(np.abs(V[:, keep] - sol.sol(t[keep])[RING.vehicles:]))))
+        errs.append(float(np.max(np.abs(V[:, keep] - sol.sol(t[keep])[RING.vehicles :]))))
     print("max speed difference [m/s] at dt = 0.1, 0.05, 0.025 s:", errs)
     assert errs[0] / errs[1] >= 1.8 and errs[1] / errs[2] >= 1.8, errs
     assert errs[2] < 0.09, errs  # m/s, at dt = 0.025 s (measured 0.068: 0.43, 0.15, 0.068 at the three steps)
@@ -111,16 +128,25 @@ def test_battery_on_sumo_motion_matches_the_plant():
     ev = EVParams(units=U, limits=VehicleLimits(enabled=False))
     dt_m = U.time_from_si(dt)
     a = r.accel[:-1, 0]
-    ref = run_closed_loop(ConstantSpeed(float(r.speed[0, 0])), [ControlSequence(tuple(a), dt_m)], [500.0],
-                          [float(r.speed[0, 0])], len(a) * dt_m, ev=ev)
+    ref = run_closed_loop(
+        ConstantSpeed(float(r.speed[0, 0])),
+        [ControlSequence(tuple(a), dt_m)],
+        [500.0],
+        [float(r.speed[0, 0])],
+        len(a) * dt_m,
+        ev=ev,
+    )
     assert ref.status == "ok"
     assert r.S[-1, 0] == pytest.approx(ref.S[-1, 0], abs=1e-9)
     assert r.heat_J[-1, 0] == pytest.approx(ref.heat_J[-1, 0], rel=1e-5)
     assert r.omega[-1, 0] == pytest.approx(ref.omega[-1, 0], rel=1e-9)
 
 
-@given(st.lists(st.text("abcdefgh.0123456789", min_size=1, max_size=8), min_size=5, max_size=40, unique=True),
-       st.floats(0.0, 1.0), st.floats(0.0, 1.0))
+@given(
+    st.lists(st.text("abcdefgh.0123456789", min_size=1, max_size=8), min_size=5, max_size=40, unique=True),
+    st.floats(0.0, 1.0),
+    st.floats(0.0, 1.0),
+)
 @settings(max_examples=60, deadline=None)
 def test_share_selection_is_reproducible_and_nested(ids, s1, s2):
     lo, hi = sorted((s1, s2))
@@ -139,19 +165,27 @@ def test_share_selection_draws_the_share():
     by_id = parse_sumo_scenario({"sumo": {"network": "ring", "t_end_s": 10.0, "ids": ["x.1"], "vtypes": ["aev"]}})
     assert is_controlled("x.1", "car", by_id) and is_controlled("y", "aev", by_id)
     assert not is_controlled("y", "car", by_id)
-    ring = lambda s: {f"ring.{i}" for i in range(22) if is_controlled(f"ring.{i}", "t",  # noqa: E731
-                      parse_sumo_scenario({"sumo": {"network": "ring", "t_end_s": 1.0, "share": s}}))}
+
+    def ring(s: float) -> set[str]:
+        sc = parse_sumo_scenario({"sumo": {"network": "ring", "t_end_s": 1.0, "share": s}})
+        return {f"ring.{i}" for i in range(22) if is_controlled(f"ring.{i}", "t", sc)}
+
     assert [len(ring(s)) for s in (0.05, 0.25, 0.5, 1.0)] == [1, 6, 11, 22]  # round(share · 22) on the ring
     assert ring(0.05) <= ring(0.25) <= ring(0.5)
 
 
-@pytest.mark.parametrize("sumo, key", [({"network": "ring", "t_end_s": 10.0, "share": 1.3}, "sumo.share"),
-                                       ({"network": "ring", "t_end_s": 10.0, "step_s": 0.0}, "sumo.step_s"),
-                                       ({"network": "ring", "t_end_s": 10.0, "speed_mode": 64}, "sumo.speed_mode"),
-                                       ({"network": "ring", "t_end_s": 10.0, "controller": "warp"}, "sumo.controller"),
-                                       ({"network": "ring", "t_end_s": 10.0, "ring": {"vehicles": 60}}, "sumo.ring.vehicles"),
-                                       ({"network": "ring", "t_end_s": 10.0, "speed": 3}, "sumo.speed"),
-                                       ({"t_end_s": 10.0}, "exactly one of network")])
+@pytest.mark.parametrize(
+    "sumo, key",
+    [
+        ({"network": "ring", "t_end_s": 10.0, "share": 1.3}, "sumo.share"),
+        ({"network": "ring", "t_end_s": 10.0, "step_s": 0.0}, "sumo.step_s"),
+        ({"network": "ring", "t_end_s": 10.0, "speed_mode": 64}, "sumo.speed_mode"),
+        ({"network": "ring", "t_end_s": 10.0, "controller": "warp"}, "sumo.controller"),
+        ({"network": "ring", "t_end_s": 10.0, "ring": {"vehicles": 60}}, "sumo.ring.vehicles"),
+        ({"network": "ring", "t_end_s": 10.0, "speed": 3}, "sumo.speed"),
+        ({"t_end_s": 10.0}, "exactly one of network"),
+    ],
+)
 def test_bad_sumo_table_names_the_key(sumo, key):
     from aev_ocp.scenarios import ScenarioError
 
@@ -170,9 +204,13 @@ def test_missing_extra_is_one_line(monkeypatch, capsys, tmp_path):
 
 
 @needs_sumo
-@pytest.mark.parametrize("route, message", [
-    ('<routes><vehicle id="x" depart="40"><route edges="top nowhere"/></vehicle></routes>', "nowhere"),
-    ("<routes><vehicle id=", "")])
+@pytest.mark.parametrize(
+    "route, message",
+    [
+        ('<routes><vehicle id="x" depart="40"><route edges="top nowhere"/></vehicle></routes>', "nowhere"),
+        ("<routes><vehicle id=", ""),
+    ],
+)
 def test_bad_route_file_gives_sumos_message_in_one_line(tmp_path, capsys, route, message):
     from aev_ocp.cli import main
     from aev_ocp.sumo.networks import build_ring
@@ -224,14 +262,24 @@ def test_merge_vehicles_leave_the_network_and_save_load(tmp_path):
     from aev_ocp.sumo.output import load_sumo, save_sumo
     from aev_ocp.sumo.run import run_sumo
 
-    doc = {"units": {"length_m": 10.0, "speed_mps": 15.0},
-           "sumo": {"network": "merge", "t_end_s": 150.0, "share": 0.25, "controller": "proposed",
-                    "merge": {"main_length_m": 400.0, "after_m": 300.0}}}
+    doc = {
+        "units": {"length_m": 10.0, "speed_mps": 15.0},
+        "sumo": {
+            "network": "merge",
+            "t_end_s": 150.0,
+            "share": 0.25,
+            "controller": "proposed",
+            "merge": {"main_length_m": 400.0, "after_m": 300.0},
+        },
+    }
     run = run_sumo(parse_sumo_scenario(doc))
     left = [e for e in run.events if e["kind"] == "left_network" and e["controlled"]]
     assert left
-    assert any(len([ln for ln in run.vehicles[v].meta["lanes"] if not ln.startswith(":")]) > 3
-               for v, c in run.controlled.items() if c)  # some controlled car changed lanes
+    assert any(
+        len([ln for ln in run.vehicles[v].meta["lanes"] if not ln.startswith(":")]) > 3
+        for v, c in run.controlled.items()
+        if c
+    )  # some controlled car changed lanes
     save_sumo(run, tmp_path)
     back = load_sumo(tmp_path)
     m0 = {m["sumo_id"]: m for m in run.metrics()}
@@ -282,4 +330,3 @@ def test_missing_files_named(tmp_path):
     sc = parse_sumo_scenario({"sumo": {"net_file": "nope.net.xml", "t_end_s": 5.0}}, "s.toml", tmp_path / "s.toml")
     with pytest.raises(SumoError, match="nope.net.xml"):
         run_sumo(sc)
-

@@ -35,19 +35,22 @@ def _leader_accel(t: float, L: PaperLeader) -> float:
 
 def _np_rhs(t: float, y: np.ndarray, kappa: float, L: PaperLeader, gs: list) -> np.ndarray:
     n = len(GAPS)
-    xl, vl, pos, vel = y[0], y[1], y[2:2 + n], y[2 + n:2 + 2 * n]
+    xl, vl, pos, vel = y[0], y[1], y[2 : 2 + n], y[2 + n : 2 + 2 * n]
     ax, av = np.r_[xl, pos[:-1]], np.r_[vl, vel[:-1]]
     a = np.array([_law(ax[i] - pos[i], vel[i], av[i], kappa) for i in range(n)])
     q = [vel[i] * g(a[i]) for g in gs for i in range(n)]
     return np.r_[vl, _leader_accel(t, L), vel, a, q]
 
 
-NP_G = {"exact": lambda a: a / ETA if a >= 0 else ETA * a,
-        "smoothed": lambda a: a * (0.5 * (1 + math.tanh(a / th.SMOOTH_WIDTH)) / ETA
-                                   + (1 - 0.5 * (1 + math.tanh(a / th.SMOOTH_WIDTH))) * ETA),
-        "regen_eta2": lambda a: a / ETA if a >= 0 else ETA**2 * a,
-        "regen_full": lambda a: a / ETA if a >= 0 else a,
-        "no_regen": lambda a: a / ETA if a >= 0 else 0.0}
+NP_G = {
+    "exact": lambda a: a / ETA if a >= 0 else ETA * a,
+    "smoothed": lambda a: (
+        a * (0.5 * (1 + math.tanh(a / th.SMOOTH_WIDTH)) / ETA + (1 - 0.5 * (1 + math.tanh(a / th.SMOOTH_WIDTH))) * ETA)
+    ),
+    "regen_eta2": lambda a: a / ETA if a >= 0 else ETA**2 * a,
+    "regen_full": lambda a: a / ETA if a >= 0 else a,
+    "no_regen": lambda a: a / ETA if a >= 0 else 0.0,
+}
 
 
 def _setup(kappa: float = KA) -> th.PlatoonSetup:
@@ -65,8 +68,8 @@ def _scipy_omegas(t_end: float, kappa: float) -> dict[str, np.ndarray]:
     for lo, hi in ((0.0, L.t_end), (L.t_end, t_end)):  # restart at the leader's switch, as the module does
         sol = solve_ivp(_np_rhs, (lo, hi), y, method="DOP853", rtol=1e-11, atol=1e-11, args=(kappa, L, gs))
         y = sol.y[:, -1]
-    q = y[2 + 2 * n:]
-    return {name: q[j * n:(j + 1) * n] for j, name in enumerate(NP_G)}
+    q = y[2 + 2 * n :]
+    return {name: q[j * n : (j + 1) * n] for j, name in enumerate(NP_G)}
 
 
 @pytest.fixture(scope="module")
@@ -83,8 +86,9 @@ def test_every_g_variant_matches_scipy(traj: th.Trajectory) -> None:
 def test_baseline_is_the_simulators_omega(traj: th.Trajectory) -> None:
     s = _setup()
     ev = EVParams(vehicle=VehicleParams(efficiency=ETA), limits=UNLIMITED)  # Table 1's laws: no vehicle limits
-    r = simulate_platoon(s.leader, list(s.laws), list(GAPS), list(SPEEDS), 26.0, ev=ev, dt_out=0.1, rtol=1e-10,
-                         atol=1e-10)
+    r = simulate_platoon(
+        s.leader, list(s.laws), list(GAPS), list(SPEEDS), 26.0, ev=ev, dt_out=0.1, rtol=1e-10, atol=1e-10
+    )
     np.testing.assert_allclose(traj.omega["exact"][-1], r.omega[-1], rtol=1e-6, atol=1e-7)
     k = int(np.argmin(np.abs(r.t - 13.0)))  # an intermediate window end, on both grids
     assert r.t[k] == pytest.approx(13.0, abs=1e-12)
@@ -125,8 +129,9 @@ def test_fitted_regeneration_reproduces_the_target(traj: th.Trajectory) -> None:
     target = traj.window("exact", 0.0, 26.0) * np.array([1.043, 1.087])
     c = th.fitted_regeneration(traj, target, 26.0)
     for i, ci in enumerate(c):
-        tr = th.integrate(_setup(), 26.0, dt_grid=0.1,
-                          variants={"c": lambda a, ci=ci: ca.if_else(a >= 0, a / ETA, ci * a)})
+        tr = th.integrate(
+            _setup(), 26.0, dt_grid=0.1, variants={"c": lambda a, ci=ci: ca.if_else(a >= 0, a / ETA, ci * a)}
+        )
         assert tr.window("c", 0.0, 26.0)[i] == pytest.approx(target[i], rel=1e-7)
 
 
@@ -147,14 +152,21 @@ def test_table1_hypotheses_reproduce_our_table1() -> None:
     from aev_ocp.scenarios import load_scenario
 
     setups = th.table1_setups()
-    hyps, extra = th.run_hypotheses(setups["proposed"], PAPER_TABLE1["proposed"], euler_steps=(0.05,),
-                                    sample_steps=(0.5,), ends=(60.0,), starts=(1.0,))
+    hyps, extra = th.run_hypotheses(
+        setups["proposed"],
+        PAPER_TABLE1["proposed"],
+        euler_steps=(0.05,),
+        sample_steps=(0.5,),
+        ends=(60.0,),
+        starts=(1.0,),
+    )
     s = load_scenario("table1")
     r = simulate_platoon(s.leader, [s.law("proposed")] * s.n_followers, **s.simulate_kwargs())
     base = next(h for h in hyps if h.key == "baseline")
     np.testing.assert_allclose(base.omega, r.omega[-1], rtol=1e-6)
-    np.testing.assert_allclose(base.deviation_pct, 100 * (r.omega[-1] / np.array(PAPER_TABLE1["proposed"]) - 1),
-                               rtol=1e-5)
+    np.testing.assert_allclose(
+        base.deviation_pct, 100 * (r.omega[-1] / np.array(PAPER_TABLE1["proposed"]) - 1), rtol=1e-5
+    )
     assert not base.fits  # the gap this module exists to explain
     md = th.hypotheses_markdown({"proposed": (hyps, extra)})
     assert "printed (paper)" in md and "1.827" in md and "regeneration efficiency c" in md

@@ -13,7 +13,7 @@ from aev_ocp.metrics import vehicle_metrics
 from aev_ocp.models import battery, thermal
 from aev_ocp.models.carfollowing import make_law
 from aev_ocp.models.leader import ConstantSpeed
-from aev_ocp.params import (CarFollowingParams, CellParams, EVParams, PackParams, ParameterError, ThermalParams)
+from aev_ocp.params import CarFollowingParams, CellParams, EVParams, PackParams, ParameterError, ThermalParams
 from aev_ocp.plant import Plant
 from aev_ocp.simulate import simulate_platoon
 
@@ -29,8 +29,14 @@ def test_constant_heat_load_matches_closed_form_to_1e9() -> None:
     hA = PACK.n_cells * TH.h_Wpm2K * CELL.surface_area_m2
     T = ca.SX.sym("T")
     ts = np.linspace(0.0, 3 * C / hA, 31)
-    F = ca.integrator("th", "cvodes", {"x": T, "ode": thermal.temperature_rate_Kps(T, Q, CELL, PACK, TH)}, 0.0,
-                      ts[1:], {"abstol": 1e-12, "reltol": 1e-14})
+    F = ca.integrator(
+        "th",
+        "cvodes",
+        {"x": T, "ode": thermal.temperature_rate_Kps(T, Q, CELL, PACK, TH)},
+        0.0,
+        ts[1:],
+        {"abstol": 1e-12, "reltol": 1e-14},
+    )
     num = np.concatenate([[TH.ambient_K], np.asarray(F(x0=TH.ambient_K)["xf"]).ravel()])
     exact = TH.ambient_K + Q / hA * (1 - np.exp(-ts * hA / C))
     assert np.max(np.abs(num - exact)) < 1e-9
@@ -46,8 +52,12 @@ def test_plant_standing_pack_with_cooling_matches_closed_form() -> None:
     plant = Plant(ConstantSpeed(0.0), [None], ev, rtol=1e-13, atol=1e-12, samples=20)
     x0 = plant.initial_state([1.7], [0.0])
     assert x0.size == 6 and x0[5] == pytest.approx(309.2)
-    out: tuple[list, list, list, list] = ([np.array([0.0])], [x0[:, None]], [np.zeros((plant.nq, 1))],
-                                          [plant.samples(np.array([0.0]), x0[:, None], np.zeros(1))])
+    out: tuple[list, list, list, list] = (
+        [np.array([0.0])],
+        [x0[:, None]],
+        [np.zeros((plant.nq, 1))],
+        [plant.samples(np.array([0.0]), x0[:, None], np.zeros(1))],
+    )
     t_end = 600.0 / ev.units.time_s  # 600 s
     assert plant.advance(0.0, t_end, x0, np.zeros(plant.nq), np.zeros(1), out, [])
     t_s = np.concatenate(out[0]) * ev.units.time_s
@@ -61,8 +71,18 @@ def test_plant_standing_pack_with_cooling_matches_closed_form() -> None:
 def _drive(th: ThermalParams, cell: CellParams = CELL, method: str = "auto"):
     ev = EVParams(cell=cell, pack=PackParams(n_series=96, n_parallel=31), thermal=th)
     law = make_law("ovfl", CarFollowingParams())
-    return simulate_platoon(ConstantSpeed(1.7), [law, law], [1.3, 0.6], [0.4, 1.9], 12.0, ev=ev,
-                            dt_out=0.005, rtol=1e-11, atol=1e-11, method=method)
+    return simulate_platoon(
+        ConstantSpeed(1.7),
+        [law, law],
+        [1.3, 0.6],
+        [0.4, 1.9],
+        12.0,
+        ev=ev,
+        dt_out=0.005,
+        rtol=1e-11,
+        atol=1e-11,
+        method=method,
+    )
 
 
 def test_driving_pack_energy_balance_with_arrhenius() -> None:
@@ -79,7 +99,11 @@ def test_driving_pack_energy_balance_with_arrhenius() -> None:
     for i in range(2):
         T = r.temperature_K[:, i]
         lhs = C * (T[-1] - T[0])
-        rhs = r.heat_irr_J[-1, i] - hA * np.sum(0.5 * (T[1:] + T[:-1] - 2 * th.ambient_K) * np.diff(t_s)) - th.cooling_power_W * t_s[-1]
+        rhs = (
+            r.heat_irr_J[-1, i]
+            - hA * np.sum(0.5 * (T[1:] + T[:-1] - 2 * th.ambient_K) * np.diff(t_s))
+            - th.cooling_power_W * t_s[-1]
+        )
         assert lhs == pytest.approx(rhs, rel=1e-6, abs=1e-6 * r.heat_irr_J[-1, i])
         m = vehicle_metrics(r, i)
         assert m["peak_temperature_K"] == pytest.approx(np.max(T))
@@ -124,8 +148,11 @@ def test_thermal_params_validated() -> None:
 # ----------------------------------------------------------------------------- the temperature in the OCPs
 def _ocp_ev(T_max_K: float = 340.0) -> EVParams:
     cell = dataclasses.replace(CELL, activation_energy_Jpmol=2.6e4, T_ref_K=297.0)
-    return EVParams(cell=cell, pack=PackParams(n_series=96, n_parallel=31),
-                    thermal=dataclasses.replace(TH, T_max_K=T_max_K, cooling_power_W=4.4))
+    return EVParams(
+        cell=cell,
+        pack=PackParams(n_series=96, n_parallel=31),
+        thermal=dataclasses.replace(TH, T_max_K=T_max_K, cooling_power_W=4.4),
+    )
 
 
 @pytest.mark.parametrize("builder", ["following", "traffic"])
@@ -137,8 +164,11 @@ def test_problem_temperature_state_is_the_thermal_model(builder: str) -> None:
     from aev_ocp.ocp.traffic import traffic_problem
 
     ev = _ocp_ev()
-    pb = following_problem(ev, with_temperature=True) if builder == "following" else traffic_problem(
-        ev, with_temperature=True)
+    pb = (
+        following_problem(ev, with_temperature=True)
+        if builder == "following"
+        else traffic_problem(ev, with_temperature=True)
+    )
     pr = pb.build()
     names = list(pr.state_names)
     assert names[-1] == "T" and pr.x_ub[-1] == ev.thermal.T_max_K
@@ -178,8 +208,11 @@ def test_ocp_respects_a_temperature_limit() -> None:
     N, w = 20, np.full((2, 20), 1.9)
     out = {}
     for T_max in (400.0, 303.6, 303.3):
-        ev = EVParams(cell=cell, pack=PackParams(n_series=96, n_parallel=31),
-                      thermal=ThermalParams(enabled=True, ambient_K=301.7, h_Wpm2K=37.3, T0_K=303.0, T_max_K=T_max))
+        ev = EVParams(
+            cell=cell,
+            pack=PackParams(n_series=96, n_parallel=31),
+            thermal=ThermalParams(enabled=True, ambient_K=301.7, h_Wpm2K=37.3, T0_K=303.0, T_max_K=T_max),
+        )
         s = OCPSolver(following_problem(ev, with_temperature=True).build(), TranscriptionOptions(method="ms", N=N))
         r = s.solve([2.5, 1.0, 0.0, 0.0, 0.7, 303.0], 6.0, p=weight_vector(FollowingWeights(w_Q=0.02)), w=w)
         assert r.success
@@ -194,8 +227,9 @@ def test_saved_run_keeps_temperature_cell_and_thermal(tmp_path) -> None:
     """A thermal run with a cell of its own (OCV table) saved and loaded: the same temperatures and parameters."""
     from aev_ocp.saved import load, save_output
 
-    cell = dataclasses.replace(CELL, ocv_soc=(0.0, 0.3, 0.6, 1.0), ocv_V=(3.1, 3.55, 3.8, 4.15),
-                               activation_energy_Jpmol=2.2e4)
+    cell = dataclasses.replace(
+        CELL, ocv_soc=(0.0, 0.3, 0.6, 1.0), ocv_V=(3.1, 3.55, 3.8, 4.15), activation_energy_Jpmol=2.2e4
+    )
     r = _drive(dataclasses.replace(TH, T0_K=304.4), cell)
     save_output(tmp_path / "run", "simulate", {"run": r})
     back = load(tmp_path / "run")

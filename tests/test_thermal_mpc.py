@@ -26,10 +26,14 @@ from aev_ocp.scenarios import ScenarioError, find_scenario, load_scenario
 
 AMBIENT_K = 303.4  # 30.25 °C
 T0_K = 304.1
-EV = dataclasses.replace(EVParams(), pack=PackParams(n_series=106, n_parallel=5),
-                         thermal=ThermalParams(enabled=True, ambient_K=AMBIENT_K, T0_K=T0_K, h_Wpm2K=37.0))
-S = MPCSettings(N=15, codegen=False, qp_solver="hpipm", predictor="constant-velocity", rti_cold_iterations=20,
-                max_step_ms=5000.0)  # a cold start on a busy machine: the timing is not under test
+EV = dataclasses.replace(
+    EVParams(),
+    pack=PackParams(n_series=106, n_parallel=5),
+    thermal=ThermalParams(enabled=True, ambient_K=AMBIENT_K, T0_K=T0_K, h_Wpm2K=37.0),
+)
+S = MPCSettings(
+    N=15, codegen=False, qp_solver="hpipm", predictor="constant-velocity", rti_cold_iterations=20, max_step_ms=5000.0
+)  # a cold start on a busy machine: the timing is not under test
 
 
 def _controller(T_max_K: float | None = None, kind: str = "traffic") -> MPCController:
@@ -54,8 +58,7 @@ def test_predicted_temperature_equals_the_plant_under_the_same_commands(kind: st
     assert sol.success, sol.status
     T_plan = sol.X[_row(c, "T")]
     assert T_plan[0] == T0_K
-    res = run_closed_loop(ConstantSpeed(lead), [ControlSequence(tuple(sol.a), dt)], [h0], [v0], N * dt,
-                          ev=EV, soc0=S0)
+    res = run_closed_loop(ConstantSpeed(lead), [ControlSequence(tuple(sol.a), dt)], [h0], [v0], N * dt, ev=EV, soc0=S0)
     assert res.status == "ok"
     t = np.asarray(res.t)
     T_plant = np.array([np.interp(k * dt, t, res.temperature_K[:, 0]) for k in range(N + 1)])
@@ -152,8 +155,12 @@ def test_a_plant_without_temperature_is_a_clear_error() -> None:
     from aev_ocp.control import Observation
     from aev_ocp.ring.laws import ring_mpc
 
-    pol = ring_mpc(EV, MPCSettings(N=4, codegen=False), "constant-velocity",
-                   traffic_formulation(temperature=TemperatureTerms(temperature_state=True)))
+    pol = ring_mpc(
+        EV,
+        MPCSettings(N=4, codegen=False),
+        "constant-velocity",
+        traffic_formulation(temperature=TemperatureTerms(temperature_state=True)),
+    )
     obs = Observation(0.0, 0.1, 0, np.array([1.3, 0.9, 0.0, 0.0, 0.62]), np.array([0.0]), np.array([0.9]))
     with pytest.raises(ParameterError, match="Observation.T_K"):
         pol.command(obs)

@@ -19,7 +19,7 @@ def _scenario(tmp_path, leader: str, name: str = "s.toml") -> str:
     text = find_scenario("udds_platoon").read_text(encoding="utf-8")
     doc = tomllib.loads(text)
     head, _, rest = text.partition("[leader]")
-    tail = rest[rest.index("\n["):] if "\n[" in rest else ""
+    tail = rest[rest.index("\n[") :] if "\n[" in rest else ""
     p = tmp_path / name
     p.write_text(head + "[leader]\n" + leader + "\n" + tail, encoding="utf-8")
     assert doc["leader"]["kind"] == "cycle"
@@ -41,8 +41,13 @@ def test_udds_trace_in_kmh_and_ms_is_the_cycle(tmp_path):
     _write(tmp_path / "kmh.csv", "t_ms,v_kmh", zip(1000 * t + 5000.0, 3.6 * v))
     _write(tmp_path / "ms.csv", "time,speed", zip(t, v))
     ref = load_scenario(find_scenario("udds_platoon"))
-    kmh = load_scenario(_scenario(tmp_path, 'kind = "trace"\nfile = "kmh.csv"\ntime_column = "t_ms"\n'
-                                            'speed_column = "v_kmh"\ntime_unit = "ms"\nspeed_unit = "km/h"'))
+    kmh = load_scenario(
+        _scenario(
+            tmp_path,
+            'kind = "trace"\nfile = "kmh.csv"\ntime_column = "t_ms"\n'
+            'speed_column = "v_kmh"\ntime_unit = "ms"\nspeed_unit = "km/h"',
+        )
+    )
     ms = load_scenario(_scenario(tmp_path, 'kind = "trace"\nfile = "ms.csv"', "m.toml"))
     tt = _grid(ref)
     v_ref = ref.leader.speed_np(tt)
@@ -58,8 +63,9 @@ def test_position_trace_recovers_a_quadratic_motion(tmp_path):
     t = np.cumsum(np.r_[0.0, rng.uniform(0.05, 0.2, 80)])
     x_ft = 123.4 + 3.3 * t + 0.45 * t**2
     _write(tmp_path / "pos.csv", "frame_time,Local_Y", zip(t + 2.5, x_ft))
-    ts, vs = read_trace_csv(tmp_path / "pos.csv", time_column="frame_time", position_column="Local_Y",
-                            position_unit="ft")
+    ts, vs = read_trace_csv(
+        tmp_path / "pos.csv", time_column="frame_time", position_column="Local_Y", position_unit="ft"
+    )
     np.testing.assert_allclose(ts, t, rtol=0, atol=1e-12)
     np.testing.assert_allclose(vs, (3.3 + 0.9 * t) * 0.3048, rtol=1e-9)
 
@@ -72,15 +78,18 @@ def test_filter_keeps_one_vehicle(tmp_path):
     np.testing.assert_allclose(t, [0.0, 0.1, 0.2])
 
 
-@pytest.mark.parametrize("body, words", [
-    ("time,speed\n0,1.5\n1,2.5\n1,3.5\n", ["row 4", "'time'", "increase"]),
-    ("time,speed\n0,1.5\n1,nan\n2,3.5\n", ["row 3", "'speed'", "finite"]),
-    ("time,speed\n0,1.5\n1,-2.5\n2,3.5\n", ["row 3", "negative"]),
-    ("time,speed\n0,1.5\n1,2.5\n31,3.5\n", ["rows 3-4", "gap", "max_gap_s"]),
-    ("time,speed\n0,1.5\n1,abc\n", ["row 3", "'abc'"]),
-    ("time,velocity\n0,1.5\n1,2.5\n", ["speed_column", "'speed'", "velocity"]),
-    ("time,speed\n0,1.5\n", ["at least 2"]),
-])
+@pytest.mark.parametrize(
+    "body, words",
+    [
+        ("time,speed\n0,1.5\n1,2.5\n1,3.5\n", ["row 4", "'time'", "increase"]),
+        ("time,speed\n0,1.5\n1,nan\n2,3.5\n", ["row 3", "'speed'", "finite"]),
+        ("time,speed\n0,1.5\n1,-2.5\n2,3.5\n", ["row 3", "negative"]),
+        ("time,speed\n0,1.5\n1,2.5\n31,3.5\n", ["rows 3-4", "gap", "max_gap_s"]),
+        ("time,speed\n0,1.5\n1,abc\n", ["row 3", "'abc'"]),
+        ("time,velocity\n0,1.5\n1,2.5\n", ["speed_column", "'speed'", "velocity"]),
+        ("time,speed\n0,1.5\n", ["at least 2"]),
+    ],
+)
 def test_bad_trace_names_the_row_and_field(tmp_path, body, words):
     (tmp_path / "bad.csv").write_text(body)
     with pytest.raises(ScenarioError) as exc:
@@ -138,10 +147,12 @@ def test_study_over_a_trace_leader_hashes_the_data_and_finds_the_file(tmp_path, 
     _write(tmp_path / "u.csv", "time,speed", zip(t[:120], v[:120]))
     _scenario(tmp_path, 'kind = "trace"\nfile = "u.csv"', "trace.toml")
     study = tmp_path / "st.toml"
-    study.write_text('name = "tr"\nscenarios = ["trace.toml"]\nreference = "ovfl"\n'
-                     '[overrides]\n"simulation.t_end" = 20.0\n'
-                     '[[axes]]\nkey = "carfollowing.kappa"\nvalues = [0.02, 0.04]\n'
-                     '[controllers]\nlaws = ["proposed", "ovfl"]\n')
+    study.write_text(
+        'name = "tr"\nscenarios = ["trace.toml"]\nreference = "ovfl"\n'
+        '[overrides]\n"simulation.t_end" = 20.0\n'
+        '[[axes]]\nkey = "carfollowing.kappa"\nvalues = [0.02, 0.04]\n'
+        '[controllers]\nlaws = ["proposed", "ovfl"]\n'
+    )
     monkeypatch.chdir(tmp_path.parent)
     keys = [tk.key for tk in read_study(study).tasks()]
     out = run_study(read_study(study), tmp_path / "out", executor="inprocess", report=False)

@@ -22,8 +22,9 @@ DT_S = 0.23  # [s] the MPC interval in SI for the two-units test (not a special 
 
 def _si_leader(units: Units) -> SpeedTrace:
     """An SI leader: 7.3 m/s, accelerates to 13.1 m/s, brakes to 4.2 m/s (times in s)."""
-    return SpeedTrace.from_si(np.array([0.0, 1.5, 5.5, 7.0, 9.5, 30.0]), np.array([7.3, 7.3, 13.1, 13.1, 4.2, 4.2]),
-                              units)
+    return SpeedTrace.from_si(
+        np.array([0.0, 1.5, 5.5, 7.0, 9.5, 30.0]), np.array([7.3, 7.3, 13.1, 13.1, 4.2, 4.2]), units
+    )
 
 
 def _run_si(units: Units, t_end_s: float) -> tuple[np.ndarray, ...]:
@@ -32,10 +33,18 @@ def _run_si(units: Units, t_end_s: float) -> tuple[np.ndarray, ...]:
     s = MPCSettings(N=12, dt=dt, codegen=False, predictor="constant-velocity", rti_cold_iterations=30)
     f = traffic_formulation(TrafficParams(jerk_weight=0.37, heat_weight=13.0))
     h0, v0 = units.length_from_si(11.3), units.speed_from_si(6.1)
-    r = run_closed_loop(_si_leader(units), [MPCVehicle(s, formulation=f)], [h0], [v0], round(t_end_s / DT_S) * dt, ev=ev)
+    r = run_closed_loop(
+        _si_leader(units), [MPCVehicle(s, formulation=f)], [h0], [v0], round(t_end_s / DT_S) * dt, ev=ev
+    )
     t_s = r.t * units.time_s
-    return (t_s, units.length_to_si(r.gap[:, 0]), units.speed_to_si(r.speed[:, 0]),
-            units.accel_to_si(r.accel[:, 0]), float(r.heat_J[-1, 0]), r.solver_stats[0]["fallbacks"])
+    return (
+        t_s,
+        units.length_to_si(r.gap[:, 0]),
+        units.speed_to_si(r.speed[:, 0]),
+        units.accel_to_si(r.accel[:, 0]),
+        float(r.heat_J[-1, 0]),
+        r.solver_stats[0]["fallbacks"],
+    )
 
 
 def test_same_si_closed_loop_under_two_units():
@@ -70,8 +79,9 @@ def test_soft_gap_constraint_slack_equals_violation(solver):
     sol = c.solve(z0, vl, vl, own={"a_prev": 0.0})
     assert sol.success, sol.status
     headway = tp.standstill_gap_m + tp.time_headway_s * v0_ms - h0_m
-    braking = (tp.standstill_gap_m + v0_ms * tp.reaction_time_s + (v0_ms**2 - vl_ms**2) / (2 * tp.brake_decel_mps2)
-               - h0_m)
+    braking = (
+        tp.standstill_gap_m + v0_ms * tp.reaction_time_s + (v0_ms**2 - vl_ms**2) / (2 * tp.brake_decel_mps2) - h0_m
+    )
     k = c.problem.control_names.index("slack_gap")
     sigma0_m = units.length_to_si(sol.U[k, 0])
     assert max(headway, braking) > 1.0
@@ -116,7 +126,7 @@ def test_rti_hessian_projection_makes_the_reduced_hessian_pd():
         lam_e, Q = np.linalg.eigh(0.5 * (B + B.T))
         floor = RTI_HESSIAN_FLOOR * (1 + np.abs(lam_e).max())
         ref = Q @ np.diag(np.maximum(lam_e, floor)) @ Q.T
-        got = H_reg[k * nb:(k + 1) * nb, k * nb:(k + 1) * nb]
+        got = H_reg[k * nb : (k + 1) * nb, k * nb : (k + 1) * nb]
         np.testing.assert_allclose(got, ref, atol=1e-9 * (1 + np.abs(B).max()))
 
 
@@ -130,8 +140,10 @@ def test_step_over_budget_falls_back_with_cause_budget():
     assert st["fallback_causes"] == {"budget": 12}
     steps = r.meta["mpc_steps"][0]
     assert all(str(x).startswith("budget") for x in steps["status"])
-    assert fallback_causes(["budget: 3 ms", "QP failed: 1", "RTI_Step"], [False, False, True]) == {"budget": 1,
-                                                                                                   "QP failed": 1}
+    assert fallback_causes(["budget: 3 ms", "QP failed: 1", "RTI_Step"], [False, False, True]) == {
+        "budget": 1,
+        "QP failed": 1,
+    }
 
 
 def test_drive_cycle_constant_velocity_no_fallback_and_gap_kept():
@@ -176,9 +188,11 @@ def test_comparison_table_flags_runs_of_different_duration():
     from aev_ocp.mpc.report import Comparison, _flag_comparability, comparison_table
     from aev_ocp.simulate import simulate_platoon
 
-    runs = {"proposed": simulate_platoon(PaperLeader(), [Proposed()], [0.3], [1.87], 5.0, dt_out=0.1),
-            "mpc": simulate_platoon(PaperLeader(), [Proposed()], [0.3], [1.87], 4.0, dt_out=0.1),
-            "ovfl": simulate_platoon(PaperLeader(), [OVFL()], [0.3], [1.87], 5.0, dt_out=0.1)}
+    runs = {
+        "proposed": simulate_platoon(PaperLeader(), [Proposed()], [0.3], [1.87], 5.0, dt_out=0.1),
+        "mpc": simulate_platoon(PaperLeader(), [Proposed()], [0.3], [1.87], 4.0, dt_out=0.1),
+        "ovfl": simulate_platoon(PaperLeader(), [OVFL()], [0.3], [1.87], 5.0, dt_out=0.1),
+    }
     metrics = {k: r.metrics() for k, r in runs.items()}
     _flag_comparability(metrics)
     assert metrics["mpc"][0]["flag_duration"] and not metrics["mpc"][0]["comparable"]
@@ -212,8 +226,9 @@ def test_ocpd_beside_a_traffic_mpc_is_the_traffic_optimum(tmp_path, capsys) -> N
 
     from cli_helpers import run_cli
 
-    rc, _, err = run_cli(["mpc", "mpc_udds_single", "--t-end", "3", "--out", str(tmp_path), "--laws", "proposed"],
-                         capsys)
+    rc, _, err = run_cli(
+        ["mpc", "mpc_udds_single", "--t-end", "3", "--out", str(tmp_path), "--laws", "proposed"], capsys
+    )
     assert rc == 0 and "a lower bound for the cost_s9 row only" not in err
     res = json.loads((tmp_path / "results.json").read_text())
     assert res["ocp_d"]["objective"] == "traffic objective (the MPC's)"

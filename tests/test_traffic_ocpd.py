@@ -19,8 +19,15 @@ from aev_ocp.params import EVParams, ParameterError, PowertrainOptions, Units
 from aev_ocp.scenarios import find_scenario, load_scenario
 
 
-def _numpy_traffic_cost(ev: EVParams, tp: TrafficParams, t: np.ndarray, z: np.ndarray, a: np.ndarray,
-                        v_hat: np.ndarray, smooth: PowertrainOptions) -> float:
+def _numpy_traffic_cost(
+    ev: EVParams,
+    tp: TrafficParams,
+    t: np.ndarray,
+    z: np.ndarray,
+    a: np.ndarray,
+    v_hat: np.ndarray,
+    smooth: PowertrainOptions,
+) -> float:
     """The traffic objective written out in SI from its definition (aev_ocp/ocp/traffic.py docstring), with
     the epigraph at v g(a), the slack at the smallest σ ≥ 0 and a_prev the previously applied a (0 at t_0)."""
     u = ev.units
@@ -34,13 +41,24 @@ def _numpy_traffic_cost(ev: EVParams, tp: TrafficParams, t: np.ndarray, z: np.nd
         e = max(v[k] * a_si[k] / eta, eta * v[k] * a_si[k])
         q = float(battery_side(z[1, k], a[k], z[2, k], z[3, k], z[4, k], ev, smooth)["Q_pack"])  # W, the model's
         h_des = tp.target_gap_m + tp.target_time_gap_s * v[k]
-        sig = max(0.0, tp.standstill_gap_m + tp.time_headway_s * v[k] - h[k],
-                  tp.standstill_gap_m + tp.reaction_time_s * v[k] + (v[k] ** 2 - vl[k] ** 2) / (2 * tp.brake_decel_mps2)
-                  - h[k])
-        ell = (tp.energy_weight * e + tp.heat_weight * q / m + tp.accel_weight * a_si[k] ** 2
-               + tp.jerk_weight * ((a_si[k] - a_prev[k]) / dt_s[k]) ** 2
-               + tp.relative_speed_weight * (vl[k] - v[k]) ** 2 + tp.gap_weight * (h[k] - h_des) ** 2
-               + tp.safe_penalty * sig + 1e-3 * sig**2)
+        sig = max(
+            0.0,
+            tp.standstill_gap_m + tp.time_headway_s * v[k] - h[k],
+            tp.standstill_gap_m
+            + tp.reaction_time_s * v[k]
+            + (v[k] ** 2 - vl[k] ** 2) / (2 * tp.brake_decel_mps2)
+            - h[k],
+        )
+        ell = (
+            tp.energy_weight * e
+            + tp.heat_weight * q / m
+            + tp.accel_weight * a_si[k] ** 2
+            + tp.jerk_weight * ((a_si[k] - a_prev[k]) / dt_s[k]) ** 2
+            + tp.relative_speed_weight * (vl[k] - v[k]) ** 2
+            + tp.gap_weight * (h[k] - h_des) ** 2
+            + tp.safe_penalty * sig
+            + 1e-3 * sig**2
+        )
         total += ell * dt_s[k]
     return total + tp.terminal_gap_weight * (h[-1] - tp.target_gap_m - tp.target_time_gap_s * v[-1]) ** 2
 
@@ -55,11 +73,15 @@ def test_cost_traffic_equals_a_numpy_evaluation_in_si() -> None:
     dt = 0.13
     pr = traffic_problem(ev, tp, dt, smooth).build()
     t = np.arange(6) * dt
-    z = np.array([[0.9, 0.23, 0.31, 0.55, 0.72, 0.81],  # h: 0.23 L = 3 m is below 2 m + 1 s·v
-                  [0.85, 0.93, 0.62, 0.0, 0.37, 0.41],
-                  [0.012, 0.021, -0.013, 0.004, 0.007, 0.009],
-                  [0.003, 0.006, -0.002, 0.001, 0.002, 0.002],
-                  [0.8, 0.7994, 0.7991, 0.7991, 0.7989, 0.7987]])
+    z = np.array(
+        [
+            [0.9, 0.23, 0.31, 0.55, 0.72, 0.81],  # h: 0.23 L = 3 m is below 2 m + 1 s·v
+            [0.85, 0.93, 0.62, 0.0, 0.37, 0.41],
+            [0.012, 0.021, -0.013, 0.004, 0.007, 0.009],
+            [0.003, 0.006, -0.002, 0.001, 0.002, 0.002],
+            [0.8, 0.7994, 0.7991, 0.7991, 0.7989, 0.7987],
+        ]
+    )
     a = np.array([0.45, -1.7, 0.0, 0.62, -0.33])
     v_hat = np.array([0.7, 1.35, 0.35, 0.15, 0.52])
     got = cost_traffic_of_trajectory(pr, t, z, a, np.vstack([v_hat, v_hat]))
@@ -185,8 +207,9 @@ def test_coarse_grid_traffic_ocpd_is_a_reference(monkeypatch, paper_traffic) -> 
 def test_cli_writes_the_traffic_ocpd_row(tmp_path, capsys) -> None:
     from cli_helpers import run_cli
 
-    rc, out, err = run_cli(["mpc", "mpc_udds_single", "--set", "simulation.t_end=20", "--out", str(tmp_path),
-                            "--laws", "proposed"], capsys)
+    rc, out, err = run_cli(
+        ["mpc", "mpc_udds_single", "--set", "simulation.t_end=20", "--out", str(tmp_path), "--laws", "proposed"], capsys
+    )
     assert rc == 0 and "cost_s9 row only" not in err
     row = next(ln for ln in out.splitlines() if ln.startswith("cost_traffic"))
     assert len(row.split()) == 4  # mpc, proposed, ocp-d
@@ -238,8 +261,11 @@ def test_held_plan_never_brakes_at_a_stop() -> None:
     plan = _HeldPlan((-2.5, -2.5, 0.7), 0.1, "ocp-d")
 
     def cmd(t: float, v: float) -> float:
-        return plan.command(Observation(t=t, dt=0.1, vehicle=0, z=np.array([0.5, v, 0.0, 0.0, 0.8]),
-                                        meas_t=np.zeros(1), meas_v=np.zeros(1))).a
+        return plan.command(
+            Observation(
+                t=t, dt=0.1, vehicle=0, z=np.array([0.5, v, 0.0, 0.0, 0.8]), meas_t=np.zeros(1), meas_v=np.zeros(1)
+            )
+        ).a
 
     assert cmd(0.0, 0.13) == pytest.approx(-1.3) and cmd(0.1, 0.4) == -2.5
     assert cmd(0.1, 1e-12) == 0.0 and cmd(0.2, 0.0) == 0.7

@@ -8,5 +8,16 @@ from .mhe import MHE
 from .mismatch import Mismatch
 from .sensors import CHANNELS, Measurement, SensorModel, Sensors
 
-__all__ = ["CHANNELS", "EKF", "MHE", "Estimate", "EstimationModel", "Estimator", "Measurement", "Mismatch",
-           "SensorModel", "Sensors", "soc_from_rest_voltage"]
+__all__ = [
+    "CHANNELS",
+    "EKF",
+    "MHE",
+    "Estimate",
+    "EstimationModel",
+    "Estimator",
+    "Measurement",
+    "Mismatch",
+    "SensorModel",
+    "Sensors",
+    "soc_from_rest_voltage",
+]

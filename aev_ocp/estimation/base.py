@@ -147,16 +147,21 @@ class EstimationModel:
 
         def f(x: Any, u: Any) -> Any:
             dV1, dV2, dS = battery.cell_derivatives(x[1], x[2], u[0], scaled(x))
-            return ca.vertcat(dS, dV1, dV2, x[4] - x[6], x[5], -x[5] / LEAD_ACCEL_TAU_S, u[1],
-                              ca.SX.zeros(len(PARAM_NAMES)))
+            return ca.vertcat(
+                dS, dV1, dV2, x[4] - x[6], x[5], -x[5] / LEAD_ACCEL_TAU_S, u[1], ca.SX.zeros(len(PARAM_NAMES))
+            )
 
         k1 = f(x, u)
         k2 = f(x + dt / 2 * k1, u)
         k3 = f(x + dt / 2 * k2, u)
         k4 = f(x + dt * k3, u)
         xn = x + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
-        y = ca.vertcat(battery.terminal_voltage(ca.fmin(ca.fmax(x[0], 0.0), 1.0), x[1], x[2], u[0], scaled(x))
-                       + self.ocv_offset_V, x[3], x[4], x[6])
+        y = ca.vertcat(
+            battery.terminal_voltage(ca.fmin(ca.fmax(x[0], 0.0), 1.0), x[1], x[2], u[0], scaled(x)) + self.ocv_offset_V,
+            x[3],
+            x[4],
+            x[6],
+        )
         self.F = ca.Function("est_F", [x, u, dt], [xn, ca.jacobian(xn, x), ca.jacobian(xn, u)])
         self.H = ca.Function("est_H", [x, u], [y, ca.jacobian(y, x)])
         self.f_sym, self.h_sym, self.x, self.u, self.dt = xn, y, x, u, dt
@@ -164,8 +169,14 @@ class EstimationModel:
         self.n_series, self.n_parallel = ns, npar
         # measurement noise of y: the pack voltage's per series cell plus the OCV table's own error, the radar's
         # gap and predecessor speed, the own speed
-        self.R = np.diag([sensors.variance("voltage") / ns**2 + OCV_MODEL_SIGMA_V**2, sensors.variance("gap") + 1e-6,
-                          sensors.variance("lead_speed") + 1e-6, sensors.variance("speed") + 1e-6])
+        self.R = np.diag(
+            [
+                sensors.variance("voltage") / ns**2 + OCV_MODEL_SIGMA_V**2,
+                sensors.variance("gap") + 1e-6,
+                sensors.variance("lead_speed") + 1e-6,
+                sensors.variance("speed") + 1e-6,
+            ]
+        )
         # input noise: the pack current's per parallel cell (the applied acceleration is known; its error is in
         # OWN_SPEED_NOISE_RATE)
         self.Su = np.diag([sensors.variance("current") / npar**2, 0.0])
@@ -222,8 +233,14 @@ class EstimationModel:
     def process_noise_sx(self, dt: Any, Bu: Any) -> Any:
         """:meth:`process_noise` as a CasADi expression of dt [s] and B."""
         q_acc = LEAD_ACCEL_SIGMA_MPS2**2 * (1.0 - ca.exp(-2.0 * dt / LEAD_ACCEL_TAU_S))
-        own = ca.diag(ca.vertcat(*(q * dt for q in OWN_NOISE_RATES), q_acc, OWN_SPEED_NOISE_RATE * dt,
-                                 *([PARAM_SCALE_RATE**2 * dt] * len(PARAM_NAMES))))
+        own = ca.diag(
+            ca.vertcat(
+                *(q * dt for q in OWN_NOISE_RATES),
+                q_acc,
+                OWN_SPEED_NOISE_RATE * dt,
+                *([PARAM_SCALE_RATE**2 * dt] * len(PARAM_NAMES)),
+            )
+        )
         return Bu @ ca.DM(self.Su) @ Bu.T + own
 
     def inputs(self, y: Measurement) -> np.ndarray:
@@ -249,8 +266,18 @@ class EstimationModel:
         v_cell = y.voltage_V / self.n_series + self.ev.cell.R_s_ohm * y.current_A / self.n_parallel
         s0 = soc_from_rest_voltage(v_cell - self.ocv_offset_V, self.ev.cell) if soc0 is None else soc0
         x0 = np.array([s0, 0.0, 0.0, y.gap_m, y.lead_speed_mps, 0.0, y.speed_mps, *([1.0] * len(PARAM_NAMES))])
-        P0 = np.diag([0.1**2, RC_REST_SIGMA_V**2, RC_REST_SIGMA_V**2, self.R[1, 1] + 0.01, self.R[2, 2] + 0.01, 1.0, self.R[3, 3] + 0.01,
-                      *([PARAM_SCALE_SIGMA**2] * len(PARAM_NAMES))])
+        P0 = np.diag(
+            [
+                0.1**2,
+                RC_REST_SIGMA_V**2,
+                RC_REST_SIGMA_V**2,
+                self.R[1, 1] + 0.01,
+                self.R[2, 2] + 0.01,
+                1.0,
+                self.R[3, 3] + 0.01,
+                *([PARAM_SCALE_SIGMA**2] * len(PARAM_NAMES)),
+            ]
+        )
         return x0, P0
 
 

@@ -75,6 +75,11 @@ class EKF:
         return estimate_of(bridge_delays(self.x, self.u[1], self.lead_delay_s, self.speed_delay_s), self.P)
 
     def describe(self) -> dict[str, Any]:
-        return {"estimator": self.name, "soc0": self.soc0, "ocv_offset_V": self.model.ocv_offset_V,
-                "states": ", ".join(STATE_NAMES), "measurements": "pack V, gap, predecessor speed, own speed",
-                "inputs": "pack current, applied acceleration"}
+        return {
+            "estimator": self.name,
+            "soc0": self.soc0,
+            "ocv_offset_V": self.model.ocv_offset_V,
+            "states": ", ".join(STATE_NAMES),
+            "measurements": "pack V, gap, predecessor speed, own speed",
+            "inputs": "pack current, applied acceleration",
+        }

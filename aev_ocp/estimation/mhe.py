@@ -34,8 +34,9 @@ class MHE:
 
     name = "mhe"
 
-    def __init__(self, ev: EVParams, sensors: Sensors, soc0: float | None = None, ocv_offset_V: float = 0.0,
-                 window: int = 10) -> None:
+    def __init__(
+        self, ev: EVParams, sensors: Sensors, soc0: float | None = None, ocv_offset_V: float = 0.0, window: int = 10
+    ) -> None:
         if not isinstance(window, int) or isinstance(window, bool) or window < 2:
             raise ParameterError(f"MHE: window = {window!r} is not allowed: must be an integer >= 2")
         self.ekf = EKF(ev, sensors, soc0, ocv_offset_V)
@@ -64,8 +65,14 @@ class MHE:
         for k in range(M + 1):
             J += ca.sumsqr(LR @ (Y[:, k] - Hs(ca.vertcat(X[:, k], th), U[:, k])))
         p = ca.vertcat(x0b, ca.vec(L0), ca.vec(U), ca.vec(Y), DT, ca.vec(LQ), ca.vec(LR), th)
-        opts: dict[str, Any] = {"ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes", "ipopt.max_iter": 30,
-                "ipopt.tol": 1e-8, "ipopt.warm_start_init_point": "yes"}
+        opts: dict[str, Any] = {
+            "ipopt.print_level": 0,
+            "print_time": False,
+            "ipopt.sb": "yes",
+            "ipopt.max_iter": 30,
+            "ipopt.tol": 1e-8,
+            "ipopt.warm_start_init_point": "yes",
+        }
         self.solver = ca.nlpsol("mhe", "ipopt", {"x": ca.vec(Z), "f": J, "p": p}, opts)
         self.cost = ca.Function("mhe_cost", [ca.vec(Z), p], [J])
         lb, ub = -np.inf * np.ones((nd, M + 1)), np.inf * np.ones((nd, M + 1))
@@ -105,8 +112,18 @@ class MHE:
         _, _, B = self.model.F(self.ekf.x, U[:, -1], dt_nom)
         LQ = np.linalg.cholesky(np.linalg.inv(self.model.process_noise(dt_nom, np.asarray(B))[:nd, :nd])).T
         LR = np.linalg.cholesky(np.linalg.inv(self.model.R)).T
-        p = np.concatenate([x0b, L0.ravel(order="F"), U.ravel(order="F"), Yv.ravel(order="F"), DT,
-                            LQ.ravel(order="F"), LR.ravel(order="F"), theta])
+        p = np.concatenate(
+            [
+                x0b,
+                L0.ravel(order="F"),
+                U.ravel(order="F"),
+                Yv.ravel(order="F"),
+                DT,
+                LQ.ravel(order="F"),
+                LR.ravel(order="F"),
+                theta,
+            ]
+        )
         scale = np.asarray(MHE_SCALE)
         guess = np.column_stack([b[3][:nd] / scale for b in self.buf]).ravel(order="F")
         if self._guess is not None:  # the last solution shifted by one step, the EKF's newest state appended
@@ -121,10 +138,17 @@ class MHE:
 
     def estimate(self) -> Estimate:
         """The last window node predicted over the sensors' delays (as the EKF)."""
-        return estimate_of(bridge_delays(self.x, self.ekf.u[1], self.ekf.lead_delay_s, self.ekf.speed_delay_s),
-                           self.ekf.P)
+        return estimate_of(
+            bridge_delays(self.x, self.ekf.u[1], self.ekf.lead_delay_s, self.ekf.speed_delay_s), self.ekf.P
+        )
 
     def describe(self) -> dict[str, Any]:
-        return {**self.ekf.describe(), "estimator": self.name, "window": self.M, "solver": "ipopt",
-                "arrival_cost": "EKF filtered estimate at the window start",
-                "parameters": "the EKF's scales, held over the window", "failed_solves": self.fails}
+        return {
+            **self.ekf.describe(),
+            "estimator": self.name,
+            "window": self.M,
+            "solver": "ipopt",
+            "arrival_cost": "EKF filtered estimate at the window start",
+            "parameters": "the EKF's scales, held over the window",
+            "failed_solves": self.fails,
+        }

@@ -18,10 +18,16 @@ from ..params import EVParams, ParameterError, as_dict, spec, validate_fields
 
 #: relative-error field -> (EVParams part, parameter)
 PARAMETERS: dict[str, tuple[str, str]] = {
-    "mass_rel": ("vehicle", "mass_kg"), "drag_rel": ("vehicle", "drag_coefficient"),
-    "rolling_rel": ("vehicle", "rolling_coefficient"), "efficiency_rel": ("vehicle", "efficiency"),
-    "R0_rel": ("cell", "R_s_ohm"), "R1_rel": ("cell", "R1_ohm"), "R2_rel": ("cell", "R2_ohm"),
-    "C1_rel": ("cell", "C1_F"), "C2_rel": ("cell", "C2_F"), "capacity_rel": ("cell", "capacity_Ah"),
+    "mass_rel": ("vehicle", "mass_kg"),
+    "drag_rel": ("vehicle", "drag_coefficient"),
+    "rolling_rel": ("vehicle", "rolling_coefficient"),
+    "efficiency_rel": ("vehicle", "efficiency"),
+    "R0_rel": ("cell", "R_s_ohm"),
+    "R1_rel": ("cell", "R1_ohm"),
+    "R2_rel": ("cell", "R2_ohm"),
+    "C1_rel": ("cell", "C1_F"),
+    "C2_rel": ("cell", "C2_F"),
+    "capacity_rel": ("cell", "capacity_Ah"),
 }
 
 
@@ -48,16 +54,33 @@ class Mismatch:
         validate_fields(self)
 
     @staticmethod
-    def spread(mass_rel: float = 0.0, resistance_rel: float = 0.0, seed: int = 0,
-               distribution: str = "uniform", capacitance_rel: float = 0.0, capacity_rel: float = 0.0,
-               ocv_offset_V: float = 0.0) -> "Mismatch":
+    def spread(
+        mass_rel: float = 0.0,
+        resistance_rel: float = 0.0,
+        seed: int = 0,
+        distribution: str = "uniform",
+        capacitance_rel: float = 0.0,
+        capacity_rel: float = 0.0,
+        ocv_offset_V: float = 0.0,
+    ) -> "Mismatch":
         """A seeded spread: ±``mass_rel`` on the mass, ±``resistance_rel`` on the driving resistances (drag,
         rolling) and on the cell's R0, R1, R2, ±``capacitance_rel`` on C1 and C2, ±``capacity_rel`` on the
         capacity, ±``ocv_offset_V`` [V per cell] on the OCV."""
         r = resistance_rel
-        return Mismatch(mass_rel=mass_rel, drag_rel=r, rolling_rel=r, R0_rel=r, R1_rel=r, R2_rel=r,
-                        C1_rel=capacitance_rel, C2_rel=capacitance_rel, capacity_rel=capacity_rel,
-                        ocv_offset_V=ocv_offset_V, distribution=distribution, seed=seed)
+        return Mismatch(
+            mass_rel=mass_rel,
+            drag_rel=r,
+            rolling_rel=r,
+            R0_rel=r,
+            R1_rel=r,
+            R2_rel=r,
+            C1_rel=capacitance_rel,
+            C2_rel=capacitance_rel,
+            capacity_rel=capacity_rel,
+            ocv_offset_V=ocv_offset_V,
+            distribution=distribution,
+            seed=seed,
+        )
 
     @property
     def active(self) -> bool:
@@ -71,8 +94,13 @@ class Mismatch:
         for k in (*PARAMETERS, "ocv_offset_V"):
             e = float(getattr(self, k))
             u = float(rng.uniform(-1.0, 1.0)), float(rng.standard_normal())  # drawn always: stable streams
-            out[k] = (e if self.distribution == "fixed" else e * u[0] if self.distribution == "uniform"
-                      else e * float(np.clip(u[1], -3.0, 3.0)))
+            out[k] = (
+                e
+                if self.distribution == "fixed"
+                else e * u[0]
+                if self.distribution == "uniform"
+                else e * float(np.clip(u[1], -3.0, 3.0))
+            )
         return out
 
     def model_ev(self, plant: EVParams, vehicle: int) -> EVParams:
@@ -83,13 +111,20 @@ class Mismatch:
             parts[part][name] = getattr(getattr(plant, part), name) * (1.0 + d[k])
         eff = parts["vehicle"]["efficiency"]
         if eff > 1.0:
-            raise ParameterError(f"mismatch: efficiency_rel = {d['efficiency_rel']:.4g} for vehicle {vehicle + 1} "
-                                 f"gives a model efficiency {eff:.4g} > 1; declare a smaller error")
-        return replace(plant, vehicle=replace(plant.vehicle, **parts["vehicle"]),
-                       cell=replace(plant.cell, **parts["cell"]))
+            raise ParameterError(
+                f"mismatch: efficiency_rel = {d['efficiency_rel']:.4g} for vehicle {vehicle + 1} "
+                f"gives a model efficiency {eff:.4g} > 1; declare a smaller error"
+            )
+        return replace(
+            plant, vehicle=replace(plant.vehicle, **parts["vehicle"]), cell=replace(plant.cell, **parts["cell"])
+        )
 
     def describe(self, plant: EVParams, n: int) -> dict[str, Any]:
         """Both sets for results: the declaration, the plant and each follower's model and its drawn errors."""
-        return {"declared": as_dict(self), "plant": as_dict(plant),
-                "models": [{"vehicle": i + 1, "errors": self.draws(i), "ev": as_dict(self.model_ev(plant, i))}
-                           for i in range(n)]}
+        return {
+            "declared": as_dict(self),
+            "plant": as_dict(plant),
+            "models": [
+                {"vehicle": i + 1, "errors": self.draws(i), "ev": as_dict(self.model_ev(plant, i))} for i in range(n)
+            ],
+        }

@@ -72,8 +72,12 @@ def validate_sensors_table(r: Any) -> SensorsConfig:
     r.finish(allowed_hint=[f.name for f in fields(Sensors)] + ["noise_scale", "delay_s", "estimator", "soc0_error"])
     s = s.scaled(scale, delay)
     if est == "none" and not s.battery_states_observed and s.degraded:
-        raise r.error("estimator", est, "needs sensors.battery_states_observed = true (V1, V2, SOC are not measured "
-                      "otherwise): choose \"ekf\" or \"mhe\"")
+        raise r.error(
+            "estimator",
+            est,
+            "needs sensors.battery_states_observed = true (V1, V2, SOC are not measured "
+            'otherwise): choose "ekf" or "mhe"',
+        )
     return SensorsConfig(s, est, soc_err)
 
 

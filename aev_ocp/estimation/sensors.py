@@ -68,8 +68,11 @@ class Sensors:
     @staticmethod
     def ideal() -> "Sensors":
         """Exact, instantaneous measurements of every state (the closed loop without sensors)."""
-        zero = {f"{c}_{k}_{_UNIT[c]}" if k != "delay" else f"{c}_delay_s": 0.0
-                for c in CHANNELS for k in ("noise", "quantum", "delay")}
+        zero = {
+            f"{c}_{k}_{_UNIT[c]}" if k != "delay" else f"{c}_delay_s": 0.0
+            for c in CHANNELS
+            for k in ("noise", "quantum", "delay")
+        }
         return Sensors(**zero, battery_states_observed=True)  # type: ignore[arg-type]
 
     def scaled(self, noise_factor: float = 1.0, delay_s: float | None = None) -> "Sensors":
@@ -77,8 +80,11 @@ class Sensors:
         delay set to ``delay_s`` [s]."""
         if not (math.isfinite(noise_factor) and noise_factor >= 0):
             raise ParameterError(f"Sensors.scaled: noise_factor = {noise_factor!r} must be a finite number >= 0")
-        kw: dict[str, Any] = {f"{c}_{k}_{_UNIT[c]}": noise_factor * float(getattr(self, f"{c}_{k}_{_UNIT[c]}"))
-                              for c in CHANNELS for k in ("noise", "quantum")}
+        kw: dict[str, Any] = {
+            f"{c}_{k}_{_UNIT[c]}": noise_factor * float(getattr(self, f"{c}_{k}_{_UNIT[c]}"))
+            for c in CHANNELS
+            for k in ("noise", "quantum")
+        }
         if delay_s is not None:
             kw.update({f"{c}_delay_s": delay_s for c in CHANNELS})
         return replace(self, **kw)
@@ -102,8 +108,11 @@ class Sensors:
     @property
     def degraded(self) -> bool:
         """True unless every channel is exact and instantaneous and the battery states are observed."""
-        return (not self.battery_states_observed or self.sample_period_s > 0
-                or any(self.noise(c) or self.quantum(c) or self.delay(c) for c in CHANNELS))
+        return (
+            not self.battery_states_observed
+            or self.sample_period_s > 0
+            or any(self.noise(c) or self.quantum(c) or self.delay(c) for c in CHANNELS)
+        )
 
 
 @dataclass(frozen=True)

@@ -4,13 +4,45 @@ Models return CasADi expressions or Functions and know nothing of solvers, files
 """
 
 from . import battery, carfollowing, energy, leader, powertrain, vehicle
-from .carfollowing import (IDM, LAW_REGISTRY, OVFL, OVM, V_INF, CarFollowingLaw, Proposed,
-                           energy_term, equilibrium_gap, make_law, optimal_velocity, register_law)
+from .carfollowing import (
+    IDM,
+    LAW_REGISTRY,
+    OVFL,
+    OVM,
+    V_INF,
+    CarFollowingLaw,
+    Proposed,
+    energy_term,
+    equilibrium_gap,
+    make_law,
+    optimal_velocity,
+    register_law,
+)
 from .leader import BrakingLeader, ConstantSpeed, LeaderProfile, PaperLeader, SpeedTrace, drive_cycle
 
 __all__ = [
-    "battery", "carfollowing", "energy", "leader", "powertrain", "vehicle",
-    "IDM", "LAW_REGISTRY", "OVFL", "OVM", "V_INF", "CarFollowingLaw", "Proposed", "energy_term",
-    "equilibrium_gap", "make_law", "optimal_velocity", "register_law",
-    "BrakingLeader", "ConstantSpeed", "LeaderProfile", "PaperLeader", "SpeedTrace", "drive_cycle",
+    "battery",
+    "carfollowing",
+    "energy",
+    "leader",
+    "powertrain",
+    "vehicle",
+    "IDM",
+    "LAW_REGISTRY",
+    "OVFL",
+    "OVM",
+    "V_INF",
+    "CarFollowingLaw",
+    "Proposed",
+    "energy_term",
+    "equilibrium_gap",
+    "make_law",
+    "optimal_velocity",
+    "register_law",
+    "BrakingLeader",
+    "ConstantSpeed",
+    "LeaderProfile",
+    "PaperLeader",
+    "SpeedTrace",
+    "drive_cycle",
 ]

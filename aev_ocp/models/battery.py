@@ -81,8 +81,10 @@ def ocv_piecewise(S: Any, cell: CellParams | None = None) -> Any:
     :func:`ocv_function` within 1e-14 V on [0, 1] (tests/test_mpc_export.py); the end pieces extended."""
     s, c = ocv_pieces(cell)
     step = [S >= s[k] for k in range(1, len(c))]
-    s0, a, b, cc, d = (v[0] + sum((v[k] - v[k - 1]) * step[k - 1] for k in range(1, len(c)))
-                       for v in (s[:-1], c[:, 0], c[:, 1], c[:, 2], c[:, 3]))
+    s0, a, b, cc, d = (
+        v[0] + sum((v[k] - v[k - 1]) * step[k - 1] for k in range(1, len(c)))
+        for v in (s[:-1], c[:, 0], c[:, 1], c[:, 2], c[:, 3])
+    )
     u = S - s0
     return a + u * (b + u * (cc + u * d))
 
@@ -112,8 +114,11 @@ def arrhenius_factor(T_K: Any, p: CellParams) -> Any:
     """R(T)/R_ref = exp(E_a/R_gas (1/T − 1/T_ref)) [-]; 1 when the cell declares no activation energy."""
     if p.activation_energy_Jpmol is None:
         return 1.0
-    return ca.exp(p.activation_energy_Jpmol / R_GAS_JPMOLK * (1.0 / T_K - 1.0 / p.T_ref_K)) if not isinstance(
-        T_K, (int, float)) else float(np.exp(p.activation_energy_Jpmol / R_GAS_JPMOLK * (1.0 / T_K - 1.0 / p.T_ref_K)))
+    return (
+        ca.exp(p.activation_energy_Jpmol / R_GAS_JPMOLK * (1.0 / T_K - 1.0 / p.T_ref_K))
+        if not isinstance(T_K, (int, float))
+        else float(np.exp(p.activation_energy_Jpmol / R_GAS_JPMOLK * (1.0 / T_K - 1.0 / p.T_ref_K)))
+    )
 
 
 class CellAtTemperature:
@@ -138,9 +143,11 @@ def cell_at(cell: CellParams, T_K: Any | None) -> Any:
 
 def cell_derivatives(V1: Any, V2: Any, I: Any, p: CellParams) -> tuple[Any, Any, Any]:
     """(dV1/dt [V/s], dV2/dt [V/s], dS/dt [1/s]) for cell current I [A] (paper eqs. V_1_V_2, change_SOC)."""
-    return (-V1 / (p.R1_ohm * p.C1_F) + I / p.C1_F,
-            -V2 / (p.R2_ohm * p.C2_F) + I / p.C2_F,
-            -I / (3600.0 * p.capacity_Ah))
+    return (
+        -V1 / (p.R1_ohm * p.C1_F) + I / p.C1_F,
+        -V2 / (p.R2_ohm * p.C2_F) + I / p.C2_F,
+        -I / (3600.0 * p.capacity_Ah),
+    )
 
 
 def terminal_voltage(S: Any, V1: Any, V2: Any, I: Any, p: CellParams) -> Any:

@@ -31,8 +31,7 @@ def optimal_velocity(h: Any) -> Any:
 def equilibrium_gap(v: float) -> float:
     """V⁻¹(v) = 2 + atanh(v − tanh 2), the equilibrium gap for speed v ∈ (tanh2 − 1, 1 + tanh2)."""
     if not (V_MIN < v < V_INF):
-        raise ParameterError(
-            f"equilibrium_gap: speed {v!r} is outside the range of V, ({V_MIN:.6f}, {V_INF:.6f})")
+        raise ParameterError(f"equilibrium_gap: speed {v!r} is outside the range of V, ({V_MIN:.6f}, {V_INF:.6f})")
     return 2.0 + math.atanh(v - TANH2)
 
 
@@ -59,10 +58,17 @@ class CarFollowingLaw(ABC):
     def __post_init__(self) -> None:
         for attr, strict in [(a, False) for a in self._nonnegative] + [(a, True) for a in self._positive]:
             v = getattr(self, attr)
-            ok = isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and (v > 0 if strict else v >= 0)
+            ok = (
+                isinstance(v, (int, float))
+                and not isinstance(v, bool)
+                and math.isfinite(v)
+                and (v > 0 if strict else v >= 0)
+            )
             if not ok:
-                raise ParameterError(f"{type(self).__name__}.{attr} = {v!r} is not allowed: must be a finite "
-                                     f"number {'> 0' if strict else '>= 0'}")
+                raise ParameterError(
+                    f"{type(self).__name__}.{attr} = {v!r} is not allowed: must be a finite "
+                    f"number {'> 0' if strict else '>= 0'}"
+                )
 
     @abstractmethod
     def accel(self, h: Any, v: Any, v_l: Any) -> Any:
@@ -72,8 +78,7 @@ class CarFollowingLaw(ABC):
     def function(self) -> ca.Function:
         """The law as a CasADi Function f(h, v, v_l) -> v̇ (built once per law object)."""
         h, v, vl = ca.SX.sym("h"), ca.SX.sym("v"), ca.SX.sym("v_l")
-        return ca.Function(f"{self.name}_accel", [h, v, vl], [self.accel(h, v, vl)],
-                           ["h", "v", "v_l"], ["a"])
+        return ca.Function(f"{self.name}_accel", [h, v, vl], [self.accel(h, v, vl)], ["h", "v", "v_l"], ["a"])
 
     def describe(self) -> dict[str, Any]:
         """Name and coefficients, for reports."""
@@ -146,7 +151,10 @@ class IDM(CarFollowingLaw):
 
 
 LAW_REGISTRY: dict[str, Callable[..., CarFollowingLaw]] = {
-    "ovm": OVM, "ovfl": OVFL, "proposed": Proposed, "idm": IDM,
+    "ovm": OVM,
+    "ovfl": OVFL,
+    "proposed": Proposed,
+    "idm": IDM,
 }
 
 
@@ -161,7 +169,10 @@ def make_law(name: str, params: CarFollowingParams | None = None, **overrides: f
     if key not in LAW_REGISTRY:
         raise ParameterError(f"unknown car-following law {name!r}: known laws are {sorted(LAW_REGISTRY)}")
     p = params or CarFollowingParams()
-    base = {"ovm": {"alpha": p.alpha}, "ovfl": {"alpha": p.alpha, "beta": p.beta},
-            "proposed": {"alpha": p.alpha, "beta": p.beta, "kappa": p.kappa, "eps": p.eps}}.get(key, {})
+    base = {
+        "ovm": {"alpha": p.alpha},
+        "ovfl": {"alpha": p.alpha, "beta": p.beta},
+        "proposed": {"alpha": p.alpha, "beta": p.beta, "kappa": p.kappa, "eps": p.eps},
+    }.get(key, {})
     base.update(overrides)
     return LAW_REGISTRY[key](**base)

@@ -25,8 +25,9 @@ from .powertrain import cell_current_from_motion
 STATE_NAMES = ("h", "v", "V1", "V2", "S")  # ego state z: gap, speed [model], V1, V2 [V], S [-]
 
 
-def battery_side(v: Any, a: Any, V1: Any, V2: Any, S: Any, ev: EVParams,
-                 smooth: PowertrainOptions | None = None, T_K: Any = None) -> dict[str, Any]:
+def battery_side(
+    v: Any, a: Any, V1: Any, V2: Any, S: Any, ev: EVParams, smooth: PowertrainOptions | None = None, T_K: Any = None
+) -> dict[str, Any]:
     """Battery side of one vehicle at model speed v and acceleration a; T_K: the pack temperature [K] (None:
     no thermal state; the cell's resistances at their reference temperature).
 
@@ -42,15 +43,25 @@ def battery_side(v: Any, a: Any, V1: Any, V2: Any, S: Any, ev: EVParams,
     dV1, dV2, dS = battery.cell_derivatives(V1, V2, I, cell)
     Q = battery.heat_Q(V1, V2, I, cell)
     n = ev.pack.n_cells
-    out = {"I": I, "disc": cm["disc"], "P_b": cm["P_b"], "dV1": dV1, "dV2": dV2, "dS": dS,
-           "Q": Q, "Q_pack": n * Q, "Q_irr_pack": n * battery.heat_irreversible(V1, V2, I, cell)}
+    out = {
+        "I": I,
+        "disc": cm["disc"],
+        "P_b": cm["P_b"],
+        "dV1": dV1,
+        "dV2": dV2,
+        "dS": dS,
+        "Q": Q,
+        "Q_pack": n * Q,
+        "Q_irr_pack": n * battery.heat_irreversible(V1, V2, I, cell),
+    }
     if T_K is not None:
         out["dT"] = thermal.temperature_rate_Kps(T_K, out["Q_irr_pack"], ev.cell, ev.pack, ev.thermal)
     return out
 
 
-def following_ode(z: Any, a: Any, v_l: Any, ev: EVParams, smooth: PowertrainOptions | None = None,
-                  T_K: Any = None) -> Any:
+def following_ode(
+    z: Any, a: Any, v_l: Any, ev: EVParams, smooth: PowertrainOptions | None = None, T_K: Any = None
+) -> Any:
     """dz/dt in model time for z = (h, v, V1, V2, S): ḣ = v_l − v, v̇ = a, and the cell ODE
     (paper eqs. V_1_V_2, change_SOC) scaled by the time unit T [s]; T_K: the pack temperature [K] that sets the
     cell's resistances (None: their reference values)."""

@@ -125,8 +125,9 @@ class PaperLeader(LeaderProfile):
 
     def _x_active(self, t: np.ndarray) -> np.ndarray:
         c = self.amplitude
-        return (self.v0 * t - c * ((t - np.sin(self.w1 * t) / self.w1) / self.w1
-                                   + (1 - np.cos(self.w2 * t)) / self.w2**2))
+        return self.v0 * t - c * (
+            (t - np.sin(self.w1 * t) / self.w1) / self.w1 + (1 - np.cos(self.w2 * t)) / self.w2**2
+        )
 
     def speed(self, t: Any) -> Any:
         return ca.if_else(t <= self.t_end, self._v_active(t), self._v_active(self.t_end))
@@ -139,8 +140,7 @@ class PaperLeader(LeaderProfile):
         t = np.asarray(t, dtype=float)
         te = self.t_end
         v_end = float(self._v_active(te))
-        return np.where(t <= te, self._x_active(np.minimum(t, te)),
-                        self._x_active(np.asarray(te)) + v_end * (t - te))
+        return np.where(t <= te, self._x_active(np.minimum(t, te)), self._x_active(np.asarray(te)) + v_end * (t - te))
 
     def describe(self) -> dict[str, Any]:
         return {"profile": self.name, "v0": self.v0, "amplitude": self.amplitude, "t_end": self.t_end}
@@ -167,8 +167,11 @@ class BrakingLeader(LeaderProfile):
     @classmethod
     def from_si(cls, v0_mps: float, decel_mps2: float, t_brake_s: float, units: Units) -> "BrakingLeader":
         """From SI values [m/s], [m/s²], [s], converted with ``units``."""
-        return cls(float(units.speed_from_si(v0_mps)), float(units.accel_from_si(decel_mps2)),
-                   float(units.time_from_si(t_brake_s)))
+        return cls(
+            float(units.speed_from_si(v0_mps)),
+            float(units.accel_from_si(decel_mps2)),
+            float(units.time_from_si(t_brake_s)),
+        )
 
     @property
     def t_stop(self) -> float:
@@ -228,11 +231,19 @@ class SpeedTrace(LeaderProfile):
             raise ParameterError(f"SpeedTrace.speeds has a negative value ({v.min():g}): must be >= 0")
 
     @classmethod
-    def from_si(cls, times_s: np.ndarray | Sequence[float], speeds_mps: np.ndarray | Sequence[float], units: Units,
-                label: str = "trace") -> "SpeedTrace":
+    def from_si(
+        cls,
+        times_s: np.ndarray | Sequence[float],
+        speeds_mps: np.ndarray | Sequence[float],
+        units: Units,
+        label: str = "trace",
+    ) -> "SpeedTrace":
         """Build from SI arrays [s], [m/s], converted with ``units``."""
-        return cls(tuple(float(x) for x in units.time_from_si(np.asarray(times_s, float))),
-                   tuple(float(x) for x in units.speed_from_si(np.asarray(speeds_mps, float))), label)
+        return cls(
+            tuple(float(x) for x in units.time_from_si(np.asarray(times_s, float))),
+            tuple(float(x) for x in units.speed_from_si(np.asarray(speeds_mps, float))),
+            label,
+        )
 
     @cached_property
     def _interp(self) -> ca.Function:
@@ -270,8 +281,7 @@ class SpeedTrace(LeaderProfile):
         return self._cumulative[k] + v[k] * tau + 0.5 * slope * tau**2
 
     def describe(self) -> dict[str, Any]:
-        return {"profile": self.name, "label": self.label, "duration": self.times[-1],
-                "max_speed": max(self.speeds)}
+        return {"profile": self.name, "label": self.label, "duration": self.times[-1], "max_speed": max(self.speeds)}
 
 
 # unit -> SI factor of the columns a trace file may use
@@ -289,16 +299,28 @@ def _column(header: list[str], name: str, what: str, where: str) -> int:
         if len(header) <= 50 and all(_HEADER_NAME.fullmatch(h) for h in header):
             raise ParameterError(f"{where}: {what} = {name!r} is not a column of the file; its columns are {header}")
         # never echo a first line that is no CSV header (a file given by mistake may hold anything)
-        raise ParameterError(f"{where}: {what} = {name!r} is not a column of the file, and its first line does not "
-                             "look like a CSV header (comma-separated column names): is it a CSV trace file?")
+        raise ParameterError(
+            f"{where}: {what} = {name!r} is not a column of the file, and its first line does not "
+            "look like a CSV header (comma-separated column names): is it a CSV trace file?"
+        )
     return header.index(name)
 
 
-def read_trace_csv(source: Any, *, time_column: str = "time", speed_column: str | None = None,
-                   position_column: str | None = None, time_unit: str = "s", speed_unit: str = "m/s",
-                   position_unit: str = "m", max_gap_s: float | None = MAX_GAP_S, filter_column: str | None = None,
-                   filter_value: Any = None, label: str | None = None,
-                   t_max_s: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+def read_trace_csv(
+    source: Any,
+    *,
+    time_column: str = "time",
+    speed_column: str | None = None,
+    position_column: str | None = None,
+    time_unit: str = "s",
+    speed_unit: str = "m/s",
+    position_unit: str = "m",
+    max_gap_s: float | None = MAX_GAP_S,
+    filter_column: str | None = None,
+    filter_value: Any = None,
+    label: str | None = None,
+    t_max_s: float | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
     """A recorded trajectory from a CSV file (header row, then one row per sample): times [s] from 0 and
     speeds [m/s], validated.
 
@@ -314,8 +336,11 @@ def read_trace_csv(source: Any, *, time_column: str = "time", speed_column: str 
     name = label or str(getattr(source, "name", source))
     if (speed_column is None) == (position_column is None):
         raise ParameterError(f"trace {name}: give exactly one of speed_column and position_column")
-    for what, unit, table in (("time_unit", time_unit, TIME_UNITS), ("speed_unit", speed_unit, SPEED_UNITS),
-                              ("position_unit", position_unit, LENGTH_UNITS)):
+    for what, unit, table in (
+        ("time_unit", time_unit, TIME_UNITS),
+        ("speed_unit", speed_unit, SPEED_UNITS),
+        ("position_unit", position_unit, LENGTH_UNITS),
+    ):
         if unit not in table:
             raise ParameterError(f"trace {name}: {what} = {unit!r} is not allowed: must be one of {list(table)}")
     if not hasattr(source, "open"):  # a str or os.PathLike path (a resource Traversable has .open)
@@ -329,8 +354,20 @@ def read_trace_csv(source: Any, *, time_column: str = "time", speed_column: str 
     try:
         with source.open(newline="", encoding="utf-8-sig") as fh:  # utf-8-sig: a BOM (spreadsheet export) is fine
             try:
-                return _trace_rows(csv.reader(fh), name, time_column, speed_column, position_column, time_unit,
-                                   speed_unit, position_unit, max_gap_s, filter_column, filter_value, t_max_s)
+                return _trace_rows(
+                    csv.reader(fh),
+                    name,
+                    time_column,
+                    speed_column,
+                    position_column,
+                    time_unit,
+                    speed_unit,
+                    position_unit,
+                    max_gap_s,
+                    filter_column,
+                    filter_value,
+                    t_max_s,
+                )
             except csv.Error as exc:  # e.g. a field longer than csv.field_size_limit() (128 KiB)
                 raise ParameterError(f"trace {name}: not a valid CSV file ({exc})") from None
     except OSError as exc:
@@ -339,10 +376,20 @@ def read_trace_csv(source: Any, *, time_column: str = "time", speed_column: str 
         raise ParameterError(f"trace {name}: not a text (UTF-8) CSV file") from None
 
 
-def _trace_rows(reader: Any, name: str, time_column: str, speed_column: str | None, position_column: str | None,
-                time_unit: str, speed_unit: str, position_unit: str, max_gap_s: float | None,
-                filter_column: str | None, filter_value: Any,
-                t_max_s: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+def _trace_rows(
+    reader: Any,
+    name: str,
+    time_column: str,
+    speed_column: str | None,
+    position_column: str | None,
+    time_unit: str,
+    speed_unit: str,
+    position_unit: str,
+    max_gap_s: float | None,
+    filter_column: str | None,
+    filter_value: Any,
+    t_max_s: float | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
     """:func:`read_trace_csv` on a csv.reader, row by row (memory: two float64 per kept sample), stopping after
     the first sample at or past ``t_max_s`` [s] from the first one."""
     first = next(reader, None)
@@ -350,8 +397,9 @@ def _trace_rows(reader: Any, name: str, time_column: str, speed_column: str | No
         raise ParameterError(f"trace {name}: the file is empty (expected a header row, then one row per sample)")
     header = [h.strip() for h in first]
     col_t = _column(header, time_column, "time_column", f"trace {name}")
-    value_col, value_what = ((speed_column, "speed_column") if speed_column is not None
-                             else (position_column, "position_column"))
+    value_col, value_what = (
+        (speed_column, "speed_column") if speed_column is not None else (position_column, "position_column")
+    )
     col_v = _column(header, str(value_col), value_what, f"trace {name}")
     col_f = _column(header, filter_column, "filter_column", f"trace {name}") if filter_column is not None else None
     t_list = array("d")
@@ -385,12 +433,16 @@ def _trace_rows(reader: Any, name: str, time_column: str, speed_column: str | No
     bad = np.flatnonzero(dt <= 0)
     if bad.size:
         j = int(bad[0])
-        raise ParameterError(f"trace {name}, row {line_no[j + 1]}, column {time_column!r}: time {t_list[j + 1]!r} does "
-                             f"not increase (row {line_no[j]} has {t_list[j]!r}); times must increase strictly")
+        raise ParameterError(
+            f"trace {name}, row {line_no[j + 1]}, column {time_column!r}: time {t_list[j + 1]!r} does "
+            f"not increase (row {line_no[j]} has {t_list[j]!r}); times must increase strictly"
+        )
     if max_gap_s is not None and dt.max() > max_gap_s:
         j = int(np.argmax(dt))
-        raise ParameterError(f"trace {name}, rows {line_no[j]}-{line_no[j + 1]}: a sampling gap of {dt[j]:.6g} s, "
-                             f"more than max_gap_s = {max_gap_s:g} s (a hole in the data; raise max_gap_s to accept it)")
+        raise ParameterError(
+            f"trace {name}, rows {line_no[j]}-{line_no[j + 1]}: a sampling gap of {dt[j]:.6g} s, "
+            f"more than max_gap_s = {max_gap_s:g} s (a hole in the data; raise max_gap_s to accept it)"
+        )
     if speed_column is not None:
         v = np.asarray(v_list) * SPEED_UNITS[speed_unit]
         col = speed_column
@@ -399,8 +451,10 @@ def _trace_rows(reader: Any, name: str, time_column: str, speed_column: str | No
         back = np.flatnonzero(np.diff(x) < 0)
         if back.size:  # the data's own fault: the vehicle moved backwards
             j = int(back[0])
-            raise ParameterError(f"trace {name}, row {line_no[j + 1]}, column {position_column!r}: the position "
-                                 f"decreases ({v_list[j]!r} -> {v_list[j + 1]!r}); a leader only drives forward")
+            raise ParameterError(
+                f"trace {name}, row {line_no[j + 1]}, column {position_column!r}: the position "
+                f"decreases ({v_list[j]!r} -> {v_list[j + 1]!r}); a leader only drives forward"
+            )
         v = np.gradient(x, t, edge_order=2) if t.size > 2 else np.full(2, (x[1] - x[0]) / dt[0])
         # non-decreasing positions: a negative derivative is the second-order formula overshooting where the
         # vehicle starts or stops (e.g. at rest, then accelerating), not a reverse: it is clipped to 0
@@ -409,8 +463,10 @@ def _trace_rows(reader: Any, name: str, time_column: str, speed_column: str | No
     neg = np.flatnonzero(v < 0)
     if neg.size:
         j = int(neg[0])
-        raise ParameterError(f"trace {name}, row {line_no[j]}, column {col!r}: speed {v[j]:.6g} m/s is negative; "
-                             "a leader only drives forward")
+        raise ParameterError(
+            f"trace {name}, row {line_no[j]}, column {col!r}: speed {v[j]:.6g} m/s is negative; "
+            "a leader only drives forward"
+        )
     return t, v
 
 

@@ -58,8 +58,16 @@ def current_from_power(P_c: Any, E: Any, cell: CellParams) -> tuple[Any, Any]:
     return 2.0 * P_c / (E + ca.sqrt(ca.fmax(disc, DISC_FLOOR_V2))), disc
 
 
-def cell_current_from_motion(v_mps: Any, a_mps2: Any, V1: Any, V2: Any, S: Any, p: EVParams,
-                             smooth: PowertrainOptions | None = None, cell: Any = None) -> dict[str, Any]:
+def cell_current_from_motion(
+    v_mps: Any,
+    a_mps2: Any,
+    V1: Any,
+    V2: Any,
+    S: Any,
+    p: EVParams,
+    smooth: PowertrainOptions | None = None,
+    cell: Any = None,
+) -> dict[str, Any]:
     """The whole current map: vehicle motion and cell state -> cell current and its pieces.
 
     Returns a dict with P_w [W], P_b [W], P_c [W], E [V], I [A], disc [V²]. ``smooth=None``
@@ -67,8 +75,7 @@ def cell_current_from_motion(v_mps: Any, a_mps2: Any, V1: Any, V2: Any, S: Any, 
     its temperature (:func:`aev_ocp.models.battery.cell_at`); None: ``p.cell``.
     """
     P_w = vehicle.wheel_power_W(v_mps, a_mps2, p.vehicle)
-    P_b = (battery_power_W(P_w, p.vehicle) if smooth is None
-           else battery_power_smooth_W(P_w, p.vehicle, smooth))
+    P_b = battery_power_W(P_w, p.vehicle) if smooth is None else battery_power_smooth_W(P_w, p.vehicle, smooth)
     P_c = cell_power_W(P_b, p.pack)
     E = battery.ocv(S, p.cell) - V1 - V2
     I, disc = current_from_power(P_c, E, p.cell if cell is None else cell)

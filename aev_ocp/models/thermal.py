@@ -35,15 +35,17 @@ def time_constant_s(cell: CellParams, pack: PackParams, thermal: ThermalParams) 
     return heat_capacity_JpK(cell, pack) / conductance_WpK(cell, pack, thermal)
 
 
-def temperature_rate_Kps(T_K: Any, Q_irr_pack_W: Any, cell: CellParams, pack: PackParams,
-                         thermal: ThermalParams) -> Any:
+def temperature_rate_Kps(
+    T_K: Any, Q_irr_pack_W: Any, cell: CellParams, pack: PackParams, thermal: ThermalParams
+) -> Any:
     """dT/dt [K/s] of the pack at temperature T_K [K] dissipating Q_irr_pack_W [W] (numbers or CasADi)."""
     hA = conductance_WpK(cell, pack, thermal)
     return (Q_irr_pack_W - hA * (T_K - thermal.ambient_K) - thermal.cooling_power_W) / heat_capacity_JpK(cell, pack)
 
 
-def step_response_K(t_s: Any, Q_pack_W: float, cell: CellParams, pack: PackParams, thermal: ThermalParams,
-                    T0_K: float | None = None) -> Any:
+def step_response_K(
+    t_s: Any, Q_pack_W: float, cell: CellParams, pack: PackParams, thermal: ThermalParams, T0_K: float | None = None
+) -> Any:
     """Closed form T(t) [K] for a constant pack heat Q_pack_W [W] from T0_K (default the thermal's T(0)):
     T_∞ + (T0 − T_∞) e^{−t/τ} with T_∞ = T_amb + (Q − P_cool)/hA and τ = C_pack/hA."""
     hA = conductance_WpK(cell, pack, thermal)
@@ -64,7 +66,7 @@ def temperature_metrics(t_s: Any, T_K: Any, T_max_K: float) -> dict[str, float]:
     span = t[-1] - t[0]
     mean = trapezoid(T, t) / span if span > 0 else float(T[0])
     above = 0.0
-    for (t0, t1, a, b) in zip(t[:-1], t[1:], T[:-1] - T_max_K, T[1:] - T_max_K):
+    for t0, t1, a, b in zip(t[:-1], t[1:], T[:-1] - T_max_K, T[1:] - T_max_K):
         if a > 0 and b > 0:
             above += t1 - t0
         elif a > 0 or b > 0:  # crosses: the part above, linearly

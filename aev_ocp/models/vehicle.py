@@ -13,9 +13,11 @@ from ..params import VehicleParams
 
 def road_load_force_N(v_mps: Any, p: VehicleParams) -> Any:
     """Resistive force F_res(v) = ½ρAC_d v² + C_r m g + m g sin θ [N] (paper eqs. air_drag–graviational_force)."""
-    return (0.5 * p.air_density_kgpm3 * p.frontal_area_m2 * p.drag_coefficient * v_mps**2
-            + p.rolling_coefficient * p.mass_kg * p.gravity_mps2
-            + p.mass_kg * p.gravity_mps2 * math.sin(p.grade_rad))
+    return (
+        0.5 * p.air_density_kgpm3 * p.frontal_area_m2 * p.drag_coefficient * v_mps**2
+        + p.rolling_coefficient * p.mass_kg * p.gravity_mps2
+        + p.mass_kg * p.gravity_mps2 * math.sin(p.grade_rad)
+    )
 
 
 def wheel_power_W(v_mps: Any, a_mps2: Any, p: VehicleParams) -> Any:

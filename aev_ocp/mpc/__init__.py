@@ -14,10 +14,32 @@ from __future__ import annotations
 from ..control import ClosedLoop, ControlSequence, run_closed_loop
 from .controller import MPCController, MPCSolution
 from .policy import MPCPolicy, MPCVehicle, run_single
-from .predictors import (ConstantAccelerationPredictor, ConstantVelocityPredictor, LeaderPredictor, Measurements,
-                         OraclePredictor, make_predictor)
+from .predictors import (
+    ConstantAccelerationPredictor,
+    ConstantVelocityPredictor,
+    LeaderPredictor,
+    Measurements,
+    OraclePredictor,
+    make_predictor,
+)
 from .settings import PREDICTOR_NAMES, SOLVER_PATHS, MPCSettings
 
-__all__ = ["ClosedLoop", "ControlSequence", "MPCPolicy", "ConstantAccelerationPredictor", "ConstantVelocityPredictor", "LeaderPredictor",
-           "MPCController", "MPCSettings", "MPCSolution", "MPCVehicle", "Measurements", "OraclePredictor",
-           "PREDICTOR_NAMES", "SOLVER_PATHS", "make_predictor", "run_closed_loop", "run_single"]
+__all__ = [
+    "ClosedLoop",
+    "ControlSequence",
+    "MPCPolicy",
+    "ConstantAccelerationPredictor",
+    "ConstantVelocityPredictor",
+    "LeaderPredictor",
+    "MPCController",
+    "MPCSettings",
+    "MPCSolution",
+    "MPCVehicle",
+    "Measurements",
+    "OraclePredictor",
+    "PREDICTOR_NAMES",
+    "SOLVER_PATHS",
+    "make_predictor",
+    "run_closed_loop",
+    "run_single",
+]

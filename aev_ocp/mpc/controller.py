@@ -58,8 +58,16 @@ from .rti import HPIPM_INF_TRAFFIC, RTI_HESSIAN_FLOOR, RTIStep, check_rti_qp, pr
 from .settings import MPCSettings
 from .solution import MPCSolution
 
-__all__ = ["MPCController", "MPCSolution", "ParameterLayout", "NZ", "RTI_HESSIAN_FLOOR", "HPIPM_INF_TRAFFIC",
-           "default_problem", "resolve_formulation"]
+__all__ = [
+    "MPCController",
+    "MPCSolution",
+    "ParameterLayout",
+    "NZ",
+    "RTI_HESSIAN_FLOOR",
+    "HPIPM_INF_TRAFFIC",
+    "default_problem",
+    "resolve_formulation",
+]
 
 NZ = len(STATE_NAMES)  # measured states (h, v, V1, V2, S) at the front of every MPC problem
 _project_pd = project_pd  # (the names these had here before the split)
@@ -79,29 +87,40 @@ class ParameterLayout:
     x_own0: np.ndarray
 
 
-def default_problem(ev: EVParams, s: MPCSettings, formulation: Formulation | None = None) -> OCPProblem | ProblemBuilder:
+def default_problem(
+    ev: EVParams, s: MPCSettings, formulation: Formulation | None = None
+) -> OCPProblem | ProblemBuilder:
     """The MPC problem of a formulation (default: the traffic formulation) on the settings' interval dt."""
     return (formulation or DEFAULT_FORMULATION).builder(ev, s.dt)
 
 
-def resolve_formulation(formulation: Formulation | None, problem: OCPProblem | ProblemBuilder | None,
-                        parameter_values: dict[str, float] | None = None,
-                        initial_values: dict[str, float] | None = None) -> Formulation:
+def resolve_formulation(
+    formulation: Formulation | None,
+    problem: OCPProblem | ProblemBuilder | None,
+    parameter_values: dict[str, float] | None = None,
+    initial_values: dict[str, float] | None = None,
+) -> Formulation:
     """The one formulation of an MPC: ``formulation``, or a user ``problem`` made one (every derived item then
     follows the problem), or the default (traffic). Both at once is a ParameterError."""
     if problem is not None:
         if formulation is not None:
-            raise ParameterError("MPC: give problem= or formulation=, not both (a user problem is its own "
-                                 "formulation: aev_ocp.ocp.formulation.problem_formulation(problem))")
+            raise ParameterError(
+                "MPC: give problem= or formulation=, not both (a user problem is its own "
+                "formulation: aev_ocp.ocp.formulation.problem_formulation(problem))"
+            )
         return problem_formulation(problem, parameter_values, initial_values)
     f = formulation or DEFAULT_FORMULATION
     if not isinstance(f, Formulation):
         raise ParameterError(f"MPC: formulation must be a Formulation, got {type(f).__name__}")
     if (parameter_values or initial_values) and f.kind == "problem":
-        f = f.with_(parameter_values={**f.parameter_values, **(parameter_values or {})},
-                    initial_values={**f.initial_values, **(initial_values or {})})
+        f = f.with_(
+            parameter_values={**f.parameter_values, **(parameter_values or {})},
+            initial_values={**f.initial_values, **(initial_values or {})},
+        )
     elif parameter_values or initial_values:
-        raise ParameterError(f"MPC: parameter_values/initial_values are for a user problem, not the {f.name} formulation")
+        raise ParameterError(
+            f"MPC: parameter_values/initial_values are for a user problem, not the {f.name} formulation"
+        )
     return f
 
 
@@ -115,10 +134,16 @@ class MPCController:
     ``initial_values``: values of a user problem's extra parameters / own states by name.
     """
 
-    def __init__(self, settings: MPCSettings | None = None, ev: EVParams | None = None,
-                 guess_law: CarFollowingLaw | None = None, problem: OCPProblem | ProblemBuilder | None = None,
-                 parameter_values: dict[str, float] | None = None,
-                 initial_values: dict[str, float] | None = None, formulation: Formulation | None = None) -> None:
+    def __init__(
+        self,
+        settings: MPCSettings | None = None,
+        ev: EVParams | None = None,
+        guess_law: CarFollowingLaw | None = None,
+        problem: OCPProblem | ProblemBuilder | None = None,
+        parameter_values: dict[str, float] | None = None,
+        initial_values: dict[str, float] | None = None,
+        formulation: Formulation | None = None,
+    ) -> None:
         self.settings = settings or MPCSettings()
         if not isinstance(self.settings, MPCSettings):
             raise ParameterError(f"MPCController: settings must be an MPCSettings, got {type(settings).__name__}")
@@ -152,30 +177,39 @@ class MPCController:
         """The closed-loop layout (see the module docstring) and the values of extra names."""
         pr = self.problem
         if tuple(pr.state_names[:NZ]) != STATE_NAMES or pr.control_names[0] != "a" or pr.nw < 2:
-            raise ParameterError(f"MPCController: problem {pr.name!r} must start with states {STATE_NAMES}, "
-                                 "control 'a' and stage parameters (v_l_mean, v_l_hat)")
+            raise ParameterError(
+                f"MPCController: problem {pr.name!r} must start with states {STATE_NAMES}, "
+                "control 'a' and stage parameters (v_l_mean, v_l_hat)"
+            )
         if self.settings.solver == "rti" and pr.terminal is not None:
-            raise ParameterError("MPCSettings.solver = 'rti' does not handle terminal constraints (terminal costs "
-                                 "are fine; make the constraint a soft terminal cost): use 'ipopt' or 'sqp'")
-        pnames = list(pr.meta.get("parameter_names", WEIGHT_NAMES[:pr.np_]))
+            raise ParameterError(
+                "MPCSettings.solver = 'rti' does not handle terminal constraints (terminal costs "
+                "are fine; make the constraint a soft terminal cost): use 'ipopt' or 'sqp'"
+            )
+        pnames = list(pr.meta.get("parameter_names", WEIGHT_NAMES[: pr.np_]))
         wnames = list(pr.meta.get("stage_parameter_names", ["v_l_mean", "v_l_hat"]))
-        n_weights = sum(1 for k in pnames[:len(WEIGHT_NAMES)] if k in WEIGHT_NAMES)
+        n_weights = sum(1 for k in pnames[: len(WEIGHT_NAMES)] if k in WEIGHT_NAMES)
         extra_p, extra_w = pnames[n_weights:], wnames[2:]
         unknown = sorted(set(pvals) - set(extra_p) - set(extra_w))
         missing = [k for k in extra_p + extra_w if k not in pvals]
         if unknown or missing:
-            raise ParameterError(f"MPCController: parameter_values must give exactly {extra_p + extra_w}"
-                                 f"{'; unknown ' + str(unknown) if unknown else ''}"
-                                 f"{'; missing ' + str(missing) if missing else ''}")
+            raise ParameterError(
+                f"MPCController: parameter_values must give exactly {extra_p + extra_w}"
+                f"{'; unknown ' + str(unknown) if unknown else ''}"
+                f"{'; missing ' + str(missing) if missing else ''}"
+            )
         own = list(pr.state_names[NZ:])
         bad = sorted(set(xinit) - set(own))
         if bad:
             raise ParameterError(f"MPCController: initial_values names unknown states {bad}; own states are {own}")
         # the pack temperature 'T' [K] starts from the thermal model's T(0) unless measured (the policy's own)
         start = {"T": self.ev.thermal.initial_K}
-        return ParameterLayout(n_weights, np.array([float(pvals[k]) for k in extra_p]),
-                               np.array([float(pvals[k]) for k in extra_w]),
-                               np.array([float(xinit.get(k, start.get(k, 0.0))) for k in own]))
+        return ParameterLayout(
+            n_weights,
+            np.array([float(pvals[k]) for k in extra_p]),
+            np.array([float(pvals[k]) for k in extra_w]),
+            np.array([float(xinit.get(k, start.get(k, 0.0))) for k in own]),
+        )
 
     @property
     def has_temperature(self) -> bool:
@@ -235,7 +269,7 @@ class MPCController:
     def constant_parameters(self) -> np.ndarray:
         """The problem's parameters p as the controller sets them (the formulation's §9 weights, then the
         further parameters' values)."""
-        return np.concatenate([weight_vector(self.formulation.weights)[:self.layout.n_weights], self.layout.p_extra])
+        return np.concatenate([weight_vector(self.formulation.weights)[: self.layout.n_weights], self.layout.p_extra])
 
     # ------------------------------------------------------------------ solvers
     def _build_solvers(self) -> None:
@@ -273,12 +307,17 @@ class MPCController:
             if self.compiled_step is not None:
                 self.codegen_active = True
                 return
-            warnings.warn("qp_solver 'riccati' is unavailable: the compiled step could not be built; the rti path "
-                          "uses HPIPM through ca.conic instead", RuntimeWarning, stacklevel=4)
+            warnings.warn(
+                "qp_solver 'riccati' is unavailable: the compiled step could not be built; the rti path "
+                "uses HPIPM through ca.conic instead",
+                RuntimeWarning,
+                stacklevel=4,
+            )
             qp_plugin = "hpipm"
         self.qp_in_use = qp_plugin
-        self.rti = RTIStep(self.nlp, qp_plugin, HPIPM_INF_TRAFFIC if self.formulation.family == "traffic" else None,
-                           s.codegen)
+        self.rti = RTIStep(
+            self.nlp, qp_plugin, HPIPM_INF_TRAFFIC if self.formulation.family == "traffic" else None, s.codegen
+        )
         self.codegen_active |= self.rti.codegen_active
 
     # ------------------------------------------------------------------ helpers
@@ -286,7 +325,7 @@ class MPCController:
         """NLP parameter vector: stage parameters per interval (forecast, then the user's), the problem's
         parameters (the §9 weights, then the user's) and the stage weights."""
         N, lay = self.settings.N, self.layout
-        wt = weight_vector(weights or self.formulation.weights)[:lay.n_weights]
+        wt = weight_vector(weights or self.formulation.weights)[: lay.n_weights]
         sw = np.ones(N) if stage_weights is None else np.asarray(stage_weights, float).ravel()
         if sw.size != N or not np.all(np.isfinite(sw)) or np.any(sw < 0):
             raise ParameterError(f"MPC stage_weights must be {N} finite numbers >= 0")
@@ -323,9 +362,16 @@ class MPCController:
                 x_own[names.index(k)] = float(val)
         return np.concatenate([z0, x_own])
 
-    def solve(self, z0: np.ndarray, v_mean: np.ndarray, v_hat: np.ndarray, *,
-              weights: FollowingWeights | None = None, stage_weights: np.ndarray | None = None,
-              own: dict[str, float] | None = None) -> MPCSolution:
+    def solve(
+        self,
+        z0: np.ndarray,
+        v_mean: np.ndarray,
+        v_hat: np.ndarray,
+        *,
+        weights: FollowingWeights | None = None,
+        stage_weights: np.ndarray | None = None,
+        own: dict[str, float] | None = None,
+    ) -> MPCSolution:
         """Solve from the measured state z0 = (h, v, V1, V2, S) with the forecast per interval:
         v_mean (N,) interval-mean leader speed and v_hat (N,) leader speed at the interval starts
         [model speed]. ``weights`` overrides the formulation's §9 weights for this solve (no rebuild).
@@ -338,8 +384,10 @@ class MPCController:
             raise ParameterError(f"MPC: z0 must be finite (h, v, V1, V2, S), got {z0!r}")
         vm_, vh_ = np.asarray(v_mean, float).ravel(), np.asarray(v_hat, float).ravel()
         if vm_.size != N or vh_.size != N or not (np.all(np.isfinite(vm_)) and np.all(np.isfinite(vh_))):
-            raise ParameterError(f"MPC: the leader forecast (v_mean, v_hat) must be N = {N} finite values each, "
-                                 f"got {vm_.size} and {vh_.size}")
+            raise ParameterError(
+                f"MPC: the leader forecast (v_mean, v_hat) must be N = {N} finite values each, "
+                f"got {vm_.size} and {vh_.size}"
+            )
         p = self._params(np.vstack([vm_, vh_]), weights, stage_weights)
         if self.compiled_step is not None:
             was_cold = self.warm is None
@@ -380,15 +428,38 @@ class MPCController:
         viol = self.nlp.violation(x, g, lbx, ubx)
         status = str(st.get("return_status", st.get("unified_return_status", "")))
         success = bool(st.get("success", False)) and viol < PLAN_TOLERANCE and bool(np.all(np.isfinite(x)))
-        iters = int(st.get("iter_count", st.get("iterations", {}).get("iter", [0])[-1]
-                           if isinstance(st.get("iterations"), dict) else 0))
+        iters = int(
+            st.get(
+                "iter_count",
+                st.get("iterations", {}).get("iter", [0])[-1] if isinstance(st.get("iterations"), dict) else 0,
+            )
+        )
         X, a, U = self.unpack(x)
-        self.warm = ({"x": x, "lam_x": np.asarray(out["lam_x"]).ravel(), "lam_g": np.asarray(out["lam_g"]).ravel(),
-                       "X1": X[:, 1]} if success else None)
+        self.warm = (
+            {
+                "x": x,
+                "lam_x": np.asarray(out["lam_x"]).ravel(),
+                "lam_g": np.asarray(out["lam_g"]).ravel(),
+                "X1": X[:, 1],
+            }
+            if success
+            else None
+        )
         if self.compiled_step is not None and self.warm is not None:
             self.compiled_step.set_warm(self.warm["x"], self.warm["lam_g"], self.warm["lam_x"])
-        return MPCSolution(success, status, iters, dt_wall, X, a, float(out["f"]), viol, path,
-                           {"t_wall_solver": float(st.get("t_wall_total", float("nan")))}, U)
+        return MPCSolution(
+            success,
+            status,
+            iters,
+            dt_wall,
+            X,
+            a,
+            float(out["f"]),
+            viol,
+            path,
+            {"t_wall_solver": float(st.get("t_wall_total", float("nan")))},
+            U,
+        )
 
     # ------------------------------------------------------------------ failed and late steps
     def late(self, warm: dict[str, Any], iters: int, dt_wall: float, viol: float, path: str) -> MPCSolution:

@@ -104,11 +104,23 @@ class ExportableController(Protocol):
 
     def constant_parameters(self) -> np.ndarray: ...
 
+
 #: Hand-written templates (package data under aev_ocp/c/) copied or filled into an export.
 TEMPLATES = ("mpc_step.c", "mpc_step.h", "ocp_qp.c", "ocp_qp.h", "mpc_bench_main.c")
 #: Files of an export folder.
-EXPORT_FILES = ("mpc_casadi.c", "mpc_casadi.h", "mpc_config.h", "mpc_step.c", "mpc_step.h", "ocp_qp.c", "ocp_qp.h",
-                "mpc_bench_main.c", "Makefile", "CMakeLists.txt", "README.txt")
+EXPORT_FILES = (
+    "mpc_casadi.c",
+    "mpc_casadi.h",
+    "mpc_config.h",
+    "mpc_step.c",
+    "mpc_step.h",
+    "ocp_qp.c",
+    "ocp_qp.h",
+    "mpc_bench_main.c",
+    "Makefile",
+    "CMakeLists.txt",
+    "README.txt",
+)
 #: At most this many SQP iterations from the cold-start guess (the first step, or after a failure).
 COLD_MAX_ITER = 100
 #: Cold start (Levenberg-Marquardt): the QP Hessian gets reg·I, reg = COLD_REG0 at first, divided by 10
@@ -129,9 +141,14 @@ QP_TOL = 1e-9
 #: Status codes of aev_mpc_step (mpc_step.h).
 #: Status codes of the exported step, worded with the Python path's fallback causes ('QP failed', 'path
 #: constraint', 'exception': the text before the first ':' is the cause counted in fallback_causes).
-STATUS = {0: "RTI_Step", 1: "QP failed: ocp_qp", 2: "QP failed: non-finite step",
-          3: "path constraint: the applied control violates them", 4: "QP failed: the cold start did not converge",
-          5: "exception: non-finite input"}
+STATUS = {
+    0: "RTI_Step",
+    1: "QP failed: ocp_qp",
+    2: "QP failed: non-finite step",
+    3: "path constraint: the applied control violates them",
+    4: "QP failed: the cold start did not converge",
+    5: "exception: non-finite input",
+}
 
 
 class ExportError(ParameterError):
@@ -156,15 +173,27 @@ def qp_data_function(c: ExportableController) -> ca.Function:
     V, P, LAM = ca.MX.sym("x", nv), ca.MX.sym("p", npp), ca.MX.sym("lam_g", ng)
     Xk, Uk, Xn, W, PP, SW = c.nlp.stage_inputs(V, P)
     Hs, Qs, Js, Gs, _ = stage.map(N, "serial")(Xk, Uk, Xn, W, ca.repmat(PP, 1, N), SW, ca.reshape(LAM, ngs, N))
-    HN, qN, _ = term(V[nb * N:], PP)
+    HN, qN, _ = term(V[nb * N :], PP)
     path_lb = ca.repmat(ca.DM(np.asarray(pr.path_lb, float)), 1, N)
     path_ub = ca.repmat(ca.DM(np.asarray(pr.path_ub, float)), 1, N)
     cval = Gs[nx:, :]  # the path constraints' values at the point
-    return ca.Function("aev_cg_qpdata", [V, P, LAM],
-                       [ca.vertcat(ca.vec(Hs), ca.vec(HN)), ca.vertcat(ca.vec(Qs), qN), ca.vec(Js[:nx, :]),
-                        ca.vec(Gs[:nx, :]), ca.vec(Js[nx:, :]), ca.vec(path_lb - cval), ca.vec(path_ub - cval),
-                        ca.DM(c.nlp.lbx) - V, ca.DM(c.nlp.ubx) - V],
-                       ["x", "p", "lam_g"], ["H", "g", "E", "e", "C", "lc", "uc", "lbw", "ubw"])
+    return ca.Function(
+        "aev_cg_qpdata",
+        [V, P, LAM],
+        [
+            ca.vertcat(ca.vec(Hs), ca.vec(HN)),
+            ca.vertcat(ca.vec(Qs), qN),
+            ca.vec(Js[:nx, :]),
+            ca.vec(Gs[:nx, :]),
+            ca.vec(Js[nx:, :]),
+            ca.vec(path_lb - cval),
+            ca.vec(path_ub - cval),
+            ca.DM(c.nlp.lbx) - V,
+            ca.DM(c.nlp.ubx) - V,
+        ],
+        ["x", "p", "lam_g"],
+        ["H", "g", "E", "e", "C", "lc", "uc", "lbw", "ubw"],
+    )
 
 
 def rti_functions(c: ExportableController) -> list[ca.Function]:
@@ -192,25 +221,31 @@ def rti_functions(c: ExportableController) -> list[ca.Function]:
     node0 = ca.Function("aev_cg_node0", [V, P], [viol0, V[nx:nb] * us], ["x", "p"], ["node0_violation", "u0"])
     # --- cold-start guess (HorizonNLP.guess) and shift (HorizonNLP.shift)
     Z0 = ca.MX.sym("z0", nx)
-    Wm, pm = ca.reshape(P[:pr.nw * N], pr.nw, N), P[pr.nw * N:pr.nw * N + pr.np_]
+    Wm, pm = ca.reshape(P[: pr.nw * N], pr.nw, N), P[pr.nw * N : pr.nw * N + pr.np_]
     Zn, Ug = c.nlp.rollout(Z0, Wm, ca.repmat(pm, 1, N))
     Z = ca.horzcat(Z0, Zn) / ca.repmat(xs, 1, N + 1)
     Ug = ca.reshape(Ug, nu, N) / ca.repmat(us, 1, N)
-    guess = ca.Function("aev_cg_guess", [Z0, P], [ca.vertcat(ca.vec(ca.vertcat(Z[:, :N], Ug)), Z[:, N])],
-                        ["z0", "p"], ["x"])
-    zN, uN = V[nb * N:] * xs, V[nb * N - nu:nb * N] * us
+    guess = ca.Function(
+        "aev_cg_guess", [Z0, P], [ca.vertcat(ca.vec(ca.vertcat(Z[:, :N], Ug)), Z[:, N])], ["z0", "p"], ["x"]
+    )
+    zN, uN = V[nb * N :] * xs, V[nb * N - nu : nb * N] * us
     z_ext = c.step(zN, uN, Wm[:, N - 1], pm) / xs
     z_ext = ca.fmin(ca.fmax(z_ext, ca.DM(c.nlp.lbx[-nx:])), ca.DM(c.nlp.ubx[-nx:]))
 
     def shift_v(v: Any, new_last: Any) -> Any:
         # blocks 1..N-1, then (z_N, u_{N-1}), then new_last; the first nx entries are replaced later
-        return ca.vertcat(v[nb:nb * N], v[nb * N:], v[nb * N - nu:nb * N], new_last)
+        return ca.vertcat(v[nb : nb * N], v[nb * N :], v[nb * N - nu : nb * N], new_last)
 
     x0 = shift_v(V, z_ext)
     x0 = ca.vertcat(Z0 / xs, x0[nx:])
-    lam_g0 = ca.vertcat(LAM[ngs:N * ngs], LAM[(N - 1) * ngs:N * ngs], LAM[N * ngs:])
-    shift = ca.Function("aev_cg_shift", [V, LAM, LAMX, Z0, P], [x0, lam_g0, shift_v(LAMX, LAMX[nb * N:])],
-                        ["x", "lam_g", "lam_x", "z0", "p"], ["x0", "lam_g0", "lam_x0"])
+    lam_g0 = ca.vertcat(LAM[ngs : N * ngs], LAM[(N - 1) * ngs : N * ngs], LAM[N * ngs :])
+    shift = ca.Function(
+        "aev_cg_shift",
+        [V, LAM, LAMX, Z0, P],
+        [x0, lam_g0, shift_v(LAMX, LAMX[nb * N :])],
+        ["x", "lam_g", "lam_x", "z0", "p"],
+        ["x0", "lam_g0", "lam_x0"],
+    )
     return [guess, shift, qpdata, node0, ev]
 
 
@@ -231,8 +266,9 @@ def _c_array(values: np.ndarray) -> str:
     v = np.asarray(values, float).ravel()
     if v.size == 0:
         return "{0.0}"
-    return "{" + ", ".join(repr(float(x)) if np.isfinite(x) else ("INFINITY" if x > 0 else "-INFINITY")
-                           for x in v) + "}"
+    return (
+        "{" + ", ".join(repr(float(x)) if np.isfinite(x) else ("INFINITY" if x > 0 else "-INFINITY") for x in v) + "}"
+    )
 
 
 def config_header(c: ExportableController, description: str) -> str:
@@ -242,17 +278,42 @@ def config_header(c: ExportableController, description: str) -> str:
     s, pr = c.settings, c.problem
     NZ = len(STATE_NAMES)  # the measured states at the front of every MPC problem
     p_const = c.constant_parameters()
-    subs = {"DESCRIPTION": description.replace("*/", "* /"), "N": s.N, "NX": pr.nx, "NU": pr.nu, "NZ": NZ,
-            "NW": pr.nw, "NW_EXTRA": pr.nw - 2, "NPP": pr.np_, "NV": c.nv, "NG": c.ng, "NP": c.np_,
-            "NG_STAGE": c.nlp.ng_stage, "RTI_ITER": s.rti_iterations, "COLD_MAX_ITER": COLD_MAX_ITER,
-            "COLD_REG0": repr(COLD_REG0), "RTI_REG": repr(RTI_REG), "COLD_REG_MAX": repr(COLD_REG_MAX), "COLD_REG_STEP": repr(COLD_REG_STEP),
-            "COLD_ITER": s.rti_cold_iterations if c.rti_cold_start else 0,
-            "PROJECT": int(s.rti_hessian == "projected"), "HESS_FLOOR": repr(RTI_HESSIAN_FLOOR),
-            "PD_MAXN": max(pr.nx + pr.nu, 1), "QP_MAX_ITER": QP_MAX_ITER, "QP_TOL": repr(QP_TOL),
-            "TOL": repr(float(s.tol)), "PLAN_TOL": repr(float(_plan_tolerance())), "DT": repr(float(s.dt)),
-            "X_SCALE": _c_array(c.x_scale), "U_SCALE": _c_array(c.u_scale), "OWN0": _c_array(c.layout.x_own0),
-            "W_EXTRA": _c_array(c.layout.w_extra), "P_CONST": _c_array(p_const),
-            "STATE_NAMES": ", ".join(pr.state_names), "CONTROL_NAMES": ", ".join(pr.control_names)}
+    subs = {
+        "DESCRIPTION": description.replace("*/", "* /"),
+        "N": s.N,
+        "NX": pr.nx,
+        "NU": pr.nu,
+        "NZ": NZ,
+        "NW": pr.nw,
+        "NW_EXTRA": pr.nw - 2,
+        "NPP": pr.np_,
+        "NV": c.nv,
+        "NG": c.ng,
+        "NP": c.np_,
+        "NG_STAGE": c.nlp.ng_stage,
+        "RTI_ITER": s.rti_iterations,
+        "COLD_MAX_ITER": COLD_MAX_ITER,
+        "COLD_REG0": repr(COLD_REG0),
+        "RTI_REG": repr(RTI_REG),
+        "COLD_REG_MAX": repr(COLD_REG_MAX),
+        "COLD_REG_STEP": repr(COLD_REG_STEP),
+        "COLD_ITER": s.rti_cold_iterations if c.rti_cold_start else 0,
+        "PROJECT": int(s.rti_hessian == "projected"),
+        "HESS_FLOOR": repr(RTI_HESSIAN_FLOOR),
+        "PD_MAXN": max(pr.nx + pr.nu, 1),
+        "QP_MAX_ITER": QP_MAX_ITER,
+        "QP_TOL": repr(QP_TOL),
+        "TOL": repr(float(s.tol)),
+        "PLAN_TOL": repr(float(_plan_tolerance())),
+        "DT": repr(float(s.dt)),
+        "X_SCALE": _c_array(c.x_scale),
+        "U_SCALE": _c_array(c.u_scale),
+        "OWN0": _c_array(c.layout.x_own0),
+        "W_EXTRA": _c_array(c.layout.w_extra),
+        "P_CONST": _c_array(p_const),
+        "STATE_NAMES": ", ".join(pr.state_names),
+        "CONTROL_NAMES": ", ".join(pr.control_names),
+    }
     text = _template("mpc_config_template.h")
     for k, v in subs.items():
         text = text.replace(f"@{k}@", str(v))
@@ -284,8 +345,10 @@ def check_exportable(c: ExportableController) -> None:
     """ExportError (naming the cause) for what the exported step does not implement: terminal constraints
     (as the Python rti path; a terminal cost is fine)."""
     if c.problem.terminal is not None:
-        raise ExportError(f"problem {c.problem.name!r} has terminal constraints, which the exported step (like the "
-                          "Python 'rti' path) does not implement: make them a soft terminal cost")
+        raise ExportError(
+            f"problem {c.problem.name!r} has terminal constraints, which the exported step (like the "
+            "Python 'rti' path) does not implement: make them a soft terminal cost"
+        )
 
 
 def export_controller(c: ExportableController, out: Path, description: str) -> list[Path]:
@@ -294,16 +357,26 @@ def export_controller(c: ExportableController, out: Path, description: str) -> l
     out = Path(out)
     write_sources(c, out, description)
     defs = qp_dimension_defines(c)
-    (out / "Makefile").write_text(_template("mpc_Makefile.in").replace("@QPDIMS@", " ".join(f"-D{d}" for d in defs)),
-                                  encoding="utf-8")
-    (out / "CMakeLists.txt").write_text(_template("mpc_CMakeLists.txt.in").replace("@QPDIMS_CMAKE@", ";".join(defs)),
-                                        encoding="utf-8")
+    (out / "Makefile").write_text(
+        _template("mpc_Makefile.in").replace("@QPDIMS@", " ".join(f"-D{d}" for d in defs)), encoding="utf-8"
+    )
+    (out / "CMakeLists.txt").write_text(
+        _template("mpc_CMakeLists.txt.in").replace("@QPDIMS_CMAKE@", ";".join(defs)), encoding="utf-8"
+    )
     s, pr = c.settings, c.problem
     readme = _template("mpc_README.txt.in")
-    subs = {"DESCRIPTION": description, "N": s.N, "DT": f"{s.dt:g}", "NX": pr.nx, "NU": pr.nu,
-            "STATES": ", ".join(pr.state_names), "CONTROLS": ", ".join(pr.control_names),
-            "NV": c.nv, "NG": c.ng, "UNITS": f"length {c.ev.units.length_m:g} m, speed {c.ev.units.speed_mps:g} m/s, "
-                                             f"time {c.ev.units.time_s:g} s"}
+    subs = {
+        "DESCRIPTION": description,
+        "N": s.N,
+        "DT": f"{s.dt:g}",
+        "NX": pr.nx,
+        "NU": pr.nu,
+        "STATES": ", ".join(pr.state_names),
+        "CONTROLS": ", ".join(pr.control_names),
+        "NV": c.nv,
+        "NG": c.ng,
+        "UNITS": f"length {c.ev.units.length_m:g} m, speed {c.ev.units.speed_mps:g} m/s, time {c.ev.units.time_s:g} s",
+    }
     for k, v in subs.items():
         readme = readme.replace(f"@{k}@", str(v))
     (out / "README.txt").write_text(readme, encoding="utf-8")
@@ -319,8 +392,12 @@ def _config_qp_defines(src: Path) -> list[str]:
     val = {k: int(v) for k, v in re.findall(r"#define AEV_MPC_(NX|NU|NG_STAGE) (\d+)", text)}
     if len(val) != 3:
         raise ExportError(f"{src / 'mpc_config.h'} does not define AEV_MPC_NX, AEV_MPC_NU and AEV_MPC_NG_STAGE")
-    return [f"-DOCPQP_NX={val['NX']}", f"-DOCPQP_NU={val['NU']}", f"-DOCPQP_NC={val['NG_STAGE'] - val['NX']}",
-            "-DOCPQP_NCN=0"]
+    return [
+        f"-DOCPQP_NX={val['NX']}",
+        f"-DOCPQP_NU={val['NU']}",
+        f"-DOCPQP_NC={val['NG_STAGE'] - val['NX']}",
+        "-DOCPQP_NCN=0",
+    ]
 
 
 def build_library(src: Path, out_lib: Path, cc: str | None = None, flags: tuple[str, ...] = ("-O2",)) -> Path:
@@ -330,8 +407,19 @@ def build_library(src: Path, out_lib: Path, cc: str | None = None, flags: tuple[
     cc = cc or compiler()
     if cc is None:
         raise ExportError("no C compiler found (set $CC or install gcc/cc) to build the exported MPC")
-    cmd = [cc, *flags, *_config_qp_defines(Path(src)), "-fPIC", "-shared", "-o", str(out_lib), "mpc_casadi.c",
-           "mpc_step.c", "ocp_qp.c", "-lm"]
+    cmd = [
+        cc,
+        *flags,
+        *_config_qp_defines(Path(src)),
+        "-fPIC",
+        "-shared",
+        "-o",
+        str(out_lib),
+        "mpc_casadi.c",
+        "mpc_step.c",
+        "ocp_qp.c",
+        "-lm",
+    ]
     try:
         proc = run_tool(cmd, src, 900.0)
     except subprocess.TimeoutExpired:
@@ -345,13 +433,23 @@ def build_library(src: Path, out_lib: Path, cc: str | None = None, flags: tuple[
 class Info(ctypes.Structure):
     """aev_mpc_info of mpc_step.h."""
 
-    _fields_ = [("iterations", ctypes.c_int), ("qp_iterations", ctypes.c_int), ("qp_status", ctypes.c_int),
-                ("projected_retries", ctypes.c_int),
-                ("cold", ctypes.c_int),
-                ("step_inf", ctypes.c_double),
-                ("qp_residual", ctypes.c_double), ("cost", ctypes.c_double), ("violation", ctypes.c_double),
-                ("node0_violation", ctypes.c_double), ("t_shift", ctypes.c_double), ("t_qpdata", ctypes.c_double),
-                ("t_project", ctypes.c_double), ("t_qp", ctypes.c_double), ("t_node0", ctypes.c_double)]
+    _fields_ = [
+        ("iterations", ctypes.c_int),
+        ("qp_iterations", ctypes.c_int),
+        ("qp_status", ctypes.c_int),
+        ("projected_retries", ctypes.c_int),
+        ("cold", ctypes.c_int),
+        ("step_inf", ctypes.c_double),
+        ("qp_residual", ctypes.c_double),
+        ("cost", ctypes.c_double),
+        ("violation", ctypes.c_double),
+        ("node0_violation", ctypes.c_double),
+        ("t_shift", ctypes.c_double),
+        ("t_qpdata", ctypes.c_double),
+        ("t_project", ctypes.c_double),
+        ("t_qp", ctypes.c_double),
+        ("t_node0", ctypes.c_double),
+    ]
 
 
 _VP = ctypes.c_void_p
@@ -369,8 +467,14 @@ class CStep:
     def __init__(self, lib_path: str | Path) -> None:
         self.lib = lib = ctypes.CDLL(str(lib_path))
         lib.aev_mpc_create.restype = _VP
-        for name, n in (("aev_mpc_free", 1), ("aev_mpc_reset", 1), ("aev_mpc_set_warm", 4),
-                        ("aev_mpc_get_solution", 4), ("aev_mpc_get_info", 2), ("aev_mpc_dims", 1)):
+        for name, n in (
+            ("aev_mpc_free", 1),
+            ("aev_mpc_reset", 1),
+            ("aev_mpc_set_warm", 4),
+            ("aev_mpc_get_solution", 4),
+            ("aev_mpc_get_info", 2),
+            ("aev_mpc_dims", 1),
+        ):
             getattr(lib, name).argtypes = [_VP] * n
             getattr(lib, name).restype = None
         for name in ("aev_mpc_step", "aev_mpc_step_full"):
@@ -388,8 +492,16 @@ class CStep:
         self._status = np.zeros(1, dtype=np.intc)
         self._info = Info()
         self.x, self.lam_g, self.lam_x = np.zeros(self.nv), np.zeros(self.ng), np.zeros(self.nv)
-        self._a = {k: _addr(v) for k, v in (("u", self._u), ("status", self._status), ("x", self.x),
-                                            ("lam_g", self.lam_g), ("lam_x", self.lam_x))}
+        self._a = {
+            k: _addr(v)
+            for k, v in (
+                ("u", self._u),
+                ("status", self._status),
+                ("x", self.x),
+                ("lam_g", self.lam_g),
+                ("lam_x", self.lam_x),
+            )
+        }
         self._a["info"] = ctypes.addressof(self._info)
 
     def __del__(self) -> None:
@@ -415,8 +527,9 @@ class CStep:
             ow = np.ascontiguousarray(own, float)
             if ow.size != self.nx - self.nz:
                 raise ParameterError(f"CStep.step: own must have {self.nx - self.nz} values (the own states)")
-            self.lib.aev_mpc_step_own(self.ws, _addr(xm), _addr(ow) if ow.size else None, _addr(fc), a["u"],
-                                      a["status"])
+            self.lib.aev_mpc_step_own(
+                self.ws, _addr(xm), _addr(ow) if ow.size else None, _addr(fc), a["u"], a["status"]
+            )
         return self._u.copy(), int(self._status[0])
 
     def step_full(self, z0: np.ndarray, p: np.ndarray) -> int:
@@ -459,21 +572,29 @@ class CompiledStep:
         from ..compiled import compile_shared, compiler
 
         if compiler() is None:
-            warnings.warn("MPC codegen requested but no C compiler (gcc) was found: the rti step runs on "
-                          "interpreted CasADi functions instead of the compiled step", RuntimeWarning, stacklevel=4)
+            warnings.warn(
+                "MPC codegen requested but no C compiler (gcc) was found: the rti step runs on "
+                "interpreted CasADi functions instead of the compiled step",
+                RuntimeWarning,
+                stacklevel=4,
+            )
             return None
         with tempfile.TemporaryDirectory() as tmp:
             write_sources(c, Path(tmp), f"MPC controller {c.problem.name}")
-            files = {n: Path(tmp, n).read_text(encoding="utf-8") for n in ("mpc_config.h", "mpc_casadi.h", "mpc_step.h",
-                                                                          "mpc_step.c", "ocp_qp.h", "ocp_qp.c")}
+            files = {
+                n: Path(tmp, n).read_text(encoding="utf-8")
+                for n in ("mpc_config.h", "mpc_casadi.h", "mpc_step.h", "mpc_step.c", "ocp_qp.h", "ocp_qp.c")
+            }
             main = Path(tmp, "mpc_casadi.c").read_text(encoding="utf-8")
-        built = compile_shared(main, "mpc_step", "mpc", companions=files,
-                               extra_flags=tuple(f"-D{d}" for d in qp_dimension_defines(c)))
+        built = compile_shared(
+            main, "mpc_step", "mpc", companions=files, extra_flags=tuple(f"-D{d}" for d in qp_dimension_defines(c))
+        )
         if built.path is None:
-            warnings.warn(f"MPC codegen failed ({built.error}): the rti step runs on interpreted CasADi functions "
-                          "instead of the compiled step",
-                          RuntimeWarning, stacklevel=4)
+            warnings.warn(
+                f"MPC codegen failed ({built.error}): the rti step runs on interpreted CasADi functions "
+                "instead of the compiled step",
+                RuntimeWarning,
+                stacklevel=4,
+            )
             return None
         return CStep(built.path)
-
-

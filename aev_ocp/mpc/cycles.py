@@ -26,8 +26,12 @@ from ..truncation import equal_views
 
 #: The cycles of the section and their shipped single-follower MPC scenarios (``paper``: model guide §9's
 #: Table 1 leader, mpc_paper_single, whose own [mpc] table is replaced by the defaults below).
-CYCLE_SCENARIOS: dict[str, str] = {"udds": "mpc_udds_single", "hwfet": "mpc_hwfet_single", "us06": "mpc_us06_single",
-                                   "paper": "mpc_paper_single"}
+CYCLE_SCENARIOS: dict[str, str] = {
+    "udds": "mpc_udds_single",
+    "hwfet": "mpc_hwfet_single",
+    "us06": "mpc_us06_single",
+    "paper": "mpc_paper_single",
+}
 #: The 5-follower UDDS platoon with every follower on MPC.
 PLATOON_SCENARIO = "mpc_udds_platoon"
 #: Forecasts compared: the simplest measured one and the best non-oracle one of aev_ocp/mpc/predictors.py.
@@ -37,12 +41,35 @@ LAWS: tuple[str, ...] = ("proposed", "ovfl")
 REFERENCE = "proposed"
 
 #: Columns of a row (keys of :func:`cycle_rows`' dicts), in table order.
-COLUMNS: tuple[str, ...] = ("cycle", "vehicle", "controller", "predictor", "status", "heat_pack_J_per_km",
-                            "omega_J_per_kg_per_km", "distance_m", "duration_s", "min_gap_m", "min_ttc_s",
-                            "rms_jerk_model", "fallbacks", "solve_ms_p50", "solve_ms_p99", "forecast_rms",
-                            "distance_diff_pct", "duration_diff_pct", "comparable", "flags", "rank",
-                            "eq_distance_m", "heat_pack_J_per_km_eq_distance", "rank_eq_distance",
-                            "eq_time_s", "heat_pack_J_per_km_eq_time", "rank_eq_time")
+COLUMNS: tuple[str, ...] = (
+    "cycle",
+    "vehicle",
+    "controller",
+    "predictor",
+    "status",
+    "heat_pack_J_per_km",
+    "omega_J_per_kg_per_km",
+    "distance_m",
+    "duration_s",
+    "min_gap_m",
+    "min_ttc_s",
+    "rms_jerk_model",
+    "fallbacks",
+    "solve_ms_p50",
+    "solve_ms_p99",
+    "forecast_rms",
+    "distance_diff_pct",
+    "duration_diff_pct",
+    "comparable",
+    "flags",
+    "rank",
+    "eq_distance_m",
+    "heat_pack_J_per_km_eq_distance",
+    "rank_eq_distance",
+    "eq_time_s",
+    "heat_pack_J_per_km_eq_time",
+    "rank_eq_time",
+)
 
 
 #: A segment ends once the leader has stood still this long [s] (our choice: every follower of a 5-car
@@ -68,8 +95,7 @@ def leader_rest_end(sc: Any, t_from: float, hold_s: float = STOP_HOLD_S, step_s:
     return None
 
 
-def cycle_scenario(cycle: str, segment_s: float | None = None, platoon: bool = False,
-                   end_at_rest: bool = False) -> Any:
+def cycle_scenario(cycle: str, segment_s: float | None = None, platoon: bool = False, end_at_rest: bool = False) -> Any:
     """The shipped scenario of ``cycle`` ('udds', 'hwfet', 'us06', 'paper'; platoon: the UDDS 5-follower
     scenario), cut to its first ``segment_s`` seconds [s] (rounded up to whole MPC steps) when given and
     shorter than the scenario. ``end_at_rest``: the cut moves on to the first time after ``segment_s`` at
@@ -86,11 +112,15 @@ def cycle_scenario(cycle: str, segment_s: float | None = None, platoon: bool = F
         try:
             name = CYCLE_SCENARIOS[cycle]
         except KeyError:
-            raise ParameterError(f"cycle = {cycle!r} is not allowed: must be one of {sorted(CYCLE_SCENARIOS)}") from None
+            raise ParameterError(
+                f"cycle = {cycle!r} is not allowed: must be one of {sorted(CYCLE_SCENARIOS)}"
+            ) from None
     sc = load_scenario(find_scenario(name))
     if segment_s is not None:
         if not (isinstance(segment_s, (int, float)) and math.isfinite(segment_s) and segment_s > 0):
-            raise ParameterError(f"cycle_scenario: segment_s = {segment_s!r} is not allowed: must be a number of seconds > 0")
+            raise ParameterError(
+                f"cycle_scenario: segment_s = {segment_s!r} is not allowed: must be a number of seconds > 0"
+            )
         t_seg = sc.units.time_from_si(float(segment_s))
         if end_at_rest:
             t_rest = leader_rest_end(sc, t_seg)
@@ -103,9 +133,13 @@ def cycle_scenario(cycle: str, segment_s: float | None = None, platoon: bool = F
     return sc
 
 
-def run_cycle(sc: Any, predictors: Iterable[str] = PREDICTORS, laws: Iterable[str] = LAWS,
-              settings: Any = None, log: Callable[[str], None] | None = None
-              ) -> tuple[dict[tuple[str, str | None], SimulationResult], dict[str, float]]:
+def run_cycle(
+    sc: Any,
+    predictors: Iterable[str] = PREDICTORS,
+    laws: Iterable[str] = LAWS,
+    settings: Any = None,
+    log: Callable[[str], None] | None = None,
+) -> tuple[dict[tuple[str, str | None], SimulationResult], dict[str, float]]:
     """Run scenario ``sc`` with every MPC follower on ``settings`` (default: MPCSettings(), the project's
     default formulation) under each forecast in ``predictors``, and the whole platoon on each law of
     ``laws`` (same leader and start). Returns ({(controller, predictor): result}, wall time per run [s]);
@@ -124,7 +158,7 @@ def run_cycle(sc: Any, predictors: Iterable[str] = PREDICTORS, laws: Iterable[st
         c = run_comparison(sc, s, laws=laws if k == 0 else (), with_ocpd=False, log=log)
         runs[("mpc", p)] = c.results["mpc"]
         wall[f"mpc/{p}"] = c.timings_s.get("mpc", math.nan)
-        for name in (laws if k == 0 else ()):
+        for name in laws if k == 0 else ():
             runs[(name, None)] = c.results[name]
             wall[name] = c.timings_s.get(name, math.nan)
     return runs, wall
@@ -140,8 +174,12 @@ def _solve_percentiles(r: SimulationResult, i: int) -> tuple[float, float]:
     return float(np.percentile(ms, 50)), float(np.percentile(ms, 99))
 
 
-def cycle_rows(cycle: str, runs: Mapping[tuple[str, str | None], SimulationResult],
-               reference: str = REFERENCE, vehicles: Iterable[int] | None = None) -> list[dict[str, Any]]:
+def cycle_rows(
+    cycle: str,
+    runs: Mapping[tuple[str, str | None], SimulationResult],
+    reference: str = REFERENCE,
+    vehicles: Iterable[int] | None = None,
+) -> list[dict[str, Any]]:
     """One row per run and follower (0-based ``vehicles``, default all) with the columns of
     :data:`COLUMNS`; comparability (distance or duration > 1 % apart, or a run ended by an event) is
     judged against the same follower under the ``reference`` law (flagged 'no reference' if absent);
@@ -152,36 +190,61 @@ def cycle_rows(cycle: str, runs: Mapping[tuple[str, str | None], SimulationResul
     rows = []
     first = next(iter(runs.values()), None)
     n = first.n_vehicles if first is not None else 0
-    views = {i: equal_views(runs, i)
-             for i in (range(n) if vehicles is None else vehicles)}
+    views = {i: equal_views(runs, i) for i in (range(n) if vehicles is None else vehicles)}
     for (ctrl, pred), r in runs.items():
         ms = r.metrics()
-        for i in (range(r.n_vehicles) if vehicles is None else vehicles):
+        for i in range(r.n_vehicles) if vehicles is None else vehicles:
             eq = {}
             for view, cut, unit in (("distance", "cut_m", "eq_distance_m"), ("time", "cut_s", "eq_time_s")):
                 vr = views[i][view]["runs"].get((ctrl, pred)) or {}
-                eq.update({unit: views[i][view][cut], f"heat_pack_J_per_km_eq_{view}": vr.get("heat_pack_J_per_km", math.nan),
-                           f"rank_eq_{view}": vr.get("rank")})
+                eq.update(
+                    {
+                        unit: views[i][view][cut],
+                        f"heat_pack_J_per_km_eq_{view}": vr.get("heat_pack_J_per_km", math.nan),
+                        f"rank_eq_{view}": vr.get("rank"),
+                    }
+                )
             m = ms[i]
             ref = ref_run.metrics()[i] if ref_run is not None else None
             c = comparability(m, ref)
-            flags = [f for f, on in (("event: " + str(m.get("run_status")), c["flag_event"]),
-                                     ("distance", c["flag_distance"]), ("duration", c["flag_duration"])) if on]
+            flags = [
+                f
+                for f, on in (
+                    ("event: " + str(m.get("run_status")), c["flag_event"]),
+                    ("distance", c["flag_distance"]),
+                    ("duration", c["flag_duration"]),
+                )
+                if on
+            ]
             if ref is None:
                 flags.append("no reference")
             p50, p99 = _solve_percentiles(r, i)
-            rows.append({
-                "cycle": cycle, "vehicle": i + 1, "controller": ctrl, "predictor": pred or "—",
-                "status": m.get("run_status", "ok"),
-                "heat_pack_J_per_km": m["heat_pack_J_per_km"], "omega_J_per_kg_per_km": m["omega_J_per_kg_per_km"],
-                "distance_m": m["distance_m"], "duration_s": m["duration_s"], "min_gap_m": m["min_gap_m"],
-                "min_ttc_s": m["min_ttc_s"], "rms_jerk_model": m["rms_jerk_model"],
-                "fallbacks": m.get("fallbacks") if ctrl == "mpc" else None,
-                "solve_ms_p50": p50, "solve_ms_p99": p99,
-                "forecast_rms": m.get("forecast_rms", math.nan) if ctrl == "mpc" else math.nan,
-                "distance_diff_pct": c["distance_diff_pct"], "duration_diff_pct": c["duration_diff_pct"],
-                "comparable": bool(c["comparable"]) and ref is not None, "flags": ", ".join(flags), "rank": None,
-                **eq})
+            rows.append(
+                {
+                    "cycle": cycle,
+                    "vehicle": i + 1,
+                    "controller": ctrl,
+                    "predictor": pred or "—",
+                    "status": m.get("run_status", "ok"),
+                    "heat_pack_J_per_km": m["heat_pack_J_per_km"],
+                    "omega_J_per_kg_per_km": m["omega_J_per_kg_per_km"],
+                    "distance_m": m["distance_m"],
+                    "duration_s": m["duration_s"],
+                    "min_gap_m": m["min_gap_m"],
+                    "min_ttc_s": m["min_ttc_s"],
+                    "rms_jerk_model": m["rms_jerk_model"],
+                    "fallbacks": m.get("fallbacks") if ctrl == "mpc" else None,
+                    "solve_ms_p50": p50,
+                    "solve_ms_p99": p99,
+                    "forecast_rms": m.get("forecast_rms", math.nan) if ctrl == "mpc" else math.nan,
+                    "distance_diff_pct": c["distance_diff_pct"],
+                    "duration_diff_pct": c["duration_diff_pct"],
+                    "comparable": bool(c["comparable"]) and ref is not None,
+                    "flags": ", ".join(flags),
+                    "rank": None,
+                    **eq,
+                }
+            )
     return rows
 
 
@@ -199,20 +262,30 @@ def rank_rows(rows: list[dict[str, Any]], key: str = "heat_pack_J_per_km") -> li
     return rows
 
 
-def platoon_rows(runs: Mapping[tuple[str, str | None], SimulationResult], mpc_key: tuple[str, str | None],
-                 reference: str = REFERENCE) -> list[dict[str, Any]]:
+def platoon_rows(
+    runs: Mapping[tuple[str, str | None], SimulationResult], mpc_key: tuple[str, str | None], reference: str = REFERENCE
+) -> list[dict[str, Any]]:
     """Per follower of a platoon: pack ∫Q [J] and per km under the MPC run ``mpc_key`` and under the
     ``reference`` law, the MPC's change [%] and whether the two are comparable (ranked otherwise never)."""
     mpc, ref = runs[mpc_key], runs[(reference, None)]
     out = []
     for m, q in zip(mpc.metrics(), ref.metrics()):
         c = comparability(m, q)
-        out.append({"vehicle": m["vehicle"], "heat_pack_J_mpc": m["heat_pack_J"], "heat_pack_J_ref": q["heat_pack_J"],
-                    "heat_pack_J_per_km_mpc": m["heat_pack_J_per_km"], "heat_pack_J_per_km_ref": q["heat_pack_J_per_km"],
-                    "change_pct": 100.0 * (m["heat_pack_J_per_km"] / q["heat_pack_J_per_km"] - 1.0)
-                    if q["heat_pack_J_per_km"] else math.nan,
-                    "fallbacks": m.get("fallbacks"), "min_gap_m": m["min_gap_m"],
-                    "distance_diff_pct": c["distance_diff_pct"],
-                    "comparable": bool(c["comparable"]), "status": m.get("run_status", "ok")})
+        out.append(
+            {
+                "vehicle": m["vehicle"],
+                "heat_pack_J_mpc": m["heat_pack_J"],
+                "heat_pack_J_ref": q["heat_pack_J"],
+                "heat_pack_J_per_km_mpc": m["heat_pack_J_per_km"],
+                "heat_pack_J_per_km_ref": q["heat_pack_J_per_km"],
+                "change_pct": 100.0 * (m["heat_pack_J_per_km"] / q["heat_pack_J_per_km"] - 1.0)
+                if q["heat_pack_J_per_km"]
+                else math.nan,
+                "fallbacks": m.get("fallbacks"),
+                "min_gap_m": m["min_gap_m"],
+                "distance_diff_pct": c["distance_diff_pct"],
+                "comparable": bool(c["comparable"]),
+                "status": m.get("run_status", "ok"),
+            }
+        )
     return out
-

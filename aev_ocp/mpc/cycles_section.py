@@ -12,8 +12,18 @@ from typing import Any, Callable, Sequence
 
 from ..report import csv_text, fmt, markdown_table, write_text
 from ..results import write_json
-from .cycles import (COLUMNS, CYCLE_SCENARIOS, PREDICTORS, REFERENCE, STOP_HOLD_S, cycle_rows, cycle_scenario, platoon_rows,
-                     rank_rows, run_cycle)
+from .cycles import (
+    COLUMNS,
+    CYCLE_SCENARIOS,
+    PREDICTORS,
+    REFERENCE,
+    STOP_HOLD_S,
+    cycle_rows,
+    cycle_scenario,
+    platoon_rows,
+    rank_rows,
+    run_cycle,
+)
 
 #: Segment of each cycle run in ``reproduce`` [s]: the first 120 s, extended to the leader's first
 #: 20-s stop after it (cycles.STOP_HOLD_S: UDDS 145 s; HWFET and US06 have no such stop: whole, 765 s and
@@ -62,43 +72,103 @@ def _cell(key: str, v: Any) -> str:
 
 #: Markdown headers of the main table (units in brackets).
 HEADERS: dict[str, str] = {
-    "cycle": "cycle", "vehicle": "follower", "controller": "controller", "predictor": "forecast", "status": "run",
-    "heat_pack_J_per_km": "pack ∫Q [J/km]", "omega_J_per_kg_per_km": "ω [J/kg/km]", "distance_m": "distance [m]",
-    "duration_s": "duration [s]", "min_gap_m": "min gap [m]", "min_ttc_s": "min TTC [s]",
-    "rms_jerk_model": "RMS jerk [model]", "fallbacks": "fallbacks", "solve_ms_p50": "solve p50 [ms]",
-    "solve_ms_p99": "solve p99 [ms]", "forecast_rms": "forecast RMS [model]", "distance_diff_pct": "Δdistance [%]",
-    "duration_diff_pct": "Δduration [%]", "comparable": "comparable", "flags": "flags", "rank": "rank (∫Q/km)",
-    "eq_distance_m": "equal distance [m]", "heat_pack_J_per_km_eq_distance": "∫Q/km to equal distance [J/km]",
-    "rank_eq_distance": "rank (equal distance)", "eq_time_s": "equal time [s]",
-    "heat_pack_J_per_km_eq_time": "∫Q/km to equal time [J/km]", "rank_eq_time": "rank (equal time)"}
+    "cycle": "cycle",
+    "vehicle": "follower",
+    "controller": "controller",
+    "predictor": "forecast",
+    "status": "run",
+    "heat_pack_J_per_km": "pack ∫Q [J/km]",
+    "omega_J_per_kg_per_km": "ω [J/kg/km]",
+    "distance_m": "distance [m]",
+    "duration_s": "duration [s]",
+    "min_gap_m": "min gap [m]",
+    "min_ttc_s": "min TTC [s]",
+    "rms_jerk_model": "RMS jerk [model]",
+    "fallbacks": "fallbacks",
+    "solve_ms_p50": "solve p50 [ms]",
+    "solve_ms_p99": "solve p99 [ms]",
+    "forecast_rms": "forecast RMS [model]",
+    "distance_diff_pct": "Δdistance [%]",
+    "duration_diff_pct": "Δduration [%]",
+    "comparable": "comparable",
+    "flags": "flags",
+    "rank": "rank (∫Q/km)",
+    "eq_distance_m": "equal distance [m]",
+    "heat_pack_J_per_km_eq_distance": "∫Q/km to equal distance [J/km]",
+    "rank_eq_distance": "rank (equal distance)",
+    "eq_time_s": "equal time [s]",
+    "heat_pack_J_per_km_eq_time": "∫Q/km to equal time [J/km]",
+    "rank_eq_time": "rank (equal time)",
+}
 #: Columns of the Markdown table (the CSV/JSON have all of :data:`COLUMNS`).
-MD_COLUMNS: tuple[str, ...] = ("cycle", "controller", "predictor", "heat_pack_J_per_km", "omega_J_per_kg_per_km",
-                               "distance_m", "min_gap_m", "min_ttc_s", "rms_jerk_model", "fallbacks", "solve_ms_p50",
-                               "solve_ms_p99", "forecast_rms", "comparable", "flags", "rank",
-                               "heat_pack_J_per_km_eq_distance", "rank_eq_distance", "heat_pack_J_per_km_eq_time",
-                               "rank_eq_time")
+MD_COLUMNS: tuple[str, ...] = (
+    "cycle",
+    "controller",
+    "predictor",
+    "heat_pack_J_per_km",
+    "omega_J_per_kg_per_km",
+    "distance_m",
+    "min_gap_m",
+    "min_ttc_s",
+    "rms_jerk_model",
+    "fallbacks",
+    "solve_ms_p50",
+    "solve_ms_p99",
+    "forecast_rms",
+    "comparable",
+    "flags",
+    "rank",
+    "heat_pack_J_per_km_eq_distance",
+    "rank_eq_distance",
+    "heat_pack_J_per_km_eq_time",
+    "rank_eq_time",
+)
 
 
-def write_tables(rows: Sequence[dict[str, Any]], platoon: Sequence[dict[str, Any]], out: Path,
-                 meta: dict[str, Any]) -> tuple[str, list[Path]]:
+def write_tables(
+    rows: Sequence[dict[str, Any]], platoon: Sequence[dict[str, Any]], out: Path, meta: dict[str, Any]
+) -> tuple[str, list[Path]]:
     """cycles.csv, cycles.json (rows, platoon rows, meta) and cycles.md into ``out``; returns the Markdown
     table of ``rows`` and the files."""
     out.mkdir(parents=True, exist_ok=True)
     md = markdown_table([HEADERS[k] for k in MD_COLUMNS], [[_cell(k, r[k]) for k in MD_COLUMNS] for r in rows])
-    files = [write_text(out / "cycles.csv", csv_text(list(COLUMNS), [[r[k] for k in COLUMNS] for r in rows])),
-             write_json(out / "cycles.json", {"rows": list(rows), "platoon": list(platoon), "meta": meta}),
-             write_text(out / "cycles.md", md)]
+    files = [
+        write_text(out / "cycles.csv", csv_text(list(COLUMNS), [[r[k] for k in COLUMNS] for r in rows])),
+        write_json(out / "cycles.json", {"rows": list(rows), "platoon": list(platoon), "meta": meta}),
+        write_text(out / "cycles.md", md),
+    ]
     return md, files
 
 
 def platoon_markdown(rows: Sequence[dict[str, Any]]) -> str:
     """Per-follower pack ∫Q of the MPC platoon vs the proposed law."""
-    head = ["follower", "pack ∫Q MPC [J]", "pack ∫Q proposed [J]", "MPC [J/km]", "proposed [J/km]", "change [%]",
-            "fallbacks", "min gap MPC [m]", "distance vs proposed [%]", "comparable"]
-    body = [[str(r["vehicle"]), fmt(r["heat_pack_J_mpc"]), fmt(r["heat_pack_J_ref"]), fmt(r["heat_pack_J_per_km_mpc"]),
-             fmt(r["heat_pack_J_per_km_ref"]), (f"{r['change_pct']:+.2f}" if r["comparable"] else "not ranked"),
-             fmt(r["fallbacks"]), fmt(r["min_gap_m"]), f"{r['distance_diff_pct']:+.2f}",
-             _cell("comparable", r["comparable"])] for r in rows]
+    head = [
+        "follower",
+        "pack ∫Q MPC [J]",
+        "pack ∫Q proposed [J]",
+        "MPC [J/km]",
+        "proposed [J/km]",
+        "change [%]",
+        "fallbacks",
+        "min gap MPC [m]",
+        "distance vs proposed [%]",
+        "comparable",
+    ]
+    body = [
+        [
+            str(r["vehicle"]),
+            fmt(r["heat_pack_J_mpc"]),
+            fmt(r["heat_pack_J_ref"]),
+            fmt(r["heat_pack_J_per_km_mpc"]),
+            fmt(r["heat_pack_J_per_km_ref"]),
+            (f"{r['change_pct']:+.2f}" if r["comparable"] else "not ranked"),
+            fmt(r["fallbacks"]),
+            fmt(r["min_gap_m"]),
+            f"{r['distance_diff_pct']:+.2f}",
+            _cell("comparable", r["comparable"]),
+        ]
+        for r in rows
+    ]
     return markdown_table(head, body)
 
 
@@ -119,13 +189,22 @@ def verdicts(rows: Sequence[dict[str, Any]]) -> list[str]:
             else:
                 d = 100.0 * (r["heat_pack_J_per_km"] / ref["heat_pack_J_per_km"] - 1.0)
                 parts.append(f"MPC/{r['predictor']} {d:+.1f} % pack ∫Q/km vs the proposed law")
-        name = (lambda r: "MPC" if r["controller"] == "mpc" else r["controller"])  # noqa: E731
-        lead = (f"lowest pack ∫Q/km among comparable runs: {name(best[0])}"
-                + (f"/{best[0]['predictor']}" if best[0]["predictor"] != "—" else "")) if best else "no comparable run"
+        name = lambda r: "MPC" if r["controller"] == "mpc" else r["controller"]  # noqa: E731
+        lead = (
+            (
+                f"lowest pack ∫Q/km among comparable runs: {name(best[0])}"
+                + (f"/{best[0]['predictor']}" if best[0]["predictor"] != "—" else "")
+            )
+            if best
+            else "no comparable run"
+        )
         eq = [r for r in rs if r.get("rank_eq_distance") == 1]
-        eq_line = (f" Equal distance (every run up to {rs[0]['eq_distance_m']:.6g} m): lowest pack ∫Q/km "
-                   f"{name(eq[0])}" + (f"/{eq[0]['predictor']}" if eq[0]["predictor"] != "—" else "") + "."
-                   if eq and math.isfinite(float(rs[0].get("eq_distance_m", math.nan))) else "")
+        eq_line = (
+            f" Equal distance (every run up to {rs[0]['eq_distance_m']:.6g} m): lowest pack ∫Q/km "
+            f"{name(eq[0])}" + (f"/{eq[0]['predictor']}" if eq[0]["predictor"] != "—" else "") + "."
+            if eq and math.isfinite(float(rs[0].get("eq_distance_m", math.nan)))
+            else ""
+        )
         lines.append(f"- **{cyc}**: {lead}; " + "; ".join(parts) + "." + eq_line)
     return lines
 
@@ -144,10 +223,16 @@ def _save_cycle(runs: dict[tuple[str, Any], Any], folder: Path, sc: Any, title: 
     return f"![{title}]({rel})"
 
 
-def cycles_section(out_dir: Any, progress: Callable[[str], None], segment_s: float | None = SEGMENT_S,
-                   platoon_segment_s: float | None = PLATOON_SEGMENT_S,
-                   cycles: Sequence[str] = tuple(CYCLE_SCENARIOS), predictors: Sequence[str] = PREDICTORS,
-                   settings: Any = None, t_end_max: float | None = None) -> str:
+def cycles_section(
+    out_dir: Any,
+    progress: Callable[[str], None],
+    segment_s: float | None = SEGMENT_S,
+    platoon_segment_s: float | None = PLATOON_SEGMENT_S,
+    cycles: Sequence[str] = tuple(CYCLE_SCENARIOS),
+    predictors: Sequence[str] = PREDICTORS,
+    settings: Any = None,
+    t_end_max: float | None = None,
+) -> str:
     """The section: runs, tables (``out_dir``/mpc_cycles/cycles.{csv,json,md}) and Markdown text.
     segment_s / platoon_segment_s: first seconds of each cycle / of the platoon run (None: whole);
     t_end_max: a further cap on every run's horizon [model time] (reduced reproduce configurations)."""
@@ -169,49 +254,79 @@ def cycles_section(out_dir: Any, progress: Callable[[str], None], segment_s: flo
     sc = _capped(cycle_scenario("udds", platoon_segment_s, platoon=True, end_at_rest=True), t_end_max)
     seg_model["udds_platoon"] = sc.t_end
     pred = sc.extra["mpc"].settings.predictor
-    runs, wall["udds_platoon"] = run_cycle(sc, (pred,), laws=(REFERENCE,), settings=s,
-                                           log=_prefixed(progress, "MPC cycles, UDDS platoon: "))
+    runs, wall["udds_platoon"] = run_cycle(
+        sc, (pred,), laws=(REFERENCE,), settings=s, log=_prefixed(progress, "MPC cycles, UDDS platoon: ")
+    )
     figures.append(_save_cycle(runs, out / "udds_platoon", sc, "UDDS platoon, follower 1"))
     plat = platoon_rows(runs, ("mpc", pred))
     elapsed = time.perf_counter() - t0
     progress("MPC cycles: writing tables")
-    seg_txt = ("whole cycles" if segment_s is None else
-               f"the first {segment_s:g} s of each cycle, extended to the first moment the leader has stood still "
-               f"for {STOP_HOLD_S:g} s (or to the cycle's end) so that every run ends at rest: "
-               + ", ".join(f"{c} {t:.0f} s" for c, t in seg_s.items()))
+    seg_txt = (
+        "whole cycles"
+        if segment_s is None
+        else f"the first {segment_s:g} s of each cycle, extended to the first moment the leader has stood still "
+        f"for {STOP_HOLD_S:g} s (or to the cycle's end) so that every run ends at rest: "
+        + ", ".join(f"{c} {t:.0f} s" for c, t in seg_s.items())
+    )
     if t_end_max is not None:
         seg_txt += f", capped at t = {t_end_max:g} model time units (reduced configuration)"
-    meta = {"segment_s": segment_s, "platoon_segment_s": platoon_segment_s, "t_end_model": seg_model,
-            "settings": dataclasses.asdict(s), "wall_time_s": wall,
-            "section_wall_time_s": elapsed, "platoon_predictor": pred}
+    meta = {
+        "segment_s": segment_s,
+        "platoon_segment_s": platoon_segment_s,
+        "t_end_model": seg_model,
+        "settings": dataclasses.asdict(s),
+        "wall_time_s": wall,
+        "section_wall_time_s": elapsed,
+        "platoon_predictor": pred,
+    }
     md, _ = write_tables(rows, plat, out, meta)
     n_bad = sum(not r["comparable"] for r in rows)
-    lines = ["## MPC on drive cycles", "",
-             f"One follower from rest, 0.8 L behind the leader (scenarios {', '.join(CYCLE_SCENARIOS[c] for c in cycles)}), "
-             f"over {seg_txt} (reproduce runs a segment to stay usable: the section took {elapsed:.0f} s here; the whole "
-             "cycles run with `aev-ocp mpc mpc_udds_single` etc. and benchmarks/bench_mpc_cycles.py). MPC: the "
-             f"MPCSettings() default formulation on the solver path {s.solver}"
-             f"{'+codegen' if s.codegen else ''} (qp {s.qp}), N = {s.N}, dt = {s.dt:g}, with a measured forecast "
-             f"({', '.join(predictors)}; no oracle); the laws do not forecast (—). Exact plant (CVODES). "
-             "Per-km values divide by the follower's own distance. Solve p50/p99: per-step MPC solve time.", "",
-             f"**Comparable results.** A row whose distance or duration differs from the proposed law's by more than "
-             f"1 % or whose run ended by an event is marked **no** with the reason and is not ranked nor used in a "
-             f"verdict ({n_bad} such rows here). Rank: pack ∫Q/km among the comparable rows of the cycle.", "",
-             md, "Verdicts (comparable rows only):", ""] + verdicts(rows) + ["",
-             f"UDDS platoon (mpc_udds_platoon, first {sc.t_end * sc.units.time_s:.4g} s): five followers all on MPC (follower 1 "
-             f"{pred}, the others their predecessor's plan) vs all five on the proposed law, per follower:", "",
-             platoon_markdown(plat)]
+    lines = (
+        [
+            "## MPC on drive cycles",
+            "",
+            f"One follower from rest, 0.8 L behind the leader (scenarios {', '.join(CYCLE_SCENARIOS[c] for c in cycles)}), "
+            f"over {seg_txt} (reproduce runs a segment to stay usable: the section took {elapsed:.0f} s here; the whole "
+            "cycles run with `aev-ocp mpc mpc_udds_single` etc. and benchmarks/bench_mpc_cycles.py). MPC: the "
+            f"MPCSettings() default formulation on the solver path {s.solver}"
+            f"{'+codegen' if s.codegen else ''} (qp {s.qp}), N = {s.N}, dt = {s.dt:g}, with a measured forecast "
+            f"({', '.join(predictors)}; no oracle); the laws do not forecast (—). Exact plant (CVODES). "
+            "Per-km values divide by the follower's own distance. Solve p50/p99: per-step MPC solve time.",
+            "",
+            f"**Comparable results.** A row whose distance or duration differs from the proposed law's by more than "
+            f"1 % or whose run ended by an event is marked **no** with the reason and is not ranked nor used in a "
+            f"verdict ({n_bad} such rows here). Rank: pack ∫Q/km among the comparable rows of the cycle.",
+            "",
+            md,
+            "Verdicts (comparable rows only):",
+            "",
+        ]
+        + verdicts(rows)
+        + [
+            "",
+            f"UDDS platoon (mpc_udds_platoon, first {sc.t_end * sc.units.time_s:.4g} s): five followers all on MPC (follower 1 "
+            f"{pred}, the others their predecessor's plan) vs all five on the proposed law, per follower:",
+            "",
+            platoon_markdown(plat),
+        ]
+    )
     if not all(r["comparable"] for r in plat):
-        lines += ["A follower marked **no** ends the segment with a distance more than 1 % off its proposed-law "
-                  "counterpart's (column 'distance vs proposed'): the MPC followers stop with their standstill gaps (2 m floor, 4 m target, "
-                  "aev_ocp/ocp/traffic.py) while the laws creep towards h = V⁻¹(0) = 0, and the difference adds up "
-                  "along the platoon. Over the whole cycle it is a small fraction of the distance: "
-                  "`python benchmarks/bench_mpc_cycles.py --full --cycles udds --platoon`.", ""]
+        lines += [
+            "A follower marked **no** ends the segment with a distance more than 1 % off its proposed-law "
+            "counterpart's (column 'distance vs proposed'): the MPC followers stop with their standstill gaps (2 m floor, 4 m target, "
+            "aev_ocp/ocp/traffic.py) while the laws creep towards h = V⁻¹(0) = 0, and the difference adds up "
+            "along the platoon. Over the whole cycle it is a small fraction of the distance: "
+            "`python benchmarks/bench_mpc_cycles.py --full --cycles udds --platoon`.",
+            "",
+        ]
     lines += ["Gap, speed, acceleration, current and SOC of follower 1 under every controller, per cycle:", ""]
     lines += [f + "\n" for f in figures]
-    lines += ["Files: `mpc_cycles/cycles.csv`, `mpc_cycles/cycles.json` (every column, the platoon rows, run wall "
-             "times), `mpc_cycles/cycles.md`; each cycle's runs load back with `aev_ocp.load_all(\"mpc_cycles/<cycle>\")` "
-             "(run labels `mpc+<forecast>` and the laws' names).", ""]
+    lines += [
+        "Files: `mpc_cycles/cycles.csv`, `mpc_cycles/cycles.json` (every column, the platoon rows, run wall "
+        'times), `mpc_cycles/cycles.md`; each cycle\'s runs load back with `aev_ocp.load_all("mpc_cycles/<cycle>")` '
+        "(run labels `mpc+<forecast>` and the laws' names).",
+        "",
+    ]
     return "\n".join(lines)
 
 

@@ -6,22 +6,74 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from .cstep import (COLD_MAX_ITER, COLD_REG0, COLD_REG_MAX, COLD_REG_STEP, EXPORT_FILES, QP_MAX_ITER, QP_TOL, RTI_REG,
-                    STATUS, TEMPLATES, CompiledStep, CStep, ExportableController, ExportError, Info, build_library,
-                    check_exportable, config_header, export_controller, generate_casadi, qp_data_function,
-                    qp_dimension_defines, rti_functions, write_sources)
+from .cstep import (
+    COLD_MAX_ITER,
+    COLD_REG0,
+    COLD_REG_MAX,
+    COLD_REG_STEP,
+    EXPORT_FILES,
+    QP_MAX_ITER,
+    QP_TOL,
+    RTI_REG,
+    STATUS,
+    TEMPLATES,
+    CompiledStep,
+    CStep,
+    ExportableController,
+    ExportError,
+    Info,
+    build_library,
+    check_exportable,
+    config_header,
+    export_controller,
+    generate_casadi,
+    qp_data_function,
+    qp_dimension_defines,
+    rti_functions,
+    write_sources,
+)
 from .controller import MPCController, resolve_formulation
 
-__all__ = ["COLD_MAX_ITER", "COLD_REG0", "COLD_REG_MAX", "COLD_REG_STEP", "EXPORT_FILES", "QP_MAX_ITER", "QP_TOL",
-           "RTI_REG", "STATUS", "TEMPLATES", "CompiledStep", "CStep", "ExportableController", "ExportError", "Info",
-           "build_library", "check_exportable", "config_header", "export_controller", "generate_casadi",
-           "qp_data_function", "qp_dimension_defines", "rti_functions", "write_sources",
-           "export_controller_settings", "export_mpc", "build_parser", "cli_mpc_export"]
+__all__ = [
+    "COLD_MAX_ITER",
+    "COLD_REG0",
+    "COLD_REG_MAX",
+    "COLD_REG_STEP",
+    "EXPORT_FILES",
+    "QP_MAX_ITER",
+    "QP_TOL",
+    "RTI_REG",
+    "STATUS",
+    "TEMPLATES",
+    "CompiledStep",
+    "CStep",
+    "ExportableController",
+    "ExportError",
+    "Info",
+    "build_library",
+    "check_exportable",
+    "config_header",
+    "export_controller",
+    "generate_casadi",
+    "qp_data_function",
+    "qp_dimension_defines",
+    "rti_functions",
+    "write_sources",
+    "export_controller_settings",
+    "export_mpc",
+    "build_parser",
+    "cli_mpc_export",
+]
 
 
-def export_controller_settings(settings: Any, ev: Any = None, problem: Any = None,
-                               parameter_values: dict[str, float] | None = None,
-                               initial_values: dict[str, float] | None = None, formulation: Any = None) -> "MPCController":
+def export_controller_settings(
+    settings: Any,
+    ev: Any = None,
+    problem: Any = None,
+    parameter_values: dict[str, float] | None = None,
+    initial_values: dict[str, float] | None = None,
+    formulation: Any = None,
+) -> "MPCController":
     """A controller built only for the export (cold IPOPT path, no codegen: nothing is compiled); a built-in
     formulation's problem is built as the rti path builds it (the OCV as comparisons, models/battery.py), and
     the controller keeps the formulation (its cold start: the exported step's COLD_ITER)."""
@@ -46,8 +98,10 @@ def export_mpc(scenario: Any, out: Path, settings: Any = None, formulation: Any 
     f = formulation or cfg.formulation
     c = export_controller_settings(s, scenario.ev, formulation=f)
     what = f"§9, objective {f.objective}" if f.kind == "s9" else f"the {f.name} formulation"
-    desc = (f"MPC of scenario {scenario.name} (N = {s.N}, dt = {s.dt:g}, {what}, rk4_substeps {s.rk4_substeps}, "
-            f"rti_iterations {s.rti_iterations}, Hessian {s.rti_hessian})")
+    desc = (
+        f"MPC of scenario {scenario.name} (N = {s.N}, dt = {s.dt:g}, {what}, rk4_substeps {s.rk4_substeps}, "
+        f"rti_iterations {s.rti_iterations}, Hessian {s.rti_hessian})"
+    )
     return export_controller(c, out, desc)
 
 
@@ -56,17 +110,27 @@ def build_parser() -> Any:
     """Argument parser of ``aev-ocp mpc-export``."""
     from ..console import OneLineParser
 
-    p = OneLineParser(prog="aev-ocp mpc-export",
-                      description="Export the MPC step of a scenario's [mpc] table as a self-contained C library "
-                                  "(sources, header mpc_step.h, Makefile, CMakeLists.txt, README.txt; no Python or "
-                                  "CasADi at run time). The exported step is the real-time iteration with aev_ocp's "
-                                  "Riccati interior-point QP solver (ocp_qp.c), whatever the scenario's solver.")
+    p = OneLineParser(
+        prog="aev-ocp mpc-export",
+        description="Export the MPC step of a scenario's [mpc] table as a self-contained C library "
+        "(sources, header mpc_step.h, Makefile, CMakeLists.txt, README.txt; no Python or "
+        "CasADi at run time). The exported step is the real-time iteration with aev_ocp's "
+        "Riccati interior-point QP solver (ocp_qp.c), whatever the scenario's solver.",
+    )
     p.add_argument("scenario", help="scenario TOML file or shipped scenario name (e.g. mpc_paper_single)")
     p.add_argument("--out", required=True, help="output folder of the C sources (created; files replaced)")
-    p.add_argument("--set", action="append", default=None, metavar="KEY=VALUE",
-                   help="override a scenario value, e.g. --set mpc.N=100 (repeatable)")
-    p.add_argument("--build", action="store_true",
-                   help="also compile the library with the system C compiler ($CC, gcc or cc) into OUT/libaev_mpc.so")
+    p.add_argument(
+        "--set",
+        action="append",
+        default=None,
+        metavar="KEY=VALUE",
+        help="override a scenario value, e.g. --set mpc.N=100 (repeatable)",
+    )
+    p.add_argument(
+        "--build",
+        action="store_true",
+        help="also compile the library with the system C compiler ($CC, gcc or cc) into OUT/libaev_mpc.so",
+    )
     return p
 
 
@@ -115,5 +179,6 @@ def _check_export(sc: Any, out: Path) -> None:
             check_mpc_size(N, 1)
         except ParameterError as exc:
             raise ParameterError(f"mpc-export: mpc.N = {N} (--set mpc.N or [mpc] N): {exc}") from None
-    claim_output_dir(out, "mpc-export", sc.name, str(sc.source) if sc.source else None,
-                     [*EXPORT_FILES, "libaev_mpc.so"])
+    claim_output_dir(
+        out, "mpc-export", sc.name, str(sc.source) if sc.source else None, [*EXPORT_FILES, "libaev_mpc.so"]
+    )

@@ -10,11 +10,23 @@ import numpy as np
 from .solution import MPCSolution
 
 
-def failed_solution(status: str, iters: int, dt_wall: float, viol: float, path: str, nx: int, nu: int,
-                    N: int) -> MPCSolution:
+def failed_solution(
+    status: str, iters: int, dt_wall: float, viol: float, path: str, nx: int, nu: int, N: int
+) -> MPCSolution:
     """A failed solve (success False, plan NaN) with ``status`` (its cause first)."""
-    return MPCSolution(False, status, iters, dt_wall, np.full((nx, N + 1), np.nan), np.full(N, np.nan),
-                       float("nan"), viol, path, {}, np.full((nu, N), np.nan))
+    return MPCSolution(
+        False,
+        status,
+        iters,
+        dt_wall,
+        np.full((nx, N + 1), np.nan),
+        np.full(N, np.nan),
+        float("nan"),
+        viol,
+        path,
+        {},
+        np.full((nu, N), np.nan),
+    )
 
 
 def budget_status(dt_wall: float, max_step_ms: float) -> str:

@@ -34,8 +34,13 @@ from ..ocp.transcription import TranscriptionOptions, horizon_nlp, interval_func
 from .settings import MPCSettings
 
 _SQP_EXTRA: dict[str, Any] = {}
-_PLUGIN_GEN_OPTS: dict[str, dict[str, Any]] = {"sqpmethod": {"print_header": False, "qpsol": "qrqp",
-                                                             "qpsol_options": {"print_info": False, "print_header": False, "print_iter": False}}}
+_PLUGIN_GEN_OPTS: dict[str, dict[str, Any]] = {
+    "sqpmethod": {
+        "print_header": False,
+        "qpsol": "qrqp",
+        "qpsol_options": {"print_info": False, "print_header": False, "print_iter": False},
+    }
+}
 
 
 class HorizonNLP:
@@ -75,7 +80,9 @@ class HorizonNLP:
         ag = ca.fmin(ca.fmax(self.guess_law.accel(ca.fmax(z[0], 1e-2), z[1], w[1]), ul[0]), uu[0])
         ug = ca.vertcat(ag, ca.fmin(ca.fmax(ca.DM.zeros(nu - 1), ul[1:]), uu[1:])) if nu > 1 else ag
         zg = self.step(z, ug, w, p)
-        zg = ca.fmin(ca.fmax(zg, ca.DM(np.where(np.isfinite(xl), xl, -1e20))), ca.DM(np.where(np.isfinite(xu), xu, 1e20)))
+        zg = ca.fmin(
+            ca.fmax(zg, ca.DM(np.where(np.isfinite(xl), xl, -1e20))), ca.DM(np.where(np.isfinite(xu), xu, 1e20))
+        )
         self.rollout = ca.Function("mpc_rollout", [z, w, p], [zg, ug]).mapaccum(s.N)
 
     # ------------------------------------------------------------------ NLP
@@ -84,10 +91,10 @@ class HorizonNLP:
         the NLP parameter vector P (symbols)."""
         pr, N = self.problem, self.settings.N
         nx, nb = pr.nx, pr.nx + pr.nu
-        B = ca.reshape(V[:nb * N], nb, N)
-        Xn = ca.horzcat(B[:nx, 1:], V[nb * N:]) if N > 1 else V[nb * N:]
+        B = ca.reshape(V[: nb * N], nb, N)
+        Xn = ca.horzcat(B[:nx, 1:], V[nb * N :]) if N > 1 else V[nb * N :]
         nwN = pr.nw * N
-        return (B[:nx, :], B[nx:, :], Xn, ca.reshape(P[:nwN], pr.nw, N), P[nwN:nwN + pr.np_], P[nwN + pr.np_:].T)
+        return (B[:nx, :], B[nx:, :], Xn, ca.reshape(P[:nwN], pr.nw, N), P[nwN : nwN + pr.np_], P[nwN + pr.np_ :].T)
 
     def _build_nlp(self) -> None:
         s, pr = self.settings, self.problem
@@ -98,8 +105,16 @@ class HorizonNLP:
         W, PP, SW = self.stage_inputs(V, P)[3:]
         # the one horizon NLP of the transcription (as OCP-D's), on the MPC's parameters and stage weights; the
         # measured initial state is fixed by equal simple bounds (per solve)
-        hz = horizon_nlp(pr, TranscriptionOptions(method="ms", N=N, rk4_substeps=s.rk4_substeps), V, W, PP, s.dt,
-                         stage_weights=SW, interval=self.F)
+        hz = horizon_nlp(
+            pr,
+            TranscriptionOptions(method="ms", N=N, rk4_substeps=s.rk4_substeps),
+            V,
+            W,
+            PP,
+            s.dt,
+            stage_weights=SW,
+            interval=self.F,
+        )
         self.nlp = {"x": V, "p": P, "f": hz.objective, "g": ca.vertcat(*hz.g)}
         self.lbg, self.ubg = np.concatenate(hz.lbg), np.concatenate(hz.ubg)
         self.ng_stage = hz.n_eq + hz.n_path
@@ -113,7 +128,7 @@ class HorizonNLP:
     def w_and_p(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(W (nw, N), p) back from the NLP parameter vector."""
         pr, N = self.problem, self.settings.N
-        return p[:pr.nw * N].reshape(N, pr.nw).T, p[pr.nw * N:pr.nw * N + pr.np_]
+        return p[: pr.nw * N].reshape(N, pr.nw).T, p[pr.nw * N : pr.nw * N + pr.np_]
 
     def guess(self, z0: np.ndarray, p: np.ndarray) -> np.ndarray:
         """Cold-start primal guess (scaled NLP vector): the closed-form law rolled out over the horizon."""
@@ -126,8 +141,8 @@ class HorizonNLP:
     def unpack(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(X (nx, N+1), a (N,), U (nu, N)) in physical units from the scaled NLP vector."""
         N, nx, nb = self.settings.N, self.nx, self.nx + self.nu
-        blocks = x[:nb * N].reshape(N, nb).T
-        X = np.hstack([blocks[:nx], x[nb * N:].reshape(nx, 1)]) * self.x_scale[:, None]
+        blocks = x[: nb * N].reshape(N, nb).T
+        X = np.hstack([blocks[:nx], x[nb * N :].reshape(nx, 1)]) * self.x_scale[:, None]
         U = blocks[nx:] * self.u_scale[:, None]
         return X, U[0].copy(), U
 
@@ -137,23 +152,23 @@ class HorizonNLP:
         N, nx, nb, ngs = self.settings.N, self.nx, self.nx + self.nu, self.ng_stage
 
         def shift_v(v: np.ndarray, new_last: np.ndarray) -> np.ndarray:
-            blocks = v[:nb * N].reshape(N, nb)
-            nbk = np.vstack([blocks[1:], np.concatenate([v[nb * N:], blocks[-1, nx:]])])
+            blocks = v[: nb * N].reshape(N, nb)
+            nbk = np.vstack([blocks[1:], np.concatenate([v[nb * N :], blocks[-1, nx:]])])
             return np.concatenate([nbk.ravel(), new_last])
 
         x = prev["x"]
         W, pp = self.w_and_p(p)
-        zN = x[nb * N:] * self.x_scale
-        uN = x[nb * N - self.nu:nb * N] * self.u_scale
+        zN = x[nb * N :] * self.x_scale
+        uN = x[nb * N - self.nu : nb * N] * self.u_scale
         z_ext = np.asarray(self.step(zN, uN, W[:, -1], pp)).ravel() / self.x_scale
         z_ext = np.clip(z_ext, self.lbx[-nx:], self.ubx[-nx:])
         x0 = shift_v(x, z_ext)
         x0[:nx] = z0 / self.x_scale
         lam_x = prev["lam_x"]
         lg = prev["lam_g"]
-        g_st = lg[:N * ngs].reshape(N, ngs)
-        lg = np.concatenate([np.vstack([g_st[1:], g_st[-1:]]).ravel(), lg[N * ngs:]])
-        return {"x0": x0, "lam_x0": shift_v(lam_x, lam_x[nb * N:]), "lam_g0": lg}
+        g_st = lg[: N * ngs].reshape(N, ngs)
+        lg = np.concatenate([np.vstack([g_st[1:], g_st[-1:]]).ravel(), lg[N * ngs :]])
+        return {"x0": x0, "lam_x0": shift_v(lam_x, lam_x[nb * N :]), "lam_g0": lg}
 
     def violation(self, x: np.ndarray, g: np.ndarray, lbx: np.ndarray, ubx: np.ndarray) -> float:
         """Largest violation of the constraints (g against lbg/ubg) and the simple bounds (NLP units)."""
@@ -181,23 +196,46 @@ class HorizonNLP:
     def ipopt(self, name: str, warm: bool) -> tuple[ca.Function, bool]:
         """IPOPT on the NLP (exact Hessian, MUMPS), cold or warm-started; see :meth:`nlpsol`."""
         s = self.settings
-        ip: dict[str, Any] = {"print_level": 5 if s.verbose else 0, "sb": "yes", "tol": s.tol,
-                              "max_iter": s.max_iter, "max_wall_time": s.max_cpu_time_s,
-                              "linear_solver": "mumps", "hessian_approximation": "exact",
-                              "nlp_scaling_method": "none" if warm else "gradient-based"}
+        ip: dict[str, Any] = {
+            "print_level": 5 if s.verbose else 0,
+            "sb": "yes",
+            "tol": s.tol,
+            "max_iter": s.max_iter,
+            "max_wall_time": s.max_cpu_time_s,
+            "linear_solver": "mumps",
+            "hessian_approximation": "exact",
+            "nlp_scaling_method": "none" if warm else "gradient-based",
+        }
         if warm:
-            ip.update({"warm_start_init_point": "yes", "warm_start_bound_push": 1e-9,
-                       "warm_start_mult_bound_push": 1e-9, "warm_start_slack_bound_push": 1e-9,
-                       "mu_init": 1e-5, "mu_strategy": "monotone", "nlp_scaling_method": "gradient-based"})
+            ip.update(
+                {
+                    "warm_start_init_point": "yes",
+                    "warm_start_bound_push": 1e-9,
+                    "warm_start_mult_bound_push": 1e-9,
+                    "warm_start_slack_bound_push": 1e-9,
+                    "mu_init": 1e-5,
+                    "mu_strategy": "monotone",
+                    "nlp_scaling_method": "gradient-based",
+                }
+            )
         return self.nlpsol(name, "ipopt", {"ipopt": ip})
 
     def sqp(self, qp_opts: dict[str, Any]) -> tuple[ca.Function, bool]:
         """CasADi's sqpmethod on the NLP (exact Hessian, the QP solver ``settings.qp`` with ``qp_opts``)."""
         s = self.settings
-        opts = {"qpsol": s.qp, "qpsol_options": qp_opts,
-                "hessian_approximation": "exact", "max_iter": s.max_iter, "tol_pr": s.tol * 100,
-                "tol_du": s.tol * 100, "print_header": s.verbose, "print_iteration": s.verbose,
-                "print_status": s.verbose, "min_step_size": 1e-12, **_SQP_EXTRA}
+        opts = {
+            "qpsol": s.qp,
+            "qpsol_options": qp_opts,
+            "hessian_approximation": "exact",
+            "max_iter": s.max_iter,
+            "tol_pr": s.tol * 100,
+            "tol_du": s.tol * 100,
+            "print_header": s.verbose,
+            "print_iteration": s.verbose,
+            "print_status": s.verbose,
+            "min_step_size": 1e-12,
+            **_SQP_EXTRA,
+        }
         return self.nlpsol("mpc_sqp", "sqpmethod", opts)
 
 
@@ -207,8 +245,11 @@ def compile_c(stem: str, generate: Any, cfile: str) -> str | None:
     the source's hash). Returns the shared library's path, or None (with a warning) when no
     compiler works."""
     if compiler() is None:
-        warnings.warn("MPC codegen requested but no C compiler (gcc) was found: using the "
-                      "interpreted CasADi functions instead", RuntimeWarning, stacklevel=5)
+        warnings.warn(
+            "MPC codegen requested but no C compiler (gcc) was found: using the interpreted CasADi functions instead",
+            RuntimeWarning,
+            stacklevel=5,
+        )
         return None
     try:
         with tempfile.TemporaryDirectory() as tmp:
@@ -220,13 +261,20 @@ def compile_c(stem: str, generate: Any, cfile: str) -> str | None:
                 os.chdir(cwd)
             src = Path(tmp, cfile).read_text()
     except (OSError, RuntimeError) as exc:
-        warnings.warn(f"MPC codegen failed ({type(exc).__name__}: {str(exc)[:200]}): using the "
-                      "interpreted CasADi functions instead", RuntimeWarning, stacklevel=5)
+        warnings.warn(
+            f"MPC codegen failed ({type(exc).__name__}: {str(exc)[:200]}): using the "
+            "interpreted CasADi functions instead",
+            RuntimeWarning,
+            stacklevel=5,
+        )
         return None
     built = compile_shared(src, stem, "mpc")
     if built.path is None:
-        warnings.warn(f"MPC codegen failed ({built.error}): using the interpreted CasADi functions instead",
-                      RuntimeWarning, stacklevel=5)
+        warnings.warn(
+            f"MPC codegen failed ({built.error}): using the interpreted CasADi functions instead",
+            RuntimeWarning,
+            stacklevel=5,
+        )
         return None
     return str(built.path)
 
@@ -253,8 +301,9 @@ def rti_stage_functions(nlp: HorizonNLP) -> tuple[ca.Function, ca.Function]:
     # terminal cost (Mayer) on the scaled x_N: its Hessian block and gradient
     xNs, pT = ca.SX.sym("xN", nx), ca.SX.sym("pT", pr.np_)
     mayer = pr.terminal_cost(xNs * ca.DM(nlp.x_scale), pT) if pr.terminal_cost is not None else ca.SX(0)
-    term = ca.Function("mpc_rti_terminal", [xNs, pT], [ca.densify(ca.hessian(mayer, xNs)[0]),
-                                                       ca.gradient(mayer, xNs), mayer])
+    term = ca.Function(
+        "mpc_rti_terminal", [xNs, pT], [ca.densify(ca.hessian(mayer, xNs)[0]), ca.gradient(mayer, xNs), mayer]
+    )
     return stage, term
 
 

@@ -33,8 +33,18 @@ import numpy as np
 
 from ..params import ParameterError
 
-__all__ = ["OcpQP", "OcpQPDims", "OcpQPSettings", "OcpQPResult", "OcpQPError", "STATUS", "INF", "BACKENDS",
-           "HPIPM_MODES", "hpipm_library"]
+__all__ = [
+    "OcpQP",
+    "OcpQPDims",
+    "OcpQPSettings",
+    "OcpQPResult",
+    "OcpQPError",
+    "STATUS",
+    "INF",
+    "BACKENDS",
+    "HPIPM_MODES",
+    "hpipm_library",
+]
 
 INF = 1e19  # OCPQP_INF: a bound at least this large in magnitude is absent
 STATUS = {0: "ok", 1: "max_iter", 2: "factorization", 3: "nonfinite", 4: "infeasible", 5: "bad_dims"}
@@ -116,8 +126,9 @@ class _Dims(ctypes.Structure):
 
 
 class _Settings(ctypes.Structure):
-    _fields_ = [("max_iter", ctypes.c_int)] + [(n, ctypes.c_double) for n in
-                                               ("tol_stat", "tol_eq", "tol_ineq", "tol_comp", "reg_prim")]
+    _fields_ = [("max_iter", ctypes.c_int)] + [
+        (n, ctypes.c_double) for n in ("tol_stat", "tol_eq", "tol_ineq", "tol_comp", "reg_prim")
+    ]
 
 
 _DATA_FIELDS = ("H", "g", "E", "e", "C", "lc", "uc", "lbw", "ubw", "x0")
@@ -129,7 +140,8 @@ class _Data(ctypes.Structure):
 
 class _Info(ctypes.Structure):
     _fields_ = [("iterations", ctypes.c_int), ("status", ctypes.c_int)] + [
-        (n, ctypes.c_double) for n in ("res_stat", "res_eq", "res_ineq", "res_comp")]
+        (n, ctypes.c_double) for n in ("res_stat", "res_eq", "res_ineq", "res_comp")
+    ]
 
 
 _LIBS: dict[tuple[tuple[int, ...] | None, str | None], ctypes.CDLL] = {}
@@ -174,8 +186,13 @@ def hpipm_library() -> ctypes.CDLL | str:
     folder = resources.files("aev_ocp").joinpath("c")
     src = folder.joinpath("ocp_qp_hpipm.c").read_text(encoding="utf-8")
     flags = ("-std=c99", f"-I{inc}", "-Wl,--no-as-needed", f"-L{root}", "-lhpipm", "-lblasfeo", f"-Wl,-rpath,{root}")
-    built = compile_shared(src, "ocp_qp_hpipm", "ocpqp", extra_flags=flags,
-                           companions={"ocp_qp.h": folder.joinpath("ocp_qp.h").read_text(encoding="utf-8")})
+    built = compile_shared(
+        src,
+        "ocp_qp_hpipm",
+        "ocpqp",
+        extra_flags=flags,
+        companions={"ocp_qp.h": folder.joinpath("ocp_qp.h").read_text(encoding="utf-8")},
+    )
     if built.path is None:
         _HPIPM_LIB.append(f"ocp_qp_hpipm.c cannot be built against {root}: {built.error}")
         return _HPIPM_LIB[0]
@@ -222,10 +239,14 @@ def library(fixed: tuple[int, int, int, int] | None = None, source: str | None =
         src = source_files()
         if source is not None:
             src["ocp_qp.c"] = source
-        flags = ("-std=c99",) if fixed is None else ("-std=c99", *(f"-DOCPQP_{n}={v}" for n, v in
-                                                                 zip(("NX", "NU", "NC", "NCN"), fixed)))
-        built = compile_shared(src["ocp_qp.c"], "ocp_qp", "ocpqp", extra_flags=flags,
-                               companions={"ocp_qp.h": src["ocp_qp.h"]})
+        flags = (
+            ("-std=c99",)
+            if fixed is None
+            else ("-std=c99", *(f"-DOCPQP_{n}={v}" for n, v in zip(("NX", "NU", "NC", "NCN"), fixed)))
+        )
+        built = compile_shared(
+            src["ocp_qp.c"], "ocp_qp", "ocpqp", extra_flags=flags, companions={"ocp_qp.h": src["ocp_qp.h"]}
+        )
         if built.path is None:
             raise OcpQPError(f"the OCP QP solver cannot be built: {built.error}")
         lib = ctypes.CDLL(str(built.path))
@@ -246,8 +267,10 @@ def _pack(name: str, value: Any, shapes: Sequence[tuple[int, int]]) -> np.ndarra
     try:
         blocks = list(value)
     except TypeError:
-        raise ParameterError(f"{name} must be a flat array of {total} entries or a sequence of "
-                             f"{len(shapes)} blocks, got {type(value).__name__}") from None
+        raise ParameterError(
+            f"{name} must be a flat array of {total} entries or a sequence of "
+            f"{len(shapes)} blocks, got {type(value).__name__}"
+        ) from None
     if len(blocks) != len(shapes):
         raise ParameterError(f"{name} must have {len(shapes)} stage blocks, got {len(blocks)}")
     out = np.empty(total)
@@ -260,7 +283,7 @@ def _pack(name: str, value: Any, shapes: Sequence[tuple[int, int]]) -> np.ndarra
             continue
         if a.shape != (r, c):
             raise ParameterError(f"{name}[{k}] must have shape {(r, c)}, got {a.shape}")
-        out[pos:pos + r * c] = a.reshape(-1, order="F")
+        out[pos : pos + r * c] = a.reshape(-1, order="F")
         pos += r * c
     return out
 
@@ -268,17 +291,32 @@ def _pack(name: str, value: Any, shapes: Sequence[tuple[int, int]]) -> np.ndarra
 def _block_shapes(d: OcpQPDims) -> dict[str, list[tuple[int, int]]]:
     """Shapes of each data argument's stage blocks."""
     N, nx, nb, nc, ncN = d.N, d.nx, d.nb, d.nc, d.ncN
-    return {"H": [(nb, nb)] * N + [(nx, nx)], "g": [(nb, 1)] * N + [(nx, 1)], "E": [(nx, nb)] * N,
-            "e": [(nx, 1)] * N, "C": [(nc, nb)] * N + [(ncN, nx)], "lc": [(nc, 1)] * N + [(ncN, 1)],
-            "uc": [(nc, 1)] * N + [(ncN, 1)], "lbw": [(nb, 1)] * N + [(nx, 1)],
-            "ubw": [(nb, 1)] * N + [(nx, 1)], "x0": [(nx, 1)]}
+    return {
+        "H": [(nb, nb)] * N + [(nx, nx)],
+        "g": [(nb, 1)] * N + [(nx, 1)],
+        "E": [(nx, nb)] * N,
+        "e": [(nx, 1)] * N,
+        "C": [(nc, nb)] * N + [(ncN, nx)],
+        "lc": [(nc, 1)] * N + [(ncN, 1)],
+        "uc": [(nc, 1)] * N + [(ncN, 1)],
+        "lbw": [(nb, 1)] * N + [(nx, 1)],
+        "ubw": [(nb, 1)] * N + [(nx, 1)],
+        "x0": [(nx, 1)],
+    }
 
 
 class OcpQP:
     """One solver instance (its memory allocated once in C) for fixed dimensions; see the module docstring."""
 
-    def __init__(self, dims: OcpQPDims, settings: OcpQPSettings | None = None, specialise: bool = False,
-                 source: str | None = None, backend: str = "ocp_qp", hpipm_mode: str = "balance") -> None:
+    def __init__(
+        self,
+        dims: OcpQPDims,
+        settings: OcpQPSettings | None = None,
+        specialise: bool = False,
+        source: str | None = None,
+        backend: str = "ocp_qp",
+        hpipm_mode: str = "balance",
+    ) -> None:
         """``specialise``: a library compiled for exactly these nx, nu, nc, ncN (one more build, cached);
         ``source``: another ocp_qp.c text (see :func:`library`); ``backend``: one of :data:`BACKENDS`
         ('hpipm': OcpQPError naming the cause when HPIPM cannot be built or loaded; ``specialise`` and
@@ -294,15 +332,23 @@ class OcpQP:
             raise ParameterError(f"hpipm_mode = {hpipm_mode!r} is not allowed: must be one of {tuple(HPIPM_MODES)}")
         self.dims, self.settings, self.backend = dims, settings, backend
         cd = _Dims(dims.N, dims.nx, dims.nu, dims.nc, dims.ncN)
-        cs = _Settings(settings.max_iter, settings.tol_stat, settings.tol_eq, settings.tol_ineq,
-                       settings.tol_comp, settings.reg_prim)
+        cs = _Settings(
+            settings.max_iter,
+            settings.tol_stat,
+            settings.tol_eq,
+            settings.tol_ineq,
+            settings.tol_comp,
+            settings.reg_prim,
+        )
         if backend == "hpipm":
             lib = hpipm_library()
             if isinstance(lib, str):
                 raise OcpQPError(f"the HPIPM backend is unavailable: {lib}")
             if lib.ocpqp_hpipm_unsupported(ctypes.byref(cd)):
-                raise OcpQPError(f"the HPIPM backend refuses nx = 1 with nx + nu a multiple of 4 ({dims}): the "
-                                 "shipped libhpipm returns wrong controls there (aev_ocp/c/ocp_qp_hpipm.c)")
+                raise OcpQPError(
+                    f"the HPIPM backend refuses nx = 1 with nx + nu a multiple of 4 ({dims}): the "
+                    "shipped libhpipm returns wrong controls there (aev_ocp/c/ocp_qp_hpipm.c)"
+                )
             self._lib = lib
             self._ptr = lib.ocpqp_hpipm_create(ctypes.byref(cd), ctypes.byref(cs), HPIPM_MODES[hpipm_mode])
         else:
@@ -323,8 +369,7 @@ class OcpQP:
     def _shapes(self) -> dict[str, list[tuple[int, int]]]:
         return _block_shapes(self.dims)
 
-    def set_data(self, H: Any, g: Any, E: Any, e: Any, C: Any, lc: Any, uc: Any, lbw: Any, ubw: Any,
-                 x0: Any) -> None:
+    def set_data(self, H: Any, g: Any, E: Any, e: Any, C: Any, lc: Any, uc: Any, lbw: Any, ubw: Any, x0: Any) -> None:
         """Check and store the QP data (each a flat column-major array or a sequence of stage blocks;
         C, lc, uc may be None when nc = ncN = 0)."""
         shapes = self._shapes()
@@ -351,15 +396,29 @@ class OcpQP:
         d = self.dims
         w, pi = np.zeros(d.nw), np.zeros(d.N * d.nx)
         lam_w, lam_c = np.zeros(d.nw), np.zeros(d.N * d.nc + d.ncN)
-        st = self._lib.ocpqp_solve(self._ptr, ctypes.byref(self._data), w.ctypes.data, pi.ctypes.data,
-                                   lam_w.ctypes.data, lam_c.ctypes.data if lam_c.size else None,
-                                   ctypes.byref(self._info))
+        st = self._lib.ocpqp_solve(
+            self._ptr,
+            ctypes.byref(self._data),
+            w.ctypes.data,
+            pi.ctypes.data,
+            lam_w.ctypes.data,
+            lam_c.ctypes.data if lam_c.size else None,
+            ctypes.byref(self._info),
+        )
         i = self._info
-        return OcpQPResult(w, pi, lam_w, lam_c, int(st), int(i.iterations),
-                           {"stat": i.res_stat, "eq": i.res_eq, "ineq": i.res_ineq, "comp": i.res_comp})
+        return OcpQPResult(
+            w,
+            pi,
+            lam_w,
+            lam_c,
+            int(st),
+            int(i.iterations),
+            {"stat": i.res_stat, "eq": i.res_eq, "ineq": i.res_ineq, "comp": i.res_comp},
+        )
 
-    def solve(self, H: Any, g: Any, E: Any, e: Any, C: Any, lc: Any, uc: Any, lbw: Any, ubw: Any,
-              x0: Any) -> OcpQPResult:
+    def solve(
+        self, H: Any, g: Any, E: Any, e: Any, C: Any, lc: Any, uc: Any, lbw: Any, ubw: Any, x0: Any
+    ) -> OcpQPResult:
         """Check the data (ParameterError naming a wrongly sized argument) and solve; a failed solve is a
         status in the result, not an exception."""
         self.set_data(H, g, E, e, C, lc, uc, lbw, ubw, x0)
@@ -373,8 +432,15 @@ class OcpQP:
         d = self.dims
         w, pi = np.zeros(d.nw), np.zeros(d.N * d.nx)
         lam_w, lam_c = np.zeros(d.nw), np.zeros(max(1, d.N * d.nc + d.ncN))
-        args = (self._ptr, ctypes.byref(self._data), w.ctypes.data, pi.ctypes.data, lam_w.ctypes.data,
-                lam_c.ctypes.data, ctypes.byref(self._info))
+        args = (
+            self._ptr,
+            ctypes.byref(self._data),
+            w.ctypes.data,
+            pi.ctypes.data,
+            lam_w.ctypes.data,
+            lam_c.ctypes.data,
+            ctypes.byref(self._info),
+        )
         f = self._lib.ocpqp_solve
         out = np.empty(n)
         clock = time.perf_counter
@@ -386,8 +452,9 @@ class OcpQP:
 
 
 # ---------------------------------------------------------------------------------------------- test data
-def random_qp(dims: OcpQPDims, rng: np.random.Generator, equality_rows: float = 0.3,
-              absent: float = 0.25, scale: float = 3.0) -> dict[str, Any]:
+def random_qp(
+    dims: OcpQPDims, rng: np.random.Generator, equality_rows: float = 0.3, absent: float = 0.25, scale: float = 3.0
+) -> dict[str, Any]:
     """A random convex OCP QP, feasible by construction (for tests and benchmarks): a trajectory w* is
     drawn first and every bound and general row is put around it (a side absent (+-inf) with probability ``absent``; with probability ``equality_rows`` the
     first general row of a stage an equality lc = uc = C w*). H_k = M M' plus a
@@ -451,8 +518,11 @@ def sparse_qp(dims: OcpQPDims, data: dict[str, Any]) -> dict[str, Any]:
 
     N, nx, nb, nc, ncN, nw = dims.N, dims.nx, dims.nb, dims.nc, dims.ncN, dims.nw
     sh = _block_shapes(dims)
-    blocks = {k: _pack(k, data[k], sh[k]) if not (k in ("C", "lc", "uc") and data.get(k) is None) else np.zeros(0)
-              for k in _DATA_FIELDS if k != "x0"}
+    blocks = {
+        k: _pack(k, data[k], sh[k]) if not (k in ("C", "lc", "uc") and data.get(k) is None) else np.zeros(0)
+        for k in _DATA_FIELDS
+        if k != "x0"
+    }
     Hf = np.zeros((nw, nw))
     nrow = N * (nx + nc) + ncN
     Af = np.zeros((nrow, nw))
@@ -463,19 +533,28 @@ def sparse_qp(dims: OcpQPDims, data: dict[str, Any]) -> dict[str, Any]:
     for k in range(N + 1):
         n, m = (nb, nc) if k < N else (nx, ncN)
         o, r = k * nb, k * (nx + nc)
-        Hf[o:o + n, o:o + n] = blocks["H"][pos_h:pos_h + n * n].reshape((n, n), order="F")
+        Hf[o : o + n, o : o + n] = blocks["H"][pos_h : pos_h + n * n].reshape((n, n), order="F")
         pos_h += n * n
         rc = r + nx if k < N else r
-        Af[rc:rc + m, o:o + n] = blocks["C"][pos_c:pos_c + m * n].reshape((m, n), order="F")
+        Af[rc : rc + m, o : o + n] = blocks["C"][pos_c : pos_c + m * n].reshape((m, n), order="F")
         pos_c += m * n
         if k < N:
-            Af[r:r + nx, o:o + nb] = blocks["E"][pos_e:pos_e + nx * nb].reshape((nx, nb), order="F")
-            Af[r:r + nx, o + nb:o + nb + nx] = -np.eye(nx)
+            Af[r : r + nx, o : o + nb] = blocks["E"][pos_e : pos_e + nx * nb].reshape((nx, nb), order="F")
+            Af[r : r + nx, o + nb : o + nb + nx] = -np.eye(nx)
             pos_e += nx * nb
     lba[rows_pi] = uba[rows_pi] = -blocks["e"]
     lba[rows_c], uba[rows_c] = _casadi_bounds(blocks["lc"]), _casadi_bounds(blocks["uc"])
     lbx, ubx = _casadi_bounds(blocks["lbw"]), _casadi_bounds(blocks["ubw"])
     x0 = np.asarray(data["x0"], dtype=float).reshape(-1)
     lbx[:nx] = ubx[:nx] = x0
-    return dict(h=ca.sparsify(ca.DM(Hf)), a=ca.sparsify(ca.DM(Af)), g=blocks["g"], lba=lba, uba=uba, lbx=lbx,
-                ubx=ubx, rows_pi=rows_pi, rows_c=rows_c)
+    return dict(
+        h=ca.sparsify(ca.DM(Hf)),
+        a=ca.sparsify(ca.DM(Af)),
+        g=blocks["g"],
+        lba=lba,
+        uba=uba,
+        lbx=lbx,
+        ubx=ubx,
+        rows_pi=rows_pi,
+        rows_c=rows_c,
+    )

@@ -14,8 +14,13 @@ from ..plots import AxisUnits, Figure, controller_styles, plt, save_figure
 from ..results import SimulationResult
 
 
-def plot_overlay(results: Mapping[str, SimulationResult], path: str | Path | None = None, vehicle: int = 0,
-                 h_min: float | None = None, si: bool = True) -> Figure:
+def plot_overlay(
+    results: Mapping[str, SimulationResult],
+    path: str | Path | None = None,
+    vehicle: int = 0,
+    h_min: float | None = None,
+    si: bool = True,
+) -> Figure:
     """Gap, speed, acceleration, cell current and SOC of follower ``vehicle`` for each controller.
 
     Each controller has its own colour and dash pattern and is drawn thinner than the one before it (so an
@@ -45,12 +50,25 @@ def plot_overlay(results: Mapping[str, SimulationResult], path: str | Path | Non
         ax[3].plot(t, r.current_A[:, i], **st)
         ax[4].plot(t, r.S[:, i], **st)
     ahead = first.leader_speed if vehicle == 0 else first.speed[:, vehicle - 1]
-    ax[1].plot(au.t * first.t, au.v * ahead, color="0.55", ls="-", lw=3.2, alpha=0.45, zorder=0,
-               label="leader" if vehicle == 0 else f"vehicle ahead (n = {vehicle}, {list(results)[0]})")
+    ax[1].plot(
+        au.t * first.t,
+        au.v * ahead,
+        color="0.55",
+        ls="-",
+        lw=3.2,
+        alpha=0.45,
+        zorder=0,
+        label="leader" if vehicle == 0 else f"vehicle ahead (n = {vehicle}, {list(results)[0]})",
+    )
     if h_min is not None:
         ax[0].axhline(au.x * h_min, color="gray", ls="--", lw=0.9, label=f"h_min = {au.x * h_min:.3g} {au.x_label}")
-    labels = [f"gap h [{au.x_label}]", f"speed v [{au.v_label}]", f"acceleration a [{au.a_label}]",
-              "cell current I [A]", "SOC S [-]"]
+    labels = [
+        f"gap h [{au.x_label}]",
+        f"speed v [{au.v_label}]",
+        f"acceleration a [{au.a_label}]",
+        "cell current I [A]",
+        "SOC S [-]",
+    ]
     for a, lab in zip(ax, labels):
         a.set_ylabel(lab)
         a.grid(alpha=0.3)
@@ -97,7 +115,7 @@ def plot_solve_times(r: SimulationResult, path: str | Path | None = None, si: bo
         if not st:
             continue
         ms = np.asarray(st["solve_ms"])
-        tk = au.t * r.t[:ms.size]
+        tk = au.t * r.t[: ms.size]
         st_i = r.solver_stats[i] if i < len(r.solver_stats) else None
         path_name = st_i["solver_path"] if st_i else "mpc"
         ax.semilogy(tk, ms, lw=0.8, label=f"follower {i + 1} ({path_name})")

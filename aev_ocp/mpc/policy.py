@@ -62,9 +62,16 @@ class MPCVehicle:
 class MPCPolicy:
     """One vehicle's MPC as a Controller (see the module docstring)."""
 
-    def __init__(self, settings: MPCSettings, ev: EVParams, fallback_law: CarFollowingLaw,
-                 predictor: LeaderPredictor | str, problem: OCPProblem | ProblemBuilder | None = None,
-                 parameter_values: dict[str, float] | None = None, formulation: Formulation | None = None) -> None:
+    def __init__(
+        self,
+        settings: MPCSettings,
+        ev: EVParams,
+        fallback_law: CarFollowingLaw,
+        predictor: LeaderPredictor | str,
+        problem: OCPProblem | ProblemBuilder | None = None,
+        parameter_values: dict[str, float] | None = None,
+        formulation: Formulation | None = None,
+    ) -> None:
         self.settings, self.fallback_law, self.predictor = settings, fallback_law, predictor
         self.formulation = resolve_formulation(formulation, problem, parameter_values)
         self.controller = MPCController(settings, ev, fallback_law, formulation=self.formulation)
@@ -99,9 +106,11 @@ class MPCPolicy:
         if obs.T_K is not None:
             own["T"] = obs.T_K
         elif self.controller.has_temperature:
-            raise ParameterError("MPC: temperature_state needs the measured pack temperature (Observation.T_K), which "
-                                 "this plant does not give: turn on [thermal] (enabled = true) in a platoon scenario "
-                                 "(the ring road and SUMO have no thermal model)")
+            raise ParameterError(
+                "MPC: temperature_state needs the measured pack temperature (Observation.T_K), which "
+                "this plant does not give: turn on [thermal] (enabled = true) in a platoon scenario "
+                "(the ring road and SUMO have no thermal model)"
+            )
         sol = self.controller.solve(obs.z, vm, vh, own=own)
         info = {"cost": sol.cost, "violation": sol.violation, "v_hat": vh}
         if sol.success:
@@ -110,8 +119,13 @@ class MPCPolicy:
         # the fallback: the law on the measurements, clipped to the a bounds and so that the speed stays
         # >= 0 over the step (a plant never reverses; the law at a tiny gap may ask for a_min at v ≈ 0)
         a = max(self._fallback.command(obs).a, min(0.0, -float(obs.z[1]) / self.dt))
-        _LOG.info("MPC fallback at t = %.4g (vehicle %d): %s (%.3g ms)", obs.t, obs.vehicle + 1, sol.status,
-                  1e3 * sol.solve_time_s)
+        _LOG.info(
+            "MPC fallback at t = %.4g (vehicle %d): %s (%.3g ms)",
+            obs.t,
+            obs.vehicle + 1,
+            sol.status,
+            1e3 * sol.solve_time_s,
+        )
         return Command(a, False, sol.status, sol.solve_time_s, sol.iterations, None, info)
 
     def describe(self) -> dict[str, Any]:
@@ -145,8 +159,10 @@ def _adapt(obj: MPCSettings | MPCVehicle, i: int, loop: ClosedLoop) -> MPCPolicy
             if i == 0 or not isinstance(loop.ctrl[i - 1], MPCPolicy):
                 raise ParameterError(f"vehicle {i + 1}: predictor 'cooperative' needs an MPC vehicle ahead")
         elif p == "oracle" and i > 0:
-            raise ParameterError(f"vehicle {i + 1}: predictor 'oracle' is only available to the first "
-                                 "follower (use 'cooperative' behind an MPC vehicle, or a measured predictor)")
+            raise ParameterError(
+                f"vehicle {i + 1}: predictor 'oracle' is only available to the first "
+                "follower (use 'cooperative' behind an MPC vehicle, or a measured predictor)"
+            )
         else:
             p = make_predictor(p, loop.leader, veh.settings.predictor_window, loop.ev.units.time_s)
     return MPCPolicy(veh.settings, loop.model_ev(i), loop.fallback_law, p, formulation=veh.resolved_formulation)
@@ -156,9 +172,16 @@ register_controller_adapter(MPCSettings, _adapt)
 register_controller_adapter(MPCVehicle, _adapt)
 
 
-def run_single(settings: MPCSettings | None = None, leader: LeaderProfile | None = None, h0: float = 0.3,
-               v0: float = 1.87, t_end: float = 70.0, ev: EVParams | None = None,
-               fallback_law: CarFollowingLaw | None = None, formulation: Formulation | None = None) -> SimulationResult:
+def run_single(
+    settings: MPCSettings | None = None,
+    leader: LeaderProfile | None = None,
+    h0: float = 0.3,
+    v0: float = 1.87,
+    t_end: float = 70.0,
+    ev: EVParams | None = None,
+    fallback_law: CarFollowingLaw | None = None,
+    formulation: Formulation | None = None,
+) -> SimulationResult:
     """One MPC follower behind ``leader`` (default the paper's Table 1 leader) from h0, v0 (model units; model guide
     §9's canonical start) over [0, t_end]; ``settings`` default MPCSettings() and ``formulation`` default the traffic
     formulation with a measured forecast: for model guide §9's canonical MPC pass formulation=s9_formulation() and

@@ -69,13 +69,15 @@ class ConstantAccelerationPredictor(LeaderPredictor):
 
     def __init__(self, window: int = 5) -> None:
         if not isinstance(window, int) or window < 2:
-            raise ParameterError(f"ConstantAccelerationPredictor.window = {window!r} is not allowed: must be an integer >= 2")
+            raise ParameterError(
+                f"ConstantAccelerationPredictor.window = {window!r} is not allowed: must be an integer >= 2"
+            )
         self.window = window
 
     def predict(self, t0: float, dt: float, N: int, meas: Measurements) -> tuple[np.ndarray, np.ndarray]:
         tau = dt * np.arange(N + 1)
         v0 = float(meas.v[-1])
-        tt, vv = np.asarray(meas.t[-self.window:], float), np.asarray(meas.v[-self.window:], float)
+        tt, vv = np.asarray(meas.t[-self.window :], float), np.asarray(meas.v[-self.window :], float)
         acc = float(np.polyfit(tt - tt[-1], vv, 1)[0]) if tt.size >= 2 and np.ptp(tt) > 0 else 0.0
         v = np.maximum(v0 + acc * tau, 0.0)
         x = v0 * tau + 0.5 * acc * tau**2
@@ -102,7 +104,9 @@ class DecayingAccelerationPredictor(LeaderPredictor):
         if not (isinstance(tau, (int, float)) and np.isfinite(tau) and tau > 0):
             raise ParameterError(f"DecayingAccelerationPredictor.tau = {tau!r} is not allowed: must be a number > 0")
         if not isinstance(window, int) or window < 2:
-            raise ParameterError(f"DecayingAccelerationPredictor.window = {window!r} is not allowed: must be an integer >= 2")
+            raise ParameterError(
+                f"DecayingAccelerationPredictor.window = {window!r} is not allowed: must be an integer >= 2"
+            )
         self.tau, self.window = float(tau), window
 
     def predict(self, t0: float, dt: float, N: int, meas: Measurements) -> tuple[np.ndarray, np.ndarray]:
@@ -139,7 +143,7 @@ def plan_forecast(speeds: np.ndarray, dt: float, N: int) -> tuple[np.ndarray, np
     v = np.asarray(speeds, float).ravel()
     if v.size < N + 1:
         v = np.concatenate([v, np.full(N + 1 - v.size, v[-1])])
-    v = v[:N + 1]
+    v = v[: N + 1]
     x = np.concatenate([[0.0], np.cumsum(0.5 * (v[:-1] + v[1:]) * dt)])
     return x, v
 
@@ -150,8 +154,9 @@ def forecast_intervals(x_hat: np.ndarray, v_hat: np.ndarray, dt: float) -> tuple
     return np.diff(x_hat) / dt, v_hat[:-1]
 
 
-def make_predictor(name: str, profile: LeaderProfile | None = None, window: int = 5,
-                   time_unit_s: float | None = None) -> LeaderPredictor:
+def make_predictor(
+    name: str, profile: LeaderProfile | None = None, window: int = 5, time_unit_s: float | None = None
+) -> LeaderPredictor:
     """Predictor by name: 'oracle' (needs the true profile), 'constant-velocity', 'constant-acceleration',
     'decaying-acceleration' (τ = DECAY_TIME_S converted with ``time_unit_s`` = T [s], default 2 s at T = 2 s)."""
     if name == "decaying-acceleration":
@@ -164,6 +169,8 @@ def make_predictor(name: str, profile: LeaderProfile | None = None, window: int 
         return ConstantVelocityPredictor()
     if name == "constant-acceleration":
         return ConstantAccelerationPredictor(window)
-    raise ParameterError(f"predictor = {name!r} is not allowed: must be 'oracle', 'constant-velocity', "
-                         "'constant-acceleration', 'decaying-acceleration' (or 'cooperative' for a follower "
-                         "behind an MPC vehicle)")
+    raise ParameterError(
+        f"predictor = {name!r} is not allowed: must be 'oracle', 'constant-velocity', "
+        "'constant-acceleration', 'decaying-acceleration' (or 'cooperative' for a follower "
+        "behind an MPC vehicle)"
+    )

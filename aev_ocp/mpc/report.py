@@ -22,8 +22,14 @@ import numpy as np
 from .. import interrupts
 from ..ocp.checks import GAP_RTOL as SMOOTHING_GAP_RTOL
 from ..ocp.formulation import Formulation, ModelBounds, s9_formulation
-from ..ocp.oracle import (DEFAULT_TIME_LIMIT_S, OBJECTIVE_NAMES, bound_role, ocpd_scenario,
-                          solve_and_replay, stage_cost_of_result)
+from ..ocp.oracle import (
+    DEFAULT_TIME_LIMIT_S,
+    OBJECTIVE_NAMES,
+    bound_role,
+    ocpd_scenario,
+    solve_and_replay,
+    stage_cost_of_result,
+)
 from ..ocp.problem import OCPProblem
 from ..ocp.traffic_cost import cost_traffic_of_result, problem_cost_of_result
 from ..limits import MPC_BYTES_PER_INTERVAL, memory_limit_bytes
@@ -38,14 +44,49 @@ from .settings import MPCSettings
 
 #: every comparison table shows these first (issue 8): runs of different distance or duration (> 1 %) or
 #: ended by an event are flagged 'comparable = False' and their column is marked, never ranked as complete
-COMPARABILITY_ROWS = ["comparable", "distance_m", "distance_diff_pct", "duration_s", "duration_diff_pct",
-                      "heat_pack_J_per_km", "omega_model_per_km", "omega_J_per_kg_per_km", "min_ttc_s"]
-METRIC_ROWS = COMPARABILITY_ROWS + ["omega_model", "omega_J_per_kg", "heat_pack_J", "heat_irr_pack_J", "delta_soc", "min_gap_model",
-               "min_gap_m", "min_speed_model", "rms_ovm_error_model", "rms_rel_speed_model", "rms_jerk_model",
-               "max_abs_current_A", "gap_violations", "speed_violations", "collisions", "infeasible_current",
-               "cost_traffic", "cost_s9", "cost_problem", "cost_s9_exact", "smoothing_gap_pct", "forecast_rms",
-               "solve_ms_median", "solve_ms_p95", "solve_ms_max", "iterations_mean", "iterations_max",
-               "fallbacks", "fallback_causes", "solver_path"]
+COMPARABILITY_ROWS = [
+    "comparable",
+    "distance_m",
+    "distance_diff_pct",
+    "duration_s",
+    "duration_diff_pct",
+    "heat_pack_J_per_km",
+    "omega_model_per_km",
+    "omega_J_per_kg_per_km",
+    "min_ttc_s",
+]
+METRIC_ROWS = COMPARABILITY_ROWS + [
+    "omega_model",
+    "omega_J_per_kg",
+    "heat_pack_J",
+    "heat_irr_pack_J",
+    "delta_soc",
+    "min_gap_model",
+    "min_gap_m",
+    "min_speed_model",
+    "rms_ovm_error_model",
+    "rms_rel_speed_model",
+    "rms_jerk_model",
+    "max_abs_current_A",
+    "gap_violations",
+    "speed_violations",
+    "collisions",
+    "infeasible_current",
+    "cost_traffic",
+    "cost_s9",
+    "cost_problem",
+    "cost_s9_exact",
+    "smoothing_gap_pct",
+    "forecast_rms",
+    "solve_ms_median",
+    "solve_ms_p95",
+    "solve_ms_max",
+    "iterations_mean",
+    "iterations_max",
+    "fallbacks",
+    "fallback_causes",
+    "solver_path",
+]
 #: rows of the §9 cost beside another formulation's run (a secondary table: never a verdict)
 S9_ROWS = ("cost_s9", "cost_s9_exact", "smoothing_gap_pct")
 
@@ -74,15 +115,19 @@ def check_mpc_scenario(scenario: Any, settings: MPCSettings, laws: tuple[str, ..
             raise ScenarioError(f"--laws: {name!r} is given twice")
     need = MPC_BYTES_PER_INTERVAL * settings.N
     if need > memory_limit_bytes():
-        raise ScenarioError(f"{file}: mpc.N = {settings.N} is not allowed: the NLP would need about "
-                            f"{need / 1e9:.3g} GB, more than the limit of {memory_limit_bytes() / 1e9:.3g} GB "
-                            f"($AEV_OCP_MAX_MEMORY_GB); use at most "
-                            f"{int(memory_limit_bytes() // MPC_BYTES_PER_INTERVAL)}")
+        raise ScenarioError(
+            f"{file}: mpc.N = {settings.N} is not allowed: the NLP would need about "
+            f"{need / 1e9:.3g} GB, more than the limit of {memory_limit_bytes() / 1e9:.3g} GB "
+            f"($AEV_OCP_MAX_MEMORY_GB); use at most "
+            f"{int(memory_limit_bytes() // MPC_BYTES_PER_INTERVAL)}"
+        )
     steps = scenario.t_end / settings.dt
     if steps > MAX_CLOSED_LOOP_STEPS:
-        raise ScenarioError(f"{file}: simulation.t_end = {scenario.t_end:g} is not allowed for MPC: "
-                            f"{steps:.3g} closed-loop steps of mpc.dt = {settings.dt:g}, more than "
-                            f"{MAX_CLOSED_LOOP_STEPS}; lower simulation.t_end or raise mpc.dt")
+        raise ScenarioError(
+            f"{file}: simulation.t_end = {scenario.t_end:g} is not allowed for MPC: "
+            f"{steps:.3g} closed-loop steps of mpc.dt = {settings.dt:g}, more than "
+            f"{MAX_CLOSED_LOOP_STEPS}; lower simulation.t_end or raise mpc.dt"
+        )
     check_run_size(n, scenario.t_end, min(scenario.dt_out, settings.dt), file)
 
 
@@ -115,10 +160,19 @@ class Comparison:
     views: list[dict[str, Any]] = field(default_factory=list)
 
     def _repr_rows(self) -> list[dict[str, Any]]:
-        return [{"run": label, "vehicle": m.get("vehicle"), "status": m.get("status"),
-                 "omega_J_per_kg": m.get("omega_J_per_kg"), "heat_pack_J": m.get("heat_pack_J"),
-                 "min_gap_m": m.get("min_gap_m"), "cost_s9": m.get("cost_s9")}
-                for label, ms in self.metrics.items() for m in ms[:2]]
+        return [
+            {
+                "run": label,
+                "vehicle": m.get("vehicle"),
+                "status": m.get("status"),
+                "omega_J_per_kg": m.get("omega_J_per_kg"),
+                "heat_pack_J": m.get("heat_pack_J"),
+                "min_gap_m": m.get("min_gap_m"),
+                "cost_s9": m.get("cost_s9"),
+            }
+            for label, ms in self.metrics.items()
+            for m in ms[:2]
+        ]
 
     def _repr_title(self) -> str:
         n = max((r.n_vehicles for r in self.results.values()), default=0)
@@ -126,12 +180,17 @@ class Comparison:
 
     def __repr__(self) -> str:
         """A few lines: per run (first two vehicles) the status, ω [J/kg], pack ∫Q [J], min gap [m], §9 cost."""
-        lines = [f"{r['run']} vehicle {r['vehicle']}: {r['status']}, ω {fmt_value(r['omega_J_per_kg'])} J/kg, "
-                 f"pack ∫Q {fmt_value(r['heat_pack_J'])} J, min gap {fmt_value(r['min_gap_m'])} m, "
-                 f"cost {fmt_value(r['cost_s9'])}" for r in self._repr_rows()]
+        lines = [
+            f"{r['run']} vehicle {r['vehicle']}: {r['status']}, ω {fmt_value(r['omega_J_per_kg'])} J/kg, "
+            f"pack ∫Q {fmt_value(r['heat_pack_J'])} J, min gap {fmt_value(r['min_gap_m'])} m, "
+            f"cost {fmt_value(r['cost_s9'])}"
+            for r in self._repr_rows()
+        ]
         if self.ocpd:
-            lines.append(f"OCP-D: {self.ocpd.get('status')}, cost {fmt_value(self.ocpd.get('cost_s9'))} "
-                         f"({self.ocpd.get('role', 'bound')})")
+            lines.append(
+                f"OCP-D: {self.ocpd.get('status')}, cost {fmt_value(self.ocpd.get('cost_s9'))} "
+                f"({self.ocpd.get('role', 'bound')})"
+            )
         lines += [f"warning: {w}" for w in self.warnings[:2]]
         return summary_text(self._repr_title(), lines)
 
@@ -183,9 +242,15 @@ def _violations(r: SimulationResult, i: int, b: ModelBounds) -> tuple[int, int]:
     return gap, int(np.sum((v < -1e-9) | (v > vmax + 1e-9)))
 
 
-def run_comparison(scenario: Any, settings: MPCSettings | None = None, laws: tuple[str, ...] = ("proposed", "ovfl"),
-                   with_ocpd: bool = True, log: Callable[[str], None] | None = None,
-                   progress: Progress | None = None, formulation: Formulation | None = None) -> Comparison:
+def run_comparison(
+    scenario: Any,
+    settings: MPCSettings | None = None,
+    laws: tuple[str, ...] = ("proposed", "ovfl"),
+    with_ocpd: bool = True,
+    log: Callable[[str], None] | None = None,
+    progress: Progress | None = None,
+    formulation: Formulation | None = None,
+) -> Comparison:
     """MPC closed loop on ``scenario`` (its [mpc] table's settings and formulation, or ``settings`` /
     ``formulation``) beside each law in ``laws`` (whole platoon on that law, same leader and initial state) and
     OCP-D of the same formulation for a single follower (module docstring: bound or reference).
@@ -199,18 +264,28 @@ def run_comparison(scenario: Any, settings: MPCSettings | None = None, laws: tup
     tim: dict[str, float] = {}
     t0 = time.perf_counter()
     say(f"MPC closed loop ({s.solver}{'+codegen' if s.codegen else ''}, N = {s.N}) on {scenario.name}")
-    out["mpc"] = closed_loop_from_scenario(scenario, cfg, s, f).run(list(scenario.gaps0), list(scenario.speeds0),
-                                                                 scenario.t_end,
-                                                                 progress=(progress.closed_loop(s.dt) if progress
-                                                                           else _progress(say, "mpc")))
+    out["mpc"] = closed_loop_from_scenario(scenario, cfg, s, f).run(
+        list(scenario.gaps0),
+        list(scenario.speeds0),
+        scenario.t_end,
+        progress=(progress.closed_loop(s.dt) if progress else _progress(say, "mpc")),
+    )
     tim["mpc"] = time.perf_counter() - t0
     for name in laws:
         t0 = time.perf_counter()
         law = scenario.law(name)
-        out[name] = simulate_platoon(scenario.leader, [law] * scenario.n_followers, list(scenario.gaps0),
-                                     list(scenario.speeds0), scenario.t_end, ev=scenario.ev, rtol=scenario.rtol,
-                                     atol=scenario.atol, dt_out=min(scenario.dt_out, s.dt),
-                                     progress=_progress(lambda m: None, name))
+        out[name] = simulate_platoon(
+            scenario.leader,
+            [law] * scenario.n_followers,
+            list(scenario.gaps0),
+            list(scenario.speeds0),
+            scenario.t_end,
+            ev=scenario.ev,
+            rtol=scenario.rtol,
+            atol=scenario.atol,
+            dt_out=min(scenario.dt_out, s.dt),
+            progress=_progress(lambda m: None, name),
+        )
         tim[name] = time.perf_counter() - t0
     metrics = {}
     warn: list[str] = []
@@ -223,8 +298,10 @@ def run_comparison(scenario: Any, settings: MPCSettings | None = None, laws: tup
         ms = r.metrics()
         whole = _covers(r, scenario.t_end)
         if not whole:
-            warn.append(f"run {lab} stopped early ({_run_status(r)}): its costs ({key}, cost_s9) cover only "
-                        "part of the horizon and are not reported")
+            warn.append(
+                f"run {lab} stopped early ({_run_status(r)}): its costs ({key}, cost_s9) cover only "
+                "part of the horizon and are not reported"
+            )
         for i, m in enumerate(ms):
             try:
                 m[key] = _own_cost(r, i, s, f, pr, pvec) if whole else float("nan")
@@ -232,18 +309,23 @@ def run_comparison(scenario: Any, settings: MPCSettings | None = None, laws: tup
                 m[key] = float("nan")
                 if lab == "mpc" and i == 0:
                     warn.append(f"{key} is not reported: {exc}")
-            m["cost_s9"], m["cost_s9_exact"] = ((_cost_s9(r, i, s, f), _cost_s9(r, i, s, f, exact=True)) if whole
-                                                else (float("nan"), float("nan")))
-            m["smoothing_gap_pct"] = 100 * (m["cost_s9"] / m["cost_s9_exact"] - 1) if m["cost_s9_exact"] else float("nan")
+            m["cost_s9"], m["cost_s9_exact"] = (
+                (_cost_s9(r, i, s, f), _cost_s9(r, i, s, f, exact=True)) if whole else (float("nan"), float("nan"))
+            )
+            m["smoothing_gap_pct"] = (
+                100 * (m["cost_s9"] / m["cost_s9_exact"] - 1) if m["cost_s9_exact"] else float("nan")
+            )
             # like with like: every column's violations against the running formulation's bounds
             m["gap_violations"], m["speed_violations"] = _violations(r, i, b)
             st = (r.solver_stats or [None] * len(ms))[i]
             if st:
                 m["forecast_rms"] = st.get("forecast_rms", float("nan"))
             if lab == "mpc" and f.kind == "s9" and abs(m["smoothing_gap_pct"]) > 100 * SMOOTHING_GAP_RTOL:
-                warn.append(f"vehicle {i + 1}: the MPC's §9 cost is {m['cost_s9']:.6g} with its smoothed η switch "
-                            f"but {m['cost_s9_exact']:.6g} on the exact model ({m['smoothing_gap_pct']:+.2f} %): "
-                            "the optimiser may exploit the smoothing (narrow mpc.smoothing_width_W)")
+                warn.append(
+                    f"vehicle {i + 1}: the MPC's §9 cost is {m['cost_s9']:.6g} with its smoothed η switch "
+                    f"but {m['cost_s9_exact']:.6g} on the exact model ({m['smoothing_gap_pct']:+.2f} %): "
+                    "the optimiser may exploit the smoothing (narrow mpc.smoothing_width_W)"
+                )
         metrics[lab] = ms
     _flag_comparability(metrics)
     ocpd = None
@@ -257,17 +339,32 @@ def run_comparison(scenario: Any, settings: MPCSettings | None = None, laws: tup
         say(f"OCP-D of the MPC's formulation (whole scenario, IPOPT, N = {grid.N}, dt = {grid.dt:.4g})")
         # IPOPT's wall-time limit: what is left of the run's time limit (at most the OCP-D default)
         left = progress.remaining_s() if progress is not None else math.inf
-        sr = solve_and_replay(scenario, s.dt, f, time_limit_s=min(DEFAULT_TIME_LIMIT_S, max(left, 1e-3)), progress=say,
-                              replay_progress=_progress(say, "ocp-d replay"))
+        sr = solve_and_replay(
+            scenario,
+            s.dt,
+            f,
+            time_limit_s=min(DEFAULT_TIME_LIMIT_S, max(left, 1e-3)),
+            progress=say,
+            replay_progress=_progress(say, "ocp-d replay"),
+        )
         scn, res, coarse = sr.scenario, sr.result, sr.coarse
         tim["ocpd"] = time.perf_counter() - t0
         # a failed or time-limited solve bounds nothing: no cost is reported for it
-        ocpd = {"success": res.success, "status": res.status, key: res.objective if res.success else float("nan"),
-                "grid_dt": scn.dt, "formulation": f.name,
-                "objective": {"traffic": "traffic objective (the MPC's)", "s9": "model guide §9 cost"}.get(
-                    f.kind, f"the MPC's problem {f.name!r}"),
-                "objective_definition": OBJECTIVE_NAMES[f.kind], "N": scn.N,
-                "solve_time_s": res.wall_time_s, "iterations": res.iterations, "role": "reference"}
+        ocpd = {
+            "success": res.success,
+            "status": res.status,
+            key: res.objective if res.success else float("nan"),
+            "grid_dt": scn.dt,
+            "formulation": f.name,
+            "objective": {"traffic": "traffic objective (the MPC's)", "s9": "model guide §9 cost"}.get(
+                f.kind, f"the MPC's problem {f.name!r}"
+            ),
+            "objective_definition": OBJECTIVE_NAMES[f.kind],
+            "N": scn.N,
+            "solve_time_s": res.wall_time_s,
+            "iterations": res.iterations,
+            "role": "reference",
+        }
         if sr.replay is not None:
             # the optimal controls replayed open loop through the same exact plant: every §10 metric
             r = sr.replay
@@ -289,9 +386,11 @@ def run_comparison(scenario: Any, settings: MPCSettings | None = None, laws: tup
                 ocpd["cost_s9"] = m["cost_s9_replayed"]
             if coarse:  # a coarser grid's optimum bounds nothing on the MPC's grid
                 ocpd[f"{key}_grid"], ocpd[key] = res.objective, m[f"{key}_replayed"]
-                warn.append(f"OCP-D was solved on a coarser grid (dt = {scn.dt:.4g}, the MPC's {s.dt:g}): its {key} "
-                            f"is its controls replayed and costed on the MPC's grid, a reference, not a lower bound "
-                            f"(its own grid's optimum: {res.objective:.6g})")
+                warn.append(
+                    f"OCP-D was solved on a coarser grid (dt = {scn.dt:.4g}, the MPC's {s.dt:g}): its {key} "
+                    f"is its controls replayed and costed on the MPC's grid, a reference, not a lower bound "
+                    f"(its own grid's optimum: {res.objective:.6g})"
+                )
             else:
                 ocpd["role"], why = bound_role(float(res.objective), metrics, key)
                 if why:
@@ -333,7 +432,11 @@ def _fmt(x: Any) -> str:
 def _run_status(r: SimulationResult) -> str:
     """'ok', or where the run stopped: 'collision at t = 12.3 (vehicle 2)'."""
     if not r.events:
-        return "ok" if not r.violations else "violated (" + ", ".join(f"vehicle {e.vehicle + 1}" for e in r.violations) + ")"
+        return (
+            "ok"
+            if not r.violations
+            else "violated (" + ", ".join(f"vehicle {e.vehicle + 1}" for e in r.violations) + ")"
+        )
     e = r.events[0]
     when = f"{e.time_s:.4g} s ({e.time:.4g} model)" if e.time_s is not None else f"{e.time:.4g}"
     return f"{e.kind} at t = {when}" + (f" (vehicle {e.vehicle + 1})" if e.vehicle >= 0 else "")
@@ -345,8 +448,10 @@ def _render(head: list[str], rows: list[list[str]], markdown: bool) -> str:
         lines += ["| " + " | ".join(r) + " |" for r in rows]
         return "\n".join(lines)
     w = [max(len(str(x)) for x in col) for col in zip(head, *rows)]
-    return "\n".join("  ".join(str(x).ljust(wi) if j == 0 else str(x).rjust(wi) for j, (x, wi) in enumerate(zip(r, w)))
-                     for r in [head] + rows)
+    return "\n".join(
+        "  ".join(str(x).ljust(wi) if j == 0 else str(x).rjust(wi) for j, (x, wi) in enumerate(zip(r, w)))
+        for r in [head] + rows
+    )
 
 
 def _ocpd_label(c: Comparison) -> str:
@@ -394,13 +499,18 @@ def comparison_table(c: Comparison, vehicle: int = 0, markdown: bool = False, vi
     heads = [_ocpd_label(c) if col == "ocp-d" else col for col in cols]
     heads = [col if ok else f"{col} (NOT COMPARABLE)" for col, ok in zip(heads, flag)]
     rows.insert(0, ["status"] + status)
-    text = [f"Whole runs (formulation {f.name}; its own cost {f.cost_key}; ranked only when comparable):",
-            _render(["metric"] + heads, rows, markdown)]
+    text = [
+        f"Whole runs (formulation {f.name}; its own cost {f.cost_key}; ranked only when comparable):",
+        _render(["metric"] + heads, rows, markdown),
+    ]
     if secondary:
         # OCP-D optimises this formulation's cost, not the other one: no 'bound' label in this table
         other_heads = ["ocp-d" if col == "ocp-d" else h for col, h in zip(cols, heads)]
-        text += ["", "Another formulation's cost (model guide §9's; neither this MPC nor its OCP-D optimises it: "
-                     "no verdict):", _render(["metric"] + other_heads, secondary, markdown)]
+        text += [
+            "",
+            "Another formulation's cost (model guide §9's; neither this MPC nor its OCP-D optimises it: no verdict):",
+            _render(["metric"] + other_heads, secondary, markdown),
+        ]
     if views and vehicle < len(c.views):
         text += ["", views_table(c.views[vehicle], markdown)]
     return "\n".join(text)
@@ -415,8 +525,10 @@ def views_table(v: dict[str, Any], markdown: bool = False) -> str:
         if not runs:
             continue
         what = "shortest common distance" if view == "distance" else "common time"
-        out.append(f"Equal {view}: every run up to the {what}, {v[view][cut]:.6g} {unit} (all comparable; runs ended "
-                   "by an event left out):")
+        out.append(
+            f"Equal {view}: every run up to the {what}, {v[view][cut]:.6g} {unit} (all comparable; runs ended "
+            "by an event left out):"
+        )
         labs = list(runs)
         rows = [[k] + [_fmt(runs[lab][k]) for lab in labs] for k in (*VIEW_KEYS, "rank")]
         out += [_render(["metric"] + labs, rows, markdown), ""]
@@ -430,17 +542,33 @@ def write_outputs(c: Comparison, out: Path) -> list[Path]:
 
     out.mkdir(parents=True, exist_ok=True)
     r = c.results["mpc"]
-    files = [write_json(out / "results.json", {"scenario": r.meta.get("leader"), "status": r.status,
-                                               "events": [vars(e) for e in r.events], "metrics": c.metrics,
-                                               "runs": {lab: {"status": res.status,
-                                                              "events": [vars(e) for e in res.events]}
-                                                        for lab, res in c.results.items()},
-                                               "ocp_d": c.ocpd, "timings_s": c.timings_s, "warnings": c.warnings,
-                                               "formulation": c.formulation.describe(), "equal_views": c.views,
-                                               "mpc_settings": r.meta.get("controllers"),
-                                               "mpc_steps": r.meta.get("mpc_steps")})]
+    files = [
+        write_json(
+            out / "results.json",
+            {
+                "scenario": r.meta.get("leader"),
+                "status": r.status,
+                "events": [vars(e) for e in r.events],
+                "metrics": c.metrics,
+                "runs": {
+                    lab: {"status": res.status, "events": [vars(e) for e in res.events]}
+                    for lab, res in c.results.items()
+                },
+                "ocp_d": c.ocpd,
+                "timings_s": c.timings_s,
+                "warnings": c.warnings,
+                "formulation": c.formulation.describe(),
+                "equal_views": c.views,
+                "mpc_settings": r.meta.get("controllers"),
+                "mpc_steps": r.meta.get("mpc_steps"),
+            },
+        )
+    ]
     files.append(r.to_csv(out / "trajectories_mpc.csv"))
-    for png, plot in ((out / "mpc_trajectories.png", plot_trajectories), (out / "mpc_solve_times.png", plot_solve_times)):
+    for png, plot in (
+        (out / "mpc_trajectories.png", plot_trajectories),
+        (out / "mpc_solve_times.png", plot_solve_times),
+    ):
         plot(r, png)
         files.append(png)
     for i in range(r.n_vehicles):
@@ -463,21 +591,37 @@ def mpc_section(out_dir: Any, progress: Callable[[str], None]) -> str:
     write_outputs(c, out)
     from ..saved import save_output, settings_of
 
-    save_output(out, "mpc", c.results, primary="mpc", settings=settings_of(sc),  # aev_ocp.load(".../mpc")
-                extra={"ocp_d": c.ocpd, "comparison_metrics": c.metrics, "timings_s": c.timings_s, "warnings": c.warnings})
+    save_output(
+        out,
+        "mpc",
+        c.results,
+        primary="mpc",
+        settings=settings_of(sc),  # aev_ocp.load(".../mpc")
+        extra={"ocp_d": c.ocpd, "comparison_metrics": c.metrics, "timings_s": c.timings_s, "warnings": c.warnings},
+    )
     st = c.metrics["mpc"][0]
-    lines = ["## MPC with the battery in the loop (model guide §9)", "",
-             f"Canonical scenario: one follower behind the Table 1 leader, h(0) = 0.3, v(0) = 1.87, oracle "
-             f"forecast, N = 40, dt = 0.1, w = (1, 1, 1, 0.1), t ∈ [0, {sc.t_end:g}]. Exact plant (CVODES, "
-             f"unsmoothed η switch). Solver path {st.get('solver_path')} (QP {st.get('qp_solver') or '—'}): median {st.get('solve_ms_median', float('nan')):.2f} ms, "
-             f"p95 {st.get('solve_ms_p95', float('nan')):.2f} ms, max {st.get('solve_ms_max', float('nan')):.2f} ms per "
-             f"step, {st.get('fallbacks')} fallbacks. `cost_s9` is Σ ℓ(z_k, a_k)·dt of §9 on the dt grid "
-             "(smoothed η, as in OCP-D); OCP-D is the lower bound of that cost. `cost_s9_exact` is the same "
-             "cost with the exact η switch; `smoothing_gap_pct` their difference (a warning above 0.5 %).", "",
-             comparison_table(c, 0, markdown=True), "",
-             "![MPC and the laws: gap, speed, acceleration, current, SOC](mpc/overlay_vehicle1.png)", "",
-             "![MPC trajectories](mpc/mpc_trajectories.png)", "", "![MPC solve time per step](mpc/mpc_solve_times.png)", "",
-             "The runs load back with `aev_ocp.load(\"mpc\")` (the MPC) and `aev_ocp.load_all(\"mpc\")` (every run).", ""]
+    lines = [
+        "## MPC with the battery in the loop (model guide §9)",
+        "",
+        f"Canonical scenario: one follower behind the Table 1 leader, h(0) = 0.3, v(0) = 1.87, oracle "
+        f"forecast, N = 40, dt = 0.1, w = (1, 1, 1, 0.1), t ∈ [0, {sc.t_end:g}]. Exact plant (CVODES, "
+        f"unsmoothed η switch). Solver path {st.get('solver_path')} (QP {st.get('qp_solver') or '—'}): median {st.get('solve_ms_median', float('nan')):.2f} ms, "
+        f"p95 {st.get('solve_ms_p95', float('nan')):.2f} ms, max {st.get('solve_ms_max', float('nan')):.2f} ms per "
+        f"step, {st.get('fallbacks')} fallbacks. `cost_s9` is Σ ℓ(z_k, a_k)·dt of §9 on the dt grid "
+        "(smoothed η, as in OCP-D); OCP-D is the lower bound of that cost. `cost_s9_exact` is the same "
+        "cost with the exact η switch; `smoothing_gap_pct` their difference (a warning above 0.5 %).",
+        "",
+        comparison_table(c, 0, markdown=True),
+        "",
+        "![MPC and the laws: gap, speed, acceleration, current, SOC](mpc/overlay_vehicle1.png)",
+        "",
+        "![MPC trajectories](mpc/mpc_trajectories.png)",
+        "",
+        "![MPC solve time per step](mpc/mpc_solve_times.png)",
+        "",
+        'The runs load back with `aev_ocp.load("mpc")` (the MPC) and `aev_ocp.load_all("mpc")` (every run).',
+        "",
+    ]
     if c.ocpd and c.ocpd.get("success"):
         gap = 100 * (st["cost_s9"] / c.ocpd["cost_s9"] - 1)
         what = "lower bound" if c.ocpd.get("role") == "bound" else "reference (not a bound, see the warnings)"

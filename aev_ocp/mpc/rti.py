@@ -33,7 +33,6 @@ from .ocpqp import STATUS as QP_STATUS
 from .solution import MPCSolution
 
 
-
 class RTIHost(Protocol):
     """What the RTI step needs of its controller (:class:`aev_ocp.mpc.controller.MPCController`; a Protocol, so
     this module does not import the controller): the warm start it keeps, its failed and late results, its
@@ -48,10 +47,12 @@ class RTIHost(Protocol):
 
     def late(self, warm: dict[str, Any], iters: int, dt_wall: float, viol: float, path: str) -> MPCSolution: ...
 
+
 #: HPIPM's stand-in for an infinite bound in the traffic formulation's QPs (CasADi's default 1e8 next to
 #: O(1…1e3) scaled variables stalls HPIPM at its iteration limit (status 1) on the slack and epigraph
 #: controls, which have no upper bound; measured: 100 iterations without convergence vs 14).
 HPIPM_INF_TRAFFIC = 1e5
+
 
 def qp_options(qp_solver: str, hpipm_inf: float | None = None) -> dict[str, Any]:
     """Silent, tight options of a QP solver (the 'sqp' path's qpsol and the 'rti' path's conic)."""
@@ -86,7 +87,7 @@ class RTIStep:
         LAM, LBX, UBX = ca.MX.sym("lam_g", nlp.ng), ca.MX.sym("lbx", nlp.nv), ca.MX.sym("ubx", nlp.nv)
         Xk, Uk, Xn, W, PP, SW = nlp.stage_inputs(V, P)
         Hs, Qs, Js, Gs, Cs = stage.map(N, "serial")(Xk, Uk, Xn, W, ca.repmat(PP, 1, N), SW, ca.reshape(LAM, ngs, N))
-        HN, qN, cN = term(V[nb * N:], PP)
+        HN, qN, cN = term(V[nb * N :], PP)
         H = ca.diagcat(*([ca.DM.ones(ca.Sparsity.dense(nb, nb))] * N), ca.DM.ones(ca.Sparsity.dense(nx, nx)))
         E = ca.DM(nlp.ng, nlp.nv)  # −I of gap_k in z_{k+1}
         for k in range(N):
@@ -96,21 +97,36 @@ class RTIStep:
         g = ca.vec(Gs)
         # the exact Hessian comes out as its dense diagonal blocks (hblk: the N stage blocks side by side,
         # hN: the terminal block); :meth:`regularised_hessian` projects each onto the PD cone
-        qpdata = ca.Function("mpc_rti_qp_data", [V, P, LAM, LBX, UBX],
-                             [Hs, HN, ca.vertcat(ca.vec(Qs), qN), A, ca.DM(nlp.lbg) - g,
-                              ca.DM(nlp.ubg) - g, LBX - V, UBX - V, ca.sum2(Cs) + cN, g],
-                             ["x", "p", "lam_g", "lbx", "ubx"],
-                             ["hblk", "hN", "g", "a", "lba", "uba", "lbdx", "ubdx", "f", "gx"])
+        qpdata = ca.Function(
+            "mpc_rti_qp_data",
+            [V, P, LAM, LBX, UBX],
+            [
+                Hs,
+                HN,
+                ca.vertcat(ca.vec(Qs), qN),
+                A,
+                ca.DM(nlp.lbg) - g,
+                ca.DM(nlp.ubg) - g,
+                LBX - V,
+                UBX - V,
+                ca.sum2(Cs) + cN,
+                g,
+            ],
+            ["x", "p", "lam_g", "lbx", "ubx"],
+            ["hblk", "hN", "g", "a", "lba", "uba", "lbdx", "ubdx", "f", "gx"],
+        )
         self.H_sparsity = H.sparsity()
         # objective and constraints only (cost and nonlinear violation of the returned plan)
-        fg = ca.Function("mpc_rti_fg", [nlp.nlp["x"], nlp.nlp["p"]], [nlp.nlp["f"], nlp.nlp["g"]],
-                         ["x", "p"], ["f", "g"])
+        fg = ca.Function(
+            "mpc_rti_fg", [nlp.nlp["x"], nlp.nlp["p"]], [nlp.nlp["f"], nlp.nlp["g"]], ["x", "p"], ["f", "g"]
+        )
         # path constraints of the applied control at node 0 (where the state is the measurement)
         path0 = nlp.F(V[:nx], V[nx:nb], ca.MX(0, 1), ca.MX.zeros(nx), W[:, 0], PP, s.dt)[1]
         p0 = ca.Function("mpc_rti_path0", [V, P], [path0])
         self.data, self.fg, self.path0 = qpdata, fg, p0
         self.codegen_active = False
         if codegen:
+
             def generate() -> None:
                 cg = ca.CodeGenerator("mpc_rti.c")
                 cg.add(qpdata)
@@ -126,7 +142,9 @@ class RTIStep:
                 self.path0 = ca.external("mpc_rti_path0", lib)
         if not self.codegen_active:
             self.data, self.fg, self.path0 = qpdata.expand(), fg.expand(), p0.expand()
-        self.qp = ca.conic("mpc_rti_qp", qp_plugin, {"h": H.sparsity(), "a": A.sparsity()}, qp_options(qp_plugin, hpipm_inf))
+        self.qp = ca.conic(
+            "mpc_rti_qp", qp_plugin, {"h": H.sparsity(), "a": A.sparsity()}, qp_options(qp_plugin, hpipm_inf)
+        )
         self.path0_lb = np.asarray(pr.path_lb, float)
         self.path0_ub = np.asarray(pr.path_ub, float)
 
@@ -138,7 +156,9 @@ class RTIStep:
         Block-wise projection makes the whole (block-diagonal) Hessian, hence every reduced Hessian, PD.
         ``project=False``: the exact blocks, assembled."""
         N, nx, nb = self.nlp.settings.N, self.nlp.nx, self.nlp.nx + self.nlp.nu
-        B = np.asarray(hblk, float).reshape(nb, N, nb).transpose(1, 0, 2)  # (N, nb, nb): block k = hblk[:, k·nb:(k+1)·nb]
+        B = (
+            np.asarray(hblk, float).reshape(nb, N, nb).transpose(1, 0, 2)
+        )  # (N, nb, nb): block k = hblk[:, k·nb:(k+1)·nb]
         HN = np.asarray(hN, float).reshape(1, nx, nx)
         # column-major nonzeros of the dense diagonal blocks (the sparsity of H_sparsity)
         if project:
@@ -146,8 +166,9 @@ class RTIStep:
         nz = np.concatenate([B.transpose(0, 2, 1).ravel(), HN[0].T.ravel()])
         return ca.DM(self.H_sparsity, nz)
 
-    def qp_step(self, x: np.ndarray, p: np.ndarray, lam_g: np.ndarray, lam_x: np.ndarray, lbx: np.ndarray,
-                ubx: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool, str]:
+    def qp_step(
+        self, x: np.ndarray, p: np.ndarray, lam_g: np.ndarray, lam_x: np.ndarray, lbx: np.ndarray, ubx: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool, str]:
         """One SQP step's QP at (x, lam_g) solved by ``ca.conic``: (dx, lam_g, lam_x, solved, the QP solver's
         status); the multipliers are the QP's when solved, else the ones given."""
         d = self.data(x, p, lam_g, lbx, ubx)
@@ -160,8 +181,9 @@ class RTIStep:
             lam_g, lam_x = np.asarray(out["lam_a"]).ravel(), np.asarray(out["lam_x"]).ravel()
         return dx, lam_g, lam_x, ok_qp, qst
 
-    def solve(self, c: RTIHost, args: dict[str, np.ndarray], p: np.ndarray, lbx: np.ndarray,
-              ubx: np.ndarray, iterations: int) -> MPCSolution:
+    def solve(
+        self, c: RTIHost, args: dict[str, np.ndarray], p: np.ndarray, lbx: np.ndarray, ubx: np.ndarray, iterations: int
+    ) -> MPCSolution:
         """Up to ``iterations`` full SQP steps from ``args`` (the shifted previous solution, or the cold
         guess), each QP by :meth:`qp_step`. Success: every QP solved, a finite step, the applied control's
         path constraints (node 0, where the state is the measurement) hold within
@@ -203,16 +225,29 @@ class RTIStep:
         viol = nlp.violation(x, np.asarray(g).ravel(), lbx, ubx)
         X, a, U = nlp.unpack(x)
         c.warm = {"x": x, "lam_x": lam_x, "lam_g": lam_g, "X1": X[:, 1]}
-        return MPCSolution(True, "RTI_Step" if step > s.tol else "RTI_Converged", it, dt_wall, X, a,
-                           float(f), viol, "rti", {"step_inf": step, "node0_violation": viol0}, U)
+        return MPCSolution(
+            True,
+            "RTI_Step" if step > s.tol else "RTI_Converged",
+            it,
+            dt_wall,
+            X,
+            a,
+            float(f),
+            viol,
+            "rti",
+            {"step_inf": step, "node0_violation": viol0},
+            U,
+        )
 
 
 def check_rti_qp(qp_solver: str, family: str) -> None:
     """ParameterError for a QP solver the rti path cannot run on a formulation."""
     if qp_solver == "qrqp" and family == "traffic":
-        raise ParameterError("MPCSettings.qp_solver = 'qrqp' cannot take the traffic formulation: its energy "
-                             "epigraph control enters the cost linearly and qrqp needs curvature in every "
-                             "control; use qp_solver = 'riccati' or 'hpipm'")
+        raise ParameterError(
+            "MPCSettings.qp_solver = 'qrqp' cannot take the traffic formulation: its energy "
+            "epigraph control enters the cost linearly and qrqp needs curvature in every "
+            "control; use qp_solver = 'riccati' or 'hpipm'"
+        )
 
 
 def solve_compiled(c: RTIHost, z0: np.ndarray, p: np.ndarray) -> MPCSolution:
@@ -236,7 +271,16 @@ def solve_compiled(c: RTIHost, z0: np.ndarray, p: np.ndarray) -> MPCSolution:
     if dt_wall * 1e3 > c.settings.max_step_ms:
         return c.late(warm, info.iterations, dt_wall, info.node0_violation, "rti")
     c.warm = warm
-    return MPCSolution(True, "RTI_Step" if info.step_inf > c.settings.tol else "RTI_Converged",
-                       info.iterations, dt_wall, X, a, info.cost, info.violation, "rti",
-                       {"step_inf": info.step_inf, "node0_violation": info.node0_violation,
-                        "cold_start": bool(info.cold)}, U)
+    return MPCSolution(
+        True,
+        "RTI_Step" if info.step_inf > c.settings.tol else "RTI_Converged",
+        info.iterations,
+        dt_wall,
+        X,
+        a,
+        info.cost,
+        info.violation,
+        "rti",
+        {"step_inf": info.step_inf, "node0_violation": info.node0_violation, "cold_start": bool(info.cold)},
+        U,
+    )

@@ -25,8 +25,13 @@ from .policy import MPCVehicle
 from .settings import MPCSettings
 
 #: Dataclasses of the formulation whose fields appear flat in the [mpc] table.
-_NESTED = {"weights": FollowingWeights, "bounds": FollowingBounds, "smooth": PowertrainOptions,
-           "traffic": TrafficParams, "temperature": TemperatureTerms}
+_NESTED = {
+    "weights": FollowingWeights,
+    "bounds": FollowingBounds,
+    "smooth": PowertrainOptions,
+    "traffic": TrafficParams,
+    "temperature": TemperatureTerms,
+}
 #: The ``follower_predictor`` key: forecasts that make sense behind another vehicle.
 FOLLOWER_PREDICTORS = ("cooperative", "constant-velocity", "constant-acceleration")
 
@@ -73,10 +78,10 @@ def validate_mpc_table(r: Any) -> MPCConfig:
             r._get("vehicles", None)
         else:
             if not isinstance(val, list):
-                raise r.error("vehicles", val, "must be \"all\" or an array of follower numbers (1, 2, …)")
+                raise r.error("vehicles", val, 'must be "all" or an array of follower numbers (1, 2, …)')
             nums_v = r.numbers("vehicles", ge=1)
             if any(int(x) != x for x in nums_v):
-                raise r.error("vehicles", val, "must be \"all\" or an array of follower numbers (1, 2, …)")
+                raise r.error("vehicles", val, 'must be "all" or an array of follower numbers (1, 2, …)')
             if len(set(nums_v)) != len(nums_v):
                 raise r.error("vehicles", val, "lists a follower twice")
             vehicles = tuple(sorted({int(x) - 1 for x in nums_v}))
@@ -86,14 +91,21 @@ def validate_mpc_table(r: Any) -> MPCConfig:
         s9_only = {f.name for c in (FollowingWeights, FollowingBounds) for f in fields(c)} | {"objective"}
         bad = [k for k in d if k in s9_only]
         if bad:
-            raise r.error(bad[0], d[bad[0]], "applies to the §9 formulation only: set mpc.formulation = \"s9\", or "
-                          "use the traffic formulation's SI parameters (standstill_gap_m, time_headway_s, "
-                          "a_min_mps2, ...; see aev_ocp/ocp/traffic.py)")
+            raise r.error(
+                bad[0],
+                d[bad[0]],
+                'applies to the §9 formulation only: set mpc.formulation = "s9", or '
+                "use the traffic formulation's SI parameters (standstill_gap_m, time_headway_s, "
+                "a_min_mps2, ...; see aev_ocp/ocp/traffic.py)",
+            )
     elif d.get("formulation") == "s9":  # and the traffic formulation's keys under §9
         bad = [k for k in d if k in {f.name for f in fields(TrafficParams)}]
         if bad:
-            raise r.error(bad[0], d[bad[0]], "applies to the traffic formulation only (aev_ocp/ocp/traffic.py), "
-                          "not to formulation = \"s9\"")
+            raise r.error(
+                bad[0],
+                d[bad[0]],
+                'applies to the traffic formulation only (aev_ocp/ocp/traffic.py), not to formulation = "s9"',
+            )
     fkeys = formulation_keys()
     try:
         settings = MPCSettings.from_dict({k: v for k, v in d.items() if k not in fkeys})
@@ -117,8 +129,12 @@ def register() -> None:
     register_section("mpc", validate_mpc_table)
 
 
-def check_mpc_setup(scenario: Any, config: MPCConfig | None = None, settings: MPCSettings | None = None,
-                    formulation: Formulation | None = None) -> None:
+def check_mpc_setup(
+    scenario: Any,
+    config: MPCConfig | None = None,
+    settings: MPCSettings | None = None,
+    formulation: Formulation | None = None,
+) -> None:
     """Refuse an MPC setup that cannot run, before anything is built: MPC vehicles that do not exist, or an
     MPC vehicle whose initial gap is at or below h_min or whose initial speed is outside [v_min, v_max]
     (every NLP would be infeasible and every step would run on the fallback). ScenarioError naming the file."""
@@ -131,24 +147,36 @@ def check_mpc_setup(scenario: Any, config: MPCConfig | None = None, settings: MP
     on = list(range(n)) if cfg.vehicles is None else list(cfg.vehicles)
     missing = [i + 1 for i in on if i >= n]
     if missing:
-        raise ScenarioError(f"{file}: mpc.vehicles = {[i + 1 for i in on]} is not allowed: follower(s) {missing} "
-                            f"do not exist (platoon.followers = {n})")
+        raise ScenarioError(
+            f"{file}: mpc.vehicles = {[i + 1 for i in on]} is not allowed: follower(s) {missing} "
+            f"do not exist (platoon.followers = {n})"
+        )
     if f.temperature.temperature_state and not scenario.ev.thermal.enabled:
-        raise ScenarioError(f"{file}: mpc.temperature_state = true is not allowed: the prediction's temperature is "
-                            "measured on the plant's thermal model, which is off (set [thermal] enabled = true)")
+        raise ScenarioError(
+            f"{file}: mpc.temperature_state = true is not allowed: the prediction's temperature is "
+            "measured on the plant's thermal model, which is off (set [thermal] enabled = true)"
+        )
     b = f.bounds_model(scenario.ev)
     for i in on:
         h0, v0 = scenario.gaps0[i], scenario.speeds0[i]
         if f.kind == "s9" and b.h_min is not None and b.h_min >= h0:  # the traffic formulation's floor is soft
-            raise ScenarioError(f"{file}: mpc.h_min = {b.h_min:g} is not allowed: it is at or above the initial gap "
-                                f"of follower {i + 1} ({h0:g}), so the MPC problem is infeasible from the first step")
+            raise ScenarioError(
+                f"{file}: mpc.h_min = {b.h_min:g} is not allowed: it is at or above the initial gap "
+                f"of follower {i + 1} ({h0:g}), so the MPC problem is infeasible from the first step"
+            )
         if b.v_min is not None and b.v_max is not None and not b.v_min <= v0 <= b.v_max:
-            raise ScenarioError(f"{file}: mpc.v_min/v_max (traffic: 0, v_max_mps) = [{b.v_min:g}, {b.v_max:g}] is not allowed: the initial "
-                                f"speed of follower {i + 1} ({v0:g}) lies outside, so the MPC problem is infeasible")
+            raise ScenarioError(
+                f"{file}: mpc.v_min/v_max (traffic: 0, v_max_mps) = [{b.v_min:g}, {b.v_max:g}] is not allowed: the initial "
+                f"speed of follower {i + 1} ({v0:g}) lies outside, so the MPC problem is infeasible"
+            )
 
 
-def closed_loop_from_scenario(scenario: Any, config: MPCConfig | None = None,
-                              settings: MPCSettings | None = None, formulation: Formulation | None = None) -> ClosedLoop:
+def closed_loop_from_scenario(
+    scenario: Any,
+    config: MPCConfig | None = None,
+    settings: MPCSettings | None = None,
+    formulation: Formulation | None = None,
+) -> ClosedLoop:
     """A :class:`ClosedLoop` for a scenario: MPC on the configured followers (the config's formulation, unless
     ``formulation`` is given), the scenario's laws on the others, the proposed law with the scenario's α, β, κ
     as the fallback."""
@@ -171,8 +199,16 @@ def closed_loop_from_scenario(scenario: Any, config: MPCConfig | None = None,
             ctrls.append(MPCVehicle(s, predictor=p, formulation=f))
     from ..estimation.scenario import realism_kwargs  # [mismatch], [sensors]: plant ≠ model, measurements
 
-    return ClosedLoop(scenario.leader, ctrls, scenario.ev, fallback_law=scenario.law("proposed"),
-                      rtol=scenario.rtol, atol=scenario.atol, law_dt=s.dt, **realism_kwargs(scenario))
+    return ClosedLoop(
+        scenario.leader,
+        ctrls,
+        scenario.ev,
+        fallback_law=scenario.law("proposed"),
+        rtol=scenario.rtol,
+        atol=scenario.atol,
+        law_dt=s.dt,
+        **realism_kwargs(scenario),
+    )
 
 
 register()  # the scenario loader imports this module when a file has an [mpc] table

@@ -85,9 +85,11 @@ class MPCSettings:
     def __post_init__(self) -> None:
         validate_fields(self)
         if self.qp_solver == "riccati" and self.solver == "sqp":
-            raise ParameterError("MPCSettings.qp_solver = 'riccati' is the 'rti' path's QP solver (aev_ocp/c/ocp_qp.c); "
-                                 "the 'sqp' path (CasADi's sqpmethod) takes a CasADi QP solver: set qp_solver to one "
-                                 f"of {[q for q in QP_SOLVERS if q != 'riccati']}")
+            raise ParameterError(
+                "MPCSettings.qp_solver = 'riccati' is the 'rti' path's QP solver (aev_ocp/c/ocp_qp.c); "
+                "the 'sqp' path (CasADi's sqpmethod) takes a CasADi QP solver: set qp_solver to one "
+                f"of {[q for q in QP_SOLVERS if q != 'riccati']}"
+            )
 
     @property
     def qp(self) -> str:
@@ -106,8 +108,10 @@ class MPCSettings:
         """A validated copy with some options changed."""
         moved = sorted(set(changes) & MOVED_TO_FORMULATION)
         if moved:
-            raise ParameterError(f"MPCSettings.{moved[0]} is not a solver option: the problem's parameters live in a "
-                                 "Formulation (aev_ocp.ocp.formulation: s9_formulation(...), traffic_formulation(...))")
+            raise ParameterError(
+                f"MPCSettings.{moved[0]} is not a solver option: the problem's parameters live in a "
+                "Formulation (aev_ocp.ocp.formulation: s9_formulation(...), traffic_formulation(...))"
+            )
         return replace(self, **changes)
 
     @classmethod

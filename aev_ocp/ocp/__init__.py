@@ -18,11 +18,18 @@ from typing import Any
 
 #: name -> submodule that defines it (problem description and solvers only: the package's own layers)
 _EXPORTS = {
-    "OCPResult": "result", "OCPProblem": "problem", "ProblemBuilder": "problem",
-    "OCPSolver": "transcription", "TranscriptionOptions": "transcription",
-    "FollowingBounds": "following", "FollowingWeights": "following", "following_problem": "following",
+    "OCPResult": "result",
+    "OCPProblem": "problem",
+    "ProblemBuilder": "problem",
+    "OCPSolver": "transcription",
+    "TranscriptionOptions": "transcription",
+    "FollowingBounds": "following",
+    "FollowingWeights": "following",
+    "following_problem": "following",
     "following_stage_terms": "following",
-    "OracleScenario": "oracle", "OracleSolver": "oracle", "canonical_scenario": "oracle",
+    "OracleScenario": "oracle",
+    "OracleSolver": "oracle",
+    "canonical_scenario": "oracle",
     "stage_cost_of_trajectory": "oracle",
 }
 __all__ = list(_EXPORTS)

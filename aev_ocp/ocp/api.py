@@ -19,14 +19,31 @@ from .current_profile import E_REQ_J, SOC0, T_F_S, CurrentProfileSolver, compare
 from .checks import GAP_RTOL, multistart_line, record_smoothing_gap, record_term_gap, refinement_line
 from .checks import multistart as run_multistart
 from .eco_trip import GUESSES, EcoTrip, EcoTripSolver
-from .oracle import (COARSE_GRID_S, DEFAULT_TIME_LIMIT_S, PROGRESS_EVERY_S, OracleScenario, OracleSolver, replay,
-                     canonical_scenario, drive_cycle_scenario, scenario_oracle, stage_cost_of_result,
-                     stage_cost_of_trajectory)
+from .oracle import (
+    COARSE_GRID_S,
+    DEFAULT_TIME_LIMIT_S,
+    PROGRESS_EVERY_S,
+    OracleScenario,
+    OracleSolver,
+    replay,
+    canonical_scenario,
+    drive_cycle_scenario,
+    scenario_oracle,
+    stage_cost_of_result,
+    stage_cost_of_trajectory,
+)
 from .prop31 import run_prop31
 from .result import OCPResult, write_json_atomic
 from ..progress import Progress, TimeLimitReached
 
-__all__ = ["run_prop31", "run_current_profile", "run_eco_trip", "run_oracle", "scenario_ev", "oracle_scenario_from_file"]
+__all__ = [
+    "run_prop31",
+    "run_current_profile",
+    "run_eco_trip",
+    "run_oracle",
+    "scenario_ev",
+    "oracle_scenario_from_file",
+]
 
 
 def _load(scenario: str | Path | None) -> Any:
@@ -66,9 +83,11 @@ def _write_result(res: OCPResult, out: Path, stem: str) -> None:
 
 
 # the sweep grids of OCP-B and OCP-C (``--grid NAME=v1,v2,...``): name -> (unit, problems)
-GRIDS: dict[str, tuple[str, tuple[str, ...]]] = {"E_req": ("J", ("current-profile",)),
-                                                 "t_f": ("s", ("current-profile", "eco-trip")),
-                                                 "D": ("m", ("eco-trip",))}
+GRIDS: dict[str, tuple[str, tuple[str, ...]]] = {
+    "E_req": ("J", ("current-profile",)),
+    "t_f": ("s", ("current-profile", "eco-trip")),
+    "D": ("m", ("eco-trip",)),
+}
 SWEEP_E_J = (1000.0, 2000.0, 3000.0, 4000.0, 6000.0)  # OCP-B sweep (our choice, around E_REQ_J)
 SWEEP_T_F_S = (30.0, 60.0, 120.0)  # OCP-B sweep (our choice, around T_F_S)
 
@@ -87,10 +106,19 @@ def _sweep(points: Sequence[Any], solve: Any, progress: Progress | None, done0: 
     return out, False
 
 
-def run_current_profile(method: str = "ms", out_dir: str | Path | None = None, scenario: str | Path | None = None,
-                        N: int = 200, E_req_J: float = E_REQ_J, t_f_s: float = T_F_S, S0: float = SOC0,
-                        sweep_E_J: Sequence[float] = SWEEP_E_J, sweep_t_f_s: Sequence[float] = SWEEP_T_F_S,
-                        refine: bool = True, progress: Progress | None = None) -> dict[str, Any]:
+def run_current_profile(
+    method: str = "ms",
+    out_dir: str | Path | None = None,
+    scenario: str | Path | None = None,
+    N: int = 200,
+    E_req_J: float = E_REQ_J,
+    t_f_s: float = T_F_S,
+    S0: float = SOC0,
+    sweep_E_J: Sequence[float] = SWEEP_E_J,
+    sweep_t_f_s: Sequence[float] = SWEEP_T_F_S,
+    refine: bool = True,
+    progress: Progress | None = None,
+) -> dict[str, Any]:
     """OCP-B: optimal current for (E_req_J [J], t_f_s [s]) vs constant current / constant power, and a
     sweep over E_req × t_f (one solver, re-solved). Cell parameters from ``scenario`` if given.
     Each row reports the NLP ∫Q and its exact re-simulation; infeasible rows the maximum deliverable
@@ -105,43 +133,65 @@ def run_current_profile(method: str = "ms", out_dir: str | Path | None = None, s
     try:
         if progress is not None:
             progress.update(1, 1 + len(points), "solve")
-        cases, stopped = _sweep(points, lambda p: compare_profiles(p[0], p[1], S0, solver), progress, 1,
-                                1 + len(points))
+        cases, stopped = _sweep(
+            points, lambda p: compare_profiles(p[0], p[1], S0, solver), progress, 1, 1 + len(points)
+        )
     except TimeLimitReached:  # after the main solve
         cases, stopped = [], bool(points)
     rows = [c["row"] for c in cases]
-    hdr = (f"{'E_req [J]':>10}{'t_f [s]':>9}{'status':>12}{'opt ∫Q [J]':>13}{'exact ∫Q [J]':>14}{'CC ∫Q [J]':>12}"
-           f"{'CP ∫Q [J]':>12}{'vs CC %':>9}{'vs CP %':>9}")
+    hdr = (
+        f"{'E_req [J]':>10}{'t_f [s]':>9}{'status':>12}{'opt ∫Q [J]':>13}{'exact ∫Q [J]':>14}{'CC ∫Q [J]':>12}"
+        f"{'CP ∫Q [J]':>12}{'vs CC %':>9}{'vs CP %':>9}"
+    )
     lines = ["OCP-B optimal current profile vs constant current (CC) / constant power (CP)", hdr]
     for r in [main["row"]] + rows:
-        lines.append(f"{r['E_req_J']:>10g}{r['t_f_s']:>9g}{r['status']:>12}{r['optimal_heat_J']:>13.5g}"
-                     f"{r['exact_heat_J']:>14.5g}{r['constant_current_heat_J']:>12.5g}{r['constant_power_heat_J']:>12.5g}"
-                     f"{r.get('saving_vs_cc_pct', math.nan):>9.3f}{r.get('saving_vs_cp_pct', math.nan):>9.3f}")
-    lines.append("exact ∫Q: the optimal current re-simulated by CVODES (OCP-B has no smoothing: the gap is the "
-                 "transcription's)")
+        lines.append(
+            f"{r['E_req_J']:>10g}{r['t_f_s']:>9g}{r['status']:>12}{r['optimal_heat_J']:>13.5g}"
+            f"{r['exact_heat_J']:>14.5g}{r['constant_current_heat_J']:>12.5g}{r['constant_power_heat_J']:>12.5g}"
+            f"{r.get('saving_vs_cc_pct', math.nan):>9.3f}{r.get('saving_vs_cp_pct', math.nan):>9.3f}"
+        )
+    lines.append(
+        "exact ∫Q: the optimal current re-simulated by CVODES (OCP-B has no smoothing: the gap is the transcription's)"
+    )
     for r in [main["row"]] + rows:
         if "max_energy_J" in r:
-            lines.append(f"  {r['E_req_J']:g} J in {r['t_f_s']:g} s: infeasible, at most {r['max_energy_J']:.6g} J "
-                         f"can be delivered within |I| ≤ I_max (max-energy solve)")
+            lines.append(
+                f"  {r['E_req_J']:g} J in {r['t_f_s']:g} s: infeasible, at most {r['max_energy_J']:.6g} J "
+                f"can be delivered within |I| ≤ I_max (max-energy solve)"
+            )
         lines += [f"  {r['E_req_J']:g} J in {r['t_f_s']:g} s: WARNING {w}" for w in r["warnings"]]
     lines += _check_lines(main["result"], f"{E_req_J:g} J in {t_f_s:g} s")
     if stopped:
         lines.append(f"STOPPED by the time limit: {len(rows)} of {len(points)} sweep points solved (partial sweep)")
-    out = {"result": main["result"], "row": main["row"], "references": main["references"], "sweep": rows,
-           "sweep_results": [c["result"] for c in cases], "time_limit": stopped,
-           "table": "\n".join(lines), "ok": main["result"].success,
-           "warnings": list(main["result"].warnings) + [w for r in rows for w in r["warnings"]]}
+    out = {
+        "result": main["result"],
+        "row": main["row"],
+        "references": main["references"],
+        "sweep": rows,
+        "sweep_results": [c["result"] for c in cases],
+        "time_limit": stopped,
+        "table": "\n".join(lines),
+        "ok": main["result"].success,
+        "warnings": list(main["result"].warnings) + [w for r in rows for w in r["warnings"]],
+    }
     if out_dir is not None:
         o = Path(out_dir)
         _write_result(main["result"], o, "current_profile")
-        write_json_atomic(o / "current_profile_sweep.json", {"main": main["row"], "references": main["references"],
-                                                             "sweep": rows, "time_limit": stopped,
-                                                             "grid": {"E_req_J": list(sweep_E_J),
-                                                                      "t_f_s": list(sweep_t_f_s)}})
+        write_json_atomic(
+            o / "current_profile_sweep.json",
+            {
+                "main": main["row"],
+                "references": main["references"],
+                "sweep": rows,
+                "time_limit": stopped,
+                "grid": {"E_req_J": list(sweep_E_J), "t_f_s": list(sweep_t_f_s)},
+            },
+        )
         from ..ocp_plots import plot_current_profile_sweep
 
-        plot_current_profile_sweep([r for r in rows if r["status"] in ("optimal", "acceptable")],
-                                   o / "current_profile_sweep.png")
+        plot_current_profile_sweep(
+            [r for r in rows if r["status"] in ("optimal", "acceptable")], o / "current_profile_sweep.png"
+        )
     return out
 
 
@@ -152,10 +202,19 @@ def _check_lines(res: OCPResult, label: str) -> list[str]:
     return out
 
 
-def run_eco_trip(method: str = "ms", out_dir: str | Path | None = None, scenario: str | Path | None = None,
-                 N: int = 200, trip: EcoTrip | None = None, refine: bool = True, multistart: bool = False,
-                 guesses: Sequence[str] = GUESSES, sweep_D_m: Sequence[float] = (), sweep_t_f_s: Sequence[float] = (),
-                 progress: Progress | None = None) -> dict[str, Any]:
+def run_eco_trip(
+    method: str = "ms",
+    out_dir: str | Path | None = None,
+    scenario: str | Path | None = None,
+    N: int = 200,
+    trip: EcoTrip | None = None,
+    refine: bool = True,
+    multistart: bool = False,
+    guesses: Sequence[str] = GUESSES,
+    sweep_D_m: Sequence[float] = (),
+    sweep_t_f_s: Sequence[float] = (),
+    progress: Progress | None = None,
+) -> dict[str, Any]:
     """OCP-C for ``trip`` (default EcoTrip(): 1 km in 100 s, rest to rest), objective 'heat' and the
     paper's ω ('energy', exact epigraph form), each evaluated on both metrics by the exact
     re-simulation. Vehicle/pack from ``scenario`` if given.
@@ -169,8 +228,11 @@ def run_eco_trip(method: str = "ms", out_dir: str | Path | None = None, scenario
     base = trip or EcoTrip(ev=scenario_ev(scenario))
     results: dict[str, OCPResult] = {}
     solvers: dict[str, EcoTripSolver] = {}
-    grid = ([(D, tf) for tf in (sweep_t_f_s or [base.t_f_s]) for D in (sweep_D_m or [base.distance_m])]
-            if (sweep_D_m or sweep_t_f_s) else [])
+    grid = (
+        [(D, tf) for tf in (sweep_t_f_s or [base.t_f_s]) for D in (sweep_D_m or [base.distance_m])]
+        if (sweep_D_m or sweep_t_f_s)
+        else []
+    )
     total = 2 * (1 + len(grid))
     stopped = False
     for k, obj in enumerate(("heat", "energy")):
@@ -195,44 +257,74 @@ def run_eco_trip(method: str = "ms", out_dir: str | Path | None = None, scenario
     pts = [(obj, D, tf) for obj in ("heat", "energy") for D, tf in grid]
     sweep_res, more = _sweep(pts, solve_point, progress, 2, total) if not stopped else ([], False)
     stopped = stopped or more
-    sweep = [{"objective": o, "D_m": D, "t_f_s": tf, "status": r.status, "iterations": r.iterations,
-              "nlp_objective": r.objective, "exact_objective": r.objective_exact,
-              "pack_heat_J": r.meta.get("pack_heat_J", math.nan), "omega_J_per_kg": r.meta.get("omega_J_per_kg", math.nan),
-              "warnings": list(r.warnings)} for (o, D, tf), r in zip(pts, sweep_res)]
-    lines = ["OCP-C eco-trip: " + f"{base.distance_m:g} m in {base.t_f_s:g} s, v {base.v0_mps:g} -> {base.vf_mps:g} m/s, "
-             f"N = {N}, method {method}",
-             f"{'objective':>10}{'status':>12}{'iter':>6}{'NLP obj':>12}{'exact obj':>12}{'gap %':>9}"
-             f"{'pack ∫Q [J]':>14}{'ω [J/kg]':>11}{'max v [m/s]':>13}{'max |I| [A]':>13}"]
+    sweep = [
+        {
+            "objective": o,
+            "D_m": D,
+            "t_f_s": tf,
+            "status": r.status,
+            "iterations": r.iterations,
+            "nlp_objective": r.objective,
+            "exact_objective": r.objective_exact,
+            "pack_heat_J": r.meta.get("pack_heat_J", math.nan),
+            "omega_J_per_kg": r.meta.get("omega_J_per_kg", math.nan),
+            "warnings": list(r.warnings),
+        }
+        for (o, D, tf), r in zip(pts, sweep_res)
+    ]
+    lines = [
+        "OCP-C eco-trip: " + f"{base.distance_m:g} m in {base.t_f_s:g} s, v {base.v0_mps:g} -> {base.vf_mps:g} m/s, "
+        f"N = {N}, method {method}",
+        f"{'objective':>10}{'status':>12}{'iter':>6}{'NLP obj':>12}{'exact obj':>12}{'gap %':>9}"
+        f"{'pack ∫Q [J]':>14}{'ω [J/kg]':>11}{'max v [m/s]':>13}{'max |I| [A]':>13}",
+    ]
     for obj, r in results.items():
         if r.success:
             gap = r.meta["smoothing_gap"]
-            lines.append(f"{obj:>10}{r.status:>12}{r.iterations:>6}{r.objective:>12.6g}{r.objective_exact:>12.6g}"
-                         f"{100 * gap['relative']:>9.2g}{r.meta['pack_heat_J']:>14.5g}{r.meta['omega_J_per_kg']:>11.5g}"
-                         f"{r.states['v'].max():>13.4g}{np.abs(r.I).max():>13.4g}")
+            lines.append(
+                f"{obj:>10}{r.status:>12}{r.iterations:>6}{r.objective:>12.6g}{r.objective_exact:>12.6g}"
+                f"{100 * gap['relative']:>9.2g}{r.meta['pack_heat_J']:>14.5g}{r.meta['omega_J_per_kg']:>11.5g}"
+                f"{r.states['v'].max():>13.4g}{np.abs(r.I).max():>13.4g}"
+            )
         else:
             lines.append(f"{obj:>10}{r.status:>12}{r.iterations:>6}  {r.message}")
-    lines.append("objectives: heat = pack ∫Q dt [kJ] (smoothed η switch in the NLP; no exact reformulation exists), "
-                 "energy = ω [J/kg] (exact epigraph form); exact = re-simulated on the exact model (CVODES), "
-                 "the pack ∫Q and ω columns too")
+    lines.append(
+        "objectives: heat = pack ∫Q dt [kJ] (smoothed η switch in the NLP; no exact reformulation exists), "
+        "energy = ω [J/kg] (exact epigraph form); exact = re-simulated on the exact model (CVODES), "
+        "the pack ∫Q and ω columns too"
+    )
     for obj, r in results.items():
         lines += _check_lines(r, obj)
     if sweep:
-        lines.append(f"sweep over D × t_f: {'objective':>10}{'D [m]':>9}{'t_f [s]':>9}{'status':>12}{'NLP obj':>12}"
-                     f"{'exact obj':>12}{'pack ∫Q [J]':>14}{'ω [J/kg]':>11}")
-        lines += [f"{'':20}{r['objective']:>10}{r['D_m']:>9g}{r['t_f_s']:>9g}{r['status']:>12}{r['nlp_objective']:>12.6g}"
-                  f"{r['exact_objective']:>12.6g}{r['pack_heat_J']:>14.5g}{r['omega_J_per_kg']:>11.5g}" for r in sweep]
+        lines.append(
+            f"sweep over D × t_f: {'objective':>10}{'D [m]':>9}{'t_f [s]':>9}{'status':>12}{'NLP obj':>12}"
+            f"{'exact obj':>12}{'pack ∫Q [J]':>14}{'ω [J/kg]':>11}"
+        )
+        lines += [
+            f"{'':20}{r['objective']:>10}{r['D_m']:>9g}{r['t_f_s']:>9g}{r['status']:>12}{r['nlp_objective']:>12.6g}"
+            f"{r['exact_objective']:>12.6g}{r['pack_heat_J']:>14.5g}{r['omega_J_per_kg']:>11.5g}"
+            for r in sweep
+        ]
     if stopped:
         lines.append(f"STOPPED by the time limit: {len(sweep)} of {len(pts)} sweep solves done (partial sweep)")
-    out = {"result": results["heat"], "results": results, "table": "\n".join(lines),
-           "ok": all(r.success for r in results.values()), "sweep": sweep, "sweep_results": sweep_res,
-           "time_limit": stopped, "warnings": [w for r in results.values() for w in r.warnings]}
+    out = {
+        "result": results["heat"],
+        "results": results,
+        "table": "\n".join(lines),
+        "ok": all(r.success for r in results.values()),
+        "sweep": sweep,
+        "sweep_results": sweep_res,
+        "time_limit": stopped,
+        "warnings": [w for r in results.values() for w in r.warnings],
+    }
     if out_dir is not None:
         for obj, r in results.items():
             _write_result(r, Path(out_dir), f"eco_trip_{obj}")
         if grid:
-            write_json_atomic(Path(out_dir) / "eco_trip_sweep.json",
-                              {"sweep": sweep, "time_limit": stopped,
-                               "grid": {"D_m": list(sweep_D_m), "t_f_s": list(sweep_t_f_s)}})
+            write_json_atomic(
+                Path(out_dir) / "eco_trip_sweep.json",
+                {"sweep": sweep, "time_limit": stopped, "grid": {"D_m": list(sweep_D_m), "t_f_s": list(sweep_t_f_s)}},
+            )
     return out
 
 
@@ -244,8 +336,9 @@ def closed_form_costs(scn: OracleScenario) -> tuple[dict[str, float], dict[str, 
 
     costs, notes = {}, {}
     for law in (Proposed(), OVFL()):
-        r = simulate_platoon(scn.leader, [law], [scn.h0], [scn.v0], scn.t_end, ev=scn.ev, soc0=scn.S0,
-                             dt_out=min(0.01, scn.dt))
+        r = simulate_platoon(
+            scn.leader, [law], [scn.h0], [scn.v0], scn.t_end, ev=scn.ev, soc0=scn.S0, dt_out=min(0.01, scn.dt)
+        )
         if r.status != "ok" or r.t[-1] < scn.t_end - 1e-9:
             notes[law.name] = f" — simulation stopped: {r.events[0] if r.events else r.status}"
             continue
@@ -267,24 +360,44 @@ def replay_exact(res: OCPResult, scn: OracleScenario, gap_rtol: float = GAP_RTOL
         return rec
     N = scn.N
     tg = np.linspace(0.0, scn.t_end, N + 1)
-    f = (lambda y: np.interp(tg, r.t, y))  # noqa: E731
+    f = lambda y: np.interp(tg, r.t, y)  # noqa: E731
     a = np.asarray(res.controls["a"], float)
     vl = f(r.leader_speed)[:-1]
-    terms = stage_cost_of_trajectory(tg, f(r.gap[:, 0]), f(r.speed[:, 0]), f(r.V1[:, 0]), f(r.V2[:, 0]),
-                                     f(r.S[:, 0]), a, vl, scn.weights, scn.ev, None, scn.objective)
+    terms = stage_cost_of_trajectory(
+        tg,
+        f(r.gap[:, 0]),
+        f(r.speed[:, 0]),
+        f(r.V1[:, 0]),
+        f(r.V2[:, 0]),
+        f(r.S[:, 0]),
+        a,
+        vl,
+        scn.weights,
+        scn.ev,
+        None,
+        scn.objective,
+    )
     m = r.metrics()[0]
     # the smoothing only touches the energy term: report it alone too (the total can hide its gap)
-    rec.update({"cost_exact": terms["total"], "energy_term_exact": terms["energy"],
-                "energy_term_nlp": res.meta.get("cost_terms", {}).get("energy", math.nan),
-                "min_gap": m.get("min_gap_model"), "collisions": m.get("collisions", 0),
-                "final_gap_nlp": float(res.states["h"][-1]), "final_gap_exact": float(r.gap[-1, 0])})
+    rec.update(
+        {
+            "cost_exact": terms["total"],
+            "energy_term_exact": terms["energy"],
+            "energy_term_nlp": res.meta.get("cost_terms", {}).get("energy", math.nan),
+            "min_gap": m.get("min_gap_model"),
+            "collisions": m.get("collisions", 0),
+            "final_gap_nlp": float(res.states["h"][-1]),
+            "final_gap_exact": float(r.gap[-1, 0]),
+        }
+    )
     res.meta["replay"] = rec
     what = "exact plant replay, exact η switch" + (", exact g" if scn.objective == "energy" else "")
     record_smoothing_gap(res, terms["total"], what, gap_rtol)
     # the smoothing acts on the energy term only, so check it alone too (the exact tracking terms dilute
     # its gap in the total); differences below 0.1 % of the total cost are ignored there
-    record_term_gap(res, "energy", rec["energy_term_nlp"], rec["energy_term_exact"], what, gap_rtol,
-                    atol=1e-3 * abs(terms["total"]))
+    record_term_gap(
+        res, "energy", rec["energy_term_nlp"], rec["energy_term_exact"], what, gap_rtol, atol=1e-3 * abs(terms["total"])
+    )
     return rec
 
 
@@ -292,10 +405,16 @@ def replay_exact(res: OCPResult, scn: OracleScenario, gap_rtol: float = GAP_RTOL
 ORACLE_GUESSES: dict[str, Any] = {"proposed": Proposed, "ovfl": OVFL, "ovm": OVM}
 
 
-def run_oracle(method: str = "ms", out_dir: str | Path | None = None, scenario: str | Path | None = None,
-               which: str = "canonical", multistart: bool = False, time_limit_s: float | None = DEFAULT_TIME_LIMIT_S,
-               progress: Callable[[str], None] | bool | None = None,
-               progress_every_s: float = PROGRESS_EVERY_S) -> dict[str, Any]:
+def run_oracle(
+    method: str = "ms",
+    out_dir: str | Path | None = None,
+    scenario: str | Path | None = None,
+    which: str = "canonical",
+    multistart: bool = False,
+    time_limit_s: float | None = DEFAULT_TIME_LIMIT_S,
+    progress: Callable[[str], None] | bool | None = None,
+    progress_every_s: float = PROGRESS_EVERY_S,
+) -> dict[str, Any]:
     """OCP-D lower bound. scenario: a TOML file, else ``which`` = 'canonical' (model guide §9) or
     'udds' (first 600 s of UDDS, U = 13 m/s, dt = 1 s). Also reports the same §9 cost of the
     proposed law and OVFL sampled per dt (when the sampled law is stable, α·dt < 1).
@@ -309,8 +428,9 @@ def run_oracle(method: str = "ms", out_dir: str | Path | None = None, scenario: 
         scn = oracle_scenario_from_file(scenario)
     else:
         scn = canonical_scenario() if which == "canonical" else drive_cycle_scenario(which)
-    solver = OracleSolver(scn, method=method, time_limit_s=time_limit_s, progress=progress,
-                          progress_every_s=progress_every_s)
+    solver = OracleSolver(
+        scn, method=method, time_limit_s=time_limit_s, progress=progress, progress_every_s=progress_every_s
+    )
     if multistart:
         res = run_multistart(lambda g: solver.solve(guess_law=ORACLE_GUESSES[g]()), list(ORACLE_GUESSES))[0]
     else:
@@ -318,27 +438,38 @@ def run_oracle(method: str = "ms", out_dir: str | Path | None = None, scenario: 
     if res.success:
         replay_exact(res, scn)
     laws, notes = closed_form_costs(scn)
-    lines = [f"OCP-D oracle following, scenario {scn.name}: N = {scn.N}, dt = {scn.dt:g} (model time), method {method}",
-             f"status {res.status} ({res.message}), iterations {res.iterations}, solve {res.wall_time_s:.3f} s, "
-             f"build {solver.build_time_s:.2f} s, max violation {res.max_violation:.2g}",
-             f"lower bound Σℓ·dt = {res.objective:.6g}" if res.success else
-             f"no lower bound: {res.message} (the last iterate's Σℓ·dt {res.objective:.6g} bounds nothing)"]
+    lines = [
+        f"OCP-D oracle following, scenario {scn.name}: N = {scn.N}, dt = {scn.dt:g} (model time), method {method}",
+        f"status {res.status} ({res.message}), iterations {res.iterations}, solve {res.wall_time_s:.3f} s, "
+        f"build {solver.build_time_s:.2f} s, max violation {res.max_violation:.2g}",
+        f"lower bound Σℓ·dt = {res.objective:.6g}"
+        if res.success
+        else f"no lower bound: {res.message} (the last iterate's Σℓ·dt {res.objective:.6g} bounds nothing)",
+    ]
     if res.success:
         lines.append("  terms: " + ", ".join(f"{k} {v:.5g}" for k, v in res.meta["cost_terms"].items()))
         rp = res.meta.get("replay", {})
         if "cost_exact" in rp:
-            lines.append(f"  replayed through the exact plant (open loop, CVODES, exact η switch): Σℓ·dt = "
-                         f"{rp['cost_exact']:.6g} (gap {100 * res.meta['smoothing_gap']['relative']:.2g} %; energy "
-                         f"term {rp['energy_term_nlp']:.5g} in the NLP, {rp['energy_term_exact']:.5g} exact), "
-                         f"min gap {rp['min_gap']:.4g}, {rp['collisions']} collisions")
+            lines.append(
+                f"  replayed through the exact plant (open loop, CVODES, exact η switch): Σℓ·dt = "
+                f"{rp['cost_exact']:.6g} (gap {100 * res.meta['smoothing_gap']['relative']:.2g} %; energy "
+                f"term {rp['energy_term_nlp']:.5g} in the NLP, {rp['energy_term_exact']:.5g} exact), "
+                f"min gap {rp['min_gap']:.4g}, {rp['collisions']} collisions"
+            )
         else:
             lines.append(f"  replay through the exact plant failed: {rp.get('status', 'unknown')}")
         lines += _check_lines(res, "oracle")
     for nm, c in laws.items():
         lines.append(f"{nm} (continuous law, exact plant, same §9 cost at the grid nodes): {c:.6g}{notes.get(nm, '')}")
     res.meta["closed_form_costs"] = laws
-    out = {"result": res, "closed_form_costs": laws, "table": "\n".join(lines), "ok": res.success,
-           "build_time_s": solver.build_time_s, "time_limit": res.status == "time_limit"}
+    out = {
+        "result": res,
+        "closed_form_costs": laws,
+        "table": "\n".join(lines),
+        "ok": res.success,
+        "build_time_s": solver.build_time_s,
+        "time_limit": res.status == "time_limit",
+    }
     if out_dir is not None:
         _write_result(res, Path(out_dir), f"oracle_{scn.name}")
     return out

@@ -12,8 +12,7 @@ from ..params import CellParams
 from .transcription import OCPProblem
 
 
-def cell_problem(cell: CellParams, q_nonneg: bool, energy_state: bool = False,
-                 name: str = "ocp_a") -> OCPProblem:
+def cell_problem(cell: CellParams, q_nonneg: bool, energy_state: bool = False, name: str = "ocp_a") -> OCPProblem:
     """The 2-RC cell as an OCP: minimise ∫Q dt (paper eq. opt_prob), |I| ≤ I_max, S ∈ [0, 1].
 
     q_nonneg: add the paper's path constraint Q ≥ 0 at the nodes and collocation points.
@@ -34,16 +33,28 @@ def cell_problem(cell: CellParams, q_nonneg: bool, energy_state: bool = False,
     names = ["x", "u", "w", "p"]
     ode = ca.Function(f"{name}_ode", args, [ca.vertcat(*rhs)], names, ["xdot"])
     lagrange = ca.Function(f"{name}_Q", args, [Q], names, ["Q"])
-    outputs = ca.Function(f"{name}_out", args,
-                          [I, Q, battery.heat_irreversible(V1, V2, I, cell), VT, battery.stored_energy_J(V1, V2, cell)],
-                          names, ["I", "Q", "Q_irr", "V_T", "W_rc"])
+    outputs = ca.Function(
+        f"{name}_out",
+        args,
+        [I, Q, battery.heat_irreversible(V1, V2, I, cell), VT, battery.stored_energy_J(V1, V2, cell)],
+        names,
+        ["I", "Q", "Q_irr", "V_T", "W_rc"],
+    )
     pr = OCPProblem(
-        name=name, state_names=["V1", "V2", "S"] + (["E"] if energy_state else []), control_names=["I"],
-        ode=ode, lagrange=lagrange, outputs=outputs,
+        name=name,
+        state_names=["V1", "V2", "S"] + (["E"] if energy_state else []),
+        control_names=["I"],
+        ode=ode,
+        lagrange=lagrange,
+        outputs=outputs,
         x_lb=[-ca.inf, -ca.inf, 0.0] + ([-ca.inf] if energy_state else []),  # S ∈ [0, 1] (paper eq. opt_prob)
         x_ub=[ca.inf, ca.inf, 1.0] + ([ca.inf] if energy_state else []),
-        u_lb=[-cell.max_current_A], u_ub=[cell.max_current_A],  # |I| ≤ 20C (model guide §8)
-        x_scale=[0.01, 0.01, 1.0] + ([1000.0] if energy_state else []), u_scale=[10.0], time_unit="s")
+        u_lb=[-cell.max_current_A],
+        u_ub=[cell.max_current_A],  # |I| ≤ 20C (model guide §8)
+        x_scale=[0.01, 0.01, 1.0] + ([1000.0] if energy_state else []),
+        u_scale=[10.0],
+        time_unit="s",
+    )
     if q_nonneg:
         pr.path = ca.Function(f"{name}_Qpath", args, [Q], names, ["Q"])
         pr.path_lb, pr.path_ub = [0.0], [ca.inf]

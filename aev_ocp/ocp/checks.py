@@ -28,8 +28,9 @@ from .result import OCPResult
 GAP_RTOL = 5e-3
 
 
-def record_term_gap(res: OCPResult, term: str, nlp: float, exact: float, what: str, rtol: float = GAP_RTOL,
-                    atol: float = 0.0) -> dict[str, Any]:
+def record_term_gap(
+    res: OCPResult, term: str, nlp: float, exact: float, what: str, rtol: float = GAP_RTOL, atol: float = 0.0
+) -> dict[str, Any]:
     """The smoothing gap of ONE smoothed term of the objective (e.g. OCP-D's energy term, the only one
     the smoothing touches): a large gap there can hide in a total dominated by exact terms. Same rule
     and warning as :func:`record_smoothing_gap`; stored in ``res.meta['smoothing_gap_terms'][term]``."""
@@ -39,18 +40,28 @@ def record_term_gap(res: OCPResult, term: str, nlp: float, exact: float, what: s
     diff = nlp - exact
     scale = max(abs(nlp), abs(exact))
     fired = not math.isfinite(diff) or abs(diff) > rtol * scale + atol
-    rec: dict[str, Any] = {"nlp": nlp, "exact": exact, "difference": diff, "relative": abs(diff) / scale if scale > 0 else 0.0,
-           "rtol": rtol, "atol": atol, "exact_model": what, "warning": bool(fired)}
+    rec: dict[str, Any] = {
+        "nlp": nlp,
+        "exact": exact,
+        "difference": diff,
+        "relative": abs(diff) / scale if scale > 0 else 0.0,
+        "rtol": rtol,
+        "atol": atol,
+        "exact_model": what,
+        "warning": bool(fired),
+    }
     res.meta.setdefault("smoothing_gap_terms", {})[term] = rec
     if fired:
         res.warnings.append(
             f"smoothing gap in the {term} term: {nlp:.6g} in the NLP, {exact:.6g} re-evaluated ({what}), "
-            f"{100 * rec['relative']:.3g} % apart (tolerance {100 * rtol:.3g} %); the optimiser may exploit its smoothing")
+            f"{100 * rec['relative']:.3g} % apart (tolerance {100 * rtol:.3g} %); the optimiser may exploit its smoothing"
+        )
     return rec
 
 
-def record_smoothing_gap(res: OCPResult, exact: float, what: str, rtol: float = GAP_RTOL,
-                         atol: float = 0.0) -> dict[str, Any]:
+def record_smoothing_gap(
+    res: OCPResult, exact: float, what: str, rtol: float = GAP_RTOL, atol: float = 0.0
+) -> dict[str, Any]:
     """Store the exact re-evaluation ``exact`` of ``res.objective`` (same units) and warn on a gap.
 
     The gap counts when |NLP − exact| > rtol·max(|NLP|, |exact|) + atol (atol in the objective's unit,
@@ -65,20 +76,30 @@ def record_smoothing_gap(res: OCPResult, exact: float, what: str, rtol: float = 
     scale = max(abs(nlp), abs(exact))
     rel = abs(diff) / scale if scale > 0 else 0.0
     fired = not math.isfinite(diff) or abs(diff) > rtol * scale + atol
-    rec = {"objective_nlp": nlp, "objective_exact": exact, "difference": diff, "relative": rel,
-           "rtol": rtol, "atol": atol, "exact_model": what, "warning": bool(fired)}
+    rec = {
+        "objective_nlp": nlp,
+        "objective_exact": exact,
+        "difference": diff,
+        "relative": rel,
+        "rtol": rtol,
+        "atol": atol,
+        "exact_model": what,
+        "warning": bool(fired),
+    }
     res.objective_exact = exact
     res.meta["smoothing_gap"] = rec
     if fired:
         res.warnings.append(
             f"smoothing gap: the NLP objective {nlp:.6g} and its exact re-evaluation {exact:.6g} ({what}) "
             f"differ by {100 * rel:.3g} % (tolerance {100 * rtol:.3g} %); the optimiser may exploit its "
-            f"smoothing — {res.objective_name}")
+            f"smoothing — {res.objective_name}"
+        )
     return rec
 
 
-def resimulate_cell_current(cell: CellParams, t_s: np.ndarray, I_A: np.ndarray,
-                            x0: Sequence[float]) -> dict[str, float]:
+def resimulate_cell_current(
+    cell: CellParams, t_s: np.ndarray, I_A: np.ndarray, x0: Sequence[float]
+) -> dict[str, float]:
     """A piecewise-constant cell current I_k [A] on [t_k, t_{k+1}) [s] applied to the 2-RC cell from
     x0 = (V1 [V], V2 [V], S), integrated exactly by CVODES interval by interval (model guide §6).
 
@@ -87,33 +108,54 @@ def resimulate_cell_current(cell: CellParams, t_s: np.ndarray, I_A: np.ndarray,
     t = np.asarray(t_s, float).ravel()
     I = np.asarray(I_A, float).ravel()
     if t.size != I.size + 1:
-        raise ParameterError(f"resimulate_cell_current: t has {t.size} nodes, so I needs {t.size - 1} values, got {I.size}")
+        raise ParameterError(
+            f"resimulate_cell_current: t has {t.size} nodes, so I needs {t.size - 1} values, got {I.size}"
+        )
     x = ca.SX.sym("x", 3)
     prm = ca.SX.sym("prm", 2)  # (I [A], interval length [s]); normalised time on [0, 1]
     cur, dt = prm[0], prm[1]
     dV1, dV2, dS = battery.cell_derivatives(x[0], x[1], cur, cell)
     VT = battery.terminal_voltage(x[2], x[0], x[1], cur, cell)
-    quad = ca.vertcat(battery.heat_Q(x[0], x[1], cur, cell), battery.heat_irreversible(x[0], x[1], cur, cell),
-                      cur * VT)
-    F = ca.integrator("cell_exact", "cvodes", {"x": x, "p": prm, "ode": dt * ca.vertcat(dV1, dV2, dS),
-                                               "quad": dt * quad}, 0.0, 1.0, {"abstol": 1e-12, "reltol": 1e-10})
+    quad = ca.vertcat(battery.heat_Q(x[0], x[1], cur, cell), battery.heat_irreversible(x[0], x[1], cur, cell), cur * VT)
+    F = ca.integrator(
+        "cell_exact",
+        "cvodes",
+        {"x": x, "p": prm, "ode": dt * ca.vertcat(dV1, dV2, dS), "quad": dt * quad},
+        0.0,
+        1.0,
+        {"abstol": 1e-12, "reltol": 1e-10},
+    )
     xk = np.asarray(x0, float).ravel()[:3]
     q = np.zeros(3)
     for Ik, hk in zip(I, np.diff(t)):
         out = F(x0=xk, p=[Ik, hk])
         xk = np.asarray(out["xf"]).ravel()
         q += np.asarray(out["qf"]).ravel()
-    return {"heat_J": float(q[0]), "heat_irr_J": float(q[1]), "energy_J": float(q[2]),
-            "V1_end": float(xk[0]), "V2_end": float(xk[1]), "S_end": float(xk[2])}
+    return {
+        "heat_J": float(q[0]),
+        "heat_irr_J": float(q[1]),
+        "energy_J": float(q[2]),
+        "V1_end": float(xk[0]),
+        "V2_end": float(xk[1]),
+        "S_end": float(xk[2]),
+    }
 
 
 def record_refinement(res: OCPResult, res_2N: OCPResult) -> dict[str, Any]:
     """Store in ``res.meta['refinement']`` how the objective changes from N to 2N (NLP and exact)."""
-    rec: dict[str, Any] = {"N": res.N, "N_refined": res_2N.N, "status_refined": res_2N.status,
-                           "objective": res.objective, "objective_refined": res_2N.objective,
-                           "objective_exact": res.objective_exact, "objective_exact_refined": res_2N.objective_exact}
-    for key, a, b in (("change", res.objective, res_2N.objective),
-                      ("change_exact", res.objective_exact, res_2N.objective_exact)):
+    rec: dict[str, Any] = {
+        "N": res.N,
+        "N_refined": res_2N.N,
+        "status_refined": res_2N.status,
+        "objective": res.objective,
+        "objective_refined": res_2N.objective,
+        "objective_exact": res.objective_exact,
+        "objective_exact_refined": res_2N.objective_exact,
+    }
+    for key, a, b in (
+        ("change", res.objective, res_2N.objective),
+        ("change_exact", res.objective_exact, res_2N.objective_exact),
+    ):
         rec[key] = b - a if res_2N.success else math.nan
         s = max(abs(a), abs(b))
         rec[key + "_rel"] = (b - a) / s if res_2N.success and s > 0 else (0.0 if res_2N.success else math.nan)
@@ -128,8 +170,10 @@ def refinement_line(res: OCPResult) -> str:
         return ""
     if r["status_refined"] not in ("optimal", "acceptable"):
         return f"N = {r['N']} -> {r['N_refined']}: refined solve {r['status_refined']}"
-    return (f"N = {r['N']} -> {r['N_refined']}: objective {r['objective']:.6g} -> {r['objective_refined']:.6g} "
-            f"({100 * r['change_rel']:+.3g} %)")
+    return (
+        f"N = {r['N']} -> {r['N_refined']}: objective {r['objective']:.6g} -> {r['objective_refined']:.6g} "
+        f"({100 * r['change_rel']:+.3g} %)"
+    )
 
 
 def multistart(solve: Callable[[str], OCPResult], guesses: Sequence[str]) -> tuple[OCPResult, dict[str, Any]]:
@@ -144,11 +188,20 @@ def multistart(solve: Callable[[str], OCPResult], guesses: Sequence[str]) -> tup
     best_name = min(ok, key=lambda g: ok[g].objective) if ok else guesses[0]
     best = runs[best_name]
     objs = [r.objective for r in ok.values()]
-    rec = {"best": best_name,
-           "starts": {g: {"status": r.status, "objective": r.objective, "objective_exact": r.objective_exact,
-                          "iterations": r.iterations} for g, r in runs.items()},
-           "spread": (max(objs) - min(objs)) if objs else math.nan,
-           "spread_rel": ((max(objs) - min(objs)) / max(abs(min(objs)), 1e-300)) if objs else math.nan}
+    rec = {
+        "best": best_name,
+        "starts": {
+            g: {
+                "status": r.status,
+                "objective": r.objective,
+                "objective_exact": r.objective_exact,
+                "iterations": r.iterations,
+            }
+            for g, r in runs.items()
+        },
+        "spread": (max(objs) - min(objs)) if objs else math.nan,
+        "spread_rel": ((max(objs) - min(objs)) / max(abs(min(objs)), 1e-300)) if objs else math.nan,
+    }
     best.meta["multistart"] = rec
     return best, rec
 
@@ -158,6 +211,8 @@ def multistart_line(res: OCPResult) -> str:
     r = res.meta.get("multistart")
     if not r:
         return ""
-    parts = ", ".join(f"{g} {s['objective']:.6g}" if s["status"] in ("optimal", "acceptable") else f"{g} {s['status']}"
-                      for g, s in r["starts"].items())
+    parts = ", ".join(
+        f"{g} {s['objective']:.6g}" if s["status"] in ("optimal", "acceptable") else f"{g} {s['status']}"
+        for g, s in r["starts"].items()
+    )
     return f"starts: {parts}; best {r['best']}, spread {r['spread']:.3g} ({100 * r['spread_rel']:.3g} %)"

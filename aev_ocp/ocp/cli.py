@@ -23,32 +23,67 @@ def _parser() -> argparse.ArgumentParser:
     ap.add_argument("problem", choices=COMMANDS)
     ap.add_argument("scenario", nargs="?", default=None, help="scenario TOML (oracle: default canonical scenario)")
     ap.add_argument("--method", choices=("ms", "collocation"), default="ms", help="transcription (default ms)")
-    ap.add_argument("--out", default=None,
-                    help="output folder (JSON, CSV, PNG, manifest.json; default results/ocp/<problem>[/<scenario>])")
+    ap.add_argument(
+        "--out",
+        default=None,
+        help="output folder (JSON, CSV, PNG, manifest.json; default results/ocp/<problem>[/<scenario>])",
+    )
     ap.add_argument("--N", type=int, default=None, help="number of intervals (problem default if omitted)")
-    ap.add_argument("--no-refine", action="store_true",
-                    help="skip the extra solve with 2N intervals that reports how the objective changes")
-    ap.add_argument("--multistart", action="store_true",
-                    help="eco-trip, oracle: solve from several initial guesses, keep the best, report the spread")
-    ap.add_argument("--grid", action="append", default=[], metavar="NAME=V1,V2,...",
-                    help="sweep grid (repeatable): current-profile E_req [J] (default 1000,2000,3000,4000,6000) and "
-                         "t_f [s] (default 30,60,120); eco-trip D [m] and t_f [s] (default: no sweep; one list "
-                         "given, the other is the trip's value)")
-    ap.add_argument("--grid-file", default=None, metavar="FILE",
-                    help="the grids from a TOML or JSON file: E_req = [...], t_f = [...], D = [...] "
-                         "(--grid entries override it)")
-    ap.add_argument("--time-limit", type=float, default=None, metavar="S",
-                    help="current-profile, eco-trip: wall-clock limit [s]; the sweep stops cleanly after the solve "
-                         "that passes it, the output is flagged partial (default: none). oracle: IPOPT's wall-time "
-                         "limit (default 600 s); a solve stopped there is reported as not optimal, with no bound")
-    ap.add_argument("--cell", default=None, metavar="NAME|FILE",
-                    help="prop31: the cell (a shipped cell name, e.g. a123_anr26650, or a cell file; default the A123)")
+    ap.add_argument(
+        "--no-refine",
+        action="store_true",
+        help="skip the extra solve with 2N intervals that reports how the objective changes",
+    )
+    ap.add_argument(
+        "--multistart",
+        action="store_true",
+        help="eco-trip, oracle: solve from several initial guesses, keep the best, report the spread",
+    )
+    ap.add_argument(
+        "--grid",
+        action="append",
+        default=[],
+        metavar="NAME=V1,V2,...",
+        help="sweep grid (repeatable): current-profile E_req [J] (default 1000,2000,3000,4000,6000) and "
+        "t_f [s] (default 30,60,120); eco-trip D [m] and t_f [s] (default: no sweep; one list "
+        "given, the other is the trip's value)",
+    )
+    ap.add_argument(
+        "--grid-file",
+        default=None,
+        metavar="FILE",
+        help="the grids from a TOML or JSON file: E_req = [...], t_f = [...], D = [...] (--grid entries override it)",
+    )
+    ap.add_argument(
+        "--time-limit",
+        type=float,
+        default=None,
+        metavar="S",
+        help="current-profile, eco-trip: wall-clock limit [s]; the sweep stops cleanly after the solve "
+        "that passes it, the output is flagged partial (default: none). oracle: IPOPT's wall-time "
+        "limit (default 600 s); a solve stopped there is reported as not optimal, with no bound",
+    )
+    ap.add_argument(
+        "--cell",
+        default=None,
+        metavar="NAME|FILE",
+        help="prop31: the cell (a shipped cell name, e.g. a123_anr26650, or a cell file; default the A123)",
+    )
     ap.add_argument("--soc0", type=float, default=None, metavar="S", help="prop31: initial SOC S(0) (default 0.5)")
-    ap.add_argument("--v-relax-V", default=None, metavar="V1,V2",
-                    help="prop31: the relaxing cases' initial polarisation V1(0),V2(0) [V] (default 0.02,0.03)")
-    ap.add_argument("--progress-every", type=float, default=2.0, metavar="S",
-                    help="seconds between progress lines (solve k/n, elapsed, ETA; oracle: IPOPT iteration, "
-                         "objective, infeasibility) on stderr (default: 2)")
+    ap.add_argument(
+        "--v-relax-V",
+        default=None,
+        metavar="V1,V2",
+        help="prop31: the relaxing cases' initial polarisation V1(0),V2(0) [V] (default 0.02,0.03)",
+    )
+    ap.add_argument(
+        "--progress-every",
+        type=float,
+        default=2.0,
+        metavar="S",
+        help="seconds between progress lines (solve k/n, elapsed, ETA; oracle: IPOPT iteration, "
+        "objective, infeasibility) on stderr (default: 2)",
+    )
     return ap
 
 
@@ -73,8 +108,9 @@ def parse_grids(problem: str, items: list[str], file: str | None) -> dict[str, l
             text = data.decode("utf-8")
             raw.update(json.loads(text) if file.endswith(".json") else tomllib.loads(text))
         except (ValueError, TypeError, tomllib.TOMLDecodeError, RecursionError) as exc:  # TypeError: JSON not a table
-            raise ParameterError(f"--grid-file {file}: not valid {'JSON' if file.endswith('.json') else 'TOML'}: "
-                                 f"{exc}") from None
+            raise ParameterError(
+                f"--grid-file {file}: not valid {'JSON' if file.endswith('.json') else 'TOML'}: {exc}"
+            ) from None
         from_file = set(raw)
     for item in items:
         name, sep, spec = item.partition("=")
@@ -86,8 +122,10 @@ def parse_grids(problem: str, items: list[str], file: str | None) -> dict[str, l
     for name, vals in raw.items():
         where = f"--grid-file {file}: grid {name}" if name in from_file else f"grid {name}"
         if name not in GRIDS:
-            raise ParameterError(f"{where}: unknown grid; known grids are {sorted(GRIDS)} "
-                                 f"({', '.join(f'{k} [{u}]' for k, (u, _) in GRIDS.items())})")
+            raise ParameterError(
+                f"{where}: unknown grid; known grids are {sorted(GRIDS)} "
+                f"({', '.join(f'{k} [{u}]' for k, (u, _) in GRIDS.items())})"
+            )
         unit, problems = GRIDS[name]
         if problem not in problems:
             raise ParameterError(f"{where} does not apply to ocp {problem} (it sweeps {', '.join(problems)})")
@@ -100,8 +138,9 @@ def parse_grids(problem: str, items: list[str], file: str | None) -> dict[str, l
             except (TypeError, ValueError):
                 x = math.nan
             if not (math.isfinite(x) and x > 0):
-                raise ParameterError(f"{where}: value {k + 1} = {v!r} is not allowed: must be a finite number > 0 "
-                                     f"[{unit}]")
+                raise ParameterError(
+                    f"{where}: value {k + 1} = {v!r} is not allowed: must be a finite number > 0 [{unit}]"
+                )
             xs.append(x)
         out[name] = xs
     return out
@@ -145,13 +184,16 @@ def _cli_ocp(argv: list[str]) -> int:
         raise ParameterError("ocp prop31: prop31 takes no scenario (OCP-A is the single cell of model guide §8)")
     for flag, value in (("--cell", args.cell), ("--soc0", args.soc0), ("--v-relax-V", args.v_relax_V)):
         if value is not None and args.problem != "prop31":
-            raise ParameterError(f"ocp {args.problem}: {flag} applies to prop31 only (the scenario's [cell] sets the "
-                                 "cell of the other problems)")
+            raise ParameterError(
+                f"ocp {args.problem}: {flag} applies to prop31 only (the scenario's [cell] sets the "
+                "cell of the other problems)"
+            )
     if args.multistart and args.problem not in ("eco-trip", "oracle"):
         raise ParameterError(f"ocp {args.problem}: --multistart applies to eco-trip and oracle only")
     if args.problem == "oracle" and args.N is not None:
-        raise ParameterError("ocp oracle: --N does not apply (N = t_end/dt of the scenario: dt = 0.1, "
-                             "1 s on a drive cycle)")
+        raise ParameterError(
+            "ocp oracle: --N does not apply (N = t_end/dt of the scenario: dt = 0.1, 1 s on a drive cycle)"
+        )
     _check_size(args)
     from ..scenarios import find_scenario, load_scenario
 
@@ -165,11 +207,13 @@ def _cli_ocp(argv: list[str]) -> int:
     check_time_limit(args.time_limit, "--time-limit")
     if args.time_limit is not None and args.problem not in ("current-profile", "eco-trip", "oracle"):
         raise ParameterError(f"ocp {args.problem}: --time-limit applies to current-profile, eco-trip and oracle")
-    prog = Progress(f"ocp {args.problem}", unit="solves", time_limit_s=args.time_limit,
-                    every_s=args.progress_every)
+    prog = Progress(f"ocp {args.problem}", unit="solves", time_limit_s=args.time_limit, every_s=args.progress_every)
     scenario_name = load_scenario(find_scenario(args.scenario)).name if args.scenario is not None else None
-    out = (Path(args.out) if args.out else
-           default_output_dir("ocp", args.problem, *([scenario_name] if scenario_name else [])))
+    out = (
+        Path(args.out)
+        if args.out
+        else default_output_dir("ocp", args.problem, *([scenario_name] if scenario_name else []))
+    )
     claim_output_dir(out, f"ocp {args.problem}", str(args.scenario or args.problem), args.scenario)
     if args.problem == "prop31":
         from .prop31 import prop31_table
@@ -187,8 +231,9 @@ def _cli_ocp(argv: list[str]) -> int:
             try:
                 kw["v_relax_V"] = tuple(float(v) for v in args.v_relax_V.split(","))
             except ValueError:
-                raise ParameterError(f"ocp prop31: --v-relax-V = {args.v_relax_V!r} is not allowed: two voltages "
-                                     "V1,V2 [V]") from None
+                raise ParameterError(
+                    f"ocp prop31: --v-relax-V = {args.v_relax_V!r} is not allowed: two voltages V1,V2 [V]"
+                ) from None
         cases = api.run_prop31(args.method, refine=not args.no_refine, **kw)
         write_prop31_outputs(cases, out)
         print(prop31_table(cases))
@@ -196,19 +241,31 @@ def _cli_ocp(argv: list[str]) -> int:
         runs = {case: e["result"] for case, e in cases.items() if "result" in e}
     elif args.problem == "current-profile":
         # a grid not given keeps run_current_profile's default sweep
-        rep = api.run_current_profile(method=args.method, out_dir=out, scenario=args.scenario,
-                                      refine=not args.no_refine, progress=prog,
-                                      sweep_E_J=grids.get("E_req") or api.SWEEP_E_J,
-                                      sweep_t_f_s=grids.get("t_f") or api.SWEEP_T_F_S,
-                                      **({"N": args.N} if args.N is not None else {}))
+        rep = api.run_current_profile(
+            method=args.method,
+            out_dir=out,
+            scenario=args.scenario,
+            refine=not args.no_refine,
+            progress=prog,
+            sweep_E_J=grids.get("E_req") or api.SWEEP_E_J,
+            sweep_t_f_s=grids.get("t_f") or api.SWEEP_T_F_S,
+            **({"N": args.N} if args.N is not None else {}),
+        )
         print(rep["table"])
         ok = rep["ok"]
         runs = {"main": rep["result"], **{f"sweep{k:03d}": r for k, r in enumerate(rep["sweep_results"])}}
     elif args.problem == "eco-trip":
-        rep = api.run_eco_trip(method=args.method, out_dir=out, scenario=args.scenario,
-                               refine=not args.no_refine, multistart=args.multistart, progress=prog,
-                               sweep_D_m=grids.get("D", ()), sweep_t_f_s=grids.get("t_f", ()),
-                               **({"N": args.N} if args.N is not None else {}))
+        rep = api.run_eco_trip(
+            method=args.method,
+            out_dir=out,
+            scenario=args.scenario,
+            refine=not args.no_refine,
+            multistart=args.multistart,
+            progress=prog,
+            sweep_D_m=grids.get("D", ()),
+            sweep_t_f_s=grids.get("t_f", ()),
+            **({"N": args.N} if args.N is not None else {}),
+        )
         print(rep["table"])
         ok = rep["ok"]
         runs = {**rep["results"], **{f"sweep{k:03d}": r for k, r in enumerate(rep["sweep_results"])}}
@@ -216,18 +273,35 @@ def _cli_ocp(argv: list[str]) -> int:
         from .oracle import DEFAULT_TIME_LIMIT_S
 
         # IPOPT stops itself at the limit (max_wall_time); its iterations are reported every --progress-every s
-        rep = api.run_oracle(method=args.method, out_dir=out, scenario=args.scenario, multistart=args.multistart,
-                             time_limit_s=args.time_limit or DEFAULT_TIME_LIMIT_S, progress=prog.say,
-                             progress_every_s=args.progress_every)
+        rep = api.run_oracle(
+            method=args.method,
+            out_dir=out,
+            scenario=args.scenario,
+            multistart=args.multistart,
+            time_limit_s=args.time_limit or DEFAULT_TIME_LIMIT_S,
+            progress=prog.say,
+            progress_every_s=args.progress_every,
+        )
         print(rep["table"])
         ok = rep["ok"]
         runs = {"main": rep["result"]}
     stopped = args.problem in ("current-profile", "eco-trip") and rep["time_limit"]
-    save_output(out, "ocp", runs, settings={"problem": args.problem, "method": args.method, "N": args.N,
-                                            "refine": not args.no_refine, "multistart": args.multistart,
-                                            "grids": grids, "time_limit_s": args.time_limit,
-                                            "scenario": args.scenario},
-                extra={"time_limit": stopped, "sweep": rep.get("sweep") if args.problem != "prop31" else None})
+    save_output(
+        out,
+        "ocp",
+        runs,
+        settings={
+            "problem": args.problem,
+            "method": args.method,
+            "N": args.N,
+            "refine": not args.no_refine,
+            "multistart": args.multistart,
+            "grids": grids,
+            "time_limit_s": args.time_limit,
+            "scenario": args.scenario,
+        },
+        extra={"time_limit": stopped, "sweep": rep.get("sweep") if args.problem != "prop31" else None},
+    )
     print(f"wrote results to {out} (aev_ocp.load('{out}'))")
     if stopped:
         from ..console import error_line

@@ -50,8 +50,13 @@ def _cell_sim(cell: CellParams, mode: str) -> ca.Function:
         I = 2.0 * val / (E + ca.sqrt(ca.fmax(disc, 1e-12)))
     dV1, dV2, dS = battery.cell_derivatives(x[0], x[1], I, cell)
     VT = battery.terminal_voltage(x[2], x[0], x[1], I, cell)
-    quad = ca.vertcat(battery.heat_Q(x[0], x[1], I, cell), battery.heat_irreversible(x[0], x[1], I, cell),
-                      I * VT, ca.fmax(-disc, 0), ca.fmax(ca.fabs(I) - cell.max_current_A, 0))
+    quad = ca.vertcat(
+        battery.heat_Q(x[0], x[1], I, cell),
+        battery.heat_irreversible(x[0], x[1], I, cell),
+        I * VT,
+        ca.fmax(-disc, 0),
+        ca.fmax(ca.fabs(I) - cell.max_current_A, 0),
+    )
     dae = {"x": x, "p": prm, "ode": tf * ca.vertcat(dV1, dV2, dS), "quad": tf * quad}
     if mode == "current":
         return ca.integrator("cell_current", "cvodes", dae, 0.0, 1.0, {"abstol": 1e-12, "reltol": 1e-10})
@@ -84,7 +89,9 @@ def _root(f: Callable[[float], float], lo: float, hi: float, tol: float = 1e-10,
     return x
 
 
-def reference_profiles(E_req: float, t_f: float, S0: float = SOC0, cell: CellParams | None = None) -> dict[str, dict[str, Any]]:
+def reference_profiles(
+    E_req: float, t_f: float, S0: float = SOC0, cell: CellParams | None = None
+) -> dict[str, dict[str, Any]]:
     """Constant current and constant power delivering E_req [J] over t_f [s] from rest at S0.
 
     Returns {'constant_current': {...}, 'constant_power': {...}} with heat_J (∫Q), heat_irr_J,
@@ -103,26 +110,56 @@ def reference_profiles(E_req: float, t_f: float, S0: float = SOC0, cell: CellPar
         q = np.asarray(r["qf"]).ravel()
         xf = np.asarray(r["xf"]).ravel()
         ok = 0.0 <= xf[2] <= 1.0
-        out["constant_current"] = {"current_A": Ic, "heat_J": q[0], "heat_irr_J": q[1], "energy_J": q[2],
-                                   "feasible": ok, "why": "" if ok else "S leaves [0, 1]"}
+        out["constant_current"] = {
+            "current_A": Ic,
+            "heat_J": q[0],
+            "heat_irr_J": q[1],
+            "energy_J": q[2],
+            "feasible": ok,
+            "why": "" if ok else "S leaves [0, 1]",
+        }
     except ValueError:
-        out["constant_current"] = {"current_A": math.nan, "heat_J": math.nan, "heat_irr_J": math.nan,
-                                   "energy_J": math.nan, "feasible": False,
-                                   "why": f"no constant current within ±{cell.max_current_A} A delivers E_req"}
+        out["constant_current"] = {
+            "current_A": math.nan,
+            "heat_J": math.nan,
+            "heat_irr_J": math.nan,
+            "energy_J": math.nan,
+            "feasible": False,
+            "why": f"no constant current within ±{cell.max_current_A} A delivers E_req",
+        }
     Fp = _cell_sim(cell, "power")
     P = E_req / t_f
     try:
         r = Fp(x0=x0, p=[P, t_f])
         q = np.asarray(r["qf"]).ravel()
         ok = q[3] <= 0 and q[4] <= 0
-        why = "" if ok else ("the cell cannot deliver the power (E² < 4 R_s P)" if q[3] > 0
-                             else f"the current exceeds {cell.max_current_A} A")
+        why = (
+            ""
+            if ok
+            else (
+                "the cell cannot deliver the power (E² < 4 R_s P)"
+                if q[3] > 0
+                else f"the current exceeds {cell.max_current_A} A"
+            )
+        )
         nan = math.nan
-        out["constant_power"] = {"power_W": P, "heat_J": q[0] if ok else nan, "heat_irr_J": q[1] if ok else nan,
-                                 "energy_J": q[2] if ok else nan, "feasible": bool(ok), "why": why}
+        out["constant_power"] = {
+            "power_W": P,
+            "heat_J": q[0] if ok else nan,
+            "heat_irr_J": q[1] if ok else nan,
+            "energy_J": q[2] if ok else nan,
+            "feasible": bool(ok),
+            "why": why,
+        }
     except RuntimeError as exc:
-        out["constant_power"] = {"power_W": P, "heat_J": math.nan, "heat_irr_J": math.nan, "energy_J": math.nan,
-                                 "feasible": False, "why": f"integration failed: {str(exc).splitlines()[-1]}"}
+        out["constant_power"] = {
+            "power_W": P,
+            "heat_J": math.nan,
+            "heat_irr_J": math.nan,
+            "energy_J": math.nan,
+            "feasible": False,
+            "why": f"integration failed: {str(exc).splitlines()[-1]}",
+        }
     return out
 
 
@@ -143,8 +180,10 @@ class CurrentProfileSolver:
     def __init__(self, method: str = "ms", N: int = 200, cell: CellParams | None = None, **opts: Any) -> None:
         self.cell = cell or CellParams()
         self.method, self.opts = method, dict(opts)
-        self.solver = OCPSolver(cell_problem(self.cell, False, energy_state=True, name="ocp_b"),
-                                TranscriptionOptions(method=method, N=N, **opts))
+        self.solver = OCPSolver(
+            cell_problem(self.cell, False, energy_state=True, name="ocp_b"),
+            TranscriptionOptions(method=method, N=N, **opts),
+        )
         self._max_solver: OCPSolver | None = None
 
     def max_energy(self, t_f: float = T_F_S, S0: float = SOC0) -> dict[str, Any]:
@@ -159,8 +198,10 @@ class CurrentProfileSolver:
         guess = (np.vstack([np.zeros((2, N + 1)), np.full(N + 1, S0)]), np.full((1, N), Imax))
         res = self._max_solver.solve([0.0, 0.0, S0], t_f, guess=guess, objective_name="-integral I V_T dt [J]")
         const = resimulate_cell_current(self.cell, res.t, np.full(N, Imax), [0.0, 0.0, S0])
-        out: dict[str, Any] = {"status": res.status, "constant_Imax_energy_J": const["energy_J"]
-                               if 0 <= const["S_end"] <= 1 else math.nan}
+        out: dict[str, Any] = {
+            "status": res.status,
+            "constant_Imax_energy_J": const["energy_J"] if 0 <= const["S_end"] <= 1 else math.nan,
+        }
         if res.success:
             exact = resimulate_cell_current(self.cell, res.t, res.controls["I"], [0.0, 0.0, S0])
             out.update({"max_energy_J": exact["energy_J"], "current_A": res.controls["I"]})
@@ -168,8 +209,14 @@ class CurrentProfileSolver:
             out.update({"max_energy_J": out["constant_Imax_energy_J"], "current_A": np.full(N, Imax)})
         return out
 
-    def solve(self, E_req: float = E_REQ_J, t_f: float = T_F_S, S0: float = SOC0, warm: bool = False,
-              gap_rtol: float = GAP_RTOL) -> OCPResult:
+    def solve(
+        self,
+        E_req: float = E_REQ_J,
+        t_f: float = T_F_S,
+        S0: float = SOC0,
+        warm: bool = False,
+        gap_rtol: float = GAP_RTOL,
+    ) -> OCPResult:
         """Minimise ∫Q delivering E_req [J] in t_f [s] from rest at S0. A successful result carries the
         exact re-simulation (meta 'exact': heat, energy) and the smoothing-gap record."""
         if not (isinstance(E_req, (int, float)) and math.isfinite(E_req)):
@@ -184,17 +231,20 @@ class CurrentProfileSolver:
             X[2] = S0 - I0 * np.linspace(0, t_f, N + 1) / (3600 * self.cell.capacity_Ah)
             X[3] = np.linspace(0, E_req, N + 1)
             guess = (X, np.full((1, N), I0))
-        res = self.solver.solve([0.0, 0.0, S0, 0.0], t_f, p=[E_req], guess=guess, warm=warm,
-                                objective_name="integral of Q dt [J per cell]")
+        res = self.solver.solve(
+            [0.0, 0.0, S0, 0.0], t_f, p=[E_req], guess=guess, warm=warm, objective_name="integral of Q dt [J per cell]"
+        )
         if not res.success and res.status in ("infeasible", "restoration_failed"):
             bound = self.max_energy(t_f, S0)
             res.meta["max_energy"] = {k: v for k, v in bound.items() if k != "current_A"}
             Em = bound["max_energy_J"]
             verdict = "exceeds" if E_req > Em else "is within"
-            res.message += (f"; E_req = {E_req:g} J in {t_f:g} s ({E_req / t_f:.4g} W per cell) {verdict} the most "
-                            f"any profile with |I| ≤ {self.cell.max_current_A:g} A delivers: {Em:.6g} J "
-                            f"({Em / t_f:.4g} W; max-energy solve {bound['status']}, constant "
-                            f"{self.cell.max_current_A:g} A: {bound['constant_Imax_energy_J']:.6g} J)")
+            res.message += (
+                f"; E_req = {E_req:g} J in {t_f:g} s ({E_req / t_f:.4g} W per cell) {verdict} the most "
+                f"any profile with |I| ≤ {self.cell.max_current_A:g} A delivers: {Em:.6g} J "
+                f"({Em / t_f:.4g} W; max-energy solve {bound['status']}, constant "
+                f"{self.cell.max_current_A:g} A: {bound['constant_Imax_energy_J']:.6g} J)"
+            )
         res.meta.update({"E_req_J": E_req})
         if res.success:
             exact = resimulate_cell_current(self.cell, res.t, res.controls["I"], [0.0, 0.0, S0])
@@ -209,17 +259,24 @@ class CurrentProfileSolver:
         return record_refinement(res, fine.solve(res.meta["E_req_J"], float(res.meta["t_f"]), S0))
 
 
-def compare_profiles(E_req: float = E_REQ_J, t_f: float = T_F_S, S0: float = SOC0,
-                     solver: CurrentProfileSolver | None = None) -> dict[str, Any]:
+def compare_profiles(
+    E_req: float = E_REQ_J, t_f: float = T_F_S, S0: float = SOC0, solver: CurrentProfileSolver | None = None
+) -> dict[str, Any]:
     """Optimal profile vs constant current vs constant power for one (E_req, t_f)."""
     solver = solver or CurrentProfileSolver()
     res = solver.solve(E_req, t_f, S0)
     ref = reference_profiles(E_req, t_f, S0, solver.cell)
-    row: dict[str, Any] = {"E_req_J": E_req, "t_f_s": t_f, "status": res.status, "iterations": res.iterations,
-                           "optimal_heat_J": res.objective, "constant_current_heat_J": ref["constant_current"]["heat_J"],
-                           "constant_power_heat_J": ref["constant_power"]["heat_J"],
-                           "constant_current_A": ref["constant_current"]["current_A"],
-                           "constant_power_W": ref["constant_power"]["power_W"]}
+    row: dict[str, Any] = {
+        "E_req_J": E_req,
+        "t_f_s": t_f,
+        "status": res.status,
+        "iterations": res.iterations,
+        "optimal_heat_J": res.objective,
+        "constant_current_heat_J": ref["constant_current"]["heat_J"],
+        "constant_power_heat_J": ref["constant_power"]["heat_J"],
+        "constant_current_A": ref["constant_current"]["current_A"],
+        "constant_power_W": ref["constant_power"]["power_W"],
+    }
     row["exact_heat_J"] = res.objective_exact
     row["warnings"] = list(res.warnings)
     if "max_energy" in res.meta:

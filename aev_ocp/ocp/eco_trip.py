@@ -81,7 +81,9 @@ class EcoTrip:
         if self.objective not in OBJECTIVES:
             raise ParameterError(f"EcoTrip.objective = {self.objective!r} is not allowed: must be one of {OBJECTIVES}")
         if self.omega_form not in OMEGA_FORMS:
-            raise ParameterError(f"EcoTrip.omega_form = {self.omega_form!r} is not allowed: must be one of {OMEGA_FORMS}")
+            raise ParameterError(
+                f"EcoTrip.omega_form = {self.omega_form!r} is not allowed: must be one of {OMEGA_FORMS}"
+            )
 
     @property
     def epigraph(self) -> bool:
@@ -118,18 +120,32 @@ def eco_problem(trip: EcoTrip) -> OCPProblem:
     args, names = [x, u, w, p], ["x", "u", "w", "p"]
     xN, pT = ca.SX.sym("xN", 5), ca.SX.sym("pT", 3)
     return OCPProblem(
-        name="ocp_c", state_names=["x", "v", "V1", "V2", "S"], control_names=["a", "s"][:nu],
+        name="ocp_c",
+        state_names=["x", "v", "V1", "V2", "S"],
+        control_names=["a", "s"][:nu],
         ode=ca.Function("eco_ode", args, [ca.vertcat(x[1], a, dV1, dV2, dS)], names, ["xdot"]),
         lagrange=ca.Function("eco_cost", args, [cost], names, ["l"]),
         path=ca.Function("eco_path", args, [ca.vertcat(*path)], names, ["c"]),
-        path_lb=path_lb, path_ub=path_ub,
+        path_lb=path_lb,
+        path_ub=path_ub,
         terminal=ca.Function("eco_term", [xN, pT], [ca.vertcat((xN[0] - pT[0]) / 100.0, xN[1] - pT[1])]),
-        terminal_lb=[0.0, 0.0], terminal_ub=[0.0, 0.0],
-        outputs=ca.Function("eco_out", args, [I, Q, n * Q, cm["P_w"], cm["P_b"], cm["disc"], omega_rate],
-                            names, ["I", "Q", "Q_pack_W", "P_w_W", "P_b_W", "disc", "omega_rate"]),
-        x_lb=[-ca.inf, 0.0, -ca.inf, -ca.inf, 0.0], x_ub=[ca.inf, trip.v_max_mps, ca.inf, ca.inf, 1.0],
-        u_lb=[trip.a_min_mps2, -ca.inf][:nu], u_ub=[trip.a_max_mps2, ca.inf][:nu],
-        x_scale=[max(trip.distance_m, 1.0), 10.0, 0.01, 0.01, 1.0], u_scale=[1.0, 10.0][:nu], time_unit="s")
+        terminal_lb=[0.0, 0.0],
+        terminal_ub=[0.0, 0.0],
+        outputs=ca.Function(
+            "eco_out",
+            args,
+            [I, Q, n * Q, cm["P_w"], cm["P_b"], cm["disc"], omega_rate],
+            names,
+            ["I", "Q", "Q_pack_W", "P_w_W", "P_b_W", "disc", "omega_rate"],
+        ),
+        x_lb=[-ca.inf, 0.0, -ca.inf, -ca.inf, 0.0],
+        x_ub=[ca.inf, trip.v_max_mps, ca.inf, ca.inf, 1.0],
+        u_lb=[trip.a_min_mps2, -ca.inf][:nu],
+        u_ub=[trip.a_max_mps2, ca.inf][:nu],
+        x_scale=[max(trip.distance_m, 1.0), 10.0, 0.01, 0.01, 1.0],
+        u_scale=[1.0, 10.0][:nu],
+        time_unit="s",
+    )
 
 
 def bang_cruise_bang(trip: EcoTrip) -> tuple[float, float, float] | None:
@@ -200,17 +216,24 @@ class EcoTripSolver:
         vbar = 0.5 * (v[1:] + v[:-1])
         return X, np.vstack([a, np.maximum(vbar * a / eta, eta * vbar * a)])
 
-    def solve(self, trip: EcoTrip | None = None, warm: bool = False, guess: str = "sine",
-              gap_rtol: float = GAP_RTOL) -> OCPResult:
+    def solve(
+        self, trip: EcoTrip | None = None, warm: bool = False, guess: str = "sine", gap_rtol: float = GAP_RTOL
+    ) -> OCPResult:
         """Solve for ``trip`` (same objective/vehicle as at construction; default: that trip) from the
         initial guess ``guess`` (GUESSES; ignored when warm). A successful result carries the exact
         re-simulation (:func:`resimulate_exact`) in meta, ``objective_exact`` and a warning when the
         NLP objective and its exact re-evaluation differ by more than ``gap_rtol``."""
         tr = trip or self.trip
         if (tr.objective, tr.ev, tr.smooth, tr.omega_form, tr.g_width_mps2) != (
-                self.trip.objective, self.trip.ev, self.trip.smooth, self.trip.omega_form, self.trip.g_width_mps2):
-            raise ParameterError("EcoTripSolver.solve: objective, ev, smooth, omega_form and g_width_mps2 must "
-                                 "match the built solver")
+            self.trip.objective,
+            self.trip.ev,
+            self.trip.smooth,
+            self.trip.omega_form,
+            self.trip.g_width_mps2,
+        ):
+            raise ParameterError(
+                "EcoTripSolver.solve: objective, ev, smooth, omega_form and g_width_mps2 must match the built solver"
+            )
         if guess not in GUESSES:
             raise ParameterError(f"eco-trip initial guess {guess!r} is not allowed: must be one of {GUESSES}")
         N = self.solver.options.N
@@ -220,15 +243,39 @@ class EcoTripSolver:
             name = "omega = integral v g(a) dt [J/kg] (exact epigraph)"
         else:
             name = "omega = integral v g~(a) dt [J/kg] (smoothed g)"
-        res = self.solver.solve([0.0, tr.v0_mps, 0.0, 0.0, tr.S0], tr.t_f_s, p=[tr.distance_m, tr.vf_mps, tr.t_f_s / N],
-                                guess=None if warm else self._guess(tr, guess), warm=warm, objective_name=name)
+        res = self.solver.solve(
+            [0.0, tr.v0_mps, 0.0, 0.0, tr.S0],
+            tr.t_f_s,
+            p=[tr.distance_m, tr.vf_mps, tr.t_f_s / N],
+            guess=None if warm else self._guess(tr, guess),
+            warm=warm,
+            objective_name=name,
+        )
         if not res.success and res.status in ("infeasible", "restoration_failed"):
-            res.message += (f"; {tr.distance_m:g} m in {tr.t_f_s:g} s (mean {tr.distance_m / tr.t_f_s:.3g} m/s, "
-                            f"v_max {tr.v_max_mps:g} m/s, a in [{tr.a_min_mps2:g}, {tr.a_max_mps2:g}] m/s²)")
-        res.meta.update({"trip": {k: getattr(tr, k) for k in ("distance_m", "t_f_s", "v0_mps", "vf_mps",
-                                                              "v_max_mps", "a_min_mps2", "a_max_mps2", "S0",
-                                                              "objective", "omega_form")},
-                         "guess": "warm" if warm else guess})
+            res.message += (
+                f"; {tr.distance_m:g} m in {tr.t_f_s:g} s (mean {tr.distance_m / tr.t_f_s:.3g} m/s, "
+                f"v_max {tr.v_max_mps:g} m/s, a in [{tr.a_min_mps2:g}, {tr.a_max_mps2:g}] m/s²)"
+            )
+        res.meta.update(
+            {
+                "trip": {
+                    k: getattr(tr, k)
+                    for k in (
+                        "distance_m",
+                        "t_f_s",
+                        "v0_mps",
+                        "vf_mps",
+                        "v_max_mps",
+                        "a_min_mps2",
+                        "a_max_mps2",
+                        "S0",
+                        "objective",
+                        "omega_form",
+                    )
+                },
+                "guess": "warm" if warm else guess,
+            }
+        )
         if res.success:
             res.meta.update(resimulate_exact(tr, res.controls["a"], res.t))
             if tr.objective == "heat":
@@ -237,8 +284,9 @@ class EcoTripSolver:
                 record_smoothing_gap(res, res.meta["omega_J_per_kg"], "exact g, CVODES", gap_rtol)
         return res
 
-    def solve_multistart(self, trip: EcoTrip | None = None, guesses: Sequence[str] = GUESSES,
-                         gap_rtol: float = GAP_RTOL) -> OCPResult:
+    def solve_multistart(
+        self, trip: EcoTrip | None = None, guesses: Sequence[str] = GUESSES, gap_rtol: float = GAP_RTOL
+    ) -> OCPResult:
         """Solve from each initial guess and keep the lowest NLP objective (spread in meta['multistart'])."""
         return multistart(lambda g: self.solve(trip, guess=g, gap_rtol=gap_rtol), guesses)[0]
 
@@ -265,8 +313,11 @@ def resimulate_exact(trip: EcoTrip, a_mps2: np.ndarray, t_s: np.ndarray) -> dict
     I = cm["I"]
     dV1, dV2, dS = battery.cell_derivatives(x[2], x[3], I, ev.cell)
     n = ev.pack.n_cells
-    quad = ca.vertcat(n * battery.heat_Q(x[2], x[3], I, ev.cell), n * battery.heat_irreversible(x[2], x[3], I, ev.cell),
-                      x[1] * energy.g_exact(a, ev.vehicle.efficiency))
+    quad = ca.vertcat(
+        n * battery.heat_Q(x[2], x[3], I, ev.cell),
+        n * battery.heat_irreversible(x[2], x[3], I, ev.cell),
+        x[1] * energy.g_exact(a, ev.vehicle.efficiency),
+    )
     dt = ca.SX.sym("dt")
     dae = {"x": x, "p": ca.vertcat(a, dt), "ode": dt * ca.vertcat(x[1], a, dV1, dV2, dS), "quad": dt * quad}
     F = ca.integrator("eco_exact", "cvodes", dae, 0.0, 1.0, {"abstol": 1e-10, "reltol": 1e-10})
@@ -278,5 +329,11 @@ def resimulate_exact(trip: EcoTrip, a_mps2: np.ndarray, t_s: np.ndarray) -> dict
         out = F(x0=xk, p=[ak, hk])
         xk = np.asarray(out["xf"]).ravel()
         q += np.asarray(out["qf"]).ravel()
-    return {"pack_heat_J": float(q[0]), "pack_heat_irr_J": float(q[1]), "omega_J_per_kg": float(q[2]),
-            "exact_final_distance_m": float(xk[0]), "exact_final_speed_mps": float(xk[1]), "exact_final_soc": float(xk[4])}
+    return {
+        "pack_heat_J": float(q[0]),
+        "pack_heat_irr_J": float(q[1]),
+        "omega_J_per_kg": float(q[2]),
+        "exact_final_distance_m": float(xk[0]),
+        "exact_final_speed_mps": float(xk[1]),
+        "exact_final_soc": float(xk[4]),
+    }

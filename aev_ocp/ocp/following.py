@@ -64,9 +64,15 @@ class FollowingBounds:
             raise ParameterError(f"FollowingBounds.a_min = {self.a_min} must be < a_max = {self.a_max}")
 
 
-def following_stage_terms(z: Any, a: Any, v_l_hat: Any, ev: EVParams,
-                          smooth: PowertrainOptions | None = PowertrainOptions(),
-                          objective: str = "heat", T_K: Any = None) -> dict[str, Any]:
+def following_stage_terms(
+    z: Any,
+    a: Any,
+    v_l_hat: Any,
+    ev: EVParams,
+    smooth: PowertrainOptions | None = PowertrainOptions(),
+    objective: str = "heat",
+    T_K: Any = None,
+) -> dict[str, Any]:
     """The four UNWEIGHTED terms of ℓ (model guide §9) [model units; multiply by dt in model time]:
     'energy' Q_pack/(1 kW) (objective 'heat', η switch smoothed by ``smooth``) or v g(a) (objective
     'energy', the exact g, η = ev.vehicle.efficiency), 'ovm' (V(h) − v)², 'relative' (v̂_l − v)², 'accel' a².
@@ -117,8 +123,9 @@ def add_temperature_state(pb: ProblemBuilder, ev: EVParams, hard_limit: bool = T
     ParameterError when ``ev.thermal`` is off. Its derivative is set by :func:`set_temperature_rate` once the
     battery side is known."""
     if not ev.thermal.enabled:
-        raise ParameterError("with_temperature needs the thermal model: ev.thermal.enabled = True ([thermal] "
-                             "enabled = true)")
+        raise ParameterError(
+            "with_temperature needs the thermal model: ev.thermal.enabled = True ([thermal] enabled = true)"
+        )
     return pb.state("T", 0.0, ev.thermal.T_max_K if hard_limit else ca.inf, scale=100.0)
 
 
@@ -142,10 +149,15 @@ def weight_vector(weights: FollowingWeights) -> list[float]:
     return [float(getattr(weights, k)) for k in WEIGHT_NAMES]
 
 
-def following_problem(ev: EVParams, bounds: FollowingBounds | None = None,
-                      smooth: PowertrainOptions | None = PowertrainOptions(), objective: str = "heat",
-                      name: str = "following", with_temperature: bool = False,
-                      temperature: TemperatureTerms | None = None) -> ProblemBuilder:
+def following_problem(
+    ev: EVParams,
+    bounds: FollowingBounds | None = None,
+    smooth: PowertrainOptions | None = PowertrainOptions(),
+    objective: str = "heat",
+    name: str = "following",
+    with_temperature: bool = False,
+    temperature: TemperatureTerms | None = None,
+) -> ProblemBuilder:
     """The §9 problem as a builder (model units, time in model time units):
 
     states z = (h, v, V1, V2, S) (scales 1, 1, 0.01 V, 0.01 V, 1); control a; stage parameters
@@ -162,8 +174,13 @@ def following_problem(ev: EVParams, bounds: FollowingBounds | None = None,
     """
     b = bounds or FollowingBounds()
     pb = ProblemBuilder(name, time_unit="model")
-    z = ca.vertcat(pb.state("h", b.h_min), pb.state("v", b.v_min, b.v_max), pb.state("V1", scale=0.01),
-                   pb.state("V2", scale=0.01), pb.state("S", 0.0, 1.0))
+    z = ca.vertcat(
+        pb.state("h", b.h_min),
+        pb.state("v", b.v_min, b.v_max),
+        pb.state("V1", scale=0.01),
+        pb.state("V2", scale=0.01),
+        pb.state("S", 0.0, 1.0),
+    )
     soft_T = temperature is not None and temperature.temperature_state
     Tst = add_temperature_state(pb, ev, hard_limit=not soft_T) if with_temperature or soft_T else None
     a = pb.control("a", b.a_min, b.a_max)

@@ -25,8 +25,15 @@ from dataclasses import dataclass, field
 from typing import Any, Callable, Mapping
 
 from ..params import EVParams, ParameterError, PowertrainOptions, spec, validate_fields
-from .following import (OBJECTIVES, WEIGHT_NAMES, FollowingBounds, FollowingWeights, TemperatureTerms,
-                        following_problem, weight_vector)
+from .following import (
+    OBJECTIVES,
+    WEIGHT_NAMES,
+    FollowingBounds,
+    FollowingWeights,
+    TemperatureTerms,
+    following_problem,
+    weight_vector,
+)
 from .problem import OCPProblem, ProblemBuilder
 from .traffic import TrafficParams, traffic_bounds, traffic_problem
 
@@ -70,15 +77,19 @@ class Formulation:
 
     kind: str = spec("traffic", kind="choice", choices=KINDS)
     traffic: TrafficParams = spec(kind="instance", cls=TrafficParams, default_factory=TrafficParams)
-    weights: FollowingWeights = spec(kind="instance", cls=FollowingWeights,
-                                     default_factory=FollowingWeights)  # model guide §9: 1, 1, 1, 0.1
-    bounds: FollowingBounds = spec(kind="instance", cls=FollowingBounds,
-                                   default_factory=FollowingBounds)  # model guide §9
+    weights: FollowingWeights = spec(
+        kind="instance", cls=FollowingWeights, default_factory=FollowingWeights
+    )  # model guide §9: 1, 1, 1, 0.1
+    bounds: FollowingBounds = spec(
+        kind="instance", cls=FollowingBounds, default_factory=FollowingBounds
+    )  # model guide §9
     objective: str = spec("heat", kind="choice", choices=OBJECTIVES)  # model guide §9
-    smooth: PowertrainOptions = spec(kind="instance", cls=PowertrainOptions,
-                                     default_factory=PowertrainOptions)  # model guide §7: 300 W
-    temperature: TemperatureTerms = spec(kind="instance", cls=TemperatureTerms,
-                                         default_factory=TemperatureTerms)  # off: no temperature state
+    smooth: PowertrainOptions = spec(
+        kind="instance", cls=PowertrainOptions, default_factory=PowertrainOptions
+    )  # model guide §7: 300 W
+    temperature: TemperatureTerms = spec(
+        kind="instance", cls=TemperatureTerms, default_factory=TemperatureTerms
+    )  # off: no temperature state
     problem: Any = field(default=None, compare=False)
     parameter_values: Mapping[str, float] = field(default_factory=dict, compare=False)
     initial_values: Mapping[str, float] = field(default_factory=dict, compare=False)
@@ -86,30 +97,38 @@ class Formulation:
     def __post_init__(self) -> None:
         validate_fields(self)
         if (self.kind == "problem") != (self.problem is not None):
-            raise ParameterError("Formulation.problem must be given exactly for kind = 'problem' "
-                                 f"(kind = {self.kind!r}, problem {'given' if self.problem is not None else 'missing'})")
-        if self.problem is not None and not (isinstance(self.problem, (OCPProblem, ProblemBuilder))
-                                             or callable(self.problem)):
-            raise ParameterError(f"Formulation.problem must be a ProblemBuilder, an OCPProblem or a function (ev, dt) -> "
-                                 f"either, got {type(self.problem).__name__}")
+            raise ParameterError(
+                "Formulation.problem must be given exactly for kind = 'problem' "
+                f"(kind = {self.kind!r}, problem {'given' if self.problem is not None else 'missing'})"
+            )
+        if self.problem is not None and not (
+            isinstance(self.problem, (OCPProblem, ProblemBuilder)) or callable(self.problem)
+        ):
+            raise ParameterError(
+                f"Formulation.problem must be a ProblemBuilder, an OCPProblem or a function (ev, dt) -> "
+                f"either, got {type(self.problem).__name__}"
+            )
 
     # ------------------------------------------------------------------ the problem
     def builder(self, ev: EVParams, dt: float, name: str | None = None) -> OCPProblem | ProblemBuilder:
         """The problem on intervals of length dt [model time] (the traffic problem's jerk term uses dt).
         A user's builder or built problem is returned as given (it was stated for the MPC's dt)."""
         if self.kind == "traffic":
-            return traffic_problem(ev, self.traffic, dt, self.smooth, name=name or "mpc_traffic",
-                                   temperature=self.temperature)
+            return traffic_problem(
+                ev, self.traffic, dt, self.smooth, name=name or "mpc_traffic", temperature=self.temperature
+            )
         if self.kind == "s9":
-            return following_problem(ev, self.bounds, self.smooth, self.objective, name=name or "mpc",
-                                     temperature=self.temperature)
+            return following_problem(
+                ev, self.bounds, self.smooth, self.objective, name=name or "mpc", temperature=self.temperature
+            )
         p = self.problem
         if isinstance(p, (OCPProblem, ProblemBuilder)):
             return p
         out = p(ev, dt)
         if not isinstance(out, (OCPProblem, ProblemBuilder)):
-            raise ParameterError(f"Formulation.problem(ev, dt) must return a ProblemBuilder or an OCPProblem, got "
-                                 f"{type(out).__name__}")
+            raise ParameterError(
+                f"Formulation.problem(ev, dt) must return a ProblemBuilder or an OCPProblem, got {type(out).__name__}"
+            )
         return out
 
     def build(self, ev: EVParams, dt: float, name: str | None = None) -> OCPProblem:
@@ -201,8 +220,9 @@ class Formulation:
             elif k in self.parameter_values:
                 out.append(float(self.parameter_values[k]))
             else:
-                raise ParameterError(f"Formulation {self.name!r}: parameter {k!r} has no value: give "
-                                     f"parameter_values={{{k!r}: ...}}")
+                raise ParameterError(
+                    f"Formulation {self.name!r}: parameter {k!r} has no value: give parameter_values={{{k!r}: ...}}"
+                )
         return out
 
     def s9_weight_vector(self) -> list[float]:
@@ -259,36 +279,61 @@ def _declared_bounds(p: Any) -> dict[str, float]:
     return out
 
 
-def traffic_formulation(traffic: TrafficParams | None = None, smooth: PowertrainOptions | None = None,
-                        temperature: TemperatureTerms | None = None) -> Formulation:
+def traffic_formulation(
+    traffic: TrafficParams | None = None,
+    smooth: PowertrainOptions | None = None,
+    temperature: TemperatureTerms | None = None,
+) -> Formulation:
     """The traffic formulation (aev_ocp/ocp/traffic.py; the default) with its SI parameters; ``temperature``: the
     pack temperature as a state with a soft limit (default off)."""
-    return Formulation("traffic", traffic=traffic or TrafficParams(), smooth=smooth or PowertrainOptions(),
-                       temperature=temperature or TemperatureTerms())
+    return Formulation(
+        "traffic",
+        traffic=traffic or TrafficParams(),
+        smooth=smooth or PowertrainOptions(),
+        temperature=temperature or TemperatureTerms(),
+    )
 
 
-def s9_formulation(weights: FollowingWeights | None = None, bounds: FollowingBounds | None = None,
-                   objective: str = "heat", smooth: PowertrainOptions | None = None,
-                   temperature: TemperatureTerms | None = None) -> Formulation:
+def s9_formulation(
+    weights: FollowingWeights | None = None,
+    bounds: FollowingBounds | None = None,
+    objective: str = "heat",
+    smooth: PowertrainOptions | None = None,
+    temperature: TemperatureTerms | None = None,
+) -> Formulation:
     """model guide §9's formulation (defaults: §9's weights 1, 1, 1, 0.1, bounds and the heat objective)."""
-    return Formulation("s9", weights=weights or FollowingWeights(), bounds=bounds or FollowingBounds(),
-                       objective=objective, smooth=smooth or PowertrainOptions(),
-                       temperature=temperature or TemperatureTerms())
+    return Formulation(
+        "s9",
+        weights=weights or FollowingWeights(),
+        bounds=bounds or FollowingBounds(),
+        objective=objective,
+        smooth=smooth or PowertrainOptions(),
+        temperature=temperature or TemperatureTerms(),
+    )
 
 
-def problem_formulation(problem: ProblemSource, parameter_values: Mapping[str, float] | None = None,
-                        initial_values: Mapping[str, float] | None = None,
-                        weights: FollowingWeights | None = None) -> Formulation:
+def problem_formulation(
+    problem: ProblemSource,
+    parameter_values: Mapping[str, float] | None = None,
+    initial_values: Mapping[str, float] | None = None,
+    weights: FollowingWeights | None = None,
+) -> Formulation:
     """A user problem as a formulation: every derived item (bounds, name, cost, cold start) follows it.
     ``weights``: values of its parameters named w_Q, w_V, w_r, w_a (default model guide §9's)."""
     if isinstance(problem, Formulation):
         return problem
-    return Formulation("problem", problem=problem, parameter_values=dict(parameter_values or {}),
-                       initial_values=dict(initial_values or {}), weights=weights or FollowingWeights())
+    return Formulation(
+        "problem",
+        problem=problem,
+        parameter_values=dict(parameter_values or {}),
+        initial_values=dict(initial_values or {}),
+        weights=weights or FollowingWeights(),
+    )
 
 
 #: The default formulation of an MPC (``MPCVehicle(settings)`` and an ``[mpc]`` table without formulation keys).
 DEFAULT_FORMULATION = traffic_formulation()
+
 
 def formulation_from_dict(d: Mapping[str, Any]) -> Formulation:
     """A formulation from flat keys: ``formulation`` ('traffic' default, or 's9'), the TrafficParams fields
@@ -314,25 +359,30 @@ def formulation_from_dict(d: Mapping[str, Any]) -> Formulation:
             continue
         if k in wn or k in bn or k == "objective":
             if kind != "s9":
-                raise ParameterError(f"{k} applies to the §9 formulation only: set formulation = \"s9\", or use the "
-                                     "traffic formulation's SI parameters (standstill_gap_m, time_headway_s, a_min_mps2, "
-                                     "...; see aev_ocp/ocp/traffic.py)")
+                raise ParameterError(
+                    f'{k} applies to the §9 formulation only: set formulation = "s9", or use the '
+                    "traffic formulation's SI parameters (standstill_gap_m, time_headway_s, a_min_mps2, "
+                    "...; see aev_ocp/ocp/traffic.py)"
+                )
             if k == "objective":
                 obj = v
             else:
                 (w if k in wn else b)[k] = v
         elif k in tn:
             if kind != "traffic":
-                raise ParameterError(f"{k} applies to the traffic formulation only (aev_ocp/ocp/traffic.py), not to "
-                                     "formulation = \"s9\"")
+                raise ParameterError(
+                    f'{k} applies to the traffic formulation only (aev_ocp/ocp/traffic.py), not to formulation = "s9"'
+                )
             t[k] = v
         elif k == "smoothing_width_W":
             s[k] = v
         elif k in thn:
             th[k] = v
         else:
-            raise ParameterError(f"formulation option {k!r} is unknown: known options are "
-                                 f"{sorted(wn | bn | tn | thn | {'formulation', 'objective', 'smoothing_width_W'})}")
+            raise ParameterError(
+                f"formulation option {k!r} is unknown: known options are "
+                f"{sorted(wn | bn | tn | thn | {'formulation', 'objective', 'smoothing_width_W'})}"
+            )
     smooth = PowertrainOptions(**s)
     temp = TemperatureTerms(**th)
     if kind == "traffic":
@@ -344,6 +394,10 @@ def formulation_keys() -> set[str]:
     """Every flat key :func:`formulation_from_dict` reads."""
     from dataclasses import fields
 
-    return ({"formulation", "objective", "smoothing_width_W"} | {f.name for f in fields(FollowingWeights)}
-            | {f.name for f in fields(FollowingBounds)} | {f.name for f in fields(TrafficParams)}
-            | {f.name for f in fields(TemperatureTerms)})
+    return (
+        {"formulation", "objective", "smoothing_width_W"}
+        | {f.name for f in fields(FollowingWeights)}
+        | {f.name for f in fields(FollowingBounds)}
+        | {f.name for f in fields(TrafficParams)}
+        | {f.name for f in fields(TemperatureTerms)}
+    )

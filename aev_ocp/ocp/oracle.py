@@ -46,9 +46,11 @@ ORACLE_MAX_INTERVALS = 2000
 #: The coarse OCP-D grid [s]: the EPA cycles are sampled at 1 s (aev_ocp/data/cycles).
 COARSE_GRID_S = 1.0
 #: What OCP-D minimises, by formulation (OCPResult.objective_name, results.json ocp_d.objective).
-OBJECTIVE_NAMES = {"s9": "sum_k l(z_k, a_k) dt (model guide §9)",
-                   "traffic": "traffic objective (aev_ocp/ocp/traffic.py, the MPC's): sum_k l(x_k, u_k) dt + terminal [J/kg]",
-                   "problem": "the user problem's objective: sum_k l(x_k, u_k) dt + terminal"}
+OBJECTIVE_NAMES = {
+    "s9": "sum_k l(z_k, a_k) dt (model guide §9)",
+    "traffic": "traffic objective (aev_ocp/ocp/traffic.py, the MPC's): sum_k l(x_k, u_k) dt + terminal [J/kg]",
+    "problem": "the user problem's objective: sum_k l(x_k, u_k) dt + terminal",
+}
 
 
 @dataclass(frozen=True)
@@ -83,8 +85,10 @@ class OracleScenario:
         if not (math.isfinite(self.h0) and self.h0 > 0):
             raise ParameterError(f"OracleScenario.h0 = {self.h0!r} is not allowed: must be > 0")
         if not isinstance(self.formulation, Formulation):
-            raise ParameterError(f"OracleScenario.formulation = {self.formulation!r} is not allowed: must be a "
-                                 "Formulation (aev_ocp.ocp.formulation: s9_formulation(), traffic_formulation(), ...)")
+            raise ParameterError(
+                f"OracleScenario.formulation = {self.formulation!r} is not allowed: must be a "
+                "Formulation (aev_ocp.ocp.formulation: s9_formulation(), traffic_formulation(), ...)"
+            )
 
     @property
     def N(self) -> int:
@@ -123,8 +127,14 @@ def canonical_scenario() -> OracleScenario:
     return OracleScenario()
 
 
-def drive_cycle_scenario(cycle: str = "udds", duration_s: float = 600.0, speed_unit_mps: float = 13.0,
-                         dt_s: float = 1.0, h0: float = 0.5, v0: float = 0.0) -> OracleScenario:
+def drive_cycle_scenario(
+    cycle: str = "udds",
+    duration_s: float = 600.0,
+    speed_unit_mps: float = 13.0,
+    dt_s: float = 1.0,
+    h0: float = 0.5,
+    v0: float = 0.0,
+) -> OracleScenario:
     """Follower behind an EPA cycle (first ``duration_s`` seconds). U = 13 m/s so that V∞·U = 25.5 m/s
     exceeds UDDS top speed 25.35 m/s (model guide §1); L = 10 m; dt_s = 1 s (the cycles are
     sampled at 1 s). h0, v0 in model units (UDDS starts at rest)."""
@@ -132,8 +142,15 @@ def drive_cycle_scenario(cycle: str = "udds", duration_s: float = 600.0, speed_u
     leader = drive_cycle(cycle, units)
     t_end = units.time_from_si(duration_s)
     dt = units.time_from_si(dt_s)
-    return OracleScenario(leader=leader, t_end=t_end, dt=t_end / round(t_end / dt), h0=h0, v0=v0,
-                          ev=EVParams(units=units), name=f"{cycle}_{duration_s:g}s")
+    return OracleScenario(
+        leader=leader,
+        t_end=t_end,
+        dt=t_end / round(t_end / dt),
+        h0=h0,
+        v0=v0,
+        ev=EVParams(units=units),
+        name=f"{cycle}_{duration_s:g}s",
+    )
 
 
 def leader_forecast(leader: LeaderProfile, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -171,7 +188,9 @@ def _step_function(scn: OracleScenario, policy: str, law: CarFollowingLaw | None
     return ca.Function("guess_step", [z, w], [x, a])
 
 
-def rollout_guess(scn: OracleScenario, law: CarFollowingLaw | None = None, substeps: int = 4) -> tuple[np.ndarray, np.ndarray]:
+def rollout_guess(
+    scn: OracleScenario, law: CarFollowingLaw | None = None, substeps: int = 4
+) -> tuple[np.ndarray, np.ndarray]:
     """Initial guess for OCP-D: the closed-form ``law`` sampled per dt (a_k held over the interval),
     or, when law is None or α·dt ≥ 1 (the sampled law would oscillate), a speed copy of the leader.
     Returns X (5, N+1), U (1, N)."""
@@ -189,8 +208,9 @@ class _IterationReporter(ca.Callback):
     """IPOPT iteration callback of OCP-D: counts iterations and, every ``every_s`` seconds, reports
     iteration k / max_iter, objective, largest constraint violation (NLP scaling) and elapsed time."""
 
-    def __init__(self, nx: int, ng: int, max_iter: int, bounds: tuple[np.ndarray, ...],
-                 time_limit_s: float | None) -> None:
+    def __init__(
+        self, nx: int, ng: int, max_iter: int, bounds: tuple[np.ndarray, ...], time_limit_s: float | None
+    ) -> None:
         ca.Callback.__init__(self)
         self.nx, self.ng, self.max_iter, self.bounds, self.time_limit_s = nx, ng, max_iter, bounds, time_limit_s
         self.say: Callable[[str], None] | None = None
@@ -232,14 +252,21 @@ class _IterationReporter(ca.Callback):
             self.last = now
             lbx, ubx, lbg, ubg = self.bounds
             x, g = np.asarray(arg[0]).ravel(), np.asarray(arg[2]).ravel()
-            viol = max(float(np.max(np.maximum(lbx - x, x - ubx), initial=0.0)),
-                       float(np.max(np.maximum(lbg - g, g - ubg), initial=0.0)))
+            viol = max(
+                float(np.max(np.maximum(lbx - x, x - ubx), initial=0.0)),
+                float(np.max(np.maximum(lbg - g, g - ubg), initial=0.0)),
+            )
             f = float(arg[1])
             self.lines.append({"iteration": self.k, "objective": f, "infeasibility": viol, "elapsed_s": now})
-            left = (f", time limit {self.time_limit_s:g} s: at most {max(self.time_limit_s - now, 0.0):.0f} s left"
-                    if self.time_limit_s is not None else "")
-            self.say(f"OCP-D: iteration {self.k} / {self.max_iter}, objective {f:.6g}, infeasibility {viol:.2g}, "
-                     f"{now:.1f} s elapsed{left}")
+            left = (
+                f", time limit {self.time_limit_s:g} s: at most {max(self.time_limit_s - now, 0.0):.0f} s left"
+                if self.time_limit_s is not None
+                else ""
+            )
+            self.say(
+                f"OCP-D: iteration {self.k} / {self.max_iter}, objective {f:.6g}, infeasibility {viol:.2g}, "
+                f"{now:.1f} s elapsed{left}"
+            )
         return [0]
 
 
@@ -266,8 +293,13 @@ class _OracleOCPSolver(OCPSolver):
         if self.time_limit_s is not None:
             opts["ipopt"]["max_wall_time"] = float(self.time_limit_s)
         if self.reporter is None:
-            self.reporter = _IterationReporter(self._nlp["x"].numel(), self._nlp["g"].numel(), self.options.max_iter,
-                                               (self._lbx, self._ubx, self._lbg, self._ubg), self.time_limit_s)
+            self.reporter = _IterationReporter(
+                self._nlp["x"].numel(),
+                self._nlp["g"].numel(),
+                self.options.max_iter,
+                (self._lbx, self._ubx, self._lbg, self._ubg),
+                self.time_limit_s,
+            )
         opts["iteration_callback"] = self.reporter
         return opts
 
@@ -287,21 +319,42 @@ class OracleSolver:
     while IPOPT iterates, and once before and after (True: print on stderr; None/False: silent).
     """
 
-    def __init__(self, scn: OracleScenario, method: str = "ms", rk4_substeps: int = 1, degree: int = 3,
-                 scheme: str = "radau", tol: float = 1e-8, mx_map: bool = True,
-                 time_limit_s: float | None = DEFAULT_TIME_LIMIT_S,
-                 progress: Callable[[str], None] | bool | None = None,
-                 progress_every_s: float = PROGRESS_EVERY_S, max_iter: int = 1000) -> None:
-        if time_limit_s is not None and not (isinstance(time_limit_s, (int, float)) and math.isfinite(time_limit_s)
-                                             and time_limit_s > 0):
+    def __init__(
+        self,
+        scn: OracleScenario,
+        method: str = "ms",
+        rk4_substeps: int = 1,
+        degree: int = 3,
+        scheme: str = "radau",
+        tol: float = 1e-8,
+        mx_map: bool = True,
+        time_limit_s: float | None = DEFAULT_TIME_LIMIT_S,
+        progress: Callable[[str], None] | bool | None = None,
+        progress_every_s: float = PROGRESS_EVERY_S,
+        max_iter: int = 1000,
+    ) -> None:
+        if time_limit_s is not None and not (
+            isinstance(time_limit_s, (int, float)) and math.isfinite(time_limit_s) and time_limit_s > 0
+        ):
             raise ParameterError(f"OCP-D: time limit = {time_limit_s!r} s is not allowed: must be a finite number > 0")
         if not (isinstance(progress_every_s, (int, float)) and progress_every_s >= 0):
             raise ParameterError(f"OCP-D: progress_every_s = {progress_every_s!r} is not allowed: must be >= 0")
         self.scn = scn
         self.time_limit_s = time_limit_s
-        self.solver = _OracleOCPSolver(oracle_problem(scn), TranscriptionOptions(
-            method=method, N=scn.N, rk4_substeps=rk4_substeps, degree=degree, scheme=scheme, tol=tol,
-            mx_map=mx_map, max_iter=max_iter), time_limit_s)
+        self.solver = _OracleOCPSolver(
+            oracle_problem(scn),
+            TranscriptionOptions(
+                method=method,
+                N=scn.N,
+                rk4_substeps=rk4_substeps,
+                degree=degree,
+                scheme=scheme,
+                tol=tol,
+                mx_map=mx_map,
+                max_iter=max_iter,
+            ),
+            time_limit_s,
+        )
         rep = self.solver.reporter
         assert rep is not None
         rep.say = _stderr if progress is True else (progress or None)
@@ -317,8 +370,9 @@ class OracleSolver:
         """What the last solve reported: iteration, objective, infeasibility, elapsed_s per line."""
         return list(self.solver.reporter.lines) if self.solver.reporter is not None else []
 
-    def solve(self, scn: OracleScenario | None = None, warm: bool = False,
-              guess_law: CarFollowingLaw | None = None) -> OCPResult:
+    def solve(
+        self, scn: OracleScenario | None = None, warm: bool = False, guess_law: CarFollowingLaw | None = None
+    ) -> OCPResult:
         """Solve for ``scn`` (default: the scenario given at construction; must have the same N).
         Initial guess: :func:`rollout_guess` with the proposed law (or the previous solution if warm).
         A solve stopped by the time limit returns status 'time_limit' (success False) with the message
@@ -336,7 +390,9 @@ class OracleSolver:
                 X = np.vstack([X, np.concatenate([[0.0], U[0]])])
             if pr.nu > 1:  # epigraph and slack controls (energy_rate, slack_gap, slack_<name>) at their optimum
                 P = np.repeat(np.asarray(oracle_parameters(scn, pr), float).reshape(-1, 1), scn.N, axis=1)
-                U = np.asarray(auxiliary_controls(pr, require_traffic=False).map(scn.N)(X[:, :-1], U, np.vstack([vm, vh]), P))
+                U = np.asarray(
+                    auxiliary_controls(pr, require_traffic=False).map(scn.N)(X[:, :-1], U, np.vstack([vm, vh]), P)
+                )
             guess = (X, U)
         rep = self.solver.reporter
         if rep is not None:
@@ -346,30 +402,67 @@ class OracleSolver:
                 rep.say(f"OCP-D: {scn.name}, N = {scn.N} intervals of dt = {scn.dt:.4g} (model time), IPOPT{lim}")
         pr = self.solver.problem
         pvec = oracle_parameters(scn, pr)
-        res = self.solver.solve(scn.x0_of(pr), scn.t_end, p=pvec, w=np.vstack([vm, vh]),
-                                guess=guess, warm=warm, objective_name=OBJECTIVE_NAMES[scn.formulation.kind])
+        res = self.solver.solve(
+            scn.x0_of(pr),
+            scn.t_end,
+            p=pvec,
+            w=np.vstack([vm, vh]),
+            guess=guess,
+            warm=warm,
+            objective_name=OBJECTIVE_NAMES[scn.formulation.kind],
+        )
         if res.status == "time_limit":
-            res.message = (f"OCP-D stopped at the time limit of {self.time_limit_s:g} s after {res.iterations} "
-                           "iterations; the last iterate is not optimal")
+            res.message = (
+                f"OCP-D stopped at the time limit of {self.time_limit_s:g} s after {res.iterations} "
+                "iterations; the last iterate is not optimal"
+            )
             res.warnings.append(res.message)
         if rep is not None and rep.say is not None:
-            rep.say(f"OCP-D: {res.status} after {res.iterations} iterations, {res.wall_time_s:.1f} s"
-                    + ("" if res.success else f" ({res.message})"))
-        res.meta.update({"scenario": scn.name, "dt": scn.dt, "leader_speed_mean": vm, "leader_speed_hat": vh,
-                         "time_limit_s": self.time_limit_s, "formulation": scn.formulation.kind,
-                         "units": {"length_m": scn.ev.units.length_m, "speed_mps": scn.ev.units.speed_mps}})
+            rep.say(
+                f"OCP-D: {res.status} after {res.iterations} iterations, {res.wall_time_s:.1f} s"
+                + ("" if res.success else f" ({res.message})")
+            )
+        res.meta.update(
+            {
+                "scenario": scn.name,
+                "dt": scn.dt,
+                "leader_speed_mean": vm,
+                "leader_speed_hat": vh,
+                "time_limit_s": self.time_limit_s,
+                "formulation": scn.formulation.kind,
+                "units": {"length_m": scn.ev.units.length_m, "speed_mps": scn.ev.units.speed_mps},
+            }
+        )
         f = scn.formulation
         if res.success and f.kind != "s9":  # its own objective, re-evaluated on its trajectory
             z = np.vstack([res.states[k] for k in ("h", "v", "V1", "V2", "S")])
             try:
-                res.meta["cost_terms"] = cost_traffic_of_trajectory(pr, t, z, res.controls["a"], np.vstack([vm, vh]),
-                                                                    p=np.asarray(pvec), require_traffic=f.kind == "traffic")
+                res.meta["cost_terms"] = cost_traffic_of_trajectory(
+                    pr,
+                    t,
+                    z,
+                    res.controls["a"],
+                    np.vstack([vm, vh]),
+                    p=np.asarray(pvec),
+                    require_traffic=f.kind == "traffic",
+                )
             except ParameterError:  # a user problem whose controls are not fixed by (x, a)
                 pass
         elif res.success:
             res.meta["cost_terms"] = stage_cost_of_trajectory(
-                t, res.states["h"], res.states["v"], res.states["V1"], res.states["V2"], res.states["S"],
-                res.controls["a"], vh, f.weights, scn.ev, f.smooth, f.objective)
+                t,
+                res.states["h"],
+                res.states["v"],
+                res.states["V1"],
+                res.states["V2"],
+                res.states["S"],
+                res.controls["a"],
+                vh,
+                f.weights,
+                scn.ev,
+                f.smooth,
+                f.objective,
+            )
         return res
 
 
@@ -393,8 +486,17 @@ def scenario_oracle(sc: Any, dt: float, formulation: Formulation | None = None) 
     vehicle/pack and follower 1's h(0), v(0), S(0), on the grid of step ``dt`` [model time] (adjusted to
     divide t_end), solving ``formulation`` (default model guide §9's; pass the MPC's for its bound)."""
     n = max(1, round(sc.t_end / dt))
-    return OracleScenario(leader=sc.leader, t_end=sc.t_end, dt=sc.t_end / n, h0=sc.gaps0[0], v0=sc.speeds0[0],
-                          S0=sc.ev.cell.soc0, ev=sc.ev, name=sc.name, formulation=formulation or s9_formulation())
+    return OracleScenario(
+        leader=sc.leader,
+        t_end=sc.t_end,
+        dt=sc.t_end / n,
+        h0=sc.gaps0[0],
+        v0=sc.speeds0[0],
+        S0=sc.ev.cell.soc0,
+        ev=sc.ev,
+        name=sc.name,
+        formulation=formulation or s9_formulation(),
+    )
 
 
 #: OCP-D is solved on the controller's own grid (a bound) up to this many intervals; beyond, on the coarse 1 s
@@ -424,15 +526,22 @@ class HeldPlan(ControlSequence):
         return Command(max(a, 0.0) if v < 1e-9 else max(a, -v / self.dt))
 
 
-def replay(res: OCPResult, scn: OracleScenario, hold_dt: float | None = None,
-           progress: Callable[[float, float], None] | None = None) -> SimulationResult:
+def replay(
+    res: OCPResult,
+    scn: OracleScenario,
+    hold_dt: float | None = None,
+    progress: Callable[[float, float], None] | None = None,
+) -> SimulationResult:
     """OCP-D's optimal controls ``res`` (solved for ``scn``) replayed open loop through the exact plant
     (aev_ocp.control.ClosedLoop: CVODES, exact η switch, the vehicle's limits) from scn's initial state: held
     over scn.dt, or, ``hold_dt`` [model time] given, moved to the grid of that step (:func:`on_grid`,
     :class:`HeldPlan`: never a reverse command; a coarse traffic OCP-D, whose jerk is costed on the MPC's grid)."""
     a_opt = np.asarray(res.controls["a"], float).ravel()
-    seq = (HeldPlan(tuple(on_grid(a_opt, scn.dt, hold_dt, scn.t_end)), hold_dt, "ocp-d") if hold_dt is not None
-           else ControlSequence(tuple(a_opt), scn.dt, "ocp-d"))
+    seq = (
+        HeldPlan(tuple(on_grid(a_opt, scn.dt, hold_dt, scn.t_end)), hold_dt, "ocp-d")
+        if hold_dt is not None
+        else ControlSequence(tuple(a_opt), scn.dt, "ocp-d")
+    )
     return ClosedLoop(scn.leader, [seq], scn.ev).run([scn.h0], [scn.v0], scn.t_end, soc0=scn.S0, progress=progress)
 
 
@@ -470,15 +579,23 @@ def bound_role(cost: float, metrics: dict[str, list[dict[str, Any]]], key: str) 
         if c is None or not math.isfinite(float(c)) or not math.isfinite(cost):
             continue
         if cost > float(c) + BOUND_RTOL * abs(float(c)):
-            return "reference", (f"OCP-D's {key} {cost:.6g} exceeds run {lab}'s {float(c):.6g}: it is not a lower "
-                                 "bound of it and is labelled 'reference'")
+            return "reference", (
+                f"OCP-D's {key} {cost:.6g} exceeds run {lab}'s {float(c):.6g}: it is not a lower "
+                "bound of it and is labelled 'reference'"
+            )
     return ("bound", "") if math.isfinite(cost) else ("reference", "")
 
 
-def solve_and_replay(sc: Any, dt: float, formulation: Formulation, *, time_limit_s: float = DEFAULT_TIME_LIMIT_S,
-                     progress: Callable[[str], None] | None = None,
-                     replay_progress: Callable[[float, float], None] | None = None,
-                     max_intervals: int | None = None) -> SolvedAndReplayed:
+def solve_and_replay(
+    sc: Any,
+    dt: float,
+    formulation: Formulation,
+    *,
+    time_limit_s: float = DEFAULT_TIME_LIMIT_S,
+    progress: Callable[[str], None] | None = None,
+    replay_progress: Callable[[float, float], None] | None = None,
+    max_intervals: int | None = None,
+) -> SolvedAndReplayed:
     """OCP-D of ``formulation`` over a loaded scenario ``sc`` (its leader, horizon and follower 1) on the
     controller's grid of step ``dt`` [model time] — or, a run longer than ``max_intervals`` (default
     :data:`ORACLE_BOUND_MAX_INTERVALS`) intervals (the memory check), on the coarse 1 s grid
@@ -499,11 +616,20 @@ def solve_and_replay(sc: Any, dt: float, formulation: Formulation, *, time_limit
     return SolvedAndReplayed(scn, res, replay(res, scn, hold, replay_progress), coarse)
 
 
-def stage_cost_of_trajectory(t: np.ndarray, h: np.ndarray, v: np.ndarray, V1: np.ndarray, V2: np.ndarray,
-                             S: np.ndarray, a: np.ndarray, v_l_hat: np.ndarray,
-                             weights: FollowingWeights | None = None, ev: EVParams | None = None,
-                             smooth: PowertrainOptions | None = PowertrainOptions(),
-                             objective: str = "heat") -> dict[str, float]:
+def stage_cost_of_trajectory(
+    t: np.ndarray,
+    h: np.ndarray,
+    v: np.ndarray,
+    V1: np.ndarray,
+    V2: np.ndarray,
+    S: np.ndarray,
+    a: np.ndarray,
+    v_l_hat: np.ndarray,
+    weights: FollowingWeights | None = None,
+    ev: EVParams | None = None,
+    smooth: PowertrainOptions | None = PowertrainOptions(),
+    objective: str = "heat",
+) -> dict[str, float]:
     """The §9 cost Σ_k ℓ(z_k, a_k)·dt_k of a sampled trajectory, for comparing any controller with
     the OCP-D lower bound.
 
@@ -519,8 +645,10 @@ def stage_cost_of_trajectory(t: np.ndarray, h: np.ndarray, v: np.ndarray, V1: np
     a = np.asarray(a, float).ravel()
     vl = np.asarray(v_l_hat, float).ravel()
     if N < 1 or a.size != N or vl.size != N:
-        raise ParameterError(f"stage_cost_of_trajectory: t has {t.size} nodes, so a and v_l_hat need {N} "
-                             f"values (got a: {a.size}, v_l_hat: {vl.size})")
+        raise ParameterError(
+            f"stage_cost_of_trajectory: t has {t.size} nodes, so a and v_l_hat need {N} "
+            f"values (got a: {a.size}, v_l_hat: {vl.size})"
+        )
     Z = []
     for nm, arr in (("h", h), ("v", v), ("V1", V1), ("V2", V2), ("S", S)):
         arr = np.asarray(arr, float).ravel()
@@ -543,16 +671,32 @@ def solve_oracle(scn: OracleScenario | None = None, method: str = "ms", **kw: An
     return OracleSolver(scn or canonical_scenario(), method=method, **kw).solve()
 
 
-def stage_cost_of_result(r: Any, i: int, dt: float, weights: FollowingWeights | None = None,
-                         smooth: PowertrainOptions | None = PowertrainOptions(),
-                         objective: str = "heat") -> float:
+def stage_cost_of_result(
+    r: Any,
+    i: int,
+    dt: float,
+    weights: FollowingWeights | None = None,
+    smooth: PowertrainOptions | None = PowertrainOptions(),
+    objective: str = "heat",
+) -> float:
     """The §9 cost of follower i of a :class:`aev_ocp.results.SimulationResult`, on the grid of step dt
     [model time] from the result's first time: states, a_k and the w_r term's v̂_l(t_k) (its leader's
     speed) are the result's samples interpolated at the nodes (exact where the nodes are samples)."""
     K = int(round((r.t[-1] - r.t[0]) / dt))
     tg = np.linspace(r.t[0], r.t[0] + K * dt, K + 1)
-    f = (lambda y: np.interp(tg, r.t, y))  # noqa: E731
+    f = lambda y: np.interp(tg, r.t, y)  # noqa: E731
     vl = r.leader_speed if i == 0 else r.speed[:, i - 1]
-    return stage_cost_of_trajectory(tg, f(r.gap[:, i]), f(r.speed[:, i]), f(r.V1[:, i]), f(r.V2[:, i]),
-                                    f(r.S[:, i]), f(r.accel[:, i])[:-1], f(vl)[:-1], weights, r.ev, smooth,
-                                    objective)["total"]
+    return stage_cost_of_trajectory(
+        tg,
+        f(r.gap[:, i]),
+        f(r.speed[:, i]),
+        f(r.V1[:, i]),
+        f(r.V2[:, i]),
+        f(r.S[:, i]),
+        f(r.accel[:, i])[:-1],
+        f(vl)[:-1],
+        weights,
+        r.ev,
+        smooth,
+        objective,
+    )["total"]

@@ -108,8 +108,9 @@ class OCPProblem:
             raise ParameterError("OCPProblem: give a lagrange and/or a stage cost")
         if self.discrete_next is not None and self.discrete_next.size1_out(0) != len(self.discrete_states):
             raise ParameterError(f"OCPProblem.discrete_next must return {len(self.discrete_states)} values")
-        if self.terminal_cost is not None and (self.terminal_cost.size1_in(0) != nx
-                                               or self.terminal_cost.numel_out(0) != 1):
+        if self.terminal_cost is not None and (
+            self.terminal_cost.size1_in(0) != nx or self.terminal_cost.numel_out(0) != 1
+        ):
             raise ParameterError(f"OCPProblem.terminal_cost must map (x_N[{nx}], p) -> a scalar")
         for nm in ("lagrange", "stage", "path", "outputs"):
             f = getattr(self, nm)
@@ -178,8 +179,11 @@ class ProblemBuilder:
         except (TypeError, ValueError):
             raise ParameterError(f"{self.name}: {what}: bounds must be numbers, got lb = {lb!r}, ub = {ub!r}") from None
         if not lo <= hi:  # also catches NaN
-            raise ParameterError(f"{self.name}: {what} has lb = {lo} > ub = {hi}" if lo == lo and hi == hi else
-                                 f"{self.name}: {what}: bounds must not be NaN, got lb = {lb!r}, ub = {ub!r}")
+            raise ParameterError(
+                f"{self.name}: {what} has lb = {lo} > ub = {hi}"
+                if lo == lo and hi == hi
+                else f"{self.name}: {what}: bounds must not be NaN, got lb = {lb!r}, ub = {ub!r}"
+            )
         return lo, hi
 
     def state(self, name: str, lb: float = -ca.inf, ub: float = ca.inf, scale: float = 1.0) -> ca.SX:
@@ -236,10 +240,17 @@ class ProblemBuilder:
         if not isinstance(name, str) or not name.isidentifier():
             raise ParameterError(f"{self.name}: {kind} name {name!r} must be an identifier")
         if name in taken and not replace:
-            where = ("a stage cost term" if name in self.stage_terms else
-                     "an integral cost term" if name in self.integral_terms else "an output")
-            raise ParameterError(f"{self.name}: {kind} {name!r}: {where} named {name!r} exists already; "
-                                 f"pass replace=True to replace it, or choose another name")
+            where = (
+                "a stage cost term"
+                if name in self.stage_terms
+                else "an integral cost term"
+                if name in self.integral_terms
+                else "an output"
+            )
+            raise ParameterError(
+                f"{self.name}: {kind} {name!r}: {where} named {name!r} exists already; "
+                f"pass replace=True to replace it, or choose another name"
+            )
         for table in (self._outputs, self.stage_terms, self.integral_terms):
             table.pop(name, None)  # replace=True: the old term goes, whichever kind it was
         return name
@@ -258,24 +269,48 @@ class ProblemBuilder:
         """Add a cost on the final state (expression of states and global parameters)."""
         self._terminal_cost = self._terminal_cost + expr
 
-    def subject_to(self, expr: Any, lb: float = -ca.inf, ub: float = ca.inf, *, soft: float | None = None,
-                   soft_quadratic: float = 1e-3, name: str | None = None) -> None:
+    def subject_to(
+        self,
+        expr: Any,
+        lb: float = -ca.inf,
+        ub: float = ca.inf,
+        *,
+        soft: float | None = None,
+        soft_quadratic: float = 1e-3,
+        name: str | None = None,
+    ) -> None:
         """lb ≤ expr ≤ ub at the start of every interval; ``soft`` = L1 penalty per unit of violation
         (per unit time) of a soft constraint, which then never makes the problem infeasible."""
-        name, lb, ub = self._constraint("constraint", self._path, expr, lb, ub, name, "c",
-                                        (*self.x.values(), *self.u.values(), *self.w.values(), *self.p.values()))
+        name, lb, ub = self._constraint(
+            "constraint",
+            self._path,
+            expr,
+            lb,
+            ub,
+            name,
+            "c",
+            (*self.x.values(), *self.u.values(), *self.w.values(), *self.p.values()),
+        )
         if soft is None:
             self._path.append((name, expr, lb, ub))
             return
-        if not (isinstance(soft, (int, float)) and isinstance(soft_quadratic, (int, float))
-                and soft > 0 and soft_quadratic >= 0):
-            raise ParameterError(f"{self.name}: soft constraint {name!r} needs a penalty soft > 0 and soft_quadratic "
-                                 f">= 0, got soft = {soft!r}, soft_quadratic = {soft_quadratic!r}")
+        if not (
+            isinstance(soft, (int, float))
+            and isinstance(soft_quadratic, (int, float))
+            and soft > 0
+            and soft_quadratic >= 0
+        ):
+            raise ParameterError(
+                f"{self.name}: soft constraint {name!r} needs a penalty soft > 0 and soft_quadratic "
+                f">= 0, got soft = {soft!r}, soft_quadratic = {soft_quadratic!r}"
+            )
         taken = {c[0] for c in self._path}
         parts = [f"{name}_{side}" for side, on in (("lb", lb > -ca.inf), ("ub", ub < ca.inf)) if on]
         clash = [p for p in parts if p in taken]
         if clash:
-            raise ParameterError(f"{self.name}: soft constraint {name!r}: a constraint named {clash[0]!r} exists already")
+            raise ParameterError(
+                f"{self.name}: soft constraint {name!r}: a constraint named {clash[0]!r} exists already"
+            )
         self._term_name("stage cost term", f"penalty_{name}", "stage", False)  # refused before anything is added
         sigma = self.control(f"slack_{name}", 0.0, ca.inf)
         self.add_stage_cost(soft * sigma + soft_quadratic * sigma**2, f"penalty_{name}")
@@ -287,12 +322,22 @@ class ProblemBuilder:
     def subject_to_terminal(self, expr: Any, lb: float = -ca.inf, ub: float = ca.inf, name: str | None = None) -> None:
         """lb ≤ expr(x_N, p) ≤ ub at the final node (an expression of states and global parameters only);
         checked like a path constraint: a unique name, lb ≤ ub, a scalar expression."""
-        name, lb, ub = self._constraint("terminal constraint", self._terminal, expr, lb, ub, name, "t",
-                                        (*self.x.values(), *self.p.values()))
+        name, lb, ub = self._constraint(
+            "terminal constraint", self._terminal, expr, lb, ub, name, "t", (*self.x.values(), *self.p.values())
+        )
         self._terminal.append((name, expr, lb, ub))
 
-    def _constraint(self, kind: str, table: list[tuple[str, Any, float, float]], expr: Any, lb: Any, ub: Any,
-                    name: str | None, default: str, allowed: Sequence[ca.SX]) -> tuple[str, float, float]:
+    def _constraint(
+        self,
+        kind: str,
+        table: list[tuple[str, Any, float, float]],
+        expr: Any,
+        lb: Any,
+        ub: Any,
+        name: str | None,
+        default: str,
+        allowed: Sequence[ca.SX],
+    ) -> tuple[str, float, float]:
         """The checks every constraint meets, path or terminal: a new identifier name, numeric lb ≤ ub, a scalar
         expression of the allowed symbols only. Returns (name, lb, ub)."""
         taken = {c[0] for c in table}
@@ -309,16 +354,18 @@ class ProblemBuilder:
         try:
             e = ca.SX(expr)
         except Exception:  # noqa: BLE001 - any non-expression: one clear message
-            raise ParameterError(f"{self.name}: {kind} {name!r} must be a CasADi SX expression, got "
-                                 f"{type(expr).__name__}") from None
+            raise ParameterError(
+                f"{self.name}: {kind} {name!r} must be a CasADi SX expression, got {type(expr).__name__}"
+            ) from None
         if e.numel() != 1:
-            raise ParameterError(f"{self.name}: {kind} {name!r} must be a scalar expression, got {e.numel()} entries "
-                                 "(state one constraint per entry)")
+            raise ParameterError(
+                f"{self.name}: {kind} {name!r} must be a scalar expression, got {e.numel()} entries "
+                "(state one constraint per entry)"
+            )
         free = [str(s) for s in ca.symvar(e) if not any(ca.is_equal(s, a) for a in allowed)]
         if free:
             what = "states and parameters" if kind.startswith("terminal") else "the problem's variables"
-            raise ParameterError(f"{self.name}: {kind} {name!r} depends on {free[0]!r}, which is not one of "
-                                 f"{what}")
+            raise ParameterError(f"{self.name}: {kind} {name!r} depends on {free[0]!r}, which is not one of {what}")
         return name, lo, hi
 
     def add_output(self, name: str, expr: Any, *, replace: bool = False) -> None:
@@ -344,16 +391,22 @@ class ProblemBuilder:
         lag = sum(self.integral_terms.values()) if self.integral_terms else None
         outs = {**self._outputs, **self.stage_terms, **self.integral_terms}
         pr = OCPProblem(
-            name=self.name, state_names=list(self.x), control_names=list(self.u),
+            name=self.name,
+            state_names=list(self.x),
+            control_names=list(self.u),
             ode=fn("ode", [self._der[k] for k in self.x], ["xdot"]),
             stage=None if stage is None else fn("stage", [stage], ["ell"]),
             lagrange=None if lag is None else fn("lagrange", [lag], ["L"]),
             outputs=ca.Function(f"{self.name}_out", args, list(outs.values()), names, list(outs)) if outs else None,
-            x_lb=[i[0] for i in self._x_info.values()], x_ub=[i[1] for i in self._x_info.values()],
+            x_lb=[i[0] for i in self._x_info.values()],
+            x_ub=[i[1] for i in self._x_info.values()],
             x_scale=[i[2] for i in self._x_info.values()],
-            u_lb=[i[0] for i in self._u_info.values()], u_ub=[i[1] for i in self._u_info.values()],
-            u_scale=[i[2] for i in self._u_info.values()], time_unit=self.time_unit,
-            meta={**self.meta, "parameter_names": list(self.p), "stage_parameter_names": list(self.w)})
+            u_lb=[i[0] for i in self._u_info.values()],
+            u_ub=[i[1] for i in self._u_info.values()],
+            u_scale=[i[2] for i in self._u_info.values()],
+            time_unit=self.time_unit,
+            meta={**self.meta, "parameter_names": list(self.p), "stage_parameter_names": list(self.w)},
+        )
         if self._next:
             pr.discrete_states = [list(self.x).index(k) for k in self._next]
             pr.discrete_next = fn("next", list(self._next.values()), ["x_next"])
@@ -368,7 +421,8 @@ class ProblemBuilder:
             pr.terminal = ca.Function(f"{self.name}_terminal", [xN, pT], [e])
             pr.terminal_lb, pr.terminal_ub = [c[2] for c in self._terminal], [c[3] for c in self._terminal]
         if not (isinstance(self._terminal_cost, (int, float)) and self._terminal_cost == 0):
-            pr.terminal_cost = ca.Function(f"{self.name}_mayer", [xN, pT],
-                                           [ca.substitute(ca.SX(self._terminal_cost), x, xN)])
+            pr.terminal_cost = ca.Function(
+                f"{self.name}_mayer", [xN, pT], [ca.substitute(ca.SX(self._terminal_cost), x, xN)]
+            )
         pr.validate()
         return pr

@@ -80,8 +80,9 @@ def lq_discrete_exact(cell: CellParams, V0: tuple[float, float], t_f: float, N: 
     return float(np.asarray(V0) @ P @ np.asarray(V0)), I
 
 
-def simulate_cell_feedback(cell: CellParams, law: Callable[[Any, Any, Any], Any], x0: tuple[float, float, float],
-                           t_f: float, n_out: int = 601) -> dict[str, np.ndarray]:
+def simulate_cell_feedback(
+    cell: CellParams, law: Callable[[Any, Any, Any], Any], x0: tuple[float, float, float], t_f: float, n_out: int = 601
+) -> dict[str, np.ndarray]:
     """Closed loop of the cell ODE under the feedback current I = law(t, V1, V2) [A], integrated by
     CVODES with quadratures ∫Q and ∫Q_irr [J]. Returns t [s], V1, V2, S, I, Q_int, Qirr_int arrays."""
     x = ca.SX.sym("x", 3)
@@ -90,8 +91,14 @@ def simulate_cell_feedback(cell: CellParams, law: Callable[[Any, Any, Any], Any]
     dV1, dV2, dS = battery.cell_derivatives(x[0], x[1], I, cell)
     q = ca.vertcat(battery.heat_Q(x[0], x[1], I, cell), battery.heat_irreversible(x[0], x[1], I, cell))
     ts = np.linspace(0.0, t_f, n_out)
-    F = ca.integrator("cell_cl", "cvodes", {"x": x, "t": t, "ode": ca.vertcat(dV1, dV2, dS), "quad": q},
-                      0.0, ts[1:], {"abstol": 1e-14, "reltol": 1e-12})
+    F = ca.integrator(
+        "cell_cl",
+        "cvodes",
+        {"x": x, "t": t, "ode": ca.vertcat(dV1, dV2, dS), "quad": q},
+        0.0,
+        ts[1:],
+        {"abstol": 1e-14, "reltol": 1e-12},
+    )
     out = F(x0=ca.DM(x0))
     X = np.concatenate([np.asarray(x0, float).reshape(3, 1), np.asarray(out["xf"])], axis=1)
     Qi = np.concatenate([np.zeros((2, 1)), np.asarray(out["qf"])], axis=1)
@@ -100,8 +107,9 @@ def simulate_cell_feedback(cell: CellParams, law: Callable[[Any, Any, Any], Any]
     return {"t": ts, "V1": X[0], "V2": X[1], "S": X[2], "I": Is, "Q_int": Qi[0], "Qirr_int": Qi[1]}
 
 
-def zero_heat_alternatives(cell: CellParams, V0: tuple[float, float], t_f: float = T_F_S,
-                           S0: float = SOC0) -> dict[str, dict[str, Any]]:
+def zero_heat_alternatives(
+    cell: CellParams, V0: tuple[float, float], t_f: float = T_F_S, S0: float = SOC0
+) -> dict[str, dict[str, Any]]:
     """Currents other than I = 0 that make Q = 0 at every instant, simulated in closed loop:
     'neg_polarisation': I = −(V1+V2)/R_s on [0, t_f]; 'switched': the same on [0, t_f/2], 0 after.
     Each entry: objective_J (∫Q), heat_irr_J (∫Q_irr), max_abs_current_A, l2_current (√∫I² [A√s]), sim."""
@@ -113,14 +121,17 @@ def zero_heat_alternatives(cell: CellParams, V0: tuple[float, float], t_f: float
     out = {}
     for name, law in laws.items():
         sim = simulate_cell_feedback(cell, law, (V0[0], V0[1], S0), t_f)
-        out[name] = {"objective_J": float(sim["Q_int"][-1]), "heat_irr_J": float(sim["Qirr_int"][-1]),
-                     "max_abs_current_A": float(np.max(np.abs(sim["I"]))),
-                     "l2_current": float(math.sqrt(trapezoid(sim["I"] ** 2, sim["t"]))), "sim": sim}
+        out[name] = {
+            "objective_J": float(sim["Q_int"][-1]),
+            "heat_irr_J": float(sim["Qirr_int"][-1]),
+            "max_abs_current_A": float(np.max(np.abs(sim["I"]))),
+            "l2_current": float(math.sqrt(trapezoid(sim["I"] ** 2, sim["t"]))),
+            "sim": sim,
+        }
     return out
 
 
-def _verdict(case: str, V0: tuple[float, float], q_nonneg: bool, res: OCPResult, alt: dict[str, Any],
-             W0: float) -> str:
+def _verdict(case: str, V0: tuple[float, float], q_nonneg: bool, res: OCPResult, alt: dict[str, Any], W0: float) -> str:
     if not res.success:
         return f"solver did not converge ({res.status}: {res.message}); no verdict"
     J, Imax = res.objective, float(np.max(np.abs(res.controls["I"])))
@@ -131,20 +142,32 @@ def _verdict(case: str, V0: tuple[float, float], q_nonneg: bool, res: OCPResult,
     a = alt["neg_polarisation"]
     if abs(J) <= tol_J and Imax <= tol_I:
         if a["max_abs_current_A"] > tol_I and abs(a["objective_J"] - J) <= tol_J:
-            return (f"I* = 0 is optimal (J* = {J:.3g} J) but NOT unique: I = -(V1+V2)/R_s (max |I| "
-                    f"{a['max_abs_current_A']:.3g} A) also gives ∫Q = {a['objective_J']:.2g} J, and so does "
-                    "any switching between the two")
-        return (f"I* = 0, J* = {J:.3g} J; unique here: the zero-heat alternative I = -(V1+V2)/R_s is "
-                "itself 0 from rest, and ∫Q = ∫Q_irr + W(t_f) − W(0) ≥ R_s∫I² with W(0) = 0")
+            return (
+                f"I* = 0 is optimal (J* = {J:.3g} J) but NOT unique: I = -(V1+V2)/R_s (max |I| "
+                f"{a['max_abs_current_A']:.3g} A) also gives ∫Q = {a['objective_J']:.2g} J, and so does "
+                "any switching between the two"
+            )
+        return (
+            f"I* = 0, J* = {J:.3g} J; unique here: the zero-heat alternative I = -(V1+V2)/R_s is "
+            "itself 0 from rest, and ∫Q = ∫Q_irr + W(t_f) − W(0) ≥ R_s∫I² with W(0) = 0"
+        )
     if J < -tol_J:
-        return (f"Proposition 3.1 FAILS: J* = {J:.6g} J < 0 with I* ≠ 0 (max |I*| = {Imax:.3g} A); the cell "
-                f"returns part of the stored RC energy W(0) = {W0:.4g} J (lower bound -W(0))")
+        return (
+            f"Proposition 3.1 FAILS: J* = {J:.6g} J < 0 with I* ≠ 0 (max |I*| = {Imax:.3g} A); the cell "
+            f"returns part of the stored RC energy W(0) = {W0:.4g} J (lower bound -W(0))"
+        )
     return f"J* = {J:.6g} J with max |I*| = {Imax:.3g} A: the optimiser did not find I* = 0"
 
 
-def run_prop31(method: str = "ms", N: int = 200,
-               cell: CellParams | None = None, t_f: float = T_F_S, refine: bool = True, soc0: float = SOC0,
-               v_relax_V: tuple[float, float] = V_RELAX) -> dict[str, dict[str, Any]]:
+def run_prop31(
+    method: str = "ms",
+    N: int = 200,
+    cell: CellParams | None = None,
+    t_f: float = T_F_S,
+    refine: bool = True,
+    soc0: float = SOC0,
+    v_relax_V: tuple[float, float] = V_RELAX,
+) -> dict[str, dict[str, Any]]:
     """Solve OCP-A's four cases and test the uniqueness claim of Proposition 3.1.
 
     method: 'ms' or 'collocation'; N: intervals over t_f [s]; cell: the cell (default CellParams(), the
@@ -165,15 +188,25 @@ def run_prop31(method: str = "ms", N: int = 200,
     except (TypeError, ValueError, IndexError):
         ok = False
     if not ok:
-        raise ParameterError(f"run_prop31: v_relax_V = {v_relax_V!r} is not allowed: two finite voltages [V], "
-                             "not both 0")
+        raise ParameterError(
+            f"run_prop31: v_relax_V = {v_relax_V!r} is not allowed: two finite voltages [V], not both 0"
+        )
     if method not in ("ms", "collocation"):
         raise ParameterError(f"run_prop31: method = {method!r} is not allowed: must be 'ms' or 'collocation'")
     opts = TranscriptionOptions(method=method, N=N)
     solvers = {qn: OCPSolver(cell_problem(cell, qn, name=f"ocp_a{'_qnn' if qn else ''}"), opts) for qn in (False, True)}
     # refined grid: one mapped interval Function (mx_map) keeps the build time independent of 2N
-    fine = {qn: OCPSolver(cell_problem(cell, qn, name=f"ocp_a2{'_qnn' if qn else ''}"),
-                          TranscriptionOptions(method=method, N=2 * N, mx_map=True)) for qn in (False, True)} if refine else {}
+    fine = (
+        {
+            qn: OCPSolver(
+                cell_problem(cell, qn, name=f"ocp_a2{'_qnn' if qn else ''}"),
+                TranscriptionOptions(method=method, N=2 * N, mx_map=True),
+            )
+            for qn in (False, True)
+        }
+        if refine
+        else {}
+    )
     out: dict[str, dict[str, Any]] = {}
     for case, (V0, qn) in prop31_cases(v_relax).items():
         res = solvers[qn].solve([V0[0], V0[1], soc0], t_f)
@@ -195,9 +228,13 @@ def run_prop31(method: str = "ms", N: int = 200,
             "zero_heat_alternative_objective_J": alt["neg_polarisation"]["objective_J"],
             "zero_heat_alternative_max_abs_current_A": alt["neg_polarisation"]["max_abs_current_A"],
             "switched_alternative_objective_J": alt["switched"]["objective_J"],
-            "status": res.status, "iterations": res.iterations, "solve_time_s": res.wall_time_s,
-            "max_violation": res.max_violation, "stored_rc_energy_W0_J": W0,
-            "Q_nonneg_constraint": qn, "V0": list(V0),
+            "status": res.status,
+            "iterations": res.iterations,
+            "solve_time_s": res.wall_time_s,
+            "max_violation": res.max_violation,
+            "stored_rc_energy_W0_J": W0,
+            "Q_nonneg_constraint": qn,
+            "V0": list(V0),
         }
         if not qn:
             J_lq, _ = lq_discrete_exact(cell, V0, t_f, N)
@@ -215,13 +252,17 @@ def run_prop31(method: str = "ms", N: int = 200,
 
 def prop31_table(cases: dict[str, dict[str, Any]]) -> str:
     """A short text table of the four cases and their verdicts."""
-    lines = [f"{'case':<20}{'J* [J]':>14}{'exact [J]':>14}{'2N [J]':>14}{'max|I*| [A]':>13}{'J(I=-(V1+V2)/Rs)':>19}"
-             f"{'status':>12}{'iter':>6}"]
+    lines = [
+        f"{'case':<20}{'J* [J]':>14}{'exact [J]':>14}{'2N [J]':>14}{'max|I*| [A]':>13}{'J(I=-(V1+V2)/Rs)':>19}"
+        f"{'status':>12}{'iter':>6}"
+    ]
     nan = math.nan
     for case, e in cases.items():
-        lines.append(f"{case:<20}{e['objective_J']:>14.6g}{e.get('objective_exact_J', nan):>14.6g}"
-                     f"{e.get('objective_2N_J', nan):>14.6g}{e['max_abs_current_A']:>13.4g}"
-                     f"{e['zero_heat_alternative_objective_J']:>19.3g}{e['status']:>12}{e['iterations']:>6}")
+        lines.append(
+            f"{case:<20}{e['objective_J']:>14.6g}{e.get('objective_exact_J', nan):>14.6g}"
+            f"{e.get('objective_2N_J', nan):>14.6g}{e['max_abs_current_A']:>13.4g}"
+            f"{e['zero_heat_alternative_objective_J']:>19.3g}{e['status']:>12}{e['iterations']:>6}"
+        )
     lines.append("exact: I* re-simulated by CVODES (no smoothing in OCP-A); 2N: the optimum with twice the intervals")
     lines.append("")
     lines += [f"{case}: {e['verdict']}" for case, e in cases.items()]

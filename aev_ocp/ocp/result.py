@@ -61,13 +61,38 @@ class OCPResult(FieldsRepr):
     warnings: list[str] = field(default_factory=list)
 
     @classmethod
-    def failed(cls, problem: str, method: str, N: int, status: str, wall: float, t: np.ndarray,
-               time_unit: str, message: str = "") -> "OCPResult":
+    def failed(
+        cls,
+        problem: str,
+        method: str,
+        N: int,
+        status: str,
+        wall: float,
+        t: np.ndarray,
+        time_unit: str,
+        message: str = "",
+    ) -> "OCPResult":
         """A result without a solution (status says why)."""
-        return cls(problem=problem, method=method, N=N, t=t, time_unit=time_unit, states={}, controls={},
-                   outputs={}, objective=math.nan, objective_name="objective", status=status, success=False,
-                   message=message or status, solver_status=status, iterations=-1, wall_time_s=wall,
-                   solver_time_s=wall, max_violation=math.inf)
+        return cls(
+            problem=problem,
+            method=method,
+            N=N,
+            t=t,
+            time_unit=time_unit,
+            states={},
+            controls={},
+            outputs={},
+            objective=math.nan,
+            objective_name="objective",
+            status=status,
+            success=False,
+            message=message or status,
+            solver_status=status,
+            iterations=-1,
+            wall_time_s=wall,
+            solver_time_s=wall,
+            max_violation=math.inf,
+        )
 
     @property
     def I(self) -> np.ndarray:
@@ -81,21 +106,37 @@ class OCPResult(FieldsRepr):
 
     def stats(self) -> dict[str, Any]:
         """Solver statistics as a JSON-ready dict."""
-        return {"problem": self.problem, "method": self.method, "N": self.N, "status": self.status,
-                "success": self.success, "message": self.message, "solver_status": self.solver_status,
-                "iterations": self.iterations, "wall_time_s": self.wall_time_s,
-                "solver_time_s": self.solver_time_s, "max_violation": self.max_violation,
-                "objective": self.objective, "objective_name": self.objective_name,
-                "objective_exact": self.objective_exact, "warnings": list(self.warnings)}
+        return {
+            "problem": self.problem,
+            "method": self.method,
+            "N": self.N,
+            "status": self.status,
+            "success": self.success,
+            "message": self.message,
+            "solver_status": self.solver_status,
+            "iterations": self.iterations,
+            "wall_time_s": self.wall_time_s,
+            "solver_time_s": self.solver_time_s,
+            "max_violation": self.max_violation,
+            "objective": self.objective,
+            "objective_name": self.objective_name,
+            "objective_exact": self.objective_exact,
+            "warnings": list(self.warnings),
+        }
 
     def _repr_fields(self) -> tuple[str, list[tuple[str, Any]]]:
         title = f"OCPResult {self.problem} ({self.method}, N = {self.N}): {self.status}"
         t_end = float(self.t[-1]) if self.t.size else math.nan
         fields: list[tuple[str, Any]] = [
-            (self.objective_name, self.objective), ("iterations", self.iterations), ("wall_time_s", self.wall_time_s),
-            ("max_violation", self.max_violation), (f"horizon [{self.time_unit}]", t_end),
-            ("states", ", ".join(self.states) or "-"), ("controls", ", ".join(self.controls) or "-"),
-            ("outputs", ", ".join(self.outputs) or "-")]
+            (self.objective_name, self.objective),
+            ("iterations", self.iterations),
+            ("wall_time_s", self.wall_time_s),
+            ("max_violation", self.max_violation),
+            (f"horizon [{self.time_unit}]", t_end),
+            ("states", ", ".join(self.states) or "-"),
+            ("controls", ", ".join(self.controls) or "-"),
+            ("outputs", ", ".join(self.outputs) or "-"),
+        ]
         if math.isfinite(self.objective_exact):
             fields.insert(1, ("objective on the exact model", self.objective_exact))
         if not self.success:
@@ -112,8 +153,16 @@ class OCPResult(FieldsRepr):
     def summary(self) -> dict[str, Any]:
         """Statistics plus the trajectories, JSON-ready."""
         out = self.stats()
-        out.update({"time_unit": self.time_unit, "t": self.t, "states": self.states,
-                    "controls": self.controls, "outputs": self.outputs, "meta": self.meta})
+        out.update(
+            {
+                "time_unit": self.time_unit,
+                "t": self.t,
+                "states": self.states,
+                "controls": self.controls,
+                "outputs": self.outputs,
+                "meta": self.meta,
+            }
+        )
         return to_jsonable(out)
 
     def to_json(self, path: str | os.PathLike[str]) -> Path:
@@ -151,19 +200,24 @@ class OCPResult(FieldsRepr):
         if isinstance(units, dict) and {"length_m", "speed_mps"} <= set(units):
             L, U = float(units["length_m"]), float(units["speed_mps"])
             dims = {"h": ("m", L), "v": ("mps", U), "a": ("mps2", U * U / L), "a_prev": ("mps2", U * U / L)}
-            si = [(f"{nm}_{dims[nm][0]}", kind, nm, dims[nm][1]) for kind, names in (("x", names_x), ("u", names_u))
-                  for nm in names if nm in dims]
+            si = [
+                (f"{nm}_{dims[nm][0]}", kind, nm, dims[nm][1])
+                for kind, names in (("x", names_x), ("u", names_u))
+                for nm in names
+                if nm in dims
+            ]
         conv = {nm for _, _, nm, _ in si}
-        model = (lambda nm: f"{nm}_model" if nm in conv else nm)  # noqa: E731
+        model = lambda nm: f"{nm}_model" if nm in conv else nm  # noqa: E731
         head = (["t_s"] + [c for c, _, _, _ in si] if si else []) + [f"t_{self.time_unit}"]
         wr.writerow(head + [model(nm) for nm in names_x + names_u] + [c for c, _ in cols_o])
         n = self.t.size
-        ctrl = (lambda nm, k: self.controls[nm][min(k, self.controls[nm].size - 1)])  # noqa: E731
+        ctrl = lambda nm, k: self.controls[nm][min(k, self.controls[nm].size - 1)]  # noqa: E731
         for k in range(n):
             row = []
             if si:
-                row = [f"{self.t[k] * L / U:.10g}"] + [f"{(self.states[nm][k] if kind == 'x' else ctrl(nm, k)) * f:.12g}"
-                                                        for _, kind, nm, f in si]
+                row = [f"{self.t[k] * L / U:.10g}"] + [
+                    f"{(self.states[nm][k] if kind == 'x' else ctrl(nm, k)) * f:.12g}" for _, kind, nm, f in si
+                ]
             row += [f"{self.t[k]:.10g}"]
             row += [f"{self.states[nm][k]:.12g}" for nm in names_x]
             row += [f"{ctrl(nm, k):.12g}" for nm in names_u]

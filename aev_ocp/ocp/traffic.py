@@ -43,8 +43,13 @@ import casadi as ca
 from ..models.actuator import actuator_rate
 from ..models.ego import STATE_NAMES, battery_side, following_ode
 from ..params import EVParams, ParameterError, PowertrainOptions, spec, validate_fields
-from .following import (FollowingBounds, TemperatureTerms, add_temperature_limit, add_temperature_state,
-                        set_temperature_rate)
+from .following import (
+    FollowingBounds,
+    TemperatureTerms,
+    add_temperature_limit,
+    add_temperature_state,
+    set_temperature_rate,
+)
 from .problem import ProblemBuilder
 
 FORMULATIONS = ("traffic", "s9")  # 'traffic': this module (default); 's9': model guide §9 exactly
@@ -88,8 +93,10 @@ class TrafficParams:
     def __post_init__(self) -> None:
         validate_fields(self)
         if self.target_gap_m < self.standstill_gap_m:
-            raise ParameterError(f"TrafficParams.target_gap_m = {self.target_gap_m} must be >= standstill_gap_m = "
-                                 f"{self.standstill_gap_m}")
+            raise ParameterError(
+                f"TrafficParams.target_gap_m = {self.target_gap_m} must be >= standstill_gap_m = "
+                f"{self.standstill_gap_m}"
+            )
 
 
 #: (a_min, a_max) [m/s²] of the formulation on a vehicle without limits (UNLIMITED): §9's −3 and 2 at the
@@ -105,11 +112,15 @@ def traffic_accel_bounds_mps2(ev: EVParams, tp: TrafficParams) -> tuple[float, f
     a_min = veh[0] if tp.a_min_mps2 is None else tp.a_min_mps2
     a_max = veh[1] if tp.a_max_mps2 is None else tp.a_max_mps2
     if lim.enabled and a_min < lim.a_min_mps2:
-        raise ParameterError(f"TrafficParams.a_min_mps2 = {a_min:g} is outside the vehicle's limits: it must be >= "
-                             f"VehicleLimits.a_min_mps2 = {lim.a_min_mps2:g} (the plant cannot brake harder)")
+        raise ParameterError(
+            f"TrafficParams.a_min_mps2 = {a_min:g} is outside the vehicle's limits: it must be >= "
+            f"VehicleLimits.a_min_mps2 = {lim.a_min_mps2:g} (the plant cannot brake harder)"
+        )
     if lim.enabled and a_max > lim.a_max_mps2:
-        raise ParameterError(f"TrafficParams.a_max_mps2 = {a_max:g} is outside the vehicle's limits: it must be <= "
-                             f"VehicleLimits.a_max_mps2 = {lim.a_max_mps2:g} (the plant cannot accelerate harder)")
+        raise ParameterError(
+            f"TrafficParams.a_max_mps2 = {a_max:g} is outside the vehicle's limits: it must be <= "
+            f"VehicleLimits.a_max_mps2 = {lim.a_max_mps2:g} (the plant cannot accelerate harder)"
+        )
     return a_min, a_max
 
 
@@ -117,9 +128,13 @@ def traffic_bounds(ev: EVParams, tp: TrafficParams) -> FollowingBounds:
     """The model-unit bounds of the traffic formulation (h_min = the standstill floor, which is soft)."""
     u = ev.units
     a_min, a_max = traffic_accel_bounds_mps2(ev, tp)
-    return FollowingBounds(h_min=float(u.length_from_si(tp.standstill_gap_m)), v_min=0.0,
-                           v_max=float(u.speed_from_si(tp.v_max_mps)), a_min=float(u.accel_from_si(a_min)),
-                           a_max=float(u.accel_from_si(a_max)))
+    return FollowingBounds(
+        h_min=float(u.length_from_si(tp.standstill_gap_m)),
+        v_min=0.0,
+        v_max=float(u.speed_from_si(tp.v_max_mps)),
+        a_min=float(u.accel_from_si(a_min)),
+        a_max=float(u.accel_from_si(a_max)),
+    )
 
 
 def models_lag(ev: EVParams, dt: float) -> bool:
@@ -135,9 +150,15 @@ def desired_gap_m(v_mps: Any, tp: TrafficParams) -> Any:
     return tp.target_gap_m + tp.target_time_gap_s * v_mps
 
 
-def traffic_problem(ev: EVParams, tp: TrafficParams | None = None, dt: float = 0.1,
-                    smooth: PowertrainOptions | None = PowertrainOptions(), name: str = "traffic",
-                    with_temperature: bool = False, temperature: TemperatureTerms | None = None) -> ProblemBuilder:
+def traffic_problem(
+    ev: EVParams,
+    tp: TrafficParams | None = None,
+    dt: float = 0.1,
+    smooth: PowertrainOptions | None = PowertrainOptions(),
+    name: str = "traffic",
+    with_temperature: bool = False,
+    temperature: TemperatureTerms | None = None,
+) -> ProblemBuilder:
     """The traffic formulation (module docstring) as a builder in model units: states (h, v, V1, V2, S,
     a_prev), controls (a, energy_rate, slacks), stage parameters (v̄_l, v̂_l), no global parameter.
     ``dt`` [model time] is the MPC interval (for the jerk (a − a_prev)/dt). ``with_temperature``: the pack
@@ -151,8 +172,13 @@ def traffic_problem(ev: EVParams, tp: TrafficParams | None = None, dt: float = 0
     T, m, eta = u.time_s, ev.vehicle.mass_kg, ev.vehicle.efficiency
     b = traffic_bounds(ev, tp)
     pb = ProblemBuilder(name, time_unit="model")
-    z = ca.vertcat(pb.state("h"), pb.state("v", b.v_min, b.v_max), pb.state("V1", scale=0.01),
-                   pb.state("V2", scale=0.01), pb.state("S", 0.0, 1.0))
+    z = ca.vertcat(
+        pb.state("h"),
+        pb.state("v", b.v_min, b.v_max),
+        pb.state("V1", scale=0.01),
+        pb.state("V2", scale=0.01),
+        pb.state("S", 0.0, 1.0),
+    )
     a = pb.control("a", b.a_min, b.a_max)
     v_mean, v_hat = pb.stage_parameter("v_l_mean"), pb.stage_parameter("v_l_hat")
     a_prev = pb.state("a_prev")
@@ -183,10 +209,14 @@ def traffic_problem(ev: EVParams, tp: TrafficParams | None = None, dt: float = 0
     pb.subject_to(e - eta * v_ms * a_ms2, 0.0, ca.inf, name="energy_epi_brake")
     h_des = desired_gap_m(v_ms, tp)
     s_min = tp.standstill_gap_m
-    terms = {"energy": tp.energy_weight * e, "heat": tp.heat_weight * cell["Q_pack"] / m,
-             "accel": tp.accel_weight * a_ms2**2, "jerk": tp.jerk_weight * jerk**2,
-             "relative": tp.relative_speed_weight * (vl_ms - v_ms) ** 2,
-             "gap": tp.gap_weight * (h_m - h_des) ** 2}
+    terms = {
+        "energy": tp.energy_weight * e,
+        "heat": tp.heat_weight * cell["Q_pack"] / m,
+        "accel": tp.accel_weight * a_ms2**2,
+        "jerk": tp.jerk_weight * jerk**2,
+        "relative": tp.relative_speed_weight * (vl_ms - v_ms) ** 2,
+        "gap": tp.gap_weight * (h_m - h_des) ** 2,
+    }
     for nm, expr in terms.items():  # Σ ℓ_SI·dt_s = Σ (T ℓ_SI)·dt_model
         pb.add_stage_cost(T * expr, nm)
     # soft constraints on the gap [m], one slack σ ≥ 0 [model length] shared by both (the larger
@@ -195,8 +225,12 @@ def traffic_problem(ev: EVParams, tp: TrafficParams | None = None, dt: float = 0
     sig = pb.control("slack_gap", 0.0, SLACK_MAX_M / u.length_m)
     sig_m = u.length_to_si(sig)
     pb.subject_to(h_m + sig_m - tp.time_headway_s * v_ms, s_min, ca.inf, name="headway")
-    pb.subject_to(h_m + sig_m - v_ms * tp.reaction_time_s - (v_ms**2 - vl_ms**2) / (2 * tp.brake_decel_mps2),
-                  s_min, ca.inf, name="braking")
+    pb.subject_to(
+        h_m + sig_m - v_ms * tp.reaction_time_s - (v_ms**2 - vl_ms**2) / (2 * tp.brake_decel_mps2),
+        s_min,
+        ca.inf,
+        name="braking",
+    )
     pb.add_stage_cost(T * (tp.safe_penalty * sig_m + 1e-3 * sig_m**2), "penalty_gap")
     Imax = ev.cell.max_current_A
     pb.subject_to(cell["I"], -Imax, Imax, name="I")  # |I| ≤ 20C (model guide §9)

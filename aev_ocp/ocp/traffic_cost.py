@@ -47,8 +47,10 @@ def _auxiliary_rows(pr: OCPProblem, require_traffic: bool) -> dict[str, tuple[tu
         elif ctrl.startswith("slack_") and any(f"{ctrl[6:]}_{s}" in rows for s in ("lb", "ub")):
             out[ctrl] = (tuple(f"{ctrl[6:]}_{s}" for s in ("lb", "ub") if f"{ctrl[6:]}_{s}" in rows), 0.0)
         else:
-            raise ParameterError(f"the cost of problem {pr.name!r} cannot be evaluated on a run: its control {ctrl!r} "
-                                 "is neither 'a' nor an epigraph or soft-constraint slack fixed by (x, a)")
+            raise ParameterError(
+                f"the cost of problem {pr.name!r} cannot be evaluated on a run: its control {ctrl!r} "
+                "is neither 'a' nor an epigraph or soft-constraint slack fixed by (x, a)"
+            )
     return out
 
 
@@ -75,8 +77,10 @@ def auxiliary_controls(pr: OCPProblem, require_traffic: bool = True) -> ca.Funct
     for ctrl, (need, floor) in _auxiliary_rows(pr, require_traffic).items():
         missing = [n for n in (ctrl, *need) if n not in names + rows]
         if missing:
-            raise ParameterError(f"cost_traffic: problem {pr.name!r} has no {missing} (the traffic formulation's "
-                                 "auxiliary controls and their constraints)")
+            raise ParameterError(
+                f"cost_traffic: problem {pr.name!r} has no {missing} (the traffic formulation's "
+                "auxiliary controls and their constraints)"
+            )
         j = names.index(ctrl)
         v: Any = ca.SX(floor) if np.isfinite(floor) else None
         for r in (rows.index(n) for n in need):
@@ -87,9 +91,16 @@ def auxiliary_controls(pr: OCPProblem, require_traffic: bool = True) -> ca.Funct
     return ca.Function("aux_controls", [x, a, w, p], [ca.vertcat(*val)], ["x", "a", "w", "p"], ["u"])
 
 
-def cost_traffic_of_trajectory(pr: OCPProblem, t: np.ndarray, z: np.ndarray, a: np.ndarray, w: np.ndarray,
-                               a_prev0: float = 0.0, p: np.ndarray | None = None,
-                               require_traffic: bool = True) -> dict[str, float]:
+def cost_traffic_of_trajectory(
+    pr: OCPProblem,
+    t: np.ndarray,
+    z: np.ndarray,
+    a: np.ndarray,
+    w: np.ndarray,
+    a_prev0: float = 0.0,
+    p: np.ndarray | None = None,
+    require_traffic: bool = True,
+) -> dict[str, float]:
     """The traffic objective of a sampled trajectory on the node times t (N+1) [model time].
 
     z: (5, N+1) states (h, v [model], V1, V2 [V], S [-]) at the nodes; a: (N,) acceleration applied on each
@@ -105,8 +116,10 @@ def cost_traffic_of_trajectory(pr: OCPProblem, t: np.ndarray, z: np.ndarray, a: 
     a = np.asarray(a, float).ravel()
     w = np.asarray(w, float).reshape(pr.nw, -1)
     if N < 1 or z.shape != (5, N + 1) or a.size != N or w.shape[1] != N:
-        raise ParameterError(f"cost_traffic: t has {t.size} nodes, so z needs shape (5, {N + 1}), a {N} values and "
-                             f"w {N} columns (got z {z.shape}, a {a.size}, w {w.shape[1]})")
+        raise ParameterError(
+            f"cost_traffic: t has {t.size} nodes, so z needs shape (5, {N + 1}), a {N} values and "
+            f"w {N} columns (got z {z.shape}, a {a.size}, w {w.shape[1]})"
+        )
     if not (np.all(np.isfinite(z)) and np.all(np.isfinite(a)) and np.all(np.isfinite(w))):
         raise ParameterError("cost_traffic: the trajectory (z, a, w) must be finite")
     own = list(pr.state_names[5:])
@@ -125,8 +138,9 @@ def cost_traffic_of_trajectory(pr: OCPProblem, t: np.ndarray, z: np.ndarray, a: 
     return {"stage": stage, "terminal": term, "total": stage + term}
 
 
-def cost_traffic_of_result(r: Any, i: int, dt: float, pr: OCPProblem, p: np.ndarray | None = None,
-                           require_traffic: bool = True) -> dict[str, float]:
+def cost_traffic_of_result(
+    r: Any, i: int, dt: float, pr: OCPProblem, p: np.ndarray | None = None, require_traffic: bool = True
+) -> dict[str, float]:
     """``cost_traffic`` of follower i of a :class:`aev_ocp.results.SimulationResult` on the grid of step dt
     [model time] from the result's first time (the MPC's grid): states, the applied a_k and the predecessor's
     speed are the result's samples interpolated at the nodes (exact where the nodes are samples, as in a closed

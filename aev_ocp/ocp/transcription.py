@@ -44,18 +44,27 @@ SCHEMES = ("radau", "legendre")
 _IPOPT_STATUS: dict[str, tuple[str, bool, str]] = {
     "Solve_Succeeded": ("optimal", True, "IPOPT converged to the requested tolerance"),
     "Solved_To_Acceptable_Level": ("acceptable", True, "IPOPT converged to the acceptable tolerance only"),
-    "Infeasible_Problem_Detected": ("infeasible", False,
-                                    "IPOPT detected local infeasibility: the constraints (e.g. the "
-                                    "demanded energy/distance, current limit or bounds) cannot all be met"),
+    "Infeasible_Problem_Detected": (
+        "infeasible",
+        False,
+        "IPOPT detected local infeasibility: the constraints (e.g. the "
+        "demanded energy/distance, current limit or bounds) cannot all be met",
+    ),
     "Maximum_Iterations_Exceeded": ("iteration_limit", False, "IPOPT hit its iteration limit"),
     "Maximum_CpuTime_Exceeded": ("time_limit", False, "IPOPT hit its CPU-time limit"),
     "Maximum_WallTime_Exceeded": ("time_limit", False, "IPOPT hit its wall-time limit"),
-    "Restoration_Failed": ("restoration_failed", False,
-                           "IPOPT's feasibility restoration failed (often an infeasible problem)"),
+    "Restoration_Failed": (
+        "restoration_failed",
+        False,
+        "IPOPT's feasibility restoration failed (often an infeasible problem)",
+    ),
     "Search_Direction_Becomes_Too_Small": ("small_step", False, "IPOPT's search direction became too small"),
     "Diverging_Iterates": ("diverging", False, "IPOPT's iterates diverged (unbounded problem?)"),
-    "Invalid_Number_Detected": ("invalid_number", False,
-                                "a function returned NaN/Inf (e.g. a state left the model's domain)"),
+    "Invalid_Number_Detected": (
+        "invalid_number",
+        False,
+        "a function returned NaN/Inf (e.g. a state left the model's domain)",
+    ),
     "Error_In_Step_Computation": ("step_error", False, "IPOPT could not compute a step"),
     "User_Requested_Stop": ("stopped", False, "stopped by a callback"),
     "Not_Enough_Degrees_Of_Freedom": ("too_few_dof", False, "more equality constraints than unknowns"),
@@ -91,9 +100,13 @@ class TranscriptionOptions:
 
     def __post_init__(self) -> None:
         if self.method not in METHODS:
-            raise ParameterError(f"TranscriptionOptions.method = {self.method!r} is not allowed: must be one of {METHODS}")
+            raise ParameterError(
+                f"TranscriptionOptions.method = {self.method!r} is not allowed: must be one of {METHODS}"
+            )
         if self.scheme not in SCHEMES:
-            raise ParameterError(f"TranscriptionOptions.scheme = {self.scheme!r} is not allowed: must be one of {SCHEMES}")
+            raise ParameterError(
+                f"TranscriptionOptions.scheme = {self.scheme!r} is not allowed: must be one of {SCHEMES}"
+            )
         for nm, lo in (("N", 1), ("rk4_substeps", 1), ("degree", 1), ("max_iter", 1)):
             v = getattr(self, nm)
             if not isinstance(v, int) or isinstance(v, bool) or v < lo:
@@ -123,8 +136,13 @@ def collocation_coefficients(degree: int, scheme: str) -> tuple[np.ndarray, np.n
     return tau, C, D, B
 
 
-def sx_function(name: str, inputs: Sequence[ca.SX], outputs: Sequence[Any],
-                in_names: Sequence[str] | None = None, out_names: Sequence[str] | None = None) -> ca.Function:
+def sx_function(
+    name: str,
+    inputs: Sequence[ca.SX],
+    outputs: Sequence[Any],
+    in_names: Sequence[str] | None = None,
+    out_names: Sequence[str] | None = None,
+) -> ca.Function:
     """Small helper: an SX Function with optional names."""
     outs = [ca.SX(o) if not isinstance(o, ca.SX) else o for o in outputs]
     if in_names is not None and out_names is not None:
@@ -177,7 +195,7 @@ def interval_function(pr: OCPProblem, o: TranscriptionOptions) -> ca.Function:
         J = J + q
     else:
         _, C, D, B = collocation_coefficients(o.degree, o.scheme)
-        Xc = [xk] + [xc_s[j * nx:(j + 1) * nx] * xs for j in range(d)]
+        Xc = [xk] + [xc_s[j * nx : (j + 1) * nx] * xs for j in range(d)]
         x_end = D[0] * xk
         for j in range(1, d + 1):
             xp = C[0, j] * Xc[0]
@@ -193,9 +211,14 @@ def interval_function(pr: OCPProblem, o: TranscriptionOptions) -> ca.Function:
     eqs.append((x_end - xn) / xs)
     # cse: the battery side of the state at the interval start appears in the dynamics, the stage cost and
     # the path constraints (and in any term a user adds): evaluate each common subexpression once
-    return ca.Function("interval", [xk_s, uk_s, xc_s, xn_s, w, p, h],
-                       [ca.vertcat(*eqs), ca.vertcat(*path) if path else ca.SX(0, 1), J],
-                       ["xk", "uk", "xc", "xn", "w", "p", "h"], ["eq", "path", "J"], {"cse": True})
+    return ca.Function(
+        "interval",
+        [xk_s, uk_s, xc_s, xn_s, w, p, h],
+        [ca.vertcat(*eqs), ca.vertcat(*path) if path else ca.SX(0, 1), J],
+        ["xk", "uk", "xc", "xn", "w", "p", "h"],
+        ["eq", "path", "J"],
+        {"cse": True},
+    )
 
 
 @dataclass
@@ -217,8 +240,16 @@ class HorizonNLP:
     n_path: int
 
 
-def horizon_nlp(pr: OCPProblem, o: TranscriptionOptions, V: Any, W: Any, p: Any, h: Any,
-                stage_weights: Any = None, interval: ca.Function | None = None) -> HorizonNLP:
+def horizon_nlp(
+    pr: OCPProblem,
+    o: TranscriptionOptions,
+    V: Any,
+    W: Any,
+    p: Any,
+    h: Any,
+    stage_weights: Any = None,
+    interval: ca.Function | None = None,
+) -> HorizonNLP:
     """The one assembly of a problem's horizon NLP, shared by :class:`OCPSolver` (OCP-D and every OCP) and the
     MPC (:class:`aev_ocp.mpc.nlp.HorizonNLP`): the decision vector ``V`` = (x_0, u_0, xc_0, x_1, …, x_N) scaled
     (blocks of nx + nu + nx·d per interval, then x_N), the stage parameters ``W`` (nw, N), the parameters ``p``
@@ -230,18 +261,26 @@ def horizon_nlp(pr: OCPProblem, o: TranscriptionOptions, V: Any, W: Any, p: Any,
     nx, nu, N = pr.nx, pr.nu, o.N
     d = o.degree if o.method == "collocation" else 0
     nb = nx + nu + nx * d
-    blocks = ca.reshape(V[:nb * N], nb, N)
-    X = ca.horzcat(blocks[:nx, :], V[nb * N:])
-    U = blocks[nx:nx + nu, :]
-    Xc = blocks[nx + nu:, :]
+    blocks = ca.reshape(V[: nb * N], nb, N)
+    X = ca.horzcat(blocks[:nx, :], V[nb * N :])
+    U = blocks[nx : nx + nu, :]
+    Xc = blocks[nx + nu :, :]
     F = (interval if interval is not None else interval_function(pr, o)).map(N)
     eq, path, J = F(X[:, :N], U, Xc, X[:, 1:], W, ca.repmat(p, 1, N), h)
     xs = ca.DM(_vec(pr.x_scale, nx, 1.0))
     n_eq, n_path = eq.size1(), path.size1()
-    lbg_k = np.concatenate([np.zeros(n_eq), np.tile(np.asarray(pr.path_lb, float), n_path // max(len(pr.path_lb), 1))
-                            if n_path else np.zeros(0)])
-    ubg_k = np.concatenate([np.zeros(n_eq), np.tile(np.asarray(pr.path_ub, float), n_path // max(len(pr.path_ub), 1))
-                            if n_path else np.zeros(0)])
+    lbg_k = np.concatenate(
+        [
+            np.zeros(n_eq),
+            np.tile(np.asarray(pr.path_lb, float), n_path // max(len(pr.path_lb), 1)) if n_path else np.zeros(0),
+        ]
+    )
+    ubg_k = np.concatenate(
+        [
+            np.zeros(n_eq),
+            np.tile(np.asarray(pr.path_ub, float), n_path // max(len(pr.path_ub), 1)) if n_path else np.zeros(0),
+        ]
+    )
     g, lbg, ubg = [ca.vec(ca.vertcat(eq, path))], [np.tile(lbg_k, N)], [np.tile(ubg_k, N)]
     obj = ca.sum2(J) if stage_weights is None else ca.sum2(J * stage_weights)
     if pr.terminal_cost is not None:
@@ -317,18 +356,34 @@ class OCPSolver:
 
     def _ipopt_opts(self, warm: bool) -> dict[str, Any]:
         o = self.options
-        ipopt: dict[str, Any] = {"print_level": o.print_level, "sb": "yes", "tol": o.tol,
-                                 "max_iter": o.max_iter, "linear_solver": o.linear_solver,
-                                 "hessian_approximation": "exact", "mu_strategy": "adaptive"}
+        ipopt: dict[str, Any] = {
+            "print_level": o.print_level,
+            "sb": "yes",
+            "tol": o.tol,
+            "max_iter": o.max_iter,
+            "linear_solver": o.linear_solver,
+            "hessian_approximation": "exact",
+            "mu_strategy": "adaptive",
+        }
         if warm:
-            ipopt.update({"warm_start_init_point": "yes", "warm_start_bound_push": 1e-9,
-                          "warm_start_mult_bound_push": 1e-9, "warm_start_slack_bound_push": 1e-9,
-                          "mu_init": o.mu_init_warm})
+            ipopt.update(
+                {
+                    "warm_start_init_point": "yes",
+                    "warm_start_bound_push": 1e-9,
+                    "warm_start_mult_bound_push": 1e-9,
+                    "warm_start_slack_bound_push": 1e-9,
+                    "mu_init": o.mu_init_warm,
+                }
+            )
         return {"ipopt": ipopt, "print_time": False, "expand": not o.mx_map, "error_on_fail": False}
 
     def _make_solver(self, warm: bool) -> ca.Function:
-        return ca.nlpsol(f"{self.problem.name}_{self.options.method}{'_warm' if warm else ''}",
-                         "ipopt", self._nlp, self._ipopt_opts(warm))
+        return ca.nlpsol(
+            f"{self.problem.name}_{self.options.method}{'_warm' if warm else ''}",
+            "ipopt",
+            self._nlp,
+            self._ipopt_opts(warm),
+        )
 
     # ------------------------------------------------------------------ solving
     def time_grid(self, t_f: float) -> np.ndarray:
@@ -352,9 +407,16 @@ class OCPSolver:
         blocks = np.concatenate([X[:, :N], U, Xc], axis=0)
         return np.concatenate([blocks.ravel(order="F"), X[:, N]])
 
-    def solve(self, x0: Sequence[float], t_f: float, p: Sequence[float] | None = None,
-              w: np.ndarray | None = None, guess: tuple[np.ndarray, np.ndarray] | None = None,
-              warm: bool = False, objective_name: str = "objective") -> OCPResult:
+    def solve(
+        self,
+        x0: Sequence[float],
+        t_f: float,
+        p: Sequence[float] | None = None,
+        w: np.ndarray | None = None,
+        guess: tuple[np.ndarray, np.ndarray] | None = None,
+        warm: bool = False,
+        objective_name: str = "objective",
+    ) -> OCPResult:
         """Solve for initial state ``x0`` over ``[0, t_f]``.
 
         guess: (X (nx, N+1), U (nu, N)) primal initial guess (default: x0 held, controls at 0
@@ -395,12 +457,18 @@ class OCPSolver:
             sol = solver(**args)
             stats = solver.stats()
         except RuntimeError as exc:  # CasADi evaluation errors: report, never propagate a deep traceback
-            return OCPResult.failed(pr.name, o.method, N, f"solver_error: {str(exc).splitlines()[-1]}",
-                                    time.perf_counter() - t0, self.time_grid(t_f), pr.time_unit)
+            return OCPResult.failed(
+                pr.name,
+                o.method,
+                N,
+                f"solver_error: {str(exc).splitlines()[-1]}",
+                time.perf_counter() - t0,
+                self.time_grid(t_f),
+                pr.time_unit,
+            )
         wall = time.perf_counter() - t0
         xopt = np.asarray(sol["x"]).ravel()
-        self._last = {"x": xopt, "lam_x": np.asarray(sol["lam_x"]).ravel(),
-                      "lam_g": np.asarray(sol["lam_g"]).ravel()}
+        self._last = {"x": xopt, "lam_x": np.asarray(sol["lam_x"]).ravel(), "lam_g": np.asarray(sol["lam_g"]).ravel()}
         return self._result(sol, stats, wall, x0a, pa, wa, float(t_f), objective_name)
 
     def _max_violation(self, x: np.ndarray, g: np.ndarray) -> float:
@@ -410,16 +478,26 @@ class OCPSolver:
         allv = np.where(np.isnan(allv), np.inf, allv)
         return float(np.max(allv)) if allv.size else 0.0
 
-    def _result(self, sol: dict[str, Any], stats: dict[str, Any], wall: float, x0: np.ndarray,
-                p: np.ndarray, w: np.ndarray, t_f: float, objective_name: str) -> OCPResult:
+    def _result(
+        self,
+        sol: dict[str, Any],
+        stats: dict[str, Any],
+        wall: float,
+        x0: np.ndarray,
+        p: np.ndarray,
+        w: np.ndarray,
+        t_f: float,
+        objective_name: str,
+    ) -> OCPResult:
         pr, o = self.problem, self.options
         N = o.N
         x = np.asarray(sol["x"]).ravel()
         g = np.asarray(sol["g"]).ravel()
         X, U, Xc = (np.asarray(a) for a in self._unpack(x))
         raw = str(stats.get("return_status", "unknown"))
-        status, success, why = _IPOPT_STATUS.get(raw, (raw.lower(), bool(stats.get("success", False)),
-                                                       f"IPOPT returned {raw}"))
+        status, success, why = _IPOPT_STATUS.get(
+            raw, (raw.lower(), bool(stats.get("success", False)), f"IPOPT returned {raw}")
+        )
         viol = self._max_violation(x, g)
         obj = float(sol["f"])
         if success and not (viol <= o.violation_tol and math.isfinite(obj)):
@@ -441,17 +519,28 @@ class OCPSolver:
             tau = collocation_coefficients(o.degree, o.scheme)[0][1:]
             t_colloc = (t[:-1, None] + tau[None, :] * (t_f / N)).ravel()
         return OCPResult(
-            problem=pr.name, method=o.method, N=N, t=t, time_unit=pr.time_unit,
+            problem=pr.name,
+            method=o.method,
+            N=N,
+            t=t,
+            time_unit=pr.time_unit,
             states={nm: X[i] for i, nm in enumerate(pr.state_names)},
             controls={nm: U[i] for i, nm in enumerate(pr.control_names)},
-            outputs=outputs, objective=obj, objective_name=objective_name,
-            status=status, success=success, message=why, solver_status=raw, iterations=iters,
-            wall_time_s=wall, solver_time_s=float(stats.get("t_wall_total", wall)),
-            max_violation=viol, t_colloc=t_colloc,
+            outputs=outputs,
+            objective=obj,
+            objective_name=objective_name,
+            status=status,
+            success=success,
+            message=why,
+            solver_status=raw,
+            iterations=iters,
+            wall_time_s=wall,
+            solver_time_s=float(stats.get("t_wall_total", wall)),
+            max_violation=viol,
+            t_colloc=t_colloc,
             meta={"x0": x0.tolist(), "p": p.tolist(), "t_f": t_f, "options": asdict(o)},
         )
 
     def last_solution(self) -> dict[str, np.ndarray] | None:
         """Primal and dual values of the last solve (x, lam_x, lam_g; NLP scaling)."""
         return self._last
-

@@ -22,24 +22,51 @@ from ..params import ParameterError
 from ..results import claim_output_dir, default_output_dir
 from ..scenarios import ScenarioError
 
-COLUMNS = ("speed_std_mps", "mean_speed_mps", "vehicles_stopped", "braking_events", "energy_J_per_km",
-           "heat_pack_J_per_km", "soc_used_mean", "min_gap_m", "wave_speed_mps", "status")
+COLUMNS = (
+    "speed_std_mps",
+    "mean_speed_mps",
+    "vehicles_stopped",
+    "braking_events",
+    "energy_J_per_km",
+    "heat_pack_J_per_km",
+    "soc_used_mean",
+    "min_gap_m",
+    "wave_speed_mps",
+    "status",
+)
 
 
 def build_parser() -> argparse.ArgumentParser:
     """Argument parser of ``aev-ocp ring``."""
     p = _Parser(prog="aev-ocp ring", description="mixed traffic on a ring road: the Sugiyama and Stern experiments")
-    p.add_argument("experiment", metavar="EXPERIMENT|SCENARIO",
-                   help="sugiyama, stern, sweep, or a ring scenario file / shipped name (ring_sugiyama, ring_stern)")
+    p.add_argument(
+        "experiment",
+        metavar="EXPERIMENT|SCENARIO",
+        help="sugiyama, stern, sweep, or a ring scenario file / shipped name (ring_sugiyama, ring_stern)",
+    )
     p.add_argument("--t-end-s", type=float, default=None, help="simulated time [s] (default 600, or the scenario's)")
     p.add_argument("--seed", type=int, default=0, help="seed of the human drivers' acceleration noise (default 0)")
-    p.add_argument("--aev", default="followerstopper",
-                   help="sweep: the AEV controller (followerstopper, pi-saturation, proposed, ovfl, mpc; default "
-                        "followerstopper)")
-    p.add_argument("--penetration", type=int, action="append", default=None, metavar="K",
-                   help="sweep: number of AEVs among the 22 (repeatable; default 0 1 2 3 4 5)")
-    p.add_argument("--length-m", type=float, action="append", default=None, metavar="L",
-                   help="sweep: ring length [m] (repeatable; default 230 260 300)")
+    p.add_argument(
+        "--aev",
+        default="followerstopper",
+        help="sweep: the AEV controller (followerstopper, pi-saturation, proposed, ovfl, mpc; default followerstopper)",
+    )
+    p.add_argument(
+        "--penetration",
+        type=int,
+        action="append",
+        default=None,
+        metavar="K",
+        help="sweep: number of AEVs among the 22 (repeatable; default 0 1 2 3 4 5)",
+    )
+    p.add_argument(
+        "--length-m",
+        type=float,
+        action="append",
+        default=None,
+        metavar="L",
+        help="sweep: ring length [m] (repeatable; default 230 260 300)",
+    )
     p.add_argument("--no-plots", action="store_true", help="skip the space-time diagrams")
     p.add_argument("--out", default=None, help="output folder (default results/ring/<experiment>)")
     return p
@@ -77,15 +104,26 @@ def cli_ring(argv: list[str]) -> int:
         else:
             a.t_end_s = 600.0 if a.t_end_s is None else a.t_end_s
         out = Path(a.out) if a.out else default_output_dir("ring", sc.name if sc is not None else a.experiment)
-        claim_output_dir(out, "ring", sc.name if sc is not None else a.experiment,  # before any work
-                         str(sc.source) if sc is not None and sc.source else None, ["ring.json", "space_time_*.png"])
+        claim_output_dir(
+            out,
+            "ring",
+            sc.name if sc is not None else a.experiment,  # before any work
+            str(sc.source) if sc is not None and sc.source else None,
+            ["ring.json", "space_time_*.png"],
+        )
         runs: list[Any]
         doc: dict[str, Any] = {"experiment": a.experiment, "t_end_s": a.t_end_s, "seed": a.seed}
         if sc is not None:
             runs = run_ring_scenario(sc, t_end_s=a.t_end_s)
-            doc.update({"experiment": sc.name, "scenario": str(sc.source), "t_end_s": runs[0].result.t_s[-1]
-                        if a.t_end_s is None else a.t_end_s, "seed": sc.spec.seed,
-                        "initial": runs[0].result.initial.perturbation})
+            doc.update(
+                {
+                    "experiment": sc.name,
+                    "scenario": str(sc.source),
+                    "t_end_s": runs[0].result.t_s[-1] if a.t_end_s is None else a.t_end_s,
+                    "seed": sc.spec.seed,
+                    "initial": runs[0].result.initial.perturbation,
+                }
+            )
             if runs[0].label == "all human" and len(runs) > 1:
                 doc["relative_to_all_human"] = {r.label: relative_to(runs[0].fleet, r.fleet) for r in runs[1:]}
         elif a.experiment == "sugiyama":
@@ -134,8 +172,16 @@ def cli_ring(argv: list[str]) -> int:
     return EXIT_FAILED_RUN if bad else EXIT_OK
 
 
-def cli_ring_stability(law: Any, n: int, spacing_m: float | None, density_per_km: float | None,
-                       vehicle_length_m: float, units: Any, out: Path, measure: bool) -> int:
+def cli_ring_stability(
+    law: Any,
+    n: int,
+    spacing_m: float | None,
+    density_per_km: float | None,
+    vehicle_length_m: float,
+    units: Any,
+    out: Path,
+    measure: bool,
+) -> int:
     """``aev-ocp stability --ring N``: the ring's modes, growth rate, wavelength, n → ∞ limit and the head-to-tail
     criterion, with the measured growth beside them; writes ring_stability.json."""
     from ..params import EVParams
@@ -148,8 +194,10 @@ def cli_ring_stability(law: Any, n: int, spacing_m: float | None, density_per_km
         raise ParameterError(f"--density-per-km {density_per_km!r}: must be a finite number of vehicles per km > 0")
     spacing = spacing_m if spacing_m is not None else 1000.0 / float(density_per_km)  # type: ignore[arg-type]
     if not (math.isfinite(spacing) and spacing > vehicle_length_m):
-        raise ParameterError(f"--spacing-m/--density-per-km: spacing {spacing:g} m must exceed the vehicle length "
-                             f"{vehicle_length_m:g} m (--vehicle-length-m)")
+        raise ParameterError(
+            f"--spacing-m/--density-per-km: spacing {spacing:g} m must exceed the vehicle length "
+            f"{vehicle_length_m:g} m (--vehicle-length-m)"
+        )
     if not (2 <= n <= 100_000):
         raise ParameterError(f"--ring {n}: must be an integer in [2, 100000]")
     claim_output_dir(out, "stability --ring", law.name, None, ["ring_stability.json"])  # before any work
@@ -162,14 +210,22 @@ def cli_ring_stability(law: Any, n: int, spacing_m: float | None, density_per_km
     doc["measured"] = meas
     out.mkdir(parents=True, exist_ok=True)
     write_json(out / "ring_stability.json", doc)
-    print(f"ring of {n} × {law.name} at spacing {spacing:.6g} m (gap {rs.gap_m:.6g} m, {1000 / spacing:.6g} veh/km): "
-          f"uniform speed {rs.v_star_mps:.6g} m/s")
-    print(f"  growth rate {rs.growth_rate_per_s:.6g} 1/s (mode k = {rs.most_unstable_k}, wavelength "
-          f"{rs.wavelength_m:.6g} m, wave speed {rs.wave_speed_mps:.4g} m/s); ring stable: {rs.ring_stable}")
-    print(f"  n → ∞: growth {rs.limit_growth_rate_per_s:.6g} 1/s at θ = {rs.limit_theta:.4g}; head-to-tail C = "
-          f"{rs.criterion_per_s2:.6g} 1/s², string stable: {rs.string_stable}")
+    print(
+        f"ring of {n} × {law.name} at spacing {spacing:.6g} m (gap {rs.gap_m:.6g} m, {1000 / spacing:.6g} veh/km): "
+        f"uniform speed {rs.v_star_mps:.6g} m/s"
+    )
+    print(
+        f"  growth rate {rs.growth_rate_per_s:.6g} 1/s (mode k = {rs.most_unstable_k}, wavelength "
+        f"{rs.wavelength_m:.6g} m, wave speed {rs.wave_speed_mps:.4g} m/s); ring stable: {rs.ring_stable}"
+    )
+    print(
+        f"  n → ∞: growth {rs.limit_growth_rate_per_s:.6g} 1/s at θ = {rs.limit_theta:.4g}; head-to-tail C = "
+        f"{rs.criterion_per_s2:.6g} 1/s², string stable: {rs.string_stable}"
+    )
     if meas is not None:
-        print(f"  measured growth {meas['measured_per_s']:.6g} 1/s (predicted {meas['predicted_per_s']:.6g}, relative "
-              f"error {meas['relative_error']:.2g}, run {meas['t_end_s']:.4g} s: {meas['status']})")
+        print(
+            f"  measured growth {meas['measured_per_s']:.6g} 1/s (predicted {meas['predicted_per_s']:.6g}, relative "
+            f"error {meas['relative_error']:.2g}, run {meas['t_end_s']:.4g} s: {meas['status']})"
+        )
     print(f"wrote 1 file to {out}/")
     return EXIT_OK

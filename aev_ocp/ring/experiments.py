@@ -36,10 +36,16 @@ BRAKING_MPS2 = -1.0  # a braking event: the acceleration drops below this (harde
 # at most moments of a calm ring, reached in every stop-and-go wave)
 
 
-
-def human_ring(length_m: float = SUGIYAMA_LENGTH_M, n: int = SUGIYAMA_N, *, aevs: dict[int, Any] | None = None,
-               ev: EVParams | None = None, noise_mps2: float = NOISE_MPS2, heterogeneity: float = 0.0,
-               seed: int = 0) -> RingRoad:
+def human_ring(
+    length_m: float = SUGIYAMA_LENGTH_M,
+    n: int = SUGIYAMA_N,
+    *,
+    aevs: dict[int, Any] | None = None,
+    ev: EVParams | None = None,
+    noise_mps2: float = NOISE_MPS2,
+    heterogeneity: float = 0.0,
+    seed: int = 0,
+) -> RingRoad:
     """n IDM drivers on a ring (vehicles in ``aevs`` {index: controller} replaced); ``heterogeneity`` h scales
     each human's a, b, v0, s0 and T by independent factors uniform in [1 − h, 1 + h] (seeded)."""
     ev = ev or EVParams()
@@ -49,6 +55,7 @@ def human_ring(length_m: float = SUGIYAMA_LENGTH_M, n: int = SUGIYAMA_N, *, aevs
     vehicles: list[Any] = []
     human: list[bool] = []
     from .laws import IDM_SI
+
     for i in range(n):
         if aevs and i in aevs:
             vehicles.append(aevs[i])
@@ -58,8 +65,9 @@ def human_ring(length_m: float = SUGIYAMA_LENGTH_M, n: int = SUGIYAMA_N, *, aevs
         vals = [v * fk for v, fk in zip(IDM_SI.values(), f)]
         vehicles.append(idm_si(ev.units, *vals))
         human.append(True)
-    return RingRoad(length_m, tuple(vehicles), ev=ev, human=tuple(human), noise_mps2=noise_mps2,
-                    noise_dt_s=NOISE_DT_S, seed=seed)
+    return RingRoad(
+        length_m, tuple(vehicles), ev=ev, human=tuple(human), noise_mps2=noise_mps2, noise_dt_s=NOISE_DT_S, seed=seed
+    )
 
 
 def _wave_speed(res: RingResult, sel: np.ndarray) -> float:
@@ -114,8 +122,9 @@ class RingExperiment:
     fleet: dict[str, Any] = field(default_factory=dict)
 
 
-def run_ring(ring: RingRoad, t_end_s: float, *, shift_m: float = 2.0, options: RingOptions | None = None,
-             label: str = "") -> RingExperiment:
+def run_ring(
+    ring: RingRoad, t_end_s: float, *, shift_m: float = 2.0, options: RingOptions | None = None, label: str = ""
+) -> RingExperiment:
     """Uniform flow perturbed by moving vehicle 1 back ``shift_m`` [m]; fleet metrics over the second half."""
     res = RingSimulator(ring, options).run(uniform_flow(ring, shift_m=shift_m), t_end_s)
     fleet = fleet_metrics(res)
@@ -125,17 +134,26 @@ def run_ring(ring: RingRoad, t_end_s: float, *, shift_m: float = 2.0, options: R
 
 def sugiyama(t_end_s: float = 600.0, *, seed: int = 0, options: RingOptions | None = None) -> list[RingExperiment]:
     """All-human ring at the Sugiyama density (jams) and at :data:`STABLE_LENGTH_M` (does not)."""
-    return [run_ring(human_ring(SUGIYAMA_LENGTH_M, seed=seed), t_end_s, options=options, label="sugiyama 230 m"),
-            run_ring(human_ring(STABLE_LENGTH_M, seed=seed), t_end_s, options=options, label="22 vehicles, 600 m")]
+    return [
+        run_ring(human_ring(SUGIYAMA_LENGTH_M, seed=seed), t_end_s, options=options, label="sugiyama 230 m"),
+        run_ring(human_ring(STABLE_LENGTH_M, seed=seed), t_end_s, options=options, label="22 vehicles, 600 m"),
+    ]
 
 
-def stern(controllers: Sequence[str] = AEV_CONTROLLERS, t_end_s: float = 600.0, *, seed: int = 0,
-          r_fraction: float = 0.85, options: RingOptions | None = None,
-          length_m: float = SUGIYAMA_LENGTH_M) -> list[RingExperiment]:
+def stern(
+    controllers: Sequence[str] = AEV_CONTROLLERS,
+    t_end_s: float = 600.0,
+    *,
+    seed: int = 0,
+    r_fraction: float = 0.85,
+    options: RingOptions | None = None,
+    length_m: float = SUGIYAMA_LENGTH_M,
+) -> list[RingExperiment]:
     """The Sugiyama ring all-human, then with vehicle 1 an AEV under each controller (FollowerStopper's desired
     speed r = ``r_fraction`` × the ring's uniform-flow speed)."""
     base = human_ring(length_m, seed=seed)
     from .simulate import uniform_speed_mps
+
     r = r_fraction * uniform_speed_mps(base)
     runs = [run_ring(base, t_end_s, options=options, label="all human")]
     for name in controllers:
@@ -156,7 +174,9 @@ def relative_to(base: dict[str, Any], other: dict[str, Any]) -> dict[str, float]
 _ = CarFollowingLaw
 
 
-def run_ring_scenario(sc: Any, options: RingOptions | None = None, t_end_s: float | None = None) -> list[RingExperiment]:
+def run_ring_scenario(
+    sc: Any, options: RingOptions | None = None, t_end_s: float | None = None
+) -> list[RingExperiment]:
     """Every run of a ring scenario (:class:`aev_ocp.ring.scenario.RingScenario`): all human first when it asks
     for it, then one run per AEV controller; fleet metrics from ``metrics_from_s`` (default the second half).
     ``t_end_s`` overrides the scenario's horizon [s]."""
@@ -171,8 +191,14 @@ def run_ring_scenario(sc: Any, options: RingOptions | None = None, t_end_s: floa
         ring, init = build_ring(sc, run.controller, run.length_m, run.aevs)
         res = RingSimulator(ring, opts).run(init, t_end)
         fleet = fleet_metrics(res, t_from)
-        fleet.update({"length_m": ring.length_m, "density_per_km": ring.density_per_km, "aevs": len(run.aevs)
-                      if run.controller is not None else 0, "controller": run.controller or "human"})
+        fleet.update(
+            {
+                "length_m": ring.length_m,
+                "density_per_km": ring.density_per_km,
+                "aevs": len(run.aevs) if run.controller is not None else 0,
+                "controller": run.controller or "human",
+            }
+        )
         _add_controller_stats(res, fleet)
         out.append(RingExperiment(run.label, res, fleet))
     for e in out:  # relative changes against the all-human run on the same ring (−0.5 = 50 % lower)

@@ -38,30 +38,41 @@ SPEED_LOOP_S = 0.6
 IDM_SI = {"a_mps2": 1.0, "b_mps2": 1.5, "v0_mps": 30.0, "s0_m": 2.0, "T_s": 1.0}
 
 
-def idm_si(units: Units, a_mps2: float = 1.0, b_mps2: float = 1.5, v0_mps: float = 30.0, s0_m: float = 2.0,
-           T_s: float = 1.0) -> IDM:
+def idm_si(
+    units: Units, a_mps2: float = 1.0, b_mps2: float = 1.5, v0_mps: float = 30.0, s0_m: float = 2.0, T_s: float = 1.0
+) -> IDM:
     """The IDM with SI parameters (defaults :data:`IDM_SI`) in the model units ``units``."""
     for name, val in (("a_mps2", a_mps2), ("b_mps2", b_mps2), ("v0_mps", v0_mps), ("s0_m", s0_m), ("T_s", T_s)):
         ok = isinstance(val, (int, float)) and math.isfinite(val) and (val >= 0 if name == "s0_m" else val > 0)
         if not ok:
-            raise ParameterError(f"idm: {name} = {val!r} is not allowed: must be a finite number "
-                                 f"{'>= 0' if name == 's0_m' else '> 0'}")
-    return IDM(a_max=float(units.accel_from_si(a_mps2)), b=float(units.accel_from_si(b_mps2)),
-               v0=float(units.speed_from_si(v0_mps)), s0=float(units.length_from_si(s0_m)),
-               T_h=float(units.time_from_si(T_s)))
+            raise ParameterError(
+                f"idm: {name} = {val!r} is not allowed: must be a finite number {'>= 0' if name == 's0_m' else '> 0'}"
+            )
+    return IDM(
+        a_max=float(units.accel_from_si(a_mps2)),
+        b=float(units.accel_from_si(b_mps2)),
+        v0=float(units.speed_from_si(v0_mps)),
+        s0=float(units.length_from_si(s0_m)),
+        T_h=float(units.time_from_si(T_s)),
+    )
 
 
-def follower_stopper_speed(gap: Any, v: Any, v_l: Any, r: Any, dx0: tuple[Any, Any, Any],
-                           d: tuple[Any, Any, Any]) -> Any:
+def follower_stopper_speed(
+    gap: Any, v: Any, v_l: Any, r: Any, dx0: tuple[Any, Any, Any], d: tuple[Any, Any, Any]
+) -> Any:
     """FollowerStopper's commanded speed (Stern et al. 2018, eqs. of §3.1), any consistent units:
     Δx_k = Δx⁰_k + Δv₋²/(2 d_k), Δv₋ = min(v_l − v, 0), v̄ = min(max(v_l, 0), r), and
     v_cmd = 0 (Δx ≤ Δx₁); v̄ (Δx − Δx₁)/(Δx₂ − Δx₁) (≤ Δx₂); v̄ + (r − v̄)(Δx − Δx₂)/(Δx₃ − Δx₂) (≤ Δx₃); r beyond."""
     dvm = ca.fmin(v_l - v, 0)
     x1, x2, x3 = (dx0[k] + dvm * dvm / (2 * d[k]) for k in range(3))
     vb = ca.fmin(ca.fmax(v_l, 0), r)
-    return ca.if_else(gap <= x1, 0,
-                      ca.if_else(gap <= x2, vb * (gap - x1) / (x2 - x1),
-                                 ca.if_else(gap <= x3, vb + (r - vb) * (gap - x2) / (x3 - x2), r)))
+    return ca.if_else(
+        gap <= x1,
+        0,
+        ca.if_else(
+            gap <= x2, vb * (gap - x1) / (x2 - x1), ca.if_else(gap <= x3, vb + (r - vb) * (gap - x2) / (x3 - x2), r)
+        ),
+    )
 
 
 @dataclass(frozen=True)
@@ -84,17 +95,32 @@ class FollowerStopper(CarFollowingLaw):
     def __post_init__(self) -> None:
         super().__post_init__()
         if not self.dx1 < self.dx2 < self.dx3:
-            raise ParameterError(f"FollowerStopper: dx1 < dx2 < dx3 is required, got {self.dx1}, {self.dx2}, {self.dx3}")
+            raise ParameterError(
+                f"FollowerStopper: dx1 < dx2 < dx3 is required, got {self.dx1}, {self.dx2}, {self.dx3}"
+            )
 
     @classmethod
-    def from_si(cls, units: Units, r_mps: float, tau_s: float = SPEED_LOOP_S,
-                dx0_m: tuple[float, float, float] = (4.5, 5.25, 6.0),
-                d_mps2: tuple[float, float, float] = (1.5, 1.0, 0.5)) -> "FollowerStopper":
+    def from_si(
+        cls,
+        units: Units,
+        r_mps: float,
+        tau_s: float = SPEED_LOOP_S,
+        dx0_m: tuple[float, float, float] = (4.5, 5.25, 6.0),
+        d_mps2: tuple[float, float, float] = (1.5, 1.0, 0.5),
+    ) -> "FollowerStopper":
         """From SI (defaults: Stern et al. 2018 §3.1; r_mps the desired speed [m/s])."""
         lx = [float(units.length_from_si(x)) for x in dx0_m]
         dd = [float(units.accel_from_si(x)) for x in d_mps2]
-        return cls(r=float(units.speed_from_si(r_mps)), dx1=lx[0], dx2=lx[1], dx3=lx[2], d1=dd[0], d2=dd[1], d3=dd[2],
-                   tau=float(units.time_from_si(tau_s)))
+        return cls(
+            r=float(units.speed_from_si(r_mps)),
+            dx1=lx[0],
+            dx2=lx[1],
+            dx3=lx[2],
+            d1=dd[0],
+            d2=dd[1],
+            d3=dd[2],
+            tau=float(units.time_from_si(tau_s)),
+        )
 
     def accel(self, h: Any, v: Any, v_l: Any) -> Any:
         vc = follower_stopper_speed(h, v, v_l, self.r, (self.dx1, self.dx2, self.dx3), (self.d1, self.d2, self.d3))
@@ -148,11 +174,14 @@ class PISaturation:
 
     def command(self, obs: Observation) -> Command:
         u = self.units
-        gap, v, vl = (float(u.length_to_si(obs.z[0])), float(u.speed_to_si(obs.z[1])),
-                      float(u.speed_to_si(obs.meas_v[-1])))
+        gap, v, vl = (
+            float(u.length_to_si(obs.z[0])),
+            float(u.speed_to_si(obs.z[1])),
+            float(u.speed_to_si(obs.meas_v[-1])),
+        )
         self._hist.append(v)
         U = float(np.mean(self._hist))
-        clip = (lambda x: min(max(x, 0.0), 1.0))  # noqa: E731
+        clip = lambda x: min(max(x, 0.0), 1.0)  # noqa: E731
         v_target = U + self.v_catch_mps * clip((gap - self.g_l_m) / (self.g_u_m - self.g_l_m))
         dx_s = max(2.0 * (vl - v), self.dx_s_min_m)
         alpha = clip((gap - dx_s) / self.gamma_m)
@@ -163,8 +192,16 @@ class PISaturation:
         return Command(float(u.accel_from_si(a)), info={"v_cmd_mps": self._v_cmd})
 
     def describe(self) -> dict[str, Any]:
-        return {"controller": self.name, "dt_s": self.dt_s, "window_s": self.window_s, "g_l_m": self.g_l_m,
-                "g_u_m": self.g_u_m, "v_catch_mps": self.v_catch_mps, "gamma_m": self.gamma_m, "tau_s": self.tau_s}
+        return {
+            "controller": self.name,
+            "dt_s": self.dt_s,
+            "window_s": self.window_s,
+            "g_l_m": self.g_l_m,
+            "g_u_m": self.g_u_m,
+            "v_catch_mps": self.v_catch_mps,
+            "gamma_m": self.gamma_m,
+            "tau_s": self.tau_s,
+        }
 
 
 #: AEV controllers by name (:func:`make_aev`)
@@ -189,8 +226,10 @@ def ring_mpc(ev: EVParams, settings: Any = None, predictor: str | None = None, f
         raise ParameterError(f"ring: mpc settings must be an MPCSettings, got {type(s).__name__}")
     name = predictor if predictor is not None else s.predictor
     if name not in RING_PREDICTORS:
-        raise ParameterError(f"ring: mpc predictor = {name!r} is not allowed on a ring: must be one of "
-                             f"{RING_PREDICTORS} (forecasts from the AEV's own measurements)")
+        raise ParameterError(
+            f"ring: mpc predictor = {name!r} is not allowed on a ring: must be one of "
+            f"{RING_PREDICTORS} (forecasts from the AEV's own measurements)"
+        )
     pred = make_predictor(name, None, s.predictor_window, ev.units.time_s)
     return MPCPolicy(s, ev, Proposed(), pred, formulation=formulation or traffic_formulation())
 
@@ -212,4 +251,5 @@ def make_aev(name: str, ev: EVParams, r_mps: float, mpc: Any = None) -> Any:
     if key == "ovfl":
         return OVFL()
     from ..models.carfollowing import make_law
+
     return make_law(key)

@@ -33,8 +33,9 @@ def space_time(res: RingResult, path: str | Path | None = None, title: str = "")
     return save_figure(fig, path)
 
 
-def space_time_panels(runs: list[tuple[str, RingResult]], path: str | Path | None = None,
-                      t_from_s: float = 0.0) -> Figure:
+def space_time_panels(
+    runs: list[tuple[str, RingResult]], path: str | Path | None = None, t_from_s: float = 0.0
+) -> Figure:
     """The space-time diagrams of several ring runs side by side (one panel per (label, result), the same
     speed colour scale, from ``t_from_s`` [s] on); the AEVs drawn as black lines. Returns the Figure; given a
     ``path`` it also writes it there (PNG)."""
@@ -43,15 +44,17 @@ def space_time_panels(runs: list[tuple[str, RingResult]], path: str | Path | Non
     k = len(runs)
     cols = min(3, k)
     rows = (k + cols - 1) // cols
-    fig, axes = plt.subplots(rows, cols, figsize=(4.2 * cols, 3.2 * rows), squeeze=False, sharey=True,
-                             layout="constrained")
+    fig, axes = plt.subplots(
+        rows, cols, figsize=(4.2 * cols, 3.2 * rows), squeeze=False, sharey=True, layout="constrained"
+    )
     vmax = max(max(float(r.speed_mps.max()) for _, r in runs), 1e-3)
     sc: Any = None
     for ax, (label, res) in zip(axes.ravel(), runs):
         sel = res.t_s >= t_from_s - 1e-9
         t, x, v = res.t_s[sel], res.positions_m()[sel], res.speed_mps[sel]
-        sc = ax.scatter(np.repeat(t, x.shape[1]), x.ravel(), c=v.ravel(), s=0.4, cmap="RdYlGn", vmin=0, vmax=vmax,
-                        rasterized=True)
+        sc = ax.scatter(
+            np.repeat(t, x.shape[1]), x.ravel(), c=v.ravel(), s=0.4, cmap="RdYlGn", vmin=0, vmax=vmax, rasterized=True
+        )
         for i in range(res.ring.n):
             if not res.ring.is_human(i):
                 xi = x[:, i].copy()

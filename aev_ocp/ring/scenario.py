@@ -37,8 +37,14 @@ from typing import Any
 import numpy as np
 
 from ..params import EVParams, ParameterError
-from ..scenarios import (ScenarioError, TableReader, find_scenario, read_scenario_doc, register_section,
-                         standalone_header)
+from ..scenarios import (
+    ScenarioError,
+    TableReader,
+    find_scenario,
+    read_scenario_doc,
+    register_section,
+    standalone_header,
+)
 from .laws import AEV_CONTROLLERS, IDM_SI, RING_PREDICTORS
 
 HUMAN_MODELS = ("idm", "ovm")
@@ -111,14 +117,20 @@ def validate_ring_table(r: TableReader) -> RingSpec:
     n = r.integer("vehicles", ge=2)
     kw["vehicles"] = n
     if r.has("length_m") == r.has("density_per_km"):
-        raise ScenarioError(f"{r.file}: {r.key_path('length_m')} / {r.key_path('density_per_km')}: give exactly one "
-                            "(the ring's length [m] or its density [vehicles per km])")
+        raise ScenarioError(
+            f"{r.file}: {r.key_path('length_m')} / {r.key_path('density_per_km')}: give exactly one "
+            "(the ring's length [m] or its density [vehicles per km])"
+        )
     length = r.number("length_m", gt=0) if r.has("length_m") else 1000.0 * n / r.number("density_per_km", gt=0)
     ell = r.number("vehicle_length_m", 5.0, ge=0)
     if n * ell >= length:
         key = "length_m" if r.has("length_m") else "density_per_km"
-        raise r.error(key, r.table[key], f"{n} vehicles of {ell:g} m do not fit on a ring of {length:g} m "
-                      "(need length > vehicles × vehicle_length_m)")
+        raise r.error(
+            key,
+            r.table[key],
+            f"{n} vehicles of {ell:g} m do not fit on a ring of {length:g} m "
+            "(need length > vehicles × vehicle_length_m)",
+        )
     kw.update(length_m=length, vehicle_length_m=ell)
     kw["t_end_s"] = r.number("t_end_s", gt=0, le=36_000)
     kw["dt_out_s"] = r.number("dt_out_s", 0.5, gt=0, le=kw["t_end_s"])
@@ -131,8 +143,9 @@ def validate_ring_table(r: TableReader) -> RingSpec:
             raise r.error(other, r.table[other], f"sets the {other.upper()}, but ring.human = {human!r}")
     hp = r.sub(human)
     if human == "idm":
-        kw["human_params"] = {k: hp.number(k, v, ge=0 if k == "s0_m" else None, gt=None if k == "s0_m" else 0)
-                              for k, v in IDM_SI.items()}
+        kw["human_params"] = {
+            k: hp.number(k, v, ge=0 if k == "s0_m" else None, gt=None if k == "s0_m" else 0) for k, v in IDM_SI.items()
+        }
     else:
         kw["human_params"] = {"alpha_per_s": hp.number("alpha_per_s", OVM_ALPHA_PER_S, gt=0)}
     hp.finish(allowed_hint=list(IDM_SI) if human == "idm" else ["alpha_per_s"])
@@ -157,11 +170,18 @@ def validate_ring_table(r: TableReader) -> RingSpec:
         a.finish()
     if r.has("sweep"):
         if r.has("initial"):
-            raise r.error("sweep", r.table["sweep"], "a sweep starts every ring from uniform flow and "
-                          "[ring.perturbation]; [ring.initial] gives one ring's positions")
+            raise r.error(
+                "sweep",
+                r.table["sweep"],
+                "a sweep starts every ring from uniform flow and "
+                "[ring.perturbation]; [ring.initial] gives one ring's positions",
+            )
         if r.has("aev"):
-            raise r.error("sweep", r.table["sweep"], "give [ring.aev] (one ring, AEVs at given vehicles) or "
-                          "[ring.sweep] (AEV counts × rings), not both")
+            raise r.error(
+                "sweep",
+                r.table["sweep"],
+                "give [ring.aev] (one ring, AEVs at given vehicles) or [ring.sweep] (AEV counts × rings), not both",
+            )
         sw = r.sub("sweep")
         counts = sw.numbers("aevs", ge=0)
         if any(int(x) != x or x > n for x in counts) or len(set(counts)) != len(counts):
@@ -180,8 +200,12 @@ def validate_ring_table(r: TableReader) -> RingSpec:
         ctrls = sw.strings("controllers", ["followerstopper"], choices=list(AEV_CONTROLLERS))
         if len(set(ctrls)) != len(ctrls):
             raise sw.error("controllers", sw.table["controllers"], "names a controller twice; each runs once")
-        kw.update(sweep_aevs=tuple(int(x) for x in counts), sweep_length_m=tuple(lengths), controllers=tuple(ctrls),
-                  r_fraction=sw.number("r_fraction", 0.85, gt=0, le=1.5))
+        kw.update(
+            sweep_aevs=tuple(int(x) for x in counts),
+            sweep_length_m=tuple(lengths),
+            controllers=tuple(ctrls),
+            r_fraction=sw.number("r_fraction", 0.85, gt=0, le=1.5),
+        )
         sw.finish()
         length = min(lengths)  # the perturbation must fit on every ring
     if r.has("perturbation") and r.has("initial"):
@@ -199,9 +223,13 @@ def validate_ring_table(r: TableReader) -> RingSpec:
         gaps = (np.roll(x, 1) - x) % length - ell
         if np.any(gaps <= 0):
             i = int(np.argmin(gaps))
-            raise ini.error("positions_m", ini.table["positions_m"], f"vehicle {i + 1} overlaps its predecessor "
-                            f"(gap {gaps[i]:.4g} m; vehicle i − 1 must be ahead of vehicle i, vehicles "
-                            f"{ell:g} m long)")
+            raise ini.error(
+                "positions_m",
+                ini.table["positions_m"],
+                f"vehicle {i + 1} overlaps its predecessor "
+                f"(gap {gaps[i]:.4g} m; vehicle i − 1 must be ahead of vehicle i, vehicles "
+                f"{ell:g} m long)",
+            )
         kw.update(positions_m=tuple(pos), speeds_mps=tuple(spd))
         ini.finish()
     else:
@@ -209,8 +237,11 @@ def validate_ring_table(r: TableReader) -> RingSpec:
         veh = p.integer("vehicle", 1, ge=1)
         if veh > n:
             raise p.error("vehicle", veh, f"must be a vehicle number 1 … {n} (ring.vehicles)")
-        kw.update(perturbed_vehicle=veh - 1, shift_m=p.number("shift_m", 2.0, ge=0, lt=length / n - ell),
-                  speed_dip_mps=p.number("speed_dip_mps", 0.0, ge=0))
+        kw.update(
+            perturbed_vehicle=veh - 1,
+            shift_m=p.number("shift_m", 2.0, ge=0, lt=length / n - ell),
+            speed_dip_mps=p.number("speed_dip_mps", 0.0, ge=0),
+        )
         p.finish()
     r.finish()
     return RingSpec(**kw)
@@ -229,12 +260,16 @@ def parse_ring_scenario(doc: dict[str, Any], file: str = "<ring scenario>", sour
 
         mpc = validate_mpc_table(top.sub("mpc"))
         if mpc.vehicles is not None or mpc.follower_predictor is not None:
-            raise ScenarioError(f"{file}: mpc.vehicles / mpc.follower_predictor do not apply to a ring: the MPC "
-                                "drives the vehicles of ring.aev.vehicles whose controller is \"mpc\"")
+            raise ScenarioError(
+                f"{file}: mpc.vehicles / mpc.follower_predictor do not apply to a ring: the MPC "
+                'drives the vehicles of ring.aev.vehicles whose controller is "mpc"'
+            )
         if mpc.settings.predictor not in RING_PREDICTORS:
-            raise ScenarioError(f"{file}: mpc.predictor = {mpc.settings.predictor!r} is not allowed on a ring: must "
-                                f"be one of {list(RING_PREDICTORS)} (an AEV forecasts its predecessor from its "
-                                "own measurements)")
+            raise ScenarioError(
+                f"{file}: mpc.predictor = {mpc.settings.predictor!r} is not allowed on a ring: must "
+                f"be one of {list(RING_PREDICTORS)} (an AEV forecasts its predecessor from its "
+                "own measurements)"
+            )
     top.finish()
     return RingScenario(name, spec, ev, mpc, description, source, copy.deepcopy(doc))
 
@@ -246,18 +281,22 @@ def load_ring_scenario(path: str | Path) -> RingScenario:
     except ScenarioError:
         from ..scenarios import shipped_scenarios
 
-        raise ScenarioError(f"{path}: no such ring scenario file (shipped ring scenarios: "
-                            f"{', '.join(shipped_scenarios('ring')) or 'none found'})") from None
+        raise ScenarioError(
+            f"{path}: no such ring scenario file (shipped ring scenarios: "
+            f"{', '.join(shipped_scenarios('ring')) or 'none found'})"
+        ) from None
     file = str(path)
     doc = read_scenario_doc(p, file)
     if "ring" not in doc:
-        raise ScenarioError(f"{file}: not a ring scenario (no [ring] table); run a platoon scenario with "
-                            "'aev-ocp simulate'")
+        raise ScenarioError(
+            f"{file}: not a ring scenario (no [ring] table); run a platoon scenario with 'aev-ocp simulate'"
+        )
     return parse_ring_scenario(doc, file, p)
 
 
-def build_ring(sc: RingScenario, controller: str | None, length_m: float | None = None,
-               aevs: tuple[int, ...] | None = None) -> tuple[Any, Any]:
+def build_ring(
+    sc: RingScenario, controller: str | None, length_m: float | None = None, aevs: tuple[int, ...] | None = None
+) -> tuple[Any, Any]:
     """(RingRoad, RingInitial) of the scenario with its AEVs (default ``[ring.aev]``'s vehicles; 0-based) under
     ``controller`` (None: all human), on a ring of ``length_m`` [m] (default the scenario's)."""
     from .laws import idm_si, make_aev
@@ -275,8 +314,9 @@ def build_ring(sc: RingScenario, controller: str | None, length_m: float | None 
             humans.append(idm_si(ev.units, *[v * fk for v, fk in zip(s.human_params.values(), f)]))
         else:
             humans.append(OVM(alpha=float(s.human_params["alpha_per_s"] * f[0] * ev.units.time_s)))
-    base = RingRoad(length, tuple(humans), s.vehicle_length_m, ev, tuple([True] * s.vehicles), s.noise_mps2,
-                    s.noise_dt_s, s.seed)
+    base = RingRoad(
+        length, tuple(humans), s.vehicle_length_m, ev, tuple([True] * s.vehicles), s.noise_mps2, s.noise_dt_s, s.seed
+    )
     vehicles, human = list(humans), [True] * s.vehicles
     if controller is not None:
         try:
@@ -287,8 +327,7 @@ def build_ring(sc: RingScenario, controller: str | None, length_m: float | None 
         for i in on:
             vehicles[i] = make_aev(controller, ev, r_mps, mpc)
             human[i] = False
-    ring = RingRoad(length, tuple(vehicles), s.vehicle_length_m, ev, tuple(human), s.noise_mps2, s.noise_dt_s,
-                    s.seed)
+    ring = RingRoad(length, tuple(vehicles), s.vehicle_length_m, ev, tuple(human), s.noise_mps2, s.noise_dt_s, s.seed)
     if s.positions_m is not None and s.speeds_mps is not None and length == s.length_m:
         init = RingInitial(s.positions_m, s.speeds_mps, None, "given positions and speeds")
     else:
@@ -310,10 +349,15 @@ def scenario_runs(sc: RingScenario) -> list[RingRun]:
         for L in s.sweep_length_m:
             dens = 1000.0 * s.vehicles / L
             for k in s.sweep_aevs:
-                for c in (s.controllers[:1] if k == 0 else s.controllers):
-                    out.append(RingRun(f"{dens:.4g}/km, {k} {'human' if k == 0 else c}", L, spread(k, s.vehicles),
-                                       None if k == 0 else c))
+                for c in s.controllers[:1] if k == 0 else s.controllers:
+                    out.append(
+                        RingRun(
+                            f"{dens:.4g}/km, {k} {'human' if k == 0 else c}",
+                            L,
+                            spread(k, s.vehicles),
+                            None if k == 0 else c,
+                        )
+                    )
         return out
     runs = [RingRun("all human", s.length_m, (), None)] if (s.all_human or not s.controllers) else []
     return runs + [RingRun(c, s.length_m, s.aev_vehicles, c) for c in s.controllers]
-

@@ -100,13 +100,16 @@ class RingRoad:
             if not (isinstance(x, (int, float)) and math.isfinite(x) and x >= 0):
                 raise ParameterError(f"ring: {name} = {x!r} is not allowed: must be a finite number >= 0")
         if n * self.vehicle_length_m >= self.length_m:
-            raise ParameterError(f"ring: {n} vehicles of {self.vehicle_length_m:g} m do not fit on length_m = "
-                                 f"{self.length_m:g} (need length_m > n × vehicle_length_m)")
+            raise ParameterError(
+                f"ring: {n} vehicles of {self.vehicle_length_m:g} m do not fit on length_m = "
+                f"{self.length_m:g} (need length_m > n × vehicle_length_m)"
+            )
         check_argument("ring", "ev", self.ev, EVParams)
         for i, c in enumerate(self.vehicles):
             if not isinstance(c, (CarFollowingLaw, Controller)):
-                raise ParameterError(f"ring: vehicle {i + 1} must be a CarFollowingLaw or a Controller, "
-                                     f"got {type(c).__name__}")
+                raise ParameterError(
+                    f"ring: vehicle {i + 1} must be a CarFollowingLaw or a Controller, got {type(c).__name__}"
+                )
         if self.human is not None:
             object.__setattr__(self, "human", tuple(bool(x) for x in self.human))
             if len(self.human) != n:
@@ -151,7 +154,9 @@ class RingOptions:
 
     def __post_init__(self) -> None:
         if not (isinstance(self.threads, int) and not isinstance(self.threads, bool) and 1 <= self.threads <= 256):
-            raise ParameterError(f"RingOptions.threads = {self.threads!r} is not allowed: must be an integer in [1, 256]")
+            raise ParameterError(
+                f"RingOptions.threads = {self.threads!r} is not allowed: must be an integer in [1, 256]"
+            )
         for name in ("rtol", "atol", "dt_out_s", "local_factor"):
             x = getattr(self, name)
             if not (isinstance(x, (int, float)) and math.isfinite(x) and x > 0):
@@ -202,8 +207,14 @@ def uniform_speed_mps(ring: RingRoad) -> float:
     return float(u.speed_to_si(_equilibrium_speed(laws[0], gap, v_hi)))
 
 
-def uniform_flow(ring: RingRoad, speed_mps: float | None = None, shift_m: float = 0.0, vehicle: int = 0,
-                 speed_dip_mps: float = 0.0, soc0: float | None = None) -> RingInitial:
+def uniform_flow(
+    ring: RingRoad,
+    speed_mps: float | None = None,
+    shift_m: float = 0.0,
+    vehicle: int = 0,
+    speed_dip_mps: float = 0.0,
+    soc0: float | None = None,
+) -> RingInitial:
     """Equal spacing L/n at one speed (default :func:`uniform_speed_mps`), then the stated perturbation: vehicle
     ``vehicle`` (0-based) moved back by ``shift_m`` and slowed by ``speed_dip_mps``."""
     n, s = ring.n, ring.spacing_m
@@ -214,8 +225,10 @@ def uniform_flow(ring: RingRoad, speed_mps: float | None = None, shift_m: float 
     vs = [v] * n
     x[vehicle] = (x[vehicle] - shift_m) % ring.length_m
     vs[vehicle] = max(0.0, v - speed_dip_mps)
-    what = (f"uniform flow at {v:.4g} m/s, spacing {s:.4g} m; vehicle {vehicle + 1} moved back {shift_m:g} m"
-            f" and slowed by {speed_dip_mps:g} m/s")
+    what = (
+        f"uniform flow at {v:.4g} m/s, spacing {s:.4g} m; vehicle {vehicle + 1} moved back {shift_m:g} m"
+        f" and slowed by {speed_dip_mps:g} m/s"
+    )
     return RingInitial(tuple(x), tuple(vs), soc0, what)
 
 
@@ -267,18 +280,29 @@ class RingResult:
 
     def _repr_fields(self) -> tuple[str, list[tuple[str, Any]]]:
         v = self.speed_mps
-        half = v[v.shape[0] // 2:]
+        half = v[v.shape[0] // 2 :]
         aevs = sum(not self.ring.is_human(i) for i in range(self.ring.n))
-        return (f"RingResult: {self.ring.n} vehicles ({aevs} AEV) on {self.ring.length_m:g} m, status {self.status}",
-                [("duration_s", float(self.t_s[-1])), ("samples", int(self.t_s.size)),
-                 ("mean speed, second half [m/s]", float(half.mean())),
-                 ("speed std, second half [m/s]", float(half.std())), ("min gap [m]", float(self.gap_m.min()))])
+        return (
+            f"RingResult: {self.ring.n} vehicles ({aevs} AEV) on {self.ring.length_m:g} m, status {self.status}",
+            [
+                ("duration_s", float(self.t_s[-1])),
+                ("samples", int(self.t_s.size)),
+                ("mean speed, second half [m/s]", float(half.mean())),
+                ("speed std, second half [m/s]", float(half.std())),
+                ("min gap [m]", float(self.gap_m.min())),
+            ],
+        )
 
     def __repr__(self) -> str:
         """A few lines: the ring, the status, duration [s], the speeds over the second half [m/s], the min gap [m]."""
         title, fields = self._repr_fields()
-        return summary_text(title, [", ".join(f"{k} {fmt_value(x)}" for k, x in fields[:2]),
-                                    ", ".join(f"{k} {fmt_value(x)}" for k, x in fields[2:])])
+        return summary_text(
+            title,
+            [
+                ", ".join(f"{k} {fmt_value(x)}" for k, x in fields[:2]),
+                ", ".join(f"{k} {fmt_value(x)}" for k, x in fields[2:]),
+            ],
+        )
 
     def _repr_html_(self) -> str:
         title, fields = self._repr_fields()
@@ -317,8 +341,9 @@ def native_arch() -> str:
         cc = compiler()
         if cc is not None:
             try:
-                out = subprocess.run([cc, "-march=native", "-Q", "--help=target"], capture_output=True, text=True,
-                                     timeout=30).stdout
+                out = subprocess.run(
+                    [cc, "-march=native", "-Q", "--help=target"], capture_output=True, text=True, timeout=30
+                ).stdout
                 for line in out.splitlines():
                     parts = line.split()
                     if len(parts) == 2 and parts[0] == "-march=" and parts[1].replace("-", "").isalnum():
@@ -367,8 +392,9 @@ class RingSimulator:
         if len(dts) > 1:
             raise ParameterError(f"ring: every sampled controller must use the same dt, got {sorted(dts)}")
         self.dt = dts.pop() if dts else None  # model time
-        self.laws: list[CarFollowingLaw] = [c if isinstance(c, CarFollowingLaw) else HeldCommand()
-                                            for c in ring.vehicles]
+        self.laws: list[CarFollowingLaw] = [
+            c if isinstance(c, CarFollowingLaw) else HeldCommand() for c in ring.vehicles
+        ]
         templates = [_law_template(law) for law in self.laws]
         distinct: dict[Any, int] = {}
         first: dict[int, Any] = {}
@@ -379,7 +405,7 @@ class RingSimulator:
             k = distinct.setdefault(key, len(distinct))
             first.setdefault(k, make)
             self.law_of[i] = k
-            self.params[i, :len(values)] = values
+            self.params[i, : len(values)] = values
         self.n_par = n_par
         p = ca.SX.sym("p", n_par)
         self._split: list[ca.Function] = []  # the motion part of each law (ring.c), filled by _vehicle_function
@@ -394,8 +420,11 @@ class RingSimulator:
             if self._lib is None and self.opts.method == "compiled":
                 raise ParameterError(f"ring: method 'compiled' needs a working C compiler: {self.build_error}")
             if self._lib is None:
-                warnings.warn(f"ring: the compiled ring is unavailable ({self.build_error}); using CVODES (slower)",
-                              RuntimeWarning, stacklevel=2)
+                warnings.warn(
+                    f"ring: the compiled ring is unavailable ({self.build_error}); using CVODES (slower)",
+                    RuntimeWarning,
+                    stacklevel=2,
+                )
         self.method = "compiled" if self._lib is not None else "cvodes"
         self._cvodes: dict[float, Any] = {}
 
@@ -421,12 +450,23 @@ class RingSimulator:
         with piecewise_ocv():  # the same OCV as the B-spline (1e-14 V), as plain SX arithmetic: cheaper in C
             b = battery_side(v, a, V1, V2, S, ev)
         ode = [vl - v, a, T * b["dV1"], T * b["dV2"], T * b["dS"], *extra]
-        quad = [v, v * energy.g_exact(a, ev.vehicle.efficiency), T * b["P_b"], T * b["Q_pack"],
-                T * b["Q_irr_pack"], (vl - v) ** 2, (optimal_velocity(h) - v) ** 2]
-        self._split.append(ca.Function(f"aevring_mot{k}", [u, ca.vertcat(*x), p],
-                                       [ca.vertcat(vl - v, a, *extra), ca.vertcat(h, v, vl, a)]))
-        return ca.Function(f"aevring_law{k}", [u, ca.vertcat(*x), p], [ca.vertcat(*ode, *quad),
-                                                                        ca.vertcat(a, b["I"], b["disc"])])
+        quad = [
+            v,
+            v * energy.g_exact(a, ev.vehicle.efficiency),
+            T * b["P_b"],
+            T * b["Q_pack"],
+            T * b["Q_irr_pack"],
+            (vl - v) ** 2,
+            (optimal_velocity(h) - v) ** 2,
+        ]
+        self._split.append(
+            ca.Function(
+                f"aevring_mot{k}", [u, ca.vertcat(*x), p], [ca.vertcat(vl - v, a, *extra), ca.vertcat(h, v, vl, a)]
+            )
+        )
+        return ca.Function(
+            f"aevring_law{k}", [u, ca.vertcat(*x), p], [ca.vertcat(*ode, *quad), ca.vertcat(a, b["I"], b["disc"])]
+        )
 
     def _battery_function(self) -> ca.Function:
         """The battery and quadrature part of every vehicle's right-hand side, the same for every law:
@@ -438,29 +478,53 @@ class RingSimulator:
         x = ca.SX.sym("x", self.nx)
         with piecewise_ocv():
             b = battery_side(v, a, x[2], x[3], x[4], ev)
-        quad = [v, v * energy.g_exact(a, ev.vehicle.efficiency), T * b["P_b"], T * b["Q_pack"],
-                T * b["Q_irr_pack"], (vl - v) ** 2, (optimal_velocity(h) - v) ** 2]
-        return ca.Function("aevring_bat", [w, x], [ca.vertcat(T * b["dV1"], T * b["dV2"], T * b["dS"], *quad),
-                                                   ca.vertcat(a, b["I"], b["disc"])])
+        quad = [
+            v,
+            v * energy.g_exact(a, ev.vehicle.efficiency),
+            T * b["P_b"],
+            T * b["Q_pack"],
+            T * b["Q_irr_pack"],
+            (vl - v) ** 2,
+            (optimal_velocity(h) - v) ** 2,
+        ]
+        return ca.Function(
+            "aevring_bat",
+            [w, x],
+            [ca.vertcat(T * b["dV1"], T * b["dV2"], T * b["dS"], *quad), ca.vertcat(a, b["I"], b["disc"])],
+        )
 
     def _build(self) -> None:
         cg = ca.CodeGenerator("aevring_rhs.c", {"with_header": False})
         fs = [*self.funcs, *self._split, self._battery_function()]
         for f in fs:
             cg.add(f)
-        head = (f"#define SZ_ARG {max(3, *(f.sz_arg() for f in fs))}\n#define SZ_RES {max(2, *(f.sz_res() for f in fs))}\n"
-                f"#define SZ_IW {max(f.sz_iw() for f in fs)}\n#define SZ_W {max(f.sz_w() for f in fs)}\n"
-                f"#define NX {self.nx}\n#define NCTRL {2 + int(self.nx > 5)}\n#define NQ {self.nq}\n#define NY {self.ny}\n#define BATTERY 1\n"
-                f"#define AEV_NP {self.n_par}\n#define SPEED_FLOOR {int(self.ev.limits.enabled)}\n"
-                f"#define LOCAL_FACTOR {float(self.opts.local_factor)!r}\n")
-        head += "#define AEV_LAW_SWITCH " + " ".join(
-            f"case {k}: return aevring_law{k}(c->arg, c->res, c->iw, c->w, 0);" for k in range(len(self.funcs))) + "\n"
-        head += "#define AEV_MOT_SWITCH " + " ".join(
-            f"case {k}: return aevring_mot{k}(c->arg, c->res, c->iw, c->w, 0);" for k in range(len(self.funcs))) + "\n"
+        head = (
+            f"#define SZ_ARG {max(3, *(f.sz_arg() for f in fs))}\n#define SZ_RES {max(2, *(f.sz_res() for f in fs))}\n"
+            f"#define SZ_IW {max(f.sz_iw() for f in fs)}\n#define SZ_W {max(f.sz_w() for f in fs)}\n"
+            f"#define NX {self.nx}\n#define NCTRL {2 + int(self.nx > 5)}\n#define NQ {self.nq}\n#define NY {self.ny}\n#define BATTERY 1\n"
+            f"#define AEV_NP {self.n_par}\n#define SPEED_FLOOR {int(self.ev.limits.enabled)}\n"
+            f"#define LOCAL_FACTOR {float(self.opts.local_factor)!r}\n"
+        )
+        head += (
+            "#define AEV_LAW_SWITCH "
+            + " ".join(
+                f"case {k}: return aevring_law{k}(c->arg, c->res, c->iw, c->w, 0);" for k in range(len(self.funcs))
+            )
+            + "\n"
+        )
+        head += (
+            "#define AEV_MOT_SWITCH "
+            + " ".join(
+                f"case {k}: return aevring_mot{k}(c->arg, c->res, c->iw, c->w, 0);" for k in range(len(self.funcs))
+            )
+            + "\n"
+        )
         mot = [0, 1] + ([self.nx - 1] if self.nx > 5 else [])
         bat = [j for j in range(self.nz) if j not in mot]
-        head += (f"#define MOT_IDX_INIT {{{', '.join(map(str, mot))}}}\n#define NB {len(bat)}\n"
-                 f"#define BAT_IDX_INIT {{{', '.join(map(str, bat))}}}\n")
+        head += (
+            f"#define MOT_IDX_INIT {{{', '.join(map(str, mot))}}}\n#define NB {len(bat)}\n"
+            f"#define BAT_IDX_INIT {{{', '.join(map(str, bat))}}}\n"
+        )
         head += event_header()
         source = cg.dump() + "\n" + head + driver_source("ring.c")
         lib = _BUILT.get(source)
@@ -469,21 +533,65 @@ class RingSimulator:
             if lib is None:
                 return
             fn = lib.aevring_advance
-            dp, ip, lp = (np.ctypeslib.ndpointer(dtype=d, flags="C_CONTIGUOUS") for d in (np.float64, np.int32, np.int64))
-            fn.argtypes = [ctypes.c_int, ip, dp, dp, dp, ctypes.c_double, ctypes.c_double, ctypes.c_int64, dp, dp,
-                           ctypes.c_double, ctypes.c_double, ctypes.c_int64, dp, dp, lp, ctypes.c_int]
+            dp, ip, lp = (
+                np.ctypeslib.ndpointer(dtype=d, flags="C_CONTIGUOUS") for d in (np.float64, np.int32, np.int64)
+            )
+            fn.argtypes = [
+                ctypes.c_int,
+                ip,
+                dp,
+                dp,
+                dp,
+                ctypes.c_double,
+                ctypes.c_double,
+                ctypes.c_int64,
+                dp,
+                dp,
+                ctypes.c_double,
+                ctypes.c_double,
+                ctypes.c_int64,
+                dp,
+                dp,
+                lp,
+                ctypes.c_int,
+            ]
             fn.restype = ctypes.c_int64
             _BUILT[source] = lib
         self._lib = lib
 
     # ------------------------------------------------------------------ one interval
-    def _advance_compiled(self, z: np.ndarray, noise: np.ndarray, t0: float, t1: float, ts: np.ndarray,
-                          out: np.ndarray, h_io: np.ndarray, stats: np.ndarray) -> tuple[int, np.ndarray]:
+    def _advance_compiled(
+        self,
+        z: np.ndarray,
+        noise: np.ndarray,
+        t0: float,
+        t1: float,
+        ts: np.ndarray,
+        out: np.ndarray,
+        h_io: np.ndarray,
+        stats: np.ndarray,
+    ) -> tuple[int, np.ndarray]:
         ev = np.zeros(4)
         assert self._lib is not None
-        m = self._lib.aevring_advance(self.n, self.law_of, self.params, noise, z, t0, t1, ts.size, ts, out,
-                                      self.opts.rtol, self.opts.atol, self.opts.max_num_steps, h_io, ev, stats,
-                                      self.opts.threads)
+        m = self._lib.aevring_advance(
+            self.n,
+            self.law_of,
+            self.params,
+            noise,
+            z,
+            t0,
+            t1,
+            ts.size,
+            ts,
+            out,
+            self.opts.rtol,
+            self.opts.atol,
+            self.opts.max_num_steps,
+            h_io,
+            ev,
+            stats,
+            self.opts.threads,
+        )
         if m < 0:
             raise MemoryError("ring: the compiled ring ran out of memory")
         return int(m), ev
@@ -500,10 +608,18 @@ class RingSimulator:
             for i in range(n):
                 pr = i - 1 if i > 0 else n - 1
                 u = ca.vertcat(Zr[1, pr], P[self.n_par * n + i])
-                cols.append(self.funcs[int(self.law_of[i])](u, Zr[:self.nx, i], P[i * self.n_par:(i + 1) * self.n_par])[0])
+                cols.append(
+                    self.funcs[int(self.law_of[i])](u, Zr[: self.nx, i], P[i * self.n_par : (i + 1) * self.n_par])[0]
+                )
             dae = {"x": Z, "p": P, "ode": ca.vertcat(*cols)}
-            fn = ca.integrator("ring", "cvodes", dae, 0.0, dt, {"abstol": self.opts.atol, "reltol": self.opts.rtol,
-                                                                  "max_num_steps": 10**6})
+            fn = ca.integrator(
+                "ring",
+                "cvodes",
+                dae,
+                0.0,
+                dt,
+                {"abstol": self.opts.atol, "reltol": self.opts.rtol, "max_num_steps": 10**6},
+            )
             self._cvodes[dt] = fn
         return fn
 
@@ -512,12 +628,13 @@ class RingSimulator:
         y = np.zeros((self.n, self.ny))
         for i in range(self.n):
             pr = i - 1 if i > 0 else self.n - 1
-            _, yi = self.funcs[int(self.law_of[i])]([z[pr, 1], noise[i]], z[i, :self.nx], self.params[i])
+            _, yi = self.funcs[int(self.law_of[i])]([z[pr, 1], noise[i]], z[i, : self.nx], self.params[i])
             y[i] = np.asarray(yi).ravel()
         return y
 
-    def _advance_cvodes(self, z: np.ndarray, noise: np.ndarray, t0: float, t1: float, ts: np.ndarray,
-                        out: np.ndarray) -> tuple[int, np.ndarray]:
+    def _advance_cvodes(
+        self, z: np.ndarray, noise: np.ndarray, t0: float, t1: float, ts: np.ndarray, out: np.ndarray
+    ) -> tuple[int, np.ndarray]:
         ev = np.zeros(4)
         grid = np.concatenate([[t0], ts[(ts > t0) & (ts <= t1 + 1e-12)], [t1]])
         P = np.concatenate([self.params.ravel(), noise])
@@ -563,8 +680,10 @@ class RingSimulator:
         gaps = gaps_from_positions(ring, x0)
         if np.any(gaps <= 0):
             i = int(np.argmin(gaps))
-            raise ParameterError(f"ring: initial gap of vehicle {i + 1} is {gaps[i]:.4g} m: vehicles overlap "
-                                 f"(positions must leave > 0 m between vehicles of {ring.vehicle_length_m:g} m)")
+            raise ParameterError(
+                f"ring: initial gap of vehicle {i + 1} is {gaps[i]:.4g} m: vehicles overlap "
+                f"(positions must leave > 0 m between vehicles of {ring.vehicle_length_m:g} m)"
+            )
         soc0 = self.ev.cell.soc0 if initial.soc0 is None else initial.soc0
         if not (0 <= soc0 <= 1):
             raise ParameterError(f"ring: soc0 = {soc0!r} is not allowed: must be in [0, 1]")
@@ -612,8 +731,17 @@ class RingSimulator:
                 for i, c in ctrl.items():
                     pr = i - 1 if i > 0 else n - 1
                     meas_v[i].append(float(z[pr, 1]))
-                    obs = Observation(t0, self.dt, i, z[i, :5].copy(), np.asarray(meas_t), np.asarray(meas_v[i]),
-                                      None, a_prev[i], float(z[i, 5]) if self.nx > 5 else None)
+                    obs = Observation(
+                        t0,
+                        self.dt,
+                        i,
+                        z[i, :5].copy(),
+                        np.asarray(meas_t),
+                        np.asarray(meas_v[i]),
+                        None,
+                        a_prev[i],
+                        float(z[i, 5]) if self.nx > 5 else None,
+                    )
                     tc = time.perf_counter()
                     cmd: Command = c.command(obs)
                     ctrl_stats[i]["call"].append(time.perf_counter() - tc)
@@ -628,18 +756,35 @@ class RingSimulator:
                 m, ev = self._advance_compiled(z, noise, t0, t1, tsel, buf, h_io, stats)
             else:
                 m, ev = self._advance_cvodes(z, noise, t0, t1, tsel, buf)
-            out[s_done:s_done + m] = buf[:m]
+            out[s_done : s_done + m] = buf[:m]
             s_done += m
             if ev[0]:
                 code, who, t_ev = int(ev[0]), int(ev[1]), float(ev[2])
                 if code in [r.code for r in EVENT_RULES]:
                     rule = rule_of_code(code)
                     pr = who - 1 if who > 0 else n - 1
-                    events.append(event_at(rule, t_ev, who, u, float(z[who, 0]), float(z[who, 1]), float(z[pr, 1]),
-                                           float({"h": z[who, 0], "v": z[who, 1], "S": z[who, 4], "disc": ev[3]}[rule.quantity])))
+                    events.append(
+                        event_at(
+                            rule,
+                            t_ev,
+                            who,
+                            u,
+                            float(z[who, 0]),
+                            float(z[who, 1]),
+                            float(z[pr, 1]),
+                            float({"h": z[who, 0], "v": z[who, 1], "S": z[who, 4], "disc": ev[3]}[rule.quantity]),
+                        )
+                    )
                 else:
-                    events.append(Event("integration_failed", t_ev, who, "the ring integrator failed (step size underflow "
-                                        "or the step limit)", time_s=t_ev * T))
+                    events.append(
+                        Event(
+                            "integration_failed",
+                            t_ev,
+                            who,
+                            "the ring integrator failed (step size underflow or the step limit)",
+                            time_s=t_ev * T,
+                        )
+                    )
                 if t_ev > ts[s_done - 1]:  # the state at the event is the run's last sample
                     ts = np.concatenate([ts[:s_done], [t_ev]])
                     out[s_done] = np.hstack([z, self._outputs(z, noise)])
@@ -650,44 +795,102 @@ class RingSimulator:
         ts, out = ts[:s_done], out[:s_done]
         return self._result(initial, ts, out, events, wall, stats, ctrl_stats)
 
-    def _result(self, initial: RingInitial, ts: np.ndarray, out: np.ndarray, events: list[Event], wall: float,
-                stats: np.ndarray, ctrl_stats: dict[int, dict[str, list[Any]]]) -> RingResult:
+    def _result(
+        self,
+        initial: RingInitial,
+        ts: np.ndarray,
+        out: np.ndarray,
+        events: list[Event],
+        wall: float,
+        stats: np.ndarray,
+        ctrl_stats: dict[int, dict[str, list[Any]]],
+    ) -> RingResult:
         nx, n = self.nx, self.n
         col = lambda j: np.ascontiguousarray(out[:, :, j])  # noqa: E731
         q = {name: col(nx + j) for j, name in enumerate(QUAD_NAMES)}
         y = {name: col(self.nz + j) for j, name in enumerate(OUT_NAMES)}
         speed = col(1)
-        lead_pos = (np.asarray(self.ring.length_m if False else initial.positions_m[-1]) / self.ev.units.length_m
-                    + q["distance"][:, -1])
+        lead_pos = (
+            np.asarray(self.ring.length_m if False else initial.positions_m[-1]) / self.ev.units.length_m
+            + q["distance"][:, -1]
+        )
         names = [getattr(c, "name", type(c).__name__) for c in self.ring.vehicles]
         settings = [c.describe() for c in self.ring.vehicles]
         solver: list[dict[str, Any] | None] = [None] * n
         for i, st in ctrl_stats.items():
             call = np.asarray(st["call"]) * 1e3
-            solver[i] = {"steps": len(call), "call_ms_median": float(np.median(call)) if call.size else math.nan,
-                         "call_ms_max": float(np.max(call)) if call.size else math.nan,
-                         "fallbacks": int(sum(1 for ok in st["ok"] if not ok))}
+            solver[i] = {
+                "steps": len(call),
+                "call_ms_median": float(np.median(call)) if call.size else math.nan,
+                "call_ms_max": float(np.max(call)) if call.size else math.nan,
+                "fallbacks": int(sum(1 for ok in st["ok"] if not ok)),
+            }
         sim = SimulationResult(
-            t=ts, leader_speed=speed[:, -1], leader_position=lead_pos, gap=col(0), speed=speed, accel=y["a"],
-            V1=col(2), V2=col(3), S=col(4), current_A=y["I"], omega=q["omega"], heat_J=q["heat_J"],
-            heat_irr_J=q["heat_irr_J"], int_ovm_err2=q["ovm_err2"], int_rel_speed2=q["rel_speed2"],
-            int_jerk2=np.zeros_like(speed), controllers=names, ev=self.ev, events=events, jerk_sampled=True,
+            t=ts,
+            leader_speed=speed[:, -1],
+            leader_position=lead_pos,
+            gap=col(0),
+            speed=speed,
+            accel=y["a"],
+            V1=col(2),
+            V2=col(3),
+            S=col(4),
+            current_A=y["I"],
+            omega=q["omega"],
+            heat_J=q["heat_J"],
+            heat_irr_J=q["heat_irr_J"],
+            int_ovm_err2=q["ovm_err2"],
+            int_rel_speed2=q["rel_speed2"],
+            int_jerk2=np.zeros_like(speed),
+            controllers=names,
+            ev=self.ev,
+            events=events,
+            jerk_sampled=True,
             solver_stats=solver,
-            meta={"plant": f"ring ({self.method})", "rtol": self.opts.rtol, "atol": self.opts.atol,
-                  "controllers": settings, "ring_length_m": self.ring.length_m,
-                  "vehicle_length_m": self.ring.vehicle_length_m, "initial": initial.perturbation})
-        return RingResult(self.ring, initial, sim, q["distance"], q["energy_J"], wall,
-                          {"steps": int(stats[0]), "rejected": int(stats[1]), "rhs_evaluations": int(stats[2]),
-                           "method": self.method})
+            meta={
+                "plant": f"ring ({self.method})",
+                "rtol": self.opts.rtol,
+                "atol": self.opts.atol,
+                "controllers": settings,
+                "ring_length_m": self.ring.length_m,
+                "vehicle_length_m": self.ring.vehicle_length_m,
+                "initial": initial.perturbation,
+            },
+        )
+        return RingResult(
+            self.ring,
+            initial,
+            sim,
+            q["distance"],
+            q["energy_J"],
+            wall,
+            {
+                "steps": int(stats[0]),
+                "rejected": int(stats[1]),
+                "rhs_evaluations": int(stats[2]),
+                "method": self.method,
+            },
+        )
 
 
-def simulate_ring(ring: RingRoad, t_end_s: float, initial: RingInitial | None = None,
-                  options: RingOptions | None = None) -> RingResult:
+def simulate_ring(
+    ring: RingRoad, t_end_s: float, initial: RingInitial | None = None, options: RingOptions | None = None
+) -> RingResult:
     """Simulate ``ring`` over [0, t_end_s] [s] from ``initial`` (default :func:`uniform_flow` unperturbed)."""
     sim = RingSimulator(ring, options)
     return sim.run(initial if initial is not None else uniform_flow(ring), t_end_s)
 
 
-__all__ = ["HeldCommand", "RingInitial", "RingOptions", "RingResult", "RingRoad", "RingSimulator", "gaps_from_positions",
-           "simulate_ring", "uniform_flow", "uniform_speed_mps"]
+__all__ = [
+    "HeldCommand",
+    "RingInitial",
+    "RingOptions",
+    "RingResult",
+    "RingRoad",
+    "RingSimulator",
+    "gaps_from_positions",
+    "simulate_ring",
+    "uniform_flow",
+    "uniform_speed_mps",
+]
 _ = (dataclasses, Callable)

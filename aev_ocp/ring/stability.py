@@ -105,21 +105,24 @@ def limit_growth(f_h: float, f_v: float, f_dv: float, tau: float = 0.0, grid: in
     return max(float(vals[j]), _max_re(f_h, f_v, f_dv, t, tau)), t
 
 
-def uniform_state(law: CarFollowingLaw, n: int, length_m: float, vehicle_length_m: float,
-                  ev: EVParams) -> tuple[float, float]:
+def uniform_state(
+    law: CarFollowingLaw, n: int, length_m: float, vehicle_length_m: float, ev: EVParams
+) -> tuple[float, float]:
     """(h*, v*) of uniform flow [model units]: h* = L/n − ℓ and the law's equilibrium speed there."""
     u = ev.units
     gap_m = length_m / n - vehicle_length_m
     if not gap_m > 0:
-        raise ParameterError(f"ring stability: spacing {length_m / n:g} m leaves no gap between vehicles of "
-                             f"{vehicle_length_m:g} m")
+        raise ParameterError(
+            f"ring stability: spacing {length_m / n:g} m leaves no gap between vehicles of {vehicle_length_m:g} m"
+        )
     h = float(u.length_from_si(gap_m))
     v = _equilibrium_speed(law, h, float(u.speed_from_si(ev.limits.v_max_mps)))
     return h, v
 
 
-def ring_stability(law: CarFollowingLaw, n: int, length_m: float, vehicle_length_m: float = 5.0,
-                   ev: EVParams | None = None) -> RingStability:
+def ring_stability(
+    law: CarFollowingLaw, n: int, length_m: float, vehicle_length_m: float = 5.0, ev: EVParams | None = None
+) -> RingStability:
     """Mode-by-mode stability of uniform flow of ``law`` on a ring of n vehicles and length L [m]."""
     if not (isinstance(n, int) and not isinstance(n, bool) and n >= 2):
         raise ParameterError(f"ring stability: n = {n!r} is not allowed: must be an integer >= 2")
@@ -130,8 +133,10 @@ def ring_stability(law: CarFollowingLaw, n: int, length_m: float, vehicle_length
     T = u.time_s
     h, v = uniform_state(law, n, length_m, vehicle_length_m, ev)
     if not v > 0:
-        raise ParameterError(f"ring stability: law {law.name!r} has no moving uniform flow at gap "
-                             f"{length_m / n - vehicle_length_m:g} m (its equilibrium speed is 0)")
+        raise ParameterError(
+            f"ring stability: law {law.name!r} has no moving uniform flow at gap "
+            f"{length_m / n - vehicle_length_m:g} m (its equilibrium speed is 0)"
+        )
     _, fh, fv, fdv = (float(x) for x in partials_function(law)(h, v, v))
     tau = float(u.time_from_si(ev.limits.actuator_tau_s)) if ev.limits.has_actuator_state else 0.0
     modes: list[list[list[float]]] = []
@@ -150,14 +155,32 @@ def ring_stability(law: CarFollowingLaw, n: int, length_m: float, vehicle_length
     theta = theta if theta <= math.pi else theta - 2 * math.pi
     s = length_m / n
     C = head_to_tail_criterion(fh, fv, fdv)
-    return RingStability(law.name, n, float(length_m), float(u.length_to_si(h)), float(u.speed_to_si(v)),
-                         fh / T**2, fv / T, fdv / T, tau * T, modes, best, best_k, length_m / kk,
-                         float(u.speed_to_si(v)) + s * best_lam.imag / theta, lim / T, lim_theta, C / T**2,
-                         bool(C >= 0), bool(best <= 1e-12))
+    return RingStability(
+        law.name,
+        n,
+        float(length_m),
+        float(u.length_to_si(h)),
+        float(u.speed_to_si(v)),
+        fh / T**2,
+        fv / T,
+        fdv / T,
+        tau * T,
+        modes,
+        best,
+        best_k,
+        length_m / kk,
+        float(u.speed_to_si(v)) + s * best_lam.imag / theta,
+        lim / T,
+        lim_theta,
+        C / T**2,
+        bool(C >= 0),
+        bool(best <= 1e-12),
+    )
 
 
-def ring_jacobian(law: CarFollowingLaw, n: int, length_m: float, vehicle_length_m: float = 5.0,
-                  ev: EVParams | None = None) -> np.ndarray:
+def ring_jacobian(
+    law: CarFollowingLaw, n: int, length_m: float, vehicle_length_m: float = 5.0, ev: EVParams | None = None
+) -> np.ndarray:
     """The full Jacobian [1/s] of the ring's motion (h_i, v_i[, a_i]) at uniform flow, from CasADi applied to the
     whole ring's right-hand side (no Fourier analysis): the independent check of :func:`ring_stability`."""
     ev = ev or EVParams()
@@ -184,9 +207,16 @@ def ring_jacobian(law: CarFollowingLaw, n: int, length_m: float, vehicle_length_
     return np.asarray(J(x0)) / u.time_s
 
 
-def measured_growth(law: CarFollowingLaw, n: int, length_m: float, vehicle_length_m: float = 5.0,
-                    ev: EVParams | None = None, amplitude_m: float = 1e-4, t_end_s: float | None = None,
-                    k: int | None = None) -> dict[str, Any]:
+def measured_growth(
+    law: CarFollowingLaw,
+    n: int,
+    length_m: float,
+    vehicle_length_m: float = 5.0,
+    ev: EVParams | None = None,
+    amplitude_m: float = 1e-4,
+    t_end_s: float | None = None,
+    k: int | None = None,
+) -> dict[str, Any]:
     """The growth rate [1/s] of a small perturbation measured in simulation (the compiled ring, rtol 1e-11):
     uniform flow plus mode k (default the most unstable) with gap amplitude ``amplitude_m``, set on that mode's
     eigenvector (the dominant root only), and the slope of log |Σ_i η_i e^{−iθ_k i}| fitted over the run."""
@@ -197,8 +227,9 @@ def measured_growth(law: CarFollowingLaw, n: int, length_m: float, vehicle_lengt
     rs = ring_stability(law, n, length_m, vehicle_length_m, ev)
     k = rs.most_unstable_k if k is None else int(k)
     theta = 2 * math.pi * k / n
-    lam_model = mode_eigenvalues(rs.f_h_per_s2 * u.time_s**2, rs.f_v_per_s * u.time_s, rs.f_dv_per_s * u.time_s,
-                                 theta, rs.lag_s / u.time_s)
+    lam_model = mode_eigenvalues(
+        rs.f_h_per_s2 * u.time_s**2, rs.f_v_per_s * u.time_s, rs.f_dv_per_s * u.time_s, theta, rs.lag_s / u.time_s
+    )
     lam = complex(lam_model[int(np.argmax(lam_model.real))])
     sigma = lam.real / u.time_s
     T_run = t_end_s if t_end_s is not None else min(600.0, max(20.0, 3.0 / max(abs(sigma), 1e-6)))
@@ -215,13 +246,24 @@ def measured_growth(law: CarFollowingLaw, n: int, length_m: float, vehicle_lengt
     for i in range(1, n):
         x[i] = x[i - 1] - vehicle_length_m - gaps[i]
     ring = RingRoad(length_m, tuple([law] * n), vehicle_length_m, ev)
-    init = RingInitial(tuple((x % length_m).tolist()), tuple((rs.v_star_mps + nu).tolist()), None,
-                       f"uniform flow plus mode k = {k} with gap amplitude {amplitude_m:g} m")
+    init = RingInitial(
+        tuple((x % length_m).tolist()),
+        tuple((rs.v_star_mps + nu).tolist()),
+        None,
+        f"uniform flow plus mode k = {k} with gap amplitude {amplitude_m:g} m",
+    )
     res = RingSimulator(ring, RingOptions(rtol=1e-11, atol=1e-13, dt_out_s=max(T_run / 400, 0.05))).run(init, T_run)
     c = np.abs((res.gap_m - rs.gap_m) @ np.exp(-1j * theta * idx))
     t = res.t_s
     keep = c > 0
     slope = float(np.polyfit(t[keep], np.log(c[keep]), 1)[0])
     _ = s
-    return {"k": k, "predicted_per_s": sigma, "measured_per_s": slope, "t_end_s": T_run, "amplitude_m": amplitude_m,
-            "relative_error": abs(slope - sigma) / abs(sigma) if sigma else math.nan, "status": res.status}
+    return {
+        "k": k,
+        "predicted_per_s": sigma,
+        "measured_per_s": slope,
+        "t_end_s": T_run,
+        "amplitude_m": amplitude_m,
+        "relative_error": abs(slope - sigma) / abs(sigma) if sigma else math.nan,
+        "status": res.status,
+    }

@@ -21,5 +21,15 @@ from __future__ import annotations
 from .fallback import SafeFallback, SafetyParams, safe_acceleration_mps2
 from .kinematics import AVOIDABLE, COLLISION_AVOIDABLE_ONLY, LABELS, UNAVOIDABLE, BrakingBound, braking_bound, label_of
 
-__all__ = ["AVOIDABLE", "COLLISION_AVOIDABLE_ONLY", "LABELS", "UNAVOIDABLE", "BrakingBound", "SafeFallback",
-           "SafetyParams", "braking_bound", "label_of", "safe_acceleration_mps2"]
+__all__ = [
+    "AVOIDABLE",
+    "COLLISION_AVOIDABLE_ONLY",
+    "LABELS",
+    "UNAVOIDABLE",
+    "BrakingBound",
+    "SafeFallback",
+    "SafetyParams",
+    "braking_bound",
+    "label_of",
+    "safe_acceleration_mps2",
+]

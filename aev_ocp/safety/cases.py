@@ -45,9 +45,14 @@ class SafetyCase:
     def __post_init__(self) -> None:
         if self.family not in FAMILIES:
             raise ParameterError(f"SafetyCase.family = {self.family!r} is not allowed: must be one of {FAMILIES}")
-        for nm, ok in (("v_ego_mps", self.v_ego_mps >= 0), ("gap_m", self.gap_m > 0), ("v_lead_mps", self.v_lead_mps >= 0),
-                       ("a_lead_mps2", self.a_lead_mps2 <= 0), ("t_brake_s", self.t_brake_s >= 0),
-                       ("t_end_s", self.t_end_s > 0)):
+        for nm, ok in (
+            ("v_ego_mps", self.v_ego_mps >= 0),
+            ("gap_m", self.gap_m > 0),
+            ("v_lead_mps", self.v_lead_mps >= 0),
+            ("a_lead_mps2", self.a_lead_mps2 <= 0),
+            ("t_brake_s", self.t_brake_s >= 0),
+            ("t_end_s", self.t_end_s > 0),
+        ):
             if not ok:
                 raise ParameterError(f"SafetyCase {self.name}: {nm} = {getattr(self, nm)!r} is not allowed")
 
@@ -64,7 +69,9 @@ def suite_cases(quick: bool = False) -> list[SafetyCase]:
     v50 = 50 * KMH
     for gap in (12.0, 40.0):
         for a in (-2.0, -6.0):
-            cases.append(SafetyCase("CCRb", f"CCRb_50kmh_{gap:g}m_{a:g}mps2", v50, gap, v50, a, 0.0, _t_end(v50, a, 0.0)))
+            cases.append(
+                SafetyCase("CCRb", f"CCRb_50kmh_{gap:g}m_{a:g}mps2", v50, gap, v50, a, 0.0, _t_end(v50, a, 0.0))
+            )
     for kmh in (10, 20, 30, 40, 50):
         v = kmh * KMH
         cases.append(SafetyCase("CCRs", f"CCRs_{kmh}kmh", v, START_TTC_S * v, 0.0, 0.0, 0.0, 8.0))
@@ -76,11 +83,32 @@ def suite_cases(quick: bool = False) -> list[SafetyCase]:
             for gap in (5.0, 8.0, 12.0, 20.0):
                 for a in (0.0, -3.0, -6.0, -9.0):
                     vl = v - dv
-                    cases.append(SafetyCase("cut-in", f"cutin_{v:g}mps_lead{vl:g}mps_{gap:g}m_{a:g}mps2", v, gap, vl, a,
-                                            0.0, _t_end(vl, a, 0.0)))
+                    cases.append(
+                        SafetyCase(
+                            "cut-in",
+                            f"cutin_{v:g}mps_lead{vl:g}mps_{gap:g}m_{a:g}mps2",
+                            v,
+                            gap,
+                            vl,
+                            a,
+                            0.0,
+                            _t_end(vl, a, 0.0),
+                        )
+                    )
     if quick:
-        keep = {"CCRb_50kmh_12m_-6mps2", "CCRb_50kmh_40m_-2mps2", "CCRs_30kmh", "CCRs_50kmh", "CCRm_50kmh",
-                "CCRm_70kmh", "cutin_25mps_lead25mps_5m_-9mps2", "cutin_20mps_lead20mps_8m_-6mps2"}
-        cases = [SafetyCase(c.family, c.name, c.v_ego_mps, c.gap_m, c.v_lead_mps, c.a_lead_mps2, c.t_brake_s, 3.0)
-                 for c in cases if c.name in keep]
+        keep = {
+            "CCRb_50kmh_12m_-6mps2",
+            "CCRb_50kmh_40m_-2mps2",
+            "CCRs_30kmh",
+            "CCRs_50kmh",
+            "CCRm_50kmh",
+            "CCRm_70kmh",
+            "cutin_25mps_lead25mps_5m_-9mps2",
+            "cutin_20mps_lead20mps_8m_-6mps2",
+        }
+        cases = [
+            SafetyCase(c.family, c.name, c.v_ego_mps, c.gap_m, c.v_lead_mps, c.a_lead_mps2, c.t_brake_s, 3.0)
+            for c in cases
+            if c.name in keep
+        ]
     return cases

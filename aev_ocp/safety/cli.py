@@ -44,13 +44,21 @@ def cli_safety(argv: list[str]) -> int:
     res = run_suite(controllers=controllers, quick=a.quick, progress=say)
     files = write_outputs(res, out, plots=not a.no_plots)
     for ctrl, s in summary(res).items():
-        print(f"{ctrl:>9}: {s['cases']['avoidable']} avoidable cases, {s['collisions']['avoidable']} collisions and "
-              f"{s['floor_violations']['avoidable']} floor violations there; "
-              f"{sum(s['collisions'].values())} collisions in all {sum(s['cases'].values())} cases")
+        print(
+            f"{ctrl:>9}: {s['cases']['avoidable']} avoidable cases, {s['collisions']['avoidable']} collisions and "
+            f"{s['floor_violations']['avoidable']} floor violations there; "
+            f"{sum(s['collisions'].values())} collisions in all {sum(s['cases'].values())} cases"
+        )
     print(f"wrote {len(files)} files to {out}/")
     fails = res.failures("mpc")
     for r in fails:
-        _err(f"safety case {r.case}: the MPC " + (f"collided at t = {r.collision_time_s:.3f} s at {r.impact_speed_mps:.2f} m/s"
-                                                  if r.collision else f"fell below its {res.settings['floor_m']:g} m floor "
-                                                  f"(min gap {r.min_gap_m:.3f} m)") + " in an avoidable case")
+        _err(
+            f"safety case {r.case}: the MPC "
+            + (
+                f"collided at t = {r.collision_time_s:.3f} s at {r.impact_speed_mps:.2f} m/s"
+                if r.collision
+                else f"fell below its {res.settings['floor_m']:g} m floor (min gap {r.min_gap_m:.3f} m)"
+            )
+            + " in an avoidable case"
+        )
     return EXIT_FAILED_RUN if fails else EXIT_OK

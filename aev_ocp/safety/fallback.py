@@ -42,7 +42,9 @@ class SafetyParams:
     """The safe controller's parameters, SI. Sources beside each default."""
 
     standstill_gap_m: float = spec(2.0, ge=0.0)  # s_min: the traffic MPC's standstill floor (TrafficParams)
-    reaction_time_s: float = spec(0.3, ge=0.0)  # t_r: the traffic MPC's braking-constraint reaction time (TrafficParams)
+    reaction_time_s: float = spec(
+        0.3, ge=0.0
+    )  # t_r: the traffic MPC's braking-constraint reaction time (TrafficParams)
     ego_brake_mps2: float = spec(-_DEFAULT_LIMITS.a_min_mps2, gt=0.0)  # b_ego: VehicleLimits.a_min (dry-road friction)
     lead_brake_mps2: float = spec(-_DEFAULT_LIMITS.a_min_mps2, gt=0.0)  # b_lead: the same friction limit for the lead
     a_min_mps2: float = spec(_DEFAULT_LIMITS.a_min_mps2, lt=0.0)  # most braking the ego commands (VehicleLimits)
@@ -52,15 +54,21 @@ class SafetyParams:
     def __post_init__(self) -> None:
         validate_fields(self)
         if self.ego_brake_mps2 > -self.a_min_mps2 + 1e-12:
-            raise ParameterError(f"SafetyParams.ego_brake_mps2 = {self.ego_brake_mps2} is not allowed: the ego cannot "
-                                 f"brake harder than a_min_mps2 = {self.a_min_mps2} lets it")
+            raise ParameterError(
+                f"SafetyParams.ego_brake_mps2 = {self.ego_brake_mps2} is not allowed: the ego cannot "
+                f"brake harder than a_min_mps2 = {self.a_min_mps2} lets it"
+            )
 
     @classmethod
     def from_limits(cls, limits: VehicleLimits, **changes: Any) -> "SafetyParams":
         """Braking, bounds and lag from a vehicle's limits (the defaults when the limits are off)."""
         lim = limits if limits.enabled else _DEFAULT_LIMITS
-        kw: dict[str, Any] = {"ego_brake_mps2": -lim.a_min_mps2, "a_min_mps2": lim.a_min_mps2,
-                              "a_max_mps2": lim.a_max_mps2, "lag_s": lim.lag_s if limits.enabled else 0.0}
+        kw: dict[str, Any] = {
+            "ego_brake_mps2": -lim.a_min_mps2,
+            "a_min_mps2": lim.a_min_mps2,
+            "a_max_mps2": lim.a_max_mps2,
+            "lag_s": lim.lag_s if limits.enabled else 0.0,
+        }
         kw.update(changes)
         return cls(**kw)
 
@@ -72,6 +80,7 @@ def effective_reaction_s(p: SafetyParams) -> float:
 
 def _stopping_point_peak(v: float, a: float, dt: float, t_r: float, b: float) -> float:
     """max over t ∈ [0, dt] of P_e(t) − x_e(0) = x_e(t) + v(t) t_r + v(t)²/(2 b) with a held (speed stops at 0)."""
+
     def P(t: float) -> float:
         if a < 0.0:
             t = min(t, v / -a) if v > 0 else 0.0
@@ -87,13 +96,20 @@ def _stopping_point_peak(v: float, a: float, dt: float, t_r: float, b: float) ->
     return max(P(t) for t in cands)
 
 
-def safe_acceleration_mps2(gap_m: float, v_mps: float, v_lead_mps: float, dt_s: float, p: SafetyParams | None = None,
-                           a_lead_mps2: float = 0.0) -> float:
+def safe_acceleration_mps2(
+    gap_m: float, v_mps: float, v_lead_mps: float, dt_s: float, p: SafetyParams | None = None, a_lead_mps2: float = 0.0
+) -> float:
     """The largest acceleration [m/s²] in [a_min, a_max] that keeps the braking-distance condition over the next
     dt_s [s]; a_min if none does (module docstring). gap_m [m], speeds [m/s]; a_lead_mps2: the lead's measured
     acceleration (a deceleration beyond p.lead_brake_mps2 replaces it)."""
     p = p or SafetyParams()
-    for nm, x in (("gap_m", gap_m), ("v_mps", v_mps), ("v_lead_mps", v_lead_mps), ("dt_s", dt_s), ("a_lead_mps2", a_lead_mps2)):
+    for nm, x in (
+        ("gap_m", gap_m),
+        ("v_mps", v_mps),
+        ("v_lead_mps", v_lead_mps),
+        ("dt_s", dt_s),
+        ("a_lead_mps2", a_lead_mps2),
+    ):
         if not math.isfinite(x):
             raise ParameterError(f"safe_acceleration_mps2: {nm} = {x!r} is not allowed: must be finite")
     if dt_s <= 0:
@@ -160,9 +176,19 @@ class SafeFallback:
             a_min, a_max = max(a_min, lim.a_min_mps2), min(a_max, lim.a_max_mps2)
         h_min = max(float(u.length_to_si(b.h_min)), 0.0) if b.h_min is not None else 0.0
         t_r = (formulation.traffic if formulation.kind == "traffic" else TrafficParams()).reaction_time_s
-        return cls(law, u, dt, SafetyParams.from_limits(
-            ev.limits, standstill_gap_m=h_min, a_min_mps2=a_min, a_max_mps2=a_max, ego_brake_mps2=-a_min,
-            reaction_time_s=t_r))
+        return cls(
+            law,
+            u,
+            dt,
+            SafetyParams.from_limits(
+                ev.limits,
+                standstill_gap_m=h_min,
+                a_min_mps2=a_min,
+                a_max_mps2=a_max,
+                ego_brake_mps2=-a_min,
+                reaction_time_s=t_r,
+            ),
+        )
 
     @property
     def a_min(self) -> float:
@@ -213,6 +239,11 @@ class SafeFallback:
         """Settings and counters, for reports."""
         from ..params import as_dict
 
-        return {"controller": self.name, "law": self.law.describe() if self.law is not None else None,
-                "dt": self.dt, "safety": as_dict(self.params), "limited_steps": self.limited_steps,
-                "max_braking_steps": self.braking_steps}
+        return {
+            "controller": self.name,
+            "law": self.law.describe() if self.law is not None else None,
+            "dt": self.dt,
+            "safety": as_dict(self.params),
+            "limited_steps": self.limited_steps,
+            "max_braking_steps": self.braking_steps,
+        }

@@ -53,7 +53,9 @@ def _check(name: str, value: float, lo: float | None = None, hi: float | None = 
     if bad:
         rng = f"{'>' if strict else '>='} {lo:g}" if lo is not None else ""
         rng += (" and " if rng and hi is not None else "") + (f"<= {hi:g}" if hi is not None else "")
-        raise ParameterError(f"braking_bound: {name} = {value!r} is not allowed: must be a finite number {rng}".rstrip())
+        raise ParameterError(
+            f"braking_bound: {name} = {value!r} is not allowed: must be a finite number {rng}".rstrip()
+        )
     return x
 
 
@@ -121,8 +123,17 @@ def label_of(min_gap_m: float, floor_m: float) -> str:
     return AVOIDABLE if min_gap_m >= floor_m else COLLISION_AVOIDABLE_ONLY
 
 
-def braking_bound(v_ego_mps: float, gap_m: float, v_lead_mps: float, a_lead_mps2: float, *, t_brake_s: float = 0.0,
-                  a_min_mps2: float = -8.0, lag_s: float = 0.0, floor_m: float = 2.0) -> BrakingBound:
+def braking_bound(
+    v_ego_mps: float,
+    gap_m: float,
+    v_lead_mps: float,
+    a_lead_mps2: float,
+    *,
+    t_brake_s: float = 0.0,
+    a_min_mps2: float = -8.0,
+    lag_s: float = 0.0,
+    floor_m: float = 2.0,
+) -> BrakingBound:
     """The smallest gap [m] when the ego brakes at a_min_mps2 from t = 0 (through lag_s) behind a lead that keeps
     v_lead_mps until t_brake_s [s], then brakes at a_lead_mps2 (≤ 0) until it stops (module docstring).
 

@@ -22,10 +22,12 @@ from .kinematics import AVOIDABLE, LABELS, UNAVOIDABLE  # noqa: E402
 from .suite import CaseRow, SuiteOutput  # noqa: E402
 
 FILES = ("safety.csv", "safety.json", "safety.md") + tuple(f"safety_{f.replace('-', '')}.png" for f in FAMILIES)
-BOUND_TEXT = ("the ego brakes at its maximum a_min from t = 0 (through the actuator lag τ, from a = 0), the lead "
-              "follows its profile, both stop at v = 0 and never reverse; the smallest gap of that motion (exact "
-              "piecewise solution) labels the case *avoidable* (≥ the 2 m floor of the MPC's traffic formulation), "
-              "*collision-avoidable only* (0 < gap < floor) or *unavoidable* (contact whatever the controller does)")
+BOUND_TEXT = (
+    "the ego brakes at its maximum a_min from t = 0 (through the actuator lag τ, from a = 0), the lead "
+    "follows its profile, both stop at v = 0 and never reverse; the smallest gap of that motion (exact "
+    "piecewise solution) labels the case *avoidable* (≥ the 2 m floor of the MPC's traffic formulation), "
+    "*collision-avoidable only* (0 < gap < floor) or *unavoidable* (contact whatever the controller does)"
+)
 
 
 def _f(x: float, d: int = 2) -> str:
@@ -41,8 +43,15 @@ def summary(out: SuiteOutput) -> dict[str, dict[str, Any]]:
     collision or a floor violation)."""
     res: dict[str, dict[str, Any]] = {}
     for r in out.rows:
-        s = res.setdefault(r.controller, {"cases": {lb: 0 for lb in LABELS}, "collisions": {lb: 0 for lb in LABELS},
-                                          "floor_violations": {lb: 0 for lb in LABELS}, "failures": []})
+        s = res.setdefault(
+            r.controller,
+            {
+                "cases": {lb: 0 for lb in LABELS},
+                "collisions": {lb: 0 for lb in LABELS},
+                "floor_violations": {lb: 0 for lb in LABELS},
+                "failures": [],
+            },
+        )
         s["cases"][r.label] += 1
         s["collisions"][r.label] += int(r.collision)
         s["floor_violations"][r.label] += int(r.floor_violation_samples > 0)
@@ -56,32 +65,81 @@ def markdown(out: SuiteOutput, heading: str = "##") -> str:
     collision and floor violation (all SI)."""
     st = out.settings
     u = st["units"]
-    lines = [f"{heading} Safety suite: rear-end braking, stationary and slower targets, cut-ins\n",
-             f"{len(out.cases)} cases × {len(st['controllers'])} controllers ({', '.join(st['controllers'])}); units "
-             f"L = {u['length_m']:g} m, U = {u['speed_mps']:g} m/s for every case (the drive-cycle scenarios'). The MPC "
-             "runs on its shipped defaults (MPCSettings(): traffic formulation, decaying-acceleration forecast, the "
-             "safe fallback and safety filter); the laws run continuously, saturated to the vehicle's "
-             f"[a_min, a_max]. A cut-in is the new predecessor appearing at t = 0 at the given gap. Label: {BOUND_TEXT} "
-             f"(a_min = {st['bound_a_min_mps2']:g} m/s², τ = {st['bound_lag_s']:g} s, floor = {st['floor_m']:g} m).\n"]
+    lines = [
+        f"{heading} Safety suite: rear-end braking, stationary and slower targets, cut-ins\n",
+        f"{len(out.cases)} cases × {len(st['controllers'])} controllers ({', '.join(st['controllers'])}); units "
+        f"L = {u['length_m']:g} m, U = {u['speed_mps']:g} m/s for every case (the drive-cycle scenarios'). The MPC "
+        "runs on its shipped defaults (MPCSettings(): traffic formulation, decaying-acceleration forecast, the "
+        "safe fallback and safety filter); the laws run continuously, saturated to the vehicle's "
+        f"[a_min, a_max]. A cut-in is the new predecessor appearing at t = 0 at the given gap. Label: {BOUND_TEXT} "
+        f"(a_min = {st['bound_a_min_mps2']:g} m/s², τ = {st['bound_lag_s']:g} s, floor = {st['floor_m']:g} m).\n",
+    ]
     if st.get("quick"):
         lines.append("**Quick run** (a few cases, 3 s each): a smoke test, not the suite.\n")
     summ = summary(out)
     rows = []
     for c, s in summ.items():
-        rows.append([c, s["cases"][AVOIDABLE], s["collisions"][AVOIDABLE], s["floor_violations"][AVOIDABLE],
-                     sum(s["cases"][lb] for lb in LABELS if lb != AVOIDABLE),
-                     sum(s["collisions"][lb] for lb in LABELS if lb != AVOIDABLE), s["cases"][UNAVOIDABLE],
-                     s["collisions"][UNAVOIDABLE]])
-    lines.append(markdown_table(["controller", "avoidable cases", "collisions there", "floor violations there",
-                                 "other cases", "collisions there", "of them unavoidable", "collisions there"], rows))
+        rows.append(
+            [
+                c,
+                s["cases"][AVOIDABLE],
+                s["collisions"][AVOIDABLE],
+                s["floor_violations"][AVOIDABLE],
+                sum(s["cases"][lb] for lb in LABELS if lb != AVOIDABLE),
+                sum(s["collisions"][lb] for lb in LABELS if lb != AVOIDABLE),
+                s["cases"][UNAVOIDABLE],
+                s["collisions"][UNAVOIDABLE],
+            ]
+        )
+    lines.append(
+        markdown_table(
+            [
+                "controller",
+                "avoidable cases",
+                "collisions there",
+                "floor violations there",
+                "other cases",
+                "collisions there",
+                "of them unavoidable",
+                "collisions there",
+            ],
+            rows,
+        )
+    )
     bad = [r for r in out.rows if r.collision or r.floor_violation_samples > 0]
     if bad:
-        lines.append("\nRuns with a collision or a floor violation (an avoidable case among them is a failure, **bold**):\n")
-        lines.append(markdown_table(
-            ["case", "controller", "label", "bound min gap [m]", "collision t [s]", "impact speed [m/s]", "min gap [m]",
-             "below floor [s]", "peak decel [m/s²]"],
-            [[f"**{r.case}**" if r.failed else r.case, r.controller, r.label, _f(r.bound_min_gap_m), _f(r.collision_time_s),
-              _f(r.impact_speed_mps), _f(r.min_gap_m), _f(r.floor_violation_s), _f(r.peak_decel_mps2)] for r in bad]))
+        lines.append(
+            "\nRuns with a collision or a floor violation (an avoidable case among them is a failure, **bold**):\n"
+        )
+        lines.append(
+            markdown_table(
+                [
+                    "case",
+                    "controller",
+                    "label",
+                    "bound min gap [m]",
+                    "collision t [s]",
+                    "impact speed [m/s]",
+                    "min gap [m]",
+                    "below floor [s]",
+                    "peak decel [m/s²]",
+                ],
+                [
+                    [
+                        f"**{r.case}**" if r.failed else r.case,
+                        r.controller,
+                        r.label,
+                        _f(r.bound_min_gap_m),
+                        _f(r.collision_time_s),
+                        _f(r.impact_speed_mps),
+                        _f(r.min_gap_m),
+                        _f(r.floor_violation_s),
+                        _f(r.peak_decel_mps2),
+                    ]
+                    for r in bad
+                ],
+            )
+        )
     lines.append("\nPer family (worst over the family's cases; min TTC over all cases):\n")
     fam_rows = []
     for fam in FAMILIES:
@@ -89,13 +147,37 @@ def markdown(out: SuiteOutput, heading: str = "##") -> str:
             rs = [r for r in out.rows if r.family == fam and r.controller == c]
             if not rs:
                 continue
-            fam_rows.append([fam, c, len(rs), sum(r.collision for r in rs), _f(min(r.min_gap_m for r in rs)),
-                             _f(min(r.min_ttc_s for r in rs)), _f(max(r.peak_decel_mps2 for r in rs)),
-                             _f(max(r.peak_jerk_mps3 for r in rs), 0)])
-    lines.append(markdown_table(["family", "controller", "cases", "collisions", "min gap [m]", "min TTC [s]",
-                                 "peak decel [m/s²]", "peak jerk [m/s³]"], fam_rows))
-    lines.append("\nEvery row of every case: `safety.csv` / `safety.json`. Peak jerk is sampled (Δa/Δt between "
-                 "samples: the laws' 8.8 ms output spacing, the MPC's 88 ms steps).\n")
+            fam_rows.append(
+                [
+                    fam,
+                    c,
+                    len(rs),
+                    sum(r.collision for r in rs),
+                    _f(min(r.min_gap_m for r in rs)),
+                    _f(min(r.min_ttc_s for r in rs)),
+                    _f(max(r.peak_decel_mps2 for r in rs)),
+                    _f(max(r.peak_jerk_mps3 for r in rs), 0),
+                ]
+            )
+    lines.append(
+        markdown_table(
+            [
+                "family",
+                "controller",
+                "cases",
+                "collisions",
+                "min gap [m]",
+                "min TTC [s]",
+                "peak decel [m/s²]",
+                "peak jerk [m/s³]",
+            ],
+            fam_rows,
+        )
+    )
+    lines.append(
+        "\nEvery row of every case: `safety.csv` / `safety.json`. Peak jerk is sampled (Δa/Δt between "
+        "samples: the laws' 8.8 ms output spacing, the MPC's 88 ms steps).\n"
+    )
     return "\n".join(lines)
 
 
@@ -110,8 +192,12 @@ def plot_family(out: SuiteOutput, family: str, path: Path) -> Path | None:
     ax.plot(x, bound, "k_", ms=10, mew=2, label="bound (max braking from t = 0)")
     ctrls = out.settings["controllers"]
     for j, ctrl in enumerate(ctrls):
-        ys = [next((r.min_gap_m for r in out.rows if r.case == c.name and r.controller == ctrl), math.nan) for c in cases]
-        coll = [next((r.collision for r in out.rows if r.case == c.name and r.controller == ctrl), False) for c in cases]
+        ys = [
+            next((r.min_gap_m for r in out.rows if r.case == c.name and r.controller == ctrl), math.nan) for c in cases
+        ]
+        coll = [
+            next((r.collision for r in out.rows if r.case == c.name and r.controller == ctrl), False) for c in cases
+        ]
         style = LAW_STYLE.get(ctrl, {})
         off = (j - (len(ctrls) - 1) / 2) * 0.18
         ax.scatter(x + off, ys, s=14, color=style.get("color"), label=ctrl, zorder=3)
@@ -137,11 +223,21 @@ def write_outputs(out: SuiteOutput, folder: str | Path, plots: bool = True) -> l
     folder.mkdir(parents=True, exist_ok=True)
     names = [f.name for f in dataclasses.fields(CaseRow)]
     rows = [[getattr(r, n) for n in names] for r in out.rows]
-    files = [write_text(folder / "safety.csv", csv_text(names + ["failed"], [row + [r.failed] for row, r in zip(rows, out.rows)])),
-             write_json(folder / "safety.json", {"settings": out.settings, "summary": summary(out),
-                                                 "cases": [dataclasses.asdict(c) for c in out.cases],
-                                                 "rows": [{**dataclasses.asdict(r), "failed": r.failed} for r in out.rows]}),
-             write_text(folder / "safety.md", markdown(out, "#"))]
+    files = [
+        write_text(
+            folder / "safety.csv", csv_text(names + ["failed"], [row + [r.failed] for row, r in zip(rows, out.rows)])
+        ),
+        write_json(
+            folder / "safety.json",
+            {
+                "settings": out.settings,
+                "summary": summary(out),
+                "cases": [dataclasses.asdict(c) for c in out.cases],
+                "rows": [{**dataclasses.asdict(r), "failed": r.failed} for r in out.rows],
+            },
+        ),
+        write_text(folder / "safety.md", markdown(out, "#")),
+    ]
     if plots:
         for fam in FAMILIES:
             p = plot_family(out, fam, folder / f"safety_{fam.replace('-', '')}.png")

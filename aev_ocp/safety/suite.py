@@ -77,8 +77,9 @@ class CaseRow:
         return self.label == AVOIDABLE and (self.collision or self.floor_violation_samples > 0)
 
 
-def _row(case: SafetyCase, ctrl: str, r: SimulationResult, ev: EVParams, bound: Any, wall: float,
-         floor_m: float) -> CaseRow:
+def _row(
+    case: SafetyCase, ctrl: str, r: SimulationResult, ev: EVParams, bound: Any, wall: float, floor_m: float
+) -> CaseRow:
     u = ev.units
     t_s = u.time_to_si(r.t)
     h = u.length_to_si(r.gap[:, 0])
@@ -98,18 +99,38 @@ def _row(case: SafetyCase, ctrl: str, r: SimulationResult, ev: EVParams, bound: 
         ttc = np.where(closing > 1e-9, h / closing, np.inf)
     dts = np.diff(t_s)
     jerk = np.abs(np.diff(a)) / np.where(dts > 0, dts, np.inf) if a.size > 1 else np.zeros(1)
-    below = (h < floor_m - 1e-9)
+    below = h < floor_m - 1e-9
     viol_s = float(np.sum(dts[below[:-1]])) if h.size > 1 else 0.0
     n_below = int(np.sum(below)) + int(coll)  # the contact itself is below the floor (it is not a sample of r)
     if coll and math.isfinite(t_c):
         viol_s += max(0.0, t_c - float(t_s[-1])) if below[-1] else 0.0
     st = (r.solver_stats or [None])[0] or {}
     desc = (r.meta.get("controllers") or [{}])[0] or {}
-    return CaseRow(case.family, case.name, ctrl, bound.label, bound.min_gap_m, r.status, coll, t_c, v_imp, min_gap,
-                   float(np.min(ttc)) if ttc.size else math.inf, float(max(0.0, -np.min(a))), float(np.max(jerk)) if jerk.size else 0.0,
-                   n_below, viol_s, case.v_ego_mps, case.gap_m, case.v_lead_mps, case.a_lead_mps2,
-                   int(st.get("fallbacks", 0) or 0), int((desc.get("safety") or {}).get("limited_steps", 0) or 0), wall,
-                   str(r.events[0]) if r.events else "")
+    return CaseRow(
+        case.family,
+        case.name,
+        ctrl,
+        bound.label,
+        bound.min_gap_m,
+        r.status,
+        coll,
+        t_c,
+        v_imp,
+        min_gap,
+        float(np.min(ttc)) if ttc.size else math.inf,
+        float(max(0.0, -np.min(a))),
+        float(np.max(jerk)) if jerk.size else 0.0,
+        n_below,
+        viol_s,
+        case.v_ego_mps,
+        case.gap_m,
+        case.v_lead_mps,
+        case.a_lead_mps2,
+        int(st.get("fallbacks", 0) or 0),
+        int((desc.get("safety") or {}).get("limited_steps", 0) or 0),
+        wall,
+        str(r.events[0]) if r.events else "",
+    )
 
 
 @dataclass
@@ -127,8 +148,13 @@ class SuiteOutput:
         for c in ctrls:
             mine = [r for r in self.rows if r.controller == c]
             coll = sum(r.collision for r in mine)
-            fields.append((c, f"{len(self.failures(c))} failed of {len(mine)} cases, {coll} collisions, "
-                              f"min gap {min(r.min_gap_m for r in mine):.3g} m"))
+            fields.append(
+                (
+                    c,
+                    f"{len(self.failures(c))} failed of {len(mine)} cases, {coll} collisions, "
+                    f"min gap {min(r.min_gap_m for r in mine):.3g} m",
+                )
+            )
         return f"SuiteOutput: {len(self.cases)} safety cases × {len(ctrls)} controllers", fields
 
     def __repr__(self) -> str:
@@ -138,9 +164,14 @@ class SuiteOutput:
 
     def _repr_html_(self) -> str:
         title, fields = self._repr_fields()
-        return summary_html(title, fields, [{k: getattr(r, k) for k in ("case", "controller", "label", "status",
-                                                                       "min_gap_m", "bound_min_gap_m")}
-                                            for r in self.rows])
+        return summary_html(
+            title,
+            fields,
+            [
+                {k: getattr(r, k) for k in ("case", "controller", "label", "status", "min_gap_m", "bound_min_gap_m")}
+                for r in self.rows
+            ],
+        )
 
     def to_dataframe(self) -> Any:
         """One row per case × controller (the :class:`CaseRow` fields, SI). Needs pandas
@@ -154,10 +185,16 @@ class SuiteOutput:
         return [r for r in self.rows if r.controller == controller and r.failed]
 
 
-def run_suite(cases: Sequence[SafetyCase] | None = None, controllers: Sequence[str] = DEFAULT_CONTROLLERS, *,
-              ev: EVParams | None = None, settings: MPCSettings | None = None,
-              formulation: Formulation | None = None, quick: bool = False,
-              progress: Callable[[str], None] | None = None) -> SuiteOutput:
+def run_suite(
+    cases: Sequence[SafetyCase] | None = None,
+    controllers: Sequence[str] = DEFAULT_CONTROLLERS,
+    *,
+    ev: EVParams | None = None,
+    settings: MPCSettings | None = None,
+    formulation: Formulation | None = None,
+    quick: bool = False,
+    progress: Callable[[str], None] | None = None,
+) -> SuiteOutput:
     """Every case × controller (module docstring). ev: units and vehicle limits (default the cases' units L = 15 m,
     U = 17 m/s with the default :class:`VehicleLimits`); settings: the MPC's solver options (default MPCSettings());
     formulation: the MPC's problem (default the traffic formulation), whose floor the cases are labelled against."""
@@ -179,13 +216,26 @@ def run_suite(cases: Sequence[SafetyCase] | None = None, controllers: Sequence[s
     policy: MPCPolicy | None = None
     if "mpc" in controllers:  # built once, reset by every run (the same policy ClosedLoop would build)
         pred = settings.predictor if settings.predictor != "oracle" else "decaying-acceleration"
-        policy = MPCPolicy(settings, ev, Proposed(), make_predictor(pred, None, settings.predictor_window, u.time_s),
-                           formulation=formulation)
+        policy = MPCPolicy(
+            settings,
+            ev,
+            Proposed(),
+            make_predictor(pred, None, settings.predictor_window, u.time_s),
+            formulation=formulation,
+        )
     rows: list[CaseRow] = []
     runs: dict[str, dict[str, SimulationResult]] = {}
     for k, case in enumerate(cases):
-        bound = braking_bound(case.v_ego_mps, case.gap_m, case.v_lead_mps, case.a_lead_mps2, t_brake_s=case.t_brake_s,
-                              a_min_mps2=a_min, lag_s=lag, floor_m=floor_m)
+        bound = braking_bound(
+            case.v_ego_mps,
+            case.gap_m,
+            case.v_lead_mps,
+            case.a_lead_mps2,
+            t_brake_s=case.t_brake_s,
+            a_min_mps2=a_min,
+            lag_s=lag,
+            floor_m=floor_m,
+        )
         leader = BrakingLeader.from_si(case.v_lead_mps, case.a_lead_mps2, case.t_brake_s, u)
         h0, v0 = float(u.length_from_si(case.gap_m)), float(u.speed_from_si(case.v_ego_mps))
         runs[case.name] = {}
@@ -197,14 +247,22 @@ def run_suite(cases: Sequence[SafetyCase] | None = None, controllers: Sequence[s
                 t_end = dt * max(1, round(float(u.time_from_si(case.t_end_s)) / dt))
                 r = ClosedLoop(leader, [policy], ev).run([h0], [v0], t_end)
             else:
-                r = simulate_platoon(leader, [_law(ctrl)], [h0], [v0], float(u.time_from_si(case.t_end_s)), ev=ev,
-                                     dt_out=LAW_DT_OUT)
+                r = simulate_platoon(
+                    leader, [_law(ctrl)], [h0], [v0], float(u.time_from_si(case.t_end_s)), ev=ev, dt_out=LAW_DT_OUT
+                )
             row = _row(case, ctrl, r, ev, bound, time.perf_counter() - tic, floor_m)
             rows.append(row)
             runs[case.name][ctrl] = r
         if progress is not None:
             progress(f"case {k + 1}/{len(cases)} {case.name}")
-    st = {"units": {"length_m": u.length_m, "speed_mps": u.speed_mps}, "limits": vars(lim) if hasattr(lim, "__dict__") else {},
-          "floor_m": floor_m, "bound_a_min_mps2": a_min, "bound_lag_s": lag, "controllers": list(controllers),
-          "mpc": policy.describe() if policy is not None else None, "quick": quick}
+    st = {
+        "units": {"length_m": u.length_m, "speed_mps": u.speed_mps},
+        "limits": vars(lim) if hasattr(lim, "__dict__") else {},
+        "floor_m": floor_m,
+        "bound_a_min_mps2": a_min,
+        "bound_lag_s": lag,
+        "controllers": list(controllers),
+        "mpc": policy.describe() if policy is not None else None,
+        "quick": quick,
+    }
     return SuiteOutput(rows, st, runs, cases)

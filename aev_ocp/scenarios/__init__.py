@@ -63,22 +63,57 @@ from .files import MAX_FILE_BYTES, load_scenario, load_with_sets, read_scenario_
 from .followers import _carfollowing, _platoon
 from .leader import LEADER_KINDS, _leader, _trace
 from .platoon import Scenario, apply_to_scenario, check_leader_speed, parse_scenario
-from .sections import (SECTION_PROVIDERS, STANDALONE_SECTIONS, SectionValidator, register_section,
-                       registered_sections)
-from .shipped import (PACKAGED_DIR_NAME, SCENARIO_DIR_NAME, find_scenario, iter_shipped, packaged_scenario_dir,
-                      scenario_dirs, shipped_scenarios)
+from .sections import SECTION_PROVIDERS, STANDALONE_SECTIONS, SectionValidator, register_section, registered_sections
+from .shipped import (
+    PACKAGED_DIR_NAME,
+    SCENARIO_DIR_NAME,
+    find_scenario,
+    iter_shipped,
+    packaged_scenario_dir,
+    scenario_dirs,
+    shipped_scenarios,
+)
 from .size import MAX_SAMPLES, MIN_SAMPLES, check_run_size, thinned_dt_out
 from .tables import ScenarioError, ScenarioWarning, TableReader, _params, read_declared
 from .vehicle import read_ev, standalone_header
 
 __all__ = [
-    "DEFAULT_MEMORY_LIMIT_GB", "LEADER_KINDS", "MAX_FILE_BYTES", "MAX_SAMPLES", "MIN_SAMPLES", "PACKAGED_DIR_NAME",
-    "SCENARIO_DIR_NAME", "SECTION_PROVIDERS", "SI_TWINS", "STANDALONE_SECTIONS", "Scenario", "ScenarioError",
-    "ScenarioWarning", "SectionValidator", "TableReader", "apply_to_scenario", "check_leader_speed",
-    "check_run_size", "estimate_run_bytes", "find_scenario", "iter_shipped", "load_scenario", "load_with_sets",
-    "memory_limit_bytes", "packaged_scenario_dir", "parse_scenario", "read_declared", "read_ev",
-    "read_scenario_doc", "read_scenario_text", "register_section", "registered_sections", "scenario_dirs",
-    "shipped_scenarios", "si_twin", "standalone_header", "thinned_dt_out",
+    "DEFAULT_MEMORY_LIMIT_GB",
+    "LEADER_KINDS",
+    "MAX_FILE_BYTES",
+    "MAX_SAMPLES",
+    "MIN_SAMPLES",
+    "PACKAGED_DIR_NAME",
+    "SCENARIO_DIR_NAME",
+    "SECTION_PROVIDERS",
+    "SI_TWINS",
+    "STANDALONE_SECTIONS",
+    "Scenario",
+    "ScenarioError",
+    "ScenarioWarning",
+    "SectionValidator",
+    "TableReader",
+    "apply_to_scenario",
+    "check_leader_speed",
+    "check_run_size",
+    "estimate_run_bytes",
+    "find_scenario",
+    "iter_shipped",
+    "load_scenario",
+    "load_with_sets",
+    "memory_limit_bytes",
+    "packaged_scenario_dir",
+    "parse_scenario",
+    "read_declared",
+    "read_ev",
+    "read_scenario_doc",
+    "read_scenario_text",
+    "register_section",
+    "registered_sections",
+    "scenario_dirs",
+    "shipped_scenarios",
+    "si_twin",
+    "standalone_header",
+    "thinned_dt_out",
 ]
 __all__ += ["_carfollowing", "_leader", "_params", "_platoon", "_trace"]  # used by the other scenario forms
-

@@ -27,9 +27,11 @@ def read_scenario_text(p: Path, file: str) -> str:
     try:
         return data.decode("utf-8")
     except UnicodeDecodeError as exc:
-        line = data[:exc.start].count(b"\n") + 1
-        raise ScenarioError(f"{file}: not a text file in UTF-8 (byte 0x{data[exc.start]:02x} at line {line}); "
-                            "scenario files are UTF-8 TOML") from None
+        line = data[: exc.start].count(b"\n") + 1
+        raise ScenarioError(
+            f"{file}: not a text file in UTF-8 (byte 0x{data[exc.start]:02x} at line {line}); "
+            "scenario files are UTF-8 TOML"
+        ) from None
 
 
 def read_scenario_doc(p: Path, file: str) -> dict[str, Any]:

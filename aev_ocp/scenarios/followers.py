@@ -23,8 +23,12 @@ def _carfollowing(r: TableReader) -> tuple[CarFollowingParams, dict[str, dict[st
         if key in coeffs:
             continue
         if key.lower() not in LAW_REGISTRY:
-            raise r.error(key, value, f"unknown key: allowed are {sorted(coeffs)} or a sub-table named after "
-                                      f"a law, one of {sorted(LAW_REGISTRY)}")
+            raise r.error(
+                key,
+                value,
+                f"unknown key: allowed are {sorted(coeffs)} or a sub-table named after "
+                f"a law, one of {sorted(LAW_REGISTRY)}",
+            )
         sub = r.sub(key, required=True)
         ov = {k: sub.number(k) for k in list(sub.table)}
         try:
@@ -41,10 +45,15 @@ def _per_vehicle(r: TableReader, n: int, list_key: str, values: list[float] | No
     return values
 
 
-def _platoon(r: TableReader, leader: LeaderProfile, cf: CarFollowingParams,
-             overrides: dict[str, dict[str, float]], compare: tuple[str, ...] = (),
-             size: Callable[[int], None] | None = None, units: Units | None = None
-             ) -> tuple[tuple[CarFollowingLaw, ...], list[float], list[float]]:
+def _platoon(
+    r: TableReader,
+    leader: LeaderProfile,
+    cf: CarFollowingParams,
+    overrides: dict[str, dict[str, float]],
+    compare: tuple[str, ...] = (),
+    size: Callable[[int], None] | None = None,
+    units: Units | None = None,
+) -> tuple[tuple[CarFollowingLaw, ...], list[float], list[float]]:
     laws_known = sorted(LAW_REGISTRY)
     if r.has("laws") and r.has("law"):
         raise r.error("laws", r.table["laws"], "give either platoon.law (all followers) or platoon.laws, not both")
@@ -56,14 +65,22 @@ def _platoon(r: TableReader, leader: LeaderProfile, cf: CarFollowingParams,
         if size is not None:
             size(n)
         if compare:  # a mixed platoon never runs when compare is set: say so instead of ignoring it
-            raise r.error("laws", r.table["laws"], f"cannot be combined with compare = {list(compare)}, which runs "
-                                                   "the whole platoon once per compared law; remove one of them")
+            raise r.error(
+                "laws",
+                r.table["laws"],
+                f"cannot be combined with compare = {list(compare)}, which runs "
+                "the whole platoon once per compared law; remove one of them",
+            )
     else:
         n = r.integer("followers", ge=1)
         law_name = r.string("law", "proposed", choices=laws_known)
         if compare and r.has("law") and law_name not in compare:
-            raise r.error("law", r.table["law"], f"is never run: compare = {list(compare)} runs the whole platoon "
-                                                 f"once per compared law; add {law_name!r} to compare, or remove compare")
+            raise r.error(
+                "law",
+                r.table["law"],
+                f"is never run: compare = {list(compare)} runs the whole platoon "
+                f"once per compared law; add {law_name!r} to compare, or remove compare",
+            )
         if size is not None:
             size(n)  # refuse an oversized platoon before building anything of its size
         names = [law_name] * n
@@ -78,19 +95,24 @@ def _platoon(r: TableReader, leader: LeaderProfile, cf: CarFollowingParams,
     part = [k for k in ("gap0_first", "gap0_first_m", "gap0_others", "gap0_others_m") if r.has(k)]
     if len(whole) > 1 or (whole and part):
         other = (whole[1:] + part)[0]
-        raise r.error(other, r.table[other], f"give one of platoon.gap0 (every follower), platoon.gaps0 (one per "
-                                             f"follower) or gap0_first/gap0_others (each also in m as *_m); "
-                                             f"{r.key_path(whole[0])} is given too")
+        raise r.error(
+            other,
+            r.table[other],
+            f"give one of platoon.gap0 (every follower), platoon.gaps0 (one per "
+            f"follower) or gap0_first/gap0_others (each also in m as *_m); "
+            f"{r.key_path(whole[0])} is given too",
+        )
     if r.has_quantity("gaps0"):
-        gaps = _per_vehicle(r, n, tw["gaps0"][0] if r.has(tw["gaps0"][0]) else "gaps0",
-                            r.quantities("gaps0", u, gt=0))
+        gaps = _per_vehicle(r, n, tw["gaps0"][0] if r.has(tw["gaps0"][0]) else "gaps0", r.quantities("gaps0", u, gt=0))
     elif r.has_quantity("gap0"):
         gaps = [r.quantity("gap0", u, gt=0)] * n
     else:
         if not part:
-            raise ScenarioError(f"{r.file}: {r.path}: the initial gaps are missing: give gap0_first (model length) "
-                                "or gap0_first_m [m] (and optionally gap0_others / gap0_others_m), gap0 / gap0_m "
-                                "(every follower) or gaps0 / gaps0_m (one per follower)")
+            raise ScenarioError(
+                f"{r.file}: {r.path}: the initial gaps are missing: give gap0_first (model length) "
+                "or gap0_first_m [m] (and optionally gap0_others / gap0_others_m), gap0 / gap0_m "
+                "(every follower) or gaps0 / gaps0_m (one per follower)"
+            )
         first = r.quantity("gap0_first", u, gt=0)
         others = r.quantity("gap0_others", u, first, gt=0)
         gaps = [first] + [others] * (n - 1)
@@ -99,9 +121,11 @@ def _platoon(r: TableReader, leader: LeaderProfile, cf: CarFollowingParams,
     r._twin("speed0"), r._twin("speeds0")  # a key and its SI twin together: an error naming both
     given = [k for k in ("speed0", "speed0_mps", "speed0_factor", "speeds0", "speeds0_mps") if r.has(k)]
     if len(given) != 1:
-        raise ScenarioError(f"{r.file}: {r.path}: give exactly one of speed0 (model speed) or speed0_mps [m/s], "
-                            f"speed0_factor (× the leader's initial speed) or speeds0 / speeds0_mps (one per "
-                            f"follower); got {given or 'none'}")
+        raise ScenarioError(
+            f"{r.file}: {r.path}: give exactly one of speed0 (model speed) or speed0_mps [m/s], "
+            f"speed0_factor (× the leader's initial speed) or speeds0 / speeds0_mps (one per "
+            f"follower); got {given or 'none'}"
+        )
     if given[0].startswith("speeds0"):
         speeds = _per_vehicle(r, n, given[0], r.quantities("speeds0", u, ge=0))
     elif given[0].startswith("speed0") and given[0] != "speed0_factor":

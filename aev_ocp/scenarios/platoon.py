@@ -77,11 +77,19 @@ class Scenario:
 
     def simulate_kwargs(self) -> dict[str, Any]:
         """Keyword arguments for :func:`aev_ocp.simulate.simulate_platoon` (besides leader and laws)."""
-        return {"gaps0": list(self.gaps0), "speeds0": list(self.speeds0), "t_end": self.t_end,
-                "ev": self.ev, "dt_out": self.dt_out, "rtol": self.rtol, "atol": self.atol}
+        return {
+            "gaps0": list(self.gaps0),
+            "speeds0": list(self.speeds0),
+            "t_end": self.t_end,
+            "ev": self.ev,
+            "dt_out": self.dt_out,
+            "rtol": self.rtol,
+            "atol": self.atol,
+        }
 
-    def run(self, progress: Callable[[str, float, float], None] | None = None, *, only: str | None = None,
-            **overrides: Any) -> dict[str, Any]:
+    def run(
+        self, progress: Callable[[str, float, float], None] | None = None, *, only: str | None = None, **overrides: Any
+    ) -> dict[str, Any]:
         """Simulate every run of :meth:`runs` (``only``: just the run of that label); returns {label: SimulationResult}.
 
         progress(label, t, t_end) is called as each run advances [model time]; ``overrides`` replace
@@ -90,8 +98,7 @@ class Scenario:
         from ..simulate import simulate_platoon
 
         base = {**self.simulate_kwargs(), **overrides}
-        check_run_size(self.n_followers, float(base["t_end"]), float(base["dt_out"]),
-                       str(self.source or self.name))
+        check_run_size(self.n_followers, float(base["t_end"]), float(base["dt_out"]), str(self.source or self.name))
         out: dict[str, Any] = {}
         runs = self.runs()
         if only is not None and only not in dict(runs):
@@ -122,8 +129,10 @@ class Scenario:
         """
         unknown = sorted(set(changes) - {f.name for f in dataclasses.fields(self)} - {"document"})
         if unknown:
-            raise ScenarioError(f"{self.file_label}: replace(): unknown field(s) {unknown}; fields are "
-                                f"{[f.name for f in dataclasses.fields(self) if f.name != 'document']}")
+            raise ScenarioError(
+                f"{self.file_label}: replace(): unknown field(s) {unknown}; fields are "
+                f"{[f.name for f in dataclasses.fields(self) if f.name != 'document']}"
+            )
         changes.pop("document", None)
         keyed = {k: changes.pop(k) for k in list(changes) if k in _REPLACE_KEYS}
         out = self
@@ -137,16 +146,22 @@ class Scenario:
             drop_document: dict[str, Any] = {"document": None} if stale else {}
             fixed = dataclasses.replace(out, **changes, **drop_document)
             if "units" not in keyed and "ev" in changes and changes["ev"].units != fixed.units:
-                raise ScenarioError(f"{self.file_label}: replace(ev=...): ev.units ({changes['ev'].units}) differ "
-                                    f"from the scenario's units ({fixed.units}); pass units= too")
+                raise ScenarioError(
+                    f"{self.file_label}: replace(ev=...): ev.units ({changes['ev'].units}) differ "
+                    f"from the scenario's units ({fixed.units}); pass units= too"
+                )
             if "laws" in changes and fixed.compare:
-                raise ScenarioError(f"{self.file_label}: replace(laws=...) would be ignored: the scenario sets "
-                                    f"compare = {list(fixed.compare)}, so every run uses those laws; "
-                                    "pass compare=() too")
+                raise ScenarioError(
+                    f"{self.file_label}: replace(laws=...) would be ignored: the scenario sets "
+                    f"compare = {list(fixed.compare)}, so every run uses those laws; "
+                    "pass compare=() too"
+                )
             n = len(fixed.laws)
             if len(fixed.gaps0) != n or len(fixed.speeds0) != n:
-                raise ScenarioError(f"{self.file_label}: replace(): {n} laws but {len(fixed.gaps0)} gaps0 and "
-                                    f"{len(fixed.speeds0)} speeds0; give one of each per follower")
+                raise ScenarioError(
+                    f"{self.file_label}: replace(): {n} laws but {len(fixed.gaps0)} gaps0 and "
+                    f"{len(fixed.speeds0)} speeds0; give one of each per follower"
+                )
             out = fixed
         return out
 
@@ -158,8 +173,14 @@ _REPLACE_KEYS = ("name", "description", "compare", "units", "cf", "law_overrides
 def _replace_overrides(keyed: dict[str, Any]) -> dict[str, Any]:
     """replace() arguments of the file-keyed fields as dotted-path overrides."""
     ov: dict[str, Any] = {}
-    simple = {"name": "name", "description": "description", "t_end": "simulation.t_end",
-              "dt_out": "simulation.dt_out", "rtol": "simulation.rtol", "atol": "simulation.atol"}
+    simple = {
+        "name": "name",
+        "description": "description",
+        "t_end": "simulation.t_end",
+        "dt_out": "simulation.dt_out",
+        "rtol": "simulation.rtol",
+        "atol": "simulation.atol",
+    }
     for k, v in keyed.items():
         if k in simple:
             ov[simple[k]] = v
@@ -185,9 +206,11 @@ def _replace_without_document(sc: "Scenario", keyed: dict[str, Any]) -> "Scenari
         out = dataclasses.replace(out, laws=laws)
     if "units" in keyed:
         if not isinstance(out.leader, (ConstantSpeed, PaperLeader)):
-            raise ScenarioError(f"{sc.file_label}: replace(units=...): the leader ({type(out.leader).__name__}) "
-                                "was converted with the old units and this scenario has no document to rebuild "
-                                "it from; pass leader= too, or load the scenario from a file")
+            raise ScenarioError(
+                f"{sc.file_label}: replace(units=...): the leader ({type(out.leader).__name__}) "
+                "was converted with the old units and this scenario has no document to rebuild "
+                "it from; pass leader= too, or load the scenario from a file"
+            )
         out = dataclasses.replace(out, ev=dataclasses.replace(out.ev, units=out.units))
     return out
 
@@ -196,8 +219,9 @@ def parse_scenario(doc: dict[str, Any], file: str = "<scenario>", *, source: Pat
     """Validate a parsed TOML document (``file`` names it in messages) into a :class:`Scenario`."""
     for key, command in STANDALONE_SECTIONS.items():
         if key in doc:
-            raise ScenarioError(f"{file}: a {key} scenario (it has a [{key}] table), not a platoon: run it with "
-                                f"'{command} {file}'")
+            raise ScenarioError(
+                f"{file}: a {key} scenario (it has a [{key}] table), not a platoon: run it with '{command} {file}'"
+            )
     _check_top_level(doc, file)
     top = TableReader(doc, "", file)
     if top.has("name"):
@@ -228,9 +252,11 @@ def parse_scenario(doc: dict[str, Any], file: str = "<scenario>", *, source: Pat
     opts = dataclasses.replace(SimOptions(), **declared)
     dt_out, rtol, atol = opts.dt_out, opts.rtol, opts.atol
     if dt_out > t_end:
-        raise sim.error("dt_out_s" if dt_si else "dt_out", sim.table["dt_out_s" if dt_si else "dt_out"],
-                        f"must be <= the horizon (simulation.t_end = {t_end:g} model time = "
-                        f"{units.time_to_si(t_end):g} s)")
+        raise sim.error(
+            "dt_out_s" if dt_si else "dt_out",
+            sim.table["dt_out_s" if dt_si else "dt_out"],
+            f"must be <= the horizon (simulation.t_end = {t_end:g} model time = {units.time_to_si(t_end):g} s)",
+        )
     sim.finish()
 
     cf, overrides = _carfollowing(top.sub("carfollowing"))
@@ -245,9 +271,13 @@ def parse_scenario(doc: dict[str, Any], file: str = "<scenario>", *, source: Pat
     used = set(compare) | {law.name for law in laws} | {"proposed"}  # proposed: the MPC's fallback law
     for law_name in overrides:
         if law_name not in used:
-            warnings.warn(ScenarioWarning(
-                f"{file}: carfollowing.{law_name} sets coefficients of law {law_name!r}, which no run uses "
-                f"(runs: {sorted(set(compare) or {law.name for law in laws})})"), stacklevel=2)
+            warnings.warn(
+                ScenarioWarning(
+                    f"{file}: carfollowing.{law_name} sets coefficients of law {law_name!r}, which no run uses "
+                    f"(runs: {sorted(set(compare) or {law.name for law in laws})})"
+                ),
+                stacklevel=2,
+            )
 
     extra: dict[str, Any] = {}
     for sec, validator in _SECTIONS.items():
@@ -262,10 +292,26 @@ def parse_scenario(doc: dict[str, Any], file: str = "<scenario>", *, source: Pat
             reader.finish()
     top.finish()
 
-    scenario = Scenario(name=name, description=description, units=units, leader=leader, laws=laws,
-                        gaps0=tuple(gaps), speeds0=tuple(speeds), t_end=t_end, ev=ev, dt_out=dt_out,
-                        rtol=rtol, atol=atol, compare=compare, cf=cf, law_overrides=overrides, extra=extra,
-                        source=source, document=copy.deepcopy(doc))
+    scenario = Scenario(
+        name=name,
+        description=description,
+        units=units,
+        leader=leader,
+        laws=laws,
+        gaps0=tuple(gaps),
+        speeds0=tuple(speeds),
+        t_end=t_end,
+        ev=ev,
+        dt_out=dt_out,
+        rtol=rtol,
+        atol=atol,
+        compare=compare,
+        cf=cf,
+        law_overrides=overrides,
+        extra=extra,
+        source=source,
+        document=copy.deepcopy(doc),
+    )
     check_leader_speed(scenario, file)
     return scenario
 
@@ -275,11 +321,15 @@ def check_leader_speed(scenario: Scenario, file: str = "<scenario>") -> float:
     v_max = scenario.leader.max_speed(scenario.t_end)
     if v_max >= V_INF:
         u = scenario.units
-        warnings.warn(ScenarioWarning(
-            f"{file}: the leader reaches {v_max:.4g} model speed ({u.speed_to_si(v_max):.4g} m/s), at or above "
-            f"V∞ = 1 + tanh 2 = {V_INF:.4f} ({u.speed_to_si(V_INF):.4g} m/s with units.speed_mps = "
-            f"{u.speed_mps:g}): no optimal-velocity law can keep up; raise units.speed_mps above "
-            f"{u.speed_to_si(v_max) / V_INF:.4g}"), stacklevel=3)
+        warnings.warn(
+            ScenarioWarning(
+                f"{file}: the leader reaches {v_max:.4g} model speed ({u.speed_to_si(v_max):.4g} m/s), at or above "
+                f"V∞ = 1 + tanh 2 = {V_INF:.4f} ({u.speed_to_si(V_INF):.4g} m/s with units.speed_mps = "
+                f"{u.speed_mps:g}): no optimal-velocity law can keep up; raise units.speed_mps above "
+                f"{u.speed_to_si(v_max) / V_INF:.4g}"
+            ),
+            stacklevel=3,
+        )
     return v_max
 
 
@@ -288,9 +338,11 @@ def apply_to_scenario(scenario: Scenario, overrides: Mapping[str, Any]) -> Scena
 
     The scenario must come from a document (a file, or :func:`aev_ocp.scenarios.parse_scenario`)."""
     if scenario.document is None:
-        raise ScenarioError(f"{scenario.name}: overrides need the scenario's TOML document; this scenario was "
-                            "built in Python or changed with replace(leader=..., laws=..., ...), which no "
-                            "document describes")
+        raise ScenarioError(
+            f"{scenario.name}: overrides need the scenario's TOML document; this scenario was "
+            "built in Python or changed with replace(leader=..., laws=..., ...), which no "
+            "document describes"
+        )
     file = scenario.file_label
     doc = apply_to_document(scenario.document, overrides, file)
     return parse_scenario(doc, file, source=scenario.source)

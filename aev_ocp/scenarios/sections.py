@@ -10,13 +10,27 @@ from .tables import ScenarioError, TableReader, _type_name
 
 SectionValidator = Callable[[TableReader], Any]
 _SECTIONS: dict[str, SectionValidator] = {}
-_CORE_TABLES = ("units", "leader", "platoon", "carfollowing", "simulation", "vehicle", "cell", "pack", "limits",
-                "thermal")
+_CORE_TABLES = (
+    "units",
+    "leader",
+    "platoon",
+    "carfollowing",
+    "simulation",
+    "vehicle",
+    "cell",
+    "pack",
+    "limits",
+    "thermal",
+)
 _CORE_KEYS = ("name", "description", "compare")
 # Modules that register extra sections on import; imported on demand the first time their table
 # appears (the loader's registry: it imports no section's code itself).
-SECTION_PROVIDERS: dict[str, str] = {"mpc": "aev_ocp.mpc.scenario", "ring": "aev_ocp.ring.scenario",
-                                     "mismatch": "aev_ocp.estimation.scenario", "sensors": "aev_ocp.estimation.scenario"}
+SECTION_PROVIDERS: dict[str, str] = {
+    "mpc": "aev_ocp.mpc.scenario",
+    "ring": "aev_ocp.ring.scenario",
+    "mismatch": "aev_ocp.estimation.scenario",
+    "sensors": "aev_ocp.estimation.scenario",
+}
 #: Registered sections that describe a whole run of their own (no [leader], [platoon], [simulation]; their own
 #: loader) -> the command that runs such a file. The platoon loader refuses them with that pointer, and
 #: :func:`shipped_scenarios` lists them only when asked.
@@ -57,8 +71,11 @@ def _check_top_level(doc: dict[str, Any], file: str) -> None:
             continue
         if key in _CORE_TABLES or key in _SECTIONS:
             if not isinstance(value, dict):
-                raise ScenarioError(f"{file}: {key} = {value!r} is not allowed: expected a table [{key}], "
-                                    f"got a {_type_name(value)}")
+                raise ScenarioError(
+                    f"{file}: {key} = {value!r} is not allowed: expected a table [{key}], got a {_type_name(value)}"
+                )
             continue
-        raise ScenarioError(f"{file}: unknown top-level key or table {key!r}; allowed: "
-                            f"{sorted(_CORE_KEYS + _CORE_TABLES + tuple(_SECTIONS))}")
+        raise ScenarioError(
+            f"{file}: unknown top-level key or table {key!r}; allowed: "
+            f"{sorted(_CORE_KEYS + _CORE_TABLES + tuple(_SECTIONS))}"
+        )

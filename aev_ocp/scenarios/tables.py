@@ -22,14 +22,20 @@ class ScenarioWarning(UserWarning):
 
 _MISSING = object()
 
+
 def _from_si(units: Units, dim: str) -> Callable[[float], float]:
-    return {"time": units.time_from_si, "length": units.length_from_si, "speed": units.speed_from_si,
-            "accel": units.accel_from_si}[dim]
+    return {
+        "time": units.time_from_si,
+        "length": units.length_from_si,
+        "speed": units.speed_from_si,
+        "accel": units.accel_from_si,
+    }[dim]
 
 
 def _type_name(value: Any) -> str:
-    return {bool: "boolean", int: "integer", float: "float", str: "string", list: "array",
-            dict: "table"}.get(type(value), type(value).__name__)
+    return {bool: "boolean", int: "integer", float: "float", str: "string", list: "array", dict: "table"}.get(
+        type(value), type(value).__name__
+    )
 
 
 class TableReader:
@@ -65,24 +71,45 @@ class TableReader:
         return default
 
     # -- typed getters -------------------------------------------------------------------
-    def number(self, key: str, default: Any = _MISSING, *, gt: float | None = None, ge: float | None = None,
-               lt: float | None = None, le: float | None = None) -> float:
+    def number(
+        self,
+        key: str,
+        default: Any = _MISSING,
+        *,
+        gt: float | None = None,
+        ge: float | None = None,
+        lt: float | None = None,
+        le: float | None = None,
+    ) -> float:
         """A finite float (integers accepted) within the given bounds."""
         value = self._get(key, default)
         if value is default and key not in self.table:
             return value
         return self.check_number(key, value, gt=gt, ge=ge, lt=lt, le=le)
 
-    def check_number(self, key: str, value: Any, *, gt: float | None = None, ge: float | None = None,
-                     lt: float | None = None, le: float | None = None) -> float:
+    def check_number(
+        self,
+        key: str,
+        value: Any,
+        *,
+        gt: float | None = None,
+        ge: float | None = None,
+        lt: float | None = None,
+        le: float | None = None,
+    ) -> float:
         """Validate one number against bounds; ``key`` is only used in the message."""
         bounds = [f"{op} {b:g}" for op, b in ((">", gt), (">=", ge), ("<", lt), ("<=", le)) if b is not None]
         allowed = "a finite number" + (" " + " and ".join(bounds) if bounds else "")
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise self.error(key, value, f"expected {allowed}, got a {_type_name(value)}")
         x = float(value)
-        ok = (math.isfinite(x) and (gt is None or x > gt) and (ge is None or x >= ge)
-              and (lt is None or x < lt) and (le is None or x <= le))
+        ok = (
+            math.isfinite(x)
+            and (gt is None or x > gt)
+            and (ge is None or x >= ge)
+            and (lt is None or x < lt)
+            and (le is None or x <= le)
+        )
         if not ok:
             raise self.error(key, value, f"must be {allowed}")
         return x
@@ -129,8 +156,9 @@ class TableReader:
             raise self.error(key, value, f"expected true or false, got a {_type_name(value)}")
         return value
 
-    def numbers(self, key: str, default: Any = _MISSING, *, min_len: int = 1, gt: float | None = None,
-                ge: float | None = None) -> list[float]:
+    def numbers(
+        self, key: str, default: Any = _MISSING, *, min_len: int = 1, gt: float | None = None, ge: float | None = None
+    ) -> list[float]:
         """A non-empty array of finite numbers, each within the bounds."""
         value = self._get(key, default)
         if value is default and key not in self.table:
@@ -144,16 +172,20 @@ class TableReader:
     def _twin(self, key: str) -> tuple[str, str]:
         si, dim = SI_TWINS[self.path][key]
         if self.has(key) and self.has(si):
-            raise self.error(si, self.table[si], f"give either {self.key_path(key)} [model units] or "
-                                                 f"{self.key_path(si)} [SI], not both")
+            raise self.error(
+                si,
+                self.table[si],
+                f"give either {self.key_path(key)} [model units] or {self.key_path(si)} [SI], not both",
+            )
         return si, dim
 
     def has_quantity(self, key: str) -> bool:
         """Whether the model-unit ``key`` or its SI twin (:data:`SI_TWINS`) is present."""
         return self.has(key) or self.has(SI_TWINS[self.path][key][0])
 
-    def quantity(self, key: str, units: Units, default: Any = _MISSING, *, gt: float | None = None,
-                 ge: float | None = None) -> float:
+    def quantity(
+        self, key: str, units: Units, default: Any = _MISSING, *, gt: float | None = None, ge: float | None = None
+    ) -> float:
         """The model-unit number ``key`` or its SI twin converted with ``units`` (bounds 0 are the same in
         both); both given is an error naming both keys."""
         si, dim = self._twin(key)
@@ -161,8 +193,16 @@ class TableReader:
             return float(_from_si(units, dim)(self.number(si, gt=gt, ge=ge)))
         return self.number(key, default, gt=gt, ge=ge)
 
-    def quantities(self, key: str, units: Units, default: Any = _MISSING, *, min_len: int = 1,
-                   gt: float | None = None, ge: float | None = None) -> list[float]:
+    def quantities(
+        self,
+        key: str,
+        units: Units,
+        default: Any = _MISSING,
+        *,
+        min_len: int = 1,
+        gt: float | None = None,
+        ge: float | None = None,
+    ) -> list[float]:
         """An array of model-unit numbers ``key`` or its SI twin converted with ``units``."""
         si, dim = self._twin(key)
         if self.has(si):
@@ -199,8 +239,10 @@ class TableReader:
         extra = self.unread()
         if extra:
             known = sorted(allowed_hint if allowed_hint is not None else self._seen)
-            raise ScenarioError(f"{self.file}: unknown key {self.key_path(extra[0])!r} "
-                                f"(= {self.table[extra[0]]!r}); allowed keys here: {known}")
+            raise ScenarioError(
+                f"{self.file}: unknown key {self.key_path(extra[0])!r} "
+                f"(= {self.table[extra[0]]!r}); allowed keys here: {known}"
+            )
 
 
 def read_declared(cls: type, reader: TableReader, keys: Sequence[str] | None = None) -> dict[str, Any]:

@@ -35,19 +35,26 @@ def _cell(r: TableReader, source: Path | None) -> CellParams:
 def read_ev(top: TableReader, source: Path | None) -> EVParams:
     """The vehicle tables every scenario form shares (platoon, ring, SUMO): [units], [vehicle], [cell] (a shipped
     ``name`` or a ``file``, then field overrides), [pack], [limits], [thermal]; absent tables give the defaults."""
-    return EVParams(units=_params(Units, top.sub("units")), vehicle=_params(VehicleParams, top.sub("vehicle")),
-                    cell=_cell(top.sub("cell"), source), pack=_params(PackParams, top.sub("pack")),
-                    limits=_params(VehicleLimits, top.sub("limits")), thermal=_params(ThermalParams, top.sub("thermal")))
+    return EVParams(
+        units=_params(Units, top.sub("units")),
+        vehicle=_params(VehicleParams, top.sub("vehicle")),
+        cell=_cell(top.sub("cell"), source),
+        pack=_params(PackParams, top.sub("pack")),
+        limits=_params(VehicleLimits, top.sub("limits")),
+        thermal=_params(ThermalParams, top.sub("thermal")),
+    )
 
 
-def standalone_header(doc: dict[str, Any], file: str, source: Path | None, allowed: Any,
-                      kind: str) -> tuple[TableReader, str, str, EVParams]:
+def standalone_header(
+    doc: dict[str, Any], file: str, source: Path | None, allowed: Any, kind: str
+) -> tuple[TableReader, str, str, EVParams]:
     """The head of a scenario form with its own command (``kind``: 'ring', 'sumo'): top-level keys checked against
     ``allowed``, then (reader, name, description, EVParams); the name defaults to the file stem made safe."""
     for key in doc:
         if key not in allowed:
-            raise ScenarioError(f"{file}: unknown top-level key or table {key!r} in a {kind} scenario; allowed: "
-                                f"{sorted(allowed)}")
+            raise ScenarioError(
+                f"{file}: unknown top-level key or table {key!r} in a {kind} scenario; allowed: {sorted(allowed)}"
+            )
     top = TableReader(doc, "", file)
     stem = source.stem if source is not None else kind
     name = top.string("name", re.sub(r"[^A-Za-z0-9._+-]", "_", stem).lstrip("._+-")[:100] or kind)

@@ -16,12 +16,46 @@ Python API (model units throughout)::
     m = stability_map(Proposed(), 1.7, "alpha", np.linspace(0, 4, 21), "beta", np.linspace(0, 6, 21))
 """
 
-from .linear import (LinearizedLaw, LinearStability, analyse, analyse_speeds, equilibrium_gap_of,
-                     head_to_tail_criterion, max_gain, partials_function, peak_gain, transfer)
-from .measure import (Attenuation, attenuation_of, fig5_amplitude, linear_prediction, measure, measure_mpc,
-                      sweep_amplitudes)
+from .linear import (
+    LinearizedLaw,
+    LinearStability,
+    analyse,
+    analyse_speeds,
+    equilibrium_gap_of,
+    head_to_tail_criterion,
+    max_gain,
+    partials_function,
+    peak_gain,
+    transfer,
+)
+from .measure import (
+    Attenuation,
+    attenuation_of,
+    fig5_amplitude,
+    linear_prediction,
+    measure,
+    measure_mpc,
+    sweep_amplitudes,
+)
 from .perturbation import PerturbedLeader
 
-__all__ = ["Attenuation", "LinearStability", "LinearizedLaw", "PerturbedLeader", "analyse", "analyse_speeds",
-           "attenuation_of", "equilibrium_gap_of", "fig5_amplitude", "head_to_tail_criterion", "linear_prediction",
-           "max_gain", "measure", "measure_mpc", "partials_function", "peak_gain", "sweep_amplitudes", "transfer"]
+__all__ = [
+    "Attenuation",
+    "LinearStability",
+    "LinearizedLaw",
+    "PerturbedLeader",
+    "analyse",
+    "analyse_speeds",
+    "attenuation_of",
+    "equilibrium_gap_of",
+    "fig5_amplitude",
+    "head_to_tail_criterion",
+    "linear_prediction",
+    "max_gain",
+    "measure",
+    "measure_mpc",
+    "partials_function",
+    "peak_gain",
+    "sweep_amplitudes",
+    "transfer",
+]

@@ -22,11 +22,13 @@ from ..results import write_json
 from .linear import LinearStability, analyse
 from .measure import Attenuation, fig5_amplitude, linear_agreement, linear_prediction, measure, measure_mpc
 
-SIGN_CONVENTION = ("v̇ = f(h, v, Δv) with Δv = v_l − v; f_h = ∂f/∂h, f_v = ∂f/∂v at fixed Δv, f_Δv = ∂f/∂Δv "
-                   "(= ∂f/∂v_l), at (h*, v*, 0); criterion C = f_v²/2 − f_Δv·f_v − f_h, string stable iff C ≥ 0 "
-                   "(and platoon stable: f_h > 0, f_Δv − f_v > 0); G(s) = (f_Δv s + f_h)/(s² + (f_Δv − f_v) s + f_h) "
-                   "from predecessor to follower speed. SI columns first (unit in the name: _mps, _m, _s, _per_s, _per_s2, "
-                   "_rad_per_s; converted with 'units', time unit T = L/U), model-unit columns with a _model suffix.")
+SIGN_CONVENTION = (
+    "v̇ = f(h, v, Δv) with Δv = v_l − v; f_h = ∂f/∂h, f_v = ∂f/∂v at fixed Δv, f_Δv = ∂f/∂Δv "
+    "(= ∂f/∂v_l), at (h*, v*, 0); criterion C = f_v²/2 − f_Δv·f_v − f_h, string stable iff C ≥ 0 "
+    "(and platoon stable: f_h > 0, f_Δv − f_v > 0); G(s) = (f_Δv s + f_h)/(s² + (f_Δv − f_v) s + f_h) "
+    "from predecessor to follower speed. SI columns first (unit in the name: _mps, _m, _s, _per_s, _per_s2, "
+    "_rad_per_s; converted with 'units', time unit T = L/U), model-unit columns with a _model suffix."
+)
 
 
 def units_table(units: Units) -> dict[str, float]:
@@ -42,12 +44,21 @@ def default_amplitudes(v_star: float) -> list[float]:
 
 def coefficient_names(law: CarFollowingLaw) -> list[str]:
     """The law's numeric dataclass fields (its coefficients)."""
-    return [f.name for f in dataclasses.fields(law)
-            if isinstance(getattr(law, f.name), (int, float)) and not isinstance(getattr(law, f.name), bool)]
+    return [
+        f.name
+        for f in dataclasses.fields(law)
+        if isinstance(getattr(law, f.name), (int, float)) and not isinstance(getattr(law, f.name), bool)
+    ]
 
 
-def stability_map(law: CarFollowingLaw, v_star: float, x_name: str, xs: Sequence[float] | np.ndarray, y_name: str,
-                  ys: Sequence[float] | np.ndarray) -> dict[str, np.ndarray]:
+def stability_map(
+    law: CarFollowingLaw,
+    v_star: float,
+    x_name: str,
+    xs: Sequence[float] | np.ndarray,
+    y_name: str,
+    ys: Sequence[float] | np.ndarray,
+) -> dict[str, np.ndarray]:
     """Criterion C and platoon stability of ``law`` with coefficients x_name, y_name set to each grid pair.
 
     Returns arrays of shape (len(ys), len(xs)): 'criterion', 'locally_stable', 'string_stable',
@@ -64,17 +75,23 @@ def stability_map(law: CarFollowingLaw, v_star: float, x_name: str, xs: Sequence
     for i, y in enumerate(Y):
         for j, x in enumerate(X):
             try:
-                lin = analyse(dataclasses.replace(law, **{x_name: float(x), y_name: float(y)}), v_star,
-                              with_peak_gain=False)
+                lin = analyse(
+                    dataclasses.replace(law, **{x_name: float(x), y_name: float(y)}), v_star, with_peak_gain=False
+                )
             except ParameterError:
                 continue
             C[i, j], loc[i, j], gain[i, j] = lin.criterion, lin.locally_stable, lin.max_gain
-    return {"xs": X, "ys": Y, "criterion": C, "locally_stable": loc, "string_stable": loc & (C >= 0),
-            "max_gain": gain}
+    return {"xs": X, "ys": Y, "criterion": C, "locally_stable": loc, "string_stable": loc & (C >= 0), "max_gain": gain}
 
 
-def study_metrics(law: CarFollowingLaw, v_star: float, amplitude: float | None = None, *, units: Units | None = None,
-                  **measure_kw: Any) -> dict[str, Any]:
+def study_metrics(
+    law: CarFollowingLaw,
+    v_star: float,
+    amplitude: float | None = None,
+    *,
+    units: Units | None = None,
+    **measure_kw: Any,
+) -> dict[str, Any]:
     """One flat row for a study: the linear results at v* [model speed], and (if amplitude [model speed]) the
     measured attenuation; SI keys first, converted with ``units`` (default the paper's), model keys after.
 
@@ -85,29 +102,56 @@ def study_metrics(law: CarFollowingLaw, v_star: float, amplitude: float | None =
     u = units or Units()
     lin = analyse(law, v_star)
     band_hi = lin.unstable_band[1] if lin.unstable_band else 0.0
-    row: dict[str, Any] = {"law": law.name, "v_star_mps": float(u.speed_to_si(v_star)),
-                           "h_star_m": float(u.length_to_si(lin.h_star)),
-                           "criterion_per_s2": lin.criterion / u.time_s**2,
-                           "unstable_band_hi_rad_per_s": band_hi / u.time_s,
-                           "string_stable": lin.string_stable, "locally_stable": lin.locally_stable,
-                           "max_gain": lin.max_gain, "peak_gain": lin.peak_gain}
-    model: dict[str, Any] = {"v_star_model": v_star, "h_star_model": lin.h_star, "criterion_model": lin.criterion,
-                             "unstable_band_hi_model": band_hi}
+    row: dict[str, Any] = {
+        "law": law.name,
+        "v_star_mps": float(u.speed_to_si(v_star)),
+        "h_star_m": float(u.length_to_si(lin.h_star)),
+        "criterion_per_s2": lin.criterion / u.time_s**2,
+        "unstable_band_hi_rad_per_s": band_hi / u.time_s,
+        "string_stable": lin.string_stable,
+        "locally_stable": lin.locally_stable,
+        "max_gain": lin.max_gain,
+        "peak_gain": lin.peak_gain,
+    }
+    model: dict[str, Any] = {
+        "v_star_model": v_star,
+        "h_star_model": lin.h_star,
+        "criterion_model": lin.criterion,
+        "unstable_band_hi_model": band_hi,
+    }
     if amplitude is not None:
         a = measure(law, v_star, amplitude, lin=lin, **measure_kw)
-        row.update(amplitude_mps=float(u.speed_to_si(amplitude)), ratio_peak=a.ratio_peak, ratio_l2=a.ratio_l2,
-                   max_step_peak=a.max_step_peak, max_step_l2=a.max_step_l2,
-                   string_stable_measured=a.string_stable_measured, status=a.status)
+        row.update(
+            amplitude_mps=float(u.speed_to_si(amplitude)),
+            ratio_peak=a.ratio_peak,
+            ratio_l2=a.ratio_l2,
+            max_step_peak=a.max_step_peak,
+            max_step_l2=a.max_step_l2,
+            string_stable_measured=a.string_stable_measured,
+            status=a.status,
+        )
         model["amplitude_model"] = amplitude
     return {**row, **model}
 
 
-def run_stability(law: CarFollowingLaw | None, speeds: Sequence[float], out_dir: str | Path | None = None, *,
-                  amplitudes: Sequence[float] | None = None, kind: str = "pulse", omega: float = 0.5 * math.pi,
-                  duration: float = 4.0, n_followers: int = 50, measure_runs: bool = True,
-                  mpc_predictor: str | None = None, region: tuple[str, str] | None = None, region_n: int = 21,
-                  plots: bool = True, progress: Callable[[str], None] | None = None,
-                  units: Units | None = None) -> dict[str, Any]:
+def run_stability(
+    law: CarFollowingLaw | None,
+    speeds: Sequence[float],
+    out_dir: str | Path | None = None,
+    *,
+    amplitudes: Sequence[float] | None = None,
+    kind: str = "pulse",
+    omega: float = 0.5 * math.pi,
+    duration: float = 4.0,
+    n_followers: int = 50,
+    measure_runs: bool = True,
+    mpc_predictor: str | None = None,
+    region: tuple[str, str] | None = None,
+    region_n: int = 21,
+    plots: bool = True,
+    progress: Callable[[str], None] | None = None,
+    units: Units | None = None,
+) -> dict[str, Any]:
     """Everything ``aev-ocp stability`` writes: returns the stability.json document (and writes it and the
     plots into out_dir when given). speeds, amplitudes [model speed], omega [rad/model time], duration [model
     time]; units: the [units] (default the paper's) that convert them to the document's SI keys, which come
@@ -119,15 +163,24 @@ def run_stability(law: CarFollowingLaw | None, speeds: Sequence[float], out_dir:
     u = units or Units()
     T = u.time_s
     si_v = lambda x: f"{u.speed_to_si(x):.4g} m/s ({x:g})"  # noqa: E731 - SI first, the model value in parentheses
-    doc: dict[str, Any] = {"law": law.describe() if law is not None else {"law": f"mpc ({mpc_predictor})"},
-                           "sign_convention": SIGN_CONVENTION, "units": units_table(u),
-                           "experiment": {"kind": kind, "omega_rad_per_s": omega / T, "duration_s": duration * T,
-                                          "n_followers": n_followers, "omega_model": omega, "duration_model": duration,
-                                          "sizes": "peak = max|v_n − v*|, l2 = ‖v_n − v*‖₂; ratio_* = geometric-mean "
-                                                   "step ratio over the platoon, max_step_* = largest step ratio; "
-                                                   "agrees_with_linear: every follower's peak/A within 5 % of the "
-                                                   "linearised law's"},
-                           "speeds": []}
+    doc: dict[str, Any] = {
+        "law": law.describe() if law is not None else {"law": f"mpc ({mpc_predictor})"},
+        "sign_convention": SIGN_CONVENTION,
+        "units": units_table(u),
+        "experiment": {
+            "kind": kind,
+            "omega_rad_per_s": omega / T,
+            "duration_s": duration * T,
+            "n_followers": n_followers,
+            "omega_model": omega,
+            "duration_model": duration,
+            "sizes": "peak = max|v_n − v*|, l2 = ‖v_n − v*‖₂; ratio_* = geometric-mean "
+            "step ratio over the platoon, max_step_* = largest step ratio; "
+            "agrees_with_linear: every follower's peak/A within 5 % of the "
+            "linearised law's",
+        },
+        "speeds": [],
+    }
     lins: list[LinearStability] = []
     series: dict[str, list[Attenuation]] = {}
     linear_refs: dict[str, Attenuation] = {}
@@ -144,18 +197,30 @@ def run_stability(law: CarFollowingLaw | None, speeds: Sequence[float], out_dir:
         amps = list(amplitudes) if amplitudes is not None else default_amplitudes(float(v))
         bad = [a for a in amps if not (isinstance(a, (int, float)) and math.isfinite(a) and 0 < a <= float(v))]
         if bad:
-            raise ParameterError(f"stability: amplitude {bad[0]!r} (model speed) is not allowed at v* = {si_v(v)}: "
-                                 "must be in (0, v*]")
+            raise ParameterError(
+                f"stability: amplitude {bad[0]!r} (model speed) is not allowed at v* = {si_v(v)}: must be in (0, v*]"
+            )
         meas: list[Attenuation] = []
         if measure_runs:
             label = f"v* = {float(v):g}"
             if law is not None:
                 for a in amps:
                     say(f"{law.name}, v* = {si_v(v)}: amplitude {si_v(a)}")
-                    meas.append(measure(law, float(v), a, kind=kind, omega=omega, duration=duration,
-                                        n_followers=n_followers, lin=lin))
-                ref = linear_prediction(law, float(v), kind=kind, omega=omega, duration=duration,
-                                        n_followers=n_followers, lin=lin)
+                    meas.append(
+                        measure(
+                            law,
+                            float(v),
+                            a,
+                            kind=kind,
+                            omega=omega,
+                            duration=duration,
+                            n_followers=n_followers,
+                            lin=lin,
+                        )
+                    )
+                ref = linear_prediction(
+                    law, float(v), kind=kind, omega=omega, duration=duration, n_followers=n_followers, lin=lin
+                )
                 entry["linear_prediction"] = ref.to_table(u)
                 linear_refs[label] = ref
                 for m in meas:
@@ -164,9 +229,17 @@ def run_stability(law: CarFollowingLaw | None, speeds: Sequence[float], out_dir:
                 base = None
                 for a in amps:
                     say(f"mpc ({mpc_predictor}), v* = {si_v(v)}: amplitude {si_v(a)}")
-                    att, base = measure_mpc(float(v), a, n_followers=n_followers, predictor=mpc_predictor or
-                                            "constant-velocity", kind=kind, omega=omega, duration=duration,
-                                            baseline=base, units=u)
+                    att, base = measure_mpc(
+                        float(v),
+                        a,
+                        n_followers=n_followers,
+                        predictor=mpc_predictor or "constant-velocity",
+                        kind=kind,
+                        omega=omega,
+                        duration=duration,
+                        baseline=base,
+                        units=u,
+                    )
                     meas.append(att)
             series[label] = meas
         entry["measured"] = [a.to_table(u) for a in meas]
@@ -191,17 +264,35 @@ def run_stability(law: CarFollowingLaw | None, speeds: Sequence[float], out_dir:
                     v_map = float(speeds[0])
                     say(f"stable region in ({region[0]}, {region[1]}) at v* = {si_v(v_map)}")
                     smap = stability_map(law, v_map, region[0], xs, region[1], ys)
-                    plot_region(xs, ys, smap["criterion"], smap["locally_stable"], region[0], region[1],
-                                out / "stable_region.png", f"{law.name}: string-stable region at v* = {si_v(v_map)}"
-                                + "".join(f", {k} = {getattr(law, k):g}" for k in names if k not in region),
-                                mark=(x0, y0))
+                    plot_region(
+                        xs,
+                        ys,
+                        smap["criterion"],
+                        smap["locally_stable"],
+                        region[0],
+                        region[1],
+                        out / "stable_region.png",
+                        f"{law.name}: string-stable region at v* = {si_v(v_map)}"
+                        + "".join(f", {k} = {getattr(law, k):g}" for k in names if k not in region),
+                        mark=(x0, y0),
+                    )
                     files.append(str(out / "stable_region.png"))
-                    doc["stable_region"] = {"x": region[0], "y": region[1], "v_star_mps": float(u.speed_to_si(v_map)),
-                                            "v_star_model": v_map, "xs": xs.tolist(),
-                                            "ys": ys.tolist(), "criterion": smap["criterion"].tolist()}
+                    doc["stable_region"] = {
+                        "x": region[0],
+                        "y": region[1],
+                        "v_star_mps": float(u.speed_to_si(v_map)),
+                        "v_star_model": v_map,
+                        "xs": xs.tolist(),
+                        "ys": ys.tolist(),
+                        "criterion": smap["criterion"].tolist(),
+                    }
             if any(series.values()):
-                plot_attenuation(series, linear_refs, out / "attenuation.png",
-                                 f"{doc['law']['law']}: attenuation vs amplitude ({kind})")
+                plot_attenuation(
+                    series,
+                    linear_refs,
+                    out / "attenuation.png",
+                    f"{doc['law']['law']}: attenuation vs amplitude ({kind})",
+                )
                 files.append(str(out / "attenuation.png"))
         doc["files"] = files + [str(out / "stability.json")]
         write_json(out / "stability.json", doc)

@@ -35,27 +35,48 @@ _T = _UNITS.time_s
 
 #: (SI option name, metavar, dest stem, SI help, model-unit help) of the options that have a *-model twin.
 _TWINS = (
-    ("speed-mps", "V", "speed",
-     f"equilibrium speed v* [m/s] (repeatable; default {_V_STAR:g} model speed, the paper leader's v_l(20): "
-     f"{_V_STAR * _UNITS.speed_mps:g} m/s at the default units)",
-     "equilibrium speed v* in model speed instead (repeatable)"),
-    ("amplitude-mps", "A", "amplitude",
-     "disturbance amplitude [m/s] (repeatable; default 1e-6 … Fig. 5's size, in model speed, below 0.95 v*)",
-     "disturbance amplitude in model speed instead (repeatable)"),
-    ("omega-rad-per-s", "W", "omega",
-     f"sinusoid frequency [rad/s] (default {_OMEGA:g} rad per model time: {_OMEGA / _T:g} rad/s at the default "
-     "units)", "sinusoid frequency in rad per model time instead"),
-    ("duration-s", "D", "duration",
-     f"dip duration [s] (default {_DURATION:g} model time: {_DURATION * _T:g} s at the default units)",
-     "dip duration in model time instead"),
+    (
+        "speed-mps",
+        "V",
+        "speed",
+        f"equilibrium speed v* [m/s] (repeatable; default {_V_STAR:g} model speed, the paper leader's v_l(20): "
+        f"{_V_STAR * _UNITS.speed_mps:g} m/s at the default units)",
+        "equilibrium speed v* in model speed instead (repeatable)",
+    ),
+    (
+        "amplitude-mps",
+        "A",
+        "amplitude",
+        "disturbance amplitude [m/s] (repeatable; default 1e-6 … Fig. 5's size, in model speed, below 0.95 v*)",
+        "disturbance amplitude in model speed instead (repeatable)",
+    ),
+    (
+        "omega-rad-per-s",
+        "W",
+        "omega",
+        f"sinusoid frequency [rad/s] (default {_OMEGA:g} rad per model time: {_OMEGA / _T:g} rad/s at the default "
+        "units)",
+        "sinusoid frequency in rad per model time instead",
+    ),
+    (
+        "duration-s",
+        "D",
+        "duration",
+        f"dip duration [s] (default {_DURATION:g} model time: {_DURATION * _T:g} s at the default units)",
+        "dip duration in model time instead",
+    ),
 )
 
 
 def _model_values(a: argparse.Namespace, units: Units) -> dict[str, Any]:
     """speed, amplitude (lists or None), omega, duration in model units from the SI options or their *-model
     twins (argparse already refused both); ParameterError names the option of a bad value."""
-    to_model = {"speed": units.speed_from_si, "amplitude": units.speed_from_si,
-                "omega": lambda w: w * units.time_s, "duration": units.time_from_si}
+    to_model = {
+        "speed": units.speed_from_si,
+        "amplitude": units.speed_from_si,
+        "omega": lambda w: w * units.time_s,
+        "duration": units.time_from_si,
+    }
     out: dict[str, Any] = {}
     for name, _, dest, _, _ in _TWINS:
         si, model = getattr(a, f"{dest}_si"), getattr(a, f"{dest}_model")
@@ -75,28 +96,62 @@ def build_parser() -> argparse.ArgumentParser:
     """Argument parser of ``aev-ocp stability``."""
     p = _Parser(prog="aev-ocp stability", description=__doc__.splitlines()[0].rstrip(".").strip("`"))
     p.add_argument("--law", required=True, help="a registered law (ovm, ovfl, proposed, idm, ...) or 'mpc'")
-    p.add_argument("--set", action="append", default=[], metavar="carfollowing.LAW.PARAM=VALUE",
-                   help="override a coefficient (also carfollowing.PARAM=VALUE for alpha, beta, kappa, eps)")
-    p.add_argument("--units-length-m", type=float, default=_UNITS.length_m, metavar="L",
-                   help=f"length unit L [m] of the laws' model units, for converting the SI options and columns "
-                        f"(default {_UNITS.length_m:g}, the paper's)")
-    p.add_argument("--units-speed-mps", type=float, default=_UNITS.speed_mps, metavar="U",
-                   help=f"speed unit U [m/s] (time unit L/U s; default {_UNITS.speed_mps:g}, the paper's)")
+    p.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="carfollowing.LAW.PARAM=VALUE",
+        help="override a coefficient (also carfollowing.PARAM=VALUE for alpha, beta, kappa, eps)",
+    )
+    p.add_argument(
+        "--units-length-m",
+        type=float,
+        default=_UNITS.length_m,
+        metavar="L",
+        help=f"length unit L [m] of the laws' model units, for converting the SI options and columns "
+        f"(default {_UNITS.length_m:g}, the paper's)",
+    )
+    p.add_argument(
+        "--units-speed-mps",
+        type=float,
+        default=_UNITS.speed_mps,
+        metavar="U",
+        help=f"speed unit U [m/s] (time unit L/U s; default {_UNITS.speed_mps:g}, the paper's)",
+    )
     for name, metavar, dest, si_help, model_help in _TWINS:
         g = p.add_mutually_exclusive_group()
         action = "append" if dest in ("speed", "amplitude") else "store"
-        g.add_argument(f"--{name}", dest=f"{dest}_si", action=action, type=float, default=None, metavar=metavar,
-                       help=si_help)
-        g.add_argument(f"--{dest}-model", dest=f"{dest}_model", action=action, type=float, default=None,
-                       metavar=metavar.lower(), help=model_help)
-    p.add_argument("--kind", choices=("pulse", "sine"), default="pulse",
-                   help="leader perturbation: a smooth speed dip (pulse) or a sinusoid (default pulse)")
+        g.add_argument(
+            f"--{name}", dest=f"{dest}_si", action=action, type=float, default=None, metavar=metavar, help=si_help
+        )
+        g.add_argument(
+            f"--{dest}-model",
+            dest=f"{dest}_model",
+            action=action,
+            type=float,
+            default=None,
+            metavar=metavar.lower(),
+            help=model_help,
+        )
+    p.add_argument(
+        "--kind",
+        choices=("pulse", "sine"),
+        default="pulse",
+        help="leader perturbation: a smooth speed dip (pulse) or a sinusoid (default pulse)",
+    )
     p.add_argument("--followers", type=int, default=None, help="platoon size (default 50; 6 for --law mpc)")
-    p.add_argument("--predictor", default="constant-velocity",
-                   help="MPC leader forecast for --law mpc: constant-velocity, constant-acceleration, "
-                        "cooperative, oracle")
-    p.add_argument("--ring", type=int, default=None, metavar="N",
-                   help="linear stability of uniform flow on a ring of N vehicles of this law instead (aev_ocp.ring)")
+    p.add_argument(
+        "--predictor",
+        default="constant-velocity",
+        help="MPC leader forecast for --law mpc: constant-velocity, constant-acceleration, cooperative, oracle",
+    )
+    p.add_argument(
+        "--ring",
+        type=int,
+        default=None,
+        metavar="N",
+        help="linear stability of uniform flow on a ring of N vehicles of this law instead (aev_ocp.ring)",
+    )
     ring = p.add_mutually_exclusive_group()
     ring.add_argument("--spacing-m", type=float, default=None, help="--ring: spacing L/N front to front [m]")
     ring.add_argument("--density-per-km", type=float, default=None, help="--ring: vehicles per km")
@@ -157,8 +212,10 @@ def build_law(name: str, sets: list[str]) -> Any:
         factory = LAW_REGISTRY[name.lower()]
         fields: list[str] = [f.name for f in dataclasses.fields(factory)] if dataclasses.is_dataclass(factory) else []
         bad = [k for k in own if k not in fields]
-        raise ParameterError(f"--set carfollowing.{name}.{bad[0] if bad else '?'}: unknown coefficient of law "
-                             f"{name!r}: known are {fields}") from None
+        raise ParameterError(
+            f"--set carfollowing.{name}.{bad[0] if bad else '?'}: unknown coefficient of law "
+            f"{name!r}: known are {fields}"
+        ) from None
     return law
 
 
@@ -190,9 +247,16 @@ def cli_stability(argv: list[str]) -> int:
 
             if law is None:
                 raise ParameterError("--ring: needs a car-following law (--law), not the MPC")
-            return cli_ring_stability(law, a.ring, a.spacing_m, a.density_per_km, a.vehicle_length_m, units,
-                                      Path(a.out) if a.out else Path("results") / "stability" / f"ring_{a.law.lower()}",
-                                      not a.linear_only)
+            return cli_ring_stability(
+                law,
+                a.ring,
+                a.spacing_m,
+                a.density_per_km,
+                a.vehicle_length_m,
+                units,
+                Path(a.out) if a.out else Path("results") / "stability" / f"ring_{a.law.lower()}",
+                not a.linear_only,
+            )
         mv = _model_values(a, units)
         speeds = mv["speed"] or [_V_STAR]
         n = a.followers if a.followers is not None else (6 if is_mpc else 50)
@@ -206,10 +270,21 @@ def cli_stability(argv: list[str]) -> int:
         _check_speeds_and_amplitudes(a, law, speeds, mv["amplitude"], units)
         omega = mv["omega"] if mv["omega"] is not None else _OMEGA
         duration = mv["duration"] if mv["duration"] is not None else _DURATION
-        doc = run_stability(law, speeds, out, amplitudes=mv["amplitude"], kind=a.kind, omega=omega,
-                            duration=duration, n_followers=n, measure_runs=not a.linear_only,
-                            mpc_predictor=a.predictor if is_mpc else None, plots=not a.no_plots, progress=say,
-                            units=units)
+        doc = run_stability(
+            law,
+            speeds,
+            out,
+            amplitudes=mv["amplitude"],
+            kind=a.kind,
+            omega=omega,
+            duration=duration,
+            n_followers=n,
+            measure_runs=not a.linear_only,
+            mpc_predictor=a.predictor if is_mpc else None,
+            plots=not a.no_plots,
+            progress=say,
+            units=units,
+        )
     except (ParameterError, OutputError, OSError) as exc:
         return bad_input(exc)
     for line in summary_lines(doc):
@@ -218,16 +293,19 @@ def cli_stability(argv: list[str]) -> int:
     for e in doc["speeds"]:
         for m in e["measured"]:
             if m["status"] != "ok":
-                events.append(f"v* = {e['v_star_mps']:.6g} m/s ({e['v_star_model']:g}), A = {m['amplitude_mps']:.6g} "
-                              f"m/s ({m['amplitude_model']:g}): run stopped ({m['status']})")
+                events.append(
+                    f"v* = {e['v_star_mps']:.6g} m/s ({e['v_star_model']:g}), A = {m['amplitude_mps']:.6g} "
+                    f"m/s ({m['amplitude_model']:g}): run stopped ({m['status']})"
+                )
     print(f"wrote {len(doc.get('files', []))} files to {out}/")
     for e in events:
         _err(e)
     return EXIT_FAILED_RUN if events else EXIT_OK
 
 
-def _check_speeds_and_amplitudes(a: argparse.Namespace, law: Any, speeds: list[float], amplitudes: list[float] | None,
-                                 units: Units) -> None:
+def _check_speeds_and_amplitudes(
+    a: argparse.Namespace, law: Any, speeds: list[float], amplitudes: list[float] | None, units: Units
+) -> None:
     """Refuse, naming the option in its own units, a speed at which the law has no equilibrium gap and an
     amplitude above a speed (the leader would drive backwards)."""
     from .linear import equilibrium_gap_of
@@ -243,12 +321,15 @@ def _check_speeds_and_amplitudes(a: argparse.Namespace, law: Any, speeds: list[f
             try:
                 equilibrium_gap_of(law, v)
             except ParameterError:
-                raise ParameterError(f"{sp}: law {law.name!r} has no equilibrium gap at v* = {shown(v)} "
-                                     "(f(h, v*, v*) does not change sign for h in [1e-4, 1e3] model length)") from None
+                raise ParameterError(
+                    f"{sp}: law {law.name!r} has no equilibrium gap at v* = {shown(v)} "
+                    "(f(h, v*, v*) does not change sign for h in [1e-4, 1e3] model length)"
+                ) from None
         for x in amplitudes or []:
             if x > v:
-                raise ParameterError(f"{amp}: amplitude {shown(x)} is above v* = {shown(v)} (the leader would drive "
-                                     "backwards)")
+                raise ParameterError(
+                    f"{amp}: amplitude {shown(x)} is above v* = {shown(v)} (the leader would drive backwards)"
+                )
 
 
 def _units(a: argparse.Namespace) -> Units:
@@ -271,20 +352,32 @@ def summary_lines(doc: dict[str, Any]) -> list[str]:
                 f"{head}: h* = {e['h_star_m']:.6g} m ({e['h_star_model']:.6g}), criterion C = "
                 f"{e['criterion_per_s2']:.6g} 1/s² ({e['criterion_model']:.6g}), string stable: {e['string_stable']}, "
                 f"platoon stable: {e['locally_stable']}, sup|G| = {e['max_gain']:.6g}"
-                + (f" at ω = {e['omega_max_gain_rad_per_s']:.4g} rad/s ({e['omega_max_gain_model']:.4g}), |G| > 1 "
-                   f"for ω < {band[1]:.4g} rad/s ({band_m[1]:.4g})" if band else "")
-                + f", ℓ∞ gain ∫|g| = {e['peak_gain']:.6g}")
+                + (
+                    f" at ω = {e['omega_max_gain_rad_per_s']:.4g} rad/s ({e['omega_max_gain_model']:.4g}), |G| > 1 "
+                    f"for ω < {band[1]:.4g} rad/s ({band_m[1]:.4g})"
+                    if band
+                    else ""
+                )
+                + f", ℓ∞ gain ∫|g| = {e['peak_gain']:.6g}"
+            )
         else:
             lines.append(f"{head}: {doc['law']['law']} (measured only)")
         if "linear_prediction" in e:
             lp = e["linear_prediction"]
-            lines.append(f"  linear prediction: mean peak ratio {lp['ratio_peak']:.4f}, max ℓ2 step "
-                         f"{lp['max_step_l2']:.4f}")
+            lines.append(
+                f"  linear prediction: mean peak ratio {lp['ratio_peak']:.4f}, max ℓ2 step {lp['max_step_l2']:.4f}"
+            )
         for m in e["measured"]:
             amp = f"{m['amplitude_mps']:.4g} m/s ({m['amplitude_model']:g})"
-            lines.append(f"  A = {amp:<22} mean peak ratio {m['ratio_peak']:.4f}  max peak step "
-                         f"{m['max_step_peak']:.4f}  max ℓ2 step {m['max_step_l2']:.4f}  measured string stable: "
-                         f"{m['string_stable_measured']}"
-                         + ("" if m.get("agrees_with_linear") is None else
-                            f"  linear: {'yes' if m['agrees_with_linear'] else 'no'}") + f"  ({m['status']})")
+            lines.append(
+                f"  A = {amp:<22} mean peak ratio {m['ratio_peak']:.4f}  max peak step "
+                f"{m['max_step_peak']:.4f}  max ℓ2 step {m['max_step_l2']:.4f}  measured string stable: "
+                f"{m['string_stable_measured']}"
+                + (
+                    ""
+                    if m.get("agrees_with_linear") is None
+                    else f"  linear: {'yes' if m['agrees_with_linear'] else 'no'}"
+                )
+                + f"  ({m['status']})"
+            )
     return lines

@@ -47,8 +47,13 @@ def partials_function(law: CarFollowingLaw) -> ca.Function:
         h, v, vl = ca.SX.sym("h"), ca.SX.sym("v"), ca.SX.sym("v_l")
         f = law.accel(h, v, vl)
         jac = ca.jacobian(f, ca.vertcat(h, v, vl))
-        fn = ca.Function(f"{law.name}_partials", [h, v, vl], [f, jac[0], jac[1] + jac[2], jac[2]],
-                         ["h", "v", "v_l"], ["f", "f_h", "f_v", "f_dv"])
+        fn = ca.Function(
+            f"{law.name}_partials",
+            [h, v, vl],
+            [f, jac[0], jac[1] + jac[2], jac[2]],
+            ["h", "v", "v_l"],
+            ["f", "f_h", "f_v", "f_dv"],
+        )
         if len(_PARTIALS) > 4096:
             _PARTIALS.clear()
         _PARTIALS[key] = fn
@@ -83,8 +88,10 @@ def equilibrium_gap_of(law: CarFollowingLaw, v_star: float, tol: float = 1e-13) 
     fv = _accel_on_grid(law, float(v_star))
     idx = np.flatnonzero((fv[:-1] < 0) & (fv[1:] >= 0))
     if idx.size == 0:
-        raise ParameterError(f"stability: law {law.name!r} has no equilibrium gap at speed v* = {v_star:g} "
-                             "(f(h, v*, v*) does not change sign for h in [1e-4, 1e3])")
+        raise ParameterError(
+            f"stability: law {law.name!r} has no equilibrium gap at speed v* = {v_star:g} "
+            "(f(h, v*, v*) does not change sign for h in [1e-4, 1e3])"
+        )
     a, b = float(grid[idx[0]]), float(grid[idx[0] + 1])
     return bracketed_root(lambda h: _accel(law, h, v_star), a, b, tol)
 
@@ -213,21 +220,44 @@ class LinearStability:
         with a ``_model`` suffix."""
         d = self.to_dict()
         T = units.time_s
-        per_s = {"f_h": ("f_h_per_s2", T**-2), "f_v": ("f_v_per_s", 1.0 / T), "f_dv": ("f_dv_per_s", 1.0 / T),
-                 "criterion": ("criterion_per_s2", T**-2), "omega_max_gain": ("omega_max_gain_rad_per_s", 1.0 / T)}
-        out: dict[str, Any] = {"law": d["law"], "v_star_mps": float(units.speed_to_si(self.v_star)),
-                               "h_star_m": float(units.length_to_si(self.h_star))}
+        per_s = {
+            "f_h": ("f_h_per_s2", T**-2),
+            "f_v": ("f_v_per_s", 1.0 / T),
+            "f_dv": ("f_dv_per_s", 1.0 / T),
+            "criterion": ("criterion_per_s2", T**-2),
+            "omega_max_gain": ("omega_max_gain_rad_per_s", 1.0 / T),
+        }
+        out: dict[str, Any] = {
+            "law": d["law"],
+            "v_star_mps": float(units.speed_to_si(self.v_star)),
+            "h_star_m": float(units.length_to_si(self.h_star)),
+        }
         out.update({si: d[k] * f for k, (si, f) in per_s.items()})
         out["unstable_band_rad_per_s"] = [x / T for x in d["unstable_band"]] if d["unstable_band"] else None
         out["poles_per_s"] = [[re / T, im / T] for re, im in d["poles"]]
         out.update({k: d[k] for k in ("string_stable", "locally_stable", "max_gain", "peak_gain")})
-        out.update({f"{k}_model": d[k] for k in ("v_star", "h_star", "f_h", "f_v", "f_dv", "criterion",
-                                                 "omega_max_gain", "unstable_band", "poles")})
+        out.update(
+            {
+                f"{k}_model": d[k]
+                for k in (
+                    "v_star",
+                    "h_star",
+                    "f_h",
+                    "f_v",
+                    "f_dv",
+                    "criterion",
+                    "omega_max_gain",
+                    "unstable_band",
+                    "poles",
+                )
+            }
+        )
         return out
 
 
-def analyse(law: CarFollowingLaw, v_star: float, h_star: float | None = None,
-            with_peak_gain: bool = True) -> LinearStability:
+def analyse(
+    law: CarFollowingLaw, v_star: float, h_star: float | None = None, with_peak_gain: bool = True
+) -> LinearStability:
     """Linear string and platoon stability of ``law`` at the equilibrium speed v_star [model speed].
 
     h_star: the equilibrium gap; default the root of f(h, v*, v*) = 0 (:func:`equilibrium_gap_of`).
@@ -239,15 +269,17 @@ def analyse(law: CarFollowingLaw, v_star: float, h_star: float | None = None,
         raise ParameterError(f"stability: law {law.name!r} has non-finite derivatives at h = {h:g}, v = {v_star:g}")
     C = head_to_tail_criterion(fh, fv, fdv)
     local = fh > 0 and fdv - fv > 0
-    poles = tuple(complex(p) for p in np.roots([1.0, fdv - fv, fh]))
+    r = np.roots([1.0, fdv - fv, fh])  # a monic quadratic: two roots
+    poles = (complex(r[0]), complex(r[1]))
     if local:
         g, w = max_gain(fh, fv, fdv)
         pk = peak_gain(fh, fv, fdv) if with_peak_gain else math.nan
     else:
         g, w, pk = math.inf, math.nan, math.inf
     band = (0.0, math.sqrt(-2.0 * C)) if C < 0 else None
-    return LinearStability(law.name, float(v_star), h, fh, fv, fdv, C, bool(C >= 0 and local), bool(local), g, w,
-                           band, pk, poles)  # type: ignore[arg-type]
+    return LinearStability(
+        law.name, float(v_star), h, fh, fv, fdv, C, bool(C >= 0 and local), bool(local), g, w, band, pk, poles
+    )
 
 
 def analyse_speeds(law: CarFollowingLaw, speeds: Sequence[float]) -> list[LinearStability]:

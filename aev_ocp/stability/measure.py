@@ -89,10 +89,17 @@ class Attenuation:
         suffix."""
         d = self.to_dict()
         U, T = units.speed_mps, units.time_s
-        scale = {"v_star": ("v_star_mps", U), "amplitude": ("amplitude_mps", U), "omega": ("omega_rad_per_s", 1.0 / T),
-                 "duration": ("duration_s", T), "t_end": ("t_end_s", T), "peak": ("peak_mps", U),
-                 "l2": ("l2_m_per_sqrt_s", U * math.sqrt(T)), "harmonic": ("harmonic_mps", U),
-                 "max_abs_rel_speed": ("max_abs_rel_speed_mps", U)}
+        scale = {
+            "v_star": ("v_star_mps", U),
+            "amplitude": ("amplitude_mps", U),
+            "omega": ("omega_rad_per_s", 1.0 / T),
+            "duration": ("duration_s", T),
+            "t_end": ("t_end_s", T),
+            "peak": ("peak_mps", U),
+            "l2": ("l2_m_per_sqrt_s", U * math.sqrt(T)),
+            "harmonic": ("harmonic_mps", U),
+            "max_abs_rel_speed": ("max_abs_rel_speed_mps", U),
+        }
         out: dict[str, Any] = {k: d[k] for k in ("label", "kind", "n_followers", "status")}
         for k, (si, f) in scale.items():
             x = d[k]
@@ -111,8 +118,14 @@ class Sizes(TypedDict):
     rel: np.ndarray  # max |v_{n−1} − v_n|, one per follower
 
 
-def sizes_of(res: SimulationResult, v_star: float, omega: float | None = None, periods: int = 6,
-             t_from: float = 0.0, baseline: SimulationResult | None = None) -> Sizes:
+def sizes_of(
+    res: SimulationResult,
+    v_star: float,
+    omega: float | None = None,
+    periods: int = 6,
+    t_from: float = 0.0,
+    baseline: SimulationResult | None = None,
+) -> Sizes:
     """Peak, ℓ2 and (if omega) harmonic size of v_n − v* per vehicle, leader first [model speed].
 
     baseline: an unperturbed run on the same time grid; the followers' deviations are then taken from
@@ -136,13 +149,14 @@ def sizes_of(res: SimulationResult, v_star: float, omega: float | None = None, p
         ph = np.exp(-1j * omega * tw)[:, None] * x
         integ = np.sum(0.5 * (ph[1:] + ph[:-1]) * np.diff(tw)[:, None], axis=0)
         harm = 2.0 * np.abs(integ) / (tw[-1] - tw[0])
-    rel = np.column_stack([res.leader_speed, res.speed])[:len(keep)][keep]
+    rel = np.column_stack([res.leader_speed, res.speed])[: len(keep)][keep]
     rel_speed = np.max(np.abs(rel[:, :-1] - rel[:, 1:]), axis=0)
     return {"peak": peak, "l2": l2, "harmonic": harm, "rel": rel_speed}
 
 
-def default_t_end(lin: LinearStability, n_followers: int, kind: str, omega: float, duration: float,
-                  periods: int = 6) -> float:
+def default_t_end(
+    lin: LinearStability, n_followers: int, kind: str, omega: float, duration: float, periods: int = 6
+) -> float:
     """A horizon long enough for the perturbation to reach the last follower and settle [model time]:
     1.5 × N × the linear group delay per vehicle (1/V'-like, −f_v/f_h at ω → 0) + 10 decay times, plus
     the forcing (``periods`` periods of the sinusoid, or the dip's duration)."""
@@ -152,11 +166,25 @@ def default_t_end(lin: LinearStability, n_followers: int, kind: str, omega: floa
     return float(base + (periods * 2.0 * math.pi / omega if kind == "sine" else duration))
 
 
-def measure(law: CarFollowingLaw, v_star: float, amplitude: float, *, kind: str = "pulse",
-            omega: float = 0.5 * math.pi, duration: float = 4.0, n_followers: int = 50,
-            t_end: float | None = None, lin: LinearStability | None = None, periods: int = 6,
-            dt_out: float = 0.02, rtol: float | None = None, atol: float | None = None, method: str = "auto",
-            tol: float = 1e-3, label: str | None = None) -> Attenuation:
+def measure(
+    law: CarFollowingLaw,
+    v_star: float,
+    amplitude: float,
+    *,
+    kind: str = "pulse",
+    omega: float = 0.5 * math.pi,
+    duration: float = 4.0,
+    n_followers: int = 50,
+    t_end: float | None = None,
+    lin: LinearStability | None = None,
+    periods: int = 6,
+    dt_out: float = 0.02,
+    rtol: float | None = None,
+    atol: float | None = None,
+    method: str = "auto",
+    tol: float = 1e-3,
+    label: str | None = None,
+) -> Attenuation:
     """Perturb the leader of ``n_followers`` followers of ``law`` at equilibrium speed v_star by a sinusoid
     (kind 'sine', frequency omega [rad/model time]) or a dip (kind 'pulse', duration [model time]) of
     size ``amplitude`` [model speed], simulate without the battery, and measure the attenuation.
@@ -170,39 +198,90 @@ def measure(law: CarFollowingLaw, v_star: float, amplitude: float, *, kind: str 
     T = float(t_end) if t_end is not None else default_t_end(lin, n_followers, kind, omega, duration, periods)
     rtol = min(1e-9, 1e-5 * amplitude) if rtol is None else rtol
     atol = min(1e-11, 1e-8 * amplitude) if atol is None else atol
-    res = simulate_platoon(leader, [law] * n_followers, [lin.h_star] * n_followers, [v_star] * n_followers, T,
-                           battery=False, dt_out=dt_out, rtol=rtol, atol=atol, method=method,
-                           ev=EVParams(limits=UNLIMITED))  # the law as linearised: no vehicle limits
+    res = simulate_platoon(
+        leader,
+        [law] * n_followers,
+        [lin.h_star] * n_followers,
+        [v_star] * n_followers,
+        T,
+        battery=False,
+        dt_out=dt_out,
+        rtol=rtol,
+        atol=atol,
+        method=method,
+        ev=EVParams(limits=UNLIMITED),
+    )  # the law as linearised: no vehicle limits
     return attenuation_of(res, label or law.name, v_star, leader, T, periods, tol)
 
 
-def attenuation_of(res: SimulationResult, label: str, v_star: float, leader: PerturbedLeader, t_end: float,
-                   periods: int = 6, tol: float = 1e-3, baseline: SimulationResult | None = None) -> Attenuation:
+def attenuation_of(
+    res: SimulationResult,
+    label: str,
+    v_star: float,
+    leader: PerturbedLeader,
+    t_end: float,
+    periods: int = 6,
+    tol: float = 1e-3,
+    baseline: SimulationResult | None = None,
+) -> Attenuation:
     """The :class:`Attenuation` of a finished perturbed-platoon run (any simulator, e.g. the MPC's closed loop)."""
-    s = sizes_of(res, v_star, leader.omega if leader.kind == "sine" else None, periods,
-                 t_from=leader.t_start, baseline=baseline)
+    s = sizes_of(
+        res, v_star, leader.omega if leader.kind == "sine" else None, periods, t_from=leader.t_start, baseline=baseline
+    )
     peak, l2, harm = s["peak"], s["l2"], s["harmonic"]
     steps_l2 = l2[1:] / l2[:-1]
     steps_h = harm[1:] / harm[:-1] if harm is not None else None
     stable = bool(np.all(steps_l2 <= 1 + tol) and (steps_h is None or np.all(steps_h <= 1 + tol)))
     return Attenuation(
-        label=label, v_star=float(v_star), amplitude=float(leader.amplitude), kind=leader.kind,
-        omega=float(leader.omega), duration=float(leader.duration), n_followers=int(res.n_vehicles),
-        t_end=float(t_end), status=res.status, peak=peak.tolist(), l2=l2.tolist(),
-        harmonic=harm.tolist() if harm is not None else None, ratio_peak=_geo(peak), ratio_l2=_geo(l2),
+        label=label,
+        v_star=float(v_star),
+        amplitude=float(leader.amplitude),
+        kind=leader.kind,
+        omega=float(leader.omega),
+        duration=float(leader.duration),
+        n_followers=int(res.n_vehicles),
+        t_end=float(t_end),
+        status=res.status,
+        peak=peak.tolist(),
+        l2=l2.tolist(),
+        harmonic=harm.tolist() if harm is not None else None,
+        ratio_peak=_geo(peak),
+        ratio_l2=_geo(l2),
         ratio_harmonic=_geo(harm) if harm is not None else None,
-        max_step_peak=float(np.max(peak[1:] / peak[:-1])), max_step_l2=float(np.max(steps_l2)),
+        max_step_peak=float(np.max(peak[1:] / peak[:-1])),
+        max_step_l2=float(np.max(steps_l2)),
         max_step_harmonic=float(np.max(steps_h)) if steps_h is not None else None,
-        string_stable_measured=stable, max_abs_rel_speed=s["rel"].tolist())
+        string_stable_measured=stable,
+        max_abs_rel_speed=s["rel"].tolist(),
+    )
 
 
-def linear_prediction(law: CarFollowingLaw, v_star: float, *, kind: str = "pulse", omega: float = 0.5 * math.pi,
-                      duration: float = 4.0, n_followers: int = 50, lin: LinearStability | None = None,
-                      amplitude: float = 1e-4, **kw: Any) -> Attenuation:
+def linear_prediction(
+    law: CarFollowingLaw,
+    v_star: float,
+    *,
+    kind: str = "pulse",
+    omega: float = 0.5 * math.pi,
+    duration: float = 4.0,
+    n_followers: int = 50,
+    lin: LinearStability | None = None,
+    amplitude: float = 1e-4,
+    **kw: Any,
+) -> Attenuation:
     """The same experiment with the law's linearisation at (h*, v*): ratios independent of the amplitude."""
     lin = lin or analyse(law, v_star)
-    return measure(LinearizedLaw.of(lin), v_star, min(amplitude, v_star), kind=kind, omega=omega,
-                   duration=duration, n_followers=n_followers, lin=lin, label=f"{law.name} (linearised)", **kw)
+    return measure(
+        LinearizedLaw.of(lin),
+        v_star,
+        min(amplitude, v_star),
+        kind=kind,
+        omega=omega,
+        duration=duration,
+        n_followers=n_followers,
+        lin=lin,
+        label=f"{law.name} (linearised)",
+        **kw,
+    )
 
 
 def linear_agreement(att: Attenuation, lin: Attenuation, rel: float = 0.05) -> bool:
@@ -218,11 +297,22 @@ def sweep_amplitudes(law: CarFollowingLaw, v_star: float, amplitudes: Sequence[f
     return [measure(law, v_star, float(a), lin=lin, **kw) for a in amplitudes]
 
 
-def measure_mpc(v_star: float, amplitude: float, *, n_followers: int = 6, predictor: str = "constant-velocity",
-                kind: str = "pulse", omega: float = 0.5 * math.pi, duration: float = 4.0, t_start: float = 2.0,
-                t_end: float = 30.0, settings: Any = None, periods: int = 3,
-                baseline: SimulationResult | None = None, units: Units | None = None
-                ) -> tuple[Attenuation, SimulationResult]:
+def measure_mpc(
+    v_star: float,
+    amplitude: float,
+    *,
+    n_followers: int = 6,
+    predictor: str = "constant-velocity",
+    kind: str = "pulse",
+    omega: float = 0.5 * math.pi,
+    duration: float = 4.0,
+    t_start: float = 2.0,
+    t_end: float = 30.0,
+    settings: Any = None,
+    periods: int = 3,
+    baseline: SimulationResult | None = None,
+    units: Units | None = None,
+) -> tuple[Attenuation, SimulationResult]:
     """The MPC platoon (model guide §9) in closed loop with the exact plant behind the perturbed leader.
 
     Every follower runs its own MPC (``settings``, default MPCSettings with the 'rti' path) and starts at
@@ -239,8 +329,9 @@ def measure_mpc(v_star: float, amplitude: float, *, n_followers: int = 6, predic
 
     st = settings or MPCSettings(solver="rti", codegen=True)
     if predictor == "cooperative":
-        ctrl = [MPCVehicle(replace(st, predictor="constant-velocity"))] + \
-               [MPCVehicle(replace(st, predictor="cooperative"))] * (n_followers - 1)
+        ctrl = [MPCVehicle(replace(st, predictor="constant-velocity"))] + [
+            MPCVehicle(replace(st, predictor="cooperative"))
+        ] * (n_followers - 1)
     else:
         ctrl = [MPCVehicle(replace(st, predictor=predictor))] * n_followers
     leader = PerturbedLeader(v_star, amplitude, kind, omega=omega, duration=duration, t_start=t_start)

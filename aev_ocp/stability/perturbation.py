@@ -45,8 +45,10 @@ class PerturbedLeader(LeaderProfile):
         if self.kind == "pulse" and self.duration <= 0:
             raise ParameterError(f"PerturbedLeader.duration = {self.duration!r} is not allowed: must be > 0")
         if self.amplitude > self.v_star:
-            raise ParameterError(f"PerturbedLeader.amplitude = {self.amplitude!r} is not allowed: must be <= the "
-                                 f"speed v* = {self.v_star!r} (the leader would drive backwards)")
+            raise ParameterError(
+                f"PerturbedLeader.amplitude = {self.amplitude!r} is not allowed: must be <= the "
+                f"speed v* = {self.v_star!r} (the leader would drive backwards)"
+            )
 
     @property
     def breakpoints(self) -> tuple[float, ...]:
@@ -84,5 +86,12 @@ class PerturbedLeader(LeaderProfile):
         return self.v_star * t - 0.5 * self.amplitude * (tau - np.sin(w * tau) / w)
 
     def describe(self) -> dict[str, Any]:
-        return {"profile": self.name, "kind": self.kind, "v_star": self.v_star, "amplitude": self.amplitude,
-                "omega": self.omega, "duration": self.duration, "t_start": self.t_start}
+        return {
+            "profile": self.name,
+            "kind": self.kind,
+            "v_star": self.v_star,
+            "amplitude": self.amplitude,
+            "omega": self.omega,
+            "duration": self.duration,
+            "t_start": self.t_start,
+        }

@@ -12,8 +12,12 @@ from .linear import LinearStability
 from .measure import Attenuation
 
 
-COEFFICIENT_LABELS = {"alpha": "α [1/model time]", "beta": "β [model length²/model time]",
-                      "kappa": "κ [1/model length]", "eps": "ε [model speed²]"}
+COEFFICIENT_LABELS = {
+    "alpha": "α [1/model time]",
+    "beta": "β [model length²/model time]",
+    "kappa": "κ [1/model length]",
+    "eps": "ε [model speed²]",
+}
 
 
 def plot_gain(lins: Sequence[LinearStability], path: str | Path | None = None, title: str | None = None) -> Figure:
@@ -23,15 +27,24 @@ def plot_gain(lins: Sequence[LinearStability], path: str | Path | None = None, t
     for lin in lins:
         ax.semilogx(w, lin.gain(w), label=f"{lin.law}, v* = {lin.v_star:g} (C = {lin.criterion:.3g})")
         if lin.unstable_band:
-            ax.axvspan(1e-2 * 10 ** -0.5, lin.unstable_band[1], color="tab:red", alpha=0.06)
+            ax.axvspan(1e-2 * 10**-0.5, lin.unstable_band[1], color="tab:red", alpha=0.06)
     ax.axhline(1.0, color="gray", ls="--", lw=0.8)
     ax.set_xlabel("ω [rad / model time]")
     ax.set_ylabel("|G(iω)| (follower / predecessor speed)")
     return _finish_single(fig, ax, path, title or "Frequency response of one follower")
 
 
-def plot_region(xs: np.ndarray, ys: np.ndarray, criterion: np.ndarray, local: np.ndarray, x_name: str,
-                y_name: str, path: str | Path | None, title: str, mark: tuple[float, float] | None = None) -> Figure:
+def plot_region(
+    xs: np.ndarray,
+    ys: np.ndarray,
+    criterion: np.ndarray,
+    local: np.ndarray,
+    x_name: str,
+    y_name: str,
+    path: str | Path | None,
+    title: str,
+    mark: tuple[float, float] | None = None,
+) -> Figure:
     """Stable region in a parameter plane: criterion C ≥ 0 (string stable) shaded, C = 0 contour drawn.
 
     criterion, local: arrays of shape (len(ys), len(xs))."""
@@ -54,8 +67,12 @@ def plot_region(xs: np.ndarray, ys: np.ndarray, criterion: np.ndarray, local: np
     return save_figure(fig, path)
 
 
-def plot_attenuation(series: Mapping[str, Sequence[Attenuation]], linear: Mapping[str, Attenuation], path: str | Path | None = None,
-                     title: str | None = None) -> Figure:
+def plot_attenuation(
+    series: Mapping[str, Sequence[Attenuation]],
+    linear: Mapping[str, Attenuation],
+    path: str | Path | None = None,
+    title: str | None = None,
+) -> Figure:
     """Measured attenuation against disturbance amplitude: geometric-mean step ratio of the peak |ṽ|
     (solid) and the largest step ratio of ‖ṽ‖₂ (dotted); dashed: the linearised law's values."""
     fig, ax = plt.subplots(figsize=(6.4, 4.0))

@@ -33,12 +33,25 @@ def fig5_origin(law_factory: Callable[[], Any] = Proposed) -> dict[str, list[flo
     (peak |v_n − 1.7| in the paper's run)."""
     h = equilibrium_gap(1.7)
     law = law_factory()
-    cases = {"paper": ([0.3] + [3.5] * 4, [1.87] * 5), "equilibrium": ([h] * 5, [1.7] * 5),
-             "close_first": ([0.3] + [h] * 4, [1.87] + [1.7] * 4)}
+    cases = {
+        "paper": ([0.3] + [3.5] * 4, [1.87] * 5),
+        "equilibrium": ([h] * 5, [1.7] * 5),
+        "close_first": ([0.3] + [h] * 4, [1.87] + [1.7] * 4),
+    }
     out: dict[str, list[float]] = {}
     for name, (g, v) in cases.items():
-        r = simulate_platoon(PaperLeader(), [law] * 5, g, v, 70.0, battery=False, dt_out=0.01, rtol=1e-10,
-                             atol=1e-10, ev=EVParams(limits=UNLIMITED))  # the paper's run: no vehicle limits
+        r = simulate_platoon(
+            PaperLeader(),
+            [law] * 5,
+            g,
+            v,
+            70.0,
+            battery=False,
+            dt_out=0.01,
+            rtol=1e-10,
+            atol=1e-10,
+            ev=EVParams(limits=UNLIMITED),
+        )  # the paper's run: no vehicle limits
         s = np.column_stack([r.leader_speed, r.speed])
         out[name] = np.max(np.abs(s[:, :-1] - s[:, 1:]), axis=0).tolist()
         if name == "paper":
@@ -58,14 +71,17 @@ def string_stability_section(out_dir: Path, progress: ProgressFn) -> str:
     lin = analyse(law, v_star)
     cases = [("proposed (paper)", lin)] + [
         (f"{lw.name}" + (f", α = {lw.alpha:g}" if isinstance(lw, OVM) else ""), analyse(lw, v))
-        for lw, v in ((OVM(), v_star), (OVFL(), v_star), (IDM(), v_star), (OVM(), 0.964), (OVM(1.0), 0.964))]
+        for lw, v in ((OVM(), v_star), (OVFL(), v_star), (IDM(), v_star), (OVM(), 0.964), (OVM(1.0), 0.964))
+    ]
     rows = []
     for tag, ls in cases:
         band = f"(0, {ls.unstable_band[1]:.4f})" if ls.unstable_band else "—"
-        rows.append(f"| {tag} | {UNITS.speed_to_si(ls.v_star):.4g} | {UNITS.length_to_si(ls.h_star):.4g} | "
-                    f"{ls.v_star:g} | {ls.h_star:.4f} | {ls.f_h:.4f} | {ls.f_v:.4f} | {ls.f_dv:.4f} | "
-                    f"{ls.criterion:.4f} | {'yes' if ls.string_stable else 'no'} | {_f(ls.max_gain)} | {band} | "
-                    f"{_f(ls.peak_gain)} |")
+        rows.append(
+            f"| {tag} | {UNITS.speed_to_si(ls.v_star):.4g} | {UNITS.length_to_si(ls.h_star):.4g} | "
+            f"{ls.v_star:g} | {ls.h_star:.4f} | {ls.f_h:.4f} | {ls.f_v:.4f} | {ls.f_dv:.4f} | "
+            f"{ls.criterion:.4f} | {'yes' if ls.string_stable else 'no'} | {_f(ls.max_gain)} | {band} | "
+            f"{_f(ls.peak_gain)} |"
+        )
     grid = np.linspace(0.05, 1.95, 39)
     over = [analyse(law, float(v), with_peak_gain=False) for v in grid]
     c_min = min(over, key=lambda x: x.criterion)
@@ -81,31 +97,53 @@ def string_stability_section(out_dir: Path, progress: ProgressFn) -> str:
     origin_ovfl = fig5_origin(lambda: OVFL(2.0, 3.0))
     agree = [m.amplitude for m in meas if linear_agreement(m, ref)]
     holds = max((a for a in amps if all(a2 in agree for a2 in amps if a2 <= a)), default=None)
-    write_json(out_dir / "string_stability.json", {
-        "law": law.describe(), "units": {"length_m": UNITS.length_m, "speed_mps": UNITS.speed_mps},
-        "v_star_mps": UNITS.speed_to_si(v_star), "v_star": v_star, "linear": lin.to_dict(),
-        "linear_prediction": ref.to_dict(),
-        "measured": [m.to_dict() for m in meas], "ovfl_measured": [a.to_dict() for a in ovfl.values()],
-        "fig5_origin": {"proposed": origin, "ovfl": origin_ovfl}, "linear_agreement_up_to": holds})
+    write_json(
+        out_dir / "string_stability.json",
+        {
+            "law": law.describe(),
+            "units": {"length_m": UNITS.length_m, "speed_mps": UNITS.speed_mps},
+            "v_star_mps": UNITS.speed_to_si(v_star),
+            "v_star": v_star,
+            "linear": lin.to_dict(),
+            "linear_prediction": ref.to_dict(),
+            "measured": [m.to_dict() for m in meas],
+            "ovfl_measured": [a.to_dict() for a in ovfl.values()],
+            "fig5_origin": {"proposed": origin, "ovfl": origin_ovfl},
+            "linear_agreement_up_to": holds,
+        },
+    )
     from .plots import plot_attenuation
 
-    plot_attenuation({"proposed": meas, "ovfl": list(ovfl.values())}, {"proposed": ref},
-                     out_dir / "string_stability.png",
-                     f"Dip of depth A in {N_REPORT} followers at v* = {v_star:g} (dashed: linearisation)")
+    plot_attenuation(
+        {"proposed": meas, "ovfl": list(ovfl.values())},
+        {"proposed": ref},
+        out_dir / "string_stability.png",
+        f"Dip of depth A in {N_REPORT} followers at v* = {v_star:g} (dashed: linearisation)",
+    )
     mrows = []
     for m in meas:
-        mrows.append(f"| {UNITS.speed_to_si(m.amplitude):.4g} | {m.amplitude:g} | {m.peak[1] / m.amplitude:.4g} | "
-                     f"{m.ratio_peak:.4f} | {m.max_step_peak:.4g} | "
-                     f"{m.max_step_l2:.4g} | {m.peak[-1] / m.amplitude:.4g} | "
-                     f"{'yes' if linear_agreement(m, ref) else 'no'} | {m.status} |")
+        mrows.append(
+            f"| {UNITS.speed_to_si(m.amplitude):.4g} | {m.amplitude:g} | {m.peak[1] / m.amplitude:.4g} | "
+            f"{m.ratio_peak:.4f} | {m.max_step_peak:.4g} | "
+            f"{m.max_step_l2:.4g} | {m.peak[-1] / m.amplitude:.4g} | "
+            f"{'yes' if linear_agreement(m, ref) else 'no'} | {m.status} |"
+        )
     big = meas[-1]
     amplified = [m for m in meas if m.max_step_peak > 1 + 1e-3 or m.max_step_l2 > 1 + 1e-3]
     worst = max(amplified, key=lambda m: m.max_step_peak) if amplified else None
-    big_dev = float(np.max(np.abs(np.asarray(big.peak) / big.amplitude - np.asarray(ref.peak) / ref.amplitude)
-                           / (np.asarray(ref.peak) / ref.amplitude)))
+    big_dev = float(
+        np.max(
+            np.abs(np.asarray(big.peak) / big.amplitude - np.asarray(ref.peak) / ref.amplitude)
+            / (np.asarray(ref.peak) / ref.amplitude)
+        )
+    )
     ov_big = ovfl[top]
-    ov_dev = float(np.max(np.abs(np.asarray(ov_big.peak) / ov_big.amplitude - np.asarray(ref.peak) / ref.amplitude)
-                          / (np.asarray(ref.peak) / ref.amplitude)))
+    ov_dev = float(
+        np.max(
+            np.abs(np.asarray(ov_big.peak) / ov_big.amplitude - np.asarray(ref.peak) / ref.amplitude)
+            / (np.asarray(ref.peak) / ref.amplitude)
+        )
+    )
     o, oo = origin, origin_ovfl
     lst = lambda xs: ", ".join(f"{x:.3f}" for x in xs)  # noqa: E731
     return (
@@ -123,8 +161,11 @@ def string_stability_section(out_dir: Path, progress: ProgressFn) -> str:
         "derivatives at Δv = 0, so these numbers equal OVFL's (§6's claim is right for the linearisation). "
         f"Over equilibrium speeds v* ∈ [{grid[0]:g}, {grid[-1]:g}] ({grid.size} points) the smallest C is "
         f"{c_min.criterion:.4f} (at v* = {c_min.v_star:g}): "
-        + ("the paper's coefficients are linearly string stable at every speed.\n\n" if c_min.criterion >= 0 else
-           "the paper's coefficients are NOT linearly string stable at every speed.\n\n")
+        + (
+            "the paper's coefficients are linearly string stable at every speed.\n\n"
+            if c_min.criterion >= 0
+            else "the paper's coefficients are NOT linearly string stable at every speed.\n\n"
+        )
         + f"Model units as in the paper; the SI columns use L = {UNITS.length_m:g} m, U = {UNITS.speed_mps:g} m/s.\n\n"
         "| law | v* [m/s] | h* [m] | v* (model) | h* (model) | f_h | f_v | f_Δv | C | string stable | sup\\|G\\| | "
         "\\|G\\| > 1 on ω ∈ | ∫\\|g\\| |\n"
@@ -146,24 +187,34 @@ def string_stability_section(out_dir: Path, progress: ProgressFn) -> str:
         f"**Answer.** §6's linear argument describes the proposed platoon only for disturbances up to "
         f"A = {holds if holds is not None else 'none of those tried'} (model speed). The energy term is "
         "κv²Δv²/(Δv² + ε) ≈ (κv²/ε)·Δv² for |Δv| ≪ √ε: at v* = 1.7 its curvature κv²/ε ≈ "
-        f"{0.03 * v_star ** 2 / 1e-6:.3g} makes it as large as the linear terms once |Δv| ≈ ε/(κv²) ≈ "
-        f"{1e-6 / (0.03 * v_star ** 2):.1e}, i.e. two orders below √ε = 1e-3; above that it is a braking of about κv² "
-        f"= {0.03 * v_star ** 2:.3f} whenever the relative velocity is not tiny, which does not scale with A. "
-        + (f"Some follower-to-follower step grows (peak or ℓ2 above 1) for A in {[m.amplitude for m in amplified]}. "
-           if amplified else "")
-        + (f"Worst, a dip of A = {worst.amplitude:g} makes follower 1 dip by {worst.peak[1]:.3g} "
-           f"({worst.peak[1] / worst.amplitude:.3g} × A) and the deviation keeps growing along the platoon (last "
-           f"follower {worst.peak[-1]:.3g}): the size of the response is set by κ, not by A. " if worst else "")
+        f"{0.03 * v_star**2 / 1e-6:.3g} makes it as large as the linear terms once |Δv| ≈ ε/(κv²) ≈ "
+        f"{1e-6 / (0.03 * v_star**2):.1e}, i.e. two orders below √ε = 1e-3; above that it is a braking of about κv² "
+        f"= {0.03 * v_star**2:.3f} whenever the relative velocity is not tiny, which does not scale with A. "
+        + (
+            f"Some follower-to-follower step grows (peak or ℓ2 above 1) for A in {[m.amplitude for m in amplified]}. "
+            if amplified
+            else ""
+        )
+        + (
+            f"Worst, a dip of A = {worst.amplitude:g} makes follower 1 dip by {worst.peak[1]:.3g} "
+            f"({worst.peak[1] / worst.amplitude:.3g} × A) and the deviation keeps growing along the platoon (last "
+            f"follower {worst.peak[-1]:.3g}): the size of the response is set by κ, not by A. "
+            if worst
+            else ""
+        )
         + f"At Fig. 5's size (A = {top:g}; Fig. 5's leader dips by {fig5_amplitude():.3f}) the run is far outside the "
         f"linear range for both laws (some follower's peak is {100 * big_dev:.0f} % (proposed) and {100 * ov_dev:.0f} % "
         "(OVFL) away from the linear prediction); the braking term (≤ κv² = "
-        f"{0.03 * v_star ** 2:.3f}) is small next to such a dip, and the peaks "
+        f"{0.03 * v_star**2:.3f}) is small next to such a dip, and the peaks "
         + ("decrease at every step" if big.max_step_peak <= 1 + 1e-3 else "do not decrease at every step")
         + f" (mean ratio {big.ratio_peak:.4f}, OVFL {ov_big.ratio_peak:.4f}; largest step {big.max_step_peak:.4f})"
-        + (f", while ‖v_n − v*‖₂ grows at some step of the tail (largest step {big.max_step_l2:.4f}; OVFL "
-           f"{ov_big.max_step_l2:.4f}), where the deviation has shrunk to the size at which the braking term "
-           "matters again. " if big.max_step_l2 > 1 + 1e-3 else f" and so does ‖v_n − v*‖₂ (largest step "
-           f"{big.max_step_l2:.4f}). ")
+        + (
+            f", while ‖v_n − v*‖₂ grows at some step of the tail (largest step {big.max_step_l2:.4f}; OVFL "
+            f"{ov_big.max_step_l2:.4f}), where the deviation has shrunk to the size at which the braking term "
+            "matters again. "
+            if big.max_step_l2 > 1 + 1e-3
+            else f" and so does ‖v_n − v*‖₂ (largest step {big.max_step_l2:.4f}). "
+        )
         + "So Fig. 5's 'the perturbation attenuates' is borne out at Fig. 5's own size for the peaks, and §6's "
         f"linear argument covers only A ≤ {holds if holds is not None else '—'}; in between, the proposed platoon "
         "amplifies small disturbances although its linearisation is string stable.\n\n"
@@ -175,7 +226,8 @@ def string_stability_section(out_dir: Path, progress: ProgressFn) -> str:
         "cause. Follower 1 starts 0.3 behind the leader at 1.87 and brakes hard (β/h² = 33), so its speed drops faster "
         "than the leader's; follower 2 cannot follow that abrupt drop and its relative velocity peaks higher. The "
         f"speed deviations themselves, |v_n − 1.7| ({lst(o['paper_speed_dev'])}), do decrease along the platoon, as "
-        "∫|g| = 1 requires; relative velocity is not the signal the transfer function bounds.\n")
+        "∫|g| = 1 requires; relative velocity is not the signal the transfer function bounds.\n"
+    )
 
 
 REPRODUCE_SECTIONS = [("string-stability", string_stability_section, 3)]

@@ -20,10 +20,19 @@ from .runner import EXECUTORS, Store, TimeLimitStop, execute, run_task
 from .spec import Study, StudyError, parse_study, read_study
 from .table import build_rows, load_table, write_table
 
-def run_study(study: Study | str | Path, out: str | Path | None = None, *, executor: str = "pool",
-              workers: int | None = None, scheduler: str | None = None, report: bool = True,
-              progress_stream: Any = None, time_limit_s: float | None = None,
-              trajectories: bool = False) -> StudyOutput:
+
+def run_study(
+    study: Study | str | Path,
+    out: str | Path | None = None,
+    *,
+    executor: str = "pool",
+    workers: int | None = None,
+    scheduler: str | None = None,
+    report: bool = True,
+    progress_stream: Any = None,
+    time_limit_s: float | None = None,
+    trajectories: bool = False,
+) -> StudyOutput:
     """Run (or resume) a study and write its table, figures, report.md and manifest.json (so that
     :func:`aev_ocp.load` reads it back) into ``out`` (default ``results/study/<name>``). executor:
     'inprocess', 'pool' or 'dask' (see :func:`aev_ocp.study.runner.execute`); time_limit_s [s]: stop
@@ -37,22 +46,50 @@ def run_study(study: Study | str | Path, out: str | Path | None = None, *, execu
     folder = Path(out) if out is not None else default_output_dir("study", study.name)
     with output_lock(folder):  # one study at a time per folder
         # a folder of another study or of the user's own files is refused; the same study resumes
-        claim_output_dir(folder, "study", study.name, study.file if Path(study.file).is_file() else None,
-                         list(STUDY_FILES))
-        return _run_study(study, folder, executor=executor, workers=workers, scheduler=scheduler, report=report,
-                          progress_stream=progress_stream, time_limit_s=time_limit_s, trajectories=trajectories)
+        claim_output_dir(
+            folder, "study", study.name, study.file if Path(study.file).is_file() else None, list(STUDY_FILES)
+        )
+        return _run_study(
+            study,
+            folder,
+            executor=executor,
+            workers=workers,
+            scheduler=scheduler,
+            report=report,
+            progress_stream=progress_stream,
+            time_limit_s=time_limit_s,
+            trajectories=trajectories,
+        )
 
 
 #: Files of a study folder that a foreign folder must not already hold (besides figures).
 STUDY_FILES = ("table.csv", "table.jsonl", "report.md", "manifest.json")
 
 
-def _run_study(study: Study, folder: Path, *, executor: str, workers: int | None, scheduler: str | None,
-               report: bool, progress_stream: Any, time_limit_s: float | None, trajectories: bool) -> StudyOutput:
+def _run_study(
+    study: Study,
+    folder: Path,
+    *,
+    executor: str,
+    workers: int | None,
+    scheduler: str | None,
+    report: bool,
+    progress_stream: Any,
+    time_limit_s: float | None,
+    trajectories: bool,
+) -> StudyOutput:
     tasks = study.tasks()
-    results = execute(tasks, Store(folder), executor=executor, workers=workers, scheduler=scheduler,
-                      name=study.name, progress_stream=progress_stream, time_limit_s=time_limit_s,
-                      trajectories_dir=folder / TRAJECTORIES if trajectories else None)
+    results = execute(
+        tasks,
+        Store(folder),
+        executor=executor,
+        workers=workers,
+        scheduler=scheduler,
+        name=study.name,
+        progress_stream=progress_stream,
+        time_limit_s=time_limit_s,
+        trajectories_dir=folder / TRAJECTORIES if trajectories else None,
+    )
     rows = build_rows(study, results)
     files = list(write_table(rows, folder, study.axis_keys))
     if report:
@@ -63,15 +100,46 @@ def _run_study(study: Study, folder: Path, *, executor: str, workers: int | None
     from ..results import to_jsonable
     from ..saved import save_output
 
-    settings = {"study": study.name, "file": study.file, "description": study.description, "axes": study.axes,
-                "controllers": study.controllers, "reference": study.reference, "bases": study.bases,
-                "n_points": len(study.points)}
-    files += save_output(folder, "study", {}, settings=settings,
-                         extra={"table": "table.jsonl", "n_tasks": len(results), "n_failed": failed,
-                                "trajectories": TRAJECTORIES if trajectories else None})
+    settings = {
+        "study": study.name,
+        "file": study.file,
+        "description": study.description,
+        "axes": study.axes,
+        "controllers": study.controllers,
+        "reference": study.reference,
+        "bases": study.bases,
+        "n_points": len(study.points),
+    }
+    files += save_output(
+        folder,
+        "study",
+        {},
+        settings=settings,
+        extra={
+            "table": "table.jsonl",
+            "n_tasks": len(results),
+            "n_failed": failed,
+            "trajectories": TRAJECTORIES if trajectories else None,
+        },
+    )
     return StudyOutput(folder, rows, files, len(results), failed, {"settings": to_jsonable(settings)})
 
 
-__all__ = ["EXECUTORS", "TRAJECTORIES", "Store", "Study", "StudyError", "StudyOutput", "TimeLimitStop", "build_rows",
-           "execute", "load_study_output", "load_table", "parse_study", "read_study", "run_study", "run_task",
-           "write_table"]
+__all__ = [
+    "EXECUTORS",
+    "TRAJECTORIES",
+    "Store",
+    "Study",
+    "StudyError",
+    "StudyOutput",
+    "TimeLimitStop",
+    "build_rows",
+    "execute",
+    "load_study_output",
+    "load_table",
+    "parse_study",
+    "read_study",
+    "run_study",
+    "run_task",
+    "write_table",
+]

@@ -17,30 +17,57 @@ from ..console import warning_line
 
 def build_parser() -> argparse.ArgumentParser:
     """Argument parser of ``aev-ocp study``."""
-    p = _Parser(prog="aev-ocp study", description="Run or resume a study (points x controllers) on a local process "
-                "pool or on Dask; writes table.csv, table.jsonl, figures and report.md. Rerun the same command "
-                "to resume: stored points are not recomputed.")
+    p = _Parser(
+        prog="aev-ocp study",
+        description="Run or resume a study (points x controllers) on a local process "
+        "pool or on Dask; writes table.csv, table.jsonl, figures and report.md. Rerun the same command "
+        "to resume: stored points are not recomputed.",
+    )
     p.add_argument("study", help="a study .toml file (e.g. studies/kappa_alpha_table1.toml)")
     p.add_argument("--out", default=None, help="output folder (default results/study/<name>); rerun to resume")
     ex = p.add_mutually_exclusive_group()
-    ex.add_argument("--workers", type=int, default=None, metavar="N",
-                    help="local process pool of N workers (default: one per core)")
-    ex.add_argument("--dask-local", type=int, default=None, metavar="N",
-                    help="start a Dask LocalCluster of N worker processes (needs aev_ocp[dask])")
-    ex.add_argument("--scheduler", default=None, metavar="ADDRESS",
-                    help="run on a running Dask scheduler, e.g. tcp://10.0.0.5:8786 (needs aev_ocp[dask])")
+    ex.add_argument(
+        "--workers", type=int, default=None, metavar="N", help="local process pool of N workers (default: one per core)"
+    )
+    ex.add_argument(
+        "--dask-local",
+        type=int,
+        default=None,
+        metavar="N",
+        help="start a Dask LocalCluster of N worker processes (needs aev_ocp[dask])",
+    )
+    ex.add_argument(
+        "--scheduler",
+        default=None,
+        metavar="ADDRESS",
+        help="run on a running Dask scheduler, e.g. tcp://10.0.0.5:8786 (needs aev_ocp[dask])",
+    )
     ex.add_argument("--in-process", action="store_true", help="run every task in this process (debugging)")
-    p.add_argument("--set", dest="sets", action="append", default=[], metavar="KEY=VALUE",
-                   help="override a scenario key at every point, e.g. --set simulation.t_end_s=60 (repeatable). "
-                        "Precedence: command line over study file over scenario file; a key that an axis "
-                        "sweeps or a [[controllers.mpc]] entry sets is refused")
+    p.add_argument(
+        "--set",
+        dest="sets",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="override a scenario key at every point, e.g. --set simulation.t_end_s=60 (repeatable). "
+        "Precedence: command line over study file over scenario file; a key that an axis "
+        "sweeps or a [[controllers.mpc]] entry sets is refused",
+    )
     p.add_argument("--no-report", action="store_true", help="write the table only (no figures, no report.md)")
-    p.add_argument("--trajectories", action="store_true",
-                   help="also save every task's trajectories (trajectories/<hash>/, loadable with aev_ocp.load or "
-                        "StudyOutput.trajectory(point, controller)); stored tasks without them are run again")
-    p.add_argument("--time-limit", type=float, default=None, metavar="S",
-                   help="wall-clock limit [s]: past it, pending tasks are cancelled; finished ones are stored and "
-                        "a rerun resumes (default: none)")
+    p.add_argument(
+        "--trajectories",
+        action="store_true",
+        help="also save every task's trajectories (trajectories/<hash>/, loadable with aev_ocp.load or "
+        "StudyOutput.trajectory(point, controller)); stored tasks without them are run again",
+    )
+    p.add_argument(
+        "--time-limit",
+        type=float,
+        default=None,
+        metavar="S",
+        help="wall-clock limit [s]: past it, pending tasks are cancelled; finished ones are stored and "
+        "a rerun resumes (default: none)",
+    )
     return p
 
 
@@ -90,11 +117,16 @@ def cli_study(argv: list[str]) -> int:
         kw = {"executor": "dask", "workers": a.dask_local, "scheduler": a.scheduler}
     else:
         kw = {"executor": "pool", "workers": a.workers}
-    print(f"[study {study.name}] {len(study.points)} points × {len(study.controllers)} controllers "
-          f"({', '.join(c.label for c in study.controllers)}), executor {kw['executor']}", file=sys.stderr, flush=True)
+    print(
+        f"[study {study.name}] {len(study.points)} points × {len(study.controllers)} controllers "
+        f"({', '.join(c.label for c in study.controllers)}), executor {kw['executor']}",
+        file=sys.stderr,
+        flush=True,
+    )
     try:
-        out = run_study(study, a.out, report=not a.no_report, time_limit_s=a.time_limit,
-                        trajectories=a.trajectories, **kw)
+        out = run_study(
+            study, a.out, report=not a.no_report, time_limit_s=a.time_limit, trajectories=a.trajectories, **kw
+        )
     except TimeLimitStop as exc:
         _err(f"stopped by --time-limit {a.time_limit:g} s: {exc}; rerun the same command to resume")
         return EXIT_FAILED_RUN
@@ -107,8 +139,10 @@ def cli_study(argv: list[str]) -> int:
         _err(f"{exc}; finished tasks are stored, rerun to resume")
         return EXIT_FAILED_RUN
     bad = [r for r in out.rows if r["status"] != "ok"]
-    print(f"{out.n_tasks} tasks, {out.n_failed} failed, {len({(r['point'], r['controller']) for r in bad})} "
-          f"ended by an event or error")
+    print(
+        f"{out.n_tasks} tasks, {out.n_failed} failed, {len({(r['point'], r['controller']) for r in bad})} "
+        f"ended by an event or error"
+    )
     print(f"wrote {out.folder}/table.csv, table.jsonl" + ("" if a.no_report else ", report.md and figures"))
     return EXIT_FAILED_RUN if out.n_failed else EXIT_OK
 

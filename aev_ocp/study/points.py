@@ -80,9 +80,18 @@ def _culprit(message: str, values: dict[str, Any], axes: list[Axis]) -> str:
     return "overrides/base scenario" if not values else f"axes {', '.join(values)}"
 
 
-def _point_document(file: str, base_doc: dict[str, Any], base_file: str, overrides: dict[str, Any],
-                    values: dict[str, Any], axes: list[Axis], base: str, index: int,
-                    sink: list[str], sets: dict[str, Any] | None = None) -> dict[str, Any]:
+def _point_document(
+    file: str,
+    base_doc: dict[str, Any],
+    base_file: str,
+    overrides: dict[str, Any],
+    values: dict[str, Any],
+    axes: list[Axis],
+    base: str,
+    index: int,
+    sink: list[str],
+    sets: dict[str, Any] | None = None,
+) -> dict[str, Any]:
     """The point's document, validated by the scenario loader; errors name study file, axis, key.
     Layers: study overrides, then ``sets`` (--set), then the axis values (see :func:`parse_study`)."""
     sets = sets or {}
@@ -119,12 +128,17 @@ def _validate_controllers(file: str, controllers: list[Controller], points: list
                 sc = parse_scenario_quiet(controller_document(p.document, c, p.file), p.file)
             except (ScenarioError, OverrideError, ParameterError) as exc:
                 msg = str(exc)
-                where = (f"controller {c.label}" if any(f"mpc.{k}" in msg or k in msg for k, _ in c.settings)
-                         else _culprit(msg, p.values, axes))
+                where = (
+                    f"controller {c.label}"
+                    if any(f"mpc.{k}" in msg or k in msg for k, _ in c.settings)
+                    else _culprit(msg, p.values, axes)
+                )
                 raise StudyError(f"{file}: {where} (point {p.index}: {_describe(p.values)}): {msg}") from None
             if c.kind == "ocpd" and sc.n_followers != 1:
-                raise StudyError(f"{file}: controllers.ocpd: OCP-D needs a single follower; scenario {p.base} "
-                                 f"has {sc.n_followers} (point {p.index})")
+                raise StudyError(
+                    f"{file}: controllers.ocpd: OCP-D needs a single follower; scenario {p.base} "
+                    f"has {sc.n_followers} (point {p.index})"
+                )
 
 
 def controller_document(doc: dict[str, Any], c: Controller, file: str) -> dict[str, Any]:

@@ -85,17 +85,21 @@ def plot_metric_vs_axis(study: Study, rows: list[dict[str, Any]], metric: str, a
         pts.sort()
         color = f"C{ctrls.index(key[0]) % 10}" if key[0] in ctrls else "k"
         ls = styles[sorted({k[1:] for k in series}).index(key[1:]) % len(styles)]
-        lab = key[0] + ("" if not others else " (" + ", ".join(f"{o.split('.')[-1]}={v}" for o, v in zip(others, key[1:])) + ")")
+        lab = key[0] + (
+            "" if not others else " (" + ", ".join(f"{o.split('.')[-1]}={v}" for o, v in zip(others, key[1:])) + ")"
+        )
         ax.plot([p[0] for p in pts], [p[1] for p in pts], color=color, linestyle=ls, label=lab)
         ax.scatter([p[0] for p in pts if p[2]], [p[1] for p in pts if p[2]], color=color, s=14)
-        ax.scatter([p[0] for p in pts if not p[2]], [p[1] for p in pts if not p[2]], facecolors="none",
-                   edgecolors=color, s=30)
+        ax.scatter(
+            [p[0] for p in pts if not p[2]], [p[1] for p in pts if not p[2]], facecolors="none", edgecolors=color, s=30
+        )
     if cats:
         ax.set_xticks(range(len(cats)), cats)
     ax.set_xlabel(axis)
     ax.set_ylabel(metric)
-    ax.set_title(f"{study.name}: {metric}, follower {study.report.get('vehicle', 1)} (hollow: not comparable)",
-                 fontsize=9)
+    ax.set_title(
+        f"{study.name}: {metric}, follower {study.report.get('vehicle', 1)} (hollow: not comparable)", fontsize=9
+    )
     ax.grid(alpha=0.3)
     ax.legend(fontsize=7)
     return _save(fig, out / f"fig_{_slug(metric)}_vs_{_slug(axis)}.png")
@@ -103,8 +107,14 @@ def plot_metric_vs_axis(study: Study, rows: list[dict[str, Any]], metric: str, a
 
 def pareto_front(study: Study, rows: list[dict[str, Any]], mx: str, my: str) -> tuple[list[dict[str, Any]], list[bool]]:
     """Comparable, successful rows with both metrics, and whether each is non-dominated (both minimised)."""
-    cand = [r for r in rows if r.get("comparable") and r.get("status") == "ok"
-            and _num(r.get(mx)) is not None and _num(r.get(my)) is not None]
+    cand = [
+        r
+        for r in rows
+        if r.get("comparable")
+        and r.get("status") == "ok"
+        and _num(r.get(mx)) is not None
+        and _num(r.get(my)) is not None
+    ]
     mask = pareto_mask([(float(r[mx]), float(r[my])) for r in cand])
     return cand, mask
 
@@ -143,8 +153,9 @@ def _fmt(x: Any) -> str:
     return str(x)
 
 
-def change_table(study: Study, rows: list[dict[str, Any]], metric: str, vehicle: int = 1,
-                 mark_comparable: bool = True) -> list[str]:
+def change_table(
+    study: Study, rows: list[dict[str, Any]], metric: str, vehicle: int = 1, mark_comparable: bool = True
+) -> list[str]:
     """% change of ``metric`` against the reference over the first two numeric axes (one table per
     other controller; with ``mark_comparable`` '*' marks a point whose whole runs are not comparable), and where the
     sign changes."""
@@ -169,10 +180,14 @@ def change_table(study: Study, rows: list[dict[str, Any]], metric: str, vehicle:
             lines += _sign_changes(sub, col, ax1, ax2, xs, ys, c) if signs else []
             continue
         cell = {(r[ax1], r.get(ax2) if ax2 else None): r for r in sub}
-        lines += [f"% change of {metric} of **{c}** against **{study.reference}** (follower "
-                  f"{vehicle}" + ("; * = not comparable):" if mark_comparable else "):"), ""]
-        lines.append(f"| {ax1} \\ {ax2} | " + " | ".join(_fmt(y) for y in ys) + " |" if ax2
-                     else f"| {ax1} | % change |")
+        lines += [
+            f"% change of {metric} of **{c}** against **{study.reference}** (follower "
+            f"{vehicle}" + ("; * = not comparable):" if mark_comparable else "):"),
+            "",
+        ]
+        lines.append(
+            f"| {ax1} \\ {ax2} | " + " | ".join(_fmt(y) for y in ys) + " |" if ax2 else f"| {ax1} | % change |"
+        )
         lines.append("|---" * (len(ys) + 1) + "|")
         for x in xs:
             vals = []
@@ -202,24 +217,30 @@ def _nonzero_pairs(seq: list[tuple[Any, float, bool]]) -> list[tuple[tuple[Any, 
     return list(zip(nz, nz[1:]))
 
 
-def _sign_changes(sub: list[dict[str, Any]], col: str, ax1: str, ax2: str | None, xs: list, ys: list,
-                  c: str) -> list[str]:
+def _sign_changes(
+    sub: list[dict[str, Any]], col: str, ax1: str, ax2: str | None, xs: list, ys: list, c: str
+) -> list[str]:
     """Where, along the first axis, the % change changes sign (per value of the second axis)."""
     cell = {(r[ax1], r.get(ax2) if ax2 else None): r for r in sub}
     out = []
     for y in ys:
         cells = [(x, cell.get((x, y))) for x in xs]
         seq = [(x, r[col], bool(r.get("comparable"))) for x, r in cells if r is not None and r.get(col) is not None]
-        flips = [f"between {ax1} = {_fmt(a[0])} ({a[1]:+.2f}%) and {_fmt(b[0])} ({b[1]:+.2f}%)"
-                 + ("" if a[2] and b[2] else " [not comparable]")
-                 for a, b in _nonzero_pairs(seq) if _sign(a[1]) * _sign(b[1]) < 0]
+        flips = [
+            f"between {ax1} = {_fmt(a[0])} ({a[1]:+.2f}%) and {_fmt(b[0])} ({b[1]:+.2f}%)"
+            + ("" if a[2] and b[2] else " [not comparable]")
+            for a, b in _nonzero_pairs(seq)
+            if _sign(a[1]) * _sign(b[1]) < 0
+        ]
         where = f"at {ax2} = {_fmt(y)}" if ax2 else ""
         if flips:
             out.append(f"- {c}: sign changes {where}: " + "; ".join(flips))
         elif any(_sign(v) for _, v, _ in seq):
             sign = "a saving (< 0)" if any(_sign(v) < 0 for _, v, _ in seq) else "an increase (> 0)"
-            out.append(f"- {c}: {where} no sign change: {sign} wherever the change is non-zero "
-                       f"(|change| > {ZERO_PCT:g} %), {ax1} in [{_fmt(seq[0][0])}, {_fmt(seq[-1][0])}]")
+            out.append(
+                f"- {c}: {where} no sign change: {sign} wherever the change is non-zero "
+                f"(|change| > {ZERO_PCT:g} %), {ax1} in [{_fmt(seq[0][0])}, {_fmt(seq[-1][0])}]"
+            )
     return out + [""]
 
 
@@ -232,23 +253,32 @@ def _pareto_groups(study: Study, rows: list[dict[str, Any]]) -> list[tuple[str, 
     groups: dict[tuple, list[dict[str, Any]]] = {}
     for r in rows:
         groups.setdefault(tuple(r.get(k) for k in by), []).append(r)
-    return [(", ".join(f"{k.split('.')[-1] if k != 'scenario' else 'scenario'} {v}" for k, v in zip(by, key)), g)
-            for key, g in groups.items()]
+    return [
+        (", ".join(f"{k.split('.')[-1] if k != 'scenario' else 'scenario'} {v}" for k, v in zip(by, key)), g)
+        for key, g in groups.items()
+    ]
 
 
 def _warn_unknown_metrics(study: Study, rows: list[dict[str, Any]]) -> None:
     """A [report] metric that is no column of the table (a typo) gives no figure: say so, once, instead of nothing."""
     columns = {k for r in rows for k in r}
     rep = study.report
-    asked = [*rep.get("metrics", []), *(m for pair in rep.get("pareto", []) for m in pair),
-             rep.get("change_metric", "omega_model"), *rep.get("pareto_by", [])]
+    asked = [
+        *rep.get("metrics", []),
+        *(m for pair in rep.get("pareto", []) for m in pair),
+        rep.get("change_metric", "omega_model"),
+        *rep.get("pareto_by", []),
+    ]
     unknown = sorted({m for m in asked if m not in columns})
     if rows and unknown:
         import warnings
 
         metrics = sorted(k for k in columns if isinstance(rows[0].get(k), float))[:12]
-        warnings.warn(f"study {study.name}: [report] names {unknown}, not columns of the table: no figure or table for "
-                      f"them (metric columns include {metrics}; see table.csv)", stacklevel=2)
+        warnings.warn(
+            f"study {study.name}: [report] names {unknown}, not columns of the table: no figure or table for "
+            f"them (metric columns include {metrics}; see table.csv)",
+            stacklevel=2,
+        )
 
 
 def write_report(study: Study, rows_all: list[dict[str, Any]], out: str | Path) -> list[Path]:
@@ -281,16 +311,31 @@ def write_report(study: Study, rows_all: list[dict[str, Any]], out: str | Path) 
     n_err = sum(1 for r in rows_all if r["status"] == "error")
     n_evt = sum(1 for r in rows_all if r["status"] not in ("ok", "error"))
     n_nc = sum(1 for r in rows if not r.get("comparable"))
-    lines = [f"# Study {study.name}", ""] + ([study.description, ""] if study.description else []) + [
-             f"{len(study.points)} points × {len(study.controllers)} controllers "
-             f"({', '.join(c.label for c in study.controllers)}), reference **{study.reference}**; "
-             f"base scenario(s): {', '.join(study.bases)}; axes: "
-             + ("; ".join(f"{a.label} ({a.kind}, {len(a.rows)} values"
-                          + (f", seed {a.seed}" if a.seed is not None else "") + ")" for a in study.axes) or "none") + ".",
-             "", f"Rows ended by an event: {n_evt}; failed: {n_err}; follower {veh} rows not comparable with "
-             f"the reference (distance or duration > 1 % apart, event, failure): {n_nc} of {len(rows)}.",
-             "Table: `table.csv` / `table.jsonl` (one row per point × controller × vehicle; "
-             "`aev_ocp.study.load_table(folder)`).", ""]
+    lines = (
+        [f"# Study {study.name}", ""]
+        + ([study.description, ""] if study.description else [])
+        + [
+            f"{len(study.points)} points × {len(study.controllers)} controllers "
+            f"({', '.join(c.label for c in study.controllers)}), reference **{study.reference}**; "
+            f"base scenario(s): {', '.join(study.bases)}; axes: "
+            + (
+                "; ".join(
+                    f"{a.label} ({a.kind}, {len(a.rows)} values"
+                    + (f", seed {a.seed}" if a.seed is not None else "")
+                    + ")"
+                    for a in study.axes
+                )
+                or "none"
+            )
+            + ".",
+            "",
+            f"Rows ended by an event: {n_evt}; failed: {n_err}; follower {veh} rows not comparable with "
+            f"the reference (distance or duration > 1 % apart, event, failure): {n_nc} of {len(rows)}.",
+            "Table: `table.csv` / `table.jsonl` (one row per point × controller × vehicle; "
+            "`aev_ocp.study.load_table(folder)`).",
+            "",
+        ]
+    )
     if n_err:
         lines += ["Failed tasks:", ""]
         seen = set()
@@ -300,21 +345,33 @@ def write_report(study: Study, rows_all: list[dict[str, Any]], out: str | Path) 
                 lines.append(f"- point {r['point']} {r['controller']}: {r['message']}")
         lines.append("")
     for v in study.report.get("vehicles", [veh]):
-        ch = change_table(study, [r for r in rows_all if r.get("vehicle") == v],
-                          study.report.get("change_metric", "omega_model"), v)
+        ch = change_table(
+            study, [r for r in rows_all if r.get("vehicle") == v], study.report.get("change_metric", "omega_model"), v
+        )
         if ch:
             lines += [f"## Change against the reference, follower {v}", ""] + ch
-        eq = change_table(study, [r for r in rows_all if r.get("vehicle") == v], f"eq_distance_{EQUAL_METRIC}", v,
-                          mark_comparable=False)
+        eq = change_table(
+            study,
+            [r for r in rows_all if r.get("vehicle") == v],
+            f"eq_distance_{EQUAL_METRIC}",
+            v,
+            mark_comparable=False,
+        )
         if eq:
-            lines += [f"## Equal-distance view, follower {v}", "",
-                      "Pack ∫Q per km of every run of a point up to the shortest distance all its runs covered "
-                      "(columns `eq_distance_*` of the table; runs ended by an event or a failure are left out), so "
-                      "runs of different length compare like with like; the same up to the common time: `eq_time_*`.",
-                      ""] + eq
+            lines += [
+                f"## Equal-distance view, follower {v}",
+                "",
+                "Pack ∫Q per km of every run of a point up to the shortest distance all its runs covered "
+                "(columns `eq_distance_*` of the table; runs ended by an event or a failure are left out), so "
+                "runs of different length compare like with like; the same up to the common time: `eq_time_*`.",
+                "",
+            ] + eq
     for mx, my, base, f, front in fronts:
-        lines += [f"## Pareto front: {mx} vs {my}{', ' + base if base else ''} (both minimised, "
-                  f"follower {veh}; comparable rows only)", ""]
+        lines += [
+            f"## Pareto front: {mx} vs {my}{', ' + base if base else ''} (both minimised, "
+            f"follower {veh}; comparable rows only)",
+            "",
+        ]
         if f:
             lines += [f"![Pareto front]({f.name})", ""]
         keys = study.axis_keys
@@ -322,9 +379,11 @@ def write_report(study: Study, rows_all: list[dict[str, Any]], out: str | Path) 
         lines.append("|---" * (len(keys) + 3) + "|")
         for r in front:
             law = next((c.kind == "law" for c in study.controllers if c.label == r["controller"]), False)
-            lines.append(f"| {r['controller']} | " + " | ".join("(any)" if law and k.startswith("mpc.") else _fmt(r.get(k))
-                                                              for k in keys)
-                         + f" | {_fmt(r[mx])} | {_fmt(r[my])} |")
+            lines.append(
+                f"| {r['controller']} | "
+                + " | ".join("(any)" if law and k.startswith("mpc.") else _fmt(r.get(k)) for k in keys)
+                + f" | {_fmt(r[mx])} | {_fmt(r[my])} |"
+            )
         lines.append("")
     if figs:
         lines += ["## Figures", ""] + [f"![{f.stem}]({f.name})" for f in figs if not f.name.startswith("pareto")] + [""]

@@ -51,15 +51,20 @@ def run_task(spec: dict[str, Any]) -> dict[str, Any]:
         for m, st in zip(metrics, result.solver_stats or []):  # estimation errors beside the closed-loop metrics
             for k, v in ((st or {}).get("estimation") or {}).items():
                 m[f"est_{k}"] = v
-        out.update(status=result.status, message="; ".join(str(e) for e in result.events + result.violations), metrics=metrics)
+        out.update(
+            status=result.status, message="; ".join(str(e) for e in result.events + result.violations), metrics=metrics
+        )
         # compact cumulative profiles, so the table can cut this point's runs at their common distance and time
         out["profiles"] = [cumulative_profile(result, i) for i in range(result.n_vehicles)] if result.t.size > 1 else []
         if spec.get("trajectories"):  # optional: the run's trajectories, loadable by aev_ocp.load
             from ..saved import save_output
 
-            save_output(Path(spec["trajectories"]) / spec["key"], "simulate", {c["label"]: result},
-                        settings={"task": spec["key"], "file": spec["file"], "controller": c,
-                                  "document": spec["document"]})
+            save_output(
+                Path(spec["trajectories"]) / spec["key"],
+                "simulate",
+                {c["label"]: result},
+                settings={"task": spec["key"], "file": spec["file"], "controller": c, "document": spec["document"]},
+            )
     except Exception as exc:  # noqa: BLE001 - a failed point is recorded, the others go on
         tb = traceback.extract_tb(exc.__traceback__)
         where = f" ({Path(tb[-1].filename).name}:{tb[-1].lineno})" if tb else ""
@@ -94,8 +99,15 @@ def _simulate(spec: dict[str, Any]) -> Any:
     if ctrl.kind == "law" and measurements_degraded(sc):  # the law sampled at the MPC's step on the same measurements
         from ..control import ClosedLoop
 
-        return ClosedLoop(sc.leader, [sc.law(ctrl.name)] * sc.n_followers, sc.ev, rtol=sc.rtol, atol=sc.atol,
-                          law_dt=cfg.settings.dt, **realism_kwargs(sc)).run(list(sc.gaps0), list(sc.speeds0), sc.t_end)
+        return ClosedLoop(
+            sc.leader,
+            [sc.law(ctrl.name)] * sc.n_followers,
+            sc.ev,
+            rtol=sc.rtol,
+            atol=sc.atol,
+            law_dt=cfg.settings.dt,
+            **realism_kwargs(sc),
+        ).run(list(sc.gaps0), list(sc.speeds0), sc.t_end)
     if ctrl.kind == "law":
         return _simulator(sc, ctrl.name).run(list(sc.gaps0), list(sc.speeds0), sc.t_end)
     if ctrl.kind == "mpc":
@@ -151,8 +163,9 @@ def _ocpd(sc: Any, s: Any, f: Any) -> Any:
     if sr.replay is None:
         raise RuntimeError(f"OCP-D did not converge: {sr.result.status}")
     r = sr.replay
-    r.solver_stats = [{f"{f.cost_key}_optimum": float(sr.result.objective), "grid_dt": sr.scenario.dt,
-                       "coarse": sr.coarse}]
+    r.solver_stats = [
+        {f"{f.cost_key}_optimum": float(sr.result.objective), "grid_dt": sr.scenario.dt, "coarse": sr.coarse}
+    ]
     return r
 
 
@@ -187,8 +200,13 @@ class Store:
             if not f.is_file() or f.stat().st_size > MAX_ENTRY_BYTES:
                 raise ValueError("not a regular file of a sane size")
             got = json.loads(f.read_text(encoding="utf-8"))
-            if (not isinstance(got, dict) or got.get("key") != key or any(k not in got for k in self.FIELDS)
-                    or not isinstance(got["metrics"], list) or got.get(self.HASH_FIELD) != self.digest(got)):
+            if (
+                not isinstance(got, dict)
+                or got.get("key") != key
+                or any(k not in got for k in self.FIELDS)
+                or not isinstance(got["metrics"], list)
+                or got.get(self.HASH_FIELD) != self.digest(got)
+            ):
                 raise ValueError("damaged entry")
         except FileNotFoundError:
             return None
@@ -227,11 +245,20 @@ def _unique(tasks: Iterable[Task]) -> dict[str, Task]:
     return out
 
 
-def execute(tasks: list[Task], store: Store, *, executor: str = "pool", workers: int | None = None,
-            scheduler: str | None = None, name: str = "study", progress_stream: Any = None,
-            on_result: Callable[[str, dict[str, Any]], None] | None = None,
-            time_limit_s: float | None = None, every_s: float = 1.0,
-            trajectories_dir: str | os.PathLike[str] | None = None) -> dict[str, dict[str, Any]]:
+def execute(
+    tasks: list[Task],
+    store: Store,
+    *,
+    executor: str = "pool",
+    workers: int | None = None,
+    scheduler: str | None = None,
+    name: str = "study",
+    progress_stream: Any = None,
+    on_result: Callable[[str, dict[str, Any]], None] | None = None,
+    time_limit_s: float | None = None,
+    every_s: float = 1.0,
+    trajectories_dir: str | os.PathLike[str] | None = None,
+) -> dict[str, dict[str, Any]]:
     """Run every task missing from ``store``; returns {hash: result} for all tasks.
 
     executor: 'inprocess', 'pool' (``workers`` processes, default one per core) or 'dask'
@@ -249,18 +276,23 @@ def execute(tasks: list[Task], store: Store, *, executor: str = "pool", workers:
 
     for key in list(todo):
         got = store.get(key)
-        if got is not None and (trajectories_dir is None or got["status"] == "error"
-                                or (Path(trajectories_dir) / key / MANIFEST).is_file()):
+        if got is not None and (
+            trajectories_dir is None or got["status"] == "error" or (Path(trajectories_dir) / key / MANIFEST).is_file()
+        ):
             results[key] = got
     missing = [t for k, t in todo.items() if k not in results]
     if store.damaged:
         import warnings
 
-        warnings.warn(f"study {name}: {len(store.damaged)} stored result(s) in {store.dir} were damaged (not a "
-                      f"result, another task's, or content not matching its hash; first {store.damaged[0]}.json): "
-                      "computing them again", stacklevel=2)
-    prog = Progress(f"study {name}", len(todo), unit="tasks", time_limit_s=time_limit_s, every_s=every_s,
-                    stream=progress_stream)
+        warnings.warn(
+            f"study {name}: {len(store.damaged)} stored result(s) in {store.dir} were damaged (not a "
+            f"result, another task's, or content not matching its hash; first {store.damaged[0]}.json): "
+            "computing them again",
+            stacklevel=2,
+        )
+    prog = Progress(
+        f"study {name}", len(todo), unit="tasks", time_limit_s=time_limit_s, every_s=every_s, stream=progress_stream
+    )
     cached, failed = len(results), [0]
     # the first update is the ETA's origin: the ETA counts only the tasks computed in this run
     prog.update(cached, len(todo), force=True, note=f"({cached} stored, 0 failed)", check=False)
@@ -278,8 +310,10 @@ def execute(tasks: list[Task], store: Store, *, executor: str = "pool", workers:
 
     if not missing:
         return results
-    specs = [t.spec if trajectories_dir is None else {**t.spec, "trajectories": str(Path(trajectories_dir).resolve())}
-             for t in missing]
+    specs = [
+        t.spec if trajectories_dir is None else {**t.spec, "trajectories": str(Path(trajectories_dir).resolve())}
+        for t in missing
+    ]
     if executor == "inprocess":
         for sp in specs:
             done(run_task(sp))
@@ -369,8 +403,11 @@ def _connect(client_type: Any, scheduler: str) -> Any:
     if isinstance(exc, (ValueError, TypeError)):  # the address itself: bad input, not a scheduler that failed
         raise _bad_address(scheduler, exc)
     if t.is_alive() or exc is not None:
-        how = (f"could not be reached ({type(exc).__name__}: {exc})" if exc is not None else
-               f"did not answer within {SCHEDULER_CONNECT_TIMEOUT_S:g} s")
+        how = (
+            f"could not be reached ({type(exc).__name__}: {exc})"
+            if exc is not None
+            else f"did not answer within {SCHEDULER_CONNECT_TIMEOUT_S:g} s"
+        )
         raise RuntimeError(f"the Dask scheduler {scheduler} {how}")
     return box["client"]
 
@@ -378,7 +415,9 @@ def _connect(client_type: Any, scheduler: str) -> Any:
 def _bad_address(scheduler: str, exc: Exception) -> Exception:
     from ..params import ParameterError
 
-    return ParameterError(f"--scheduler {scheduler!r} is not a Dask scheduler address (e.g. tcp://10.0.0.5:8786): {exc}")
+    return ParameterError(
+        f"--scheduler {scheduler!r} is not a Dask scheduler address (e.g. tcp://10.0.0.5:8786): {exc}"
+    )
 
 
 def check_scheduler_address(scheduler: str) -> str:
@@ -397,12 +436,15 @@ def check_scheduler_address(scheduler: str) -> str:
 
 def dask_missing_message() -> str:
     """What to do when Dask is not installed."""
-    return ("Dask is not installed: the Dask executor (--dask-local N, --scheduler ADDRESS) needs "
-            "pip install 'aev_ocp[dask]' (dask[distributed]); the default process pool needs nothing extra")
+    return (
+        "Dask is not installed: the Dask executor (--dask-local N, --scheduler ADDRESS) needs "
+        "pip install 'aev_ocp[dask]' (dask[distributed]); the default process pool needs nothing extra"
+    )
 
 
-def _run_dask(specs: list[dict[str, Any]], workers: int | None, scheduler: str | None,
-              done: Callable[[dict[str, Any]], None]) -> None:
+def _run_dask(
+    specs: list[dict[str, Any]], workers: int | None, scheduler: str | None, done: Callable[[dict[str, Any]], None]
+) -> None:
     try:
         from dask.distributed import Client, LocalCluster, as_completed
     except ImportError:
@@ -416,9 +458,13 @@ def _run_dask(specs: list[dict[str, Any]], workers: int | None, scheduler: str |
     # the workers' scratch space (Dask's default: <tmp>/dask-scratch-space, left behind) is ours, removed at the end
     scratch = None if scheduler else tempfile.mkdtemp(prefix="aev_ocp_dask_")
     # a scheduler that accepts and then stays silent must not hang the study (issue 28)
-    cfg = dask.config.set({"distributed.comm.timeouts.connect": f"{SCHEDULER_CONNECT_TIMEOUT_S}s",
-                           "distributed.comm.timeouts.tcp": f"{SCHEDULER_HEARTBEAT_TIMEOUT_S}s",
-                           **({"temporary-directory": scratch} if scratch else {})})
+    cfg = dask.config.set(
+        {
+            "distributed.comm.timeouts.connect": f"{SCHEDULER_CONNECT_TIMEOUT_S}s",
+            "distributed.comm.timeouts.tcp": f"{SCHEDULER_HEARTBEAT_TIMEOUT_S}s",
+            **({"temporary-directory": scratch} if scratch else {}),
+        }
+    )
 
     def release() -> None:
         cfg.__exit__(None, None, None)
@@ -431,8 +477,14 @@ def _run_dask(specs: list[dict[str, Any]], workers: int | None, scheduler: str |
         else:
             _export_path()
             with interrupts.deferred():  # Ctrl-C while the cluster starts: honoured once it can be closed cleanly
-                cluster = LocalCluster(n_workers=n_local, threads_per_worker=1, processes=True, dashboard_address=None,
-                                       silence_logs=logging.CRITICAL, local_directory=scratch)
+                cluster = LocalCluster(
+                    n_workers=n_local,
+                    threads_per_worker=1,
+                    processes=True,
+                    dashboard_address=None,
+                    silence_logs=logging.CRITICAL,
+                    local_directory=scratch,
+                )
             with interrupts.deferred():
                 client = Client(cluster, timeout=SCHEDULER_CONNECT_TIMEOUT_S)
     except BaseException:
@@ -443,16 +495,19 @@ def _run_dask(specs: list[dict[str, Any]], workers: int | None, scheduler: str |
     try:
         slots = max(1, sum(client.nthreads().values()))
         size = chunk_size(len(specs), slots)
-        chunks = [specs[i:i + size] for i in range(0, len(specs), size)]
-        futures = [client.submit(run_tasks, ch, key=f"aev-ocp-tasks-{ch[0]['key']}-{len(ch)}", pure=False)
-                   for ch in chunks]
+        chunks = [specs[i : i + size] for i in range(0, len(specs), size)]
+        futures = [
+            client.submit(run_tasks, ch, key=f"aev-ocp-tasks-{ch[0]['key']}-{len(ch)}", pure=False) for ch in chunks
+        ]
         try:
             for fut in as_completed(futures):
                 try:
                     batch = fut.result()
                 except Exception as exc:  # run_task records its own errors: this is the cluster failing
-                    raise RuntimeError(f"a Dask worker could not run a study task ({type(exc).__name__}: {exc}); "
-                                       "do the workers have this aev_ocp installed?") from exc
+                    raise RuntimeError(
+                        f"a Dask worker could not run a study task ({type(exc).__name__}: {exc}); "
+                        "do the workers have this aev_ocp installed?"
+                    ) from exc
                 for res in batch:
                     done(res)
         except BaseException:

@@ -62,14 +62,32 @@ from ..progress import Progress
 from ..results import check_safe_name
 from ..scenarios import ScenarioError, TableReader, load_scenario
 from .model import Axis, Controller, Point, StudyError, Task
-from .points import (_point_document, _validate_controllers, controller_document, parse_scenario_quiet,
-                     parse_scenario_warnings)
+from .points import (
+    _point_document,
+    _validate_controllers,
+    controller_document,
+    parse_scenario_quiet,
+    parse_scenario_warnings,
+)
 from .tables import _axis, _base, _bases, _controllers, _report
 from .tasks import canonical_json, make_task
 
-__all__ = ["PRECEDENCE", "Axis", "Controller", "Point", "Study", "StudyError", "Task", "canonical_json",
-           "controller_document", "make_task", "parse_scenario_quiet", "parse_scenario_warnings", "parse_study",
-           "read_study"]
+__all__ = [
+    "PRECEDENCE",
+    "Axis",
+    "Controller",
+    "Point",
+    "Study",
+    "StudyError",
+    "Task",
+    "canonical_json",
+    "controller_document",
+    "make_task",
+    "parse_scenario_quiet",
+    "parse_scenario_warnings",
+    "parse_study",
+    "read_study",
+]
 
 
 @dataclass
@@ -92,8 +110,9 @@ class Study:
         """Every point × controller as a task (tasks with equal specifications share one hash)."""
         if self._tasks is None:
             own_cost = any(c.kind == "ocpd" for c in self.controllers)  # OCP-D's bound check needs the MPC's cost
-            self._tasks = [make_task(p, c, own_cost=own_cost and c.kind == "mpc") for p in self.points
-                           for c in self.controllers]
+            self._tasks = [
+                make_task(p, c, own_cost=own_cost and c.kind == "mpc") for p in self.points for c in self.controllers
+            ]
         return list(self._tasks)
 
     @property
@@ -119,12 +138,15 @@ def read_study(path: str | Path, sets: dict[str, Any] | None = None) -> Study:
     return parse_study(doc, file, Path(path), sets=sets)
 
 
-PRECEDENCE = ("command line (--set) over study file (per-scenario overrides over [overrides]) over scenario file; "
-              "a --set on a key that the study sweeps (an axis) or sets per controller is refused")
+PRECEDENCE = (
+    "command line (--set) over study file (per-scenario overrides over [overrides]) over scenario file; "
+    "a --set on a key that the study sweeps (an axis) or sets per controller is refused"
+)
 
 
-def parse_study(doc: dict[str, Any], file: str = "<study>", path: Path | None = None,
-                sets: dict[str, Any] | None = None) -> Study:
+def parse_study(
+    doc: dict[str, Any], file: str = "<study>", path: Path | None = None, sets: dict[str, Any] | None = None
+) -> Study:
     """Validate a parsed study document (see the module docstring).
 
     Layers, later over earlier (:data:`PRECEDENCE`): the base scenario file, the study's ``[overrides]``, a
@@ -153,8 +175,13 @@ def _family(key: str) -> set[str]:
     return out
 
 
-def _check_sets(file: str, sets: dict[str, Any], axes: list[Axis], controllers: list[Controller],
-                layers: list[tuple[str, dict[str, Any]]]) -> list[str]:
+def _check_sets(
+    file: str,
+    sets: dict[str, Any],
+    axes: list[Axis],
+    controllers: list[Controller],
+    layers: list[tuple[str, dict[str, Any]]],
+) -> list[str]:
     """Refuse a --set that an axis or a controller would replace; note the study-file overrides it replaces."""
     notes: list[str] = []
     for key, value in sets.items():
@@ -162,17 +189,23 @@ def _check_sets(file: str, sets: dict[str, Any], axes: list[Axis], controllers: 
         for i, a in enumerate(axes):
             hit = next((k for k in a.keys if k in fam), None)
             if hit is not None:
-                raise StudyError(f"{file}: --set {key} = {value!r} would be ignored: axes[{i}] sweeps {hit} at every "
-                                 f"point; change the axis values in the study file instead")
+                raise StudyError(
+                    f"{file}: --set {key} = {value!r} would be ignored: axes[{i}] sweeps {hit} at every "
+                    f"point; change the axis values in the study file instead"
+                )
         for c in controllers:
             hit = next((f"mpc.{k}" for k, _ in c.settings if f"mpc.{k}" in fam), None)
             if hit is not None:
-                raise StudyError(f"{file}: --set {key} = {value!r} would be ignored: controller {c.label!r} sets "
-                                 f"{hit}; change [[controllers.mpc]] in the study file instead")
+                raise StudyError(
+                    f"{file}: --set {key} = {value!r} would be ignored: controller {c.label!r} sets "
+                    f"{hit}; change [[controllers.mpc]] in the study file instead"
+                )
         for where, ov in layers:
             for k in sorted(fam & set(ov)):
-                notes.append(f"{file}: --set {key} = {value!r} replaces {where} {k} = {ov[k]!r} (the command line "
-                             f"is applied over the study file)")
+                notes.append(
+                    f"{file}: --set {key} = {value!r} replaces {where} {k} = {ov[k]!r} (the command line "
+                    f"is applied over the study file)"
+                )
     return notes
 
 
@@ -232,8 +265,18 @@ def _parse_study(doc: dict[str, Any], file: str, path: Path | None, sets: dict[s
         for combo in combos:
             prog.update(len(points), what="validating")
             values = {k: v for a, row in zip(axes, combo) for k, v in zip(a.keys, row)}
-            pdoc = _point_document(file, base_doc, base_file, {**overrides, **base_overrides[b][1]}, values, axes, b,
-                                   len(points), found_warnings, sets)
+            pdoc = _point_document(
+                file,
+                base_doc,
+                base_file,
+                {**overrides, **base_overrides[b][1]},
+                values,
+                axes,
+                b,
+                len(points),
+                found_warnings,
+                sets,
+            )
             points.append(Point(len(points), b, values, pdoc, base_file))
     study = Study(name, description, file, axes, controllers, reference, points, bases, report, found_warnings)
     _validate_controllers(file, controllers, points, axes)

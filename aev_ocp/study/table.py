@@ -31,10 +31,26 @@ CHANGE_METRICS = ("omega_model", "heat_pack_J", "heat_pack_J_per_km")
 EQUAL_VIEWS = (("eq_distance", "distance", "cut_m"), ("eq_time", "time", "cut_s"))
 EQUAL_METRIC = "heat_pack_J_per_km"
 _LEAD = ("study", "point", "scenario")
-_AFTER = ("controller", "vehicle", "status", "message", "comparable", "flag_distance", "flag_duration", "flag_event",
-          "distance_diff_pct", "duration_diff_pct") + tuple(f"{m}_change_pct" for m in CHANGE_METRICS) + tuple(
-          c for p, _, cut in EQUAL_VIEWS for c in (f"{p}_{cut}", f"{p}_{EQUAL_METRIC}", f"{p}_rank",
-                                                   f"{p}_{EQUAL_METRIC}_change_pct"))
+_AFTER = (
+    (
+        "controller",
+        "vehicle",
+        "status",
+        "message",
+        "comparable",
+        "flag_distance",
+        "flag_duration",
+        "flag_event",
+        "distance_diff_pct",
+        "duration_diff_pct",
+    )
+    + tuple(f"{m}_change_pct" for m in CHANGE_METRICS)
+    + tuple(
+        c
+        for p, _, cut in EQUAL_VIEWS
+        for c in (f"{p}_{cut}", f"{p}_{EQUAL_METRIC}", f"{p}_rank", f"{p}_{EQUAL_METRIC}_change_pct")
+    )
+)
 _TAIL = ("wall_s", "task_hash", "aev_ocp_version", "casadi_version", "git_commit")
 
 
@@ -83,12 +99,19 @@ def build_rows(study: Study, results: dict[str, dict[str, Any]]) -> list[dict[st
             ms = res.get("metrics") or [{"vehicle": None}]
             for m in ms:
                 row = dict(head)
-                row.update(controller=c.label, vehicle=m.get("vehicle"), status=res["status"],
-                           message=res.get("message", ""))
+                row.update(
+                    controller=c.label, vehicle=m.get("vehicle"), status=res["status"], message=res.get("message", "")
+                )
                 r = ref_by_vehicle.get(m.get("vehicle"))
                 if res["status"] == "error":
-                    flags = {"distance_diff_pct": None, "duration_diff_pct": None, "flag_distance": True,
-                             "flag_duration": True, "flag_event": True, "comparable": False}
+                    flags = {
+                        "distance_diff_pct": None,
+                        "duration_diff_pct": None,
+                        "flag_distance": True,
+                        "flag_duration": True,
+                        "flag_event": True,
+                        "comparable": False,
+                    }
                 else:
                     flags = comparability({**m, "run_status": res["status"]}, r)
                     flags = {k: (v if not isinstance(v, float) or math.isfinite(v) else None) for k, v in flags.items()}
@@ -102,8 +125,9 @@ def build_rows(study: Study, results: dict[str, dict[str, Any]]) -> list[dict[st
                     row[f"{prefix}_{cut}"] = cut_value if cut_value is not None and math.isfinite(cut_value) else None
                     row[f"{prefix}_{EQUAL_METRIC}"] = mine[EQUAL_METRIC] if mine else None
                     row[f"{prefix}_rank"] = mine["rank"] if mine else None
-                    row[f"{prefix}_{EQUAL_METRIC}_change_pct"] = (_pct(mine[EQUAL_METRIC], ref_v[EQUAL_METRIC])
-                                                                  if mine and ref_v else None)
+                    row[f"{prefix}_{EQUAL_METRIC}_change_pct"] = (
+                        _pct(mine[EQUAL_METRIC], ref_v[EQUAL_METRIC]) if mine and ref_v else None
+                    )
                 row.update({k: v for k, v in m.items() if k not in ("vehicle", "controller", "status")})
                 row["vehicle_status"] = m.get("status")
                 row["wall_s"] = res.get("wall_s")
@@ -125,15 +149,23 @@ def _ocpd_roles(study: Study, rows: list[dict[str, Any]]) -> None:
     for r in rows:
         if kind.get(r["controller"]) != "ocpd" or r["status"] == "error":
             continue
-        key = next((k[:-len("_optimum")] for k in r if k.endswith("_optimum")), None)
+        key = next((k[: -len("_optimum")] for k in r if k.endswith("_optimum")), None)
         if key is None:
             continue
         if r.get("coarse"):
-            r["ocpd_role"], r["ocpd_role_reason"] = "reference", (
-                f"OCP-D was solved on a coarser grid (dt = {r.get('grid_dt')}): it bounds nothing on the MPC's grid")
+            r["ocpd_role"], r["ocpd_role_reason"] = (
+                "reference",
+                (f"OCP-D was solved on a coarser grid (dt = {r.get('grid_dt')}): it bounds nothing on the MPC's grid"),
+            )
             continue
-        runs = {x["controller"]: [x] for x in rows if x["point"] == r["point"] and x.get("vehicle") == r.get("vehicle")
-                and kind.get(x["controller"]) == "mpc" and x["status"] != "error"}
+        runs = {
+            x["controller"]: [x]
+            for x in rows
+            if x["point"] == r["point"]
+            and x.get("vehicle") == r.get("vehicle")
+            and kind.get(x["controller"]) == "mpc"
+            and x["status"] != "error"
+        }
         r["ocpd_role"], r["ocpd_role_reason"] = bound_role(float(r[f"{key}_optimum"]), runs, key)
 
 
@@ -145,7 +177,9 @@ def columns(rows: list[dict[str, Any]], axis_keys: list[str]) -> list[str]:
         for k in r:
             if k not in fixed:
                 metrics.setdefault(k, None)
-    return list(_LEAD) + [k for k in axis_keys if k != "scenario"] + list(_AFTER) + si_first(list(metrics)) + list(_TAIL)
+    return (
+        list(_LEAD) + [k for k in axis_keys if k != "scenario"] + list(_AFTER) + si_first(list(metrics)) + list(_TAIL)
+    )
 
 
 def write_table(rows: list[dict[str, Any]], out: str | Path, axis_keys: list[str]) -> tuple[Path, Path]:

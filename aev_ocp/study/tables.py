@@ -28,7 +28,9 @@ def _axis(r: TableReader, i: int) -> Axis:
     if len(set(keys)) != len(keys):
         raise r.error("keys", keys, "keys must be distinct")
     if r.has("values") == r.has("random"):
-        raise StudyError(f"{r.file}: {where} ({', '.join(keys)}): give either values or random = {{n, seed, low, high}}")
+        raise StudyError(
+            f"{r.file}: {where} ({', '.join(keys)}): give either values or random = {{n, seed, low, high}}"
+        )
     if r.has("values"):
         vals = r.table["values"]
         r._get("values", None)
@@ -110,13 +112,17 @@ def _report(r: TableReader, file: str) -> dict[str, Any]:
     vehicles = veh if isinstance(veh, list) else [veh]
     if not vehicles or not all(isinstance(v, int) and not isinstance(v, bool) and v >= 1 for v in vehicles):
         raise r.error("vehicle", veh, "expected a follower number (1, 2, ...) or an array of them")
-    rep: dict[str, Any] = {"vehicle": vehicles[0], "vehicles": vehicles,
-                           "metrics": r.strings("metrics", ["omega_model", "heat_pack_J_per_km"]),
-                           "change_metric": r.string("change_metric", "omega_model")}
+    rep: dict[str, Any] = {
+        "vehicle": vehicles[0],
+        "vehicles": vehicles,
+        "metrics": r.strings("metrics", ["omega_model", "heat_pack_J_per_km"]),
+        "change_metric": r.string("change_metric", "omega_model"),
+    }
     pareto = r.table.get("pareto", [])
     r._get("pareto", None)
-    if not isinstance(pareto, list) or not all(isinstance(p, list) and len(p) == 2 and all(isinstance(x, str) for x in p)
-                                               for p in pareto):
+    if not isinstance(pareto, list) or not all(
+        isinstance(p, list) and len(p) == 2 and all(isinstance(x, str) for x in p) for p in pareto
+    ):
         raise r.error("pareto", pareto, "expected an array of [metric_x, metric_y] pairs (both minimised)")
     rep["pareto"] = [tuple(p) for p in pareto]
     rep["pareto_by"] = r.strings("pareto_by", [])
@@ -130,8 +136,12 @@ def _bases(top: TableReader) -> tuple[list[str], dict[str, tuple[str, dict[str, 
     raw = top.table.get("scenarios")
     top._get("scenarios", None)
     if not isinstance(raw, list) or not raw:
-        raise top.error("scenarios", raw, "expected a non-empty array of scenario names/paths or "
-                                          "{ scenario = ..., label = ..., overrides = { ... } } tables")
+        raise top.error(
+            "scenarios",
+            raw,
+            "expected a non-empty array of scenario names/paths or "
+            "{ scenario = ..., label = ..., overrides = { ... } } tables",
+        )
     labels: list[str] = []
     out: dict[str, tuple[str, dict[str, Any]]] = {}
     for j, item in enumerate(raw):

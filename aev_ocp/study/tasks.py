@@ -51,8 +51,9 @@ def make_task(p: Point, c: Controller, own_cost: bool = False) -> Task:
         identity: dict[str, Any] = {"document": doc, "law": _law_fingerprint(p.document, c.name)}
     else:
         identity = {"document": doc}
-    identity.update({"controller": {"kind": c.kind, "name": c.name, "settings": dict(c.settings)},
-                     "version": __version__})
+    identity.update(
+        {"controller": {"kind": c.kind, "name": c.name, "settings": dict(c.settings)}, "version": __version__}
+    )
     if own_cost:  # (only then in the hash: other tasks keep theirs)
         identity["own_cost"] = True
     trace = _trace_file(p.document, p.file)

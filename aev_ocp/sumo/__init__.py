@@ -20,8 +20,9 @@ from typing import Any
 
 from ..scenarios import ScenarioError
 
-INSTALL_HINT = ("SUMO is not installed: pip install 'aev_ocp[sumo]' (the eclipse-sumo, libsumo and sumolib "
-                "packages from PyPI)")
+INSTALL_HINT = (
+    "SUMO is not installed: pip install 'aev_ocp[sumo]' (the eclipse-sumo, libsumo and sumolib packages from PyPI)"
+)
 
 
 class SumoError(ScenarioError):
@@ -51,8 +52,10 @@ def sumo_binary(tool: str) -> str:
 
     path = os.path.join(sumo.SUMO_HOME, "bin", tool)
     if not os.path.exists(path):
-        raise SumoError(f"SUMO tool {tool!r} not found in {os.path.dirname(path)}; reinstall with "
-                        "pip install --force-reinstall 'aev_ocp[sumo]'")
+        raise SumoError(
+            f"SUMO tool {tool!r} not found in {os.path.dirname(path)}; reinstall with "
+            "pip install --force-reinstall 'aev_ocp[sumo]'"
+        )
     return path
 
 

@@ -18,15 +18,23 @@ from .scenario import SumoScenario, load_sumo_scenario
 
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of ``aev-ocp sumo``."""
-    p = OneLineParser(prog="aev-ocp sumo", description="Drive the toolkit's controllers inside SUMO: a "
-                                "scenario file with a [sumo] table (shipped: sumo_ring, sumo_merge).")
+    p = OneLineParser(
+        prog="aev-ocp sumo",
+        description="Drive the toolkit's controllers inside SUMO: a "
+        "scenario file with a [sumo] table (shipped: sumo_ring, sumo_merge).",
+    )
     p.add_argument("scenario", help="a SUMO scenario .toml file, or the name of a shipped one (sumo_ring, sumo_merge)")
     p.add_argument("--out", default=None, help="output folder (default: results/<scenario name>/)")
     p.add_argument("--t-end-s", type=float, default=None, metavar="S", help="simulated time [s] (over sumo.t_end_s)")
-    p.add_argument("--share", type=float, default=None, help="share of vehicles the toolkit drives, 0-1 (over sumo.share)")
+    p.add_argument(
+        "--share", type=float, default=None, help="share of vehicles the toolkit drives, 0-1 (over sumo.share)"
+    )
     p.add_argument("--controller", default=None, help="law name, 'mpc' or 'module:function' (over sumo.controller)")
-    p.add_argument("--sweep", action="store_true", help="run every share × controller of [sumo.sweep] (one SUMO per "
-                   "worker process)")
+    p.add_argument(
+        "--sweep",
+        action="store_true",
+        help="run every share × controller of [sumo.sweep] (one SUMO per worker process)",
+    )
     p.add_argument("--workers", type=int, default=None, help="worker processes of --sweep (default: the cores)")
     p.add_argument("--no-plots", action="store_true", help="skip the space-time diagrams")
     return p
@@ -48,8 +56,9 @@ def _with_options(sc: SumoScenario, args: argparse.Namespace) -> SumoScenario:
             raise SumoError(f"--share = {args.share!r} is not allowed: must be in [0, 1]")
         spec = dataclasses.replace(spec, share=args.share)
     if args.controller is not None:
-        spec = dataclasses.replace(spec, controller=_controller(TableReader({}, "", "--controller"), "controller",
-                                                                args.controller))
+        spec = dataclasses.replace(
+            spec, controller=_controller(TableReader({}, "", "--controller"), "controller", args.controller)
+        )
     return dataclasses.replace(sc, spec=spec)
 
 
@@ -85,6 +94,7 @@ def cli_sumo(argv: list[str]) -> int:
     out = Path(args.out) if args.out else default_output_dir(sc.name)
     claim_output_dir(out, "sumo", sc.name, str(sc.source) if sc.source else None)
     if not args.sweep:
+
         def progress(t: float, t_end: float) -> None:
             if sys.stderr.isatty():
                 print(f"\r{t:.0f}/{t_end:.0f} s simulated", end="", file=sys.stderr, flush=True)
@@ -93,10 +103,12 @@ def cli_sumo(argv: list[str]) -> int:
         if sys.stderr.isatty():
             print(file=sys.stderr)
         ft = run.fleet_totals()
-        print(f"{run!r}\n  energy {ft['all']['energy_kJ_per_km']:.4g} kJ/km (toolkit's vehicles "
-              f"{ft['controlled']['energy_kJ_per_km']:.4g}, SUMO's {ft['sumo']['energy_kJ_per_km']:.4g}), mean speed "
-              f"{ft['all']['mean_speed_mps']:.4g} m/s, collisions {ft['all']['collisions']}, teleports "
-              f"{ft['all']['teleports']}\n  wrote {out}/ (report.md, metrics.csv, fleet.json, manifest.json)")
+        print(
+            f"{run!r}\n  energy {ft['all']['energy_kJ_per_km']:.4g} kJ/km (toolkit's vehicles "
+            f"{ft['controlled']['energy_kJ_per_km']:.4g}, SUMO's {ft['sumo']['energy_kJ_per_km']:.4g}), mean speed "
+            f"{ft['all']['mean_speed_mps']:.4g} m/s, collisions {ft['all']['collisions']}, teleports "
+            f"{ft['all']['teleports']}\n  wrote {out}/ (report.md, metrics.csv, fleet.json, manifest.json)"
+        )
         return 0
     from .output import write_sweep
 
@@ -114,9 +126,15 @@ def cli_sumo(argv: list[str]) -> int:
             for f in as_completed(futs):
                 rows.append(f.result())
                 r = rows[-1]
-                print(f"share {r['share']:g}, {r['controller']}: {r['status']}"
-                      + (f", {r['energy_kJ_per_km']:.4g} kJ/km, {r['mean_speed_mps']:.4g} m/s"
-                         if r["status"] == "ok" else f" ({r.get('message', '')})"), flush=True)
+                print(
+                    f"share {r['share']:g}, {r['controller']}: {r['status']}"
+                    + (
+                        f", {r['energy_kJ_per_km']:.4g} kJ/km, {r['mean_speed_mps']:.4g} m/s"
+                        if r["status"] == "ok"
+                        else f" ({r.get('message', '')})"
+                    ),
+                    flush=True,
+                )
         except KeyboardInterrupt:
             for f in futs:
                 f.cancel()

@@ -44,8 +44,13 @@ def battery_step(ev: EVParams) -> ca.Function:
     v1 = v0 + a * dt / T
     omega1 = x[3] + g_exact(a, ev.vehicle.efficiency) * (v0 + v1) / 2 * (dt / T)
     x1 = ca.vertcat(y1[0], y1[1], y1[2], omega1, y1[3], y1[4])
-    return ca.Function("sumo_battery_step", [x, v0, a, dt], [x1, I0, ca.fmin(disc0, disc1)],
-                       ["x", "v0", "a", "dt_s"], ["x_next", "I", "disc"])
+    return ca.Function(
+        "sumo_battery_step",
+        [x, v0, a, dt],
+        [x1, I0, ca.fmin(disc0, disc1)],
+        ["x", "v0", "a", "dt_s"],
+        ["x_next", "I", "disc"],
+    )
 
 
 def initial_state(ev: EVParams, n: int) -> np.ndarray:
@@ -55,8 +60,9 @@ def initial_state(ev: EVParams, n: int) -> np.ndarray:
     return x
 
 
-def step(ev: EVParams, x: np.ndarray, v0: np.ndarray, a: np.ndarray, dt_s: float) -> tuple[np.ndarray, np.ndarray,
-                                                                                          np.ndarray]:
+def step(
+    ev: EVParams, x: np.ndarray, v0: np.ndarray, a: np.ndarray, dt_s: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Advance the 6×n states ``x`` by dt_s [s] (model speeds v0, accelerations a, 1-D of length n):
     (x_next 6×n, I [A per cell], disc [V²])."""
     if x.shape[1] == 0:

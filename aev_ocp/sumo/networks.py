@@ -45,11 +45,15 @@ class RingNetwork:
         if not (isinstance(self.vehicles, int) and self.vehicles >= 1):
             raise SumoError(f"sumo.ring.vehicles = {self.vehicles!r} is not allowed: must be an integer >= 1")
         if self.vehicles * self.vehicle_length_m >= self.length_m:
-            raise SumoError(f"sumo.ring.vehicles = {self.vehicles} cars of {self.vehicle_length_m} m do not fit "
-                            f"on a ring of {self.length_m} m")
+            raise SumoError(
+                f"sumo.ring.vehicles = {self.vehicles} cars of {self.vehicle_length_m} m do not fit "
+                f"on a ring of {self.length_m} m"
+            )
         if not (0 <= self.perturbation_m < self.length_m / self.vehicles - self.vehicle_length_m):
-            raise SumoError(f"sumo.ring.perturbation_m = {self.perturbation_m!r} is not allowed: must be >= 0 "
-                            "and below the equal bumper-to-bumper gap")
+            raise SumoError(
+                f"sumo.ring.perturbation_m = {self.perturbation_m!r} is not allowed: must be >= 0 "
+                "and below the equal bumper-to-bumper gap"
+            )
 
     def positions_m(self) -> list[float]:
         """Initial arc positions of the vehicles' fronts [m], vehicle 0 first (the ring's own coordinate)."""
@@ -105,29 +109,54 @@ def build_ring(net: RingNetwork, folder: Path, t_end_s: float) -> tuple[Path, li
     half = net.length_m / 2
 
     def arc(a0: float, a1: float, n: int = 12) -> str:
-        return " ".join(f"{R * math.cos(a0 + (a1 - a0) * k / n):.4f},{R * math.sin(a0 + (a1 - a0) * k / n):.4f}"
-                        for k in range(n + 1))
+        return " ".join(
+            f"{R * math.cos(a0 + (a1 - a0) * k / n):.4f},{R * math.sin(a0 + (a1 - a0) * k / n):.4f}"
+            for k in range(n + 1)
+        )
 
-    _write(folder / "ring.nod.xml", f'<nodes>\n  <node id="a" x="{R:.4f}" y="0" type="priority"/>\n'
-                                    f'  <node id="b" x="{-R:.4f}" y="0" type="priority"/>\n</nodes>\n')
-    edge = ('  <edge id="{id}" from="{f}" to="{t}" numLanes="1" speed="{v}" length="{L!r}" shape="{s}"/>\n')
-    _write(folder / "ring.edg.xml", "<edges>\n" + edge.format(id="top", f="a", t="b", v=net.lane_speed_mps, L=half,
-                                                               s=arc(0, math.pi))
-           + edge.format(id="bottom", f="b", t="a", v=net.lane_speed_mps, L=half, s=arc(math.pi, 2 * math.pi))
-           + "</edges>\n")
+    _write(
+        folder / "ring.nod.xml",
+        f'<nodes>\n  <node id="a" x="{R:.4f}" y="0" type="priority"/>\n'
+        f'  <node id="b" x="{-R:.4f}" y="0" type="priority"/>\n</nodes>\n',
+    )
+    edge = '  <edge id="{id}" from="{f}" to="{t}" numLanes="1" speed="{v}" length="{L!r}" shape="{s}"/>\n'
+    _write(
+        folder / "ring.edg.xml",
+        "<edges>\n"
+        + edge.format(id="top", f="a", t="b", v=net.lane_speed_mps, L=half, s=arc(0, math.pi))
+        + edge.format(id="bottom", f="b", t="a", v=net.lane_speed_mps, L=half, s=arc(math.pi, 2 * math.pi))
+        + "</edges>\n",
+    )
     out = folder / "ring.net.xml"
-    run_tool([sumo_binary("netconvert"), "-n", str(folder / "ring.nod.xml"), "-e", str(folder / "ring.edg.xml"),
-              "-o", str(out), "--no-internal-links", "--no-turnarounds", "--no-warnings"], "netconvert (ring)")
+    run_tool(
+        [
+            sumo_binary("netconvert"),
+            "-n",
+            str(folder / "ring.nod.xml"),
+            "-e",
+            str(folder / "ring.edg.xml"),
+            "-o",
+            str(out),
+            "--no-internal-links",
+            "--no-turnarounds",
+            "--no-warnings",
+        ],
+        "netconvert (ring)",
+    )
     laps = int(math.ceil(t_end_s * net.lane_speed_mps / net.length_m)) + 2
-    rows = ['<routes>',
-            f'  <vType id="ring_car" length="{net.vehicle_length_m!r}" minGap="0" maxSpeed="{net.lane_speed_mps}" '
-            'accel="2.6" decel="4.5" sigma="0.5"/>',  # SUMO's Krauss defaults (accel, decel, sigma)
-            f'  <route id="from_top" edges="{" ".join(["top bottom"] * laps)}"/>',
-            f'  <route id="from_bottom" edges="{" ".join(["bottom top"] * laps)}"/>']
+    rows = [
+        "<routes>",
+        f'  <vType id="ring_car" length="{net.vehicle_length_m!r}" minGap="0" maxSpeed="{net.lane_speed_mps}" '
+        'accel="2.6" decel="4.5" sigma="0.5"/>',  # SUMO's Krauss defaults (accel, decel, sigma)
+        f'  <route id="from_top" edges="{" ".join(["top bottom"] * laps)}"/>',
+        f'  <route id="from_bottom" edges="{" ".join(["bottom top"] * laps)}"/>',
+    ]
     for i, x in enumerate(net.positions_m()):
         route, pos = ("from_top", x) if x < half else ("from_bottom", x - half)
-        rows.append(f'  <vehicle id="ring.{i}" type="ring_car" route="{route}" depart="0" departPos="{pos!r}" '
-                    f'departSpeed="{net.speed0_mps!r}" insertionChecks="none"/>')
+        rows.append(
+            f'  <vehicle id="ring.{i}" type="ring_car" route="{route}" depart="0" departPos="{pos!r}" '
+            f'departSpeed="{net.speed0_mps!r}" insertionChecks="none"/>'
+        )
     rows.append("</routes>\n")
     return out, [_write(folder / "ring.rou.xml", "\n".join(rows))]
 
@@ -138,37 +167,65 @@ def build_merge(net: MergeNetwork, folder: Path, t_end_s: float) -> tuple[Path, 
     x1 = net.main_length_m
     x2 = x1 + net.accel_lane_m
     x3 = x2 + net.after_m
-    _write(folder / "merge.nod.xml", "<nodes>\n"
-           f'  <node id="west" x="0" y="0"/>\n  <node id="merge" x="{x1}" y="0" type="priority"/>\n'
-           f'  <node id="accel_end" x="{x2}" y="0" type="priority"/>\n  <node id="east" x="{x3}" y="0"/>\n'
-           f'  <node id="ramp_start" x="{x1 - 400}" y="-60"/>\n</nodes>\n')
-    _write(folder / "merge.edg.xml", "<edges>\n"
-           f'  <edge id="main" from="west" to="merge" numLanes="2" speed="{net.main_speed_mps}" priority="3"/>\n'
-           f'  <edge id="ramp" from="ramp_start" to="merge" numLanes="1" speed="{net.ramp_speed_mps}" priority="1"/>\n'
-           f'  <edge id="accel" from="merge" to="accel_end" numLanes="3" speed="{net.main_speed_mps}" priority="3"/>\n'
-           f'  <edge id="after" from="accel_end" to="east" numLanes="2" speed="{net.main_speed_mps}" priority="3"/>\n'
-           "</edges>\n")
-    _write(folder / "merge.con.xml", "<connections>\n"
-           '  <connection from="main" to="accel" fromLane="0" toLane="1"/>\n'
-           '  <connection from="main" to="accel" fromLane="1" toLane="2"/>\n'
-           '  <connection from="ramp" to="accel" fromLane="0" toLane="0"/>\n'
-           '  <connection from="accel" to="after" fromLane="1" toLane="0"/>\n'
-           '  <connection from="accel" to="after" fromLane="2" toLane="1"/>\n'
-           "</connections>\n")
+    _write(
+        folder / "merge.nod.xml",
+        "<nodes>\n"
+        f'  <node id="west" x="0" y="0"/>\n  <node id="merge" x="{x1}" y="0" type="priority"/>\n'
+        f'  <node id="accel_end" x="{x2}" y="0" type="priority"/>\n  <node id="east" x="{x3}" y="0"/>\n'
+        f'  <node id="ramp_start" x="{x1 - 400}" y="-60"/>\n</nodes>\n',
+    )
+    _write(
+        folder / "merge.edg.xml",
+        "<edges>\n"
+        f'  <edge id="main" from="west" to="merge" numLanes="2" speed="{net.main_speed_mps}" priority="3"/>\n'
+        f'  <edge id="ramp" from="ramp_start" to="merge" numLanes="1" speed="{net.ramp_speed_mps}" priority="1"/>\n'
+        f'  <edge id="accel" from="merge" to="accel_end" numLanes="3" speed="{net.main_speed_mps}" priority="3"/>\n'
+        f'  <edge id="after" from="accel_end" to="east" numLanes="2" speed="{net.main_speed_mps}" priority="3"/>\n'
+        "</edges>\n",
+    )
+    _write(
+        folder / "merge.con.xml",
+        "<connections>\n"
+        '  <connection from="main" to="accel" fromLane="0" toLane="1"/>\n'
+        '  <connection from="main" to="accel" fromLane="1" toLane="2"/>\n'
+        '  <connection from="ramp" to="accel" fromLane="0" toLane="0"/>\n'
+        '  <connection from="accel" to="after" fromLane="1" toLane="0"/>\n'
+        '  <connection from="accel" to="after" fromLane="2" toLane="1"/>\n'
+        "</connections>\n",
+    )
     out = folder / "merge.net.xml"
-    run_tool([sumo_binary("netconvert"), "-n", str(folder / "merge.nod.xml"), "-e", str(folder / "merge.edg.xml"),
-              "-x", str(folder / "merge.con.xml"), "-o", str(out), "--no-turnarounds", "--no-warnings"],
-             "netconvert (merge)")
-    rows = ['<routes>',
-            '  <vType id="human" length="4.694" sigma="0.5"/>',  # SUMO's Krauss driver (sigma default 0.5)
-            '  <route id="main_route" edges="main accel after"/>',
-            '  <route id="ramp_route" edges="ramp accel after"/>']
+    run_tool(
+        [
+            sumo_binary("netconvert"),
+            "-n",
+            str(folder / "merge.nod.xml"),
+            "-e",
+            str(folder / "merge.edg.xml"),
+            "-x",
+            str(folder / "merge.con.xml"),
+            "-o",
+            str(out),
+            "--no-turnarounds",
+            "--no-warnings",
+        ],
+        "netconvert (merge)",
+    )
+    rows = [
+        "<routes>",
+        '  <vType id="human" length="4.694" sigma="0.5"/>',  # SUMO's Krauss driver (sigma default 0.5)
+        '  <route id="main_route" edges="main accel after"/>',
+        '  <route id="ramp_route" edges="ramp accel after"/>',
+    ]
     if net.main_flow_vph > 0:
-        rows.append(f'  <flow id="main" type="human" route="main_route" begin="0" end="{t_end_s!r}" '
-                    f'vehsPerHour="{net.main_flow_vph!r}" departLane="best" departSpeed="max"/>')
+        rows.append(
+            f'  <flow id="main" type="human" route="main_route" begin="0" end="{t_end_s!r}" '
+            f'vehsPerHour="{net.main_flow_vph!r}" departLane="best" departSpeed="max"/>'
+        )
     if net.ramp_flow_vph > 0:
-        rows.append(f'  <flow id="ramp" type="human" route="ramp_route" begin="0" end="{t_end_s!r}" '
-                    f'vehsPerHour="{net.ramp_flow_vph!r}" departLane="best" departSpeed="max"/>')
+        rows.append(
+            f'  <flow id="ramp" type="human" route="ramp_route" begin="0" end="{t_end_s!r}" '
+            f'vehsPerHour="{net.ramp_flow_vph!r}" departLane="best" departSpeed="max"/>'
+        )
     rows.append("</routes>\n")
     return out, [_write(folder / "merge.rou.xml", "\n".join(rows))]
 

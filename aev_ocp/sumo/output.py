@@ -35,11 +35,22 @@ def save_sumo(run: SumoRun, out: str | Path) -> list[Path]:
     runs = {_label(v): r for v, r in run.vehicles.items()}
     primary = next((_label(v) for v, c in run.controlled.items() if c), next(iter(runs), None))
     sc = run.scenario
-    extra = {"sumo": {"name": run.name, "controlled": {_label(k): v for k, v in run.controlled.items()},
-                      "events": run.events, "t_end_s": run.t_end_s, "step_s": run.step_s, "steps": run.steps,
-                      "wall_s": run.wall_s, "controller_s": run.controller_s, "interrupted": run.interrupted,
-                      "offsets_m": {_label(k): v for k, v in run.offsets_m.items()},
-                      "ring_length_m": run.ring_length_m, "fleet": run.fleet_totals()}}
+    extra = {
+        "sumo": {
+            "name": run.name,
+            "controlled": {_label(k): v for k, v in run.controlled.items()},
+            "events": run.events,
+            "t_end_s": run.t_end_s,
+            "step_s": run.step_s,
+            "steps": run.steps,
+            "wall_s": run.wall_s,
+            "controller_s": run.controller_s,
+            "interrupted": run.interrupted,
+            "offsets_m": {_label(k): v for k, v in run.offsets_m.items()},
+            "ring_length_m": run.ring_length_m,
+            "fleet": run.fleet_totals(),
+        }
+    }
     settings = {"scenario": sc.name, "source": str(sc.source) if sc.source else None, "document": sc.document}
     files = save_output(out, "sumo", runs, primary=primary, settings=settings, extra=extra)
     files.append(write_metrics_csv(run, out / "metrics.csv"))
@@ -73,10 +84,21 @@ def load_sumo(path: str | Path) -> SumoRun:
     s = m["sumo"]
     runs = load_all(folder)
     sc = parse_sumo_scenario(m["settings"]["document"], str(m["settings"].get("source") or folder))
-    return SumoRun(s["name"], sc, runs, {k: bool(v) for k, v in s["controlled"].items()}, s["events"],
-                   float(s["t_end_s"]), float(s["step_s"]), int(s["steps"]), float(s["wall_s"]),
-                   float(s["controller_s"]), {k: float(v) for k, v in s["offsets_m"].items()},
-                   s.get("ring_length_m"), bool(s.get("interrupted", False)))
+    return SumoRun(
+        s["name"],
+        sc,
+        runs,
+        {k: bool(v) for k, v in s["controlled"].items()},
+        s["events"],
+        float(s["t_end_s"]),
+        float(s["step_s"]),
+        int(s["steps"]),
+        float(s["wall_s"]),
+        float(s["controller_s"]),
+        {k: float(v) for k, v in s["offsets_m"].items()},
+        s.get("ring_length_m"),
+        bool(s.get("interrupted", False)),
+    )
 
 
 # ----------------------------------------------------------------------------- space-time diagrams
@@ -119,8 +141,12 @@ def plot_space_time(run: SumoRun) -> dict[str, Any]:
                 seg, vv = seg[keep], v[:-1][keep]
             else:
                 vv = v[:-1]
-            lc = LineCollection(list(seg), cmap="viridis", norm=plt.Normalize(0, vmax),
-                                linewidths=1.8 if run.controlled.get(vid) else 0.6)
+            lc = LineCollection(
+                list(seg),
+                cmap="viridis",
+                norm=plt.Normalize(0, vmax),
+                linewidths=1.8 if run.controlled.get(vid) else 0.6,
+            )
             lc.set_array(vv)
             ax.add_collection(lc)
         ax.autoscale()
@@ -162,26 +188,52 @@ def report_markdown(run: SumoRun, figures: list[Path] | None = None) -> str:
     s = run.scenario.spec
     ft = run.fleet_totals()
     where = s.network or str(s.config_file or s.net_file)
-    lines = [f"# SUMO run: {run.name}", "",
-             f"Network: {where}; {run.t_end_s:g} s simulated at steps of {run.step_s:g} s in {run.wall_s:.3g} s "
-             f"wall-clock ({run.realtime_factor:.3g}× real time; controllers {run.controller_s:.3g} s). "
-             f"Controller of the toolkit's vehicles: {s.controller}; SUMO speed mode {s.speed_mode}; "
-             f"share {s.share:g}" + (f", ids {list(s.ids)}" if s.ids else "") + (f", types {list(s.vtypes)}"
-                                                                                  if s.vtypes else "") + ".",
-             ""]
+    lines = [
+        f"# SUMO run: {run.name}",
+        "",
+        f"Network: {where}; {run.t_end_s:g} s simulated at steps of {run.step_s:g} s in {run.wall_s:.3g} s "
+        f"wall-clock ({run.realtime_factor:.3g}× real time; controllers {run.controller_s:.3g} s). "
+        f"Controller of the toolkit's vehicles: {s.controller}; SUMO speed mode {s.speed_mode}; "
+        f"share {s.share:g}"
+        + (f", ids {list(s.ids)}" if s.ids else "")
+        + (f", types {list(s.vtypes)}" if s.vtypes else "")
+        + ".",
+        "",
+    ]
     if run.interrupted:
         lines += ["**Interrupted**: the run covers only the simulated time above.", ""]
-    cols = ["vehicles", "distance_km", "energy_kJ_per_km", "heat_pack_J_per_km", "mean_speed_mps", "min_gap_m",
-            "collisions", "teleports"]
+    cols = [
+        "vehicles",
+        "distance_km",
+        "energy_kJ_per_km",
+        "heat_pack_J_per_km",
+        "mean_speed_mps",
+        "min_gap_m",
+        "collisions",
+        "teleports",
+    ]
     lines += ["## Fleet totals", "", "| group | " + " | ".join(cols) + " |", "|---" * (len(cols) + 1) + "|"]
     for g in ("all", "controlled", "sumo"):
         lines.append(f"| {g} | " + " | ".join(_fmt(ft[g][c]) for c in cols) + " |")
-    lines += ["", f"Vehicles that left the network: {ft['left_network']}. Energy: ω × vehicle mass (energy at the "
-              "wheels after η, the paper's measure); pack heat from the 2-RC cell on the realised motion.", ""]
+    lines += [
+        "",
+        f"Vehicles that left the network: {ft['left_network']}. Energy: ω × vehicle mass (energy at the "
+        "wheels after η, the paper's measure); pack heat from the 2-RC cell on the realised motion.",
+        "",
+    ]
     rows = [m for m in run.metrics() if m["controlled"]]
     if rows:
-        mc = ["sumo_id", "status", "distance_m", "omega_J_per_kg_per_km", "heat_pack_J_per_km", "min_gap_m",
-              "min_ttc_s", "rms_jerk_mps3", "mean_speed_mps"]
+        mc = [
+            "sumo_id",
+            "status",
+            "distance_m",
+            "omega_J_per_kg_per_km",
+            "heat_pack_J_per_km",
+            "min_gap_m",
+            "min_ttc_s",
+            "rms_jerk_mps3",
+            "mean_speed_mps",
+        ]
         lines += ["## Vehicles driven by the toolkit", "", "| " + " | ".join(mc) + " |", "|---" * len(mc) + "|"]
         for m in rows[:40]:
             lines.append("| " + " | ".join(_fmt(m.get(c)) for c in mc) + " |")
@@ -190,9 +242,11 @@ def report_markdown(run: SumoRun, figures: list[Path] | None = None) -> str:
         lines.append("")
     ev = [e for e in run.events if e["kind"] != "left_network"]
     lines += ["## Events", ""]
-    lines += [f"- {e['kind']} at {e['t_s']:.4g} s: {e.get('vehicle')}"
-              + (f" hit {e['victim']} at {e['impact_speed_mps']:.3g} m/s" if e["kind"] == "collision" else "")
-              for e in ev[:50]] or ["None (no collision, no teleport)."]
+    lines += [
+        f"- {e['kind']} at {e['t_s']:.4g} s: {e.get('vehicle')}"
+        + (f" hit {e['victim']} at {e['impact_speed_mps']:.3g} m/s" if e["kind"] == "collision" else "")
+        for e in ev[:50]
+    ] or ["None (no collision, no teleport)."]
     lines.append("")
     if figures:
         lines += ["## Space-time diagrams", ""] + [f"![{p.stem}]({p.name})" for p in figures] + [""]
@@ -206,11 +260,30 @@ def write_report(run: SumoRun, out: Path, figures: list[Path] | None = None) -> 
 
 def sweep_markdown(rows: list[dict[str, Any]], name: str) -> str:
     """The sweep's table (share × controller) as Markdown."""
-    cols = ["share", "controller", "status", "vehicles", "controlled", "energy_kJ_per_km", "energy_ctrl_kJ_per_km",
-            "energy_sumo_kJ_per_km", "heat_pack_J_per_km", "mean_speed_mps", "min_gap_m", "collisions", "teleports",
-            "realtime_factor"]
-    lines = [f"# SUMO sweep: {name}", "", "Fleet totals per point (all vehicles; ctrl = driven by the toolkit, "
-             "sumo = SUMO's drivers).", "", "| " + " | ".join(cols) + " |", "|---" * len(cols) + "|"]
+    cols = [
+        "share",
+        "controller",
+        "status",
+        "vehicles",
+        "controlled",
+        "energy_kJ_per_km",
+        "energy_ctrl_kJ_per_km",
+        "energy_sumo_kJ_per_km",
+        "heat_pack_J_per_km",
+        "mean_speed_mps",
+        "min_gap_m",
+        "collisions",
+        "teleports",
+        "realtime_factor",
+    ]
+    lines = [
+        f"# SUMO sweep: {name}",
+        "",
+        "Fleet totals per point (all vehicles; ctrl = driven by the toolkit, sumo = SUMO's drivers).",
+        "",
+        "| " + " | ".join(cols) + " |",
+        "|---" * len(cols) + "|",
+    ]
     for r in rows:
         lines.append("| " + " | ".join(_fmt(r.get(c)) for c in cols) + " |")
     return "\n".join(lines) + "\n"
@@ -221,14 +294,22 @@ def sweep_row(share: float, controller: str, run: SumoRun | None, error: str = "
     if run is None:
         return {"share": share, "controller": controller, "status": "error", "message": error}
     ft = run.fleet_totals()
-    return {"share": share, "controller": controller, "status": "interrupted" if run.interrupted else "ok",
-            "vehicles": ft["all"]["vehicles"], "controlled": ft["controlled"]["vehicles"],
-            "energy_kJ_per_km": ft["all"]["energy_kJ_per_km"],
-            "energy_ctrl_kJ_per_km": ft["controlled"]["energy_kJ_per_km"],
-            "energy_sumo_kJ_per_km": ft["sumo"]["energy_kJ_per_km"],
-            "heat_pack_J_per_km": ft["all"]["heat_pack_J_per_km"], "mean_speed_mps": ft["all"]["mean_speed_mps"],
-            "min_gap_m": ft["all"]["min_gap_m"], "collisions": ft["all"]["collisions"],
-            "teleports": ft["all"]["teleports"], "realtime_factor": ft["realtime_factor"]}
+    return {
+        "share": share,
+        "controller": controller,
+        "status": "interrupted" if run.interrupted else "ok",
+        "vehicles": ft["all"]["vehicles"],
+        "controlled": ft["controlled"]["vehicles"],
+        "energy_kJ_per_km": ft["all"]["energy_kJ_per_km"],
+        "energy_ctrl_kJ_per_km": ft["controlled"]["energy_kJ_per_km"],
+        "energy_sumo_kJ_per_km": ft["sumo"]["energy_kJ_per_km"],
+        "heat_pack_J_per_km": ft["all"]["heat_pack_J_per_km"],
+        "mean_speed_mps": ft["all"]["mean_speed_mps"],
+        "min_gap_m": ft["all"]["min_gap_m"],
+        "collisions": ft["all"]["collisions"],
+        "teleports": ft["all"]["teleports"],
+        "realtime_factor": ft["realtime_factor"],
+    }
 
 
 def write_sweep(rows: list[dict[str, Any]], out: Path, name: str) -> list[Path]:
@@ -241,8 +322,11 @@ def write_sweep(rows: list[dict[str, Any]], out: Path, name: str) -> list[Path]:
     w.writeheader()
     for r in rows:
         w.writerow({k: to_jsonable(r.get(k)) for k in keys})
-    return [write_atomic(out / "sweep.csv", buf.getvalue()), write_json(out / "sweep.json", {"rows": rows}),
-            write_atomic(out / "sweep.md", sweep_markdown(rows, name))]
+    return [
+        write_atomic(out / "sweep.csv", buf.getvalue()),
+        write_json(out / "sweep.json", {"rows": rows}),
+        write_atomic(out / "sweep.md", sweep_markdown(rows, name)),
+    ]
 
 
 def read_json(path: Path) -> Any:

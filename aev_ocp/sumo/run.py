@@ -73,7 +73,7 @@ def is_controlled(vid: str, vtype: str, scenario: SumoScenario) -> bool:
 @lru_cache(maxsize=64)
 def _ring_selection(seed: int, n: int, share: float) -> frozenset[str]:
     ids = sorted((f"ring.{i}" for i in range(n)), key=lambda v: _draw(seed, v))
-    return frozenset(ids[:int(round(share * n))])
+    return frozenset(ids[: int(round(share * n))])
 
 
 @dataclass
@@ -104,8 +104,9 @@ class _Track:
     a_cmd_mps2: float = 0.0
     meas_t: deque[float] = field(default_factory=lambda: deque(maxlen=MEASUREMENT_WINDOW))
     meas_v: deque[float] = field(default_factory=lambda: deque(maxlen=MEASUREMENT_WINDOW))
-    rec: dict[str, list[Any]] = field(default_factory=lambda: {k: [] for k in ("solve", "call", "iters", "ok",
-                                                                               "status", "info")})
+    rec: dict[str, list[Any]] = field(
+        default_factory=lambda: {k: [] for k in ("solve", "call", "iters", "ok", "status", "info")}
+    )
     a_prev: float = 0.0
 
 
@@ -142,8 +143,13 @@ class SumoRun:
         rows = []
         for vid, r in self.vehicles.items():
             m = r.metrics()[0]
-            m.update(sumo_id=vid, controlled=self.controlled[vid], vtype=r.meta.get("vtype"),
-                     route=r.meta.get("route"), mean_speed_mps=_mean_speed(r))
+            m.update(
+                sumo_id=vid,
+                controlled=self.controlled[vid],
+                vtype=r.meta.get("vtype"),
+                route=r.meta.get("route"),
+                mean_speed_mps=_mean_speed(r),
+            )
             rows.append(m)
         return rows
 
@@ -159,23 +165,35 @@ class SumoRun:
             e_J = sum(_f(m["omega_J_per_kg"]) * mass for m in sel)
             q_J = sum(_f(m["heat_pack_J"]) for m in sel)
             dur = sum(_f(m["duration_s"]) for m in sel)
-            return {"vehicles": len(sel), "distance_km": km, "energy_MJ": e_J / 1e6, "heat_pack_kJ": q_J / 1e3,
-                    "energy_kJ_per_km": e_J / 1e3 / km if km > 0 else math.nan,
-                    "heat_pack_J_per_km": q_J / km if km > 0 else math.nan,
-                    "mean_speed_mps": 1000 * km / dur if dur > 0 else math.nan,
-                    "min_gap_m": min((_f(m["min_gap_m"]) for m in sel), default=math.nan),
-                    "collisions": sum(1 for m in sel if m["status"] == "collision"),
-                    "teleports": sum(1 for m in sel if m["status"] == "teleport")}
+            return {
+                "vehicles": len(sel),
+                "distance_km": km,
+                "energy_MJ": e_J / 1e6,
+                "heat_pack_kJ": q_J / 1e3,
+                "energy_kJ_per_km": e_J / 1e3 / km if km > 0 else math.nan,
+                "heat_pack_J_per_km": q_J / km if km > 0 else math.nan,
+                "mean_speed_mps": 1000 * km / dur if dur > 0 else math.nan,
+                "min_gap_m": min((_f(m["min_gap_m"]) for m in sel), default=math.nan),
+                "collisions": sum(1 for m in sel if m["status"] == "collision"),
+                "teleports": sum(1 for m in sel if m["status"] == "teleport"),
+            }
 
-        return {"all": group(rows), "controlled": group([m for m in rows if m["controlled"]]),
-                "sumo": group([m for m in rows if not m["controlled"]]),
-                "left_network": sum(1 for e in self.events if e["kind"] == "left_network"),
-                "realtime_factor": self.realtime_factor, "wall_s": self.wall_s, "controller_s": self.controller_s}
+        return {
+            "all": group(rows),
+            "controlled": group([m for m in rows if m["controlled"]]),
+            "sumo": group([m for m in rows if not m["controlled"]]),
+            "left_network": sum(1 for e in self.events if e["kind"] == "left_network"),
+            "realtime_factor": self.realtime_factor,
+            "wall_s": self.wall_s,
+            "controller_s": self.controller_s,
+        }
 
     def __repr__(self) -> str:
         n_c = sum(self.controlled.values())
-        return (f"SumoRun({self.name!r}: {len(self.vehicles)} vehicles, {n_c} controlled, {self.t_end_s:g} s "
-                f"simulated in {self.wall_s:.3g} s)")
+        return (
+            f"SumoRun({self.name!r}: {len(self.vehicles)} vehicles, {n_c} controlled, {self.t_end_s:g} s "
+            f"simulated in {self.wall_s:.3g} s)"
+        )
 
 
 def _f(x: Any) -> float:
@@ -187,8 +205,11 @@ def _f(x: Any) -> float:
 
 def _mean_speed(r: SimulationResult) -> float:
     d = float(r.t[-1] - r.t[0]) if r.t.size > 1 else 0.0
-    return float(r.units.speed_to_si(trapezoid(r.speed[:, 0], r.t) / d)) if d > 0 else float(
-        r.units.speed_to_si(r.speed[0, 0]))
+    return (
+        float(r.units.speed_to_si(trapezoid(r.speed[:, 0], r.t) / d))
+        if d > 0
+        else float(r.units.speed_to_si(r.speed[0, 0]))
+    )
 
 
 # ----------------------------------------------------------------------------- network and SUMO start
@@ -227,8 +248,10 @@ def check_inputs(args: list[str]) -> None:
     except subprocess.TimeoutExpired:
         raise SumoError("SUMO took more than 300 s to load the network and routes") from None
     if proc.returncode < 0:
-        raise SumoError(f"SUMO crashed (signal {-proc.returncode}) reading {' '.join(args[1::2])}: a malformed "
-                        "network or route file?")
+        raise SumoError(
+            f"SUMO crashed (signal {-proc.returncode}) reading {' '.join(args[1::2])}: a malformed "
+            "network or route file?"
+        )
     if proc.returncode != 0:
         raise SumoError(f"SUMO: {first_error(proc.stderr + proc.stdout)}")
 
@@ -291,8 +314,10 @@ def make_controller_factory(scenario: SumoScenario) -> tuple[CarFollowingLaw | N
         def user() -> Controller:
             c = factory(ev)
             if not isinstance(c, Controller):
-                raise SumoError(f"sumo.controller = {name!r} returned a {type(c).__name__}, not a Controller "
-                                "(name, dt, reset, command, describe)")
+                raise SumoError(
+                    f"sumo.controller = {name!r} returned a {type(c).__name__}, not a Controller "
+                    "(name, dt, reset, command, describe)"
+                )
             return c
 
         return None, user
@@ -300,8 +325,9 @@ def make_controller_factory(scenario: SumoScenario) -> tuple[CarFollowingLaw | N
 
 
 # ----------------------------------------------------------------------------- the run
-def run_sumo(scenario: SumoScenario, workdir: str | Path | None = None, *, progress: ProgressFn | None = None,
-             gui: bool = False) -> SumoRun:
+def run_sumo(
+    scenario: SumoScenario, workdir: str | Path | None = None, *, progress: ProgressFn | None = None, gui: bool = False
+) -> SumoRun:
     """Run ``scenario`` in SUMO with its controlled vehicles driven by the toolkit; returns a :class:`SumoRun`.
 
     workdir: where a shipped network is built (default a temporary folder). progress(t_s, t_end_s) is called
@@ -314,10 +340,25 @@ def run_sumo(scenario: SumoScenario, workdir: str | Path | None = None, *, progr
         workdir = tmp.name
     try:
         inputs = prepare_inputs(scenario, Path(workdir))
-        args = [sumo_binary("sumo-gui" if gui else "sumo"), *inputs, "--step-length", repr(s.step_s),
-                "--step-method.ballistic", "true", "--collision.action", s.collision_action,
-                "--seed", str(s.seed), "--no-step-log", "true", "--no-warnings", "true", "--end", repr(s.t_end_s),
-                *s.sumo_args]
+        args = [
+            sumo_binary("sumo-gui" if gui else "sumo"),
+            *inputs,
+            "--step-length",
+            repr(s.step_s),
+            "--step-method.ballistic",
+            "true",
+            "--collision.action",
+            s.collision_action,
+            "--seed",
+            str(s.seed),
+            "--no-step-log",
+            "true",
+            "--no-warnings",
+            "true",
+            "--end",
+            repr(s.t_end_s),
+            *s.sumo_args,
+        ]
         _start(ts, args)
         try:
             return _loop(ts, scenario, progress)
@@ -397,28 +438,52 @@ def _loop(ts: Any, sc: SumoScenario, progress: ProgressFn | None) -> SumoRun:
             for vid in ts.simulation.getStartingTeleportIDList():
                 if vid in tracks:
                     tr = tracks[vid]
-                    tr.events.append(Event("teleport", u.time_from_si(t_s), 0, "SUMO teleported the vehicle (a jam "
-                                           "or a lane it could not leave); its record ends here", time_s=t_s))
+                    tr.events.append(
+                        Event(
+                            "teleport",
+                            u.time_from_si(t_s),
+                            0,
+                            "SUMO teleported the vehicle (a jam or a lane it could not leave); its record ends here",
+                            time_s=t_s,
+                        )
+                    )
                     fleet_events.append({"kind": "teleport", "t_s": t_s, "vehicle": vid, "controlled": tr.controlled})
                     finish(tr, "teleport", t_s)
                     release(vid)
             for c in ts.simulation.getCollisions():
                 dv = c.colliderSpeed - c.victimSpeed
-                fleet_events.append({"kind": "collision", "t_s": t_s, "vehicle": c.collider, "victim": c.victim,
-                                     "impact_speed_mps": dv, "type": c.type})
+                fleet_events.append(
+                    {
+                        "kind": "collision",
+                        "t_s": t_s,
+                        "vehicle": c.collider,
+                        "victim": c.victim,
+                        "impact_speed_mps": dv,
+                        "type": c.type,
+                    }
+                )
                 for vid in (c.collider, c.victim):
                     if vid in tracks:
                         tr = tracks[vid]
-                        tr.events.append(Event("collision", u.time_from_si(t_s), 0,
-                                               f"{'hit ' + c.victim if vid == c.collider else 'hit by ' + c.collider} "
-                                               f"at {dv:.3g} m/s ({c.type})", time_s=t_s, impact_speed_mps=dv))
+                        tr.events.append(
+                            Event(
+                                "collision",
+                                u.time_from_si(t_s),
+                                0,
+                                f"{'hit ' + c.victim if vid == c.collider else 'hit by ' + c.collider} "
+                                f"at {dv:.3g} m/s ({c.type})",
+                                time_s=t_s,
+                                impact_speed_mps=dv,
+                            )
+                        )
                         finish(tr, "collision", t_s)
                         release(vid)
             for vid in ts.simulation.getArrivedIDList():
                 if vid in tracks:
                     tr = tracks[vid]
-                    fleet_events.append({"kind": "left_network", "t_s": t_s, "vehicle": vid,
-                                         "controlled": tr.controlled})
+                    fleet_events.append(
+                        {"kind": "left_network", "t_s": t_s, "vehicle": vid, "controlled": tr.controlled}
+                    )
                     finish(tr, "arrived", t_s)
             live = list(tracks.values())
             # read the state SUMO reached at t_s
@@ -462,8 +527,11 @@ def _loop(ts: Any, sc: SumoScenario, progress: ProgressFn | None) -> SumoRun:
                 if law_idx:
                     assert law is not None
                     h = u.length_from_si(np.maximum(gaps[law_idx], 1e-6))
-                    a_model = np.asarray(law.function(h[None, :], u.speed_from_si(vs[law_idx])[None, :],
-                                                      u.speed_from_si(vls[law_idx])[None, :])).ravel()
+                    a_model = np.asarray(
+                        law.function(
+                            h[None, :], u.speed_from_si(vs[law_idx])[None, :], u.speed_from_si(vls[law_idx])[None, :]
+                        )
+                    ).ravel()
                     a[law_idx] = u.accel_to_si(a_model)
                 for i, tr in enumerate(ctl_live):
                     if tr.ctrl is None:
@@ -497,9 +565,22 @@ def _loop(ts: Any, sc: SumoScenario, progress: ProgressFn | None) -> SumoRun:
             continue
         vehicles[tr.vid] = _result(tr, ev, s.lookahead_m, dt, s.record_every)
         controlled[tr.vid] = tr.controlled
-    return SumoRun(sc.name, sc, vehicles, controlled, fleet_events, k * dt, dt, k, wall, t_ctrl,
-                   {v: offsets[v] for v in vehicles}, ring.length_m if ring is not None else None, interrupted,
-                   t_build)
+    return SumoRun(
+        sc.name,
+        sc,
+        vehicles,
+        controlled,
+        fleet_events,
+        k * dt,
+        dt,
+        k,
+        wall,
+        t_ctrl,
+        {v: offsets[v] for v in vehicles},
+        ring.length_m if ring is not None else None,
+        interrupted,
+        t_build,
+    )
 
 
 def _lane_end_m(V: Any, vid: str, route: str, cache: dict[tuple[str, int, str], float | None]) -> float | None:
@@ -533,8 +614,13 @@ def _call(tr: _Track, u: Any, v: float, gap: float, ev: EVParams) -> float:
     t0 = time.perf_counter()
     cmd: Command = tr.ctrl.command(obs)
     tr.rec["call"].append(time.perf_counter() - t0)
-    for key, val in (("solve", cmd.solve_time_s), ("iters", cmd.iterations), ("ok", cmd.ok), ("status", cmd.status),
-                     ("info", {})):
+    for key, val in (
+        ("solve", cmd.solve_time_s),
+        ("iters", cmd.iterations),
+        ("ok", cmd.ok),
+        ("status", cmd.status),
+        ("info", {}),
+    ):
         tr.rec[key].append(val)
     return float(u.accel_to_si(cmd.a))
 
@@ -561,11 +647,19 @@ def _battery(ev: EVParams, live: list[_Track], dt: float) -> None:
         tr.current[-1] = float(I[j])  # the current at the start of the step belongs to the previous sample
         tr.current.append(float(I[j]))
         if disc[j] < 0:
-            tr.events.append(Event("infeasible_current", u.time_from_si(tr.t_s[-1]), 0, "cell cannot deliver the "
-                                   "power demand (E² < 4 R_s P_c)", time_s=tr.t_s[-1]))
+            tr.events.append(
+                Event(
+                    "infeasible_current",
+                    u.time_from_si(tr.t_s[-1]),
+                    0,
+                    "cell cannot deliver the power demand (E² < 4 R_s P_c)",
+                    time_s=tr.t_s[-1],
+                )
+            )
         elif not (0.0 <= x1[2, j] <= 1.0):
-            tr.events.append(Event("soc_out_of_range", u.time_from_si(tr.t_s[-1]), 0, f"S = {x1[2, j]:.6g}",
-                                   time_s=tr.t_s[-1]))
+            tr.events.append(
+                Event("soc_out_of_range", u.time_from_si(tr.t_s[-1]), 0, f"S = {x1[2, j]:.6g}", time_s=tr.t_s[-1])
+            )
 
 
 def _result(tr: _Track, ev: EVParams, lookahead_m: float, dt: float, every: int) -> SimulationResult:
@@ -610,14 +704,45 @@ def _result(tr: _Track, ev: EVParams, lookahead_m: float, dt: float, every: int)
     if tr.ctrl is not None and tr.rec["ok"]:
         stats = [_stats(tr.rec, tr.ctrl)]
     events = tr.events[:1]
-    meta = {"sumo_id": tr.vid, "vtype": tr.vtype, "route": tr.route, "controlled": tr.controlled,
-            "depart_s": tr.depart_s, "end": tr.end or "running", "end_s": tr.end_s, "step_s": dt,
-            "lookahead_m": lookahead_m, "lanes": sorted(set(tr.lane)), "call_s_total": float(sum(tr.rec["call"])),
-            "controllers": [tr.ctrl.describe() if tr.ctrl is not None else
-                            (tr.law.describe() if tr.law is not None else {"controller": "sumo", "vtype": tr.vtype})]}
+    meta = {
+        "sumo_id": tr.vid,
+        "vtype": tr.vtype,
+        "route": tr.route,
+        "controlled": tr.controlled,
+        "depart_s": tr.depart_s,
+        "end": tr.end or "running",
+        "end_s": tr.end_s,
+        "step_s": dt,
+        "lookahead_m": lookahead_m,
+        "lanes": sorted(set(tr.lane)),
+        "call_s_total": float(sum(tr.rec["call"])),
+        "controllers": [
+            tr.ctrl.describe()
+            if tr.ctrl is not None
+            else (tr.law.describe() if tr.law is not None else {"controller": "sumo", "vtype": tr.vtype})
+        ],
+    }
     return SimulationResult(
-        t=t[sel], leader_speed=vlm[sel], leader_position=(pos + h)[sel], gap=col(h), speed=col(vm), accel=col(am),
-        V1=col(xb[0]), V2=col(xb[1]), S=col(xb[2]), current_A=col(np.asarray(tr.current[:n])), omega=col(xb[3]),
-        heat_J=col(xb[4]), heat_irr_J=col(xb[5]), int_ovm_err2=col(cum(ovm**2)), int_rel_speed2=col(cum((vlm - vm) ** 2)),
-        int_jerk2=col(jerk2), controllers=[tr.controller], ev=ev, events=events, jerk_sampled=True,
-        solver_stats=stats, meta=meta)
+        t=t[sel],
+        leader_speed=vlm[sel],
+        leader_position=(pos + h)[sel],
+        gap=col(h),
+        speed=col(vm),
+        accel=col(am),
+        V1=col(xb[0]),
+        V2=col(xb[1]),
+        S=col(xb[2]),
+        current_A=col(np.asarray(tr.current[:n])),
+        omega=col(xb[3]),
+        heat_J=col(xb[4]),
+        heat_irr_J=col(xb[5]),
+        int_ovm_err2=col(cum(ovm**2)),
+        int_rel_speed2=col(cum((vlm - vm) ** 2)),
+        int_jerk2=col(jerk2),
+        controllers=[tr.controller],
+        ev=ev,
+        events=events,
+        jerk_sampled=True,
+        solver_stats=stats,
+        meta=meta,
+    )

@@ -98,13 +98,13 @@ class SumoScenario:
 
 def _controller(r: TableReader, key: str, value: Any) -> str:
     if not isinstance(value, str) or not value:
-        raise r.error(key, value, "expected a law name, \"mpc\" or \"module:function\"")
+        raise r.error(key, value, 'expected a law name, "mpc" or "module:function"')
     v = value.strip()
     if v.lower() in LAW_REGISTRY or v.lower() == "mpc":
         return v.lower()
     if re.fullmatch(r"[A-Za-z_][\w.]*:[A-Za-z_]\w*", v):
         return v
-    raise r.error(key, value, f"must be a law ({sorted(LAW_REGISTRY)}), \"mpc\" or \"module:function\"")
+    raise r.error(key, value, f'must be a law ({sorted(LAW_REGISTRY)}), "mpc" or "module:function"')
 
 
 def _path(r: TableReader, key: str, value: Any, base: Path | None) -> Path:
@@ -134,16 +134,19 @@ def parse_sumo_table(r: TableReader, base: Path | None) -> SumoSpec:
     kw: dict[str, Any] = {"t_end_s": r.number("t_end_s", gt=0)}
     sources = [k for k in ("network", "net_file", "config_file") if r.has(k)]
     if len(sources) != 1:
-        raise ScenarioError(f"{r.file}: [sumo] needs exactly one of network (\"ring\" or \"merge\"), net_file "
-                            f"(with route_files) or config_file; found {sources or 'none'}")
+        raise ScenarioError(
+            f'{r.file}: [sumo] needs exactly one of network ("ring" or "merge"), net_file '
+            f"(with route_files) or config_file; found {sources or 'none'}"
+        )
     if r.has("network"):
         name = r.string("network", choices=list(NETWORKS))
         kw["network"] = name
         kw[name] = _network(r, name)
     elif r.has("net_file"):
         kw["net_file"] = _path(r, "net_file", r.string("net_file"), base)
-        routes = ([r.string("route_files")] if isinstance(r.table.get("route_files"), str)
-                  else r.strings("route_files", []))
+        routes = (
+            [r.string("route_files")] if isinstance(r.table.get("route_files"), str) else r.strings("route_files", [])
+        )
         kw["route_files"] = tuple(_path(r, "route_files", x, base) for x in routes)
     else:
         kw["config_file"] = _path(r, "config_file", r.string("config_file"), base)
@@ -194,16 +197,21 @@ def parse_sumo_scenario(doc: dict[str, Any], file: str = "<sumo scenario>", sour
             mpc = MPCConfig(MPCSettings(dt=max(1, round(0.2 / spec.step_s)) * spec.step_s / ev.units.time_s))
         k = mpc.settings.dt * ev.units.time_s / spec.step_s
         if abs(k - round(k)) > 1e-9 or round(k) < 1:
-            raise ScenarioError(f"{file}: mpc.dt = {mpc.settings.dt:g} model time = "
-                                f"{mpc.settings.dt * ev.units.time_s:g} s must be a whole number of SUMO steps "
-                                f"(sumo.step_s = {spec.step_s:g} s)")
+            raise ScenarioError(
+                f"{file}: mpc.dt = {mpc.settings.dt:g} model time = "
+                f"{mpc.settings.dt * ev.units.time_s:g} s must be a whole number of SUMO steps "
+                f"(sumo.step_s = {spec.step_s:g} s)"
+            )
         if mpc.settings.predictor in ("oracle", "cooperative"):
-            raise ScenarioError(f"{file}: mpc.predictor = {mpc.settings.predictor!r} is not available in SUMO (a car "
-                                "measures its leader): use a measured predictor (constant-velocity, "
-                                "constant-acceleration, decaying-acceleration)")
+            raise ScenarioError(
+                f"{file}: mpc.predictor = {mpc.settings.predictor!r} is not available in SUMO (a car "
+                "measures its leader): use a measured predictor (constant-velocity, "
+                "constant-acceleration, decaying-acceleration)"
+            )
     top.finish()
-    return SumoScenario(name=name, spec=spec, ev=ev, cf=cf, mpc=mpc, description=description, source=source,
-                        document=copy.deepcopy(doc))
+    return SumoScenario(
+        name=name, spec=spec, ev=ev, cf=cf, mpc=mpc, description=description, source=source, document=copy.deepcopy(doc)
+    )
 
 
 def load_sumo_scenario(path: str | Path) -> SumoScenario:
@@ -219,4 +227,3 @@ def shipped_sumo_scenarios() -> dict[str, Path]:
     """{name: path} of the SUMO scenarios shipped with the package."""
     folder = Path(__file__).parent / "scenarios"
     return {p.stem: p for p in sorted(folder.glob("*.toml"))}
-
