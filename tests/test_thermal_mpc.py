@@ -164,3 +164,23 @@ def test_a_plant_without_temperature_is_a_clear_error() -> None:
     obs = Observation(0.0, 0.1, 0, np.array([1.3, 0.9, 0.0, 0.0, 0.62]), np.array([0.0]), np.array([0.9]))
     with pytest.raises(ParameterError, match="Observation.T_K"):
         pol.command(obs)
+
+
+def test_export_refuses_the_temperature_state(tmp_path: Path) -> None:
+    """The exported step has only the Riccati QP solver, which fails on active temperature limits: such a
+    scenario is refused by name, nothing is written; the same scenario without the state exports."""
+    from aev_ocp.mpc.export import ExportError, export_mpc
+
+    base = find_scenario("udds_platoon").read_text()
+    p = tmp_path / "s.toml"
+    p.write_text(base + "\n[thermal]\nenabled = true\n\n[mpc]\ntemperature_state = true\n")
+    with pytest.raises(ExportError, match="temperature_state"):
+        export_mpc(load_scenario(p), tmp_path / "out")
+    assert not (tmp_path / "out").exists()
+    from aev_ocp.mpc.export import cli_mpc_export
+
+    assert cli_mpc_export([str(p), "--out", str(tmp_path / "cli")]) == 2  # one bad-input line, before the folder
+    assert not (tmp_path / "cli").exists()
+    p.write_text(base + "\n[thermal]\nenabled = true\n\n[mpc]\nN = 8\n")
+    written = export_mpc(load_scenario(p), tmp_path / "out2")
+    assert any(f.name == "mpc_step.c" for f in written)
