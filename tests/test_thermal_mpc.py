@@ -184,3 +184,37 @@ def test_export_refuses_the_temperature_state(tmp_path: Path) -> None:
     p.write_text(base + "\n[thermal]\nenabled = true\n\n[mpc]\nN = 8\n")
     written = export_mpc(load_scenario(p), tmp_path / "out2")
     assert any(f.name == "mpc_step.c" for f in written)
+
+
+@pytest.mark.parametrize("kind, solver", [("traffic", "ipopt"), ("s9", "rti"), ("s9", "ipopt")])
+def test_a_hot_start_above_the_limit_is_solved_without_fallbacks(kind: str, solver: str) -> None:
+    """T(0) 0.5 K above the limit: every step's plan is accepted (no fallback to the law, which ignores
+    temperature) and the MPC does not let T rise. IPOPT's relaxed bounds (1e-8·|300 K|) and a §9 penalty of the
+    traffic cost's size made these plans fail before."""
+    s = dataclasses.replace(S, solver=solver, qp_solver="auto")
+    f = (traffic_formulation if kind == "traffic" else s9_formulation)(
+        temperature=TemperatureTerms(temperature_state=True, temperature_max_K=T0_K - 0.5)
+    )
+    r = run_closed_loop(ConstantSpeed(1.9), [MPCVehicle(s, formulation=f)], [2.2], [0.45], 2.0, ev=EV)
+    st = r.solver_stats[0]
+    assert r.status == "ok" and st["n_steps"] >= 20
+    assert st["fallbacks"] == 0, st.get("fallback_causes")
+    assert np.max(r.temperature_K[:, 0]) <= T0_K + 1e-6
+
+
+def test_a_user_state_named_T_is_not_the_pack_temperature() -> None:
+    """Only the state add_temperature_state marks is the pack temperature: a user's own state called 'T' (a timer)
+    on a plant without the thermal model runs, starts at 0 and integrates its own derivative."""
+    from aev_ocp.ocp.following import following_problem
+
+    ev = EVParams()
+    pb = following_problem(ev)
+    timer = pb.state("T", 0.0, 100.0)
+    pb.set_der(timer, 1.0)
+    s = dataclasses.replace(S, N=8, qp_solver="auto")
+    r = run_closed_loop(ConstantSpeed(1.9), [MPCVehicle(s, problem=pb)], [1.0], [1.8], 0.6, ev=ev)
+    assert r.status == "ok" and r.temperature_K is None
+    c = MPCController(s, ev, problem=pb)
+    assert not c.has_temperature and c.temperature_state_name is None
+    assert c.layout.x_own0.tolist() == [0.0]  # the timer's own start, not the thermal model's T(0)
+    assert _controller(T0_K + 1.0).temperature_state_name == "T"  # the marked one is

@@ -45,7 +45,7 @@ import numpy as np
 from ..models.battery import piecewise_ocv
 from ..models.carfollowing import CarFollowingLaw, Proposed
 from ..models.ego import STATE_NAMES
-from ..ocp.following import WEIGHT_NAMES, FollowingWeights, weight_vector
+from ..ocp.following import PACK_TEMPERATURE_KEY, WEIGHT_NAMES, FollowingWeights, weight_vector
 from ..ocp.formulation import DEFAULT_FORMULATION, Formulation, problem_formulation
 from ..ocp.problem import OCPProblem, ProblemBuilder
 from ..params import EVParams, ParameterError
@@ -202,8 +202,9 @@ class MPCController:
         bad = sorted(set(xinit) - set(own))
         if bad:
             raise ParameterError(f"MPCController: initial_values names unknown states {bad}; own states are {own}")
-        # the pack temperature 'T' [K] starts from the thermal model's T(0) unless measured (the policy's own)
-        start = {"T": self.ev.thermal.initial_K}
+        # the pack temperature [K] starts from the thermal model's T(0) unless measured (the policy's own)
+        Tn = self.temperature_state_name
+        start = {Tn: self.ev.thermal.initial_K} if Tn is not None else {}
         return ParameterLayout(
             n_weights,
             np.array([float(pvals[k]) for k in extra_p]),
@@ -212,9 +213,16 @@ class MPCController:
         )
 
     @property
+    def temperature_state_name(self) -> str | None:
+        """The own state that is the pack temperature [K] (marked by ocp.following.add_temperature_state, e.g.
+        TemperatureTerms.temperature_state), or None: a state merely named 'T' is not taken for it."""
+        name = (self.problem.meta or {}).get(PACK_TEMPERATURE_KEY)
+        return name if name in self.problem.state_names[NZ:] else None
+
+    @property
     def has_temperature(self) -> bool:
-        """The prediction model carries the pack temperature 'T' [K] (TemperatureTerms.temperature_state)."""
-        return "T" in self.problem.state_names[NZ:]
+        """The prediction model carries the pack temperature [K] (TemperatureTerms.temperature_state)."""
+        return self.temperature_state_name is not None
 
     # ------------------------------------------------------------------ the horizon NLP's interface
     @property

@@ -103,9 +103,10 @@ class MPCPolicy:
         # ('a_act': the realised acceleration of a vehicle with an actuator lag, when the problem models it)
         # and 'T' (the pack temperature in the prediction, TemperatureTerms) from the measured T_K
         own = {"a_prev": obs.a_prev, "a_act": obs.a_act or 0.0}
-        if obs.T_K is not None:
-            own["T"] = obs.T_K
-        elif self.controller.has_temperature:
+        Tn = self.controller.temperature_state_name
+        if Tn is not None and obs.T_K is not None:
+            own[Tn] = obs.T_K
+        elif Tn is not None:
             raise ParameterError(
                 "MPC: temperature_state needs the measured pack temperature (Observation.T_K), which "
                 "this plant does not give: turn on [thermal] (enabled = true) in a platoon scenario "

@@ -93,6 +93,16 @@ def following_stage_terms(
 SLACK_MAX_K = 100.0
 
 
+#: Default ρ_T per formulation (our choice; each is an exact L1 penalty, i.e. above the limit's multiplier, and small
+#: enough for the QP solvers). Traffic [W/kg per K]: a kelvin over a 5 s horizon frees C_pack·1 K/5 s ≈ 100 kW of
+#: pack heat, worth ~1e3 W/kg at w_Q = 20, so 1e5 is exact on the EPA cycles. §9 [model-cost units per K per model
+#: time]: its costs are ~1e2 smaller; measured on a hot start (T(0) 0.5 K above the limit, 4 s, N = 15, HPIPM):
+#: 1e2 lets T rise 1 mK (not exact), 1e3 and 1e4 hold it with 0 fallbacks, 1e5 made 19 of 40 QPs fail.
+PENALTY_DEFAULTS = {"traffic": 1.0e5, "s9": 1.0e3}
+#: ProblemBuilder.meta key naming the state that is the pack temperature [K] (set by add_temperature_state)
+PACK_TEMPERATURE_KEY = "pack_temperature_state"
+
+
 @dataclass(frozen=True)
 class TemperatureTerms:
     """The pack temperature in an MPC's prediction model (``[mpc]`` keys of the same names), SI.
@@ -102,15 +112,19 @@ class TemperatureTerms:
     limit T ≤ T_max at the start of every interval (nodes 0…N−1, like every path constraint; None: the scenario's
     ``[thermal] T_max_K``); temperature_penalty: ρ_T, the
     exact L1 penalty per kelvin above the limit per second [W/kg per K with the traffic formulation, whose cost
-    is in W/kg·s; model-cost units per K per model time with §9's], so every QP stays feasible."""
+    is in W/kg·s; model-cost units per K per model time with §9's], so every QP stays feasible (None: the
+    formulation's default, :meth:`penalty`)."""
 
     temperature_state: bool = spec(False, kind="bool")  # off: the paper's MPC has no temperature
     temperature_max_K: float | None = spec(None, gt=0, optional=True)  # None: ThermalParams.T_max_K
-    temperature_penalty: float = spec(1.0e5, gt=0)  # our choice: above the limit's multiplier on the EPA cycles
-    # (a kelvin over a 5 s horizon frees C_pack·1 K/5 s ≈ 100 kW of pack heat, worth ~1e3 W/kg at w_Q = 20)
+    temperature_penalty: float | None = spec(None, gt=0, optional=True)  # None: PENALTY_DEFAULTS[formulation]
 
     def __post_init__(self) -> None:
         validate_fields(self)
+
+    def penalty(self, kind: str) -> float:
+        """ρ_T for a formulation of ``kind`` ('traffic' or 's9'): temperature_penalty, or that kind's default."""
+        return PENALTY_DEFAULTS[kind] if self.temperature_penalty is None else float(self.temperature_penalty)
 
     def limit_K(self, ev: EVParams) -> float:
         """T_max [K]: temperature_max_K, or the thermal model's T_max_K."""
@@ -126,7 +140,11 @@ def add_temperature_state(pb: ProblemBuilder, ev: EVParams, hard_limit: bool = T
         raise ParameterError(
             "with_temperature needs the thermal model: ev.thermal.enabled = True ([thermal] enabled = true)"
         )
-    return pb.state("T", 0.0, ev.thermal.T_max_K if hard_limit else ca.inf, scale=100.0)
+    T = pb.state("T", 0.0, ev.thermal.T_max_K if hard_limit else ca.inf, scale=100.0)
+    # marks the state as the pack temperature: an MPC starts it from the measured T_K (a user's own state named
+    # 'T', a timer say, is left alone)
+    pb.meta[PACK_TEMPERATURE_KEY] = "T"
+    return T
 
 
 def add_temperature_limit(pb: ProblemBuilder, T_state: Any, T_max_K: float, penalty: float, time_scale: float) -> None:
@@ -134,7 +152,9 @@ def add_temperature_limit(pb: ProblemBuilder, T_state: Any, T_max_K: float, pena
     the cost time_scale·(penalty σ_T + 1e-3 σ_T²) per unit of the problem's time (the quadratic keeps the Hessian
     PD); ``time_scale`` converts the penalty's per-second rate to the problem's time unit (the traffic cost's T)."""
     sig = pb.control("slack_T", 0.0, SLACK_MAX_K, scale=0.01)
-    pb.subject_to(T_state - sig, -ca.inf, T_max_K, name="temperature")
+    # written against a zero bound: IPOPT relaxes a bound b by 1e-8·|b| (bound_relax_factor), ~3e-6 K at 300 K,
+    # more than the MPC's plan tolerance, so 'T − σ ≤ T_max' made every solve with an active limit a rejected plan
+    pb.subject_to(T_state - sig - T_max_K, -ca.inf, 0.0, name="temperature")
     pb.add_stage_cost(time_scale * (penalty * sig + 1e-3 * sig**2), "penalty_temperature")
 
 
@@ -205,7 +225,7 @@ def following_problem(
         set_temperature_rate(pb, Tst, cell, ev)
     if soft_T:
         assert temperature is not None
-        add_temperature_limit(pb, Tst, temperature.limit_K(ev), temperature.temperature_penalty, 1.0)
+        add_temperature_limit(pb, Tst, temperature.limit_K(ev), temperature.penalty("s9"), 1.0)
     Imax = ev.cell.max_current_A
     pb.subject_to(cell["I"], -Imax, Imax, name="I")  # |I| ≤ 20C (model guide §9)
     pb.subject_to(cell["disc"], 0.0, ca.inf, name="disc")  # current map feasible (model guide §7)

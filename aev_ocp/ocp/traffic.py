@@ -202,7 +202,7 @@ def traffic_problem(
         set_temperature_rate(pb, Tst, cell, ev)
     if soft_T:
         assert temperature is not None
-        add_temperature_limit(pb, Tst, temperature.limit_K(ev), temperature.temperature_penalty, T)
+        add_temperature_limit(pb, Tst, temperature.limit_K(ev), temperature.penalty("traffic"), T)
     # exact v g(a) [W/kg] by an epigraph (the energy_rate control, in W/kg)
     e = pb.control("energy_rate", -ENERGY_RATE_MAX_W_PER_KG, ENERGY_RATE_MAX_W_PER_KG, scale=10.0)
     pb.subject_to(e - v_ms * a_ms2 / eta, 0.0, ca.inf, name="energy_epi_drive")
