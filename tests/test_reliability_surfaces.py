@@ -692,6 +692,31 @@ def test_trace_is_read_only_as_far_as_the_run_needs(tmp_path, capsys):
     assert rc == 2 and "row 2502" in one_error(err)
 
 
+def test_a_trace_read_for_a_short_run_refuses_a_longer_one_in_python(tmp_path):
+    """The trace was read only as far as the parsed t_end needs: a longer run through replace() (on a scenario
+    without its document) or run(t_end=...) is refused by name instead of holding the last speed read; through
+    with_overrides the file is read again, far enough."""
+    import dataclasses
+
+    from aev_ocp.scenarios import ScenarioError, load_scenario
+
+    f = tmp_path / "long.csv"
+    f.write_text("t,v\n" + "\n".join(f"{0.1 * i:.1f},{10 + (i % 7) * 0.25}" for i in range(3000)) + "\n")
+    s = load_scenario(_trace_scenario(tmp_path, f))  # t_end_s = 2.0
+    assert s.leader.read_for_t_end == pytest.approx(s.t_end)
+    short = s.replace(t_end=0.5 * s.t_end)  # shorter: fine
+    assert short.t_end == pytest.approx(0.5 * s.t_end)
+    bare = dataclasses.replace(s, document=None)
+    with pytest.raises(ScenarioError, match="trace leader's file was read only"):
+        bare.replace(t_end=40.0 * s.t_end)
+    with pytest.raises(ScenarioError, match="trace leader's file was read only"):
+        s.run(t_end=40.0 * s.t_end)
+    longer = s.with_overrides({"simulation.t_end_s": 80.0})  # re-read far enough
+    assert longer.leader.times[-1] * s.units.time_s > 160.0
+    full = load_scenario(_trace_scenario(tmp_path, f)).with_overrides({"simulation.t_end_s": 400.0})
+    assert full.leader.read_for_t_end is None  # the whole file was read: nothing to refuse
+
+
 @pytest.mark.parametrize(
     "argv, what",
     [

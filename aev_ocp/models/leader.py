@@ -13,7 +13,7 @@ import stat
 import math
 from abc import ABC, abstractmethod
 from array import array
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import cached_property
 from importlib import resources
 from pathlib import Path
@@ -216,6 +216,9 @@ class SpeedTrace(LeaderProfile):
     times: tuple[float, ...]
     speeds: tuple[float, ...]
     label: str = "trace"
+    #: set when a recording was read only as far as a run of this horizon [model time] needs (the rows after it
+    #: were not read): a longer run would see the speed held at the last sample read instead of the recording
+    read_for_t_end: float | None = field(default=None, repr=False, compare=False)
     name = "trace"
 
     def __post_init__(self) -> None:

@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import Any, Callable, Mapping
 
 from ..models.carfollowing import LAW_REGISTRY, V_INF, CarFollowingLaw, make_law
-from ..models.leader import ConstantSpeed, LeaderProfile, PaperLeader
+from ..models.leader import ConstantSpeed, LeaderProfile, PaperLeader, SpeedTrace
 from ..overrides import SI_TWINS, apply_to_document
 from ..params import CarFollowingParams, EVParams, ParameterError, SimOptions, Units
 from ..results import check_safe_name
@@ -98,6 +98,7 @@ class Scenario:
         from ..simulate import simulate_platoon
 
         base = {**self.simulate_kwargs(), **overrides}
+        check_trace_horizon(self, float(base["t_end"]))
         check_run_size(self.n_followers, float(base["t_end"]), float(base["dt_out"]), str(self.source or self.name))
         out: dict[str, Any] = {}
         runs = self.runs()
@@ -195,8 +196,22 @@ def _replace_overrides(keyed: dict[str, Any]) -> dict[str, Any]:
     return ov
 
 
+def check_trace_horizon(sc: "Scenario", t_end: float) -> None:
+    """ScenarioError if ``sc``'s trace leader was read only for a shorter horizon than ``t_end`` [model time]: the
+    run would see the last speed read held instead of the recording (reload or with_overrides re-reads it)."""
+    limit = getattr(sc.leader, "read_for_t_end", None)
+    if limit is not None and t_end > limit * (1.0 + 1e-12):
+        raise ScenarioError(
+            f"{sc.file_label}: t_end = {t_end:g} model time ({sc.units.time_to_si(t_end):g} s): the trace leader's "
+            f"file was read only as far as a run of {limit:g} model time ({sc.units.time_to_si(limit):g} s) needs; "
+            "set simulation.t_end_s with with_overrides() or in the file, so the recording is read that far"
+        )
+
+
 def _replace_without_document(sc: "Scenario", keyed: dict[str, Any]) -> "Scenario":
     """replace() of file-keyed fields on a scenario built in Python: rebuild what derives from them."""
+    if "t_end" in keyed:
+        check_trace_horizon(sc, float(keyed["t_end"]))
     out = dataclasses.replace(sc, **keyed)
     if "cf" in keyed or "law_overrides" in keyed:
         try:
@@ -260,7 +275,10 @@ def parse_scenario(doc: dict[str, Any], file: str = "<scenario>", *, source: Pat
     sim.finish()
 
     cf, overrides = _carfollowing(top.sub("carfollowing"))
-    leader = _leader(top.sub("leader", required=True), units, source, trace_read_s(doc, t_end, units))
+    read_s = trace_read_s(doc, t_end, units)
+    leader = _leader(top.sub("leader", required=True), units, source, read_s)
+    if isinstance(leader, SpeedTrace) and units.time_to_si(leader.times[-1]) >= read_s:
+        leader = dataclasses.replace(leader, read_for_t_end=t_end)  # the recording was read only this far
     sized: dict[str, float] = {}
 
     def size(n: int) -> None:
