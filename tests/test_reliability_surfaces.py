@@ -1253,3 +1253,30 @@ def test_a_ctrl_c_a_library_turned_into_another_error_is_an_interrupt(capsys):
     assert guarded(command) == EXIT_INTERRUPTED
     err = capsys.readouterr().err
     assert err == "aev-ocp: error: interrupted\n"
+
+
+def test_a_store_kept_behind_a_link_is_followed_and_a_dangling_link_replaced(tmp_path):
+    """points/ as a link to a folder on another disk keeps its entries (they are read and added to); a link to
+    nothing is damage and is replaced by a folder."""
+    from aev_ocp.study.runner import Store
+
+    elsewhere = tmp_path / "other_disk"
+    elsewhere.mkdir()
+    run = tmp_path / "study"
+    run.mkdir()
+    (run / "points").symlink_to(elsewhere, target_is_directory=True)
+
+    def result(x: float) -> dict:
+        return {"controller": "ovfl", "status": "ok", "message": "", "metrics": [{"omega_J_per_kg": x}]}
+
+    st = Store(run)
+    st.put("a1", result(2.5))
+    assert (elsewhere / "a1.json").is_file() and (run / "points").is_symlink()
+    st.put("b2", result(3.5))
+    got = Store(run).get("a1")
+    assert got is not None and got["metrics"] == [{"omega_J_per_kg": 2.5}] and (elsewhere / "b2.json").is_file()
+    dangling = tmp_path / "study2"
+    dangling.mkdir()
+    (dangling / "points").symlink_to(tmp_path / "nowhere")
+    Store(dangling).put("c3", result(4.5))
+    assert (dangling / "points").is_dir() and not (dangling / "points").is_symlink()

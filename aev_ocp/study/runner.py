@@ -222,8 +222,10 @@ class Store:
         entry = {**result, "key": key}
         entry[self.HASH_FIELD] = self.digest(entry)
         f = self.path(key)
-        if self.dir.is_symlink() or (self.dir.exists() and not self.dir.is_dir()):
-            self.dir.unlink()  # points/ is the store's own folder: a file or a link in its place is damage
+        if (self.dir.exists() or self.dir.is_symlink()) and not self.dir.is_dir():
+            # points/ is the store's own folder: a file, a FIFO or a dangling link in its place is damage (a link
+            # to a folder, a store kept on another disk, is followed)
+            self.dir.unlink()
         if f.is_dir() and not f.is_symlink():
             shutil.rmtree(f)  # a folder under an entry's name (os.replace cannot replace it; a FIFO or link it can)
         write_atomic(f, json.dumps(entry, sort_keys=True) + "\n")
