@@ -232,3 +232,37 @@ def test_mpc_horizon_that_is_not_whole_steps_names_the_option(
     line = one_error(err)
     assert named in line and "mpc.dt = 0.2 s (0.1 model time)" in line, line
     assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize(
+    ("name", "content"),
+    [
+        ("table.jsonl", b"\xbc\x00junk\xff"),
+        ("table.jsonl", b'{"a": 1}\n{"a": \n'),
+        ("table.jsonl", b"[1, 2]\n"),
+        ("table.jsonl", b"[" * 100_000 + b"]" * 100_000 + b"\n"),
+        ("table.csv", b"a,b\n\xbc\xff,2\n"),
+        ("missing.jsonl", None),
+        ("fifo.jsonl", "fifo"),
+    ],
+)
+def test_load_table_of_a_damaged_file_raises_load_error(tmp_path: Path, name: str, content: object) -> None:
+    """load_table raised UnicodeDecodeError/JSONDecodeError on a damaged table and would hang on a FIFO."""
+    from aev_ocp import LoadError
+    from aev_ocp.study import load_table
+
+    f = tmp_path / name
+    if content == "fifo":
+        os.mkfifo(f)
+    elif isinstance(content, bytes):
+        f.write_bytes(content)
+    with pytest.raises(LoadError, match=name):
+        load_table(f)
+
+
+def test_load_table_reads_both_files_alike(tmp_path: Path) -> None:
+    from aev_ocp.study import load_table
+
+    (tmp_path / "table.jsonl").write_text('{"kappa": 0.047, "law": "ovfl", "n": 3}\n', encoding="utf-8")
+    (tmp_path / "table.csv").write_text("kappa,law,n\n0.047,ovfl,3\n", encoding="utf-8")
+    assert load_table(tmp_path) == load_table(tmp_path / "table.csv") == [{"kappa": 0.047, "law": "ovfl", "n": 3}]
