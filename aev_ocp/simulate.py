@@ -452,6 +452,7 @@ class PlatoonSimulator:
             stats,
             last,
         )
+        assert self._lib is not None  # _call_c runs only on the cascade path, after a successful build
         rc = _interruptible_call(self._run_c, args, ctypes.c_int.in_dll(self._lib, "aevsim_cancel"))
         if rc == 2:  # stopped through aevsim_cancel by another thread's interrupt of the same library
             raise interrupts.Interrupted("the compiled cascade was cancelled")
