@@ -266,3 +266,21 @@ def test_load_table_reads_both_files_alike(tmp_path: Path) -> None:
     (tmp_path / "table.jsonl").write_text('{"kappa": 0.047, "law": "ovfl", "n": 3}\n', encoding="utf-8")
     (tmp_path / "table.csv").write_text("kappa,law,n\n0.047,ovfl,3\n", encoding="utf-8")
     assert load_table(tmp_path) == load_table(tmp_path / "table.csv") == [{"kappa": 0.047, "law": "ovfl", "n": 3}]
+
+
+def test_output_folder_that_cannot_be_created_is_one_short_line(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """--out with a 6000-character path printed 'File name too long: <the whole path>', a dangling symbolic link
+    'File exists: link'; both now name the output folder (shortened) and why, exit 2."""
+    scen = tmp_path / "s.toml"
+    scen.write_text(SMALL, encoding="utf-8")
+    long_out = "/".join(["b" * 200] * 30)
+    code, _, err = run_cli(["simulate", str(scen), "--no-plots", "--out", str(tmp_path / long_out)], capsys)
+    line = one_error(err)
+    assert code == EXIT_BAD_INPUT and line.startswith("aev-ocp: error: output folder ") and len(line) < 300, line
+    assert "characters) cannot be created or read (File name too long)" in line
+    (tmp_path / "link").symlink_to(tmp_path / "nowhere" / "x")
+    code, _, err = run_cli(["simulate", str(scen), "--no-plots", "--out", str(tmp_path / "link")], capsys)
+    line = one_error(err)
+    assert code == EXIT_BAD_INPUT and "is a symbolic link to" in line and "which does not exist" in line, line
