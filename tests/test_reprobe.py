@@ -284,3 +284,25 @@ def test_output_folder_that_cannot_be_created_is_one_short_line(
     code, _, err = run_cli(["simulate", str(scen), "--no-plots", "--out", str(tmp_path / "link")], capsys)
     line = one_error(err)
     assert code == EXIT_BAD_INPUT and "is a symbolic link to" in line and "which does not exist" in line, line
+
+
+@pytest.mark.parametrize(("vehicle", "warns"), [("[2, 7]", True), ("9", True), ("[1, 2]", False)])
+def test_report_vehicle_without_rows_warns(tmp_path: Path, vehicle: str, warns: bool) -> None:
+    """[report] vehicle = [99] on a 1-follower platoon wrote a report of nothing ('0 of 0') without a word."""
+    import warnings
+
+    from aev_ocp.study import run_study
+
+    (tmp_path / "s.toml").write_text(SMALL, encoding="utf-8")  # 2 followers
+    (tmp_path / "st.toml").write_text(
+        'name = "st"\nscenarios = ["s.toml"]\n[[axes]]\nkey = "carfollowing.kappa"\nvalues = [0.013, 0.047]\n'
+        f'[controllers]\nlaws = ["proposed"]\n[report]\nvehicle = {vehicle}\n',
+        encoding="utf-8",
+    )
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        run_study(tmp_path / "st.toml", tmp_path / "o", executor="inprocess")
+    said = [str(w.message) for w in caught if "[report] vehicle" in str(w.message)]
+    assert bool(said) == warns, said
+    if warns:
+        assert "the table's followers: [1, 2]" in said[0]
