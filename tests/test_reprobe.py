@@ -306,3 +306,22 @@ def test_report_vehicle_without_rows_warns(tmp_path: Path, vehicle: str, warns: 
     assert bool(said) == warns, said
     if warns:
         assert "the table's followers: [1, 2]" in said[0]
+
+
+def test_a_compiler_in_cc_that_does_not_exist_is_reported_once(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """CC=/nonexistent/cc aev-ocp mpc-export --build built with gcc without a word."""
+    import shutil
+
+    from aev_ocp import compiled
+
+    monkeypatch.setenv("CC", "/nonexistent/cc-7")
+    monkeypatch.setattr(compiled, "_CC_WARNED", set())
+    first, second = compiled.compiler(), compiled.compiler()
+    err = capsys.readouterr().err
+    assert first == second == shutil.which("cc")
+    assert err.count("$CC = '/nonexistent/cc-7' is not a compiler found on PATH") == 1, err
+    monkeypatch.setenv("CC", "gcc")
+    compiled.compiler()
+    assert capsys.readouterr().err == ""
