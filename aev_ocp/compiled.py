@@ -56,10 +56,18 @@ class BuildResult:
     rebuilt: bool = False
 
 
+_CC_WARNED: set[str] = set()  # $CC values already reported as not found (one line each per process)
+
+
 def compiler() -> str | None:
-    """The C compiler: $CC, else gcc, else cc; None if there is none."""
+    """The C compiler: $CC, else gcc, else cc; None if there is none. A $CC that is not found is reported once
+    (one line on stderr naming what is used instead) rather than replaced without a word."""
     cc = os.environ.get("CC") or "gcc"
-    return shutil.which(cc) or shutil.which("cc")
+    found = shutil.which(cc) or shutil.which("cc")
+    if os.environ.get("CC") and shutil.which(cc) is None and cc not in _CC_WARNED:
+        _CC_WARNED.add(cc)
+        announce(f"$CC = {cc!r} is not a compiler found on PATH; using {found or 'none (no C compiler)'} instead")
+    return found
 
 
 #: How long an interrupted compiler may take to clean up (its temporary .s/.o files) after SIGTERM [s].

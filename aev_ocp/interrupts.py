@@ -57,6 +57,22 @@ def deferred() -> Iterator[None]:
 
 
 @contextlib.contextmanager
+def sigint_blocked() -> Iterator[None]:
+    """A block during which this thread does not receive SIGINT (held pending, delivered when the block ends),
+    for starting worker processes: they inherit the blocked SIGINT, so a Ctrl-C in the terminal, which reaches the
+    whole process group, is left to this process (it stops its workers) instead of printing a KeyboardInterrupt
+    traceback in each worker. No-op where signal masks do not exist (Windows) or outside the main thread."""
+    if not hasattr(signal, "pthread_sigmask") or threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    old = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, old)
+
+
+@contextlib.contextmanager
 def handle_signals() -> Iterator[None]:
     """Within the block, SIGINT and SIGTERM raise :class:`Interrupted` and are remembered.
 

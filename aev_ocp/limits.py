@@ -248,12 +248,22 @@ def read_input_file(
     max_bytes: int = MAX_INPUT_FILE_BYTES,
     label: str | None = None,
 ) -> bytes:
-    """:func:`read_regular_file` for an input file of the user's: ``raise error(message)`` instead of
-    :class:`FileRefused`, one line naming ``label`` (default the path) and ``what`` (e.g. 'study file')."""
+    """:func:`read_regular_file` for a text input file of the user's (TOML, JSON, CSV): ``raise error(message)``
+    instead of :class:`FileRefused`, one line naming ``label`` (default the path) and ``what`` (e.g. 'study
+    file'); a leading UTF-8 byte-order mark (what some editors on Windows write) is dropped."""
     try:
-        return read_regular_file(path, max_bytes)
+        return strip_bom(read_regular_file(path, max_bytes))
     except FileRefused as exc:
         raise error(f"{path if label is None else label}: cannot read the {what} ({exc})") from None
+
+
+UTF8_BOM = b"\xef\xbb\xbf"
+
+
+def strip_bom(data: bytes) -> bytes:
+    """``data`` without a leading UTF-8 byte-order mark: TOML and JSON parsers refuse one ("invalid statement at
+    line 1, column 1"), though the text after it is fine."""
+    return data[len(UTF8_BOM) :] if data.startswith(UTF8_BOM) else data
 
 
 def _os_reason(exc: OSError) -> str:

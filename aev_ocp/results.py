@@ -20,7 +20,7 @@ from typing import Any, ClassVar, Iterator
 import numpy as np
 
 from . import interrupts
-from .limits import read_input_file
+from .limits import _os_reason, read_input_file
 from .params import EVParams, Units, as_dict
 
 _UMASK = os.umask(0)
@@ -197,12 +197,18 @@ def claim_output_dir(
     :class:`OutputError` says so: re-running the same scenario into its own folder replaces its files.
     """
     out = Path(out)
-    if out.exists() and not out.is_dir():
-        raise OutputError(f"output folder {out} exists and is not a folder")
-    me = {"command": command, "scenario": scenario, "source": str(Path(source).resolve()) if source else None}
-    files = None if files is None else list(files)
-    _check_claim(out, me, files)  # before anything is written: a refused folder stays as it was
-    out.mkdir(parents=True, exist_ok=True)
+    try:
+        if out.exists() and not out.is_dir():
+            raise OutputError(f"output folder {out} exists and is not a folder")
+        if out.is_symlink() and not out.exists():
+            raise OutputError(f"output folder {out} is a symbolic link to {os.readlink(out)!r}, which does not exist")
+        me = {"command": command, "scenario": scenario, "source": str(Path(source).resolve()) if source else None}
+        files = None if files is None else list(files)
+        _check_claim(out, me, files)  # before anything is written: a refused folder stays as it was
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:  # a name too long, a dangling symbolic link, no permission: say which folder, shortly
+        shown = str(out) if len(str(out)) <= 120 else f"{str(out)[:60]}…{str(out)[-40:]} ({len(str(out))} characters)"
+        raise OutputError(f"output folder {shown} cannot be created or read ({_os_reason(exc)})") from None
     _acquire_lock(out)  # held until the command ends (release_output_locks): a second run is refused at once
     _check_claim(out, me, files)  # again under the lock: a run that started meanwhile has written its marker
     write_json(out / MARKER, me, provenance=False)

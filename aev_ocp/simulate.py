@@ -29,12 +29,14 @@ import copy
 import ctypes
 import dataclasses
 import math
+import threading
 import warnings
 from typing import Any, Callable, Sequence
 
 import casadi as ca
 import numpy as np
 
+from . import interrupts
 from .compiled import compile_shared, driver_source
 from .models import energy
 from .models.actuator import actuator_rate, saturate, speed_cut
@@ -85,6 +87,43 @@ def _law_template(law: CarFollowingLaw) -> tuple[Any, Callable[[ca.SX], CarFollo
                 rest = tuple((f.name, getattr(law, f.name)) for f in dataclasses.fields(law) if f.name not in names)
                 return (type(law), tuple(names), rest), make, values
     return law, (lambda p, _law=law: _law), []
+
+
+def _interruptible_call(fn: Callable[..., int], args: tuple[Any, ...], cancel: ctypes.c_int) -> int:
+    """Call a compiled run (ctypes releases the GIL) in a helper thread while this thread waits in short
+    slices, so Ctrl-C/SIGTERM are handled within about 0.05 s instead of when the whole run returns (also one
+    that CasADi swallowed while the run was built: :func:`aev_ocp.interrupts.check`): on any exception here the
+    C code is told to stop through ``cancel`` and waited for (it writes into ``args``' arrays), then the exception
+    propagates. Returns the C return code. The wait is an Event, not ``Thread.join``: a join interrupted by a
+    signal handler's exception marks a running thread as stopped (CPython 3.11), and would return at once."""
+    box: dict[str, Any] = {}
+    finished = threading.Event()
+
+    def work() -> None:
+        try:
+            box["rc"] = fn(*args)
+        except BaseException as e:  # noqa: BLE001 - handed to the calling thread below
+            box["error"] = e
+        finally:
+            finished.set()
+
+    interrupts.check()  # a Ctrl-C that CasADi swallowed while the run was being built (its SWIG layer does)
+    cancel.value = 0
+    threading.Thread(target=work, name="aev-cascade", daemon=True).start()
+    try:
+        while not finished.wait(0.05):
+            interrupts.check()
+    except BaseException:
+        cancel.value = 1
+        while not finished.is_set():  # the C code stops within one step; a second Ctrl-C must not cut this wait
+            try:
+                finished.wait(0.05)
+            except BaseException:  # noqa: BLE001 - the first interrupt is the one raised below
+                pass
+        raise
+    if "error" in box:
+        raise box["error"]
+    return int(box["rc"])
 
 
 def _compile_shared(source: str) -> tuple[ctypes.CDLL | None, str]:
@@ -393,7 +432,7 @@ class PlatoonSimulator:
         nsamp, kind = np.zeros(n, np.int32), np.zeros(n, np.int32)
         ev_time, ev_val, stats = np.zeros(n), np.zeros(n), np.zeros((n, 3), np.int64)
         last = np.zeros((n, ncol + 1))
-        rc = self._run_c(
+        args = (
             n,
             np.asarray(self._law_of[:n], np.int32),
             np.ascontiguousarray(self._params[:n]),
@@ -413,6 +452,10 @@ class PlatoonSimulator:
             stats,
             last,
         )
+        assert self._lib is not None  # _call_c runs only on the cascade path, after a successful build
+        rc = _interruptible_call(self._run_c, args, ctypes.c_int.in_dll(self._lib, "aevsim_cancel"))
+        if rc == 2:  # stopped through aevsim_cancel by another thread's interrupt of the same library
+            raise interrupts.Interrupted("the compiled cascade was cancelled")
         if rc != 0:
             raise MemoryError("simulate: the cascade integrator ran out of memory")
         return nsamp, kind, ev_time, ev_val, stats, last

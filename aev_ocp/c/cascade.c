@@ -98,7 +98,11 @@ static void aev_row(aev_ctx* c, aev_traj* prev, int i, int law, const double* pa
   row[NCOL] = u[0];
 }
 
-/* Returns 0 on success, 1 on out-of-memory. Event kinds: 0 none, 1 collision, 2 negative_speed,
+/* Set nonzero by another thread (Ctrl-C or SIGTERM in the Python caller) to stop a run between two steps:
+ * aevsim_run then returns 2 at once and its outputs are incomplete. */
+CASADI_SYMBOL_EXPORT volatile int aevsim_cancel = 0;
+
+/* Returns 0 on success, 1 on out-of-memory, 2 when stopped through aevsim_cancel. Event kinds: 0 none, 1 collision, 2 negative_speed,
  * 3 infeasible_current, 4 soc below 0, 5 soc above 1, 6 integration failed.
  * last (n x (NCOL + 1)): each vehicle's row (z, y, v_l) where its integration ended: at its event (on the
  * dense output, the rule firing there: a collision has h <= 0), else at its last step's end. */
@@ -143,6 +147,7 @@ CASADI_SYMBOL_EXPORT int aevsim_run(int n, const int* law_idx, const double* par
     if (BATTERY && AEV_EV5_SIGN * z[4] - AEV_EV5_OFFSET < 0) { kind = 5; tev = 0; val = z[4]; }
     double h = 1e-4;
     while (!kind && t < tmax) {
+      if (aevsim_cancel) { status = 2; break; }
       while (istop < nstop - 1 && stops[istop] <= t) istop++;
       double tstop = stops[istop] < tmax ? stops[istop] : tmax;
       int hit = 0;

@@ -184,7 +184,8 @@ def _cli_mpc(argv: list[str]) -> int:
     elif a.t_end_model is not None:
         sc = sc.replace(t_end=a.t_end_model)
     laws = tuple(a.laws) if a.laws is not None else (tuple(sc.compare) or ("proposed", "ovfl"))
-    check_mpc_scenario(sc, s, laws)  # bad input is refused before anything runs or is written
+    option = "--t-end" if a.t_end is not None else "--t-end-model" if a.t_end_model is not None else None
+    check_mpc_scenario(sc, s, laws, option)  # bad input is refused before anything runs or is written
     out = Path(a.out) if a.out else default_output_dir("mpc", sc.name)
     overlays = tuple(f"overlay_vehicle{i + 1}.png" for i in range(sc.n_followers))
     claim_output_dir(out, "mpc", sc.name, str(sc.source) if sc.source else None, OUTPUT_FILES + SAVED_FILES + overlays)

@@ -94,12 +94,15 @@ S9_ROWS = ("cost_s9", "cost_s9_exact", "smoothing_gap_pct")
 MAX_CLOSED_LOOP_STEPS = 10**6  # each step is one NLP solve: 10^6 steps are hours even on the fastest path
 
 
-def check_mpc_scenario(scenario: Any, settings: MPCSettings, laws: tuple[str, ...] = ()) -> None:
+def check_mpc_scenario(
+    scenario: Any, settings: MPCSettings, laws: tuple[str, ...] = (), t_end_option: str | None = None
+) -> None:
     """Refuse, before anything runs, an MPC comparison that cannot be solved or would not fit in memory.
 
     Raises ScenarioError naming the file and key: MPC vehicles that do not exist, h_min above an MPC
     vehicle's initial gap or its initial speed outside [v_min, v_max] (infeasible from the first step),
-    unknown or repeated comparison laws, a horizon or a number of steps too large for memory or time.
+    unknown or repeated comparison laws, a horizon or a number of steps too large for memory or time, a horizon
+    that is not a whole number of MPC steps (``t_end_option`` names the option that set it, e.g. '--t-end').
     """
     from ..models.carfollowing import LAW_REGISTRY
     from ..scenarios import ScenarioError, check_run_size
@@ -129,6 +132,15 @@ def check_mpc_scenario(scenario: Any, settings: MPCSettings, laws: tuple[str, ..
             f"{MAX_CLOSED_LOOP_STEPS}; lower simulation.t_end or raise mpc.dt"
         )
     check_run_size(n, scenario.t_end, min(scenario.dt_out, settings.dt), file)
+    k = round(scenario.t_end / settings.dt)
+    if k < 1 or abs(k * settings.dt - scenario.t_end) > 1e-9 * max(1.0, scenario.t_end):  # as ClosedLoop.run
+        T = scenario.units.time_s
+        what = t_end_option or f"{file}: simulation.t_end"
+        raise ScenarioError(
+            f"{what} = {scenario.t_end * T:g} s ({scenario.t_end:g} model time) is not allowed: the closed loop "
+            f"advances in steps of mpc.dt = {settings.dt * T:g} s ({settings.dt:g} model time); give a multiple "
+            f"of it, e.g. {max(1, k) * settings.dt * T:g} s"
+        )
 
 
 def _progress(say: Callable[[str], None], label: str) -> Callable[[float, float], None]:

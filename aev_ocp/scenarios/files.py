@@ -8,7 +8,7 @@ import tomllib
 from pathlib import Path
 from typing import Any, Iterable
 
-from ..limits import FileRefused, read_regular_file
+from ..limits import FileRefused, read_regular_file, strip_bom
 from ..overrides import parse_assignments
 from .platoon import Scenario, apply_to_scenario, parse_scenario
 from .shipped import find_scenario
@@ -21,7 +21,7 @@ def read_scenario_text(p: Path, file: str) -> str:
     """The text of scenario file ``p`` (``file`` names it in messages): a regular file of at most
     MAX_FILE_BYTES, UTF-8; anything else is a ScenarioError."""
     try:
-        data = read_regular_file(p, MAX_FILE_BYTES)
+        data = strip_bom(read_regular_file(p, MAX_FILE_BYTES))  # a byte-order mark (Windows editors) is fine
     except FileRefused as exc:
         raise ScenarioError(f"{file}: cannot read the scenario file ({exc})") from None
     try:

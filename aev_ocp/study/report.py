@@ -260,7 +260,8 @@ def _pareto_groups(study: Study, rows: list[dict[str, Any]]) -> list[tuple[str, 
 
 
 def _warn_unknown_metrics(study: Study, rows: list[dict[str, Any]]) -> None:
-    """A [report] metric that is no column of the table (a typo) gives no figure: say so, once, instead of nothing."""
+    """A [report] metric that is no column of the table (a typo), or a [report] vehicle no row is of, gives no
+    figure: say so, once, instead of nothing."""
     columns = {k for r in rows for k in r}
     rep = study.report
     asked = [
@@ -277,6 +278,17 @@ def _warn_unknown_metrics(study: Study, rows: list[dict[str, Any]]) -> None:
         warnings.warn(
             f"study {study.name}: [report] names {unknown}, not columns of the table: no figure or table for "
             f"them (metric columns include {metrics}; see table.csv)",
+            stacklevel=2,
+        )
+    asked_v = list(rep.get("vehicles") or [rep.get("vehicle", 1)])  # vehicle = [..] is read as 'vehicles'
+    present = {r["vehicle"] for r in rows if isinstance(r.get("vehicle"), int)}
+    missing = [v for v in asked_v if v not in present]
+    if present and missing:  # report.vehicle = [99] on a 1-follower platoon gave an empty report ("0 of 0")
+        import warnings
+
+        warnings.warn(
+            f"study {study.name}: [report] vehicle names follower(s) {missing}, of which the table has no row: no "
+            f"figure or change table for them (the table's followers: {sorted(present)})",
             stacklevel=2,
         )
 

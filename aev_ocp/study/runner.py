@@ -338,7 +338,9 @@ def _run_pool(specs: list[dict[str, Any]], workers: int | None, done: Callable[[
     try:
         # submit() starts the worker processes: a Ctrl-C while one is half started left a process the pool did not
         # know, and the exit then waited for it for ever; it is honoured once every worker can be stopped
-        with interrupts.deferred():
+        # and each worker starts with SIGINT blocked: a Ctrl-C in the terminal reaches the whole process group, and
+        # a worker still importing printed a KeyboardInterrupt traceback; this process stops them (SIGTERM)
+        with interrupts.deferred(), interrupts.sigint_blocked():
             pending = {ex.submit(run_task, sp) for sp in specs}
         while pending:
             finished, pending = wait(pending, return_when=FIRST_COMPLETED)

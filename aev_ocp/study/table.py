@@ -215,15 +215,27 @@ def _convert(x: str) -> Any:
 def load_table(path: str | Path, as_dataframe: bool = False) -> Any:
     """Load a study table: a study output folder, its ``table.jsonl`` or its ``table.csv``.
 
-    Returns a list of row dicts, or a pandas DataFrame with ``as_dataframe=True`` (needs pandas)."""
+    Returns a list of row dicts, or a pandas DataFrame with ``as_dataframe=True`` (needs pandas). A file that is
+    missing, not a regular file, larger than the memory limit, not UTF-8 or not a table of rows raises
+    :class:`aev_ocp.LoadError` naming it (before: UnicodeDecodeError, JSONDecodeError, or a hang on a FIFO)."""
+    from ..limits import FileRefused, memory_limit_bytes, read_regular_file
+    from ..saved import LoadError
+
     p = Path(path)
     if p.is_dir():
         p = p / TABLE_JSONL
-    if p.suffix == ".csv":
-        with p.open(newline="", encoding="utf-8") as fh:
-            rows = [{k: _convert(v) for k, v in r.items()} for r in csv.DictReader(fh)]
-    else:
-        rows = [json.loads(line) for line in p.read_text(encoding="utf-8").splitlines() if line.strip()]
+    try:
+        text = read_regular_file(p, int(memory_limit_bytes())).decode("utf-8")
+        if p.suffix == ".csv":
+            rows = [{k: _convert(v) for k, v in r.items()} for r in csv.DictReader(io.StringIO(text, newline=""))]
+        else:
+            rows = [json.loads(line) for line in text.splitlines() if line.strip()]
+    except FileRefused as exc:
+        raise LoadError(f"{p}: cannot read the study table ({exc})") from None
+    except (UnicodeDecodeError, ValueError, csv.Error, RecursionError) as exc:  # JSONDecodeError is a ValueError
+        raise LoadError(f"{p}: not a study table written by aev-ocp study ({type(exc).__name__}: {exc})") from None
+    if not all(isinstance(r, dict) for r in rows):
+        raise LoadError(f"{p}: not a study table written by aev-ocp study (a line is not a JSON object)")
     if as_dataframe:
         from ..results import require_pandas
 
