@@ -35,7 +35,7 @@ BLAST_MODELS = {
 #: (Python 3.11 wheels; the toolkit needs numpy >= 1.24 and runs on both). To keep numpy 2 instead, install its
 #: dependencies and then blast-lite without them (``pip install pandas h5pyd geopy && pip install --no-deps
 #: blast-lite``): it runs on numpy 2 too (see _numpy_compat).
-INSTALL_HINT = "battery life needs NREL's BLAST-Lite: pip install 'aev_ocp[life]'"
+INSTALL_HINT = "battery life needs NREL's BLAST-Lite: pip install '.[life]' in the aev_ocp checkout"
 REPORT_YEARS = (1.0, 5.0, 10.0)
 END_OF_LIFE = 0.8  # 80 % of the new capacity: the usual EV end-of-life criterion (e.g. USABC)
 

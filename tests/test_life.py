@@ -57,13 +57,15 @@ def test_without_blast_lite_one_line_install_hint(monkeypatch: pytest.MonkeyPatc
     monkeypatch.setattr(builtins, "__import__", no_blast)
     with pytest.raises(ParameterError) as exc:
         life.blast_model("LFP")
-    assert str(exc.value) == "battery life needs NREL's BLAST-Lite: pip install 'aev_ocp[life]'"
+    assert str(exc.value) == "battery life needs NREL's BLAST-Lite: pip install '.[life]' in the aev_ocp checkout"
     assert not life.blast_available()
 
 
 @pytest.mark.parametrize("chem", ["LFP", "NCA", "NMC"])
 def test_toolkit_equals_blast_lite_called_directly(chem: str) -> None:
-    blast_models = pytest.importorskip("blast.models", reason="BLAST-Lite not installed (pip install 'aev_ocp[life]')")
+    blast_models = pytest.importorskip(
+        "blast.models", reason="BLAST-Lite not installed (pip install '.[life]' in the checkout)"
+    )
     prof = life.daily_profile(T_DRIVE, SOC_DRIVE, TEMP_DRIVE, 303.9)
     years = 1.3
     got = life.battery_life(prof, chem, years)
@@ -85,7 +87,7 @@ def test_toolkit_equals_blast_lite_called_directly(chem: str) -> None:
 
 
 def test_hotter_pack_ages_faster() -> None:
-    pytest.importorskip("blast", reason="BLAST-Lite not installed (pip install 'aev_ocp[life]')")
+    pytest.importorskip("blast", reason="BLAST-Lite not installed (pip install '.[life]' in the checkout)")
     cool = life.battery_life(life.daily_profile(T_DRIVE, SOC_DRIVE, TEMP_DRIVE - 10, 293.2), "LFP", 1.2)
     hot = life.battery_life(life.daily_profile(T_DRIVE, SOC_DRIVE, TEMP_DRIVE + 10, 313.2), "LFP", 1.2)
     assert hot["capacity_1y"] < cool["capacity_1y"]
