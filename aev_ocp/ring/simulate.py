@@ -376,6 +376,21 @@ def _compile(source: str, stem: str) -> tuple[ctypes.CDLL | None, str]:
     return None, last
 
 
+def _quadrature(h: Any, v: Any, vl: Any, a: Any, b: dict[str, Any], ev: EVParams) -> list[Any]:
+    """The quadrature integrands of one ring vehicle (model time): distance, ω's v·g(a), pack power, ∫Q, ∫Q_irr, the
+    relative speed² and the optimal-velocity error², from its gap, speeds, acceleration and battery side ``b``."""
+    T = ev.units.time_s
+    return [
+        v,
+        v * energy.g_exact(a, ev.vehicle.efficiency),
+        T * b["P_b"],
+        T * b["Q_pack"],
+        T * b["Q_irr_pack"],
+        (vl - v) ** 2,
+        (optimal_velocity(h) - v) ** 2,
+    ]
+
+
 class RingSimulator:
     """A ring road built once (compiled right-hand sides), run from any initial state.
 
@@ -450,15 +465,7 @@ class RingSimulator:
         with piecewise_ocv():  # the same OCV as the B-spline (1e-14 V), as plain SX arithmetic: cheaper in C
             b = battery_side(v, a, V1, V2, S, ev)
         ode = [vl - v, a, T * b["dV1"], T * b["dV2"], T * b["dS"], *extra]
-        quad = [
-            v,
-            v * energy.g_exact(a, ev.vehicle.efficiency),
-            T * b["P_b"],
-            T * b["Q_pack"],
-            T * b["Q_irr_pack"],
-            (vl - v) ** 2,
-            (optimal_velocity(h) - v) ** 2,
-        ]
+        quad = _quadrature(h, v, vl, a, b, ev)
         self._split.append(
             ca.Function(
                 f"aevring_mot{k}", [u, ca.vertcat(*x), p], [ca.vertcat(vl - v, a, *extra), ca.vertcat(h, v, vl, a)]
@@ -478,15 +485,7 @@ class RingSimulator:
         x = ca.SX.sym("x", self.nx)
         with piecewise_ocv():
             b = battery_side(v, a, x[2], x[3], x[4], ev)
-        quad = [
-            v,
-            v * energy.g_exact(a, ev.vehicle.efficiency),
-            T * b["P_b"],
-            T * b["Q_pack"],
-            T * b["Q_irr_pack"],
-            (vl - v) ** 2,
-            (optimal_velocity(h) - v) ** 2,
-        ]
+        quad = _quadrature(h, v, vl, a, b, ev)
         return ca.Function(
             "aevring_bat",
             [w, x],
