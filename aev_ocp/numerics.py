@@ -64,3 +64,17 @@ def trapezoid(y: Any, x: Any) -> float:
 
     yy, xx = np.asarray(y, float).ravel(), np.asarray(x, float).ravel()
     return float(np.sum(0.5 * (yy[1:] + yy[:-1]) * np.diff(xx))) if yy.size > 1 else 0.0
+
+
+def integrate_held(F: Any, x0: Any, inputs: Any, steps: Any) -> tuple[Any, Any]:
+    """Run an integrator Function ``F`` (x0, p = [u_k, h_k]) -> (xf, qf) over consecutive intervals with input
+    u_k held over a step of length h_k; returns (end state, sum of the intervals' quadratures) as 1-D arrays."""
+    import numpy as np
+
+    xk = np.asarray(x0, float).ravel()
+    q = np.zeros(F.size1_out("qf"))
+    for uk, hk in zip(inputs, steps):
+        out = F(x0=xk, p=[uk, hk])
+        xk = np.asarray(out["xf"]).ravel()
+        q += np.asarray(out["qf"]).ravel()
+    return xk, q

@@ -19,6 +19,7 @@ import casadi as ca
 import numpy as np
 
 from ..models import battery
+from ..numerics import integrate_held
 from ..params import CellParams, ParameterError
 from .result import OCPResult
 
@@ -125,12 +126,7 @@ def resimulate_cell_current(
         1.0,
         {"abstol": 1e-12, "reltol": 1e-10},
     )
-    xk = np.asarray(x0, float).ravel()[:3]
-    q = np.zeros(3)
-    for Ik, hk in zip(I, np.diff(t)):
-        out = F(x0=xk, p=[Ik, hk])
-        xk = np.asarray(out["xf"]).ravel()
-        q += np.asarray(out["qf"]).ravel()
+    xk, q = integrate_held(F, np.asarray(x0, float).ravel()[:3], I, np.diff(t))
     return {
         "heat_J": float(q[0]),
         "heat_irr_J": float(q[1]),

@@ -32,6 +32,7 @@ import numpy as np
 
 from ..models import battery, energy
 from ..models.powertrain import cell_current_from_motion
+from ..numerics import integrate_held
 from ..params import EVParams, ParameterError, PowertrainOptions
 from .checks import GAP_RTOL, multistart, record_refinement, record_smoothing_gap
 from .result import OCPResult
@@ -323,12 +324,7 @@ def resimulate_exact(trip: EcoTrip, a_mps2: np.ndarray, t_s: np.ndarray) -> dict
     F = ca.integrator("eco_exact", "cvodes", dae, 0.0, 1.0, {"abstol": 1e-10, "reltol": 1e-10})
     a_k = np.asarray(a_mps2, float).ravel()
     h = np.diff(np.asarray(t_s, float))
-    xk = np.array([0.0, trip.v0_mps, 0.0, 0.0, trip.S0])
-    q = np.zeros(3)
-    for ak, hk in zip(a_k, h):
-        out = F(x0=xk, p=[ak, hk])
-        xk = np.asarray(out["xf"]).ravel()
-        q += np.asarray(out["qf"]).ravel()
+    xk, q = integrate_held(F, [0.0, trip.v0_mps, 0.0, 0.0, trip.S0], a_k, h)
     return {
         "pack_heat_J": float(q[0]),
         "pack_heat_irr_J": float(q[1]),
