@@ -13,6 +13,7 @@ rules, and returns the one result type (:class:`aev_ocp.results.SimulationResult
 from __future__ import annotations
 
 import math
+import numbers
 import time
 from dataclasses import dataclass, field
 from typing import Any, Callable, Protocol, Sequence, cast, runtime_checkable
@@ -199,6 +200,19 @@ def _stats(rec: dict[str, list[Any]], ctrl: Controller) -> dict[str, Any]:
     }
 
 
+def _checked(cmd: Any, ctrl: Controller, vehicle: int, t: float) -> Command:
+    """A controller's answer, if it is a Command with a finite real acceleration; a ParameterError naming the
+    controller, the vehicle and the time otherwise (a NaN would be saturated into full braking without a word)."""
+    a = getattr(cmd, "a", None)
+    if isinstance(cmd, Command) and not isinstance(a, bool) and isinstance(a, numbers.Real) and math.isfinite(a):
+        return cmd
+    got = f"Command(a = {a!r})" if isinstance(cmd, Command) else f"{type(cmd).__name__} {cmd!r:.60}"
+    raise ParameterError(
+        f"closed loop: controller {getattr(ctrl, 'name', '?')!r} of vehicle {vehicle + 1} returned {got} at "
+        f"t = {t:g}: command() must return a Command whose a is a finite acceleration [model units]"
+    )
+
+
 class ClosedLoop:
     """A platoon behind ``leader`` where each follower runs a law (continuous) or a Controller
     (sampled every dt, the same dt for all); build once (controllers and plant), then :meth:`run`.
@@ -265,6 +279,12 @@ class ClosedLoop:
                 raise ParameterError(
                     f"ClosedLoop: controller of vehicle {i + 1} must be a CarFollowingLaw or a "
                     f"Controller (name, dt, reset, command, describe), got {type(c).__name__}"
+                )
+            dt = getattr(c, "dt", None)
+            if isinstance(dt, bool) or not isinstance(dt, (int, float)) or not (math.isfinite(dt) and dt > 0):
+                raise ParameterError(
+                    f"ClosedLoop: controller {getattr(c, 'name', type(c).__name__)!r} of vehicle {i + 1}: dt = {dt!r} "
+                    "is not allowed: must be a finite sampling period > 0 [model time]"
                 )
             self.laws.append(None)
             self.ctrl.append(c)
@@ -413,7 +433,7 @@ class ClosedLoop:
                     float(x[5 * n + i]) if getattr(plant, "thermal", False) else None,
                 )
                 tc = time.perf_counter()
-                cmd = ctrl.command(obs)
+                cmd = _checked(ctrl.command(obs), ctrl, i, tk)
                 rec[i]["call"].append(time.perf_counter() - tc)
                 for key, val in (
                     ("solve", cmd.solve_time_s),

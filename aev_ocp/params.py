@@ -173,6 +173,16 @@ class Units:
 
     def __post_init__(self) -> None:
         validate_fields(self)
+        # each field may be finite and positive while a derived unit overflows or underflows (U = 1e308: U² = inf)
+        L, U = float(self.length_m), float(self.speed_mps)
+        derived = (("time unit L/U", L / U), ("energy unit U²", U * U), ("acceleration unit U²/L", U * U / L))
+        for what, value in derived:
+            if not (math.isfinite(value) and value > 0):
+                raise ParameterError(
+                    f"Units.speed_mps = {self.speed_mps!r} is not allowed with length_m = {self.length_m!r}: "
+                    f"the {what} = {value!r} is not a finite positive number (choose units of everyday size, "
+                    "e.g. length_m = 10, speed_mps = 5)"
+                )
 
     @property
     def time_s(self) -> float:

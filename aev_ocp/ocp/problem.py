@@ -15,6 +15,7 @@ feasible; σ is reported like any other control.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Any, Sequence
 
@@ -214,13 +215,13 @@ class ProblemBuilder:
         name = self._state_name(x, "set_der")
         if name in self._next:
             raise ParameterError(f"{self.name}: state {name!r} is discrete (set_next): it has no derivative")
-        self._der[name] = rhs
+        self._der[name] = self._expression(f"set_der of state {name!r}", rhs)
 
     def set_next(self, x: ca.SX, expr: Any) -> None:
         """Make x a discrete-time state: constant over an interval, x_{k+1} = expr(x_k, u_k, w_k, p).
         E.g. ``a_prev = pb.state("a_prev"); pb.set_next(a_prev, a)`` and a stage cost on (a − a_prev)²."""
         name = self._state_name(x, "set_next")
-        self._next[name] = expr
+        self._next[name] = self._expression(f"set_next of state {name!r}", expr)
         self._der[name] = ca.SX(0)
 
     def _state_name(self, x: ca.SX, what: str) -> str:
@@ -258,16 +259,19 @@ class ProblemBuilder:
     def add_stage_cost(self, expr: Any, name: str | None = None, *, replace: bool = False) -> None:
         """Add ℓ(x_k, u_k, w_k, p) to the stage cost Σ_k ℓ·h as the term ``name``; a name that exists already
         (e.g. §9's "accel") is refused unless ``replace=True``."""
-        self.stage_terms[self._term_name("stage cost term", name, "stage", replace)] = expr
+        e = self._expression(f"stage cost term {name or 'stage'!r}", expr)
+        self.stage_terms[self._term_name("stage cost term", name, "stage", replace)] = e
 
     def add_integral_cost(self, expr: Any, name: str | None = None, *, replace: bool = False) -> None:
         """Add ∫ expr dt (integrated by the transcription's quadrature) as the term ``name``; a name that
         exists already is refused unless ``replace=True``."""
-        self.integral_terms[self._term_name("integral cost term", name, "integral", replace)] = expr
+        e = self._expression(f"integral cost term {name or 'integral'!r}", expr)
+        self.integral_terms[self._term_name("integral cost term", name, "integral", replace)] = e
 
     def add_terminal_cost(self, expr: Any) -> None:
         """Add a cost on the final state (expression of states and global parameters)."""
-        self._terminal_cost = self._terminal_cost + expr
+        e = self._expression("terminal cost", expr, terminal=True)
+        self._terminal_cost = self._terminal_cost + e
 
     def subject_to(
         self,
@@ -289,7 +293,6 @@ class ProblemBuilder:
             ub,
             name,
             "c",
-            (*self.x.values(), *self.u.values(), *self.w.values(), *self.p.values()),
         )
         if soft is None:
             self._path.append((name, expr, lb, ub))
@@ -322,9 +325,7 @@ class ProblemBuilder:
     def subject_to_terminal(self, expr: Any, lb: float = -ca.inf, ub: float = ca.inf, name: str | None = None) -> None:
         """lb ≤ expr(x_N, p) ≤ ub at the final node (an expression of states and global parameters only);
         checked like a path constraint: a unique name, lb ≤ ub, a scalar expression."""
-        name, lb, ub = self._constraint(
-            "terminal constraint", self._terminal, expr, lb, ub, name, "t", (*self.x.values(), *self.p.values())
-        )
+        name, lb, ub = self._constraint("terminal constraint", self._terminal, expr, lb, ub, name, "t")
         self._terminal.append((name, expr, lb, ub))
 
     def _constraint(
@@ -336,7 +337,6 @@ class ProblemBuilder:
         ub: Any,
         name: str | None,
         default: str,
-        allowed: Sequence[ca.SX],
     ) -> tuple[str, float, float]:
         """The checks every constraint meets, path or terminal: a new identifier name, numeric lb ≤ ub, a scalar
         expression of the allowed symbols only. Returns (name, lb, ub)."""
@@ -351,27 +351,40 @@ class ProblemBuilder:
         elif name in taken:
             raise ParameterError(f"{self.name}: {kind} {name!r}: a {kind} named {name!r} exists already")
         lo, hi = self._bounds(f"{kind} {name!r}", lb, ub)
+        self._expression(f"{kind} {name!r}", expr, kind.startswith("terminal"), "(state one constraint per entry)")
+        return name, lo, hi
+
+    def _expression(self, what: str, expr: Any, terminal: bool = False, hint: str = "") -> ca.SX:
+        """``expr`` as a scalar SX of the problem's symbols only (``terminal``: of states and parameters), with no
+        constant NaN or ±inf; otherwise one ParameterError naming ``what`` (instead of a CasADi error at build())."""
         try:
             e = ca.SX(expr)
         except Exception:  # noqa: BLE001 - any non-expression: one clear message
             raise ParameterError(
-                f"{self.name}: {kind} {name!r} must be a CasADi SX expression, got {type(expr).__name__}"
+                f"{self.name}: {what} must be a CasADi SX expression or a number, got {type(expr).__name__}"
             ) from None
         if e.numel() != 1:
             raise ParameterError(
-                f"{self.name}: {kind} {name!r} must be a scalar expression, got {e.numel()} entries "
-                "(state one constraint per entry)"
+                f"{self.name}: {what} must be a scalar expression, got {e.numel()} entries {hint}".rstrip()
             )
-        free = [str(s) for s in ca.symvar(e) if not any(ca.is_equal(s, a) for a in allowed)]
+        tables = (self.x, self.p) if terminal else (self.x, self.u, self.w, self.p)
+        allowed = {s.element_hash() for t in tables for s in t.values()}
+        free = [str(s) for s in ca.symvar(e) if s.element_hash() not in allowed]
         if free:
-            what = "states and parameters" if kind.startswith("terminal") else "the problem's variables"
-            raise ParameterError(f"{self.name}: {kind} {name!r} depends on {free[0]!r}, which is not one of {what}")
-        return name, lo, hi
+            kinds = "states and parameters" if terminal else "the problem's variables"
+            raise ParameterError(
+                f"{self.name}: {what} depends on {free[0]!r}, which is not one of {kinds} (symbols made by this "
+                "builder's state(), control(), stage_parameter() or parameter())"
+            )
+        if e.is_constant() and not math.isfinite(float(ca.DM(e))):
+            raise ParameterError(f"{self.name}: {what} = {float(ca.DM(e))!r} is not a finite number")
+        return e
 
     def add_output(self, name: str, expr: Any, *, replace: bool = False) -> None:
         """A named quantity reported at the nodes of a solution (e.g. the cell current); names are shared
         with the cost terms, and one that exists already is refused unless ``replace=True``."""
-        self._outputs[self._term_name("output", name, "output", replace)] = expr
+        e = self._expression(f"output {name!r}", expr)
+        self._outputs[self._term_name("output", name, "output", replace)] = e
 
     # ---------------------------------------------------------------- build
     def build(self, path_at_collocation: bool = False) -> OCPProblem:

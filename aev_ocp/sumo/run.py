@@ -311,8 +311,14 @@ def make_controller_factory(scenario: SumoScenario) -> tuple[CarFollowingLaw | N
         except (ImportError, AttributeError) as exc:
             raise SumoError(f"sumo.controller = {name!r}: cannot import it ({exc})") from None
 
+        if not callable(factory):
+            raise SumoError(f"sumo.controller = {name!r}: {fn} in {mod} is a {type(factory).__name__}, not a function")
+
         def user() -> Controller:
-            c = factory(ev)
+            try:
+                c = factory(ev)
+            except Exception as exc:  # noqa: BLE001 - the user's function: its error, named with the key that chose it
+                raise SumoError(f"sumo.controller = {name!r}: {name}(ev) raised {type(exc).__name__}: {exc}") from exc
             if not isinstance(c, Controller):
                 raise SumoError(
                     f"sumo.controller = {name!r} returned a {type(c).__name__}, not a Controller "

@@ -1,0 +1,199 @@
+"""The defects a third independent reliability probe found (benchmarks/probe_reliability_3.py), one test each:
+units whose derived units overflow, ProblemBuilder expressions that were only refused by CasADi at build()
+(or never), ClosedLoop controllers with a bad sampling period or a non-finite command (a NaN command was
+saturated into full braking without a word), and a SUMO 'module:function' controller that raises."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import casadi as ca
+import numpy as np
+import pytest
+from cli_helpers import one_error, run_cli
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from aev_ocp.control import ClosedLoop, Command
+from aev_ocp.models.leader import ConstantSpeed
+from aev_ocp.ocp.problem import ProblemBuilder
+from aev_ocp.params import ParameterError, Units
+from aev_ocp.scenarios import load_scenario
+from aev_ocp.scenarios.tables import ScenarioError
+
+SCENARIO = """\
+name = "units_probe"
+[units]
+length_m = {L}
+speed_mps = {U}
+[leader]
+kind = "constant"
+v = 1.3
+[platoon]
+followers = 1
+law = "proposed"
+gap0 = 2.5
+speed0 = 1.3
+[simulation]
+t_end = 2.0
+"""
+
+
+# ----------------------------------------------------------------------------- units
+@settings(max_examples=60, deadline=None)
+@given(st.floats(0, 1.7e308, exclude_min=True), st.floats(0, 1.7e308, exclude_min=True))
+def test_units_either_refused_or_every_derived_unit_finite(L: float, U: float) -> None:
+    """Property: for any finite positive L, U, Units either raises ParameterError or its time, acceleration and
+    energy units are finite and positive, and equal the closed forms L/U, U²/L, U² (no OverflowError later)."""
+    try:
+        u = Units(L, U)
+    except ParameterError as exc:
+        assert "speed_mps" in str(exc) and "not a finite positive number" in str(exc)
+        return
+    for value in (u.time_s, u.accel_mps2, u.energy_per_mass_to_si(1.0)):
+        assert math.isfinite(value) and value > 0
+    assert u.time_s == L / U and u.accel_mps2 == U**2 / L
+
+
+@pytest.mark.parametrize("L, U", [(10.0, 1e308), (1e-300, 1e10), (1e300, 1e-10), (1e-170, 1e-170)])
+def test_units_overflowing_a_derived_unit_are_refused(L: float, U: float) -> None:
+    with pytest.raises(ParameterError, match="Units.speed_mps .* not a finite positive number"):
+        Units(L, U)
+
+
+def test_scenario_units_overflow_is_bad_input_naming_the_key(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    f = tmp_path / "u.toml"
+    f.write_text(SCENARIO.format(L=10.0, U=1e308))
+    with pytest.raises(ScenarioError, match=r"u\.toml: units\.speed_mps"):
+        load_scenario(f)
+    rc, _, err = run_cli(["simulate", str(f), "--out", str(tmp_path / "o"), "--no-plots"], capsys)
+    assert rc == 2 and "units.speed_mps" in one_error(err) and "internal error" not in err
+    f.write_text(SCENARIO.format(L=12.5, U=7.25))  # everyday units still load, with the closed-form time unit
+    assert load_scenario(f).units.time_s == 12.5 / 7.25
+
+
+# ----------------------------------------------------------------------------- ProblemBuilder
+def _toy() -> tuple[ProblemBuilder, ca.SX, ca.SX, ca.SX]:
+    pb = ProblemBuilder("toy")
+    x, u, p = pb.state("x"), pb.control("u"), pb.parameter("p")
+    return pb, x, u, p
+
+
+OUTSIDER = ca.SX.sym("x")  # same name as the builder's state, another symbol
+
+
+@pytest.mark.parametrize(
+    "act, says",
+    [
+        (lambda pb, x, u, p: pb.set_der(x, "fast"), "set_der of state 'x' must be a CasADi SX expression"),
+        (lambda pb, x, u, p: pb.set_der(x, ca.MX.sym("m")), "got MX"),
+        (lambda pb, x, u, p: pb.set_der(x, float("nan")), "set_der of state 'x' = nan is not a finite"),
+        (lambda pb, x, u, p: pb.set_der(x, ca.vertcat(u, u)), "must be a scalar expression, got 2 entries"),
+        (lambda pb, x, u, p: pb.set_der(x, OUTSIDER), "depends on 'x', which is not one of the problem's"),
+        (lambda pb, x, u, p: pb.set_next(x, np.array([1.5, 2.5])), "set_next of state 'x' must be a scalar"),
+        (lambda pb, x, u, p: pb.add_stage_cost(ca.vertcat(u, x), "c"), "stage cost term 'c' must be a scalar"),
+        (lambda pb, x, u, p: pb.add_integral_cost(math.inf * 1.0, "q"), "integral cost term 'q' = inf"),
+        (lambda pb, x, u, p: pb.add_terminal_cost("x"), "terminal cost must be a CasADi SX"),
+        (lambda pb, x, u, p: pb.add_terminal_cost(u**2), "terminal cost depends on 'u'"),
+        (lambda pb, x, u, p: pb.add_output("o", "x"), "output 'o' must be a CasADi SX"),
+        (lambda pb, x, u, p: pb.subject_to(OUTSIDER, 0.0, 1.0), "constraint 'c0' depends on 'x'"),
+    ],
+)
+def test_builder_refuses_a_bad_expression_where_it_is_given(act, says: str) -> None:  # noqa: ANN001
+    pb, x, u, p = _toy()
+    with pytest.raises(ParameterError, match=says.replace("(", r"\(")):
+        act(pb, x, u, p)
+    assert not pb.stage_terms and not pb.integral_terms and not pb._outputs  # nothing half-added
+
+
+def test_builder_valid_expressions_evaluate_as_written() -> None:
+    """Numbers and expressions still go in; the built Functions evaluate to the closed forms at x = 0.7,
+    u = -1.3, p = 2.5 (stage: u² + 1.5 = 3.19; ode: u·p = -3.25; Mayer: x·p = 1.75; output: 2.25 constant)."""
+    pb, x, u, p = _toy()
+    pb.set_der(x, u * p)
+    pb.add_stage_cost(u**2 + 1.5, "effort")
+    pb.add_terminal_cost(x * p)
+    pb.add_output("const", 2.25)
+    pr = pb.build()
+    args = (0.7, -1.3, ca.DM(0, 1), 2.5)
+    assert float(pr.stage(*args)) == pytest.approx(3.19, rel=1e-15)
+    assert float(pr.ode(*args)) == pytest.approx(-3.25, rel=1e-15)
+    assert float(pr.terminal_cost(0.7, 2.5)) == pytest.approx(1.75, rel=1e-15)
+    outs = pr.outputs(*args)
+    assert float(outs[0]) == 2.25 and float(outs[1]) == pytest.approx(3.19, rel=1e-15)
+
+
+# ----------------------------------------------------------------------------- ClosedLoop
+class Held:
+    """A user controller holding a (returned as given) every dt."""
+
+    name = "held"
+
+    def __init__(self, a: object, dt: object = 0.1) -> None:
+        self.a, self.dt = a, dt
+
+    def reset(self) -> None:
+        pass
+
+    def describe(self) -> dict:
+        return {"controller": self.name}
+
+    def command(self, obs: object) -> object:
+        return Command(self.a)  # type: ignore[arg-type]
+
+
+LEADER = ConstantSpeed(1.3)
+
+
+@pytest.mark.parametrize("dt", [0.0, -0.1, math.nan, math.inf, True, "0.1", None])
+def test_closed_loop_refuses_a_bad_sampling_period(dt: object) -> None:
+    with pytest.raises(ParameterError, match=r"controller 'held' of vehicle 1: dt = .* not allowed"):
+        ClosedLoop(LEADER, [Held(0.0, dt)])
+
+
+@pytest.mark.parametrize("a", [math.nan, math.inf, -math.inf, True, "fast", [0.1, 0.2]])
+def test_closed_loop_refuses_a_non_finite_command(a: object) -> None:
+    with pytest.raises(ParameterError, match=r"controller 'held' of vehicle 1 returned Command\(a = .*\) at t = 0"):
+        ClosedLoop(LEADER, [Held(a)]).run([2.5], [1.3], 0.5)
+
+
+def test_closed_loop_refuses_a_non_command() -> None:
+    class Bare(Held):
+        def command(self, obs: object) -> object:
+            return None
+
+    with pytest.raises(ParameterError, match=r"returned NoneType None at t = 0: command\(\) must return a Command"):
+        ClosedLoop(LEADER, [Bare(0.0)]).run([2.5], [1.3], 0.5)
+
+
+def test_closed_loop_applies_a_finite_command_exactly() -> None:
+    """A held -0.35 (model units; -0.875 m/s², inside the default limits) from v = 1.3 behind a leader far ahead:
+    v(t) = 1.3 - 0.35 t at every node (closed form), numpy scalars accepted like floats."""
+    r = ClosedLoop(LEADER, [Held(np.float32(-0.35))]).run([4.5], [1.3], 1.0)
+    t = np.asarray(r.t)
+    nodes = np.isclose(t[:, None], np.arange(0, 1.01, 0.1)[None, :], atol=1e-9).any(axis=1)
+    np.testing.assert_allclose(np.asarray(r.speed)[nodes, 0], 1.3 - float(np.float32(0.35)) * t[nodes], atol=1e-8)
+
+
+# ----------------------------------------------------------------------------- SUMO 'module:function'
+def broken_factory(ev: object) -> object:
+    """A user controller factory with a bug of its own."""
+    raise TypeError("expected str, got EVParams")
+
+
+def test_sumo_user_factory_error_names_the_key() -> None:
+    pytest.importorskip("libsumo")
+    from aev_ocp.sumo import SumoError
+    from aev_ocp.sumo.run import make_controller_factory
+    from aev_ocp.sumo.scenario import parse_sumo_scenario
+
+    def scenario(controller: str):  # noqa: ANN202
+        return parse_sumo_scenario({"sumo": {"network": "ring", "t_end_s": 2.5, "controller": controller}})
+
+    _, factory = make_controller_factory(scenario(f"{__name__}:broken_factory"))
+    assert factory is not None
+    with pytest.raises(SumoError, match=r"sumo.controller = '.*:broken_factory': .* raised TypeError: expected str"):
+        factory()
+    with pytest.raises(SumoError, match=r"sumo.controller = 'os:sep': sep in os is a str, not a function"):
+        make_controller_factory(scenario("os:sep"))
