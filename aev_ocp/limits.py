@@ -53,13 +53,21 @@ OCP_BASE_BYTES = 0.15e9
 
 
 def memory_limit_bytes() -> float:
-    """The memory budget of one run [bytes]: $AEV_OCP_MAX_MEMORY_GB, default DEFAULT_MEMORY_LIMIT_GB."""
-    raw = os.environ.get("AEV_OCP_MAX_MEMORY_GB", "")
+    """The memory budget of one run [bytes]: $AEV_OCP_MAX_MEMORY_GB, default DEFAULT_MEMORY_LIMIT_GB; ParameterError
+    naming the variable when it is set to anything but a finite positive number."""
+    raw = os.environ.get("AEV_OCP_MAX_MEMORY_GB", "").strip()
+    if not raw:
+        return DEFAULT_MEMORY_LIMIT_GB * 1e9
     try:
-        gb = float(raw) if raw else DEFAULT_MEMORY_LIMIT_GB
+        gb = float(raw)
     except ValueError:
-        gb = DEFAULT_MEMORY_LIMIT_GB
-    return (gb if math.isfinite(gb) and gb > 0 else DEFAULT_MEMORY_LIMIT_GB) * 1e9
+        gb = math.nan
+    if not (math.isfinite(gb) and gb > 0):  # a setting that says something else is refused, never replaced by 3 GB
+        raise ParameterError(
+            f"$AEV_OCP_MAX_MEMORY_GB = {raw!r:.40} is not allowed: must be a finite number of GB > 0 "
+            f"(unset it for the default {DEFAULT_MEMORY_LIMIT_GB:g} GB)"
+        )
+    return gb * 1e9
 
 
 def n_samples(t_end: float, dt_out: float) -> float:

@@ -21,6 +21,7 @@ import hashlib
 import io
 import json
 import math
+import os
 import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -386,7 +387,13 @@ def _build(label: str, m: dict[str, Any], arrays: dict[str, np.ndarray], folder:
 
 def _damaged(path: str | Path, fn: Any) -> Any:
     """``fn()``, with anything a damaged folder can raise (a wrong type deep in the manifest, a missing array,
-    a RecursionError, a MemoryError) turned into one :class:`LoadError` naming ``path``."""
+    a RecursionError, a MemoryError) turned into one :class:`LoadError` naming ``path``. A path that is no path
+    at all is a LoadError saying so; a bad $AEV_OCP_MAX_MEMORY_GB is the caller's ParameterError, not damage."""
+    if not isinstance(path, (str, os.PathLike)):
+        raise LoadError(
+            f"path = {path!r:.80}: expected an output folder (a str or pathlib.Path), got {type(path).__name__}"
+        )
+    memory_limit_bytes()
     try:
         return fn()
     except LoadError:

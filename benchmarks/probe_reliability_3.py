@@ -1935,6 +1935,350 @@ def tries() -> list[Try]:
             timeout=120,
         )
     )
+    # --- batch 2: more scenario forms, sizes, ring/sumo files, signals at odd moments -------------------------------
+    RING = 'name = "r"\n[ring]\nlength_m = 230.0\nvehicles = 22\nt_end_s = 5.0\n'
+    for name, text, says in [
+        ("ring vehicles 1", RING.replace("vehicles = 22", "vehicles = 1"), "vehicles"),
+        ("ring length nan", RING.replace("230.0", "nan"), "length_m"),
+        ("ring too short", RING.replace("230.0", "50.0"), "length_m"),
+        ("ring unknown key", RING + "warp = 9\n", "warp"),
+        ("ring human unknown", RING + 'human = "robot"\n', "human"),
+        ("ring t_end 1e12", RING.replace("t_end_s = 5.0", "t_end_s = 1e12"), "t_end"),
+        ("ring perturbation vehicle 99", RING + "[ring.perturbation]\nvehicle = 99\nshift_m = 2.0\n", "vehicle"),
+    ]:
+        T.append(
+            Try(
+                "ring/file",
+                name,
+                ["ring", "r.toml", "--out", "o", "--no-plots"],
+                setup=write("r.toml", text),
+                ok=(2,),
+                says=says,
+                timeout=60,
+            )
+        )
+    T.append(
+        Try(
+            "ring/file",
+            "ring file ok",
+            ["ring", "r.toml", "--out", "o", "--no-plots"],
+            setup=write("r.toml", RING),
+            ok=(0,),
+            timeout=120,
+        )
+    )
+    SUMO = '[sumo]\nnetwork = "ring"\nt_end_s = 3.0\ncontroller = "proposed"\nshare = 0.5\n'
+    for name, text, says in [
+        ("sumo network unknown", SUMO.replace('"ring"', '"moon"'), "network"),
+        ("sumo step 0", SUMO + "step_s = 0.0\n", "step_s"),
+        ("sumo net_file missing", SUMO.replace('network = "ring"', 'net_file = "nope.net.xml"'), "nope"),
+        (
+            "sumo net_file junk",
+            SUMO.replace('network = "ring"', 'net_file = "junk.net.xml"\nroute_files = ["junk.net.xml"]'),
+            "junk",
+        ),
+        ("sumo speed_mode string", SUMO + 'speed_mode = "fast"\n', "speed_mode"),
+        ("sumo ids unknown", SUMO.replace("share = 0.5", 'ids = ["ring.99"]'), "ring.99"),
+    ]:
+        T.append(
+            Try(
+                "sumo/file",
+                name,
+                ["sumo", "s.toml", "--out", "o", "--no-plots"],
+                setup=chain(write("s.toml", text), write("junk.net.xml", "<net><junk")),
+                ok=(2,),
+                says=says,
+                timeout=90,
+            )
+        )
+    T.append(
+        Try(
+            "sumo/file",
+            "sumo ring 3 s",
+            ["sumo", "s.toml", "--out", "o", "--no-plots"],
+            setup=write("s.toml", SUMO),
+            ok=(0,),
+            timeout=120,
+            check=exists("o/fleet.json"),
+        )
+    )
+    T.append(
+        Try(
+            "sumo/file",
+            "sumo into user folder",
+            ["sumo", "s.toml", "--out", "o", "--no-plots"],
+            setup=write("s.toml", SUMO),
+            keep_user={"o/fleet.json": "{}"},
+            ok=(2,),
+            timeout=120,
+        )
+    )
+    for name, edits, code, says in [
+        (
+            "cycle unknown",
+            {
+                "leader.kind": 'kind = "cycle"\ncycle = "wltp9"',
+                "leader.v0": "",
+                "leader.amplitude": "",
+                "leader.forcing_end": "",
+            },
+            2,
+            "cycle",
+        ),
+        (
+            "cycle past its end (long creep at standstill)",
+            {
+                "leader.kind": 'kind = "cycle"\ncycle = "us06"',
+                "leader.v0": "",
+                "leader.amplitude": "",
+                "leader.forcing_end": "",
+                "simulation.t_end": "t_end_s = 5000.0",
+            },
+            1,
+            "integrat",
+        ),
+        (
+            "followers 10^6",
+            {"platoon.followers": "followers = 1000000", "simulation.t_end": "t_end = 70.0"},
+            2,
+            "followers",
+        ),
+        ("10^7 samples", {"simulation.dt_out": "dt_out = 1e-6"}, 2, "dt_out"),
+        (
+            "constant leader v 0",
+            {
+                "leader.kind": 'kind = "constant"\nv = 0.0',
+                "leader.v0": "",
+                "leader.amplitude": "",
+                "leader.forcing_end": "",
+            },
+            0,
+            None,
+        ),
+        ("speeds0 list nan", {"platoon.speed0_factor": "speeds0 = [1.0, nan]"}, 2, "speeds0"),
+        ("description 1 MB", {"extra": 'description = "' + "d" * 1_000_000 + '"\n'}, 2, "description"),
+        ("name unicode", {"name": 'name = "plätoon"'}, 2, "name"),
+        ("name with space", {"name": 'name = "my platoon"'}, 2, "name"),
+        ("name dot", {"name": 'name = "."'}, 2, "name"),
+    ]:
+        T.append(
+            Try(
+                "simulate/toml2",
+                name,
+                ["simulate", S, "--no-plots"],
+                setup=write(S, scen(**edits)),
+                ok=(code,),
+                says=says,
+                timeout=90,
+            )
+        )
+    T[-8].ok = (0, 2)  # a 1 MB description: accepted or refused, never a crash
+    T.append(
+        Try(
+            "ocp/file",
+            "grid-file BOM CRLF toml",
+            ["ocp", "current-profile", "--grid-file", "g.toml", "--no-refine", "--out", "o"],
+            setup=write("g.toml", "\ufeffE_req = [1500.0]\r\nt_f = [45.0]\r\n"),
+            ok=(0, 2),
+            timeout=120,
+        )
+    )
+    T.append(
+        Try(
+            "ocp/file",
+            "grid-file nested",
+            ["ocp", "current-profile", "--grid-file", "g.json", "--out", "o"],
+            setup=write("g.json", "[" * 50000 + "]" * 50000),
+            ok=(2,),
+            says="g.json",
+        )
+    )
+    T.append(
+        Try(
+            "ocp/file",
+            "grid-file empty list",
+            ["ocp", "current-profile", "--grid-file", "g.json", "--out", "o"],
+            setup=write("g.json", '{"E_req": []}'),
+            ok=(2,),
+            says="E_req",
+        )
+    )
+    T.append(
+        Try(
+            "ocp/file",
+            "cell file junk",
+            ["ocp", "prop31", "--cell", "c.toml", "--out", "o"],
+            setup=write("c.toml", "capacity_Ah = -3\n"),
+            ok=(2,),
+            says="c.toml",
+        )
+    )
+    T.append(
+        Try(
+            "stability",
+            "user gain.png",
+            ["stability", "--law", "ovm", "--out", "o", "--linear-only"],
+            keep_user={"o/gain.png": "not a png"},
+            ok=(2,),
+        )
+    )
+    T.append(
+        Try(
+            "stability",
+            "ring density 0",
+            ["stability", "--law", "idm", "--ring", "10", "--density-per-km", "0", "--out", "o"],
+            ok=(2,),
+            says="density",
+        )
+    )
+    T.append(
+        Try(
+            "study",
+            "mpc solver junk",
+            ["study", "st.toml", "--out", "st", "--in-process"],
+            setup=chain(
+                write(S, scen()),
+                write("st.toml", STUDY.replace("{scen}", S) + '[[controllers.mpc]]\nlabel = "m"\nsolver = "magic"\n'),
+            ),
+            ok=(2,),
+            says="solver",
+        )
+    )
+    T.append(
+        Try(
+            "study",
+            "controllers label clash",
+            ["study", "st.toml", "--out", "st", "--in-process"],
+            setup=chain(
+                write(S, scen()), write("st.toml", STUDY.replace("{scen}", S) + '[[controllers.mpc]]\nlabel = "ovfl"\n')
+            ),
+            ok=(2,),
+            says="ovfl",
+        )
+    )
+    T.append(
+        Try(
+            "study",
+            "resume with one more value",
+            ["study", "st.toml", "--out", "st", "--in-process", "--no-report"],
+            setup=chain(
+                write(S, scen()),
+                write("st.toml", STUDY.replace("{scen}", S)),
+                run_cli("study", "st.toml", "--out", "st", "--in-process", "--no-report"),
+                write("st.toml", STUDY.replace("{scen}", S).replace("0.04]", "0.04, 0.06]")),  # the file extended
+            ),
+            ok=(0,),
+            check=lambda d, r: None if "stored" in r["stderr"] else "minor: resume not reported",
+        )
+    )
+    T.append(
+        Try(
+            "study",
+            "trajectories and load",
+            ["study", "st.toml", "--out", "st", "--in-process", "--no-report", "--trajectories"],
+            setup=chain(write(S, scen()), write("st.toml", STUDY.replace("{scen}", S))),
+            ok=(0,),
+            check=lambda d, r: None if any((d / "st" / "trajectories").iterdir()) else "defect: no trajectories",
+        )
+    )
+    T.append(
+        Try(
+            "interrupt",
+            "simulate SIGINT 0.3s (startup)",
+            ["simulate", "table1", "--out", "o"],
+            sig=(signal.SIGINT, 0.3),
+            ok=(130, 0),
+        )
+    )
+    T.append(
+        Try(
+            "interrupt",
+            "study in-process SIGINT 3s",
+            ["study", "st.toml", "--out", "st", "--in-process"],
+            setup=chain(
+                write(S, scen(**{"simulation.t_end": "t_end = 30.0"})),
+                write("st.toml", big_study(40).replace("{scen}", S)),
+            ),
+            sig=(signal.SIGINT, 3.0),
+            ok=(130,),
+            timeout=60,
+        )
+    )
+    T.append(
+        Try("interrupt", "ocp oracle SIGTERM 3s", ["ocp", "oracle", "--out", "o"], sig=(signal.SIGTERM, 3.0), ok=(130,))
+    )
+    T.append(
+        Try(
+            "interrupt",
+            "sumo SIGINT 3s",
+            ["sumo", "sumo_ring", "--out", "o", "--no-plots"],
+            sig=(signal.SIGINT, 3.0),
+            ok=(130, 0),
+        )
+    )
+    T.append(
+        Try(
+            "interrupt",
+            "sumo sweep SIGINT 4s",
+            ["sumo", "sumo_ring", "--sweep", "--workers", "2", "--out", "o", "--no-plots"],
+            sig=(signal.SIGINT, 4.0),
+            ok=(130, 0, 2),
+            timeout=90,
+        )
+    )
+    T.append(
+        Try(
+            "interrupt",
+            "ring sweep SIGTERM 3s",
+            ["ring", "sweep", "--out", "o", "--no-plots"],
+            sig=(signal.SIGTERM, 3.0),
+            ok=(130,),
+        )
+    )
+    T.append(
+        Try(
+            "load",
+            "ocp output",
+            script=api_ok("import aev_ocp\nr = aev_ocp.load('o')\nprint(type(r).__name__)"),
+            setup=run_cli(
+                "ocp", "current-profile", "--grid", "E_req=1500", "--grid", "t_f=45", "--no-refine", "--out", "o"
+            ),
+            ok=(0,),
+            timeout=120,
+        )
+    )
+    T.append(
+        Try(
+            "load",
+            "symlink loop folder",
+            script=api_expect("import aev_ocp\naev_ocp.load('a')", "LoadError"),
+            setup=chain(symlink("a", "b"), symlink("b", "a")),
+            ok=(0,),
+        )
+    )
+    T.append(
+        Try(
+            "load",
+            "manifest is a folder",
+            script=api_expect("import aev_ocp\naev_ocp.load('o')", "LoadError"),
+            setup=lambda d: (d / "o" / "manifest.json").mkdir(parents=True),
+            ok=(0,),
+        )
+    )
+    T.append(
+        Try(
+            "env",
+            "MAX_MEMORY_GB negative",
+            sim,
+            setup=write(S, scen()),
+            env={"AEV_OCP_MAX_MEMORY_GB": "-4"},
+            ok=(2,),
+            says="AEV_OCP_MAX_MEMORY_GB",
+        )
+    )
+    T.append(
+        Try("env", "MAX_MEMORY_GB 0.5 ok", sim, setup=write(S, scen()), env={"AEV_OCP_MAX_MEMORY_GB": "0.5"}, ok=(0,))
+    )
     return T
 
 
@@ -1954,9 +2298,10 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--only", default="", help="run only tries whose 'area/name' contains this")
     ap.add_argument("--json", default="probe_reliability_3.json")
+    ap.add_argument("--start", type=int, default=0, help="skip the first START tries (e.g. to run a new batch)")
     ap.add_argument("--jobs", type=int, default=2, help="tries run at once (the interrupt tries run alone)")
     a = ap.parse_args(argv)
-    ts = [t for t in tries() if a.only.lower() in f"{t.area}/{t.name}".lower()]
+    ts = [t for t in tries()[a.start :] if a.only.lower() in f"{t.area}/{t.name}".lower()]
     quiet = [t for t in ts if t.sig is None and t.parallel is None]
     timed = [t for t in ts if t not in quiet]
     results: list[dict[str, Any]] = []

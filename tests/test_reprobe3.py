@@ -197,3 +197,54 @@ def test_sumo_user_factory_error_names_the_key() -> None:
         factory()
     with pytest.raises(SumoError, match=r"sumo.controller = 'os:sep': sep in os is a str, not a function"):
         make_controller_factory(scenario("os:sep"))
+
+
+# ----------------------------------------------------------------------------- $AEV_OCP_MAX_MEMORY_GB and load()
+@pytest.mark.parametrize("raw", ["lots", "nan", "-4", "inf", "0", "1e400"])
+def test_a_bad_memory_budget_is_refused_not_replaced(monkeypatch: pytest.MonkeyPatch, raw: str) -> None:
+    from aev_ocp.limits import memory_limit_bytes
+
+    monkeypatch.setenv("AEV_OCP_MAX_MEMORY_GB", raw)
+    with pytest.raises(ParameterError, match=r"\$AEV_OCP_MAX_MEMORY_GB = .* is not allowed"):
+        memory_limit_bytes()
+
+
+def test_memory_budget_values(monkeypatch: pytest.MonkeyPatch) -> None:
+    from aev_ocp.limits import DEFAULT_MEMORY_LIMIT_GB, memory_limit_bytes
+
+    monkeypatch.setenv("AEV_OCP_MAX_MEMORY_GB", " 0.75 ")
+    assert memory_limit_bytes() == 0.75e9
+    monkeypatch.setenv("AEV_OCP_MAX_MEMORY_GB", "")
+    assert memory_limit_bytes() == DEFAULT_MEMORY_LIMIT_GB * 1e9
+    monkeypatch.delenv("AEV_OCP_MAX_MEMORY_GB")
+    assert memory_limit_bytes() == DEFAULT_MEMORY_LIMIT_GB * 1e9
+
+
+def test_bad_memory_budget_is_bad_input_for_commands_and_load(
+    tmp_path: Path, capsys: pytest.CaptureFixture, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import aev_ocp
+
+    f = tmp_path / "u.toml"
+    f.write_text(SCENARIO.format(L=12.5, U=7.25))
+    out = tmp_path / "o"
+    rc, _, err = run_cli(["simulate", str(f), "--out", str(out), "--no-plots"], capsys)
+    assert rc == 0
+    monkeypatch.setenv("AEV_OCP_MAX_MEMORY_GB", "lots")
+    rc, _, err = run_cli(["simulate", str(f), "--out", str(tmp_path / "o2"), "--no-plots"], capsys)
+    assert rc == 2 and "$AEV_OCP_MAX_MEMORY_GB = 'lots'" in one_error(err)
+    with pytest.raises(ParameterError, match="AEV_OCP_MAX_MEMORY_GB"):  # the caller's setting, not a damaged folder
+        aev_ocp.load(out)
+    monkeypatch.setenv("AEV_OCP_MAX_MEMORY_GB", "0.5")
+    assert aev_ocp.load(out).speed.shape[1] == 1
+
+
+@pytest.mark.parametrize("path", [12345, None, 2.5, ["o"]])
+def test_load_of_a_non_path_says_so(path: object) -> None:
+    import aev_ocp
+    from aev_ocp.saved import LoadError
+
+    with pytest.raises(LoadError, match=r"expected an output folder \(a str or pathlib.Path\), got"):
+        aev_ocp.load(path)  # type: ignore[arg-type]
+    with pytest.raises(LoadError, match="expected an output folder"):
+        aev_ocp.load_all(path)  # type: ignore[arg-type]
