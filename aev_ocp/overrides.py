@@ -156,7 +156,11 @@ def parse_assignments(items: Iterable[str] | None) -> dict[str, Any]:
 
 
 def check_key(key: str) -> list[str]:
-    """Split a dotted key path, rejecting empty parts; returns the parts."""
+    """Split a dotted key path, rejecting empty parts and keys that are not strings; returns the parts."""
+    if not isinstance(key, str):
+        raise OverrideError(
+            f"override key {key!r} ({type(key).__name__}) is not a dotted key path string (e.g. 'carfollowing.kappa')"
+        )
     parts = key.split(".")
     if not key or any(not p.strip() for p in parts) or any(c in key for c in "\r\n"):
         raise OverrideError(f"override key {key!r} is not a dotted key path (e.g. carfollowing.kappa)")

@@ -248,3 +248,14 @@ def test_load_of_a_non_path_says_so(path: object) -> None:
         aev_ocp.load(path)  # type: ignore[arg-type]
     with pytest.raises(LoadError, match="expected an output folder"):
         aev_ocp.load_all(path)  # type: ignore[arg-type]
+
+
+@pytest.mark.parametrize("key", [3, None, ("carfollowing", "kappa"), b"carfollowing.kappa"])
+def test_override_key_that_is_not_a_string_is_named(key: object) -> None:
+    """with_overrides({3: 1}) was an AttributeError ('int' object has no attribute 'split')."""
+    from aev_ocp.overrides import OverrideError
+
+    with pytest.raises(OverrideError, match=r"override key .* is not a dotted key path string"):
+        load_scenario("table1").with_overrides({key: 0.05})  # type: ignore[dict-item]
+    s = load_scenario("table1").with_overrides({"carfollowing.kappa": 0.07})  # a string key still works
+    assert s.cf.kappa == 0.07
