@@ -424,6 +424,11 @@ def zip_bomb(rel: str) -> Callable[[Path], None]:
     return f
 
 
+def plain_value_error(d: Path, r: dict[str, Any]) -> str | None:
+    """API bad input: a ParameterError (or a TypeError for a wrong type) is the promise; a bare ValueError is minor."""
+    return "minor: a bare ValueError, not a ParameterError" if "EXPECTED ValueError" in r["stdout"] else None
+
+
 def late_refusal(d: Path, r: dict[str, Any]) -> str | None:
     """A [report] entry no row can satisfy: refused (exit 2) before work, or only a warning after the run (minor)."""
     if r["rc"] == 0 and "warning" in r["stderr"]:
@@ -2278,6 +2283,153 @@ def tries() -> list[Try]:
     )
     T.append(
         Try("env", "MAX_MEMORY_GB 0.5 ok", sim, setup=write(S, scen()), env={"AEV_OCP_MAX_MEMORY_GB": "0.5"}, ok=(0,))
+    )
+    # --- batch 3: every [mpc] key kind through --set, more of the Python API -----------------------------------------
+    for name, kv, says in [
+        ("tol 0", "mpc.tol=0", "tol"),
+        ("max_iter 2.5", "mpc.max_iter=2.5", "max_iter"),
+        ("max_iter true", "mpc.max_iter=true", "max_iter"),
+        ("rti_iterations 0", "mpc.rti_iterations=0", "rti_iterations"),
+        ("rti_hessian junk", "mpc.rti_hessian=diagonal", "rti_hessian"),
+        ("codegen string", "mpc.codegen=yes", "codegen"),
+        ("predictor_window 1", "mpc.predictor_window=1", "predictor_window"),
+        ("max_cpu_time_s -1", "mpc.max_cpu_time_s=-1", "max_cpu_time_s"),
+        ("formulation junk", "mpc.formulation=s99", "formulation"),
+        ("dt 1e-9", "mpc.dt=1e-9", "dt"),
+        ("w_V list", "mpc.w_V=[1,2]", "w_V"),
+        ("verbose 3", "mpc.verbose=3", "verbose"),
+        ("mpc table replaced by value", "mpc=3", "mpc"),
+    ]:
+        T.append(Try("mpc/--set", name, [*mp, "--set", kv], ok=(2,), says=says, timeout=120))
+    T.append(Try("mpc/--set", "dt not dividing t-end", [*mp, "--set", "mpc.dt=0.13"], ok=(0, 2), timeout=120))
+    T.append(
+        Try(
+            "mpc-export",
+            "export --set tol nan",
+            ["mpc-export", "mpc_paper_single", "--out", "ex", "--set", "mpc.tol=nan"],
+            ok=(2,),
+            says="tol",
+        )
+    )
+    T.append(
+        Try("mpc-export", "export platoon", ["mpc-export", "mpc_paper_platoon", "--out", "ex"], ok=(0, 2), timeout=180)
+    )
+    T.append(
+        Try(
+            "mpc-export",
+            "export out with quote",
+            ["mpc-export", "mpc_paper_single", "--out", 'it\'s "ex"', "--build"],
+            ok=(0,),
+            timeout=240,
+        )
+    )
+    API = [
+        ("make_law unknown", "from aev_ocp import make_law\nmake_law('warp')", "warp"),
+        ("make_law bad coefficient", "from aev_ocp import make_law\nmake_law('idm', v0=float('nan'))", "v0"),
+        (
+            "CarFollowingParams negative",
+            "from aev_ocp import CarFollowingParams\nCarFollowingParams(kappa=-0.2)",
+            "kappa",
+        ),
+        ("VehicleParams string", "from aev_ocp import VehicleParams\nVehicleParams(mass_kg='heavy')", "mass_kg"),
+        ("CellParams soc0 2", "from aev_ocp import CellParams\nCellParams(soc0=2.0)", "soc0"),
+        ("SimOptions rtol 0", "from aev_ocp import SimOptions\nSimOptions(rtol=0.0)", "rtol"),
+        ("MPCSettings N 0", "from aev_ocp import MPCSettings\nMPCSettings(N=0)", "N"),
+        ("MPCSettings solver junk", "from aev_ocp import MPCSettings\nMPCSettings(solver='magic')", "solver"),
+        (
+            "simulate_platoon gaps mismatch",
+            "from aev_ocp import simulate_platoon, PaperLeader, Proposed\nsimulate_platoon(PaperLeader(), [Proposed()], [0.3, 0.4], [1.8], 2.0)",
+            "gaps",
+        ),
+        (
+            "simulate_platoon t_end nan",
+            "from aev_ocp import simulate_platoon, PaperLeader, Proposed\nsimulate_platoon(PaperLeader(), [Proposed()], [0.3], [1.8], float('nan'))",
+            "t_end",
+        ),
+        (
+            "simulate_platoon law string",
+            "from aev_ocp import simulate_platoon, PaperLeader\nsimulate_platoon(PaperLeader(), ['proposed'], [0.3], [1.8], 2.0)",
+            "law",
+        ),
+        (
+            "Scenario.replace unknown",
+            "from aev_ocp import load_scenario\nload_scenario('table1').replace(warp=3)",
+            "warp",
+        ),
+        (
+            "Scenario.replace t_end nan",
+            "from aev_ocp import load_scenario\nload_scenario('table1').replace(t_end=float('nan'))",
+            "t_end",
+        ),
+        (
+            "SpeedTrace decreasing times",
+            "from aev_ocp import SpeedTrace\nSpeedTrace([0.0, 2.0, 1.0], [1.0, 1.0, 1.0])",
+            "time",
+        ),
+        ("drive_cycle unknown", "from aev_ocp import drive_cycle, Units\ndrive_cycle('wltp9', Units())", "wltp9"),
+        (
+            "run_study bad executor",
+            "from aev_ocp.study import run_study\nrun_study('st.toml', 'out', executor='cloud')",
+            "executor",
+        ),
+        ("load_cell unknown", "from aev_ocp.cells import load_cell\nload_cell('unobtainium')", "unobtainium"),
+        (
+            "ControlSequence nan",
+            "from aev_ocp import ControlSequence\nControlSequence((0.1, float('nan')), 0.1)",
+            "ControlSequence",
+        ),
+        (
+            "Sensors negative noise",
+            "from aev_ocp.estimation import Sensors\nSensors(speed_noise_mps=-1.0)",
+            "speed_noise",
+        ),
+        ("register_law junk", "from aev_ocp import register_law\nregister_law('mine', 42)", "mine"),
+    ]
+    for name, body, says in API:
+        T.append(
+            Try(
+                "api/more",
+                name,
+                script=api_expect(body, "ParameterError,TypeError,ValueError", says=says),
+                setup=write("st.toml", STUDY.replace("{scen}", "table1")),
+                ok=(0,),
+                timeout=60,
+                check=plain_value_error,
+            )
+        )
+    T.append(
+        Try(
+            "api/more",
+            "plot_trajectories to unicode path",
+            script=api_ok(
+                "from aev_ocp import load_scenario, plot_trajectories\ns = load_scenario('table1').with_overrides({'simulation.t_end': 2.0})\nr = s.run()['proposed']\nplot_trajectories(r, 'plöt dir/ä b.png')\nassert Path('plöt dir/ä b.png').stat().st_size > 1000"
+            ),
+            setup=lambda d: (d / "plöt dir").mkdir(),
+            ok=(0,),
+            timeout=60,
+        )
+    )
+    T.append(
+        Try(
+            "api/more",
+            "plot_trajectories creates its folder",
+            script=api_ok(
+                "from aev_ocp import load_scenario, plot_trajectories\ns = load_scenario('table1').with_overrides({'simulation.t_end': 2.0})\nr = s.run()['proposed']\nplot_trajectories(r, 'nope/x.png')\nassert Path('nope/x.png').is_file()"
+            ),
+            ok=(0,),
+            timeout=60,
+        )
+    )
+    T.append(
+        Try(
+            "api/more",
+            "metrics of a loaded run equal saved",
+            script=api_ok(
+                "import aev_ocp, json, math\nr = aev_ocp.load('o')\nm = r.metrics()[0]\nsaved = r.meta['output']['saved_metrics']\nprint(type(saved))"
+            ),
+            setup=saved,
+            ok=(0,),
+        )
     )
     return T
 

@@ -159,13 +159,25 @@ LAW_REGISTRY: dict[str, Callable[..., CarFollowingLaw]] = {
 
 
 def register_law(name: str, factory: Callable[..., CarFollowingLaw]) -> None:
-    """Make a law available to scenarios under ``name`` (lower case)."""
+    """Make a law available to scenarios under ``name`` (lower case; letters, digits, '_' and '-'); ``factory``
+    (the law's class, or any callable taking its coefficients as keywords) builds it. Registering a name again
+    replaces the factory (re-running a notebook cell)."""
+    if not isinstance(name, str) or not name or not all(c.isascii() and (c.isalnum() or c in "_-") for c in name):
+        raise ParameterError(
+            f"register_law: name = {name!r:.60} is not allowed: must be a non-empty string of letters, digits, "
+            "'_' and '-' (scenario files name the law by it)"
+        )
+    if not callable(factory):
+        raise ParameterError(
+            f"register_law({name!r}): factory = {factory!r:.60} is not allowed: must be the law's class or a "
+            "callable returning a CarFollowingLaw"
+        )
     LAW_REGISTRY[name.lower()] = factory
 
 
 def make_law(name: str, params: CarFollowingParams | None = None, **overrides: float) -> CarFollowingLaw:
     """Build a law by name; ovm/ovfl/proposed take their coefficients from ``params``."""
-    key = name.lower()
+    key = name.lower() if isinstance(name, str) else None
     if key not in LAW_REGISTRY:
         raise ParameterError(f"unknown car-following law {name!r}: known laws are {sorted(LAW_REGISTRY)}")
     p = params or CarFollowingParams()
