@@ -296,3 +296,10 @@ def test_registered_law_builds_by_name_and_make_law_of_a_non_string_is_named() -
     for bad in (42, None):
         with pytest.raises(ParameterError, match=f"unknown car-following law {bad!r}"):
             make_law(bad)  # type: ignore[arg-type]
+
+
+@pytest.mark.parametrize("value", ["0.1", "0.02,0.03,0.04", "a,b", "0.02,nan"])
+def test_ocp_v_relax_option_is_named_as_typed(value: str, tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    """The message named run_prop31's v_relax_V, not the --v-relax-V the user typed."""
+    rc, _, err = run_cli(["ocp", "prop31", "--v-relax-V", value, "--out", str(tmp_path / "o")], capsys)
+    assert rc == 2 and f"--v-relax-V = {value!r} is not allowed" in one_error(err)

@@ -10,6 +10,7 @@ The project's main CLI (owned elsewhere) can dispatch to :func:`cli_ocp`.
 from __future__ import annotations
 
 import argparse
+import math
 from pathlib import Path
 from typing import Any
 
@@ -231,9 +232,11 @@ def _cli_ocp(argv: list[str]) -> int:
             try:
                 kw["v_relax_V"] = tuple(float(v) for v in args.v_relax_V.split(","))
             except ValueError:
+                kw["v_relax_V"] = ()
+            if len(kw["v_relax_V"]) != 2 or not all(map(math.isfinite, kw["v_relax_V"])):  # named as the option
                 raise ParameterError(
-                    f"ocp prop31: --v-relax-V = {args.v_relax_V!r} is not allowed: two voltages V1,V2 [V]"
-                ) from None
+                    f"ocp prop31: --v-relax-V = {args.v_relax_V!r} is not allowed: two finite voltages V1,V2 [V]"
+                )
         cases = api.run_prop31(args.method, refine=not args.no_refine, **kw)
         write_prop31_outputs(cases, out)
         print(prop31_table(cases))
