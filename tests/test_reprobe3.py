@@ -303,3 +303,32 @@ def test_ocp_v_relax_option_is_named_as_typed(value: str, tmp_path: Path, capsys
     """The message named run_prop31's v_relax_V, not the --v-relax-V the user typed."""
     rc, _, err = run_cli(["ocp", "prop31", "--v-relax-V", value, "--out", str(tmp_path / "o")], capsys)
     assert rc == 2 and f"--v-relax-V = {value!r} is not allowed" in one_error(err)
+
+
+# ----------------------------------------------------------------------------- the cascade's step limit
+def test_cascade_step_limit_grows_with_the_horizon(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A fixed total of max_num_steps per vehicle cut long trips short with an unactionable 'raise max_num_steps'
+    (e.g. a US06 leader held past its end, 5000 s: integration_failed at 4660 s). The limit is now per
+    STEP_LIMIT_SPAN of model time. Scaled down here (span 20, 1000 steps) so that Table 1's 70 time units need
+    4 spans: the run completes and equals the run with an unlimited budget to the last bit; with the horizon's
+    single span it stops, and the message names the limit and the keys a user can change."""
+    import aev_ocp.simulate as sim
+    from aev_ocp.models.carfollowing import Proposed
+    from aev_ocp.models.leader import PaperLeader
+    from aev_ocp.params import SimOptions
+
+    def run(max_steps: int):  # noqa: ANN202
+        opts = SimOptions(dt_out=0.05, max_num_steps=max_steps, method="cascade")
+        return sim.PlatoonSimulator(PaperLeader(), [Proposed()] * 2, None, opts).run([0.3, 3.5], [1.87, 1.87], 70.0)
+
+    assert sim.cascade_step_limit(1000, 70.0) == 1000 and sim.cascade_step_limit(1000, 2500.0) == 3000
+    monkeypatch.setattr(sim, "STEP_LIMIT_SPAN", 20.0)
+    ref, got = run(10**9), run(1000)
+    if "cascade" not in str(ref.meta):
+        pytest.skip("no C compiler: the cascade did not run")
+    assert max(s["nsteps"] + s["nrejected"] for s in ref.solver_stats) > 1000  # the old fixed total was too small
+    assert got.status == "ok" and np.array_equal(got.omega, ref.omega) and np.array_equal(got.speed, ref.speed)
+    monkeypatch.setattr(sim, "STEP_LIMIT_SPAN", 1000.0)
+    cut = run(1000)
+    assert cut.status == "integration_failed"
+    assert "more than 1000 steps for this vehicle: loosen simulation.rtol/atol" in cut.events[0].message
