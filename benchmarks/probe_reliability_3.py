@@ -2431,6 +2431,120 @@ def tries() -> list[Try]:
             ok=(0,),
         )
     )
+    # --- batch 4: solver, stability and estimation APIs ---------------------------------------------------------------
+    TOY = (
+        "import casadi as ca\nfrom aev_ocp import ProblemBuilder, OCPSolver, TranscriptionOptions\n"
+        "b = ProblemBuilder('toy')\nx = b.state('x')\nu = b.control('u', -1.5, 1.5)\nb.set_der(x, u)\n"
+        "b.add_stage_cost(x**2 + 0.1*u**2, 'c')\npr = b.build()\n"
+    )
+    API4 = [
+        ("TranscriptionOptions N 0", "from aev_ocp import TranscriptionOptions\nTranscriptionOptions(N=0)", "N"),
+        (
+            "TranscriptionOptions linear_solver junk",
+            TOY + "s = OCPSolver(pr, TranscriptionOptions(N=10, linear_solver='magic'))\ns.solve([1.0], 2.0)",
+            "linear_solver",
+        ),
+        (
+            "OCPSolver x0 wrong length",
+            TOY + "s = OCPSolver(pr, TranscriptionOptions(N=10))\ns.solve([1.0, 2.0], 2.0)",
+            "x0",
+        ),
+        ("OCPSolver x0 nan", TOY + "s = OCPSolver(pr, TranscriptionOptions(N=10))\ns.solve([float('nan')], 2.0)", "x0"),
+        ("OCPSolver t_f 0", TOY + "s = OCPSolver(pr, TranscriptionOptions(N=10))\ns.solve([1.0], 0.0)", "t_f"),
+        (
+            "OCPSolver t_f nan",
+            TOY + "s = OCPSolver(pr, TranscriptionOptions(N=10))\ns.solve([1.0], float('nan'))",
+            "t_f",
+        ),
+        (
+            "OCPSolver p given without parameters",
+            TOY + "s = OCPSolver(pr, TranscriptionOptions(N=10))\ns.solve([1.0], 2.0, p=[3.0])",
+            "p",
+        ),
+        (
+            "OCPSolver guess wrong shape",
+            TOY
+            + "import numpy as np\ns = OCPSolver(pr, TranscriptionOptions(N=10))\ns.solve([1.0], 2.0, guess=(np.zeros((3, 3)), np.zeros((1, 10))))",
+            "guess",
+        ),
+        (
+            "stability analyse speed negative",
+            "from aev_ocp.stability import analyse\nfrom aev_ocp import OVM\nanalyse(OVM(), -1.0)",
+            "v",
+        ),
+        (
+            "stability analyse speed nan",
+            "from aev_ocp.stability import analyse\nfrom aev_ocp import OVM\nanalyse(OVM(), float('nan'))",
+            "v",
+        ),
+        (
+            "stability analyse speed above V_inf",
+            "from aev_ocp.stability import analyse\nfrom aev_ocp import OVM\nanalyse(OVM(), 2.5)",
+            "v",
+        ),
+        (
+            "run_closed_loop soc0 1.5",
+            "from aev_ocp import run_closed_loop, PaperLeader, ControlSequence\nrun_closed_loop(PaperLeader(), [ControlSequence((0.0,)*10, 0.1)], [0.5], [1.8], 1.0, soc0=1.5)",
+            "soc0",
+        ),
+        (
+            "run_closed_loop speeds0 nan",
+            "from aev_ocp import run_closed_loop, PaperLeader, ControlSequence\nrun_closed_loop(PaperLeader(), [ControlSequence((0.0,)*10, 0.1)], [0.5], [float('nan')], 1.0)",
+            "speed",
+        ),
+        (
+            "ControlSequence too short",
+            "from aev_ocp import run_closed_loop, PaperLeader, ControlSequence\nrun_closed_loop(PaperLeader(), [ControlSequence((0.0,)*3, 0.1)], [0.5], [1.8], 1.0)",
+            "ControlSequence",
+        ),
+        (
+            "SampledLaw dt 0",
+            "from aev_ocp import SampledLaw, Proposed, ClosedLoop, PaperLeader\nClosedLoop(PaperLeader(), [SampledLaw(Proposed(), 0.0)]).run([0.5], [1.8], 1.0)",
+            "dt",
+        ),
+        ("Mismatch spread beyond -90 %", "from aev_ocp.estimation import Mismatch\nMismatch(mass_rel=-0.95)", "mass"),
+        (
+            "MPCVehicle bad index",
+            "from aev_ocp import MPCSettings, ClosedLoop, PaperLeader, Proposed\nClosedLoop(PaperLeader(), [Proposed(), MPCSettings(N=10)]).run([0.5, 3.0], [1.8, 1.8], 0.5)",
+            "vehicle",
+        ),
+        (
+            "StudyOutput trajectory unknown",
+            "import aev_ocp\nr = aev_ocp.load('st')\nr.trajectory(99, 'proposed')",
+            "99",
+        ),
+        ("load_table missing", "from aev_ocp.study import load_table\nload_table('nope')", "nope"),
+    ]
+    for name, body, says in API4:
+        T.append(
+            Try(
+                "api/solvers",
+                name,
+                script=api_expect(body, "ParameterError,TypeError,ValueError,LoadError", says=says),
+                setup=chain(
+                    write(S, scen()),
+                    write("st.toml", STUDY.replace("{scen}", S)),
+                    run_cli("study", "st.toml", "--out", "st", "--in-process", "--no-report"),
+                )
+                if "load('st')" in body
+                else None,
+                ok=(0,),
+                timeout=120,
+                check=plain_value_error,
+            )
+        )
+    T.append(
+        Try(
+            "api/solvers",
+            "OCPSolver toy solves (closed form)",
+            script=api_ok(
+                TOY
+                + "import math\ns = OCPSolver(pr, TranscriptionOptions(N=40))\nr = s.solve([1.0], 3.0)\nprint(r.status, r.objective)"
+            ),
+            ok=(0,),
+            timeout=60,
+        )
+    )
     return T
 
 

@@ -332,3 +332,54 @@ def test_cascade_step_limit_grows_with_the_horizon(monkeypatch: pytest.MonkeyPat
     cut = run(1000)
     assert cut.status == "integration_failed"
     assert "more than 1000 steps for this vehicle: loosen simulation.rtol/atol" in cut.events[0].message
+
+
+# ----------------------------------------------------------------------------- OCPSolver inputs
+def _lq_solver(N: int = 12):  # noqa: ANN202
+    from aev_ocp import OCPSolver, TranscriptionOptions
+
+    pb = ProblemBuilder("lq")
+    x, u = pb.state("x"), pb.control("u", -1.5, 1.5)
+    w = pb.stage_parameter("w")
+    pb.set_der(x, u + w)
+    pb.add_stage_cost(x**2 + 0.1 * u**2, "c")
+    return OCPSolver(pb.build(), TranscriptionOptions(N=N))
+
+
+@pytest.mark.parametrize(
+    "kw, says",
+    [
+        (
+            {"guess": (np.zeros((3, 3)), np.zeros((1, 12)))},
+            r"guess X \(states at the nodes\) must be 1 × 13 finite numbers, got shape \(3, 3\)",
+        ),
+        ({"guess": (np.zeros(13), np.zeros((1, 5)))}, r"guess U must be \(up to\) 1 × 12 controls"),
+        ({"guess": (np.full(13, np.nan), np.zeros(12))}, "guess X .* got a NaN or infinite entry"),
+        ({"guess": "junk"}, r"guess must be a pair \(X, U\), got str"),
+        ({"guess": (np.zeros(13), ["a"] * 12)}, "guess U .* must be an array of numbers"),
+        ({"w": np.zeros(5)}, r"w \(per-interval parameters\) must be 1 × 12 finite numbers, got shape \(5,\)"),
+        ({"w": np.full(12, np.inf)}, r"w \(per-interval parameters\) .* NaN or infinite"),
+    ],
+)
+def test_ocp_solver_names_a_bad_guess_or_stage_parameter(kw: dict, says: str) -> None:
+    """These were numpy's 'cannot reshape array of size 9 into shape (1,13)' (or a NaN sent to IPOPT)."""
+    with pytest.raises(ParameterError, match=f"lq: {says}"):
+        _lq_solver().solve([0.8], 2.5, **kw)
+
+
+def test_ocp_solver_guess_equal_to_the_default_gives_the_same_optimum() -> None:
+    """Second method: the default start (x0 held, u = 0) passed explicitly as the guess, with w = 0.3 given in
+    either layout, finds the same optimum (IPOPT is deterministic)."""
+    s = _lq_solver()
+    a = s.solve([0.8], 2.5, w=np.full((1, 12), 0.3))
+    b = s.solve([0.8], 2.5, w=[0.3] * 12, guess=(np.full((1, 13), 0.8), np.zeros((1, 12))))
+    assert a.status == b.status == "optimal"
+    assert a.objective == pytest.approx(b.objective, rel=1e-12) and a.objective > 0
+
+
+@pytest.mark.parametrize("ls", ["magic", 5, None])
+def test_transcription_options_refuse_an_unknown_linear_solver(ls: object) -> None:
+    from aev_ocp import TranscriptionOptions
+
+    with pytest.raises(ParameterError, match=r"TranscriptionOptions.linear_solver = .* is not allowed"):
+        TranscriptionOptions(linear_solver=ls)  # type: ignore[arg-type]

@@ -72,6 +72,10 @@ _IPOPT_STATUS: dict[str, tuple[str, bool, str]] = {
 }
 
 
+#: IPOPT's linear_solver values (IPOPT options reference, coin-or.github.io/Ipopt/OPTIONS.html)
+IPOPT_LINEAR_SOLVERS = ("mumps", "ma27", "ma57", "ma77", "ma86", "ma97", "pardiso", "pardisomkl", "spral", "wsmp")
+
+
 @dataclass(frozen=True)
 class TranscriptionOptions:
     """How to transcribe and solve.
@@ -106,6 +110,11 @@ class TranscriptionOptions:
         if self.scheme not in SCHEMES:
             raise ParameterError(
                 f"TranscriptionOptions.scheme = {self.scheme!r} is not allowed: must be one of {SCHEMES}"
+            )
+        if self.linear_solver not in IPOPT_LINEAR_SOLVERS:
+            raise ParameterError(
+                f"TranscriptionOptions.linear_solver = {self.linear_solver!r} is not allowed: must be one of "
+                f"{IPOPT_LINEAR_SOLVERS} (IPOPT's; all but mumps need their library installed)"
             )
         for nm, lo in (("N", 1), ("rk4_substeps", 1), ("degree", 1), ("max_iter", 1)):
             v = getattr(self, nm)
@@ -148,6 +157,20 @@ def sx_function(
     if in_names is not None and out_names is not None:
         return ca.Function(name, list(inputs), outs, list(in_names), list(out_names))
     return ca.Function(name, list(inputs), outs)
+
+
+def _finite(what: str, value: Any, size: int | None, rows: int) -> np.ndarray:
+    """``value`` as a float array of ``size`` finite entries (any size if None); ParameterError naming ``what``."""
+    try:
+        a = np.asarray(value, float)
+    except (TypeError, ValueError):
+        raise ParameterError(f"{what} must be an array of numbers, got {type(value).__name__}") from None
+    want = f"{rows} × {size // max(rows, 1)} finite numbers" if size is not None else "finite numbers"
+    if size is not None and a.size != size:
+        raise ParameterError(f"{what} must be {want}, got shape {a.shape}")
+    if not np.all(np.isfinite(a)):
+        raise ParameterError(f"{what} must be {want}, got a NaN or infinite entry")
+    return a
 
 
 def _vec(v: Sequence[float] | None, n: int, default: float) -> np.ndarray:
@@ -378,12 +401,18 @@ class OCPSolver:
         return {"ipopt": ipopt, "print_time": False, "expand": not o.mx_map, "error_on_fail": False}
 
     def _make_solver(self, warm: bool) -> ca.Function:
-        return ca.nlpsol(
-            f"{self.problem.name}_{self.options.method}{'_warm' if warm else ''}",
-            "ipopt",
-            self._nlp,
-            self._ipopt_opts(warm),
-        )
+        try:
+            return ca.nlpsol(
+                f"{self.problem.name}_{self.options.method}{'_warm' if warm else ''}",
+                "ipopt",
+                self._nlp,
+                self._ipopt_opts(warm),
+            )
+        except RuntimeError as exc:  # e.g. an HSL linear solver whose library is not installed
+            raise ParameterError(
+                f"{self.problem.name}: IPOPT refused its options (linear_solver = {self.options.linear_solver!r}): "
+                f"{str(exc).strip().splitlines()[-1]}"
+            ) from None
 
     # ------------------------------------------------------------------ solving
     def time_grid(self, t_f: float) -> np.ndarray:
@@ -433,13 +462,18 @@ class OCPSolver:
         pa = np.zeros(0) if p is None else np.asarray(p, float).ravel()
         if pa.size != npar or not np.all(np.isfinite(pa)):
             raise ParameterError(f"{pr.name}: p must be {npar} finite numbers, got {p!r}")
-        wa = np.zeros((nw, N)) if w is None else np.asarray(w, float).reshape(nw, N)
-        if not np.all(np.isfinite(wa)):
-            raise ParameterError(f"{pr.name}: w (per-interval parameters) must be finite")
+        wa = np.zeros((nw, N)) if w is None else _finite(f"{pr.name}: w (per-interval parameters)", w, nw * N, nw)
+        wa = wa.reshape(nw, N)
         par = np.concatenate([x0a, pa, wa.ravel(order="F"), [float(t_f)]])
         args: dict[str, Any] = {"p": par, "lbx": self._lbx, "ubx": self._ubx, "lbg": self._lbg, "ubg": self._ubg}
         if guess is not None:
-            args["x0"] = self._pack_guess(guess[0], guess[1], t_f)
+            if not (isinstance(guess, (tuple, list)) and len(guess) == 2):
+                raise ParameterError(f"{pr.name}: guess must be a pair (X, U), got {type(guess).__name__}")
+            X = _finite(f"{pr.name}: guess X (states at the nodes)", guess[0], nx * (N + 1), nx)
+            U = _finite(f"{pr.name}: guess U (controls per interval)", guess[1], None, N)
+            if U.size % N or U.size // N > nu:
+                raise ParameterError(f"{pr.name}: guess U must be (up to) {nu} × {N} controls, got shape {U.shape}")
+            args["x0"] = self._pack_guess(X, U, t_f)
         elif warm and self._last is not None:
             args["x0"] = self._last["x"]
         else:
