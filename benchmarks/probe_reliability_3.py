@@ -2495,7 +2495,7 @@ def tries() -> list[Try]:
         (
             "ControlSequence too short",
             "from aev_ocp import run_closed_loop, PaperLeader, ControlSequence\nrun_closed_loop(PaperLeader(), [ControlSequence((0.0,)*3, 0.1)], [0.5], [1.8], 1.0)",
-            "ControlSequence",
+            "control sequence",
         ),
         (
             "SampledLaw dt 0",
@@ -2504,9 +2504,9 @@ def tries() -> list[Try]:
         ),
         ("Mismatch spread beyond -90 %", "from aev_ocp.estimation import Mismatch\nMismatch(mass_rel=-0.95)", "mass"),
         (
-            "MPCVehicle bad index",
-            "from aev_ocp import MPCSettings, ClosedLoop, PaperLeader, Proposed\nClosedLoop(PaperLeader(), [Proposed(), MPCSettings(N=10)]).run([0.5, 3.0], [1.8, 1.8], 0.5)",
-            "vehicle",
+            "MPC dt not dividing t_end",
+            "from aev_ocp import MPCSettings, ClosedLoop, PaperLeader, Proposed\nClosedLoop(PaperLeader(), [Proposed(), MPCSettings(N=10)]).run([0.5, 3.0], [1.8, 1.8], 0.55)",
+            "t_end",
         ),
         (
             "StudyOutput trajectory unknown",
