@@ -185,8 +185,27 @@ def _group_alive(pgid: int) -> list[str]:
     return alive
 
 
+_SILENT: list[Any] = []
+
+
+def _silent_port() -> int:
+    """A TCP port on localhost that accepts connections and never answers (a scheduler that hangs)."""
+    import socket
+    import threading
+
+    if not _SILENT:
+        srv = socket.socket()
+        srv.bind(("127.0.0.1", 0))
+        srv.listen(16)
+        held: list[Any] = []
+        threading.Thread(target=lambda: [held.append(srv.accept()) for _ in iter(int, 1)], daemon=True).start()
+        _SILENT.extend([srv, held])
+    return int(_SILENT[0].getsockname()[1])
+
+
 def _start(t: Try, d: Path) -> subprocess.Popen[str]:
-    cmd = [*CLI, *t.argv] if t.argv is not None else [PY, "-c", t.script or ""]
+    argv = [a.replace("PORT", str(_silent_port())) if "PORT" in a else a for a in (t.argv or [])]
+    cmd = [*CLI, *argv] if t.argv is not None else [PY, "-c", t.script or ""]
     return subprocess.Popen(
         cmd,
         cwd=d,
@@ -2543,6 +2562,98 @@ def tries() -> list[Try]:
             ),
             ok=(0,),
             timeout=60,
+        )
+    )
+    # --- batch 5: user files in every command's folder, a scheduler that never answers --------------------------------
+    T.append(
+        Try(
+            "outdir",
+            "ring user ring.json",
+            ["ring", "sugiyama", "--t-end-s", "3", "--out", "o", "--no-plots"],
+            keep_user={"o/ring.json": "{}"},
+            ok=(2,),
+            timeout=60,
+        )
+    )
+    T.append(
+        Try(
+            "outdir",
+            "safety user safety.md",
+            ["safety", "--quick", "--out", "o", "--no-plots"],
+            keep_user={"o/safety.md": "# mine"},
+            ok=(2,),
+            timeout=120,
+        )
+    )
+    T.append(
+        Try(
+            "outdir",
+            "reproduce user report.md",
+            ["reproduce", "--quick", "--out", "o"],
+            keep_user={"o/report.md": "# mine"},
+            ok=(2,),
+            timeout=60,
+        )
+    )
+    T.append(
+        Try(
+            "outdir",
+            "mpc user results.json",
+            ["mpc", "mpc_paper_single", "--out", "o", "--t-end", "1", "--no-ocpd"],
+            keep_user={"o/results.json": "{}"},
+            ok=(2,),
+            timeout=120,
+        )
+    )
+    T.append(
+        Try(
+            "outdir",
+            "ocp into folder of a simulate run",
+            ["ocp", "prop31", "--out", "o"],
+            setup=run_cli("simulate", "table1", "--out", "o", "--no-plots", "--set", "simulation.t_end=2"),
+            ok=(2,),
+            timeout=60,
+        )
+    )
+    T.append(
+        Try(
+            "outdir",
+            "stability into folder of a ring run",
+            ["stability", "--law", "ovm", "--linear-only", "--out", "o"],
+            setup=run_cli("ring", "sugiyama", "--t-end-s", "3", "--out", "o", "--no-plots"),
+            ok=(2,),
+            timeout=60,
+        )
+    )
+    T.append(
+        Try(
+            "outdir",
+            "simulate into the cwd",
+            ["simulate", S, "--out", ".", "--no-plots"],
+            setup=write(S, scen()),
+            ok=(0, 2),
+            timeout=60,
+        )
+    )
+    T.append(
+        Try(
+            "outdir",
+            "simulate --out ''",
+            ["simulate", S, "--out", "", "--no-plots"],
+            setup=write(S, scen()),
+            ok=(2,),
+            timeout=60,
+        )
+    )
+    T.append(
+        Try(
+            "study",
+            "scheduler accepts and stays silent",
+            ["study", "st.toml", "--out", "st", "--scheduler", "tcp://127.0.0.1:PORT"],
+            setup=chain(write(S, scen()), write("st.toml", STUDY.replace("{scen}", S))),
+            ok=(1, 2),
+            timeout=90,
+            check=lambda d, r: None if r["wall_s"] < 60 else "defect: took over 60 s",
         )
     )
     return T
