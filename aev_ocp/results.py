@@ -230,7 +230,8 @@ def _check_claim(out: Path, me: dict[str, Any], files: list[str] | None) -> None
             prev = None
         if not isinstance(prev, dict) or {k: prev.get(k) for k in me} != me:
             who = (
-                f"'aev-ocp {prev.get('command')}' of scenario {prev.get('scenario')!r} ({prev.get('source')})"
+                f"'aev-ocp {prev.get('command')}' of scenario {prev.get('scenario')!r}"
+                + (f" ({prev['source']})" if prev.get("source") else "")  # a ring experiment has no file
                 if isinstance(prev, dict)
                 else "an unreadable marker"
             )

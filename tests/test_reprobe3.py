@@ -383,3 +383,12 @@ def test_transcription_options_refuse_an_unknown_linear_solver(ls: object) -> No
 
     with pytest.raises(ParameterError, match=r"TranscriptionOptions.linear_solver = .* is not allowed"):
         TranscriptionOptions(linear_solver=ls)  # type: ignore[arg-type]
+
+
+def test_foreign_folder_message_has_no_none_source(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    """A ring experiment has no scenario file: the refusal said "of scenario 'sugiyama' (None)"."""
+    out = str(tmp_path / "o")
+    assert run_cli(["ring", "sugiyama", "--t-end-s", "2.5", "--out", out, "--no-plots"], capsys)[0] == 0
+    rc, _, err = run_cli(["stability", "--law", "ovm", "--linear-only", "--no-plots", "--out", out], capsys)
+    line = one_error(err)
+    assert rc == 2 and "holds the results of 'aev-ocp ring' of scenario 'sugiyama';" in line and "None" not in line
