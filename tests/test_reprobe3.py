@@ -438,3 +438,37 @@ def test_a_pool_stopped_while_a_worker_writes_its_result_lets_the_process_exit(t
         pytest.fail("the process hung at exit after _stop_pool (the pool's manager thread was stuck in recv)")
     assert r.returncode == 0 and "stopped" in r.stdout, r.stderr[-2000:]
     assert "Traceback" not in r.stderr and "Bad file descriptor" not in r.stderr, r.stderr[-2000:]
+
+
+ONE_TASK_STUDY = """\
+name = "one_task"
+scenarios = ["table1"]
+reference = "ovfl"
+[overrides]
+"simulation.t_end" = 1.5
+"platoon.followers" = 2
+[[axes]]
+key = "carfollowing.kappa"
+values = [0.045]
+[controllers]
+laws = ["ovfl"]
+"""
+
+
+def test_time_limit_passing_as_the_last_task_ends_is_not_a_stop(tmp_path: Path) -> None:
+    """A 1-task study whose 1 µs limit is past when its only task ends finished every task: it is complete (was
+    TimeLimitStop '1 of 1 tasks stored', exit 1 from the command); a 2-point study with the same limit stops after
+    its first task, as before."""
+    from aev_ocp.study import run_study
+    from aev_ocp.study.runner import TimeLimitStop
+
+    f = tmp_path / "one.toml"
+    f.write_text(ONE_TASK_STUDY)
+    out = run_study(f, tmp_path / "o", executor="inprocess", report=False, time_limit_s=1e-6)
+    assert out.n_tasks == 1 and out.n_failed == 0 and {r["controller"] for r in out.rows} == {"ovfl"}
+    f.write_text(
+        ONE_TASK_STUDY.replace("values = [0.045]", "values = [0.045, 0.065]").replace('"ovfl"]', '"proposed"]')
+    )
+    f.write_text(f.read_text().replace('reference = "ovfl"', 'reference = "proposed"'))
+    with pytest.raises(TimeLimitStop, match="1 of 2 tasks stored"):
+        run_study(f, tmp_path / "o2", executor="inprocess", report=False, time_limit_s=1e-6)

@@ -309,7 +309,8 @@ def execute(
         try:
             prog.update(len(results), len(todo), note=f"({cached} stored, {failed[0]} failed)")
         except TimeLimitReached:
-            raise TimeLimitStop(f"{len(results)} of {len(todo)} tasks stored") from None
+            if len(results) < len(todo):  # the limit passing as the last task ends stops nothing
+                raise TimeLimitStop(f"{len(results)} of {len(todo)} tasks stored") from None
 
     if not missing:
         return results
