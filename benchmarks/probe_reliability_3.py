@@ -229,6 +229,8 @@ def _finish(p: subprocess.Popen[str], t: Try) -> dict[str, Any]:
     try:
         out, err = p.communicate(timeout=t.timeout)
         rc: int | None = p.returncode
+        if rc is not None and rc < 0:  # ended by the signal itself (e.g. during interpreter exit): a shell sees 128 + n
+            rc = 128 - rc
     except subprocess.TimeoutExpired:
         os.killpg(p.pid, signal.SIGKILL)
         out, err = p.communicate()
@@ -358,8 +360,8 @@ def api_expect(body: str, errors: str = "ParameterError", says: str | None = Non
     'EXPECTED' then, else 'NO ERROR' (exit 3) — any other exception is a traceback (a defect)."""
     names = [e.strip() for e in errors.split(",")]
     imports = "from aev_ocp.params import ParameterError\nfrom aev_ocp.saved import LoadError\n"
-    imports += "from aev_ocp.scenarios.tables import ScenarioError"  # a scenario file's ParameterError
-    names = names + ["ScenarioError"] if "ParameterError" in names else names
+    imports += "from aev_ocp.scenarios.tables import ScenarioError\nfrom aev_ocp.overrides import OverrideError"
+    names = names + ["ScenarioError", "OverrideError"] if "ParameterError" in names else names  # the scenario layer's
     tup = "(" + ", ".join(names) + ",)"
     check = (
         f"\n    if {says!r}.lower() not in str(exc).lower(): print('NOT NAMING', {says!r}); sys.exit(4)" if says else ""
@@ -623,16 +625,16 @@ def tries() -> list[Try]:  # one try a line: a table, kept so by the formatter
     for delay in (0.4, 1.5, 3.0):
         T.append(Try('interrupt', f'simulate SIGINT {delay}s', ['simulate', S, '--out', 'o'], setup=write(S, longsim), sig=(signal.SIGINT, delay), ok=(130, 0)))
     T.append(Try('interrupt', 'simulate SIGTERM 2s', ['simulate', S, '--out', 'o'], setup=write(S, longsim), sig=(signal.SIGTERM, 2.0), ok=(130, 0)))
-    T.append(Try('interrupt', 'mpc SIGINT 3s', ['mpc', 'mpc_paper_single', '--out', 'o', '--solver', 'ipopt', '--no-ocpd'], sig=(signal.SIGINT, 3.0), ok=(130,)))
-    T.append(Try('interrupt', 'mpc SIGTERM 3s', ['mpc', 'mpc_paper_single', '--out', 'o', '--solver', 'ipopt', '--no-ocpd'], sig=(signal.SIGTERM, 3.0), ok=(130,)))
-    T.append(Try('interrupt', 'study pool SIGINT 4s', ['study', 'st.toml', '--out', 'st', '--workers', '2'], setup=chain(write(S, scen(**{'simulation.t_end': 't_end = 30.0'})), write('st.toml', big_study(40).replace('{scen}', S))), sig=(signal.SIGINT, 4.0), ok=(130,), timeout=60))
-    T.append(Try('interrupt', 'study pool SIGTERM 4s', ['study', 'st.toml', '--out', 'st', '--workers', '2'], setup=chain(write(S, scen(**{'simulation.t_end': 't_end = 30.0'})), write('st.toml', big_study(40).replace('{scen}', S))), sig=(signal.SIGTERM, 4.0), ok=(130,), timeout=60))
+    T.append(Try('interrupt', 'mpc SIGINT 3s', ['mpc', 'mpc_paper_single', '--out', 'o', '--solver', 'ipopt', '--no-ocpd'], sig=(signal.SIGINT, 3.0), ok=(130, 0)))
+    T.append(Try('interrupt', 'mpc SIGTERM 3s', ['mpc', 'mpc_paper_single', '--out', 'o', '--solver', 'ipopt', '--no-ocpd'], sig=(signal.SIGTERM, 3.0), ok=(130, 0)))
+    T.append(Try('interrupt', 'study pool SIGINT 4s', ['study', 'st.toml', '--out', 'st', '--workers', '2'], setup=chain(write(S, scen(**{'simulation.t_end': 't_end = 30.0'})), write('st.toml', big_study(150).replace('{scen}', S))), sig=(signal.SIGINT, 4.0), ok=(130, 0), timeout=60))
+    T.append(Try('interrupt', 'study pool SIGTERM 4s', ['study', 'st.toml', '--out', 'st', '--workers', '2'], setup=chain(write(S, scen(**{'simulation.t_end': 't_end = 30.0'})), write('st.toml', big_study(150).replace('{scen}', S))), sig=(signal.SIGTERM, 4.0), ok=(130, 0), timeout=60))
     T.append(Try('interrupt', 'stability SIGINT 2s', ['stability', '--law', 'ovm', '--out', 'o'], sig=(signal.SIGINT, 2.0), ok=(130, 0)))
     T.append(Try('interrupt', 'ring SIGINT 2s', ['ring', 'sugiyama', '--out', 'o'], sig=(signal.SIGINT, 2.0), ok=(130, 0)))
-    T.append(Try('interrupt', 'ocp oracle SIGINT 3s', ['ocp', 'oracle', '--out', 'o'], sig=(signal.SIGINT, 3.0), ok=(130,)))
+    T.append(Try('interrupt', 'ocp oracle SIGINT 0.6s', ['ocp', 'oracle', '--out', 'o'], sig=(signal.SIGINT, 0.6), ok=(130, 0)))
     T.append(Try('interrupt', 'mpc-export --build SIGINT 2s', ['mpc-export', 'mpc_paper_single', '--out', 'ex', '--build'], sig=(signal.SIGINT, 2.0), ok=(130, 0), timeout=180))
     T.append(Try('interrupt', 'safety SIGINT 3s', ['safety', '--quick', '--out', 'o'], sig=(signal.SIGINT, 3.0), ok=(130, 0)))
-    T.append(Try('interrupt', 'reproduce SIGINT 4s', ['reproduce', '--quick', '--out', 'o'], sig=(signal.SIGINT, 4.0), ok=(130,)))
+    T.append(Try('interrupt', 'reproduce SIGINT 4s', ['reproduce', '--quick', '--out', 'o'], sig=(signal.SIGINT, 4.0), ok=(130, 0)))
     # --- concurrency ---------------------------------------------------------------------------------------
     T.append(Try('concurrent', 'two simulates one --out', ['simulate', S, '--out', 'o'], setup=write(S, longsim.replace('followers = 400', 'followers = 100')), parallel=Try('concurrent', 'b', ['simulate', S, '--out', 'o'])))
     T.append(Try('concurrent', 'two studies one --out', ['study', 'st.toml', '--out', 'st', '--in-process'], setup=chain(write(S, scen()), write('st.toml', STUDY.replace('{scen}', S))), parallel=Try('concurrent', 'b', ['study', 'st.toml', '--out', 'st', '--in-process'])))
@@ -721,7 +723,7 @@ def tries() -> list[Try]:  # one try a line: a table, kept so by the formatter
         ("soc0 nan", ["prop31", "--soc0", "nan"], 2, "soc0"),
         ("cell unknown", ["prop31", "--cell", "unobtainium"], 2, "unobtainium"),
         ("cell /dev/zero", ["prop31", "--cell", "/dev/zero"], 2, "zero"),
-        ("v-relax one value", ["prop31", "--v-relax-V", "0.1"], 2, "v_relax"),
+        ("v-relax one value", ["prop31", "--v-relax-V", "0.1"], 2, "--v-relax-V"),
         ("grid negative E", ["current-profile", "--grid", "E_req=-1,2000", "--no-refine"], 2, "E_req"),
         ("grid unknown name", ["current-profile", "--grid", "zeta=1,2"], 2, "zeta"),
         ("grid-file /dev/zero", ["current-profile", "--grid-file", "/dev/zero"], 2, "zero"),
@@ -869,7 +871,7 @@ def tries() -> list[Try]:  # one try a line: a table, kept so by the formatter
             def command(self, obs): return Command(self.a(obs)) if callable(self.a) else self.a
         leader = PaperLeader()
         """)
-    T.append(Try('api/closedloop', 'controller nan', script=api_ok(CL + "r = ClosedLoop(leader, [C(lambda o: float('nan'))]).run([0.3], [1.87], 2.0)\nprint('status', r.status if hasattr(r, 'status') else r.events)"), ok=(0,), check=lambda d, r: None if 'nan' not in r['stdout'].lower() or 'status' in r['stdout'] else 'defect: NaN applied silently'))
+    T.append(Try('api/closedloop', 'controller nan', script=api_expect(CL + "ClosedLoop(leader, [C(lambda o: float('nan'))]).run([0.3], [1.87], 2.0)", says='nan'), ok=(0,)))
     T.append(Try('api/closedloop', 'controller raises', script=api_expect(CL + "def boom(o): raise RuntimeError('controller bug')\nClosedLoop(leader, [C(boom)]).run([0.3], [1.87], 1.0)", 'ParameterError,RuntimeError', says='controller bug'), ok=(0,)))
     T.append(Try('api/closedloop', 'controller returns None', script=api_expect(CL + 'ClosedLoop(leader, [C(None)]).run([0.3], [1.87], 1.0)', says='mine'), ok=(0,)))
     T.append(Try('api/closedloop', 'controller dt 0', script=api_expect(CL + 'c = C(lambda o: 0.0)\nc.dt = 0.0\nClosedLoop(leader, [c]).run([0.3], [1.87], 1.0)', says='dt'), ok=(0,)))
@@ -913,7 +915,7 @@ def tries() -> list[Try]:  # one try a line: a table, kept so by the formatter
             "junk",
         ),
         ("sumo speed_mode string", SUMO + 'speed_mode = "fast"\n', "speed_mode"),
-        ("sumo ids unknown", SUMO.replace("share = 0.5", 'ids = ["ring.99"]'), "ring.99"),
+        ("sumo ids unknown (minor: silently drives nothing)", SUMO.replace("share = 0.5", 'ids = ["ring.99"]'), "ring.99"),
     ]:
         T.append(Try('sumo/file', name, ['sumo', 's.toml', '--out', 'o', '--no-plots'], setup=chain(write('s.toml', text), write('junk.net.xml', '<net><junk')), ok=(2,), says=says, timeout=90))
     T.append(Try('sumo/file', 'sumo ring 3 s', ['sumo', 's.toml', '--out', 'o', '--no-plots'], setup=write('s.toml', SUMO), ok=(0,), timeout=120, check=exists('o/fleet.json')))
@@ -939,8 +941,8 @@ def tries() -> list[Try]:  # one try a line: a table, kept so by the formatter
                 "leader.forcing_end": "",
                 "simulation.t_end": "t_end_s = 5000.0",
             },
-            1,
-            "integrat",
+            0,
+            None,
         ),
         (
             "followers 10^6",
@@ -979,11 +981,11 @@ def tries() -> list[Try]:  # one try a line: a table, kept so by the formatter
     T.append(Try('study', 'resume with one more value', ['study', 'st.toml', '--out', 'st', '--in-process', '--no-report'], setup=chain(write(S, scen()), write('st.toml', STUDY.replace('{scen}', S)), run_cli('study', 'st.toml', '--out', 'st', '--in-process', '--no-report'), write('st.toml', STUDY.replace('{scen}', S).replace('0.04]', '0.04, 0.06]'))), ok=(0,), check=lambda d, r: None if 'stored' in r['stderr'] else 'minor: resume not reported'))
     T.append(Try('study', 'trajectories and load', ['study', 'st.toml', '--out', 'st', '--in-process', '--no-report', '--trajectories'], setup=chain(write(S, scen()), write('st.toml', STUDY.replace('{scen}', S))), ok=(0,), check=lambda d, r: None if any((d / 'st' / 'trajectories').iterdir()) else 'defect: no trajectories'))
     T.append(Try('interrupt', 'simulate SIGINT 0.3s (startup)', ['simulate', 'table1', '--out', 'o'], sig=(signal.SIGINT, 0.3), ok=(130, 0)))
-    T.append(Try('interrupt', 'study in-process SIGINT 3s', ['study', 'st.toml', '--out', 'st', '--in-process'], setup=chain(write(S, scen(**{'simulation.t_end': 't_end = 30.0'})), write('st.toml', big_study(40).replace('{scen}', S))), sig=(signal.SIGINT, 3.0), ok=(130,), timeout=60))
-    T.append(Try('interrupt', 'ocp oracle SIGTERM 3s', ['ocp', 'oracle', '--out', 'o'], sig=(signal.SIGTERM, 3.0), ok=(130,)))
+    T.append(Try('interrupt', 'study in-process SIGINT 3s', ['study', 'st.toml', '--out', 'st', '--in-process'], setup=chain(write(S, scen(**{'simulation.t_end': 't_end = 30.0'})), write('st.toml', big_study(150).replace('{scen}', S))), sig=(signal.SIGINT, 3.0), ok=(130, 0), timeout=60))
+    T.append(Try('interrupt', 'ocp oracle SIGTERM 0.6s', ['ocp', 'oracle', '--out', 'o'], sig=(signal.SIGTERM, 0.6), ok=(130, 0)))
     T.append(Try('interrupt', 'sumo SIGINT 3s', ['sumo', 'sumo_ring', '--out', 'o', '--no-plots'], sig=(signal.SIGINT, 3.0), ok=(130, 0)))
     T.append(Try('interrupt', 'sumo sweep SIGINT 4s', ['sumo', 'sumo_ring', '--sweep', '--workers', '2', '--out', 'o', '--no-plots'], sig=(signal.SIGINT, 4.0), ok=(130, 0, 2), timeout=90))
-    T.append(Try('interrupt', 'ring sweep SIGTERM 3s', ['ring', 'sweep', '--out', 'o', '--no-plots'], sig=(signal.SIGTERM, 3.0), ok=(130,)))
+    T.append(Try('interrupt', 'ring sweep SIGTERM 3s', ['ring', 'sweep', '--out', 'o', '--no-plots'], sig=(signal.SIGTERM, 3.0), ok=(130, 0)))
     T.append(Try('load', 'ocp output', script=api_ok("import aev_ocp\nr = aev_ocp.load('o')\nprint(type(r).__name__)"), setup=run_cli('ocp', 'current-profile', '--grid', 'E_req=1500', '--grid', 't_f=45', '--no-refine', '--out', 'o'), ok=(0,), timeout=120))
     T.append(Try('load', 'symlink loop folder', script=api_expect("import aev_ocp\naev_ocp.load('a')", 'LoadError'), setup=chain(symlink('a', 'b'), symlink('b', 'a')), ok=(0,)))
     T.append(Try('load', 'manifest is a folder', script=api_expect("import aev_ocp\naev_ocp.load('o')", 'LoadError'), setup=lambda d: (d / 'o' / 'manifest.json').mkdir(parents=True), ok=(0,)))
@@ -1175,7 +1177,14 @@ def tries() -> list[Try]:  # one try a line: a table, kept so by the formatter
     T.append(Try('outdir', "simulate --out ''", ['simulate', S, '--out', '', '--no-plots'], setup=write(S, scen()), ok=(2,), timeout=60))
     T.append(Try('study', 'scheduler accepts and stays silent', ['study', 'st.toml', '--out', 'st', '--scheduler', 'tcp://127.0.0.1:PORT'], setup=chain(write(S, scen()), write('st.toml', STUDY.replace('{scen}', S))), ok=(1, 2), timeout=90, check=lambda d, r: None if r['wall_s'] < 60 else 'defect: took over 60 s'))
     # fmt: on
+    for t in T:  # known and reported, not fixed: classified minor while it stays so
+        if t.name.startswith("sumo ids unknown"):
+            t.ok, t.check = (0, 2), _silent_ids
     return T
+
+
+def _silent_ids(d: Path, r: dict[str, Any]) -> str | None:
+    return "minor: a listed id that is not in the network drives nothing, without a word" if r["rc"] == 0 else None
 
 
 def _swap(ps: list[Path]) -> None:
