@@ -5,7 +5,8 @@ Executors (same inputs -> same stored bytes, whichever runs them):
 - ``"inprocess"``: a loop in this process;
 - ``"pool"`` (default): :class:`concurrent.futures.ProcessPoolExecutor`, one worker per core;
 - ``"dask"``: Dask distributed, a running scheduler (``scheduler="tcp://host:8786"``) or a
-  ``LocalCluster`` of ``workers`` processes. Dask is imported only here, only when asked for.
+  ``LocalCluster`` of ``workers`` processes, run in a session of its own (:mod:`aev_ocp.study.cluster`).
+  Dask is imported only here, only when asked for.
 
 Each task's result is written atomically to ``<out>/points/<hash>.json`` as soon as it arrives
 (only this process writes); a rerun loads what is there and computes only the missing tasks. A task
@@ -450,53 +451,36 @@ def _run_dask(
     specs: list[dict[str, Any]], workers: int | None, scheduler: str | None, done: Callable[[dict[str, Any]], None]
 ) -> None:
     try:
-        from dask.distributed import Client, LocalCluster, as_completed
+        from dask.distributed import Client, as_completed
     except ImportError:
         raise RuntimeError(dask_missing_message()) from None
     import dask
 
     from ..limits import check_local_workers
+    from .cluster import CLOSE_GRACE_S, INTERRUPT_GRACE_S, LocalClusterProcess
 
     n_local = check_local_workers(workers, "dask workers") or os.cpu_count() or 1
-    cluster = None
+    cluster: LocalClusterProcess | None = None
+    client = None
     # the workers' scratch space (Dask's default: <tmp>/dask-scratch-space, left behind) is ours, removed at the end
     scratch = None if scheduler else tempfile.mkdtemp(prefix="aev_ocp_dask_")
     # a scheduler that accepts and then stays silent must not hang the study (issue 28)
-    cfg = dask.config.set(
-        {
-            "distributed.comm.timeouts.connect": f"{SCHEDULER_CONNECT_TIMEOUT_S}s",
-            "distributed.comm.timeouts.tcp": f"{SCHEDULER_HEARTBEAT_TIMEOUT_S}s",
-            **({"temporary-directory": scratch} if scratch else {}),
-        }
-    )
-
-    def release() -> None:
-        cfg.__exit__(None, None, None)
-        if scratch is not None:
-            shutil.rmtree(scratch, ignore_errors=True)
-
+    timeouts = {
+        "distributed.comm.timeouts.connect": f"{SCHEDULER_CONNECT_TIMEOUT_S}s",
+        "distributed.comm.timeouts.tcp": f"{SCHEDULER_HEARTBEAT_TIMEOUT_S}s",
+    }
+    cfg = dask.config.set(timeouts)
+    grace = INTERRUPT_GRACE_S
     try:
         if scheduler:
             client = _connect(Client, scheduler)
         else:
+            assert scratch is not None
             _export_path()
-            with interrupts.deferred():  # Ctrl-C while the cluster starts: honoured once it can be closed cleanly
-                cluster = LocalCluster(
-                    n_workers=n_local,
-                    threads_per_worker=1,
-                    processes=True,
-                    dashboard_address=None,
-                    silence_logs=logging.CRITICAL,
-                    local_directory=scratch,
-                )
+            # its own session: a terminal's Ctrl-C reaches this process only, which stops the cluster (cluster.py)
             with interrupts.deferred():
-                client = Client(cluster, timeout=SCHEDULER_CONNECT_TIMEOUT_S)
-    except BaseException:
-        if cluster is not None:
-            cluster.close()  # the Client failed: the workers already started must not outlive the study
-        release()
-        raise
-    try:
+                cluster = LocalClusterProcess(n_local, scratch, {**timeouts, "temporary-directory": scratch})
+            client = _connect(Client, cluster.wait_address())
         slots = max(1, sum(client.nthreads().values()))
         size = chunk_size(len(specs), slots)
         chunks = [specs[i : i + size] for i in range(0, len(specs), size)]
@@ -515,16 +499,22 @@ def _run_dask(
                 for res in batch:
                     done(res)
         except BaseException:
-            client.cancel(futures)
+            if cluster is None:  # a shared scheduler: withdraw this study's tasks (a local cluster just ends)
+                client.cancel(futures)
             raise
+        grace = CLOSE_GRACE_S
     finally:
         quiet = logging.getLogger("distributed")  # closing after Ctrl-C: the heartbeats' "stream closed" are no news
         level = quiet.level
         quiet.setLevel(logging.CRITICAL)
         try:
-            client.close()
-            if cluster is not None:
-                cluster.close()  # ends the worker processes this study started, computing or not
+            with interrupts.deferred():  # a second Ctrl-C must not leave the cluster running
+                if client is not None:
+                    client.close(timeout=grace)
+                if cluster is not None:
+                    cluster.stop(grace)  # ends the processes this study started, computing or not
         finally:
             quiet.setLevel(level)
-            release()
+            cfg.__exit__(None, None, None)
+            if scratch is not None:
+                shutil.rmtree(scratch, ignore_errors=True)
