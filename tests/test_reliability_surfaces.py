@@ -1308,3 +1308,49 @@ def test_a_store_kept_behind_a_link_is_followed_and_a_dangling_link_replaced(tmp
     (dangling / "points").symlink_to(tmp_path / "nowhere")
     Store(dangling).put("c3", result(4.5))
     assert (dangling / "points").is_dir() and not (dangling / "points").is_symlink()
+
+
+@pytest.mark.parametrize("executor", ["--workers", "--dask-local"])
+def test_a_killed_study_takes_its_workers_with_it(tmp_path, executor):
+    """SIGKILL (the OOM killer, a job scheduler) of a study whose one worker computes an MPC task that runs for
+    minutes: nothing can clean up in the study itself, yet within a few seconds none of its processes is left
+    (each pool worker watches its parent; the Dask cluster process ends when its stdin closes) and the Dask
+    cluster removes its scratch folder."""
+    if executor == "--dask-local":
+        pytest.importorskip("dask.distributed")
+    import signal
+    import subprocess
+    import sys
+    import uuid
+
+    from test_progress import LONG_TASK_STUDY
+
+    f = tmp_path / "s.toml"
+    f.write_text(LONG_TASK_STUDY)
+    out, tmp = tmp_path / "o", tmp_path / "tmp"
+    tmp.mkdir()
+    tag = f"AEV_OCP_TEST_{uuid.uuid4().hex}"
+    env = {**os.environ, "TMPDIR": str(tmp), "PYTHONPATH": str(Path(__file__).resolve().parents[1]), tag: "1"}
+    p = subprocess.Popen(
+        [sys.executable, "-m", "aev_ocp.cli", "study", str(f), "--out", str(out), executor, "1", "--no-report"],
+        env=env,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+        start_new_session=True,
+    )
+    try:
+        deadline = time.monotonic() + 90.0  # the fast OVFL task is stored: the worker is on the long MPC task
+        while not list((out / "points").glob("[0-9a-f]*.json")) and time.monotonic() < deadline and p.poll() is None:
+            time.sleep(0.1)
+        assert p.poll() is None and len(_marked(tag)) >= 2
+        p.kill()
+        p.wait(10)
+        deadline = time.monotonic() + 10.0
+        while _marked(tag) and time.monotonic() < deadline:
+            time.sleep(0.1)
+        left = _marked(tag)
+    finally:
+        for pid in _marked(tag):
+            os.kill(pid, signal.SIGKILL)
+    assert left == [], f"{len(left)} process(es) of the killed study still running: {_cmdlines(left)}"
+    assert list(tmp.iterdir()) == []

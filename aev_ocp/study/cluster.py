@@ -25,7 +25,7 @@ import subprocess
 import sys
 import time
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 #: How long the cluster process may take to start its workers before the study gives up [s]. Each worker
 #: imports NumPy and CasADi (about 1-3 s on one core); the workers are capped per core (limits.check_local_workers).
@@ -55,9 +55,10 @@ class LocalClusterProcess:
             )
         self.address = ""
 
-    def wait_address(self, timeout_s: float = CLUSTER_START_TIMEOUT_S) -> str:
+    def wait_address(self, timeout_s: float = CLUSTER_START_TIMEOUT_S, poll: Callable[[], None] | None = None) -> str:
         """Block until the cluster process prints its scheduler address (RuntimeError if it ends first or
-        ``timeout_s`` [s] passes). A KeyboardInterrupt meanwhile propagates at once: the caller stops the process."""
+        ``timeout_s`` [s] passes), calling ``poll`` (e.g. a time-limit check) every half second meanwhile.
+        A KeyboardInterrupt or what ``poll`` raises propagates at once: the caller stops the process."""
         assert self.proc.stdout is not None
         deadline = time.monotonic() + timeout_s
         line = b""
@@ -68,6 +69,8 @@ class LocalClusterProcess:
                 if left <= 0:
                     raise RuntimeError(f"the local Dask cluster did not start within {timeout_s:g} s{self._log_tail()}")
                 if not sel.select(min(left, 0.5)):
+                    if poll is not None:
+                        poll()
                     continue
                 chunk = os.read(self.proc.stdout.fileno(), 4096)
                 if not chunk:  # the process ended before it was ready

@@ -26,7 +26,7 @@ import time
 import traceback
 from collections import OrderedDict
 from pathlib import Path
-from typing import Any, Callable, Iterable
+from typing import Any, Callable, Iterable, Iterator
 
 from .. import interrupts
 from ..progress import Progress, TimeLimitReached
@@ -311,6 +311,12 @@ def execute(
         except TimeLimitReached:
             raise TimeLimitStop(f"{len(results)} of {len(todo)} tasks stored") from None
 
+    def poll() -> None:  # while the pool or cluster computes (or starts): the time limit holds between results too
+        try:
+            prog.check()
+        except TimeLimitReached:
+            raise TimeLimitStop(f"{len(results)} of {len(todo)} tasks stored") from None
+
     if not missing:
         return results
     specs = [
@@ -321,13 +327,26 @@ def execute(
         for sp in specs:
             done(run_task(sp))
     elif executor == "pool":
-        _run_pool(specs, workers, done)
+        _run_pool(specs, workers, done, poll)
     else:
-        _run_dask(specs, workers, scheduler, done)
+        _run_dask(specs, workers, scheduler, done, poll)
     return results
 
 
-def _run_pool(specs: list[dict[str, Any]], workers: int | None, done: Callable[[dict[str, Any]], None]) -> None:
+#: How often a waiting executor checks the time limit [s].
+POLL_S = 0.25
+
+
+def _no_poll() -> None:
+    pass
+
+
+def _run_pool(
+    specs: list[dict[str, Any]],
+    workers: int | None,
+    done: Callable[[dict[str, Any]], None],
+    poll: Callable[[], None] = _no_poll,
+) -> None:
     import multiprocessing as mp
     from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 
@@ -335,7 +354,11 @@ def _run_pool(specs: list[dict[str, Any]], workers: int | None, done: Callable[[
 
     n = check_local_workers(workers, "workers") or os.cpu_count() or 1
     _export_path()
-    ex = ProcessPoolExecutor(max_workers=n, mp_context=mp.get_context("spawn"))
+    # each worker ends itself if this process dies without stopping it (SIGKILL, the OOM killer): it would
+    # otherwise compute its task on, for minutes, for nobody
+    ex = ProcessPoolExecutor(
+        max_workers=n, mp_context=mp.get_context("spawn"), initializer=_end_with, initargs=(os.getpid(),)
+    )
     try:
         # submit() starts the worker processes: a Ctrl-C while one is half started left a process the pool did not
         # know, and the exit then waited for it for ever; it is honoured once every worker can be stopped
@@ -344,7 +367,9 @@ def _run_pool(specs: list[dict[str, Any]], workers: int | None, done: Callable[[
         with interrupts.deferred(), interrupts.sigint_blocked():
             pending = {ex.submit(run_task, sp) for sp in specs}
         while pending:
-            finished, pending = wait(pending, return_when=FIRST_COMPLETED)
+            finished, pending = wait(pending, timeout=POLL_S, return_when=FIRST_COMPLETED)
+            if not finished:
+                poll()
             for f in finished:
                 try:
                     res = f.result()
@@ -355,6 +380,22 @@ def _run_pool(specs: list[dict[str, Any]], workers: int | None, done: Callable[[
         _stop_pool(ex)
         raise
     ex.shutdown(wait=True)
+
+
+PARENT_CHECK_S = 1.0  # how often a pool worker checks that the study that started it still runs [s]
+
+
+def _end_with(parent_pid: int) -> None:
+    """Pool-worker initializer: a daemon thread that ends this worker once ``parent_pid`` is no longer its parent
+    (the study died; the worker was re-parented)."""
+    import threading
+
+    def watch() -> None:
+        while os.getppid() == parent_pid:
+            time.sleep(PARENT_CHECK_S)
+        os._exit(1)
+
+    threading.Thread(target=watch, name="aev-ocp-parent-watch", daemon=True).start()
 
 
 STOP_GRACE_S = 5.0  # how long a stopped worker may take to exit after SIGTERM before it is killed [s]
@@ -448,7 +489,11 @@ def dask_missing_message() -> str:
 
 
 def _run_dask(
-    specs: list[dict[str, Any]], workers: int | None, scheduler: str | None, done: Callable[[dict[str, Any]], None]
+    specs: list[dict[str, Any]],
+    workers: int | None,
+    scheduler: str | None,
+    done: Callable[[dict[str, Any]], None],
+    poll: Callable[[], None] = _no_poll,
 ) -> None:
     try:
         from dask.distributed import Client, as_completed
@@ -480,7 +525,7 @@ def _run_dask(
             # its own session: a terminal's Ctrl-C reaches this process only, which stops the cluster (cluster.py)
             with interrupts.deferred():
                 cluster = LocalClusterProcess(n_local, scratch, {**timeouts, "temporary-directory": scratch})
-            client = _connect(Client, cluster.wait_address())
+            client = _connect(Client, cluster.wait_address(poll=poll))
         slots = max(1, sum(client.nthreads().values()))
         size = chunk_size(len(specs), slots)
         chunks = [specs[i : i + size] for i in range(0, len(specs), size)]
@@ -488,7 +533,7 @@ def _run_dask(
             client.submit(run_tasks, ch, key=f"aev-ocp-tasks-{ch[0]['key']}-{len(ch)}", pure=False) for ch in chunks
         ]
         try:
-            for fut in as_completed(futures):
+            for fut in _completed(as_completed(futures), poll):
                 try:
                     batch = fut.result()
                 except Exception as exc:  # run_task records its own errors: this is the cluster failing
@@ -518,3 +563,13 @@ def _run_dask(
             cfg.__exit__(None, None, None)
             if scratch is not None:
                 shutil.rmtree(scratch, ignore_errors=True)
+
+
+def _completed(ac: Any, poll: Callable[[], None]) -> Iterator[Any]:
+    """The futures of Dask's ``as_completed`` ``ac`` as they finish, calling ``poll`` every POLL_S while none does."""
+    while not ac.is_empty():
+        batch = ac.next_batch(block=False)
+        if not batch:
+            poll()
+            time.sleep(POLL_S)
+        yield from batch
