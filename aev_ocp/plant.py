@@ -19,7 +19,8 @@ actuator state a_act (appended to x after the battery states) when a lag or jerk
 at v_max and at standstill; a_act(0) = 0. ``enabled = False`` builds exactly the model without limits.
 
 Events are located on the integrator: the first sample where a rule fires brackets it, and a safeguarded
-regula falsi on a one-point CVODES integration from the sample before finds the time to 1e-12 (relative);
+regula falsi (:func:`aev_ocp.numerics.bracketed_root`) on a one-point CVODES integration from the sample before
+finds the time to 1e-12 (relative) and returns the state where the rule fires;
 the run ends with that sample (a collision: h ≤ 0 there; the event carries the time in s and the impact
 speed v − v_l in m/s). A controller that publishes its own hard floor (``describe()["bounds_model"]["h_min"]``)
 and goes below it gives the run status 'violated' and one warning (:func:`floor_violations`).
@@ -39,6 +40,7 @@ from .models.actuator import actuator_rate, saturate, speed_cut
 from .models.carfollowing import CarFollowingLaw, optimal_velocity
 from .models.ego import battery_side
 from .models.leader import LeaderProfile
+from .numerics import bracketed_root
 from .params import EVParams, ParameterError, Units
 from .results import VIOLATED, Event, SimulationResult
 
@@ -391,34 +393,24 @@ class Plant:
         y1: np.ndarray,
         a_cmd: np.ndarray | None,
     ) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
-        """The first time in (t0, t1] where ``rule`` fires for vehicle i, by a safeguarded regula falsi
-        (Illinois) on the integrator from the state (x0, q0) at t0, to |Δt| ≤ 1e-12 (1 + |t|): (t, x, q, y)
-        there, the rule firing (a collision: h ≤ 0). (t1, x1, q1, y1) is a sample where it fires."""
+        """The first time in (t0, t1] where ``rule`` fires for vehicle i, by :func:`~aev_ocp.numerics.bracketed_root`
+        (Illinois regula falsi) on the integrator from the state (x0, q0) at t0, to |Δt| ≤ 1e-12 max(1, |t|):
+        (t, x, q, y) at the end of the last bracket where the rule fires (a collision: h ≤ 0). (t1, x1, q1, y1) is
+        a sample where it fires."""
         y0 = self.samples(np.array([t0]), x0[:, None], a_cmd)[:, 0]
-        m_lo, m_hi = float(self._margin(rule, i, x0, y0)), float(self._margin(rule, i, x1, y1))
-        lo, hi, best = t0, t1, (t1, x1, q1, y1)
-        if not m_lo > 0:
-            return best
-        side = 0
-        for _ in range(100):
-            if hi - lo <= 1e-12 * (1 + abs(hi)):
-                break
-            tm = hi - m_hi * (hi - lo) / (m_hi - m_lo) if m_hi != m_lo else 0.5 * (lo + hi)
-            w = hi - lo  # keep the trial inside, away from the ends (bisection when regula falsi stalls)
-            tm = min(max(tm, lo + 1e-3 * w), hi - 1e-3 * w)
-            xm, qm, ym = self._one_step(t0, tm, x0, q0, a_cmd)
-            mm = float(self._margin(rule, i, xm, ym))
-            if mm <= 0 if rule.strict else mm < 0:  # the rule fires at tm
-                hi, m_hi, best = tm, mm, (tm, xm, qm, ym)
-                if side == -1:
-                    m_lo *= 0.5
-                side = -1
-            else:
-                lo, m_lo = tm, mm
-                if side == 1:
-                    m_hi *= 0.5
-                side = 1
-        return best
+        if not float(self._margin(rule, i, x0, y0)) > 0:
+            return t1, x1, q1, y1
+        at = {t0: (x0, q0, y0), t1: (x1, q1, y1)}  # (x, q, y) of every time tried
+
+        def signed_margin(t: float) -> float:
+            # the margin with the firing side on bracketed_root's side="b": m < 0 fires, or m ≤ 0 (strict): −m ≥ 0
+            if t not in at:
+                at[t] = self._one_step(t0, t, x0, q0, a_cmd)
+            m = float(self._margin(rule, i, at[t][0], at[t][2]))
+            return -m if rule.strict else m
+
+        te = bracketed_root(signed_margin, t0, t1, 1e-12, 100, side="b")
+        return (te, *at[te])
 
     def _margin(self, rule: EventRule, i: int, x: np.ndarray, y: np.ndarray) -> Any:
         """The rule's margin for vehicle i at one state x and output y."""
