@@ -16,7 +16,7 @@ OUTPUT_FILES = ("results.json", "trajectories_mpc.csv", "mpc_trajectories.png", 
 
 def build_parser() -> argparse.ArgumentParser:
     """Argument parser of ``aev-ocp mpc`` (every option with its unit and default)."""
-    from ..console import OneLineParser
+    from ..console import OneLineParser, add_set_option
 
     p = OneLineParser(
         prog="aev-ocp mpc",
@@ -34,13 +34,9 @@ def build_parser() -> argparse.ArgumentParser:
         'aev_ocp/ocp/traffic.py; formulation = "s9" for model guide §9)',
     )
     p.add_argument("--out", default=None, metavar="DIR", help="output folder (default: results/mpc/<scenario name>/)")
-    p.add_argument(
-        "--set",
-        dest="sets",
-        action="append",
-        default=[],
-        metavar="KEY=VALUE",
-        help="override a scenario key, e.g. --set mpc.N=20 --set simulation.t_end_s=10 (repeatable; "
+    add_set_option(
+        p,
+        "override a scenario key, e.g. --set mpc.N=20 --set simulation.t_end_s=10 (repeatable; "
         "checked like the file; the command line over the file; a key that an option below "
         "also sets is refused; default: none)",
     )
