@@ -28,7 +28,7 @@ from .models import battery
 from .models.carfollowing import CarFollowingLaw, Proposed
 from .models.leader import LeaderProfile
 from .params import EVParams, ParameterError, SimOptions, as_dict, check_argument
-from .plant import Plant
+from .plant import Plant, stack_samples
 from .progress import TimeLimitReached
 from .results import Event, SimulationResult
 
@@ -463,7 +463,7 @@ class ClosedLoop:
                             f"{stop}; the run covers [0, {t_now:g}] of [0, {t_end:g}] (partial result)",
                         )
                     )
-        ts, xs, qs, ys = (np.concatenate(out[0]), np.hstack(out[1]), np.hstack(out[2]), np.hstack(out[3]))
+        ts, xs, _, ys = samples = stack_samples(out)
         acc = ys[:n].T.copy()
         for j, i in enumerate(sampled):  # node k shows the command held from t_k on (the last node: the last one)
             if applied and plant.act_row is None:  # (with a lag the samples show the realised a_act itself)
@@ -503,10 +503,7 @@ class ClosedLoop:
             for c, law in zip(self.ctrl, self.laws)
         ]
         return plant.result(
-            ts,
-            xs,
-            qs,
-            ys,
+            samples,
             events,
             names,
             {

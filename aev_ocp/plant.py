@@ -483,30 +483,30 @@ class Plant:
 
     # ---------------------------------------------------------------- results
     def result(
-        self,
-        t: np.ndarray,
-        X: np.ndarray,
-        Qc: np.ndarray,
-        Y: np.ndarray,
-        events: list[Event],
-        controllers: list[str],
-        meta: dict[str, Any],
-        **kw: Any,
+        self, samples: Samples, events: list[Event], controllers: list[str], meta: dict[str, Any], **kw: Any
     ) -> SimulationResult:
-        """The run as a :class:`SimulationResult` (see :func:`assemble_result`)."""
+        """The run of ``samples`` = (t, X, Qc, Y) (:func:`stack_samples`) as a :class:`SimulationResult` (see
+        :func:`assemble_result`)."""
         return assemble_result(
             self.leader,
             self.ev,
             self.battery,
-            t,
-            X,
-            Qc,
-            Y,
+            *samples,
             events,
             controllers,
             {"plant": "cvodes, exact eta switch", "rtol": self.rtol, "atol": self.atol, **meta},
             **kw,
         )
+
+
+#: A run's samples as :meth:`Plant.result` takes them: times t (K,) [model], states X (nx, K), quadratures Qc (nq, K)
+#: and outputs Y = (a, I, disc, v_l) stacked by quantity ((3n + 1), K).
+Samples = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]
+
+
+def stack_samples(out: tuple[list, list, list, list]) -> Samples:
+    """The pieces :meth:`Plant.advance` appended to ``out`` = (ts, xs, qs, ys) as one (t, X, Qc, Y)."""
+    return np.concatenate(out[0]), np.hstack(out[1]), np.hstack(out[2]), np.hstack(out[3])
 
 
 def initial_state(

@@ -45,7 +45,16 @@ from .models.ego import battery_side
 from .models.leader import LeaderProfile
 from .limits import check_simulation_size
 from .params import METHODS, EVParams, ParameterError, SimOptions, check_argument
-from .plant import INTEGRATION_FAILED, Plant, assemble_result, event_at, event_header, initial_state, rule_of_code
+from .plant import (
+    INTEGRATION_FAILED,
+    Plant,
+    assemble_result,
+    event_at,
+    event_header,
+    initial_state,
+    rule_of_code,
+    stack_samples,
+)
 from .results import Event, SimulationResult
 
 ProgressFn = Callable[[float, float], None]
@@ -501,8 +510,7 @@ class PlatoonSimulator:
                     progress(min(b, out[0][-1][-1] if out[0][-1].size else a), t_end)
                 if not ok:
                     break
-        ts, xs, qs, ys = (np.concatenate(out[0]), np.hstack(out[1]), np.hstack(out[2]), np.hstack(out[3]))
-        return plant.result(ts, xs, qs, ys, events, [law.name for law in self.laws], self._meta("cvodes"))
+        return plant.result(stack_samples(out), events, [law.name for law in self.laws], self._meta("cvodes"))
 
 
 def simulate_platoon(
