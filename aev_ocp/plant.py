@@ -28,9 +28,11 @@ and goes below it gives the run status 'violated' and one warning (:func:`floor_
 
 from __future__ import annotations
 
+import math
 import warnings
+from abc import ABC, abstractmethod
 from dataclasses import dataclass
-from typing import Any, Sequence
+from typing import Any, Callable, ClassVar, Sequence
 
 import casadi as ca
 import numpy as np
@@ -497,6 +499,43 @@ class Plant:
             {"plant": "cvodes, exact eta switch", "rtol": self.rtol, "atol": self.atol, **meta},
             **kw,
         )
+
+
+#: ``progress(t, t_end)`` [model time], called as a run goes on
+ProgressFn = Callable[[float, float], None]
+
+
+class PlatoonRun(ABC):
+    """A platoon built once and run from many initial conditions (:class:`~aev_ocp.simulate.PlatoonSimulator`,
+    :class:`~aev_ocp.control.ClosedLoop`): :meth:`run` checks t_end and the initial state, then the subclass's
+    :meth:`_run` runs from it."""
+
+    who: ClassVar[str]  # the name error messages start with
+    n: int  # followers
+    ev: EVParams  # the plant's vehicle
+    battery: bool  # whether the state carries the cell (V1, V2, S)
+
+    def run(
+        self,
+        gaps0: Sequence[float],
+        speeds0: Sequence[float],
+        t_end: float,
+        *,
+        soc0: float | Sequence[float] | None = None,
+        progress: ProgressFn | None = None,
+    ) -> SimulationResult:
+        """Run over [0, t_end] (model time) from the initial gaps and speeds (model units), V1 = V2 = 0 and
+        S = soc0 (default the cell's S(0)). ``progress(t, t_end)`` is called as the run goes on (in a closed loop
+        after every step: if it raises :class:`aev_ocp.progress.TimeLimitReached` the loop stops there and the
+        result, covering [0, t], ends with an event of kind 'time_limit', its status)."""
+        if not (isinstance(t_end, (int, float)) and math.isfinite(t_end) and t_end > 0):
+            raise ParameterError(f"{self.who}: t_end = {t_end!r} is not allowed: must be > 0")
+        x0 = initial_state(self.n, self.ev, self.battery, gaps0, speeds0, soc0, self.who)
+        return self._run(x0, t_end, progress)
+
+    @abstractmethod
+    def _run(self, x0: np.ndarray, t_end: float, progress: ProgressFn | None) -> SimulationResult:
+        """The run from the checked initial state x0 (see :meth:`run`)."""
 
 
 #: A run's samples as :meth:`Plant.result` takes them: times t (K,) [model], states X (nx, K), quadratures Qc (nq, K)
