@@ -43,6 +43,7 @@ from .console import (  # noqa: E402
     EXIT_FAILED_RUN,
     EXIT_OK,
     OneLineParser,
+    add_set_option,
     error_line,
     guarded,  # noqa: E402
     warning_line,
@@ -93,13 +94,9 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("scenario", help="a scenario .toml file or the name of a shipped scenario (e.g. table1)")
     s.add_argument("--out", default=None, help="output folder (default: results/<scenario name>/)")
     s.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
-    s.add_argument(
-        "--set",
-        dest="sets",
-        action="append",
-        default=[],
-        metavar="KEY=VALUE",
-        help="override a scenario key, e.g. --set simulation.t_end_s=40 (SI) or --set simulation.t_end=20 "
+    add_set_option(
+        s,
+        "override a scenario key, e.g. --set simulation.t_end_s=40 (SI) or --set simulation.t_end=20 "
         "(model time); repeatable, checked like the file, the command line over the file",
     )
     s.add_argument(

@@ -13,7 +13,7 @@ import math
 import os
 import re
 import tempfile
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any, ClassVar, Iterator
 
@@ -582,3 +582,8 @@ class SimulationResult:
     def to_json(self, path: str | os.PathLike[str]) -> Path:
         """Metrics and events as JSON, written atomically."""
         return write_json(path, self.summary())
+
+
+#: The (K,) and (K, n) array fields of a :class:`SimulationResult`, in field order (``temperature_K``, an array
+#: only with the thermal model, apart): what an output saves per run and a truncation cuts.
+SIM_ARRAYS: tuple[str, ...] = tuple(f.name for f in fields(SimulationResult) if f.type == "np.ndarray")

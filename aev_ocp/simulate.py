@@ -45,10 +45,19 @@ from .models.ego import battery_side
 from .models.leader import LeaderProfile
 from .limits import check_simulation_size
 from .params import METHODS, EVParams, ParameterError, SimOptions, check_argument
-from .plant import INTEGRATION_FAILED, Plant, assemble_result, event_at, event_header, initial_state, rule_of_code
+from .plant import (
+    INTEGRATION_FAILED,
+    Plant,
+    PlatoonRun,
+    ProgressFn,
+    assemble_result,
+    event_at,
+    event_header,
+    rule_of_code,
+    stack_samples,
+)
 from .results import Event, SimulationResult
 
-ProgressFn = Callable[[float, float], None]
 __all__ = ["METHODS", "PlatoonSimulator", "SimOptions", "simulate_platoon"]
 _FALLBACK_WARNED: set[str] = set()
 
@@ -148,11 +157,13 @@ def _segments(t_end: float, breakpoints: Sequence[float], chunk: float) -> list[
     return out
 
 
-class PlatoonSimulator:
+class PlatoonSimulator(PlatoonRun):
     """A platoon behind ``leader`` with one law per follower; build once, run many initial conditions.
 
     Vehicle i (0-based) follows vehicle i − 1; vehicle 0 follows the leader.
     """
+
+    who = "simulate"
 
     def __init__(
         self,
@@ -470,20 +481,10 @@ class PlatoonSimulator:
         }
 
     # ------------------------------------------------------------------ running
-    def run(
-        self,
-        gaps0: Sequence[float],
-        speeds0: Sequence[float],
-        t_end: float,
-        *,
-        soc0: float | Sequence[float] | None = None,
-        progress: ProgressFn | None = None,
-    ) -> SimulationResult:
-        """Integrate from the initial gaps/speeds (model units) over [0, t_end] (model time)."""
-        if not (isinstance(t_end, (int, float)) and math.isfinite(t_end) and t_end > 0):
-            raise ParameterError(f"simulate: t_end = {t_end!r} is not allowed: must be > 0")
+    def _run(self, x0: np.ndarray, t_end: float, progress: ProgressFn | None) -> SimulationResult:
+        """Integrate from x0 over [0, t_end] (model time); see :meth:`PlatoonRun.run`."""
         check_simulation_size(self.n, t_end, self.opts.dt_out)
-        x = initial_state(self.n, self.ev, self.battery, gaps0, speeds0, soc0, "simulate")
+        x = x0
         if self.method == "cascade":
             return self._run_cascade(x, t_end, progress)
         plant = self.plant
@@ -501,8 +502,7 @@ class PlatoonSimulator:
                     progress(min(b, out[0][-1][-1] if out[0][-1].size else a), t_end)
                 if not ok:
                     break
-        ts, xs, qs, ys = (np.concatenate(out[0]), np.hstack(out[1]), np.hstack(out[2]), np.hstack(out[3]))
-        return plant.result(ts, xs, qs, ys, events, [law.name for law in self.laws], self._meta("cvodes"))
+        return plant.result(stack_samples(out), events, [law.name for law in self.laws], self._meta("cvodes"))
 
 
 def simulate_platoon(
