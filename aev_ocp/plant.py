@@ -104,6 +104,12 @@ def rule_of_code(code: int) -> EventRule:
     return next(r for r in EVENT_RULES if r.code == code)
 
 
+def _to_micro(x: float) -> float:
+    """``x`` rounded to 1e-6 (a located contact's gap is 0 to the locator's 1e-12 s times the closing speed: its
+    round-off, e.g. -3.9e-16 m, is not news in a message), without a negative zero."""
+    return round(x * 1e6) / 1e6 + 0.0
+
+
 def event_at(
     rule: EventRule, time: float, vehicle: int, units: Units, h: float, v: float, v_lead: float, value: float
 ) -> Event:
@@ -119,7 +125,7 @@ def event_at(
             time,
             vehicle,
             f"impact speed {dv_mps:.3g} m/s ({dv:.4g} model), gap at contact "
-            f"{float(units.length_to_si(h)):.3g} m ({h:.3g} model)",
+            f"{_to_micro(float(units.length_to_si(h))):.3g} m ({_to_micro(h):.3g} model)",
             time_s=t_s,
             impact_speed_mps=dv_mps,
         )

@@ -78,3 +78,24 @@ def test_soc_bound_event_is_located_where_scipy_finds_it(
     S_event = float(out[1][-1][4, -1])
     assert rule.violated(S_event)  # on the firing side ...
     assert abs(float(rule.margin(S_event))) < 1e-13  # ... and at the threshold
+
+
+@pytest.mark.parametrize(
+    ("h_model", "shown"),
+    [
+        (-3.9e-16, "gap at contact 0 m (0 model)"),
+        (-2.99e-13, "gap at contact 0 m (0 model)"),
+        (-0.0371, "gap at contact -0.556 m (-0.0371 model)"),
+    ],
+)
+def test_collision_message_shows_the_gap_at_contact_without_round_off(h_model, shown):
+    """A located contact's gap is 0 up to the locator's round-off, which the message does not print (it used to
+    read 'gap at contact -3.9e-16 m'); a collision found already past contact (a state that starts overlapped)
+    shows its real overlap, in m and model units (here 15 m per model length unit)."""
+    from aev_ocp.plant import event_at
+    from aev_ocp.params import Units
+
+    units = Units(length_m=15.0, speed_mps=13.3)
+    ev = event_at(EVENT_RULES[0], 0.81, 1, units, h_model, 0.42, 0.11, h_model)
+    assert shown in ev.message and ev.kind == "collision"
+    assert ev.impact_speed_mps == pytest.approx((0.42 - 0.11) * 13.3)
