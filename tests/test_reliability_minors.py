@@ -96,3 +96,59 @@ def test_a_folder_removed_and_made_again_is_locked_again(tmp_path):
         assert not _locked_by_someone(out)
     finally:
         release_output_locks()
+
+
+# ----------------------------------------------------------------------------- compiler process group
+
+
+def _group_members(pgid: int) -> set[int]:
+    """Live (not zombie) processes of process group ``pgid`` (Linux /proc)."""
+    out = set()
+    for p in os.listdir("/proc"):
+        if p.isdigit():
+            try:
+                with open(f"/proc/{p}/stat") as fh:
+                    state, _ppid, pgrp = fh.read().rsplit(")", 1)[-1].split()[:3]
+            except OSError:
+                continue
+            if int(pgrp) == pgid and state not in ("Z", "X"):
+                out.add(int(p))
+    return out
+
+
+def test_a_second_ctrl_c_during_the_grace_wait_still_kills_the_compiler_group(tmp_path):
+    """A tool (and its child) that ignore SIGTERM, as a hung compiler may: the first Ctrl-C sends the group
+    SIGTERM and waits TOOL_STOP_GRACE_S; a second Ctrl-C in that wait goes straight to SIGKILL (before: it skipped
+    the kill, and the whole group ran on)."""
+    import threading
+    import time
+
+    from aev_ocp.compiled import TOOL_STOP_GRACE_S, run_tool
+
+    pidf = tmp_path / "tool.pid"
+    script = f'trap "" TERM; echo $$ > {pidf}; sleep 30 & wait; wait'
+
+    def ctrl_c_twice() -> None:
+        while not pidf.exists() or not pidf.read_text().strip():
+            time.sleep(0.02)
+        time.sleep(0.2)
+        os.kill(os.getpid(), signal.SIGINT)  # interrupts the build: SIGTERM to the group, then the grace wait
+        time.sleep(0.4)
+        os.kill(os.getpid(), signal.SIGINT)  # in the grace wait
+
+    timer = threading.Thread(target=ctrl_c_twice, daemon=True)
+    t0 = time.perf_counter()
+    with interrupts.handle_signals():
+        timer.start()
+        with pytest.raises(KeyboardInterrupt):
+            run_tool(["sh", "-c", script], tmp_path, 60.0)
+        timer.join()
+    assert time.perf_counter() - t0 < TOOL_STOP_GRACE_S + 0.5  # the second Ctrl-C cut the grace wait short
+    pgid = int(pidf.read_text())
+    deadline = time.monotonic() + 3.0
+    while _group_members(pgid) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    survivors = _group_members(pgid)
+    if survivors:  # do not leave them running when the test fails
+        os.killpg(pgid, signal.SIGKILL)
+    assert survivors == set()
