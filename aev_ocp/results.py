@@ -21,7 +21,7 @@ import numpy as np
 
 from . import interrupts
 from .limits import _os_reason, read_input_file
-from .params import EVParams, Units, as_dict
+from .params import EVParams, Units, as_dict, echo
 
 _UMASK = os.umask(0)
 os.umask(_UMASK)
@@ -169,7 +169,7 @@ def check_safe_name(name: str, what: str = "name") -> str:
     '.', '_', '+' or '-'), else ValueError: a name must never lead outside the output folder."""
     if not isinstance(name, str) or not _SAFE_NAME.fullmatch(name) or name in (".", ".."):
         raise ValueError(
-            f"{what} = {name!r} is not allowed: must be 1-100 characters of letters, digits, "
+            f"{what} = {echo(name)} is not allowed: must be 1-100 characters of letters, digits, "
             "'.', '_', '+', '-', starting with a letter or digit (it names a folder under results/)"
         )
     return name

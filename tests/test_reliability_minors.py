@@ -10,6 +10,8 @@ import shutil
 import signal
 
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from aev_ocp import interrupts
 
@@ -152,3 +154,100 @@ def test_a_second_ctrl_c_during_the_grace_wait_still_kills_the_compiler_group(tm
     if survivors:  # do not leave them running when the test fails
         os.killpg(pgid, signal.SIGKILL)
     assert survivors == set()
+
+
+# ----------------------------------------------------------------------------- short echoes of bad values
+
+_BIG_STR = "q" * 10_000
+_BIG_TABLE = "{" + ", ".join(f"k{i} = {i}" for i in range(2000)) + "}"
+
+
+def test_echo_is_repr_when_short_and_at_most_60_characters_otherwise():
+    from aev_ocp.params import ECHO_CHARS, echo
+
+    assert ECHO_CHARS == 60
+    for v in (0.35, "udds", [1, 2.5, "a"], {"a": {"b": [1, 2]}}, (3,), None, True, -7):
+        assert echo(v) == repr(v)
+    long = {f"k{i}": i for i in range(2000)}
+    assert echo(long) == repr(long)[:59] + "…"
+    assert echo(_BIG_STR) == repr(_BIG_STR)[:59] + "…"
+    deep: list = []
+    for _ in range(100_000):  # repr() of this raises RecursionError
+        deep = [deep]
+    assert echo(deep) == "[" * 59 + "…"
+    assert echo(-(10**5000)) == "-" + "9" * 58 + "…"  # repr() refuses integers of > 4300 digits
+
+
+@given(
+    st.recursive(
+        st.none() | st.booleans() | st.integers() | st.floats() | st.text(max_size=90),
+        lambda inner: st.lists(inner, max_size=8) | st.dictionaries(st.text(max_size=8), inner, max_size=8),
+        max_leaves=20,
+    )
+)
+@settings(max_examples=60, deadline=None)
+def test_echo_never_exceeds_the_limit_and_keeps_short_values_whole(value):
+    from aev_ocp.params import echo
+
+    text = echo(value)
+    assert len(text) <= 60
+    full = repr(value)
+    if len(full) <= 60:
+        assert text == full
+    else:
+        assert text.endswith("…") and len(text) == 60
+
+
+def _bad_scenario(tmp_path, extra: str):
+    from pathlib import Path
+
+    import aev_ocp
+
+    base = (Path(aev_ocp.__file__).parent / "scenario_files" / "fig1a.toml").read_text()
+    f = tmp_path / "bad.toml"
+    f.write_text(base + extra)
+    return f
+
+
+@pytest.mark.parametrize(
+    "extra, path, shown",
+    [
+        (f'\n[carfollowing.proposed]\nzz = "{_BIG_STR}"\n', "carfollowing.proposed.zz", "'qqq"),
+        (f"\n[carfollowing.proposed]\nzz = {_BIG_TABLE}\n", "carfollowing.proposed.zz", "{'k0': 0, 'k1': 1"),
+        (f"\n[carfollowing.ovm.deep]\nzz = {_BIG_TABLE}\n", "carfollowing.ovm.deep", "{'zz': {'k0': 0"),
+        (f"\n[thermal.a.b]\nzz = {_BIG_TABLE}\n", "thermal.a", "{'b': {'zz': {'k0'"),
+    ],
+)
+def test_a_bad_key_deep_in_a_scenario_names_its_path_and_echoes_a_short_value(tmp_path, capsys, extra, path, shown):
+    from cli_helpers import one_error, run_cli
+
+    f = _bad_scenario(tmp_path, extra)
+    rc, _, err = run_cli(["simulate", str(f), "--out", str(tmp_path / "o")], capsys)
+    line = one_error(err)
+    assert rc == 2 and f"{path}" in line and shown in line and "…" in line
+    assert len(line) < len(str(f)) + 400  # the value is echoed in <= 60 characters, not 10 000
+    assert not (tmp_path / "o").exists()
+
+
+def test_a_bad_study_value_and_a_long_set_value_are_echoed_shortly(tmp_path, capsys, monkeypatch):
+    from pathlib import Path
+
+    from cli_helpers import one_error, run_cli
+
+    repo = Path(__file__).resolve().parents[1]
+    monkeypatch.chdir(repo)
+    text = (repo / "studies" / "kappa_alpha_table1.toml").read_text()
+    cases = [
+        (text + f"\n[report.a.b]\nzz = {_BIG_TABLE}\n", [], "report.a"),
+        (text.replace("values = [1.0, 1.5, 2.0, 3.0]", f'values = [1.0, "{_BIG_STR}"]'), [], "carfollowing.alpha"),
+        (text.replace('name = "kappa_alpha_table1"', f'name = "{_BIG_STR}"'), [], "name = 'qqq"),
+        (text, ["--set", f"carfollowing.kappa={_BIG_STR}"], "--set carfollowing.kappa = 'qqq"),
+        (text, ["--set", f"carfollowing.beta.x={_BIG_STR}"], "override carfollowing.beta.x = 'qqq"),
+    ]
+    for i, (body, extra, word) in enumerate(cases):
+        f = tmp_path / f"s{i}.toml"
+        f.write_text(body)
+        rc, _, err = run_cli(["study", str(f), *extra, "--out", str(tmp_path / f"o{i}")], capsys)
+        line = one_error(err)
+        assert rc == 2 and word in line and "…" in line and len(line) < len(str(f)) + 600, (i, line[:300])
+        assert not (tmp_path / f"o{i}").exists()

@@ -9,7 +9,7 @@ from contextlib import contextmanager
 from typing import Any, Iterator
 
 from ..overrides import OverrideError, apply_to_document
-from ..params import ParameterError
+from ..params import ParameterError, echo
 from ..scenarios import Scenario, ScenarioError, parse_scenario
 from .model import Axis, Controller, Point, StudyError
 from .tasks import _source
@@ -68,7 +68,7 @@ def parse_scenario_warnings(doc: dict[str, Any], file: str) -> tuple[Scenario, l
 
 
 def _describe(values: dict[str, Any]) -> str:
-    return ", ".join(f"{k} = {v!r}" for k, v in values.items()) or "no axis values"
+    return ", ".join(f"{k} = {echo(v)}" for k, v in values.items()) or "no axis values"
 
 
 def _culprit(message: str, values: dict[str, Any], axes: list[Axis]) -> str:

@@ -57,7 +57,7 @@ from pathlib import Path
 from typing import Any
 
 from ..limits import check_study_size
-from ..params import ParameterError
+from ..params import ParameterError, echo
 from ..progress import Progress
 from ..results import check_safe_name
 from ..scenarios import ScenarioError, TableReader, load_scenario
@@ -190,20 +190,20 @@ def _check_sets(
             hit = next((k for k in a.keys if k in fam), None)
             if hit is not None:
                 raise StudyError(
-                    f"{file}: --set {key} = {value!r} would be ignored: axes[{i}] sweeps {hit} at every "
+                    f"{file}: --set {key} = {echo(value)} would be ignored: axes[{i}] sweeps {hit} at every "
                     f"point; change the axis values in the study file instead"
                 )
         for c in controllers:
             hit = next((f"mpc.{k}" for k, _ in c.settings if f"mpc.{k}" in fam), None)
             if hit is not None:
                 raise StudyError(
-                    f"{file}: --set {key} = {value!r} would be ignored: controller {c.label!r} sets "
+                    f"{file}: --set {key} = {echo(value)} would be ignored: controller {c.label!r} sets "
                     f"{hit}; change [[controllers.mpc]] in the study file instead"
                 )
         for where, ov in layers:
             for k in sorted(fam & set(ov)):
                 notes.append(
-                    f"{file}: --set {key} = {value!r} replaces {where} {k} = {ov[k]!r} (the command line "
+                    f"{file}: --set {key} = {echo(value)} replaces {where} {k} = {echo(ov[k])} (the command line "
                     f"is applied over the study file)"
                 )
     return notes
