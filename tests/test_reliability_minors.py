@@ -251,3 +251,41 @@ def test_a_bad_study_value_and_a_long_set_value_are_echoed_shortly(tmp_path, cap
         line = one_error(err)
         assert rc == 2 and word in line and "…" in line and len(line) < len(str(f)) + 600, (i, line[:300])
         assert not (tmp_path / f"o{i}").exists()
+
+
+# ----------------------------------------------------------------------------- mpc.N named as typed
+
+
+def test_a_too_large_mpc_horizon_names_mpc_N_and_the_limit_before_anything_is_built(tmp_path, capsys, monkeypatch):
+    """Budget 1.5 GB at 1 MB per interval (limits.MPC_BYTES_PER_INTERVAL): 1500 intervals for one MPC vehicle,
+    300 each for the five of mpc_paper_platoon; the message names mpc.N (what --set and [mpc] take), never
+    the Python field MPCSettings.N, and the platoon is refused before its first NLP is compiled."""
+    import time
+
+    from cli_helpers import one_error, run_cli
+
+    from aev_ocp.limits import MPC_BYTES_PER_INTERVAL
+    from aev_ocp.mpc.scenario import check_mpc_setup
+    from aev_ocp.scenarios import ScenarioError, load_scenario
+
+    monkeypatch.setenv("AEV_OCP_MAX_MEMORY_GB", "1.5")
+    assert MPC_BYTES_PER_INTERVAL == 1_000_000
+    for argv, n_max in (
+        (["mpc", "mpc_paper_single", "--set", "mpc.N=1501"], 1500),
+        (["mpc-export", "mpc_paper_single", "--set", "mpc.N=2000000"], 1500),
+        (["mpc", "mpc_paper_platoon", "--set", "mpc.N=301"], 300),
+    ):
+        t0 = time.perf_counter()
+        rc, _, err = run_cli([*argv, "--out", str(tmp_path / "o")], capsys)
+        line = one_error(err)
+        assert rc == 2 and f"{argv[-1].replace('=', ' = ')} is not allowed" in line, line
+        assert f"lower mpc.N to at most {n_max}" in line and "MPCSettings" not in line, line
+        assert time.perf_counter() - t0 < 10.0 and not (tmp_path / "o").exists()  # nothing compiled
+    platoon = load_scenario("mpc_paper_platoon")
+    for N, ok in ((299, True), (300, True), (301, False)):  # the five vehicles' budget: on, inside, outside
+        sc = platoon.with_overrides({"mpc.N": N})
+        if ok:
+            check_mpc_setup(sc)
+        else:
+            with pytest.raises(ScenarioError, match=r"mpc\.N = 301 is not allowed: 5 MPC vehicles .*at most 300"):
+                check_mpc_setup(sc)
