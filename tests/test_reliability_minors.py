@@ -289,3 +289,50 @@ def test_a_too_large_mpc_horizon_names_mpc_N_and_the_limit_before_anything_is_bu
         else:
             with pytest.raises(ScenarioError, match=r"mpc\.N = 301 is not allowed: 5 MPC vehicles .*at most 300"):
                 check_mpc_setup(sc)
+
+
+# ----------------------------------------------------------------------------- --time-limit inside a run
+
+_LONG = ["--set", "platoon.followers=15", "--set", "simulation.dt_out=50"]  # 2 s per compiled run at t_end 40 000
+
+
+def test_simulate_time_limit_stops_a_compiled_run_in_progress(tmp_path, capsys):
+    """One compiled run of ~2 s (15 followers over 40 000 model time units, 2 runs) and --time-limit 0.5: the
+    cascade is cancelled through its flag at the limit, the command says so (exit 1, as for runs not
+    started) and writes no result file (before: the limit was looked at between runs only, ~4.5 s)."""
+    import time
+
+    from cli_helpers import one_error, run_cli
+
+    warm = ["simulate", "table1", *_LONG, "--set", "simulation.t_end=100", "--no-plots"]
+    assert run_cli([*warm, "--out", str(tmp_path / "warm")], capsys)[0] == 0  # the cascade's library compiled
+    out = tmp_path / "o"
+    t0 = time.perf_counter()
+    rc, _, err = run_cli(
+        ["simulate", "table1", *_LONG, "--set", "simulation.t_end=40000", "--no-plots", "--time-limit", "0.5"]
+        + ["--out", str(out)],
+        capsys,
+    )
+    elapsed = time.perf_counter() - t0
+    assert rc == 1 and elapsed < 0.5 + 2.0, (rc, elapsed)
+    assert "--time-limit 0.5 s passed before the first run finished; nothing written" in one_error(err)
+    assert not [p.name for p in out.iterdir() if not p.name.startswith((".aev-ocp", "aev-ocp-run"))]
+
+
+def test_the_python_integrator_checks_the_time_limit_between_chunks():
+    """The CVODES path (no C compiler) checks the same deadline between its chunks (5 model time units)."""
+    import time
+
+    from aev_ocp.progress import Progress, TimeLimitReached, check_deadline, time_limited
+    from aev_ocp.scenarios import load_scenario
+    from aev_ocp.simulate import simulate_platoon
+
+    sc = load_scenario("table1")
+    kw = {**sc.simulate_kwargs(), "t_end": 4000.0, "dt_out": 5.0}  # ~9 s with CVODES
+    t0 = time.perf_counter()
+    with pytest.raises(TimeLimitReached), time_limited(Progress("", time_limit_s=0.5)):
+        simulate_platoon(sc.leader, list(sc.runs()[0][1]), method="cvodes", **kw)
+    assert time.perf_counter() - t0 < 0.5 + 2.0
+    check_deadline()  # outside the block the limit no longer applies
+    with time_limited(Progress("", time_limit_s=30.0)):
+        check_deadline()  # inside the limit: nothing raised
