@@ -178,9 +178,16 @@ def spec(
     return field(default=default, metadata={"check": check})
 
 
+_FIELD_CHECKS: dict[type, dict[str, Check]] = {}  # a dataclass's fields are fixed once the class exists
+
+
 def field_checks(cls: Any) -> dict[str, Check]:
-    """{field name: Check} of a dataclass (fields declared with :func:`spec`)."""
-    return {f.name: f.metadata["check"] for f in fields(cls) if "check" in f.metadata}
+    """{field name: Check} of a dataclass or of an instance's class (fields declared with :func:`spec`)."""
+    key = cls if isinstance(cls, type) else type(cls)
+    checks = _FIELD_CHECKS.get(key)
+    if checks is None:
+        checks = _FIELD_CHECKS[key] = {f.name: f.metadata["check"] for f in fields(key) if "check" in f.metadata}
+    return dict(checks)
 
 
 def check_declared(cls: Any, name: str, value: Any, where: str) -> Any:

@@ -9,6 +9,7 @@ import os
 import shutil
 import signal
 
+import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
@@ -336,3 +337,60 @@ def test_the_python_integrator_checks_the_time_limit_between_chunks():
     check_deadline()  # outside the block the limit no longer applies
     with time_limited(Progress("", time_limit_s=30.0)):
         check_deadline()  # inside the limit: nothing raised
+
+
+# ----------------------------------------------------------------------------- study validation cost
+
+_GRID = """
+name = "grid"
+scenarios = ["table1"]
+reference = "ovfl"
+[overrides]
+"simulation.dt_out" = 0.05
+"simulation.t_end" = 35.0
+[[axes]]
+key = "carfollowing.kappa"
+values = [0.004, 0.011, 0.027, 0.045, 0.083, 0.12]
+[[axes]]
+key = "carfollowing.alpha"
+values = [1.3, 1.7, 2.2, 2.6, 3.1]
+[controllers]
+laws = ["proposed", "ovfl"]
+"""
+
+
+def test_study_points_are_validated_without_sampling_the_leader_or_copying_the_base_per_layer(tmp_path, monkeypatch):
+    """A 6 x 5 grid: every point's document is what applying the [overrides], the --set and the axis values
+    to the base scenario in turn gives (computed here independently), yet the leader is sampled once (not
+    once per point: a CasADi Function each) and the overrides and --set are applied once per base scenario."""
+    from aev_ocp.models.leader import LeaderProfile
+    from aev_ocp.scenarios import load_scenario
+    from aev_ocp.study import points as points_mod
+    from aev_ocp.study import read_study
+
+    f = tmp_path / "grid.toml"
+    f.write_text(_GRID)
+    sampled, applied = [], []
+    real_speed_np, real_apply = LeaderProfile.speed_np, points_mod.apply_to_document
+
+    def speed_np(self, t):  # noqa: ANN001, ANN202
+        sampled.append(np.size(t))
+        return real_speed_np(self, t)
+
+    def apply(doc, layer, file="<scenario>"):  # noqa: ANN001, ANN202
+        applied.append(dict(layer))
+        return real_apply(doc, layer, file)
+
+    monkeypatch.setattr(LeaderProfile, "speed_np", speed_np)
+    monkeypatch.setattr(points_mod, "apply_to_document", apply)
+    sets = {"platoon.followers": 3}
+    study = read_study(f, sets=sets)
+    assert len(study.points) == 30
+    assert sampled.count(1) <= 1  # v_l(0) for speed0_factor: once for the equal leaders of all points
+    assert len(applied) == 2 + 30  # [overrides] and --set once, then each point's axis values
+    base = dict(load_scenario("table1").document)
+    base.setdefault("name", "table1")
+    over = {"simulation.dt_out": 0.05, "simulation.t_end": 35.0}
+    for p in study.points:
+        want = real_apply(real_apply(real_apply(base, over), sets), p.values)
+        assert p.document == want
