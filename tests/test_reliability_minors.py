@@ -394,3 +394,28 @@ def test_study_points_are_validated_without_sampling_the_leader_or_copying_the_b
     for p in study.points:
         want = real_apply(real_apply(real_apply(base, over), sets), p.values)
         assert p.document == want
+
+
+def test_a_study_override_of_a_swept_key_is_refused_not_dropped(tmp_path, capsys):
+    """[overrides] (or a base scenario's own overrides) setting a key an axis sweeps, or its SI twin, was
+    dropped at every point without a word, whatever its value (a 2000-entry table ran the study)."""
+    from cli_helpers import one_error, run_cli
+
+    cases = [
+        ('"carfollowing.kappa" = 0.5', "[overrides] carfollowing.kappa = 0.5 would be ignored: axes[0] sweeps"),
+        (f'"carfollowing.alpha" = {_BIG_TABLE}', "[overrides] carfollowing.alpha = {'k0': 0, 'k1': 1,"),
+    ]
+    for i, (line, word) in enumerate(cases):
+        f = tmp_path / f"g{i}.toml"
+        f.write_text(_GRID.replace('"simulation.t_end" = 35.0', f'"simulation.t_end" = 35.0\n{line}'))
+        rc, _, err = run_cli(["study", str(f), "--out", str(tmp_path / f"o{i}")], capsys)
+        assert rc == 2 and word in one_error(err), err
+        assert not (tmp_path / f"o{i}").exists()
+    inline = _GRID.replace(
+        'scenarios = ["table1"]',
+        'scenarios = [{ scenario = "table1", label = "t1", overrides = { "carfollowing.kappa" = 0.2 } }]',
+    )
+    f = tmp_path / "inline.toml"
+    f.write_text(inline)
+    rc, _, err = run_cli(["study", str(f), "--out", str(tmp_path / "o_inline")], capsys)
+    assert rc == 2 and "scenario 't1' overrides carfollowing.kappa = 0.2 would be ignored" in one_error(err)

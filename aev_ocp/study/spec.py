@@ -175,6 +175,20 @@ def _family(key: str) -> set[str]:
     return out
 
 
+def _check_overrides(file: str, axes: list[Axis], layers: list[tuple[str, dict[str, Any]]]) -> None:
+    """Refuse a study-file override that an axis replaces at every point (it would be dropped without a word)."""
+    for where, ov in layers:
+        for key, value in ov.items():
+            fam = _family(key)
+            for i, a in enumerate(axes):
+                hit = next((k for k in a.keys if k in fam), None)
+                if hit is not None:
+                    raise StudyError(
+                        f"{file}: {where} {key} = {echo(value)} would be ignored: axes[{i}] sweeps {hit} at every "
+                        f"point; remove it from {where} or from the axes"
+                    )
+
+
 def _check_sets(
     file: str,
     sets: dict[str, Any],
@@ -254,6 +268,7 @@ def _parse_study(doc: dict[str, Any], file: str, path: Path | None, sets: dict[s
     points: list[Point] = []
     layers = [("[overrides]", overrides)] + [(f"scenario {b!r} overrides", base_overrides[b][1]) for b in bases]
     found_warnings: list[str] = _check_sets(file, sets, axes, controllers, layers)
+    _check_overrides(file, axes, layers)
     n_points = len(bases) * math.prod(len(a.rows) for a in axes)
     sizes = " x ".join([f"{len(bases)} scenarios"] * (len(bases) > 1) + [f"{len(a.rows)} ({a.label})" for a in axes])
     check_study_size(n_points, len(controllers), f"{file}: axes {sizes or '(none)'}")
