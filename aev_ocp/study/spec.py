@@ -175,18 +175,23 @@ def _family(key: str) -> set[str]:
     return out
 
 
+def _refuse_swept(file: str, what: str, key: str, value: Any, axes: list[Axis], fix: str) -> None:
+    """StudyError if an axis sweeps ``key`` (or a key that setting it replaces): the value ``what`` gives for it
+    would be dropped at every point."""
+    fam = _family(key)
+    for i, a in enumerate(axes):
+        hit = next((k for k in a.keys if k in fam), None)
+        if hit is not None:
+            raise StudyError(
+                f"{file}: {what} {key} = {echo(value)} would be ignored: axes[{i}] sweeps {hit} at every point; {fix}"
+            )
+
+
 def _check_overrides(file: str, axes: list[Axis], layers: list[tuple[str, dict[str, Any]]]) -> None:
     """Refuse a study-file override that an axis replaces at every point (it would be dropped without a word)."""
     for where, ov in layers:
         for key, value in ov.items():
-            fam = _family(key)
-            for i, a in enumerate(axes):
-                hit = next((k for k in a.keys if k in fam), None)
-                if hit is not None:
-                    raise StudyError(
-                        f"{file}: {where} {key} = {echo(value)} would be ignored: axes[{i}] sweeps {hit} at every "
-                        f"point; remove it from {where} or from the axes"
-                    )
+            _refuse_swept(file, where, key, value, axes, f"remove it from {where} or from the axes")
 
 
 def _check_sets(
@@ -199,14 +204,8 @@ def _check_sets(
     """Refuse a --set that an axis or a controller would replace; note the study-file overrides it replaces."""
     notes: list[str] = []
     for key, value in sets.items():
+        _refuse_swept(file, "--set", key, value, axes, "change the axis values in the study file instead")
         fam = _family(key)
-        for i, a in enumerate(axes):
-            hit = next((k for k in a.keys if k in fam), None)
-            if hit is not None:
-                raise StudyError(
-                    f"{file}: --set {key} = {echo(value)} would be ignored: axes[{i}] sweeps {hit} at every "
-                    f"point; change the axis values in the study file instead"
-                )
         for c in controllers:
             hit = next((f"mpc.{k}" for k, _ in c.settings if f"mpc.{k}" in fam), None)
             if hit is not None:
