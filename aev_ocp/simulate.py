@@ -44,6 +44,7 @@ from .models.carfollowing import CarFollowingLaw, optimal_velocity
 from .models.ego import battery_side
 from .models.leader import LeaderProfile
 from .limits import check_simulation_size
+from .progress import check_deadline
 from .params import METHODS, EVParams, ParameterError, SimOptions, check_argument
 from .plant import (
     INTEGRATION_FAILED,
@@ -100,8 +101,9 @@ def _law_template(law: CarFollowingLaw) -> tuple[Any, Callable[[ca.SX], CarFollo
 
 def _interruptible_call(fn: Callable[..., int], args: tuple[Any, ...], cancel: ctypes.c_int) -> int:
     """Call a compiled run (ctypes releases the GIL) in a helper thread while this thread waits in short
-    slices, so Ctrl-C/SIGTERM are handled within about 0.05 s instead of when the whole run returns (also one
-    that CasADi swallowed while the run was built: :func:`aev_ocp.interrupts.check`): on any exception here the
+    slices, so Ctrl-C/SIGTERM and a passed time limit (:func:`aev_ocp.progress.check_deadline`: ``--time-limit``)
+    are handled within about 0.05 s instead of when the whole run returns (also a Ctrl-C that CasADi swallowed
+    while the run was built: :func:`aev_ocp.interrupts.check`): on any exception here the
     C code is told to stop through ``cancel`` and waited for (it writes into ``args``' arrays), then the exception
     propagates. Returns the C return code. The wait is an Event, not ``Thread.join``: a join interrupted by a
     signal handler's exception marks a running thread as stopped (CPython 3.11), and would return at once."""
@@ -116,12 +118,12 @@ def _interruptible_call(fn: Callable[..., int], args: tuple[Any, ...], cancel: c
         finally:
             finished.set()
 
-    interrupts.check()  # a Ctrl-C that CasADi swallowed while the run was being built (its SWIG layer does)
+    check_deadline()  # a Ctrl-C that CasADi swallowed while the run was built (its SWIG layer does), a passed limit
     cancel.value = 0
     threading.Thread(target=work, name="aev-cascade", daemon=True).start()
     try:
         while not finished.wait(0.05):
-            interrupts.check()
+            check_deadline()
     except BaseException:
         cancel.value = 1
         while not finished.is_set():  # the C code stops within one step; a second Ctrl-C must not cut this wait
@@ -497,6 +499,7 @@ class PlatoonSimulator(PlatoonRun):
             events.append(ev0)
         else:
             for a, b in _segments(t_end, self.leader.breakpoints, self.opts.chunk):
+                check_deadline()  # Ctrl-C or a passed time limit (aev_ocp.progress.time_limited): between chunks
                 ok = plant.advance(a, b, out[1][-1][:, -1], out[2][-1][:, -1], None, out, events)
                 if progress is not None:
                     progress(min(b, out[0][-1][-1] if out[0][-1].size else a), t_end)

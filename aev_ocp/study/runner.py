@@ -405,6 +405,8 @@ def _stop_pool(ex: Any) -> None:
     """Stop a process pool now: cancel pending tasks AND end the worker processes that are computing
     (``shutdown(wait=False, cancel_futures=True)`` alone lets them finish their tasks, for minutes)."""
     procs = list((getattr(ex, "_processes", None) or {}).values())
+    manager = getattr(ex, "_executor_manager_thread", None)  # shutdown() forgets it and the result queue
+    results = getattr(ex, "_result_queue", None)
     ex.shutdown(wait=False, cancel_futures=True)
     for p in procs:
         if p.is_alive():
@@ -415,6 +417,15 @@ def _stop_pool(ex: Any) -> None:
         if p.is_alive():
             p.kill()
             p.join(1.0)
+    writer = getattr(results, "_writer", None)
+    if writer is not None and not any(p.is_alive() for p in procs):
+        # a worker stopped while it sent its result left half a message in the result pipe: the manager thread
+        # waits for the rest for ever, and so does this process's exit; with the workers gone this is the pipe's
+        # last writer, so closing it ends that wait (EOF: the pool is marked broken and cleans up)
+        writer.close()
+    if manager is not None:  # let the pool's manager thread finish closing its pipes before this process exits:
+        # else the exit's wake-up of that thread races with the close ("OSError: Bad file descriptor", CPython 3.11)
+        manager.join(max(0.0, deadline - time.monotonic()) + 1.0)
 
 
 def _export_path() -> None:
