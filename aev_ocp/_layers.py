@@ -175,6 +175,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
             "aev_ocp.life_section",
             "aev_ocp.study",
             "aev_ocp.study.runner",
+            "aev_ocp.study.cluster",
             "aev_ocp.study.report",
             "aev_ocp.ring.experiments",
             "aev_ocp.ring.report",

@@ -30,7 +30,7 @@ from pathlib import Path
 from typing import Any
 
 from .limits import read_input_file
-from .params import CellParams, ParameterError, check_ocv_table, field_checks
+from .params import CellParams, ParameterError, check_ocv_table, echo, field_checks
 
 CHEMISTRIES = ("LFP", "NMC", "NCA")
 #: CellParams fields a cell file may set (soc0 is the scenario's initial state, the OCV comes from [ocv]).
@@ -87,10 +87,10 @@ def parse_cell(doc: dict[str, Any], file: str = "<cell>", base_dir: Path | None 
             raise CellFileError(f"{file}: unknown key {key!r}; allowed: {sorted(allowed)}")
     name = doc.get("name")
     if not isinstance(name, str) or not name:
-        raise CellFileError(f"{file}: name = {name!r} is not allowed: a non-empty string is required")
+        raise CellFileError(f"{file}: name = {echo(name)} is not allowed: a non-empty string is required")
     chem = doc.get("chemistry")
     if chem not in CHEMISTRIES:
-        raise CellFileError(f"{file}: chemistry = {chem!r} is not allowed: one of {CHEMISTRIES}")
+        raise CellFileError(f"{file}: chemistry = {echo(chem)} is not allowed: one of {CHEMISTRIES}")
     checks = field_checks(CellParams)
     values: dict[str, Any] = {}
     sources: dict[str, str] = {}
@@ -108,7 +108,7 @@ def parse_cell(doc: dict[str, Any], file: str = "<cell>", base_dir: Path | None 
         value = entry.get("value")
         problem = checks[key].problem(value)
         if problem is not None:
-            raise CellFileError(f"{file}: {key}.value = {value!r} is not allowed: {problem}")
+            raise CellFileError(f"{file}: {key}.value = {echo(value)} is not allowed: {problem}")
         values[key] = float(value) if isinstance(value, int) and not isinstance(value, bool) else value
         sources[key] = entry["source"]
     ocv = doc.get("ocv")

@@ -43,6 +43,7 @@ from .console import (  # noqa: E402
     EXIT_FAILED_RUN,
     EXIT_OK,
     OneLineParser,
+    add_set_option,
     error_line,
     guarded,  # noqa: E402
     warning_line,
@@ -93,13 +94,9 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("scenario", help="a scenario .toml file or the name of a shipped scenario (e.g. table1)")
     s.add_argument("--out", default=None, help="output folder (default: results/<scenario name>/)")
     s.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
-    s.add_argument(
-        "--set",
-        dest="sets",
-        action="append",
-        default=[],
-        metavar="KEY=VALUE",
-        help="override a scenario key, e.g. --set simulation.t_end_s=40 (SI) or --set simulation.t_end=20 "
+    add_set_option(
+        s,
+        "override a scenario key, e.g. --set simulation.t_end_s=40 (SI) or --set simulation.t_end=20 "
         "(model time); repeatable, checked like the file, the command line over the file",
     )
     s.add_argument(
@@ -107,8 +104,8 @@ def build_parser() -> argparse.ArgumentParser:
         type=float,
         default=None,
         metavar="S",
-        help="wall-clock limit [s], checked between runs (one law's run is one compiled integration): "
-        "runs not started by then are skipped, the finished ones written, exit 1 (default: none)",
+        help="wall-clock limit [s]: a run still going then is stopped (within ~0.05 s) and not written, runs not "
+        "started are skipped, the finished ones written, exit 1 (default: none)",
     )
     sub.add_parser("scenarios", help="list the shipped scenarios")
     sub.add_parser("ocp", help="optimal-control problems (see aev-ocp ocp --help)", add_help=False)
@@ -162,7 +159,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     from .results import claim_output_dir, default_output_dir
     from .saved import OUTPUT_FILES, save_output, settings_of
 
-    from .progress import TIME_LIMIT, Progress, check_time_limit
+    from .progress import TIME_LIMIT, Progress, TimeLimitReached, check_time_limit, time_limited
 
     time_limit = check_time_limit(args.time_limit)
     scenario = _load_scenario_with_warnings(args.scenario, args.sets)
@@ -190,13 +187,21 @@ def cmd_simulate(args: argparse.Namespace) -> int:
 
     results: dict[str, Any] = {}
     skipped: list[str] = []
-    for label, _ in scenario.runs():
-        if clock.expired():
-            skipped.append(label)
-            continue
-        results.update(scenario.run(progress=progress, only=label))
+    stopped: str | None = None  # the run the time limit stopped while it ran (its partial result is dropped)
+    with time_limited(clock):  # the compiled run polls the clock while it integrates, the Python one per chunk
+        for label, _ in scenario.runs():
+            if stopped is not None or clock.expired():
+                skipped.append(label)
+                continue
+            try:
+                results.update(scenario.run(progress=progress, only=label))
+            except TimeLimitReached:
+                stopped = label
     if not results:
-        _err(f"scenario {scenario.name}: --time-limit {time_limit:g} s passed before the first run; nothing written")
+        _err(
+            f"scenario {scenario.name}: --time-limit {time_limit:g} s passed before the first run "
+            f"{'finished' if stopped else 'started'}; nothing written"
+        )
         return EXIT_FAILED_RUN
     files = write_scenario_outputs(scenario.name, results, out, plots=not args.no_plots)
     files += save_output(
@@ -212,12 +217,15 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     failed = [(label, r.events[0]) for label, r in results.items() if r.events]
     for label, event in failed:
         _err(f"scenario {scenario.name}, run {label}: {event} (results up to that time written to {out}/)")
-    if skipped:
-        _err(
-            f"scenario {scenario.name}: stopped by --time-limit {time_limit:g} s ({TIME_LIMIT}): runs "
-            f"{', '.join(skipped)} not started; the finished runs are written to {out}/"
+    if skipped or stopped:
+        what = ([f"run {stopped} stopped before its end (not written)"] if stopped else []) + (
+            [f"runs {', '.join(skipped)} not started"] if skipped else []
         )
-    return EXIT_FAILED_RUN if failed or skipped else EXIT_OK
+        _err(
+            f"scenario {scenario.name}: stopped by --time-limit {time_limit:g} s ({TIME_LIMIT}): "
+            f"{'; '.join(what)}; the finished runs are written to {out}/"
+        )
+    return EXIT_FAILED_RUN if failed or skipped or stopped else EXIT_OK
 
 
 #: Scenario tables that ``simulate`` does not use, and where they are used (a one-line warning names them).

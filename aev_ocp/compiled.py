@@ -79,7 +79,6 @@ def run_tool(cmd: list[str], cwd: str | os.PathLike[str], timeout_s: float) -> s
     Ctrl-C or any other exception the WHOLE group gets SIGTERM (gcc then removes its temporary files), SIGKILL
     after TOOL_STOP_GRACE_S [s], and is reaped before the exception propagates. Killing gcc alone (what
     subprocess.run does) leaves its cc1/as/ld children running and their temporaries in $TMPDIR."""
-    import signal
 
     p = subprocess.Popen(
         cmd, cwd=cwd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True
@@ -87,17 +86,35 @@ def run_tool(cmd: list[str], cwd: str | os.PathLike[str], timeout_s: float) -> s
     try:
         out, err = p.communicate(timeout=timeout_s)
     except BaseException:
-        for sig, wait_s in ((signal.SIGTERM, TOOL_STOP_GRACE_S), (signal.SIGKILL, None)):
-            try:
-                os.killpg(p.pid, sig)
-                p.communicate(timeout=wait_s)
-                break
-            except ProcessLookupError:
-                break
-            except subprocess.TimeoutExpired:
-                continue
+        _stop_group(p)
         raise
     return subprocess.CompletedProcess(cmd, p.returncode, out, err)
+
+
+def _stop_group(p: subprocess.Popen[str]) -> None:
+    """SIGTERM the process group of ``p``, wait TOOL_STOP_GRACE_S [s] for it, else SIGKILL it; reap ``p``. A
+    second Ctrl-C during the grace wait (the user is in a hurry) goes straight to the SIGKILL, then propagates."""
+    import signal
+
+    stopped = False
+    try:
+        os.killpg(p.pid, signal.SIGTERM)
+        p.communicate(timeout=TOOL_STOP_GRACE_S)
+        stopped = True
+    except (ProcessLookupError, subprocess.TimeoutExpired):
+        pass
+    finally:  # runs also when a second interrupt cuts the grace wait short
+        if not stopped:
+            try:
+                os.killpg(p.pid, signal.SIGKILL)
+            except ProcessLookupError:
+                pass
+            while True:  # killed: the reap is immediate; a further Ctrl-C must not leave a zombie behind
+                try:
+                    p.communicate()
+                    break
+                except KeyboardInterrupt:
+                    continue
 
 
 def _private(d: Path) -> bool:

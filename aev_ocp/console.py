@@ -78,6 +78,12 @@ class _Parser(argparse.ArgumentParser):
 OneLineParser = _Parser  # public name, used by the ocp and mpc subcommands
 
 
+def add_set_option(parser: argparse.ArgumentParser, help: str) -> None:
+    """The repeatable scenario override ``--set KEY=VALUE`` (into ``args.sets``, default []); ``help`` says
+    what the command does with it."""
+    parser.add_argument("--set", dest="sets", action="append", default=[], metavar="KEY=VALUE", help=help)
+
+
 def guarded(run: Callable[[], int]) -> int:
     """Run one command with the one error behaviour of every subcommand; returns the exit code.
 

@@ -29,11 +29,9 @@ from .models import battery
 from .models.carfollowing import CarFollowingLaw, Proposed
 from .models.leader import LeaderProfile
 from .params import EVParams, ParameterError, SimOptions, as_dict, check_argument
-from .plant import Plant
+from .plant import Plant, PlatoonRun, ProgressFn, stack_samples
 from .progress import TimeLimitReached
 from .results import Event, SimulationResult
-
-ProgressFn = Callable[[float, float], None]
 
 
 @dataclass
@@ -213,7 +211,7 @@ def _checked(cmd: Any, ctrl: Controller, vehicle: int, t: float) -> Command:
     )
 
 
-class ClosedLoop:
+class ClosedLoop(PlatoonRun):
     """A platoon behind ``leader`` where each follower runs a law (continuous) or a Controller
     (sampled every dt, the same dt for all); build once (controllers and plant), then :meth:`run`.
 
@@ -229,6 +227,8 @@ class ClosedLoop:
     :class:`SampledLaw` at the controllers' dt (``law_dt`` [model time] when no other controller is sampled),
     clipped to the vehicle's acceleration limits, on the same observations.
     """
+
+    who = "closed loop"
 
     def __init__(
         self,
@@ -303,6 +303,7 @@ class ClosedLoop:
         self.dt = dts.pop()
         self.rtol, self.atol = rtol, atol
         self.plant = Plant(leader, self.laws, self.ev, rtol=rtol, atol=atol)
+        self.battery = self.plant.battery
 
     def model_ev(self, vehicle: int) -> EVParams:
         """The EVParams follower ``vehicle`` (0-based)'s controller and estimator believe (the plant's without a
@@ -327,22 +328,9 @@ class ClosedLoop:
             out.append(est)
         return out
 
-    def run(
-        self,
-        gaps0: Sequence[float],
-        speeds0: Sequence[float],
-        t_end: float,
-        *,
-        soc0: float | Sequence[float] | None = None,
-        progress: ProgressFn | None = None,
-    ) -> SimulationResult:
-        """Closed loop over [0, t_end] (model time, a multiple of dt) from the initial gaps and speeds
-        (model units), V1 = V2 = 0 and S = soc0 (default the cell's S(0)). ``progress(t, t_end)`` is called
-        after every step; if it raises :class:`aev_ocp.progress.TimeLimitReached` the loop stops there and
-        the result, covering [0, t], ends with an event of kind 'time_limit' (its status)."""
-        n, dt, plant = self.n, self.dt, self.plant
-        if not (isinstance(t_end, (int, float)) and math.isfinite(t_end) and t_end > 0):
-            raise ParameterError(f"closed loop: t_end = {t_end!r} must be > 0")
+    def _run(self, x0: np.ndarray, t_end: float, progress: ProgressFn | None) -> SimulationResult:
+        """The closed loop from x0 over [0, t_end] (a multiple of dt); see :meth:`PlatoonRun.run`."""
+        n, dt, plant, x = self.n, self.dt, self.plant, x0
         K = int(round(t_end / dt))
         if K < 1 or abs(K * dt - t_end) > 1e-9 * max(1.0, t_end):
             raise ParameterError(f"closed loop: t_end = {t_end} must be a multiple of dt = {dt}")
@@ -351,7 +339,6 @@ class ClosedLoop:
                 raise ParameterError(
                     f"closed loop: the control sequence of vehicle {i + 1} has {len(c.a)} values, {K} steps are needed"
                 )
-        x = plant.initial_state(gaps0, speeds0, soc0, "closed loop")
         for c in self.ctrl:
             if c is not None:
                 c.reset()
@@ -483,7 +470,7 @@ class ClosedLoop:
                             f"{stop}; the run covers [0, {t_now:g}] of [0, {t_end:g}] (partial result)",
                         )
                     )
-        ts, xs, qs, ys = (np.concatenate(out[0]), np.hstack(out[1]), np.hstack(out[2]), np.hstack(out[3]))
+        ts, xs, _, ys = samples = stack_samples(out)
         acc = ys[:n].T.copy()
         for j, i in enumerate(sampled):  # node k shows the command held from t_k on (the last node: the last one)
             if applied and plant.act_row is None:  # (with a lag the samples show the realised a_act itself)
@@ -523,10 +510,7 @@ class ClosedLoop:
             for c, law in zip(self.ctrl, self.laws)
         ]
         return plant.result(
-            ts,
-            xs,
-            qs,
-            ys,
+            samples,
             events,
             names,
             {

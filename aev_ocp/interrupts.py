@@ -44,13 +44,19 @@ def _handler(signum: int, frame: Any) -> None:  # noqa: ARG001 - signal handler 
 def deferred() -> Iterator[None]:
     """A block that a signal must not cut in half (creating a temporary file and entering the code that removes
     it, starting a cluster that must then be stopped): under :func:`handle_signals`, a SIGINT/SIGTERM arriving
-    inside is recorded and raised as :class:`Interrupted` when the outermost such block ends."""
+    inside is recorded and raised as :class:`Interrupted` when the outermost such block ends, whether it ends normally
+    or by an exception (then the exception is the interrupt's ``__cause__``; a KeyboardInterrupt passes unchanged)."""
     depth = _state.get("defer", 0)
     _state["defer"] = depth + 1
     try:
         yield
-    finally:
+    except BaseException as exc:  # the block failed: a held-back signal is still raised here, not by a later block
         _state["defer"] = depth
+        pending = _state.pop("pending", 0) if depth == 0 else 0
+        if pending and not isinstance(exc, KeyboardInterrupt):
+            raise Interrupted(signal.Signals(pending).name) from exc
+        raise
+    _state["defer"] = depth
     pending = _state.pop("pending", 0) if depth == 0 else 0
     if pending:
         raise Interrupted(signal.Signals(pending).name)

@@ -142,16 +142,18 @@ def check_simulation_size(n_followers: int, t_end: float, dt_out: float) -> floa
     )
 
 
-def check_mpc_size(N: int, n_mpc_vehicles: int = 1) -> float:
-    """For :class:`aev_ocp.control.ClosedLoop` (Python API): raise ParameterError if the MPC NLPs
-    (one per MPC vehicle, horizon N) exceed the budget; returns the estimate [bytes]."""
-    need, limit = float(MPC_BYTES_PER_INTERVAL) * N * max(n_mpc_vehicles, 1), memory_limit_bytes()
+def check_mpc_size(N: int, n_mpc_vehicles: int = 1, key: str = "MPCSettings.N") -> float:
+    """For :class:`aev_ocp.control.ClosedLoop` (Python API) and every [mpc] table: raise ParameterError if the
+    MPC NLPs (one per MPC vehicle, horizon N) exceed the budget; returns the estimate [bytes]. ``key`` is the
+    horizon's name as the user gave it ("mpc.N" for a scenario, --set or study; the field for the API)."""
+    n = max(n_mpc_vehicles, 1)
+    need, limit = float(MPC_BYTES_PER_INTERVAL) * N * n, memory_limit_bytes()
     if need <= limit:
         return need
     raise ParameterError(
-        f"mpc: {n_mpc_vehicles} MPC vehicle(s) with horizon N = {N} need about {_gb(need)}, more than "
-        f"the limit of {_gb(limit)} ($AEV_OCP_MAX_MEMORY_GB): lower MPCSettings.N to at most "
-        f"{int(limit // (MPC_BYTES_PER_INTERVAL * max(n_mpc_vehicles, 1)))}"
+        f"{key} = {N} is not allowed: {n} MPC vehicle{'s' if n > 1 else ''} with this horizon need{'' if n > 1 else 's'} about "
+        f"{_gb(need)}, more than the limit of {_gb(limit)} ($AEV_OCP_MAX_MEMORY_GB): lower {key} to at most "
+        f"{int(limit // (MPC_BYTES_PER_INTERVAL * n))}"
     )
 
 

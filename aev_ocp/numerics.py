@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Any, Callable
+from typing import Any, Callable, Literal
 
 
 def rk4(
@@ -26,15 +26,28 @@ def rk4(
     return x, q
 
 
-def bracketed_root(f: Callable[[float], float], a: float, b: float, xtol: float = 1e-13, max_iter: int = 200) -> float:
+def bracketed_root(
+    f: Callable[[float], float],
+    a: float,
+    b: float,
+    xtol: float = 1e-13,
+    max_iter: int = 200,
+    *,
+    side: Literal["nearest", "b"] = "nearest",
+) -> float:
     """The root of a continuous scalar f on [a, b] where f(a) and f(b) differ in sign (or one is 0), by the
     Illinois variant of regula falsi with a bisection step every third iteration (so the bracket at least halves
     every three steps; no SciPy at run time); stops when the bracket is shorter than ``xtol`` (relative to
-    max(1, |x|)) or f is exactly 0, and returns the end with the smaller |f|."""
+    max(1, |x|)) or f is exactly 0, and returns the end with the smaller |f|.
+
+    ``side="b"``: the sides are f < 0 and f ≥ 0 (a zero is not a root but a value on the non-negative side), f(a)
+    and f(b) must be on different sides, and the end returned is the one of the last bracket on f(b)'s side, e.g.
+    the time where an event rule fires when f(b) is a sample where it fires."""
     fa, fb = f(a), f(b)
-    if fa == 0.0:
+    nearest = side == "nearest"
+    if nearest and fa == 0.0:
         return a
-    if fb == 0.0:
+    if nearest and fb == 0.0:
         return b
     if (fa < 0.0) == (fb < 0.0):
         raise ValueError(f"bracketed_root: f({a!r}) = {fa!r} and f({b!r}) = {fb!r} have the same sign")
@@ -46,7 +59,7 @@ def bracketed_root(f: Callable[[float], float], a: float, b: float, xtol: float 
         if not (min(a, b) < x < max(a, b)):
             x = 0.5 * (a + b)
         fx = f(x)
-        if fx == 0.0:
+        if nearest and fx == 0.0:
             return x
         if (fx < 0.0) != (fa < 0.0):  # the root is in [a, x]: b moves, a stays (signs compared: no underflow)
             b, fb, wb = x, fx, fx
@@ -54,7 +67,7 @@ def bracketed_root(f: Callable[[float], float], a: float, b: float, xtol: float 
         else:  # the root is in [x, b]
             a, fa, wa = x, fx, fx
             wb *= 0.5
-    return a if abs(fa) <= abs(fb) else b
+    return b if not nearest or abs(fb) < abs(fa) else a
 
 
 def trapezoid(y: Any, x: Any) -> float:

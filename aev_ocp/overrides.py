@@ -39,6 +39,8 @@ import math
 import tomllib
 from typing import Any, Iterable, Mapping
 
+from .params import echo
+
 #: SI twins of the model-unit keys: {table: {model key: (SI key, dimension)}}. A file, a study or a
 #: ``--set`` may give either key of a pair (not both); the SI value is converted with the scenario's
 #: ``[units]`` (dimension: "time" [s], "length" [m], "speed" [m/s], "accel" [m/s²]).
@@ -104,7 +106,7 @@ def parse_value(text: str) -> Any:
     A line break is refused (TOML would read the rest as further keys and drop them), and so is a
     number that is not finite (``nan``, ``inf``): no scenario key takes one."""
     if "\n" in text or "\r" in text:
-        raise OverrideError(f"override value {text!r} holds a line break; give one value per --set")
+        raise OverrideError(f"override value {echo(text)} holds a line break; give one value per --set")
     text = text.strip()
     try:
         value = tomllib.loads(f"v = {text}")["v"]
@@ -112,12 +114,9 @@ def parse_value(text: str) -> Any:
         return text
     except (ValueError, RecursionError) as exc:  # an integer of > 4300 digits, arrays nested thousands deep
         why = "arrays nested too deeply" if isinstance(exc, RecursionError) else "a number of too many digits"
-        raise OverrideError(
-            f"override value {text[:40]!r}{'...' if len(text) > 40 else ''} is not a value any "
-            f"scenario key takes ({why})"
-        ) from None
+        raise OverrideError(f"override value {echo(text)} is not a value any scenario key takes ({why})") from None
     if not _all_finite(value):
-        raise OverrideError(f"override value {text!r} is not a finite number")
+        raise OverrideError(f"override value {echo(text)} is not a finite number")
     return value
 
 
@@ -187,7 +186,9 @@ def apply_to_document(doc: Mapping[str, Any], overrides: Mapping[str, Any], file
                 nxt = node[part] = {}
             if not isinstance(nxt, dict):
                 where = ".".join(parts[: depth + 1])
-                raise OverrideError(f"{file}: override {key} = {value!r}: {where} is a value ({nxt!r}), not a table")
+                raise OverrideError(
+                    f"{file}: override {key} = {echo(value)}: {where} is a value ({echo(nxt)}), not a table"
+                )
             node = nxt
         leaf = parts[-1]
         table = ".".join(parts[:-1])
@@ -203,8 +204,8 @@ def apply_to_document(doc: Mapping[str, Any], overrides: Mapping[str, Any], file
     ignored = [k for k in overrides if k in ("platoon.law", "platoon.laws")]
     if ignored and out.get("compare"):
         raise OverrideError(
-            f"{file}: override {ignored[0]} = {overrides[ignored[0]]!r} would be ignored: the "
-            f"scenario sets compare = {out['compare']!r}, so every run uses those laws; "
+            f"{file}: override {ignored[0]} = {echo(overrides[ignored[0]])} would be ignored: the "
+            f"scenario sets compare = {echo(out['compare'])}, so every run uses those laws; "
             f"override 'compare' instead (e.g. compare=[\"ovfl\"])"
         )
     return out

@@ -19,6 +19,57 @@ class ParameterError(ValueError):
     """A parameter is out of its allowed range; the message names the field and the value."""
 
 
+#: The longest echo of a value in an error message [characters]: a key path and a short echo say what is wrong;
+#: a 10 000-character string or a big inline table pasted into the one error line would hide it.
+ECHO_CHARS = 60
+
+
+def echo(value: Any, limit: int = ECHO_CHARS) -> str:
+    """``repr(value)`` for an error message, at most ``limit`` characters (cut with '…'). Tables, arrays and
+    strings are formatted only as far as shown, so a huge or deeply nested value costs nothing."""
+    parts: list[str] = []
+    size = 0
+
+    class Full(Exception):
+        pass
+
+    def put(text: str) -> None:
+        nonlocal size
+        parts.append(text)
+        size += len(text)
+        if size > limit:
+            raise Full
+
+    def walk(v: Any) -> None:
+        if isinstance(v, dict):
+            put("{")
+            for i, (k, x) in enumerate(v.items()):
+                put(", " if i else "")
+                walk(k)
+                put(": ")
+                walk(x)
+            put("}")
+        elif isinstance(v, (list, tuple)):
+            put("[" if isinstance(v, list) else "(")
+            for i, x in enumerate(v):
+                put(", " if i else "")
+                walk(x)
+            put("]" if isinstance(v, list) else ",)" if len(v) == 1 else ")")
+        elif isinstance(v, str):
+            put(repr(v[: limit + 1]))  # longer than shown: cut below
+        elif isinstance(v, int) and v.bit_length() > 4 * limit:  # repr would refuse it (over 4300 digits)
+            put(f"{'-' if v < 0 else ''}{'9' * (limit + 1)}")
+        else:
+            put(repr(v)[: limit + 1])
+
+    try:
+        walk(value)
+    except Full:
+        pass
+    text = "".join(parts)
+    return text if len(text) <= limit else text[: limit - 1] + "…"
+
+
 # ----------------------------------------------------------------------------- declared validation
 def type_name(value: Any) -> str:
     """'a string', 'an integer', ... for messages (TOML's names for Python types)."""
@@ -127,9 +178,16 @@ def spec(
     return field(default=default, metadata={"check": check})
 
 
+_FIELD_CHECKS: dict[type, dict[str, Check]] = {}  # a dataclass's fields are fixed once the class exists
+
+
 def field_checks(cls: Any) -> dict[str, Check]:
-    """{field name: Check} of a dataclass (fields declared with :func:`spec`)."""
-    return {f.name: f.metadata["check"] for f in fields(cls) if "check" in f.metadata}
+    """{field name: Check} of a dataclass or of an instance's class (fields declared with :func:`spec`)."""
+    key = cls if isinstance(cls, type) else type(cls)
+    checks = _FIELD_CHECKS.get(key)
+    if checks is None:
+        checks = _FIELD_CHECKS[key] = {f.name: f.metadata["check"] for f in fields(key) if "check" in f.metadata}
+    return dict(checks)
 
 
 def check_declared(cls: Any, name: str, value: Any, where: str) -> Any:
@@ -137,7 +195,7 @@ def check_declared(cls: Any, name: str, value: Any, where: str) -> Any:
     against CellParams.soc0); ParameterError '<where>: <name> = <value> is not allowed: ...' otherwise."""
     problem = field_checks(cls)[name].problem(value)
     if problem is not None:
-        raise ParameterError(f"{where}: {name} = {value!r} is not allowed: {problem}")
+        raise ParameterError(f"{where}: {name} = {echo(value)} is not allowed: {problem}")
     return value
 
 
@@ -147,7 +205,7 @@ def check_argument(where: str, name: str, value: Any, expected: type | tuple[typ
     if not isinstance(value, expected):
         kinds = expected if isinstance(expected, tuple) else (expected,)
         names = " or ".join("None" if k is type(None) else k.__name__ for k in kinds)
-        raise TypeError(f"{where}: {name} must be {names}, got {type(value).__name__} {value!r:.60}")
+        raise TypeError(f"{where}: {name} must be {names}, got {type(value).__name__} {echo(value)}")
     return value
 
 
@@ -157,7 +215,7 @@ def validate_fields(obj: Any) -> None:
         value = getattr(obj, name)
         problem = check.problem(value)
         if problem is not None:
-            raise ParameterError(f"{type(obj).__name__}.{name} = {value!r} is not allowed: {problem}")
+            raise ParameterError(f"{type(obj).__name__}.{name} = {echo(value)} is not allowed: {problem}")
 
 
 @dataclass(frozen=True)

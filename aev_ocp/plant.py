@@ -19,7 +19,8 @@ actuator state a_act (appended to x after the battery states) when a lag or jerk
 at v_max and at standstill; a_act(0) = 0. ``enabled = False`` builds exactly the model without limits.
 
 Events are located on the integrator: the first sample where a rule fires brackets it, and a safeguarded
-regula falsi on a one-point CVODES integration from the sample before finds the time to 1e-12 (relative);
+regula falsi (:func:`aev_ocp.numerics.bracketed_root`) on a one-point CVODES integration from the sample before
+finds the time to 1e-12 (relative) and returns the state where the rule fires;
 the run ends with that sample (a collision: h ≤ 0 there; the event carries the time in s and the impact
 speed v − v_l in m/s). A controller that publishes its own hard floor (``describe()["bounds_model"]["h_min"]``)
 and goes below it gives the run status 'violated' and one warning (:func:`floor_violations`).
@@ -27,9 +28,11 @@ and goes below it gives the run status 'violated' and one warning (:func:`floor_
 
 from __future__ import annotations
 
+import math
 import warnings
+from abc import ABC, abstractmethod
 from dataclasses import dataclass
-from typing import Any, Sequence
+from typing import Any, Callable, ClassVar, Sequence
 
 import casadi as ca
 import numpy as np
@@ -39,6 +42,7 @@ from .models.actuator import actuator_rate, saturate, speed_cut
 from .models.carfollowing import CarFollowingLaw, optimal_velocity
 from .models.ego import battery_side
 from .models.leader import LeaderProfile
+from .numerics import bracketed_root
 from .params import EVParams, ParameterError, Units
 from .results import VIOLATED, Event, SimulationResult
 
@@ -100,6 +104,12 @@ def rule_of_code(code: int) -> EventRule:
     return next(r for r in EVENT_RULES if r.code == code)
 
 
+def _to_micro(x: float) -> float:
+    """``x`` rounded to 1e-6 (a located contact's gap is 0 to the locator's 1e-12 s times the closing speed: its
+    round-off, e.g. -3.9e-16 m, is not news in a message), without a negative zero."""
+    return round(x * 1e6) / 1e6 + 0.0
+
+
 def event_at(
     rule: EventRule, time: float, vehicle: int, units: Units, h: float, v: float, v_lead: float, value: float
 ) -> Event:
@@ -115,7 +125,7 @@ def event_at(
             time,
             vehicle,
             f"impact speed {dv_mps:.3g} m/s ({dv:.4g} model), gap at contact "
-            f"{float(units.length_to_si(h)):.3g} m ({h:.3g} model)",
+            f"{_to_micro(float(units.length_to_si(h))):.3g} m ({_to_micro(h):.3g} model)",
             time_s=t_s,
             impact_speed_mps=dv_mps,
         )
@@ -391,34 +401,24 @@ class Plant:
         y1: np.ndarray,
         a_cmd: np.ndarray | None,
     ) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
-        """The first time in (t0, t1] where ``rule`` fires for vehicle i, by a safeguarded regula falsi
-        (Illinois) on the integrator from the state (x0, q0) at t0, to |Δt| ≤ 1e-12 (1 + |t|): (t, x, q, y)
-        there, the rule firing (a collision: h ≤ 0). (t1, x1, q1, y1) is a sample where it fires."""
+        """The first time in (t0, t1] where ``rule`` fires for vehicle i, by :func:`~aev_ocp.numerics.bracketed_root`
+        (Illinois regula falsi) on the integrator from the state (x0, q0) at t0, to |Δt| ≤ 1e-12 max(1, |t|):
+        (t, x, q, y) at the end of the last bracket where the rule fires (a collision: h ≤ 0). (t1, x1, q1, y1) is
+        a sample where it fires."""
         y0 = self.samples(np.array([t0]), x0[:, None], a_cmd)[:, 0]
-        m_lo, m_hi = float(self._margin(rule, i, x0, y0)), float(self._margin(rule, i, x1, y1))
-        lo, hi, best = t0, t1, (t1, x1, q1, y1)
-        if not m_lo > 0:
-            return best
-        side = 0
-        for _ in range(100):
-            if hi - lo <= 1e-12 * (1 + abs(hi)):
-                break
-            tm = hi - m_hi * (hi - lo) / (m_hi - m_lo) if m_hi != m_lo else 0.5 * (lo + hi)
-            w = hi - lo  # keep the trial inside, away from the ends (bisection when regula falsi stalls)
-            tm = min(max(tm, lo + 1e-3 * w), hi - 1e-3 * w)
-            xm, qm, ym = self._one_step(t0, tm, x0, q0, a_cmd)
-            mm = float(self._margin(rule, i, xm, ym))
-            if mm <= 0 if rule.strict else mm < 0:  # the rule fires at tm
-                hi, m_hi, best = tm, mm, (tm, xm, qm, ym)
-                if side == -1:
-                    m_lo *= 0.5
-                side = -1
-            else:
-                lo, m_lo = tm, mm
-                if side == 1:
-                    m_hi *= 0.5
-                side = 1
-        return best
+        if not float(self._margin(rule, i, x0, y0)) > 0:
+            return t1, x1, q1, y1
+        at = {t0: (x0, q0, y0), t1: (x1, q1, y1)}  # (x, q, y) of every time tried
+
+        def signed_margin(t: float) -> float:
+            # the margin with the firing side on bracketed_root's side="b": m < 0 fires, or m ≤ 0 (strict): −m ≥ 0
+            if t not in at:
+                at[t] = self._one_step(t0, t, x0, q0, a_cmd)
+            m = float(self._margin(rule, i, at[t][0], at[t][2]))
+            return -m if rule.strict else m
+
+        te = bracketed_root(signed_margin, t0, t1, 1e-12, 100, side="b")
+        return (te, *at[te])
 
     def _margin(self, rule: EventRule, i: int, x: np.ndarray, y: np.ndarray) -> Any:
         """The rule's margin for vehicle i at one state x and output y."""
@@ -491,30 +491,67 @@ class Plant:
 
     # ---------------------------------------------------------------- results
     def result(
-        self,
-        t: np.ndarray,
-        X: np.ndarray,
-        Qc: np.ndarray,
-        Y: np.ndarray,
-        events: list[Event],
-        controllers: list[str],
-        meta: dict[str, Any],
-        **kw: Any,
+        self, samples: Samples, events: list[Event], controllers: list[str], meta: dict[str, Any], **kw: Any
     ) -> SimulationResult:
-        """The run as a :class:`SimulationResult` (see :func:`assemble_result`)."""
+        """The run of ``samples`` = (t, X, Qc, Y) (:func:`stack_samples`) as a :class:`SimulationResult` (see
+        :func:`assemble_result`)."""
         return assemble_result(
             self.leader,
             self.ev,
             self.battery,
-            t,
-            X,
-            Qc,
-            Y,
+            *samples,
             events,
             controllers,
             {"plant": "cvodes, exact eta switch", "rtol": self.rtol, "atol": self.atol, **meta},
             **kw,
         )
+
+
+#: ``progress(t, t_end)`` [model time], called as a run goes on
+ProgressFn = Callable[[float, float], None]
+
+
+class PlatoonRun(ABC):
+    """A platoon built once and run from many initial conditions (:class:`~aev_ocp.simulate.PlatoonSimulator`,
+    :class:`~aev_ocp.control.ClosedLoop`): :meth:`run` checks t_end and the initial state, then the subclass's
+    :meth:`_run` runs from it."""
+
+    who: ClassVar[str]  # the name error messages start with
+    n: int  # followers
+    ev: EVParams  # the plant's vehicle
+    battery: bool  # whether the state carries the cell (V1, V2, S)
+
+    def run(
+        self,
+        gaps0: Sequence[float],
+        speeds0: Sequence[float],
+        t_end: float,
+        *,
+        soc0: float | Sequence[float] | None = None,
+        progress: ProgressFn | None = None,
+    ) -> SimulationResult:
+        """Run over [0, t_end] (model time) from the initial gaps and speeds (model units), V1 = V2 = 0 and
+        S = soc0 (default the cell's S(0)). ``progress(t, t_end)`` is called as the run goes on (in a closed loop
+        after every step: if it raises :class:`aev_ocp.progress.TimeLimitReached` the loop stops there and the
+        result, covering [0, t], ends with an event of kind 'time_limit', its status)."""
+        if not (isinstance(t_end, (int, float)) and math.isfinite(t_end) and t_end > 0):
+            raise ParameterError(f"{self.who}: t_end = {t_end!r} is not allowed: must be > 0")
+        x0 = initial_state(self.n, self.ev, self.battery, gaps0, speeds0, soc0, self.who)
+        return self._run(x0, t_end, progress)
+
+    @abstractmethod
+    def _run(self, x0: np.ndarray, t_end: float, progress: ProgressFn | None) -> SimulationResult:
+        """The run from the checked initial state x0 (see :meth:`run`)."""
+
+
+#: A run's samples as :meth:`Plant.result` takes them: times t (K,) [model], states X (nx, K), quadratures Qc (nq, K)
+#: and outputs Y = (a, I, disc, v_l) stacked by quantity ((3n + 1), K).
+Samples = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]
+
+
+def stack_samples(out: tuple[list, list, list, list]) -> Samples:
+    """The pieces :meth:`Plant.advance` appended to ``out`` = (ts, xs, qs, ys) as one (t, X, Qc, Y)."""
+    return np.concatenate(out[0]), np.hstack(out[1]), np.hstack(out[2]), np.hstack(out[3])
 
 
 def initial_state(

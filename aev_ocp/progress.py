@@ -10,10 +10,12 @@ catches it and returns what it has, flagged (status ``"time_limit"``); the close
 
 from __future__ import annotations
 
+import contextlib
 import math
 import sys
+import threading
 import time
-from typing import Any, Callable
+from typing import Any, Callable, Iterator
 
 from . import interrupts
 from .params import ParameterError
@@ -47,6 +49,30 @@ def check_time_limit(value: float | None, what: str = "--time-limit") -> float |
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not (math.isfinite(value) and value > 0):
         raise ParameterError(f"{what} = {value!r} is not allowed: must be a number of seconds > 0")
     return float(value)
+
+
+_LOCAL = threading.local()  # .clocks: the Progress objects whose time limit applies to this thread's code now
+
+
+@contextlib.contextmanager
+def time_limited(clock: "Progress") -> Iterator["Progress"]:
+    """Within the block, :func:`check_deadline` raises :class:`TimeLimitReached` once ``clock``'s time limit
+    has passed: code that cannot report progress while it runs (one compiled integration, which polls
+    check_deadline while it waits) stops at the limit instead of at its end."""
+    clocks = _LOCAL.__dict__.setdefault("clocks", [])
+    clocks.append(clock)
+    try:
+        yield clock
+    finally:
+        clocks.remove(clock)
+
+
+def check_deadline() -> None:
+    """Raise on Ctrl-C/SIGTERM (:func:`aev_ocp.interrupts.check`) or once the time limit of an enclosing
+    :func:`time_limited` block (this thread's) has passed; call it between steps of long work."""
+    interrupts.check()
+    for clock in getattr(_LOCAL, "clocks", ()):
+        clock.check()
 
 
 class Progress:

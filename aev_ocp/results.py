@@ -13,7 +13,7 @@ import math
 import os
 import re
 import tempfile
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any, ClassVar, Iterator
 
@@ -21,7 +21,7 @@ import numpy as np
 
 from . import interrupts
 from .limits import _os_reason, read_input_file
-from .params import EVParams, Units, as_dict
+from .params import EVParams, Units, as_dict, echo
 
 _UMASK = os.umask(0)
 os.umask(_UMASK)
@@ -169,7 +169,7 @@ def check_safe_name(name: str, what: str = "name") -> str:
     '.', '_', '+' or '-'), else ValueError: a name must never lead outside the output folder."""
     if not isinstance(name, str) or not _SAFE_NAME.fullmatch(name) or name in (".", ".."):
         raise ValueError(
-            f"{what} = {name!r} is not allowed: must be 1-100 characters of letters, digits, "
+            f"{what} = {echo(name)} is not allowed: must be 1-100 characters of letters, digits, "
             "'.', '_', '+', '-', starting with a letter or digit (it names a folder under results/)"
         )
     return name
@@ -266,8 +266,14 @@ def _acquire_lock(out: Path) -> str | None:
     import fcntl
 
     key = str(out.resolve())
-    if key in _HELD_LOCKS:
-        return None
+    held = _HELD_LOCKS.get(key)
+    if held is not None:
+        if _is_lock_of(held, out):
+            return None
+        # the folder (or its lock file) was removed and made again since: the old lock guards nothing, take a new
+        # one for its holder (its key stays the same, so whoever took the old one releases the new one)
+        del _HELD_LOCKS[key]
+        os.close(held)
     fd = os.open(out / LOCK, os.O_RDWR | os.O_CREAT, 0o666 & ~_UMASK)
     try:
         fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
@@ -283,7 +289,16 @@ def _acquire_lock(out: Path) -> str | None:
         os.close(fd)
         raise
     _HELD_LOCKS[key] = fd
-    return key
+    return None if held is not None else key
+
+
+def _is_lock_of(fd: int, out: Path) -> bool:
+    """Whether descriptor ``fd`` is still the lock file of folder ``out`` (same device and inode)."""
+    try:
+        a, b = os.fstat(fd), os.stat(out / LOCK, follow_symlinks=False)
+    except OSError:
+        return False
+    return (a.st_dev, a.st_ino) == (b.st_dev, b.st_ino)
 
 
 def release_output_locks(key: str | None = None) -> None:
@@ -583,3 +598,8 @@ class SimulationResult:
     def to_json(self, path: str | os.PathLike[str]) -> Path:
         """Metrics and events as JSON, written atomically."""
         return write_json(path, self.summary())
+
+
+#: The (K,) and (K, n) array fields of a :class:`SimulationResult`, in field order (``temperature_K``, an array
+#: only with the thermal model, apart): what an output saves per run and a truncation cuts.
+SIM_ARRAYS: tuple[str, ...] = tuple(f.name for f in fields(SimulationResult) if f.type == "np.ndarray")

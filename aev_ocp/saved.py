@@ -41,31 +41,22 @@ from .params import (
     VehicleParams,
     as_dict,
 )
-from .results import Event, FieldsRepr, SimulationResult, atomic_path, require_pandas, to_jsonable, write_json
+from .results import (
+    SIM_ARRAYS,
+    Event,
+    FieldsRepr,
+    SimulationResult,
+    atomic_path,
+    require_pandas,
+    to_jsonable,
+    write_json,
+)
 
 FORMAT = "aev_ocp-output"
 FORMAT_VERSION = 1
 MANIFEST = "manifest.json"
 ARRAYS = "trajectories.npz"
 KINDS = ("simulate", "mpc", "ocp", "study", "sumo")
-SIM_ARRAYS = (
-    "t",
-    "leader_speed",
-    "leader_position",
-    "gap",
-    "speed",
-    "accel",
-    "V1",
-    "V2",
-    "S",
-    "current_A",
-    "omega",
-    "heat_J",
-    "heat_irr_J",
-    "int_ovm_err2",
-    "int_rel_speed2",
-    "int_jerk2",
-)
 OCP_SCALARS = ("objective", "objective_exact", "max_violation", "wall_time_s", "solver_time_s")
 OUTPUT_FILES = (MANIFEST, ARRAYS)  # what :func:`save_output` writes (for claim_output_dir)
 

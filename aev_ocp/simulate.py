@@ -44,11 +44,21 @@ from .models.carfollowing import CarFollowingLaw, optimal_velocity
 from .models.ego import battery_side
 from .models.leader import LeaderProfile
 from .limits import check_simulation_size
+from .progress import check_deadline
 from .params import METHODS, EVParams, ParameterError, SimOptions, check_argument
-from .plant import INTEGRATION_FAILED, Plant, assemble_result, event_at, event_header, initial_state, rule_of_code
+from .plant import (
+    INTEGRATION_FAILED,
+    Plant,
+    PlatoonRun,
+    ProgressFn,
+    assemble_result,
+    event_at,
+    event_header,
+    rule_of_code,
+    stack_samples,
+)
 from .results import Event, SimulationResult
 
-ProgressFn = Callable[[float, float], None]
 __all__ = ["METHODS", "PlatoonSimulator", "SimOptions", "simulate_platoon"]
 _FALLBACK_WARNED: set[str] = set()
 #: The cascade's step limit per vehicle is SimOptions.max_num_steps per STEP_LIMIT_SPAN of model time (at least one
@@ -102,8 +112,9 @@ def _law_template(law: CarFollowingLaw) -> tuple[Any, Callable[[ca.SX], CarFollo
 
 def _interruptible_call(fn: Callable[..., int], args: tuple[Any, ...], cancel: ctypes.c_int) -> int:
     """Call a compiled run (ctypes releases the GIL) in a helper thread while this thread waits in short
-    slices, so Ctrl-C/SIGTERM are handled within about 0.05 s instead of when the whole run returns (also one
-    that CasADi swallowed while the run was built: :func:`aev_ocp.interrupts.check`): on any exception here the
+    slices, so Ctrl-C/SIGTERM and a passed time limit (:func:`aev_ocp.progress.check_deadline`: ``--time-limit``)
+    are handled within about 0.05 s instead of when the whole run returns (also a Ctrl-C that CasADi swallowed
+    while the run was built: :func:`aev_ocp.interrupts.check`): on any exception here the
     C code is told to stop through ``cancel`` and waited for (it writes into ``args``' arrays), then the exception
     propagates. Returns the C return code. The wait is an Event, not ``Thread.join``: a join interrupted by a
     signal handler's exception marks a running thread as stopped (CPython 3.11), and would return at once."""
@@ -118,12 +129,12 @@ def _interruptible_call(fn: Callable[..., int], args: tuple[Any, ...], cancel: c
         finally:
             finished.set()
 
-    interrupts.check()  # a Ctrl-C that CasADi swallowed while the run was being built (its SWIG layer does)
+    check_deadline()  # a Ctrl-C that CasADi swallowed while the run was built (its SWIG layer does), a passed limit
     cancel.value = 0
     threading.Thread(target=work, name="aev-cascade", daemon=True).start()
     try:
         while not finished.wait(0.05):
-            interrupts.check()
+            check_deadline()
     except BaseException:
         cancel.value = 1
         while not finished.is_set():  # the C code stops within one step; a second Ctrl-C must not cut this wait
@@ -159,11 +170,13 @@ def _segments(t_end: float, breakpoints: Sequence[float], chunk: float) -> list[
     return out
 
 
-class PlatoonSimulator:
+class PlatoonSimulator(PlatoonRun):
     """A platoon behind ``leader`` with one law per follower; build once, run many initial conditions.
 
     Vehicle i (0-based) follows vehicle i − 1; vehicle 0 follows the leader.
     """
+
+    who = "simulate"
 
     def __init__(
         self,
@@ -482,20 +495,10 @@ class PlatoonSimulator:
         }
 
     # ------------------------------------------------------------------ running
-    def run(
-        self,
-        gaps0: Sequence[float],
-        speeds0: Sequence[float],
-        t_end: float,
-        *,
-        soc0: float | Sequence[float] | None = None,
-        progress: ProgressFn | None = None,
-    ) -> SimulationResult:
-        """Integrate from the initial gaps/speeds (model units) over [0, t_end] (model time)."""
-        if not (isinstance(t_end, (int, float)) and math.isfinite(t_end) and t_end > 0):
-            raise ParameterError(f"simulate: t_end = {t_end!r} is not allowed: must be > 0")
+    def _run(self, x0: np.ndarray, t_end: float, progress: ProgressFn | None) -> SimulationResult:
+        """Integrate from x0 over [0, t_end] (model time); see :meth:`PlatoonRun.run`."""
         check_simulation_size(self.n, t_end, self.opts.dt_out)
-        x = initial_state(self.n, self.ev, self.battery, gaps0, speeds0, soc0, "simulate")
+        x = x0
         if self.method == "cascade":
             return self._run_cascade(x, t_end, progress)
         plant = self.plant
@@ -508,13 +511,13 @@ class PlatoonSimulator:
             events.append(ev0)
         else:
             for a, b in _segments(t_end, self.leader.breakpoints, self.opts.chunk):
+                check_deadline()  # Ctrl-C or a passed time limit (aev_ocp.progress.time_limited): between chunks
                 ok = plant.advance(a, b, out[1][-1][:, -1], out[2][-1][:, -1], None, out, events)
                 if progress is not None:
                     progress(min(b, out[0][-1][-1] if out[0][-1].size else a), t_end)
                 if not ok:
                     break
-        ts, xs, qs, ys = (np.concatenate(out[0]), np.hstack(out[1]), np.hstack(out[2]), np.hstack(out[3]))
-        return plant.result(ts, xs, qs, ys, events, [law.name for law in self.laws], self._meta("cvodes"))
+        return plant.result(stack_samples(out), events, [law.name for law in self.laws], self._meta("cvodes"))
 
 
 def simulate_platoon(

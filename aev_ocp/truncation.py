@@ -24,21 +24,11 @@ from typing import Any, Mapping
 import numpy as np
 
 from .params import ParameterError
-from .results import SimulationResult
+from .results import SIM_ARRAYS, SimulationResult
 
-_LINEAR = (
-    "V1",
-    "V2",
-    "S",
-    "current_A",
-    "omega",
-    "heat_J",
-    "heat_irr_J",
-    "int_ovm_err2",
-    "int_rel_speed2",
-    "int_jerk2",
-    "leader_speed",
-)
+#: interpolated like the smooth pieces they are: the cell states, current and integrals (every array after accel)
+#: and the leader's speed
+_LINEAR = (*SIM_ARRAYS[SIM_ARRAYS.index("V1") :], "leader_speed")
 
 
 def _hermite(y0: Any, y1: Any, d0: Any, d1: Any, dt: float, s: float) -> Any:

@@ -29,6 +29,7 @@ import sys
 import tempfile
 import textwrap
 import time
+import uuid
 import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -102,21 +103,23 @@ def _env(d: Path, extra: dict[str, str] | None = None) -> dict[str, str]:
     return env
 
 
-def _group_pids(pgid: int) -> list[int]:
-    """Live (non-zombie) processes of process group ``pgid`` (Linux /proc: state and pgrp of /proc/PID/stat)."""
-
-    def state_pgrp(pid: str) -> tuple[str, int]:
+def _marked_pids(tag: str) -> list[int]:
+    """Live (non-zombie) processes whose environment holds the variable ``tag`` (Linux /proc): a run and every
+    process it started, in whatever process group or session (a Dask cluster runs in a session of its own)."""
+    needle = tag.encode() + b"="
+    out = []
+    for pid in os.listdir("/proc"):
+        if not pid.isdigit():
+            continue
         try:
-            fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[-1].split()
+            if needle not in Path(f"/proc/{pid}/environ").read_bytes():
+                continue
+            state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[-1].split()[0]
         except OSError:
-            return "X", -1
-        return fields[0], int(fields[2])
-
-    return [
-        int(pid)
-        for pid in os.listdir("/proc")
-        if pid.isdigit() and (sp := state_pgrp(pid))[1] == pgid and sp[0] not in "ZX"
-    ]
+            continue
+        if state not in "ZX":
+            out.append(int(pid))
+    return out
 
 
 def run(
@@ -129,14 +132,16 @@ def run(
     python: list[str] | None = None,
     stdin: str | None = None,
 ) -> Run:
-    """``aev-ocp argv`` (or ``python -c ...``) in folder ``d``, in its own session; killed after timeout_s (rc None)."""
+    """``aev-ocp argv`` (or ``python -c ...``) in folder ``d``, in its own session; killed after timeout_s (rc None).
+    SIGINT goes to the run's whole process group, as a terminal's Ctrl-C does."""
     cmd = python or [PY, "-m", "aev_ocp.cli", *argv]
+    tag = f"AEV_OCP_PROBE_{uuid.uuid4().hex}"  # marks every process of this run, for the leftover check
     t0 = time.perf_counter()
     signalled = False
     p = subprocess.Popen(
         cmd,
         cwd=d,
-        env=_env(d, env),
+        env={**_env(d, env), tag: "1"},
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
@@ -148,7 +153,7 @@ def run(
             try:
                 p.wait(sigint_after_s)
             except subprocess.TimeoutExpired:
-                os.kill(p.pid, signal.SIGINT)
+                os.killpg(p.pid, signal.SIGINT)
                 signalled = True
         out, err = p.communicate(stdin, timeout=timeout_s)
         rc: int | None = p.returncode
@@ -160,7 +165,7 @@ def run(
     left: list[int] = []
     deadline = time.monotonic() + 3.0  # workers get a moment to exit after their parent
     while time.monotonic() < deadline:
-        left = _group_pids(p.pid)
+        left = _marked_pids(tag)
         if not left:
             break
         time.sleep(0.2)

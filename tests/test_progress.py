@@ -140,3 +140,49 @@ def test_reproduce_counter_counts_every_line() -> None:
         "[9/10]",
         "[10/10]",
     ]
+
+
+LONG_TASK_STUDY = """
+name = "long_task"
+scenarios = ["table1"]
+reference = "ovfl"
+[overrides]
+"simulation.t_end" = 3000.0
+"simulation.dt_out" = 0.05
+"platoon.followers" = 2
+[[axes]]
+key = "platoon.gap0_first"
+values = [0.35]
+[controllers]
+laws = ["ovfl"]
+[[controllers.mpc]]
+label = "m"
+"""
+
+
+@pytest.mark.parametrize("executor", ["--workers", "--dask-local"])
+def test_study_time_limit_holds_while_one_long_task_computes(tmp_path, executor):
+    """--time-limit 8 with one worker (the fast OVFL task done first) busy on an MPC task that runs for minutes (3000 s of model time): the
+    study stops soon after the limit (exit 1, the time-limit line), not when the task ends; the worker is
+    stopped and no task is stored half-written. The bound (45 s) is far below the task's own length, far above
+    the start-up of a worker or a cluster."""
+    import subprocess
+    import sys
+    import time
+    from pathlib import Path
+
+    if executor == "--dask-local":
+        pytest.importorskip("dask.distributed")
+    f = tmp_path / "s.toml"
+    f.write_text(LONG_TASK_STUDY)
+    out = tmp_path / "o"
+    env = {**__import__("os").environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])}
+    argv = [sys.executable, "-m", "aev_ocp.cli", "study", str(f), "--out", str(out), executor, "1"]
+    t0 = time.monotonic()
+    r = subprocess.run(
+        [*argv, "--no-report", "--time-limit", "8"], env=env, capture_output=True, text=True, timeout=120
+    )
+    wall = time.monotonic() - t0
+    assert r.returncode == 1 and "stopped by --time-limit 8 s" in r.stderr, r.stderr[-800:]
+    assert wall < 45.0, f"stopped after {wall:.0f} s"
+    assert not [q for q in out.rglob("*") if ".tmp" in q.name]

@@ -930,36 +930,54 @@ def test_an_interrupt_the_command_reported_is_one_line(capsys):
     assert err.count("aev-ocp: error:") == 1 and "finished tasks are stored" in err
 
 
-def _group_alive(pgid: int) -> list[int]:
-    """Live (non-zombie) processes of process group ``pgid`` (Linux /proc)."""
+def _marked(tag: str) -> list[int]:
+    """Live (non-zombie) processes whose environment holds the variable ``tag`` (Linux /proc): a command and
+    every process it started, in whatever session or process group."""
     alive = []
     for p in Path("/proc").iterdir():
         if p.name.isdigit():
             try:
+                if tag.encode() + b"=" not in (p / "environ").read_bytes():
+                    continue
                 stat = (p / "stat").read_text().rsplit(")", 1)[-1].split()
             except OSError:
                 continue
-            if int(stat[2]) == pgid and stat[0] not in ("Z", "X"):
+            if stat[0] not in ("Z", "X"):
                 alive.append(int(p.name))
     return alive
 
 
-def test_an_interrupted_dask_local_study_stops_its_cluster(tmp_path):
-    """Ctrl-C while a --dask-local 2 study computes: exit 130, one error line, and within a few seconds no process
-    of the study's process group is left (the LocalCluster's scheduler, nannies and workers), no Dask scratch
-    folder in $TMPDIR and no temporary file in the output folder; the finished tasks are stored."""
+def _cmdlines(pids: list[int]) -> list[str]:
+    out = []
+    for pid in pids:
+        try:
+            out.append(Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace"))
+        except OSError:
+            pass
+    return out
+
+
+@pytest.mark.parametrize("moment", ["starting", "computing"])
+def test_ctrl_c_in_a_terminal_stops_a_dask_local_study_and_its_cluster(tmp_path, moment):
+    """Ctrl-C in a terminal (SIGINT to the whole foreground process group) while a --dask-local 2 study starts
+    its cluster (the workers import NumPy and CasADi) or computes: exit 130, one error line and no traceback
+    (the cluster runs in a session of its own, so the signal reaches the study only, which stops it), and within a
+    few seconds no process the study started is left, no Dask scratch folder in $TMPDIR, no temporary file in the
+    output folder; finished tasks are stored."""
     pytest.importorskip("dask.distributed")
     import signal
     import subprocess
     import sys
+    import uuid
 
     values = ", ".join(f"{0.3 + 0.01 * i:.2f}" for i in range(40))
     text = STUDY.replace("[0.35, 0.9]", f"[{values}]").replace('"simulation.t_end" = 1.5', '"simulation.t_end" = 60.0')
     f = _study(tmp_path, text=text)
     out, tmp = tmp_path / "o", tmp_path / "tmp"
     tmp.mkdir()
-    env = {**os.environ, "TMPDIR": str(tmp), "PYTHONPATH": str(Path(__file__).resolve().parents[1])}
-    p = subprocess.Popen(
+    tag = f"AEV_OCP_TEST_{uuid.uuid4().hex}"
+    env = {**os.environ, "TMPDIR": str(tmp), "PYTHONPATH": str(Path(__file__).resolve().parents[1]), tag: "1"}
+    p = subprocess.Popen(  # its own process group, as a shell gives a foreground job
         [sys.executable, "-m", "aev_ocp.cli", "study", str(f), "--out", str(out), "--dask-local", "2", "--no-report"],
         env=env,
         stdout=subprocess.PIPE,
@@ -967,26 +985,36 @@ def test_an_interrupted_dask_local_study_stops_its_cluster(tmp_path):
         text=True,
         start_new_session=True,
     )
+
+    def ready() -> bool:
+        if moment == "computing":
+            return bool(list((out / "points").glob("[0-9a-f]*.json")))
+        # the cluster's scheduler process and at least one worker being spawned (multiprocessing)
+        return sum("multiprocessing" in c for c in _cmdlines(_marked(tag))) >= 1
+
     try:
-        deadline = time.monotonic() + 90.0  # the cluster has started and computes: the first results are stored
-        while not list((out / "points").glob("[0-9a-f]*.json")) and time.monotonic() < deadline and p.poll() is None:
-            time.sleep(0.2)
-        assert p.poll() is None and len(_group_alive(p.pid)) >= 3  # the study, and its cluster's processes
-        p.send_signal(signal.SIGINT)
+        deadline = time.monotonic() + 90.0
+        while not ready() and time.monotonic() < deadline and p.poll() is None:
+            time.sleep(0.05)
+        assert p.poll() is None and ready()
+        # none of the cluster's processes is in the terminal's process group: a Ctrl-C cannot reach them
+        in_group = [q for q in _marked(tag) if q != p.pid and os.getpgid(q) == p.pid]
+        assert in_group == [], _cmdlines(in_group)
+        os.killpg(p.pid, signal.SIGINT)
         _, err = p.communicate(timeout=60)
         deadline = time.monotonic() + 10.0
-        while _group_alive(p.pid) and time.monotonic() < deadline:
+        while _marked(tag) and time.monotonic() < deadline:
             time.sleep(0.2)
-        left = _group_alive(p.pid)
+        left = _marked(tag)
     finally:
-        if p.poll() is None:
-            os.killpg(p.pid, signal.SIGKILL)
-        for pid in _group_alive(p.pid):
+        for pid in _marked(tag):
             os.kill(pid, signal.SIGKILL)
     assert p.returncode == 130 and "interrupted" in one_error(err)
-    assert left == [], f"{len(left)} process(es) of the study still running"
+    assert "Traceback" not in err and "KeyboardInterrupt" not in err, err[-2000:]
+    assert left == [], f"{len(left)} process(es) the study started still running: {_cmdlines(left)}"
     assert list(tmp.iterdir()) == [] and not [q for q in out.rglob("*") if ".tmp" in q.name]
-    assert 0 < len(list((out / "points").glob("[0-9a-f]*.json"))) < 80  # stored so far; a rerun resumes
+    if moment == "computing":
+        assert 0 < len(list((out / "points").glob("[0-9a-f]*.json"))) < 80  # stored so far; a rerun resumes
 
 
 def _descendants(pid: int) -> set[int]:
@@ -1280,3 +1308,49 @@ def test_a_store_kept_behind_a_link_is_followed_and_a_dangling_link_replaced(tmp
     (dangling / "points").symlink_to(tmp_path / "nowhere")
     Store(dangling).put("c3", result(4.5))
     assert (dangling / "points").is_dir() and not (dangling / "points").is_symlink()
+
+
+@pytest.mark.parametrize("executor", ["--workers", "--dask-local"])
+def test_a_killed_study_takes_its_workers_with_it(tmp_path, executor):
+    """SIGKILL (the OOM killer, a job scheduler) of a study whose one worker computes an MPC task that runs for
+    minutes: nothing can clean up in the study itself, yet within a few seconds none of its processes is left
+    (each pool worker watches its parent; the Dask cluster process ends when its stdin closes) and the Dask
+    cluster removes its scratch folder."""
+    if executor == "--dask-local":
+        pytest.importorskip("dask.distributed")
+    import signal
+    import subprocess
+    import sys
+    import uuid
+
+    from test_progress import LONG_TASK_STUDY
+
+    f = tmp_path / "s.toml"
+    f.write_text(LONG_TASK_STUDY)
+    out, tmp = tmp_path / "o", tmp_path / "tmp"
+    tmp.mkdir()
+    tag = f"AEV_OCP_TEST_{uuid.uuid4().hex}"
+    env = {**os.environ, "TMPDIR": str(tmp), "PYTHONPATH": str(Path(__file__).resolve().parents[1]), tag: "1"}
+    p = subprocess.Popen(
+        [sys.executable, "-m", "aev_ocp.cli", "study", str(f), "--out", str(out), executor, "1", "--no-report"],
+        env=env,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+        start_new_session=True,
+    )
+    try:
+        deadline = time.monotonic() + 90.0  # the fast OVFL task is stored: the worker is on the long MPC task
+        while not list((out / "points").glob("[0-9a-f]*.json")) and time.monotonic() < deadline and p.poll() is None:
+            time.sleep(0.1)
+        assert p.poll() is None and len(_marked(tag)) >= 2
+        p.kill()
+        p.wait(10)
+        deadline = time.monotonic() + 10.0
+        while _marked(tag) and time.monotonic() < deadline:
+            time.sleep(0.1)
+        left = _marked(tag)
+    finally:
+        for pid in _marked(tag):
+            os.kill(pid, signal.SIGKILL)
+    assert left == [], f"{len(left)} process(es) of the killed study still running: {_cmdlines(left)}"
+    assert list(tmp.iterdir()) == []

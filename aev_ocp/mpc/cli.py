@@ -16,7 +16,7 @@ OUTPUT_FILES = ("results.json", "trajectories_mpc.csv", "mpc_trajectories.png", 
 
 def build_parser() -> argparse.ArgumentParser:
     """Argument parser of ``aev-ocp mpc`` (every option with its unit and default)."""
-    from ..console import OneLineParser
+    from ..console import OneLineParser, add_set_option
 
     p = OneLineParser(
         prog="aev-ocp mpc",
@@ -34,13 +34,9 @@ def build_parser() -> argparse.ArgumentParser:
         'aev_ocp/ocp/traffic.py; formulation = "s9" for model guide §9)',
     )
     p.add_argument("--out", default=None, metavar="DIR", help="output folder (default: results/mpc/<scenario name>/)")
-    p.add_argument(
-        "--set",
-        dest="sets",
-        action="append",
-        default=[],
-        metavar="KEY=VALUE",
-        help="override a scenario key, e.g. --set mpc.N=20 --set simulation.t_end_s=10 (repeatable; "
+    add_set_option(
+        p,
+        "override a scenario key, e.g. --set mpc.N=20 --set simulation.t_end_s=10 (repeatable; "
         "checked like the file; the command line over the file; a key that an option below "
         "also sets is refused; default: none)",
     )
@@ -162,9 +158,9 @@ def _cli_mpc(argv: list[str]) -> int:
     from ..results import claim_output_dir, default_output_dir
     from ..scenarios import load_with_sets
     from ..progress import TIME_LIMIT, Progress
-    from ..saved import OUTPUT_FILES as SAVED_FILES, save_output, settings_of
+    from ..saved import OUTPUT_FILES as SAVED_FILES, settings_of
     from ..scenarios import find_scenario
-    from .report import check_mpc_scenario, comparison_table, run_comparison, write_outputs
+    from .report import check_mpc_scenario, comparison_table, run_comparison, write_comparison
     from .scenario import MPCConfig
     from .settings import MPCSettings
 
@@ -193,13 +189,10 @@ def _cli_mpc(argv: list[str]) -> int:
     prog = Progress("", unit="steps", time_limit_s=a.time_limit, every_s=a.progress_every, say=say)
     c = run_comparison(sc, s, laws=laws, with_ocpd=not a.no_ocpd, log=say, progress=prog)
     say(f"writing tables, figures and the saved runs into {out} …")
-    write_outputs(c, out)
-    save_output(
+    write_comparison(
+        c,
         out,
-        "mpc",
-        c.results,
-        primary="mpc",
-        settings=settings_of(
+        settings_of(
             sc,
             solver=s.solver,
             qp_solver=s.qp,
@@ -210,7 +203,6 @@ def _cli_mpc(argv: list[str]) -> int:
             sets=list(a.sets),
             time_limit_s=a.time_limit,
         ),
-        extra={"ocp_d": c.ocpd, "comparison_metrics": c.metrics, "timings_s": c.timings_s, "warnings": c.warnings},
     )
     r = c.results["mpc"]
     for i in range(r.n_vehicles):

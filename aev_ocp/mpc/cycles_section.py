@@ -100,29 +100,18 @@ HEADERS: dict[str, str] = {
     "heat_pack_J_per_km_eq_time": "∫Q/km to equal time [J/km]",
     "rank_eq_time": "rank (equal time)",
 }
-#: Columns of the Markdown table (the CSV/JSON have all of :data:`COLUMNS`).
-MD_COLUMNS: tuple[str, ...] = (
-    "cycle",
-    "controller",
-    "predictor",
-    "heat_pack_J_per_km",
-    "omega_J_per_kg_per_km",
-    "distance_m",
-    "min_gap_m",
-    "min_ttc_s",
-    "rms_jerk_model",
-    "fallbacks",
-    "solve_ms_p50",
-    "solve_ms_p99",
-    "forecast_rms",
-    "comparable",
-    "flags",
-    "rank",
-    "heat_pack_J_per_km_eq_distance",
-    "rank_eq_distance",
-    "heat_pack_J_per_km_eq_time",
-    "rank_eq_time",
+#: Columns of the Markdown table: all of :data:`COLUMNS` (the CSV/JSON) but the vehicle, the status (in flags) and the
+#: run lengths and their differences (summarised by 'comparable' and the equal-distance/-time columns).
+_MD_LEFT_OUT = (
+    "vehicle",
+    "status",
+    "duration_s",
+    "distance_diff_pct",
+    "duration_diff_pct",
+    "eq_distance_m",
+    "eq_time_s",
 )
+MD_COLUMNS: tuple[str, ...] = tuple(c for c in COLUMNS if c not in _MD_LEFT_OUT)
 
 
 def write_tables(

@@ -193,9 +193,9 @@ def _check_export(sc: Any, out: Path) -> None:
     N = int(cfg.settings.N) if cfg is not None else None
     if N is not None:
         try:
-            check_mpc_size(N, 1)
+            check_mpc_size(N, 1, key="mpc.N")
         except ParameterError as exc:
-            raise ParameterError(f"mpc-export: mpc.N = {N} (--set mpc.N or [mpc] N): {exc}") from None
+            raise ParameterError(f"mpc-export: {exc}") from None
     claim_output_dir(
         out, "mpc-export", sc.name, str(sc.source) if sc.source else None, [*EXPORT_FILES, "libaev_mpc.so"]
     )

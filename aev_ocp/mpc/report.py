@@ -591,6 +591,22 @@ def write_outputs(c: Comparison, out: Path) -> list[Path]:
     return files
 
 
+def write_comparison(c: Comparison, out: Path, settings: dict[str, Any]) -> None:
+    """:func:`write_outputs` and the saved runs (manifest.json with ``settings`` and the comparison's OCP-D, metrics,
+    timings and warnings; trajectories.npz) that ``aev_ocp.load(out)`` reads."""
+    from ..saved import save_output
+
+    write_outputs(c, out)
+    save_output(
+        out,
+        "mpc",
+        c.results,
+        primary="mpc",
+        settings=settings,
+        extra={"ocp_d": c.ocpd, "comparison_metrics": c.metrics, "timings_s": c.timings_s, "warnings": c.warnings},
+    )
+
+
 def mpc_section(out_dir: Any, progress: Callable[[str], None]) -> str:
     """Reproduce section: the canonical MPC (model guide §9) beside the proposed law and OVFL (and OCP-D)."""
     from ..scenarios import find_scenario, load_scenario
@@ -600,17 +616,9 @@ def mpc_section(out_dir: Any, progress: Callable[[str], None]) -> str:
     sc = load_scenario(find_scenario("mpc_paper_single"))
     c = run_comparison(sc, log=progress)
     progress("MPC: writing tables and plots")
-    write_outputs(c, out)
-    from ..saved import save_output, settings_of
+    from ..saved import settings_of
 
-    save_output(
-        out,
-        "mpc",
-        c.results,
-        primary="mpc",
-        settings=settings_of(sc),  # aev_ocp.load(".../mpc")
-        extra={"ocp_d": c.ocpd, "comparison_metrics": c.metrics, "timings_s": c.timings_s, "warnings": c.warnings},
-    )
+    write_comparison(c, out, settings_of(sc))  # aev_ocp.load(".../mpc")
     st = c.metrics["mpc"][0]
     lines = [
         "## MPC with the battery in the loop (model guide §9)",

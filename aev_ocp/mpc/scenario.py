@@ -116,9 +116,9 @@ def validate_mpc_table(r: Any) -> MPCConfig:
     from ..limits import check_mpc_size
 
     try:  # one MPC vehicle's NLP within the memory budget, wherever an [mpc] table is read (mpc, mpc-export, study)
-        check_mpc_size(settings.N, 1)
+        check_mpc_size(settings.N, 1, key=r.key_path("N"))
     except ParameterError as exc:
-        raise r.error("N", settings.N, str(exc)) from None
+        raise ScenarioError(f"{r.file}: {exc}") from None
     return MPCConfig(settings, vehicles, fp, formulation)
 
 
@@ -151,6 +151,12 @@ def check_mpc_setup(
             f"{file}: mpc.vehicles = {[i + 1 for i in on]} is not allowed: follower(s) {missing} "
             f"do not exist (platoon.followers = {n})"
         )
+    from ..limits import check_mpc_size
+
+    try:  # every MPC vehicle's NLP together within the memory budget, before the first one is built
+        check_mpc_size((settings or cfg.settings).N, len(on), key="mpc.N")
+    except ParameterError as exc:
+        raise ScenarioError(f"{file}: {exc}") from None
     if f.temperature.temperature_state and not scenario.ev.thermal.enabled:
         raise ScenarioError(
             f"{file}: mpc.temperature_state = true is not allowed: the prediction's temperature is "

@@ -216,6 +216,11 @@ def _cli_ocp(argv: list[str]) -> int:
         else default_output_dir("ocp", args.problem, *([scenario_name] if scenario_name else []))
     )
     claim_output_dir(out, f"ocp {args.problem}", str(args.scenario or args.problem), args.scenario)
+    # what current-profile and eco-trip both take from the command line (N only when given: else the problem's)
+    common: dict[str, Any] = dict(
+        method=args.method, out_dir=out, scenario=args.scenario, refine=not args.no_refine, progress=prog
+    )
+    common.update({"N": args.N} if args.N is not None else {})
     if args.problem == "prop31":
         from .prop31 import prop31_table
 
@@ -245,29 +250,14 @@ def _cli_ocp(argv: list[str]) -> int:
     elif args.problem == "current-profile":
         # a grid not given keeps run_current_profile's default sweep
         rep = api.run_current_profile(
-            method=args.method,
-            out_dir=out,
-            scenario=args.scenario,
-            refine=not args.no_refine,
-            progress=prog,
-            sweep_E_J=grids.get("E_req") or api.SWEEP_E_J,
-            sweep_t_f_s=grids.get("t_f") or api.SWEEP_T_F_S,
-            **({"N": args.N} if args.N is not None else {}),
+            **common, sweep_E_J=grids.get("E_req") or api.SWEEP_E_J, sweep_t_f_s=grids.get("t_f") or api.SWEEP_T_F_S
         )
         print(rep["table"])
         ok = rep["ok"]
         runs = {"main": rep["result"], **{f"sweep{k:03d}": r for k, r in enumerate(rep["sweep_results"])}}
     elif args.problem == "eco-trip":
         rep = api.run_eco_trip(
-            method=args.method,
-            out_dir=out,
-            scenario=args.scenario,
-            refine=not args.no_refine,
-            multistart=args.multistart,
-            progress=prog,
-            sweep_D_m=grids.get("D", ()),
-            sweep_t_f_s=grids.get("t_f", ()),
-            **({"N": args.N} if args.N is not None else {}),
+            **common, multistart=args.multistart, sweep_D_m=grids.get("D", ()), sweep_t_f_s=grids.get("t_f", ())
         )
         print(rep["table"])
         ok = rep["ok"]

@@ -20,7 +20,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from ..params import ParameterError, Units
+from ..params import ParameterError, Units, echo
 
 KMH = 1.0 / 3.6  # m/s per km/h (exact)
 CASE_UNITS = Units(15.0, 17.0)  # the drive-cycle scenarios' units (scenarios/udds_platoon.toml)
@@ -44,7 +44,7 @@ class SafetyCase:
 
     def __post_init__(self) -> None:
         if self.family not in FAMILIES:
-            raise ParameterError(f"SafetyCase.family = {self.family!r} is not allowed: must be one of {FAMILIES}")
+            raise ParameterError(f"SafetyCase.family = {echo(self.family)} is not allowed: must be one of {FAMILIES}")
         for nm, ok in (
             ("v_ego_mps", self.v_ego_mps >= 0),
             ("gap_m", self.gap_m > 0),
@@ -54,7 +54,7 @@ class SafetyCase:
             ("t_end_s", self.t_end_s > 0),
         ):
             if not ok:
-                raise ParameterError(f"SafetyCase {self.name}: {nm} = {getattr(self, nm)!r} is not allowed")
+                raise ParameterError(f"SafetyCase {self.name}: {nm} = {echo(getattr(self, nm))} is not allowed")
 
 
 def _t_end(v_lead: float, a_lead: float, t_brake: float) -> float:

@@ -45,6 +45,23 @@ def _per_vehicle(r: TableReader, n: int, list_key: str, values: list[float] | No
     return values
 
 
+_INITIAL_SPEEDS: dict[LeaderProfile, float] = {}
+
+
+def _initial_speed(leader: LeaderProfile) -> float:
+    """The leader's speed at t = 0 [model speed]. Sampling a leader builds its CasADi Function (~1 ms); a study
+    parses a new but equal leader (a frozen dataclass) at each of its points, so equal leaders share the value."""
+    try:
+        v = _INITIAL_SPEEDS.get(leader)
+    except TypeError:  # a leader holding arrays is not hashable: sampled each time
+        return float(leader.speed_np(0.0)[0])
+    if v is None:
+        if len(_INITIAL_SPEEDS) >= 1024:
+            _INITIAL_SPEEDS.clear()
+        v = _INITIAL_SPEEDS[leader] = float(leader.speed_np(0.0)[0])
+    return v
+
+
 def _platoon(
     r: TableReader,
     leader: LeaderProfile,
@@ -131,7 +148,7 @@ def _platoon(
     elif given[0].startswith("speed0") and given[0] != "speed0_factor":
         speeds = [r.quantity("speed0", u, ge=0)] * n
     else:
-        v_l0 = float(leader.speed_np(0.0)[0])
+        v_l0 = _initial_speed(leader)
         speeds = [r.number("speed0_factor", ge=0) * v_l0] * n
     r.finish()
     assert gaps is not None and speeds is not None

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 from typing import Any, Callable
 
+from ..params import echo
 from .tables import ScenarioError, TableReader, _type_name
 
 SectionValidator = Callable[[TableReader], Any]
@@ -72,7 +73,7 @@ def _check_top_level(doc: dict[str, Any], file: str) -> None:
         if key in _CORE_TABLES or key in _SECTIONS:
             if not isinstance(value, dict):
                 raise ScenarioError(
-                    f"{file}: {key} = {value!r} is not allowed: expected a table [{key}], got a {_type_name(value)}"
+                    f"{file}: {key} = {echo(value)} is not allowed: expected a table [{key}], got a {_type_name(value)}"
                 )
             continue
         raise ScenarioError(

@@ -9,7 +9,7 @@ import math
 from typing import Any, Callable, Sequence
 
 from ..overrides import SI_TWINS
-from ..params import Check, ParameterError, Units, field_checks
+from ..params import Check, ParameterError, Units, echo, field_checks
 
 
 class ScenarioError(ValueError):
@@ -56,7 +56,7 @@ class TableReader:
 
     def error(self, key: str, value: Any, allowed: str) -> ScenarioError:
         """A ScenarioError naming the file, ``key``'s path, the value and what is allowed."""
-        return ScenarioError(f"{self.file}: {self.key_path(key)} = {value!r} is not allowed: {allowed}")
+        return ScenarioError(f"{self.file}: {self.key_path(key)} = {echo(value)} is not allowed: {allowed}")
 
     def has(self, key: str) -> bool:
         """Whether ``key`` is present (marks nothing as read)."""
@@ -241,7 +241,7 @@ class TableReader:
             known = sorted(allowed_hint if allowed_hint is not None else self._seen)
             raise ScenarioError(
                 f"{self.file}: unknown key {self.key_path(extra[0])!r} "
-                f"(= {self.table[extra[0]]!r}); allowed keys here: {known}"
+                f"(= {echo(self.table[extra[0]])}); allowed keys here: {known}"
             )
 
 

@@ -257,30 +257,14 @@ def attenuation_of(
 
 
 def linear_prediction(
-    law: CarFollowingLaw,
-    v_star: float,
-    *,
-    kind: str = "pulse",
-    omega: float = 0.5 * math.pi,
-    duration: float = 4.0,
-    n_followers: int = 50,
-    lin: LinearStability | None = None,
-    amplitude: float = 1e-4,
-    **kw: Any,
+    law: CarFollowingLaw, v_star: float, *, lin: LinearStability | None = None, amplitude: float = 1e-4, **kw: Any
 ) -> Attenuation:
-    """The same experiment with the law's linearisation at (h*, v*): ratios independent of the amplitude."""
+    """The same experiment with the law's linearisation at (h*, v*): ratios independent of the amplitude
+    (``amplitude`` [model speed], at most v_star). kw: :func:`measure`'s options (kind, omega, duration,
+    n_followers, ...; its defaults)."""
     lin = lin or analyse(law, v_star)
     return measure(
-        LinearizedLaw.of(lin),
-        v_star,
-        min(amplitude, v_star),
-        kind=kind,
-        omega=omega,
-        duration=duration,
-        n_followers=n_followers,
-        lin=lin,
-        label=f"{law.name} (linearised)",
-        **kw,
+        LinearizedLaw.of(lin), v_star, min(amplitude, v_star), lin=lin, label=f"{law.name} (linearised)", **kw
     )
 
 

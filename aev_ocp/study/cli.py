@@ -9,7 +9,7 @@ import math
 import sys
 
 # the command line's one error format, exit codes and parser (aev_ocp/cli.py)
-from ..console import EXIT_BAD_INPUT, EXIT_FAILED_RUN, EXIT_OK, bad_input
+from ..console import EXIT_BAD_INPUT, EXIT_FAILED_RUN, EXIT_OK, add_set_option, bad_input
 from ..console import OneLineParser as _Parser
 from ..console import error_line as _err
 from ..console import warning_line
@@ -43,13 +43,9 @@ def build_parser() -> argparse.ArgumentParser:
         help="run on a running Dask scheduler, e.g. tcp://10.0.0.5:8786 (needs aev_ocp[dask])",
     )
     ex.add_argument("--in-process", action="store_true", help="run every task in this process (debugging)")
-    p.add_argument(
-        "--set",
-        dest="sets",
-        action="append",
-        default=[],
-        metavar="KEY=VALUE",
-        help="override a scenario key at every point, e.g. --set simulation.t_end_s=60 (repeatable). "
+    add_set_option(
+        p,
+        "override a scenario key at every point, e.g. --set simulation.t_end_s=60 (repeatable). "
         "Precedence: command line over study file over scenario file; a key that an axis "
         "sweeps or a [[controllers.mpc]] entry sets is refused",
     )

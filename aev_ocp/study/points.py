@@ -9,7 +9,7 @@ from contextlib import contextmanager
 from typing import Any, Iterator
 
 from ..overrides import OverrideError, apply_to_document
-from ..params import ParameterError
+from ..params import ParameterError, echo
 from ..scenarios import Scenario, ScenarioError, parse_scenario
 from .model import Axis, Controller, Point, StudyError
 from .tasks import _source
@@ -68,7 +68,7 @@ def parse_scenario_warnings(doc: dict[str, Any], file: str) -> tuple[Scenario, l
 
 
 def _describe(values: dict[str, Any]) -> str:
-    return ", ".join(f"{k} = {v!r}" for k, v in values.items()) or "no axis values"
+    return ", ".join(f"{k} = {echo(v)}" for k, v in values.items()) or "no axis values"
 
 
 def _culprit(message: str, values: dict[str, Any], axes: list[Axis]) -> str:
@@ -91,15 +91,24 @@ def _point_document(
     index: int,
     sink: list[str],
     sets: dict[str, Any] | None = None,
+    memo: dict[int, dict[str, Any]] | None = None,
 ) -> dict[str, Any]:
     """The point's document, validated by the scenario loader; errors name study file, axis, key.
-    Layers: study overrides, then ``sets`` (--set), then the axis values (see :func:`parse_study`)."""
+    Layers: study overrides, then ``sets`` (--set), then the axis values (see :func:`parse_study`).
+    ``memo`` keeps the base document with the first two layers applied (the same at every point of a base
+    scenario), so a point copies and edits its document once, for its axis values."""
     sets = sets or {}
     try:
-        pdoc = base_doc
-        for layer in (overrides, sets, values):
-            if layer:
-                pdoc = apply_to_document(pdoc, layer, base_file)
+        pdoc = memo.get(id(base_doc)) if memo is not None else None
+        if pdoc is None:
+            pdoc = base_doc
+            for layer in (overrides, sets):
+                if layer:
+                    pdoc = apply_to_document(pdoc, layer, base_file)
+            if memo is not None:
+                memo[id(base_doc)] = pdoc
+        if values:
+            pdoc = apply_to_document(pdoc, values, base_file)
         _, found = parse_scenario_warnings(pdoc, base_file)
         for w in found:
             if w not in sink:

@@ -5,7 +5,8 @@ Executors (same inputs -> same stored bytes, whichever runs them):
 - ``"inprocess"``: a loop in this process;
 - ``"pool"`` (default): :class:`concurrent.futures.ProcessPoolExecutor`, one worker per core;
 - ``"dask"``: Dask distributed, a running scheduler (``scheduler="tcp://host:8786"``) or a
-  ``LocalCluster`` of ``workers`` processes. Dask is imported only here, only when asked for.
+  ``LocalCluster`` of ``workers`` processes, run in a session of its own (:mod:`aev_ocp.study.cluster`).
+  Dask is imported only here, only when asked for.
 
 Each task's result is written atomically to ``<out>/points/<hash>.json`` as soon as it arrives
 (only this process writes); a rerun loads what is there and computes only the missing tasks. A task
@@ -15,7 +16,6 @@ does not stop the others. Ctrl-C cancels what is pending and leaves only complet
 
 from __future__ import annotations
 
-import contextlib
 import hashlib
 import json
 import logging
@@ -26,7 +26,7 @@ import time
 import traceback
 from collections import OrderedDict
 from pathlib import Path
-from typing import Any, Callable, Iterable
+from typing import Any, Callable, Iterable, Iterator
 
 from .. import interrupts
 from ..progress import Progress, TimeLimitReached
@@ -312,6 +312,12 @@ def execute(
             if len(results) < len(todo):  # the limit passing as the last task ends stops nothing
                 raise TimeLimitStop(f"{len(results)} of {len(todo)} tasks stored") from None
 
+    def poll() -> None:  # while the pool or cluster computes (or starts): the time limit holds between results too
+        try:
+            prog.check()
+        except TimeLimitReached:
+            raise TimeLimitStop(f"{len(results)} of {len(todo)} tasks stored") from None
+
     if not missing:
         return results
     specs = [
@@ -322,13 +328,26 @@ def execute(
         for sp in specs:
             done(run_task(sp))
     elif executor == "pool":
-        _run_pool(specs, workers, done)
+        _run_pool(specs, workers, done, poll)
     else:
-        _run_dask(specs, workers, scheduler, done)
+        _run_dask(specs, workers, scheduler, done, poll)
     return results
 
 
-def _run_pool(specs: list[dict[str, Any]], workers: int | None, done: Callable[[dict[str, Any]], None]) -> None:
+#: How often a waiting executor checks the time limit [s].
+POLL_S = 0.25
+
+
+def _no_poll() -> None:
+    pass
+
+
+def _run_pool(
+    specs: list[dict[str, Any]],
+    workers: int | None,
+    done: Callable[[dict[str, Any]], None],
+    poll: Callable[[], None] = _no_poll,
+) -> None:
     import multiprocessing as mp
     from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 
@@ -336,7 +355,11 @@ def _run_pool(specs: list[dict[str, Any]], workers: int | None, done: Callable[[
 
     n = check_local_workers(workers, "workers") or os.cpu_count() or 1
     _export_path()
-    ex = ProcessPoolExecutor(max_workers=n, mp_context=mp.get_context("spawn"))
+    # each worker ends itself if this process dies without stopping it (SIGKILL, the OOM killer): it would
+    # otherwise compute its task on, for minutes, for nobody
+    ex = ProcessPoolExecutor(
+        max_workers=n, mp_context=mp.get_context("spawn"), initializer=_end_with, initargs=(os.getpid(),)
+    )
     try:
         # submit() starts the worker processes: a Ctrl-C while one is half started left a process the pool did not
         # know, and the exit then waited for it for ever; it is honoured once every worker can be stopped
@@ -345,7 +368,9 @@ def _run_pool(specs: list[dict[str, Any]], workers: int | None, done: Callable[[
         with interrupts.deferred(), interrupts.sigint_blocked():
             pending = {ex.submit(run_task, sp) for sp in specs}
         while pending:
-            finished, pending = wait(pending, return_when=FIRST_COMPLETED)
+            finished, pending = wait(pending, timeout=POLL_S, return_when=FIRST_COMPLETED)
+            if not finished:
+                poll()
             for f in finished:
                 try:
                     res = f.result()
@@ -358,6 +383,22 @@ def _run_pool(specs: list[dict[str, Any]], workers: int | None, done: Callable[[
     ex.shutdown(wait=True)
 
 
+PARENT_CHECK_S = 1.0  # how often a pool worker checks that the study that started it still runs [s]
+
+
+def _end_with(parent_pid: int) -> None:
+    """Pool-worker initializer: a daemon thread that ends this worker once ``parent_pid`` is no longer its parent
+    (the study died; the worker was re-parented)."""
+    import threading
+
+    def watch() -> None:
+        while os.getppid() == parent_pid:
+            time.sleep(PARENT_CHECK_S)
+        os._exit(1)
+
+    threading.Thread(target=watch, name="aev-ocp-parent-watch", daemon=True).start()
+
+
 STOP_GRACE_S = 5.0  # how long a stopped worker may take to exit after SIGTERM before it is killed [s]
 
 
@@ -365,9 +406,8 @@ def _stop_pool(ex: Any) -> None:
     """Stop a process pool now: cancel pending tasks AND end the worker processes that are computing
     (``shutdown(wait=False, cancel_futures=True)`` alone lets them finish their tasks, for minutes)."""
     procs = list((getattr(ex, "_processes", None) or {}).values())
-    # (shutdown drops the executor's references to these two: taken first; see the end)
-    writer = getattr(getattr(ex, "_result_queue", None), "_writer", None)
-    manager = getattr(ex, "_executor_manager_thread", None)
+    manager = getattr(ex, "_executor_manager_thread", None)  # shutdown() forgets it and the result queue
+    results = getattr(ex, "_result_queue", None)
     ex.shutdown(wait=False, cancel_futures=True)
     for p in procs:
         if p.is_alive():
@@ -378,16 +418,15 @@ def _stop_pool(ex: Any) -> None:
         if p.is_alive():
             p.kill()
             p.join(1.0)
-    # A worker ended while writing its result leaves half a message in the result pipe: the pool's manager thread
-    # then waits in recv() for ever, and so does the interpreter's exit, which joins that thread (1 stopped study in
-    # ~8 on 2 loaded cores). With the workers gone, this process holds the pipe's only write end: closing it turns
-    # the wait into EOF, the thread takes the pool as broken, cleans up and ends. It is awaited here, so the exit hook
-    # (concurrent.futures.process._python_exit) never writes to the wake-up pipe the thread is closing (EBADF).
+    writer = getattr(results, "_writer", None)
     if writer is not None and not any(p.is_alive() for p in procs):
-        with contextlib.suppress(OSError):
-            writer.close()
-    if manager is not None:
-        manager.join(STOP_GRACE_S)
+        # a worker stopped while it sent its result left half a message in the result pipe: the manager thread
+        # waits for the rest for ever, and so does this process's exit; with the workers gone this is the pipe's
+        # last writer, so closing it ends that wait (EOF: the pool is marked broken and cleans up)
+        writer.close()
+    if manager is not None:  # let the pool's manager thread finish closing its pipes before this process exits:
+        # else the exit's wake-up of that thread races with the close ("OSError: Bad file descriptor", CPython 3.11)
+        manager.join(max(0.0, deadline - time.monotonic()) + 1.0)
 
 
 def _export_path() -> None:
@@ -462,56 +501,43 @@ def dask_missing_message() -> str:
 
 
 def _run_dask(
-    specs: list[dict[str, Any]], workers: int | None, scheduler: str | None, done: Callable[[dict[str, Any]], None]
+    specs: list[dict[str, Any]],
+    workers: int | None,
+    scheduler: str | None,
+    done: Callable[[dict[str, Any]], None],
+    poll: Callable[[], None] = _no_poll,
 ) -> None:
     try:
-        from dask.distributed import Client, LocalCluster, as_completed
+        from dask.distributed import Client, as_completed
     except ImportError:
         raise RuntimeError(dask_missing_message()) from None
     import dask
 
     from ..limits import check_local_workers
+    from .cluster import CLOSE_GRACE_S, INTERRUPT_GRACE_S, LocalClusterProcess
 
     n_local = check_local_workers(workers, "dask workers") or os.cpu_count() or 1
-    cluster = None
+    cluster: LocalClusterProcess | None = None
+    client = None
     # the workers' scratch space (Dask's default: <tmp>/dask-scratch-space, left behind) is ours, removed at the end
     scratch = None if scheduler else tempfile.mkdtemp(prefix="aev_ocp_dask_")
     # a scheduler that accepts and then stays silent must not hang the study (issue 28)
-    cfg = dask.config.set(
-        {
-            "distributed.comm.timeouts.connect": f"{SCHEDULER_CONNECT_TIMEOUT_S}s",
-            "distributed.comm.timeouts.tcp": f"{SCHEDULER_HEARTBEAT_TIMEOUT_S}s",
-            **({"temporary-directory": scratch} if scratch else {}),
-        }
-    )
-
-    def release() -> None:
-        cfg.__exit__(None, None, None)
-        if scratch is not None:
-            shutil.rmtree(scratch, ignore_errors=True)
-
+    timeouts = {
+        "distributed.comm.timeouts.connect": f"{SCHEDULER_CONNECT_TIMEOUT_S}s",
+        "distributed.comm.timeouts.tcp": f"{SCHEDULER_HEARTBEAT_TIMEOUT_S}s",
+    }
+    cfg = dask.config.set(timeouts)
+    grace = INTERRUPT_GRACE_S
     try:
         if scheduler:
             client = _connect(Client, scheduler)
         else:
+            assert scratch is not None
             _export_path()
-            with interrupts.deferred():  # Ctrl-C while the cluster starts: honoured once it can be closed cleanly
-                cluster = LocalCluster(
-                    n_workers=n_local,
-                    threads_per_worker=1,
-                    processes=True,
-                    dashboard_address=None,
-                    silence_logs=logging.CRITICAL,
-                    local_directory=scratch,
-                )
+            # its own session: a terminal's Ctrl-C reaches this process only, which stops the cluster (cluster.py)
             with interrupts.deferred():
-                client = Client(cluster, timeout=SCHEDULER_CONNECT_TIMEOUT_S)
-    except BaseException:
-        if cluster is not None:
-            cluster.close()  # the Client failed: the workers already started must not outlive the study
-        release()
-        raise
-    try:
+                cluster = LocalClusterProcess(n_local, scratch, {**timeouts, "temporary-directory": scratch})
+            client = _connect(Client, cluster.wait_address(poll=poll))
         slots = max(1, sum(client.nthreads().values()))
         size = chunk_size(len(specs), slots)
         chunks = [specs[i : i + size] for i in range(0, len(specs), size)]
@@ -519,7 +545,7 @@ def _run_dask(
             client.submit(run_tasks, ch, key=f"aev-ocp-tasks-{ch[0]['key']}-{len(ch)}", pure=False) for ch in chunks
         ]
         try:
-            for fut in as_completed(futures):
+            for fut in _completed(as_completed(futures), poll):
                 try:
                     batch = fut.result()
                 except Exception as exc:  # run_task records its own errors: this is the cluster failing
@@ -530,16 +556,32 @@ def _run_dask(
                 for res in batch:
                     done(res)
         except BaseException:
-            client.cancel(futures)
+            if cluster is None:  # a shared scheduler: withdraw this study's tasks (a local cluster just ends)
+                client.cancel(futures)
             raise
+        grace = CLOSE_GRACE_S
     finally:
         quiet = logging.getLogger("distributed")  # closing after Ctrl-C: the heartbeats' "stream closed" are no news
         level = quiet.level
         quiet.setLevel(logging.CRITICAL)
         try:
-            client.close()
-            if cluster is not None:
-                cluster.close()  # ends the worker processes this study started, computing or not
+            with interrupts.deferred():  # a second Ctrl-C must not leave the cluster running
+                if client is not None:
+                    client.close(timeout=grace)
+                if cluster is not None:
+                    cluster.stop(grace)  # ends the processes this study started, computing or not
         finally:
             quiet.setLevel(level)
-            release()
+            cfg.__exit__(None, None, None)
+            if scratch is not None:
+                shutil.rmtree(scratch, ignore_errors=True)
+
+
+def _completed(ac: Any, poll: Callable[[], None]) -> Iterator[Any]:
+    """The futures of Dask's ``as_completed`` ``ac`` as they finish, calling ``poll`` every POLL_S while none does."""
+    while not ac.is_empty():
+        batch = ac.next_batch(block=False)
+        if not batch:
+            poll()
+            time.sleep(POLL_S)
+        yield from batch

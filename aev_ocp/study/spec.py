@@ -57,7 +57,7 @@ from pathlib import Path
 from typing import Any
 
 from ..limits import check_study_size
-from ..params import ParameterError
+from ..params import ParameterError, echo
 from ..progress import Progress
 from ..results import check_safe_name
 from ..scenarios import ScenarioError, TableReader, load_scenario
@@ -175,6 +175,25 @@ def _family(key: str) -> set[str]:
     return out
 
 
+def _refuse_swept(file: str, what: str, key: str, value: Any, axes: list[Axis], fix: str) -> None:
+    """StudyError if an axis sweeps ``key`` (or a key that setting it replaces): the value ``what`` gives for it
+    would be dropped at every point."""
+    fam = _family(key)
+    for i, a in enumerate(axes):
+        hit = next((k for k in a.keys if k in fam), None)
+        if hit is not None:
+            raise StudyError(
+                f"{file}: {what} {key} = {echo(value)} would be ignored: axes[{i}] sweeps {hit} at every point; {fix}"
+            )
+
+
+def _check_overrides(file: str, axes: list[Axis], layers: list[tuple[str, dict[str, Any]]]) -> None:
+    """Refuse a study-file override that an axis replaces at every point (it would be dropped without a word)."""
+    for where, ov in layers:
+        for key, value in ov.items():
+            _refuse_swept(file, where, key, value, axes, f"remove it from {where} or from the axes")
+
+
 def _check_sets(
     file: str,
     sets: dict[str, Any],
@@ -185,25 +204,19 @@ def _check_sets(
     """Refuse a --set that an axis or a controller would replace; note the study-file overrides it replaces."""
     notes: list[str] = []
     for key, value in sets.items():
+        _refuse_swept(file, "--set", key, value, axes, "change the axis values in the study file instead")
         fam = _family(key)
-        for i, a in enumerate(axes):
-            hit = next((k for k in a.keys if k in fam), None)
-            if hit is not None:
-                raise StudyError(
-                    f"{file}: --set {key} = {value!r} would be ignored: axes[{i}] sweeps {hit} at every "
-                    f"point; change the axis values in the study file instead"
-                )
         for c in controllers:
             hit = next((f"mpc.{k}" for k, _ in c.settings if f"mpc.{k}" in fam), None)
             if hit is not None:
                 raise StudyError(
-                    f"{file}: --set {key} = {value!r} would be ignored: controller {c.label!r} sets "
+                    f"{file}: --set {key} = {echo(value)} would be ignored: controller {c.label!r} sets "
                     f"{hit}; change [[controllers.mpc]] in the study file instead"
                 )
         for where, ov in layers:
             for k in sorted(fam & set(ov)):
                 notes.append(
-                    f"{file}: --set {key} = {value!r} replaces {where} {k} = {ov[k]!r} (the command line "
+                    f"{file}: --set {key} = {echo(value)} replaces {where} {k} = {echo(ov[k])} (the command line "
                     f"is applied over the study file)"
                 )
     return notes
@@ -254,12 +267,14 @@ def _parse_study(doc: dict[str, Any], file: str, path: Path | None, sets: dict[s
     points: list[Point] = []
     layers = [("[overrides]", overrides)] + [(f"scenario {b!r} overrides", base_overrides[b][1]) for b in bases]
     found_warnings: list[str] = _check_sets(file, sets, axes, controllers, layers)
+    _check_overrides(file, axes, layers)
     n_points = len(bases) * math.prod(len(a.rows) for a in axes)
     sizes = " x ".join([f"{len(bases)} scenarios"] * (len(bases) > 1) + [f"{len(a.rows)} ({a.label})" for a in axes])
     check_study_size(n_points, len(controllers), f"{file}: axes {sizes or '(none)'}")
     combos = list(itertools.product(*[a.rows for a in axes])) if axes else [()]
     prog = Progress(f"study {name}", n_points, unit="points", every_s=2.0)
-    prog._last = prog.clock()  # a line only once validation has taken 2 s (a 100 x 100 grid takes ~10 s)
+    prog._last = prog.clock()  # a line only once validation has taken 2 s (a 100 x 100 grid takes ~4 s)
+    memo: dict[int, dict[str, Any]] = {}  # each base document with the overrides and --set applied, once
     for b in bases:
         base_doc, base_file = docs[b]
         for combo in combos:
@@ -276,6 +291,7 @@ def _parse_study(doc: dict[str, Any], file: str, path: Path | None, sets: dict[s
                 len(points),
                 found_warnings,
                 sets,
+                memo,
             )
             points.append(Point(len(points), b, values, pdoc, base_file))
     study = Study(name, description, file, axes, controllers, reference, points, bases, report, found_warnings)

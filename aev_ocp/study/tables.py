@@ -11,6 +11,7 @@ import numpy as np
 from ..limits import check_study_size
 from ..models.carfollowing import LAW_REGISTRY
 from ..overrides import OverrideError, check_key
+from ..params import echo
 from ..scenarios import TableReader, find_scenario
 from .model import Axis, Controller, StudyError
 
@@ -92,7 +93,7 @@ def _controllers(r: TableReader) -> list[Controller]:
         m = dict(m)
         label = m.pop("label", "mpc" if len(mpcs) == 1 else f"mpc{j + 1}")
         if not isinstance(label, str) or not label:
-            raise StudyError(f"{r.file}: controllers.mpc[{j}].label = {label!r} is not allowed: expected a string")
+            raise StudyError(f"{r.file}: controllers.mpc[{j}].label = {echo(label)} is not allowed: expected a string")
         out.append(Controller(label, "mpc", "mpc", tuple(sorted(m.items()))))
     if r.boolean("ocpd", False):
         out.append(Controller("ocp-d", "ocpd", "ocpd"))
@@ -158,7 +159,7 @@ def _bases(top: TableReader) -> tuple[list[str], dict[str, tuple[str, dict[str, 
         else:
             raise top.error(f"scenarios[{j}]", item, "expected a scenario name/path or an inline table")
         if label in out:
-            raise top.error(f"scenarios[{j}]", item, f"label {label!r} is used twice; give each a distinct label")
+            raise top.error(f"scenarios[{j}]", item, f"label {echo(label)} is used twice; give each a distinct label")
         labels.append(label)
         out[label] = (scen, ov)
     return labels, out

@@ -411,6 +411,12 @@ def _loop(ts: Any, sc: SumoScenario, progress: ProgressFn | None) -> SumoRun:
         except Exception:  # noqa: BLE001 - it may have left already
             pass
 
+    def stop(tr: _Track, kind: str, t_s: float, message: str, **extra: Any) -> None:
+        """The record of ``tr`` ends with an Event of ``kind`` at t_s [s]; the vehicle goes back to SUMO."""
+        tr.events.append(Event(kind, u.time_from_si(t_s), 0, message, time_s=t_s, **extra))
+        finish(tr, kind, t_s)
+        release(tr.vid)
+
     try:
         while k < K:
             interrupts.check()
@@ -444,18 +450,13 @@ def _loop(ts: Any, sc: SumoScenario, progress: ProgressFn | None) -> SumoRun:
             for vid in ts.simulation.getStartingTeleportIDList():
                 if vid in tracks:
                     tr = tracks[vid]
-                    tr.events.append(
-                        Event(
-                            "teleport",
-                            u.time_from_si(t_s),
-                            0,
-                            "SUMO teleported the vehicle (a jam or a lane it could not leave); its record ends here",
-                            time_s=t_s,
-                        )
-                    )
                     fleet_events.append({"kind": "teleport", "t_s": t_s, "vehicle": vid, "controlled": tr.controlled})
-                    finish(tr, "teleport", t_s)
-                    release(vid)
+                    stop(
+                        tr,
+                        "teleport",
+                        t_s,
+                        "SUMO teleported the vehicle (a jam or a lane it could not leave); its record ends here",
+                    )
             for c in ts.simulation.getCollisions():
                 dv = c.colliderSpeed - c.victimSpeed
                 fleet_events.append(
@@ -470,20 +471,8 @@ def _loop(ts: Any, sc: SumoScenario, progress: ProgressFn | None) -> SumoRun:
                 )
                 for vid in (c.collider, c.victim):
                     if vid in tracks:
-                        tr = tracks[vid]
-                        tr.events.append(
-                            Event(
-                                "collision",
-                                u.time_from_si(t_s),
-                                0,
-                                f"{'hit ' + c.victim if vid == c.collider else 'hit by ' + c.collider} "
-                                f"at {dv:.3g} m/s ({c.type})",
-                                time_s=t_s,
-                                impact_speed_mps=dv,
-                            )
-                        )
-                        finish(tr, "collision", t_s)
-                        release(vid)
+                        who = "hit " + c.victim if vid == c.collider else "hit by " + c.collider
+                        stop(tracks[vid], "collision", t_s, f"{who} at {dv:.3g} m/s ({c.type})", impact_speed_mps=dv)
             for vid in ts.simulation.getArrivedIDList():
                 if vid in tracks:
                     tr = tracks[vid]

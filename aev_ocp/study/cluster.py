@@ -1,0 +1,186 @@
+"""A Dask ``LocalCluster`` in a session of its own, for ``aev-ocp study --dask-local N``.
+
+A terminal's Ctrl-C goes to every process of its foreground process group. A LocalCluster started inside the
+study's process puts its scheduler, nannies and workers in that group, and they are started from Dask's own
+event-loop thread, out of reach of the study's signal handling: a Ctrl-C while they import NumPy and CasADi
+printed their KeyboardInterrupt tracebacks and could leave a worker behind. So the study starts the cluster
+through this module as a separate process in a new session (:class:`LocalClusterProcess`): only the study
+sees the terminal's signals, and it stops the cluster itself.
+
+The cluster process prints its scheduler's address as one JSON line on stdout, then serves until its stdin
+closes (the study ended, whatever way, even killed) or it gets SIGTERM/SIGINT; then it closes the cluster.
+Whatever of its process group is still alive after the study's grace period is killed.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import os
+import selectors
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Any, Callable
+
+#: How long the cluster process may take to start its workers before the study gives up [s]. Each worker
+#: imports NumPy and CasADi (about 1-3 s on one core); the workers are capped per core (limits.check_local_workers).
+CLUSTER_START_TIMEOUT_S = 180.0
+#: After a normal end, how long the cluster may take to close its workers before they are killed [s].
+CLOSE_GRACE_S = 10.0
+#: After an interrupt or a failure, the same, short: the user is waiting for the prompt [s]. A cluster that has
+#: not started yet is killed at once.
+INTERRUPT_GRACE_S = 1.0
+#: The last characters of the cluster process's log shown when it fails to start.
+LOG_TAIL_CHARS = 600
+
+
+class LocalClusterProcess:
+    """A LocalCluster of ``n_workers`` single-threaded worker processes, run by ``python -m aev_ocp.study.cluster``
+    in a session of its own. ``address`` is its scheduler's (``tcp://127.0.0.1:PORT``); :meth:`stop` ends it and
+    every process it started. ``scratch`` is the workers' local directory (the caller owns and removes it);
+    ``config`` is Dask configuration (dotted keys) the cluster process sets before it starts."""
+
+    def __init__(self, n_workers: int, scratch: str, config: dict[str, Any]) -> None:
+        self.log_path = Path(scratch) / "cluster.log"
+        args = [sys.executable, "-m", "aev_ocp.study.cluster", "--workers", str(int(n_workers))]
+        args += ["--scratch", scratch, "--config", json.dumps(config)]
+        with open(self.log_path, "wb") as log:
+            self.proc = subprocess.Popen(
+                args, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=log, start_new_session=True
+            )
+        self.address = ""
+
+    def wait_address(self, timeout_s: float = CLUSTER_START_TIMEOUT_S, poll: Callable[[], None] | None = None) -> str:
+        """Block until the cluster process prints its scheduler address (RuntimeError if it ends first or
+        ``timeout_s`` [s] passes), calling ``poll`` (e.g. a time-limit check) every half second meanwhile.
+        A KeyboardInterrupt or what ``poll`` raises propagates at once: the caller stops the process."""
+        assert self.proc.stdout is not None
+        deadline = time.monotonic() + timeout_s
+        line = b""
+        with selectors.DefaultSelector() as sel:
+            sel.register(self.proc.stdout, selectors.EVENT_READ)
+            while not line.endswith(b"\n"):
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    raise RuntimeError(f"the local Dask cluster did not start within {timeout_s:g} s{self._log_tail()}")
+                if not sel.select(min(left, 0.5)):
+                    if poll is not None:
+                        poll()
+                    continue
+                chunk = os.read(self.proc.stdout.fileno(), 4096)
+                if not chunk:  # the process ended before it was ready
+                    self.proc.wait()
+                    raise RuntimeError(
+                        f"the local Dask cluster could not start (exit code {self.proc.returncode}){self._log_tail()}"
+                    )
+                line += chunk
+        try:
+            self.address = str(json.loads(line.decode())["address"])
+        except (ValueError, KeyError, TypeError):
+            raise RuntimeError(f"the local Dask cluster answered {line[:80]!r}, not its address") from None
+        return self.address
+
+    def _log_tail(self) -> str:
+        try:
+            text = self.log_path.read_bytes()[-LOG_TAIL_CHARS:].decode("utf-8", "replace").strip()
+        except OSError:
+            return ""
+        return f": {text.splitlines()[-1]}" if text else ""
+
+    def stop(self, grace_s: float = CLOSE_GRACE_S) -> None:
+        """Ask the cluster to close (its stdin closes), wait up to ``grace_s`` [s], then kill whatever of its
+        process group is left (scheduler, nannies, workers, resource tracker). Safe to call twice."""
+        if self.proc.stdin is not None and not self.proc.stdin.closed:
+            try:
+                self.proc.stdin.close()
+            except OSError:
+                pass
+        pid = self.proc.pid
+        deadline = time.monotonic() + (grace_s if self.address else 0.0)
+        # wait without reaping: while the leader is a zombie, its process-group id cannot be reused
+        while self.proc.returncode is None and time.monotonic() < deadline:
+            if os.waitid(os.P_PID, pid, os.WEXITED | os.WNOHANG | os.WNOWAIT) is not None:
+                break
+            time.sleep(0.05)
+        if self.proc.returncode is None:
+            try:
+                os.killpg(pid, signal.SIGKILL)
+            except (ProcessLookupError, PermissionError):
+                pass
+            self.proc.wait()
+        if self.proc.stdout is not None:
+            self.proc.stdout.close()
+        # the orphaned members of the group (reparented once the leader is reaped) die of the SIGKILL above;
+        # wait a moment for them, so that the caller may remove the scratch folder they wrote into
+        deadline = time.monotonic() + 1.0
+        while _group_alive(pid) and time.monotonic() < deadline:
+            time.sleep(0.02)
+
+
+def _group_alive(pgid: int) -> bool:
+    """Whether a process of group ``pgid`` still runs (zombies, which hold nothing open, do not count; where
+    there is no /proc, any member counts)."""
+    proc = Path("/proc")
+    if not proc.is_dir():
+        try:
+            os.killpg(pgid, 0)
+        except (ProcessLookupError, PermissionError):
+            return False
+        return True
+    for p in proc.iterdir():
+        if p.name.isdigit():
+            try:
+                stat = (p / "stat").read_text().rsplit(")", 1)[-1].split()
+            except OSError:
+                continue
+            if int(stat[2]) == pgid and stat[0] not in ("Z", "X"):
+                return True
+    return False
+
+
+def main(argv: list[str] | None = None) -> int:
+    """The cluster process (see the module docstring); not a user command."""
+    ap = argparse.ArgumentParser(prog="python -m aev_ocp.study.cluster")
+    ap.add_argument("--workers", type=int, required=True)
+    ap.add_argument("--scratch", required=True)
+    ap.add_argument("--config", default="{}")
+    a = ap.parse_args(argv)
+
+    def stop(signum: int, frame: Any) -> None:  # noqa: ARG001 - signal handler signature
+        raise SystemExit(0)
+
+    study = os.getppid()
+    signal.signal(signal.SIGTERM, stop)
+    signal.signal(signal.SIGINT, stop)
+    import dask
+    from dask.distributed import LocalCluster
+
+    dask.config.set(json.loads(a.config))
+    cluster = LocalCluster(
+        n_workers=a.workers,
+        threads_per_worker=1,
+        processes=True,
+        dashboard_address=None,
+        silence_logs=logging.CRITICAL,
+        local_directory=a.scratch,
+    )
+    try:
+        sys.stdout.write(json.dumps({"address": cluster.scheduler_address}) + "\n")
+        sys.stdout.flush()
+        while sys.stdin.buffer.read(65536):  # until the study closes its end (or ends)
+            pass
+    finally:
+        logging.getLogger("distributed").setLevel(logging.CRITICAL)  # "stream closed" while closing is no news
+        cluster.close(timeout=CLOSE_GRACE_S)
+        if os.getppid() != study:  # the study was killed: nobody else will remove the workers' scratch folder
+            shutil.rmtree(a.scratch, ignore_errors=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
