@@ -21,6 +21,8 @@ import json
 import logging
 import os
 import shutil
+import signal
+import sys
 import tempfile
 import time
 import traceback
@@ -387,9 +389,22 @@ PARENT_CHECK_S = 1.0  # how often a pool worker checks that the study that start
 
 
 def _end_with(parent_pid: int) -> None:
-    """Pool-worker initializer: a daemon thread that ends this worker once ``parent_pid`` is no longer its parent
-    (the study died; the worker was re-parented)."""
+    """Pool-worker initializer: end this worker once the study ``parent_pid`` that started it is gone. On Linux the
+    kernel kills it (``prctl(PR_SET_PDEATHSIG, SIGKILL)``: it works while the worker sits in a long CasADi call
+    that holds the GIL); elsewhere a daemon thread checks, every PARENT_CHECK_S, that the worker was not
+    re-parented."""
     import threading
+
+    if sys.platform.startswith("linux"):
+        import ctypes
+
+        try:
+            libc = ctypes.CDLL(None, use_errno=True)
+            libc.prctl(1, signal.SIGKILL, 0, 0, 0)  # PR_SET_PDEATHSIG = 1 (linux/prctl.h)
+        except (OSError, AttributeError):
+            pass  # no prctl: the thread below still watches
+    if os.getppid() != parent_pid:  # the study died before the line above took effect
+        os._exit(1)
 
     def watch() -> None:
         while os.getppid() == parent_pid:
