@@ -3,6 +3,7 @@ LocalCluster included), resume recomputes nothing, failures are recorded, bad in
 
 from __future__ import annotations
 
+import re
 import json
 import math
 import sys
@@ -509,3 +510,24 @@ codegen = false
     coarse = [dict(r, coarse=True) if r["controller"] == "ocp-d" else dict(r) for r in out.rows]
     table._ocpd_roles(study, coarse)
     assert next(r for r in coarse if r["controller"] == "ocp-d")["ocpd_role"] == "reference"
+
+
+@pytest.mark.parametrize(
+    ("kw", "named"),
+    [
+        ({"executor": "cloud"}, "executor 'cloud'"),
+        ({"executor": None}, "executor None"),
+        ({"executor": "pool", "workers": 0}, "workers 0"),
+        ({"executor": "pool", "workers": 2.5}, "workers 2.5"),
+        ({"executor": "pool", "scheduler": "tcp://127.0.0.1:8786"}, "only for executor 'dask'"),
+    ],
+)
+def test_run_study_refuses_a_bad_executor_before_claiming_its_folder(tmp_path, kw, named):
+    """run_study's executor arguments are checked before anything is written: a ParameterError naming the
+    argument (it was a bare ValueError, raised after the output folder had been claimed)."""
+    from aev_ocp.params import ParameterError
+
+    out = tmp_path / "o"
+    with pytest.raises(ParameterError, match=re.escape(named)):
+        run_study(_study(tmp_path), out, report=False, **kw)
+    assert not out.exists()

@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from ..saved import TRAJECTORIES, StudyOutput, load_study_output
-from .runner import EXECUTORS, Store, TimeLimitStop, execute, run_task
+from .runner import EXECUTORS, Store, TimeLimitStop, check_executor, execute, run_task
 from .spec import Study, StudyError, parse_study, read_study
 from .table import build_rows, load_table, write_table
 
@@ -39,6 +39,7 @@ def run_study(
     (raising :class:`TimeLimitStop`) once passed, the finished tasks stored for a rerun to resume;
     trajectories: also save every task's trajectories (``trajectories/<hash>/``, see
     :meth:`StudyOutput.trajectory`)."""
+    check_executor(executor, workers, scheduler)  # before the folder is claimed
     if not isinstance(study, Study):
         study = read_study(study)
     from ..results import claim_output_dir, default_output_dir, output_lock

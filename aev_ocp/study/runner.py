@@ -243,6 +243,22 @@ class TimeLimitStop(RuntimeError):
 
 
 # ----------------------------------------------------------------------------- executors
+def check_executor(executor: str, workers: int | None, scheduler: str | None) -> None:
+    """ParameterError naming the argument unless ``executor`` is one of EXECUTORS, ``workers`` a worker count this
+    machine allows (pool and a local Dask cluster) and ``scheduler`` given only to the Dask executor (checked
+    before a study claims its folder)."""
+    from ..limits import check_local_workers
+    from ..params import ParameterError
+
+    if not isinstance(executor, str) or executor not in EXECUTORS:
+        raise ParameterError(f"executor {executor!r} is not allowed: must be one of {', '.join(EXECUTORS)}")
+    check_local_workers(workers, "workers")
+    if scheduler is not None and executor != "dask":
+        raise ParameterError(f"scheduler {scheduler!r} is only for executor 'dask', not {executor!r}")
+    if scheduler is not None and not isinstance(scheduler, str):
+        raise ParameterError(f"scheduler {scheduler!r} is not allowed: must be an address such as tcp://host:8786")
+
+
 def _unique(tasks: Iterable[Task]) -> dict[str, Task]:
     out: dict[str, Task] = {}
     for t in tasks:
@@ -273,8 +289,7 @@ def execute(
     rerunning resumes. trajectories_dir: also save each task's trajectories into ``<dir>/<hash>/``
     (manifest.json + trajectories.npz; a stored task without them is run again); the Dask executor
     then needs a folder its workers share."""
-    if executor not in EXECUTORS:
-        raise ValueError(f"executor {executor!r} is not one of {EXECUTORS}")
+    check_executor(executor, workers, scheduler)
     todo = _unique(tasks)
     results: dict[str, dict[str, Any]] = {}
     from ..saved import MANIFEST
