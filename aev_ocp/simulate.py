@@ -70,7 +70,7 @@ STEP_LIMIT_SPAN = 1000.0
 
 
 def cascade_step_limit(max_num_steps: int, t_end: float) -> int:
-    """Steps (accepted + rejected) one vehicle of the cascade may take over [0, t_end] [model time]."""
+    """Steps (accepted + rejected) one vehicle of the cascade may take from 0 to ``t_end`` (model time)."""
     return int(max_num_steps) * max(1, math.ceil(t_end / STEP_LIMIT_SPAN))
 
 
