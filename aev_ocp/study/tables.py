@@ -146,9 +146,27 @@ def _metric_columns() -> frozenset[str]:
     from ..simulate import INTEGRATOR_STATS
 
     t, o = np.array([0.0, 1.0]), np.ones((2, 1))
-    arrays = {f: o for f in ("gap", "speed", "accel", "V1", "V2", "S", "current_A", "omega", "heat_J", "heat_irr_J")}
-    arrays.update({f: o for f in ("int_ovm_err2", "int_rel_speed2", "int_jerk2", "temperature_K")})
-    r = SimulationResult(t=t, leader_speed=t + 1.0, leader_position=t, controllers=["law"], ev=EVParams(), **arrays)
+    r = SimulationResult(
+        t=t,
+        leader_speed=t + 1.0,
+        leader_position=t,
+        gap=o,
+        speed=o,
+        accel=o,
+        V1=o,
+        V2=o,
+        S=o,
+        current_A=o,
+        omega=o,
+        heat_J=o,
+        heat_irr_J=o,
+        int_ovm_err2=o,
+        int_rel_speed2=o,
+        int_jerk2=o,
+        controllers=["law"],
+        ev=EVParams(),
+        temperature_K=o,
+    )
     own_cost = [*COST_KEYS.values(), *(f"{k}_optimum" for k in COST_KEYS.values())]
     return frozenset([*vehicle_metrics(r, 0), *INTEGRATOR_STATS, *sampled_stat_names(), *own_cost, "grid_dt", "coarse"])
 
