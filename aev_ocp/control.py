@@ -198,6 +198,21 @@ def _stats(rec: dict[str, list[Any]], ctrl: Controller) -> dict[str, Any]:
     }
 
 
+class _Anonymous:
+    def describe(self) -> dict[str, Any]:
+        return {}
+
+
+def sampled_stat_names() -> frozenset[str]:
+    """Every key a sampled controller's statistics add to its follower's metrics (:func:`_stats`, the forecast
+    RMS, the estimation errors and the estimator's timings of :meth:`ClosedLoop.run`), so that a study can check
+    a [report] metric name before anything runs."""
+    rec: dict[str, list[Any]] = {k: [] for k in ("solve", "call", "iters", "ok", "status")}
+    est = estimation_errors(np.zeros((1, 5)), 1.0)
+    extra = ("forecast_rms", "estimation", "estimator_ms_median", "estimator_plus_call_ms_median")
+    return frozenset([*_stats(rec, cast(Controller, _Anonymous())), *extra, *(f"est_{k}" for k in est)])
+
+
 def _checked(cmd: Any, ctrl: Controller, vehicle: int, t: float) -> Command:
     """A controller's answer, if it is a Command with a finite real acceleration; a ParameterError naming the
     controller, the vehicle and the time otherwise (a NaN would be saturated into full braking without a word)."""

@@ -142,6 +142,35 @@ def check_simulation_size(n_followers: int, t_end: float, dt_out: float) -> floa
     )
 
 
+# Peak memory of a ring run per (sample x vehicle): 249-251 B measured (tracemalloc peak of run_ring, i.e. the
+# integration and the fleet metrics; 22 and 100 vehicles, 3001-12001 samples, dt_out_s 0.05-0.1 s); 300 B, as a platoon.
+RING_BYTES_PER_SAMPLE = 300
+
+
+def ring_samples(t_end_s: float, dt_out_s: float) -> float:
+    """Samples of a ring run [-]: one per dt_out_s over [0, t_end_s] plus the first (inf if the ratio overflows)."""
+    ratio = t_end_s / dt_out_s
+    return math.ceil(ratio - 1e-9) + 1.0 if math.isfinite(ratio) else math.inf
+
+
+def check_ring_size(
+    n_vehicles: int, t_end_s: float, dt_out_s: float, keys: tuple[str, str, str] | None = None
+) -> float:
+    """Raise ParameterError if a ring run of ``n_vehicles`` over [0, t_end_s] sampled every dt_out_s [s] needs more
+    than the budget; ``keys``: how the user sets the vehicles, the horizon and the sampling (named in the message;
+    default the Python arguments). Returns the estimate [bytes]."""
+    need, limit = RING_BYTES_PER_SAMPLE * float(n_vehicles) * ring_samples(t_end_s, dt_out_s), memory_limit_bytes()
+    if need <= limit:
+        return need
+    kv, kt, kd = keys or ("n_vehicles", "t_end_s", "dt_out_s")
+    per_vehicle = need / max(n_vehicles, 1)
+    raise ParameterError(
+        f"ring: {n_vehicles} vehicles x {ring_samples(t_end_s, dt_out_s):.6g} samples ({kt} = {t_end_s:g} s, "
+        f"{kd} = {dt_out_s:g} s) need about {_gb(need)}, more than the limit of {_gb(limit)} "
+        f"($AEV_OCP_MAX_MEMORY_GB): raise {kd}, lower {kt}, or use at most {int(limit // per_vehicle)} vehicles ({kv})"
+    )
+
+
 def check_mpc_size(N: int, n_mpc_vehicles: int = 1, key: str = "MPCSettings.N") -> float:
     """For :class:`aev_ocp.control.ClosedLoop` (Python API) and every [mpc] table: raise ParameterError if the
     MPC NLPs (one per MPC vehicle, horizon N) exceed the budget; returns the estimate [bytes]. ``key`` is the

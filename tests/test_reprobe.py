@@ -286,26 +286,41 @@ def test_output_folder_that_cannot_be_created_is_one_short_line(
     assert code == EXIT_BAD_INPUT and "is a symbolic link to" in line and "which does not exist" in line, line
 
 
-@pytest.mark.parametrize(("vehicle", "warns"), [("[2, 7]", True), ("9", True), ("[1, 2]", False)])
-def test_report_vehicle_without_rows_warns(tmp_path: Path, vehicle: str, warns: bool) -> None:
-    """[report] vehicle = [99] on a 1-follower platoon wrote a report of nothing ('0 of 0') without a word."""
+@pytest.mark.parametrize(
+    ("vehicle", "outcome"),
+    [
+        ("[2, 7]", "report.vehicle = 7"),
+        ("9", "report.vehicle = 9"),
+        ("[1, 2]", None),
+        ("3", "scenario(s) ['s'] have no follower 3"),
+    ],
+)
+def test_report_vehicle_without_rows_is_refused_or_warns(tmp_path: Path, vehicle: str, outcome: str | None) -> None:
+    """[report] vehicle = [99] on a 1-follower platoon wrote a report of nothing ('0 of 0') without a word: a
+    follower no scenario has is refused before any task runs; one that only some scenarios lack is a warning."""
     import warnings
 
-    from aev_ocp.study import run_study
+    from aev_ocp.study import StudyError, run_study
 
     (tmp_path / "s.toml").write_text(SMALL, encoding="utf-8")  # 2 followers
     (tmp_path / "st.toml").write_text(
-        'name = "st"\nscenarios = ["s.toml"]\n[[axes]]\nkey = "carfollowing.kappa"\nvalues = [0.013, 0.047]\n'
+        'name = "st"\nscenarios = ["s.toml", { scenario = "s.toml", label = "s3", overrides = '
+        '{ "platoon.followers" = 3 } }]\n[[axes]]\nkey = "carfollowing.kappa"\nvalues = [0.013, 0.047]\n'
         f'[controllers]\nlaws = ["proposed"]\n[report]\nvehicle = {vehicle}\n',
         encoding="utf-8",
     )
+    if outcome is not None and outcome.startswith("report.vehicle"):
+        with pytest.raises(StudyError, match=rf"{outcome} is not allowed: must be a follower 1-3 .*have 2, 3 follower"):
+            run_study(tmp_path / "st.toml", tmp_path / "o", executor="inprocess")
+        assert not (tmp_path / "o").exists()
+        return
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         run_study(tmp_path / "st.toml", tmp_path / "o", executor="inprocess")
     said = [str(w.message) for w in caught if "[report] vehicle" in str(w.message)]
-    assert bool(said) == warns, said
-    if warns:
-        assert "the table's followers: [1, 2]" in said[0]
+    assert len(said) == (outcome is not None), said
+    if outcome is not None:
+        assert outcome in said[0], said
 
 
 def test_a_compiler_in_cc_that_does_not_exist_is_reported_once(

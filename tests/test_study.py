@@ -18,6 +18,7 @@ from aev_ocp.simulate import simulate_platoon
 from aev_ocp.study import StudyError, load_table, read_study, run_study
 from aev_ocp.study import runner as runner_mod
 from aev_ocp.study.report import pareto_mask
+from aev_ocp.study.tables import report_columns
 
 # Table 1 platoon cut to 3 followers and t_end = 2.5: cheap, but every metric non-trivial.
 STUDY = """
@@ -61,6 +62,9 @@ def test_points_equal_direct_simulations(tmp_path):
     )
     rows = out.rows
     assert len(rows) == 4 * 2 * 3  # points × controllers × vehicles
+    assert set().union(*rows) <= report_columns(
+        read_study(_study(tmp_path)).axes
+    )  # what a [report] may name covers every column
     # OVFL does not read kappa: its two kappa values share one task (one hash), 6 tasks in all
     assert out.n_tasks == 6
     base = load_scenario("table1")
@@ -240,6 +244,19 @@ laws = ["proposed"]
         (('laws = ["proposed", "ovfl"]', 'laws = ["proposed", "ovlf"]'), ["tiny.toml", "controllers.laws"]),
         (('"simulation.t_end" = 2.5', '"simulation.t_end" = "long"'), ["tiny.toml", "overrides", "simulation.t_end"]),
         (('reference = "ovfl"', 'reference = "mpc"'), ["tiny.toml", "reference"]),
+        # a [report] that could only warn after every task had run is refused when the file is read
+        (
+            ('metrics = ["omega_model"]', 'metrics = ["omega_modle"]'),
+            ["report.metrics", "'omega_modle'", "did you mean omega_model,"],
+        ),
+        (('"rms_rel_speed_model"]]', '"rms_rel_sped"]]'), ["report.pareto", "'rms_rel_sped'", "rms_rel_speed_mps"]),
+        (("[report]\n", '[report]\npareto_by = ["kappa"]\n'), ["report.pareto_by", "'kappa'", "carfollowing.kappa"]),
+        (
+            ("[report]\n", '[report]\nchange_metric = "rms_jerk_model"\n'),
+            ["report.change_metric", "heat_pack_J_per_km"],
+        ),
+        (("[report]\n", "[report]\nvehicle = 4\n"), ["report.vehicle = 4", "follower 1-3", "have 3 follower"]),
+        (("[report]\n", "[report]\nvehicle = [2, 99]\n"), ["report.vehicle = 99", "follower 1-3"]),
     ],
 )
 def test_bad_study_is_one_line_naming_file_axis_key(tmp_path, capsys, edit, needles):
@@ -252,6 +269,22 @@ def test_bad_study_is_one_line_naming_file_axis_key(tmp_path, capsys, edit, need
     err = capsys.readouterr().err
     assert rc == 2 and err.startswith("aev-ocp: error: ") and err.count("\n") == 1 and "Traceback" not in err
     assert not (tmp_path / "o").exists()  # nothing ran
+
+
+def test_report_vehicle_is_checked_against_every_scenario(tmp_path):
+    """Follower counts differ per scenario: a [report] vehicle that one scenario has is accepted (the report warns
+    after the run about the others), one that none has is refused; the metric names are the table's columns."""
+    two = STUDY.replace(
+        'scenarios = ["table1"]',
+        'scenarios = [{ scenario = "table1", label = "three" }, '
+        '{ scenario = "table1", label = "five", overrides = { "platoon.followers" = 5 } }]',
+    )
+    for v in (3, 5, [1, 5]):
+        assert read_study(_study(tmp_path, two.replace("[report]\n", f"[report]\nvehicle = {v}\n"))).report
+    with pytest.raises(StudyError, match=r"report\.vehicle = 6 .*follower 1-5 .*have 3, 5 follower"):
+        read_study(_study(tmp_path, two.replace("[report]\n", "[report]\nvehicle = 6\n")))
+    ok = 'metrics = ["min_ttc_s", "carfollowing.kappa", "solve_ms_median", "nfev", "est_gap_err_rms_m"]'
+    assert read_study(_study(tmp_path, STUDY.replace('metrics = ["omega_model"]', ok))).report["metrics"][-1]
 
 
 @pytest.mark.quick
@@ -305,6 +338,9 @@ codegen = false
 """
     out = run_study(read_study(_study(tmp_path, text)), tmp_path / "o", executor="inprocess", report=False)
     rows = {(r["mpc.w_Q"], r["controller"]): r for r in out.rows}
+    assert set().union(*out.rows) <= report_columns(
+        read_study(_study(tmp_path, text)).axes
+    )  # the MPC's and OCP-D's columns too
     assert all(r["status"] == "ok" for r in out.rows) and len(rows) == 6
     for wq in (0.4, 3.0):
         sc = load_scenario("mpc_paper_single").with_overrides(

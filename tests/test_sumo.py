@@ -162,8 +162,8 @@ def test_share_selection_draws_the_share():
     sc = parse_sumo_scenario({"sumo": {"network": "merge", "t_end_s": 10.0, "share": 0.3, "seed": 3}})
     n = sum(is_controlled(f"flow.{k}", "t", sc) for k in range(4000))
     assert abs(n / 4000 - 0.3) < 4 * math.sqrt(0.3 * 0.7 / 4000)  # 4 sigma
-    by_id = parse_sumo_scenario({"sumo": {"network": "ring", "t_end_s": 10.0, "ids": ["x.1"], "vtypes": ["aev"]}})
-    assert is_controlled("x.1", "car", by_id) and is_controlled("y", "aev", by_id)
+    by_id = parse_sumo_scenario({"sumo": {"network": "ring", "t_end_s": 10.0, "ids": ["ring.7"], "vtypes": ["aev"]}})
+    assert is_controlled("ring.7", "car", by_id) and is_controlled("y", "aev", by_id)
     assert not is_controlled("y", "car", by_id)
 
     def ring(s: float) -> set[str]:
@@ -221,6 +221,56 @@ def test_bad_route_file_gives_sumos_message_in_one_line(tmp_path, capsys, route,
     assert main(["sumo", str(tmp_path / "s.toml"), "--out", str(tmp_path / "o")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "SUMO" in err[0] and message in err[0]
+
+
+@pytest.mark.parametrize(
+    "sumo, pattern",
+    [
+        (
+            {"network": "ring", "ids": ["ring.3", "ring.22"]},
+            r"sumo\.ids = .*'ring\.22' is no vehicle.*ring\.0, ring\.1",
+        ),
+        ({"network": "ring", "ids": ["ring.99"], "ring": {"vehicles": 5}}, r"'ring\.99' is no .*5 cars .*ring\.4"),
+        ({"network": "merge", "ids": ["main.4", "ring.3"]}, r"sumo\.ids = .*'ring\.3' is no vehicle.*main\.0"),
+        ({"network": "merge", "ids": ["ramp.2"], "merge": {"ramp_flow_vph": 0.0}}, r"'ramp\.2' is no vehicle"),
+        ({"network": "merge", "ids": ["main"]}, r"'main' is no vehicle"),
+    ],
+)
+def test_unknown_id_of_a_shipped_network_is_refused_when_read(sumo, pattern):
+    """The shipped networks' vehicle ids are known before SUMO starts: an id none of them has is refused at once."""
+    from aev_ocp.scenarios import ScenarioError
+
+    with pytest.raises(ScenarioError, match=pattern):
+        parse_sumo_scenario({"sumo": {"t_end_s": 10.0, **sumo}}, "x.toml")
+
+
+def test_ids_of_shipped_networks_that_exist_are_accepted():
+    sc = parse_sumo_scenario({"sumo": {"network": "ring", "t_end_s": 10.0, "ids": ["ring.0", "ring.21"]}})
+    assert sc.spec.ids == ("ring.0", "ring.21")
+    sc = parse_sumo_scenario({"sumo": {"network": "merge", "t_end_s": 10.0, "ids": ["main.12", "ramp.0"]}})
+    assert sc.spec.ids == ("main.12", "ramp.0")
+
+
+@needs_sumo
+def test_unknown_id_of_a_user_network_is_refused_after_the_run(tmp_path, capsys):
+    """A user's route file: its vehicles are known once they depart, so an id that never did is refused (exit 2,
+    one line naming sumo.ids, the id and the vehicles that did depart) instead of silently driving nothing."""
+    from aev_ocp.cli import main
+    from aev_ocp.sumo.networks import build_ring
+
+    net, _ = build_ring(RING, tmp_path / "net", 10.0)
+    (tmp_path / "r.rou.xml").write_text(
+        '<routes><vehicle id="car_a" depart="0"><route edges="top bottom"/></vehicle>'
+        '<vehicle id="car_b" depart="1.5"><route edges="top bottom"/></vehicle></routes>'
+    )
+    toml = f'[sumo]\nnet_file = "{net}"\nroute_files = ["r.rou.xml"]\nt_end_s = 3.0\n'
+    (tmp_path / "bad.toml").write_text(toml + 'ids = ["car_b", "ghost.7"]\n')
+    assert main(["sumo", str(tmp_path / "bad.toml"), "--out", str(tmp_path / "o"), "--no-plots"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "sumo.ids" in err[0] and "'ghost.7'" in err[0] and "car_a, car_b" in err[0]
+    assert "'car_b' never" not in err[0]
+    (tmp_path / "ok.toml").write_text(toml + 'ids = ["car_b"]\n')
+    assert main(["sumo", str(tmp_path / "ok.toml"), "--out", str(tmp_path / "o2"), "--no-plots"]) == 0
 
 
 def reckless(ev: EVParams):

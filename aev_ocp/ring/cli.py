@@ -18,6 +18,7 @@ from typing import Any
 
 from ..console import EXIT_FAILED_RUN, EXIT_OK, bad_input
 from ..console import OneLineParser as _Parser
+from ..limits import check_ring_size, memory_limit_bytes
 from ..params import ParameterError
 from ..results import claim_output_dir, default_output_dir
 from ..scenarios import ScenarioError
@@ -83,14 +84,15 @@ def _row(label: str, fleet: dict[str, Any]) -> str:
 def cli_ring(argv: list[str]) -> int:
     """Entry point of ``aev-ocp ring``; returns the exit code."""
     from ..results import write_json
-    from .experiments import STABLE_LENGTH_M, human_ring, make_aev, relative_to, run_ring, stern, sugiyama
-    from .simulate import uniform_speed_mps
+    from .experiments import SUGIYAMA_N, STABLE_LENGTH_M, human_ring, make_aev, relative_to, run_ring, stern, sugiyama
+    from .simulate import RingOptions, uniform_speed_mps
 
     try:
         a = build_parser().parse_args(argv)
     except SystemExit as exc:
         return int(exc.code or 0)
     try:
+        memory_limit_bytes()  # a bad $AEV_OCP_MAX_MEMORY_GB is refused before anything else, as simulate and mpc do
         if a.t_end_s is not None and not (math.isfinite(a.t_end_s) and 0 < a.t_end_s <= 36_000):
             raise ParameterError(f"--t-end-s {a.t_end_s!r}: must be in (0, 36000] s")
         if a.seed is not None and a.seed < 0:  # NumPy's generators take seeds >= 0 only
@@ -103,6 +105,18 @@ def cli_ring(argv: list[str]) -> int:
             sc = load_ring_scenario(a.experiment)
         else:
             a.t_end_s = 600.0 if a.t_end_s is None else a.t_end_s
+        # the budget before any work (RingSimulator.run checks each run again)
+        if sc is not None:
+            t_key = "--t-end-s" if a.t_end_s is not None else "ring.t_end_s"
+            t_end = a.t_end_s if a.t_end_s is not None else sc.spec.t_end_s
+            check_ring_size(sc.spec.vehicles, t_end, sc.spec.dt_out_s, ("ring.vehicles", t_key, "ring.dt_out_s"))
+        else:
+            check_ring_size(
+                SUGIYAMA_N,
+                a.t_end_s,
+                RingOptions().dt_out_s,
+                (f"the experiment has {SUGIYAMA_N}", "--t-end-s", "dt_out_s"),
+            )
         out = Path(a.out) if a.out else default_output_dir("ring", sc.name if sc is not None else a.experiment)
         claim_output_dir(
             out,

@@ -36,6 +36,7 @@ from typing import Any
 
 import numpy as np
 
+from ..limits import check_ring_size
 from ..params import EVParams, ParameterError
 from ..scenarios import (
     ScenarioError,
@@ -134,6 +135,11 @@ def validate_ring_table(r: TableReader) -> RingSpec:
     kw.update(length_m=length, vehicle_length_m=ell)
     kw["t_end_s"] = r.number("t_end_s", gt=0, le=36_000)
     kw["dt_out_s"] = r.number("dt_out_s", 0.5, gt=0, le=kw["t_end_s"])
+    try:  # the budget ($AEV_OCP_MAX_MEMORY_GB) when the file is read, naming its keys
+        keys = (r.key_path("vehicles"), r.key_path("t_end_s"), r.key_path("dt_out_s"))
+        check_ring_size(n, kw["t_end_s"], kw["dt_out_s"], keys)
+    except ParameterError as exc:
+        raise ScenarioError(f"{r.file}: {exc}") from None
     if r.has("metrics_from_s"):
         kw["metrics_from_s"] = r.number("metrics_from_s", ge=0, lt=kw["t_end_s"])
     human = r.string("human", "idm", choices=HUMAN_MODELS)

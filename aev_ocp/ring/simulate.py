@@ -41,6 +41,7 @@ import casadi as ca
 import numpy as np
 
 from ..compiled import compile_shared, driver_source
+from ..limits import check_ring_size
 from ..control import Command, Controller, Observation
 from ..models import energy
 from ..models.actuator import actuator_rate, saturate, speed_cut
@@ -686,6 +687,7 @@ class RingSimulator:
         soc0 = self.ev.cell.soc0 if initial.soc0 is None else initial.soc0
         if not (0 <= soc0 <= 1):
             raise ParameterError(f"ring: soc0 = {soc0!r} is not allowed: must be in [0, 1]")
+        check_ring_size(n, t_end_s, self.opts.dt_out_s)  # the budget, before anything is allocated or integrated
         T = u.time_s
         t_end = t_end_s / T
         z = np.zeros((n, self.nz))

@@ -20,7 +20,15 @@ from ..models.carfollowing import CarFollowingLaw
 from ..params import ParameterError, Units
 from ..results import write_json
 from .linear import LinearStability, analyse
-from .measure import Attenuation, fig5_amplitude, linear_agreement, linear_prediction, measure, measure_mpc
+from .measure import (
+    Attenuation,
+    check_measure_size,
+    fig5_amplitude,
+    linear_agreement,
+    linear_prediction,
+    measure,
+    measure_mpc,
+)
 
 SIGN_CONVENTION = (
     "v̇ = f(h, v, Δv) with Δv = v_l − v; f_h = ∂f/∂h, f_v = ∂f/∂v at fixed Δv, f_Δv = ∂f/∂Δv "
@@ -151,6 +159,7 @@ def run_stability(
     plots: bool = True,
     progress: Callable[[str], None] | None = None,
     units: Units | None = None,
+    size_key: str = "n_followers",
 ) -> dict[str, Any]:
     """Everything ``aev-ocp stability`` writes: returns the stability.json document (and writes it and the
     plots into out_dir when given). speeds, amplitudes [model speed], omega [rad/model time], duration [model
@@ -158,7 +167,9 @@ def run_stability(
     first in every entry (v_star_mps, amplitude_mps, ...; model values keep a ``_model`` suffix), and that the
     MPC platoon's vehicles use. law None with mpc_predictor: measure the MPC platoon only (no linear
     analysis: the MPC has no closed-form law). region: the two coefficients of the stable-region plot
-    (default: the law's first two), gridded over [0, 2.5 × their value] (at least [0, 5])."""
+    (default: the law's first two), gridded over [0, 2.5 × their value] (at least [0, 5]). The measured runs are
+    checked against the memory budget before the first one (ParameterError naming ``size_key``, what sets
+    n_followers)."""
     say = progress or (lambda m: None)
     u = units or Units()
     T = u.time_s
@@ -182,13 +193,16 @@ def run_stability(
         "speeds": [],
     }
     lins: list[LinearStability] = []
+    lin_of = {float(v): analyse(law, float(v)) for v in speeds} if law is not None else {}
+    if measure_runs:
+        check_measure_size(list(lin_of.values()), n_followers, kind, omega, duration, size_key)
     series: dict[str, list[Attenuation]] = {}
     linear_refs: dict[str, Attenuation] = {}
     for v in speeds:
         entry: dict[str, Any] = {"v_star_mps": float(u.speed_to_si(float(v)))}
         lin = None
         if law is not None:
-            lin = analyse(law, float(v))
+            lin = lin_of[float(v)]
             lins.append(lin)
             entry.update(lin.to_table(u))
             entry.pop("law", None)

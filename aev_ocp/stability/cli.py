@@ -19,6 +19,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from ..limits import memory_limit_bytes
 from ..params import ParameterError, Units
 
 # the command line's one error format, exit codes and parser (aev_ocp/cli.py)
@@ -235,6 +236,7 @@ def cli_stability(argv: list[str]) -> int:
         return int(exc.code or 0)
     say = lambda m: print(f"[stability] {m}", file=sys.stderr, flush=True)  # noqa: E731
     try:
+        memory_limit_bytes()  # a bad $AEV_OCP_MAX_MEMORY_GB is refused before anything else, as simulate and mpc do
         is_mpc = a.law.lower() == "mpc"
         if is_mpc and a.set:
             raise ParameterError("--set: the MPC has no car-following coefficients to set")
@@ -284,6 +286,7 @@ def cli_stability(argv: list[str]) -> int:
             plots=not a.no_plots,
             progress=say,
             units=units,
+            size_key="--followers",
         )
     except (ParameterError, OutputError, OSError) as exc:
         return bad_input(exc)

@@ -26,6 +26,7 @@ from typing import Any, Sequence, TypedDict
 import numpy as np
 
 from ..models.carfollowing import CarFollowingLaw
+from ..limits import estimate_run_bytes, memory_limit_bytes
 from ..models.leader import PaperLeader
 from ..params import UNLIMITED, EVParams, ParameterError, Units
 from ..results import SimulationResult
@@ -166,6 +167,34 @@ def default_t_end(
     return float(base + (periods * 2.0 * math.pi / omega if kind == "sine" else duration))
 
 
+#: Output step of a measured run [model time]: 0.02, fine enough for the peak of a pulse of duration >= 0.5
+MEASURE_DT_OUT = 0.02
+
+
+def check_measure_size(
+    lins: Sequence[LinearStability], n_followers: int, kind: str, omega: float, duration: float, key: str
+) -> None:
+    """Refuse (ParameterError naming ``key``, the option or argument that sets the platoon size) measured runs of
+    ``n_followers`` behind the perturbed leader at the equilibria ``lins`` that need more than the memory budget
+    ($AEV_OCP_MAX_MEMORY_GB), before the first runs: their horizon, :func:`default_t_end`, grows with the platoon."""
+    limit = memory_limit_bytes()
+
+    def need(n: int) -> float:
+        return max(estimate_run_bytes(n, default_t_end(lin, n, kind, omega, duration), MEASURE_DT_OUT) for lin in lins)
+
+    if not lins or need(n_followers) <= limit:
+        return
+    lo, hi = 0, n_followers  # the largest platoon that fits: need(n) grows with n
+    while hi - lo > 1:
+        mid = (lo + hi) // 2
+        lo, hi = (mid, hi) if need(mid) <= limit else (lo, mid)
+    raise ParameterError(
+        f"stability: {key} {n_followers}: the measured runs need about {need(n_followers) / 1e9:.3g} GB (their "
+        f"horizon grows with the platoon), more than the limit of {limit / 1e9:.3g} GB ($AEV_OCP_MAX_MEMORY_GB): "
+        f"use at most {lo} followers" + (", or --linear-only" if key.startswith("--") else "")
+    )
+
+
 def measure(
     law: CarFollowingLaw,
     v_star: float,
@@ -178,7 +207,7 @@ def measure(
     t_end: float | None = None,
     lin: LinearStability | None = None,
     periods: int = 6,
-    dt_out: float = 0.02,
+    dt_out: float = MEASURE_DT_OUT,
     rtol: float | None = None,
     atol: float | None = None,
     method: str = "auto",

@@ -7,6 +7,38 @@ from dataclasses import dataclass
 from typing import Any
 
 
+#: The study table's fixed columns (:mod:`aev_ocp.study.table`): % change against the reference of CHANGE_METRICS, and
+#: the equal-distance and equal-time views (issue 21 item 5): pack ∫Q per km of every run of a point up to the
+#: shortest common distance / the common time of that point's runs, and its rank (1 = lowest).
+CHANGE_METRICS = ("omega_model", "heat_pack_J", "heat_pack_J_per_km")
+EQUAL_VIEWS = (("eq_distance", "distance", "cut_m"), ("eq_time", "time", "cut_s"))
+EQUAL_METRIC = "heat_pack_J_per_km"
+TABLE_LEAD = ("study", "point", "scenario")
+TABLE_AFTER = (
+    (
+        "controller",
+        "vehicle",
+        "status",
+        "message",
+        "comparable",
+        "flag_distance",
+        "flag_duration",
+        "flag_event",
+        "distance_diff_pct",
+        "duration_diff_pct",
+    )
+    + tuple(f"{m}_change_pct" for m in CHANGE_METRICS)
+    + tuple(
+        c
+        for p, _, cut in EQUAL_VIEWS
+        for c in (f"{p}_{cut}", f"{p}_{EQUAL_METRIC}", f"{p}_rank", f"{p}_{EQUAL_METRIC}_change_pct")
+    )
+)
+TABLE_TAIL = ("wall_s", "task_hash", "aev_ocp_version", "casadi_version", "git_commit")
+#: columns build_rows adds beside the metrics: the vehicle's own status and the OCP-D rows' bound check
+TABLE_EXTRA = ("vehicle_status", "ocpd_role", "ocpd_role_reason")
+
+
 class StudyError(ValueError):
     """A study file is invalid; the message names the study file, the axis and the key."""
 

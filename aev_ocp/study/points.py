@@ -92,11 +92,13 @@ def _point_document(
     sink: list[str],
     sets: dict[str, Any] | None = None,
     memo: dict[int, dict[str, Any]] | None = None,
+    followers: set[int] | None = None,
 ) -> dict[str, Any]:
     """The point's document, validated by the scenario loader; errors name study file, axis, key.
     Layers: study overrides, then ``sets`` (--set), then the axis values (see :func:`parse_study`).
     ``memo`` keeps the base document with the first two layers applied (the same at every point of a base
-    scenario), so a point copies and edits its document once, for its axis values."""
+    scenario), so a point copies and edits its document once, for its axis values. ``followers`` collects the
+    points' follower counts."""
     sets = sets or {}
     try:
         pdoc = memo.get(id(base_doc)) if memo is not None else None
@@ -109,7 +111,9 @@ def _point_document(
                 memo[id(base_doc)] = pdoc
         if values:
             pdoc = apply_to_document(pdoc, values, base_file)
-        _, found = parse_scenario_warnings(pdoc, base_file)
+        sc, found = parse_scenario_warnings(pdoc, base_file)
+        if followers is not None:
+            followers.add(sc.n_followers)
         for w in found:
             if w not in sink:
                 sink.append(w)

@@ -260,8 +260,9 @@ def _pareto_groups(study: Study, rows: list[dict[str, Any]]) -> list[tuple[str, 
 
 
 def _warn_unknown_metrics(study: Study, rows: list[dict[str, Any]]) -> None:
-    """A [report] metric that is no column of the table (a typo), or a [report] vehicle no row is of, gives no
-    figure: say so, once, instead of nothing."""
+    """A [report] metric that is no column of the table (one the study's controllers do not produce), or a
+    [report] vehicle no row is of, gives no figure, and one that some scenarios lack shows the others only: say
+    so, once, instead of nothing (names no study can have are refused by read_study)."""
     columns = {k for r in rows for k in r}
     rep = study.report
     asked = [
@@ -291,6 +292,20 @@ def _warn_unknown_metrics(study: Study, rows: list[dict[str, Any]]) -> None:
             f"figure or change table for them (the table's followers: {sorted(present)})",
             stacklevel=2,
         )
+    by_scenario: dict[Any, set[int]] = {}
+    for r in rows:
+        if isinstance(r.get("vehicle"), int):
+            by_scenario.setdefault(r.get("scenario"), set()).add(r["vehicle"])
+    for v in (v for v in asked_v if v in present):  # a follower that only some scenarios have (read_study refuses
+        lacking = sorted(str(b) for b, vs in by_scenario.items() if v not in vs)  # one that none has)
+        if lacking:
+            import warnings
+
+            warnings.warn(
+                f"study {study.name}: [report] vehicle {v}: scenario(s) {lacking} have no follower {v}: its figures "
+                "and change table show the other scenarios only",
+                stacklevel=2,
+            )
 
 
 def write_report(study: Study, rows_all: list[dict[str, Any]], out: str | Path) -> list[Path]:

@@ -69,7 +69,7 @@ from .points import (
     parse_scenario_quiet,
     parse_scenario_warnings,
 )
-from .tables import _axis, _base, _bases, _controllers, _report
+from .tables import _axis, _base, _bases, _controllers, _report, check_report
 from .tasks import canonical_json, make_task
 
 __all__ = [
@@ -251,6 +251,7 @@ def _parse_study(doc: dict[str, Any], file: str, path: Path | None, sets: dict[s
     if reference not in labels:
         raise top.error("reference", reference, f"must be one of the controllers {labels}")
     report = _report(top.sub("report"), file)
+    check_report(file, report, axes)  # a metric name that is no column: before the points are validated
     top.finish()
 
     docs: dict[str, tuple[dict[str, Any], str]] = {}
@@ -275,6 +276,7 @@ def _parse_study(doc: dict[str, Any], file: str, path: Path | None, sets: dict[s
     prog = Progress(f"study {name}", n_points, unit="points", every_s=2.0)
     prog._last = prog.clock()  # a line only once validation has taken 2 s (a 100 x 100 grid takes ~4 s)
     memo: dict[int, dict[str, Any]] = {}  # each base document with the overrides and --set applied, once
+    followers: set[int] = set()  # the points' follower counts: a [report] vehicle must be in one of them
     for b in bases:
         base_doc, base_file = docs[b]
         for combo in combos:
@@ -292,8 +294,10 @@ def _parse_study(doc: dict[str, Any], file: str, path: Path | None, sets: dict[s
                 found_warnings,
                 sets,
                 memo,
+                followers,
             )
             points.append(Point(len(points), b, values, pdoc, base_file))
+    check_report(file, report, axes, followers)
     study = Study(name, description, file, axes, controllers, reference, points, bases, report, found_warnings)
     _validate_controllers(file, controllers, points, axes)
     return study

@@ -21,37 +21,18 @@ from ..provenance import versions
 from ..metrics import comparability, si_first
 from ..results import write_atomic
 from ..truncation import equal_profile_views
+from .model import (  # the fixed columns live with the study's data: a [report] is checked against them
+    CHANGE_METRICS as CHANGE_METRICS,
+    EQUAL_METRIC as EQUAL_METRIC,
+    EQUAL_VIEWS as EQUAL_VIEWS,
+    TABLE_AFTER as _AFTER,
+    TABLE_LEAD as _LEAD,
+    TABLE_TAIL as _TAIL,
+)
 from .spec import Study
 
 TABLE_JSONL = "table.jsonl"
 TABLE_CSV = "table.csv"
-CHANGE_METRICS = ("omega_model", "heat_pack_J", "heat_pack_J_per_km")
-#: Columns of the equal-distance and equal-time views (issue 21 item 5): pack ∫Q per km of every run of a point up
-#: to the shortest common distance / the common time of that point's runs, and its rank (1 = lowest).
-EQUAL_VIEWS = (("eq_distance", "distance", "cut_m"), ("eq_time", "time", "cut_s"))
-EQUAL_METRIC = "heat_pack_J_per_km"
-_LEAD = ("study", "point", "scenario")
-_AFTER = (
-    (
-        "controller",
-        "vehicle",
-        "status",
-        "message",
-        "comparable",
-        "flag_distance",
-        "flag_duration",
-        "flag_event",
-        "distance_diff_pct",
-        "duration_diff_pct",
-    )
-    + tuple(f"{m}_change_pct" for m in CHANGE_METRICS)
-    + tuple(
-        c
-        for p, _, cut in EQUAL_VIEWS
-        for c in (f"{p}_{cut}", f"{p}_{EQUAL_METRIC}", f"{p}_rank", f"{p}_{EQUAL_METRIC}_change_pct")
-    )
-)
-_TAIL = ("wall_s", "task_hash", "aev_ocp_version", "casadi_version", "git_commit")
 
 
 def provenance() -> dict[str, Any]:

@@ -3,6 +3,8 @@
 
 from __future__ import annotations
 
+import difflib
+from functools import lru_cache
 from pathlib import Path
 from typing import Any
 
@@ -13,7 +15,7 @@ from ..models.carfollowing import LAW_REGISTRY
 from ..overrides import OverrideError, check_key
 from ..params import echo
 from ..scenarios import TableReader, find_scenario
-from .model import Axis, Controller, StudyError
+from .model import CHANGE_METRICS, TABLE_AFTER, TABLE_EXTRA, TABLE_LEAD, TABLE_TAIL, Axis, Controller, StudyError
 
 
 def _axis(r: TableReader, i: int) -> Axis:
@@ -129,6 +131,92 @@ def _report(r: TableReader, file: str) -> dict[str, Any]:
     rep["pareto_by"] = r.strings("pareto_by", [])
     r.finish()
     return rep
+
+
+@lru_cache(maxsize=1)
+def _metric_columns() -> frozenset[str]:
+    """Every metric key a task can give a follower: the §10 metrics (:func:`aev_ocp.metrics.vehicle_metrics` on a
+    two-sample run with the thermal model, so the temperature metrics are in), the compiled integrator's and a
+    sampled controller's statistics, an MPC's own cost and OCP-D's optimum, grid step and grid kind."""
+    from ..control import sampled_stat_names
+    from ..metrics import vehicle_metrics
+    from ..ocp.formulation import COST_KEYS
+    from ..params import EVParams
+    from ..results import SimulationResult
+    from ..simulate import INTEGRATOR_STATS
+
+    t, o = np.array([0.0, 1.0]), np.ones((2, 1))
+    r = SimulationResult(
+        t=t,
+        leader_speed=t + 1.0,
+        leader_position=t,
+        gap=o,
+        speed=o,
+        accel=o,
+        V1=o,
+        V2=o,
+        S=o,
+        current_A=o,
+        omega=o,
+        heat_J=o,
+        heat_irr_J=o,
+        int_ovm_err2=o,
+        int_rel_speed2=o,
+        int_jerk2=o,
+        controllers=["law"],
+        ev=EVParams(),
+        temperature_K=o,
+    )
+    own_cost = [*COST_KEYS.values(), *(f"{k}_optimum" for k in COST_KEYS.values())]
+    return frozenset([*vehicle_metrics(r, 0), *INTEGRATOR_STATS, *sampled_stat_names(), *own_cost, "grid_dt", "coarse"])
+
+
+def report_columns(axes: list[Axis]) -> frozenset[str]:
+    """Every column a study's table can have (:mod:`aev_ocp.study.table`): the fixed ones, the axis keys and
+    every metric key: what a [report] may name."""
+    keys = [k for a in axes for k in a.keys]
+    return frozenset([*TABLE_LEAD, *TABLE_AFTER, *TABLE_TAIL, *TABLE_EXTRA, *keys]) | _metric_columns()
+
+
+def check_report(file: str, report: dict[str, Any], axes: list[Axis], followers: set[int] | None = None) -> None:
+    """Refuse, before anything runs, a [report] that names no column of the table (``report.metrics``,
+    ``report.pareto``, ``report.pareto_by``), a ``report.change_metric`` without a % change column, or a follower
+    (``report.vehicle``) that no scenario of the study has (``followers``: the follower counts of its points); a
+    follower only some scenarios lack is the report's warning after the run. Without ``followers`` only the names
+    are checked."""
+    known = report_columns(axes)
+    for key, names in (
+        ("metrics", report.get("metrics", [])),
+        ("pareto", [m for pair in report.get("pareto", []) for m in pair]),
+        ("pareto_by", report.get("pareto_by", [])),
+    ):
+        unknown = [m for m in names if m not in known]
+        if unknown:
+            near = difflib.get_close_matches(str(unknown[0]), sorted(known), n=3)
+            metrics = sorted(k for k in _metric_columns() if not k.endswith("_model"))[:6]
+            hint = (
+                f"did you mean {', '.join(near)}?"
+                if near
+                else f"axis keys {[k for a in axes for k in a.keys]}, controller, scenario, vehicle, or a metric "
+                f"({', '.join(metrics)}, …)"
+            )
+            raise StudyError(
+                f"{file}: report.{key} names {', '.join(map(echo, unknown))}, no column of the table ({hint})"
+            )
+    change = report.get("change_metric", "omega_model")
+    if change not in CHANGE_METRICS:  # the metrics with a % change column
+        raise StudyError(
+            f"{file}: report.change_metric = {echo(change)} is not allowed: must be one of {list(CHANGE_METRICS)}"
+        )
+    if not followers:
+        return
+    most = max(followers)
+    beyond = [v for v in report.get("vehicles", [report.get("vehicle", 1)]) if v > most]
+    if beyond:
+        raise StudyError(
+            f"{file}: report.vehicle = {beyond[0]} is not allowed: must be a follower 1-{most} (the study's "
+            f"scenarios have {', '.join(map(str, sorted(followers)))} follower(s))"
+        )
 
 
 def _bases(top: TableReader) -> tuple[list[str], dict[str, tuple[str, dict[str, Any]]]]:

@@ -43,7 +43,7 @@ from ..results import Event, SimulationResult
 from . import SumoError, require_sumo, sumo_binary
 from . import energy
 from .networks import build_merge, build_ring, first_error
-from .scenario import SumoScenario
+from .scenario import SumoScenario, _few
 
 ProgressFn = Callable[[float, float], None]
 MEASUREMENT_WINDOW = 100  # leader-speed samples a controller keeps (the MPC's predictors use the last few)
@@ -74,6 +74,18 @@ def is_controlled(vid: str, vtype: str, scenario: SumoScenario) -> bool:
 def _ring_selection(seed: int, n: int, share: float) -> frozenset[str]:
     ids = sorted((f"ring.{i}" for i in range(n)), key=lambda v: _draw(seed, v))
     return frozenset(ids[: int(round(share * n))])
+
+
+def check_ids_seen(scenario: SumoScenario, departed: list[str], t_s: float) -> None:
+    """SumoError (bad input) naming ``sumo.ids`` if an id it lists never departed in a run of ``t_s`` [s]: it is
+    not a vehicle of the network's routes (or departs after the run's end), so the toolkit drove nothing for it."""
+    seen = sorted(set(departed))
+    missing = [i for i in scenario.spec.ids if i not in seen]
+    if missing:
+        raise SumoError(
+            f"sumo.ids = {list(scenario.spec.ids)!r} is not allowed: {', '.join(map(repr, missing))} never departed "
+            f"in the {t_s:g} s run (no such vehicle in the routes, or it departs later); vehicles that did: {_few(seen) or 'none'}"
+        )
 
 
 @dataclass
@@ -553,6 +565,7 @@ def _loop(ts: Any, sc: SumoScenario, progress: ProgressFn | None) -> SumoRun:
         wall = time.perf_counter() - t0
     for tr in list(tracks.values()):
         finish(tr, "", math.nan)
+    check_ids_seen(sc, [tr.vid for tr in done], k * dt)
     vehicles: dict[str, SimulationResult] = {}
     controlled: dict[str, bool] = {}
     for tr in done:

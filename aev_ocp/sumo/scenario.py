@@ -8,7 +8,8 @@ Top level: ``name``, ``description``; the vehicle tables every scenario knows (`
   ``[sumo.ring]`` or ``[sumo.merge]``), or ``net_file`` with ``route_files``, or ``config_file`` (a .sumocfg); paths relative to the
   scenario file;
 * ``t_end_s`` [s] and ``step_s`` [s] (default 0.1 s, SUMO's own default step);
-* which vehicles the toolkit controls: ``ids`` (vehicle ids), ``vtypes`` (vehicle types) and/or ``share`` (each
+* which vehicles the toolkit controls: ``ids`` (vehicle ids; one that is no vehicle is refused: on a shipped
+  network when the file is read, on the user's network when it never departed in the run), ``vtypes`` (vehicle types) and/or ``share`` (each
   vehicle of a flow is controlled with probability ``share``, decided by a hash of ``seed`` and its id; on the
   shipped ring exactly round(share × cars) cars: reproducible, and a larger share controls a superset); none of
   them: SUMO drives everything (the baseline);
@@ -175,7 +176,38 @@ def parse_sumo_table(r: TableReader, base: Path | None) -> SumoSpec:
         kw["sweep_controller"] = tuple(_controller(sw, "controller", c) for c in sw.strings("controller"))
     sw.finish(allowed_hint=["share", "controller"])
     r.finish()
-    return SumoSpec(**kw)
+    spec = SumoSpec(**kw)
+    _check_ids(r, spec)
+    return spec
+
+
+#: SUMO options that load more vehicles than the network's own routes (then the shipped network's ids are not all)
+_MORE_VEHICLES = ("-r", "--route-files", "-a", "--additional-files", "-c", "--configuration-file")
+
+
+def _few(ids: list[str], n: int = 5) -> str:
+    """The first ``n`` of ``ids`` for a message, with how many there are in all."""
+    return ", ".join(ids[:n]) + (f", … ({len(ids)} in all)" if len(ids) > n else "")
+
+
+def _check_ids(r: TableReader, spec: SumoSpec) -> None:
+    """Refuse an ``ids`` entry that no vehicle of a shipped network can have (before SUMO starts): the ring's cars
+    are ``ring.0`` … ``ring.<n-1>``, the merge's flow vehicles ``main.<k>`` / ``ramp.<k>``. User networks are checked
+    at the end of the run (:func:`aev_ocp.sumo.run.check_ids_seen`): their vehicles are known only once they depart."""
+    if not spec.ids or spec.network is None or any(a.split("=")[0] in _MORE_VEHICLES for a in spec.sumo_args):
+        return
+    if spec.ring is not None:
+        valid = [f"ring.{i}" for i in range(spec.ring.vehicles)]
+        bad = [i for i in spec.ids if i not in valid]
+        hint = f"the shipped ring's {len(valid)} cars are {_few(valid)}"
+    else:
+        assert spec.merge is not None
+        flows = [f for f, vph in (("main", spec.merge.main_flow_vph), ("ramp", spec.merge.ramp_flow_vph)) if vph > 0]
+        bad = [i for i in spec.ids if not any(re.fullmatch(rf"{f}\.\d+", i) for f in flows)]
+        hint = f"the shipped merge's vehicles are {' and '.join(f'{f}.0, {f}.1, …' for f in flows) or 'none'}"
+    if bad:
+        is_are = "is" if len(bad) == 1 else "are"
+        raise r.error("ids", list(spec.ids), f"{_few([repr(b) for b in bad])} {is_are} no vehicle here: {hint}")
 
 
 def parse_sumo_scenario(doc: dict[str, Any], file: str = "<sumo scenario>", source: Path | None = None) -> SumoScenario:
