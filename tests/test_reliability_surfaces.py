@@ -1323,8 +1323,8 @@ def test_a_store_kept_behind_a_link_is_followed_and_a_dangling_link_replaced(tmp
 def test_a_killed_study_takes_its_workers_with_it(tmp_path, executor):
     """SIGKILL (the OOM killer, a job scheduler) of a study whose one worker computes an MPC task that runs for
     minutes: nothing can clean up in the study itself, yet within a few seconds none of its processes is left
-    (each pool worker watches its parent; the Dask cluster process ends when its stdin closes) and the Dask
-    cluster removes its scratch folder."""
+    (the kernel ends each pool worker with its parent; the Dask cluster process ends when its stdin closes) and
+    the Dask cluster removes its scratch folder."""
     if executor == "--dask-local":
         pytest.importorskip("dask.distributed")
     import signal
@@ -1362,4 +1362,6 @@ def test_a_killed_study_takes_its_workers_with_it(tmp_path, executor):
         for pid in _marked(tag):
             os.kill(pid, signal.SIGKILL)
     assert left == [], f"{len(left)} process(es) of the killed study still running: {_cmdlines(left)}"
-    assert list(tmp.iterdir()) == []
+    # the Dask cluster's scratch folder is removed by the cluster process; a worker killed in the middle of an
+    # MPC code generation cannot remove its own temporary folder (nothing a SIGKILLed process can do)
+    assert not list(tmp.glob("aev_ocp_dask_*"))
