@@ -140,3 +140,4 @@ def test_stability_measured_platoon_too_large_is_refused_before_it_runs(
     assert 50 < k < 700 and need(700) > 0.35e9
     assert "--followers 700: the measured runs need about" in err and f"use at most {k} followers" in err, (k, err)
     assert "--linear-only" in err
+    assert not (tmp_path / "o").exists()  # refused before the output folder is claimed

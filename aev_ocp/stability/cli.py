@@ -267,11 +267,16 @@ def cli_stability(argv: list[str]) -> int:
         if is_mpc and a.linear_only:
             raise ParameterError("--linear-only: the MPC has no linear analysis here; drop the option")
         out = Path(a.out) if a.out else Path("results") / "stability" / a.law.lower()
-        # before any work: a folder of another run or of the user's own files is refused
-        claim_output_dir(out, "stability", a.law.lower(), None, STABILITY_FILES)
         _check_speeds_and_amplitudes(a, law, speeds, mv["amplitude"], units)
         omega = mv["omega"] if mv["omega"] is not None else _OMEGA
         duration = mv["duration"] if mv["duration"] is not None else _DURATION
+        if law is not None and not a.linear_only:  # the size of the measured runs, before the folder is claimed
+            from .linear import analyse
+            from .measure import check_measure_size
+
+            check_measure_size([analyse(law, float(v)) for v in speeds], n, a.kind, omega, duration, "--followers")
+        # before any work: a folder of another run or of the user's own files is refused
+        claim_output_dir(out, "stability", a.law.lower(), None, STABILITY_FILES)
         doc = run_stability(
             law,
             speeds,
