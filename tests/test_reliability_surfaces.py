@@ -956,6 +956,25 @@ def _marked(tag: str) -> list[int]:
     return alive
 
 
+def _left_after(tag: str, wait_s: float) -> list[int]:
+    """The processes marked ``tag`` still running after up to ``wait_s`` [s] of waiting for them to end."""
+    deadline = time.monotonic() + wait_s
+    while _marked(tag) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    return _marked(tag)
+
+
+def _kill_marked(tag: str) -> None:
+    """Never leave a test's stray processes running."""
+    import signal
+
+    for pid in _marked(tag):
+        try:
+            os.kill(pid, signal.SIGKILL)
+        except ProcessLookupError:
+            pass
+
+
 def _cmdlines(pids: list[int]) -> list[str]:
     out = []
     for pid in pids:
@@ -1011,13 +1030,9 @@ def test_ctrl_c_in_a_terminal_stops_a_dask_local_study_and_its_cluster(tmp_path,
         assert in_group == [], _cmdlines(in_group)
         os.killpg(p.pid, signal.SIGINT)
         _, err = p.communicate(timeout=60)
-        deadline = time.monotonic() + 10.0
-        while _marked(tag) and time.monotonic() < deadline:
-            time.sleep(0.2)
-        left = _marked(tag)
+        left = _left_after(tag, 10.0)
     finally:
-        for pid in _marked(tag):
-            os.kill(pid, signal.SIGKILL)
+        _kill_marked(tag)
     assert p.returncode == 130 and "interrupted" in one_error(err)
     assert "Traceback" not in err and "KeyboardInterrupt" not in err, err[-2000:]
     assert left == [], f"{len(left)} process(es) the study started still running: {_cmdlines(left)}"
@@ -1327,7 +1342,6 @@ def test_a_killed_study_takes_its_workers_with_it(tmp_path, executor):
     the Dask cluster removes its scratch folder."""
     if executor == "--dask-local":
         pytest.importorskip("dask.distributed")
-    import signal
     import subprocess
     import sys
     import uuid
@@ -1354,13 +1368,9 @@ def test_a_killed_study_takes_its_workers_with_it(tmp_path, executor):
         assert p.poll() is None and len(_marked(tag)) >= 2
         p.kill()
         p.wait(10)
-        deadline = time.monotonic() + 10.0
-        while _marked(tag) and time.monotonic() < deadline:
-            time.sleep(0.1)
-        left = _marked(tag)
+        left = _left_after(tag, 10.0)
     finally:
-        for pid in _marked(tag):
-            os.kill(pid, signal.SIGKILL)
+        _kill_marked(tag)
     assert left == [], f"{len(left)} process(es) of the killed study still running: {_cmdlines(left)}"
     # the Dask cluster's scratch folder is removed by the cluster process; a worker killed in the middle of an
     # MPC code generation cannot remove its own temporary folder (nothing a SIGKILLed process can do)
