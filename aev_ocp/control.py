@@ -15,7 +15,7 @@ from __future__ import annotations
 import math
 import numbers
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, Callable, Protocol, Sequence, cast, runtime_checkable
 
 import numpy as np
@@ -217,8 +217,11 @@ def _checked(cmd: Any, ctrl: Controller, vehicle: int, t: float) -> Command:
     """A controller's answer, if it is a Command with a finite real acceleration; a ParameterError naming the
     controller, the vehicle and the time otherwise (a NaN would be saturated into full braking without a word)."""
     a = getattr(cmd, "a", None)
-    if isinstance(cmd, Command) and not isinstance(a, bool) and isinstance(a, numbers.Real) and math.isfinite(a):
-        return cmd
+    if isinstance(cmd, Command) and not isinstance(a, (bool, np.bool_)):
+        if isinstance(a, numbers.Real) and math.isfinite(a):
+            return cmd
+        if isinstance(a, np.ndarray) and a.size == 1 and a.dtype.kind in "iuf" and np.isfinite(a).all():
+            return replace(cmd, a=float(a.reshape(())))  # what np.clip/np.minimum give on 0-d inputs
     got = f"Command(a = {a!r})" if isinstance(cmd, Command) else f"{type(cmd).__name__} {cmd!r:.60}"
     raise ParameterError(
         f"closed loop: controller {getattr(ctrl, 'name', '?')!r} of vehicle {vehicle + 1} returned {got} at "
@@ -296,7 +299,11 @@ class ClosedLoop(PlatoonRun):
                     f"Controller (name, dt, reset, command, describe), got {type(c).__name__}"
                 )
             dt = getattr(c, "dt", None)
-            if isinstance(dt, bool) or not isinstance(dt, (int, float)) or not (math.isfinite(dt) and dt > 0):
+            if (
+                isinstance(dt, (bool, np.bool_))
+                or not isinstance(dt, numbers.Real)
+                or not (math.isfinite(dt) and float(dt) > 0)
+            ):
                 raise ParameterError(
                     f"ClosedLoop: controller {getattr(c, 'name', type(c).__name__)!r} of vehicle {i + 1}: dt = {dt!r} "
                     "is not allowed: must be a finite sampling period > 0 [model time]"

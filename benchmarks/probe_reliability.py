@@ -1019,9 +1019,9 @@ def register_study_tries() -> None:
     )
     add(
         A,
-        "report metric unknown (a warning names it)",
+        "report metric unknown (refused when the study is read, naming it)",
         ["study", "{d}/s.toml", "--out", "{d}/o", "--in-process"],
-        (0,),
+        (2,),
         words=("frob",),
         setup=write("s.toml", base + '[report]\nmetrics = ["frob"]\n'),
     )

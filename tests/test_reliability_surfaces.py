@@ -1375,3 +1375,32 @@ def test_a_killed_study_takes_its_workers_with_it(tmp_path, executor):
     # the Dask cluster's scratch folder is removed by the cluster process; a worker killed in the middle of an
     # MPC code generation cannot remove its own temporary folder (nothing a SIGKILLed process can do)
     assert not list(tmp.glob("aev_ocp_dask_*"))
+
+
+def _chatty(n_lines: int) -> int:
+    """A task that writes n_lines of 1 kB to stdout (a verbose solver's output)."""
+    import sys
+
+    for _ in range(n_lines):
+        sys.stdout.write("x" * 1023 + "\n")
+    sys.stdout.flush()
+    return n_lines
+
+
+def test_a_local_cluster_s_workers_may_write_to_stdout(tmp_path, monkeypatch):
+    """The local cluster's workers keep the study's stdout (as the process pool's do): 300 kB of a task's output
+    (IPOPT at print_level 5 writes that in a few solves) neither blocks the worker (a pipe nobody reads fills at
+    64 kB) nor ends up anywhere but stdout."""
+    pytest.importorskip("dask.distributed")
+    from dask.distributed import Client
+
+    from aev_ocp.study.cluster import LocalClusterProcess
+
+    here = str(Path(__file__).resolve().parent)  # the workers import _chatty from this file
+    monkeypatch.setenv("PYTHONPATH", os.pathsep.join([here, os.environ.get("PYTHONPATH", "")]))
+    cluster = LocalClusterProcess(1, str(tmp_path), {})
+    try:
+        with Client(cluster.wait_address(), timeout=30) as client:
+            assert client.submit(_chatty, 300, pure=False).result(timeout=60) == 300
+    finally:
+        cluster.stop(1.0)

@@ -176,6 +176,25 @@ def test_closed_loop_applies_a_finite_command_exactly() -> None:
     np.testing.assert_allclose(np.asarray(r.speed)[nodes, 0], 1.3 - float(np.float32(0.35)) * t[nodes], atol=1e-8)
 
 
+@pytest.mark.parametrize(
+    ("a", "dt"),
+    [(np.array(-0.35), np.float32(0.125)), (np.array([-0.35]), np.int64(1)), (np.float64(-0.35), np.float64(0.1))],
+)
+def test_closed_loop_takes_numpy_scalars_and_one_element_arrays_like_floats(a: object, dt: object) -> None:
+    """What np.clip/np.minimum give (0-d arrays) and NumPy scalar periods run exactly as the plain floats do: the
+    same speeds at every sample (they ran before the checks that refuse NaN commands were added)."""
+    plain = ClosedLoop(LEADER, [Held(-0.35, float(dt))]).run([4.5], [1.3], 1.0)  # type: ignore[arg-type]
+    r = ClosedLoop(LEADER, [Held(a, dt)]).run([4.5], [1.3], 1.0)
+    np.testing.assert_array_equal(np.asarray(r.speed), np.asarray(plain.speed))
+    np.testing.assert_array_equal(np.asarray(r.gap), np.asarray(plain.gap))
+
+
+@pytest.mark.parametrize("a", [np.array(math.nan), np.array([0.1, 0.2]), np.array(True), np.array("x")])
+def test_closed_loop_refuses_arrays_that_are_not_one_finite_number(a: object) -> None:
+    with pytest.raises(ParameterError, match=r"controller 'held' of vehicle 1 returned Command\(a = .*\) at t = 0"):
+        ClosedLoop(LEADER, [Held(a)]).run([2.5], [1.3], 0.5)
+
+
 # ----------------------------------------------------------------------------- SUMO 'module:function'
 def broken_factory(ev: object) -> object:
     """A user controller factory with a bug of its own."""

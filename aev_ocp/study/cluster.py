@@ -7,7 +7,7 @@ printed their KeyboardInterrupt tracebacks and could leave a worker behind. So t
 through this module as a separate process in a new session (:class:`LocalClusterProcess`): only the study
 sees the terminal's signals, and it stops the cluster itself.
 
-The cluster process prints its scheduler's address as one JSON line on stdout, then serves until its stdin
+The cluster process writes its scheduler's address as one JSON line on a pipe of its own, then serves until its stdin
 closes (the study ended, whatever way, even killed) or it gets SIGTERM/SIGINT; then it closes the cluster.
 Whatever of its process group is still alive after the study's grace period is killed.
 """
@@ -47,23 +47,31 @@ class LocalClusterProcess:
 
     def __init__(self, n_workers: int, scratch: str, config: dict[str, Any]) -> None:
         self.log_path = Path(scratch) / "cluster.log"
+        # the address comes back on a pipe of its own: the workers keep this process's stdout (a verbose solver's
+        # output reaches the terminal, as from the process pool); a pipe nobody reads would block them at 64 KiB
+        self._addr_r, addr_w = os.pipe()
         args = [sys.executable, "-m", "aev_ocp.study.cluster", "--workers", str(int(n_workers))]
-        args += ["--scratch", scratch, "--config", json.dumps(config)]
-        with open(self.log_path, "wb") as log:
-            self.proc = subprocess.Popen(
-                args, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=log, start_new_session=True
-            )
+        args += ["--scratch", scratch, "--config", json.dumps(config), "--address-fd", str(addr_w)]
+        try:
+            with open(self.log_path, "wb") as log:
+                self.proc = subprocess.Popen(
+                    args, stdin=subprocess.PIPE, stderr=log, pass_fds=(addr_w,), start_new_session=True
+                )
+        except BaseException:
+            os.close(self._addr_r)
+            raise
+        finally:
+            os.close(addr_w)
         self.address = ""
 
     def wait_address(self, timeout_s: float = CLUSTER_START_TIMEOUT_S, poll: Callable[[], None] | None = None) -> str:
-        """Block until the cluster process prints its scheduler address (RuntimeError if it ends first or
+        """Block until the cluster process writes its scheduler address (RuntimeError if it ends first or
         ``timeout_s`` [s] passes), calling ``poll`` (e.g. a time-limit check) every half second meanwhile.
         A KeyboardInterrupt or what ``poll`` raises propagates at once: the caller stops the process."""
-        assert self.proc.stdout is not None
         deadline = time.monotonic() + timeout_s
         line = b""
         with selectors.DefaultSelector() as sel:
-            sel.register(self.proc.stdout, selectors.EVENT_READ)
+            sel.register(self._addr_r, selectors.EVENT_READ)
             while not line.endswith(b"\n"):
                 left = deadline - time.monotonic()
                 if left <= 0:
@@ -72,7 +80,7 @@ class LocalClusterProcess:
                     if poll is not None:
                         poll()
                     continue
-                chunk = os.read(self.proc.stdout.fileno(), 4096)
+                chunk = os.read(self._addr_r, 4096)
                 if not chunk:  # the process ended before it was ready
                     self.proc.wait()
                     raise RuntimeError(
@@ -113,8 +121,9 @@ class LocalClusterProcess:
             except (ProcessLookupError, PermissionError):
                 pass
             self.proc.wait()
-        if self.proc.stdout is not None:
-            self.proc.stdout.close()
+        if self._addr_r >= 0:
+            os.close(self._addr_r)
+            self._addr_r = -1
         # the orphaned members of the group (reparented once the leader is reaped) die of the SIGKILL above;
         # wait a moment for them, so that the caller may remove the scratch folder they wrote into
         deadline = time.monotonic() + 1.0
@@ -149,6 +158,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--workers", type=int, required=True)
     ap.add_argument("--scratch", required=True)
     ap.add_argument("--config", default="{}")
+    ap.add_argument("--address-fd", type=int, required=True)
     a = ap.parse_args(argv)
 
     def stop(signum: int, frame: Any) -> None:  # noqa: ARG001 - signal handler signature
@@ -170,8 +180,8 @@ def main(argv: list[str] | None = None) -> int:
         local_directory=a.scratch,
     )
     try:
-        sys.stdout.write(json.dumps({"address": cluster.scheduler_address}) + "\n")
-        sys.stdout.flush()
+        with os.fdopen(a.address_fd, "w") as addr:
+            addr.write(json.dumps({"address": cluster.scheduler_address}) + "\n")
         while sys.stdin.buffer.read(65536):  # until the study closes its end (or ends)
             pass
     finally:
