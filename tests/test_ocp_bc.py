@@ -11,6 +11,8 @@ import pytest
 from scipy.integrate import solve_ivp
 from scipy.optimize import brentq
 
+import cell_oracle
+from cell_oracle import cell_rhs
 from aev_ocp.models.battery import ocv_function
 from aev_ocp.ocp.current_profile import CurrentProfileSolver, compare_profiles
 from aev_ocp.ocp.eco_trip import EcoTrip, EcoTripSolver
@@ -22,26 +24,8 @@ EV = EVParams()
 OCV = ocv_function()
 
 
-def cell_rhs(I):
-    def f(_t, y):
-        V1, V2, S, E, Q = y
-        VT = float(OCV(S)) - V1 - V2 - CELL.R_s_ohm * I
-        return [
-            -V1 / CELL.tau1_s + I / CELL.C1_F,
-            -V2 / CELL.tau2_s + I / CELL.C2_F,
-            -I / (3600 * CELL.capacity_Ah),
-            I * VT,
-            I * (V1 + V2) + CELL.R_s_ohm * I**2,
-        ]
-
-    return f
-
-
 def resim_cell(t, I, S0=0.5):
-    y = np.array([0, 0, S0, 0, 0], float)
-    for k in range(I.size):
-        y = solve_ivp(cell_rhs(I[k]), (t[k], t[k + 1]), y, rtol=1e-10, atol=1e-12).y[:, -1]
-    return y
+    return cell_oracle.resim_cell(t, I, [0, 0, S0, 0, 0], rtol=1e-10, atol=1e-12)
 
 
 @pytest.fixture(scope="module")

@@ -12,6 +12,8 @@ import pytest
 from scipy.integrate import solve_ivp
 from scipy.optimize import brentq
 
+from cell_oracle import cell_rhs, resim_cell
+
 from aev_ocp.models.battery import ocv_function
 from aev_ocp.ocp.api import replay_exact
 from aev_ocp.ocp.checks import multistart, record_smoothing_gap, resimulate_cell_current
@@ -143,29 +145,12 @@ def test_oracle_energy_term_exact_by_epigraph_and_term_gap_fires_on_a_wide_smoot
     assert any("energy term" in x for x in w.warnings)
 
 
-def cell_rhs(I):
-    def f(_t, y):
-        V1, V2, S = y[:3]
-        VT = float(OCV(S)) - V1 - V2 - CELL.R_s_ohm * I
-        return [
-            -V1 / CELL.tau1_s + I / CELL.C1_F,
-            -V2 / CELL.tau2_s + I / CELL.C2_F,
-            -I / (3600 * CELL.capacity_Ah),
-            I * VT,
-            I * (V1 + V2) + CELL.R_s_ohm * I**2,
-        ]
-
-    return f
-
-
 def test_resimulate_cell_current_against_scipy():
     t = np.array([0.0, 3.7, 9.1, 17.3])
     I = np.array([31.0, -12.5, 7.25])
     x0 = [0.013, -0.004, 0.61]
     ours = resimulate_cell_current(CELL, t, I, x0)
-    y = np.array(x0 + [0.0, 0.0])
-    for k in range(I.size):
-        y = solve_ivp(cell_rhs(I[k]), (t[k], t[k + 1]), y, rtol=1e-11, atol=1e-13).y[:, -1]
+    y = resim_cell(t, I, x0 + [0.0, 0.0], rtol=1e-11, atol=1e-13)
     assert ours["energy_J"] == pytest.approx(y[3], rel=1e-8)
     assert ours["heat_J"] == pytest.approx(y[4], rel=1e-8)
     assert ours["S_end"] == pytest.approx(y[2], abs=1e-10)
