@@ -51,6 +51,19 @@ def _study(tmp_path: Path, text: str = STUDY, name: str = "tiny.toml") -> Path:
     return f
 
 
+def _point(base, gap: float, kappa: float):
+    """The study's point (gap0_first = gap, kappa) of ``base``, built directly with the study's overrides."""
+    return base.with_overrides(
+        {
+            "simulation.t_end": 2.5,
+            "simulation.dt_out": 0.05,
+            "platoon.followers": 3,
+            "platoon.gap0_first": gap,
+            "carfollowing.kappa": kappa,
+        }
+    )
+
+
 def _stable(rows: list[dict]) -> str:
     return json.dumps([{k: v for k, v in r.items() if k not in VOLATILE} for r in rows], sort_keys=True)
 
@@ -69,15 +82,7 @@ def test_points_equal_direct_simulations(tmp_path):
     assert out.n_tasks == 6
     base = load_scenario("table1")
     for gap, kappa in ((0.35, 0.26), (0.9, 0.03)):
-        sc = base.with_overrides(
-            {
-                "simulation.t_end": 2.5,
-                "simulation.dt_out": 0.05,
-                "platoon.followers": 3,
-                "platoon.gap0_first": gap,
-                "carfollowing.kappa": kappa,
-            }
-        )
+        sc = _point(base, gap, kappa)
         for law in ("proposed", "ovfl"):
             direct = simulate_platoon(sc.leader, [sc.law(law)] * 3, **sc.simulate_kwargs()).metrics()
             got = [
@@ -450,15 +455,7 @@ def test_equal_distance_and_time_columns_equal_the_exact_cut_of_direct_runs(tmp_
     )
     base = load_scenario("table1")
     gap, kappa = 0.9, 0.26
-    sc = base.with_overrides(
-        {
-            "simulation.t_end": 2.5,
-            "simulation.dt_out": 0.05,
-            "platoon.followers": 3,
-            "platoon.gap0_first": gap,
-            "carfollowing.kappa": kappa,
-        }
-    )
+    sc = _point(base, gap, kappa)
     runs = {law: simulate_platoon(sc.leader, [sc.law(law)] * 3, **sc.simulate_kwargs()) for law in ("proposed", "ovfl")}
     for vehicle in (1, 3):
         exact = equal_views(runs, vehicle - 1)
