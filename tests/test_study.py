@@ -104,21 +104,16 @@ def test_points_equal_direct_simulations(tmp_path):
                 ):
                     assert r[k] == m[k], (law, gap, kappa, k)
     # % change and comparability against the reference run of the same point and vehicle
-    r = next(
-        r
-        for r in rows
-        if r["controller"] == "proposed"
-        and r["vehicle"] == 2
-        and r["carfollowing.kappa"] == 0.26
-        and r["platoon.gap0_first"] == 0.9
-    )
-    ref = next(
-        x
-        for x in rows
-        if x["controller"] == "ovfl"
-        and x["vehicle"] == 2
-        and x["carfollowing.kappa"] == 0.26
-        and x["platoon.gap0_first"] == 0.9
+    r, ref = (
+        next(
+            x
+            for x in rows
+            if x["controller"] == law
+            and x["vehicle"] == 2
+            and x["carfollowing.kappa"] == 0.26
+            and x["platoon.gap0_first"] == 0.9
+        )
+        for law in ("proposed", "ovfl")
     )
     assert r["omega_model_change_pct"] == pytest.approx(100 * (r["omega_model"] / ref["omega_model"] - 1), rel=1e-12)
     assert r["distance_diff_pct"] == pytest.approx(100 * (r["distance_m"] / ref["distance_m"] - 1), rel=1e-12)
