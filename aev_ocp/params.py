@@ -474,6 +474,13 @@ class VehicleLimits:
     lag_s: float = spec(0.0, ge=0)  # first-order actuator lag tau [s]; 0: ideal actuator (the paper's model)
     v_max_mps: float = spec(62.5, gt=0)  # 2022 Tesla Model 3 RWD top speed, 225 km/h (manufacturer's data)
     enabled: bool = spec(True, kind="bool")  # False: no limit at all (the paper's laws; stated by its scenarios)
+    # The closed loop's command stages (aev_ocp.loop), between every sampled controller and the actuator: a
+    # first-order command filter (time constant [s]) and a jerk limit on the commands (|Δa|/dt [m/s^3]), and
+    # the braking-distance safety layer. None: the default (a production ACC's conditioning, PRODUCTION_ACC, for
+    # car-following laws under realistic sensors; off otherwise); 0 / False: off. The paper's runs leave them off.
+    command_filter_s: float | None = spec(None, ge=0, optional=True)
+    command_jerk_max_mps3: float | None = spec(None, ge=0, optional=True)
+    safety_layer: bool = spec(False, kind="bool")  # min(command, braking-distance bound) on every sampled command
 
     def __post_init__(self) -> None:
         validate_fields(self)
@@ -498,6 +505,10 @@ class VehicleLimits:
 
 #: The paper's laws as printed: no physical limit (Table 1, Fig. 1-5 and §9's canonical MPC state this).
 UNLIMITED = VehicleLimits(enabled=False)
+
+#: (a_min, a_max) [model acceleration] of the paper's canonical MPC (model guide §9: −3 ≤ a ≤ 2), the bounds of a
+#: controller on a vehicle without limits (UNLIMITED); −7.5 and 5 m/s² at the default units (L = 10 m, U = 5 m/s).
+PAPER_ACCEL_BOUNDS_MODEL = (-3.0, 2.0)
 
 
 @dataclass(frozen=True)

@@ -42,14 +42,15 @@ import numpy as np
 
 from ..compiled import compile_shared, driver_source
 from ..limits import check_ring_size
-from ..control import Command, Controller, Observation
+from ..control import SampledLaw
+from ..loop import NO_STAGES, CommandStages, Controller, Observation, VehicleStep, stages_for
 from ..models import energy
 from ..models.actuator import actuator_rate, saturate, speed_cut
 from ..models.carfollowing import CarFollowingLaw, optimal_velocity
 from ..models.battery import piecewise_ocv
 from ..models.ego import battery_side
 from ..params import EVParams, ParameterError, check_argument
-from ..plant import EVENT_RULES, event_at, event_header, rule_of_code
+from ..plant import EVENT_RULES, current_limit_events, event_at, event_header, rule_of_code
 from ..results import Event, SimulationResult, fmt_value, summary_html, summary_text
 from ..simulate import _law_template
 
@@ -58,6 +59,7 @@ RING_METHODS = ("auto", "compiled", "cvodes")
 QUAD_NAMES = ("distance", "omega", "energy_J", "heat_J", "heat_irr_J", "rel_speed2", "ovm_err2")
 OUT_NAMES = ("a", "I", "disc")
 _BUILT: dict[Any, Any] = {}
+LAW_DT_S = 0.1  # the control period [s] of a law sampled for its command stages when no other controller sets one
 
 
 @dataclass(frozen=True)
@@ -403,13 +405,28 @@ class RingSimulator:
         check_argument("ring", "options", options, (RingOptions, type(None)))
         self.ring, self.opts = ring, options or RingOptions()
         self.ev, self.n = ring.ev, ring.n
-        self.sampled = [i for i, c in enumerate(ring.vehicles) if not isinstance(c, CarFollowingLaw)]
-        dts = {float(ring.vehicles[i].dt) for i in self.sampled}
+        # the loop core's stages of every automated vehicle (the humans' laws drive as they are)
+        self.stages: list[CommandStages] = [
+            NO_STAGES
+            if ring.is_human(i)
+            else stages_for(self.ev.limits, law=isinstance(c, (CarFollowingLaw, SampledLaw)), sensed=False)
+            for i, c in enumerate(ring.vehicles)
+        ]
+        dts = {float(c.dt) for c in ring.vehicles if not isinstance(c, CarFollowingLaw)}
         if len(dts) > 1:
             raise ParameterError(f"ring: every sampled controller must use the same dt, got {sorted(dts)}")
-        self.dt = dts.pop() if dts else None  # model time
+        # an automated law whose run declares a conditioning or the safety layer is sampled (like an ECU) at the
+        # controllers' dt, else every LAW_DT_S
+        dt_law = next(iter(dts)) if dts else float(self.ev.units.time_from_si(LAW_DT_S))
+        lo, hi = self.ev.limits.accel_bounds_model(self.ev.units)
+        self.vehicles: list[Any] = [
+            SampledLaw(c, dt_law, lo, hi) if isinstance(c, CarFollowingLaw) and self.stages[i].active else c
+            for i, c in enumerate(ring.vehicles)
+        ]
+        self.sampled = [i for i, c in enumerate(self.vehicles) if not isinstance(c, CarFollowingLaw)]
+        self.dt = dt_law if self.sampled else None  # model time
         self.laws: list[CarFollowingLaw] = [
-            c if isinstance(c, CarFollowingLaw) else HeldCommand() for c in ring.vehicles
+            c if isinstance(c, CarFollowingLaw) else HeldCommand() for c in self.vehicles
         ]
         templates = [_law_template(law) for law in self.laws]
         distinct: dict[Any, int] = {}
@@ -711,13 +728,17 @@ class RingSimulator:
         noise = np.zeros(n)
         out[0] = np.hstack([z, self._outputs(z, noise)])
         h_io, stats = np.zeros(1), np.zeros(3, np.int64)
-        ctrl = {i: ring.vehicles[i] for i in self.sampled}
+        ctrl = {i: self.vehicles[i] for i in self.sampled}
         for c in ctrl.values():
             c.reset()
         meas_t: list[float] = []
         meas_v: dict[int, list[float]] = {i: [] for i in ctrl}
         a_prev = dict.fromkeys(ctrl, 0.0)
-        ctrl_stats: dict[int, dict[str, list[Any]]] = {i: {"call": [], "solve": [], "ok": []} for i in ctrl}
+        assert self.dt is not None or not ctrl
+        steps = {
+            i: VehicleStep(c.name, f"vehicle {i + 1}", u, self.ev.limits, self.stages[i], self.dt or 1.0, "ring")
+            for i, c in ctrl.items()
+        }
         events: list[Event] = []
         s_done, t0, k_noise = 1, 0.0, -1
         wall = time.perf_counter()
@@ -743,13 +764,9 @@ class RingSimulator:
                         a_prev[i],
                         float(z[i, 5]) if self.nx > 5 else None,
                     )
-                    tc = time.perf_counter()
-                    cmd: Command = c.command(obs)
-                    ctrl_stats[i]["call"].append(time.perf_counter() - tc)
-                    ctrl_stats[i]["solve"].append(cmd.solve_time_s)
-                    ctrl_stats[i]["ok"].append(cmd.ok)
-                    self.params[i, 0] = cmd.a
-                    a_prev[i] = cmd.a
+                    # checked, conditioned, safety layer, limits (aev_ocp.loop), then held over the step
+                    _, a_prev[i] = steps[i].command(c, obs)
+                    self.params[i, 0] = a_prev[i]
             sel = (ts > t0 + 1e-12 * (1 + t0)) & (ts <= t1 + 1e-12 * (1 + t1))
             tsel = np.ascontiguousarray(ts[sel])
             buf = np.zeros((tsel.size, n, self.nz + self.ny))
@@ -794,7 +811,7 @@ class RingSimulator:
             t0 = float(t1)
         wall = time.perf_counter() - wall
         ts, out = ts[:s_done], out[:s_done]
-        return self._result(initial, ts, out, events, wall, stats, ctrl_stats)
+        return self._result(initial, ts, out, events, wall, stats, steps)
 
     def _result(
         self,
@@ -804,7 +821,7 @@ class RingSimulator:
         events: list[Event],
         wall: float,
         stats: np.ndarray,
-        ctrl_stats: dict[int, dict[str, list[Any]]],
+        steps: dict[int, VehicleStep],
     ) -> RingResult:
         nx, n = self.nx, self.n
         col = lambda j: np.ascontiguousarray(out[:, :, j])  # noqa: E731
@@ -815,16 +832,17 @@ class RingSimulator:
             np.asarray(self.ring.length_m if False else initial.positions_m[-1]) / self.ev.units.length_m
             + q["distance"][:, -1]
         )
-        names = [getattr(c, "name", type(c).__name__) for c in self.ring.vehicles]
-        settings = [c.describe() for c in self.ring.vehicles]
+        names = [getattr(c, "name", type(c).__name__) for c in self.vehicles]
+        settings = [c.describe() for c in self.vehicles]
         solver: list[dict[str, Any] | None] = [None] * n
-        for i, st in ctrl_stats.items():
-            call = np.asarray(st["call"]) * 1e3
+        for i, step in steps.items():
+            call = np.asarray(step.rec["call"]) * 1e3
             solver[i] = {
                 "steps": len(call),
                 "call_ms_median": float(np.median(call)) if call.size else math.nan,
                 "call_ms_max": float(np.max(call)) if call.size else math.nan,
-                "fallbacks": int(sum(1 for ok in st["ok"] if not ok)),
+                "fallbacks": int(sum(1 for ok in step.rec["ok"] if not ok)),
+                **{k: v for k, v in step.counts().items() if k != "steps"},
             }
         sim = SimulationResult(
             t=ts,
@@ -846,6 +864,7 @@ class RingSimulator:
             controllers=names,
             ev=self.ev,
             events=events,
+            violations=current_limit_events(ts, y["I"], self.ev),  # the plants' one rule (aev_ocp.plant)
             jerk_sampled=True,
             solver_stats=solver,
             meta={
@@ -853,6 +872,8 @@ class RingSimulator:
                 "rtol": self.opts.rtol,
                 "atol": self.opts.atol,
                 "controllers": settings,
+                # each automated vehicle's conditioning and safety layer (None: a human's law), with their counts
+                "command_stages": [steps[i].describe() if i in steps else None for i in range(n)],
                 "ring_length_m": self.ring.length_m,
                 "vehicle_length_m": self.ring.vehicle_length_m,
                 "initial": initial.perturbation,

@@ -104,10 +104,12 @@ def cli_sumo(argv: list[str]) -> int:
             print(file=sys.stderr)
         ft = run.fleet_totals()
         print(
-            f"{run!r}\n  energy {ft['all']['energy_kJ_per_km']:.4g} kJ/km (toolkit's vehicles "
+            f"{run!r}: status {run.status}\n  energy {ft['all']['energy_kJ_per_km']:.4g} kJ/km (toolkit's vehicles "
             f"{ft['controlled']['energy_kJ_per_km']:.4g}, SUMO's {ft['sumo']['energy_kJ_per_km']:.4g}), mean speed "
             f"{ft['all']['mean_speed_mps']:.4g} m/s, collisions {ft['all']['collisions']}, teleports "
-            f"{ft['all']['teleports']}\n  wrote {out}/ (report.md, metrics.csv, fleet.json, manifest.json)"
+            f"{ft['all']['teleports']}, emergency stops {ft['all']['emergency_braking_events']}, lane-end stops "
+            f"{ft['all']['lane_end_stop_events']}, currents beyond the cell's limit {ft['all']['current_limit_events']}"
+            f"\n  wrote {out}/ (report.md, metrics.csv, fleet.json, manifest.json)"
         )
         return 0
     from .output import write_sweep
