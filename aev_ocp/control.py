@@ -5,9 +5,12 @@ A follower runs either a car-following law (integrated continuously inside the p
 The MPC (:class:`aev_ocp.mpc.policy.MPCPolicy`), a replayed control sequence
 (:class:`ControlSequence`, e.g. OCP-D's optimum), a sampled law (:class:`SampledLaw`) and a
 user's own controller (an ACC law, a learned policy) are all Controllers; any vehicle of any
-scenario can run any of them. The closed loop (:class:`ClosedLoop`) applies each command as a
-zero-order hold over dt on the exact plant (:class:`aev_ocp.plant.Plant`), with the plant's event
-rules, and returns the one result type (:class:`aev_ocp.results.SimulationResult`).
+scenario can run any of them. The closed loop (:class:`ClosedLoop`) hands each answer to the step core every
+loop shares (:class:`aev_ocp.loop.VehicleStep`: the check, the declared conditioning and safety layer, the
+vehicle's limits, the counts), applies the result as a zero-order hold over dt on the exact plant
+(:class:`aev_ocp.plant.Plant`), with the plant's event rules, and returns the one result type
+(:class:`aev_ocp.results.SimulationResult`). The protocol types (:class:`Controller`, :class:`Observation`,
+:class:`Command`) live in :mod:`aev_ocp.loop` and are importable from here as before.
 """
 
 from __future__ import annotations
@@ -115,9 +118,11 @@ def fallback_causes(status: Sequence[Any], ok: Sequence[bool]) -> dict[str, int]
     return out
 
 
-def _stats(rec: dict[str, list[Any]], ctrl: Controller, counts: dict[str, int] | None = None) -> dict[str, Any]:
-    """A sampled controller's statistics from its records (solve and call times, iterations, fallbacks) and the
-    loop core's counts (:meth:`aev_ocp.loop.VehicleStep.counts`)."""
+def _stats(
+    rec: dict[str, list[Any]], ctrl: Controller, counts: dict[str, int] | None = None, conditioning: str = "none"
+) -> dict[str, Any]:
+    """A sampled controller's statistics from its records (solve and call times, iterations, fallbacks), the loop
+    core's counts (:meth:`aev_ocp.loop.VehicleStep.counts`) and its conditioning (:meth:`CommandStages.label`)."""
     counts = counts or {}
     ms = np.asarray(rec["solve"], float) * 1e3
     ms = ms[np.isfinite(ms)]
@@ -143,6 +148,7 @@ def _stats(rec: dict[str, list[Any]], ctrl: Controller, counts: dict[str, int] |
         "call_ms_p95": float(np.percentile(cm, 95)) if cm.size else float("nan"),
         # how many commands each stage of the loop core changed (aev_ocp.loop: conditioning, safety, limits)
         **{k: int(counts.get(k, 0)) for k in COUNT_NAMES},
+        "conditioning": conditioning,  # e.g. 'filter 0.5 s, jerk <= 5 m/s^3', 'safety layer', 'none'
     }
 
 
@@ -176,6 +182,12 @@ class ClosedLoop(PlatoonRun):
     vehicle) -> Estimator) turns them into the controllers' states. With degraded sensors every law runs as a
     :class:`SampledLaw` at the controllers' dt (``law_dt`` [model time] when no other controller is sampled),
     clipped to the vehicle's acceleration limits, on the same observations.
+
+    ``stages`` (:class:`~aev_ocp.loop.CommandStages`, one for all or one per follower, None: the default) sets each
+    sampled controller's command conditioning and safety layer; by default they come from the vehicle's limits
+    (``VehicleLimits.command_filter_s``, ``command_jerk_max_mps3``, ``safety_layer``), the laws under realistic
+    sensors getting a production ACC's conditioning (:data:`aev_ocp.loop.PRODUCTION_ACC`). A law whose stages are
+    active runs as a :class:`SampledLaw` like under degraded sensors.
     """
 
     who = "closed loop"
@@ -459,7 +471,9 @@ class ClosedLoop(PlatoonRun):
                 acc[m:, i] = cmds[m - 1]
         names = [c.name if c is not None else law.name for c, law in zip(self.ctrl, self.laws)]  # type: ignore[union-attr]
         stats = [
-            _stats(rec[i], c, cores[i].counts()) if c is not None and not isinstance(c, ControlSequence) else None
+            _stats(rec[i], c, cores[i].counts(), cores[i].stages.label())
+            if c is not None and not isinstance(c, ControlSequence)
+            else None
             for i, c in enumerate(self.ctrl)
         ]
         for i, st in enumerate(stats):
@@ -484,9 +498,9 @@ class ClosedLoop(PlatoonRun):
             else None
             for i in range(n)
         ]
-        settings = [
-            c.describe() if c is not None else law.describe()  # type: ignore[union-attr]
-            for c, law in zip(self.ctrl, self.laws)
+        settings = [  # a sampled controller's settings name its conditioning (aev_ocp.loop)
+            {**c.describe(), "conditioning": cores[i].stages.label()} if c is not None else law.describe()  # type: ignore[union-attr]
+            for i, (c, law) in enumerate(zip(self.ctrl, self.laws))
         ]
         return plant.result(
             samples,

@@ -193,19 +193,25 @@ BAD = [Command(math.nan), Command(math.inf), Command(-math.inf), Command(None), 
 
 @pytest.mark.parametrize("bad", BAD, ids=["nan", "inf", "-inf", "None", "float", "str"])
 def test_every_loop_refuses_a_bad_command_naming_controller_vehicle_time_and_field(bad: object) -> None:
-    with pytest.raises(ParameterError, match=r"closed loop: controller 'reckless' of vehicle 1 returned .* at t = 0: .*Command\.a"):
+    with pytest.raises(
+        ParameterError, match=r"closed loop: controller 'reckless' of vehicle 1 returned .* at t = 0: .*Command\.a"
+    ):
         ClosedLoop(ConstantSpeed(1.3), [Reckless(bad=bad)], EVParams(units=UNITS)).run([4.5], [1.3], 1.0)
     from aev_ocp.ring.simulate import RingRoad, RingSimulator, uniform_flow
 
     ring = RingRoad(200.0, (Reckless(bad=bad), OVM(), OVM()), ev=EVParams(units=UNITS))
-    with pytest.raises(ParameterError, match=r"ring: controller 'reckless' of vehicle 1 returned .* at t = 0: .*Command\.a"):
+    with pytest.raises(
+        ParameterError, match=r"ring: controller 'reckless' of vehicle 1 returned .* at t = 0: .*Command\.a"
+    ):
         RingSimulator(ring, None).run(uniform_flow(ring, speed_mps=5.0), 2.0)
 
 
 def test_check_command_takes_numpy_scalars_and_refuses_bools() -> None:
     assert check_command(Command(np.float32(0.25)), "c", "vehicle 1", 0.0, UNITS, "x").a == np.float32(0.25)
     assert check_command(Command(np.array([-0.5])), "c", "vehicle 1", 0.0, UNITS, "x").a == -0.5  # type: ignore[arg-type]
-    with pytest.raises(ParameterError, match=r"x: controller 'c' of vehicle 'v.2' returned Command\(a = True\) at t = 1.5"):
+    with pytest.raises(
+        ParameterError, match=r"x: controller 'c' of vehicle 'v.2' returned Command\(a = True\) at t = 1.5"
+    ):
         check_command(Command(True), "c", "vehicle 'v.2'", 1.5, UNITS, "x")
 
 
@@ -326,7 +332,9 @@ def test_sumo_refuses_a_bad_command(fn: str, got: str) -> None:
     from aev_ocp.sumo.run import run_sumo
     from aev_ocp.sumo.scenario import parse_sumo_scenario
 
-    with pytest.raises(ParameterError, match=rf"sumo: controller 'reckless' of vehicle 'ring.3' returned {got} at t = .*Command\.a"):
+    with pytest.raises(
+        ParameterError, match=rf"sumo: controller 'reckless' of vehicle 'ring.3' returned {got} at t = .*Command\.a"
+    ):
         run_sumo(parse_sumo_scenario(_sumo_doc(f"{__name__}:{fn}")))
 
 
@@ -342,7 +350,9 @@ def test_laws_under_realistic_sensors_are_conditioned_by_default_and_can_be_swit
     off = run(dataclasses.replace(ev, limits=VehicleLimits(command_filter_s=0.0, command_jerk_max_mps3=0.0)))
     assert off.meta["command_stages"][0]["conditioning"] == "none"
     assert not np.array_equal(on.accel, off.accel)
-    explicit = ClosedLoop(ConstantSpeed(1.5), [SampledLaw(Proposed(), 0.1)], ev, stages=NO_STAGES).run([1.4], [1.2], 3.0)
+    explicit = ClosedLoop(ConstantSpeed(1.5), [SampledLaw(Proposed(), 0.1)], ev, stages=NO_STAGES).run(
+        [1.4], [1.2], 3.0
+    )
     assert explicit.meta["command_stages"][0]["conditioning"] == "none"
 
 
@@ -389,3 +399,27 @@ def test_sumo_merge_reports_its_lane_end_stop_emergency_stop_and_current_breach(
     ft = run.fleet_totals()["controlled"]
     assert ft["emergency_braking_events"] >= 1 and ft["lane_end_stop_events"] >= 1 and ft["current_limit_events"] >= 1
     assert run.vehicles["ramp.21"].status == "violated"
+
+
+def zero_dt_controller(ev: EVParams) -> Reckless:
+    c = Reckless(units=ev.units)
+    c.dt = 0.0
+    return c
+
+
+@needs_sumo
+def test_sumo_refuses_a_user_controller_with_a_bad_dt_or_a_broken_module(tmp_path, monkeypatch) -> None:  # noqa: ANN001
+    """Checked as the platoon's loop checks a controller: dt = 0 is refused naming the key and dt; a module with a
+    syntax error is bad input naming the key, not an internal error."""
+    from aev_ocp.sumo import SumoError
+    from aev_ocp.sumo.run import make_controller_factory
+    from aev_ocp.sumo.scenario import parse_sumo_scenario
+
+    _, factory = make_controller_factory(parse_sumo_scenario(_sumo_doc(f"{__name__}:zero_dt_controller")))
+    assert factory is not None
+    with pytest.raises(SumoError, match=r"sumo.controller = '.*:zero_dt_controller': its controller's dt = 0.0 is not"):
+        factory()
+    (tmp_path / "broken_ctrl_mod.py").write_text("def make(ev):\n    return (\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    with pytest.raises(SumoError, match=r"sumo.controller = 'broken_ctrl_mod:make': cannot import it \(SyntaxError"):
+        make_controller_factory(parse_sumo_scenario(_sumo_doc("broken_ctrl_mod:make")))

@@ -12,10 +12,13 @@ vehicle's command as in the open-chain plant.
 
 Controllers: a :class:`~aev_ocp.models.carfollowing.CarFollowingLaw` is integrated continuously; any sampled
 :class:`~aev_ocp.control.Controller` (Stern's PI with saturation, the MPC, a user's own) is a zero-order hold:
-every dt it receives an :class:`~aev_ocp.control.Observation` (its own state, the measured speeds of its
+every dt it receives an :class:`~aev_ocp.loop.Observation` (its own state, the measured speeds of its
 predecessor so far) and its command is held over the next dt while the whole ring is integrated — the ring
 closed loop (the open-chain :class:`~aev_ocp.control.ClosedLoop` runs behind a prescribed leader, which a
-ring does not have, so the ring has its own loop over the same Controller protocol).
+ring does not have, so the ring integrates its own way, but each control instant is the same step core as the
+platoon's and SUMO's, :class:`aev_ocp.loop.VehicleStep`: the command checked, conditioned, bounded by the
+safety layer and saturated). An automated vehicle's law whose run declares a conditioning or the safety layer
+(``ev.limits``) is sampled every dt (LAW_DT_S without another controller); human drivers never are.
 
 Human drivers may get seeded acceleration noise: N(0, σ²) [m/s²] per human vehicle, held over ``noise_dt_s``.
 
@@ -833,7 +836,10 @@ class RingSimulator:
             + q["distance"][:, -1]
         )
         names = [getattr(c, "name", type(c).__name__) for c in self.vehicles]
-        settings = [c.describe() for c in self.vehicles]
+        settings = [  # an automated vehicle's settings name its conditioning (aev_ocp.loop)
+            {**c.describe(), "conditioning": steps[i].stages.label()} if i in steps else c.describe()
+            for i, c in enumerate(self.vehicles)
+        ]
         solver: list[dict[str, Any] | None] = [None] * n
         for i, step in steps.items():
             call = np.asarray(step.rec["call"]) * 1e3
@@ -842,6 +848,7 @@ class RingSimulator:
                 "call_ms_median": float(np.median(call)) if call.size else math.nan,
                 "call_ms_max": float(np.max(call)) if call.size else math.nan,
                 "fallbacks": int(sum(1 for ok in step.rec["ok"] if not ok)),
+                "conditioning": step.stages.label(),
                 **{k: v for k, v in step.counts().items() if k != "steps"},
             }
         sim = SimulationResult(

@@ -27,7 +27,7 @@ from .bound import (  # noqa: F401 - re-exported: the bound's names stay importa
     safe_acceleration_mps2,
 )
 
-__all__ = ["SafeFallback", "SafetyParams", "effective_reaction_s", "safe_acceleration_mps2"]
+__all__ = ["SafeFallback"]  # (the bound's names are documented in .bound)
 
 
 @dataclass

@@ -814,7 +814,7 @@ def _result(tr: _Track, ev: EVParams, lookahead_m: float, dt: float, every: int)
 
     stats: list[dict[str, Any] | None] = [None]
     if tr.ctrl is not None and tr.step is not None and tr.step.rec["ok"]:
-        stats = [_stats(tr.step.rec, tr.ctrl, tr.step.counts())]
+        stats = [_stats(tr.step.rec, tr.ctrl, tr.step.counts(), tr.step.stages.label())]
     events = tr.events[:1]
     violations = tr.violations + current_limit_events(t, np.asarray(tr.current[:n], float)[:, None], ev)
     meta = {
@@ -832,9 +832,12 @@ def _result(tr: _Track, ev: EVParams, lookahead_m: float, dt: float, every: int)
         # the controlled vehicle's conditioning and safety layer, with the steps each stage changed (aev_ocp.loop)
         "command_stages": [tr.step.describe() if tr.step is not None else None],
         "controllers": [
-            tr.ctrl.describe()
-            if tr.ctrl is not None
-            else (tr.law.describe() if tr.law is not None else {"controller": "sumo", "vtype": tr.vtype})
+            {
+                **(tr.ctrl.describe() if tr.ctrl is not None else tr.law.describe()),  # type: ignore[union-attr]
+                "conditioning": tr.step.stages.label(),
+            }
+            if tr.step is not None
+            else {"controller": "sumo", "vtype": tr.vtype}
         ],
     }
     return SimulationResult(
