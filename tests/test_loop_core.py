@@ -423,3 +423,19 @@ def test_sumo_refuses_a_user_controller_with_a_bad_dt_or_a_broken_module(tmp_pat
     monkeypatch.syspath_prepend(str(tmp_path))
     with pytest.raises(SumoError, match=r"sumo.controller = 'broken_ctrl_mod:make': cannot import it \(SyntaxError"):
         make_controller_factory(parse_sumo_scenario(_sumo_doc("broken_ctrl_mod:make")))
+
+
+def test_safety_layer_declared_in_the_limits_keeps_a_ring_car_off_its_leader() -> None:
+    """The same stage on the ring: a controller commanding 3 m/s² behind humans hits its leader bare, and with
+    ``safety_layer`` in the ring's limits keeps at least the layer's standstill gap (its steps counted)."""
+    from aev_ocp.ring.simulate import RingRoad, RingSimulator, uniform_flow
+
+    out = {}
+    for on in (False, True):
+        ev = EVParams(limits=VehicleLimits(safety_layer=on))
+        ring = RingRoad(120.0, (Reckless(3.0, units=ev.units), OVM(), OVM(), OVM()), ev=ev)
+        out[on] = RingSimulator(ring, None).run(uniform_flow(ring, speed_mps=4.0), 20.0)
+    assert out[False].status == "collision"
+    r = out[True]
+    assert r.status == "ok" and float(r.gap_m[:, 0].min()) >= SafetyParams().standstill_gap_m - 1e-6
+    assert r.sim.meta["command_stages"][0]["safety_limited_steps"] > 0 and r.sim.meta["command_stages"][1] is None
