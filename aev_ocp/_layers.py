@@ -68,6 +68,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
             "aev_ocp.control",
             "aev_ocp.simulate",
             "aev_ocp.ring.simulate",
+            "aev_ocp.trace_replay",
         ),
     ),
     (

@@ -131,6 +131,7 @@ def powertrain_flows(P_w: Any, p: VehicleParams) -> dict[str, Any]:
         eta_t = p.transmission_efficiency
         rec = ca.fmin(eta_t * brake, p.regen_power_max_W)  # mechanical power the motor recuperates
         regen = rec / eta_t
+        friction = ca.fmax(eta_t * brake - p.regen_power_max_W, 0.0) / eta_t  # the rest: the friction brakes
         Pm = traction / eta_t
         eta_r = (
             p.regen_efficiency
@@ -146,12 +147,13 @@ def powertrain_flows(P_w: Any, p: VehicleParams) -> dict[str, Any]:
     else:
         eta = p.efficiency
         regen = brake
+        friction = 0 * P_w
         loss = traction * (1.0 / eta - 1.0) + (1.0 - eta) * brake
     return {
         "P_b": battery_power_W(P_w, p),
         "traction": traction,
         "regen": regen,
-        "friction": brake - regen,
+        "friction": friction,
         "loss": loss,
         "aux": p.aux_power_W + 0 * P_w,
     }
