@@ -183,6 +183,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
             "aev_ocp.sumo.run",
             "aev_ocp.sumo.output",
             "aev_ocp.robustness",
+            "aev_ocp.validation",
         ),
     ),
     (
