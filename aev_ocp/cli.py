@@ -222,8 +222,8 @@ def cmd_simulate(args: argparse.Namespace) -> int:
         out, "simulate", results, settings=settings_of(scenario, sets=list(args.sets), time_limit_s=time_limit)
     )
     headers, rows = scenario_metrics_rows(results)
-    keep = [0, 1, 3, 4, 6, 7, 9]  # run, n, ω [J/kg], pack ∫Q [J], ΔSOC, min gap [m], status
-    keep += list(range(10, len(headers)))  # the thermal model's peak temperature [K], time above T_max [s]
+    keep = [0, 1, 2, 4, 5, 7, 8, 10]  # run, n, battery energy, ω [J/kg], pack ∫Q [J], ΔSOC, min gap [m], status
+    keep += list(range(11, len(headers)))  # the thermal model's peak temperature [K], time above T_max [s]
     print("  ".join(f"{headers[k]:>12}" for k in keep))
     for row in rows:
         print("  ".join(f"{row[k]:>12}" for k in keep))

@@ -140,6 +140,18 @@ def test_battery_on_sumo_motion_matches_the_plant():
     assert r.S[-1, 0] == pytest.approx(ref.S[-1, 0], abs=1e-9)
     assert r.heat_J[-1, 0] == pytest.approx(ref.heat_J[-1, 0], rel=1e-5)
     assert r.omega[-1, 0] == pytest.approx(ref.omega[-1, 0], rel=1e-9)
+    # battery energy ∫P_b: SUMO's step (Simpson per step) against the exact replay (CVODES) of the same linear-per-step
+    # motion, and the metrics' trapezoid on the samples of a run without the quadrature
+    import dataclasses
+
+    from aev_ocp import replay
+
+    rep = replay((U.time_to_si(r.t), U.speed_to_si(r.speed[:, 0])), ev=ev)
+    assert r.battery_energy_J is not None and r.battery_energy_J[0, 0] == 0.0
+    assert r.battery_energy_J[-1, 0] == pytest.approx(rep.battery_energy_J, rel=1e-6)
+    assert r.metrics()[0]["battery_energy_J"] == r.battery_energy_J[-1, 0]
+    sampled = dataclasses.replace(r, battery_energy_J=None).metrics()[0]["battery_energy_J"]
+    assert sampled == pytest.approx(rep.battery_energy_J, rel=1e-3)
 
 
 @given(
