@@ -113,7 +113,9 @@ def build_parser() -> argparse.ArgumentParser:
         help="drive one vehicle exactly on a speed trace and print its battery energy (kWh/100 km), heat, "
         "charge throughput and SOC",
     )
-    rp.add_argument("trace", help="a shipped EPA cycle (udds, hwfet, us06) or a CSV file with columns time_s, speed_mps")
+    rp.add_argument(
+        "trace", help="a shipped EPA cycle (udds, hwfet, us06) or a CSV file with columns time_s, speed_mps"
+    )
     rp.add_argument(
         "--powertrain",
         choices=("map", "constant"),

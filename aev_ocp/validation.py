@@ -27,9 +27,7 @@ def _fastsim() -> Any:
     try:
         import fastsim
     except ImportError as exc:  # the optional extra
-        raise ImportError(
-            "the FASTSim validation needs NREL FASTSim 3.1: pip install 'aev_ocp[validation]'"
-        ) from exc
+        raise ImportError("the FASTSim validation needs NREL FASTSim 3.1: pip install 'aev_ocp[validation]'") from exc
     return fastsim
 
 
@@ -44,7 +42,9 @@ def fastsim_run(cycle: str) -> dict[str, float]:
     fs = _fastsim()
     t, v = load_cycle_si(cycle)
     veh = fs.Vehicle.from_resource(FASTSIM_VEHICLE)
-    cyc = fs.Cycle.from_dict({"time_seconds": np.asarray(t).tolist(), "speed_meters_per_second": np.asarray(v).tolist()})
+    cyc = fs.Cycle.from_dict(
+        {"time_seconds": np.asarray(t).tolist(), "speed_meters_per_second": np.asarray(v).tolist()}
+    )
     sd = fs.SimDrive(veh, cyc)
     sd.run()
     d = sd.to_dict()["veh"]

@@ -28,5 +28,9 @@ def battery_power(Pw: np.ndarray, p: VehicleParams) -> np.ndarray:
     Pm = np.abs(Pw) / et
     trac = Pm / np.interp(np.minimum(Pm / Pmax, 1.0), FRACTION, EFFICIENCY)
     rec = np.minimum(et * np.abs(Pw), p.regen_power_max_W)
-    er = p.regen_efficiency if p.regen_efficiency is not None else np.interp(np.minimum(rec / Pmax, 1.0), FRACTION, EFFICIENCY)
+    er = (
+        p.regen_efficiency
+        if p.regen_efficiency is not None
+        else np.interp(np.minimum(rec / Pmax, 1.0), FRACTION, EFFICIENCY)
+    )
     return np.where(Pw > 0, trac, -er * rec) + p.aux_power_W

@@ -46,11 +46,14 @@ def test_map_is_fastsims_vehicle_file() -> None:
     assert bev["transmission"]["eff_interp"] == p.transmission_efficiency
     assert veh["pwr_aux_base_watts"] == MODEL3_AUX_POWER_W == p.aux_power_W
     ch = veh["chassis"]
-    assert ch["wheel_inertia_kilogram_square_meters"] * ch["num_wheels"] / ch["wheel_radius_meters"] ** 2 == pytest.approx(
-        MODEL3_ROTATING_MASS_KG, rel=1e-12
-    )
+    assert ch["wheel_inertia_kilogram_square_meters"] * ch["num_wheels"] / ch[
+        "wheel_radius_meters"
+    ] ** 2 == pytest.approx(MODEL3_ROTATING_MASS_KG, rel=1e-12)
     assert (veh["mass_kilograms"], ch["drag_coef"], ch["frontal_area_square_meters"], ch["wheel_rr_coef"]) == (
-        p.mass_kg, p.drag_coefficient, p.frontal_area_m2, p.rolling_coefficient,
+        p.mass_kg,
+        p.drag_coefficient,
+        p.frontal_area_m2,
+        p.rolling_coefficient,
     )
 
 
@@ -60,8 +63,10 @@ def test_fastsim_recuperates_at_the_maps_first_value() -> None:
     from aev_ocp.models.leader import load_cycle_si
 
     t, v = load_cycle_si("us06")
-    sd = fs.SimDrive(fs.Vehicle.from_resource(validation.FASTSIM_VEHICLE),
-                     fs.Cycle.from_dict({"time_seconds": t.tolist(), "speed_meters_per_second": v.tolist()}))
+    sd = fs.SimDrive(
+        fs.Vehicle.from_resource(validation.FASTSIM_VEHICLE),
+        fs.Cycle.from_dict({"time_seconds": t.tolist(), "speed_meters_per_second": v.tolist()}),
+    )
     sd.run()
     em = sd.to_dict()["veh"]["pt_type"]["BEV"]["em"]["history"]
     m, e = np.asarray(em["pwr_mech_prop_out_watts"]), np.asarray(em["pwr_elec_prop_in_watts"])

@@ -64,7 +64,9 @@ def test_exact_power_equals_the_numpy_oracle(P: float) -> None:
         assert float(_fn(pt.battery_power_W, p)(P)) == pytest.approx(float(battery_power(P, p)), rel=1e-12, abs=1e-9)
 
 
-@pytest.mark.parametrize("p", [MAP, VehicleParams(), dataclasses.replace(MAP, regen_power_max_W=3.3e4, regen_efficiency=None)])
+@pytest.mark.parametrize(
+    "p", [MAP, VehicleParams(), dataclasses.replace(MAP, regen_power_max_W=3.3e4, regen_efficiency=None)]
+)
 def test_flows_balance_battery_energy(p: VehicleParams) -> None:
     P = np.linspace(-3.1e5, 2.7e5, 2001)
     f = {k: np.asarray(ca.Function("fl", [P_fn], [v])(P)).ravel() for k, v in pt.powertrain_flows(P_fn, p).items()}
@@ -110,8 +112,13 @@ def test_constant_powertrain_is_the_papers_switch() -> None:
 
 @pytest.mark.parametrize(
     ("field", "value"),
-    [("powertrain", "fastsim"), ("regen_efficiency", 0.0), ("regen_power_max_W", -1.0), ("rotating_mass_kg", -2.0),
-     ("transmission_efficiency", 1.2)],
+    [
+        ("powertrain", "fastsim"),
+        ("regen_efficiency", 0.0),
+        ("regen_power_max_W", -1.0),
+        ("rotating_mass_kg", -2.0),
+        ("transmission_efficiency", 1.2),
+    ],
 )
 def test_bad_powertrain_fields_named(field: str, value: object) -> None:
     with pytest.raises(ParameterError, match=field):

@@ -52,7 +52,11 @@ def test_energy_balances_on_a_replay() -> None:
     dt = np.diff(t)
     w_drag = drag * np.sum(dt * (v[1:] + v[:-1]) * (v[1:] ** 2 + v[:-1] ** 2) / 4)
     dist = float(np.sum(dt * (v[1:] + v[:-1]) / 2))
-    wheel = 0.5 * (p.mass_kg + p.rotating_mass_kg) * (v[-1] ** 2 - v[0] ** 2) + p.rolling_coefficient * p.mass_kg * p.gravity_mps2 * dist + w_drag
+    wheel = (
+        0.5 * (p.mass_kg + p.rotating_mass_kg) * (v[-1] ** 2 - v[0] ** 2)
+        + p.rolling_coefficient * p.mass_kg * p.gravity_mps2 * dist
+        + w_drag
+    )
     # (CVODES at rtol 1e-10 over 1369 intervals whose power has a kink where P_w changes sign: 2.5e-7 measured)
     assert r.traction_J - r.regen_J - r.friction_J == pytest.approx(wheel, rel=2e-6)
     assert r.distance_m == pytest.approx(dist, rel=1e-7)
@@ -73,8 +77,13 @@ def test_cell_against_scipy_integration_of_the_same_power() -> None:
         Pc = float(battery_power(wheel_power(np.array(V_US06[k] + a * (tt - T_US06[k])), a, p), p)) / n
         E = float(ocv(y[2])) - y[0] - y[1]
         I = 2 * Pc / (E + np.sqrt(E * E - 4 * cell.R_s_ohm * Pc))
-        return [-y[0] / cell.tau1_s + I / cell.C1_F, -y[1] / cell.tau2_s + I / cell.C2_F, -I / (3600 * cell.capacity_Ah),
-                I * (y[0] + y[1]) + cell.R_s_ohm * I**2, abs(I)]
+        return [
+            -y[0] / cell.tau1_s + I / cell.C1_F,
+            -y[1] / cell.tau2_s + I / cell.C2_F,
+            -I / (3600 * cell.capacity_Ah),
+            I * (y[0] + y[1]) + cell.R_s_ohm * I**2,
+            abs(I),
+        ]
 
     y = np.array([0.0, 0.0, cell.soc0, 0.0, 0.0])
     for k in range(120):  # interval by interval: the power has kinks at the samples

@@ -133,11 +133,7 @@ def powertrain_flows(P_w: Any, p: VehicleParams) -> dict[str, Any]:
         regen = rec / eta_t
         friction = ca.fmax(eta_t * brake - p.regen_power_max_W, 0.0) / eta_t  # the rest: the friction brakes
         Pm = traction / eta_t
-        eta_r = (
-            p.regen_efficiency
-            if p.regen_efficiency is not None
-            else motor_efficiency(rec / p.motor_power_max_W)
-        )
+        eta_r = p.regen_efficiency if p.regen_efficiency is not None else motor_efficiency(rec / p.motor_power_max_W)
         loss = (
             (Pm - traction)  # transmission, traction
             + Pm * (1.0 / motor_efficiency(Pm / p.motor_power_max_W) - 1.0)  # motor + inverter, traction
