@@ -347,6 +347,8 @@ def test_merge_vehicles_leave_the_network_and_save_load(tmp_path):
     m0 = {m["sumo_id"]: m for m in run.metrics()}
     for m in back.metrics():
         assert m["heat_pack_J_per_km"] == pytest.approx(m0[m["sumo_id"]]["heat_pack_J_per_km"], rel=1e-12, nan_ok=True)
+        assert m["battery_energy_J"] == m0[m["sumo_id"]]["battery_energy_J"]  # the saved ∫P_b, not the samples'
+    assert all(r.battery_energy_J is not None for r in back.vehicles.values())
     assert back.controlled == run.controlled
 
 
