@@ -136,3 +136,34 @@ def test_cli_replay(tmp_path, capsys) -> None:  # noqa: ANN001
     assert s["powertrain"] == "constant" and s["battery_energy_kWh_per_100km"] > 10
     rc, _, stderr = run_cli(["replay", "nedc"], capsys)
     assert rc == 2 and stderr.startswith("aev-ocp: error: replay: trace 'nedc'")
+
+
+def test_plant_with_the_map_matches_the_replay() -> None:
+    # the platoon plant (CVODES, its own integration) under a held-acceleration sequence and the replay of the same
+    # piecewise-linear speed: both use the map through battery_side, so SOC and pack heat agree
+    from aev_ocp.control import ControlSequence, run_closed_loop
+    from aev_ocp.models.leader import ConstantSpeed
+    from aev_ocp.params import Units, VehicleLimits
+
+    u = Units(10.0, 5.0)
+    ev = EVParams(units=u, vehicle=VehicleParams.model3(), limits=VehicleLimits(enabled=False))
+    a_si = np.array([2.3, 2.3, 1.1, 0.0, -0.7, -3.1, -1.9, 0.4, 1.7, -2.6])  # m/s², held 1.5 s each
+    dt_s = 1.5
+    v0 = 4.2
+    v = v0 + np.concatenate([[0.0], np.cumsum(a_si * dt_s)])
+    r = run_closed_loop(
+        ConstantSpeed(float(u.speed_from_si(v0))),
+        [ControlSequence(tuple(u.accel_from_si(a_si)), u.time_from_si(dt_s))],
+        [400.0],
+        [float(u.speed_from_si(v0))],
+        u.time_from_si(dt_s * a_si.size),
+        ev=ev,
+    )
+    assert r.status == "ok"
+    rep = aev_ocp.replay((dt_s * np.arange(v.size), v), ev=ev)
+    assert r.S[-1, 0] == pytest.approx(rep.soc[-1], abs=1e-10)
+    assert r.heat_J[-1, 0] == pytest.approx(rep.heat_pack_J, rel=1e-6)
+    m = r.metrics()[0]
+    assert m["battery_energy_J"] == pytest.approx(rep.battery_energy_J, rel=2e-3)  # the samples' trapezoid
+    const = aev_ocp.replay((dt_s * np.arange(v.size), v), ev=ev, powertrain="constant")
+    assert abs(r.S[-1, 0] - const.soc[-1]) > 1e-5  # the plant did use the map
