@@ -123,3 +123,21 @@ def test_constant_powertrain_is_the_papers_switch() -> None:
 def test_bad_powertrain_fields_named(field: str, value: object) -> None:
     with pytest.raises(ParameterError, match=field):
         VehicleParams(**{field: value})  # type: ignore[arg-type]
+
+
+def test_smooth_map_is_smooth_for_optimisers() -> None:
+    # its derivative exists everywhere (no kink at P_w = 0, at the map's grid points or at the regenerative limit)
+    # and equals central finite differences of the smooth power
+    dP = ca.Function("dP", [P_fn], [ca.jacobian(pt.battery_power_smooth_W(P_fn, MAP), P_fn)])
+    lim_wheel = -MAP.regen_power_max_W / MAP.transmission_efficiency
+    pts = [0.0, 37.0, -41.0, 0.04 * MAP.motor_power_max_W * MAP.transmission_efficiency, lim_wheel, 1.9e5, -7.3e4]
+    for P in pts:
+        h = 1e-3
+        fd = (float(SMOOTH(P + h)) - float(SMOOTH(P - h))) / (2 * h)
+        d = float(dP(P))
+        assert np.isfinite(d) and d == pytest.approx(fd, rel=1e-5, abs=1e-6)
+    # while the exact map has a kink at x = 0.06 (its slope goes from 1.0 to 0.5): one-sided slopes of P_b differ
+    x6 = 0.06 * MAP.motor_power_max_W * MAP.transmission_efficiency
+    left = (float(EXACT(x6)) - float(EXACT(x6 - 10.0))) / 10.0
+    right = (float(EXACT(x6 + 10.0)) - float(EXACT(x6))) / 10.0
+    assert abs(left - right) > 1e-3
