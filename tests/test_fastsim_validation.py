@@ -84,3 +84,12 @@ def test_regen_at_the_map_would_miss_fastsim(rows: list[dict]) -> None:
     ev = EVParams(vehicle=dataclasses.replace(VehicleParams.model3(), regen_efficiency=None))
     udds = replay("udds", ev=ev).summary()["battery_energy_kWh_per_100km"]
     assert udds / rows[0]["fastsim_kWh_per_100km"] - 1 < -validation.TOLERANCE
+
+
+def test_the_guides_table_is_this_comparison(rows: list[dict]) -> None:
+    from pathlib import Path
+
+    guide = (Path(__file__).parents[1] / "docs" / "guide" / "powertrain.md").read_text(encoding="utf-8")
+    table = validation.markdown_table(rows)
+    for line in table.splitlines()[2:]:
+        assert line in guide, f"docs/guide/powertrain.md is out of date: {line}"
