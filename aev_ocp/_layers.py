@@ -70,6 +70,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
             "aev_ocp.control",
             "aev_ocp.simulate",
             "aev_ocp.ring.simulate",
+            "aev_ocp.trace_replay",
         ),
     ),
     (
@@ -108,6 +109,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
             "aev_ocp.safety.fallback",
             "aev_ocp.stability",
             "aev_ocp.stability.linear",
+            "aev_ocp.stability.mixed",
             "aev_ocp.stability.perturbation",
             "aev_ocp.stability.measure",
             "aev_ocp.ring",
@@ -184,6 +186,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
             "aev_ocp.sumo.run",
             "aev_ocp.sumo.output",
             "aev_ocp.robustness",
+            "aev_ocp.validation",
         ),
     ),
     (
