@@ -439,3 +439,18 @@ def test_safety_layer_declared_in_the_limits_keeps_a_ring_car_off_its_leader() -
     r = out[True]
     assert r.status == "ok" and float(r.gap_m[:, 0].min()) >= SafetyParams().standstill_gap_m - 1e-6
     assert r.sim.meta["command_stages"][0]["safety_limited_steps"] > 0 and r.sim.meta["command_stages"][1] is None
+
+
+@needs_sumo
+def test_sumo_laws_count_their_saturated_steps_without_stages() -> None:
+    """A law in SUMO without stages is saturated by the loop's limits alone; its steps and saturations are still
+    counted (the proposed law at a_max = 0.2 m/s² from a standing start saturates at the start)."""
+    from aev_ocp.sumo.run import run_sumo
+    from aev_ocp.sumo.scenario import parse_sumo_scenario
+
+    doc = _sumo_doc("proposed", 2.0, a_max_mps2=0.2)
+    run = run_sumo(parse_sumo_scenario(doc))
+    st_ = run.vehicles["ring.3"].meta["command_stages"][0]
+    assert st_["conditioning"] == "none" and st_["steps"] == 20 and st_["saturated_steps"] >= 1
+    a = np.diff(run.vehicles["ring.3"].speed[:, 0]) * run.vehicles["ring.3"].units.speed_mps / 0.1
+    assert a.max() <= 0.2 + 1e-9

@@ -620,6 +620,9 @@ def _loop(ts: Any, sc: SumoScenario, progress: ProgressFn | None) -> SumoRun:
                                     float(u.accel_from_si(a_l)),
                                 )
                             )
+                        else:  # no stage: only the saturation below, counted as the core counts it
+                            tr.step.n["steps"] += 1
+                            tr.step.n["saturated_steps"] += int(not (a_lo <= a[i] <= a_hi))
                         continue
                     tr.meas_t.append(u.time_from_si(t_s))
                     tr.meas_v.append(u.speed_from_si(vls[i]))
