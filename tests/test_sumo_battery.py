@@ -84,19 +84,26 @@ def tracks() -> dict[str, _Track]:
     return _run()
 
 
-@pytest.mark.parametrize("vid, late", [("a", False), ("b", True)])
-def test_sumo_battery_equals_the_plants_battery_sample_by_sample(tracks, vid: str, late: bool) -> None:
+#: tolerances (V [V], S [-], heat relative to the run's, current [A]): 'b' is smooth (RK4's O(Δt⁵) per step);
+#: 'a' stops abruptly and its power changes sign inside steps (the η switch): one RK4 step across a kink is only
+#: first order there, 1e-7 V and 2e-4 of the heat over the run (a one-sample shift of the current is 24 A)
+TOL = {"a": (2e-7, 1e-8, 5e-4, 1e-7), "b": (1e-10, 1e-12, 1e-8, 1e-10)}
+
+
+@pytest.mark.parametrize("vid", ["a", "b"])
+def test_sumo_battery_equals_the_plants_battery_sample_by_sample(tracks, vid: str) -> None:
+    tol_v, tol_s, tol_q, tol_i = TOL[vid]
     tr = tracks[vid]
     v = np.asarray(tr.v)
     ref, cur = _reference(v)
     r = _result(tr, EV, 100.0, DT, 1)
     n = v.size
     assert r.t.size == n
-    np.testing.assert_allclose(r.V1[:, 0], ref[:, 0], rtol=0, atol=2e-9)
-    np.testing.assert_allclose(r.V2[:, 0], ref[:, 1], rtol=0, atol=2e-9)
-    np.testing.assert_allclose(r.S[:, 0], ref[:, 2], rtol=0, atol=1e-11)
-    np.testing.assert_allclose(r.heat_J[:, 0], ref[:, 3], rtol=1e-7, atol=1e-6)
+    np.testing.assert_allclose(r.V1[:, 0], ref[:, 0], rtol=0, atol=tol_v)
+    np.testing.assert_allclose(r.V2[:, 0], ref[:, 1], rtol=0, atol=tol_v)
+    np.testing.assert_allclose(r.S[:, 0], ref[:, 2], rtol=0, atol=tol_s)
+    np.testing.assert_allclose(r.heat_J[:, 0], ref[:, 3], rtol=0, atol=tol_q * ref[-1, 3])
     # the current at sample k is the current at the start of the step from k (not the step before or after)
-    np.testing.assert_allclose(r.current_A[: n - 1, 0], cur, rtol=1e-9, atol=1e-9)
-    assert np.max(np.abs(np.diff(cur))) > 1e-2  # the trace moves the current: a one-sample shift shows 1e7-fold
+    np.testing.assert_allclose(r.current_A[: n - 1, 0], cur, rtol=0, atol=tol_i)
+    assert np.max(np.abs(np.diff(cur))) > 1e3 * tol_i  # the trace moves the current: a one-sample shift shows
     assert r.S[0, 0] == EV.cell.soc0 and r.V1[0, 0] == 0.0  # a departing vehicle starts at rest at soc0
