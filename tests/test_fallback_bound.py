@@ -153,7 +153,9 @@ def test_standstill_gap_and_reaction_time_enter_once() -> None:
     assert safe_acceleration_mps2(gap, v, vl, dt, p2) == pytest.approx(0.9, abs=1e-9)
     assert safe_acceleration_mps2(gap - 1.3, v, vl, dt, P) == pytest.approx(0.9, abs=1e-9)
     p3 = SafetyParams(**{**vars(P), "reaction_time_s": T_R + 0.2})
-    assert safe_acceleration_mps2(_gap_for(0.9, v, vl, dt, t_r=T_R + 0.2), v, vl, dt, p3) == pytest.approx(0.9, abs=1e-9)
+    assert safe_acceleration_mps2(_gap_for(0.9, v, vl, dt, t_r=T_R + 0.2), v, vl, dt, p3) == pytest.approx(
+        0.9, abs=1e-9
+    )
 
 
 def test_the_controller_measures_the_leads_deceleration_from_its_last_two_speeds() -> None:
