@@ -531,6 +531,15 @@ MUTATIONS: tuple[Mutation, ...] = (
         "wrong limit",
         ("tests/test_range_boundaries.py", "tests/test_declared_validation.py"),
     ),
+    Mutation(
+        "M61",
+        "declared ranges: a closed upper limit refuses the limit itself",
+        "aev_ocp/params.py",
+        "and (self.le is None or x <= self.le)",
+        "and (self.le is None or x < self.le)",
+        "wrong limit",
+        ("tests/test_range_boundaries.py", "tests/test_declared_validation.py"),
+    ),
 )
 
 
