@@ -285,17 +285,33 @@ def test_stated_residual_matches_the_stored_hppc_test(name: str) -> None:
 
 @pytest.mark.parametrize("name", IDENTIFIED)
 def test_mpc_runs_on_each_identified_cell(tmp_path: Path, name: str) -> None:
-    """The UDDS MPC scenario (one follower) on the cell for 3 MPC steps; the laws run in test_shipped_cells."""
+    """The UDDS MPC scenario (one follower) on the cell for 3 MPC steps, and the proposed law and OVFL beside it."""
     from aev_ocp.mpc.cycles import run_cycle
 
     p = tmp_path / "s.toml"
     p.write_text(find_scenario("mpc_udds_single").read_text() + f'\n[cell]\nname = "{name}"\nsoc0 = 0.68\n')
     sc = load_scenario(p).replace(t_end=0.3)
     assert sc.ev.cell.rc_table is not None
-    runs, _ = run_cycle(sc, (sc.extra["mpc"].settings.predictor,), laws=("proposed",))
-    r = runs[("mpc", sc.extra["mpc"].settings.predictor)]
-    assert r.status == "ok" and r.t[-1] == pytest.approx(0.3)
-    assert np.all(np.asarray(r.S) < 0.68 + 1e-9) and np.all(np.isfinite(np.asarray(r.V1)))
+    runs, _ = run_cycle(sc, (sc.extra["mpc"].settings.predictor,), laws=("proposed", "ovfl"))
+    assert set(runs) == {("mpc", sc.extra["mpc"].settings.predictor), ("proposed", None), ("ovfl", None)}
+    for r in runs.values():
+        assert r.status == "ok" and r.t[-1] == pytest.approx(0.3)
+        assert np.all(np.asarray(r.S) <= 0.68 + 1e-12) and np.all(np.isfinite(np.asarray(r.V1)))
+
+
+def test_saved_run_of_a_table_cell_loads_back(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """aev-ocp simulate on lg_m50 writes the cell with its tables; the loaded run has the same cell (RCTable)."""
+    from aev_ocp.cli import main
+    from aev_ocp.saved import load_all
+
+    p = tmp_path / "s.toml"
+    p.write_text(find_scenario("udds_platoon").read_text() + '\n[cell]\nname = "lg_m50"\nsoc0 = 0.77\n')
+    rc = main(["simulate", str(p), "--no-plots", "--out", str(tmp_path / "out"), "--set", "simulation.t_end=6.0"])
+    capsys.readouterr()
+    assert rc == 0
+    runs = load_all(tmp_path / "out")
+    for r in runs.values():
+        assert r.ev.cell == load_scenario(p).ev.cell and isinstance(r.ev.cell.rc_table, RCTable)
 
 
 def _script():  # noqa: ANN202
@@ -307,14 +323,20 @@ def _script():  # noqa: ANN202
 
 
 def test_script_reproduces_the_shipped_point() -> None:
-    """tools/identify_cell.py --quick (SOC 0.5 at 25 °C, one DFN HPPC test and fit) gives the shipped lg_m50
-    values at that point. Needs PyBaMM (the identify extra)."""
+    """tools/identify_cell.py's identification at one point (SOC 0.5 at 25 °C: one DFN HPPC test, the resistances
+    fitted with the file's time constants) gives the shipped lg_m50 values there. Needs PyBaMM (the identify
+    extra); about 5 s."""
     pytest.importorskip("pybamm", reason="the identify extra (pybamm) is not installed")
     mod = _script()
     cf = load_cell_file("lg_m50")
     if cf.identification["pybamm_version"] != __import__("pybamm").__version__:
         pytest.skip("the shipped file was identified with another PyBaMM version")
-    fit = mod.identify("lg_m50", quick=True)["fit"]
+    t = cf.cell.rc_table
+    assert t is not None
+    k = t.T_K.index(298.15)  # the file's time constants at 25 °C: the DFN test and the linear fit of R0, R1, R2
+    fit = mod.identify("lg_m50", quick=True, taus=[(cf.identification["tau1_s"][k], cf.identification["tau2_s"][k])])[
+        "fit"
+    ]
     for k in RC_TABLE_KEYS:
         assert fit[k][0][0] == pytest.approx(getattr(cf.cell, k), rel=1e-6), k
     assert fit["rms_V"] == pytest.approx(cf.identification["hppc_rms_V"], rel=1e-6)

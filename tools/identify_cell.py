@@ -11,9 +11,11 @@ For each cell of :data:`CELLS`:
    limits at 0 and 100 % SOC (the same map PyBaMM's ``initial_soc`` uses); capacity (x100 − x0)·Q_n [A h].
 2. **HPPC** on PyBaMM's DFN (isothermal at each temperature of :data:`TEMPS_K`), at each SOC of :data:`SOCS`:
    rest 10 s, discharge 1C 20 s, rest 100 s, charge 1C 20 s, rest 100 s, sampled every 0.5 s.
-3. **Fit** R0, R1, C1, R2, C2 per (SOC, T) with ``scipy.optimize.least_squares`` on the terminal voltage of
-   the 2-RC model (the toolkit's OCV interpolant, the exact zero-order-hold discretisation of the RC branches,
-   τ1 ∈ [0.2, 20] s < τ2 ∈ [20, 1000] s so the branches cannot swap); residual = RMS voltage error.
+3. **Fit** on the terminal voltage of the 2-RC model (the toolkit's OCV interpolant, the RC branches propagated
+   exactly under the held current): per temperature, time constants τ1 ∈ [0.2, 20] s < τ2 ∈ [20, 1000] s
+   shared by every SOC (so the branches cannot swap and the tables stay smooth in SOC), fitted with
+   ``scipy.optimize.least_squares``, and R0, R1, R2 per SOC by linear least squares inside (variable
+   projection); C1 = τ1/R1, C2 = τ2/R2. Residual = RMS voltage error.
 4. **Validation** at 25 °C from SOC 0.8: the per-cell current of the toolkit's UDDS platoon run (the lead
    follower, A123 pack), scaled by capacity (same C-rate), through (a) PyBaMM's DFN, (b) the toolkit's model
    of the written cell file (:mod:`aev_ocp.models.battery`, CasADi CVODES) and (c) PyBaMM's Thevenin
@@ -151,9 +153,20 @@ def hppc_experiment(capacity_Ah: float) -> Any:
     )
 
 
-def run_hppc(name: str, capacity_Ah: float, socs: tuple[float, ...], T_K: float) -> dict[float, np.ndarray]:
-    """{soc: array of rows (t_s, I_A, V)} of the DFN HPPC test at temperature T_K (isothermal)."""
+def run_hppc(
+    name: str, capacity_Ah: float, socs: tuple[float, ...], T_K: float, cache: Path | None = None
+) -> dict[float, np.ndarray]:
+    """{soc: array of rows (t_s, I_A, V)} of the DFN HPPC test at temperature T_K (isothermal); ``cache``: a
+    folder where the runs are kept (reused when present)."""
     pb = pybamm_mod()
+    f = (
+        None
+        if cache is None
+        else cache / f"hppc_{name}_{T_K:.2f}_{'_'.join(f'{s:g}' for s in socs)}_{pb.__version__}.npz"
+    )
+    if f is not None and f.exists():
+        z = np.load(f)
+        return {s: z[f"s{i}"] for i, s in enumerate(socs)}
     sim = pb.Simulation(
         pb.lithium_ion.DFN(),
         parameter_values=set_values(name, T_K),
@@ -164,43 +177,68 @@ def run_hppc(name: str, capacity_Ah: float, socs: tuple[float, ...], T_K: float)
     for s in socs:
         sol = sim.solve(initial_soc=s)
         out[s] = np.column_stack([sol["Time [s]"].entries, sol["Current [A]"].entries, sol["Voltage [V]"].entries])
+    if f is not None:
+        np.savez(f, **{f"s{i}": out[s] for i, s in enumerate(socs)})
     return out
 
 
-def ecm_voltage(data: np.ndarray, soc0: float, theta: np.ndarray, capacity_Ah: float, ocv: Any) -> np.ndarray:
-    """Terminal voltage [V] of the 2-RC model (R0, R1, tau1, R2, tau2) at the samples of ``data`` (t_s, I_A, ...):
-    the current is held constant between samples (PyBaMM's experiment steps are constant-current; a step
-    boundary appears twice at the same time), the RC branches and the SOC are propagated exactly."""
-    R0, R1, tau1, R2, tau2 = theta
+def rc_response(data: np.ndarray, tau_s: float) -> np.ndarray:
+    """Voltage [V per Ω] of an RC branch of time constant tau_s under the current of ``data`` (held between
+    samples; zero at the first sample): V_k+1 = V_k e^(−Δt/τ) + I_k (1 − e^(−Δt/τ)), exact."""
     t, I = data[:, 0], data[:, 1]
-    dt = np.diff(t)
-    S = soc0 - np.concatenate([[0.0], np.cumsum(I[:-1] * dt)]) / (3600.0 * capacity_Ah)
-    v1 = np.zeros_like(t)
-    v2 = np.zeros_like(t)
-    e1, e2 = np.exp(-dt / tau1), np.exp(-dt / tau2)
-    for k in range(len(dt)):
-        v1[k + 1] = v1[k] * e1[k] + R1 * I[k] * (1.0 - e1[k])
-        v2[k + 1] = v2[k] * e2[k] + R2 * I[k] * (1.0 - e2[k])
-    return np.asarray(ocv(S)).ravel() - v1 - v2 - R0 * I
+    e = np.exp(-np.diff(t) / tau_s)
+    v = np.zeros_like(t)
+    for k in range(e.size):
+        v[k + 1] = v[k] * e[k] + I[k] * (1.0 - e[k])
+    return v
 
 
-def fit_point(data: np.ndarray, soc0: float, capacity_Ah: float, ocv: Any) -> tuple[np.ndarray, float]:
-    """Least-squares (R0, R1, tau1, R2, tau2) and the RMS voltage residual [V] of one HPPC test."""
+def ocv_of(data: np.ndarray, soc0: float, capacity_Ah: float, ocv: Any) -> np.ndarray:
+    """OCV(S(t)) [V] along ``data`` with S coulomb-counted from soc0 (current held between samples)."""
+    t, I = data[:, 0], data[:, 1]
+    S = soc0 - np.concatenate([[0.0], np.cumsum(I[:-1] * np.diff(t))]) / (3600.0 * capacity_Ah)
+    return np.asarray(ocv(S)).ravel()
+
+
+def fit_resistances(
+    data: np.ndarray, soc0: float, capacity_Ah: float, ocv: Any, taus: tuple[float, float]
+) -> tuple[np.ndarray, np.ndarray]:
+    """(R0, R1, R2) [Ω] ≥ 1e-6 by linear least squares for fixed time constants, and the voltage residual [V]:
+    V = OCV(S) − R0 I − R1 h(τ1) − R2 h(τ2) is linear in the resistances."""
+    from scipy.optimize import lsq_linear
+
+    A = np.column_stack([data[:, 1], rc_response(data, taus[0]), rc_response(data, taus[1])])
+    b = ocv_of(data, soc0, capacity_Ah, ocv) - data[:, 2]
+    R = lsq_linear(A, b, bounds=(1e-6, np.inf), method="bvls", tol=1e-14).x
+    return R, A @ R - b
+
+
+def fit_temperature(
+    runs: dict[float, np.ndarray], capacity_Ah: float, ocv: Any, taus: tuple[float, float] | None = None
+) -> tuple[tuple[float, float], dict[float, np.ndarray], dict[float, float]]:
+    """The HPPC tests of one temperature: τ1, τ2 shared by every SOC (``scipy.optimize.least_squares`` over
+    log τ, the resistances of each SOC by linear least squares inside: variable projection), R0, R1, R2 per SOC
+    and the RMS residual [V] per SOC. ``taus`` given: only the resistances (the reproduction test)."""
     from scipy.optimize import least_squares
 
-    I, V = data[:, 1], data[:, 2]
-    k = int(np.argmax(I > 0))  # first sample of the discharge pulse (duplicate time of the rest's end)
-    R0g = max((V[k - 1] - V[k]) / I[k], 1e-5)
-    x0 = np.log([R0g, 0.5 * R0g, 2.0, 0.5 * R0g, 60.0])
-    lo = np.log([1e-6, 1e-7, TAU1_S[0], 1e-7, TAU2_S[0]])
-    hi = np.log([1.0, 1.0, TAU1_S[1], 1.0, TAU2_S[1]])
+    def resid(x: np.ndarray) -> np.ndarray:
+        tt = (float(np.exp(x[0])), float(np.exp(x[1])))
+        return np.concatenate([fit_resistances(d, s, capacity_Ah, ocv, tt)[1] for s, d in runs.items()])
 
-    def res(x: np.ndarray) -> np.ndarray:
-        return ecm_voltage(data, soc0, np.exp(x), capacity_Ah, ocv) - V
-
-    sol = least_squares(res, np.clip(x0, lo + 1e-9, hi - 1e-9), bounds=(lo, hi), x_scale="jac", xtol=1e-12, ftol=1e-12)
-    theta = np.exp(sol.x)
-    return theta, float(np.sqrt(np.mean(res(sol.x) ** 2)))
+    if taus is None:
+        lo, hi = np.log([TAU1_S[0], TAU2_S[0]]), np.log([TAU1_S[1], TAU2_S[1]])
+        best = None
+        for start in ((2.0, 40.0), (6.0, 90.0), (12.0, 300.0)):  # a few starts: the fit is not convex in τ
+            sol = least_squares(resid, np.log(start), bounds=(lo, hi), xtol=1e-10, ftol=1e-12, diff_step=1e-6)
+            if best is None or sol.cost < best.cost:
+                best = sol
+        assert best is not None
+        taus = (float(np.exp(best.x[0])), float(np.exp(best.x[1])))
+    R, rms = {}, {}
+    for s, d in runs.items():
+        R[s], r = fit_resistances(d, s, capacity_Ah, ocv, taus)
+        rms[s] = float(np.sqrt(np.mean(r**2)))
+    return taus, R, rms
 
 
 # --------------------------------------------------------------------------------------------- files
@@ -255,7 +293,7 @@ def write_cell(name: str, info: dict[str, Any], fit: dict[str, Any], version: st
         lines.append(f'{k} = {{ value = {_fmt(tab[k][j, i])}, source = "{ref}" }}')
     lines += [
         f'max_current_A = {{ value = {_fmt(5.0 * info["capacity_Ah"])}, source = "our statement: 5C (the set '
-        'states no current limit; the HPPC test probed 1C)" }}',
+        'states no current limit; the HPPC test probed 1C)" }',
         f'heat_capacity_JpK = {{ value = {_fmt(th["heat_capacity_JpK"][0])}, source = "{th["heat_capacity_JpK"][1]}" }}',
         f'surface_area_m2 = {{ value = {_fmt(th["surface_area_m2"][0])}, source = "{th["surface_area_m2"][1]}" }}',
         'activation_energy_Jpmol = { source = "not set: the temperature dependence is the [rc_table] over T_K" }',
@@ -291,6 +329,9 @@ def write_cell(name: str, info: dict[str, Any], fit: dict[str, Any], version: st
         f"hppc_soc0 = {_fmt(SOC_REF)}",
         f"hppc_T_K = {_fmt(T_REF_K)}",
         f"hppc_rms_V = {_fmt(fit['rms_grid'][j][i])}",
+        "# the time constants shared by every SOC, one per T_K (the fit's outer variables)",
+        f"tau1_s = {_row(np.array([t[0] for t in fit['tau_s']]))}",
+        f"tau2_s = {_row(np.array([t[1] for t in fit['tau_s']]))}",
         "",
     ]
     write_atomic(OUT / f"{name}.toml", "\n".join(lines))
@@ -341,9 +382,15 @@ def validate(name: str, version: str) -> dict[str, Any]:
     p["Current function [A]"] = pb.Interpolant(tt, ii, pb.t, interpolator="linear")
     model = pb.lithium_ion.DFN()
     sim = pb.Simulation(model, parameter_values=p, solver=pb.IDAKLUSolver(rtol=RTOL, atol=RTOL))
-    sol = sim.solve(grid, initial_soc=VALIDATION_SOC0)
-    V_dfn = sol["Voltage [V]"].entries
-    q_dfn = sol["Ohmic heating [W]"].entries + sol["Irreversible electrochemical heating [W]"].entries
+    # output at each second (the voltage), and inside each second at 0.5 s and just before the ramp (the heat,
+    # trapezoidal over [t_k, t_k + 0.5, t_k+1 - 2e-4] where the current is held)
+    t_eval = np.unique(np.concatenate([grid, grid[:-1] + 0.5, grid[1:] - 2e-4]))
+    sol = sim.solve(t_eval, initial_soc=VALIDATION_SOC0)
+    t_out = sol["Time [s]"].entries
+    on_grid = np.isin(np.round(t_out, 9), grid)
+    V_dfn = sol["Voltage [V]"].entries[on_grid]
+    q_all = sol["Ohmic heating [W]"].entries + sol["Irreversible electrochemical heating [W]"].entries
+    E_dfn = float(sum(np.trapezoid(q_all[i : i + 3], t_out[i : i + 3]) for i in np.flatnonzero(on_grid)[:-1]))
     # (b) the toolkit's 2-RC cell of the written file, CVODES on the same held current
     x = ca.MX.sym("x", 3)
     u = ca.MX.sym("u")
@@ -371,7 +418,6 @@ def validate(name: str, version: str) -> dict[str, Any]:
     V_ecm = np.array(V_ecm)
     # (c) PyBaMM's Thevenin with the same OCV spline and tables
     V_thev = thevenin(name, cell, grid, I, tt, ii)
-    E_dfn = float(np.trapezoid(q_dfn, grid))
     n = min(len(V_dfn), len(V_ecm))
     return {
         "duration_s": float(grid[-1]),
@@ -395,10 +441,13 @@ def thevenin(name: str, cell: Any, grid: np.ndarray, I: np.ndarray, tt: np.ndarr
     soc_o, ocv_o = np.array(cell.ocv_soc), np.array(cell.ocv_V)
     axes = (np.array(tab.soc), np.array(tab.T_K))
 
-    def table(key: str) -> Any:
+    def clamp(x: Any, grid: np.ndarray) -> Any:  # the toolkit holds the end values outside the grid
+        return pb.maximum(pb.minimum(x, float(grid[-1])), float(grid[0]))
+
+    def table(key: str) -> Any:  # PyBaMM's ECM passes T_cell in °C
         vals = np.array(getattr(tab, key)).T  # (soc, T)
         return lambda T_cell, current, soc: pb.Interpolant(
-            axes, vals, [soc, T_cell], interpolator="linear", extrapolate=False
+            axes, vals, [clamp(soc, axes[0]), clamp(T_cell + 273.15, axes[1])], interpolator="linear"
         )
 
     p.update(
@@ -429,8 +478,11 @@ def thevenin(name: str, cell: Any, grid: np.ndarray, I: np.ndarray, tt: np.ndarr
 # --------------------------------------------------------------------------------------------- main
 
 
-def identify(name: str, quick: bool = False) -> dict[str, Any]:
-    """OCV, capacity, HPPC fit tables of one cell (quick: SOC 0.5 at 25 °C only)."""
+def identify(
+    name: str, quick: bool = False, taus: list[tuple[float, float]] | None = None, cache: Path | None = None
+) -> dict[str, Any]:
+    """OCV, capacity, HPPC fit tables of one cell (quick: SOC 0.5 at 25 °C only; taus: the time constants per
+    temperature, fixed; cache: a folder keeping the DFN runs)."""
     import casadi as ca
 
     pb = pybamm_mod()
@@ -450,26 +502,27 @@ def identify(name: str, quick: bool = False) -> dict[str, Any]:
         info["surface_area_m2"] = float(p["Cell cooling surface area [m2]"])
     keys = ("R_s_ohm", "R1_ohm", "C1_F", "R2_ohm", "C2_F")
     fit: dict[str, Any] = {"soc": list(socs), "T_K": list(temps), **{k: [] for k in keys}, "rms_grid": []}
+    fit["tau_s"] = []
     for T in temps:
-        runs = run_hppc(name, cap, socs, T)
-        rows = {k: [] for k in keys}
-        rms_row = []
+        runs = run_hppc(name, cap, socs, T, cache)
+        fixed = None if taus is None else taus[temps.index(T)]
+        (t1, t2), R, rms = fit_temperature(runs, cap, ocv, fixed)
+        fit["tau_s"].append([t1, t2])
+        rows: dict[str, list[float]] = {k: [] for k in keys}
         for s in socs:
-            th, rms = fit_point(runs[s], s, cap, ocv)
-            R0, R1, t1, R2, t2 = th
+            R0, R1, R2 = R[s]
             for k, v in zip(keys, (R0, R1, t1 / R1, R2, t2 / R2)):
-                rows[k].append(v)
-            rms_row.append(rms)
+                rows[k].append(float(v))
             if s == SOC_REF and T == T_REF_K:
                 fit["hppc_ref"] = runs[s]
             print(
                 f"{name} T={T:.2f} K SOC={s:.2f}: R0={R0 * 1e3:.3f} R1={R1 * 1e3:.3f} mOhm tau1={t1:.2f} s "
-                f"R2={R2 * 1e3:.3f} mOhm tau2={t2:.1f} s rms={rms * 1e3:.3f} mV",
+                f"R2={R2 * 1e3:.3f} mOhm tau2={t2:.1f} s rms={rms[s] * 1e3:.3f} mV",
                 flush=True,
             )
         for k in keys:
             fit[k].append(rows[k])
-        fit["rms_grid"].append(rms_row)
+        fit["rms_grid"].append([rms[s] for s in socs])
     g = np.array(fit["rms_grid"])
     fit["rms_V"] = float(np.sqrt(np.mean(g**2)))
     fit["max_rms_V"] = float(g.max())
@@ -481,6 +534,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("cells", nargs="*", default=list(CELLS), help=f"cells to identify (default: {', '.join(CELLS)})")
     ap.add_argument("--quick", action="store_true", help="SOC 0.5 at 25 °C only; print the fit, write nothing")
     ap.add_argument("--no-validation", action="store_true", help="skip the UDDS validation")
+    ap.add_argument("--hppc-cache", type=Path, help="a folder keeping the DFN HPPC runs between invocations")
     a = ap.parse_args(argv)
     unknown = [c for c in a.cells if c not in CELLS]
     if unknown:
@@ -488,7 +542,14 @@ def main(argv: list[str] | None = None) -> int:
     summary_path = OUT / "identification.json"
     summary = json.loads(summary_path.read_text()) if summary_path.exists() else {}
     for name in a.cells:
-        r = identify(name, a.quick)
+        taus = None
+        if a.quick and (OUT / f"{name}.toml").exists():  # the shipped time constants at 25 °C: only R0, R1, R2
+            import tomllib
+
+            doc = tomllib.loads((OUT / f"{name}.toml").read_text())
+            ident, k = doc["identification"], doc["rc_table"]["T_K"].index(T_REF_K)
+            taus = [(ident["tau1_s"][k], ident["tau2_s"][k])]
+        r = identify(name, a.quick, taus, a.hppc_cache)
         f = r["fit"]
         if a.quick:
             print(json.dumps({k: f[k] for k in ("R_s_ohm", "R1_ohm", "C1_F", "R2_ohm", "C2_F", "rms_V")}))
