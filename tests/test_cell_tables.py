@@ -11,6 +11,7 @@ import csv
 import dataclasses
 import importlib.util
 import json
+import re
 import tomllib
 from pathlib import Path
 
@@ -211,13 +212,16 @@ def test_bad_tables_are_one_line_errors(tmp_path: Path) -> None:
         CellParams(activation_energy_Jpmol=3e4, rc_table=RCTable(soc=SOC, T_K=TEMPS, **tabs))
     name = IDENTIFIED[0]
     text = (CELLS / f"{name}.toml").read_text().replace(f'"{name}_ocv.csv"', f'"{CELLS}/{name}_ocv.csv"')
-    for old, new, where in (
-        ("[rc_table]\n", "[rc_table]\nR3_ohm = 1.0\n", "unknown key rc_table.R3_ohm"),
-        ("C2_F = [", "C2_X = [", "rc_table.C2_F is missing"),
-        ("T_K = [", "T_K = [0.0, ", "rc_table: T_K"),
+    no_c2 = re.sub(r"\nC2_F = \[\n(?:    .*\n)+\]", "", text)
+    assert no_c2 != text
+    for bad, where in (
+        (text.replace("[rc_table]\n", "[rc_table]\nR3_ohm = 1.0\n", 1), "unknown key rc_table.R3_ohm"),
+        (no_c2, "rc_table.C2_F is missing"),
+        (text.replace("\nT_K = [", "\nT_K = [0.0, ", 1), "rc_table: T_K"),
+        (text.replace("\nR1_ohm = [\n", "\nR1_ohm = [\n    [1.0],\n", 1), "rc_table: R1_ohm"),
     ):
         p = tmp_path / "bad.toml"
-        p.write_text(text.replace(old, new, 1))
+        p.write_text(bad)
         with pytest.raises(CellFileError) as exc:
             load_cell(p)
         assert where in str(exc.value) and "\n" not in str(exc.value)
@@ -248,6 +252,15 @@ def test_identified_file_round_trips_and_states_its_fit(name: str) -> None:
     assert ident["parameter_set"] == summary["parameter_set"] and ident["pybamm_version"] == summary["pybamm_version"]
     assert ident["fit_rms_V"] == summary["fit_rms_V"] and cf.chemistry == summary["chemistry"]
     assert 0.0 < ident["fit_rms_V"] <= ident["fit_max_rms_V"] < 0.01  # below 10 mV
+    # the validation the file reports is the script's output (identification.json)
+    assert {k: v for k, v in summary["validation"].items() if v is not None} == ident["validation"]
+    assert ident["validation"]["thevenin_max_abs_V"] < 1e-5  # PyBaMM's Thevenin: the same equations
+    # the optimisers' spline stays positive and finite across the whole (S, T) range, off the grid too
+    spl = battery.rc_function(t, smooth=True)
+    S, T = np.meshgrid(np.linspace(-0.05, 1.05, 45), np.linspace(t.T_K[0] - 5.0, t.T_K[-1] + 5.0, 9))
+    for out in spl(S.ravel()[None, :], T.ravel()[None, :]):
+        v = np.asarray(out).ravel()
+        assert np.all(np.isfinite(v)) and np.all(v > 0.0)
 
 
 @pytest.mark.parametrize("name", IDENTIFIED)

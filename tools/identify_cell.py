@@ -281,7 +281,7 @@ def write_cell(name: str, info: dict[str, Any], fit: dict[str, Any], version: st
         f"# Parameter set: {spec['citation']}.",
         f"# HPPC fit residual (RMS terminal voltage over {len(socs)} SOCs x {len(temps)} temperatures): "
         f"{fit['rms_V'] * 1e3:.3f} mV (max per point {fit['max_rms_V'] * 1e3:.3f} mV).",
-        "# Validation on the toolkit's UDDS current at 25 °C: docs/guide/cells.md (identification.json).",
+        "# Validation on the toolkit's UDDS current at 25 °C: [identification.validation] below, docs/guide/cells.md.",
         f'name = "{name}"',
         f'chemistry = "{spec["chemistry"]}"',
         f'description = "{spec["description"]}"',
@@ -380,24 +380,42 @@ def validate(name: str, version: str) -> dict[str, Any]:
     ii = np.repeat(I, 2)[:-1]  # ramped to I[k+1] over the last 0.1 ms (at t_k+1 the DFN sees I[k+1], as the ECM)
     tt[1::2] -= 1e-4
     p["Current function [A]"] = pb.Interpolant(tt, ii, pb.t, interpolator="linear")
-    model = pb.lithium_ion.DFN()
-    sim = pb.Simulation(model, parameter_values=p, solver=pb.IDAKLUSolver(rtol=RTOL, atol=RTOL))
     # output at each second (the voltage), and inside each second at 0.5 s and just before the ramp (the heat,
     # trapezoidal over [t_k, t_k + 0.5, t_k+1 - 2e-4] where the current is held)
     t_eval = np.unique(np.concatenate([grid, grid[:-1] + 0.5, grid[1:] - 2e-4]))
-    sol = sim.solve(t_eval, initial_soc=VALIDATION_SOC0)
+    heat_keys = ("Ohmic heating [W]", "Irreversible electrochemical heating [W]")
+    try:  # PyBaMM's heat needs the set's thermal data (Prada2013 has none: the terminal loss below only)
+        model = pb.lithium_ion.DFN(options={"calculate heat source for isothermal models": "true"})
+        sim = pb.Simulation(model, parameter_values=p, solver=pb.IDAKLUSolver(rtol=RTOL, atol=RTOL))
+        sol = sim.solve(t_eval, initial_soc=VALIDATION_SOC0, t_interp=t_eval)  # output at t_eval only
+        q_heat: np.ndarray | None = sum(sol[k].entries for k in heat_keys)
+    except KeyError:
+        sim = pb.Simulation(pb.lithium_ion.DFN(), parameter_values=p, solver=pb.IDAKLUSolver(rtol=RTOL, atol=RTOL))
+        sol = sim.solve(t_eval, initial_soc=VALIDATION_SOC0, t_interp=t_eval)
+        q_heat = None
     t_out = sol["Time [s]"].entries
     on_grid = np.isin(np.round(t_out, 9), grid)
-    V_dfn = sol["Voltage [V]"].entries[on_grid]
-    q_all = sol["Ohmic heating [W]"].entries + sol["Irreversible electrochemical heating [W]"].entries
-    E_dfn = float(sum(np.trapezoid(q_all[i : i + 3], t_out[i : i + 3]) for i in np.flatnonzero(on_grid)[:-1]))
+    V_all = sol["Voltage [V]"].entries
+    V_dfn = V_all[on_grid]
+    starts = np.flatnonzero(on_grid)[:-1]
+
+    def held_integral(q: np.ndarray) -> float:  # ∫ q dt over the held part of every second
+        return float(sum(np.trapezoid(q[i : i + 3], t_out[i : i + 3]) for i in starts))
+
+    # the terminal loss Q = I (OCV(S) - V) of the paper's model, S coulomb-counted, OCV the cell file's
+    I_out = np.interp(t_out, tt, ii)
+    S_out = VALIDATION_SOC0 - np.interp(t_out, grid, np.concatenate([[0.0], np.cumsum(I[:-1])])) / (
+        3600.0 * cell.capacity_Ah
+    )
+    loss_dfn = held_integral(I_out * (np.asarray(battery.ocv_function(cell)(S_out.reshape(1, -1))).ravel() - V_all))
+    E_dfn = None if q_heat is None else held_integral(q_heat)
     # (b) the toolkit's 2-RC cell of the written file, CVODES on the same held current
     x = ca.MX.sym("x", 3)
     u = ca.MX.sym("u")
     Tk = ca.MX(T_REF_K)
     view = battery.cell_at(cell, Tk, x[2])
     d1, d2, dS = battery.cell_derivatives(x[0], x[1], u, view)
-    q = battery.heat_irreversible(x[0], x[1], u, view)
+    q = ca.vertcat(battery.heat_irreversible(x[0], x[1], u, view), battery.heat_Q(x[0], x[1], u, view))
     F = ca.integrator(
         "F",
         "cvodes",
@@ -408,13 +426,14 @@ def validate(name: str, version: str) -> dict[str, Any]:
     )
     vt = ca.Function("vt", [x, u], [battery.terminal_voltage(x[2], x[0], x[1], u, view)])
     xk = np.array([0.0, 0.0, VALIDATION_SOC0])
-    V_ecm, E_ecm = [], 0.0
+    V_ecm, E_ecm, loss_ecm = [], 0.0, 0.0
     for k in range(len(grid)):
         V_ecm.append(float(vt(xk, I[k])))
         if k + 1 < len(grid):
             r = F(x0=xk, p=I[k])
             xk = np.asarray(r["xf"]).ravel()
-            E_ecm += float(r["qf"])
+            E_ecm += float(r["qf"][0])
+            loss_ecm += float(r["qf"][1])
     V_ecm = np.array(V_ecm)
     # (c) PyBaMM's Thevenin with the same OCV spline and tables
     V_thev = thevenin(name, cell, grid, I, tt, ii)
@@ -425,9 +444,12 @@ def validate(name: str, version: str) -> dict[str, Any]:
         "soc_end": float(xk[2]),
         "voltage_rmse_V": float(np.sqrt(np.mean((V_dfn[:n] - V_ecm[:n]) ** 2))),
         "voltage_max_abs_V": float(np.max(np.abs(V_dfn[:n] - V_ecm[:n]))),
+        "loss_dfn_J": loss_dfn,
+        "loss_ecm_J": loss_ecm,
+        "loss_rel_diff": (loss_ecm - loss_dfn) / loss_dfn,
         "heat_dfn_J": E_dfn,
         "heat_ecm_J": E_ecm,
-        "heat_rel_diff": (E_ecm - E_dfn) / E_dfn,
+        "heat_rel_diff": None if E_dfn is None else (E_ecm - E_dfn) / E_dfn,
         "thevenin_max_abs_V": float(np.max(np.abs(V_thev - V_ecm))),
     }
 
@@ -565,8 +587,16 @@ def main(argv: list[str] | None = None) -> int:
             "fit_max_rms_V": f["max_rms_V"],
         }
         if not a.no_validation:
-            entry["validation"] = validate(name, r["version"])
-            print(name, json.dumps(entry["validation"]), flush=True)
+            entry["validation"] = v = validate(name, r["version"])
+            print(name, json.dumps(v), flush=True)
+            lines = [
+                "",
+                "[identification.validation]",
+                f"# the UDDS current at {T_REF_K - 273.15:g} °C from SOC {VALIDATION_SOC0:g}: the DFN against this file's "
+                "2-RC model (CVODES) and PyBaMM's Thevenin model with these tables (docs/guide/cells.md)",
+            ] + [f"{k} = {_fmt(x)}" for k, x in v.items() if x is not None]
+            path = OUT / f"{name}.toml"
+            write_atomic(path, path.read_text() + "\n".join(lines) + "\n")
         summary[name] = entry
         write_atomic(summary_path, json.dumps(summary, indent=2, sort_keys=True) + "\n")
     if not a.quick:
@@ -592,25 +622,32 @@ def markdown(summary: dict[str, Any]) -> str:
         "| cell | set | chemistry | capacity [A h] | HPPC fit RMS [mV] | worst point [mV] |",
         "|---|---|---|---|---|---|",
     ]
-    for n, e in summary.items():
+    for n, e in sorted(summary.items()):
         out.append(
             f"| `{n}` | {e['parameter_set']} | {e['chemistry']} | {e['capacity_Ah']:.4g} | {e['fit_rms_V'] * 1e3:.3f} "
             f"| {e['fit_max_rms_V'] * 1e3:.3f} |"
         )
     out += [
         "",
-        "| cell | UDDS RMS current [A] | V RMSE DFN vs 2-RC [mV] | max abs [mV] | heat DFN [J] | heat 2-RC [J] | "
-        "heat difference | max abs 2-RC vs PyBaMM Thevenin [V] |",
-        "|---|---|---|---|---|---|---|---|",
+        "| cell | UDDS RMS current [A] | V RMSE DFN vs 2-RC [mV] | max abs [mV] | terminal loss DFN [J] | "
+        "2-RC [J] | difference | irreversible heat DFN [J] | 2-RC Q_irr [J] | difference | "
+        "max abs 2-RC vs PyBaMM Thevenin [V] |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
-    for n, e in summary.items():
+    for n, e in sorted(summary.items()):
         v = e.get("validation")
         if v is None:
             continue
+        heat = (
+            ["n/a (no thermal data in the set)", f"{v['heat_ecm_J']:.4g}", "n/a"]
+            if v["heat_dfn_J"] is None
+            else [f"{v['heat_dfn_J']:.4g}", f"{v['heat_ecm_J']:.4g}", f"{v['heat_rel_diff'] * 100:+.1f} %"]
+        )
         out.append(
             f"| `{n}` | {v['rms_current_A']:.3g} | {v['voltage_rmse_V'] * 1e3:.2f} | {v['voltage_max_abs_V'] * 1e3:.2f} "
-            f"| {v['heat_dfn_J']:.4g} | {v['heat_ecm_J']:.4g} | {v['heat_rel_diff'] * 100:+.1f} % "
-            f"| {v['thevenin_max_abs_V']:.1e} |"
+            f"| {v['loss_dfn_J']:.4g} | {v['loss_ecm_J']:.4g} | {v['loss_rel_diff'] * 100:+.1f} % | "
+            + " | ".join(heat)
+            + f" | {v['thevenin_max_abs_V']:.1e} |"
         )
     first = next(iter(summary.values()), {})
     out += [

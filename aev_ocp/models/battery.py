@@ -140,8 +140,9 @@ def _segment(x: Any, grid: list[float], vals: list[Any]) -> Any:
 def rc_function(table: RCTable, smooth: bool = False) -> ca.Function:
     """(S [-], T [K]) → (R_s [Ω], R1 [Ω], C1 [F], R2 [Ω], C2 [F]) of ``table`` as one CasADi Function, built
     once per table: bilinear (the plant: exact at the grid points, along SOC then T, :func:`_segment`) or,
-    with ``smooth``, CasADi cubic B-spline interpolants through the same points (degree ≤ points − 1 per
-    axis; for optimisers, twice differentiable). S and T are clamped to the grid first: outside it the end
+    with ``smooth``, exp of CasADi cubic B-spline interpolants of the logarithms through the same points (degree
+    ≤ points − 1 per axis; for optimisers: twice differentiable, and positive between the points where a
+    table spans decades, e.g. an LFP C2). S and T are clamped to the grid first: outside it the end
     values hold."""
     S, T = ca.SX.sym("S"), ca.SX.sym("T_K")
     soc, temps = list(table.soc), list(table.T_K)
@@ -152,13 +153,13 @@ def rc_function(table: RCTable, smooth: bool = False) -> ca.Function:
         vals = np.array(getattr(table, key), dtype=float)  # (n_T, n_soc)
         if not smooth:
             outs.append(_segment(Tc, temps, [_segment(Sc, soc, list(row)) for row in vals]))
-        elif len(temps) == 1:
-            f = ca.interpolant(key, "bspline", [soc], vals[0], {"degree": [min(3, len(soc) - 1)]})
-            outs.append(f(Sc))
+        elif len(temps) == 1:  # the spline of log(value): positive between the points too
+            f = ca.interpolant(key, "bspline", [soc], np.log(vals[0]), {"degree": [min(3, len(soc) - 1)]})
+            outs.append(ca.exp(f(Sc)))
         else:  # CasADi's grid order: the first axis (soc) runs fastest
             deg = [min(3, len(soc) - 1), min(3, len(temps) - 1)]
-            f = ca.interpolant(key, "bspline", [soc, temps], vals.T.ravel(order="F"), {"degree": deg})
-            outs.append(f(ca.vertcat(Sc, Tc)))
+            f = ca.interpolant(key, "bspline", [soc, temps], np.log(vals.T.ravel(order="F")), {"degree": deg})
+            outs.append(ca.exp(f(ca.vertcat(Sc, Tc))))
     return ca.Function("rc_spline" if smooth else "rc_linear", [S, T], outs, ["S", "T_K"], list(RC_TABLE_KEYS))
 
 
