@@ -294,8 +294,9 @@ def test_mpc_one_case_per_family(name: str) -> None:
     out = run_suite([short], controllers=("mpc", "proposed"), actuators=("declared",))
     for row in out.rows:
         assert row.label == AVOIDABLE and row.actuator == "declared"
-        # no controller bounded by a_min keeps a larger gap than the bound (pointwise, so also its minimum)
-        assert row.min_gap_m <= row.bound_min_gap_m + 1e-6
+        # no controller bounded by a_min keeps a larger gap than the bound (pointwise, so also its minimum), up to the
+        # samples missing the exact minimum (≤ 88 ms apart, relative acceleration ≤ 8 m/s²: ½ · 8 · 0.088² = 0.031 m)
+        assert row.min_gap_m <= row.bound_min_gap_m + 0.031
     mpc = next(r for r in out.rows if r.controller == "mpc")
     assert not mpc.collision and mpc.floor_violation_samples == 0 and mpc.min_gap_m >= 2.0
     assert mpc.peak_decel_mps2 <= 8.0 + 1e-9 and mpc.fallbacks == 0
@@ -330,9 +331,10 @@ def test_cli_quick(tmp_path) -> None:  # type: ignore[no-untyped-def]
     rows = list(csv.DictReader(open(out / "safety.csv", encoding="utf-8")))
     assert len(rows) == 8 * 3 and {r["controller"] for r in rows} == {"mpc", "proposed", "ovfl+layer"}
     assert all(r["failed"] == "False" for r in rows if r["controller"] != "proposed")
-    # the bare proposed law hits the standing obstacle 60 m ahead at 100 km/h (avoidable): reported, not failed
+    # the bare proposed law closes below the floor on the standing obstacle 60 m ahead at 100 km/h (avoidable) within
+    # the quick run's 3 s: a failed row, reported, and the exit code still 0 (the paper's law as published)
     lane = next(r for r in rows if r["controller"] == "proposed" and r["case"] == "laneend_100kmh_60m")
-    assert lane["failed"] == "True" and float(lane["impact_speed_mps"]) > 1.0
+    assert lane["failed"] == "True" and float(lane["min_gap_m"]) < 2.0
     md = (out / "safety.md").read_text(encoding="utf-8")
     assert "Safety suite" in md and "Euro NCAP AEB Car-to-Car test protocol" in md
     assert main(["safety", "--quick", "--bogus"]) == 2
