@@ -474,7 +474,9 @@ def _run_pool(
     )
     try:
         with interrupts.deferred(), interrupts.sigint_blocked():
-            futs = {ex.submit(_pool_task, (c, setup)): k for k, c in enumerate(cases)}
+            # the longest runs first, so that no worker is left with one long case at the end
+            order = sorted(range(len(cases)), key=lambda k: -cases[k].t_end_s)
+            futs = {ex.submit(_pool_task, (cases[k], setup)): k for k in order}
         pending = set(futs)
         while pending:
             finished, pending = wait(pending, timeout=0.25, return_when=FIRST_COMPLETED)
