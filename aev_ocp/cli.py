@@ -241,8 +241,8 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
     config = ReproduceConfig.quick() if args.quick else ReproduceConfig()
     if args.model_units:
         config = dataclasses.replace(config, si_units=False)
-    report = reproduce(args.out, config)
-    print(f"wrote {report}")
+    report = reproduce(args.out, config)  # its last stderr line: [N/N] done, both files and the verdict
+    print(f"wrote {report} and {report.parent / 'report.html'}")
     return EXIT_OK
 
 
