@@ -107,7 +107,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="wall-clock limit [s]: a run still going then is stopped (within ~0.05 s) and not written, runs not "
         "started are skipped, the finished ones written, exit 1 (default: none)",
     )
-    sub.add_parser("scenarios", help="list the shipped scenarios")
+    sub.add_parser("scenarios", help="list the shipped scenarios (platoon, ring and SUMO)")
     sub.add_parser("ocp", help="optimal-control problems (see aev-ocp ocp --help)", add_help=False)
     sub.add_parser("mpc", help="model predictive control (see aev-ocp mpc --help)", add_help=False)
     sub.add_parser(
@@ -259,7 +259,29 @@ def cmd_scenarios(args: argparse.Namespace) -> int:
             _warn(f"skipping {path}: {exc}")
             continue
         print(f"{name:16s} {scenario.description}  [{path}]")
+    # the ring and SUMO scenarios run under their own commands; their descriptions are read, not the scenarios
+    others: list[tuple[str, str, Path]] = [("ring", n, p) for n, p in shipped_scenarios("ring").items()]
+    try:
+        from .sumo.scenario import shipped_sumo_scenarios
+
+        others += [("sumo", n, p) for n, p in shipped_sumo_scenarios().items()]
+    except ImportError:  # an installation without the SUMO coupling
+        pass
+    for command, name, path in others:
+        print(f"{name:16s} {_description(path)}  [{path}] (aev-ocp {command} {name})")
     return EXIT_OK
+
+
+def _description(path: Path) -> str:
+    """The first line of a scenario file's ``description`` (empty if the file cannot be read)."""
+    import tomllib
+
+    try:
+        doc = tomllib.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError, RecursionError):
+        return ""
+    text = doc.get("description", "")
+    return " ".join(str(text).split())[:160] if isinstance(text, str) else ""
 
 
 def _dispatch(module: str, func: str, argv: list[str]) -> int:
