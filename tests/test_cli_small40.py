@@ -71,3 +71,25 @@ def test_another_runs_folder_is_still_refused_and_untouched(tmp_path) -> None:
         claim_output_dir(out, "simulate", "fig1a", None, ["a.png"])
     assert (out / "fig.png").exists()
     release_output_locks()
+
+
+def test_ring_table_headers_are_whole_and_aligned_with_their_cells() -> None:
+    from aev_ocp.ring.cli import COLUMNS, _header, _row
+
+    fleet = {k: 12345.678901 for k in COLUMNS} | {"status": "ok", "vehicles_stopped": 3}
+    head, row = _header(), _row("stern: human", fleet)
+    for k in COLUMNS:
+        assert f" {k}" in head, k  # the full key, its unit suffix included
+    assert len(head) == len(row)  # each cell right-aligned under its header
+    ends = [head.index(k) + len(k) for k in COLUMNS]
+    assert all(row[e - 1] != " " for e in ends)
+
+
+def test_the_mpc_table_lists_every_model_metric_with_its_si_twin_beside_it() -> None:
+    from aev_ocp.metrics import SI_METRICS
+    from aev_ocp.mpc.report import METRIC_ROWS
+
+    for model, (si, _dim) in SI_METRICS.items():
+        if model in METRIC_ROWS:
+            assert METRIC_ROWS.index(si) == METRIC_ROWS.index(model) + 1, (model, si)
+    assert {"rms_jerk_mps3", "rms_rel_speed_mps", "min_speed_mps"} <= set(METRIC_ROWS)
