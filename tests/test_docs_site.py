@@ -121,3 +121,15 @@ def test_a_broken_notebook_fails_the_strict_build(tmp_path) -> None:
     assert good.returncode == 0, good.stderr[-2000:]
     assert "6.5" in (tmp_path / "site" / "nb" / "index.html").read_text(encoding="utf-8")
     assert not (tmp_path / ".cache").exists()  # nothing cached for the next build to reuse
+
+
+def test_the_reproduce_timing_the_docs_quote_is_the_benchmarks() -> None:
+    """README and the set-up page quote reproduce's CPU time and compilations as measured by
+    benchmarks/bench_reproduce.py (a stale '4.5 minutes' was quoted after the run had grown to 8.5)."""
+    readme = (ROOT / "README.md").read_text(encoding="utf-8")
+    index = (ROOT / "docs" / "index.md").read_text(encoding="utf-8")
+    assert "benchmarks/bench_reproduce.py" in readme and "bench_reproduce.py" in index
+    cpu = re.search(r"used (\d+) s of CPU", readme)
+    assert cpu is not None and f"used {cpu.group(1)} s of CPU" in index
+    assert "4.5 minutes" not in readme + index
+    assert (ROOT / "benchmarks" / "bench_reproduce.py").is_file()
