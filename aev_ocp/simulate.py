@@ -142,7 +142,7 @@ def _with_symbols(obj: Any, paths: Sequence[tuple[str, ...]], p: Any) -> Any:
     return twin
 
 
-def _same_function(baked: ca.Function, symbolic: ca.Function, values: Sequence[float], points: Sequence[Any]) -> bool:
+def _same_function(baked: ca.Function, symbolic: ca.Function, values: Any, points: Sequence[Any]) -> bool:
     """``symbolic`` evaluates bit for bit like ``baked`` (same inputs; the last one, the runtime parameters
     ``values``, is unused by ``baked``) at every probe point, NaN where it is NaN: the parameters replaced the
     compiled-in numbers without changing the model or its rounding (a parameter that changes how CasADi folds
