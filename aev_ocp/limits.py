@@ -186,6 +186,35 @@ def check_mpc_size(N: int, n_mpc_vehicles: int = 1, key: str = "MPCSettings.N") 
     )
 
 
+# ----------------------------------------------------------------------------- SUMO
+#: Peak memory of a SUMO run per recorded (vehicle x step) [bytes]: the toolkit's record of every vehicle (time,
+#: speed, odometer, gap, leader's speed, lane, battery state, current: Python lists) and its SimulationResult, plus
+#: SUMO's own state. MEASURED_SUMO_BYTES below; rounded up.
+SUMO_BYTES_PER_RECORD = 2_000
+#: Memory of one repetition of a shipped ring's route in SUMO and in its route file [bytes per lap] (two routes
+#: of two edges each, ~12 characters and one pointer per edge): a ring's routes repeat it for the whole run.
+SUMO_BYTES_PER_LAP = 100
+#: Longest SUMO run [s]: one day, the longest horizon of SUMO's traffic-demand studies (a city's day).
+MAX_SUMO_T_END_S = 86_400.0
+
+
+def check_sumo_size(
+    n_vehicles: float, t_end_s: float, step_s: float, record_every: int = 1, laps: float = 0.0, keys: str = ""
+) -> float:
+    """Raise ParameterError if a SUMO run of ``n_vehicles`` vehicles at once over [0, t_end_s] with steps of step_s
+    [s], recording every ``record_every``-th step (and a ring route of ``laps`` laps), needs more than the budget;
+    ``keys``: what the user sets these with (named in the message). Returns the estimate [bytes]."""
+    steps = t_end_s / step_s
+    records = float(n_vehicles) * (math.ceil(steps / max(record_every, 1)) + 1.0) if math.isfinite(steps) else math.inf
+    need, limit = SUMO_BYTES_PER_RECORD * records + SUMO_BYTES_PER_LAP * laps, memory_limit_bytes()
+    if need <= limit:
+        return need
+    raise ParameterError(
+        f"sumo: {n_vehicles:.6g} vehicles x {steps:.6g} steps of {step_s:g} s (t_end_s = {t_end_s:g} s) need about "
+        f"{_gb(need)}, more than the limit of {_gb(limit)} ($AEV_OCP_MAX_MEMORY_GB): lower {keys or 't_end_s'}"
+    )
+
+
 # ----------------------------------------------------------------------------- studies
 #: Peak memory of reading and validating one study point [bytes]: 19.8 kB measured (tracemalloc peak of
 #: read_study on a 30 x 30 random grid of the Table 1 scenario, 900 points: 17.8 MB), rounded up.
