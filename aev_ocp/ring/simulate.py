@@ -51,7 +51,8 @@ from ..models.ego import battery_side
 from ..params import EVParams, ParameterError, check_argument
 from ..plant import EVENT_RULES, event_at, event_header, rule_of_code
 from ..results import Event, SimulationResult, fmt_value, summary_html, summary_text
-from ..simulate import _law_template
+from .. import interrupts
+from ..simulate import _interruptible_call, _law_template
 
 RING_METHODS = ("auto", "compiled", "cvodes")
 #: columns of one vehicle in a sample: states, quadratures, outputs
@@ -573,7 +574,7 @@ class RingSimulator:
     ) -> tuple[int, np.ndarray]:
         ev = np.zeros(4)
         assert self._lib is not None
-        m = self._lib.aevring_advance(
+        args = (
             self.n,
             self.law_of,
             self.params,
@@ -592,6 +593,10 @@ class RingSimulator:
             stats,
             self.opts.threads,
         )
+        # in a helper thread, so that Ctrl-C, SIGTERM and --time-limit stop it within a step (aevring_cancel)
+        m = _interruptible_call(self._lib.aevring_advance, args, ctypes.c_int.in_dll(self._lib, "aevring_cancel"))
+        if m == -2:  # stopped through aevring_cancel by another thread's interrupt of the same library
+            raise interrupts.Interrupted("the compiled ring was cancelled")
         if m < 0:
             raise MemoryError("ring: the compiled ring ran out of memory")
         return int(m), ev

@@ -88,7 +88,9 @@ class MergeNetwork:
     before the merge [m] (the ramp starts 400 m before the merge); accel_lane_m: acceleration-lane length [m];
     after_m: road after it [m]; speeds [m/s]."""
 
-    main_flow_vph: float = spec(2400.0, ge=0, le=MAX_FLOW_VPH)  # 1200 veh/h/lane: a busy two-lane motorway (HCM LOS C-D)
+    main_flow_vph: float = spec(
+        2400.0, ge=0, le=MAX_FLOW_VPH
+    )  # 1200 veh/h/lane: a busy two-lane motorway (HCM LOS C-D)
     ramp_flow_vph: float = spec(500.0, ge=0, le=MAX_FLOW_VPH)  # a busy on-ramp (HCM ramp capacity ~ 1800 veh/h)
     main_length_m: float = spec(800.0, gt=0, le=MAX_ROAD_M)
     accel_lane_m: float = spec(250.0, gt=0, le=MAX_ROAD_M)  # German RAA 2008: 250 m lane for a motorway entry
