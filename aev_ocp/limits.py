@@ -171,6 +171,31 @@ def check_ring_size(
     )
 
 
+#: Most integration cuts of one ring run (noise changes and controller instants): each restarts the compiled
+#: integrator from Python (~0.1 ms of overhead, a thread for Ctrl-C) and holds a float of the grid; 10^6 cuts are
+#: minutes of overhead alone. The shipped rings need 1 200 (600 s, noise held 0.5 s) to 6 000 (an MPC every 0.1 s).
+MAX_RING_CUTS = 1_000_000
+
+
+def check_ring_cuts(t_end_s: float, intervals: dict[str, float]) -> int:
+    """Raise ParameterError if a ring run over [0, t_end_s] cut every interval of ``intervals`` ({key naming it:
+    interval [s]}, e.g. {"ring.noise_dt_s": 0.5, "the controllers' dt": 0.1}) needs more than :data:`MAX_RING_CUTS`
+    integration cuts; checked before the cuts are built. Returns the number of cuts."""
+    total = 0.0
+    for key, dt in intervals.items():
+        if not (math.isfinite(dt) and dt > 0):
+            raise ParameterError(f"ring: {key} = {dt!r} is not allowed: must be a finite number of seconds > 0")
+        total += t_end_s / dt
+    if not total <= MAX_RING_CUTS:
+        what = ", ".join(f"{k} = {v:g} s" for k, v in intervals.items())
+        raise ParameterError(
+            f"ring: {what} over t_end_s = {t_end_s:g} s cut the integration {total:.4g} times, more than the "
+            f"{MAX_RING_CUTS} a run may have: raise {' or '.join(intervals)} (each at least "
+            f"{t_end_s * len(intervals) / MAX_RING_CUTS:.3g} s) or lower t_end_s"
+        )
+    return int(total)
+
+
 def check_mpc_size(N: int, n_mpc_vehicles: int = 1, key: str = "MPCSettings.N") -> float:
     """For :class:`aev_ocp.control.ClosedLoop` (Python API) and every [mpc] table: raise ParameterError if the
     MPC NLPs (one per MPC vehicle, horizon N) exceed the budget; returns the estimate [bytes]. ``key`` is the

@@ -113,7 +113,6 @@ def cli_ring(argv: list[str]) -> int:
         time_limit = check_time_limit(a.time_limit)
         sc = None
         if a.experiment not in ("sugiyama", "stern", "sweep"):
-            from .experiments import run_ring_scenario
             from .scenario import load_ring_scenario
 
             if a.seed is not None:  # never ignored silently: the file's runs are reproducible from the file alone
