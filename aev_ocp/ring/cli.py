@@ -24,6 +24,9 @@ from ..progress import Progress, TimeLimitReached, check_time_limit, time_limite
 from ..results import claim_output_dir, default_output_dir
 from ..scenarios import ScenarioError
 
+#: Longest vehicle a ring may have [m]: 30 m is longer than any road vehicle (a 25.25 m EU road train).
+MAX_VEHICLE_LENGTH_M = 30.0
+
 COLUMNS = (
     "speed_std_mps",
     "mean_speed_mps",
@@ -247,6 +250,10 @@ def cli_ring_stability(
     from ..results import write_json
     from .stability import measured_growth, ring_stability
 
+    if not (math.isfinite(vehicle_length_m) and 0 <= vehicle_length_m <= MAX_VEHICLE_LENGTH_M):
+        raise ParameterError(
+            f"--vehicle-length-m {vehicle_length_m!r}: must be a finite number of metres in [0, {MAX_VEHICLE_LENGTH_M:g}]"
+        )
     if (spacing_m is None) == (density_per_km is None):
         raise ParameterError("--ring: give the spacing with --spacing-m or the density with --density-per-km (one)")
     if density_per_km is not None and not (math.isfinite(density_per_km) and density_per_km > 0):
