@@ -420,7 +420,7 @@ class ThermalParams:
     """
 
     enabled: bool = spec(False, kind="bool")  # off by default: the paper's model has no temperature
-    ambient_K: float = spec(298.15, gt=0, le=MAX_TEMPERATURE_K)  # 25 °C: the temperature of the cell tables (T_ref_K)
+    ambient_K: float = spec(298.15, gt=0)  # 25 °C: the temperature of the cell tables (T_ref_K); below T_max_K
     T0_K: float | None = spec(
         None, gt=0, le=MAX_TEMPERATURE_K, optional=True
     )  # initial pack temperature; None: ambient
