@@ -52,6 +52,7 @@ from ..params import EVParams, ParameterError, check_argument
 from ..plant import EVENT_RULES, event_at, event_header, rule_of_code
 from ..results import Event, SimulationResult, fmt_value, summary_html, summary_text
 from .. import interrupts
+from ..progress import check_deadline
 from ..simulate import _interruptible_call, _law_template
 
 RING_METHODS = ("auto", "compiled", "cvodes")
@@ -59,6 +60,9 @@ RING_METHODS = ("auto", "compiled", "cvodes")
 QUAD_NAMES = ("distance", "omega", "energy_J", "heat_J", "heat_irr_J", "rel_speed2", "ovm_err2")
 OUT_NAMES = ("a", "I", "disc")
 _BUILT: dict[Any, Any] = {}
+#: Wall time [s] below which the next compiled advance is called directly instead of in an interruptible helper
+#: thread: a Ctrl-C then waits about this long (the advances of one run are alike: noise holds, control intervals).
+DIRECT_CALL_S = 0.02
 
 
 @dataclass(frozen=True)
@@ -484,6 +488,7 @@ class RingSimulator:
                 )
         self.method = "compiled" if self._lib is not None else "cvodes"
         self._cvodes: dict[float, Any] = {}
+        self._direct = False  # whether the next compiled advance is called directly (see _advance_compiled)
 
     def _vehicle_function(self, law: CarFollowingLaw, k: int, p: ca.SX) -> ca.Function:
         """(u = (v_l, noise), x, p) -> (dz = (ẋ, quadrature integrands), y = (a, I, disc)), model units; the
@@ -633,8 +638,16 @@ class RingSimulator:
             stats,
             self.opts.threads,
         )
-        # in a helper thread, so that Ctrl-C, SIGTERM and --time-limit stop it within a step (aevring_cancel)
-        m = _interruptible_call(self._lib.aevring_advance, args, ctypes.c_int.in_dll(self._lib, "aevring_cancel"))
+        # in a helper thread, so that Ctrl-C, SIGTERM and --time-limit stop it within a step (aevring_cancel); an
+        # advance after one that took less than DIRECT_CALL_S is called directly (a thread costs ~1 ms a call, twice
+        # the whole advance of a small ring between two noise changes), the signal handled when it returns
+        fn, tc = self._lib.aevring_advance, time.perf_counter()
+        if self._direct:
+            check_deadline()
+            m = fn(*args)
+        else:
+            m = _interruptible_call(fn, args, ctypes.c_int.in_dll(self._lib, "aevring_cancel"))
+        self._direct = time.perf_counter() - tc < DIRECT_CALL_S
         if m == -2:  # stopped through aevring_cancel by another thread's interrupt of the same library
             raise interrupts.Interrupted("the compiled ring was cancelled")
         if m < 0:
@@ -737,6 +750,7 @@ class RingSimulator:
             raise ParameterError(f"ring: soc0 = {soc0!r} is not allowed: must be in [0, 1]")
         check_ring_size(n, t_end_s, self.opts.dt_out_s)  # the budget, before anything is allocated or integrated
         check_ring_cuts(t_end_s, self._cut_intervals_s())  # the cuts too, before their grid is built
+        self._direct = False  # the first advance runs interruptibly (see _advance_compiled)
         T = u.time_s
         t_end = t_end_s / T
         z = np.zeros((n, self.nz))
