@@ -46,6 +46,14 @@ def test_network_keys_outside_their_declared_range(table: str, key: str, value: 
         _parse(network=table, **{table: {key: value}})
 
 
+def test_unknown_vehicle_type_on_a_shipped_network() -> None:
+    with pytest.raises(ScenarioError, match=r"q.toml: sumo.vtypes = \['aev'\] .*all of type 'ring_car'"):
+        _parse(vtypes=["aev"])
+    with pytest.raises(ScenarioError, match=r"sumo.vtypes = .*'ring_car'.*all of type 'human'"):
+        _parse(network="merge", vtypes=["human", "ring_car"])
+    assert _parse(vtypes=["ring_car"]).spec.vtypes == ("ring_car",)  # type: ignore[attr-defined]
+
+
 def test_network_rules_between_keys() -> None:
     with pytest.raises(SumoError, match=r"sumo.ring.speed0_mps = 40.5 is not allowed: must be in \[0, 40\] m/s"):
         RingNetwork(speed0_mps=40.5)

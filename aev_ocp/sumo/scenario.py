@@ -279,7 +279,18 @@ def _check_ids(r: TableReader, spec: SumoSpec) -> None:
     """Refuse an ``ids`` entry that no vehicle of a shipped network can have (before SUMO starts): the ring's cars
     are ``ring.0`` … ``ring.<n-1>``, the merge's flow vehicles ``main.<k>`` / ``ramp.<k>``. User networks are checked
     at the end of the run (:func:`aev_ocp.sumo.run.check_ids_seen`): their vehicles are known only once they depart."""
-    if not spec.ids or spec.network is None or any(a.split("=")[0] in _MORE_VEHICLES for a in spec.sumo_args):
+    if spec.network is None or any(a.split("=")[0] in _MORE_VEHICLES for a in spec.sumo_args):
+        return
+    vtypes = {"ring": ["ring_car"], "merge": ["human"]}[spec.network]  # the routes networks.py writes
+    unknown = [v for v in spec.vtypes if v not in vtypes]
+    if unknown:
+        raise r.error(
+            "vtypes",
+            list(spec.vtypes),
+            f"{_few([repr(v) for v in unknown])}: the shipped {spec.network}'s "
+            f"vehicles are all of type {vtypes[0]!r} (no vehicle would be controlled by this type)",
+        )
+    if not spec.ids:
         return
     if spec.ring is not None:
         valid = [f"ring.{i}" for i in range(spec.ring.vehicles)]
