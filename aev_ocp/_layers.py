@@ -106,6 +106,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
             "aev_ocp.safety.fallback",
             "aev_ocp.stability",
             "aev_ocp.stability.linear",
+            "aev_ocp.stability.mixed",
             "aev_ocp.stability.perturbation",
             "aev_ocp.stability.measure",
             "aev_ocp.ring",
