@@ -10,6 +10,7 @@ from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 from typing import Any
 
+from .. import interrupts
 from ..console import OneLineParser
 from ..limits import check_local_workers
 from ..results import claim_output_dir, default_output_dir
@@ -137,7 +138,10 @@ def cli_sumo(argv: list[str]) -> int:
     rows: list[dict[str, Any]] = []
     workers = args.workers if args.workers is not None else min(len(points), os.cpu_count() or 1)
     with ProcessPoolExecutor(max_workers=workers) as pool:
-        futs = {pool.submit(_point, sc, sh, c, str(out), not args.no_plots): (sh, c) for sh, c in points}
+        # the workers start with SIGINT blocked (as a study's): a Ctrl-C reaches the whole process group, and this
+        # process stops them; a Ctrl-C while one is half started is honoured once all can be stopped
+        with interrupts.deferred(), interrupts.sigint_blocked():
+            futs = {pool.submit(_point, sc, sh, c, str(out), not args.no_plots): (sh, c) for sh, c in points}
         try:
             for f in as_completed(futs):
                 rows.append(f.result())
