@@ -228,10 +228,10 @@ def uniform_flow(
     if not (0 <= vehicle < n):
         raise ParameterError(f"ring: perturbed vehicle {vehicle + 1} is not on the ring of {n} vehicles")
     gap = s - ring.vehicle_length_m
-    for name, x, hi in (("shift_m", shift_m, gap), ("speed_dip_mps", speed_dip_mps, math.inf)):
-        if not (isinstance(x, (int, float)) and math.isfinite(x) and 0 <= x < hi):
+    for name, val, hi in (("shift_m", shift_m, gap), ("speed_dip_mps", speed_dip_mps, math.inf)):
+        if not (isinstance(val, (int, float)) and math.isfinite(val) and 0 <= val < hi):
             raise ParameterError(
-                f"ring: uniform_flow {name} = {x!r:.30} is not allowed: must be a finite number >= 0"
+                f"ring: uniform_flow {name} = {val!r:.30} is not allowed: must be a finite number >= 0"
                 + (f" and < {hi:.6g} m (the equal bumper-to-bumper gap)" if math.isfinite(hi) else "")
             )
     x = [-(i * s) % ring.length_m for i in range(n)]
