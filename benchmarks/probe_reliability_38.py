@@ -80,6 +80,7 @@ def cell_file(volts: list[float]) -> str:
 
 
 def tries() -> list[Try]:  # one try a line: a table
+    # fmt: off
     T: list[Try] = []
     R, S = "r.toml", "s.toml"
     rg = ["ring", R, "--out", "o", "--no-plots"]
@@ -135,6 +136,7 @@ def tries() -> list[Try]:  # one try a line: a table
     T.append(Try("load", "study table swapped", script=api_expect("import aev_ocp, shutil\nshutil.copy('b/table.jsonl', 'a/table.jsonl')\naev_ocp.load('a')", "LoadError", says="table"), setup=chain(write(P, scen()), write("st.toml", STUDY.replace("{scen}", P)), write("st2.toml", STUDY.replace("{scen}", P).replace("0.02, 0.04", "0.05, 0.07").replace("pstudy", "other")), run_cli("study", "st.toml", "--out", "a", "--in-process"), run_cli("study", "st2.toml", "--out", "b", "--in-process")), ok=(0,), timeout=240))
     T.append(Try("load", "load_sumo not a sumo run", script=api_expect("from aev_ocp.sumo.output import load_sumo\nload_sumo('nowhere')", "LoadError", says="nowhere"), ok=(0,)))
     T.append(Try("load", "load_sumo relative cell from elsewhere", script=api_ok("import os\nfrom aev_ocp.sumo.output import load_sumo\nos.chdir('/')\nr = load_sumo(str(d / 'o'))\nassert r.scenario.ev.cell.soc0 == 0.71"), setup=chain(write("sc/c.toml", cell_file([3.1, 3.3, 3.4, 3.6])), write("sc/" + S, sumo() + '[cell]\nfile = "c.toml"\nsoc0 = 0.71\n'), run_cli("sumo", "sc/" + S, "--out", "o", "--no-plots")), ok=(0,), timeout=240))
+    # fmt: on
     return T
 
 
