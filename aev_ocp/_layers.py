@@ -68,6 +68,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
             "aev_ocp.control",
             "aev_ocp.simulate",
             "aev_ocp.ring.simulate",
+            "aev_ocp.trace_replay",
         ),
     ),
     (
@@ -183,6 +184,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
             "aev_ocp.sumo.run",
             "aev_ocp.sumo.output",
             "aev_ocp.robustness",
+            "aev_ocp.validation",
         ),
     ),
     (
