@@ -60,7 +60,7 @@ def test_network_rules_between_keys() -> None:
     assert RingNetwork(speed0_mps=40.0).speed0_mps == 40.0
     with pytest.raises(SumoError, match="do not fit"):
         RingNetwork(length_m=100.0, vehicles=22)
-    with pytest.raises(SumoError, match=r"sumo.merge.ramp_speed_mps = -1.0 is not allowed"):
+    with pytest.raises(SumoError, match=r"^MergeNetwork.ramp_speed_mps = -1.0 is not allowed"):
         MergeNetwork(ramp_speed_mps=-1.0)
 
 

@@ -34,13 +34,18 @@ MAX_ROAD_M = 100_000.0
 MAX_FLOW_VPH = 10_000.0
 
 
-def _checked(obj: object, table: str) -> None:
-    """Every declared field of a network (:func:`aev_ocp.params.validate_fields`), its message naming the
-    scenario key (``sumo.<table>.<field>``); SumoError otherwise."""
+class NetworkError(SumoError, ParameterError):
+    """A network's field outside its declared range: a ParameterError of the Python API ('RingNetwork.length_m = …')
+    that is also a SumoError (a scenario file's keys are checked against the same declarations, naming
+    ``sumo.ring.length_m``, before the network is built)."""
+
+
+def _checked(obj: object) -> None:
+    """Every declared field of a network (:func:`aev_ocp.params.validate_fields`); :class:`NetworkError`."""
     try:
         validate_fields(obj)
     except ParameterError as exc:
-        raise SumoError(f"sumo.{table}.{str(exc).split('.', 1)[1]}") from None
+        raise NetworkError(str(exc)) from None
 
 
 @dataclass(frozen=True)
@@ -58,7 +63,7 @@ class RingNetwork:
     lane_speed_mps: float = spec(40.0, gt=0, le=MAX_LANE_SPEED_MPS)
 
     def __post_init__(self) -> None:
-        _checked(self, "ring")
+        _checked(self)
         if self.vehicles * self.vehicle_length_m >= self.length_m:
             raise SumoError(
                 f"sumo.ring.vehicles = {self.vehicles} cars of {self.vehicle_length_m} m do not fit "
@@ -99,7 +104,7 @@ class MergeNetwork:
     ramp_speed_mps: float = spec(22.22, gt=0, le=MAX_LANE_SPEED_MPS)  # 80 km/h ramp limit
 
     def __post_init__(self) -> None:
-        _checked(self, "merge")
+        _checked(self)
 
     @property
     def road_m(self) -> float:
