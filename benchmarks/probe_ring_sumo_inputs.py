@@ -1,11 +1,11 @@
-"""Reliability probe of the surfaces of issue 38: the ring (its start, its drivers, its cuts, Ctrl-C and --time-limit
+"""Reliability probe of the ring (its start, its drivers, its cuts, Ctrl-C and --time-limit
 in the compiled ring), SUMO (sizes, sumo_args, options, networks, --controller mpc), physical ranges of the
 [thermal] and [cell] tables, stability --ring, and loading saved SUMO runs and studies.
 
 It reuses the harness of ``probe_reliability_3.py`` (each try in its own folder and process group, classified
 ``ok``/``minor``/``defect``: a traceback, a hang, an unexpected exit code, a temporary left behind, an error line
-that does not name the key). Run: ``python benchmarks/probe_reliability_38.py [--only SUBSTRING] [--json OUT]``;
-prints every try and a table per area, writes the JSON (default ``probe_reliability_38.json``).
+that does not name the key). Run: ``python benchmarks/probe_ring_sumo_inputs.py [--only SUBSTRING] [--json OUT]``;
+prints every try and a table per area, writes the JSON (default ``probe_ring_sumo_inputs.json``).
 """
 
 from __future__ import annotations
@@ -143,7 +143,7 @@ def tries() -> list[Try]:  # one try a line: a table
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--only", default="", help="run only tries whose 'area/name' contains this")
-    ap.add_argument("--json", default="probe_reliability_38.json")
+    ap.add_argument("--json", default="probe_ring_sumo_inputs.json")
     ap.add_argument("--jobs", type=int, default=1, help="tries run at once (the interrupt tries run alone)")
     a = ap.parse_args(argv)
     ts = [t for t in tries() if a.only.lower() in f"{t.area}/{t.name}".lower()]
