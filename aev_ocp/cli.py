@@ -371,7 +371,16 @@ def parse_command_line(argv: Sequence[str]) -> argparse.Namespace:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``aev-ocp``; returns the exit code (also raised as SystemExit by the script)."""
-    args_list = list(sys.argv[1:] if argv is None else argv)
+    rc = _main(list(sys.argv[1:] if argv is None else argv))
+    if argv is None and _ON_MAIN:  # the command line's process: the command has ended and said so
+        # a Ctrl-C or SIGTERM now (a second one, or one during the interpreter's shutdown) would end the process by
+        # the signal (exit -2) instead of with the command's code: ignore it, the process is only exiting
+        for s in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(s, signal.SIG_IGN)
+    return rc
+
+
+def _main(args_list: list[str]) -> int:
     if args_list and args_list[0] == "mpc-export":
         return guarded(lambda: _dispatch("aev_ocp.mpc.export", "cli_mpc_export", args_list[1:]))
     if args_list and args_list[0] in ("ocp", "mpc", "stability", "study", "safety", "ring", "sumo"):

@@ -493,7 +493,8 @@ class CellParams:
 
 
 def check_ocv_table(soc: Sequence[Any], ocv_V: Sequence[Any], where: str) -> None:
-    """An OCV table: ≥ 4 points, SOC strictly increasing from 0 to 1, OCV finite and > 0 [V]; ParameterError
+    """An OCV table: ≥ 4 points, SOC strictly increasing from 0 to 1, OCV finite, > 0 [V] and never falling with SOC
+    (rising from SOC 0 to 1); ParameterError
     '<where>.ocv_soc …' otherwise."""
     s = [float(x) for x in soc]
     v = [float(x) for x in ocv_V]
@@ -507,10 +508,26 @@ def check_ocv_table(soc: Sequence[Any], ocv_V: Sequence[Any], where: str) -> Non
         raise ParameterError(f"{where}.ocv_soc is not allowed: must run from 0 to 1, got {s[0]:g} … {s[-1]:g}")
     if any(x <= 0 for x in v):
         raise ParameterError(f"{where}.ocv_V is not allowed: every voltage must be > 0 V")
+    fall = next((i for i in range(1, len(v)) if v[i] < v[i - 1]), None)
+    if fall is not None or v[-1] <= v[0]:  # a cell's OCV rises with its charge (flat plateaus allowed, never falls)
+        at = (
+            f"it falls from {v[fall - 1]:g} V to {v[fall]:g} V between SOC {s[fall - 1]:g} and {s[fall]:g}"
+            if fall
+            else (f"it does not rise ({v[0]:g} V at SOC 0, {v[-1]:g} V at SOC 1)")
+        )
+        raise ParameterError(
+            f"{where}.ocv_V is not allowed: must not decrease with SOC and must end above its start (the open-circuit "
+            f"voltage of a cell rises as it charges); {at}"
+        )
 
 
 #: Molar gas constant [J/(mol K)] (CODATA 2018, exact).
 R_GAS_JPMOLK = 8.314462618
+
+
+#: Highest temperature a pack, its ambient or its limit may have [K]: lithium-ion cells go into thermal runaway
+#: at 400-500 K (Feng et al. 2018, Energy Storage Materials 10:246-267); 1000 K is far beyond any of them.
+MAX_TEMPERATURE_K = 1000.0
 
 
 @dataclass(frozen=True)
@@ -523,15 +540,22 @@ class ThermalParams:
     """
 
     enabled: bool = spec(False, kind="bool")  # off by default: the paper's model has no temperature
-    ambient_K: float = spec(298.15, gt=0)  # 25 °C: the temperature of the cell tables (T_ref_K)
-    T0_K: float | None = spec(None, gt=0, optional=True)  # initial pack temperature; None: ambient
+    ambient_K: float = spec(298.15, gt=0)  # 25 °C: the temperature of the cell tables (T_ref_K); below T_max_K
+    T0_K: float | None = spec(
+        None, gt=0, le=MAX_TEMPERATURE_K, optional=True
+    )  # initial pack temperature; None: ambient
     h_Wpm2K: float = spec(51.0, gt=0)  # forced air: Lin et al. 2014 measured R_u = 3.08 K/W for an A123 26650
     # in their fan-cooled fixture, i.e. h = 1/(R_u A) = 1/(3.08 × 6.37e-3 m²) ≈ 51 W/(m² K)
     cooling_power_W: float = spec(0.0, ge=0)  # extra heat removed from the pack [W] (active cooling); 0: none
-    T_max_K: float = spec(328.15, gt=0)  # A123 ANR26650M1-B datasheet: discharge operating limit 55 °C
+    T_max_K: float = spec(328.15, gt=0, le=MAX_TEMPERATURE_K)  # A123 ANR26650M1-B datasheet: discharge limit 55 °C
 
     def __post_init__(self) -> None:
         validate_fields(self)
+        if not self.T_max_K > self.ambient_K:  # a limit the pack exceeds at rest, before it moves
+            raise ParameterError(
+                f"ThermalParams.T_max_K = {echo(self.T_max_K)} is not allowed: must be a finite number in "
+                f"({self.ambient_K:g}, {MAX_TEMPERATURE_K:g}] K (above ambient_K = {self.ambient_K:g} K)"
+            )
 
     @property
     def initial_K(self) -> float:
@@ -641,6 +665,23 @@ class EVParams:
     pack: PackParams = field(default_factory=PackParams)
     limits: VehicleLimits = field(default_factory=VehicleLimits)
     thermal: ThermalParams = field(default_factory=ThermalParams)
+
+    def __post_init__(self) -> None:
+        for name, cls in (("units", Units), ("vehicle", VehicleParams), ("cell", CellParams), ("pack", PackParams)):
+            check_argument("EVParams", name, getattr(self, name), cls)
+        check_argument("EVParams", "limits", self.limits, VehicleLimits)
+        check_argument("EVParams", "thermal", self.thermal, ThermalParams)
+        # the rules between tables: a constant cooling power above hA·T_amb would drive the pack's steady state
+        # T_amb − P_cool/hA (no heat from the cells, aev_ocp.models.thermal) below 0 K
+        th, cell, pack = self.thermal, self.cell, self.pack
+        hA = pack.n_cells * th.h_Wpm2K * cell.surface_area_m2  # as aev_ocp.models.thermal.conductance_WpK
+        cap = hA * th.ambient_K
+        if not th.cooling_power_W < cap:
+            raise ParameterError(
+                f"ThermalParams.cooling_power_W = {echo(th.cooling_power_W)} is not allowed: must be a finite number "
+                f"in [0, {cap:.6g}) W (hA x ambient_K = {hA:.6g} W/K x {th.ambient_K:g} K for this pack: more "
+                "cooling would drive the pack below 0 K)"
+            )
 
 
 def as_dict(obj: Any) -> dict[str, Any]:

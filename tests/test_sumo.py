@@ -174,8 +174,10 @@ def test_share_selection_draws_the_share():
     sc = parse_sumo_scenario({"sumo": {"network": "merge", "t_end_s": 10.0, "share": 0.3, "seed": 3}})
     n = sum(is_controlled(f"flow.{k}", "t", sc) for k in range(4000))
     assert abs(n / 4000 - 0.3) < 4 * math.sqrt(0.3 * 0.7 / 4000)  # 4 sigma
-    by_id = parse_sumo_scenario({"sumo": {"network": "ring", "t_end_s": 10.0, "ids": ["ring.7"], "vtypes": ["aev"]}})
-    assert is_controlled("ring.7", "car", by_id) and is_controlled("y", "aev", by_id)
+    by_id = parse_sumo_scenario(
+        {"sumo": {"network": "ring", "t_end_s": 10.0, "ids": ["ring.7"], "vtypes": ["ring_car"]}}
+    )
+    assert is_controlled("ring.7", "car", by_id) and is_controlled("y", "ring_car", by_id)
     assert not is_controlled("y", "car", by_id)
 
     def ring(s: float) -> set[str]:

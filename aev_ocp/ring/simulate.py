@@ -44,7 +44,7 @@ import casadi as ca
 import numpy as np
 
 from ..compiled import compile_shared, driver_source
-from ..limits import check_ring_size
+from ..limits import check_ring_cuts, check_ring_size
 from ..control import SampledLaw
 from ..loop import NO_STAGES, CommandStages, Controller, Observation, VehicleStep, stages_for
 from ..models import energy
@@ -55,7 +55,9 @@ from ..models.ego import battery_side
 from ..params import EVParams, ParameterError, check_argument
 from ..plant import EVENT_RULES, current_limit_events, event_at, event_header, rule_of_code
 from ..results import Event, SimulationResult, fmt_value, summary_html, summary_text
-from ..simulate import _law_template
+from .. import interrupts
+from ..progress import check_deadline
+from ..simulate import _interruptible_call, _law_template
 
 RING_METHODS = ("auto", "compiled", "cvodes")
 #: columns of one vehicle in a sample: states, quadratures, outputs
@@ -63,6 +65,9 @@ QUAD_NAMES = ("distance", "omega", "energy_J", "heat_J", "heat_irr_J", "rel_spee
 OUT_NAMES = ("a", "I", "disc")
 _BUILT: dict[Any, Any] = {}
 LAW_DT_S = 0.1  # the control period [s] of a law sampled for its command stages when no other controller sets one
+#: Wall time [s] below which the next compiled advance is called directly instead of in an interruptible helper
+#: thread: a Ctrl-C then waits about this long (the advances of one run are alike: noise holds, control intervals).
+DIRECT_CALL_S = 0.02
 
 
 @dataclass(frozen=True)
@@ -227,6 +232,13 @@ def uniform_flow(
     v = uniform_speed_mps(ring) if speed_mps is None else float(speed_mps)
     if not (0 <= vehicle < n):
         raise ParameterError(f"ring: perturbed vehicle {vehicle + 1} is not on the ring of {n} vehicles")
+    gap = s - ring.vehicle_length_m
+    for name, val, hi in (("shift_m", shift_m, gap), ("speed_dip_mps", speed_dip_mps, math.inf)):
+        if not (isinstance(val, (int, float)) and math.isfinite(val) and 0 <= val < hi):
+            raise ParameterError(
+                f"ring: uniform_flow {name} = {val!r:.30} is not allowed: must be a finite number >= 0"
+                + (f" and < {hi:.6g} m (the equal bumper-to-bumper gap)" if math.isfinite(hi) else "")
+            )
     x = [-(i * s) % ring.length_m for i in range(n)]
     vs = [v] * n
     x[vehicle] = (x[vehicle] - shift_m) % ring.length_m
@@ -236,6 +248,39 @@ def uniform_flow(
         f" and slowed by {speed_dip_mps:g} m/s"
     )
     return RingInitial(tuple(x), tuple(vs), soc0, what)
+
+
+def start_problem(
+    length_m: float, vehicle_length_m: float, v_max_mps: float, positions_m: Any, speeds_mps: Any
+) -> tuple[str, str] | None:
+    """(key, what is wrong) of a ring's start, or None when it is physical: ``positions_m`` [m] finite, listed front
+    to back (vehicle i − 1 ahead of vehicle i: the gaps go once around the ring, adding up to ``length_m``), no two
+    vehicles of ``vehicle_length_m`` overlapping; ``speeds_mps`` [m/s] in [0, ``v_max_mps``]. One check for the
+    Python API (:meth:`RingSimulator.run`) and the scenario file (``[ring.initial]``)."""
+    x = np.asarray(positions_m, float)
+    v = np.asarray(speeds_mps, float)
+    if not np.all(np.isfinite(v)) or np.any(v < 0) or np.any(v > v_max_mps):
+        i = int(np.flatnonzero(~((v >= 0) & (v <= v_max_mps)))[0])
+        return "speeds_mps", (
+            f"every speed must be a finite number in [0, {v_max_mps:g}] m/s (limits.v_max_mps, the vehicle's top "
+            f"speed); vehicle {i + 1} has {float(v[i])!r:.30}"
+        )
+    if not np.all(np.isfinite(x)):
+        return "positions_m", "every position must be a finite number of metres"
+    ahead = (np.roll(x, 1) - x) % length_m  # front-to-front distance of each vehicle to its predecessor
+    gaps = ahead - vehicle_length_m
+    if np.any(gaps <= 0):
+        i = int(np.argmin(gaps))
+        return "positions_m", (
+            f"vehicle {i + 1} overlaps its predecessor (gap {gaps[i]:.4g} m; vehicle i − 1 must be ahead of "
+            f"vehicle i, vehicles {vehicle_length_m:g} m long)"
+        )
+    if abs(float(np.sum(ahead)) - length_m) > 1e-9 * length_m * x.size:
+        return "positions_m", (
+            f"must list the vehicles front to back (vehicle i − 1 ahead of vehicle i, once around the ring): "
+            f"the distances to each predecessor add up to {float(np.sum(ahead)):.6g} m, not the ring's {length_m:g} m"
+        )
+    return None
 
 
 def gaps_from_positions(ring: RingRoad, positions_m: Sequence[float] | np.ndarray) -> np.ndarray:
@@ -463,6 +508,7 @@ class RingSimulator:
                 )
         self.method = "compiled" if self._lib is not None else "cvodes"
         self._cvodes: dict[float, Any] = {}
+        self._direct = False  # whether the next compiled advance is called directly (see _advance_compiled)
 
     def _vehicle_function(self, law: CarFollowingLaw, k: int, p: ca.SX) -> ca.Function:
         """(u = (v_l, noise), x, p) -> (dz = (ẋ, quadrature integrands), y = (a, I, disc)), model units; the
@@ -593,7 +639,7 @@ class RingSimulator:
     ) -> tuple[int, np.ndarray]:
         ev = np.zeros(4)
         assert self._lib is not None
-        m = self._lib.aevring_advance(
+        args = (
             self.n,
             self.law_of,
             self.params,
@@ -612,6 +658,18 @@ class RingSimulator:
             stats,
             self.opts.threads,
         )
+        # in a helper thread, so that Ctrl-C, SIGTERM and --time-limit stop it within a step (aevring_cancel); an
+        # advance after one that took less than DIRECT_CALL_S is called directly (a thread costs ~1 ms a call, twice
+        # the whole advance of a small ring between two noise changes), the signal handled when it returns
+        fn, tc = self._lib.aevring_advance, time.perf_counter()
+        if self._direct:
+            check_deadline()
+            m = fn(*args)
+        else:
+            m = _interruptible_call(fn, args, ctypes.c_int.in_dll(self._lib, "aevring_cancel"))
+        self._direct = time.perf_counter() - tc < DIRECT_CALL_S
+        if m == -2:  # stopped through aevring_cancel by another thread's interrupt of the same library
+            raise interrupts.Interrupted("the compiled ring was cancelled")
         if m < 0:
             raise MemoryError("ring: the compiled ring ran out of memory")
         return int(m), ev
@@ -684,6 +742,14 @@ class RingSimulator:
                 return r.code, int(hit[0]), float(q[r.quantity][hit[0]])
         return None
 
+    def _cut_intervals_s(self) -> dict[str, float]:
+        """{what: interval [s]} of the integration cuts of a run: the sampled controllers' dt, the noise's hold."""
+        T, ring = self.ev.units.time_s, self.ring
+        out = {} if self.dt is None else {"the sampled controllers' dt": self.dt * T}
+        if ring.noise_mps2 > 0 and any(ring.is_human(i) for i in range(self.n)):
+            out["noise_dt_s"] = ring.noise_dt_s
+        return out
+
     # ------------------------------------------------------------------ running
     def run(self, initial: RingInitial, t_end_s: float) -> RingResult:
         """Integrate the ring from ``initial`` over [0, t_end_s] [s]."""
@@ -695,19 +761,16 @@ class RingSimulator:
         v0 = np.asarray(initial.speeds_mps, float)
         if x0.size != n or v0.size != n:
             raise ParameterError(f"ring: the initial state needs {n} positions and speeds, got {x0.size} and {v0.size}")
-        if not (np.all(np.isfinite(x0)) and np.all(np.isfinite(v0)) and np.all(v0 >= 0)):
-            raise ParameterError("ring: initial positions must be finite and speeds finite and >= 0")
+        bad = start_problem(ring.length_m, ring.vehicle_length_m, self.ev.limits.v_max_mps, x0, v0)
+        if bad is not None:
+            raise ParameterError(f"ring: RingInitial.{bad[0]} is not allowed: {bad[1]}")
         gaps = gaps_from_positions(ring, x0)
-        if np.any(gaps <= 0):
-            i = int(np.argmin(gaps))
-            raise ParameterError(
-                f"ring: initial gap of vehicle {i + 1} is {gaps[i]:.4g} m: vehicles overlap "
-                f"(positions must leave > 0 m between vehicles of {ring.vehicle_length_m:g} m)"
-            )
         soc0 = self.ev.cell.soc0 if initial.soc0 is None else initial.soc0
         if not (0 <= soc0 <= 1):
             raise ParameterError(f"ring: soc0 = {soc0!r} is not allowed: must be in [0, 1]")
         check_ring_size(n, t_end_s, self.opts.dt_out_s)  # the budget, before anything is allocated or integrated
+        check_ring_cuts(t_end_s, self._cut_intervals_s())  # the cuts too, before their grid is built
+        self._direct = False  # the first advance runs interruptibly (see _advance_compiled)
         T = u.time_s
         t_end = t_end_s / T
         z = np.zeros((n, self.nz))

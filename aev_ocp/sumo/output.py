@@ -19,7 +19,7 @@ import numpy as np
 
 from ..metrics import si_first
 from ..results import save_figure_atomic, to_jsonable, write_atomic, write_json
-from ..saved import LoadError, load_all, read_manifest, save_output
+from ..saved import LoadError, _damaged, load_all, read_manifest, save_output
 from .run import FLEET_EVENT_KINDS, SumoRun
 
 FILES = ("manifest.json", "trajectories.npz", "metrics.csv", "fleet.json", "report.md")
@@ -75,7 +75,12 @@ def write_metrics_csv(run: SumoRun, path: Path) -> Path:
 
 
 def load_sumo(path: str | Path) -> SumoRun:
-    """A saved SUMO run back as a :class:`SumoRun` (its scenario re-validated from the saved document)."""
+    """A saved SUMO run back as a :class:`SumoRun` (its scenario re-validated from the saved document); anything a
+    damaged or foreign folder raises is one :class:`~aev_ocp.saved.LoadError` naming it."""
+    return _damaged(path, lambda: _load_sumo(path))
+
+
+def _load_sumo(path: str | Path) -> SumoRun:
     from .scenario import parse_sumo_scenario
 
     m, folder = read_manifest(path)
@@ -83,7 +88,9 @@ def load_sumo(path: str | Path) -> SumoRun:
         raise LoadError(f"{folder}: kind = {m.get('kind')!r}, not a SUMO run")
     s = m["sumo"]
     runs = load_all(folder)
-    sc = parse_sumo_scenario(m["settings"]["document"], str(m["settings"].get("source") or folder))
+    src = m["settings"].get("source")
+    # relative paths of the document ([cell] file, net_file, ...) start from the scenario file's folder, as in the run
+    sc = parse_sumo_scenario(m["settings"]["document"], str(src or folder), Path(src) if src else None)
     return SumoRun(
         s["name"],
         sc,
