@@ -34,7 +34,8 @@ from typing import Any
 
 from ..models.carfollowing import LAW_REGISTRY
 from ..params import CarFollowingParams, EVParams
-from ..scenarios import ScenarioError, TableReader, _params, read_scenario_doc, standalone_header
+from ..scenarios import ScenarioError, TableReader, read_scenario_doc, standalone_header
+from ..scenarios.followers import _carfollowing
 from . import SumoError
 from .networks import NETWORKS, MergeNetwork, RingNetwork
 
@@ -213,7 +214,9 @@ def _check_ids(r: TableReader, spec: SumoSpec) -> None:
 def parse_sumo_scenario(doc: dict[str, Any], file: str = "<sumo scenario>", source: Path | None = None) -> SumoScenario:
     """Validate a parsed TOML document into a :class:`SumoScenario` (errors name the file and key)."""
     top, name, description, ev = standalone_header(doc, file, source, _TOP, "sumo")
-    cf = _params(CarFollowingParams, top.sub("carfollowing"))
+    # the laws' coefficients and scales (SI, aev_ocp.scenarios.followers); they run in [units] with the same SI
+    # behaviour whatever the units (model_units: make_law returns them in those units)
+    cf = dataclasses.replace(_carfollowing(top.sub("carfollowing"), sub_tables=False)[0], model_units=ev.units)
     spec = parse_sumo_table(top.sub("sumo", required=True), source.parent if source is not None else None)
     mpc = None
     if "mpc" in doc:
