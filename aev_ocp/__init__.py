@@ -51,6 +51,8 @@ _EXPORTS = {
     "run_closed_loop": "control",
     "SimulationResult": "results",
     "simulate_platoon": "simulate",
+    "replay": "trace_replay",
+    "ReplayResult": "trace_replay",
     # optimal control and MPC
     "OCPProblem": "ocp",
     "ProblemBuilder": "ocp",

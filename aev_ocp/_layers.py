@@ -69,6 +69,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
             "aev_ocp.control",
             "aev_ocp.simulate",
             "aev_ocp.ring.simulate",
+            "aev_ocp.trace_replay",
         ),
     ),
     (
@@ -107,6 +108,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
             "aev_ocp.safety.fallback",
             "aev_ocp.stability",
             "aev_ocp.stability.linear",
+            "aev_ocp.stability.mixed",
             "aev_ocp.stability.perturbation",
             "aev_ocp.stability.measure",
             "aev_ocp.ring",
@@ -183,6 +185,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
             "aev_ocp.sumo.run",
             "aev_ocp.sumo.output",
             "aev_ocp.robustness",
+            "aev_ocp.validation",
         ),
     ),
     (

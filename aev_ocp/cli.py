@@ -1,4 +1,4 @@
-"""Command line: ``aev-ocp reproduce | simulate | scenarios | ocp | mpc | mpc-export | stability | study | safety | sumo``.
+"""Command line: ``aev-ocp reproduce | simulate | scenarios | replay | ocp | mpc | mpc-export | stability | study | safety | sumo``.
 
 A thin layer over the Python API (:mod:`aev_ocp.reproduce`, :mod:`aev_ocp.scenarios`,
 :mod:`aev_ocp.report`). Every subcommand reports errors the same way (:func:`guarded`): one line
@@ -108,6 +108,22 @@ def build_parser() -> argparse.ArgumentParser:
         "started are skipped, the finished ones written, exit 1 (default: none)",
     )
     sub.add_parser("scenarios", help="list the shipped scenarios")
+    rp = sub.add_parser(
+        "replay",
+        help="drive one vehicle exactly on a speed trace and print its battery energy (kWh/100 km), heat, "
+        "charge throughput and SOC",
+    )
+    rp.add_argument(
+        "trace", help="a shipped EPA cycle (udds, hwfet, us06) or a CSV file with columns time_s, speed_mps"
+    )
+    rp.add_argument(
+        "--powertrain",
+        choices=("map", "constant"),
+        default="map",
+        help="map: FASTSim's 2022 Tesla Model 3 RWD powertrain (default); constant: the paper's η switch (η = 0.8)",
+    )
+    rp.add_argument("--soc0", type=float, default=None, help="initial state of charge of the cells (default 0.8)")
+    rp.add_argument("--json", default=None, metavar="FILE", help="also write the summary to FILE (JSON, atomically)")
     sub.add_parser("ocp", help="optimal-control problems (see aev-ocp ocp --help)", add_help=False)
     sub.add_parser("mpc", help="model predictive control (see aev-ocp mpc --help)", add_help=False)
     sub.add_parser(
@@ -208,8 +224,8 @@ def cmd_simulate(args: argparse.Namespace) -> int:
         out, "simulate", results, settings=settings_of(scenario, sets=list(args.sets), time_limit_s=time_limit)
     )
     headers, rows = scenario_metrics_rows(results)
-    keep = [0, 1, 3, 4, 6, 7, 9]  # run, n, ω [J/kg], pack ∫Q [J], ΔSOC, min gap [m], status
-    keep += list(range(10, len(headers)))  # the thermal model's peak temperature [K], time above T_max [s]
+    keep = [0, 1, 2, 4, 5, 7, 8, 10]  # run, n, battery energy, ω [J/kg], pack ∫Q [J], ΔSOC, min gap [m], status
+    keep += list(range(11, len(headers)))  # the thermal model's peak temperature [K], time above T_max [s]
     print("  ".join(f"{headers[k]:>12}" for k in keep))
     for row in rows:
         print("  ".join(f"{row[k]:>12}" for k in keep))
@@ -260,6 +276,31 @@ def cmd_scenarios(args: argparse.Namespace) -> int:
             continue
         print(f"{name:16s} {scenario.description}  [{path}]")
     return EXIT_OK
+
+
+def cmd_replay(args: argparse.Namespace) -> int:
+    """Replay a speed trace exactly (:func:`aev_ocp.replay`) and print its battery energy; exit 1 on an event."""
+    from .results import write_json
+    from .trace_replay import replay
+
+    res = replay(args.trace, powertrain=args.powertrain, soc0=args.soc0)
+    s = res.summary()
+    print(
+        f"{s['trace']} ({s['powertrain']} powertrain): {s['distance_m'] / 1000:.4g} km in {s['duration_s']:.6g} s\n"
+        f"  battery energy {s['battery_energy_kWh_per_100km']:.4g} kWh/100 km ({s['battery_energy_Wh_per_km']:.4g} "
+        f"Wh/km, {s['battery_energy_J_per_km'] / 1e3:.4g} kJ/km)\n"
+        f"  where it went per km: traction {s['traction_J_per_km'] / 1e3:.4g} kJ, losses "
+        f"{s['powertrain_loss_J_per_km'] / 1e3:.4g} kJ, auxiliary {s['aux_J_per_km'] / 1e3:.4g} kJ, regeneration "
+        f"−{s['regen_J_per_km'] / 1e3:.4g} kJ (friction brakes {s['friction_brake_J_per_km'] / 1e3:.4g} kJ)\n"
+        f"  pack heat {s['heat_pack_J_per_km'] / 1e3:.4g} kJ/km, charge throughput "
+        f"{s['charge_throughput_Ah_per_km']:.4g} Ah/km, SOC {s['soc_start']:.4g} -> {s['soc_end']:.4g}, "
+        f"peak cell current {s['max_abs_current_A']:.4g} A (limit {s['cell_current_limit_A']:g} A)"
+    )
+    if args.json:
+        print(f"wrote {write_json(args.json, s)}")
+    for e in res.events:
+        _err(f"replay {s['trace']}: {e}")
+    return EXIT_FAILED_RUN if res.events else EXIT_OK
 
 
 def _dispatch(module: str, func: str, argv: list[str]) -> int:
@@ -318,7 +359,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         args = build_parser().parse_args(args_list)
     except SystemExit as exc:
         return int(exc.code or 0)
-    handlers = {"simulate": cmd_simulate, "reproduce": cmd_reproduce, "scenarios": cmd_scenarios}
+    handlers = {
+        "simulate": cmd_simulate,
+        "reproduce": cmd_reproduce,
+        "scenarios": cmd_scenarios,
+        "replay": cmd_replay,
+    }
     return guarded(lambda: handlers[args.command](args))
 
 

@@ -64,7 +64,9 @@ def life_rows(
                     "status": r.status,
                     "duration_s": m["duration_s"],
                     "distance_m": m["distance_m"],
+                    "battery_energy_kWh_per_100km": m["battery_energy_kWh_per_100km"],
                     "heat_pack_J_per_km": m["heat_pack_J_per_km"],
+                    "charge_throughput_Ah_per_km": m["charge_throughput_Ah_per_km"],
                     "heat_irr_pack_J": m["heat_irr_pack_J"],
                     "peak_temperature_K": m["peak_temperature_K"],
                     "mean_temperature_K": m["mean_temperature_K"],
@@ -96,7 +98,9 @@ COLUMNS = (
     "cycle",
     "ambient",
     "controller",
+    "battery_energy_kWh_per_100km",
     "heat_pack_J_per_km",
+    "charge_throughput_Ah_per_km",
     "peak_temperature_K",
     "mean_temperature_K",
     "capacity_1y",
@@ -105,6 +109,34 @@ COLUMNS = (
     "resistance_10y",
     "years_to_80pct",
 )
+
+
+#: Capacities (relative to new) closer than this across controllers are reported as no measurable difference: the
+#: table prints 4 significant digits, and BLAST-Lite's fits are no better than a tenth of a percent.
+CAPACITY_RESOLUTION = 1e-3
+
+
+def life_claims(rows: list[dict[str, Any]], years: float) -> list[str]:
+    """One line per cycle and ambient: whether the controllers' capacity after ``years`` differs measurably
+    (spread > :data:`CAPACITY_RESOLUTION`), else 'no measurable difference'; empty without life columns."""
+    key = f"capacity_{years:g}y"
+    lines = []
+    for cyc, amb in dict.fromkeys((r["cycle"], r["ambient"]) for r in rows):
+        vals = {
+            r["controller"]: float(r[key])
+            for r in rows
+            if r["cycle"] == cyc and r["ambient"] == amb and isinstance(r.get(key), float) and math.isfinite(r[key])
+        }
+        if len(vals) < 2:
+            continue
+        spread = max(vals.values()) - min(vals.values())
+        verdict = (
+            "no measurable difference between the controllers"
+            if spread <= CAPACITY_RESOLUTION
+            else f"the controllers differ by {100 * spread:.2g} % of capacity"
+        )
+        lines.append(f"- {cyc.upper()}, {amb}: capacity after {years:g} years {verdict} (spread {spread:.2g}).")
+    return lines
 
 
 def _fmt(v: Any) -> str:
@@ -159,7 +191,9 @@ def life_section(
     ]
     if not blast_available():
         lines += [INSTALL_HINT + " (the life columns are left out).", ""]
-    lines += [table, "", "Files: `battery_life/life.csv`, `battery_life/life.json`, `battery_life/life.md`.", ""]
+    claims = life_claims(rows, years)
+    lines += [table, ""] + (claims + [""] if claims else [])
+    lines += ["Files: `battery_life/life.csv`, `battery_life/life.json`, `battery_life/life.md`.", ""]
     return "\n".join(lines)
 
 

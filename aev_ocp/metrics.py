@@ -1,7 +1,10 @@
 """Per-vehicle metrics of model guide §10, computed from a :class:`SimulationResult`.
 
 Integrals (ω, pack ∫Q, ∫Q_irr, RMS errors, RMS jerk of smooth laws) come from the plant's own
-quadratures, so they are exact across control jumps. The minimum gap is taken over the continuous
+quadratures, so they are exact across control jumps. Battery energy ∫P_b dt [J] — *the* energy of every table
+(``battery_energy_kWh_per_100km``) — comes from the plant's quadrature when it has one
+(``SimulationResult.battery_energy_J``: SUMO) and is otherwise the trapezoid of the exact P_b(v, a) over the
+samples (:func:`battery_energy_J`). ω is the paper's measure (``omega_*`` keys), not an energy of the battery. The minimum gap is taken over the continuous
 trajectory: the smallest sample is refined by the cubic Hermite interpolant of h with ḣ = v_l − v
 on its two neighbouring intervals.
 """
@@ -9,11 +12,16 @@ on its two neighbouring intervals.
 from __future__ import annotations
 
 import math
+from functools import lru_cache
 from typing import Any
 
+import casadi as ca
 import numpy as np
 
 from .models.carfollowing import optimal_velocity
+from .models.powertrain import battery_power_W
+from .models.vehicle import wheel_power_W
+from .params import VehicleParams
 from .models.thermal import temperature_metrics
 
 #: A :class:`aev_ocp.results.SimulationResult`. Not imported: ``SimulationResult.metrics()`` imports this module,
@@ -59,6 +67,44 @@ def min_gap_continuous(t: np.ndarray, h: np.ndarray, hdot: np.ndarray) -> float:
     return best
 
 
+J_PER_KWH = 3.6e6
+
+
+@lru_cache(maxsize=16)
+def _battery_power(p: VehicleParams) -> ca.Function:
+    """P_b(v [m/s], a [m/s²]) [W] of the vehicle's exact powertrain, mapped over samples."""
+    v, a = ca.SX.sym("v"), ca.SX.sym("a")
+    return ca.Function("battery_power", [v, a], [battery_power_W(wheel_power_W(v, a, p), p)])
+
+
+def battery_energy_J(r: SimulationResult, i: int) -> float:
+    """Battery energy ∫P_b dt of follower i over the run [J]: the plant's quadrature when it has one, else the
+    trapezoid of the exact P_b(v, a) on the samples (a command held over a sample interval: P_b at both ends with
+    the held acceleration)."""
+    if getattr(r, "battery_energy_J", None) is not None:
+        e = r.battery_energy_J[:, i]
+        return float(e[-1] - e[0])
+    u = r.units
+    t = np.asarray(r.t, float)
+    if t.size < 2:
+        return 0.0
+    v = u.speed_to_si(np.asarray(r.speed[:, i], float))
+    a = u.accel_to_si(np.asarray(r.accel[:, i], float))
+    f = _battery_power(r.ev.vehicle).map(t.size - 1)
+    P0 = np.asarray(f(v[None, :-1], a[None, :-1])).ravel()
+    P1 = np.asarray(f(v[None, 1:], a[None, :-1] if r.jerk_sampled else a[None, 1:])).ravel()
+    return float(np.sum(np.diff(t) * u.time_s * (P0 + P1) / 2))
+
+
+def charge_throughput_Ah(r: SimulationResult, i: int) -> float:
+    """The pack's charge throughput ∫|I_pack| dt of follower i [Ah] (trapezoid of the sampled cell current × N_p)."""
+    I = np.abs(np.asarray(r.current_A[:, i], float))
+    t_s = np.asarray(r.t, float) * r.units.time_s
+    if t_s.size < 2 or not np.all(np.isfinite(I)):
+        return math.nan
+    return float(np.sum(np.diff(t_s) * (I[1:] + I[:-1]) / 2)) * r.ev.pack.n_parallel / 3600.0
+
+
 def violation_bounds(r: SimulationResult, i: int) -> tuple[float, float]:
     """(h_min, v_max) [model units] that follower i's gap and speed violations count against: its controller's
     own declared bounds (``describe()['bounds_model']``, an MPC's formulation; a missing side: no bound, ∓inf),
@@ -101,6 +147,7 @@ def vehicle_metrics(r: SimulationResult, i: int) -> dict[str, Any]:
         "status": kinds[0] if kinds else ("violated" if any(e.vehicle == i for e in r.violations) else "ok"),
         "run_status": r.status,  # 'ok' or the event that stopped the whole run (possibly another vehicle's)
         "duration_model": duration,
+        "battery_energy_J": battery_energy_J(r, i),
         "omega_model": omega,
         "omega_J_per_kg": float(u.energy_per_mass_to_si(omega)),
         "heat_pack_J": float(r.heat_J[-1, i]),
@@ -187,8 +234,9 @@ def min_time_to_collision(t: np.ndarray, h: np.ndarray, closing_speed: np.ndarra
 def distance_metrics(r: SimulationResult, i: int, duration: float | None = None) -> dict[str, Any]:
     """Distance travelled, duration, ω and pack heat per km and the minimum time-to-collision of follower i.
 
-    Keys: distance_model [model length], distance_m [m], duration_s [s], omega_model_per_km [model
-    energy per unit mass per km], omega_J_per_kg_per_km [J/kg/km], heat_pack_J_per_km [J/km],
+    Keys: distance_model [model length], distance_m [m], duration_s [s], battery_energy_J_per_km [J/km] and
+    battery_energy_kWh_per_100km (∫P_b, :func:`battery_energy_J`), charge_throughput_Ah_per_km [Ah/km] (the pack's),
+    omega_model_per_km [the paper's ω per km, model units], omega_J_per_kg_per_km [J/kg/km], heat_pack_J_per_km [J/km],
     heat_irr_pack_J_per_km [J/km], min_ttc_model [model time], min_ttc_s [s] (inf: never closing in).
     The distance is x_i(t_end) − x_i(0) from the sampled positions (exact at the samples); per-km
     values are nan when the follower did not move."""
@@ -205,12 +253,16 @@ def distance_metrics(r: SimulationResult, i: int, duration: float | None = None)
         return q / km if km > 1e-12 else float("nan")
 
     omega = float(r.omega[-1, i])
+    e_b = battery_energy_J(r, i)
     v_lead = r.leader_speed if i == 0 else r.speed[:, i - 1]
     ttc = min_time_to_collision(t, r.gap[:, i], r.speed[:, i] - v_lead)
     return {
         "distance_model": dist,
         "distance_m": dist_m,
         "duration_s": duration * u.time_s,
+        "battery_energy_J_per_km": per_km(e_b),
+        "battery_energy_kWh_per_100km": per_km(e_b) * 100.0 / J_PER_KWH,
+        "charge_throughput_Ah_per_km": per_km(charge_throughput_Ah(r, i)),
         "omega_model_per_km": per_km(omega),
         "omega_J_per_kg_per_km": per_km(float(u.energy_per_mass_to_si(omega))),
         "heat_pack_J_per_km": per_km(float(r.heat_J[-1, i])),

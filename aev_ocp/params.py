@@ -313,11 +313,25 @@ class CarFollowingParams:
         validate_fields(self)
 
 
+#: The powertrain models between wheel and battery (VehicleParams.powertrain, :mod:`aev_ocp.models.powertrain`).
+POWERTRAINS = ("constant", "map")
+#: FASTSim 3.1's 2022 Tesla Model 3 RWD (vehicle file "2022 Tesla Model 3 RWD thrml.yaml"): the wheels' inertia as an
+#: equivalent mass, wheel_inertia 0.815 kg m² × 4 wheels / wheel_radius (0.33435 m)² [kg].
+MODEL3_ROTATING_MASS_KG = 0.815 * 4 / 0.33435**2
+#: The same file's base auxiliary load, pwr_aux_base_watts [W] (HVAC off at its 22 °C set point).
+MODEL3_AUX_POWER_W = 250.0
+#: FASTSim's constant air density (SimParams.f2_const_air_density = True): 1.2 kg/m³.
+FASTSIM_AIR_DENSITY_KGPM3 = 1.2
+
+
 @dataclass(frozen=True)
 class VehicleParams:
     """Longitudinal vehicle and powertrain parameters (model guide §5), SI units.
 
-    Defaults: 2022 Tesla Model 3 RWD (LFP), NREL FASTSim vehicle file; eta is the paper's.
+    Defaults: 2022 Tesla Model 3 RWD (LFP), NREL FASTSim vehicle file; eta is the paper's and so is the
+    default powertrain ("constant": the η switch). ``powertrain = "map"`` selects FASTSim's Model 3 powertrain
+    (transmission, motor/inverter map, regenerative power limit with friction blending); :meth:`model3` is the
+    whole FASTSim vehicle (map, 250 W auxiliary load, wheel inertia, FASTSim's air density).
     """
 
     mass_kg: float = spec(1752.0, gt=0)  # FASTSim 2022 Tesla Model 3 RWD
@@ -329,9 +343,36 @@ class VehicleParams:
     grade_rad: float = spec(0.0, gt=-math.pi / 2, lt=math.pi / 2)  # flat road (model guide §5)
     efficiency: float = spec(0.8, gt=0, le=1)  # paper eq. g_function / Table 1 (eta = 80 %)
     aux_power_W: float = spec(0.0, ge=0)  # model guide §5 (P_aux = 0 by default)
+    # --- the powertrain between wheel and battery (aev_ocp.models.powertrain, model guide §5)
+    powertrain: str = spec("constant", kind="choice", choices=POWERTRAINS)  # "constant": the paper's η switch
+    # (P_b = P_w/η or η P_w, the paper's reproduction); "map": transmission + FASTSim's motor/inverter map + regen limit
+    transmission_efficiency: float = spec(0.98, gt=0, le=1)  # FASTSim 3.1 2022 Tesla Model 3 RWD: transmission
+    # eff_interp = 0.98 (both directions); used by powertrain = "map" only
+    motor_power_max_W: float = spec(239_000.0, gt=0)  # FASTSim 3.1 Model 3 RWD: em.pwr_out_max_watts = 239 kW; the
+    # motor map's abscissa is |P_motor| / motor_power_max_W ("map" only)
+    regen_efficiency: float | None = spec(0.84, gt=0, le=1, optional=True)  # motor/inverter efficiency when
+    # recuperating: FASTSim 3.1 applies its map's zero-power entry, 0.84, to every regenerative step of the Model 3
+    # (its em history on UDDS/HWFET/US06: P_elec/P_mech = 0.84 at every braking step); None: the map at |P_motor|
+    regen_power_max_W: float = spec(212_081.4988, gt=0)  # largest mechanical power the motor recuperates [W]:
+    # FASTSim 3.1 Model 3 RWD em.state.pwr_mech_regen_max_watts (its pack's 201.2 kW charge limit seen from the
+    # shaft; constant over UDDS/HWFET/US06); braking beyond it goes to the friction brakes ("map" only)
+    rotating_mass_kg: float = spec(0.0, ge=0)  # equivalent mass of the wheels' inertia, J_w n_w / r_w² [kg]; 0: the
+    # paper's point mass. FASTSim's Model 3: 4 × 0.815 kg m² / (0.33435 m)² = 29.16 kg (MODEL3_ROTATING_MASS_KG)
 
     def __post_init__(self) -> None:
         validate_fields(self)
+
+    @classmethod
+    def model3(cls, **overrides: Any) -> "VehicleParams":
+        """FASTSim 3.1's 2022 Tesla Model 3 RWD as FASTSim simulates it: the map powertrain, its 250 W auxiliary
+        load, its wheels' inertia and its constant air density 1.2 kg/m³; ``overrides``: any other field."""
+        base: dict[str, Any] = {
+            "powertrain": "map",
+            "aux_power_W": MODEL3_AUX_POWER_W,
+            "rotating_mass_kg": MODEL3_ROTATING_MASS_KG,
+            "air_density_kgpm3": FASTSIM_AIR_DENSITY_KGPM3,
+        }
+        return cls(**{**base, **overrides})
 
 
 @dataclass(frozen=True)

@@ -359,7 +359,7 @@ def plot_percent_change(
     title: str | None = None,
     label: str = "ω(proposed) vs ω(OVFL)",
 ) -> Figure:
-    """Per-follower % change (signed bars: below zero = the proposed law saves energy), ours beside the
+    """Per-follower % change of the paper's ω (signed bars: below zero = the proposed law lowers ω), ours beside the
     paper's printed row; each bar carries its value with its sign."""
     fig, ax = plt.subplots(figsize=(6.5, 4))
     n = np.arange(1, len(ours) + 1)
@@ -396,7 +396,8 @@ def plot_compare_omega(
     reference: Mapping[str, Sequence[float]] | None = None,
     title: str | None = None,
 ) -> Figure:
-    """Energy per unit mass ω per follower for several laws, optionally beside reference values."""
+    """The paper's measure ω (its energy per unit mass, not battery energy) per follower for several laws,
+    optionally beside reference values."""
     fig, ax = plt.subplots(figsize=(6.5, 4))
     for label, om in omegas.items():
         n = np.arange(1, len(om) + 1)

@@ -198,7 +198,8 @@ OVER_LIMIT_MARK = "†"  # marks battery numbers of a vehicle whose cell current
 def scenario_metrics_rows(
     results: Mapping[str, SimulationResult], i_max_A: float | None = None, totals: bool = False
 ) -> tuple[list[str], list[list[str]]]:
-    """Per law and follower: ω, pack ∫Q, ∫Q_irr, ΔSOC, min gap, max |I|, status.
+    """Per law and follower: battery energy ∫P_b [kWh/100 km], the paper's ω, pack ∫Q, ∫Q_irr, ΔSOC, min gap,
+    max |I|, status.
 
     i_max_A: the cell's current limit [A]; the battery columns (∫Q, ∫Q_irr, ΔSOC, max |I|) of a vehicle
     whose current exceeded it get OVER_LIMIT_MARK (the cell model is not valid there). totals: a
@@ -206,6 +207,7 @@ def scenario_metrics_rows(
     headers = [
         "run",
         "n",
+        "battery energy [kWh/100 km]",
         "ω [model]",
         "ω [J/kg]",
         "pack ∫Q [J]",
@@ -225,6 +227,7 @@ def scenario_metrics_rows(
                 [
                     label,
                     str(m["vehicle"]),
+                    fmt(m["battery_energy_kWh_per_100km"]),
                     fmt(m["omega_model"]),
                     fmt(m["omega_J_per_kg"]),
                     mk(fmt(m["heat_pack_J"])),
@@ -241,6 +244,7 @@ def scenario_metrics_rows(
                 [
                     f"**{label}: platoon**",
                     f"Σ {len(ms)}",
+                    fmt(tot["battery_energy_kWh_per_100km"]),
                     fmt(tot["omega_model"]),
                     fmt(tot["omega_J_per_kg"]),
                     fmt(tot["heat_pack_J"]),
@@ -266,13 +270,16 @@ def scenario_metrics_rows(
 
 
 def platoon_totals(r: SimulationResult) -> dict[str, float]:
-    """Whole-platoon figures of one run: sums over followers of ω [model and J/kg], pack ∫Q and ∫Q_irr [J]
-    and ΔSOC; the smallest gap [m] and the largest |I| [A per cell] of any follower."""
+    """Whole-platoon figures of one run: sums over followers of battery energy [J], ω [model and J/kg], pack ∫Q and
+    ∫Q_irr [J] and ΔSOC; the platoon's battery energy per distance [kWh/100 km]; the smallest gap [m] and the
+    largest |I| [A per cell] of any follower."""
     ms = r.metrics()
     total = {
         k: float(sum(m[k] for m in ms))
-        for k in ("omega_model", "omega_J_per_kg", "heat_pack_J", "heat_irr_pack_J", "delta_soc")
+        for k in ("battery_energy_J", "omega_model", "omega_J_per_kg", "heat_pack_J", "heat_irr_pack_J", "delta_soc")
     }
+    km = float(sum(m["distance_m"] for m in ms)) / 1000.0
+    total["battery_energy_kWh_per_100km"] = total["battery_energy_J"] / km / 3.6e4 if km > 0 else math.nan
     total["min_gap_m"] = float(min(m["min_gap_m"] for m in ms))
     total["max_abs_current_A"] = float(max(m["max_abs_current_A"] for m in ms))
     return total

@@ -382,8 +382,8 @@ class Event:
 class SimulationResult:
     """Sampled platoon trajectories. Arrays are (K,) or (K, n) with n followers; model units unless named.
 
-    cumulative integrals (K, n): omega (the paper's ω, model units), heat_J and heat_irr_J (pack ∫Q,
-    ∫Q_irr [J]), int_ovm_err2 = ∫(V(h) − v)² dt, int_rel_speed2 = ∫(v_l − v)² dt, int_jerk2 = ∫ jerk² dt.
+    cumulative integrals (K, n): omega (the paper's ω, model units: the paper's measure, not battery energy),
+    heat_J and heat_irr_J (pack ∫Q, ∫Q_irr [J]), battery_energy_J (∫P_b [J], when the plant integrated it), int_ovm_err2 = ∫(V(h) − v)² dt, int_rel_speed2 = ∫(v_l − v)² dt, int_jerk2 = ∫ jerk² dt.
     """
 
     t: np.ndarray
@@ -410,6 +410,8 @@ class SimulationResult:
     meta: dict[str, Any] = field(default_factory=dict)
     violations: list[Event] = field(default_factory=list)
     temperature_K: np.ndarray | None = None  # (K, n) pack temperature [K] when the thermal model is on, else None
+    battery_energy_J: np.ndarray | None = None  # (K, n) cumulative battery energy ∫P_b dt [J] when the plant
+    # integrated it (SUMO, replay-like plants); None: aev_ocp.metrics evaluates it on the samples
 
     @property
     def status(self) -> str:

@@ -76,6 +76,8 @@ def _sim_record(label: str, r: SimulationResult, arrays: dict[str, np.ndarray]) 
         arrays[f"{label}/{name}"] = np.asarray(getattr(r, name))
     if r.temperature_K is not None:  # the pack temperature [K] of a run with the thermal model
         arrays[f"{label}/temperature_K"] = np.asarray(r.temperature_K)
+    if r.battery_energy_J is not None:  # ∫P_b [J] of a plant that integrates it (SUMO)
+        arrays[f"{label}/battery_energy_J"] = np.asarray(r.battery_energy_J)
     return {
         "type": "SimulationResult",
         "status": r.status,
@@ -303,6 +305,7 @@ def _sim_result(label: str, rec: dict[str, Any], arrays: dict[str, np.ndarray]) 
         meta=dict(rec["meta"] or {}),
         violations=[event(e) for e in rec.get("violations") or []],
         temperature_K=arrays.get(f"{label}/temperature_K"),
+        battery_energy_J=arrays.get(f"{label}/battery_energy_J"),
     )
 
 
@@ -313,9 +316,9 @@ def _check_sim_arrays(label: str, arrays: dict[str, np.ndarray]) -> None:
     t, gap = arrays[f"{label}/t"], arrays[f"{label}/gap"]
     n = t.shape[0] if t.ndim == 1 else -1
     want = {"t": (n,), "leader_speed": (n,), "leader_position": (n,), "temperature_K": gap.shape}
-    for name in (*SIM_ARRAYS, "temperature_K"):
+    for name in (*SIM_ARRAYS, "temperature_K", "battery_energy_J"):
         a = arrays.get(f"{label}/{name}")
-        if a is None and name == "temperature_K":
+        if a is None and name in ("temperature_K", "battery_energy_J"):
             continue
         shape = want.get(name, gap.shape)
         if a is None or a.dtype.kind not in "fiub" or a.shape != shape or n < 1 or gap.ndim != 2 or gap.shape[0] != n:

@@ -52,7 +52,7 @@ def truncate_at_time(r: SimulationResult, t_cut: float) -> SimulationResult:
     k = int(np.searchsorted(t, t_cut, side="right")) - 1  # t[k] <= t_cut < t[k+1]
     tol = 1e-12 * max(1.0, abs(t_cut))
     fields: dict[str, Any] = {}
-    lin = _LINEAR + (("temperature_K",) if r.temperature_K is not None else ())
+    lin = _LINEAR + tuple(nm for nm in ("temperature_K", "battery_energy_J") if getattr(r, nm) is not None)
     names = ("leader_position", "gap", "speed", "accel") + lin
     if abs(t[k] - t_cut) <= tol or k == t.size - 1:
         for nm in names:

@@ -54,7 +54,7 @@ def run(n: int, t_end_s: float, threads: int, tol: float, lf: float = 1.0) -> di
         "status": res.status,
         **res.stats,
         "speed_std_mps": f["speed_std_mps"],
-        "energy_J_per_km": f["energy_J_per_km"],
+        "battery_energy_J_per_km": f["battery_energy_J_per_km"],
     }
 
 

@@ -34,3 +34,18 @@ def test_section_without_blast_says_how_to_install(tmp_path: Path, monkeypatch: 
     monkeypatch.setattr(ls, "blast_available", lambda: False)
     md = ls.life_section(tmp_path, lambda m: None, segment_s=6.0, years=1.0, cycles=("us06",))
     assert ls.INSTALL_HINT in md and "capacity_1y" not in (tmp_path / "battery_life" / "life.csv").read_text()
+
+
+def test_life_claims_say_no_measurable_difference_within_the_resolution() -> None:
+    rows = [
+        {"cycle": "udds", "ambient": "hot", "controller": c, "capacity_10y": q}
+        for c, q in (("proposed", 0.91234), ("ovfl", 0.91241), ("mpc", 0.91302))
+    ] + [
+        {"cycle": "us06", "ambient": "hot", "controller": c, "capacity_10y": q}
+        for c, q in (("proposed", 0.905), ("mpc", 0.9081))
+    ]
+    lines = ls.life_claims(rows, 10.0)
+    assert len(lines) == 2
+    assert "UDDS, hot" in lines[0] and "no measurable difference" in lines[0]  # spread 6.8e-4 <= 1e-3
+    assert "US06, hot" in lines[1] and "differ by 0.31 %" in lines[1]  # spread 3.1e-3 > 1e-3
+    assert ls.life_claims(rows[:1], 10.0) == [] and ls.life_claims(rows, 5.0) == []

@@ -102,7 +102,8 @@ def test_over_limit_battery_columns_are_marked_and_totals_are_sums() -> None:
         battery = [r[headers.index(h)] for h in ("pack ∫Q [J]", "pack ∫Q_irr [J]", "ΔSOC", "max |I| [A/cell]")]
         assert all((OVER_LIMIT_MARK in c) == over for c in battery)
         assert OVER_LIMIT_MARK not in r[headers.index("ω [model]")]  # ω does not depend on the cell
-    assert any(OVER_LIMIT_MARK in r[4] for r in per_vehicle) and not all(OVER_LIMIT_MARK in r[4] for r in per_vehicle)
+    q = headers.index("pack ∫Q [J]")
+    assert any(OVER_LIMIT_MARK in r[q] for r in per_vehicle) and not all(OVER_LIMIT_MARK in r[q] for r in per_vehicle)
     totals = [r for r in rows if r[0].startswith("**")]
     assert len(totals) == 2
     for k, r in runs.items():
@@ -111,3 +112,7 @@ def test_over_limit_battery_columns_are_marked_and_totals_are_sums() -> None:
         assert tot["omega_model"] == pytest.approx(float(np.sum(r.omega[-1])), rel=1e-12)
         assert tot["delta_soc"] == pytest.approx(float(np.sum(r.S[-1] - r.S[0])), rel=1e-9)
         assert tot["max_abs_current_A"] == pytest.approx(float(peaks[k].max()), rel=1e-12)
+        ms = r.metrics()
+        assert tot["battery_energy_J"] == pytest.approx(sum(m["battery_energy_J"] for m in ms), rel=1e-12)
+        km = sum(m["distance_m"] for m in ms) / 1000
+        assert tot["battery_energy_kWh_per_100km"] == pytest.approx(tot["battery_energy_J"] / km / 3.6e4, rel=1e-12)

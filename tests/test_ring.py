@@ -348,7 +348,7 @@ def test_one_aev_dissolves_the_jam(aev):
     mixed = run_ring(ring, 400.0).fleet
     assert mixed["status"] == "ok" and mixed["collisions"] == 0
     assert mixed["speed_std_mps"] <= 0.5 * human["speed_std_mps"]
-    assert mixed["energy_J_per_km"] < human["energy_J_per_km"]
+    assert mixed["battery_energy_J_per_km"] < human["battery_energy_J_per_km"]
     assert mixed["heat_pack_J_per_km"] < human["heat_pack_J_per_km"]
     assert mixed["braking_events"] < human["braking_events"]
 
@@ -590,7 +590,7 @@ def test_ring_report_section(tmp_path):
     assert labels == ["all human", "followerstopper", "pi-saturation", "proposed", "ovfl", "mpc"]
     # the all-human row is the experiments' ring, run independently of the scenario file
     ref = run_ring(human_ring(230.0, seed=0), QUICK_T_END_S).fleet
-    for k in ("speed_std_mps", "energy_J_per_km", "heat_pack_J_per_km", "braking_events"):
+    for k in ("speed_std_mps", "battery_energy_J_per_km", "heat_pack_J_per_km", "braking_events"):
         assert doc["stern"][0][k] == pytest.approx(ref[k], rel=1e-9)
     assert all(r["collisions"] == 0 for r in doc["stern"])
     assert doc["stern"][-1]["fallbacks"] == 0 and doc["stern"][-1]["call_ms_median"] > 0

@@ -141,6 +141,18 @@ def test_battery_on_sumo_motion_matches_the_plant():
     assert r.S[-1, 0] == pytest.approx(ref.S[-1, 0], abs=1e-9)
     assert r.heat_J[-1, 0] == pytest.approx(ref.heat_J[-1, 0], rel=1e-5)
     assert r.omega[-1, 0] == pytest.approx(ref.omega[-1, 0], rel=1e-9)
+    # battery energy ∫P_b: SUMO's step (Simpson per step) against the exact replay (CVODES) of the same linear-per-step
+    # motion, and the metrics' trapezoid on the samples of a run without the quadrature
+    import dataclasses
+
+    from aev_ocp import replay
+
+    rep = replay((U.time_to_si(r.t), U.speed_to_si(r.speed[:, 0])), ev=ev)
+    assert r.battery_energy_J is not None and r.battery_energy_J[0, 0] == 0.0
+    assert r.battery_energy_J[-1, 0] == pytest.approx(rep.battery_energy_J, rel=1e-6)
+    assert r.metrics()[0]["battery_energy_J"] == r.battery_energy_J[-1, 0]
+    sampled = dataclasses.replace(r, battery_energy_J=None).metrics()[0]["battery_energy_J"]
+    assert sampled == pytest.approx(rep.battery_energy_J, rel=1e-3)
 
 
 @given(
@@ -336,6 +348,8 @@ def test_merge_vehicles_leave_the_network_and_save_load(tmp_path):
     m0 = {m["sumo_id"]: m for m in run.metrics()}
     for m in back.metrics():
         assert m["heat_pack_J_per_km"] == pytest.approx(m0[m["sumo_id"]]["heat_pack_J_per_km"], rel=1e-12, nan_ok=True)
+        assert m["battery_energy_J"] == m0[m["sumo_id"]]["battery_energy_J"]  # the saved ∫P_b, not the samples'
+    assert all(r.battery_energy_J is not None for r in back.vehicles.values())
     assert back.controlled == run.controlled
 
 

@@ -20,6 +20,13 @@ def road_load_force_N(v_mps: Any, p: VehicleParams) -> Any:
     )
 
 
+def inertial_mass_kg(p: VehicleParams) -> float:
+    """Mass that the acceleration moves, m + m_rot [kg] (m_rot: the wheels' inertia as an equivalent mass)."""
+    return p.mass_kg + p.rotating_mass_kg
+
+
 def wheel_power_W(v_mps: Any, a_mps2: Any, p: VehicleParams) -> Any:
-    """Wheel power P_w = (m a + F_res(v)) v [W] (paper eq. p_output_dynamic_motoer)."""
-    return (p.mass_kg * a_mps2 + road_load_force_N(v_mps, p)) * v_mps
+    """Wheel power P_w = (m a + F_res(v)) v [W] (paper eq. p_output_dynamic_motoer); with ``rotating_mass_kg`` > 0
+    the acceleration moves m + m_rot (the wheels' inertia), else exactly the paper's expression."""
+    m = p.mass_kg if p.rotating_mass_kg == 0 else inertial_mass_kg(p)
+    return (m * a_mps2 + road_load_force_N(v_mps, p)) * v_mps

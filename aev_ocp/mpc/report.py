@@ -50,12 +50,15 @@ COMPARABILITY_ROWS = [
     "distance_diff_pct",
     "duration_s",
     "duration_diff_pct",
+    "battery_energy_kWh_per_100km",
     "heat_pack_J_per_km",
+    "charge_throughput_Ah_per_km",
     "omega_model_per_km",
     "omega_J_per_kg_per_km",
     "min_ttc_s",
 ]
 METRIC_ROWS = COMPARABILITY_ROWS + [
+    "battery_energy_J",
     "omega_model",
     "omega_J_per_kg",
     "heat_pack_J",
@@ -177,6 +180,7 @@ class Comparison:
                 "run": label,
                 "vehicle": m.get("vehicle"),
                 "status": m.get("status"),
+                "battery_energy_kWh_per_100km": m.get("battery_energy_kWh_per_100km"),
                 "omega_J_per_kg": m.get("omega_J_per_kg"),
                 "heat_pack_J": m.get("heat_pack_J"),
                 "min_gap_m": m.get("min_gap_m"),
@@ -191,9 +195,11 @@ class Comparison:
         return f"Comparison ({self.formulation.kind} formulation): {', '.join(self.results)} on {n} follower(s)"
 
     def __repr__(self) -> str:
-        """A few lines: per run (first two vehicles) the status, ω [J/kg], pack ∫Q [J], min gap [m], §9 cost."""
+        """A few lines: per run (first two vehicles) the status, battery energy [kWh/100 km], the paper's ω [J/kg],
+        pack ∫Q [J], min gap [m], §9 cost."""
         lines = [
-            f"{r['run']} vehicle {r['vehicle']}: {r['status']}, ω {fmt_value(r['omega_J_per_kg'])} J/kg, "
+            f"{r['run']} vehicle {r['vehicle']}: {r['status']}, battery energy "
+            f"{fmt_value(r['battery_energy_kWh_per_100km'])} kWh/100 km, ω {fmt_value(r['omega_J_per_kg'])} J/kg, "
             f"pack ∫Q {fmt_value(r['heat_pack_J'])} J, min gap {fmt_value(r['min_gap_m'])} m, "
             f"cost {fmt_value(r['cost_s9'])}"
             for r in self._repr_rows()

@@ -28,7 +28,7 @@ COLUMNS = (
     "mean_speed_mps",
     "vehicles_stopped",
     "braking_events",
-    "energy_J_per_km",
+    "battery_energy_kWh_per_100km",
     "heat_pack_J_per_km",
     "soc_used_mean",
     "min_gap_m",

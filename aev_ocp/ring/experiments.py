@@ -105,7 +105,8 @@ def fleet_metrics(res: RingResult, t_from_s: float | None = None) -> dict[str, A
         "vehicles_stopped": int(np.sum(np.min(v, axis=0) < STOP_SPEED_MPS)),
         "braking_events": events,
         "distance_km": dist_m / 1000.0,
-        "energy_J_per_km": energy / (dist_m / 1000.0) if dist_m > 0 else math.nan,
+        "battery_energy_J_per_km": energy / (dist_m / 1000.0) if dist_m > 0 else math.nan,
+        "battery_energy_kWh_per_100km": energy / (dist_m / 1000.0) / 3.6e4 if dist_m > 0 else math.nan,
         "heat_pack_J_per_km": heat / (dist_m / 1000.0) if dist_m > 0 else math.nan,
         "soc_used_mean": float(np.mean(res.sim.S[i0] - res.sim.S[-1])),
         "min_gap_m": float(np.min(res.gap_m[sel])),
@@ -165,7 +166,7 @@ def stern(
 def relative_to(base: dict[str, Any], other: dict[str, Any]) -> dict[str, float]:
     """Relative changes of the fleet metrics against a baseline (−0.5 = 50 % lower)."""
     out = {}
-    for k in ("speed_std_mps", "energy_J_per_km", "heat_pack_J_per_km", "braking_events"):
+    for k in ("speed_std_mps", "battery_energy_J_per_km", "heat_pack_J_per_km", "braking_events"):
         b = float(base[k])
         out[k] = (float(other[k]) - b) / b if b else math.nan
     return out

@@ -114,8 +114,8 @@ def ring_section(out_dir: Path, progress: Callable[[str], None]) -> str:
                 _g(f["speed_std_mps"], ".3g"),
                 _pct(rel.get("speed_std_mps", math.nan)),
                 f["braking_events"],
-                _g(f["energy_J_per_km"] / 1e3, ".4g"),
-                _pct(rel.get("energy_J_per_km", math.nan)),
+                _g(f["battery_energy_kWh_per_100km"], ".4g"),
+                _pct(rel.get("battery_energy_J_per_km", math.nan)),
                 _g(f["heat_pack_J_per_km"], ".4g"),
                 _pct(rel.get("heat_pack_J_per_km", math.nan)),
                 f["collisions"],
@@ -129,8 +129,8 @@ def ring_section(out_dir: Path, progress: Callable[[str], None]) -> str:
     write_json(out_dir / "ring.json", {"sugiyama": doc_sug, "stern": [{"label": r.label, **r.fleet} for r in runs]})
     md += [
         "### Stern: one AEV (vehicle 1) among 21 human drivers\n\n",
-        "Each row against the all-human ring (Δ: relative change). Energy: battery energy per km of the whole "
-        "fleet; heat: pack heat ∫Q per km of the fleet; braking events: entries into a < −1 m/s²; the MPC "
+        "Each row against the all-human ring (Δ: relative change). Battery energy: ∫P_b dt per distance of the "
+        "whole fleet; heat: pack heat ∫Q per km of the fleet; braking events: entries into a < −1 m/s²; the MPC "
         "forecasts its predecessor from its own measurements (decaying acceleration), with the traffic "
         "formulation's 2 m floor and its safety filter; call: median controller call [ms].\n\n",
         markdown_table(
@@ -139,7 +139,7 @@ def ring_section(out_dir: Path, progress: Callable[[str], None]) -> str:
                 "speed std [m/s]",
                 "Δ",
                 "braking events",
-                "energy [kJ/km]",
+                "battery energy [kWh/100 km]",
                 "Δ",
                 "pack heat [J/km]",
                 "Δ",

@@ -33,7 +33,7 @@ A study is a TOML file (see README.md "Studies")::
 
     [report]
     vehicle = 1                          # follower in figures (an array: change tables for each)
-    metrics = ["omega_model", "heat_pack_J_per_km"]
+    metrics = ["battery_energy_kWh_per_100km", "heat_pack_J_per_km", "omega_model"]  # battery energy first
     pareto = [["heat_pack_J_per_km", "rms_rel_speed_model"]]
     pareto_by = ["leader.cycle"]         # a front per value of these keys (and per base scenario)
     change_metric = "omega_model"        # % change vs the reference, tabulated over the first two axes

@@ -118,7 +118,7 @@ def _report(r: TableReader, file: str) -> dict[str, Any]:
     rep: dict[str, Any] = {
         "vehicle": vehicles[0],
         "vehicles": vehicles,
-        "metrics": r.strings("metrics", ["omega_model", "heat_pack_J_per_km"]),
+        "metrics": r.strings("metrics", ["battery_energy_kWh_per_100km", "heat_pack_J_per_km", "omega_model"]),
         "change_metric": r.string("change_metric", "omega_model"),
     }
     pareto = r.table.get("pareto", [])

@@ -104,8 +104,10 @@ def cli_sumo(argv: list[str]) -> int:
             print(file=sys.stderr)
         ft = run.fleet_totals()
         print(
-            f"{run!r}\n  energy {ft['all']['energy_kJ_per_km']:.4g} kJ/km (toolkit's vehicles "
-            f"{ft['controlled']['energy_kJ_per_km']:.4g}, SUMO's {ft['sumo']['energy_kJ_per_km']:.4g}), mean speed "
+            f"{run!r}\n  battery energy {ft['all']['battery_energy_kWh_per_100km']:.4g} kWh/100 km (toolkit's "
+            f"vehicles {ft['controlled']['battery_energy_kWh_per_100km']:.4g}, SUMO's "
+            f"{ft['sumo']['battery_energy_kWh_per_100km']:.4g}), pack heat {ft['all']['heat_pack_J_per_km']:.4g} J/km, "
+            f"charge throughput {ft['all']['charge_throughput_Ah_per_km']:.4g} Ah/km, mean speed "
             f"{ft['all']['mean_speed_mps']:.4g} m/s, collisions {ft['all']['collisions']}, teleports "
             f"{ft['all']['teleports']}\n  wrote {out}/ (report.md, metrics.csv, fleet.json, manifest.json)"
         )
@@ -129,7 +131,8 @@ def cli_sumo(argv: list[str]) -> int:
                 print(
                     f"share {r['share']:g}, {r['controller']}: {r['status']}"
                     + (
-                        f", {r['energy_kJ_per_km']:.4g} kJ/km, {r['mean_speed_mps']:.4g} m/s"
+                        f", battery energy {r['battery_energy_kWh_per_100km']:.4g} kWh/100 km, "
+                        f"{r['mean_speed_mps']:.4g} m/s"
                         if r["status"] == "ok"
                         else f" ({r.get('message', '')})"
                     ),

@@ -205,8 +205,10 @@ def report_markdown(run: SumoRun, figures: list[Path] | None = None) -> str:
     cols = [
         "vehicles",
         "distance_km",
-        "energy_kJ_per_km",
+        "battery_energy_kWh_per_100km",
         "heat_pack_J_per_km",
+        "charge_throughput_Ah_per_km",
+        "omega_mass_kJ_per_km",
         "mean_speed_mps",
         "min_gap_m",
         "collisions",
@@ -217,8 +219,10 @@ def report_markdown(run: SumoRun, figures: list[Path] | None = None) -> str:
         lines.append(f"| {g} | " + " | ".join(_fmt(ft[g][c]) for c in cols) + " |")
     lines += [
         "",
-        f"Vehicles that left the network: {ft['left_network']}. Energy: ω × vehicle mass (energy at the "
-        "wheels after η, the paper's measure); pack heat from the 2-RC cell on the realised motion.",
+        f"Vehicles that left the network: {ft['left_network']}. Battery energy: ∫P_b dt at the pack terminals "
+        f"(powertrain: {run.scenario.ev.vehicle.powertrain}), pack heat and charge throughput from the 2-RC cell on "
+        "the realised motion; omega_mass: the paper's measure ω × vehicle mass (inertial, road load excluded), "
+        "not battery energy.",
         "",
     ]
     rows = [m for m in run.metrics() if m["controlled"]]
@@ -227,8 +231,10 @@ def report_markdown(run: SumoRun, figures: list[Path] | None = None) -> str:
             "sumo_id",
             "status",
             "distance_m",
-            "omega_J_per_kg_per_km",
+            "battery_energy_kWh_per_100km",
             "heat_pack_J_per_km",
+            "charge_throughput_Ah_per_km",
+            "omega_J_per_kg_per_km",
             "min_gap_m",
             "min_ttc_s",
             "rms_jerk_mps3",
@@ -266,10 +272,11 @@ def sweep_markdown(rows: list[dict[str, Any]], name: str) -> str:
         "status",
         "vehicles",
         "controlled",
-        "energy_kJ_per_km",
-        "energy_ctrl_kJ_per_km",
-        "energy_sumo_kJ_per_km",
+        "battery_energy_kWh_per_100km",
+        "battery_energy_ctrl_kWh_per_100km",
+        "battery_energy_sumo_kWh_per_100km",
         "heat_pack_J_per_km",
+        "charge_throughput_Ah_per_km",
         "mean_speed_mps",
         "min_gap_m",
         "collisions",
@@ -300,10 +307,11 @@ def sweep_row(share: float, controller: str, run: SumoRun | None, error: str = "
         "status": "interrupted" if run.interrupted else "ok",
         "vehicles": ft["all"]["vehicles"],
         "controlled": ft["controlled"]["vehicles"],
-        "energy_kJ_per_km": ft["all"]["energy_kJ_per_km"],
-        "energy_ctrl_kJ_per_km": ft["controlled"]["energy_kJ_per_km"],
-        "energy_sumo_kJ_per_km": ft["sumo"]["energy_kJ_per_km"],
+        "battery_energy_kWh_per_100km": ft["all"]["battery_energy_kWh_per_100km"],
+        "battery_energy_ctrl_kWh_per_100km": ft["controlled"]["battery_energy_kWh_per_100km"],
+        "battery_energy_sumo_kWh_per_100km": ft["sumo"]["battery_energy_kWh_per_100km"],
         "heat_pack_J_per_km": ft["all"]["heat_pack_J_per_km"],
+        "charge_throughput_Ah_per_km": ft["all"]["charge_throughput_Ah_per_km"],
         "mean_speed_mps": ft["all"]["mean_speed_mps"],
         "min_gap_m": ft["all"]["min_gap_m"],
         "collisions": ft["all"]["collisions"],

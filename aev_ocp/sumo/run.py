@@ -166,24 +166,30 @@ class SumoRun:
         return rows
 
     def fleet_totals(self) -> dict[str, Any]:
-        """Totals over all vehicles and over the controlled / SUMO-driven groups: count, distance [km], energy at
-        the wheels after η (ω × mass [MJ]), pack heat [kJ], their per-km values, mean speed [m/s], collisions,
-        teleports, vehicles that left the network."""
+        """Totals over all vehicles and over the controlled / SUMO-driven groups: count, distance [km], battery
+        energy ∫P_b [MJ] and per km (kJ/km, kWh/100 km), pack heat [kJ] and per km [J/km], charge throughput per km
+        [Ah/km], the paper's ω × vehicle mass per km (``omega_mass_kJ_per_km``: its inertial measure, road load
+        excluded; not battery energy), mean speed [m/s], collisions, teleports, vehicles that left the network."""
         rows = self.metrics()
         mass = self.scenario.ev.vehicle.mass_kg
 
         def group(sel: list[dict[str, Any]]) -> dict[str, Any]:
             km = sum(_f(m["distance_m"]) for m in sel) / 1000.0
-            e_J = sum(_f(m["omega_J_per_kg"]) * mass for m in sel)
+            e_J = sum(_f(m["battery_energy_J"]) for m in sel)
+            w_J = sum(_f(m["omega_J_per_kg"]) * mass for m in sel)
             q_J = sum(_f(m["heat_pack_J"]) for m in sel)
+            ah = sum(_f(m["charge_throughput_Ah_per_km"]) * _f(m["distance_m"]) / 1000.0 for m in sel)
             dur = sum(_f(m["duration_s"]) for m in sel)
             return {
                 "vehicles": len(sel),
                 "distance_km": km,
-                "energy_MJ": e_J / 1e6,
+                "battery_energy_MJ": e_J / 1e6,
                 "heat_pack_kJ": q_J / 1e3,
-                "energy_kJ_per_km": e_J / 1e3 / km if km > 0 else math.nan,
+                "battery_energy_kJ_per_km": e_J / 1e3 / km if km > 0 else math.nan,
+                "battery_energy_kWh_per_100km": e_J / 3.6e4 / km if km > 0 else math.nan,
                 "heat_pack_J_per_km": q_J / km if km > 0 else math.nan,
+                "charge_throughput_Ah_per_km": ah / km if km > 0 else math.nan,
+                "omega_mass_kJ_per_km": w_J / 1e3 / km if km > 0 else math.nan,
                 "mean_speed_mps": 1000 * km / dur if dur > 0 else math.nan,
                 "min_gap_m": min((_f(m["min_gap_m"]) for m in sel), default=math.nan),
                 "collisions": sum(1 for m in sel if m["status"] == "collision"),
@@ -744,6 +750,7 @@ def _result(tr: _Track, ev: EVParams, lookahead_m: float, dt: float, every: int)
         omega=col(xb[3]),
         heat_J=col(xb[4]),
         heat_irr_J=col(xb[5]),
+        battery_energy_J=col(xb[energy.BATTERY_ENERGY_ROW]),
         int_ovm_err2=col(cum(ovm**2)),
         int_rel_speed2=col(cum((vlm - vm) ** 2)),
         int_jerk2=col(jerk2),
