@@ -208,3 +208,77 @@ def test_si_keys_of_carfollowing() -> None:
     assert (c["alpha_per_s"], c["beta_m2ps"], c["kappa_per_m"]) == pytest.approx((0.9, 144.0, 0.0025), rel=1e-14)
     with pytest.raises(ScenarioError, match="alpha_per_s"):
         _carfollowing(TableReader({"alpha": 2.0, "alpha_per_s": 1.0}, "carfollowing", "f.toml"))
+
+
+# ----------------------------------------------------------------------------- calibration (issue 33.2)
+def test_calibration_recovers_known_scales_from_a_synthetic_target() -> None:
+    from aev_ocp.calibration import calibrate
+
+    truth = Proposed(h_scale_m=13.7, v_scale_mps=7.9)
+    v = [1.5, 3.0, 4.5, 6.0, 7.5, 9.0, 10.5]
+    cal = calibrate("proposed", v, [truth.equilibrium_gap_m(x) for x in v])
+    assert cal.params["h_scale_m"] == pytest.approx(13.7, rel=1e-6)
+    assert cal.params["v_scale_mps"] == pytest.approx(7.9, rel=1e-6)
+    idm = IDM(s0_m=2.6, T_s=1.35)
+    cal = calibrate("idm", v, [idm.equilibrium_gap_m(x) for x in v])
+    assert (cal.params["s0_m"], cal.params["T_s"]) == pytest.approx((2.6, 1.35), rel=1e-6)
+
+
+@pytest.mark.parametrize("name", ["proposed_ring", "ovfl_ring", "idm_ring"])
+def test_shipped_calibrations_meet_their_target_within_their_residual(name: str) -> None:
+    from aev_ocp.calibration import RING_HUMANS, load
+
+    law, doc = load(name)
+    t = doc["target"]
+    assert t["speed_mps"] == RING_HUMANS["speed_mps"] and t["gap_m"] == pytest.approx(RING_HUMANS["gap_m"])
+    res = np.array([law.equilibrium_gap_m(v) - g for v, g in zip(t["speed_mps"], t["gap_m"])])
+    assert np.max(np.abs(res)) <= doc["max_abs_m"] * (1 + 1e-9)
+    assert float(np.sqrt(np.mean(res**2))) == pytest.approx(doc["rms_m"], rel=1e-9)
+
+
+def test_calibrated_proposed_law_is_the_same_si_law_on_ring_sumo_and_platoon_whatever_units() -> None:
+    """Done-when of issue 33: the calibrated proposed law, named by [carfollowing] calibrated, keeps the same
+    equilibrium gap and SI acceleration on the ring, the SUMO ring and merge and a drive-cycle platoon under any
+    [units]."""
+    import aev_ocp
+    from aev_ocp.calibration import load
+    from aev_ocp.ring.scenario import build_ring, load_ring_scenario, parse_ring_scenario
+    from aev_ocp.sumo.run import make_controller_factory
+    from aev_ocp.sumo.scenario import load_sumo_scenario, parse_sumo_scenario
+
+    ref, _ = load("proposed_ring")
+    gaps = [ref.equilibrium_gap_m(v) for v in (3.45, 6.0)]
+    laws: list[tuple[CarFollowingLaw, Units]] = []
+    ring = load_ring_scenario("ring_sugiyama")
+    for L, U in ((10.0, 5.0), (2.5, 5.0), (15.0, 17.0)):
+        d = _with_units(ring.document or {}, L, U)
+        d["carfollowing"] = {"calibrated": "proposed_ring"}
+        sc = parse_ring_scenario(d, "r.toml")
+        rr, _ = build_ring(sc, "proposed", aevs=(0,))
+        laws.append((rr.vehicles[0], sc.ev.units))
+    for shipped in ("sumo_ring", "sumo_merge"):
+        base = load_sumo_scenario(shipped)
+        for L, U in ((10.0, 15.0), (2.5, 5.0)):
+            d = _with_units(base.document, L, U)
+            d["carfollowing"] = {"calibrated": "proposed_ring"}
+            s = parse_sumo_scenario(d, "s.toml").with_point(controller="proposed")
+            law, _ = make_controller_factory(s)
+            assert law is not None
+            laws.append((law, s.ev.units))
+    from aev_ocp.scenarios.tables import ScenarioWarning
+
+    with pytest.warns(ScenarioWarning, match="v_scale_mps"):  # UDDS's 25 m/s is beyond a ring law's top speed
+        pl = aev_ocp.load_scenario("udds_platoon").with_overrides(
+            {
+                "carfollowing.h_scale_m": None,
+                "carfollowing.v_scale_mps": None,
+                "carfollowing.calibrated": "proposed_ring",
+            }
+        )
+    laws.append((pl.law("proposed"), pl.units))
+    for law, u in laws:
+        _same_si(ref.in_units(Units(1.0, 1.0)), Units(1.0, 1.0), law, u)
+        for v, g in zip((3.45, 6.0), gaps):  # the equilibrium gap at the same speed, through the model-unit law
+            assert float(law.accel(u.length_from_si(g), u.speed_from_si(v), u.speed_from_si(v))) == pytest.approx(
+                0.0, abs=1e-9
+            )

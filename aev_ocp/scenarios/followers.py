@@ -23,14 +23,25 @@ SI_COEFFICIENTS: dict[str, tuple[str, Callable[[float, float, float], float]]] =
 
 
 def _carfollowing(r: TableReader, sub_tables: bool = True) -> tuple[CarFollowingParams, dict[str, dict[str, float]]]:
-    """[carfollowing]: the OV-type laws' coefficients (dimensionless: alpha, beta, kappa, eps; or in SI:
+    """[carfollowing]: ``calibrated`` (optional: a calibrated set by name or path, aev_ocp.calibration; the table's
+    own keys override it), the OV-type laws' coefficients (dimensionless: alpha, beta, kappa, eps; or in SI:
     alpha_per_s, beta_m2ps, kappa_per_m, eps_m2ps2, converted with the law's scales), their scales h_scale_m [m]
     and v_scale_mps [m/s], and (``sub_tables``) a sub-table per law with its own coefficients."""
     coeffs = {f.name for f in dataclasses.fields(CarFollowingParams)} - {"model_units"}
-    cf_table = {k: v for k, v in r.table.items() if k in coeffs}
+    calibrated: dict[str, float] = {}
+    if r.has("calibrated"):  # a calibrated set (aev_ocp.calibration): its parameters, then the table's keys
+        from ..calibration import load as load_calibration
+
+        name = r.string("calibrated")
+        try:
+            _, cal = load_calibration(name)
+        except ParameterError as exc:
+            raise r.error("calibrated", name, str(exc)) from None
+        calibrated = {k: float(v) for k, v in cal["params"].items() if k in coeffs}
+    cf_table = {**calibrated, **{k: v for k, v in r.table.items() if k in coeffs}}
     si = {k: v for k, v in r.table.items() if k in SI_COEFFICIENTS}
     cf = _params(CarFollowingParams, TableReader(cf_table, r.path, r.file))
-    r._seen.update(cf_table)
+    r._seen.update(k for k in cf_table if k in r.table)
     if si:
         kw: dict[str, float] = {}
         for key in si:
@@ -48,7 +59,7 @@ def _carfollowing(r: TableReader, sub_tables: bool = True) -> tuple[CarFollowing
             raise ScenarioError(f"{r.file}: {r.path}: {exc}") from None
     overrides: dict[str, dict[str, float]] = {}
     for key, value in r.table.items():
-        if key in coeffs or key in SI_COEFFICIENTS:
+        if key in coeffs or key in SI_COEFFICIENTS or key == "calibrated":
             continue
         if not sub_tables or key.lower() not in LAW_REGISTRY:
             raise r.error(
