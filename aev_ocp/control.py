@@ -555,8 +555,18 @@ class ClosedLoop(PlatoonRun):
         I = y[n : 2 * n]
         ocv = np.asarray(battery.ocv_function(ev.cell)(np.clip(x[4 * n : 5 * n], 0.0, 1.0).reshape(1, -1))).ravel()
         R_s = np.full(n, ev.cell.R_s_ohm)
-        if getattr(self.plant, "thermal", False):  # the pack temperatures follow S in x: R_s at each one
-            R_s = np.array([float(battery.cell_at(ev.cell, float(x[5 * n + i])).R_s_ohm) for i in range(n)])
+        thermal = getattr(self.plant, "thermal", False)
+        if thermal or ev.cell.rc_table is not None:  # R_s at each pack temperature (after S in x) and SOC
+            R_s = np.array(
+                [
+                    float(
+                        battery.cell_at(
+                            ev.cell, float(x[5 * n + i]) if thermal else None, float(np.clip(x[4 * n + i], 0, 1))
+                        ).R_s_ohm
+                    )
+                    for i in range(n)
+                ]
+            )
         vt = ocv - x[2 * n : 3 * n] - x[3 * n : 4 * n] - R_s * I  # battery.terminal_voltage, vectorised
         return np.column_stack(
             [

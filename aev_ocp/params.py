@@ -375,6 +375,73 @@ class VehicleParams:
         return cls(**{**base, **overrides})
 
 
+RC_TABLE_KEYS = ("R_s_ohm", "R1_ohm", "C1_F", "R2_ohm", "C2_F")
+
+
+@dataclass(frozen=True)
+class RCTable:
+    """R_s [Ω], R1 [Ω], C1 [F], R2 [Ω], C2 [F] of a 2-RC cell over SOC [-] and temperature [K]: each table has
+    one row per ``T_K`` and one column per ``soc`` (a cell file's ``[rc_table]``, :mod:`aev_ocp.cells`). The
+    plant interpolates linearly and holds the end values outside the grid; optimisers take a cubic B-spline
+    (:func:`aev_ocp.models.battery.rc_function`). ``soc_ref``: the SOC of the cell's scalar values."""
+
+    soc: tuple[float, ...]
+    T_K: tuple[float, ...]
+    R_s_ohm: tuple[tuple[float, ...], ...]
+    R1_ohm: tuple[tuple[float, ...], ...]
+    C1_F: tuple[tuple[float, ...], ...]
+    R2_ohm: tuple[tuple[float, ...], ...]
+    C2_F: tuple[tuple[float, ...], ...]
+    soc_ref: float = 0.5
+
+    def __post_init__(self) -> None:
+        def floats(x: Any, what: str) -> tuple[float, ...]:
+            try:
+                v = tuple(float(a) for a in x)
+            except (TypeError, ValueError):
+                raise ParameterError(f"RCTable.{what} is not allowed: must be an array of numbers") from None
+            if not all(math.isfinite(a) for a in v):
+                raise ParameterError(f"RCTable.{what} is not allowed: every value must be finite")
+            return v
+
+        soc, temps = floats(self.soc, "soc"), floats(self.T_K, "T_K")
+        if len(soc) < 2 or any(b <= a for a, b in zip(soc, soc[1:])) or soc[0] < 0 or soc[-1] > 1:
+            raise ParameterError(f"RCTable.soc = {list(soc)!r:.80} is not allowed: ≥ 2 increasing values in [0, 1]")
+        if not temps or any(b <= a for a, b in zip(temps, temps[1:])) or temps[0] <= 0:
+            raise ParameterError(f"RCTable.T_K = {list(temps)!r:.80} is not allowed: ≥ 1 increasing values > 0 K")
+        object.__setattr__(self, "soc", soc)
+        object.__setattr__(self, "T_K", temps)
+        object.__setattr__(self, "soc_ref", float(self.soc_ref))
+        if not soc[0] <= self.soc_ref <= soc[-1]:
+            raise ParameterError(f"RCTable.soc_ref = {self.soc_ref!r} is not allowed: must lie in the soc grid")
+        for key in RC_TABLE_KEYS:
+            raw = getattr(self, key)
+            rows = tuple(floats(r, key) for r in raw) if isinstance(raw, (list, tuple)) else ()
+            if len(rows) != len(temps) or any(len(r) != len(soc) for r in rows):
+                raise ParameterError(
+                    f"RCTable.{key} is not allowed: needs {len(temps)} rows (one per T_K) of {len(soc)} values "
+                    "(one per soc)"
+                )
+            if any(a <= 0 for r in rows for a in r):
+                raise ParameterError(f"RCTable.{key} is not allowed: every value must be > 0")
+            object.__setattr__(self, key, rows)
+
+    def value(self, key: str, soc: float, T_K: float) -> float:
+        """The table ``key`` at (soc, T_K), bilinear with the end values held (NumPy; the plant's values)."""
+        along_soc = [_interp_held(soc, self.soc, r) for r in getattr(self, key)]
+        return _interp_held(T_K, self.T_K, along_soc) if len(self.T_K) > 1 else along_soc[0]
+
+
+def _interp_held(x: float, xs: Sequence[float], ys: Sequence[float]) -> float:
+    """Linear interpolation of (xs, ys) at x, the end values held outside [xs[0], xs[-1]]."""
+    x = min(max(float(x), xs[0]), xs[-1])
+    k = max(i for i in range(len(xs) - 1) if xs[i] <= x) if len(xs) > 1 else 0
+    if len(xs) == 1 or x == xs[k]:
+        return float(ys[k])
+    w = (x - xs[k]) / (xs[k + 1] - xs[k])
+    return float(ys[k] + w * (ys[k + 1] - ys[k]))
+
+
 @dataclass(frozen=True)
 class CellParams:
     """2-RC equivalent-circuit cell (paper §3; model guide §6), SI units. I > 0 discharges.
@@ -399,9 +466,21 @@ class CellParams:
     # OCV table (SOC grid 0..1, volts); None: the shipped A123 table aev_ocp/data/a123_ocv_25C.csv
     ocv_soc: tuple[float, ...] | None = spec(None, kind="instance", cls=tuple, optional=True)
     ocv_V: tuple[float, ...] | None = spec(None, kind="instance", cls=tuple, optional=True)
+    # R_s, R1, C1, R2, C2 over SOC and T (a cell file's [rc_table], e.g. tools/identify_cell.py); None: the
+    # constants above. With a table, the constants are its level at (rc_table.soc_ref, T_ref_K): the plant uses
+    # table(S, T) × R_s_ohm / table(soc_ref, T_ref_K), so a shipped file (constants = the table there) uses the
+    # table as it is and an override of R_s_ohm (or a mismatch factor) scales the whole table
+    rc_table: RCTable | None = spec(None, kind="instance", cls=RCTable, optional=True)
 
     def __post_init__(self) -> None:
+        if isinstance(self.rc_table, dict):  # a saved run's cell (saved.py writes dataclasses as tables)
+            object.__setattr__(self, "rc_table", RCTable(**self.rc_table))
         validate_fields(self)
+        if self.rc_table is not None and self.activation_energy_Jpmol is not None:
+            raise ParameterError(
+                "CellParams.activation_energy_Jpmol is not allowed with rc_table: the table holds the temperature "
+                "dependence (set one or the other)"
+            )
         if (self.ocv_soc is None) != (self.ocv_V is None):
             raise ParameterError("CellParams.ocv_soc and CellParams.ocv_V: give both or neither")
         if self.ocv_soc is not None and self.ocv_V is not None:

@@ -5,10 +5,13 @@ untracked files that git does not ignore, so uncommitted tests take part) are co
 folder, ONE textual replacement is applied there (the worktree is never touched), and the test
 suite is run in the copy with ``python -m pytest -x -q -n 2 -p no:cacheprovider``.
 
-To keep the whole run short, each mutation first runs the fast exact-check files of
-:data:`FAST_FILES` (single process, ``-x``); only a mutation that survives them runs the whole
-suite. A mutation is *caught* when either run fails; the first failing test and its message (the
-margin: how far the checked number moved) are recorded.
+To keep the whole run short, each mutation first runs its own module's test files (``Mutation.tests``;
+the fast exact-check files of :data:`FAST_FILES` for the mutations before issue 41; single process,
+``-x``); only a mutation that survives them runs the whole suite. A mutation is *caught* (killed)
+when either run fails; the first failing test and its message (the margin: how far the checked
+number moved) are recorded. Each mutation names its bug class (:data:`KINDS`: a sign, a sample
+shift, a missing term, a swapped order, a wrong norm, a wrong limit); the run ends with
+killed/survived per class.
 
 Run from the repository root:
 
@@ -16,8 +19,10 @@ Run from the repository root:
     python benchmarks/mutation.py --only M1 M7    # a subset
     python benchmarks/mutation.py --full          # skip the fast stage: whole suite for every mutation
     python benchmarks/mutation.py --list          # the mutations, no run
+    python benchmarks/mutation.py --own --only M38 M39   # only their own test files (minutes, not the suite)
+    python benchmarks/mutation.py --kind "wrong norm"    # one bug class
 
-Prints a table (mutation, file, caught?, first failing test, seconds) and writes
+Prints a table (mutation, class, file, killed?, first failing test, seconds) and writes
 ``benchmarks/mutation.json`` (``--json`` to change). Not part of the test suite. About 15–30 min
 on 2 quiet cores when every mutation is caught by the fast stage.
 """
@@ -43,13 +48,21 @@ PYTEST = (sys.executable, "-m", "pytest", "-x", "-q", "-p", "no:cacheprovider")
 
 @dataclass(frozen=True)
 class Mutation:
-    """Replace ``old`` (must occur exactly once in ``path``) by ``new``."""
+    """Replace ``old`` (must occur exactly once in ``path``) by ``new``. ``kind``: the bug class (one of
+    :data:`KINDS`); ``tests``: the module's own test files, run as the fast stage instead of :data:`FAST_FILES`
+    (issue 41: each module's own tests must catch a bug of each class)."""
 
     key: str
     what: str
     path: str
     old: str
     new: str
+    kind: str = "other"
+    tests: tuple[str, ...] = ()
+
+
+#: bug classes of issue 41 (the ones before it are 'other')
+KINDS = ("sign", "sample shift", "missing term", "swapped order", "wrong norm", "wrong limit", "other")
 
 
 MUTATIONS: tuple[Mutation, ...] = (
@@ -122,8 +135,8 @@ MUTATIONS: tuple[Mutation, ...] = (
         "M10",
         "sign of the beta term (OVFL)",
         "aev_ocp/models/carfollowing.py",
-        "self.beta * (v_l - v) / h**2",
-        "self.beta * (v - v_l) / h**2",
+        "+ beta * (v_l - v) / h**2",
+        "+ beta * (v - v_l) / h**2",
     ),
     Mutation(
         "M11",
@@ -146,8 +159,8 @@ MUTATIONS: tuple[Mutation, ...] = (
         "M14",
         "OCV evaluated at 1 - S in the current map",
         "aev_ocp/models/powertrain.py",
-        "E = battery.ocv(S) - V1 - V2",
-        "E = battery.ocv(1 - S) - V1 - V2",
+        "E = battery.ocv(S, p.cell) - V1 - V2",
+        "E = battery.ocv(1 - S, p.cell) - V1 - V2",
     ),
     Mutation(
         "M15",
@@ -216,8 +229,8 @@ MUTATIONS: tuple[Mutation, ...] = (
         "M24",
         "gap dynamics use v_hat instead of the interval mean",
         "aev_ocp/ocp/following.py",
-        "rhs = following_ode(z, a, v_mean, ev, smooth)",
-        "rhs = following_ode(z, a, v_hat, ev, smooth)",
+        "rhs = following_ode(z, a, v_mean, ev, smooth, Tst)",
+        "rhs = following_ode(z, a, v_hat, ev, smooth, Tst)",
     ),
     Mutation(
         "M25",
@@ -244,20 +257,20 @@ MUTATIONS: tuple[Mutation, ...] = (
         "M28",
         "OCP-D solves with the default weights, not the scenario's",
         "aev_ocp/ocp/oracle.py",
-        "p=weight_vector(scn.weights)",
-        "p=weight_vector(FollowingWeights())",
+        'return scn.formulation.parameter_vector(list(pr.meta.get("parameter_names", [])))',
+        'return scn.formulation.parameter_vector(list(pr.meta.get("parameter_names", [])), FollowingWeights())',
     ),
     Mutation(
         "M29",
         "MPC ignores the per-solve weights",
         "aev_ocp/mpc/controller.py",
-        "wt = weight_vector(weights or self.settings.weights)",
-        "wt = weight_vector(self.settings.weights)",
+        "wt = weight_vector(weights or self.formulation.weights)",
+        "wt = weight_vector(self.formulation.weights)",
     ),
     Mutation(
         "M30",
-        "a Dormand-Prince weight in the C cascade (500/1113 -> 500/1112)",
-        "aev_ocp/c/cascade.c",
+        "a Dormand-Prince weight of the C integrators (500/1113 -> 500/1112)",
+        "aev_ocp/c/dopri5.h",
         "DP_B[6] = {35.0/384, 0, 500.0/1113,",
         "DP_B[6] = {35.0/384, 0, 500.0/1112,",
     ),
@@ -272,8 +285,8 @@ MUTATIONS: tuple[Mutation, ...] = (
         "M32",
         "plant checks the gap row for negative speed",
         "aev_ocp/plant.py",
-        '"v": lambda M, Y: M[n:2 * n]',
-        '"v": lambda M, Y: M[:n]',
+        '"v": M[n : 2 * n],',
+        '"v": M[:n],',
     ),
     Mutation(
         "M33",
@@ -293,8 +306,8 @@ MUTATIONS: tuple[Mutation, ...] = (
         "M35",
         "plant's jerk: leader time derivative scaled by L, not 1/L",
         "aev_ocp/plant.py",
-        "+ ca.jacobian(a, s) / p[1]",
-        "+ ca.jacobian(a, s) * p[1]",
+        "jerk = ca.jtimes(a, ca.vertcat(h, v), ca.vertcat(hdot, a)) + ca.jacobian(a, s) / p[1]",
+        "jerk = ca.jtimes(a, ca.vertcat(h, v), ca.vertcat(hdot, a)) + ca.jacobian(a, s) * p[1]",
     ),
     Mutation(
         "M36",
@@ -310,6 +323,223 @@ MUTATIONS: tuple[Mutation, ...] = (
         "math.sqrt(max(float(c[-1, i]), 0.0) / duration)",
         "math.sqrt(max(float(c[-1, i]), 0.0)) / duration",
     ),
+    # issue 41: the modules of the last wave, each against its own test files first
+    Mutation(
+        "M38",
+        "safe fallback: the lead's measured acceleration enters with the wrong sign",
+        "aev_ocp/safety/fallback.py",
+        "b_l = max(p.lead_brake_mps2, -a_lead_mps2)",
+        "b_l = max(p.lead_brake_mps2, a_lead_mps2)",
+        "sign",
+        ("tests/test_fallback_bound.py", "tests/test_safety.py"),
+    ),
+    Mutation(
+        "M39",
+        "safe fallback: the stopping point's mid-step peak left out (end-of-step check)",
+        "aev_ocp/safety/fallback.py",
+        "            cands.append(t_star)",
+        "            cands.append(0.0)",
+        "missing term",
+        ("tests/test_fallback_bound.py", "tests/test_safety.py"),
+    ),
+    Mutation(
+        "M40",
+        "safe fallback: the lag's worst delay without a_max",
+        "aev_ocp/safety/fallback.py",
+        "p.lag_s * (p.a_max_mps2 + p.ego_brake_mps2) / p.ego_brake_mps2",
+        "p.lag_s * p.ego_brake_mps2 / p.ego_brake_mps2",
+        "missing term",
+        ("tests/test_fallback_bound.py", "tests/test_safety.py"),
+    ),
+    Mutation(
+        "M41",
+        "EKF battery update: Joseph form without K R K'",
+        "aev_ocp/estimation/base.py",
+        "Pb_n = IKC @ Pb @ IKC.T + Kb @ R[0, 0] @ Kb.T",
+        "Pb_n = IKC @ Pb @ IKC.T",
+        "missing term",
+        ("tests/test_ekf.py", "tests/test_estimation.py"),
+    ),
+    Mutation(
+        "M42",
+        "EKF battery prediction: A' P A for A P A'",
+        "aev_ocp/estimation/base.py",
+        "Pb = A[b, b] @ P[b, b] @ A[b, b].T + Q[b, b]",
+        "Pb = A[b, b].T @ P[b, b] @ A[b, b] + Q[b, b]",
+        "swapped order",
+        ("tests/test_ekf.py", "tests/test_estimation.py"),
+    ),
+    Mutation(
+        "M43",
+        "EKF battery prediction without the process noise",
+        "aev_ocp/estimation/base.py",
+        "Pb = A[b, b] @ P[b, b] @ A[b, b].T + Q[b, b]",
+        "Pb = A[b, b] @ P[b, b] @ A[b, b].T",
+        "missing term",
+        ("tests/test_ekf.py", "tests/test_estimation.py"),
+    ),
+    Mutation(
+        "M44",
+        "ring integrator: per-vehicle error times LOCAL_FACTOR, not divided",
+        "aev_ocp/c/ring.c",
+        "e2 = sqrt(e2 / NCTRL) / LOCAL_FACTOR;",
+        "e2 = sqrt(e2 / NCTRL) * LOCAL_FACTOR;",
+        "wrong norm",
+        ("tests/test_ring_integrator.py", "tests/test_ring.py"),
+    ),
+    Mutation(
+        "M45",
+        "ring integrator: ring RMS without 1/n",
+        "aev_ocp/c/ring.c",
+        "sqrt(sum2 / ((double)n * NCTRL))",
+        "sqrt(sum2 / NCTRL)",
+        "wrong norm",
+        ("tests/test_ring_integrator.py", "tests/test_ring.py"),
+    ),
+    Mutation(
+        "M46",
+        "ring integrator: per-vehicle root of the sum, not of the mean",
+        "aev_ocp/c/ring.c",
+        "e2 = sqrt(e2 / NCTRL) / LOCAL_FACTOR;",
+        "e2 = sqrt(e2) / LOCAL_FACTOR;",
+        "wrong norm",
+        ("tests/test_ring_integrator.py", "tests/test_ring.py"),
+    ),
+    Mutation(
+        "M47",
+        "SUMO battery: the current recorded one sample late",
+        "aev_ocp/sumo/run.py",
+        "        tr.current[-1] = float(I[j])  # the current at the start of the step belongs to the previous sample",
+        "        pass",
+        "sample shift",
+        ("tests/test_sumo_battery.py",),
+    ),
+    Mutation(
+        "M48",
+        "SUMO battery: stepped from the step's end speed",
+        "aev_ocp/sumo/run.py",
+        "x1, I, disc = energy.step(ev, x, u.speed_from_si(v0), u.accel_from_si(a), dt)",
+        "x1, I, disc = energy.step(ev, x, u.speed_from_si(v1), u.accel_from_si(a), dt)",
+        "sample shift",
+        ("tests/test_sumo_battery.py",),
+    ),
+    Mutation(
+        "M49",
+        "equal-distance cut: a standstill at the cut distance cut at its last sample",
+        "aev_ocp/truncation.py",
+        'k = int(np.searchsorted(d, distance, side="left"))',
+        'k = int(np.searchsorted(d, distance, side="right"))',
+        "sample shift",
+        ("tests/test_truncation.py", "tests/test_formulation.py"),
+    ),
+    Mutation(
+        "M50",
+        "study profile: a repeated distance takes the heat of the next sample",
+        "aev_ocp/truncation.py",
+        "        q = q[first]",
+        "        q = q[np.minimum(first + 1, q.size - 1)]",
+        "sample shift",
+        ("tests/test_truncation.py", "tests/test_formulation.py"),
+    ),
+    Mutation(
+        "M51",
+        "distance cut: the Hermite slopes of the interval swapped",
+        "aev_ocp/truncation.py",
+        "v0, v1 = r.speed[k - 1, i], r.speed[k, i]",
+        "v1, v0 = r.speed[k - 1, i], r.speed[k, i]",
+        "swapped order",
+        ("tests/test_truncation.py", "tests/test_formulation.py"),
+    ),
+    Mutation(
+        "M52",
+        "battery life: years to 80 % interpolated in the wrong order",
+        "aev_ocp/life.py",
+        "[q[k], q[k - 1]], [yrs[k], yrs[k - 1]]",
+        "[q[k], q[k - 1]], [yrs[k - 1], yrs[k]]",
+        "swapped order",
+        ("tests/test_life_years.py", "tests/test_life.py"),
+    ),
+    Mutation(
+        "M53",
+        "battery life: the last sample below 80 %, not the first",
+        "aev_ocp/life.py",
+        "k = int(below[0])",
+        "k = int(below[-1])",
+        "sample shift",
+        ("tests/test_life_years.py", "tests/test_life.py"),
+    ),
+    Mutation(
+        "M54",
+        "user problem: a traffic-family problem taken for a custom one",
+        "aev_ocp/ocp/formulation.py",
+        'return "traffic" if obj == "traffic" else',
+        'return "custom" if obj == "traffic" else',
+        "other",
+        ("tests/test_problem_formulation.py", "tests/test_formulation.py"),
+    ),
+    Mutation(
+        "M55",
+        "user problem: a custom problem starts cold like §9",
+        "aev_ocp/ocp/formulation.py",
+        'return self.family != "s9"',
+        'return self.family == "traffic"',
+        "other",
+        ("tests/test_problem_formulation.py", "tests/test_formulation.py"),
+    ),
+    Mutation(
+        "M56",
+        "user problem: a built problem's a bounds read lower for upper",
+        "aev_ocp/ocp/formulation.py",
+        'float(p.u_lb[cn.index("a")]), float(p.u_ub[cn.index("a")])',
+        'float(p.u_ub[cn.index("a")]), float(p.u_lb[cn.index("a")])',
+        "swapped order",
+        ("tests/test_problem_formulation.py", "tests/test_formulation.py"),
+    ),
+    Mutation(
+        "M57",
+        "ring stability: wave speed with the phase's sign flipped",
+        "aev_ocp/ring/stability.py",
+        "float(u.speed_to_si(v)) + s * best_lam.imag / theta",
+        "float(u.speed_to_si(v)) - s * best_lam.imag / theta",
+        "sign",
+        ("tests/test_ring_waves.py", "tests/test_ring.py"),
+    ),
+    Mutation(
+        "M58",
+        "ring stability: wave speed without the flow's speed v*",
+        "aev_ocp/ring/stability.py",
+        "float(u.speed_to_si(v)) + s * best_lam.imag / theta",
+        "s * best_lam.imag / theta",
+        "missing term",
+        ("tests/test_ring_waves.py", "tests/test_ring.py"),
+    ),
+    Mutation(
+        "M59",
+        "declared ranges: a closed lower limit refuses the limit itself",
+        "aev_ocp/params.py",
+        "and (self.ge is None or x >= self.ge)",
+        "and (self.ge is None or x > self.ge)",
+        "wrong limit",
+        ("tests/test_range_boundaries.py", "tests/test_declared_validation.py"),
+    ),
+    Mutation(
+        "M60",
+        "declared ranges: an open upper limit accepts the limit itself",
+        "aev_ocp/params.py",
+        "and (self.lt is None or x < self.lt)",
+        "and (self.lt is None or x <= self.lt)",
+        "wrong limit",
+        ("tests/test_range_boundaries.py", "tests/test_declared_validation.py"),
+    ),
+    Mutation(
+        "M61",
+        "declared ranges: a closed upper limit refuses the limit itself",
+        "aev_ocp/params.py",
+        "and (self.le is None or x <= self.le)",
+        "and (self.le is None or x < self.le)",
+        "wrong limit",
+        ("tests/test_range_boundaries.py", "tests/test_declared_validation.py"),
+    ),
 )
 
 
@@ -323,6 +553,7 @@ class Outcome:
     first_failure: str
     message: str
     seconds: float
+    kind: str = "other"
 
 
 def repo_files(root: Path) -> list[str]:
@@ -377,15 +608,17 @@ def run_pytest(cwd: Path, args: list[str], timeout: float) -> tuple[int, str]:
         return -1, f"TIMEOUT after {timeout:.0f} s\n{exc.stdout or ''}"
 
 
-def run_one(m: Mutation | None, files: list[str], full: bool, timeout: float) -> Outcome:
+def run_one(m: Mutation | None, files: list[str], full: bool, timeout: float, own_only: bool = False) -> Outcome:
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory(prefix="aev_mut_") as tmp:
         dest = Path(tmp)
         make_copy(ROOT, files, dest)
         if m is not None:
             apply(dest, m)
-        stages = [] if full else [("fast", list(FAST_FILES))]
-        stages.append(("suite", ["-n", "2"]))
+        own = list(m.tests) if m is not None and m.tests else list(FAST_FILES)
+        stages = [] if full else [("own" if m is not None and m.tests else "fast", own)]
+        if not own_only or full:
+            stages.append(("suite", ["-n", "2"]))
         caught, stage, name, msg = False, "suite", "", ""
         for stage, args in stages:
             rc, out = run_pytest(dest, args, timeout)
@@ -396,17 +629,33 @@ def run_one(m: Mutation | None, files: list[str], full: bool, timeout: float) ->
                     name, msg = "(timeout)", out.splitlines()[0]
                 break
     key, what, path = (m.key, m.what, m.path) if m else ("base", "no mutation (baseline)", "-")
-    return Outcome(key, what, path, caught, stage, name, msg, time.perf_counter() - t0)
+    kind = m.kind if m else "-"
+    return Outcome(key, what, path, caught, stage, name, msg, time.perf_counter() - t0, kind)
 
 
 def table(rows: list[Outcome]) -> str:
-    head = f"{'key':<5} {'mutation':<58} {'file':<30} {'caught':<7} {'stage':<6} {'s':>6}  first failing test"
+    head = (
+        f"{'key':<5} {'class':<13} {'mutation':<58} {'file':<30} {'caught':<8} {'stage':<6} {'s':>6}"
+        "  first failing test"
+    )
     lines = [head, "-" * len(head)]
     for r in rows:
-        mark = ("FAILS" if r.caught else "passes") if r.key == "base" else ("yes" if r.caught else "NO")
+        mark = ("FAILS" if r.caught else "passes") if r.key == "base" else ("killed" if r.caught else "SURVIVED")
         lines.append(
-            f"{r.key:<5} {r.what[:58]:<58} {r.path:<30} {mark:<7} {r.stage:<6} {r.seconds:6.0f}  {r.first_failure}"
+            f"{r.key:<5} {r.kind:<13} {r.what[:58]:<58} {r.path:<30} {mark:<8} {r.stage:<6} {r.seconds:6.0f}"
+            f"  {r.first_failure}"
         )
+    return "\n".join(lines)
+
+
+def by_kind(rows: list[Outcome]) -> str:
+    """Killed/survived per bug class."""
+    lines = []
+    for kind in KINDS:
+        sel = [r for r in rows if r.key != "base" and r.kind == kind]
+        if sel:
+            k = sum(r.caught for r in sel)
+            lines.append(f"{kind:<13} {k:>3} killed {len(sel) - k:>3} survived")
     return "\n".join(lines)
 
 
@@ -416,13 +665,20 @@ def main() -> int:
     ap.add_argument("--full", action="store_true", help="skip the fast stage (whole suite for every mutation)")
     ap.add_argument("--baseline", action="store_true", help="also run the unmutated suite first (must pass)")
     ap.add_argument("--list", action="store_true", help="list the mutations and exit")
+    ap.add_argument("--kind", nargs="*", choices=KINDS, help="only the mutations of these bug classes")
+    ap.add_argument(
+        "--own",
+        action="store_true",
+        help="only each mutation's own test files (its module's tests; FAST_FILES for the older ones), no suite",
+    )
     ap.add_argument("--timeout", type=float, default=1200.0, help="seconds per pytest run")
     ap.add_argument("--json", default=str(ROOT / "benchmarks" / "mutation.json"))
     a = ap.parse_args()
-    todo = [m for m in MUTATIONS if not a.only or m.key in a.only]
+    todo = [m for m in MUTATIONS if (not a.only or m.key in a.only) and (not a.kind or m.kind in a.kind)]
     if a.list:
         for m in todo:
-            print(f"{m.key:<5} {m.path:<32} {m.what}")
+            own = " ".join(m.tests) if m.tests else "(fast files)"
+            print(f"{m.key:<5} {m.kind:<13} {m.path:<32} {m.what}  [{own}]")
         return 0
     files = repo_files(ROOT)
     for m in todo:  # fail early on a stale mutation (text not found)
@@ -433,7 +689,7 @@ def main() -> int:
     t0 = time.perf_counter()
     plan: list[Mutation | None] = ([None] if a.baseline else []) + list(todo)
     for m in plan:
-        r = run_one(m, files, a.full or m is None, a.timeout)
+        r = run_one(m, files, a.full or m is None, a.timeout, a.own)
         rows.append(r)
         verdict = (
             ("FAILS (the unmutated suite must pass)" if r.caught else "passes")
@@ -450,6 +706,8 @@ def main() -> int:
     total = time.perf_counter() - t0
     n_mut = sum(1 for r in rows if r.key != "base")
     n_caught = sum(1 for r in rows if r.key != "base" and r.caught)
+    print()
+    print(by_kind(rows))
     print(f"\n{n_caught}/{n_mut} mutations caught in {total:.0f} s")
     out = {
         "when": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),

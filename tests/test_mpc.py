@@ -28,10 +28,16 @@ from aev_ocp.ocp.oracle import OracleScenario, OracleSolver, stage_cost_of_traje
 from aev_ocp.params import EVParams, ParameterError
 
 
+#: wall-clock limits out of reach: these tests check what a step computes, never how fast (a loaded machine made
+#: RTI steps exceed the 100 ms default budget and fall back, cause 'budget'); speed is measured in
+#: benchmarks/bench_mpc.py, the budget's behaviour in tests/test_traffic_mpc.py (a budget no step can meet)
+NO_WALL_LIMITS = {"max_step_ms": 1e9, "max_cpu_time_s": 1e9}
+
+
 def S9(**kw) -> MPCSettings:
     """Solver settings of model guide §9's scenarios with the path these tests were written for (IPOPT,
-    interpreted) unless given; the problem is the formulation F9."""
-    return MPCSettings(**{"N": 40, "solver": "ipopt", "codegen": False, "predictor": "oracle", **kw})
+    interpreted) unless given, without wall-clock limits (NO_WALL_LIMITS); the problem is the formulation F9."""
+    return MPCSettings(**{"N": 40, "solver": "ipopt", "codegen": False, "predictor": "oracle", **NO_WALL_LIMITS, **kw})
 
 
 F9 = s9_formulation()  # model guide §9

@@ -170,8 +170,9 @@ def test_workers_start_with_sigint_blocked() -> None:
     with interrupts.sigint_blocked():
         p = ctx.Process(target=_report_mask, args=(q,))
         p.start()
-    blocked = q.get(timeout=30)
-    p.join(10)
+    blocked = q.get(timeout=600)  # bounds against a hang only: a spawned process imports the package first
+    p.join(600)
+    assert p.exitcode == 0
     assert signal.SIGINT in blocked
     assert signal.SIGINT not in signal.pthread_sigmask(signal.SIG_BLOCK, [])  # the mask is restored
 
