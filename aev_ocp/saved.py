@@ -167,7 +167,7 @@ def save_output(
         buf = io.BytesIO()
         # no allow_pickle keyword: NumPy < 2.2 would store it as an array (the stubs of newer NumPy see the
         # **arrays as that keyword)
-        np.savez(buf, **arrays)  # type: ignore[arg-type]
+        np.savez_compressed(buf, **arrays)  # type: ignore[arg-type]  # same arrays, about half the bytes
         data = buf.getvalue()
         with atomic_path(out / ARRAYS) as tmp:
             tmp.write_bytes(data)

@@ -73,12 +73,22 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+def _width(key: str) -> int:
+    """A column as wide as its full header (the key with its unit), at least 10 characters."""
+    return max(10, len(key))
+
+
+def _header() -> str:
+    """The table's header: every column's full key, unit included (never cut)."""
+    return f"{'run':<24}" + "  ".join(f"{k:>{_width(k)}}" for k in COLUMNS)
+
+
 def _row(label: str, fleet: dict[str, Any]) -> str:
     cells = []
     for k in COLUMNS:
         v = fleet[k]
         cells.append(f"{v:.4g}" if isinstance(v, float) else str(v))
-    return f"{label:<24}" + "  ".join(f"{c:>10}" for c in cells)
+    return f"{label:<24}" + "  ".join(f"{c:>{_width(k)}}" for c, k in zip(cells, COLUMNS))
 
 
 def cli_ring(argv: list[str]) -> int:
@@ -176,7 +186,7 @@ def cli_ring(argv: list[str]) -> int:
                 files.append(out / name)
     except (ParameterError, ScenarioError, OSError) as exc:
         return bad_input(exc)
-    print(f"{'run':<24}" + "  ".join(f"{c[:10]:>10}" for c in COLUMNS))
+    print(_header())
     for r in runs:
         print(_row(r.label, r.fleet))
     print(f"wrote {len(files)} files to {out}/")
