@@ -50,6 +50,8 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
         "results",
         (
             "aev_ocp.results",
+            "aev_ocp.intervals",
+            "aev_ocp.calibration",
             "aev_ocp.metrics",
             "aev_ocp.truncation",
             "aev_ocp.ocp.result",

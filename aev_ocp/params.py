@@ -294,15 +294,20 @@ class Units:
 class CarFollowingParams:
     """Coefficients of OVM / OVFL / the proposed law (paper eq. main_dynamics; model guide §2).
 
-    alpha: relaxation rate to V(h) [1/model time]; beta: follow-the-leader gain
-    [model length²/model time]; kappa: weight of the deceleration term [1/model length];
-    eps: smoothing of the term [model speed²].
+    The laws are the paper's dimensionless ones at their own length scale h_scale_m ℓ [m] and speed scale
+    v_scale_mps u [m/s] (law parameters, not the scenario's [units]): alpha: relaxation rate to V(h) [u/ℓ 1/s];
+    beta: follow-the-leader gain [ℓ u m²/s]; kappa: weight of the deceleration term [1/ℓ 1/m]; eps: smoothing of
+    the term [u² m²/s²]. model_units: the model units the laws are simulated in (set by scenario loaders from
+    [units]; None: the laws' own scales), see :meth:`aev_ocp.models.carfollowing.CarFollowingLaw.in_units`.
     """
 
     alpha: float = spec(2.0, ge=0)  # paper Fig. 1-2 captions, Table 1 setup
     beta: float = spec(3.0, ge=0)  # paper Fig. 1-2 captions
     kappa: float = spec(0.03, ge=0)  # paper Fig. 1-2 captions
     eps: float = spec(1e-6, gt=0)  # paper §2 ("e.g. 10^-6")
+    h_scale_m: float = spec(10.0, gt=0)  # model guide §1: the paper read at L = 10 m
+    v_scale_mps: float = spec(5.0, gt=0)  # model guide §1: U = 5 m/s (the paper's v_l = 1.7 is 8.5 m/s)
+    model_units: Units | None = spec(None, kind="instance", cls=Units, optional=True)  # set by loaders
 
     def __post_init__(self) -> None:
         validate_fields(self)

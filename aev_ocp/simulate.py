@@ -83,10 +83,13 @@ def _law_template(law: CarFollowingLaw) -> tuple[Any, Callable[[ca.SX], CarFollo
     their numbers. Dataclass laws whose accel works on symbolic coefficients get this; any other law
     (or one whose accel needs numbers) is compiled with its coefficients as constants (key = the law)."""
     if dataclasses.is_dataclass(law):
+        fixed = getattr(law, "compile_constants", ())  # compiled as constants (part of the key), e.g. a law's scales
         names = [
             f.name
             for f in dataclasses.fields(law)
-            if isinstance(getattr(law, f.name), float) and not isinstance(getattr(law, f.name), bool)
+            if isinstance(getattr(law, f.name), float)
+            and not isinstance(getattr(law, f.name), bool)
+            and f.name not in fixed
         ]
         if names:
 

@@ -30,6 +30,7 @@ LAW = Proposed(alpha=2.0, beta=3.0, kappa=0.03)
 def _ring_doc(dt: float, t_end_s: float, **sumo: object) -> dict:
     return {
         "units": {"length_m": U.length_m, "speed_mps": U.speed_mps},
+        "carfollowing": {"h_scale_m": U.length_m, "v_scale_mps": U.speed_mps},  # LAW's scales: the units
         "limits": {"enabled": False},
         "sumo": {
             "network": "ring",

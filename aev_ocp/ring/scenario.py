@@ -38,7 +38,7 @@ from typing import Any
 import numpy as np
 
 from ..limits import check_ring_cuts, check_ring_size
-from ..params import EVParams, ParameterError, echo
+from ..params import CarFollowingParams, EVParams, ParameterError, echo
 from ..scenarios import (
     ScenarioError,
     TableReader,
@@ -47,6 +47,7 @@ from ..scenarios import (
     register_section,
     standalone_header,
 )
+from ..scenarios.followers import _carfollowing
 from .laws import AEV_CONTROLLERS, IDM_SI, RING_PREDICTORS
 from .simulate import start_problem
 
@@ -65,7 +66,7 @@ HUMAN_MAX = {
     "noise_mps2": 10.0,
 }
 OVM_ALPHA_PER_S = 1.0  # the paper's OVM α = 2 (model, 1/T) at T = 2 s: 1 1/s
-_TOP = ("name", "description", "units", "vehicle", "cell", "pack", "limits", "mpc", "ring")
+_TOP = ("name", "description", "units", "vehicle", "cell", "pack", "limits", "carfollowing", "mpc", "ring")
 
 
 @dataclass(frozen=True)
@@ -120,6 +121,7 @@ class RingScenario:
     description: str = ""
     source: Path | None = None
     document: dict[str, Any] | None = field(default=None, compare=False, repr=False)
+    cf: CarFollowingParams = field(default_factory=CarFollowingParams)  # the AEV laws' coefficients and scales
 
     @property
     def density_per_km(self) -> float:
@@ -297,8 +299,9 @@ def parse_ring_scenario(doc: dict[str, Any], file: str = "<ring scenario>", sour
                 f"be one of {list(RING_PREDICTORS)} (an AEV forecasts its predecessor from its "
                 "own measurements)"
             )
+    cf = _carfollowing(top.sub("carfollowing"), sub_tables=False)[0]  # SI laws: [units] does not change them
     top.finish()
-    return RingScenario(name, spec, ev, mpc, description, source, copy.deepcopy(doc))
+    return RingScenario(name, spec, ev, mpc, description, source, copy.deepcopy(doc), cf)
 
 
 def load_ring_scenario(path: str | Path) -> RingScenario:
@@ -340,7 +343,10 @@ def build_ring(
         if s.human == "idm":
             humans.append(idm_si(ev.units, *[v * fk for v, fk in zip(s.human_params.values(), f)]))
         else:
-            humans.append(OVM(alpha=float(s.human_params["alpha_per_s"] * f[0] * ev.units.time_s)))
+            # OVM humans: the paper's V(h) at the laws' scales (CarFollowingParams), alpha_per_s in SI
+            hs, vs = sc.cf.h_scale_m, sc.cf.v_scale_mps
+            ovm = OVM(alpha=float(s.human_params["alpha_per_s"] * f[0] * (hs / vs)), h_scale_m=hs, v_scale_mps=vs)
+            humans.append(ovm.in_units(ev.units))
     base = RingRoad(
         length, tuple(humans), s.vehicle_length_m, ev, tuple([True] * s.vehicles), s.noise_mps2, s.noise_dt_s, s.seed
     )
@@ -352,7 +358,7 @@ def build_ring(
             raise ScenarioError(f"{sc.source or sc.name}: {exc}") from None
         mpc = (sc.mpc.settings, sc.mpc.formulation) if sc.mpc is not None else None
         for i in on:
-            vehicles[i] = make_aev(controller, ev, r_mps, mpc)
+            vehicles[i] = make_aev(controller, ev, r_mps, mpc, sc.cf)
             human[i] = False
     ring = RingRoad(length, tuple(vehicles), s.vehicle_length_m, ev, tuple(human), s.noise_mps2, s.noise_dt_s, s.seed)
     if s.positions_m is not None and s.speeds_mps is not None and length == s.length_m:

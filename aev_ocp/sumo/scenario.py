@@ -36,7 +36,8 @@ from typing import Any
 from ..limits import MAX_SUMO_T_END_S, check_sumo_size
 from ..models.carfollowing import LAW_REGISTRY
 from ..params import CarFollowingParams, EVParams, ParameterError
-from ..scenarios import ScenarioError, TableReader, _params, read_declared, read_scenario_doc, standalone_header
+from ..scenarios import ScenarioError, TableReader, read_declared, read_scenario_doc, standalone_header
+from ..scenarios.followers import _carfollowing
 from . import SumoError
 from .networks import NETWORKS, MergeNetwork, RingNetwork
 
@@ -338,7 +339,9 @@ def mpc_for(spec: SumoSpec, ev: EVParams, mpc: Any, file: str) -> Any:
 def parse_sumo_scenario(doc: dict[str, Any], file: str = "<sumo scenario>", source: Path | None = None) -> SumoScenario:
     """Validate a parsed TOML document into a :class:`SumoScenario` (errors name the file and key)."""
     top, name, description, ev = standalone_header(doc, file, source, _TOP, "sumo")
-    cf = _params(CarFollowingParams, top.sub("carfollowing"))
+    # the laws' coefficients and scales (SI, aev_ocp.scenarios.followers); they run in [units] with the same SI
+    # behaviour whatever the units (model_units: make_law returns them in those units)
+    cf = dataclasses.replace(_carfollowing(top.sub("carfollowing"), sub_tables=False)[0], model_units=ev.units)
     spec = parse_sumo_table(top.sub("sumo", required=True), source.parent if source is not None else None)
     mpc = None
     if "mpc" in doc:
