@@ -185,6 +185,10 @@ def test_per_cell_claims_on_inside_and_outside_the_resolution() -> None:
     ]
     lines = ls.life_claims(rows, 10.0)
     assert len(lines) == 3
+    # exactly on: near capacity 0.91 no two floats are 1e-3 apart, so the rule's boundary is checked where they are
+    exact = [dict(rows[0], controller=c, capacity_10y=v) for c, v in (("proposed", 2**-12), ("ovfl", 2**-12 + res))]
+    assert exact[1]["capacity_10y"] - exact[0]["capacity_10y"] == res
+    assert "no measurable difference" in ls.life_claims(exact, 10.0)[0]
     assert lines[0].startswith("- lg_m50 (NMC), US06, hot:") and "no measurable difference" in lines[0]
     assert lines[1].startswith("- a123_prada2013 (LFP), US06, hot:") and "no measurable difference" in lines[1]
     assert lines[2].startswith("- nca_kim2011 (NCA), US06, hot:") and "differ by 0.1 %" in lines[2]
