@@ -294,15 +294,20 @@ class Units:
 class CarFollowingParams:
     """Coefficients of OVM / OVFL / the proposed law (paper eq. main_dynamics; model guide §2).
 
-    alpha: relaxation rate to V(h) [1/model time]; beta: follow-the-leader gain
-    [model length²/model time]; kappa: weight of the deceleration term [1/model length];
-    eps: smoothing of the term [model speed²].
+    The laws are the paper's dimensionless ones at their own length scale h_scale_m ℓ [m] and speed scale
+    v_scale_mps u [m/s] (law parameters, not the scenario's [units]): alpha: relaxation rate to V(h) [u/ℓ 1/s];
+    beta: follow-the-leader gain [ℓ u m²/s]; kappa: weight of the deceleration term [1/ℓ 1/m]; eps: smoothing of
+    the term [u² m²/s²]. model_units: the model units the laws are simulated in (set by scenario loaders from
+    [units]; None: the laws' own scales), see :meth:`aev_ocp.models.carfollowing.CarFollowingLaw.in_units`.
     """
 
     alpha: float = spec(2.0, ge=0)  # paper Fig. 1-2 captions, Table 1 setup
     beta: float = spec(3.0, ge=0)  # paper Fig. 1-2 captions
     kappa: float = spec(0.03, ge=0)  # paper Fig. 1-2 captions
     eps: float = spec(1e-6, gt=0)  # paper §2 ("e.g. 10^-6")
+    h_scale_m: float = spec(10.0, gt=0)  # model guide §1: the paper read at L = 10 m
+    v_scale_mps: float = spec(5.0, gt=0)  # model guide §1: U = 5 m/s (the paper's v_l = 1.7 is 8.5 m/s)
+    model_units: Units | None = spec(None, kind="instance", cls=Units, optional=True)  # set by loaders
 
     def __post_init__(self) -> None:
         validate_fields(self)
@@ -493,7 +498,8 @@ class CellParams:
 
 
 def check_ocv_table(soc: Sequence[Any], ocv_V: Sequence[Any], where: str) -> None:
-    """An OCV table: ≥ 4 points, SOC strictly increasing from 0 to 1, OCV finite and > 0 [V]; ParameterError
+    """An OCV table: ≥ 4 points, SOC strictly increasing from 0 to 1, OCV finite, > 0 [V] and never falling with SOC
+    (rising from SOC 0 to 1); ParameterError
     '<where>.ocv_soc …' otherwise."""
     s = [float(x) for x in soc]
     v = [float(x) for x in ocv_V]
@@ -507,10 +513,26 @@ def check_ocv_table(soc: Sequence[Any], ocv_V: Sequence[Any], where: str) -> Non
         raise ParameterError(f"{where}.ocv_soc is not allowed: must run from 0 to 1, got {s[0]:g} … {s[-1]:g}")
     if any(x <= 0 for x in v):
         raise ParameterError(f"{where}.ocv_V is not allowed: every voltage must be > 0 V")
+    fall = next((i for i in range(1, len(v)) if v[i] < v[i - 1]), None)
+    if fall is not None or v[-1] <= v[0]:  # a cell's OCV rises with its charge (flat plateaus allowed, never falls)
+        at = (
+            f"it falls from {v[fall - 1]:g} V to {v[fall]:g} V between SOC {s[fall - 1]:g} and {s[fall]:g}"
+            if fall
+            else (f"it does not rise ({v[0]:g} V at SOC 0, {v[-1]:g} V at SOC 1)")
+        )
+        raise ParameterError(
+            f"{where}.ocv_V is not allowed: must not decrease with SOC and must end above its start (the open-circuit "
+            f"voltage of a cell rises as it charges); {at}"
+        )
 
 
 #: Molar gas constant [J/(mol K)] (CODATA 2018, exact).
 R_GAS_JPMOLK = 8.314462618
+
+
+#: Highest temperature a pack, its ambient or its limit may have [K]: lithium-ion cells go into thermal runaway
+#: at 400-500 K (Feng et al. 2018, Energy Storage Materials 10:246-267); 1000 K is far beyond any of them.
+MAX_TEMPERATURE_K = 1000.0
 
 
 @dataclass(frozen=True)
@@ -523,15 +545,22 @@ class ThermalParams:
     """
 
     enabled: bool = spec(False, kind="bool")  # off by default: the paper's model has no temperature
-    ambient_K: float = spec(298.15, gt=0)  # 25 °C: the temperature of the cell tables (T_ref_K)
-    T0_K: float | None = spec(None, gt=0, optional=True)  # initial pack temperature; None: ambient
+    ambient_K: float = spec(298.15, gt=0)  # 25 °C: the temperature of the cell tables (T_ref_K); below T_max_K
+    T0_K: float | None = spec(
+        None, gt=0, le=MAX_TEMPERATURE_K, optional=True
+    )  # initial pack temperature; None: ambient
     h_Wpm2K: float = spec(51.0, gt=0)  # forced air: Lin et al. 2014 measured R_u = 3.08 K/W for an A123 26650
     # in their fan-cooled fixture, i.e. h = 1/(R_u A) = 1/(3.08 × 6.37e-3 m²) ≈ 51 W/(m² K)
     cooling_power_W: float = spec(0.0, ge=0)  # extra heat removed from the pack [W] (active cooling); 0: none
-    T_max_K: float = spec(328.15, gt=0)  # A123 ANR26650M1-B datasheet: discharge operating limit 55 °C
+    T_max_K: float = spec(328.15, gt=0, le=MAX_TEMPERATURE_K)  # A123 ANR26650M1-B datasheet: discharge limit 55 °C
 
     def __post_init__(self) -> None:
         validate_fields(self)
+        if not self.T_max_K > self.ambient_K:  # a limit the pack exceeds at rest, before it moves
+            raise ParameterError(
+                f"ThermalParams.T_max_K = {echo(self.T_max_K)} is not allowed: must be a finite number in "
+                f"({self.ambient_K:g}, {MAX_TEMPERATURE_K:g}] K (above ambient_K = {self.ambient_K:g} K)"
+            )
 
     @property
     def initial_K(self) -> float:
@@ -594,6 +623,13 @@ class VehicleLimits:
     lag_s: float = spec(0.0, ge=0)  # first-order actuator lag tau [s]; 0: ideal actuator (the paper's model)
     v_max_mps: float = spec(62.5, gt=0)  # 2022 Tesla Model 3 RWD top speed, 225 km/h (manufacturer's data)
     enabled: bool = spec(True, kind="bool")  # False: no limit at all (the paper's laws; stated by its scenarios)
+    # The closed loop's command stages (aev_ocp.loop), between every sampled controller and the actuator: a
+    # first-order command filter (time constant [s]) and a jerk limit on the commands (|Δa|/dt [m/s^3]), and
+    # the braking-distance safety layer. None: the default (a production ACC's conditioning, PRODUCTION_ACC, for
+    # car-following laws under realistic sensors; off otherwise); 0 / False: off. The paper's runs leave them off.
+    command_filter_s: float | None = spec(None, ge=0, optional=True)
+    command_jerk_max_mps3: float | None = spec(None, ge=0, optional=True)
+    safety_layer: bool = spec(False, kind="bool")  # min(command, braking-distance bound) on every sampled command
 
     def __post_init__(self) -> None:
         validate_fields(self)
@@ -619,6 +655,10 @@ class VehicleLimits:
 #: The paper's laws as printed: no physical limit (Table 1, Fig. 1-5 and §9's canonical MPC state this).
 UNLIMITED = VehicleLimits(enabled=False)
 
+#: (a_min, a_max) [model acceleration] of the paper's canonical MPC (model guide §9: −3 ≤ a ≤ 2), the bounds of a
+#: controller on a vehicle without limits (UNLIMITED); −7.5 and 5 m/s² at the default units (L = 10 m, U = 5 m/s).
+PAPER_ACCEL_BOUNDS_MODEL = (-3.0, 2.0)
+
 
 @dataclass(frozen=True)
 class EVParams:
@@ -630,6 +670,23 @@ class EVParams:
     pack: PackParams = field(default_factory=PackParams)
     limits: VehicleLimits = field(default_factory=VehicleLimits)
     thermal: ThermalParams = field(default_factory=ThermalParams)
+
+    def __post_init__(self) -> None:
+        for name, cls in (("units", Units), ("vehicle", VehicleParams), ("cell", CellParams), ("pack", PackParams)):
+            check_argument("EVParams", name, getattr(self, name), cls)
+        check_argument("EVParams", "limits", self.limits, VehicleLimits)
+        check_argument("EVParams", "thermal", self.thermal, ThermalParams)
+        # the rules between tables: a constant cooling power above hA·T_amb would drive the pack's steady state
+        # T_amb − P_cool/hA (no heat from the cells, aev_ocp.models.thermal) below 0 K
+        th, cell, pack = self.thermal, self.cell, self.pack
+        hA = pack.n_cells * th.h_Wpm2K * cell.surface_area_m2  # as aev_ocp.models.thermal.conductance_WpK
+        cap = hA * th.ambient_K
+        if not th.cooling_power_W < cap:
+            raise ParameterError(
+                f"ThermalParams.cooling_power_W = {echo(th.cooling_power_W)} is not allowed: must be a finite number "
+                f"in [0, {cap:.6g}) W (hA x ambient_K = {hA:.6g} W/K x {th.ambient_K:g} K for this pack: more "
+                "cooling would drive the pack below 0 K)"
+            )
 
 
 def as_dict(obj: Any) -> dict[str, Any]:

@@ -194,7 +194,7 @@ def test_treiber_idm_in_model_units_is_the_si_formula() -> None:
     a_model = float(idm.function(u.length_from_si(h), u.speed_from_si(v), u.speed_from_si(vl)))
     assert float(u.accel_to_si(a_model)) == pytest.approx(a_si, rel=1e-12)
     # not the old model-unit IDM() (a = 19.3 m/s², b = 28.9 m/s², T = 0.71 s at these units)
-    assert float(u.accel_to_si(idm.a_max)) == pytest.approx(1.0) and float(u.time_to_si(idm.T_h)) == pytest.approx(1.5)
+    assert (idm.a_mps2, idm.T_s, idm.model_units) == (1.0, 1.5, u)  # the SI IDM, run in the case units
 
 
 # ----------------------------------------------------------------------------- the layer at motorway speed

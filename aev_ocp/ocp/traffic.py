@@ -44,7 +44,7 @@ import casadi as ca
 
 from ..models.actuator import actuator_rate
 from ..models.ego import STATE_NAMES, battery_side, following_ode
-from ..params import EVParams, ParameterError, PowertrainOptions, spec, validate_fields
+from ..params import PAPER_ACCEL_BOUNDS_MODEL, EVParams, ParameterError, PowertrainOptions, Units, spec, validate_fields
 from .following import (
     FollowingBounds,
     TemperatureTerms,
@@ -111,7 +111,10 @@ class TrafficParams:
 
 #: (a_min, a_max) [m/s²] of the formulation on a vehicle without limits (UNLIMITED): §9's −3 and 2 at the
 #: default units (L = 10 m, U = 5 m/s), the bounds this formulation had before vehicles had limits
-UNLIMITED_A_BOUNDS_MPS2 = (-7.5, 5.0)
+UNLIMITED_A_BOUNDS_MPS2 = (
+    float(Units().accel_to_si(PAPER_ACCEL_BOUNDS_MODEL[0])),
+    float(Units().accel_to_si(PAPER_ACCEL_BOUNDS_MODEL[1])),
+)
 
 
 def traffic_accel_bounds_mps2(ev: EVParams, tp: TrafficParams) -> tuple[float, float]:

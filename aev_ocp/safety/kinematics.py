@@ -26,7 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..numerics import bracketed_root
-from ..params import ParameterError
+from ..params import ParameterError, VehicleLimits
 
 AVOIDABLE = "avoidable"
 COLLISION_AVOIDABLE_ONLY = "collision-avoidable only"
@@ -165,7 +165,7 @@ def braking_bound(
     a_lead_mps2: float,
     *,
     t_brake_s: float = 0.0,
-    a_min_mps2: float = -8.0,
+    a_min_mps2: float = VehicleLimits().a_min_mps2,  # the default vehicle's (dry-road friction)
     lag_s: float = 0.0,
     floor_m: float = 2.0,
     jerk_max_mps3: float | None = None,

@@ -78,17 +78,13 @@ TREIBER_IDM_SI = {"a_mps2": 1.0, "b_mps2": 1.5, "T_s": 1.5, "s0_m": 2.0}
 
 def treiber_idm(v0_mps: float, units: Units) -> IDM:
     """The IDM with Treiber & Kesting's SI parameters (:data:`TREIBER_IDM_SI`) and desired speed v0_mps [m/s],
-    converted into the model units of ``units`` (the :class:`IDM` class works in model units)."""
+    in the model units of ``units`` (the SI :class:`IDM` given ``units``: the same numbers as converting each
+    parameter)."""
     if not (math.isfinite(v0_mps) and v0_mps > 0):
         raise ParameterError(f"treiber_idm: v0_mps = {v0_mps!r} is not allowed: must be a finite speed > 0")
     p = TREIBER_IDM_SI
-    return IDM(
-        a_max=float(units.accel_from_si(p["a_mps2"])),
-        b=float(units.accel_from_si(p["b_mps2"])),
-        v0=float(units.speed_from_si(v0_mps)),
-        s0=float(units.length_from_si(p["s0_m"])),
-        T_h=float(units.time_from_si(p["T_s"])),
-    )
+    law = IDM(a_mps2=p["a_mps2"], b_mps2=p["b_mps2"], v0_mps=float(v0_mps), s0_m=p["s0_m"], T_s=p["T_s"])
+    return dataclasses.replace(law, model_units=units)
 
 
 def _law(name: str, case: SafetyCase, units: Units) -> CarFollowingLaw:

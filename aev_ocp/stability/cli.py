@@ -195,12 +195,12 @@ def build_law(name: str, sets: list[str]) -> Any:
     from ..params import CarFollowingParams
 
     own, shared = parse_sets(name, sets)
-    known = {f.name for f in dataclasses.fields(CarFollowingParams)}
+    known = {f.name for f in dataclasses.fields(CarFollowingParams)} - {"model_units"}
     for k in shared:
         if k not in known:
             raise ParameterError(f"--set carfollowing.{k}: unknown coefficient: shared ones are {sorted(known)}")
     try:
-        params = CarFollowingParams(**shared)
+        params = CarFollowingParams(**dict[str, Any](shared))
     except ParameterError as exc:
         raise ParameterError(f"--set carfollowing.*: {exc}") from None
     if name.lower() not in LAW_REGISTRY:
