@@ -365,12 +365,14 @@ class RingResult:
         return x % self.ring.length_m if wrap else x
 
     def metrics(self) -> list[dict[str, Any]]:
-        """Per-vehicle metrics (aev_ocp.metrics.vehicle_metrics) plus battery energy per km [J/km]."""
+        """Per-vehicle metrics (aev_ocp.metrics.vehicle_metrics) plus the battery energy ∫P_b dt of the ring's own
+        quadrature [J] per km [J/km] and in kWh/100 km."""
         out = self.sim.metrics()
         for i, m in enumerate(out):
             d_km = float(self.distance[-1, i] * self.ring.ev.units.length_m) / 1000.0
-            m["energy_J"] = float(self.energy_J[-1, i])
-            m["energy_J_per_km"] = m["energy_J"] / d_km if d_km > 0 else math.nan
+            m["battery_energy_J"] = float(self.energy_J[-1, i])
+            m["battery_energy_J_per_km"] = m["battery_energy_J"] / d_km if d_km > 0 else math.nan
+            m["battery_energy_kWh_per_100km"] = m["battery_energy_J_per_km"] / 36000.0
             m["heat_pack_J_per_km"] = m["heat_pack_J"] / d_km if d_km > 0 else math.nan
         return out
 
