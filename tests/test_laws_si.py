@@ -197,6 +197,21 @@ def test_platoon_laws_do_not_depend_on_units() -> None:
         _same_si(sc.law(name), sc.units, other.law(name), other.units)
 
 
+@pytest.mark.parametrize("name", ["proposed", "ovfl", "idm"])
+def test_safety_suite_laws_do_not_depend_on_units(name: str) -> None:
+    from aev_ocp.safety.cases import CASE_UNITS, suite_cases
+    from aev_ocp.safety.suite import _law
+
+    case = suite_cases()[7]
+    other = Units(6.3, 21.0)
+    _same_si(_law(name, case, CASE_UNITS), CASE_UNITS, _law(name, case, other), other)
+    if name != "idm":  # at the suite's own units the law is the paper's expression, as before (bit for bit)
+        old = {"proposed": Proposed(), "ovfl": OVFL()}[name]  # the paper's law in model units, as the suite had it
+        new = _law(name, case, CASE_UNITS)
+        for h, v, vl in ((0.41, 0.93, 1.07), (1.9, 1.2, 0.6)):
+            assert float(new.function(h, v, vl)) == float(old.function(h, v, vl))
+
+
 def test_si_keys_of_carfollowing() -> None:
     from aev_ocp.scenarios.followers import _carfollowing
     from aev_ocp.scenarios.tables import ScenarioError, TableReader

@@ -87,12 +87,22 @@ def treiber_idm(v0_mps: float, units: Units) -> IDM:
     return dataclasses.replace(law, model_units=units)
 
 
+#: The length and speed scales of the suite's OV-type laws [m, m/s] (law parameters, not the suite's units)
+LAW_SCALE_M, LAW_SCALE_MPS = 15.0, 17.0
+
+
 def _law(name: str, case: SafetyCase, units: Units) -> CarFollowingLaw:
     """The law by name (the plant saturates it to the vehicle's limits like every other controller)."""
     if name == "idm":
         return treiber_idm(case.v_ego_mps, units)
-    law: CarFollowingLaw = {"proposed": Proposed(), "ovfl": OVFL()}[name]
-    return law
+    # the OV-type laws at SI scales of their own (the drive-cycle scenarios' 15 m / 17 m/s, where the suite's numbers
+    # were first measured), evaluated in whatever units the suite runs: a change of CASE_UNITS changes nothing in SI
+    law: CarFollowingLaw = (
+        Proposed(h_scale_m=LAW_SCALE_M, v_scale_mps=LAW_SCALE_MPS)
+        if name == "proposed"
+        else OVFL(h_scale_m=LAW_SCALE_M, v_scale_mps=LAW_SCALE_MPS)
+    )
+    return law.in_units(units)
 
 
 def worst_delay_s(lim: VehicleLimits, b_mps2: float) -> float:
