@@ -391,7 +391,11 @@ class ClosedLoop(PlatoonRun):
                 e: Estimate | None = None
                 if sm is not None:
                     te = time.perf_counter()
-                    z, meas, e = self._sensed(sm, ests[i], i, k, tk, float(a_app[j]))
+                    try:
+                        z, meas, e = self._sensed(sm, ests[i], i, k, tk, float(a_app[j]))
+                    except EstimateNotFinite as bad:
+                        events.append(Event("estimation_failed", tk, i, str(bad), float(u.time_to_si(tk))))
+                        break
                     est_s[i].append(time.perf_counter() - te)
                     meas_v[i].append(float(u.speed_from_si(e.lead_speed_mps if e is not None else meas.lead_speed_mps)))
                     v_true = vl_k if i == 0 else float(x[n + i - 1])
@@ -423,6 +427,8 @@ class ClosedLoop(PlatoonRun):
                 )
                 cmd, a_cmd[j] = cores[i].command(ctrl, obs)  # checked, conditioned, safety layer, limits
                 plans[i] = cmd.plan
+            if events:  # an estimator failed: nothing acts on its estimate
+                break
             # the new commands act from t_k on: check the demand they make right now, then integrate
             y0 = plant.samples(np.array([tk]), x[:, None], a_cmd)
             ev = plant.check(np.array([tk]), x[:, None], y0)
@@ -563,6 +569,7 @@ class ClosedLoop(PlatoonRun):
         e: Estimate | None = None
         if est is not None:
             e = est.reset(m) if k == 0 else est.update(m)
+            check_estimate(e, est, i, tk, u.time_to_si(tk), m.battery is None)
         if e is not None and math.isfinite(e.speed_mps):
             v = e.speed_mps
         else:
@@ -589,6 +596,31 @@ class ClosedLoop(PlatoonRun):
             out["sensors"] = as_dict(self.sensors)
             out["estimators"] = [e.describe() if e is not None else None for e in ests]
         return out
+
+
+class EstimateNotFinite(Exception):
+    """An estimator returned a NaN or infinite state (the loop stops with an 'estimation_failed' event)."""
+
+
+def check_estimate(e: Any, est: Any, i: int, t: float, t_s: float, cell: bool) -> None:
+    """Refuse what the estimator ``est`` of follower ``i`` returned at t [model] (t_s [s]): a ParameterError if it is
+    not an Estimate, :class:`EstimateNotFinite` (naming the field) if its gap, predecessor speed or (``cell``: the
+    battery is not measured) cell states are not finite numbers. A NaN gap would turn a law's command into NaN and
+    that into full braking without a word."""
+    name = getattr(est, "name", type(est).__name__)
+    if not isinstance(e, Estimate):
+        raise ParameterError(
+            f"closed loop: estimator {name!r} of vehicle {i + 1} returned {type(e).__name__} {e!r:.60} at "
+            f"t = {t_s:g} s: reset()/update() must return an aev_ocp.estimation.Estimate"
+        )
+    fields = ("gap_m", "lead_speed_mps") + (("soc", "V1_V", "V2_V") if cell else ())
+    for f in fields:
+        val = getattr(e, f)
+        if not (isinstance(val, numbers.Real) and math.isfinite(val)):
+            raise EstimateNotFinite(
+                f"estimator {name!r} of vehicle {i + 1} returned Estimate.{f} = {val!r:.40} at t = {t_s:g} s "
+                "(not a finite number): the run stops here instead of acting on it"
+            )
 
 
 def estimation_errors(err: np.ndarray, dt_s: float) -> dict[str, float]:

@@ -33,7 +33,8 @@ EVENT_KINDS = (
     "soc_out_of_range",
     "integration_failed",
     "time_limit",
-)  # time_limit: the run was stopped by its wall-clock limit (vehicle -1: the whole run)
+    "estimation_failed",
+)  # estimation_failed: an estimator returned a NaN/inf state (the run stopped there); time_limit: the run was stopped by its wall-clock limit (vehicle -1: the whole run)
 VIOLATED = "violated"  # status of a run that went below a controller's own hard gap floor (it did not stop)
 
 

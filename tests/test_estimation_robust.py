@@ -19,7 +19,7 @@ from aev_ocp.control import ClosedLoop
 from aev_ocp.estimation import EKF, MHE, Mismatch, Sensors
 from aev_ocp.models import battery
 from aev_ocp.mpc.cycles import cycle_scenario
-from aev_ocp.params import EVParams, ThermalParams
+from aev_ocp.params import EVParams, ParameterError, ThermalParams
 
 SEGMENT_S = 90.0  # the SOC error is checked over 60-90 s
 CELL_ERRORS = ("R0_rel", "R1_rel", "R2_rel", "C1_rel", "C2_rel", "capacity_rel")
@@ -148,3 +148,56 @@ def test_mhe_with_mismatch_holds_the_soc_and_solves_every_window() -> None:
     r, made = _run("hwfet", Mismatch(R1_rel=0.18, C2_rel=-0.16), 0.7, 2, "ovfl", estimator=MHE, segment_s=66.0)
     assert made[0].fails == 0 and r.meta["estimators"][0]["parameters"].startswith("the EKF's scales")
     assert r.solver_stats[0]["estimation"]["soc_err_max_after_60s_pct"] < 1.0
+
+
+class _NaNAfter:
+    """A wrapped EKF whose estimate turns NaN in ``field`` from its ``k``-th update on (or returns None)."""
+
+    def __init__(self, inner: Any, field: str, k: int) -> None:
+        self.inner, self.field, self.k, self.n = inner, field, k, 0
+        self.name = "nan_after"
+
+    def reset(self, first: Any) -> Any:
+        return self.inner.reset(first)
+
+    def update(self, y: Any) -> Any:
+        self.n += 1
+        e = self.inner.update(y)
+        if self.n < self.k:
+            return e
+        return None if self.field == "none" else dataclasses.replace(e, **{self.field: float("nan")})
+
+    def describe(self) -> dict[str, Any]:
+        return {"name": self.name}
+
+
+@pytest.mark.parametrize("field", ["gap_m", "lead_speed_mps"])
+def test_a_nan_estimate_stops_the_run_with_an_event_not_full_braking(field: str) -> None:
+    """A NaN gap estimate used to become a NaN law command and that full braking (status ok); now the run stops at
+    the first NaN with an 'estimation_failed' event naming the vehicle and the field."""
+    sc = cycle_scenario("udds", 30.0)
+    law = sc.law("proposed")
+
+    def factory(model_ev: EVParams, s: Sensors, off: float, i: int) -> Any:
+        return _NaNAfter(EKF(model_ev, s, soc0=0.7, ocv_offset_V=off), field, 37)
+
+    r = ClosedLoop(sc.leader, [law], sc.ev, sensors=Sensors(seed=3), estimator=factory, law_dt=0.2).run(
+        sc.gaps0, sc.speeds0, sc.t_end
+    )
+    assert r.status == "estimation_failed"
+    ev = r.events[0]
+    assert ev.vehicle == 0 and f"Estimate.{field}" in ev.message and "nan_after" in ev.message
+    assert ev.time == pytest.approx(37 * 0.2, abs=1e-9)  # the 37th update, law_dt = 0.2 [model]
+    # nothing acted on the NaN: the applied accelerations stay finite and well above full braking until then
+    assert np.all(np.isfinite(r.accel)) and r.t[-1] <= ev.time + 1e-9
+
+
+def test_an_estimator_returning_none_is_refused_by_name() -> None:
+    sc = cycle_scenario("udds", 30.0)
+
+    def factory(model_ev: EVParams, s: Sensors, off: float, i: int) -> Any:
+        return _NaNAfter(EKF(model_ev, s, soc0=0.7, ocv_offset_V=off), "none", 5)
+
+    loop = ClosedLoop(sc.leader, [sc.law("ovfl")], sc.ev, sensors=Sensors(seed=3), estimator=factory, law_dt=0.2)
+    with pytest.raises(ParameterError, match="estimator 'nan_after' of vehicle 1 returned NoneType"):
+        loop.run(sc.gaps0, sc.speeds0, sc.t_end)
