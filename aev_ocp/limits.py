@@ -19,7 +19,7 @@ import errno
 import math
 import os
 import stat
-from typing import Callable
+from typing import Callable, Sequence
 
 from .params import ParameterError, SimOptions
 
@@ -140,6 +140,23 @@ def check_simulation_size(n_followers: int, t_end: float, dt_out: float) -> floa
         f"($AEV_OCP_MAX_MEMORY_GB): raise dt_out, lower t_end, or simulate at most "
         f"{int(limit // per_vehicle)} followers"
     )
+
+
+def check_suite_size(t_ends: Sequence[float], n_runs_per_case: int, dt_out: float, kept: bool, n_workers: int) -> float:
+    """For the safety suite (:func:`aev_ocp.safety.suite.run_suite`): raise ParameterError if its runs (one vehicle
+    over each case's t_end [model] sampled every dt_out [model], ``n_runs_per_case`` controllers x actuators per case)
+    exceed the memory budget: all of them when their trajectories are ``kept`` (workers = 1), else the
+    ``n_workers`` longest at once; returns the estimate [bytes]."""
+    per_case = sorted((estimate_run_bytes(1, t, dt_out) for t in t_ends), reverse=True)
+    need = n_runs_per_case * (math.fsum(per_case) if kept else math.fsum(per_case[: max(n_workers, 1)]))
+    limit = memory_limit_bytes()
+    if need > limit:
+        raise ParameterError(
+            f"safety suite: {len(per_case)} cases x {n_runs_per_case} runs (controllers x actuators) need about "
+            f"{_gb(need)}, more than the limit of {_gb(limit)} ($AEV_OCP_MAX_MEMORY_GB): run fewer or shorter "
+            "cases, fewer controllers or actuators, or more --workers (which keep no trajectories)"
+        )
+    return need
 
 
 # Peak memory of a ring run per (sample x vehicle): 249-251 B measured (tracemalloc peak of run_ring, i.e. the

@@ -81,3 +81,28 @@ def test_read_regular_file_reads_up_to_the_limit_and_refuses_the_rest(tmp_path) 
         limits.read_regular_file(tmp_path / "a", 10**6)
     with pytest.raises(limits.FileRefused, match="No such file"):
         limits.read_regular_file(tmp_path / "missing", 10**6)
+
+
+def test_the_safety_suite_reads_the_memory_budget_before_any_case(monkeypatch, tmp_path) -> None:
+    """The suite used to ignore $AEV_OCP_MAX_MEMORY_GB for its closed-loop runs (a layered law or the MPC: nothing
+    checked) and to refuse its bare laws' runs deep inside with simulate's advice; now it checks the whole suite
+    first: on the limit it runs, a byte below it is refused naming the variable; a bad value is exit 2 and no folder."""
+    from aev_ocp.cli import main
+    from aev_ocp.safety.cases import CASE_UNITS, suite_cases
+    from aev_ocp.safety.suite import LAW_DT_OUT, run_suite
+
+    cases = suite_cases(True)[:2]
+    t_ends = [float(CASE_UNITS.time_from_si(c.t_end_s)) for c in cases]
+    need = sum(limits.estimate_run_bytes(1, t, LAW_DT_OUT) for t in t_ends) * 2  # 2 controllers x 1 actuator
+    monkeypatch.setenv("AEV_OCP_MAX_MEMORY_GB", repr(need * 0.999 / 1e9))
+    with pytest.raises(ParameterError, match=r"safety suite: 2 cases x 2 runs .*AEV_OCP_MAX_MEMORY_GB"):
+        run_suite(cases, ["proposed+layer", "ovfl+layer"], actuators=["ideal"], workers=1)
+    # with two workers only the two longest runs of each kind are held at once: the same budget is enough
+    assert limits.check_suite_size(t_ends, 2, LAW_DT_OUT, False, 1) < need * 0.999
+    monkeypatch.setenv("AEV_OCP_MAX_MEMORY_GB", repr(need * 1.001 / 1e9))
+    out = run_suite(cases, ["proposed+layer", "ovfl+layer"], actuators=["ideal"], workers=1)
+    assert len(out.rows) == 4
+    monkeypatch.setenv("AEV_OCP_MAX_MEMORY_GB", "-3")
+    monkeypatch.chdir(tmp_path)
+    assert main(["safety", "--quick", "--controllers", "proposed", "--out", "o", "--workers", "1"]) == 2
+    assert not (tmp_path / "o").exists()

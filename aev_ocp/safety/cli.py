@@ -44,6 +44,7 @@ def gate_controllers(controllers: list[str]) -> list[str]:
 
 def cli_safety(argv: list[str]) -> int:
     """Entry point of ``aev-ocp safety``; returns the exit code."""
+    from ..limits import memory_limit_bytes
     from ..params import ParameterError
     from ..results import claim_output_dir
     from .report import FILES, summary, write_outputs
@@ -58,6 +59,7 @@ def cli_safety(argv: list[str]) -> int:
     out = Path(a.out) if a.out else Path("results") / "safety"
     say = lambda m: print(f"[safety] {m}", file=sys.stderr, flush=True)  # noqa: E731
     try:
+        memory_limit_bytes()  # a bad $AEV_OCP_MAX_MEMORY_GB is refused before the output folder is claimed
         if a.workers is not None and a.workers < 1:
             raise ParameterError(f"--workers = {a.workers} is not allowed: must be >= 1")
         claim_output_dir(out, "safety", "quick" if a.quick else "suite", None, list(FILES))

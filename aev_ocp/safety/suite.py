@@ -35,6 +35,7 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from ..control import ClosedLoop, Command, Observation
+from ..limits import check_suite_size
 from ..models.carfollowing import IDM, OVFL, CarFollowingLaw, Proposed
 from ..models.leader import BrakingLeader
 from ..mpc.policy import MPCPolicy
@@ -528,6 +529,14 @@ def run_suite(
     settings = settings or MPCSettings()
     formulation = formulation or traffic_formulation()
     n_workers = min(workers or os.cpu_count() or 1, max(len(cases), 1))
+    u = ev.units
+    check_suite_size(  # $AEV_OCP_MAX_MEMORY_GB, before any case runs (the runs are sampled every LAW_DT_OUT at most)
+        [float(u.time_from_si(c.t_end_s)) for c in cases],
+        len(controllers) * len(actuators),
+        LAW_DT_OUT,
+        n_workers == 1,
+        n_workers,
+    )
     setup = _Setup(tuple(controllers), tuple(actuators), ev, settings, formulation, n_workers == 1)
     rows: list[CaseRow] = []
     runs: dict[str, dict[str, SimulationResult]] = {}
