@@ -319,7 +319,11 @@ def cmd_replay(args: argparse.Namespace) -> int:
         f"peak cell current {s['max_abs_current_A']:.4g} A (limit {s['cell_current_limit_A']:g} A)"
     )
     if args.json:
-        print(f"wrote {write_json(args.json, s)}")
+        try:
+            print(f"wrote {write_json(args.json, s)}")
+        except OSError as exc:  # a folder, a read-only place: name the option, not a temporary file
+            _err(f"--json {args.json}: cannot write it ({exc.strerror or type(exc).__name__})")
+            return EXIT_BAD_INPUT
     for e in res.events:
         _err(f"replay {s['trace']}: {e}")
     return EXIT_FAILED_RUN if res.events else EXIT_OK

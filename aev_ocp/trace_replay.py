@@ -198,13 +198,37 @@ def replay(
         ev = dataclasses.replace(ev, vehicle=dataclasses.replace(ev.vehicle, powertrain=powertrain))
     s0 = ev.cell.soc0 if soc0 is None else float(check_declared(CellParams, "soc0", soc0, "replay"))
     name, t, v = _trace(trace)
+    lim = ev.limits
+    if lim.enabled and float(v.max()) > lim.v_max_mps:
+        k = int(np.argmax(v > lim.v_max_mps))
+        raise ParameterError(
+            f"replay: trace {name}: speed_mps = {float(v[k]):g} at t = {float(t[k]):g} s is above the vehicle's top "
+            f"speed limits.v_max_mps = {lim.v_max_mps:g} m/s"
+        )
     dt = np.diff(t)
     a = np.diff(v) / dt
+    # no tyre grips beyond the friction limit |a_min| (0.8 g), either way: a jump of the trace is not a drive (the
+    # battery's check at the samples would miss the interval's demand and report nonsense with status ok)
+    a_grip = abs(lim.a_min_mps2)
+    if lim.enabled and float(np.abs(a).max()) > a_grip * (1 + 1e-12):
+        k = int(np.argmax(np.abs(a) > a_grip * (1 + 1e-12)))
+        raise ParameterError(
+            f"replay: trace {name}: speed_mps goes from {float(v[k]):g} to {float(v[k + 1]):g} m/s between t = "
+            f"{float(t[k]):g} and {float(t[k + 1]):g} s, an acceleration of {float(a[k]):.4g} m/s^2, beyond the "
+            f"tyre-road friction limit |limits.a_min_mps2| = {a_grip:g} m/s^2"
+        )
     step, probe = _interval(ev)
     x0 = np.zeros(3 + len(INTEGRALS))
     x0[2] = s0
     P = np.vstack([v[:-1], a, dt])
-    X = np.asarray(step.mapaccum("replay", dt.size)(x0, P))
+    try:
+        X = np.asarray(step.mapaccum("replay", dt.size)(x0, P))
+    except RuntimeError as exc:  # CVODES gave up (a demand far outside the cell's range)
+        reason = str(exc).rsplit(":", 1)[-1].strip()[:120]
+        raise ParameterError(
+            f"replay: trace {name}: the battery's integration failed ({reason}); check the trace's speeds and "
+            "accelerations (speed_mps, time_s)"
+        ) from None
     X = np.hstack([x0[:, None], X])
     a_at = np.append(a, a[-1])  # the acceleration of the interval that starts at each sample (the last: its own)
     I, disc = (np.asarray(o).ravel() for o in probe.map(t.size)(X, v[None, :], a_at[None, :]))

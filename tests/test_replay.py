@@ -136,6 +136,9 @@ def test_cli_replay(tmp_path, capsys) -> None:  # noqa: ANN001
     assert s["powertrain"] == "constant" and s["battery_energy_kWh_per_100km"] > 10
     rc, _, stderr = run_cli(["replay", "nedc"], capsys)
     assert rc == 2 and stderr.startswith("aev-ocp: error: replay: trace 'nedc'")
+    # --json onto a folder: one line naming the option (it named a temporary file '..xyz.tmp' before)
+    rc, _, stderr = run_cli(["replay", "hwfet", "--json", str(tmp_path)], capsys)
+    assert rc == 2 and stderr.startswith(f"aev-ocp: error: --json {tmp_path}: cannot write it"), stderr
 
 
 def test_plant_with_the_map_matches_the_replay() -> None:
@@ -167,3 +170,30 @@ def test_plant_with_the_map_matches_the_replay() -> None:
     assert m["battery_energy_J"] == pytest.approx(rep.battery_energy_J, rel=2e-3)  # the samples' trapezoid
     const = aev_ocp.replay((dt_s * np.arange(v.size), v), ev=ev, powertrain="constant")
     assert abs(r.S[-1, 0] - const.soc[-1]) > 1e-5  # the plant did use the map
+
+
+@pytest.mark.parametrize(
+    ("v1", "dt1", "ok", "match"),
+    [
+        (7.93, 1.0, True, ""),  # inside the grip limit (8 m/s^2)
+        (8.0, 1.0, True, ""),  # exactly on it
+        (8.07, 1.0, False, "tyre-road friction limit"),  # just outside
+        (60.0, 1e-6, False, "6e\\+07 m/s\\^2"),  # a jump: status ok and 1.7e11 kJ/km of pack heat before
+        (1e300, 1.0, False, "limits.v_max_mps = 62.5"),  # CVODES failed with an internal error before
+    ],
+)
+def test_a_trace_beyond_the_grip_or_the_top_speed_is_refused(v1: float, dt1: float, ok: bool, match: str) -> None:
+    t, v = [0.0, dt1, dt1 + 3.0], [0.0, v1, max(v1 - 3.0 * 7.5, 0.0) if v1 < 100 else 3.0]
+    if ok:
+        r = aev_ocp.replay((t, v))
+        assert r.status == "ok" and r.distance_m == pytest.approx(0.5 * v1 * dt1 + 0.5 * (v[1] + v[2]) * 3.0)
+    else:
+        with pytest.raises(ParameterError, match=match):
+            aev_ocp.replay((t, v))
+
+
+def test_top_speed_on_and_above_the_limit() -> None:
+    t = [0.0, 10.0, 20.0]
+    assert aev_ocp.replay((t, [0.0, 62.5, 60.0])).status in ("ok", "infeasible_current")  # on v_max: not refused
+    with pytest.raises(ParameterError, match="speed_mps = 62.51 at t = 10 s"):
+        aev_ocp.replay((t, [0.0, 62.51, 60.0]))
