@@ -72,19 +72,33 @@ def calibrate(
 ) -> Calibration:
     """Fit ``free`` parameters of law ``law_name`` (default :data:`DEFAULT_FREE`) from ``start`` (default the law's
     defaults) so that its equilibrium gap at ``speed_mps`` matches ``gap_m`` in least squares."""
-    v = np.asarray(speed_mps, float)
-    g = np.asarray(gap_m, float)
-    if v.shape != g.shape or v.size < 2 or not (np.all(np.isfinite(v)) and np.all(np.isfinite(g))):
-        raise ParameterError("calibrate: speed_mps and gap_m need as many finite values (at least 2)")
+    v, g = _points(speed_mps, "speed_mps"), _points(gap_m, "gap_m")
+    if v.size != g.size:
+        raise ParameterError(f"calibrate: speed_mps and gap_m need as many values, got {v.size} and {g.size}")
     if np.any(v < 0) or np.any(g <= 0):
-        raise ParameterError("calibrate: speeds must be >= 0 and gaps > 0")
+        raise ParameterError("calibrate: speeds must be >= 0 and gaps > 0 (speed_mps, gap_m)")
+    if float(v.max()) > V_MAX_TARGET_MPS:
+        raise ParameterError(
+            f"calibrate: speed_mps = {float(v.max()):g} is not allowed: an equilibrium speed is at most "
+            f"{V_MAX_TARGET_MPS:g} m/s"
+        )
     base = start if start is not None else make_law(law_name)
+    if isinstance(free, str) or (free is not None and not all(isinstance(n, str) for n in free)):
+        raise ParameterError(f"calibrate: free = {free!r:.60} must be a list of parameter names")
     names = tuple(free if free is not None else DEFAULT_FREE.get(law_name, ()))
     if not names:
         raise ParameterError(f"calibrate: no free parameters for law {law_name!r}")
+    if len(set(names)) != len(names):
+        raise ParameterError(f"calibrate: free = {list(names)} names a parameter twice")
     x = ca.SX.sym("x", len(names))
     trial = _symbolic(base, names, x)
     r = ca.vertcat(*[_gap_expr(trial, float(vk)) - float(gk) for vk, gk in zip(v, g)])
+    idle = [n for i, n in enumerate(names) if not ca.depends_on(r, x[i])]
+    if idle:  # a parameter the equilibrium gap does not depend on: IPOPT would drift it anywhere (a_mps2 = 1e5)
+        raise ParameterError(
+            f"calibrate: free parameter(s) {idle} of law {law_name!r} do not change its equilibrium gap, so the "
+            "target cannot fix them: leave them out of free"
+        )
     lbx = [1e-6] * len(names)
     if isinstance(base, OVLaw) and "v_scale_mps" in names:  # v/u − tanh 2 must stay inside (−1, 1)
         lbx[names.index("v_scale_mps")] = float(v.max()) / V_INF * (1 + 1e-6) + 1e-9
@@ -95,7 +109,12 @@ def calibrate(
         {"x": x, "f": 0.5 * ca.dot(r, r)},
         {"ipopt.print_level": 0, "print_time": 0, "ipopt.tol": 1e-10, "ipopt.sb": "yes"},
     )
-    sol = solver(x0=x0, lbx=lbx, ubx=[1e6] * len(names))
+    try:
+        sol = solver(x0=x0, lbx=lbx, ubx=[1e6] * len(names))
+    except RuntimeError as exc:  # IPOPT stopped on a NaN/inf it could not step around
+        raise ParameterError(
+            f"calibrate: the fit of {law_name!r} failed ({str(exc).rsplit(':', 1)[-1].strip()[:100]})"
+        ) from None
     if not solver.stats()["success"]:
         raise ParameterError(f"calibrate: the fit of {law_name!r} failed ({solver.stats()['return_status']})")
     params = {n: float(sol["x"][i]) for i, n in enumerate(names)}
@@ -103,6 +122,34 @@ def calibrate(
     res = np.array([law.equilibrium_gap_m(float(vk)) - float(gk) for vk, gk in zip(v, g)])
     target = {"speed_mps": v.tolist(), "gap_m": g.tolist()}
     return Calibration(law_name, params, law, target, float(np.sqrt(np.mean(res**2))), float(np.max(np.abs(res))))
+
+
+#: the largest equilibrium speed a target may hold [m/s]: 2022 Tesla Model 3 RWD top speed, 225 km/h
+#: (VehicleLimits.v_max_mps)
+V_MAX_TARGET_MPS = 62.5
+
+
+def _points(x: Any, key: str) -> np.ndarray:
+    """``x`` as a 1-D float array of at least 2 finite real numbers (no bool, no string), else a ParameterError."""
+    seq = list(x) if isinstance(x, (list, tuple, np.ndarray)) else None
+    if (
+        seq is None
+        or np.ndim(x) != 1
+        or len(seq) < 2
+        or not all(
+            isinstance(e, (int, float, np.integer, np.floating)) and not isinstance(e, (bool, np.bool_)) for e in seq
+        )
+        or not all(math.isfinite(float(e)) for e in seq)
+    ):
+        raise ParameterError(f"calibrate: {key} = {x!r:.60} must be a list of at least 2 finite numbers")
+    return np.asarray(seq, float)
+
+
+def _toml_str(text: str) -> str:
+    """``text`` as a TOML basic string (JSON's escapes are TOML's: quotes, backslashes, line breaks)."""
+    import json
+
+    return json.dumps(str(text), ensure_ascii=False)
 
 
 def _symbolic(law: CarFollowingLaw, names: tuple[str, ...], x: Any) -> CarFollowingLaw:
@@ -119,15 +166,32 @@ def _symbolic(law: CarFollowingLaw, names: tuple[str, ...], x: Any) -> CarFollow
 def save(cal: Calibration, path: str | Path, target_name: str = "", source: str = "") -> Path:
     """Write the set as TOML (law, parameters, target with its source, residuals), atomically."""
     p = Path(path)
-    lines = [f'law = "{cal.law_name}"', f"rms_m = {cal.rms_m!r}", f"max_abs_m = {cal.max_abs_m!r}", "", "[params]"]
+    lines = [
+        f"law = {_toml_str(cal.law_name)}",
+        f"rms_m = {cal.rms_m!r}",
+        f"max_abs_m = {cal.max_abs_m!r}",
+        "",
+        "[params]",
+    ]
     lines += [f"{k} = {v!r}" for k, v in cal.params.items()]
-    lines += ["", "[target]", f'name = "{target_name}"', f'source = "{source}"']
+    lines += ["", "[target]", f"name = {_toml_str(target_name)}", f"source = {_toml_str(source)}"]
     lines += [f"speed_mps = {cal.target['speed_mps']!r}", f"gap_m = {cal.target['gap_m']!r}", ""]
-    p.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=p.parent, suffix=".tmp")
-    with os.fdopen(fd, "w") as f:
-        f.write("\n".join(lines))
-    os.replace(tmp, p)
+    try:
+        p.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(dir=p.parent, suffix=".tmp")
+    except OSError as exc:
+        raise ParameterError(
+            f"calibration file {path}: cannot write it ({exc.strerror or type(exc).__name__})"
+        ) from None
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as f:
+            f.write("\n".join(lines))
+        os.replace(tmp, p)
+    except OSError as exc:
+        Path(tmp).unlink(missing_ok=True)
+        raise ParameterError(
+            f"calibration file {path}: cannot write it ({exc.strerror or type(exc).__name__})"
+        ) from None
     return p
 
 
@@ -139,8 +203,8 @@ def load(path: str | Path) -> tuple[CarFollowingLaw, dict[str, Any]]:
     if not p.exists() and p.suffix == "" and (DATA / f"{p.name}.toml").is_file():
         p = DATA / f"{p.name}.toml"
     try:
-        doc = tomllib.loads(p.read_text())
+        doc = tomllib.loads(p.read_text(encoding="utf-8"))
         law = make_law(doc["law"], None, **doc["params"])
-    except (OSError, KeyError, tomllib.TOMLDecodeError, TypeError) as exc:
+    except (OSError, KeyError, tomllib.TOMLDecodeError, TypeError, UnicodeDecodeError) as exc:
         raise ParameterError(f"calibration file {path}: cannot read it ({type(exc).__name__}: {exc})") from None
     return law, doc

@@ -297,3 +297,43 @@ def test_calibrated_proposed_law_is_the_same_si_law_on_ring_sumo_and_platoon_wha
             assert float(law.accel(u.length_from_si(g), u.speed_from_si(v), u.speed_from_si(v))) == pytest.approx(
                 0.0, abs=1e-9
             )
+
+
+@pytest.mark.parametrize(
+    ("kw", "match"),
+    [
+        ({"speed_mps": [5.0, 10.0, 1e300]}, "speed_mps = 1e\\+300 is not allowed"),  # was a CasADi RuntimeError
+        ({"speed_mps": [[5.0, 10.0]], "gap_m": [[20.0, 30.0]]}, "speed_mps = .* at least 2 finite"),  # TypeError
+        ({"speed_mps": ["a", "b"], "gap_m": [1.0, 2.0]}, "speed_mps"),  # ValueError before
+        ({"speed_mps": [True, False], "gap_m": [20.0, 30.0]}, "speed_mps"),  # fitted bools before
+        ({"free": "T_s"}, "free = 'T_s' must be a list"),  # said "no parameter 'T'" before
+        ({"free": ["a_mps2"]}, "\\['a_mps2'\\] .* do not change its equilibrium gap"),  # a_mps2 = 1.2e5 before
+        ({"free": ["s0_m", "s0_m"]}, "twice"),
+    ],
+)
+def test_calibrate_refuses_bad_targets_and_free_parameters_by_name(kw: dict, match: str) -> None:
+    from aev_ocp.calibration import calibrate
+
+    args = {"speed_mps": [5.0, 10.0, 15.0], "gap_m": [21.0, 32.0, 43.0], **kw}
+    with pytest.raises(ParameterError, match=match):
+        calibrate("idm", args.pop("speed_mps"), args.pop("gap_m"), **args)
+
+
+def test_calibration_at_the_top_speed_and_a_saved_set_with_quotes_round_trips(tmp_path) -> None:  # noqa: ANN001
+    from aev_ocp.calibration import calibrate, load, save
+
+    from aev_ocp.models.carfollowing import make_law
+
+    truth = make_law("ovfl", None, h_scale_m=23.7, v_scale_mps=41.3)
+    v = [4.0, 12.0, 62.5]  # on the top speed: allowed
+    cal = calibrate("ovfl", v, [truth.equilibrium_gap_m(x) for x in v])
+    assert cal.params["h_scale_m"] == pytest.approx(23.7, rel=1e-6) and cal.max_abs_m < 1e-6
+    p = save(cal, tmp_path / "c.toml", target_name='my "fit"\nline', source="C:\\data")  # wrote broken TOML before
+    law, doc = load(p)
+    assert doc["target"]["name"] == 'my "fit"\nline' and doc["target"]["source"] == "C:\\data"
+    assert law.h_scale_m == cal.law.h_scale_m
+    (tmp_path / "bin.toml").write_bytes(b"\xff\xfelaw")
+    with pytest.raises(ParameterError, match="bin.toml: cannot read it"):  # UnicodeDecodeError before
+        load(tmp_path / "bin.toml")
+    with pytest.raises(ParameterError, match="cannot write it"):  # FileExistsError before
+        save(cal, tmp_path / "bin.toml" / "x.toml")
