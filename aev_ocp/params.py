@@ -604,6 +604,14 @@ class PowertrainOptions:
 JERK_ONLY_LAG_S = 0.02
 
 
+#: the slowest command filter [s] and the smallest non-zero command jerk limit [m/s^3] a vehicle may declare:
+#: production ACCs filter their commands over 0.1–0.5 s and limit jerk to 2.5–5 m/s^3 (ISO 15622, ISO 22179;
+#: aev_ocp.loop.PRODUCTION_ACC); 10x slower / 25x lower than those still lets a command act within a run, beyond
+#: that the controller is silently ignored (a 1e300 s filter, a 1e-300 m/s^3 jerk limit ran with status ok).
+MAX_COMMAND_FILTER_S = 5.0
+MIN_COMMAND_JERK_MPS3 = 0.1
+
+
 @dataclass(frozen=True)
 class VehicleLimits:
     """The physical limits of one vehicle's longitudinal motion, SI units, declared once and enforced by the
@@ -627,12 +635,20 @@ class VehicleLimits:
     # first-order command filter (time constant [s]) and a jerk limit on the commands (|Δa|/dt [m/s^3]), and
     # the braking-distance safety layer. None: the default (a production ACC's conditioning, PRODUCTION_ACC, for
     # car-following laws under realistic sensors; off otherwise); 0 / False: off. The paper's runs leave them off.
-    command_filter_s: float | None = spec(None, ge=0, optional=True)
+    # Upper bound of the filter: MAX_COMMAND_FILTER_S (a slower filter ignores the controller); a jerk limit is 0
+    # (off) or at least MIN_COMMAND_JERK_MPS3 (below, the command cannot change in any run's horizon).
+    command_filter_s: float | None = spec(None, ge=0, le=MAX_COMMAND_FILTER_S, optional=True)
     command_jerk_max_mps3: float | None = spec(None, ge=0, optional=True)
     safety_layer: bool = spec(False, kind="bool")  # min(command, braking-distance bound) on every sampled command
 
     def __post_init__(self) -> None:
         validate_fields(self)
+        j = self.command_jerk_max_mps3
+        if j is not None and 0 < j < MIN_COMMAND_JERK_MPS3:
+            raise ParameterError(
+                f"VehicleLimits.command_jerk_max_mps3 = {j!r} is not allowed: must be 0 (off) or a finite number "
+                f">= {MIN_COMMAND_JERK_MPS3:g}"
+            )
 
     @property
     def actuator_tau_s(self) -> float:

@@ -454,3 +454,25 @@ def test_sumo_laws_count_their_saturated_steps_without_stages() -> None:
     assert st_["conditioning"] == "none" and st_["steps"] == 20 and st_["saturated_steps"] >= 1
     a = np.diff(run.vehicles["ring.3"].speed[:, 0]) * run.vehicles["ring.3"].units.speed_mps / 0.1
     assert a.max() <= 0.2 + 1e-9
+
+
+@pytest.mark.parametrize(
+    ("kw", "ok"),
+    [
+        ({"command_filter_s": 4.97}, True),
+        ({"command_filter_s": 5.0}, True),  # on the bound
+        ({"command_filter_s": 5.03}, False),
+        ({"command_filter_s": 1e300}, False),  # ran with status ok before: the controller silently ignored
+        ({"command_jerk_max_mps3": 0.0}, True),  # off
+        ({"command_jerk_max_mps3": 0.1}, True),  # on the bound
+        ({"command_jerk_max_mps3": 0.0997}, False),
+        ({"command_jerk_max_mps3": 1e-300}, False),  # ran with status ok before
+    ],
+)
+def test_command_stages_refuse_a_filter_or_jerk_limit_that_ignores_the_controller(kw: dict, ok: bool) -> None:
+    if ok:
+        lim = VehicleLimits(**kw)
+        assert getattr(lim, next(iter(kw))) == next(iter(kw.values()))
+    else:
+        with pytest.raises(ParameterError, match=next(iter(kw))):
+            VehicleLimits(**kw)
