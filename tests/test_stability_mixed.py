@@ -232,3 +232,33 @@ def test_the_stability_command_analyses_a_mixed_ring(tmp_path, capsys):
     for extra, what in [(["--aev-count", "23"], "--aev-count 23"), (["--delay-s", "-0.1"], "--delay-s -0.1")]:
         rc, _, err = run_cli([*argv, *extra, "--out", str(tmp_path / "bad")], capsys)
         assert rc == 2 and what in one_error(err)
+
+
+@pytest.mark.parametrize(
+    ("extra", "says"),
+    [
+        (["--aev-count", "3"], "error: --aev-count 3: only with --ring N --aev LAW"),  # silently ignored before
+        (["--delay-s", "0.7"], "error: --delay-s 0.7: only with --ring N --aev LAW"),  # silently ignored before
+        (["--aev", "mpc"], "error: --aev 'mpc': unknown law"),  # named --law and offered 'mpc' before
+    ],
+)
+def test_mixed_ring_options_are_refused_by_their_own_name(tmp_path, capsys, extra, says) -> None:  # noqa: ANN001
+    from aev_ocp.cli import main
+
+    rc = main(
+        [
+            "stability",
+            "--law",
+            "ovm",
+            "--ring",
+            "22",
+            "--spacing-m",
+            "10",
+            "--no-plots",
+            "--out",
+            str(tmp_path / "o"),
+            *extra,
+        ]
+    )
+    err = capsys.readouterr().err
+    assert rc == 2 and says in err and "or 'mpc'" not in err, err

@@ -163,9 +163,9 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="LAW",
         help="--ring: a mixed ring: --aev-count vehicles of this law among the --law drivers (aev_ocp.stability.mixed)",
     )
-    p.add_argument("--aev-count", type=int, default=1, help="--aev: automated vehicles, spread evenly (default 1)")
+    p.add_argument("--aev-count", type=int, default=None, help="--aev: automated vehicles, spread evenly (default 1)")
     p.add_argument(
-        "--delay-s", type=float, default=0.0, help="--aev: reaction delay of the --law drivers [s] (default 0)"
+        "--delay-s", type=float, default=None, help="--aev: reaction delay of the --law drivers [s] (default 0)"
     )
     p.add_argument("--linear-only", action="store_true", help="skip the simulations")
     p.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
@@ -197,7 +197,7 @@ def parse_sets(law_name: str, items: list[str]) -> tuple[dict[str, float], dict[
     return own, shared
 
 
-def build_law(name: str, sets: list[str]) -> Any:
+def build_law(name: str, sets: list[str], key: str = "--law") -> Any:
     """The law named ``name`` with the ``--set`` overrides applied; ParameterError names a bad field."""
     import dataclasses
 
@@ -214,7 +214,8 @@ def build_law(name: str, sets: list[str]) -> Any:
     except ParameterError as exc:
         raise ParameterError(f"--set carfollowing.*: {exc}") from None
     if name.lower() not in LAW_REGISTRY:
-        raise ParameterError(f"--law {name!r}: unknown law: known laws are {sorted(LAW_REGISTRY)} or 'mpc'")
+        alt = " or 'mpc'" if key == "--law" else ""
+        raise ParameterError(f"{key} {name!r}: unknown law: known laws are {sorted(LAW_REGISTRY)}{alt}")
     try:
         law = make_law(name, params, **own)
     except ParameterError as exc:
@@ -252,6 +253,9 @@ def cli_stability(argv: list[str]) -> int:
             raise ParameterError("--set: the MPC has no car-following coefficients to set")
         if is_mpc and a.predictor not in PREDICTOR_NAMES:
             raise ParameterError(f"--predictor {a.predictor!r}: must be one of {PREDICTOR_NAMES}")
+        for opt, val in (("--aev-count", a.aev_count), ("--delay-s", a.delay_s)):
+            if val is not None and (a.aev is None or a.ring is None):  # silently ignored before
+                raise ParameterError(f"{opt} {val!r}: only with --ring N --aev LAW (a mixed ring)")
         units = _units(a)
         law = None if is_mpc else build_law(a.law, a.set)
         if a.ring is not None:  # the ring's modes (aev_ocp.ring.stability)
@@ -264,10 +268,10 @@ def cli_stability(argv: list[str]) -> int:
 
                 return cli_mixed_ring_stability(
                     law,
-                    build_law(a.aev, []),
+                    build_law(a.aev, [], key="--aev"),
                     a.ring,
-                    a.aev_count,
-                    a.delay_s,
+                    1 if a.aev_count is None else a.aev_count,
+                    0.0 if a.delay_s is None else a.delay_s,
                     a.spacing_m,
                     a.density_per_km,
                     a.vehicle_length_m,
