@@ -141,7 +141,9 @@ def unshown_figures(markdown: str, base: str | os.PathLike[str]) -> list[str]:
     ``![alt](file)`` names them): a figure a section writes and the report forgets. Sorted names."""
     shown = {Path(m.group(2)).as_posix() for m in _IMG.finditer(markdown)}
     return sorted(
-        p.name for p in Path(base).iterdir() if p.is_file() and p.suffix.lower() in FIGURE_SUFFIXES and p.name not in shown
+        p.name
+        for p in Path(base).iterdir()
+        if p.is_file() and p.suffix.lower() in FIGURE_SUFFIXES and p.name not in shown
     )
 
 

@@ -141,3 +141,13 @@ def test_the_counter_counts_every_line(quick_report: tuple[Path, str]) -> None:
     heads = [tuple(map(int, ln[1 : ln.index("]")].split("/"))) for ln in log.splitlines() if ln.startswith("[")]
     assert [k for k, _ in heads] == list(range(1, len(heads) + 1))  # one by one, no jump
     assert heads[-1][0] == heads[-1][1]  # ends at N/N
+
+
+def test_report_html_shows_every_figure_of_the_folder(quick_report: tuple[Path, str]) -> None:
+    from aev_ocp.report_html import unshown_figures
+
+    out, _ = quick_report
+    text = (out / "report.md").read_text()
+    assert unshown_figures(text, out) == []  # a figure a section writes and the report forgets
+    html = (out / "report.html").read_text()
+    assert html.count("<img ") >= len(list(out.glob("*.png")))
