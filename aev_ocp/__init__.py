@@ -31,6 +31,7 @@ _EXPORTS = {
     "OVFL": "models",
     "Proposed": "models",
     "IDM": "models",
+    "IDMModelUnits": "models",
     "CarFollowingLaw": "models",
     "make_law": "models",
     "register_law": "models",

@@ -13,6 +13,12 @@ number with its unit in the key and its source beside it::
     file = "a123_ocv_25C.csv"
     source = "..."
     # ... or inline: soc = [0.0, ..., 1.0]  ocv_V = [..]
+    [rc_table]                        # optional: R_s, R1, C1, R2, C2 over SOC and T (CellParams.rc_table)
+    source = "..."
+    soc = [0.1, ..., 0.9]             # columns
+    T_K = [283.15, 298.15, 313.15]    # rows
+    R_s_ohm = [[...], [...], [...]]   # one row per T_K, one value per soc; likewise R1_ohm, C1_F, R2_ohm, C2_F
+    [identification]                  # optional: how the values were identified (parameter set, script, residual)
 
 Shipped cells live in ``aev_ocp/data/cells/``; :func:`load_cell` takes a shipped name or a path. Every key is
 checked against the CellParams declaration; errors are one line naming the file and the key.
@@ -30,11 +36,13 @@ from pathlib import Path
 from typing import Any
 
 from .limits import read_input_file
-from .params import CellParams, ParameterError, check_ocv_table, echo, field_checks
+from .params import RC_TABLE_KEYS, CellParams, ParameterError, RCTable, check_ocv_table, echo, field_checks
 
 CHEMISTRIES = ("LFP", "NMC", "NCA")
 #: CellParams fields a cell file may set (soc0 is the scenario's initial state, the OCV comes from [ocv]).
-CELL_KEYS = tuple(f.name for f in dataclasses.fields(CellParams) if f.name not in ("soc0", "ocv_soc", "ocv_V"))
+CELL_KEYS = tuple(
+    f.name for f in dataclasses.fields(CellParams) if f.name not in ("soc0", "ocv_soc", "ocv_V", "rc_table")
+)
 
 
 class CellFileError(ParameterError):
@@ -51,6 +59,7 @@ class CellFile:
     description: str
     sources: dict[str, str]
     path: str
+    identification: dict[str, Any] = dataclasses.field(default_factory=dict)
 
 
 def cell_dir() -> Path:
@@ -81,7 +90,7 @@ def _read_csv(path: Path, file: str) -> tuple[list[float], list[float]]:
 
 def parse_cell(doc: dict[str, Any], file: str = "<cell>", base_dir: Path | None = None) -> CellFile:
     """Validate a parsed cell document (``file`` names it in messages; ``base_dir`` resolves ``ocv.file``)."""
-    allowed = ("name", "chemistry", "description", "ocv") + CELL_KEYS
+    allowed = ("name", "chemistry", "description", "ocv", "rc_table", "identification") + CELL_KEYS
     for key in doc:
         if key not in allowed:
             raise CellFileError(f"{file}: unknown key {key!r}; allowed: {sorted(allowed)}")
@@ -134,13 +143,46 @@ def parse_cell(doc: dict[str, Any], file: str = "<cell>", base_dir: Path | None 
             or not all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in soc + volts)
         ):
             raise CellFileError(f"{file}: ocv.soc and ocv.ocv_V must be arrays of numbers")
+    table = _rc_table(doc.get("rc_table"), file)
+    ident = doc.get("identification", {})
+    if not isinstance(ident, dict):
+        raise CellFileError(f"{file}: identification is not allowed: must be a table ([identification])")
     try:
         check_ocv_table(soc, volts, "ocv")
-        cell = CellParams(**values, ocv_soc=tuple(float(x) for x in soc), ocv_V=tuple(float(x) for x in volts))
+        cell = CellParams(
+            **values, ocv_soc=tuple(float(x) for x in soc), ocv_V=tuple(float(x) for x in volts), rc_table=table
+        )
     except ParameterError as exc:
         raise CellFileError(f"{file}: {exc}") from None
     sources["ocv"] = ocv["source"]
-    return CellFile(cell, name, chem, str(doc.get("description", "")), sources, file)
+    if table is not None:
+        sources["rc_table"] = doc["rc_table"]["source"]
+    return CellFile(cell, name, chem, str(doc.get("description", "")), sources, file, dict(ident))
+
+
+def _rc_table(tab: Any, file: str) -> RCTable | None:
+    """The [rc_table] of a cell file as an RCTable (None when absent); CellFileError naming the key otherwise."""
+    if tab is None:
+        return None
+    if not isinstance(tab, dict):
+        raise CellFileError(f"{file}: rc_table is not allowed: must be a table ([rc_table])")
+    keys = ("source", "soc", "T_K", "soc_ref") + RC_TABLE_KEYS
+    for key in tab:
+        if key not in keys:
+            raise CellFileError(f"{file}: unknown key rc_table.{key}; allowed: {', '.join(keys)}")
+    for key in ("source", "soc", "T_K") + RC_TABLE_KEYS:
+        if key not in tab:
+            raise CellFileError(f"{file}: rc_table.{key} is missing (required)")
+    if not isinstance(tab["source"], str) or not tab["source"].strip():
+        raise CellFileError(f"{file}: rc_table.source is not allowed: a non-empty string is required")
+    for key in ("soc", "T_K") + RC_TABLE_KEYS:
+        rows = tab[key] if key in ("soc", "T_K") else [x for r in tab[key] if isinstance(r, list) for x in r]
+        if not isinstance(tab[key], list) or any(isinstance(x, bool) or not isinstance(x, (int, float)) for x in rows):
+            raise CellFileError(f"{file}: rc_table.{key} is not allowed: must be an array of numbers (rows: T_K)")
+    try:
+        return RCTable(**{k: v for k, v in tab.items() if k != "source"})
+    except ParameterError as exc:
+        raise CellFileError(f"{file}: rc_table: {str(exc).removeprefix('RCTable.')}") from None
 
 
 def find_cell(name_or_path: str | Path) -> Path:

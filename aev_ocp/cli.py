@@ -107,7 +107,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="wall-clock limit [s]: a run still going then is stopped (within ~0.05 s) and not written, runs not "
         "started are skipped, the finished ones written, exit 1 (default: none)",
     )
-    sub.add_parser("scenarios", help="list the shipped scenarios")
+    sub.add_parser("scenarios", help="list the shipped scenarios (platoon, ring and SUMO)")
     rp = sub.add_parser(
         "replay",
         help="drive one vehicle exactly on a speed trace and print its battery energy (kWh/100 km), heat, "
@@ -257,8 +257,8 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
     config = ReproduceConfig.quick() if args.quick else ReproduceConfig()
     if args.model_units:
         config = dataclasses.replace(config, si_units=False)
-    report = reproduce(args.out, config)
-    print(f"wrote {report}")
+    report = reproduce(args.out, config)  # its last stderr line: [N/N] done, both files and the verdict
+    print(f"wrote {report} and {report.parent / 'report.html'}")
     return EXIT_OK
 
 
@@ -275,7 +275,29 @@ def cmd_scenarios(args: argparse.Namespace) -> int:
             _warn(f"skipping {path}: {exc}")
             continue
         print(f"{name:16s} {scenario.description}  [{path}]")
+    # the ring and SUMO scenarios run under their own commands; their descriptions are read, not the scenarios
+    others: list[tuple[str, str, Path]] = [("ring", n, p) for n, p in shipped_scenarios("ring").items()]
+    try:
+        from .sumo.scenario import shipped_sumo_scenarios
+
+        others += [("sumo", n, p) for n, p in shipped_sumo_scenarios().items()]
+    except ImportError:  # an installation without the SUMO coupling
+        pass
+    for command, name, path in others:
+        print(f"{name:16s} {_description(path)}  [{path}] (aev-ocp {command} {name})")
     return EXIT_OK
+
+
+def _description(path: Path) -> str:
+    """The first line of a scenario file's ``description`` (empty if the file cannot be read)."""
+    import tomllib
+
+    try:
+        doc = tomllib.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError, RecursionError):
+        return ""
+    text = doc.get("description", "")
+    return " ".join(str(text).split())[:160] if isinstance(text, str) else ""
 
 
 def cmd_replay(args: argparse.Namespace) -> int:
@@ -349,7 +371,16 @@ def parse_command_line(argv: Sequence[str]) -> argparse.Namespace:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``aev-ocp``; returns the exit code (also raised as SystemExit by the script)."""
-    args_list = list(sys.argv[1:] if argv is None else argv)
+    rc = _main(list(sys.argv[1:] if argv is None else argv))
+    if argv is None and _ON_MAIN:  # the command line's process: the command has ended and said so
+        # a Ctrl-C or SIGTERM now (a second one, or one during the interpreter's shutdown) would end the process by
+        # the signal (exit -2) instead of with the command's code: ignore it, the process is only exiting
+        for s in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(s, signal.SIG_IGN)
+    return rc
+
+
+def _main(args_list: list[str]) -> int:
     if args_list and args_list[0] == "mpc-export":
         return guarded(lambda: _dispatch("aev_ocp.mpc.export", "cli_mpc_export", args_list[1:]))
     if args_list and args_list[0] in ("ocp", "mpc", "stability", "study", "safety", "ring", "sumo"):

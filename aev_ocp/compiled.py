@@ -56,6 +56,16 @@ class BuildResult:
     rebuilt: bool = False
 
 
+#: Compilations this process ran (one per library actually built, not per cache hit): a counter tests and
+#: benchmarks read (:func:`compilations`), never the clock.
+_COMPILED: list[str] = []
+
+
+def compilations() -> list[str]:
+    """The stems of the libraries this process compiled so far, in order (a cache hit adds nothing)."""
+    return list(_COMPILED)
+
+
 _CC_WARNED: set[str] = set()  # $CC values already reported as not found (one line each per process)
 
 
@@ -243,6 +253,51 @@ def compile_shared(
     ]
     d = cache_dir(sub)
     lib = d / f"{stem}_{key}.so"
+    if lib.exists() and not verify_library(lib):
+        return BuildResult(lib)
+    # one build per library per machine: concurrent processes (a study's or reproduce's workers) that need the same
+    # library wait for the one that builds it, then find it in the cache, instead of each compiling it again (the
+    # lock is on the cache folder itself: nothing is left behind; builds into one folder take turns)
+    with _build_lock(d):
+        return _build_locked(source, stem, key, d, lib, cc, flags, comp, timeout_s)
+
+
+class _build_lock:
+    """An exclusive advisory lock (``fcntl.flock``) on the cache folder while a library is checked and built; a
+    no-op where flock is unavailable (the atomic rename still keeps concurrent builds safe, only duplicated)."""
+
+    def __init__(self, path: Path) -> None:
+        self.path, self.fd = path, -1
+
+    def __enter__(self) -> "_build_lock":
+        try:
+            import fcntl
+
+            self.fd = os.open(self.path, os.O_RDONLY)
+            fcntl.flock(self.fd, fcntl.LOCK_EX)
+        except (ImportError, OSError):
+            if self.fd >= 0:
+                os.close(self.fd)
+            self.fd = -1
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        if self.fd >= 0:
+            os.close(self.fd)  # closing releases the lock
+
+
+def _build_locked(
+    source: str,
+    stem: str,
+    key: str,
+    d: Path,
+    lib: Path,
+    cc: str,
+    flags: tuple[str, ...],
+    comp: dict[str, str],
+    timeout_s: float,
+) -> BuildResult:
+    """:func:`compile_shared` under the library's lock: use a verified cached copy, else build it."""
     side = lib.with_name(lib.name + SIDECAR_SUFFIX)
     rebuilt = False
     if lib.exists():
@@ -269,6 +324,7 @@ def compile_shared(
             (build_dir / name).write_text(text)
         more = [k for k in comp if k.endswith(".c")]
         announce(f"compiling {stem} with {Path(cc).name} (once: the library is cached in {d}) …")
+        _COMPILED.append(stem)
         t0 = time.perf_counter()
         proc = run_tool([cc, *flags, "-o", str(tmp), c_file.name, *more, "-lm"], build_dir, timeout_s)
         if proc.returncode != 0:

@@ -5,9 +5,12 @@ A follower runs either a car-following law (integrated continuously inside the p
 The MPC (:class:`aev_ocp.mpc.policy.MPCPolicy`), a replayed control sequence
 (:class:`ControlSequence`, e.g. OCP-D's optimum), a sampled law (:class:`SampledLaw`) and a
 user's own controller (an ACC law, a learned policy) are all Controllers; any vehicle of any
-scenario can run any of them. The closed loop (:class:`ClosedLoop`) applies each command as a
-zero-order hold over dt on the exact plant (:class:`aev_ocp.plant.Plant`), with the plant's event
-rules, and returns the one result type (:class:`aev_ocp.results.SimulationResult`).
+scenario can run any of them. The closed loop (:class:`ClosedLoop`) hands each answer to the step core every
+loop shares (:class:`aev_ocp.loop.VehicleStep`: the check, the declared conditioning and safety layer, the
+vehicle's limits, the counts), applies the result as a zero-order hold over dt on the exact plant
+(:class:`aev_ocp.plant.Plant`), with the plant's event rules, and returns the one result type
+(:class:`aev_ocp.results.SimulationResult`). The protocol types (:class:`Controller`, :class:`Observation`,
+:class:`Command`) live in :mod:`aev_ocp.loop` and are importable from here as before.
 """
 
 from __future__ import annotations
@@ -15,8 +18,8 @@ from __future__ import annotations
 import math
 import numbers
 import time
-from dataclasses import dataclass, field, replace
-from typing import Any, Callable, Protocol, Sequence, cast, runtime_checkable
+from dataclasses import dataclass
+from typing import Any, Callable, Sequence, cast
 
 import numpy as np
 
@@ -24,72 +27,15 @@ from .estimation.base import Estimate, Estimator
 from .estimation.kalman import EKF
 from .estimation.mhe import MHE
 from .estimation.mismatch import Mismatch
-from .estimation.sensors import Measurement, SensorModel, Sensors
+from .estimation.sensors import CHANNELS, Measurement, SensorModel, Sensors
+from .loop import COUNT_NAMES, CommandStages, Command, Controller, Observation, VehicleStep, stages_for
 from .models import battery
 from .models.carfollowing import CarFollowingLaw, Proposed
 from .models.leader import LeaderProfile
-from .params import EVParams, ParameterError, SimOptions, as_dict, check_argument
+from .params import PAPER_ACCEL_BOUNDS_MODEL, EVParams, ParameterError, SimOptions, as_dict, check_argument
 from .plant import Plant, PlatoonRun, ProgressFn, stack_samples
 from .progress import TimeLimitReached
 from .results import Event, SimulationResult
-
-
-@dataclass
-class Observation:
-    """What follower ``vehicle`` (0-based) knows at time t [model time]: its own state
-    z = (h, v, V1, V2, S) (model units, V, -), the measured speeds of its predecessor at the
-    sample times so far (oldest first, the last at t), the predecessor's latest plan of node speeds
-    at t, t + dt, … when the predecessor publishes one (V2V), the command it applied last (after the
-    vehicle's saturation), with an actuator lag its realised acceleration a_act and, with the thermal model
-    (``[thermal] enabled``), its pack temperature T_K [K] (a temperature sensor: read exactly, with sensors too).
-
-    With sensors (:class:`aev_ocp.estimation.sensors.Sensors`) z and meas_v are what the car knows, not the
-    plant's state: h, v, the predecessor speeds and V1, V2, S from the estimator (each bridged over its
-    sensor's delay)."""
-
-    t: float
-    dt: float
-    vehicle: int
-    z: np.ndarray
-    meas_t: np.ndarray
-    meas_v: np.ndarray
-    predecessor_plan: np.ndarray | None = None
-    a_prev: float = 0.0
-    a_act: float | None = None  # the realised acceleration at t [model] when the vehicle has an actuator lag
-    measurement: Measurement | None = None  # with sensors: the raw (noisy, late) measurement, SI
-    estimate: Estimate | None = None  # with sensors and an estimator: its estimate, SI
-    T_K: float | None = None  # the pack temperature at t [K] when the plant has the thermal model
-
-
-@dataclass
-class Command:
-    """A controller's decision: acceleration a [model units] held over [t, t + dt]. ``ok`` False marks
-    a fallback (counted); ``plan`` (node speeds from t on) is published to the follower behind."""
-
-    a: float
-    ok: bool = True
-    status: str = "ok"
-    solve_time_s: float = float("nan")
-    iterations: int = 0
-    plan: np.ndarray | None = None
-    info: dict[str, Any] = field(default_factory=dict)
-
-
-@runtime_checkable
-class Controller(Protocol):
-    """A sampled controller: ``command`` is called every ``dt`` [model time] with an Observation."""
-
-    name: str
-    dt: float
-
-    def reset(self) -> None:
-        """Forget internal state (called before a run)."""
-
-    def command(self, obs: Observation) -> Command:
-        """The acceleration to hold over [obs.t, obs.t + dt]."""
-
-    def describe(self) -> dict[str, Any]:
-        """Settings, for reports."""
 
 
 @dataclass(frozen=True)
@@ -125,8 +71,8 @@ class SampledLaw:
 
     law: CarFollowingLaw
     dt: float
-    a_min: float = -3.0  # model guide §9
-    a_max: float = 2.0  # model guide §9
+    a_min: float = PAPER_ACCEL_BOUNDS_MODEL[0]  # model guide §9
+    a_max: float = PAPER_ACCEL_BOUNDS_MODEL[1]  # model guide §9
 
     @property
     def name(self) -> str:
@@ -172,7 +118,12 @@ def fallback_causes(status: Sequence[Any], ok: Sequence[bool]) -> dict[str, int]
     return out
 
 
-def _stats(rec: dict[str, list[Any]], ctrl: Controller) -> dict[str, Any]:
+def _stats(
+    rec: dict[str, list[Any]], ctrl: Controller, counts: dict[str, int] | None = None, conditioning: str = "none"
+) -> dict[str, Any]:
+    """A sampled controller's statistics from its records (solve and call times, iterations, fallbacks), the loop
+    core's counts (:meth:`aev_ocp.loop.VehicleStep.counts`) and its conditioning (:meth:`CommandStages.label`)."""
+    counts = counts or {}
     ms = np.asarray(rec["solve"], float) * 1e3
     ms = ms[np.isfinite(ms)]
     cm = np.asarray(rec["call"], float) * 1e3
@@ -195,6 +146,9 @@ def _stats(rec: dict[str, list[Any]], ctrl: Controller) -> dict[str, Any]:
         # whole controller call: forecast, warm-start shift, parameters, solve, unpacking
         "call_ms_median": float(np.median(cm)) if cm.size else float("nan"),
         "call_ms_p95": float(np.percentile(cm, 95)) if cm.size else float("nan"),
+        # how many commands each stage of the loop core changed (aev_ocp.loop: conditioning, safety, limits)
+        **{k: int(counts.get(k, 0)) for k in COUNT_NAMES},
+        "conditioning": conditioning,  # e.g. 'filter 0.5 s, jerk <= 5 m/s^3', 'safety layer', 'none'
     }
 
 
@@ -213,22 +167,6 @@ def sampled_stat_names() -> frozenset[str]:
     return frozenset([*_stats(rec, cast(Controller, _Anonymous())), *extra, *(f"est_{k}" for k in est)])
 
 
-def _checked(cmd: Any, ctrl: Controller, vehicle: int, t: float) -> Command:
-    """A controller's answer, if it is a Command with a finite real acceleration; a ParameterError naming the
-    controller, the vehicle and the time otherwise (a NaN would be saturated into full braking without a word)."""
-    a = getattr(cmd, "a", None)
-    if isinstance(cmd, Command) and not isinstance(a, (bool, np.bool_)):
-        if isinstance(a, numbers.Real) and math.isfinite(a):
-            return cmd
-        if isinstance(a, np.ndarray) and a.size == 1 and a.dtype.kind in "iuf" and np.isfinite(a).all():
-            return replace(cmd, a=float(a.reshape(())))  # what np.clip/np.minimum give on 0-d inputs
-    got = f"Command(a = {a!r})" if isinstance(cmd, Command) else f"{type(cmd).__name__} {cmd!r:.60}"
-    raise ParameterError(
-        f"closed loop: controller {getattr(ctrl, 'name', '?')!r} of vehicle {vehicle + 1} returned {got} at "
-        f"t = {t:g}: command() must return a Command whose a is a finite acceleration [model units]"
-    )
-
-
 class ClosedLoop(PlatoonRun):
     """A platoon behind ``leader`` where each follower runs a law (continuous) or a Controller
     (sampled every dt, the same dt for all); build once (controllers and plant), then :meth:`run`.
@@ -244,6 +182,12 @@ class ClosedLoop(PlatoonRun):
     vehicle) -> Estimator) turns them into the controllers' states. With degraded sensors every law runs as a
     :class:`SampledLaw` at the controllers' dt (``law_dt`` [model time] when no other controller is sampled),
     clipped to the vehicle's acceleration limits, on the same observations.
+
+    ``stages`` (:class:`~aev_ocp.loop.CommandStages`, one for all or one per follower, None: the default) sets each
+    sampled controller's command conditioning and safety layer; by default they come from the vehicle's limits
+    (``VehicleLimits.command_filter_s``, ``command_jerk_max_mps3``, ``safety_layer``), the laws under realistic
+    sensors getting a production ACC's conditioning (:data:`aev_ocp.loop.PRODUCTION_ACC`). A law whose stages are
+    active runs as a :class:`SampledLaw` like under degraded sensors.
     """
 
     who = "closed loop"
@@ -261,6 +205,7 @@ class ClosedLoop(PlatoonRun):
         sensors: Sensors | None = None,
         estimator: str | EstimatorFactory | None = "ekf",
         law_dt: float = 0.1,
+        stages: CommandStages | Sequence[CommandStages | None] | None = None,
     ) -> None:
         check_argument("closed loop", "leader", leader, LeaderProfile)
         check_argument("closed loop", "ev", ev, (EVParams, type(None)))
@@ -310,13 +255,23 @@ class ClosedLoop(PlatoonRun):
                 )
             self.laws.append(None)
             self.ctrl.append(c)
+        # realistic sensors (noise, quantisation or delay on a channel; not merely sampled): the laws get a
+        # production ACC's conditioning by default
+        realistic = sensors is not None and any(
+            sensors.noise(c) or sensors.quantum(c) or sensors.delay(c) for c in CHANNELS
+        )
+        self.stages = self._stages(stages, realistic)
         dts = {c.dt for c in self.ctrl if c is not None}
-        if degraded:  # a continuous law cannot see sampled measurements: it runs as a sampled law (like an ECU)
+        # a continuous law cannot see sampled measurements nor be conditioned: with degraded sensors or a declared
+        # stage it runs as a sampled law (like an ECU)
+        to_sample = [i for i, law in enumerate(self.laws) if law is not None and (degraded or self.stages[i].active)]
+        if to_sample:
             dt_law = dts.copy().pop() if len(dts) == 1 else law_dt
             lo, hi = self.ev.limits.accel_bounds_model(self.ev.units)
-            for i, law in enumerate(self.laws):
-                if law is not None:
-                    self.ctrl[i], self.laws[i] = cast(Controller, SampledLaw(law, dt_law, lo, hi)), None
+            for i in to_sample:
+                law = self.laws[i]
+                assert law is not None
+                self.ctrl[i], self.laws[i] = cast(Controller, SampledLaw(law, dt_law, lo, hi)), None
             dts = {c.dt for c in self.ctrl if c is not None}
         if not dts:
             raise ParameterError("ClosedLoop: no sampled controller; use aev_ocp.simulate for closed-form laws only")
@@ -326,6 +281,27 @@ class ClosedLoop(PlatoonRun):
         self.rtol, self.atol = rtol, atol
         self.plant = Plant(leader, self.laws, self.ev, rtol=rtol, atol=atol)
         self.battery = self.plant.battery
+
+    def _stages(
+        self, given: CommandStages | Sequence[CommandStages | None] | None, realistic: bool
+    ) -> list[CommandStages]:
+        """Each follower's loop stages: ``given`` (one for all, or one per follower, None: the default), else those
+        its vehicle limits declare (:func:`aev_ocp.loop.stages_for`: the laws under realistic sensors get a
+        production ACC's conditioning unless the limits say otherwise)."""
+        if given is None or isinstance(given, CommandStages):
+            per: list[CommandStages | None] = [given] * self.n
+        else:
+            per = list(given)
+            if len(per) != self.n:
+                raise ParameterError(
+                    f"closed loop: stages needs one CommandStages (or None) per follower ({self.n}), got {len(per)}"
+                )
+        out = []
+        for i, st in enumerate(per):
+            check_argument("closed loop", f"stages[{i}]", st, (CommandStages, type(None)))
+            is_law = self.laws[i] is not None or isinstance(self.ctrl[i], SampledLaw)
+            out.append(st if st is not None else stages_for(self.ev.limits, law=is_law, sensed=realistic))
+        return out
 
     def model_ev(self, vehicle: int) -> EVParams:
         """The EVParams follower ``vehicle`` (0-based)'s controller and estimator believe (the plant's without a
@@ -372,9 +348,13 @@ class ClosedLoop(PlatoonRun):
         y = plant.samples(np.array([0.0]), x[:, None], a_cmd)
         out: tuple[list, list, list, list] = ([np.array([0.0])], [x[:, None]], [q[:, None]], [y])
         applied: list[np.ndarray] = []
-        rec: list[dict[str, list[Any]]] = [
-            {"solve": [], "call": [], "iters": [], "ok": [], "status": [], "info": [], "est": []} for _ in range(n)
-        ]
+        cores = {
+            i: VehicleStep(c.name, f"vehicle {i + 1}", self.ev.units, self.ev.limits, self.stages[i], dt)
+            for i, c in enumerate(self.ctrl)
+            if c is not None
+        }
+        rec: list[dict[str, list[Any]]] = [cores[i].rec if i in cores else {} for i in range(n)]
+        est_s: list[list[float]] = [[] for _ in range(n)]  # the sensors' read-out and the estimator's update [s]
         meas_t: list[float] = []
         meas_v: list[list[float]] = [[] for _ in range(n)]
         u = self.ev.units
@@ -412,7 +392,7 @@ class ClosedLoop(PlatoonRun):
                 if sm is not None:
                     te = time.perf_counter()
                     z, meas, e = self._sensed(sm, ests[i], i, k, tk, float(a_app[j]))
-                    rec[i]["est"].append(time.perf_counter() - te)
+                    est_s[i].append(time.perf_counter() - te)
                     meas_v[i].append(float(u.speed_from_si(e.lead_speed_mps if e is not None else meas.lead_speed_mps)))
                     v_true = vl_k if i == 0 else float(x[n + i - 1])
                     if e is not None:
@@ -441,18 +421,7 @@ class ClosedLoop(PlatoonRun):
                     e,
                     float(x[5 * n + i]) if getattr(plant, "thermal", False) else None,
                 )
-                tc = time.perf_counter()
-                cmd = _checked(ctrl.command(obs), ctrl, i, tk)
-                rec[i]["call"].append(time.perf_counter() - tc)
-                for key, val in (
-                    ("solve", cmd.solve_time_s),
-                    ("iters", cmd.iterations),
-                    ("ok", cmd.ok),
-                    ("status", cmd.status),
-                    ("info", cmd.info),
-                ):
-                    rec[i][key].append(val)
-                a_cmd[j] = cmd.a
+                cmd, a_cmd[j] = cores[i].command(ctrl, obs)  # checked, conditioned, safety layer, limits
                 plans[i] = cmd.plan
             # the new commands act from t_k on: check the demand they make right now, then integrate
             y0 = plant.samples(np.array([tk]), x[:, None], a_cmd)
@@ -502,7 +471,9 @@ class ClosedLoop(PlatoonRun):
                 acc[m:, i] = cmds[m - 1]
         names = [c.name if c is not None else law.name for c, law in zip(self.ctrl, self.laws)]  # type: ignore[union-attr]
         stats = [
-            _stats(rec[i], c) if c is not None and not isinstance(c, ControlSequence) else None
+            _stats(rec[i], c, cores[i].counts(), cores[i].stages.label())
+            if c is not None and not isinstance(c, ControlSequence)
+            else None
             for i, c in enumerate(self.ctrl)
         ]
         for i, st in enumerate(stats):
@@ -511,8 +482,8 @@ class ClosedLoop(PlatoonRun):
                 st["forecast_rms"] = forecast_rms(ts, v_pred, dt, [info.get("v_hat") for info in rec[i]["info"]])
                 if err[i]:
                     st["estimation"] = estimation_errors(np.array(err[i]), u.time_to_si(dt))
-                if rec[i]["est"]:  # the sensors' read-out and the estimator's update, and with the controller's call
-                    te_ms = np.asarray(rec[i]["est"], float) * 1e3
+                if est_s[i]:  # the sensors' read-out and the estimator's update, and with the controller's call
+                    te_ms = np.asarray(est_s[i], float) * 1e3
                     st["estimator_ms_median"] = float(np.median(te_ms))
                     st["estimator_plus_call_ms_median"] = float(np.median(te_ms + np.asarray(rec[i]["call"]) * 1e3))
         steps = [
@@ -527,9 +498,9 @@ class ClosedLoop(PlatoonRun):
             else None
             for i in range(n)
         ]
-        settings = [
-            c.describe() if c is not None else law.describe()  # type: ignore[union-attr]
-            for c, law in zip(self.ctrl, self.laws)
+        settings = [  # a sampled controller's settings name its conditioning (aev_ocp.loop)
+            {**c.describe(), "conditioning": cores[i].stages.label()} if c is not None else law.describe()  # type: ignore[union-attr]
+            for i, (c, law) in enumerate(zip(self.ctrl, self.laws))
         ]
         return plant.result(
             samples,
@@ -540,6 +511,8 @@ class ClosedLoop(PlatoonRun):
                 "controllers": settings,
                 "mpc_steps": steps,
                 "fallback_law": self.fallback_law.describe(),
+                # each sampled controller's conditioning and safety layer, with the steps each stage changed
+                "command_stages": [cores[i].describe() if i in cores else None for i in range(n)],
                 **self._realism(ests),
             },
             accel=acc,
@@ -555,8 +528,18 @@ class ClosedLoop(PlatoonRun):
         I = y[n : 2 * n]
         ocv = np.asarray(battery.ocv_function(ev.cell)(np.clip(x[4 * n : 5 * n], 0.0, 1.0).reshape(1, -1))).ravel()
         R_s = np.full(n, ev.cell.R_s_ohm)
-        if getattr(self.plant, "thermal", False):  # the pack temperatures follow S in x: R_s at each one
-            R_s = np.array([float(battery.cell_at(ev.cell, float(x[5 * n + i])).R_s_ohm) for i in range(n)])
+        thermal = getattr(self.plant, "thermal", False)
+        if thermal or ev.cell.rc_table is not None:  # R_s at each pack temperature (after S in x) and SOC
+            R_s = np.array(
+                [
+                    float(
+                        battery.cell_at(
+                            ev.cell, float(x[5 * n + i]) if thermal else None, float(np.clip(x[4 * n + i], 0, 1))
+                        ).R_s_ohm
+                    )
+                    for i in range(n)
+                ]
+            )
         vt = ocv - x[2 * n : 3 * n] - x[3 * n : 4 * n] - R_s * I  # battery.terminal_voltage, vectorised
         return np.column_stack(
             [

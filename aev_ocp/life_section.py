@@ -11,9 +11,12 @@ from __future__ import annotations
 import math
 import time
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, Sequence
 
-from .life import BLAST_MODELS, INSTALL_HINT, DailySchedule, blast_available, life_of_run
+import numpy as np
+
+from .life import BLAST_MODELS, INSTALL_HINT, DailySchedule, blast_available, daily_profile, life_of_run
+from .params import ParameterError
 from .report import csv_text, fmt, markdown_table, write_text
 from .results import write_json
 
@@ -28,6 +31,39 @@ YEARS = 10.0
 STEPS = len(CYCLES) * len(AMBIENTS_K) + 1
 
 
+def real_cells() -> tuple[str, ...]:
+    """The shipped cells identified from PyBaMM (their cell file has an ``[identification]`` table), sorted."""
+    from .cells import load_cell_file, shipped_cells
+
+    return tuple(sorted(n for n in shipped_cells() if load_cell_file(n).identification))
+
+
+def cell_pack(base_ev: Any, cell: Any) -> dict[str, int]:
+    """The pack of ``cell`` that matches the scenario's pack (``base_ev``): the same capacity [Ah]
+    (n_parallel = round(N_p·Q_ref / Q_cell)) and the same voltage at SOC 0.5 (n_series = round(N_s·OCV_ref(0.5) /
+    OCV_cell(0.5))), so every cell drives the same car with about the same pack energy and current."""
+    from .models.battery import ocv_table
+
+    ref, pack = base_ev.cell, base_ev.pack
+    ocv = lambda c: float(np.interp(0.5, *ocv_table(c)))  # noqa: E731  (the OCV table, linear between points)
+    return {
+        "n_parallel": max(1, round(pack.n_parallel * ref.capacity_Ah / cell.capacity_Ah)),
+        "n_series": max(1, round(pack.n_series * ocv(ref) / ocv(cell))),
+    }
+
+
+def depth_of_discharge(result: Any, vehicle: int, schedule: DailySchedule | None = None) -> float:
+    """Depth of discharge [-] of the daily schedule built from follower ``vehicle``'s run: max − min of the day's
+    SOC profile that BLAST-Lite is fed (:func:`aev_ocp.life.daily_profile`: the drive repeated at each trip start,
+    each starting where the previous ended, then charged back). With n trips, a drive's SOC drop d = S(0) − S(end)
+    and its excursions S_max, S_min: DoD = (n − 1)·d + S_max − S_min (up to the resampling at ``sample_s``)."""
+    ev = result.ev
+    t_s = np.asarray(ev.units.time_to_si(result.t), float)
+    soc = np.asarray(result.S[:, vehicle], float)
+    prof = daily_profile(t_s, soc, np.full(t_s.size, ev.thermal.ambient_K), ev.thermal.ambient_K, schedule)
+    return float(np.max(prof["SOC"]) - np.min(prof["SOC"]))
+
+
 def life_rows(
     cycles: tuple[str, ...] = CYCLES,
     ambients_K: dict[str, float] | None = None,
@@ -35,48 +71,102 @@ def life_rows(
     years: float = YEARS,
     schedule: DailySchedule | None = None,
     log: Callable[[str], None] | None = None,
+    cells: Sequence[str] | str | None = None,
+    mpc: bool = True,
 ) -> list[dict[str, Any]]:
     """One row per cycle × ambient × controller: pack heat, temperature metrics and (with BLAST-Lite) the battery
-    life of the drive repeated by ``schedule``."""
-    from .metrics import vehicle_metrics
+    life of the drive repeated by ``schedule``.
+
+    ``cells``: None (default) runs the scenario's own cell (the A123 defaults) as before; a sequence of shipped
+    cell names (or ``"real"``: :func:`real_cells`, the PyBaMM-identified ones) runs each cell, in a pack sized by
+    :func:`cell_pack`, with its own chemistry's BLAST-Lite model (:data:`aev_ocp.life.BLAST_MODELS`); those rows also
+    carry ``cell``, ``chemistry``, ``charge_throughput_Ah`` (the pack's ∫|I| dt over the run [Ah]) and
+    ``depth_of_discharge`` (:func:`depth_of_discharge`, the daily schedule's SOC swing [-]). ``mpc = False``: the laws
+    only (the same runs as beside the MPC; no MPC build, which is compiled once per pack)."""
+    from .cells import load_cell_file
+    from .metrics import charge_throughput_Ah, vehicle_metrics
     from .mpc.cycles import cycle_scenario, run_cycle
     from .mpc.cycles_section import section_settings
 
     amb = ambients_K or AMBIENTS_K
+    names: list[str | None]
+    if cells is None:
+        names = [None]
+    else:
+        names = list(real_cells() if cells == "real" else ([cells] if isinstance(cells, str) else cells))
+        if not names:
+            raise ParameterError("life_rows: cells = [] is not allowed: give shipped cell names, 'real' or None")
+    files = {n: load_cell_file(n) for n in names if n is not None}  # CellFileError naming an unknown cell
+    sch = schedule or DailySchedule()
     rows: list[dict[str, Any]] = []
     with_life = blast_available()
     for cyc in cycles:
         base = cycle_scenario(cyc, segment_s)
-        chem = _chemistry(base.ev.cell)
-        for label, T_amb in amb.items():
-            if log:
-                log(f"battery life: {cyc}, {label} ambient")
-            sc = base.with_overrides({"thermal.enabled": True, "thermal.ambient_K": T_amb})
-            s = section_settings()
-            runs, _ = run_cycle(sc, (s.predictor,), laws=LAWS, settings=s)
-            for (ctrl, _pred), r in runs.items():
-                m = vehicle_metrics(r, 0)
-                row: dict[str, Any] = {
-                    "cycle": cyc,
-                    "ambient": label,
-                    "ambient_K": T_amb,
-                    "controller": ctrl,
-                    "status": r.status,
-                    "duration_s": m["duration_s"],
-                    "distance_m": m["distance_m"],
-                    "battery_energy_kWh_per_100km": m["battery_energy_kWh_per_100km"],
-                    "heat_pack_J_per_km": m["heat_pack_J_per_km"],
-                    "charge_throughput_Ah_per_km": m["charge_throughput_Ah_per_km"],
-                    "heat_irr_pack_J": m["heat_irr_pack_J"],
-                    "peak_temperature_K": m["peak_temperature_K"],
-                    "mean_temperature_K": m["mean_temperature_K"],
-                    "time_above_T_max_s": m["time_above_T_max_s"],
-                    "chemistry": chem,
-                }
-                if with_life:
-                    row.update(life_of_run(r, 0, chem, schedule, years))
-                rows.append(row)
+        for name in names:
+            if name is None:
+                chem, cell_sc = _chemistry(base.ev.cell), base
+            else:
+                cf = files[name]
+                pack = cell_pack(base.ev, cf.cell)
+                chem = str(cf.chemistry)
+                cell_sc = base.with_overrides(
+                    {"cell.name": name, "pack.n_parallel": pack["n_parallel"], "pack.n_series": pack["n_series"]}
+                )
+            for label, T_amb in amb.items():
+                if log:
+                    log(f"battery life: {cyc}, {label} ambient" + (f", cell {name}" if name else ""))
+                sc = cell_sc.with_overrides({"thermal.enabled": True, "thermal.ambient_K": T_amb})
+                s = section_settings()
+                runs = run_cycle(sc, (s.predictor,), laws=LAWS, settings=s)[0] if mpc else _law_runs(sc, s)
+                for (ctrl, _pred), r in runs.items():
+                    m = vehicle_metrics(r, 0)
+                    row: dict[str, Any] = {"cell": name} if name is not None else {}
+                    row |= {
+                        "cycle": cyc,
+                        "ambient": label,
+                        "ambient_K": T_amb,
+                        "controller": ctrl,
+                        "status": r.status,
+                        "duration_s": m["duration_s"],
+                        "distance_m": m["distance_m"],
+                        "battery_energy_kWh_per_100km": m["battery_energy_kWh_per_100km"],
+                        "heat_pack_J_per_km": m["heat_pack_J_per_km"],
+                        "charge_throughput_Ah_per_km": m["charge_throughput_Ah_per_km"],
+                        "heat_irr_pack_J": m["heat_irr_pack_J"],
+                        "peak_temperature_K": m["peak_temperature_K"],
+                        "mean_temperature_K": m["mean_temperature_K"],
+                        "time_above_T_max_s": m["time_above_T_max_s"],
+                        "chemistry": chem,
+                    }
+                    if name is not None:
+                        row["n_series"], row["n_parallel"] = sc.ev.pack.n_series, sc.ev.pack.n_parallel
+                        row["charge_throughput_Ah"] = charge_throughput_Ah(r, 0)
+                        row["depth_of_discharge"] = depth_of_discharge(r, 0, sch)
+                    if with_life:
+                        row.update(life_of_run(r, 0, chem, sch, years))
+                    rows.append(row)
     return rows
+
+
+def _law_runs(sc: Any, s: Any) -> dict[tuple[str, str | None], Any]:
+    """The runs of :data:`LAWS` on scenario ``sc`` exactly as :func:`aev_ocp.mpc.cycles.run_cycle` makes them beside
+    the MPC (settings ``s``: output step min(dt_out, s.dt))."""
+    from .simulate import simulate_platoon
+
+    return {
+        (name, None): simulate_platoon(
+            sc.leader,
+            [sc.law(name)] * sc.n_followers,
+            list(sc.gaps0),
+            list(sc.speeds0),
+            sc.t_end,
+            ev=sc.ev,
+            rtol=sc.rtol,
+            atol=sc.atol,
+            dt_out=min(sc.dt_out, s.dt),
+        )
+        for name in LAWS
+    }
 
 
 def _chemistry(cell: Any) -> str:
@@ -95,6 +185,7 @@ def _chemistry(cell: Any) -> str:
 
 
 COLUMNS = (
+    "cell",
     "cycle",
     "ambient",
     "controller",
@@ -103,6 +194,8 @@ COLUMNS = (
     "charge_throughput_Ah_per_km",
     "peak_temperature_K",
     "mean_temperature_K",
+    "charge_throughput_Ah",
+    "depth_of_discharge",
     "capacity_1y",
     "capacity_5y",
     "capacity_10y",
@@ -117,16 +210,23 @@ CAPACITY_RESOLUTION = 1e-3
 
 
 def life_claims(rows: list[dict[str, Any]], years: float) -> list[str]:
-    """One line per cycle and ambient: whether the controllers' capacity after ``years`` differs measurably
-    (spread > :data:`CAPACITY_RESOLUTION`), else 'no measurable difference'; empty without life columns."""
+    """One line per (cell,) cycle and ambient: whether the controllers' capacity after ``years`` differs measurably
+    (spread > :data:`CAPACITY_RESOLUTION`: the spread in % of capacity), else 'no measurable difference'; per-cell
+    rows (:func:`life_rows` with ``cells``) add each controller's charge throughput [Ah] and depth of discharge.
+    Empty without life columns."""
     key = f"capacity_{years:g}y"
     lines = []
-    for cyc, amb in dict.fromkeys((r["cycle"], r["ambient"]) for r in rows):
-        vals = {
-            r["controller"]: float(r[key])
+    for cell, cyc, amb in dict.fromkeys((r.get("cell"), r["cycle"], r["ambient"]) for r in rows):
+        group = [
+            r
             for r in rows
-            if r["cycle"] == cyc and r["ambient"] == amb and isinstance(r.get(key), float) and math.isfinite(r[key])
-        }
+            if r.get("cell") == cell
+            and r["cycle"] == cyc
+            and r["ambient"] == amb
+            and isinstance(r.get(key), float)
+            and math.isfinite(r[key])
+        ]
+        vals = {r["controller"]: float(r[key]) for r in group}
         if len(vals) < 2:
             continue
         spread = max(vals.values()) - min(vals.values())
@@ -135,7 +235,14 @@ def life_claims(rows: list[dict[str, Any]], years: float) -> list[str]:
             if spread <= CAPACITY_RESOLUTION
             else f"the controllers differ by {100 * spread:.2g} % of capacity"
         )
-        lines.append(f"- {cyc.upper()}, {amb}: capacity after {years:g} years {verdict} (spread {spread:.2g}).")
+        head = f"{cell} ({group[0].get('chemistry')}), " if cell is not None else ""
+        line = f"- {head}{cyc.upper()}, {amb}: capacity after {years:g} years {verdict} (spread {spread:.2g})"
+        if cell is not None:
+            line += "; " + ", ".join(
+                f"{r['controller']}: {fmt(r['charge_throughput_Ah'])} Ah, DoD {fmt(r['depth_of_discharge'])}"
+                for r in group
+            )
+        lines.append(line + ".")
     return lines
 
 
@@ -152,13 +259,15 @@ def life_section(
     segment_s: float = SEGMENT_S,
     years: float = YEARS,
     cycles: tuple[str, ...] = CYCLES,
+    cells: Sequence[str] | str | None = None,
 ) -> str:
-    """Run :func:`life_rows`, write battery_life/{life.csv, life.json, life.md}, return the Markdown."""
+    """Run :func:`life_rows`, write battery_life/{life.csv, life.json, life.md}, return the Markdown. ``cells``:
+    as :func:`life_rows` (None: the scenario's cell; ``"real"``: every PyBaMM-identified cell)."""
     out = Path(out_dir) / "battery_life"
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
     sch = DailySchedule()
-    rows = life_rows(cycles, segment_s=segment_s, years=years, schedule=sch, log=progress)
+    rows = life_rows(cycles, segment_s=segment_s, years=years, schedule=sch, log=progress, cells=cells)
     progress("battery life: writing tables")
     cols = [c for c in COLUMNS if any(c in r for r in rows)]
     table = markdown_table(cols, [[_fmt(r.get(c, math.nan)) for c in cols] for r in rows])
@@ -189,6 +298,14 @@ def life_section(
         "data span 20-40 °C).",
         "",
     ]
+    if cells is not None:
+        packs = dict.fromkeys(f"{r['cell']} ({r['chemistry']}, {r['n_series']}s{r['n_parallel']}p)" for r in rows)
+        lines += [
+            f"Cells: {', '.join(packs)}; each in a pack of the scenario's capacity and voltage at SOC 0.5 "
+            "(aev_ocp.life_section.cell_pack) with its own chemistry's BLAST-Lite model. charge_throughput_Ah: the "
+            "pack's ∫|I| dt over the drive; depth_of_discharge: the SOC swing of the daily schedule.",
+            "",
+        ]
     if not blast_available():
         lines += [INSTALL_HINT + " (the life columns are left out).", ""]
     claims = life_claims(rows, years)

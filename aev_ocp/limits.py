@@ -171,6 +171,31 @@ def check_ring_size(
     )
 
 
+#: Most integration cuts of one ring run (noise changes and controller instants): each restarts the compiled
+#: integrator from Python (~0.1 ms of overhead, a thread for Ctrl-C) and holds a float of the grid; 10^6 cuts are
+#: minutes of overhead alone. The shipped rings need 1 200 (600 s, noise held 0.5 s) to 6 000 (an MPC every 0.1 s).
+MAX_RING_CUTS = 1_000_000
+
+
+def check_ring_cuts(t_end_s: float, intervals: dict[str, float]) -> int:
+    """Raise ParameterError if a ring run over [0, t_end_s] cut every interval of ``intervals`` ({key naming it:
+    interval [s]}, e.g. {"ring.noise_dt_s": 0.5, "the controllers' dt": 0.1}) needs more than :data:`MAX_RING_CUTS`
+    integration cuts; checked before the cuts are built. Returns the number of cuts."""
+    total = 0.0
+    for key, dt in intervals.items():
+        if not (math.isfinite(dt) and dt > 0):
+            raise ParameterError(f"ring: {key} = {dt!r} is not allowed: must be a finite number of seconds > 0")
+        total += t_end_s / dt
+    if not total <= MAX_RING_CUTS:
+        what = ", ".join(f"{k} = {v:g} s" for k, v in intervals.items())
+        raise ParameterError(
+            f"ring: {what} over t_end_s = {t_end_s:g} s cut the integration {total:.4g} times, more than the "
+            f"{MAX_RING_CUTS} a run may have: raise {' or '.join(intervals)} (each at least "
+            f"{t_end_s * len(intervals) / MAX_RING_CUTS:.3g} s) or lower t_end_s"
+        )
+    return int(total)
+
+
 def check_mpc_size(N: int, n_mpc_vehicles: int = 1, key: str = "MPCSettings.N") -> float:
     """For :class:`aev_ocp.control.ClosedLoop` (Python API) and every [mpc] table: raise ParameterError if the
     MPC NLPs (one per MPC vehicle, horizon N) exceed the budget; returns the estimate [bytes]. ``key`` is the
@@ -183,6 +208,36 @@ def check_mpc_size(N: int, n_mpc_vehicles: int = 1, key: str = "MPCSettings.N") 
         f"{key} = {N} is not allowed: {n} MPC vehicle{'s' if n > 1 else ''} with this horizon need{'' if n > 1 else 's'} about "
         f"{_gb(need)}, more than the limit of {_gb(limit)} ($AEV_OCP_MAX_MEMORY_GB): lower {key} to at most "
         f"{int(limit // (MPC_BYTES_PER_INTERVAL * n))}"
+    )
+
+
+# ----------------------------------------------------------------------------- SUMO
+#: Peak memory of a SUMO run per recorded (vehicle x step) [bytes]: the toolkit's record of every vehicle (time,
+#: speed, odometer, gap, leader's speed, lane, battery state, current: Python lists) and its SimulationResult, plus
+#: SUMO's own state: measured on the shipped sumo_ring (22 cars, 0.1 s steps) between 60 s and 240 s runs, 320 B
+#: per record traced by tracemalloc (Python) and 1.39 kB per record of peak RSS (Python, SUMO and the tracing).
+SUMO_BYTES_PER_RECORD = 1_500
+#: Memory of one repetition of a shipped ring's route in SUMO and in its route file [bytes per lap] (two routes
+#: of two edges each, ~12 characters and one pointer per edge): a ring's routes repeat it for the whole run.
+SUMO_BYTES_PER_LAP = 100
+#: Longest SUMO run [s]: one day, the longest horizon of SUMO's traffic-demand studies (a city's day).
+MAX_SUMO_T_END_S = 86_400.0
+
+
+def check_sumo_size(
+    n_vehicles: float, t_end_s: float, step_s: float, record_every: int = 1, laps: float = 0.0, keys: str = ""
+) -> float:
+    """Raise ParameterError if a SUMO run of ``n_vehicles`` vehicles at once over [0, t_end_s] with steps of step_s
+    [s], recording every ``record_every``-th step (and a ring route of ``laps`` laps), needs more than the budget;
+    ``keys``: what the user sets these with (named in the message). Returns the estimate [bytes]."""
+    steps = t_end_s / step_s
+    records = float(n_vehicles) * (math.ceil(steps / max(record_every, 1)) + 1.0) if math.isfinite(steps) else math.inf
+    need, limit = SUMO_BYTES_PER_RECORD * records + SUMO_BYTES_PER_LAP * laps, memory_limit_bytes()
+    if need <= limit:
+        return need
+    raise ParameterError(
+        f"sumo: {n_vehicles:.6g} vehicles x {steps:.6g} steps of {step_s:g} s (t_end_s = {t_end_s:g} s) need about "
+        f"{_gb(need)}, more than the limit of {_gb(limit)} ($AEV_OCP_MAX_MEMORY_GB): lower {keys or 't_end_s'}"
     )
 
 

@@ -53,6 +53,9 @@ class PaperRun:
     config: ReproduceConfig
     cache: dict[Any, dict[str, SimulationResult]] = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)
+    #: the folder (relative to the output folder) each set of runs was saved in, by the id of its cached dict: a
+    #: later section showing the same runs points there instead of storing the trajectories twice
+    saved: dict[int, str] = field(default_factory=dict)
 
     def simulate(self, s: Scenario, progress: ProgressFn, what: str, **overrides: Any) -> dict[str, SimulationResult]:
         settings = {"t_end": s.t_end, "rtol": s.rtol, "atol": s.atol, "dt_out": s.dt_out, **overrides}
@@ -86,6 +89,7 @@ class PaperRun:
                 s = s.replace(t_end=min(s.t_end, self.config.fig12_t_end))
             runs[name] = res = self.simulate(s, progress, name)
             save_output(out / name, "simulate", res, settings=settings_of(s))  # aev_ocp.load(out / name)
+            self.saved[id(res)] = name
             cap = f"({name[-1]}) {s.description.split(': ', 1)[-1]}"
             panels1.append((cap, {"proposed": res["proposed"]}))
             panels2.append((cap, res))
@@ -163,6 +167,7 @@ class PaperRun:
         summary = table1_summary(res)
         write_table1(out, summary)
         save_output(out / "table1", "simulate", res, settings=settings_of(s))  # aev_ocp.load(out / "table1")
+        self.saved[id(res)] = "table1"
         self.table1_summary = summary
         progress("table1: Fig. 5 and ω plot")
         chk = platoon_checks(res["proposed"], t_eq=20.0)
@@ -373,7 +378,9 @@ class PaperRun:
             "## Battery side of every shipped scenario\n\n"
             "Pack ∫Q (the paper's power loss, unclipped) and ∫Q_irr (the heat actually dissipated), "
             "ΔSOC = S_end − S_0, per follower, each scenario under its own units. Per-run metrics: "
-            'scenarios/<name>/metrics.json; the runs themselves: `aev_ocp.load("scenarios/<name>")`.\n'
+            'scenarios/<name>/metrics.json; the runs themselves: `aev_ocp.load("scenarios/<name>")` (the runs of '
+            'Fig. 1/2 and Table 1 are stored once, in their own folders: `aev_ocp.load("fig1a")`, '
+            '`aev_ocp.load("table1")`; their metrics.json names that folder).\n'
         ]
         names = self.config.scenarios
         for name, path in iter_shipped():
@@ -410,8 +417,15 @@ class PaperRun:
                     else ""
                 )
             sub = out / "scenarios" / name
-            write_json(sub / "metrics.json", {"scenario": name, "runs": {k: r.summary() for k, r in res.items()}})
-            save_output(sub, "mpc" if "mpc" in res else "simulate", res, settings=settings_of(s))  # aev_ocp.load(sub)
+            elsewhere = self.saved.get(id(res))  # the same runs, saved by an earlier section (Fig. 1/2, Table 1)
+            metrics: dict[str, Any] = {"scenario": name, "runs": {k: r.summary() for k, r in res.items()}}
+            if elsewhere is not None:
+                metrics["trajectories"] = f"../../{elsewhere}"  # aev_ocp.load(out / elsewhere): stored once
+            write_json(sub / "metrics.json", metrics)
+            if elsewhere is None:
+                save_output(
+                    sub, "mpc" if "mpc" in res else "simulate", res, settings=settings_of(s)
+                )  # aev_ocp.load(sub)
             i_max = s.ev.cell.max_current_A
             headers, rows = scenario_metrics_rows(res, i_max_A=i_max, totals=True)
             u = s.units

@@ -294,15 +294,20 @@ class Units:
 class CarFollowingParams:
     """Coefficients of OVM / OVFL / the proposed law (paper eq. main_dynamics; model guide §2).
 
-    alpha: relaxation rate to V(h) [1/model time]; beta: follow-the-leader gain
-    [model length²/model time]; kappa: weight of the deceleration term [1/model length];
-    eps: smoothing of the term [model speed²].
+    The laws are the paper's dimensionless ones at their own length scale h_scale_m ℓ [m] and speed scale
+    v_scale_mps u [m/s] (law parameters, not the scenario's [units]): alpha: relaxation rate to V(h) [u/ℓ 1/s];
+    beta: follow-the-leader gain [ℓ u m²/s]; kappa: weight of the deceleration term [1/ℓ 1/m]; eps: smoothing of
+    the term [u² m²/s²]. model_units: the model units the laws are simulated in (set by scenario loaders from
+    [units]; None: the laws' own scales), see :meth:`aev_ocp.models.carfollowing.CarFollowingLaw.in_units`.
     """
 
     alpha: float = spec(2.0, ge=0)  # paper Fig. 1-2 captions, Table 1 setup
     beta: float = spec(3.0, ge=0)  # paper Fig. 1-2 captions
     kappa: float = spec(0.03, ge=0)  # paper Fig. 1-2 captions
     eps: float = spec(1e-6, gt=0)  # paper §2 ("e.g. 10^-6")
+    h_scale_m: float = spec(10.0, gt=0)  # model guide §1: the paper read at L = 10 m
+    v_scale_mps: float = spec(5.0, gt=0)  # model guide §1: U = 5 m/s (the paper's v_l = 1.7 is 8.5 m/s)
+    model_units: Units | None = spec(None, kind="instance", cls=Units, optional=True)  # set by loaders
 
     def __post_init__(self) -> None:
         validate_fields(self)
@@ -370,6 +375,73 @@ class VehicleParams:
         return cls(**{**base, **overrides})
 
 
+RC_TABLE_KEYS = ("R_s_ohm", "R1_ohm", "C1_F", "R2_ohm", "C2_F")
+
+
+@dataclass(frozen=True)
+class RCTable:
+    """R_s [Ω], R1 [Ω], C1 [F], R2 [Ω], C2 [F] of a 2-RC cell over SOC [-] and temperature [K]: each table has
+    one row per ``T_K`` and one column per ``soc`` (a cell file's ``[rc_table]``, :mod:`aev_ocp.cells`). The
+    plant interpolates linearly and holds the end values outside the grid; optimisers take a cubic B-spline
+    (:func:`aev_ocp.models.battery.rc_function`). ``soc_ref``: the SOC of the cell's scalar values."""
+
+    soc: tuple[float, ...]
+    T_K: tuple[float, ...]
+    R_s_ohm: tuple[tuple[float, ...], ...]
+    R1_ohm: tuple[tuple[float, ...], ...]
+    C1_F: tuple[tuple[float, ...], ...]
+    R2_ohm: tuple[tuple[float, ...], ...]
+    C2_F: tuple[tuple[float, ...], ...]
+    soc_ref: float = 0.5
+
+    def __post_init__(self) -> None:
+        def floats(x: Any, what: str) -> tuple[float, ...]:
+            try:
+                v = tuple(float(a) for a in x)
+            except (TypeError, ValueError):
+                raise ParameterError(f"RCTable.{what} is not allowed: must be an array of numbers") from None
+            if not all(math.isfinite(a) for a in v):
+                raise ParameterError(f"RCTable.{what} is not allowed: every value must be finite")
+            return v
+
+        soc, temps = floats(self.soc, "soc"), floats(self.T_K, "T_K")
+        if len(soc) < 2 or any(b <= a for a, b in zip(soc, soc[1:])) or soc[0] < 0 or soc[-1] > 1:
+            raise ParameterError(f"RCTable.soc = {list(soc)!r:.80} is not allowed: ≥ 2 increasing values in [0, 1]")
+        if not temps or any(b <= a for a, b in zip(temps, temps[1:])) or temps[0] <= 0:
+            raise ParameterError(f"RCTable.T_K = {list(temps)!r:.80} is not allowed: ≥ 1 increasing values > 0 K")
+        object.__setattr__(self, "soc", soc)
+        object.__setattr__(self, "T_K", temps)
+        object.__setattr__(self, "soc_ref", float(self.soc_ref))
+        if not soc[0] <= self.soc_ref <= soc[-1]:
+            raise ParameterError(f"RCTable.soc_ref = {self.soc_ref!r} is not allowed: must lie in the soc grid")
+        for key in RC_TABLE_KEYS:
+            raw = getattr(self, key)
+            rows = tuple(floats(r, key) for r in raw) if isinstance(raw, (list, tuple)) else ()
+            if len(rows) != len(temps) or any(len(r) != len(soc) for r in rows):
+                raise ParameterError(
+                    f"RCTable.{key} is not allowed: needs {len(temps)} rows (one per T_K) of {len(soc)} values "
+                    "(one per soc)"
+                )
+            if any(a <= 0 for r in rows for a in r):
+                raise ParameterError(f"RCTable.{key} is not allowed: every value must be > 0")
+            object.__setattr__(self, key, rows)
+
+    def value(self, key: str, soc: float, T_K: float) -> float:
+        """The table ``key`` at (soc, T_K), bilinear with the end values held (NumPy; the plant's values)."""
+        along_soc = [_interp_held(soc, self.soc, r) for r in getattr(self, key)]
+        return _interp_held(T_K, self.T_K, along_soc) if len(self.T_K) > 1 else along_soc[0]
+
+
+def _interp_held(x: float, xs: Sequence[float], ys: Sequence[float]) -> float:
+    """Linear interpolation of (xs, ys) at x, the end values held outside [xs[0], xs[-1]]."""
+    x = min(max(float(x), xs[0]), xs[-1])
+    k = max(i for i in range(len(xs) - 1) if xs[i] <= x) if len(xs) > 1 else 0
+    if len(xs) == 1 or x == xs[k]:
+        return float(ys[k])
+    w = (x - xs[k]) / (xs[k + 1] - xs[k])
+    return float(ys[k] + w * (ys[k + 1] - ys[k]))
+
+
 @dataclass(frozen=True)
 class CellParams:
     """2-RC equivalent-circuit cell (paper §3; model guide §6), SI units. I > 0 discharges.
@@ -394,9 +466,21 @@ class CellParams:
     # OCV table (SOC grid 0..1, volts); None: the shipped A123 table aev_ocp/data/a123_ocv_25C.csv
     ocv_soc: tuple[float, ...] | None = spec(None, kind="instance", cls=tuple, optional=True)
     ocv_V: tuple[float, ...] | None = spec(None, kind="instance", cls=tuple, optional=True)
+    # R_s, R1, C1, R2, C2 over SOC and T (a cell file's [rc_table], e.g. tools/identify_cell.py); None: the
+    # constants above. With a table, the constants are its level at (rc_table.soc_ref, T_ref_K): the plant uses
+    # table(S, T) × R_s_ohm / table(soc_ref, T_ref_K), so a shipped file (constants = the table there) uses the
+    # table as it is and an override of R_s_ohm (or a mismatch factor) scales the whole table
+    rc_table: RCTable | None = spec(None, kind="instance", cls=RCTable, optional=True)
 
     def __post_init__(self) -> None:
+        if isinstance(self.rc_table, dict):  # a saved run's cell (saved.py writes dataclasses as tables)
+            object.__setattr__(self, "rc_table", RCTable(**self.rc_table))
         validate_fields(self)
+        if self.rc_table is not None and self.activation_energy_Jpmol is not None:
+            raise ParameterError(
+                "CellParams.activation_energy_Jpmol is not allowed with rc_table: the table holds the temperature "
+                "dependence (set one or the other)"
+            )
         if (self.ocv_soc is None) != (self.ocv_V is None):
             raise ParameterError("CellParams.ocv_soc and CellParams.ocv_V: give both or neither")
         if self.ocv_soc is not None and self.ocv_V is not None:
@@ -414,7 +498,8 @@ class CellParams:
 
 
 def check_ocv_table(soc: Sequence[Any], ocv_V: Sequence[Any], where: str) -> None:
-    """An OCV table: ≥ 4 points, SOC strictly increasing from 0 to 1, OCV finite and > 0 [V]; ParameterError
+    """An OCV table: ≥ 4 points, SOC strictly increasing from 0 to 1, OCV finite, > 0 [V] and never falling with SOC
+    (rising from SOC 0 to 1); ParameterError
     '<where>.ocv_soc …' otherwise."""
     s = [float(x) for x in soc]
     v = [float(x) for x in ocv_V]
@@ -428,10 +513,26 @@ def check_ocv_table(soc: Sequence[Any], ocv_V: Sequence[Any], where: str) -> Non
         raise ParameterError(f"{where}.ocv_soc is not allowed: must run from 0 to 1, got {s[0]:g} … {s[-1]:g}")
     if any(x <= 0 for x in v):
         raise ParameterError(f"{where}.ocv_V is not allowed: every voltage must be > 0 V")
+    fall = next((i for i in range(1, len(v)) if v[i] < v[i - 1]), None)
+    if fall is not None or v[-1] <= v[0]:  # a cell's OCV rises with its charge (flat plateaus allowed, never falls)
+        at = (
+            f"it falls from {v[fall - 1]:g} V to {v[fall]:g} V between SOC {s[fall - 1]:g} and {s[fall]:g}"
+            if fall
+            else (f"it does not rise ({v[0]:g} V at SOC 0, {v[-1]:g} V at SOC 1)")
+        )
+        raise ParameterError(
+            f"{where}.ocv_V is not allowed: must not decrease with SOC and must end above its start (the open-circuit "
+            f"voltage of a cell rises as it charges); {at}"
+        )
 
 
 #: Molar gas constant [J/(mol K)] (CODATA 2018, exact).
 R_GAS_JPMOLK = 8.314462618
+
+
+#: Highest temperature a pack, its ambient or its limit may have [K]: lithium-ion cells go into thermal runaway
+#: at 400-500 K (Feng et al. 2018, Energy Storage Materials 10:246-267); 1000 K is far beyond any of them.
+MAX_TEMPERATURE_K = 1000.0
 
 
 @dataclass(frozen=True)
@@ -444,15 +545,22 @@ class ThermalParams:
     """
 
     enabled: bool = spec(False, kind="bool")  # off by default: the paper's model has no temperature
-    ambient_K: float = spec(298.15, gt=0)  # 25 °C: the temperature of the cell tables (T_ref_K)
-    T0_K: float | None = spec(None, gt=0, optional=True)  # initial pack temperature; None: ambient
+    ambient_K: float = spec(298.15, gt=0)  # 25 °C: the temperature of the cell tables (T_ref_K); below T_max_K
+    T0_K: float | None = spec(
+        None, gt=0, le=MAX_TEMPERATURE_K, optional=True
+    )  # initial pack temperature; None: ambient
     h_Wpm2K: float = spec(51.0, gt=0)  # forced air: Lin et al. 2014 measured R_u = 3.08 K/W for an A123 26650
     # in their fan-cooled fixture, i.e. h = 1/(R_u A) = 1/(3.08 × 6.37e-3 m²) ≈ 51 W/(m² K)
     cooling_power_W: float = spec(0.0, ge=0)  # extra heat removed from the pack [W] (active cooling); 0: none
-    T_max_K: float = spec(328.15, gt=0)  # A123 ANR26650M1-B datasheet: discharge operating limit 55 °C
+    T_max_K: float = spec(328.15, gt=0, le=MAX_TEMPERATURE_K)  # A123 ANR26650M1-B datasheet: discharge limit 55 °C
 
     def __post_init__(self) -> None:
         validate_fields(self)
+        if not self.T_max_K > self.ambient_K:  # a limit the pack exceeds at rest, before it moves
+            raise ParameterError(
+                f"ThermalParams.T_max_K = {echo(self.T_max_K)} is not allowed: must be a finite number in "
+                f"({self.ambient_K:g}, {MAX_TEMPERATURE_K:g}] K (above ambient_K = {self.ambient_K:g} K)"
+            )
 
     @property
     def initial_K(self) -> float:
@@ -515,6 +623,13 @@ class VehicleLimits:
     lag_s: float = spec(0.0, ge=0)  # first-order actuator lag tau [s]; 0: ideal actuator (the paper's model)
     v_max_mps: float = spec(62.5, gt=0)  # 2022 Tesla Model 3 RWD top speed, 225 km/h (manufacturer's data)
     enabled: bool = spec(True, kind="bool")  # False: no limit at all (the paper's laws; stated by its scenarios)
+    # The closed loop's command stages (aev_ocp.loop), between every sampled controller and the actuator: a
+    # first-order command filter (time constant [s]) and a jerk limit on the commands (|Δa|/dt [m/s^3]), and
+    # the braking-distance safety layer. None: the default (a production ACC's conditioning, PRODUCTION_ACC, for
+    # car-following laws under realistic sensors; off otherwise); 0 / False: off. The paper's runs leave them off.
+    command_filter_s: float | None = spec(None, ge=0, optional=True)
+    command_jerk_max_mps3: float | None = spec(None, ge=0, optional=True)
+    safety_layer: bool = spec(False, kind="bool")  # min(command, braking-distance bound) on every sampled command
 
     def __post_init__(self) -> None:
         validate_fields(self)
@@ -540,6 +655,10 @@ class VehicleLimits:
 #: The paper's laws as printed: no physical limit (Table 1, Fig. 1-5 and §9's canonical MPC state this).
 UNLIMITED = VehicleLimits(enabled=False)
 
+#: (a_min, a_max) [model acceleration] of the paper's canonical MPC (model guide §9: −3 ≤ a ≤ 2), the bounds of a
+#: controller on a vehicle without limits (UNLIMITED); −7.5 and 5 m/s² at the default units (L = 10 m, U = 5 m/s).
+PAPER_ACCEL_BOUNDS_MODEL = (-3.0, 2.0)
+
 
 @dataclass(frozen=True)
 class EVParams:
@@ -551,6 +670,23 @@ class EVParams:
     pack: PackParams = field(default_factory=PackParams)
     limits: VehicleLimits = field(default_factory=VehicleLimits)
     thermal: ThermalParams = field(default_factory=ThermalParams)
+
+    def __post_init__(self) -> None:
+        for name, cls in (("units", Units), ("vehicle", VehicleParams), ("cell", CellParams), ("pack", PackParams)):
+            check_argument("EVParams", name, getattr(self, name), cls)
+        check_argument("EVParams", "limits", self.limits, VehicleLimits)
+        check_argument("EVParams", "thermal", self.thermal, ThermalParams)
+        # the rules between tables: a constant cooling power above hA·T_amb would drive the pack's steady state
+        # T_amb − P_cool/hA (no heat from the cells, aev_ocp.models.thermal) below 0 K
+        th, cell, pack = self.thermal, self.cell, self.pack
+        hA = pack.n_cells * th.h_Wpm2K * cell.surface_area_m2  # as aev_ocp.models.thermal.conductance_WpK
+        cap = hA * th.ambient_K
+        if not th.cooling_power_W < cap:
+            raise ParameterError(
+                f"ThermalParams.cooling_power_W = {echo(th.cooling_power_W)} is not allowed: must be a finite number "
+                f"in [0, {cap:.6g}) W (hA x ambient_K = {hA:.6g} W/K x {th.ambient_K:g} K for this pack: more "
+                "cooling would drive the pack below 0 K)"
+            )
 
 
 def as_dict(obj: Any) -> dict[str, Any]:

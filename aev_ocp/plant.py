@@ -174,6 +174,41 @@ def floor_violations(t: np.ndarray, gap: np.ndarray, controllers: Sequence[Any],
     return out
 
 
+#: kind of the event of a cell current beyond its limit (CellParams.max_current_A): recorded, never stopping the run
+CURRENT_LIMIT = "current_limit"
+
+
+def current_limit_events(t: np.ndarray, current_A: np.ndarray, ev: EVParams) -> list[Event]:
+    """One rule for every plant (platoon, ring, SUMO): a cell current beyond ±``ev.cell.max_current_A`` (the cell's
+    20C limit) is an event, one per vehicle that exceeds it: at its first sample beyond the limit, with the largest
+    |I| [A] and how many samples were beyond. The plant does not saturate the current (it is what the power demand
+    needs) and the run goes on; the event goes to :attr:`~aev_ocp.results.SimulationResult.violations`, so the run's
+    status is 'violated', not 'ok'. Only for vehicles with limits (``ev.limits.enabled``): the paper's unlimited
+    model reports its 20C excursions in its own tables. t (K,) [model time], current_A (K, n) [A]."""
+    if not ev.limits.enabled:
+        return []
+    I_max = ev.cell.max_current_A
+    I = np.asarray(current_A, float)
+    if I.ndim != 2:
+        return []
+    out: list[Event] = []
+    for i in range(I.shape[1]):
+        beyond = np.flatnonzero(np.abs(I[:, i]) > I_max * (1 + 1e-9))
+        if beyond.size == 0:
+            continue
+        k, peak = int(beyond[0]), float(np.max(np.abs(I[beyond, i])))
+        out.append(
+            Event(
+                CURRENT_LIMIT,
+                float(t[k]),
+                i,
+                f"cell current beyond its limit {I_max:g} A: largest |I| = {peak:.4g} A, {beyond.size} samples beyond",
+                time_s=float(ev.units.time_to_si(t[k])),
+            )
+        )
+    return out
+
+
 class Plant:
     """The exact platoon model behind ``leader`` integrated by ONE CasADi CVODES integrator.
 
@@ -648,5 +683,5 @@ def assemble_result(
         jerk_sampled=jerk_sampled,
         solver_stats=solver_stats if solver_stats is not None else [None] * n,
         meta={"leader": leader.describe(), **meta},
-        violations=violations,
+        violations=violations + (current_limit_events(t, rows(Y, 1), ev) if battery else []),
     )

@@ -29,7 +29,8 @@ def heading_anchor(heading: str) -> str:
 
 
 _IMG = re.compile(r"!\[([^\]]*)\]\(([^)\s]+)\)")
-_LINK = re.compile(r"\[([^\]]+)\]\(([^)\s]+)\)")
+# link text may hold balanced brackets, as in GitHub's Markdown ("[t ∈ [0, 70]](#…)": a heading's interval)
+_LINK = re.compile(r"\[((?:[^\[\]]|\[[^\[\]]*\])+)\]\(([^)\s]+)\)")
 _CODE = re.compile(r"`([^`]+)`")
 _BOLD = re.compile(r"\*\*(.+?)\*\*")
 

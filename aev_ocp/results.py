@@ -211,8 +211,27 @@ def claim_output_dir(
         raise OutputError(f"output folder {shown} cannot be created or read ({_os_reason(exc)})") from None
     _acquire_lock(out)  # held until the command ends (release_output_locks): a second run is refused at once
     _check_claim(out, me, files)  # again under the lock: a run that started meanwhile has written its marker
+    if (out / MARKER).is_file():  # the same command and scenario ran here before: its outputs are replaced whole
+        _remove_previous_outputs(out)
     write_json(out / MARKER, me, provenance=False)
     return out
+
+
+#: What an earlier run of the same command into its own folder leaves that the new run replaces: its figures,
+#: tables, reports and saved runs at the folder's top level (a figure of a law or case the new run no longer has
+#: would otherwise stay beside the new ones, looking current).
+STALE_SUFFIXES = (".png", ".svg", ".pdf", ".csv", ".md", ".html", ".json", ".npz")
+
+
+def _remove_previous_outputs(out: Path) -> None:
+    """Remove the top-level output files (:data:`STALE_SUFFIXES`) of the earlier run of the same command in
+    ``out`` (its marker matched; called under the folder's lock); the marker itself is rewritten after."""
+    for p in out.iterdir():
+        if p.name != MARKER and p.suffix in STALE_SUFFIXES and p.is_file() and not p.is_symlink():
+            try:
+                p.unlink()
+            except OSError:
+                pass
 
 
 def _check_claim(out: Path, me: dict[str, Any], files: list[str] | None) -> None:
@@ -307,6 +326,10 @@ def release_output_locks(key: str | None = None) -> None:
     for k in [key] if key is not None else list(_HELD_LOCKS):
         fd = _HELD_LOCKS.pop(k, None)
         if fd is not None:
+            try:  # the pid inside names the holder only while it runs: a finished run leaves no pid behind
+                os.ftruncate(fd, 0)
+            except OSError:
+                pass
             os.close(fd)
 
 

@@ -167,7 +167,7 @@ def save_output(
         buf = io.BytesIO()
         # no allow_pickle keyword: NumPy < 2.2 would store it as an array (the stubs of newer NumPy see the
         # **arrays as that keyword)
-        np.savez(buf, **arrays)  # type: ignore[arg-type]
+        np.savez_compressed(buf, **arrays)  # type: ignore[arg-type]  # same arrays, about half the bytes
         data = buf.getvalue()
         with atomic_path(out / ARRAYS) as tmp:
             tmp.write_bytes(data)
@@ -514,6 +514,12 @@ def load_study_output(manifest: dict[str, Any], folder: Path) -> StudyOutput:
     if not table.exists():
         raise LoadError(f"{folder}: the study's table {table.name} is missing")
     data = read_regular(table, int(memory_limit_bytes()) // 4, "table")  # a FIFO or device is refused, unread
+    want = manifest.get("table_sha256")  # absent in folders written before it was recorded
+    if want is not None and hashlib.sha256(data).hexdigest() != want:
+        raise LoadError(
+            f"{table}: not the table this study wrote (its SHA-256 differs from the manifest's table_sha256): "
+            "another study's table or an edited one; rerun the study to rebuild it"
+        )
     rows = [json.loads(line) for line in data.decode("utf-8").splitlines() if line.strip()]  # as load_table reads it
     if not all(isinstance(r, dict) for r in rows):
         raise LoadError(f"{table}: a line of the study's table is not a row (a JSON object); the table is damaged")

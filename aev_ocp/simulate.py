@@ -42,7 +42,7 @@ from .models import energy
 from .models.actuator import actuator_rate, saturate, speed_cut
 from .models.carfollowing import CarFollowingLaw, optimal_velocity
 from .models.ego import battery_side
-from .models.leader import LeaderProfile
+from .models.leader import LeaderProfile, SpeedTrace
 from .limits import check_simulation_size
 from .progress import check_deadline
 from .params import METHODS, EVParams, ParameterError, SimOptions, check_argument
@@ -83,10 +83,13 @@ def _law_template(law: CarFollowingLaw) -> tuple[Any, Callable[[ca.SX], CarFollo
     their numbers. Dataclass laws whose accel works on symbolic coefficients get this; any other law
     (or one whose accel needs numbers) is compiled with its coefficients as constants (key = the law)."""
     if dataclasses.is_dataclass(law):
+        fixed = getattr(law, "compile_constants", ())  # compiled as constants (part of the key), e.g. a law's scales
         names = [
             f.name
             for f in dataclasses.fields(law)
-            if isinstance(getattr(law, f.name), float) and not isinstance(getattr(law, f.name), bool)
+            if isinstance(getattr(law, f.name), float)
+            and not isinstance(getattr(law, f.name), bool)
+            and f.name not in fixed
         ]
         if names:
 
@@ -111,6 +114,131 @@ def _law_template(law: CarFollowingLaw) -> tuple[Any, Callable[[ca.SX], CarFollo
                 rest = tuple((f.name, getattr(law, f.name)) for f in dataclasses.fields(law) if f.name not in names)
                 return (type(law), tuple(names), rest), make, values
     return law, (lambda p, _law=law: _law), []
+
+
+def _float_paths(obj: Any, prefix: tuple[str, ...] = ()) -> list[tuple[str, ...]]:
+    """The attribute paths of every float field of a (nested) dataclass ``obj``, depth first (bools and ints are
+    not floats here: they shape the model, so they stay compiled in)."""
+    out: list[tuple[str, ...]] = []
+    for f in dataclasses.fields(obj):
+        x = getattr(obj, f.name)
+        if isinstance(x, float):
+            out.append(prefix + (f.name,))
+        elif dataclasses.is_dataclass(x) and not isinstance(x, type):
+            out.extend(_float_paths(x, prefix + (f.name,)))
+    return out
+
+
+def _with_symbols(obj: Any, paths: Sequence[tuple[str, ...]], p: Any) -> Any:
+    """A copy of the dataclass ``obj`` with the float at ``paths[j]`` replaced by ``p[j]`` (copies bypass the frozen
+    dataclass and its validation, which ran on ``obj``)."""
+    twin = copy.copy(obj)
+    groups: dict[str, list[tuple[int, tuple[str, ...]]]] = {}
+    for j, path in enumerate(paths):
+        groups.setdefault(path[0], []).append((j, path[1:]))
+    for name, items in groups.items():
+        if len(items) == 1 and not items[0][1]:
+            object.__setattr__(twin, name, p[items[0][0]])
+        else:
+            sub = _with_symbols(getattr(obj, name), [rest for _, rest in items], [p[j] for j, _ in items])
+            object.__setattr__(twin, name, sub)
+    return twin
+
+
+def _same_function(baked: ca.Function, symbolic: ca.Function, values: Any, points: Sequence[Any]) -> bool:
+    """``symbolic`` evaluates bit for bit like ``baked`` (same inputs; the last one, the runtime parameters
+    ``values``, is unused by ``baked``) at every probe point, NaN where it is NaN: the parameters replaced the
+    compiled-in numbers without changing the model or its rounding (a parameter that changes how CasADi folds
+    the constants, e.g. a product of several of them, fails this and stays compiled in: the paper's numbers
+    stay bit-identical)."""
+    try:
+        for pt in points:
+            args = [*pt, np.asarray(values, float)]
+            for a, b in zip(baked.call(args), symbolic.call(args)):
+                x, y = np.asarray(a, float), np.asarray(b, float)
+                if x.shape != y.shape or not np.array_equal(x, y, equal_nan=True):
+                    return False
+    except (TypeError, ValueError, RuntimeError, NotImplementedError, ParameterError):
+        return False
+    return True
+
+
+#: Lengths a recorded leader's table is padded to (a power of two from this one on): one compiled library serves
+#: every trace up to that length (the shipped EPA cycles: 601-1370 samples, one table length).
+TRACE_TABLE_MIN = 2048
+
+
+def _trace_table(leader: SpeedTrace) -> tuple[np.ndarray, np.ndarray]:
+    """(grid, speeds) of a speed trace as its interpolant holds them (the far knot 1e6 after the end holds the
+    last speed), padded with knots further out at the same speed to TRACE_TABLE_MIN · 2^k entries: on
+    [0, end + 1e6] the interpolated speed and its slope are those of the trace, bit for bit."""
+    t, v = np.asarray(leader.times, float), np.asarray(leader.speeds, float)
+    g, s = np.append(t, t[-1] + 1e6), np.append(v, v[-1])
+    n = TRACE_TABLE_MIN
+    while n < g.size:
+        n *= 2
+    pad = n - g.size
+    return np.concatenate([g, g[-1] + np.arange(1.0, pad + 1.0)]), np.concatenate([s, np.full(pad, s[-1])])
+
+
+def _leader_template(leader: LeaderProfile) -> tuple[ca.Function, np.ndarray]:
+    """The leader as a compiled-source-independent function ``aevsim_leader(t, q) -> (v_l, dv_l/dt)`` and the
+    runtime parameters q of this leader: a speed trace's padded table (:func:`_trace_table`), or the float fields
+    of a dataclass profile (constant speed, the paper's leader, braking). Any other profile, or one whose speed
+    needs numbers, is compiled with its numbers in (q empty)."""
+    t = ca.SX.sym("t")
+
+    def fn(v: Any, q: Any) -> ca.Function:
+        return ca.Function("aevsim_leader", [t, q], [ca.vertcat(v, ca.jacobian(v, t))])
+
+    vb = leader.speed(t)
+    q0 = ca.SX.sym("q", 0)
+    probes = [(0.0,), (0.37,), (3.3,), (17.9,), (25.1,), (180.4,)]
+    if isinstance(leader, SpeedTrace):
+        g, s = _trace_table(leader)
+        q = ca.SX.sym("q", 2 * g.size)
+        interp = ca.interpolant("aevsim_trace", "linear", [g.size], 1)
+        f = fn(interp(ca.fmax(t, 0.0), q[: g.size], q[g.size :]), q)
+        values = np.concatenate([g, s])
+        probes += [(float(x),) for x in leader.times[:: max(1, len(leader.times) // 7)]]
+        if _same_function(fn(vb, q), f, values, probes):
+            return f, values
+    elif dataclasses.is_dataclass(leader):
+        paths = _float_paths(leader)
+        q = ca.SX.sym("q", len(paths))
+        values = np.array([float(_get(leader, pth)) for pth in paths])
+        try:
+            f = fn(_with_symbols(leader, paths, q).speed(t), q)
+        except (TypeError, ValueError, RuntimeError, NotImplementedError, ParameterError):
+            f = None
+        if f is not None and _same_function(fn(vb, q), f, values, probes):
+            return f, values
+    return fn(vb, q0), np.zeros(0)
+
+
+#: The vehicle fields that are runtime parameters of the cascade, per model structure (found by probing once per
+#: process: :meth:`PlatoonSimulator._probe_ev_paths`).
+_EV_PATHS: dict[Any, tuple[tuple[str, ...], ...]] = {}
+
+
+def _skeleton(obj: Any) -> Any:
+    """A dataclass's non-float content (nested): the part of a vehicle's parameters that shapes its model."""
+    return (type(obj),) + tuple(
+        (
+            f.name,
+            _skeleton(x)
+            if dataclasses.is_dataclass(x) and not isinstance(x, type)
+            else (None if isinstance(x, float) else x),
+        )
+        for f in dataclasses.fields(obj)
+        for x in (getattr(obj, f.name),)
+    )
+
+
+def _get(obj: Any, path: tuple[str, ...]) -> Any:
+    for name in path:
+        obj = getattr(obj, name)
+    return obj
 
 
 def _interruptible_call(fn: Callable[..., int], args: tuple[Any, ...], cancel: ctypes.c_int) -> int:
@@ -242,13 +370,17 @@ class PlatoonSimulator(PlatoonRun):
             )
 
     # ------------------------------------------------------------------ compiled cascade
-    def _vehicle_function(self, law: CarFollowingLaw, k: int, p: ca.SX) -> ca.Function:
+    def _vehicle_function(self, law: CarFollowingLaw, k: int, p: ca.SX, ev: Any = None) -> ca.Function:
         """One follower's right-hand side: (u = (v_l, a_l), x, p) -> (dz = (ẋ, quadrature integrands), y = (a, I, disc)),
-        p the law's runtime coefficients (see :func:`_law_template`).
+        p the runtime parameters (the law's coefficients, see :func:`_law_template`, then the vehicle's, see
+        :meth:`_ev_template`); ``ev``: the vehicle's parameters as used in the expressions (default
+        ``self.ev``: its numbers compiled in); the model's structure (limits on, actuator state, battery) is
+        always read from ``self.ev``.
 
         x = (h, v[, V1, V2, S]) in model units and volts; quadrature integrands per model time unit:
         ω, (V(h) − v)², (v_l − v)², jerk²[, pack Q and Q_irr in J per model time unit]."""
-        ev, T, eta = self.ev, self.ev.units.time_s, self.ev.vehicle.efficiency
+        ev = self.ev if ev is None else ev
+        T, eta = ev.units.time_s, ev.vehicle.efficiency
         u = ca.SX.sym("u", 2)
         vl, al = u[0], u[1]
         h, v = ca.SX.sym("h"), ca.SX.sym("v")
@@ -257,9 +389,9 @@ class PlatoonSimulator(PlatoonRun):
         lim = ev.limits
         act: ca.SX | None = None
         dact: Any = None
-        if lim.enabled:  # the vehicle's limits, as in aev_ocp.plant.Plant (off: the same graph as before)
+        if self.ev.limits.enabled:  # the vehicle's limits, as in aev_ocp.plant.Plant (off: the same graph as before)
             a_sat = saturate(a, lim, ev.units)
-            if lim.has_actuator_state:
+            if self.ev.limits.has_actuator_state:
                 act = ca.SX.sym("a_act")
                 dact = actuator_rate(a_sat, act, lim, ev.units)
                 a_sat = act
@@ -283,6 +415,63 @@ class PlatoonSimulator(PlatoonRun):
             ode.append(dact)
         return ca.Function(f"aevsim_law{k}", [u, ca.vertcat(*x), p], [ca.vertcat(*ode, *quad), ca.vertcat(*y)])
 
+    def _ev_template(
+        self, make: Callable[[Any], CarFollowingLaw], law_values: np.ndarray, n_par: int
+    ) -> tuple[Callable[[Any], Any], np.ndarray]:
+        """(ev(q), values): the vehicle's parameters with float fields (mass, drag, the cell's coefficients, the
+        units, …) replaced by the runtime parameters q, and their numbers, so one compiled library serves every
+        vehicle and scenario of the same structure. A field whose symbolic value does not give the same
+        right-hand side at probe points (the model turns it into a number, e.g. ``float(...)``) stays compiled
+        in: the fields chosen are found once per structure (:data:`_EV_PATHS`)."""
+        skeleton = (self.battery, _skeleton(self.ev), _law_template(self.laws[0])[0])
+        paths = _EV_PATHS.get(skeleton)
+        if paths is None:
+            paths = _EV_PATHS[skeleton] = self._probe_ev_paths(make, law_values, n_par)
+        values = np.array([float(_get(self.ev, pth)) for pth in paths])
+        return (lambda q: _with_symbols(self.ev, paths, q)), values
+
+    def _probe_ev_paths(
+        self, make: Callable[[Any], CarFollowingLaw], law_values: np.ndarray, n_par: int
+    ) -> tuple[tuple[str, ...], ...]:
+        """The float fields of ``self.ev`` that may be runtime parameters (see :meth:`_ev_template`): all of them
+        if that gives the compiled-in right-hand side at probe points, else each top-level group (units,
+        vehicle, cell, …) that does as a whole (a group that fails stays compiled in)."""
+        every = _float_paths(self.ev)
+        x = [1.3, 0.9] + ([3.55e-3, 1.2e-3, 0.63] if self.battery else [])
+        x2 = [2.4, 1.35] + ([-2.1e-3, 4.0e-4, 0.38] if self.battery else [])
+        if self.ev.limits.has_actuator_state:
+            x, x2 = x + [0.07], x2 + [-0.11]
+        probes = [([1.1, 0.23], x), ([0.4, -0.61], x2), ([1.62, 0.05], x2), ([0.2, 0.9], x)]
+        rng = np.random.default_rng(40)  # fixed probe points (the choice must not depend on the run)
+        for _ in range(60):
+            xr = [rng.uniform(0.2, 3.0), rng.uniform(0.0, 2.0)]
+            if self.battery:
+                xr += [rng.uniform(-0.01, 0.01), rng.uniform(-0.01, 0.01), rng.uniform(0.1, 0.9)]
+            if self.ev.limits.has_actuator_state:
+                xr.append(rng.uniform(-0.5, 0.5))
+            probes.append(([rng.uniform(0.0, 2.0), rng.uniform(-1.0, 1.0)], xr))
+        law = np.concatenate([law_values, np.zeros(n_par - law_values.size)])
+
+        def ok(paths: Sequence[tuple[str, ...]]) -> bool:
+            if not paths:
+                return False
+            p = ca.SX.sym("p", n_par + len(paths))
+            values = np.concatenate([law, [float(_get(self.ev, pth)) for pth in paths]])
+            try:
+                baked = self._vehicle_function(make(p[:n_par]), 0, p)
+                symbolic = self._vehicle_function(make(p[:n_par]), 0, p, _with_symbols(self.ev, paths, p[n_par:]))
+            except (TypeError, ValueError, RuntimeError, NotImplementedError, ParameterError, AttributeError):
+                return False
+            return _same_function(baked, symbolic, values, probes)
+
+        if ok(every):
+            return tuple(every)
+        chosen: list[tuple[str, ...]] = []
+        for group in dict.fromkeys(pth[0] for pth in every):
+            members = [pth for pth in every if pth[0] == group]
+            chosen += members if ok(members) else []
+        return tuple(chosen) if ok(chosen) else ()
+
     def _build_cascade(self) -> None:
         """Generate C for each distinct law and the leader, append the cascade driver, compile, load."""
         # one compiled right-hand side per law *template*: the coefficients of dataclass laws are runtime
@@ -298,12 +487,17 @@ class PlatoonSimulator(PlatoonRun):
             first.setdefault(k, (make, len(values)))
             self._law_of.append(k)
             self._params[i, : len(values)] = values
-        p = ca.SX.sym("p", n_par)
-        funcs = [self._vehicle_function(make(p), k, p) for k, (make, _) in first.items()]
-        t = ca.SX.sym("t")
-        vl = self.leader.speed(t)
-        funcs.append(ca.Function("aevsim_leader", [t], [ca.vertcat(vl, ca.jacobian(vl, t))]))
         self._nx = (5 if self.battery else 2) + int(self.ev.limits.has_actuator_state)
+        ev_sym, ev_values = self._ev_template(first[0][0], self._params[0, : first[0][1]], n_par)
+        p = ca.SX.sym("p", n_par + ev_values.size)
+        self._params = np.hstack([self._params, np.tile(ev_values, (self.n, 1))])
+        pe = p[n_par:]
+        funcs = [
+            self._vehicle_function(make(p[:n_par]), k, p, ev_sym(pe) if ev_values.size else None)
+            for k, (make, _) in first.items()
+        ]
+        leader_fn, self._leader_values = _leader_template(self.leader)
+        funcs.append(leader_fn)
         self._nq = 6 if self.battery else 4
         cg = ca.CodeGenerator("aevsim_rhs.c", {"with_header": False})
         for f in funcs:
@@ -316,9 +510,10 @@ class PlatoonSimulator(PlatoonRun):
         }
         head = "".join(f"#define {k} {v}\n" for k, v in sizes.items())
         eta = self.ev.vehicle.efficiency
-        head += f"#define OMEGA_A {0.5 * (1 / eta + eta)!r}\n#define OMEGA_B {0.5 * (1 / eta - eta)!r}\n"
+        # the g split A, B (cascade.c), then the leader's parameters: run-time inputs, not compiled in
+        self._globals = np.concatenate([[0.5 * (1 / eta + eta), 0.5 * (1 / eta - eta)], self._leader_values])
         head += f"#define NX {self._nx}\n#define NQ {self._nq}\n#define NY 3\n#define BATTERY {int(self.battery)}\n"
-        head += f"#define AEV_NP {n_par}\n"
+        head += f"#define AEV_NP {n_par + ev_values.size}\n"
         # with vehicle limits the jerk integrand jumps at every saturation corner (0 ↔ the law's rate of change);
         # the error test then cannot pass on ∫jerk² (steps underflow): it is integrated, not error-controlled
         head += f"#define AEV_JERK_UNCONTROLLED {int(self.ev.limits.enabled)}\n"
@@ -353,6 +548,7 @@ class PlatoonSimulator(PlatoonRun):
             dp,
             dp,
             lp,
+            dp,
             dp,
         ]
         fn.restype = ctypes.c_int
@@ -479,6 +675,7 @@ class PlatoonSimulator(PlatoonRun):
             ev_val,
             stats,
             last,
+            self._globals,
         )
         assert self._lib is not None  # _call_c runs only on the cascade path, after a successful build
         rc = _interruptible_call(self._run_c, args, ctypes.c_int.in_dll(self._lib, "aevsim_cancel"))

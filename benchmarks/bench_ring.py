@@ -70,7 +70,7 @@ def main() -> None:
     rows = []
     print(
         f"{'vehicles':>9} {'tol':>7} {'run [s]':>9} {'cpu [s]':>8} {'load':>5} {'target':>7} {'steps':>8} {'rejected':>8} {'RSS [GB]':>9} "
-        f"{'speed std':>9} {'E [J/km]':>10} status"
+        f"{'speed std':>9} {'Eb [J/km]':>10} status"
     )
     for n in a.sizes:
         tol = 1e-8 if n <= 100 else 1e-5
@@ -78,7 +78,7 @@ def main() -> None:
         rows.append(r)
         print(
             f"{n:>9} {tol:>7.0e} {r['run_s']:>9.3f} {r['cpu_s']:>8.3f} {r['load_1min']:>5.2f} {r['target_s'] or float('nan'):>7g} {r['steps']:>8} "
-            f"{r['rejected']:>8} {r['peak_rss_GB']:>9.3f} {r['speed_std_mps']:>9.4f} {r['energy_J_per_km']:>10.5g} "
+            f"{r['rejected']:>8} {r['peak_rss_GB']:>9.3f} {r['speed_std_mps']:>9.4f} {r['battery_energy_J_per_km']:>10.5g} "
             f"{r['status']}",
             flush=True,
         )

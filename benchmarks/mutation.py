@@ -327,7 +327,7 @@ MUTATIONS: tuple[Mutation, ...] = (
     Mutation(
         "M38",
         "safe fallback: the lead's measured acceleration enters with the wrong sign",
-        "aev_ocp/safety/fallback.py",
+        "aev_ocp/safety/bound.py",
         "b_l = max(p.lead_brake_mps2, -a_lead_mps2)",
         "b_l = max(p.lead_brake_mps2, a_lead_mps2)",
         "sign",
@@ -336,7 +336,7 @@ MUTATIONS: tuple[Mutation, ...] = (
     Mutation(
         "M39",
         "safe fallback: the stopping point's mid-step peak left out (end-of-step check)",
-        "aev_ocp/safety/fallback.py",
+        "aev_ocp/safety/bound.py",
         "            cands.append(t_star)",
         "            cands.append(0.0)",
         "missing term",
@@ -345,7 +345,7 @@ MUTATIONS: tuple[Mutation, ...] = (
     Mutation(
         "M40",
         "safe fallback: the lag's worst delay without a_max",
-        "aev_ocp/safety/fallback.py",
+        "aev_ocp/safety/bound.py",
         "p.lag_s * (p.a_max_mps2 + p.ego_brake_mps2) / p.ego_brake_mps2",
         "p.lag_s * p.ego_brake_mps2 / p.ego_brake_mps2",
         "missing term",

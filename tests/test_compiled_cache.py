@@ -129,7 +129,8 @@ def test_unusable_cache_folder_uses_one_temp_folder_removed_at_exit(tmp_path) ->
 
 def test_concurrent_builds_of_one_library_all_succeed_without_warnings(tmp_path) -> None:
     """Four processes build the same (new) library into one empty cache at once: each gets a verified
-    library, none warns, and no temporary file is left."""
+    library, none warns, ONE of them compiles it (the others wait on its lock and find it in the cache: the
+    "compiling" line appears once per library per machine), and no temporary file is left."""
     env = {**os.environ, "AEV_OCP_CACHE": str(tmp_path / "cache"), "PYTHONPATH": str(Path(__file__).parents[1])}
     code = (
         "import warnings, aev_ocp.compiled as B; warnings.simplefilter('error', B.CompileWarning);"
@@ -145,6 +146,7 @@ def test_concurrent_builds_of_one_library_all_succeed_without_warnings(tmp_path)
     outs = [p.communicate(timeout=300) for p in procs]
     assert all(p.returncode == 0 for p in procs), outs
     assert [o.strip() for o, _ in outs] == ["verified"] * 4
+    assert sum(e.count("aev_ocp: compiling aevconc") for _, e in outs) == 1, [e for _, e in outs]
     files = sorted(p.name for p in (tmp_path / "cache" / "c").iterdir())
     assert len(files) == 2 and files[0].endswith(".so") and files[1].endswith(".so.sha256"), files
 

@@ -8,6 +8,8 @@ import json
 import re
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).parents[1]
 TEXT = {".py", ".md", ".toml", ".yml", ".yaml", ".txt", ".ipynb", ".json", ".c", ".h", ".in", ".csv"}
 
@@ -64,6 +66,9 @@ def test_the_site_owns_its_pages_and_executes_every_notebook() -> None:
     assert len(notebooks) >= 3
     plugin = cfg.split("- mkdocs-jupyter:", 1)[1].split("\n  - ", 1)[0]
     assert re.search(r"^\s+execute: true$", plugin, re.M) and re.search(r"^\s+allow_errors: false$", plugin, re.M)
+    # no output cache: mkdocs-jupyter's cache (keyed by the notebook's text) would show stored outputs unexecuted
+    assert re.search(r"^\s+cache: false$", plugin, re.M)
+    assert not (ROOT / ".cache").exists() or ".cache/" in (ROOT / ".gitignore").read_text(encoding="utf-8")
     for nb in notebooks:  # stored without outputs: what the site shows is what the build computed
         cells = json.loads((ROOT / "docs" / nb).read_text(encoding="utf-8"))["cells"]
         code = [c for c in cells if c["cell_type"] == "code"]
@@ -73,3 +78,58 @@ def test_the_site_owns_its_pages_and_executes_every_notebook() -> None:
     for pkg in ("mkdocs", "mkdocstrings[python]", "mkdocs-jupyter", "nbformat", "ipykernel", "pandas"):
         assert f'"{pkg}>=' in docs_extra, pkg
     assert "mkdocs build --strict" in (ROOT / ".ci" / "run").read_text(encoding="utf-8")
+
+
+def test_a_broken_notebook_fails_the_strict_build(tmp_path) -> None:
+    """The site's mkdocs-jupyter settings on a scratch site whose one notebook raises: ``mkdocs build --strict``
+    exits non-zero naming the error (so CI fails on a broken notebook); the same notebook fixed builds."""
+    import shutil
+    import subprocess
+    import sys
+
+    pytest.importorskip("mkdocs_jupyter")
+    pytest.importorskip("ipykernel")
+    cfg = (ROOT / "mkdocs.yml").read_text(encoding="utf-8")
+    plugin = cfg.split("- mkdocs-jupyter:", 1)[1].split("\n  - ", 1)[0]
+    (tmp_path / "docs").mkdir()
+    (tmp_path / "docs" / "index.md").write_text("# scratch\n", encoding="utf-8")
+    (tmp_path / "mkdocs.yml").write_text(
+        "site_name: scratch\nnav:\n  - Home: index.md\n  - NB: nb.ipynb\nplugins:\n  - mkdocs-jupyter:" + plugin + "\n",
+        encoding="utf-8",
+    )
+
+    def build(source: str) -> subprocess.CompletedProcess[str]:
+        nb = {
+            "cells": [{"cell_type": "code", "metadata": {}, "source": source, "outputs": [], "execution_count": None}],
+            "metadata": {"kernelspec": {"name": "python3", "display_name": "Python 3", "language": "python"}},
+            "nbformat": 4,
+            "nbformat_minor": 5,
+        }
+        (tmp_path / "docs" / "nb.ipynb").write_text(json.dumps(nb), encoding="utf-8")
+        shutil.rmtree(tmp_path / "site", ignore_errors=True)
+        return subprocess.run(
+            [sys.executable, "-m", "mkdocs", "build", "--strict", "-q"],
+            cwd=tmp_path,
+            capture_output=True,
+            text=True,
+            timeout=600,
+        )
+
+    bad = build("x = 3.25\nraise ValueError('planted notebook error')")
+    assert bad.returncode != 0 and "planted notebook error" in bad.stdout + bad.stderr
+    good = build("x = 3.25\nprint(x * 2)")
+    assert good.returncode == 0, good.stderr[-2000:]
+    assert "6.5" in (tmp_path / "site" / "nb" / "index.html").read_text(encoding="utf-8")
+    assert not (tmp_path / ".cache").exists()  # nothing cached for the next build to reuse
+
+
+def test_the_reproduce_timing_the_docs_quote_is_the_benchmarks() -> None:
+    """README and the set-up page quote reproduce's CPU time and compilations as measured by
+    benchmarks/bench_reproduce.py (a stale '4.5 minutes' was quoted after the run had grown to 8.5)."""
+    readme = (ROOT / "README.md").read_text(encoding="utf-8")
+    index = (ROOT / "docs" / "index.md").read_text(encoding="utf-8")
+    assert "benchmarks/bench_reproduce.py" in readme and "bench_reproduce.py" in index
+    cpu = re.search(r"used (\d+) s of CPU", readme)
+    assert cpu is not None and f"used {cpu.group(1)} s of CPU" in index
+    assert "4.5 minutes" not in readme + index
+    assert (ROOT / "benchmarks" / "bench_reproduce.py").is_file()

@@ -266,7 +266,7 @@ def test_comparison_and_safety_suite_reprs(run) -> None:  # noqa: ANN001
     assert f"ω {ms['proposed'][0]['omega_J_per_kg']:.4g} J/kg" in text and "cost 0.375" in text
     assert "OCP-D: optimal, cost 0.3125 (bound)" in text and "<table>" in c._repr_html_()
     cases = [c for c in suite_cases(quick=True) if c.family == "CCRs"][:2]
-    out = run_suite(cases, ("proposed",))
+    out = run_suite(cases, ("proposed",), actuators=("ideal",))
     text = repr(out)
     lines = text.splitlines()
     assert lines[0] == "SuiteOutput: 2 safety cases × 1 controllers" and len(lines) == 2

@@ -115,31 +115,62 @@ def test_study_time_limit_stores_finished_tasks_and_resumes(tmp_path):
     assert out.n_tasks == 36 and f"({stored} stored" in buf.getvalue() and "ETA" in buf.getvalue()
 
 
-def test_reproduce_counter_counts_every_line() -> None:
-    """aev_ocp.reproduce.Progress: k counts every line one by one (no jump); N grows when a section reports more
-    lines than it declared, shrinks when one reports fewer, and the counter ends at N/N."""
+def test_reproduce_counter_has_a_fixed_denominator_and_reaches_n_only_at_the_end() -> None:
+    """aev_ocp.reproduce.Progress: N never moves; a line beyond its section's declared steps repeats k (a
+    sub-step), a section that reports fewer moves k past its skipped steps; k never exceeds N - 1 before the
+    final line, which alone shows N/N. Times come from a fake clock (never the wall)."""
     from aev_ocp.reproduce import Progress as ReproduceProgress
 
     buf = io.StringIO()
-    p = ReproduceProgress(2 + 3 + 4 + 1, stream=buf)  # sections declaring 2, 3 and 4 lines, then the final line
-    for steps, lines in ((2, 4), (3, 1), (4, 4), (1, 1)):  # reports more, fewer, exactly, the final line
+    ticks = iter(float(x) for x in range(100))
+    p = ReproduceProgress(2 + 3 + 4 + 1 + 1, stream=buf, clock=lambda: next(ticks) * 1.5)
+    for steps, lines in ((2, 4), (3, 1), (4, 4), (1, 1)):  # reports more, fewer, exactly, the writing step
         p.begin(steps)
         for _ in range(lines):
             p("x")
         p.end()
-    heads = [line.split("]")[0] + "]" for line in buf.getvalue().splitlines()]
+    p.done("done: report.md, report.html")
+    lines = buf.getvalue().splitlines()
+    heads = [line.split("]")[0] + "]" for line in lines]
     assert heads == [
-        "[1/10]",
-        "[2/10]",
+        "[1/11]",
+        "[2/11]",
+        "[2/11]",
+        "[2/11]",
         "[3/11]",
-        "[4/12]",
-        "[5/12]",
-        "[6/10]",
-        "[7/10]",
-        "[8/10]",
-        "[9/10]",
-        "[10/10]",
+        "[6/11]",
+        "[7/11]",
+        "[8/11]",
+        "[9/11]",
+        "[10/11]",
+        "[11/11]",
     ]
+    assert lines[-1].startswith("[11/11] done: report.md, report.html (") and lines[-1].endswith(" s)")
+    assert lines[0].endswith("(1.5 s)")  # the fake clock: 1.5 s per tick after the start
+
+
+def test_reproduce_counter_never_shows_n_before_done() -> None:
+    """A run whose sections report far more lines than declared (OCP-D's iterations) stays below N."""
+    from aev_ocp.reproduce import Progress as ReproduceProgress
+
+    buf = io.StringIO()
+    p = ReproduceProgress(3, stream=buf, clock=lambda: 0.0)
+    p.begin(2)
+    for _ in range(7):
+        p("iteration")
+    p.end()
+    assert all(not line.startswith("[3/3]") for line in buf.getvalue().splitlines())
+    p.done("done")
+    assert buf.getvalue().splitlines()[-1].startswith("[3/3] done")
+
+
+def test_reproduce_final_line_names_both_reports_and_the_verdict() -> None:
+    from aev_ocp.reproduce import verdict
+    from aev_ocp.report_sections import Claim
+
+    claims = [Claim("a", "holds", "", "x"), Claim("b", "fails", "", "y"), Claim("c", "partly", "", "z")]
+    assert verdict(claims) == "1 of 3 paper claims hold, 1 fail or disagree: b"
+    assert verdict([]) == "no paper claim checked"
 
 
 LONG_TASK_STUDY = """

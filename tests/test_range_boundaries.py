@@ -21,6 +21,12 @@ from aev_ocp.scenarios import ScenarioError, parse_scenario
 COMPANIONS = {
     ("TrafficParams", "target_gap_m"): {"standstill_gap_m": 1e-7},
     ("SafetyParams", "a_min_mps2"): {"ego_brake_mps2": 1e-9},
+    # T_max_K > ambient_K; the SUMO ring's cars fit on it and start at most at the lane's speed
+    ("ThermalParams", "T_max_K"): {"ambient_K": 1e-9},
+    ("ThermalParams", "ambient_K"): {"T_max_K": 1000.0},
+    ("RingNetwork", "length_m"): {"vehicles": 1, "vehicle_length_m": 1e-9},
+    ("RingNetwork", "vehicle_length_m"): {"length_m": 1e5},
+    ("RingNetwork", "speed0_mps"): {"lane_speed_mps": 100.0},
 }
 #: limits that a cross-field rule makes unreachable with any companion (charging must start after a trip at
 #: >= 0 h, so charge_start_h = 0 is refused by that rule whatever the trips): only the declaration is checked

@@ -155,7 +155,7 @@ def test_compare_siblings(tmp_path: Path, compare: str, platoon_extra: str, matc
 
 @pytest.mark.quick
 def test_coefficients_of_a_law_that_never_runs_warn(tmp_path: Path) -> None:
-    p = small(tmp_path, extra="[carfollowing.idm]\nv0 = 1.9\n")
+    p = small(tmp_path, extra="[carfollowing.idm]\nv0_mps = 19.5\n")
     with pytest.warns(ScenarioWarning, match="carfollowing.idm"):
         load_scenario(p)
 

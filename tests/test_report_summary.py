@@ -116,3 +116,16 @@ def test_over_limit_battery_columns_are_marked_and_totals_are_sums() -> None:
         assert tot["battery_energy_J"] == pytest.approx(sum(m["battery_energy_J"] for m in ms), rel=1e-12)
         km = sum(m["distance_m"] for m in ms) / 1000
         assert tot["battery_energy_kWh_per_100km"] == pytest.approx(tot["battery_energy_J"] / km / 3.6e4, rel=1e-12)
+
+
+def test_summary_links_with_brackets_in_their_text_render_as_links(tmp_path) -> None:
+    """A summary row links to a heading that holds an interval ("t ∈ [0, 70]"): report.html shows a link with
+    that text, not the raw Markdown (issue 40: 2 of 9 summary links were raw)."""
+    from aev_ocp.report_html import heading_anchor, markdown_to_html
+    from aev_ocp.report_sections import Claim, summary_section
+
+    where = "Table 1: energy per unit mass ω (platoon of 6, paper leader, t ∈ [0, 70])"
+    md = summary_section([Claim("a claim", "holds", "evidence", where)]) + f"\n## {where}\n\ntext\n"
+    html = markdown_to_html(md, tmp_path)
+    assert f'href="#{heading_anchor(where)}"' in html
+    assert "](#" not in html  # no raw Markdown link left

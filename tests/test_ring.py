@@ -214,6 +214,12 @@ def test_compiled_ring_equals_an_independent_scipy_integration():
     np.testing.assert_allclose(a.sim.S[-1], ref["S"], atol=1e-8)
     np.testing.assert_allclose(a.energy_J[-1], ref["energy"], rtol=1e-5)
     np.testing.assert_allclose(a.sim.heat_J[-1], ref["heat"], rtol=1e-3)  # OCV: B-spline vs not-a-knot spline
+    # the per-vehicle metrics name it battery energy, per km of the SciPy run's own distance
+    m = a.metrics()
+    per_km = ref["energy"] / (ref["distance"] / 1000.0)
+    np.testing.assert_allclose([x["battery_energy_J_per_km"] for x in m], per_km, rtol=1e-5)
+    np.testing.assert_allclose([x["battery_energy_kWh_per_100km"] for x in m], per_km * 100 / 3.6e6, rtol=1e-5)
+    assert not any("energy_J" in x for x in m)
 
 
 def test_gap_sum_is_conserved_and_positions_close_the_ring():

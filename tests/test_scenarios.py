@@ -209,10 +209,10 @@ def test_array_leader_si_and_model(tmp_path: Path) -> None:
 
 
 def test_per_vehicle_laws_and_overrides(tmp_path: Path) -> None:
-    text = edit('law = "proposed"', 'laws = ["proposed", "ovfl", "idm"]') + "\n[carfollowing.idm]\nv0 = 1.9\n"
+    text = edit('law = "proposed"', 'laws = ["proposed", "ovfl", "idm"]') + "\n[carfollowing.idm]\nv0_mps = 19.5\n"
     s = load_scenario(write(tmp_path, text.replace('compare = ["proposed", "ovfl"]\n', "")))
     assert [law.name for law in s.laws] == ["proposed", "ovfl", "idm"]
-    assert s.laws[2].v0 == 1.9
+    assert s.laws[2].v0_mps == 19.5 and s.laws[2].model_units == s.units  # Treiber's SI IDM, run in [units]
     assert len(s.runs()) == 1
     bad = edit('law = "proposed"', 'law = "idm"') + "\n[carfollowing.idm]\nspeed_of_light = 3.0\n"
     expect_error(tmp_path, bad, "carfollowing.idm", "speed_of_light")

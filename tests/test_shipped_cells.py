@@ -28,8 +28,8 @@ def test_shipped_cell_loads_with_a_source_for_every_value(name: str) -> None:
         assert cf.sources[key].strip(), key
     c = cf.cell
     assert c.ocv_soc is not None and c.ocv_V is not None
-    # an OCV curve of a Li-ion cell: rising with SOC, inside 2-4.5 V
-    assert all(b >= a for a, b in zip(c.ocv_V, c.ocv_V[1:])) and 2.0 < min(c.ocv_V) and max(c.ocv_V) < 4.5
+    # an OCV curve of a Li-ion cell: rising with SOC, inside 2-4.5 V (Prada2013: 0 % SOC is its 2.0 V cut-off)
+    assert all(b >= a for a, b in zip(c.ocv_V, c.ocv_V[1:])) and 2.0 <= min(c.ocv_V) and max(c.ocv_V) < 4.5
 
 
 @pytest.mark.parametrize("name", SHIPPED)

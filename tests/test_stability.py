@@ -18,6 +18,7 @@ from hypothesis import strategies as st
 from aev_ocp.cli import main
 from aev_ocp.models.carfollowing import (
     IDM,
+    IDMModelUnits,
     LAW_REGISTRY,
     OVFL,
     OVM,
@@ -81,7 +82,7 @@ def test_ovfl_and_proposed_criterion_closed_form(alpha: float, beta: float, kapp
 
 
 def test_idm_equilibrium_and_partials_against_finite_differences() -> None:
-    law = IDM(a_max=1.3, b=1.7, v0=2.1, s0=0.15, T_h=0.9)
+    law = IDMModelUnits(a_max=1.3, b=1.7, v0=2.1, s0=0.15, T_h=0.9)
     v = 1.37
     h = (law.s0 + v * law.T_h) / math.sqrt(1 - (v / law.v0) ** 4)  # closed form at Δv = 0
     lin = analyse(law, v)

@@ -190,3 +190,45 @@ def test_characteristic_derivative_matches_finite_differences():
         assert abs(df - fd) < 1e-6 * max(1.0, abs(df))
         # and χ itself is Π D − Π N, from the vehicles' own D and N
         assert abs(f - (np.prod([p.D(lam) for p in veh]) - np.prod([p.N(lam) for p in veh]))) < 1e-12 * max(1, abs(f))
+
+
+def test_si_accel_of_an_si_law_ignores_the_units_and_a_model_law_needs_them():
+    from aev_ocp.models.carfollowing import OVFL, LAW_REGISTRY
+    from aev_ocp.params import Units
+
+    law = OVFL(h_scale_m=9.3, v_scale_mps=4.7)
+    a = M.si_accel(law)
+    b = M.si_accel(law, Units(13.0, 7.0))  # an SI law: the units change nothing
+    for h, v, vl in [(7.1, 3.3, 3.9), (15.2, 6.1, 5.4)]:
+        assert float(a(h, v, vl)) == pytest.approx(float(law.accel_si(h, v, vl)), rel=1e-14)
+        assert float(b(h, v, vl)) == float(a(h, v, vl))
+    model_law = LAW_REGISTRY.get("idm_model")
+    if model_law is not None:
+        with pytest.raises(ParameterError, match="written in model units: give its units"):
+            M.si_accel(model_law())
+
+
+def test_the_stability_command_analyses_a_mixed_ring(tmp_path, capsys):
+    import json
+
+    from cli_helpers import one_error, run_cli
+
+    out = tmp_path / "mixed"
+    argv = ["stability", "--law", "idm", "--ring", "22", "--spacing-m", "10.45", "--aev", "ovfl"]
+    rc, stdout, _ = run_cli([*argv, "--aev-count", "2", "--delay-s", "0.2", "--out", str(out)], capsys)
+    assert rc == 0 and "fewest evenly spread ovfl cars" in stdout
+    doc = json.loads((out / "mixed_ring_stability.json").read_text())
+    from aev_ocp.models.carfollowing import make_law
+    from aev_ocp.params import CarFollowingParams
+
+    h, a = M.si_accel(make_law("idm", CarFollowingParams())), M.si_accel(make_law("ovfl", CarFollowingParams()))
+    acc = [a if i in (0, 11) else h for i in range(22)]
+    ref = M.analyse_mixed_ring(acc, 22 * 10.45, 5.0, 70.0, delays_s=[0.0 if i in (0, 11) else 0.2 for i in range(22)])
+    assert doc["aev_positions"] == [0, 11]
+    assert doc["growth_rate_per_s"] == pytest.approx(ref.growth_rate_per_s, rel=1e-9)
+    m = doc["min_aev_count"]
+    g = doc["growth_by_aev_count_per_s"]
+    assert (m is None and all(x >= 0 for x in g)) or (g[m] < 0 and all(x >= 0 for x in g[:m]))
+    for extra, what in [(["--aev-count", "23"], "--aev-count 23"), (["--delay-s", "-0.1"], "--delay-s -0.1")]:
+        rc, _, err = run_cli([*argv, *extra, "--out", str(tmp_path / "bad")], capsys)
+        assert rc == 2 and what in one_error(err)

@@ -30,6 +30,7 @@ LAW = Proposed(alpha=2.0, beta=3.0, kappa=0.03)
 def _ring_doc(dt: float, t_end_s: float, **sumo: object) -> dict:
     return {
         "units": {"length_m": U.length_m, "speed_mps": U.speed_mps},
+        "carfollowing": {"h_scale_m": U.length_m, "v_scale_mps": U.speed_mps},  # LAW's scales: the units
         "limits": {"enabled": False},
         "sumo": {
             "network": "ring",
@@ -174,8 +175,10 @@ def test_share_selection_draws_the_share():
     sc = parse_sumo_scenario({"sumo": {"network": "merge", "t_end_s": 10.0, "share": 0.3, "seed": 3}})
     n = sum(is_controlled(f"flow.{k}", "t", sc) for k in range(4000))
     assert abs(n / 4000 - 0.3) < 4 * math.sqrt(0.3 * 0.7 / 4000)  # 4 sigma
-    by_id = parse_sumo_scenario({"sumo": {"network": "ring", "t_end_s": 10.0, "ids": ["ring.7"], "vtypes": ["aev"]}})
-    assert is_controlled("ring.7", "car", by_id) and is_controlled("y", "aev", by_id)
+    by_id = parse_sumo_scenario(
+        {"sumo": {"network": "ring", "t_end_s": 10.0, "ids": ["ring.7"], "vtypes": ["ring_car"]}}
+    )
+    assert is_controlled("ring.7", "car", by_id) and is_controlled("y", "ring_car", by_id)
     assert not is_controlled("y", "car", by_id)
 
     def ring(s: float) -> set[str]:

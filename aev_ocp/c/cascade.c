@@ -1,7 +1,7 @@
 /* ---------------- aev_ocp cascade driver ----------------
  * Compiled after the CasADi-generated right-hand sides and a generated prologue (aev_ocp.simulate):
  * SZ_ARG/SZ_RES/SZ_IW/SZ_W (work sizes), NX/NQ/NY (state, quadrature and output sizes), BATTERY,
- * OMEGA_A/OMEGA_B (the g split), AEV_LAW_SWITCH (the case list of the laws) and the event table
+ * AEV_NP (runtime parameters per vehicle), AEV_LAW_SWITCH (the case list of the laws) and the event table
  * of aev_ocp.plant.EVENT_RULES (AEV_EVk_OFFSET, AEV_EV_FAILED).
  * Vehicle i depends only on vehicle i-1, so the platoon is integrated vehicle by vehicle with an
  * adaptive Dormand-Prince 5(4) method (coefficients as in Dormand & Prince 1980 / SciPy RK45, quartic
@@ -12,8 +12,13 @@
 
 typedef struct { int64_t m, cap, cur; double *t0, *h, *v0, *q; } aev_traj;
 
+/* The run's inputs that are not compiled in (set by aevsim_run, one copy per thread): the g split
+ * A = (1/η + η)/2, B = (1/η − η)/2, and the leader's parameters (aevsim_leader's second input). */
+static _Thread_local double aev_omega_a, aev_omega_b;
+static _Thread_local const double* aev_leader_par;
+
 static void aev_leader(aev_ctx* c, double t, double* u) {
-  c->arg[0] = &t; c->res[0] = u;
+  c->arg[0] = &t; c->arg[1] = aev_leader_par; c->res[0] = u;
   aevsim_leader(c->arg, c->res, c->iw, c->w, 0);
 }
 
@@ -85,7 +90,7 @@ static double aev_omega_inc(double v0, const double* q, double h, double th_end)
   }
   double ve = aev_vpoly(v0, q, h, th_end), we = 0.5 * ve * ve;
   tv += fabs(we - w_prev);
-  return OMEGA_A * (we - 0.5 * v0 * v0) + OMEGA_B * tv;
+  return aev_omega_a * (we - 0.5 * v0 * v0) + aev_omega_b * tv;
 }
 
 /* the row (z, y, v_l) of a vehicle at theta in a step: dense z, exact omega, outputs of the law there */
@@ -108,7 +113,10 @@ CASADI_SYMBOL_EXPORT volatile int aevsim_cancel = 0;
  * dense output, the rule firing there: a collision has h <= 0), else at its last step's end. */
 CASADI_SYMBOL_EXPORT int aevsim_run(int n, const int* law_idx, const double* params, const double* x0, int nstop, const double* stops,
     int K, const double* ts, double rtol, double atol, int64_t max_steps,
-    double* out, int* nsamp, int* ev_kind, double* ev_time, double* ev_val, int64_t* stats, double* last) {
+    double* out, int* nsamp, int* ev_kind, double* ev_time, double* ev_val, int64_t* stats, double* last,
+    const double* glob) {
+  /* glob: (A, B) of the g split, then the leader's parameters */
+  aev_omega_a = glob[0]; aev_omega_b = glob[1]; aev_leader_par = glob + 2;
   aev_ctx* c = malloc(sizeof(aev_ctx));
   aev_traj tr[2] = {{0}, {0}};
   if (!c) return 1;

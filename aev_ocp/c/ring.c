@@ -100,11 +100,15 @@ static void ring_stage(int n, const int* idx, int cnt, const double* z, double* 
     }
 }
 
+/* Set nonzero by another thread (Ctrl-C, SIGTERM or a passed --time-limit in the Python caller, as the cascade's
+ * aevsim_cancel) to stop an advance between two steps: aevring_advance then returns -2 at once, z and out partial. */
+CASADI_SYMBOL_EXPORT volatile int aevring_cancel = 0;
+
 /* Advance the ring from t0 to t1 (model time) with a constant noise vector; samples at ts[0..K-1]
  * (in (t0, t1], increasing) into out (K x n x (NZ + NY)). z (n x NZ) in: the state at t0, out: the state at
  * t1 or at the event. h_io: step size in/out. ev (4): kind (0 none, codes of EVENT_RULES, 6 failed),
  * vehicle, time, value. stats (3): steps, rejected, rhs evaluations (added to). Returns the number of samples
- * written, or -1 when out of memory. */
+ * written, -1 when out of memory, -2 when stopped through aevring_cancel. */
 CASADI_SYMBOL_EXPORT int64_t aevring_advance(int n, const int* law_idx, const double* params, const double* noise,
     double* z, double t0, double t1, int64_t K, const double* ts, double* out, double rtol, double atol,
     int64_t max_steps, double* h_io, double* ev, int64_t* stats, int threads) {
@@ -127,7 +131,9 @@ CASADI_SYMBOL_EXPORT int64_t aevring_advance(int n, const int* law_idx, const do
   double t = t0, h = *h_io > 0 ? *h_io : 1e-3, h_want = h;
   ev[0] = 0; ev[1] = -1; ev[2] = t0; ev[3] = 0;
   ring_rates(ctx, n, law_idx, params, noise, z, k[0], NULL, NULL); nfev++;
+  int cancelled = 0;
   while (t < t1 && !ev[0]) {
+    if (aevring_cancel) { cancelled = 1; break; }
     int hit = 0;
     h_want = h;
     if (t + h >= t1 - 1e-12 * (1 + fabs(t1))) { h = t1 - t; hit = 1; }
@@ -217,5 +223,5 @@ CASADI_SYMBOL_EXPORT int64_t aevring_advance(int n, const int* law_idx, const do
   if (!ev[0]) *h_io = h_want;
   stats[0] += nst; stats[1] += nrej; stats[2] += nfev;
   free(ctx); free(buf);
-  return s_out;
+  return cancelled ? -2 : s_out;
 }

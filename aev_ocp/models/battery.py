@@ -3,7 +3,8 @@
 The OCV curve is a cubic B-spline interpolant of the cell's table (``CellParams.ocv_soc``/``ocv_V``; a cell
 file's OCV, :mod:`aev_ocp.cells`), by default the A123 ANR26650 table shipped in
 ``aev_ocp/data/a123_ocv_25C.csv`` (provenance in ``aev_ocp/data/README.md``). With an activation energy the
-resistances follow Arrhenius in the temperature (:func:`cell_at`).
+resistances follow Arrhenius in the temperature (:func:`cell_at`); with a table (``CellParams.rc_table``, a cell
+file's ``[rc_table]``) R_s, R1, C1, R2 and C2 follow the SOC and the temperature (:func:`rc_function`).
 """
 
 from __future__ import annotations
@@ -18,7 +19,7 @@ from typing import Any, Iterator
 import casadi as ca
 import numpy as np
 
-from ..params import R_GAS_JPMOLK, CellParams
+from ..params import R_GAS_JPMOLK, RC_TABLE_KEYS, CellParams, RCTable
 
 
 def _key(cell: Any) -> tuple[tuple[float, ...], tuple[float, ...]] | None:
@@ -121,24 +122,81 @@ def arrhenius_factor(T_K: Any, p: CellParams) -> Any:
     )
 
 
-class CellAtTemperature:
-    """``cell`` with R_s, R1 and R2 at temperature T [K] by :func:`arrhenius_factor` (numbers or CasADi
-    expressions); every other attribute is the cell's. Passed where a CellParams is read."""
+def _segment(x: Any, grid: list[float], vals: list[Any]) -> Any:
+    """Linear interpolation of (grid, vals) at x ∈ [grid[0], grid[-1]] written as v_k + w (v_k+1 − v_k) on the
+    segment picked by comparisons: exact at the grid points and for equal neighbours (a constant table
+    returns its constant to the bit, which CasADi's 'linear' interpolant does not)."""
+    if len(grid) == 1:
+        return vals[0]
+    x0, x1, v0, v1 = grid[0], grid[1], vals[0], vals[1]
+    for k in range(1, len(grid) - 1):
+        on = x >= grid[k]
+        x0, x1 = ca.if_else(on, grid[k], x0), ca.if_else(on, grid[k + 1], x1)
+        v0, v1 = ca.if_else(on, vals[k], v0), ca.if_else(on, vals[k + 1], v1)
+    return v0 + (x - x0) / (x1 - x0) * (v1 - v0)
 
-    def __init__(self, cell: CellParams, T_K: Any) -> None:
-        f = arrhenius_factor(T_K, cell)
-        self.base, self.T_K = cell, T_K
-        self.R_s_ohm, self.R1_ohm, self.R2_ohm = cell.R_s_ohm * f, cell.R1_ohm * f, cell.R2_ohm * f
+
+@lru_cache(maxsize=32)
+def rc_function(table: RCTable, smooth: bool = False) -> ca.Function:
+    """(S [-], T [K]) → (R_s [Ω], R1 [Ω], C1 [F], R2 [Ω], C2 [F]) of ``table`` as one CasADi Function, built
+    once per table: bilinear (the plant: exact at the grid points, along SOC then T, :func:`_segment`) or,
+    with ``smooth``, exp of CasADi cubic B-spline interpolants of the logarithms through the same points (degree
+    ≤ points − 1 per axis; for optimisers: twice differentiable, and positive between the points where a
+    table spans decades, e.g. an LFP C2). S and T are clamped to the grid first: outside it the end
+    values hold."""
+    S, T = ca.SX.sym("S"), ca.SX.sym("T_K")
+    soc, temps = list(table.soc), list(table.T_K)
+    Sc = ca.fmin(ca.fmax(S, soc[0]), soc[-1])
+    Tc = ca.fmin(ca.fmax(T, temps[0]), temps[-1])
+    outs = []
+    for key in RC_TABLE_KEYS:
+        vals = np.array(getattr(table, key), dtype=float)  # (n_T, n_soc)
+        if not smooth:
+            outs.append(_segment(Tc, temps, [_segment(Sc, soc, list(row)) for row in vals]))
+        elif len(temps) == 1:  # the spline of log(value): positive between the points too
+            f = ca.interpolant(key, "bspline", [soc], np.log(vals[0]), {"degree": [min(3, len(soc) - 1)]})
+            outs.append(ca.exp(f(Sc)))
+        else:  # CasADi's grid order: the first axis (soc) runs fastest
+            deg = [min(3, len(soc) - 1), min(3, len(temps) - 1)]
+            f = ca.interpolant(key, "bspline", [soc, temps], np.log(vals.T.ravel(order="F")), {"degree": deg})
+            outs.append(ca.exp(f(ca.vertcat(Sc, Tc))))
+    return ca.Function("rc_spline" if smooth else "rc_linear", [S, T], outs, ["S", "T_K"], list(RC_TABLE_KEYS))
+
+
+class CellAt:
+    """``cell`` at temperature T [K] and SOC S [-] (numbers or CasADi expressions): R_s, R1 and R2 by
+    :func:`arrhenius_factor` when the cell has no ``rc_table``; with one, R_s, R1, C1, R2, C2 from
+    :func:`rc_function` (T None: T_ref_K) times the cell's level (CellParams.rc_table). Every other
+    attribute is the cell's. Passed where a CellParams is read."""
+
+    def __init__(self, cell: CellParams, T_K: Any, S: Any = None, smooth: bool = False) -> None:
+        self.base, self.T_K, self.S = cell, T_K, S
+        tab = cell.rc_table
+        if tab is None:
+            f = arrhenius_factor(T_K, cell)
+            self.R_s_ohm, self.R1_ohm, self.R2_ohm = cell.R_s_ohm * f, cell.R1_ohm * f, cell.R2_ohm * f
+            return
+        T = cell.T_ref_K if T_K is None else T_K
+        vals = rc_function(tab, smooth)(tab.soc_ref if S is None else S, T)
+        numeric = all(isinstance(x, (int, float, np.floating)) for x in (S, T) if x is not None)
+        for key, v in zip(RC_TABLE_KEYS, vals):
+            scale = getattr(cell, key) / tab.value(key, tab.soc_ref, cell.T_ref_K)
+            v = float(v) if numeric else v
+            setattr(self, key, v if scale == 1.0 else v * scale)
 
     def __getattr__(self, name: str) -> Any:
         return getattr(self.base, name)
 
 
-def cell_at(cell: CellParams, T_K: Any | None) -> Any:
-    """The cell at temperature T_K (None, or no activation energy: the cell itself)."""
+def cell_at(cell: CellParams, T_K: Any | None, S: Any = None, smooth: bool = False) -> Any:
+    """The cell at temperature T_K [K] and SOC S [-]: a cell without ``rc_table`` at T_K by Arrhenius (None,
+    or no activation energy: the cell itself; S is not read); a table cell from its tables (T_K None: T_ref_K;
+    S None: the table's soc_ref), linear, or the cubic B-spline with ``smooth`` (optimisers)."""
+    if cell.rc_table is not None:
+        return CellAt(cell, T_K, S, smooth)
     if T_K is None or cell.activation_energy_Jpmol is None:
         return cell
-    return CellAtTemperature(cell, T_K)
+    return CellAt(cell, T_K)
 
 
 def cell_derivatives(V1: Any, V2: Any, I: Any, p: CellParams) -> tuple[Any, Any, Any]:

@@ -36,8 +36,8 @@ def battery_side(
     dT [K/s] of the lumped thermal model (:mod:`aev_ocp.models.thermal`).
     """
     u = ev.units
-    cell = battery.cell_at(ev.cell, T_K)
     S_in = ca.fmin(ca.fmax(S, 0.0), 1.0)
+    cell = battery.cell_at(ev.cell, T_K, S_in, smooth is not None)  # a table cell: R, C at (S, T)
     cm = cell_current_from_motion(u.speed_to_si(v), u.accel_to_si(a), V1, V2, S_in, ev, smooth=smooth, cell=cell)
     I = cm["I"]
     dV1, dV2, dS = battery.cell_derivatives(V1, V2, I, cell)

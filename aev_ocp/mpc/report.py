@@ -67,9 +67,13 @@ METRIC_ROWS = COMPARABILITY_ROWS + [
     "min_gap_model",
     "min_gap_m",
     "min_speed_model",
+    "min_speed_mps",  # each model-unit metric with its SI twin (aev_ocp.metrics.SI_METRICS)
     "rms_ovm_error_model",
+    "rms_ovm_error_mps",
     "rms_rel_speed_model",
+    "rms_rel_speed_mps",
     "rms_jerk_model",
+    "rms_jerk_mps3",
     "max_abs_current_A",
     "gap_violations",
     "speed_violations",

@@ -24,7 +24,7 @@ import casadi as ca
 from ..models import energy
 from ..models.carfollowing import optimal_velocity
 from ..models.ego import STATE_NAMES, battery_side, following_ode
-from ..params import EVParams, ParameterError, PowertrainOptions, spec, validate_fields
+from ..params import PAPER_ACCEL_BOUNDS_MODEL, EVParams, ParameterError, PowertrainOptions, spec, validate_fields
 from .problem import ProblemBuilder
 
 TERM_NAMES = ("energy", "ovm", "relative", "accel")  # the four §9 terms, weighted by w_Q, w_V, w_r, w_a
@@ -53,8 +53,8 @@ class FollowingBounds:
     h_min: float = spec(0.2)  # model guide §9 (2 m at L = 10 m)
     v_min: float = spec(0.0)  # model guide §9
     v_max: float = spec(2.0)  # model guide §9
-    a_min: float = spec(-3.0)  # model guide §9 (−7.5 m/s² at default units)
-    a_max: float = spec(2.0)  # model guide §9 (5 m/s² at default units)
+    a_min: float = spec(PAPER_ACCEL_BOUNDS_MODEL[0])  # model guide §9: −3 (−7.5 m/s² at default units)
+    a_max: float = spec(PAPER_ACCEL_BOUNDS_MODEL[1])  # model guide §9: 2 (5 m/s² at default units)
 
     def __post_init__(self) -> None:
         validate_fields(self)

@@ -25,7 +25,9 @@ and converted with the scenario's units (so a user does not retune when L or U c
   from its forecast speed, even when the forecast said it would not brake. Both imply the standstill
   floor h ≥ s_min (v ≥ 0 is hard). One slack σ ≥ 0 [m] enters both and the cost ρ_safe σ (+ 1e-3 σ²
   for a PD Hessian), so every QP is feasible; the L1 penalty is exact: for ρ_safe above the
-  constraints' multipliers the slack is 0 whenever the hard problem is feasible. Hard: 0 ≤ v ≤ v_max,
+  constraints' multipliers the slack is 0 whenever the hard problem is feasible. An optional soft margin
+  (``margin_weight`` > 0; off by default) adds h + σ_m ≥ s_min + T_m v and h + σ_m ≥ s_min + TTC_m (v − v̂_l) with
+  the quadratic cost w_m σ_m²: more than the floor is kept where that costs little. Hard: 0 ≤ v ≤ v_max,
   a_min ≤ a ≤ a_max (SI; default: the vehicle's limits, EVParams.limits), |I| ≤ 20C and the current map,
   as §9 (always satisfiable together: a = 0 keeps every one; at v = 0 braking is not possible and not needed).
 * **Actuator lag**: when the vehicle has one (VehicleLimits.lag_s, or a jerk limit), the prediction model
@@ -42,7 +44,7 @@ import casadi as ca
 
 from ..models.actuator import actuator_rate
 from ..models.ego import STATE_NAMES, battery_side, following_ode
-from ..params import EVParams, ParameterError, PowertrainOptions, spec, validate_fields
+from ..params import PAPER_ACCEL_BOUNDS_MODEL, EVParams, ParameterError, PowertrainOptions, Units, spec, validate_fields
 from .following import (
     FollowingBounds,
     TemperatureTerms,
@@ -89,6 +91,14 @@ class TrafficParams:
     # inside the vehicle's limits. A vehicle without limits (UNLIMITED) gets UNLIMITED_A_BOUNDS_MPS2.
     a_min_mps2: float | None = spec(None, lt=0.0, optional=True)
     a_max_mps2: float | None = spec(None, gt=0.0, optional=True)
+    # the soft safety margin (issue 34; off by default: the shipped and the paper's MPC unchanged): w_m σ_m² with
+    # h + σ_m ≥ s_min + T_m v and h + σ_m ≥ s_min + TTC_m (v − v̂_l), σ_m ≥ 0 [m]: a quadratic penalty, so a small
+    # shortfall costs little and the floor constraints above stay the hard-ish limit
+    margin_weight: float = spec(0.0, ge=0.0)  # w_m [W/kg per m²] (0: off; the safety suite's 'mpc-margin': 1.0)
+    margin_time_gap_s: float = spec(1.8, ge=0.0)  # T_m [s] (ours: above T_h = 1 s, the German "half the
+    # speedometer" rule's 1.8 s; Vogel 2003, Accid. Anal. Prev. 35: time gaps under 1 s are dangerous)
+    margin_ttc_s: float = spec(4.0, ge=0.0)  # TTC_m [s] (Hirst & Graham 1997: a TTC of 4 s separates safe from
+    # critical approaches; Euro NCAP's CCR runs start at TTC 4 s)
 
     def __post_init__(self) -> None:
         validate_fields(self)
@@ -101,7 +111,10 @@ class TrafficParams:
 
 #: (a_min, a_max) [m/s²] of the formulation on a vehicle without limits (UNLIMITED): §9's −3 and 2 at the
 #: default units (L = 10 m, U = 5 m/s), the bounds this formulation had before vehicles had limits
-UNLIMITED_A_BOUNDS_MPS2 = (-7.5, 5.0)
+UNLIMITED_A_BOUNDS_MPS2 = (
+    float(Units().accel_to_si(PAPER_ACCEL_BOUNDS_MODEL[0])),
+    float(Units().accel_to_si(PAPER_ACCEL_BOUNDS_MODEL[1])),
+)
 
 
 def traffic_accel_bounds_mps2(ev: EVParams, tp: TrafficParams) -> tuple[float, float]:
@@ -232,6 +245,12 @@ def traffic_problem(
         name="braking",
     )
     pb.add_stage_cost(T * (tp.safe_penalty * sig_m + 1e-3 * sig_m**2), "penalty_gap")
+    if tp.margin_weight > 0.0:  # the soft margin (TrafficParams): no variable at all when it is off
+        sig_mg = pb.control("slack_margin", 0.0, SLACK_MAX_M / u.length_m)
+        sig_mg_m = u.length_to_si(sig_mg)
+        pb.subject_to(h_m + sig_mg_m - tp.margin_time_gap_s * v_ms, s_min, ca.inf, name="margin_time_gap")
+        pb.subject_to(h_m + sig_mg_m - tp.margin_ttc_s * (v_ms - vl_ms), s_min, ca.inf, name="margin_ttc")
+        pb.add_stage_cost(T * tp.margin_weight * sig_mg_m**2, "margin")
     Imax = ev.cell.max_current_A
     pb.subject_to(cell["I"], -Imax, Imax, name="I")  # |I| ≤ 20C (model guide §9)
     pb.subject_to(cell["disc"], 0.0, ca.inf, name="disc")  # current map feasible (model guide §7)

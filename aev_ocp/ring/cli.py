@@ -20,8 +20,12 @@ from ..console import EXIT_FAILED_RUN, EXIT_OK, bad_input
 from ..console import OneLineParser as _Parser
 from ..limits import check_ring_size, memory_limit_bytes
 from ..params import ParameterError
+from ..progress import Progress, TimeLimitReached, check_time_limit, time_limited
 from ..results import claim_output_dir, default_output_dir
 from ..scenarios import ScenarioError
+
+#: Longest vehicle a ring may have [m]: 30 m is longer than any road vehicle (a 25.25 m EU road train).
+MAX_VEHICLE_LENGTH_M = 30.0
 
 COLUMNS = (
     "speed_std_mps",
@@ -46,7 +50,19 @@ def build_parser() -> argparse.ArgumentParser:
         help="sugiyama, stern, sweep, or a ring scenario file / shipped name (ring_sugiyama, ring_stern)",
     )
     p.add_argument("--t-end-s", type=float, default=None, help="simulated time [s] (default 600, or the scenario's)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the human drivers' acceleration noise (default 0)")
+    p.add_argument(
+        "--seed",
+        type=int,
+        default=None,
+        help="seed of the human drivers' acceleration noise (default 0; a scenario file has its own ring.seed)",
+    )
+    p.add_argument(
+        "--time-limit",
+        type=float,
+        default=None,
+        metavar="S",
+        help="stop after S seconds of wall-clock time (exit 1, nothing written); default none",
+    )
     p.add_argument(
         "--aev",
         default="followerstopper",
@@ -73,19 +89,29 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+def _width(key: str) -> int:
+    """A column as wide as its full header (the key with its unit), at least 10 characters."""
+    return max(10, len(key))
+
+
+def _header() -> str:
+    """The table's header: every column's full key, unit included (never cut)."""
+    return f"{'run':<24}" + "  ".join(f"{k:>{_width(k)}}" for k in COLUMNS)
+
+
 def _row(label: str, fleet: dict[str, Any]) -> str:
     cells = []
     for k in COLUMNS:
         v = fleet[k]
         cells.append(f"{v:.4g}" if isinstance(v, float) else str(v))
-    return f"{label:<24}" + "  ".join(f"{c:>10}" for c in cells)
+    return f"{label:<24}" + "  ".join(f"{c:>{_width(k)}}" for c, k in zip(cells, COLUMNS))
 
 
 def cli_ring(argv: list[str]) -> int:
     """Entry point of ``aev-ocp ring``; returns the exit code."""
     from ..results import write_json
-    from .experiments import SUGIYAMA_N, STABLE_LENGTH_M, human_ring, make_aev, relative_to, run_ring, stern, sugiyama
-    from .simulate import RingOptions, uniform_speed_mps
+    from .experiments import SUGIYAMA_N
+    from .simulate import RingOptions
 
     try:
         a = build_parser().parse_args(argv)
@@ -97,14 +123,27 @@ def cli_ring(argv: list[str]) -> int:
             raise ParameterError(f"--t-end-s {a.t_end_s!r}: must be in (0, 36000] s")
         if a.seed is not None and a.seed < 0:  # NumPy's generators take seeds >= 0 only
             raise ParameterError(f"--seed {a.seed}: must be an integer >= 0")
+        time_limit = check_time_limit(a.time_limit)
         sc = None
         if a.experiment not in ("sugiyama", "stern", "sweep"):
-            from .experiments import run_ring_scenario
             from .scenario import load_ring_scenario
 
+            if a.seed is not None:  # never ignored silently: the file's runs are reproducible from the file alone
+                raise ParameterError(
+                    f"--seed {a.seed}: a ring scenario file sets its seed with ring.seed; --seed applies to the "
+                    "sugiyama, stern and sweep experiments"
+                )
             sc = load_ring_scenario(a.experiment)
         else:
             a.t_end_s = 600.0 if a.t_end_s is None else a.t_end_s
+            a.seed = 0 if a.seed is None else a.seed
+        for opt, given in (
+            ("--aev", a.aev != "followerstopper"),
+            ("--penetration", a.penetration),
+            ("--length-m", a.length_m),
+        ):
+            if given and a.experiment != "sweep":
+                raise ParameterError(f"{opt} applies to the sweep experiment only (it would be ignored here)")
         # the budget before any work (RingSimulator.run checks each run again)
         if sc is not None:
             t_key = "--t-end-s" if a.t_end_s is not None else "ring.t_end_s"
@@ -125,45 +164,9 @@ def cli_ring(argv: list[str]) -> int:
             str(sc.source) if sc is not None and sc.source else None,
             ["ring.json", "space_time_*.png"],
         )
-        runs: list[Any]
-        doc: dict[str, Any] = {"experiment": a.experiment, "t_end_s": a.t_end_s, "seed": a.seed}
-        if sc is not None:
-            runs = run_ring_scenario(sc, t_end_s=a.t_end_s)
-            doc.update(
-                {
-                    "experiment": sc.name,
-                    "scenario": str(sc.source),
-                    "t_end_s": runs[0].result.t_s[-1] if a.t_end_s is None else a.t_end_s,
-                    "seed": sc.spec.seed,
-                    "initial": runs[0].result.initial.perturbation,
-                }
-            )
-            if runs[0].label == "all human" and len(runs) > 1:
-                doc["relative_to_all_human"] = {r.label: relative_to(runs[0].fleet, r.fleet) for r in runs[1:]}
-        elif a.experiment == "sugiyama":
-            runs = sugiyama(a.t_end_s, seed=a.seed)
-            doc["stable_length_m"] = STABLE_LENGTH_M
-        elif a.experiment == "stern":
-            runs = stern(t_end_s=a.t_end_s, seed=a.seed)
-            doc["relative_to_all_human"] = {r.label: relative_to(runs[0].fleet, r.fleet) for r in runs[1:]}
-        else:
-            pens = a.penetration if a.penetration is not None else [0, 1, 2, 3, 4, 5]
-            lengths = a.length_m if a.length_m is not None else [230.0, 260.0, 300.0]
-            for k in pens:
-                if not 0 <= k <= 22:
-                    raise ParameterError(f"--penetration {k}: must be an integer in [0, 22]")
-            for L in lengths:
-                if not (math.isfinite(L) and L > 22 * 5.0):
-                    raise ParameterError(f"--length-m {L!r}: must exceed 110 m (22 vehicles of 5 m)")
-            runs = []
-            for L in lengths:
-                base = human_ring(L, seed=a.seed)
-                r_mps = 0.85 * uniform_speed_mps(base)
-                for k in pens:
-                    idx = sorted({int(round(j * 22 / k)) for j in range(k)}) if k else []
-                    ring = human_ring(L, aevs={i: make_aev(a.aev, base.ev, r_mps) for i in idx}, seed=a.seed)
-                    runs.append(run_ring(ring, a.t_end_s, label=f"L={L:g} m, {k} AEV"))
-                    runs[-1].fleet.update({"length_m": L, "density_per_km": ring.density_per_km, "aevs": k})
+        clock = Progress("", time_limit_s=time_limit)
+        with time_limited(clock):  # the compiled ring polls the clock while it integrates
+            runs, doc = _runs(a, sc)
         out.mkdir(parents=True, exist_ok=True)
         doc["runs"] = [{"label": r.label, **r.fleet} for r in runs]
         files = [write_json(out / "ring.json", doc)]
@@ -174,9 +177,15 @@ def cli_ring(argv: list[str]) -> int:
                 name = "space_time_" + "".join(c if c.isalnum() else "_" for c in r.label) + ".png"
                 space_time(r.result, out / name, r.label)
                 files.append(out / name)
+    except TimeLimitReached:
+        print(
+            f"aev-ocp ring: stopped by --time-limit {a.time_limit:g} s before the runs finished; nothing written",
+            file=sys.stderr,
+        )
+        return EXIT_FAILED_RUN
     except (ParameterError, ScenarioError, OSError) as exc:
         return bad_input(exc)
-    print(f"{'run':<24}" + "  ".join(f"{c[:10]:>10}" for c in COLUMNS))
+    print(_header())
     for r in runs:
         print(_row(r.label, r.fleet))
     print(f"wrote {len(files)} files to {out}/")
@@ -184,6 +193,134 @@ def cli_ring(argv: list[str]) -> int:
     for r in bad:
         print(f"aev-ocp ring: {r.label}: run stopped ({r.fleet['status']})", file=sys.stderr)
     return EXIT_FAILED_RUN if bad else EXIT_OK
+
+
+def _runs(a: argparse.Namespace, sc: Any) -> tuple[list[Any], dict[str, Any]]:
+    """The runs of ``aev-ocp ring`` (a scenario file's, or an experiment's) and the document of ring.json."""
+    from .experiments import STABLE_LENGTH_M, human_ring, make_aev, relative_to, run_ring, stern, sugiyama
+    from .simulate import uniform_speed_mps
+
+    runs: list[Any]
+    doc: dict[str, Any] = {"experiment": a.experiment, "t_end_s": a.t_end_s, "seed": a.seed}
+    if sc is not None:
+        from .experiments import run_ring_scenario
+
+        runs = run_ring_scenario(sc, t_end_s=a.t_end_s)
+        doc.update(
+            {
+                "experiment": sc.name,
+                "scenario": str(sc.source),
+                "t_end_s": runs[0].result.t_s[-1] if a.t_end_s is None else a.t_end_s,
+                "seed": sc.spec.seed,
+                "initial": runs[0].result.initial.perturbation,
+            }
+        )
+        if runs[0].label == "all human" and len(runs) > 1:
+            doc["relative_to_all_human"] = {r.label: relative_to(runs[0].fleet, r.fleet) for r in runs[1:]}
+    elif a.experiment == "sugiyama":
+        runs = sugiyama(a.t_end_s, seed=a.seed)
+        doc["stable_length_m"] = STABLE_LENGTH_M
+    elif a.experiment == "stern":
+        runs = stern(t_end_s=a.t_end_s, seed=a.seed)
+        doc["relative_to_all_human"] = {r.label: relative_to(runs[0].fleet, r.fleet) for r in runs[1:]}
+    else:
+        pens = a.penetration if a.penetration is not None else [0, 1, 2, 3, 4, 5]
+        lengths = a.length_m if a.length_m is not None else [230.0, 260.0, 300.0]
+        for k in pens:
+            if not 0 <= k <= 22:
+                raise ParameterError(f"--penetration {k}: must be an integer in [0, 22]")
+        for L in lengths:
+            if not (math.isfinite(L) and L > 22 * 5.0):
+                raise ParameterError(f"--length-m {L!r}: must exceed 110 m (22 vehicles of 5 m)")
+        runs = []
+        for L in lengths:
+            base = human_ring(L, seed=a.seed)
+            r_mps = 0.85 * uniform_speed_mps(base)
+            for k in pens:
+                idx = sorted({int(round(j * 22 / k)) for j in range(k)}) if k else []
+                ring = human_ring(L, aevs={i: make_aev(a.aev, base.ev, r_mps) for i in idx}, seed=a.seed)
+                runs.append(run_ring(ring, a.t_end_s, label=f"L={L:g} m, {k} AEV"))
+                runs[-1].fleet.update({"length_m": L, "density_per_km": ring.density_per_km, "aevs": k})
+    return runs, doc
+
+
+def _ring_spacing_m(spacing_m: float | None, density_per_km: float | None, vehicle_length_m: float) -> float:
+    """The front-to-front spacing [m] from --spacing-m or --density-per-km (one of them), checked."""
+    if not (math.isfinite(vehicle_length_m) and 0 <= vehicle_length_m <= MAX_VEHICLE_LENGTH_M):
+        raise ParameterError(
+            f"--vehicle-length-m {vehicle_length_m!r}: must be a finite number of metres in [0, {MAX_VEHICLE_LENGTH_M:g}]"
+        )
+    if (spacing_m is None) == (density_per_km is None):
+        raise ParameterError("--ring: give the spacing with --spacing-m or the density with --density-per-km (one)")
+    if density_per_km is not None and not (math.isfinite(density_per_km) and density_per_km > 0):
+        raise ParameterError(f"--density-per-km {density_per_km!r}: must be a finite number of vehicles per km > 0")
+    spacing = spacing_m if spacing_m is not None else 1000.0 / float(density_per_km)  # type: ignore[arg-type]
+    if not (math.isfinite(spacing) and spacing > vehicle_length_m):
+        raise ParameterError(
+            f"--spacing-m/--density-per-km: spacing {spacing:g} m must exceed the vehicle length "
+            f"{vehicle_length_m:g} m (--vehicle-length-m)"
+        )
+    return spacing
+
+
+def cli_mixed_ring_stability(
+    human: Any,
+    aev: Any,
+    n: int,
+    aev_count: int,
+    delay_s: float,
+    spacing_m: float | None,
+    density_per_km: float | None,
+    vehicle_length_m: float,
+    units: Any,
+    out: Path,
+) -> int:
+    """``aev-ocp stability --ring N --aev LAW``: the linear stability of a ring of N vehicles, ``aev_count`` of them
+    (spread evenly) driven by ``aev`` and the rest by ``human`` with a reaction delay; the fewest such AEVs that
+    stabilise it; writes mixed_ring_stability.json."""
+    from ..results import write_json
+    from ..stability.mixed import analyse_mixed_ring, even_placement, min_aev_count, si_accel
+
+    spacing = _ring_spacing_m(spacing_m, density_per_km, vehicle_length_m)
+    if not (2 <= n <= 2000):
+        raise ParameterError(f"--ring {n} with --aev: must be an integer in [2, 2000] (a dense eigenproblem)")
+    if not (0 <= aev_count <= n):
+        raise ParameterError(f"--aev-count {aev_count}: must be an integer in [0, {n}] (the ring's vehicles)")
+    if not (math.isfinite(delay_s) and 0 <= delay_s <= 5.0):
+        raise ParameterError(f"--delay-s {delay_s!r}: must be a finite number of seconds in [0, 5]")
+    claim_output_dir(out, "stability --ring --aev", f"{human.name}+{aev.name}", None, ["mixed_ring_stability.json"])
+    h_fn, a_fn = si_accel(human, units), si_accel(aev, units)
+    idx = set(even_placement(n, aev_count))
+    accels = [a_fn if i in idx else h_fn for i in range(n)]
+    delays = [0.0 if i in idx else delay_s for i in range(n)]
+    v_max = 70.0  # m/s: above every road's limit; the equilibrium speed is found below it
+    r = analyse_mixed_ring(accels, n * spacing, vehicle_length_m, v_max, delays_s=delays)
+    m, growth = min_aev_count(h_fn, a_fn, n, n * spacing, vehicle_length_m, v_max, human_delay_s=delay_s)
+    doc: dict[str, Any] = r.to_dict()
+    doc.update(
+        {
+            "human_law": human.name,
+            "aev_law": aev.name,
+            "aev_positions": sorted(idx),
+            "human_delay_s": delay_s,
+            "spacing_m": spacing,
+            "min_aev_count": m,
+            "growth_by_aev_count_per_s": growth,
+        }
+    )
+    out.mkdir(parents=True, exist_ok=True)
+    write_json(out / "mixed_ring_stability.json", doc)
+    print(
+        f"mixed ring of {n}: {aev_count} × {aev.name} among {human.name} (delay {delay_s:g} s), spacing {spacing:.6g} m: "
+        f"equilibrium speed {r.v_star_mps:.6g} m/s"
+    )
+    print(
+        f"  growth rate {r.growth_rate_per_s:.6g} 1/s (frequency {r.frequency_rad_per_s:.4g} rad/s); ring stable: "
+        f"{r.ring_stable}; fewest evenly spread {aev.name} cars that stabilise it: "
+        f"{m if m is not None else f'none of 0 … {n}'}"
+    )
+    print(f"wrote 1 file to {out}/")
+    return EXIT_OK
 
 
 def cli_ring_stability(
@@ -202,16 +339,7 @@ def cli_ring_stability(
     from ..results import write_json
     from .stability import measured_growth, ring_stability
 
-    if (spacing_m is None) == (density_per_km is None):
-        raise ParameterError("--ring: give the spacing with --spacing-m or the density with --density-per-km (one)")
-    if density_per_km is not None and not (math.isfinite(density_per_km) and density_per_km > 0):
-        raise ParameterError(f"--density-per-km {density_per_km!r}: must be a finite number of vehicles per km > 0")
-    spacing = spacing_m if spacing_m is not None else 1000.0 / float(density_per_km)  # type: ignore[arg-type]
-    if not (math.isfinite(spacing) and spacing > vehicle_length_m):
-        raise ParameterError(
-            f"--spacing-m/--density-per-km: spacing {spacing:g} m must exceed the vehicle length "
-            f"{vehicle_length_m:g} m (--vehicle-length-m)"
-        )
+    spacing = _ring_spacing_m(spacing_m, density_per_km, vehicle_length_m)
     if not (2 <= n <= 100_000):
         raise ParameterError(f"--ring {n}: must be an integer in [2, 100000]")
     claim_output_dir(out, "stability --ring", law.name, None, ["ring_stability.json"])  # before any work

@@ -1,7 +1,7 @@
 """Human-driver and wave-dampening laws for rings, with their published constants (SI in, model units out).
 
 * :func:`idm_si`: the Intelligent Driver Model (Treiber, Hennecke & Helbing 2000, Phys. Rev. E 62:1805) from SI
-  parameters, as the toolkit's :class:`~aev_ocp.models.carfollowing.IDM` in a scenario's model units.
+  parameters, the toolkit's SI :class:`~aev_ocp.models.carfollowing.IDM` given a scenario's model units.
 * :class:`FollowerStopper`: Stern et al. 2018 (Transportation Research Part C 89:205–221, "Dissipation of
   stop-and-go waves via control of autonomous vehicles: field experiments"), §3.1: a commanded speed from the gap
   Δx and the relative speed Δv = v_l − v, tracked by the car's speed loop (modelled as a first-order lag τ).
@@ -19,15 +19,15 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import casadi as ca
 import numpy as np
 
 from ..control import Command, Observation
-from ..models.carfollowing import IDM, OVFL, CarFollowingLaw, Proposed, register_law
-from ..params import EVParams, ParameterError, Units
+from ..models.carfollowing import IDM, CarFollowingLaw, register_law
+from ..params import CarFollowingParams, EVParams, ParameterError, Units
 
 #: τ [s] of the speed loop that tracks a commanded speed: a = (v_cmd − v)/τ. Our choice (Stern et al. 2018 drove
 #: a production car's velocity controller, not published); 0.6 s is a typical ACC speed-loop time constant.
@@ -41,20 +41,16 @@ IDM_SI = {"a_mps2": 1.0, "b_mps2": 1.5, "v0_mps": 30.0, "s0_m": 2.0, "T_s": 1.0}
 def idm_si(
     units: Units, a_mps2: float = 1.0, b_mps2: float = 1.5, v0_mps: float = 30.0, s0_m: float = 2.0, T_s: float = 1.0
 ) -> IDM:
-    """The IDM with SI parameters (defaults :data:`IDM_SI`) in the model units ``units``."""
+    """The IDM with SI parameters (defaults :data:`IDM_SI`) in the model units ``units``
+    (:class:`~aev_ocp.models.carfollowing.IDM` given ``units``)."""
     for name, val in (("a_mps2", a_mps2), ("b_mps2", b_mps2), ("v0_mps", v0_mps), ("s0_m", s0_m), ("T_s", T_s)):
         ok = isinstance(val, (int, float)) and math.isfinite(val) and (val >= 0 if name == "s0_m" else val > 0)
         if not ok:
             raise ParameterError(
                 f"idm: {name} = {val!r} is not allowed: must be a finite number {'>= 0' if name == 's0_m' else '> 0'}"
             )
-    return IDM(
-        a_max=float(units.accel_from_si(a_mps2)),
-        b=float(units.accel_from_si(b_mps2)),
-        v0=float(units.speed_from_si(v0_mps)),
-        s0=float(units.length_from_si(s0_m)),
-        T_h=float(units.time_from_si(T_s)),
-    )
+    law = IDM(a_mps2=float(a_mps2), b_mps2=float(b_mps2), v0_mps=float(v0_mps), s0_m=float(s0_m), T_s=float(T_s))
+    return replace(law, model_units=units)
 
 
 def follower_stopper_speed(
@@ -211,11 +207,18 @@ AEV_CONTROLLERS = ("followerstopper", "pi-saturation", "proposed", "ovfl", "mpc"
 RING_PREDICTORS = ("decaying-acceleration", "constant-velocity", "constant-acceleration")
 
 
-def ring_mpc(ev: EVParams, settings: Any = None, predictor: str | None = None, formulation: Any = None) -> Any:
+def ring_mpc(
+    ev: EVParams,
+    settings: Any = None,
+    predictor: str | None = None,
+    formulation: Any = None,
+    cf: CarFollowingParams | None = None,
+) -> Any:
     """The toolkit's MPC as a ring AEV: :class:`aev_ocp.mpc.policy.MPCPolicy` with ``settings`` (default
     ``MPCSettings()``), ``formulation`` (default the traffic formulation: its 2 m gap floor, every command
     through the safety filter) and a forecast of the predecessor from the AEV's own measurements (``predictor``, one of
-    :data:`RING_PREDICTORS`; default the settings' 'decaying-acceleration'). Fallback law: the proposed law."""
+    :data:`RING_PREDICTORS`; default the settings' 'decaying-acceleration'). Fallback law: the proposed law
+    (coefficients and scales ``cf``, default CarFollowingParams(); in the ring's units, the same SI law)."""
     from ..mpc.policy import MPCPolicy
     from ..mpc.predictors import make_predictor
     from ..mpc.settings import MPCSettings
@@ -231,25 +234,30 @@ def ring_mpc(ev: EVParams, settings: Any = None, predictor: str | None = None, f
             f"{RING_PREDICTORS} (forecasts from the AEV's own measurements)"
         )
     pred = make_predictor(name, None, s.predictor_window, ev.units.time_s)
-    return MPCPolicy(s, ev, Proposed(), pred, formulation=formulation or traffic_formulation())
+    fallback = _law("proposed", ev, cf)
+    return MPCPolicy(s, ev, fallback, pred, formulation=formulation or traffic_formulation())
 
 
-def make_aev(name: str, ev: EVParams, r_mps: float, mpc: Any = None) -> Any:
+def _law(name: str, ev: EVParams, cf: CarFollowingParams | None) -> CarFollowingLaw:
+    """A registered law with the coefficients and scales ``cf`` (default CarFollowingParams()), in ``ev``'s model
+    units (the same SI law whatever the units)."""
+    from ..models.carfollowing import make_law
+
+    base = cf if cf is not None else CarFollowingParams()
+    return make_law(name, replace(base, model_units=ev.units))
+
+
+def make_aev(name: str, ev: EVParams, r_mps: float, mpc: Any = None, cf: CarFollowingParams | None = None) -> Any:
     """An AEV controller by name: 'followerstopper' (desired speed r_mps), 'pi-saturation', 'proposed' (the
     paper's law), 'ovfl', 'mpc' (:func:`ring_mpc`; ``mpc`` an optional (settings, formulation) pair, default
-    MPCSettings() and the traffic formulation), or any registered law name."""
+    MPCSettings() and the traffic formulation), or any registered law name. Laws take their coefficients and
+    scales from ``cf`` (default CarFollowingParams()) and run in ``ev``'s units with the same SI behaviour."""
     key = name.lower()
     if key == "mpc":
         s, f = mpc if mpc is not None else (None, None)
-        return ring_mpc(ev, s, None, f)
+        return ring_mpc(ev, s, None, f, cf)
     if key == "followerstopper":
         return FollowerStopper.from_si(ev.units, r_mps)
     if key == "pi-saturation":
         return PISaturation(units=ev.units)
-    if key == "proposed":
-        return Proposed()
-    if key == "ovfl":
-        return OVFL()
-    from ..models.carfollowing import make_law
-
-    return make_law(key)
+    return _law(key, ev, cf)

@@ -30,14 +30,15 @@ Errors are one line naming the file and the key (``ring_x.toml: ring.aev.vehicle
 from __future__ import annotations
 
 import copy
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from ..limits import check_ring_size
-from ..params import EVParams, ParameterError
+from ..limits import check_ring_cuts, check_ring_size
+from ..params import CarFollowingParams, EVParams, ParameterError, echo
 from ..scenarios import (
     ScenarioError,
     TableReader,
@@ -46,11 +47,26 @@ from ..scenarios import (
     register_section,
     standalone_header,
 )
+from ..scenarios.followers import _carfollowing
 from .laws import AEV_CONTROLLERS, IDM_SI, RING_PREDICTORS
+from .simulate import start_problem
 
 HUMAN_MODELS = ("idm", "ovm")
+#: Upper bounds of a human driver's parameters: 10 m/s² is about 1 g, the tyre-road friction limit of acceleration and
+#: braking (and of the noise's spread); a time gap of 10 s and a standstill gap of 50 m are far beyond any driver
+#: (Treiber & Kesting 2013, Traffic Flow Dynamics, Table 11.2: T = 0.8-2 s, s0 = 1-5 m); 100 m/s is above every
+#: road's limit; an OVM relaxation rate of 10 1/s is a 0.1 s response, faster than a human's reaction.
+HUMAN_MAX = {
+    "a_mps2": 10.0,
+    "b_mps2": 10.0,
+    "v0_mps": 100.0,
+    "s0_m": 50.0,
+    "T_s": 10.0,
+    "alpha_per_s": 10.0,
+    "noise_mps2": 10.0,
+}
 OVM_ALPHA_PER_S = 1.0  # the paper's OVM α = 2 (model, 1/T) at T = 2 s: 1 1/s
-_TOP = ("name", "description", "units", "vehicle", "cell", "pack", "limits", "mpc", "ring")
+_TOP = ("name", "description", "units", "vehicle", "cell", "pack", "limits", "carfollowing", "mpc", "ring")
 
 
 @dataclass(frozen=True)
@@ -105,6 +121,7 @@ class RingScenario:
     description: str = ""
     source: Path | None = None
     document: dict[str, Any] | None = field(default=None, compare=False, repr=False)
+    cf: CarFollowingParams = field(default_factory=CarFollowingParams)  # the AEV laws' coefficients and scales
 
     @property
     def density_per_km(self) -> float:
@@ -150,14 +167,22 @@ def validate_ring_table(r: TableReader) -> RingSpec:
     hp = r.sub(human)
     if human == "idm":
         kw["human_params"] = {
-            k: hp.number(k, v, ge=0 if k == "s0_m" else None, gt=None if k == "s0_m" else 0) for k, v in IDM_SI.items()
+            k: hp.number(k, v, ge=0 if k == "s0_m" else None, gt=None if k == "s0_m" else 0, le=HUMAN_MAX[k])
+            for k, v in IDM_SI.items()
         }
     else:
-        kw["human_params"] = {"alpha_per_s": hp.number("alpha_per_s", OVM_ALPHA_PER_S, gt=0)}
+        kw["human_params"] = {
+            "alpha_per_s": hp.number("alpha_per_s", OVM_ALPHA_PER_S, gt=0, le=HUMAN_MAX["alpha_per_s"])
+        }
     hp.finish(allowed_hint=list(IDM_SI) if human == "idm" else ["alpha_per_s"])
     kw["heterogeneity"] = r.number("heterogeneity", 0.0, ge=0, lt=1)
-    kw["noise_mps2"] = r.number("noise_mps2", 0.1, ge=0)
+    kw["noise_mps2"] = r.number("noise_mps2", 0.1, ge=0, le=HUMAN_MAX["noise_mps2"])
     kw["noise_dt_s"] = r.number("noise_dt_s", 0.5, gt=0)
+    if kw["noise_mps2"] > 0:
+        try:  # the integration cuts the noise makes, before any is built
+            check_ring_cuts(kw["t_end_s"], {r.key_path("noise_dt_s"): kw["noise_dt_s"]})
+        except ParameterError as exc:
+            raise ScenarioError(f"{r.file}: {exc}") from None
     kw["seed"] = r.integer("seed", 0, ge=0)
     if r.has("aev"):
         a = r.sub("aev")
@@ -225,17 +250,9 @@ def validate_ring_table(r: TableReader) -> RingSpec:
                 raise ini.error(key, ini.table[key], f"needs {n} values (ring.vehicles), got {len(vals)}")
         if any(x >= length for x in pos):
             raise ini.error("positions_m", ini.table["positions_m"], f"must lie in [0, {length:g}) m (the ring)")
-        x = np.asarray(pos)
-        gaps = (np.roll(x, 1) - x) % length - ell
-        if np.any(gaps <= 0):
-            i = int(np.argmin(gaps))
-            raise ini.error(
-                "positions_m",
-                ini.table["positions_m"],
-                f"vehicle {i + 1} overlaps its predecessor "
-                f"(gap {gaps[i]:.4g} m; vehicle i − 1 must be ahead of vehicle i, vehicles "
-                f"{ell:g} m long)",
-            )
+        bad = start_problem(length, ell, math.inf, pos, spd)  # order and overlaps; the top speed: with [limits]
+        if bad is not None:
+            raise ini.error(bad[0], ini.table[bad[0]], bad[1])
         kw.update(positions_m=tuple(pos), speeds_mps=tuple(spd))
         ini.finish()
     else:
@@ -260,6 +277,12 @@ def parse_ring_scenario(doc: dict[str, Any], file: str = "<ring scenario>", sour
     """Validate a parsed TOML document into a :class:`RingScenario` (errors name the file and key)."""
     top, name, description, ev = standalone_header(doc, file, source, _TOP, "ring")
     spec = validate_ring_table(top.sub("ring", required=True))
+    v_max = ev.limits.v_max_mps
+    if spec.speeds_mps is not None and max(spec.speeds_mps) > v_max:
+        raise ScenarioError(
+            f"{file}: ring.initial.speeds_mps = {echo(list(spec.speeds_mps))} is not allowed: every speed must be in "
+            f"[0, {v_max:g}] m/s (limits.v_max_mps, the vehicle's top speed)"
+        )
     mpc = None
     if "mpc" in doc:
         from ..mpc.scenario import validate_mpc_table
@@ -276,8 +299,9 @@ def parse_ring_scenario(doc: dict[str, Any], file: str = "<ring scenario>", sour
                 f"be one of {list(RING_PREDICTORS)} (an AEV forecasts its predecessor from its "
                 "own measurements)"
             )
+    cf = _carfollowing(top.sub("carfollowing"), sub_tables=False)[0]  # SI laws: [units] does not change them
     top.finish()
-    return RingScenario(name, spec, ev, mpc, description, source, copy.deepcopy(doc))
+    return RingScenario(name, spec, ev, mpc, description, source, copy.deepcopy(doc), cf)
 
 
 def load_ring_scenario(path: str | Path) -> RingScenario:
@@ -319,7 +343,10 @@ def build_ring(
         if s.human == "idm":
             humans.append(idm_si(ev.units, *[v * fk for v, fk in zip(s.human_params.values(), f)]))
         else:
-            humans.append(OVM(alpha=float(s.human_params["alpha_per_s"] * f[0] * ev.units.time_s)))
+            # OVM humans: the paper's V(h) at the laws' scales (CarFollowingParams), alpha_per_s in SI
+            hs, vs = sc.cf.h_scale_m, sc.cf.v_scale_mps
+            ovm = OVM(alpha=float(s.human_params["alpha_per_s"] * f[0] * (hs / vs)), h_scale_m=hs, v_scale_mps=vs)
+            humans.append(ovm.in_units(ev.units))
     base = RingRoad(
         length, tuple(humans), s.vehicle_length_m, ev, tuple([True] * s.vehicles), s.noise_mps2, s.noise_dt_s, s.seed
     )
@@ -331,7 +358,7 @@ def build_ring(
             raise ScenarioError(f"{sc.source or sc.name}: {exc}") from None
         mpc = (sc.mpc.settings, sc.mpc.formulation) if sc.mpc is not None else None
         for i in on:
-            vehicles[i] = make_aev(controller, ev, r_mps, mpc)
+            vehicles[i] = make_aev(controller, ev, r_mps, mpc, sc.cf)
             human[i] = False
     ring = RingRoad(length, tuple(vehicles), s.vehicle_length_m, ev, tuple(human), s.noise_mps2, s.noise_dt_s, s.seed)
     if s.positions_m is not None and s.speeds_mps is not None and length == s.length_m:

@@ -12,10 +12,13 @@ vehicle's command as in the open-chain plant.
 
 Controllers: a :class:`~aev_ocp.models.carfollowing.CarFollowingLaw` is integrated continuously; any sampled
 :class:`~aev_ocp.control.Controller` (Stern's PI with saturation, the MPC, a user's own) is a zero-order hold:
-every dt it receives an :class:`~aev_ocp.control.Observation` (its own state, the measured speeds of its
+every dt it receives an :class:`~aev_ocp.loop.Observation` (its own state, the measured speeds of its
 predecessor so far) and its command is held over the next dt while the whole ring is integrated — the ring
 closed loop (the open-chain :class:`~aev_ocp.control.ClosedLoop` runs behind a prescribed leader, which a
-ring does not have, so the ring has its own loop over the same Controller protocol).
+ring does not have, so the ring integrates its own way, but each control instant is the same step core as the
+platoon's and SUMO's, :class:`aev_ocp.loop.VehicleStep`: the command checked, conditioned, bounded by the
+safety layer and saturated). An automated vehicle's law whose run declares a conditioning or the safety layer
+(``ev.limits``) is sampled every dt (LAW_DT_S without another controller); human drivers never are.
 
 Human drivers may get seeded acceleration noise: N(0, σ²) [m/s²] per human vehicle, held over ``noise_dt_s``.
 
@@ -41,23 +44,30 @@ import casadi as ca
 import numpy as np
 
 from ..compiled import compile_shared, driver_source
-from ..limits import check_ring_size
-from ..control import Command, Controller, Observation
+from ..limits import check_ring_cuts, check_ring_size
+from ..control import SampledLaw
+from ..loop import NO_STAGES, CommandStages, Controller, Observation, VehicleStep, stages_for
 from ..models import energy
 from ..models.actuator import actuator_rate, saturate, speed_cut
 from ..models.carfollowing import CarFollowingLaw, optimal_velocity
 from ..models.battery import piecewise_ocv
 from ..models.ego import battery_side
 from ..params import EVParams, ParameterError, check_argument
-from ..plant import EVENT_RULES, event_at, event_header, rule_of_code
+from ..plant import EVENT_RULES, current_limit_events, event_at, event_header, rule_of_code
 from ..results import Event, SimulationResult, fmt_value, summary_html, summary_text
-from ..simulate import _law_template
+from .. import interrupts
+from ..progress import check_deadline
+from ..simulate import _interruptible_call, _law_template
 
 RING_METHODS = ("auto", "compiled", "cvodes")
 #: columns of one vehicle in a sample: states, quadratures, outputs
 QUAD_NAMES = ("distance", "omega", "energy_J", "heat_J", "heat_irr_J", "rel_speed2", "ovm_err2")
 OUT_NAMES = ("a", "I", "disc")
 _BUILT: dict[Any, Any] = {}
+LAW_DT_S = 0.1  # the control period [s] of a law sampled for its command stages when no other controller sets one
+#: Wall time [s] below which the next compiled advance is called directly instead of in an interruptible helper
+#: thread: a Ctrl-C then waits about this long (the advances of one run are alike: noise holds, control intervals).
+DIRECT_CALL_S = 0.02
 
 
 @dataclass(frozen=True)
@@ -222,6 +232,13 @@ def uniform_flow(
     v = uniform_speed_mps(ring) if speed_mps is None else float(speed_mps)
     if not (0 <= vehicle < n):
         raise ParameterError(f"ring: perturbed vehicle {vehicle + 1} is not on the ring of {n} vehicles")
+    gap = s - ring.vehicle_length_m
+    for name, val, hi in (("shift_m", shift_m, gap), ("speed_dip_mps", speed_dip_mps, math.inf)):
+        if not (isinstance(val, (int, float)) and math.isfinite(val) and 0 <= val < hi):
+            raise ParameterError(
+                f"ring: uniform_flow {name} = {val!r:.30} is not allowed: must be a finite number >= 0"
+                + (f" and < {hi:.6g} m (the equal bumper-to-bumper gap)" if math.isfinite(hi) else "")
+            )
     x = [-(i * s) % ring.length_m for i in range(n)]
     vs = [v] * n
     x[vehicle] = (x[vehicle] - shift_m) % ring.length_m
@@ -231,6 +248,39 @@ def uniform_flow(
         f" and slowed by {speed_dip_mps:g} m/s"
     )
     return RingInitial(tuple(x), tuple(vs), soc0, what)
+
+
+def start_problem(
+    length_m: float, vehicle_length_m: float, v_max_mps: float, positions_m: Any, speeds_mps: Any
+) -> tuple[str, str] | None:
+    """(key, what is wrong) of a ring's start, or None when it is physical: ``positions_m`` [m] finite, listed front
+    to back (vehicle i − 1 ahead of vehicle i: the gaps go once around the ring, adding up to ``length_m``), no two
+    vehicles of ``vehicle_length_m`` overlapping; ``speeds_mps`` [m/s] in [0, ``v_max_mps``]. One check for the
+    Python API (:meth:`RingSimulator.run`) and the scenario file (``[ring.initial]``)."""
+    x = np.asarray(positions_m, float)
+    v = np.asarray(speeds_mps, float)
+    if not np.all(np.isfinite(v)) or np.any(v < 0) or np.any(v > v_max_mps):
+        i = int(np.flatnonzero(~((v >= 0) & (v <= v_max_mps)))[0])
+        return "speeds_mps", (
+            f"every speed must be a finite number in [0, {v_max_mps:g}] m/s (limits.v_max_mps, the vehicle's top "
+            f"speed); vehicle {i + 1} has {float(v[i])!r:.30}"
+        )
+    if not np.all(np.isfinite(x)):
+        return "positions_m", "every position must be a finite number of metres"
+    ahead = (np.roll(x, 1) - x) % length_m  # front-to-front distance of each vehicle to its predecessor
+    gaps = ahead - vehicle_length_m
+    if np.any(gaps <= 0):
+        i = int(np.argmin(gaps))
+        return "positions_m", (
+            f"vehicle {i + 1} overlaps its predecessor (gap {gaps[i]:.4g} m; vehicle i − 1 must be ahead of "
+            f"vehicle i, vehicles {vehicle_length_m:g} m long)"
+        )
+    if abs(float(np.sum(ahead)) - length_m) > 1e-9 * length_m * x.size:
+        return "positions_m", (
+            f"must list the vehicles front to back (vehicle i − 1 ahead of vehicle i, once around the ring): "
+            f"the distances to each predecessor add up to {float(np.sum(ahead)):.6g} m, not the ring's {length_m:g} m"
+        )
+    return None
 
 
 def gaps_from_positions(ring: RingRoad, positions_m: Sequence[float] | np.ndarray) -> np.ndarray:
@@ -315,12 +365,14 @@ class RingResult:
         return x % self.ring.length_m if wrap else x
 
     def metrics(self) -> list[dict[str, Any]]:
-        """Per-vehicle metrics (aev_ocp.metrics.vehicle_metrics) plus battery energy per km [J/km]."""
+        """Per-vehicle metrics (aev_ocp.metrics.vehicle_metrics) plus the battery energy ∫P_b dt of the ring's own
+        quadrature [J] per km [J/km] and in kWh/100 km."""
         out = self.sim.metrics()
         for i, m in enumerate(out):
             d_km = float(self.distance[-1, i] * self.ring.ev.units.length_m) / 1000.0
-            m["energy_J"] = float(self.energy_J[-1, i])
-            m["energy_J_per_km"] = m["energy_J"] / d_km if d_km > 0 else math.nan
+            m["battery_energy_J"] = float(self.energy_J[-1, i])
+            m["battery_energy_J_per_km"] = m["battery_energy_J"] / d_km if d_km > 0 else math.nan
+            m["battery_energy_kWh_per_100km"] = m["battery_energy_J_per_km"] / 36000.0
             m["heat_pack_J_per_km"] = m["heat_pack_J"] / d_km if d_km > 0 else math.nan
         return out
 
@@ -403,13 +455,28 @@ class RingSimulator:
         check_argument("ring", "options", options, (RingOptions, type(None)))
         self.ring, self.opts = ring, options or RingOptions()
         self.ev, self.n = ring.ev, ring.n
-        self.sampled = [i for i, c in enumerate(ring.vehicles) if not isinstance(c, CarFollowingLaw)]
-        dts = {float(ring.vehicles[i].dt) for i in self.sampled}
+        # the loop core's stages of every automated vehicle (the humans' laws drive as they are)
+        self.stages: list[CommandStages] = [
+            NO_STAGES
+            if ring.is_human(i)
+            else stages_for(self.ev.limits, law=isinstance(c, (CarFollowingLaw, SampledLaw)), sensed=False)
+            for i, c in enumerate(ring.vehicles)
+        ]
+        dts = {float(c.dt) for c in ring.vehicles if not isinstance(c, CarFollowingLaw)}
         if len(dts) > 1:
             raise ParameterError(f"ring: every sampled controller must use the same dt, got {sorted(dts)}")
-        self.dt = dts.pop() if dts else None  # model time
+        # an automated law whose run declares a conditioning or the safety layer is sampled (like an ECU) at the
+        # controllers' dt, else every LAW_DT_S
+        dt_law = next(iter(dts)) if dts else float(self.ev.units.time_from_si(LAW_DT_S))
+        lo, hi = self.ev.limits.accel_bounds_model(self.ev.units)
+        self.vehicles: list[Any] = [
+            SampledLaw(c, dt_law, lo, hi) if isinstance(c, CarFollowingLaw) and self.stages[i].active else c
+            for i, c in enumerate(ring.vehicles)
+        ]
+        self.sampled = [i for i, c in enumerate(self.vehicles) if not isinstance(c, CarFollowingLaw)]
+        self.dt = dt_law if self.sampled else None  # model time
         self.laws: list[CarFollowingLaw] = [
-            c if isinstance(c, CarFollowingLaw) else HeldCommand() for c in ring.vehicles
+            c if isinstance(c, CarFollowingLaw) else HeldCommand() for c in self.vehicles
         ]
         templates = [_law_template(law) for law in self.laws]
         distinct: dict[Any, int] = {}
@@ -443,6 +510,7 @@ class RingSimulator:
                 )
         self.method = "compiled" if self._lib is not None else "cvodes"
         self._cvodes: dict[float, Any] = {}
+        self._direct = False  # whether the next compiled advance is called directly (see _advance_compiled)
 
     def _vehicle_function(self, law: CarFollowingLaw, k: int, p: ca.SX) -> ca.Function:
         """(u = (v_l, noise), x, p) -> (dz = (ẋ, quadrature integrands), y = (a, I, disc)), model units; the
@@ -573,7 +641,7 @@ class RingSimulator:
     ) -> tuple[int, np.ndarray]:
         ev = np.zeros(4)
         assert self._lib is not None
-        m = self._lib.aevring_advance(
+        args = (
             self.n,
             self.law_of,
             self.params,
@@ -592,6 +660,18 @@ class RingSimulator:
             stats,
             self.opts.threads,
         )
+        # in a helper thread, so that Ctrl-C, SIGTERM and --time-limit stop it within a step (aevring_cancel); an
+        # advance after one that took less than DIRECT_CALL_S is called directly (a thread costs ~1 ms a call, twice
+        # the whole advance of a small ring between two noise changes), the signal handled when it returns
+        fn, tc = self._lib.aevring_advance, time.perf_counter()
+        if self._direct:
+            check_deadline()
+            m = fn(*args)
+        else:
+            m = _interruptible_call(fn, args, ctypes.c_int.in_dll(self._lib, "aevring_cancel"))
+        self._direct = time.perf_counter() - tc < DIRECT_CALL_S
+        if m == -2:  # stopped through aevring_cancel by another thread's interrupt of the same library
+            raise interrupts.Interrupted("the compiled ring was cancelled")
         if m < 0:
             raise MemoryError("ring: the compiled ring ran out of memory")
         return int(m), ev
@@ -664,6 +744,14 @@ class RingSimulator:
                 return r.code, int(hit[0]), float(q[r.quantity][hit[0]])
         return None
 
+    def _cut_intervals_s(self) -> dict[str, float]:
+        """{what: interval [s]} of the integration cuts of a run: the sampled controllers' dt, the noise's hold."""
+        T, ring = self.ev.units.time_s, self.ring
+        out = {} if self.dt is None else {"the sampled controllers' dt": self.dt * T}
+        if ring.noise_mps2 > 0 and any(ring.is_human(i) for i in range(self.n)):
+            out["noise_dt_s"] = ring.noise_dt_s
+        return out
+
     # ------------------------------------------------------------------ running
     def run(self, initial: RingInitial, t_end_s: float) -> RingResult:
         """Integrate the ring from ``initial`` over [0, t_end_s] [s]."""
@@ -675,19 +763,16 @@ class RingSimulator:
         v0 = np.asarray(initial.speeds_mps, float)
         if x0.size != n or v0.size != n:
             raise ParameterError(f"ring: the initial state needs {n} positions and speeds, got {x0.size} and {v0.size}")
-        if not (np.all(np.isfinite(x0)) and np.all(np.isfinite(v0)) and np.all(v0 >= 0)):
-            raise ParameterError("ring: initial positions must be finite and speeds finite and >= 0")
+        bad = start_problem(ring.length_m, ring.vehicle_length_m, self.ev.limits.v_max_mps, x0, v0)
+        if bad is not None:
+            raise ParameterError(f"ring: RingInitial.{bad[0]} is not allowed: {bad[1]}")
         gaps = gaps_from_positions(ring, x0)
-        if np.any(gaps <= 0):
-            i = int(np.argmin(gaps))
-            raise ParameterError(
-                f"ring: initial gap of vehicle {i + 1} is {gaps[i]:.4g} m: vehicles overlap "
-                f"(positions must leave > 0 m between vehicles of {ring.vehicle_length_m:g} m)"
-            )
         soc0 = self.ev.cell.soc0 if initial.soc0 is None else initial.soc0
         if not (0 <= soc0 <= 1):
             raise ParameterError(f"ring: soc0 = {soc0!r} is not allowed: must be in [0, 1]")
         check_ring_size(n, t_end_s, self.opts.dt_out_s)  # the budget, before anything is allocated or integrated
+        check_ring_cuts(t_end_s, self._cut_intervals_s())  # the cuts too, before their grid is built
+        self._direct = False  # the first advance runs interruptibly (see _advance_compiled)
         T = u.time_s
         t_end = t_end_s / T
         z = np.zeros((n, self.nz))
@@ -711,13 +796,17 @@ class RingSimulator:
         noise = np.zeros(n)
         out[0] = np.hstack([z, self._outputs(z, noise)])
         h_io, stats = np.zeros(1), np.zeros(3, np.int64)
-        ctrl = {i: ring.vehicles[i] for i in self.sampled}
+        ctrl = {i: self.vehicles[i] for i in self.sampled}
         for c in ctrl.values():
             c.reset()
         meas_t: list[float] = []
         meas_v: dict[int, list[float]] = {i: [] for i in ctrl}
         a_prev = dict.fromkeys(ctrl, 0.0)
-        ctrl_stats: dict[int, dict[str, list[Any]]] = {i: {"call": [], "solve": [], "ok": []} for i in ctrl}
+        assert self.dt is not None or not ctrl
+        steps = {
+            i: VehicleStep(c.name, f"vehicle {i + 1}", u, self.ev.limits, self.stages[i], self.dt or 1.0, "ring")
+            for i, c in ctrl.items()
+        }
         events: list[Event] = []
         s_done, t0, k_noise = 1, 0.0, -1
         wall = time.perf_counter()
@@ -743,13 +832,9 @@ class RingSimulator:
                         a_prev[i],
                         float(z[i, 5]) if self.nx > 5 else None,
                     )
-                    tc = time.perf_counter()
-                    cmd: Command = c.command(obs)
-                    ctrl_stats[i]["call"].append(time.perf_counter() - tc)
-                    ctrl_stats[i]["solve"].append(cmd.solve_time_s)
-                    ctrl_stats[i]["ok"].append(cmd.ok)
-                    self.params[i, 0] = cmd.a
-                    a_prev[i] = cmd.a
+                    # checked, conditioned, safety layer, limits (aev_ocp.loop), then held over the step
+                    _, a_prev[i] = steps[i].command(c, obs)
+                    self.params[i, 0] = a_prev[i]
             sel = (ts > t0 + 1e-12 * (1 + t0)) & (ts <= t1 + 1e-12 * (1 + t1))
             tsel = np.ascontiguousarray(ts[sel])
             buf = np.zeros((tsel.size, n, self.nz + self.ny))
@@ -794,7 +879,7 @@ class RingSimulator:
             t0 = float(t1)
         wall = time.perf_counter() - wall
         ts, out = ts[:s_done], out[:s_done]
-        return self._result(initial, ts, out, events, wall, stats, ctrl_stats)
+        return self._result(initial, ts, out, events, wall, stats, steps)
 
     def _result(
         self,
@@ -804,7 +889,7 @@ class RingSimulator:
         events: list[Event],
         wall: float,
         stats: np.ndarray,
-        ctrl_stats: dict[int, dict[str, list[Any]]],
+        steps: dict[int, VehicleStep],
     ) -> RingResult:
         nx, n = self.nx, self.n
         col = lambda j: np.ascontiguousarray(out[:, :, j])  # noqa: E731
@@ -815,16 +900,21 @@ class RingSimulator:
             np.asarray(self.ring.length_m if False else initial.positions_m[-1]) / self.ev.units.length_m
             + q["distance"][:, -1]
         )
-        names = [getattr(c, "name", type(c).__name__) for c in self.ring.vehicles]
-        settings = [c.describe() for c in self.ring.vehicles]
+        names = [getattr(c, "name", type(c).__name__) for c in self.vehicles]
+        settings = [  # an automated vehicle's settings name its conditioning (aev_ocp.loop)
+            {**c.describe(), "conditioning": steps[i].stages.label()} if i in steps else c.describe()
+            for i, c in enumerate(self.vehicles)
+        ]
         solver: list[dict[str, Any] | None] = [None] * n
-        for i, st in ctrl_stats.items():
-            call = np.asarray(st["call"]) * 1e3
+        for i, step in steps.items():
+            call = np.asarray(step.rec["call"]) * 1e3
             solver[i] = {
                 "steps": len(call),
                 "call_ms_median": float(np.median(call)) if call.size else math.nan,
                 "call_ms_max": float(np.max(call)) if call.size else math.nan,
-                "fallbacks": int(sum(1 for ok in st["ok"] if not ok)),
+                "fallbacks": int(sum(1 for ok in step.rec["ok"] if not ok)),
+                "conditioning": step.stages.label(),
+                **{k: v for k, v in step.counts().items() if k != "steps"},
             }
         sim = SimulationResult(
             t=ts,
@@ -846,6 +936,7 @@ class RingSimulator:
             controllers=names,
             ev=self.ev,
             events=events,
+            violations=current_limit_events(ts, y["I"], self.ev),  # the plants' one rule (aev_ocp.plant)
             jerk_sampled=True,
             solver_stats=solver,
             meta={
@@ -853,6 +944,8 @@ class RingSimulator:
                 "rtol": self.opts.rtol,
                 "atol": self.opts.atol,
                 "controllers": settings,
+                # each automated vehicle's conditioning and safety layer (None: a human's law), with their counts
+                "command_stages": [steps[i].describe() if i in steps else None for i in range(n)],
                 "ring_length_m": self.ring.length_m,
                 "vehicle_length_m": self.ring.vehicle_length_m,
                 "initial": initial.perturbation,

@@ -128,6 +128,10 @@ def ring_stability(
         raise ParameterError(f"ring stability: n = {n!r} is not allowed: must be an integer >= 2")
     if not (isinstance(length_m, (int, float)) and math.isfinite(length_m) and length_m > 0):
         raise ParameterError(f"ring stability: length_m = {length_m!r} is not allowed: must be a finite number > 0")
+    if not (isinstance(vehicle_length_m, (int, float)) and math.isfinite(vehicle_length_m) and vehicle_length_m >= 0):
+        raise ParameterError(
+            f"ring stability: vehicle_length_m = {vehicle_length_m!r} is not allowed: must be a finite number >= 0"
+        )
     ev = ev or EVParams()
     u = ev.units
     T = u.time_s

@@ -1,8 +1,10 @@
-"""The "Safety suite" section of ``aev-ocp reproduce``: the whole suite in the full reproduction (about 25 s on a
-quiet two-core machine), the quick subset (a few seconds) in any reduced configuration."""
+"""The "Safety suite" section of ``aev-ocp reproduce``: the whole suite (both actuators, every controller bare and
+under the layer) in the full reproduction, on a process pool of one worker per core unless this process is itself
+a pool's daemon worker (measured by benchmarks/bench_safety.py), the quick subset in any reduced configuration."""
 
 from __future__ import annotations
 
+import multiprocessing as mp
 from pathlib import Path
 from typing import Callable
 
@@ -15,7 +17,8 @@ def safety_section(out_dir: Path, progress: Callable[[str], None]) -> str:
     """Run the suite, write its files into ``out_dir`` and return its Markdown."""
     quick = not SectionContext.of(progress).config.is_full
     progress("safety suite" + (" (quick)" if quick else ""))
-    res = run_suite(quick=quick)
+    workers = 1 if quick or mp.current_process().daemon else None  # a daemon process cannot start a pool
+    res = run_suite(quick=quick, workers=workers)
     write_outputs(res, out_dir)
     return markdown(res)
 

@@ -13,21 +13,60 @@ from ..params import CarFollowingParams, ParameterError, Units
 from .tables import ScenarioError, TableReader, _params
 
 
-def _carfollowing(r: TableReader) -> tuple[CarFollowingParams, dict[str, dict[str, float]]]:
-    coeffs = {f.name for f in dataclasses.fields(CarFollowingParams)}
-    cf_table = {k: v for k, v in r.table.items() if k in coeffs}
+#: [carfollowing] keys in SI: {key: (the dimensionless coefficient, SI value -> coefficient at scales ℓ [m], u [m/s])}
+SI_COEFFICIENTS: dict[str, tuple[str, Callable[[float, float, float], float]]] = {
+    "alpha_per_s": ("alpha", lambda x, ell, u: x * ell / u),
+    "beta_m2ps": ("beta", lambda x, ell, u: x / (ell * u)),
+    "kappa_per_m": ("kappa", lambda x, ell, u: x * ell),
+    "eps_m2ps2": ("eps", lambda x, ell, u: x / (u * u)),
+}
+
+
+def _carfollowing(r: TableReader, sub_tables: bool = True) -> tuple[CarFollowingParams, dict[str, dict[str, float]]]:
+    """[carfollowing]: ``calibrated`` (optional: a calibrated set by name or path, aev_ocp.calibration; the table's
+    own keys override it), the OV-type laws' coefficients (dimensionless: alpha, beta, kappa, eps; or in SI:
+    alpha_per_s, beta_m2ps, kappa_per_m, eps_m2ps2, converted with the law's scales), their scales h_scale_m [m]
+    and v_scale_mps [m/s], and (``sub_tables``) a sub-table per law with its own coefficients."""
+    coeffs = {f.name for f in dataclasses.fields(CarFollowingParams)} - {"model_units"}
+    calibrated: dict[str, float] = {}
+    if r.has("calibrated"):  # a calibrated set (aev_ocp.calibration): its parameters, then the table's keys
+        from ..calibration import load as load_calibration
+
+        name = r.string("calibrated")
+        try:
+            _, cal = load_calibration(name)
+        except ParameterError as exc:
+            raise r.error("calibrated", name, str(exc)) from None
+        calibrated = {k: float(v) for k, v in cal["params"].items() if k in coeffs}
+    cf_table = {**calibrated, **{k: v for k, v in r.table.items() if k in coeffs}}
+    si = {k: v for k, v in r.table.items() if k in SI_COEFFICIENTS}
     cf = _params(CarFollowingParams, TableReader(cf_table, r.path, r.file))
-    r._seen.update(cf_table)
+    r._seen.update(k for k in cf_table if k in r.table)
+    if si:
+        kw: dict[str, float] = {}
+        for key in si:
+            coeff, convert = SI_COEFFICIENTS[key]
+            if coeff in cf_table:
+                raise r.error(key, si[key], f"give {r.key_path(coeff)} (dimensionless) or {key} (SI), not both")
+            kw[coeff] = convert(
+                r.number(key, ge=0 if coeff != "eps" else None, gt=0 if coeff == "eps" else None),
+                cf.h_scale_m,
+                cf.v_scale_mps,
+            )
+        try:
+            cf = dataclasses.replace(cf, **kw)
+        except ParameterError as exc:
+            raise ScenarioError(f"{r.file}: {r.path}: {exc}") from None
     overrides: dict[str, dict[str, float]] = {}
     for key, value in r.table.items():
-        if key in coeffs:
+        if key in coeffs or key in SI_COEFFICIENTS or key == "calibrated":
             continue
-        if key.lower() not in LAW_REGISTRY:
+        if not sub_tables or key.lower() not in LAW_REGISTRY:
             raise r.error(
                 key,
                 value,
-                f"unknown key: allowed are {sorted(coeffs)} or a sub-table named after "
-                f"a law, one of {sorted(LAW_REGISTRY)}",
+                f"unknown key: allowed are {sorted(coeffs | set(SI_COEFFICIENTS))}"
+                + (f" or a sub-table named after a law, one of {sorted(LAW_REGISTRY)}" if sub_tables else ""),
             )
         sub = r.sub(key, required=True)
         ov = {k: sub.number(k) for k in list(sub.table)}

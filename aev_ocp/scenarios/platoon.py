@@ -189,7 +189,9 @@ def _replace_overrides(keyed: dict[str, Any]) -> dict[str, Any]:
             ov["compare"] = list(v) or None  # None removes the key: no compare
         elif k in ("units", "cf"):
             table = "units" if k == "units" else "carfollowing"
-            ov.update({f"{table}.{f.name}": getattr(v, f.name) for f in dataclasses.fields(v)})
+            ov.update(
+                {f"{table}.{f.name}": getattr(v, f.name) for f in dataclasses.fields(v) if f.name != "model_units"}
+            )
         elif k == "law_overrides":
             for law, coeffs in v.items():
                 ov.update({f"carfollowing.{law}.{c}": x for c, x in coeffs.items()})
@@ -213,7 +215,8 @@ def _replace_without_document(sc: "Scenario", keyed: dict[str, Any]) -> "Scenari
     if "t_end" in keyed:
         check_trace_horizon(sc, float(keyed["t_end"]))
     out = dataclasses.replace(sc, **keyed)
-    if "cf" in keyed or "law_overrides" in keyed:
+    out = dataclasses.replace(out, cf=dataclasses.replace(out.cf, model_units=out.units))  # laws in the units
+    if "cf" in keyed or "law_overrides" in keyed or "units" in keyed:
         try:
             laws = tuple(make_law(law.name, out.cf, **out.law_overrides.get(law.name, {})) for law in out.laws)
         except (KeyError, TypeError, ParameterError) as exc:
@@ -275,6 +278,7 @@ def parse_scenario(doc: dict[str, Any], file: str = "<scenario>", *, source: Pat
     sim.finish()
 
     cf, overrides = _carfollowing(top.sub("carfollowing"))
+    cf = dataclasses.replace(cf, model_units=units)  # the laws run in the scenario's model units, same SI behaviour
     read_s = trace_read_s(doc, t_end, units)
     leader = _leader(top.sub("leader", required=True), units, source, read_s)
     if isinstance(leader, SpeedTrace) and units.time_to_si(leader.times[-1]) >= read_s:
@@ -337,14 +341,15 @@ def parse_scenario(doc: dict[str, Any], file: str = "<scenario>", *, source: Pat
 def check_leader_speed(scenario: Scenario, file: str = "<scenario>") -> float:
     """Warn (ScenarioWarning) if the leader's top speed reaches V∞ = 1 + tanh 2; returns that top speed."""
     v_max = scenario.leader.max_speed(scenario.t_end)
-    if v_max >= V_INF:
-        u = scenario.units
+    u = scenario.units
+    v_top = V_INF * scenario.cf.v_scale_mps  # the OV laws' top speed [m/s]: V∞ times their speed scale
+    if u.speed_to_si(v_max) >= v_top:
         warnings.warn(
             ScenarioWarning(
                 f"{file}: the leader reaches {v_max:.4g} model speed ({u.speed_to_si(v_max):.4g} m/s), at or above "
-                f"V∞ = 1 + tanh 2 = {V_INF:.4f} ({u.speed_to_si(V_INF):.4g} m/s with units.speed_mps = "
-                f"{u.speed_mps:g}): no optimal-velocity law can keep up; raise units.speed_mps above "
-                f"{u.speed_to_si(v_max) / V_INF:.4g}"
+                f"V∞ = 1 + tanh 2 = {V_INF:.4f} times the laws' speed scale ({v_top:.4g} m/s with "
+                f"carfollowing.v_scale_mps = {scenario.cf.v_scale_mps:g}): no optimal-velocity law can keep up; "
+                f"raise carfollowing.v_scale_mps above {u.speed_to_si(v_max) / V_INF:.4g}"
             ),
             stacklevel=3,
         )

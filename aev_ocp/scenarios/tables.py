@@ -238,7 +238,11 @@ class TableReader:
         """Reject every key that was not read (unknown keys), listing the known ones."""
         extra = self.unread()
         if extra:
-            known = sorted(allowed_hint if allowed_hint is not None else self._seen)
+            known_set = set(allowed_hint if allowed_hint is not None else self._seen)
+            for model, (si, _dim) in SI_TWINS.get(self.path, {}).items():  # a read key's SI/model twin is allowed too
+                if model in known_set or si in known_set:
+                    known_set |= {model, si}
+            known = sorted(known_set)
             raise ScenarioError(
                 f"{self.file}: unknown key {self.key_path(extra[0])!r} "
                 f"(= {echo(self.table[extra[0]])}); allowed keys here: {known}"

@@ -9,7 +9,16 @@ from pathlib import Path
 from typing import Any
 
 from ..cells import CellFileError, load_cell_file, shipped_cells
-from ..params import CellParams, EVParams, PackParams, ThermalParams, Units, VehicleLimits, VehicleParams
+from ..params import (
+    CellParams,
+    EVParams,
+    PackParams,
+    ParameterError,
+    ThermalParams,
+    Units,
+    VehicleLimits,
+    VehicleParams,
+)
 from ..results import check_safe_name
 from .tables import ScenarioError, TableReader, _params
 
@@ -35,7 +44,7 @@ def _cell(r: TableReader, source: Path | None) -> CellParams:
 def read_ev(top: TableReader, source: Path | None) -> EVParams:
     """The vehicle tables every scenario form shares (platoon, ring, SUMO): [units], [vehicle], [cell] (a shipped
     ``name`` or a ``file``, then field overrides), [pack], [limits], [thermal]; absent tables give the defaults."""
-    return EVParams(
+    tables = dict(
         units=_params(Units, top.sub("units")),
         vehicle=_params(VehicleParams, top.sub("vehicle")),
         cell=_cell(top.sub("cell"), source),
@@ -43,6 +52,12 @@ def read_ev(top: TableReader, source: Path | None) -> EVParams:
         limits=_params(VehicleLimits, top.sub("limits")),
         thermal=_params(ThermalParams, top.sub("thermal")),
     )
+    try:
+        return EVParams(**tables)
+    except ParameterError as exc:  # a rule between tables (EVParams.__post_init__): name the key it is about
+        key = str(exc).split(" = ", 1)[0].split(".")[-1]
+        table = next((t for t, v in tables.items() if hasattr(v, key)), None)
+        raise ScenarioError(f"{top.file}: {table + '.' + key if table else 'vehicle tables'}: {exc}") from None
 
 
 def standalone_header(

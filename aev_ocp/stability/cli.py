@@ -157,6 +157,16 @@ def build_parser() -> argparse.ArgumentParser:
     ring.add_argument("--spacing-m", type=float, default=None, help="--ring: spacing L/N front to front [m]")
     ring.add_argument("--density-per-km", type=float, default=None, help="--ring: vehicles per km")
     p.add_argument("--vehicle-length-m", type=float, default=5.0, help="--ring: vehicle length [m] (default 5)")
+    p.add_argument(
+        "--aev",
+        default=None,
+        metavar="LAW",
+        help="--ring: a mixed ring: --aev-count vehicles of this law among the --law drivers (aev_ocp.stability.mixed)",
+    )
+    p.add_argument("--aev-count", type=int, default=1, help="--aev: automated vehicles, spread evenly (default 1)")
+    p.add_argument(
+        "--delay-s", type=float, default=0.0, help="--aev: reaction delay of the --law drivers [s] (default 0)"
+    )
     p.add_argument("--linear-only", action="store_true", help="skip the simulations")
     p.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
     p.add_argument("--out", default=None, help="output folder (default results/stability/<law>)")
@@ -195,12 +205,12 @@ def build_law(name: str, sets: list[str]) -> Any:
     from ..params import CarFollowingParams
 
     own, shared = parse_sets(name, sets)
-    known = {f.name for f in dataclasses.fields(CarFollowingParams)}
+    known = {f.name for f in dataclasses.fields(CarFollowingParams)} - {"model_units"}
     for k in shared:
         if k not in known:
             raise ParameterError(f"--set carfollowing.{k}: unknown coefficient: shared ones are {sorted(known)}")
     try:
-        params = CarFollowingParams(**shared)
+        params = CarFollowingParams(**dict[str, Any](shared))
     except ParameterError as exc:
         raise ParameterError(f"--set carfollowing.*: {exc}") from None
     if name.lower() not in LAW_REGISTRY:
@@ -249,6 +259,21 @@ def cli_stability(argv: list[str]) -> int:
 
             if law is None:
                 raise ParameterError("--ring: needs a car-following law (--law), not the MPC")
+            if a.aev is not None:
+                from ..ring.cli import cli_mixed_ring_stability
+
+                return cli_mixed_ring_stability(
+                    law,
+                    build_law(a.aev, []),
+                    a.ring,
+                    a.aev_count,
+                    a.delay_s,
+                    a.spacing_m,
+                    a.density_per_km,
+                    a.vehicle_length_m,
+                    units,
+                    Path(a.out) if a.out else Path("results") / "stability" / f"ring_{a.law.lower()}_{a.aev.lower()}",
+                )
             return cli_ring_stability(
                 law,
                 a.ring,

@@ -90,10 +90,17 @@ class LinearVehicle:
         return (2 * lam + 3 * tau * lam * lam + T * lam * lam * (1 + tau * lam)) * e + self.f_dv_per_s - self.f_v_per_s
 
 
-def si_accel(law: CarFollowingLaw, units: Units) -> ca.Function:
-    """The law as a CasADi Function (h [m], v [m/s], v_l [m/s]) -> a [m/s²], whatever units it is written in."""
+def si_accel(law: CarFollowingLaw, units: Units | None = None) -> ca.Function:
+    """The law as a CasADi Function (h [m], v [m/s], v_l [m/s]) -> a [m/s²]: a law with SI parameters of its own
+    (``has_si``: OVM, OVFL, the proposed law, IDM) through its ``accel_si``; a law written in a simulator's model
+    units through ``units`` (required then)."""
     h, v, vl = ca.SX.sym("h_m"), ca.SX.sym("v_mps"), ca.SX.sym("vl_mps")
-    a = units.accel_to_si(law.accel(units.length_from_si(h), units.speed_from_si(v), units.speed_from_si(vl)))
+    if getattr(law, "has_si", False):
+        a = law.accel_si(h, v, vl)
+    elif units is None:
+        raise ParameterError(f"mixed ring: law {law.name!r} is written in model units: give its units")
+    else:
+        a = units.accel_to_si(law.accel(units.length_from_si(h), units.speed_from_si(v), units.speed_from_si(vl)))
     return ca.Function(f"{law.name}_si", [h, v, vl], [a], ["h_m", "v_mps", "vl_mps"], ["a_mps2"])
 
 

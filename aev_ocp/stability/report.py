@@ -71,7 +71,13 @@ def string_stability_section(out_dir: Path, progress: ProgressFn) -> str:
     lin = analyse(law, v_star)
     cases = [("proposed (paper)", lin)] + [
         (f"{lw.name}" + (f", α = {lw.alpha:g}" if isinstance(lw, OVM) else ""), analyse(lw, v))
-        for lw, v in ((OVM(), v_star), (OVFL(), v_star), (IDM(), v_star), (OVM(), 0.964), (OVM(1.0), 0.964))
+        for lw, v in (
+            (OVM(), v_star),
+            (OVFL(), v_star),
+            (IDM().in_units(UNITS), v_star),
+            (OVM(), 0.964),
+            (OVM(1.0), 0.964),
+        )
     ]
     rows = []
     for tag, ls in cases:

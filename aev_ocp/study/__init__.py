@@ -12,6 +12,8 @@ store, :mod:`aev_ocp.study.table` for the table, :mod:`aev_ocp.study.report` for
 
 from __future__ import annotations
 
+import hashlib
+
 from pathlib import Path
 from typing import Any
 
@@ -118,6 +120,8 @@ def _run_study(
         settings=settings,
         extra={
             "table": "table.jsonl",
+            # the table this manifest describes: load() refuses another study's table put in its place
+            "table_sha256": hashlib.sha256(files[1].read_bytes()).hexdigest(),
             "n_tasks": len(results),
             "n_failed": failed,
             "trajectories": TRAJECTORIES if trajectories else None,

@@ -25,11 +25,12 @@ def _law_fingerprint(doc: dict[str, Any], law: str) -> dict[str, Any]:
     from ..params import CarFollowingParams
 
     table = doc.get("carfollowing") or {}
-    names = {f.name for f in dataclasses.fields(CarFollowingParams)}
-    cf = CarFollowingParams(**{k: float(v) for k, v in table.items() if k in names})
+    names = {f.name for f in dataclasses.fields(CarFollowingParams)} - {"model_units"}
+    cf = CarFollowingParams(**dict[str, Any]({k: float(v) for k, v in table.items() if k in names}))
     own = {k.lower(): v for k, v in table.items() if k not in names and isinstance(v, dict)}
     obj = make_law(law, cf, **own.get(law, {}))
-    return {"law": law, "coefficients": {f.name: getattr(obj, f.name) for f in dataclasses.fields(obj)}}
+    fields = [f.name for f in dataclasses.fields(obj) if f.name != "model_units"]
+    return {"law": law, "coefficients": {k: getattr(obj, k) for k in fields}}
 
 
 def make_task(p: Point, c: Controller, own_cost: bool = False) -> Task:

@@ -10,7 +10,9 @@ from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 from typing import Any
 
+from .. import interrupts
 from ..console import OneLineParser
+from ..limits import check_local_workers
 from ..results import claim_output_dir, default_output_dir
 from . import SumoError, require_sumo
 from .scenario import SumoScenario, load_sumo_scenario
@@ -41,15 +43,30 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _with_options(sc: SumoScenario, args: argparse.Namespace) -> SumoScenario:
+    """The scenario with the command line's --t-end-s, --share and --controller over its [sumo] keys, checked as the
+    file's keys are (the [mpc] a "mpc" controller needs, the size budget); an option a sweep would ignore is refused."""
     import dataclasses
 
-    from .scenario import _controller
+    from .scenario import _controller, check_sumo_spec, mpc_for
     from ..scenarios import TableReader
 
     spec = sc.spec
+    if args.sweep:
+        given = [o for o, v in (("--share", args.share), ("--controller", args.controller)) if v is not None]
+        if given:
+            raise SumoError(
+                f"{' and '.join(given)} cannot be combined with --sweep: a sweep runs every share x controller of "
+                "[sumo.sweep] (drop --sweep to run one point)"
+            )
+    elif args.workers is not None:
+        raise SumoError("--workers applies to --sweep only (one run is one SUMO process)")
+    if args.workers is not None:
+        check_local_workers(args.workers)
     if args.t_end_s is not None:
         if not (math.isfinite(args.t_end_s) and args.t_end_s >= spec.step_s):
-            raise SumoError(f"--t-end-s = {args.t_end_s!r} is not allowed: must be >= sumo.step_s = {spec.step_s:g}")
+            raise SumoError(
+                f"--t-end-s = {args.t_end_s!r} is not allowed: must be a finite number >= sumo.step_s = {spec.step_s:g}"
+            )
         spec = dataclasses.replace(spec, t_end_s=args.t_end_s)
     if args.share is not None:
         if not (0 <= args.share <= 1):
@@ -59,7 +76,9 @@ def _with_options(sc: SumoScenario, args: argparse.Namespace) -> SumoScenario:
         spec = dataclasses.replace(
             spec, controller=_controller(TableReader({}, "", "--controller"), "controller", args.controller)
         )
-    return dataclasses.replace(sc, spec=spec)
+    keys = {"t_end_s": "--t-end-s" if args.t_end_s is not None else None}
+    check_sumo_spec(spec, str(sc.source or sc.name), keys)
+    return dataclasses.replace(sc, spec=spec, mpc=mpc_for(spec, sc.ev, sc.mpc, str(sc.source or sc.name)))
 
 
 def run_one(sc: SumoScenario, out: Path, plots: bool = True, progress: Any = None) -> Any:
@@ -104,12 +123,14 @@ def cli_sumo(argv: list[str]) -> int:
             print(file=sys.stderr)
         ft = run.fleet_totals()
         print(
-            f"{run!r}\n  battery energy {ft['all']['battery_energy_kWh_per_100km']:.4g} kWh/100 km (toolkit's "
+            f"{run!r}: status {run.status}\n  battery energy {ft['all']['battery_energy_kWh_per_100km']:.4g} kWh/100 km (toolkit's "
             f"vehicles {ft['controlled']['battery_energy_kWh_per_100km']:.4g}, SUMO's "
             f"{ft['sumo']['battery_energy_kWh_per_100km']:.4g}), pack heat {ft['all']['heat_pack_J_per_km']:.4g} J/km, "
             f"charge throughput {ft['all']['charge_throughput_Ah_per_km']:.4g} Ah/km, mean speed "
             f"{ft['all']['mean_speed_mps']:.4g} m/s, collisions {ft['all']['collisions']}, teleports "
-            f"{ft['all']['teleports']}\n  wrote {out}/ (report.md, metrics.csv, fleet.json, manifest.json)"
+            f"{ft['all']['teleports']}, emergency stops {ft['all']['emergency_braking_events']}, lane-end stops "
+            f"{ft['all']['lane_end_stop_events']}, currents beyond the cell's limit {ft['all']['current_limit_events']}"
+            f"\n  wrote {out}/ (report.md, metrics.csv, fleet.json, manifest.json)"
         )
         return 0
     from .output import write_sweep
@@ -119,11 +140,12 @@ def cli_sumo(argv: list[str]) -> int:
     ctrls = list(s.sweep_controller) or [s.controller]
     points = [(sh, c) for c in ctrls for sh in shares]
     rows: list[dict[str, Any]] = []
-    workers = args.workers or min(len(points), os.cpu_count() or 1)
-    if workers < 1:
-        raise SumoError(f"--workers = {args.workers} is not allowed: must be >= 1")
+    workers = args.workers if args.workers is not None else min(len(points), os.cpu_count() or 1)
     with ProcessPoolExecutor(max_workers=workers) as pool:
-        futs = {pool.submit(_point, sc, sh, c, str(out), not args.no_plots): (sh, c) for sh, c in points}
+        # the workers start with SIGINT blocked (as a study's): a Ctrl-C reaches the whole process group, and this
+        # process stops them; a Ctrl-C while one is half started is honoured once all can be stopped
+        with interrupts.deferred(), interrupts.sigint_blocked():
+            futs = {pool.submit(_point, sc, sh, c, str(out), not args.no_plots): (sh, c) for sh, c in points}
         try:
             for f in as_completed(futs):
                 rows.append(f.result())
@@ -138,9 +160,10 @@ def cli_sumo(argv: list[str]) -> int:
                     ),
                     flush=True,
                 )
-        except KeyboardInterrupt:
-            for f in futs:
-                f.cancel()
+        except KeyboardInterrupt:  # end the running SUMO workers now (a wait lets each finish its run: ~35 s)
+            from ..study.runner import _stop_pool
+
+            _stop_pool(pool)
             raise
     order = {p: i for i, p in enumerate(points)}
     rows.sort(key=lambda r: order[(r["share"], r["controller"])])

@@ -18,6 +18,7 @@ import subprocess
 from dataclasses import dataclass
 from pathlib import Path
 
+from ..params import ParameterError, spec, validate_fields
 from . import SumoError, sumo_binary
 
 #: Length of the toolkit's vehicle: 2022 Tesla Model 3 (manufacturer's data: 4694 mm), the car of
@@ -25,34 +26,59 @@ from . import SumoError, sumo_binary
 VEHICLE_LENGTH_M = 4.694
 
 
+#: Upper bounds of the shipped networks' keys: a lane speed of 100 m/s (360 km/h) is above every road's limit, a
+#: road or ring of 100 km above any SUMO study of one corridor, 10 000 vehicles/h above the capacity of the merge's
+#: two main lanes (HCM: ~2 400 vehicles/h/lane); SUMO refuses larger values without a message, or runs for ever.
+MAX_LANE_SPEED_MPS = 100.0
+MAX_ROAD_M = 100_000.0
+MAX_FLOW_VPH = 10_000.0
+
+
+class NetworkError(SumoError, ParameterError):
+    """A network's field outside its declared range: a ParameterError of the Python API ('RingNetwork.length_m = …')
+    that is also a SumoError (a scenario file's keys are checked against the same declarations, naming
+    ``sumo.ring.length_m``, before the network is built)."""
+
+
+def _checked(obj: object) -> None:
+    """Every declared field of a network (:func:`aev_ocp.params.validate_fields`); :class:`NetworkError`."""
+    try:
+        validate_fields(obj)
+    except ParameterError as exc:
+        raise NetworkError(str(exc)) from None
+
+
 @dataclass(frozen=True)
 class RingNetwork:
     """The single-lane ring. length_m: circumference [m]; vehicles: how many, equally spaced; perturbation_m:
     vehicle 0 starts this far behind its equal-spacing place (the wave's seed); speed0_mps: every vehicle's
-    initial speed [m/s]; lane_speed_mps: the lane's speed limit [m/s] (high, so that only the controllers and
-    SUMO's drivers set the speed)."""
+    initial speed [m/s] (at most the lane's limit); lane_speed_mps: the lane's speed limit [m/s] (high, so that
+    only the controllers and SUMO's drivers set the speed)."""
 
-    length_m: float = 230.0  # Sugiyama et al. 2008
-    vehicles: int = 22  # Sugiyama et al. 2008
-    perturbation_m: float = 0.0
-    speed0_mps: float = 0.0  # Sugiyama et al. 2008 start from rest
-    vehicle_length_m: float = VEHICLE_LENGTH_M
-    lane_speed_mps: float = 40.0
+    length_m: float = spec(230.0, gt=0, le=MAX_ROAD_M)  # Sugiyama et al. 2008
+    vehicles: int = spec(22, kind="integer", ge=1)  # Sugiyama et al. 2008
+    perturbation_m: float = spec(0.0, ge=0)
+    speed0_mps: float = spec(0.0, ge=0, le=MAX_LANE_SPEED_MPS)  # Sugiyama et al. 2008 start from rest
+    vehicle_length_m: float = spec(VEHICLE_LENGTH_M, gt=0, le=30.0)  # 30 m: longer than any road vehicle
+    lane_speed_mps: float = spec(40.0, gt=0, le=MAX_LANE_SPEED_MPS)
 
     def __post_init__(self) -> None:
-        if not (self.length_m > 0 and math.isfinite(self.length_m)):
-            raise SumoError(f"sumo.ring.length_m = {self.length_m!r} is not allowed: must be > 0")
-        if not (isinstance(self.vehicles, int) and self.vehicles >= 1):
-            raise SumoError(f"sumo.ring.vehicles = {self.vehicles!r} is not allowed: must be an integer >= 1")
+        _checked(self)
         if self.vehicles * self.vehicle_length_m >= self.length_m:
             raise SumoError(
                 f"sumo.ring.vehicles = {self.vehicles} cars of {self.vehicle_length_m} m do not fit "
                 f"on a ring of {self.length_m} m"
             )
-        if not (0 <= self.perturbation_m < self.length_m / self.vehicles - self.vehicle_length_m):
+        if not self.perturbation_m < self.length_m / self.vehicles - self.vehicle_length_m:
             raise SumoError(
                 f"sumo.ring.perturbation_m = {self.perturbation_m!r} is not allowed: must be >= 0 "
-                "and below the equal bumper-to-bumper gap"
+                f"and below the equal bumper-to-bumper gap "
+                f"{self.length_m / self.vehicles - self.vehicle_length_m:.4g} m"
+            )
+        if self.speed0_mps > self.lane_speed_mps:
+            raise SumoError(
+                f"sumo.ring.speed0_mps = {self.speed0_mps!r} is not allowed: must be in [0, {self.lane_speed_mps:g}] "
+                "m/s (sumo.ring.lane_speed_mps, the lane's limit)"
             )
 
     def positions_m(self) -> list[float]:
@@ -64,23 +90,27 @@ class RingNetwork:
 @dataclass(frozen=True)
 class MergeNetwork:
     """The highway on-ramp merge. main_flow_vph / ramp_flow_vph: flows [vehicles/h]; main_length_m: road length
-    before the merge [m]; accel_lane_m: acceleration-lane length [m]; after_m: road after it [m]; speeds [m/s]."""
+    before the merge [m] (the ramp starts 400 m before the merge); accel_lane_m: acceleration-lane length [m];
+    after_m: road after it [m]; speeds [m/s]."""
 
-    main_flow_vph: float = 2400.0  # 1200 veh/h/lane: a busy but free-flowing two-lane motorway (HCM LOS C-D)
-    ramp_flow_vph: float = 500.0  # a busy on-ramp (HCM ramp capacity ~ 1800 veh/h)
-    main_length_m: float = 800.0
-    accel_lane_m: float = 250.0  # German RAA 2008: 250 m acceleration lane for a motorway entry
-    after_m: float = 1000.0
-    main_speed_mps: float = 33.33  # 120 km/h motorway limit
-    ramp_speed_mps: float = 22.22  # 80 km/h ramp limit
+    main_flow_vph: float = spec(
+        2400.0, ge=0, le=MAX_FLOW_VPH
+    )  # 1200 veh/h/lane: a busy two-lane motorway (HCM LOS C-D)
+    ramp_flow_vph: float = spec(500.0, ge=0, le=MAX_FLOW_VPH)  # a busy on-ramp (HCM ramp capacity ~ 1800 veh/h)
+    main_length_m: float = spec(800.0, gt=0, le=MAX_ROAD_M)
+    accel_lane_m: float = spec(250.0, gt=0, le=MAX_ROAD_M)  # German RAA 2008: 250 m lane for a motorway entry
+    after_m: float = spec(1000.0, gt=0, le=MAX_ROAD_M)
+    main_speed_mps: float = spec(33.33, gt=0, le=MAX_LANE_SPEED_MPS)  # 120 km/h motorway limit
+    ramp_speed_mps: float = spec(22.22, gt=0, le=MAX_LANE_SPEED_MPS)  # 80 km/h ramp limit
 
     def __post_init__(self) -> None:
-        for k in ("main_flow_vph", "ramp_flow_vph"):
-            if not (getattr(self, k) >= 0 and math.isfinite(getattr(self, k))):
-                raise SumoError(f"sumo.merge.{k} = {getattr(self, k)!r} is not allowed: must be >= 0")
-        for k in ("main_length_m", "accel_lane_m", "after_m", "main_speed_mps", "ramp_speed_mps"):
-            if not (getattr(self, k) > 0 and math.isfinite(getattr(self, k))):
-                raise SumoError(f"sumo.merge.{k} = {getattr(self, k)!r} is not allowed: must be > 0")
+        _checked(self)
+
+    @property
+    def road_m(self) -> float:
+        """Length of road a vehicle may occupy [m]: the main road, the ramp (400 m), the acceleration lane (3
+        lanes) and the road after it (2 lanes)."""
+        return 2 * self.main_length_m + 400.0 + 3 * self.accel_lane_m + 2 * self.after_m
 
 
 def run_tool(args: list[str], what: str) -> None:

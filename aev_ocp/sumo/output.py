@@ -19,8 +19,8 @@ import numpy as np
 
 from ..metrics import si_first
 from ..results import save_figure_atomic, to_jsonable, write_atomic, write_json
-from ..saved import LoadError, load_all, read_manifest, save_output
-from .run import SumoRun
+from ..saved import LoadError, _damaged, load_all, read_manifest, save_output
+from .run import FLEET_EVENT_KINDS, SumoRun
 
 FILES = ("manifest.json", "trajectories.npz", "metrics.csv", "fleet.json", "report.md")
 
@@ -75,7 +75,12 @@ def write_metrics_csv(run: SumoRun, path: Path) -> Path:
 
 
 def load_sumo(path: str | Path) -> SumoRun:
-    """A saved SUMO run back as a :class:`SumoRun` (its scenario re-validated from the saved document)."""
+    """A saved SUMO run back as a :class:`SumoRun` (its scenario re-validated from the saved document); anything a
+    damaged or foreign folder raises is one :class:`~aev_ocp.saved.LoadError` naming it."""
+    return _damaged(path, lambda: _load_sumo(path))
+
+
+def _load_sumo(path: str | Path) -> SumoRun:
     from .scenario import parse_sumo_scenario
 
     m, folder = read_manifest(path)
@@ -83,7 +88,9 @@ def load_sumo(path: str | Path) -> SumoRun:
         raise LoadError(f"{folder}: kind = {m.get('kind')!r}, not a SUMO run")
     s = m["sumo"]
     runs = load_all(folder)
-    sc = parse_sumo_scenario(m["settings"]["document"], str(m["settings"].get("source") or folder))
+    src = m["settings"].get("source")
+    # relative paths of the document ([cell] file, net_file, ...) start from the scenario file's folder, as in the run
+    sc = parse_sumo_scenario(m["settings"]["document"], str(src or folder), Path(src) if src else None)
     return SumoRun(
         s["name"],
         sc,
@@ -213,7 +220,9 @@ def report_markdown(run: SumoRun, figures: list[Path] | None = None) -> str:
         "min_gap_m",
         "collisions",
         "teleports",
+        *(f"{k}_events" for k in FLEET_EVENT_KINDS),
     ]
+    lines += [f"Status: **{run.status}**.", ""]
     lines += ["## Fleet totals", "", "| group | " + " | ".join(cols) + " |", "|---" * (len(cols) + 1) + "|"]
     for g in ("all", "controlled", "sumo"):
         lines.append(f"| {g} | " + " | ".join(_fmt(ft[g][c]) for c in cols) + " |")
@@ -249,10 +258,11 @@ def report_markdown(run: SumoRun, figures: list[Path] | None = None) -> str:
     ev = [e for e in run.events if e["kind"] != "left_network"]
     lines += ["## Events", ""]
     lines += [
-        f"- {e['kind']} at {e['t_s']:.4g} s: {e.get('vehicle')}"
+        f"- {e['kind']} at {_fmt(e['t_s'])} s: {e.get('vehicle')}"
         + (f" hit {e['victim']} at {e['impact_speed_mps']:.3g} m/s" if e["kind"] == "collision" else "")
+        + (f" ({_fmt(e['value'])})" if "value" in e else "")
         for e in ev[:50]
-    ] or ["None (no collision, no teleport)."]
+    ] or ["None (no collision, no teleport, no emergency stop, no lane-end stop, no current beyond the limit)."]
     lines.append("")
     if figures:
         lines += ["## Space-time diagrams", ""] + [f"![{p.stem}]({p.name})" for p in figures] + [""]
@@ -281,6 +291,7 @@ def sweep_markdown(rows: list[dict[str, Any]], name: str) -> str:
         "min_gap_m",
         "collisions",
         "teleports",
+        *(f"{k}_events" for k in FLEET_EVENT_KINDS),
         "realtime_factor",
     ]
     lines = [
@@ -304,7 +315,7 @@ def sweep_row(share: float, controller: str, run: SumoRun | None, error: str = "
     return {
         "share": share,
         "controller": controller,
-        "status": "interrupted" if run.interrupted else "ok",
+        "status": run.status,  # 'ok' only without any event (collisions, teleports, emergency stops, ...)
         "vehicles": ft["all"]["vehicles"],
         "controlled": ft["controlled"]["vehicles"],
         "battery_energy_kWh_per_100km": ft["all"]["battery_energy_kWh_per_100km"],
@@ -316,6 +327,7 @@ def sweep_row(share: float, controller: str, run: SumoRun | None, error: str = "
         "min_gap_m": ft["all"]["min_gap_m"],
         "collisions": ft["all"]["collisions"],
         "teleports": ft["all"]["teleports"],
+        **{f"{k}_events": ft["all"][f"{k}_events"] for k in FLEET_EVENT_KINDS},
         "realtime_factor": ft["realtime_factor"],
     }
 

@@ -35,10 +35,12 @@ from typing import Any, Callable
 import numpy as np
 
 from .. import interrupts
-from ..control import Command, Controller, Observation, _stats
+from ..control import _stats
+from ..loop import Controller, Observation, VehicleStep, stages_for
 from ..models.carfollowing import CarFollowingLaw, make_law, optimal_velocity
 from ..numerics import trapezoid
-from ..params import EVParams
+from ..plant import CURRENT_LIMIT, current_limit_events
+from ..params import EVParams, VehicleLimits
 from ..results import Event, SimulationResult
 from . import SumoError, require_sumo, sumo_binary
 from . import energy
@@ -47,6 +49,8 @@ from .scenario import SumoScenario, _few
 
 ProgressFn = Callable[[float, float], None]
 MEASUREMENT_WINDOW = 100  # leader-speed samples a controller keeps (the MPC's predictors use the last few)
+#: the kinds of events that do not end a vehicle's record (its violations), counted in the fleet's tables
+FLEET_EVENT_KINDS = ("emergency_braking", "lane_end_stop", CURRENT_LIMIT)
 
 
 def _draw(seed: int, vid: str) -> float:
@@ -116,10 +120,11 @@ class _Track:
     a_cmd_mps2: float = 0.0
     meas_t: deque[float] = field(default_factory=lambda: deque(maxlen=MEASUREMENT_WINDOW))
     meas_v: deque[float] = field(default_factory=lambda: deque(maxlen=MEASUREMENT_WINDOW))
-    rec: dict[str, list[Any]] = field(
-        default_factory=lambda: {k: [] for k in ("solve", "call", "iters", "ok", "status", "info")}
-    )
     a_prev: float = 0.0
+    step: VehicleStep | None = None  # the loop core of a controlled vehicle (aev_ocp.loop)
+    a_floor_mps2: float = -math.inf  # the hardest deceleration the vehicle can make [m/s²] (below: an event)
+    violations: list[Event] = field(default_factory=list)  # events that did not end the record
+    at_lane_end: bool = False  # its obstacle at the last sample was the end of its lane
 
 
 @dataclass
@@ -143,6 +148,18 @@ class SumoRun:
     ring_length_m: float | None = None
     interrupted: bool = False
     build_s: float = 0.0
+
+    @property
+    def status(self) -> str:
+        """'ok' when no vehicle had an event; else the most severe kind that happened: 'interrupted', 'collision',
+        'teleport', a battery event, then the events that did not end a record ('emergency_braking', 'lane_end_stop',
+        'current_limit')."""
+        if self.interrupted:
+            return "interrupted"
+        kinds = {e["kind"] for e in self.events if e["kind"] != "left_network"}
+        kinds |= {r.status for r in self.vehicles.values() if r.status not in ("ok", "violated")}
+        order = ["collision", "teleport", "infeasible_current", "soc_out_of_range", *FLEET_EVENT_KINDS]
+        return next((k for k in order if k in kinds), next(iter(sorted(kinds)), "ok"))
 
     @property
     def realtime_factor(self) -> float:
@@ -194,6 +211,11 @@ class SumoRun:
                 "min_gap_m": min((_f(m["min_gap_m"]) for m in sel), default=math.nan),
                 "collisions": sum(1 for m in sel if m["status"] == "collision"),
                 "teleports": sum(1 for m in sel if m["status"] == "teleport"),
+                # the events that did not end a vehicle's record, counted over the group's vehicles
+                **{
+                    f"{k}_events": sum(1 for m in sel for e in self.vehicles[m["sumo_id"]].violations if e.kind == k)
+                    for k in FLEET_EVENT_KINDS
+                },
             }
 
         return {
@@ -326,8 +348,8 @@ def make_controller_factory(scenario: SumoScenario) -> tuple[CarFollowingLaw | N
         mod, fn = name.split(":", 1)
         try:
             factory = getattr(importlib.import_module(mod), fn)
-        except (ImportError, AttributeError) as exc:
-            raise SumoError(f"sumo.controller = {name!r}: cannot import it ({exc})") from None
+        except Exception as exc:  # noqa: BLE001 - the user's module: ImportError, AttributeError, SyntaxError, its own
+            raise SumoError(f"sumo.controller = {name!r}: cannot import it ({type(exc).__name__}: {exc})") from None
 
         if not callable(factory):
             raise SumoError(f"sumo.controller = {name!r}: {fn} in {mod} is a {type(factory).__name__}, not a function")
@@ -341,6 +363,12 @@ def make_controller_factory(scenario: SumoScenario) -> tuple[CarFollowingLaw | N
                 raise SumoError(
                     f"sumo.controller = {name!r} returned a {type(c).__name__}, not a Controller "
                     "(name, dt, reset, command, describe)"
+                )
+            dt = getattr(c, "dt", None)
+            if isinstance(dt, bool) or not isinstance(dt, (int, float)) or not (math.isfinite(dt) and dt > 0):
+                raise SumoError(
+                    f"sumo.controller = {name!r}: its controller's dt = {dt!r} is not allowed: must be a finite "
+                    "sampling period > 0 [model time]"
                 )
             return c
 
@@ -398,7 +426,15 @@ def _loop(ts: Any, sc: SumoScenario, progress: ProgressFn | None) -> SumoRun:
     u = ev.units
     dt = s.step_s
     law, factory = make_controller_factory(sc)
+    law_stages = stages_for(ev.limits, law=True, sensed=False)  # SUMO hands the controllers exact measurements
+    ctrl_stages = stages_for(ev.limits, law=False, sensed=False)
     a_lo, a_hi = (ev.limits.a_min_mps2, ev.limits.a_max_mps2) if ev.limits.enabled else (-math.inf, math.inf)
+    # what a law's non-finite output becomes (a law evaluated where it has no value: brake as hard as the car can)
+    a_emergency = a_lo if math.isfinite(a_lo) else VehicleLimits().a_min_mps2
+    # a controlled car decelerating beyond its a_min (without limits: the tyre-road friction of the default limits)
+    # was stopped by SUMO, not by its controller: an event (SUMO's emergency stop, e.g. at a lane end)
+    a_floor = a_emergency
+    floors: dict[str, float] = {}
     v_max = ev.limits.v_max_mps if ev.limits.enabled else math.inf
     ctrl_every = 1
     tracks: dict[str, _Track] = {}
@@ -454,6 +490,10 @@ def _loop(ts: Any, sc: SumoScenario, progress: ProgressFn | None) -> SumoRun:
                     V.setSpeedMode(vid, s.speed_mode)
                     if law is not None:
                         tr.law, tr.controller = law, law.name
+                        # a law is evaluated every SUMO step: its loop core steps at dt
+                        tr.step = VehicleStep(
+                            law.name, f"vehicle {vid!r}", u, ev.limits, law_stages, dt / u.time_s, "sumo"
+                        )
                     else:
                         assert factory is not None
                         tb = time.perf_counter()
@@ -462,8 +502,20 @@ def _loop(ts: Any, sc: SumoScenario, progress: ProgressFn | None) -> SumoRun:
                         t_build += time.perf_counter() - tb
                         tr.controller = tr.ctrl.name
                         ctrl_every = max(1, int(round(tr.ctrl.dt * u.time_s / dt)))
+                        tr.step = VehicleStep(
+                            tr.ctrl.name,
+                            f"vehicle {vid!r}",
+                            u,
+                            ev.limits,
+                            ctrl_stages,
+                            ctrl_every * dt / u.time_s,
+                            "sumo",
+                        )
                 else:
                     tr.controller = f"sumo:{vt}"  # SUMO's own driver model of the vehicle's type
+                if vt not in floors:  # SUMO's own drivers: their type's emergency deceleration
+                    floors[vt] = -float(ts.vehicletype.getEmergencyDecel(vt))
+                tr.a_floor_mps2 = a_floor if ctl else floors[vt]
                 tracks[vid] = tr
             for vid in ts.simulation.getStartingTeleportIDList():
                 if vid in tracks:
@@ -508,6 +560,7 @@ def _loop(ts: Any, sc: SumoScenario, progress: ProgressFn | None) -> SumoRun:
                     g, vl = lead[1] + tr.min_gap_m, V.getSpeed(lead[0])
                 else:
                     g, vl = math.nan, math.nan
+                left = None
                 if tr.controlled:  # a lane that ends (no continuation on the route) is a standing obstacle
                     left = _lane_end_m(V, vid, tr.route, lane_ends)
                     if left is not None and left < s.lookahead_m and not (g <= left):
@@ -518,6 +571,8 @@ def _loop(ts: Any, sc: SumoScenario, progress: ProgressFn | None) -> SumoRun:
                 tr.gap.append(g)
                 tr.v_lead.append(vl)
                 tr.lane.append(V.getLaneID(vid))
+                if len(tr.v) > 1:
+                    _check_motion(tr, dt, u, fleet_events, lane_end=tr.controlled and left is not None and g == left)
             # battery over the step just made
             _battery(ev, live, dt)
             for tr in [tr for tr in live if tr.events]:
@@ -545,17 +600,36 @@ def _loop(ts: Any, sc: SumoScenario, progress: ProgressFn | None) -> SumoRun:
                             h[None, :], u.speed_from_si(vs[law_idx])[None, :], u.speed_from_si(vls[law_idx])[None, :]
                         )
                     ).ravel()
-                    a[law_idx] = u.accel_to_si(a_model)
+                    a_law = u.accel_to_si(a_model)
+                    a[law_idx] = np.where(np.isfinite(a_law), a_law, a_emergency)
                 for i, tr in enumerate(ctl_live):
-                    if tr.ctrl is None:
+                    assert tr.step is not None
+                    if tr.ctrl is None:  # a law: its command through the loop core's stages (model units)
+                        if tr.step.stages.active:
+                            a_l = (
+                                (vls[i] - tr.v_lead[-2]) / dt
+                                if len(tr.v_lead) > 1 and np.isfinite(tr.v_lead[-2])
+                                else 0.0
+                            )
+                            a[i] = u.accel_to_si(
+                                tr.step.apply(
+                                    float(u.accel_from_si(a[i])),
+                                    float(u.length_from_si(gaps[i])),
+                                    float(u.speed_from_si(vs[i])),
+                                    float(u.speed_from_si(vls[i])),
+                                    float(u.accel_from_si(a_l)),
+                                )
+                            )
+                        else:  # no stage: only the saturation below, counted as the core counts it
+                            tr.step.n["steps"] += 1
+                            tr.step.n["saturated_steps"] += int(not (a_lo <= a[i] <= a_hi))
                         continue
                     tr.meas_t.append(u.time_from_si(t_s))
                     tr.meas_v.append(u.speed_from_si(vls[i]))
                     if (len(tr.t_s) - 1) % ctrl_every == 0:  # every controller dt since the vehicle departed
-                        tr.a_cmd_mps2 = _call(tr, u, vs[i], gaps[i], ev)
+                        tr.a_cmd_mps2 = _call(tr, u, vs[i], gaps[i])
                     a[i] = tr.a_cmd_mps2
-                a = np.where(np.isfinite(a), a, a_lo if math.isfinite(a_lo) else -9.0)
-                a = np.clip(a, a_lo, a_hi)
+                a = np.clip(a, a_lo, a_hi)  # (the loop core saturated in model units: this only rounds to SI)
                 v_next = np.clip(vs + a * dt, 0.0, np.maximum(v_max, vs))
                 for i, tr in enumerate(ctl_live):
                     V.setSpeed(tr.vid, float(v_next[i]))
@@ -579,6 +653,12 @@ def _loop(ts: Any, sc: SumoScenario, progress: ProgressFn | None) -> SumoRun:
             continue
         vehicles[tr.vid] = _result(tr, ev, s.lookahead_m, dt, s.record_every)
         controlled[tr.vid] = tr.controlled
+        for e in vehicles[tr.vid].violations:  # the cell's current limit: the plants' one rule (aev_ocp.plant)
+            if e.kind == CURRENT_LIMIT:
+                peak = float(np.max(np.abs(tr.current)))  # the largest |I| [A]
+                fleet_events.append(
+                    {"kind": e.kind, "t_s": e.time_s, "vehicle": tr.vid, "controlled": tr.controlled, "value": peak}
+                )
     return SumoRun(
         sc.name,
         sc,
@@ -595,6 +675,41 @@ def _loop(ts: Any, sc: SumoScenario, progress: ProgressFn | None) -> SumoRun:
         interrupted,
         t_build,
     )
+
+
+#: a realised deceleration may exceed the vehicle's floor by this much [m/s²] (the speeds' round-off in SUMO)
+DECEL_TOLERANCE_MPS2 = 1e-3
+EMERGENCY_BRAKING, LANE_END_STOP = FLEET_EVENT_KINDS[:2]
+STANDSTILL_MPS = 0.1  # a speed below this counts as standing [m/s]
+
+
+def _check_motion(tr: _Track, dt: float, u: Any, fleet: list[dict[str, Any]], lane_end: bool) -> None:
+    """The events of the step SUMO just made that do not end the vehicle's record (they go to its violations and to
+    the fleet's events, each with time, vehicle and value): a realised deceleration beyond the vehicle's floor
+    (value: the deceleration [m/s²]; SUMO's emergency stop), and a controlled car coming to a stop at the end of
+    its lane (``lane_end``: its obstacle is the lane's end, now or at the sample before, SUMO may move a car it
+    stops there to the next lane; value: the speed it stopped from [m/s])."""
+    t_s, a = tr.t_s[-1], (tr.v[-1] - tr.v[-2]) / dt
+
+    def record(kind: str, value: float, message: str) -> None:
+        tr.violations.append(Event(kind, float(u.time_from_si(t_s)), 0, message, time_s=t_s))
+        fleet.append({"kind": kind, "t_s": t_s, "vehicle": tr.vid, "controlled": tr.controlled, "value": value})
+
+    if a < tr.a_floor_mps2 - DECEL_TOLERANCE_MPS2:
+        record(
+            EMERGENCY_BRAKING,
+            a,
+            f"deceleration {a:.4g} m/s² beyond the vehicle's {tr.a_floor_mps2:.4g} m/s² (from {tr.v[-2]:.3g} to "
+            f"{tr.v[-1]:.3g} m/s in {dt:g} s: SUMO stopped it)",
+        )
+    was_at_end, tr.at_lane_end = tr.at_lane_end, lane_end
+    if (lane_end or was_at_end) and tr.v[-1] < STANDSTILL_MPS <= tr.v[-2]:
+        left = tr.gap[-1] if lane_end else tr.gap[-2]
+        record(
+            LANE_END_STOP,
+            tr.v[-2],
+            f"stopped from {tr.v[-2]:.3g} m/s {left:.3g} m before the end of its lane {tr.lane[-2]} (its route goes on)",
+        )
 
 
 def _lane_end_m(V: Any, vid: str, route: str, cache: dict[tuple[str, int, str], float | None]) -> float | None:
@@ -619,24 +734,16 @@ def _route_goes_on(V: Any, vid: str, best: Any) -> bool:
     return edge in edges[idx:] and edges.index(edge, idx) < len(edges) - 1
 
 
-def _call(tr: _Track, u: Any, v: float, gap: float, ev: EVParams) -> float:
-    """One call of a sampled Controller on the vehicle's measurements; returns its acceleration [m/s²]."""
-    assert tr.ctrl is not None
+def _call(tr: _Track, u: Any, v: float, gap: float) -> float:
+    """One control instant of a sampled Controller on the vehicle's measurements through the loop core (checked,
+    conditioned, safety layer, limits); returns the acceleration the vehicle applies [m/s²]."""
+    assert tr.ctrl is not None and tr.step is not None
     x = tr.x_bat[-1]
     z = np.array([u.length_from_si(gap), u.speed_from_si(v), x[0], x[1], x[2]])
     obs = Observation(tr.meas_t[-1], tr.ctrl.dt, 0, z, np.asarray(tr.meas_t), np.asarray(tr.meas_v), None, tr.a_prev)
-    t0 = time.perf_counter()
-    cmd: Command = tr.ctrl.command(obs)
-    tr.rec["call"].append(time.perf_counter() - t0)
-    for key, val in (
-        ("solve", cmd.solve_time_s),
-        ("iters", cmd.iterations),
-        ("ok", cmd.ok),
-        ("status", cmd.status),
-        ("info", {}),
-    ):
-        tr.rec[key].append(val)
-    return float(u.accel_to_si(cmd.a))
+    _, a = tr.step.command(tr.ctrl, obs)
+    tr.step.rec["info"][-1] = {}  # (a SUMO run keeps no forecasts)
+    return float(u.accel_to_si(a))
 
 
 def _battery(ev: EVParams, live: list[_Track], dt: float) -> None:
@@ -715,9 +822,10 @@ def _result(tr: _Track, ev: EVParams, lookahead_m: float, dt: float, every: int)
         return np.asarray(y, float)[sel][:, None]
 
     stats: list[dict[str, Any] | None] = [None]
-    if tr.ctrl is not None and tr.rec["ok"]:
-        stats = [_stats(tr.rec, tr.ctrl)]
+    if tr.ctrl is not None and tr.step is not None and tr.step.rec["ok"]:
+        stats = [_stats(tr.step.rec, tr.ctrl, tr.step.counts(), tr.step.stages.label())]
     events = tr.events[:1]
+    violations = tr.violations + current_limit_events(t, np.asarray(tr.current[:n], float)[:, None], ev)
     meta = {
         "sumo_id": tr.vid,
         "vtype": tr.vtype,
@@ -729,11 +837,16 @@ def _result(tr: _Track, ev: EVParams, lookahead_m: float, dt: float, every: int)
         "step_s": dt,
         "lookahead_m": lookahead_m,
         "lanes": sorted(set(tr.lane)),
-        "call_s_total": float(sum(tr.rec["call"])),
+        "call_s_total": float(sum(tr.step.rec["call"])) if tr.step is not None else 0.0,
+        # the controlled vehicle's conditioning and safety layer, with the steps each stage changed (aev_ocp.loop)
+        "command_stages": [tr.step.describe() if tr.step is not None else None],
         "controllers": [
-            tr.ctrl.describe()
-            if tr.ctrl is not None
-            else (tr.law.describe() if tr.law is not None else {"controller": "sumo", "vtype": tr.vtype})
+            {
+                **(tr.ctrl.describe() if tr.ctrl is not None else tr.law.describe()),  # type: ignore[union-attr]
+                "conditioning": tr.step.stages.label(),
+            }
+            if tr.step is not None
+            else {"controller": "sumo", "vtype": tr.vtype}
         ],
     }
     return SimulationResult(
@@ -757,6 +870,7 @@ def _result(tr: _Track, ev: EVParams, lookahead_m: float, dt: float, every: int)
         controllers=[tr.controller],
         ev=ev,
         events=events,
+        violations=violations,
         jerk_sampled=True,
         solver_stats=stats,
         meta=meta,

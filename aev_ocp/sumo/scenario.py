@@ -27,14 +27,17 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+import math
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from ..limits import MAX_SUMO_T_END_S, check_sumo_size
 from ..models.carfollowing import LAW_REGISTRY
-from ..params import CarFollowingParams, EVParams
-from ..scenarios import ScenarioError, TableReader, _params, read_scenario_doc, standalone_header
+from ..params import CarFollowingParams, EVParams, ParameterError
+from ..scenarios import ScenarioError, TableReader, read_declared, read_scenario_doc, standalone_header
+from ..scenarios.followers import _carfollowing
 from . import SumoError
 from .networks import NETWORKS, MergeNetwork, RingNetwork
 
@@ -43,6 +46,7 @@ from .networks import NETWORKS, MergeNetwork, RingNetwork
 #: [limits] decide (SUMO TraCI documentation, "speed mode" bit table).
 DEFAULT_SPEED_MODE = 24
 STEP_S = 0.1  # SUMO's default step length
+MIN_STEP_S = 0.001  # SUMO counts time in whole milliseconds (its DELTA_T): a shorter step does not exist
 COLLISION_ACTIONS = ("remove", "warn", "teleport", "none")  # SUMO's --collision.action
 _TOP = ("name", "description", "units", "vehicle", "cell", "pack", "limits", "carfollowing", "mpc", "sumo")
 
@@ -94,7 +98,8 @@ class SumoScenario:
             kw["share"] = share
         if controller is not None:
             kw["controller"] = controller
-        return dataclasses.replace(self, spec=dataclasses.replace(self.spec, **kw))
+        spec = dataclasses.replace(self.spec, **kw)
+        return dataclasses.replace(self, spec=spec, mpc=mpc_for(spec, self.ev, self.mpc, str(self.source or self.name)))
 
 
 def _controller(r: TableReader, key: str, value: Any) -> str:
@@ -118,10 +123,7 @@ def _path(r: TableReader, key: str, value: Any, base: Path | None) -> Path:
 def _network(r: TableReader, name: str) -> RingNetwork | MergeNetwork:
     cls: type = RingNetwork if name == "ring" else MergeNetwork
     sub = r.sub(name)
-    kw: dict[str, Any] = {}
-    for f in dataclasses.fields(cls):
-        if sub.has(f.name):
-            kw[f.name] = sub.integer(f.name, ge=1) if f.name == "vehicles" else sub.number(f.name)
+    kw = read_declared(cls, sub)  # each key against the range the network declares beside the field
     sub.finish(allowed_hint=[f.name for f in dataclasses.fields(cls)])
     try:
         net: RingNetwork | MergeNetwork = cls(**kw)
@@ -132,7 +134,7 @@ def _network(r: TableReader, name: str) -> RingNetwork | MergeNetwork:
 
 def parse_sumo_table(r: TableReader, base: Path | None) -> SumoSpec:
     """Validate the ``[sumo]`` table (``base``: folder that relative paths start from)."""
-    kw: dict[str, Any] = {"t_end_s": r.number("t_end_s", gt=0)}
+    kw: dict[str, Any] = {"t_end_s": r.number("t_end_s", gt=0, le=MAX_SUMO_T_END_S)}
     sources = [k for k in ("network", "net_file", "config_file") if r.has(k)]
     if len(sources) != 1:
         raise ScenarioError(
@@ -151,7 +153,7 @@ def parse_sumo_table(r: TableReader, base: Path | None) -> SumoSpec:
         kw["route_files"] = tuple(_path(r, "route_files", x, base) for x in routes)
     else:
         kw["config_file"] = _path(r, "config_file", r.string("config_file"), base)
-    kw["step_s"] = r.number("step_s", STEP_S, gt=0, le=1.0)
+    kw["step_s"] = r.number("step_s", STEP_S, ge=MIN_STEP_S, le=1.0)
     if kw["step_s"] > kw["t_end_s"]:
         raise r.error("step_s", kw["step_s"], f"must be <= sumo.t_end_s = {kw['t_end_s']:g}")
     if r.has("controller"):
@@ -167,7 +169,7 @@ def parse_sumo_table(r: TableReader, base: Path | None) -> SumoSpec:
     kw["lookahead_m"] = r.number("lookahead_m", 250.0, gt=0)
     kw["seed"] = r.integer("seed", 42, ge=0)
     kw["record_every"] = r.integer("record_every", 1, ge=1)
-    kw["sumo_args"] = tuple(r.strings("sumo_args", []))
+    kw["sumo_args"] = check_sumo_args(r, r.strings("sumo_args", []))
     sw = r.sub("sweep")
     kw["sweep_share"] = tuple(sw.numbers("share", [], ge=0))
     if any(s > 1 for s in kw["sweep_share"]):
@@ -178,7 +180,91 @@ def parse_sumo_table(r: TableReader, base: Path | None) -> SumoSpec:
     r.finish()
     spec = SumoSpec(**kw)
     _check_ids(r, spec)
+    check_sumo_spec(spec, r.file)
     return spec
+
+
+#: SUMO options a scenario may pass in ``sumo_args`` (allow-listed): {option: takes a value}. Everything else is
+#: refused: options that write files (``--*-output``, ``--log``, ``--save-*``: they could overwrite a file outside
+#: the run's folder), load more inputs (``-a``, ``-r``, ``-c``: use ``net_file``/``route_files``/``config_file``),
+#: print and exit (``--help``, ``--version``), or that the scenario sets with its own keys (``--end``,
+#: ``--step-length``, ``--seed``, ``--collision.action``).
+SUMO_ARGS_ALLOWED: dict[str, bool] = {
+    "--time-to-teleport": True,
+    "--time-to-teleport.highways": True,
+    "--time-to-teleport.disconnected": True,
+    "--max-depart-delay": True,
+    "--scale": True,
+    "--lateral-resolution": True,
+    "--default.action-step-length": True,
+    "--default.speeddev": True,
+    "--default.emergencydecel": True,
+    "--emergencydecel.warning-threshold": True,
+    "--time-to-impatience": True,
+    "--ignore-junction-blocker": True,
+    "--collision.mingap-factor": True,
+    "--collision.check-junctions": False,
+    "--collision.stoptime": True,
+    "--lanechange.duration": True,
+    "--lanechange.overtake-right": False,
+    "--ignore-route-errors": False,
+    "--random-depart-offset": True,
+    "--max-num-teleports": True,
+}
+
+
+def check_sumo_args(r: TableReader, args: list[str]) -> tuple[str, ...]:
+    """``sumo_args`` if every option is one of :data:`SUMO_ARGS_ALLOWED` with its value (``--opt value`` or
+    ``--opt=value``; an on/off option alone or with true/false), else ScenarioError naming the key and the option."""
+    allowed = sorted(SUMO_ARGS_ALLOWED)
+    i = 0
+    while i < len(args):
+        name, eq, _ = args[i].partition("=")
+        if name not in SUMO_ARGS_ALLOWED:
+            raise r.error(
+                "sumo_args",
+                args,
+                f"{args[i]!r:.60} is not an allowed SUMO option here; allowed: {allowed} (each followed by its value)",
+            )
+        if SUMO_ARGS_ALLOWED[name] and not eq:
+            if i + 1 >= len(args):
+                raise r.error("sumo_args", args, f"{name} needs a value after it")
+            i += 1
+        elif not SUMO_ARGS_ALLOWED[name] and not eq and i + 1 < len(args) and args[i + 1] in ("true", "false"):
+            i += 1
+        i += 1
+    return tuple(args)
+
+
+def _sumo_vehicles(spec: SumoSpec) -> tuple[float, float, str]:
+    """(vehicles at once, laps of the ring's route, the keys that set them) of a run of ``spec``: the shipped
+    ring's cars; the merge's flows over the run, at most its road full (a car every 7 m of lane, a jam); one
+    vehicle on a user's network (its vehicles are known only once they depart)."""
+    if spec.ring is not None:
+        laps = spec.t_end_s * spec.ring.lane_speed_mps / spec.ring.length_m
+        return float(spec.ring.vehicles), laps, "sumo.ring.vehicles or sumo.t_end_s"
+    if spec.merge is not None:
+        m = spec.merge
+        arriving = (m.main_flow_vph + m.ramp_flow_vph) * spec.t_end_s / 3600.0
+        return min(arriving, m.road_m / 7.0) + 1.0, 0.0, "sumo.merge flows or sumo.t_end_s"
+    return 1.0, 0.0, "sumo.t_end_s (or raise sumo.step_s, sumo.record_every)"
+
+
+def check_sumo_spec(spec: SumoSpec, file: str, keys: dict[str, str | None] | None = None) -> None:
+    """The size budget (:func:`aev_ocp.limits.check_sumo_size`) of a run of ``spec``, before SUMO starts;
+    ScenarioError naming ``file`` and the keys (``keys``: {"t_end_s": "--t-end-s"} when an option set it)."""
+    if not (math.isfinite(spec.t_end_s) and 0 < spec.t_end_s <= MAX_SUMO_T_END_S):
+        t_key = (keys or {}).get("t_end_s") or "sumo.t_end_s"
+        raise ScenarioError(
+            f"{file}: {t_key} = {spec.t_end_s!r} is not allowed: must be a finite number in (0, {MAX_SUMO_T_END_S:g}] s"
+        )
+    n, laps, what = _sumo_vehicles(spec)
+    if (keys or {}).get("t_end_s"):
+        what = what.replace("sumo.t_end_s", str((keys or {})["t_end_s"]))
+    try:
+        check_sumo_size(n, spec.t_end_s, spec.step_s, spec.record_every, laps, what)
+    except ParameterError as exc:
+        raise ScenarioError(f"{file}: {exc}") from None
 
 
 #: SUMO options that load more vehicles than the network's own routes (then the shipped network's ids are not all)
@@ -194,7 +280,18 @@ def _check_ids(r: TableReader, spec: SumoSpec) -> None:
     """Refuse an ``ids`` entry that no vehicle of a shipped network can have (before SUMO starts): the ring's cars
     are ``ring.0`` … ``ring.<n-1>``, the merge's flow vehicles ``main.<k>`` / ``ramp.<k>``. User networks are checked
     at the end of the run (:func:`aev_ocp.sumo.run.check_ids_seen`): their vehicles are known only once they depart."""
-    if not spec.ids or spec.network is None or any(a.split("=")[0] in _MORE_VEHICLES for a in spec.sumo_args):
+    if spec.network is None or any(a.split("=")[0] in _MORE_VEHICLES for a in spec.sumo_args):
+        return
+    vtypes = {"ring": ["ring_car"], "merge": ["human"]}[spec.network]  # the routes networks.py writes
+    unknown = [v for v in spec.vtypes if v not in vtypes]
+    if unknown:
+        raise r.error(
+            "vtypes",
+            list(spec.vtypes),
+            f"{_few([repr(v) for v in unknown])}: the shipped {spec.network}'s "
+            f"vehicles are all of type {vtypes[0]!r} (no vehicle would be controlled by this type)",
+        )
+    if not spec.ids:
         return
     if spec.ring is not None:
         valid = [f"ring.{i}" for i in range(spec.ring.vehicles)]
@@ -210,36 +307,48 @@ def _check_ids(r: TableReader, spec: SumoSpec) -> None:
         raise r.error("ids", list(spec.ids), f"{_few([repr(b) for b in bad])} {is_are} no vehicle here: {hint}")
 
 
+def mpc_for(spec: SumoSpec, ev: EVParams, mpc: Any, file: str) -> Any:
+    """The [mpc] configuration a run of ``spec`` needs: ``mpc`` as given, or the default MPC when a controller (the
+    run's, or one of [sumo.sweep]'s; also one chosen with ``--controller mpc``) is "mpc" and the file has no [mpc];
+    ScenarioError naming ``file`` when its interval is no whole number of SUMO steps or its predictor needs what a
+    SUMO car cannot measure."""
+    if "mpc" not in (spec.controller, *spec.sweep_controller):
+        return mpc
+    if mpc is None:
+        from ..mpc.scenario import MPCConfig
+        from ..mpc.settings import MPCSettings
+
+        # the MPC settings' default interval, 0.2 s at the default units, rounded to whole SUMO steps
+        mpc = MPCConfig(MPCSettings(dt=max(1, round(0.2 / spec.step_s)) * spec.step_s / ev.units.time_s))
+    k = mpc.settings.dt * ev.units.time_s / spec.step_s
+    if abs(k - round(k)) > 1e-9 or round(k) < 1:
+        raise ScenarioError(
+            f"{file}: mpc.dt = {mpc.settings.dt:g} model time = "
+            f"{mpc.settings.dt * ev.units.time_s:g} s must be a whole number of SUMO steps "
+            f"(sumo.step_s = {spec.step_s:g} s)"
+        )
+    if mpc.settings.predictor in ("oracle", "cooperative"):
+        raise ScenarioError(
+            f"{file}: mpc.predictor = {mpc.settings.predictor!r} is not available in SUMO (a car "
+            "measures its leader): use a measured predictor (constant-velocity, "
+            "constant-acceleration, decaying-acceleration)"
+        )
+    return mpc
+
+
 def parse_sumo_scenario(doc: dict[str, Any], file: str = "<sumo scenario>", source: Path | None = None) -> SumoScenario:
     """Validate a parsed TOML document into a :class:`SumoScenario` (errors name the file and key)."""
     top, name, description, ev = standalone_header(doc, file, source, _TOP, "sumo")
-    cf = _params(CarFollowingParams, top.sub("carfollowing"))
+    # the laws' coefficients and scales (SI, aev_ocp.scenarios.followers); they run in [units] with the same SI
+    # behaviour whatever the units (model_units: make_law returns them in those units)
+    cf = dataclasses.replace(_carfollowing(top.sub("carfollowing"), sub_tables=False)[0], model_units=ev.units)
     spec = parse_sumo_table(top.sub("sumo", required=True), source.parent if source is not None else None)
     mpc = None
     if "mpc" in doc:
         from ..mpc.scenario import validate_mpc_table
 
         mpc = validate_mpc_table(top.sub("mpc"))
-    if "mpc" in (spec.controller, *spec.sweep_controller):
-        if mpc is None:
-            from ..mpc.scenario import MPCConfig
-            from ..mpc.settings import MPCSettings
-
-            # the MPC settings' default interval, 0.2 s at the default units, rounded to whole SUMO steps
-            mpc = MPCConfig(MPCSettings(dt=max(1, round(0.2 / spec.step_s)) * spec.step_s / ev.units.time_s))
-        k = mpc.settings.dt * ev.units.time_s / spec.step_s
-        if abs(k - round(k)) > 1e-9 or round(k) < 1:
-            raise ScenarioError(
-                f"{file}: mpc.dt = {mpc.settings.dt:g} model time = "
-                f"{mpc.settings.dt * ev.units.time_s:g} s must be a whole number of SUMO steps "
-                f"(sumo.step_s = {spec.step_s:g} s)"
-            )
-        if mpc.settings.predictor in ("oracle", "cooperative"):
-            raise ScenarioError(
-                f"{file}: mpc.predictor = {mpc.settings.predictor!r} is not available in SUMO (a car "
-                "measures its leader): use a measured predictor (constant-velocity, "
-                "constant-acceleration, decaying-acceleration)"
-            )
+    mpc = mpc_for(spec, ev, mpc, file)
     top.finish()
     return SumoScenario(
         name=name, spec=spec, ev=ev, cf=cf, mpc=mpc, description=description, source=source, document=copy.deepcopy(doc)

@@ -1,0 +1,146 @@
+"""Calibration, one routine for all laws (issue 33.2): fit a law's free parameters so that its equilibrium gap matches a
+stated equilibrium speed–gap curve (a fundamental diagram), and save the set with its target and residual.
+
+The fit is a least-squares problem on the equilibrium gap, solved by IPOPT through CasADi's nlpsol (bounds keep
+the parameters physical). The equilibrium gap of each law is closed-form: ℓ V⁻¹(v/u) for the OV-type laws (their
+energy term vanishes at equal speeds, so the proposed law and OVFL share it), (s0 + v T)/√(1 − (v/v0)^δ) for the IDM.
+
+:data:`RING_HUMANS` is the common target of the shipped sets (aev_ocp/data/calibrated/): the equilibrium curve of the
+ring's human drivers, the IDM with Treiber, Hennecke & Helbing 2000's parameters as used for rings in the Flow
+benchmarks (Wu et al. 2017; :data:`aev_ocp.ring.laws.IDM_SI`: s0 = 2 m, T = 1 s, v0 = 30 m/s, δ = 4) at 2–12 m/s.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import tempfile
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any, Sequence
+
+import casadi as ca
+import numpy as np
+
+from .models.carfollowing import IDM, TANH2, V_INF, CarFollowingLaw, OVLaw, make_law
+from .params import ParameterError
+
+#: the ring humans' equilibrium speed–gap curve (module docstring): speeds [m/s] and gaps [m]
+_V = np.linspace(2.0, 12.0, 11)
+RING_HUMANS = {
+    "name": "ring_humans",
+    "source": "IDM (Treiber, Hennecke & Helbing 2000) s0 = 2 m, T = 1 s, v0 = 30 m/s, delta = 4 (Flow ring, Wu et al. 2017)",
+    "speed_mps": [float(v) for v in _V],
+    "gap_m": [float((2.0 + v * 1.0) / math.sqrt(1.0 - (v / 30.0) ** 4)) for v in _V],
+}
+#: parameters each law fits by default
+DEFAULT_FREE = {
+    "proposed": ("h_scale_m", "v_scale_mps"),
+    "ovfl": ("h_scale_m", "v_scale_mps"),
+    "ovm": ("h_scale_m", "v_scale_mps"),
+    "idm": ("s0_m", "T_s"),
+}
+DATA = Path(__file__).parent / "data" / "calibrated"
+
+
+@dataclass(frozen=True)
+class Calibration:
+    """A fitted law: its name, the fitted parameters, the law, the target, the RMS and largest gap residual [m]."""
+
+    law_name: str
+    params: dict[str, float]
+    law: CarFollowingLaw
+    target: dict[str, Any]
+    rms_m: float
+    max_abs_m: float
+
+
+def _gap_expr(law: CarFollowingLaw, v: Any) -> Any:
+    if isinstance(law, OVLaw):
+        return law.h_scale_m * (2.0 + ca.atanh(v / law.v_scale_mps - TANH2))
+    if isinstance(law, IDM):
+        return (law.s0_m + v * law.T_s) / ca.sqrt(1.0 - (v / law.v0_mps) ** law.delta)
+    raise ParameterError(f"calibrate: no closed-form equilibrium gap for law {law.name!r} (OV-type laws and IDM)")
+
+
+def calibrate(
+    law_name: str,
+    speed_mps: Sequence[float],
+    gap_m: Sequence[float],
+    free: Sequence[str] | None = None,
+    start: CarFollowingLaw | None = None,
+) -> Calibration:
+    """Fit ``free`` parameters of law ``law_name`` (default :data:`DEFAULT_FREE`) from ``start`` (default the law's
+    defaults) so that its equilibrium gap at ``speed_mps`` matches ``gap_m`` in least squares."""
+    v = np.asarray(speed_mps, float)
+    g = np.asarray(gap_m, float)
+    if v.shape != g.shape or v.size < 2 or not (np.all(np.isfinite(v)) and np.all(np.isfinite(g))):
+        raise ParameterError("calibrate: speed_mps and gap_m need as many finite values (at least 2)")
+    if np.any(v < 0) or np.any(g <= 0):
+        raise ParameterError("calibrate: speeds must be >= 0 and gaps > 0")
+    base = start if start is not None else make_law(law_name)
+    names = tuple(free if free is not None else DEFAULT_FREE.get(law_name, ()))
+    if not names:
+        raise ParameterError(f"calibrate: no free parameters for law {law_name!r}")
+    x = ca.SX.sym("x", len(names))
+    trial = _symbolic(base, names, x)
+    r = ca.vertcat(*[_gap_expr(trial, float(vk)) - float(gk) for vk, gk in zip(v, g)])
+    lbx = [1e-6] * len(names)
+    if isinstance(base, OVLaw) and "v_scale_mps" in names:  # v/u − tanh 2 must stay inside (−1, 1)
+        lbx[names.index("v_scale_mps")] = float(v.max()) / V_INF * (1 + 1e-6) + 1e-9
+    x0 = [max(float(getattr(base, n)), lbx[i] * 1.5) for i, n in enumerate(names)]
+    solver = ca.nlpsol(
+        "calibrate",
+        "ipopt",
+        {"x": x, "f": 0.5 * ca.dot(r, r)},
+        {"ipopt.print_level": 0, "print_time": 0, "ipopt.tol": 1e-10, "ipopt.sb": "yes"},
+    )
+    sol = solver(x0=x0, lbx=lbx, ubx=[1e6] * len(names))
+    if not solver.stats()["success"]:
+        raise ParameterError(f"calibrate: the fit of {law_name!r} failed ({solver.stats()['return_status']})")
+    params = {n: float(sol["x"][i]) for i, n in enumerate(names)}
+    law = replace(base, **params)
+    res = np.array([law.equilibrium_gap_m(float(vk)) - float(gk) for vk, gk in zip(v, g)])
+    target = {"speed_mps": v.tolist(), "gap_m": g.tolist()}
+    return Calibration(law_name, params, law, target, float(np.sqrt(np.mean(res**2))), float(np.max(np.abs(res))))
+
+
+def _symbolic(law: CarFollowingLaw, names: tuple[str, ...], x: Any) -> CarFollowingLaw:
+    import copy
+
+    twin = copy.copy(law)
+    for i, n in enumerate(names):
+        if not hasattr(law, n):
+            raise ParameterError(f"calibrate: law {law.name!r} has no parameter {n!r}")
+        object.__setattr__(twin, n, x[i])  # a symbolic twin for the gap expression (validation ran on law)
+    return twin
+
+
+def save(cal: Calibration, path: str | Path, target_name: str = "", source: str = "") -> Path:
+    """Write the set as TOML (law, parameters, target with its source, residuals), atomically."""
+    p = Path(path)
+    lines = [f'law = "{cal.law_name}"', f"rms_m = {cal.rms_m!r}", f"max_abs_m = {cal.max_abs_m!r}", "", "[params]"]
+    lines += [f"{k} = {v!r}" for k, v in cal.params.items()]
+    lines += ["", "[target]", f'name = "{target_name}"', f'source = "{source}"']
+    lines += [f"speed_mps = {cal.target['speed_mps']!r}", f"gap_m = {cal.target['gap_m']!r}", ""]
+    p.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=p.parent, suffix=".tmp")
+    with os.fdopen(fd, "w") as f:
+        f.write("\n".join(lines))
+    os.replace(tmp, p)
+    return p
+
+
+def load(path: str | Path) -> tuple[CarFollowingLaw, dict[str, Any]]:
+    """(the calibrated law, the file's content) of a saved set; a bare name finds a shipped one (e.g. 'proposed_ring')."""
+    import tomllib
+
+    p = Path(path)
+    if not p.exists() and p.suffix == "" and (DATA / f"{p.name}.toml").is_file():
+        p = DATA / f"{p.name}.toml"
+    try:
+        doc = tomllib.loads(p.read_text())
+        law = make_law(doc["law"], None, **doc["params"])
+    except (OSError, KeyError, tomllib.TOMLDecodeError, TypeError) as exc:
+        raise ParameterError(f"calibration file {path}: cannot read it ({type(exc).__name__}: {exc})") from None
+    return law, doc

@@ -1,0 +1,89 @@
+"""Compile once (issue 40 item 1): the platoon cascade's generated C does not depend on the numbers of a scenario
+(the leader's speed or recorded table, the g split, the vehicle's cell, limits and thermal fields are run-time
+inputs), so scenarios that differ only in parameters share one compiled library; with the parameters as inputs
+the results are bit for bit those of the library with the numbers compiled in, and they follow the numbers
+(CVODES, an independent integrator, agrees for each). Compilations are counted with
+:func:`aev_ocp.compiled.compilations`, never timed."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import casadi as ca
+import numpy as np
+import pytest
+
+import aev_ocp.compiled as B
+import aev_ocp.simulate as S
+from aev_ocp.models.carfollowing import Proposed
+from aev_ocp.models.leader import ConstantSpeed, PaperLeader, SpeedTrace, drive_cycle
+from aev_ocp.params import CellParams, EVParams, Units, UNLIMITED
+
+pytestmark = pytest.mark.skipif(B.compiler() is None, reason="needs a C compiler")
+
+
+def _ev(r_s: float) -> EVParams:
+    return EVParams(cell=dataclasses.replace(CellParams(), R_s_ohm=r_s), limits=UNLIMITED)
+
+
+def _run(leader, kappa: float, r_s: float, method: str = "auto"):
+    law = Proposed(alpha=2.3, beta=2.7, kappa=kappa, eps=1e-6)
+    return S.simulate_platoon(
+        leader, [law, law], [1.4, 1.25], [0.9, 1.05], 6.0, ev=_ev(r_s), dt_out=0.05, rtol=1e-9, atol=1e-9, method=method
+    )
+
+
+def test_scenarios_differing_only_in_parameters_share_one_library(tmp_path, monkeypatch) -> None:
+    monkeypatch.setenv("AEV_OCP_CACHE", str(tmp_path / "cache"))
+    n0 = len(B.compilations())
+    a = _run(ConstantSpeed(1.15), 0.03, 0.0121)
+    assert B.compilations()[n0:] == ["aevsim"]
+    b = _run(ConstantSpeed(0.85), 0.045, 0.0154)  # another leader speed, law coefficient and cell resistance
+    assert B.compilations()[n0:] == ["aevsim"]  # the same library: nothing compiled again
+    assert a.meta["integrator"] == b.meta["integrator"] == "cascade-dopri5"
+    # the run-time numbers are really used: each run agrees with CVODES on its own parameters, not the other's
+    for res, (v, kappa, r_s) in ((a, (1.15, 0.03, 0.0121)), (b, (0.85, 0.045, 0.0154))):
+        ref = _run(ConstantSpeed(v), kappa, r_s, method="cvodes")
+        np.testing.assert_allclose(res.gap, ref.gap, rtol=1e-6, atol=1e-7)
+        np.testing.assert_allclose(res.V1, ref.V1, rtol=1e-5, atol=1e-8)
+    assert not np.allclose(a.gap, b.gap)
+
+
+def test_recorded_leaders_of_different_lengths_share_one_library(tmp_path, monkeypatch) -> None:
+    monkeypatch.setenv("AEV_OCP_CACHE", str(tmp_path / "cache"))
+    n0 = len(B.compilations())
+    units = Units(15.0, 17.0)
+    for cycle in ("hwfet", "udds"):  # 766 and 1370 samples: one padded table length
+        _run(drive_cycle(cycle, units), 0.03, 0.0121)
+    assert B.compilations()[n0:] == ["aevsim"]
+
+
+@pytest.mark.parametrize(
+    "leader",
+    [
+        ConstantSpeed(0.37),
+        PaperLeader(),
+        PaperLeader(v0=1.3, amplitude=0.8),
+        SpeedTrace((0.0, 1.5, 2.25, 7.0), (0.0, 0.6, 0.55, 1.3)),
+    ],
+)
+def test_leader_as_runtime_input_is_bit_identical_to_compiled_in_numbers(leader) -> None:
+    """aevsim_leader(t, q) with this leader's q gives exactly (==) speed(t) and its slope as compiled in, at the
+    knots, just beside them and between them (the padded table holds the same intervals)."""
+    f, q = S._leader_template(leader)
+    assert q.size > 0  # a runtime input, not compiled in
+    t = ca.SX.sym("t")
+    v = leader.speed(t)
+    ref = ca.Function("ref", [t], [ca.vertcat(v, ca.jacobian(v, t))])
+    ts = np.concatenate([np.linspace(-0.5, 30.0, 613), [1.5, 2.25, 7.0, 1.5 - 1e-13, 2.25 + 1e-13, 20.0, 20.0 + 1e-12]])
+    for x in ts:
+        assert np.array_equal(np.asarray(f(x, q)), np.asarray(ref(x))), x
+
+
+def test_a_parameter_that_would_change_the_rounding_stays_compiled_in() -> None:
+    """The units and the vehicle's body enter products of several constants that CasADi folds when they are
+    numbers: as inputs the right-hand side differs in the last bits, so they stay compiled in (the paper's
+    numbers bit-identical); the cell's fields do not, so they are inputs."""
+    sim = S.PlatoonSimulator(ConstantSpeed(0.5), [Proposed()], _ev(0.0121))
+    chosen = {p[0] for p in S._EV_PATHS[(True, S._skeleton(sim.ev), S._law_template(sim.laws[0])[0])]}
+    assert "cell" in chosen and "units" not in chosen and "vehicle" not in chosen
