@@ -124,6 +124,7 @@ def test_a_second_ctrl_c_during_the_grace_wait_still_kills_the_compiler_group(tm
     SIGTERM and waits TOOL_STOP_GRACE_S; a second Ctrl-C in that wait goes straight to SIGKILL (before: it skipped
     the kill, and the whole group ran on). The grace is set to 600 s and the tool sleeps 900 s: both far above the
     300 s bounds here, which only guard against a hang; the second Ctrl-C is sent once the SIGTERM was."""
+    import subprocess
     import threading
     import time
 
@@ -144,7 +145,18 @@ def test_a_second_ctrl_c_during_the_grace_wait_still_kills_the_compiler_group(tm
     pidf = tmp_path / "tool.pid"
     script = f'trap "" TERM; echo $$ > {pidf}; sleep 900 & wait; wait'
 
+    waiting = threading.Event()
+    real_communicate = subprocess.Popen.communicate
+
+    def communicate(self, *a, **k):  # the build's wait has started: a Ctrl-C now reaches run_tool's handler
+        waiting.set()
+        return real_communicate(self, *a, **k)
+
+    monkeypatch.setattr(subprocess.Popen, "communicate", communicate)
+
     def ctrl_c_twice() -> None:
+        if not waiting.wait(300.0):
+            return
         while not pidf.exists() or not pidf.read_text().strip():
             time.sleep(0.02)
         os.kill(os.getpid(), signal.SIGINT)  # interrupts the build: SIGTERM to the group, then the grace wait
@@ -157,7 +169,7 @@ def test_a_second_ctrl_c_during_the_grace_wait_still_kills_the_compiler_group(tm
         timer.start()
         with pytest.raises(KeyboardInterrupt):
             run_tool(["sh", "-c", script], tmp_path, 1200.0)
-        timer.join()
+        timer.join(300.0)
     assert termed.is_set() and time.monotonic() - t0 < grace_s / 2  # the second Ctrl-C cut the grace wait short
     pgid = int(pidf.read_text())
     deadline = time.monotonic() + 300.0  # waits for the group's end; bounds against a hang only
