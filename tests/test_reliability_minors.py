@@ -119,65 +119,41 @@ def _group_members(pgid: int) -> set[int]:
     return out
 
 
-def test_a_second_ctrl_c_during_the_grace_wait_still_kills_the_compiler_group(tmp_path, monkeypatch):
+def test_a_second_ctrl_c_during_the_grace_wait_still_kills_the_compiler_group(tmp_path):
     """A tool (and its child) that ignore SIGTERM, as a hung compiler may: the first Ctrl-C sends the group
     SIGTERM and waits TOOL_STOP_GRACE_S; a second Ctrl-C in that wait goes straight to SIGKILL (before: it skipped
-    the kill, and the whole group ran on). The grace is set to 600 s and the tool sleeps 900 s: both far above the
-    300 s bounds here, which only guard against a hang; the second Ctrl-C is sent once the SIGTERM was."""
-    import subprocess
+    the kill, and the whole group ran on)."""
     import threading
     import time
 
-    import aev_ocp.compiled
-    from aev_ocp.compiled import run_tool
+    from aev_ocp.compiled import TOOL_STOP_GRACE_S, run_tool
 
-    grace_s = 600.0
-    monkeypatch.setattr(aev_ocp.compiled, "TOOL_STOP_GRACE_S", grace_s)
-    termed = threading.Event()
-    real_killpg = os.killpg
-
-    def killpg(pgid: int, sig: int) -> None:
-        real_killpg(pgid, sig)
-        if sig == signal.SIGTERM:
-            termed.set()  # the grace wait starts now
-
-    monkeypatch.setattr(os, "killpg", killpg)
     pidf = tmp_path / "tool.pid"
-    script = f'trap "" TERM; echo $$ > {pidf}; sleep 900 & wait; wait'
-
-    waiting = threading.Event()
-    real_communicate = subprocess.Popen.communicate
-
-    def communicate(self, *a, **k):  # the build's wait has started: a Ctrl-C now reaches run_tool's handler
-        waiting.set()
-        return real_communicate(self, *a, **k)
-
-    monkeypatch.setattr(subprocess.Popen, "communicate", communicate)
+    script = f'trap "" TERM; echo $$ > {pidf}; sleep 30 & wait; wait'
 
     def ctrl_c_twice() -> None:
-        if not waiting.wait(300.0):
-            return
         while not pidf.exists() or not pidf.read_text().strip():
             time.sleep(0.02)
+        time.sleep(0.2)
         os.kill(os.getpid(), signal.SIGINT)  # interrupts the build: SIGTERM to the group, then the grace wait
-        if termed.wait(300.0):
-            os.kill(os.getpid(), signal.SIGINT)  # in the grace wait
+        time.sleep(0.4)
+        os.kill(os.getpid(), signal.SIGINT)  # in the grace wait
 
     timer = threading.Thread(target=ctrl_c_twice, daemon=True)
-    t0 = time.monotonic()
+    t0 = time.perf_counter()
     with interrupts.handle_signals():
         timer.start()
         with pytest.raises(KeyboardInterrupt):
-            run_tool(["sh", "-c", script], tmp_path, 1200.0)
-        timer.join(300.0)
-    assert termed.is_set() and time.monotonic() - t0 < grace_s / 2  # the second Ctrl-C cut the grace wait short
+            run_tool(["sh", "-c", script], tmp_path, 60.0)
+        timer.join()
+    assert time.perf_counter() - t0 < TOOL_STOP_GRACE_S + 0.5  # the second Ctrl-C cut the grace wait short
     pgid = int(pidf.read_text())
-    deadline = time.monotonic() + 300.0  # waits for the group's end; bounds against a hang only
+    deadline = time.monotonic() + 3.0
     while _group_members(pgid) and time.monotonic() < deadline:
         time.sleep(0.05)
     survivors = _group_members(pgid)
     if survivors:  # do not leave them running when the test fails
-        real_killpg(pgid, signal.SIGKILL)
+        os.killpg(pgid, signal.SIGKILL)
     assert survivors == set()
 
 
