@@ -132,6 +132,21 @@ def markdown_to_html(text: str, base: str | os.PathLike[str], title: str = "repo
     )
 
 
+#: File endings of the figures a report folder may hold (:func:`unshown_figures`).
+FIGURE_SUFFIXES = (".png", ".svg", ".jpg", ".jpeg", ".gif")
+
+
+def unshown_figures(markdown: str, base: str | os.PathLike[str]) -> list[str]:
+    """The figures in the folder ``base`` (top level, by file ending) that ``markdown`` shows nowhere (no
+    ``![alt](file)`` names them): a figure a section writes and the report forgets. Sorted names."""
+    shown = {Path(m.group(2)).as_posix() for m in _IMG.finditer(markdown)}
+    return sorted(
+        p.name
+        for p in Path(base).iterdir()
+        if p.is_file() and p.suffix.lower() in FIGURE_SUFFIXES and p.name not in shown
+    )
+
+
 def write_report_html(
     markdown: str, base: str | os.PathLike[str], path: str | os.PathLike[str], title: str = "report"
 ) -> Path:

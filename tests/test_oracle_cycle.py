@@ -108,3 +108,20 @@ def test_grid_rule() -> None:
     assert round(1e6 / oracle_grid_dt(1e6, 0.1, u)) == ORACLE_MAX_INTERVALS  # even 1 s is too fine
     with pytest.raises(ParameterError, match="t_end"):
         oracle_grid_dt(-1.0, 0.1, u)
+
+
+def test_docs_quote_the_ocpd_grid_threshold() -> None:
+    # the guides said OCP-D inside `aev-ocp mpc` switches to the 1 s grid above 2000 intervals; the code's threshold
+    # is ORACLE_BOUND_MAX_INTERVALS: every guide that names a threshold quotes that one, and no other
+    import re
+    from pathlib import Path
+
+    from aev_ocp.ocp.oracle import ORACLE_BOUND_MAX_INTERVALS
+
+    quoted = f"{ORACLE_BOUND_MAX_INTERVALS:,}".replace(",", " ")  # 20 000: the guides' thousands separator
+    guides = Path(__file__).resolve().parents[1] / "docs" / "guide"
+    for name in ("mpc.md", "ocp.md", "extending.md"):
+        text = " ".join((guides / name).read_text().split())
+        assert f"{quoted} intervals (`ORACLE_BOUND_MAX_INTERVALS`" in text, name
+        for m in re.finditer(r"more than ([\d ]+?) intervals", text):
+            assert m.group(1).strip() == quoted, (name, m.group(0))

@@ -4,6 +4,7 @@ and saved folders detected, one error line with exit 2 for bad input. One test p
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import shutil
@@ -75,20 +76,32 @@ def test_study_name_must_not_lead_outside_results(tmp_path, capsys, monkeypatch,
     assert not (tmp_path / "results").exists() and not Path("/tmp/abs_study_name/points").exists()
 
 
+def _never(what: str):
+    """A stand-in for ``what`` (the work a test must not reach) that fails the test when called."""
+
+    def called(*a, **k):
+        raise AssertionError(f"{what} was called")
+
+    return called
+
+
 @pytest.mark.parametrize(
-    "argv, claimed",
+    "argv, claimed, work",
     [
-        (["stability", "--law", "ovm", "--linear-only"], "gain.png"),
-        (["ring", "sugiyama", "--t-end-s", "5"], "ring.json"),
-        (["stability", "--law", "ovm", "--ring", "22", "--density-per-km", "47"], "ring_stability.json"),
+        (["stability", "--law", "ovm", "--linear-only"], "gain.png", "aev_ocp.stability.api.run_stability"),
+        (["ring", "sugiyama", "--t-end-s", "5"], "ring.json", "aev_ocp.ring.experiments.sugiyama"),
+        (
+            ["stability", "--law", "ovm", "--ring", "22", "--density-per-km", "47"],
+            "ring_stability.json",
+            "aev_ocp.ring.stability.ring_stability",
+        ),
     ],
 )
-def test_stability_and_ring_refuse_a_users_folder_before_any_work(tmp_path, capsys, argv, claimed):
+def test_stability_and_ring_refuse_a_users_folder_before_any_work(tmp_path, capsys, monkeypatch, argv, claimed, work):
+    monkeypatch.setattr(work, _never(work))  # refused before the analysis, not after
     (tmp_path / claimed).write_bytes(b"mine")
-    t0 = time.perf_counter()
     rc, _, err = run_cli([*argv, "--out", str(tmp_path)], capsys)
     assert rc == 2 and claimed in one_error(err) and (tmp_path / claimed).read_bytes() == b"mine"
-    assert time.perf_counter() - t0 < 5.0  # refused before the analysis, not after
 
 
 # ----------------------------------------------------------------------------- 2. sizes
@@ -108,13 +121,13 @@ def test_stability_and_ring_refuse_a_users_folder_before_any_work(tmp_path, caps
         ),
     ],
 )
-def test_study_too_large_is_refused_before_any_point_is_built(tmp_path, capsys, axes, key):
+def test_study_too_large_is_refused_before_any_point_is_built(tmp_path, capsys, monkeypatch, axes, key):
+    monkeypatch.setattr("aev_ocp.study.spec._point_document", _never("a point's document"))
     text = STUDY.replace('[[axes]]\nkey = "platoon.gap0_first"\nvalues = [0.35, 0.9]\n', axes)
     assert text != STUDY
-    t0 = time.perf_counter()
     rc, err = _run_study(tmp_path, _study(tmp_path, text=text), tmp_path / "o", capsys)
     line = one_error(err)
-    assert rc == 2 and key in line and "100000" in line and time.perf_counter() - t0 < 5.0
+    assert rc == 2 and key in line and "100000" in line
 
 
 @pytest.mark.parametrize("opt", ["--dask-local", "--workers"])
@@ -285,10 +298,38 @@ def test_loader_refuses_a_fifo_without_hanging(saved, tmp_path):
     d = _copy(saved, tmp_path)
     (d / ARRAYS).unlink()
     os.mkfifo(d / ARRAYS)
-    t0 = time.perf_counter()
-    with pytest.raises(LoadError, match="not a regular file"):
-        load(d)
-    assert time.perf_counter() - t0 < 2.0
+    with _unblocked_after(d / ARRAYS, 300.0) as opened_for_writing:
+        with pytest.raises(LoadError, match="not a regular file"):
+            load(d)
+    assert not opened_for_writing.is_set()  # load() did not wait on the FIFO (300 s: a bound against a hang only)
+
+
+@contextlib.contextmanager
+def _unblocked_after(fifo: Path, after_s: float):
+    """If the block is still running after ``after_s`` [s], open ``fifo`` for writing and close it (a reader
+    blocked on it then sees an end of file), every 0.2 s until the block ends, and set the event yielded: the
+    block waited on the FIFO."""
+    import threading
+
+    done, fired = threading.Event(), threading.Event()
+
+    def watch() -> None:
+        if done.wait(after_s):
+            return
+        fired.set()
+        while not done.wait(0.2):  # again and again: the block may open the FIFO more than once
+            try:
+                os.close(os.open(fifo, os.O_WRONLY | os.O_NONBLOCK))
+            except OSError:
+                pass
+
+    t = threading.Thread(target=watch, daemon=True)
+    t.start()
+    try:
+        yield fired
+    finally:
+        done.set()
+        t.join()
 
 
 @pytest.mark.parametrize("member", ["trajectories.npz", "manifest.json"])
@@ -544,17 +585,19 @@ def test_fuzz_study_toml_is_valid_or_one_clear_error(tmp_path, lines, noise):
 
 
 # ----------------------------------------------------------------------------- mpc-export (1, 2, 9)
-def test_mpc_export_refuses_a_users_folder_and_a_huge_horizon_before_generating(tmp_path, capsys):
+def test_mpc_export_refuses_a_users_folder_and_a_huge_horizon_before_generating(tmp_path, capsys, monkeypatch):
     mine = tmp_path / "mine"
     mine.mkdir()
     (mine / "Makefile").write_text("all:\n\techo mine\n")
     rc, _, err = run_cli(["mpc-export", "mpc_paper_single", "--out", str(mine)], capsys)
     assert rc == 2 and "Makefile" in one_error(err) and sorted(p.name for p in mine.iterdir()) == ["Makefile"]
-    t0 = time.perf_counter()
-    rc, _, err = run_cli(
-        ["mpc-export", "mpc_paper_single", "--out", str(tmp_path / "big"), "--set", "mpc.N=100000"], capsys
-    )
-    assert rc == 2 and "mpc.N = 100000" in one_error(err) and time.perf_counter() - t0 < 10.0
+    with monkeypatch.context() as m:  # refused before the controller is built, not after
+        m.setattr("aev_ocp.mpc.export.export_mpc", _never("export_mpc"))
+        m.setattr("aev_ocp.mpc.controller.MPCController.__init__", _never("MPCController"))
+        rc, _, err = run_cli(
+            ["mpc-export", "mpc_paper_single", "--out", str(tmp_path / "big"), "--set", "mpc.N=100000"], capsys
+        )
+    assert rc == 2 and "mpc.N = 100000" in one_error(err)
     assert not (tmp_path / "big").exists()
 
 
@@ -662,7 +705,9 @@ def test_a_silent_scheduler_fails_after_the_connect_timeout(monkeypatch):
         for c in held:
             c.close()
         srv.close()
-    assert time.perf_counter() - t0 < 15.0 and held  # it did connect, and gave up on its own
+    # it did connect, and gave up on its own: 300 s is far above the 2 s timeout under any load, and only
+    # guards against the hang (a handshake that never completes) that the timeout exists for
+    assert time.perf_counter() - t0 < 300.0 and held
 
 
 # ----------------------------------------------------------------------------- re-probe (issue 28, second round)
@@ -733,10 +778,10 @@ def test_input_files_that_are_no_regular_files_are_refused_unread(tmp_path, caps
         os.mkfifo(f)
     else:
         f.symlink_to("/dev/zero")
-    t0 = time.perf_counter()
-    rc, _, err = run_cli([a.replace("{f}", str(f)).replace("{d}", str(tmp_path)) for a in argv], capsys)
+    with _unblocked_after(f, 300.0) as opened_for_writing:  # a FIFO read would wait for a writer
+        rc, _, err = run_cli([a.replace("{f}", str(f)).replace("{d}", str(tmp_path)) for a in argv], capsys)
     line = one_error(err)
-    assert rc == 2 and what in line and "not a regular file" in line and time.perf_counter() - t0 < 5.0
+    assert rc == 2 and what in line and "not a regular file" in line and not opened_for_writing.is_set()
 
 
 def test_input_file_size_is_checked_before_reading(tmp_path, monkeypatch):

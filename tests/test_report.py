@@ -139,5 +139,18 @@ def test_every_section_run_loads_back_with_the_numbers_of_the_report(quick_repor
 def test_the_counter_counts_every_line(quick_report: tuple[Path, str]) -> None:
     _, log = quick_report
     heads = [tuple(map(int, ln[1 : ln.index("]")].split("/"))) for ln in log.splitlines() if ln.startswith("[")]
-    assert [k for k, _ in heads] == list(range(1, len(heads) + 1))  # one by one, no jump
-    assert heads[-1][0] == heads[-1][1]  # ends at N/N
+    ks = [k for k, _ in heads]
+    assert ks[0] == 1 and all(b - a in (0, 1) for a, b in zip(ks, ks[1:]))  # one by one (a section's extra lines
+    # repeat its step number), no jump, never back
+    assert len({n for _, n in heads}) == 1  # one denominator from the first line to the last
+    assert heads[-1][0] == heads[-1][1] and ks.count(heads[-1][1]) == 1  # N/N once, on the final line
+
+
+def test_report_html_shows_every_figure_of_the_folder(quick_report: tuple[Path, str]) -> None:
+    from aev_ocp.report_html import unshown_figures
+
+    out, _ = quick_report
+    text = (out / "report.md").read_text()
+    assert unshown_figures(text, out) == []  # a figure a section writes and the report forgets
+    html = (out / "report.html").read_text()
+    assert html.count("<img ") >= len(list(out.glob("*.png")))

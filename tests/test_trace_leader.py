@@ -186,3 +186,19 @@ def test_traffic_keys_under_the_s9_formulation_are_an_error(tmp_path):
 
     with pytest.raises(ScenarioError, match="time_headway_s"):
         load_with_sets(find_scenario("mpc_paper_single"), ["mpc.time_headway_s=3.0"])
+
+
+@pytest.mark.parametrize(
+    "end, ok", [(1e15 * (1 - 1e-12), True), (1e15, True), (1e15 * (1 + 1e-12), False), (6.3e262, False)]
+)
+def test_a_trace_too_long_to_hold_its_last_speed_is_refused(end: float, ok: bool) -> None:
+    """The interpolant's far knot end + 1e6 must be a new knot: traces up to 1e15 model time are held, longer ones
+    (e.g. a cycle in SI converted with a length unit of 1e-259 m) are refused naming the units."""
+    from aev_ocp.models.leader import SpeedTrace
+
+    if ok:
+        tr = SpeedTrace((0.0, end / 2, end), (1.3, 2.1, 0.7))
+        assert float(tr._interp(end + 5e5)) == pytest.approx(0.7)
+    else:
+        with pytest.raises(ParameterError, match="too long to hold .* choose units of everyday size"):
+            SpeedTrace((0.0, end / 2, end), (1.3, 2.1, 0.7))

@@ -230,6 +230,12 @@ class SpeedTrace(LeaderProfile):
             raise ParameterError("SpeedTrace: times and speeds must be finite")
         if t[0] != 0.0 or np.any(np.diff(t) <= 0):
             raise ParameterError("SpeedTrace.times must start at 0 and increase strictly")
+        if not t[-1] + 1e6 > t[-1] or t[-1] > 1e15:  # the far knot that holds the last speed must stay a new knot
+            raise ParameterError(
+                f"SpeedTrace.times ends at {t[-1]:.6g} model time: too long to hold (more than 1e15 model time units; "
+                "a trace given in SI is converted with the scenario's units: choose units of everyday size, e.g. "
+                "units.length_m = 10)"
+            )
         if np.any(v < 0):
             raise ParameterError(f"SpeedTrace.speeds has a negative value ({v.min():g}): must be >= 0")
 

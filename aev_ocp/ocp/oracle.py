@@ -20,7 +20,7 @@ from .. import interrupts
 from ..control import ClosedLoop, Command, ControlSequence, Observation
 from ..models.carfollowing import CarFollowingLaw, Proposed
 from ..models.leader import LeaderProfile, PaperLeader, drive_cycle
-from ..params import EVParams, ParameterError, PowertrainOptions, Units
+from ..params import EVParams, ParameterError, PowertrainOptions, Units, VehicleLimits
 from ..models.ego import following_ode
 from ..numerics import rk4
 from ..results import SimulationResult
@@ -58,7 +58,8 @@ class OracleScenario:
     """One follower behind a known leader. Model units: t_end, dt (model time), h0, v0 (model);
     V10, V20 [V]; S0 [-]; ``formulation``: the problem (:class:`aev_ocp.ocp.formulation.Formulation`, default
     model guide §9's; the traffic formulation's jerk term uses dt; own state a_prev(0) = 0). Defaults: the
-    canonical scenario of model guide §9."""
+    canonical scenario of model guide §9, except ``ev``'s vehicle limits (on here; :func:`canonical_scenario`
+    switches them off, as scenarios/mpc_paper_single.toml does)."""
 
     leader: LeaderProfile = field(default_factory=PaperLeader)  # model guide §9: Table 1 leader
     t_end: float = 70.0  # model guide §9: 700 steps, t ∈ [0, 70]
@@ -123,8 +124,10 @@ class OracleScenario:
 
 
 def canonical_scenario() -> OracleScenario:
-    """model guide §9 canonical scenario: Table 1 leader, h(0) = 0.3, v(0) = 1.87, S(0) = 0.8, N = 700."""
-    return OracleScenario()
+    """model guide §9 canonical scenario: Table 1 leader, h(0) = 0.3, v(0) = 1.87, S(0) = 0.8, N = 700, the
+    paper's laws as printed (no vehicle limits: ``VehicleLimits(enabled=False)``) — the scenario of
+    scenarios/mpc_paper_single.toml, whose costs the guides quote (tests/test_ocp_oracle.py checks the equality)."""
+    return OracleScenario(ev=EVParams(limits=VehicleLimits(enabled=False)), name="canonical")
 
 
 def drive_cycle_scenario(

@@ -132,6 +132,33 @@ QUICK = (
 )
 
 
+#: The representative subset ``aev-ocp reproduce`` runs (full length; ``aev-ocp safety`` runs every case): each
+#: family, Euro NCAP's CCRs at 50 and 80 km/h and every motorway CCRs (100, 120, 130 km/h: the bare proposed law and
+#: OVFL collide from 80 km/h on, their top speed V∞·U = 33.4 m/s being no reason to brake), the fastest slower-
+#: target case, both NCAP-speed and motorway braking leads, the nearest and the fastest lane end, and the two
+#: cut-ins the suite's text discusses (a lead braking at −6 m/s², one at −9 m/s², harder than the ego can).
+REPRODUCE = (
+    "CCRs_50kmh",
+    "CCRs_80kmh",
+    "CCRs_100kmh",
+    "CCRs_120kmh",
+    "CCRs_130kmh",
+    "CCRm_80kmh",
+    "CCRm_130kmh",
+    "CCRb_50kmh_12m_-6mps2",
+    "CCRb_100kmh_40m_-6mps2",
+    "laneend_100kmh_60m",
+    "laneend_130kmh_150m",
+    "cutin_100kmh_lead100kmh_15m_-6mps2",
+    "cutin_130kmh_lead110kmh_20m_-9mps2",
+)
+
+
+def reproduce_cases() -> list[SafetyCase]:
+    """The cases of :data:`REPRODUCE`, full length, in the suite's order (``aev-ocp reproduce``'s subset)."""
+    return [c for c in suite_cases() if c.name in REPRODUCE]
+
+
 def suite_cases(quick: bool = False) -> list[SafetyCase]:
     """Every case of the suite (module docstring), each with its source; ``quick``: :data:`QUICK`, 3 s long."""
     cases: list[SafetyCase] = []
