@@ -100,7 +100,7 @@ def tries() -> list[Try]:  # one try a line: a table
     # --- the closed loop's estimates (Python API) ---------------------------------------------------------------------
     T.append(Try("loop", "NaN gap estimate stops the run", script=api_ok(
         "import dataclasses\nfrom aev_ocp.control import ClosedLoop\nfrom aev_ocp.estimation import EKF, Sensors\nfrom aev_ocp.mpc.cycles import cycle_scenario\n"
-        "sc = cycle_scenario('udds', 20.0)\nclass E:\n    name = 'bad'\n    def __init__(s, i): s.i = i\n    def reset(s, m): return s.i.reset(m)\n"
+        "sc = cycle_scenario('udds', 30.0)\nclass E:\n    name = 'bad'\n    def __init__(s, i): s.i = i\n    def reset(s, m): return s.i.reset(m)\n"
         "    def update(s, m): return dataclasses.replace(s.i.update(m), gap_m=float('nan'))\n    def describe(s): return {}\n"
         "r = ClosedLoop(sc.leader, [sc.law('proposed')], sc.ev, sensors=Sensors(seed=2), estimator=lambda ev, s, off, i: E(EKF(ev, s, ocv_offset_V=off)), law_dt=0.2).run(sc.gaps0, sc.speeds0, sc.t_end)\n"
         "assert r.status == 'estimation_failed', r.status"), ok=(0,)))
