@@ -11,14 +11,13 @@ every try and a table per area, writes the JSON (default ``probe_new_surfaces.js
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from probe_reliability_3 import Try, api_expect, api_ok, run_try, scen, write  # noqa: E402 - the third probe's harness
+from probe_reliability_3 import Try, api_expect, api_ok, run_try, scen, summarize, write  # noqa: E402 - the third probe's harness
 
 
 def csv(rows: str) -> str:
@@ -120,17 +119,7 @@ def main(argv: list[str] | None = None) -> int:
         res = run_try(t)
         results.append(res)
         print(f"{res['cls']:7} {res['area']}/{res['name']}  {res.get('rc')}  {res.get('note', '')[:150]}", flush=True)
-    areas: dict[str, dict[str, int]] = {}
-    for res in results:
-        c = areas.setdefault(res["area"], {"ok": 0, "minor": 0, "defect": 0, "harness": 0})
-        c[res["cls"]] = c.get(res["cls"], 0) + 1
-    print(f"\n{'area':16}{'tries':>7}{'ok':>6}{'minor':>7}{'defect':>8}{'harness':>9}")
-    for area, c in areas.items():
-        print(f"{area:16}{sum(c.values()):>7}{c['ok']:>6}{c['minor']:>7}{c['defect']:>8}{c['harness']:>9}")
-    tot = {k: sum(c[k] for c in areas.values()) for k in ("ok", "minor", "defect", "harness")}
-    print(f"{'total':16}{len(results):>7}{tot['ok']:>6}{tot['minor']:>7}{tot['defect']:>8}{tot['harness']:>9}")
-    Path(a.json).write_text(json.dumps(results, indent=1))
-    return 1 if tot["defect"] else 0
+    return summarize(results, Path(a.json), details=False)
 
 
 if __name__ == "__main__":

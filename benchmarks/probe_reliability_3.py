@@ -1199,6 +1199,27 @@ def _rmtree(p: Path) -> None:
     shutil.rmtree(p)
 
 
+def summarize(results: list[dict[str, Any]], json_path: Path, details: bool = True) -> int:
+    """Print the tries' table per area (and, with ``details``, every try that is not ok), write the JSON; exit
+    status 1 when any try is a defect (shared by the probes that reuse this harness)."""
+    areas: dict[str, dict[str, int]] = {}
+    for res in results:
+        c = areas.setdefault(res["area"].split("/")[0], {"ok": 0, "minor": 0, "defect": 0, "harness": 0})
+        c[res["cls"]] = c.get(res["cls"], 0) + 1
+    print(f"\n{'area':16}{'tries':>7}{'ok':>6}{'minor':>7}{'defect':>8}{'harness':>9}")
+    for area, c in areas.items():
+        print(f"{area:16}{sum(c.values()):>7}{c['ok']:>6}{c['minor']:>7}{c['defect']:>8}{c['harness']:>9}")
+    tot = {k: sum(c[k] for c in areas.values()) for k in ("ok", "minor", "defect", "harness")}
+    print(f"{'total':16}{len(results):>7}{tot['ok']:>6}{tot['minor']:>7}{tot['defect']:>8}{tot['harness']:>9}")
+    for res in results if details else []:
+        if res["cls"] != "ok":
+            print(
+                f"\n[{res['cls']}] {res['area']}/{res['name']}: {res.get('note')}\n  {res['command']}\n  stderr: {res.get('stderr_tail', '')[-300:]!r}"
+            )
+    json_path.write_text(json.dumps(results, indent=1))
+    return 1 if tot["defect"] else 0
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--only", default="", help="run only tries whose 'area/name' contains this")
@@ -1220,22 +1241,7 @@ def main(argv: list[str] | None = None) -> int:
         res = run_try(t)
         results.append(res)
         print(f"{res['cls']:7} {res['area']}/{res['name']}  {res.get('rc')}  {res.get('note', '')[:150]}", flush=True)
-    areas: dict[str, dict[str, int]] = {}
-    for res in results:
-        c = areas.setdefault(res["area"].split("/")[0], {"ok": 0, "minor": 0, "defect": 0, "harness": 0})
-        c[res["cls"]] = c.get(res["cls"], 0) + 1
-    print(f"\n{'area':16}{'tries':>7}{'ok':>6}{'minor':>7}{'defect':>8}{'harness':>9}")
-    for area, c in areas.items():
-        print(f"{area:16}{sum(c.values()):>7}{c['ok']:>6}{c['minor']:>7}{c['defect']:>8}{c['harness']:>9}")
-    tot = {k: sum(c[k] for c in areas.values()) for k in ("ok", "minor", "defect", "harness")}
-    print(f"{'total':16}{len(results):>7}{tot['ok']:>6}{tot['minor']:>7}{tot['defect']:>8}{tot['harness']:>9}")
-    for res in results:
-        if res["cls"] != "ok":
-            print(
-                f"\n[{res['cls']}] {res['area']}/{res['name']}: {res.get('note')}\n  {res['command']}\n  stderr: {res.get('stderr_tail', '')[-300:]!r}"
-            )
-    Path(a.json).write_text(json.dumps(results, indent=1))
-    return 1 if tot["defect"] else 0
+    return summarize(results, Path(a.json))
 
 
 if __name__ == "__main__":

@@ -11,7 +11,6 @@ prints every try and a table per area, writes the JSON (default ``probe_ring_sum
 from __future__ import annotations
 
 import argparse
-import json
 import signal
 import sys
 from concurrent.futures import ThreadPoolExecutor
@@ -20,7 +19,8 @@ from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from probe_reliability_3 import (  # noqa: E402 - the harness of the third probe
+from probe_reliability_3 import (
+    summarize,  # noqa: E402 - the harness of the third probe
     STUDY,
     Try,
     api_expect,
@@ -160,21 +160,7 @@ def main(argv: list[str] | None = None) -> int:
             show(res)
     for t in timed:
         show(run_try(t))
-    areas: dict[str, dict[str, int]] = {}
-    for res in results:
-        c = areas.setdefault(res["area"].split("/")[0], {"ok": 0, "minor": 0, "defect": 0, "harness": 0})
-        c[res["cls"]] = c.get(res["cls"], 0) + 1
-    print(f"\n{'area':16}{'tries':>7}{'ok':>6}{'minor':>7}{'defect':>8}{'harness':>9}")
-    for area, c in areas.items():
-        print(f"{area:16}{sum(c.values()):>7}{c['ok']:>6}{c['minor']:>7}{c['defect']:>8}{c['harness']:>9}")
-    tot = {k: sum(c[k] for c in areas.values()) for k in ("ok", "minor", "defect", "harness")}
-    print(f"{'total':16}{len(results):>7}{tot['ok']:>6}{tot['minor']:>7}{tot['defect']:>8}{tot['harness']:>9}")
-    for res in results:
-        if res["cls"] != "ok":
-            print(f"\n[{res['cls']}] {res['area']}/{res['name']}: {res.get('note')}\n  {res['command']}")
-            print(f"  stderr: {res.get('stderr_tail', '')[-300:]!r}")
-    Path(a.json).write_text(json.dumps(results, indent=1))
-    return 1 if tot["defect"] else 0
+    return summarize(results, Path(a.json))
 
 
 if __name__ == "__main__":
