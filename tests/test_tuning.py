@@ -69,11 +69,13 @@ def test_same_seed_same_trials() -> None:
 # ----------------------------------------------------------------------------- the same budget for every controller
 
 
-def _fake_execute(log: list[tuple[str, dict[str, Any]]]) -> Any:
+def _fake_execute(log: list[tuple[str, dict[str, Any]]], calls: list[dict[str, Any]] | None = None) -> Any:
     """A stand-in for aev_ocp.study.runner.execute: records each task (controller label, document) and returns a
     result shaped as run_task's, its energy a smooth function of the document's tuned numbers."""
 
     def execute(tasks: list[Any], store: Any, **kw: Any) -> dict[str, dict[str, Any]]:
+        if calls is not None:
+            calls.append(kw)
         out = {}
         for t in tasks:
             doc = t.spec["document"]
@@ -97,8 +99,12 @@ def test_every_controller_gets_the_same_budget_of_closed_loop_evaluations(tmp_pa
     import aev_ocp.study.runner as runner
 
     log: list[tuple[str, dict[str, Any]]] = []
-    monkeypatch.setattr(runner, "execute", _fake_execute(log))
-    res = tu.run_tuning(list(tu.TUNING_TABLE), budget=5, out=tmp_path / "t", batch=2, executor="inprocess")
+    calls: list[dict[str, Any]] = []
+    monkeypatch.setattr(runner, "execute", _fake_execute(log, calls))
+    res = tu.run_tuning(list(tu.TUNING_TABLE), budget=5, out=tmp_path / "t", batch=2, executor="dask", workers=3)
+    # 3 rounds of at most 2 trials per controller, then default and tuned: 4 study executions, on the executor asked
+    assert len(calls) == 4
+    assert all(kw["executor"] == "dask" and kw["workers"] == 3 and kw["scheduler"] is None for kw in calls)
     n_train, n_held = len(res.result["training_cases"]), len(res.result["heldout_cases"])
     per: dict[str, int] = {}
     for label, _ in log:
@@ -158,7 +164,8 @@ def test_cli_bad_budget_exits_2_naming_it(tmp_path: Path, capsys: Any) -> None:
     from aev_ocp.cli import main
 
     assert main(["tune", "--budget", "0", "--out", str(tmp_path / "t")]) == 2
-    assert "budget = 0" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "budget = 0" in err and err.count("\n") == 1
     assert main(["tune", "--bounds", "idm.T_s=1", "--out", str(tmp_path / "t")]) == 2
     assert "CONTROLLER.PARAMETER=LO:HI" in capsys.readouterr().err
 
