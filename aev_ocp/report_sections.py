@@ -32,7 +32,7 @@ SECTION_PROVIDERS: tuple[str, ...] = (
     "aev_ocp.mpc.cycles_section",
     "aev_ocp.stability.report",
     "aev_ocp.safety.section",
-    "aev_ocp.ring.report",
+    "aev_ocp.ring_section",
     "aev_ocp.life_section",
     "aev_ocp.robustness",
 )

@@ -138,7 +138,7 @@ def save_output(
     JSON-ready manifest entries (e.g. a study's table file)."""
     if kind not in KINDS:
         raise ValueError(f"save_output: kind {kind!r} is not one of {KINDS}")
-    from .ocp.result import OCPResult
+    from .ocp_result import OCPResult
 
     out = Path(out)
     arrays: dict[str, np.ndarray] = {}
@@ -329,7 +329,7 @@ def _check_sim_arrays(label: str, arrays: dict[str, np.ndarray]) -> None:
 
 
 def _ocp_result(label: str, rec: dict[str, Any], arrays: dict[str, np.ndarray]) -> Any:
-    from .ocp.result import OCPResult
+    from .ocp_result import OCPResult
 
     group = {g: {n: arrays[f"{label}/{g}/{n}"] for n in rec[g]} for g in ("states", "controls", "outputs")}
     scal = {n: float(arrays[f"{label}/{n}"]) for n in OCP_SCALARS}
@@ -426,7 +426,7 @@ def load(path: str | Path, run: str | None = None) -> Any:
     """Load what a command saved: ``path`` is its output folder (or the folder's manifest.json).
 
     Returns the run's result object: a :class:`~aev_ocp.results.SimulationResult` (``simulate``,
-    ``mpc``), an :class:`~aev_ocp.ocp.result.OCPResult` (``ocp``) or a
+    ``mpc``), an :class:`~aev_ocp.ocp_result.OCPResult` (``ocp``) or a
     :class:`~aev_ocp.study.StudyOutput` (``study``: the table rows). ``run`` picks one labelled run of
     the folder (``"mpc"``, ``"proposed"``, ``"ocp-d"``, ``"heat"`` …); default the command's main run
     (simulate: the first law; mpc: the MPC; ocp: the main solve). The object's

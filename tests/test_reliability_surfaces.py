@@ -93,7 +93,7 @@ def _never(what: str):
         (
             ["stability", "--law", "ovm", "--ring", "22", "--density-per-km", "47"],
             "ring_stability.json",
-            "aev_ocp.ring.stability.ring_stability",
+            "aev_ocp.stability.ring.ring_stability",
         ),
     ],
 )

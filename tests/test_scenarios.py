@@ -280,3 +280,16 @@ def test_the_split_loader_keeps_every_public_name_importable_from_aev_ocp_scenar
             assert obj.__module__.startswith("aev_ocp."), (name, obj.__module__)
     assert scn.Scenario.__module__ == "aev_ocp.scenarios.platoon"
     assert scn.TableReader.__module__ == "aev_ocp.scenarios.tables"
+
+
+def test_trace_look_ahead_is_the_mpc_default_horizon() -> None:
+    """The scenario loader knows MPCSettings' default N and dt without importing the MPC; they must agree, and a
+    trace leader's read covers 2 (t_end + N dt) at those defaults (t_end = 3.7, units 1: 2 · (3.7 + 2.5) s)."""
+    from aev_ocp.mpc.settings import MPCSettings
+    from aev_ocp.params import Units
+    from aev_ocp.scenarios.leader import MPC_DEFAULT_DT, MPC_DEFAULT_N, trace_read_s
+
+    assert (MPC_DEFAULT_N, MPC_DEFAULT_DT) == (MPCSettings().N, MPCSettings().dt)
+    units = Units(length_m=1.0, speed_mps=1.0)
+    assert trace_read_s({}, 3.7, units) == pytest.approx(2 * (3.7 + 2.5), rel=1e-15)
+    assert trace_read_s({"mpc": {"N": 40, "dt": 0.2}}, 3.7, units) == pytest.approx(2 * (3.7 + 8.0), rel=1e-15)
