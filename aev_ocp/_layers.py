@@ -126,6 +126,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
             "aev_ocp.scenarios",
             "aev_ocp.scenarios.tables",
             "aev_ocp.scenarios.sections",
+            "aev_ocp.scenarios.providers",
             "aev_ocp.scenarios.size",
             "aev_ocp.scenarios.vehicle",
             "aev_ocp.scenarios.leader",

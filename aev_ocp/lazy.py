@@ -35,10 +35,10 @@ def lazy_exports(package: str, exports: dict[str, str]) -> tuple[Callable[[str],
         if where is None:
             raise AttributeError(f"module {package!r} has no attribute {name!r}")
         module = importlib.import_module(target_module(package, where))
-        if hasattr(module, name):
+        if module.__name__.rsplit(".", 1)[-1] == name:
+            value = module  # the export is the submodule itself (``from . import battery``)
+        elif hasattr(module, name):
             value = getattr(module, name)
-        elif module.__name__.rsplit(".", 1)[-1] == name:
-            value = module  # the export is the submodule itself
         else:
             raise AttributeError(f"module {package!r}: {name!r} is not defined in {module.__name__}")
         setattr(sys.modules[package], name, value)

@@ -155,4 +155,4 @@ def ring_section(out_dir: Path, progress: Callable[[str], None]) -> str:
     return "".join(md)
 
 
-REPRODUCE_SECTIONS = [("ring", ring_section, 3)]  # listed in aev_ocp.report_sections.SECTION_PROVIDERS
+REPRODUCE_SECTIONS = [("ring", ring_section, 3)]  # listed in aev_ocp.reproduce.SECTION_PROVIDERS

@@ -238,4 +238,4 @@ def robustness_section(out_dir: Path, progress: Callable[[str], None]) -> str:
     )
 
 
-REPRODUCE_SECTIONS = [("robustness", robustness_section, 2)]  # listed in aev_ocp.report_sections.SECTION_PROVIDERS
+REPRODUCE_SECTIONS = [("robustness", robustness_section, 2)]  # listed in aev_ocp.reproduce.SECTION_PROVIDERS

@@ -16,28 +16,29 @@ Python API (model units throughout)::
     m = stability_map(Proposed(), 1.7, "alpha", np.linspace(0, 4, 21), "beta", np.linspace(0, 6, 21))
 """
 
-from .linear import (
-    LinearizedLaw,
-    LinearStability,
-    analyse,
-    analyse_speeds,
-    equilibrium_gap_of,
-    head_to_tail_criterion,
-    max_gain,
-    partials_function,
-    peak_gain,
-    transfer,
-)
-from .measure import (
-    Attenuation,
-    attenuation_of,
-    fig5_amplitude,
-    linear_prediction,
-    measure,
-    measure_mpc,
-    sweep_amplitudes,
-)
-from .perturbation import PerturbedLeader
+from ..lazy import lazy_exports
+
+#: name -> module that defines it (imported on first use: aev_ocp.lazy)
+_EXPORTS = {
+    "LinearizedLaw": "linear",
+    "LinearStability": "linear",
+    "analyse": "linear",
+    "analyse_speeds": "linear",
+    "equilibrium_gap_of": "linear",
+    "head_to_tail_criterion": "linear",
+    "max_gain": "linear",
+    "partials_function": "linear",
+    "peak_gain": "linear",
+    "transfer": "linear",
+    "Attenuation": "measure",
+    "attenuation_of": "measure",
+    "fig5_amplitude": "measure",
+    "linear_prediction": "measure",
+    "measure": "measure",
+    "measure_mpc": "measure",
+    "sweep_amplitudes": "measure",
+    "PerturbedLeader": "perturbation",
+}
 
 __all__ = [
     "Attenuation",
@@ -59,3 +60,5 @@ __all__ = [
     "sweep_amplitudes",
     "transfer",
 ]
+
+__getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)
