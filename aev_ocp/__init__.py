@@ -25,6 +25,8 @@ _EXPORTS = {
     "PowertrainOptions": "params",
     "SimOptions": "params",
     "ParameterError": "params",
+    "AevOcpError": "errors",
+    "AevOcpWarning": "errors",
     "OVM": "models",
     "OVFL": "models",
     "Proposed": "models",

@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Sequence
 
+from .errors import AevOcpError
 from .report import markdown_table
 from .report_html import heading_anchor
 
@@ -130,7 +131,7 @@ def registered_sections() -> list[Section]:
     return list(_REGISTRY.values())
 
 
-class ReportSectionError(RuntimeError):
+class ReportSectionError(AevOcpError, RuntimeError):
     """A report section (or its provider module) failed; the message names it and the cause."""
 
 

@@ -29,6 +29,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
+from .errors import AevOcpError
 from .limits import FileRefused, memory_limit_bytes, read_regular_file
 from .params import (
     UNLIMITED,
@@ -61,7 +62,7 @@ OCP_SCALARS = ("objective", "objective_exact", "max_violation", "wall_time_s", "
 OUTPUT_FILES = (MANIFEST, ARRAYS)  # what :func:`save_output` writes (for claim_output_dir)
 
 
-class LoadError(ValueError):
+class LoadError(AevOcpError, ValueError):
     """A path is not a loadable aev_ocp output (or a newer format); the message says which and why."""
 
 

@@ -1,14 +1,5 @@
-"""Studies: sweeps, Pareto fronts and batches declared in one TOML file, run on all cores or on Dask.
-
->>> from aev_ocp.study import read_study, run_study, load_table
->>> study = read_study("studies/kappa_alpha_table1.toml")   # validates every point; nothing runs
->>> out = run_study(study, "results/study/kappa_alpha_table1", workers=2)
->>> rows = load_table(out.folder)                          # one dict per point × controller × vehicle
-
-See :mod:`aev_ocp.study.spec` for the file format, :mod:`aev_ocp.study.runner` for executors and the
-store, :mod:`aev_ocp.study.table` for the table, :mod:`aev_ocp.study.report` for figures and report.md and
-:mod:`aev_ocp.study.cli` for the ``aev-ocp study`` command.
-"""
+"""``run_study``: run a study into its folder (the table, report and manifest); the package :mod:`aev_ocp.study`
+exports it with the rest of the study API."""
 
 from __future__ import annotations
 
@@ -17,10 +8,10 @@ import hashlib
 from pathlib import Path
 from typing import Any
 
-from ..saved import TRAJECTORIES, StudyOutput, load_study_output
-from .runner import EXECUTORS, Store, TimeLimitStop, check_executor, execute, run_task
-from .spec import Study, StudyError, parse_study, read_study
-from .table import build_rows, load_table, write_table
+from ..saved import TRAJECTORIES, StudyOutput
+from .runner import Store, check_executor, execute
+from .spec import Study, read_study
+from .table import build_rows, write_table
 
 
 def run_study(
@@ -128,23 +119,3 @@ def _run_study(
         },
     )
     return StudyOutput(folder, rows, files, len(results), failed, {"settings": to_jsonable(settings)})
-
-
-__all__ = [
-    "EXECUTORS",
-    "TRAJECTORIES",
-    "Store",
-    "Study",
-    "StudyError",
-    "StudyOutput",
-    "TimeLimitStop",
-    "build_rows",
-    "execute",
-    "load_study_output",
-    "load_table",
-    "parse_study",
-    "read_study",
-    "run_study",
-    "run_task",
-    "write_table",
-]
