@@ -10,13 +10,16 @@ to :func:`lazy_exports`::
 
 so ``import aev_ocp.ocp.problem`` loads the problem description and nothing else the package exports. The layer
 test (tests/test_layers.py) reads the same table as import edges, so a lazy name still counts where it points.
-A name equal to its module's last part (``"battery": "battery"``) exports the submodule itself.
+A name equal to its module's last part (``"battery": "battery"``) exports the submodule itself, unless the submodule
+defines that name (``"measure": "measure"``: the function), which then stays the package's ``measure`` even after
+the submodule is imported, as an eager ``from .measure import measure`` kept it.
 """
 
 from __future__ import annotations
 
 import importlib
 import sys
+import types
 from typing import Any, Callable
 
 
@@ -35,10 +38,10 @@ def lazy_exports(package: str, exports: dict[str, str]) -> tuple[Callable[[str],
         if where is None:
             raise AttributeError(f"module {package!r} has no attribute {name!r}")
         module = importlib.import_module(target_module(package, where))
-        if module.__name__.rsplit(".", 1)[-1] == name:
-            value = module  # the export is the submodule itself (``from . import battery``)
-        elif hasattr(module, name):
+        if hasattr(module, name):
             value = getattr(module, name)
+        elif module.__name__ == f"{package}.{name}":
+            value = module  # the export is the submodule itself (``from . import battery``)
         else:
             raise AttributeError(f"module {package!r}: {name!r} is not defined in {module.__name__}")
         setattr(sys.modules[package], name, value)
@@ -47,4 +50,26 @@ def lazy_exports(package: str, exports: dict[str, str]) -> tuple[Callable[[str],
     def __dir__() -> list[str]:
         return sorted(set(vars(sys.modules[package])) | set(exports))
 
+    shadowing = {n for n, where in exports.items() if target_module(package, where) == f"{package}.{n}"}
+    if shadowing:  # e.g. the function ``measure`` of the submodule ``measure``
+        sys.modules[package].__class__ = _shadowing_package(shadowing)
     return __getattr__, __dir__
+
+
+def _shadowing_package(names: set[str]) -> type[types.ModuleType]:
+    """A module class that keeps ``pkg.name`` the export ``name`` of the submodule ``pkg.name`` (a function named as
+    its module), as an eager ``from .name import name`` did: the import system sets ``pkg.name`` to the submodule
+    whenever that is imported, and this puts the submodule's own ``name`` there instead."""
+
+    class ShadowingPackage(types.ModuleType):
+        def __setattr__(self, name: str, value: Any) -> None:
+            if (
+                name in names
+                and isinstance(value, types.ModuleType)
+                and value.__name__ == f"{self.__name__}.{name}"
+                and hasattr(value, name)
+            ):
+                value = getattr(value, name)
+            super().__setattr__(name, value)
+
+    return ShadowingPackage

@@ -45,8 +45,9 @@ def _resolve(name: str, modules: dict[str, Path]) -> str | None:
     return name
 
 
-def import_edges(module: str, path: Path, modules: dict[str, Path]) -> list[tuple[str, int]]:
-    """(imported module, line) for every import of ``aev_ocp`` code in ``path``, wherever it stands."""
+def import_edges(module: str, path: Path, modules: dict[str, Path], registries: bool = True) -> list[tuple[str, int]]:
+    """(imported module, line) for every import of ``aev_ocp`` code in ``path``, wherever it stands (``registries``:
+    also the modules a registry held as strings names)."""
     tree = ast.parse(path.read_text(encoding="utf-8"), filename=str(path))
     package = module.split(".") if path.name == "__init__.py" else module.split(".")[:-1]
     targets: list[tuple[str, int]] = []
@@ -80,7 +81,7 @@ def import_edges(module: str, path: Path, modules: dict[str, Path]) -> list[tupl
                     targets.append((target_module(".".join(package), v.value), node.lineno))
     # registries held as strings: a module-level table naming modules, e.g. {"mpc": "aev_ocp.mpc.scenario"}
     # (the layer table itself names every module and imports none)
-    for node in tree.body if module != "aev_ocp._layers" else []:
+    for node in tree.body if registries and module != "aev_ocp._layers" else []:
         value = node.value if isinstance(node, (ast.Assign, ast.AnnAssign)) else None
         if isinstance(value, (ast.Dict, ast.Tuple, ast.List, ast.Set)):
             for c in ast.walk(value):
@@ -97,13 +98,13 @@ def import_edges(module: str, path: Path, modules: dict[str, Path]) -> list[tupl
     return edges
 
 
-def package_graph(package_dir: Path = PACKAGE_DIR) -> dict[str, dict[str, int]]:
+def package_graph(package_dir: Path = PACKAGE_DIR, registries: bool = True) -> dict[str, dict[str, int]]:
     """{importer: {imported: first line}} over the whole package."""
     modules = all_modules(package_dir)
     graph: dict[str, dict[str, int]] = {}
     for mod, path in modules.items():
         graph[mod] = {}
-        for target, line in import_edges(mod, path, modules):
+        for target, line in import_edges(mod, path, modules, registries):
             graph[mod].setdefault(target, line)
     return graph
 
@@ -145,6 +146,41 @@ def find_cycle(graph: dict[str, dict[str, int]]) -> list[str] | None:
             if found:
                 return found
     return None
+
+
+def folder_of(module: str) -> str:
+    """The folder a module stands in: its sub-package (``aev_ocp.mpc`` for ``aev_ocp.mpc.policy``), or the module
+    itself for a module of the package's top folder (``aev_ocp.loop``)."""
+    parts = module.split(".")
+    return ".".join(parts[:2])
+
+
+def folder_graph(graph: dict[str, dict[str, int]]) -> dict[str, dict[str, int]]:
+    """The import graph between folders: a -> b when some module of folder a imports one of folder b."""
+    out: dict[str, dict[str, int]] = {}
+    for a, targets in graph.items():
+        for b, line in targets.items():
+            fa, fb = folder_of(a), folder_of(b)
+            if fa != fb:
+                out.setdefault(fa, {}).setdefault(fb, line)
+            out.setdefault(fb, {})
+    return out
+
+
+def test_no_folder_circle() -> None:
+    """A folder says what its files may import: no two folders import each other, directly or round a circle
+    (issue 39). Registries held as strings are plug-in points chosen at run time (the scenario loader names
+    ``aev_ocp.mpc.scenario``, which reads its table with the loader's reader), so this check reads imports only."""
+    cycle = find_cycle(folder_graph(package_graph(registries=False)))
+    assert cycle is None, "folder circle: " + " -> ".join(cycle or [])
+
+
+def test_a_folder_circle_is_found() -> None:
+    """Planted: the problem description (ocp/) importing the MPC (mpc/), which imports ocp/, is a circle."""
+    graph = package_graph(registries=False)
+    graph["aev_ocp.ocp.problem"] = {**graph["aev_ocp.ocp.problem"], "aev_ocp.mpc.settings": 1}
+    cycle = find_cycle(folder_graph(graph))
+    assert cycle is not None and "aev_ocp.mpc" in cycle and "aev_ocp.ocp" in cycle
 
 
 def test_every_module_has_exactly_one_layer() -> None:
