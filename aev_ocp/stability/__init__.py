@@ -3,8 +3,9 @@
 Linear analysis of any :class:`~aev_ocp.models.carfollowing.CarFollowingLaw` at an equilibrium
 (:mod:`.linear`: exact CasADi partials, head-to-tail criterion, transfer function, sup|G|, unstable
 band, platoon stability) and measured attenuation in long perturbed platoons (:mod:`.measure`) are
-exported here; the runs that write files and maps (:mod:`.api`), plots (:mod:`.plots`), the
-``aev-ocp stability`` command (:mod:`.cli`) and the section of ``aev-ocp reproduce`` (:mod:`.report`) are
+exported here (imported on first use); the modes of a ring road (:mod:`.ring`) and of a mixed ring
+(:mod:`.mixed`), the runs that write files and maps (:mod:`.api`), plots (:mod:`.plots`), the ``aev-ocp
+stability`` command (:mod:`.cli`, with ``--ring``) and the section of ``aev-ocp reproduce`` (:mod:`.report`) are
 imported from their modules (docs/guide/layers.md).
 
 Python API (model units throughout)::
