@@ -379,7 +379,9 @@ def test_cli_run_writes_the_usual_outputs(tmp_path, capsys):
     assert main(["sumo", "sumo_ring", "--t-end-s", "20", "--out", str(tmp_path)]) == 0
     for f in ("report.md", "metrics.csv", "fleet.json", "manifest.json", "trajectories.npz", "spacetime_ring.png"):
         assert (tmp_path / f).is_file(), f
-    r = load(tmp_path)
+    fleet = load(tmp_path)  # the fleet (a SumoRun); run=<SUMO id> gives one vehicle
+    vid = next(v for v, c in fleet.controlled.items() if c)
+    r = load(tmp_path, run=vid)
     assert r.controllers == ["proposed"] and r.meta["controlled"] is True
     assert "Fleet totals" in (tmp_path / "report.md").read_text()
 
