@@ -14,9 +14,8 @@ from typing import Any
 
 import pytest
 
-from cli_helpers import one_error, run_cli
-
-EXIT_OK, EXIT_BAD_INPUT, EXIT_INTERRUPTED = 0, 2, 130
+from aev_ocp import interrupts
+from aev_ocp.scenarios import load_scenario
 
 LONG = """\
 name = "long"
@@ -40,7 +39,6 @@ def test_ctrl_c_stops_one_long_compiled_run_at_once(tmp_path: Path, monkeypatch:
     platoon)."""
     import aev_ocp.simulate as simulate
     from aev_ocp import interrupts
-    from aev_ocp.scenarios import load_scenario
 
     p = tmp_path / "long.toml"
     p.write_text(LONG.format(followers=300, t_end=7.5), encoding="utf-8")
@@ -73,7 +71,6 @@ def test_an_interrupt_swallowed_while_the_run_was_built_stops_it(
     signal must still stop the run before its compiled part starts (before: the whole run, then exit 130)."""
     import aev_ocp.simulate as simulate
     from aev_ocp import interrupts
-    from aev_ocp.scenarios import load_scenario
 
     p = tmp_path / "long.toml"
     p.write_text(LONG.format(followers=300, t_end=5000.0), encoding="utf-8")
@@ -104,7 +101,6 @@ def test_the_library_can_run_again_after_a_cancelled_run(tmp_path: Path, monkeyp
     as a fresh run."""
     import aev_ocp.simulate as simulate
     from aev_ocp import interrupts
-    from aev_ocp.scenarios import load_scenario
 
     p = tmp_path / "long.toml"
     p.write_text(LONG.format(followers=40, t_end=30.0), encoding="utf-8")
@@ -127,50 +123,6 @@ def test_the_library_can_run_again_after_a_cancelled_run(tmp_path: Path, monkeyp
     assert not again.events
     assert again.t.shape == ref.t.shape
     assert float(abs(again.gap - ref.gap).max()) == 0.0 and float(abs(again.speed - ref.speed).max()) == 0.0
-
-
-BOM = b"\xef\xbb\xbf"
-SMALL = """\
-name = "bom"
-[leader]
-kind = "constant"
-v = 1.3
-[platoon]
-followers = 2
-law = "proposed"
-gap0_first = 1.7
-speed0 = 1.1
-[simulation]
-t_end = 3.5
-dt_out = 0.05
-"""
-
-
-def test_a_byte_order_mark_is_read_like_the_same_file_without_it(tmp_path: Path) -> None:
-    """Scenario, study and grid files saved with a UTF-8 BOM (Notepad) load exactly as without it (before: 'not
-    valid TOML: Invalid statement (at line 1, column 1)', exit 2)."""
-    from aev_ocp.scenarios import load_scenario
-    from aev_ocp.study.spec import read_study
-
-    plain, marked = tmp_path / "plain.toml", tmp_path / "marked.toml"
-    plain.write_text(SMALL, encoding="utf-8")
-    marked.write_bytes(BOM + SMALL.replace("\n", "\r\n").encode("utf-8"))
-    a, b = load_scenario(plain).run()["proposed"], load_scenario(marked).run()["proposed"]
-    assert float(abs(a.gap - b.gap).max()) == 0.0 and float(abs(a.speed - b.speed).max()) == 0.0
-    study = 'name = "st"\nscenarios = ["plain.toml"]\n[[axes]]\nkey = "carfollowing.kappa"\nvalues = [0.013, 0.047]\n'
-    study += '[controllers]\nlaws = ["proposed"]\n'
-    (tmp_path / "st.toml").write_bytes(BOM + study.encode("utf-8"))
-    assert len(read_study(tmp_path / "st.toml").points) == 2
-
-
-def test_a_grid_file_with_a_byte_order_mark_is_read(tmp_path: Path) -> None:
-    from aev_ocp.limits import read_input_file
-
-    f = tmp_path / "g.json"
-    f.write_bytes(BOM + b'{"E_req": [1500.0], "t_f": [45.0]}')
-    assert read_input_file(f, "grid file", ValueError) == b'{"E_req": [1500.0], "t_f": [45.0]}'
-    f.write_bytes(b"\xef\xbb" + b"{}")  # a broken mark is not a mark: left for the parser to refuse
-    assert read_input_file(f, "grid file", ValueError) == b"\xef\xbb{}"
 
 
 def test_workers_start_with_sigint_blocked() -> None:
@@ -231,130 +183,237 @@ def test_study_pool_workers_ignore_the_terminal_ctrl_c(tmp_path: Path) -> None:
     assert all(m & (1 << (signal.SIGINT - 1)) for m in masks.values()), masks
 
 
-@pytest.mark.parametrize(
-    ("argv", "named"),
-    [
-        (["--t-end", "1.5"], "--t-end = 1.5 s (0.75 model time)"),
-        (["--t-end-model", "0.33"], "--t-end-model = 0.66 s (0.33 model time)"),
-        (["--set", "simulation.t_end_s=2.9"], "simulation.t_end = 2.9 s (1.45 model time)"),
-    ],
-)
-def test_mpc_horizon_that_is_not_whole_steps_names_the_option(
-    argv: list[str], named: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
-) -> None:
-    """mpc_paper_single steps dt = 0.1 model time = 0.2 s: a horizon of 1.5 s is 7.5 steps. Before: 'closed
-    loop: t_end = 0.75 must be a multiple of dt = 0.1' (model units, no option named); now one line naming the
-    option, both units and the nearest multiple, before anything is written."""
-    code, _, err = run_cli(["mpc", "mpc_paper_single", "--out", str(tmp_path / "o"), *argv], capsys)
-    assert code == EXIT_BAD_INPUT
-    line = one_error(err)
-    assert named in line and "mpc.dt = 0.2 s (0.1 model time)" in line, line
-    assert not (tmp_path / "o").exists()
+# ----------------------------------------------------------------------------- from the issue-28 small leftovers (test_reliability_minors.py)
+def _group_members(pgid: int) -> set[int]:
+    """Live (not zombie) processes of process group ``pgid`` (Linux /proc)."""
+    out = set()
+    for p in os.listdir("/proc"):
+        if p.isdigit():
+            try:
+                with open(f"/proc/{p}/stat") as fh:
+                    state, _ppid, pgrp = fh.read().rsplit(")", 1)[-1].split()[:3]
+            except OSError:
+                continue
+            if int(pgrp) == pgid and state not in ("Z", "X"):
+                out.add(int(p))
+    return out
 
 
-@pytest.mark.parametrize(
-    ("name", "content"),
-    [
-        ("table.jsonl", b"\xbc\x00junk\xff"),
-        ("table.jsonl", b'{"a": 1}\n{"a": \n'),
-        ("table.jsonl", b"[1, 2]\n"),
-        ("table.jsonl", b"[" * 100_000 + b"]" * 100_000 + b"\n"),
-        ("table.csv", b"a,b\n\xbc\xff,2\n"),
-        ("missing.jsonl", None),
-        ("fifo.jsonl", "fifo"),
-    ],
-)
-def test_load_table_of_a_damaged_file_raises_load_error(tmp_path: Path, name: str, content: object) -> None:
-    """load_table raised UnicodeDecodeError/JSONDecodeError on a damaged table and would hang on a FIFO."""
-    from aev_ocp import LoadError
-    from aev_ocp.study import load_table
-
-    f = tmp_path / name
-    if content == "fifo":
-        os.mkfifo(f)
-    elif isinstance(content, bytes):
-        f.write_bytes(content)
-    with pytest.raises(LoadError, match=name):
-        load_table(f)
+def test_a_signal_held_back_by_deferred_is_raised_when_its_block_ends_normally():
+    with interrupts.handle_signals():
+        with pytest.raises(interrupts.Interrupted) as info:
+            with interrupts.deferred():
+                os.kill(os.getpid(), signal.SIGINT)
+                done = "the block ran to its end"  # held back: the handler does not cut the block
+        assert done and info.value.__cause__ is None
+        with interrupts.deferred():  # raised once: the next block is not interrupted again
+            pass
 
 
-def test_load_table_reads_both_files_alike(tmp_path: Path) -> None:
-    from aev_ocp.study import load_table
-
-    (tmp_path / "table.jsonl").write_text('{"kappa": 0.047, "law": "ovfl", "n": 3}\n', encoding="utf-8")
-    (tmp_path / "table.csv").write_text("kappa,law,n\n0.047,ovfl,3\n", encoding="utf-8")
-    assert load_table(tmp_path) == load_table(tmp_path / "table.csv") == [{"kappa": 0.047, "law": "ovfl", "n": 3}]
-
-
-def test_output_folder_that_cannot_be_created_is_one_short_line(
-    tmp_path: Path, capsys: pytest.CaptureFixture[str]
-) -> None:
-    """--out with a 6000-character path printed 'File name too long: <the whole path>', a dangling symbolic link
-    'File exists: link'; both now name the output folder (shortened) and why, exit 2."""
-    scen = tmp_path / "s.toml"
-    scen.write_text(SMALL, encoding="utf-8")
-    long_out = "/".join(["b" * 200] * 30)
-    code, _, err = run_cli(["simulate", str(scen), "--no-plots", "--out", str(tmp_path / long_out)], capsys)
-    line = one_error(err)
-    assert code == EXIT_BAD_INPUT and line.startswith("aev-ocp: error: output folder ") and len(line) < 300, line
-    assert "characters) cannot be created or read (File name too long)" in line
-    (tmp_path / "link").symlink_to(tmp_path / "nowhere" / "x")
-    code, _, err = run_cli(["simulate", str(scen), "--no-plots", "--out", str(tmp_path / "link")], capsys)
-    line = one_error(err)
-    assert code == EXIT_BAD_INPUT and "is a symbolic link to" in line and "which does not exist" in line, line
+def test_a_signal_held_back_by_deferred_is_raised_when_its_block_fails():
+    """The block ends with another exception: the interrupt is raised at the end of that block (the failure as
+    its cause), not by the next deferred() block of the same command."""
+    with interrupts.handle_signals():
+        with pytest.raises(interrupts.Interrupted) as info:
+            with interrupts.deferred():
+                os.kill(os.getpid(), signal.SIGINT)
+                raise OSError(28, "No space left on device")
+        assert isinstance(info.value.__cause__, OSError)
+        with interrupts.deferred():  # nothing left pending
+            pass
+        with pytest.raises(interrupts.Interrupted):  # a KeyboardInterrupt of the block itself passes unchanged
+            with interrupts.deferred():
+                os.kill(os.getpid(), signal.SIGINT)
+                raise interrupts.Interrupted("SIGINT")
+        with interrupts.deferred():
+            pass
 
 
-@pytest.mark.parametrize(
-    ("vehicle", "outcome"),
-    [
-        ("[2, 7]", "report.vehicle = 7"),
-        ("9", "report.vehicle = 9"),
-        ("[1, 2]", None),
-        ("3", "scenario(s) ['s'] have no follower 3"),
-    ],
-)
-def test_report_vehicle_without_rows_is_refused_or_warns(tmp_path: Path, vehicle: str, outcome: str | None) -> None:
-    """[report] vehicle = [99] on a 1-follower platoon wrote a report of nothing ('0 of 0') without a word: a
-    follower no scenario has is refused before any task runs; one that only some scenarios lack is a warning."""
-    import warnings
-
-    from aev_ocp.study import StudyError, run_study
-
-    (tmp_path / "s.toml").write_text(SMALL, encoding="utf-8")  # 2 followers
-    (tmp_path / "st.toml").write_text(
-        'name = "st"\nscenarios = ["s.toml", { scenario = "s.toml", label = "s3", overrides = '
-        '{ "platoon.followers" = 3 } }]\n[[axes]]\nkey = "carfollowing.kappa"\nvalues = [0.013, 0.047]\n'
-        f'[controllers]\nlaws = ["proposed"]\n[report]\nvehicle = {vehicle}\n',
-        encoding="utf-8",
-    )
-    if outcome is not None and outcome.startswith("report.vehicle"):
-        with pytest.raises(StudyError, match=rf"{outcome} is not allowed: must be a follower 1-3 .*have 2, 3 follower"):
-            run_study(tmp_path / "st.toml", tmp_path / "o", executor="inprocess")
-        assert not (tmp_path / "o").exists()
-        return
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
-        run_study(tmp_path / "st.toml", tmp_path / "o", executor="inprocess")
-    said = [str(w.message) for w in caught if "[report] vehicle" in str(w.message)]
-    assert len(said) == (outcome is not None), said
-    if outcome is not None:
-        assert outcome in said[0], said
+def test_nested_deferred_blocks_raise_at_the_outermost_end_even_when_the_inner_one_fails():
+    with interrupts.handle_signals():
+        with pytest.raises(interrupts.Interrupted) as info:
+            with interrupts.deferred():
+                try:
+                    with interrupts.deferred():
+                        os.kill(os.getpid(), signal.SIGINT)
+                        raise ValueError("inner")
+                except ValueError:
+                    reached = True  # the inner block does not raise the interrupt: it is still held back
+        assert reached and info.value.__cause__ is None
 
 
-def test_a_compiler_in_cc_that_does_not_exist_is_reported_once(
-    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
-) -> None:
-    """CC=/nonexistent/cc aev-ocp mpc-export --build built with gcc without a word."""
-    import shutil
+def test_a_second_ctrl_c_during_the_grace_wait_still_kills_the_compiler_group(tmp_path):
+    """A tool (and its child) that ignore SIGTERM, as a hung compiler may: the first Ctrl-C sends the group
+    SIGTERM and waits TOOL_STOP_GRACE_S; a second Ctrl-C in that wait goes straight to SIGKILL (before: it skipped
+    the kill, and the whole group ran on)."""
+    import threading
+    import time
 
-    from aev_ocp import compiled
+    from aev_ocp.compiled import TOOL_STOP_GRACE_S, run_tool
 
-    monkeypatch.setenv("CC", "/nonexistent/cc-7")
-    monkeypatch.setattr(compiled, "_CC_WARNED", set())
-    first, second = compiled.compiler(), compiled.compiler()
+    pidf = tmp_path / "tool.pid"
+    script = f'trap "" TERM; echo $$ > {pidf}; sleep 30 & wait; wait'
+
+    def ctrl_c_twice() -> None:
+        while not pidf.exists() or not pidf.read_text().strip():
+            time.sleep(0.02)
+        time.sleep(0.2)
+        os.kill(os.getpid(), signal.SIGINT)  # interrupts the build: SIGTERM to the group, then the grace wait
+        time.sleep(0.4)
+        os.kill(os.getpid(), signal.SIGINT)  # in the grace wait
+
+    timer = threading.Thread(target=ctrl_c_twice, daemon=True)
+    t0 = time.perf_counter()
+    with interrupts.handle_signals():
+        timer.start()
+        with pytest.raises(KeyboardInterrupt):
+            run_tool(["sh", "-c", script], tmp_path, 60.0)
+        timer.join()
+    assert time.perf_counter() - t0 < TOOL_STOP_GRACE_S + 0.5  # the second Ctrl-C cut the grace wait short
+    pgid = int(pidf.read_text())
+    deadline = time.monotonic() + 3.0
+    while _group_members(pgid) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    survivors = _group_members(pgid)
+    if survivors:  # do not leave them running when the test fails
+        os.killpg(pgid, signal.SIGKILL)
+    assert survivors == set()
+
+
+# ----------------------------------------------------------------------------- from the issue-28 surfaces probe (test_reliability_surfaces.py)
+def _computing(pid: int) -> bool:
+    """True while process ``pid`` exists and is not a zombie (Linux /proc)."""
+    try:
+        with open(f"/proc/{pid}/stat", encoding="ascii") as fh:
+            state = fh.read().rsplit(")", 1)[-1].split()[0]
+    except (FileNotFoundError, ProcessLookupError):
+        return False
+    return state not in ("Z", "X")
+
+
+class _Stop(Exception):
+    """Raised in the main thread by a signal handler: an exception arriving while run_tool waits (as Ctrl-C does)."""
+
+
+def test_an_interrupt_the_command_reported_is_one_line(capsys):
+    import signal
+
+    from aev_ocp.console import EXIT_INTERRUPTED, error_line, guarded
+
+    def command() -> int:
+        try:
+            os.kill(os.getpid(), signal.SIGINT)
+            time.sleep(1.0)
+        except KeyboardInterrupt:
+            error_line("interrupted: finished tasks are stored")
+            return EXIT_INTERRUPTED
+        return 0
+
+    assert guarded(command) == EXIT_INTERRUPTED
+    from aev_ocp import interrupts
+
+    interrupts.check()  # handled: a later check (a study's progress in this process) does not raise it again
     err = capsys.readouterr().err
-    assert first == second == shutil.which("cc")
-    assert err.count("$CC = '/nonexistent/cc-7' is not a compiler found on PATH") == 1, err
-    monkeypatch.setenv("CC", "gcc")
-    compiled.compiler()
-    assert capsys.readouterr().err == ""
+    assert err.count("aev-ocp: error:") == 1 and "finished tasks are stored" in err
+
+
+def test_a_stopped_compiler_takes_its_children_and_temporaries_with_it(tmp_path):
+    """run_tool (every C build: the cached libraries and mpc-export --build) stops the compiler's whole process
+    group: a child it started (cc1/as in gcc's case) does not run on, and the TERM it gets first lets it remove
+    its temporary file, as gcc does. No verdict depends on the machine's speed: the stop comes once the tool has
+    started its child and written its temporary (an event), the waits are bounds against a hang only."""
+    import signal
+    import subprocess
+    import threading
+
+    from aev_ocp.compiled import run_tool
+
+    tmpf, pidf = tmp_path / "cc123.s", tmp_path / "child.pid"
+    script = f'trap "rm -f {tmpf}; exit 143" TERM; touch {tmpf}; sleep 600 & echo $! > {pidf}; wait'
+
+    def ready() -> bool:
+        return tmpf.exists() and pidf.exists() and pidf.read_text().strip().isdigit()
+
+    def gone(pid: int) -> bool:
+        deadline = time.monotonic() + 120.0  # a hang guard: a stopped group is gone at once
+        while _computing(pid) and time.monotonic() < deadline:
+            time.sleep(0.05)
+        return not _computing(pid)
+
+    # 1. an exception while the tool runs (Ctrl-C, any error): sent once its child exists
+    main = threading.get_ident()
+
+    def stop_when_ready() -> None:
+        deadline = time.monotonic() + 300.0
+        while not ready() and time.monotonic() < deadline:
+            time.sleep(0.02)
+        signal.pthread_kill(main, signal.SIGUSR1)
+
+    def raise_stop(*_: object) -> None:
+        raise _Stop
+
+    old = signal.signal(signal.SIGUSR1, raise_stop)
+    try:
+        th = threading.Thread(target=stop_when_ready, daemon=True)
+        th.start()
+        with pytest.raises(_Stop):
+            run_tool(["sh", "-c", script], tmp_path, 600.0)
+        th.join(300.0)
+    finally:
+        signal.signal(signal.SIGUSR1, old)
+    child = int(pidf.read_text())
+    assert gone(child) and not tmpf.exists()
+    # 2. its own timeout: a timeout shorter than the tool's start-up (a loaded machine) stops the group before its
+    # child exists; the timeout grows until the child existed when it fired, then the child must be gone too
+    for timeout_s in (0.5, 2.0, 8.0, 32.0, 128.0):
+        pidf.unlink(missing_ok=True)
+        with pytest.raises(subprocess.TimeoutExpired):
+            run_tool(["sh", "-c", script], tmp_path, timeout_s)
+        if pidf.exists() and pidf.read_text().strip().isdigit():
+            break
+    child = int(pidf.read_text())
+    assert gone(child) and not tmpf.exists()
+    ok = run_tool(["sh", "-c", "echo built; echo warn >&2"], tmp_path, 600.0)
+    assert (ok.returncode, ok.stdout, ok.stderr) == (0, "built\n", "warn\n")
+
+
+def test_ctrl_c_while_the_command_is_still_importing_is_one_line_and_130(tmp_path):
+    """A Ctrl-C in the first ~0.3 s of 'aev-ocp ...' lands in the imports of NumPy and CasADi: one line, exit 130,
+    no traceback (the signal is sent from inside the import of aev_ocp.console, deterministically)."""
+    import subprocess
+    import sys
+
+    code = (
+        "import importlib.abc, os, signal, sys\n"
+        "class Hook(importlib.abc.MetaPathFinder):\n"
+        "    def find_spec(self, name, path, target=None):\n"
+        "        if name == 'aev_ocp.console':\n"
+        "            os.kill(os.getpid(), signal.SIGINT)\n"
+        "        return None\n"
+        "sys.meta_path.insert(0, Hook())\n"
+        "sys.argv = ['aev-ocp', 'scenarios']\n"
+        "import runpy; runpy.run_module('aev_ocp.cli', run_name='__main__')\n"
+    )
+    env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])}
+    p = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=60, cwd=tmp_path)
+    assert (p.returncode, p.stderr) == (130, "aev-ocp: error: interrupted\n")
+
+
+def test_a_ctrl_c_a_library_turned_into_another_error_is_an_interrupt(capsys):
+    """CasADi's SWIG layer turns a KeyboardInterrupt raised inside DM.__array__ into a SystemError: still exit 130
+    and 'interrupted', not 'internal error'."""
+    import signal
+
+    from aev_ocp.console import EXIT_INTERRUPTED, guarded
+
+    def command() -> int:
+        try:
+            os.kill(os.getpid(), signal.SIGINT)
+            time.sleep(1.0)
+        except KeyboardInterrupt:
+            raise SystemError("<function DM.__array__> returned a result with an exception set") from None
+        return 0
+
+    assert guarded(command) == EXIT_INTERRUPTED
+    err = capsys.readouterr().err
+    assert err == "aev-ocp: error: interrupted\n"

@@ -11,7 +11,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from aev_ocp.control import ControlSequence, run_closed_loop
+from aev_ocp.control import Command, ControlSequence, run_closed_loop
 from aev_ocp.models.carfollowing import Proposed
 from aev_ocp.models.leader import ConstantSpeed
 from aev_ocp.params import EVParams, Units, VehicleLimits
@@ -290,7 +290,6 @@ def test_unknown_id_of_a_user_network_is_refused_after_the_run(tmp_path, capsys)
 
 def reckless(ev: EVParams):
     """A user Controller (by 'module:function') that always commands +3 m/s² — it must hit its leader."""
-    from aev_ocp.control import Command
 
     class Reckless:
         name, dt = "reckless", U.time_from_si(0.1)
@@ -399,3 +398,21 @@ def test_missing_files_named(tmp_path):
     sc = parse_sumo_scenario({"sumo": {"net_file": "nope.net.xml", "t_end_s": 5.0}}, "s.toml", tmp_path / "s.toml")
     with pytest.raises(SumoError, match="nope.net.xml"):
         run_sumo(sc)
+
+
+# ----------------------------------------------------------------------------- from the third reliability probe (test_reprobe3.py)
+def test_sumo_user_factory_error_names_the_key() -> None:
+    pytest.importorskip("libsumo")
+    from aev_ocp.sumo import SumoError
+    from aev_ocp.sumo.run import make_controller_factory
+    from aev_ocp.sumo.scenario import parse_sumo_scenario
+
+    def scenario(controller: str):  # noqa: ANN202
+        return parse_sumo_scenario({"sumo": {"network": "ring", "t_end_s": 2.5, "controller": controller}})
+
+    _, factory = make_controller_factory(scenario(f"{__name__}:broken_factory"))
+    assert factory is not None
+    with pytest.raises(SumoError, match=r"sumo.controller = '.*:broken_factory': .* raised TypeError: expected str"):
+        factory()
+    with pytest.raises(SumoError, match=r"sumo.controller = 'os:sep': sep in os is a str, not a function"):
+        make_controller_factory(scenario("os:sep"))

@@ -22,7 +22,7 @@ from aev_ocp.params import UNLIMITED, EVParams, ParameterError
 from aev_ocp.plant import EVENT_RULES, PLAN_TOLERANCE, event_header
 from aev_ocp.simulate import simulate_platoon
 
-sys.path.insert(0, str(Path(__file__).parents[1] / "examples"))
+sys.path.insert(0, str(Path(__file__).parents[2] / "examples"))
 EV = EVParams()
 
 
