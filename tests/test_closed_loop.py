@@ -1,7 +1,6 @@
-"""The defects a third independent reliability probe found (benchmarks/probe_reliability_3.py), one test each:
-units whose derived units overflow, ProblemBuilder expressions that were only refused by CasADi at build()
-(or never), ClosedLoop controllers with a bad sampling period or a non-finite command (a NaN command was
-saturated into full braking without a word), and a SUMO 'module:function' controller that raises."""
+"""The closed loop's inputs (aev_ocp.control.ClosedLoop): a controller with a bad sampling period or a non-finite
+command is refused naming it (a NaN command was once saturated into full braking without a word), NumPy scalars and
+one-element arrays are taken like floats, and a finite command is applied exactly."""
 
 from __future__ import annotations
 
@@ -13,11 +12,6 @@ import pytest
 from aev_ocp.control import ClosedLoop, Command
 from aev_ocp.models.leader import ConstantSpeed
 from aev_ocp.params import ParameterError
-
-# ----------------------------------------------------------------------------- units
-
-
-# ----------------------------------------------------------------------------- ProblemBuilder
 
 
 # ----------------------------------------------------------------------------- ClosedLoop
@@ -89,21 +83,3 @@ def test_closed_loop_takes_numpy_scalars_and_one_element_arrays_like_floats(a: o
 def test_closed_loop_refuses_arrays_that_are_not_one_finite_number(a: object) -> None:
     with pytest.raises(ParameterError, match=r"controller 'held' of vehicle 1 returned Command\(a = .*\) at t = 0"):
         ClosedLoop(LEADER, [Held(a)]).run([2.5], [1.3], 0.5)
-
-
-# ----------------------------------------------------------------------------- SUMO 'module:function'
-
-
-# ----------------------------------------------------------------------------- $AEV_OCP_MAX_MEMORY_GB and load()
-
-
-# ----------------------------------------------------------------------------- register_law / make_law
-
-
-# ----------------------------------------------------------------------------- the cascade's step limit
-
-
-# ----------------------------------------------------------------------------- OCPSolver inputs
-
-
-# ----------------------------------------------------------------------------- a stopped study pool exits

@@ -1,7 +1,7 @@
-"""Tries of the independent re-probe of issue 28 on landed main that found defects, each a test.
-
-Ctrl-C during one long compiled cascade run, `mpc --t-end` that is not a whole number of MPC steps,
-input files that start with a UTF-8 byte-order mark."""
+"""Interrupts (aev_ocp.interrupts): Ctrl-C and SIGTERM stop a long compiled run inside its C call, a signal held
+back by interrupts.deferred() is raised by its own block however it ends, an interrupt a library swallowed or
+turned into another error is still one, workers and compilers stop with the command, and every interrupt the
+command reports is one line with exit 130."""
 
 from __future__ import annotations
 

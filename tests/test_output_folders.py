@@ -1,6 +1,6 @@
-"""Issue 28, the small leftovers: a signal held back by interrupts.deferred() is raised by its own block however
-it ends, folder locks follow a folder that was removed and made again, a second Ctrl-C cannot skip the kill of a
-compiler, bad nested keys are echoed shortly, mpc.N is named as typed, and --time-limit stops a run in progress."""
+"""Output folders (aev_ocp.results.claim_output_dir and the atomic writers): a folder of another run or of the
+user is never clobbered, every command locks the folder it claims until it ends (a folder removed and made again is
+locked again), names never lead outside results/, and temporaries never outlive an interrupted write."""
 
 from __future__ import annotations
 
@@ -16,8 +16,6 @@ from study_helpers import TINY_STUDY as STUDY
 from study_helpers import write_tiny_study as _study
 
 from aev_ocp import interrupts
-
-# ----------------------------------------------------------------------------- interrupts.deferred
 
 
 # ----------------------------------------------------------------------------- output-folder locks
@@ -56,24 +54,6 @@ def test_a_folder_removed_and_made_again_is_locked_again(tmp_path):
         assert not _locked_by_someone(out)
     finally:
         release_output_locks()
-
-
-# ----------------------------------------------------------------------------- compiler process group
-
-
-# ----------------------------------------------------------------------------- short echoes of bad values
-
-
-# ----------------------------------------------------------------------------- mpc.N named as typed
-
-
-# ----------------------------------------------------------------------------- --time-limit inside a run
-
-
-# ----------------------------------------------------------------------------- study validation cost
-
-
-# ----------------------------------------------------------------------------- a stopped pool at exit
 
 
 # ----------------------------------------------------------------------------- from the issue-28 re-probe (test_reprobe.py)

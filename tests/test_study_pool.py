@@ -1,6 +1,6 @@
-"""Issue 28: the commands added since issue 11 (study, stability, ring, the loader, trace leaders, --set) keep the
-same promises: foreign folders refused, safe names, sizes checked before work, workers stopped, damaged stores
-and saved folders detected, one error line with exit 2 for bad input. One test per cause of the probe."""
+"""The study's workers (process pool and local dask cluster): stopped with the command (Ctrl-C, a kill, a time
+limit), capped in number, free to write to stdout, never hanging the exit while one sends its result; a scheduler
+that never answers fails after the connect timeout."""
 
 from __future__ import annotations
 
@@ -16,8 +16,6 @@ from study_helpers import TINY_STUDY as STUDY
 from study_helpers import write_tiny_study as _study
 
 from aev_ocp import interrupts
-
-# ----------------------------------------------------------------------------- 1. folders
 
 
 # ----------------------------------------------------------------------------- 2. sizes
@@ -68,27 +66,6 @@ def test_stopping_a_pool_ends_its_computing_workers():
     while not all(f.done() for f in futs) and time.monotonic() < deadline:
         time.sleep(0.05)
     assert [f._state for f in futs if not f.done()] == []
-
-
-# ----------------------------------------------------------------------------- 4. damaged store
-
-
-# ----------------------------------------------------------------------------- 6. the loader
-
-
-# ----------------------------------------------------------------------------- 7. overrides
-
-
-# ----------------------------------------------------------------------------- 8. trace CSV
-
-
-# ----------------------------------------------------------------------------- fuzz: study TOML
-
-
-# ----------------------------------------------------------------------------- mpc-export (1, 2, 9)
-
-
-# ----------------------------------------------------------------------------- 10. the C API's plain step
 
 
 # ----------------------------------------------------------------------------- 5. a scheduler that never answers

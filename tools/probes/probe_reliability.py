@@ -9,7 +9,7 @@ classified:
 * defect: a traceback, "internal error", a hang (time box passed), a wrong exit code, user files replaced,
   temporary files or worker processes left behind, a silently wrong result.
 
-    PYTHONPATH=$PWD python benchmarks/probe_reliability.py [--only WORD] [--json probe.json]
+    PYTHONPATH=$PWD python tools/probes/probe_reliability.py [--only WORD] [--json probe.json]
 
 prints one line per try and a table of counts per area, and writes the tries as JSON. Every try uses only the
 shipped scenarios and small files it writes itself (a few minutes in all on 2 cores).
@@ -35,7 +35,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
 
-ROOT = Path(os.environ.get("AEV_PROBE_ROOT") or Path(__file__).resolve().parents[1])  # the checkout probed
+ROOT = Path(os.environ.get("AEV_PROBE_ROOT") or Path(__file__).resolve().parents[2])  # the checkout probed
 PY = sys.executable
 RNG = random.Random(int(os.environ.get("AEV_PROBE_SEED", "28")))  # interrupt delays: a rerun repeats them
 
