@@ -242,15 +242,40 @@ def test_nested_deferred_blocks_raise_at_the_outermost_end_even_when_the_inner_o
         assert reached and info.value.__cause__ is None
 
 
-def test_a_second_ctrl_c_during_the_grace_wait_still_kills_the_compiler_group(tmp_path):
+def test_a_second_ctrl_c_during_the_grace_wait_still_kills_the_compiler_group(tmp_path, monkeypatch):
     """A tool (and its child) that ignore SIGTERM, as a hung compiler may: the first Ctrl-C sends the group
-    SIGTERM and waits TOOL_STOP_GRACE_S; a second Ctrl-C in that wait goes straight to SIGKILL (before: it skipped
-    the kill, and the whole group ran on)."""
+    SIGTERM and waits TOOL_STOP_GRACE_S (30 s here); a second Ctrl-C in that wait ends the wait (the wait itself
+    raises the interrupt, it does not time out) and goes straight to SIGKILL (before: it skipped the kill, and the
+    whole group ran on)."""
+    import subprocess
     import threading
     import time
 
-    from aev_ocp.compiled import TOOL_STOP_GRACE_S, run_tool
+    import aev_ocp.compiled as compiled
+    from aev_ocp.compiled import run_tool
 
+    monkeypatch.setattr(compiled, "TOOL_STOP_GRACE_S", 30.0)
+    sent: list[int] = []
+    real_killpg = os.killpg
+
+    def killpg(pgid: int, sig: int) -> None:
+        sent.append(sig)
+        real_killpg(pgid, sig)
+
+    waits: list[tuple[object, str]] = []  # (timeout, how the wait ended) of each communicate call
+    real_communicate = subprocess.Popen.communicate
+
+    def communicate(self, *a, **kw):  # noqa: ANN001, ANN002, ANN003, ANN202
+        try:
+            out = real_communicate(self, *a, **kw)
+        except BaseException as exc:
+            waits.append((kw.get("timeout"), "interrupt" if isinstance(exc, KeyboardInterrupt) else type(exc).__name__))
+            raise
+        waits.append((kw.get("timeout"), "returned"))
+        return out
+
+    monkeypatch.setattr(os, "killpg", killpg)
+    monkeypatch.setattr(subprocess.Popen, "communicate", communicate)
     pidf = tmp_path / "tool.pid"
     script = f'trap "" TERM; echo $$ > {pidf}; sleep 30 & wait; wait'
 
@@ -259,17 +284,19 @@ def test_a_second_ctrl_c_during_the_grace_wait_still_kills_the_compiler_group(tm
             time.sleep(0.02)
         time.sleep(0.2)
         os.kill(os.getpid(), signal.SIGINT)  # interrupts the build: SIGTERM to the group, then the grace wait
+        while not waits:  # the build's own wait has ended: the grace wait is on
+            time.sleep(0.02)
         time.sleep(0.4)
         os.kill(os.getpid(), signal.SIGINT)  # in the grace wait
 
     timer = threading.Thread(target=ctrl_c_twice, daemon=True)
-    t0 = time.perf_counter()
     with interrupts.handle_signals():
         timer.start()
         with pytest.raises(KeyboardInterrupt):
             run_tool(["sh", "-c", script], tmp_path, 60.0)
         timer.join()
-    assert time.perf_counter() - t0 < TOOL_STOP_GRACE_S + 0.5  # the second Ctrl-C cut the grace wait short
+    assert sent == [signal.SIGTERM, signal.SIGKILL], sent
+    assert waits[:2] == [(60.0, "interrupt"), (30.0, "interrupt")], waits  # the grace wait was cut, not timed out
     pgid = int(pidf.read_text())
     deadline = time.monotonic() + 3.0
     while _group_members(pgid) and time.monotonic() < deadline:

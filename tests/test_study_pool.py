@@ -56,16 +56,16 @@ def test_stopping_a_pool_ends_its_computing_workers():
     procs = list(ex._processes.values())
     assert len(procs) == 2 and all(p.is_alive() for p in procs)
     pids = [p.pid for p in procs]
-    t0 = time.perf_counter()
     _stop_pool(ex)
     # the processes are gone (checked by pid: the pool's own thread may reap a worker first, and then
     # Process.is_alive() of our copy cannot tell, which made this test flaky under load)
-    # stopped, not finished: the bound is far below the tasks' own 600 s, far above any load's delay
-    assert not any(_computing(pid) for pid in pids) and time.perf_counter() - t0 < 120.0
+    assert not any(_computing(pid) for pid in pids)
     deadline = time.monotonic() + 120.0  # every task ends (cancelled, or failed with its worker), none computes on
     while not all(f.done() for f in futs) and time.monotonic() < deadline:
         time.sleep(0.05)
     assert [f._state for f in futs if not f.done()] == []
+    # stopped, not finished: no task returned (each 600 s sleep was cancelled or failed with its worker)
+    assert all(f.cancelled() or f.exception() is not None for f in futs)
 
 
 # ----------------------------------------------------------------------------- 5. a scheduler that never answers
@@ -91,7 +91,6 @@ def test_a_silent_scheduler_fails_after_the_connect_timeout(monkeypatch):
 
     threading.Thread(target=accept, daemon=True).start()
     monkeypatch.setattr(runner, "SCHEDULER_CONNECT_TIMEOUT_S", 2.0)
-    t0 = time.perf_counter()
     try:
         with pytest.raises(RuntimeError, match="did not answer within 2 s"):
             runner._run_dask([{"key": "k"}], None, f"tcp://127.0.0.1:{srv.getsockname()[1]}", lambda r: None)
@@ -100,9 +99,7 @@ def test_a_silent_scheduler_fails_after_the_connect_timeout(monkeypatch):
         for c in held:
             c.close()
         srv.close()
-    # it did connect, and gave up on its own: 300 s is far above the 2 s timeout under any load, and only
-    # guards against the hang (a handshake that never completes) that the timeout exists for
-    assert time.perf_counter() - t0 < 300.0 and held
+    assert held  # it did connect, and gave up on its own (the RuntimeError above names its 2 s timeout)
 
 
 # ----------------------------------------------------------------------------- re-probe (issue 28, second round)
@@ -395,11 +392,10 @@ def test_a_worker_stopped_halfway_through_sending_its_result_does_not_hang_the_e
     futures = [ex.submit(time.sleep, 600.0) for _ in range(2)]
     manager = ex._executor_manager_thread
     os.write(ex._result_queue._writer.fileno(), struct.pack("!i", 4000) + b"\x80\x04" + b"x" * 500)
-    t0 = time.monotonic()
     _stop_pool(ex)
-    # not hung, not waiting for the tasks: a bound far below their 600 s, far above any load's delay
-    assert not manager.is_alive() and time.monotonic() - t0 < 120.0
-    assert all(f.done() for f in futures)
+    assert not manager.is_alive()  # not hung on the half message
+    # not waiting for the tasks: none returned (each 600 s sleep was cancelled or failed with its worker)
+    assert all(f.done() and (f.cancelled() or f.exception() is not None) for f in futures)
 
 
 # ----------------------------------------------------------------------------- from the third reliability probe (test_reprobe3.py)
