@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from helpers import _computing
 
 from aev_ocp import interrupts
 from aev_ocp.scenarios import load_scenario
@@ -308,14 +309,6 @@ def test_a_second_ctrl_c_during_the_grace_wait_still_kills_the_compiler_group(tm
 
 
 # ----------------------------------------------------------------------------- from the issue-28 surfaces probe (test_reliability_surfaces.py)
-def _computing(pid: int) -> bool:
-    """True while process ``pid`` exists and is not a zombie (Linux /proc)."""
-    try:
-        with open(f"/proc/{pid}/stat", encoding="ascii") as fh:
-            state = fh.read().rsplit(")", 1)[-1].split()[0]
-    except (FileNotFoundError, ProcessLookupError):
-        return False
-    return state not in ("Z", "X")
 
 
 class _Stop(Exception):

@@ -3,13 +3,12 @@ with one line that says how much, the limit and which key to change (issue 11 it
 
 from __future__ import annotations
 
-import contextlib
 import os
-import threading
 from pathlib import Path
 
 import pytest
 from cli_helpers import one_error, run_cli
+from helpers import SCENARIO, _unblocked_after
 
 from aev_ocp import limits
 from aev_ocp.params import ParameterError
@@ -115,22 +114,6 @@ def test_the_safety_suite_reads_the_memory_budget_before_any_case(monkeypatch, t
 
 
 # ----------------------------------------------------------------------------- from the third reliability probe (test_reprobe3.py)
-SCENARIO = """\
-name = "units_probe"
-[units]
-length_m = {L}
-speed_mps = {U}
-[leader]
-kind = "constant"
-v = 1.3
-[platoon]
-followers = 1
-law = "proposed"
-gap0 = 2.5
-speed0 = 1.3
-[simulation]
-t_end = 2.0
-"""
 
 
 @pytest.mark.parametrize("raw", ["lots", "nan", "-4", "inf", "0", "1e400"])
@@ -173,31 +156,6 @@ def test_bad_memory_budget_is_bad_input_for_commands_and_load(
 
 
 # ----------------------------------------------------------------------------- from the issue-28 surfaces probe (test_reliability_surfaces.py)
-@contextlib.contextmanager
-def _unblocked_after(fifo: Path, after_s: float):
-    """If the block is still running after ``after_s`` [s], open ``fifo`` for writing and close it (a reader
-    blocked on it then sees an end of file), every 0.2 s until the block ends, and set the event yielded: the
-    block waited on the FIFO."""
-
-    done, fired = threading.Event(), threading.Event()
-
-    def watch() -> None:
-        if done.wait(after_s):
-            return
-        fired.set()
-        while not done.wait(0.2):  # again and again: the block may open the FIFO more than once
-            try:
-                os.close(os.open(fifo, os.O_WRONLY | os.O_NONBLOCK))
-            except OSError:
-                pass
-
-    t = threading.Thread(target=watch, daemon=True)
-    t.start()
-    try:
-        yield fired
-    finally:
-        done.set()
-        t.join()
 
 
 @pytest.mark.parametrize(

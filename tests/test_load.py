@@ -3,18 +3,17 @@ loaded trajectories equal to the saved ones, settings and provenance present; cl
 
 from __future__ import annotations
 
-import contextlib
 import csv
 import json
 import math
 import os
 import shutil
-import threading
 import zipfile
 from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import _unblocked_after
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -322,33 +321,6 @@ def _copy(saved: Path, tmp_path: Path) -> Path:
     d = tmp_path / "copy"
     shutil.copytree(saved, d)
     return d
-
-
-@contextlib.contextmanager
-def _unblocked_after(fifo: Path, after_s: float):
-    """If the block is still running after ``after_s`` [s], open ``fifo`` for writing and close it (a reader
-    blocked on it then sees an end of file), every 0.2 s until the block ends, and set the event yielded: the
-    block waited on the FIFO."""
-
-    done, fired = threading.Event(), threading.Event()
-
-    def watch() -> None:
-        if done.wait(after_s):
-            return
-        fired.set()
-        while not done.wait(0.2):  # again and again: the block may open the FIFO more than once
-            try:
-                os.close(os.open(fifo, os.O_WRONLY | os.O_NONBLOCK))
-            except OSError:
-                pass
-
-    t = threading.Thread(target=watch, daemon=True)
-    t.start()
-    try:
-        yield fired
-    finally:
-        done.set()
-        t.join()
 
 
 def _mutate(d: Path, data: st.DataObject) -> None:

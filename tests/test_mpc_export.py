@@ -28,6 +28,7 @@ import casadi as ca
 import numpy as np
 import pytest
 from cli_helpers import one_error, run_cli
+from helpers import _never
 
 from aev_ocp.compiled import compiler
 from aev_ocp.control import ClosedLoop, Command, Observation
@@ -503,13 +504,6 @@ def test_riccati_without_a_compiler_says_hpipm_runs(monkeypatch: pytest.MonkeyPa
 
 
 # ----------------------------------------------------------------------------- from the issue-28 surfaces probe (test_reliability_surfaces.py)
-def _never(what: str):
-    """A stand-in for ``what`` (the work a test must not reach) that fails the test when called."""
-
-    def called(*a, **k):
-        raise AssertionError(f"{what} was called")
-
-    return called
 
 
 def test_mpc_export_refuses_a_users_folder_and_a_huge_horizon_before_generating(tmp_path, capsys, monkeypatch):

@@ -12,11 +12,11 @@ from pathlib import Path
 
 import pytest
 from cli_helpers import one_error, run_cli
+from helpers import SMALL, _never, _run_study
 from study_helpers import TINY_STUDY as STUDY
 from study_helpers import write_tiny_study as _study
 
 from aev_ocp import interrupts
-
 
 # ----------------------------------------------------------------------------- output-folder locks
 
@@ -60,22 +60,6 @@ def test_a_folder_removed_and_made_again_is_locked_again(tmp_path):
 EXIT_OK, EXIT_BAD_INPUT, EXIT_INTERRUPTED = 0, 2, 130
 
 
-SMALL = """\
-name = "bom"
-[leader]
-kind = "constant"
-v = 1.3
-[platoon]
-followers = 2
-law = "proposed"
-gap0_first = 1.7
-speed0 = 1.1
-[simulation]
-t_end = 3.5
-dt_out = 0.05
-"""
-
-
 def test_output_folder_that_cannot_be_created_is_one_short_line(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -105,20 +89,6 @@ def test_foreign_folder_message_has_no_none_source(tmp_path: Path, capsys: pytes
 
 
 # ----------------------------------------------------------------------------- from the issue-28 surfaces probe (test_reliability_surfaces.py)
-
-
-def _run_study(tmp_path: Path, f: Path, out: Path, capsys, *extra: str) -> tuple[int, str]:
-    rc, _, err = run_cli(["study", str(f), "--out", str(out), "--in-process", "--no-report", *extra], capsys)
-    return rc, err
-
-
-def _never(what: str):
-    """A stand-in for ``what`` (the work a test must not reach) that fails the test when called."""
-
-    def called(*a, **k):
-        raise AssertionError(f"{what} was called")
-
-    return called
 
 
 def _foreign_lock(out: Path) -> int:

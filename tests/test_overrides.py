@@ -9,7 +9,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from cli_helpers import one_error, run_cli
+from cli_helpers import one_error
+from helpers import _run_study
 from study_helpers import write_tiny_study as _study
 
 from aev_ocp.metrics import comparability, distance_metrics
@@ -207,11 +208,6 @@ def test_override_key_that_is_not_a_string_is_named(key: object) -> None:
 
 
 # ----------------------------------------------------------------------------- from the issue-28 surfaces probe (test_reliability_surfaces.py)
-
-
-def _run_study(tmp_path: Path, f: Path, out: Path, capsys, *extra: str) -> tuple[int, str]:
-    rc, _, err = run_cli(["study", str(f), "--out", str(out), "--in-process", "--no-report", *extra], capsys)
-    return rc, err
 
 
 def test_set_on_an_axis_key_nan_and_newline_are_refused(tmp_path, capsys):

@@ -9,6 +9,7 @@ from pathlib import Path
 
 import pytest
 from cli_helpers import run_cli
+from helpers import SMALL
 from study_helpers import TINY_STUDY as STUDY
 from study_helpers import write_tiny_study as _study
 
@@ -160,20 +161,6 @@ def test_report_html_shows_every_figure_of_the_folder(quick_report: tuple[Path, 
 
 
 # ----------------------------------------------------------------------------- from the issue-28 re-probe (test_reprobe.py)
-SMALL = """\
-name = "bom"
-[leader]
-kind = "constant"
-v = 1.3
-[platoon]
-followers = 2
-law = "proposed"
-gap0_first = 1.7
-speed0 = 1.1
-[simulation]
-t_end = 3.5
-dt_out = 0.05
-"""
 
 
 @pytest.mark.parametrize(

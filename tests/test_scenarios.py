@@ -9,6 +9,7 @@ from pathlib import Path
 
 import pytest
 from cli_helpers import one_error, run_cli
+from helpers import _BIG_STR, _BIG_TABLE, SCENARIO, SMALL
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -291,22 +292,6 @@ def test_the_split_loader_keeps_every_public_name_importable_from_aev_ocp_scenar
 BOM = b"\xef\xbb\xbf"
 
 
-SMALL = """\
-name = "bom"
-[leader]
-kind = "constant"
-v = 1.3
-[platoon]
-followers = 2
-law = "proposed"
-gap0_first = 1.7
-speed0 = 1.1
-[simulation]
-t_end = 3.5
-dt_out = 0.05
-"""
-
-
 def test_a_byte_order_mark_is_read_like_the_same_file_without_it(tmp_path: Path) -> None:
     """Scenario, study and grid files saved with a UTF-8 BOM (Notepad) load exactly as without it (before: 'not
     valid TOML: Invalid statement (at line 1, column 1)', exit 2)."""
@@ -335,10 +320,6 @@ def test_a_grid_file_with_a_byte_order_mark_is_read(tmp_path: Path) -> None:
 
 
 # ----------------------------------------------------------------------------- from the issue-28 small leftovers (test_reliability_minors.py)
-_BIG_STR = "q" * 10_000
-
-
-_BIG_TABLE = "{" + ", ".join(f"k{i} = {i}" for i in range(2000)) + "}"
 
 
 def _bad_scenario(tmp_path, extra: str):
@@ -409,22 +390,6 @@ def test_a_bad_key_deep_in_a_scenario_names_its_path_and_echoes_a_short_value(tm
 
 
 # ----------------------------------------------------------------------------- from the third reliability probe (test_reprobe3.py)
-SCENARIO = """\
-name = "units_probe"
-[units]
-length_m = {L}
-speed_mps = {U}
-[leader]
-kind = "constant"
-v = 1.3
-[platoon]
-followers = 1
-law = "proposed"
-gap0 = 2.5
-speed0 = 1.3
-[simulation]
-t_end = 2.0
-"""
 
 
 @settings(max_examples=60, deadline=None)

@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from cli_helpers import one_error, run_cli
+from helpers import _BIG_STR, _BIG_TABLE, _never, _run_study
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from study_helpers import TINY_STUDY, write_tiny_study
@@ -604,10 +605,6 @@ def test_load_table_reads_both_files_alike(tmp_path: Path) -> None:
 
 
 # ----------------------------------------------------------------------------- from the issue-28 small leftovers (test_reliability_minors.py)
-_BIG_STR = "q" * 10_000
-
-
-_BIG_TABLE = "{" + ", ".join(f"k{i} = {i}" for i in range(2000)) + "}"
 
 
 _GRID = """
@@ -631,7 +628,7 @@ laws = ["proposed", "ovfl"]
 def test_a_bad_study_value_and_a_long_set_value_are_echoed_shortly(tmp_path, capsys, monkeypatch):
     from pathlib import Path
 
-    from cli_helpers import one_error, run_cli
+    from cli_helpers import one_error
 
     repo = Path(__file__).resolve().parents[1]
     monkeypatch.chdir(repo)
@@ -692,7 +689,7 @@ def test_study_points_are_validated_without_sampling_the_leader_or_copying_the_b
 def test_a_study_override_of_a_swept_key_is_refused_not_dropped(tmp_path, capsys):
     """[overrides] (or a base scenario's own overrides) setting a key an axis sweeps, or its SI twin, was
     dropped at every point without a word, whatever its value (a 2000-entry table ran the study)."""
-    from cli_helpers import one_error, run_cli
+    from cli_helpers import one_error
 
     cases = [
         ('"carfollowing.kappa" = 0.5', "[overrides] carfollowing.kappa = 0.5 would be ignored: axes[0] sweeps"),
@@ -715,18 +712,6 @@ def test_a_study_override_of_a_swept_key_is_refused_not_dropped(tmp_path, capsys
 
 
 # ----------------------------------------------------------------------------- from the issue-28 surfaces probe (test_reliability_surfaces.py)
-def _run_study(tmp_path: Path, f: Path, out: Path, capsys, *extra: str) -> tuple[int, str]:
-    rc, _, err = run_cli(["study", str(f), "--out", str(out), "--in-process", "--no-report", *extra], capsys)
-    return rc, err
-
-
-def _never(what: str):
-    """A stand-in for ``what`` (the work a test must not reach) that fails the test when called."""
-
-    def called(*a, **k):
-        raise AssertionError(f"{what} was called")
-
-    return called
 
 
 _TOKENS = [

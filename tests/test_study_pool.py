@@ -12,11 +12,11 @@ from pathlib import Path
 
 import pytest
 from cli_helpers import one_error, run_cli
+from helpers import _computing
 from study_helpers import TINY_STUDY as STUDY
 from study_helpers import write_tiny_study as _study
 
 from aev_ocp import interrupts
-
 
 # ----------------------------------------------------------------------------- 2. sizes
 
@@ -32,14 +32,6 @@ def test_local_workers_are_capped(tmp_path, capsys, opt):
 
 
 # ----------------------------------------------------------------------------- 3. workers, locks, temporaries
-def _computing(pid: int) -> bool:
-    """True while process ``pid`` exists and is not a zombie (Linux /proc)."""
-    try:
-        with open(f"/proc/{pid}/stat", encoding="ascii") as fh:
-            state = fh.read().rsplit(")", 1)[-1].split()[0]
-    except (FileNotFoundError, ProcessLookupError):
-        return False
-    return state not in ("Z", "X")
 
 
 def test_stopping_a_pool_ends_its_computing_workers():
