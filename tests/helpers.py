@@ -4,6 +4,7 @@ fails when called, a process check and a FIFO unblocker."""
 from __future__ import annotations
 
 import contextlib
+import math
 import os
 import threading
 from pathlib import Path
@@ -99,3 +100,15 @@ def _unblocked_after(fifo: Path, after_s: float):
     finally:
         done.set()
         t.join()
+
+
+def same_numbers(a, b) -> bool:
+    """Equal, with NaN == NaN and JSON's null == NaN (non-finite numbers are null in JSON)."""
+    if isinstance(a, dict) and isinstance(b, dict):
+        return a.keys() == b.keys() and all(same_numbers(a[k], b[k]) for k in a)
+    if isinstance(a, (list, tuple)) and isinstance(b, (list, tuple)):
+        return len(a) == len(b) and all(same_numbers(x, y) for x, y in zip(a, b))
+    nan = lambda x: x is None or (isinstance(x, float) and math.isnan(x))  # noqa: E731
+    if nan(a) or nan(b):
+        return nan(a) and nan(b)
+    return a == b

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import csv
 import json
-import math
 import os
 import shutil
 import zipfile
@@ -14,6 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from helpers import _unblocked_after
+from helpers import same_numbers as _same
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -22,18 +22,6 @@ from aev_ocp.cli import main
 from aev_ocp.models.leader import ConstantSpeed
 from aev_ocp.saved import ARRAYS, MANIFEST, SIM_ARRAYS, LoadError, load_all
 from aev_ocp.scenarios import find_scenario, load_with_sets
-
-
-def _same(a, b) -> bool:
-    """Equal, with NaN == NaN and JSON's null == NaN (non-finite numbers are null in JSON)."""
-    if isinstance(a, dict) and isinstance(b, dict):
-        return a.keys() == b.keys() and all(_same(a[k], b[k]) for k in a)
-    if isinstance(a, (list, tuple)) and isinstance(b, (list, tuple)):
-        return len(a) == len(b) and all(_same(x, y) for x, y in zip(a, b))
-    nan = lambda x: x is None or (isinstance(x, float) and math.isnan(x))  # noqa: E731
-    if nan(a) or nan(b):
-        return nan(a) and nan(b)
-    return a == b
 
 
 def _check_metrics(r) -> None:

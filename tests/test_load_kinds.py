@@ -6,28 +6,16 @@ one LoadError naming the file and the field."""
 from __future__ import annotations
 
 import json
-import math
 from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import same_numbers as _same
 from matplotlib.figure import Figure
 
 import aev_ocp
 from aev_ocp.cli import main
 from aev_ocp.saved import KINDS, MANIFEST, SIM_ARRAYS, LoadError
-
-
-def _same(a, b) -> bool:
-    """Equal, NaN == NaN, JSON's null == NaN."""
-    if isinstance(a, dict) and isinstance(b, dict):
-        return a.keys() == b.keys() and all(_same(a[k], b[k]) for k in a)
-    if isinstance(a, (list, tuple)) and isinstance(b, (list, tuple)):
-        return len(a) == len(b) and all(_same(x, y) for x, y in zip(a, b))
-    nan = lambda x: x is None or (isinstance(x, float) and math.isnan(x))  # noqa: E731
-    if nan(a) or nan(b):
-        return nan(a) and nan(b)
-    return a == b
 
 
 def _figure(obj) -> None:
