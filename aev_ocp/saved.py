@@ -74,6 +74,7 @@ KINDS = (
     "ring_stability",
     "mixed_ring_stability",
 )
+DOCUMENT_KINDS = ("ring", "safety", "stability", "ring_stability", "mixed_ring_stability")  # see aev_ocp.loading
 OCP_SCALARS = ("objective", "objective_exact", "max_violation", "wall_time_s", "solver_time_s")
 OUTPUT_FILES = (MANIFEST, ARRAYS)  # what :func:`save_output` writes (for claim_output_dir)
 
@@ -504,6 +505,8 @@ def _load(path: str | Path, run: str | None) -> Any:
     m, folder = read_manifest(path)
     if m["kind"] == "study":
         return load_study_output(m, folder)
+    if m["kind"] in DOCUMENT_KINDS:
+        raise LoadError(f"{folder}: kind = {m['kind']!r} is read by aev_ocp.load (aev_ocp.loading), not saved.load")
     runs = m.get("runs") or {}
     label = run if run is not None else m.get("primary")
     if label is None or label not in runs:  # (JSON keys are strings: a None label was never in runs)
