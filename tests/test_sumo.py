@@ -401,6 +401,11 @@ def test_missing_files_named(tmp_path):
 
 
 # ----------------------------------------------------------------------------- from the third reliability probe (test_reprobe3.py)
+def broken_factory(ev: object) -> object:
+    """A user controller factory with a bug of its own (named by the test below as 'test_sumo:broken_factory')."""
+    raise TypeError("expected str, got EVParams")
+
+
 def test_sumo_user_factory_error_names_the_key() -> None:
     pytest.importorskip("libsumo")
     from aev_ocp.sumo import SumoError
