@@ -533,6 +533,7 @@ def test_mpc_export_builds_into_a_relative_out(tmp_path, capsys, monkeypatch):
     assert (tmp_path / "rel_dir" / "libaev_mpc.so").is_file() and "built" in out
 
 
+@pytest.mark.slow  # over 5 s of one core (measured under load, pytest --durations)
 @pytest.mark.skipif(shutil.which("cc") is None and shutil.which("gcc") is None, reason="no C compiler")
 def test_plain_c_step_with_own_states_matches_the_python_controller_in_closed_loop(tmp_path, capsys):
     """aev_mpc_step (no own states given: a_prev taken from the previous plan, node 1) driven in a closed loop on

@@ -193,6 +193,7 @@ label = "m"
 """
 
 
+@pytest.mark.slow  # over 5 s of one core (measured under load, pytest --durations)
 @pytest.mark.parametrize("executor", ["--workers", "--dask-local"])
 def test_study_time_limit_holds_while_one_long_task_computes(tmp_path, executor):
     """--time-limit 8 with one worker (the fast OVFL task done first) busy on an MPC task that runs for minutes (3000 s of model time): the

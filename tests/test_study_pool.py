@@ -142,6 +142,7 @@ def _cmdlines(pids: list[int]) -> list[str]:
     return out
 
 
+@pytest.mark.slow  # over 5 s of one core (measured under load, pytest --durations)
 @pytest.mark.parametrize("moment", ["starting", "computing"])
 def test_ctrl_c_in_a_terminal_stops_a_dask_local_study_and_its_cluster(tmp_path, moment):
     """Ctrl-C in a terminal (SIGINT to the whole foreground process group) while a --dask-local 2 study starts
@@ -268,6 +269,7 @@ def test_ctrl_c_while_the_pool_starts_its_workers_waits_until_all_can_be_stopped
     assert _descendants(os.getpid()) - before == set()
 
 
+@pytest.mark.slow  # over 5 s of one core (measured under load, pytest --durations)
 @pytest.mark.parametrize("executor", ["--workers", "--dask-local"])
 def test_a_killed_study_takes_its_workers_with_it(tmp_path, executor):
     """SIGKILL (the OOM killer, a job scheduler) of a study whose one worker computes an MPC task that runs for

@@ -78,6 +78,7 @@ def _ring_ode(t_end: float):
     )
 
 
+@pytest.mark.slow  # over 5 s of one core (measured under load, pytest --durations)
 @needs_sumo
 def test_ring_converges_to_the_ring_ode_at_first_order():
     """Every car under the same law: SUMO driven by the toolkit vs SciPy's ring ODE; the largest speed difference

@@ -153,6 +153,7 @@ def test_no_import_cycle() -> None:
     assert cycle is None, "import cycle: " + " -> ".join(cycle or [])
 
 
+@pytest.mark.slow  # over 5 s of one core (measured under load, pytest --durations)
 def test_allow_list_is_still_needed() -> None:
     """An allowed edge that no longer exists must leave the list (it only ever shrinks)."""
     graph = package_graph()
