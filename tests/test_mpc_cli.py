@@ -49,6 +49,7 @@ def test_bad_mpc_table_names_the_key(bad, word):
         parse_scenario(_doc(**bad), "x.toml")
 
 
+@pytest.mark.slow  # over 5 s of one core (measured under load, pytest --durations)
 def test_cli_writes_results_and_compares(tmp_path, capsys):
     # --t-end is in seconds: 2 s = 1 model time unit (L/U = 10 m / 5 m/s) = 10 MPC steps of dt = 0.1
     rc = cli_mpc(
@@ -77,6 +78,7 @@ def test_cli_writes_results_and_compares(tmp_path, capsys):
         assert (tmp_path / f).stat().st_size > 0
 
 
+@pytest.mark.slow  # over 5 s of one core (measured under load, pytest --durations)
 def test_cli_scenario_default_rti_path(tmp_path, capsys, monkeypatch, tmp_path_factory):
     monkeypatch.setenv("AEV_OCP_CACHE", str(tmp_path_factory.getbasetemp() / "cache"))
     rc = cli_mpc(
@@ -115,6 +117,7 @@ def test_reproduce_section_is_provided():
     assert [s[0] for s in aev_ocp.mpc.report.REPRODUCE_SECTIONS] == ["mpc"]
 
 
+@pytest.mark.slow  # over 5 s of one core (measured under load, pytest --durations)
 def test_mpc_comparison_reports_its_cost_on_the_exact_model_and_warns_on_a_smoothing_gap() -> None:
     """Issue 13 for the MPC: every run reports its §9 cost twice (smoothed η as the optimiser saw it, and
     exact). Silent on the canonical settings (300 W); a 200 kW smoothing makes the warning fire."""

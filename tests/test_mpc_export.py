@@ -145,6 +145,7 @@ def canonical_lib(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return build_library(out, out / "libaev_mpc.so")
 
 
+@pytest.mark.slow  # over 5 s of one core (measured under load, pytest --durations)
 def test_export_has_no_python_or_casadi_dependency(canonical_lib: Path) -> None:
     """The library links only libc/libm: no libcasadi, no libpython."""
     if sys.platform != "linux" or shutil.which("ldd") is None:
@@ -169,6 +170,7 @@ def test_canonical_closed_loop_matches_python_controller(canonical_lib: Path) ->
     assert np.ptp(rc.accel[:, 0]) > 0.3
 
 
+@pytest.mark.slow  # over 5 s of one core (measured under load, pytest --durations)
 def test_canonical_closed_loop_matches_interpreted_qp_path(canonical_lib: Path) -> None:
     """Independent of the shared generated code: the Python rti path on interpreted CasADi functions (numpy
     shift, separate QP-data function) with the same QP solver through ctypes, to 1e-8; and with another QP
@@ -210,6 +212,7 @@ def _candidate(ev: EVParams, s: MPCSettings, f: Any = F9) -> Any:
     return pb
 
 
+@pytest.mark.slow  # over 5 s of one core (measured under load, pytest --durations)
 def test_soft_constraint_and_extra_state_problem(tmp_path: Path) -> None:
     ev = EVParams()
     # the exact Hessian (CANON) with a concave control term −0.3 a²: the control blocks of the exact Hessian
@@ -294,6 +297,7 @@ def test_cli_errors(capsys: pytest.CaptureFixture[str], tmp_path: Path, monkeypa
     assert rc == 2 and "--out" in one_error(err)
 
 
+@pytest.mark.slow  # over 5 s of one core (measured under load, pytest --durations)
 def test_traffic_formulation_exports_and_matches_the_python_driver(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

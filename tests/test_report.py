@@ -29,6 +29,7 @@ def quick_report(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, str]:
     return out, stream.getvalue()
 
 
+@pytest.mark.slow  # needs the module's reproduce run (quick_report: over a minute of one core)
 def test_reproduce_writes_all_files(quick_report: tuple[Path, str]) -> None:
     out, _ = quick_report
     for name in (
@@ -49,6 +50,7 @@ def test_reproduce_writes_all_files(quick_report: tuple[Path, str]) -> None:
     assert not list(out.glob(".*")), "temporary files left behind"
 
 
+@pytest.mark.slow  # needs the module's reproduce run (quick_report: over a minute of one core)
 def test_table1_json_keys_and_shapes(quick_report: tuple[Path, str]) -> None:
     data = json.loads((quick_report[0] / "table1.json").read_text())
     for key in ("proposed_omega", "ovfl_omega", "percent_change", "paper_proposed_omega", "paper_ovfl_omega"):
@@ -60,6 +62,7 @@ def test_table1_json_keys_and_shapes(quick_report: tuple[Path, str]) -> None:
     assert all(x < 0 for x in data["delta_soc"]["proposed"])  # the platoon drains the pack
 
 
+@pytest.mark.slow  # needs the module's reproduce run (quick_report: over a minute of one core)
 def test_report_text_and_progress(quick_report: tuple[Path, str]) -> None:
     out, log = quick_report
     text = (out / "report.md").read_text()
@@ -101,6 +104,7 @@ def test_failing_provider_adds_no_section() -> None:
     assert log and "skipped" in log[0]
 
 
+@pytest.mark.slow  # needs the module's reproduce run (quick_report: over a minute of one core)
 def test_every_section_run_loads_back_with_the_numbers_of_the_report(quick_report: tuple[Path, str]) -> None:
     """The runs reproduce made are saved outputs: aev_ocp.load reads each folder, and the loaded runs give the
     numbers the report's own files state (issue 26)."""
@@ -140,6 +144,7 @@ def test_every_section_run_loads_back_with_the_numbers_of_the_report(quick_repor
     assert html.count("data:image/png;base64,") == len(shown)
 
 
+@pytest.mark.slow  # needs the module's reproduce run (quick_report: over a minute of one core)
 def test_the_counter_counts_every_line(quick_report: tuple[Path, str]) -> None:
     _, log = quick_report
     heads = [tuple(map(int, ln[1 : ln.index("]")].split("/"))) for ln in log.splitlines() if ln.startswith("[")]
@@ -150,6 +155,7 @@ def test_the_counter_counts_every_line(quick_report: tuple[Path, str]) -> None:
     assert heads[-1][0] == heads[-1][1] and ks.count(heads[-1][1]) == 1  # N/N once, on the final line
 
 
+@pytest.mark.slow  # needs the module's reproduce run (quick_report: over a minute of one core)
 def test_report_html_shows_every_figure_of_the_folder(quick_report: tuple[Path, str]) -> None:
     from aev_ocp.report_html import unshown_figures
 

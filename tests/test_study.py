@@ -131,6 +131,7 @@ def test_points_equal_direct_simulations(tmp_path):
     assert all(x["aev_ocp_version"] and x["casadi_version"] for x in rows)
 
 
+@pytest.mark.slow  # over 5 s of one core (measured under load, pytest --durations)
 def test_executors_identical_and_dask_local_cluster(tmp_path):
     pytest.importorskip("dask.distributed")
     f = _study(tmp_path)
