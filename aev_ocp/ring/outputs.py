@@ -17,7 +17,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from ..results import FieldsRepr, write_json
+from ..results import FieldsRepr, fmt_value, write_json
 from ..saved import LoadError, MANIFEST, read_arrays, read_document, save_output, sim_record, sim_result
 from .experiments import RingExperiment
 from .simulate import RingInitial, RingResult, RingRoad
@@ -76,7 +76,7 @@ class RingOutput(FieldsRepr):
         return (
             f"RingOutput: {self.document.get('experiment')}, {len(self.runs)} runs",
             [
-                (r.label, f"status {r.fleet.get('status')}, speed std {r.fleet.get('speed_std_mps')} m/s")
+                (r.label, f"status {r.fleet.get('status')}, speed std {fmt_value(r.fleet.get('speed_std_mps'))} m/s")
                 for r in self.runs
             ],
         )
