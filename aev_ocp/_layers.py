@@ -162,6 +162,8 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
             "aev_ocp.saved",
             "aev_ocp.study.table",
             "aev_ocp.ring.plots",
+            "aev_ocp.safety.plots",
+            "aev_ocp.sumo.plots",
         ),
     ),
     (
@@ -191,6 +193,9 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
             "aev_ocp.ring_section",
             "aev_ocp.sumo.run",
             "aev_ocp.sumo.output",
+            "aev_ocp.ring.outputs",
+            "aev_ocp.safety.outputs",
+            "aev_ocp.stability.outputs",
             "aev_ocp.robustness",
             "aev_ocp.validation",
         ),
@@ -199,6 +204,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
         "entry points",
         (
             "aev_ocp",
+            "aev_ocp.loading",
             "aev_ocp.console",
             "aev_ocp.reproduce",
             "aev_ocp.cli",
@@ -210,6 +216,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
             "aev_ocp.study.cli",
             "aev_ocp.ring.cli",
             "aev_ocp.sumo.cli",
+            "aev_ocp.tuning",
         ),
     ),
 )

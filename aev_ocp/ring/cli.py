@@ -3,7 +3,8 @@
 The ring experiments (see :mod:`aev_ocp.ring.experiments`): ``sugiyama`` (22 human drivers on 230 m: the jam
 emerges; and on 600 m, where uniform flow is linearly stable: it does not), ``stern`` (the same ring all-human
 and with one AEV under each AEV controller, with a space-time diagram of each run), ``sweep`` (penetration
-0–5 AEVs of 22, spread evenly, × ring lengths; ``--aev`` the controller). Writes ring.json (fleet metrics, SI)
+0–5 AEVs of 22, spread evenly, × ring lengths; ``--aev`` the controller). Writes ring.json (fleet metrics, SI),
+the runs' trajectories with a manifest (``aev_ocp.load(out)`` reads them back, :mod:`aev_ocp.ring.outputs`)
 and the PNGs to ``--out``; prints the fleet table. A ring scenario file (:mod:`aev_ocp.ring.scenario`; shipped:
 ``ring_sugiyama``, ``ring_stern``) runs its own runs (``--t-end-s`` overrides its horizon; ``--seed`` is the file's). Exit codes: 0 ok, 1 a run stopped on an event, 2 bad input.
 """
@@ -106,7 +107,6 @@ def _row(label: str, fleet: dict[str, Any]) -> str:
 
 def cli_ring(argv: list[str]) -> int:
     """Entry point of ``aev-ocp ring``; returns the exit code."""
-    from ..results import write_json
     from .experiments import SUGIYAMA_N
     from .simulate import RingOptions
 
@@ -159,14 +159,15 @@ def cli_ring(argv: list[str]) -> int:
             "ring",
             sc.name if sc is not None else a.experiment,  # before any work
             str(sc.source) if sc is not None and sc.source else None,
-            ["ring.json", "space_time_*.png"],
+            ["ring.json", "manifest.json", "trajectories.npz", "space_time_*.png"],
         )
         clock = Progress("", time_limit_s=time_limit)
         with time_limited(clock):  # the compiled ring polls the clock while it integrates
             runs, doc = _runs(a, sc)
         out.mkdir(parents=True, exist_ok=True)
-        doc["runs"] = [{"label": r.label, **r.fleet} for r in runs]
-        files = [write_json(out / "ring.json", doc)]
+        from .outputs import save_ring_output
+
+        files = save_ring_output(out, runs, doc)  # ring.json, trajectories.npz, manifest.json (aev_ocp.load)
         if not a.no_plots and a.experiment != "sweep" and not (sc is not None and sc.spec.sweep_aevs):
             from .plots import space_time
 

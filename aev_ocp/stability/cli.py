@@ -232,7 +232,7 @@ def build_law(name: str, sets: list[str], key: str = "--law") -> Any:
 
 
 #: Files ``aev-ocp stability`` writes (a foreign folder holding one of them is refused).
-STABILITY_FILES = ("stability.json", "gain.png", "attenuation.png", "stable_region.png")
+STABILITY_FILES = ("stability.json", "manifest.json", "gain.png", "attenuation.png", "stable_region.png")
 
 
 def cli_stability(argv: list[str]) -> int:
@@ -455,6 +455,7 @@ def cli_mixed_ring_stability(
     (spread evenly) driven by ``aev`` and the rest by ``human`` with a reaction delay; the fewest such AEVs that
     stabilise it; writes mixed_ring_stability.json."""
     from ..results import claim_output_dir, write_json
+    from .outputs import save_stability_manifest
     from .mixed import analyse_mixed_ring, even_placement, min_aev_count, si_accel
 
     spacing = _ring_spacing_m(spacing_m, density_per_km, vehicle_length_m)
@@ -464,7 +465,9 @@ def cli_mixed_ring_stability(
         raise ParameterError(f"--aev-count {aev_count}: must be an integer in [0, {n}] (the ring's vehicles)")
     if not (math.isfinite(delay_s) and 0 <= delay_s <= 5.0):
         raise ParameterError(f"--delay-s {delay_s!r}: must be a finite number of seconds in [0, 5]")
-    claim_output_dir(out, "stability --ring --aev", f"{human.name}+{aev.name}", None, ["mixed_ring_stability.json"])
+    claim_output_dir(
+        out, "stability --ring --aev", f"{human.name}+{aev.name}", None, ["mixed_ring_stability.json", "manifest.json"]
+    )
     h_fn, a_fn = si_accel(human, units), si_accel(aev, units)
     idx = set(even_placement(n, aev_count))
     accels = [a_fn if i in idx else h_fn for i in range(n)]
@@ -486,6 +489,7 @@ def cli_mixed_ring_stability(
     )
     out.mkdir(parents=True, exist_ok=True)
     write_json(out / "mixed_ring_stability.json", doc)
+    save_stability_manifest(out, "mixed_ring_stability")  # aev_ocp.load(out) reads it back
     print(
         f"mixed ring of {n}: {aev_count} × {aev.name} among {human.name} (delay {delay_s:g} s), spacing {spacing:.6g} m: "
         f"equilibrium speed {r.v_star_mps:.6g} m/s"
@@ -495,7 +499,7 @@ def cli_mixed_ring_stability(
         f"{r.ring_stable}; fewest evenly spread {aev.name} cars that stabilise it: "
         f"{m if m is not None else f'none of 0 … {n}'}"
     )
-    print(f"wrote 1 file to {out}/")
+    print(f"wrote 2 files to {out}/")
     return EXIT_OK
 
 
@@ -513,12 +517,15 @@ def cli_ring_stability(
     criterion, with the measured growth beside them; writes ring_stability.json."""
     from ..params import EVParams
     from ..results import claim_output_dir, write_json
+    from .outputs import save_stability_manifest
     from .ring import measured_growth, ring_stability
 
     spacing = _ring_spacing_m(spacing_m, density_per_km, vehicle_length_m)
     if not (2 <= n <= 100_000):
         raise ParameterError(f"--ring {n}: must be an integer in [2, 100000]")
-    claim_output_dir(out, "stability --ring", law.name, None, ["ring_stability.json"])  # before any work
+    claim_output_dir(
+        out, "stability --ring", law.name, None, ["ring_stability.json", "manifest.json"]
+    )  # before any work
     ev = EVParams(units=units)
     rs = ring_stability(law, n, n * spacing, vehicle_length_m, ev)
     doc: dict[str, Any] = rs.to_dict()
@@ -528,6 +535,7 @@ def cli_ring_stability(
     doc["measured"] = meas
     out.mkdir(parents=True, exist_ok=True)
     write_json(out / "ring_stability.json", doc)
+    save_stability_manifest(out, "ring_stability")  # aev_ocp.load(out) reads it back
     print(
         f"ring of {n} × {law.name} at spacing {spacing:.6g} m (gap {rs.gap_m:.6g} m, {1000 / spacing:.6g} veh/km): "
         f"uniform speed {rs.v_star_mps:.6g} m/s"
@@ -545,5 +553,5 @@ def cli_ring_stability(
             f"  measured growth {meas['measured_per_s']:.6g} 1/s (predicted {meas['predicted_per_s']:.6g}, relative "
             f"error {meas['relative_error']:.2g}, run {meas['t_end_s']:.4g} s: {meas['status']})"
         )
-    print(f"wrote 1 file to {out}/")
+    print(f"wrote 2 files to {out}/")
     return EXIT_OK

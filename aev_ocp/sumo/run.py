@@ -232,6 +232,24 @@ class SumoRun:
             "controller_s": self.controller_s,
         }
 
+    def plot(self, panel: str | None = None) -> Any:
+        """The space-time diagram (a matplotlib Figure) of one panel: a route's name, or ``"ring"`` on the ring
+        (default the first panel); :func:`aev_ocp.sumo.plots.plot_space_time` draws every panel."""
+        import matplotlib.pyplot as plt
+
+        from .plots import plot_space_time
+
+        figs = plot_space_time(self)
+        if not figs:
+            raise ValueError(f"SumoRun.plot: run {self.name!r} has no vehicle with two samples to draw")
+        key = next(iter(figs)) if panel is None else panel
+        if key not in figs:
+            raise ValueError(f"SumoRun.plot: panel = {panel!r} is not one of {list(figs)}")
+        for k, fig in figs.items():
+            if k != key:
+                plt.close(fig)
+        return figs[key]
+
     def __repr__(self) -> str:
         n_c = sum(self.controlled.values())
         return (
