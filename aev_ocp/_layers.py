@@ -1,4 +1,4 @@
-"""The package's layers: which module may import which (docs/guide/layers.md; kept true by tests/test_layers.py).
+"""The package's layers: which module may import which (docs/guide/layers.md; kept true by tests/contracts/test_layers.py).
 
 A module imports only from its own layer or from layers below it; function-local and ``TYPE_CHECKING``
 imports count, and so does a package ``__init__``'s lazy export table (``_EXPORTS``). Within a layer the

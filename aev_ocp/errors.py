@@ -5,7 +5,7 @@ Each exception class of the package derives from :class:`AevOcpError` and keeps 
 refuses or fails at while ``except ValueError`` callers keep working. Each warning category derives from
 :class:`AevOcpWarning` beside its built-in category. The one exception that is not an ``Exception`` is
 :class:`aev_ocp.interrupts.Interrupted` (a ``KeyboardInterrupt``: Ctrl-C must pass ``except Exception``).
-tests/test_errors.py lists every exception class of the package and checks its base.
+tests/contracts/test_errors.py lists every exception class of the package and checks its base.
 """
 
 from __future__ import annotations

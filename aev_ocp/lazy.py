@@ -9,7 +9,7 @@ to :func:`lazy_exports`::
     __getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)
 
 so ``import aev_ocp.ocp.problem`` loads the problem description and nothing else the package exports. The layer
-test (tests/test_layers.py) reads the same table as import edges, so a lazy name still counts where it points.
+test (tests/contracts/test_layers.py) reads the same table as import edges, so a lazy name still counts where it points.
 A name equal to its module's last part (``"battery": "battery"``) exports the submodule itself, unless the submodule
 defines that name (``"measure": "measure"``: the function), which then stays the package's ``measure`` even after
 the submodule is imported, as an eager ``from .measure import measure`` kept it.
