@@ -121,3 +121,31 @@ def test_scenario_over_seeds_pairs_the_runs() -> None:
         assert math.isfinite(r["battery_energy_kWh_per_100km"])
     rows = seed_table(runs, "all human")
     assert rows[1]["seeds"] == 3 and "speed_std_mps_vs_all human" in rows[1]
+
+
+def test_count_braking_rule_and_sumo_thinning() -> None:
+    """count_braking on 0.1 s steps: a < −1 for 0.4 s (no), 0.6 s (one), then 1.2 s (one); SUMO's per-vehicle record
+    counts on its own steps, so keeping every 7th step of the output changes neither the braking events nor the
+    speed sums behind the speed std."""
+    from aev_ocp.params import EVParams
+    from aev_ocp.ring.field import count_braking
+    from aev_ocp.sumo.run import _result, _Track
+
+    t = np.arange(0.0, 5.0, 0.1)
+    a = np.zeros(t.size)
+    a[5:9] = -1.5  # 0.5 … 0.8 s: held 0.3 s between step ends
+    a[12:19] = -2.0  # 1.2 … 1.8 s: 0.6 s
+    a[25:38] = -1.1  # 2.5 … 3.7 s
+    assert count_braking(t, a) == 2
+    assert count_braking(t, a, hold_s=0.3) == 3 and count_braking(t, a, -1.6) == 1
+    v = 8.0 + np.cumsum(a) * 0.1
+    tr = _Track("v1", "car", "r", False, "", 2.5, 0.0)
+    tr.t_s, tr.v, tr.odo = list(t), list(v), list(np.cumsum(v) * 0.1)
+    tr.gap, tr.v_lead, tr.lane = [20.0] * t.size, list(v), ["e_0"] * t.size
+    tr.x_bat = [np.array([0.0, 0.0, 0.8, 0.0, 0.0, 0.0, 0.0])] * t.size
+    tr.current = [0.0] * t.size
+    ev = EVParams()
+    r1, r7 = _result(tr, ev, 250.0, 0.1, 1), _result(tr, ev, 250.0, 0.1, 7)
+    assert r1.t.size > r7.t.size
+    assert r1.meta["braking_events"] == r7.meta["braking_events"] == count_braking(t[:-1], np.diff(v) / 0.1)
+    assert r1.meta["speed_steps"] == r7.meta["speed_steps"]

@@ -42,6 +42,29 @@ FIELD_METRICS: dict[str, bool] = {
 }
 
 
+BRAKING_MPS2 = -1.0  # a braking event: below this acceleration (aev_ocp.ring.experiments.BRAKING_MPS2) ...
+BRAKING_HOLD_S = 0.5  # ... held at least this long (RingOptions.braking_hold_s)
+
+
+def count_braking(
+    t_s: np.ndarray, a_mps2: np.ndarray, threshold_mps2: float = BRAKING_MPS2, hold_s: float = BRAKING_HOLD_S
+) -> int:
+    """Braking events in one vehicle's accelerations on a simulator's own steps (times t_s [s], a [m/s²]): a run of
+    steps with a < threshold lasting at least hold_s from its first step (the rule ring.c applies on its steps)."""
+    t = np.asarray(t_s, float)
+    on = np.asarray(a_mps2, float) < threshold_mps2
+    count, since, counted = 0, -1.0, False
+    for tk, b in zip(t, on):
+        if not b:
+            since = -1.0
+            continue
+        if since < 0:
+            since, counted = float(tk), False
+        if not counted and tk - since >= hold_s * (1 - 1e-12):
+            count, counted = count + 1, True
+    return count
+
+
 def window_metrics(
     t_s: np.ndarray,
     distance_m: np.ndarray,
