@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Any, Callable, Sequence
+from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
@@ -109,6 +109,9 @@ def field_metrics(res: RingResult, t_from_s: float | None = None) -> dict[str, A
     t = res.t_s
     t0 = 0.5 * float(t[-1]) if t_from_s is None else float(t_from_s)
     sel = np.flatnonzero(t >= t0 - 1e-9)
+    if sel.size < 2 and res.status != "ok":  # the run stopped at an event before the window: no metrics
+        nan = dict.fromkeys(FIELD_METRICS, math.nan)
+        return {"status": res.status, "window_s": [t0, float(t[-1])], "braking_events": 0, **nan}
     if sel.size < 2:
         raise ParameterError(f"field_metrics: t_from_s = {t0:g} s leaves fewer than 2 samples of the run")
     i0 = int(sel[0])
@@ -134,48 +137,71 @@ def field_metrics(res: RingResult, t_from_s: float | None = None) -> dict[str, A
     return out
 
 
+def _ok(r: dict[str, Any]) -> bool:
+    return r.get("status", "ok") == "ok"
+
+
 def seed_table(
-    runs: dict[str, Sequence[dict[str, Any]]],
+    runs: Mapping[str, Sequence[dict[str, Any]]],
     baseline: str | None = None,
     metrics: Sequence[str] = tuple(FIELD_METRICS),
 ) -> list[dict[str, Any]]:
     """One row per run label: for each metric its mean with a 95 % interval over the seeds (the rows of
-    ``runs[label]``, one per seed, in the same seed order for every label) and, for every label but the
-    ``baseline``, the paired difference to the baseline's with its interval and verdict."""
+    ``runs[label]``, one per seed) and, for every label but the ``baseline``, the paired difference to the
+    baseline's with its interval and verdict. Runs that stopped at an event (``status`` not 'ok') are counted
+    ('failed') and left out; the pairs are the seeds both runs completed (by the rows' ``seed``, else by position).
+    A metric with fewer than 2 completed seeds gets None."""
     if baseline is not None and baseline not in runs:
         raise ParameterError(f"seed_table: baseline {baseline!r} is not one of the runs {sorted(runs)}")
+
+    def keyed(rows: Sequence[dict[str, Any]]) -> dict[Any, dict[str, Any]]:
+        return {r.get("seed", j): r for j, r in enumerate(rows) if _ok(r)}
+
+    base = keyed(runs[baseline]) if baseline is not None else {}
     out = []
     for label, rows in runs.items():
+        good = keyed(rows)
         row: dict[str, Any] = {
             "run": label,
             "seeds": len(rows),
-            "failed": sum(1 for r in rows if r.get("status", "ok") != "ok"),  # runs that stopped at an event
+            "failed": len(rows) - len(good),  # runs that stopped at an event
         }
+        common = [k for k in good if k in base]
         for m in metrics:
-            x = [float(r[m]) for r in rows]
-            row[m] = summarize(x).as_dict()
+            x = [float(r[m]) for r in good.values()]
+            row[m] = summarize(x).as_dict() if len(x) >= 2 else None
             if baseline is not None and label != baseline:
-                b = [float(r[m]) for r in runs[baseline]]
-                c = compare(x, b, lower_is_better=FIELD_METRICS.get(m, True))
-                row[f"{m}_vs_{baseline}"] = {"difference": c["difference"], "verdict": c["verdict"]}
+                if len(common) >= 2:
+                    c = compare(
+                        [float(good[k][m]) for k in common],
+                        [float(base[k][m]) for k in common],
+                        lower_is_better=FIELD_METRICS.get(m, True),
+                    )
+                    row[f"{m}_vs_{baseline}"] = {
+                        "difference": c["difference"],
+                        "verdict": c["verdict"],
+                        "pairs": len(common),
+                    }
+                else:
+                    row[f"{m}_vs_{baseline}"] = None
         out.append(row)
     return out
 
 
 def table_markdown(rows: list[dict[str, Any]], metrics: Sequence[str] = tuple(FIELD_METRICS)) -> str:
     """The table as Markdown: mean [lo, hi] per metric, and the verdict against the baseline where there is one."""
-    head = "| run | seeds | " + " | ".join(metrics) + " |"
-    lines = [head, "|" + "---|" * (len(metrics) + 2)]
+    head = "| run | seeds | failed | " + " | ".join(metrics) + " |"
+    lines = [head, "|" + "---|" * (len(metrics) + 3)]
     for r in rows:
         cells = []
         for m in metrics:
             s = r[m]
-            cell = f"{s['mean']:.4g} [{s['lo']:.4g}, {s['hi']:.4g}]"
+            cell = "–" if s is None else f"{s['mean']:.4g} [{s['lo']:.4g}, {s['hi']:.4g}]"
             vs = next((v for k, v in r.items() if k.startswith(f"{m}_vs_")), None)
             if vs is not None:
                 cell += f" {vs['verdict']}"
             cells.append(cell)
-        lines.append(f"| {r['run']} | {r['seeds']} | " + " | ".join(cells) + " |")
+        lines.append(f"| {r['run']} | {r['seeds']} | {r['failed']} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
 
