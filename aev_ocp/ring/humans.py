@@ -288,6 +288,16 @@ CALIBRATED: dict[str, HumanPopulation] = {
         delay_s=0.4,
         name="sugiyama_idm",
     ),
+    # Bando-FTL with Flow's β = 20 m²/s and α, h_st, v_max fitted the same way (46 simulations, 92 s CPU, from Flow's
+    # α = 0.5 1/s, h_st = 3 m, v_max = 12 m/s); no reaction time: with one of 0.3 s its β (v_l − v)/h² term brakes
+    # late and hard and the drivers collided within 20 s. On 230 m one seed of 12 (4–15: seed 13) ends in a collision
+    # (the law asks for more than the car's −8 m/s²); none on rings of 230–350 m, seeds 0–2.
+    "sugiyama_bandoftl": HumanPopulation(
+        "bandoftl",
+        {"alpha_per_s": 0.5255, "beta_m2ps": 20.0, "h_st_m": 3.954, "v_max_mps": 12.67},
+        delay_s=0.0,
+        name="sugiyama_bandoftl",
+    ),
 }
 
 
