@@ -201,7 +201,8 @@ def table_markdown(rows: list[dict[str, Any]], metrics: Sequence[str] = tuple(FI
             if vs is not None:
                 cell += f" {vs['verdict']}"
             cells.append(cell)
-        lines.append(f"| {r['run']} | {r['seeds']} | {r['failed']} | " + " | ".join(cells) + " |")
+        run = f"{r['density_per_km']:.4g}/km, {r['run']}" if "density_per_km" in r else r["run"]
+        lines.append(f"| {run} | {r['seeds']} | {r['failed']} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
 
