@@ -149,3 +149,16 @@ def test_count_braking_rule_and_sumo_thinning() -> None:
     assert r1.t.size > r7.t.size
     assert r1.meta["braking_events"] == r7.meta["braking_events"] == count_braking(t[:-1], np.diff(v) / 0.1)
     assert r1.meta["speed_steps"] == r7.meta["speed_steps"]
+
+
+def test_the_ring_table_carries_the_field_columns() -> None:
+    """aev-ocp ring's fleet table (run_ring_scenario) has the same throughput and braking events per vehicle-km as
+    field_metrics of the same run (the second half of 60 s)."""
+    from aev_ocp.ring.experiments import run_ring_scenario
+    from aev_ocp.ring.scenario import load_ring_scenario
+
+    sc = load_ring_scenario("ring_calibrated")
+    for e in run_ring_scenario(sc, t_end_s=60.0):
+        f = field_metrics(e.result, 30.0)
+        assert e.fleet["throughput_veh_per_h"] == pytest.approx(f["throughput_veh_per_h"], rel=1e-12)
+        assert e.fleet["braking_events_per_veh_km"] == pytest.approx(f["braking_events_per_veh_km"], rel=1e-12)

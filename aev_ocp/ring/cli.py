@@ -32,6 +32,8 @@ COLUMNS = (
     "mean_speed_mps",
     "vehicles_stopped",
     "braking_events",
+    "braking_events_per_veh_km",
+    "throughput_veh_per_h",
     "battery_energy_kWh_per_100km",
     "heat_pack_J_per_km",
     "soc_used_mean",
