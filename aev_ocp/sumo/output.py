@@ -217,7 +217,6 @@ def report_markdown(run: SumoRun, figures: list[Path] | None = None) -> str:
         "charge_throughput_Ah_per_km",
         "omega_mass_kJ_per_km",
         "mean_speed_mps",
-        "throughput_veh_per_h",
         "speed_std_mps",
         "braking_events_per_veh_km",
         "min_gap_m",
@@ -231,6 +230,7 @@ def report_markdown(run: SumoRun, figures: list[Path] | None = None) -> str:
         lines.append(f"| {g} | " + " | ".join(_fmt(ft[g][c]) for c in cols) + " |")
     lines += [
         "",
+        f"Throughput: {_fmt(ft['throughput_veh_per_h'])} veh/h ({ft['throughput_from']}). "
         f"Vehicles that left the network: {ft['left_network']}. Battery energy: ∫P_b dt at the pack terminals "
         f"(powertrain: {run.scenario.ev.vehicle.powertrain}), pack heat and charge throughput from the 2-RC cell on "
         "the realised motion; omega_mass: the paper's measure ω × vehicle mass (inertial, road load excluded), "
