@@ -30,6 +30,8 @@ COLUMNS = (
     "mean_speed_mps",
     "vehicles_stopped",
     "braking_events",
+    "braking_events_per_veh_km",
+    "throughput_veh_per_h",
     "battery_energy_kWh_per_100km",
     "heat_pack_J_per_km",
     "soc_used_mean",
@@ -82,6 +84,14 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="L",
         help="sweep: ring length [m] (repeatable; default 230 260 300)",
     )
+    p.add_argument(
+        "--seeds",
+        type=int,
+        default=None,
+        metavar="N",
+        help="a scenario file: run every run with seeds 0 … N−1 (N >= 2; 10 for the tables) and write the field's "
+        "metrics with 95 %% intervals and verdicts against the all-human ring (ring_seeds.json, ring_seeds.md)",
+    )
     p.add_argument("--no-plots", action="store_true", help="skip the space-time diagrams")
     p.add_argument("--out", default=None, help="output folder (default results/ring/<experiment>)")
     return p
@@ -131,7 +141,11 @@ def cli_ring(argv: list[str]) -> int:
                     "sugiyama, stern and sweep experiments"
                 )
             sc = load_ring_scenario(a.experiment)
+            if a.seeds is not None:
+                return _cli_seeds(a, sc, time_limit)
         else:
+            if a.seeds is not None:
+                raise ParameterError("--seeds applies to a ring scenario file (ring_calibrated, ring_stern, ...)")
             a.t_end_s = 600.0 if a.t_end_s is None else a.t_end_s
             a.seed = 0 if a.seed is None else a.seed
         for opt, given in (
@@ -191,6 +205,39 @@ def cli_ring(argv: list[str]) -> int:
     for r in bad:
         print(f"aev-ocp ring: {r.label}: run stopped ({r.fleet['status']})", file=sys.stderr)
     return EXIT_FAILED_RUN if bad else EXIT_OK
+
+
+def _cli_seeds(a: argparse.Namespace, sc: Any, time_limit: float | None) -> int:
+    """``aev-ocp ring SCENARIO --seeds N``: the field's metrics over seeds (aev_ocp.ring.field)."""
+    from ..results import write_atomic, write_json
+    from .field import scenario_over_seeds, scenario_seed_rows, table_markdown
+
+    if not 2 <= a.seeds <= 1000:
+        raise ParameterError(f"--seeds {a.seeds}: must be an integer in [2, 1000]")
+    t_end = a.t_end_s if a.t_end_s is not None else sc.spec.t_end_s
+    check_ring_size(sc.spec.vehicles, t_end, sc.spec.dt_out_s, ("ring.vehicles", "--t-end-s", "ring.dt_out_s"))
+    out = Path(a.out) if a.out else default_output_dir("ring", sc.name + "_seeds")
+    claim_output_dir(out, "ring", sc.name, str(sc.source) if sc.source else None, ["ring_seeds.json", "ring_seeds.md"])
+    clock = Progress("", time_limit_s=time_limit)
+    try:
+        with time_limited(clock):
+            runs = scenario_over_seeds(sc, range(a.seeds), a.t_end_s)
+    except TimeLimitReached:
+        print(f"aev-ocp ring: stopped by --time-limit {a.time_limit:g} s; nothing written", file=sys.stderr)
+        return EXIT_FAILED_RUN
+    rows = scenario_seed_rows(runs, sc)
+    md = table_markdown(rows)
+    out.mkdir(parents=True, exist_ok=True)
+    write_json(
+        out / "ring_seeds.json", {"scenario": sc.name, "seeds": list(range(a.seeds)), "rows": rows, "runs": runs}
+    )
+    write_atomic(out / "ring_seeds.md", md + "\n")
+    print(md)
+    print(f"wrote 2 files to {out}/")
+    failed = sum(r["failed"] for r in rows)
+    if failed:
+        print(f"aev-ocp ring: {failed} runs stopped at an event (see ring_seeds.json)", file=sys.stderr)
+    return EXIT_FAILED_RUN if failed else EXIT_OK
 
 
 def _runs(a: argparse.Namespace, sc: Any) -> tuple[list[Any], dict[str, Any]]:

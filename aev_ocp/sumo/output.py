@@ -159,6 +159,8 @@ def report_markdown(run: SumoRun, figures: list[Path] | None = None) -> str:
         "charge_throughput_Ah_per_km",
         "omega_mass_kJ_per_km",
         "mean_speed_mps",
+        "speed_std_mps",
+        "braking_events_per_veh_km",
         "min_gap_m",
         "collisions",
         "teleports",
@@ -170,6 +172,7 @@ def report_markdown(run: SumoRun, figures: list[Path] | None = None) -> str:
         lines.append(f"| {g} | " + " | ".join(_fmt(ft[g][c]) for c in cols) + " |")
     lines += [
         "",
+        f"Throughput: {_fmt(ft['throughput_veh_per_h'])} veh/h ({ft['throughput_from']}). "
         f"Vehicles that left the network: {ft['left_network']}. Battery energy: ∫P_b dt at the pack terminals "
         f"(powertrain: {run.scenario.ev.vehicle.powertrain}), pack heat and charge throughput from the 2-RC cell on "
         "the realised motion; omega_mass: the paper's measure ω × vehicle mass (inertial, road load excluded), "
@@ -230,6 +233,9 @@ def sweep_markdown(rows: list[dict[str, Any]], name: str) -> str:
         "heat_pack_J_per_km",
         "charge_throughput_Ah_per_km",
         "mean_speed_mps",
+        "throughput_veh_per_h",
+        "speed_std_mps",
+        "braking_events_per_veh_km",
         "min_gap_m",
         "collisions",
         "teleports",
@@ -266,6 +272,10 @@ def sweep_row(share: float, controller: str, run: SumoRun | None, error: str = "
         "heat_pack_J_per_km": ft["all"]["heat_pack_J_per_km"],
         "charge_throughput_Ah_per_km": ft["all"]["charge_throughput_Ah_per_km"],
         "mean_speed_mps": ft["all"]["mean_speed_mps"],
+        "throughput_veh_per_h": ft["throughput_veh_per_h"],  # ring: density x mean speed; open: leaving per hour
+        "travel_time_per_lap_s": ft["travel_time_per_lap_s"],
+        "speed_std_mps": ft["all"]["speed_std_mps"],  # over every vehicle's SUMO steps
+        "braking_events_per_veh_km": ft["all"]["braking_events_per_veh_km"],  # a < -1 m/s² held >= 0.5 s
         "min_gap_m": ft["all"]["min_gap_m"],
         "collisions": ft["all"]["collisions"],
         "teleports": ft["all"]["teleports"],
