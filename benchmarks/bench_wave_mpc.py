@@ -10,6 +10,7 @@ targets as paired per-seed quantities with their intervals:
 * mean speed of the wave-MPC ring − the FollowerStopper ring's [m/s] (target ≥ 0);
 * fleet battery energy per km of the wave-MPC ring / the all-human ring's (target ≤ 1).
 
+``--safety`` runs the safety suite's following cases (:data:`SAFETY_CASES`) with the wave MPC under the safety layer.
 A target is "met" when its whole interval is on the right side, "met on the mean" when only the mean is. The MPC's
 weights were tuned on seeds 0–2; the default seeds are 10–19 (not seen in tuning). ``--linear`` adds the design
 check of the mixed-ring theory (:mod:`aev_ocp.stability.mixed`): the wave MPC's secant gains at the ring's
@@ -77,7 +78,7 @@ def run_seed(sc: Any, seed: int, controllers: list[str | None], t_end_s: float) 
     return out
 
 
-def interval(x: list[float]) -> dict[str, float]:
+def interval(x: list[float]) -> dict[str, Any]:
     """Mean and 95 % t interval of one value per seed."""
     return summarize(np.asarray(x, float)).as_dict()
 
@@ -126,12 +127,73 @@ def linear_design(sc: Any, wp: WaveParams) -> dict[str, Any]:
     return {"all_human_growth_rate_per_s": human_only, "wave_mpc": tuned, "min_speed_weight": w_min}
 
 
+#: the safety suite's cases that test a following controller (aev_ocp.safety.cases): a lead that brakes while it is
+#: followed (CCRb, Euro NCAP and ours at motorway speed), a slower lead (CCRm) and a standing one (CCRs)
+SAFETY_CASES = (
+    "CCRb_50kmh_12m_-2mps2",
+    "CCRb_50kmh_12m_-6mps2",
+    "CCRb_50kmh_40m_-6mps2",
+    "CCRb_100kmh_40m_-6mps2",
+    "CCRm_50kmh",
+    "CCRs_30kmh",
+)
+
+
+def safety_check(names: tuple[str, ...] = SAFETY_CASES) -> list[dict[str, Any]]:
+    """The wave MPC under the safety layer (as the suite runs 'mpc+layer': min(command, the braking-distance bound),
+    the actuator's worst delay in its reaction time) on suite cases, at the ideal and the declared actuator: status,
+    collision, min gap [m] and the case's avoidability label."""
+    from aev_ocp.control import ClosedLoop
+    from aev_ocp.models.carfollowing import Proposed
+    from aev_ocp.models.leader import BrakingLeader
+    from aev_ocp.mpc.wave import WaveMPC
+    from aev_ocp.params import EVParams
+    from aev_ocp.safety.cases import ACTUATORS, CASE_UNITS, suite_cases
+    from aev_ocp.safety.fallback import SafeFallback
+    from aev_ocp.safety.suite import LayeredController, case_bound, layer_changes
+
+    u = CASE_UNITS
+    cases = {c.name: c for c in suite_cases()}
+    rows = []
+    for name in names:
+        case = cases[name]
+        leader = BrakingLeader.from_si(case.v_lead_mps, case.a_lead_mps2, case.t_brake_s, u)
+        for act_name, act in ACTUATORS.items():
+            ev = EVParams(units=u, limits=act.limits())
+            inner = WaveMPC(ev, Proposed())
+            ctl = LayeredController(inner, SafeFallback.for_vehicle(None, ev, inner.dt, **layer_changes(ev)))
+            t_end = inner.dt * max(1, round(float(u.time_from_si(case.t_end_s)) / inner.dt))
+            r = ClosedLoop(leader, [ctl], ev).run(
+                [float(u.length_from_si(case.gap_m))], [float(u.speed_from_si(case.v_ego_mps))], t_end
+            )
+            gap = u.length_to_si(r.gap[:, 0])
+            bound = case_bound(case, act, ev.limits.a_min_mps2, 2.0)
+            rows.append(
+                {
+                    "case": name,
+                    "actuator": act_name,
+                    "status": r.status,
+                    "collision": any(e.kind == "collision" for e in r.events),
+                    "min_gap_m": float(min(gap)),
+                    "label": bound.label,
+                    "fallbacks": int(sum(st.get("fallbacks", 0) for st in r.solver_stats if st)),
+                }
+            )
+            print(
+                f"  {name:26s} {act_name:9s} {rows[-1]['status']:10s} min gap {rows[-1]['min_gap_m']:.3f} m "
+                f"collision {rows[-1]['collision']}  ({bound.label})",
+                flush=True,
+            )
+    return rows
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--scenario", default=str(Path(__file__).parent.parent / "scenarios" / "ring_wave.toml"))
     ap.add_argument("--seeds", type=int, nargs="+", default=list(range(10, 20)))
     ap.add_argument("--t-end-s", type=float, default=None)
     ap.add_argument("--linear", action="store_true", help="add the mixed-ring linear design check")
+    ap.add_argument("--safety", action="store_true", help="add the safety-suite cases under the safety layer")
     ap.add_argument("--out", default="results/bench_wave_mpc.json")
     a = ap.parse_args(argv)
     sc = load_ring_scenario(a.scenario)
@@ -213,6 +275,9 @@ def main(argv: list[str] | None = None) -> int:
             f"{lin['wave_mpc']['f_v_per_s']:.4g} 1/s, f_dv {lin['wave_mpc']['f_dv_per_s']:.4g} 1/s); smallest stable "
             f"speed weight {lin['min_speed_weight']}"
         )
+    if a.safety:
+        print("\nsafety suite cases, the wave MPC under the safety layer:")
+        doc["safety"] = safety_check()
     out = Path(a.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = out.with_suffix(".json.tmp")
