@@ -193,6 +193,14 @@ class WaveMPC(MPCPolicy):
         return d
 
 
+def sumo_controller(ev: EVParams) -> WaveMPC:
+    """A new wave MPC for one SUMO vehicle (``controller = "aev_ocp.mpc.wave:sumo_controller"`` in ``[sumo]``):
+    the default WaveParams and MPCSettings, the paper's proposed law (Proposed()) as its fallback."""
+    from ..models.carfollowing import Proposed
+
+    return WaveMPC(ev, Proposed())
+
+
 def linear_gains(
     ev: EVParams,
     params: WaveParams | None = None,
@@ -236,4 +244,4 @@ def linear_gains(
     return {"f_h_per_s2": f_h, "f_v_per_s": f_v, "f_dv_per_s": f_dv, "a0_mps2": first(h_m, v_mps, v_mps)}
 
 
-__all__ = ["WAVE_NAME", "SpeedAverage", "WaveMPC", "WaveParams", "linear_gains", "wave_problem"]
+__all__ = ["WAVE_NAME", "SpeedAverage", "WaveMPC", "WaveParams", "linear_gains", "sumo_controller", "wave_problem"]
