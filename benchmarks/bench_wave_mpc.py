@@ -18,7 +18,7 @@ equilibrium (:func:`aev_ocp.mpc.wave.linear_gains`, v_ref held: the 38 s average
 growth rate of the ring with that car, and the smallest speed weight w_v that makes it linearly stable.
 
     python benchmarks/bench_wave_mpc.py [--scenario FILE] [--seeds 10 ... 19] [--t-end-s 600] [--linear]
-                                        [--out results/bench_wave_mpc.json]
+                                        [--safety] [--wave-params JSON] [--out results/bench_wave_mpc.json]
 
 The wall times are those of a shared 2-core machine; the MPC's solve time per step is the median and maximum of its
 calls (wall) and the run's process CPU time per MPC step is printed beside it.
@@ -38,7 +38,7 @@ import casadi as ca
 import numpy as np
 
 from aev_ocp.intervals import summarize
-from aev_ocp.mpc.wave import WaveParams, linear_gains
+from aev_ocp.mpc.wave import WaveMPC, WaveParams, linear_gains
 from aev_ocp.ring.experiments import fleet_metrics
 from aev_ocp.ring.scenario import build_ring, load_ring_scenario
 from aev_ocp.ring.simulate import RingOptions, RingSimulator
@@ -57,12 +57,18 @@ WAVE = "wave-mpc"
 FS = "followerstopper"
 
 
-def run_seed(sc: Any, seed: int, controllers: list[str | None], t_end_s: float) -> dict[str, dict[str, Any]]:
-    """{controller or 'human': fleet metrics (+ CPU time and the MPC's call statistics)} of one seed."""
+def run_seed(
+    sc: Any, seed: int, controllers: list[str | None], t_end_s: float, wp: WaveParams | None = None
+) -> dict[str, dict[str, Any]]:
+    """{controller or 'human': fleet metrics (+ CPU time and the MPC's call statistics)} of one seed; ``wp``: the
+    wave MPC's parameters (default WaveParams())."""
     sc_k = replace(sc, spec=replace(sc.spec, seed=seed))
     out: dict[str, dict[str, Any]] = {}
     for c in controllers:
         ring, init = build_ring(sc_k, c)
+        if c == WAVE and wp is not None:
+            w0 = ring.vehicles[0]
+            ring = replace(ring, vehicles=(WaveMPC(ring.ev, w0.fallback_law, wp, w0.settings), *ring.vehicles[1:]))
         sim = RingSimulator(ring, RingOptions(dt_out_s=0.5))
         c0 = time.process_time()
         res = sim.run(init, t_end_s)
@@ -89,7 +95,7 @@ def linear_design(sc: Any, wp: WaveParams) -> dict[str, Any]:
     ev, u = ring.ev, ring.ev.units
     n, ell, L = ring.n, ring.vehicle_length_m, ring.length_m
     humans = [mixed.si_accel(ring.vehicles[i], u) for i in range(1, n)]
-    delays = [float(getattr(ring.vehicles[i], "delay_s", 0.0)) for i in range(1, n)]
+    delays = [float(ring.delay_s[i]) if getattr(ring, "delay_s", None) else 0.0 for i in range(1, n)]
     dt_s = float(u.time_to_si(ring.vehicles[0].dt))
 
     def equilibrium(w: WaveParams) -> tuple[float, float]:
@@ -139,14 +145,13 @@ SAFETY_CASES = (
 )
 
 
-def safety_check(names: tuple[str, ...] = SAFETY_CASES) -> list[dict[str, Any]]:
+def safety_check(names: tuple[str, ...] = SAFETY_CASES, wp: WaveParams | None = None) -> list[dict[str, Any]]:
     """The wave MPC under the safety layer (as the suite runs 'mpc+layer': min(command, the braking-distance bound),
     the actuator's worst delay in its reaction time) on suite cases, at the ideal and the declared actuator: status,
     collision, min gap [m] and the case's avoidability label."""
     from aev_ocp.control import ClosedLoop
     from aev_ocp.models.carfollowing import Proposed
     from aev_ocp.models.leader import BrakingLeader
-    from aev_ocp.mpc.wave import WaveMPC
     from aev_ocp.params import EVParams
     from aev_ocp.safety.cases import ACTUATORS, CASE_UNITS, suite_cases
     from aev_ocp.safety.fallback import SafeFallback
@@ -160,7 +165,7 @@ def safety_check(names: tuple[str, ...] = SAFETY_CASES) -> list[dict[str, Any]]:
         leader = BrakingLeader.from_si(case.v_lead_mps, case.a_lead_mps2, case.t_brake_s, u)
         for act_name, act in ACTUATORS.items():
             ev = EVParams(units=u, limits=act.limits())
-            inner = WaveMPC(ev, Proposed())
+            inner = WaveMPC(ev, Proposed(), wp)
             ctl = LayeredController(inner, SafeFallback.for_vehicle(None, ev, inner.dt, **layer_changes(ev)))
             t_end = inner.dt * max(1, round(float(u.time_from_si(case.t_end_s)) / inner.dt))
             r = ClosedLoop(leader, [ctl], ev).run(
@@ -193,16 +198,18 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seeds", type=int, nargs="+", default=list(range(10, 20)))
     ap.add_argument("--t-end-s", type=float, default=None)
     ap.add_argument("--linear", action="store_true", help="add the mixed-ring linear design check")
+    ap.add_argument("--wave-params", default="{}", help="WaveParams fields as JSON (default: the defaults)")
     ap.add_argument("--safety", action="store_true", help="add the safety-suite cases under the safety layer")
     ap.add_argument("--out", default="results/bench_wave_mpc.json")
     a = ap.parse_args(argv)
     sc = load_ring_scenario(a.scenario)
+    wp = replace(WaveParams(), **json.loads(a.wave_params))
     t_end = a.t_end_s if a.t_end_s is not None else sc.spec.t_end_s
     ctrls: list[str | None] = [None, FS, WAVE]
     load = os.getloadavg()[0]
     per_seed: dict[int, dict[str, dict[str, Any]]] = {}
     for k in a.seeds:
-        per_seed[k] = run_seed(sc, k, ctrls, t_end)
+        per_seed[k] = run_seed(sc, k, ctrls, t_end, wp)
         w = per_seed[k][WAVE]
         print(
             f"seed {k}: std human {per_seed[k]['human']['speed_std_mps']:.3f}  FS {per_seed[k][FS]['speed_std_mps']:.3f}"
@@ -262,13 +269,13 @@ def main(argv: list[str] | None = None) -> int:
         "seeds": a.seeds,
         "t_end_s": t_end,
         "load_1min_at_start": load,
-        "wave_params": WaveParams().__repr__(),
+        "wave_params": repr(wp),
         "per_seed": {str(k): v for k, v in per_seed.items()},
         "table": table,
         "targets": verdicts,
     }
     if a.linear:
-        doc["linear"] = lin = linear_design(sc, WaveParams())
+        doc["linear"] = lin = linear_design(sc, wp)
         print(
             f"\nlinear theory: all-human growth {lin['all_human_growth_rate_per_s']:.4g} 1/s; with the wave MPC "
             f"{lin['wave_mpc']['growth_rate_per_s']:.4g} 1/s (f_h {lin['wave_mpc']['f_h_per_s2']:.4g} 1/s², f_v "
@@ -277,7 +284,7 @@ def main(argv: list[str] | None = None) -> int:
         )
     if a.safety:
         print("\nsafety suite cases, the wave MPC under the safety layer:")
-        doc["safety"] = safety_check()
+        doc["safety"] = safety_check(wp=wp)
     out = Path(a.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = out.with_suffix(".json.tmp")
