@@ -117,6 +117,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
             "aev_ocp.stability.measure",
             "aev_ocp.ring",
             "aev_ocp.ring.laws",
+            "aev_ocp.ring.humans",
             "aev_ocp.ring.stability",
         ),
     ),
