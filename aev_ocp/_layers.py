@@ -161,6 +161,8 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
             "aev_ocp.saved",
             "aev_ocp.study.table",
             "aev_ocp.ring.plots",
+            "aev_ocp.safety.plots",
+            "aev_ocp.sumo.plots",
         ),
     ),
     (
@@ -189,6 +191,9 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
             "aev_ocp.ring.report",
             "aev_ocp.sumo.run",
             "aev_ocp.sumo.output",
+            "aev_ocp.ring.outputs",
+            "aev_ocp.safety.outputs",
+            "aev_ocp.stability.outputs",
             "aev_ocp.robustness",
             "aev_ocp.validation",
         ),
@@ -197,6 +202,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
         "entry points",
         (
             "aev_ocp",
+            "aev_ocp.loading",
             "aev_ocp.console",
             "aev_ocp.reproduce",
             "aev_ocp.cli",

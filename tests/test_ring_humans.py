@@ -200,24 +200,31 @@ def test_calibration_by_simulation_recovers_known_parameters() -> None:
         calibrate_by_simulation(stats, {"v0_mps": 10.0}, {"T_s": (0.3, 3.0)}, target, dict.fromkeys(target, 1.0))
 
 
-def test_calibrated_sugiyama_ring_matches_its_targets_on_unseen_seeds() -> None:
+@pytest.mark.parametrize(("population", "max_collisions"), [("sugiyama_idm", 0), ("sugiyama_bandoftl", 1)])
+def test_calibrated_sugiyama_ring_matches_its_targets_on_unseen_seeds(population: str, max_collisions: int) -> None:
     """The calibrated all-human Sugiyama ring (seeds 11, 12, 13: not the calibration's 101–103) jams as
     Sugiyama et al. 2008 report: wave ≈ −20 km/h, drivers leaving the jam at ≈ 40 km/h, stopping in it — each
-    mean within the stated tolerance."""
-    rows = []
+    mean over the completed runs within the stated tolerance. The IDM drivers never collide; the Bando-FTL drivers
+    (no reaction time, their braking saturating at the car's −8 m/s²) collide in seed 13 (1 of 12 seeds, 4–15)."""
+    rows, collisions = [], 0
     for seed in (11, 12, 13):
-        ring = calibrated_ring(seed=seed)
+        ring = calibrated_ring(seed=seed, population=population)
         res = RingSimulator(ring, RingOptions(rtol=1e-6, atol=1e-6, dt_out_s=0.1)).run(
             uniform_flow(ring, shift_m=2.0), 600.0
         )
-        assert res.status == "ok"
+        if res.status != "ok":
+            assert res.status == "collision"
+            collisions += 1
+            continue
         rows.append(jam_statistics(res))
+    assert collisions <= max_collisions
     mean = {k: float(np.mean([r[k] for r in rows])) for k in rows[0]}
     ok = within_tolerance(mean, SUGIYAMA_TARGETS)
     assert all(ok.values()), (mean, ok)
 
 
-def test_the_calibrated_scenario_states_the_fit_the_code_uses() -> None:
+@pytest.mark.parametrize("name", ["ring_calibrated", "ring_calibrated_bandoftl"])
+def test_the_calibrated_scenario_states_the_fit_the_code_uses(name: str) -> None:
     """scenarios/ring_calibrated.toml (and its packaged copy): the fitted values are the code's population, the
     residuals are achieved − target, the targets are SUGIYAMA_TARGETS; its rings carry the drivers' reaction
     times; a calibrated population beside human keys or a stray [ring.calibration] is refused naming the key."""
@@ -230,9 +237,9 @@ def test_the_calibrated_scenario_states_the_fit_the_code_uses() -> None:
     from aev_ocp.scenarios import ScenarioError
 
     root = Path(aev_ocp.__file__).parent
-    repo = (root.parent / "scenarios" / "ring_calibrated.toml").read_text()
-    assert (root / "scenario_files" / "ring_calibrated.toml").read_text() == repo
-    sc = load_ring_scenario("ring_calibrated")
+    repo = (root.parent / "scenarios" / f"{name}.toml").read_text()
+    assert (root / "scenario_files" / f"{name}.toml").read_text() == repo
+    sc = load_ring_scenario(name)
     cal = sc.spec.calibration
     pop = calibrated_population(sc.spec.population)
     assert cal["values"] == [pytest.approx(pop.params[k], rel=1e-12) for k in cal["fitted"]]
@@ -243,7 +250,9 @@ def test_the_calibrated_scenario_states_the_fit_the_code_uses() -> None:
     for a, t, tol in zip(cal["validation_achieved"], cal["target"], cal["tolerance"]):
         assert abs(a - t) <= tol
     ring, _ = build_ring(sc, None)
-    assert ring.delay_s is not None and min(ring.delay_s) > 0 and ring.noise_mps2 == pop.noise_mps2
+    assert ring.delay_s is not None
+    assert (min(ring.delay_s) > 0) == (pop.delay_s > 0) and max(ring.delay_s) <= 5.0 * max(pop.delay_s, 1e-9)
+    assert ring.noise_mps2 == pop.noise_mps2
     ring1, _ = build_ring(sc, "followerstopper")
     assert ring1.delay_s[0] == 0.0 and ring1.vehicles[1:] == ring.vehicles[1:]
     doc = tomllib.loads(repo)

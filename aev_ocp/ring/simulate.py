@@ -190,6 +190,11 @@ class RingOptions:
     method: str = "auto"
     local_factor: float = 1.0  # the error norm: max(ring RMS, largest vehicle RMS / local_factor); see ring.c
     threads: int = 1  # OpenMP threads over the vehicles (rings of >= 256 vehicles); 1 on a shared machine
+    #: a braking event: the acceleration below braking_mps2 held at least braking_hold_s, counted on the
+    #: integrator's own steps (independent of dt_out_s); the count from braking_from_s on (None: the second half)
+    braking_mps2: float = -1.0  # aev_ocp.ring.experiments.BRAKING_MPS2
+    braking_hold_s: float = 0.5  # our choice: a press, not a blip of noise
+    braking_from_s: float | None = None
 
     def __post_init__(self) -> None:
         if not (isinstance(self.threads, int) and not isinstance(self.threads, bool) and 1 <= self.threads <= 256):
@@ -200,6 +205,26 @@ class RingOptions:
             x = getattr(self, name)
             if not (isinstance(x, (int, float)) and math.isfinite(x) and x > 0):
                 raise ParameterError(f"RingOptions.{name} = {x!r} is not allowed: must be a finite number > 0")
+        if not (
+            isinstance(self.braking_mps2, (int, float)) and math.isfinite(self.braking_mps2) and self.braking_mps2 < 0
+        ):
+            raise ParameterError(
+                f"RingOptions.braking_mps2 = {self.braking_mps2!r} is not allowed: must be a number < 0"
+            )
+        if not (
+            isinstance(self.braking_hold_s, (int, float))
+            and math.isfinite(self.braking_hold_s)
+            and self.braking_hold_s >= 0
+        ):
+            raise ParameterError(
+                f"RingOptions.braking_hold_s = {self.braking_hold_s!r} is not allowed: must be a number >= 0"
+            )
+        if self.braking_from_s is not None and not (
+            isinstance(self.braking_from_s, (int, float))
+            and math.isfinite(self.braking_from_s)
+            and self.braking_from_s >= 0
+        ):
+            raise ParameterError(f"RingOptions.braking_from_s = {self.braking_from_s!r} is not allowed: must be >= 0")
         if self.method not in RING_METHODS:
             raise ParameterError(f"RingOptions.method = {self.method!r} is not allowed: must be one of {RING_METHODS}")
 
@@ -553,6 +578,8 @@ class RingSimulator:
         self.method = "compiled" if self._lib is not None else "cvodes"
         self._cvodes: dict[float, Any] = {}
         self._direct = False  # whether the next compiled advance is called directly (see _advance_compiled)
+        self._brake = np.zeros((self.n, 4))  # the braking counters of a run (ring.c; set by run)
+        self._brake_args: tuple[float, float, float] = (-1.0, 0.0, 0.0)  # threshold, hold, from (model units)
 
     @staticmethod
     def _delay_functions(laws: dict[int, CarFollowingLaw]) -> list[tuple[np.ndarray, Any, np.ndarray]]:
@@ -702,6 +729,10 @@ class RingSimulator:
                 dp,
                 lp,
                 ctypes.c_int,
+                dp,
+                ctypes.c_double,
+                ctypes.c_double,
+                ctypes.c_double,
             ]
             fn.restype = ctypes.c_int64
             _BUILT[source] = lib
@@ -739,6 +770,8 @@ class RingSimulator:
             ev,
             stats,
             self.opts.threads,
+            self._brake,
+            *self._brake_args,
         )
         # in a helper thread, so that Ctrl-C, SIGTERM and --time-limit stop it within a step (aevring_cancel); an
         # advance after one that took less than DIRECT_CALL_S is called directly (a thread costs ~1 ms a call, twice
@@ -809,11 +842,27 @@ class RingSimulator:
                 y = self._outputs(z, noise)
                 out[m] = np.hstack([z, y])
                 m += 1
-            bad = self._check(z, self._outputs(z, noise))
+            y = self._outputs(z, noise)
+            self._count_braking(b, y[:, 0])
+            bad = self._check(z, y)
             if bad is not None:
                 ev[:] = [bad[0], bad[1], b, bad[2]]
                 break
         return m, ev
+
+    def _count_braking(self, te: float, a: np.ndarray) -> None:
+        """The braking counters at time te (model) with the accelerations a (model): as ring.c does per step (the
+        CVODES path counts at the ends of its integration intervals)."""
+        lim, hold, start = self._brake_args
+        b = self._brake
+        on = a < lim
+        b[~on, 0] = -1.0
+        new = on & (b[:, 0] < 0)
+        b[new, 0], b[new, 1] = te, 0.0
+        done = on & (b[:, 1] == 0) & (te - b[:, 0] >= hold * (1 - 1e-12))
+        b[done, 1] = 1.0
+        b[done, 2] += 1.0
+        b[done & (b[:, 0] >= start), 3] += 1.0
 
     def _check(self, z: np.ndarray, y: np.ndarray) -> tuple[int, int, float] | None:
         """(code, vehicle, value) of the first rule of EVENT_RULES violated at a sample, else None."""
@@ -883,6 +932,11 @@ class RingSimulator:
         noise = np.zeros(n)
         out[0] = np.hstack([z, self._outputs(z, noise)])
         h_io, stats = np.zeros(1), np.zeros(3, np.int64)
+        o = self.opts
+        b_from = 0.5 * t_end_s if o.braking_from_s is None else o.braking_from_s
+        self._brake = np.zeros((n, 4))
+        self._brake[:, 0] = -1.0
+        self._brake_args = (float(u.accel_from_si(o.braking_mps2)), o.braking_hold_s / T, b_from / T)
         ctrl = {i: self.vehicles[i] for i in self.sampled}
         for c in ctrl.values():
             c.reset()
@@ -1055,6 +1109,10 @@ class RingSimulator:
                 "rejected": int(stats[1]),
                 "rhs_evaluations": int(stats[2]),
                 "method": self.method,
+                # braking events per vehicle (RingOptions.braking_*), counted on the integrator's steps
+                "braking_events": self._brake[:, 2].astype(int).tolist(),
+                "braking_events_window": self._brake[:, 3].astype(int).tolist(),
+                "braking_from_s": self._brake_args[2] * self.ev.units.time_s,
             },
         )
 
