@@ -129,6 +129,7 @@ def test_v_ref_is_the_mean_of_the_own_measured_speeds():
         WaveMPC(EV, Proposed(), settings=S, predictor="oracle")
 
 
+@pytest.mark.slow  # 240 s of closed loop: 10-15 s wall under load (about 4 s of one core)
 def test_behind_a_constant_speed_leader_it_converges_to_its_speed_and_centring_gap():
     wp = WaveParams()
     vl = 8.0
