@@ -107,6 +107,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
             "aev_ocp.mpc.fallback",
             "aev_ocp.mpc.solution",
             "aev_ocp.mpc.cstep",
+            "aev_ocp.mpc.wave",
             "aev_ocp.safety",
             "aev_ocp.safety.fallback",
             "aev_ocp.stability",
