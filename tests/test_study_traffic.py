@@ -10,7 +10,8 @@ import pytest
 
 from aev_ocp.params import ParameterError
 from aev_ocp.study.runner import Store, execute
-from aev_ocp.study.traffic import ring_tasks, run_traffic_study, sumo_tasks, traffic_table
+from aev_ocp.study.traffic import ring_tasks, sumo_tasks, traffic_table
+from aev_ocp.study.traffic_study import run_traffic_study
 
 
 def _metrics(results):

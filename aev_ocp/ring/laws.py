@@ -249,7 +249,7 @@ class PISaturation:
 
 
 #: AEV controllers by name (:func:`make_aev`)
-AEV_CONTROLLERS = ("followerstopper", "pi-saturation", "proposed", "ovfl", "mpc")
+AEV_CONTROLLERS = ("followerstopper", "pi-saturation", "proposed", "ovfl", "mpc", "wave-mpc")
 #: predictors a ring MPC may use: forecasts from its own measurements of the predecessor (a ring has no
 #: prescribed leader, so no 'oracle'; 'cooperative' would need the predecessor's plan)
 RING_PREDICTORS = ("decaying-acceleration", "constant-velocity", "constant-acceleration")
@@ -298,12 +298,18 @@ def _law(name: str, ev: EVParams, cf: CarFollowingParams | None) -> CarFollowing
 def make_aev(name: str, ev: EVParams, r_mps: float, mpc: Any = None, cf: CarFollowingParams | None = None) -> Any:
     """An AEV controller by name: 'followerstopper' (desired speed r_mps), 'pi-saturation', 'proposed' (the
     paper's law), 'ovfl', 'mpc' (:func:`ring_mpc`; ``mpc`` an optional (settings, formulation) pair, default
-    MPCSettings() and the traffic formulation), or any registered law name. Laws take their coefficients and
+    MPCSettings() and the traffic formulation), 'wave-mpc' (:class:`aev_ocp.mpc.wave.WaveMPC`, the wave-damping
+    MPC; the pair's settings if given, its own formulation), or any registered law name. Laws take their coefficients and
     scales from ``cf`` (default CarFollowingParams()) and run in ``ev``'s units with the same SI behaviour."""
     key = name.lower()
     if key == "mpc":
         s, f = mpc if mpc is not None else (None, None)
         return ring_mpc(ev, s, None, f, cf)
+    if key == "wave-mpc":  # the wave-damping MPC (aev_ocp.mpc.wave); [mpc]'s solver settings when given
+        from ..mpc.wave import WaveMPC
+
+        s, _ = mpc if mpc is not None else (None, None)
+        return WaveMPC(ev, _law("proposed", ev, cf), settings=s)
     if key == "followerstopper":
         return FollowerStopper.from_si(ev.units, r_mps)
     if key == "pi-saturation":

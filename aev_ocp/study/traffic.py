@@ -28,7 +28,7 @@ from typing import Any, Sequence
 
 from .._version import __version__
 from ..params import ParameterError
-from ..results import to_jsonable, write_atomic, write_json
+from ..results import to_jsonable
 from .model import Task
 from .tasks import canonical_json
 
@@ -202,39 +202,3 @@ def traffic_table(tasks: list[Task], results: dict[str, dict[str, Any]]) -> list
             row[where[0]] = where[1]
         rows += part
     return rows
-
-
-def run_traffic_study(
-    tasks: list[Task],
-    out: str | Path,
-    *,
-    executor: str = "pool",
-    workers: int | None = None,
-    scheduler: str | None = None,
-    name: str = "traffic",
-    time_limit_s: float | None = None,
-    progress_stream: Any = None,
-) -> tuple[dict[str, dict[str, Any]], list[dict[str, Any]]]:
-    """Run the tasks through the study's executors into the store under ``out`` (resuming), table them, and write
-    ``traffic.json`` and ``traffic.md`` there. Returns ({hash: result}, table rows)."""
-    from ..ring.field import FIELD_METRICS, table_markdown
-    from .runner import Store, execute
-
-    outp = Path(out)
-    store = Store(outp)
-    results = execute(
-        tasks,
-        store,
-        executor=executor,
-        workers=workers,
-        scheduler=scheduler,
-        name=name,
-        time_limit_s=time_limit_s,
-        progress_stream=progress_stream,
-    )
-    rows = traffic_table(tasks, results)
-    outp.mkdir(parents=True, exist_ok=True)
-    write_json(outp / "traffic.json", {"study": name, "tasks": len(tasks), "rows": rows})
-    metrics = [m for m in FIELD_METRICS if rows and m in rows[0]]
-    write_atomic(outp / "traffic.md", (table_markdown(rows, metrics) if rows else "(no rows)") + "\n")
-    return results, rows
