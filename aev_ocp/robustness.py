@@ -2,11 +2,17 @@
 (model ≠ plant, noisy, quantised, late measurements, the estimator in the loop), and the report section of
 ``aev-ocp reproduce`` that shows it (benchmarks/bench_estimation.py runs the same with more options).
 
+The seeded comparison (issue 33.5, 35.5: :func:`robustness_study`, :func:`run_seeded`, ``python -m
+aev_ocp.robustness``) runs the real condition over many seeds and both powertrains through the study layer (its
+process pool, resumable), and reports each controller's mean and 95 % interval and the paired difference MPC − law
+with a better/worse/tie verdict (:mod:`aev_ocp.study.seeds`); the reproduce section runs it on fewer seeds.
+
 ideal: the plant's exact parameters and states (laws continuous: today's comparison). real: seeded uniform
 ±``mass`` on the mass and ±``resistance`` on drag, rolling resistance and the cell's R0, R1, R2 in each controller's
 model; :class:`~aev_ocp.estimation.sensors.Sensors` defaults (production sensors) with every delay ``delay_s``;
 V1, V2, SOC not measured: the estimator starts ``soc_error`` below the true SOC; the laws run sampled at the MPC's
-step on the same measurements.
+step on the same measurements, their commands conditioned by the loop core as a production ACC's
+(:data:`aev_ocp.loop.PRODUCTION_ACC`: 0.5 s filter, 5 m/s³ jerk limit; the MPC unconditioned).
 """
 
 from __future__ import annotations
