@@ -207,6 +207,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
             "aev_ocp.study.cli",
             "aev_ocp.ring.cli",
             "aev_ocp.sumo.cli",
+            "aev_ocp.tuning",
         ),
     ),
 )
