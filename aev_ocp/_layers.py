@@ -163,6 +163,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
             "aev_ocp.report_html",
             "aev_ocp.saved",
             "aev_ocp.study.table",
+            "aev_ocp.study.seeds",
             "aev_ocp.ring.plots",
             "aev_ocp.safety.plots",
             "aev_ocp.sumo.plots",

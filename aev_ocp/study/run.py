@@ -57,7 +57,7 @@ def run_study(
 
 
 #: Files of a study folder that a foreign folder must not already hold (besides figures).
-STUDY_FILES = ("table.csv", "table.jsonl", "report.md", "manifest.json")
+STUDY_FILES = ("table.csv", "table.jsonl", "report.md", "manifest.json", "seeds.json")
 
 
 def _run_study(
@@ -86,6 +86,11 @@ def _run_study(
     )
     rows = build_rows(study, results)
     files = list(write_table(rows, folder, study.axis_keys))
+    from .seeds import study_seeds, write_seeds
+
+    seeds = study_seeds(study, rows)  # a seed axis: the metrics over the seeds with intervals (issue 33.5)
+    if seeds is not None:
+        files.append(write_seeds(folder, seeds))
     if report:
         from .report import write_report
 
