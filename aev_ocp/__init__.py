@@ -11,10 +11,8 @@ importing them is lazy, so ``import aev_ocp`` stays cheap.
 
 from __future__ import annotations
 
-import importlib
-from typing import Any
-
 from ._version import __version__
+from .lazy import lazy_exports
 
 _EXPORTS = {
     # parameters and models
@@ -27,6 +25,8 @@ _EXPORTS = {
     "PowertrainOptions": "params",
     "SimOptions": "params",
     "ParameterError": "params",
+    "AevOcpError": "errors",
+    "AevOcpWarning": "errors",
     "OVM": "models",
     "OVFL": "models",
     "Proposed": "models",
@@ -76,12 +76,4 @@ _EXPORTS = {
 }
 __all__ = ["__version__", *_EXPORTS]
 
-
-def __getattr__(name: str) -> Any:
-    if name in _EXPORTS:
-        return getattr(importlib.import_module(f".{_EXPORTS[name]}", __name__), name)
-    raise AttributeError(f"module 'aev_ocp' has no attribute {name!r}")
-
-
-def __dir__() -> list[str]:
-    return sorted(__all__)
+__getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)

@@ -1,4 +1,4 @@
-"""The package's layers: which module may import which (docs/guide/layers.md; kept true by tests/test_layers.py).
+"""The package's layers: which module may import which (docs/guide/layers.md; kept true by tests/contracts/test_layers.py).
 
 A module imports only from its own layer or from layers below it; function-local and ``TYPE_CHECKING``
 imports count, and so does a package ``__init__``'s lazy export table (``_EXPORTS``). Within a layer the
@@ -17,6 +17,8 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
         (
             "aev_ocp._layers",
             "aev_ocp._version",
+            "aev_ocp.lazy",
+            "aev_ocp.errors",
             "aev_ocp.params",
             "aev_ocp.numerics",
             "aev_ocp.compiled",
@@ -41,9 +43,9 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
             "aev_ocp.models.vehicle",
             "aev_ocp.models.thermal",
             "aev_ocp.reference",
-            "aev_ocp.safety.kinematics",
-            "aev_ocp.safety.bound",
-            "aev_ocp.sumo.energy",
+            "aev_ocp.models.braking",
+            "aev_ocp.models.safety_bound",
+            "aev_ocp.models.battery_step",
         ),
     ),
     (
@@ -54,7 +56,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
             "aev_ocp.calibration",
             "aev_ocp.metrics",
             "aev_ocp.truncation",
-            "aev_ocp.ocp.result",
+            "aev_ocp.ocp_result",
             "aev_ocp.life",
         ),
     ),
@@ -109,7 +111,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
             "aev_ocp.mpc.cstep",
             "aev_ocp.mpc.wave",
             "aev_ocp.safety",
-            "aev_ocp.safety.fallback",
+            "aev_ocp.mpc.safe_fallback",
             "aev_ocp.stability",
             "aev_ocp.stability.linear",
             "aev_ocp.stability.mixed",
@@ -118,7 +120,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
             "aev_ocp.ring",
             "aev_ocp.ring.laws",
             "aev_ocp.ring.humans",
-            "aev_ocp.ring.stability",
+            "aev_ocp.stability.ring",
         ),
     ),
     (
@@ -127,6 +129,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
             "aev_ocp.scenarios",
             "aev_ocp.scenarios.tables",
             "aev_ocp.scenarios.sections",
+            "aev_ocp.scenarios.providers",
             "aev_ocp.scenarios.size",
             "aev_ocp.scenarios.vehicle",
             "aev_ocp.scenarios.leader",
@@ -153,7 +156,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
         "outputs",
         (
             "aev_ocp.plots",
-            "aev_ocp.ocp_plots",
+            "aev_ocp.ocp.plots",
             "aev_ocp.mpc.plots",
             "aev_ocp.stability.plots",
             "aev_ocp.report",
@@ -185,6 +188,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
             "aev_ocp.safety.section",
             "aev_ocp.life_section",
             "aev_ocp.study",
+            "aev_ocp.study.run",
             "aev_ocp.ring.field",
             "aev_ocp.study.traffic",
             "aev_ocp.study.runner",
@@ -192,7 +196,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
             "aev_ocp.study.cluster",
             "aev_ocp.study.report",
             "aev_ocp.ring.experiments",
-            "aev_ocp.ring.report",
+            "aev_ocp.ring_section",
             "aev_ocp.sumo.run",
             "aev_ocp.sumo.output",
             "aev_ocp.ring.outputs",

@@ -19,7 +19,7 @@ def load(path: str | Path, run: str | None = None) -> Any:
     """Load what a command saved: ``path`` is its output folder (or the folder's manifest.json).
 
     Returns, by the manifest's kind: simulate, mpc → :class:`~aev_ocp.results.SimulationResult`; ocp →
-    :class:`~aev_ocp.ocp.result.OCPResult`; study → :class:`~aev_ocp.saved.StudyOutput`; ring →
+    :class:`~aev_ocp.ocp_result.OCPResult`; study → :class:`~aev_ocp.saved.StudyOutput`; ring →
     :class:`~aev_ocp.ring.outputs.RingOutput` (``run=`` a run's label: its RingResult); safety →
     :class:`~aev_ocp.safety.suite.SuiteOutput`; stability, ring_stability, mixed_ring_stability →
     :class:`~aev_ocp.stability.outputs.StabilityOutput`; sumo → :class:`~aev_ocp.sumo.run.SumoRun` (``run=`` a

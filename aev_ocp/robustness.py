@@ -503,7 +503,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     return 0
 
 
-REPRODUCE_SECTIONS = [("robustness", robustness_section, 2)]  # listed in aev_ocp.report_sections.SECTION_PROVIDERS
+REPRODUCE_SECTIONS = [("robustness", robustness_section, 2)]  # listed in aev_ocp.reproduce.SECTION_PROVIDERS
 
 
 if __name__ == "__main__":

@@ -34,6 +34,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
+from .errors import AevOcpError
 from .limits import FileRefused, memory_limit_bytes, read_regular_file
 from .params import (
     UNLIMITED,
@@ -79,7 +80,7 @@ OCP_SCALARS = ("objective", "objective_exact", "max_violation", "wall_time_s", "
 OUTPUT_FILES = (MANIFEST, ARRAYS)  # what :func:`save_output` writes (for claim_output_dir)
 
 
-class LoadError(ValueError):
+class LoadError(AevOcpError, ValueError):
     """A path is not a loadable aev_ocp output (or a newer format); the message says which and why."""
 
 
@@ -160,7 +161,7 @@ def save_output(
     arrays: more arrays for ``trajectories.npz`` ({key: array}, keys not starting with a run label + '/')."""
     if kind not in KINDS:
         raise ValueError(f"save_output: kind {kind!r} is not one of {KINDS}")
-    from .ocp.result import OCPResult
+    from .ocp_result import OCPResult
 
     out = Path(out)
     arrays = dict(arrays or {})
@@ -392,7 +393,7 @@ def _check_sim_arrays(label: str, arrays: dict[str, np.ndarray]) -> None:
 
 
 def _ocp_result(label: str, rec: dict[str, Any], arrays: dict[str, np.ndarray]) -> Any:
-    from .ocp.result import OCPResult
+    from .ocp_result import OCPResult
 
     group = {g: {n: arrays[f"{label}/{g}/{n}"] for n in rec[g]} for g in ("states", "controls", "outputs")}
     scal = {n: float(arrays[f"{label}/{n}"]) for n in OCP_SCALARS}
@@ -489,7 +490,7 @@ def load(path: str | Path, run: str | None = None) -> Any:
     """Load what a command saved: ``path`` is its output folder (or the folder's manifest.json).
 
     Returns the run's result object: a :class:`~aev_ocp.results.SimulationResult` (``simulate``,
-    ``mpc``), an :class:`~aev_ocp.ocp.result.OCPResult` (``ocp``) or a
+    ``mpc``), an :class:`~aev_ocp.ocp_result.OCPResult` (``ocp``) or a
     :class:`~aev_ocp.study.StudyOutput` (``study``: the table rows). ``run`` picks one labelled run of
     the folder (``"mpc"``, ``"proposed"``, ``"ocp-d"``, ``"heat"`` …); default the command's main run
     (simulate: the first law; mpc: the MPC; ocp: the main solve). The object's

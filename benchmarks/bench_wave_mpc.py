@@ -154,7 +154,7 @@ def safety_check(names: tuple[str, ...] = SAFETY_CASES, wp: WaveParams | None = 
     from aev_ocp.models.leader import BrakingLeader
     from aev_ocp.params import EVParams
     from aev_ocp.safety.cases import ACTUATORS, CASE_UNITS, suite_cases
-    from aev_ocp.safety.fallback import SafeFallback
+    from aev_ocp.mpc.safe_fallback import SafeFallback
     from aev_ocp.safety.suite import LayeredController, case_bound, layer_changes
 
     u = CASE_UNITS

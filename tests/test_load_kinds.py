@@ -94,7 +94,7 @@ def test_ring_stability_round_trips(tmp_path: Path, capsys: pytest.CaptureFixtur
     """``--ring 12`` and ``--ring 12 --aev``: the loaded eigenvalues equal a direct analysis."""
     from aev_ocp.models import make_law
     from aev_ocp.params import EVParams
-    from aev_ocp.ring.stability import ring_stability
+    from aev_ocp.stability.ring import ring_stability
 
     a, b = tmp_path / "ring", tmp_path / "mixed"
     assert (

@@ -140,7 +140,7 @@ def test_study_name_must_not_lead_outside_results(tmp_path, capsys, monkeypatch,
         (
             ["stability", "--law", "ovm", "--ring", "22", "--density-per-km", "47"],
             "ring_stability.json",
-            "aev_ocp.ring.stability.ring_stability",
+            "aev_ocp.stability.ring.ring_stability",
         ),
     ],
 )

@@ -422,3 +422,16 @@ def test_scenario_units_overflow_is_bad_input_naming_the_key(tmp_path: Path, cap
     assert rc == 2 and "units.speed_mps" in one_error(err) and "internal error" not in err
     f.write_text(SCENARIO.format(L=12.5, U=7.25))  # everyday units still load, with the closed-form time unit
     assert load_scenario(f).units.time_s == 12.5 / 7.25
+
+
+def test_trace_look_ahead_is_the_mpc_default_horizon() -> None:
+    """The scenario loader knows MPCSettings' default N and dt without importing the MPC; they must agree, and a
+    trace leader's read covers 2 (t_end + N dt) at those defaults (t_end = 3.7, units 1: 2 · (3.7 + 2.5) s)."""
+    from aev_ocp.mpc.settings import MPCSettings
+    from aev_ocp.params import Units
+    from aev_ocp.scenarios.leader import MPC_DEFAULT_DT, MPC_DEFAULT_N, trace_read_s
+
+    assert (MPC_DEFAULT_N, MPC_DEFAULT_DT) == (MPCSettings().N, MPCSettings().dt)
+    units = Units(length_m=1.0, speed_mps=1.0)
+    assert trace_read_s({}, 3.7, units) == pytest.approx(2 * (3.7 + 2.5), rel=1e-15)
+    assert trace_read_s({"mpc": {"N": 40, "dt": 0.2}}, 3.7, units) == pytest.approx(2 * (3.7 + 8.0), rel=1e-15)

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from aev_ocp.params import ParameterError
-from aev_ocp.ring.stability import mode_eigenvalues
+from aev_ocp.stability.ring import mode_eigenvalues
 from aev_ocp.stability import mixed as M
 
 RING_M, N, CAR_M, VMAX = 230.0, 22, 4.7, 33.0

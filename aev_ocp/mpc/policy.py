@@ -4,7 +4,7 @@ At every step the policy forecasts its predecessor (a :class:`LeaderPredictor`, 
 published plan for 'cooperative'), solves its :class:`MPCController` and returns the first control.
 A failed solve applies the fallback: the smaller of the fallback law (the proposed law with the scenario's
 α, β, κ at the measured predecessor speed v_l(t_k), clipped to the a bounds) and the safe controller of
-:mod:`aev_ocp.safety.fallback` (never accelerates into a gap it could not stop in), counted as a fallback with
+:mod:`aev_ocp.mpc.safe_fallback` (never accelerates into a gap it could not stop in), counted as a fallback with
 its cause. With the traffic formulation every successful command passes the same safe bound (a safety filter). :class:`MPCSettings` and :class:`MPCVehicle` are accepted by
 :class:`aev_ocp.control.ClosedLoop` directly (registered adapters).
 """
@@ -26,7 +26,7 @@ from ..ocp.formulation import Formulation
 from ..ocp.problem import OCPProblem, ProblemBuilder
 from ..params import EVParams, ParameterError, as_dict
 from ..results import SimulationResult
-from ..safety.fallback import SafeFallback
+from .safe_fallback import SafeFallback
 from .controller import MPCController, resolve_formulation
 from .predictors import LeaderPredictor, Measurements, forecast_intervals, make_predictor, plan_forecast
 from .settings import MPCSettings
@@ -149,7 +149,7 @@ class MPCPolicy:
 
 def fallback_controller(law: CarFollowingLaw, dt: float, formulation: Formulation, ev: EVParams) -> SafeFallback:
     """The policy's fallback (the one place it is built): min(``law`` on the measurements sampled every dt [model
-    time] and clipped to the formulation's a bounds, the safe controller of :mod:`aev_ocp.safety.fallback`)."""
+    time] and clipped to the formulation's a bounds, the safe controller of :mod:`aev_ocp.mpc.safe_fallback`)."""
     return SafeFallback.for_mpc(law, formulation, dt, ev)
 
 

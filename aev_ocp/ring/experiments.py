@@ -5,7 +5,7 @@ Human drivers: the IDM with Treiber et al. 2000's city parameters (:data:`aev_oc
 drivers do, small against the IDM's 1 m/s²). Why the IDM and not the paper's OVM: with the paper's V(h) and
 α = 2 the OVM is string stable at every gap (2 V'(h) ≤ 2 = α), so no ring of it jams; the IDM at the Sugiyama
 density (22 vehicles on 230 m, gap 5.45 m, uniform speed 3.45 m/s) is linearly unstable (growth 0.023 1/s, the
-k = 1 mode, :func:`aev_ocp.ring.stability.ring_stability`), and at 600 m (36.7 veh/km) stable (−0.020 1/s).
+k = 1 mode, :func:`aev_ocp.stability.ring.ring_stability`), and at 600 m (36.7 veh/km) stable (−0.020 1/s).
 
 Fleet metrics over a window (default the second half of the run, after the wave has formed): speed standard
 deviation over all vehicles and samples, vehicles that stopped (speed < 0.1 m/s at some sample), braking events

@@ -17,7 +17,7 @@ import numpy as np  # noqa: E402
 from ..report import csv_text, markdown_table, write_text  # noqa: E402
 from ..results import save_figure_atomic, write_json  # noqa: E402
 from .cases import FAMILIES  # noqa: E402
-from .kinematics import AVOIDABLE, COLLISION_AVOIDABLE_ONLY, LABELS, UNAVOIDABLE  # noqa: E402
+from ..models.braking import AVOIDABLE, COLLISION_AVOIDABLE_ONLY, LABELS, UNAVOIDABLE  # noqa: E402
 from .plots import family_figure  # noqa: E402
 from .suite import CaseRow, SuiteOutput  # noqa: E402
 

@@ -30,6 +30,7 @@ from collections import OrderedDict
 from pathlib import Path
 from typing import Any, Callable, Iterable, Iterator
 
+from ..errors import AevOcpError
 from .. import interrupts
 from ..progress import Progress, TimeLimitReached
 from ..truncation import cumulative_profile
@@ -243,7 +244,7 @@ MAX_ENTRY_BYTES = 50_000_000  # a stored task result is a few kB (metrics + prof
 
 
 # ----------------------------------------------------------------------------- time limit
-class TimeLimitStop(RuntimeError):
+class TimeLimitStop(AevOcpError, RuntimeError):
     """The study's time limit passed: finished tasks are stored, the rest did not run."""
 
 

@@ -43,7 +43,7 @@ from ..plant import CURRENT_LIMIT, current_limit_events
 from ..params import EVParams, VehicleLimits
 from ..results import Event, SimulationResult
 from . import SumoError, require_sumo, sumo_binary
-from . import energy
+from ..models import battery_step as energy
 from .networks import build_merge, build_ring, first_error
 from .scenario import SumoScenario, _few
 

@@ -259,7 +259,7 @@ def test_plot_and_file_writers_use_unique_temp_names_and_plain_modes(tmp_path: P
     import matplotlib.pyplot as plt
 
     from aev_ocp.mpc.plots import save_figure as mpc_save  # both modules write through aev_ocp.plots.save_figure
-    from aev_ocp.ocp_plots import save_figure as ocp_save
+    from aev_ocp.ocp.plots import save_figure as ocp_save
 
     for fixed in (".mpc_trajectories.tmp.png", ".ocp.tmp.png"):  # the old fixed temp names, taken by others
         (tmp_path / fixed).mkdir()
