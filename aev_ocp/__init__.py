@@ -4,17 +4,15 @@ Layers: ``params`` (parameter sets with units and sources), ``models`` (physics 
 (the exact platoon model and its event rules), ``control`` (the Controller protocol and the closed
 loop), ``simulate`` (closed-form-law platoons), ``ocp`` (problem description, transcription, OCP-A…D),
 ``mpc`` (the receding-horizon controller built from the same problem), ``scenarios`` (TOML files),
-``report``/``cli`` (figures, tables, command line), ``saved`` (``load(folder)``: every command's output
-folder back as its result object). The names most users need are exported here;
+``report``/``cli`` (figures, tables, command line), ``saved`` and ``loading`` (``load(folder)``: every
+command's output folder back as its result object). The names most users need are exported here;
 importing them is lazy, so ``import aev_ocp`` stays cheap.
 """
 
 from __future__ import annotations
 
-import importlib
-from typing import Any
-
 from ._version import __version__
+from .lazy import lazy_exports
 
 _EXPORTS = {
     # parameters and models
@@ -27,6 +25,8 @@ _EXPORTS = {
     "PowertrainOptions": "params",
     "SimOptions": "params",
     "ParameterError": "params",
+    "AevOcpError": "errors",
+    "AevOcpWarning": "errors",
     "OVM": "models",
     "OVFL": "models",
     "Proposed": "models",
@@ -70,18 +70,10 @@ _EXPORTS = {
     "plot_trajectories": "plots",
     "plot_space_time": "plots",
     # saved outputs (every command's folder loads back)
-    "load": "saved",
+    "load": "loading",
     "load_all": "saved",
     "LoadError": "saved",
 }
 __all__ = ["__version__", *_EXPORTS]
 
-
-def __getattr__(name: str) -> Any:
-    if name in _EXPORTS:
-        return getattr(importlib.import_module(f".{_EXPORTS[name]}", __name__), name)
-    raise AttributeError(f"module 'aev_ocp' has no attribute {name!r}")
-
-
-def __dir__() -> list[str]:
-    return sorted(__all__)
+__getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)

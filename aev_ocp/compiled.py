@@ -34,6 +34,8 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
+from .errors import AevOcpWarning
+
 FLAGS = ("-O2", "-fPIC", "-shared", "-fno-math-errno")
 SIDECAR_SUFFIX = ".sha256"
 
@@ -43,7 +45,7 @@ def announce(message: str) -> None:
     print(f"aev_ocp: {message}", file=sys.stderr, flush=True)
 
 
-class CompileWarning(RuntimeWarning):
+class CompileWarning(AevOcpWarning, RuntimeWarning):
     """A cached library was damaged and rebuilt, or a build failed (the caller falls back)."""
 
 

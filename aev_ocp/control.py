@@ -23,6 +23,7 @@ from typing import Any, Callable, Sequence, cast
 
 import numpy as np
 
+from .errors import AevOcpError
 from .estimation.base import Estimate, Estimator
 from .estimation.kalman import EKF
 from .estimation.mhe import MHE
@@ -598,7 +599,7 @@ class ClosedLoop(PlatoonRun):
         return out
 
 
-class EstimateNotFinite(Exception):
+class EstimateNotFinite(AevOcpError):
     """An estimator returned a NaN or infinite state (the loop stops with an 'estimation_failed' event)."""
 
 

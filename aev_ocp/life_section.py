@@ -327,6 +327,4 @@ def _reproduce_section(out_dir: Any, progress: Callable[[str], None]) -> str:
     return life_section(out_dir, progress, segment_s=20.0, years=1.0, cycles=("us06",))
 
 
-REPRODUCE_SECTIONS = [
-    ("battery-life", _reproduce_section, STEPS)
-]  # listed in aev_ocp.report_sections.SECTION_PROVIDERS
+REPRODUCE_SECTIONS = [("battery-life", _reproduce_section, STEPS)]  # listed in aev_ocp.reproduce.SECTION_PROVIDERS

@@ -21,6 +21,7 @@ import os
 import stat
 from typing import Callable, Sequence
 
+from .errors import AevOcpError
 from .params import ParameterError, SimOptions
 
 # Peak memory of a simulation per (sample x follower): 255 B measured with the cascade on the Table 1
@@ -313,7 +314,7 @@ def check_local_workers(n: int | None, key: str = "--workers") -> int | None:
 
 
 # ----------------------------------------------------------------------------- reading a file of a bounded size
-class FileRefused(Exception):
+class FileRefused(AevOcpError):
     """A file :func:`read_regular_file` did not read; the message says why in a few words, for the caller to put
     after its own name of the file ("cannot read the scenario file (it is a folder)")."""
 

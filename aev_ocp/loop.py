@@ -12,7 +12,7 @@ controller's answer to a :class:`VehicleStep`, which applies, in this order:
    (u_k − a_{k−1})``, then a jerk limit ``|a_k − a_{k−1}| ≤ j_max dt`` (a_{k−1}: the command the vehicle
    applied at the previous instant, 0 before the first: the vehicle cruises before t = 0);
 3. **the safety layer**: ``min(a, safe)``, ``safe`` the braking-distance bound of
-   :func:`aev_ocp.safety.bound.safe_acceleration_mps2` at the controller's own view (gap, speed, predecessor speed
+   :func:`aev_ocp.models.safety_bound.safe_acceleration_mps2` at the controller's own view (gap, speed, predecessor speed
    and its measured acceleration), so no stage after it can undo it;
 4. **the actuator limits**: saturation to the vehicle's [a_min, a_max] (:class:`aev_ocp.params.VehicleLimits`;
    the plants saturate again inside their right-hand sides, which changes nothing: the same min/max);
@@ -39,7 +39,7 @@ import numpy as np
 from .estimation.base import Estimate
 from .estimation.sensors import Measurement
 from .params import ParameterError, Units, VehicleLimits, as_dict, spec, validate_fields
-from .safety.bound import SafetyParams, safe_acceleration_mps2
+from .models.safety_bound import SafetyParams, safe_acceleration_mps2
 
 
 class History:

@@ -25,7 +25,7 @@ from .params import VehicleParams
 from .models.thermal import temperature_metrics
 
 #: A :class:`aev_ocp.results.SimulationResult`. Not imported: ``SimulationResult.metrics()`` imports this module,
-#: and the layer table allows no cycle (tests/test_layers.py); the functions read its attributes only.
+#: and the layer table allows no cycle (tests/contracts/test_layers.py); the functions read its attributes only.
 SimulationResult = Any
 
 MPC_GAP_MIN = 0.2  # model guide §9: h ≥ 0.2 (2 m)

@@ -39,6 +39,7 @@ import math
 import tomllib
 from typing import Any, Iterable, Mapping
 
+from .errors import AevOcpError
 from .params import echo
 
 #: SI twins of the model-unit keys: {table: {model key: (SI key, dimension)}}. A file, a study or a
@@ -94,7 +95,7 @@ def _exclusive_groups(table: str) -> tuple[tuple[str, ...], ...]:
     return EXCLUSIVE.get(table, ()) + twins
 
 
-class OverrideError(ValueError):
+class OverrideError(AevOcpError, ValueError):
     """An override is malformed (syntax, path) or would be ignored by the scenario.
 
     A subclass of ValueError; the scenario loader's ScenarioError is raised for invalid values."""

@@ -14,8 +14,10 @@ import math
 from dataclasses import MISSING, dataclass, field, fields
 from typing import Any, Sequence
 
+from .errors import AevOcpError
 
-class ParameterError(ValueError):
+
+class ParameterError(AevOcpError, ValueError):
     """A parameter is out of its allowed range; the message names the field and the value."""
 
 

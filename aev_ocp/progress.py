@@ -17,13 +17,14 @@ import threading
 import time
 from typing import Any, Callable, Iterator
 
+from .errors import AevOcpError
 from . import interrupts
 from .params import ParameterError
 
 TIME_LIMIT = "time_limit"  # the status/event kind of a run stopped by its time limit
 
 
-class TimeLimitReached(Exception):
+class TimeLimitReached(AevOcpError):
     """The wall-clock time limit of a run has passed (raised by :meth:`Progress.update`/:meth:`Progress.check`)."""
 
     kind = TIME_LIMIT

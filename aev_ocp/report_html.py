@@ -14,10 +14,11 @@ import os
 import re
 from pathlib import Path
 
+from .errors import AevOcpError
 from .results import write_atomic
 
 
-class ReportHTMLError(RuntimeError):
+class ReportHTMLError(AevOcpError, RuntimeError):
     """The report refers to a figure that does not exist (the message names it)."""
 
 

@@ -8,8 +8,9 @@ read the run's :class:`ReproduceConfig` from ``ctx.config`` and add a row to the
 ``ctx.record_claim(...)``. A section reaches nothing else of the run: no module-level state.
 
 Modules add sections with :func:`register_section`, either directly or by defining
-``REPRODUCE_SECTIONS = [(name, fn, steps), ...]`` in a provider module listed in :data:`SECTION_PROVIDERS`
-(imported by :func:`load_providers`).
+``REPRODUCE_SECTIONS = [(name, fn, steps), ...]`` in a provider module listed in
+:data:`aev_ocp.reproduce.SECTION_PROVIDERS` (imported by :func:`load_providers`; the list stands in
+``reproduce``, above every provider, since each provider imports this module).
 """
 
 from __future__ import annotations
@@ -19,23 +20,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Sequence
 
+from .errors import AevOcpError
 from .report import markdown_table
 from .report_html import heading_anchor
 
 ProgressFn = Callable[[str], None]
-
-#: Modules whose ``REPRODUCE_SECTIONS`` are added after the built-in sections, in this order.
-SECTION_PROVIDERS: tuple[str, ...] = (
-    "aev_ocp.claims",
-    "aev_ocp.ocp.report_section",
-    "aev_ocp.mpc.report",
-    "aev_ocp.mpc.cycles_section",
-    "aev_ocp.stability.report",
-    "aev_ocp.safety.section",
-    "aev_ocp.ring.report",
-    "aev_ocp.life_section",
-    "aev_ocp.robustness",
-)
 
 
 @dataclass(frozen=True)
@@ -142,7 +131,7 @@ def registered_sections() -> list[Section]:
     return list(_REGISTRY.values())
 
 
-class ReportSectionError(RuntimeError):
+class ReportSectionError(AevOcpError, RuntimeError):
     """A report section (or its provider module) failed; the message names it and the cause."""
 
 
@@ -151,7 +140,7 @@ def cause(exc: BaseException) -> str:
     return " ".join(f"{type(exc).__name__}: {exc}".split())
 
 
-def load_providers(providers: Sequence[str] = SECTION_PROVIDERS, log: ProgressFn | None = None) -> list[str]:
+def load_providers(providers: Sequence[str], log: ProgressFn | None = None) -> list[str]:
     """Import provider modules and register their ``REPRODUCE_SECTIONS``; returns the ones that loaded.
 
     A provider module that does not exist is skipped (logged); one that exists but fails to import

@@ -26,7 +26,6 @@ from ._version import __version__
 from .paper_sections import PaperRun
 from .params import VehicleLimits
 from .report import write_text
-from .report_sections import SECTION_PROVIDERS as SECTION_PROVIDERS  # re-exported: the public names of sections
 from .report_sections import SectionFn as SectionFn
 from .report_sections import register_section as register_section
 from .report_sections import (
@@ -42,6 +41,20 @@ from .report_sections import (
 )
 
 _LIM = VehicleLimits()  # the default limits the report names
+
+#: Modules whose ``REPRODUCE_SECTIONS`` are added after the built-in sections, in this order
+#: (here, above them all: each provider imports :mod:`aev_ocp.report_sections`).
+SECTION_PROVIDERS: tuple[str, ...] = (
+    "aev_ocp.claims",
+    "aev_ocp.ocp.report_section",
+    "aev_ocp.mpc.report",
+    "aev_ocp.mpc.cycles_section",
+    "aev_ocp.stability.report",
+    "aev_ocp.safety.section",
+    "aev_ocp.ring_section",
+    "aev_ocp.life_section",
+    "aev_ocp.robustness",
+)
 
 
 class Progress:
@@ -123,7 +136,7 @@ def reproduce(
     sections = run.sections()
     n_builtin = len(sections)  # PaperRun's sections share its state: they run together, in order
     if registered:
-        load_providers(log=log)
+        load_providers(SECTION_PROVIDERS, log=log)
         sections += list(_REGISTRY.values())
     progress = Progress(sum(s.steps for s in sections) + 2, stream)  # + writing the report, + the final line
     parts = [

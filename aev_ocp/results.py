@@ -19,6 +19,7 @@ from typing import Any, ClassVar, Iterator
 
 import numpy as np
 
+from .errors import AevOcpError
 from . import interrupts
 from .limits import _os_reason, read_input_file
 from .params import EVParams, Units, as_dict, echo
@@ -145,7 +146,7 @@ _SAFE_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._+-]{0,99}")
 MARKER = "aev-ocp-run.json"  # which command and scenario wrote this folder
 
 
-class OutputError(ValueError):
+class OutputError(AevOcpError, ValueError):
     """An output folder cannot be used (it holds another run's files); the message says which and why."""
 
 

@@ -28,7 +28,7 @@ from aev_ocp.ocp.current_profile import CurrentProfileSolver
 from aev_ocp.ocp.eco_trip import EcoTrip, EcoTripSolver
 from aev_ocp.ocp.oracle import OracleSolver, canonical_scenario
 from aev_ocp.ocp.prop31 import SOC0, T_F_S, V_RELAX
-from aev_ocp.ocp.result import write_json_atomic
+from aev_ocp.ocp_result import write_json_atomic
 from aev_ocp.ocp.transcription import OCPSolver, TranscriptionOptions
 from aev_ocp.params import CellParams
 

@@ -42,7 +42,7 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-FAST_FILES = ("tests/test_independent.py", "tests/test_models.py")
+FAST_FILES = ("tests/contracts/test_independent.py", "tests/test_models.py")
 PYTEST = (sys.executable, "-m", "pytest", "-x", "-q", "-p", "no:cacheprovider")
 
 
@@ -327,7 +327,7 @@ MUTATIONS: tuple[Mutation, ...] = (
     Mutation(
         "M38",
         "safe fallback: the lead's measured acceleration enters with the wrong sign",
-        "aev_ocp/safety/bound.py",
+        "aev_ocp/models/safety_bound.py",
         "b_l = max(p.lead_brake_mps2, -a_lead_mps2)",
         "b_l = max(p.lead_brake_mps2, a_lead_mps2)",
         "sign",
@@ -336,7 +336,7 @@ MUTATIONS: tuple[Mutation, ...] = (
     Mutation(
         "M39",
         "safe fallback: the stopping point's mid-step peak left out (end-of-step check)",
-        "aev_ocp/safety/bound.py",
+        "aev_ocp/models/safety_bound.py",
         "            cands.append(t_star)",
         "            cands.append(0.0)",
         "missing term",
@@ -345,7 +345,7 @@ MUTATIONS: tuple[Mutation, ...] = (
     Mutation(
         "M40",
         "safe fallback: the lag's worst delay without a_max",
-        "aev_ocp/safety/bound.py",
+        "aev_ocp/models/safety_bound.py",
         "p.lag_s * (p.a_max_mps2 + p.ego_brake_mps2) / p.ego_brake_mps2",
         "p.lag_s * p.ego_brake_mps2 / p.ego_brake_mps2",
         "missing term",
@@ -498,7 +498,7 @@ MUTATIONS: tuple[Mutation, ...] = (
     Mutation(
         "M57",
         "ring stability: wave speed with the phase's sign flipped",
-        "aev_ocp/ring/stability.py",
+        "aev_ocp/stability/ring.py",
         "float(u.speed_to_si(v)) + s * best_lam.imag / theta",
         "float(u.speed_to_si(v)) - s * best_lam.imag / theta",
         "sign",
@@ -507,7 +507,7 @@ MUTATIONS: tuple[Mutation, ...] = (
     Mutation(
         "M58",
         "ring stability: wave speed without the flow's speed v*",
-        "aev_ocp/ring/stability.py",
+        "aev_ocp/stability/ring.py",
         "float(u.speed_to_si(v)) + s * best_lam.imag / theta",
         "s * best_lam.imag / theta",
         "missing term",

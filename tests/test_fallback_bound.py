@@ -1,4 +1,4 @@
-"""The safe fallback's bound (aev_ocp/safety/fallback.py) against its closed form: the largest acceleration that
+"""The safe fallback's bound (aev_ocp/mpc/safe_fallback.py) against its closed form: the largest acceleration that
 keeps the ego's stopping point s_min behind the lead's over the whole step, with the lead braking at the larger of
 the assumed and the measured deceleration; every limit (a_max, a_min, the assumed lead braking) on, inside and
 outside it; the bound tightest mid-step; the lag's reaction time; the measured deceleration from an Observation.
@@ -18,7 +18,7 @@ import pytest
 from aev_ocp.control import Observation
 from aev_ocp.params import EVParams, ParameterError
 from aev_ocp.safety import SafeFallback, SafetyParams, safe_acceleration_mps2
-from aev_ocp.safety.fallback import effective_reaction_s
+from aev_ocp.mpc.safe_fallback import effective_reaction_s
 
 B_EGO, B_LEAD, S_MIN, T_R, A_MAX, A_MIN = 7.3, 6.1, 2.7, 0.37, 2.9, -7.3
 P = SafetyParams(

@@ -12,11 +12,11 @@ import numpy as np
 import pytest
 
 import aev_ocp.mpc.plots as mpc_plots
-import aev_ocp.ocp_plots as ocp_plots
+import aev_ocp.ocp.plots as ocp_plots
 import aev_ocp.plots as plots
 from aev_ocp.models.carfollowing import OVFL, Proposed
 from aev_ocp.models.leader import ConstantSpeed, PaperLeader
-from aev_ocp.ocp.result import OCPResult
+from aev_ocp.ocp_result import OCPResult
 from aev_ocp.params import CellParams, EVParams, Units
 from aev_ocp.simulate import simulate_platoon
 

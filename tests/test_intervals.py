@@ -91,3 +91,56 @@ def test_compare_row_and_bad_input() -> None:
         difference([1.0, 2.0, 3.0], [1.0, 2.0])
     with pytest.raises(ParameterError, match="method"):
         summarize([1.0, 2.0], method="jackknife")  # type: ignore[arg-type]
+
+
+_values = st.lists(st.floats(-50.0, 50.0, allow_nan=False), min_size=2, max_size=25)
+
+
+@settings(max_examples=60, deadline=None)
+@given(x=_values)
+def test_t_interval_on_random_data_against_scipy(x: list[float]) -> None:
+    spread = max(x) - min(x)
+    if spread < 1e-6 * (1.0 + max(abs(v) for v in x)):  # (nearly) constant data: scipy's interval degenerates
+        return
+    iv = summarize(x)
+    lo, hi = stats.t.interval(0.95, len(x) - 1, loc=float(np.mean(x)), scale=stats.sem(x))
+    assert (iv.lo, iv.hi) == pytest.approx((lo, hi), rel=1e-8, abs=1e-9 * spread)
+    assert iv.n == len(x)
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    pairs=st.lists(
+        st.tuples(st.floats(-50.0, 50.0, allow_nan=False), st.floats(-50.0, 50.0, allow_nan=False)),
+        min_size=2,
+        max_size=25,
+    ),
+    level=st.sampled_from([0.9, 0.95, 0.99]),
+)
+def test_paired_difference_on_random_data_against_scipy(pairs: list[tuple[float, float]], level: float) -> None:
+    a = np.array([p[0] for p in pairs])
+    b = np.array([p[1] for p in pairs])
+    d = a - b
+    if np.ptp(d) < 1e-6 * (1.0 + np.abs(d).max()):  # constant differences: a zero-width interval, scipy gives nan
+        return
+    ours = difference(a, b, paired=True, level=level)
+    ci = stats.ttest_rel(a, b).confidence_interval(level)
+    assert ours.mean == pytest.approx(float(np.mean(d)), rel=1e-12, abs=1e-12)
+    assert (ours.lo, ours.hi) == pytest.approx((ci.low, ci.high), rel=1e-8, abs=1e-9 * float(np.ptp(d)))
+    # the verdict follows the interval: 'tie' exactly when scipy's interval holds 0 (ends included)
+    expected = "tie" if ci.low <= 0.0 <= ci.high else ("better" if ci.high < 0.0 else "worse")
+    if min(abs(ci.low), abs(ci.high)) > 1e-9 * (1.0 + abs(ci.low) + abs(ci.high)):  # not on the boundary
+        assert verdict(ours) == expected
+
+
+def test_verdict_exactly_at_zero_and_for_larger_is_better() -> None:
+    # the paired differences [-1, 1, ..., ] give an interval whose end is exactly 0 only by construction: build it
+    touching_low = Interval(0.25, 0.0, 0.5, 10, 0.95, "t")  # lo == 0.0: zero is in the interval
+    touching_high = Interval(-0.25, -0.5, 0.0, 10, 0.95, "t")
+    assert verdict(touching_low) == verdict(touching_high) == "tie"
+    assert verdict(touching_low, lower_is_better=False) == "tie"
+    just_above = Interval(0.25, 5e-324, 0.5, 10, 0.95, "t")  # the smallest positive float: zero excluded
+    just_below = Interval(-0.25, -0.5, -5e-324, 10, 0.95, "t")
+    assert verdict(just_above) == "worse" and verdict(just_below) == "better"
+    assert verdict(just_above, lower_is_better=False) == "better"
+    assert verdict(just_below, lower_is_better=False) == "worse"

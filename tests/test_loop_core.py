@@ -29,7 +29,7 @@ from aev_ocp.loop import (
 from aev_ocp.models.carfollowing import OVM, Proposed
 from aev_ocp.models.leader import ConstantSpeed
 from aev_ocp.params import CellParams, EVParams, ParameterError, Units, VehicleLimits
-from aev_ocp.safety.bound import SafetyParams, effective_reaction_s, safe_acceleration_mps2
+from aev_ocp.models.safety_bound import SafetyParams, effective_reaction_s, safe_acceleration_mps2
 from aev_ocp.sumo import sumo_available
 
 needs_sumo = pytest.mark.skipif(not sumo_available(), reason="SUMO is not installed (pip install 'aev_ocp[sumo]')")

@@ -184,7 +184,7 @@ def test_forced_infeasible_step_triggers_counted_fallback():
         1 for k in range(10) if steps["status"][k] not in ("Solve_Succeeded", "Solved_To_Acceptable_Level")
     )
     # the applied control on the first (failed) step is the proposed law at the measured state, clipped, limited by
-    # the safe controller (aev_ocp.safety.fallback): 3 m behind at 9.35 m/s it brakes fully
+    # the safe controller (aev_ocp.mpc.safe_fallback): 3 m behind at 9.35 m/s it brakes fully
     from aev_ocp.safety import SafetyParams, safe_acceleration_mps2
 
     law = Proposed()

@@ -23,7 +23,7 @@ from matplotlib.figure import Figure
 from aev_ocp import plots, provenance
 from aev_ocp.models.carfollowing import OVFL, Proposed
 from aev_ocp.models.leader import ConstantSpeed
-from aev_ocp.ocp.result import OCPResult
+from aev_ocp.ocp_result import OCPResult
 from aev_ocp.params import EVParams, Units
 from aev_ocp.results import fmt_value, summary_html
 from aev_ocp.saved import StudyOutput

@@ -21,7 +21,7 @@ from aev_ocp.ocp.current_profile import CurrentProfileSolver
 from aev_ocp.ocp.eco_trip import GUESSES, EcoTrip, EcoTripSolver, bang_cruise_bang
 from aev_ocp.ocp.oracle import OracleScenario, OracleSolver
 from aev_ocp.ocp.formulation import s9_formulation
-from aev_ocp.ocp.result import OCPResult
+from aev_ocp.ocp_result import OCPResult
 from aev_ocp.params import CellParams, ParameterError, PowertrainOptions
 
 CELL = CellParams()

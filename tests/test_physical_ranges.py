@@ -66,7 +66,7 @@ def test_ocv_falling() -> None:
 def test_ring_stability_vehicle_length() -> None:
     from aev_ocp.cli import main
     from aev_ocp.models.carfollowing import OVM
-    from aev_ocp.ring.stability import ring_stability
+    from aev_ocp.stability.ring import ring_stability
 
     with pytest.raises(ParameterError, match="vehicle_length_m = -1.0 is not allowed"):
         ring_stability(OVM(), 22, 220.0, -1.0)

@@ -31,7 +31,7 @@ def _boom(out_dir, progress):
 
 
 def test_a_section_that_raises_fails_reproduce_and_writes_no_report(tmp_path, clean_registry, monkeypatch) -> None:
-    monkeypatch.setattr(rp, "load_providers", lambda log=None: [])  # only the two sections below
+    monkeypatch.setattr(rp, "load_providers", lambda providers, log=None: [])  # only the two sections below
     rp.register_section("ok-first", lambda d, p: "## fine\n")
     rp.register_section("broken", _boom)
     with pytest.raises(rp.ReportSectionError) as info:

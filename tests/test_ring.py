@@ -27,7 +27,7 @@ from aev_ocp.ring.simulate import (
     uniform_flow,
     uniform_speed_mps,
 )
-from aev_ocp.ring.stability import measured_growth, ring_jacobian, ring_stability
+from aev_ocp.stability.ring import measured_growth, ring_jacobian, ring_stability
 
 EV = EVParams()
 
@@ -579,10 +579,11 @@ def test_cli_ring_scenario(tmp_path):
 def test_ring_report_section(tmp_path):
     import json
 
-    from aev_ocp.report_sections import SECTION_PROVIDERS, ReproduceConfig, SectionContext, load_providers
-    from aev_ocp.ring.report import QUICK_T_END_S, ring_section
+    from aev_ocp.report_sections import ReproduceConfig, SectionContext, load_providers
+    from aev_ocp.reproduce import SECTION_PROVIDERS
+    from aev_ocp.ring_section import QUICK_T_END_S, ring_section
 
-    assert "aev_ocp.ring.report" in SECTION_PROVIDERS and "aev_ocp.ring.report" in load_providers()
+    assert "aev_ocp.ring_section" in SECTION_PROVIDERS and "aev_ocp.ring_section" in load_providers(SECTION_PROVIDERS)
     lines: list[str] = []
     md = ring_section(tmp_path, SectionContext(lines.append, ReproduceConfig.quick()))
     assert len(lines) == 3 and "### Sugiyama" in md and "### Stern" in md and "ring_space_time.png" in md

@@ -1,4 +1,4 @@
-"""The ring's linear analysis (aev_ocp/ring/stability.py) reports the most unstable mode's wavelength and wave
+"""The ring's linear analysis (aev_ocp/stability/ring.py) reports the most unstable mode's wavelength and wave
 speed: checked against the linearised ring itself, not the mode formula. The full Jacobian of the whole ring
 (CasADi, :func:`ring_jacobian`, no Fourier analysis) is exponentiated (SciPy ``expm``) from that mode's real
 pattern; the crest of the gap pattern is followed in road coordinates (vehicle i at −i s + v* t, its pattern
@@ -16,7 +16,7 @@ from scipy.linalg import expm
 from aev_ocp.models.carfollowing import OVM
 from aev_ocp.params import EVParams, VehicleLimits
 from aev_ocp.ring.laws import idm_si
-from aev_ocp.ring.stability import ring_jacobian, ring_stability
+from aev_ocp.stability.ring import ring_jacobian, ring_stability
 
 EV = EVParams()
 CASES = [

@@ -27,7 +27,7 @@ from aev_ocp.safety import (
     safe_acceleration_mps2,
 )
 from aev_ocp.safety.cases import CASE_UNITS, SafetyCase, suite_cases
-from aev_ocp.safety.fallback import effective_reaction_s
+from aev_ocp.mpc.safe_fallback import effective_reaction_s
 
 
 # ----------------------------------------------------------------------------- the bound
@@ -225,7 +225,7 @@ def _stopping_point_peak_closed_form(v: float, a: float, dt: float, t_r: float, 
 @given(v=st.floats(0.0, 12.0), a=st.floats(-7.7, 3.6), dt=st.floats(0.05, 0.6), t_r=st.floats(0.0, 1.2))
 def test_stopping_point_peak_over_the_step(v: float, a: float, dt: float, t_r: float) -> None:
     # the largest ego stopping point x + v t_r + v²/(2b) over a step with a held, against a fine grid
-    from aev_ocp.safety.fallback import _stopping_point_peak
+    from aev_ocp.mpc.safe_fallback import _stopping_point_peak
 
     b = 7.7
     ts = np.linspace(0.0, dt, 20001)

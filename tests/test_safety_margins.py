@@ -135,7 +135,7 @@ def test_worst_delay_against_an_integrated_actuator(lag: float, jerk: float | No
     area = quad(lambda t: float(sol.sol(t)[0]) + b, 0, 30 * tau + 2.0, limit=400, points=[(3.4 + b) / (jerk or 1e9)])[0]
     assert worst_delay_s(lim, b) == pytest.approx(area / b, rel=1e-6)
     # the layer's reaction time then covers it: the fallback adds τ (a_max + b)/b, layer_changes the rest
-    from aev_ocp.safety.fallback import SafetyParams, effective_reaction_s
+    from aev_ocp.mpc.safe_fallback import SafetyParams, effective_reaction_s
 
     p = SafetyParams.from_limits(lim, **layer_changes(EVParams(limits=lim)))
     assert effective_reaction_s(p) == pytest.approx(0.3 + area / b, rel=1e-6)

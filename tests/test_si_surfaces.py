@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from aev_ocp.metrics import SI_METRICS
-from aev_ocp.ocp.result import OCPResult
+from aev_ocp.ocp_result import OCPResult
 from aev_ocp.overrides import OverrideError, apply_to_document, parse_assignment, parse_assignments
 from aev_ocp.params import Units
 from aev_ocp.scenarios import ScenarioError, parse_scenario

@@ -1,4 +1,4 @@
-"""SUMO's battery stepping (aev_ocp/sumo/run.py ``_battery`` on aev_ocp/sumo/energy.py, recorded by ``_result``)
+"""SUMO's battery stepping (aev_ocp/sumo/run.py ``_battery`` on aev_ocp/models/battery_step.py, recorded by ``_result``)
 against the plant's own battery (aev_ocp.models.ego.battery_side: the cell ODE, its current, its heat) integrated
 by SciPy on the same speed trace (SUMO's ballistic update: the acceleration held over each step), sample by sample:
 the current at every sample (the current of the step that starts there), SOC, V1, V2 and the cumulative pack heat,

@@ -2,11 +2,22 @@
 (:mod:`.sensors`) and state estimation (:mod:`.kalman` EKF, :mod:`.mhe` MHE, the :class:`~.base.Estimator`
 protocol for your own). :class:`aev_ocp.control.ClosedLoop` takes ``mismatch=``, ``sensors=`` and ``estimator=``."""
 
-from .base import Estimate, EstimationModel, Estimator, soc_from_rest_voltage
-from .kalman import EKF
-from .mhe import MHE
-from .mismatch import Mismatch
-from .sensors import CHANNELS, Measurement, SensorModel, Sensors
+from ..lazy import lazy_exports
+
+#: name -> module that defines it (imported on first use: aev_ocp.lazy)
+_EXPORTS = {
+    "Estimate": "base",
+    "EstimationModel": "base",
+    "Estimator": "base",
+    "soc_from_rest_voltage": "base",
+    "EKF": "kalman",
+    "MHE": "mhe",
+    "Mismatch": "mismatch",
+    "CHANNELS": "sensors",
+    "Measurement": "sensors",
+    "SensorModel": "sensors",
+    "Sensors": "sensors",
+}
 
 __all__ = [
     "CHANNELS",
@@ -21,3 +32,5 @@ __all__ = [
     "Sensors",
     "soc_from_rest_voltage",
 ]
+
+__getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)

@@ -44,7 +44,7 @@ class SensorsConfig:
 
 
 def _dataclass_from(r: Any, cls: type) -> Any:
-    from ..scenarios import ScenarioError
+    from ..scenarios.tables import ScenarioError
 
     checks = field_checks(cls)
     d = {f.name: r.declared(f.name, checks[f.name]) for f in fields(cls) if r.has(f.name)}
@@ -109,7 +109,7 @@ def measurements_degraded(scenario: Any) -> bool:
 
 def register() -> None:
     """Register the [mismatch] and [sensors] tables with the scenario loader."""
-    from ..scenarios import register_section
+    from ..scenarios.sections import register_section
 
     register_section("mismatch", validate_mismatch_table)
     register_section("sensors", validate_sensors_table)

@@ -3,25 +3,38 @@
 Models return CasADi expressions or Functions and know nothing of solvers, files or plots.
 """
 
-from . import battery, carfollowing, energy, leader, powertrain, vehicle
-from .carfollowing import (
-    IDM,
-    IDM_TREIBER,
-    LAW_REGISTRY,
-    OVFL,
-    OVM,
-    V_INF,
-    CarFollowingLaw,
-    IDMModelUnits,
-    OVLaw,
-    Proposed,
-    energy_term,
-    equilibrium_gap,
-    make_law,
-    optimal_velocity,
-    register_law,
-)
-from .leader import BrakingLeader, ConstantSpeed, LeaderProfile, PaperLeader, SpeedTrace, drive_cycle
+from ..lazy import lazy_exports
+
+#: name -> module that defines it (imported on first use: aev_ocp.lazy)
+_EXPORTS = {
+    "battery": "battery",
+    "carfollowing": "carfollowing",
+    "energy": "energy",
+    "leader": "leader",
+    "powertrain": "powertrain",
+    "vehicle": "vehicle",
+    "IDM": "carfollowing",
+    "IDM_TREIBER": "carfollowing",
+    "LAW_REGISTRY": "carfollowing",
+    "OVFL": "carfollowing",
+    "OVM": "carfollowing",
+    "V_INF": "carfollowing",
+    "CarFollowingLaw": "carfollowing",
+    "IDMModelUnits": "carfollowing",
+    "OVLaw": "carfollowing",
+    "Proposed": "carfollowing",
+    "energy_term": "carfollowing",
+    "equilibrium_gap": "carfollowing",
+    "make_law": "carfollowing",
+    "optimal_velocity": "carfollowing",
+    "register_law": "carfollowing",
+    "BrakingLeader": "leader",
+    "ConstantSpeed": "leader",
+    "LeaderProfile": "leader",
+    "PaperLeader": "leader",
+    "SpeedTrace": "leader",
+    "drive_cycle": "leader",
+}
 
 __all__ = [
     "battery",
@@ -52,3 +65,5 @@ __all__ = [
     "SpeedTrace",
     "drive_cycle",
 ]
+
+__getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)

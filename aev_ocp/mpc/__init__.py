@@ -11,18 +11,28 @@ The ``aev-ocp mpc`` command is :mod:`aev_ocp.mpc.cli`, its report section :mod:`
 
 from __future__ import annotations
 
-from ..control import ClosedLoop, ControlSequence, run_closed_loop
-from .controller import MPCController, MPCSolution
-from .policy import MPCPolicy, MPCVehicle, run_single
-from .predictors import (
-    ConstantAccelerationPredictor,
-    ConstantVelocityPredictor,
-    LeaderPredictor,
-    Measurements,
-    OraclePredictor,
-    make_predictor,
-)
-from .settings import PREDICTOR_NAMES, SOLVER_PATHS, MPCSettings
+from ..lazy import lazy_exports
+
+#: name -> module that defines it (imported on first use: aev_ocp.lazy)
+_EXPORTS = {
+    "ClosedLoop": "aev_ocp.control",
+    "ControlSequence": "aev_ocp.control",
+    "run_closed_loop": "aev_ocp.control",
+    "MPCController": "controller",
+    "MPCSolution": "controller",
+    "MPCPolicy": "policy",
+    "MPCVehicle": "policy",
+    "run_single": "policy",
+    "ConstantAccelerationPredictor": "predictors",
+    "ConstantVelocityPredictor": "predictors",
+    "LeaderPredictor": "predictors",
+    "Measurements": "predictors",
+    "OraclePredictor": "predictors",
+    "make_predictor": "predictors",
+    "PREDICTOR_NAMES": "settings",
+    "SOLVER_PATHS": "settings",
+    "MPCSettings": "settings",
+}
 
 __all__ = [
     "ClosedLoop",
@@ -43,3 +53,5 @@ __all__ = [
     "run_closed_loop",
     "run_single",
 ]
+
+__getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)

@@ -339,4 +339,4 @@ def _reproduce_section(out_dir: Any, progress: Callable[[str], None]) -> str:
     return cycles_section(out_dir, progress, t_end_max=cap)
 
 
-REPRODUCE_SECTIONS = [("mpc-cycles", _reproduce_section, STEPS)]  # listed in aev_ocp.report_sections.SECTION_PROVIDERS
+REPRODUCE_SECTIONS = [("mpc-cycles", _reproduce_section, STEPS)]  # listed in aev_ocp.reproduce.SECTION_PROVIDERS

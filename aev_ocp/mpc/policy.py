@@ -4,7 +4,7 @@ At every step the policy forecasts its predecessor (a :class:`LeaderPredictor`, 
 published plan for 'cooperative'), solves its :class:`MPCController` and returns the first control.
 A failed solve applies the fallback: the smaller of the fallback law (the proposed law with the scenario's
 α, β, κ at the measured predecessor speed v_l(t_k), clipped to the a bounds) and the safe controller of
-:mod:`aev_ocp.safety.fallback` (never accelerates into a gap it could not stop in), counted as a fallback with
+:mod:`aev_ocp.mpc.safe_fallback` (never accelerates into a gap it could not stop in), counted as a fallback with
 its cause. With the traffic formulation every successful command passes the same safe bound (a safety filter). :class:`MPCSettings` and :class:`MPCVehicle` are accepted by
 :class:`aev_ocp.control.ClosedLoop` directly (registered adapters).
 """
@@ -26,7 +26,7 @@ from ..ocp.formulation import Formulation
 from ..ocp.problem import OCPProblem, ProblemBuilder
 from ..params import EVParams, ParameterError, as_dict
 from ..results import SimulationResult
-from ..safety.fallback import SafeFallback
+from .safe_fallback import SafeFallback
 from .controller import MPCController, resolve_formulation
 from .predictors import LeaderPredictor, Measurements, forecast_intervals, make_predictor, plan_forecast
 from .settings import MPCSettings
@@ -97,12 +97,16 @@ class MPCPolicy:
         assert isinstance(p, LeaderPredictor)
         return forecast_intervals(*p.predict(obs.t, dt, N, Measurements(obs.meas_t, obs.meas_v)), dt)
 
+    def own_states(self, obs: Observation) -> dict[str, float]:
+        """The values of the problem's own states at this step, by name: 'a_prev' (a Δa penalty) from the command
+        really applied last step, 'a_act' (the realised acceleration of a vehicle with an actuator lag, when the
+        problem models it); names the problem lacks are ignored. A subclass adds its own (e.g. a reference speed);
+        'T' (the pack temperature, TemperatureTerms) is set from the measured T_K by :meth:`command`."""
+        return {"a_prev": obs.a_prev, "a_act": obs.a_act or 0.0}
+
     def command(self, obs: Observation) -> Command:
         vm, vh = self.forecast(obs)
-        # an own state named 'a_prev' (a Δa penalty) starts from the command really applied last step
-        # ('a_act': the realised acceleration of a vehicle with an actuator lag, when the problem models it)
-        # and 'T' (the pack temperature in the prediction, TemperatureTerms) from the measured T_K
-        own = {"a_prev": obs.a_prev, "a_act": obs.a_act or 0.0}
+        own = self.own_states(obs)
         Tn = self.controller.temperature_state_name
         if Tn is not None and obs.T_K is not None:
             own[Tn] = obs.T_K
@@ -145,7 +149,7 @@ class MPCPolicy:
 
 def fallback_controller(law: CarFollowingLaw, dt: float, formulation: Formulation, ev: EVParams) -> SafeFallback:
     """The policy's fallback (the one place it is built): min(``law`` on the measurements sampled every dt [model
-    time] and clipped to the formulation's a bounds, the safe controller of :mod:`aev_ocp.safety.fallback`)."""
+    time] and clipped to the formulation's a bounds, the safe controller of :mod:`aev_ocp.mpc.safe_fallback`)."""
     return SafeFallback.for_mpc(law, formulation, dt, ev)
 
 

@@ -67,7 +67,7 @@ def _read(r: Any, key: str, check: Check | None) -> Any:
 
 def validate_mpc_table(r: Any) -> MPCConfig:
     """Validator for ``aev_ocp.scenarios.register_section('mpc', ...)`` (a TableReader)."""
-    from ..scenarios import ScenarioError
+    from ..scenarios.tables import ScenarioError
 
     keys = mpc_table_keys()
     d = {k: _read(r, k, keys[k]) for k in list(r.table) if k in keys}
@@ -124,7 +124,7 @@ def validate_mpc_table(r: Any) -> MPCConfig:
 
 def register() -> None:
     """Register the [mpc] table with the scenario loader."""
-    from ..scenarios import register_section
+    from ..scenarios.sections import register_section
 
     register_section("mpc", validate_mpc_table)
 
@@ -138,7 +138,7 @@ def check_mpc_setup(
     """Refuse an MPC setup that cannot run, before anything is built: MPC vehicles that do not exist, or an
     MPC vehicle whose initial gap is at or below h_min or whose initial speed is outside [v_min, v_max]
     (every NLP would be infeasible and every step would run on the fallback). ScenarioError naming the file."""
-    from ..scenarios import ScenarioError
+    from ..scenarios.tables import ScenarioError
 
     cfg = config or scenario.extra.get("mpc") or MPCConfig(MPCSettings())
     f = formulation or cfg.formulation

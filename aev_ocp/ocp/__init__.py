@@ -1,6 +1,6 @@
 """Optimal control (model guide §8–§9): a transcription layer (multiple shooting / collocation, IPOPT)
 and the four problems OCP-A (Proposition 3.1), OCP-B (current profile), OCP-C (eco-trip) and
-OCP-D (oracle following, the lower bound). Nothing here plots; see :mod:`aev_ocp.ocp_plots`.
+OCP-D (oracle following, the lower bound). The solvers plot nothing; :mod:`aev_ocp.ocp.plots` draws their results.
 
 The §9 problem shared with the MPC is stated once in :mod:`aev_ocp.ocp.following`; the problem
 description (:class:`OCPProblem`, :class:`ProblemBuilder`) lives in :mod:`aev_ocp.ocp.problem`.
@@ -13,12 +13,11 @@ description only (docs/guide/layers.md).
 
 from __future__ import annotations
 
-import importlib
-from typing import Any
+from ..lazy import lazy_exports
 
 #: name -> submodule that defines it (problem description and solvers only: the package's own layers)
 _EXPORTS = {
-    "OCPResult": "result",
+    "OCPResult": "aev_ocp.ocp_result",
     "OCPProblem": "problem",
     "ProblemBuilder": "problem",
     "OCPSolver": "transcription",
@@ -34,12 +33,4 @@ _EXPORTS = {
 }
 __all__ = list(_EXPORTS)
 
-
-def __getattr__(name: str) -> Any:
-    if name in _EXPORTS:
-        return getattr(importlib.import_module(f".{_EXPORTS[name]}", __name__), name)
-    raise AttributeError(f"module 'aev_ocp.ocp' has no attribute {name!r}")
-
-
-def __dir__() -> list[str]:
-    return sorted(set(globals()) | set(__all__))
+__getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)

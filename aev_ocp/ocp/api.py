@@ -33,7 +33,7 @@ from .oracle import (
     stage_cost_of_trajectory,
 )
 from .prop31 import run_prop31
-from .result import OCPResult, write_json_atomic
+from ..ocp_result import OCPResult, write_json_atomic
 from ..progress import Progress, TimeLimitReached
 
 __all__ = [
@@ -74,7 +74,7 @@ def oracle_scenario_from_file(path: str | Path, dt: float = 0.1) -> OracleScenar
 
 
 def _write_result(res: OCPResult, out: Path, stem: str) -> None:
-    from ..ocp_plots import plot_result
+    from .plots import plot_result
 
     if res.success:
         res.to_csv(out / f"{stem}.csv")
@@ -187,7 +187,7 @@ def run_current_profile(
                 "grid": {"E_req_J": list(sweep_E_J), "t_f_s": list(sweep_t_f_s)},
             },
         )
-        from ..ocp_plots import plot_current_profile_sweep
+        from .plots import plot_current_profile_sweep
 
         plot_current_profile_sweep(
             [r for r in rows if r["status"] in ("optimal", "acceptable")], o / "current_profile_sweep.png"

@@ -21,7 +21,7 @@ import numpy as np
 from ..models import battery
 from ..numerics import integrate_held
 from ..params import CellParams, ParameterError
-from .result import OCPResult
+from ..ocp_result import OCPResult
 
 # Relative tolerance of the smoothing-gap warning: 0.5 %, the agreement issue 13 asks of the
 # eco-trip's NLP objective and its exact re-simulation. The shipped problems stay well inside it

@@ -224,7 +224,7 @@ def _cli_ocp(argv: list[str]) -> int:
     if args.problem == "prop31":
         from .prop31 import prop31_table
 
-        from ..ocp_plots import write_prop31_outputs
+        from .plots import write_prop31_outputs
 
         kw: dict[str, Any] = {"N": args.N} if args.N is not None else {}
         if args.cell is not None:

@@ -25,7 +25,7 @@ from ..models.powertrain import current_discriminant
 from ..params import CellParams, ParameterError
 from .cell import cell_problem
 from .checks import GAP_RTOL, record_refinement, record_smoothing_gap, resimulate_cell_current
-from .result import OCPResult
+from ..ocp_result import OCPResult
 from .transcription import OCPProblem, OCPSolver, TranscriptionOptions
 
 E_REQ_J = 3000.0  # default demand: 50 W average per cell over 60 s (≈ 15 A, 6.5C); our choice

@@ -35,7 +35,7 @@ from ..models.powertrain import cell_current_from_motion
 from ..numerics import integrate_held
 from ..params import EVParams, ParameterError, PowertrainOptions
 from .checks import GAP_RTOL, multistart, record_refinement, record_smoothing_gap
-from .result import OCPResult
+from ..ocp_result import OCPResult
 from .transcription import OCPProblem, OCPSolver, TranscriptionOptions
 
 OBJECTIVES = ("heat", "energy")

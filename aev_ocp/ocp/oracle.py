@@ -27,7 +27,7 @@ from ..results import SimulationResult
 from .following import TERM_NAMES, FollowingWeights, following_stage_terms, weight_vector
 from .formulation import Formulation, s9_formulation
 from .problem import OCPProblem
-from .result import OCPResult
+from ..ocp_result import OCPResult
 from .traffic_cost import auxiliary_controls, cost_traffic_of_trajectory
 from .transcription import OCPSolver, TranscriptionOptions
 

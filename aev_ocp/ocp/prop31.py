@@ -28,7 +28,7 @@ from ..numerics import trapezoid
 from ..params import CellParams, ParameterError, check_declared
 from .cell import cell_problem
 from .checks import record_refinement, record_smoothing_gap, resimulate_cell_current
-from .result import OCPResult
+from ..ocp_result import OCPResult
 from .transcription import OCPSolver, TranscriptionOptions
 
 T_F_S = 60.0  # model guide §8: t_f = 60 s
@@ -174,7 +174,7 @@ def run_prop31(
     A123); soc0: S(0) [-]; v_relax_V: the relaxing cases' initial polarisation (V1(0), V2(0)) [V]. Returns {case: entry} with entry keys
     objective_J, max_abs_current_A, zero_heat_alternative_objective_J, status, iterations, verdict,
     plus details (alternative currents, LQ reference for the cases without Q ≥ 0, stored energy
-    W(0) [J], result: the OCPResult). :func:`aev_ocp.ocp_plots.write_prop31_outputs` writes prop31.json and
+    W(0) [J], result: the OCPResult). :func:`aev_ocp.ocp.plots.write_prop31_outputs` writes prop31.json and
     prop31_currents.png.
     Each result also carries its exact re-simulation (CVODES along I*: objective_exact_J, smoothing-gap
     record; OCP-A has no smoothing, so the gap is the transcription's) and, with ``refine``, the

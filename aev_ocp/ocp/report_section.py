@@ -11,9 +11,9 @@ from ..report import markdown_table
 from ..report_sections import SectionContext
 from .current_profile import CurrentProfileSolver
 from .eco_trip import EcoTrip, EcoTripSolver
-from ..ocp_plots import write_prop31_outputs
+from .plots import write_prop31_outputs
 from .prop31 import run_prop31
-from .result import OCPResult, write_json_atomic
+from ..ocp_result import OCPResult, write_json_atomic
 
 HEAD_PROP31 = "Proposition 3.1: is I* = 0 the unique minimiser of ∫Q dt?"
 

@@ -35,7 +35,7 @@ import numpy as np
 from ..numerics import rk4
 from ..params import ParameterError
 from .problem import OCPProblem
-from .result import OCPResult
+from ..ocp_result import OCPResult
 
 METHODS = ("ms", "collocation")
 SCHEMES = ("radau", "legendre")

@@ -3,7 +3,8 @@
 The ring experiments (see :mod:`aev_ocp.ring.experiments`): ``sugiyama`` (22 human drivers on 230 m: the jam
 emerges; and on 600 m, where uniform flow is linearly stable: it does not), ``stern`` (the same ring all-human
 and with one AEV under each AEV controller, with a space-time diagram of each run), ``sweep`` (penetration
-0–5 AEVs of 22, spread evenly, × ring lengths; ``--aev`` the controller). Writes ring.json (fleet metrics, SI)
+0–5 AEVs of 22, spread evenly, × ring lengths; ``--aev`` the controller). Writes ring.json (fleet metrics, SI),
+the runs' trajectories with a manifest (``aev_ocp.load(out)`` reads them back, :mod:`aev_ocp.ring.outputs`)
 and the PNGs to ``--out``; prints the fleet table. A ring scenario file (:mod:`aev_ocp.ring.scenario`; shipped:
 ``ring_sugiyama``, ``ring_stern``) runs its own runs (``--t-end-s`` overrides its horizon; ``--seed`` is the file's). Exit codes: 0 ok, 1 a run stopped on an event, 2 bad input.
 """
@@ -24,14 +25,13 @@ from ..progress import Progress, TimeLimitReached, check_time_limit, time_limite
 from ..results import claim_output_dir, default_output_dir
 from ..scenarios import ScenarioError
 
-#: Longest vehicle a ring may have [m]: 30 m is longer than any road vehicle (a 25.25 m EU road train).
-MAX_VEHICLE_LENGTH_M = 30.0
-
 COLUMNS = (
     "speed_std_mps",
     "mean_speed_mps",
     "vehicles_stopped",
     "braking_events",
+    "braking_events_per_veh_km",
+    "throughput_veh_per_h",
     "battery_energy_kWh_per_100km",
     "heat_pack_J_per_km",
     "soc_used_mean",
@@ -84,6 +84,14 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="L",
         help="sweep: ring length [m] (repeatable; default 230 260 300)",
     )
+    p.add_argument(
+        "--seeds",
+        type=int,
+        default=None,
+        metavar="N",
+        help="a scenario file: run every run with seeds 0 … N−1 (N >= 2; 10 for the tables) and write the field's "
+        "metrics with 95 %% intervals and verdicts against the all-human ring (ring_seeds.json, ring_seeds.md)",
+    )
     p.add_argument("--no-plots", action="store_true", help="skip the space-time diagrams")
     p.add_argument("--out", default=None, help="output folder (default results/ring/<experiment>)")
     return p
@@ -109,7 +117,6 @@ def _row(label: str, fleet: dict[str, Any]) -> str:
 
 def cli_ring(argv: list[str]) -> int:
     """Entry point of ``aev-ocp ring``; returns the exit code."""
-    from ..results import write_json
     from .experiments import SUGIYAMA_N
     from .simulate import RingOptions
 
@@ -134,7 +141,11 @@ def cli_ring(argv: list[str]) -> int:
                     "sugiyama, stern and sweep experiments"
                 )
             sc = load_ring_scenario(a.experiment)
+            if a.seeds is not None:
+                return _cli_seeds(a, sc, time_limit)
         else:
+            if a.seeds is not None:
+                raise ParameterError("--seeds applies to a ring scenario file (ring_calibrated, ring_stern, ...)")
             a.t_end_s = 600.0 if a.t_end_s is None else a.t_end_s
             a.seed = 0 if a.seed is None else a.seed
         for opt, given in (
@@ -162,14 +173,15 @@ def cli_ring(argv: list[str]) -> int:
             "ring",
             sc.name if sc is not None else a.experiment,  # before any work
             str(sc.source) if sc is not None and sc.source else None,
-            ["ring.json", "space_time_*.png"],
+            ["ring.json", "manifest.json", "trajectories.npz", "space_time_*.png"],
         )
         clock = Progress("", time_limit_s=time_limit)
         with time_limited(clock):  # the compiled ring polls the clock while it integrates
             runs, doc = _runs(a, sc)
         out.mkdir(parents=True, exist_ok=True)
-        doc["runs"] = [{"label": r.label, **r.fleet} for r in runs]
-        files = [write_json(out / "ring.json", doc)]
+        from .outputs import save_ring_output
+
+        files = save_ring_output(out, runs, doc)  # ring.json, trajectories.npz, manifest.json (aev_ocp.load)
         if not a.no_plots and a.experiment != "sweep" and not (sc is not None and sc.spec.sweep_aevs):
             from .plots import space_time
 
@@ -193,6 +205,39 @@ def cli_ring(argv: list[str]) -> int:
     for r in bad:
         print(f"aev-ocp ring: {r.label}: run stopped ({r.fleet['status']})", file=sys.stderr)
     return EXIT_FAILED_RUN if bad else EXIT_OK
+
+
+def _cli_seeds(a: argparse.Namespace, sc: Any, time_limit: float | None) -> int:
+    """``aev-ocp ring SCENARIO --seeds N``: the field's metrics over seeds (aev_ocp.ring.field)."""
+    from ..results import write_atomic, write_json
+    from .field import scenario_over_seeds, scenario_seed_rows, table_markdown
+
+    if not 2 <= a.seeds <= 1000:
+        raise ParameterError(f"--seeds {a.seeds}: must be an integer in [2, 1000]")
+    t_end = a.t_end_s if a.t_end_s is not None else sc.spec.t_end_s
+    check_ring_size(sc.spec.vehicles, t_end, sc.spec.dt_out_s, ("ring.vehicles", "--t-end-s", "ring.dt_out_s"))
+    out = Path(a.out) if a.out else default_output_dir("ring", sc.name + "_seeds")
+    claim_output_dir(out, "ring", sc.name, str(sc.source) if sc.source else None, ["ring_seeds.json", "ring_seeds.md"])
+    clock = Progress("", time_limit_s=time_limit)
+    try:
+        with time_limited(clock):
+            runs = scenario_over_seeds(sc, range(a.seeds), a.t_end_s)
+    except TimeLimitReached:
+        print(f"aev-ocp ring: stopped by --time-limit {a.time_limit:g} s; nothing written", file=sys.stderr)
+        return EXIT_FAILED_RUN
+    rows = scenario_seed_rows(runs, sc)
+    md = table_markdown(rows)
+    out.mkdir(parents=True, exist_ok=True)
+    write_json(
+        out / "ring_seeds.json", {"scenario": sc.name, "seeds": list(range(a.seeds)), "rows": rows, "runs": runs}
+    )
+    write_atomic(out / "ring_seeds.md", md + "\n")
+    print(md)
+    print(f"wrote 2 files to {out}/")
+    failed = sum(r["failed"] for r in rows)
+    if failed:
+        print(f"aev-ocp ring: {failed} runs stopped at an event (see ring_seeds.json)", file=sys.stderr)
+    return EXIT_FAILED_RUN if failed else EXIT_OK
 
 
 def _runs(a: argparse.Namespace, sc: Any) -> tuple[list[Any], dict[str, Any]]:
@@ -242,132 +287,3 @@ def _runs(a: argparse.Namespace, sc: Any) -> tuple[list[Any], dict[str, Any]]:
                 runs.append(run_ring(ring, a.t_end_s, label=f"L={L:g} m, {k} AEV"))
                 runs[-1].fleet.update({"length_m": L, "density_per_km": ring.density_per_km, "aevs": k})
     return runs, doc
-
-
-def _ring_spacing_m(spacing_m: float | None, density_per_km: float | None, vehicle_length_m: float) -> float:
-    """The front-to-front spacing [m] from --spacing-m or --density-per-km (one of them), checked."""
-    if not (math.isfinite(vehicle_length_m) and 0 <= vehicle_length_m <= MAX_VEHICLE_LENGTH_M):
-        raise ParameterError(
-            f"--vehicle-length-m {vehicle_length_m!r}: must be a finite number of metres in [0, {MAX_VEHICLE_LENGTH_M:g}]"
-        )
-    if (spacing_m is None) == (density_per_km is None):
-        raise ParameterError("--ring: give the spacing with --spacing-m or the density with --density-per-km (one)")
-    if density_per_km is not None and not (math.isfinite(density_per_km) and density_per_km > 0):
-        raise ParameterError(f"--density-per-km {density_per_km!r}: must be a finite number of vehicles per km > 0")
-    spacing = spacing_m if spacing_m is not None else 1000.0 / float(density_per_km)  # type: ignore[arg-type]
-    if not (math.isfinite(spacing) and spacing > vehicle_length_m):
-        raise ParameterError(
-            f"--spacing-m/--density-per-km: spacing {spacing:g} m must exceed the vehicle length "
-            f"{vehicle_length_m:g} m (--vehicle-length-m)"
-        )
-    return spacing
-
-
-def cli_mixed_ring_stability(
-    human: Any,
-    aev: Any,
-    n: int,
-    aev_count: int,
-    delay_s: float,
-    spacing_m: float | None,
-    density_per_km: float | None,
-    vehicle_length_m: float,
-    units: Any,
-    out: Path,
-) -> int:
-    """``aev-ocp stability --ring N --aev LAW``: the linear stability of a ring of N vehicles, ``aev_count`` of them
-    (spread evenly) driven by ``aev`` and the rest by ``human`` with a reaction delay; the fewest such AEVs that
-    stabilise it; writes mixed_ring_stability.json."""
-    from ..results import write_json
-    from ..stability.mixed import analyse_mixed_ring, even_placement, min_aev_count, si_accel
-
-    spacing = _ring_spacing_m(spacing_m, density_per_km, vehicle_length_m)
-    if not (2 <= n <= 2000):
-        raise ParameterError(f"--ring {n} with --aev: must be an integer in [2, 2000] (a dense eigenproblem)")
-    if not (0 <= aev_count <= n):
-        raise ParameterError(f"--aev-count {aev_count}: must be an integer in [0, {n}] (the ring's vehicles)")
-    if not (math.isfinite(delay_s) and 0 <= delay_s <= 5.0):
-        raise ParameterError(f"--delay-s {delay_s!r}: must be a finite number of seconds in [0, 5]")
-    claim_output_dir(out, "stability --ring --aev", f"{human.name}+{aev.name}", None, ["mixed_ring_stability.json"])
-    h_fn, a_fn = si_accel(human, units), si_accel(aev, units)
-    idx = set(even_placement(n, aev_count))
-    accels = [a_fn if i in idx else h_fn for i in range(n)]
-    delays = [0.0 if i in idx else delay_s for i in range(n)]
-    v_max = 70.0  # m/s: above every road's limit; the equilibrium speed is found below it
-    r = analyse_mixed_ring(accels, n * spacing, vehicle_length_m, v_max, delays_s=delays)
-    m, growth = min_aev_count(h_fn, a_fn, n, n * spacing, vehicle_length_m, v_max, human_delay_s=delay_s)
-    doc: dict[str, Any] = r.to_dict()
-    doc.update(
-        {
-            "human_law": human.name,
-            "aev_law": aev.name,
-            "aev_positions": sorted(idx),
-            "human_delay_s": delay_s,
-            "spacing_m": spacing,
-            "min_aev_count": m,
-            "growth_by_aev_count_per_s": growth,
-        }
-    )
-    out.mkdir(parents=True, exist_ok=True)
-    write_json(out / "mixed_ring_stability.json", doc)
-    print(
-        f"mixed ring of {n}: {aev_count} × {aev.name} among {human.name} (delay {delay_s:g} s), spacing {spacing:.6g} m: "
-        f"equilibrium speed {r.v_star_mps:.6g} m/s"
-    )
-    print(
-        f"  growth rate {r.growth_rate_per_s:.6g} 1/s (frequency {r.frequency_rad_per_s:.4g} rad/s); ring stable: "
-        f"{r.ring_stable}; fewest evenly spread {aev.name} cars that stabilise it: "
-        f"{m if m is not None else f'none of 0 … {n}'}"
-    )
-    print(f"wrote 1 file to {out}/")
-    return EXIT_OK
-
-
-def cli_ring_stability(
-    law: Any,
-    n: int,
-    spacing_m: float | None,
-    density_per_km: float | None,
-    vehicle_length_m: float,
-    units: Any,
-    out: Path,
-    measure: bool,
-) -> int:
-    """``aev-ocp stability --ring N``: the ring's modes, growth rate, wavelength, n → ∞ limit and the head-to-tail
-    criterion, with the measured growth beside them; writes ring_stability.json."""
-    from ..params import EVParams
-    from ..results import write_json
-    from .stability import measured_growth, ring_stability
-
-    spacing = _ring_spacing_m(spacing_m, density_per_km, vehicle_length_m)
-    if not (2 <= n <= 100_000):
-        raise ParameterError(f"--ring {n}: must be an integer in [2, 100000]")
-    claim_output_dir(out, "stability --ring", law.name, None, ["ring_stability.json"])  # before any work
-    ev = EVParams(units=units)
-    rs = ring_stability(law, n, n * spacing, vehicle_length_m, ev)
-    doc: dict[str, Any] = rs.to_dict()
-    if n > 200:
-        doc["modes"] = doc["modes"][:100]  # thinned for the file
-    meas = measured_growth(law, n, n * spacing, vehicle_length_m, ev) if measure and n <= 2000 else None
-    doc["measured"] = meas
-    out.mkdir(parents=True, exist_ok=True)
-    write_json(out / "ring_stability.json", doc)
-    print(
-        f"ring of {n} × {law.name} at spacing {spacing:.6g} m (gap {rs.gap_m:.6g} m, {1000 / spacing:.6g} veh/km): "
-        f"uniform speed {rs.v_star_mps:.6g} m/s"
-    )
-    print(
-        f"  growth rate {rs.growth_rate_per_s:.6g} 1/s (mode k = {rs.most_unstable_k}, wavelength "
-        f"{rs.wavelength_m:.6g} m, wave speed {rs.wave_speed_mps:.4g} m/s); ring stable: {rs.ring_stable}"
-    )
-    print(
-        f"  n → ∞: growth {rs.limit_growth_rate_per_s:.6g} 1/s at θ = {rs.limit_theta:.4g}; head-to-tail C = "
-        f"{rs.criterion_per_s2:.6g} 1/s², string stable: {rs.string_stable}"
-    )
-    if meas is not None:
-        print(
-            f"  measured growth {meas['measured_per_s']:.6g} 1/s (predicted {meas['predicted_per_s']:.6g}, relative "
-            f"error {meas['relative_error']:.2g}, run {meas['t_end_s']:.4g} s: {meas['status']})"
-        )
-    print(f"wrote 1 file to {out}/")
-    return EXIT_OK

@@ -1,14 +1,15 @@
-"""Safety: a kinematic avoidability bound, a safe fallback controller, and a suite of rear-end and cut-in cases.
+"""Safety: a suite of rear-end and cut-in cases, and the safety names of the layers below under one roof.
 
-* :mod:`.kinematics` — :func:`braking_bound`: the smallest gap when the ego brakes at its maximum from t = 0
-  (pure physics, exact piecewise), and the labels avoidable / collision-avoidable only / unavoidable.
-* :mod:`.bound` — :func:`safe_acceleration_mps2`: the largest acceleration that keeps the braking-distance
-  condition over the next step, else maximal braking (pure physics; the closed loop's safety stage uses it);
-* :mod:`.fallback` — :class:`SafeFallback`: that bound as a controller; the MPC's fallback and safety filter.
+* :func:`braking_bound` (:mod:`aev_ocp.models.braking`): the smallest gap when the ego brakes at its maximum from
+  t = 0 (pure physics, exact piecewise), and the labels avoidable / collision-avoidable only / unavoidable.
+* :func:`safe_acceleration_mps2` (:mod:`aev_ocp.models.safety_bound`): the largest acceleration that keeps the
+  braking-distance condition over the next step, else maximal braking (pure physics; the closed loop's safety
+  stage uses it);
+* :class:`SafeFallback` (:mod:`aev_ocp.mpc.safe_fallback`): that bound as a controller; the MPC's fallback and
+  safety filter.
 * :mod:`.cases`, :mod:`.suite`, :mod:`.report`, :mod:`.section`, :mod:`.cli` — the suite, its section of
-  ``aev-ocp reproduce`` and the ``aev-ocp safety`` command; never imported here (the MPC policy imports
-  :mod:`.fallback`, the suite imports the MPC; docs/guide/layers.md). The names below are imported on first use,
-  so ``import aev_ocp.safety.bound`` loads the bound only.
+  ``aev-ocp reproduce`` and the ``aev-ocp safety`` command; never imported here (docs/guide/layers.md). The names
+  below are imported on first use, so ``import aev_ocp.safety`` loads no physics until a name is used.
 
 Python API (SI)::
 
@@ -20,30 +21,21 @@ Python API (SI)::
 
 from __future__ import annotations
 
-import importlib
-from typing import Any
+from ..lazy import lazy_exports
 
-#: name -> submodule that defines it
+#: name -> module that defines it
 _EXPORTS = {
-    "AVOIDABLE": "kinematics",
-    "COLLISION_AVOIDABLE_ONLY": "kinematics",
-    "LABELS": "kinematics",
-    "UNAVOIDABLE": "kinematics",
-    "BrakingBound": "kinematics",
-    "braking_bound": "kinematics",
-    "label_of": "kinematics",
-    "SafetyParams": "bound",
-    "safe_acceleration_mps2": "bound",
-    "SafeFallback": "fallback",
+    "AVOIDABLE": "aev_ocp.models.braking",
+    "COLLISION_AVOIDABLE_ONLY": "aev_ocp.models.braking",
+    "LABELS": "aev_ocp.models.braking",
+    "UNAVOIDABLE": "aev_ocp.models.braking",
+    "BrakingBound": "aev_ocp.models.braking",
+    "braking_bound": "aev_ocp.models.braking",
+    "label_of": "aev_ocp.models.braking",
+    "SafetyParams": "aev_ocp.models.safety_bound",
+    "safe_acceleration_mps2": "aev_ocp.models.safety_bound",
+    "SafeFallback": "aev_ocp.mpc.safe_fallback",
 }
 __all__ = list(_EXPORTS)
 
-
-def __getattr__(name: str) -> Any:
-    if name in _EXPORTS:
-        return getattr(importlib.import_module(f".{_EXPORTS[name]}", __name__), name)
-    raise AttributeError(f"module 'aev_ocp.safety' has no attribute {name!r}")
-
-
-def __dir__() -> list[str]:
-    return sorted(set(globals()) | set(__all__))
+__getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)

@@ -53,4 +53,4 @@ def safety_section(out_dir: Path, progress: Callable[[str], None]) -> str:
     return md + "\n" + figures_markdown(files, out_dir)
 
 
-REPRODUCE_SECTIONS = [("safety", safety_section, 1)]  # listed in aev_ocp.report_sections.SECTION_PROVIDERS
+REPRODUCE_SECTIONS = [("safety", safety_section, 1)]  # listed in aev_ocp.reproduce.SECTION_PROVIDERS

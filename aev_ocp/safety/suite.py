@@ -7,7 +7,7 @@ decaying-acceleration forecast; *as shipped it already limits every command by i
 the proposed law and OVFL as published (the paper's coefficients, continuous, inside the plant, saturated to the
 vehicle's [a_min, a_max]) and IDM with Treiber & Kesting's SI parameters (:func:`treiber_idm`). A name with the
 suffix ``+layer`` runs that controller under the braking-distance safety layer
-(:meth:`aev_ocp.safety.fallback.SafeFallback.for_vehicle`, min(controller, safe), sampled every dt = 0.1 model =
+(:meth:`aev_ocp.mpc.safe_fallback.SafeFallback.for_vehicle`, min(controller, safe), sampled every dt = 0.1 model =
 88 ms) with the actuator's worst-case delay in its reaction time (:func:`layer_changes`: the lag and the jerk
 limit). Each run is the existing closed loop (:class:`ClosedLoop`) or simulator (:func:`simulate_platoon`, CVODES)
 on the exact plant; nothing here integrates.
@@ -47,8 +47,8 @@ from ..params import EVParams, ParameterError, Units, VehicleLimits
 from ..results import SimulationResult, require_pandas, summary_html, summary_text
 from ..simulate import simulate_platoon
 from .cases import ACTUATORS, CASE_UNITS, Actuator, SafetyCase, suite_cases
-from .fallback import SafeFallback
-from .kinematics import AVOIDABLE, BrakingBound, braking_bound
+from ..mpc.safe_fallback import SafeFallback
+from ..models.braking import AVOIDABLE, BrakingBound, braking_bound
 
 BASES = ("mpc", "mpc-margin", "proposed", "ovfl", "idm")
 LAYER = "+layer"
@@ -123,12 +123,12 @@ def worst_delay_s(lim: VehicleLimits, b_mps2: float) -> float:
 
 def layer_changes(ev: EVParams) -> dict[str, Any]:
     """The :class:`SafetyParams` changes that make the layer's reaction time cover the vehicle's actuator: the
-    fallback adds the lag's τ D/b itself (:func:`aev_ocp.safety.fallback.effective_reaction_s`); this adds the jerk
+    fallback adds the lag's τ D/b itself (:func:`aev_ocp.mpc.safe_fallback.effective_reaction_s`); this adds the jerk
     limit's (D − J τ)²/(2 J b) and the plant's τ when only a jerk limit is set."""
     lim = ev.limits
     if not (lim.enabled and lim.has_actuator_state):
         return {}
-    from .fallback import SafetyParams
+    from ..models.safety_bound import SafetyParams
 
     base = SafetyParams.from_limits(lim)
     b = base.ego_brake_mps2
@@ -446,6 +446,18 @@ class SuiteOutput:
         from dataclasses import asdict
 
         return require_pandas("SuiteOutput.to_dataframe()").DataFrame([asdict(r) for r in self.rows])
+
+    def plot(self, family: str | None = None) -> Any:
+        """The figure of one family of cases (default the first the run has): min gap [m] per case and
+        controller against the bound (:func:`aev_ocp.safety.plots.family_figure`); a matplotlib Figure."""
+        from .plots import family_figure
+
+        fams = list(dict.fromkeys(c.family for c in self.cases))
+        fam = family if family is not None else (fams[0] if fams else "")
+        fig = family_figure(self, fam)
+        if fig is None:
+            raise ValueError(f"SuiteOutput.plot: family = {family!r} has no case in this run; its families are {fams}")
+        return fig
 
     def failures(self, controller: str = "mpc", actuator: str | None = None) -> list[CaseRow]:
         """Rows of ``controller`` (at ``actuator``; None: at any) that collided or dipped below the floor in an

@@ -54,28 +54,53 @@ and the errors), :mod:`.sections` (the registry of top-level tables), :mod:`.veh
 
 from __future__ import annotations
 
-from ..limits import DEFAULT_MEMORY_LIMIT_GB as DEFAULT_MEMORY_LIMIT_GB  # re-exported: the budget lives in limits
-from ..limits import estimate_run_bytes as estimate_run_bytes
-from ..limits import memory_limit_bytes as memory_limit_bytes
-from ..overrides import SI_TWINS as SI_TWINS
-from ..overrides import si_twin as si_twin
-from .files import MAX_FILE_BYTES, load_scenario, load_with_sets, read_scenario_doc, read_scenario_text
-from .followers import _carfollowing, _platoon
-from .leader import LEADER_KINDS, _leader, _trace
-from .platoon import Scenario, apply_to_scenario, check_leader_speed, parse_scenario
-from .sections import SECTION_PROVIDERS, STANDALONE_SECTIONS, SectionValidator, register_section, registered_sections
-from .shipped import (
-    PACKAGED_DIR_NAME,
-    SCENARIO_DIR_NAME,
-    find_scenario,
-    iter_shipped,
-    packaged_scenario_dir,
-    scenario_dirs,
-    shipped_scenarios,
-)
-from .size import MAX_SAMPLES, MIN_SAMPLES, check_run_size, thinned_dt_out
-from .tables import ScenarioError, ScenarioWarning, TableReader, _params, read_declared
-from .vehicle import read_ev, standalone_header
+from ..lazy import lazy_exports
+
+#: name -> module that defines it (imported on first use: aev_ocp.lazy)
+_EXPORTS = {
+    "DEFAULT_MEMORY_LIMIT_GB": "aev_ocp.limits",
+    "estimate_run_bytes": "aev_ocp.limits",
+    "memory_limit_bytes": "aev_ocp.limits",
+    "SI_TWINS": "aev_ocp.overrides",
+    "si_twin": "aev_ocp.overrides",
+    "MAX_FILE_BYTES": "files",
+    "load_scenario": "files",
+    "load_with_sets": "files",
+    "read_scenario_doc": "files",
+    "read_scenario_text": "files",
+    "_carfollowing": "followers",
+    "_platoon": "followers",
+    "LEADER_KINDS": "leader",
+    "_leader": "leader",
+    "_trace": "leader",
+    "Scenario": "platoon",
+    "apply_to_scenario": "platoon",
+    "check_leader_speed": "platoon",
+    "parse_scenario": "platoon",
+    "SECTION_PROVIDERS": "providers",
+    "STANDALONE_SECTIONS": "sections",
+    "SectionValidator": "sections",
+    "register_section": "sections",
+    "registered_sections": "sections",
+    "PACKAGED_DIR_NAME": "shipped",
+    "SCENARIO_DIR_NAME": "shipped",
+    "find_scenario": "shipped",
+    "iter_shipped": "shipped",
+    "packaged_scenario_dir": "shipped",
+    "scenario_dirs": "shipped",
+    "shipped_scenarios": "shipped",
+    "MAX_SAMPLES": "size",
+    "MIN_SAMPLES": "size",
+    "check_run_size": "size",
+    "thinned_dt_out": "size",
+    "ScenarioError": "tables",
+    "ScenarioWarning": "tables",
+    "TableReader": "tables",
+    "_params": "tables",
+    "read_declared": "tables",
+    "read_ev": "vehicle",
+    "standalone_header": "vehicle",
+}
 
 __all__ = [
     "DEFAULT_MEMORY_LIMIT_GB",
@@ -117,3 +142,5 @@ __all__ = [
     "thinned_dt_out",
 ]
 __all__ += ["_carfollowing", "_leader", "_params", "_platoon", "_trace"]  # used by the other scenario forms
+
+__getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)

@@ -72,17 +72,19 @@ def _trace(r: TableReader, units: Units, source: Path | None, t_max_s: float | N
     return trace_leader(t, v, units, "trace")
 
 
+#: MPCSettings' default horizon N and interval dt [model time] (aev_ocp/mpc/settings.py; tests/test_scenarios.py
+#: holds them equal): the look-ahead a trace leader's file must cover, known here without importing the MPC.
+MPC_DEFAULT_N, MPC_DEFAULT_DT = 25, 0.1
+
+
 def trace_read_s(doc: dict[str, Any], t_end: float, units: Units) -> float:
     """How much of a trace leader's file a run reads [s]: twice (the horizon t_end [model time] + the MPC's look-ahead
     N·dt of the [mpc] table, at least MPCSettings' default): a 10^7-row recording is not read to its end for a
     2 s run, and an MPC forecast or a longer horizon set in Python still finds the recorded speeds."""
-    from ..mpc.settings import MPCSettings
-
-    d = MPCSettings()
     mpc: dict[str, Any] = doc["mpc"] if isinstance(doc.get("mpc"), dict) else {}
-    n, dt = mpc.get("N", d.N), mpc.get("dt", d.dt)
+    n, dt = mpc.get("N", MPC_DEFAULT_N), mpc.get("dt", MPC_DEFAULT_DT)
     ok = all(isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) and x > 0 for x in (n, dt))
-    look = max(float(n) * float(dt) if ok else 0.0, d.N * d.dt)
+    look = max(float(n) * float(dt) if ok else 0.0, MPC_DEFAULT_N * MPC_DEFAULT_DT)
     return 2.0 * units.time_to_si(t_end + look)
 
 

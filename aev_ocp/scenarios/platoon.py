@@ -19,7 +19,8 @@ from ..params import CarFollowingParams, EVParams, ParameterError, SimOptions, U
 from ..results import check_safe_name
 from .followers import _carfollowing, _platoon
 from .leader import _leader, trace_read_s
-from .sections import _SECTIONS, STANDALONE_SECTIONS, _check_top_level
+from .providers import _check_top_level
+from .sections import _SECTIONS, STANDALONE_SECTIONS
 from .size import check_run_size, thinned_dt_out
 from .tables import ScenarioError, ScenarioWarning, TableReader, read_declared
 from .vehicle import read_ev

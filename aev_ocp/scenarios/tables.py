@@ -8,15 +8,16 @@ import dataclasses
 import math
 from typing import Any, Callable, Sequence
 
+from ..errors import AevOcpError, AevOcpWarning
 from ..overrides import SI_TWINS
 from ..params import Check, ParameterError, Units, echo, field_checks
 
 
-class ScenarioError(ValueError):
+class ScenarioError(AevOcpError, ValueError):
     """A scenario file is invalid; the message names the file, the key path and the value."""
 
 
-class ScenarioWarning(UserWarning):
+class ScenarioWarning(AevOcpWarning, UserWarning):
     """A scenario is valid but questionable (e.g. the leader is faster than any law can follow)."""
 
 

@@ -3,8 +3,9 @@
 Linear analysis of any :class:`~aev_ocp.models.carfollowing.CarFollowingLaw` at an equilibrium
 (:mod:`.linear`: exact CasADi partials, head-to-tail criterion, transfer function, sup|G|, unstable
 band, platoon stability) and measured attenuation in long perturbed platoons (:mod:`.measure`) are
-exported here; the runs that write files and maps (:mod:`.api`), plots (:mod:`.plots`), the
-``aev-ocp stability`` command (:mod:`.cli`) and the section of ``aev-ocp reproduce`` (:mod:`.report`) are
+exported here (imported on first use); the modes of a ring road (:mod:`.ring`) and of a mixed ring
+(:mod:`.mixed`), the runs that write files and maps (:mod:`.api`), plots (:mod:`.plots`), the ``aev-ocp
+stability`` command (:mod:`.cli`, with ``--ring``) and the section of ``aev-ocp reproduce`` (:mod:`.report`) are
 imported from their modules (docs/guide/layers.md).
 
 Python API (model units throughout)::
@@ -16,28 +17,29 @@ Python API (model units throughout)::
     m = stability_map(Proposed(), 1.7, "alpha", np.linspace(0, 4, 21), "beta", np.linspace(0, 6, 21))
 """
 
-from .linear import (
-    LinearizedLaw,
-    LinearStability,
-    analyse,
-    analyse_speeds,
-    equilibrium_gap_of,
-    head_to_tail_criterion,
-    max_gain,
-    partials_function,
-    peak_gain,
-    transfer,
-)
-from .measure import (
-    Attenuation,
-    attenuation_of,
-    fig5_amplitude,
-    linear_prediction,
-    measure,
-    measure_mpc,
-    sweep_amplitudes,
-)
-from .perturbation import PerturbedLeader
+from ..lazy import lazy_exports
+
+#: name -> module that defines it (imported on first use: aev_ocp.lazy)
+_EXPORTS = {
+    "LinearizedLaw": "linear",
+    "LinearStability": "linear",
+    "analyse": "linear",
+    "analyse_speeds": "linear",
+    "equilibrium_gap_of": "linear",
+    "head_to_tail_criterion": "linear",
+    "max_gain": "linear",
+    "partials_function": "linear",
+    "peak_gain": "linear",
+    "transfer": "linear",
+    "Attenuation": "measure",
+    "attenuation_of": "measure",
+    "fig5_amplitude": "measure",
+    "linear_prediction": "measure",
+    "measure": "measure",
+    "measure_mpc": "measure",
+    "sweep_amplitudes": "measure",
+    "PerturbedLeader": "perturbation",
+}
 
 __all__ = [
     "Attenuation",
@@ -59,3 +61,5 @@ __all__ = [
     "sweep_amplitudes",
     "transfer",
 ]
+
+__getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)

@@ -232,7 +232,7 @@ def build_law(name: str, sets: list[str], key: str = "--law") -> Any:
 
 
 #: Files ``aev-ocp stability`` writes (a foreign folder holding one of them is refused).
-STABILITY_FILES = ("stability.json", "gain.png", "attenuation.png", "stable_region.png")
+STABILITY_FILES = ("stability.json", "manifest.json", "gain.png", "attenuation.png", "stable_region.png")
 
 
 def cli_stability(argv: list[str]) -> int:
@@ -258,14 +258,10 @@ def cli_stability(argv: list[str]) -> int:
                 raise ParameterError(f"{opt} {val!r}: only with --ring N --aev LAW (a mixed ring)")
         units = _units(a)
         law = None if is_mpc else build_law(a.law, a.set)
-        if a.ring is not None:  # the ring's modes (aev_ocp.ring.stability)
-            from ..ring.cli import cli_ring_stability
-
+        if a.ring is not None:  # the ring's modes (aev_ocp.stability.ring)
             if law is None:
                 raise ParameterError("--ring: needs a car-following law (--law), not the MPC")
             if a.aev is not None:
-                from ..ring.cli import cli_mixed_ring_stability
-
                 return cli_mixed_ring_stability(
                     law,
                     build_law(a.aev, [], key="--aev"),
@@ -418,3 +414,144 @@ def summary_lines(doc: dict[str, Any]) -> list[str]:
                 + f"  ({m['status']})"
             )
     return lines
+
+
+#: Longest vehicle a ring may have [m]: 30 m is longer than any road vehicle (a 25.25 m EU road train).
+MAX_VEHICLE_LENGTH_M = 30.0
+
+
+def _ring_spacing_m(spacing_m: float | None, density_per_km: float | None, vehicle_length_m: float) -> float:
+    """The front-to-front spacing [m] from --spacing-m or --density-per-km (one of them), checked."""
+    if not (math.isfinite(vehicle_length_m) and 0 <= vehicle_length_m <= MAX_VEHICLE_LENGTH_M):
+        raise ParameterError(
+            f"--vehicle-length-m {vehicle_length_m!r}: must be a finite number of metres in [0, {MAX_VEHICLE_LENGTH_M:g}]"
+        )
+    if (spacing_m is None) == (density_per_km is None):
+        raise ParameterError("--ring: give the spacing with --spacing-m or the density with --density-per-km (one)")
+    if density_per_km is not None and not (math.isfinite(density_per_km) and density_per_km > 0):
+        raise ParameterError(f"--density-per-km {density_per_km!r}: must be a finite number of vehicles per km > 0")
+    spacing = spacing_m if spacing_m is not None else 1000.0 / float(density_per_km)  # type: ignore[arg-type]
+    if not (math.isfinite(spacing) and spacing > vehicle_length_m):
+        raise ParameterError(
+            f"--spacing-m/--density-per-km: spacing {spacing:g} m must exceed the vehicle length "
+            f"{vehicle_length_m:g} m (--vehicle-length-m)"
+        )
+    return spacing
+
+
+def cli_mixed_ring_stability(
+    human: Any,
+    aev: Any,
+    n: int,
+    aev_count: int,
+    delay_s: float,
+    spacing_m: float | None,
+    density_per_km: float | None,
+    vehicle_length_m: float,
+    units: Any,
+    out: Path,
+) -> int:
+    """``aev-ocp stability --ring N --aev LAW``: the linear stability of a ring of N vehicles, ``aev_count`` of them
+    (spread evenly) driven by ``aev`` and the rest by ``human`` with a reaction delay; the fewest such AEVs that
+    stabilise it; writes mixed_ring_stability.json."""
+    from ..results import claim_output_dir, write_json
+    from .outputs import save_stability_manifest
+    from .mixed import analyse_mixed_ring, even_placement, min_aev_count, si_accel
+
+    spacing = _ring_spacing_m(spacing_m, density_per_km, vehicle_length_m)
+    if not (2 <= n <= 2000):
+        raise ParameterError(f"--ring {n} with --aev: must be an integer in [2, 2000] (a dense eigenproblem)")
+    if not (0 <= aev_count <= n):
+        raise ParameterError(f"--aev-count {aev_count}: must be an integer in [0, {n}] (the ring's vehicles)")
+    if not (math.isfinite(delay_s) and 0 <= delay_s <= 5.0):
+        raise ParameterError(f"--delay-s {delay_s!r}: must be a finite number of seconds in [0, 5]")
+    claim_output_dir(
+        out, "stability --ring --aev", f"{human.name}+{aev.name}", None, ["mixed_ring_stability.json", "manifest.json"]
+    )
+    h_fn, a_fn = si_accel(human, units), si_accel(aev, units)
+    idx = set(even_placement(n, aev_count))
+    accels = [a_fn if i in idx else h_fn for i in range(n)]
+    delays = [0.0 if i in idx else delay_s for i in range(n)]
+    v_max = 70.0  # m/s: above every road's limit; the equilibrium speed is found below it
+    r = analyse_mixed_ring(accels, n * spacing, vehicle_length_m, v_max, delays_s=delays)
+    m, growth = min_aev_count(h_fn, a_fn, n, n * spacing, vehicle_length_m, v_max, human_delay_s=delay_s)
+    doc: dict[str, Any] = r.to_dict()
+    doc.update(
+        {
+            "human_law": human.name,
+            "aev_law": aev.name,
+            "aev_positions": sorted(idx),
+            "human_delay_s": delay_s,
+            "spacing_m": spacing,
+            "min_aev_count": m,
+            "growth_by_aev_count_per_s": growth,
+        }
+    )
+    out.mkdir(parents=True, exist_ok=True)
+    write_json(out / "mixed_ring_stability.json", doc)
+    save_stability_manifest(out, "mixed_ring_stability")  # aev_ocp.load(out) reads it back
+    print(
+        f"mixed ring of {n}: {aev_count} × {aev.name} among {human.name} (delay {delay_s:g} s), spacing {spacing:.6g} m: "
+        f"equilibrium speed {r.v_star_mps:.6g} m/s"
+    )
+    print(
+        f"  growth rate {r.growth_rate_per_s:.6g} 1/s (frequency {r.frequency_rad_per_s:.4g} rad/s); ring stable: "
+        f"{r.ring_stable}; fewest evenly spread {aev.name} cars that stabilise it: "
+        f"{m if m is not None else f'none of 0 … {n}'}"
+    )
+    print(f"wrote 2 files to {out}/")
+    return EXIT_OK
+
+
+def cli_ring_stability(
+    law: Any,
+    n: int,
+    spacing_m: float | None,
+    density_per_km: float | None,
+    vehicle_length_m: float,
+    units: Any,
+    out: Path,
+    measure: bool,
+) -> int:
+    """``aev-ocp stability --ring N``: the ring's modes, growth rate, wavelength, n → ∞ limit and the head-to-tail
+    criterion, with the measured growth beside them; writes ring_stability.json."""
+    from ..params import EVParams
+    from ..results import claim_output_dir, write_json
+    from .outputs import save_stability_manifest
+    from .ring import measured_growth, ring_stability
+
+    spacing = _ring_spacing_m(spacing_m, density_per_km, vehicle_length_m)
+    if not (2 <= n <= 100_000):
+        raise ParameterError(f"--ring {n}: must be an integer in [2, 100000]")
+    claim_output_dir(
+        out, "stability --ring", law.name, None, ["ring_stability.json", "manifest.json"]
+    )  # before any work
+    ev = EVParams(units=units)
+    rs = ring_stability(law, n, n * spacing, vehicle_length_m, ev)
+    doc: dict[str, Any] = rs.to_dict()
+    if n > 200:
+        doc["modes"] = doc["modes"][:100]  # thinned for the file
+    meas = measured_growth(law, n, n * spacing, vehicle_length_m, ev) if measure and n <= 2000 else None
+    doc["measured"] = meas
+    out.mkdir(parents=True, exist_ok=True)
+    write_json(out / "ring_stability.json", doc)
+    save_stability_manifest(out, "ring_stability")  # aev_ocp.load(out) reads it back
+    print(
+        f"ring of {n} × {law.name} at spacing {spacing:.6g} m (gap {rs.gap_m:.6g} m, {1000 / spacing:.6g} veh/km): "
+        f"uniform speed {rs.v_star_mps:.6g} m/s"
+    )
+    print(
+        f"  growth rate {rs.growth_rate_per_s:.6g} 1/s (mode k = {rs.most_unstable_k}, wavelength "
+        f"{rs.wavelength_m:.6g} m, wave speed {rs.wave_speed_mps:.4g} m/s); ring stable: {rs.ring_stable}"
+    )
+    print(
+        f"  n → ∞: growth {rs.limit_growth_rate_per_s:.6g} 1/s at θ = {rs.limit_theta:.4g}; head-to-tail C = "
+        f"{rs.criterion_per_s2:.6g} 1/s², string stable: {rs.string_stable}"
+    )
+    if meas is not None:
+        print(
+            f"  measured growth {meas['measured_per_s']:.6g} 1/s (predicted {meas['predicted_per_s']:.6g}, relative "
+            f"error {meas['relative_error']:.2g}, run {meas['t_end_s']:.4g} s: {meas['status']})"
+        )
+    print(f"wrote 2 files to {out}/")
+    return EXIT_OK

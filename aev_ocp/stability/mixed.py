@@ -20,7 +20,7 @@ so going once around the ring the eigenvalues are the roots of the characteristi
 
 λ = 0 is always a root (the gaps' sum is fixed: moving every vehicle by the same distance changes nothing); the
 ring is linearly stable when every other root has Re λ < 0. For identical vehicles χ factors into the Fourier
-modes of :mod:`aev_ocp.ring.stability`; in general it does not, and the spectrum is computed from the state
+modes of :mod:`aev_ocp.stability.ring`; in general it does not, and the spectrum is computed from the state
 matrix of the linearised ring (:func:`state_matrix`, its eigenvalues by LAPACK): exact when no vehicle has a delay.
 A delay makes the spectrum infinite: the state matrix then carries a Padé approximant of e^{−λT_i} of a stated
 order, and each of its rightmost eigenvalues is refined by Newton's method on χ itself, so the returned rightmost

@@ -6,6 +6,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
+from ..errors import AevOcpError
+
 
 #: The study table's fixed columns (:mod:`aev_ocp.study.table`): % change against the reference of CHANGE_METRICS, and
 #: the equal-distance and equal-time views (issue 21 item 5): pack ∫Q per km of every run of a point up to the
@@ -39,7 +41,7 @@ TABLE_TAIL = ("wall_s", "task_hash", "aev_ocp_version", "casadi_version", "git_c
 TABLE_EXTRA = ("vehicle_status", "ocpd_role", "ocpd_role_reason")
 
 
-class StudyError(ValueError):
+class StudyError(AevOcpError, ValueError):
     """A study file is invalid; the message names the study file, the axis and the key."""
 
 

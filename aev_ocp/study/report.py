@@ -393,6 +393,11 @@ def write_report(study: Study, rows_all: list[dict[str, Any]], out: str | Path) 
                 "runs of different length compare like with like; the same up to the common time: `eq_time_*`.",
                 "",
             ] + eq
+    from .seeds import markdown_lines, study_seeds
+
+    seeds = study_seeds(study, rows_all)
+    if seeds is not None:
+        lines += ["## Over the seeds", ""] + markdown_lines(seeds)
     for mx, my, base, f, front in fronts:
         lines += [
             f"## Pareto front: {mx} vs {my}{', ' + base if base else ''} (both minimised, "

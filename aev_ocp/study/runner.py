@@ -30,6 +30,7 @@ from collections import OrderedDict
 from pathlib import Path
 from typing import Any, Callable, Iterable, Iterator
 
+from ..errors import AevOcpError
 from .. import interrupts
 from ..progress import Progress, TimeLimitReached
 from ..truncation import cumulative_profile
@@ -44,7 +45,12 @@ def run_task(spec: dict[str, Any]) -> dict[str, Any]:
     """Run one task specification (picklable dict from :func:`aev_ocp.study.spec.make_task`).
 
     Returns {key, controller, status, message, metrics: [per-vehicle §10 metrics], wall_s}; status is
-    'ok', the kind of the event that ended the run, or 'error' (an exception; message holds it)."""
+    'ok', the kind of the event that ended the run, or 'error' (an exception; message holds it). A ring or SUMO
+    point (``spec["kind"]``) runs through :func:`aev_ocp.study.traffic.run_point`."""
+    if spec.get("kind") in ("ring", "sumo"):
+        from .traffic import run_point
+
+        return run_point(spec)
     t0 = time.perf_counter()
     c = spec["controller"]
     out: dict[str, Any] = {"key": spec["key"], "controller": c["label"]}
@@ -238,7 +244,7 @@ MAX_ENTRY_BYTES = 50_000_000  # a stored task result is a few kB (metrics + prof
 
 
 # ----------------------------------------------------------------------------- time limit
-class TimeLimitStop(RuntimeError):
+class TimeLimitStop(AevOcpError, RuntimeError):
     """The study's time limit passed: finished tasks are stored, the rest did not run."""
 
 

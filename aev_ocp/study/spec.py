@@ -37,6 +37,11 @@ A study is a TOML file (see README.md "Studies")::
     pareto = [["heat_pack_J_per_km", "rms_rel_speed_model"]]
     pareto_by = ["leader.cycle"]         # a front per value of these keys (and per base scenario)
     change_metric = "omega_model"        # % change vs the reference, tabulated over the first two axes
+    differences = [["mpc", "ovfl"]]      # with a seed axis: paired a − b over the seeds (default: each vs reference)
+
+An axis whose keys are all seeds (``sensors.seed``, ``mismatch.seed``, ``ring.seed``, ...) is a *seed axis*: the
+study then also reports every [report] metric over the seeds, mean, 95 % interval and n, and the paired differences
+between controllers with a better/worse/tie verdict (:mod:`aev_ocp.study.seeds`; ``seeds.json``, report.md).
 
 Points are the Cartesian product of the axes (and of ``scenarios``). Every point and every
 controller is validated (the scenario loader's checks) before anything runs; an error names the
@@ -251,6 +256,9 @@ def _parse_study(doc: dict[str, Any], file: str, path: Path | None, sets: dict[s
     if reference not in labels:
         raise top.error("reference", reference, f"must be one of the controllers {labels}")
     report = _report(top.sub("report"), file)
+    unknown = sorted({x for pair in report["differences"] for x in pair} - set(labels))
+    if unknown:
+        raise StudyError(f"{file}: report.differences names {unknown}, not controllers of the study {labels}")
     check_report(file, report, axes)  # a metric name that is no column: before the points are validated
     top.finish()
 

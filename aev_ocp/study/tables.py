@@ -129,6 +129,13 @@ def _report(r: TableReader, file: str) -> dict[str, Any]:
         raise r.error("pareto", pareto, "expected an array of [metric_x, metric_y] pairs (both minimised)")
     rep["pareto"] = [tuple(p) for p in pareto]
     rep["pareto_by"] = r.strings("pareto_by", [])
+    diffs = r.table.get("differences", [])
+    r._get("differences", None)
+    if not isinstance(diffs, list) or not all(
+        isinstance(p, list) and len(p) == 2 and all(isinstance(x, str) for x in p) and p[0] != p[1] for p in diffs
+    ):
+        raise r.error("differences", diffs, 'expected an array of ["a", "b"] controller label pairs (a − b per seed)')
+    rep["differences"] = [tuple(p) for p in diffs]
     r.finish()
     return rep
 

@@ -12,12 +12,12 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any, Callable
 
-from ..report import markdown_table
-from ..report_sections import SectionContext
-from ..results import write_json
-from .experiments import STABLE_LENGTH_M, relative_to, run_ring_scenario
-from .scenario import build_ring, load_ring_scenario
-from .stability import measured_growth, ring_stability
+from .report import markdown_table
+from .report_sections import SectionContext
+from .results import write_json
+from .ring.experiments import STABLE_LENGTH_M, relative_to, run_ring_scenario
+from .ring.scenario import build_ring, load_ring_scenario
+from .stability.ring import measured_growth, ring_stability
 
 QUICK_T_END_S = 120.0
 
@@ -32,7 +32,7 @@ def _g(x: Any, fmt: str = ".4g") -> str:
 
 def ring_section(out_dir: Path, progress: Callable[[str], None]) -> str:
     """Run the Sugiyama and Stern rings, write ring.json and ring_space_time.png into ``out_dir``; Markdown."""
-    from .plots import space_time_panels
+    from .ring.plots import space_time_panels
 
     ctx = SectionContext.of(progress)
     t_end = None if ctx.config.is_full else QUICK_T_END_S
@@ -155,4 +155,4 @@ def ring_section(out_dir: Path, progress: Callable[[str], None]) -> str:
     return "".join(md)
 
 
-REPRODUCE_SECTIONS = [("ring", ring_section, 3)]  # listed in aev_ocp.report_sections.SECTION_PROVIDERS
+REPRODUCE_SECTIONS = [("ring", ring_section, 3)]  # listed in aev_ocp.reproduce.SECTION_PROVIDERS

@@ -10,10 +10,10 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from .models.battery import stored_energy_J
-from .ocp.result import OCPResult, write_json_atomic
-from .params import CellParams
-from .plots import Figure, plt, save_figure
+from ..models.battery import stored_energy_J
+from ..ocp_result import OCPResult, write_json_atomic
+from ..params import CellParams
+from ..plots import Figure, plt, save_figure
 
 # name in an OCPResult -> (readable name, unit for a time unit in seconds, unit for model time)
 QUANTITY_LABELS: dict[str, tuple[str, str, str]] = {

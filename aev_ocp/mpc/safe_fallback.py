@@ -19,7 +19,7 @@ from typing import Any
 from ..control import Command, Observation
 from ..models.carfollowing import CarFollowingLaw
 from ..params import EVParams, ParameterError, Units
-from .bound import (  # noqa: F401 - re-exported: the bound's names stay importable from here
+from ..models.safety_bound import (  # noqa: F401 - re-exported: the bound's names stay importable from here
     _DEFAULT_LIMITS,
     SafetyParams,
     _stopping_point_peak,

@@ -12,7 +12,7 @@ from typing import Any
 
 import numpy as np
 
-from ..results import FieldsRepr, require_pandas, to_jsonable, write_atomic, write_json
+from .results import FieldsRepr, require_pandas, to_jsonable, write_atomic, write_json
 
 
 # one implementation of atomic writes and JSON conversion for the whole package

@@ -31,8 +31,8 @@ import numpy as np
 
 from ..models.carfollowing import CarFollowingLaw
 from ..params import EVParams, ParameterError
-from ..stability.linear import head_to_tail_criterion, partials_function
-from .simulate import _equilibrium_speed
+from .linear import head_to_tail_criterion, partials_function
+from ..ring.simulate import _equilibrium_speed
 
 
 @dataclass(frozen=True)
@@ -224,7 +224,7 @@ def measured_growth(
     """The growth rate [1/s] of a small perturbation measured in simulation (the compiled ring, rtol 1e-11):
     uniform flow plus mode k (default the most unstable) with gap amplitude ``amplitude_m``, set on that mode's
     eigenvector (the dominant root only), and the slope of log |Σ_i η_i e^{−iθ_k i}| fitted over the run."""
-    from .simulate import RingInitial, RingOptions, RingRoad, RingSimulator
+    from ..ring.simulate import RingInitial, RingOptions, RingRoad, RingSimulator
 
     ev = ev or EVParams()
     u = ev.units
