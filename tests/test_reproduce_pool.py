@@ -45,7 +45,8 @@ def failing_section(out_dir, ctx):
 def registry(monkeypatch):
     saved = dict(rp._REGISTRY)
     rp._REGISTRY.clear()
-    monkeypatch.setattr(rp, "load_providers", lambda log=None: [])  # only the sections each test registers
+    # only the sections each test registers
+    monkeypatch.setattr(rp, "load_providers", lambda providers=(), log=None: [])
     here = str(Path(__file__).parent)
     monkeypatch.setenv("PYTHONPATH", here + ":" + __import__("os").environ.get("PYTHONPATH", ""))
     yield
