@@ -86,6 +86,12 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--out", default="results", help="output folder (default: results/)")
     r.add_argument("--quick", action="store_true", help="a cheap smoke run (short horizons), not the reproduction")
     r.add_argument(
+        "--workers",
+        type=int,
+        default=None,
+        help="independent sections run on this many worker processes (default: min(2, cores); 1: one process)",
+    )
+    r.add_argument(
         "--model-units",
         action="store_true",
         help="figure axes in the paper's model units (default: s, m, km/h through each scenario's units)",
@@ -263,7 +269,14 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
     config = ReproduceConfig.quick() if args.quick else ReproduceConfig()
     if args.model_units:
         config = dataclasses.replace(config, si_units=False)
-    report = reproduce(args.out, config)  # its last stderr line: [N/N] done, both files and the verdict
+    import os
+
+    from .limits import check_local_workers
+
+    workers = check_local_workers(args.workers) or min(2, os.cpu_count() or 1)  # a bad --workers names itself
+    report = reproduce(
+        args.out, config, workers=workers
+    )  # its last stderr line: [N/N] done, both files and the verdict
     print(f"wrote {report} and {report.parent / 'report.html'}")
     return EXIT_OK
 

@@ -29,7 +29,7 @@ from .estimation.kalman import EKF
 from .estimation.mhe import MHE
 from .estimation.mismatch import Mismatch
 from .estimation.sensors import CHANNELS, Measurement, SensorModel, Sensors
-from .loop import COUNT_NAMES, CommandStages, Command, Controller, Observation, VehicleStep, stages_for
+from .loop import COUNT_NAMES, CommandStages, Command, Controller, History, Observation, VehicleStep, stages_for
 from .models import battery
 from .models.carfollowing import CarFollowingLaw, Proposed
 from .models.leader import LeaderProfile
@@ -356,8 +356,8 @@ class ClosedLoop(PlatoonRun):
         }
         rec: list[dict[str, list[Any]]] = [cores[i].rec if i in cores else {} for i in range(n)]
         est_s: list[list[float]] = [[] for _ in range(n)]  # the sensors' read-out and the estimator's update [s]
-        meas_t: list[float] = []
-        meas_v: list[list[float]] = [[] for _ in range(n)]
+        meas_t = History(K + 1)  # the measured times and speeds so far, read by every step (History: no copies)
+        meas_v = [History(K + 1) for _ in range(n)]
         u = self.ev.units
         sensed = self.sensors is not None and self.sensors.degraded
         sm = SensorModel(self.sensors, n) if sensed and self.sensors is not None else None
@@ -417,8 +417,8 @@ class ClosedLoop(PlatoonRun):
                     dt,
                     i,
                     z,
-                    np.asarray(meas_t),
-                    np.asarray(meas_v[i]),
+                    meas_t.view(),
+                    meas_v[i].view(),
                     plans[i - 1] if i > 0 else None,
                     float(a_app[j]),
                     None if plant.act_row is None else float(x[plant.act_row + i]),

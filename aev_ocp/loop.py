@@ -42,6 +42,35 @@ from .params import ParameterError, Units, VehicleLimits, as_dict, spec, validat
 from .models.safety_bound import SafetyParams, safe_acceleration_mps2
 
 
+class History:
+    """A series of floats appended one at a time and read as a NumPy array of everything so far (the closed loops'
+    measured times and speeds): :meth:`view` is a read-only view, O(1), where ``np.asarray(list)`` copied the whole
+    history at every step (quadratic: 30 s of a 200 s reproduce section, issue 40). Entries never change once
+    appended, so a view taken earlier stays valid."""
+
+    def __init__(self, capacity: int = 256) -> None:
+        self._a = np.empty(max(1, int(capacity)))
+        self.n = 0
+
+    def append(self, value: float) -> None:
+        """Add one value (the buffer doubles when full)."""
+        if self.n == self._a.size:
+            grown = np.empty(2 * self._a.size)
+            grown[: self.n] = self._a
+            self._a = grown
+        self._a[self.n] = value
+        self.n += 1
+
+    def __len__(self) -> int:
+        return self.n
+
+    def view(self) -> np.ndarray:
+        """The values so far (float64, oldest first), read-only."""
+        v = self._a[: self.n]
+        v.flags.writeable = False
+        return v
+
+
 @dataclass
 class Observation:
     """What follower ``vehicle`` (0-based) knows at time t [model time]: its own state

@@ -35,7 +35,7 @@ from .report import (
 )
 from .report_sections import ProgressFn, ReproduceConfig, Section, SectionContext
 from .results import SimulationResult, write_json
-from .saved import save_output, settings_of
+from .saved import FIGURE_MAX_SAMPLES, save_output, settings_of
 from .scenarios import Scenario, iter_shipped, load_scenario
 from .simulate import simulate_platoon
 
@@ -378,7 +378,8 @@ class PaperRun:
             "## Battery side of every shipped scenario\n\n"
             "Pack ∫Q (the paper's power loss, unclipped) and ∫Q_irr (the heat actually dissipated), "
             "ΔSOC = S_end − S_0, per follower, each scenario under its own units. Per-run metrics: "
-            'scenarios/<name>/metrics.json; the runs themselves: `aev_ocp.load("scenarios/<name>")` (the runs of '
+            'scenarios/<name>/metrics.json; the runs themselves: `aev_ocp.load("scenarios/<name>")` (runs longer '
+            f"than {FIGURE_MAX_SAMPLES} samples stored thinned to about that many, for their figures; the runs of "
             'Fig. 1/2 and Table 1 are stored once, in their own folders: `aev_ocp.load("fig1a")`, '
             '`aev_ocp.load("table1")`; their metrics.json names that folder).\n'
         ]
@@ -423,9 +424,13 @@ class PaperRun:
                 metrics["trajectories"] = f"../../{elsewhere}"  # aev_ocp.load(out / elsewhere): stored once
             write_json(sub / "metrics.json", metrics)
             if elsewhere is None:
-                save_output(
-                    sub, "mpc" if "mpc" in res else "simulate", res, settings=settings_of(s)
-                )  # aev_ocp.load(sub)
+                save_output(  # aev_ocp.load(sub); long runs thinned for their figures (metrics: every sample)
+                    sub,
+                    "mpc" if "mpc" in res else "simulate",
+                    res,
+                    settings=settings_of(s),
+                    max_samples=FIGURE_MAX_SAMPLES,
+                )
             i_max = s.ev.cell.max_current_A
             headers, rows = scenario_metrics_rows(res, i_max_A=i_max, totals=True)
             u = s.units

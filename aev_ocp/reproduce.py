@@ -62,26 +62,33 @@ class Progress:
     writing step and the final line): k is the step a line belongs to. A line beyond what its section declared
     (e.g. OCP-D's iteration lines) is a sub-step: it repeats k; a section that reports fewer lines than it
     declared (e.g. cached runs) moves k past its skipped steps when it ends. So N never moves, k never goes
-    back or past N, and N/N is printed once, by :meth:`done`, after the last file is written."""
+    back or past N, and N/N is printed once, by :meth:`done`, after the last file is written.
+
+    Sections that run at the same time (``reproduce(workers=2)``) each pass their own ``key`` to :meth:`begin`,
+    :meth:`end` and the call: each keeps its own count of declared lines left; k counts them all."""
 
     def __init__(self, total: int, stream: Any = None, clock: Any = None) -> None:
         self.total, self.k, self.stream = total, 0, stream if stream is not None else sys.stderr
-        self.left = 0  # declared lines of the running section not reported yet
+        self._left: dict[str, int] = {}  # declared lines not reported yet, per running section
         self.clock = clock if clock is not None else time.perf_counter
         self.t0 = self.clock()
 
-    def begin(self, steps: int) -> None:
+    @property
+    def left(self) -> int:
+        """Declared lines of the running section(s) not reported yet."""
+        return sum(self._left.values())
+
+    def begin(self, steps: int, key: str = "") -> None:
         """A section that declared ``steps`` lines starts (its steps are part of N already)."""
-        self.left = steps
+        self._left[key] = steps
 
-    def end(self) -> None:
+    def end(self, key: str = "") -> None:
         """The section ended: the steps it declared but did not report are passed over (k moves past them)."""
-        self.k = min(self.k + self.left, self.total - 1)
-        self.left = 0
+        self.k = min(self.k + self._left.pop(key, 0), self.total - 1)
 
-    def __call__(self, message: str) -> None:
-        if self.left > 0:
-            self.left -= 1
+    def __call__(self, message: str, key: str = "") -> None:
+        if self._left.get(key, 0) > 0:
+            self._left[key] -= 1
             self.k = min(self.k + 1, self.total - 1)  # N/N belongs to done() alone
         self._line(message)
 
@@ -110,10 +117,14 @@ def reproduce(
     *,
     registered: bool = True,
     stream: Any = None,
+    workers: int = 1,
 ) -> Path:
     """Run every section, write all files into ``out_dir`` and return the path of report.md.
 
-    registered: also run the sections registered by other modules (after loading the providers).
+    registered: also run the sections registered by other modules (after loading the providers). workers: run
+    independent sections on a pool of this many worker processes (1: one after another in this process); the
+    report, its claims and every file are the same either way (each section writes its own files; its Markdown
+    and claims are put in the declared order), only the progress lines interleave.
     """
     config = config or ReproduceConfig()
     out = Path(out_dir)
@@ -123,6 +134,7 @@ def reproduce(
     run = PaperRun(config)
     claims: list[Claim] = []
     sections = run.sections()
+    n_builtin = len(sections)  # PaperRun's sections share its state: they run together, in order
     if registered:
         load_providers(SECTION_PROVIDERS, log=log)
         sections += list(_REGISTRY.values())
@@ -149,19 +161,20 @@ def reproduce(
         + ", ".join(f"{k} `{v}`" for k, v in prov.items() if v is not None)
         + "; random seeds are in each section's JSON (e.g. `theorem41.json`).\n"
     )
-    for sec in sections:
-        progress.begin(sec.steps)
-        try:
-            md = sec.fn(out, SectionContext(_prefixed(progress, sec.name), config, claims))
-        except ReportSectionError:
-            raise
-        except Exception as exc:  # KeyboardInterrupt/SystemExit pass through untouched
-            raise ReportSectionError(
-                f"report section {sec.name!r} failed: {cause(exc)} (no report.md written)"
-            ) from exc
-        if md:
-            parts.append("\n" + md.rstrip() + "\n")
-        progress.end()
+    if workers > 1:
+        from .reproduce_pool import run_sections_pooled
+
+        for md, sec_claims in run_sections_pooled(sections, n_builtin, out, config, progress, workers):
+            claims.extend(sec_claims)
+            if md:
+                parts.append("\n" + md.rstrip() + "\n")
+    else:
+        for sec in sections:
+            progress.begin(sec.steps)
+            md = run_section(sec, out, SectionContext(_prefixed(progress, sec.name), config, claims))
+            if md:
+                parts.append("\n" + md.rstrip() + "\n")
+            progress.end()
     _claims_from_outputs(out, parts, claims)
     parts.insert(1, "\n" + summary_section(claims))
     progress.begin(1)
@@ -174,6 +187,16 @@ def reproduce(
     path = write_text(out / "report.md", text)
     progress.done(f"done: wrote {path} and {out / 'report.html'}; verdict: {verdict(claims)}")
     return path
+
+
+def run_section(sec: Any, out: Path, ctx: SectionContext) -> str:
+    """One section's Markdown; an exception becomes :class:`ReportSectionError` naming the section."""
+    try:
+        return sec.fn(out, ctx)
+    except ReportSectionError:
+        raise
+    except Exception as exc:  # KeyboardInterrupt/SystemExit pass through untouched
+        raise ReportSectionError(f"report section {sec.name!r} failed: {cause(exc)} (no report.md written)") from exc
 
 
 def _prefixed(progress: ProgressFn, name: str) -> ProgressFn:

@@ -5,7 +5,9 @@ Format (``format = "aev_ocp-output"``, ``format_version`` 1):
 - ``trajectories.npz``: every array of every run, keyed ``<run label>/<field>`` (SimulationResult:
   ``t``, ``gap``, ``speed`` …; OCPResult: ``t``, ``states/<name>``, ``controls/<name>``,
   ``outputs/<name>`` and its scalars ``objective`` …). NumPy's own format (no pickle): float64 kept
-  bit for bit, NaN and inf included, read without aev_ocp by ``numpy.load``.
+  bit for bit, NaN and inf included, read without aev_ocp by ``numpy.load``. A run saved with ``max_samples``
+  (reproduce's long drive-cycle runs, kept for their figures) holds every k-th sample and the last; its
+  manifest record says ``stored_samples`` of ``samples``, and its ``metrics`` are those of the whole run.
 - ``manifest.json``: ``kind`` (:data:`KINDS`), ``primary`` (the run :func:`load` returns),
   per run its type, controllers, events, parameters, solver statistics, meta and metrics as saved;
   ``settings`` (the scenario's TOML document and the command's options) and ``provenance``
@@ -77,6 +79,10 @@ KINDS = (
 )
 DOCUMENT_KINDS = ("ring", "safety", "stability", "ring_stability", "mixed_ring_stability")  # see aev_ocp.loading
 OCP_SCALARS = ("objective", "objective_exact", "max_violation", "wall_time_s", "solver_time_s")
+#: Samples per run that reproduce stores of its long drive-cycle runs (scenarios/, mpc_cycles/), which it keeps for
+#: their figures: our choice, more points than a figure has pixels across (udds_platoon: 31 101 samples -> 3 889;
+#: the output folder 132 -> under 60 MB, issue 40); their metrics are computed from every sample.
+FIGURE_MAX_SAMPLES = 4000
 OUTPUT_FILES = (MANIFEST, ARRAYS)  # what :func:`save_output` writes (for claim_output_dir)
 
 
@@ -90,14 +96,34 @@ def _own_meta(meta: dict[str, Any]) -> dict[str, Any]:
     return {k: v for k, v in meta.items() if k != "output"}
 
 
-def _sim_record(label: str, r: SimulationResult, arrays: dict[str, np.ndarray]) -> dict[str, Any]:
+def stored_samples(n: int, max_samples: int | None) -> np.ndarray | None:
+    """Indices of the samples kept of ``n`` when at most about ``max_samples`` are stored: every k-th from the first
+    (k = ceil(n / max_samples)) and always the last; None: all (``max_samples`` None or n ≤ max_samples)."""
+    if max_samples is None or n <= max_samples:
+        return None
+    idx = np.arange(0, n, math.ceil(n / max_samples))
+    return idx if idx[-1] == n - 1 else np.append(idx, n - 1)
+
+
+def _sim_record(
+    label: str, r: SimulationResult, arrays: dict[str, np.ndarray], max_samples: int | None = None
+) -> dict[str, Any]:
+    n = np.asarray(r.t).shape[0]
+    keep = stored_samples(n, max_samples)
+
+    def put(name: str, v: Any) -> None:
+        a = np.asarray(v)
+        arrays[f"{label}/{name}"] = a[keep] if keep is not None and a.ndim and a.shape[0] == n else a
+
     for name in SIM_ARRAYS:
-        arrays[f"{label}/{name}"] = np.asarray(getattr(r, name))
+        put(name, getattr(r, name))
     if r.temperature_K is not None:  # the pack temperature [K] of a run with the thermal model
-        arrays[f"{label}/temperature_K"] = np.asarray(r.temperature_K)
+        put("temperature_K", r.temperature_K)
     if r.battery_energy_J is not None:  # ∫P_b [J] of a plant that integrates it (SUMO)
-        arrays[f"{label}/battery_energy_J"] = np.asarray(r.battery_energy_J)
+        put("battery_energy_J", r.battery_energy_J)
+    thinned = {} if keep is None else {"stored_samples": int(keep.size), "samples": int(n)}
     return {
+        **thinned,
         "type": "SimulationResult",
         "status": r.status,
         "controllers": list(r.controllers),
@@ -151,6 +177,7 @@ def save_output(
     extra: Mapping[str, Any] | None = None,
     document: str | Path | None = None,
     arrays: Mapping[str, np.ndarray] | None = None,
+    max_samples: int | None = None,
 ) -> list[Path]:
     """Write ``trajectories.npz`` (if any run or array) and ``manifest.json`` into ``out``; returns the paths.
 
@@ -158,7 +185,10 @@ def save_output(
     (default the first); settings: what produced the runs (scenario document, options); extra: more
     JSON-ready manifest entries (e.g. a study's table file); document: a JSON file already written into ``out``
     that holds the output's numbers (the manifest names it with its SHA-256, :func:`read_document` checks it);
-    arrays: more arrays for ``trajectories.npz`` ({key: array}, keys not starting with a run label + '/')."""
+    arrays: more arrays for ``trajectories.npz`` ({key: array}, keys not starting with a run label + '/');
+    max_samples: store about this many samples of a longer simulation run (:func:`stored_samples`: evenly spaced,
+    the first and the last; for figures), its manifest record saying ``stored_samples`` of ``samples`` (its
+    metrics are those of every sample); None: all."""
     if kind not in KINDS:
         raise ValueError(f"save_output: kind {kind!r} is not one of {KINDS}")
     from .ocp_result import OCPResult
@@ -170,7 +200,7 @@ def save_output(
         if "/" in label:
             raise ValueError(f"save_output: run label {label!r} must not contain '/'")
         if isinstance(r, SimulationResult):
-            records[label] = _sim_record(label, r, arrays)
+            records[label] = _sim_record(label, r, arrays, max_samples)
         elif isinstance(r, OCPResult):
             records[label] = _ocp_record(label, r, arrays)
         else:

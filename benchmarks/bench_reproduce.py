@@ -42,14 +42,18 @@ def folder_size(path: Path) -> tuple[int, list[tuple[str, int]]]:
     return sum(s for _, s in files), sorted(files, key=lambda x: -x[1])[:5]
 
 
-def run(quick: bool, keep: Path | None) -> dict[str, Any]:
-    """One reproduce run in a child process with an empty compile cache; its measurements."""
+def run(quick: bool, keep: Path | None, profile: Path | None = None) -> dict[str, Any]:
+    """One reproduce run in a child process with an empty compile cache; its measurements. ``profile``: profile
+    each section into that folder (benchmarks/profile_reproduce.py: cProfile, CPU per section, compiled sources)."""
     with tempfile.TemporaryDirectory(prefix="aev_bench_repro_") as tmp:
         out = keep if keep is not None else Path(tmp) / "results"
         if keep is not None and keep.exists():
             shutil.rmtree(keep)
         env = {**os.environ, "AEV_OCP_CACHE": str(Path(tmp) / "cache"), "PYTHONPATH": str(ROOT)}
-        cmd = [sys.executable, "-m", "aev_ocp.cli", "reproduce", "--out", str(out)] + (["--quick"] if quick else [])
+        head = [sys.executable, "-m", "aev_ocp.cli", "reproduce"]
+        if profile is not None:
+            head = [sys.executable, str(ROOT / "benchmarks" / "profile_reproduce.py"), str(profile.resolve())]
+        cmd = head + ["--out", str(out)] + (["--quick"] if quick else [])
         load0 = os.getloadavg()[0]
         r0 = resource.getrusage(resource.RUSAGE_CHILDREN)
         t0 = time.perf_counter()
@@ -80,8 +84,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--quick", action="store_true", help="reproduce --quick (a smoke run, not the reproduction)")
     ap.add_argument("--keep", type=Path, default=None, help="write the reproduction here (default: a temp folder)")
     ap.add_argument("--baseline", type=Path, default=None, help="a JSON this script wrote (another version's run)")
+    ap.add_argument("--profile", type=Path, default=None, help="profile each section into this folder (slower)")
     a = ap.parse_args(argv)
-    res = run(a.quick, a.keep)
+    res = run(a.quick, a.keep, a.profile)
     base = json.loads(a.baseline.read_text()) if a.baseline else None
     rows = [
         ("wall [s]", "wall_s"),

@@ -87,3 +87,24 @@ def test_a_parameter_that_would_change_the_rounding_stays_compiled_in() -> None:
     sim = S.PlatoonSimulator(ConstantSpeed(0.5), [Proposed()], _ev(0.0121))
     chosen = {p[0] for p in S._EV_PATHS[(True, S._skeleton(sim.ev), S._law_template(sim.laws[0])[0])]}
     assert "cell" in chosen and "units" not in chosen and "vehicle" not in chosen
+
+
+def test_a_traffic_rti_controller_compiles_no_ipopt_nlp_it_never_runs(tmp_path, monkeypatch) -> None:
+    """The cold IPOPT's NLP (library mpc_nlp_ipopt, ~0.65 MB of C) is generated and compiled only for a controller
+    that can run it: the traffic formulation's rti path starts cold by RTI and never does, §9's rti path starts with
+    a cold IPOPT and builds it with the controller (a first step that had to build it would blow its time budget)."""
+    from aev_ocp.mpc.controller import MPCController
+    from aev_ocp.mpc.settings import MPCSettings
+    from aev_ocp.ocp.formulation import s9_formulation
+
+    monkeypatch.setenv("AEV_OCP_CACHE", str(tmp_path / "cache"))
+    s = MPCSettings(N=6, dt=0.2, solver="rti", codegen=True)
+    n0 = len(B.compilations())
+    traffic = MPCController(s)
+    assert B.compilations()[n0:] == ["mpc_step"]
+    sol = traffic.solve(np.array([1.3, 0.9, 0.0, 0.0, 0.8]), np.full(6, 0.95), np.full(6, 0.95))
+    assert sol.success and sol.path != "ipopt-cold"
+    assert B.compilations()[n0:] == ["mpc_step"]  # a cold step of the traffic path builds no IPOPT
+    # §9's rti path starts with a cold IPOPT: built with the controller (interpreted here: no second compilation)
+    s9 = MPCController(dataclasses.replace(s, codegen=False), formulation=s9_formulation())
+    assert s9._cold_ipopt is not None and traffic._cold_ipopt is None

@@ -282,8 +282,13 @@ class MPCController:
     # ------------------------------------------------------------------ solvers
     def _build_solvers(self) -> None:
         s, nlp = self.settings, self.nlp
-        self._cold, compiled = nlp.ipopt("mpc_ipopt_cold", warm=False)
-        self.codegen_active |= compiled
+        self._cold_ipopt: ca.Function | None = None
+        if not (s.solver == "rti" and self.rti_cold_start):
+            # the cold IPOPT runs only where a path can reach it: the rti path of a formulation that starts cold by
+            # RTI (traffic) never does (its failed steps start cold by RTI again), so its NLP is neither generated
+            # nor compiled (issue 40: one mpc_nlp_ipopt library fewer per traffic controller)
+            self._cold_ipopt, compiled = nlp.ipopt("mpc_ipopt_cold", warm=False)
+            self.codegen_active |= compiled
         self._fast: ca.Function | None = None
         if s.solver == "ipopt":
             self._fast, compiled = nlp.ipopt("mpc_ipopt_warm", warm=True)
@@ -468,6 +473,14 @@ class MPCController:
             {"t_wall_solver": float(st.get("t_wall_total", float("nan")))},
             U,
         )
+
+    @property
+    def _cold(self) -> ca.Function:
+        """The cold IPOPT (built with the controller where a path can reach it; else on first use)."""
+        if self._cold_ipopt is None:
+            self._cold_ipopt, compiled = self.nlp.ipopt("mpc_ipopt_cold", warm=False)
+            self.codegen_active |= compiled
+        return self._cold_ipopt
 
     # ------------------------------------------------------------------ failed and late steps
     def late(self, warm: dict[str, Any], iters: int, dt_wall: float, viol: float, path: str) -> MPCSolution:

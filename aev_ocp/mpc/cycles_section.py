@@ -203,12 +203,19 @@ def verdicts(rows: Sequence[dict[str, Any]]) -> list[str]:
 def _save_cycle(runs: dict[tuple[str, Any], Any], folder: Path, sc: Any, title: str) -> str:
     """Save one cycle's runs (loadable: labels ``mpc+<forecast>`` and the laws' names) and their overlay figure
     ``overlay.png`` into ``folder``; returns the Markdown image line (path relative to the report)."""
-    from ..saved import save_output, settings_of
+    from ..saved import FIGURE_MAX_SAMPLES, save_output, settings_of
     from .plots import plot_overlay
 
     labelled = {(name if pred is None else f"{name}+{pred}"): r for (name, pred), r in runs.items()}
     primary = next((k for k in labelled if k.startswith("mpc")), None)
-    save_output(folder, "mpc" if primary else "simulate", labelled, primary=primary, settings=settings_of(sc))
+    save_output(
+        folder,
+        "mpc" if primary else "simulate",
+        labelled,
+        primary=primary,
+        settings=settings_of(sc),
+        max_samples=FIGURE_MAX_SAMPLES,  # for the figures (metrics: every sample)
+    )
     plot_overlay(labelled, folder / "overlay.png", vehicle=0)
     rel = f"{folder.parent.name}/{folder.name}/overlay.png"
     return f"![{title}]({rel})"

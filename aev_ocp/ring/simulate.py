@@ -50,7 +50,7 @@ import numpy as np
 from ..compiled import compile_shared, dense_outputs, driver_source
 from ..limits import check_ring_cuts, check_ring_size
 from ..control import SampledLaw
-from ..loop import NO_STAGES, CommandStages, Controller, Observation, VehicleStep, stages_for
+from ..loop import NO_STAGES, CommandStages, Controller, History, Observation, VehicleStep, stages_for
 from ..models import energy
 from ..models.actuator import actuator_rate, saturate, speed_cut
 from ..models.carfollowing import CarFollowingLaw, optimal_velocity
@@ -940,8 +940,8 @@ class RingSimulator:
         ctrl = {i: self.vehicles[i] for i in self.sampled}
         for c in ctrl.values():
             c.reset()
-        meas_t: list[float] = []
-        meas_v: dict[int, list[float]] = {i: [] for i in ctrl}
+        meas_t = History()  # the measured times and speeds so far, read by every step (History: no copies)
+        meas_v = {i: History() for i in ctrl}
         a_prev = dict.fromkeys(ctrl, 0.0)
         assert self.dt is not None or not ctrl
         steps = {
@@ -971,8 +971,8 @@ class RingSimulator:
                         self.dt,
                         i,
                         z[i, :5].copy(),
-                        np.asarray(meas_t),
-                        np.asarray(meas_v[i]),
+                        meas_t.view(),
+                        meas_v[i].view(),
                         None,
                         a_prev[i],
                         float(z[i, 5]) if self.nx > 5 else None,
