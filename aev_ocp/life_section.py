@@ -253,14 +253,15 @@ def life_claims(rows: list[dict[str, Any]], years: float) -> list[str]:
         names = list(vals)
         diffs = [capacity_difference(vals[x], vals[y]) for i, x in enumerate(names) for y in names[i + 1 :]]
         spread = max(abs(d.mean) for d in diffs)
+        overlap = all(interval_verdict(d) == "tie" for d in diffs)
         verdict = (
-            "no measurable difference between the controllers (their intervals overlap)"
-            if all(interval_verdict(d) == "tie" for d in diffs)
-            else f"the controllers differ by {100 * spread:.2g} % of capacity"
+            "no measurable difference between the controllers (intervals overlap; "
+            if overlap
+            else f"the controllers differ by {100 * spread:.2g} % of capacity ("
         )
         head = f"{cell} ({group[0].get('chemistry')}), " if cell is not None else ""
         line = (
-            f"- {head}{cyc.upper()}, {amb}: capacity after {years:g} years {verdict} (spread {spread:.2g}, "
+            f"- {head}{cyc.upper()}, {amb}: capacity after {years:g} years {verdict}spread {spread:.2g}, "
             f"each ± {CAPACITY_RESOLUTION / 2:g})"
         )
         if cell is not None:
