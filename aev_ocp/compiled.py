@@ -32,6 +32,7 @@ import warnings
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
+from typing import Any
 
 FLAGS = ("-O2", "-fPIC", "-shared", "-fno-math-errno")
 SIDECAR_SUFFIX = ".sha256"
@@ -54,6 +55,21 @@ class BuildResult:
     path: Path | None
     error: str = ""
     rebuilt: bool = False
+
+
+def dense_outputs(f: Any) -> Any:
+    """``f`` (a CasADi SX Function) with every output dense: hand-written C drivers (the cascade, the ring) read
+    each output as a dense vector, and CasADi's generated code writes only an output's structural nonzeros, so a
+    structurally zero entry (e.g. the acceleration of a constant-speed leader, ∂v_l/∂t) would be left as whatever
+    the caller's stack held. Returns ``f`` itself when its outputs are already dense (its generated code is then
+    unchanged)."""
+    import casadi as ca
+
+    if all(f.sparsity_out(i).is_dense() for i in range(f.n_out())):
+        return f
+    ins = [f.sx_in(i) for i in range(f.n_in())]
+    outs = f.call(ins)
+    return ca.Function(f.name(), ins, [ca.densify(o) for o in outs], f.name_in(), f.name_out())
 
 
 #: Compilations this process ran (one per library actually built, not per cache hit): a counter tests and

@@ -37,7 +37,7 @@ import casadi as ca
 import numpy as np
 
 from . import interrupts
-from .compiled import compile_shared, driver_source
+from .compiled import compile_shared, dense_outputs, driver_source
 from .models import energy
 from .models.actuator import actuator_rate, saturate, speed_cut
 from .models.carfollowing import CarFollowingLaw, optimal_velocity
@@ -503,6 +503,7 @@ class PlatoonSimulator(PlatoonRun):
         ]
         leader_fn, self._leader_values = _leader_template(self.leader)
         funcs.append(leader_fn)
+        funcs = [dense_outputs(f) for f in funcs]  # the driver reads every output as a dense vector
         self._nq = 7 if self.battery else 5  # the last: battery energy ∫P_b, outside the error norm
         cg = ca.CodeGenerator("aevsim_rhs.c", {"with_header": False})
         for f in funcs:

@@ -10,6 +10,7 @@ import sys
 import warnings
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 import aev_ocp.compiled as B
@@ -177,3 +178,48 @@ def test_driver_source_inlines_the_shared_header_once() -> None:
         src = B.driver_source(name)
         assert '#include "' not in src
         assert src.count("static const double DP_P[7][4]") == 1 and header in src
+
+
+def test_dense_outputs_fills_structural_zeros_and_keeps_dense_functions() -> None:
+    """A constant leader's (v_l, dv_l/dt) has a structurally zero second entry: the C drivers read it densely."""
+    import casadi as ca
+
+    from aev_ocp.compiled import dense_outputs
+
+    t, q = ca.SX.sym("t"), ca.SX.sym("q", 2)
+    sparse = ca.Function("lead", [t, q], [ca.vertcat(q[0], ca.jacobian(q[0], t))])
+    assert not sparse.sparsity_out(0).is_dense()
+    dense = dense_outputs(sparse)
+    assert dense.sparsity_out(0).is_dense() and dense.name() == "lead"
+    np.testing.assert_array_equal(np.asarray(dense(3.7, [8.3, -0.4])).ravel(), [8.3, 0.0])
+    full = ca.Function("f", [t], [ca.vertcat(ca.sin(t), 2.5 * t)])
+    assert dense_outputs(full) is full
+
+
+_ORDER_SCRIPT = """
+import hashlib, sys
+from aev_ocp.scenarios import load_scenario
+from aev_ocp.simulate import simulate_platoon
+
+def run(name):
+    s = load_scenario(name)
+    label, laws = next(iter(s.runs()))
+    r = simulate_platoon(s.leader, list(laws), **{**s.simulate_kwargs(), "t_end": 12.0, "dt_out": s.dt_out})
+    return hashlib.sha256(r.gap.tobytes() + r.speed.tobytes() + r.omega.tobytes()).hexdigest()
+
+for name in sys.argv[1:-1]:
+    run(name)
+print(run(sys.argv[-1]))
+"""
+
+
+def test_a_constant_leader_run_does_not_depend_on_what_ran_before_it() -> None:
+    """Bit for bit: Fig. 1b's platoon (a constant-speed leader) alone, and after Table 1's (the paper's leader) in the
+    same process. Before the cascade densified the leader's output, its acceleration was read from stale stack
+    memory and the two differed by ~1e-12."""
+
+    def run(*names: str) -> str:
+        out = subprocess.run([sys.executable, "-c", _ORDER_SCRIPT, *names], capture_output=True, text=True, check=True)
+        return out.stdout.strip().splitlines()[-1]
+
+    assert run("fig1b") == run("table1", "fig1b")

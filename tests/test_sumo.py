@@ -397,3 +397,47 @@ def test_missing_files_named(tmp_path):
     sc = parse_sumo_scenario({"sumo": {"net_file": "nope.net.xml", "t_end_s": 5.0}}, "s.toml", tmp_path / "s.toml")
     with pytest.raises(SumoError, match="nope.net.xml"):
         run_sumo(sc)
+
+
+class _FakeRun:
+    """What ``cli_sumo`` reads of a finished run: its status and fleet totals."""
+
+    def __init__(self, status: str) -> None:
+        self.status = status
+
+    def fleet_totals(self) -> dict:
+        row = {
+            "battery_energy_kWh_per_100km": 5.3,
+            "heat_pack_J_per_km": 41.0,
+            "charge_throughput_Ah_per_km": 0.27,
+            "mean_speed_mps": 6.4,
+            "collisions": 0,
+            "teleports": 0,
+            "emergency_braking_events": 2,
+            "lane_end_stop_events": 0,
+            "current_limit_events": 1,
+        }
+        return {"all": row, "controlled": row, "sumo": row}
+
+
+@pytest.mark.parametrize(
+    ("status", "code"),
+    [
+        ("ok", 0),
+        ("emergency_braking", 0),
+        ("current_limit", 0),
+        ("lane_end_stop", 0),
+        ("collision", 1),
+        ("teleport", 1),
+        ("soc_out_of_range", 1),
+        ("infeasible_current", 1),
+    ],
+)
+def test_a_single_run_exits_1_once_a_record_ended(tmp_path, monkeypatch, status: str, code: int) -> None:
+    """``aev-ocp sumo SCENARIO`` exits as ``aev-ocp mpc`` does: 1 after a collision, teleport or battery event;
+    events that let the run go on (emergency braking, ...) are reported and the exit status is 0."""
+    import aev_ocp.sumo.cli as sumo_cli
+    from aev_ocp.cli import main
+
+    monkeypatch.setattr(sumo_cli, "run_one", lambda *a, **k: _FakeRun(status))
+    assert main(["sumo", "sumo_ring", "--out", str(tmp_path / "o"), "--no-plots"]) == code

@@ -43,7 +43,7 @@ from typing import Any, Callable, Sequence
 import casadi as ca
 import numpy as np
 
-from ..compiled import compile_shared, driver_source
+from ..compiled import compile_shared, dense_outputs, driver_source
 from ..limits import check_ring_cuts, check_ring_size
 from ..control import SampledLaw
 from ..loop import NO_STAGES, CommandStages, Controller, Observation, VehicleStep, stages_for
@@ -563,7 +563,8 @@ class RingSimulator:
 
     def _build(self) -> None:
         cg = ca.CodeGenerator("aevring_rhs.c", {"with_header": False})
-        fs = [*self.funcs, *self._split, self._battery_function()]
+        # ring.c reads every output as a dense vector (see dense_outputs)
+        fs = [dense_outputs(f) for f in (*self.funcs, *self._split, self._battery_function())]
         for f in fs:
             cg.add(f)
         head = (

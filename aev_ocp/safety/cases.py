@@ -64,14 +64,16 @@ IDEAL = Actuator("ideal", 0.0, None, "the paper's model: the command realised at
 #: A passenger car's brakes: full braking (−8 m/s²) is reached through a jerk-limited ramp at 40 m/s³ to −4 m/s²
 #: (0.1 s) and then the lag τ = 0.1 s: 90 % of it after 0.26 s, 95 % after 0.33 s — the "braking build-up of
 #: ~0.3 s" of issue 34. Sources: the brake build-up time ("Schwellzeit") of passenger-car hydraulic brakes in
-#: emergency braking, 0.1–0.3 s (Burg & Moser (eds.), Handbuch Verkehrsunfallrekonstruktion, 2nd ed., 2009);
+#: emergency braking, 0.1–0.3 s, the range German accident reconstruction works with (the standard handbook is Burg &
+#: Moser (eds.), Handbuch Verkehrsunfallrekonstruktion, 2nd ed., 2009; its page was not checked here: the range is
+#: as practitioners' published summaries quote it, some giving 0.1–0.2 s for modern cars);
 #: the first-order lag of an ACC's lower-level (brake/drive) controller, τ ≈ 0.1–0.5 s (Rajamani, Vehicle
 #: Dynamics and Control, 2nd ed., 2012, ch. 5).
 DECLARED = Actuator(
     "declared",
     0.1,
     40.0,
-    "brake build-up ~0.3 s (Burg & Moser 2009, 'Schwellzeit' 0.1–0.3 s); lower-level lag τ 0.1 s "
+    "brake build-up ~0.3 s (accident reconstruction's 'Schwellzeit' of car brakes, 0.1–0.3 s); lower-level lag τ 0.1 s "
     "(Rajamani 2012, ch. 5); jerk ≤ 40 m/s³",
 )
 ACTUATORS = {a.name: a for a in (IDEAL, DECLARED)}

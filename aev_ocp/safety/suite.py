@@ -72,8 +72,10 @@ FOLLOW_MIN_SPEED_MPS = 2.0  # time gaps are taken while the ego drives at ≥ 2 
 STANDSTILL_MPS = 0.05  # a sample at or below this speed is a standstill (peak jerk leaves its intervals out)
 #: The soft margin of 'mpc-margin' (TrafficParams: w_m [W/kg per m²]; T_m = 1.8 s and TTC_m = 4 s by default).
 MARGIN_WEIGHT = 1.0
-#: Treiber & Kesting, Traffic Flow Dynamics (Springer 2013), Table 11.2, the IDM on a motorway: a = 1.0 m/s²,
-#: b = 1.5 m/s², T = 1.5 s, s0 = 2 m, δ = 4 (the class's fixed exponent); v0 is the case's speed.
+#: The suite's IDM: a = 1.0 m/s², b = 1.5 m/s², s0 = 2 m, δ = 4 as in Treiber & Kesting, Traffic Flow Dynamics
+#: (Springer 2013), Table 11.2 (the :class:`IDM` class's defaults); v0 is the case's speed. The time gap is the suite's
+#: own choice, T = 1.5 s, not that table's 1.0 s: a more cautious human reference for cases that brake hard at
+#: motorway speed (a stated choice, not a fit); the ring and the platoon use the class's 1.0 s.
 TREIBER_IDM_SI = {"a_mps2": 1.0, "b_mps2": 1.5, "T_s": 1.5, "s0_m": 2.0}
 
 

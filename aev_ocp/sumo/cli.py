@@ -24,6 +24,9 @@ def build_parser() -> argparse.ArgumentParser:
         prog="aev-ocp sumo",
         description="Drive the toolkit's controllers inside SUMO: a "
         "scenario file with a [sumo] table (shipped: sumo_ring, sumo_merge).",
+        epilog="Exit status: 0 when the run (every sweep point) went to its end, events such as emergency braking "
+        "counted; 1 after a collision, a teleport, a battery event, a failed point or an interruption (results up to "
+        "then are written); 2 for bad input.",
     )
     p.add_argument("scenario", help="a SUMO scenario .toml file, or the name of a shipped one (sumo_ring, sumo_merge)")
     p.add_argument("--out", default=None, help="output folder (default: results/<scenario name>/)")
@@ -107,6 +110,8 @@ def _point(sc: SumoScenario, share: float, controller: str, out: str, plots: boo
 
 def cli_sumo(argv: list[str]) -> int:
     """Entry of ``aev-ocp sumo``; returns the exit code (errors are raised for the CLI's one-line handler)."""
+    from .run import FAILED_STATUSES
+
     args = build_parser().parse_args(argv)
     require_sumo()
     sc = _with_options(load_sumo_scenario(args.scenario), args)
@@ -132,7 +137,7 @@ def cli_sumo(argv: list[str]) -> int:
             f"{ft['all']['lane_end_stop_events']}, currents beyond the cell's limit {ft['all']['current_limit_events']}"
             f"\n  wrote {out}/ (report.md, metrics.csv, fleet.json, manifest.json)"
         )
-        return 0
+        return 1 if run.status in FAILED_STATUSES else 0
     from .output import write_sweep
 
     s = sc.spec
@@ -169,7 +174,7 @@ def cli_sumo(argv: list[str]) -> int:
     rows.sort(key=lambda r: order[(r["share"], r["controller"])])
     write_sweep(rows, out, sc.name)
     print(f"wrote {out}/sweep.md, sweep.csv ({len(rows)} points)")
-    return 0 if all(r["status"] == "ok" for r in rows) else 1
+    return 1 if any(r["status"] in FAILED_STATUSES for r in rows) else 0
 
 
 __all__ = ["build_parser", "cli_sumo", "run_one"]

@@ -51,6 +51,10 @@ ProgressFn = Callable[[float, float], None]
 MEASUREMENT_WINDOW = 100  # leader-speed samples a controller keeps (the MPC's predictors use the last few)
 #: the kinds of events that do not end a vehicle's record (its violations), counted in the fleet's tables
 FLEET_EVENT_KINDS = ("emergency_braking", "lane_end_stop", CURRENT_LIMIT)
+#: The statuses after which ``aev-ocp sumo`` exits 1 (as ``aev-ocp mpc`` does after an event that ends its run): a
+#: vehicle's record ended (collision, teleport, a battery event), the run failed or was cut short. The fleet events
+#: above are counted and reported, but the run went on: exit 0.
+FAILED_STATUSES = ("collision", "teleport", "infeasible_current", "soc_out_of_range", "error", "interrupted")
 
 
 def _draw(seed: int, vid: str) -> float:
