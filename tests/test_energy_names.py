@@ -19,6 +19,7 @@ from aev_ocp.mpc.report import METRIC_ROWS
 from aev_ocp.ocp.eco_trip import EcoTrip
 from aev_ocp.ocp.following import objective_name, term_names
 from aev_ocp.ocp.formulation import Formulation, formulation_from_dict
+from aev_ocp.ocp.traffic import TrafficParams
 from aev_ocp.params import ParameterError
 from aev_ocp.report import platoon_totals, scenario_metrics_rows
 from aev_ocp.ring.cli import COLUMNS as RING_COLUMNS
@@ -121,6 +122,9 @@ def test_old_names_are_read_with_a_warning_naming_the_new_one() -> None:
     assert f.traffic.omega_weight == 2.5
     with pytest.raises(ParameterError, match=r"energy_weight and omega_weight are both given"):
         formulation_from_dict({"energy_weight": 2.5, "omega_weight": 1.5})
+    with pytest.warns(FutureWarning, match=r"TrafficParams.energy_weight is deprecated: use omega_weight"):
+        assert TrafficParams(energy_weight=0.25).omega_weight == 0.25
+    assert dataclasses.replace(TrafficParams(omega_weight=0.5), heat_weight=3.0).omega_weight == 0.5
     with warnings.catch_warnings():  # the new names: no warning at all
         warnings.simplefilter("error")
         assert formulation_from_dict({"formulation": "s9", "objective": "omega"}).objective == "omega"

@@ -38,7 +38,8 @@ and converted with the scenario's units (so a user does not retune when L or U c
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import warnings
+from dataclasses import InitVar, dataclass
 from typing import Any
 
 import casadi as ca
@@ -101,8 +102,22 @@ class TrafficParams:
     # speedometer" rule's 1.8 s; Vogel 2003, Accid. Anal. Prev. 35: time gaps under 1 s are dangerous)
     margin_ttc_s: float = spec(4.0, ge=0.0)  # TTC_m [s] (Hirst & Graham 1997: a TTC of 4 s separates safe from
     # critical approaches; Euro NCAP's CCR runs start at TTC 4 s)
+    energy_weight: InitVar[float | None] = None  # the old name of omega_weight: read with a FutureWarning
 
-    def __post_init__(self) -> None:
+    def __post_init__(self, energy_weight: float | None = None) -> None:
+        if energy_weight is not None:
+            if self.omega_weight != 1.0:
+                raise ParameterError(
+                    "TrafficParams: energy_weight and omega_weight are both given: energy_weight is the old name of "
+                    "omega_weight"
+                )
+            warnings.warn(
+                "TrafficParams.energy_weight is deprecated: use omega_weight (the weight of the paper's inertial "
+                "measure rate v g(a), not of battery energy)",
+                FutureWarning,
+                stacklevel=3,
+            )
+            object.__setattr__(self, "omega_weight", energy_weight)
         validate_fields(self)
         if self.target_gap_m < self.standstill_gap_m:
             raise ParameterError(
