@@ -23,6 +23,7 @@ from aev_ocp.ocp.traffic import TrafficParams
 from aev_ocp.params import ParameterError
 from aev_ocp.report import platoon_totals, scenario_metrics_rows
 from aev_ocp.ring.cli import COLUMNS as RING_COLUMNS
+from aev_ocp.ring.experiments import human_ring, relative_to, run_ring
 from aev_ocp.scenarios import ScenarioError, load_scenario as load_file
 from cli_helpers import run_cli
 
@@ -34,9 +35,13 @@ ALLOWED_ENERGY_TEXT = re.compile(r"energy-aware", re.IGNORECASE)
 
 
 def offending_keys(keys: list[str]) -> list[str]:
-    """Keys that contain 'energy' but neither start with 'battery_energy' nor are allowed."""
+    """Keys with an 'energy' (any case) not written 'battery_energy' (a prefix such as change_ may come before it),
+    and not allowed."""
     return [
-        k for k in keys if "energy" in k.lower() and not k.startswith("battery_energy") and k not in ALLOWED_ENERGY_KEYS
+        k
+        for k in keys
+        if k not in ALLOWED_ENERGY_KEYS
+        and any(k[: m.start()][-8:] != "battery_" for m in re.finditer("energy", k, re.IGNORECASE))
     ]
 
 
@@ -61,12 +66,10 @@ def short_platoon():
 
 def test_the_checks_catch_an_energy_that_is_not_battery_energy() -> None:
     """The two rules themselves, on names that must pass and names that must fail."""
-    assert offending_keys(["battery_energy_J", "battery_energy_kWh_per_100km", "omega_J_per_kg"]) == []
-    assert offending_keys(["energy_J_per_km", "omega_energy", "Battery_energy_J"]) == [
-        "energy_J_per_km",
-        "omega_energy",
-        "Battery_energy_J",
-    ]
+    good = ["battery_energy_J", "battery_energy_kWh_per_100km", "omega_J_per_kg", "change_battery_energy_J_per_km"]
+    assert offending_keys(good) == []
+    bad = ["energy_J_per_km", "omega_energy", "Battery_energy_J", "battery_energy_vs_energy", "ENERGY_J"]
+    assert offending_keys(bad) == bad
     assert offending_text("battery energy [kWh/100 km]  battery_energy_J  Energy-aware control") == []
     assert offending_text("energy 145.1 kJ/km\nω [J/kg]  energy [J]") == ["energy 145.1 kJ/km", "ω [J/kg]  energy [J]"]
 
@@ -78,6 +81,8 @@ def test_metric_keys_and_table_headers_name_battery_energy(short_platoon) -> Non
     keys = list(r.metrics()[0]) + list(platoon_totals(r))
     keys += list(replay(([0.0, 4.0, 9.0, 12.0], [0.0, 6.0, 6.0, 0.0])).summary())
     keys += list(METRIC_ROWS) + list(CYCLE_COLUMNS) + list(RING_COLUMNS)
+    ring = run_ring(human_ring(230.0, seed=0), 4.0)  # the ring's fleet metrics and their changes against a base
+    keys += list(ring.fleet) + ["change_" + k for k in relative_to(ring.fleet, ring.fleet)]
     assert "battery_energy_kWh_per_100km" in keys and "omega_J_per_kg" in keys
     assert offending_keys(keys) == []
     headers, _rows = scenario_metrics_rows(short_platoon)
