@@ -12,8 +12,9 @@ against each law, and writes benchmarks/bench_mpc_powertrain.json.
 controller; fleet metrics over the second half of 600 s) with the scenario's vehicle (η = 0.8) and with
 ``VehicleParams.model3()``: each controller's change of the fleet's battery energy against the all-human ring;
 writes benchmarks/bench_mpc_powertrain_ring.json. The numbers of the guide's "What changed with the validated
-powertrain" (docs/guide/powertrain.md) are these two runs.
-Usage: python benchmarks/bench_mpc_powertrain.py [--segment-s 300] [--cycles udds hwfet us06] [--ring]
+powertrain" (docs/guide/powertrain.md) are these two runs; ``--record`` also writes each JSON to tests/data/, where
+tests/test_energy_names.py checks that the guide quotes them.
+Usage: python benchmarks/bench_mpc_powertrain.py [--segment-s 300] [--cycles udds hwfet us06] [--ring] [--record]
 """
 
 from __future__ import annotations
@@ -36,9 +37,10 @@ def main() -> None:
     ap.add_argument("--segment-s", type=float, default=300.0)
     ap.add_argument("--cycles", nargs="+", default=["udds", "hwfet", "us06"])
     ap.add_argument("--ring", action="store_true", help="the ring's Stern experiment with both powertrains instead")
+    ap.add_argument("--record", action="store_true", help="also write the JSON to tests/data/ (the guide's numbers)")
     args = ap.parse_args()
     if args.ring:
-        ring_main()
+        ring_main(args.record)
         return
     rows: list[dict[str, Any]] = []
     for cyc in args.cycles:
@@ -66,10 +68,17 @@ def main() -> None:
                 f"{row['mpc_vs_proposed_' + KEYS[2] + '_pct']:+.1f} %; comparable {m['comparable']}",
                 flush=True,
             )
-    write_json(Path(__file__).with_suffix(".json"), {"segment_s": args.segment_s, "rows": rows})
+    _write(Path(__file__).with_suffix(".json").name, {"segment_s": args.segment_s, "rows": rows}, args.record)
 
 
-def ring_main() -> None:
+def _write(name: str, data: dict[str, Any], record: bool) -> None:
+    """The JSON beside this script, and with ``record`` in tests/data/ too (written atomically)."""
+    here = Path(__file__).parent
+    for folder in (here, here.parent / "tests" / "data") if record else (here,):
+        write_json(folder / name, data)
+
+
+def ring_main(record: bool = False) -> None:
     """The Stern ring with the paper's η and with the Model 3 powertrain: battery energy per km of the fleet and
     each AEV controller's change against the all-human ring (``change_battery_energy_J_per_km``)."""
     from aev_ocp.ring.experiments import run_ring_scenario
@@ -100,7 +109,7 @@ def ring_main() -> None:
                 flush=True,
             )
         print(f"  ({time.perf_counter() - t0:.0f} s wall)", flush=True)
-    write_json(Path(__file__).with_name("bench_mpc_powertrain_ring.json"), {"rows": rows})
+    _write("bench_mpc_powertrain_ring.json", {"rows": rows}, record)
 
 
 if __name__ == "__main__":
