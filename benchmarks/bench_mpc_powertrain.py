@@ -38,9 +38,15 @@ def main() -> None:
     ap.add_argument("--cycles", nargs="+", default=["udds", "hwfet", "us06"])
     ap.add_argument("--ring", action="store_true", help="the ring's Stern experiment with both powertrains instead")
     ap.add_argument("--record", action="store_true", help="also write the JSON to tests/data/ (the guide's numbers)")
+    ap.add_argument(
+        "--ring-controllers",
+        nargs="+",
+        default=None,
+        help="--ring: these AEV controllers only (default: the scenario's)",
+    )
     args = ap.parse_args()
     if args.ring:
-        ring_main(args.record)
+        ring_main(args.record, args.ring_controllers)
         return
     rows: list[dict[str, Any]] = []
     for cyc in args.cycles:
@@ -78,7 +84,7 @@ def _write(name: str, data: dict[str, Any], record: bool) -> None:
         write_json(folder / name, data)
 
 
-def ring_main(record: bool = False) -> None:
+def ring_main(record: bool = False, controllers: list[str] | None = None) -> None:
     """The Stern ring with the paper's η and with the Model 3 powertrain: battery energy per km of the fleet and
     each AEV controller's change against the all-human ring (``change_battery_energy_J_per_km``)."""
     from aev_ocp.ring.experiments import run_ring_scenario
@@ -86,6 +92,8 @@ def ring_main(record: bool = False) -> None:
 
     rows: list[dict[str, Any]] = []
     base = load_ring_scenario("ring_stern")
+    if controllers:
+        base = dataclasses.replace(base, spec=dataclasses.replace(base.spec, controllers=tuple(controllers)))
     for pt in ("constant", "map"):
         sc = (
             base

@@ -165,3 +165,35 @@ def test_same_run_same_numbers_under_the_old_and_new_objective_names() -> None:
     x, u, w = [1.1, 0.9, 1e-3, 2e-3, 0.6], [0.3, 0.35], [1.0, 0.9]
     p = [1.0, 1.0, 1.0, 0.1]
     assert np.array_equal(np.asarray(a.stage(x, u, w, p)), np.asarray(b.stage(x, u, w, p)))
+
+
+def _pct(x: float, digits: int) -> str:
+    """A percentage as the guide prints it: minus sign U+2212, no plus sign."""
+    return f"{x:.{digits}f}".replace("-", "−")
+
+
+def test_the_powertrain_change_the_docs_quote_is_the_benchmarks() -> None:
+    """The guide's 'What changed with the validated powertrain' and the MPC page's table quote what
+    benchmarks/bench_mpc_powertrain.py (and its --ring) measured: the JSON it records in tests/data/ (--record)."""
+    import json
+    from pathlib import Path
+
+    root = Path(__file__).parents[1]
+    guide = (root / "docs" / "guide" / "powertrain.md").read_text(encoding="utf-8")
+    mpc_page = (root / "docs" / "guide" / "mpc.md").read_text(encoding="utf-8")
+    rows = json.loads((root / "tests" / "data" / "bench_mpc_powertrain.json").read_text(encoding="utf-8"))["rows"]
+    key = "battery_energy_kWh_per_100km"
+    by = {(r["cycle"], r["powertrain"]): r for r in rows}
+    for cyc in ("udds", "hwfet", "us06"):
+        c, m = by[(cyc, "constant")], by[(cyc, "map")]
+        assert c["comparable"] and m["comparable"]
+        line = next(x for x in guide.splitlines() if x.startswith(f"| MPC vs the proposed law, {cyc.upper()}"))
+        want = f"| {_pct(c[f'mpc_vs_proposed_{key}_pct'], 2)} % | {_pct(m[f'mpc_vs_proposed_{key}_pct'], 2)} % |"
+        assert line.endswith(want), (line, want)
+        for r, pt in ((c, "η = 0.8"), (m, "map")):
+            head = f"| {cyc.upper()} | {pt} | {r[f'mpc_{key}']:.3f} / {r[f'proposed_{key}']:.3f} / {r[f'ovfl_{key}']:.3f} |"
+            assert head in mpc_page, head
+    ring = json.loads((root / "tests" / "data" / "bench_mpc_powertrain_ring.json").read_text(encoding="utf-8"))["rows"]
+    fs = {r["powertrain"]: r["change_battery_energy_pct"] for r in ring if "followerstopper" in r["run"].lower()}
+    line = next(x for x in guide.splitlines() if x.startswith("| one FollowerStopper AEV"))
+    assert line.endswith(f"| {_pct(fs['constant'], 0)} % | {_pct(fs['map'], 0)} % |"), (line, fs)
