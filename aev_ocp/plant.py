@@ -11,8 +11,8 @@ V1, V2 [V], S [-] (and, with ``ev.thermal.enabled``, the pack temperature T [K] 
 A follower's acceleration is either its car-following law, evaluated continuously inside the
 integrator, or a commanded acceleration held constant over a sample interval (zero-order hold).
 Quadratures per follower (per model time unit): ω = ∫ v g(a), ∫(V(h) − v)², ∫(v_l − v)², ∫jerk²,
-pack ∫Q and ∫Q_irr [J], and last the battery energy ∫P_b dt [J] (output only), so the §10 metrics and the
-battery energy are exact across control jumps.
+pack ∫Q and ∫Q_irr [J], and, when every follower drives a law, last the battery energy ∫P_b dt [J] (output only),
+so the §10 metrics are exact across control jumps.
 
 Vehicle limits (``ev.limits``, :mod:`aev_ocp.models.actuator`) act on every controller alike, inside the
 right-hand side: the law's or the command's acceleration is saturated to [a_min, a_max], passes through the
@@ -296,9 +296,15 @@ class Plant:
             I, disc = b["I"], b["disc"]
         else:
             I = disc = ca.SX.zeros(n)
-        # battery energy ∫P_b dt [J per model time unit], last: output only (nothing reads it back)
-        quad.append(T * battery_power_integrand(v, a, ev, b if self.battery else None))
-        self.energy_quad = len(quad) - 1  # its block in the quadratures (SimulationResult.battery_energy_J)
+        # battery energy ∫P_b dt [J per model time unit], last: output only (nothing reads it back). Laws only: with
+        # commanded vehicles (the MPC, any Controller) CVODES's error norm would see one more quadrature and move its
+        # steps by ~1e-10, enough to tip a closed loop's QP solves (tests/test_mpc.py's qrqp path falls back once at
+        # h(0) + 1e-9); there the command is held over each sample interval and aev_ocp.metrics integrates the exact
+        # P_b(v, a_held) on the samples
+        self.energy_quad: int | None = None  # its block in the quadratures (SimulationResult.battery_energy_J)
+        if not self.commanded:
+            quad.append(T * battery_power_integrand(v, a, ev, b if self.battery else None))
+            self.energy_quad = len(quad) - 1
         self.act_row: int | None = None  # first row of the actuator states a_act in x (after the battery's)
         if act is not None:
             self.act_row = sum(int(xx.numel()) for xx in x)
