@@ -4,8 +4,8 @@ Layers: ``params`` (parameter sets with units and sources), ``models`` (physics 
 (the exact platoon model and its event rules), ``control`` (the Controller protocol and the closed
 loop), ``simulate`` (closed-form-law platoons), ``ocp`` (problem description, transcription, OCP-A…D),
 ``mpc`` (the receding-horizon controller built from the same problem), ``scenarios`` (TOML files),
-``report``/``cli`` (figures, tables, command line), ``saved`` (``load(folder)``: every command's output
-folder back as its result object). The names most users need are exported here;
+``report``/``cli`` (figures, tables, command line), ``saved`` and ``loading`` (``load(folder)``: every
+command's output folder back as its result object). The names most users need are exported here;
 importing them is lazy, so ``import aev_ocp`` stays cheap.
 """
 
@@ -70,7 +70,7 @@ _EXPORTS = {
     "plot_trajectories": "plots",
     "plot_space_time": "plots",
     # saved outputs (every command's folder loads back)
-    "load": "saved",
+    "load": "loading",
     "load_all": "saved",
     "LoadError": "saved",
 }

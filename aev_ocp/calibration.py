@@ -208,3 +208,91 @@ def load(path: str | Path) -> tuple[CarFollowingLaw, dict[str, Any]]:
     except (OSError, KeyError, tomllib.TOMLDecodeError, TypeError, UnicodeDecodeError) as exc:
         raise ParameterError(f"calibration file {path}: cannot read it ({type(exc).__name__}: {exc})") from None
     return law, doc
+
+
+# ----------------------------------------------------------------------------------------- by simulation
+@dataclass(frozen=True)
+class SimulatedCalibration:
+    """A fit by simulation: the parameters, the statistics they reach, the residuals (achieved − target), the
+    objective Σ (residual/scale)² and how many simulations it took."""
+
+    params: dict[str, float]
+    achieved: dict[str, float]
+    residuals: dict[str, float]
+    objective: float
+    evaluations: int
+
+
+def calibrate_by_simulation(
+    statistics: Any,
+    start: dict[str, float],
+    bounds: dict[str, tuple[float, float]],
+    targets: dict[str, float],
+    scales: dict[str, float],
+    *,
+    max_evaluations: int = 60,
+    xtol: float = 1e-3,
+) -> SimulatedCalibration:
+    """Fit parameters whose effect is known only by simulation (a jam's wave speed, say): minimise
+    Σ_k ((statistics(params)[k] − targets[k]) / scales[k])² over the box ``bounds`` by Nelder–Mead (Nelder & Mead
+    1965, the standard coefficients 1, 2, 1/2, 1/2) in coordinates scaled to the box, from ``start``.
+    ``statistics`` maps {name: value} to {statistic: value}; it should use the same random draws at every call
+    (common random numbers) so that the objective is a deterministic function of the parameters. A NaN statistic
+    (a run that crashed) counts as a large objective. Stops after ``max_evaluations`` simulations or when the
+    simplex is smaller than ``xtol`` of the box."""
+    names = list(bounds)
+    if not names or set(start) != set(names):
+        raise ParameterError(
+            f"calibrate_by_simulation: start {sorted(start)} and bounds {sorted(names)} must name the same parameters"
+        )
+    if not targets or set(scales) != set(targets) or not all(s > 0 for s in scales.values()):
+        raise ParameterError("calibrate_by_simulation: targets and scales must name the same statistics, scales > 0")
+    lo = np.array([float(bounds[k][0]) for k in names])
+    hi = np.array([float(bounds[k][1]) for k in names])
+    if not np.all(np.isfinite(lo) & np.isfinite(hi) & (hi > lo)):
+        raise ParameterError(f"calibrate_by_simulation: bounds = {bounds!r:.80} must be finite (lower, upper) pairs")
+    cache: dict[tuple[float, ...], tuple[float, dict[str, float]]] = {}
+
+    def values(u: np.ndarray) -> dict[str, float]:
+        return {k: float(x) for k, x in zip(names, lo + np.clip(u, 0.0, 1.0) * (hi - lo))}
+
+    def f(u: np.ndarray) -> float:
+        key = tuple(np.round(np.clip(u, 0, 1), 12))
+        if key not in cache:
+            st = statistics(values(np.asarray(key)))
+            r = [(float(st[k]) - targets[k]) / scales[k] for k in targets]
+            obj = float(sum(x * x for x in r)) if all(math.isfinite(x) for x in r) else 1e6
+            cache[key] = (obj, st)
+        return cache[key][0]
+
+    u0 = np.clip((np.array([float(start[k]) for k in names]) - lo) / (hi - lo), 0.0, 1.0)
+    d = len(names)
+    simplex = [u0] + [u0 + np.where(np.arange(d) == j, 0.15 if u0[j] <= 0.85 else -0.15, 0.0) for j in range(d)]
+    fs = [f(u) for u in simplex]
+    while len(cache) < max_evaluations:
+        order = np.argsort(fs)
+        simplex, fs = [simplex[i] for i in order], [fs[i] for i in order]
+        if max(float(np.max(np.abs(u - simplex[0]))) for u in simplex[1:]) < xtol:
+            break
+        c = np.mean(simplex[:-1], axis=0)
+        xr = np.clip(c + (c - simplex[-1]), 0, 1)
+        fr = f(xr)
+        if fr < fs[0]:
+            xe = np.clip(c + 2 * (c - simplex[-1]), 0, 1)
+            fe = f(xe)
+            simplex[-1], fs[-1] = (xe, fe) if fe < fr else (xr, fr)
+        elif fr < fs[-2]:
+            simplex[-1], fs[-1] = xr, fr
+        else:
+            xc = np.clip(c + 0.5 * (simplex[-1] - c), 0, 1)
+            fc = f(xc)
+            if fc < fs[-1]:
+                simplex[-1], fs[-1] = xc, fc
+            else:  # shrink towards the best
+                simplex = [simplex[0]] + [simplex[0] + 0.5 * (u - simplex[0]) for u in simplex[1:]]
+                fs = [fs[0]] + [f(u) for u in simplex[1:]]
+    best = int(np.argmin(fs))
+    ub = simplex[best]
+    obj, st = cache[tuple(np.round(np.clip(ub, 0, 1), 12))]
+    res = {k: float(st[k]) - targets[k] for k in targets}
+    return SimulatedCalibration(values(ub), {k: float(v) for k, v in st.items()}, res, obj, len(cache))

@@ -147,6 +147,12 @@ def build_parser() -> argparse.ArgumentParser:
         add_help=False,
     )
     sub.add_parser(
+        "tune",
+        help="equal tuning effort: every controller tuned with the same budget, default vs tuned "
+        "(see aev-ocp tune --help)",
+        add_help=False,
+    )
+    sub.add_parser(
         "sumo",
         help="drive the toolkit's controllers inside SUMO (optional extra [sumo]; see aev-ocp sumo --help)",
         add_help=False,
@@ -350,6 +356,7 @@ SUBCOMMAND_PARSERS: dict[str, tuple[str, str]] = {
     "safety": ("aev_ocp.safety.cli", "build_parser"),
     "ring": ("aev_ocp.ring.cli", "build_parser"),
     "sumo": ("aev_ocp.sumo.cli", "build_parser"),
+    "tune": ("aev_ocp.tuning", "build_parser"),
 }
 
 
@@ -387,6 +394,8 @@ def main(argv: Sequence[str] | None = None) -> int:
 def _main(args_list: list[str]) -> int:
     if args_list and args_list[0] == "mpc-export":
         return guarded(lambda: _dispatch("aev_ocp.mpc.export", "cli_mpc_export", args_list[1:]))
+    if args_list and args_list[0] == "tune":
+        return guarded(lambda: _dispatch("aev_ocp.tuning", "cli_tune", args_list[1:]))
     if args_list and args_list[0] in ("ocp", "mpc", "stability", "study", "safety", "ring", "sumo"):
         name = args_list[0]
         return guarded(lambda: _dispatch(f"aev_ocp.{name}.cli", f"cli_{name}", args_list[1:]))

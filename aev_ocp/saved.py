@@ -6,10 +6,15 @@ Format (``format = "aev_ocp-output"``, ``format_version`` 1):
   ``t``, ``gap``, ``speed`` …; OCPResult: ``t``, ``states/<name>``, ``controls/<name>``,
   ``outputs/<name>`` and its scalars ``objective`` …). NumPy's own format (no pickle): float64 kept
   bit for bit, NaN and inf included, read without aev_ocp by ``numpy.load``.
-- ``manifest.json``: ``kind`` (simulate, mpc, ocp, study), ``primary`` (the run :func:`load` returns),
+- ``manifest.json``: ``kind`` (:data:`KINDS`), ``primary`` (the run :func:`load` returns),
   per run its type, controllers, events, parameters, solver statistics, meta and metrics as saved;
   ``settings`` (the scenario's TOML document and the command's options) and ``provenance``
-  (:mod:`aev_ocp.provenance`); the SHA-256 of the arrays file, checked on load.
+  (:mod:`aev_ocp.provenance`); the SHA-256 of the arrays file, checked on load; for the kinds whose numbers
+  are a JSON document (ring, safety, stability …) ``document`` (its file name beside the manifest) and
+  ``document_sha256``, checked on load as well.
+
+This module reads the run kinds (simulate, mpc, ocp, sumo's vehicles) and studies; :func:`aev_ocp.load`
+(:mod:`aev_ocp.loading`) reads every kind, handing the others to their package's ``outputs`` module.
 
 The arrays file is written first and the manifest last, both atomically: a folder with a manifest
 always has the arrays it names (a rerun that is interrupted in between is caught by the SHA-256).
@@ -56,7 +61,20 @@ FORMAT = "aev_ocp-output"
 FORMAT_VERSION = 1
 MANIFEST = "manifest.json"
 ARRAYS = "trajectories.npz"
-KINDS = ("simulate", "mpc", "ocp", "study", "sumo")
+#: Every kind of output a command writes; :mod:`aev_ocp.loading` maps each to the object it loads as.
+KINDS = (
+    "simulate",
+    "mpc",
+    "ocp",
+    "study",
+    "sumo",
+    "ring",
+    "safety",
+    "stability",
+    "ring_stability",
+    "mixed_ring_stability",
+)
+DOCUMENT_KINDS = ("ring", "safety", "stability", "ring_stability", "mixed_ring_stability")  # see aev_ocp.loading
 OCP_SCALARS = ("objective", "objective_exact", "max_violation", "wall_time_s", "solver_time_s")
 OUTPUT_FILES = (MANIFEST, ARRAYS)  # what :func:`save_output` writes (for claim_output_dir)
 
@@ -130,18 +148,22 @@ def save_output(
     primary: str | None = None,
     settings: Mapping[str, Any] | None = None,
     extra: Mapping[str, Any] | None = None,
+    document: str | Path | None = None,
+    arrays: Mapping[str, np.ndarray] | None = None,
 ) -> list[Path]:
-    """Write ``trajectories.npz`` (if any run) and ``manifest.json`` into ``out``; returns the paths.
+    """Write ``trajectories.npz`` (if any run or array) and ``manifest.json`` into ``out``; returns the paths.
 
     runs: {label: SimulationResult or OCPResult}; primary: the label :func:`load` returns by default
     (default the first); settings: what produced the runs (scenario document, options); extra: more
-    JSON-ready manifest entries (e.g. a study's table file)."""
+    JSON-ready manifest entries (e.g. a study's table file); document: a JSON file already written into ``out``
+    that holds the output's numbers (the manifest names it with its SHA-256, :func:`read_document` checks it);
+    arrays: more arrays for ``trajectories.npz`` ({key: array}, keys not starting with a run label + '/')."""
     if kind not in KINDS:
         raise ValueError(f"save_output: kind {kind!r} is not one of {KINDS}")
     from .ocp.result import OCPResult
 
     out = Path(out)
-    arrays: dict[str, np.ndarray] = {}
+    arrays = dict(arrays or {})
     records: dict[str, Any] = {}
     for label, r in runs.items():
         if "/" in label:
@@ -173,9 +195,50 @@ def save_output(
             tmp.write_bytes(data)
         files.append(out / ARRAYS)
         manifest.update(arrays=ARRAYS, arrays_sha256=hashlib.sha256(data).hexdigest())
+    if document is not None:
+        doc = out / Path(document).name
+        manifest.update(document=doc.name, document_sha256=hashlib.sha256(doc.read_bytes()).hexdigest())
     manifest.update(dict(extra or {}))
     files.append(write_json(out / MANIFEST, manifest))
     return files
+
+
+def read_document(m: dict[str, Any], folder: Path) -> Any:
+    """The JSON document an output's manifest names (``document``), checked against its ``document_sha256``;
+    LoadError naming the file and the field otherwise."""
+    name = m.get("document")
+    if not isinstance(name, str) or not name:
+        raise LoadError(
+            f"{folder / MANIFEST}: field 'document' = {name!r:.80} is not the name of the output's JSON file"
+        )
+    f = folder / Path(name).name  # never outside the folder
+    if not f.exists():
+        raise LoadError(f"{f}: missing (field 'document' of {folder / MANIFEST} names it); rerun the command")
+    data = read_regular(f, int(memory_limit_bytes()) // 4, "document")
+    if hashlib.sha256(data).hexdigest() != m.get("document_sha256"):
+        raise LoadError(
+            f"{f}: its SHA-256 differs from field 'document_sha256' of {MANIFEST}: another run's file or an edited "
+            "one; rerun the command"
+        )
+    try:
+        return json.loads(data.decode("utf-8"))
+    except (UnicodeDecodeError, ValueError, RecursionError) as exc:
+        raise LoadError(f"{f}: cannot read it as JSON ({type(exc).__name__})") from None
+
+
+def read_arrays(m: dict[str, Any], folder: Path) -> dict[str, np.ndarray]:
+    """Every array of an output (``trajectories.npz``, checked against ``arrays_sha256``; {} without one)."""
+    return _arrays(m, folder)
+
+
+def sim_record(label: str, r: SimulationResult, arrays: dict[str, np.ndarray]) -> dict[str, Any]:
+    """The manifest record of one SimulationResult (its arrays added to ``arrays`` under ``label/``)."""
+    return _sim_record(label, r, arrays)
+
+
+def sim_result(label: str, rec: dict[str, Any], arrays: dict[str, np.ndarray]) -> SimulationResult:
+    """The SimulationResult of a record :func:`sim_record` wrote (ValueError/KeyError if damaged)."""
+    return _sim_result(label, rec, arrays)
 
 
 # ----------------------------------------------------------------------------- loading
@@ -442,6 +505,8 @@ def _load(path: str | Path, run: str | None) -> Any:
     m, folder = read_manifest(path)
     if m["kind"] == "study":
         return load_study_output(m, folder)
+    if m["kind"] in DOCUMENT_KINDS:
+        raise LoadError(f"{folder}: kind = {m['kind']!r} is read by aev_ocp.load (aev_ocp.loading), not saved.load")
     runs = m.get("runs") or {}
     label = run if run is not None else m.get("primary")
     if label is None or label not in runs:  # (JSON keys are strings: a None label was never in runs)

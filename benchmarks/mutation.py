@@ -42,7 +42,7 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-FAST_FILES = ("tests/test_independent.py", "tests/test_models.py")
+FAST_FILES = ("tests/contracts/test_independent.py", "tests/test_models.py")
 PYTEST = (sys.executable, "-m", "pytest", "-x", "-q", "-p", "no:cacheprovider")
 
 

@@ -223,3 +223,23 @@ def test_a_constant_leader_run_does_not_depend_on_what_ran_before_it() -> None:
         return out.stdout.strip().splitlines()[-1]
 
     assert run("fig1b") == run("table1", "fig1b")
+
+
+# ----------------------------------------------------------------------------- from the issue-28 re-probe (test_reprobe.py)
+def test_a_compiler_in_cc_that_does_not_exist_is_reported_once(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """CC=/nonexistent/cc aev-ocp mpc-export --build built with gcc without a word."""
+    import shutil
+
+    from aev_ocp import compiled
+
+    monkeypatch.setenv("CC", "/nonexistent/cc-7")
+    monkeypatch.setattr(compiled, "_CC_WARNED", set())
+    first, second = compiled.compiler(), compiled.compiler()
+    err = capsys.readouterr().err
+    assert first == second == shutil.which("cc")
+    assert err.count("$CC = '/nonexistent/cc-7' is not a compiler found on PATH") == 1, err
+    monkeypatch.setenv("CC", "gcc")
+    compiled.compiler()
+    assert capsys.readouterr().err == ""

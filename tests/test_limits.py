@@ -3,7 +3,12 @@ with one line that says how much, the limit and which key to change (issue 11 it
 
 from __future__ import annotations
 
+import os
+from pathlib import Path
+
 import pytest
+from cli_helpers import one_error, run_cli
+from helpers import SCENARIO, _unblocked_after
 
 from aev_ocp import limits
 from aev_ocp.params import ParameterError
@@ -106,3 +111,83 @@ def test_the_safety_suite_reads_the_memory_budget_before_any_case(monkeypatch, t
     monkeypatch.chdir(tmp_path)
     assert main(["safety", "--quick", "--controllers", "proposed", "--out", "o", "--workers", "1"]) == 2
     assert not (tmp_path / "o").exists()
+
+
+# ----------------------------------------------------------------------------- from the third reliability probe (test_reprobe3.py)
+
+
+@pytest.mark.parametrize("raw", ["lots", "nan", "-4", "inf", "0", "1e400"])
+def test_a_bad_memory_budget_is_refused_not_replaced(monkeypatch: pytest.MonkeyPatch, raw: str) -> None:
+    from aev_ocp.limits import memory_limit_bytes
+
+    monkeypatch.setenv("AEV_OCP_MAX_MEMORY_GB", raw)
+    with pytest.raises(ParameterError, match=r"\$AEV_OCP_MAX_MEMORY_GB = .* is not allowed"):
+        memory_limit_bytes()
+
+
+def test_memory_budget_values(monkeypatch: pytest.MonkeyPatch) -> None:
+    from aev_ocp.limits import DEFAULT_MEMORY_LIMIT_GB, memory_limit_bytes
+
+    monkeypatch.setenv("AEV_OCP_MAX_MEMORY_GB", " 0.75 ")
+    assert memory_limit_bytes() == 0.75e9
+    monkeypatch.setenv("AEV_OCP_MAX_MEMORY_GB", "")
+    assert memory_limit_bytes() == DEFAULT_MEMORY_LIMIT_GB * 1e9
+    monkeypatch.delenv("AEV_OCP_MAX_MEMORY_GB")
+    assert memory_limit_bytes() == DEFAULT_MEMORY_LIMIT_GB * 1e9
+
+
+def test_bad_memory_budget_is_bad_input_for_commands_and_load(
+    tmp_path: Path, capsys: pytest.CaptureFixture, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import aev_ocp
+
+    f = tmp_path / "u.toml"
+    f.write_text(SCENARIO.format(L=12.5, U=7.25))
+    out = tmp_path / "o"
+    rc, _, err = run_cli(["simulate", str(f), "--out", str(out), "--no-plots"], capsys)
+    assert rc == 0
+    monkeypatch.setenv("AEV_OCP_MAX_MEMORY_GB", "lots")
+    rc, _, err = run_cli(["simulate", str(f), "--out", str(tmp_path / "o2"), "--no-plots"], capsys)
+    assert rc == 2 and "$AEV_OCP_MAX_MEMORY_GB = 'lots'" in one_error(err)
+    with pytest.raises(ParameterError, match="AEV_OCP_MAX_MEMORY_GB"):  # the caller's setting, not a damaged folder
+        aev_ocp.load(out)
+    monkeypatch.setenv("AEV_OCP_MAX_MEMORY_GB", "0.5")
+    assert aev_ocp.load(out).speed.shape[1] == 1
+
+
+# ----------------------------------------------------------------------------- from the issue-28 surfaces probe (test_reliability_surfaces.py)
+
+
+@pytest.mark.parametrize(
+    "argv, what",
+    [
+        (["study", "{f}", "--in-process"], "study file"),
+        (["ocp", "current-profile", "--grid-file", "{f}", "--out", "{d}/o"], "grid file"),
+        (["ocp", "prop31", "--cell", "{f}", "--out", "{d}/o"], "cell file"),
+    ],
+)
+@pytest.mark.parametrize("kind", ["fifo", "dev-zero"])
+def test_input_files_that_are_no_regular_files_are_refused_unread(tmp_path, capsys, argv, what, kind):
+    f = tmp_path / "input.toml"
+    if kind == "fifo":
+        os.mkfifo(f)
+    else:
+        f.symlink_to("/dev/zero")
+    with _unblocked_after(f, 300.0) as opened_for_writing:  # a FIFO read would wait for a writer
+        rc, _, err = run_cli([a.replace("{f}", str(f)).replace("{d}", str(tmp_path)) for a in argv], capsys)
+    line = one_error(err)
+    assert rc == 2 and what in line and "not a regular file" in line and not opened_for_writing.is_set()
+
+
+def test_input_file_size_is_checked_before_reading(tmp_path, monkeypatch):
+    from aev_ocp import limits
+    from aev_ocp.study import StudyError, read_study
+
+    f = tmp_path / "big.toml"
+    with f.open("wb") as fh:  # sparse: 20 MB stated, nothing written
+        fh.truncate(20 * 2**20)
+    reads = []
+    monkeypatch.setattr(limits.os, "fdopen", lambda *a, **k: reads.append(a) or open(*a, **k))  # noqa: SIM115
+    with pytest.raises(StudyError, match=f"is {20 * 2**20} bytes, more than the {limits.MAX_INPUT_FILE_BYTES}"):
+        read_study(f)
+    assert reads == []  # refused from its stated size, not read

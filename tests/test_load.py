@@ -5,28 +5,23 @@ from __future__ import annotations
 
 import csv
 import json
-import math
+import os
+import shutil
+import zipfile
+from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import _unblocked_after
+from helpers import same_numbers as _same
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 import aev_ocp
 from aev_ocp.cli import main
+from aev_ocp.models.leader import ConstantSpeed
 from aev_ocp.saved import ARRAYS, MANIFEST, SIM_ARRAYS, LoadError, load_all
-from aev_ocp.scenarios import find_scenario
-from aev_ocp.scenarios import load_with_sets
-
-
-def _same(a, b) -> bool:
-    """Equal, with NaN == NaN and JSON's null == NaN (non-finite numbers are null in JSON)."""
-    if isinstance(a, dict) and isinstance(b, dict):
-        return a.keys() == b.keys() and all(_same(a[k], b[k]) for k in a)
-    if isinstance(a, (list, tuple)) and isinstance(b, (list, tuple)):
-        return len(a) == len(b) and all(_same(x, y) for x, y in zip(a, b))
-    nan = lambda x: x is None or (isinstance(x, float) and math.isnan(x))  # noqa: E731
-    if nan(a) or nan(b):
-        return nan(a) and nan(b)
-    return a == b
+from aev_ocp.scenarios import find_scenario, load_with_sets
 
 
 def _check_metrics(r) -> None:
@@ -283,3 +278,204 @@ def test_ocp_prop31_cases_load_back(tmp_path, capsys):
     for case, e in direct.items():
         np.testing.assert_array_equal(runs[case].controls["I"], e["result"].controls["I"])
         assert runs[case].objective == e["result"].objective and runs[case].problem == e["result"].problem
+
+
+# ----------------------------------------------------------------------------- from the third reliability probe (test_reprobe3.py)
+@pytest.mark.parametrize("path", [12345, None, 2.5, ["o"]])
+def test_load_of_a_non_path_says_so(path: object) -> None:
+    import aev_ocp
+    from aev_ocp.saved import LoadError
+
+    with pytest.raises(LoadError, match=r"expected an output folder \(a str or pathlib.Path\), got"):
+        aev_ocp.load(path)  # type: ignore[arg-type]
+    with pytest.raises(LoadError, match="expected an output folder"):
+        aev_ocp.load_all(path)  # type: ignore[arg-type]
+
+
+# ----------------------------------------------------------------------------- from the issue-28 surfaces probe (test_reliability_surfaces.py)
+@pytest.fixture(scope="module")
+def saved(tmp_path_factory):
+    from aev_ocp.models.carfollowing import Proposed
+    from aev_ocp.saved import save_output
+    from aev_ocp.simulate import simulate_platoon
+
+    d = tmp_path_factory.mktemp("saved")
+    r = simulate_platoon(ConstantSpeed(1.3), [Proposed()], gaps0=[0.8], speeds0=[1.1], t_end=0.7)
+    save_output(d, "simulate", {"proposed": r})
+    return d
+
+
+def _copy(saved: Path, tmp_path: Path) -> Path:
+    d = tmp_path / "copy"
+    shutil.copytree(saved, d)
+    return d
+
+
+def _mutate(d: Path, data: st.DataObject) -> None:
+    from aev_ocp.saved import ARRAYS, MANIFEST
+
+    name = data.draw(st.sampled_from([ARRAYS, MANIFEST]))
+    f = d / name
+    raw = f.read_bytes()
+    how = data.draw(st.sampled_from(["truncate", "bytes", "rename", "json", "npz", "member", "array"]))
+    if how in ("npz", "member", "array"):  # damage inside the arrays file, its SHA-256 updated (the check passes)
+        import hashlib
+        import io
+
+        a = d / ARRAYS
+        z = a.read_bytes()
+        if how == "npz":
+            at = data.draw(st.integers(0, len(z) - 1))
+            z = z[:at] + data.draw(st.binary(min_size=1, max_size=64)) + z[at + 64 :]
+        else:
+            src, buf = zipfile.ZipFile(io.BytesIO(z)), io.BytesIO()
+            names = src.namelist()
+            victim = data.draw(st.sampled_from(names))
+            with zipfile.ZipFile(buf, "w") as dst:
+                for n in names:
+                    body = src.read(n)
+                    if n == victim and how == "array":  # a valid .npy of another shape or type
+                        arr = np.zeros(
+                            data.draw(st.lists(st.integers(0, 4), max_size=3)),
+                            dtype=data.draw(st.sampled_from(["f8", "i4", "U2", "c16", "?"])),
+                        )
+                        out = io.BytesIO()
+                        np.save(out, arr)
+                        body = out.getvalue()
+                    elif n == victim:
+                        n, body = data.draw(
+                            st.sampled_from(
+                                [("proposed/renamed.npy", body), (n, body[: len(body) // 2]), (n, b"\x93NUMPY junk")]
+                            )
+                        )
+                    dst.writestr(n, body)
+            z = buf.getvalue()
+        a.write_bytes(z)
+        m = json.loads((d / MANIFEST).read_text())
+        m["arrays_sha256"] = hashlib.sha256(z).hexdigest()
+        (d / MANIFEST).write_text(json.dumps(m))
+    elif how == "truncate":
+        f.write_bytes(raw[: data.draw(st.integers(0, len(raw) - 1))])
+    elif how == "bytes":
+        at = data.draw(st.integers(0, len(raw) - 1))
+        f.write_bytes(raw[:at] + data.draw(st.binary(min_size=1, max_size=16)) + raw[at + 16 :])
+    elif how == "rename":
+        f.rename(d / data.draw(st.sampled_from(["other.npz", "manifest.json.bak"])))
+    else:  # a structurally valid manifest with a field of the wrong type
+        m = json.loads((d / MANIFEST).read_text())
+        run = m["runs"]["proposed"]
+        key = data.draw(st.sampled_from(["runs", "ev", "events", "controllers", "meta", "solver_stats", "type"]))
+        junk = data.draw(st.sampled_from([{}, [], None, 3, "x", [[{}]], {"a": []}]))
+        (m if key == "runs" else run)[key] = junk
+        (d / MANIFEST).write_text(json.dumps(m))
+
+
+def test_loader_refuses_a_fifo_without_hanging(saved, tmp_path):
+    from aev_ocp import load
+    from aev_ocp.saved import ARRAYS, LoadError
+
+    d = _copy(saved, tmp_path)
+    (d / ARRAYS).unlink()
+    os.mkfifo(d / ARRAYS)
+    with _unblocked_after(d / ARRAYS, 300.0) as opened_for_writing:
+        with pytest.raises(LoadError, match="not a regular file"):
+            load(d)
+    assert not opened_for_writing.is_set()  # load() did not wait on the FIFO (300 s: a bound against a hang only)
+
+
+@pytest.mark.parametrize("member", ["trajectories.npz", "manifest.json"])
+def test_loader_refuses_a_symlink_to_dev_zero(saved, tmp_path, member):
+    from aev_ocp import load
+    from aev_ocp.saved import LoadError
+
+    d = _copy(saved, tmp_path)
+    (d / member).unlink()
+    (d / member).symlink_to("/dev/zero")
+    with pytest.raises(LoadError, match="not a regular file"):
+        load(d)
+
+
+def test_loader_refuses_a_zip_bomb_member_before_inflating_it(saved, tmp_path, monkeypatch):
+    import hashlib
+
+    from aev_ocp import load
+    from aev_ocp.saved import ARRAYS, MANIFEST, LoadError
+
+    d = _copy(saved, tmp_path)
+    with zipfile.ZipFile(d / ARRAYS, "a", compression=zipfile.ZIP_DEFLATED) as z:  # 3 MB of zeros, ~3 kB packed
+        z.writestr("proposed/bomb.npy", b"\0" * 3_000_000)
+    m = json.loads((d / MANIFEST).read_text())
+    m["arrays_sha256"] = hashlib.sha256((d / ARRAYS).read_bytes()).hexdigest()
+    (d / MANIFEST).write_text(json.dumps(m))
+    assert (d / ARRAYS).stat().st_size < 100_000
+    monkeypatch.setenv("AEV_OCP_MAX_MEMORY_GB", "0.002")  # 2 MB: the member's stated size is above it
+    with pytest.raises(LoadError, match="once unpacked"):
+        load(d)
+    monkeypatch.setenv("AEV_OCP_MAX_MEMORY_GB", "0.01")
+    assert load(d).status == "ok"  # within the budget the same folder loads (extra member ignored)
+
+
+@settings(max_examples=80, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(data=st.data())
+def test_fuzz_damaged_saved_folders_give_load_error_only(saved, tmp_path, data):
+    import tempfile
+
+    from aev_ocp import load
+    from aev_ocp.saved import LoadError, load_all
+
+    d = Path(tempfile.mkdtemp(dir=tmp_path)) / "c"
+    shutil.copytree(saved, d)
+    try:
+        _mutate(d, data)
+        for fn in (load, load_all):
+            try:
+                got = fn(d)
+            except LoadError as exc:  # the only exception allowed; it names the folder or one of its files
+                assert str(d) in str(exc)
+                continue
+            for r in got.values() if isinstance(got, dict) else [got]:  # what loads is a consistent run
+                n = r.t.shape[0]
+                assert r.t.shape == (n,) and r.leader_speed.shape == (n,) and r.gap.shape == r.speed.shape == (n, 1)
+                assert np.isfinite(r.metrics()[0]["omega_model"])
+    finally:
+        shutil.rmtree(d.parent)
+
+
+def test_deeply_nested_manifest_is_a_load_error(saved, tmp_path):
+    from aev_ocp import load
+    from aev_ocp.saved import MANIFEST, LoadError
+
+    d = _copy(saved, tmp_path)
+    (d / MANIFEST).write_text("[" * 100_000 + "]" * 100_000)
+    with pytest.raises(LoadError):
+        load(d)
+
+
+@pytest.mark.parametrize(
+    "name, bad", [("t", np.arange(3.0)), ("gap", np.zeros((2, 2, 2))), ("speed", np.array(["a"])), ("heat_J", None)]
+)
+def test_saved_arrays_of_the_wrong_shape_or_type_are_a_load_error(saved, tmp_path, name, bad):
+    import hashlib
+    import io
+
+    from aev_ocp import load
+    from aev_ocp.saved import ARRAYS, MANIFEST, LoadError
+
+    d = _copy(saved, tmp_path)
+    with zipfile.ZipFile(d / ARRAYS) as z:
+        members = {n: z.read(n) for n in z.namelist()}
+    key = f"proposed/{name}.npy"
+    if bad is None:
+        del members[key]
+    else:
+        buf = io.BytesIO()
+        np.save(buf, bad)
+        members[key] = buf.getvalue()
+    with zipfile.ZipFile(d / ARRAYS, "w") as z:
+        for n, b in members.items():
+            z.writestr(n, b)
+    m = json.loads((d / MANIFEST).read_text())
+    m["arrays_sha256"] = hashlib.sha256((d / ARRAYS).read_bytes()).hexdigest()  # the SHA check passes
+    (d / MANIFEST).write_text(json.dumps(m))
+    with pytest.raises(LoadError, match=name):
+        load(d)

@@ -10,8 +10,17 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from aev_ocp.models import OVFL, OVM, Proposed, equilibrium_gap, make_law, optimal_velocity
-from aev_ocp.models import battery, powertrain, vehicle
+from aev_ocp.models import (
+    OVFL,
+    OVM,
+    Proposed,
+    battery,
+    equilibrium_gap,
+    make_law,
+    optimal_velocity,
+    powertrain,
+    vehicle,
+)
 from aev_ocp.models.energy import g_exact, g_smooth
 from aev_ocp.models.leader import PaperLeader, SpeedTrace, drive_cycle, load_cycle_si
 from aev_ocp.params import (
@@ -225,3 +234,40 @@ def test_ocv_interpolant_matches_table_and_is_monotone() -> None:
 def test_parameter_validation_names_field(cls, field: str, value: float) -> None:
     with pytest.raises(ParameterError, match=rf"{cls.__name__}\.{field} = "):
         cls(**{field: value})
+
+
+# ----------------------------------------------------------------------------- from the third reliability probe (test_reprobe3.py)
+@pytest.mark.parametrize(
+    "name, factory, says",
+    [
+        ("mine_probe", 42, "factory = 42 is not allowed"),
+        (42, object, "name = 42 is not allowed"),
+        ("", object, "name = '' is not allowed"),
+        ("../x", object, "name = '../x' is not allowed"),
+        ("a b", object, "name = 'a b' is not allowed"),
+    ],
+)
+def test_register_law_refuses_what_make_law_could_never_build(name: object, factory: object, says: str) -> None:
+    from aev_ocp.models.carfollowing import LAW_REGISTRY, register_law
+
+    before = dict(LAW_REGISTRY)
+    with pytest.raises(ParameterError, match=says.replace("(", r"\(")):
+        register_law(name, factory)  # type: ignore[arg-type]
+    assert LAW_REGISTRY == before
+
+
+def test_registered_law_builds_by_name_and_make_law_of_a_non_string_is_named() -> None:
+    """A law registered under a valid name builds with its coefficient: OVM with alpha = 1.7 at h = 2.3, v = 1.1
+    gives alpha (V(h) - v) = 1.7 (tanh(0.3) + tanh(2) - 1.1) (paper eq. OVM, closed form)."""
+    from aev_ocp.models.carfollowing import LAW_REGISTRY, OVM, make_law, register_law
+
+    register_law("ovm-probe_3", OVM)
+    try:
+        law = make_law("OVM-probe_3", alpha=1.7)
+        got = float(law.function(2.3, 1.1, 1.2))
+        assert got == pytest.approx(1.7 * (math.tanh(0.3) + math.tanh(2.0) - 1.1), rel=1e-12)
+    finally:
+        LAW_REGISTRY.pop("ovm-probe_3", None)
+    for bad in (42, None):
+        with pytest.raises(ParameterError, match=f"unknown car-following law {bad!r}"):
+            make_law(bad)  # type: ignore[arg-type]

@@ -24,8 +24,11 @@ import warnings
 from pathlib import Path
 from typing import Any
 
+import casadi as ca
 import numpy as np
 import pytest
+from cli_helpers import one_error, run_cli
+from helpers import _never
 
 from aev_ocp.compiled import compiler
 from aev_ocp.control import ClosedLoop, Command, Observation
@@ -35,8 +38,7 @@ from aev_ocp.mpc.policy import MPCVehicle
 from aev_ocp.mpc.settings import MPCSettings
 from aev_ocp.ocp.following import FollowingBounds, FollowingWeights
 from aev_ocp.ocp.formulation import problem_formulation, s9_formulation
-from aev_ocp.params import EVParams, ParameterError
-from cli_helpers import one_error, run_cli
+from aev_ocp.params import EVParams, ParameterError, Units
 
 pytestmark = pytest.mark.skipif(compiler() is None, reason="no C compiler")
 
@@ -143,6 +145,7 @@ def canonical_lib(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return build_library(out, out / "libaev_mpc.so")
 
 
+@pytest.mark.slow  # over 5 s of one core (measured under load, pytest --durations)
 def test_export_has_no_python_or_casadi_dependency(canonical_lib: Path) -> None:
     """The library links only libc/libm: no libcasadi, no libpython."""
     if sys.platform != "linux" or shutil.which("ldd") is None:
@@ -167,6 +170,7 @@ def test_canonical_closed_loop_matches_python_controller(canonical_lib: Path) ->
     assert np.ptp(rc.accel[:, 0]) > 0.3
 
 
+@pytest.mark.slow  # over 5 s of one core (measured under load, pytest --durations)
 def test_canonical_closed_loop_matches_interpreted_qp_path(canonical_lib: Path) -> None:
     """Independent of the shared generated code: the Python rti path on interpreted CasADi functions (numpy
     shift, separate QP-data function) with the same QP solver through ctypes, to 1e-8; and with another QP
@@ -208,6 +212,7 @@ def _candidate(ev: EVParams, s: MPCSettings, f: Any = F9) -> Any:
     return pb
 
 
+@pytest.mark.slow  # over 5 s of one core (measured under load, pytest --durations)
 def test_soft_constraint_and_extra_state_problem(tmp_path: Path) -> None:
     ev = EVParams()
     # the exact Hessian (CANON) with a concave control term −0.3 a²: the control blocks of the exact Hessian
@@ -292,6 +297,7 @@ def test_cli_errors(capsys: pytest.CaptureFixture[str], tmp_path: Path, monkeypa
     assert rc == 2 and "--out" in one_error(err)
 
 
+@pytest.mark.slow  # over 5 s of one core (measured under load, pytest --durations)
 def test_traffic_formulation_exports_and_matches_the_python_driver(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -302,7 +308,6 @@ def test_traffic_formulation_exports_and_matches_the_python_driver(
     Python rti path on the same QP solver but nothing else shared: the QP data from the interpreted CasADi
     functions, the Hessian projected by NumPy (eigh), the shift and the multipliers' layout in NumPy."""
     from aev_ocp.models import drive_cycle
-    from aev_ocp.params import Units
 
     rc_cli, _, _ = run_cli(
         [
@@ -417,7 +422,6 @@ def test_two_workspaces_are_independent(canonical_lib: Path) -> None:
 def test_piecewise_ocv_equals_the_bspline() -> None:
     """The MPC's OCV written with comparisons (models/battery.py) against the B-spline Function: values,
     first and second derivatives at random SOC in [0, 1] and at the breakpoints."""
-    import casadi as ca
 
     from aev_ocp.models import battery as B
 
@@ -501,3 +505,93 @@ def test_riccati_without_a_compiler_says_hpipm_runs(monkeypatch: pytest.MonkeyPa
         assert any("'riccati' is unavailable" in str(w.message) for w in caught), [str(w.message) for w in caught]
         assert c.compiled_step is None and c.rti is not None and c.qp_in_use == "hpipm"
         assert c.solve(np.array([0.3, 1.87, 0.0, 0.0, 0.8]), np.full(6, 1.7), np.full(6, 1.7)).success
+
+
+# ----------------------------------------------------------------------------- from the issue-28 surfaces probe (test_reliability_surfaces.py)
+
+
+def test_mpc_export_refuses_a_users_folder_and_a_huge_horizon_before_generating(tmp_path, capsys, monkeypatch):
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "Makefile").write_text("all:\n\techo mine\n")
+    rc, _, err = run_cli(["mpc-export", "mpc_paper_single", "--out", str(mine)], capsys)
+    assert rc == 2 and "Makefile" in one_error(err) and sorted(p.name for p in mine.iterdir()) == ["Makefile"]
+    with monkeypatch.context() as m:  # refused before the controller is built, not after
+        m.setattr("aev_ocp.mpc.export.export_mpc", _never("export_mpc"))
+        m.setattr("aev_ocp.mpc.controller.MPCController.__init__", _never("MPCController"))
+        rc, _, err = run_cli(
+            ["mpc-export", "mpc_paper_single", "--out", str(tmp_path / "big"), "--set", "mpc.N=100000"], capsys
+        )
+    assert rc == 2 and "mpc.N = 100000" in one_error(err)
+    assert not (tmp_path / "big").exists()
+
+
+def test_mpc_export_builds_into_a_relative_out(tmp_path, capsys, monkeypatch):
+    from aev_ocp.compiled import compiler
+
+    if compiler() is None:
+        pytest.skip("no C compiler")
+    monkeypatch.chdir(tmp_path)
+    rc, out, err = run_cli(["mpc-export", "mpc_paper_single", "--out", "rel_dir", "--build"], capsys)
+    assert rc == 0, err
+    assert (tmp_path / "rel_dir" / "libaev_mpc.so").is_file() and "built" in out
+
+
+@pytest.mark.slow  # over 5 s of one core (measured under load, pytest --durations)
+@pytest.mark.skipif(shutil.which("cc") is None and shutil.which("gcc") is None, reason="no C compiler")
+def test_plain_c_step_with_own_states_matches_the_python_controller_in_closed_loop(tmp_path, capsys):
+    """aev_mpc_step (no own states given: a_prev taken from the previous plan, node 1) driven in a closed loop on
+    the traffic formulation (nx = 6) against the Python controller, and aev_mpc_step_own beside it; a one-node
+    shift of the own state in mpc_step.c makes every command after the first differ."""
+    from test_mpc_export import TOL, CPolicy, _compare
+
+    from aev_ocp.control import ClosedLoop
+    from aev_ocp.models import drive_cycle
+    from aev_ocp.mpc.export import CStep, build_library
+    from aev_ocp.mpc.policy import MPCVehicle
+    from aev_ocp.mpc.settings import MPCSettings
+    from aev_ocp.params import EVParams
+
+    rc, _, err = run_cli(
+        [
+            "mpc-export",
+            "mpc_udds_single",
+            "--out",
+            str(tmp_path / "x"),
+            "--set",
+            "mpc.predictor=constant-velocity",
+            "--set",
+            "mpc.N=14",
+        ],
+        capsys,
+    )
+    assert rc == 0, err
+    lib = build_library(tmp_path / "x", tmp_path / "x" / "lib.so")
+    ev = EVParams(units=Units(15.0, 17.0))
+    s = MPCSettings(N=14, predictor="constant-velocity", qp_solver="riccati", codegen=False)
+    leader = drive_cycle("udds", ev.units)
+    t_end = 40.0  # 400 steps; the leader drives off at 20 s (model 40 = 35 s of UDDS)
+
+    class Plain(CStep):  # the documented entry point: never passes the own states
+        calls = 0
+
+        def step(self, x_meas, forecast, own=None):  # noqa: ANN001, ANN202
+            Plain.calls += 1
+            return super().step(x_meas, forecast, None)
+
+    runs = {}
+    for name in ("plain", "own"):
+        loop = ClosedLoop(leader, [MPCVehicle(s)], ev)
+        cp = CPolicy(lib, loop.ctrl[0])
+        if name == "plain":
+            cp.step = Plain(lib)
+        assert cp.step.nx == 6  # the jerk state a_prev: an own state the plain step must take from its plan
+        loop.ctrl[0] = cp
+        runs[name] = (loop.run([0.8], [0.0], t_end), cp.status)
+    rp = ClosedLoop(leader, [MPCVehicle(s)], ev).run([0.8], [0.0], t_end)
+    assert Plain.calls == 400
+    for name, (r, status) in runs.items():
+        assert all(k == 0 for k in status), (name, status)
+        du, dx = _compare(r, rp)
+        assert du <= TOL and dx <= TOL, (name, du, dx)
+    assert np.abs(np.diff(rp.accel[:, 0])).max() > 1e-3  # a_prev changes: a shifted node would be seen

@@ -9,8 +9,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from cli_helpers import one_error
+from helpers import _run_study
+from study_helpers import write_tiny_study as _study
 
 from aev_ocp.metrics import comparability, distance_metrics
+from aev_ocp.models.leader import ConstantSpeed
 from aev_ocp.overrides import OverrideError, apply_to_document, parse_assignment, parse_assignments
 from aev_ocp.scenarios import ScenarioError, find_scenario, load_scenario
 from aev_ocp.simulate import simulate_platoon
@@ -167,7 +171,6 @@ def test_min_ttc_closing_follower():
     """Constant leader v_l = 1; follower 1 starts at v = 1.6, h = 2.5: TTC(0) = 2.5 / 0.6, and the
     minimum over the run is below that (the follower keeps closing at first) but positive."""
     from aev_ocp.models.carfollowing import make_law
-    from aev_ocp.models.leader import ConstantSpeed
 
     r = simulate_platoon(ConstantSpeed(1.0), [make_law("ovfl")], [2.5], [1.6], 3.0, dt_out=0.001)
     m = distance_metrics(r, 0)
@@ -190,3 +193,30 @@ def test_comparability_flags():
     evt = comparability({"distance_m": 1000.0, "duration_s": 140.0, "run_status": "collision"}, ref)
     assert evt["flag_event"] and not evt["comparable"]
     assert not comparability({"distance_m": 1000.0, "duration_s": 140.0, "run_status": "ok"}, None)["comparable"]
+
+
+# ----------------------------------------------------------------------------- from the third reliability probe (test_reprobe3.py)
+@pytest.mark.parametrize("key", [3, None, ("carfollowing", "kappa"), b"carfollowing.kappa"])
+def test_override_key_that_is_not_a_string_is_named(key: object) -> None:
+    """with_overrides({3: 1}) was an AttributeError ('int' object has no attribute 'split')."""
+    from aev_ocp.overrides import OverrideError
+
+    with pytest.raises(OverrideError, match=r"override key .* is not a dotted key path string"):
+        load_scenario("table1").with_overrides({key: 0.05})  # type: ignore[dict-item]
+    s = load_scenario("table1").with_overrides({"carfollowing.kappa": 0.07})  # a string key still works
+    assert s.cf.kappa == 0.07
+
+
+# ----------------------------------------------------------------------------- from the issue-28 surfaces probe (test_reliability_surfaces.py)
+
+
+def test_set_on_an_axis_key_nan_and_newline_are_refused(tmp_path, capsys):
+    f = _study(tmp_path)
+    for sets, word in (
+        (["platoon.gap0_first=0.5"], "platoon.gap0_first"),
+        (["carfollowing.alpha=nan"], "nan"),
+        (["simulation.t_end=2\nplatoon.followers=9"], "line break"),
+    ):
+        rc, err = _run_study(tmp_path, f, tmp_path / "o", capsys, *[x for s in sets for x in ("--set", s)])
+        assert rc == 2 and word in one_error(err), err
+    assert not (tmp_path / "o").exists()

@@ -4,6 +4,8 @@ maps states by name. Values are checked by evaluating the built CasADi Functions
 
 from __future__ import annotations
 
+import math
+
 import casadi as ca
 import numpy as np
 import pytest
@@ -165,3 +167,104 @@ def test_bad_state_bounds_name_the_state() -> None:
     with pytest.raises(ParameterError, match="state 'h' has lb = 3.0 > ub = 2.0"):
         pb.state("h", 3.0, 2.0)
     assert "h" not in pb.x
+
+
+# ----------------------------------------------------------------------------- from the third reliability probe (test_reprobe3.py)
+def _toy() -> tuple[ProblemBuilder, ca.SX, ca.SX, ca.SX]:
+    pb = ProblemBuilder("toy")
+    x, u, p = pb.state("x"), pb.control("u"), pb.parameter("p")
+    return pb, x, u, p
+
+
+OUTSIDER = ca.SX.sym("x")  # same name as the builder's state, another symbol
+
+
+def _lq_solver(N: int = 12):  # noqa: ANN202
+    from aev_ocp import OCPSolver, TranscriptionOptions
+
+    pb = ProblemBuilder("lq")
+    x, u = pb.state("x"), pb.control("u", -1.5, 1.5)
+    w = pb.stage_parameter("w")
+    pb.set_der(x, u + w)
+    pb.add_stage_cost(x**2 + 0.1 * u**2, "c")
+    return OCPSolver(pb.build(), TranscriptionOptions(N=N))
+
+
+@pytest.mark.parametrize(
+    "act, says",
+    [
+        (lambda pb, x, u, p: pb.set_der(x, "fast"), "set_der of state 'x' must be a CasADi SX expression"),
+        (lambda pb, x, u, p: pb.set_der(x, ca.MX.sym("m")), "got MX"),
+        (lambda pb, x, u, p: pb.set_der(x, float("nan")), "set_der of state 'x' = nan is not a finite"),
+        (lambda pb, x, u, p: pb.set_der(x, ca.vertcat(u, u)), "must be a scalar expression, got 2 entries"),
+        (lambda pb, x, u, p: pb.set_der(x, OUTSIDER), "depends on 'x', which is not one of the problem's"),
+        (lambda pb, x, u, p: pb.set_next(x, np.array([1.5, 2.5])), "set_next of state 'x' must be a scalar"),
+        (lambda pb, x, u, p: pb.add_stage_cost(ca.vertcat(u, x), "c"), "stage cost term 'c' must be a scalar"),
+        (lambda pb, x, u, p: pb.add_integral_cost(math.inf * 1.0, "q"), "integral cost term 'q' = inf"),
+        (lambda pb, x, u, p: pb.add_terminal_cost("x"), "terminal cost must be a CasADi SX"),
+        (lambda pb, x, u, p: pb.add_terminal_cost(u**2), "terminal cost depends on 'u'"),
+        (lambda pb, x, u, p: pb.add_output("o", "x"), "output 'o' must be a CasADi SX"),
+        (lambda pb, x, u, p: pb.subject_to(OUTSIDER, 0.0, 1.0), "constraint 'c0' depends on 'x'"),
+    ],
+)
+def test_builder_refuses_a_bad_expression_where_it_is_given(act, says: str) -> None:  # noqa: ANN001
+    pb, x, u, p = _toy()
+    with pytest.raises(ParameterError, match=says.replace("(", r"\(")):
+        act(pb, x, u, p)
+    assert not pb.stage_terms and not pb.integral_terms and not pb._outputs  # nothing half-added
+
+
+def test_builder_valid_expressions_evaluate_as_written() -> None:
+    """Numbers and expressions still go in; the built Functions evaluate to the closed forms at x = 0.7,
+    u = -1.3, p = 2.5 (stage: u² + 1.5 = 3.19; ode: u·p = -3.25; Mayer: x·p = 1.75; output: 2.25 constant)."""
+    pb, x, u, p = _toy()
+    pb.set_der(x, u * p)
+    pb.add_stage_cost(u**2 + 1.5, "effort")
+    pb.add_terminal_cost(x * p)
+    pb.add_output("const", 2.25)
+    pr = pb.build()
+    args = (0.7, -1.3, ca.DM(0, 1), 2.5)
+    assert float(pr.stage(*args)) == pytest.approx(3.19, rel=1e-15)
+    assert float(pr.ode(*args)) == pytest.approx(-3.25, rel=1e-15)
+    assert float(pr.terminal_cost(0.7, 2.5)) == pytest.approx(1.75, rel=1e-15)
+    outs = pr.outputs(*args)
+    assert float(outs[0]) == 2.25 and float(outs[1]) == pytest.approx(3.19, rel=1e-15)
+
+
+@pytest.mark.parametrize(
+    "kw, says",
+    [
+        (
+            {"guess": (np.zeros((3, 3)), np.zeros((1, 12)))},
+            r"guess X \(states at the nodes\) must be 1 × 13 finite numbers, got shape \(3, 3\)",
+        ),
+        ({"guess": (np.zeros(13), np.zeros((1, 5)))}, r"guess U must be \(up to\) 1 × 12 controls"),
+        ({"guess": (np.full(13, np.nan), np.zeros(12))}, "guess X .* got a NaN or infinite entry"),
+        ({"guess": "junk"}, r"guess must be a pair \(X, U\), got str"),
+        ({"guess": (np.zeros(13), ["a"] * 12)}, "guess U .* must be an array of numbers"),
+        ({"w": np.zeros(5)}, r"w \(per-interval parameters\) must be 1 × 12 finite numbers, got shape \(5,\)"),
+        ({"w": np.full(12, np.inf)}, r"w \(per-interval parameters\) .* NaN or infinite"),
+    ],
+)
+def test_ocp_solver_names_a_bad_guess_or_stage_parameter(kw: dict, says: str) -> None:
+    """These were numpy's 'cannot reshape array of size 9 into shape (1,13)' (or a NaN sent to IPOPT)."""
+    with pytest.raises(ParameterError, match=f"lq: {says}"):
+        _lq_solver().solve([0.8], 2.5, **kw)
+
+
+def test_ocp_solver_guess_equal_to_the_default_gives_the_same_optimum() -> None:
+    """Second method: the default start (x0 held, u = 0) passed explicitly as the guess, with w = 0.3 given in
+    either layout, finds the same optimum (IPOPT is deterministic)."""
+    s = _lq_solver()
+    a = s.solve([0.8], 2.5, w=np.full((1, 12), 0.3))
+    b = s.solve([0.8], 2.5, w=[0.3] * 12, guess=(np.full((1, 13), 0.8), np.zeros((1, 12))))
+    assert a.status == b.status == "optimal"
+    assert a.objective == pytest.approx(b.objective, rel=1e-12) and a.objective > 0
+
+
+@pytest.mark.parametrize("ls", ["magic", 5, None])
+def test_transcription_options_refuse_an_unknown_linear_solver(ls: object) -> None:
+    from aev_ocp import TranscriptionOptions
+
+    with pytest.raises(ParameterError, match=r"TranscriptionOptions.linear_solver = .* is not allowed"):
+        TranscriptionOptions(linear_solver=ls)  # type: ignore[arg-type]

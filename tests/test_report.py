@@ -8,6 +8,10 @@ import json
 from pathlib import Path
 
 import pytest
+from cli_helpers import run_cli
+from helpers import SMALL
+from study_helpers import TINY_STUDY as STUDY
+from study_helpers import write_tiny_study as _study
 
 from aev_ocp import reproduce as rp
 from aev_ocp.report import PAPER_TABLE1, percent_change, table1_disagreements
@@ -25,6 +29,7 @@ def quick_report(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, str]:
     return out, stream.getvalue()
 
 
+@pytest.mark.slow  # needs the module's reproduce run (quick_report: over a minute of one core)
 def test_reproduce_writes_all_files(quick_report: tuple[Path, str]) -> None:
     out, _ = quick_report
     for name in (
@@ -45,6 +50,7 @@ def test_reproduce_writes_all_files(quick_report: tuple[Path, str]) -> None:
     assert not list(out.glob(".*")), "temporary files left behind"
 
 
+@pytest.mark.slow  # needs the module's reproduce run (quick_report: over a minute of one core)
 def test_table1_json_keys_and_shapes(quick_report: tuple[Path, str]) -> None:
     data = json.loads((quick_report[0] / "table1.json").read_text())
     for key in ("proposed_omega", "ovfl_omega", "percent_change", "paper_proposed_omega", "paper_ovfl_omega"):
@@ -56,6 +62,7 @@ def test_table1_json_keys_and_shapes(quick_report: tuple[Path, str]) -> None:
     assert all(x < 0 for x in data["delta_soc"]["proposed"])  # the platoon drains the pack
 
 
+@pytest.mark.slow  # needs the module's reproduce run (quick_report: over a minute of one core)
 def test_report_text_and_progress(quick_report: tuple[Path, str]) -> None:
     out, log = quick_report
     text = (out / "report.md").read_text()
@@ -97,6 +104,7 @@ def test_failing_provider_adds_no_section() -> None:
     assert log and "skipped" in log[0]
 
 
+@pytest.mark.slow  # needs the module's reproduce run (quick_report: over a minute of one core)
 def test_every_section_run_loads_back_with_the_numbers_of_the_report(quick_report: tuple[Path, str]) -> None:
     """The runs reproduce made are saved outputs: aev_ocp.load reads each folder, and the loaded runs give the
     numbers the report's own files state (issue 26)."""
@@ -136,6 +144,7 @@ def test_every_section_run_loads_back_with_the_numbers_of_the_report(quick_repor
     assert html.count("data:image/png;base64,") == len(shown)
 
 
+@pytest.mark.slow  # needs the module's reproduce run (quick_report: over a minute of one core)
 def test_the_counter_counts_every_line(quick_report: tuple[Path, str]) -> None:
     _, log = quick_report
     heads = [tuple(map(int, ln[1 : ln.index("]")].split("/"))) for ln in log.splitlines() if ln.startswith("[")]
@@ -146,6 +155,7 @@ def test_the_counter_counts_every_line(quick_report: tuple[Path, str]) -> None:
     assert heads[-1][0] == heads[-1][1] and ks.count(heads[-1][1]) == 1  # N/N once, on the final line
 
 
+@pytest.mark.slow  # needs the module's reproduce run (quick_report: over a minute of one core)
 def test_report_html_shows_every_figure_of_the_folder(quick_report: tuple[Path, str]) -> None:
     from aev_ocp.report_html import unshown_figures
 
@@ -154,3 +164,65 @@ def test_report_html_shows_every_figure_of_the_folder(quick_report: tuple[Path, 
     assert unshown_figures(text, out) == []  # a figure a section writes and the report forgets
     html = (out / "report.html").read_text()
     assert html.count("<img ") >= len(list(out.glob("*.png")))
+
+
+# ----------------------------------------------------------------------------- from the issue-28 re-probe (test_reprobe.py)
+
+
+@pytest.mark.parametrize(
+    ("vehicle", "outcome"),
+    [
+        ("[2, 7]", "report.vehicle = 7"),
+        ("9", "report.vehicle = 9"),
+        ("[1, 2]", None),
+        ("3", "scenario(s) ['s'] have no follower 3"),
+    ],
+)
+def test_report_vehicle_without_rows_is_refused_or_warns(tmp_path: Path, vehicle: str, outcome: str | None) -> None:
+    """[report] vehicle = [99] on a 1-follower platoon wrote a report of nothing ('0 of 0') without a word: a
+    follower no scenario has is refused before any task runs; one that only some scenarios lack is a warning."""
+    import warnings
+
+    from aev_ocp.study import StudyError, run_study
+
+    (tmp_path / "s.toml").write_text(SMALL, encoding="utf-8")  # 2 followers
+    (tmp_path / "st.toml").write_text(
+        'name = "st"\nscenarios = ["s.toml", { scenario = "s.toml", label = "s3", overrides = '
+        '{ "platoon.followers" = 3 } }]\n[[axes]]\nkey = "carfollowing.kappa"\nvalues = [0.013, 0.047]\n'
+        f'[controllers]\nlaws = ["proposed"]\n[report]\nvehicle = {vehicle}\n',
+        encoding="utf-8",
+    )
+    if outcome is not None and outcome.startswith("report.vehicle"):
+        with pytest.raises(StudyError, match=rf"{outcome} is not allowed: must be a follower 1-3 .*have 2, 3 follower"):
+            run_study(tmp_path / "st.toml", tmp_path / "o", executor="inprocess")
+        assert not (tmp_path / "o").exists()
+        return
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        run_study(tmp_path / "st.toml", tmp_path / "o", executor="inprocess")
+    said = [str(w.message) for w in caught if "[report] vehicle" in str(w.message)]
+    assert len(said) == (outcome is not None), said
+    if outcome is not None:
+        assert outcome in said[0], said
+
+
+# ----------------------------------------------------------------------------- from the issue-28 surfaces probe (test_reliability_surfaces.py)
+
+
+def test_unknown_report_metrics_are_refused_and_absent_ones_named_in_a_warning(tmp_path, capsys):
+    """A name that is no column a study can have is bad input before anything runs (issue 28 rest); a column
+    this study's controllers do not produce (an MPC's solve time in a study of laws) is the report's warning."""
+    f = _study(
+        tmp_path,
+        text=STUDY + '[report]\nmetrics = ["omega_model", "omgea_model"]\npareto = [["heat_pack_J", "frob"]]\n',
+    )
+    rc, _, err = run_cli(["study", str(f), "--out", str(tmp_path / "o"), "--in-process"], capsys)
+    assert rc == 2 and "report.metrics names 'omgea_model'" in err and "did you mean omega_model" in err
+    assert not (tmp_path / "o").exists()
+    f = _study(
+        tmp_path,
+        text=STUDY + '[report]\nmetrics = ["omega_model", "solve_ms_median"]\npareto = [["heat_pack_J", "nfev"]]\n',
+    )
+    rc, _, err = run_cli(["study", str(f), "--out", str(tmp_path / "o"), "--in-process"], capsys)
+    warn = [ln for ln in err.splitlines() if "not columns of the table" in ln]
+    assert rc == 0 and len(warn) == 1 and "'solve_ms_median'" in warn[0] and "nfev" not in warn[0]

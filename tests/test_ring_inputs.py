@@ -168,7 +168,9 @@ def test_compiled_ring_stops_at_once_when_cancelled() -> None:
 
     def advance(z: np.ndarray) -> tuple[int, np.ndarray]:
         out, h, ev, stats = np.zeros((1, n, nz + sim.ny)), np.zeros(1), np.zeros(4), np.zeros(3, np.int64)
+        brake = np.zeros((n, 4))  # the braking counters (ring.c), off: threshold below any acceleration
         args = (n, sim.law_of, sim.params, np.zeros(n), z, 0.0, t1, 1, ts, out, 1e-8, 1e-8, 10**7, h, ev, stats, 1)
+        args += (brake, -1e300, 0.0, 0.0)
         return int(lib.aevring_advance(*args)), stats
 
     flag = ctypes.c_int.in_dll(lib, "aevring_cancel")

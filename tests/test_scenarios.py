@@ -3,13 +3,19 @@ whose message names the file, the key path and the offending value."""
 
 from __future__ import annotations
 
+import math
 import warnings
 from pathlib import Path
 
 import pytest
+from cli_helpers import one_error, run_cli
+from helpers import _BIG_STR, _BIG_TABLE, SCENARIO, SMALL
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
-from aev_ocp.models.carfollowing import V_INF, OVFL, Proposed
+from aev_ocp.models.carfollowing import OVFL, V_INF, Proposed
 from aev_ocp.models.leader import PaperLeader, SpeedTrace
+from aev_ocp.params import ParameterError, Units
 from aev_ocp.scenarios import (
     ScenarioError,
     ScenarioWarning,
@@ -280,3 +286,139 @@ def test_the_split_loader_keeps_every_public_name_importable_from_aev_ocp_scenar
             assert obj.__module__.startswith("aev_ocp."), (name, obj.__module__)
     assert scn.Scenario.__module__ == "aev_ocp.scenarios.platoon"
     assert scn.TableReader.__module__ == "aev_ocp.scenarios.tables"
+
+
+# ----------------------------------------------------------------------------- from the issue-28 re-probe (test_reprobe.py)
+BOM = b"\xef\xbb\xbf"
+
+
+def test_a_byte_order_mark_is_read_like_the_same_file_without_it(tmp_path: Path) -> None:
+    """Scenario, study and grid files saved with a UTF-8 BOM (Notepad) load exactly as without it (before: 'not
+    valid TOML: Invalid statement (at line 1, column 1)', exit 2)."""
+    from aev_ocp.scenarios import load_scenario
+    from aev_ocp.study.spec import read_study
+
+    plain, marked = tmp_path / "plain.toml", tmp_path / "marked.toml"
+    plain.write_text(SMALL, encoding="utf-8")
+    marked.write_bytes(BOM + SMALL.replace("\n", "\r\n").encode("utf-8"))
+    a, b = load_scenario(plain).run()["proposed"], load_scenario(marked).run()["proposed"]
+    assert float(abs(a.gap - b.gap).max()) == 0.0 and float(abs(a.speed - b.speed).max()) == 0.0
+    study = 'name = "st"\nscenarios = ["plain.toml"]\n[[axes]]\nkey = "carfollowing.kappa"\nvalues = [0.013, 0.047]\n'
+    study += '[controllers]\nlaws = ["proposed"]\n'
+    (tmp_path / "st.toml").write_bytes(BOM + study.encode("utf-8"))
+    assert len(read_study(tmp_path / "st.toml").points) == 2
+
+
+def test_a_grid_file_with_a_byte_order_mark_is_read(tmp_path: Path) -> None:
+    from aev_ocp.limits import read_input_file
+
+    f = tmp_path / "g.json"
+    f.write_bytes(BOM + b'{"E_req": [1500.0], "t_f": [45.0]}')
+    assert read_input_file(f, "grid file", ValueError) == b'{"E_req": [1500.0], "t_f": [45.0]}'
+    f.write_bytes(b"\xef\xbb" + b"{}")  # a broken mark is not a mark: left for the parser to refuse
+    assert read_input_file(f, "grid file", ValueError) == b"\xef\xbb{}"
+
+
+# ----------------------------------------------------------------------------- from the issue-28 small leftovers (test_reliability_minors.py)
+
+
+def _bad_scenario(tmp_path, extra: str):
+    from pathlib import Path
+
+    import aev_ocp
+
+    base = (Path(aev_ocp.__file__).parent / "scenario_files" / "fig1a.toml").read_text()
+    f = tmp_path / "bad.toml"
+    f.write_text(base + extra)
+    return f
+
+
+def test_echo_is_repr_when_short_and_at_most_60_characters_otherwise():
+    from aev_ocp.params import ECHO_CHARS, echo
+
+    assert ECHO_CHARS == 60
+    for v in (0.35, "udds", [1, 2.5, "a"], {"a": {"b": [1, 2]}}, (3,), None, True, -7):
+        assert echo(v) == repr(v)
+    long = {f"k{i}": i for i in range(2000)}
+    assert echo(long) == repr(long)[:59] + "…"
+    assert echo(_BIG_STR) == repr(_BIG_STR)[:59] + "…"
+    deep: list = []
+    for _ in range(100_000):  # repr() of this raises RecursionError
+        deep = [deep]
+    assert echo(deep) == "[" * 59 + "…"
+    assert echo(-(10**5000)) == "-" + "9" * 58 + "…"  # repr() refuses integers of > 4300 digits
+
+
+@given(
+    st.recursive(
+        st.none() | st.booleans() | st.integers() | st.floats() | st.text(max_size=90),
+        lambda inner: st.lists(inner, max_size=8) | st.dictionaries(st.text(max_size=8), inner, max_size=8),
+        max_leaves=20,
+    )
+)
+@settings(max_examples=60, deadline=None)
+def test_echo_never_exceeds_the_limit_and_keeps_short_values_whole(value):
+    from aev_ocp.params import echo
+
+    text = echo(value)
+    assert len(text) <= 60
+    full = repr(value)
+    if len(full) <= 60:
+        assert text == full
+    else:
+        assert text.endswith("…") and len(text) == 60
+
+
+@pytest.mark.parametrize(
+    "extra, path, shown",
+    [
+        (f'\n[carfollowing.proposed]\nzz = "{_BIG_STR}"\n', "carfollowing.proposed.zz", "'qqq"),
+        (f"\n[carfollowing.proposed]\nzz = {_BIG_TABLE}\n", "carfollowing.proposed.zz", "{'k0': 0, 'k1': 1"),
+        (f"\n[carfollowing.ovm.deep]\nzz = {_BIG_TABLE}\n", "carfollowing.ovm.deep", "{'zz': {'k0': 0"),
+        (f"\n[thermal.a.b]\nzz = {_BIG_TABLE}\n", "thermal.a", "{'b': {'zz': {'k0'"),
+    ],
+)
+def test_a_bad_key_deep_in_a_scenario_names_its_path_and_echoes_a_short_value(tmp_path, capsys, extra, path, shown):
+    from cli_helpers import one_error, run_cli
+
+    f = _bad_scenario(tmp_path, extra)
+    rc, _, err = run_cli(["simulate", str(f), "--out", str(tmp_path / "o")], capsys)
+    line = one_error(err)
+    assert rc == 2 and f"{path}" in line and shown in line and "…" in line
+    assert len(line) < len(str(f)) + 400  # the value is echoed in <= 60 characters, not 10 000
+    assert not (tmp_path / "o").exists()
+
+
+# ----------------------------------------------------------------------------- from the third reliability probe (test_reprobe3.py)
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.floats(0, 1.7e308, exclude_min=True), st.floats(0, 1.7e308, exclude_min=True))
+def test_units_either_refused_or_every_derived_unit_finite(L: float, U: float) -> None:
+    """Property: for any finite positive L, U, Units either raises ParameterError or its time, acceleration and
+    energy units are finite and positive, and equal the closed forms L/U, U²/L, U² (no OverflowError later)."""
+    try:
+        u = Units(L, U)
+    except ParameterError as exc:
+        assert "speed_mps" in str(exc) and "not a finite positive number" in str(exc)
+        return
+    for value in (u.time_s, u.accel_mps2, u.energy_per_mass_to_si(1.0)):
+        assert math.isfinite(value) and value > 0
+    assert u.time_s == L / U and u.accel_mps2 == U**2 / L
+
+
+@pytest.mark.parametrize("L, U", [(10.0, 1e308), (1e-300, 1e10), (1e300, 1e-10), (1e-170, 1e-170)])
+def test_units_overflowing_a_derived_unit_are_refused(L: float, U: float) -> None:
+    with pytest.raises(ParameterError, match="Units.speed_mps .* not a finite positive number"):
+        Units(L, U)
+
+
+def test_scenario_units_overflow_is_bad_input_naming_the_key(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    f = tmp_path / "u.toml"
+    f.write_text(SCENARIO.format(L=10.0, U=1e308))
+    with pytest.raises(ScenarioError, match=r"u\.toml: units\.speed_mps"):
+        load_scenario(f)
+    rc, _, err = run_cli(["simulate", str(f), "--out", str(tmp_path / "o"), "--no-plots"], capsys)
+    assert rc == 2 and "units.speed_mps" in one_error(err) and "internal error" not in err
+    f.write_text(SCENARIO.format(L=12.5, U=7.25))  # everyday units still load, with the closed-form time unit
+    assert load_scenario(f).units.time_s == 12.5 / 7.25

@@ -3,9 +3,8 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
-
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -256,7 +255,6 @@ def test_event_time_is_located_between_samples() -> None:
 
 def test_no_compiler_auto_falls_back_to_cvodes_and_cascade_says_why(monkeypatch: pytest.MonkeyPatch) -> None:
     import aev_ocp.compiled as B
-
     import aev_ocp.simulate as S
 
     monkeypatch.setattr(B.shutil, "which", lambda name: None)
@@ -351,3 +349,32 @@ def test_law_coefficients_are_runtime_parameters_of_the_cascade() -> None:
             method="cvodes",
         )
         np.testing.assert_allclose(r.omega[-1], ref.omega[-1], rtol=1e-6, atol=1e-7)
+
+
+# ----------------------------------------------------------------------------- from the third reliability probe (test_reprobe3.py)
+def test_cascade_step_limit_grows_with_the_horizon(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A fixed total of max_num_steps per vehicle cut long trips short with an unactionable 'raise max_num_steps'
+    (e.g. a US06 leader held past its end, 5000 s: integration_failed at 4660 s). The limit is now per
+    STEP_LIMIT_SPAN of model time. Scaled down here (span 20, 1000 steps) so that Table 1's 70 time units need
+    4 spans: the run completes and equals the run with an unlimited budget to the last bit; with the horizon's
+    single span it stops, and the message names the limit and the keys a user can change."""
+    import aev_ocp.simulate as sim
+    from aev_ocp.models.carfollowing import Proposed
+    from aev_ocp.models.leader import PaperLeader
+    from aev_ocp.params import SimOptions
+
+    def run(max_steps: int):  # noqa: ANN202
+        opts = SimOptions(dt_out=0.05, max_num_steps=max_steps, method="cascade")
+        return sim.PlatoonSimulator(PaperLeader(), [Proposed()] * 2, None, opts).run([0.3, 3.5], [1.87, 1.87], 70.0)
+
+    assert sim.cascade_step_limit(1000, 70.0) == 1000 and sim.cascade_step_limit(1000, 2500.0) == 3000
+    monkeypatch.setattr(sim, "STEP_LIMIT_SPAN", 20.0)
+    ref, got = run(10**9), run(1000)
+    if "cascade" not in str(ref.meta):
+        pytest.skip("no C compiler: the cascade did not run")
+    assert max(s["nsteps"] + s["nrejected"] for s in ref.solver_stats) > 1000  # the old fixed total was too small
+    assert got.status == "ok" and np.array_equal(got.omega, ref.omega) and np.array_equal(got.speed, ref.speed)
+    monkeypatch.setattr(sim, "STEP_LIMIT_SPAN", 1000.0)
+    cut = run(1000)
+    assert cut.status == "integration_failed"
+    assert "more than 1000 steps for this vehicle: loosen simulation.rtol/atol" in cut.events[0].message

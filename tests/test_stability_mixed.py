@@ -135,6 +135,7 @@ def damper(c: float, alpha: float = 2.0, vmax: float = 13.0, hs: float = 8.0, hc
     return ca.Function("damper", [h, v, vl], [alpha * (V - v) + c * (vl - v)])
 
 
+@pytest.mark.slow  # over 5 s of one core (measured under load, pytest --durations)
 def test_min_aev_gain_on_inside_and_outside():
     human = idm(T=1.25)  # a mildly unstable human ring that one damping AEV can stabilise
     assert M.analyse_mixed_ring([human] * N, RING_M, CAR_M, VMAX).growth_rate_per_s > 0
@@ -208,6 +209,7 @@ def test_si_accel_of_an_si_law_ignores_the_units_and_a_model_law_needs_them():
             M.si_accel(model_law())
 
 
+@pytest.mark.slow  # over 5 s of one core (measured under load, pytest --durations)
 def test_the_stability_command_analyses_a_mixed_ring(tmp_path, capsys):
     import json
 

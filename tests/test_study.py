@@ -3,15 +3,24 @@ LocalCluster included), resume recomputes nothing, failures are recorded, bad in
 
 from __future__ import annotations
 
-import re
 import json
 import math
+import os
+import re
+import shutil
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
+from cli_helpers import one_error, run_cli
+from helpers import _BIG_STR, _BIG_TABLE, _never, _run_study
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+from study_helpers import TINY_STUDY, write_tiny_study
 
 from aev_ocp.cli import main
+from aev_ocp.params import ParameterError
 from aev_ocp.results import EVENT_KINDS
 from aev_ocp.scenarios import load_scenario
 from aev_ocp.simulate import simulate_platoon
@@ -122,6 +131,7 @@ def test_points_equal_direct_simulations(tmp_path):
     assert all(x["aev_ocp_version"] and x["casadi_version"] for x in rows)
 
 
+@pytest.mark.slow  # over 5 s of one core (measured under load, pytest --durations)
 def test_executors_identical_and_dask_local_cluster(tmp_path):
     pytest.importorskip("dask.distributed")
     f = _study(tmp_path)
@@ -553,9 +563,387 @@ codegen = false
 def test_run_study_refuses_a_bad_executor_before_claiming_its_folder(tmp_path, kw, named):
     """run_study's executor arguments are checked before anything is written: a ParameterError naming the
     argument (it was a bare ValueError, raised after the output folder had been claimed)."""
-    from aev_ocp.params import ParameterError
 
     out = tmp_path / "o"
     with pytest.raises(ParameterError, match=re.escape(named)):
         run_study(_study(tmp_path), out, report=False, **kw)
     assert not out.exists()
+
+
+# ----------------------------------------------------------------------------- from the issue-28 re-probe (test_reprobe.py)
+@pytest.mark.parametrize(
+    ("name", "content"),
+    [
+        ("table.jsonl", b"\xbc\x00junk\xff"),
+        ("table.jsonl", b'{"a": 1}\n{"a": \n'),
+        ("table.jsonl", b"[1, 2]\n"),
+        ("table.jsonl", b"[" * 100_000 + b"]" * 100_000 + b"\n"),
+        ("table.csv", b"a,b\n\xbc\xff,2\n"),
+        ("missing.jsonl", None),
+        ("fifo.jsonl", "fifo"),
+    ],
+)
+def test_load_table_of_a_damaged_file_raises_load_error(tmp_path: Path, name: str, content: object) -> None:
+    """load_table raised UnicodeDecodeError/JSONDecodeError on a damaged table and would hang on a FIFO."""
+    from aev_ocp import LoadError
+    from aev_ocp.study import load_table
+
+    f = tmp_path / name
+    if content == "fifo":
+        os.mkfifo(f)
+    elif isinstance(content, bytes):
+        f.write_bytes(content)
+    with pytest.raises(LoadError, match=name):
+        load_table(f)
+
+
+def test_load_table_reads_both_files_alike(tmp_path: Path) -> None:
+    from aev_ocp.study import load_table
+
+    (tmp_path / "table.jsonl").write_text('{"kappa": 0.047, "law": "ovfl", "n": 3}\n', encoding="utf-8")
+    (tmp_path / "table.csv").write_text("kappa,law,n\n0.047,ovfl,3\n", encoding="utf-8")
+    assert load_table(tmp_path) == load_table(tmp_path / "table.csv") == [{"kappa": 0.047, "law": "ovfl", "n": 3}]
+
+
+# ----------------------------------------------------------------------------- from the issue-28 small leftovers (test_reliability_minors.py)
+
+
+_GRID = """
+name = "grid"
+scenarios = ["table1"]
+reference = "ovfl"
+[overrides]
+"simulation.dt_out" = 0.05
+"simulation.t_end" = 35.0
+[[axes]]
+key = "carfollowing.kappa"
+values = [0.004, 0.011, 0.027, 0.045, 0.083, 0.12]
+[[axes]]
+key = "carfollowing.alpha"
+values = [1.3, 1.7, 2.2, 2.6, 3.1]
+[controllers]
+laws = ["proposed", "ovfl"]
+"""
+
+
+def test_a_bad_study_value_and_a_long_set_value_are_echoed_shortly(tmp_path, capsys, monkeypatch):
+    from pathlib import Path
+
+    from cli_helpers import one_error
+
+    repo = Path(__file__).resolve().parents[1]
+    monkeypatch.chdir(repo)
+    text = (repo / "studies" / "kappa_alpha_table1.toml").read_text()
+    cases = [
+        (text + f"\n[report.a.b]\nzz = {_BIG_TABLE}\n", [], "report.a"),
+        (text.replace("values = [1.0, 1.5, 2.0, 3.0]", f'values = [1.0, "{_BIG_STR}"]'), [], "carfollowing.alpha"),
+        (text.replace('name = "kappa_alpha_table1"', f'name = "{_BIG_STR}"'), [], "name = 'qqq"),
+        (text, ["--set", f"carfollowing.kappa={_BIG_STR}"], "--set carfollowing.kappa = 'qqq"),
+        (text, ["--set", f"carfollowing.beta.x={_BIG_STR}"], "override carfollowing.beta.x = 'qqq"),
+    ]
+    for i, (body, extra, word) in enumerate(cases):
+        f = tmp_path / f"s{i}.toml"
+        f.write_text(body)
+        rc, _, err = run_cli(["study", str(f), *extra, "--out", str(tmp_path / f"o{i}")], capsys)
+        line = one_error(err)
+        assert rc == 2 and word in line and "…" in line and len(line) < len(str(f)) + 600, (i, line[:300])
+        assert not (tmp_path / f"o{i}").exists()
+
+
+def test_study_points_are_validated_without_sampling_the_leader_or_copying_the_base_per_layer(tmp_path, monkeypatch):
+    """A 6 x 5 grid: every point's document is what applying the [overrides], the --set and the axis values
+    to the base scenario in turn gives (computed here independently), yet the leader is sampled once (not
+    once per point: a CasADi Function each) and the overrides and --set are applied once per base scenario."""
+    from aev_ocp.models.leader import LeaderProfile
+    from aev_ocp.scenarios import load_scenario
+    from aev_ocp.study import points as points_mod
+    from aev_ocp.study import read_study
+
+    f = tmp_path / "grid.toml"
+    f.write_text(_GRID)
+    sampled, applied = [], []
+    real_speed_np, real_apply = LeaderProfile.speed_np, points_mod.apply_to_document
+
+    def speed_np(self, t):  # noqa: ANN001, ANN202
+        sampled.append(np.size(t))
+        return real_speed_np(self, t)
+
+    def apply(doc, layer, file="<scenario>"):  # noqa: ANN001, ANN202
+        applied.append(dict(layer))
+        return real_apply(doc, layer, file)
+
+    monkeypatch.setattr(LeaderProfile, "speed_np", speed_np)
+    monkeypatch.setattr(points_mod, "apply_to_document", apply)
+    sets = {"platoon.followers": 3}
+    study = read_study(f, sets=sets)
+    assert len(study.points) == 30
+    assert sampled.count(1) <= 1  # v_l(0) for speed0_factor: once for the equal leaders of all points
+    assert len(applied) == 2 + 30  # [overrides] and --set once, then each point's axis values
+    base = dict(load_scenario("table1").document)
+    base.setdefault("name", "table1")
+    over = {"simulation.dt_out": 0.05, "simulation.t_end": 35.0}
+    for p in study.points:
+        want = real_apply(real_apply(real_apply(base, over), sets), p.values)
+        assert p.document == want
+
+
+def test_a_study_override_of_a_swept_key_is_refused_not_dropped(tmp_path, capsys):
+    """[overrides] (or a base scenario's own overrides) setting a key an axis sweeps, or its SI twin, was
+    dropped at every point without a word, whatever its value (a 2000-entry table ran the study)."""
+    from cli_helpers import one_error
+
+    cases = [
+        ('"carfollowing.kappa" = 0.5', "[overrides] carfollowing.kappa = 0.5 would be ignored: axes[0] sweeps"),
+        (f'"carfollowing.alpha" = {_BIG_TABLE}', "[overrides] carfollowing.alpha = {'k0': 0, 'k1': 1,"),
+    ]
+    for i, (line, word) in enumerate(cases):
+        f = tmp_path / f"g{i}.toml"
+        f.write_text(_GRID.replace('"simulation.t_end" = 35.0', f'"simulation.t_end" = 35.0\n{line}'))
+        rc, _, err = run_cli(["study", str(f), "--out", str(tmp_path / f"o{i}")], capsys)
+        assert rc == 2 and word in one_error(err), err
+        assert not (tmp_path / f"o{i}").exists()
+    inline = _GRID.replace(
+        'scenarios = ["table1"]',
+        'scenarios = [{ scenario = "table1", label = "t1", overrides = { "carfollowing.kappa" = 0.2 } }]',
+    )
+    f = tmp_path / "inline.toml"
+    f.write_text(inline)
+    rc, _, err = run_cli(["study", str(f), "--out", str(tmp_path / "o_inline")], capsys)
+    assert rc == 2 and "scenario 't1' overrides carfollowing.kappa = 0.2 would be ignored" in one_error(err)
+
+
+# ----------------------------------------------------------------------------- from the issue-28 surfaces probe (test_reliability_surfaces.py)
+
+
+_TOKENS = [
+    'name = "z"',
+    'scenarios = ["table1"]',
+    "[[axes]]",
+    'key = "carfollowing.kappa"',
+    'keys = ["carfollowing.kappa", "carfollowing.alpha"]',
+    "values = [0.1, 0.2]",
+    "values = []",
+    "values = [[0.1], [1.5, 2]]",
+    "random = { n = 3, seed = 1, low = [0.0], high = [0.5] }",
+    "random = { n = -1, seed = 1, low = 0.5, high = 0.1 }",
+    "random = { n = 1e300 }",
+    "[controllers]",
+    'laws = ["proposed"]',
+    'laws = ["nope"]',
+    "laws = 3",
+    "[overrides]",
+    '"platoon.followers" = 2',
+    '"simulation.t_end" = nan',
+    'reference = "ovfl"',
+    "[report]",
+    "metrics = [1]",
+    'name = "../x"',
+    "[[controllers.mpc]]",
+    "N = 100000000",
+    "= =",
+    "[axes]",
+    'description = "\\u0000"',
+]
+
+
+_ENTRY_DAMAGE = st.sampled_from(
+    ["empty", "junk", "list", "nested", "swap", "edit", "folder", "fifo", "link", "utf16", "missing_key", "huge_number"]
+)
+
+
+@pytest.fixture(scope="module")
+def stored_study(tmp_path_factory):
+    """A finished tiny study (4 tasks), read once for the store fuzz."""
+    from aev_ocp.study import read_study, run_study
+
+    d = tmp_path_factory.mktemp("study")
+    study = read_study(write_tiny_study(d))
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return study, run_study(study, d / "o", executor="inprocess", report=False)
+
+
+@pytest.mark.parametrize(
+    "axes, key",
+    [
+        (
+            '[[axes]]\nkey = "carfollowing.kappa"\nrandom = { n = 1000000000, seed = 1, low = [0.0], high = [0.5] }\n',
+            "random.n",
+        ),
+        (
+            "".join(
+                f'[[axes]]\nkey = "carfollowing.{k}"\nvalues = [{", ".join(str(0.5 + 0.001 * i) for i in range(1000))}]\n'
+                for k in ("kappa", "alpha", "beta")
+            ),
+            "carfollowing.beta",
+        ),
+    ],
+)
+def test_study_too_large_is_refused_before_any_point_is_built(tmp_path, capsys, monkeypatch, axes, key):
+    monkeypatch.setattr("aev_ocp.study.spec._point_document", _never("a point's document"))
+    text = TINY_STUDY.replace('[[axes]]\nkey = "platoon.gap0_first"\nvalues = [0.35, 0.9]\n', axes)
+    assert text != TINY_STUDY
+    rc, err = _run_study(tmp_path, write_tiny_study(tmp_path, text=text), tmp_path / "o", capsys)
+    line = one_error(err)
+    assert rc == 2 and key in line and "100000" in line
+
+
+def test_validation_reports_progress_when_slow(tmp_path, capsys, monkeypatch):
+    import functools
+    import itertools
+
+    from aev_ocp import progress
+    from aev_ocp.study import read_study, spec
+
+    ticks = itertools.count(0, 3)  # a clock that advances 3 s per reading: validation looks slow
+    monkeypatch.setattr(spec, "Progress", functools.partial(progress.Progress, clock=lambda: float(next(ticks))))
+    read_study(write_tiny_study(tmp_path))
+    err = capsys.readouterr().err
+    assert "[study tiny] validating 1/2 (50 %)" in err
+
+
+def test_damaged_store_entries_are_detected_and_recomputed(tmp_path):
+    from aev_ocp.study import read_study, run_study
+
+    study = read_study(write_tiny_study(tmp_path))
+    out = tmp_path / "o"
+    first = run_study(study, out, executor="inprocess", report=False)
+    files = sorted((out / "points").glob("*.json"))
+    assert len(files) == 4
+    a, b = files[0].read_bytes(), files[1].read_bytes()
+    files[0].write_bytes(b)  # two results swapped between files
+    files[1].write_bytes(a)
+    files[2].write_text("{}")
+    files[3].write_text("[1, 2, 3]")
+    with pytest.warns(UserWarning, match="4 stored result"):
+        again = run_study(study, out, executor="inprocess", report=False)
+    drop = lambda rows: [{k: v for k, v in r.items() if k != "wall_s"} for r in rows]  # noqa: E731
+    assert drop(again.rows) == drop(first.rows)
+    # an entry whose content no longer matches its hash (a metric edited) is recomputed too
+    entry = json.loads(files[0].read_text())
+    entry["metrics"][0]["omega_model"] = 1.2345
+    files[0].write_text(json.dumps(entry))
+    with pytest.warns(UserWarning, match="1 stored result"):
+        third = run_study(study, out, executor="inprocess", report=False)
+    assert drop(third.rows) == drop(first.rows)
+
+
+@settings(max_examples=80, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(
+    lines=st.lists(st.sampled_from(_TOKENS), max_size=12),
+    noise=st.text(alphabet=st.characters(blacklist_categories=("Cs",)), max_size=20),
+)
+def test_fuzz_study_toml_is_valid_or_one_clear_error(tmp_path, lines, noise):
+    from aev_ocp.overrides import OverrideError
+    from aev_ocp.scenarios import ScenarioError
+    from aev_ocp.study import StudyError, read_study
+
+    f = tmp_path / "fz.toml"
+    f.write_text("\n".join(lines) + "\n" + noise, encoding="utf-8")
+    try:
+        read_study(f)
+    except (StudyError, ScenarioError, OverrideError, ParameterError) as exc:  # exit 2 with one line on the CLI
+        assert str(exc)
+
+
+def test_study_mpc_horizon_over_the_budget_is_refused_before_any_task(tmp_path, capsys):
+    f = write_tiny_study(tmp_path, text=TINY_STUDY + '[[controllers.mpc]]\nlabel = "m"\nN = 100000000\n')
+    rc, err = _run_study(tmp_path, f, tmp_path / "o", capsys)
+    line = one_error(err)
+    assert rc == 2 and "controller m" in line and "N = 100000000" in line and not (tmp_path / "o").exists()
+
+
+def test_store_rebuilds_a_folder_entry_and_a_points_file(tmp_path):
+    from aev_ocp.study import read_study, run_study
+
+    study = read_study(write_tiny_study(tmp_path))
+    out = tmp_path / "o"
+    first = run_study(study, out, executor="inprocess", report=False)
+    drop = lambda rows: [{k: v for k, v in r.items() if k != "wall_s"} for r in rows]  # noqa: E731
+    f = sorted((out / "points").glob("*.json"))[0]
+    f.unlink()
+    (f / "inner").mkdir(parents=True)  # a folder under an entry's name
+    with pytest.warns(UserWarning, match="1 stored result"):
+        again = run_study(study, out, executor="inprocess", report=False)
+    assert drop(again.rows) == drop(first.rows) and f.is_file()
+    shutil.rmtree(out / "points")
+    (out / "points").write_text("not a folder")
+    with pytest.warns(UserWarning, match="4 stored result"):
+        third = run_study(study, out, executor="inprocess", report=False)
+    assert drop(third.rows) == drop(first.rows) and len(list((out / "points").glob("*.json"))) == 4
+
+
+@pytest.mark.filterwarnings("ignore:study tiny")  # the rerun says which entries it computes again
+@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(damage=st.lists(st.tuples(st.integers(0, 3), _ENTRY_DAMAGE), min_size=1, max_size=4))
+def test_fuzz_damaged_store_entries_are_recomputed_to_the_same_table(stored_study, tmp_path, damage):
+    """Whatever happens to a finished study's stored entries, a rerun gives the same table (wall times aside) and
+    leaves a store whose every entry verifies."""
+    import tempfile
+
+    from aev_ocp.study import Store, run_study
+
+    study, first = stored_study
+    out = Path(tempfile.mkdtemp(dir=tmp_path)) / "o"
+    shutil.copytree(first.folder, out)
+    files = sorted((out / "points").glob("*.json"))
+    for k, how in damage:
+        f = files[k]
+        if f.is_dir():
+            shutil.rmtree(f)
+        elif f.exists() or f.is_symlink():
+            text = f.read_text(errors="replace") if f.is_file() else "{}"
+            f.unlink()
+            if how == "swap":
+                f.write_bytes(files[(k + 1) % 4].read_bytes() if files[(k + 1) % 4].is_file() else b"{}")
+            elif how == "edit":
+                f.write_text(text.replace('"omega_model": ', '"omega_model": 1', 1))
+            elif how == "huge_number":
+                f.write_text(text.replace('"status": "ok"', '"status": 1' + "0" * 5000, 1))
+            elif how == "missing_key":
+                f.write_text(text.replace('"metrics"', '"metricz"', 1))
+            else:
+                {
+                    "empty": lambda: f.write_bytes(b""),
+                    "junk": lambda: f.write_bytes(b"\xff\x00junk"),
+                    "list": lambda: f.write_text("[1, 2]"),
+                    "nested": lambda: f.write_text("[" * 50_000 + "]" * 50_000),
+                    "folder": lambda: (f / "x").mkdir(parents=True),
+                    "fifo": lambda: os.mkfifo(f),
+                    "link": lambda: f.symlink_to("/dev/zero"),
+                    "utf16": lambda: f.write_bytes(text.encode("utf-16")),
+                }[how]()
+    again = run_study(study, out, executor="inprocess", report=False)
+    drop = lambda rows: [{k: v for k, v in r.items() if k != "wall_s"} for r in rows]  # noqa: E731
+    assert drop(again.rows) == drop(first.rows)
+    store = Store(out)
+    assert all(store.get(f.stem) is not None for f in files) and store.damaged == []
+
+
+def test_a_store_kept_behind_a_link_is_followed_and_a_dangling_link_replaced(tmp_path):
+    """points/ as a link to a folder on another disk keeps its entries (they are read and added to); a link to
+    nothing is damage and is replaced by a folder."""
+    from aev_ocp.study.runner import Store
+
+    elsewhere = tmp_path / "other_disk"
+    elsewhere.mkdir()
+    run = tmp_path / "study"
+    run.mkdir()
+    (run / "points").symlink_to(elsewhere, target_is_directory=True)
+
+    def result(x: float) -> dict:
+        return {"controller": "ovfl", "status": "ok", "message": "", "metrics": [{"omega_J_per_kg": x}]}
+
+    st = Store(run)
+    st.put("a1", result(2.5))
+    assert (elsewhere / "a1.json").is_file() and (run / "points").is_symlink()
+    st.put("b2", result(3.5))
+    got = Store(run).get("a1")
+    assert got is not None and got["metrics"] == [{"omega_J_per_kg": 2.5}] and (elsewhere / "b2.json").is_file()
+    dangling = tmp_path / "study2"
+    dangling.mkdir()
+    (dangling / "points").symlink_to(tmp_path / "nowhere")
+    Store(dangling).put("c3", result(4.5))
+    assert (dangling / "points").is_dir() and not (dangling / "points").is_symlink()

@@ -7,30 +7,17 @@ import shutil
 from pathlib import Path
 
 import pytest
+from study_helpers import TINY_AXIS, TINY_STUDY, write_tiny_study
 
 import aev_ocp
 from aev_ocp.saved import LoadError
 from aev_ocp.study import read_study, run_study
 
-STUDY = """
-name = "{name}"
-scenarios = ["table1"]
-reference = "ovfl"
-[overrides]
-"simulation.t_end" = 1.5
-"simulation.dt_out" = 0.05
-"platoon.followers" = 2
-[[axes]]
-key = "carfollowing.kappa"
-values = {values}
-[controllers]
-laws = ["proposed", "ovfl"]
-"""
-
 
 def _run(tmp_path: Path, name: str, values: str) -> Path:
-    f = tmp_path / f"{name}.toml"
-    f.write_text(STUDY.format(name=name, values=values))
+    f = write_tiny_study(
+        tmp_path, name, TINY_STUDY.replace(TINY_AXIS, f'key = "carfollowing.kappa"\nvalues = {values}')
+    )
     out = tmp_path / name
     run_study(read_study(f), out, executor="inprocess", report=False)
     return out

@@ -11,7 +11,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from aev_ocp.control import ControlSequence, run_closed_loop
+from aev_ocp.control import Command, ControlSequence, run_closed_loop
 from aev_ocp.models.carfollowing import Proposed
 from aev_ocp.models.leader import ConstantSpeed
 from aev_ocp.params import EVParams, Units, VehicleLimits
@@ -78,6 +78,7 @@ def _ring_ode(t_end: float):
     )
 
 
+@pytest.mark.slow  # over 5 s of one core (measured under load, pytest --durations)
 @needs_sumo
 def test_ring_converges_to_the_ring_ode_at_first_order():
     """Every car under the same law: SUMO driven by the toolkit vs SciPy's ring ODE; the largest speed difference
@@ -290,7 +291,6 @@ def test_unknown_id_of_a_user_network_is_refused_after_the_run(tmp_path, capsys)
 
 def reckless(ev: EVParams):
     """A user Controller (by 'module:function') that always commands +3 m/s² — it must hit its leader."""
-    from aev_ocp.control import Command
 
     class Reckless:
         name, dt = "reckless", U.time_from_si(0.1)
@@ -379,7 +379,9 @@ def test_cli_run_writes_the_usual_outputs(tmp_path, capsys):
     assert main(["sumo", "sumo_ring", "--t-end-s", "20", "--out", str(tmp_path)]) == 0
     for f in ("report.md", "metrics.csv", "fleet.json", "manifest.json", "trajectories.npz", "spacetime_ring.png"):
         assert (tmp_path / f).is_file(), f
-    r = load(tmp_path)
+    fleet = load(tmp_path)  # the fleet (a SumoRun); run=<SUMO id> gives one vehicle
+    vid = next(v for v, c in fleet.controlled.items() if c)
+    r = load(tmp_path, run=vid)
     assert r.controllers == ["proposed"] and r.meta["controlled"] is True
     assert "Fleet totals" in (tmp_path / "report.md").read_text()
 
@@ -441,3 +443,26 @@ def test_a_single_run_exits_1_once_a_record_ended(tmp_path, monkeypatch, status:
 
     monkeypatch.setattr(sumo_cli, "run_one", lambda *a, **k: _FakeRun(status))
     assert main(["sumo", "sumo_ring", "--out", str(tmp_path / "o"), "--no-plots"]) == code
+
+
+# ----------------------------------------------------------------------------- from the third reliability probe (test_reprobe3.py)
+def broken_factory(ev: object) -> object:
+    """A user controller factory with a bug of its own (named by the test below as 'test_sumo:broken_factory')."""
+    raise TypeError("expected str, got EVParams")
+
+
+def test_sumo_user_factory_error_names_the_key() -> None:
+    pytest.importorskip("libsumo")
+    from aev_ocp.sumo import SumoError
+    from aev_ocp.sumo.run import make_controller_factory
+    from aev_ocp.sumo.scenario import parse_sumo_scenario
+
+    def scenario(controller: str):  # noqa: ANN202
+        return parse_sumo_scenario({"sumo": {"network": "ring", "t_end_s": 2.5, "controller": controller}})
+
+    _, factory = make_controller_factory(scenario(f"{__name__}:broken_factory"))
+    assert factory is not None
+    with pytest.raises(SumoError, match=r"sumo.controller = '.*:broken_factory': .* raised TypeError: expected str"):
+        factory()
+    with pytest.raises(SumoError, match=r"sumo.controller = 'os:sep': sep in os is a str, not a function"):
+        make_controller_factory(scenario("os:sep"))

@@ -2,10 +2,14 @@
 
 from __future__ import annotations
 
+import os
 import tomllib
+import tracemalloc
+from pathlib import Path
 
 import numpy as np
 import pytest
+from cli_helpers import one_error, run_cli
 
 from aev_ocp.models.leader import load_cycle_si, read_trace_csv
 from aev_ocp.params import ParameterError
@@ -202,3 +206,116 @@ def test_a_trace_too_long_to_hold_its_last_speed_is_refused(end: float, ok: bool
     else:
         with pytest.raises(ParameterError, match="too long to hold .* choose units of everyday size"):
             SpeedTrace((0.0, end / 2, end), (1.3, 2.1, 0.7))
+
+
+# ----------------------------------------------------------------------------- from the issue-28 surfaces probe (test_reliability_surfaces.py)
+def _trace_scenario(tmp_path: Path, trace: Path) -> Path:
+    f = tmp_path / "trace.toml"
+    f.write_text(
+        f'name = "tr"\n[leader]\nkind = "trace"\nfile = "{trace}"\ntime_column = "t"\n'
+        'speed_column = "v"\n[platoon]\nfollowers = 1\ngap0_first = 1.0\nspeed0_factor = 1.0\n[simulation]\n'
+        "t_end_s = 2.0\n"
+    )
+    return f
+
+
+def test_trace_field_too_long_is_bad_input(tmp_path, capsys):
+    trace = tmp_path / "long.csv"
+    trace.write_text("t,v\n0," + "1" * 200_000 + "\n1,2\n")
+    rc, _, err = run_cli(
+        ["simulate", str(_trace_scenario(tmp_path, trace)), "--no-plots", "--out", str(tmp_path / "o")], capsys
+    )
+    line = one_error(err)
+    assert rc == 2 and "not a valid CSV" in line and "internal error" not in line
+
+
+def test_trace_with_bom_is_read_and_passwd_is_not_echoed(tmp_path):
+    from aev_ocp.models.leader import read_trace_csv
+    from aev_ocp.params import ParameterError
+
+    f = tmp_path / "bom.csv"
+    f.write_bytes("\ufefft,v\n0,1.5\n0.5,2.5\n".encode())
+    t, v = read_trace_csv(f, time_column="t", speed_column="v")
+    np.testing.assert_array_equal(v, [1.5, 2.5])
+    secret = tmp_path / "passwd"
+    secret.write_text("root:x:0:0:root:/root:/bin/bash\ndaemon:x:1:1::/usr/sbin:/usr/sbin/nologin\n")
+    with pytest.raises(ParameterError) as info:
+        read_trace_csv(secret, time_column="t", speed_column="v")
+    assert "root" not in str(info.value) and "CSV" in str(info.value)
+
+
+def test_a_fifo_trace_is_refused(tmp_path):
+    from aev_ocp.models.leader import read_trace_csv
+    from aev_ocp.params import ParameterError
+
+    os.mkfifo(tmp_path / "fifo.csv")
+    with pytest.raises(ParameterError, match="not a regular file"):
+        read_trace_csv(tmp_path / "fifo.csv", time_column="t", speed_column="v")
+
+
+def test_long_trace_is_streamed(tmp_path):
+    from aev_ocp.models.leader import read_trace_csv
+
+    n = 50_000
+    f = tmp_path / "long.csv"
+    with f.open("w") as fh:
+        fh.write("t,v,lane\n")
+        fh.writelines(f"{0.1 * i:.1f},{10 + (i % 7) * 0.25},3\n" for i in range(n))
+    tracemalloc.start()
+    t, v = read_trace_csv(f, time_column="t", speed_column="v")
+    peak = tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    assert t.size == n and v[8] == 10.25
+    assert peak < 60 * n  # 60 B per row: the old list of row lists took ~370 B per row
+
+
+def test_trace_is_read_only_as_far_as_the_run_needs(tmp_path, capsys):
+    """A trace leader is read up to twice (t_end + the MPC look-ahead): a damaged row far past that is never read
+    (so the file is not read to its end), while the samples the run uses are exactly those of a full read."""
+    from aev_ocp.models.leader import read_trace_csv
+    from aev_ocp.params import ParameterError
+    from aev_ocp.scenarios import load_scenario
+
+    f = tmp_path / "long.csv"
+    rows = [f"{0.1 * i:.1f},{10 + (i % 7) * 0.25}" for i in range(3000)]  # 300 s at 0.1 s
+    rows[2500] = "250.0,not-a-number"  # at 250 s: far past what a 3.5 s run needs
+    f.write_text("t,v\n" + "\n".join(rows) + "\n")
+    with pytest.raises(ParameterError, match="row 2502"):
+        read_trace_csv(f, time_column="t", speed_column="v")  # the whole file: the damaged row is found
+    t, v = read_trace_csv(f, time_column="t", speed_column="v", t_max_s=7.25)
+    assert t.size == 74 and t[-1] == pytest.approx(7.3) and v[73] == 10 + (73 % 7) * 0.25
+    sc = _trace_scenario(tmp_path, f)
+    sc.write_text(sc.read_text().replace("t_end_s = 2.0", "t_end_s = 3.5"))
+    s = load_scenario(sc)
+    need_s = 2 * (3.5 + s.units.time_to_si(25 * 0.1))  # twice (t_end + MPCSettings' default look-ahead N dt)
+    assert s.leader.times[-1] * s.units.time_s == pytest.approx(np.ceil(need_s * 10 - 1e-9) / 10)  # 1st sample past it
+    rc, _, err = run_cli(["simulate", str(sc), "--no-plots", "--out", str(tmp_path / "o")], capsys)
+    assert rc == 0, err
+    sc.write_text(sc.read_text().replace("t_end_s = 3.5", "t_end_s = 260.0"))  # a run that reaches the bad row
+    rc, _, err = run_cli(["simulate", str(sc), "--no-plots", "--out", str(tmp_path / "o2")], capsys)
+    assert rc == 2 and "row 2502" in one_error(err)
+
+
+def test_a_trace_read_for_a_short_run_refuses_a_longer_one_in_python(tmp_path):
+    """The trace was read only as far as the parsed t_end needs: a longer run through replace() (on a scenario
+    without its document) or run(t_end=...) is refused by name instead of holding the last speed read; through
+    with_overrides the file is read again, far enough."""
+    import dataclasses
+
+    from aev_ocp.scenarios import ScenarioError, load_scenario
+
+    f = tmp_path / "long.csv"
+    f.write_text("t,v\n" + "\n".join(f"{0.1 * i:.1f},{10 + (i % 7) * 0.25}" for i in range(3000)) + "\n")
+    s = load_scenario(_trace_scenario(tmp_path, f))  # t_end_s = 2.0
+    assert s.leader.read_for_t_end == pytest.approx(s.t_end)
+    short = s.replace(t_end=0.5 * s.t_end)  # shorter: fine
+    assert short.t_end == pytest.approx(0.5 * s.t_end)
+    bare = dataclasses.replace(s, document=None)
+    with pytest.raises(ScenarioError, match="trace leader's file was read only"):
+        bare.replace(t_end=40.0 * s.t_end)
+    with pytest.raises(ScenarioError, match="trace leader's file was read only"):
+        s.run(t_end=40.0 * s.t_end)
+    longer = s.with_overrides({"simulation.t_end_s": 80.0})  # re-read far enough
+    assert longer.leader.times[-1] * s.units.time_s > 160.0
+    full = load_scenario(_trace_scenario(tmp_path, f)).with_overrides({"simulation.t_end_s": 400.0})
+    assert full.leader.read_for_t_end is None  # the whole file was read: nothing to refuse

@@ -107,11 +107,13 @@ CASADI_SYMBOL_EXPORT volatile int aevring_cancel = 0;
 /* Advance the ring from t0 to t1 (model time) with a constant noise vector; samples at ts[0..K-1]
  * (in (t0, t1], increasing) into out (K x n x (NZ + NY)). z (n x NZ) in: the state at t0, out: the state at
  * t1 or at the event. h_io: step size in/out. ev (4): kind (0 none, codes of EVENT_RULES, 6 failed),
- * vehicle, time, value. stats (3): steps, rejected, rhs evaluations (added to). Returns the number of samples
+ * vehicle, time, value. stats (3): steps, rejected, rhs evaluations (added to). brake (n x 4, or NULL): the
+ * braking-event counters (acceleration below brake_a held brake_hold, model units; see the loop). Returns the number of samples
  * written, -1 when out of memory, -2 when stopped through aevring_cancel. */
 CASADI_SYMBOL_EXPORT int64_t aevring_advance(int n, const int* law_idx, const double* params, const double* noise,
     double* z, double t0, double t1, int64_t K, const double* ts, double* out, double rtol, double atol,
-    int64_t max_steps, double* h_io, double* ev, int64_t* stats, int threads) {
+    int64_t max_steps, double* h_io, double* ev, int64_t* stats, int threads, double* brake, double brake_a,
+    double brake_hold, double brake_from) {
   int nth = 1;
 #ifdef _OPENMP
   nth = threads > 1 ? threads : 1;
@@ -205,6 +207,18 @@ CASADI_SYMBOL_EXPORT int64_t aevring_advance(int n, const int* law_idx, const do
       s_out++;
     }
     nst++;
+    /* braking events on the integrator's own steps (not the output samples): per vehicle brake[4i..4i+3] =
+     * (since: the step end at which a < brake_a began, or -1; counted; events; events beginning at >= brake_from) */
+    if (brake) {
+      double te = kind ? tlim : tend;
+      for (int i = 0; i < n; i++) {
+        double* b = brake + 4 * (int64_t)i;
+        if (Y[(int64_t)i * NY] < brake_a) {
+          if (b[0] < 0) { b[0] = te; b[1] = 0; }
+          if (!b[1] && te - b[0] >= brake_hold * (1 - 1e-12)) { b[1] = 1; b[2] += 1; if (b[0] >= brake_from) b[3] += 1; }
+        } else b[0] = -1;
+      }
+    }
     if (kind) {
       RING_NEED_Q();
       for (int i = 0; i < n; i++) aev_dense(z + (int64_t)i * NZ, Q4 + (int64_t)i * NZ, h, th_ev, zs + (int64_t)i * NZ);

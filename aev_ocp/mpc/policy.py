@@ -97,12 +97,16 @@ class MPCPolicy:
         assert isinstance(p, LeaderPredictor)
         return forecast_intervals(*p.predict(obs.t, dt, N, Measurements(obs.meas_t, obs.meas_v)), dt)
 
+    def own_states(self, obs: Observation) -> dict[str, float]:
+        """The values of the problem's own states at this step, by name: 'a_prev' (a Δa penalty) from the command
+        really applied last step, 'a_act' (the realised acceleration of a vehicle with an actuator lag, when the
+        problem models it); names the problem lacks are ignored. A subclass adds its own (e.g. a reference speed);
+        'T' (the pack temperature, TemperatureTerms) is set from the measured T_K by :meth:`command`."""
+        return {"a_prev": obs.a_prev, "a_act": obs.a_act or 0.0}
+
     def command(self, obs: Observation) -> Command:
         vm, vh = self.forecast(obs)
-        # an own state named 'a_prev' (a Δa penalty) starts from the command really applied last step
-        # ('a_act': the realised acceleration of a vehicle with an actuator lag, when the problem models it)
-        # and 'T' (the pack temperature in the prediction, TemperatureTerms) from the measured T_K
-        own = {"a_prev": obs.a_prev, "a_act": obs.a_act or 0.0}
+        own = self.own_states(obs)
         Tn = self.controller.temperature_state_name
         if Tn is not None and obs.T_K is not None:
             own[Tn] = obs.T_K

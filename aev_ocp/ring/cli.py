@@ -3,7 +3,8 @@
 The ring experiments (see :mod:`aev_ocp.ring.experiments`): ``sugiyama`` (22 human drivers on 230 m: the jam
 emerges; and on 600 m, where uniform flow is linearly stable: it does not), ``stern`` (the same ring all-human
 and with one AEV under each AEV controller, with a space-time diagram of each run), ``sweep`` (penetration
-0–5 AEVs of 22, spread evenly, × ring lengths; ``--aev`` the controller). Writes ring.json (fleet metrics, SI)
+0–5 AEVs of 22, spread evenly, × ring lengths; ``--aev`` the controller). Writes ring.json (fleet metrics, SI),
+the runs' trajectories with a manifest (``aev_ocp.load(out)`` reads them back, :mod:`aev_ocp.ring.outputs`)
 and the PNGs to ``--out``; prints the fleet table. A ring scenario file (:mod:`aev_ocp.ring.scenario`; shipped:
 ``ring_sugiyama``, ``ring_stern``) runs its own runs (``--t-end-s`` overrides its horizon; ``--seed`` is the file's). Exit codes: 0 ok, 1 a run stopped on an event, 2 bad input.
 """
@@ -32,6 +33,8 @@ COLUMNS = (
     "mean_speed_mps",
     "vehicles_stopped",
     "braking_events",
+    "braking_events_per_veh_km",
+    "throughput_veh_per_h",
     "battery_energy_kWh_per_100km",
     "heat_pack_J_per_km",
     "soc_used_mean",
@@ -84,6 +87,14 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="L",
         help="sweep: ring length [m] (repeatable; default 230 260 300)",
     )
+    p.add_argument(
+        "--seeds",
+        type=int,
+        default=None,
+        metavar="N",
+        help="a scenario file: run every run with seeds 0 … N−1 (N >= 2; 10 for the tables) and write the field's "
+        "metrics with 95 %% intervals and verdicts against the all-human ring (ring_seeds.json, ring_seeds.md)",
+    )
     p.add_argument("--no-plots", action="store_true", help="skip the space-time diagrams")
     p.add_argument("--out", default=None, help="output folder (default results/ring/<experiment>)")
     return p
@@ -109,7 +120,6 @@ def _row(label: str, fleet: dict[str, Any]) -> str:
 
 def cli_ring(argv: list[str]) -> int:
     """Entry point of ``aev-ocp ring``; returns the exit code."""
-    from ..results import write_json
     from .experiments import SUGIYAMA_N
     from .simulate import RingOptions
 
@@ -134,7 +144,11 @@ def cli_ring(argv: list[str]) -> int:
                     "sugiyama, stern and sweep experiments"
                 )
             sc = load_ring_scenario(a.experiment)
+            if a.seeds is not None:
+                return _cli_seeds(a, sc, time_limit)
         else:
+            if a.seeds is not None:
+                raise ParameterError("--seeds applies to a ring scenario file (ring_calibrated, ring_stern, ...)")
             a.t_end_s = 600.0 if a.t_end_s is None else a.t_end_s
             a.seed = 0 if a.seed is None else a.seed
         for opt, given in (
@@ -162,14 +176,15 @@ def cli_ring(argv: list[str]) -> int:
             "ring",
             sc.name if sc is not None else a.experiment,  # before any work
             str(sc.source) if sc is not None and sc.source else None,
-            ["ring.json", "space_time_*.png"],
+            ["ring.json", "manifest.json", "trajectories.npz", "space_time_*.png"],
         )
         clock = Progress("", time_limit_s=time_limit)
         with time_limited(clock):  # the compiled ring polls the clock while it integrates
             runs, doc = _runs(a, sc)
         out.mkdir(parents=True, exist_ok=True)
-        doc["runs"] = [{"label": r.label, **r.fleet} for r in runs]
-        files = [write_json(out / "ring.json", doc)]
+        from .outputs import save_ring_output
+
+        files = save_ring_output(out, runs, doc)  # ring.json, trajectories.npz, manifest.json (aev_ocp.load)
         if not a.no_plots and a.experiment != "sweep" and not (sc is not None and sc.spec.sweep_aevs):
             from .plots import space_time
 
@@ -193,6 +208,39 @@ def cli_ring(argv: list[str]) -> int:
     for r in bad:
         print(f"aev-ocp ring: {r.label}: run stopped ({r.fleet['status']})", file=sys.stderr)
     return EXIT_FAILED_RUN if bad else EXIT_OK
+
+
+def _cli_seeds(a: argparse.Namespace, sc: Any, time_limit: float | None) -> int:
+    """``aev-ocp ring SCENARIO --seeds N``: the field's metrics over seeds (aev_ocp.ring.field)."""
+    from ..results import write_atomic, write_json
+    from .field import scenario_over_seeds, scenario_seed_rows, table_markdown
+
+    if not 2 <= a.seeds <= 1000:
+        raise ParameterError(f"--seeds {a.seeds}: must be an integer in [2, 1000]")
+    t_end = a.t_end_s if a.t_end_s is not None else sc.spec.t_end_s
+    check_ring_size(sc.spec.vehicles, t_end, sc.spec.dt_out_s, ("ring.vehicles", "--t-end-s", "ring.dt_out_s"))
+    out = Path(a.out) if a.out else default_output_dir("ring", sc.name + "_seeds")
+    claim_output_dir(out, "ring", sc.name, str(sc.source) if sc.source else None, ["ring_seeds.json", "ring_seeds.md"])
+    clock = Progress("", time_limit_s=time_limit)
+    try:
+        with time_limited(clock):
+            runs = scenario_over_seeds(sc, range(a.seeds), a.t_end_s)
+    except TimeLimitReached:
+        print(f"aev-ocp ring: stopped by --time-limit {a.time_limit:g} s; nothing written", file=sys.stderr)
+        return EXIT_FAILED_RUN
+    rows = scenario_seed_rows(runs, sc)
+    md = table_markdown(rows)
+    out.mkdir(parents=True, exist_ok=True)
+    write_json(
+        out / "ring_seeds.json", {"scenario": sc.name, "seeds": list(range(a.seeds)), "rows": rows, "runs": runs}
+    )
+    write_atomic(out / "ring_seeds.md", md + "\n")
+    print(md)
+    print(f"wrote 2 files to {out}/")
+    failed = sum(r["failed"] for r in rows)
+    if failed:
+        print(f"aev-ocp ring: {failed} runs stopped at an event (see ring_seeds.json)", file=sys.stderr)
+    return EXIT_FAILED_RUN if failed else EXIT_OK
 
 
 def _runs(a: argparse.Namespace, sc: Any) -> tuple[list[Any], dict[str, Any]]:
@@ -279,6 +327,7 @@ def cli_mixed_ring_stability(
     (spread evenly) driven by ``aev`` and the rest by ``human`` with a reaction delay; the fewest such AEVs that
     stabilise it; writes mixed_ring_stability.json."""
     from ..results import write_json
+    from ..stability.outputs import save_stability_manifest
     from ..stability.mixed import analyse_mixed_ring, even_placement, min_aev_count, si_accel
 
     spacing = _ring_spacing_m(spacing_m, density_per_km, vehicle_length_m)
@@ -288,7 +337,9 @@ def cli_mixed_ring_stability(
         raise ParameterError(f"--aev-count {aev_count}: must be an integer in [0, {n}] (the ring's vehicles)")
     if not (math.isfinite(delay_s) and 0 <= delay_s <= 5.0):
         raise ParameterError(f"--delay-s {delay_s!r}: must be a finite number of seconds in [0, 5]")
-    claim_output_dir(out, "stability --ring --aev", f"{human.name}+{aev.name}", None, ["mixed_ring_stability.json"])
+    claim_output_dir(
+        out, "stability --ring --aev", f"{human.name}+{aev.name}", None, ["mixed_ring_stability.json", "manifest.json"]
+    )
     h_fn, a_fn = si_accel(human, units), si_accel(aev, units)
     idx = set(even_placement(n, aev_count))
     accels = [a_fn if i in idx else h_fn for i in range(n)]
@@ -310,6 +361,7 @@ def cli_mixed_ring_stability(
     )
     out.mkdir(parents=True, exist_ok=True)
     write_json(out / "mixed_ring_stability.json", doc)
+    save_stability_manifest(out, "mixed_ring_stability")  # aev_ocp.load(out) reads it back
     print(
         f"mixed ring of {n}: {aev_count} × {aev.name} among {human.name} (delay {delay_s:g} s), spacing {spacing:.6g} m: "
         f"equilibrium speed {r.v_star_mps:.6g} m/s"
@@ -319,7 +371,7 @@ def cli_mixed_ring_stability(
         f"{r.ring_stable}; fewest evenly spread {aev.name} cars that stabilise it: "
         f"{m if m is not None else f'none of 0 … {n}'}"
     )
-    print(f"wrote 1 file to {out}/")
+    print(f"wrote 2 files to {out}/")
     return EXIT_OK
 
 
@@ -337,12 +389,15 @@ def cli_ring_stability(
     criterion, with the measured growth beside them; writes ring_stability.json."""
     from ..params import EVParams
     from ..results import write_json
+    from ..stability.outputs import save_stability_manifest
     from .stability import measured_growth, ring_stability
 
     spacing = _ring_spacing_m(spacing_m, density_per_km, vehicle_length_m)
     if not (2 <= n <= 100_000):
         raise ParameterError(f"--ring {n}: must be an integer in [2, 100000]")
-    claim_output_dir(out, "stability --ring", law.name, None, ["ring_stability.json"])  # before any work
+    claim_output_dir(
+        out, "stability --ring", law.name, None, ["ring_stability.json", "manifest.json"]
+    )  # before any work
     ev = EVParams(units=units)
     rs = ring_stability(law, n, n * spacing, vehicle_length_m, ev)
     doc: dict[str, Any] = rs.to_dict()
@@ -352,6 +407,7 @@ def cli_ring_stability(
     doc["measured"] = meas
     out.mkdir(parents=True, exist_ok=True)
     write_json(out / "ring_stability.json", doc)
+    save_stability_manifest(out, "ring_stability")  # aev_ocp.load(out) reads it back
     print(
         f"ring of {n} × {law.name} at spacing {spacing:.6g} m (gap {rs.gap_m:.6g} m, {1000 / spacing:.6g} veh/km): "
         f"uniform speed {rs.v_star_mps:.6g} m/s"
@@ -369,5 +425,5 @@ def cli_ring_stability(
             f"  measured growth {meas['measured_per_s']:.6g} 1/s (predicted {meas['predicted_per_s']:.6g}, relative "
             f"error {meas['relative_error']:.2g}, run {meas['t_end_s']:.4g} s: {meas['status']})"
         )
-    print(f"wrote 1 file to {out}/")
+    print(f"wrote 2 files to {out}/")
     return EXIT_OK

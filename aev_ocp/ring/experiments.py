@@ -96,6 +96,12 @@ def fleet_metrics(res: RingResult, t_from_s: float | None = None) -> dict[str, A
     heat = float(np.sum(res.sim.heat_J[-1] - res.sim.heat_J[i0]))
     brake = a < BRAKING_MPS2
     events = int(np.sum(brake[1:] & ~brake[:-1]) + np.sum(brake[0]))
+    # the field's braking count (below −1 m/s² held 0.5 s, on the integrator's steps: independent of the
+    # sampling) when the run counted from this window's start; else NaN
+    b_from = res.stats.get("braking_from_s")
+    on_steps = b_from is not None and abs(float(b_from) - float(t[i0])) <= 1e-6 * (1 + abs(float(t[i0])))
+    brakes_held = int(np.sum(res.stats["braking_events_window"])) if on_steps else None
+    v_space = dist_m / (res.ring.n * float(t[-1] - t[i0])) if t[-1] > t[i0] else math.nan
     return {
         "status": res.status,
         "collisions": sum(1 for e in res.sim.events if e.kind == "collision"),
@@ -103,7 +109,11 @@ def fleet_metrics(res: RingResult, t_from_s: float | None = None) -> dict[str, A
         "mean_speed_mps": float(np.mean(v)),
         "speed_std_mps": float(np.std(v)),
         "vehicles_stopped": int(np.sum(np.min(v, axis=0) < STOP_SPEED_MPS)),
-        "braking_events": events,
+        "braking_events": events,  # entries into a < −1 m/s² on the output samples (sampling-dependent)
+        "braking_events_per_veh_km": (
+            brakes_held / (dist_m / 1000.0) if brakes_held is not None and dist_m > 0 else math.nan
+        ),
+        "throughput_veh_per_h": res.ring.density_per_km * v_space * 3.6,  # density × space-mean speed
         "distance_km": dist_m / 1000.0,
         "battery_energy_J_per_km": energy / (dist_m / 1000.0) if dist_m > 0 else math.nan,
         "battery_energy_kWh_per_100km": energy / (dist_m / 1000.0) / 3.6e4 if dist_m > 0 else math.nan,
@@ -185,8 +195,8 @@ def run_ring_scenario(
 
     s = sc.spec
     t_end = s.t_end_s if t_end_s is None else float(t_end_s)
-    opts = options or RingOptions(dt_out_s=min(s.dt_out_s, t_end))
     t_from = s.metrics_from_s if s.metrics_from_s is not None and s.metrics_from_s < t_end else None
+    opts = options or RingOptions(dt_out_s=min(s.dt_out_s, t_end), braking_from_s=t_from)
     out = []
     for run in scenario_runs(sc):
         ring, init = build_ring(sc, run.controller, run.length_m, run.aevs)

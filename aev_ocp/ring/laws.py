@@ -20,7 +20,7 @@ from __future__ import annotations
 import math
 from collections import deque
 from dataclasses import dataclass, field, replace
-from typing import Any
+from typing import Any, ClassVar
 
 import casadi as ca
 import numpy as np
@@ -51,6 +51,54 @@ def idm_si(
             )
     law = IDM(a_mps2=float(a_mps2), b_mps2=float(b_mps2), v0_mps=float(v0_mps), s0_m=float(s0_m), T_s=float(T_s))
     return replace(law, model_units=units)
+
+
+#: The Bando-FTL human driver (Bando et al. 1995's optimal velocity plus a follow-the-leader term) with the Flow
+#: project's BandoFTLController defaults (flow/controllers/car_following_models.py: α = 0.5 1/s, β = 20 m²/s,
+#: h_st = 2 m, v_max = 32 m/s); the ring's calibrated drivers refit v_max and h_st (aev_ocp.ring.humans)
+BANDO_FTL_SI = {"alpha_per_s": 0.5, "beta_m2ps": 20.0, "h_st_m": 2.0, "v_max_mps": 32.0}
+_TANH2 = math.tanh(2.0)
+
+
+@dataclass(frozen=True)
+class BandoFTL(CarFollowingLaw):
+    """Bando-FTL in SI: v̇ = α (V(h) − v) + β (v_l − v)/h², V(h) = v_max (tanh(h/h_st − 2) + tanh 2)/(1 + tanh 2)
+    (h the bumper-to-bumper gap [m]); evaluated in SI unless given model units (:meth:`in_units`)."""
+
+    alpha_per_s: float = 0.5  # Flow's BandoFTLController default (BANDO_FTL_SI)
+    beta_m2ps: float = 20.0  # same
+    h_st_m: float = 2.0  # same
+    v_max_mps: float = 32.0  # same
+    model_units: Units | None = None
+    name = "bandoftl"
+    has_si: ClassVar[bool] = True
+    _positive = ("alpha_per_s", "h_st_m", "v_max_mps")
+    _nonnegative = ("beta_m2ps",)
+
+    def accel(self, h: Any, v: Any, v_l: Any) -> Any:
+        u = self.model_units
+        if u is not None:
+            h, v, v_l = u.length_to_si(h), u.speed_to_si(v), u.speed_to_si(v_l)
+        V = self.v_max_mps * (ca.tanh(h / self.h_st_m - 2.0) + _TANH2) / (1.0 + _TANH2)
+        a = self.alpha_per_s * (V - v) + self.beta_m2ps * (v_l - v) / (h * h)
+        return a if u is None else u.accel_from_si(a)
+
+    def in_units(self, units: Units) -> "CarFollowingLaw":
+        if not isinstance(units, Units):
+            raise ParameterError(f"BandoFTL.in_units: units must be a Units, got {type(units).__name__}")
+        return replace(self, model_units=units)
+
+    def equilibrium_gap_m(self, v_mps: float) -> float:
+        """V⁻¹(v) = h_st (2 + atanh(v (1 + tanh 2)/v_max − tanh 2)) [m] for 0 ≤ v < v_max."""
+        v = float(v_mps)
+        if not 0.0 <= v < self.v_max_mps:
+            raise ParameterError(
+                f"BandoFTL: no equilibrium gap at v = {v!r} m/s: must be in [0, v_max = {self.v_max_mps!r})"
+            )
+        return self.h_st_m * (2.0 + math.atanh(v * (1.0 + _TANH2) / self.v_max_mps - _TANH2))
+
+
+register_law("bandoftl", BandoFTL)
 
 
 def follower_stopper_speed(
@@ -201,7 +249,7 @@ class PISaturation:
 
 
 #: AEV controllers by name (:func:`make_aev`)
-AEV_CONTROLLERS = ("followerstopper", "pi-saturation", "proposed", "ovfl", "mpc")
+AEV_CONTROLLERS = ("followerstopper", "pi-saturation", "proposed", "ovfl", "mpc", "wave-mpc")
 #: predictors a ring MPC may use: forecasts from its own measurements of the predecessor (a ring has no
 #: prescribed leader, so no 'oracle'; 'cooperative' would need the predecessor's plan)
 RING_PREDICTORS = ("decaying-acceleration", "constant-velocity", "constant-acceleration")
@@ -250,12 +298,18 @@ def _law(name: str, ev: EVParams, cf: CarFollowingParams | None) -> CarFollowing
 def make_aev(name: str, ev: EVParams, r_mps: float, mpc: Any = None, cf: CarFollowingParams | None = None) -> Any:
     """An AEV controller by name: 'followerstopper' (desired speed r_mps), 'pi-saturation', 'proposed' (the
     paper's law), 'ovfl', 'mpc' (:func:`ring_mpc`; ``mpc`` an optional (settings, formulation) pair, default
-    MPCSettings() and the traffic formulation), or any registered law name. Laws take their coefficients and
+    MPCSettings() and the traffic formulation), 'wave-mpc' (:class:`aev_ocp.mpc.wave.WaveMPC`, the wave-damping
+    MPC; the pair's settings if given, its own formulation), or any registered law name. Laws take their coefficients and
     scales from ``cf`` (default CarFollowingParams()) and run in ``ev``'s units with the same SI behaviour."""
     key = name.lower()
     if key == "mpc":
         s, f = mpc if mpc is not None else (None, None)
         return ring_mpc(ev, s, None, f, cf)
+    if key == "wave-mpc":  # the wave-damping MPC (aev_ocp.mpc.wave); [mpc]'s solver settings when given
+        from ..mpc.wave import WaveMPC
+
+        s, _ = mpc if mpc is not None else (None, None)
+        return WaveMPC(ev, _law("proposed", ev, cf), settings=s)
     if key == "followerstopper":
         return FollowerStopper.from_si(ev.units, r_mps)
     if key == "pi-saturation":

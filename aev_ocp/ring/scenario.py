@@ -19,6 +19,10 @@ A ring scenario file has ``name``, ``description``, the vehicle tables every sce
   ring: vehicles round(j n / k) + 1), ``density_per_km`` or ``length_m`` (an array: the rings; default the one
   of ``[ring]``), ``controllers`` (default ["followerstopper"]) and ``r_fraction``: one run per ring, AEV count
   and controller (the AEV count 0, all human, once per ring);
+* or, instead of ``human`` and its tables, ``population`` (a calibrated human population by name,
+  :data:`aev_ocp.ring.humans.CALIBRATED`: heterogeneous seeded drivers with reaction times and noise) with an
+  optional ``[ring.calibration]`` stating its fit (source, fitted and their values, statistics, target, tolerance, achieved,
+  residual, seeds, validation_seeds, validation_achieved; checked, not used to run);
 * the start: ``[ring.perturbation]`` (uniform flow, then ``vehicle`` (1-based, default 1) moved back ``shift_m``
   [m] (default 2) and slowed by ``speed_dip_mps`` [m/s] (default 0)), or ``[ring.initial]`` with ``positions_m``
   and ``speeds_mps`` (one per vehicle; vehicle i − 1 ahead of vehicle i).
@@ -96,6 +100,8 @@ class RingSpec:
     speeds_mps: tuple[float, ...] | None = None
     sweep_aevs: tuple[int, ...] = ()  # [ring.sweep]: AEV counts
     sweep_length_m: tuple[float, ...] = ()  # [ring.sweep]: ring lengths [m]
+    population: str | None = None  # a calibrated human population (aev_ocp.ring.humans.CALIBRATED) instead of human
+    calibration: dict[str, Any] | None = None  # [ring.calibration]: what the population was fitted to (stated)
 
 
 @dataclass(frozen=True)
@@ -159,13 +165,33 @@ def validate_ring_table(r: TableReader) -> RingSpec:
         raise ScenarioError(f"{r.file}: {exc}") from None
     if r.has("metrics_from_s"):
         kw["metrics_from_s"] = r.number("metrics_from_s", ge=0, lt=kw["t_end_s"])
-    human = r.string("human", "idm", choices=HUMAN_MODELS)
+    if r.has("population"):
+        from .humans import CALIBRATED
+
+        kw["population"] = r.string("population", choices=sorted(CALIBRATED))
+        for other in ("human", "heterogeneity", "noise_mps2", "noise_dt_s", *HUMAN_MODELS):
+            if r.has(other):
+                raise r.error(
+                    other, r.table[other], "a calibrated ring.population states its drivers, their noise and spread"
+                )
+        pop = CALIBRATED[kw["population"]]
+        kw.update(human=pop.model, human_params=dict(pop.params), noise_mps2=pop.noise_mps2)
+        kw["noise_dt_s"] = pop.noise_dt_s
+        if r.has("calibration"):
+            kw["calibration"] = _calibration_table(r.sub("calibration"))
+    elif r.has("calibration"):
+        raise r.error(
+            "calibration", r.table["calibration"], "states a calibrated ring.population's fit: give ring.population"
+        )
+    human = r.string("human", "idm", choices=HUMAN_MODELS) if kw.get("population") is None else kw["human"]
     kw["human"] = human
     for other in HUMAN_MODELS:
         if other != human and r.has(other):
             raise r.error(other, r.table[other], f"sets the {other.upper()}, but ring.human = {human!r}")
-    hp = r.sub(human)
-    if human == "idm":
+    hp = r.sub(human) if kw.get("population") is None else None
+    if hp is None:
+        pass
+    elif human == "idm":
         kw["human_params"] = {
             k: hp.number(k, v, ge=0 if k == "s0_m" else None, gt=None if k == "s0_m" else 0, le=HUMAN_MAX[k])
             for k, v in IDM_SI.items()
@@ -174,10 +200,11 @@ def validate_ring_table(r: TableReader) -> RingSpec:
         kw["human_params"] = {
             "alpha_per_s": hp.number("alpha_per_s", OVM_ALPHA_PER_S, gt=0, le=HUMAN_MAX["alpha_per_s"])
         }
-    hp.finish(allowed_hint=list(IDM_SI) if human == "idm" else ["alpha_per_s"])
-    kw["heterogeneity"] = r.number("heterogeneity", 0.0, ge=0, lt=1)
-    kw["noise_mps2"] = r.number("noise_mps2", 0.1, ge=0, le=HUMAN_MAX["noise_mps2"])
-    kw["noise_dt_s"] = r.number("noise_dt_s", 0.5, gt=0)
+    if hp is not None:
+        hp.finish(allowed_hint=list(IDM_SI) if human == "idm" else ["alpha_per_s"])
+        kw["heterogeneity"] = r.number("heterogeneity", 0.0, ge=0, lt=1)
+        kw["noise_mps2"] = r.number("noise_mps2", 0.1, ge=0, le=HUMAN_MAX["noise_mps2"])
+        kw["noise_dt_s"] = r.number("noise_dt_s", 0.5, gt=0)
     if kw["noise_mps2"] > 0:
         try:  # the integration cuts the noise makes, before any is built
             check_ring_cuts(kw["t_end_s"], {r.key_path("noise_dt_s"): kw["noise_dt_s"]})
@@ -270,6 +297,27 @@ def validate_ring_table(r: TableReader) -> RingSpec:
     return RingSpec(**kw)
 
 
+def _calibration_table(c: TableReader) -> dict[str, Any]:
+    """``[ring.calibration]``: what a calibrated population was fitted to, as stated beside it (read and checked,
+    not used to run): source, the statistics with their target, tolerance, the achieved means and residuals over
+    the calibration seeds and over validation seeds, and the fitted parameters."""
+    out: dict[str, Any] = {"source": c.string("source"), "fitted": c.strings("fitted")}
+    out["values"] = c.numbers("values")
+    if len(out["values"]) != len(out["fitted"]):
+        raise c.error("values", c.table["values"], f"needs one value per fitted parameter ({len(out['fitted'])})")
+    out["statistics"] = c.strings("statistics")
+    k = len(out["statistics"])
+    for key in ("target", "tolerance", "achieved", "residual", "validation_achieved"):
+        vals = c.numbers(key)
+        if len(vals) != k:
+            raise c.error(key, c.table[key], f"needs one value per statistic ({k})")
+        out[key] = vals
+    for key in ("seeds", "validation_seeds"):
+        out[key] = [int(x) for x in c.numbers(key, ge=0)]
+    c.finish()
+    return out
+
+
 register_section("ring", validate_ring_table)
 
 
@@ -329,13 +377,15 @@ def build_ring(
 ) -> tuple[Any, Any]:
     """(RingRoad, RingInitial) of the scenario with its AEVs (default ``[ring.aev]``'s vehicles; 0-based) under
     ``controller`` (None: all human), on a ring of ``length_m`` [m] (default the scenario's)."""
-    from .laws import idm_si, make_aev
-    from .simulate import RingInitial, RingRoad, uniform_flow, uniform_speed_mps
+    from .laws import idm_si
+    from .simulate import RingInitial, RingRoad, uniform_flow
     from ..models.carfollowing import OVM
 
     s, ev = sc.spec, sc.ev
     length = s.length_m if length_m is None else float(length_m)
     on = s.aev_vehicles if aevs is None else tuple(aevs)
+    if s.population is not None:
+        return _build_population_ring(sc, controller, length, on)
     rng = np.random.default_rng(s.seed + 7919)  # the same draws as aev_ocp.ring.experiments.human_ring
     humans: list[Any] = []
     for _ in range(s.vehicles):
@@ -352,13 +402,8 @@ def build_ring(
     )
     vehicles, human = list(humans), [True] * s.vehicles
     if controller is not None:
-        try:
-            r_mps = s.r_fraction * uniform_speed_mps(base)
-        except ParameterError as exc:
-            raise ScenarioError(f"{sc.source or sc.name}: {exc}") from None
-        mpc = (sc.mpc.settings, sc.mpc.formulation) if sc.mpc is not None else None
-        for i in on:
-            vehicles[i] = make_aev(controller, ev, r_mps, mpc, sc.cf)
+        for i, aev in _aevs(sc, controller, base, on).items():
+            vehicles[i] = aev
             human[i] = False
     ring = RingRoad(length, tuple(vehicles), s.vehicle_length_m, ev, tuple(human), s.noise_mps2, s.noise_dt_s, s.seed)
     if s.positions_m is not None and s.speeds_mps is not None and length == s.length_m:
@@ -366,6 +411,42 @@ def build_ring(
     else:
         init = uniform_flow(base, shift_m=s.shift_m, vehicle=s.perturbed_vehicle, speed_dip_mps=s.speed_dip_mps)
     return ring, init
+
+
+def _aevs(sc: RingScenario, controller: str, base: Any, on: tuple[int, ...]) -> dict[int, Any]:
+    """{0-based vehicle: its AEV controller} of the scenario (FollowerStopper's r from the all-human ``base``)."""
+    from .laws import make_aev
+    from .simulate import uniform_speed_mps
+
+    try:
+        r_mps = sc.spec.r_fraction * uniform_speed_mps(base)
+    except ParameterError as exc:
+        raise ScenarioError(f"{sc.source or sc.name}: {exc}") from None
+    mpc = (sc.mpc.settings, sc.mpc.formulation) if sc.mpc is not None else None
+    return {i: make_aev(controller, sc.ev, r_mps, mpc, sc.cf) for i in on}
+
+
+def _build_population_ring(
+    sc: RingScenario, controller: str | None, length: float, on: tuple[int, ...]
+) -> tuple[Any, Any]:
+    """build_ring for a calibrated ``ring.population`` (aev_ocp.ring.humans.population_ring: seeded draws,
+    reaction times; an AEV replaces a driver and leaves the others' draws)."""
+    from .humans import calibrated_population, population_ring
+    from .simulate import RingInitial, uniform_flow
+
+    s, ev = sc.spec, sc.ev
+    assert s.population is not None
+    pop = calibrated_population(s.population)
+    base = population_ring(pop, length, s.vehicles, seed=s.seed, ev=ev, vehicle_length_m=s.vehicle_length_m)
+    ring = base
+    if controller is not None:
+        aevs = _aevs(sc, controller, base, on)
+        ring = population_ring(
+            pop, length, s.vehicles, seed=s.seed, aevs=aevs, ev=ev, vehicle_length_m=s.vehicle_length_m
+        )
+    if s.positions_m is not None and s.speeds_mps is not None and length == s.length_m:
+        return ring, RingInitial(s.positions_m, s.speeds_mps, None, "given positions and speeds")
+    return ring, uniform_flow(base, shift_m=s.shift_m, vehicle=s.perturbed_vehicle, speed_dip_mps=s.speed_dip_mps)
 
 
 def spread(k: int, n: int) -> tuple[int, ...]:

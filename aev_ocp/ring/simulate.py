@@ -20,7 +20,11 @@ platoon's and SUMO's, :class:`aev_ocp.loop.VehicleStep`: the command checked, co
 safety layer and saturated). An automated vehicle's law whose run declares a conditioning or the safety layer
 (``ev.limits``) is sampled every dt (LAW_DT_S without another controller); human drivers never are.
 
-Human drivers may get seeded acceleration noise: N(0, σ²) [m/s²] per human vehicle, held over ``noise_dt_s``.
+Human drivers may get seeded acceleration noise: N(0, σ²) [m/s²] per human vehicle, held over ``noise_dt_s``,
+and a reaction time τ_i (``RingRoad.delay_s``): such a driver's law is evaluated every ``delay_dt_s`` (0.1 s) on
+the gap, speed and leader speed it saw τ_i − delay_dt_s/2 earlier (linear between the updates; before t = 0 the
+initial state) and held until the next update, so that the lag averaged over a hold is τ_i — the update scheme of
+Treiber & Kesting's Human Driver Model (reaction time with a finite update time), integrated exactly in between.
 
 Integrators (:class:`RingOptions.method`): "compiled" (``aev_ocp/c/ring.c``: one adaptive Dormand–Prince 5(4)
 over the whole ring with the CasADi-generated per-vehicle right-hand side, OpenMP over vehicles; why one
@@ -64,6 +68,7 @@ RING_METHODS = ("auto", "compiled", "cvodes")
 QUAD_NAMES = ("distance", "omega", "energy_J", "heat_J", "heat_irr_J", "rel_speed2", "ovm_err2")
 OUT_NAMES = ("a", "I", "disc")
 _BUILT: dict[Any, Any] = {}
+MAX_DELAY_S = 5.0  # the longest reaction time a ring driver may have [s] (the stability CLI's --delay-s bound)
 LAW_DT_S = 0.1  # the control period [s] of a law sampled for its command stages when no other controller sets one
 #: Wall time [s] below which the next compiled advance is called directly instead of in an interruptible helper
 #: thread: a Ctrl-C then waits about this long (the advances of one run are alike: noise holds, control intervals).
@@ -96,10 +101,33 @@ class RingRoad:
     noise_mps2: float = 0.0
     noise_dt_s: float = 0.5
     seed: int = 0
+    #: per-vehicle reaction time [s] of the human drivers' laws (None or 0: none; see RingSimulator "delays")
+    delay_s: tuple[float, ...] | None = None
+    delay_dt_s: float = 0.1  # update period [s] of a delayed driver's command (Treiber & Kesting's HDM-style update)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "vehicles", tuple(self.vehicles))
         n = len(self.vehicles)
+        if self.delay_s is not None:
+            d = tuple(float(x) for x in self.delay_s)
+            object.__setattr__(self, "delay_s", d)
+            if len(d) != n:
+                raise ParameterError(f"ring: delay_s needs {n} reaction times (one per vehicle), got {len(d)}")
+            if not all(math.isfinite(x) and 0 <= x <= MAX_DELAY_S for x in d):
+                raise ParameterError(
+                    f"ring: delay_s = {list(d)!r:.80} is not allowed: every reaction time must be a finite number of "
+                    f"seconds in [0, {MAX_DELAY_S:g}]"
+                )
+            for i, x in enumerate(d):
+                if x > 0 and not isinstance(self.vehicles[i], CarFollowingLaw):
+                    raise ParameterError(
+                        f"ring: delay_s gives vehicle {i + 1} a reaction time, but it is driven by a sampled "
+                        "controller (only a law's driver reacts late)"
+                    )
+        if not (
+            isinstance(self.delay_dt_s, (int, float)) and math.isfinite(self.delay_dt_s) and 0 < self.delay_dt_s <= 1
+        ):
+            raise ParameterError(f"ring: delay_dt_s = {self.delay_dt_s!r} is not allowed: must be a number in (0, 1] s")
         if n < 2:
             raise ParameterError(f"ring: vehicles needs at least 2 vehicles, got {n}")
         for name in ("length_m", "noise_dt_s"):
@@ -162,6 +190,11 @@ class RingOptions:
     method: str = "auto"
     local_factor: float = 1.0  # the error norm: max(ring RMS, largest vehicle RMS / local_factor); see ring.c
     threads: int = 1  # OpenMP threads over the vehicles (rings of >= 256 vehicles); 1 on a shared machine
+    #: a braking event: the acceleration below braking_mps2 held at least braking_hold_s, counted on the
+    #: integrator's own steps (independent of dt_out_s); the count from braking_from_s on (None: the second half)
+    braking_mps2: float = -1.0  # aev_ocp.ring.experiments.BRAKING_MPS2
+    braking_hold_s: float = 0.5  # our choice: a press, not a blip of noise
+    braking_from_s: float | None = None
 
     def __post_init__(self) -> None:
         if not (isinstance(self.threads, int) and not isinstance(self.threads, bool) and 1 <= self.threads <= 256):
@@ -172,6 +205,26 @@ class RingOptions:
             x = getattr(self, name)
             if not (isinstance(x, (int, float)) and math.isfinite(x) and x > 0):
                 raise ParameterError(f"RingOptions.{name} = {x!r} is not allowed: must be a finite number > 0")
+        if not (
+            isinstance(self.braking_mps2, (int, float)) and math.isfinite(self.braking_mps2) and self.braking_mps2 < 0
+        ):
+            raise ParameterError(
+                f"RingOptions.braking_mps2 = {self.braking_mps2!r} is not allowed: must be a number < 0"
+            )
+        if not (
+            isinstance(self.braking_hold_s, (int, float))
+            and math.isfinite(self.braking_hold_s)
+            and self.braking_hold_s >= 0
+        ):
+            raise ParameterError(
+                f"RingOptions.braking_hold_s = {self.braking_hold_s!r} is not allowed: must be a number >= 0"
+            )
+        if self.braking_from_s is not None and not (
+            isinstance(self.braking_from_s, (int, float))
+            and math.isfinite(self.braking_from_s)
+            and self.braking_from_s >= 0
+        ):
+            raise ParameterError(f"RingOptions.braking_from_s = {self.braking_from_s!r} is not allowed: must be >= 0")
         if self.method not in RING_METHODS:
             raise ParameterError(f"RingOptions.method = {self.method!r} is not allowed: must be one of {RING_METHODS}")
 
@@ -475,9 +528,23 @@ class RingSimulator:
         ]
         self.sampled = [i for i, c in enumerate(self.vehicles) if not isinstance(c, CarFollowingLaw)]
         self.dt = dt_law if self.sampled else None  # model time
+        # drivers with a reaction time: their law is evaluated every delay_dt_s on the state they saw a reaction
+        # time ago and held in between (HeldCommand), see _delayed_commands
+        delays = ring.delay_s or (0.0,) * self.n
+        self.delayed = [i for i in range(self.n) if delays[i] > 0]
+        for i in self.delayed:
+            if not isinstance(self.vehicles[i], CarFollowingLaw):
+                raise ParameterError(
+                    f"ring: vehicle {i + 1} has a reaction time (delay_s) but is sampled for its command stages "
+                    "(an automated vehicle); reaction times are for human drivers"
+                )
+        self.delay_model = np.asarray(delays, float) / self.ev.units.time_s
+        delayed_laws = {i: self.vehicles[i] for i in self.delayed}
         self.laws: list[CarFollowingLaw] = [
-            c if isinstance(c, CarFollowingLaw) else HeldCommand() for c in self.vehicles
+            c if isinstance(c, CarFollowingLaw) and i not in delayed_laws else HeldCommand()
+            for i, c in enumerate(self.vehicles)
         ]
+        self._delay_groups = self._delay_functions(delayed_laws)
         templates = [_law_template(law) for law in self.laws]
         distinct: dict[Any, int] = {}
         first: dict[int, Any] = {}
@@ -511,6 +578,45 @@ class RingSimulator:
         self.method = "compiled" if self._lib is not None else "cvodes"
         self._cvodes: dict[float, Any] = {}
         self._direct = False  # whether the next compiled advance is called directly (see _advance_compiled)
+        self._brake = np.zeros((self.n, 4))  # the braking counters of a run (ring.c; set by run)
+        self._brake_args: tuple[float, float, float] = (-1.0, 0.0, 0.0)  # threshold, hold, from (model units)
+
+    @staticmethod
+    def _delay_functions(laws: dict[int, CarFollowingLaw]) -> list[tuple[np.ndarray, Any, np.ndarray]]:
+        """(vehicles, mapped law function (h, v, v_l, p) -> a, their parameters) per distinct law template of the
+        delayed drivers: one CasADi call evaluates every delayed driver of a template (model units)."""
+        groups: dict[Any, tuple[Any, list[tuple[int, list[float]]]]] = {}
+        for i, law in laws.items():
+            key, make, values = _law_template(law)
+            groups.setdefault(key, (make, []))[1].append((i, values))
+        out = []
+        h, v, vl = ca.SX.sym("h"), ca.SX.sym("v"), ca.SX.sym("vl")
+        for make, members in groups.values():
+            n_par = max(1, len(members[0][1]))
+            p = ca.SX.sym("p", n_par)
+            f = ca.Function("aevring_delayed", [h, v, vl, p], [make(p).accel(h, v, vl)])
+            P = np.zeros((n_par, len(members)))
+            for j, (_, values) in enumerate(members):
+                P[: len(values), j] = values
+            out.append((np.array([m[0] for m in members], int), f.map(len(members)), P))
+        return out
+
+    def _delayed_commands(self, k: int, ddt: float, H: np.ndarray, V: np.ndarray) -> None:
+        """Set the held command of every delayed driver at the k-th update (time k·ddt, model units): its law at
+        the gap, speed and leader speed it saw at k·ddt + ddt/2 − τ (linear in the update history H, V, a ring
+        buffer of rows; before t = 0 the initial state), so that over the hold [k·ddt, (k+1)·ddt) the mean lag is
+        τ (τ ≥ ddt/2; a shorter τ acts as ddt/2)."""
+        nb, n = H.shape[0], self.n
+        for idx, f, P in self._delay_groups:
+            x = np.clip(k + 0.5 - self.delay_model[idx] / ddt, 0.0, float(k))
+            j0 = np.floor(x).astype(int)
+            w = x - j0
+            j1 = np.minimum(j0 + 1, k)
+            pr = np.where(idx > 0, idx - 1, n - 1)
+            hh = (1 - w) * H[j0 % nb, idx] + w * H[j1 % nb, idx]
+            vv = (1 - w) * V[j0 % nb, idx] + w * V[j1 % nb, idx]
+            vl = (1 - w) * V[j0 % nb, pr] + w * V[j1 % nb, pr]
+            self.params[idx, 0] = np.asarray(f(hh, vv, vl, P)).ravel()
 
     def _vehicle_function(self, law: CarFollowingLaw, k: int, p: ca.SX) -> ca.Function:
         """(u = (v_l, noise), x, p) -> (dz = (ẋ, quadrature integrands), y = (a, I, disc)), model units; the
@@ -623,6 +729,10 @@ class RingSimulator:
                 dp,
                 lp,
                 ctypes.c_int,
+                dp,
+                ctypes.c_double,
+                ctypes.c_double,
+                ctypes.c_double,
             ]
             fn.restype = ctypes.c_int64
             _BUILT[source] = lib
@@ -660,6 +770,8 @@ class RingSimulator:
             ev,
             stats,
             self.opts.threads,
+            self._brake,
+            *self._brake_args,
         )
         # in a helper thread, so that Ctrl-C, SIGTERM and --time-limit stop it within a step (aevring_cancel); an
         # advance after one that took less than DIRECT_CALL_S is called directly (a thread costs ~1 ms a call, twice
@@ -730,11 +842,27 @@ class RingSimulator:
                 y = self._outputs(z, noise)
                 out[m] = np.hstack([z, y])
                 m += 1
-            bad = self._check(z, self._outputs(z, noise))
+            y = self._outputs(z, noise)
+            self._count_braking(b, y[:, 0])
+            bad = self._check(z, y)
             if bad is not None:
                 ev[:] = [bad[0], bad[1], b, bad[2]]
                 break
         return m, ev
+
+    def _count_braking(self, te: float, a: np.ndarray) -> None:
+        """The braking counters at time te (model) with the accelerations a (model): as ring.c does per step (the
+        CVODES path counts at the ends of its integration intervals)."""
+        lim, hold, start = self._brake_args
+        b = self._brake
+        on = a < lim
+        b[~on, 0] = -1.0
+        new = on & (b[:, 0] < 0)
+        b[new, 0], b[new, 1] = te, 0.0
+        done = on & (b[:, 1] == 0) & (te - b[:, 0] >= hold * (1 - 1e-12))
+        b[done, 1] = 1.0
+        b[done, 2] += 1.0
+        b[done & (b[:, 0] >= start), 3] += 1.0
 
     def _check(self, z: np.ndarray, y: np.ndarray) -> tuple[int, int, float] | None:
         """(code, vehicle, value) of the first rule of EVENT_RULES violated at a sample, else None."""
@@ -751,6 +879,8 @@ class RingSimulator:
         out = {} if self.dt is None else {"the sampled controllers' dt": self.dt * T}
         if ring.noise_mps2 > 0 and any(ring.is_human(i) for i in range(self.n)):
             out["noise_dt_s"] = ring.noise_dt_s
+        if self.delayed:
+            out["delay_dt_s"] = ring.delay_dt_s
         return out
 
     # ------------------------------------------------------------------ running
@@ -790,6 +920,11 @@ class RingSimulator:
         ndt = ring.noise_dt_s / T
         if use_noise:
             cuts |= {j * ndt for j in range(1, int(math.ceil(t_end / ndt))) if j * ndt < t_end - 1e-12}
+        ddt = ring.delay_dt_s / T
+        if self.delayed:
+            cuts |= {j * ddt for j in range(1, int(math.ceil(t_end / ddt))) if j * ddt < t_end - 1e-12}
+            nb = int(math.ceil(float(np.max(self.delay_model)) / ddt)) + 3  # rows of history a reaction time spans
+            H_hist, V_hist = np.zeros((nb, n)), np.zeros((nb, n))
         grid = np.array(sorted(cuts))
         rng = np.random.default_rng(ring.seed)
         sigma = float(u.accel_from_si(ring.noise_mps2))
@@ -797,6 +932,11 @@ class RingSimulator:
         noise = np.zeros(n)
         out[0] = np.hstack([z, self._outputs(z, noise)])
         h_io, stats = np.zeros(1), np.zeros(3, np.int64)
+        o = self.opts
+        b_from = 0.5 * t_end_s if o.braking_from_s is None else o.braking_from_s
+        self._brake = np.zeros((n, 4))
+        self._brake[:, 0] = -1.0
+        self._brake_args = (float(u.accel_from_si(o.braking_mps2)), o.braking_hold_s / T, b_from / T)
         ctrl = {i: self.vehicles[i] for i in self.sampled}
         for c in ctrl.values():
             c.reset()
@@ -817,6 +957,10 @@ class RingSimulator:
                 if kn != k_noise:
                     k_noise = kn
                     noise = np.where(noisy, rng.normal(0.0, sigma, n), 0.0)
+            if self.delayed and abs(t0 / ddt - round(t0 / ddt)) < 1e-9:
+                k_upd = int(round(t0 / ddt))
+                H_hist[k_upd % nb], V_hist[k_upd % nb] = z[:, 0], z[:, 1]
+                self._delayed_commands(k_upd, ddt, H_hist, V_hist)
             if ctrl and self.dt is not None and abs(t0 / self.dt - round(t0 / self.dt)) < 1e-9:
                 meas_t.append(t0)
                 for i, c in ctrl.items():
@@ -950,6 +1094,7 @@ class RingSimulator:
                 "ring_length_m": self.ring.length_m,
                 "vehicle_length_m": self.ring.vehicle_length_m,
                 "initial": initial.perturbation,
+                "delay_s": list(self.ring.delay_s) if self.ring.delay_s is not None else None,
             },
         )
         return RingResult(
@@ -964,6 +1109,10 @@ class RingSimulator:
                 "rejected": int(stats[1]),
                 "rhs_evaluations": int(stats[2]),
                 "method": self.method,
+                # braking events per vehicle (RingOptions.braking_*), counted on the integrator's steps
+                "braking_events": self._brake[:, 2].astype(int).tolist(),
+                "braking_events_window": self._brake[:, 3].astype(int).tolist(),
+                "braking_from_s": self._brake_args[2] * self.ev.units.time_s,
             },
         )
 

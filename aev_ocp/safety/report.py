@@ -14,14 +14,16 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from ..plots import LAW_STYLE  # noqa: E402
 from ..report import csv_text, markdown_table, write_text  # noqa: E402
 from ..results import save_figure_atomic, write_json  # noqa: E402
 from .cases import FAMILIES  # noqa: E402
 from .kinematics import AVOIDABLE, COLLISION_AVOIDABLE_ONLY, LABELS, UNAVOIDABLE  # noqa: E402
+from .plots import family_figure  # noqa: E402
 from .suite import CaseRow, SuiteOutput  # noqa: E402
 
-FILES = ("safety.csv", "safety.json", "safety.md") + tuple(f"safety_{f.replace('-', '')}.png" for f in FAMILIES)
+FILES = ("safety.csv", "safety.json", "safety.md", "manifest.json", "trajectories.npz") + tuple(
+    f"safety_{f.replace('-', '')}.png" for f in FAMILIES
+)
 BOUND_TEXT = (
     "the ego brakes at its maximum a_min from t = 0 (through the actuator: its jerk limit and lag, from a = 0), "
     "the lead follows its profile, both stop at v = 0 and never reverse; the smallest gap of that motion (exact "
@@ -296,43 +298,18 @@ def margin_table(out: SuiteOutput, free_m: float = 5.0) -> str:
 
 
 def plot_family(out: SuiteOutput, family: str, path: Path) -> Path | None:
-    """One figure per family: min gap [m] per case and controller against the bound, the 2 m floor dashed."""
-    cases = [c for c in out.cases if c.family == family]
-    if not cases:
+    """Write the family's figure (:func:`aev_ocp.safety.plots.family_figure`) to ``path``; None without cases."""
+    fig = family_figure(out, family)
+    if fig is None:
         return None
-    fig, ax = plt.subplots(figsize=(max(6.0, 0.12 * len(cases) + 4), 3.8))
-    x = np.arange(len(cases))
-    acts = list(dict.fromkeys(r.actuator for r in out.rows))
-    act = "declared" if "declared" in acts else acts[0]
-    rows_a = [r for r in out.rows if r.actuator == act]
-    bound = [next(r.bound_min_gap_m for r in rows_a if r.case == c.name) for c in cases]
-    ax.plot(x, bound, "k_", ms=10, mew=2, label="bound (max braking from t = 0)")
-    ctrls = out.settings["controllers"]
-    for j, ctrl in enumerate(ctrls):
-        ys = [next((r.min_gap_m for r in rows_a if r.case == c.name and r.controller == ctrl), math.nan) for c in cases]
-        coll = [next((r.collision for r in rows_a if r.case == c.name and r.controller == ctrl), False) for c in cases]
-        style = LAW_STYLE.get(ctrl.replace("+layer", "").replace("-margin", ""), {})
-        off = (j - (len(ctrls) - 1) / 2) * 0.8 / max(len(ctrls), 1)
-        mk = "^" if ctrl.endswith("+layer") else "o"
-        ax.scatter(x + off, ys, s=14, marker=mk, color=style.get("color"), label=ctrl, zorder=3)
-        cx = [xi + off for xi, cc in zip(x, coll) if cc]
-        if cx:
-            ax.scatter(cx, [0.0] * len(cx), marker="x", s=40, color=style.get("color"), zorder=4)
-    ax.axhline(out.settings["floor_m"], color="gray", ls="--", lw=1, label="floor")
-    ax.axhline(0.0, color="black", lw=0.8)
-    ax.set_ylabel("min gap [m] (× collision)")
-    ax.set_xticks(x)
-    ax.set_xticklabels([c.name.replace(f"{family}_", "").replace("cutin_", "") for c in cases], rotation=90, fontsize=6)
-    ax.set_title(f"{family}: minimum gap per case ({act} actuator)")
-    ax.legend(fontsize=7, ncol=3)
-    fig.tight_layout()
     save_figure_atomic(fig, path, dpi=110)
     plt.close(fig)
     return path
 
 
 def write_outputs(out: SuiteOutput, folder: str | Path, plots: bool = True) -> list[Path]:
-    """safety.csv, safety.json, safety.md and the family figures into ``folder``; returns the paths."""
+    """safety.csv, safety.json, safety.md, the manifest (and the kept runs' trajectories) and the family figures into
+    ``folder``; returns the paths."""
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     names = [f.name for f in dataclasses.fields(CaseRow)]
@@ -352,6 +329,9 @@ def write_outputs(out: SuiteOutput, folder: str | Path, plots: bool = True) -> l
         ),
         write_text(folder / "safety.md", markdown(out, "#")),
     ]
+    from .outputs import save_suite_manifest
+
+    files += save_suite_manifest(out, folder)  # aev_ocp.load(folder) reads the run back
     if plots:
         for fam in FAMILIES:
             p = plot_family(out, fam, folder / f"safety_{fam.replace('-', '')}.png")

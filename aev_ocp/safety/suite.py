@@ -447,6 +447,18 @@ class SuiteOutput:
 
         return require_pandas("SuiteOutput.to_dataframe()").DataFrame([asdict(r) for r in self.rows])
 
+    def plot(self, family: str | None = None) -> Any:
+        """The figure of one family of cases (default the first the run has): min gap [m] per case and
+        controller against the bound (:func:`aev_ocp.safety.plots.family_figure`); a matplotlib Figure."""
+        from .plots import family_figure
+
+        fams = list(dict.fromkeys(c.family for c in self.cases))
+        fam = family if family is not None else (fams[0] if fams else "")
+        fig = family_figure(self, fam)
+        if fig is None:
+            raise ValueError(f"SuiteOutput.plot: family = {family!r} has no case in this run; its families are {fams}")
+        return fig
+
     def failures(self, controller: str = "mpc", actuator: str | None = None) -> list[CaseRow]:
         """Rows of ``controller`` (at ``actuator``; None: at any) that collided or dipped below the floor in an
         avoidable case."""

@@ -308,6 +308,9 @@ def run_stability(
                     f"{doc['law']['law']}: attenuation vs amplitude ({kind})",
                 )
                 files.append(str(out / "attenuation.png"))
-        doc["files"] = files + [str(out / "stability.json")]
+        doc["files"] = files + [str(out / "stability.json"), str(out / "manifest.json")]
         write_json(out / "stability.json", doc)
+        from .outputs import save_stability_manifest
+
+        save_stability_manifest(out, "stability")  # aev_ocp.load(out_dir) reads it back
     return doc

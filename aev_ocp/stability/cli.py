@@ -232,7 +232,7 @@ def build_law(name: str, sets: list[str], key: str = "--law") -> Any:
 
 
 #: Files ``aev-ocp stability`` writes (a foreign folder holding one of them is refused).
-STABILITY_FILES = ("stability.json", "gain.png", "attenuation.png", "stable_region.png")
+STABILITY_FILES = ("stability.json", "manifest.json", "gain.png", "attenuation.png", "stable_region.png")
 
 
 def cli_stability(argv: list[str]) -> int:

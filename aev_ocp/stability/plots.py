@@ -90,3 +90,19 @@ def plot_attenuation(
     ax.set_xlabel("disturbance amplitude A [model speed]")
     ax.set_ylabel("follower-to-follower ratio")
     return _finish_single(fig, ax, path, title or "Measured attenuation (dashed: linear prediction)")
+
+
+def plot_eigenvalues(
+    eigenvalues_per_s: Sequence[Sequence[float]], path: str | Path | None = None, title: str | None = None
+) -> Figure:
+    """The eigenvalues λ [1/s] of a ring's linearisation in the complex plane ([re, im] pairs, as
+    ``ring_stability.json`` and ``mixed_ring_stability.json`` hold them); right of the dashed line: growing."""
+    lam = np.asarray(eigenvalues_per_s, float).reshape(-1, 2)
+    fig, ax = plt.subplots(figsize=(5.6, 4.4))
+    unstable = lam[:, 0] > 0
+    ax.plot(lam[~unstable, 0], lam[~unstable, 1], "o", ms=4, color="tab:blue", label="decaying (Re λ ≤ 0)")
+    ax.plot(lam[unstable, 0], lam[unstable, 1], "o", ms=4, color="tab:red", label="growing (Re λ > 0)")
+    ax.axvline(0.0, color="gray", ls="--", lw=0.8)
+    ax.set_xlabel("Re λ [1/s]")
+    ax.set_ylabel("Im λ [rad/s]")
+    return _finish_single(fig, ax, path, title or "Eigenvalues of the ring's linearisation")

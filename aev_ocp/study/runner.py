@@ -44,7 +44,12 @@ def run_task(spec: dict[str, Any]) -> dict[str, Any]:
     """Run one task specification (picklable dict from :func:`aev_ocp.study.spec.make_task`).
 
     Returns {key, controller, status, message, metrics: [per-vehicle §10 metrics], wall_s}; status is
-    'ok', the kind of the event that ended the run, or 'error' (an exception; message holds it)."""
+    'ok', the kind of the event that ended the run, or 'error' (an exception; message holds it). A ring or SUMO
+    point (``spec["kind"]``) runs through :func:`aev_ocp.study.traffic.run_point`."""
+    if spec.get("kind") in ("ring", "sumo"):
+        from .traffic import run_point
+
+        return run_point(spec)
     t0 = time.perf_counter()
     c = spec["controller"]
     out: dict[str, Any] = {"key": spec["key"], "controller": c["label"]}

@@ -20,6 +20,7 @@ import numpy as np
 from ..metrics import si_first
 from ..results import save_figure_atomic, to_jsonable, write_atomic, write_json
 from ..saved import LoadError, _damaged, load_all, read_manifest, save_output
+from .plots import plot_space_time, space_time_groups  # noqa: F401 (re-exported)
 from .run import FLEET_EVENT_KINDS, SumoRun
 
 FILES = ("manifest.json", "trajectories.npz", "metrics.csv", "fleet.json", "report.md")
@@ -109,65 +110,6 @@ def _load_sumo(path: str | Path) -> SumoRun:
 
 
 # ----------------------------------------------------------------------------- space-time diagrams
-def space_time_groups(run: SumoRun) -> dict[str, list[tuple[str, np.ndarray, np.ndarray, np.ndarray]]]:
-    """{panel: [(vehicle id, t [s], position [m], speed [m/s])]}: one panel per route (the ring: one panel,
-    positions wrapped to the circumference); position = distance driven + the lane position at departure."""
-    out: dict[str, list[tuple[str, np.ndarray, np.ndarray, np.ndarray]]] = {}
-    for vid, r in run.vehicles.items():
-        u = r.units
-        t = np.asarray(u.time_to_si(r.t), float)
-        x = np.asarray(u.length_to_si(r.positions()[:, 0]), float)
-        x = x - x[0] + run.offsets_m.get(vid, 0.0)
-        key = "ring" if run.ring_length_m else str(r.meta.get("route", "route"))
-        if run.ring_length_m:
-            x = np.mod(x, run.ring_length_m)
-        out.setdefault(key, []).append((vid, t, x, np.asarray(u.speed_to_si(r.speed[:, 0]), float)))
-    return out
-
-
-def plot_space_time(run: SumoRun) -> dict[str, Any]:
-    """{panel: Figure}: every vehicle's position over time coloured by its speed; the toolkit's vehicles drawn
-    thicker. Nothing is written."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    from matplotlib.collections import LineCollection
-
-    figs: dict[str, Any] = {}
-    vmax = max((float(np.nanmax(s)) for g in space_time_groups(run).values() for _, _, _, s in g), default=1.0)
-    for key, rows in space_time_groups(run).items():
-        fig, ax = plt.subplots(figsize=(8, 4.5))
-        lc = None
-        for vid, t, x, v in rows:
-            if t.size < 2:
-                continue
-            seg = np.stack([np.column_stack([t[:-1], x[:-1]]), np.column_stack([t[1:], x[1:]])], axis=1)
-            if run.ring_length_m:  # no line across the wrap
-                keep = np.abs(np.diff(x)) < run.ring_length_m / 2
-                seg, vv = seg[keep], v[:-1][keep]
-            else:
-                vv = v[:-1]
-            lc = LineCollection(
-                list(seg),
-                cmap="viridis",
-                norm=plt.Normalize(0, vmax),
-                linewidths=1.8 if run.controlled.get(vid) else 0.6,
-            )
-            lc.set_array(vv)
-            ax.add_collection(lc)
-        ax.autoscale()
-        ax.set_xlabel("time [s]")
-        ax.set_ylabel("position on the ring [m]" if run.ring_length_m else f"position along route {key} [m]")
-        n_c = sum(1 for vid, *_ in rows if run.controlled.get(vid))
-        ax.set_title(f"{run.name}: {key} ({len(rows)} vehicles, {n_c} driven by the toolkit: thick)")
-        if lc is not None:
-            fig.colorbar(lc, ax=ax, label="speed [m/s]")
-        fig.tight_layout()
-        figs[key] = fig
-    return figs
-
-
 def save_space_time(run: SumoRun, out: Path) -> list[Path]:
     """Write ``spacetime_<panel>.png`` files; returns their paths."""
     import matplotlib.pyplot as plt
@@ -217,6 +159,8 @@ def report_markdown(run: SumoRun, figures: list[Path] | None = None) -> str:
         "charge_throughput_Ah_per_km",
         "omega_mass_kJ_per_km",
         "mean_speed_mps",
+        "speed_std_mps",
+        "braking_events_per_veh_km",
         "min_gap_m",
         "collisions",
         "teleports",
@@ -228,6 +172,7 @@ def report_markdown(run: SumoRun, figures: list[Path] | None = None) -> str:
         lines.append(f"| {g} | " + " | ".join(_fmt(ft[g][c]) for c in cols) + " |")
     lines += [
         "",
+        f"Throughput: {_fmt(ft['throughput_veh_per_h'])} veh/h ({ft['throughput_from']}). "
         f"Vehicles that left the network: {ft['left_network']}. Battery energy: ∫P_b dt at the pack terminals "
         f"(powertrain: {run.scenario.ev.vehicle.powertrain}), pack heat and charge throughput from the 2-RC cell on "
         "the realised motion; omega_mass: the paper's measure ω × vehicle mass (inertial, road load excluded), "
@@ -288,6 +233,9 @@ def sweep_markdown(rows: list[dict[str, Any]], name: str) -> str:
         "heat_pack_J_per_km",
         "charge_throughput_Ah_per_km",
         "mean_speed_mps",
+        "throughput_veh_per_h",
+        "speed_std_mps",
+        "braking_events_per_veh_km",
         "min_gap_m",
         "collisions",
         "teleports",
@@ -324,6 +272,10 @@ def sweep_row(share: float, controller: str, run: SumoRun | None, error: str = "
         "heat_pack_J_per_km": ft["all"]["heat_pack_J_per_km"],
         "charge_throughput_Ah_per_km": ft["all"]["charge_throughput_Ah_per_km"],
         "mean_speed_mps": ft["all"]["mean_speed_mps"],
+        "throughput_veh_per_h": ft["throughput_veh_per_h"],  # ring: density x mean speed; open: leaving per hour
+        "travel_time_per_lap_s": ft["travel_time_per_lap_s"],
+        "speed_std_mps": ft["all"]["speed_std_mps"],  # over every vehicle's SUMO steps
+        "braking_events_per_veh_km": ft["all"]["braking_events_per_veh_km"],  # a < -1 m/s² held >= 0.5 s
         "min_gap_m": ft["all"]["min_gap_m"],
         "collisions": ft["all"]["collisions"],
         "teleports": ft["all"]["teleports"],

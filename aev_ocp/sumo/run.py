@@ -201,6 +201,9 @@ class SumoRun:
             q_J = sum(_f(m["heat_pack_J"]) for m in sel)
             ah = sum(_f(m["charge_throughput_Ah_per_km"]) * _f(m["distance_m"]) / 1000.0 for m in sel)
             dur = sum(_f(m["duration_s"]) for m in sel)
+            steps = [self.vehicles[m["sumo_id"]].meta.get("speed_steps", [0, 0.0, 0.0]) for m in sel]
+            ns, s1, s2 = sum(x[0] for x in steps), sum(x[1] for x in steps), sum(x[2] for x in steps)
+            brakes = sum(int(self.vehicles[m["sumo_id"]].meta.get("braking_events", 0)) for m in sel)
             return {
                 "vehicles": len(sel),
                 "distance_km": km,
@@ -213,6 +216,10 @@ class SumoRun:
                 "omega_mass_kJ_per_km": w_J / 1e3 / km if km > 0 else math.nan,
                 "mean_speed_mps": 1000 * km / dur if dur > 0 else math.nan,
                 "min_gap_m": min((_f(m["min_gap_m"]) for m in sel), default=math.nan),
+                # over every vehicle's SUMO steps (not the thinned output)
+                "speed_std_mps": math.sqrt(max(s2 / ns - (s1 / ns) ** 2, 0.0)) if ns else math.nan,
+                "braking_events": brakes,
+                "braking_events_per_veh_km": brakes / km if km > 0 else math.nan,
                 "collisions": sum(1 for m in sel if m["status"] == "collision"),
                 "teleports": sum(1 for m in sel if m["status"] == "teleport"),
                 # the events that did not end a vehicle's record, counted over the group's vehicles
@@ -222,8 +229,22 @@ class SumoRun:
                 },
             }
 
+        allg = group(rows)
+        if self.ring_length_m:  # a ring: the flow k v̄ (density × mean speed) over the whole ring
+            throughput = allg["vehicles"] / self.ring_length_m * 1000.0 * allg["mean_speed_mps"] * 3.6
+            how = "density x mean speed"
+        else:  # an open network: the vehicles that left it per hour (a detector at its exits)
+            throughput = sum(1 for e in self.events if e["kind"] == "left_network") / self.t_end_s * 3600.0
+            how = "vehicles leaving the network per hour"
         return {
-            "all": group(rows),
+            "throughput_veh_per_h": throughput,
+            "throughput_from": how,
+            "travel_time_per_lap_s": (
+                self.ring_length_m / allg["mean_speed_mps"]
+                if self.ring_length_m and allg["mean_speed_mps"] > 0
+                else math.nan
+            ),
+            "all": allg,
             "controlled": group([m for m in rows if m["controlled"]]),
             "sumo": group([m for m in rows if not m["controlled"]]),
             "left_network": sum(1 for e in self.events if e["kind"] == "left_network"),
@@ -231,6 +252,24 @@ class SumoRun:
             "wall_s": self.wall_s,
             "controller_s": self.controller_s,
         }
+
+    def plot(self, panel: str | None = None) -> Any:
+        """The space-time diagram (a matplotlib Figure) of one panel: a route's name, or ``"ring"`` on the ring
+        (default the first panel); :func:`aev_ocp.sumo.plots.plot_space_time` draws every panel."""
+        import matplotlib.pyplot as plt
+
+        from .plots import plot_space_time
+
+        figs = plot_space_time(self)
+        if not figs:
+            raise ValueError(f"SumoRun.plot: run {self.name!r} has no vehicle with two samples to draw")
+        key = next(iter(figs)) if panel is None else panel
+        if key not in figs:
+            raise ValueError(f"SumoRun.plot: panel = {panel!r} is not one of {list(figs)}")
+        for k, fig in figs.items():
+            if k != key:
+                plt.close(fig)
+        return figs[key]
 
     def __repr__(self) -> str:
         n_c = sum(self.controlled.values())
@@ -788,6 +827,8 @@ def _battery(ev: EVParams, live: list[_Track], dt: float) -> None:
 
 
 def _result(tr: _Track, ev: EVParams, lookahead_m: float, dt: float, every: int) -> SimulationResult:
+    from ..ring.field import count_braking
+
     """The vehicle's record as a one-follower SimulationResult (model units; its leader: whoever SUMO reported;
     no leader within the lookahead: gap = lookahead, leader speed = own speed)."""
     u = ev.units
@@ -839,6 +880,9 @@ def _result(tr: _Track, ev: EVParams, lookahead_m: float, dt: float, every: int)
         "end": tr.end or "running",
         "end_s": tr.end_s,
         "step_s": dt,
+        # the field's metrics on SUMO's own steps, whatever the output thinning (aev_ocp.ring.field)
+        "braking_events": count_braking(t_s, a),
+        "speed_steps": [int(n), float(np.sum(v)), float(np.sum(v * v))],
         "lookahead_m": lookahead_m,
         "lanes": sorted(set(tr.lane)),
         "call_s_total": float(sum(tr.step.rec["call"])) if tr.step is not None else 0.0,

@@ -13,7 +13,7 @@ import pytest
 from aev_ocp.results import LOCK, MARKER, claim_output_dir, release_output_locks
 from aev_ocp.scenarios import ScenarioError, load_with_sets
 
-ROOT = Path(__file__).parents[1]
+ROOT = Path(__file__).parents[2]
 
 
 def test_unknown_simulation_key_lists_the_si_twins_and_tolerances() -> None:

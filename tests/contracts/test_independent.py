@@ -11,9 +11,8 @@ in the package and runs this file first; keep it fast (about 10–20 s).
 
 from __future__ import annotations
 
-import dataclasses
-
 import csv
+import dataclasses
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -25,14 +24,13 @@ from scipy.interpolate import make_interp_spline
 from scipy.linalg import expm
 from scipy.optimize import brentq
 
-from aev_ocp.models import OVFL, OVM, ConstantSpeed, PaperLeader, Proposed
-from aev_ocp.models import battery, powertrain
+from aev_ocp.models import OVFL, OVM, ConstantSpeed, PaperLeader, Proposed, battery, powertrain
 from aev_ocp.models.carfollowing import CarFollowingLaw
 from aev_ocp.models.ego import battery_side, following_ode
 from aev_ocp.models.energy import g_exact, g_smooth
-from aev_ocp.ocp.formulation import s9_formulation
 from aev_ocp.numerics import rk4
 from aev_ocp.ocp.following import FollowingWeights, following_problem, weight_vector
+from aev_ocp.ocp.formulation import s9_formulation
 from aev_ocp.ocp.oracle import OracleScenario, OracleSolver, oracle_problem, stage_cost_of_trajectory
 from aev_ocp.ocp.problem import ProblemBuilder
 from aev_ocp.ocp.transcription import TranscriptionOptions, interval_function
@@ -61,7 +59,7 @@ POINTS = np.array(
     ]
 )
 
-with (Path(__file__).resolve().parents[1] / "aev_ocp" / "data" / "a123_ocv_25C.csv").open() as _fh:
+with (Path(__file__).resolve().parents[2] / "aev_ocp" / "data" / "a123_ocv_25C.csv").open() as _fh:
     _rows = list(csv.DictReader(_fh))
 _OCV = make_interp_spline([float(r["soc"]) for r in _rows], [float(r["ocv_V"]) for r in _rows], k=3)
 
@@ -408,7 +406,6 @@ def test_collocation_interval_is_exact_on_a_polynomial(scheme: str) -> None:
 @pytest.fixture(scope="module")
 def mpc():
     from aev_ocp.mpc import MPCController, MPCSettings
-
     from aev_ocp.ocp.formulation import s9_formulation
 
     return MPCController(

@@ -18,9 +18,12 @@ import textwrap
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
-
 from cli_helpers import one_error, run_cli
+from study_helpers import write_tiny_study as _study
+
+from aev_ocp import interrupts
 from aev_ocp.params import ParameterError, SimOptions
 from aev_ocp.results import write_atomic
 from aev_ocp.scenarios import ScenarioError, ScenarioWarning, find_scenario, load_scenario
@@ -29,7 +32,7 @@ from aev_ocp.scenarios import ScenarioError, ScenarioWarning, find_scenario, loa
 # checkout without the fix (rather than the whole file failing to import).
 EXIT_BAD_INPUT, EXIT_FAILED_RUN, EXIT_INTERRUPTED = 2, 1, 130
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 SMALL = """\
 name = "{name}"
@@ -472,7 +475,6 @@ def test_every_subcommand_reports_bad_input_in_one_line(argv: list[str], capsys:
 def test_warnings_are_one_line_on_the_command_line(capsys: pytest.CaptureFixture[str]) -> None:
     import warnings
 
-    from aev_ocp import interrupts
     from aev_ocp.cli import guarded
 
     def warn() -> int:
@@ -487,8 +489,6 @@ def test_warnings_are_one_line_on_the_command_line(capsys: pytest.CaptureFixture
 @pytest.mark.quick
 def test_csv_round_trip_matches_the_arrays(tmp_path: Path) -> None:
     import csv
-
-    import numpy as np
 
     r = load_scenario("table1").run(t_end=2.0)["ovfl"]
     f = r.to_csv(tmp_path / "r.csv")
@@ -555,3 +555,64 @@ def test_thinning_rounds_up_and_single_follower_hint(tmp_path: Path) -> None:
     with pytest.raises(ScenarioError, match="lower simulation.t_end") as exc:
         check_run_size(1, 1e6, 0.01)
     assert "platoon.followers" not in str(exc.value)
+
+
+# ----------------------------------------------------------------------------- from the third reliability probe (test_reprobe3.py)
+@pytest.mark.parametrize("value", ["0.1", "0.02,0.03,0.04", "a,b", "0.02,nan"])
+def test_ocp_v_relax_option_is_named_as_typed(value: str, tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    """The message named run_prop31's v_relax_V, not the --v-relax-V the user typed."""
+    rc, _, err = run_cli(["ocp", "prop31", "--v-relax-V", value, "--out", str(tmp_path / "o")], capsys)
+    assert rc == 2 and f"--v-relax-V = {value!r} is not allowed" in one_error(err)
+
+
+# ----------------------------------------------------------------------------- from the issue-28 surfaces probe (test_reliability_surfaces.py)
+
+
+@pytest.mark.parametrize(
+    "argv, word",
+    [
+        (["simulate", "table1", "--set", "simulation.t_end=1e308"], "simulation.t_end"),
+        (["stability", "--law", "ovm", "--ring", "22", "--density-per-km", "0"], "--density-per-km"),
+        (["stability", "--law", "ovm", "--ring", "22", "--density-per-km", "nan"], "--density-per-km"),
+        (["ring", "sugiyama", "--seed", "-1"], "--seed"),
+        (["simulate", "table1", "--set", "simulation.t_end=" + "9" * 5000], "simulation.t_end"),
+    ],
+)
+def test_absurd_numbers_are_bad_input(tmp_path, capsys, argv, word):
+    rc, _, err = run_cli([*argv, "--out", str(tmp_path / "o")], capsys)
+    line = one_error(err)
+    assert rc == 2 and word in line and "internal error" not in line and "Error:" not in line
+
+
+@pytest.mark.parametrize(
+    "argv, word",
+    [
+        (["simulate", "table1", "--out", ""], "--out: an empty folder name"),
+        (["study", "studies/kappa_alpha_table1.toml", "--out", ""], "--out: an empty folder name"),
+        (["stability", "--law", "ovm", "--out", ""], "--out: an empty folder name"),
+        (["sumo", "sumo_ring", "--out", ""], "--out: an empty folder name"),
+        (["sumo", "sumo_ring", "--bogus"], "unrecognized arguments: --bogus"),
+        (["study", "{study}", "--scheduler", "nonsense", "--out", "{d}/o"], "is not a Dask scheduler address"),
+        (["ocp", "current-profile", "--grid-file", "{grid}", "--out", "{d}/o"], "--grid-file {grid}: grid E_req"),
+        (["ocp", "current-profile", "--grid-file", "{json}", "--out", "{d}/o"], "--grid-file {json}: not valid JSON"),
+    ],
+)
+def test_more_bad_input_is_one_line_naming_it(tmp_path, capsys, monkeypatch, argv, word):
+    monkeypatch.chdir(Path(__file__).resolve().parents[1])  # studies/ and the shipped names
+    (tmp_path / "g.toml").write_text("E_req = [1e400]\n")
+    (tmp_path / "g.json").write_text("[1, 2]\n")
+    subs = {
+        "{d}": str(tmp_path),
+        "{grid}": str(tmp_path / "g.toml"),
+        "{json}": str(tmp_path / "g.json"),
+        "{study}": str(_study(tmp_path)),
+    }
+
+    def fill(a: str) -> str:
+        for k, v in subs.items():
+            a = a.replace(k, v)
+        return a
+
+    rc, _, err = run_cli([fill(a) for a in argv], capsys)
+    assert rc == 2 and fill(word) in one_error(err)
+    assert not (tmp_path / "o").exists()

@@ -2,32 +2,28 @@
 in the compiled ring), SUMO (sizes, sumo_args, options, networks, --controller mpc), physical ranges of the
 [thermal] and [cell] tables, stability --ring, and loading saved SUMO runs and studies.
 
-It reuses the harness of ``probe_reliability_3.py`` (each try in its own folder and process group, classified
+It uses the probes' shared harness (``tools/probes/harness.py``) (each try in its own folder and process group, classified
 ``ok``/``minor``/``defect``: a traceback, a hang, an unexpected exit code, a temporary left behind, an error line
-that does not name the key). Run: ``python benchmarks/probe_ring_sumo_inputs.py [--only SUBSTRING] [--json OUT]``;
+that does not name the key). Run: ``python tools/probes/probe_ring_sumo_inputs.py [--only SUBSTRING] [--json OUT]``;
 prints every try and a table per area, writes the JSON (default ``probe_ring_sumo_inputs.json``).
 """
 
 from __future__ import annotations
 
-import argparse
 import signal
 import sys
-from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
-from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from probe_reliability_3 import (
-    summarize,  # noqa: E402 - the harness of the third probe
+from harness import (  # noqa: E402 - the probes' shared harness
+    run_probe,
     STUDY,
     Try,
     api_expect,
     api_ok,
     chain,
     run_cli,
-    run_try,
     scen,
     write,
 )
@@ -141,26 +137,7 @@ def tries() -> list[Try]:  # one try a line: a table
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--only", default="", help="run only tries whose 'area/name' contains this")
-    ap.add_argument("--json", default="probe_ring_sumo_inputs.json")
-    ap.add_argument("--jobs", type=int, default=1, help="tries run at once (the interrupt tries run alone)")
-    a = ap.parse_args(argv)
-    ts = [t for t in tries() if a.only.lower() in f"{t.area}/{t.name}".lower()]
-    quiet = [t for t in ts if t.sig is None]
-    timed = [t for t in ts if t.sig is not None]
-    results: list[dict[str, Any]] = []
-
-    def show(res: dict[str, Any]) -> None:
-        results.append(res)
-        print(f"{res['cls']:7} {res['area']}/{res['name']}  {res.get('rc')}  {res.get('note', '')[:150]}", flush=True)
-
-    with ThreadPoolExecutor(max(1, a.jobs)) as ex:
-        for res in ex.map(run_try, quiet):
-            show(res)
-    for t in timed:
-        show(run_try(t))
-    return summarize(results, Path(a.json))
+    return run_probe(tries, argv, __doc__.splitlines()[0], "probe_ring_sumo_inputs.json", jobs=1, details=True)
 
 
 if __name__ == "__main__":

@@ -22,7 +22,7 @@ from aev_ocp.params import UNLIMITED, EVParams, ParameterError
 from aev_ocp.plant import EVENT_RULES, PLAN_TOLERANCE, event_header
 from aev_ocp.simulate import simulate_platoon
 
-sys.path.insert(0, str(Path(__file__).parents[1] / "examples"))
+sys.path.insert(0, str(Path(__file__).parents[2] / "examples"))
 EV = EVParams()
 
 
@@ -145,6 +145,7 @@ def test_closed_loop_and_simulator_stop_at_the_same_rule() -> None:
     assert r.status == "negative_speed" and r.events[0].time == pytest.approx(t_exact, abs=1e-9)
 
 
+@pytest.mark.slow  # over 5 s of one core (measured under load, pytest --durations)
 def test_a_plan_within_tolerance_never_stops_the_plant() -> None:
     """Issue 7's reproduction: the canonical scenario with the ω objective, w_Q = 5, N = 30 and
     IPOPT stopped at t = 1.5 on a speed of −6.4e-9 that the MPC had accepted as feasible."""

@@ -9,7 +9,7 @@ classified:
 * defect: a traceback, "internal error", a hang (time box passed), a wrong exit code, user files replaced,
   temporary files or worker processes left behind, a silently wrong result.
 
-    PYTHONPATH=$PWD python benchmarks/probe_reliability.py [--only WORD] [--json probe.json]
+    PYTHONPATH=$PWD python tools/probes/probe_reliability.py [--only WORD] [--json probe.json]
 
 prints one line per try and a table of counts per area, and writes the tries as JSON. Every try uses only the
 shipped scenarios and small files it writes itself (a few minutes in all on 2 cores).
@@ -35,7 +35,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
 
-ROOT = Path(os.environ.get("AEV_PROBE_ROOT") or Path(__file__).resolve().parents[1])  # the checkout probed
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from harness import summarize  # noqa: E402 - the probes' shared report: a table per area and the JSON
+
+ROOT = Path(os.environ.get("AEV_PROBE_ROOT") or Path(__file__).resolve().parents[2])  # the checkout probed
 PY = sys.executable
 RNG = random.Random(int(os.environ.get("AEV_PROBE_SEED", "28")))  # interrupt delays: a rerun repeats them
 
@@ -1448,27 +1452,22 @@ def main(argv: list[str] | None = None) -> int:
                 {
                     "id": k,
                     "area": t.area,
-                    "try": t.what,
-                    "verdict": verdict,
+                    "name": t.what,
+                    "cls": "harness" if verdict == "probe-error" else verdict,
                     "note": note,
+                    "command": t.what,
                     "wall_s": round(time.perf_counter() - t1, 2),
                 }
             )
             print(f"{k:3d} {verdict:7s} {t.area:10s} {t.what[:55]:55s} {note[:110]}", flush=True)
             if not a.keep:
                 shutil.rmtree(d, ignore_errors=True)
-        areas = sorted({r["area"] for r in rows})
-        print(f"\n{'area':12s} {'tries':>5s} {'ok':>5s} {'minor':>5s} {'defect':>6s}")
-        for area in areas + ["all"]:
-            sel = [r for r in rows if area in ("all", r["area"])]
-            c = {v: sum(r["verdict"] == v for r in sel) for v in ("ok", "minor", "defect", "probe-error")}
-            print(f"{area:12s} {len(sel):5d} {c['ok']:5d} {c['minor']:5d} {c['defect'] + c['probe-error']:6d}")
         print(f"({time.perf_counter() - t0:.0f} s)")
-        Path(a.json).write_text(json.dumps(rows, indent=1) + "\n")
+        status = summarize(rows, Path(a.json))  # the probes' one table per area and JSON (tools/probes/harness.py)
     finally:
         if not a.keep:
             shutil.rmtree(base, ignore_errors=True)
-    return 0
+    return status
 
 
 if __name__ == "__main__":

@@ -3,21 +3,19 @@ the closed loop's command stages ([limits] command_filter_s, command_jerk_max_mp
 and [carfollowing] calibrated, calibration (calibrate/save/load), the replay, the map powertrain and named cells,
 stability --ring --aev, and the safety suite's memory budget.
 
-It reuses the harness of ``probe_reliability_3.py`` (each try in its own folder and process group, classified
-``ok``/``minor``/``defect``). Run: ``python benchmarks/probe_new_surfaces.py [--only SUBSTRING] [--json OUT]``; prints
+It uses the probes' shared harness (``tools/probes/harness.py``) (each try in its own folder and process group, classified
+``ok``/``minor``/``defect``). Run: ``python tools/probes/probe_new_surfaces.py [--only SUBSTRING] [--json OUT]``; prints
 every try and a table per area, writes the JSON (default ``probe_new_surfaces.json``).
 """
 
 from __future__ import annotations
 
-import argparse
 import sys
 from pathlib import Path
-from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from probe_reliability_3 import Try, api_expect, api_ok, run_try, scen, summarize, write  # noqa: E402 - the third probe's harness
+from harness import Try, api_expect, api_ok, run_probe, scen, write  # noqa: E402 - the probes' shared harness
 
 
 def csv(rows: str) -> str:
@@ -108,18 +106,7 @@ def tries() -> list[Try]:  # one try a line: a table
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--only", default="", help="run only tries whose 'area/name' contains this")
-    ap.add_argument("--json", default="probe_new_surfaces.json")
-    a = ap.parse_args(argv)
-    results: list[dict[str, Any]] = []
-    for t in tries():
-        if a.only.lower() not in f"{t.area}/{t.name}".lower():
-            continue
-        res = run_try(t)
-        results.append(res)
-        print(f"{res['cls']:7} {res['area']}/{res['name']}  {res.get('rc')}  {res.get('note', '')[:150]}", flush=True)
-    return summarize(results, Path(a.json), details=False)
+    return run_probe(tries, argv, __doc__.splitlines()[0], "probe_new_surfaces.json", jobs=1, details=False)
 
 
 if __name__ == "__main__":

@@ -1,0 +1,264 @@
+"""The wave-damping MPC: one automated EV that dissolves a ring's stop-and-go wave (issue 36, item 4).
+
+The traffic MPC (:mod:`aev_ocp.ocp.traffic`) follows its predecessor: it tracks the predecessor's speed and a
+constant time gap, so among human drivers it rides the wave they make. A wave-dampener does the opposite
+(Stern et al. 2018, Transp. Res. C 89: FollowerStopper and "PI with saturation"; Cui, Seibold, Stern, Work 2017):
+it drives at the *average* speed of the traffic and lets its gap breathe, so the oscillation of the car ahead is
+absorbed in the gap instead of being passed on. :func:`wave_problem` states that as an optimal-control problem with
+the toolkit's :class:`~aev_ocp.ocp.problem.ProblemBuilder`: it is the traffic problem (same states, battery,
+energy epigraph, pack heat, acceleration and jerk terms, the same soft safety constraints on the gap) with a
+different objective for the motion:
+
+* **speed tracking** w_v (v − v_ref)², v_ref an own state of the problem (dv_ref/dt = 0 over the horizon) that the
+  controller sets at every step to an estimate of the downstream average speed it can make itself: the mean of
+  its own measured speed over the last ``window_s`` (the estimate of Stern et al.'s PI with saturation; no V2V, no
+  knowledge of the future);
+* **a weak gap centring** w_g (h − h_c(v))², h_c(v) = s_c + T_c v: in steady state the car keeps this gap, so the
+  ring's equilibrium speed drops only by what the extra gap costs (the throughput guard);
+* **a gap band**: the traffic problem's soft floor h ≥ s_min + T_min v (with the braking-distance constraint) below,
+  and a soft ceiling h ≤ s_max + T_max v above (an exact L1 penalty ρ_band per metre beyond it, plus 1e-3 σ²), so it
+  never opens an absurd gap;
+* **terminal cost** w_vT (v_N − v_ref)² + w_gT (h_N − h_c(v_N))² (the short horizon does not plan a swing after it).
+
+The predecessor-speed term of the traffic problem (w_r (v̂_l − v)²) and its time-gap terms are off (weights 0): the
+predecessor forecast (its measured speed and acceleration, decaying) enters only the dynamics of the gap and the
+braking-distance constraint. Energy awareness is the traffic problem's: the battery-side specific power v g(a),
+pack heat, a² and jerk, in W/kg.
+
+:class:`WaveMPC` is the closed-loop controller (:class:`~aev_ocp.mpc.policy.MPCPolicy`: built once, warm-started
+real-time iterations, the safe fallback and the safety filter of the traffic MPC), usable wherever a
+:class:`~aev_ocp.loop.Controller` is: the ring (``controllers = ["wave-mpc"]``), SUMO, a platoon.
+:func:`linear_gains` linearises its converged first move at an equilibrium, so the mixed-ring theory
+(:mod:`aev_ocp.stability.mixed`) says whether one such car makes a ring of humans linearly stable
+(benchmarks/bench_wave_mpc.py).
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import casadi as ca
+import numpy as np
+
+from ..control import Command, Observation
+from ..models.carfollowing import CarFollowingLaw
+from ..ocp.formulation import problem_formulation
+from ..ocp.problem import ProblemBuilder
+from ..ocp.traffic import SLACK_MAX_M, TrafficParams, traffic_problem
+from ..params import EVParams, ParameterError, as_dict, spec, validate_fields
+from .controller import MPCController
+from .policy import MPCPolicy
+from .predictors import make_predictor
+from .settings import MPCSettings
+
+WAVE_NAME = "wave-mpc"  # the controller's name in ring scenarios and tables
+
+
+@dataclass(frozen=True)
+class WaveParams:
+    """Parameters of :func:`wave_problem`, SI (cost unit W/kg, integrated over seconds, as the traffic problem).
+    Sources: 'our choice' unless stated, tuned on ring seeds 0–2 (benchmarks/bench_wave_mpc.py) and checked with
+    the mixed-ring linear theory (docs/guide/studies.md, "The wave-damping MPC")."""
+
+    speed_weight: float = spec(4.0, ge=0.0)  # w_v [W/kg per (m/s)²] on (v − v_ref)² (our choice: the linear
+    # theory gives one car a stable ring of 21 Treiber humans from w_v ≈ 0.5 on; 4 leaves a margin)
+    gap_weight: float = spec(0.05, ge=0.0)  # w_g [W/kg per m²] on (h − h_c(v))² (our choice: weak, the gap breathes)
+    centre_gap_m: float = spec(2.0, ge=0.0)  # s_c [m] of h_c(v) (our choice: the humans' IDM s0, Treiber 2000)
+    centre_time_gap_s: float = spec(1.5, ge=0.0)  # T_c [s] of h_c(v) (our choice: 0.5 s above the IDM's T = 1 s)
+    max_gap_m: float = spec(12.0, gt=0.0)  # s_max [m] of the soft ceiling (our choice)
+    max_time_gap_s: float = spec(3.0, ge=0.0)  # T_max [s] of the soft ceiling (our choice)
+    band_penalty: float = spec(5.0, gt=0.0)  # ρ_band [W/kg per m beyond the ceiling] (our choice)
+    terminal_speed_weight: float = spec(5.0, ge=0.0)  # w_vT [J/kg per (m/s)²] (our choice)
+    terminal_gap_weight: float = spec(0.1, ge=0.0)  # w_gT [J/kg per m²] (our choice)
+    window_s: float = spec(38.0, gt=0.0)  # the own-speed average of v_ref [s] (Stern et al. 2018 §3.2's PI: 38 s)
+    # the traffic problem's energy, heat, a², jerk terms and its soft gap floor (time_headway_s: T_min; ISO 15622
+    # allows ACC time gaps from 0.8 s); its predecessor-speed and time-gap tracking weights are set to 0
+    traffic: TrafficParams = spec(
+        kind="instance", cls=TrafficParams, default_factory=lambda: TrafficParams(time_headway_s=0.8)
+    )
+
+    def __post_init__(self) -> None:
+        validate_fields(self)
+
+
+#: The setting tuned on seed 0 of the calibrated ring (scenarios/ring_wave.toml: humans with 0.5 s reaction times): a
+#: 25× stronger speed tracking, a 5× weaker gap centring and a ceiling 48 m higher. On the calibrated ring it damps
+#: the jam about twice as much as the defaults (speed std −58 % against −24 % on seed 0), on the Treiber-IDM ring as
+#: much as they do; but behind a constant-speed leader it locks onto its own average speed and lets the gap swing
+#: (up to 115 m over 300 s, from 14 m and 1.5 m/s slower than the leader), so it is not the default.
+CALIBRATED_RING_PARAMS = {"speed_weight": 100.0, "gap_weight": 0.01, "max_gap_m": 60.0}
+
+
+def wave_problem(ev: EVParams, wp: WaveParams | None = None, dt: float = 0.1, name: str = "wave") -> ProblemBuilder:
+    """The wave-damping problem (module docstring) as a builder in ``ev``'s model units: the traffic problem's
+    states (h, v, V1, V2, S, a_prev) plus the own state ``v_ref`` [model speed], its controls plus ``slack_band``,
+    stage parameters (v̄_l, v̂_l). ``dt`` [model time] is the MPC interval."""
+    wp = wp or WaveParams()
+    if not isinstance(wp, WaveParams):
+        raise ParameterError(f"wave_problem: wp must be a WaveParams, got {type(wp).__name__}")
+    tp = replace(wp.traffic, relative_speed_weight=0.0, gap_weight=0.0, terminal_gap_weight=0.0)
+    pb = traffic_problem(ev, tp, dt, name=name)
+    u = ev.units
+    T = u.time_s
+    v_ref = pb.state("v_ref")
+    pb.set_der(v_ref, 0.0)
+    h_m, v_ms, vr_ms = u.length_to_si(pb.x["h"]), u.speed_to_si(pb.x["v"]), u.speed_to_si(v_ref)
+    h_c = wp.centre_gap_m + wp.centre_time_gap_s * v_ms
+    pb.add_stage_cost(T * wp.speed_weight * (v_ms - vr_ms) ** 2, "speed_ref")
+    pb.add_stage_cost(T * wp.gap_weight * (h_m - h_c) ** 2, "gap_centre")
+    sig = pb.control("slack_band", 0.0, SLACK_MAX_M / u.length_m)
+    sig_m = u.length_to_si(sig)
+    pb.subject_to(h_m - sig_m - wp.max_time_gap_s * v_ms, -ca.inf, wp.max_gap_m, name="band_max")
+    pb.add_stage_cost(T * (wp.band_penalty * sig_m + 1e-3 * sig_m**2), "penalty_band")
+    pb.add_terminal_cost(wp.terminal_speed_weight * (v_ms - vr_ms) ** 2 + wp.terminal_gap_weight * (h_m - h_c) ** 2)
+    pb.meta.update({"wave": wp})
+    return pb
+
+
+@dataclass
+class SpeedAverage:
+    """The mean of the last ``n`` measured speeds (the own-speed estimate of the downstream average speed)."""
+
+    n: int
+    _buf: deque[float] = field(init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        if not (isinstance(self.n, int) and self.n >= 1):
+            raise ParameterError(f"SpeedAverage.n = {self.n!r} must be an integer >= 1")
+        self._buf = deque(maxlen=self.n)
+
+    def reset(self) -> None:
+        """Forget every sample."""
+        self._buf.clear()
+
+    @property
+    def value(self) -> float:
+        """The mean of the window (NaN before the first sample)."""
+        return float(np.mean(self._buf)) if self._buf else float("nan")
+
+    def update(self, v: float) -> float:
+        """Add one speed sample and return the mean of the window."""
+        self._buf.append(float(v))
+        return float(np.mean(self._buf))
+
+
+class WaveMPC(MPCPolicy):
+    """The wave-damping MPC as a :class:`~aev_ocp.loop.Controller`: every step v_ref = the mean of its own
+    measured speed over the last ``window_s`` (:class:`SpeedAverage`), then the policy's forecast, warm-started
+    solve, safety filter and fallback (:class:`~aev_ocp.mpc.policy.MPCPolicy`). ``fallback_law``: the law applied
+    when a solve fails (with the safe controller); ``predictor``: a forecast of the predecessor from the car's own
+    measurements (default 'decaying-acceleration', the settings' default)."""
+
+    def __init__(
+        self,
+        ev: EVParams,
+        fallback_law: CarFollowingLaw,
+        params: WaveParams | None = None,
+        settings: MPCSettings | None = None,
+        predictor: str | None = None,
+    ) -> None:
+        s = settings if settings is not None else MPCSettings()
+        if not isinstance(s, MPCSettings):
+            raise ParameterError(f"WaveMPC: settings must be an MPCSettings, got {type(s).__name__}")
+        self.params = params if params is not None else WaveParams()
+        pb = wave_problem(ev, self.params, s.dt)
+        pred_name = predictor if predictor is not None else s.predictor
+        if pred_name in ("oracle", "cooperative"):
+            raise ParameterError(
+                f"WaveMPC: predictor = {pred_name!r} is not allowed: the wave MPC forecasts from its own "
+                "measurements (constant-velocity, constant-acceleration, decaying-acceleration)"
+            )
+        pred = make_predictor(pred_name, None, s.predictor_window, ev.units.time_s)
+        super().__init__(s, ev, fallback_law, pred, formulation=problem_formulation(pb))
+        self._filter = True  # every command through the safe bound, as the traffic MPC's
+        self.name = WAVE_NAME
+        self.units = ev.units
+        dt_s = float(ev.units.time_to_si(s.dt))
+        self.average = SpeedAverage(max(1, int(round(self.params.window_s / dt_s))))
+
+    def reset(self) -> None:
+        """Forget the warm start and the speed average."""
+        super().reset()
+        self.average.reset()
+
+    def own_states(self, obs: Observation) -> dict[str, float]:
+        """The policy's own states plus v_ref [model speed] = the own-speed average including this step's."""
+        own = super().own_states(obs)
+        own["v_ref"] = self.average.update(float(obs.z[1]))
+        return own
+
+    def command(self, obs: Observation) -> Command:
+        cmd = super().command(obs)
+        cmd.info["v_ref_mps"] = float(self.units.speed_to_si(self.average.value))
+        return cmd
+
+    def describe(self) -> dict[str, Any]:
+        d = super().describe()
+        d["controller"] = WAVE_NAME
+        d["wave"] = as_dict(self.params)
+        return d
+
+
+def sumo_controller(ev: EVParams) -> WaveMPC:
+    """A new wave MPC for one SUMO vehicle (``controller = "aev_ocp.mpc.wave:sumo_controller"`` in ``[sumo]``):
+    the default WaveParams and MPCSettings, the paper's proposed law (Proposed()) as its fallback."""
+    from ..models.carfollowing import Proposed
+
+    return WaveMPC(ev, Proposed())
+
+
+def linear_gains(
+    ev: EVParams,
+    params: WaveParams | None = None,
+    settings: MPCSettings | None = None,
+    *,
+    h_m: float,
+    v_mps: float,
+    dh_m: float = 0.5,
+    dv_mps: float = 0.25,
+) -> dict[str, float]:
+    """The converged first move a = f(h, v, v_l) of the wave problem at a steady state (gap h_m [m], speed v_mps
+    [m/s], predecessor and v_ref at v_mps, a_prev = 0) as secant gains over ±dh_m, ±dv_mps (central differences of
+    IPOPT solves, tol 1e-10): f_h [1/s²], f_v [1/s] (at fixed Δv = v_l − v, v_ref held) and f_Δv [1/s], as
+    :mod:`aev_ocp.stability.mixed` takes them, and a0 [m/s²] the move at the point itself. Secant, not tangent:
+    the battery-power epigraph makes the first move piecewise linear with a dead band around a = 0 (a small
+    deviation is cheaper to coast through than to correct), where the tangent gains are 0; the secant gains over
+    the deviations of a forming wave are the ones that decide whether it grows."""
+    s = (settings or MPCSettings()).with_(solver="ipopt", tol=1e-10, codegen=False)
+    pb = wave_problem(ev, params, s.dt)
+    ctl = MPCController(s, ev, formulation=problem_formulation(pb))
+    u, N = ev.units, s.N
+    z_cell = np.array([0.0, 0.0, float(ev.cell.soc0)])
+
+    def first(h: float, v: float, vl: float) -> float:
+        ctl.reset()
+        z0 = np.concatenate([[float(u.length_from_si(h)), float(u.speed_from_si(v))], z_cell])
+        vlm = np.full(N, float(u.speed_from_si(vl)))
+        sol = ctl.solve(z0, vlm, vlm, own={"a_prev": 0.0, "v_ref": float(u.speed_from_si(v_mps))})
+        if not sol.success:
+            raise ParameterError(f"linear_gains: the wave problem failed at h = {h:g} m, v = {v:g} m/s: {sol.status}")
+        return float(u.accel_to_si(sol.a[0]))
+
+    if not (dh_m > 0 and dv_mps > 0 and h_m > dh_m and v_mps > dv_mps):
+        raise ParameterError(
+            f"linear_gains: need 0 < dh_m < h_m and 0 < dv_mps < v_mps, got {dh_m}, {h_m}, {dv_mps}, {v_mps}"
+        )
+    dh, dv = float(dh_m), float(dv_mps)
+    f_h = (first(h_m + dh, v_mps, v_mps) - first(h_m - dh, v_mps, v_mps)) / (2 * dh)
+    f_dv = (first(h_m, v_mps, v_mps + dv) - first(h_m, v_mps, v_mps - dv)) / (2 * dv)
+    f_v = (first(h_m, v_mps + dv, v_mps + dv) - first(h_m, v_mps - dv, v_mps - dv)) / (2 * dv)
+    return {"f_h_per_s2": f_h, "f_v_per_s": f_v, "f_dv_per_s": f_dv, "a0_mps2": first(h_m, v_mps, v_mps)}
+
+
+__all__ = [
+    "CALIBRATED_RING_PARAMS",
+    "WAVE_NAME",
+    "SpeedAverage",
+    "WaveMPC",
+    "WaveParams",
+    "linear_gains",
+    "sumo_controller",
+    "wave_problem",
+]

@@ -1,0 +1,1012 @@
+"""Equal tuning effort (issue 33 item 3): every controller gets the same budget of closed-loop evaluations on a
+training set of scenarios, chosen by one optimiser (optuna's TPE sampler with a fixed seed), and is reported at its
+default and tuned, side by side, on the training set and on held-out scenarios.
+
+What is tuned, per controller, is declared once in :data:`TUNING_TABLE`: SI parameters with bounds and their physical
+meaning. A trial is one parameter set; it is scored by running it on every training scenario, each run a task of the
+study layer (:func:`aev_ocp.study.runner.execute`: in this process, on the process pool or on Dask; results kept in
+the hash-keyed store ``<out>/points/``, so a rerun with the same seed resumes). The budget is counted in trials and
+in closed-loop evaluations (trials × training scenarios): the same for every controller.
+
+Objective: the follower's battery energy per distance [kWh/100 km], mean over the training scenarios. Constraints
+(:data:`LIMITS`, each a number that must stay ≤ 0): no run may end on an event (collision, infeasible current) or
+fail and the gap stays ≥ ``min_gap_m``; on the drive cycles also the time-to-collision ≥ ``min_ttc_s``, the RMS jerk
+≤ ``rms_jerk_max_mps3`` and the mean time gap while moving ≤ ``mean_time_gap_max_s`` (energy must not be bought by
+falling behind the leader). Infeasible trials are handled by optuna's constrained TPE (``constraints_func``: every feasible
+trial ranks above every infeasible one, infeasible ones by their summed violation); the tuned set is the best
+feasible trial, the default counting as trial 0 (so the tuned set is never worse than the default on the training
+set). A trial whose run failed scores :data:`PENALTY_KWH_PER_100KM`.
+
+Training set (:func:`training_cases`): the first 120 s of UDDS (to the leader's next stop) and of HWFET, one
+follower behind a measured (non-oracle) leader: the MPC forecasts with the decaying-acceleration predictor, as the
+robustness study does. Held-out (:func:`heldout_cases`): the first 120 s of US06 (to the leader's next stop) and four
+safety-suite cases (:mod:`aev_ocp.safety.cases`: two braking leads, a cut-in, a lane end; their initial state and
+lead, in the drive-cycle scenario's vehicle without the suite's actuator lag). The ring and the merge are not
+study-layer scenarios (the runner runs platoon scenarios), so they are not in either set.
+
+>>> from aev_ocp.tuning import run_tuning
+>>> out = run_tuning(["proposed", "idm"], budget=12, out="results/tune", workers=2)
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any, Callable, Mapping, Sequence
+
+import numpy as np
+
+from .params import ParameterError, echo
+
+# ----------------------------------------------------------------------------- the table of what is tuned
+
+
+@dataclass(frozen=True)
+class Param:
+    """One tuned parameter: ``name`` (SI, unit in the name), bounds ``lo`` < ``hi`` in that unit, ``log`` (sampled
+    on a log scale), ``meaning`` (its physical meaning, for the table)."""
+
+    name: str
+    lo: float
+    hi: float
+    meaning: str
+    log: bool = False
+
+    def __post_init__(self) -> None:
+        for nm in ("lo", "hi"):
+            x = getattr(self, nm)
+            if isinstance(x, bool) or not isinstance(x, (int, float)) or not math.isfinite(x):
+                raise ParameterError(f"tuning bounds of {self.name}: {nm} = {echo(x)} is not allowed: must be a number")
+        if not self.lo < self.hi:
+            raise ParameterError(
+                f"tuning bounds of {self.name}: lo = {echo(self.lo)} must be below hi = {echo(self.hi)}"
+            )
+        if self.log and self.lo <= 0:
+            raise ParameterError(
+                f"tuning bounds of {self.name}: lo = {echo(self.lo)} must be > 0 (the parameter is sampled on a log "
+                "scale)"
+            )
+
+
+@dataclass(frozen=True)
+class Space:
+    """What is tuned for one controller: its ``label``, study-controller ``kind`` ('law' or 'mpc'), the ``law`` a
+    law controller runs, and its parameters."""
+
+    label: str
+    kind: str
+    law: str
+    params: tuple[Param, ...]
+
+    def param(self, name: str) -> Param:
+        """The parameter ``name``; ParameterError naming the controller and the known parameters otherwise."""
+        for p in self.params:
+            if p.name == name:
+                return p
+        raise ParameterError(
+            f"tuning: controller {self.label!r} has no tuned parameter {name!r}: its parameters are "
+            f"{[p.name for p in self.params]}"
+        )
+
+
+_SCALES = (
+    Param("h_scale_m", 8.0, 40.0, "the OV function's length scale ℓ: sets the equilibrium gap, ℓ V⁻¹(v/u)"),
+    Param("v_scale_mps", 13.0, 30.0, "the OV function's speed scale u: V∞·u is the law's top speed"),
+)
+#: The tuned parameters of each controller, SI, with bounds (our choice: around the shipped defaults, wide enough to
+#: move the equilibrium gap by a factor of about 3 and the response rates by about 10).
+TUNING_TABLE: dict[str, Space] = {
+    "proposed": Space(
+        "proposed",
+        "law",
+        "proposed",
+        (
+            Param("kappa_per_m", 1e-4, 2e-2, "weight of the energy term κ/ℓ: braking against a closing speed", True),
+            Param("eps_m2ps2", 1e-5, 1.0, "smoothing ε u² of the energy term at zero relative speed", True),
+            *_SCALES,
+        ),
+    ),
+    "ovfl": Space(
+        "ovfl",
+        "law",
+        "ovfl",
+        (
+            Param("alpha_per_s", 0.3, 5.0, "relaxation rate α u/ℓ towards the optimal velocity", True),
+            Param("beta_m2ps", 50.0, 3000.0, "follow-the-leader gain β ℓ u on (v_l − v)/h²", True),
+            *_SCALES,
+        ),
+    ),
+    "idm": Space(
+        "idm",
+        "law",
+        "idm",
+        (
+            Param("T_s", 0.8, 3.0, "desired time gap T"),
+            Param("a_mps2", 0.3, 3.0, "maximum acceleration a"),
+            Param("b_mps2", 0.5, 4.0, "comfortable deceleration b"),
+        ),
+    ),
+    "mpc": Space(
+        "mpc",
+        "mpc",
+        "",
+        (
+            Param("accel_weight", 0.5, 60.0, "w_a [W/kg per (m/s²)²]: cost of acceleration (currents)", True),
+            Param("gap_weight", 0.002, 0.2, "w_g [W/kg per m²]: cost of the gap's distance from h_des(v)", True),
+            Param("target_time_gap_s", 1.0, 3.5, "T_des: time gap of the desired gap h_des = s_0 + T_des v"),
+        ),
+    ),
+}
+
+#: The constraints of a feasible trial (module docstring); our choices: a 1 m gap (every case) and a 1.5 s
+#: time-to-collision (drive cycles) are margins no controller should use up in ordinary driving (1.5 s: the usual
+#: critical-TTC threshold of traffic-conflict studies); an RMS jerk of 2 m/s³ is about twice the default laws' on the
+#: training segments (0.7–1.0 m/s³); a mean time gap of 3.5 s while moving lies above every controller's default on
+#: the training segments (the MPC's 3.0 s on UDDS, its target 2.5 s) and keeps a follower in the queue.
+LIMITS = {"min_gap_m": 1.0, "min_ttc_s": 1.5, "rms_jerk_max_mps3": 2.0, "mean_time_gap_max_s": 3.5}
+#: The objective of a trial with a failed run [kWh/100 km] (no car uses this much: 100 is a heavy truck's).
+PENALTY_KWH_PER_100KM = 1000.0
+#: Speed above which a follower counts as moving for its time gap [m/s] (our choice: walking pace).
+MOVING_MPS = 1.0
+
+
+def check_spaces(
+    controllers: Sequence[str], bounds: Mapping[str, Mapping[str, tuple[float, float]]] | None = None
+) -> list[Space]:
+    """The :class:`Space` of each controller, with ``bounds`` ({controller: {param: (lo, hi)}}) replacing the table's;
+    ParameterError naming the controller or the parameter when either is unknown or a bound is bad."""
+    if isinstance(controllers, str) or not controllers:
+        raise ParameterError(
+            f"tuning: controllers = {echo(controllers)} is not allowed: must be a non-empty list of "
+            f"{sorted(TUNING_TABLE)}"
+        )
+    out: list[Space] = []
+    for c in controllers:
+        if c not in TUNING_TABLE:
+            raise ParameterError(f"tuning: unknown controller {c!r}: known are {sorted(TUNING_TABLE)}")
+        if c in [s.label for s in out]:
+            raise ParameterError(f"tuning: controller {c!r} is given twice")
+        out.append(TUNING_TABLE[c])
+    for c, table in (bounds or {}).items():
+        if c not in TUNING_TABLE:
+            raise ParameterError(f"tuning bounds: unknown controller {c!r}: known are {sorted(TUNING_TABLE)}")
+        if c not in controllers:
+            raise ParameterError(f"tuning bounds: controller {c!r} is not tuned in this run ({list(controllers)})")
+        k = [s.label for s in out].index(c)
+        space = out[k]
+        params = list(space.params)
+        for name, lohi in table.items():
+            p = space.param(name)
+            try:
+                lo, hi = (float(x) for x in lohi)
+            except (TypeError, ValueError):
+                raise ParameterError(
+                    f"tuning bounds of {c}.{name}: {echo(lohi)} is not allowed: must be (lo, hi)"
+                ) from None
+            Param(f"{c}.{name}", lo, hi, p.meaning, p.log)  # validated here: its errors name controller.param
+            params[params.index(p)] = Param(name, lo, hi, p.meaning, p.log)
+        out[k] = replace(space, params=tuple(params))
+    return out
+
+
+def check_budget(budget: Any, name: str = "budget") -> int:
+    """``budget`` (trials per controller) as an int ≥ 1; ParameterError naming it otherwise."""
+    if isinstance(budget, bool) or not isinstance(budget, (int, np.integer)) or budget < 1:
+        raise ParameterError(f"tuning: {name} = {echo(budget)} is not allowed: must be an integer >= 1 (trials)")
+    return int(budget)
+
+
+# ----------------------------------------------------------------------------- scenarios
+
+
+@dataclass(frozen=True)
+class Case:
+    """A scenario of the training or held-out set: ``name``, ``split`` ('train' | 'held-out'), ``kind`` ('cycle' |
+    'safety'), its scenario ``document`` and ``file``, and its leader's position ``leader_x_m`` [m] at
+    ``leader_t_s`` [s] and the follower's initial gap ``gap0_m`` [m] (for the time gap)."""
+
+    name: str
+    split: str
+    kind: str
+    document: dict[str, Any]
+    file: str
+    leader_t_s: tuple[float, ...] = field(repr=False)
+    leader_x_m: tuple[float, ...] = field(repr=False)
+    gap0_m: float = 0.0
+
+
+#: The training segments: (shipped scenario, first seconds, end at the leader's next stop).
+TRAIN_SEGMENTS = (("mpc_udds_single", 120.0, True), ("mpc_hwfet_single", 120.0, False))
+#: The held-out segments and safety-suite cases (names of :func:`aev_ocp.safety.cases.suite_cases`).
+HELDOUT_SEGMENTS = (("mpc_us06_single", 120.0, True),)
+HELDOUT_SAFETY = (
+    "CCRb_50kmh_12m_-6mps2",
+    "CCRb_100kmh_40m_-6mps2",
+    "cutin_100kmh_lead100kmh_15m_-6mps2",
+    "laneend_100kmh_60m",
+)
+#: The scenario the safety cases run in (its vehicle, units, [mpc] forecast), as the suite's cases (CASE_UNITS).
+SAFETY_BASE = "mpc_udds_single"
+
+
+def _case(name: str, split: str, kind: str, doc: dict[str, Any], file: str) -> Case:
+    from .study.points import parse_scenario_quiet
+
+    sc = parse_scenario_quiet(doc, file)
+    u = sc.units
+    t = np.arange(0.0, sc.t_end + 1e-12, u.time_from_si(0.05))
+    x = np.asarray(sc.leader.position(t), float).ravel()
+    return Case(
+        name,
+        split,
+        kind,
+        doc,
+        file,
+        tuple(float(v) for v in u.time_to_si(t)),
+        tuple(float(v) for v in u.length_to_si(x - x[0])),
+        float(u.length_to_si(sc.gaps0[0])),
+    )
+
+
+def _whole_steps(sc: Any, t: float) -> float:
+    dt = sc.extra["mpc"].settings.dt
+    return math.ceil(t / dt - 1e-9) * dt
+
+
+def cycle_case(scenario: str, segment_s: float, end_at_rest: bool, split: str) -> Case:
+    """The first ``segment_s`` [s] of a shipped one-follower MPC scenario (``end_at_rest``: on to the leader's next
+    stop, :func:`aev_ocp.mpc.cycles.leader_rest_end`), cut at whole MPC steps, every run a single controller."""
+    from .mpc.cycles import leader_rest_end
+    from .overrides import apply_to_document
+    from .scenarios import find_scenario
+    from .scenarios.files import read_scenario_doc
+    from .study.points import parse_scenario_quiet
+
+    path = find_scenario(scenario)
+    doc = read_scenario_doc(path, str(path))
+    sc = parse_scenario_quiet(doc, str(path))
+    t = sc.units.time_from_si(segment_s)
+    rest = leader_rest_end(sc, t) if end_at_rest else None
+    t_end = min(_whole_steps(sc, rest if rest is not None else t), sc.t_end)
+    doc = apply_to_document(doc, {"simulation.t_end": t_end, "compare": None}, str(path))
+    name = f"{scenario.removeprefix('mpc_').removesuffix('_single')}_{sc.units.time_to_si(t_end):.0f}s"
+    return _case(name, split, "cycle", doc, str(path))
+
+
+def safety_case(case_name: str, split: str = "held-out") -> Case:
+    """A safety-suite case (:func:`aev_ocp.safety.cases.suite_cases`) as a scenario document: the lead as an array
+    leader (its speed, braking at its deceleration until it stops), the ego at its speed and gap, in
+    :data:`SAFETY_BASE`'s vehicle, units and [mpc]."""
+    from .overrides import apply_to_document
+    from .safety.cases import suite_cases
+    from .scenarios import find_scenario
+    from .scenarios.files import read_scenario_doc
+    from .study.points import parse_scenario_quiet
+
+    cases = {c.name: c for c in suite_cases()}
+    if case_name not in cases:
+        raise ParameterError(f"tuning: unknown safety case {case_name!r}: known are {sorted(cases)}")
+    c = cases[case_name]
+    path = find_scenario(SAFETY_BASE)
+    doc = read_scenario_doc(path, str(path))
+    if c.a_lead_mps2 < 0 and c.v_lead_mps > 0:
+        t_stop = c.t_brake_s + c.v_lead_mps / -c.a_lead_mps2
+        times = (
+            [0.0, t_stop, max(c.t_end_s, t_stop) + 1.0]
+            if c.t_brake_s == 0
+            else [0.0, c.t_brake_s, t_stop, c.t_end_s + 1.0]
+        )
+        speeds = [c.v_lead_mps, 0.0, 0.0] if c.t_brake_s == 0 else [c.v_lead_mps, c.v_lead_mps, 0.0, 0.0]
+    else:
+        times, speeds = [0.0, c.t_end_s + 1.0], [c.v_lead_mps, c.v_lead_mps]
+    doc = apply_to_document(
+        doc,
+        {
+            "compare": None,
+            "leader.kind": "array",
+            "leader.times_s": times,
+            "leader.speeds_mps": speeds,
+            "platoon.gap0_first_m": c.gap_m,
+            "platoon.speed0_mps": c.v_ego_mps,
+        },
+        str(path),
+    )
+    sc = parse_scenario_quiet(doc, str(path))
+    doc = apply_to_document(doc, {"simulation.t_end": _whole_steps(sc, sc.units.time_from_si(c.t_end_s))}, str(path))
+    return _case(case_name, split, "safety", doc, str(path))
+
+
+def training_cases() -> list[Case]:
+    """The training set (module docstring)."""
+    return [cycle_case(s, t, r, "train") for s, t, r in TRAIN_SEGMENTS]
+
+
+def heldout_cases() -> list[Case]:
+    """The held-out set (module docstring)."""
+    return [cycle_case(s, t, r, "held-out") for s, t, r in HELDOUT_SEGMENTS] + [safety_case(n) for n in HELDOUT_SAFETY]
+
+
+# ----------------------------------------------------------------------------- a parameter set in a scenario
+
+#: OV-type laws' SI coefficients and their dimensionless field (as the scenario's [carfollowing] converts them).
+_OV_FIELDS = {"alpha_per_s": "alpha", "beta_m2ps": "beta", "kappa_per_m": "kappa", "eps_m2ps2": "eps"}
+
+
+def default_values(space: Space, doc: dict[str, Any], file: str) -> dict[str, float]:
+    """The controller's tuned parameters as scenario ``doc`` sets them, SI."""
+    from .study.points import parse_scenario_quiet
+
+    sc = parse_scenario_quiet(doc, file)
+    if space.kind == "mpc":
+        tp = sc.extra["mpc"].formulation.traffic
+        return {p.name: float(getattr(tp, p.name)) for p in space.params}
+    law = sc.law(space.law)
+    si = law.si_coefficients() if hasattr(law, "si_coefficients") else {}
+    return {p.name: float(si[p.name]) if p.name in si else float(getattr(law, p.name)) for p in space.params}
+
+
+def scenario_overrides(space: Space, values: Mapping[str, float], doc: dict[str, Any], file: str) -> dict[str, Any]:
+    """Dotted-key overrides that set ``values`` (SI, a subset of the space's parameters) in scenario ``doc``: law
+    controllers get ``platoon.law`` and their sub-table ``carfollowing.<law>.*`` (an OV-type law's untuned
+    coefficients kept at the document's SI values when its scales change), the MPC its ``mpc.*`` keys."""
+    for k in values:
+        space.param(k)  # unknown names are refused, by name
+    out: dict[str, Any] = {"compare": None}
+    if space.kind == "mpc":
+        out.update({f"mpc.{k}": float(v) for k, v in values.items()})
+        return out
+    out["platoon.law"] = space.law
+    from .study.points import parse_scenario_quiet
+
+    law = parse_scenario_quiet(doc, file).law(space.law)
+    if not hasattr(law, "si_coefficients"):  # SI fields of their own (IDM)
+        out.update({f"carfollowing.{space.law}.{k}": float(v) for k, v in values.items()})
+        return out
+    si = {**law.si_coefficients(), **{k: float(v) for k, v in values.items()}}
+    ell, u = si["h_scale_m"], si["v_scale_mps"]
+    from .scenarios.followers import SI_COEFFICIENTS
+
+    sub = {"h_scale_m": ell, "v_scale_mps": u}
+    for key, (coeff, convert) in SI_COEFFICIENTS.items():
+        if key in si:
+            sub[coeff] = convert(si[key], ell, u)
+    out.update({f"carfollowing.{space.law}.{k}": v for k, v in sub.items()})
+    return out
+
+
+def case_document(space: Space, values: Mapping[str, float] | None, case: Case) -> dict[str, Any]:
+    """The case's document run by the controller of ``space`` with ``values`` (None: its defaults)."""
+    from .overrides import apply_to_document
+
+    ov = scenario_overrides(space, values or {}, case.document, case.file)
+    return apply_to_document(case.document, ov, case.file)
+
+
+# ----------------------------------------------------------------------------- scoring a run
+
+
+def time_gaps_s(profile: Mapping[str, Any], case: Case) -> np.ndarray:
+    """The follower's time gaps [s] while it moves (≥ :data:`MOVING_MPS`): at each kept sample, how long ago the
+    leader was where the follower is (from the run's compact profile, :func:`aev_ocp.truncation.cumulative_profile`)."""
+    d = np.asarray(profile.get("distance_m", []), float)
+    t = np.asarray(profile.get("t_s", []), float)
+    if d.size < 3:
+        return np.empty(0)
+    xl, first = np.unique(np.asarray(case.leader_x_m, float), return_index=True)
+    tl = np.asarray(case.leader_t_s, float)[first]
+    xf = d - case.gap0_m
+    speed = np.gradient(d, t)
+    ok = (speed >= MOVING_MPS) & (xf >= xl[0]) & (xf <= xl[-1])
+    return t[ok] - np.interp(xf[ok], xl, tl)
+
+
+def run_summary(result: Mapping[str, Any], case: Case) -> dict[str, Any]:
+    """The numbers of one closed-loop run (a study task's result) that tuning reads, SI."""
+    m = (result.get("metrics") or [{}])[0]
+    prof = (result.get("profiles") or [{}])[0]
+    tau = time_gaps_s(prof, case) if prof else np.empty(0)
+    nan = math.nan
+    return {
+        "status": result.get("status", "error"),
+        "message": result.get("message", ""),
+        "battery_energy_kWh_per_100km": float(m.get("battery_energy_kWh_per_100km", nan)),
+        "min_gap_m": float(m.get("min_gap_m", nan)),
+        "min_ttc_s": float(m.get("min_ttc_s", nan)),
+        "rms_jerk_mps3": float(m.get("rms_jerk_mps3", nan)),
+        "min_time_gap_s": float(tau.min()) if tau.size else nan,
+        "mean_time_gap_s": float(tau.mean()) if tau.size else nan,
+        "distance_m": float(m.get("distance_m", nan)),
+    }
+
+
+CONSTRAINTS = ("events", "gap", "ttc", "jerk", "time_gap")
+
+
+def _nz(x: float) -> float:
+    return 0.0 if not math.isfinite(x) else x
+
+
+def score(runs: Sequence[Mapping[str, Any]], cases: Sequence[Case]) -> tuple[float, list[float]]:
+    """(objective [kWh/100 km], constraints (:data:`CONSTRAINTS`, each feasible when ≤ 0)) of one parameter set's runs
+    on ``cases`` (module docstring). Events and the gap count on every case; the TTC, the jerk and the time gap on
+    the drive cycles only (a safety case is an emergency: hard braking and a short TTC are its point)."""
+    bad = sum(1 for r in runs if r["status"] != "ok")
+    e = [r["battery_energy_kWh_per_100km"] for r, c in zip(runs, cases) if c.kind == "cycle"]
+    obj = float(np.mean(e)) if e and bad == 0 and all(math.isfinite(x) for x in e) else PENALTY_KWH_PER_100KM
+    cyc = [r for r, c in zip(runs, cases) if c.kind == "cycle"]
+    cons = [
+        float(bad),
+        max([_nz(LIMITS["min_gap_m"] - r["min_gap_m"]) for r in runs] or [0.0]),
+        max([_nz(LIMITS["min_ttc_s"] - r["min_ttc_s"]) for r in cyc] or [0.0]),
+        max([_nz(r["rms_jerk_mps3"] - LIMITS["rms_jerk_max_mps3"]) for r in cyc] or [0.0]),
+        max([_nz(r["mean_time_gap_s"] - LIMITS["mean_time_gap_max_s"]) for r in cyc] or [0.0]),
+    ]
+    return obj, cons
+
+
+def feasible(constraints: Sequence[float]) -> bool:
+    """Whether every constraint holds (≤ 0)."""
+    return all(c <= 0.0 for c in constraints)
+
+
+# ----------------------------------------------------------------------------- the optimiser
+
+
+@dataclass
+class TrialRecord:
+    """One trial: its number (0 = the default), parameter values (SI), objective and constraints."""
+
+    number: int
+    values: dict[str, float]
+    objective: float
+    constraints: list[float]
+
+    @property
+    def feasible(self) -> bool:
+        """Whether every constraint holds."""
+        return feasible(self.constraints)
+
+
+class Tuner:
+    """Ask/tell around optuna's TPE sampler (fixed ``seed``, constrained: ``constraints_func``) for one controller's
+    ``params``, ``budget`` trials, the first being ``default`` (clipped into the bounds)."""
+
+    def __init__(self, params: Sequence[Param], default: Mapping[str, float], budget: int, seed: int = 1) -> None:
+        import logging
+        import warnings
+
+        import optuna
+
+        self.budget = check_budget(budget)
+        self.params = tuple(params)
+        optuna.logging.set_verbosity(logging.WARNING)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # multivariate TPE is marked experimental
+            sampler = optuna.samplers.TPESampler(
+                seed=seed,
+                n_startup_trials=max(1, min(10, self.budget // 2)),  # our choice: half the budget random, ≤ 10
+                multivariate=True,
+                constraints_func=lambda ft: ft.user_attrs["constraints"],
+            )
+        self.study = optuna.create_study(direction="minimize", sampler=sampler)
+        self.dists: dict[str, Any] = {
+            p.name: optuna.distributions.FloatDistribution(p.lo, p.hi, log=p.log) for p in self.params
+        }
+        self.default = {p.name: float(min(max(default[p.name], p.lo), p.hi)) for p in self.params}
+        self.study.enqueue_trial(self.default)
+        self.records: list[TrialRecord] = []
+        self._pending: list[Any] = []
+
+    @property
+    def remaining(self) -> int:
+        """Trials not yet asked for."""
+        return self.budget - len(self.records) - len(self._pending)
+
+    def ask(self, k: int) -> list[dict[str, float]]:
+        """Up to ``k`` new parameter sets (fewer when the budget runs out)."""
+        import warnings
+
+        out = []
+        for _ in range(min(k, self.remaining)):
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                t = self.study.ask(self.dists)
+            self._pending.append(t)
+            out.append({p.name: float(t.params[p.name]) for p in self.params})
+        return out
+
+    def tell(self, scores: Sequence[tuple[float, Sequence[float]]]) -> None:
+        """The (objective, constraints) of the sets of the last :meth:`ask`, in its order."""
+        if len(scores) != len(self._pending):
+            raise ParameterError(f"Tuner.tell: {len(scores)} scores for {len(self._pending)} asked sets")
+        for t, (obj, cons) in zip(self._pending, scores):
+            t.set_user_attr("constraints", [float(c) for c in cons])
+            self.study.tell(t, float(obj))
+            self.records.append(
+                TrialRecord(t.number, {p.name: float(t.params[p.name]) for p in self.params}, float(obj), list(cons))
+            )
+        self._pending = []
+
+    def best(self) -> TrialRecord | None:
+        """The feasible trial of lowest objective (the earliest on a tie), or None when none is feasible."""
+        ok = [r for r in self.records if r.feasible]
+        return min(ok, key=lambda r: (r.objective, r.number)) if ok else None
+
+
+def optimise(
+    params: Sequence[Param],
+    default: Mapping[str, float],
+    budget: int,
+    evaluate: Callable[[list[dict[str, float]]], list[tuple[float, Sequence[float]]]],
+    seed: int = 1,
+    batch: int = 4,
+) -> Tuner:
+    """Tune ``params`` from ``default`` with ``budget`` trials, ``batch`` at a time: ``evaluate(sets)`` returns one
+    (objective, constraints) per set. Returns the finished :class:`Tuner` (records, best)."""
+    t = Tuner(params, default, budget, seed)
+    batch = check_budget(batch, "batch")
+    while t.remaining > 0:
+        sets = t.ask(batch)
+        t.tell(evaluate(sets))
+    return t
+
+
+# ----------------------------------------------------------------------------- through the study layer
+
+
+def _controller(space: Space) -> Any:
+    from .study.model import Controller
+
+    return Controller(space.label, space.kind, space.law if space.kind == "law" else "mpc")
+
+
+def _task(space: Space, values: Mapping[str, float] | None, case: Case, index: int) -> Any:
+    from .study.model import Point
+    from .study.tasks import make_task
+
+    doc = case_document(space, values, case)
+    return make_task(Point(index, case.name, dict(values or {}), doc, case.file), _controller(space))
+
+
+@dataclass
+class Evaluator:
+    """Runs parameter sets on cases as study tasks (:func:`aev_ocp.study.runner.execute`, results in the store
+    ``<folder>/points/``) and counts the closed-loop evaluations asked for per controller."""
+
+    folder: Path
+    executor: str = "pool"
+    workers: int | None = None
+    scheduler: str | None = None
+    progress_stream: Any = None
+    counts: dict[str, int] = field(default_factory=dict)
+
+    def run(
+        self, jobs: Sequence[tuple[Space, Mapping[str, float] | None, Sequence[Case]]], name: str = "tune"
+    ) -> list[list[dict[str, Any]]]:
+        """For each job (space, values or None for the defaults, cases): its runs' summaries, in case order; all
+        jobs' tasks are executed together (one study execution)."""
+        from .study.runner import Store, execute
+
+        tasks: list[Any] = []
+        for space, values, cases in jobs:
+            for case in cases:
+                tasks.append(_task(space, values, case, len(tasks)))
+            self.counts[space.label] = self.counts.get(space.label, 0) + len(cases)
+        results = execute(
+            tasks,
+            Store(self.folder),
+            executor=self.executor,
+            workers=self.workers,
+            scheduler=self.scheduler,
+            name=name,
+            progress_stream=self.progress_stream,
+        )
+        out: list[list[dict[str, Any]]] = [[] for _ in jobs]
+        k = 0
+        for j, (_, _, cases) in enumerate(jobs):
+            for case in cases:
+                out[j].append(run_summary(results[tasks[k].key], case))
+                k += 1
+        return out
+
+
+@dataclass
+class TuningOutput:
+    """What :func:`run_tuning` wrote: the folder, its files, the summary rows and the per-run rows."""
+
+    folder: Path
+    files: list[Path]
+    summary: list[dict[str, Any]]
+    runs: list[dict[str, Any]]
+    result: dict[str, Any]
+
+
+#: Files of a tuning folder.
+FILES = ("tuning.md", "tuning.csv", "runs.csv", "trials.csv", "tuning.json")
+
+
+def run_tuning(
+    controllers: Sequence[str] = tuple(TUNING_TABLE),
+    budget: int = 16,
+    out: str | Path | None = None,
+    *,
+    seed: int = 1,
+    batch: int = 4,
+    bounds: Mapping[str, Mapping[str, tuple[float, float]]] | None = None,
+    executor: str = "pool",
+    workers: int | None = None,
+    scheduler: str | None = None,
+    progress_stream: Any = None,
+    command: str | None = None,
+) -> TuningOutput:
+    """Tune each controller with ``budget`` trials (each trial one run per training case), ``batch`` trials per
+    controller per study execution, sampler seed ``seed``; then run default and tuned on the training and held-out
+    cases and write :data:`FILES` into ``out`` (default results/tune). executor, workers, scheduler: as
+    :func:`aev_ocp.study.runner.execute`."""
+    from .results import claim_output_dir, output_lock
+    from .study.runner import check_executor
+
+    spaces = check_spaces(list(controllers), bounds)
+    budget = check_budget(budget)
+    batch = check_budget(batch, "batch")
+    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
+        raise ParameterError(f"tuning: seed = {echo(seed)} is not allowed: must be an integer >= 0")
+    check_executor(executor, workers, scheduler)
+    folder = Path(out) if out is not None else Path("results") / "tune"
+    train, held = training_cases(), heldout_cases()
+    with output_lock(folder):
+        claim_output_dir(folder, "tune", "tuning", None, list(FILES))
+        ev = Evaluator(folder, executor, workers, scheduler, progress_stream)
+        defaults = {s.label: default_values(s, train[0].document, train[0].file) for s in spaces}
+        tuners = {s.label: Tuner(s.params, defaults[s.label], budget, seed) for s in spaces}
+        rnd = 0
+        while any(t.remaining > 0 for t in tuners.values()):
+            asked = {s.label: tuners[s.label].ask(batch) for s in spaces}
+            jobs = [(s, v, train) for s in spaces for v in asked[s.label]]
+            runs = ev.run(jobs, name=f"tune round {rnd}")
+            k = 0
+            for s in spaces:
+                scores = []
+                for _ in asked[s.label]:
+                    scores.append(score(runs[k], train))
+                    k += 1
+                tuners[s.label].tell(scores)
+            rnd += 1
+        tuned_evals = dict(ev.counts)
+        # default and tuned on every case, each one SI parameter set (the default: the first training scenario's, so a
+        # scenario's own law scales, e.g. US06's ℓ = 20 m, u = 22 m/s, do not make the default differ between cases);
+        # the default's training runs are trial 0's: the store has them
+        best = {s.label: tuners[s.label].best() for s in spaces}
+        jobs2: list[tuple[Space, Mapping[str, float] | None, Sequence[Case]]] = []
+        for s in spaces:
+            b = best[s.label]
+            jobs2.append((s, defaults[s.label], train + held))  # one SI set on every case, as the tuned one
+            jobs2.append((s, b.values if b is not None else None, train + held))
+        final = ev.run(jobs2, name="tune: default and tuned")
+        return _write(
+            folder, spaces, tuners, defaults, best, final, train, held, budget, seed, batch, tuned_evals, command
+        )
+
+
+def _fmt(x: Any, d: int = 3) -> str:
+    if isinstance(x, float):
+        if not math.isfinite(x):
+            return "–" if math.isnan(x) else ("∞" if x > 0 else "−∞")
+        return f"{x:.{d}g}"
+    return str(x)
+
+
+def _aggregate(runs: Sequence[Mapping[str, Any]], cases: Sequence[Case]) -> dict[str, Any]:
+    """Summary of runs on cases: mean energy over the drive cycles, feasible runs, worst of each constraint."""
+    cyc = [r["battery_energy_kWh_per_100km"] for r, c in zip(runs, cases) if c.kind == "cycle"]
+    ok = [feasible(score([r], [c])[1]) for r, c in zip(runs, cases)]
+    cons = score(runs, cases)[1]
+    return {
+        "battery_energy_kWh_per_100km": float(np.mean(cyc)) if cyc and all(map(math.isfinite, cyc)) else math.nan,
+        "feasible_runs": sum(ok),
+        "runs": len(runs),
+        "collisions_or_events": int(cons[0]),
+        "min_gap_m": min((r["min_gap_m"] for r in runs), default=math.nan),
+        "min_ttc_s": min((r["min_ttc_s"] for r in runs), default=math.nan),
+        "max_rms_jerk_mps3": max((r["rms_jerk_mps3"] for r in runs), default=math.nan),
+        "max_mean_time_gap_s": max(
+            (r["mean_time_gap_s"] for r, c in zip(runs, cases) if c.kind == "cycle"), default=math.nan
+        ),
+    }
+
+
+def _write(
+    folder: Path,
+    spaces: Sequence[Space],
+    tuners: Mapping[str, Tuner],
+    defaults: Mapping[str, Mapping[str, float]],
+    best: Mapping[str, TrialRecord | None],
+    final: Sequence[Sequence[Mapping[str, Any]]],
+    train: Sequence[Case],
+    held: Sequence[Case],
+    budget: int,
+    seed: int,
+    batch: int,
+    evals: Mapping[str, int],
+    command: str | None,
+) -> TuningOutput:
+    import csv
+    import io
+
+    from .report import markdown_table
+    from .results import to_jsonable, write_atomic, write_json
+
+    cases = list(train) + list(held)
+    summary, runs_rows, trials_rows = [], [], []
+    for i, s in enumerate(spaces):
+        for which, runs in (("default", final[2 * i]), ("tuned", final[2 * i + 1])):
+            for split, sub in (("train", list(train)), ("held-out", list(held))):
+                rr = [r for r, c in zip(runs, cases) if c.split == split]
+                summary.append({"controller": s.label, "set": which, "split": split, **_aggregate(rr, sub)})
+            for r, c in zip(runs, cases):
+                runs_rows.append({"controller": s.label, "set": which, "split": c.split, "case": c.name, **r})
+        for rec in tuners[s.label].records:
+            trials_rows.append(
+                {
+                    "controller": s.label,
+                    "trial": rec.number,
+                    "objective_kWh_per_100km": rec.objective,
+                    "feasible": rec.feasible,
+                    **{f"violation_{k}": v for k, v in zip(CONSTRAINTS, rec.constraints)},
+                    **rec.values,
+                }
+            )
+
+    def csv_text(rows: list[dict[str, Any]]) -> str:
+        keys: list[str] = []
+        for r in rows:
+            keys += [k for k in r if k not in keys]
+        buf = io.StringIO()
+        w = csv.DictWriter(buf, fieldnames=keys, lineterminator="\n")
+        w.writeheader()
+        w.writerows(rows)
+        return buf.getvalue()
+
+    n_train = len(train)
+    per_ctrl: dict[str, dict[str, Any]] = {}
+    for s in spaces:
+        b = best[s.label]
+        per_ctrl[s.label] = {
+            "parameters": [
+                {
+                    "name": p.name,
+                    "meaning": p.meaning,
+                    "lo": p.lo,
+                    "hi": p.hi,
+                    "log": p.log,
+                    "default": defaults[s.label][p.name],
+                    "tuned": b.values[p.name] if b is not None else None,
+                }
+                for p in s.params
+            ],
+            "trials": budget,
+            "closed_loop_evaluations": evals.get(s.label, 0),
+            "best_trial": b.number if b is not None else None,
+            "tuned_overrides": (
+                scenario_overrides(s, b.values, train[0].document, train[0].file) if b is not None else None
+            ),
+        }
+    result = {
+        "command": command,
+        "budget_trials": budget,
+        "training_cases": [c.name for c in train],
+        "heldout_cases": [c.name for c in held],
+        "closed_loop_evaluations_per_controller": budget * n_train,
+        "seed": seed,
+        "batch": batch,
+        "sampler": "optuna TPESampler (multivariate, constrained), seed fixed",
+        "limits": LIMITS,
+        "controllers": per_ctrl,
+        "summary": summary,
+    }
+    md = [
+        "# Equal tuning effort: each controller at its default and tuned",
+        "",
+        f"Command: `{command}`" if command else "",
+        "",
+        f"Budget: {budget} trials per controller × {n_train} training scenarios = {budget * n_train} closed-loop "
+        f"evaluations per controller (trial 0 is the default); optuna TPE, seed {seed}, {batch} trials per "
+        "controller per study execution.",
+        f"Training: {', '.join(c.name for c in train)}. Held-out: {', '.join(c.name for c in held)}.",
+        "Objective: the follower's battery energy [kWh/100 km], mean over the training drive cycles. Feasible: no "
+        f"event, min gap ≥ {LIMITS['min_gap_m']:g} m, min TTC ≥ {LIMITS['min_ttc_s']:g} s, RMS jerk ≤ "
+        f"{LIMITS['rms_jerk_max_mps3']:g} m/s³, mean time gap while moving ≤ {LIMITS['mean_time_gap_max_s']:g} s "
+        "(drive cycles).",
+        "",
+        "## What was tuned",
+        "",
+    ]
+    prow = []
+    for s in spaces:
+        for p in per_ctrl[s.label]["parameters"]:
+            prow.append(
+                [
+                    s.label,
+                    p["name"],
+                    p["meaning"],
+                    f"[{_fmt(p['lo'])}, {_fmt(p['hi'])}]" + (" log" if p["log"] else ""),
+                    _fmt(p["default"], 4),
+                    _fmt(p["tuned"], 4) if p["tuned"] is not None else "no feasible trial",
+                ]
+            )
+    md.append(markdown_table(["controller", "parameter (SI)", "meaning", "bounds", "default", "tuned"], prow))
+    md += ["", "## Default and tuned, side by side", ""]
+    srow = []
+    for s in spaces:
+        cell: dict[tuple[str, str], dict[str, Any]] = {
+            (r["set"], r["split"]): r for r in summary if r["controller"] == s.label
+        }
+        row = [s.label, f"{budget} / {evals.get(s.label, 0)}"]
+        for split in ("train", "held-out"):
+            for which in ("default", "tuned"):
+                r = cell[(which, split)]
+                row.append(f"{_fmt(r['battery_energy_kWh_per_100km'], 4)} ({r['feasible_runs']}/{r['runs']} feasible)")
+            e0, e1 = (cell[(w, split)]["battery_energy_kWh_per_100km"] for w in ("default", "tuned"))
+            row.append(f"{100.0 * (e1 - e0) / e0:+.1f}" if math.isfinite(e0) and math.isfinite(e1) and e0 else "–")
+        srow.append(row)
+    md.append(
+        markdown_table(
+            [
+                "controller",
+                "trials / evaluations",
+                "train default",
+                "train tuned",
+                "change %",
+                "held-out default",
+                "held-out tuned",
+                "change %",
+            ],
+            srow,
+        )
+    )
+    md += [
+        "",
+        "Energy: kWh/100 km, mean over the drive cycles of the split (held-out: US06 only; the safety cases count "
+        "for feasibility); change: tuned against default. Default and tuned are each one SI parameter set on every "
+        "case (the default: the first training scenario's). A run is feasible when it meets the constraints above "
+        "(a safety case: no event, the gap).",
+        "",
+        "## Every run",
+        "",
+        markdown_table(
+            [
+                "controller",
+                "set",
+                "split",
+                "case",
+                "status",
+                "kWh/100 km",
+                "min gap m",
+                "min TTC s",
+                "RMS jerk m/s³",
+                "mean time gap s",
+            ],
+            [
+                [
+                    r["controller"],
+                    r["set"],
+                    r["split"],
+                    r["case"],
+                    r["status"],
+                    _fmt(r["battery_energy_kWh_per_100km"], 4),
+                    _fmt(r["min_gap_m"]),
+                    _fmt(r["min_ttc_s"]),
+                    _fmt(r["rms_jerk_mps3"]),
+                    _fmt(r["mean_time_gap_s"]),
+                ]
+                for r in runs_rows
+            ],
+        ),
+        "",
+    ]
+    files = [
+        write_atomic(folder / "tuning.md", "\n".join(md)),
+        write_atomic(folder / "tuning.csv", csv_text(summary)),
+        write_atomic(folder / "runs.csv", csv_text(runs_rows)),
+        write_atomic(folder / "trials.csv", csv_text(trials_rows)),
+        write_json(folder / "tuning.json", to_jsonable({**result, "runs": runs_rows})),
+    ]
+    return TuningOutput(folder, files, summary, runs_rows, result)
+
+
+# ----------------------------------------------------------------------------- command line
+
+
+def _bounds_arg(items: Sequence[str]) -> dict[str, dict[str, tuple[float, float]]]:
+    out: dict[str, dict[str, tuple[float, float]]] = {}
+    for it in items:
+        try:
+            key, rng = it.split("=", 1)
+            ctrl, name = key.strip().split(".", 1)
+            lo, hi = (float(x) for x in rng.split(":"))
+        except ValueError:
+            raise ParameterError(
+                f"--bounds {it!r} is not allowed: must be CONTROLLER.PARAMETER=LO:HI, e.g. idm.T_s=0.8:2.5"
+            ) from None
+        out.setdefault(ctrl, {})[name] = (lo, hi)
+    return out
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """Argument parser of ``aev-ocp tune``."""
+    from .console import OneLineParser
+
+    p = OneLineParser(
+        prog="aev-ocp tune",
+        description="Tune every controller with the same budget of closed-loop evaluations (optuna TPE, fixed "
+        "seed) on training drive-cycle segments; report default and tuned side by side on training and held-out "
+        "scenarios (tuning.md, tuning.csv, runs.csv, trials.csv, tuning.json). Rerun to resume.",
+    )
+    p.add_argument(
+        "--controllers", default=",".join(TUNING_TABLE), help=f"comma-separated (default {','.join(TUNING_TABLE)})"
+    )
+    p.add_argument("--budget", type=int, default=16, help="trials per controller (default 16)")
+    p.add_argument("--batch", type=int, default=4, help="trials per controller per study execution (default 4)")
+    p.add_argument("--seed", type=int, default=1, help="the sampler's seed (default 1)")
+    p.add_argument(
+        "--bounds",
+        action="append",
+        default=[],
+        metavar="CTRL.PARAM=LO:HI",
+        help="replace a parameter's bounds (repeatable), e.g. idm.T_s=0.8:2.5",
+    )
+    p.add_argument("--out", default=None, help="output folder (default results/tune)")
+    ex = p.add_mutually_exclusive_group()
+    ex.add_argument(
+        "--workers", type=int, default=None, metavar="N", help="process pool of N workers (default: one per core)"
+    )
+    ex.add_argument("--dask-local", type=int, default=None, metavar="N", help="a Dask LocalCluster of N workers")
+    ex.add_argument("--scheduler", default=None, metavar="ADDRESS", help="a running Dask scheduler")
+    ex.add_argument("--in-process", action="store_true", help="run every task in this process")
+    return p
+
+
+def cli_tune(argv: list[str]) -> int:
+    """Entry point of ``aev-ocp tune``: 0 done, 2 bad input."""
+    from .console import EXIT_BAD_INPUT, EXIT_OK
+    from .console import error_line as _err
+
+    try:
+        a = build_parser().parse_args(argv)
+    except SystemExit as exc:
+        return int(exc.code or 0)
+    if a.in_process:
+        kw: dict[str, Any] = {"executor": "inprocess"}
+    elif a.dask_local is not None or a.scheduler is not None:
+        kw = {"executor": "dask", "workers": a.dask_local, "scheduler": a.scheduler}
+    else:
+        kw = {"executor": "pool", "workers": a.workers}
+    command = "aev-ocp tune " + " ".join(argv)
+    try:
+        res = run_tuning(
+            [c.strip() for c in a.controllers.split(",") if c.strip()],
+            a.budget,
+            a.out,
+            seed=a.seed,
+            batch=a.batch,
+            bounds=_bounds_arg(a.bounds),
+            command=command.strip(),
+            **kw,
+        )
+    except ParameterError as exc:
+        _err(str(exc))
+        return EXIT_BAD_INPUT
+    for r in res.summary:
+        print(
+            f"{r['controller']:>9} {r['set']:>7} {r['split']:>8}: {_fmt(r['battery_energy_kWh_per_100km'], 4)} "
+            f"kWh/100 km, {r['feasible_runs']}/{r['runs']} feasible"
+        )
+    print(f"wrote {len(res.files)} files to {res.folder}/")
+    return EXIT_OK
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(cli_tune(sys.argv[1:]))

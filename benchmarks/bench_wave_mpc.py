@@ -1,0 +1,298 @@
+"""The wave-damping MPC on the Sugiyama ring over seeds (issue 36 item 4): ONE car among 21 humans.
+
+For each seed the ring scenario (default scenarios/ring_wave.toml: 22 vehicles on 230 m, the AEV under the safety
+layer) runs all human, with vehicle 1 a FollowerStopper car and with vehicle 1 the wave MPC
+(:class:`aev_ocp.mpc.wave.WaveMPC`); fleet metrics over the second half (:func:`aev_ocp.ring.experiments.fleet_metrics`).
+The table gives each metric's mean over the seeds with its 95 % interval (:mod:`aev_ocp.intervals`) and the three
+targets as paired per-seed quantities with their intervals:
+
+* speed std of the wave-MPC ring / the all-human ring's (target ≤ 0.20);
+* mean speed of the wave-MPC ring − the FollowerStopper ring's [m/s] (target ≥ 0);
+* fleet battery energy per km of the wave-MPC ring / the all-human ring's (target ≤ 1).
+
+``--safety`` runs the safety suite's following cases (:data:`SAFETY_CASES`) with the wave MPC under the safety layer.
+A target is "met" when its whole interval is on the right side, "met on the mean" when only the mean is. The MPC's
+weights were tuned on seeds 0–2; the default seeds are 10–19 (not seen in tuning). ``--linear`` adds the design
+check of the mixed-ring theory (:mod:`aev_ocp.stability.mixed`): the wave MPC's secant gains at the ring's
+equilibrium (:func:`aev_ocp.mpc.wave.linear_gains`, v_ref held: the 38 s average is slow against the wave), the
+growth rate of the ring with that car, and the smallest speed weight w_v that makes it linearly stable.
+
+    python benchmarks/bench_wave_mpc.py [--scenario FILE] [--seeds 10 ... 19] [--t-end-s 600] [--linear]
+                                        [--safety] [--wave-params JSON] [--out results/bench_wave_mpc.json]
+
+The wall times are those of a shared 2-core machine; the MPC's solve time per step is the median and maximum of its
+calls (wall) and the run's process CPU time per MPC step is printed beside it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import time
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+import casadi as ca
+import numpy as np
+
+from aev_ocp.intervals import summarize
+from aev_ocp.mpc.wave import WaveMPC, WaveParams, linear_gains
+from aev_ocp.ring.experiments import fleet_metrics
+from aev_ocp.ring.scenario import build_ring, load_ring_scenario
+from aev_ocp.ring.simulate import RingOptions, RingSimulator
+from aev_ocp.stability import mixed
+
+METRICS = (
+    "mean_speed_mps",
+    "speed_std_mps",
+    "battery_energy_J_per_km",
+    "heat_pack_J_per_km",
+    "braking_events",
+    "min_gap_m",
+    "collisions",
+)
+WAVE = "wave-mpc"
+FS = "followerstopper"
+
+
+def run_seed(
+    sc: Any, seed: int, controllers: list[str | None], t_end_s: float, wp: WaveParams | None = None
+) -> dict[str, dict[str, Any]]:
+    """{controller or 'human': fleet metrics (+ CPU time and the MPC's call statistics)} of one seed; ``wp``: the
+    wave MPC's parameters (default WaveParams())."""
+    sc_k = replace(sc, spec=replace(sc.spec, seed=seed))
+    out: dict[str, dict[str, Any]] = {}
+    for c in controllers:
+        ring, init = build_ring(sc_k, c)
+        if c == WAVE and wp is not None:
+            w0 = ring.vehicles[0]
+            ring = replace(ring, vehicles=(WaveMPC(ring.ev, w0.fallback_law, wp, w0.settings), *ring.vehicles[1:]))
+        sim = RingSimulator(ring, RingOptions(dt_out_s=0.5))
+        c0 = time.process_time()
+        res = sim.run(init, t_end_s)
+        cpu = time.process_time() - c0
+        f = fleet_metrics(res)
+        f["cpu_s"] = cpu
+        st = res.sim.solver_stats[0]
+        if st:
+            f["call_ms_median"], f["call_ms_max"] = st["call_ms_median"], st["call_ms_max"]
+            f["fallbacks"], f["steps"] = st["fallbacks"], st["steps"]
+            f["cpu_ms_per_step"] = 1e3 * cpu / max(1, st["steps"])
+        out[c or "human"] = f
+    return out
+
+
+def interval(x: list[float]) -> dict[str, Any]:
+    """Mean and 95 % t interval of one value per seed."""
+    return summarize(np.asarray(x, float)).as_dict()
+
+
+def linear_design(sc: Any, wp: WaveParams) -> dict[str, Any]:
+    """The mixed-ring theory's view of the wave MPC on the scenario's ring (module docstring)."""
+    ring, _ = build_ring(sc, WAVE)
+    ev, u = ring.ev, ring.ev.units
+    n, ell, L = ring.n, ring.vehicle_length_m, ring.length_m
+    humans = [mixed.si_accel(ring.vehicles[i], u) for i in range(1, n)]
+    delays = [float(ring.delay_s[i]) if getattr(ring, "delay_s", None) else 0.0 for i in range(1, n)]
+    dt_s = float(u.time_to_si(ring.vehicles[0].dt))
+
+    def equilibrium(w: WaveParams) -> tuple[float, float]:
+        """(v, h_c(v)): the speed at which the humans' equilibrium gaps and the car's centring gap fill the ring."""
+        lo, hi = 0.05, 20.0
+        for _ in range(60):
+            v = 0.5 * (lo + hi)
+            total = sum(mixed.equilibrium_gap_m(f, v) for f in humans) + w.centre_gap_m + w.centre_time_gap_s * v
+            lo, hi = (lo, v) if total + n * ell > L else (v, hi)
+        v = 0.5 * (lo + hi)
+        return v, w.centre_gap_m + w.centre_time_gap_s * v
+
+    def analyse(w: WaveParams) -> dict[str, Any]:
+        v0, h0 = equilibrium(w)
+        g = linear_gains(ev, w, h_m=h0, v_mps=v0)
+        h, v, vl = ca.SX.sym("h"), ca.SX.sym("v"), ca.SX.sym("vl")
+        law = g["f_h_per_s2"] * (h - h0) + g["f_v_per_s"] * (v - v0) + g["f_dv_per_s"] * (vl - v)
+        aev = ca.Function("wave_lin", [h, v, vl], [law])
+        # the zero-order hold of the sampled MPC: about half a sample of delay
+        r = mixed.analyse_mixed_ring([aev, *humans], L, ell, 60.0, delays_s=[0.5 * dt_s, *delays])
+        return {"v_star_mps": v0, "gap_m": h0, **g, "growth_rate_per_s": r.growth_rate_per_s}
+
+    human_only = mixed.analyse_mixed_ring(
+        [humans[0], *humans], L, ell, 60.0, delays_s=[delays[0], *delays]
+    ).growth_rate_per_s
+    tuned = analyse(wp)
+    lo, hi = 0.01, wp.speed_weight
+    if analyse(replace(wp, speed_weight=lo))["growth_rate_per_s"] < 0 or tuned["growth_rate_per_s"] >= 0:
+        w_min = None
+    else:
+        while hi / lo > 1.05:
+            mid = (lo * hi) ** 0.5
+            lo, hi = (lo, mid) if analyse(replace(wp, speed_weight=mid))["growth_rate_per_s"] < 0 else (mid, hi)
+        w_min = hi
+    return {"all_human_growth_rate_per_s": human_only, "wave_mpc": tuned, "min_speed_weight": w_min}
+
+
+#: the safety suite's cases that test a following controller (aev_ocp.safety.cases): a lead that brakes while it is
+#: followed (CCRb, Euro NCAP and ours at motorway speed), a slower lead (CCRm) and a standing one (CCRs)
+SAFETY_CASES = (
+    "CCRb_50kmh_12m_-2mps2",
+    "CCRb_50kmh_12m_-6mps2",
+    "CCRb_50kmh_40m_-6mps2",
+    "CCRb_100kmh_40m_-6mps2",
+    "CCRm_50kmh",
+    "CCRs_30kmh",
+)
+
+
+def safety_check(names: tuple[str, ...] = SAFETY_CASES, wp: WaveParams | None = None) -> list[dict[str, Any]]:
+    """The wave MPC under the safety layer (as the suite runs 'mpc+layer': min(command, the braking-distance bound),
+    the actuator's worst delay in its reaction time) on suite cases, at the ideal and the declared actuator: status,
+    collision, min gap [m] and the case's avoidability label."""
+    from aev_ocp.control import ClosedLoop
+    from aev_ocp.models.carfollowing import Proposed
+    from aev_ocp.models.leader import BrakingLeader
+    from aev_ocp.params import EVParams
+    from aev_ocp.safety.cases import ACTUATORS, CASE_UNITS, suite_cases
+    from aev_ocp.safety.fallback import SafeFallback
+    from aev_ocp.safety.suite import LayeredController, case_bound, layer_changes
+
+    u = CASE_UNITS
+    cases = {c.name: c for c in suite_cases()}
+    rows = []
+    for name in names:
+        case = cases[name]
+        leader = BrakingLeader.from_si(case.v_lead_mps, case.a_lead_mps2, case.t_brake_s, u)
+        for act_name, act in ACTUATORS.items():
+            ev = EVParams(units=u, limits=act.limits())
+            inner = WaveMPC(ev, Proposed(), wp)
+            ctl = LayeredController(inner, SafeFallback.for_vehicle(None, ev, inner.dt, **layer_changes(ev)))
+            t_end = inner.dt * max(1, round(float(u.time_from_si(case.t_end_s)) / inner.dt))
+            r = ClosedLoop(leader, [ctl], ev).run(
+                [float(u.length_from_si(case.gap_m))], [float(u.speed_from_si(case.v_ego_mps))], t_end
+            )
+            gap = u.length_to_si(r.gap[:, 0])
+            bound = case_bound(case, act, ev.limits.a_min_mps2, 2.0)
+            rows.append(
+                {
+                    "case": name,
+                    "actuator": act_name,
+                    "status": r.status,
+                    "collision": any(e.kind == "collision" for e in r.events),
+                    "min_gap_m": float(min(gap)),
+                    "label": bound.label,
+                    "fallbacks": int(sum(st.get("fallbacks", 0) for st in r.solver_stats if st)),
+                }
+            )
+            print(
+                f"  {name:26s} {act_name:9s} {rows[-1]['status']:10s} min gap {rows[-1]['min_gap_m']:.3f} m "
+                f"collision {rows[-1]['collision']}  ({bound.label})",
+                flush=True,
+            )
+    return rows
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--scenario", default=str(Path(__file__).parent.parent / "scenarios" / "ring_wave.toml"))
+    ap.add_argument("--seeds", type=int, nargs="+", default=list(range(10, 20)))
+    ap.add_argument("--t-end-s", type=float, default=None)
+    ap.add_argument("--linear", action="store_true", help="add the mixed-ring linear design check")
+    ap.add_argument("--wave-params", default="{}", help="WaveParams fields as JSON (default: the defaults)")
+    ap.add_argument("--safety", action="store_true", help="add the safety-suite cases under the safety layer")
+    ap.add_argument("--out", default="results/bench_wave_mpc.json")
+    a = ap.parse_args(argv)
+    sc = load_ring_scenario(a.scenario)
+    wp = replace(WaveParams(), **json.loads(a.wave_params))
+    t_end = a.t_end_s if a.t_end_s is not None else sc.spec.t_end_s
+    ctrls: list[str | None] = [None, FS, WAVE]
+    load = os.getloadavg()[0]
+    per_seed: dict[int, dict[str, dict[str, Any]]] = {}
+    for k in a.seeds:
+        per_seed[k] = run_seed(sc, k, ctrls, t_end, wp)
+        w = per_seed[k][WAVE]
+        print(
+            f"seed {k}: std human {per_seed[k]['human']['speed_std_mps']:.3f}  FS {per_seed[k][FS]['speed_std_mps']:.3f}"
+            f"  wave {w['speed_std_mps']:.3f} m/s; mean speed FS {per_seed[k][FS]['mean_speed_mps']:.3f}  wave "
+            f"{w['mean_speed_mps']:.3f} m/s; collisions {w['collisions']}, fallbacks {w['fallbacks']}",
+            flush=True,
+        )
+    table: dict[str, Any] = {}
+    for c in ("human", FS, WAVE):
+        table[c] = {m: interval([per_seed[k][c][m] for k in a.seeds]) for m in METRICS}
+    for m in ("call_ms_median", "call_ms_max", "cpu_ms_per_step", "fallbacks"):
+        table[WAVE][m] = interval([per_seed[k][WAVE][m] for k in a.seeds])
+    hum = {k: per_seed[k]["human"] for k in a.seeds}
+    targets = {
+        "speed_std_ratio_to_human": (
+            interval([per_seed[k][WAVE]["speed_std_mps"] / hum[k]["speed_std_mps"] for k in a.seeds]),
+            "<=",
+            0.20,
+        ),
+        "mean_speed_minus_followerstopper_mps": (
+            interval([per_seed[k][WAVE]["mean_speed_mps"] - per_seed[k][FS]["mean_speed_mps"] for k in a.seeds]),
+            ">=",
+            0.0,
+        ),
+        "battery_energy_ratio_to_human": (
+            interval(
+                [per_seed[k][WAVE]["battery_energy_J_per_km"] / hum[k]["battery_energy_J_per_km"] for k in a.seeds]
+            ),
+            "<=",
+            1.0,
+        ),
+    }
+    verdicts = {}
+    for name, (iv, op, bound) in targets.items():
+        worst, mean = (iv["hi"], iv["mean"]) if op == "<=" else (-iv["lo"], -iv["mean"])
+        b = bound if op == "<=" else -bound
+        verdicts[name] = {
+            **iv,
+            "target": f"{op} {bound:g}",
+            "verdict": "met" if worst <= b else "met on the mean" if mean <= b else "not met",
+        }
+    print(
+        f"\n{len(a.seeds)} seeds {a.seeds[0]}..{a.seeds[-1]}, {t_end:g} s, metrics over the second half (load {load:.1f})"
+    )
+    print(f"{'metric':28s}" + "".join(f"{c:>30s}" for c in ("human", FS, WAVE)))
+    for m in METRICS:
+        cells = [table[c][m] for c in ("human", FS, WAVE)]
+        print(f"{m:28s}" + "".join(f"{x['mean']:>12.4g} [{x['lo']:.4g}, {x['hi']:.4g}]".rjust(30) for x in cells))
+    for m in ("call_ms_median", "call_ms_max", "cpu_ms_per_step", "fallbacks"):
+        x = table[WAVE][m]
+        print(f"{'wave-mpc ' + m:28s}{x['mean']:>12.4g} [{x['lo']:.4g}, {x['hi']:.4g}]")
+    print("\ntargets (paired over seeds, 95 % intervals):")
+    for name, v in verdicts.items():
+        print(f"  {name:40s} {v['mean']:.4g} [{v['lo']:.4g}, {v['hi']:.4g}]  target {v['target']}: {v['verdict']}")
+    doc: dict[str, Any] = {
+        "scenario": a.scenario,
+        "seeds": a.seeds,
+        "t_end_s": t_end,
+        "load_1min_at_start": load,
+        "wave_params": repr(wp),
+        "per_seed": {str(k): v for k, v in per_seed.items()},
+        "table": table,
+        "targets": verdicts,
+    }
+    if a.linear:
+        doc["linear"] = lin = linear_design(sc, wp)
+        print(
+            f"\nlinear theory: all-human growth {lin['all_human_growth_rate_per_s']:.4g} 1/s; with the wave MPC "
+            f"{lin['wave_mpc']['growth_rate_per_s']:.4g} 1/s (f_h {lin['wave_mpc']['f_h_per_s2']:.4g} 1/s², f_v "
+            f"{lin['wave_mpc']['f_v_per_s']:.4g} 1/s, f_dv {lin['wave_mpc']['f_dv_per_s']:.4g} 1/s); smallest stable "
+            f"speed weight {lin['min_speed_weight']}"
+        )
+    if a.safety:
+        print("\nsafety suite cases, the wave MPC under the safety layer:")
+        doc["safety"] = safety_check(wp=wp)
+    out = Path(a.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out.with_suffix(".json.tmp")
+    tmp.write_text(json.dumps(doc, indent=1, default=float))
+    os.replace(tmp, out)  # atomic
+    print(f"wrote {out}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,167 @@
+"""The wave-damping MPC (aev_ocp.mpc.wave) against independent results: its first move on a linear-quadratic instance
+equals the Riccati recursion written out here; its linearised gains equal that recursion's gain; its commands stay
+within the bounds; behind a constant-speed leader it converges to the leader's speed and its centring gap; v_ref is
+the mean of its own measured speeds; it runs the ring under the safety layer without a collision."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from aev_ocp.control import run_closed_loop
+from aev_ocp.loop import Observation
+from aev_ocp.models.carfollowing import Proposed
+from aev_ocp.models.leader import ConstantSpeed
+from aev_ocp.mpc.settings import MPCSettings
+from aev_ocp.mpc.wave import SpeedAverage, WaveMPC, WaveParams, linear_gains, wave_problem
+from aev_ocp.ocp.traffic import TrafficParams
+from aev_ocp.params import EVParams, ParameterError
+
+EV = EVParams()
+U = EV.units
+#: settings of the tests' own parameter sets: interpreted (no C compiled for a problem built once here)
+S = MPCSettings(codegen=False)
+#: an LQ instance: only w_v (v − v_ref)² and w_a a² (and the terminal w_vT (v_N − v_ref)²); energy, heat, jerk and
+#: the gap centring off, the gap well inside its band, so the problem is v_{k+1} = v_k + h a_k with a quadratic cost
+W_V, W_A, W_VT = 1.7, 2.3, 3.1
+LQ = WaveParams(
+    speed_weight=W_V,
+    gap_weight=0.0,
+    terminal_speed_weight=W_VT,
+    terminal_gap_weight=0.0,
+    traffic=TrafficParams(energy_weight=0.0, heat_weight=0.0, accel_weight=W_A, jerk_weight=0.0, time_headway_s=0.8),
+)
+
+
+def riccati_gain(N: int, h: float) -> float:
+    """K of the first move a_0 = K (v_0 − v_ref) of min Σ_{k<N} h (w_v e_k² + w_a a_k²) + w_vT e_N², e_{k+1} = e_k + h a_k
+    (backward Riccati recursion, written out by hand)."""
+    P, c = W_VT, h * W_A
+    for _ in range(N - 1):
+        P = h * W_V + P * c / (c + P * h * h)
+    return -P * h / (c + P * h * h)
+
+
+def z0(h_m: float, v_mps: float) -> np.ndarray:
+    return np.array([float(U.length_from_si(h_m)), float(U.speed_from_si(v_mps)), 0.0, 0.0, EV.cell.soc0])
+
+
+def obs(h_m: float, v_mps: float, vl_mps: float, t: float = 0.0) -> Observation:
+    vl = float(U.speed_from_si(vl_mps))
+    return Observation(t, 0.1, 0, z0(h_m, v_mps), np.array([t - 0.2, t - 0.1, t]), np.full(3, vl), None, 0.0)
+
+
+@pytest.mark.parametrize("solver", ["ipopt", "rti"])
+def test_first_move_equals_the_riccati_solution_of_the_lq_instance(solver):
+    from aev_ocp.mpc.controller import MPCController
+    from aev_ocp.ocp.formulation import problem_formulation
+
+    s = MPCSettings(N=17, solver=solver, tol=1e-10, codegen=False)
+    ctl = MPCController(s, EV, formulation=problem_formulation(wave_problem(EV, LQ, s.dt)))
+    h_s = float(U.time_to_si(s.dt))
+    vl = np.full(s.N, float(U.speed_from_si(5.0)))
+    for v0, vref in ((5.0, 6.3), (6.1, 4.4)):
+        ctl.reset()
+        sol = ctl.solve(z0(20.0, v0), vl, vl, own={"a_prev": 0.0, "v_ref": float(U.speed_from_si(vref))})
+        assert sol.success, sol.status
+        a0 = float(U.accel_to_si(sol.a[0]))
+        assert a0 == pytest.approx(riccati_gain(s.N, h_s) * (v0 - vref), rel=1e-6, abs=1e-8)
+
+
+def test_linear_gains_equal_the_riccati_gain():
+    s = MPCSettings(N=17)
+    g = linear_gains(EV, LQ, s, h_m=20.0, v_mps=5.0)
+    assert g["f_v_per_s"] == pytest.approx(riccati_gain(s.N, float(U.time_to_si(s.dt))), rel=1e-5)
+    assert abs(g["f_h_per_s2"]) < 1e-6 and abs(g["f_dv_per_s"]) < 1e-6 and abs(g["a0_mps2"]) < 1e-7
+    with pytest.raises(ParameterError, match="dh_m"):
+        linear_gains(EV, LQ, s, h_m=0.3, v_mps=5.0)
+
+
+def test_the_gap_ceiling_pulls_the_car_forward():
+    """Beyond the soft ceiling h ≤ s_max + T_max v the L1 penalty makes the car accelerate harder than without it."""
+    moves = []
+    for rho in (8.0, 1e-6):
+        c = WaveMPC(EV, Proposed(), WaveParams(band_penalty=rho, gap_weight=0.0, terminal_gap_weight=0.0), S)
+        c.average.update(float(U.speed_from_si(5.0)))
+        moves.append(float(U.accel_to_si(c.command(obs(60.0, 5.0, 5.0)).a)))
+    assert moves[0] > moves[1] + 0.05 and abs(moves[1]) < 0.05
+    # inside the band the ceiling changes nothing
+    inside = []
+    for rho in (8.0, 1e-6):
+        c = WaveMPC(EV, Proposed(), WaveParams(band_penalty=rho), S)
+        inside.append(float(U.accel_to_si(c.command(obs(12.0, 5.0, 5.0)).a)))
+    assert inside[0] == pytest.approx(inside[1], abs=1e-6)
+
+
+def test_commands_stay_within_the_bounds():
+    c = WaveMPC(EV, Proposed())
+    lo, hi = c.formulation.accel_bounds(EV)
+    assert float(U.accel_to_si(lo)) == EV.limits.a_min_mps2 and float(U.accel_to_si(hi)) == EV.limits.a_max_mps2
+    seen = []
+    for h in (0.4, 3.0, 9.0, 45.0, 400.0):
+        for v in (0.0, 2.5, 17.0, 40.0):
+            for vl in (0.0, 6.0, 35.0):
+                c.reset()
+                c.average.update(float(U.speed_from_si(v)) * 1.7 + 1.0)  # a v_ref far from the speed
+                a = c.command(obs(h, v, vl)).a
+                assert np.isfinite(a) and lo - 1e-9 <= a <= hi + 1e-9, (h, v, vl, a)
+                seen.append(a)
+    assert min(seen) < 0.9 * lo and max(seen) > 0.5 * hi  # the bounds are reached, not merely respected
+
+
+def test_v_ref_is_the_mean_of_the_own_measured_speeds():
+    c = WaveMPC(EV, Proposed(), WaveParams(window_s=1.0), S)  # 5 samples of 0.2 s
+    speeds = [3.1, 4.7, 2.2, 5.9, 3.3, 6.4, 1.8, 4.1]
+    for k, v in enumerate(speeds):
+        cmd = c.command(obs(10.0, v, 4.0, t=0.1 * k))
+        mean = np.mean(speeds[max(0, k - 4) : k + 1])
+        assert cmd.info["v_ref_mps"] == pytest.approx(mean, rel=1e-12)
+        # ... and it is the v_ref the problem was solved with (the plan's own state at node 1: constant over the horizon)
+        x1 = c.controller.warm["X1"]
+        assert cmd.ok and float(U.speed_to_si(x1[c.controller.problem.state_names.index("v_ref")])) == (
+            pytest.approx(mean, rel=1e-9)
+        )
+    c.reset()
+    assert np.isnan(c.average.value)
+    with pytest.raises(ParameterError, match="SpeedAverage.n"):
+        SpeedAverage(0)
+    with pytest.raises(ParameterError, match="predictor"):
+        WaveMPC(EV, Proposed(), settings=S, predictor="oracle")
+
+
+@pytest.mark.slow  # 240 s of closed loop: 10-15 s wall under load (about 4 s of one core)
+def test_behind_a_constant_speed_leader_it_converges_to_its_speed_and_centring_gap():
+    wp = WaveParams()
+    vl = 8.0
+    r = run_closed_loop(
+        ConstantSpeed(float(U.speed_from_si(vl))),
+        [WaveMPC(EV, Proposed(), wp)],
+        [float(U.length_from_si(14.0))],
+        [float(U.speed_from_si(6.5))],
+        float(U.time_from_si(240.0)),
+        ev=EV,
+    )
+    assert r.status == "ok"
+    v, h = U.speed_to_si(r.speed[:, 0]), U.length_to_si(r.gap[:, 0])
+    t = U.time_to_si(r.t)
+    late = t >= 200.0
+    assert np.max(np.abs(v[late] - vl)) < 0.05  # the leader's speed, within 0.6 %
+    h_c = wp.centre_gap_m + wp.centre_time_gap_s * vl  # the centring gap at that speed (14 m)
+    assert np.max(np.abs(h[late] - h_c)) < 2.5
+    assert abs(v[0] - vl) > 1.0  # it did have to converge
+
+
+def test_one_wave_mpc_car_on_the_ring_under_the_safety_layer():
+    from aev_ocp.ring.experiments import fleet_metrics
+    from aev_ocp.ring.scenario import build_ring, load_ring_scenario
+    from aev_ocp.ring.simulate import RingSimulator
+
+    sc = load_ring_scenario("scenarios/ring_wave.toml")
+    assert sc.ev.limits.safety_layer and "wave-mpc" in sc.spec.controllers
+    ring, init = build_ring(sc, "wave-mpc")
+    assert isinstance(ring.vehicles[0], WaveMPC) and not ring.human[0] and all(ring.human[1:])
+    res = RingSimulator(ring).run(init, 90.0)
+    f = fleet_metrics(res)
+    assert res.status == "ok" and f["collisions"] == 0 and float(res.gap_m[:, 0].min()) > 2.0  # the car's own gap
+    st = res.sim.solver_stats[0]
+    assert st["steps"] == 450 and st["fallbacks"] == 0 and "safety layer" in st["conditioning"]
