@@ -3,7 +3,7 @@ stated equilibrium speed–gap curve (a fundamental diagram), and save the set w
 
 The fit is a least-squares problem on the equilibrium gap, solved by IPOPT through CasADi's nlpsol (bounds keep
 the parameters physical). The equilibrium gap of each law is closed-form: ℓ V⁻¹(v/u) for the OV-type laws (their
-energy term vanishes at equal speeds, so the proposed law and OVFL share it), (s0 + v T)/√(1 − (v/v0)^δ) for the IDM.
+κ term vanishes at equal speeds, so the proposed law and OVFL share it), (s0 + v T)/√(1 − (v/v0)^δ) for the IDM.
 
 :data:`RING_HUMANS` is the common target of the shipped sets (aev_ocp/data/calibrated/): the equilibrium curve of the
 ring's human drivers, the IDM with Treiber, Hennecke & Helbing 2000's parameters as used for rings in the Flow

@@ -15,6 +15,8 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
+from .intervals import Interval, difference
+from .intervals import verdict as interval_verdict
 from .life import BLAST_MODELS, INSTALL_HINT, DailySchedule, blast_available, daily_profile, life_of_run
 from .params import ParameterError
 from .report import csv_text, fmt, markdown_table, write_text
@@ -204,16 +206,33 @@ COLUMNS = (
 )
 
 
-#: Capacities (relative to new) closer than this across controllers are reported as no measurable difference: the
-#: table prints 4 significant digits, and BLAST-Lite's fits are no better than a tenth of a percent.
+#: The resolution of a capacity (relative to new): each controller's capacity is known to ± half of it. The table
+#: prints 4 significant digits, and BLAST-Lite's fits are no better than a tenth of a percent.
 CAPACITY_RESOLUTION = 1e-3
 
 
+def capacity_difference(a: Sequence[float], b: Sequence[float], resolution: float = CAPACITY_RESOLUTION) -> Interval:
+    """The interval of capacity a − b (relative to new) of two controllers (:mod:`aev_ocp.intervals`): one value each
+    (BLAST-Lite is deterministic) gives a − b ± ``resolution`` (each capacity ± resolution/2, so the interval holds 0
+    exactly when the two capacities' intervals overlap); values over seeds (as many for a as for b, at least 2) give
+    the paired t interval of the difference, widened by the same resolution."""
+    if len(a) >= 2 and len(a) == len(b):
+        d = difference(a, b, paired=True)
+        return Interval(d.mean, d.lo - resolution, d.hi + resolution, d.n, d.level, d.method + "+resolution")
+    if len(a) != 1 or len(b) != 1:
+        raise ParameterError(
+            f"capacity_difference: one capacity per controller, or as many (>= 2, one per seed) for both; "
+            f"got {len(a)} and {len(b)}"
+        )
+    m = float(a[0]) - float(b[0])
+    return Interval(m, m - resolution, m + resolution, 1, 1.0, "resolution")
+
+
 def life_claims(rows: list[dict[str, Any]], years: float) -> list[str]:
-    """One line per (cell,) cycle and ambient: whether the controllers' capacity after ``years`` differs measurably
-    (spread > :data:`CAPACITY_RESOLUTION`: the spread in % of capacity), else 'no measurable difference'; per-cell
-    rows (:func:`life_rows` with ``cells``) add each controller's charge throughput [Ah] and depth of discharge.
-    Empty without life columns."""
+    """One line per (cell,) cycle and ambient: 'no measurable difference' when every two controllers' capacity
+    intervals after ``years`` overlap (:func:`capacity_difference` holds 0: :func:`aev_ocp.intervals.verdict` is
+    'tie'), else how far apart the two furthest are (in % of capacity); per-cell rows (:func:`life_rows` with
+    ``cells``) add each controller's charge throughput [Ah] and depth of discharge. Empty without life columns."""
     key = f"capacity_{years:g}y"
     lines = []
     for cell, cyc, amb in dict.fromkeys((r.get("cell"), r["cycle"], r["ambient"]) for r in rows):
@@ -226,17 +245,25 @@ def life_claims(rows: list[dict[str, Any]], years: float) -> list[str]:
             and isinstance(r.get(key), float)
             and math.isfinite(r[key])
         ]
-        vals = {r["controller"]: float(r[key]) for r in group}
+        vals: dict[str, list[float]] = {}
+        for r in group:
+            vals.setdefault(r["controller"], []).append(float(r[key]))
         if len(vals) < 2:
             continue
-        spread = max(vals.values()) - min(vals.values())
+        names = list(vals)
+        diffs = [capacity_difference(vals[x], vals[y]) for i, x in enumerate(names) for y in names[i + 1 :]]
+        spread = max(abs(d.mean) for d in diffs)
+        overlap = all(interval_verdict(d) == "tie" for d in diffs)
         verdict = (
-            "no measurable difference between the controllers"
-            if spread <= CAPACITY_RESOLUTION
-            else f"the controllers differ by {100 * spread:.2g} % of capacity"
+            "no measurable difference between the controllers (intervals overlap; "
+            if overlap
+            else f"the controllers differ by {100 * spread:.2g} % of capacity ("
         )
         head = f"{cell} ({group[0].get('chemistry')}), " if cell is not None else ""
-        line = f"- {head}{cyc.upper()}, {amb}: capacity after {years:g} years {verdict} (spread {spread:.2g})"
+        line = (
+            f"- {head}{cyc.upper()}, {amb}: capacity after {years:g} years {verdict}spread {spread:.2g}, "
+            f"each ± {CAPACITY_RESOLUTION / 2:g})"
+        )
         if cell is not None:
             line += "; " + ", ".join(
                 f"{r['controller']}: {fmt(r['charge_throughput_Ah'])} Ah, DoD {fmt(r['depth_of_discharge'])}"

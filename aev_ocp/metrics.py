@@ -2,9 +2,10 @@
 
 Integrals (ω, pack ∫Q, ∫Q_irr, RMS errors, RMS jerk of smooth laws) come from the plant's own
 quadratures, so they are exact across control jumps. Battery energy ∫P_b dt [J] — *the* energy of every table
-(``battery_energy_kWh_per_100km``) — comes from the plant's quadrature when it has one
-(``SimulationResult.battery_energy_J``: SUMO) and is otherwise the trapezoid of the exact P_b(v, a) over the
-samples (:func:`battery_energy_J`). ω is the paper's measure (``omega_*`` keys), not an energy of the battery. The minimum gap is taken over the continuous
+(``battery_energy_kWh_per_100km``) — comes from the plant's quadrature (``SimulationResult.battery_energy_J``:
+a platoon of closed-form laws in the compiled cascade or the CVODES plant, the ring, SUMO) and, for a closed loop
+with commanded vehicles (held over each sample interval) or an output saved before the plants integrated it, from
+the trapezoid of the exact P_b(v, a) over the samples (:func:`battery_energy_J`). ω is the paper's measure (``omega_*`` keys), not an energy of the battery. The minimum gap is taken over the continuous
 trajectory: the smallest sample is refined by the cubic Hermite interpolant of h with ḣ = v_l − v
 on its two neighbouring intervals.
 """

@@ -40,7 +40,7 @@ from .scenarios import Scenario, iter_shipped, load_scenario
 from .simulate import simulate_platoon
 
 HEAD_FIG12 = "Fig. 1 and Fig. 2: phase planes (a_l = 0)"
-HEAD_TABLE1 = "Table 1: energy per unit mass ω (platoon of 6, paper leader, t ∈ [0, 70])"
+HEAD_TABLE1 = "Table 1: the paper's inertial measure ω (platoon of 6, paper leader, t ∈ [0, 70])"
 HEAD_FIG5 = "Fig. 5: the platoon under the proposed model"
 HEAD_HYP = "Table 1: why our ω are below the printed ones (hypotheses tested)"
 
@@ -261,7 +261,7 @@ class PaperRun:
         pc = summary["percent_change"]
         worse = [i + 1 for i, x in enumerate(pc) if x > 0]
         ctx.record_claim(
-            "Table 1: the proposed law uses less energy ω than OVFL for every follower",
+            "Table 1: the proposed law has a lower ω (the paper's measure) than OVFL for every follower",
             "fails" if worse else "holds",
             "% change " + ", ".join(f"{x:+.2f}" for x in pc) + (f"; follower(s) {worse} use more" if worse else ""),
             HEAD_TABLE1,

@@ -235,7 +235,11 @@ class Units:
         validate_fields(self)
         # each field may be finite and positive while a derived unit overflows or underflows (U = 1e308: U² = inf)
         L, U = float(self.length_m), float(self.speed_mps)
-        derived = (("time unit L/U", L / U), ("energy unit U²", U * U), ("acceleration unit U²/L", U * U / L))
+        derived = (
+            ("time unit L/U", L / U),
+            ("unit of ω (per unit mass) U²", U * U),
+            ("acceleration unit U²/L", U * U / L),
+        )
         for what, value in derived:
             if not (math.isfinite(value) and value > 0):
                 raise ParameterError(
@@ -288,7 +292,7 @@ class Units:
         return a_mps2 / self.accel_mps2
 
     def energy_per_mass_to_si(self, omega: Any) -> Any:
-        """Model energy per unit mass (speed × acceleration × time = U²) -> J/kg."""
+        """The paper's ω in model units (per unit mass: speed × acceleration × time = U²) -> J/kg."""
         return omega * self.speed_mps**2
 
 

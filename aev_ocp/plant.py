@@ -11,7 +11,8 @@ V1, V2 [V], S [-] (and, with ``ev.thermal.enabled``, the pack temperature T [K] 
 A follower's acceleration is either its car-following law, evaluated continuously inside the
 integrator, or a commanded acceleration held constant over a sample interval (zero-order hold).
 Quadratures per follower (per model time unit): ω = ∫ v g(a), ∫(V(h) − v)², ∫(v_l − v)², ∫jerk²,
-pack ∫Q and ∫Q_irr [J], so the §10 metrics are exact across control jumps.
+pack ∫Q and ∫Q_irr [J], and, when every follower drives a law, last the battery energy ∫P_b dt [J] (output only),
+so the §10 metrics are exact across control jumps.
 
 Vehicle limits (``ev.limits``, :mod:`aev_ocp.models.actuator`) act on every controller alike, inside the
 right-hand side: the law's or the command's acceleration is saturated to [a_min, a_max], passes through the
@@ -42,6 +43,8 @@ from .models.actuator import actuator_rate, saturate, speed_cut
 from .models.carfollowing import CarFollowingLaw, optimal_velocity
 from .models.ego import battery_side
 from .models.leader import LeaderProfile
+from .models.powertrain import battery_power_W
+from .models.vehicle import wheel_power_W
 from .numerics import bracketed_root
 from .params import EVParams, ParameterError, Units
 from .results import VIOLATED, Event, SimulationResult
@@ -293,6 +296,15 @@ class Plant:
             I, disc = b["I"], b["disc"]
         else:
             I = disc = ca.SX.zeros(n)
+        # battery energy ∫P_b dt [J per model time unit], last: output only (nothing reads it back). Laws only: with
+        # commanded vehicles (the MPC, any Controller) CVODES's error norm would see one more quadrature and move its
+        # steps by ~1e-10, enough to tip a closed loop's QP solves (tests/test_mpc.py's qrqp path falls back once at
+        # h(0) + 1e-9); there the command is held over each sample interval and aev_ocp.metrics integrates the exact
+        # P_b(v, a_held) on the samples
+        self.energy_quad: int | None = None  # its block in the quadratures (SimulationResult.battery_energy_J)
+        if not self.commanded:
+            quad.append(T * battery_power_integrand(v, a, ev, b if self.battery else None))
+            self.energy_quad = len(quad) - 1
         self.act_row: int | None = None  # first row of the actuator states a_act in x (after the battery's)
         if act is not None:
             self.act_row = sum(int(xx.numel()) for xx in x)
@@ -538,6 +550,7 @@ class Plant:
             events,
             controllers,
             {"plant": "cvodes, exact eta switch", "rtol": self.rtol, "atol": self.atol, **meta},
+            energy_quad=self.energy_quad,
             **kw,
         )
 
@@ -629,6 +642,17 @@ def initial_state(
     return np.concatenate(x)
 
 
+def battery_power_integrand(v: Any, a: Any, ev: EVParams, side: dict[str, Any] | None = None) -> Any:
+    """Battery power P_b [W] of the vehicle's exact powertrain at model speed v and acceleration a: the
+    battery side's own P_b (``side``, :func:`aev_ocp.models.ego.battery_side`) when the plant has one, else
+    P_b(P_w(v, a)) of :func:`aev_ocp.models.powertrain.battery_power_W`. The plants integrate it as their last
+    quadrature (battery energy ∫P_b dt)."""
+    if side is not None:
+        return side["P_b"]
+    u = ev.units
+    return battery_power_W(wheel_power_W(u.speed_to_si(v), u.accel_to_si(a), ev.vehicle), ev.vehicle)
+
+
 def assemble_result(
     leader: LeaderProfile,
     ev: EVParams,
@@ -644,10 +668,12 @@ def assemble_result(
     accel: np.ndarray | None = None,
     jerk_sampled: bool = False,
     solver_stats: list[Any] | None = None,
+    energy_quad: int | None = None,
 ) -> SimulationResult:
     """A run as a :class:`SimulationResult`: X (states), Qc (quadratures) and Y = (a, I, disc, v_l)
     stacked by quantity with one column per sample time t; ``accel`` (K, n) overrides the sampled
-    accelerations (e.g. with a controller's applied ones)."""
+    accelerations (e.g. with a controller's applied ones); ``energy_quad``: the block of Qc holding the
+    battery energy ∫P_b dt [J] (None: the plant did not integrate it)."""
     n, K = len(controllers), t.size
     nan = np.full((K, n), np.nan)
     rows = lambda M, j: M[j * n : (j + 1) * n].T  # noqa: E731
@@ -677,6 +703,7 @@ def assemble_result(
         heat_J=rows(Qc, 4) if battery else nan,
         heat_irr_J=rows(Qc, 5) if battery else nan,
         temperature_K=rows(X, 5) if battery and ev.thermal.enabled else None,
+        battery_energy_J=rows(Qc, energy_quad) if energy_quad is not None else None,
         controllers=controllers,
         ev=ev,
         events=events,

@@ -161,13 +161,15 @@ def table1_disagreements(summary: Mapping[str, Any]) -> list[str]:
     worse = [i + 1 for i, a in enumerate(pc) if a > 0]
     if worse:
         notes.append(
-            f"For follower(s) n = {worse} the proposed law uses MORE energy than OVFL "
+            f"For follower(s) n = {worse} the proposed law has a HIGHER ω (the paper's measure) than OVFL "
             f"(% change > 0), whereas the paper reports a saving for every follower. In a "
             f"platoon each follower's leader differs between the two runs, so Theorem 4.1 "
             f"(same leader trajectory) does not apply beyond n = 1."
         )
     else:
-        notes.append("The proposed law uses less energy than OVFL for every follower, as in the paper.")
+        notes.append(
+            "The proposed law has a lower ω (the paper's measure) than OVFL for every follower, as in the paper."
+        )
     return notes
 
 

@@ -224,7 +224,7 @@ def _claims_from_outputs(out: Path, parts: Sequence[str], claims: list[Claim]) -
     verdict = "holds" if stable and not grows else ("partly" if stable else "fails")
     claims.append(
         Claim(
-            "§6: the energy term keeps the platoon string stable (disturbances attenuate)",
+            "§6: the κ term keeps the platoon string stable (disturbances attenuate)",
             verdict,
             f"linear criterion C = {crit:.3g} ({'stable' if stable else 'unstable'}); measured growth "
             f"along the platoon for dip amplitudes {', '.join(f'{a:g}' for a in grows) or 'none'}",

@@ -47,6 +47,7 @@ from .limits import check_simulation_size
 from .progress import check_deadline
 from .params import METHODS, EVParams, ParameterError, SimOptions, check_argument
 from .plant import (
+    battery_power_integrand,
     INTEGRATION_FAILED,
     Plant,
     PlatoonRun,
@@ -378,7 +379,7 @@ class PlatoonSimulator(PlatoonRun):
         always read from ``self.ev``.
 
         x = (h, v[, V1, V2, S]) in model units and volts; quadrature integrands per model time unit:
-        ω, (V(h) − v)², (v_l − v)², jerk²[, pack Q and Q_irr in J per model time unit]."""
+        ω, (V(h) − v)², (v_l − v)², jerk²[, pack Q and Q_irr], P_b (the last three in J per model time unit)."""
         ev = self.ev if ev is None else ev
         T, eta = ev.units.time_s, ev.vehicle.efficiency
         u = ca.SX.sym("u", 2)
@@ -401,6 +402,7 @@ class PlatoonSimulator(PlatoonRun):
             jerk = jerk + ca.jacobian(a, act) * dact
         x, ode = [h, v], [hdot, a]
         quad = [v * energy.g_exact(a, eta), (optimal_velocity(h) - v) ** 2, hdot**2, jerk**2]
+        b: dict[str, Any] | None = None
         if self.battery:
             V1, V2, S = ca.SX.sym("V1"), ca.SX.sym("V2"), ca.SX.sym("S")
             b = battery_side(v, a, V1, V2, S, ev)
@@ -410,6 +412,9 @@ class PlatoonSimulator(PlatoonRun):
             y = [a, b["I"], b["disc"]]
         else:
             y = [a, ca.SX(0), ca.SX(0)]
+        # battery energy ∫P_b dt [J per model time unit], last and outside the error norm (cascade.c
+        # AEV_NQ_OUT): an output only, so the steps, the states and the other integrals are those without it
+        quad.append(T * battery_power_integrand(v, a, ev, b))
         if act is not None:  # the actuator state last (after the battery's), as in the plant
             x.append(act)
             ode.append(dact)
@@ -499,7 +504,7 @@ class PlatoonSimulator(PlatoonRun):
         leader_fn, self._leader_values = _leader_template(self.leader)
         funcs.append(leader_fn)
         funcs = [dense_outputs(f) for f in funcs]  # the driver reads every output as a dense vector
-        self._nq = 6 if self.battery else 4
+        self._nq = 7 if self.battery else 5  # the last: battery energy ∫P_b, outside the error norm
         cg = ca.CodeGenerator("aevsim_rhs.c", {"with_header": False})
         for f in funcs:
             cg.add(f)
@@ -518,6 +523,7 @@ class PlatoonSimulator(PlatoonRun):
         # with vehicle limits the jerk integrand jumps at every saturation corner (0 ↔ the law's rate of change);
         # the error test then cannot pass on ∫jerk² (steps underflow): it is integrated, not error-controlled
         head += f"#define AEV_JERK_UNCONTROLLED {int(self.ev.limits.enabled)}\n"
+        head += "#define AEV_NQ_OUT 1\n"  # the battery energy: integrated on the steps, not error-controlled
         head += (
             "#define AEV_LAW_SWITCH "
             + " ".join(f"case {k}: return aevsim_law{k}(c->arg, c->res, c->iw, c->w, 0);" for k in range(len(distinct)))
@@ -646,6 +652,7 @@ class PlatoonSimulator(PlatoonRun):
             [law.name for law in self.laws],
             self._meta("cascade-dopri5"),
             solver_stats=[{k: int(x) for k, x in zip(INTEGRATOR_STATS, s)} for s in stats],
+            energy_quad=nq - 1,
         )
 
     def _call_c(

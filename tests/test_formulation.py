@@ -78,13 +78,13 @@ def test_violations_are_counted_against_the_running_formulations_bounds() -> Non
 
 def test_mpc_table_keys_route_into_the_formulation() -> None:
     f = formulation_from_dict(
-        {"formulation": "s9", "w_Q": 2.5, "h_min": 0.31, "objective": "energy", "smoothing_width_W": 170.0}
+        {"formulation": "s9", "w_Q": 2.5, "h_min": 0.31, "objective": "omega", "smoothing_width_W": 170.0}
     )
     assert (f.kind, f.weights.w_Q, f.bounds.h_min, f.objective, f.smooth.smoothing_width_W) == (
         "s9",
         2.5,
         0.31,
-        "energy",
+        "omega",
         170.0,
     )
     assert formulation_from_dict({"time_headway_s": 1.3}).traffic == TrafficParams(time_headway_s=1.3)

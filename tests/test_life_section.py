@@ -203,3 +203,46 @@ def test_cells_argument_checks() -> None:
         ls.life_rows(("us06",), segment_s=3.0, cells=("no_such_cell",), mpc=False)
     with pytest.raises(ParameterError, match="cells = \\[\\]"):
         ls.life_rows(("us06",), segment_s=3.0, cells=(), mpc=False)
+
+
+def test_life_claims_use_the_intervals_of_the_capacity_difference() -> None:
+    """aev_ocp.intervals decides: one capacity per controller is known to ± resolution/2, so a − b ± resolution;
+    capacities over seeds give the paired t interval of a − b widened by the resolution. Overlapping intervals:
+    'no measurable difference'; apart: the spread."""
+    res = ls.CAPACITY_RESOLUTION
+    d = ls.capacity_difference([0.9123], [0.9141])
+    assert (d.mean, d.n, d.method) == (pytest.approx(-0.0018), 1, "resolution")
+    assert (d.lo, d.hi) == (pytest.approx(-0.0018 - res), pytest.approx(-0.0018 + res)) and d.excludes_zero()
+    assert not ls.capacity_difference([0.9123], [0.9128]).excludes_zero()
+    # over 4 seeds: b is a shifted by 0.0007 (inside the resolution) or 0.0031 (outside), with a seed-to-seed scatter
+    a = [0.9101, 0.9113, 0.9096, 0.9108]
+    near = [x + 0.0007 + e for x, e in zip(a, (1e-5, -2e-5, 3e-5, 0.0))]
+    far = [x + 0.0031 + e for x, e in zip(a, (1e-5, -2e-5, 3e-5, 0.0))]
+    dn, df = ls.capacity_difference(a, near), ls.capacity_difference(a, far)
+    assert dn.n == 4 and dn.method == "t+resolution" and dn.lo < -0.0007 - res < dn.hi - 2 * res
+    assert not dn.excludes_zero() and df.excludes_zero()
+    rows = [
+        {"cycle": "hwfet", "ambient": "cold", "controller": c, "capacity_10y": q, "seed": k}
+        for c, vals in (("proposed", a), ("mpc", near))
+        for k, q in enumerate(vals)
+    ]
+    assert "no measurable difference" in ls.life_claims(rows, 10.0)[0]
+    rows_far = [dict(r, capacity_10y=far[r["seed"]]) if r["controller"] == "mpc" else r for r in rows]
+    assert "differ by 0.31 %" in ls.life_claims(rows_far, 10.0)[0]
+    with pytest.raises(ls.ParameterError, match="one capacity per controller"):
+        ls.capacity_difference([0.91, 0.92], [0.93])
+
+
+def test_life_claims_need_every_two_controllers_to_overlap() -> None:
+    """Three controllers: a chain whose neighbours overlap but whose ends do not is a measurable difference; one
+    pair apart is enough."""
+
+    def rows(caps):
+        return [{"cycle": "us06", "ambient": "cold", "controller": c, "capacity_10y": q} for c, q in caps.items()]
+
+    chain = {"proposed": 0.9100, "ovfl": 0.9108, "mpc": 0.9116}  # 8e-4 apart each, 1.6e-3 end to end
+    assert "differ by 0.16 %" in ls.life_claims(rows(chain), 10.0)[0]
+    one_apart = {"proposed": 0.9100, "ovfl": 0.9105, "mpc": 0.9125}
+    assert "differ by 0.25 %" in ls.life_claims(rows(one_apart), 10.0)[0]
+    close = {"proposed": 0.9100, "ovfl": 0.9105, "mpc": 0.9103}
+    assert "no measurable difference" in ls.life_claims(rows(close), 10.0)[0]

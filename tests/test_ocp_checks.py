@@ -55,7 +55,7 @@ def grid_bang_cruise_bang(D: float, T: float, a_max: float, a_min: float, N: int
     ],
 )
 def test_epigraph_omega_is_the_bang_cruise_bang_optimum(D, T, a_max, a_min, N, method):
-    trip = EcoTrip(distance_m=D, t_f_s=T, a_max_mps2=a_max, a_min_mps2=a_min, objective="energy")
+    trip = EcoTrip(distance_m=D, t_f_s=T, a_max_mps2=a_max, a_min_mps2=a_min, objective="omega")
     r = EcoTripSolver(trip, method, N, mx_map=True).solve()
     assert r.status == "optimal"
     V_N, omega_N = grid_bang_cruise_bang(D, T, a_max, a_min, N)
@@ -76,7 +76,7 @@ def test_epigraph_omega_is_the_bang_cruise_bang_optimum(D, T, a_max, a_min, N, m
 
 def test_smoothing_gap_fires_on_smoothed_g_and_wide_eta_smoothing_silent_on_shipped():
     # the issue's case: the smoothed g lets the optimiser creep at ±0.015 m/s² where g~ < g
-    smooth = EcoTripSolver(EcoTrip(objective="energy", omega_form="smooth"), "ms", 100, mx_map=True).solve()
+    smooth = EcoTripSolver(EcoTrip(objective="omega", omega_form="smooth"), "ms", 100, mx_map=True).solve()
     assert smooth.success
     gap = smooth.meta["smoothing_gap"]
     assert gap["warning"] and gap["relative"] > 0.02
@@ -86,7 +86,7 @@ def test_smoothing_gap_fires_on_smoothed_g_and_wide_eta_smoothing_silent_on_ship
     wide = EcoTripSolver(EcoTrip(smooth=PowertrainOptions(20_000.0)), "ms", 100, mx_map=True).solve()
     assert wide.success and wide.meta["smoothing_gap"]["warning"] and len(wide.warnings) == 1
     # the shipped forms (model guide §7 width, exact ω) stay silent
-    for obj in ("heat", "energy"):
+    for obj in ("heat", "omega"):
         r = EcoTripSolver(EcoTrip(objective=obj), "ms", 100, mx_map=True).solve()
         assert r.success and r.warnings == [] and r.meta["smoothing_gap"]["relative"] < 1e-3
 
@@ -127,22 +127,22 @@ def test_oracle_replay_gap_silent_and_fires_with_wide_smoothing():
     assert rw.objective_exact == pytest.approx(r.objective_exact, rel=1e-2)  # same plant, similar trajectory
 
 
-def test_oracle_energy_term_exact_by_epigraph_and_term_gap_fires_on_a_wide_smoothing():
-    """§9's optional 'energy' objective is stated exactly (epigraph of v g(a)): NLP and exact replay agree
-    and nothing fires. A 200 kW η smoothing of the heat objective moves the energy term a lot while the
+def test_oracle_omega_term_exact_by_epigraph_and_term_gap_fires_on_a_wide_smoothing():
+    """§9's optional 'omega' objective (the paper's ω) is stated exactly (epigraph of v g(a)): NLP and exact replay
+    agree and nothing fires. A 200 kW η smoothing of the heat objective moves the heat term a lot while the
     exact tracking terms dilute it in the total: the term check fires."""
     from aev_ocp.params import PowertrainOptions
 
-    scn = OracleScenario(t_end=30.0, formulation=s9_formulation(objective="energy"))
+    scn = OracleScenario(t_end=30.0, formulation=s9_formulation(objective="omega"))
     r = OracleSolver(scn).solve()
     replay_exact(r, scn)
-    term = r.meta["smoothing_gap_terms"]["energy"]
+    term = r.meta["smoothing_gap_terms"]["omega"]
     assert r.success and r.warnings == [] and not term["warning"] and abs(term["relative"]) < 1e-5
     wide = OracleScenario(t_end=30.0, formulation=s9_formulation(smooth=PowertrainOptions(smoothing_width_W=2e5)))
     w = OracleSolver(wide).solve()
     replay_exact(w, wide)
-    assert w.success and w.meta["smoothing_gap_terms"]["energy"]["warning"]
-    assert any("energy term" in x for x in w.warnings)
+    assert w.success and w.meta["smoothing_gap_terms"]["heat"]["warning"]
+    assert any("heat term" in x for x in w.warnings)
 
 
 def test_resimulate_cell_current_against_scipy():
@@ -188,7 +188,7 @@ def test_ocp_b_gap_refinement_and_unique_csv_columns(ocp_b, tmp_path):
 
 
 def test_multistart_keeps_the_best_and_reports_the_spread():
-    s = EcoTripSolver(EcoTrip(distance_m=640.0, t_f_s=70.0, objective="energy"), "ms", 50, mx_map=True)
+    s = EcoTripSolver(EcoTrip(distance_m=640.0, t_f_s=70.0, objective="omega"), "ms", 50, mx_map=True)
     best = s.solve_multistart()
     ms = best.meta["multistart"]
     objs = [v["objective"] for v in ms["starts"].values()]

@@ -91,11 +91,11 @@ def test_disagreement_statements_are_computed() -> None:
     }
     same["percent_change"] = percent_change(same["proposed_omega"], same["ovfl_omega"])
     notes = " ".join(table1_disagreements(same))
-    assert "agrees" in notes and "MORE" not in notes
+    assert "agrees" in notes and "HIGHER" not in notes
     worse = dict(same, proposed_omega=[2.0] * 5)
     worse["percent_change"] = percent_change(worse["proposed_omega"], worse["ovfl_omega"])
     notes = " ".join(table1_disagreements(worse))
-    assert "differs" in notes and "MORE" in notes
+    assert "differs" in notes and "HIGHER ω" in notes
 
 
 def test_failing_provider_adds_no_section() -> None:

@@ -46,7 +46,7 @@ def test_summary_comes_first_and_every_link_reaches_a_heading(small_report) -> N
     rows = [ln for ln in summary.splitlines() if ln.startswith("| ") and "**" in ln]
     assert len(rows) == len(links) >= 4  # Fig. 1/2, Table 1 (two), Fig. 5 (two)
     assert set(links) <= anchors
-    assert any("**fails**" in r and "Table 1: the proposed law uses less energy" in r for r in rows)
+    assert any("**fails**" in r and "Table 1: the proposed law has a lower ω" in r for r in rows)
     html = (out / "report.html").read_text()
     for a in links:  # the same links work in report.html
         assert f'id="{a}"' in html
@@ -124,7 +124,7 @@ def test_summary_links_with_brackets_in_their_text_render_as_links(tmp_path) -> 
     from aev_ocp.report_html import heading_anchor, markdown_to_html
     from aev_ocp.report_sections import Claim, summary_section
 
-    where = "Table 1: energy per unit mass ω (platoon of 6, paper leader, t ∈ [0, 70])"
+    where = "Table 1: the paper's inertial measure ω (platoon of 6, paper leader, t ∈ [0, 70])"
     md = summary_section([Claim("a claim", "holds", "evidence", where)]) + f"\n## {where}\n\ntext\n"
     html = markdown_to_html(md, tmp_path)
     assert f'href="#{heading_anchor(where)}"' in html

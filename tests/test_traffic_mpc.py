@@ -104,7 +104,7 @@ def test_rti_hessian_projection_makes_the_reduced_hessian_pd():
     names = c.problem.meta["path_names"]
     ngs, nx = c.nlp.ng_stage, c.nx
     for k in range(s.N):
-        lam[k * ngs + nx + names.index("energy_epi_drive")] = -523.0
+        lam[k * ngs + nx + names.index("omega_epi_drive")] = -523.0
     lbx, ubx = c.nlp.lbx.copy(), c.nlp.ubx.copy()
     lbx[:nx] = ubx[:nx] = z0 / c.x_scale
     d = c.rti.data(x, p, lam, lbx, ubx)

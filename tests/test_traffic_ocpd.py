@@ -50,7 +50,7 @@ def _numpy_traffic_cost(
             - h[k],
         )
         ell = (
-            tp.energy_weight * e
+            tp.omega_weight * e
             + tp.heat_weight * q / m
             + tp.accel_weight * a_si[k] ** 2
             + tp.jerk_weight * ((a_si[k] - a_prev[k]) / dt_s[k]) ** 2
@@ -94,7 +94,7 @@ def test_cost_traffic_refuses_a_problem_without_the_traffic_controls() -> None:
     pr = following_problem(EVParams()).build()
     t = np.linspace(0.0, 0.3, 4)
     z = np.tile(np.array([[0.5], [1.0], [0.0], [0.0], [0.8]]), (1, 4))
-    with pytest.raises(ParameterError, match="energy_rate"):
+    with pytest.raises(ParameterError, match="omega_rate"):
         cost_traffic_of_trajectory(pr, t, z, np.zeros(3), np.ones((2, 3)))
     with pytest.raises(ParameterError, match="formulation"):
         OracleScenario(formulation="traffic")  # a Formulation, not its name

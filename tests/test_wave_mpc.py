@@ -29,7 +29,7 @@ LQ = WaveParams(
     gap_weight=0.0,
     terminal_speed_weight=W_VT,
     terminal_gap_weight=0.0,
-    traffic=TrafficParams(energy_weight=0.0, heat_weight=0.0, accel_weight=W_A, jerk_weight=0.0, time_headway_s=0.8),
+    traffic=TrafficParams(omega_weight=0.0, heat_weight=0.0, accel_weight=W_A, jerk_weight=0.0, time_headway_s=0.8),
 )
 
 

@@ -6,8 +6,13 @@
  * Vehicle i depends only on vehicle i-1, so the platoon is integrated vehicle by vehicle with an
  * adaptive Dormand-Prince 5(4) method (coefficients as in Dormand & Prince 1980 / SciPy RK45, quartic
  * dense output). The predecessor's speed v_l(t) and acceleration a_l(t) are its own dense output.
- * All z = (x, quadratures) are in the error norm (like CVODES with quad_err_con).          */
-#include "dopri5.h"  /* NZ, aev_ctx, the Dormand-Prince tableau, aev_law, aev_dense_coef, aev_dense, aev_root */
+ * All z = (x, quadratures) are in the error norm (like CVODES with quad_err_con), except the last AEV_NQ_OUT
+ * quadratures (the battery energy ∫P_b dt): outputs only, integrated on the steps the others choose, so adding
+ * them changes no step, state or other integral.                                                           */
+#include "dopri5.h"
+#ifndef AEV_NQ_OUT
+#define AEV_NQ_OUT 0
+#endif  /* NZ, aev_ctx, the Dormand-Prince tableau, aev_law, aev_dense_coef, aev_dense, aev_root */
 #define NCOL (NZ + NY)
 
 typedef struct { int64_t m, cap, cur; double *t0, *h, *v0, *q; } aev_traj;
@@ -173,7 +178,7 @@ CASADI_SYMBOL_EXPORT int aevsim_run(int n, const int* law_idx, const double* par
       }
       aev_input(c, prev, i, t + h, u); aev_law(c, law, par, u, zn, k[6], yn); nfev += 6;
       double nrm = 0;
-      for (int j = 0; j < NZ; j++) {
+      for (int j = 0; j < NZ - AEV_NQ_OUT; j++) {
         if (j == NX) continue;  /* ω is computed exactly from v below */
 #if AEV_JERK_UNCONTROLLED
         if (j == NX + 3) continue;  /* ∫jerk²: its integrand jumps where a vehicle limit starts or stops acting */
@@ -182,7 +187,7 @@ CASADI_SYMBOL_EXPORT int aevsim_run(int n, const int* law_idx, const double* par
         double sc = atol + rtol * fmax(fabs(z[j]), fabs(zn[j]));
         e = h * e / sc; nrm += e * e;
       }
-      nrm = sqrt(nrm / (NZ - 1 - AEV_JERK_UNCONTROLLED));
+      nrm = sqrt(nrm / (NZ - 1 - AEV_JERK_UNCONTROLLED - AEV_NQ_OUT));
       if (!isfinite(nrm)) nrm = INFINITY;
       if (nrm > 1) {
         nrej++;

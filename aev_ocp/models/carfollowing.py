@@ -203,7 +203,7 @@ class OVLaw(CarFollowingLaw):
 
     def equilibrium_gap_m(self, v_mps: float) -> float:
         """ℓ V⁻¹(v/u) [m]: the OV function's inverse (every OV-type law is at rest relative to an equal-speed
-        leader exactly at h = V⁻¹(v); the energy term vanishes there)."""
+        leader exactly at h = V⁻¹(v); the κ term vanishes there)."""
         return float(self.h_scale_m) * equilibrium_gap(float(v_mps) / float(self.v_scale_mps))
 
     def describe(self) -> dict[str, Any]:

@@ -35,7 +35,7 @@ headers, generated config header, Makefile, CMakeLists.txt, a benchmark main and
 
 Why our own QP solver: CasADi generates C for only one QP solver, qrqp (an active set on a sparse QR of the
 whole KKT matrix). qrqp took 70 % of the exported step (0.32 ms) and needs curvature in every control, so the
-traffic formulation (its energy epigraph control enters the cost linearly) could not be exported. The interior
+traffic formulation (its ω epigraph control enters the cost linearly) could not be exported. The interior
 point takes linear-cost controls bounded through constraints, and its cost per iteration is linear in N. Its
 limit: every QP must be convex (an indefinite exact Hessian block can stall it: use the default projected
 Hessian). HPIPM's C API (the libhpipm.so of the casadi wheel) is the other backend of the same interface

@@ -244,7 +244,7 @@ def check_rti_qp(qp_solver: str, family: str) -> None:
     """ParameterError for a QP solver the rti path cannot run on a formulation."""
     if qp_solver == "qrqp" and family == "traffic":
         raise ParameterError(
-            "MPCSettings.qp_solver = 'qrqp' cannot take the traffic formulation: its energy "
+            "MPCSettings.qp_solver = 'qrqp' cannot take the traffic formulation: its ω "
             "epigraph control enters the cost linearly and qrqp needs curvature in every "
             "control; use qp_solver = 'riccati' or 'hpipm'"
         )

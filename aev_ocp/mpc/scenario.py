@@ -17,7 +17,13 @@ from dataclasses import dataclass, fields
 from typing import Any
 
 from ..ocp.following import FollowingBounds, FollowingWeights, TemperatureTerms
-from ..ocp.formulation import DEFAULT_FORMULATION, Formulation, formulation_from_dict, formulation_keys
+from ..ocp.formulation import (
+    DEFAULT_FORMULATION,
+    Formulation,
+    formulation_from_dict,
+    formulation_keys,
+    renamed_formulation_keys,
+)
 from ..ocp.traffic import TrafficParams
 from ..control import ClosedLoop
 from ..params import Check, ParameterError, PowertrainOptions, field_checks
@@ -70,6 +76,10 @@ def validate_mpc_table(r: Any) -> MPCConfig:
     from ..scenarios.tables import ScenarioError
 
     keys = mpc_table_keys()
+    try:  # old key names (energy_weight, objective = "energy") are read with a FutureWarning naming the new ones
+        r.table = renamed_formulation_keys(r.table, f"{r.path}." if r.path else "", f"{r.file}: ")
+    except ParameterError as exc:
+        raise ScenarioError(str(exc)) from None
     d = {k: _read(r, k, keys[k]) for k in list(r.table) if k in keys}
     vehicles: tuple[int, ...] | None = None
     if r.has("vehicles"):

@@ -6,7 +6,7 @@ constant time gap, so among human drivers it rides the wave they make. A wave-da
 it drives at the *average* speed of the traffic and lets its gap breathe, so the oscillation of the car ahead is
 absorbed in the gap instead of being passed on. :func:`wave_problem` states that as an optimal-control problem with
 the toolkit's :class:`~aev_ocp.ocp.problem.ProblemBuilder`: it is the traffic problem (same states, battery,
-energy epigraph, pack heat, acceleration and jerk terms, the same soft safety constraints on the gap) with a
+ω epigraph (the paper's measure), pack heat, acceleration and jerk terms, the same soft safety constraints on the gap) with a
 different objective for the motion:
 
 * **speed tracking** w_v (v − v_ref)², v_ref an own state of the problem (dv_ref/dt = 0 over the horizon) that the
@@ -22,7 +22,7 @@ different objective for the motion:
 
 The predecessor-speed term of the traffic problem (w_r (v̂_l − v)²) and its time-gap terms are off (weights 0): the
 predecessor forecast (its measured speed and acceleration, decaying) enters only the dynamics of the gap and the
-braking-distance constraint. Energy awareness is the traffic problem's: the battery-side specific power v g(a),
+braking-distance constraint. Energy awareness is the traffic problem's: the paper's ω rate v g(a),
 pack heat, a² and jerk, in W/kg.
 
 :class:`WaveMPC` is the closed-loop controller (:class:`~aev_ocp.mpc.policy.MPCPolicy`: built once, warm-started
@@ -73,7 +73,7 @@ class WaveParams:
     terminal_speed_weight: float = spec(5.0, ge=0.0)  # w_vT [J/kg per (m/s)²] (our choice)
     terminal_gap_weight: float = spec(0.1, ge=0.0)  # w_gT [J/kg per m²] (our choice)
     window_s: float = spec(38.0, gt=0.0)  # the own-speed average of v_ref [s] (Stern et al. 2018 §3.2's PI: 38 s)
-    # the traffic problem's energy, heat, a², jerk terms and its soft gap floor (time_headway_s: T_min; ISO 15622
+    # the traffic problem's ω, heat, a², jerk terms and its soft gap floor (time_headway_s: T_min; ISO 15622
     # allows ACC time gaps from 0.8 s); its predecessor-speed and time-gap tracking weights are set to 0
     traffic: TrafficParams = spec(
         kind="instance", cls=TrafficParams, default_factory=lambda: TrafficParams(time_headway_s=0.8)

@@ -216,7 +216,7 @@ def run_eco_trip(
     progress: Progress | None = None,
 ) -> dict[str, Any]:
     """OCP-C for ``trip`` (default EcoTrip(): 1 km in 100 s, rest to rest), objective 'heat' and the
-    paper's ω ('energy', exact epigraph form), each evaluated on both metrics by the exact
+    paper's inertial measure ω ('omega', exact epigraph form), each evaluated on both metrics by the exact
     re-simulation. Vehicle/pack from ``scenario`` if given.
 
     Every result reports its NLP objective next to its exact re-evaluation (warning beyond 0.5 %);
@@ -235,7 +235,7 @@ def run_eco_trip(
     )
     total = 2 * (1 + len(grid))
     stopped = False
-    for k, obj in enumerate(("heat", "energy")):
+    for k, obj in enumerate(("heat", "omega")):
         tr = dataclasses.replace(base, objective=obj)
         # one mapped interval Function (mx_map): build time independent of N, same NLP and optimum
         solver = solvers[obj] = EcoTripSolver(tr, method, N, mx_map=True)
@@ -254,7 +254,7 @@ def run_eco_trip(
         obj, D, tf = p
         return solvers[obj].solve(dataclasses.replace(base, objective=obj, distance_m=D, t_f_s=tf))
 
-    pts = [(obj, D, tf) for obj in ("heat", "energy") for D, tf in grid]
+    pts = [(obj, D, tf) for obj in ("heat", "omega") for D, tf in grid]
     sweep_res, more = _sweep(pts, solve_point, progress, 2, total) if not stopped else ([], False)
     stopped = stopped or more
     sweep = [
@@ -290,7 +290,7 @@ def run_eco_trip(
             lines.append(f"{obj:>10}{r.status:>12}{r.iterations:>6}  {r.message}")
     lines.append(
         "objectives: heat = pack ∫Q dt [kJ] (smoothed η switch in the NLP; no exact reformulation exists), "
-        "energy = ω [J/kg] (exact epigraph form); exact = re-simulated on the exact model (CVODES), "
+        "omega = the paper's ω [J/kg] (exact epigraph form; not battery energy); exact = re-simulated on the exact model (CVODES), "
         "the pack ∫Q and ω columns too"
     )
     for obj, r in results.items():
@@ -350,8 +350,8 @@ def replay_exact(res: OCPResult, scn: OracleScenario, gap_rtol: float = GAP_RTOL
     """OCP-D's smoothing-gap check: replay its piecewise-constant controls open loop through the exact
     plant (aev_ocp.control.ClosedLoop with a ControlSequence: CVODES, exact η switch)
     and evaluate the same §9 cost on that trajectory with the exact η switch (and the exact g for the
-    'energy' objective). Stores meta['replay'], the smoothing-gap record of the total and of the energy
-    term (the only smoothed one); returns the replay record."""
+    'omega' objective). Stores meta['replay'], the smoothing-gap record of the total and of the w_Q term
+    (the objective's own, 'heat' or 'omega': the only smoothed one); returns the replay record."""
     r = replay(res, scn)
     rec: dict[str, Any] = {"status": r.status}
     if r.status != "ok" or r.t[-1] < scn.t_end - 1e-9:
@@ -378,12 +378,13 @@ def replay_exact(res: OCPResult, scn: OracleScenario, gap_rtol: float = GAP_RTOL
         scn.objective,
     )
     m = r.metrics()[0]
-    # the smoothing only touches the energy term: report it alone too (the total can hide its gap)
+    # the smoothing only touches the w_Q term (heat or ω): report it alone too (the total can hide its gap)
+    own = scn.objective  # the w_Q term's name: 'heat' or 'omega'
     rec.update(
         {
             "cost_exact": terms["total"],
-            "energy_term_exact": terms["energy"],
-            "energy_term_nlp": res.meta.get("cost_terms", {}).get("energy", math.nan),
+            "w_Q_term_exact": terms[own],
+            "w_Q_term_nlp": res.meta.get("cost_terms", {}).get(own, math.nan),
             "min_gap": m.get("min_gap_model"),
             "collisions": m.get("collisions", 0),
             "final_gap_nlp": float(res.states["h"][-1]),
@@ -391,12 +392,12 @@ def replay_exact(res: OCPResult, scn: OracleScenario, gap_rtol: float = GAP_RTOL
         }
     )
     res.meta["replay"] = rec
-    what = "exact plant replay, exact η switch" + (", exact g" if scn.objective == "energy" else "")
+    what = "exact plant replay, exact η switch" + (", exact g" if scn.objective == "omega" else "")
     record_smoothing_gap(res, terms["total"], what, gap_rtol)
-    # the smoothing acts on the energy term only, so check it alone too (the exact tracking terms dilute
+    # the smoothing acts on the w_Q term only, so check it alone too (the exact tracking terms dilute
     # its gap in the total); differences below 0.1 % of the total cost are ignored there
     record_term_gap(
-        res, "energy", rec["energy_term_nlp"], rec["energy_term_exact"], what, gap_rtol, atol=1e-3 * abs(terms["total"])
+        res, own, rec["w_Q_term_nlp"], rec["w_Q_term_exact"], what, gap_rtol, atol=1e-3 * abs(terms["total"])
     )
     return rec
 
@@ -452,8 +453,8 @@ def run_oracle(
         if "cost_exact" in rp:
             lines.append(
                 f"  replayed through the exact plant (open loop, CVODES, exact η switch): Σℓ·dt = "
-                f"{rp['cost_exact']:.6g} (gap {100 * res.meta['smoothing_gap']['relative']:.2g} %; energy "
-                f"term {rp['energy_term_nlp']:.5g} in the NLP, {rp['energy_term_exact']:.5g} exact), "
+                f"{rp['cost_exact']:.6g} (gap {100 * res.meta['smoothing_gap']['relative']:.2g} %; {scn.objective} "
+                f"term {rp['w_Q_term_nlp']:.5g} in the NLP, {rp['w_Q_term_exact']:.5g} exact), "
                 f"min gap {rp['min_gap']:.4g}, {rp['collisions']} collisions"
             )
         else:

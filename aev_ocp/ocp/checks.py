@@ -32,7 +32,7 @@ GAP_RTOL = 5e-3
 def record_term_gap(
     res: OCPResult, term: str, nlp: float, exact: float, what: str, rtol: float = GAP_RTOL, atol: float = 0.0
 ) -> dict[str, Any]:
-    """The smoothing gap of ONE smoothed term of the objective (e.g. OCP-D's energy term, the only one
+    """The smoothing gap of ONE smoothed term of the objective (e.g. OCP-D's w_Q term, heat or ω, the only one
     the smoothing touches): a large gap there can hide in a total dominated by exact terms. Same rule
     and warning as :func:`record_smoothing_gap`; stored in ``res.meta['smoothing_gap_terms'][term]``."""
     if not (math.isfinite(rtol) and rtol >= 0 and math.isfinite(atol) and atol >= 0):

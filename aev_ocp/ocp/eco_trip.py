@@ -2,7 +2,8 @@
 
 State (x [m], v [m/s], V1 [V], V2 [V], S [-]); control a [m/s²] piecewise constant. Cover D [m]
 in t_f [s] from v0 to vf, minimising pack ∫Q dt (objective 'heat', reported in kJ) or the
-paper's ω = ∫ v g(a) dt (objective 'energy', J/kg). Bounds on v and a; |I| ≤ I_max and
+paper's inertial measure ω = ∫ v g(a) dt (objective 'omega', J/kg; old name 'energy' accepted with a
+FutureWarning; ω is not battery energy). Bounds on v and a; |I| ≤ I_max and
 current-map feasibility disc ≥ 0 at the start of every interval.
 
 Exact where it can be (issue 13). For v ≥ 0, v·g(a) = max(v·a/η, η·v·a): a maximum of two
@@ -34,11 +35,12 @@ from ..models import battery, energy
 from ..models.powertrain import cell_current_from_motion
 from ..numerics import integrate_held
 from ..params import EVParams, ParameterError, PowertrainOptions
+from .following import RENAMED_OBJECTIVES, objective_name
 from .checks import GAP_RTOL, multistart, record_refinement, record_smoothing_gap
 from ..ocp_result import OCPResult
 from .transcription import OCPProblem, OCPSolver, TranscriptionOptions
 
-OBJECTIVES = ("heat", "energy")
+OBJECTIVES = ("heat", "omega")  # pack ∫Q dt; the paper's ω (old name "energy": following.RENAMED_OBJECTIVES)
 OMEGA_FORMS = ("epigraph", "smooth")
 # initial guesses (speed profiles): 'sine' v0 → vf plus c·sin²(πt/t_f); 'trapezoid' ramps over the first
 # and last quarter; 'constant' D/t_f after t = 0; 'bang' the closed-form ω optimum (bang–cruise–bang)
@@ -79,6 +81,8 @@ class EcoTrip:
             raise ParameterError(f"EcoTrip.a_min_mps2 = {self.a_min_mps2!r} is not allowed: must be < 0")
         if not 0 <= self.S0 <= 1:
             raise ParameterError(f"EcoTrip.S0 = {self.S0!r} is not allowed: must be in [0, 1]")
+        if self.objective in RENAMED_OBJECTIVES:
+            object.__setattr__(self, "objective", objective_name(self.objective, "EcoTrip.objective"))
         if self.objective not in OBJECTIVES:
             raise ParameterError(f"EcoTrip.objective = {self.objective!r} is not allowed: must be one of {OBJECTIVES}")
         if self.omega_form not in OMEGA_FORMS:
@@ -88,8 +92,8 @@ class EcoTrip:
 
     @property
     def epigraph(self) -> bool:
-        """True when the problem carries the epigraph slack s (objective 'energy', form 'epigraph')."""
-        return self.objective == "energy" and self.omega_form == "epigraph"
+        """True when the problem carries the epigraph slack s (objective 'omega', form 'epigraph')."""
+        return self.objective == "omega" and self.omega_form == "epigraph"
 
 
 def eco_problem(trip: EcoTrip) -> OCPProblem:

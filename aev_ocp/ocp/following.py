@@ -11,11 +11,14 @@ State ``z = (h, v, V1, V2, S)``; control ``a`` held constant over each interval 
 Stage cost (model guide §9):
     ℓ = w_Q Q_pack/(1 kW) + w_V (V(h) − v)² + w_r (v̂_l − v)² + w_a a²,
 summed as Σ ℓ(z_k, a_k)·dt (dt in model time units), evaluated at the start of each interval.
-``objective="energy"`` replaces Q_pack/(1 kW) by v g̃(a) (smoothed g, model units).
+``objective="omega"`` replaces Q_pack/(1 kW) by the paper's inertial measure rate v g(a) (model units; stated
+exactly by an epigraph; not battery energy). The first term is named after the objective ('heat' or 'omega').
+The old name ``objective="energy"`` is still accepted, with a FutureWarning naming 'omega'.
 """
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 from typing import Any
 
@@ -27,9 +30,34 @@ from ..models.ego import STATE_NAMES, battery_side, following_ode
 from ..params import PAPER_ACCEL_BOUNDS_MODEL, EVParams, ParameterError, PowertrainOptions, spec, validate_fields
 from .problem import ProblemBuilder
 
-TERM_NAMES = ("energy", "ovm", "relative", "accel")  # the four §9 terms, weighted by w_Q, w_V, w_r, w_a
 WEIGHT_NAMES = ("w_Q", "w_V", "w_r", "w_a")
-OBJECTIVES = ("heat", "energy")
+#: §9's objectives: pack heat Q_pack/(1 kW) (model guide §9) or the paper's inertial measure rate v g(a) ('omega')
+OBJECTIVES = ("heat", "omega")
+#: Old names still accepted (with a FutureWarning naming the new one): 'energy' was the paper's ω, not battery energy.
+RENAMED_OBJECTIVES = {"energy": "omega"}
+
+
+def objective_name(objective: str, where: str = "objective") -> str:
+    """The §9 objective of ``objective``: 'heat' or 'omega'; the old name 'energy' gives 'omega' with a
+    FutureWarning naming the new value (``where``: the key or argument it came from). Anything else: ParameterError."""
+    new = RENAMED_OBJECTIVES.get(objective) if isinstance(objective, str) else None
+    if new is not None:
+        warnings.warn(
+            f"{where} = {objective!r} is deprecated: use {new!r} (the paper's inertial measure "
+            "ω = ∫ v g(a) dt, not battery energy)",
+            FutureWarning,
+            stacklevel=3,
+        )
+        return new
+    if objective not in OBJECTIVES:
+        raise ParameterError(f"{where} = {objective!r} is not allowed: must be one of {OBJECTIVES}")
+    return objective
+
+
+def term_names(objective: str = "heat") -> tuple[str, str, str, str]:
+    """The four §9 terms, weighted by w_Q, w_V, w_r, w_a: the objective's own ('heat' or 'omega'), 'ovm',
+    'relative', 'accel'."""
+    return (objective_name(objective), "ovm", "relative", "accel")
 
 
 @dataclass(frozen=True)
@@ -73,19 +101,18 @@ def following_stage_terms(
     objective: str = "heat",
     T_K: Any = None,
 ) -> dict[str, Any]:
-    """The four UNWEIGHTED terms of ℓ (model guide §9) [model units; multiply by dt in model time]:
-    'energy' Q_pack/(1 kW) (objective 'heat', η switch smoothed by ``smooth``) or v g(a) (objective
-    'energy', the exact g, η = ev.vehicle.efficiency), 'ovm' (V(h) − v)², 'relative' (v̂_l − v)², 'accel' a².
-    The optimisers never see the non-smooth v g(a): :func:`following_problem` states it exactly by an
-    epigraph (issue 13)."""
-    if objective not in OBJECTIVES:
-        raise ParameterError(f"objective = {objective!r} is not allowed: must be one of {OBJECTIVES}")
+    """The four UNWEIGHTED terms of ℓ (model guide §9) [model units; multiply by dt in model time], keyed by
+    :func:`term_names`: 'heat' Q_pack/(1 kW) (objective 'heat', η switch smoothed by ``smooth``) or 'omega'
+    v g(a), the paper's inertial measure rate (objective 'omega', the exact g, η = ev.vehicle.efficiency), 'ovm'
+    (V(h) − v)², 'relative' (v̂_l − v)², 'accel' a². The optimisers never see the non-smooth v g(a):
+    :func:`following_problem` states it exactly by an epigraph (issue 13)."""
+    objective = objective_name(objective)
     h, v = z[0], z[1]
     if objective == "heat":
         e = battery_side(v, a, z[2], z[3], z[4], ev, smooth, T_K)["Q_pack"] / 1000.0
     else:
         e = v * energy.g_exact(a, ev.vehicle.efficiency)
-    return {"energy": e, "ovm": (optimal_velocity(h) - v) ** 2, "relative": (v_l_hat - v) ** 2, "accel": a**2}
+    return {objective: e, "ovm": (optimal_velocity(h) - v) ** 2, "relative": (v_l_hat - v) ** 2, "accel": a**2}
 
 
 #: Finite upper bound of the temperature slack [K] (never active: a pack 100 K above its limit is not a driving
@@ -182,10 +209,11 @@ def following_problem(
 
     states z = (h, v, V1, V2, S) (scales 1, 1, 0.01 V, 0.01 V, 1); control a; stage parameters
     (v̄_l interval-mean leader speed, v̂_l(t_k)); parameters p = (w_Q, w_V, w_r, w_a);
-    stage cost Σ_k (w_Q·energy + w_V·ovm + w_r·relative + w_a·accel)·dt; bounds h ≥ h_min,
+    stage cost Σ_k (w_Q·heat (or omega) + w_V·ovm + w_r·relative + w_a·accel)·dt; bounds h ≥ h_min,
     v_min ≤ v ≤ v_max, S ∈ [0, 1] at nodes 1…N, a_min ≤ a ≤ a_max; |I| ≤ I_max and disc ≥ 0 at
     the start of every interval. ``smooth``: η-switch smoothing of the optimiser (model guide §7).
-    Objective 'energy': v g(a) through an epigraph control ``energy_rate`` ≥ v a/η, ≥ η v a (exact).
+    Objective 'omega' (the paper's ω; old name 'energy'): v g(a) through an epigraph control ``omega_rate``
+    ≥ v a/η, ≥ η v a (exact).
     Outputs: I [A], Q [W per cell], Q_pack_W, Q_irr_pack_W, disc [V²] and each weighted term.
     ``with_temperature``: the lumped pack temperature T [K] (:mod:`aev_ocp.models.thermal`) is a 6th state
     with T ≤ ev.thermal.T_max_K, setting the cell's resistances when the cell has an activation energy
@@ -209,16 +237,17 @@ def following_problem(
     rhs = following_ode(z, a, v_mean, ev, smooth, Tst)
     for i, nm in enumerate(STATE_NAMES):
         pb.set_der(pb.x[nm], rhs[i])
+    objective = objective_name(objective)
     terms = following_stage_terms(z, a, v_hat, ev, smooth, objective, Tst)
-    if objective == "energy":
+    if objective == "omega":
         # v g(a) = max(v a/η, η v a) for v ≥ 0: minimising an epigraph variable e ≥ both is exact and
         # smooth (no width to exploit, model guide §9 deviation: §9 smooths g; see README)
-        e = pb.control("energy_rate")
+        e = pb.control("omega_rate")
         eta = ev.vehicle.efficiency
-        pb.subject_to(e - z[1] * a / eta, 0.0, ca.inf, name="energy_epi_drive")
-        pb.subject_to(e - eta * z[1] * a, 0.0, ca.inf, name="energy_epi_brake")
-        terms["energy"] = e
-    for wk, nm in zip(wt, TERM_NAMES):
+        pb.subject_to(e - z[1] * a / eta, 0.0, ca.inf, name="omega_epi_drive")
+        pb.subject_to(e - eta * z[1] * a, 0.0, ca.inf, name="omega_epi_brake")
+        terms["omega"] = e
+    for wk, nm in zip(wt, term_names(objective)):
         pb.add_stage_cost(wk * terms[nm], nm)
     cell = battery_side(z[1], a, z[2], z[3], z[4], ev, smooth, Tst)
     if Tst is not None:

@@ -27,6 +27,8 @@ from typing import Any, Callable, Mapping
 from ..params import EVParams, ParameterError, PowertrainOptions, spec, validate_fields
 from .following import (
     OBJECTIVES,
+    RENAMED_OBJECTIVES,
+    objective_name,
     WEIGHT_NAMES,
     FollowingBounds,
     FollowingWeights,
@@ -83,7 +85,7 @@ class Formulation:
     bounds: FollowingBounds = spec(
         kind="instance", cls=FollowingBounds, default_factory=FollowingBounds
     )  # model guide §9
-    objective: str = spec("heat", kind="choice", choices=OBJECTIVES)  # model guide §9
+    objective: str = spec("heat", kind="choice", choices=OBJECTIVES)  # model guide §9 ('omega': the paper's ω)
     smooth: PowertrainOptions = spec(
         kind="instance", cls=PowertrainOptions, default_factory=PowertrainOptions
     )  # model guide §7: 300 W
@@ -95,6 +97,8 @@ class Formulation:
     initial_values: Mapping[str, float] = field(default_factory=dict, compare=False)
 
     def __post_init__(self) -> None:
+        if self.objective in RENAMED_OBJECTIVES:  # the old name 'energy' (the paper's ω): warn, use the new one
+            object.__setattr__(self, "objective", objective_name(self.objective, "Formulation.objective"))
         validate_fields(self)
         if (self.kind == "problem") != (self.problem is not None):
             raise ParameterError(
@@ -335,6 +339,36 @@ def problem_formulation(
 DEFAULT_FORMULATION = traffic_formulation()
 
 
+#: Formulation keys renamed: old key -> new key. The old key is still read, with a FutureWarning naming the new one
+#: ('energy_weight' weighted the paper's ω rate v g(a), not battery energy).
+RENAMED_KEYS = {"energy_weight": "omega_weight"}
+
+
+def renamed_formulation_keys(d: Mapping[str, Any], prefix: str = "", file: str = "") -> dict[str, Any]:
+    """``d`` with the old names of :data:`RENAMED_KEYS` (and the objective value 'energy', now 'omega') replaced
+    by the new ones, a FutureWarning naming the new key for each (``prefix``: the table's key path such as 'mpc.',
+    ``file``: the file's name); both the old and the new key given: ParameterError naming both."""
+    import warnings
+
+    out = dict(d)
+    for old, new in RENAMED_KEYS.items():
+        if old in out:
+            if new in out:
+                raise ParameterError(
+                    f"{file}{prefix}{old} and {prefix}{new} are both given: {old} is the old name of {new}"
+                )
+            warnings.warn(
+                f"{file}{prefix}{old} is deprecated: use {prefix}{new} (the weight of the paper's inertial measure rate "
+                "v g(a), not of battery energy)",
+                FutureWarning,
+                stacklevel=3,
+            )
+            out = {(new if k == old else k): v for k, v in out.items()}
+    if out.get("objective") in RENAMED_OBJECTIVES:
+        out["objective"] = objective_name(out["objective"], f"{file}{prefix}objective")
+    return out
+
+
 def formulation_from_dict(d: Mapping[str, Any]) -> Formulation:
     """A formulation from flat keys: ``formulation`` ('traffic' default, or 's9'), the TrafficParams fields
     (traffic), w_Q, w_V, w_r, w_a, h_min, v_min, v_max, a_min, a_max and ``objective`` (§9), and
@@ -342,6 +376,7 @@ def formulation_from_dict(d: Mapping[str, Any]) -> Formulation:
     ParameterError naming it (it would be ignored)."""
     from dataclasses import fields
 
+    d = renamed_formulation_keys(d)
     kind = d.get("formulation", "traffic")
     if kind not in ("traffic", "s9"):
         raise ParameterError(f"formulation = {kind!r} is not allowed: must be one of ('traffic', 's9')")

@@ -24,7 +24,7 @@ from ..params import EVParams, ParameterError, PowertrainOptions, Units, Vehicle
 from ..models.ego import following_ode
 from ..numerics import rk4
 from ..results import SimulationResult
-from .following import TERM_NAMES, FollowingWeights, following_stage_terms, weight_vector
+from .following import FollowingWeights, following_stage_terms, term_names, weight_vector
 from .formulation import Formulation, s9_formulation
 from .problem import OCPProblem
 from ..ocp_result import OCPResult
@@ -119,7 +119,7 @@ class OracleScenario:
 
     @property
     def objective(self) -> str:
-        """The formulation's §9 objective ('heat' or 'energy')."""
+        """The formulation's §9 objective ('heat' or 'omega', the paper's ω)."""
         return self.formulation.objective
 
 
@@ -391,7 +391,7 @@ class OracleSolver:
             pr = self.solver.problem
             if list(pr.state_names[5:]) == ["a_prev"]:  # a_prev = the previous a
                 X = np.vstack([X, np.concatenate([[0.0], U[0]])])
-            if pr.nu > 1:  # epigraph and slack controls (energy_rate, slack_gap, slack_<name>) at their optimum
+            if pr.nu > 1:  # epigraph and slack controls (omega_rate, slack_gap, slack_<name>) at their optimum
                 P = np.repeat(np.asarray(oracle_parameters(scn, pr), float).reshape(-1, 1), scn.N, axis=1)
                 U = np.asarray(
                     auxiliary_controls(pr, require_traffic=False).map(scn.N)(X[:, :-1], U, np.vstack([vm, vh]), P)
@@ -660,12 +660,13 @@ def stage_cost_of_trajectory(
         Z.append(arr[:N])
     z, u, vh = ca.SX.sym("z", 5), ca.SX.sym("a"), ca.SX.sym("vh")
     terms = following_stage_terms(z, u, vh, ev, smooth, objective)
+    names = term_names(objective)
     wt = weight_vector(weights)
-    f = ca.Function("ell_terms", [z, u, vh], [ca.vertcat(*[w * terms[nm] for w, nm in zip(wt, TERM_NAMES)])]).map(N)
+    f = ca.Function("ell_terms", [z, u, vh], [ca.vertcat(*[w * terms[nm] for w, nm in zip(wt, names)])]).map(N)
     vals = np.asarray(f(np.vstack(Z), a.reshape(1, -1), vl.reshape(1, -1)))
     dt = np.diff(t)
-    out = {nm: float(vals[i] @ dt) for i, nm in enumerate(TERM_NAMES)}
-    out["total"] = float(sum(out[nm] for nm in TERM_NAMES))
+    out = {nm: float(vals[i] @ dt) for i, nm in enumerate(names)}
+    out["total"] = float(sum(out[nm] for nm in names))
     return out
 
 

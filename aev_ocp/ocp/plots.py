@@ -33,7 +33,6 @@ QUANTITY_LABELS: dict[str, tuple[str, str, str]] = {
     "disc": ("current-map discriminant E² − 4R_sP_c", "V²", "V²"),
     "omega_rate": ("the paper's ω rate v·g(a)", "W/kg", "model units"),
     "s": ("epigraph variable s (≥ v·g(a))", "W/kg", "model"),
-    "energy_rate": ("the paper's ω rate (epigraph)", "W/kg", "model units"),
 }
 # A current below this magnitude [A] is drawn and labelled as 0: IPOPT's tol 1e-8 on the scaled current
 # (u_scale 10 A, ocp/cell.py) leaves residues of ~1e-6 A (OCP-A's relaxing case with Q >= 0: 6e-7 A).

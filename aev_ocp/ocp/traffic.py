@@ -8,14 +8,15 @@ forecast is wrong, and its weights change meaning with ``[units]``. :func:`traff
 and changes the objective and constraints, every parameter declared in SI in :class:`TrafficParams`
 and converted with the scenario's units (so a user does not retune when L or U change):
 
-* **Cost [W/kg·s = J/kg].** ℓ = w_E·e + w_Q·Q_pack/m + w_a a² + w_j ȧ² + w_r (v̂_l − v)² + w_g (h − h_des(v))²
+* **Cost [W/kg·s = J/kg].** ℓ = w_ω·e + w_Q·Q_pack/m + w_a a² + w_j ȧ² + w_r (v̂_l − v)² + w_g (h − h_des(v))²
   with every quantity in SI, integrated over time in seconds (the model-time sum Σ ℓ·dt is multiplied by
-  the time unit T). e ≥ v a/η, e ≥ η v a is the exact battery-side specific power of the inertial
-  term, v g(a) of model guide §4 (§9: smoothed g weighted in model units). Q_pack/m is the pack heat per
+  the time unit T). e ≥ v a/η, e ≥ η v a is the exact rate of the paper's inertial measure ω, v g(a) of
+  model guide §4 (term and weight ``omega``/``omega_weight``; not battery energy, which also pays the road load;
+  §9: smoothed g weighted in model units). Q_pack/m is the pack heat per
   vehicle mass (§9: Q_pack/1 kW). w_j penalises Δa/dt (jerk; §9 has none) through an own state
   ``a_prev`` (the command applied last step). w_r and w_g replace §9's OVM term: the gap is drawn to
   h_des(v) = s_0 + T_des·v (a constant-time-gap policy in SI; §9's V(h) is a model-unit curve whose
-  time gap changes with L, U), so lagging behind is penalised and the energy term cannot be lowered by
+  time gap changes with L, U), so lagging behind is penalised and the ω term cannot be lowered by
   falling back.
 * **Terminal cost** (§9: none): w_T (h_N − h_des(v_N))², so a short horizon does not plan to close (or
   open) the gap after its end.
@@ -32,12 +33,13 @@ and converted with the scenario's units (so a user does not retune when L or U c
   as §9 (always satisfiable together: a = 0 keeps every one; at v = 0 braking is not possible and not needed).
 * **Actuator lag**: when the vehicle has one (VehicleLimits.lag_s, or a jerk limit), the prediction model
   carries the plant's actuator state a_act (da_act/dt = (a − a_act)/τ, measured at every step) and the
-  motion, energy and battery terms use a_act; the jerk term stays on the command a.
+  motion, ω and battery terms use a_act; the jerk term stays on the command a.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import warnings
+from dataclasses import InitVar, dataclass
 from typing import Any
 
 import casadi as ca
@@ -58,7 +60,7 @@ FORMULATIONS = ("traffic", "s9")  # 'traffic': this module (default); 's9': mode
 #: Finite upper bounds of the epigraph and slack controls (never active: |v g(a)| ≤ 45 m/s × 7.5 m/s² / 0.8
 #: = 422 W/kg; a gap 1 km short of its bound is not a traffic situation): finite bounds keep the QP solver's
 #: stand-in for infinity away from the variables' scale.
-ENERGY_RATE_MAX_W_PER_KG = 1000.0
+OMEGA_RATE_MAX_W_PER_KG = 1000.0
 SLACK_MAX_M = 1000.0
 
 
@@ -67,7 +69,8 @@ class TrafficParams:
     """Parameters of :func:`traffic_problem`, all in SI (cost unit: W/kg of vehicle mass, integrated
     over seconds). Sources: 'our choice' unless stated; measured with benchmarks/bench_mpc_cycles.py."""
 
-    energy_weight: float = spec(1.0, ge=0.0)  # w_E [-] on v g(a) [W/kg] (the reference unit of the cost)
+    omega_weight: float = spec(1.0, ge=0.0)  # w_ω [-] on v g(a) [W/kg], the paper's ω rate (the reference unit of
+    # the cost; scenario files' old key energy_weight is still read, with a FutureWarning)
     heat_weight: float = spec(20.0, ge=0.0)  # w_Q [-] on pack heat Q_pack/m [W/kg] (our choice: I² matters)
     accel_weight: float = spec(6.0, ge=0.0)  # w_a [W/kg per (m/s²)²] (our choice: small currents; 1 → 3 lowered
     # pack heat per km 7 % on UDDS-300 s and 25 % behind the paper leader; 3 → 6: ω/km behind the paper leader
@@ -99,8 +102,22 @@ class TrafficParams:
     # speedometer" rule's 1.8 s; Vogel 2003, Accid. Anal. Prev. 35: time gaps under 1 s are dangerous)
     margin_ttc_s: float = spec(4.0, ge=0.0)  # TTC_m [s] (Hirst & Graham 1997: a TTC of 4 s separates safe from
     # critical approaches; Euro NCAP's CCR runs start at TTC 4 s)
+    energy_weight: InitVar[float | None] = None  # the old name of omega_weight: read with a FutureWarning
 
-    def __post_init__(self) -> None:
+    def __post_init__(self, energy_weight: float | None = None) -> None:
+        if energy_weight is not None:
+            if self.omega_weight != 1.0:
+                raise ParameterError(
+                    "TrafficParams: energy_weight and omega_weight are both given: energy_weight is the old name of "
+                    "omega_weight"
+                )
+            warnings.warn(
+                "TrafficParams.energy_weight is deprecated: use omega_weight (the weight of the paper's inertial "
+                "measure rate v g(a), not of battery energy)",
+                FutureWarning,
+                stacklevel=3,
+            )
+            object.__setattr__(self, "omega_weight", energy_weight)
         validate_fields(self)
         if self.target_gap_m < self.standstill_gap_m:
             raise ParameterError(
@@ -173,7 +190,7 @@ def traffic_problem(
     temperature: TemperatureTerms | None = None,
 ) -> ProblemBuilder:
     """The traffic formulation (module docstring) as a builder in model units: states (h, v, V1, V2, S,
-    a_prev), controls (a, energy_rate, slacks), stage parameters (v̄_l, v̂_l), no global parameter.
+    a_prev), controls (a, omega_rate, slacks), stage parameters (v̄_l, v̂_l), no global parameter.
     ``dt`` [model time] is the MPC interval (for the jerk (a − a_prev)/dt). ``with_temperature``: the pack
     temperature T [K] is a state too (last), T ≤ ev.thermal.T_max_K (:func:`following_problem`); ``temperature``
     with ``temperature_state`` (the MPC's): the same state with the soft limit of :class:`TemperatureTerms`, its
@@ -216,14 +233,14 @@ def traffic_problem(
     if soft_T:
         assert temperature is not None
         add_temperature_limit(pb, Tst, temperature.limit_K(ev), temperature.penalty("traffic"), T)
-    # exact v g(a) [W/kg] by an epigraph (the energy_rate control, in W/kg)
-    e = pb.control("energy_rate", -ENERGY_RATE_MAX_W_PER_KG, ENERGY_RATE_MAX_W_PER_KG, scale=10.0)
-    pb.subject_to(e - v_ms * a_ms2 / eta, 0.0, ca.inf, name="energy_epi_drive")
-    pb.subject_to(e - eta * v_ms * a_ms2, 0.0, ca.inf, name="energy_epi_brake")
+    # exact v g(a) [W/kg], the paper's ω rate, by an epigraph (the omega_rate control, in W/kg)
+    e = pb.control("omega_rate", -OMEGA_RATE_MAX_W_PER_KG, OMEGA_RATE_MAX_W_PER_KG, scale=10.0)
+    pb.subject_to(e - v_ms * a_ms2 / eta, 0.0, ca.inf, name="omega_epi_drive")
+    pb.subject_to(e - eta * v_ms * a_ms2, 0.0, ca.inf, name="omega_epi_brake")
     h_des = desired_gap_m(v_ms, tp)
     s_min = tp.standstill_gap_m
     terms = {
-        "energy": tp.energy_weight * e,
+        "omega": tp.omega_weight * e,
         "heat": tp.heat_weight * cell["Q_pack"] / m,
         "accel": tp.accel_weight * a_ms2**2,
         "jerk": tp.jerk_weight * jerk**2,

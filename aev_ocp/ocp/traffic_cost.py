@@ -5,7 +5,7 @@ nodes t_k and the acceleration a_k applied on [t_k, t_{k+1}). The traffic proble
 ``a_prev`` (the previous applied command: a_prev_0 = 0, the closed loop's first ``Observation.a_prev``, then
 a_prev_k = a_{k−1}) and two auxiliary controls whose optimal values are fixed by (z_k, a_k):
 
-* ``energy_rate`` e: the smallest e meeting both epigraph rows (e ≥ v a/η, e ≥ η v a), i.e. v g(a);
+* ``omega_rate`` e (the paper's ω rate): the smallest e meeting both epigraph rows (e ≥ v a/η, e ≥ η v a), i.e. v g(a);
 * ``slack_gap`` σ: the smallest σ ≥ 0 meeting both soft gap constraints (headway, braking).
 
 Both are read from the problem's own path constraints (which are affine in them), and the cost is the
@@ -28,7 +28,7 @@ from .transcription import TranscriptionOptions, interval_function
 
 #: The auxiliary controls of the traffic problem: control -> (the path rows it must satisfy, its floor).
 AUXILIARY_CONTROLS: dict[str, tuple[tuple[str, ...], float]] = {
-    "energy_rate": (("energy_epi_drive", "energy_epi_brake"), -ca.inf),  # e = max of the two right-hand sides
+    "omega_rate": (("omega_epi_drive", "omega_epi_brake"), -ca.inf),  # e = max of the two right-hand sides
     "slack_gap": (("headway", "braking"), 0.0),  # σ = the smallest σ ≥ 0 meeting both soft constraints
 }
 

@@ -147,10 +147,10 @@ def test_closed_loop_and_simulator_stop_at_the_same_rule() -> None:
 
 @pytest.mark.slow  # over 5 s of one core (measured under load, pytest --durations)
 def test_a_plan_within_tolerance_never_stops_the_plant() -> None:
-    """Issue 7's reproduction: the canonical scenario with the energy objective, w_Q = 5, N = 30 and
+    """Issue 7's reproduction: the canonical scenario with the ω objective, w_Q = 5, N = 30 and
     IPOPT stopped at t = 1.5 on a speed of −6.4e-9 that the MPC had accepted as feasible."""
     s = MPCSettings(N=30, solver="ipopt")
-    f = s9_formulation(weights=FollowingWeights(w_Q=5.0), objective="energy")
+    f = s9_formulation(weights=FollowingWeights(w_Q=5.0), objective="omega")
     r = run_closed_loop(PaperLeader(), [MPCVehicle(s, formulation=f)], [0.3], [1.87], 2.4, ev=EV)
     assert r.status == "ok", r.events
     assert r.speed[:, 0].min() > -PLAN_TOLERANCE

@@ -432,7 +432,7 @@ def test_following_step_of_ocp_and_mpc_is_rk4_of_the_independent_ode(mpc) -> Non
 
 
 # ----------------------------------------------------------------------------- the §9 stage cost
-@pytest.mark.parametrize("objective", ["heat", "energy"])
+@pytest.mark.parametrize("objective", ["heat", "omega"])
 def test_stage_cost_weights_reach_every_user(objective: str) -> None:
     """ℓ with weights (2, 0.5, 3, 0.7) and η = 0.73 in the problem (OCP-D's), in OCP-D's solver path and
     in stage_cost_of_trajectory, against NumPy; each weight moves only its own term."""
@@ -446,7 +446,7 @@ def test_stage_cost_weights_reach_every_user(objective: str) -> None:
     want = np_stage(*Z, A, vh, objective=objective)
     eta = EV.vehicle.efficiency
     for k in range(4):
-        # objective 'energy': the epigraph control at its optimum, e = v g(a)
+        # objective 'omega': the epigraph control at its optimum, e = v g(a)
         u = A[k] if objective == "heat" else [A[k], Z[1, k] * (A[k] / eta if A[k] >= 0 else eta * A[k])]
         got = float(pr.stage(Z[:, k], u, [1.0, vh[k]], weight_vector(W)))
         assert got == pytest.approx(want[k], rel=1e-11)
@@ -456,7 +456,7 @@ def test_stage_cost_weights_reach_every_user(objective: str) -> None:
     # term by term: each weight scales its own term only
     one = FollowingWeights(1.0, 1.0, 1.0, 1.0)
     c1 = stage_cost_of_trajectory(t, *np.hstack([Z, Z[:, -1:]]), A, vh, one, EV, SMOOTH, objective)
-    for nm, wk in zip(("energy", "ovm", "relative", "accel"), weight_vector(W)):
+    for nm, wk in zip((objective, "ovm", "relative", "accel"), weight_vector(W)):
         assert c[nm] == pytest.approx(wk * c1[nm], rel=1e-12)
 
 
