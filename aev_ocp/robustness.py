@@ -470,6 +470,7 @@ def robustness_section(out_dir: Path, progress: Callable[[str], None]) -> str:
         cycles, seg, max_s, seeds = ("udds",), 60.0, 60.0, (0, 1)
     ctx(f"robustness: {len(cycles)} cycle(s) × {len(seeds)} seeds × 3 controllers (study pool)")
     res = run_seeded(out_dir / "robustness", cycles, seg, seeds, ("map",), max_s)
+    ctx("robustness: intervals over the seeds and the paired differences")  # the section's second declared step
     return (
         "## Robustness: model mismatch, noisy and late measurements, state estimation\n\n"
         f"One follower on {', '.join(c.upper() for c in cycles)} ({seg:g} s to the leader's next stop, at most "
