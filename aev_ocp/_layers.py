@@ -212,6 +212,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
             "aev_ocp",
             "aev_ocp.loading",
             "aev_ocp.console",
+            "aev_ocp.reproduce_pool",
             "aev_ocp.reproduce",
             "aev_ocp.cli",
             "aev_ocp.ocp.cli",

@@ -140,6 +140,17 @@ def cause(exc: BaseException) -> str:
     return " ".join(f"{type(exc).__name__}: {exc}".split())
 
 
+def run_section(sec: "Section", out: Path, ctx: "SectionContext") -> str:
+    """One section's Markdown; an exception becomes :class:`ReportSectionError` naming the section (used by the
+    sequential reproduce and by the pool's workers alike)."""
+    try:
+        return sec.fn(out, ctx)
+    except ReportSectionError:
+        raise
+    except Exception as exc:  # KeyboardInterrupt/SystemExit pass through untouched
+        raise ReportSectionError(f"report section {sec.name!r} failed: {cause(exc)} (no report.md written)") from exc
+
+
 def load_providers(providers: Sequence[str], log: ProgressFn | None = None) -> list[str]:
     """Import provider modules and register their ``REPRODUCE_SECTIONS``; returns the ones that loaded.
 

@@ -27,16 +27,16 @@ from .paper_sections import PaperRun
 from .params import VehicleLimits
 from .report import write_text
 from .report_sections import SectionFn as SectionFn
+from .report_sections import ReportSectionError as ReportSectionError  # re-exported: callers catch it here
 from .report_sections import register_section as register_section
 from .report_sections import (
     _REGISTRY,
     Claim,
     ProgressFn,
-    ReportSectionError,
     ReproduceConfig,
     SectionContext,
-    cause,
     load_providers,
+    run_section,
     summary_section,
 )
 
@@ -187,16 +187,6 @@ def reproduce(
     path = write_text(out / "report.md", text)
     progress.done(f"done: wrote {path} and {out / 'report.html'}; verdict: {verdict(claims)}")
     return path
-
-
-def run_section(sec: Any, out: Path, ctx: SectionContext) -> str:
-    """One section's Markdown; an exception becomes :class:`ReportSectionError` naming the section."""
-    try:
-        return sec.fn(out, ctx)
-    except ReportSectionError:
-        raise
-    except Exception as exc:  # KeyboardInterrupt/SystemExit pass through untouched
-        raise ReportSectionError(f"report section {sec.name!r} failed: {cause(exc)} (no report.md written)") from exc
 
 
 def _prefixed(progress: ProgressFn, name: str) -> ProgressFn:

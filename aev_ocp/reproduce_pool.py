@@ -19,7 +19,7 @@ import queue as queue_mod
 from pathlib import Path
 from typing import Any, Iterator, Sequence
 
-from .report_sections import Claim, ReportSectionError, ReproduceConfig, Section, SectionContext
+from .report_sections import Claim, ReportSectionError, ReproduceConfig, Section, SectionContext, run_section
 
 #: Wall time of each section in a full reproduce [s], measured section by section by
 #: benchmarks/profile_reproduce.py (2-core machine, load 2-3; issue 40): only the ORDER in which tasks are
@@ -68,7 +68,6 @@ def _task(
     """Run sections in a worker: PaperRun's (``refs`` None: by name from a fresh PaperRun) or importable functions.
     Returns per section (name, Markdown, claims, error: '' or the ReportSectionError message)."""
     from .paper_sections import PaperRun
-    from .reproduce import run_section
 
     paper = {s.name: s for s in PaperRun(config).sections()} if any(r is None for r in refs) else {}
     done: list[tuple[str, str, list[Claim], str]] = []
@@ -157,7 +156,6 @@ def run_sections_pooled(
         _stop_pool(ex)
         raise
     ex.shutdown(wait=True)
-    from .reproduce import run_section
 
     for sec in local:  # functions a worker cannot import: here, after the pool
         claims: list[Claim] = []
