@@ -236,8 +236,8 @@ def test_the_calibrated_scenario_states_the_fit_the_code_uses(name: str) -> None
     from aev_ocp.ring.scenario import build_ring, load_ring_scenario, parse_ring_scenario
     from aev_ocp.scenarios import ScenarioError
 
-    root = Path(aev_ocp.__file__).parent
-    repo = (root.parent / "scenarios" / f"{name}.toml").read_text()
+    root = Path(aev_ocp.__file__).parent  # the package as installed (editable or not)
+    repo = (Path(__file__).resolve().parents[1] / "scenarios" / f"{name}.toml").read_text()  # the checkout's file
     assert (root / "scenario_files" / f"{name}.toml").read_text() == repo
     sc = load_ring_scenario(name)
     cal = sc.spec.calibration
