@@ -104,8 +104,10 @@ TUNING_TABLE: dict[str, Space] = {
         "law",
         "proposed",
         (
-            Param("kappa_per_m", 1e-4, 2e-2, "weight of the energy term κ/ℓ: braking against a closing speed", True),
-            Param("eps_m2ps2", 1e-5, 1.0, "smoothing ε u² of the energy term at zero relative speed", True),
+            Param(
+                "kappa_per_m", 1e-4, 2e-2, "weight of the κ term κ/ℓ (the deceleration against a closing speed)", True
+            ),
+            Param("eps_m2ps2", 1e-5, 1.0, "smoothing ε u² of the κ term at zero relative speed", True),
             *_SCALES,
         ),
     ),
@@ -700,7 +702,7 @@ def _fmt(x: Any, d: int = 3) -> str:
 
 
 def _aggregate(runs: Sequence[Mapping[str, Any]], cases: Sequence[Case]) -> dict[str, Any]:
-    """Summary of runs on cases: mean energy over the drive cycles, feasible runs, worst of each constraint."""
+    """Summary of runs on cases: mean battery energy over the drive cycles, feasible runs, worst of each constraint."""
     cyc = [r["battery_energy_kWh_per_100km"] for r, c in zip(runs, cases) if c.kind == "cycle"]
     ok = [feasible(score([r], [c])[1]) for r, c in zip(runs, cases)]
     cons = score(runs, cases)[1]
@@ -869,7 +871,7 @@ def _write(
     )
     md += [
         "",
-        "Energy: kWh/100 km, mean over the drive cycles of the split (held-out: US06 only; the safety cases count "
+        "Battery energy: kWh/100 km, mean over the drive cycles of the split (held-out: US06 only; the safety cases count "
         "for feasibility); change: tuned against default. Default and tuned are each one SI parameter set on every "
         "case (the default: the first training scenario's). A run is feasible when it meets the constraints above "
         "(a safety case: no event, the gap).",
