@@ -20,6 +20,8 @@ from .ring.scenario import build_ring, load_ring_scenario
 from .stability.ring import measured_growth, ring_stability
 
 QUICK_T_END_S = 120.0
+#: Sub-folder of the report's folder with the section's runs (``aev_ocp.load("ring")``).
+RING_FOLDER = "ring"
 
 
 def _pct(x: float) -> str:
@@ -131,8 +133,22 @@ def _stern_markdown(srows: list[list[Any]], png: Path) -> list[str]:
         "formulation's 2 m floor and its safety filter; call: median controller call [ms].\n\n",
         markdown_table(STERN_HEAD, srows),
         f"\n![space-time diagrams of the ring runs]({png.name})\n\n"
-        "Files: ring.json (every fleet metric, SI), ring_space_time.png.\n",
+        "Files: ring.json (every fleet metric, SI), ring_space_time.png; every run (trajectories of every "
+        f'vehicle) loads back with `aev_ocp.load("{RING_FOLDER}")` (a RingOutput; `.plot()` draws the diagrams).\n',
     ]
+
+
+def _save_runs(
+    folder: Path, sugiyama: list[RingExperiment], stern: list[RingExperiment], doc_sug: list[dict[str, Any]]
+) -> None:
+    """The section's runs, loadable: ``folder``/ring.json (the Sugiyama entries, and every run's label and fleet
+    metrics under 'runs'), trajectories.npz and manifest.json (kind 'ring'), so ``aev_ocp.load(folder)`` returns
+    a RingOutput. The Sugiyama runs are labelled by their ring's length ('sugiyama 230 m'); the Stern runs keep
+    their controller's label. (The report's own folder holds the safety suite's manifest: hence a folder.)"""
+    from .ring.outputs import save_ring_output
+
+    named = [replace(r, label=f"sugiyama {r.result.ring.length_m:g} m") for r in sugiyama]
+    save_ring_output(folder, named + list(stern), {"experiment": "reproduce: Sugiyama and Stern", "sugiyama": doc_sug})
 
 
 def ring_section(out_dir: Path, progress: Callable[[str], None]) -> str:
@@ -158,6 +174,7 @@ def ring_section(out_dir: Path, progress: Callable[[str], None]) -> str:
     png = out_dir / "ring_space_time.png"
     space_time_panels([(r.label, r.result) for r in runs], png, t_from_s=float(runs[0].fleet["window_s"][0]))
     write_json(out_dir / "ring.json", {"sugiyama": doc_sug, "stern": [{"label": r.label, **r.fleet} for r in runs]})
+    _save_runs(out_dir / RING_FOLDER, [r[0] for r in sug_runs], runs, doc_sug)
     return "".join(md + _stern_markdown(srows, png))
 
 
