@@ -448,6 +448,14 @@ def _number(x: Any) -> float | None:
     return float(x) if np.isfinite(x) else None
 
 
+def comparable_dots(ax: Any, pts: Sequence[tuple[float, float, bool]], color: Any) -> None:
+    """Dots of (x, y, comparable) points: filled when comparable with the reference, hollow otherwise."""
+    ax.scatter([p[0] for p in pts if p[2]], [p[1] for p in pts if p[2]], color=color, s=14)
+    ax.scatter(
+        [p[0] for p in pts if not p[2]], [p[1] for p in pts if not p[2]], facecolors="none", edgecolors=color, s=30
+    )
+
+
 def plot_study_rows(
     rows: Sequence[Mapping[str, Any]],
     metric: str,
@@ -480,10 +488,7 @@ def plot_study_rows(
         color = f"C{k % 10}"
         xs = sorted({p[0] for p in pts})
         ax.plot(xs, [float(np.mean([p[1] for p in pts if p[0] == x])) for x in xs], color=color, label=ctrl)
-        ax.scatter([p[0] for p in pts if p[2]], [p[1] for p in pts if p[2]], color=color, s=14)
-        ax.scatter(
-            [p[0] for p in pts if not p[2]], [p[1] for p in pts if not p[2]], facecolors="none", edgecolors=color, s=30
-        )
+        comparable_dots(ax, pts, color)
     if cats:
         ax.set_xticks(range(len(cats)), cats)
     ax.set_xlabel(axis)

@@ -17,6 +17,7 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
+from ..plots import comparable_dots  # noqa: E402
 from ..results import save_figure_atomic, write_atomic  # noqa: E402
 from .table import EQUAL_METRIC
 from .spec import Study  # noqa: E402
@@ -89,10 +90,7 @@ def plot_metric_vs_axis(study: Study, rows: list[dict[str, Any]], metric: str, a
             "" if not others else " (" + ", ".join(f"{o.split('.')[-1]}={v}" for o, v in zip(others, key[1:])) + ")"
         )
         ax.plot([p[0] for p in pts], [p[1] for p in pts], color=color, linestyle=ls, label=lab)
-        ax.scatter([p[0] for p in pts if p[2]], [p[1] for p in pts if p[2]], color=color, s=14)
-        ax.scatter(
-            [p[0] for p in pts if not p[2]], [p[1] for p in pts if not p[2]], facecolors="none", edgecolors=color, s=30
-        )
+        comparable_dots(ax, pts, color)
     if cats:
         ax.set_xticks(range(len(cats)), cats)
     ax.set_xlabel(axis)
