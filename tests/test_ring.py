@@ -608,7 +608,7 @@ def test_ring_report_section(tmp_path):
     from aev_ocp.ring.outputs import RingOutput
 
     loaded = aev_ocp.load(tmp_path / "ring")
-    assert isinstance(loaded, RingOutput) and "aev_ocp.load(\"ring\")" in md
+    assert isinstance(loaded, RingOutput) and 'aev_ocp.load("ring")' in md
     assert [r.label for r in loaded.runs] == ["sugiyama 230 m", "sugiyama 600 m"] + labels
     assert loaded.document["sugiyama"] == doc["sugiyama"]
     for r, saved in zip(loaded.runs[2:], doc["stern"]):
