@@ -589,6 +589,18 @@ class StudyOutput(FieldsRepr):
         """The table rows as a pandas DataFrame. Needs pandas (``pip install 'aev_ocp[pandas]'``)."""
         return require_pandas("StudyOutput.to_dataframe()").DataFrame(self.rows)
 
+    def plot(self, metric: str = "battery_energy_kWh_per_100km", axis: str | None = None, vehicle: int = 1) -> Any:
+        """``metric`` (a table column, unit in its name) of follower ``vehicle`` against ``axis`` (default the
+        study's first axis key, else the point index), one line per controller
+        (:func:`aev_ocp.plots.plot_study_rows`): a matplotlib Figure."""
+        from .plots import plot_study_rows
+
+        if axis is None:
+            axes = (self.meta.get("settings") or {}).get("axes") or []
+            keys = [k for a in axes if isinstance(a, dict) for k in (a.get("keys") or [])]
+            axis = keys[0] if keys else "point"
+        return plot_study_rows(self.rows, metric, axis, vehicle, title=f"{self.folder.name}: {metric}")
+
     def trajectory(self, point: int, controller: str) -> Any:
         """The SimulationResult of one point under one controller, saved by ``run_study(...,
         trajectories=True)`` (``aev-ocp study --trajectories``); LoadError if it was not saved."""

@@ -939,7 +939,7 @@ def _bounds_arg(items: Sequence[str]) -> dict[str, dict[str, tuple[float, float]
 
 def build_parser() -> argparse.ArgumentParser:
     """Argument parser of ``aev-ocp tune``."""
-    from .console import OneLineParser
+    from .console import OneLineParser, add_executor_options
 
     p = OneLineParser(
         prog="aev-ocp tune",
@@ -961,31 +961,20 @@ def build_parser() -> argparse.ArgumentParser:
         help="replace a parameter's bounds (repeatable), e.g. idm.T_s=0.8:2.5",
     )
     p.add_argument("--out", default=None, help="output folder (default results/tune)")
-    ex = p.add_mutually_exclusive_group()
-    ex.add_argument(
-        "--workers", type=int, default=None, metavar="N", help="process pool of N workers (default: one per core)"
-    )
-    ex.add_argument("--dask-local", type=int, default=None, metavar="N", help="a Dask LocalCluster of N workers")
-    ex.add_argument("--scheduler", default=None, metavar="ADDRESS", help="a running Dask scheduler")
-    ex.add_argument("--in-process", action="store_true", help="run every task in this process")
+    add_executor_options(p)  # --workers, --dask-local, --scheduler, --in-process: as aev-ocp study
     return p
 
 
 def cli_tune(argv: list[str]) -> int:
     """Entry point of ``aev-ocp tune``: 0 done, 2 bad input."""
-    from .console import EXIT_BAD_INPUT, EXIT_OK
+    from .console import EXIT_BAD_INPUT, EXIT_OK, executor_options
     from .console import error_line as _err
 
     try:
         a = build_parser().parse_args(argv)
     except SystemExit as exc:
         return int(exc.code or 0)
-    if a.in_process:
-        kw: dict[str, Any] = {"executor": "inprocess"}
-    elif a.dask_local is not None or a.scheduler is not None:
-        kw = {"executor": "dask", "workers": a.dask_local, "scheduler": a.scheduler}
-    else:
-        kw = {"executor": "pool", "workers": a.workers}
+    kw = executor_options(a)
     command = "aev-ocp tune " + " ".join(argv)
     try:
         res = run_tuning(
