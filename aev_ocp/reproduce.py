@@ -145,7 +145,7 @@ def reproduce(
         "column says otherwise; the battery side uses each scenario's units L, U (§1 of the model guide, docs/guide/model.md). Figures: "
         + ("s, m, km/h through the scenario's units" if config.si_units else "model units")
         + ". "
-        "The same report with its figures embedded: report.html. "
+        "The same report as HTML, showing the figures of this folder: report.html. "
         "The paper's figures, Table 1 and its MPC scenarios run the paper's laws as printed, without vehicle "
         "limits (`[limits] enabled = false` in their scenario files); every other scenario (the drive cycles) "
         f"applies each vehicle's default limits (a ∈ [{_LIM.a_min_mps2:g}, {_LIM.a_max_mps2:g}] m/s², "
