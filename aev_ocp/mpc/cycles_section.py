@@ -330,13 +330,16 @@ def cycles_section(
 
 def _reproduce_section(out_dir: Any, progress: Callable[[str], None]) -> str:
     """The section as ``reproduce`` runs it: a reduced configuration's scenario_t_end_max [model time]
-    caps every segment (e.g. ReproduceConfig.quick(): 10 time units)."""
+    caps every segment (e.g. ReproduceConfig.quick(): 10 time units); the MPC runs with the default forecast only
+    unless ``config.extended`` (``reproduce --full``: every forecast of :data:`PREDICTORS`)."""
     from ..report_sections import SectionContext
 
-    cap = SectionContext.of(progress).config.scenario_t_end_max
-    if cap is None:
-        return cycles_section(out_dir, progress)
-    return cycles_section(out_dir, progress, t_end_max=cap)
+    cfg = SectionContext.of(progress).config
+    # reduced by default (aev_ocp.reproduce.REDUCED_BY_DEFAULT): the MPC with its default forecast only; --full: all
+    preds = PREDICTORS if cfg.extended else (section_settings().predictor,)
+    if cfg.scenario_t_end_max is None:
+        return cycles_section(out_dir, progress, predictors=preds)
+    return cycles_section(out_dir, progress, predictors=preds, t_end_max=cfg.scenario_t_end_max)
 
 
 REPRODUCE_SECTIONS = [("mpc-cycles", _reproduce_section, STEPS)]  # listed in aev_ocp.reproduce.SECTION_PROVIDERS
