@@ -53,6 +53,7 @@ def run(
         if keep is not None and keep.exists():
             shutil.rmtree(keep)
         cache_dir = cache if cache is not None else Path(tmp) / "cache"
+        cache_state = "warm" if cache_dir.is_dir() and any(cache_dir.rglob("*.so")) else "empty"
         env = {**os.environ, "AEV_OCP_CACHE": str(cache_dir), "PYTHONPATH": str(ROOT)}
         head = [sys.executable, "-m", "aev_ocp.cli", "reproduce"]
         if profile is not None:
@@ -73,7 +74,7 @@ def run(
         return {
             "quick": quick,
             "full": full,
-            "compile_cache": "given (may be warm)" if cache is not None else "empty",
+            "compile_cache": cache_state,
             "command": " ".join(["aev-ocp reproduce", *args]),
             "wall_s": wall,
             "cpu_s": (r1.ru_utime - r0.ru_utime) + (r1.ru_stime - r0.ru_stime),
