@@ -40,7 +40,9 @@ PLATOON_SEGMENT_S = 60.0
 #: formulation is MPCSettings()'s default.
 SOLVER_PATH: dict[str, Any] = {"solver": "rti", "qp_solver": "auto", "codegen": True}
 #: Progress lines the section reports (declared to the reproduce Progress counter).
-STEPS = 4 * 2 * 6 + 6 + 1  # 6 lines per MPC run (start + every 25 %), the platoon run, writing
+#: Of the default reproduce, which runs one forecast per cycle (``reproduce --full`` runs both: its other forecast's
+#: lines are sub-steps, the denominator stays).
+STEPS = 4 * 1 * 6 + 6 + 1  # 6 lines per MPC run (start + every 25 %), the platoon run, writing
 
 
 def _prefixed(progress: Callable[[str], None], prefix: str) -> Callable[[str], None]:
