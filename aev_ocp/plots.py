@@ -270,7 +270,7 @@ def plot_space_time(
     keep = np.unique(np.append(np.arange(0, t.size, max(1, -(-t.size // SPACE_TIME_MAX_POINTS))), t.size - 1))
     for i in _shown(r.n_vehicles):
         pts = np.column_stack([t[keep], x[keep, i]]).reshape(-1, 1, 2)
-        lc = LineCollection(np.concatenate([pts[:-1], pts[1:]], axis=1), cmap="viridis", norm=norm, lw=1.0)
+        lc = LineCollection(list(np.concatenate([pts[:-1], pts[1:]], axis=1)), cmap="viridis", norm=norm, lw=1.0)
         lc.set_array(au.v * r.speed[keep[:-1], i])
         ax.add_collection(lc)
     ax.plot(t, au.x * r.leader_position, color="black", lw=1.6, ls="--", label="leader")
