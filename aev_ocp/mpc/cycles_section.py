@@ -40,7 +40,9 @@ PLATOON_SEGMENT_S = 60.0
 #: formulation is MPCSettings()'s default.
 SOLVER_PATH: dict[str, Any] = {"solver": "rti", "qp_solver": "auto", "codegen": True}
 #: Progress lines the section reports (declared to the reproduce Progress counter).
-STEPS = 4 * 2 * 6 + 6 + 1  # 6 lines per MPC run (start + every 25 %), the platoon run, writing
+#: Of the default reproduce, which runs one forecast per cycle (``reproduce --full`` runs both: its other forecast's
+#: lines are sub-steps, the denominator stays).
+STEPS = 4 * 1 * 6 + 6 + 1  # 6 lines per MPC run (start + every 25 %), the platoon run, writing
 
 
 def _prefixed(progress: Callable[[str], None], prefix: str) -> Callable[[str], None]:
@@ -351,13 +353,16 @@ def cycles_section(
 
 def _reproduce_section(out_dir: Any, progress: Callable[[str], None]) -> str:
     """The section as ``reproduce`` runs it: a reduced configuration's scenario_t_end_max [model time]
-    caps every segment (e.g. ReproduceConfig.quick(): 10 time units)."""
+    caps every segment (e.g. ReproduceConfig.quick(): 10 time units); the MPC runs with the default forecast only
+    unless ``config.extended`` (``reproduce --full``: every forecast of :data:`PREDICTORS`)."""
     from ..report_sections import SectionContext
 
-    cap = SectionContext.of(progress).config.scenario_t_end_max
-    if cap is None:
-        return cycles_section(out_dir, progress)
-    return cycles_section(out_dir, progress, t_end_max=cap)
+    cfg = SectionContext.of(progress).config
+    # reduced by default (aev_ocp.reproduce.REDUCED_BY_DEFAULT): the MPC with its default forecast only; --full: all
+    preds = PREDICTORS if cfg.extended else (section_settings().predictor,)
+    if cfg.scenario_t_end_max is None:
+        return cycles_section(out_dir, progress, predictors=preds)
+    return cycles_section(out_dir, progress, predictors=preds, t_end_max=cfg.scenario_t_end_max)
 
 
 REPRODUCE_SECTIONS = [("mpc-cycles", _reproduce_section, STEPS)]  # listed in aev_ocp.reproduce.SECTION_PROVIDERS
