@@ -42,5 +42,10 @@ static const double AEV_MPC_U_SCALE[AEV_MPC_NU] = @U_SCALE@;
 static const double AEV_MPC_OWN0[AEV_MPC_NX - AEV_MPC_NZ + 1] = @OWN0@;
 static const double AEV_MPC_W_EXTRA[AEV_MPC_NW_EXTRA + 1] = @W_EXTRA@;
 static const double AEV_MPC_P_CONST[AEV_MPC_NPP + 1] = @P_CONST@;
+/* the constants the generated functions take after the NLP parameters (aev_ocp.mpc.cstep.step_constants): the
+ * simple bounds of a node and of an interval (scaled), the path constraints' bounds, the cold-start guess's
+ * bounds and closed-form law coefficients; the workspace starts with these, aev_mpc_set_constants replaces them */
+#define AEV_MPC_NK @NK@
+static const double AEV_MPC_K_CONST[AEV_MPC_NK + 1] = @K_CONST@;
 
 #endif

@@ -67,6 +67,12 @@ int aev_mpc_step_own(aev_mpc_workspace *ws, const double *x_meas, const double *
 /* The same from the full initial state z0[NX] (own states included) and the NLP parameter vector p[NP]
  * (stage parameters per interval, problem parameters, stage weights). */
 int aev_mpc_step_full(aev_mpc_workspace *ws, const double *z0, const double *p, double *u_out, int *status);
+/* Replace the problem's constants (any pointer may be NULL: kept): p_const[NPP] the problem parameters and
+ * w_extra[NW_EXTRA] the constant stage parameters aev_mpc_step fills in, own0[NX - NZ] the own states' initial
+ * values, k_const[NK] the constants after the NLP parameters (bounds, the guess law's coefficients). A workspace
+ * starts with those of mpc_config.h. */
+void aev_mpc_set_constants(aev_mpc_workspace *ws, const double *p_const, const double *w_extra, const double *own0,
+                           const double *k_const);
 /* Warm start the next step from a primal-dual point: x[NV] (scaled), lam_g[NG], lam_x[NV]. */
 void aev_mpc_set_warm(aev_mpc_workspace *ws, const double *x, const double *lam_g, const double *lam_x);
 /* The last plan: x[NV] (scaled NLP vector), lam_g[NG], lam_x[NV] (any may be NULL). */
