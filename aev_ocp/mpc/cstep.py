@@ -121,6 +121,8 @@ EXPORT_FILES = (
     "CMakeLists.txt",
     "README.txt",
 )
+#: The recorded input an export of a scenario writes beside the C (``aev-ocp mpc-export``; mpc_bench reads it).
+RECORD_FILE = "mpc_input.txt"
 #: At most this many SQP iterations from the cold-start guess (the first step, or after a failure).
 COLD_MAX_ITER = 100
 #: Cold start (Levenberg-Marquardt): the QP Hessian gets reg·I, reg = COLD_REG0 at first, divided by 10
@@ -327,6 +329,43 @@ def _c_array(values: np.ndarray) -> str:
     )
 
 
+#: SI units of the MPC problems' states and controls by name: (unit, dimension of the model value: 'length',
+#: 'speed', 'accel', 'power' (v·a, W/kg), or '' for a value that is SI already); a name not listed keeps the
+#: problem's own unit (factor 1)
+SI_UNITS: dict[str, tuple[str, str]] = {
+    "h": ("m", "length"),
+    "v": ("m/s", "speed"),
+    "V1": ("V", ""),
+    "V2": ("V", ""),
+    "S": ("-", ""),
+    "T": ("K", ""),
+    "a_prev": ("m/s^2", "accel"),
+    "a_act": ("m/s^2", "accel"),
+    "a": ("m/s^2", "accel"),
+    "slack_gap": ("m", "length"),
+    "slack_margin": ("m", "length"),
+    "slack_T": ("K", ""),
+}
+
+
+def si_factors(c: ExportableController) -> tuple[np.ndarray, np.ndarray, list[str], list[str]]:
+    """(x_si (nx,), u_si (nu,), state units, control units): SI value = model value × factor for every state and
+    control of the controller's problem (:data:`SI_UNITS`; the traffic formulation's omega_rate is in W/kg
+    already, §9's in model units (v·a: U³/L W/kg); a name not known keeps the problem's unit, factor 1)."""
+    u = c.ev.units
+    dim = {"length": u.length_m, "speed": u.speed_mps, "accel": u.accel_mps2, "power": u.speed_mps * u.accel_mps2}
+    known = dict(SI_UNITS)
+    known["omega_rate"] = ("W/kg", "" if c.formulation.family == "traffic" else "power")
+
+    def one(names: Any) -> tuple[np.ndarray, list[str]]:
+        f = [float(dim[known[n][1]]) if n in known and known[n][1] else 1.0 for n in names]
+        return np.array(f), [known[n][0] if n in known else "problem unit" for n in names]
+
+    xs, xu = one(c.problem.state_names)
+    us, uu = one(c.problem.control_names)
+    return xs, us, xu, uu
+
+
 def config_header(c: ExportableController, description: str, values: bool = True) -> str:
     """mpc_config.h: dimensions and constants of the exported problem (filled template). ``values`` False: the
     problem's numbers (parameters, constant stage parameters, own states' initial values, step constants) are NaN
@@ -340,6 +379,8 @@ def config_header(c: ExportableController, description: str, values: bool = True
     def num(v: np.ndarray) -> str:
         v = np.asarray(v, float)
         return _c_array(v if values else np.full(v.size, np.nan))
+
+    x_si, u_si, x_units, u_units = si_factors(c)
 
     subs = {
         "DESCRIPTION": description.replace("*/", "* /"),
@@ -369,6 +410,12 @@ def config_header(c: ExportableController, description: str, values: bool = True
         "TOL": repr(float(s.tol)),
         "PLAN_TOL": repr(float(_plan_tolerance())),
         "DT": repr(float(s.dt)),
+        "DT_S": repr(float(s.dt * c.ev.units.time_s)) if values else "NAN",
+        "UNITS": units_text(c) if values else "set at run time",
+        "X_SI": num(x_si),
+        "U_SI": num(u_si),
+        "STATE_SI": ", ".join(f"{n} [{un}]" for n, un in zip(pr.state_names, x_units)),
+        "CONTROL_SI": ", ".join(f"{n} [{un}]" for n, un in zip(pr.control_names, u_units)),
         "X_SCALE": _c_array(c.x_scale),
         "U_SCALE": _c_array(c.u_scale),
         "OWN0": num(c.layout.x_own0),
@@ -383,6 +430,12 @@ def config_header(c: ExportableController, description: str, values: bool = True
     for k, v in subs.items():
         text = text.replace(f"@{k}@", str(v))
     return text
+
+
+def units_text(c: ExportableController) -> str:
+    """The model units of the controller's vehicle in words (length, speed, time)."""
+    u = c.ev.units
+    return f"length {u.length_m:g} m, speed {u.speed_mps:g} m/s, time {u.time_s:g} s"
 
 
 def _plan_tolerance() -> float:
@@ -441,7 +494,12 @@ def export_controller(c: ExportableController, out: Path, description: str) -> l
         "CONTROLS": ", ".join(pr.control_names),
         "NV": c.nv,
         "NG": c.ng,
-        "UNITS": f"length {c.ev.units.length_m:g} m, speed {c.ev.units.speed_mps:g} m/s, time {c.ev.units.time_s:g} s",
+        "UNITS": units_text(c),
+        "DT_S": f"{s.dt * c.ev.units.time_s:.6g}",
+        "STATE_SI": ", ".join(f"{n} [{un}]" for n, un in zip(pr.state_names, si_factors(c)[2])),
+        "CONTROL_SI": ", ".join(f"{n} [{un}]" for n, un in zip(pr.control_names, si_factors(c)[3])),
+        "NZ2N": 5 + 2 * s.N,
+        "RECORD": RECORD_FILE,
     }
     for k, v in subs.items():
         readme = readme.replace(f"@{k}@", str(v))
@@ -550,6 +608,8 @@ class CStep:
         lib.aev_mpc_step_own.restype = ctypes.c_int
         lib.aev_mpc_set_constants.argtypes = [_VP] * 5
         lib.aev_mpc_set_constants.restype = None
+        lib.aev_mpc_set_si.argtypes = [_VP] * 3
+        lib.aev_mpc_set_si.restype = None
         dims = np.zeros(8, dtype=np.intc)
         lib.aev_mpc_dims(dims.ctypes.data)
         self.N, self.nx, self.nu, self.nz, self.nv, self.ng, self.np_, self.nf = (int(d) for d in dims)
@@ -582,8 +642,9 @@ class CStep:
         self.lib.aev_mpc_reset(self.ws)
 
     def step(self, x_meas: np.ndarray, forecast: np.ndarray, own: np.ndarray | None = None) -> tuple[np.ndarray, int]:
-        """(u0 (nu,), status) from the measured (h, v, V1, V2, S) and forecast (v̄_l (N), v̂_l (N)); ``own``:
-        the controller's own states (nx − 5 values, e.g. a_prev), else the previous plan's (aev_mpc_step_own)."""
+        """(u0 (nu,) [SI], status) from the measured (h [m], v [m/s], V1 [V], V2 [V], S [-]) and forecast
+        (v̄_l (N), v̂_l (N) [m/s]); ``own``: the controller's own states in SI (nx − 5 values, e.g. a_prev
+        [m/s²]), else the previous plan's (aev_mpc_step_own). SI in and out (:func:`si_factors`)."""
         xm = np.ascontiguousarray(x_meas, float)
         fc = np.ascontiguousarray(forecast, float)
         if xm.size != self.nz or fc.size != self.nf:
@@ -614,6 +675,14 @@ class CStep:
         keep = [np.ascontiguousarray(v, float) for v in (p_const, w_extra, own0, k_const)]
         self._constants = keep  # alive while the library may read them (it copies them)
         self.lib.aev_mpc_set_constants(self.ws, *(_addr(v) if v.size else None for v in keep))
+
+    def set_si(self, x_si: np.ndarray, u_si: np.ndarray) -> None:
+        """The SI factors of the states and controls (``aev_mpc_set_si``: SI = model × factor)."""
+        keep = [np.ascontiguousarray(v, float) for v in (x_si, u_si)]
+        if keep[0].size != self.nx or keep[1].size != self.nu:
+            raise ParameterError(f"CStep.set_si: x_si must have {self.nx} and u_si {self.nu} values")
+        self._si = keep
+        self.lib.aev_mpc_set_si(self.ws, _addr(keep[0]), _addr(keep[1]))
 
     def set_warm(self, x: np.ndarray, lam_g: np.ndarray, lam_x: np.ndarray, drop_below: float = 0.0) -> None:
         """Start the next step from this primal-dual point (scaled NLP vector and multipliers).
@@ -675,4 +744,5 @@ class CompiledStep:
             return None
         cs = CStep(built.path)
         cs.set_constants(c.constant_parameters(), c.layout.w_extra, c.layout.x_own0, step_constants(c))
+        cs.set_si(*si_factors(c)[:2])
         return cs

@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import warnings
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Sequence
 
 import casadi as ca
 
@@ -209,6 +209,7 @@ def following_problem(
     with_temperature: bool = False,
     temperature: TemperatureTerms | None = None,
     runtime_parameters: bool = False,
+    ev_numbers: Sequence[str] = (),
 ) -> ProblemBuilder:
     """The §9 problem as a builder (model units, time in model time units):
 
@@ -226,7 +227,8 @@ def following_problem(
     state with the soft limit of :class:`TemperatureTerms` instead of the hard bound. ``runtime_parameters``: the
     vehicle's float fields (units, body, cell, thermal, …) are global parameters after the weights
     (:meth:`ProblemBuilder.parameters_of`, prefix ``ev``, their values the defaults) instead of numbers in the
-    expressions, so the MPC's generated C serves every vehicle of the same structure; the bounds stay numbers.
+    expressions, so the MPC's generated C serves every vehicle of the same structure; the bounds stay numbers, and
+    so do the fields or groups named in ``ev_numbers`` (e.g. ``"limits"``).
     """
     b = bounds or FollowingBounds()
     pb = ProblemBuilder(name, time_unit="model")
@@ -244,7 +246,7 @@ def following_problem(
     wt = [pb.parameter(k) for k in WEIGHT_NAMES]
     evn, ev = (
         ev,
-        (pb.parameters_of(ev, "ev", EV_NUMBERS) if runtime_parameters else ev),
+        (pb.parameters_of(ev, "ev", (*EV_NUMBERS, *ev_numbers)) if runtime_parameters else ev),
     )  # numbers (bounds), the model's
     rhs = following_ode(z, a, v_mean, ev, smooth, Tst)
     for i, nm in enumerate(STATE_NAMES):

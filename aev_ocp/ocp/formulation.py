@@ -115,7 +115,12 @@ class Formulation:
 
     # ------------------------------------------------------------------ the problem
     def builder(
-        self, ev: EVParams, dt: float, name: str | None = None, runtime_parameters: bool = False
+        self,
+        ev: EVParams,
+        dt: float,
+        name: str | None = None,
+        runtime_parameters: bool = False,
+        ev_numbers: tuple[str, ...] = (),
     ) -> OCPProblem | ProblemBuilder:
         """The problem on intervals of length dt [model time] (the traffic problem's jerk term uses dt).
         A user's builder or built problem is returned as given (it was stated for the MPC's dt).
@@ -130,6 +135,7 @@ class Formulation:
                 name=name or "mpc_traffic",
                 temperature=self.temperature,
                 runtime_parameters=runtime_parameters,
+                ev_numbers=ev_numbers,
             )
         if self.kind == "s9":
             return following_problem(
@@ -140,6 +146,7 @@ class Formulation:
                 name=name or "mpc",
                 temperature=self.temperature,
                 runtime_parameters=runtime_parameters,
+                ev_numbers=ev_numbers,
             )
         p = self.problem
         if isinstance(p, (OCPProblem, ProblemBuilder)):
@@ -159,10 +166,20 @@ class Formulation:
         with a warning. A user problem as :meth:`build` gives it."""
         if self.kind == "problem":
             return self.build(ev, dt)
-        b = self.builder(ev, dt, runtime_parameters=True)
-        pr = b.build() if isinstance(b, ProblemBuilder) else b
-        baked = self.build(ev, dt, pr.name)
-        why = same_problem(baked, pr)
+        baked = self.build(ev, dt)
+        why = ""
+        # the vehicle's groups a model may need as numbers (a jerk limit converted with float(), a lag's τ compared
+        # with 0), kept as numbers in turn until the problem builds: each tier is one library per such value
+        for keep in EV_NUMBER_TIERS:
+            try:
+                b = self.builder(ev, dt, baked.name, runtime_parameters=True, ev_numbers=keep)
+                pr = b.build() if isinstance(b, ProblemBuilder) else b
+            except (RuntimeError, TypeError, ValueError, NotImplementedError) as exc:
+                why = f"{type(exc).__name__}: {str(exc).splitlines()[-1][:120]}"
+                continue
+            why = same_problem(baked, pr)
+            if not why:
+                return pr
         if why:
             import warnings
 
@@ -176,8 +193,7 @@ class Formulation:
                 ),
                 stacklevel=2,
             )
-            return baked
-        return pr
+        return baked
 
     def build(self, ev: EVParams, dt: float, name: str | None = None) -> OCPProblem:
         """:meth:`builder`, built."""
@@ -377,6 +393,12 @@ def problem_formulation(
         initial_values=dict(initial_values or {}),
         weights=weights or FollowingWeights(),
     )
+
+
+#: Groups of the vehicle's numbers kept as numbers, in turn, when a problem with them as parameters does not build
+#: (:meth:`Formulation.mpc_problem`): none, then the limits (a lag's τ is compared with 0, a jerk limit goes through
+#: float()), then the limits and the units.
+EV_NUMBER_TIERS: tuple[tuple[str, ...], ...] = ((), ("limits",), ("limits", "units"))
 
 
 def same_problem(baked: OCPProblem, runtime: OCPProblem, rtol: float = 1e-9) -> str:

@@ -232,8 +232,8 @@ class ProblemBuilder:
         against ``obj`` (a vehicle's EVParams, SI parameters of a formulation) then takes the numbers at run time,
         so the code generated from the problem does not depend on them (one compiled library for every vehicle of
         the same structure). Bools, ints, strings and None stay as they are (they shape the model), and so do the
-        float fields named in ``numbers`` (dotted paths below ``obj``, e.g. ``"vehicle.rotating_mass_kg"``: fields
-        a model branches on in Python). The copy bypasses the dataclass's validation (which ran on ``obj``)."""
+        float fields and nested dataclasses named in ``numbers`` (dotted paths below ``obj``, e.g.
+        ``"vehicle.rotating_mass_kg"`` or ``"limits"``: what a model branches on in Python). The copy bypasses the dataclass's validation (which ran on ``obj``)."""
         if not (dataclasses.is_dataclass(obj) and not isinstance(obj, type)):
             raise ParameterError(f"{self.name}: parameters_of needs a dataclass instance, got {type(obj).__name__}")
         twin = copy.copy(obj)
@@ -242,7 +242,7 @@ class ProblemBuilder:
             name = f"{prefix}__{f.name}"
             if isinstance(x, float) and f.name not in numbers:
                 object.__setattr__(twin, f.name, self.parameter(name, x))
-            elif dataclasses.is_dataclass(x) and not isinstance(x, type):
+            elif dataclasses.is_dataclass(x) and not isinstance(x, type) and f.name not in numbers:
                 below = [k.split(".", 1)[1] for k in numbers if k.startswith(f"{f.name}.")]
                 object.__setattr__(twin, f.name, self.parameters_of(x, name, below))
         return twin

@@ -40,7 +40,7 @@ from __future__ import annotations
 
 import warnings
 from dataclasses import InitVar, dataclass
-from typing import Any
+from typing import Any, Sequence
 
 import casadi as ca
 
@@ -190,6 +190,7 @@ def traffic_problem(
     with_temperature: bool = False,
     temperature: TemperatureTerms | None = None,
     runtime_parameters: bool = False,
+    ev_numbers: Sequence[str] = (),
 ) -> ProblemBuilder:
     """The traffic formulation (module docstring) as a builder in model units: states (h, v, V1, V2, S,
     a_prev), controls (a, omega_rate, slacks), stage parameters (v̄_l, v̂_l), no global parameter.
@@ -200,7 +201,8 @@ def traffic_problem(
     the TrafficParams' float fields are the problem's global parameters (:meth:`ProblemBuilder.parameters_of`,
     prefixes ``ev`` and ``tp``, their values the defaults) instead of numbers in the expressions, so the MPC's
     generated C serves every vehicle, unit system and parameter value of the same structure; the bounds (and
-    what decides the structure: the actuator state, the margin's presence) stay numbers."""
+    what decides the structure: the actuator state, the margin's presence) stay numbers, and so do the vehicle's
+    fields or groups named in ``ev_numbers`` (e.g. ``"limits"``)."""
     tp = tp or TrafficParams()
     if not (isinstance(dt, (int, float)) and dt > 0):
         raise ParameterError(f"traffic_problem: dt = {dt!r} must be > 0")
@@ -221,7 +223,7 @@ def traffic_problem(
     pb.set_next(a_prev, a)
     un, evn, tpn = u, ev, tp  # the numbers: bounds and what shapes the problem
     if runtime_parameters:  # the expressions' numbers are global parameters (the generated C does not hold them)
-        ev, tp = pb.parameters_of(ev, "ev", EV_NUMBERS), pb.parameters_of(tp, "tp")
+        ev, tp = pb.parameters_of(ev, "ev", (*EV_NUMBERS, *ev_numbers)), pb.parameters_of(tp, "tp")
         u = ev.units
         T, m, eta = u.time_s, ev.vehicle.mass_kg, ev.vehicle.efficiency
     a_real = a  # the acceleration the car realises: the command, or its actuator's state (a lag)
