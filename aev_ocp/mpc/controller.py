@@ -153,8 +153,11 @@ class MPCController:
         self.formulation = f = resolve_formulation(formulation, problem, parameter_values, initial_values)
         # rti: a built-in problem with the OCV as comparisons (same values, cheaper Hessians: models/battery.py)
         with piecewise_ocv() if s.solver == "rti" and f.kind != "problem" else contextlib.nullcontext():
-            # the vehicle's numbers are parameters of the NLP, not constants of its generated C (issue 40)
-            self.problem = f.mpc_problem(self.ev, s.dt)
+            # where C is generated (codegen, or the rti path's compiled step), the vehicle's numbers are parameters
+            # of the NLP, not constants of the C: one library per structure (issue 40); interpreted paths keep them
+            # as numbers (nothing to share, and the expressions CasADi folds stay as they were)
+            compiled = s.codegen or s.solver == "rti"
+            self.problem = f.mpc_problem(self.ev, s.dt) if compiled else f.build(self.ev, s.dt)
         self.layout = self._check_layout(dict(f.parameter_values), dict(f.initial_values))
         self.codegen_active = False
         #: the compiled whole step (export.CStep) of the rti path with qp_solver 'riccati' (None otherwise)
