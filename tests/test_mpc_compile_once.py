@@ -131,3 +131,41 @@ def test_a_number_the_model_cannot_take_as_a_symbol_keeps_the_numbers_in(monkeyp
     assert any(isinstance(x.message, AevOcpWarning) and "numbers in" in str(x.message) for x in w)
     assert "ev__units__length_m" not in pr.meta["parameter_defaults"]
     assert same_problem(DEFAULT_FORMULATION.build(EVParams(), 0.1), pr) == ""
+
+
+def test_parameters_of_names_every_float_and_keeps_the_numbers_asked_for() -> None:
+    from aev_ocp.ocp.problem import ProblemBuilder
+    from aev_ocp.params import ParameterError
+
+    pb = ProblemBuilder("p")
+    twin = pb.parameters_of(_ev_b(), "ev", ("vehicle.grade_rad", "limits"))
+    d = pb._p_values
+    assert d["ev__units__length_m"] == 15.0 and d["ev__vehicle__mass_kg"] == 1390.0
+    assert "ev__vehicle__grade_rad" not in d and not any(k.startswith("ev__limits__") for k in d)
+    assert isinstance(twin.vehicle.grade_rad, float) and twin.limits == _ev_b().limits  # kept as numbers
+    assert not isinstance(twin.vehicle.mass_kg, float)  # a symbol
+    with pytest.raises(ParameterError, match="not a finite number"):
+        pb.parameter("bad", float("nan"))
+    with pytest.raises(ParameterError, match="a parameter named 'ev__units__length_m' exists"):
+        pb.parameter("ev__units__length_m", 1.0)
+
+
+def test_a_user_parameter_with_a_value_is_its_default_in_the_mpc() -> None:
+    """ProblemBuilder.parameter(name, value): the MPC uses the value unless parameter_values names the parameter."""
+    s = MPCSettings(N=5, dt=0.1, solver="ipopt-cold", codegen=False)
+
+    def problem(ev, dt):  # noqa: ANN001, ANN202
+        pb = F.following_problem(ev, name="with_k")
+        k = pb.parameter("k_extra", 0.37)
+        pb.add_stage_cost(k * pb.u["a"] ** 2, "extra")
+        return pb
+
+    z, vm, vh = _inputs(2)
+    runs = {}
+    for name, pv in (("default", None), ("explicit", {"k_extra": 0.37}), ("other", {"k_extra": 3.0})):
+        c = MPCController(s, EVParams(), problem=problem, parameter_values=pv)
+        sol = c.solve(z, vm[:5], vh[:5])
+        assert sol.success, sol.status
+        runs[name] = sol.a
+    assert np.array_equal(runs["default"], runs["explicit"])
+    assert np.abs(runs["default"] - runs["other"]).max() > 1e-4
