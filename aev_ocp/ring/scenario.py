@@ -88,9 +88,11 @@ class RingSpec:
     between keys (dt_out_s <= t_end_s, metrics_from_s < t_end_s, the vehicles fit on the ring, …) are
     :func:`validate_ring_table`'s."""
 
-    length_m: float = spec(gt=0)
-    vehicles: int = spec(kind="integer", ge=2)
-    t_end_s: float = spec(gt=0, le=MAX_RING_T_END_S)
+    # (defaults: the ring of Sugiyama et al. 2008, New J. Phys. 10:033001, 22 cars on 230 m, that Stern et al. 2018
+    # drove again, over the 600 s of the shipped ring scenarios; a [ring] table must give them: _REQUIRED)
+    length_m: float = spec(230.0, gt=0)
+    vehicles: int = spec(22, kind="integer", ge=2)
+    t_end_s: float = spec(600.0, gt=0, le=MAX_RING_T_END_S)
     vehicle_length_m: float = spec(5.0, ge=0)  # the ring benchmarks of Wu et al. 2017 (Flow), as RingRoad
     dt_out_s: float = spec(0.5, gt=0)  # at most t_end_s
     metrics_from_s: float | None = spec(None, ge=0, optional=True)  # before t_end_s; None: the second half
@@ -154,7 +156,8 @@ class RingScenario:
 
 
 _CHECKS = field_checks(RingSpec)
-_DEFAULTS = {f.name: f.default for f in fields(RingSpec) if f.default is not MISSING}
+_REQUIRED = ("length_m", "vehicles", "t_end_s")  # keys a [ring] table must give (no default in a file)
+_DEFAULTS = {f.name: f.default for f in fields(RingSpec) if f.default is not MISSING and f.name not in _REQUIRED}
 
 
 def _declared(r: TableReader, key: str, check: Check | None = None, **bounds: float) -> Any:
