@@ -223,30 +223,10 @@ class ClosedLoop(PlatoonRun):
         degraded = sensors is not None and sensors.degraded
         self.laws: list[CarFollowingLaw | None] = []
         self.ctrl: list[Controller | None] = []
-        for i, c in enumerate(controllers):
-            if isinstance(c, CarFollowingLaw):
-                self.laws.append(c)
-                self.ctrl.append(None)
-                continue
-            adapter = next((fn for cls, fn in _ADAPTERS.items() if isinstance(c, cls)), None)
-            c = adapter(c, i, self) if adapter is not None else c
-            if not isinstance(c, Controller):
-                raise ParameterError(
-                    f"ClosedLoop: controller of vehicle {i + 1} must be a CarFollowingLaw or a "
-                    f"Controller (name, dt, reset, command, describe), got {type(c).__name__}"
-                )
-            dt = getattr(c, "dt", None)
-            if (
-                isinstance(dt, (bool, np.bool_))
-                or not isinstance(dt, numbers.Real)
-                or not (math.isfinite(dt) and float(dt) > 0)
-            ):
-                raise ParameterError(
-                    f"ClosedLoop: controller {getattr(c, 'name', type(c).__name__)!r} of vehicle {i + 1}: dt = {dt!r} "
-                    "is not allowed: must be a finite sampling period > 0 [model time]"
-                )
-            self.laws.append(None)
-            self.ctrl.append(c)
+        for i, c in enumerate(controllers):  # (an adapter may read what is set so far, e.g. model_ev)
+            law, ctrl = self._resolve(c, i)
+            self.laws.append(law)
+            self.ctrl.append(ctrl)
         # realistic sensors (noise, quantisation or delay on a channel; not merely sampled): the laws get a
         # production ACC's conditioning by default
         realistic = sensors is not None and any(
@@ -273,6 +253,30 @@ class ClosedLoop(PlatoonRun):
         self.rtol, self.atol = rtol, atol
         self.plant = Plant(leader, self.laws, self.ev, rtol=rtol, atol=atol)
         self.battery = self.plant.battery
+
+    def _resolve(self, c: Any, i: int) -> tuple[CarFollowingLaw | None, Controller | None]:
+        """(law, None) for a CarFollowingLaw, else (None, the Controller) of follower i's ``c`` (through its
+        registered adapter), checked: the protocol and a finite dt > 0 [model time]."""
+        if isinstance(c, CarFollowingLaw):
+            return c, None
+        adapter = next((fn for cls, fn in _ADAPTERS.items() if isinstance(c, cls)), None)
+        c = adapter(c, i, self) if adapter is not None else c
+        if not isinstance(c, Controller):
+            raise ParameterError(
+                f"ClosedLoop: controller of vehicle {i + 1} must be a CarFollowingLaw or a "
+                f"Controller (name, dt, reset, command, describe), got {type(c).__name__}"
+            )
+        dt = getattr(c, "dt", None)
+        if (
+            isinstance(dt, (bool, np.bool_))
+            or not isinstance(dt, numbers.Real)
+            or not (math.isfinite(dt) and float(dt) > 0)
+        ):
+            raise ParameterError(
+                f"ClosedLoop: controller {getattr(c, 'name', type(c).__name__)!r} of vehicle {i + 1}: dt = {dt!r} "
+                "is not allowed: must be a finite sampling period > 0 [model time]"
+            )
+        return None, c
 
     def _stages(
         self, given: CommandStages | Sequence[CommandStages | None] | None, realistic: bool

@@ -359,6 +359,12 @@ class VehicleStep:
         self.a_prev = a
         return a
 
+    def count_unstaged(self, saturated: bool) -> None:
+        """Count one step of a command the loop saturates itself, no stage being active (SUMO's laws, evaluated
+        for all its vehicles at once): as :meth:`apply` counts it."""
+        self.n["steps"] += 1
+        self.n["saturated_steps"] += int(saturated)
+
     # ------------------------------------------------------------------ reports
     def counts(self) -> dict[str, int]:
         """Steps and, per stage, how many commands it changed (the filter: every step it ran)."""
