@@ -160,10 +160,15 @@ _REQUIRED = ("length_m", "vehicles", "t_end_s")  # keys a [ring] table must give
 _DEFAULTS = {f.name: f.default for f in fields(RingSpec) if f.default is not MISSING and f.name not in _REQUIRED}
 
 
-def _declared(r: TableReader, key: str, check: Check | None = None, **bounds: float) -> Any:
+def _declared(
+    r: TableReader, key: str, check: Check | None = None, *, lt: float | None = None, le: float | None = None
+) -> Any:
     """``key`` of ``r``'s table checked against its declaration (RingSpec's field ``key`` unless ``check``), with
-    ``bounds`` that another key sets (e.g. ``le=t_end_s``); absent: the field's default (required without one)."""
-    c = dataclasses.replace(check or _CHECKS[key], **bounds)
+    an upper bound ``lt``/``le`` that another key sets (e.g. ``le=t_end_s``); absent: the field's default (required
+    without one)."""
+    c = check or _CHECKS[key]
+    if lt is not None or le is not None:
+        c = dataclasses.replace(c, lt=c.lt if lt is None else lt, le=c.le if le is None else le)
     return r.declared(key, c, _DEFAULTS[key]) if key in _DEFAULTS and check is None else r.declared(key, c)
 
 
