@@ -176,10 +176,7 @@ def folder_graph(graph: dict[str, dict[str, int]]) -> dict[str, dict[str, int]]:
 
 
 #: Folder edges still open, each with its owner; the list only shrinks. (importer folder, imported folder): why.
-FOLDER_ALLOWED: dict[tuple[str, str], str] = {
-    ("aev_ocp.sumo", "aev_ocp.study"): "issue 36 (humans36): sumo.cli sweeps through study.runner while study.traffic "
-    "runs SUMO; the sweep command belongs above both folders",
-}
+FOLDER_ALLOWED: dict[tuple[str, str], str] = {}
 
 
 def test_no_folder_circle() -> None:
