@@ -47,7 +47,7 @@ from typing import Any, Callable, Sequence
 import casadi as ca
 import numpy as np
 
-from ..compiled import compile_shared, dense_outputs, driver_source, native_arch
+from ..compiled import compile_shared, dense_outputs, driver_source, exact_tuned_flags, native_arch
 from ..limits import check_ring_cuts, check_ring_size
 from ..control import SampledLaw
 from ..loop import NO_STAGES, CommandStages, Controller, History, Observation, VehicleStep, stages_for
@@ -432,12 +432,12 @@ class RingResult:
 
 # ----------------------------------------------------------------------------------------------- simulator
 def _compile(source: str, stem: str) -> tuple[ctypes.CDLL | None, str]:
-    """Compile with -O3 for the resolved native CPU and OpenMP (1 000 vehicles × 600 s: ~20 % less CPU than -O2
-    generic; benchmarks/bench_ring.py), falling back to OpenMP at -O2, then to a plain build."""
+    """Compile with OpenMP, -O3 for the resolved native CPU, contraction off and no semantic interposition
+    (:func:`aev_ocp.compiled.exact_tuned_flags`: the same bits as the plain build, so a ring's numbers do not depend
+    on the machine's CPU; benchmarks/bench_ring.py), falling back to OpenMP at -O2, then to a plain build."""
     last = ""
-    arch = native_arch()
-    tuned = (("-fopenmp", "-O3", f"-march={arch}"),) if arch else ()
-    for flags in (*tuned, ("-fopenmp",), ()):
+    tuned = exact_tuned_flags()
+    for flags in (*((("-fopenmp", *tuned),) if tuned else ()), ("-fopenmp",), ()):
         with warnings.catch_warnings():
             if flags:
                 warnings.simplefilter("ignore")
