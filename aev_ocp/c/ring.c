@@ -22,7 +22,7 @@
  * Memory traffic: each motion stage is ONE pass over the ring (a vehicle's stage state lives in registers; the
  * predecessor's stage speed is recomputed where it is read, with the same arithmetic, instead of stored by a separate
  * pass; the error of the last stage is summed in the same pass), and an accepted step's six battery stages are done
- * vehicle by vehicle (they couple no vehicles), so a step reads the stages of 10 000 vehicles 7 times, not 26.
+ * vehicle by vehicle (they couple no vehicles), so an accepted step sweeps the ring 7 times instead of 25.
  * The library is built with floating-point contraction off (aev_ocp.compiled.exact_tuned_flags): the same bits as
  * the plain build on any CPU (tests/test_compiled_speed.py).
  * With OpenMP (compiled with -fopenmp) the stage loops run on all cores (each thread its own CasADi work).
