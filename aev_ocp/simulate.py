@@ -320,10 +320,14 @@ def _compile_shared(source: str) -> tuple[ctypes.CDLL | None, str]:
     # tuned first (-O3, native CPU, no contraction: the same bits, ~35 % less CPU at 300 followers), else plain
     err = ""
     for flags in dict.fromkeys((exact_tuned_flags(), ())):
-        with warnings.catch_warnings():
-            if flags:
-                warnings.simplefilter("ignore")  # a failed tuned build falls back to the plain one without a word
+        with warnings.catch_warnings(record=True) as said:
+            warnings.simplefilter("always")
             built = compile_shared(source, "aevsim", "simulate", extra_flags=flags)
+        if built.path is None and flags:  # a failed tuned build falls back to the plain one without a word
+            err = built.error
+            continue
+        for w in said:  # what the build said (a damaged cache rebuilt, the plain build failed) is said
+            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
         if built.path is None:
             err = built.error
             continue
