@@ -683,7 +683,8 @@ class PlatoonSimulator(PlatoonRun):
         if progress is not None:
             progress(float(ts[keep - 1]), t_end)
         tk = ts[:keep]
-        table = table[:, :keep]
+        if keep < K:  # a run stopped early: its samples alone (the result does not hold on to the whole table)
+            table = np.ascontiguousarray(table[:, :keep])
         if end_col is not None and t_ev > tk[-1]:
             tk, table = np.append(tk, t_ev), np.hstack([table, np.append(end_col, 0.0)[:, None]])
             keep += 1
