@@ -47,7 +47,8 @@ from typing import Any, Callable, Sequence
 import casadi as ca
 import numpy as np
 
-from ..compiled import compile_shared, dense_outputs, driver_source
+from ..compiled import compile_shared, dense_outputs, driver_source, exact_tuned_flags
+from ..compiled import native_arch as native_arch  # re-exported: it lived here before aev_ocp.compiled
 from ..limits import check_ring_cuts, check_ring_size
 from ..control import SampledLaw
 from ..loop import NO_STAGES, CommandStages, Controller, History, Observation, VehicleStep, stages_for
@@ -61,7 +62,7 @@ from ..plant import EVENT_RULES, current_limit_events, event_at, event_header, r
 from ..results import Event, SimulationResult, fmt_value, summary_html, summary_text
 from .. import interrupts
 from ..progress import check_deadline
-from ..simulate import _interruptible_call, _law_template
+from ..simulate import _interruptible_call, _law_template, _law_templates
 
 RING_METHODS = ("auto", "compiled", "cvodes")
 #: columns of one vehicle in a sample: states, quadratures, outputs
@@ -431,43 +432,13 @@ class RingResult:
 
 
 # ----------------------------------------------------------------------------------------------- simulator
-_ARCH: list[str] = []
-
-
-def native_arch() -> str:
-    """The CPU the C compiler targets with -march=native, resolved to its name (e.g. 'znver3'), or '' when the
-    compiler cannot tell. The resolved name, not 'native', goes into the compile flags and so into the cache key
-    of the built library: a cache shared by two machines never hands one the other's instructions."""
-    if not _ARCH:
-        import subprocess
-
-        from ..compiled import compiler
-
-        arch = ""
-        cc = compiler()
-        if cc is not None:
-            try:
-                out = subprocess.run(
-                    [cc, "-march=native", "-Q", "--help=target"], capture_output=True, text=True, timeout=30
-                ).stdout
-                for line in out.splitlines():
-                    parts = line.split()
-                    if len(parts) == 2 and parts[0] == "-march=" and parts[1].replace("-", "").isalnum():
-                        arch = parts[1]
-                        break
-            except (OSError, subprocess.SubprocessError):
-                arch = ""
-        _ARCH.append(arch)
-    return _ARCH[0]
-
-
 def _compile(source: str, stem: str) -> tuple[ctypes.CDLL | None, str]:
-    """Compile with -O3 for the resolved native CPU and OpenMP (1 000 vehicles × 600 s: ~20 % less CPU than -O2
-    generic; benchmarks/bench_ring.py), falling back to OpenMP at -O2, then to a plain build."""
+    """Compile with OpenMP, -O3 for the resolved native CPU, contraction off and no semantic interposition
+    (:func:`aev_ocp.compiled.exact_tuned_flags`: the same bits as the plain build, so a ring's numbers do not depend
+    on the machine's CPU; benchmarks/bench_ring.py), falling back to OpenMP at -O2, then to a plain build."""
     last = ""
-    arch = native_arch()
-    tuned = (("-fopenmp", "-O3", f"-march={arch}"),) if arch else ()
-    for flags in (*tuned, ("-fopenmp",), ()):
+    tuned = exact_tuned_flags()
+    for flags in (*((("-fopenmp", *tuned),) if tuned else ()), ("-fopenmp",), ()):
         with warnings.catch_warnings():
             if flags:
                 warnings.simplefilter("ignore")
@@ -578,7 +549,7 @@ class RingSimulator:
             for i, c in enumerate(self.vehicles)
         ]
         self._delay_groups = self._delay_functions(delayed_laws)
-        templates = [_law_template(law) for law in self.laws]
+        templates = _law_templates(self.laws)
         distinct: dict[Any, int] = {}
         first: dict[int, Any] = {}
         self.law_of = np.zeros(self.n, np.int32)
