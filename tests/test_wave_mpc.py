@@ -1,7 +1,8 @@
 """The wave-damping MPC (aev_ocp.mpc.wave) against independent results: its first move on a linear-quadratic instance
 equals the Riccati recursion written out here; its linearised gains equal that recursion's gain; its commands stay
-within the bounds; behind a constant-speed leader it converges to the leader's speed and its centring gap; v_ref is
-the mean of its own measured speeds; it runs the ring under the safety layer without a collision."""
+within the bounds; behind a constant-speed leader it converges to the leader's speed and the catch-up's target gap;
+v_ref is the mean of its own measured speeds plus the saturated gap catch-up, written out here; it runs the ring under
+the safety layer without a collision."""
 
 from __future__ import annotations
 
@@ -110,7 +111,7 @@ def test_commands_stay_within_the_bounds():
 
 
 def test_v_ref_is_the_mean_of_the_own_measured_speeds():
-    c = WaveMPC(EV, Proposed(), WaveParams(window_s=1.0), S)  # 5 samples of 0.2 s
+    c = WaveMPC(EV, Proposed(), WaveParams(window_s=1.0, catch_gain_per_s=0.0), S)  # 5 samples of 0.2 s, no catch-up
     speeds = [3.1, 4.7, 2.2, 5.9, 3.3, 6.4, 1.8, 4.1]
     for k, v in enumerate(speeds):
         cmd = c.command(obs(10.0, v, 4.0, t=0.1 * k))
@@ -129,8 +130,38 @@ def test_v_ref_is_the_mean_of_the_own_measured_speeds():
         WaveMPC(EV, Proposed(), settings=S, predictor="oracle")
 
 
+def test_v_ref_adds_the_saturated_gap_catch_up():
+    """v_ref = U + clip(k (h̄ − s_t − T_t U), −v_c, v_c) with U, h̄ the means of the last 5 speeds and gaps: inside
+    the saturation, on both of its sides and exactly at it."""
+    wp = WaveParams(window_s=1.0, catch_gain_per_s=0.37, target_gap_m=6.5, target_time_gap_s=1.3, catch_max_mps=0.8)
+    c = WaveMPC(EV, Proposed(), wp, S)
+    speeds = [3.1, 4.7, 2.2, 5.9, 3.3, 6.4, 1.8, 4.1, 4.4]
+    gaps = [11.0, 14.5, 9.0, 30.0, 16.0, 2.5, 4.0, 8.0, 12.2]
+    seen = set()
+    for k, (v, h) in enumerate(zip(speeds, gaps)):
+        cmd = c.command(obs(h, v, 4.0, t=0.1 * k))
+        U_ = np.mean(speeds[max(0, k - 4) : k + 1])
+        raw = 0.37 * (np.mean(gaps[max(0, k - 4) : k + 1]) - 6.5 - 1.3 * U_)
+        seen.add("above" if raw > 0.8 else "below" if raw < -0.8 else "inside")
+        assert cmd.info["v_ref_mps"] == pytest.approx(U_ + min(max(raw, -0.8), 0.8), rel=1e-12)
+        x1 = c.controller.warm["X1"]
+        assert float(U.speed_to_si(x1[c.controller.problem.state_names.index("v_ref")])) == pytest.approx(
+            cmd.info["v_ref_mps"], rel=1e-9
+        )
+    assert seen == {"above", "below", "inside"}
+    # at the saturation exactly: h̄ − s_t − T_t U = v_c / k
+    c.reset()
+    h_sat = 6.5 + 1.3 * 5.0 + 0.8 / 0.37
+    assert c.reference(float(U.length_from_si(h_sat)), float(U.speed_from_si(5.0))) == pytest.approx(
+        float(U.speed_from_si(5.8)), rel=1e-12
+    )
+    # never a negative reference
+    c.reset()
+    assert c.reference(float(U.length_from_si(0.5)), float(U.speed_from_si(0.3))) == 0.0
+
+
 @pytest.mark.slow  # 240 s of closed loop: 10-15 s wall under load (about 4 s of one core)
-def test_behind_a_constant_speed_leader_it_converges_to_its_speed_and_centring_gap():
+def test_behind_a_constant_speed_leader_it_converges_to_its_speed_and_target_gap():
     wp = WaveParams()
     vl = 8.0
     r = run_closed_loop(
@@ -146,8 +177,8 @@ def test_behind_a_constant_speed_leader_it_converges_to_its_speed_and_centring_g
     t = U.time_to_si(r.t)
     late = t >= 200.0
     assert np.max(np.abs(v[late] - vl)) < 0.05  # the leader's speed, within 0.6 %
-    h_c = wp.centre_gap_m + wp.centre_time_gap_s * vl  # the centring gap at that speed (14 m)
-    assert np.max(np.abs(h[late] - h_c)) < 2.5
+    h_t = wp.target_gap_m + wp.target_time_gap_s * vl  # the catch-up's target gap at that speed (24 m)
+    assert np.max(np.abs(h[late] - h_t)) < 2.5
     assert abs(v[0] - vl) > 1.0  # it did have to converge
 
 
