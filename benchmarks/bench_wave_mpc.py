@@ -100,15 +100,21 @@ def linear_design(sc: Any, wp: WaveParams) -> dict[str, Any]:
     delays = [float(ring.delay_s[i]) if getattr(ring, "delay_s", None) else 0.0 for i in range(1, n)]
     dt_s = float(u.time_to_si(ring.vehicles[0].dt))
 
+    def car_gap(w: WaveParams, v: float) -> float:
+        """The car's steady gap [m] at speed v: the catch-up's target (its integral action sets it), else h_c(v)."""
+        if w.catch_gain_per_s > 0:
+            return w.target_gap_m + w.target_time_gap_s * v
+        return w.centre_gap_m + w.centre_time_gap_s * v
+
     def equilibrium(w: WaveParams) -> tuple[float, float]:
-        """(v, h_c(v)): the speed at which the humans' equilibrium gaps and the car's centring gap fill the ring."""
+        """(v, the car's gap): the speed at which the humans' equilibrium gaps and the car's steady gap fill the ring."""
         lo, hi = 0.05, 20.0
         for _ in range(60):
             v = 0.5 * (lo + hi)
-            total = sum(mixed.equilibrium_gap_m(f, v) for f in humans) + w.centre_gap_m + w.centre_time_gap_s * v
+            total = sum(mixed.equilibrium_gap_m(f, v) for f in humans) + car_gap(w, v)
             lo, hi = (lo, v) if total + n * ell > L else (v, hi)
         v = 0.5 * (lo + hi)
-        return v, w.centre_gap_m + w.centre_time_gap_s * v
+        return v, car_gap(w, v)
 
     def analyse(w: WaveParams) -> dict[str, Any]:
         v0, h0 = equilibrium(w)
