@@ -66,7 +66,8 @@ class WaveParams:
 
     speed_weight: float = spec(100.0, ge=0.0)  # w_v [W/kg per (m/s)²] on (v − v_ref)² (our choice, tuned on the
     # calibrated ring's seeds 0–2: the car must hold its speed while its gap swings; the linear theory gives one car
-    # a stable ring of 21 calibrated humans from w_v ≈ 5 on, of 21 Treiber humans from w_v ≈ 0.7 on)
+    # a stable ring of 21 calibrated humans from w_v ≈ 3.3 on, of 21 Treiber humans from
+    # w_v ≈ 0.7 on with the earlier gap settings)
     gap_weight: float = spec(0.01, ge=0.0)  # w_g [W/kg per m²] on (h − h_c(v))² (our choice: weak, the gap breathes)
     centre_gap_m: float = spec(2.0, ge=0.0)  # s_c [m] of h_c(v) (our choice: the humans' IDM s0, Treiber 2000)
     centre_time_gap_s: float = spec(1.5, ge=0.0)  # T_c [s] of h_c(v) (our choice: 0.5 s above the IDM's T = 1 s)
@@ -80,8 +81,9 @@ class WaveParams:
     # gap is large): v_ref = U + clip(k (h̄ − h_t(U)), −v_c, v_c), h̄ the mean measured gap over window_s,
     # h_t(U) = s_t + T_t U; in steady state h̄ = h_t: an integral action that sets the ring's speed
     catch_gain_per_s: float = spec(0.1, ge=0.0)  # k [1/s] (our choice, seeds 0–2; 0: off, v_ref = U)
-    target_gap_m: float = spec(8.0, ge=0.0)  # s_t [m] (our choice, seeds 0–2: on the calibrated ring the car
-    # settles near 4 m/s with a 16 m gap, where a perfectly smooth car leaves the least wave behind it)
+    target_gap_m: float = spec(8.0, ge=0.0)  # s_t [m] (our choice, seed 0: on the calibrated ring the car
+    # settles near 3.9 m/s with a 16 m gap, where a smooth car leaves little wave behind it, when it gets out of
+    # the jam it starts in: on 1 of the unseen seeds 10–19; docs/guide/studies.md)
     target_time_gap_s: float = spec(2.0, ge=0.0)  # T_t [s] (our choice: 72 m at 30 m/s, a cautious gap on a road)
     catch_max_mps: float = spec(1.0, ge=0.0)  # v_c [m/s] (Stern et al. 2018 §3.2: v_catch = 1 m/s)
     # the traffic problem's ω, heat, a², jerk terms and its soft gap floor (time_headway_s: T_min; ISO 15622
