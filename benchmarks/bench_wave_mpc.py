@@ -17,8 +17,12 @@ check of the mixed-ring theory (:mod:`aev_ocp.stability.mixed`): the wave MPC's 
 equilibrium (:func:`aev_ocp.mpc.wave.linear_gains`, v_ref held: the 38 s average is slow against the wave), the
 growth rate of the ring with that car, and the smallest speed weight w_v that makes it linearly stable.
 
+``--bound [V ...]`` adds the perfectly smooth car's bound (:func:`absorber_bound`: the humans behind a car at a
+constant speed, the fleet's speed std and the gap that car would need on the real ring).
+
     python benchmarks/bench_wave_mpc.py [--scenario FILE] [--seeds 10 ... 19] [--t-end-s 600] [--linear]
-                                        [--safety] [--wave-params JSON] [--out results/bench_wave_mpc.json]
+                                        [--safety] [--bound [V ...]] [--wave-params JSON]
+                                        [--out results/bench_wave_mpc.json]
 
 The wall times are those of a shared 2-core machine; the MPC's solve time per step is the median and maximum of its
 calls (wall) and the run's process CPU time per MPC step is printed beside it.
