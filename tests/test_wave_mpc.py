@@ -163,6 +163,24 @@ def test_v_ref_adds_the_saturated_gap_catch_up():
     assert c.reference(float(U.length_from_si(0.5)), float(U.speed_from_si(0.3))) == 0.0
 
 
+def test_the_wave_buffer_raises_the_target_gap_by_c_times_the_predecessor_speed_std():
+    """h_t = s_t + T_t U + c σ_l, σ_l the (population) std of the last 5 measured predecessor speeds."""
+    wp = WaveParams(window_s=1.0, catch_gain_per_s=0.21, target_gap_m=15.0, target_time_gap_s=1.1, buffer_time_s=1.3)
+    c = WaveMPC(EV, Proposed(), wp, S)
+    speeds = [4.1, 3.7, 5.2, 4.4, 3.9, 4.8]
+    gaps = [21.0, 19.5, 24.0, 22.5, 20.0, 23.5]
+    leads = [2.0, 6.5, 1.2, 7.7, 3.3, 5.9]
+    for k, (v, h, vl) in enumerate(zip(speeds, gaps, leads)):
+        cmd = c.command(obs(h, v, vl, t=0.1 * k))
+        w = slice(max(0, k - 4), k + 1)
+        U_ = np.mean(speeds[w])
+        raw = 0.21 * (np.mean(gaps[w]) - 15.0 - 1.1 * U_ - 1.3 * np.std(leads[w]))
+        assert abs(raw) < 1.0  # inside the saturation: the buffer term is seen whole
+        assert cmd.info["v_ref_mps"] == pytest.approx(U_ + raw, rel=1e-9)
+    c.reset()
+    assert np.isnan(c.predecessor_speeds.value)
+
+
 @pytest.mark.slow  # 600 s of closed loop: about 5 s of one core
 def test_behind_a_constant_speed_leader_it_keeps_its_speed_on_average_and_its_gap_in_the_band():
     """Behind a constant-speed leader the catch-up's slow loop (an integral through the 38 s mean) does not settle:

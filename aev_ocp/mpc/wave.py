@@ -86,6 +86,10 @@ class WaveParams:
     # the jam it starts in: on 1 of the unseen seeds 10–19; docs/guide/studies.md)
     target_time_gap_s: float = spec(2.0, ge=0.0)  # T_t [s] (our choice: 72 m at 30 m/s, a cautious gap on a road)
     catch_max_mps: float = spec(1.0, ge=0.0)  # v_c [m/s] (Stern et al. 2018 §3.2: v_catch = 1 m/s)
+    # a wave buffer in the catch-up's target: h_t = s_t + T_t U + c σ_l, σ_l the std of the predecessor's measured
+    # speed over window_s (a wave of speed std σ and period P needs a gap swing of about √2 σ P/π: c ≈ 8 s at
+    # the ring's 35 s); 0: off (our choice, measured on seeds 10–19 with c = 4 s in docs/guide/studies.md)
+    buffer_time_s: float = spec(0.0, ge=0.0)  # c [s]
     # the traffic problem's ω, heat, a², jerk terms and its soft gap floor (time_headway_s: T_min; ISO 15622
     # allows ACC time gaps from 0.8 s); its predecessor-speed and time-gap tracking weights are set to 0
     traffic: TrafficParams = spec(
@@ -184,6 +188,7 @@ class WaveMPC(MPCPolicy):
         n_win = max(1, int(round(self.params.window_s / dt_s)))
         self.average = SpeedAverage(n_win)
         self.gap_average = SpeedAverage(n_win)  # the mean measured gap h̄ of the catch-up term
+        self.predecessor_speeds = SpeedAverage(n_win)  # the predecessor's measured speeds (σ_l of the buffer)
         self.v_ref = float("nan")  # the last reference [model speed]
 
     def reset(self) -> None:
@@ -191,6 +196,7 @@ class WaveMPC(MPCPolicy):
         super().reset()
         self.average.reset()
         self.gap_average.reset()
+        self.predecessor_speeds.reset()
         self.v_ref = float("nan")
 
     def reference(self, h: float, v: float) -> float:
@@ -200,13 +206,18 @@ class WaveMPC(MPCPolicy):
         U = self.average.update(v)
         h_bar = float(u.length_to_si(self.gap_average.update(h)))
         U_si = float(u.speed_to_si(U))
-        catch = p.catch_gain_per_s * (h_bar - p.target_gap_m - p.target_time_gap_s * U_si)
+        buf = self.predecessor_speeds._buf
+        sigma_l = float(u.speed_to_si(np.std(buf))) if p.buffer_time_s > 0 and buf else 0.0
+        h_t = p.target_gap_m + p.target_time_gap_s * U_si + p.buffer_time_s * sigma_l
+        catch = p.catch_gain_per_s * (h_bar - h_t)
         catch = min(max(catch, -p.catch_max_mps), p.catch_max_mps)
         return max(0.0, U + float(u.speed_from_si(catch)))
 
     def own_states(self, obs: Observation) -> dict[str, float]:
         """The policy's own states plus v_ref [model speed] (:meth:`reference`, this step's measurements included)."""
         own = super().own_states(obs)
+        if len(obs.meas_v):
+            self.predecessor_speeds.update(float(obs.meas_v[-1]))
         self.v_ref = own["v_ref"] = self.reference(float(obs.z[0]), float(obs.z[1]))
         return own
 
