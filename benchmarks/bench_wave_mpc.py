@@ -17,8 +17,12 @@ check of the mixed-ring theory (:mod:`aev_ocp.stability.mixed`): the wave MPC's 
 equilibrium (:func:`aev_ocp.mpc.wave.linear_gains`, v_ref held: the 38 s average is slow against the wave), the
 growth rate of the ring with that car, and the smallest speed weight w_v that makes it linearly stable.
 
+``--bound [V ...]`` adds the perfectly smooth car's bound (:func:`absorber_bound`: the humans behind a car at a
+constant speed, the fleet's speed std and the gap that car would need on the real ring).
+
     python benchmarks/bench_wave_mpc.py [--scenario FILE] [--seeds 10 ... 19] [--t-end-s 600] [--linear]
-                                        [--safety] [--wave-params JSON] [--out results/bench_wave_mpc.json]
+                                        [--safety] [--bound [V ...]] [--wave-params JSON]
+                                        [--out results/bench_wave_mpc.json]
 
 The wall times are those of a shared 2-core machine; the MPC's solve time per step is the median and maximum of its
 calls (wall) and the run's process CPU time per MPC step is printed beside it.
@@ -45,11 +49,13 @@ from aev_ocp.ring.simulate import RingOptions, RingSimulator
 from aev_ocp.stability import mixed
 
 METRICS = (
+    "throughput_veh_per_h",
     "mean_speed_mps",
     "speed_std_mps",
     "battery_energy_J_per_km",
     "heat_pack_J_per_km",
     "braking_events",
+    "braking_events_per_veh_km",
     "min_gap_m",
     "collisions",
 )
@@ -98,15 +104,21 @@ def linear_design(sc: Any, wp: WaveParams) -> dict[str, Any]:
     delays = [float(ring.delay_s[i]) if getattr(ring, "delay_s", None) else 0.0 for i in range(1, n)]
     dt_s = float(u.time_to_si(ring.vehicles[0].dt))
 
+    def car_gap(w: WaveParams, v: float) -> float:
+        """The car's steady gap [m] at speed v: the catch-up's target (its integral action sets it), else h_c(v)."""
+        if w.catch_gain_per_s > 0:
+            return w.target_gap_m + w.target_time_gap_s * v
+        return w.centre_gap_m + w.centre_time_gap_s * v
+
     def equilibrium(w: WaveParams) -> tuple[float, float]:
-        """(v, h_c(v)): the speed at which the humans' equilibrium gaps and the car's centring gap fill the ring."""
+        """(v, the car's gap): the speed at which the humans' equilibrium gaps and the car's steady gap fill the ring."""
         lo, hi = 0.05, 20.0
         for _ in range(60):
             v = 0.5 * (lo + hi)
-            total = sum(mixed.equilibrium_gap_m(f, v) for f in humans) + w.centre_gap_m + w.centre_time_gap_s * v
+            total = sum(mixed.equilibrium_gap_m(f, v) for f in humans) + car_gap(w, v)
             lo, hi = (lo, v) if total + n * ell > L else (v, hi)
         v = 0.5 * (lo + hi)
-        return v, w.centre_gap_m + w.centre_time_gap_s * v
+        return v, car_gap(w, v)
 
     def analyse(w: WaveParams) -> dict[str, Any]:
         v0, h0 = equilibrium(w)
@@ -131,6 +143,53 @@ def linear_design(sc: Any, wp: WaveParams) -> dict[str, Any]:
             lo, hi = (lo, mid) if analyse(replace(wp, speed_weight=mid))["growth_rate_per_s"] < 0 else (mid, hi)
         w_min = hi
     return {"all_human_growth_rate_per_s": human_only, "wave_mpc": tuned, "min_speed_weight": w_min}
+
+
+def absorber_bound(sc: Any, speeds_mps: list[float], seeds: list[int], t_end_s: float) -> list[dict[str, Any]]:
+    """The ring's humans behind a perfectly smooth car (the best any car that only drives itself can do): vehicle 1
+    drives at the constant speed v_c (FollowerStopper with r = v_c, whose gap never closes on a ring 2 km longer),
+    the 21 humans start at their equilibrium gaps behind it. Per speed and seed: the fleet's speed std over the
+    second half against the all-human ring of the same seed, and the gap the smooth car would need on the real ring
+    (L − nℓ − Σ the humans' gaps: its mean and range)."""
+    from aev_ocp.ring.laws import FollowerStopper
+    from aev_ocp.ring.simulate import RingInitial
+
+    extra_m = 2000.0
+    out = []
+    for k in seeds:
+        sc_k = replace(sc, spec=replace(sc.spec, seed=k))
+        ring0, init0 = build_ring(sc_k, None)
+        human = fleet_metrics(RingSimulator(ring0, RingOptions(dt_out_s=0.5)).run(init0, t_end_s))
+        n, ell, L = ring0.n, ring0.vehicle_length_m, ring0.length_m
+        for vc in speeds_mps:
+            ring = replace(
+                ring0,
+                length_m=L + extra_m,
+                vehicles=(FollowerStopper.from_si(ring0.ev.units, vc), *ring0.vehicles[1:]),
+                human=(False, *ring0.human[1:]),
+                delay_s=(0.0, *ring0.delay_s[1:]) if ring0.delay_s else ring0.delay_s,
+            )
+            gaps = [mixed.equilibrium_gap_m(mixed.si_accel(ring0.vehicles[i], ring0.ev.units), vc) for i in range(1, n)]
+            x = np.concatenate([[0.0], -np.cumsum(np.asarray(gaps) + ell)]) % (L + extra_m)
+            res = RingSimulator(ring, RingOptions(dt_out_s=0.5)).run(
+                RingInitial(tuple(x), tuple([vc] * n), None, "the humans at equilibrium behind the smooth car"), t_end_s
+            )
+            f = fleet_metrics(res)
+            sel = res.t_s >= 0.5 * float(res.t_s[-1]) - 1e-9
+            need = L - n * ell - np.sum(res.gap_m[sel][:, 1:], axis=1)
+            out.append(
+                {
+                    "seed": k,
+                    "v_c_mps": vc,
+                    "speed_std_mps": f["speed_std_mps"],
+                    "speed_std_ratio_to_human": f["speed_std_mps"] / human["speed_std_mps"],
+                    "gap_needed_mean_m": float(np.mean(need)),
+                    "gap_needed_min_m": float(np.min(need)),
+                    "gap_needed_max_m": float(np.max(need)),
+                    "collisions": f["collisions"],
+                }
+            )
+    return out
 
 
 #: the safety suite's cases that test a following controller (aev_ocp.safety.cases): a lead that brakes while it is
@@ -200,6 +259,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--linear", action="store_true", help="add the mixed-ring linear design check")
     ap.add_argument("--wave-params", default="{}", help="WaveParams fields as JSON (default: the defaults)")
     ap.add_argument("--safety", action="store_true", help="add the safety-suite cases under the safety layer")
+    ap.add_argument(
+        "--bound",
+        type=float,
+        nargs="*",
+        default=None,
+        help="add the perfectly smooth car's bound at these speeds [m/s] (absorber_bound; default 2.5 3 3.5 4 4.5)",
+    )
     ap.add_argument("--out", default="results/bench_wave_mpc.json")
     a = ap.parse_args(argv)
     sc = load_ring_scenario(a.scenario)
@@ -282,6 +348,21 @@ def main(argv: list[str] | None = None) -> int:
             f"{lin['wave_mpc']['f_v_per_s']:.4g} 1/s, f_dv {lin['wave_mpc']['f_dv_per_s']:.4g} 1/s); smallest stable "
             f"speed weight {lin['min_speed_weight']}"
         )
+    if a.bound is not None:
+        speeds = a.bound or [2.5, 3.0, 3.5, 4.0, 4.5]
+        rows = absorber_bound(sc, speeds, a.seeds, t_end)
+        doc["bound"] = {"rows": rows, "by_speed": {}}
+        print("\nperfectly smooth car (constant speed v_c) ahead of the 21 humans, over the seeds (95 % intervals):")
+        for vc in speeds:
+            r = [x for x in rows if x["v_c_mps"] == vc]
+            iv = {m: interval([x[m] for x in r]) for m in ("speed_std_ratio_to_human", "gap_needed_mean_m")}
+            lo, hi = min(x["gap_needed_min_m"] for x in r), max(x["gap_needed_max_m"] for x in r)
+            doc["bound"]["by_speed"][str(vc)] = {**iv, "gap_needed_min_m": lo, "gap_needed_max_m": hi}
+            s_, g_ = iv["speed_std_ratio_to_human"], iv["gap_needed_mean_m"]
+            print(
+                f"  v_c {vc:4.2f} m/s: std / all-human {s_['mean']:.3f} [{s_['lo']:.3f}, {s_['hi']:.3f}]; the car's gap "
+                f"{g_['mean']:.1f} m mean, {lo:.1f}-{hi:.1f} m range; collisions {sum(x['collisions'] for x in r)}"
+            )
     if a.safety:
         print("\nsafety suite cases, the wave MPC under the safety layer:")
         doc["safety"] = safety_check(wp=wp)

@@ -1,7 +1,8 @@
 """The wave-damping MPC (aev_ocp.mpc.wave) against independent results: its first move on a linear-quadratic instance
 equals the Riccati recursion written out here; its linearised gains equal that recursion's gain; its commands stay
-within the bounds; behind a constant-speed leader it converges to the leader's speed and its centring gap; v_ref is
-the mean of its own measured speeds; it runs the ring under the safety layer without a collision."""
+within the bounds; behind a constant-speed leader it keeps the leader's speed on average and its gap in the band;
+v_ref is the mean of its own measured speeds plus the saturated gap catch-up, written out here; it runs the ring under
+the safety layer without a collision."""
 
 from __future__ import annotations
 
@@ -78,17 +79,20 @@ def test_linear_gains_equal_the_riccati_gain():
 
 
 def test_the_gap_ceiling_pulls_the_car_forward():
-    """Beyond the soft ceiling h ≤ s_max + T_max v the L1 penalty makes the car accelerate harder than without it."""
+    """Beyond the soft ceiling h ≤ s_max + T_max v the L1 penalty makes the car accelerate harder than without it
+    (s_max = 12 m: 60 m at 5 m/s is 33 m beyond it; the catch-up off, so v_ref is the own speed)."""
     moves = []
+    band = {"max_gap_m": 12.0, "catch_gain_per_s": 0.0}
     for rho in (8.0, 1e-6):
-        c = WaveMPC(EV, Proposed(), WaveParams(band_penalty=rho, gap_weight=0.0, terminal_gap_weight=0.0), S)
+        wp = WaveParams(band_penalty=rho, gap_weight=0.0, terminal_gap_weight=0.0, **band)
+        c = WaveMPC(EV, Proposed(), wp, S)
         c.average.update(float(U.speed_from_si(5.0)))
         moves.append(float(U.accel_to_si(c.command(obs(60.0, 5.0, 5.0)).a)))
     assert moves[0] > moves[1] + 0.05 and abs(moves[1]) < 0.05
     # inside the band the ceiling changes nothing
     inside = []
     for rho in (8.0, 1e-6):
-        c = WaveMPC(EV, Proposed(), WaveParams(band_penalty=rho), S)
+        c = WaveMPC(EV, Proposed(), WaveParams(band_penalty=rho, **band), S)
         inside.append(float(U.accel_to_si(c.command(obs(12.0, 5.0, 5.0)).a)))
     assert inside[0] == pytest.approx(inside[1], abs=1e-6)
 
@@ -110,7 +114,7 @@ def test_commands_stay_within_the_bounds():
 
 
 def test_v_ref_is_the_mean_of_the_own_measured_speeds():
-    c = WaveMPC(EV, Proposed(), WaveParams(window_s=1.0), S)  # 5 samples of 0.2 s
+    c = WaveMPC(EV, Proposed(), WaveParams(window_s=1.0, catch_gain_per_s=0.0), S)  # 5 samples of 0.2 s, no catch-up
     speeds = [3.1, 4.7, 2.2, 5.9, 3.3, 6.4, 1.8, 4.1]
     for k, v in enumerate(speeds):
         cmd = c.command(obs(10.0, v, 4.0, t=0.1 * k))
@@ -129,8 +133,59 @@ def test_v_ref_is_the_mean_of_the_own_measured_speeds():
         WaveMPC(EV, Proposed(), settings=S, predictor="oracle")
 
 
-@pytest.mark.slow  # 240 s of closed loop: 10-15 s wall under load (about 4 s of one core)
-def test_behind_a_constant_speed_leader_it_converges_to_its_speed_and_centring_gap():
+def test_v_ref_adds_the_saturated_gap_catch_up():
+    """v_ref = U + clip(k (h̄ − s_t − T_t U), −v_c, v_c) with U, h̄ the means of the last 5 speeds and gaps: inside
+    the saturation, on both of its sides and exactly at it."""
+    wp = WaveParams(window_s=1.0, catch_gain_per_s=0.37, target_gap_m=6.5, target_time_gap_s=1.3, catch_max_mps=0.8)
+    c = WaveMPC(EV, Proposed(), wp, S)
+    speeds = [3.1, 4.7, 2.2, 5.9, 3.3, 6.4, 1.8, 4.1, 4.4]
+    gaps = [11.0, 14.5, 9.0, 30.0, 16.0, 2.5, 4.0, 8.0, 12.2]
+    seen = set()
+    for k, (v, h) in enumerate(zip(speeds, gaps)):
+        cmd = c.command(obs(h, v, 4.0, t=0.1 * k))
+        U_ = np.mean(speeds[max(0, k - 4) : k + 1])
+        raw = 0.37 * (np.mean(gaps[max(0, k - 4) : k + 1]) - 6.5 - 1.3 * U_)
+        seen.add("above" if raw > 0.8 else "below" if raw < -0.8 else "inside")
+        assert cmd.info["v_ref_mps"] == pytest.approx(U_ + min(max(raw, -0.8), 0.8), rel=1e-12)
+        x1 = c.controller.warm["X1"]
+        assert float(U.speed_to_si(x1[c.controller.problem.state_names.index("v_ref")])) == pytest.approx(
+            cmd.info["v_ref_mps"], rel=1e-9
+        )
+    assert seen == {"above", "below", "inside"}
+    # at the saturation exactly: h̄ − s_t − T_t U = v_c / k
+    c.reset()
+    h_sat = 6.5 + 1.3 * 5.0 + 0.8 / 0.37
+    assert c.reference(float(U.length_from_si(h_sat)), float(U.speed_from_si(5.0))) == pytest.approx(
+        float(U.speed_from_si(5.8)), rel=1e-12
+    )
+    # never a negative reference
+    c.reset()
+    assert c.reference(float(U.length_from_si(0.5)), float(U.speed_from_si(0.3))) == 0.0
+
+
+def test_the_wave_buffer_raises_the_target_gap_by_c_times_the_predecessor_speed_std():
+    """h_t = s_t + T_t U + c σ_l, σ_l the (population) std of the last 5 measured predecessor speeds."""
+    wp = WaveParams(window_s=1.0, catch_gain_per_s=0.21, target_gap_m=15.0, target_time_gap_s=1.1, buffer_time_s=1.3)
+    c = WaveMPC(EV, Proposed(), wp, S)
+    speeds = [4.1, 3.7, 5.2, 4.4, 3.9, 4.8]
+    gaps = [21.0, 19.5, 24.0, 22.5, 20.0, 23.5]
+    leads = [2.0, 6.5, 1.2, 7.7, 3.3, 5.9]
+    for k, (v, h, vl) in enumerate(zip(speeds, gaps, leads)):
+        cmd = c.command(obs(h, v, vl, t=0.1 * k))
+        w = slice(max(0, k - 4), k + 1)
+        U_ = np.mean(speeds[w])
+        raw = 0.21 * (np.mean(gaps[w]) - 15.0 - 1.1 * U_ - 1.3 * np.std(leads[w]))
+        assert abs(raw) < 1.0  # inside the saturation: the buffer term is seen whole
+        assert cmd.info["v_ref_mps"] == pytest.approx(U_ + raw, rel=1e-9)
+    c.reset()
+    assert np.isnan(c.predecessor_speeds.value)
+
+
+@pytest.mark.slow  # 600 s of closed loop: about 5 s of one core
+def test_behind_a_constant_speed_leader_it_keeps_its_speed_on_average_and_its_gap_in_the_band():
+    """Behind a constant-speed leader the catch-up's slow loop (an integral through the 38 s mean) does not settle:
+    the car swings about the leader's speed (period about 90 s, within ±v_c + the MPC's own move) with its gap
+    between the soft floor s_min + T_min v and the ceiling; on average it drives at the leader's speed."""
     wp = WaveParams()
     vl = 8.0
     r = run_closed_loop(
@@ -138,17 +193,17 @@ def test_behind_a_constant_speed_leader_it_converges_to_its_speed_and_centring_g
         [WaveMPC(EV, Proposed(), wp)],
         [float(U.length_from_si(14.0))],
         [float(U.speed_from_si(6.5))],
-        float(U.time_from_si(240.0)),
+        float(U.time_from_si(600.0)),
         ev=EV,
     )
     assert r.status == "ok"
     v, h = U.speed_to_si(r.speed[:, 0]), U.length_to_si(r.gap[:, 0])
     t = U.time_to_si(r.t)
-    late = t >= 200.0
-    assert np.max(np.abs(v[late] - vl)) < 0.05  # the leader's speed, within 0.6 %
-    h_c = wp.centre_gap_m + wp.centre_time_gap_s * vl  # the centring gap at that speed (14 m)
-    assert np.max(np.abs(h[late] - h_c)) < 2.5
-    assert abs(v[0] - vl) > 1.0  # it did have to converge
+    late = t >= 300.0
+    assert abs(np.trapezoid(v[late], t[late]) / (t[late][-1] - t[late][0]) - vl) < 0.15  # the leader's mean speed
+    floor = wp.traffic.standstill_gap_m + wp.traffic.time_headway_s * vl  # 8.4 m
+    assert np.min(h[late]) > floor - 0.05 and np.max(h[late]) < wp.max_gap_m + wp.max_time_gap_s * vl
+    assert np.max(np.abs(v[late] - vl)) < 2.0
 
 
 def test_one_wave_mpc_car_on_the_ring_under_the_safety_layer():

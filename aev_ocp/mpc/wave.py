@@ -10,9 +10,11 @@ the toolkit's :class:`~aev_ocp.ocp.problem.ProblemBuilder`: it is the traffic pr
 different objective for the motion:
 
 * **speed tracking** w_v (v − v_ref)², v_ref an own state of the problem (dv_ref/dt = 0 over the horizon) that the
-  controller sets at every step to an estimate of the downstream average speed it can make itself: the mean of
-  its own measured speed over the last ``window_s`` (the estimate of Stern et al.'s PI with saturation; no V2V, no
-  knowledge of the future);
+  controller sets at every step from what it measures itself (no V2V, no knowledge of the future), as Stern et
+  al.'s PI with saturation does: the mean U of its own speed over the last ``window_s`` plus a saturated gap
+  catch-up k (h̄ − s_t − T_t U), h̄ the mean measured gap over the same window. The catch-up is a slow integral
+  action: in steady state the car's mean gap is s_t + T_t U, and on a ring that sets the speed at which the humans
+  behind it drive (the faster, the more string-stable these humans are: benchmarks/bench_wave_mpc.py --bound);
 * **a weak gap centring** w_g (h − h_c(v))², h_c(v) = s_c + T_c v: in steady state the car keeps this gap, so the
   ring's equilibrium speed drops only by what the extra gap costs (the throughput guard);
 * **a gap band**: the traffic problem's soft floor h ≥ s_min + T_min v (with the braking-distance constraint) below,
@@ -62,17 +64,32 @@ class WaveParams:
     Sources: 'our choice' unless stated, tuned on ring seeds 0–2 (benchmarks/bench_wave_mpc.py) and checked with
     the mixed-ring linear theory (docs/guide/studies.md, "The wave-damping MPC")."""
 
-    speed_weight: float = spec(4.0, ge=0.0)  # w_v [W/kg per (m/s)²] on (v − v_ref)² (our choice: the linear
-    # theory gives one car a stable ring of 21 Treiber humans from w_v ≈ 0.5 on; 4 leaves a margin)
-    gap_weight: float = spec(0.05, ge=0.0)  # w_g [W/kg per m²] on (h − h_c(v))² (our choice: weak, the gap breathes)
+    speed_weight: float = spec(100.0, ge=0.0)  # w_v [W/kg per (m/s)²] on (v − v_ref)² (our choice, tuned on the
+    # calibrated ring's seeds 0–2: the car must hold its speed while its gap swings; the linear theory gives one car
+    # a stable ring of 21 calibrated humans from w_v ≈ 3.3 on, of 21 Treiber humans from
+    # w_v ≈ 0.7 on with the earlier gap settings)
+    gap_weight: float = spec(0.01, ge=0.0)  # w_g [W/kg per m²] on (h − h_c(v))² (our choice: weak, the gap breathes)
     centre_gap_m: float = spec(2.0, ge=0.0)  # s_c [m] of h_c(v) (our choice: the humans' IDM s0, Treiber 2000)
     centre_time_gap_s: float = spec(1.5, ge=0.0)  # T_c [s] of h_c(v) (our choice: 0.5 s above the IDM's T = 1 s)
-    max_gap_m: float = spec(12.0, gt=0.0)  # s_max [m] of the soft ceiling (our choice)
+    max_gap_m: float = spec(60.0, gt=0.0)  # s_max [m] of the soft ceiling (our choice: room for a jam's swing)
     max_time_gap_s: float = spec(3.0, ge=0.0)  # T_max [s] of the soft ceiling (our choice)
     band_penalty: float = spec(5.0, gt=0.0)  # ρ_band [W/kg per m beyond the ceiling] (our choice)
     terminal_speed_weight: float = spec(5.0, ge=0.0)  # w_vT [J/kg per (m/s)²] (our choice)
     terminal_gap_weight: float = spec(0.1, ge=0.0)  # w_gT [J/kg per m²] (our choice)
     window_s: float = spec(38.0, gt=0.0)  # the own-speed average of v_ref [s] (Stern et al. 2018 §3.2's PI: 38 s)
+    # the gap catch-up of v_ref (Stern et al. 2018 §3.2's PI with saturation adds up to v_catch = 1 m/s while the
+    # gap is large): v_ref = U + clip(k (h̄ − h_t(U)), −v_c, v_c), h̄ the mean measured gap over window_s,
+    # h_t(U) = s_t + T_t U; in steady state h̄ = h_t: an integral action that sets the ring's speed
+    catch_gain_per_s: float = spec(0.1, ge=0.0)  # k [1/s] (our choice, seeds 0–2; 0: off, v_ref = U)
+    target_gap_m: float = spec(8.0, ge=0.0)  # s_t [m] (our choice, seed 0: on the calibrated ring the car
+    # settles near 3.9 m/s with a 16 m gap, where a smooth car leaves little wave behind it, when it gets out of
+    # the jam it starts in: on 1 of the unseen seeds 10–19; docs/guide/studies.md)
+    target_time_gap_s: float = spec(2.0, ge=0.0)  # T_t [s] (our choice: 72 m at 30 m/s, a cautious gap on a road)
+    catch_max_mps: float = spec(1.0, ge=0.0)  # v_c [m/s] (Stern et al. 2018 §3.2: v_catch = 1 m/s)
+    # a wave buffer in the catch-up's target: h_t = s_t + T_t U + c σ_l, σ_l the std of the predecessor's measured
+    # speed over window_s (a wave of speed std σ and period P needs a gap swing of about √2 σ P/π: c ≈ 8 s at
+    # the ring's 35 s); 0: off
+    buffer_time_s: float = spec(4.0, ge=0.0)  # c [s] (our choice, seeds 0–2: 4 s against 8 s)
     # the traffic problem's ω, heat, a², jerk terms and its soft gap floor (time_headway_s: T_min; ISO 15622
     # allows ACC time gaps from 0.8 s); its predecessor-speed and time-gap tracking weights are set to 0
     traffic: TrafficParams = spec(
@@ -81,14 +98,6 @@ class WaveParams:
 
     def __post_init__(self) -> None:
         validate_fields(self)
-
-
-#: The setting tuned on seed 0 of the calibrated ring (scenarios/ring_wave.toml: humans with 0.5 s reaction times): a
-#: 25× stronger speed tracking, a 5× weaker gap centring and a ceiling 48 m higher. On the calibrated ring it damps
-#: the jam about twice as much as the defaults (speed std −58 % against −24 % on seed 0), on the Treiber-IDM ring as
-#: much as they do; but behind a constant-speed leader it locks onto its own average speed and lets the gap swing
-#: (up to 115 m over 300 s, from 14 m and 1.5 m/s slower than the leader), so it is not the default.
-CALIBRATED_RING_PARAMS = {"speed_weight": 100.0, "gap_weight": 0.01, "max_gap_m": 60.0}
 
 
 def wave_problem(ev: EVParams, wp: WaveParams | None = None, dt: float = 0.1, name: str = "wave") -> ProblemBuilder:
@@ -176,22 +185,45 @@ class WaveMPC(MPCPolicy):
         self.name = WAVE_NAME
         self.units = ev.units
         dt_s = float(ev.units.time_to_si(s.dt))
-        self.average = SpeedAverage(max(1, int(round(self.params.window_s / dt_s))))
+        n_win = max(1, int(round(self.params.window_s / dt_s)))
+        self.average = SpeedAverage(n_win)
+        self.gap_average = SpeedAverage(n_win)  # the mean measured gap h̄ of the catch-up term
+        self.predecessor_speeds = SpeedAverage(n_win)  # the predecessor's measured speeds (σ_l of the buffer)
+        self.v_ref = float("nan")  # the last reference [model speed]
 
     def reset(self) -> None:
-        """Forget the warm start and the speed average."""
+        """Forget the warm start and the speed and gap averages."""
         super().reset()
         self.average.reset()
+        self.gap_average.reset()
+        self.predecessor_speeds.reset()
+        self.v_ref = float("nan")
+
+    def reference(self, h: float, v: float) -> float:
+        """Add one measured gap h and own speed v [model units] to the averages and return v_ref [model speed]
+        = U + clip(k (h̄ − s_t − T_t U), −v_c, v_c) (U the mean own speed, h̄ the mean gap; WaveParams)."""
+        p, u = self.params, self.units
+        U = self.average.update(v)
+        h_bar = float(u.length_to_si(self.gap_average.update(h)))
+        U_si = float(u.speed_to_si(U))
+        buf = self.predecessor_speeds._buf
+        sigma_l = float(u.speed_to_si(np.std(buf))) if p.buffer_time_s > 0 and buf else 0.0
+        h_t = p.target_gap_m + p.target_time_gap_s * U_si + p.buffer_time_s * sigma_l
+        catch = p.catch_gain_per_s * (h_bar - h_t)
+        catch = min(max(catch, -p.catch_max_mps), p.catch_max_mps)
+        return max(0.0, U + float(u.speed_from_si(catch)))
 
     def own_states(self, obs: Observation) -> dict[str, float]:
-        """The policy's own states plus v_ref [model speed] = the own-speed average including this step's."""
+        """The policy's own states plus v_ref [model speed] (:meth:`reference`, this step's measurements included)."""
         own = super().own_states(obs)
-        own["v_ref"] = self.average.update(float(obs.z[1]))
+        if len(obs.meas_v):
+            self.predecessor_speeds.update(float(obs.meas_v[-1]))
+        self.v_ref = own["v_ref"] = self.reference(float(obs.z[0]), float(obs.z[1]))
         return own
 
     def command(self, obs: Observation) -> Command:
         cmd = super().command(obs)
-        cmd.info["v_ref_mps"] = float(self.units.speed_to_si(self.average.value))
+        cmd.info["v_ref_mps"] = float(self.units.speed_to_si(self.v_ref))
         return cmd
 
     def describe(self) -> dict[str, Any]:
@@ -253,7 +285,6 @@ def linear_gains(
 
 
 __all__ = [
-    "CALIBRATED_RING_PARAMS",
     "WAVE_NAME",
     "SpeedAverage",
     "WaveMPC",

@@ -28,7 +28,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--controllers",
         default=None,
         help="comma-separated controllers (default: mpc, proposed, ovfl, idm, each also with +layer, and "
-        "mpc-margin+layer)",
+        "mpc-margin+layer, wave-mpc+layer)",
     )
     p.add_argument("--actuators", default="ideal,declared", help="comma-separated: ideal, declared (default both)")
     p.add_argument("--workers", type=int, default=None, help="processes (default one per core; 1: in this process)")

@@ -4,6 +4,8 @@ ideal and the declared actuator, with the case's avoidability label at each.
 Controllers (:data:`CONTROLLERS`): the MPC on the shipped defaults (``MPCSettings()``: the traffic formulation, the
 decaying-acceleration forecast; *as shipped it already limits every command by its own braking-distance filter*),
 ``mpc-margin`` (the same with the soft time-gap / TTC margin of :class:`~aev_ocp.ocp.traffic.TrafficParams` on),
+``wave-mpc`` (the ring's wave-damping MPC, :class:`~aev_ocp.mpc.wave.WaveMPC` with its default WaveParams, the
+suite's MPC settings and a measured forecast; like the MPC it filters every command by its braking distance),
 the proposed law and OVFL as published (the paper's coefficients, continuous, inside the plant, saturated to the
 vehicle's [a_min, a_max]) and IDM with Treiber & Kesting's SI parameters (:func:`treiber_idm`). A name with the
 suffix ``+layer`` runs that controller under the braking-distance safety layer
@@ -50,7 +52,8 @@ from .cases import ACTUATORS, CASE_UNITS, Actuator, SafetyCase, suite_cases
 from ..mpc.safe_fallback import SafeFallback
 from ..models.braking import AVOIDABLE, BrakingBound, braking_bound
 
-BASES = ("mpc", "mpc-margin", "proposed", "ovfl", "idm")
+BASES = ("mpc", "mpc-margin", "wave-mpc", "proposed", "ovfl", "idm")
+MPC_BASES = ("mpc", "mpc-margin", "wave-mpc")  # the sampled MPCs (their own dt, built once per process)
 LAYER = "+layer"
 CONTROLLERS = BASES + tuple(b + LAYER for b in BASES)
 #: The suite's default: every law and the MPC bare and with the layer, and the MPC with its margin under the layer.
@@ -64,6 +67,7 @@ DEFAULT_CONTROLLERS = (
     "ovfl+layer",
     "idm+layer",
     "mpc-margin+layer",
+    "wave-mpc+layer",
 )
 DEFAULT_ACTUATORS = ("ideal", "declared")
 LAW_DT_OUT = 0.01  # output spacing of the laws' runs [model time] (8.8 ms at the case units)
@@ -351,6 +355,22 @@ def _policy(setup: _Setup, ev: EVParams, margin: bool) -> MPCPolicy:
     return pol
 
 
+_WAVE: dict[tuple[Any, ...], MPCPolicy] = {}  # the wave MPCs, per process (kept apart: not the suite's 'mpc')
+
+
+def _wave_policy(setup: _Setup, ev: EVParams) -> MPCPolicy:
+    """The wave-damping MPC for ``ev`` (built once per process; every run resets it)."""
+    from ..mpc.wave import WaveMPC
+
+    key = (repr(setup.settings), repr(ev))
+    pol = _WAVE.get(key)
+    if pol is None:
+        s = setup.settings
+        pred = s.predictor if s.predictor not in ("oracle", "cooperative") else "decaying-acceleration"
+        pol = _WAVE[key] = WaveMPC(ev, Proposed(), settings=s, predictor=pred)
+    return pol
+
+
 def _floor_and_a_min(ev: EVParams, formulation: Formulation) -> tuple[float, float]:
     u, lim = ev.units, ev.limits
     fb = formulation.bounds_model(ev)
@@ -375,10 +395,10 @@ def _run_case(case: SafetyCase, setup: _Setup) -> tuple[list[CaseRow], dict[str,
         for ctrl in setup.controllers:
             name, layered = (ctrl[: -len(LAYER)], True) if ctrl.endswith(LAYER) else (ctrl, False)
             tic = time.perf_counter()
-            dt = LAYER_DT if name not in ("mpc", "mpc-margin") else setup.settings.dt
+            dt = LAYER_DT if name not in MPC_BASES else setup.settings.dt
             t_end = dt * max(1, round(float(u.time_from_si(case.t_end_s)) / dt))
-            if name in ("mpc", "mpc-margin"):
-                inner: Any = _policy(setup, ev, name == "mpc-margin")
+            if name in MPC_BASES:
+                inner: Any = _wave_policy(setup, ev) if name == "wave-mpc" else _policy(setup, ev, name == "mpc-margin")
                 c = (
                     LayeredController(inner, SafeFallback.for_vehicle(None, ev, dt, **layer_changes(ev)))
                     if layered
