@@ -46,10 +46,10 @@ _LIM = VehicleLimits()  # the default limits the report names
 #: (here, above them all: each provider imports :mod:`aev_ocp.report_sections`).
 SECTION_PROVIDERS: tuple[str, ...] = (
     "aev_ocp.claims",
-    "aev_ocp.ocp.report_section",
+    "aev_ocp.ocp.section",
     "aev_ocp.mpc.report",
     "aev_ocp.mpc.cycles_section",
-    "aev_ocp.stability.report",
+    "aev_ocp.stability.section",
     "aev_ocp.safety.section",
     "aev_ocp.ring_section",
     "aev_ocp.life_section",

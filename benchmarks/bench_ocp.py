@@ -64,7 +64,7 @@ WHOLE_CYCLES = (("mx", "udds_platoon"), ("sx", "udds_platoon"), ("mx", "hwfet_pl
 def whole_udds_child(variant: str, scenario: str = "udds_platoon") -> dict[str, Any]:
     """In this process: build and solve OCP-D on a whole cycle (variant 'mx': mapped MX NLP, 'sx':
     expanded); wall times [s], peak RSS [GB] of this process, status, iterations, objective."""
-    from aev_ocp.ocp.api import oracle_scenario_from_file
+    from aev_ocp.ocp.run import oracle_scenario_from_file
     from aev_ocp.scenarios import find_scenario
 
     t0 = time.perf_counter()

@@ -121,7 +121,7 @@ def test_stability_measured_platoon_too_large_is_refused_before_it_runs(
 ) -> None:
     """The measured runs' horizon grows with the platoon: the largest platoon that fits, found independently
     here by walking up from one follower, is the one the message offers."""
-    import aev_ocp.stability.api as api
+    import aev_ocp.stability.run as api
     from aev_ocp.models.carfollowing import make_law
     from aev_ocp.params import CarFollowingParams
     from aev_ocp.stability.linear import analyse

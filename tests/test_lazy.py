@@ -69,7 +69,7 @@ def test_an_unknown_or_undefined_name_is_an_attribute_error(tmp_path: Path) -> N
     ]
 
 
-@pytest.mark.parametrize("first", ["import aev_ocp.stability.api", "import aev_ocp.stability.measure"])
+@pytest.mark.parametrize("first", ["import aev_ocp.stability.run", "import aev_ocp.stability.measure"])
 def test_stability_measure_is_the_function(first: str) -> None:
     code = f"{first}\nfrom aev_ocp.stability import measure\nprint(callable(measure), type(measure).__name__)"
     root = Path(__file__).resolve().parents[1]

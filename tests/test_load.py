@@ -268,7 +268,7 @@ def test_study_trajectories_are_optional_and_load_back(tmp_path):
 @pytest.mark.quick
 def test_ocp_prop31_cases_load_back(tmp_path, capsys):
     """Every OCP-A case is saved; the loaded optima equal a second, in-process solve bit for bit."""
-    from aev_ocp.ocp.api import run_prop31
+    from aev_ocp.ocp.run import run_prop31
     from aev_ocp.ocp.cli import cli_ocp
 
     assert cli_ocp(["prop31", "--N", "16", "--no-refine", "--out", str(tmp_path)]) == 0

@@ -15,7 +15,7 @@ from scipy.optimize import brentq
 from cell_oracle import cell_rhs, resim_cell
 
 from aev_ocp.models.battery import ocv_function
-from aev_ocp.ocp.api import replay_exact
+from aev_ocp.ocp.run import replay_exact
 from aev_ocp.ocp.checks import multistart, record_smoothing_gap, resimulate_cell_current
 from aev_ocp.ocp.current_profile import CurrentProfileSolver
 from aev_ocp.ocp.eco_trip import GUESSES, EcoTrip, EcoTripSolver, bang_cruise_bang

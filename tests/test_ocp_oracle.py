@@ -173,7 +173,7 @@ def test_stage_cost_of_trajectory_bad_input():
 
 
 def test_oracle_scenario_from_file_takes_the_files_settings(tmp_path):
-    from aev_ocp.ocp.api import oracle_scenario_from_file
+    from aev_ocp.ocp.run import oracle_scenario_from_file
 
     text = (Path(__file__).resolve().parents[1] / "scenarios" / "table1.toml").read_text()
     f = tmp_path / "s.toml"
@@ -200,7 +200,7 @@ def _ocp_guide_costs() -> tuple[float, float, float]:
 def test_canonical_scenario_is_the_documented_one():
     # `aev-ocp ocp oracle`'s default equals scenarios/mpc_paper_single.toml, whose costs the guides quote (it printed
     # 10.10 / 10.11 for the laws with the vehicle limits on, against the guides' 11.70 / 11.67)
-    from aev_ocp.ocp.api import oracle_scenario_from_file
+    from aev_ocp.ocp.run import oracle_scenario_from_file
 
     a = canonical_scenario()
     b = oracle_scenario_from_file(Path(__file__).resolve().parents[1] / "scenarios" / "mpc_paper_single.toml")
@@ -221,7 +221,7 @@ def test_canonical_scenario_is_the_documented_one():
 
 
 def test_documented_canonical_costs_are_what_the_code_prints(sols, scn):
-    from aev_ocp.ocp.api import closed_form_costs
+    from aev_ocp.ocp.run import closed_form_costs
 
     ocpd, proposed, ovfl = _ocp_guide_costs()
     laws, notes = closed_form_costs(scn)

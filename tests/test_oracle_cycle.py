@@ -8,7 +8,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from aev_ocp.ocp.api import run_oracle
+from aev_ocp.ocp.run import run_oracle
 from aev_ocp.ocp.cli import cli_ocp
 from aev_ocp.ocp.oracle import (
     COARSE_GRID_S,

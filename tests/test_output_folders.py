@@ -135,7 +135,7 @@ def test_study_name_must_not_lead_outside_results(tmp_path, capsys, monkeypatch,
 @pytest.mark.parametrize(
     "argv, claimed, work",
     [
-        (["stability", "--law", "ovm", "--linear-only"], "gain.png", "aev_ocp.stability.api.run_stability"),
+        (["stability", "--law", "ovm", "--linear-only"], "gain.png", "aev_ocp.stability.run.run_stability"),
         (["ring", "sugiyama", "--t-end-s", "5"], "ring.json", "aev_ocp.ring.experiments.sugiyama"),
         (
             ["stability", "--law", "ovm", "--ring", "22", "--density-per-km", "47"],

@@ -29,8 +29,8 @@ from aev_ocp.models.carfollowing import (
     register_law,
 )
 from aev_ocp.stability import LinearizedLaw, PerturbedLeader, analyse, measure, transfer
-from aev_ocp.stability.api import stability_map, study_metrics
-from aev_ocp.stability.report import string_stability_section
+from aev_ocp.stability.run import stability_map, study_metrics
+from aev_ocp.stability.section import string_stability_section
 from aev_ocp.params import Units
 from aev_ocp.stability.linear import impulse_response
 

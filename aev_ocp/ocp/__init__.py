@@ -4,8 +4,8 @@ OCP-D (oracle following, the lower bound). The solvers plot nothing; :mod:`aev_o
 
 The §9 problem shared with the MPC is stated once in :mod:`aev_ocp.ocp.following`; the problem
 description (:class:`OCPProblem`, :class:`ProblemBuilder`) lives in :mod:`aev_ocp.ocp.problem`.
-The runs that write files (``run_prop31``, ``run_oracle``, …) are in :mod:`aev_ocp.ocp.api`, the
-``aev-ocp ocp`` command in :mod:`aev_ocp.ocp.cli`, the report section in :mod:`aev_ocp.ocp.report_section`.
+The runs that write files (``run_prop31``, ``run_oracle``, …) are in :mod:`aev_ocp.ocp.run`, the
+``aev-ocp ocp`` command in :mod:`aev_ocp.ocp.cli`, the report section in :mod:`aev_ocp.ocp.section`.
 
 The names below are imported on first use, so ``import aev_ocp.ocp.problem`` loads the problem
 description only (docs/guide/layers.md).

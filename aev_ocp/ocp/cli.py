@@ -97,7 +97,7 @@ def parse_grids(problem: str, items: list[str], file: str | None) -> dict[str, l
     import tomllib
 
     from ..params import ParameterError
-    from .api import GRIDS
+    from .run import GRIDS
 
     raw: dict[str, object] = {}
     from_file: set[str] = set()
@@ -155,7 +155,7 @@ def _check_size(args: argparse.Namespace) -> None:
     if args.problem == "oracle":
         if args.scenario is not None:  # the canonical scenario has N = 700
             from ..scenarios import find_scenario
-            from .api import oracle_scenario_from_file
+            from .run import oracle_scenario_from_file
 
             scn = oracle_scenario_from_file(find_scenario(args.scenario))
             check_ocp_size("oracle", scn.N, args.method, f"{args.scenario}: simulation.t_end (N = t_end/dt)")
@@ -221,7 +221,7 @@ def _solve(
     args: argparse.Namespace, out: Path, grids: dict[str, list[float]], prog: Any
 ) -> tuple[bool, dict[str, Any], dict[str, Any]]:
     """Solve the problem (its table printed): (converged, {run name: result} to save, the report)."""
-    from . import api
+    from . import run as runs
 
     # what current-profile and eco-trip both take from the command line (N only when given: else the problem's)
     common: dict[str, Any] = dict(
@@ -233,15 +233,15 @@ def _solve(
         from .prop31 import prop31_table
 
         kw = _prop31_options(args)
-        cases = api.run_prop31(args.method, refine=not args.no_refine, **kw)
+        cases = runs.run_prop31(args.method, refine=not args.no_refine, **kw)
         write_prop31_outputs(cases, out)
         print(prop31_table(cases))
         ok = all(e["status"] in ("optimal", "acceptable") for e in cases.values())
         return ok, {case: e["result"] for case, e in cases.items() if "result" in e}, {}
     if args.problem == "current-profile":
         # a grid not given keeps run_current_profile's default sweep
-        rep = api.run_current_profile(
-            **common, sweep_E_J=grids.get("E_req") or api.SWEEP_E_J, sweep_t_f_s=grids.get("t_f") or api.SWEEP_T_F_S
+        rep = runs.run_current_profile(
+            **common, sweep_E_J=grids.get("E_req") or runs.SWEEP_E_J, sweep_t_f_s=grids.get("t_f") or runs.SWEEP_T_F_S
         )
         print(rep["table"])
         return (
@@ -250,7 +250,7 @@ def _solve(
             rep,
         )
     if args.problem == "eco-trip":
-        rep = api.run_eco_trip(
+        rep = runs.run_eco_trip(
             **common, multistart=args.multistart, sweep_D_m=grids.get("D", ()), sweep_t_f_s=grids.get("t_f", ())
         )
         print(rep["table"])
@@ -258,7 +258,7 @@ def _solve(
     from .oracle import DEFAULT_TIME_LIMIT_S
 
     # IPOPT stops itself at the limit (max_wall_time); its iterations are reported every --progress-every s
-    rep = api.run_oracle(
+    rep = runs.run_oracle(
         method=args.method,
         out_dir=out,
         scenario=args.scenario,

@@ -4,14 +4,14 @@ Linear analysis of any :class:`~aev_ocp.models.carfollowing.CarFollowingLaw` at 
 (:mod:`.linear`: exact CasADi partials, head-to-tail criterion, transfer function, sup|G|, unstable
 band, platoon stability) and measured attenuation in long perturbed platoons (:mod:`.measure`) are
 exported here (imported on first use); the modes of a ring road (:mod:`.ring`) and of a mixed ring
-(:mod:`.mixed`), the runs that write files and maps (:mod:`.api`), plots (:mod:`.plots`), the ``aev-ocp
-stability`` command (:mod:`.cli`, with ``--ring``) and the section of ``aev-ocp reproduce`` (:mod:`.report`) are
+(:mod:`.mixed`), the runs that write files and maps (:mod:`.run`), plots (:mod:`.plots`), the ``aev-ocp
+stability`` command (:mod:`.cli`, with ``--ring``) and the section of ``aev-ocp reproduce`` (:mod:`.section`) are
 imported from their modules (docs/guide/layers.md).
 
 Python API (model units throughout)::
 
     from aev_ocp.stability import analyse, measure
-    from aev_ocp.stability.api import stability_map, study_metrics, run_stability
+    from aev_ocp.stability.run import stability_map, study_metrics, run_stability
     lin = analyse(Proposed(), 1.7)            # LinearStability: criterion, max_gain, unstable_band, ...
     att = measure(Proposed(), 1.7, 1e-3)      # Attenuation of a dip of depth 1e-3 in 50 followers
     m = stability_map(Proposed(), 1.7, "alpha", np.linspace(0, 4, 21), "beta", np.linspace(0, 6, 21))

@@ -239,7 +239,7 @@ def cli_stability(argv: list[str]) -> int:
     """Entry point of ``aev-ocp stability``; returns the exit code."""
     from ..mpc.settings import PREDICTOR_NAMES
     from ..results import OutputError, claim_output_dir
-    from .api import run_stability
+    from .run import run_stability
 
     try:
         a = build_parser().parse_args(argv)
