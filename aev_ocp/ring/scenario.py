@@ -19,6 +19,10 @@ A ring scenario file has ``name``, ``description``, the vehicle tables every sce
   ring: vehicles round(j n / k) + 1), ``density_per_km`` or ``length_m`` (an array: the rings; default the one
   of ``[ring]``), ``controllers`` (default ["followerstopper"]) and ``r_fraction``: one run per ring, AEV count
   and controller (the AEV count 0, all human, once per ring);
+* ``[ring.followerstopper]`` (optional): FollowerStopper's SI constants ``dx0_m`` (its three Δx⁰ [m], increasing),
+  ``d_mps2`` (its three d [m/s²]) and ``tau_s`` (its speed loop [s]); defaults Stern et al. 2018 and
+  :data:`aev_ocp.ring.laws.SPEED_LOOP_S`. An AEV law's own coefficients come from ``[carfollowing]`` and its
+  sub-tables (``[carfollowing.idm]``: the IDM's SI ``T_s``, ``a_mps2``, …);
 * or, instead of ``human`` and its tables, ``population`` (a calibrated human population by name,
   :data:`aev_ocp.ring.humans.CALIBRATED`: heterogeneous seeded drivers with reaction times and noise) with an
   optional ``[ring.calibration]`` stating its fit (source, fitted and their values, statistics, target, tolerance, achieved,
@@ -102,6 +106,7 @@ class RingSpec:
     sweep_length_m: tuple[float, ...] = ()  # [ring.sweep]: ring lengths [m]
     population: str | None = None  # a calibrated human population (aev_ocp.ring.humans.CALIBRATED) instead of human
     calibration: dict[str, Any] | None = None  # [ring.calibration]: what the population was fitted to (stated)
+    followerstopper: dict[str, Any] = field(default_factory=dict)  # [ring.followerstopper]: FollowerStopper.from_si
 
 
 @dataclass(frozen=True)
@@ -128,6 +133,7 @@ class RingScenario:
     source: Path | None = None
     document: dict[str, Any] | None = field(default=None, compare=False, repr=False)
     cf: CarFollowingParams = field(default_factory=CarFollowingParams)  # the AEV laws' coefficients and scales
+    law_overrides: dict[str, dict[str, float]] = field(default_factory=dict)  # [carfollowing.<law>] sub-tables
 
     @property
     def density_per_km(self) -> float:
@@ -266,6 +272,8 @@ def validate_ring_table(r: TableReader) -> RingSpec:
         )
         sw.finish()
         length = min(lengths)  # the perturbation must fit on every ring
+    if r.has("followerstopper"):
+        kw["followerstopper"] = _followerstopper_table(r.sub("followerstopper"))
     if r.has("perturbation") and r.has("initial"):
         raise r.error("initial", r.table["initial"], "give [ring.perturbation] or [ring.initial], not both")
     if r.has("initial"):
@@ -295,6 +303,23 @@ def validate_ring_table(r: TableReader) -> RingSpec:
         p.finish()
     r.finish()
     return RingSpec(**kw)
+
+
+def _followerstopper_table(f: TableReader) -> dict[str, Any]:
+    """``[ring.followerstopper]``: the keyword arguments of :meth:`aev_ocp.ring.laws.FollowerStopper.from_si`."""
+    from .laws import SPEED_LOOP_S
+
+    out: dict[str, Any] = {}
+    for key, default in (("dx0_m", [4.5, 5.25, 6.0]), ("d_mps2", [1.5, 1.0, 0.5])):  # Stern et al. 2018 §3.1
+        vals = f.numbers(key, default, gt=0)
+        if len(vals) != 3:
+            raise f.error(key, f.table[key], "needs three values (the three bands of FollowerStopper)")
+        if key == "dx0_m" and not vals[0] < vals[1] < vals[2]:
+            raise f.error(key, f.table[key], "must increase (Δx⁰₁ < Δx⁰₂ < Δx⁰₃)")
+        out[key] = tuple(float(x) for x in vals)
+    out["tau_s"] = f.number("tau_s", SPEED_LOOP_S, gt=0, le=10.0)  # 10 s: far slower than any speed loop
+    f.finish()
+    return out
 
 
 def _calibration_table(c: TableReader) -> dict[str, Any]:
@@ -347,9 +372,9 @@ def parse_ring_scenario(doc: dict[str, Any], file: str = "<ring scenario>", sour
                 f"be one of {list(RING_PREDICTORS)} (an AEV forecasts its predecessor from its "
                 "own measurements)"
             )
-    cf = _carfollowing(top.sub("carfollowing"), sub_tables=False)[0]  # SI laws: [units] does not change them
+    cf, own = _carfollowing(top.sub("carfollowing"))  # SI laws: [units] does not change them
     top.finish()
-    return RingScenario(name, spec, ev, mpc, description, source, copy.deepcopy(doc), cf)
+    return RingScenario(name, spec, ev, mpc, description, source, copy.deepcopy(doc), cf, own)
 
 
 def load_ring_scenario(path: str | Path) -> RingScenario:
@@ -423,7 +448,8 @@ def _aevs(sc: RingScenario, controller: str, base: Any, on: tuple[int, ...]) -> 
     except ParameterError as exc:
         raise ScenarioError(f"{sc.source or sc.name}: {exc}") from None
     mpc = (sc.mpc.settings, sc.mpc.formulation) if sc.mpc is not None else None
-    return {i: make_aev(controller, sc.ev, r_mps, mpc, sc.cf) for i in on}
+    own = {**sc.law_overrides, "followerstopper": dict(sc.spec.followerstopper)}
+    return {i: make_aev(controller, sc.ev, r_mps, mpc, sc.cf, own) for i in on}
 
 
 def _build_population_ring(
