@@ -475,7 +475,9 @@ def held_rows(run: RingRun) -> list[dict[str, Any]]:
     human = run.held[("human", "all human")]
     rows = []
     for (ctrl, which), runs in run.held.items():
-        row: dict[str, Any] = {"controller": ctrl, "set": which, "seeds": len(runs)}
+        none = which == "tuned" and run.best.get(ctrl) is None
+        row: dict[str, Any] = {"controller": ctrl, "set": "tuned = default (no feasible trial)" if none else which}
+        row["seeds"] = len(runs)
         row["failed"] = sum(1 for r in runs if r["status"] != "ok")
         row["budget_trials"] = run.budget if ctrl in run.tuners else 0
         row["closed_loop_evaluations"] = run.evals.get(ctrl, 0)
