@@ -230,7 +230,8 @@ def seeds_markdown(name: str, rows: list[dict[str, Any]], seeds: list[int], t_en
             "Run: share of the cars the toolkit drives and its controller (0.0 sumo: SUMO's drivers alone). Each "
             "metric: the mean over the seeds [95 % t interval]; after it the paired verdict against the all-SUMO "
             "run on the same seeds (better/worse only when the interval of the difference excludes 0, else tie). "
-            "failed: runs that ended on an event (left out).",
+            "failed: runs with an event (an emergency stop, a lane-end stop, a collision, a teleport: its status in "
+            "seeds.csv), left out of the means.",
             "",
             table_markdown(rows, metrics),
             "",
@@ -271,8 +272,9 @@ def run_seeds(sc: SumoScenario, args: argparse.Namespace, out: Path) -> int:
     write_atomic(out / "seeds.csv", seeds_csv(tasks, results))
     print(md)
     print(f"wrote {out}/seeds.md, seeds.csv, traffic.json ({len(tasks)} runs)")
-    failed = [r for r in results.values() if r["status"] == "error"]
-    return 1 if failed or any(r.get("failed") for r in rows) else 0
+    from .run import FAILED_STATUSES
+
+    return 1 if any(r["status"] in (*FAILED_STATUSES, "error") for r in results.values()) else 0
 
 
 __all__ = ["build_parser", "cli_sumo", "run_one", "run_seeds", "seed_points"]
