@@ -232,7 +232,7 @@ def test_sumo_seeds_options_are_checked(tmp_path: Path, capsys: Any) -> None:
         (["--seeds", "1"], "--seeds = 1"),
         (["--in-process"], "--in-process applies to --seeds"),
         (["--seeds", "3", "--in-process", "--workers", "2"], "--in-process"),
-        (["--workers", "2"], "--workers applies to --sweep and --seeds"),
+        (["--workers", "2"], "--workers applies to --sweep only"),
     ):
         assert main(["sumo", "sumo_ring", *argv, "--out", str(tmp_path / "s")]) == 2
         assert words in capsys.readouterr().err

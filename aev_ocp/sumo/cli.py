@@ -76,11 +76,12 @@ def _with_options(sc: SumoScenario, args: argparse.Namespace) -> SumoScenario:
                 f"{' and '.join(given)} cannot be combined with --sweep: a sweep runs every share x controller of "
                 "[sumo.sweep] (drop --sweep to run one point)"
             )
-    elif args.workers is not None and args.seeds is None:
-        raise SumoError("--workers applies to --sweep and --seeds only (one run is one SUMO process)")
-    if args.seeds is not None and (isinstance(args.seeds, bool) or args.seeds < 2):
-        raise SumoError(f"--seeds = {args.seeds!r} is not allowed: must be an integer >= 2 (an interval needs 2 seeds)")
-    if args.in_process and (args.seeds is None or args.workers is not None):
+    seeds, in_process = getattr(args, "seeds", None), getattr(args, "in_process", False)
+    if not args.sweep and args.workers is not None and seeds is None:
+        raise SumoError("--workers applies to --sweep only (and to --seeds; one run is one SUMO process)")
+    if seeds is not None and (isinstance(seeds, bool) or seeds < 2):
+        raise SumoError(f"--seeds = {seeds!r} is not allowed: must be an integer >= 2 (an interval needs 2 seeds)")
+    if in_process and (seeds is None or args.workers is not None):
         raise SumoError("--in-process applies to --seeds only, without --workers")
     if args.workers is not None:
         check_local_workers(args.workers)

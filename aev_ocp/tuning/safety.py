@@ -96,7 +96,7 @@ def run_safety(
 
 def event_rows(out: Mapping[str, Any]) -> list[list[str]]:
     """Per controller and actuator: collisions, floor violations (all labels) and failures (avoidable cases with
-    either), default → tuned."""
+    either), default → tuned; the cases that fail at the default only and at the tuned set only."""
     rows = []
     for key in out["default"]:
         d, t = out["default"][key], out["tuned"].get(key)
@@ -106,6 +106,7 @@ def event_rows(out: Mapping[str, Any]) -> list[list[str]]:
         for what in ("collisions", "floor_violations"):
             cells.append(f"{sum(d[what].values())} → {sum(t[what].values())}")
         cells.append(f"{len(d['failures'])} → {len(t['failures'])}")
+        cells.append(", ".join(sorted(set(d["failures"]) - set(t["failures"]))) or "–")
         cells.append(", ".join(sorted(set(t["failures"]) - set(d["failures"]))) or "–")
         rows.append(cells)
     return rows
@@ -115,7 +116,8 @@ def safety_markdown(out: Mapping[str, Any]) -> str:
     """``safety.md``: the events of the default and the tuned sets over the whole suite."""
     from ..report import markdown_table
 
-    head = ["controller", "actuator", "collisions", "floor violations", "failures (avoidable)", "new failures"]
+    head = ["controller", "actuator", "collisions", "floor violations", "failures (avoidable)", "fixed by tuning"]
+    head.append("new with tuning")
     return "\n".join(
         [
             "# The drive-cycle tuned sets through the safety suite",
