@@ -307,3 +307,23 @@ def test_cli_sumo_seeds_writes_the_intervals_of_its_runs(tmp_path: Path, capsys:
         got = r["mean_speed_mps"]
         assert (got["mean"], got["lo"], got["hi"]) == pytest.approx((mean, lo, hi), rel=1e-9)
     assert (out / "seeds.md").read_text().count("|") > 10
+
+
+def test_cli_ring_options_are_parsed_and_checked(tmp_path: Path, capsys: Any) -> None:
+    from aev_ocp.cli import main
+    from aev_ocp.tuning.cli import seeds_arg
+
+    assert seeds_arg("1,3-5", "--x") == [1, 3, 4, 5] and seeds_arg("7", "--x") == [7]
+    for argv, words in (
+        (["--ring", "--bounds", "idm.T_s=1:2"], "--bounds applies to the drive-cycle tuning"),
+        (["--ring", "--safety-suite"], "--safety-suite applies to the drive-cycle tuning"),
+        (["--train-seeds", "1,2"], "--train-seeds applies to --ring only"),
+        (["--t-end-s", "60"], "--t-end-s applies to --ring only"),
+        (["--ring", "--heldout-seeds", "11-x"], "--heldout-seeds '11-x'"),
+        (["--ring", "--train-seeds", "1,2", "--heldout-seeds", "2-12"], "both training and held-out"),
+        (["--ring", "--controllers", "proposed,pid"], "'pid'"),
+    ):
+        assert main(["tune", *argv, "--out", str(tmp_path / "t")]) == 2
+        err = capsys.readouterr().err
+        assert words in err and err.count("\n") == 1
+    assert not (tmp_path / "t").exists()
