@@ -100,7 +100,7 @@ def _law(
     """The law by name (the plant saturates it to the vehicle's limits like every other controller), its fields
     replaced by ``overrides`` ((law, ((field, value), ...)), ...; SI for the IDM, an OV-type law's coefficients and
     scales; e.g. a tuned set, :mod:`aev_ocp.tuning.safety`)."""
-    own = dict(dict(overrides).get(name, ()))
+    own: dict[str, Any] = dict(dict(overrides).get(name, ()))
     if name == "idm":
         return dataclasses.replace(treiber_idm(case.v_ego_mps, units), **own)
     # the OV-type laws at SI scales of their own (the drive-cycle scenarios' 15 m / 17 m/s, where the suite's numbers

@@ -259,7 +259,8 @@ def _ov_table(space: Space, values: Mapping[str, float], rs: RingSet) -> dict[st
     sc = _scenario(rs)
     from ..models.carfollowing import make_law
 
-    si = {**make_law("proposed", sc.cf).si_coefficients(), **values}  # every OV coefficient in SI
+    ov: Any = make_law("proposed", sc.cf)
+    si = {**ov.si_coefficients(), **values}  # every OV coefficient in SI
     ell, u = si["h_scale_m"], si["v_scale_mps"]
     keep = {k: x for k, x in (rs.document.get("carfollowing") or {}).items() if isinstance(x, dict)}
     table: dict[str, Any] = {**keep, "h_scale_m": ell, "v_scale_mps": u}
