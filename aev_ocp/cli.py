@@ -84,7 +84,14 @@ def build_parser() -> argparse.ArgumentParser:
     sub = p.add_subparsers(dest="command", required=True, parser_class=_Parser)
     r = sub.add_parser("reproduce", help="reproduce the paper's figures and Table 1, write report.md")
     r.add_argument("--out", default="results", help="output folder (default: results/)")
-    r.add_argument("--quick", action="store_true", help="a cheap smoke run (short horizons), not the reproduction")
+    size = r.add_mutually_exclusive_group()
+    size.add_argument("--quick", action="store_true", help="a cheap smoke run (short horizons), not the reproduction")
+    size.add_argument(
+        "--full",
+        action="store_true",
+        help="the extended studies (robustness, MPC drive cycles, battery life) at full size; the default runs the "
+        "reduced versions the report's table lists (the paper's figures and tables are whole either way)",
+    )
     r.add_argument(
         "--workers",
         type=int,
@@ -266,7 +273,7 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
     from .results import claim_output_dir
 
     claim_output_dir(args.out, "reproduce", "paper", None, ["report.md", "report.html"])
-    config = ReproduceConfig.quick() if args.quick else ReproduceConfig()
+    config = ReproduceConfig.quick() if args.quick else ReproduceConfig.full() if args.full else ReproduceConfig()
     if args.model_units:
         config = dataclasses.replace(config, si_units=False)
     import os

@@ -145,6 +145,42 @@ def _stop_group(p: subprocess.Popen[str]) -> None:
                     continue
 
 
+_ARCH: list[str] = []
+
+
+def native_arch() -> str:
+    """The CPU the C compiler targets with -march=native, resolved to its name (e.g. 'znver3'), or '' when the
+    compiler cannot tell. The resolved name, not 'native', goes into the compile flags and so into the cache key
+    of the built library: a cache shared by two machines never hands one the other's instructions."""
+    if not _ARCH:
+        arch = ""
+        cc = compiler()
+        if cc is not None:
+            try:
+                out = subprocess.run(
+                    [cc, "-march=native", "-Q", "--help=target"], capture_output=True, text=True, timeout=30
+                ).stdout
+                for line in out.splitlines():
+                    parts = line.split()
+                    if len(parts) == 2 and parts[0] == "-march=" and parts[1].replace("-", "").isalnum():
+                        arch = parts[1]
+                        break
+            except (OSError, subprocess.SubprocessError):
+                arch = ""
+        _ARCH.append(arch)
+    return _ARCH[0]
+
+
+def exact_tuned_flags() -> tuple[str, ...]:
+    """Flags that make a library faster without changing one bit of its results: -O3 and the native CPU's
+    instructions with floating-point contraction off (no fused multiply-adds the plain build does not have; IEEE
+    operations give the same result in any instruction set, and GCC never reorders them without -ffast-math), and
+    -fno-semantic-interposition (CasADi's helpers such as casadi_sq, global functions in a shared library, are
+    then inlined instead of called through the PLT). () when the CPU cannot be resolved."""
+    arch = native_arch()
+    return ("-O3", f"-march={arch}", "-ffp-contract=off", "-fno-semantic-interposition") if arch else ()
+
+
 def _private(d: Path) -> bool:
     """d is a folder owned by us that group/others cannot write to."""
     try:

@@ -84,6 +84,47 @@ def add_set_option(parser: argparse.ArgumentParser, help: str) -> None:
     parser.add_argument("--set", dest="sets", action="append", default=[], metavar="KEY=VALUE", help=help)
 
 
+def add_executor_options(parser: argparse.ArgumentParser) -> None:
+    """Where the tasks of a command that runs study tasks (``aev-ocp study``, ``aev-ocp tune``) run, at most one
+    of: ``--workers N`` (a local process pool, default one per core), ``--dask-local N`` (a Dask LocalCluster),
+    ``--scheduler ADDRESS`` (a running Dask scheduler), ``--in-process``; read back with :func:`executor_options`."""
+    ex = parser.add_mutually_exclusive_group()
+    ex.add_argument(
+        "--workers", type=int, default=None, metavar="N", help="local process pool of N workers (default: one per core)"
+    )
+    ex.add_argument(
+        "--dask-local",
+        type=int,
+        default=None,
+        metavar="N",
+        help="start a Dask LocalCluster of N worker processes (needs aev_ocp[dask])",
+    )
+    ex.add_argument(
+        "--scheduler",
+        default=None,
+        metavar="ADDRESS",
+        help="run on a running Dask scheduler, e.g. tcp://10.0.0.5:8786 (needs aev_ocp[dask])",
+    )
+    ex.add_argument("--in-process", action="store_true", help="run every task in this process (debugging)")
+
+
+def executor_options(args: argparse.Namespace) -> dict[str, Any]:
+    """The executor keywords (``executor``, ``workers``, ``scheduler``) of :func:`aev_ocp.study.run_study` and
+    :func:`aev_ocp.tuning.run_tuning` from the options of :func:`add_executor_options`. ParameterError naming the
+    option for a worker count this machine does not allow (1 … 4 per core) or an empty scheduler address."""
+    from .limits import check_local_workers
+
+    for opt in ("workers", "dask_local"):
+        check_local_workers(getattr(args, opt), f"--{opt.replace('_', '-')}")
+    if args.scheduler is not None and not args.scheduler.strip():
+        raise ParameterError("--scheduler '': an empty address (give one such as tcp://10.0.0.5:8786)")
+    if args.in_process:
+        return {"executor": "inprocess"}
+    if args.dask_local is not None or args.scheduler is not None:
+        return {"executor": "dask", "workers": args.dask_local, "scheduler": args.scheduler}
+    return {"executor": "pool", "workers": args.workers}
+
+
 def guarded(run: Callable[[], int]) -> int:
     """Run one command with the one error behaviour of every subcommand; returns the exit code.
 

@@ -18,7 +18,7 @@ from __future__ import annotations
 import math
 import numbers
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, Callable, Sequence, cast
 
 import numpy as np
@@ -29,7 +29,17 @@ from .estimation.kalman import EKF
 from .estimation.mhe import MHE
 from .estimation.mismatch import Mismatch
 from .estimation.sensors import CHANNELS, Measurement, SensorModel, Sensors
-from .loop import COUNT_NAMES, CommandStages, Command, Controller, History, Observation, VehicleStep, stages_for
+from .loop import (
+    CommandStages,
+    Command,
+    Controller,
+    History,
+    Observation,
+    VehicleStep,
+    controller_stats,
+    fallback_causes as fallback_causes,  # (its home is aev_ocp.loop; importable from here as before)
+    stages_for,
+)
 from .models import battery
 from .models.carfollowing import CarFollowingLaw, Proposed
 from .models.leader import LeaderProfile
@@ -109,63 +119,44 @@ def register_controller_adapter(cls: type, fn: AdapterFn) -> None:
     _ADAPTERS[cls] = fn
 
 
-def fallback_causes(status: Sequence[Any], ok: Sequence[bool]) -> dict[str, int]:
-    """{cause: count} over the failed steps; a cause is a step's status up to its first ':'."""
-    out: dict[str, int] = {}
-    for st, k in zip(status, ok):
-        if not k:
-            c = str(st).split(":")[0].strip() or "unknown"
-            out[c] = out.get(c, 0) + 1
-    return out
-
-
-def _stats(
-    rec: dict[str, list[Any]], ctrl: Controller, counts: dict[str, int] | None = None, conditioning: str = "none"
-) -> dict[str, Any]:
-    """A sampled controller's statistics from its records (solve and call times, iterations, fallbacks), the loop
-    core's counts (:meth:`aev_ocp.loop.VehicleStep.counts`) and its conditioning (:meth:`CommandStages.label`)."""
-    counts = counts or {}
-    ms = np.asarray(rec["solve"], float) * 1e3
-    ms = ms[np.isfinite(ms)]
-    cm = np.asarray(rec["call"], float) * 1e3
-    it = np.asarray(rec["iters"], float)
-    ok = ms.size > 0
-    d = ctrl.describe()
-    return {
-        "solve_ms_median": float(np.median(ms)) if ok else float("nan"),
-        "solve_ms_p95": float(np.percentile(ms, 95)) if ok else float("nan"),
-        "solve_ms_max": float(ms.max()) if ok else float("nan"),
-        "iterations_mean": float(it.mean()) if it.size else float("nan"),
-        "iterations_max": int(it.max()) if it.size else 0,
-        "fallbacks": int(sum(not k for k in rec["ok"])),
-        # cause of each fallback: the status up to its first ':' ('QP failed', 'budget', 'path constraint',
-        # 'exception', or the NLP solver's return status)
-        "fallback_causes": fallback_causes(rec["status"], rec["ok"]),
-        "solver_path": d.get("solver_path", d.get("controller", "")),
-        "qp_solver": d.get("qp_in_use", ""),  # the MPC's QP solver that ran ('' for the others)
-        "n_steps": len(rec["ok"]),
-        # whole controller call: forecast, warm-start shift, parameters, solve, unpacking
-        "call_ms_median": float(np.median(cm)) if cm.size else float("nan"),
-        "call_ms_p95": float(np.percentile(cm, 95)) if cm.size else float("nan"),
-        # how many commands each stage of the loop core changed (aev_ocp.loop: conditioning, safety, limits)
-        **{k: int(counts.get(k, 0)) for k in COUNT_NAMES},
-        "conditioning": conditioning,  # e.g. 'filter 0.5 s, jerk <= 5 m/s^3', 'safety layer', 'none'
-    }
-
-
 class _Anonymous:
     def describe(self) -> dict[str, Any]:
         return {}
 
 
 def sampled_stat_names() -> frozenset[str]:
-    """Every key a sampled controller's statistics add to its follower's metrics (:func:`_stats`, the forecast
+    """Every key a sampled controller's statistics add to its follower's metrics (:func:`aev_ocp.loop.controller_stats`, the forecast
     RMS, the estimation errors and the estimator's timings of :meth:`ClosedLoop.run`), so that a study can check
     a [report] metric name before anything runs."""
     rec: dict[str, list[Any]] = {k: [] for k in ("solve", "call", "iters", "ok", "status")}
     est = estimation_errors(np.zeros((1, 5)), 1.0)
     extra = ("forecast_rms", "estimation", "estimator_ms_median", "estimator_plus_call_ms_median")
-    return frozenset([*_stats(rec, cast(Controller, _Anonymous())), *extra, *(f"est_{k}" for k in est)])
+    return frozenset([*controller_stats(rec, cast(Controller, _Anonymous())), *extra, *(f"est_{k}" for k in est)])
+
+
+@dataclass
+class _Run:
+    """The state of one :meth:`ClosedLoop.run` (model units): the sampled followers (``sampled``, indices), their
+    commands at this instant (``a_cmd``) and as the plant applied them at the last node (``a_app``, saturated), the
+    samples so far (``out``: t, x, quadratures, outputs), the step cores and their records, the measurements, the
+    sensors and estimators, the leader's breakpoints, the estimators' timings [s] and errors, the events."""
+
+    sampled: list[int]
+    a_cmd: np.ndarray
+    a_app: np.ndarray
+    a_bounds: tuple[float, float]
+    out: tuple[list, list, list, list]
+    cores: dict[int, VehicleStep]
+    rec: list[dict[str, list[Any]]]
+    meas_t: History
+    meas_v: list[History]
+    sm: SensorModel | None
+    ests: list[Estimator | None]
+    bps: list[float]
+    est_s: list[list[float]]  # the sensors' read-out and the estimator's update [s], per follower
+    err: list[list[np.ndarray]]  # estimate − truth per step: S, V1, V2, h, v_l
+    events: list[Event] = field(default_factory=list)
+    applied: list[np.ndarray] = field(default_factory=list)  # a_app at every node
 
 
 class ClosedLoop(PlatoonRun):
@@ -232,30 +223,10 @@ class ClosedLoop(PlatoonRun):
         degraded = sensors is not None and sensors.degraded
         self.laws: list[CarFollowingLaw | None] = []
         self.ctrl: list[Controller | None] = []
-        for i, c in enumerate(controllers):
-            if isinstance(c, CarFollowingLaw):
-                self.laws.append(c)
-                self.ctrl.append(None)
-                continue
-            adapter = next((fn for cls, fn in _ADAPTERS.items() if isinstance(c, cls)), None)
-            c = adapter(c, i, self) if adapter is not None else c
-            if not isinstance(c, Controller):
-                raise ParameterError(
-                    f"ClosedLoop: controller of vehicle {i + 1} must be a CarFollowingLaw or a "
-                    f"Controller (name, dt, reset, command, describe), got {type(c).__name__}"
-                )
-            dt = getattr(c, "dt", None)
-            if (
-                isinstance(dt, (bool, np.bool_))
-                or not isinstance(dt, numbers.Real)
-                or not (math.isfinite(dt) and float(dt) > 0)
-            ):
-                raise ParameterError(
-                    f"ClosedLoop: controller {getattr(c, 'name', type(c).__name__)!r} of vehicle {i + 1}: dt = {dt!r} "
-                    "is not allowed: must be a finite sampling period > 0 [model time]"
-                )
-            self.laws.append(None)
-            self.ctrl.append(c)
+        for i, c in enumerate(controllers):  # (an adapter may read what is set so far, e.g. model_ev)
+            law, ctrl = self._resolve(c, i)
+            self.laws.append(law)
+            self.ctrl.append(ctrl)
         # realistic sensors (noise, quantisation or delay on a channel; not merely sampled): the laws get a
         # production ACC's conditioning by default
         realistic = sensors is not None and any(
@@ -282,6 +253,30 @@ class ClosedLoop(PlatoonRun):
         self.rtol, self.atol = rtol, atol
         self.plant = Plant(leader, self.laws, self.ev, rtol=rtol, atol=atol)
         self.battery = self.plant.battery
+
+    def _resolve(self, c: Any, i: int) -> tuple[CarFollowingLaw | None, Controller | None]:
+        """(law, None) for a CarFollowingLaw, else (None, the Controller) of follower i's ``c`` (through its
+        registered adapter), checked: the protocol and a finite dt > 0 [model time]."""
+        if isinstance(c, CarFollowingLaw):
+            return c, None
+        adapter = next((fn for cls, fn in _ADAPTERS.items() if isinstance(c, cls)), None)
+        c = adapter(c, i, self) if adapter is not None else c
+        if not isinstance(c, Controller):
+            raise ParameterError(
+                f"ClosedLoop: controller of vehicle {i + 1} must be a CarFollowingLaw or a "
+                f"Controller (name, dt, reset, command, describe), got {type(c).__name__}"
+            )
+        dt = getattr(c, "dt", None)
+        if (
+            isinstance(dt, (bool, np.bool_))
+            or not isinstance(dt, numbers.Real)
+            or not (math.isfinite(dt) and float(dt) > 0)
+        ):
+            raise ParameterError(
+                f"ClosedLoop: controller {getattr(c, 'name', type(c).__name__)!r} of vehicle {i + 1}: dt = {dt!r} "
+                "is not allowed: must be a finite sampling period > 0 [model time]"
+            )
+        return None, c
 
     def _stages(
         self, given: CommandStages | Sequence[CommandStages | None] | None, realistic: bool
@@ -328,8 +323,27 @@ class ClosedLoop(PlatoonRun):
         return out
 
     def _run(self, x0: np.ndarray, t_end: float, progress: ProgressFn | None) -> SimulationResult:
-        """The closed loop from x0 over [0, t_end] (a multiple of dt); see :meth:`PlatoonRun.run`."""
-        n, dt, plant, x = self.n, self.dt, self.plant, x0
+        """The closed loop from x0 over [0, t_end] (a multiple of dt); see :meth:`PlatoonRun.run`: at each control
+        instant the measurements, every sampled controller through its step core, then the plant over dt."""
+        K = self._steps(t_end)
+        r = self._start(x0, t_end, K)
+        k = 0
+        while k < K and not r.events:
+            tk = k * self.dt
+            x = r.out[1][-1][:, -1]
+            vl_k = float(self.leader.speed_np(tk)[0])
+            self._measure(r, tk, x, vl_k)
+            if not self._command_all(r, k, tk, x, vl_k):  # an estimator failed: nothing acts on its estimate
+                break
+            self._hold(r, k, K, tk, t_end)
+            k += 1
+            if progress is not None and not r.events:
+                self._progress(r, tk, t_end, progress)
+        return self._finish(r)
+
+    def _steps(self, t_end: float) -> int:
+        """The number of control steps K over [0, t_end] (a multiple of dt; a control sequence long enough)."""
+        dt = self.dt
         K = int(round(t_end / dt))
         if K < 1 or abs(K * dt - t_end) > 1e-9 * max(1.0, t_end):
             raise ParameterError(f"closed loop: t_end = {t_end} must be a multiple of dt = {dt}")
@@ -338,161 +352,178 @@ class ClosedLoop(PlatoonRun):
                 raise ParameterError(
                     f"closed loop: the control sequence of vehicle {i + 1} has {len(c.a)} values, {K} steps are needed"
                 )
+        return K
+
+    def _start(self, x: np.ndarray, t_end: float, K: int) -> _Run:
+        """A run's state at t = 0: the controllers reset, one step core each, the first sample and its check."""
+        n, plant = self.n, self.plant
         for c in self.ctrl:
             if c is not None:
                 c.reset()
         sampled = [i for i, c in enumerate(self.ctrl) if c is not None]
         q = np.zeros(plant.nq)
         a_cmd = np.zeros(len(sampled))
-        a_app = np.zeros(len(sampled))  # the commands as the plant applied them (saturated) at the last node
-        a_bounds = self.ev.limits.accel_bounds_model(self.ev.units)
         y = plant.samples(np.array([0.0]), x[:, None], a_cmd)
-        out: tuple[list, list, list, list] = ([np.array([0.0])], [x[:, None]], [q[:, None]], [y])
-        applied: list[np.ndarray] = []
         cores = {
-            i: VehicleStep(c.name, f"vehicle {i + 1}", self.ev.units, self.ev.limits, self.stages[i], dt)
+            i: VehicleStep(c.name, f"vehicle {i + 1}", self.ev.units, self.ev.limits, self.stages[i], self.dt)
             for i, c in enumerate(self.ctrl)
             if c is not None
         }
-        rec: list[dict[str, list[Any]]] = [cores[i].rec if i in cores else {} for i in range(n)]
-        est_s: list[list[float]] = [[] for _ in range(n)]  # the sensors' read-out and the estimator's update [s]
-        meas_t = History(K + 1)  # the measured times and speeds so far, read by every step (History: no copies)
-        meas_v = [History(K + 1) for _ in range(n)]
-        u = self.ev.units
         sensed = self.sensors is not None and self.sensors.degraded
-        sm = SensorModel(self.sensors, n) if sensed and self.sensors is not None else None
-        ests = self._estimators()
-        err: list[list[np.ndarray]] = [[] for _ in range(n)]  # estimate − truth per step: S, V1, V2, h, v_l
-        events: list[Event] = []
-        bps = [b for b in self.leader.breakpoints if 0 < b < t_end]
+        r = _Run(
+            sampled=sampled,
+            a_cmd=a_cmd,
+            a_app=np.zeros(len(sampled)),
+            a_bounds=self.ev.limits.accel_bounds_model(self.ev.units),
+            out=([np.array([0.0])], [x[:, None]], [q[:, None]], [y]),
+            cores=cores,
+            rec=[cores[i].rec if i in cores else {} for i in range(n)],
+            meas_t=History(K + 1),
+            meas_v=[History(K + 1) for _ in range(n)],
+            sm=SensorModel(self.sensors, n) if sensed and self.sensors is not None else None,
+            ests=self._estimators(),
+            bps=[b for b in self.leader.breakpoints if 0 < b < t_end],
+            est_s=[[] for _ in range(n)],
+            err=[[] for _ in range(n)],
+        )
         ev0 = plant.check(np.array([0.0]), x[:, None], y)
         if ev0 is not None:
-            events.append(ev0)
-        k = 0
-        while k < K and not events:
-            tk = k * dt
-            x = out[1][-1][:, -1]
-            vl_k = float(self.leader.speed_np(tk)[0])
-            meas_t.append(tk)
-            if sm is None:
-                for i in range(n):
-                    meas_v[i].append(vl_k if i == 0 else float(x[n + i - 1]))
-            else:
-                sm.record(
-                    u.time_to_si(tk),
-                    self._channels(x, vl_k, out[3][-1][:, -1]),
-                    np.column_stack([x[2 * n : 3 * n], x[3 * n : 4 * n], x[4 * n : 5 * n]]),
-                )
-            plans: list[np.ndarray | None] = [None] * n
-            for j, i in enumerate(sampled):
-                ctrl = self.ctrl[i]
-                assert ctrl is not None
-                z = x[[i, n + i, 2 * n + i, 3 * n + i, 4 * n + i]]
-                meas: Measurement | None = None
-                e: Estimate | None = None
-                if sm is not None:
-                    te = time.perf_counter()
-                    try:
-                        z, meas, e = self._sensed(sm, ests[i], i, k, tk, float(a_app[j]))
-                    except EstimateNotFinite as bad:
-                        events.append(Event("estimation_failed", tk, i, str(bad), float(u.time_to_si(tk))))
-                        break
-                    est_s[i].append(time.perf_counter() - te)
-                    meas_v[i].append(float(u.speed_from_si(e.lead_speed_mps if e is not None else meas.lead_speed_mps)))
-                    v_true = vl_k if i == 0 else float(x[n + i - 1])
-                    if e is not None:
-                        err[i].append(
-                            np.array(
-                                [
-                                    e.soc - x[4 * n + i],
-                                    e.V1_V - x[2 * n + i],
-                                    e.V2_V - x[3 * n + i],
-                                    e.gap_m - u.length_to_si(x[i]),
-                                    e.lead_speed_mps - u.speed_to_si(v_true),
-                                ]
-                            )
-                        )
-                obs = Observation(
-                    tk,
-                    dt,
-                    i,
-                    z,
-                    meas_t.view(),
-                    meas_v[i].view(),
-                    plans[i - 1] if i > 0 else None,
-                    float(a_app[j]),
-                    None if plant.act_row is None else float(x[plant.act_row + i]),
-                    meas,
-                    e,
-                    float(x[5 * n + i]) if getattr(plant, "thermal", False) else None,
-                )
-                cmd, a_cmd[j] = cores[i].command(ctrl, obs)  # checked, conditioned, safety layer, limits
-                plans[i] = cmd.plan
-            if events:  # an estimator failed: nothing acts on its estimate
+            r.events.append(ev0)
+        return r
+
+    def _measure(self, r: _Run, tk: float, x: np.ndarray, vl_k: float) -> None:
+        """The measurements at t_k [model]: exact predecessor speeds, or every channel handed to the sensors."""
+        n, u = self.n, self.ev.units
+        r.meas_t.append(tk)
+        if r.sm is None:
+            for i in range(n):
+                r.meas_v[i].append(vl_k if i == 0 else float(x[n + i - 1]))
+        else:
+            r.sm.record(
+                u.time_to_si(tk),
+                self._channels(x, vl_k, r.out[3][-1][:, -1]),
+                np.column_stack([x[2 * n : 3 * n], x[3 * n : 4 * n], x[4 * n : 5 * n]]),
+            )
+
+    def _command_all(self, r: _Run, k: int, tk: float, x: np.ndarray, vl_k: float) -> bool:
+        """Every sampled controller's command at t_k through its step core (checked, conditioned, safety layer,
+        limits) into ``r.a_cmd``, front to back (a plan passes to the follower behind); False when an estimator
+        failed (its 'estimation_failed' event recorded)."""
+        plans: list[np.ndarray | None] = [None] * self.n
+        for j, i in enumerate(r.sampled):
+            ctrl = self.ctrl[i]
+            assert ctrl is not None
+            obs = self._observation(r, i, j, k, tk, x, vl_k, plans[i - 1] if i > 0 else None)
+            if obs is None:
+                return False
+            cmd, r.a_cmd[j] = r.cores[i].command(ctrl, obs)
+            plans[i] = cmd.plan
+        return True
+
+    def _observation(
+        self, r: _Run, i: int, j: int, k: int, tk: float, x: np.ndarray, vl_k: float, plan: np.ndarray | None
+    ) -> Observation | None:
+        """What follower i (the j-th sampled) knows at t_k: its state, or with sensors the estimator's view (with
+        the estimation error recorded); None when its estimator returned a non-finite state (an event)."""
+        n, u, plant = self.n, self.ev.units, self.plant
+        z = x[[i, n + i, 2 * n + i, 3 * n + i, 4 * n + i]]
+        meas: Measurement | None = None
+        e: Estimate | None = None
+        if r.sm is not None:
+            te = time.perf_counter()
+            try:
+                z, meas, e = self._sensed(r.sm, r.ests[i], i, k, tk, float(r.a_app[j]))
+            except EstimateNotFinite as bad:
+                r.events.append(Event("estimation_failed", tk, i, str(bad), float(u.time_to_si(tk))))
+                return None
+            r.est_s[i].append(time.perf_counter() - te)
+            r.meas_v[i].append(float(u.speed_from_si(e.lead_speed_mps if e is not None else meas.lead_speed_mps)))
+            if e is not None:
+                r.err[i].append(self._estimate_error(e, x, i, vl_k))
+        return Observation(
+            tk,
+            self.dt,
+            i,
+            z,
+            r.meas_t.view(),
+            r.meas_v[i].view(),
+            plan,
+            float(r.a_app[j]),
+            None if plant.act_row is None else float(x[plant.act_row + i]),
+            meas,
+            e,
+            float(x[5 * n + i]) if getattr(plant, "thermal", False) else None,
+        )
+
+    def _estimate_error(self, e: Estimate, x: np.ndarray, i: int, vl_k: float) -> np.ndarray:
+        """Estimate − truth of follower i: S, V1, V2 [V], gap [m], predecessor speed [m/s]."""
+        n, u = self.n, self.ev.units
+        v_true = vl_k if i == 0 else float(x[n + i - 1])
+        return np.array(
+            [
+                e.soc - x[4 * n + i],
+                e.V1_V - x[2 * n + i],
+                e.V2_V - x[3 * n + i],
+                e.gap_m - u.length_to_si(x[i]),
+                e.lead_speed_mps - u.speed_to_si(v_true),
+            ]
+        )
+
+    def _hold(self, r: _Run, k: int, K: int, tk: float, t_end: float) -> None:
+        """The new commands act from t_k on: check the demand they make right now, then integrate the plant over
+        [t_k, t_k + dt] (cut at the leader's breakpoints), keeping only the node sample."""
+        plant, out, x = self.plant, r.out, r.out[1][-1][:, -1]
+        y0 = plant.samples(np.array([tk]), x[:, None], r.a_cmd)
+        ev = plant.check(np.array([tk]), x[:, None], y0)
+        if ev is not None:
+            r.events.append(ev)
+            return
+        out[3][-1][:, -1] = y0[:, 0]  # the sample at t_k shows the applied command
+        # what the vehicle really applies: the command after its limits (saturation, speed range) at t_k;
+        # with an actuator lag the command after saturation (the realised a_act lags behind it)
+        r.a_app = y0[r.sampled, 0].copy() if plant.act_row is None else np.clip(r.a_cmd, *r.a_bounds)
+        r.applied.append(r.a_app.copy())
+        t1 = tk + self.dt if k < K - 1 else t_end
+        cuts = [tk] + [b for b in r.bps if tk < b < t1 - 1e-12] + [t1]
+        before = len(out[0])
+        for a0, b0 in zip(cuts[:-1], cuts[1:]):
+            if not plant.advance(a0, b0, out[1][-1][:, -1], out[2][-1][:, -1], r.a_cmd, out, r.events):
                 break
-            # the new commands act from t_k on: check the demand they make right now, then integrate
-            y0 = plant.samples(np.array([tk]), x[:, None], a_cmd)
-            ev = plant.check(np.array([tk]), x[:, None], y0)
-            if ev is not None:
-                events.append(ev)
-                break
-            out[3][-1][:, -1] = y0[:, 0]  # the sample at t_k shows the applied command
-            # what the vehicle really applies: the command after its limits (saturation, speed range) at t_k;
-            # with an actuator lag the command after saturation (the realised a_act lags behind it)
-            a_app = y0[sampled, 0].copy() if plant.act_row is None else np.clip(a_cmd, *a_bounds)
-            applied.append(a_app.copy())
-            t1 = tk + dt if k < K - 1 else t_end
-            cuts = [tk] + [b for b in bps if tk < b < t1 - 1e-12] + [t1]
-            before = len(out[0])
-            for a0, b0 in zip(cuts[:-1], cuts[1:]):
-                if not plant.advance(a0, b0, out[1][-1][:, -1], out[2][-1][:, -1], a_cmd, out, events):
-                    break
-            if (
-                len(out[0]) - before > 1 and not events
-            ):  # keep only the node sample (sampled jerk is Δa/dt between nodes)
-                for lst in out:
-                    last = lst[-1]
-                    del lst[before:]
-                    lst.append(last)
-            k += 1
-            if progress is not None and not events:
-                t_now = float(out[0][-1][-1]) if out[0][-1].size else tk
-                try:
-                    progress(t_now, t_end)
-                except TimeLimitReached as stop:  # stop cleanly: a partial result, flagged by its status
-                    events.append(
-                        Event(
-                            stop.kind,
-                            t_now,
-                            -1,
-                            f"{stop}; the run covers [0, {t_now:g}] of [0, {t_end:g}] (partial result)",
-                        )
-                    )
-        ts, xs, _, ys = samples = stack_samples(out)
+        if len(out[0]) - before > 1 and not r.events:  # keep only the node sample (sampled jerk is Δa/dt between nodes)
+            for lst in out:
+                last = lst[-1]
+                del lst[before:]
+                lst.append(last)
+
+    def _progress(self, r: _Run, tk: float, t_end: float, progress: ProgressFn) -> None:
+        """Report the time reached; a time limit stops the run cleanly (a partial result, flagged by its status)."""
+        t_now = float(r.out[0][-1][-1]) if r.out[0][-1].size else tk
+        try:
+            progress(t_now, t_end)
+        except TimeLimitReached as stop:
+            r.events.append(
+                Event(stop.kind, t_now, -1, f"{stop}; the run covers [0, {t_now:g}] of [0, {t_end:g}] (partial result)")
+            )
+
+    def _finish(self, r: _Run) -> SimulationResult:
+        """The run's SimulationResult: the samples, each sampled controller's commands, statistics and settings."""
+        n, dt, cores, rec = self.n, self.dt, r.cores, r.rec
+        ts, xs, _, ys = samples = stack_samples(r.out)
         acc = ys[:n].T.copy()
-        for j, i in enumerate(sampled):  # node k shows the command held from t_k on (the last node: the last one)
-            if applied and plant.act_row is None:  # (with a lag the samples show the realised a_act itself)
-                cmds = np.array([a[j] for a in applied])
+        for j, i in enumerate(r.sampled):  # node k shows the command held from t_k on (the last node: the last one)
+            if r.applied and self.plant.act_row is None:  # (with a lag the samples show the realised a_act itself)
+                cmds = np.array([a[j] for a in r.applied])
                 m = min(ts.size, cmds.size)
                 acc[:m, i] = cmds[:m]
                 acc[m:, i] = cmds[m - 1]
         names = [c.name if c is not None else law.name for c, law in zip(self.ctrl, self.laws)]  # type: ignore[union-attr]
         stats = [
-            _stats(rec[i], c, cores[i].counts(), cores[i].stages.label())
-            if c is not None and not isinstance(c, ControlSequence)
-            else None
+            cores[i].stats(c) if c is not None and not isinstance(c, ControlSequence) else None
             for i, c in enumerate(self.ctrl)
         ]
         for i, st in enumerate(stats):
             if st is not None:
-                v_pred = ys[3 * n] if i == 0 else xs[n + i - 1]
-                st["forecast_rms"] = forecast_rms(ts, v_pred, dt, [info.get("v_hat") for info in rec[i]["info"]])
-                if err[i]:
-                    st["estimation"] = estimation_errors(np.array(err[i]), u.time_to_si(dt))
-                if est_s[i]:  # the sensors' read-out and the estimator's update, and with the controller's call
-                    te_ms = np.asarray(est_s[i], float) * 1e3
-                    st["estimator_ms_median"] = float(np.median(te_ms))
-                    st["estimator_plus_call_ms_median"] = float(np.median(te_ms + np.asarray(rec[i]["call"]) * 1e3))
+                self._add_realism_stats(st, r, i, ts, ys[3 * n] if i == 0 else xs[n + i - 1])
         steps = [
             {
                 "solve_ms": (np.asarray(rec[i]["solve"], float) * 1e3).tolist(),
@@ -506,26 +537,31 @@ class ClosedLoop(PlatoonRun):
             for i in range(n)
         ]
         settings = [  # a sampled controller's settings name its conditioning (aev_ocp.loop)
-            {**c.describe(), "conditioning": cores[i].stages.label()} if c is not None else law.describe()  # type: ignore[union-attr]
+            cores[i].settings(c) if c is not None else law.describe()  # type: ignore[union-attr]
             for i, (c, law) in enumerate(zip(self.ctrl, self.laws))
         ]
-        return plant.result(
-            samples,
-            events,
-            names,
-            {
-                "dt": dt,
-                "controllers": settings,
-                "mpc_steps": steps,
-                "fallback_law": self.fallback_law.describe(),
-                # each sampled controller's conditioning and safety layer, with the steps each stage changed
-                "command_stages": [cores[i].describe() if i in cores else None for i in range(n)],
-                **self._realism(ests),
-            },
-            accel=acc,
-            jerk_sampled=True,
-            solver_stats=stats,
-        )
+        meta = {
+            "dt": dt,
+            "controllers": settings,
+            "mpc_steps": steps,
+            "fallback_law": self.fallback_law.describe(),
+            # each sampled controller's conditioning and safety layer, with the steps each stage changed
+            "command_stages": [cores[i].describe() if i in cores else None for i in range(n)],
+            **self._realism(r.ests),
+        }
+        return self.plant.result(samples, r.events, names, meta, accel=acc, jerk_sampled=True, solver_stats=stats)
+
+    def _add_realism_stats(self, st: dict[str, Any], r: _Run, i: int, ts: np.ndarray, v_pred: np.ndarray) -> None:
+        """Follower i's forecast RMS against its predecessor's speed ``v_pred``, its estimation errors and the
+        sensors' and estimator's timings (with degraded sensors), added to its statistics ``st``."""
+        u, rec = self.ev.units, r.rec[i]
+        st["forecast_rms"] = forecast_rms(ts, v_pred, self.dt, [info.get("v_hat") for info in rec["info"]])
+        if r.err[i]:
+            st["estimation"] = estimation_errors(np.array(r.err[i]), u.time_to_si(self.dt))
+        if r.est_s[i]:  # the sensors' read-out and the estimator's update, and with the controller's call
+            te_ms = np.asarray(r.est_s[i], float) * 1e3
+            st["estimator_ms_median"] = float(np.median(te_ms))
+            st["estimator_plus_call_ms_median"] = float(np.median(te_ms + np.asarray(rec["call"]) * 1e3))
 
     def _channels(self, x: np.ndarray, vl: float, y: np.ndarray) -> np.ndarray:
         """The true channel values (n, 5) [SI, CHANNELS order] at a node: gap, own speed, predecessor speed, pack

@@ -5,6 +5,7 @@ failed solve; an MPC loop then applies its fallback and carries on, and a run th
 could finish with status 'ok'. :func:`handle_signals` records every SIGINT/SIGTERM in a flag (and
 raises KeyboardInterrupt as Python does); long loops call :func:`check` between steps, and the
 command line checks :func:`interrupted` after a command returns, so an interrupt is never lost.
+:func:`stop_pool` ends a process pool's running workers at once (a study's, a SUMO sweep's, reproduce's).
 """
 
 from __future__ import annotations
@@ -12,6 +13,7 @@ from __future__ import annotations
 import contextlib
 import signal
 import threading
+import time
 from typing import Any, Iterator
 
 _state = {"signal": 0}
@@ -98,3 +100,33 @@ def handle_signals() -> Iterator[None]:
             signal.signal(s, h if h is not None else signal.SIG_DFL)
         _state["signal"] = 0  # handled within the block: a later check() outside it must not raise it again
         _state.pop("pending", None)
+
+
+STOP_GRACE_S = 5.0  # how long a stopped worker may take to exit after SIGTERM before it is killed [s]
+
+
+def stop_pool(ex: Any) -> None:
+    """Stop a process pool now: cancel pending tasks AND end the worker processes that are computing
+    (``shutdown(wait=False, cancel_futures=True)`` alone lets them finish their tasks, for minutes)."""
+    procs = list((getattr(ex, "_processes", None) or {}).values())
+    manager = getattr(ex, "_executor_manager_thread", None)  # shutdown() forgets it and the result queue
+    results = getattr(ex, "_result_queue", None)
+    ex.shutdown(wait=False, cancel_futures=True)
+    for p in procs:
+        if p.is_alive():
+            p.terminate()
+    deadline = time.monotonic() + STOP_GRACE_S
+    for p in procs:
+        p.join(max(0.0, deadline - time.monotonic()))
+        if p.is_alive():
+            p.kill()
+            p.join(1.0)
+    writer = getattr(results, "_writer", None)
+    if writer is not None and not any(p.is_alive() for p in procs):
+        # a worker stopped while it sent its result left half a message in the result pipe: the manager thread
+        # waits for the rest for ever, and so does this process's exit; with the workers gone this is the pipe's
+        # last writer, so closing it ends that wait (EOF: the pool is marked broken and cleans up)
+        writer.close()
+    if manager is not None:  # let the pool's manager thread finish closing its pipes before this process exits:
+        # else the exit's wake-up of that thread races with the close ("OSError: Bad file descriptor", CPython 3.11)
+        manager.join(max(0.0, deadline - time.monotonic()) + 1.0)

@@ -28,6 +28,7 @@ SEGMENT_S = 300.0
 #: 10 °C is extrapolated by its Arrhenius terms, said in the section).
 AMBIENTS_K = {"hot": 308.15, "cold": 283.15}
 CYCLES = ("udds", "hwfet", "us06")
+REDUCED_CYCLES = ("udds", "us06")  # reproduce's default (issue 40: CPU): the urban and the aggressive cycle
 LAWS = ("proposed", "ovfl")
 YEARS = 10.0
 STEPS = len(CYCLES) * len(AMBIENTS_K) + 1
@@ -342,13 +343,18 @@ def life_section(
 
 
 def _reproduce_section(out_dir: Any, progress: Callable[[str], None]) -> str:
-    """The section as ``reproduce`` runs it: a reduced configuration (scenario_t_end_max set) runs US06 only, a
+    """The section as ``reproduce`` runs it: by default :data:`REDUCED_CYCLES` (``config.extended``, ``reproduce
+    --full``: every cycle of :data:`CYCLES`); a reduced configuration (scenario_t_end_max set) runs US06 only, a
     20 s segment and 1 year."""
     from .report_sections import SectionContext
 
     cfg = SectionContext.of(progress).config
     if cfg.scenario_t_end_max is None:
-        return life_section(out_dir, progress)
+        if cfg.extended:
+            return life_section(out_dir, progress)
+        for _ in range((len(CYCLES) - len(REDUCED_CYCLES)) * len(AMBIENTS_K)):  # the cycles left out
+            progress("battery life: reduced by default (reproduce --full runs every cycle)")
+        return life_section(out_dir, progress, cycles=REDUCED_CYCLES)
     for _ in range((len(CYCLES) - 1) * len(AMBIENTS_K)):  # the progress lines of the cycles left out
         progress("battery life: reduced configuration")
     return life_section(out_dir, progress, segment_s=20.0, years=1.0, cycles=("us06",))

@@ -17,7 +17,8 @@ controller's answer to a :class:`VehicleStep`, which applies, in this order:
 4. **the actuator limits**: saturation to the vehicle's [a_min, a_max] (:class:`aev_ocp.params.VehicleLimits`;
    the plants saturate again inside their right-hand sides, which changes nothing: the same min/max);
 5. **bookkeeping**: the controller's call time, solve statistics and the counts of the steps each stage changed
-   (:meth:`VehicleStep.counts`), reported with the controller's statistics.
+   (:meth:`VehicleStep.counts`), reported with the controller's statistics (:meth:`VehicleStep.stats`, the same
+   keys in every loop) and its settings (:meth:`VehicleStep.settings`).
 
 Each stage is declared per run in the vehicle's limits (``[limits]`` of a scenario, or
 ``EVParams(limits=VehicleLimits(...))``): ``command_filter_s``, ``command_jerk_max_mps3``, ``safety_layer``, or per
@@ -32,7 +33,7 @@ import math
 import numbers
 import time
 from dataclasses import dataclass, field, replace
-from typing import Any, Protocol, runtime_checkable
+from typing import Any, Protocol, Sequence, runtime_checkable
 
 import numpy as np
 
@@ -220,6 +221,50 @@ def check_command(cmd: Any, controller: str, vehicle: str, t: float, units: Unit
 COUNT_NAMES = ("filtered_steps", "jerk_limited_steps", "safety_limited_steps", "saturated_steps")
 
 
+def fallback_causes(status: Sequence[Any], ok: Sequence[bool]) -> dict[str, int]:
+    """{cause: count} over the failed steps; a cause is a step's status up to its first ':'."""
+    out: dict[str, int] = {}
+    for st, k in zip(status, ok):
+        if not k:
+            c = str(st).split(":")[0].strip() or "unknown"
+            out[c] = out.get(c, 0) + 1
+    return out
+
+
+def controller_stats(
+    rec: dict[str, list[Any]], ctrl: Controller, counts: dict[str, int] | None = None, conditioning: str = "none"
+) -> dict[str, Any]:
+    """A sampled controller's statistics from its records (solve and call times [ms], iterations, fallbacks), the
+    step core's counts (:meth:`VehicleStep.counts`) and its conditioning (:meth:`CommandStages.label`)."""
+    counts = counts or {}
+    ms = np.asarray(rec["solve"], float) * 1e3
+    ms = ms[np.isfinite(ms)]
+    cm = np.asarray(rec["call"], float) * 1e3
+    it = np.asarray(rec["iters"], float)
+    ok = ms.size > 0
+    d = ctrl.describe()
+    return {
+        "solve_ms_median": float(np.median(ms)) if ok else float("nan"),
+        "solve_ms_p95": float(np.percentile(ms, 95)) if ok else float("nan"),
+        "solve_ms_max": float(ms.max()) if ok else float("nan"),
+        "iterations_mean": float(it.mean()) if it.size else float("nan"),
+        "iterations_max": int(it.max()) if it.size else 0,
+        "fallbacks": int(sum(not k for k in rec["ok"])),
+        # cause of each fallback: the status up to its first ':' ('QP failed', 'budget', 'path constraint',
+        # 'exception', or the NLP solver's return status)
+        "fallback_causes": fallback_causes(rec["status"], rec["ok"]),
+        "solver_path": d.get("solver_path", d.get("controller", "")),
+        "qp_solver": d.get("qp_in_use", ""),  # the MPC's QP solver that ran ('' for the others)
+        "n_steps": len(rec["ok"]),
+        # whole controller call: forecast, warm-start shift, parameters, solve, unpacking
+        "call_ms_median": float(np.median(cm)) if cm.size else float("nan"),
+        "call_ms_p95": float(np.percentile(cm, 95)) if cm.size else float("nan"),
+        # how many commands each stage of the step core changed (conditioning, safety, limits)
+        **{k: int(counts.get(k, 0)) for k in COUNT_NAMES},
+        "conditioning": conditioning,  # e.g. 'filter 0.5 s, jerk <= 5 m/s^3', 'safety layer', 'none'
+    }
+
+
 class VehicleStep:
     """One vehicle's control instant (module docstring): check, conditioning, safety layer, actuator limits and
     bookkeeping, for any controller. ``units``: the model units of commands and observations; ``dt`` the control
@@ -314,6 +359,12 @@ class VehicleStep:
         self.a_prev = a
         return a
 
+    def count_unstaged(self, saturated: bool) -> None:
+        """Count one step of a command the loop saturates itself, no stage being active (SUMO's laws, evaluated
+        for all its vehicles at once): as :meth:`apply` counts it."""
+        self.n["steps"] += 1
+        self.n["saturated_steps"] += int(saturated)
+
     # ------------------------------------------------------------------ reports
     def counts(self) -> dict[str, int]:
         """Steps and, per stage, how many commands it changed (the filter: every step it ran)."""
@@ -322,3 +373,11 @@ class VehicleStep:
     def describe(self) -> dict[str, Any]:
         """The stages (SI) and the counts, for a result's metadata."""
         return {**self.stages.describe(), **self.counts()}
+
+    def stats(self, ctrl: Controller) -> dict[str, Any]:
+        """The statistics of ``ctrl``'s calls through this core (:func:`controller_stats`), for a result."""
+        return controller_stats(self.rec, ctrl, self.counts(), self.stages.label())
+
+    def settings(self, who: Any) -> dict[str, Any]:
+        """The settings of ``who`` (the controller or law this core steps) naming its conditioning, for a result."""
+        return {**who.describe(), "conditioning": self.stages.label()}

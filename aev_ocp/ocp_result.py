@@ -8,7 +8,7 @@ import math
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Sequence
 
 import numpy as np
 
@@ -164,6 +164,14 @@ class OCPResult(FieldsRepr):
             }
         )
         return to_jsonable(out)
+
+    def plot(self, names: Sequence[str] | None = None) -> Any:
+        """States, controls (steps) and outputs against time, one panel each with its name and unit
+        (:func:`aev_ocp.ocp.plots.plot_result`; ``names``: only these quantities): a matplotlib Figure. The figure
+        module is imported here, when called (a late edge of the layer table)."""
+        from .ocp.plots import plot_result
+
+        return plot_result(self, None, names)
 
     def to_json(self, path: str | os.PathLike[str]) -> Path:
         """Write :meth:`summary` as JSON, atomically."""

@@ -387,96 +387,116 @@ class PaperRun:
         for name, path in iter_shipped():
             if names is not None and name not in names:
                 continue
-            s = load_scenario(path)
-            t_full = s.t_end
-            if self.config.scenario_t_end_max is not None and s.t_end > self.config.scenario_t_end_max:
-                s = s.replace(t_end=self.config.scenario_t_end_max)
-            mpc_cfg = s.extra.get("mpc")
-            cap_s = self.config.mpc_scenario_max_s
-            if mpc_cfg is not None and cap_s is not None and s.units.time_to_si(s.t_end) > cap_s:
-                dt = mpc_cfg.settings.dt  # a whole number of MPC steps
-                s = s.replace(t_end=round(math.floor(s.units.time_from_si(cap_s) / dt + 1e-9) * dt, 12))
-            res = self.simulate(s, progress, name)
-            mpc_line = ""
-            if mpc_cfg is not None:
-                r_mpc = self.simulate_mpc(s, progress, name)
-                res = {"mpc": r_mpc, **res}
-                st = [x for x in r_mpc.solver_stats if x]
-                form = (
-                    "model guide §9"
-                    if mpc_cfg.formulation.kind == "s9"
-                    else "the traffic formulation, aev_ocp/ocp/traffic.py"
-                )
-                mpc_line = (
-                    f"\nThe `mpc` rows are the scenario's own [mpc] closed loop ({form}, forecast "
-                    f"{mpc_cfg.settings.predictor}) on the exact "
-                    f"plant: solver path {st[0]['solver_path'] if st else '?'} "
-                    f"(QP {(st[0].get('qp_solver') or '—') if st else '?'}), "
-                    f"{sum(x['fallbacks'] for x in st)} fallbacks in {sum(x['n_steps'] for x in st)} "
-                    "solves.\n"
-                    if st
-                    else ""
-                )
-            sub = out / "scenarios" / name
-            elsewhere = self.saved.get(id(res))  # the same runs, saved by an earlier section (Fig. 1/2, Table 1)
-            metrics: dict[str, Any] = {"scenario": name, "runs": {k: r.summary() for k, r in res.items()}}
-            if elsewhere is not None:
-                metrics["trajectories"] = f"../../{elsewhere}"  # aev_ocp.load(out / elsewhere): stored once
-            write_json(sub / "metrics.json", metrics)
-            if elsewhere is None:
-                save_output(  # aev_ocp.load(sub); long runs thinned for their figures (metrics: every sample)
-                    sub,
-                    "mpc" if "mpc" in res else "simulate",
-                    res,
-                    settings=settings_of(s),
-                    max_samples=FIGURE_MAX_SAMPLES,
-                )
-            i_max = s.ev.cell.max_current_A
-            headers, rows = scenario_metrics_rows(res, i_max_A=i_max, totals=True)
-            u = s.units
-            v_max = s.leader.max_speed(s.t_end)
-            parts.append(
-                f"\n### {name}\n\n{s.description}. Units L = {u.length_m:g} m, U = {u.speed_mps:g} m/s "
-                f"(T = {u.time_s:.4g} s); horizon {s.t_end:g} model time = {u.time_to_si(s.t_end):.4g} s"
-                + (
-                    f" (the first part of the scenario's {u.time_to_si(t_full):.4g} s, to keep reproduce short)"
-                    if s.t_end < t_full
-                    else ""
-                )
-                + "; "
-                f"leader top speed {v_max:.4f} model = {u.speed_to_si(v_max):.4g} m/s "
-                f"(V∞·U = {u.speed_to_si(V_INF):.4g} m/s).\n\n" + markdown_table(headers, rows) + mpc_line
-            )
-            over = sorted({r[0] for r in rows if OVER_LIMIT_MARK in r[8]})
-            if over:
-                parts.append(
-                    f"\n{OVER_LIMIT_MARK} The cell current exceeds the 20C limit ({i_max:g} A) in run(s) "
-                    f"{over}: the battery columns marked {OVER_LIMIT_MARK} are outside the cell model's "
-                    "validity and have no physical meaning (the closed-form laws do not know that limit; "
-                    "the simulator only stops on an infeasible demand, E² < 4 R_s P_c).\n"
-                )
-            if s.n_followers > 1:
-                for label, r in res.items():
-                    f = sub / f"{label}_space_time.png"
-                    plot_space_time(r, f, si=self.config.si_units, title=f"{name}: {label}")
-                parts.append(
-                    "\n"
-                    + " ".join(
-                        f"![{name} {label} space-time](scenarios/{name}/{label}_space_time.png)" for label in res
-                    )
-                    + "\n"
-                )
-            bad = {k: r.status for k, r in res.items() if r.status != "ok"}
-            if bad:
-                self.notes.append(f"Scenario {name}: runs ended early: {bad}.")
-            p_heat = {k: float(np.sum(r.heat_J[-1])) for k, r in res.items()}
-            if "proposed" in p_heat and "ovfl" in p_heat and p_heat["proposed"] > p_heat["ovfl"] * (1 + 1e-3):
-                self.notes.append(
-                    f"Scenario {name}: the proposed law's platoon dissipates MORE pack heat ∫Q than "
-                    f"OVFL's ({p_heat['proposed']:.5g} J vs {p_heat['ovfl']:.5g} J summed over "
-                    "followers): the paper's efficiency claim is about ω, not ∫Q."
-                )
+            parts += self._scenario(out, progress, name, path)
         return "".join(parts)
+
+    def _shortened(self, s: Any) -> Any:
+        """The scenario cut to the reduced configuration's horizon (an MPC scenario to a whole number of steps)."""
+        if self.config.scenario_t_end_max is not None and s.t_end > self.config.scenario_t_end_max:
+            s = s.replace(t_end=self.config.scenario_t_end_max)
+        mpc_cfg = s.extra.get("mpc")
+        cap_s = self.config.mpc_scenario_max_s
+        if mpc_cfg is not None and cap_s is not None and s.units.time_to_si(s.t_end) > cap_s:
+            dt = mpc_cfg.settings.dt  # a whole number of MPC steps
+            s = s.replace(t_end=round(math.floor(s.units.time_from_si(cap_s) / dt + 1e-9) * dt, 12))
+        return s
+
+    @staticmethod
+    def _mpc_line(mpc_cfg: Any, r_mpc: Any) -> str:
+        """What the scenario's own [mpc] closed loop ran: formulation, forecast, solver path, fallbacks."""
+        st = [x for x in r_mpc.solver_stats if x]
+        form = (
+            "model guide §9" if mpc_cfg.formulation.kind == "s9" else "the traffic formulation, aev_ocp/ocp/traffic.py"
+        )
+        return (
+            f"\nThe `mpc` rows are the scenario's own [mpc] closed loop ({form}, forecast "
+            f"{mpc_cfg.settings.predictor}) on the exact "
+            f"plant: solver path {st[0]['solver_path'] if st else '?'} "
+            f"(QP {(st[0].get('qp_solver') or '—') if st else '?'}), "
+            f"{sum(x['fallbacks'] for x in st)} fallbacks in {sum(x['n_steps'] for x in st)} "
+            "solves.\n"
+            if st
+            else ""
+        )
+
+    def _save_scenario(self, sub: Path, name: str, res: dict[str, Any], s: Any) -> None:
+        """metrics.json, and the runs (unless an earlier section saved the same runs: then a pointer to them)."""
+        elsewhere = self.saved.get(id(res))  # the same runs, saved by an earlier section (Fig. 1/2, Table 1)
+        metrics: dict[str, Any] = {"scenario": name, "runs": {k: r.summary() for k, r in res.items()}}
+        if elsewhere is not None:
+            metrics["trajectories"] = f"../../{elsewhere}"  # aev_ocp.load(out / elsewhere): stored once
+        write_json(sub / "metrics.json", metrics)
+        if elsewhere is None:
+            save_output(  # aev_ocp.load(sub); long runs thinned for their figures (metrics: every sample)
+                sub,
+                "mpc" if "mpc" in res else "simulate",
+                res,
+                settings=settings_of(s),
+                max_samples=FIGURE_MAX_SAMPLES,
+            )
+
+    def _scenario_notes(self, name: str, res: dict[str, Any]) -> None:
+        """Runs that ended early, and the proposed law dissipating more pack heat than OVFL, into the notes."""
+        bad = {k: r.status for k, r in res.items() if r.status != "ok"}
+        if bad:
+            self.notes.append(f"Scenario {name}: runs ended early: {bad}.")
+        p_heat = {k: float(np.sum(r.heat_J[-1])) for k, r in res.items()}
+        if "proposed" in p_heat and "ovfl" in p_heat and p_heat["proposed"] > p_heat["ovfl"] * (1 + 1e-3):
+            self.notes.append(
+                f"Scenario {name}: the proposed law's platoon dissipates MORE pack heat ∫Q than "
+                f"OVFL's ({p_heat['proposed']:.5g} J vs {p_heat['ovfl']:.5g} J summed over "
+                "followers): the paper's efficiency claim is about ω, not ∫Q."
+            )
+
+    def _scenario(self, out: Path, progress: ProgressFn, name: str, path: Any) -> list[str]:
+        """One shipped scenario: run it (and its [mpc] loop), save it, its Markdown parts."""
+        s = load_scenario(path)
+        t_full = s.t_end
+        s = self._shortened(s)
+        mpc_cfg = s.extra.get("mpc")
+        res = self.simulate(s, progress, name)
+        mpc_line = ""
+        if mpc_cfg is not None:
+            r_mpc = self.simulate_mpc(s, progress, name)
+            res = {"mpc": r_mpc, **res}
+            mpc_line = self._mpc_line(mpc_cfg, r_mpc)
+        sub = out / "scenarios" / name
+        self._save_scenario(sub, name, res, s)
+        i_max = s.ev.cell.max_current_A
+        headers, rows = scenario_metrics_rows(res, i_max_A=i_max, totals=True)
+        u = s.units
+        v_max = s.leader.max_speed(s.t_end)
+        parts = [
+            f"\n### {name}\n\n{s.description}. Units L = {u.length_m:g} m, U = {u.speed_mps:g} m/s "
+            f"(T = {u.time_s:.4g} s); horizon {s.t_end:g} model time = {u.time_to_si(s.t_end):.4g} s"
+            + (
+                f" (the first part of the scenario's {u.time_to_si(t_full):.4g} s, to keep reproduce short)"
+                if s.t_end < t_full
+                else ""
+            )
+            + "; "
+            f"leader top speed {v_max:.4f} model = {u.speed_to_si(v_max):.4g} m/s "
+            f"(V∞·U = {u.speed_to_si(V_INF):.4g} m/s).\n\n" + markdown_table(headers, rows) + mpc_line
+        ]
+        over = sorted({r[0] for r in rows if OVER_LIMIT_MARK in r[8]})
+        if over:
+            parts.append(
+                f"\n{OVER_LIMIT_MARK} The cell current exceeds the 20C limit ({i_max:g} A) in run(s) "
+                f"{over}: the battery columns marked {OVER_LIMIT_MARK} are outside the cell model's "
+                "validity and have no physical meaning (the closed-form laws do not know that limit; "
+                "the simulator only stops on an infeasible demand, E² < 4 R_s P_c).\n"
+            )
+        if s.n_followers > 1:
+            for label, r in res.items():
+                f = sub / f"{label}_space_time.png"
+                plot_space_time(r, f, si=self.config.si_units, title=f"{name}: {label}")
+            parts.append(
+                "\n"
+                + " ".join(f"![{name} {label} space-time](scenarios/{name}/{label}_space_time.png)" for label in res)
+                + "\n"
+            )
+        self._scenario_notes(name, res)
+        return parts
 
     def disagreements(self, out: Path, progress: ProgressFn) -> str:
         progress("disagreements with the paper")

@@ -1,4 +1,9 @@
-"""A self-contained ``report.html`` beside ``report.md``: the same text, every figure embedded (base64 PNG).
+"""``report.html`` beside ``report.md``: the same text, every figure shown.
+
+Figures are linked by their path relative to the report (``<img src="fig1_phase_plane.png">``): the HTML opened
+from its folder shows them, and the output holds each figure once (embedding them doubled the folder's figure
+bytes: 7 MB of base64, issue 40). ``embed=True`` gives one self-contained file instead (base64 PNG). Either way a
+figure the report names must exist (:class:`ReportHTMLError` otherwise).
 
 Only the Markdown that the report uses is converted (no runtime dependency beyond the standard library):
 ATX headings (with the anchors :func:`heading_anchor` gives, so the summary's links work), GitHub pipe
@@ -42,21 +47,24 @@ img{max-width:100%;display:block;margin:0.8em 0}code{background:#f4f4f4;padding:
 h1,h2,h3{border-bottom:1px solid #ddd;padding-bottom:0.2em}"""
 
 
-def _data_uri(base: Path, src: str) -> str:
+def _figure_src(base: Path, src: str, embed: bool) -> str:
+    """The ``src`` of a figure: its path relative to the report (checked to exist), or a data URI (``embed``)."""
     path = (base / src).resolve()
     if not path.is_file():
         raise ReportHTMLError(f"report.html: the report shows figure {src!r}, but {path} does not exist")
+    if not embed:
+        return src
     mime = mimetypes.guess_type(path.name)[0] or "application/octet-stream"
     return f"data:{mime};base64," + base64.b64encode(path.read_bytes()).decode("ascii")
 
 
-def _inline(text: str, base: Path) -> str:
-    """Escape HTML, then images (embedded), code, bold and links."""
+def _inline(text: str, base: Path, embed: bool = False) -> str:
+    """Escape HTML, then images (linked, or embedded with ``embed``), code, bold and links."""
     out: list[str] = []
     pos = 0
     for m in _IMG.finditer(text):  # images first: their alt text and path must not be re-parsed
         out.append(_inline_plain(text[pos : m.start()]))
-        out.append(f'<img alt="{html.escape(m.group(1))}" src="{_data_uri(base, m.group(2))}">')
+        out.append(f'<img alt="{html.escape(m.group(1))}" src="{html.escape(_figure_src(base, m.group(2), embed))}">')
         pos = m.end()
     out.append(_inline_plain(text[pos:]))
     return "".join(out)
@@ -82,16 +90,18 @@ def _cells(line: str) -> list[str]:
     return [c.strip().replace("\\|", "|") for c in re.split(r"(?<!\\)\|", body)]
 
 
-def markdown_to_html(text: str, base: str | os.PathLike[str], title: str = "report") -> str:
-    """HTML document of the report's Markdown; figures are read from ``base`` and embedded."""
+def markdown_to_html(text: str, base: str | os.PathLike[str], title: str = "report", embed: bool = False) -> str:
+    """HTML document of the report's Markdown; figures are relative to ``base`` (the HTML's folder), linked there
+    (``embed``: read and embedded as data URIs)."""
     root = Path(base)
+    inline = lambda t: _inline(t, root, embed)  # noqa: E731
     lines = text.splitlines()
     body: list[str] = []
     para: list[str] = []
 
     def flush() -> None:
         if para:
-            body.append("<p>" + _inline(" ".join(para), root) + "</p>")
+            body.append("<p>" + inline(" ".join(para)) + "</p>")
             para.clear()
 
     i = 0
@@ -101,7 +111,7 @@ def markdown_to_html(text: str, base: str | os.PathLike[str], title: str = "repo
         if m:
             flush()
             level, head = len(m.group(1)), m.group(2).strip()
-            body.append(f'<h{level} id="{html.escape(heading_anchor(head))}">{_inline(head, root)}</h{level}>')
+            body.append(f'<h{level} id="{html.escape(heading_anchor(head))}">{inline(head)}</h{level}>')
         elif ln.lstrip().startswith("|") and i + 1 < len(lines) and re.match(r"^\|?\s*-{3}", lines[i + 1].strip()):
             flush()
             rows = [_cells(ln)]
@@ -109,15 +119,15 @@ def markdown_to_html(text: str, base: str | os.PathLike[str], title: str = "repo
             while i < len(lines) and lines[i].lstrip().startswith("|"):
                 rows.append(_cells(lines[i]))
                 i += 1
-            head = "".join(f"<th>{_inline(c, root)}</th>" for c in rows[0])
-            trs = "".join("<tr>" + "".join(f"<td>{_inline(c, root)}</td>" for c in r) + "</tr>" for r in rows[1:])
+            head = "".join(f"<th>{inline(c)}</th>" for c in rows[0])
+            trs = "".join("<tr>" + "".join(f"<td>{inline(c)}</td>" for c in r) + "</tr>" for r in rows[1:])
             body.append(f"<table><thead><tr>{head}</tr></thead><tbody>{trs}</tbody></table>")
             continue
         elif re.match(r"^\s*- ", ln):
             flush()
             items = []
             while i < len(lines) and re.match(r"^\s*- ", lines[i]):
-                items.append("<li>" + _inline(lines[i].split("- ", 1)[1], root) + "</li>")
+                items.append("<li>" + inline(lines[i].split("- ", 1)[1]) + "</li>")
                 i += 1
             body.append("<ul>" + "".join(items) + "</ul>")
             continue
@@ -149,7 +159,12 @@ def unshown_figures(markdown: str, base: str | os.PathLike[str]) -> list[str]:
 
 
 def write_report_html(
-    markdown: str, base: str | os.PathLike[str], path: str | os.PathLike[str], title: str = "report"
+    markdown: str,
+    base: str | os.PathLike[str],
+    path: str | os.PathLike[str],
+    title: str = "report",
+    embed: bool = False,
 ) -> Path:
-    """Convert ``markdown`` (figures relative to ``base``) and write it atomically to ``path``."""
-    return write_atomic(path, markdown_to_html(markdown, base, title))
+    """Convert ``markdown`` (figures relative to ``base``, linked; ``embed``: embedded) and write it atomically to
+    ``path`` (linked figures: ``path`` belongs in ``base``, so that the links work from the folder)."""
+    return write_atomic(path, markdown_to_html(markdown, base, title, embed))

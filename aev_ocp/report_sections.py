@@ -16,7 +16,7 @@ Modules add sections with :func:`register_section`, either directly or by defini
 from __future__ import annotations
 
 import importlib
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Callable, Sequence
 
@@ -39,7 +39,9 @@ class ReproduceConfig:
     whole cycles take minutes: the UDDS platoon of five MPC followers alone runs 15 516 steps each; the
     "MPC on drive cycles" section and benchmarks/bench_mpc_cycles.py --full measure the whole cycles);
     scenarios: names for that section (None: all shipped); si_units: figure axes in s, m, km/h (False:
-    the paper's model units).
+    the paper's model units); extended: the extended studies at their full size (``aev-ocp reproduce --full``;
+    False, the default: the reduced workloads :data:`aev_ocp.reproduce.REDUCED_BY_DEFAULT` lists, which the
+    report states in a table; the paper's figures and tables are whole either way).
     """
 
     tolerances: tuple[float, ...] = (1e-6, 1e-8, 1e-10, 1e-12)
@@ -57,6 +59,7 @@ class ReproduceConfig:
         "disagreements",
     )
     si_units: bool = True
+    extended: bool = False
 
     @classmethod
     def quick(cls) -> "ReproduceConfig":
@@ -67,8 +70,14 @@ class ReproduceConfig:
 
     @property
     def is_full(self) -> bool:
-        """True for the full reproduction (the defaults), False for a reduced one such as :meth:`quick`."""
-        return self == ReproduceConfig()
+        """True for the full reproduction (the defaults, with or without ``extended``), False for a reduced one such
+        as :meth:`quick`."""
+        return replace(self, extended=False) == ReproduceConfig()
+
+    @classmethod
+    def full(cls) -> "ReproduceConfig":
+        """The reproduction with every extended study at full size (``aev-ocp reproduce --full``)."""
+        return cls(extended=True)
 
 
 @dataclass(frozen=True)

@@ -25,7 +25,7 @@ from typing import Any, Sequence
 from ._version import __version__
 from .paper_sections import PaperRun
 from .params import VehicleLimits
-from .report import write_text
+from .report import markdown_table, write_text
 from .report_sections import SectionFn as SectionFn
 from .report_sections import ReportSectionError as ReportSectionError  # re-exported: callers catch it here
 from .report_sections import register_section as register_section
@@ -55,6 +55,32 @@ SECTION_PROVIDERS: tuple[str, ...] = (
     "aev_ocp.life_section",
     "aev_ocp.robustness",
 )
+
+
+#: The extended studies that ``reproduce`` runs reduced by default (issue 40: the reproduction in minutes), as
+#: (section heading, what the default runs, what ``reproduce --full`` adds); the report's head shows this table. The
+#: sections read ``ReproduceConfig.extended``; the paper's figures and tables are whole either way.
+REDUCED_BY_DEFAULT: tuple[tuple[str, str, str], ...] = (
+    (
+        "MPC on drive cycles",
+        "the MPC with its default forecast (decaying-acceleration) beside the laws",
+        "the MPC with each forecast (constant-velocity, decaying-acceleration) beside the laws",
+    ),
+    ("Robustness", "UDDS and US06, seeds 0, 1, 2", "UDDS, HWFET and US06, seeds 0, 1, 2"),
+    ("Battery life", "UDDS and US06, hot and cold ambient", "UDDS, HWFET and US06, hot and cold ambient"),
+)
+
+
+def reduced_table(extended: bool) -> str:
+    """The report's table of :data:`REDUCED_BY_DEFAULT`, saying which column this run ran."""
+    lead = (
+        "**Extended studies at full size** (this run: `aev-ocp reproduce --full`):"
+        if extended
+        else "**Extended studies reduced by default** (this run: the default column, to keep the reproduction to "
+        "minutes; `aev-ocp reproduce --full` runs the other; the paper's figures and tables are whole either way):"
+    )
+    rows = [[head, default, full] for head, default, full in REDUCED_BY_DEFAULT]
+    return f"\n{lead}\n\n" + markdown_table(["study", "default", "`--full`"], rows)
 
 
 class Progress:
@@ -145,14 +171,16 @@ def reproduce(
         "column says otherwise; the battery side uses each scenario's units L, U (§1 of the model guide, docs/guide/model.md). Figures: "
         + ("s, m, km/h through the scenario's units" if config.si_units else "model units")
         + ". "
-        "The same report with its figures embedded: report.html. "
+        "The same report as HTML, showing the figures of this folder: report.html. "
         "The paper's figures, Table 1 and its MPC scenarios run the paper's laws as printed, without vehicle "
         "limits (`[limits] enabled = false` in their scenario files); every other scenario (the drive cycles) "
         f"applies each vehicle's default limits (a ∈ [{_LIM.a_min_mps2:g}, {_LIM.a_max_mps2:g}] m/s², "
         f"v ≤ {_LIM.v_max_mps:g} m/s) to every controller.\n"
     ]
-    if config != ReproduceConfig():
+    if not config.is_full:
         parts.append(f"\n**Reduced configuration** (not the full reproduction): {config}\n")
+    else:
+        parts.append(reduced_table(config.extended))
     from .provenance import provenance
 
     prov = provenance()

@@ -21,21 +21,22 @@ from typing import Any, Iterator, Sequence
 
 from .report_sections import Claim, ReportSectionError, ReproduceConfig, Section, SectionContext, run_section
 
-#: Wall time of each section in a full reproduce [s], measured section by section by
-#: benchmarks/profile_reproduce.py (2-core machine, load 2-3; issue 40): only the ORDER in which tasks are
-#: submitted follows it (longest first), never a result. "paper" is PaperRun's built-in sections together.
+#: Wall time of each section in the default reproduce [s], measured section by section by
+#: benchmarks/profile_reproduce.py (one process, warm compile cache, 2-core machine at load 4; issue 40): only the
+#: ORDER in which tasks are submitted follows it (longest first), never a result. "paper" is PaperRun's built-in
+#: sections together.
 SECTION_COST_S: dict[str, float] = {
-    "robustness": 200.0,
-    "mpc-cycles": 126.0,
-    "paper": 122.0,
-    "battery-life": 87.0,
-    "safety": 37.0,
-    "ring": 37.0,
-    "ocp_checks": 9.4,
-    "prop31": 7.5,
-    "mpc": 6.4,
-    "string-stability": 6.3,
-    "theorem41": 6.0,
+    "paper": 80.1,
+    "mpc-cycles": 55.2,
+    "robustness": 50.3,
+    "safety": 28.8,
+    "battery-life": 26.5,
+    "prop31": 15.3,
+    "theorem41": 15.2,
+    "ocp_checks": 13.8,
+    "ring": 10.0,
+    "mpc": 5.3,
+    "string-stability": 4.2,
 }
 
 _QUEUE: Any = None  # the worker's end of the progress queue (set by _init_worker)

@@ -483,6 +483,14 @@ class SimulationResult:
         ("omega_model", "omega", None),
     )
 
+    def plot(self, si: bool = True, title: str | None = None) -> Any:
+        """Gaps, speeds (with the leader's), accelerations, cell current [A], SOC and pack heat against time
+        (:func:`aev_ocp.plots.plot_trajectories`; axes in s, m, km/h, ``si=False``: model units): a matplotlib
+        Figure. The figure module is imported here, when called (a late edge of the layer table)."""
+        from .plots import plot_trajectories
+
+        return plot_trajectories(self, None, title=title, si=si)
+
     def to_csv(self, path: str | os.PathLike[str]) -> Path:
         """Long-format CSV (one row per time and vehicle), streamed to a temp file and moved into place
         atomically. Columns: t_s, vehicle, controller, leader_speed_mps, then :attr:`CSV_COLUMNS` (SI first,

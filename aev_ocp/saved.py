@@ -1,11 +1,15 @@
 """Saving every run so that it loads back: ``manifest.json`` + ``trajectories.npz`` in the output folder.
 
-Format (``format = "aev_ocp-output"``, ``format_version`` 1):
+Format (``format = "aev_ocp-output"``, ``format_version`` 2; version 1 files load as well):
 
 - ``trajectories.npz``: every array of every run, keyed ``<run label>/<field>`` (SimulationResult:
   ``t``, ``gap``, ``speed`` …; OCPResult: ``t``, ``states/<name>``, ``controls/<name>``,
-  ``outputs/<name>`` and its scalars ``objective`` …). NumPy's own format (no pickle): float64 kept
-  bit for bit, NaN and inf included, read without aev_ocp by ``numpy.load``. A run saved with ``max_samples``
+  ``outputs/<name>`` and its scalars ``objective`` …). NumPy's own format (no pickle, compressed): float64 kept
+  bit for bit, NaN and inf included. Since version 2 a float64 array of at least :data:`PACK_MIN_SIZE` numbers is
+  stored packed (the manifest's ``packed`` names it, with its shape): its bit patterns as int64, differenced along
+  the first (time) axis with wrap-around, split into 8 byte planes (a uint8 array of shape (8, size)); smooth
+  trajectories then compress about twice as well, and :func:`unpack_array` restores them bit for bit (issue 40:
+  the reproduction's output 79 -> under 60 MB). Version 1 wrote every array as is (``numpy.load`` reads it). A run saved with ``max_samples``
   (reproduce's long drive-cycle runs, kept for their figures) holds every k-th sample and the last; its
   manifest record says ``stored_samples`` of ``samples``, and its ``metrics`` are those of the whole run.
 - ``manifest.json``: ``kind`` (:data:`KINDS`), ``primary`` (the run :func:`load` returns),
@@ -61,7 +65,9 @@ from .results import (
 )
 
 FORMAT = "aev_ocp-output"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2  # 2: float64 arrays packed (PACK_ENCODING); 1: every array as is
+PACK_ENCODING = "int64-delta-byteplanes"  # the one packing :func:`pack_array` writes
+PACK_MIN_SIZE = 256  # our choice: smaller arrays (scalars, parameters) stay plain
 MANIFEST = "manifest.json"
 ARRAYS = "trajectories.npz"
 #: Every kind of output a command writes; :mod:`aev_ocp.loading` maps each to the object it loads as.
@@ -167,6 +173,29 @@ def _ocp_record(label: str, r: Any, arrays: dict[str, np.ndarray]) -> dict[str, 
     }
 
 
+def pack_array(a: np.ndarray) -> np.ndarray:
+    """A float64 array as its byte planes (uint8, shape (8, a.size)): its bit patterns as int64, differenced along
+    axis 0 (wrapping), the axes moved so that each column's samples are consecutive. Exact: see
+    :func:`unpack_array`."""
+    iv = np.ascontiguousarray(a, dtype="<f8").view("<i8")
+    d = iv.copy()
+    d[1:] -= iv[:-1]  # int64 arithmetic wraps: exact both ways
+    return np.ascontiguousarray(np.moveaxis(d, 0, -1)).view(np.uint8).reshape(-1, 8).T.copy()
+
+
+def unpack_array(planes: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
+    """The float64 array of ``shape`` that :func:`pack_array` turned into ``planes``, bit for bit."""
+    moved = (*shape[1:], shape[0])
+    if planes.dtype != np.uint8 or planes.shape != (8, math.prod(shape)):
+        raise ValueError(f"packed array of shape {planes.shape} ({planes.dtype}) does not hold {shape} float64")
+    d = np.ascontiguousarray(planes.T).view("<i8").reshape(moved)
+    return np.cumsum(np.moveaxis(d, -1, 0), axis=0, dtype="<i8").view("<f8")
+
+
+def _packable(a: np.ndarray) -> bool:
+    return a.dtype == np.float64 and a.ndim >= 1 and a.size >= PACK_MIN_SIZE
+
+
 def save_output(
     out: str | Path,
     kind: str,
@@ -217,10 +246,14 @@ def save_output(
         "settings": dict(settings or {}),
     }
     if arrays:
+        packed = {k: list(np.shape(v)) for k, v in arrays.items() if _packable(np.asarray(v))}
+        stored = {k: pack_array(np.asarray(v)) if k in packed else v for k, v in arrays.items()}
+        if packed:
+            manifest.update(packed=packed, packed_encoding=PACK_ENCODING)
         buf = io.BytesIO()
         # no allow_pickle keyword: NumPy < 2.2 would store it as an array (the stubs of newer NumPy see the
         # **arrays as that keyword)
-        np.savez_compressed(buf, **arrays)  # type: ignore[arg-type]  # same arrays, about half the bytes
+        np.savez_compressed(buf, **stored)  # type: ignore[arg-type]
         data = buf.getvalue()
         with atomic_path(out / ARRAYS) as tmp:
             tmp.write_bytes(data)
@@ -331,11 +364,24 @@ def _arrays(m: dict[str, Any], folder: Path) -> dict[str, np.ndarray]:
                 f"{limit / 1e9:.3g} GB ($AEV_OCP_MAX_MEMORY_GB); not loaded"
             )
         with np.load(io.BytesIO(data), allow_pickle=False) as z:
-            return {k: z[k] for k in z.files}
+            out = {k: z[k] for k in z.files}
     except LoadError:
         raise
     except (zipfile.BadZipFile, ValueError, OSError, EOFError, KeyError, NotImplementedError, RuntimeError) as exc:
         raise LoadError(f"{f}: not a readable NumPy .npz file ({type(exc).__name__}: {exc})") from None
+    packed = m.get("packed") or {}
+    if packed and m.get("packed_encoding") != PACK_ENCODING:
+        raise LoadError(
+            f"{f}: {MANIFEST} field packed_encoding = {m.get('packed_encoding')!r} is not {PACK_ENCODING!r}"
+        )
+    if not isinstance(packed, dict):
+        raise LoadError(f"{f}: {MANIFEST} field packed is not a mapping of array names to shapes")
+    for k, shape in packed.items():
+        try:
+            out[k] = unpack_array(out[k], tuple(int(n) for n in shape))
+        except (KeyError, TypeError, ValueError) as exc:
+            raise LoadError(f"{f}: packed array {k!r} (manifest field packed): {type(exc).__name__}: {exc}") from None
+    return out
 
 
 MAX_MANIFEST_BYTES = 200_000_000  # a manifest is JSON metadata (kB to a few MB for a study); larger is not one of ours
@@ -588,6 +634,18 @@ class StudyOutput(FieldsRepr):
     def to_dataframe(self) -> Any:
         """The table rows as a pandas DataFrame. Needs pandas (``pip install 'aev_ocp[pandas]'``)."""
         return require_pandas("StudyOutput.to_dataframe()").DataFrame(self.rows)
+
+    def plot(self, metric: str = "battery_energy_kWh_per_100km", axis: str | None = None, vehicle: int = 1) -> Any:
+        """``metric`` (a table column, unit in its name) of follower ``vehicle`` against ``axis`` (default the
+        study's first axis key, else the point index), one line per controller
+        (:func:`aev_ocp.plots.plot_study_rows`): a matplotlib Figure."""
+        from .plots import plot_study_rows
+
+        if axis is None:
+            axes = (self.meta.get("settings") or {}).get("axes") or []
+            keys = [k for a in axes if isinstance(a, dict) for k in (a.get("keys") or [])]
+            axis = keys[0] if keys else "point"
+        return plot_study_rows(self.rows, metric, axis, vehicle, title=f"{self.folder.name}: {metric}")
 
     def trajectory(self, point: int, controller: str) -> Any:
         """The SimulationResult of one point under one controller, saved by ``run_study(...,

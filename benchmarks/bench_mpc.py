@@ -192,10 +192,21 @@ def record_loop(N: int, t_end: float) -> tuple[np.ndarray, np.ndarray, object]:
     return np.array(rows), np.asarray(r.accel[: len(rows), 0]), r
 
 
+def _si(inputs: np.ndarray) -> np.ndarray:
+    """Recorded model-unit inputs (h, v, V1, V2, S, forecast) of the canonical scenario (L = 10 m, U = 5 m/s) in
+    SI, the exported step's units."""
+    from aev_ocp.params import Units
+
+    u = Units()
+    f = np.concatenate([[u.length_m, u.speed_mps, 1.0, 1.0, 1.0], np.full(inputs.shape[1] - 5, u.speed_mps)])
+    return inputs * f
+
+
 def exported(t_end: float) -> dict:
     """The exported library of the canonical scenario replayed from C (mpc_bench) and from Python (ctypes)."""
     from aev_ocp.compiled import compiler
     from aev_ocp.mpc.export import CStep, export_mpc
+    from aev_ocp.params import Units
     from aev_ocp.scenarios import find_scenario, load_scenario
 
     if compiler() is None or shutil.which("make") is None:
@@ -207,7 +218,7 @@ def exported(t_end: float) -> dict:
         t0 = time.perf_counter()
         subprocess.run(["make", "-s"], cwd=out, check=True, capture_output=True)
         build_s = time.perf_counter() - t0
-        np.savetxt(out / "in.txt", inputs, fmt="%.17g")
+        np.savetxt(out / "in.txt", _si(inputs), fmt="%.17g")
         proc = subprocess.run(
             [str(out / "mpc_bench"), str(out / "in.txt"), str(out / "out.txt")],
             check=True,
@@ -215,15 +226,16 @@ def exported(t_end: float) -> dict:
             text=True,
         )
         res = np.loadtxt(out / "out.txt")
+        res[:, 1] /= Units().accel_mps2  # the exported step's a [m/s²] in model units, as the closed loop's
         from_c = {"wall": _stats_ms(res[:, -2]), "cpu": _stats_ms(res[:, -1]), "printed": proc.stdout.strip()}
         cs = CStep(out / "libaev_mpc.so")
         t_py, u_py, st_py = [], [], []
-        for row in inputs:
+        for row in _si(inputs):
             xm, fc = row[:5], row[5:]
             t0 = time.perf_counter()
             u, st = cs.step(xm, fc)
             t_py.append(time.perf_counter() - t0)
-            u_py.append(u[0])
+            u_py.append(u[0] / Units().accel_mps2)
             st_py.append(st)
     return {
         "steps": len(inputs),
@@ -271,7 +283,7 @@ def breakdown_compiled(N: int, t_end: float) -> dict:
         cs = CStep(
             build_library(Path(tmp), Path(tmp) / "lib.so", flags=("-O2", "-fno-math-errno", "-DAEV_MPC_PROFILE"))
         )
-        for k, row in enumerate(inputs):
+        for k, row in enumerate(_si(inputs)):
             t0 = time.perf_counter()
             cs.step(row[:5], row[5:])
             dt = time.perf_counter() - t0

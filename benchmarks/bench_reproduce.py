@@ -42,18 +42,24 @@ def folder_size(path: Path) -> tuple[int, list[tuple[str, int]]]:
     return sum(s for _, s in files), sorted(files, key=lambda x: -x[1])[:5]
 
 
-def run(quick: bool, keep: Path | None, profile: Path | None = None) -> dict[str, Any]:
-    """One reproduce run in a child process with an empty compile cache; its measurements. ``profile``: profile
-    each section into that folder (benchmarks/profile_reproduce.py: cProfile, CPU per section, compiled sources)."""
+def run(
+    quick: bool, keep: Path | None, profile: Path | None = None, full: bool = False, cache: Path | None = None
+) -> dict[str, Any]:
+    """One reproduce run in a child process with an empty compile cache (``cache``: that folder, e.g. one a previous
+    run filled: the warm case); its measurements. ``profile``: profile each section into that folder
+    (benchmarks/profile_reproduce.py: cProfile, CPU per section, compiled sources)."""
     with tempfile.TemporaryDirectory(prefix="aev_bench_repro_") as tmp:
         out = keep if keep is not None else Path(tmp) / "results"
         if keep is not None and keep.exists():
             shutil.rmtree(keep)
-        env = {**os.environ, "AEV_OCP_CACHE": str(Path(tmp) / "cache"), "PYTHONPATH": str(ROOT)}
+        cache_dir = cache if cache is not None else Path(tmp) / "cache"
+        cache_state = "warm" if cache_dir.is_dir() and any(cache_dir.rglob("*.so")) else "empty"
+        env = {**os.environ, "AEV_OCP_CACHE": str(cache_dir), "PYTHONPATH": str(ROOT)}
         head = [sys.executable, "-m", "aev_ocp.cli", "reproduce"]
         if profile is not None:
             head = [sys.executable, str(ROOT / "benchmarks" / "profile_reproduce.py"), str(profile.resolve())]
-        cmd = head + ["--out", str(out)] + (["--quick"] if quick else [])
+        args = ["--out", str(out)] + (["--quick"] if quick else []) + (["--full"] if full else [])
+        cmd = head + args
         load0 = os.getloadavg()[0]
         r0 = resource.getrusage(resource.RUSAGE_CHILDREN)
         t0 = time.perf_counter()
@@ -67,6 +73,9 @@ def run(quick: bool, keep: Path | None, profile: Path | None = None) -> dict[str
         last = [ln for ln in proc.stderr.splitlines() if ln.startswith("[")][-1:]
         return {
             "quick": quick,
+            "full": full,
+            "compile_cache": cache_state,
+            "command": " ".join(["aev-ocp reproduce", *args]),
             "wall_s": wall,
             "cpu_s": (r1.ru_utime - r0.ru_utime) + (r1.ru_stime - r0.ru_stime),
             "load_1min_before": load0,
@@ -82,11 +91,13 @@ def run(quick: bool, keep: Path | None, profile: Path | None = None) -> dict[str
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--quick", action="store_true", help="reproduce --quick (a smoke run, not the reproduction)")
+    ap.add_argument("--cache", type=Path, default=None, help="compile cache folder (default: a new, empty one)")
+    ap.add_argument("--full", action="store_true", help="reproduce --full (the extended studies at full size)")
     ap.add_argument("--keep", type=Path, default=None, help="write the reproduction here (default: a temp folder)")
     ap.add_argument("--baseline", type=Path, default=None, help="a JSON this script wrote (another version's run)")
     ap.add_argument("--profile", type=Path, default=None, help="profile each section into this folder (slower)")
     a = ap.parse_args(argv)
-    res = run(a.quick, a.keep, a.profile)
+    res = run(a.quick, a.keep, a.profile, a.full, a.cache)
     base = json.loads(a.baseline.read_text()) if a.baseline else None
     rows = [
         ("wall [s]", "wall_s"),

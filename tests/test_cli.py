@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 
 from aev_ocp.cli import EXIT_BAD_INPUT, EXIT_FAILED_RUN
-from cli_helpers import one_error, run_cli
+from cli_helpers import crash_toml, one_error, run_cli
 
 SMALL = """
 name = "small"
@@ -28,19 +28,7 @@ t_end = 3.0
 dt_out = 0.05
 """
 
-CRASH = """
-name = "crash"
-[leader]
-kind = "constant"
-v = 0.0
-[platoon]
-followers = 1
-law = "ovm"
-gap0_first = 0.1
-speed0 = 1.9
-[simulation]
-t_end = 5.0
-"""
+CRASH = crash_toml("ovm", 0.1, 1.9, 5.0)  # a collision at the first seconds
 
 
 def test_simulate_writes_files(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

@@ -131,5 +131,10 @@ def test_the_reproduce_timing_the_docs_quote_is_the_benchmarks() -> None:
     assert "benchmarks/bench_reproduce.py" in readme and "bench_reproduce.py" in index
     cpu = re.search(r"used (\d+) s of CPU", readme)
     assert cpu is not None and f"used {cpu.group(1)} s of CPU" in index
+    run = json.loads((ROOT / "benchmarks" / "bench_reproduce.json").read_text())["run"]
+    assert not run["quick"] and not run["full"]  # the default reproduction is what the docs quote
+    for doc in (" ".join(readme.split()), " ".join(index.split())):  # the recorded benchmark's numbers
+        assert f"used {run['cpu_s']:.0f} s of CPU and {run['wall_s']:.0f} s of wall time" in doc
+        assert f"{sum(run['compilations'].values())} compil" in doc and f"{run['output_MB']:.0f} MB" in doc
     assert "4.5 minutes" not in readme + index
     assert (ROOT / "benchmarks" / "bench_reproduce.py").is_file()

@@ -90,6 +90,22 @@ def test_space_time_diagram_is_the_positions(run, figs, tmp_path) -> None:  # no
     assert np.all(x_hand[:, 0] < UNITS.length_m * run.leader_position)  # followers are behind the leader
 
 
+def test_space_time_diagram_of_a_long_run_draws_every_kth_sample_and_the_last(run, figs, tmp_path, monkeypatch) -> None:  # noqa: ANN001,E501
+    n = run.t.size
+    monkeypatch.setattr(plots, "SPACE_TIME_MAX_POINTS", 7)  # fewer than the run's samples: thinned
+    plots.plot_space_time(run, tmp_path / "st.png")
+    k = -(-n // 7)
+    keep = sorted({*range(0, n, k), n - 1})
+    assert n > len(keep) and len(keep) <= 8
+    x_hand = UNITS.length_m * (run.leader_position[:, None] - np.cumsum(run.gap, axis=1))
+    ax = figs[-1].axes[0]
+    for i, c in enumerate(ax.collections):
+        s = np.asarray(c.get_segments())
+        np.testing.assert_allclose(s[:, 0, 1], x_hand[keep[:-1], i])  # each segment from a kept sample
+        np.testing.assert_allclose(s[:, 1, 0], run.t[keep[1:]] * UNITS.time_s)  # to the next, the last included
+        np.testing.assert_allclose(c.get_array(), run.speed[keep[:-1], i] * UNITS.speed_mps * 3.6)
+
+
 def test_overlay_styles_are_distinct_and_legend_names_leader_and_h_min(run, figs, tmp_path) -> None:  # noqa: ANN001
     labels = ["mpc", "proposed", "ovfl", "my law", "another law", "ocp-d"]
     styles = plots.controller_styles(labels)

@@ -182,7 +182,7 @@ def test_a_too_large_mpc_horizon_names_mpc_N_and_the_limit_before_anything_is_bu
     300 each for the five of mpc_paper_platoon; the message names mpc.N (what --set and [mpc] take), never
     the Python field MPCSettings.N, and the platoon is refused before its first NLP is compiled."""
     import aev_ocp.mpc.export
-    import aev_ocp.mpc.report
+    import aev_ocp.mpc.run
     from aev_ocp.limits import MPC_BYTES_PER_INTERVAL
     from aev_ocp.mpc.controller import MPCController
     from aev_ocp.mpc.scenario import check_mpc_setup
@@ -197,7 +197,7 @@ def test_a_too_large_mpc_horizon_names_mpc_N_and_the_limit_before_anything_is_bu
     with monkeypatch.context() as m:
         for owner, name in (
             (MPCController, "__init__"),
-            (aev_ocp.mpc.report, "run_comparison"),
+            (aev_ocp.mpc.run, "run_comparison"),
             (aev_ocp.mpc.export, "export_mpc"),
         ):
             m.setattr(owner, name, built)

@@ -18,6 +18,7 @@ compiler and driven through the CVODES plant via ctypes.
 from __future__ import annotations
 
 import shutil
+import re
 import subprocess
 import sys
 import warnings
@@ -33,6 +34,7 @@ from helpers import _never
 from aev_ocp.compiled import compiler
 from aev_ocp.control import ClosedLoop, Command, Observation
 from aev_ocp.models.leader import PaperLeader
+from aev_ocp.mpc.cstep import RECORD_FILE
 from aev_ocp.mpc.export import EXPORT_FILES, CStep, build_library, export_controller, export_controller_settings
 from aev_ocp.mpc.policy import MPCVehicle
 from aev_ocp.mpc.settings import MPCSettings
@@ -58,13 +60,41 @@ CANON = dict(
 F9 = s9_formulation()  # the problem: model guide §9
 
 
+def header_si(lib: Path) -> tuple[np.ndarray, np.ndarray]:
+    """(AEV_MPC_X_SI, AEV_MPC_U_SI) of the export beside ``lib``: SI value = model value × factor."""
+    text = (Path(lib).parent / "mpc_config.h").read_text(encoding="utf-8")
+
+    def get(name: str) -> np.ndarray:
+        m = re.search(rf"AEV_MPC_{name}\[[^\]]*\] = \{{([^}}]*)\}}", text)
+        assert m is not None, name
+        return np.array([float(v) for v in m.group(1).split(",")])
+
+    return get("X_SI"), get("U_SI")
+
+
+class ModelStep(CStep):
+    """The exported step (SI at its API) driven in model units: inputs converted to SI with the export's own
+    factors (mpc_config.h), the controls back to model units."""
+
+    def __init__(self, lib: Path) -> None:
+        super().__init__(lib)
+        self.xs, self.us = header_si(lib)
+
+    def step(self, x_meas: np.ndarray, forecast: np.ndarray, own: np.ndarray | None = None) -> tuple[np.ndarray, int]:
+        o = None if own is None else np.asarray(own, float) * self.xs[5:]
+        u, st = super().step(np.asarray(x_meas, float) * self.xs[:5], np.asarray(forecast, float) * self.xs[1], o)
+        return u / self.us, st
+
+
 class CPolicy:
-    """A Controller that runs the exported library on (x_meas, forecast); the forecast is the MPC policy's
-    (oracle), failures fall back to the policy's fallback. ``first``: a controller that makes the first
-    step instead (its solution warm-starts the library)."""
+    """A Controller that runs the exported library on (x_meas, forecast) in SI (its API), converted from and to
+    the closed loop's model units by the export's factors; the forecast is the MPC policy's (oracle), failures
+    fall back to the policy's fallback. ``first``: a controller that makes the first step instead (its solution
+    warm-starts the library)."""
 
     def __init__(self, lib: Path, policy: Any, first: Any = None) -> None:
         self.step, self.policy, self.first = CStep(lib), policy, first
+        self.xs, self.us = header_si(lib)
         self.name, self.dt = "exported C", policy.dt
         self.status: list[int] = []
         self.retries: list[int] = []  # QPs re-solved with the projected Hessian (after the exact one failed)
@@ -84,8 +114,9 @@ class CPolicy:
             self.first, self.status = None, [0]
             return Command(float(sol.a[0]), True)
         # the own state a_prev is the command really applied last step, as the Python policy passes it
-        own = np.array([obs.a_prev]) if self.step.nx > 5 else None
-        u, st = self.step.step(obs.z, np.concatenate([vm, vh]), own)
+        own = np.array([obs.a_prev]) * self.xs[5] if self.step.nx > 5 else None
+        u, st = self.step.step(obs.z * self.xs[:5], np.concatenate([vm, vh]) * self.xs[1], own)
+        u = u / self.us
         self.status.append(st)
         self.retries.append(self.step.solution()[3].projected_retries)
         if st != 0:
@@ -137,7 +168,9 @@ def canonical_lib(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
     assert main(["mpc-export", "mpc_paper_single", "--out", str(out)]) == 0
     # + the folder marker and its lock
-    assert sorted(p.name for p in out.iterdir()) == sorted([*EXPORT_FILES, "aev-ocp-run.json", ".aev-ocp.lock"])
+    assert sorted(p.name for p in out.iterdir()) == sorted(
+        [*EXPORT_FILES, RECORD_FILE, "aev-ocp-run.json", ".aev-ocp.lock"]
+    )
     if shutil.which("make"):
         proc = subprocess.run(["make", "-s", "libaev_mpc.so", "mpc_bench"], cwd=out, capture_output=True, text=True)
         assert proc.returncode == 0, proc.stderr
@@ -246,7 +279,7 @@ def test_soft_constraint_and_extra_state_problem(tmp_path: Path) -> None:
     du, dx = _compare(rc, rp)
     assert du <= TOL and dx <= TOL, (du, dx)
     # the soft constraint is active somewhere (the slack control is used): the test exercises it
-    cs = CStep(lib)
+    cs = ModelStep(lib)
     z0 = np.array([0.3, 1.87, 0.0, 0.0, 0.8])
     u, status = cs.step(z0, np.full(2 * s.N, 1.7))
     x, *_ = cs.solution()
@@ -255,18 +288,55 @@ def test_soft_constraint_and_extra_state_problem(tmp_path: Path) -> None:
     assert status == 0 and slack.max() > 1e-4
 
 
+@pytest.mark.slow  # 200 steps of the Python controller beside the C (~10 s of one core)
+def test_recorded_input_in_si_matches_the_python_controller(canonical_lib: Path, tmp_path: Path) -> None:
+    """The export's README commands: mpc_bench on the recorded input the export wrote (mpc_input.txt, SI) gives,
+    step by step, the Python controller's command in SI (its model-unit step on the same inputs converted with
+    the scenario's units, on the Python twin of the driver: nothing of the C's SI layer is shared), and the period
+    and units the README states are SI."""
+    from rti_twin import install
+
+    from aev_ocp.mpc.controller import MPCController
+    from aev_ocp.scenarios import load_scenario
+
+    out = canonical_lib.parent
+    bench = out / "mpc_bench"
+    if not bench.exists():
+        pytest.skip("make not available")
+    readme = (out / "README.txt").read_text(encoding="utf-8")
+    assert f"./mpc_bench {RECORD_FILE} mpc_output.txt" in readme and "every 0.2 s" in readme  # dt 0.1 × T 2 s
+    proc = subprocess.run(
+        [str(bench), RECORD_FILE, str(tmp_path / "c_out.txt")], cwd=out, capture_output=True, text=True
+    )
+    assert proc.returncode == 0, proc.stderr
+    rows, got = np.loadtxt(out / RECORD_FILE), np.loadtxt(tmp_path / "c_out.txt")
+    sc = load_scenario("mpc_paper_single")
+    u, N = sc.ev.units, 40
+    assert rows.shape == (200, 5 + 2 * N)
+    c = install(MPCController(MPCSettings(**{**CANON, "codegen": False}), sc.ev, formulation=F9))
+    want = []
+    for r in rows:
+        z = np.concatenate([[u.length_from_si(r[0]), u.speed_from_si(r[1])], r[2:5]])
+        sol = c.solve(z, u.speed_from_si(r[5 : 5 + N]), u.speed_from_si(r[5 + N :]))
+        assert sol.success, sol.status
+        want.append(u.accel_to_si(sol.a[0]))
+    assert np.all(got[:, 0] == 0)
+    np.testing.assert_allclose(got[:, 1], want, rtol=0, atol=1e-6)  # m/s²
+    assert np.ptp(want) > 1.0  # the recorded inputs make the command move (m/s²)
+
+
 def test_replay_benchmark_matches_library(canonical_lib: Path, tmp_path: Path) -> None:
     """mpc_bench (the C main of the export) replays recorded inputs: the same controls as the ctypes calls."""
     bench = canonical_lib.parent / "mpc_bench"
     if not bench.exists():
         pytest.skip("make not available")
-    cs = CStep(canonical_lib)
+    cs = CStep(canonical_lib)  # SI, as mpc_bench's input and output
     rng = np.random.default_rng(7)
     rows, us = [], []
-    z = np.array([0.31, 1.83, 0.002, 0.001, 0.79])
+    z = np.array([3.1, 9.15, 0.002, 0.001, 0.79])  # [m], [m/s], V, V, -
     for k in range(6):
-        fc = np.concatenate([np.full(40, 1.7 + 0.01 * k), np.full(40, 1.69 + 0.01 * k)])
-        zk = z + rng.normal(0, 1e-3, 5) * np.array([1, 1, 0, 0, 0])
+        fc = np.concatenate([np.full(40, 8.5 + 0.05 * k), np.full(40, 8.45 + 0.05 * k)])  # [m/s]
+        zk = z + rng.normal(0, 1e-2, 5) * np.array([1, 1, 0, 0, 0])
         rows.append(np.concatenate([zk, fc]))
         us.append(cs.step(zk, fc))
     np.savetxt(tmp_path / "in.txt", np.array(rows), fmt="%.17g")
@@ -340,12 +410,12 @@ def test_traffic_formulation_exports_and_matches_the_python_driver(
     assert du <= TOL and dx <= TOL, (du, dx)
     assert rc.speed[:, 0].max() > 0.5  # the follower really drives off behind the leader
     # aev_mpc_step_own: the own state a_prev given (e.g. after a fallback) is the one used, not the plan's
-    cs = CStep(lib)
+    cs = ModelStep(lib)
     xm, fc = np.array([0.9, 0.42, 0.003, 0.001, 0.79]), np.concatenate([np.full(14, 0.47), np.full(14, 0.45)])
     assert cs.step(xm, fc)[1] == 0  # cold, then warm from here
     u_own, st_own = cs.step(xm, fc, own=np.array([-0.21]))
     assert st_own == 0
-    cs2 = CStep(lib)
+    cs2 = ModelStep(lib)
     cs2.step(xm, fc)
     u_plan, _ = cs2.step(xm, fc)
     assert abs(u_own[0] - u_plan[0]) > 1e-4  # a_prev matters through the jerk term
@@ -406,11 +476,11 @@ def test_two_workspaces_are_independent(canonical_lib: Path) -> None:
     ]
 
     def alone(seq: list[np.ndarray]) -> list[float]:
-        cs = CStep(canonical_lib)
+        cs = ModelStep(canonical_lib)
         return [cs.step(r[:5], r[5:])[0][0] for r in seq]
 
     ref1, ref2 = alone(rows), alone(rows[::-1])
-    a, b = CStep(canonical_lib), CStep(canonical_lib)
+    a, b = ModelStep(canonical_lib), ModelStep(canonical_lib)
     got1, got2 = [], []
     for r1, r2 in zip(rows, rows[::-1]):
         got1.append(a.step(r1[:5], r1[5:])[0][0])

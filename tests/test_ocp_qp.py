@@ -365,14 +365,20 @@ def _hpipm(f: dict[str, Any]) -> np.ndarray:
     return np.array(ref["x"]).ravel()
 
 
-@pytest.fixture(scope="module")
-def rti_exact() -> dict[str, np.ndarray]:
-    out = {}
-    for name in RTI_CASES:
+class _ExactSolutions(dict):  # type: ignore[type-arg]
+    """{case: its exact solution}, each computed on first use (a pytest-xdist worker computes only the cases it
+    runs; the whole set took 20 s of setup in each worker, issue 40)."""
+
+    def __missing__(self, name: str) -> np.ndarray:
         dims, data = _rti_case(name)
         f = _full(dims, data)
-        out[name] = _exact_solution(f, _hpipm(f))
-    return out
+        self[name] = w = _exact_solution(f, _hpipm(f))
+        return w
+
+
+@pytest.fixture(scope="module")
+def rti_exact() -> dict[str, np.ndarray]:
+    return _ExactSolutions()
 
 
 @pytest.mark.parametrize("name", RTI_CASES)

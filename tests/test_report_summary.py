@@ -52,14 +52,15 @@ def test_summary_comes_first_and_every_link_reaches_a_heading(small_report) -> N
         assert f'id="{a}"' in html
 
 
-def test_html_embeds_every_figure_of_the_report(small_report) -> None:  # noqa: ANN001
+def test_html_links_every_figure_of_the_report(small_report) -> None:  # noqa: ANN001
     out, md, log = small_report
     html = (out / "report.html").read_text()
     figs = re.findall(r"!\[[^\]]*\]\(([^)]+)\)", md)
-    imgs = re.findall(r'<img alt="[^"]*" src="data:image/png;base64,([^"]+)"', html)
-    assert len(figs) == len(imgs) >= 5 and 'src="data' in html and 'src="fig' not in html
-    for f, b64 in zip(figs, imgs):
-        assert base64.b64decode(b64) == (out / f).read_bytes()
+    imgs = re.findall(r'<img alt="[^"]*" src="([^"]+)"', html)
+    assert imgs == figs and len(figs) >= 5 and "data:" not in html  # linked in order, none embedded (issue 40)
+    for f in imgs:  # each link resolves from the HTML's own folder to a PNG
+        assert (out / f).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert (out / "report.html").stat().st_size < 200_000  # the text alone, not 7 MB of base64
     assert html.count("<table>") == md.count("\n|---")
     # the progress counter reaches N/N
     last = [ln for ln in log.splitlines() if ln.startswith("[")][-1]
@@ -78,9 +79,12 @@ def test_markdown_to_html_by_hand(tmp_path: Path) -> None:
     assert '<h2 id="section-one-x--2">' in html and '<a href="#section-one-x--2">a link</a>' in html
     assert "<td>1 | 2</td><td>&lt;b&gt;</td>" in html and "<code>a|b</code>" in html and "<strong>bold</strong>" in html
     assert "<li>item *one*</li>" in html
-    assert base64.b64encode(png).decode() in html
-    with pytest.raises(ReportHTMLError, match="missing.png"):
-        markdown_to_html("![x](missing.png)\n", tmp_path)
+    assert '<img alt="alt text" src="a.png">' in html and "base64" not in html  # linked by default
+    embedded = markdown_to_html(md, tmp_path, "t", embed=True)  # one self-contained file on request
+    assert f'src="data:image/png;base64,{base64.b64encode(png).decode()}"' in embedded
+    for embed in (False, True):  # a missing figure is an error either way
+        with pytest.raises(ReportHTMLError, match="missing.png"):
+            markdown_to_html("![x](missing.png)\n", tmp_path, embed=embed)
 
 
 def test_heading_anchor() -> None:

@@ -601,6 +601,23 @@ def test_ring_report_section(tmp_path):
         assert doc["stern"][0][k] == pytest.approx(ref[k], rel=1e-9)
     assert all(r["collisions"] == 0 for r in doc["stern"])
     assert doc["stern"][-1]["fallbacks"] == 0 and doc["stern"][-1]["call_ms_median"] > 0
+    # the runs load back (manifest kind 'ring' in the section's folder 'ring'): the same fleet metrics as the report's
+    # ring.json, and the trajectories recompute them (fleet_metrics of the loaded RingResult, an independent pass)
+    import aev_ocp
+    from aev_ocp.ring.experiments import fleet_metrics
+    from aev_ocp.ring.outputs import RingOutput
+
+    loaded = aev_ocp.load(tmp_path / "ring")
+    assert isinstance(loaded, RingOutput) and 'aev_ocp.load("ring")' in md
+    assert [r.label for r in loaded.runs] == ["sugiyama 230 m", "sugiyama 600 m"] + labels
+    assert loaded.document["sugiyama"] == doc["sugiyama"]
+    for r, saved in zip(loaded.runs[2:], doc["stern"]):
+        assert {"label": r.label, **r.fleet} == saved
+    stern_mpc = loaded.run("mpc")
+    t_from = float(doc["stern"][-1]["window_s"][0])
+    again = fleet_metrics(stern_mpc, t_from_s=t_from)
+    for k in ("speed_std_mps", "heat_pack_J_per_km", "braking_events"):
+        assert again[k] == pytest.approx(doc["stern"][-1][k], rel=1e-12)
 
 
 def test_ring_scenario_sweep_penetration_by_density():

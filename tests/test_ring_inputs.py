@@ -5,6 +5,7 @@ line naming the key and the allowed range, before any integration."""
 from __future__ import annotations
 
 import ctypes
+import re
 import subprocess
 import sys
 
@@ -198,3 +199,73 @@ def test_ring_command_time_limit_and_seed_with_a_file(tmp_path) -> None:  # noqa
     p = run("sugiyama", "--t-end-s", "36000", "--time-limit", "0.2", "--no-plots", "--out", str(tmp_path / "t"))
     assert p.returncode == 1 and "stopped by --time-limit 0.2 s" in p.stderr, p.stderr
     assert not (tmp_path / "t" / "ring.json").exists()
+
+
+# ------------------------------------------------------------------------------- declared ranges of [ring]
+def _edges(check) -> list[tuple[float, bool]]:  # noqa: ANN001
+    """(value, accepted) on and beside each declared bound: a closed bound is accepted, an open one refused."""
+    out = []
+    step = 1 if check.kind == "integer" else None
+    for bound, sign, strict in ((check.gt, 1, True), (check.ge, 1, False), (check.lt, -1, True), (check.le, -1, False)):
+        if bound is None:
+            continue
+        d = step or max(abs(bound), 1.0) * 1e-6
+        out += [(bound, not strict), (bound - sign * d, False), (bound + sign * d, True)]
+    return [(int(v) if step else v, ok) for v, ok in out]
+
+
+@pytest.mark.parametrize(
+    "table, key",
+    [
+        ("", "vehicles"),
+        ("", "t_end_s"),
+        ("", "vehicle_length_m"),
+        ("", "heterogeneity"),
+        ("", "noise_mps2"),
+        ("", "seed"),
+        ("aev", "r_fraction"),
+        ("perturbation", "speed_dip_mps"),
+        ("idm", "T_s"),
+        ("idm", "s0_m"),
+    ],
+)
+def test_ring_keys_are_read_against_their_declared_range(table: str, key: str) -> None:
+    """Each [ring] key is checked against the range declared once beside its RingSpec field (or HUMAN_CHECKS):
+    on, just inside and just outside every bound; a refusal names the file, the key path and the value."""
+    from aev_ocp.params import field_checks
+    from aev_ocp.ring.scenario import HUMAN_CHECKS, RingSpec
+
+    check = HUMAN_CHECKS[key] if table == "idm" else field_checks(RingSpec)[key]
+    edges = _edges(check)
+    assert edges, key
+    for value, ok in edges:
+        if table == "aev":
+            doc = _doc(aev={"vehicles": [2], "controllers": ["proposed"], key: value})
+        elif table:
+            doc = _doc(**{table: {key: value}})
+        else:
+            doc = _doc(**{key: value})
+        path = f"ring.{table}.{key}" if table else f"ring.{key}"
+        if ok:
+            sc = parse_ring_scenario(doc, "g.toml")
+            got = (
+                sc.spec.human_params[key]
+                if table == "idm"
+                else getattr(sc.spec, "r_fraction" if table == "aev" else key)
+            )
+            assert got == value, (key, value)
+        else:
+            with pytest.raises(ScenarioError, match="^" + re.escape(f"g.toml: {path} = ") + ".* is not allowed: "):
+                parse_ring_scenario(doc, "g.toml")
+
+
+def test_ring_spec_checks_its_declarations_from_python_too() -> None:
+    """The Python API checks the same declarations (RingSpec built by hand, as a study's replace does)."""
+    import dataclasses
+
+    sc = parse_ring_scenario(_doc(), "g.toml")
+    with pytest.raises(
+        ParameterError, match=r"^RingSpec\.heterogeneity = 1\.0 is not allowed: must be a finite number in \[0, 1\)"
+    ):
+        dataclasses.replace(sc.spec, heterogeneity=1.0)
+    assert dataclasses.replace(sc.spec, heterogeneity=0.999).heterogeneity == 0.999

@@ -107,7 +107,7 @@ def test_rti_hessian_projection_makes_the_reduced_hessian_pd():
         lam[k * ngs + nx + names.index("omega_epi_drive")] = -523.0
     lbx, ubx = c.nlp.lbx.copy(), c.nlp.ubx.copy()
     lbx[:nx] = ubx[:nx] = z0 / c.x_scale
-    d = c.rti.data(x, p, lam, lbx, ubx)
+    d = c.rti.data(x, p, lam, lbx, ubx, c.nlp.lbg, c.nlp.ubg)
     nb = c.nx + c.nu
     blocks = np.asarray(d[0]).reshape(nb, s.N, nb).transpose(1, 0, 2)
     H_exact = scipy.linalg.block_diag(*blocks, np.asarray(d[1]))

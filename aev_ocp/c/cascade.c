@@ -112,6 +112,15 @@ static void aev_row(aev_ctx* c, aev_traj* prev, int i, int law, const double* pa
  * aevsim_run then returns 2 at once and its outputs are incomplete. */
 CASADI_SYMBOL_EXPORT volatile int aevsim_cancel = 0;
 
+/* The samples go to out column by column (NCOL x n x K, C order): entry c of vehicle i at sample s is
+ * out[(c n + i) K + s], so the caller's (quantity, vehicle) x time table is out itself, without a transpose (a
+ * transpose of the samples of 10 000 vehicles cost more than their integration). */
+static void aev_put(double* out, int n, int i, int64_t K, int s, const double* row) {
+  double* o = out + (int64_t)i * K + s;
+  const int64_t stride = (int64_t)n * K;
+  for (int c = 0; c < NCOL; c++) o[c * stride] = row[c];
+}
+
 /* Returns 0 on success, 1 on out-of-memory, 2 when stopped through aevsim_cancel. Event kinds: 0 none, 1 collision, 2 negative_speed,
  * 3 infeasible_current, 4 soc below 0, 5 soc above 1, 6 integration failed.
  * last (n x (NCOL + 1)): each vehicle's row (z, y, v_l) where its integration ended: at its event (on the
@@ -135,7 +144,7 @@ CASADI_SYMBOL_EXPORT int aevsim_run(int n, const int* law_idx, const double* par
     const double* par = params + (int64_t)i * AEV_NP;  /* the law's coefficients (runtime, not compiled in) */
     double z[NZ], zn[NZ], zt[NZ], k[7][NZ], Q[NZ][4], y[NY], yn[NY], u[2], tmp[NZ];
     double* const kp[7] = {k[0], k[1], k[2], k[3], k[4], k[5], k[6]};
-    double* o = out + (int64_t)i * K * NCOL;
+    double o[NCOL];  /* one sample's row (z, y), stored with aev_put */
     int64_t nst = 0, nrej = 0, nfev = 0;
     int s = 0, kind = 0, istop = 0;
     double t = 0, tev = INFINITY, val = 0;
@@ -146,7 +155,7 @@ CASADI_SYMBOL_EXPORT int aevsim_run(int n, const int* law_idx, const double* par
        * trajectory to follow; record the initial sample with its measured speed and stop here */
       u[0] = x0[(i - 1) * NX + 1]; u[1] = 0;
       aev_law(c, law, par, u, z, k[0], y);
-      memcpy(o, z, NZ * sizeof(double)); memcpy(o + NZ, y, NY * sizeof(double));
+      memcpy(o, z, NZ * sizeof(double)); memcpy(o + NZ, y, NY * sizeof(double)); aev_put(out, n, i, K, 0, o);
       memcpy(last + (int64_t)i * (NCOL + 1), o, NCOL * sizeof(double)); last[(int64_t)i * (NCOL + 1) + NCOL] = u[0];
       nsamp[i] = 1; ev_kind[i] = 0; ev_time[i] = 0; ev_val[i] = 0;
       stats[3 * i] = 0; stats[3 * i + 1] = 0; stats[3 * i + 2] = 1;
@@ -154,7 +163,7 @@ CASADI_SYMBOL_EXPORT int aevsim_run(int n, const int* law_idx, const double* par
     }
     aev_input(c, prev, i, t, u); aev_law(c, law, par, u, z, k[0], y); nfev++;
     /* sample at t = 0 and the initial check */
-    memcpy(o, z, NZ * sizeof(double)); memcpy(o + NZ, y, NY * sizeof(double)); s = 1;
+    memcpy(o, z, NZ * sizeof(double)); memcpy(o + NZ, y, NY * sizeof(double)); aev_put(out, n, i, K, 0, o); s = 1;
     if (AEV_EV3_SIGN * y[2] - AEV_EV3_OFFSET < 0) { kind = 3; tev = 0; val = y[2]; }
     if (BATTERY && AEV_EV4_SIGN * z[4] - AEV_EV4_OFFSET < 0) { kind = 4; tev = 0; val = z[4]; }
     if (BATTERY && AEV_EV5_SIGN * z[4] - AEV_EV5_OFFSET < 0) { kind = 5; tev = 0; val = z[4]; }
@@ -230,10 +239,11 @@ CASADI_SYMBOL_EXPORT int aevsim_run(int n, const int* law_idx, const double* par
       while (s < K && (kind ? ts[s] < tlim : ts[s] <= tlim + 1e-12 * (1 + fabs(tlim)))) {
         double th = (ts[s] - t) / h, us[2], dz[NZ];
         if (th > 1) th = 1;
-        double* os = o + (int64_t)s * NCOL;
+        double* os = o;
         aev_dense(z, Q, h, th, os);
         os[NX] = z[NX] + aev_omega_inc(z[1], Q[1], h, th);
         aev_input(c, prev, i, ts[s], us); aev_law(c, law, par, us, os, dz, os + NZ); nfev++;
+        aev_put(out, n, i, K, s, os);
         s++;
       }
       nst++;

@@ -2,8 +2,10 @@
  * (clock_gettime, CLOCK_MONOTONIC). Hand-written template of aev_ocp (aev_ocp/c/mpc_bench_main.c).
  *
  * Usage: mpc_bench INPUT [OUTPUT]
- *   INPUT:  K lines of NZ + 2N numbers: x_meas (h, v, V1, V2, S), then the forecast (v_l_mean[N], v_l_hat[N])
- *   OUTPUT: K lines "status u[0] ... u[NU-1] wall_seconds cpu_seconds" (optional)
+ *   INPUT:  K lines of NZ + 2N numbers in SI: x_meas (h [m], v [m/s], V1 [V], V2 [V], S [-]), then the forecast
+ *           (v_l_mean[N], v_l_hat[N] [m/s]), one line per step of AEV_MPC_DT_S seconds (aev-ocp mpc-export
+ *           writes mpc_input.txt, a recorded one)
+ *   OUTPUT: K lines "status u[0] ... u[NU-1] wall_seconds cpu_seconds" (optional; u in SI, u[0] [m/s^2])
  * Prints the median, p95 and max wall time per step [ms] after the first (cold) step (CPU time, which
  * excludes preemption on a shared machine, goes to OUTPUT).
  */

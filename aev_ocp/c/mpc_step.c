@@ -50,7 +50,9 @@ struct aev_mpc_workspace {
   int created;                        /* the CasADi memories were checked out */
   double *x, *lam_g, *lam_x;          /* current primal-dual point */
   double *x2, *lam_g2, *lam_x2;       /* buffers of the next point (swapped) */
-  double *p, *z0;
+  double *p, *z0;                     /* p: NP NLP parameters, then the NK step constants */
+  double *own0, *w_extra, *p_const;   /* aev_mpc_step's constants (from mpc_config.h, or aev_mpc_set_constants) */
+  double *x_si, *u_si;                /* SI value = model value * factor, per state and per control */
   double *H, *g, *E, *e, *C, *lc, *uc, *lbw, *ubw, *x0, *dw, *pi, *lam_c;  /* QP data and solution */
   double *block;                      /* the one allocation of the arrays above */
   ocpqp_solver *qp;
@@ -81,7 +83,9 @@ static size_t layout(aev_mpc_workspace *ws, double *b) {
   struct { double **p; size_t n; } part[] = {
     {&ws->x, AEV_MPC_NV}, {&ws->lam_x, AEV_MPC_NV}, {&ws->x2, AEV_MPC_NV}, {&ws->lam_x2, AEV_MPC_NV},
     {&ws->lbw, AEV_MPC_NV}, {&ws->ubw, AEV_MPC_NV}, {&ws->g, AEV_MPC_NV}, {&ws->dw, AEV_MPC_NV},
-    {&ws->lam_g, AEV_MPC_NG}, {&ws->lam_g2, AEV_MPC_NG}, {&ws->p, AEV_MPC_NP}, {&ws->z0, AEV_MPC_NX},
+    {&ws->lam_g, AEV_MPC_NG}, {&ws->lam_g2, AEV_MPC_NG}, {&ws->p, AEV_MPC_NP + AEV_MPC_NK}, {&ws->z0, AEV_MPC_NX},
+    {&ws->own0, AEV_MPC_NX - AEV_MPC_NZ + 1}, {&ws->w_extra, AEV_MPC_NW_EXTRA + 1}, {&ws->p_const, AEV_MPC_NPP + 1},
+    {&ws->x_si, AEV_MPC_NX}, {&ws->u_si, AEV_MPC_NU},
     {&ws->x0, AEV_MPC_NX},  /* the QP's initial state: 0 (x_0 = z0 is already in x) */
     {&ws->H, NH}, {&ws->E, NE}, {&ws->e, AEV_MPC_N * AEV_MPC_NX}, {&ws->C, NCM + 1},
     {&ws->lc, AEV_MPC_N * NC}, {&ws->uc, AEV_MPC_N * NC}, {&ws->pi, AEV_MPC_N * AEV_MPC_NX},
@@ -117,6 +121,8 @@ aev_mpc_workspace *aev_mpc_create(void) {
     return NULL;
   }
   layout(ws, ws->block);
+  aev_mpc_set_constants(ws, AEV_MPC_P_CONST, AEV_MPC_W_EXTRA, AEV_MPC_OWN0, AEV_MPC_K_CONST);
+  aev_mpc_set_si(ws, AEV_MPC_X_SI, AEV_MPC_U_SI);
   aev_cg_guess_incref(); aev_cg_shift_incref(); aev_cg_qpdata_incref(); aev_cg_node0_incref(); aev_cg_eval_incref();
   ws->mem[0] = aev_cg_guess_checkout();
   ws->mem[1] = aev_cg_shift_checkout();
@@ -391,19 +397,35 @@ int aev_mpc_step(aev_mpc_workspace *ws, const double *x_meas, const double *fore
 
 int aev_mpc_step_own(aev_mpc_workspace *ws, const double *x_meas, const double *own, const double *forecast,
                      double *u_out, int *status) {
-  int i, k, j;
-  double *p = ws->p, *z0 = ws->z0;
-  for (i = 0; i < AEV_MPC_NZ; ++i) z0[i] = x_meas[i];
+  int i, k, j, st;
+  double *p = ws->p, *z0 = ws->z0, vs = ws->x_si[1];  /* SI in and out; model units inside */
+  for (i = 0; i < AEV_MPC_NZ; ++i) z0[i] = x_meas[i] / ws->x_si[i];
   for (i = AEV_MPC_NZ; i < AEV_MPC_NX; ++i)  /* own states: given, else the previous plan's node 1, else initial */
-    z0[i] = own ? own[i - AEV_MPC_NZ] : ws->warm ? ws->x[NB + i] * AEV_MPC_X_SCALE[i] : AEV_MPC_OWN0[i - AEV_MPC_NZ];
+    z0[i] = own ? own[i - AEV_MPC_NZ] / ws->x_si[i]
+                : ws->warm ? ws->x[NB + i] * AEV_MPC_X_SCALE[i] : ws->own0[i - AEV_MPC_NZ];
   for (k = 0; k < AEV_MPC_N; ++k) {
-    p[k * AEV_MPC_NW] = forecast[k];
-    p[k * AEV_MPC_NW + 1] = forecast[AEV_MPC_N + k];
-    for (j = 0; j < AEV_MPC_NW_EXTRA; ++j) p[k * AEV_MPC_NW + 2 + j] = AEV_MPC_W_EXTRA[j];
+    p[k * AEV_MPC_NW] = forecast[k] / vs;
+    p[k * AEV_MPC_NW + 1] = forecast[AEV_MPC_N + k] / vs;
+    for (j = 0; j < AEV_MPC_NW_EXTRA; ++j) p[k * AEV_MPC_NW + 2 + j] = ws->w_extra[j];
   }
-  for (j = 0; j < AEV_MPC_NPP; ++j) p[AEV_MPC_NW * AEV_MPC_N + j] = AEV_MPC_P_CONST[j];
+  for (j = 0; j < AEV_MPC_NPP; ++j) p[AEV_MPC_NW * AEV_MPC_N + j] = ws->p_const[j];
   for (k = 0; k < AEV_MPC_N; ++k) p[AEV_MPC_NW * AEV_MPC_N + AEV_MPC_NPP + k] = 1.0;
-  return aev_mpc_step_full(ws, z0, p, u_out, status);
+  st = aev_mpc_step_full(ws, z0, p, u_out, status);
+  for (i = 0; i < AEV_MPC_NU; ++i) u_out[i] *= ws->u_si[i];
+  return st;
+}
+
+void aev_mpc_set_si(aev_mpc_workspace *ws, const double *x_si, const double *u_si) {
+  if (x_si) memcpy(ws->x_si, x_si, sizeof(double) * AEV_MPC_NX);
+  if (u_si) memcpy(ws->u_si, u_si, sizeof(double) * AEV_MPC_NU);
+}
+
+void aev_mpc_set_constants(aev_mpc_workspace *ws, const double *p_const, const double *w_extra, const double *own0,
+                           const double *k_const) {
+  if (p_const) memcpy(ws->p_const, p_const, sizeof(double) * AEV_MPC_NPP);
+  if (w_extra) memcpy(ws->w_extra, w_extra, sizeof(double) * AEV_MPC_NW_EXTRA);
+  if (own0) memcpy(ws->own0, own0, sizeof(double) * (AEV_MPC_NX - AEV_MPC_NZ));
+  if (k_const) memcpy(ws->p + AEV_MPC_NP, k_const, sizeof(double) * AEV_MPC_NK);
 }
 
 void aev_mpc_set_warm(aev_mpc_workspace *ws, const double *x, const double *lam_g, const double *lam_x) {

@@ -9,11 +9,14 @@
  * (Hessian + reg I from AEV_MPC_COLD_REG0) until max|dx| <= AEV_MPC_TOL. No allocation after aev_mpc_create;
  * not thread-safe per workspace.
  *
- * Units: the toolkit's model units (README.txt). Array layouts:
- *   x_meas   [AEV_MPC_NZ]      measured (h, v, V1, V2, S): gap, speed, RC voltages, state of charge
- *   forecast [2*AEV_MPC_N]     v_l_mean[0..N-1] (leader speed averaged over interval k), then
- *                              v_l_hat[0..N-1] (leader speed at the start of interval k)
- *   u_out    [AEV_MPC_NU]      controls of the first interval (u_out[0] = acceleration a); NaN on failure
+ * Units: SI at the API of aev_mpc_step and aev_mpc_step_own (call them every AEV_MPC_DT_S seconds); the
+ * toolkit's model units only inside (and at aev_mpc_step_full, the NLP's own interface). Array layouts:
+ *   x_meas   [AEV_MPC_NZ]      measured (h [m], v [m/s], V1 [V], V2 [V], S [-]): gap, speed, RC voltages,
+ *                              state of charge
+ *   forecast [2*AEV_MPC_N]     v_l_mean[0..N-1] [m/s] (leader speed averaged over interval k), then
+ *                              v_l_hat[0..N-1] [m/s] (leader speed at the start of interval k)
+ *   u_out    [AEV_MPC_NU]      controls of the first interval in SI (u_out[0] = acceleration a [m/s^2]; the
+ *                              others: mpc_config.h, AEV_MPC_U_SI); NaN on failure
  *   status                     AEV_MPC_OK or an error code below (then apply a fallback; the next call
  *                              is a cold start)
  */
@@ -60,13 +63,23 @@ void aev_mpc_free(aev_mpc_workspace *ws);
 void aev_mpc_reset(aev_mpc_workspace *ws);
 /* The MPC step from the measured state and the forecast (layouts above); returns *status. */
 int aev_mpc_step(aev_mpc_workspace *ws, const double *x_meas, const double *forecast, double *u_out, int *status);
-/* The same with the controller's own states given: own[NX - NZ] (e.g. a_prev = the command really applied
- * last step, which after a fallback is not the plan's; own = NULL: as aev_mpc_step). */
+/* The same with the controller's own states given in SI: own[NX - NZ] (e.g. a_prev [m/s^2] = the command really
+ * applied last step, which after a fallback is not the plan's; own = NULL: as aev_mpc_step). */
 int aev_mpc_step_own(aev_mpc_workspace *ws, const double *x_meas, const double *own, const double *forecast,
                      double *u_out, int *status);
-/* The same from the full initial state z0[NX] (own states included) and the NLP parameter vector p[NP]
- * (stage parameters per interval, problem parameters, stage weights). */
+/* The same in model units (the NLP's own interface: no conversion) from the full initial state z0[NX] (own
+ * states included) and the NLP parameter vector p[NP] (stage parameters per interval, problem parameters, stage
+ * weights); u_out in model units. */
 int aev_mpc_step_full(aev_mpc_workspace *ws, const double *z0, const double *p, double *u_out, int *status);
+/* Replace the problem's constants (any pointer may be NULL: kept): p_const[NPP] the problem parameters and
+ * w_extra[NW_EXTRA] the constant stage parameters aev_mpc_step fills in, own0[NX - NZ] the own states' initial
+ * values, k_const[NK] the constants after the NLP parameters (bounds, the guess law's coefficients). A workspace
+ * starts with those of mpc_config.h. */
+void aev_mpc_set_constants(aev_mpc_workspace *ws, const double *p_const, const double *w_extra, const double *own0,
+                           const double *k_const);
+/* Replace the SI factors (SI value = model value * factor): x_si[NX] per state, u_si[NU] per control (NULL:
+ * kept). A workspace starts with mpc_config.h's AEV_MPC_X_SI, AEV_MPC_U_SI. */
+void aev_mpc_set_si(aev_mpc_workspace *ws, const double *x_si, const double *u_si);
 /* Warm start the next step from a primal-dual point: x[NV] (scaled), lam_g[NG], lam_x[NV]. */
 void aev_mpc_set_warm(aev_mpc_workspace *ws, const double *x, const double *lam_g, const double *lam_x);
 /* The last plan: x[NV] (scaled NLP vector), lam_g[NG], lam_x[NV] (any may be NULL). */

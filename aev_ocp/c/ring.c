@@ -19,6 +19,12 @@
  * their rates kink at every sign change of the power (the eta switch), which in a ring of thousands of vehicles
  * happens every few milliseconds somewhere and would cost rejected steps without adding accuracy
  * (tests/test_ring.py compares them with CVODES, which controls them).
+ * Memory traffic: each motion stage is ONE pass over the ring (a vehicle's stage state lives in registers; the
+ * predecessor's stage speed is recomputed where it is read, with the same arithmetic, instead of stored by a separate
+ * pass; the error of the last stage is summed in the same pass), and an accepted step's six battery stages are done
+ * vehicle by vehicle (they couple no vehicles), so an accepted step sweeps the ring 7 times instead of 25.
+ * The library is built with floating-point contraction off (aev_ocp.compiled.exact_tuned_flags): the same bits as
+ * the plain build on any CPU (tests/test_compiled_speed.py).
  * With OpenMP (compiled with -fopenmp) the stage loops run on all cores (each thread its own CasADi work).
  * Events are checked after every accepted step on every vehicle and located on the quartic dense output
  * (bisection), the earliest over the ring wins.                                                        */
@@ -53,51 +59,105 @@ AEV_MOT_SWITCH
   return 1;
 }
 
-/* every vehicle's rates at Z (n x NZ, vehicle-major), u = (v_l, noise): its predecessor's speed and its additive
- * acceleration noise. W given: the motion alone (D's motion entries; w = (h, v, v_l, a) into W, n x 4); W NULL: the
- * whole right-hand side into D (n x NZ), outputs into Y when given. */
+/* every vehicle's whole right-hand side at Z (n x NZ, vehicle-major) into D (n x NZ), outputs into Y when given;
+ * u = (v_l, noise): its predecessor's speed and its additive acceleration noise */
 static void ring_rates(aev_ctx* ctx, int n, const int* law_idx, const double* params, const double* noise,
-                       const double* Z, double* D, double* Y, double* W) {
+                       const double* Z, double* D, double* Y) {
   RING_PARALLEL
   for (int i = 0; i < n; i++) {
     aev_ctx* c = RING_CTX(ctx);
-    double u[2], dm[NCTRL], ybuf[NY];
-    const double* par = params + (int64_t)i * AEV_NP;
-    const double* x = Z + (int64_t)i * NZ;
+    double u[2], ybuf[NY];
     int p = i == 0 ? n - 1 : i - 1;
     u[0] = Z[(int64_t)p * NZ + 1]; u[1] = noise[i];
-    if (W) {
-      ring_mot(c, law_idx[i], par, u, x, dm, W + 4 * (int64_t)i);
-      for (int j = 0; j < NCTRL; j++) D[(int64_t)i * NZ + MOT_IDX[j]] = dm[j];
-    } else {
-      aev_law(c, law_idx[i], par, u, x, D + (int64_t)i * NZ, Y ? Y + (int64_t)i * NY : ybuf);
-    }
+    aev_law(c, law_idx[i], params + (int64_t)i * AEV_NP, u, Z + (int64_t)i * NZ, D + (int64_t)i * NZ, Y ? Y + (int64_t)i * NY : ybuf);
   }
 }
 
-/* battery and quadrature rates of every vehicle at Z (its cell states) and W (its motion) into D's other entries;
- * outputs (a, I, disc) into Y when given */
-static void ring_battery(aev_ctx* ctx, int n, const double* Z, const double* W, double* D, double* Y) {
+/* one entry of a stage state, z + h sum_{l < ns} coef[l] k[l], at the flat index j (vehicle-major): the one place
+ * it is computed, so a vehicle's own stage and its follower's reading of it are the same number. Called with a
+ * literal stage (RING_STAGES below), so the coefficients are constants and the sum is unrolled (in the same order). */
+#define RING_INLINE static inline __attribute__((always_inline))
+RING_INLINE double ring_stage_entry(const double* z, double* const* k, int st, double h, int64_t j) {
+  const double* coef = st < 6 ? DP_A[st] : DP_B;
+  int ns = st < 6 ? st : 6;
+  double acc = 0; for (int l = 0; l < ns; l++) acc += coef[l] * k[l][j];
+  return z[j] + h * acc;
+}
+
+/* Motion stage st (1..6) of vehicle i: its stage state (its motion entries), its predecessor's speed at the same
+ * stage (recomputed where it is read: a few multiply-adds instead of a second pass over the ring and a stored
+ * stage), its motion rates into k[st] and w into W. Stage 6 is the step's end: its motion entries go to zn, and the
+ * vehicle's squared scaled error (the error norm's sum over h, v[, a_act]) to err[i] (the norm itself is reduced
+ * in vehicle order by the caller). The motion reads only its own entries of x (MOT_IDX); the others stay 0. */
+RING_INLINE void ring_motion_vehicle(aev_ctx* c, int st, int i, int n, const int* law_idx, const double* params,
+                                     const double* noise, const double* z, double* const* k, double h, double* zn,
+                                     double* W, double* err, double rtol, double atol) {
+  double x[NZ] = {0}, u[2], dm[NCTRL];
+  int p = i == 0 ? n - 1 : i - 1;
+  for (int jj = 0; jj < NCTRL; jj++) x[MOT_IDX[jj]] = ring_stage_entry(z, k, st, h, (int64_t)i * NZ + MOT_IDX[jj]);
+  u[0] = ring_stage_entry(z, k, st, h, (int64_t)p * NZ + 1); u[1] = noise[i];
+  ring_mot(c, law_idx[i], params + (int64_t)i * AEV_NP, u, x, dm, W + ((int64_t)st * n + i) * 4);
+  for (int jj = 0; jj < NCTRL; jj++) k[st][(int64_t)i * NZ + MOT_IDX[jj]] = dm[jj];
+  if (st == 6) {
+    double* zni = zn + (int64_t)i * NZ;
+    double e2 = 0;
+    for (int jj = 0; jj < NCTRL; jj++) {
+      int j = MOT_IDX[jj];  /* h, v and the actuator state (last of x) when there is one */
+      int64_t q = (int64_t)i * NZ + j;
+      zni[j] = x[j];
+      double e = 0; for (int l = 0; l < 7; l++) e += DP_E[l] * k[l][q];
+      double sc = atol + rtol * fmax(fabs(z[q]), fabs(zni[j]));
+      e = h * e / sc; e2 += e * e;
+    }
+    err[i] = e2;
+  }
+}
+
+/* one pass over the ring per motion stage (a function per literal stage: RING_PARALLEL's loop body then has its
+ * coefficients as constants) */
+#define RING_MOTION_PASS(ST)                                                                                          \
+  static void ring_motion_##ST(aev_ctx* ctx, int n, const int* law_idx, const double* params, const double* noise, \
+                               const double* z, double* const* k, double h, double* zn, double* W, double* err,     \
+                               double rtol, double atol) {                                                          \
+    RING_PARALLEL                                                                                                   \
+    for (int i = 0; i < n; i++)                                                                                     \
+      ring_motion_vehicle(RING_CTX(ctx), ST, i, n, law_idx, params, noise, z, k, h, zn, W, err, rtol, atol);        \
+  }
+RING_MOTION_PASS(1)
+RING_MOTION_PASS(2)
+RING_MOTION_PASS(3)
+RING_MOTION_PASS(4)
+RING_MOTION_PASS(5)
+RING_MOTION_PASS(6)
+
+/* battery and quadrature stage st of vehicle i: its stage state (cell states and quadratures) into xs, their rates
+ * from w of the same stage into k[st]; outputs (a, I, disc) into yi */
+RING_INLINE void ring_battery_stage(aev_ctx* c, int st, int i, int n, const double* z, double* const* k, double h,
+                                    const double* W, double* xs, double* yi) {
+  double db[NB];
+  for (int jj = 0; jj < NB; jj++) xs[BAT_IDX[jj]] = ring_stage_entry(z, k, st, h, (int64_t)i * NZ + BAT_IDX[jj]);
+  c->arg[0] = W + ((int64_t)st * n + i) * 4; c->arg[1] = xs; c->res[0] = db; c->res[1] = yi;
+  aevring_bat(c->arg, c->res, c->iw, c->w, 0);
+  for (int jj = 0; jj < NB; jj++) k[st][(int64_t)i * NZ + BAT_IDX[jj]] = db[jj];
+}
+
+/* The battery and quadrature stages of an accepted step, one vehicle at a time (they couple no vehicles: each reads
+ * its own stages and its motion's w of every stage, W): stages 1..6 of its cell states and quadratures and their
+ * rates into k, stage 6 (the step's end) into zn and its outputs (a, I, disc) into Y. The battery reads only its
+ * own entries of x (V1, V2, S); the others stay 0. */
+static void ring_battery_stages(aev_ctx* ctx, int n, const double* z, double* const* k, double h, const double* W,
+                                double* zn, double* Y) {
   RING_PARALLEL
   for (int i = 0; i < n; i++) {
     aev_ctx* c = RING_CTX(ctx);
-    double db[NB], ybuf[NY];
-    c->arg[0] = W + 4 * (int64_t)i; c->arg[1] = Z + (int64_t)i * NZ; c->res[0] = db; c->res[1] = Y ? Y + (int64_t)i * NY : ybuf;
-    aevring_bat(c->arg, c->res, c->iw, c->w, 0);
-    for (int j = 0; j < NB; j++) D[(int64_t)i * NZ + BAT_IDX[j]] = db[j];
+    double x[NZ] = {0}, ybuf[NY];
+    ring_battery_stage(c, 1, i, n, z, k, h, W, x, ybuf);
+    ring_battery_stage(c, 2, i, n, z, k, h, W, x, ybuf);
+    ring_battery_stage(c, 3, i, n, z, k, h, W, x, ybuf);
+    ring_battery_stage(c, 4, i, n, z, k, h, W, x, ybuf);
+    ring_battery_stage(c, 5, i, n, z, k, h, W, x, ybuf);
+    ring_battery_stage(c, 6, i, n, z, k, h, W, zn + (int64_t)i * NZ, Y + (int64_t)i * NY);
   }
-}
-
-/* z + h sum_l coef[l] k[l] on the given entries of every vehicle (idx: cnt entries per vehicle) into dst */
-static void ring_stage(int n, const int* idx, int cnt, const double* z, double* const* k, const double* coef, int ns,
-                       double h, double* dst) {
-  RING_PARALLEL
-  for (int i = 0; i < n; i++)
-    for (int jj = 0; jj < cnt; jj++) {
-      int64_t j = (int64_t)i * NZ + idx[jj];
-      double acc = 0; for (int l = 0; l < ns; l++) acc += coef[l] * k[l][j];
-      dst[j] = z[j] + h * acc;
-    }
 }
 
 /* Set nonzero by another thread (Ctrl-C, SIGTERM or a passed --time-limit in the Python caller, as the cascade's
@@ -121,40 +181,37 @@ CASADI_SYMBOL_EXPORT int64_t aevring_advance(int n, const int* law_idx, const do
   ring_threads = nth;
   int64_t N = (int64_t)n * NZ, ncol = NZ + NY;
   aev_ctx* ctx = malloc(sizeof(aev_ctx) * nth);
-  double* buf = malloc(sizeof(double) * (N * 7 + N * 3 + N * 4 + (int64_t)n * NY * 2 + (int64_t)n * 4 * 7));
+  double* buf = malloc(sizeof(double) * (N * 7 + N * 3 + N * 4 + (int64_t)n * NY * 2 + (int64_t)n * 4 * 7 + n));
   if (!ctx || !buf) { free(ctx); free(buf); return -1; }
   double* k[7];
   for (int s = 0; s < 7; s++) k[s] = buf + s * N;
   double *zt = buf + 7 * N, *zn = zt + N, *zs = zn + N, *Q = zs + N, *Y = Q + 4 * N, *Ys = Y + (int64_t)n * NY;
   double* W = Ys + (int64_t)n * NY;  /* w = (h, v, v_l, a) of every vehicle at stages 1..6 (7 x n x 4) */
+  double* err = W + (int64_t)n * 4 * 7;  /* each vehicle's squared scaled error of the last attempt (n) */
   double (*Q4)[4] = (double (*)[4])Q;  /* the dense output's coefficients, 4 per entry (N x 4) */
   int64_t s_out = 0, nst = 0, nrej = 0, nfev = 0;
   int rejected_last = 0;
   double t = t0, h = *h_io > 0 ? *h_io : 1e-3, h_want = h;
   ev[0] = 0; ev[1] = -1; ev[2] = t0; ev[3] = 0;
-  ring_rates(ctx, n, law_idx, params, noise, z, k[0], NULL, NULL); nfev++;
+  ring_rates(ctx, n, law_idx, params, noise, z, k[0], NULL); nfev++;
   int cancelled = 0;
   while (t < t1 && !ev[0]) {
     if (aevring_cancel) { cancelled = 1; break; }
     int hit = 0;
     h_want = h;
     if (t + h >= t1 - 1e-12 * (1 + fabs(t1))) { h = t1 - t; hit = 1; }
-    for (int st = 1; st < 7; st++) {  /* the motion stages */
-      ring_stage(n, MOT_IDX, NCTRL, z, k, st < 6 ? DP_A[st] : DP_B, st < 6 ? st : 6, h, st < 6 ? zt : zn);
-      ring_rates(ctx, n, law_idx, params, noise, st < 6 ? zt : zn, k[st], NULL, W + (int64_t)st * n * 4);
-    }
+    /* the motion stages: one pass over the ring each */
+    ring_motion_1(ctx, n, law_idx, params, noise, z, k, h, zn, W, err, rtol, atol);
+    ring_motion_2(ctx, n, law_idx, params, noise, z, k, h, zn, W, err, rtol, atol);
+    ring_motion_3(ctx, n, law_idx, params, noise, z, k, h, zn, W, err, rtol, atol);
+    ring_motion_4(ctx, n, law_idx, params, noise, z, k, h, zn, W, err, rtol, atol);
+    ring_motion_5(ctx, n, law_idx, params, noise, z, k, h, zn, W, err, rtol, atol);
+    ring_motion_6(ctx, n, law_idx, params, noise, z, k, h, zn, W, err, rtol, atol);
     nfev += 6;
-    /* error: the largest per-vehicle RMS over the ODE states */
+    /* error: max(RMS over the ring, the largest per-vehicle RMS / LOCAL_FACTOR), reduced in vehicle order */
     double nrm = 0, sum2 = 0;
     for (int i = 0; i < n; i++) {
-      double e2 = 0;
-      for (int jj = 0; jj < NCTRL; jj++) {
-        int j = jj < 2 ? jj : NX - 1;  /* h, v and the actuator state (last of x) when there is one */
-        int64_t q = (int64_t)i * NZ + j;
-        double e = 0; for (int l = 0; l < 7; l++) e += DP_E[l] * k[l][q];
-        double sc = atol + rtol * fmax(fabs(z[q]), fabs(zn[q]));
-        e = h * e / sc; e2 += e * e;
-      }
+      double e2 = err[i];
       sum2 += e2;
       e2 = sqrt(e2 / NCTRL) / LOCAL_FACTOR;
       if (!(e2 <= nrm)) nrm = e2;  /* NaN propagates as a failure */
@@ -167,10 +224,7 @@ CASADI_SYMBOL_EXPORT int64_t aevring_advance(int n, const int* law_idx, const do
       if (h < 1e-14 * (1 + fabs(t)) || nst + nrej > max_steps) { ev[0] = AEV_EV_FAILED; ev[1] = -1; ev[2] = t; }
       continue;
     }
-    for (int st = 1; st < 7; st++) {  /* accepted: the battery and quadrature stages on the motion's stages */
-      ring_stage(n, BAT_IDX, NB, z, k, st < 6 ? DP_A[st] : DP_B, st < 6 ? st : 6, h, st < 6 ? zt : zn);
-      ring_battery(ctx, n, st < 6 ? zt : zn, W + (int64_t)st * n * 4, k[st], st == 6 ? Y : NULL);
-    }
+    ring_battery_stages(ctx, n, z, k, h, W, zn, Y);  /* accepted: the battery and quadratures on the motion's stages */
     int q_ready = 0;  /* the dense output's coefficients, computed only when a sample or an event needs them */
 #define RING_NEED_Q() if (!q_ready) { aev_dense_coef(N, k, Q4); q_ready = 1; }
 #if SPEED_FLOOR
@@ -199,7 +253,7 @@ CASADI_SYMBOL_EXPORT int64_t aevring_advance(int n, const int* law_idx, const do
       RING_NEED_Q();
       double* o = out + s_out * (int64_t)n * ncol;
       for (int i = 0; i < n; i++) aev_dense(z + (int64_t)i * NZ, Q4 + (int64_t)i * NZ, h, th, zs + (int64_t)i * NZ);
-      ring_rates(ctx, n, law_idx, params, noise, zs, zt, Ys, NULL); nfev++;
+      ring_rates(ctx, n, law_idx, params, noise, zs, zt, Ys); nfev++;
       for (int i = 0; i < n; i++) {
         memcpy(o + (int64_t)i * ncol, zs + (int64_t)i * NZ, NZ * sizeof(double));
         memcpy(o + (int64_t)i * ncol + NZ, Ys + (int64_t)i * NY, NY * sizeof(double));

@@ -5,7 +5,9 @@ Problem (:func:`aev_ocp.ocp.following.following_problem`, shared with OCP-D), co
 fallback — a :class:`aev_ocp.control.Controller`) and plant (:class:`aev_ocp.plant.Plant`, driven by
 :class:`aev_ocp.control.ClosedLoop`) are kept apart; results are the shared
 :class:`aev_ocp.results.SimulationResult`, so MPC and closed-form laws share the §10 metrics.
-The ``aev-ocp mpc`` command is :mod:`aev_ocp.mpc.cli`, its report section :mod:`aev_ocp.mpc.report`, the
+The MPC beside the laws and OCP-D is :func:`run_comparison` (:mod:`aev_ocp.mpc.run`, application layer: so this
+package's table stands in that layer too, and code below it imports the submodules, never the package). The
+``aev-ocp mpc`` command is :mod:`aev_ocp.mpc.cli`, its report section :mod:`aev_ocp.mpc.report`, the
 ``[mpc]`` table of scenario files :mod:`aev_ocp.mpc.scenario` (loaded by the scenario loader on demand).
 """
 
@@ -32,6 +34,8 @@ _EXPORTS = {
     "PREDICTOR_NAMES": "settings",
     "SOLVER_PATHS": "settings",
     "MPCSettings": "settings",
+    "Comparison": "run",
+    "run_comparison": "run",
 }
 
 __all__ = [
@@ -51,6 +55,8 @@ __all__ = [
     "SOLVER_PATHS",
     "make_predictor",
     "run_closed_loop",
+    "run_comparison",
+    "Comparison",
     "run_single",
 ]
 

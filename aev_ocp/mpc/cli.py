@@ -160,7 +160,8 @@ def _cli_mpc(argv: list[str]) -> int:
     from ..progress import TIME_LIMIT, Progress
     from ..saved import OUTPUT_FILES as SAVED_FILES, settings_of
     from ..scenarios import find_scenario
-    from .report import check_mpc_scenario, comparison_table, run_comparison, write_comparison
+    from .report import check_mpc_scenario, comparison_table, write_comparison
+    from .run import run_comparison
     from .scenario import MPCConfig
     from .settings import MPCSettings
 

@@ -153,8 +153,11 @@ class MPCController:
         self.formulation = f = resolve_formulation(formulation, problem, parameter_values, initial_values)
         # rti: a built-in problem with the OCV as comparisons (same values, cheaper Hessians: models/battery.py)
         with piecewise_ocv() if s.solver == "rti" and f.kind != "problem" else contextlib.nullcontext():
-            built = f.builder(self.ev, s.dt)
-            self.problem = built.build() if isinstance(built, ProblemBuilder) else built
+            # where C is generated (codegen, or the rti path's compiled step), the vehicle's numbers are parameters
+            # of the NLP, not constants of the C: one library per structure (issue 40); interpreted paths keep them
+            # as numbers (nothing to share, and the expressions CasADi folds stay as they were)
+            compiled = s.codegen or s.solver == "rti"
+            self.problem = f.mpc_problem(self.ev, s.dt) if compiled else f.build(self.ev, s.dt)
         self.layout = self._check_layout(dict(f.parameter_values), dict(f.initial_values))
         self.codegen_active = False
         #: the compiled whole step (export.CStep) of the rti path with qp_solver 'riccati' (None otherwise)
@@ -190,6 +193,8 @@ class MPCController:
         wnames = list(pr.meta.get("stage_parameter_names", ["v_l_mean", "v_l_hat"]))
         n_weights = sum(1 for k in pnames[: len(WEIGHT_NAMES)] if k in WEIGHT_NAMES)
         extra_p, extra_w = pnames[n_weights:], wnames[2:]
+        # parameters with a default (a built-in problem's vehicle numbers: ProblemBuilder.parameter's value)
+        pvals = {**pr.meta.get("parameter_defaults", {}), **pvals}
         unknown = sorted(set(pvals) - set(extra_p) - set(extra_w))
         missing = [k for k in extra_p + extra_w if k not in pvals]
         if unknown or missing:

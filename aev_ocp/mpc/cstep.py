@@ -121,6 +121,8 @@ EXPORT_FILES = (
     "CMakeLists.txt",
     "README.txt",
 )
+#: The recorded input an export of a scenario writes beside the C (``aev-ocp mpc-export``; mpc_bench reads it).
+RECORD_FILE = "mpc_input.txt"
 #: At most this many SQP iterations from the cold-start guess (the first step, or after a failure).
 COLD_MAX_ITER = 100
 #: Cold start (Levenberg-Marquardt): the QP Hessian gets reg·I, reg = COLD_REG0 at first, divided by 10
@@ -160,22 +162,71 @@ def _template(name: str) -> str:
 
 
 # ---------------------------------------------------------------------------------------------- functions
-def qp_data_function(c: ExportableController) -> ca.Function:
+def step_constants(c: ExportableController) -> np.ndarray:
+    """The numbers the compiled step takes at run time after the NLP parameters (issue 40: its generated C holds
+    none of a vehicle's, a unit system's or a constraint's values, so one library serves every controller of the
+    same structure): the simple bounds of a node (x_lb, x_ub scaled), of an interval (u_lb, u_ub scaled), the
+    path constraints' bounds (lb, ub), then the cold-start guess's inputs (:attr:`HorizonNLP.rollout_inputs`:
+    its bounds and the closed-form law's coefficients)."""
+    nlp, nx, nu = c.nlp, c.nx, c.nu
+    pr = c.problem
+    return np.concatenate(
+        [
+            nlp.lbx[-nx:],
+            nlp.ubx[-nx:],
+            nlp.lbx[nx : nx + nu],
+            nlp.ubx[nx : nx + nu],
+            np.asarray(pr.path_lb, float),
+            np.asarray(pr.path_ub, float),
+            *nlp.rollout_inputs,
+        ]
+    )
+
+
+def _bounds(c: ExportableController, B: Any) -> dict[str, Any]:
+    """The bounds of the compiled step's functions: from the symbol B (layout of :func:`step_constants`), or the
+    controller's numbers (B None)."""
+    nx, nu, N, nc = c.nx, c.nu, c.settings.N, c.nlp.ng_stage - c.nx
+    if B is None:
+        B = ca.DM(step_constants(c))
+    xl, xu, ul, uu = B[:nx], B[nx : 2 * nx], B[2 * nx : 2 * nx + nu], B[2 * nx + nu : 2 * (nx + nu)]
+    k = 2 * (nx + nu)
+    plb, pub = B[k : k + nc], B[k + nc : k + 2 * nc]
+    k += 2 * nc
+    nr = nx + nu
+    return {
+        "lbx": ca.vertcat(ca.repmat(ca.vertcat(xl, ul), N, 1), xl),
+        "ubx": ca.vertcat(ca.repmat(ca.vertcat(xu, uu), N, 1), xu),
+        "xl": xl,
+        "xu": xu,
+        "path_lb": plb,
+        "path_ub": pub,
+        "lbg": ca.repmat(ca.vertcat(ca.DM.zeros(nx), plb), N, 1),
+        "ubg": ca.repmat(ca.vertcat(ca.DM.zeros(nx), pub), N, 1),
+        "rollout": (B[k : k + nr], B[k + nr : k + 2 * nr], B[k + 2 * nr :]),
+    }
+
+
+def qp_data_function(c: ExportableController, constants_in_p: bool = False) -> ca.Function:
     """``aev_cg_qpdata(x, p, lam_g) -> (H, g, E, e, C, lc, uc, lbw, ubw)``: the QP of one SQP step at the
     primal-dual point (x, lam_g) of the controller's scaled NLP, in the stage layout of ``ocp_qp.h``
     (nc = the path constraints per interval, no terminal constraint, x_0's step fixed at 0): the exact
     Lagrangian Hessian's stage blocks (and the terminal cost's), the cost gradient, the dynamics'
-    Jacobians [A B] and defects, the path constraints' Jacobians and bound offsets, the step bounds."""
+    Jacobians [A B] and defects, the path constraints' Jacobians and bound offsets, the step bounds.
+    ``constants_in_p``: p is the NLP parameters followed by :func:`step_constants` (the compiled step's), else
+    the NLP parameters only (the bounds are the controller's numbers)."""
     s, pr = c.settings, c.problem
     N, nx, nu, ngs = s.N, pr.nx, pr.nu, c.nlp.ng_stage
     nb, nv, ng, npp = nx + nu, c.nv, c.ng, c.np_
+    nk = step_constants(c).size if constants_in_p else 0
     stage, term = rti_stage_functions(c.nlp)  # the same stage QP as the Python rti path's
-    V, P, LAM = ca.MX.sym("x", nv), ca.MX.sym("p", npp), ca.MX.sym("lam_g", ng)
-    Xk, Uk, Xn, W, PP, SW = c.nlp.stage_inputs(V, P)
+    V, P, LAM = ca.MX.sym("x", nv), ca.MX.sym("p", npp + nk), ca.MX.sym("lam_g", ng)
+    bd = _bounds(c, P[npp:] if constants_in_p else None)
+    Xk, Uk, Xn, W, PP, SW = c.nlp.stage_inputs(V, P[:npp])
     Hs, Qs, Js, Gs, _ = stage.map(N, "serial")(Xk, Uk, Xn, W, ca.repmat(PP, 1, N), SW, ca.reshape(LAM, ngs, N))
     HN, qN, _ = term(V[nb * N :], PP)
-    path_lb = ca.repmat(ca.DM(np.asarray(pr.path_lb, float)), 1, N)
-    path_ub = ca.repmat(ca.DM(np.asarray(pr.path_ub, float)), 1, N)
+    path_lb = ca.repmat(bd["path_lb"], 1, N)
+    path_ub = ca.repmat(bd["path_ub"], 1, N)
     cval = Gs[nx:, :]  # the path constraints' values at the point
     return ca.Function(
         "aev_cg_qpdata",
@@ -188,8 +239,8 @@ def qp_data_function(c: ExportableController) -> ca.Function:
             ca.vec(Js[nx:, :]),
             ca.vec(path_lb - cval),
             ca.vec(path_ub - cval),
-            ca.DM(c.nlp.lbx) - V,
-            ca.DM(c.nlp.ubx) - V,
+            bd["lbx"] - V,
+            bd["ubx"] - V,
         ],
         ["x", "p", "lam_g"],
         ["H", "g", "E", "e", "C", "lc", "uc", "lbw", "ubw"],
@@ -202,27 +253,29 @@ def rti_functions(c: ExportableController) -> list[ca.Function]:
     N, nx, nu, ngs = s.N, pr.nx, pr.nu, c.nlp.ng_stage
     nb, nv, ng, npp = nx + nu, c.nv, c.ng, c.np_
     xs, us = ca.DM(c.x_scale), ca.DM(c.u_scale)
-    qpdata = qp_data_function(c)
-    V, P = ca.MX.sym("x", nv), ca.MX.sym("p", npp)
+    qpdata = qp_data_function(c, constants_in_p=True)
+    # p: the NLP parameters, then the step's constants (step_constants: bounds, the guess law's coefficients)
+    V, P = ca.MX.sym("x", nv), ca.MX.sym("p", npp + step_constants(c).size)
+    bd = _bounds(c, P[npp:])
     LAM, LAMX = ca.MX.sym("lam_g", ng), ca.MX.sym("lam_x", nv)
-    W, PP = c.nlp.stage_inputs(V, P)[3:5]
+    W, PP = c.nlp.stage_inputs(V, P[:npp])[3:5]
     # --- plan evaluation: cost, nonlinear violation, node-0 path violation, applied controls
     f_nlp = ca.Function("f", [c.nlp.nlp["x"], c.nlp.nlp["p"]], [c.nlp.nlp["f"], c.nlp.nlp["g"]])
-    f, gg = f_nlp(V, P)
-    lbx = ca.vertcat(V[:nx], ca.DM(c.nlp.lbx[nx:]))  # the initial state is fixed at x[:nx]
-    ubx = ca.vertcat(V[:nx], ca.DM(c.nlp.ubx[nx:]))
-    vg = ca.fmax(ca.fmax(ca.DM(c.nlp.lbg) - gg, gg - ca.DM(c.nlp.ubg)), 0)
+    f, gg = f_nlp(V, P[:npp])
+    lbx = ca.vertcat(V[:nx], bd["lbx"][nx:])  # the initial state is fixed at x[:nx]
+    ubx = ca.vertcat(V[:nx], bd["ubx"][nx:])
+    vg = ca.fmax(ca.fmax(bd["lbg"] - gg, gg - bd["ubg"]), 0)
     vx = ca.fmax(ca.fmax(lbx - V, V - ubx), 0)
     viol = ca.mmax(ca.vertcat(vg, vx, ca.DM(0)))
     path0 = c.F(V[:nx], V[nx:nb], ca.MX(0, 1), ca.MX.zeros(nx), W[:, 0], PP, s.dt)[1]
-    lb0, ub0 = ca.DM(np.asarray(pr.path_lb, float)), ca.DM(np.asarray(pr.path_ub, float))
+    lb0, ub0 = bd["path_lb"], bd["path_ub"]
     viol0 = ca.mmax(ca.vertcat(ca.fmax(ca.fmax(lb0 - path0, path0 - ub0), 0), ca.DM(0)))
     ev = ca.Function("aev_cg_eval", [V, P], [f, viol], ["x", "p"], ["f", "violation"])
     node0 = ca.Function("aev_cg_node0", [V, P], [viol0, V[nx:nb] * us], ["x", "p"], ["node0_violation", "u0"])
     # --- cold-start guess (HorizonNLP.guess) and shift (HorizonNLP.shift)
     Z0 = ca.MX.sym("z0", nx)
     Wm, pm = ca.reshape(P[: pr.nw * N], pr.nw, N), P[pr.nw * N : pr.nw * N + pr.np_]
-    Zn, Ug = c.nlp.rollout(Z0, Wm, ca.repmat(pm, 1, N))
+    Zn, Ug = c.nlp.rollout(Z0, Wm, ca.repmat(pm, 1, N), *(ca.repmat(v, 1, N) for v in bd["rollout"]))
     Z = ca.horzcat(Z0, Zn) / ca.repmat(xs, 1, N + 1)
     Ug = ca.reshape(Ug, nu, N) / ca.repmat(us, 1, N)
     guess = ca.Function(
@@ -230,7 +283,7 @@ def rti_functions(c: ExportableController) -> list[ca.Function]:
     )
     zN, uN = V[nb * N :] * xs, V[nb * N - nu : nb * N] * us
     z_ext = c.step(zN, uN, Wm[:, N - 1], pm) / xs
-    z_ext = ca.fmin(ca.fmax(z_ext, ca.DM(c.nlp.lbx[-nx:])), ca.DM(c.nlp.ubx[-nx:]))
+    z_ext = ca.fmin(ca.fmax(z_ext, bd["xl"]), bd["xu"])
 
     def shift_v(v: Any, new_last: Any) -> Any:
         # blocks 1..N-1, then (z_N, u_{N-1}), then new_last; the first nx entries are replaced later
@@ -267,17 +320,68 @@ def _c_array(values: np.ndarray) -> str:
     if v.size == 0:
         return "{0.0}"
     return (
-        "{" + ", ".join(repr(float(x)) if np.isfinite(x) else ("INFINITY" if x > 0 else "-INFINITY") for x in v) + "}"
+        "{"
+        + ", ".join(
+            repr(float(x)) if np.isfinite(x) else "NAN" if np.isnan(x) else ("INFINITY" if x > 0 else "-INFINITY")
+            for x in v
+        )
+        + "}"
     )
 
 
-def config_header(c: ExportableController, description: str) -> str:
-    """mpc_config.h: dimensions and constants of the exported problem (filled template)."""
+#: SI units of the MPC problems' states and controls by name: (unit, dimension of the model value: 'length',
+#: 'speed', 'accel', 'power' (v·a, W/kg), or '' for a value that is SI already); a name not listed keeps the
+#: problem's own unit (factor 1)
+SI_UNITS: dict[str, tuple[str, str]] = {
+    "h": ("m", "length"),
+    "v": ("m/s", "speed"),
+    "V1": ("V", ""),
+    "V2": ("V", ""),
+    "S": ("-", ""),
+    "T": ("K", ""),
+    "a_prev": ("m/s^2", "accel"),
+    "a_act": ("m/s^2", "accel"),
+    "a": ("m/s^2", "accel"),
+    "slack_gap": ("m", "length"),
+    "slack_margin": ("m", "length"),
+    "slack_T": ("K", ""),
+}
+
+
+def si_factors(c: ExportableController) -> tuple[np.ndarray, np.ndarray, list[str], list[str]]:
+    """(x_si (nx,), u_si (nu,), state units, control units): SI value = model value × factor for every state and
+    control of the controller's problem (:data:`SI_UNITS`; the traffic formulation's omega_rate is in W/kg
+    already, §9's in model units (v·a: U³/L W/kg); a name not known keeps the problem's unit, factor 1)."""
+    u = c.ev.units
+    dim = {"length": u.length_m, "speed": u.speed_mps, "accel": u.accel_mps2, "power": u.speed_mps * u.accel_mps2}
+    known = dict(SI_UNITS)
+    known["omega_rate"] = ("W/kg", "" if c.formulation.family == "traffic" else "power")
+
+    def one(names: Any) -> tuple[np.ndarray, list[str]]:
+        f = [float(dim[known[n][1]]) if n in known and known[n][1] else 1.0 for n in names]
+        return np.array(f), [known[n][0] if n in known else "problem unit" for n in names]
+
+    xs, xu = one(c.problem.state_names)
+    us, uu = one(c.problem.control_names)
+    return xs, us, xu, uu
+
+
+def config_header(c: ExportableController, description: str, values: bool = True) -> str:
+    """mpc_config.h: dimensions and constants of the exported problem (filled template). ``values`` False: the
+    problem's numbers (parameters, constant stage parameters, own states' initial values, step constants) are NaN
+    placeholders, replaced at run time by ``aev_mpc_set_constants`` (the cached library of :class:`CompiledStep`:
+    one library for every controller of the same structure)."""
     from ..models.ego import STATE_NAMES
 
     s, pr = c.settings, c.problem
     NZ = len(STATE_NAMES)  # the measured states at the front of every MPC problem
-    p_const = c.constant_parameters()
+
+    def num(v: np.ndarray) -> str:
+        v = np.asarray(v, float)
+        return _c_array(v if values else np.full(v.size, np.nan))
+
+    x_si, u_si, x_units, u_units = si_factors(c)
+
     subs = {
         "DESCRIPTION": description.replace("*/", "* /"),
         "N": s.N,
@@ -306,11 +410,19 @@ def config_header(c: ExportableController, description: str) -> str:
         "TOL": repr(float(s.tol)),
         "PLAN_TOL": repr(float(_plan_tolerance())),
         "DT": repr(float(s.dt)),
+        "DT_S": repr(float(s.dt * c.ev.units.time_s)) if values else "NAN",
+        "UNITS": units_text(c) if values else "set at run time",
+        "X_SI": num(x_si),
+        "U_SI": num(u_si),
+        "STATE_SI": ", ".join(f"{n} [{un}]" for n, un in zip(pr.state_names, x_units)),
+        "CONTROL_SI": ", ".join(f"{n} [{un}]" for n, un in zip(pr.control_names, u_units)),
         "X_SCALE": _c_array(c.x_scale),
         "U_SCALE": _c_array(c.u_scale),
-        "OWN0": _c_array(c.layout.x_own0),
-        "W_EXTRA": _c_array(c.layout.w_extra),
-        "P_CONST": _c_array(p_const),
+        "OWN0": num(c.layout.x_own0),
+        "W_EXTRA": num(c.layout.w_extra),
+        "P_CONST": num(c.constant_parameters()),
+        "NK": step_constants(c).size,
+        "K_CONST": num(step_constants(c)),
         "STATE_NAMES": ", ".join(pr.state_names),
         "CONTROL_NAMES": ", ".join(pr.control_names),
     }
@@ -320,17 +432,24 @@ def config_header(c: ExportableController, description: str) -> str:
     return text
 
 
+def units_text(c: ExportableController) -> str:
+    """The model units of the controller's vehicle in words (length, speed, time)."""
+    u = c.ev.units
+    return f"length {u.length_m:g} m, speed {u.speed_mps:g} m/s, time {u.time_s:g} s"
+
+
 def _plan_tolerance() -> float:
     from ..plant import PLAN_TOLERANCE
 
     return float(PLAN_TOLERANCE)
 
 
-def write_sources(c: ExportableController, folder: Path, description: str) -> None:
-    """Generated and hand-written C sources of the step into ``folder`` (created)."""
+def write_sources(c: ExportableController, folder: Path, description: str, values: bool = True) -> None:
+    """Generated and hand-written C sources of the step into ``folder`` (created); ``values``: see
+    :func:`config_header`."""
     folder.mkdir(parents=True, exist_ok=True)
     generate_casadi(c, folder)
-    (folder / "mpc_config.h").write_text(config_header(c, description), encoding="utf-8")
+    (folder / "mpc_config.h").write_text(config_header(c, description, values), encoding="utf-8")
     for name in TEMPLATES:
         (folder / name).write_text(_template(name), encoding="utf-8")
 
@@ -375,7 +494,12 @@ def export_controller(c: ExportableController, out: Path, description: str) -> l
         "CONTROLS": ", ".join(pr.control_names),
         "NV": c.nv,
         "NG": c.ng,
-        "UNITS": f"length {c.ev.units.length_m:g} m, speed {c.ev.units.speed_mps:g} m/s, time {c.ev.units.time_s:g} s",
+        "UNITS": units_text(c),
+        "DT_S": f"{s.dt * c.ev.units.time_s:.6g}",
+        "STATE_SI": ", ".join(f"{n} [{un}]" for n, un in zip(pr.state_names, si_factors(c)[2])),
+        "CONTROL_SI": ", ".join(f"{n} [{un}]" for n, un in zip(pr.control_names, si_factors(c)[3])),
+        "NZ2N": 5 + 2 * s.N,
+        "RECORD": RECORD_FILE,
     }
     for k, v in subs.items():
         readme = readme.replace(f"@{k}@", str(v))
@@ -482,6 +606,10 @@ class CStep:
             getattr(lib, name).restype = ctypes.c_int
         lib.aev_mpc_step_own.argtypes = [_VP] * 6
         lib.aev_mpc_step_own.restype = ctypes.c_int
+        lib.aev_mpc_set_constants.argtypes = [_VP] * 5
+        lib.aev_mpc_set_constants.restype = None
+        lib.aev_mpc_set_si.argtypes = [_VP] * 3
+        lib.aev_mpc_set_si.restype = None
         dims = np.zeros(8, dtype=np.intc)
         lib.aev_mpc_dims(dims.ctypes.data)
         self.N, self.nx, self.nu, self.nz, self.nv, self.ng, self.np_, self.nf = (int(d) for d in dims)
@@ -514,8 +642,9 @@ class CStep:
         self.lib.aev_mpc_reset(self.ws)
 
     def step(self, x_meas: np.ndarray, forecast: np.ndarray, own: np.ndarray | None = None) -> tuple[np.ndarray, int]:
-        """(u0 (nu,), status) from the measured (h, v, V1, V2, S) and forecast (v̄_l (N), v̂_l (N)); ``own``:
-        the controller's own states (nx − 5 values, e.g. a_prev), else the previous plan's (aev_mpc_step_own)."""
+        """(u0 (nu,) [SI], status) from the measured (h [m], v [m/s], V1 [V], V2 [V], S [-]) and forecast
+        (v̄_l (N), v̂_l (N) [m/s]); ``own``: the controller's own states in SI (nx − 5 values, e.g. a_prev
+        [m/s²]), else the previous plan's (aev_mpc_step_own). SI in and out (:func:`si_factors`)."""
         xm = np.ascontiguousarray(x_meas, float)
         fc = np.ascontiguousarray(forecast, float)
         if xm.size != self.nz or fc.size != self.nf:
@@ -539,6 +668,21 @@ class CStep:
         if z.size != self.nx or pp.size != self.np_:
             raise ParameterError(f"CStep.step_full: z0 must have {self.nx} and p {self.np_} values")
         return int(self.lib.aev_mpc_step_full(self.ws, _addr(z), _addr(pp), self._a["u"], self._a["status"]))
+
+    def set_constants(self, p_const: np.ndarray, w_extra: np.ndarray, own0: np.ndarray, k_const: np.ndarray) -> None:
+        """Give the workspace the controller's numbers (``aev_mpc_set_constants``; sizes are the caller's: a
+        library built with placeholders, :class:`CompiledStep`, gets them here)."""
+        keep = [np.ascontiguousarray(v, float) for v in (p_const, w_extra, own0, k_const)]
+        self._constants = keep  # alive while the library may read them (it copies them)
+        self.lib.aev_mpc_set_constants(self.ws, *(_addr(v) if v.size else None for v in keep))
+
+    def set_si(self, x_si: np.ndarray, u_si: np.ndarray) -> None:
+        """The SI factors of the states and controls (``aev_mpc_set_si``: SI = model × factor)."""
+        keep = [np.ascontiguousarray(v, float) for v in (x_si, u_si)]
+        if keep[0].size != self.nx or keep[1].size != self.nu:
+            raise ParameterError(f"CStep.set_si: x_si must have {self.nx} and u_si {self.nu} values")
+        self._si = keep
+        self.lib.aev_mpc_set_si(self.ws, _addr(keep[0]), _addr(keep[1]))
 
     def set_warm(self, x: np.ndarray, lam_g: np.ndarray, lam_x: np.ndarray, drop_below: float = 0.0) -> None:
         """Start the next step from this primal-dual point (scaled NLP vector and multipliers).
@@ -580,7 +724,8 @@ class CompiledStep:
             )
             return None
         with tempfile.TemporaryDirectory() as tmp:
-            write_sources(c, Path(tmp), f"MPC controller {c.problem.name}")
+            # the problem's numbers are not in the source (set below): one library per structure (issue 40)
+            write_sources(c, Path(tmp), f"MPC controller {c.problem.name}", values=False)
             files = {
                 n: Path(tmp, n).read_text(encoding="utf-8")
                 for n in ("mpc_config.h", "mpc_casadi.h", "mpc_step.h", "mpc_step.c", "ocp_qp.h", "ocp_qp.c")
@@ -597,4 +742,7 @@ class CompiledStep:
                 stacklevel=4,
             )
             return None
-        return CStep(built.path)
+        cs = CStep(built.path)
+        cs.set_constants(c.constant_parameters(), c.layout.w_extra, c.layout.x_own0, step_constants(c))
+        cs.set_si(*si_factors(c)[:2])
+        return cs

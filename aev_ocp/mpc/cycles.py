@@ -146,7 +146,7 @@ def run_cycle(
     default formulation) under each forecast in ``predictors``, and the whole platoon on each law of
     ``laws`` (same leader and start). Returns ({(controller, predictor): result}, wall time per run [s]);
     laws have predictor None. ``log`` gets the runs' progress lines (the MPC at every 25 %)."""
-    from .report import run_comparison
+    from .run import run_comparison
     from .settings import MPCSettings
 
     base = settings if settings is not None else MPCSettings()

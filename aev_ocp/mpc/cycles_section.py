@@ -40,7 +40,9 @@ PLATOON_SEGMENT_S = 60.0
 #: formulation is MPCSettings()'s default.
 SOLVER_PATH: dict[str, Any] = {"solver": "rti", "qp_solver": "auto", "codegen": True}
 #: Progress lines the section reports (declared to the reproduce Progress counter).
-STEPS = 4 * 2 * 6 + 6 + 1  # 6 lines per MPC run (start + every 25 %), the platoon run, writing
+#: Of the default reproduce, which runs one forecast per cycle (``reproduce --full`` runs both: its other forecast's
+#: lines are sub-steps, the denominator stays).
+STEPS = 4 * 1 * 6 + 6 + 1  # 6 lines per MPC run (start + every 25 %), the platoon run, writing
 
 
 def _prefixed(progress: Callable[[str], None], prefix: str) -> Callable[[str], None]:
@@ -221,6 +223,81 @@ def _save_cycle(runs: dict[tuple[str, Any], Any], folder: Path, sc: Any, title: 
     return f"![{title}]({rel})"
 
 
+def _segment_text(segment_s: float | None, seg_s: dict[str, float], t_end_max: float | None) -> str:
+    """What part of each cycle ran: whole, or the first segment_s [s] extended to rest (each cycle's length)."""
+    seg_txt = (
+        "whole cycles"
+        if segment_s is None
+        else f"the first {segment_s:g} s of each cycle, extended to the first moment the leader has stood still "
+        f"for {STOP_HOLD_S:g} s (or to the cycle's end) so that every run ends at rest: "
+        + ", ".join(f"{c} {t:.0f} s" for c, t in seg_s.items())
+    )
+    if t_end_max is not None:
+        seg_txt += f", capped at t = {t_end_max:g} model time units (reduced configuration)"
+    return seg_txt
+
+
+def _cycle_lines(
+    cycles: Sequence[str],
+    predictors: Sequence[str],
+    s: Any,
+    seg_txt: str,
+    elapsed: float,
+    md: str,
+    rows: list[dict[str, Any]],
+) -> list[str]:
+    """The section's head, the single-follower table and the verdicts."""
+    n_bad = sum(not r["comparable"] for r in rows)
+    return [
+        "## MPC on drive cycles",
+        "",
+        f"One follower from rest, 0.8 L behind the leader (scenarios {', '.join(CYCLE_SCENARIOS[c] for c in cycles)}), "
+        f"over {seg_txt} (reproduce runs a segment to stay usable: the section took {elapsed:.0f} s here; the whole "
+        "cycles run with `aev-ocp mpc mpc_udds_single` etc. and benchmarks/bench_mpc_cycles.py). MPC: the "
+        f"MPCSettings() default formulation on the solver path {s.solver}"
+        f"{'+codegen' if s.codegen else ''} (qp {s.qp}), N = {s.N}, dt = {s.dt:g}, with a measured forecast "
+        f"({', '.join(predictors)}; no oracle); the laws do not forecast (—). Exact plant (CVODES). "
+        "Per-km values divide by the follower's own distance. Solve p50/p99: per-step MPC solve time.",
+        "",
+        f"**Comparable results.** A row whose distance or duration differs from the proposed law's by more than "
+        f"1 % or whose run ended by an event is marked **no** with the reason and is not ranked nor used in a "
+        f"verdict ({n_bad} such rows here). Rank: pack ∫Q/km among the comparable rows of the cycle.",
+        "",
+        md,
+        "Verdicts (comparable rows only):",
+        "",
+    ] + verdicts(rows)
+
+
+def _platoon_lines(sc: Any, pred: str, plat: list[dict[str, Any]], figures: list[str]) -> list[str]:
+    """The UDDS platoon's table (and why a follower may not be comparable), the figures and the files."""
+    lines = [
+        "",
+        f"UDDS platoon (mpc_udds_platoon, first {sc.t_end * sc.units.time_s:.4g} s): five followers all on MPC (follower 1 "
+        f"{pred}, the others their predecessor's plan) vs all five on the proposed law, per follower:",
+        "",
+        platoon_markdown(plat),
+    ]
+    if not all(r["comparable"] for r in plat):
+        lines += [
+            "A follower marked **no** ends the segment with a distance more than 1 % off its proposed-law "
+            "counterpart's (column 'distance vs proposed'): the MPC followers stop with their standstill gaps (2 m floor, 4 m target, "
+            "aev_ocp/ocp/traffic.py) while the laws creep towards h = V⁻¹(0) = 0, and the difference adds up "
+            "along the platoon. Over the whole cycle it is a small fraction of the distance: "
+            "`python benchmarks/bench_mpc_cycles.py --full --cycles udds --platoon`.",
+            "",
+        ]
+    lines += ["Gap, speed, acceleration, current and SOC of follower 1 under every controller, per cycle:", ""]
+    lines += [f + "\n" for f in figures]
+    lines += [
+        "Files: `mpc_cycles/cycles.csv`, `mpc_cycles/cycles.json` (every column, the platoon rows, run wall "
+        'times), `mpc_cycles/cycles.md`; each cycle\'s runs load back with `aev_ocp.load_all("mpc_cycles/<cycle>")` '
+        "(run labels `mpc+<forecast>` and the laws' names).",
+        "",
+    ]
+    return lines
+
+
 def cycles_section(
     out_dir: Any,
     progress: Callable[[str], None],
@@ -259,15 +336,7 @@ def cycles_section(
     plat = platoon_rows(runs, ("mpc", pred))
     elapsed = time.perf_counter() - t0
     progress("MPC cycles: writing tables")
-    seg_txt = (
-        "whole cycles"
-        if segment_s is None
-        else f"the first {segment_s:g} s of each cycle, extended to the first moment the leader has stood still "
-        f"for {STOP_HOLD_S:g} s (or to the cycle's end) so that every run ends at rest: "
-        + ", ".join(f"{c} {t:.0f} s" for c, t in seg_s.items())
-    )
-    if t_end_max is not None:
-        seg_txt += f", capped at t = {t_end_max:g} model time units (reduced configuration)"
+    seg_txt = _segment_text(segment_s, seg_s, t_end_max)
     meta = {
         "segment_s": segment_s,
         "platoon_segment_s": platoon_segment_s,
@@ -278,65 +347,22 @@ def cycles_section(
         "platoon_predictor": pred,
     }
     md, _ = write_tables(rows, plat, out, meta)
-    n_bad = sum(not r["comparable"] for r in rows)
-    lines = (
-        [
-            "## MPC on drive cycles",
-            "",
-            f"One follower from rest, 0.8 L behind the leader (scenarios {', '.join(CYCLE_SCENARIOS[c] for c in cycles)}), "
-            f"over {seg_txt} (reproduce runs a segment to stay usable: the section took {elapsed:.0f} s here; the whole "
-            "cycles run with `aev-ocp mpc mpc_udds_single` etc. and benchmarks/bench_mpc_cycles.py). MPC: the "
-            f"MPCSettings() default formulation on the solver path {s.solver}"
-            f"{'+codegen' if s.codegen else ''} (qp {s.qp}), N = {s.N}, dt = {s.dt:g}, with a measured forecast "
-            f"({', '.join(predictors)}; no oracle); the laws do not forecast (—). Exact plant (CVODES). "
-            "Per-km values divide by the follower's own distance. Solve p50/p99: per-step MPC solve time.",
-            "",
-            f"**Comparable results.** A row whose distance or duration differs from the proposed law's by more than "
-            f"1 % or whose run ended by an event is marked **no** with the reason and is not ranked nor used in a "
-            f"verdict ({n_bad} such rows here). Rank: pack ∫Q/km among the comparable rows of the cycle.",
-            "",
-            md,
-            "Verdicts (comparable rows only):",
-            "",
-        ]
-        + verdicts(rows)
-        + [
-            "",
-            f"UDDS platoon (mpc_udds_platoon, first {sc.t_end * sc.units.time_s:.4g} s): five followers all on MPC (follower 1 "
-            f"{pred}, the others their predecessor's plan) vs all five on the proposed law, per follower:",
-            "",
-            platoon_markdown(plat),
-        ]
-    )
-    if not all(r["comparable"] for r in plat):
-        lines += [
-            "A follower marked **no** ends the segment with a distance more than 1 % off its proposed-law "
-            "counterpart's (column 'distance vs proposed'): the MPC followers stop with their standstill gaps (2 m floor, 4 m target, "
-            "aev_ocp/ocp/traffic.py) while the laws creep towards h = V⁻¹(0) = 0, and the difference adds up "
-            "along the platoon. Over the whole cycle it is a small fraction of the distance: "
-            "`python benchmarks/bench_mpc_cycles.py --full --cycles udds --platoon`.",
-            "",
-        ]
-    lines += ["Gap, speed, acceleration, current and SOC of follower 1 under every controller, per cycle:", ""]
-    lines += [f + "\n" for f in figures]
-    lines += [
-        "Files: `mpc_cycles/cycles.csv`, `mpc_cycles/cycles.json` (every column, the platoon rows, run wall "
-        'times), `mpc_cycles/cycles.md`; each cycle\'s runs load back with `aev_ocp.load_all("mpc_cycles/<cycle>")` '
-        "(run labels `mpc+<forecast>` and the laws' names).",
-        "",
-    ]
+    lines = _cycle_lines(cycles, predictors, s, seg_txt, elapsed, md, rows) + _platoon_lines(sc, pred, plat, figures)
     return "\n".join(lines)
 
 
 def _reproduce_section(out_dir: Any, progress: Callable[[str], None]) -> str:
     """The section as ``reproduce`` runs it: a reduced configuration's scenario_t_end_max [model time]
-    caps every segment (e.g. ReproduceConfig.quick(): 10 time units)."""
+    caps every segment (e.g. ReproduceConfig.quick(): 10 time units); the MPC runs with the default forecast only
+    unless ``config.extended`` (``reproduce --full``: every forecast of :data:`PREDICTORS`)."""
     from ..report_sections import SectionContext
 
-    cap = SectionContext.of(progress).config.scenario_t_end_max
-    if cap is None:
-        return cycles_section(out_dir, progress)
-    return cycles_section(out_dir, progress, t_end_max=cap)
+    cfg = SectionContext.of(progress).config
+    # reduced by default (aev_ocp.reproduce.REDUCED_BY_DEFAULT): the MPC with its default forecast only; --full: all
+    preds = PREDICTORS if cfg.extended else (section_settings().predictor,)
+    if cfg.scenario_t_end_max is None:
+        return cycles_section(out_dir, progress, predictors=preds)
+    return cycles_section(out_dir, progress, predictors=preds, t_end_max=cfg.scenario_t_end_max)
 
 
 REPRODUCE_SECTIONS = [("mpc-cycles", _reproduce_section, STEPS)]  # listed in aev_ocp.reproduce.SECTION_PROVIDERS

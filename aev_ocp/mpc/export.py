@@ -6,7 +6,10 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from .cstep import (
+    RECORD_FILE,
     COLD_MAX_ITER,
     COLD_REG0,
     COLD_REG_MAX,
@@ -104,8 +107,47 @@ def export_controller_settings(
     return MPCController(settings.with_(solver="ipopt-cold", codegen=False), ev, formulation=f)
 
 
+#: Control steps of the recorded input an export writes (mpc_input.txt).
+RECORD_STEPS = 200
+
+
+def record_inputs(scenario: Any, c: Any, steps: int = RECORD_STEPS) -> np.ndarray:
+    """(steps, 5 + 2N) inputs of the exported step in SI, one row per control step of dt·T seconds: x_meas
+    (h [m], v [m/s], V1, V2 [V], S [-]) of the scenario's first follower driven by its closed-form law from the
+    scenario's start (the plant of :func:`aev_ocp.simulate.simulate_platoon`), then the forecast: the leader's own
+    speed [m/s] averaged over each interval of the horizon (Simpson's rule) and at each interval's start."""
+    from ..simulate import simulate_platoon
+
+    s, u = c.settings, scenario.ev.units
+    N, dt = s.N, float(s.dt)
+    kw = scenario.simulate_kwargs()
+    r = simulate_platoon(
+        scenario.leader,
+        [scenario.laws[0]],
+        kw["gaps0"][:1],
+        kw["speeds0"][:1],
+        steps * dt,
+        ev=scenario.ev,
+        dt_out=dt,
+        rtol=kw["rtol"],
+        atol=kw["atol"],
+    )
+    t = np.arange(steps) * dt
+    idx = np.searchsorted(r.t, t - 1e-9 * dt)
+    x = np.column_stack(
+        [u.length_to_si(r.gap[idx, 0]), u.speed_to_si(r.speed[idx, 0]), r.V1[idx, 0], r.V2[idx, 0], r.S[idx, 0]]
+    )
+    vl = np.vectorize(lambda tt: float(scenario.leader.speed(tt)))
+    k = np.arange(N) * dt
+    a, m, b = t[:, None] + k, t[:, None] + k + 0.5 * dt, t[:, None] + k + dt
+    v_hat = vl(a)
+    v_mean = (v_hat + 4.0 * vl(m) + vl(b)) / 6.0
+    return np.hstack([x, u.speed_to_si(v_mean), u.speed_to_si(v_hat)])
+
+
 def export_mpc(scenario: Any, out: Path, settings: Any = None, formulation: Any = None) -> list[Path]:
-    """Export the MPC of a loaded scenario (its ``[mpc]`` table; ExportError if it has none)."""
+    """Export the MPC of a loaded scenario (its ``[mpc]`` table; ExportError if it has none), with the recorded
+    input of its benchmark (:func:`record_inputs`, mpc_input.txt)."""
     cfg = scenario.extra.get("mpc")
     if cfg is None:
         raise ExportError(f"scenario {scenario.name!r} has no [mpc] table: there is no MPC to export")
@@ -117,7 +159,12 @@ def export_mpc(scenario: Any, out: Path, settings: Any = None, formulation: Any 
         f"MPC of scenario {scenario.name} (N = {s.N}, dt = {s.dt:g}, {what}, rk4_substeps {s.rk4_substeps}, "
         f"rti_iterations {s.rti_iterations}, Hessian {s.rti_hessian})"
     )
-    return export_controller(c, out, desc)
+    files = export_controller(c, out, desc)
+    rec = Path(out) / RECORD_FILE
+    tmp = rec.with_name(f".{rec.name}.tmp")
+    np.savetxt(tmp, record_inputs(scenario, c), fmt="%.17g")
+    tmp.replace(rec)  # written whole or not at all
+    return [*files, rec]
 
 
 # ---------------------------------------------------------------------------------------------- command line
@@ -197,5 +244,9 @@ def _check_export(sc: Any, out: Path) -> None:
         except ParameterError as exc:
             raise ParameterError(f"mpc-export: {exc}") from None
     claim_output_dir(
-        out, "mpc-export", sc.name, str(sc.source) if sc.source else None, [*EXPORT_FILES, "libaev_mpc.so"]
+        out,
+        "mpc-export",
+        sc.name,
+        str(sc.source) if sc.source else None,
+        [*EXPORT_FILES, RECORD_FILE, "libaev_mpc.so"],
     )

@@ -17,11 +17,13 @@ rollout, the NLP expressions, packing and unpacking of the NLP vector).
 
 from __future__ import annotations
 
+import copy
+import dataclasses
 import os
 import tempfile
 import warnings
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 import casadi as ca
 import numpy as np
@@ -76,14 +78,22 @@ class HorizonNLP:
         uu = np.asarray(pr.u_ub if pr.u_ub is not None else np.inf * np.ones(nu), float)
         self._xb, self._ub = (xl, xu), (ul, uu)
         # cold-start guess: the closed-form law per interval (other controls 0), clipped, rolled out by
-        # the same step, states clipped to their bounds
-        ag = ca.fmin(ca.fmax(self.guess_law.accel(ca.fmax(z[0], 1e-2), z[1], w[1]), ul[0]), uu[0])
-        ug = ca.vertcat(ag, ca.fmin(ca.fmax(ca.DM.zeros(nu - 1), ul[1:]), uu[1:])) if nu > 1 else ag
+        # the same step, states clipped to their bounds. The bounds lo = (x_lb, u_lb), hi = (x_ub, u_ub) (an
+        # infinite state bound as ±1e20) and the law's coefficients q are inputs, so the compiled step's C does not
+        # hold them (issue 40): ``rollout_inputs`` are their values
+        make_law, q_val = law_parameters(self.guess_law)
+        lo, hi, q = ca.SX.sym("lo", nx + nu), ca.SX.sym("hi", nx + nu), ca.SX.sym("q", q_val.size)
+        law = make_law(q)
+        ag = ca.fmin(ca.fmax(law.accel(ca.fmax(z[0], 1e-2), z[1], w[1]), lo[nx]), hi[nx])
+        ug = ca.vertcat(ag, ca.fmin(ca.fmax(ca.DM.zeros(nu - 1), lo[nx + 1 :]), hi[nx + 1 :])) if nu > 1 else ag
         zg = self.step(z, ug, w, p)
-        zg = ca.fmin(
-            ca.fmax(zg, ca.DM(np.where(np.isfinite(xl), xl, -1e20))), ca.DM(np.where(np.isfinite(xu), xu, 1e20))
+        zg = ca.fmin(ca.fmax(zg, lo[:nx]), hi[:nx])
+        self.rollout = ca.Function("mpc_rollout", [z, w, p, lo, hi, q], [zg, ug]).mapaccum(s.N)
+        self.rollout_inputs = (
+            np.concatenate([np.where(np.isfinite(xl), xl, -1e20), ul]),
+            np.concatenate([np.where(np.isfinite(xu), xu, 1e20), uu]),
+            q_val,
         )
-        self.rollout = ca.Function("mpc_rollout", [z, w, p], [zg, ug]).mapaccum(s.N)
 
     # ------------------------------------------------------------------ NLP
     def stage_inputs(self, V: Any, P: Any) -> tuple[Any, ...]:
@@ -133,7 +143,9 @@ class HorizonNLP:
     def guess(self, z0: np.ndarray, p: np.ndarray) -> np.ndarray:
         """Cold-start primal guess (scaled NLP vector): the closed-form law rolled out over the horizon."""
         W, pp = self.w_and_p(p)
-        Zn, U = self.rollout(ca.DM(z0), W, np.repeat(pp.reshape(-1, 1), self.settings.N, axis=1))
+        N = self.settings.N
+        lo, hi, q = (np.repeat(v.reshape(-1, 1), N, axis=1) for v in self.rollout_inputs)
+        Zn, U = self.rollout(ca.DM(z0), W, np.repeat(pp.reshape(-1, 1), N, axis=1), lo, hi, q)
         Z = np.hstack([np.asarray(z0, float).reshape(self.nx, 1), np.asarray(Zn)]) / self.x_scale[:, None]
         U = np.asarray(U).reshape(self.nu, -1) / self.u_scale[:, None]
         return np.concatenate([np.vstack([Z[:, :-1], U]).ravel(order="F"), Z[:, -1]])
@@ -237,6 +249,42 @@ class HorizonNLP:
             **_SQP_EXTRA,
         }
         return self.nlpsol("mpc_sqp", "sqpmethod", opts)
+
+
+def law_parameters(law: CarFollowingLaw) -> tuple[Callable[[Any], CarFollowingLaw], np.ndarray]:
+    """(make, values): ``make(q)`` is the closed-form law with its float coefficients (those not in its
+    ``compile_constants``) replaced by the entries of q, ``values`` their numbers; a law that is not a dataclass,
+    or whose accel gives other numbers with symbolic coefficients (1e-12 relative at probe points), keeps its
+    numbers (values empty)."""
+    names = (
+        [
+            f.name
+            for f in dataclasses.fields(law)
+            if isinstance(getattr(law, f.name), float) and f.name not in getattr(law, "compile_constants", ())
+        ]
+        if dataclasses.is_dataclass(law)
+        else []
+    )
+
+    def make(q: Any) -> CarFollowingLaw:
+        twin = copy.copy(law)
+        for j, nm in enumerate(names):
+            object.__setattr__(twin, nm, q[j])  # validation ran on law
+        return twin
+
+    values = np.array([float(getattr(law, nm)) for nm in names])
+    if names:
+        try:
+            h, v, vl, q = ca.SX.sym("h"), ca.SX.sym("v"), ca.SX.sym("vl"), ca.SX.sym("q", len(names))
+            f = ca.Function("probe", [h, v, vl, q], [make(q).accel(h, v, vl)])
+            for pt in ((1.3, 0.9, 1.1), (2.7, 1.6, 1.45), (0.6, 0.2, 0.35), (0.21, 1.9, 0.02)):
+                ref = float(law.accel(*pt))
+                if not abs(float(f(*pt, values)) - ref) <= 1e-12 * (1.0 + abs(ref)):
+                    raise ValueError("symbolic coefficients change the law")
+            return make, values
+        except (TypeError, ValueError, RuntimeError, NotImplementedError):
+            pass
+    return (lambda q: law), np.zeros(0)
 
 
 def compile_c(stem: str, generate: Any, cfile: str) -> str | None:

@@ -85,6 +85,7 @@ class RTIStep:
         stage, term = rti_stage_functions(nlp)
         V, P = ca.MX.sym("x", nlp.nv), ca.MX.sym("p", nlp.np_)
         LAM, LBX, UBX = ca.MX.sym("lam_g", nlp.ng), ca.MX.sym("lbx", nlp.nv), ca.MX.sym("ubx", nlp.nv)
+        LBG, UBG = ca.MX.sym("lbg", nlp.ng), ca.MX.sym("ubg", nlp.ng)  # inputs: the C holds no bound (issue 40)
         Xk, Uk, Xn, W, PP, SW = nlp.stage_inputs(V, P)
         Hs, Qs, Js, Gs, Cs = stage.map(N, "serial")(Xk, Uk, Xn, W, ca.repmat(PP, 1, N), SW, ca.reshape(LAM, ngs, N))
         HN, qN, cN = term(V[nb * N :], PP)
@@ -99,20 +100,20 @@ class RTIStep:
         # hN: the terminal block); :meth:`regularised_hessian` projects each onto the PD cone
         qpdata = ca.Function(
             "mpc_rti_qp_data",
-            [V, P, LAM, LBX, UBX],
+            [V, P, LAM, LBX, UBX, LBG, UBG],
             [
                 Hs,
                 HN,
                 ca.vertcat(ca.vec(Qs), qN),
                 A,
-                ca.DM(nlp.lbg) - g,
-                ca.DM(nlp.ubg) - g,
+                LBG - g,
+                UBG - g,
                 LBX - V,
                 UBX - V,
                 ca.sum2(Cs) + cN,
                 g,
             ],
-            ["x", "p", "lam_g", "lbx", "ubx"],
+            ["x", "p", "lam_g", "lbx", "ubx", "lbg", "ubg"],
             ["hblk", "hN", "g", "a", "lba", "uba", "lbdx", "ubdx", "f", "gx"],
         )
         self.H_sparsity = H.sparsity()
@@ -171,7 +172,7 @@ class RTIStep:
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool, str]:
         """One SQP step's QP at (x, lam_g) solved by ``ca.conic``: (dx, lam_g, lam_x, solved, the QP solver's
         status); the multipliers are the QP's when solved, else the ones given."""
-        d = self.data(x, p, lam_g, lbx, ubx)
+        d = self.data(x, p, lam_g, lbx, ubx, self.nlp.lbg, self.nlp.ubg)
         H = self.regularised_hessian(d[0], d[1], project=self.nlp.settings.rti_hessian == "projected")
         out = self.qp(h=H, g=d[2], a=d[3], lba=d[4], uba=d[5], lbx=d[6], ubx=d[7])
         st = self.qp.stats()

@@ -202,76 +202,17 @@ def _check_lines(res: OCPResult, label: str) -> list[str]:
     return out
 
 
-def run_eco_trip(
-    method: str = "ms",
-    out_dir: str | Path | None = None,
-    scenario: str | Path | None = None,
-    N: int = 200,
-    trip: EcoTrip | None = None,
-    refine: bool = True,
-    multistart: bool = False,
-    guesses: Sequence[str] = GUESSES,
-    sweep_D_m: Sequence[float] = (),
-    sweep_t_f_s: Sequence[float] = (),
-    progress: Progress | None = None,
-) -> dict[str, Any]:
-    """OCP-C for ``trip`` (default EcoTrip(): 1 km in 100 s, rest to rest), objective 'heat' and the
-    paper's inertial measure ω ('omega', exact epigraph form), each evaluated on both metrics by the exact
-    re-simulation. Vehicle/pack from ``scenario`` if given.
-
-    Every result reports its NLP objective next to its exact re-evaluation (warning beyond 0.5 %);
-    refine: also solve with 2N intervals and report the change (meta['refinement']); multistart:
-    solve from each of ``guesses`` (eco_trip.GUESSES) and keep the best (meta['multistart']).
-    sweep_D_m [m] × sweep_t_f_s [s]: also solve every such trip (either list empty: the main trip's
-    value) for both objectives with the same solvers (rows in 'sweep'); progress: reports each solve,
-    and past its time limit the sweep stops (``time_limit`` True, the rows solved so far)."""
-    base = trip or EcoTrip(ev=scenario_ev(scenario))
-    results: dict[str, OCPResult] = {}
-    solvers: dict[str, EcoTripSolver] = {}
-    grid = (
-        [(D, tf) for tf in (sweep_t_f_s or [base.t_f_s]) for D in (sweep_D_m or [base.distance_m])]
-        if (sweep_D_m or sweep_t_f_s)
-        else []
-    )
-    total = 2 * (1 + len(grid))
-    stopped = False
-    for k, obj in enumerate(("heat", "omega")):
-        tr = dataclasses.replace(base, objective=obj)
-        # one mapped interval Function (mx_map): build time independent of N, same NLP and optimum
-        solver = solvers[obj] = EcoTripSolver(tr, method, N, mx_map=True)
-        res = solver.solve_multistart(guesses=guesses) if multistart else solver.solve()
-        if refine and res.success:
-            solver.refine(res)
-        results[obj] = res
-        if progress is not None:
-            try:
-                progress.update(k + 1, total, "solve")
-            except TimeLimitReached:
-                stopped = k + 1 < total
-                break
-
-    def solve_point(p: tuple[str, float, float]) -> OCPResult:
-        obj, D, tf = p
-        return solvers[obj].solve(dataclasses.replace(base, objective=obj, distance_m=D, t_f_s=tf))
-
-    pts = [(obj, D, tf) for obj in ("heat", "omega") for D, tf in grid]
-    sweep_res, more = _sweep(pts, solve_point, progress, 2, total) if not stopped else ([], False)
-    stopped = stopped or more
-    sweep = [
-        {
-            "objective": o,
-            "D_m": D,
-            "t_f_s": tf,
-            "status": r.status,
-            "iterations": r.iterations,
-            "nlp_objective": r.objective,
-            "exact_objective": r.objective_exact,
-            "pack_heat_J": r.meta.get("pack_heat_J", math.nan),
-            "omega_J_per_kg": r.meta.get("omega_J_per_kg", math.nan),
-            "warnings": list(r.warnings),
-        }
-        for (o, D, tf), r in zip(pts, sweep_res)
-    ]
+def _eco_trip_table(
+    base: EcoTrip,
+    N: int,
+    method: str,
+    results: dict[str, OCPResult],
+    sweep: list[dict[str, Any]],
+    stopped: bool,
+    n_points: int,
+) -> str:
+    """The eco-trip's printed table: per objective the NLP and exact objectives, pack ∫Q [J], ω [J/kg], max v
+    [m/s] and max |I| [A]; the checks; the sweep's rows."""
     lines = [
         "OCP-C eco-trip: " + f"{base.distance_m:g} m in {base.t_f_s:g} s, v {base.v0_mps:g} -> {base.vf_mps:g} m/s, "
         f"N = {N}, method {method}",
@@ -306,11 +247,102 @@ def run_eco_trip(
             for r in sweep
         ]
     if stopped:
-        lines.append(f"STOPPED by the time limit: {len(sweep)} of {len(pts)} sweep solves done (partial sweep)")
+        lines.append(f"STOPPED by the time limit: {len(sweep)} of {n_points} sweep solves done (partial sweep)")
+    return "\n".join(lines)
+
+
+def _sweep_row(o: str, D: float, tf: float, r: OCPResult) -> dict[str, Any]:
+    """One row of the eco-trip sweep: objective, D [m], t_f [s], status and both objectives, pack ∫Q [J], ω [J/kg]."""
+    return {
+        "objective": o,
+        "D_m": D,
+        "t_f_s": tf,
+        "status": r.status,
+        "iterations": r.iterations,
+        "nlp_objective": r.objective,
+        "exact_objective": r.objective_exact,
+        "pack_heat_J": r.meta.get("pack_heat_J", math.nan),
+        "omega_J_per_kg": r.meta.get("omega_J_per_kg", math.nan),
+        "warnings": list(r.warnings),
+    }
+
+
+def _solve_eco_objectives(
+    base: EcoTrip,
+    method: str,
+    N: int,
+    refine: bool,
+    multistart: bool,
+    guesses: Sequence[str],
+    progress: Progress | None,
+    total: int,
+) -> tuple[dict[str, OCPResult], dict[str, EcoTripSolver], bool]:
+    """The trip for 'heat' and 'omega': results, the solvers (reused by the sweep) and whether the time limit
+    stopped before every solve was done."""
+    results: dict[str, OCPResult] = {}
+    solvers: dict[str, EcoTripSolver] = {}
+    stopped = False
+    for k, obj in enumerate(("heat", "omega")):
+        tr = dataclasses.replace(base, objective=obj)
+        # one mapped interval Function (mx_map): build time independent of N, same NLP and optimum
+        solver = solvers[obj] = EcoTripSolver(tr, method, N, mx_map=True)
+        res = solver.solve_multistart(guesses=guesses) if multistart else solver.solve()
+        if refine and res.success:
+            solver.refine(res)
+        results[obj] = res
+        if progress is not None:
+            try:
+                progress.update(k + 1, total, "solve")
+            except TimeLimitReached:
+                stopped = k + 1 < total
+                break
+    return results, solvers, stopped
+
+
+def run_eco_trip(
+    method: str = "ms",
+    out_dir: str | Path | None = None,
+    scenario: str | Path | None = None,
+    N: int = 200,
+    trip: EcoTrip | None = None,
+    refine: bool = True,
+    multistart: bool = False,
+    guesses: Sequence[str] = GUESSES,
+    sweep_D_m: Sequence[float] = (),
+    sweep_t_f_s: Sequence[float] = (),
+    progress: Progress | None = None,
+) -> dict[str, Any]:
+    """OCP-C for ``trip`` (default EcoTrip(): 1 km in 100 s, rest to rest), objective 'heat' and the
+    paper's inertial measure ω ('omega', exact epigraph form), each evaluated on both metrics by the exact
+    re-simulation. Vehicle/pack from ``scenario`` if given.
+
+    Every result reports its NLP objective next to its exact re-evaluation (warning beyond 0.5 %);
+    refine: also solve with 2N intervals and report the change (meta['refinement']); multistart:
+    solve from each of ``guesses`` (eco_trip.GUESSES) and keep the best (meta['multistart']).
+    sweep_D_m [m] × sweep_t_f_s [s]: also solve every such trip (either list empty: the main trip's
+    value) for both objectives with the same solvers (rows in 'sweep'); progress: reports each solve,
+    and past its time limit the sweep stops (``time_limit`` True, the rows solved so far)."""
+    base = trip or EcoTrip(ev=scenario_ev(scenario))
+    grid = (
+        [(D, tf) for tf in (sweep_t_f_s or [base.t_f_s]) for D in (sweep_D_m or [base.distance_m])]
+        if (sweep_D_m or sweep_t_f_s)
+        else []
+    )
+    total = 2 * (1 + len(grid))
+    results, solvers, stopped = _solve_eco_objectives(base, method, N, refine, multistart, guesses, progress, total)
+
+    def solve_point(p: tuple[str, float, float]) -> OCPResult:
+        obj, D, tf = p
+        return solvers[obj].solve(dataclasses.replace(base, objective=obj, distance_m=D, t_f_s=tf))
+
+    pts = [(obj, D, tf) for obj in ("heat", "omega") for D, tf in grid]
+    sweep_res, more = _sweep(pts, solve_point, progress, 2, total) if not stopped else ([], False)
+    stopped = stopped or more
+    sweep = [_sweep_row(o, D, tf, r) for (o, D, tf), r in zip(pts, sweep_res)]
     out = {
         "result": results["heat"],
         "results": results,
-        "table": "\n".join(lines),
+        "table": _eco_trip_table(base, N, method, results, sweep, stopped, len(pts)),
         "ok": all(r.success for r in results.values()),
         "sweep": sweep,
         "sweep_results": sweep_res,

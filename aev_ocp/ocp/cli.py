@@ -171,13 +171,9 @@ def cli_ocp(argv: list[str]) -> int:
     return guarded(lambda: _cli_ocp(argv))
 
 
-def _cli_ocp(argv: list[str]) -> int:
+def _check_options(args: argparse.Namespace) -> None:
+    """Refuse options that do not apply to the problem (ParameterError naming the option)."""
     from ..params import ParameterError
-    from ..results import claim_output_dir, default_output_dir
-    from ..saved import save_output
-
-    args = _parser().parse_args(argv)
-    from . import api
 
     if args.N is not None and args.N < 1:
         raise ParameterError(f"ocp {args.problem}: --N = {args.N} is not allowed: must be an integer >= 1")
@@ -196,6 +192,109 @@ def _cli_ocp(argv: list[str]) -> int:
             "ocp oracle: --N does not apply (N = t_end/dt of the scenario: dt = 0.1, 1 s on a drive cycle)"
         )
     _check_size(args)
+
+
+def _prop31_options(args: argparse.Namespace) -> dict[str, Any]:
+    """run_prop31's keywords from --N, --cell, --soc0 and --v-relax-V (two finite voltages V1,V2 [V])."""
+    from ..params import ParameterError
+
+    kw: dict[str, Any] = {"N": args.N} if args.N is not None else {}
+    if args.cell is not None:
+        from ..cells import load_cell
+
+        kw["cell"] = load_cell(args.cell)
+    if args.soc0 is not None:
+        kw["soc0"] = args.soc0
+    if args.v_relax_V is not None:
+        try:
+            kw["v_relax_V"] = tuple(float(v) for v in args.v_relax_V.split(","))
+        except ValueError:
+            kw["v_relax_V"] = ()
+        if len(kw["v_relax_V"]) != 2 or not all(map(math.isfinite, kw["v_relax_V"])):  # named as the option
+            raise ParameterError(
+                f"ocp prop31: --v-relax-V = {args.v_relax_V!r} is not allowed: two finite voltages V1,V2 [V]"
+            )
+    return kw
+
+
+def _solve(
+    args: argparse.Namespace, out: Path, grids: dict[str, list[float]], prog: Any
+) -> tuple[bool, dict[str, Any], dict[str, Any]]:
+    """Solve the problem (its table printed): (converged, {run name: result} to save, the report)."""
+    from . import api
+
+    # what current-profile and eco-trip both take from the command line (N only when given: else the problem's)
+    common: dict[str, Any] = dict(
+        method=args.method, out_dir=out, scenario=args.scenario, refine=not args.no_refine, progress=prog
+    )
+    common.update({"N": args.N} if args.N is not None else {})
+    if args.problem == "prop31":
+        from .plots import write_prop31_outputs
+        from .prop31 import prop31_table
+
+        kw = _prop31_options(args)
+        cases = api.run_prop31(args.method, refine=not args.no_refine, **kw)
+        write_prop31_outputs(cases, out)
+        print(prop31_table(cases))
+        ok = all(e["status"] in ("optimal", "acceptable") for e in cases.values())
+        return ok, {case: e["result"] for case, e in cases.items() if "result" in e}, {}
+    if args.problem == "current-profile":
+        # a grid not given keeps run_current_profile's default sweep
+        rep = api.run_current_profile(
+            **common, sweep_E_J=grids.get("E_req") or api.SWEEP_E_J, sweep_t_f_s=grids.get("t_f") or api.SWEEP_T_F_S
+        )
+        print(rep["table"])
+        return (
+            rep["ok"],
+            {"main": rep["result"], **{f"sweep{k:03d}": r for k, r in enumerate(rep["sweep_results"])}},
+            rep,
+        )
+    if args.problem == "eco-trip":
+        rep = api.run_eco_trip(
+            **common, multistart=args.multistart, sweep_D_m=grids.get("D", ()), sweep_t_f_s=grids.get("t_f", ())
+        )
+        print(rep["table"])
+        return rep["ok"], {**rep["results"], **{f"sweep{k:03d}": r for k, r in enumerate(rep["sweep_results"])}}, rep
+    from .oracle import DEFAULT_TIME_LIMIT_S
+
+    # IPOPT stops itself at the limit (max_wall_time); its iterations are reported every --progress-every s
+    rep = api.run_oracle(
+        method=args.method,
+        out_dir=out,
+        scenario=args.scenario,
+        multistart=args.multistart,
+        time_limit_s=args.time_limit or DEFAULT_TIME_LIMIT_S,
+        progress=prog.say,
+        progress_every_s=args.progress_every,
+    )
+    print(rep["table"])
+    return rep["ok"], {"main": rep["result"]}, rep
+
+
+def _exit_code(args: argparse.Namespace, out: Path, ok: bool, stopped: bool, rep: dict[str, Any]) -> int:
+    """1 (with the one-line error) when stopped by --time-limit or not converged, else 0."""
+    if stopped:
+        from ..console import error_line
+
+        error_line(f"ocp {args.problem}: stopped by --time-limit {args.time_limit:g} s: partial sweep written to {out}")
+        return 1
+    if not ok:
+        from ..console import error_line
+
+        if args.problem == "oracle" and rep["time_limit"]:
+            error_line(f"ocp oracle: {rep['result'].message} (no lower bound; raise --time-limit)")
+        else:
+            error_line(f"ocp {args.problem}: the solver did not converge (see the table above)")
+    return 0 if ok else 1
+
+
+def _cli_ocp(argv: list[str]) -> int:
+    from ..params import ParameterError
+    from ..results import claim_output_dir, default_output_dir
+    from ..saved import save_output
+
+    args = _parser().parse_args(argv)
+    _check_options(args)
     from ..scenarios import find_scenario, load_scenario
 
     if args.scenario is not None:  # every JSON this command writes names the scenario and its SHA-256
@@ -216,68 +315,7 @@ def _cli_ocp(argv: list[str]) -> int:
         else default_output_dir("ocp", args.problem, *([scenario_name] if scenario_name else []))
     )
     claim_output_dir(out, f"ocp {args.problem}", str(args.scenario or args.problem), args.scenario)
-    # what current-profile and eco-trip both take from the command line (N only when given: else the problem's)
-    common: dict[str, Any] = dict(
-        method=args.method, out_dir=out, scenario=args.scenario, refine=not args.no_refine, progress=prog
-    )
-    common.update({"N": args.N} if args.N is not None else {})
-    if args.problem == "prop31":
-        from .prop31 import prop31_table
-
-        from .plots import write_prop31_outputs
-
-        kw: dict[str, Any] = {"N": args.N} if args.N is not None else {}
-        if args.cell is not None:
-            from ..cells import load_cell
-
-            kw["cell"] = load_cell(args.cell)
-        if args.soc0 is not None:
-            kw["soc0"] = args.soc0
-        if args.v_relax_V is not None:
-            try:
-                kw["v_relax_V"] = tuple(float(v) for v in args.v_relax_V.split(","))
-            except ValueError:
-                kw["v_relax_V"] = ()
-            if len(kw["v_relax_V"]) != 2 or not all(map(math.isfinite, kw["v_relax_V"])):  # named as the option
-                raise ParameterError(
-                    f"ocp prop31: --v-relax-V = {args.v_relax_V!r} is not allowed: two finite voltages V1,V2 [V]"
-                )
-        cases = api.run_prop31(args.method, refine=not args.no_refine, **kw)
-        write_prop31_outputs(cases, out)
-        print(prop31_table(cases))
-        ok = all(e["status"] in ("optimal", "acceptable") for e in cases.values())
-        runs = {case: e["result"] for case, e in cases.items() if "result" in e}
-    elif args.problem == "current-profile":
-        # a grid not given keeps run_current_profile's default sweep
-        rep = api.run_current_profile(
-            **common, sweep_E_J=grids.get("E_req") or api.SWEEP_E_J, sweep_t_f_s=grids.get("t_f") or api.SWEEP_T_F_S
-        )
-        print(rep["table"])
-        ok = rep["ok"]
-        runs = {"main": rep["result"], **{f"sweep{k:03d}": r for k, r in enumerate(rep["sweep_results"])}}
-    elif args.problem == "eco-trip":
-        rep = api.run_eco_trip(
-            **common, multistart=args.multistart, sweep_D_m=grids.get("D", ()), sweep_t_f_s=grids.get("t_f", ())
-        )
-        print(rep["table"])
-        ok = rep["ok"]
-        runs = {**rep["results"], **{f"sweep{k:03d}": r for k, r in enumerate(rep["sweep_results"])}}
-    else:
-        from .oracle import DEFAULT_TIME_LIMIT_S
-
-        # IPOPT stops itself at the limit (max_wall_time); its iterations are reported every --progress-every s
-        rep = api.run_oracle(
-            method=args.method,
-            out_dir=out,
-            scenario=args.scenario,
-            multistart=args.multistart,
-            time_limit_s=args.time_limit or DEFAULT_TIME_LIMIT_S,
-            progress=prog.say,
-            progress_every_s=args.progress_every,
-        )
-        print(rep["table"])
-        ok = rep["ok"]
-        runs = {"main": rep["result"]}
+    ok, runs, rep = _solve(args, out, grids, prog)
     stopped = args.problem in ("current-profile", "eco-trip") and rep["time_limit"]
     save_output(
         out,
@@ -296,16 +334,4 @@ def _cli_ocp(argv: list[str]) -> int:
         extra={"time_limit": stopped, "sweep": rep.get("sweep") if args.problem != "prop31" else None},
     )
     print(f"wrote results to {out} (aev_ocp.load('{out}'))")
-    if stopped:
-        from ..console import error_line
-
-        error_line(f"ocp {args.problem}: stopped by --time-limit {args.time_limit:g} s: partial sweep written to {out}")
-        return 1
-    if not ok:
-        from ..console import error_line
-
-        if args.problem == "oracle" and rep["time_limit"]:
-            error_line(f"ocp oracle: {rep['result'].message} (no lower bound; raise --time-limit)")
-        else:
-            error_line(f"ocp {args.problem}: the solver did not converge (see the table above)")
-    return 0 if ok else 1
+    return _exit_code(args, out, ok, stopped, rep)

@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import warnings
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Sequence
 
 import casadi as ca
 
@@ -31,6 +31,10 @@ from ..params import PAPER_ACCEL_BOUNDS_MODEL, EVParams, ParameterError, Powertr
 from .problem import ProblemBuilder
 
 WEIGHT_NAMES = ("w_Q", "w_V", "w_r", "w_a")
+#: The vehicle's float fields that stay numbers when a problem takes the vehicle's numbers as run-time parameters
+#: (``runtime_parameters``): the models branch on them in Python (a rotating mass of 0 skips the inertia term) or
+#: take them through the math module (math.sin(grade), which turns a CasADi symbol into NaN without an error)
+EV_NUMBERS = ("vehicle.rotating_mass_kg", "vehicle.grade_rad")
 #: §9's objectives: pack heat Q_pack/(1 kW) (model guide §9) or the paper's inertial measure rate v g(a) ('omega')
 OBJECTIVES = ("heat", "omega")
 #: Old names still accepted (with a FutureWarning naming the new one): 'energy' was the paper's ω, not battery energy.
@@ -204,6 +208,8 @@ def following_problem(
     name: str = "following",
     with_temperature: bool = False,
     temperature: TemperatureTerms | None = None,
+    runtime_parameters: bool = False,
+    ev_numbers: Sequence[str] = (),
 ) -> ProblemBuilder:
     """The §9 problem as a builder (model units, time in model time units):
 
@@ -218,7 +224,11 @@ def following_problem(
     ``with_temperature``: the lumped pack temperature T [K] (:mod:`aev_ocp.models.thermal`) is a 6th state
     with T ≤ ev.thermal.T_max_K, setting the cell's resistances when the cell has an activation energy
     (needs ``ev.thermal.enabled``); output T_K. ``temperature`` with ``temperature_state`` (the MPC's): the same
-    state with the soft limit of :class:`TemperatureTerms` instead of the hard bound.
+    state with the soft limit of :class:`TemperatureTerms` instead of the hard bound. ``runtime_parameters``: the
+    vehicle's float fields (units, body, cell, thermal, …) are global parameters after the weights
+    (:meth:`ProblemBuilder.parameters_of`, prefix ``ev``, their values the defaults) instead of numbers in the
+    expressions, so the MPC's generated C serves every vehicle of the same structure; the bounds stay numbers, and
+    so do the fields or groups named in ``ev_numbers`` (e.g. ``"limits"``).
     """
     b = bounds or FollowingBounds()
     pb = ProblemBuilder(name, time_unit="model")
@@ -234,6 +244,10 @@ def following_problem(
     a = pb.control("a", b.a_min, b.a_max)
     v_mean, v_hat = pb.stage_parameter("v_l_mean"), pb.stage_parameter("v_l_hat")
     wt = [pb.parameter(k) for k in WEIGHT_NAMES]
+    evn, ev = (
+        ev,
+        (pb.parameters_of(ev, "ev", (*EV_NUMBERS, *ev_numbers)) if runtime_parameters else ev),
+    )  # numbers (bounds), the model's
     rhs = following_ode(z, a, v_mean, ev, smooth, Tst)
     for i, nm in enumerate(STATE_NAMES):
         pb.set_der(pb.x[nm], rhs[i])
@@ -255,7 +269,7 @@ def following_problem(
     if soft_T:
         assert temperature is not None
         add_temperature_limit(pb, Tst, temperature.limit_K(ev), temperature.penalty("s9"), 1.0)
-    Imax = ev.cell.max_current_A
+    Imax = evn.cell.max_current_A
     pb.subject_to(cell["I"], -Imax, Imax, name="I")  # |I| ≤ 20C (model guide §9)
     pb.subject_to(cell["disc"], 0.0, ca.inf, name="disc")  # current map feasible (model guide §7)
     for nm, key in (("I", "I"), ("Q", "Q"), ("Q_pack_W", "Q_pack"), ("Q_irr_pack_W", "Q_irr_pack"), ("disc", "disc")):

@@ -114,16 +114,39 @@ class Formulation:
             )
 
     # ------------------------------------------------------------------ the problem
-    def builder(self, ev: EVParams, dt: float, name: str | None = None) -> OCPProblem | ProblemBuilder:
+    def builder(
+        self,
+        ev: EVParams,
+        dt: float,
+        name: str | None = None,
+        runtime_parameters: bool = False,
+        ev_numbers: tuple[str, ...] = (),
+    ) -> OCPProblem | ProblemBuilder:
         """The problem on intervals of length dt [model time] (the traffic problem's jerk term uses dt).
-        A user's builder or built problem is returned as given (it was stated for the MPC's dt)."""
+        A user's builder or built problem is returned as given (it was stated for the MPC's dt).
+        ``runtime_parameters``: a built-in problem takes the vehicle's (and the traffic formulation's SI) numbers as
+        global parameters with defaults (the MPC's: one compiled library per structure, issue 40)."""
         if self.kind == "traffic":
             return traffic_problem(
-                ev, self.traffic, dt, self.smooth, name=name or "mpc_traffic", temperature=self.temperature
+                ev,
+                self.traffic,
+                dt,
+                self.smooth,
+                name=name or "mpc_traffic",
+                temperature=self.temperature,
+                runtime_parameters=runtime_parameters,
+                ev_numbers=ev_numbers,
             )
         if self.kind == "s9":
             return following_problem(
-                ev, self.bounds, self.smooth, self.objective, name=name or "mpc", temperature=self.temperature
+                ev,
+                self.bounds,
+                self.smooth,
+                self.objective,
+                name=name or "mpc",
+                temperature=self.temperature,
+                runtime_parameters=runtime_parameters,
+                ev_numbers=ev_numbers,
             )
         p = self.problem
         if isinstance(p, (OCPProblem, ProblemBuilder)):
@@ -134,6 +157,43 @@ class Formulation:
                 f"Formulation.problem(ev, dt) must return a ProblemBuilder or an OCPProblem, got {type(out).__name__}"
             )
         return out
+
+    def mpc_problem(self, ev: EVParams, dt: float) -> OCPProblem:
+        """The MPC's problem: a built-in one with the vehicle's (and the traffic formulation's SI) numbers as global
+        parameters with defaults (``runtime_parameters``: one compiled library serves every vehicle of the same
+        structure, issue 40), checked against the problem with the numbers in (:func:`same_problem`); if they
+        disagree (a model that turns a symbol into a number, e.g. through the math module), the numbers-in problem,
+        with a warning. A user problem as :meth:`build` gives it."""
+        if self.kind == "problem":
+            return self.build(ev, dt)
+        baked = self.build(ev, dt)
+        why = ""
+        # the vehicle's groups a model may need as numbers (a jerk limit converted with float(), a lag's τ compared
+        # with 0), kept as numbers in turn until the problem builds: each tier is one library per such value
+        for keep in EV_NUMBER_TIERS:
+            try:
+                b = self.builder(ev, dt, baked.name, runtime_parameters=True, ev_numbers=keep)
+                pr = b.build() if isinstance(b, ProblemBuilder) else b
+            except (RuntimeError, TypeError, ValueError, NotImplementedError) as exc:
+                why = f"{type(exc).__name__}: {str(exc).splitlines()[-1][:120]}"
+                continue
+            why = same_problem(baked, pr)
+            if not why:
+                return pr
+        if why:
+            import warnings
+
+            from ..errors import AevOcpWarning
+
+            warnings.warn(
+                AevOcpWarning(
+                    f"the {self.name} problem with the vehicle's numbers as run-time parameters differs from the one "
+                    f"with the numbers in ({why}): the MPC uses the numbers in (its compiled C is specific to this "
+                    "vehicle)"
+                ),
+                stacklevel=2,
+            )
+        return baked
 
     def build(self, ev: EVParams, dt: float, name: str | None = None) -> OCPProblem:
         """:meth:`builder`, built."""
@@ -333,6 +393,52 @@ def problem_formulation(
         initial_values=dict(initial_values or {}),
         weights=weights or FollowingWeights(),
     )
+
+
+#: Groups of the vehicle's numbers kept as numbers, in turn, when a problem with them as parameters does not build
+#: (:meth:`Formulation.mpc_problem`): none, then the limits (a lag's τ is compared with 0, a jerk limit goes through
+#: float()), then the limits and the units.
+EV_NUMBER_TIERS: tuple[tuple[str, ...], ...] = ((), ("limits",), ("limits", "units"))
+
+
+def same_problem(baked: OCPProblem, runtime: OCPProblem, rtol: float = 1e-9) -> str:
+    """'' if ``runtime`` (the problem with extra global parameters after ``baked``'s, their values its meta
+    'parameter_defaults') gives ``baked``'s functions (ode, costs, path constraints, outputs, discrete update,
+    terminal cost) within ``rtol`` at fixed probe points (NaN where NaN) and the same bounds; else what differs."""
+    import numpy as np
+
+    if list(baked.state_names) != list(runtime.state_names) or list(baked.control_names) != list(runtime.control_names):
+        return "states or controls"
+    for k in ("x_lb", "x_ub", "u_lb", "u_ub", "path_lb", "path_ub", "x_scale", "u_scale"):
+        if list(getattr(baked, k) or []) != list(getattr(runtime, k) or []):
+            return k
+    d = runtime.meta.get("parameter_defaults", {})
+    extra = [k for k in runtime.meta.get("parameter_names", [])[baked.np_ :]]
+    if runtime.np_ != baked.np_ + len(extra) or any(k not in d for k in extra):
+        return "parameters"
+    pv = np.array([d[k] for k in extra])
+    rng = np.random.default_rng(40)  # fixed probe points: the choice must not depend on the run
+    lo = {"h": 0.3, "v": 0.0, "V1": -0.01, "V2": -0.01, "S": 0.2, "T": 290.0}
+    hi = {"h": 3.0, "v": 2.0, "V1": 0.01, "V2": 0.01, "S": 0.9, "T": 320.0}
+    names = list(baked.state_names)
+    for j in range(8):
+        x = np.array([rng.uniform(lo.get(n, -0.5), hi.get(n, 0.5)) for n in names])
+        if j == 0 and "V1" in names and "V2" in names:  # the closed loop's start: RC voltages 0
+            x[[names.index("V1"), names.index("V2")]] = 0.0
+        u, w = rng.uniform(-1.0, 1.0, baked.nu), rng.uniform(0.5, 1.5, baked.nw)
+        p = rng.uniform(0.5, 1.5, baked.np_)
+        for nm in ("ode", "stage", "lagrange", "path", "outputs", "discrete_next", "terminal_cost", "terminal"):
+            fa, fb = getattr(baked, nm), getattr(runtime, nm)
+            if (fa is None) != (fb is None):
+                return nm
+            if fa is None:
+                continue
+            args = [x, u, w] if fa.n_in() == 4 else [x]
+            for ra, rb in zip(fa.call([*args, p]), fb.call([*args, np.concatenate([p, pv])])):
+                a, b = np.asarray(ra, float).ravel(), np.asarray(rb, float).ravel()
+                if a.shape != b.shape or not np.allclose(a, b, rtol=rtol, atol=1e-300, equal_nan=True):
+                    return f"{nm} at a probe point"
+    return ""
 
 
 #: The default formulation of an MPC (``MPCVehicle(settings)`` and an ``[mpc]`` table without formulation keys).

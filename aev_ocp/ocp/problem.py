@@ -15,6 +15,8 @@ feasible; σ is reported like any other control.
 
 from __future__ import annotations
 
+import copy
+import dataclasses
 import math
 from dataclasses import dataclass, field
 from typing import Any, Sequence
@@ -161,6 +163,7 @@ class ProblemBuilder:
         self._path: list[tuple[str, Any, float, float]] = []
         self._terminal: list[tuple[str, Any, float, float]] = []
         self._outputs: dict[str, Any] = {}
+        self._p_values: dict[str, float] = {}
         self.meta: dict[str, Any] = {}
 
     # ---------------------------------------------------------------- variables
@@ -205,9 +208,44 @@ class ProblemBuilder:
         """A parameter with one value per interval (e.g. a forecast)."""
         return self._new(self.w, "stage parameter", name)
 
-    def parameter(self, name: str) -> ca.SX:
-        """A global parameter (e.g. a cost weight), set at every solve without rebuilding."""
-        return self._new(self.p, "parameter", name)
+    def parameter(self, name: str, value: float | None = None) -> ca.SX:
+        """A global parameter (e.g. a cost weight), set at every solve without rebuilding; ``value``: its default
+        (an MPC uses it when its ``parameter_values`` do not name the parameter; OCPProblem.meta
+        ``parameter_defaults``)."""
+        if value is not None:
+            try:
+                v = float(value)
+            except (TypeError, ValueError):
+                raise ParameterError(
+                    f"{self.name}: parameter {name!r}: value must be a number, got {value!r}"
+                ) from None
+            if not math.isfinite(v):
+                raise ParameterError(f"{self.name}: parameter {name!r}: value = {v!r} is not a finite number")
+        sym = self._new(self.p, "parameter", name)
+        if value is not None:
+            self._p_values[name] = v
+        return sym
+
+    def parameters_of(self, obj: Any, prefix: str, numbers: Sequence[str] = ()) -> Any:
+        """A copy of the (frozen, nested) dataclass ``obj`` whose float fields are global parameters of this problem,
+        named ``<prefix>__<field>__<subfield>``, their values the defaults (:meth:`parameter`): a model written
+        against ``obj`` (a vehicle's EVParams, SI parameters of a formulation) then takes the numbers at run time,
+        so the code generated from the problem does not depend on them (one compiled library for every vehicle of
+        the same structure). Bools, ints, strings and None stay as they are (they shape the model), and so do the
+        float fields and nested dataclasses named in ``numbers`` (dotted paths below ``obj``, e.g.
+        ``"vehicle.rotating_mass_kg"`` or ``"limits"``: what a model branches on in Python). The copy bypasses the dataclass's validation (which ran on ``obj``)."""
+        if not (dataclasses.is_dataclass(obj) and not isinstance(obj, type)):
+            raise ParameterError(f"{self.name}: parameters_of needs a dataclass instance, got {type(obj).__name__}")
+        twin = copy.copy(obj)
+        for f in dataclasses.fields(obj):
+            x = getattr(obj, f.name)
+            name = f"{prefix}__{f.name}"
+            if isinstance(x, float) and f.name not in numbers:
+                object.__setattr__(twin, f.name, self.parameter(name, x))
+            elif dataclasses.is_dataclass(x) and not isinstance(x, type) and f.name not in numbers:
+                below = [k.split(".", 1)[1] for k in numbers if k.startswith(f"{f.name}.")]
+                object.__setattr__(twin, f.name, self.parameters_of(x, name, below))
+        return twin
 
     # ---------------------------------------------------------------- dynamics, costs, constraints
     def set_der(self, x: ca.SX, rhs: Any) -> None:
@@ -418,7 +456,12 @@ class ProblemBuilder:
             u_ub=[i[1] for i in self._u_info.values()],
             u_scale=[i[2] for i in self._u_info.values()],
             time_unit=self.time_unit,
-            meta={**self.meta, "parameter_names": list(self.p), "stage_parameter_names": list(self.w)},
+            meta={
+                **self.meta,
+                "parameter_names": list(self.p),
+                "stage_parameter_names": list(self.w),
+                "parameter_defaults": dict(self._p_values),
+            },
         )
         if self._next:
             pr.discrete_states = [list(self.x).index(k) for k in self._next]

@@ -40,7 +40,7 @@ from __future__ import annotations
 
 import warnings
 from dataclasses import InitVar, dataclass
-from typing import Any
+from typing import Any, Sequence
 
 import casadi as ca
 
@@ -48,6 +48,7 @@ from ..models.actuator import actuator_rate
 from ..models.ego import STATE_NAMES, battery_side, following_ode
 from ..params import PAPER_ACCEL_BOUNDS_MODEL, EVParams, ParameterError, PowertrainOptions, Units, spec, validate_fields
 from .following import (
+    EV_NUMBERS,
     FollowingBounds,
     TemperatureTerms,
     add_temperature_limit,
@@ -188,13 +189,20 @@ def traffic_problem(
     name: str = "traffic",
     with_temperature: bool = False,
     temperature: TemperatureTerms | None = None,
+    runtime_parameters: bool = False,
+    ev_numbers: Sequence[str] = (),
 ) -> ProblemBuilder:
     """The traffic formulation (module docstring) as a builder in model units: states (h, v, V1, V2, S,
     a_prev), controls (a, omega_rate, slacks), stage parameters (v̄_l, v̂_l), no global parameter.
     ``dt`` [model time] is the MPC interval (for the jerk (a − a_prev)/dt). ``with_temperature``: the pack
     temperature T [K] is a state too (last), T ≤ ev.thermal.T_max_K (:func:`following_problem`); ``temperature``
     with ``temperature_state`` (the MPC's): the same state with the soft limit of :class:`TemperatureTerms`, its
-    penalty in the cost's unit (W/kg per K, integrated over seconds)."""
+    penalty in the cost's unit (W/kg per K, integrated over seconds). ``runtime_parameters``: the vehicle's and
+    the TrafficParams' float fields are the problem's global parameters (:meth:`ProblemBuilder.parameters_of`,
+    prefixes ``ev`` and ``tp``, their values the defaults) instead of numbers in the expressions, so the MPC's
+    generated C serves every vehicle, unit system and parameter value of the same structure; the bounds (and
+    what decides the structure: the actuator state, the margin's presence) stay numbers, and so do the vehicle's
+    fields or groups named in ``ev_numbers`` (e.g. ``"limits"``)."""
     tp = tp or TrafficParams()
     if not (isinstance(dt, (int, float)) and dt > 0):
         raise ParameterError(f"traffic_problem: dt = {dt!r} must be > 0")
@@ -213,13 +221,18 @@ def traffic_problem(
     v_mean, v_hat = pb.stage_parameter("v_l_mean"), pb.stage_parameter("v_l_hat")
     a_prev = pb.state("a_prev")
     pb.set_next(a_prev, a)
+    un, evn, tpn = u, ev, tp  # the numbers: bounds and what shapes the problem
+    if runtime_parameters:  # the expressions' numbers are global parameters (the generated C does not hold them)
+        ev, tp = pb.parameters_of(ev, "ev", (*EV_NUMBERS, *ev_numbers)), pb.parameters_of(tp, "tp")
+        u = ev.units
+        T, m, eta = u.time_s, ev.vehicle.mass_kg, ev.vehicle.efficiency
     a_real = a  # the acceleration the car realises: the command, or its actuator's state (a lag)
-    if models_lag(ev, dt):
-        lo, hi = ev.limits.accel_bounds_model(u)  # the plant's a_act, measured at every step
+    if models_lag(evn, dt):
+        lo, hi = evn.limits.accel_bounds_model(un)  # the plant's a_act, measured at every step
         a_real = pb.state("a_act", lo, hi)
         pb.set_der(a_real, actuator_rate(a, a_real, ev.limits, u))
     soft_T = temperature is not None and temperature.temperature_state
-    Tst = add_temperature_state(pb, ev, hard_limit=not soft_T) if with_temperature or soft_T else None
+    Tst = add_temperature_state(pb, evn, hard_limit=not soft_T) if with_temperature or soft_T else None
     rhs = following_ode(z, a_real, v_mean, ev, smooth, Tst)
     for i, nm in enumerate(STATE_NAMES):
         pb.set_der(pb.x[nm], rhs[i])
@@ -238,7 +251,7 @@ def traffic_problem(
     pb.subject_to(e - v_ms * a_ms2 / eta, 0.0, ca.inf, name="omega_epi_drive")
     pb.subject_to(e - eta * v_ms * a_ms2, 0.0, ca.inf, name="omega_epi_brake")
     h_des = desired_gap_m(v_ms, tp)
-    s_min = tp.standstill_gap_m
+    s_min = tpn.standstill_gap_m
     terms = {
         "omega": tp.omega_weight * e,
         "heat": tp.heat_weight * cell["Q_pack"] / m,
@@ -252,7 +265,7 @@ def traffic_problem(
     # soft constraints on the gap [m], one slack σ ≥ 0 [model length] shared by both (the larger
     # violation sets it) with the exact L1 penalty ρ_safe per metre per second (×T per model time, ×L per
     # model length) plus 1e-3 σ² (a PD Hessian); the standstill floor h ≥ s_min is implied (v ≥ 0 is hard)
-    sig = pb.control("slack_gap", 0.0, SLACK_MAX_M / u.length_m)
+    sig = pb.control("slack_gap", 0.0, SLACK_MAX_M / un.length_m)
     sig_m = u.length_to_si(sig)
     pb.subject_to(h_m + sig_m - tp.time_headway_s * v_ms, s_min, ca.inf, name="headway")
     pb.subject_to(
@@ -262,18 +275,18 @@ def traffic_problem(
         name="braking",
     )
     pb.add_stage_cost(T * (tp.safe_penalty * sig_m + 1e-3 * sig_m**2), "penalty_gap")
-    if tp.margin_weight > 0.0:  # the soft margin (TrafficParams): no variable at all when it is off
-        sig_mg = pb.control("slack_margin", 0.0, SLACK_MAX_M / u.length_m)
+    if tpn.margin_weight > 0.0:  # the soft margin (TrafficParams): no variable at all when it is off
+        sig_mg = pb.control("slack_margin", 0.0, SLACK_MAX_M / un.length_m)
         sig_mg_m = u.length_to_si(sig_mg)
         pb.subject_to(h_m + sig_mg_m - tp.margin_time_gap_s * v_ms, s_min, ca.inf, name="margin_time_gap")
         pb.subject_to(h_m + sig_mg_m - tp.margin_ttc_s * (v_ms - vl_ms), s_min, ca.inf, name="margin_ttc")
         pb.add_stage_cost(T * tp.margin_weight * sig_mg_m**2, "margin")
-    Imax = ev.cell.max_current_A
+    Imax = evn.cell.max_current_A
     pb.subject_to(cell["I"], -Imax, Imax, name="I")  # |I| ≤ 20C (model guide §9)
     pb.subject_to(cell["disc"], 0.0, ca.inf, name="disc")  # current map feasible (model guide §7)
     hN_m, vN_ms = u.length_to_si(pb.x["h"]), u.speed_to_si(pb.x["v"])
     pb.add_terminal_cost(tp.terminal_gap_weight * (hN_m - desired_gap_m(vN_ms, tp)) ** 2)
     for nm, key in (("I", "I"), ("Q", "Q"), ("Q_pack_W", "Q_pack"), ("Q_irr_pack_W", "Q_irr_pack"), ("disc", "disc")):
         pb.add_output(nm, cell[key])
-    pb.meta.update({"objective": "traffic", "bounds": b, "traffic": tp})
+    pb.meta.update({"objective": "traffic", "bounds": b, "traffic": tpn})
     return pb

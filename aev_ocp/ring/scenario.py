@@ -38,15 +38,16 @@ Errors are one line naming the file and the key (``ring_x.toml: ring.aev.vehicle
 from __future__ import annotations
 
 import copy
+import dataclasses
 import math
-from dataclasses import dataclass, field
+from dataclasses import MISSING, dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from ..limits import check_ring_cuts, check_ring_size
-from ..params import CarFollowingParams, EVParams, ParameterError, echo
+from ..params import CarFollowingParams, Check, EVParams, ParameterError, echo, field_checks, spec, validate_fields
 from ..scenarios import (
     ScenarioError,
     TableReader,
@@ -60,53 +61,73 @@ from .laws import AEV_CONTROLLERS, IDM_SI, RING_PREDICTORS
 from .simulate import start_problem
 
 HUMAN_MODELS = ("idm", "ovm")
-#: Upper bounds of a human driver's parameters: 10 m/s² is about 1 g, the tyre-road friction limit of acceleration and
-#: braking (and of the noise's spread); a time gap of 10 s and a standstill gap of 50 m are far beyond any driver
-#: (Treiber & Kesting 2013, Traffic Flow Dynamics, Table 11.2: T = 0.8-2 s, s0 = 1-5 m); 100 m/s is above every
-#: road's limit; an OVM relaxation rate of 10 1/s is a 0.1 s response, faster than a human's reaction.
-HUMAN_MAX = {
-    "a_mps2": 10.0,
-    "b_mps2": 10.0,
-    "v0_mps": 100.0,
-    "s0_m": 50.0,
-    "T_s": 10.0,
-    "alpha_per_s": 10.0,
-    "noise_mps2": 10.0,
+#: The ranges of a human driver's parameters (SI, unit in the name). Upper bounds: 10 m/s² is about 1 g, the tyre-road
+#: friction limit of acceleration and braking (and of the noise's spread, RingSpec.noise_mps2); a time gap of 10 s and
+#: a standstill gap of 50 m are far beyond any driver (Treiber & Kesting 2013, Traffic Flow Dynamics, Table 11.2:
+#: T = 0.8-2 s, s0 = 1-5 m); 100 m/s is above every road's limit; an OVM relaxation rate of 10 1/s is a 0.1 s
+#: response, faster than a human's reaction.
+HUMAN_CHECKS: dict[str, Check] = {
+    "a_mps2": Check(gt=0, le=10.0),
+    "b_mps2": Check(gt=0, le=10.0),
+    "v0_mps": Check(gt=0, le=100.0),
+    "s0_m": Check(ge=0, le=50.0),
+    "T_s": Check(gt=0, le=10.0),
+    "alpha_per_s": Check(gt=0, le=10.0),
 }
 OVM_ALPHA_PER_S = 1.0  # the paper's OVM α = 2 (model, 1/T) at T = 2 s: 1 1/s
+MAX_RING_T_END_S = 36_000.0  # the longest ring run a scenario may ask for [s]: 10 h of traffic (our bound)
+#: the keys of [ring] and [ring.sweep] that are not fields of RingSpec: the density gives the length
+DENSITY_PER_KM = Check(gt=0)
+#: ring.human: the model of the human drivers (a calibrated population may state another, e.g. 'bandoftl')
+HUMAN = Check("choice", choices=HUMAN_MODELS)
+#: [ring.perturbation] vehicle: a 1-based vehicle number (RingSpec.perturbed_vehicle is 0-based; at most ring.vehicles)
+VEHICLE_NUMBER = Check("integer", ge=1)
 _TOP = ("name", "description", "units", "vehicle", "cell", "pack", "limits", "carfollowing", "mpc", "ring")
 
 
 @dataclass(frozen=True)
 class RingSpec:
-    """The validated ``[ring]`` table (SI)."""
+    """The validated ``[ring]`` table (SI). Each key's type, range and unit are declared once, beside its field
+    (:func:`aev_ocp.params.spec`): the scenario reader and the Python API check the same declarations; the rules
+    between keys (dt_out_s <= t_end_s, metrics_from_s < t_end_s, the vehicles fit on the ring, …) are
+    :func:`validate_ring_table`'s."""
 
-    length_m: float
-    vehicles: int
-    t_end_s: float
-    vehicle_length_m: float = 5.0  # the ring benchmarks of Wu et al. 2017 (Flow), as RingRoad
-    dt_out_s: float = 0.5
-    metrics_from_s: float | None = None
-    human: str = "idm"
-    human_params: dict[str, float] = field(default_factory=dict)
-    heterogeneity: float = 0.0
-    noise_mps2: float = 0.1  # aev_ocp.ring.experiments.NOISE_MPS2 (our choice, see there)
-    noise_dt_s: float = 0.5
-    seed: int = 0
-    aev_vehicles: tuple[int, ...] = ()  # 0-based
-    controllers: tuple[str, ...] = ()
-    r_fraction: float = 0.85  # FollowerStopper's r as a share of the uniform speed (aev_ocp.ring.experiments.stern)
-    all_human: bool = True
-    perturbed_vehicle: int = 0  # 0-based
-    shift_m: float = 2.0
-    speed_dip_mps: float = 0.0
-    positions_m: tuple[float, ...] | None = None
-    speeds_mps: tuple[float, ...] | None = None
-    sweep_aevs: tuple[int, ...] = ()  # [ring.sweep]: AEV counts
-    sweep_length_m: tuple[float, ...] = ()  # [ring.sweep]: ring lengths [m]
-    population: str | None = None  # a calibrated human population (aev_ocp.ring.humans.CALIBRATED) instead of human
-    calibration: dict[str, Any] | None = None  # [ring.calibration]: what the population was fitted to (stated)
-    followerstopper: dict[str, Any] = field(default_factory=dict)  # [ring.followerstopper]: FollowerStopper.from_si
+    # (defaults: the ring of Sugiyama et al. 2008, New J. Phys. 10:033001, 22 cars on 230 m, that Stern et al. 2018
+    # drove again, over the 600 s of the shipped ring scenarios; a [ring] table must give them: _REQUIRED)
+    length_m: float = spec(230.0, gt=0)
+    vehicles: int = spec(22, kind="integer", ge=2)
+    t_end_s: float = spec(600.0, gt=0, le=MAX_RING_T_END_S)
+    vehicle_length_m: float = spec(5.0, ge=0)  # the ring benchmarks of Wu et al. 2017 (Flow), as RingRoad
+    dt_out_s: float = spec(0.5, gt=0)  # at most t_end_s
+    metrics_from_s: float | None = spec(None, ge=0, optional=True)  # before t_end_s; None: the second half
+    human: str = spec("idm", kind="instance", cls=str)  # ring.human (HUMAN), or a calibrated population's model
+    human_params: dict[str, float] = spec(kind="instance", cls=dict, default_factory=dict)
+    heterogeneity: float = spec(0.0, ge=0, lt=1)
+    noise_mps2: float = spec(0.1, ge=0, le=10.0)  # aev_ocp.ring.experiments.NOISE_MPS2; at most 1 g (HUMAN_CHECKS)
+    noise_dt_s: float = spec(0.5, gt=0)
+    seed: int = spec(0, kind="integer", ge=0)
+    aev_vehicles: tuple[int, ...] = spec((), kind="instance", cls=tuple)  # 0-based
+    controllers: tuple[str, ...] = spec((), kind="instance", cls=tuple)
+    r_fraction: float = spec(
+        0.85, gt=0, le=1.5
+    )  # FollowerStopper's r as a share of the uniform speed (experiments.stern)
+    all_human: bool = spec(True, kind="bool")
+    perturbed_vehicle: int = spec(0, kind="integer", ge=0)  # 0-based
+    shift_m: float = spec(2.0, ge=0)  # below the mean gap
+    speed_dip_mps: float = spec(0.0, ge=0)
+    positions_m: tuple[float, ...] | None = spec(None, kind="instance", cls=tuple, optional=True)
+    speeds_mps: tuple[float, ...] | None = spec(None, kind="instance", cls=tuple, optional=True)
+    sweep_aevs: tuple[int, ...] = spec((), kind="instance", cls=tuple)  # [ring.sweep]: AEV counts
+    sweep_length_m: tuple[float, ...] = spec((), kind="instance", cls=tuple)  # [ring.sweep]: ring lengths [m]
+    #: a calibrated human population (aev_ocp.ring.humans.CALIBRATED) instead of human
+    population: str | None = spec(None, kind="instance", cls=str, optional=True)
+    #: [ring.calibration]: what the population was fitted to (stated)
+    calibration: dict[str, Any] | None = spec(None, kind="instance", cls=dict, optional=True)
+    #: [ring.followerstopper]: the keyword arguments of FollowerStopper.from_si (empty: its defaults)
+    followerstopper: dict[str, Any] = spec(kind="instance", cls=dict, default_factory=dict)
+
+    def __post_init__(self) -> None:
+        validate_fields(self)
 
 
 @dataclass(frozen=True)
@@ -141,18 +162,60 @@ class RingScenario:
         return 1000.0 * self.spec.vehicles / self.spec.length_m
 
 
+_CHECKS = field_checks(RingSpec)
+_REQUIRED = ("length_m", "vehicles", "t_end_s")  # keys a [ring] table must give (no default in a file)
+_DEFAULTS = {f.name: f.default for f in fields(RingSpec) if f.default is not MISSING and f.name not in _REQUIRED}
+
+
+def _declared(
+    r: TableReader, key: str, check: Check | None = None, *, lt: float | None = None, le: float | None = None
+) -> Any:
+    """``key`` of ``r``'s table checked against its declaration (RingSpec's field ``key`` unless ``check``), with
+    an upper bound ``lt``/``le`` that another key sets (e.g. ``le=t_end_s``); absent: the field's default (required
+    without one)."""
+    c = check or _CHECKS[key]
+    if lt is not None or le is not None:
+        c = dataclasses.replace(c, lt=c.lt if lt is None else lt, le=c.le if le is None else le)
+    return r.declared(key, c, _DEFAULTS[key]) if key in _DEFAULTS and check is None else r.declared(key, c)
+
+
+def _scenario_error(r: TableReader, exc: ParameterError) -> ScenarioError:
+    return ScenarioError(f"{r.file}: {exc}")
+
+
 def validate_ring_table(r: TableReader) -> RingSpec:
-    """Validator of the ``[ring]`` table (registered with the scenario loader)."""
+    """Validator of the ``[ring]`` table (registered with the scenario loader): every key against its declaration
+    (:class:`RingSpec`), then the rules between keys, each error naming the file and the key."""
     kw: dict[str, Any] = {}
-    n = r.integer("vehicles", ge=2)
+    n, length, ell = _ring_geometry(r, kw)
+    _ring_times(r, kw, n)
+    _ring_humans(r, kw)
+    kw["seed"] = _declared(r, "seed")
+    if r.has("aev"):
+        _ring_aev(r.sub("aev"), kw, n)
+    if r.has("sweep"):
+        length = _ring_sweep(r, kw, n, ell, length)
+    if r.has("followerstopper"):
+        kw["followerstopper"] = _followerstopper_table(r.sub("followerstopper"))
+    _ring_start(r, kw, n, length, ell)
+    r.finish()
+    return RingSpec(**kw)
+
+
+def _ring_geometry(r: TableReader, kw: dict[str, Any]) -> tuple[int, float, float]:
+    """(vehicles, length [m], vehicle length [m]): the length given or from the density; the vehicles must fit."""
+    n = _declared(r, "vehicles")
     kw["vehicles"] = n
     if r.has("length_m") == r.has("density_per_km"):
         raise ScenarioError(
             f"{r.file}: {r.key_path('length_m')} / {r.key_path('density_per_km')}: give exactly one "
             "(the ring's length [m] or its density [vehicles per km])"
         )
-    length = r.number("length_m", gt=0) if r.has("length_m") else 1000.0 * n / r.number("density_per_km", gt=0)
-    ell = r.number("vehicle_length_m", 5.0, ge=0)
+    if r.has("length_m"):
+        length = _declared(r, "length_m")
+    else:
+        length = 1000.0 * n / _declared(r, "density_per_km", DENSITY_PER_KM)
+    ell = _declared(r, "vehicle_length_m")
     if n * ell >= length:
         key = "length_m" if r.has("length_m") else "density_per_km"
         raise r.error(
@@ -162,15 +225,25 @@ def validate_ring_table(r: TableReader) -> RingSpec:
             "(need length > vehicles × vehicle_length_m)",
         )
     kw.update(length_m=length, vehicle_length_m=ell)
-    kw["t_end_s"] = r.number("t_end_s", gt=0, le=36_000)
-    kw["dt_out_s"] = r.number("dt_out_s", 0.5, gt=0, le=kw["t_end_s"])
+    return n, length, ell
+
+
+def _ring_times(r: TableReader, kw: dict[str, Any], n: int) -> None:
+    """t_end_s, dt_out_s (at most t_end_s; the run's size within the budget) and metrics_from_s (before t_end_s)."""
+    kw["t_end_s"] = _declared(r, "t_end_s")
+    kw["dt_out_s"] = _declared(r, "dt_out_s", le=kw["t_end_s"])
     try:  # the budget ($AEV_OCP_MAX_MEMORY_GB) when the file is read, naming its keys
         keys = (r.key_path("vehicles"), r.key_path("t_end_s"), r.key_path("dt_out_s"))
         check_ring_size(n, kw["t_end_s"], kw["dt_out_s"], keys)
     except ParameterError as exc:
-        raise ScenarioError(f"{r.file}: {exc}") from None
+        raise _scenario_error(r, exc) from None
     if r.has("metrics_from_s"):
-        kw["metrics_from_s"] = r.number("metrics_from_s", ge=0, lt=kw["t_end_s"])
+        kw["metrics_from_s"] = _declared(r, "metrics_from_s", lt=kw["t_end_s"])
+
+
+def _ring_humans(r: TableReader, kw: dict[str, Any]) -> None:
+    """The human drivers: a calibrated population (with its stated fit), or a model with its parameters, spread
+    and noise; the noise's integration cuts within the budget."""
     if r.has("population"):
         from .humans import CALIBRATED
 
@@ -189,91 +262,94 @@ def validate_ring_table(r: TableReader) -> RingSpec:
         raise r.error(
             "calibration", r.table["calibration"], "states a calibrated ring.population's fit: give ring.population"
         )
-    human = r.string("human", "idm", choices=HUMAN_MODELS) if kw.get("population") is None else kw["human"]
+    human = r.declared("human", HUMAN, "idm") if kw.get("population") is None else kw["human"]
     kw["human"] = human
     for other in HUMAN_MODELS:
         if other != human and r.has(other):
             raise r.error(other, r.table[other], f"sets the {other.upper()}, but ring.human = {human!r}")
-    hp = r.sub(human) if kw.get("population") is None else None
-    if hp is None:
-        pass
-    elif human == "idm":
-        kw["human_params"] = {
-            k: hp.number(k, v, ge=0 if k == "s0_m" else None, gt=None if k == "s0_m" else 0, le=HUMAN_MAX[k])
-            for k, v in IDM_SI.items()
-        }
-    else:
-        kw["human_params"] = {
-            "alpha_per_s": hp.number("alpha_per_s", OVM_ALPHA_PER_S, gt=0, le=HUMAN_MAX["alpha_per_s"])
-        }
-    if hp is not None:
-        hp.finish(allowed_hint=list(IDM_SI) if human == "idm" else ["alpha_per_s"])
-        kw["heterogeneity"] = r.number("heterogeneity", 0.0, ge=0, lt=1)
-        kw["noise_mps2"] = r.number("noise_mps2", 0.1, ge=0, le=HUMAN_MAX["noise_mps2"])
-        kw["noise_dt_s"] = r.number("noise_dt_s", 0.5, gt=0)
+    if kw.get("population") is None:
+        hp = r.sub(human)
+        defaults = IDM_SI if human == "idm" else {"alpha_per_s": OVM_ALPHA_PER_S}
+        kw["human_params"] = {k: hp.declared(k, HUMAN_CHECKS[k], v) for k, v in defaults.items()}
+        hp.finish(allowed_hint=list(defaults))
+        for key in ("heterogeneity", "noise_mps2", "noise_dt_s"):
+            kw[key] = _declared(r, key)
     if kw["noise_mps2"] > 0:
         try:  # the integration cuts the noise makes, before any is built
             check_ring_cuts(kw["t_end_s"], {r.key_path("noise_dt_s"): kw["noise_dt_s"]})
         except ParameterError as exc:
-            raise ScenarioError(f"{r.file}: {exc}") from None
-    kw["seed"] = r.integer("seed", 0, ge=0)
-    if r.has("aev"):
-        a = r.sub("aev")
-        nums = a.numbers("vehicles", ge=1)
-        if any(int(x) != x or x > n for x in nums):
-            raise a.error("vehicles", a.table["vehicles"], f"must be vehicle numbers 1 … {n} (ring.vehicles)")
-        if len(set(nums)) != len(nums):
-            raise a.error("vehicles", a.table["vehicles"], "lists a vehicle twice")
-        kw["aev_vehicles"] = tuple(sorted(int(x) - 1 for x in nums))
-        ctrls = a.strings("controllers", choices=list(AEV_CONTROLLERS))
-        if len(set(ctrls)) != len(ctrls):
-            raise a.error("controllers", a.table["controllers"], "names a controller twice; each runs once")
-        kw["controllers"] = tuple(ctrls)
-        kw["r_fraction"] = a.number("r_fraction", 0.85, gt=0, le=1.5)
-        kw["all_human"] = a.boolean("all_human", True)
-        a.finish()
-    if r.has("sweep"):
-        if r.has("initial"):
-            raise r.error(
-                "sweep",
-                r.table["sweep"],
-                "a sweep starts every ring from uniform flow and "
-                "[ring.perturbation]; [ring.initial] gives one ring's positions",
-            )
-        if r.has("aev"):
-            raise r.error(
-                "sweep",
-                r.table["sweep"],
-                "give [ring.aev] (one ring, AEVs at given vehicles) or [ring.sweep] (AEV counts × rings), not both",
-            )
-        sw = r.sub("sweep")
-        counts = sw.numbers("aevs", ge=0)
-        if any(int(x) != x or x > n for x in counts) or len(set(counts)) != len(counts):
-            raise sw.error("aevs", sw.table["aevs"], f"must be distinct whole numbers of AEVs in 0 … {n}")
-        if sw.has("length_m") and sw.has("density_per_km"):
-            raise sw.error("length_m", sw.table["length_m"], "give length_m or density_per_km, not both")
-        if sw.has("density_per_km"):
-            lengths = [1000.0 * n / d for d in sw.numbers("density_per_km", gt=0)]
-            key = "density_per_km"
-        else:
-            lengths = sw.numbers("length_m", [length], gt=0)
-            key = "length_m"
-        for L in lengths:
-            if n * ell >= L:
-                raise sw.error(key, sw.table[key], f"{n} vehicles of {ell:g} m do not fit on a ring of {L:g} m")
-        ctrls = sw.strings("controllers", ["followerstopper"], choices=list(AEV_CONTROLLERS))
-        if len(set(ctrls)) != len(ctrls):
-            raise sw.error("controllers", sw.table["controllers"], "names a controller twice; each runs once")
-        kw.update(
-            sweep_aevs=tuple(int(x) for x in counts),
-            sweep_length_m=tuple(lengths),
-            controllers=tuple(ctrls),
-            r_fraction=sw.number("r_fraction", 0.85, gt=0, le=1.5),
+            raise _scenario_error(r, exc) from None
+
+
+def _ring_aev(a: TableReader, kw: dict[str, Any], n: int) -> None:
+    """``[ring.aev]``: the vehicles (1-based, distinct, at most ring.vehicles) AEVs drive and their controllers."""
+    nums = a.numbers("vehicles", ge=1)
+    if any(int(x) != x or x > n for x in nums):
+        raise a.error("vehicles", a.table["vehicles"], f"must be vehicle numbers 1 … {n} (ring.vehicles)")
+    if len(set(nums)) != len(nums):
+        raise a.error("vehicles", a.table["vehicles"], "lists a vehicle twice")
+    kw["aev_vehicles"] = tuple(sorted(int(x) - 1 for x in nums))
+    kw["controllers"] = _distinct_controllers(a, None)
+    kw["r_fraction"] = _declared(a, "r_fraction")
+    kw["all_human"] = _declared(a, "all_human")
+    a.finish()
+
+
+def _distinct_controllers(t: TableReader, default: Any) -> tuple[str, ...]:
+    """The table's ``controllers`` (AEV_CONTROLLERS, each once; ``default`` when absent, None: required)."""
+    ctrls = (
+        t.strings("controllers", choices=list(AEV_CONTROLLERS))
+        if default is None
+        else t.strings("controllers", default, choices=list(AEV_CONTROLLERS))
+    )
+    if len(set(ctrls)) != len(ctrls):
+        raise t.error("controllers", t.table["controllers"], "names a controller twice; each runs once")
+    return tuple(ctrls)
+
+
+def _ring_sweep(r: TableReader, kw: dict[str, Any], n: int, ell: float, length: float) -> float:
+    """``[ring.sweep]``: AEV counts × ring lengths × controllers; returns the shortest ring's length [m] (the
+    perturbation must fit on every ring)."""
+    if r.has("initial"):
+        raise r.error(
+            "sweep",
+            r.table["sweep"],
+            "a sweep starts every ring from uniform flow and [ring.perturbation]; [ring.initial] gives one ring's positions",
         )
-        sw.finish()
-        length = min(lengths)  # the perturbation must fit on every ring
-    if r.has("followerstopper"):
-        kw["followerstopper"] = _followerstopper_table(r.sub("followerstopper"))
+    if r.has("aev"):
+        raise r.error(
+            "sweep",
+            r.table["sweep"],
+            "give [ring.aev] (one ring, AEVs at given vehicles) or [ring.sweep] (AEV counts × rings), not both",
+        )
+    sw = r.sub("sweep")
+    counts = sw.numbers("aevs", ge=0)
+    if any(int(x) != x or x > n for x in counts) or len(set(counts)) != len(counts):
+        raise sw.error("aevs", sw.table["aevs"], f"must be distinct whole numbers of AEVs in 0 … {n}")
+    if sw.has("length_m") and sw.has("density_per_km"):
+        raise sw.error("length_m", sw.table["length_m"], "give length_m or density_per_km, not both")
+    if sw.has("density_per_km"):
+        lengths = [1000.0 * n / d for d in sw.numbers("density_per_km", gt=DENSITY_PER_KM.gt)]
+        key = "density_per_km"
+    else:
+        lengths = sw.numbers("length_m", [length], gt=_CHECKS["length_m"].gt)
+        key = "length_m"
+    for L in lengths:
+        if n * ell >= L:
+            raise sw.error(key, sw.table[key], f"{n} vehicles of {ell:g} m do not fit on a ring of {L:g} m")
+    kw.update(
+        sweep_aevs=tuple(int(x) for x in counts),
+        sweep_length_m=tuple(lengths),
+        controllers=_distinct_controllers(sw, ["followerstopper"]),
+        r_fraction=_declared(sw, "r_fraction"),
+    )
+    sw.finish()
+    return min(lengths)
+
+
+def _ring_start(r: TableReader, kw: dict[str, Any], n: int, length: float, ell: float) -> None:
+    """The start: ``[ring.initial]`` (every position and speed; in order, no overlaps) or ``[ring.perturbation]``
+    (uniform flow with one vehicle moved back, less than the mean gap, and slowed)."""
     if r.has("perturbation") and r.has("initial"):
         raise r.error("initial", r.table["initial"], "give [ring.perturbation] or [ring.initial], not both")
     if r.has("initial"):
@@ -290,19 +366,17 @@ def validate_ring_table(r: TableReader) -> RingSpec:
             raise ini.error(bad[0], ini.table[bad[0]], bad[1])
         kw.update(positions_m=tuple(pos), speeds_mps=tuple(spd))
         ini.finish()
-    else:
-        p = r.sub("perturbation")
-        veh = p.integer("vehicle", 1, ge=1)
-        if veh > n:
-            raise p.error("vehicle", veh, f"must be a vehicle number 1 … {n} (ring.vehicles)")
-        kw.update(
-            perturbed_vehicle=veh - 1,
-            shift_m=p.number("shift_m", 2.0, ge=0, lt=length / n - ell),
-            speed_dip_mps=p.number("speed_dip_mps", 0.0, ge=0),
-        )
-        p.finish()
-    r.finish()
-    return RingSpec(**kw)
+        return
+    p = r.sub("perturbation")
+    veh = p.declared("vehicle", VEHICLE_NUMBER, 1)
+    if veh > n:
+        raise p.error("vehicle", veh, f"must be a vehicle number 1 … {n} (ring.vehicles)")
+    kw.update(
+        perturbed_vehicle=veh - 1,
+        shift_m=_declared(p, "shift_m", lt=length / n - ell),
+        speed_dip_mps=_declared(p, "speed_dip_mps"),
+    )
+    p.finish()
 
 
 def _followerstopper_table(f: TableReader) -> dict[str, Any]:

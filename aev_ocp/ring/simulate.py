@@ -47,7 +47,8 @@ from typing import Any, Callable, Sequence
 import casadi as ca
 import numpy as np
 
-from ..compiled import compile_shared, dense_outputs, driver_source
+from ..compiled import compile_shared, dense_outputs, driver_source, exact_tuned_flags
+from ..compiled import native_arch as native_arch  # re-exported: it lived here before aev_ocp.compiled
 from ..limits import check_ring_cuts, check_ring_size
 from ..control import SampledLaw
 from ..loop import NO_STAGES, CommandStages, Controller, History, Observation, VehicleStep, stages_for
@@ -61,7 +62,7 @@ from ..plant import EVENT_RULES, current_limit_events, event_at, event_header, r
 from ..results import Event, SimulationResult, fmt_value, summary_html, summary_text
 from .. import interrupts
 from ..progress import check_deadline
-from ..simulate import _interruptible_call, _law_template
+from ..simulate import _interruptible_call, _law_template, _law_templates
 
 RING_METHODS = ("auto", "compiled", "cvodes")
 #: columns of one vehicle in a sample: states, quadratures, outputs
@@ -431,43 +432,13 @@ class RingResult:
 
 
 # ----------------------------------------------------------------------------------------------- simulator
-_ARCH: list[str] = []
-
-
-def native_arch() -> str:
-    """The CPU the C compiler targets with -march=native, resolved to its name (e.g. 'znver3'), or '' when the
-    compiler cannot tell. The resolved name, not 'native', goes into the compile flags and so into the cache key
-    of the built library: a cache shared by two machines never hands one the other's instructions."""
-    if not _ARCH:
-        import subprocess
-
-        from ..compiled import compiler
-
-        arch = ""
-        cc = compiler()
-        if cc is not None:
-            try:
-                out = subprocess.run(
-                    [cc, "-march=native", "-Q", "--help=target"], capture_output=True, text=True, timeout=30
-                ).stdout
-                for line in out.splitlines():
-                    parts = line.split()
-                    if len(parts) == 2 and parts[0] == "-march=" and parts[1].replace("-", "").isalnum():
-                        arch = parts[1]
-                        break
-            except (OSError, subprocess.SubprocessError):
-                arch = ""
-        _ARCH.append(arch)
-    return _ARCH[0]
-
-
 def _compile(source: str, stem: str) -> tuple[ctypes.CDLL | None, str]:
-    """Compile with -O3 for the resolved native CPU and OpenMP (1 000 vehicles × 600 s: ~20 % less CPU than -O2
-    generic; benchmarks/bench_ring.py), falling back to OpenMP at -O2, then to a plain build."""
+    """Compile with OpenMP, -O3 for the resolved native CPU, contraction off and no semantic interposition
+    (:func:`aev_ocp.compiled.exact_tuned_flags`: the same bits as the plain build, so a ring's numbers do not depend
+    on the machine's CPU; benchmarks/bench_ring.py), falling back to OpenMP at -O2, then to a plain build."""
     last = ""
-    arch = native_arch()
-    tuned = (("-fopenmp", "-O3", f"-march={arch}"),) if arch else ()
-    for flags in (*tuned, ("-fopenmp",), ()):
+    tuned = exact_tuned_flags()
+    for flags in (*((("-fopenmp", *tuned),) if tuned else ()), ("-fopenmp",), ()):
         with warnings.catch_warnings():
             if flags:
                 warnings.simplefilter("ignore")
@@ -495,6 +466,39 @@ def _quadrature(h: Any, v: Any, vl: Any, a: Any, b: dict[str, Any], ev: EVParams
         (vl - v) ** 2,
         (optimal_velocity(h) - v) ** 2,
     ]
+
+
+@dataclass
+class _RingRun:
+    """The state of one :meth:`RingSimulator.run` (model units): the state z (n, nz), the sample times ``ts`` and
+    the samples so far (``out``, ``s_done`` of them), the cuts of the integration (``grid``), the noise held now and
+    how it is drawn (humans ``noisy``, σ, hold ``ndt``, the hold index ``k_noise``), the delayed drivers' update
+    period ``ddt`` and history (H, V: a ring buffer of gaps and speeds), the sampled controllers with their
+    measurements, last commands and step cores, the compiled integrator's step size and statistics, the events."""
+
+    z: np.ndarray
+    ts: np.ndarray
+    grid: np.ndarray
+    out: np.ndarray
+    noise: np.ndarray
+    noisy: np.ndarray
+    use_noise: bool
+    sigma: float
+    ndt: float
+    ddt: float
+    rng: np.random.Generator
+    H: np.ndarray
+    V: np.ndarray
+    ctrl: dict[int, Any]
+    meas_v: dict[int, History]
+    a_prev: dict[int, float]
+    steps: dict[int, VehicleStep]
+    meas_t: History = field(default_factory=History)  # the measured times (History: read without copies)
+    h_io: np.ndarray = field(default_factory=lambda: np.zeros(1))
+    stats: np.ndarray = field(default_factory=lambda: np.zeros(3, np.int64))
+    events: list[Event] = field(default_factory=list)
+    s_done: int = 1
+    k_noise: int = -1
 
 
 class RingSimulator:
@@ -545,7 +549,7 @@ class RingSimulator:
             for i, c in enumerate(self.vehicles)
         ]
         self._delay_groups = self._delay_functions(delayed_laws)
-        templates = [_law_template(law) for law in self.laws]
+        templates = _law_templates(self.laws)
         distinct: dict[Any, int] = {}
         first: dict[int, Any] = {}
         self.law_of = np.zeros(self.n, np.int32)
@@ -885,7 +889,24 @@ class RingSimulator:
 
     # ------------------------------------------------------------------ running
     def run(self, initial: RingInitial, t_end_s: float) -> RingResult:
-        """Integrate the ring from ``initial`` over [0, t_end_s] [s]."""
+        """Integrate the ring from ``initial`` over [0, t_end_s] [s]: at each cut of the time grid (samples,
+        control instants, noise holds, reaction-time updates) the held inputs are set, then the whole ring is
+        integrated to the next cut; an event ends the run."""
+        z = self._initial_state(initial, t_end_s)
+        r = self._prepare(z, t_end_s)
+        wall = time.perf_counter()
+        t0 = 0.0
+        for t1 in r.grid:
+            self._inputs(r, t0)
+            if self._integrate(r, t0, t1):
+                break
+            t0 = float(t1)
+        wall = time.perf_counter() - wall
+        return self._result(initial, r.ts[: r.s_done], r.out[: r.s_done], r.events, wall, r.stats, r.steps)
+
+    def _initial_state(self, initial: RingInitial, t_end_s: float) -> np.ndarray:
+        """The state z (n, nz) at t = 0 from ``initial`` (model units), every input checked first, and the run's
+        size and integration cuts checked against the budgets before anything is allocated or integrated."""
         check_argument("ring", "initial", initial, RingInitial)
         if not (isinstance(t_end_s, (int, float)) and math.isfinite(t_end_s) and t_end_s > 0):
             raise ParameterError(f"ring: t_end_s = {t_end_s!r} is not allowed: must be a finite number > 0")
@@ -904,34 +925,27 @@ class RingSimulator:
         check_ring_size(n, t_end_s, self.opts.dt_out_s)  # the budget, before anything is allocated or integrated
         check_ring_cuts(t_end_s, self._cut_intervals_s())  # the cuts too, before their grid is built
         self._direct = False  # the first advance runs interruptibly (see _advance_compiled)
-        T = u.time_s
-        t_end = t_end_s / T
         z = np.zeros((n, self.nz))
         z[:, 0], z[:, 1], z[:, 4] = u.length_from_si(gaps), u.speed_from_si(v0), soc0
-        # the time grid: samples, control instants, noise changes
+        return z
+
+    def _prepare(self, z: np.ndarray, t_end_s: float) -> _RingRun:
+        """A run's state at t = 0 from the initial state z: the sample times and the grid of cuts, the noise, the
+        reaction-time history, the braking counters, the controllers reset with one step core each."""
+        ring, u, n, T = self.ring, self.ev.units, self.n, self.ev.units.time_s
+        t_end = t_end_s / T
         dt_out = self.opts.dt_out_s / T
         ts = np.linspace(0.0, t_end, max(1, int(math.ceil(t_end / dt_out - 1e-9))) + 1)
-        cuts = {t_end}
-        if self.dt is not None:
-            k = int(round(t_end / self.dt))
-            cuts |= {j * self.dt for j in range(1, k) if j * self.dt < t_end - 1e-12}
         noisy = np.array([ring.is_human(i) for i in range(n)], bool)
-        use_noise = ring.noise_mps2 > 0 and noisy.any()
-        ndt = ring.noise_dt_s / T
-        if use_noise:
-            cuts |= {j * ndt for j in range(1, int(math.ceil(t_end / ndt))) if j * ndt < t_end - 1e-12}
-        ddt = ring.delay_dt_s / T
-        if self.delayed:
-            cuts |= {j * ddt for j in range(1, int(math.ceil(t_end / ddt))) if j * ddt < t_end - 1e-12}
-            nb = int(math.ceil(float(np.max(self.delay_model)) / ddt)) + 3  # rows of history a reaction time spans
-            H_hist, V_hist = np.zeros((nb, n)), np.zeros((nb, n))
-        grid = np.array(sorted(cuts))
+        use_noise = bool(ring.noise_mps2 > 0 and noisy.any())
+        ndt, ddt = ring.noise_dt_s / T, ring.delay_dt_s / T
+        grid = self._grid(t_end, ndt if use_noise else None, ddt if self.delayed else None)
+        nb = int(math.ceil(float(np.max(self.delay_model)) / ddt)) + 3 if self.delayed else 0  # rows a delay spans
         rng = np.random.default_rng(ring.seed)
         sigma = float(u.accel_from_si(ring.noise_mps2))
         out = np.zeros((ts.size, n, self.nz + self.ny))
         noise = np.zeros(n)
         out[0] = np.hstack([z, self._outputs(z, noise)])
-        h_io, stats = np.zeros(1), np.zeros(3, np.int64)
         o = self.opts
         b_from = 0.5 * t_end_s if o.braking_from_s is None else o.braking_from_s
         self._brake = np.zeros((n, 4))
@@ -940,91 +954,131 @@ class RingSimulator:
         ctrl = {i: self.vehicles[i] for i in self.sampled}
         for c in ctrl.values():
             c.reset()
-        meas_t = History()  # the measured times and speeds so far, read by every step (History: no copies)
-        meas_v = {i: History() for i in ctrl}
-        a_prev = dict.fromkeys(ctrl, 0.0)
         assert self.dt is not None or not ctrl
         steps = {
             i: VehicleStep(c.name, f"vehicle {i + 1}", u, self.ev.limits, self.stages[i], self.dt or 1.0, "ring")
             for i, c in ctrl.items()
         }
-        events: list[Event] = []
-        s_done, t0, k_noise = 1, 0.0, -1
-        wall = time.perf_counter()
-        for t1 in grid:
-            if use_noise:
-                kn = int(math.floor(t0 / ndt + 1e-9))
-                if kn != k_noise:
-                    k_noise = kn
-                    noise = np.where(noisy, rng.normal(0.0, sigma, n), 0.0)
-            if self.delayed and abs(t0 / ddt - round(t0 / ddt)) < 1e-9:
-                k_upd = int(round(t0 / ddt))
-                H_hist[k_upd % nb], V_hist[k_upd % nb] = z[:, 0], z[:, 1]
-                self._delayed_commands(k_upd, ddt, H_hist, V_hist)
-            if ctrl and self.dt is not None and abs(t0 / self.dt - round(t0 / self.dt)) < 1e-9:
-                meas_t.append(t0)
-                for i, c in ctrl.items():
-                    pr = i - 1 if i > 0 else n - 1
-                    meas_v[i].append(float(z[pr, 1]))
-                    obs = Observation(
-                        t0,
-                        self.dt,
-                        i,
-                        z[i, :5].copy(),
-                        meas_t.view(),
-                        meas_v[i].view(),
-                        None,
-                        a_prev[i],
-                        float(z[i, 5]) if self.nx > 5 else None,
-                    )
-                    # checked, conditioned, safety layer, limits (aev_ocp.loop), then held over the step
-                    _, a_prev[i] = steps[i].command(c, obs)
-                    self.params[i, 0] = a_prev[i]
-            sel = (ts > t0 + 1e-12 * (1 + t0)) & (ts <= t1 + 1e-12 * (1 + t1))
-            tsel = np.ascontiguousarray(ts[sel])
-            buf = np.zeros((tsel.size, n, self.nz + self.ny))
-            if self.method == "compiled":
-                m, ev = self._advance_compiled(z, noise, t0, t1, tsel, buf, h_io, stats)
-            else:
-                m, ev = self._advance_cvodes(z, noise, t0, t1, tsel, buf)
-            out[s_done : s_done + m] = buf[:m]
-            s_done += m
-            if ev[0]:
-                code, who, t_ev = int(ev[0]), int(ev[1]), float(ev[2])
-                if code in [r.code for r in EVENT_RULES]:
-                    rule = rule_of_code(code)
-                    pr = who - 1 if who > 0 else n - 1
-                    events.append(
-                        event_at(
-                            rule,
-                            t_ev,
-                            who,
-                            u,
-                            float(z[who, 0]),
-                            float(z[who, 1]),
-                            float(z[pr, 1]),
-                            float({"h": z[who, 0], "v": z[who, 1], "S": z[who, 4], "disc": ev[3]}[rule.quantity]),
-                        )
-                    )
-                else:
-                    events.append(
-                        Event(
-                            "integration_failed",
-                            t_ev,
-                            who,
-                            "the ring integrator failed (step size underflow or the step limit)",
-                            time_s=t_ev * T,
-                        )
-                    )
-                if t_ev > ts[s_done - 1]:  # the state at the event is the run's last sample
-                    ts = np.concatenate([ts[:s_done], [t_ev]])
-                    out[s_done] = np.hstack([z, self._outputs(z, noise)])
-                    s_done += 1
-                break
-            t0 = float(t1)
-        wall = time.perf_counter() - wall
-        ts, out = ts[:s_done], out[:s_done]
-        return self._result(initial, ts, out, events, wall, stats, steps)
+        return _RingRun(
+            z=z,
+            ts=ts,
+            grid=grid,
+            out=out,
+            noise=noise,
+            noisy=noisy,
+            use_noise=use_noise,
+            sigma=sigma,
+            ndt=ndt,
+            ddt=ddt,
+            rng=rng,
+            H=np.zeros((nb, n)),
+            V=np.zeros((nb, n)),
+            ctrl=ctrl,
+            meas_v={i: History() for i in ctrl},
+            a_prev=dict.fromkeys(ctrl, 0.0),
+            steps=steps,
+        )
+
+    def _grid(self, t_end: float, ndt: float | None, ddt: float | None) -> np.ndarray:
+        """The cuts of the integration up to t_end (model time, sorted): the control instants, the noise's holds
+        (``ndt``; None: no noise) and the delayed drivers' updates (``ddt``; None: none), and t_end."""
+        cuts = {t_end}
+        if self.dt is not None:
+            k = int(round(t_end / self.dt))
+            cuts |= {j * self.dt for j in range(1, k) if j * self.dt < t_end - 1e-12}
+        for step in (ndt, ddt):
+            if step is not None:
+                cuts |= {j * step for j in range(1, int(math.ceil(t_end / step))) if j * step < t_end - 1e-12}
+        return np.array(sorted(cuts))
+
+    def _inputs(self, r: _RingRun, t0: float) -> None:
+        """The inputs held from the cut t0 [model] on: a new noise draw at each noise hold, the delayed drivers'
+        commands at each of their updates, the sampled controllers' commands at each control instant."""
+        z = r.z
+        if r.use_noise:
+            kn = int(math.floor(t0 / r.ndt + 1e-9))
+            if kn != r.k_noise:
+                r.k_noise = kn
+                r.noise = np.where(r.noisy, r.rng.normal(0.0, r.sigma, self.n), 0.0)
+        if self.delayed and abs(t0 / r.ddt - round(t0 / r.ddt)) < 1e-9:
+            k_upd = int(round(t0 / r.ddt))
+            nb = r.H.shape[0]
+            r.H[k_upd % nb], r.V[k_upd % nb] = z[:, 0], z[:, 1]
+            self._delayed_commands(k_upd, r.ddt, r.H, r.V)
+        if r.ctrl and self.dt is not None and abs(t0 / self.dt - round(t0 / self.dt)) < 1e-9:
+            self._control(r, t0)
+
+    def _control(self, r: _RingRun, t0: float) -> None:
+        """Every sampled controller's command at the control instant t0 [model] through its step core (checked,
+        conditioned, safety layer, limits: :mod:`aev_ocp.loop`), held over the step as its law's parameter."""
+        assert self.dt is not None
+        z, n = r.z, self.n
+        r.meas_t.append(t0)
+        for i, c in r.ctrl.items():
+            pr = i - 1 if i > 0 else n - 1
+            r.meas_v[i].append(float(z[pr, 1]))
+            obs = Observation(
+                t0,
+                self.dt,
+                i,
+                z[i, :5].copy(),
+                r.meas_t.view(),
+                r.meas_v[i].view(),
+                None,
+                r.a_prev[i],
+                float(z[i, 5]) if self.nx > 5 else None,
+            )
+            _, r.a_prev[i] = r.steps[i].command(c, obs)
+            self.params[i, 0] = r.a_prev[i]
+
+    def _integrate(self, r: _RingRun, t0: float, t1: Any) -> bool:
+        """Integrate the ring from t0 to the cut t1 [model], storing the samples in between; True when an event
+        (a rule of EVENT_RULES, or the integrator's failure) ends the run, its state the run's last sample."""
+        ts, z = r.ts, r.z
+        sel = (ts > t0 + 1e-12 * (1 + t0)) & (ts <= t1 + 1e-12 * (1 + t1))
+        tsel = np.ascontiguousarray(ts[sel])
+        buf = np.zeros((tsel.size, self.n, self.nz + self.ny))
+        if self.method == "compiled":
+            m, ev = self._advance_compiled(z, r.noise, t0, t1, tsel, buf, r.h_io, r.stats)
+        else:
+            m, ev = self._advance_cvodes(z, r.noise, t0, t1, tsel, buf)
+        r.out[r.s_done : r.s_done + m] = buf[:m]
+        r.s_done += m
+        if not ev[0]:
+            return False
+        r.events.append(self._event(z, ev))
+        t_ev = float(ev[2])
+        if t_ev > ts[r.s_done - 1]:  # the state at the event is the run's last sample
+            r.ts = np.concatenate([ts[: r.s_done], [t_ev]])
+            r.out[r.s_done] = np.hstack([z, self._outputs(z, r.noise)])
+            r.s_done += 1
+        return True
+
+    def _event(self, z: np.ndarray, ev: np.ndarray) -> Event:
+        """The Event of an integration that stopped (``ev``: code, vehicle, time [model], value) at state z: the
+        plants' rule (:data:`aev_ocp.plant.EVENT_RULES`) it broke, or the integrator's failure."""
+        n = self.n
+        code, who, t_ev = int(ev[0]), int(ev[1]), float(ev[2])
+        if code in [r.code for r in EVENT_RULES]:
+            rule = rule_of_code(code)
+            pr = who - 1 if who > 0 else n - 1
+            return event_at(
+                rule,
+                t_ev,
+                who,
+                self.ev.units,
+                float(z[who, 0]),
+                float(z[who, 1]),
+                float(z[pr, 1]),
+                float({"h": z[who, 0], "v": z[who, 1], "S": z[who, 4], "disc": ev[3]}[rule.quantity]),
+            )
+        return Event(
+            "integration_failed",
+            t_ev,
+            who,
+            "the ring integrator failed (step size underflow or the step limit)",
+            time_s=t_ev * self.ev.units.time_s,
+        )
 
     def _result(
         self,
@@ -1047,8 +1101,7 @@ class RingSimulator:
         )
         names = [getattr(c, "name", type(c).__name__) for c in self.vehicles]
         settings = [  # an automated vehicle's settings name its conditioning (aev_ocp.loop)
-            {**c.describe(), "conditioning": steps[i].stages.label()} if i in steps else c.describe()
-            for i, c in enumerate(self.vehicles)
+            steps[i].settings(c) if i in steps else c.describe() for i, c in enumerate(self.vehicles)
         ]
         solver: list[dict[str, Any] | None] = [None] * n
         for i, step in steps.items():

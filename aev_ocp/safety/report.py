@@ -85,15 +85,12 @@ def _median(xs: list[float]) -> float:
     return float(np.median(ys)) if ys else math.nan
 
 
-def markdown(out: SuiteOutput, heading: str = "##") -> str:
-    """The suite as Markdown (SI): how cases are labelled; per actuator and controller the avoidable cases and the
-    collisions; every case × controller (impact speeds); the margins (TTC, time gaps, jerk); the cases' sources."""
+def _intro(out: SuiteOutput, heading: str, acts: list[str]) -> list[str]:
+    """The heading, what the suite runs (units, controllers, the layer, the label) and the actuators."""
     st = out.settings
     u = st["units"]
     ctrls: list[str] = st["controllers"]
-    acts = list(dict.fromkeys(r.actuator for r in out.rows))
     act_info = st.get("actuators", {})
-    by = {(r.case, r.actuator, r.controller): r for r in out.rows}
     lines = [
         f"{heading} Safety suite: stationary, slower and braking targets, lane ends and cut-ins to 130 km/h\n",
         f"{len(out.cases)} cases × {len(acts)} actuators × {len(ctrls)} controllers; units L = {u['length_m']:g} m, "
@@ -118,8 +115,11 @@ def markdown(out: SuiteOutput, heading: str = "##") -> str:
         )
         + ".\n",
     ]
-    if st.get("quick"):
-        lines.append("**Quick run** (a few cases, 3 s each): a smoke test, not the suite.\n")
+    return lines
+
+
+def _summary_table(out: SuiteOutput) -> str:
+    """Per actuator and controller: the avoidable cases, their collisions and the other cases."""
     summ = summary(out)
     rows = []
     for key, s in summ.items():
@@ -136,21 +136,25 @@ def markdown(out: SuiteOutput, heading: str = "##") -> str:
                 sum(s["collisions"][lb] for lb in LABELS if lb != AVOIDABLE),
             ]
         )
-    lines.append(
-        markdown_table(
-            [
-                "actuator",
-                "controller",
-                "avoidable cases",
-                "collisions there",
-                "worst impact there [m/s]",
-                "below the floor there",
-                "other cases",
-                "collisions there",
-            ],
-            rows,
-        )
+    return markdown_table(
+        [
+            "actuator",
+            "controller",
+            "avoidable cases",
+            "collisions there",
+            "worst impact there [m/s]",
+            "below the floor there",
+            "other cases",
+            "collisions there",
+        ],
+        rows,
     )
+
+
+def _case_tables(out: SuiteOutput, acts: list[str], ctrls: list[str]) -> list[str]:
+    """Per actuator, every case × controller (label, the bound's min gap, impact speeds)."""
+    by = {(r.case, r.actuator, r.controller): r for r in out.rows}
+    lines = []
     for act in acts:
         lines.append(
             f"\nEvery case at the **{act}** actuator: label (A avoidable, C collision-avoidable only, U unavoidable) "
@@ -167,6 +171,12 @@ def markdown(out: SuiteOutput, heading: str = "##") -> str:
                 + [_cell(by.get((c.name, act, k))) for k in ctrls]
             )
         lines.append(markdown_table(["case", "label", "bound [m]"] + ctrls, trows))
+    return lines
+
+
+def _margins(out: SuiteOutput, acts: list[str], ctrls: list[str]) -> list[str]:
+    """The margins per actuator and controller: min gap, min TTC, time-gap quantiles, peak deceleration and jerk."""
+    lines = []
     lines.append(
         "\nMargins per controller (over all cases of the actuator): the smallest gap [m] and time-to-collision [s]; "
         "the time gap h/v [s] while following (v ≥ 2 m/s), each case's 5/50/95 % quantiles, median over the cases; "
@@ -212,8 +222,12 @@ def markdown(out: SuiteOutput, heading: str = "##") -> str:
             mrows,
         )
     )
-    if "mpc+layer" in ctrls and "mpc-margin+layer" in ctrls:
-        lines.append(margin_table(out))
+    return lines
+
+
+def _sources(out: SuiteOutput) -> list[str]:
+    """The cases and their sources, and where every row is written."""
+    lines = []
     lines.append("\nThe cases and their sources:\n")
     lines.append(
         markdown_table(
@@ -237,6 +251,24 @@ def markdown(out: SuiteOutput, heading: str = "##") -> str:
         "\nEvery row of every run: `safety.csv` / `safety.json`. Peak jerk is sampled (Δa/Δt between samples: the "
         "laws' 8.8 ms output spacing, the sampled controllers' 88 ms steps).\n"
     )
+    return lines
+
+
+def markdown(out: SuiteOutput, heading: str = "##") -> str:
+    """The suite as Markdown (SI): how cases are labelled; per actuator and controller the avoidable cases and the
+    collisions; every case × controller (impact speeds); the margins (TTC, time gaps, jerk); the cases' sources."""
+    st = out.settings
+    ctrls: list[str] = st["controllers"]
+    acts = list(dict.fromkeys(r.actuator for r in out.rows))
+    lines = _intro(out, heading, acts)
+    if st.get("quick"):
+        lines.append("**Quick run** (a few cases, 3 s each): a smoke test, not the suite.\n")
+    lines.append(_summary_table(out))
+    lines += _case_tables(out, acts, ctrls)
+    lines += _margins(out, acts, ctrls)
+    if "mpc+layer" in ctrls and "mpc-margin+layer" in ctrls:
+        lines.append(margin_table(out))
+    lines += _sources(out)
     return "\n".join(lines)
 
 

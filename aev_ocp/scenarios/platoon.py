@@ -15,7 +15,7 @@ from typing import Any, Callable, Mapping
 from ..models.carfollowing import LAW_REGISTRY, V_INF, CarFollowingLaw, make_law
 from ..models.leader import ConstantSpeed, LeaderProfile, PaperLeader, SpeedTrace
 from ..overrides import SI_TWINS, apply_to_document
-from ..params import CarFollowingParams, EVParams, ParameterError, SimOptions, Units
+from ..params import CarFollowingParams, EVParams, ParameterError, SimOptions, Units, field_checks
 from ..results import check_safe_name
 from .followers import _carfollowing, _platoon
 from .leader import _leader, trace_read_s
@@ -243,15 +243,7 @@ def parse_scenario(doc: dict[str, Any], file: str = "<scenario>", *, source: Pat
             )
     _check_top_level(doc, file)
     top = TableReader(doc, "", file)
-    if top.has("name"):
-        name = top.string("name")
-        try:
-            check_safe_name(name)
-        except ValueError as exc:
-            raise top.error("name", name, str(exc).split("is not allowed: ", 1)[-1]) from None
-    else:  # the file stem, made safe (it names the default output folder results/<name>/)
-        stem = source.stem if source is not None else "scenario"
-        name = re.sub(r"[^A-Za-z0-9._+-]", "_", stem).lstrip("._+-")[:100] or "scenario"
+    name = _scenario_name(top, source)
     description = top.string("description", "")
     compare = tuple(top.strings("compare", [], choices=sorted(LAW_REGISTRY)))
     dups = sorted({c for c in compare if compare.count(c) > 1})
@@ -260,23 +252,7 @@ def parse_scenario(doc: dict[str, Any], file: str = "<scenario>", *, source: Pat
 
     ev = read_ev(top, source)
     units = ev.units
-
-    sim = top.sub("simulation", required=True)
-    t_end = sim.quantity("t_end", units, gt=0)  # or t_end_s [s]
-    # dt_out, rtol, atol: types, ranges and defaults are SimOptions's (rtol/atol: what the integrators honour)
-    dt_si = sim.has(SI_TWINS["simulation"]["dt_out"][0])
-    declared = read_declared(SimOptions, sim, ("rtol", "atol") if dt_si else ("dt_out", "rtol", "atol"))
-    if dt_si:
-        declared["dt_out"] = sim.quantity("dt_out", units, gt=0)  # dt_out_s [s]
-    opts = dataclasses.replace(SimOptions(), **declared)
-    dt_out, rtol, atol = opts.dt_out, opts.rtol, opts.atol
-    if dt_out > t_end:
-        raise sim.error(
-            "dt_out_s" if dt_si else "dt_out",
-            sim.table["dt_out_s" if dt_si else "dt_out"],
-            f"must be <= the horizon (simulation.t_end = {t_end:g} model time = {units.time_to_si(t_end):g} s)",
-        )
-    sim.finish()
+    t_end, opts = _simulation(top.sub("simulation", required=True), units)
 
     cf, overrides = _carfollowing(top.sub("carfollowing"))
     cf = dataclasses.replace(cf, model_units=units)  # the laws run in the scenario's model units, same SI behaviour
@@ -287,32 +263,11 @@ def parse_scenario(doc: dict[str, Any], file: str = "<scenario>", *, source: Pat
     sized: dict[str, float] = {}
 
     def size(n: int) -> None:
-        sized["dt_out"] = thinned_dt_out(n, t_end, dt_out, file)
+        sized["dt_out"] = thinned_dt_out(n, t_end, opts.dt_out, file)
 
     laws, gaps, speeds = _platoon(top.sub("platoon", required=True), leader, cf, overrides, compare, size, units)
-    dt_out = sized.get("dt_out", dt_out)
-    used = set(compare) | {law.name for law in laws} | {"proposed"}  # proposed: the MPC's fallback law
-    for law_name in overrides:
-        if law_name not in used:
-            warnings.warn(
-                ScenarioWarning(
-                    f"{file}: carfollowing.{law_name} sets coefficients of law {law_name!r}, which no run uses "
-                    f"(runs: {sorted(set(compare) or {law.name for law in laws})})"
-                ),
-                stacklevel=2,
-            )
-
-    extra: dict[str, Any] = {}
-    for sec, validator in _SECTIONS.items():
-        if sec in doc:
-            reader = top.sub(sec)
-            try:
-                extra[sec] = validator(reader)
-            except ScenarioError:
-                raise
-            except (ValueError, TypeError) as exc:
-                raise ScenarioError(f"{file}: [{sec}]: {exc}") from None
-            reader.finish()
+    _warn_unused_overrides(overrides, compare, laws, file)
+    extra = _registered_sections(doc, top, file)
     top.finish()
 
     scenario = Scenario(
@@ -325,9 +280,9 @@ def parse_scenario(doc: dict[str, Any], file: str = "<scenario>", *, source: Pat
         speeds0=tuple(speeds),
         t_end=t_end,
         ev=ev,
-        dt_out=dt_out,
-        rtol=rtol,
-        atol=atol,
+        dt_out=sized.get("dt_out", opts.dt_out),
+        rtol=opts.rtol,
+        atol=opts.atol,
         compare=compare,
         cf=cf,
         law_overrides=overrides,
@@ -337,6 +292,70 @@ def parse_scenario(doc: dict[str, Any], file: str = "<scenario>", *, source: Pat
     )
     check_leader_speed(scenario, file)
     return scenario
+
+
+def _scenario_name(top: TableReader, source: Path | None) -> str:
+    """The scenario's ``name`` (a safe name: it names the output folder), else its file's stem made safe."""
+    if top.has("name"):
+        name = top.string("name")
+        try:
+            check_safe_name(name)
+        except ValueError as exc:
+            raise top.error("name", name, str(exc).split("is not allowed: ", 1)[-1]) from None
+        return name
+    stem = source.stem if source is not None else "scenario"  # (it names the default output folder results/<name>/)
+    return re.sub(r"[^A-Za-z0-9._+-]", "_", stem).lstrip("._+-")[:100] or "scenario"
+
+
+def _simulation(sim: TableReader, units: Units) -> tuple[float, SimOptions]:
+    """``[simulation]``: the horizon t_end [model time] and the SimOptions (dt_out at most t_end)."""
+    t_end = sim.quantity("t_end", units, gt=0)  # or t_end_s [s]
+    # dt_out, rtol, atol: types, ranges and defaults are SimOptions's (rtol/atol: what the integrators honour)
+    dt_si = sim.has(SI_TWINS["simulation"]["dt_out"][0])
+    declared = read_declared(SimOptions, sim, ("rtol", "atol") if dt_si else ("dt_out", "rtol", "atol"))
+    if dt_si:
+        declared["dt_out"] = sim.quantity("dt_out", units, gt=field_checks(SimOptions)["dt_out"].gt)  # dt_out_s [s]
+    opts = dataclasses.replace(SimOptions(), **declared)
+    if opts.dt_out > t_end:
+        raise sim.error(
+            "dt_out_s" if dt_si else "dt_out",
+            sim.table["dt_out_s" if dt_si else "dt_out"],
+            f"must be <= the horizon (simulation.t_end = {t_end:g} model time = {units.time_to_si(t_end):g} s)",
+        )
+    sim.finish()
+    return t_end, opts
+
+
+def _warn_unused_overrides(
+    overrides: dict[str, dict[str, float]], compare: tuple[str, ...], laws: tuple[CarFollowingLaw, ...], file: str
+) -> None:
+    """A ScenarioWarning for each [carfollowing.<law>] table whose law no run uses."""
+    used = set(compare) | {law.name for law in laws} | {"proposed"}  # proposed: the MPC's fallback law
+    for law_name in overrides:
+        if law_name not in used:
+            warnings.warn(
+                ScenarioWarning(
+                    f"{file}: carfollowing.{law_name} sets coefficients of law {law_name!r}, which no run uses "
+                    f"(runs: {sorted(set(compare) or {law.name for law in laws})})"
+                ),
+                stacklevel=3,
+            )
+
+
+def _registered_sections(doc: dict[str, Any], top: TableReader, file: str) -> dict[str, Any]:
+    """The registered sections the document has, each validated by its module's validator."""
+    extra: dict[str, Any] = {}
+    for sec, validator in _SECTIONS.items():
+        if sec in doc:
+            reader = top.sub(sec)
+            try:
+                extra[sec] = validator(reader)
+            except ScenarioError:
+                raise
+            except (ValueError, TypeError) as exc:
+                raise ScenarioError(f"{file}: [{sec}]: {exc}") from None
+            reader.finish()
+    return extra
 
 
 def check_leader_speed(scenario: Scenario, file: str = "<scenario>") -> float:

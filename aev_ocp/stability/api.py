@@ -142,6 +142,174 @@ def study_metrics(
     return {**row, **model}
 
 
+def _si_speed(u: Units) -> Callable[[float], str]:
+    """'7.5 m/s (1.5)': a model speed in SI first, the model value in parentheses."""
+    return lambda x: f"{u.speed_to_si(x):.4g} m/s ({x:g})"
+
+
+def _stability_doc(
+    law: CarFollowingLaw | None, mpc_predictor: str | None, u: Units, exp: dict[str, Any]
+) -> dict[str, Any]:
+    """stability.json's head (law, convention, units, the experiment with SI keys first), 'speeds' still empty;
+    exp: kind, omega [rad/model time], duration [model time], n_followers."""
+    T = u.time_s
+    return {
+        "law": law.describe() if law is not None else {"law": f"mpc ({mpc_predictor})"},
+        "sign_convention": SIGN_CONVENTION,
+        "units": units_table(u),
+        "experiment": {
+            "kind": exp["kind"],
+            "omega_rad_per_s": exp["omega"] / T,
+            "duration_s": exp["duration"] * T,
+            "n_followers": exp["n_followers"],
+            "omega_model": exp["omega"],
+            "duration_model": exp["duration"],
+            "sizes": "peak = max|v_n − v*|, l2 = ‖v_n − v*‖₂; ratio_* = geometric-mean "
+            "step ratio over the platoon, max_step_* = largest step ratio; "
+            "agrees_with_linear: every follower's peak/A within 5 % of the "
+            "linearised law's",
+        },
+        "speeds": [],
+    }
+
+
+def _amplitudes_at(amplitudes: Sequence[float] | None, v: float, u: Units) -> list[float]:
+    """The amplitudes [model speed] measured at v* = v: the given ones, each in (0, v*], or the defaults."""
+    amps = list(amplitudes) if amplitudes is not None else default_amplitudes(float(v))
+    bad = [a for a in amps if not (isinstance(a, (int, float)) and math.isfinite(a) and 0 < a <= float(v))]
+    if bad:
+        raise ParameterError(
+            f"stability: amplitude {bad[0]!r} (model speed) is not allowed at v* = {_si_speed(u)(v)}: "
+            "must be in (0, v*]"
+        )
+    return amps
+
+
+def _measure_law_at(
+    law: CarFollowingLaw,
+    v: float,
+    amps: list[float],
+    lin: LinearStability | None,
+    exp: dict[str, Any],
+    say: Callable[[str], None],
+    u: Units,
+) -> tuple[list[Attenuation], Attenuation]:
+    """The law's measured attenuations at v* = v [model speed], one per amplitude, each marked against the linear
+    prediction; and that prediction. exp: kind, omega, duration, n_followers."""
+    meas = []
+    for a in amps:
+        say(f"{law.name}, v* = {_si_speed(u)(v)}: amplitude {_si_speed(u)(a)}")
+        meas.append(measure(law, float(v), a, lin=lin, **exp))
+    ref = linear_prediction(law, float(v), lin=lin, **exp)
+    for m in meas:
+        m.agrees_with_linear = linear_agreement(m, ref)
+    return meas, ref
+
+
+def _measure_mpc_at(
+    v: float, amps: list[float], predictor: str | None, exp: dict[str, Any], say: Callable[[str], None], u: Units
+) -> list[Attenuation]:
+    """The MPC platoon's measured attenuations at v* = v [model speed], one per amplitude (the undisturbed run
+    computed once and reused as the baseline)."""
+    meas: list[Attenuation] = []
+    base = None
+    for a in amps:
+        say(f"mpc ({predictor}), v* = {_si_speed(u)(v)}: amplitude {_si_speed(u)(a)}")
+        att, base = measure_mpc(
+            float(v),
+            a,
+            n_followers=exp["n_followers"],
+            predictor=predictor or "constant-velocity",
+            kind=exp["kind"],
+            omega=exp["omega"],
+            duration=exp["duration"],
+            baseline=base,
+            units=u,
+        )
+        meas.append(att)
+    return meas
+
+
+def _region_plot(
+    law: CarFollowingLaw,
+    region: tuple[str, str] | None,
+    region_n: int,
+    v_map: float,
+    out: Path,
+    say: Callable[[str], None],
+    u: Units,
+) -> dict[str, Any] | None:
+    """Plot the string-stable region of the two coefficients ``region`` (default the law's first two) at v* = v_map
+    into out/stable_region.png; returns stability.json's 'stable_region' entry (None: no two coefficients)."""
+    from .plots import plot_region
+
+    names = coefficient_names(law)
+    if region is None and len(names) >= 2:
+        region = (names[0], names[1])
+    if region is None:
+        return None
+    x0, y0 = (float(getattr(law, n)) for n in region)
+    xs = np.linspace(0.0, max(5.0, 2.5 * x0), region_n)
+    ys = np.linspace(0.0, max(5.0, 2.5 * y0), region_n)
+    say(f"stable region in ({region[0]}, {region[1]}) at v* = {_si_speed(u)(v_map)}")
+    smap = stability_map(law, v_map, region[0], xs, region[1], ys)
+    plot_region(
+        xs,
+        ys,
+        smap["criterion"],
+        smap["locally_stable"],
+        region[0],
+        region[1],
+        out / "stable_region.png",
+        f"{law.name}: string-stable region at v* = {_si_speed(u)(v_map)}"
+        + "".join(f", {k} = {getattr(law, k):g}" for k in names if k not in region),
+        mark=(x0, y0),
+    )
+    return {
+        "x": region[0],
+        "y": region[1],
+        "v_star_mps": float(u.speed_to_si(v_map)),
+        "v_star_model": v_map,
+        "xs": xs.tolist(),
+        "ys": ys.tolist(),
+        "criterion": smap["criterion"].tolist(),
+    }
+
+
+def _write_stability_plots(
+    doc: dict[str, Any],
+    law: CarFollowingLaw | None,
+    lins: list[LinearStability],
+    series: dict[str, list[Attenuation]],
+    linear_refs: dict[str, Attenuation],
+    out: Path,
+    region: tuple[str, str] | None,
+    region_n: int,
+    v_map: float,
+    kind: str,
+    say: Callable[[str], None],
+    u: Units,
+) -> list[str]:
+    """gain.png, stable_region.png (its grid into doc['stable_region']) and attenuation.png; the files written."""
+    from .plots import plot_attenuation, plot_gain
+
+    files: list[str] = []
+    if lins:
+        assert law is not None  # lins holds the linear analyses of a law
+        plot_gain(lins, out / "gain.png", f"|G(iω)| of {law.name}")
+        files.append(str(out / "gain.png"))
+        entry = _region_plot(law, region, region_n, v_map, out, say, u)
+        if entry is not None:
+            files.append(str(out / "stable_region.png"))
+            doc["stable_region"] = entry
+    if any(series.values()):
+        plot_attenuation(
+            series, linear_refs, out / "attenuation.png", f"{doc['law']['law']}: attenuation vs amplitude ({kind})"
+        )
+        files.append(str(out / "attenuation.png"))
+    return files
+
+
 def run_stability(
     law: CarFollowingLaw | None,
     speeds: Sequence[float],
@@ -172,26 +340,8 @@ def run_stability(
     n_followers)."""
     say = progress or (lambda m: None)
     u = units or Units()
-    T = u.time_s
-    si_v = lambda x: f"{u.speed_to_si(x):.4g} m/s ({x:g})"  # noqa: E731 - SI first, the model value in parentheses
-    doc: dict[str, Any] = {
-        "law": law.describe() if law is not None else {"law": f"mpc ({mpc_predictor})"},
-        "sign_convention": SIGN_CONVENTION,
-        "units": units_table(u),
-        "experiment": {
-            "kind": kind,
-            "omega_rad_per_s": omega / T,
-            "duration_s": duration * T,
-            "n_followers": n_followers,
-            "omega_model": omega,
-            "duration_model": duration,
-            "sizes": "peak = max|v_n − v*|, l2 = ‖v_n − v*‖₂; ratio_* = geometric-mean "
-            "step ratio over the platoon, max_step_* = largest step ratio; "
-            "agrees_with_linear: every follower's peak/A within 5 % of the "
-            "linearised law's",
-        },
-        "speeds": [],
-    }
+    exp = {"kind": kind, "omega": omega, "duration": duration, "n_followers": n_followers}
+    doc = _stability_doc(law, mpc_predictor, u, exp)
     lins: list[LinearStability] = []
     lin_of = {float(v): analyse(law, float(v)) for v in speeds} if law is not None else {}
     if measure_runs:
@@ -208,106 +358,27 @@ def run_stability(
             entry.pop("law", None)
         else:
             entry["v_star_model"] = float(v)
-        amps = list(amplitudes) if amplitudes is not None else default_amplitudes(float(v))
-        bad = [a for a in amps if not (isinstance(a, (int, float)) and math.isfinite(a) and 0 < a <= float(v))]
-        if bad:
-            raise ParameterError(
-                f"stability: amplitude {bad[0]!r} (model speed) is not allowed at v* = {si_v(v)}: must be in (0, v*]"
-            )
+        amps = _amplitudes_at(amplitudes, v, u)
         meas: list[Attenuation] = []
         if measure_runs:
             label = f"v* = {float(v):g}"
             if law is not None:
-                for a in amps:
-                    say(f"{law.name}, v* = {si_v(v)}: amplitude {si_v(a)}")
-                    meas.append(
-                        measure(
-                            law,
-                            float(v),
-                            a,
-                            kind=kind,
-                            omega=omega,
-                            duration=duration,
-                            n_followers=n_followers,
-                            lin=lin,
-                        )
-                    )
-                ref = linear_prediction(
-                    law, float(v), kind=kind, omega=omega, duration=duration, n_followers=n_followers, lin=lin
-                )
+                meas, ref = _measure_law_at(law, v, amps, lin, exp, say, u)
                 entry["linear_prediction"] = ref.to_table(u)
                 linear_refs[label] = ref
-                for m in meas:
-                    m.agrees_with_linear = linear_agreement(m, ref)
             else:
-                base = None
-                for a in amps:
-                    say(f"mpc ({mpc_predictor}), v* = {si_v(v)}: amplitude {si_v(a)}")
-                    att, base = measure_mpc(
-                        float(v),
-                        a,
-                        n_followers=n_followers,
-                        predictor=mpc_predictor or "constant-velocity",
-                        kind=kind,
-                        omega=omega,
-                        duration=duration,
-                        baseline=base,
-                        units=u,
-                    )
-                    meas.append(att)
+                meas = _measure_mpc_at(v, amps, mpc_predictor, exp, say, u)
             series[label] = meas
         entry["measured"] = [a.to_table(u) for a in meas]
         doc["speeds"].append(entry)
-    files: list[str] = []
     if out_dir is not None:
         out = Path(out_dir)
+        files = []
         if plots:
-            from .plots import plot_attenuation, plot_gain, plot_region
-
-            if lins:
-                assert law is not None  # lins holds the linear analyses of a law
-                plot_gain(lins, out / "gain.png", f"|G(iω)| of {law.name}")
-                files.append(str(out / "gain.png"))
-                names = coefficient_names(law)
-                if region is None and len(names) >= 2:
-                    region = (names[0], names[1])
-                if region is not None:
-                    x0, y0 = (float(getattr(law, n)) for n in region)
-                    xs = np.linspace(0.0, max(5.0, 2.5 * x0), region_n)
-                    ys = np.linspace(0.0, max(5.0, 2.5 * y0), region_n)
-                    v_map = float(speeds[0])
-                    say(f"stable region in ({region[0]}, {region[1]}) at v* = {si_v(v_map)}")
-                    smap = stability_map(law, v_map, region[0], xs, region[1], ys)
-                    plot_region(
-                        xs,
-                        ys,
-                        smap["criterion"],
-                        smap["locally_stable"],
-                        region[0],
-                        region[1],
-                        out / "stable_region.png",
-                        f"{law.name}: string-stable region at v* = {si_v(v_map)}"
-                        + "".join(f", {k} = {getattr(law, k):g}" for k in names if k not in region),
-                        mark=(x0, y0),
-                    )
-                    files.append(str(out / "stable_region.png"))
-                    doc["stable_region"] = {
-                        "x": region[0],
-                        "y": region[1],
-                        "v_star_mps": float(u.speed_to_si(v_map)),
-                        "v_star_model": v_map,
-                        "xs": xs.tolist(),
-                        "ys": ys.tolist(),
-                        "criterion": smap["criterion"].tolist(),
-                    }
-            if any(series.values()):
-                plot_attenuation(
-                    series,
-                    linear_refs,
-                    out / "attenuation.png",
-                    f"{doc['law']['law']}: attenuation vs amplitude ({kind})",
-                )
-                files.append(str(out / "attenuation.png"))
+            v_map = float(speeds[0]) if lins else 0.0
+            files = _write_stability_plots(
+                doc, law, lins, series, linear_refs, out, region, region_n, v_map, kind, say, u
+            )
         doc["files"] = files + [str(out / "stability.json"), str(out / "manifest.json")]
         write_json(out / "stability.json", doc)
         from .outputs import save_stability_manifest

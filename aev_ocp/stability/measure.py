@@ -337,7 +337,9 @@ def measure_mpc(
     from dataclasses import replace
 
     from ..models.carfollowing import equilibrium_gap
-    from ..mpc import MPCSettings, MPCVehicle, run_closed_loop
+    from ..control import run_closed_loop
+    from ..mpc.policy import MPCVehicle
+    from ..mpc.settings import MPCSettings
     from ..params import EVParams
 
     st = settings or MPCSettings(solver="rti", codegen=True)

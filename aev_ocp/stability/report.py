@@ -6,6 +6,7 @@ of 20 followers (compiled cascade, about 0.1 s per run plus 0.3 s of compilation
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
 
@@ -16,8 +17,8 @@ from ..models.leader import PaperLeader
 from ..params import UNLIMITED, EVParams, Units
 from ..results import write_json
 from ..simulate import simulate_platoon
-from .linear import analyse
-from .measure import fig5_amplitude, linear_agreement, linear_prediction, measure
+from .linear import LinearStability, analyse
+from .measure import Attenuation, fig5_amplitude, linear_agreement, linear_prediction, measure
 
 ProgressFn = Callable[[str], None]
 N_REPORT = 50  # followers in the report's measured platoon
@@ -63,12 +64,29 @@ def _f(x: float, d: int = 4) -> str:
     return "∞" if x == float("inf") else f"{x:.{d}f}"
 
 
-def string_stability_section(out_dir: Path, progress: ProgressFn) -> str:
-    """Report section: the paper's platoon, linear and measured; writes string_stability.json."""
-    law = Proposed(2.0, 3.0, 0.03, 1e-6)
-    v_star = float(PaperLeader().speed_np(20.0)[0])
-    progress("string stability: linear analysis")
-    lin = analyse(law, v_star)
+@dataclass
+class _Runs:
+    """What the section computed: the paper's law at v* (linear), the linear table's rows, the criterion's
+    minimum over speeds, the measured dips (proposed and OVFL) and Fig. 5's origin."""
+
+    law: Proposed
+    v_star: float
+    lin: LinearStability
+    rows: list[str]
+    grid: np.ndarray
+    c_min: LinearStability
+    top: float
+    amps: list[float]
+    ref: Attenuation
+    meas: list[Attenuation]
+    ovfl: dict[float, Attenuation]
+    origin: dict[str, list[float]]
+    origin_ovfl: dict[str, list[float]]
+    holds: float | None
+
+
+def _linear_rows(law: Proposed, v_star: float, lin: LinearStability) -> list[str]:
+    """The linear table's rows: the paper's law and four others (OVM, OVFL, IDM, OVM at 0.964)."""
     cases = [("proposed (paper)", lin)] + [
         (f"{lw.name}" + (f", α = {lw.alpha:g}" if isinstance(lw, OVM) else ""), analyse(lw, v))
         for lw, v in (
@@ -88,6 +106,16 @@ def string_stability_section(out_dir: Path, progress: ProgressFn) -> str:
             f"{ls.criterion:.4f} | {'yes' if ls.string_stable else 'no'} | {_f(ls.max_gain)} | {band} | "
             f"{_f(ls.peak_gain)} |"
         )
+    return rows
+
+
+def _run(progress: ProgressFn) -> _Runs:
+    """The linear analysis, the measured dips in N_REPORT followers and Fig. 5's origin."""
+    law = Proposed(2.0, 3.0, 0.03, 1e-6)
+    v_star = float(PaperLeader().speed_np(20.0)[0])
+    progress("string stability: linear analysis")
+    lin = analyse(law, v_star)
+    rows = _linear_rows(law, v_star, lin)
     grid = np.linspace(0.05, 1.95, 39)
     over = [analyse(law, float(v), with_peak_gain=False) for v in grid]
     c_min = min(over, key=lambda x: x.criterion)
@@ -103,55 +131,58 @@ def string_stability_section(out_dir: Path, progress: ProgressFn) -> str:
     origin_ovfl = fig5_origin(lambda: OVFL(2.0, 3.0))
     agree = [m.amplitude for m in meas if linear_agreement(m, ref)]
     holds = max((a for a in amps if all(a2 in agree for a2 in amps if a2 <= a)), default=None)
+    return _Runs(law, v_star, lin, rows, grid, c_min, top, amps, ref, meas, ovfl, origin, origin_ovfl, holds)
+
+
+def _write_files(out_dir: Path, x: _Runs) -> None:
+    """string_stability.json and string_stability.png."""
     write_json(
         out_dir / "string_stability.json",
         {
-            "law": law.describe(),
+            "law": x.law.describe(),
             "units": {"length_m": UNITS.length_m, "speed_mps": UNITS.speed_mps},
-            "v_star_mps": UNITS.speed_to_si(v_star),
-            "v_star": v_star,
-            "linear": lin.to_dict(),
-            "linear_prediction": ref.to_dict(),
-            "measured": [m.to_dict() for m in meas],
-            "ovfl_measured": [a.to_dict() for a in ovfl.values()],
-            "fig5_origin": {"proposed": origin, "ovfl": origin_ovfl},
-            "linear_agreement_up_to": holds,
+            "v_star_mps": UNITS.speed_to_si(x.v_star),
+            "v_star": x.v_star,
+            "linear": x.lin.to_dict(),
+            "linear_prediction": x.ref.to_dict(),
+            "measured": [m.to_dict() for m in x.meas],
+            "ovfl_measured": [a.to_dict() for a in x.ovfl.values()],
+            "fig5_origin": {"proposed": x.origin, "ovfl": x.origin_ovfl},
+            "linear_agreement_up_to": x.holds,
         },
     )
     from .plots import plot_attenuation
 
     plot_attenuation(
-        {"proposed": meas, "ovfl": list(ovfl.values())},
-        {"proposed": ref},
+        {"proposed": x.meas, "ovfl": list(x.ovfl.values())},
+        {"proposed": x.ref},
         out_dir / "string_stability.png",
-        f"Dip of depth A in {N_REPORT} followers at v* = {v_star:g} (dashed: linearisation)",
+        f"Dip of depth A in {N_REPORT} followers at v* = {x.v_star:g} (dashed: linearisation)",
     )
-    mrows = []
-    for m in meas:
-        mrows.append(
-            f"| {UNITS.speed_to_si(m.amplitude):.4g} | {m.amplitude:g} | {m.peak[1] / m.amplitude:.4g} | "
-            f"{m.ratio_peak:.4f} | {m.max_step_peak:.4g} | "
-            f"{m.max_step_l2:.4g} | {m.peak[-1] / m.amplitude:.4g} | "
-            f"{'yes' if linear_agreement(m, ref) else 'no'} | {m.status} |"
-        )
-    big = meas[-1]
-    amplified = [m for m in meas if m.max_step_peak > 1 + 1e-3 or m.max_step_l2 > 1 + 1e-3]
-    worst = max(amplified, key=lambda m: m.max_step_peak) if amplified else None
-    big_dev = float(
+
+
+def _measured_rows(meas: list[Attenuation], ref: Attenuation) -> list[str]:
+    return [
+        f"| {UNITS.speed_to_si(m.amplitude):.4g} | {m.amplitude:g} | {m.peak[1] / m.amplitude:.4g} | "
+        f"{m.ratio_peak:.4f} | {m.max_step_peak:.4g} | "
+        f"{m.max_step_l2:.4g} | {m.peak[-1] / m.amplitude:.4g} | "
+        f"{'yes' if linear_agreement(m, ref) else 'no'} | {m.status} |"
+        for m in meas
+    ]
+
+
+def _linear_deviation(run: Attenuation, ref: Attenuation) -> float:
+    """Largest relative distance of a run's peak/A from the linear prediction's, over the followers."""
+    return float(
         np.max(
-            np.abs(np.asarray(big.peak) / big.amplitude - np.asarray(ref.peak) / ref.amplitude)
+            np.abs(np.asarray(run.peak) / run.amplitude - np.asarray(ref.peak) / ref.amplitude)
             / (np.asarray(ref.peak) / ref.amplitude)
         )
     )
-    ov_big = ovfl[top]
-    ov_dev = float(
-        np.max(
-            np.abs(np.asarray(ov_big.peak) / ov_big.amplitude - np.asarray(ref.peak) / ref.amplitude)
-            / (np.asarray(ref.peak) / ref.amplitude)
-        )
-    )
-    o, oo = origin, origin_ovfl
-    lst = lambda xs: ", ".join(f"{x:.3f}" for x in xs)  # noqa: E731
+
+
+def _linear_text(x: _Runs) -> str:
+    lin, v_star, grid, c_min = x.lin, x.v_star, x.grid, x.c_min
     return (
         "## String stability (Fig. 5 and §6, issue 14)\n\n"
         "Convention: v̇ = f(h, v, Δv) with Δv = v_l − v; exact partials f_h, f_v (at fixed Δv), f_Δv at "
@@ -175,7 +206,13 @@ def string_stability_section(out_dir: Path, progress: ProgressFn) -> str:
         + f"Model units as in the paper; the SI columns use L = {UNITS.length_m:g} m, U = {UNITS.speed_mps:g} m/s.\n\n"
         "| law | v* [m/s] | h* [m] | v* (model) | h* (model) | f_h | f_v | f_Δv | C | string stable | sup\\|G\\| | "
         "\\|G\\| > 1 on ω ∈ | ∫\\|g\\| |\n"
-        "|---|---|---|---|---|---|---|---|---|---|---|---|---|\n" + "\n".join(rows) + "\n\n"
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|\n" + "\n".join(x.rows) + "\n\n"
+    )
+
+
+def _measured_text(x: _Runs) -> str:
+    ref, ovfl, top = x.ref, x.ovfl, x.top
+    return (
         f"**Measured.** The leader of {N_REPORT} followers, all at equilibrium, dips by A (smooth, duration 4 = the "
         "period of the paper leader's slow component) and returns to v*. Columns: follower 1's peak |v − v*| "
         "over A; the geometric-mean step ratio of peaks over the platoon; the largest step ratios of the peak and of "
@@ -186,10 +223,20 @@ def string_stability_section(out_dir: Path, progress: ProgressFn) -> str:
         "![attenuation against amplitude](string_stability.png)\n\n"
         "| A [m/s] | A (model) | follower 1 peak / A | mean peak ratio | max peak step | max ℓ2 step | last peak / A | "
         "linear | status |\n"
-        "|---|---|---|---|---|---|---|---|---|\n" + "\n".join(mrows) + "\n\n"
+        "|---|---|---|---|---|---|---|---|---|\n" + "\n".join(_measured_rows(x.meas, ref)) + "\n\n"
         f"OVFL, same runs: mean peak ratio {ovfl[1e-4].ratio_peak:.4f} at A = 1e-4 and {ovfl[top].ratio_peak:.4f} at "
         f"A = {top:g} (largest ℓ2 step {ovfl[1e-4].max_step_l2:.4f}, {ovfl[top].max_step_l2:.4f}): it attenuates at "
         "every size, as its linearisation says.\n\n"
+    )
+
+
+def _answer_text(x: _Runs) -> str:
+    v_star, top, holds, ref = x.v_star, x.top, x.holds, x.ref
+    big, ov_big = x.meas[-1], x.ovfl[top]
+    amplified = [m for m in x.meas if m.max_step_peak > 1 + 1e-3 or m.max_step_l2 > 1 + 1e-3]
+    worst = max(amplified, key=lambda m: m.max_step_peak) if amplified else None
+    big_dev, ov_dev = _linear_deviation(big, ref), _linear_deviation(ov_big, ref)
+    return (
         f"**Answer.** §6's linear argument describes the proposed platoon only for disturbances up to "
         f"A = {holds if holds is not None else 'none of those tried'} (model speed). The κ term is "
         "κv²Δv²/(Δv² + ε) ≈ (κv²/ε)·Δv² for |Δv| ≪ √ε: at v* = 1.7 its curvature κv²/ε ≈ "
@@ -224,6 +271,13 @@ def string_stability_section(out_dir: Path, progress: ProgressFn) -> str:
         + "So Fig. 5's 'the perturbation attenuates' is borne out at Fig. 5's own size for the peaks, and §6's "
         f"linear argument covers only A ≤ {holds if holds is not None else '—'}; in between, the proposed platoon "
         "amplifies small disturbances although its linearisation is string stable.\n\n"
+    )
+
+
+def _origin_text(x: _Runs) -> str:
+    o, oo = x.origin, x.origin_ovfl
+    lst = lambda xs: ", ".join(f"{x:.3f}" for x in xs)  # noqa: E731
+    return (
         "**Fig. 5's 0.88 → 1.19** (peak |Δv| of followers 1 and 2 in the Table 1 platoon) comes from the "
         "initial condition, not from string instability: peak |v_l − v| per follower, proposed law — paper's start "
         f"(gap 0.3 then 3.5, speeds 1.87): {lst(o['paper'])}; everyone at equilibrium (V⁻¹(1.7), 1.7): "
@@ -234,6 +288,13 @@ def string_stability_section(out_dir: Path, progress: ProgressFn) -> str:
         f"speed deviations themselves, |v_n − 1.7| ({lst(o['paper_speed_dev'])}), do decrease along the platoon, as "
         "∫|g| = 1 requires; relative velocity is not the signal the transfer function bounds.\n"
     )
+
+
+def string_stability_section(out_dir: Path, progress: ProgressFn) -> str:
+    """Report section: the paper's platoon, linear and measured; writes string_stability.json."""
+    x = _run(progress)
+    _write_files(out_dir, x)
+    return _linear_text(x) + _measured_text(x) + _answer_text(x) + _origin_text(x)
 
 
 REPRODUCE_SECTIONS = [("string-stability", string_stability_section, 3)]

@@ -9,7 +9,15 @@ import math
 import sys
 
 # the command line's one error format, exit codes and parser (aev_ocp/cli.py)
-from ..console import EXIT_BAD_INPUT, EXIT_FAILED_RUN, EXIT_OK, add_set_option, bad_input
+from ..console import (
+    EXIT_BAD_INPUT,
+    EXIT_FAILED_RUN,
+    EXIT_OK,
+    add_executor_options,
+    add_set_option,
+    bad_input,
+    executor_options,
+)
 from ..console import OneLineParser as _Parser
 from ..console import error_line as _err
 from ..console import warning_line
@@ -25,24 +33,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("study", help="a study .toml file (e.g. studies/kappa_alpha_table1.toml)")
     p.add_argument("--out", default=None, help="output folder (default results/study/<name>); rerun to resume")
-    ex = p.add_mutually_exclusive_group()
-    ex.add_argument(
-        "--workers", type=int, default=None, metavar="N", help="local process pool of N workers (default: one per core)"
-    )
-    ex.add_argument(
-        "--dask-local",
-        type=int,
-        default=None,
-        metavar="N",
-        help="start a Dask LocalCluster of N worker processes (needs aev_ocp[dask])",
-    )
-    ex.add_argument(
-        "--scheduler",
-        default=None,
-        metavar="ADDRESS",
-        help="run on a running Dask scheduler, e.g. tcp://10.0.0.5:8786 (needs aev_ocp[dask])",
-    )
-    ex.add_argument("--in-process", action="store_true", help="run every task in this process (debugging)")
+    add_executor_options(p)
     add_set_option(
         p,
         "override a scenario key at every point, e.g. --set simulation.t_end_s=60 (repeatable). "
@@ -80,15 +71,13 @@ def cli_study(argv: list[str]) -> int:
     if a.time_limit is not None and not (math.isfinite(a.time_limit) and a.time_limit > 0):
         _err(f"--time-limit {a.time_limit:g}: must be a number of seconds > 0")
         return EXIT_BAD_INPUT
-    from ..limits import check_local_workers
     from ..params import ParameterError
 
-    for opt in ("workers", "dask_local"):
-        try:
-            check_local_workers(getattr(a, opt), f"--{opt.replace('_', '-')}")
-        except ParameterError as exc:
-            _err(str(exc))
-            return EXIT_BAD_INPUT
+    try:
+        kw = executor_options(a)
+    except ParameterError as exc:
+        _err(str(exc))
+        return EXIT_BAD_INPUT
     try:
         study = read_study(a.study, sets=parse_assignments(a.sets))
     except (StudyError, ScenarioError, OverrideError) as exc:
@@ -96,9 +85,7 @@ def cli_study(argv: list[str]) -> int:
         return EXIT_BAD_INPUT
     for w in study.warnings:
         warning_line(w)
-    if a.in_process:
-        kw: dict = {"executor": "inprocess"}
-    elif a.dask_local is not None or a.scheduler is not None:
+    if kw["executor"] == "dask":
         try:
             import dask.distributed  # noqa: F401
         except ImportError:
@@ -110,9 +97,6 @@ def cli_study(argv: list[str]) -> int:
             from .runner import check_scheduler_address
 
             check_scheduler_address(a.scheduler)  # before the folder is claimed
-        kw = {"executor": "dask", "workers": a.dask_local, "scheduler": a.scheduler}
-    else:
-        kw = {"executor": "pool", "workers": a.workers}
     print(
         f"[study {study.name}] {len(study.points)} points × {len(study.controllers)} controllers "
         f"({', '.join(c.label for c in study.controllers)}), executor {kw['executor']}",

@@ -17,6 +17,7 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
+from ..plots import comparable_dots  # noqa: E402
 from ..results import save_figure_atomic, write_atomic  # noqa: E402
 from .table import EQUAL_METRIC
 from .spec import Study  # noqa: E402
@@ -89,10 +90,7 @@ def plot_metric_vs_axis(study: Study, rows: list[dict[str, Any]], metric: str, a
             "" if not others else " (" + ", ".join(f"{o.split('.')[-1]}={v}" for o, v in zip(others, key[1:])) + ")"
         )
         ax.plot([p[0] for p in pts], [p[1] for p in pts], color=color, linestyle=ls, label=lab)
-        ax.scatter([p[0] for p in pts if p[2]], [p[1] for p in pts if p[2]], color=color, s=14)
-        ax.scatter(
-            [p[0] for p in pts if not p[2]], [p[1] for p in pts if not p[2]], facecolors="none", edgecolors=color, s=30
-        )
+        comparable_dots(ax, pts, color)
     if cats:
         ax.set_xticks(range(len(cats)), cats)
     ax.set_xlabel(axis)
@@ -308,21 +306,12 @@ def _warn_unknown_metrics(study: Study, rows: list[dict[str, Any]]) -> None:
             )
 
 
-def write_report(study: Study, rows_all: list[dict[str, Any]], out: str | Path) -> list[Path]:
-    """Figures and report.md into ``out``; returns the files written."""
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    veh = study.report.get("vehicle", 1)
-    rows = [r for r in rows_all if r.get("vehicle") in (veh, None)]
-    _warn_unknown_metrics(study, rows_all)
-    files: list[Path] = []
-    figs: list[Path] = []
-    for m in study.report.get("metrics", []):
-        for a in (k for k in _primary_axes(study) if k != "scenario"):
-            f = plot_metric_vs_axis(study, rows, m, a, out)
-            if f:
-                figs.append(f)
-    fronts: list[tuple[str, str, str, Path | None, list[dict[str, Any]]]] = []
+Front = tuple[str, str, str, "Path | None", list[dict[str, Any]]]
+
+
+def _fronts(study: Study, rows: list[dict[str, Any]], out: Path) -> list[Front]:
+    """Per Pareto pair and group: (mx, my, base, figure or None, the front: one row per distinct run)."""
+    fronts: list[Front] = []
     groups = _pareto_groups(study, rows)
     for (mx, my), (base, grows) in ((pair, g) for pair in study.report.get("pareto", []) for g in groups):
         f = plot_pareto(study, grows, mx, my, out, base)
@@ -333,8 +322,12 @@ def write_report(study: Study, rows_all: list[dict[str, Any]], out: str | Path) 
                 seen.add(r.get("task_hash"))
                 front.append(r)
         fronts.append((mx, my, base, f, front))
-        if f:
-            figs.append(f)
+    return fronts
+
+
+def _head_lines(study: Study, rows_all: list[dict[str, Any]], rows: list[dict[str, Any]], veh: int) -> list[str]:
+    """The report's title, what was run (points, controllers, axes), the counts of events, failures and
+    non-comparable rows, and the failed tasks."""
     n_err = sum(1 for r in rows_all if r["status"] == "error")
     n_evt = sum(1 for r in rows_all if r["status"] not in ("ok", "error"))
     n_nc = sum(1 for r in rows if not r.get("comparable"))
@@ -371,6 +364,12 @@ def write_report(study: Study, rows_all: list[dict[str, Any]], out: str | Path) 
                 seen.add((r["point"], r["controller"]))
                 lines.append(f"- point {r['point']} {r['controller']}: {r['message']}")
         lines.append("")
+    return lines
+
+
+def _change_lines(study: Study, rows_all: list[dict[str, Any]], veh: int) -> list[str]:
+    """Per reported follower: the change against the reference and the equal-distance view."""
+    lines: list[str] = []
     for v in study.report.get("vehicles", [veh]):
         ch = change_table(
             study, [r for r in rows_all if r.get("vehicle") == v], study.report.get("change_metric", "omega_model"), v
@@ -393,11 +392,12 @@ def write_report(study: Study, rows_all: list[dict[str, Any]], out: str | Path) 
                 "runs of different length compare like with like; the same up to the common time: `eq_time_*`.",
                 "",
             ] + eq
-    from .seeds import markdown_lines, study_seeds
+    return lines
 
-    seeds = study_seeds(study, rows_all)
-    if seeds is not None:
-        lines += ["## Over the seeds", ""] + markdown_lines(seeds)
+
+def _front_lines(study: Study, fronts: list[Front], veh: int) -> list[str]:
+    """Per Pareto front its figure and its rows (laws show '(any)' for the MPC's axes)."""
+    lines: list[str] = []
     for mx, my, base, f, front in fronts:
         lines += [
             f"## Pareto front: {mx} vs {my}{', ' + base if base else ''} (both minimised, "
@@ -417,6 +417,32 @@ def write_report(study: Study, rows_all: list[dict[str, Any]], out: str | Path) 
                 + f" | {_fmt(r[mx])} | {_fmt(r[my])} |"
             )
         lines.append("")
+    return lines
+
+
+def write_report(study: Study, rows_all: list[dict[str, Any]], out: str | Path) -> list[Path]:
+    """Figures and report.md into ``out``; returns the files written."""
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    veh = study.report.get("vehicle", 1)
+    rows = [r for r in rows_all if r.get("vehicle") in (veh, None)]
+    _warn_unknown_metrics(study, rows_all)
+    files: list[Path] = []
+    figs: list[Path] = []
+    for m in study.report.get("metrics", []):
+        for a in (k for k in _primary_axes(study) if k != "scenario"):
+            f = plot_metric_vs_axis(study, rows, m, a, out)
+            if f:
+                figs.append(f)
+    fronts = _fronts(study, rows, out)
+    figs += [fr[3] for fr in fronts if fr[3]]
+    lines = _head_lines(study, rows_all, rows, veh) + _change_lines(study, rows_all, veh)
+    from .seeds import markdown_lines, study_seeds
+
+    seeds = study_seeds(study, rows_all)
+    if seeds is not None:
+        lines += ["## Over the seeds", ""] + markdown_lines(seeds)
+    lines += _front_lines(study, fronts, veh)
     if figs:
         lines += ["## Figures", ""] + [f"![{f.stem}]({f.name})" for f in figs if not f.name.startswith("pareto")] + [""]
     files.append(write_atomic(out / "report.md", "\n".join(lines) + "\n"))

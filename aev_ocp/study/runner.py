@@ -435,34 +435,7 @@ def _end_with(parent_pid: int) -> None:
     threading.Thread(target=watch, name="aev-ocp-parent-watch", daemon=True).start()
 
 
-STOP_GRACE_S = 5.0  # how long a stopped worker may take to exit after SIGTERM before it is killed [s]
-
-
-def _stop_pool(ex: Any) -> None:
-    """Stop a process pool now: cancel pending tasks AND end the worker processes that are computing
-    (``shutdown(wait=False, cancel_futures=True)`` alone lets them finish their tasks, for minutes)."""
-    procs = list((getattr(ex, "_processes", None) or {}).values())
-    manager = getattr(ex, "_executor_manager_thread", None)  # shutdown() forgets it and the result queue
-    results = getattr(ex, "_result_queue", None)
-    ex.shutdown(wait=False, cancel_futures=True)
-    for p in procs:
-        if p.is_alive():
-            p.terminate()
-    deadline = time.monotonic() + STOP_GRACE_S
-    for p in procs:
-        p.join(max(0.0, deadline - time.monotonic()))
-        if p.is_alive():
-            p.kill()
-            p.join(1.0)
-    writer = getattr(results, "_writer", None)
-    if writer is not None and not any(p.is_alive() for p in procs):
-        # a worker stopped while it sent its result left half a message in the result pipe: the manager thread
-        # waits for the rest for ever, and so does this process's exit; with the workers gone this is the pipe's
-        # last writer, so closing it ends that wait (EOF: the pool is marked broken and cleans up)
-        writer.close()
-    if manager is not None:  # let the pool's manager thread finish closing its pipes before this process exits:
-        # else the exit's wake-up of that thread races with the close ("OSError: Bad file descriptor", CPython 3.11)
-        manager.join(max(0.0, deadline - time.monotonic()) + 1.0)
+_stop_pool = interrupts.stop_pool  # (moved to aev_ocp.interrupts: sumo's sweep stops its pool too)
 
 
 def _export_path() -> None:

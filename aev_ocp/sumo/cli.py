@@ -188,9 +188,7 @@ def cli_sumo(argv: list[str]) -> int:
                     flush=True,
                 )
         except KeyboardInterrupt:  # end the running SUMO workers now (a wait lets each finish its run: ~35 s)
-            from ..study.runner import _stop_pool
-
-            _stop_pool(pool)
+            interrupts.stop_pool(pool)
             raise
     order = {p: i for i, p in enumerate(points)}
     rows.sort(key=lambda r: order[(r["share"], r["controller"])])

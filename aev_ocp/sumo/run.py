@@ -35,7 +35,6 @@ from typing import Any, Callable
 import numpy as np
 
 from .. import interrupts
-from ..control import _stats
 from ..loop import Controller, Observation, VehicleStep, stages_for
 from ..models.carfollowing import CarFollowingLaw, make_law, optimal_velocity
 from ..numerics import trapezoid
@@ -465,259 +464,303 @@ def run_sumo(
 
 
 def _loop(ts: Any, sc: SumoScenario, progress: ProgressFn | None) -> SumoRun:
-    s, ev = sc.spec, sc.ev
-    u = ev.units
-    dt = s.step_s
-    law, factory = make_controller_factory(sc)
-    law_stages = stages_for(ev.limits, law=True, sensed=False)  # SUMO hands the controllers exact measurements
-    ctrl_stages = stages_for(ev.limits, law=False, sensed=False)
-    a_lo, a_hi = (ev.limits.a_min_mps2, ev.limits.a_max_mps2) if ev.limits.enabled else (-math.inf, math.inf)
-    # what a law's non-finite output becomes (a law evaluated where it has no value: brake as hard as the car can)
-    a_emergency = a_lo if math.isfinite(a_lo) else VehicleLimits().a_min_mps2
-    # a controlled car decelerating beyond its a_min (without limits: the tyre-road friction of the default limits)
-    # was stopped by SUMO, not by its controller: an event (SUMO's emergency stop, e.g. at a lane end)
-    a_floor = a_emergency
-    floors: dict[str, float] = {}
-    v_max = ev.limits.v_max_mps if ev.limits.enabled else math.inf
-    ctrl_every = 1
-    tracks: dict[str, _Track] = {}
-    done: list[_Track] = []
-    fleet_events: list[dict[str, Any]] = []
-    min_gaps: dict[str, float] = {}
-    ring = s.ring if s.network == "ring" else None
-    offsets: dict[str, float] = {}
-    lane_ends: dict[tuple[str, int, str], float | None] = {}
-    V = ts.vehicle
+    """Step SUMO to the scenario's end with the toolkit driving its controlled vehicles (module docstring)."""
+    lp = _SumoLoop(ts, sc)
     t0 = time.perf_counter()
-    t_ctrl = 0.0
-    t_build = 0.0  # building sampled controllers (an MPC builds its NLP once per vehicle)
-    k = 0
-    K = int(round(s.t_end_s / dt))
-    next_progress = 1.0
-    interrupted = False
-
-    def finish(tr: _Track, why: str, t_s: float) -> None:
-        tr.end, tr.end_s = why, t_s
-        tracks.pop(tr.vid, None)
-        done.append(tr)
-
-    def release(vid: str) -> None:  # give a vehicle whose record ended back to SUMO
-        try:
-            V.setSpeed(vid, -1)
-            V.setSpeedMode(vid, 31)
-        except Exception:  # noqa: BLE001 - it may have left already
-            pass
-
-    def stop(tr: _Track, kind: str, t_s: float, message: str, **extra: Any) -> None:
-        """The record of ``tr`` ends with an Event of ``kind`` at t_s [s]; the vehicle goes back to SUMO."""
-        tr.events.append(Event(kind, u.time_from_si(t_s), 0, message, time_s=t_s, **extra))
-        finish(tr, kind, t_s)
-        release(tr.vid)
-
     try:
-        while k < K:
-            interrupts.check()
-            ts.simulationStep()
-            k += 1
-            t_s = ts.simulation.getTime()
-            for vid in ts.simulation.getDepartedIDList():
-                vt = V.getTypeID(vid)
-                if vt not in min_gaps:
-                    min_gaps[vt] = ts.vehicletype.getMinGap(vt)
-                ctl = is_controlled(vid, vt, sc)
-                tr = _Track(vid, vt, V.getRouteID(vid), ctl, "", min_gaps[vt], t_s, lane_pos0=V.getLanePosition(vid))
-                if ring is not None:
-                    tr.lane_pos0 += ring.length_m / 2 if V.getRoadID(vid) == "bottom" else 0.0
-                offsets[vid] = tr.lane_pos0
-                if ctl:
-                    V.setSpeedMode(vid, s.speed_mode)
-                    if law is not None:
-                        tr.law, tr.controller = law, law.name
-                        # a law is evaluated every SUMO step: its loop core steps at dt
-                        tr.step = VehicleStep(
-                            law.name, f"vehicle {vid!r}", u, ev.limits, law_stages, dt / u.time_s, "sumo"
-                        )
-                    else:
-                        assert factory is not None
-                        tb = time.perf_counter()
-                        tr.ctrl = factory()
-                        tr.ctrl.reset()
-                        t_build += time.perf_counter() - tb
-                        tr.controller = tr.ctrl.name
-                        ctrl_every = max(1, int(round(tr.ctrl.dt * u.time_s / dt)))
-                        tr.step = VehicleStep(
-                            tr.ctrl.name,
-                            f"vehicle {vid!r}",
-                            u,
-                            ev.limits,
-                            ctrl_stages,
-                            ctrl_every * dt / u.time_s,
-                            "sumo",
-                        )
-                else:
-                    tr.controller = f"sumo:{vt}"  # SUMO's own driver model of the vehicle's type
-                if vt not in floors:  # SUMO's own drivers: their type's emergency deceleration
-                    floors[vt] = -float(ts.vehicletype.getEmergencyDecel(vt))
-                tr.a_floor_mps2 = a_floor if ctl else floors[vt]
-                tracks[vid] = tr
-            for vid in ts.simulation.getStartingTeleportIDList():
-                if vid in tracks:
-                    tr = tracks[vid]
-                    fleet_events.append({"kind": "teleport", "t_s": t_s, "vehicle": vid, "controlled": tr.controlled})
-                    stop(
-                        tr,
-                        "teleport",
-                        t_s,
-                        "SUMO teleported the vehicle (a jam or a lane it could not leave); its record ends here",
-                    )
-            for c in ts.simulation.getCollisions():
-                dv = c.colliderSpeed - c.victimSpeed
-                fleet_events.append(
-                    {
-                        "kind": "collision",
-                        "t_s": t_s,
-                        "vehicle": c.collider,
-                        "victim": c.victim,
-                        "impact_speed_mps": dv,
-                        "type": c.type,
-                    }
-                )
-                for vid in (c.collider, c.victim):
-                    if vid in tracks:
-                        who = "hit " + c.victim if vid == c.collider else "hit by " + c.collider
-                        stop(tracks[vid], "collision", t_s, f"{who} at {dv:.3g} m/s ({c.type})", impact_speed_mps=dv)
-            for vid in ts.simulation.getArrivedIDList():
-                if vid in tracks:
-                    tr = tracks[vid]
-                    fleet_events.append(
-                        {"kind": "left_network", "t_s": t_s, "vehicle": vid, "controlled": tr.controlled}
-                    )
-                    finish(tr, "arrived", t_s)
-            live = list(tracks.values())
-            # read the state SUMO reached at t_s
-            for tr in live:
-                vid = tr.vid
-                v = V.getSpeed(vid)
-                lead = V.getLeader(vid, s.lookahead_m)
-                if lead and lead[0]:
-                    g, vl = lead[1] + tr.min_gap_m, V.getSpeed(lead[0])
-                else:
-                    g, vl = math.nan, math.nan
-                left = None
-                if tr.controlled:  # a lane that ends (no continuation on the route) is a standing obstacle
-                    left = _lane_end_m(V, vid, tr.route, lane_ends)
-                    if left is not None and left < s.lookahead_m and not (g <= left):
-                        g, vl = left, 0.0
-                tr.t_s.append(t_s)
-                tr.v.append(v)
-                tr.odo.append(V.getDistance(vid))
-                tr.gap.append(g)
-                tr.v_lead.append(vl)
-                tr.lane.append(V.getLaneID(vid))
-                if len(tr.v) > 1:
-                    _check_motion(tr, dt, u, fleet_events, lane_end=tr.controlled and left is not None and g == left)
-            # battery over the step just made
-            _battery(ev, live, dt)
-            for tr in [tr for tr in live if tr.events]:
-                finish(tr, tr.events[-1].kind, t_s)
-                if tr.controlled:
-                    release(tr.vid)
-            live = [tr for tr in live if not tr.end]
-            # commands for [t_s, t_s + dt]
-            tc = time.perf_counter()
-            ctl_live = [tr for tr in live if tr.controlled]
-            if ctl_live:
-                gaps = np.array([tr.gap[-1] for tr in ctl_live])
-                vs = np.array([tr.v[-1] for tr in ctl_live])
-                vls = np.array([tr.v_lead[-1] for tr in ctl_live])
-                free = ~np.isfinite(gaps)
-                gaps = np.where(free, s.lookahead_m, gaps)
-                vls = np.where(free, vs, vls)
-                a = np.empty(len(ctl_live))
-                law_idx = [i for i, tr in enumerate(ctl_live) if tr.law is not None]
-                if law_idx:
-                    assert law is not None
-                    h = u.length_from_si(np.maximum(gaps[law_idx], 1e-6))
-                    a_model = np.asarray(
-                        law.function(
-                            h[None, :], u.speed_from_si(vs[law_idx])[None, :], u.speed_from_si(vls[law_idx])[None, :]
-                        )
-                    ).ravel()
-                    a_law = u.accel_to_si(a_model)
-                    a[law_idx] = np.where(np.isfinite(a_law), a_law, a_emergency)
-                for i, tr in enumerate(ctl_live):
-                    assert tr.step is not None
-                    if tr.ctrl is None:  # a law: its command through the loop core's stages (model units)
-                        if tr.step.stages.active:
-                            a_l = (
-                                (vls[i] - tr.v_lead[-2]) / dt
-                                if len(tr.v_lead) > 1 and np.isfinite(tr.v_lead[-2])
-                                else 0.0
-                            )
-                            a[i] = u.accel_to_si(
-                                tr.step.apply(
-                                    float(u.accel_from_si(a[i])),
-                                    float(u.length_from_si(gaps[i])),
-                                    float(u.speed_from_si(vs[i])),
-                                    float(u.speed_from_si(vls[i])),
-                                    float(u.accel_from_si(a_l)),
-                                )
-                            )
-                        else:  # no stage: only the saturation below, counted as the core counts it
-                            tr.step.n["steps"] += 1
-                            tr.step.n["saturated_steps"] += int(not (a_lo <= a[i] <= a_hi))
-                        continue
-                    tr.meas_t.append(u.time_from_si(t_s))
-                    tr.meas_v.append(u.speed_from_si(vls[i]))
-                    if (len(tr.t_s) - 1) % ctrl_every == 0:  # every controller dt since the vehicle departed
-                        tr.a_cmd_mps2 = _call(tr, u, vs[i], gaps[i])
-                    a[i] = tr.a_cmd_mps2
-                a = np.clip(a, a_lo, a_hi)  # (the loop core saturated in model units: this only rounds to SI)
-                v_next = np.clip(vs + a * dt, 0.0, np.maximum(v_max, vs))
-                for i, tr in enumerate(ctl_live):
-                    V.setSpeed(tr.vid, float(v_next[i]))
-                    tr.a_prev = float(u.accel_from_si(a[i]))
-            t_ctrl += time.perf_counter() - tc
-            if progress is not None and t_s >= next_progress:
-                next_progress = math.floor(t_s) + 1.0
-                progress(t_s, s.t_end_s)
+        lp.run(progress)
     except KeyboardInterrupt:
-        interrupted = True
+        lp.interrupted = True
         raise
     finally:
         wall = time.perf_counter() - t0
-    for tr in list(tracks.values()):
-        finish(tr, "", math.nan)
-    check_ids_seen(sc, [tr.vid for tr in done], k * dt)
-    vehicles: dict[str, SimulationResult] = {}
-    controlled: dict[str, bool] = {}
-    for tr in done:
-        if len(tr.t_s) < 1:
-            continue
-        vehicles[tr.vid] = _result(tr, ev, s.lookahead_m, dt, s.record_every)
-        controlled[tr.vid] = tr.controlled
-        for e in vehicles[tr.vid].violations:  # the cell's current limit: the plants' one rule (aev_ocp.plant)
-            if e.kind == CURRENT_LIMIT:
-                peak = float(np.max(np.abs(tr.current)))  # the largest |I| [A]
-                fleet_events.append(
-                    {"kind": e.kind, "t_s": e.time_s, "vehicle": tr.vid, "controlled": tr.controlled, "value": peak}
+    return lp.result(wall)
+
+
+class _SumoLoop:
+    """One SUMO run's loop state: the vehicles' records (live in ``tracks``, finished in ``done``), the fleet's
+    events, each controlled vehicle's step core (:class:`aev_ocp.loop.VehicleStep`) and the run's clocks."""
+
+    def __init__(self, ts: Any, sc: SumoScenario) -> None:
+        s, ev = sc.spec, sc.ev
+        self.ts, self.sc, self.s, self.ev, self.u, self.dt = ts, sc, s, ev, ev.units, s.step_s
+        self.law, self.factory = make_controller_factory(sc)
+        self.law_stages = stages_for(ev.limits, law=True, sensed=False)  # SUMO hands the controllers exact measurements
+        self.ctrl_stages = stages_for(ev.limits, law=False, sensed=False)
+        lim = ev.limits
+        self.a_lo, self.a_hi = (lim.a_min_mps2, lim.a_max_mps2) if lim.enabled else (-math.inf, math.inf)
+        # what a law's non-finite output becomes (a law evaluated where it has no value: brake as hard as the car can)
+        self.a_emergency = self.a_lo if math.isfinite(self.a_lo) else VehicleLimits().a_min_mps2
+        # a controlled car decelerating beyond its a_min (without limits: the tyre-road friction of the default
+        # limits) was stopped by SUMO, not by its controller: an event (SUMO's emergency stop, e.g. at a lane end)
+        self.a_floor = self.a_emergency
+        self.floors: dict[str, float] = {}
+        self.v_max = lim.v_max_mps if lim.enabled else math.inf
+        self.ctrl_every = 1
+        self.tracks: dict[str, _Track] = {}
+        self.done: list[_Track] = []
+        self.fleet_events: list[dict[str, Any]] = []
+        self.min_gaps: dict[str, float] = {}
+        self.ring = s.ring if s.network == "ring" else None
+        self.offsets: dict[str, float] = {}
+        self.lane_ends: dict[tuple[str, int, str], float | None] = {}
+        self.V = ts.vehicle
+        self.t_ctrl = 0.0
+        self.t_build = 0.0  # building sampled controllers (an MPC builds its NLP once per vehicle)
+        self.k = 0
+        self.interrupted = False
+
+    # ------------------------------------------------------------------ records
+    def finish(self, tr: _Track, why: str, t_s: float) -> None:
+        tr.end, tr.end_s = why, t_s
+        self.tracks.pop(tr.vid, None)
+        self.done.append(tr)
+
+    def release(self, vid: str) -> None:
+        """Give a vehicle whose record ended back to SUMO."""
+        try:
+            self.V.setSpeed(vid, -1)
+            self.V.setSpeedMode(vid, 31)
+        except Exception:  # noqa: BLE001 - it may have left already
+            pass
+
+    def stop(self, tr: _Track, kind: str, t_s: float, message: str, **extra: Any) -> None:
+        """The record of ``tr`` ends with an Event of ``kind`` at t_s [s]; the vehicle goes back to SUMO."""
+        tr.events.append(Event(kind, self.u.time_from_si(t_s), 0, message, time_s=t_s, **extra))
+        self.finish(tr, kind, t_s)
+        self.release(tr.vid)
+
+    # ------------------------------------------------------------------ the loop
+    def run(self, progress: ProgressFn | None) -> None:
+        """Every SUMO step: advance SUMO, record who came and went, read the state, integrate the batteries,
+        end the records of vehicles with a battery event, command the controlled vehicles."""
+        ts, s, dt = self.ts, self.s, self.dt
+        K = int(round(s.t_end_s / dt))
+        next_progress = 1.0
+        while self.k < K:
+            interrupts.check()
+            ts.simulationStep()
+            self.k += 1
+            t_s = ts.simulation.getTime()
+            for vid in ts.simulation.getDepartedIDList():
+                self.depart(vid, t_s)
+            self.fleet_changes(t_s)
+            live = list(self.tracks.values())
+            for tr in live:  # read the state SUMO reached at t_s
+                self.read(tr, t_s)
+            _battery(self.ev, live, dt)  # battery over the step just made
+            for tr in [tr for tr in live if tr.events]:
+                self.finish(tr, tr.events[-1].kind, t_s)
+                if tr.controlled:
+                    self.release(tr.vid)
+            live = [tr for tr in live if not tr.end]
+            tc = time.perf_counter()  # commands for [t_s, t_s + dt]
+            self.command([tr for tr in live if tr.controlled], t_s)
+            self.t_ctrl += time.perf_counter() - tc
+            if progress is not None and t_s >= next_progress:
+                next_progress = math.floor(t_s) + 1.0
+                progress(t_s, s.t_end_s)
+
+    def depart(self, vid: str, t_s: float) -> None:
+        """A vehicle entered the network at t_s [s]: its record, and for a controlled one its controller (a law
+        or a new sampled Controller) with its step core."""
+        ts, s, u, V, dt = self.ts, self.s, self.u, self.V, self.dt
+        vt = V.getTypeID(vid)
+        if vt not in self.min_gaps:
+            self.min_gaps[vt] = ts.vehicletype.getMinGap(vt)
+        ctl = is_controlled(vid, vt, self.sc)
+        tr = _Track(vid, vt, V.getRouteID(vid), ctl, "", self.min_gaps[vt], t_s, lane_pos0=V.getLanePosition(vid))
+        if self.ring is not None:
+            tr.lane_pos0 += self.ring.length_m / 2 if V.getRoadID(vid) == "bottom" else 0.0
+        self.offsets[vid] = tr.lane_pos0
+        if ctl:
+            V.setSpeedMode(vid, s.speed_mode)
+            if self.law is not None:
+                tr.law, tr.controller = self.law, self.law.name
+                # a law is evaluated every SUMO step: its loop core steps at dt
+                tr.step = VehicleStep(
+                    self.law.name, f"vehicle {vid!r}", u, self.ev.limits, self.law_stages, dt / u.time_s, "sumo"
                 )
-    return SumoRun(
-        sc.name,
-        sc,
-        vehicles,
-        controlled,
-        fleet_events,
-        k * dt,
-        dt,
-        k,
-        wall,
-        t_ctrl,
-        {v: offsets[v] for v in vehicles},
-        ring.length_m if ring is not None else None,
-        interrupted,
-        t_build,
-    )
+            else:
+                assert self.factory is not None
+                tb = time.perf_counter()
+                tr.ctrl = self.factory()
+                tr.ctrl.reset()
+                self.t_build += time.perf_counter() - tb
+                tr.controller = tr.ctrl.name
+                self.ctrl_every = max(1, int(round(tr.ctrl.dt * u.time_s / dt)))
+                period = self.ctrl_every * dt / u.time_s
+                tr.step = VehicleStep(
+                    tr.ctrl.name, f"vehicle {vid!r}", u, self.ev.limits, self.ctrl_stages, period, "sumo"
+                )
+        else:
+            tr.controller = f"sumo:{vt}"  # SUMO's own driver model of the vehicle's type
+        if vt not in self.floors:  # SUMO's own drivers: their type's emergency deceleration
+            self.floors[vt] = -float(ts.vehicletype.getEmergencyDecel(vt))
+        tr.a_floor_mps2 = self.a_floor if ctl else self.floors[vt]
+        self.tracks[vid] = tr
+
+    def fleet_changes(self, t_s: float) -> None:
+        """The teleports and collisions of the step (events that end the records) and the arrivals (vehicles
+        that left the network), each a fleet event."""
+        sim, tracks, fleet = self.ts.simulation, self.tracks, self.fleet_events
+        for vid in sim.getStartingTeleportIDList():
+            if vid in tracks:
+                tr = tracks[vid]
+                fleet.append({"kind": "teleport", "t_s": t_s, "vehicle": vid, "controlled": tr.controlled})
+                self.stop(
+                    tr,
+                    "teleport",
+                    t_s,
+                    "SUMO teleported the vehicle (a jam or a lane it could not leave); its record ends here",
+                )
+        for c in sim.getCollisions():
+            dv = c.colliderSpeed - c.victimSpeed
+            fleet.append(
+                {
+                    "kind": "collision",
+                    "t_s": t_s,
+                    "vehicle": c.collider,
+                    "victim": c.victim,
+                    "impact_speed_mps": dv,
+                    "type": c.type,
+                }
+            )
+            for vid in (c.collider, c.victim):
+                if vid in tracks:
+                    who = "hit " + c.victim if vid == c.collider else "hit by " + c.collider
+                    self.stop(tracks[vid], "collision", t_s, f"{who} at {dv:.3g} m/s ({c.type})", impact_speed_mps=dv)
+        for vid in sim.getArrivedIDList():
+            if vid in tracks:
+                tr = tracks[vid]
+                fleet.append({"kind": "left_network", "t_s": t_s, "vehicle": vid, "controlled": tr.controlled})
+                self.finish(tr, "arrived", t_s)
+
+    def read(self, tr: _Track, t_s: float) -> None:
+        """Record what vehicle ``tr`` did up to t_s [s]: speed, odometer, lane, its leader's gap and speed (for a
+        controlled car a lane that ends is a standing obstacle), and the step's events that do not end it."""
+        V, s, vid = self.V, self.s, tr.vid
+        v = V.getSpeed(vid)
+        lead = V.getLeader(vid, s.lookahead_m)
+        if lead and lead[0]:
+            g, vl = lead[1] + tr.min_gap_m, V.getSpeed(lead[0])
+        else:
+            g, vl = math.nan, math.nan
+        left = None
+        if tr.controlled:  # a lane that ends (no continuation on the route) is a standing obstacle
+            left = _lane_end_m(V, vid, tr.route, self.lane_ends)
+            if left is not None and left < s.lookahead_m and not (g <= left):
+                g, vl = left, 0.0
+        tr.t_s.append(t_s)
+        tr.v.append(v)
+        tr.odo.append(V.getDistance(vid))
+        tr.gap.append(g)
+        tr.v_lead.append(vl)
+        tr.lane.append(V.getLaneID(vid))
+        if len(tr.v) > 1:
+            lane_end = tr.controlled and left is not None and g == left
+            _check_motion(tr, self.dt, self.u, self.fleet_events, lane_end=lane_end)
+
+    def command(self, ctl_live: list[_Track], t_s: float) -> None:
+        """The accelerations [m/s²] of the live controlled vehicles for [t_s, t_s + dt] through their step cores,
+        handed to SUMO as the speeds they reach at the end of the step."""
+        if not ctl_live:
+            return
+        s, dt = self.s, self.dt
+        gaps = np.array([tr.gap[-1] for tr in ctl_live])
+        vs = np.array([tr.v[-1] for tr in ctl_live])
+        vls = np.array([tr.v_lead[-1] for tr in ctl_live])
+        free = ~np.isfinite(gaps)  # no leader within the lookahead: free road
+        gaps = np.where(free, s.lookahead_m, gaps)
+        vls = np.where(free, vs, vls)
+        a = self.law_commands(ctl_live, gaps, vs, vls)
+        for i, tr in enumerate(ctl_live):
+            a[i] = self.vehicle_command(tr, t_s, float(a[i]) if tr.ctrl is None else 0.0, gaps[i], vs[i], vls[i])
+        a = np.clip(a, self.a_lo, self.a_hi)  # (the loop core saturated in model units: this only rounds to SI)
+        v_next = np.clip(vs + a * dt, 0.0, np.maximum(self.v_max, vs))
+        for i, tr in enumerate(ctl_live):
+            self.V.setSpeed(tr.vid, float(v_next[i]))
+            tr.a_prev = float(self.u.accel_from_si(a[i]))
+
+    def law_commands(self, ctl_live: list[_Track], gaps: np.ndarray, vs: np.ndarray, vls: np.ndarray) -> np.ndarray:
+        """The law's raw accelerations [m/s²] of the vehicles a law drives (all of them in one call; a non-finite
+        value: :attr:`a_emergency`); the other entries are left for their controllers."""
+        u, law = self.u, self.law
+        a = np.empty(len(ctl_live))
+        law_idx = [i for i, tr in enumerate(ctl_live) if tr.law is not None]
+        if law_idx:
+            assert law is not None
+            h = u.length_from_si(np.maximum(gaps[law_idx], 1e-6))
+            a_model = np.asarray(
+                law.function(h[None, :], u.speed_from_si(vs[law_idx])[None, :], u.speed_from_si(vls[law_idx])[None, :])
+            ).ravel()
+            a_law = u.accel_to_si(a_model)
+            a[law_idx] = np.where(np.isfinite(a_law), a_law, self.a_emergency)
+        return a
+
+    def vehicle_command(self, tr: _Track, t_s: float, a_law: float, gap: float, v: float, v_lead: float) -> float:
+        """The acceleration [m/s²] vehicle ``tr`` applies from t_s: a law's ``a_law`` through its step core's
+        stages (without any, only counted), or its sampled controller's last command (a new one every controller
+        dt since the vehicle departed)."""
+        u, dt, step = self.u, self.dt, tr.step
+        assert step is not None
+        if tr.ctrl is None:  # a law: its command through the loop core's stages (model units)
+            if not step.stages.active:  # no stage: only the saturation of command(), counted as the core counts it
+                step.count_unstaged(not (self.a_lo <= a_law <= self.a_hi))
+                return a_law
+            a_l = (v_lead - tr.v_lead[-2]) / dt if len(tr.v_lead) > 1 and np.isfinite(tr.v_lead[-2]) else 0.0
+            return u.accel_to_si(
+                step.apply(
+                    float(u.accel_from_si(a_law)),
+                    float(u.length_from_si(gap)),
+                    float(u.speed_from_si(v)),
+                    float(u.speed_from_si(v_lead)),
+                    float(u.accel_from_si(a_l)),
+                )
+            )
+        tr.meas_t.append(u.time_from_si(t_s))
+        tr.meas_v.append(u.speed_from_si(v_lead))
+        if (len(tr.t_s) - 1) % self.ctrl_every == 0:  # every controller dt since the vehicle departed
+            tr.a_cmd_mps2 = _call(tr, u, v, gap)
+        return tr.a_cmd_mps2
+
+    # ------------------------------------------------------------------ the result
+    def result(self, wall: float) -> SumoRun:
+        """The finished run: every vehicle's record as a SimulationResult, the fleet's events (with each cell
+        current breach), the clocks."""
+        s, dt, k = self.s, self.dt, self.k
+        for tr in list(self.tracks.values()):
+            self.finish(tr, "", math.nan)
+        check_ids_seen(self.sc, [tr.vid for tr in self.done], k * dt)
+        vehicles: dict[str, SimulationResult] = {}
+        controlled: dict[str, bool] = {}
+        for tr in self.done:
+            if len(tr.t_s) < 1:
+                continue
+            vehicles[tr.vid] = _result(tr, self.ev, s.lookahead_m, dt, s.record_every)
+            controlled[tr.vid] = tr.controlled
+            for e in vehicles[tr.vid].violations:  # the cell's current limit: the plants' one rule (aev_ocp.plant)
+                if e.kind == CURRENT_LIMIT:
+                    peak = float(np.max(np.abs(tr.current)))  # the largest |I| [A]
+                    self.fleet_events.append(
+                        {"kind": e.kind, "t_s": e.time_s, "vehicle": tr.vid, "controlled": tr.controlled, "value": peak}
+                    )
+        return SumoRun(
+            self.sc.name,
+            self.sc,
+            vehicles,
+            controlled,
+            self.fleet_events,
+            k * dt,
+            dt,
+            k,
+            wall,
+            self.t_ctrl,
+            {v: self.offsets[v] for v in vehicles},
+            self.ring.length_m if self.ring is not None else None,
+            self.interrupted,
+            self.t_build,
+        )
 
 
 #: a realised deceleration may exceed the vehicle's floor by this much [m/s²] (the speeds' round-off in SUMO)
@@ -868,7 +911,7 @@ def _result(tr: _Track, ev: EVParams, lookahead_m: float, dt: float, every: int)
 
     stats: list[dict[str, Any] | None] = [None]
     if tr.ctrl is not None and tr.step is not None and tr.step.rec["ok"]:
-        stats = [_stats(tr.step.rec, tr.ctrl, tr.step.counts(), tr.step.stages.label())]
+        stats = [tr.step.stats(tr.ctrl)]
     events = tr.events[:1]
     violations = tr.violations + current_limit_events(t, np.asarray(tr.current[:n], float)[:, None], ev)
     meta = {
@@ -889,10 +932,7 @@ def _result(tr: _Track, ev: EVParams, lookahead_m: float, dt: float, every: int)
         # the controlled vehicle's conditioning and safety layer, with the steps each stage changed (aev_ocp.loop)
         "command_stages": [tr.step.describe() if tr.step is not None else None],
         "controllers": [
-            {
-                **(tr.ctrl.describe() if tr.ctrl is not None else tr.law.describe()),  # type: ignore[union-attr]
-                "conditioning": tr.step.stages.label(),
-            }
+            tr.step.settings(tr.ctrl if tr.ctrl is not None else tr.law)
             if tr.step is not None
             else {"controller": "sumo", "vtype": tr.vtype}
         ],

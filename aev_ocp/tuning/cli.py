@@ -41,7 +41,7 @@ def seeds_arg(text: str, option: str) -> list[int]:
 
 def build_parser() -> argparse.ArgumentParser:
     """Argument parser of ``aev-ocp tune``."""
-    from ..console import OneLineParser
+    from ..console import OneLineParser, add_executor_options
     from .ring import HELDOUT_SEEDS, RING_TABLE, TRAIN_SEEDS, UNTUNED
 
     p = OneLineParser(
@@ -82,22 +82,14 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         help="then run the default and the tuned sets through every case of the safety suite (safety.md, safety.json)",
     )
-    ex = p.add_mutually_exclusive_group()
-    ex.add_argument(
-        "--workers", type=int, default=None, metavar="N", help="process pool of N workers (default: one per core)"
-    )
-    ex.add_argument("--dask-local", type=int, default=None, metavar="N", help="a Dask LocalCluster of N workers")
-    ex.add_argument("--scheduler", default=None, metavar="ADDRESS", help="a running Dask scheduler")
-    ex.add_argument("--in-process", action="store_true", help="run every task in this process")
+    add_executor_options(p)  # --workers, --dask-local, --scheduler, --in-process: as aev-ocp study
     return p
 
 
 def _executor(a: argparse.Namespace) -> dict[str, Any]:
-    if a.in_process:
-        return {"executor": "inprocess"}
-    if a.dask_local is not None or a.scheduler is not None:
-        return {"executor": "dask", "workers": a.dask_local, "scheduler": a.scheduler}
-    return {"executor": "pool", "workers": a.workers}
+    from ..console import executor_options
+
+    return executor_options(a)
 
 
 def _ring(a: argparse.Namespace, controllers: list[str] | None, command: str) -> int:

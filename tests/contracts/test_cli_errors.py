@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from cli_helpers import one_error, run_cli
+from cli_helpers import crash_toml, one_error, run_cli
 from study_helpers import write_tiny_study as _study
 
 from aev_ocp import interrupts
@@ -389,21 +389,7 @@ def test_mpc_run_stopped_by_an_event_exits_1_with_one_error_line(
 ) -> None:
     scen = tmp_path / "crash.toml"
     scen.write_text(
-        textwrap.dedent("""\
-        name = "crash"
-        [leader]
-        kind = "constant"
-        v = 0.0
-        [platoon]
-        followers = 1
-        law = "proposed"
-        gap0_first = 0.3
-        speed0 = 1.87
-        [simulation]
-        t_end = 1.0
-        [limits]
-        enabled = false
-    """)
+        crash_toml("proposed", 0.3, 1.87, 1.0, limits=False)
     )  # (without limits the law brakes at -43 m/s² and stops in time; with them it collides too)
     rc, out, err = run_cli(
         [

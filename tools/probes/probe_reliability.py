@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import argparse
 import hashlib
+import inspect
 import json
 import os
 import random
@@ -33,7 +34,7 @@ import uuid
 import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable
+from typing import Any, Callable
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
@@ -251,17 +252,10 @@ def cli(
     return fn
 
 
-def add(
-    area: str,
-    what: str,
-    argv: list[str],
-    expect: tuple[int, ...] = (2,),
-    words: tuple[str, ...] = (),
-    timeout_s: float = 60.0,
-    max_wall_s: float | None = None,
-    setup: Callable[[Path], None] | None = None,
-) -> None:
-    TRIES.append(Try(area, what, cli(argv, expect, words, timeout_s, max_wall_s, setup), timeout_s))
+def add(area: str, what: str, argv: list[str], *args: Any, **kw: Any) -> None:
+    """A try of :func:`cli` in ``area``: ``args``, ``kw`` are cli's (expect, words, timeout_s, max_wall_s, setup)."""
+    timeout_s = inspect.signature(cli).bind(argv, *args, **kw).arguments.get("timeout_s", 60.0)
+    TRIES.append(Try(area, what, cli(argv, *args, **kw), timeout_s))
 
 
 def write(rel: str, text: str | bytes) -> Callable[[Path], None]:

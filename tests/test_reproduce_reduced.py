@@ -1,0 +1,86 @@
+"""reproduce runs its extended studies reduced by default and at full size with --full (issue 40): each section's
+workload follows ReproduceConfig.extended, the report's table names both, and --full is one flag away."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+import aev_ocp.life_section as life
+import aev_ocp.mpc.cycles_section as cyc
+import aev_ocp.robustness as rob
+from aev_ocp import cli
+from aev_ocp import reproduce as rp
+from aev_ocp.report_sections import ReproduceConfig, SectionContext
+
+DEFAULT, FULL, QUICK = ReproduceConfig(), ReproduceConfig.full(), ReproduceConfig.quick()
+
+
+def _ctx(config: ReproduceConfig, lines: list[str]) -> SectionContext:
+    return SectionContext(lines.append, config, [])
+
+
+def test_full_is_a_full_reproduction_and_quick_is_not() -> None:
+    assert DEFAULT.is_full and FULL.is_full and not QUICK.is_full
+    assert FULL.extended and not DEFAULT.extended and FULL != DEFAULT
+
+
+@pytest.mark.parametrize(("argv", "extended"), [([], False), (["--full"], True)])
+def test_cli_full_flag_sets_extended(monkeypatch, tmp_path: Path, capsys, argv: list[str], extended: bool) -> None:  # noqa: ANN001
+    seen: list[ReproduceConfig] = []
+
+    def fake(out: Any, config: ReproduceConfig, workers: int = 1) -> Path:
+        seen.append(config)
+        return Path(out) / "report.md"
+
+    monkeypatch.setattr(rp, "reproduce", fake)
+    assert cli.main(["reproduce", "--out", str(tmp_path / "r"), *argv]) == 0
+    assert seen == [ReproduceConfig(extended=extended)]
+    capsys.readouterr()
+
+
+def test_cli_quick_and_full_exclude_each_other(tmp_path: Path, capsys) -> None:  # noqa: ANN001
+    assert cli.main(["reproduce", "--quick", "--full", "--out", str(tmp_path)]) == 2
+    assert "--full: not allowed with argument --quick" in capsys.readouterr().err
+
+
+def test_mpc_cycles_runs_one_forecast_by_default_and_every_one_with_full(monkeypatch, tmp_path: Path) -> None:  # noqa: ANN001
+    calls: list[dict[str, Any]] = []
+    monkeypatch.setattr(cyc, "cycles_section", lambda out, progress, **kw: calls.append(kw) or "md")
+    for config in (DEFAULT, FULL, QUICK):
+        cyc._reproduce_section(tmp_path, _ctx(config, []))
+    default, full, quick = calls
+    assert default == {"predictors": ("decaying-acceleration",)} and len(cyc.PREDICTORS) == 2
+    assert full == {"predictors": cyc.PREDICTORS}
+    assert quick == {"predictors": ("decaying-acceleration",), "t_end_max": QUICK.scenario_t_end_max}
+
+
+def test_battery_life_drops_hwfet_by_default_and_keeps_the_progress_count(monkeypatch, tmp_path: Path) -> None:  # noqa: ANN001
+    calls: list[dict[str, Any]] = []
+    monkeypatch.setattr(life, "life_section", lambda out, progress, **kw: calls.append(kw) or "md")
+    lines: list[str] = []
+    life._reproduce_section(tmp_path, _ctx(DEFAULT, lines))
+    life._reproduce_section(tmp_path, _ctx(FULL, []))
+    assert calls == [{"cycles": ("udds", "us06")}, {}] and life.CYCLES == ("udds", "hwfet", "us06")
+    assert len(lines) == len(life.AMBIENTS_K)  # one progress line per left-out run: the counter does not jump
+
+
+def test_robustness_drops_hwfet_by_default(monkeypatch, tmp_path: Path) -> None:  # noqa: ANN001
+    calls: list[tuple[Any, ...]] = []
+    monkeypatch.setattr(rob, "run_seeded", lambda out, *a: calls.append(a) or {})
+    monkeypatch.setattr(rob, "seeded_markdown", lambda res: "")
+    for config in (DEFAULT, FULL, QUICK):
+        rob.robustness_section(tmp_path, _ctx(config, []))
+    (c_def, *_), (c_full, *_), (c_quick, *_) = calls
+    assert c_def == ("udds", "us06") and c_full == ("udds", "hwfet", "us06") and c_quick == ("udds",)
+    assert [c[2] for c in calls] == [(0, 1, 2), (0, 1, 2), (0, 1)]  # seeds
+
+
+def test_the_report_table_names_each_reduced_study_and_its_full_size() -> None:
+    default, full = rp.reduced_table(False), rp.reduced_table(True)
+    for head, small, big in rp.REDUCED_BY_DEFAULT:
+        assert f"| {head} | {small} | {big} |" in default and f"| {head} | {small} | {big} |" in full
+    assert "this run: the default column" in default and "this run: `aev-ocp reproduce --full`" in full
+    assert "HWFET" not in rp.REDUCED_BY_DEFAULT[1][1] and "HWFET" in rp.REDUCED_BY_DEFAULT[1][2]
