@@ -128,17 +128,26 @@ def _point(sc: SumoScenario, share: float, controller: str, out: str, plots: boo
         return sweep_row(share, controller, None, str(exc))
 
 
-def cli_sumo(argv: list[str]) -> int:
-    """Entry of ``aev-ocp sumo``; returns the exit code (errors are raised for the CLI's one-line handler)."""
-    from .run import FAILED_STATUSES
-
+def prepare(argv: list[str]) -> tuple[argparse.Namespace, SumoScenario, Path]:
+    """The parsed options, the scenario with them and the claimed output folder of ``aev-ocp sumo`` (errors raised
+    for the CLI's one-line handler)."""
     args = build_parser().parse_args(argv)
     require_sumo()
     sc = _with_options(load_sumo_scenario(args.scenario), args)
     out = Path(args.out) if args.out else default_output_dir(sc.name)
     claim_output_dir(out, "sumo", sc.name, str(sc.source) if sc.source else None)
-    if args.seeds is not None:
-        return run_seeds(sc, args, out)
+    return args, sc, out
+
+
+def cli_sumo(argv: list[str]) -> int:
+    """Entry of ``aev-ocp sumo``; returns the exit code (errors are raised for the CLI's one-line handler)."""
+    from .run import FAILED_STATUSES
+
+    args, sc, out = prepare(argv)
+    if args.seeds is not None:  # aev-ocp sumo --seeds runs in aev_ocp.study.cli (the study layer)
+        raise SumoError(
+            "--seeds runs through the study layer: aev_ocp.study.cli.cli_sumo_seeds (aev-ocp sumo ... --seeds N)"
+        )
     if not args.sweep:
 
         def progress(t: float, t_end: float) -> None:
@@ -254,26 +263,4 @@ def seeds_csv(tasks: list[Any], results: dict[str, dict[str, Any]]) -> str:
     return buf.getvalue()
 
 
-def run_seeds(sc: SumoScenario, args: argparse.Namespace, out: Path) -> int:
-    """``--seeds N``: every point on N seeds as study tasks (resumable store under ``out``), the table of means and
-    95 % intervals printed and written (seeds.md, traffic.json, seeds.csv)."""
-    from ..results import write_atomic
-    from ..study.traffic import sumo_tasks
-    from ..study.traffic_study import run_traffic_study
-
-    shares, ctrls, seeds = seed_points(sc, args.sweep, args.seeds)
-    path = sc.source if sc.source is not None else args.scenario
-    tasks = sumo_tasks(path, shares, ctrls, seeds, sc.spec.t_end_s)
-    kw: dict[str, Any] = {"executor": "inprocess"} if args.in_process else {"workers": args.workers}
-    results, rows = run_traffic_study(tasks, out, name=f"sumo {sc.name} over {len(seeds)} seeds", **kw)
-    md = seeds_markdown(sc.name, rows, seeds, sc.spec.t_end_s)
-    write_atomic(out / "seeds.md", md)
-    write_atomic(out / "seeds.csv", seeds_csv(tasks, results))
-    print(md)
-    print(f"wrote {out}/seeds.md, seeds.csv, traffic.json ({len(tasks)} runs)")
-    from .run import FAILED_STATUSES
-
-    return 1 if any(r["status"] in (*FAILED_STATUSES, "error") for r in results.values()) else 0
-
-
-__all__ = ["build_parser", "cli_sumo", "run_one", "run_seeds", "seed_points"]
+__all__ = ["build_parser", "cli_sumo", "prepare", "run_one", "seed_points", "seeds_csv", "seeds_markdown"]
