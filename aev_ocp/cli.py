@@ -416,6 +416,8 @@ def _main(args_list: list[str]) -> int:
         return guarded(lambda: _dispatch("aev_ocp.mpc.export", "cli_mpc_export", args_list[1:]))
     if args_list and args_list[0] == "tune":
         return guarded(lambda: _dispatch("aev_ocp.tuning", "cli_tune", args_list[1:]))
+    if args_list[:1] == ["sumo"] and any(a == "--seeds" or a.startswith("--seeds=") for a in args_list):
+        return guarded(lambda: _dispatch("aev_ocp.study.cli", "cli_sumo_seeds", args_list[1:]))
     if args_list and args_list[0] in ("ocp", "mpc", "stability", "study", "safety", "ring", "sumo"):
         name = args_list[0]
         return guarded(lambda: _dispatch(f"aev_ocp.{name}.cli", f"cli_{name}", args_list[1:]))

@@ -286,21 +286,31 @@ def ring_mpc(
     return MPCPolicy(s, ev, fallback, pred, formulation=formulation or traffic_formulation())
 
 
-def _law(name: str, ev: EVParams, cf: CarFollowingParams | None) -> CarFollowingLaw:
-    """A registered law with the coefficients and scales ``cf`` (default CarFollowingParams()), in ``ev``'s model
-    units (the same SI law whatever the units)."""
+def _law(name: str, ev: EVParams, cf: CarFollowingParams | None, **own: float) -> CarFollowingLaw:
+    """A registered law with the coefficients and scales ``cf`` (default CarFollowingParams()) and its own
+    coefficients ``own``, in ``ev``'s model units (the same SI law whatever the units)."""
     from ..models.carfollowing import make_law
 
     base = cf if cf is not None else CarFollowingParams()
-    return make_law(name, replace(base, model_units=ev.units))
+    return make_law(name, replace(base, model_units=ev.units), **own)
 
 
-def make_aev(name: str, ev: EVParams, r_mps: float, mpc: Any = None, cf: CarFollowingParams | None = None) -> Any:
+def make_aev(
+    name: str,
+    ev: EVParams,
+    r_mps: float,
+    mpc: Any = None,
+    cf: CarFollowingParams | None = None,
+    own: dict[str, dict[str, Any]] | None = None,
+) -> Any:
     """An AEV controller by name: 'followerstopper' (desired speed r_mps), 'pi-saturation', 'proposed' (the
     paper's law), 'ovfl', 'mpc' (:func:`ring_mpc`; ``mpc`` an optional (settings, formulation) pair, default
     MPCSettings() and the traffic formulation), 'wave-mpc' (:class:`aev_ocp.mpc.wave.WaveMPC`, the wave-damping
     MPC; the pair's settings if given, its own formulation), or any registered law name. Laws take their coefficients and
-    scales from ``cf`` (default CarFollowingParams()) and run in ``ev``'s units with the same SI behaviour."""
+    scales from ``cf`` (default CarFollowingParams()) and run in ``ev``'s units with the same SI behaviour. ``own``:
+    {name: keyword arguments} of a law's own coefficients (a scenario's ``[carfollowing.<law>]``, e.g. the IDM's SI
+    ``T_s``) and of FollowerStopper's :meth:`FollowerStopper.from_si` (``tau_s``, ``dx0_m``, ``d_mps2``)."""
+    mine = dict((own or {}).get(name.lower(), {}))
     key = name.lower()
     if key == "mpc":
         s, f = mpc if mpc is not None else (None, None)
@@ -311,7 +321,7 @@ def make_aev(name: str, ev: EVParams, r_mps: float, mpc: Any = None, cf: CarFoll
         s, _ = mpc if mpc is not None else (None, None)
         return WaveMPC(ev, _law("proposed", ev, cf), settings=s)
     if key == "followerstopper":
-        return FollowerStopper.from_si(ev.units, r_mps)
+        return FollowerStopper.from_si(ev.units, r_mps, **mine)
     if key == "pi-saturation":
         return PISaturation(units=ev.units)
-    return _law(key, ev, cf)
+    return _law(key, ev, cf, **mine)

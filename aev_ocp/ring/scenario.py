@@ -19,6 +19,10 @@ A ring scenario file has ``name``, ``description``, the vehicle tables every sce
   ring: vehicles round(j n / k) + 1), ``density_per_km`` or ``length_m`` (an array: the rings; default the one
   of ``[ring]``), ``controllers`` (default ["followerstopper"]) and ``r_fraction``: one run per ring, AEV count
   and controller (the AEV count 0, all human, once per ring);
+* ``[ring.followerstopper]`` (optional): FollowerStopper's SI constants ``dx0_m`` (its three Δx⁰ [m], increasing),
+  ``d_mps2`` (its three d [m/s²]) and ``tau_s`` (its speed loop [s]); defaults Stern et al. 2018 and
+  :data:`aev_ocp.ring.laws.SPEED_LOOP_S`. An AEV law's own coefficients come from ``[carfollowing]`` and its
+  sub-tables (``[carfollowing.idm]``: the IDM's SI ``T_s``, ``a_mps2``, …);
 * or, instead of ``human`` and its tables, ``population`` (a calibrated human population by name,
   :data:`aev_ocp.ring.humans.CALIBRATED`: heterogeneous seeded drivers with reaction times and noise) with an
   optional ``[ring.calibration]`` stating its fit (source, fitted and their values, statistics, target, tolerance, achieved,
@@ -119,6 +123,8 @@ class RingSpec:
     population: str | None = spec(None, kind="instance", cls=str, optional=True)
     #: [ring.calibration]: what the population was fitted to (stated)
     calibration: dict[str, Any] | None = spec(None, kind="instance", cls=dict, optional=True)
+    #: [ring.followerstopper]: the keyword arguments of FollowerStopper.from_si (empty: its defaults)
+    followerstopper: dict[str, Any] = spec(kind="instance", cls=dict, default_factory=dict)
 
     def __post_init__(self) -> None:
         validate_fields(self)
@@ -148,6 +154,7 @@ class RingScenario:
     source: Path | None = None
     document: dict[str, Any] | None = field(default=None, compare=False, repr=False)
     cf: CarFollowingParams = field(default_factory=CarFollowingParams)  # the AEV laws' coefficients and scales
+    law_overrides: dict[str, dict[str, float]] = field(default_factory=dict)  # [carfollowing.<law>] sub-tables
 
     @property
     def density_per_km(self) -> float:
@@ -188,6 +195,8 @@ def validate_ring_table(r: TableReader) -> RingSpec:
         _ring_aev(r.sub("aev"), kw, n)
     if r.has("sweep"):
         length = _ring_sweep(r, kw, n, ell, length)
+    if r.has("followerstopper"):
+        kw["followerstopper"] = _followerstopper_table(r.sub("followerstopper"))
     _ring_start(r, kw, n, length, ell)
     r.finish()
     return RingSpec(**kw)
@@ -370,6 +379,23 @@ def _ring_start(r: TableReader, kw: dict[str, Any], n: int, length: float, ell: 
     p.finish()
 
 
+def _followerstopper_table(f: TableReader) -> dict[str, Any]:
+    """``[ring.followerstopper]``: the keyword arguments of :meth:`aev_ocp.ring.laws.FollowerStopper.from_si`."""
+    from .laws import SPEED_LOOP_S
+
+    out: dict[str, Any] = {}
+    for key, default in (("dx0_m", [4.5, 5.25, 6.0]), ("d_mps2", [1.5, 1.0, 0.5])):  # Stern et al. 2018 §3.1
+        vals = f.numbers(key, default, gt=0)
+        if len(vals) != 3:
+            raise f.error(key, f.table[key], "needs three values (the three bands of FollowerStopper)")
+        if key == "dx0_m" and not vals[0] < vals[1] < vals[2]:
+            raise f.error(key, f.table[key], "must increase (Δx⁰₁ < Δx⁰₂ < Δx⁰₃)")
+        out[key] = tuple(float(x) for x in vals)
+    out["tau_s"] = f.number("tau_s", SPEED_LOOP_S, gt=0, le=10.0)  # 10 s: far slower than any speed loop
+    f.finish()
+    return out
+
+
 def _calibration_table(c: TableReader) -> dict[str, Any]:
     """``[ring.calibration]``: what a calibrated population was fitted to, as stated beside it (read and checked,
     not used to run): source, the statistics with their target, tolerance, the achieved means and residuals over
@@ -420,9 +446,9 @@ def parse_ring_scenario(doc: dict[str, Any], file: str = "<ring scenario>", sour
                 f"be one of {list(RING_PREDICTORS)} (an AEV forecasts its predecessor from its "
                 "own measurements)"
             )
-    cf = _carfollowing(top.sub("carfollowing"), sub_tables=False)[0]  # SI laws: [units] does not change them
+    cf, own = _carfollowing(top.sub("carfollowing"))  # SI laws: [units] does not change them
     top.finish()
-    return RingScenario(name, spec, ev, mpc, description, source, copy.deepcopy(doc), cf)
+    return RingScenario(name, spec, ev, mpc, description, source, copy.deepcopy(doc), cf, own)
 
 
 def load_ring_scenario(path: str | Path) -> RingScenario:
@@ -496,7 +522,8 @@ def _aevs(sc: RingScenario, controller: str, base: Any, on: tuple[int, ...]) -> 
     except ParameterError as exc:
         raise ScenarioError(f"{sc.source or sc.name}: {exc}") from None
     mpc = (sc.mpc.settings, sc.mpc.formulation) if sc.mpc is not None else None
-    return {i: make_aev(controller, sc.ev, r_mps, mpc, sc.cf) for i in on}
+    own = {**sc.law_overrides, "followerstopper": dict(sc.spec.followerstopper)}
+    return {i: make_aev(controller, sc.ev, r_mps, mpc, sc.cf, own) for i in on}
 
 
 def _build_population_ring(

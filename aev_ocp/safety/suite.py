@@ -98,10 +98,15 @@ def treiber_idm(v0_mps: float, units: Units) -> IDM:
 LAW_SCALE_M, LAW_SCALE_MPS = 15.0, 17.0
 
 
-def _law(name: str, case: SafetyCase, units: Units) -> CarFollowingLaw:
-    """The law by name (the plant saturates it to the vehicle's limits like every other controller)."""
+def _law(
+    name: str, case: SafetyCase, units: Units, overrides: tuple[tuple[str, tuple[tuple[str, float], ...]], ...] = ()
+) -> CarFollowingLaw:
+    """The law by name (the plant saturates it to the vehicle's limits like every other controller), its fields
+    replaced by ``overrides`` ((law, ((field, value), ...)), ...; SI for the IDM, an OV-type law's coefficients and
+    scales; e.g. a tuned set, :mod:`aev_ocp.tuning.safety`)."""
+    own: dict[str, Any] = dict(dict(overrides).get(name, ()))
     if name == "idm":
-        return treiber_idm(case.v_ego_mps, units)
+        return dataclasses.replace(treiber_idm(case.v_ego_mps, units), **own)
     # the OV-type laws at SI scales of their own (the drive-cycle scenarios' 15 m / 17 m/s, where the suite's numbers
     # were first measured), evaluated in whatever units the suite runs: a change of CASE_UNITS changes nothing in SI
     law: CarFollowingLaw = (
@@ -109,7 +114,7 @@ def _law(name: str, case: SafetyCase, units: Units) -> CarFollowingLaw:
         if name == "proposed"
         else OVFL(h_scale_m=LAW_SCALE_M, v_scale_mps=LAW_SCALE_MPS)
     )
-    return law.in_units(units)
+    return dataclasses.replace(law, **own).in_units(units)
 
 
 def worst_delay_s(lim: VehicleLimits, b_mps2: float) -> float:
@@ -329,6 +334,7 @@ class _Setup:
     settings: MPCSettings
     formulation: Formulation
     keep_runs: bool
+    law_overrides: tuple[tuple[str, tuple[tuple[str, float], ...]], ...] = ()
 
 
 _POLICIES: dict[tuple[Any, ...], MPCPolicy] = {}  # per process: built once, reset by every run
@@ -406,12 +412,12 @@ def _run_case(case: SafetyCase, setup: _Setup) -> tuple[list[CaseRow], dict[str,
                 )
                 r = ClosedLoop(leader, [c], ev).run([h0], [v0], t_end)
             elif layered:
-                c = SafeFallback.for_vehicle(_law(name, case, u), ev, dt, **layer_changes(ev))
+                c = SafeFallback.for_vehicle(_law(name, case, u, setup.law_overrides), ev, dt, **layer_changes(ev))
                 r = ClosedLoop(leader, [c], ev).run([h0], [v0], t_end)
             else:
                 r = simulate_platoon(
                     leader,
-                    [_law(name, case, u)],
+                    [_law(name, case, u, setup.law_overrides)],
                     [h0],
                     [v0],
                     t_end,
@@ -543,13 +549,15 @@ def run_suite(
     quick: bool = False,
     workers: int | None = 1,
     progress: Callable[[str], None] | None = None,
+    law_overrides: dict[str, dict[str, float]] | None = None,
 ) -> SuiteOutput:
     """Every case × actuator × controller (module docstring). controllers: names of :data:`CONTROLLERS`;
     actuators: names of :data:`aev_ocp.safety.cases.ACTUATORS` ('ideal', 'declared'); ev: units, vehicle and its
     a bounds (default the cases' units L = 15 m, U = 17 m/s, :class:`VehicleLimits`' defaults; each actuator sets
     the lag and the jerk limit); settings: the MPC's solver options (default MPCSettings()); formulation: the MPC's
     problem (default the traffic formulation), whose floor the cases are labelled against; workers: processes
-    (1: in this process, keeping the trajectories; None: one per core)."""
+    (1: in this process, keeping the trajectories; None: one per core); law_overrides: {law: {field: value}} replacing
+    the suite's laws' fields (default none: the laws above)."""
     for c in controllers:
         if c not in CONTROLLERS:
             raise ParameterError(f"safety suite: controller {c!r} is not allowed: must be one of {CONTROLLERS}")
@@ -571,7 +579,17 @@ def run_suite(
         n_workers == 1,
         n_workers,
     )
-    setup = _Setup(tuple(controllers), tuple(actuators), ev, settings, formulation, n_workers == 1)
+    for name, fields in (law_overrides or {}).items():
+        if name not in ("proposed", "ovfl", "idm") or not cases:
+            raise ParameterError(f"safety suite: law_overrides names {name!r}: must be one of proposed, ovfl, idm")
+        try:
+            _law(name, cases[0], u, ((name, tuple(fields.items())),))
+        except (TypeError, ParameterError) as exc:
+            raise ParameterError(f"safety suite: law_overrides[{name!r}] = {fields!r} is not allowed: {exc}") from None
+    own = tuple(
+        sorted((k, tuple(sorted((f, float(x)) for f, x in v.items()))) for k, v in (law_overrides or {}).items())
+    )
+    setup = _Setup(tuple(controllers), tuple(actuators), ev, settings, formulation, n_workers == 1, own)
     rows: list[CaseRow] = []
     runs: dict[str, dict[str, SimulationResult]] = {}
     n_done = 0
@@ -615,6 +633,7 @@ def run_suite(
             "ttc_s": TrafficParams().margin_ttc_s,
         },
         "idm_si": dict(TREIBER_IDM_SI),
+        "law_overrides": {k: dict(v) for k, v in own},
         "quick": quick,
         "workers": n_workers,
     }

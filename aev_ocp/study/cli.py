@@ -7,6 +7,8 @@ from __future__ import annotations
 import argparse
 import math
 import sys
+from pathlib import Path
+from typing import Any
 
 # the command line's one error format, exit codes and parser (aev_ocp/cli.py)
 from ..console import (
@@ -132,3 +134,34 @@ def _with_sets(path: str, sets: dict, parse_study=None):  # noqa: ANN001, ANN202
     from . import read_study
 
     return read_study(path, sets=sets)
+
+
+def cli_sumo_seeds(argv: list[str]) -> int:
+    """``aev-ocp sumo SCENARIO --seeds N [...]`` (the top-level CLI sends a SUMO command with ``--seeds`` here: it
+    runs through the study layer, which the SUMO folder does not import)."""
+    from ..sumo.cli import prepare
+
+    args, sc, out = prepare(argv)
+    return run_sumo_seeds(sc, args, out)
+
+
+def run_sumo_seeds(sc: Any, args: Any, out: Path) -> int:
+    """``--seeds N``: every point on N seeds as study tasks (resumable store under ``out``), the table of means and
+    95 % intervals printed and written (seeds.md, traffic.json, seeds.csv)."""
+    from ..sumo.cli import seed_points, seeds_csv, seeds_markdown
+    from ..sumo.run import FAILED_STATUSES
+    from ..results import write_atomic
+    from .traffic import sumo_tasks
+    from .traffic_study import run_traffic_study
+
+    shares, ctrls, seeds = seed_points(sc, args.sweep, args.seeds)
+    path = sc.source if sc.source is not None else args.scenario
+    tasks = sumo_tasks(path, shares, ctrls, seeds, sc.spec.t_end_s)
+    kw: dict[str, Any] = {"executor": "inprocess"} if args.in_process else {"workers": args.workers}
+    results, rows = run_traffic_study(tasks, out, name=f"sumo {sc.name} over {len(seeds)} seeds", **kw)
+    md = seeds_markdown(sc.name, rows, seeds, sc.spec.t_end_s)
+    write_atomic(out / "seeds.md", md)
+    write_atomic(out / "seeds.csv", seeds_csv(tasks, results))
+    print(md)
+    print(f"wrote {out}/seeds.md, seeds.csv, traffic.json ({len(tasks)} runs)")
+    return 1 if any(r["status"] in (*FAILED_STATUSES, "error") for r in results.values()) else 0

@@ -196,7 +196,11 @@ def traffic_table(tasks: list[Task], results: dict[str, dict[str, Any]]) -> list
         for label in runs:
             runs[label].sort(key=lambda m: m["seed"])
         base = next((lab for lab in runs if lab.split(" ", 1)[0] in ("0", "0.0")), None)
-        metrics = [m for m in FIELD_METRICS if all(m in r for ms in runs.values() for r in ms)]
+        metrics = [  # a metric every completed run has a number for (a merge has no lap: no travel time per lap)
+            m
+            for m in FIELD_METRICS
+            if all(isinstance(r.get(m), (int, float)) for ms in runs.values() for r in ms if r.get("status") == "ok")
+        ]
         part = seed_table(runs, base, metrics)
         for row in part:
             row[where[0]] = where[1]

@@ -1,4 +1,7 @@
-"""``aev-ocp sumo SCENARIO.toml``: one SUMO run, or ``--sweep`` over share × controller in worker processes."""
+"""``aev-ocp sumo SCENARIO.toml``: one SUMO run, ``--sweep`` over share × controller in worker processes, or
+``--seeds N`` over N seeds through the study layer (:func:`aev_ocp.study.traffic.sumo_tasks`): each point's metrics
+as the mean with a 95 % t interval over the seeds and, against the all-SUMO run (share 0) on the same seeds, paired
+verdicts."""
 
 from __future__ import annotations
 
@@ -40,7 +43,19 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         help="run every share × controller of [sumo.sweep] (one SUMO per worker process)",
     )
-    p.add_argument("--workers", type=int, default=None, help="worker processes of --sweep (default: the cores)")
+    p.add_argument(
+        "--seeds",
+        type=int,
+        default=None,
+        metavar="N",
+        help="run every point on N seeds (sumo.seed, sumo.seed + 1, …) and the all-SUMO run on the same seeds, "
+        "through the study layer; print and write each metric's mean and 95 %% interval (seeds.md, traffic.json, "
+        "seeds.csv)",
+    )
+    p.add_argument("--in-process", action="store_true", help="--seeds: run every point in this process")
+    p.add_argument(
+        "--workers", type=int, default=None, help="worker processes of --sweep and --seeds (default: the cores)"
+    )
     p.add_argument("--no-plots", action="store_true", help="skip the space-time diagrams")
     return p
 
@@ -61,8 +76,13 @@ def _with_options(sc: SumoScenario, args: argparse.Namespace) -> SumoScenario:
                 f"{' and '.join(given)} cannot be combined with --sweep: a sweep runs every share x controller of "
                 "[sumo.sweep] (drop --sweep to run one point)"
             )
-    elif args.workers is not None:
-        raise SumoError("--workers applies to --sweep only (one run is one SUMO process)")
+    seeds, in_process = getattr(args, "seeds", None), getattr(args, "in_process", False)
+    if not args.sweep and args.workers is not None and seeds is None:
+        raise SumoError("--workers applies to --sweep only (and to --seeds; one run is one SUMO process)")
+    if seeds is not None and (isinstance(seeds, bool) or seeds < 2):
+        raise SumoError(f"--seeds = {seeds!r} is not allowed: must be an integer >= 2 (an interval needs 2 seeds)")
+    if in_process and (seeds is None or args.workers is not None):
+        raise SumoError("--in-process applies to --seeds only, without --workers")
     if args.workers is not None:
         check_local_workers(args.workers)
     if args.t_end_s is not None:
@@ -108,15 +128,26 @@ def _point(sc: SumoScenario, share: float, controller: str, out: str, plots: boo
         return sweep_row(share, controller, None, str(exc))
 
 
-def cli_sumo(argv: list[str]) -> int:
-    """Entry of ``aev-ocp sumo``; returns the exit code (errors are raised for the CLI's one-line handler)."""
-    from .run import FAILED_STATUSES
-
+def prepare(argv: list[str]) -> tuple[argparse.Namespace, SumoScenario, Path]:
+    """The parsed options, the scenario with them and the claimed output folder of ``aev-ocp sumo`` (errors raised
+    for the CLI's one-line handler)."""
     args = build_parser().parse_args(argv)
     require_sumo()
     sc = _with_options(load_sumo_scenario(args.scenario), args)
     out = Path(args.out) if args.out else default_output_dir(sc.name)
     claim_output_dir(out, "sumo", sc.name, str(sc.source) if sc.source else None)
+    return args, sc, out
+
+
+def cli_sumo(argv: list[str]) -> int:
+    """Entry of ``aev-ocp sumo``; returns the exit code (errors are raised for the CLI's one-line handler)."""
+    from .run import FAILED_STATUSES
+
+    args, sc, out = prepare(argv)
+    if args.seeds is not None:  # aev-ocp sumo --seeds runs in aev_ocp.study.cli (the study layer)
+        raise SumoError(
+            "--seeds runs through the study layer: aev_ocp.study.cli.cli_sumo_seeds (aev-ocp sumo ... --seeds N)"
+        )
     if not args.sweep:
 
         def progress(t: float, t_end: float) -> None:
@@ -175,4 +206,61 @@ def cli_sumo(argv: list[str]) -> int:
     return 1 if any(r["status"] in FAILED_STATUSES for r in rows) else 0
 
 
-__all__ = ["build_parser", "cli_sumo", "run_one"]
+def seed_points(sc: SumoScenario, sweep: bool, n: int) -> tuple[list[float], list[str], list[int]]:
+    """(shares, controllers, seeds) of ``--seeds n``: the scenario's point (``sweep``: every share × controller of
+    [sumo.sweep]) and share 0, the all-SUMO reference of the paired verdicts; seeds sumo.seed … sumo.seed + n − 1."""
+    s = sc.spec
+    shares = (list(s.sweep_share) or [s.share]) if sweep else [s.share]
+    ctrls = (list(s.sweep_controller) or [s.controller]) if sweep else [s.controller]
+    shares = [0.0] + [x for x in shares if x != 0]
+    return shares, ctrls, list(range(s.seed, s.seed + n))
+
+
+#: The columns of seeds.md (the field's metrics a SUMO run reports; SI).
+SEED_METRICS = (
+    "battery_energy_kWh_per_100km",
+    "mean_speed_mps",
+    "speed_std_mps",
+    "throughput_veh_per_h",
+    "braking_events_per_veh_km",
+)
+
+
+def seeds_markdown(name: str, rows: list[dict[str, Any]], seeds: list[int], t_end_s: float) -> str:
+    """seeds.md: each point's metrics over the seeds (mean [95 % t interval], the verdict against share 0)."""
+    from ..ring.field import table_markdown
+
+    metrics = [m for m in SEED_METRICS if rows and m in rows[0]]
+    return "\n".join(
+        [
+            f"# {name} over {len(seeds)} seeds ({seeds[0]}–{seeds[-1]}), {t_end_s:g} s",
+            "",
+            "Run: share of the cars the toolkit drives and its controller (0.0 sumo: SUMO's drivers alone). Each "
+            "metric: the mean over the seeds [95 % t interval]; after it the paired verdict against the all-SUMO "
+            "run on the same seeds (better/worse only when the interval of the difference excludes 0, else tie). "
+            "failed: runs with an event (an emergency stop, a lane-end stop, a collision, a teleport: its status in "
+            "seeds.csv), left out of the means.",
+            "",
+            table_markdown(rows, metrics),
+            "",
+        ]
+    )
+
+
+def seeds_csv(tasks: list[Any], results: dict[str, dict[str, Any]]) -> str:
+    """seeds.csv: one line per run (share, controller, seed, status and the metrics of :data:`SEED_METRICS`)."""
+    import csv
+    import io
+
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(["share", "controller", "seed", "status", *SEED_METRICS])
+    for t in tasks:
+        r = results.get(t.key) or {"status": "missing", "metrics": []}
+        m = r["metrics"][0] if r.get("metrics") else {}
+        v = t.spec["values"]
+        w.writerow([v["share"], t.controller, v["seed"], r["status"], *(m.get(k, "") for k in SEED_METRICS)])
+    return buf.getvalue()
+
+
+__all__ = ["build_parser", "cli_sumo", "prepare", "run_one", "seed_points", "seeds_csv", "seeds_markdown"]

@@ -1,6 +1,6 @@
-"""Equal tuning effort (issue 33 item 3): every controller gets the same budget of closed-loop evaluations on a
-training set of scenarios, chosen by one optimiser (optuna's TPE sampler with a fixed seed), and is reported at its
-default and tuned, side by side, on the training set and on held-out scenarios.
+"""The drive-cycle tuning's parts (issue 33 item 3): what is tuned (:data:`TUNING_TABLE`), the training and held-out
+cases, a parameter set in a scenario, the scoring of a run, the optimiser (:class:`Tuner`) and the study-layer
+evaluator (:class:`Evaluator`). :func:`aev_ocp.tuning.cycles.run_tuning` puts them together.
 
 What is tuned, per controller, is declared once in :data:`TUNING_TABLE`: SI parameters with bounds and their physical
 meaning. A trial is one parameter set; it is scored by running it on every training scenario, each run a task of the
@@ -12,8 +12,8 @@ Objective: the follower's battery energy per distance [kWh/100 km], mean over th
 (:data:`LIMITS`, each a number that must stay ≤ 0): no run may end on an event (collision, infeasible current) or
 fail and the gap stays ≥ ``min_gap_m``; on the drive cycles also the time-to-collision ≥ ``min_ttc_s``, the RMS jerk
 ≤ ``rms_jerk_max_mps3`` and the mean time gap while moving ≤ ``mean_time_gap_max_s`` (energy must not be bought by
-falling behind the leader). Infeasible trials are handled by optuna's constrained TPE (``constraints_func``: every feasible
-trial ranks above every infeasible one, infeasible ones by their summed violation); the tuned set is the best
+falling behind the leader). Infeasible trials are handled by optuna's constrained TPE (``constraints_func``: every
+feasible trial ranks above every infeasible one, infeasible ones by their summed violation); the tuned set is the best
 feasible trial, the default counting as trial 0 (so the tuned set is never worse than the default on the training
 set). A trial whose run failed scores :data:`PENALTY_KWH_PER_100KM`.
 
@@ -21,25 +21,20 @@ Training set (:func:`training_cases`): the first 120 s of UDDS (to the leader's 
 follower behind a measured (non-oracle) leader: the MPC forecasts with the decaying-acceleration predictor, as the
 robustness study does. Held-out (:func:`heldout_cases`): the first 120 s of US06 (to the leader's next stop) and four
 safety-suite cases (:mod:`aev_ocp.safety.cases`: two braking leads, a cut-in, a lane end; their initial state and
-lead, in the drive-cycle scenario's vehicle without the suite's actuator lag). The ring and the merge are not
-study-layer scenarios (the runner runs platoon scenarios), so they are not in either set.
-
->>> from aev_ocp.tuning import run_tuning
->>> out = run_tuning(["proposed", "idm"], budget=12, out="results/tune", workers=2)
+lead, in the drive-cycle scenario's vehicle without the suite's actuator lag). The ring has its own task set
+(:mod:`aev_ocp.tuning.ring`).
 """
 
 from __future__ import annotations
 
-import argparse
 import math
-import sys
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
-from .params import ParameterError, echo
+from ..params import ParameterError, echo
 
 # ----------------------------------------------------------------------------- the table of what is tuned
 
@@ -235,7 +230,7 @@ SAFETY_BASE = "mpc_udds_single"
 
 
 def _case(name: str, split: str, kind: str, doc: dict[str, Any], file: str) -> Case:
-    from .study.points import parse_scenario_quiet
+    from ..study.points import parse_scenario_quiet
 
     sc = parse_scenario_quiet(doc, file)
     u = sc.units
@@ -261,11 +256,11 @@ def _whole_steps(sc: Any, t: float) -> float:
 def cycle_case(scenario: str, segment_s: float, end_at_rest: bool, split: str) -> Case:
     """The first ``segment_s`` [s] of a shipped one-follower MPC scenario (``end_at_rest``: on to the leader's next
     stop, :func:`aev_ocp.mpc.cycles.leader_rest_end`), cut at whole MPC steps, every run a single controller."""
-    from .mpc.cycles import leader_rest_end
-    from .overrides import apply_to_document
-    from .scenarios import find_scenario
-    from .scenarios.files import read_scenario_doc
-    from .study.points import parse_scenario_quiet
+    from ..mpc.cycles import leader_rest_end
+    from ..overrides import apply_to_document
+    from ..scenarios import find_scenario
+    from ..scenarios.files import read_scenario_doc
+    from ..study.points import parse_scenario_quiet
 
     path = find_scenario(scenario)
     doc = read_scenario_doc(path, str(path))
@@ -282,11 +277,11 @@ def safety_case(case_name: str, split: str = "held-out") -> Case:
     """A safety-suite case (:func:`aev_ocp.safety.cases.suite_cases`) as a scenario document: the lead as an array
     leader (its speed, braking at its deceleration until it stops), the ego at its speed and gap, in
     :data:`SAFETY_BASE`'s vehicle, units and [mpc]."""
-    from .overrides import apply_to_document
-    from .safety.cases import suite_cases
-    from .scenarios import find_scenario
-    from .scenarios.files import read_scenario_doc
-    from .study.points import parse_scenario_quiet
+    from ..overrides import apply_to_document
+    from ..safety.cases import suite_cases
+    from ..scenarios import find_scenario
+    from ..scenarios.files import read_scenario_doc
+    from ..study.points import parse_scenario_quiet
 
     cases = {c.name: c for c in suite_cases()}
     if case_name not in cases:
@@ -339,7 +334,7 @@ _OV_FIELDS = {"alpha_per_s": "alpha", "beta_m2ps": "beta", "kappa_per_m": "kappa
 
 def default_values(space: Space, doc: dict[str, Any], file: str) -> dict[str, float]:
     """The controller's tuned parameters as scenario ``doc`` sets them, SI."""
-    from .study.points import parse_scenario_quiet
+    from ..study.points import parse_scenario_quiet
 
     sc = parse_scenario_quiet(doc, file)
     if space.kind == "mpc":
@@ -361,7 +356,7 @@ def scenario_overrides(space: Space, values: Mapping[str, float], doc: dict[str,
         out.update({f"mpc.{k}": float(v) for k, v in values.items()})
         return out
     out["platoon.law"] = space.law
-    from .study.points import parse_scenario_quiet
+    from ..study.points import parse_scenario_quiet
 
     law = parse_scenario_quiet(doc, file).law(space.law)
     if not hasattr(law, "si_coefficients"):  # SI fields of their own (IDM)
@@ -369,7 +364,7 @@ def scenario_overrides(space: Space, values: Mapping[str, float], doc: dict[str,
         return out
     si = {**law.si_coefficients(), **{k: float(v) for k, v in values.items()}}
     ell, u = si["h_scale_m"], si["v_scale_mps"]
-    from .scenarios.followers import SI_COEFFICIENTS
+    from ..scenarios.followers import SI_COEFFICIENTS
 
     sub = {"h_scale_m": ell, "v_scale_mps": u}
     for key, (coeff, convert) in SI_COEFFICIENTS.items():
@@ -381,7 +376,7 @@ def scenario_overrides(space: Space, values: Mapping[str, float], doc: dict[str,
 
 def case_document(space: Space, values: Mapping[str, float] | None, case: Case) -> dict[str, Any]:
     """The case's document run by the controller of ``space`` with ``values`` (None: its defaults)."""
-    from .overrides import apply_to_document
+    from ..overrides import apply_to_document
 
     ov = scenario_overrides(space, values or {}, case.document, case.file)
     return apply_to_document(case.document, ov, case.file)
@@ -538,6 +533,29 @@ class Tuner:
         return min(ok, key=lambda r: (r.objective, r.number)) if ok else None
 
 
+def tune_rounds(
+    spaces: Sequence[Space],
+    tuners: Mapping[str, Tuner],
+    batch: int,
+    run_sets: Callable[[list[tuple[Space, dict[str, float]]], int], Sequence[Sequence[Mapping[str, Any]]]],
+    score_runs: Callable[[Sequence[Mapping[str, Any]]], tuple[float, Sequence[float]]],
+) -> int:
+    """Spend every tuner's budget in rounds: each asks for up to ``batch`` sets per controller, ``run_sets(pairs,
+    round)`` runs all of them together (one result list per (space, set) pair, in order) and ``score_runs`` scores
+    each set's runs for its tuner. Returns the number of rounds."""
+    rnd = 0
+    while any(t.remaining > 0 for t in tuners.values()):
+        asked = {s.label: tuners[s.label].ask(batch) for s in spaces}
+        runs = run_sets([(s, v) for s in spaces for v in asked[s.label]], rnd)
+        k = 0
+        for s in spaces:
+            n = len(asked[s.label])
+            tuners[s.label].tell([score_runs(r) for r in runs[k : k + n]])
+            k += n
+        rnd += 1
+    return rnd
+
+
 def optimise(
     params: Sequence[Param],
     default: Mapping[str, float],
@@ -560,14 +578,14 @@ def optimise(
 
 
 def _controller(space: Space) -> Any:
-    from .study.model import Controller
+    from ..study.model import Controller
 
     return Controller(space.label, space.kind, space.law if space.kind == "law" else "mpc")
 
 
 def _task(space: Space, values: Mapping[str, float] | None, case: Case, index: int) -> Any:
-    from .study.model import Point
-    from .study.tasks import make_task
+    from ..study.model import Point
+    from ..study.tasks import make_task
 
     doc = case_document(space, values, case)
     return make_task(Point(index, case.name, dict(values or {}), doc, case.file), _controller(space))
@@ -576,7 +594,9 @@ def _task(space: Space, values: Mapping[str, float] | None, case: Case, index: i
 @dataclass
 class Evaluator:
     """Runs parameter sets on cases as study tasks (:func:`aev_ocp.study.runner.execute`, results in the store
-    ``<folder>/points/``) and counts the closed-loop evaluations asked for per controller."""
+    ``<folder>/points/``) and counts the closed-loop evaluations asked for per controller. ``task_of(space, values,
+    case, index)`` makes a case's task and ``summary_of(result, case)`` reads its result (default: the drive-cycle
+    cases' :func:`_task` and :func:`run_summary`; the ring's own in :mod:`aev_ocp.tuning.ring`)."""
 
     folder: Path
     executor: str = "pool"
@@ -584,18 +604,22 @@ class Evaluator:
     scheduler: str | None = None
     progress_stream: Any = None
     counts: dict[str, int] = field(default_factory=dict)
+    task_of: Callable[[Space, Mapping[str, float] | None, Any, int], Any] | None = None
+    summary_of: Callable[[Mapping[str, Any], Any], dict[str, Any]] | None = None
 
     def run(
-        self, jobs: Sequence[tuple[Space, Mapping[str, float] | None, Sequence[Case]]], name: str = "tune"
+        self, jobs: Sequence[tuple[Space, Mapping[str, float] | None, Sequence[Any]]], name: str = "tune"
     ) -> list[list[dict[str, Any]]]:
         """For each job (space, values or None for the defaults, cases): its runs' summaries, in case order; all
         jobs' tasks are executed together (one study execution)."""
-        from .study.runner import Store, execute
+        from ..study.runner import Store, execute
 
+        task_of = self.task_of or _task
+        summary_of = self.summary_of or run_summary
         tasks: list[Any] = []
         for space, values, cases in jobs:
             for case in cases:
-                tasks.append(_task(space, values, case, len(tasks)))
+                tasks.append(task_of(space, values, case, len(tasks)))
             self.counts[space.label] = self.counts.get(space.label, 0) + len(cases)
         results = execute(
             tasks,
@@ -610,7 +634,7 @@ class Evaluator:
         k = 0
         for j, (_, _, cases) in enumerate(jobs):
             for case in cases:
-                out[j].append(run_summary(results[tasks[k].key], case))
+                out[j].append(summary_of(results[tasks[k].key], case))
                 k += 1
         return out
 
@@ -628,69 +652,6 @@ class TuningOutput:
 
 #: Files of a tuning folder.
 FILES = ("tuning.md", "tuning.csv", "runs.csv", "trials.csv", "tuning.json")
-
-
-def run_tuning(
-    controllers: Sequence[str] = tuple(TUNING_TABLE),
-    budget: int = 16,
-    out: str | Path | None = None,
-    *,
-    seed: int = 1,
-    batch: int = 4,
-    bounds: Mapping[str, Mapping[str, tuple[float, float]]] | None = None,
-    executor: str = "pool",
-    workers: int | None = None,
-    scheduler: str | None = None,
-    progress_stream: Any = None,
-    command: str | None = None,
-) -> TuningOutput:
-    """Tune each controller with ``budget`` trials (each trial one run per training case), ``batch`` trials per
-    controller per study execution, sampler seed ``seed``; then run default and tuned on the training and held-out
-    cases and write :data:`FILES` into ``out`` (default results/tune). executor, workers, scheduler: as
-    :func:`aev_ocp.study.runner.execute`."""
-    from .results import claim_output_dir, output_lock
-    from .study.runner import check_executor
-
-    spaces = check_spaces(list(controllers), bounds)
-    budget = check_budget(budget)
-    batch = check_budget(batch, "batch")
-    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
-        raise ParameterError(f"tuning: seed = {echo(seed)} is not allowed: must be an integer >= 0")
-    check_executor(executor, workers, scheduler)
-    folder = Path(out) if out is not None else Path("results") / "tune"
-    train, held = training_cases(), heldout_cases()
-    with output_lock(folder):
-        claim_output_dir(folder, "tune", "tuning", None, list(FILES))
-        ev = Evaluator(folder, executor, workers, scheduler, progress_stream)
-        defaults = {s.label: default_values(s, train[0].document, train[0].file) for s in spaces}
-        tuners = {s.label: Tuner(s.params, defaults[s.label], budget, seed) for s in spaces}
-        rnd = 0
-        while any(t.remaining > 0 for t in tuners.values()):
-            asked = {s.label: tuners[s.label].ask(batch) for s in spaces}
-            jobs = [(s, v, train) for s in spaces for v in asked[s.label]]
-            runs = ev.run(jobs, name=f"tune round {rnd}")
-            k = 0
-            for s in spaces:
-                scores = []
-                for _ in asked[s.label]:
-                    scores.append(score(runs[k], train))
-                    k += 1
-                tuners[s.label].tell(scores)
-            rnd += 1
-        tuned_evals = dict(ev.counts)
-        # default and tuned on every case, each one SI parameter set (the default: the first training scenario's, so a
-        # scenario's own law scales, e.g. US06's ℓ = 20 m, u = 22 m/s, do not make the default differ between cases);
-        # the default's training runs are trial 0's: the store has them
-        best = {s.label: tuners[s.label].best() for s in spaces}
-        jobs2: list[tuple[Space, Mapping[str, float] | None, Sequence[Case]]] = []
-        for s in spaces:
-            b = best[s.label]
-            jobs2.append((s, defaults[s.label], train + held))  # one SI set on every case, as the tuned one
-            jobs2.append((s, b.values if b is not None else None, train + held))
-        final = ev.run(jobs2, name="tune: default and tuned")
-        return _write(
-            folder, spaces, tuners, defaults, best, final, train, held, budget, seed, batch, tuned_evals, command
-        )
 
 
 def _fmt(x: Any, d: int = 3) -> str:
@@ -718,286 +679,3 @@ def _aggregate(runs: Sequence[Mapping[str, Any]], cases: Sequence[Case]) -> dict
             (r["mean_time_gap_s"] for r, c in zip(runs, cases) if c.kind == "cycle"), default=math.nan
         ),
     }
-
-
-def _write(
-    folder: Path,
-    spaces: Sequence[Space],
-    tuners: Mapping[str, Tuner],
-    defaults: Mapping[str, Mapping[str, float]],
-    best: Mapping[str, TrialRecord | None],
-    final: Sequence[Sequence[Mapping[str, Any]]],
-    train: Sequence[Case],
-    held: Sequence[Case],
-    budget: int,
-    seed: int,
-    batch: int,
-    evals: Mapping[str, int],
-    command: str | None,
-) -> TuningOutput:
-    import csv
-    import io
-
-    from .report import markdown_table
-    from .results import to_jsonable, write_atomic, write_json
-
-    cases = list(train) + list(held)
-    summary, runs_rows, trials_rows = [], [], []
-    for i, s in enumerate(spaces):
-        for which, runs in (("default", final[2 * i]), ("tuned", final[2 * i + 1])):
-            for split, sub in (("train", list(train)), ("held-out", list(held))):
-                rr = [r for r, c in zip(runs, cases) if c.split == split]
-                summary.append({"controller": s.label, "set": which, "split": split, **_aggregate(rr, sub)})
-            for r, c in zip(runs, cases):
-                runs_rows.append({"controller": s.label, "set": which, "split": c.split, "case": c.name, **r})
-        for rec in tuners[s.label].records:
-            trials_rows.append(
-                {
-                    "controller": s.label,
-                    "trial": rec.number,
-                    "objective_kWh_per_100km": rec.objective,
-                    "feasible": rec.feasible,
-                    **{f"violation_{k}": v for k, v in zip(CONSTRAINTS, rec.constraints)},
-                    **rec.values,
-                }
-            )
-
-    def csv_text(rows: list[dict[str, Any]]) -> str:
-        keys: list[str] = []
-        for r in rows:
-            keys += [k for k in r if k not in keys]
-        buf = io.StringIO()
-        w = csv.DictWriter(buf, fieldnames=keys, lineterminator="\n")
-        w.writeheader()
-        w.writerows(rows)
-        return buf.getvalue()
-
-    n_train = len(train)
-    per_ctrl: dict[str, dict[str, Any]] = {}
-    for s in spaces:
-        b = best[s.label]
-        per_ctrl[s.label] = {
-            "parameters": [
-                {
-                    "name": p.name,
-                    "meaning": p.meaning,
-                    "lo": p.lo,
-                    "hi": p.hi,
-                    "log": p.log,
-                    "default": defaults[s.label][p.name],
-                    "tuned": b.values[p.name] if b is not None else None,
-                }
-                for p in s.params
-            ],
-            "trials": budget,
-            "closed_loop_evaluations": evals.get(s.label, 0),
-            "best_trial": b.number if b is not None else None,
-            "tuned_overrides": (
-                scenario_overrides(s, b.values, train[0].document, train[0].file) if b is not None else None
-            ),
-        }
-    result = {
-        "command": command,
-        "budget_trials": budget,
-        "training_cases": [c.name for c in train],
-        "heldout_cases": [c.name for c in held],
-        "closed_loop_evaluations_per_controller": budget * n_train,
-        "seed": seed,
-        "batch": batch,
-        "sampler": "optuna TPESampler (multivariate, constrained), seed fixed",
-        "limits": LIMITS,
-        "controllers": per_ctrl,
-        "summary": summary,
-    }
-    md = [
-        "# Equal tuning effort: each controller at its default and tuned",
-        "",
-        f"Command: `{command}`" if command else "",
-        "",
-        f"Budget: {budget} trials per controller × {n_train} training scenarios = {budget * n_train} closed-loop "
-        f"evaluations per controller (trial 0 is the default); optuna TPE, seed {seed}, {batch} trials per "
-        "controller per study execution.",
-        f"Training: {', '.join(c.name for c in train)}. Held-out: {', '.join(c.name for c in held)}.",
-        "Objective: the follower's battery energy [kWh/100 km], mean over the training drive cycles. Feasible: no "
-        f"event, min gap ≥ {LIMITS['min_gap_m']:g} m, min TTC ≥ {LIMITS['min_ttc_s']:g} s, RMS jerk ≤ "
-        f"{LIMITS['rms_jerk_max_mps3']:g} m/s³, mean time gap while moving ≤ {LIMITS['mean_time_gap_max_s']:g} s "
-        "(drive cycles).",
-        "",
-        "## What was tuned",
-        "",
-    ]
-    prow = []
-    for s in spaces:
-        for p in per_ctrl[s.label]["parameters"]:
-            prow.append(
-                [
-                    s.label,
-                    p["name"],
-                    p["meaning"],
-                    f"[{_fmt(p['lo'])}, {_fmt(p['hi'])}]" + (" log" if p["log"] else ""),
-                    _fmt(p["default"], 4),
-                    _fmt(p["tuned"], 4) if p["tuned"] is not None else "no feasible trial",
-                ]
-            )
-    md.append(markdown_table(["controller", "parameter (SI)", "meaning", "bounds", "default", "tuned"], prow))
-    md += ["", "## Default and tuned, side by side", ""]
-    srow = []
-    for s in spaces:
-        cell: dict[tuple[str, str], dict[str, Any]] = {
-            (r["set"], r["split"]): r for r in summary if r["controller"] == s.label
-        }
-        row = [s.label, f"{budget} / {evals.get(s.label, 0)}"]
-        for split in ("train", "held-out"):
-            for which in ("default", "tuned"):
-                r = cell[(which, split)]
-                row.append(f"{_fmt(r['battery_energy_kWh_per_100km'], 4)} ({r['feasible_runs']}/{r['runs']} feasible)")
-            e0, e1 = (cell[(w, split)]["battery_energy_kWh_per_100km"] for w in ("default", "tuned"))
-            row.append(f"{100.0 * (e1 - e0) / e0:+.1f}" if math.isfinite(e0) and math.isfinite(e1) and e0 else "–")
-        srow.append(row)
-    md.append(
-        markdown_table(
-            [
-                "controller",
-                "trials / evaluations",
-                "train default",
-                "train tuned",
-                "change %",
-                "held-out default",
-                "held-out tuned",
-                "change %",
-            ],
-            srow,
-        )
-    )
-    md += [
-        "",
-        "Battery energy: kWh/100 km, mean over the drive cycles of the split (held-out: US06 only; the safety cases count "
-        "for feasibility); change: tuned against default. Default and tuned are each one SI parameter set on every "
-        "case (the default: the first training scenario's). A run is feasible when it meets the constraints above "
-        "(a safety case: no event, the gap).",
-        "",
-        "## Every run",
-        "",
-        markdown_table(
-            [
-                "controller",
-                "set",
-                "split",
-                "case",
-                "status",
-                "kWh/100 km",
-                "min gap m",
-                "min TTC s",
-                "RMS jerk m/s³",
-                "mean time gap s",
-            ],
-            [
-                [
-                    r["controller"],
-                    r["set"],
-                    r["split"],
-                    r["case"],
-                    r["status"],
-                    _fmt(r["battery_energy_kWh_per_100km"], 4),
-                    _fmt(r["min_gap_m"]),
-                    _fmt(r["min_ttc_s"]),
-                    _fmt(r["rms_jerk_mps3"]),
-                    _fmt(r["mean_time_gap_s"]),
-                ]
-                for r in runs_rows
-            ],
-        ),
-        "",
-    ]
-    files = [
-        write_atomic(folder / "tuning.md", "\n".join(md)),
-        write_atomic(folder / "tuning.csv", csv_text(summary)),
-        write_atomic(folder / "runs.csv", csv_text(runs_rows)),
-        write_atomic(folder / "trials.csv", csv_text(trials_rows)),
-        write_json(folder / "tuning.json", to_jsonable({**result, "runs": runs_rows})),
-    ]
-    return TuningOutput(folder, files, summary, runs_rows, result)
-
-
-# ----------------------------------------------------------------------------- command line
-
-
-def _bounds_arg(items: Sequence[str]) -> dict[str, dict[str, tuple[float, float]]]:
-    out: dict[str, dict[str, tuple[float, float]]] = {}
-    for it in items:
-        try:
-            key, rng = it.split("=", 1)
-            ctrl, name = key.strip().split(".", 1)
-            lo, hi = (float(x) for x in rng.split(":"))
-        except ValueError:
-            raise ParameterError(
-                f"--bounds {it!r} is not allowed: must be CONTROLLER.PARAMETER=LO:HI, e.g. idm.T_s=0.8:2.5"
-            ) from None
-        out.setdefault(ctrl, {})[name] = (lo, hi)
-    return out
-
-
-def build_parser() -> argparse.ArgumentParser:
-    """Argument parser of ``aev-ocp tune``."""
-    from .console import OneLineParser, add_executor_options
-
-    p = OneLineParser(
-        prog="aev-ocp tune",
-        description="Tune every controller with the same budget of closed-loop evaluations (optuna TPE, fixed "
-        "seed) on training drive-cycle segments; report default and tuned side by side on training and held-out "
-        "scenarios (tuning.md, tuning.csv, runs.csv, trials.csv, tuning.json). Rerun to resume.",
-    )
-    p.add_argument(
-        "--controllers", default=",".join(TUNING_TABLE), help=f"comma-separated (default {','.join(TUNING_TABLE)})"
-    )
-    p.add_argument("--budget", type=int, default=16, help="trials per controller (default 16)")
-    p.add_argument("--batch", type=int, default=4, help="trials per controller per study execution (default 4)")
-    p.add_argument("--seed", type=int, default=1, help="the sampler's seed (default 1)")
-    p.add_argument(
-        "--bounds",
-        action="append",
-        default=[],
-        metavar="CTRL.PARAM=LO:HI",
-        help="replace a parameter's bounds (repeatable), e.g. idm.T_s=0.8:2.5",
-    )
-    p.add_argument("--out", default=None, help="output folder (default results/tune)")
-    add_executor_options(p)  # --workers, --dask-local, --scheduler, --in-process: as aev-ocp study
-    return p
-
-
-def cli_tune(argv: list[str]) -> int:
-    """Entry point of ``aev-ocp tune``: 0 done, 2 bad input."""
-    from .console import EXIT_BAD_INPUT, EXIT_OK, executor_options
-    from .console import error_line as _err
-
-    try:
-        a = build_parser().parse_args(argv)
-    except SystemExit as exc:
-        return int(exc.code or 0)
-    kw = executor_options(a)
-    command = "aev-ocp tune " + " ".join(argv)
-    try:
-        res = run_tuning(
-            [c.strip() for c in a.controllers.split(",") if c.strip()],
-            a.budget,
-            a.out,
-            seed=a.seed,
-            batch=a.batch,
-            bounds=_bounds_arg(a.bounds),
-            command=command.strip(),
-            **kw,
-        )
-    except ParameterError as exc:
-        _err(str(exc))
-        return EXIT_BAD_INPUT
-    for r in res.summary:
-        print(
-            f"{r['controller']:>9} {r['set']:>7} {r['split']:>8}: {_fmt(r['battery_energy_kWh_per_100km'], 4)} "
-            f"kWh/100 km, {r['feasible_runs']}/{r['runs']} feasible"
-        )
-    print(f"wrote {len(res.files)} files to {res.folder}/")
-    return EXIT_OK
-
-
-if __name__ == "__main__":  # pragma: no cover
-    sys.exit(cli_tune(sys.argv[1:]))
