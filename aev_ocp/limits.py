@@ -144,7 +144,7 @@ def check_simulation_size(n_followers: int, t_end: float, dt_out: float) -> floa
 
 
 def check_suite_size(t_ends: Sequence[float], n_runs_per_case: int, dt_out: float, kept: bool, n_workers: int) -> float:
-    """For the safety suite (:func:`aev_ocp.safety.suite.run_suite`): raise ParameterError if its runs (one vehicle
+    """For the safety suite (:func:`aev_ocp.safety.run.run_suite`): raise ParameterError if its runs (one vehicle
     over each case's t_end [model] sampled every dt_out [model], ``n_runs_per_case`` controllers x actuators per case)
     exceed the memory budget: all of them when their trajectories are ``kept`` (workers = 1), else the
     ``n_workers`` longest at once; returns the estimate [bytes]."""

@@ -21,7 +21,7 @@ def load(path: str | Path, run: str | None = None) -> Any:
     Returns, by the manifest's kind: simulate, mpc → :class:`~aev_ocp.results.SimulationResult`; ocp →
     :class:`~aev_ocp.ocp_result.OCPResult`; study → :class:`~aev_ocp.saved.StudyOutput`; ring →
     :class:`~aev_ocp.ring.outputs.RingOutput` (``run=`` a run's label: its RingResult); safety →
-    :class:`~aev_ocp.safety.suite.SuiteOutput`; stability, ring_stability, mixed_ring_stability →
+    :class:`~aev_ocp.safety.run.SuiteOutput`; stability, ring_stability, mixed_ring_stability →
     :class:`~aev_ocp.stability.outputs.StabilityOutput`; sumo → :class:`~aev_ocp.sumo.run.SumoRun` (``run=`` a
     vehicle's SUMO id: its SimulationResult). ``run`` picks one labelled run of the run kinds (see
     :func:`aev_ocp.saved.load`). Raises :class:`~aev_ocp.saved.LoadError` naming the file (and the manifest field)
@@ -49,7 +49,7 @@ def _load(path: str | Path, run: str | None) -> Any:
 
         return load_stability_output(m, folder)
     if kind == "sumo" and run is None:
-        from .sumo.output import load_sumo
+        from .sumo.outputs import load_sumo
 
         return load_sumo(folder)
     return load_run(path, run)

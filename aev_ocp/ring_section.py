@@ -15,7 +15,7 @@ from typing import Any, Callable
 from .report import markdown_table
 from .report_sections import SectionContext
 from .results import write_json
-from .ring.experiments import STABLE_LENGTH_M, RingExperiment, relative_to, run_ring_scenario
+from .ring.run import STABLE_LENGTH_M, RingExperiment, relative_to, run_ring_scenario
 from .ring.scenario import build_ring, load_ring_scenario
 from .stability.ring import measured_growth, ring_stability
 

@@ -87,7 +87,7 @@ def _write(name: str, data: dict[str, Any], record: bool) -> None:
 def ring_main(record: bool = False, controllers: list[str] | None = None) -> None:
     """The Stern ring with the paper's η and with the Model 3 powertrain: battery energy per km of the fleet and
     each AEV controller's change against the all-human ring (``change_battery_energy_J_per_km``)."""
-    from aev_ocp.ring.experiments import run_ring_scenario
+    from aev_ocp.ring.run import run_ring_scenario
     from aev_ocp.ring.scenario import load_ring_scenario
 
     rows: list[dict[str, Any]] = []

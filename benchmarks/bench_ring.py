@@ -28,7 +28,7 @@ from pathlib import Path
 from _baseline import load_1min, run_baseline, trajectory_hash
 
 from aev_ocp.results import write_json
-from aev_ocp.ring.experiments import fleet_metrics, human_ring
+from aev_ocp.ring.run import fleet_metrics, human_ring
 from aev_ocp.ring.simulate import RingOptions, RingSimulator, uniform_flow
 
 TARGET_S = {22: 1.0, 1000: 10.0, 10000: 60.0}

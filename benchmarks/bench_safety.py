@@ -34,7 +34,7 @@ from aev_ocp.models.leader import BrakingLeader
 from aev_ocp.params import EVParams
 from aev_ocp.results import write_atomic
 from aev_ocp.safety.cases import CASE_UNITS, DECLARED, suite_cases
-from aev_ocp.safety.suite import run_suite
+from aev_ocp.safety.run import run_suite
 from aev_ocp.simulate import simulate_platoon
 
 TARGETS_S = {"issue 34 (2 cores)": 120.0, "issue 40": 30.0}

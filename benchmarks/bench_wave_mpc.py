@@ -2,7 +2,7 @@
 
 For each seed the ring scenario (default scenarios/ring_wave.toml: 22 vehicles on 230 m, the AEV under the safety
 layer) runs all human, with vehicle 1 a FollowerStopper car and with vehicle 1 the wave MPC
-(:class:`aev_ocp.mpc.wave.WaveMPC`); fleet metrics over the second half (:func:`aev_ocp.ring.experiments.fleet_metrics`).
+(:class:`aev_ocp.mpc.wave.WaveMPC`); fleet metrics over the second half (:func:`aev_ocp.ring.run.fleet_metrics`).
 The table gives each metric's mean over the seeds with its 95 % interval (:mod:`aev_ocp.intervals`) and the three
 targets as paired per-seed quantities with their intervals:
 
@@ -43,7 +43,7 @@ import numpy as np
 
 from aev_ocp.intervals import summarize
 from aev_ocp.mpc.wave import WaveMPC, WaveParams, linear_gains
-from aev_ocp.ring.experiments import fleet_metrics
+from aev_ocp.ring.run import fleet_metrics
 from aev_ocp.ring.scenario import build_ring, load_ring_scenario
 from aev_ocp.ring.simulate import RingOptions, RingSimulator
 from aev_ocp.stability import mixed
@@ -214,7 +214,7 @@ def safety_check(names: tuple[str, ...] = SAFETY_CASES, wp: WaveParams | None = 
     from aev_ocp.params import EVParams
     from aev_ocp.safety.cases import ACTUATORS, CASE_UNITS, suite_cases
     from aev_ocp.mpc.safe_fallback import SafeFallback
-    from aev_ocp.safety.suite import LayeredController, case_bound, layer_changes
+    from aev_ocp.safety.run import LayeredController, case_bound, layer_changes
 
     u = CASE_UNITS
     cases = {c.name: c for c in suite_cases()}

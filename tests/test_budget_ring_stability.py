@@ -25,7 +25,7 @@ def _one_line(capsys: pytest.CaptureFixture) -> str:
 def test_ring_estimate_bounds_a_real_run(monkeypatch: pytest.MonkeyPatch) -> None:
     """The estimate counts the samples the simulator really keeps and bounds its peak memory (tracemalloc) from
     above, within a factor 2."""
-    from aev_ocp.ring.experiments import human_ring, run_ring
+    from aev_ocp.ring.run import human_ring, run_ring
     from aev_ocp.ring.simulate import RingOptions
 
     monkeypatch.delenv(BUDGET, raising=False)
@@ -73,7 +73,7 @@ def test_ring_scenario_too_large_is_refused_when_read(
 
 
 def test_ring_simulator_checks_the_budget_before_it_runs(monkeypatch: pytest.MonkeyPatch) -> None:
-    from aev_ocp.ring.experiments import human_ring
+    from aev_ocp.ring.run import human_ring
     from aev_ocp.ring.simulate import simulate_ring
 
     monkeypatch.setenv(BUDGET, "0.0061")  # 6.1 MB: 22 cars x 1201 samples (7.9 MB) do not fit

@@ -23,7 +23,7 @@ from aev_ocp.ocp.traffic import TrafficParams
 from aev_ocp.params import ParameterError
 from aev_ocp.report import platoon_totals, scenario_metrics_rows
 from aev_ocp.ring.cli import COLUMNS as RING_COLUMNS
-from aev_ocp.ring.experiments import human_ring, relative_to, run_ring
+from aev_ocp.ring.run import human_ring, relative_to, run_ring
 from aev_ocp.scenarios import ScenarioError, load_scenario as load_file
 from cli_helpers import run_cli
 

@@ -200,7 +200,7 @@ def test_platoon_laws_do_not_depend_on_units() -> None:
 @pytest.mark.parametrize("name", ["proposed", "ovfl", "idm"])
 def test_safety_suite_laws_do_not_depend_on_units(name: str) -> None:
     from aev_ocp.safety.cases import CASE_UNITS, suite_cases
-    from aev_ocp.safety.suite import _law
+    from aev_ocp.safety.run import _law
 
     case = suite_cases()[7]
     other = Units(6.3, 21.0)

@@ -94,7 +94,7 @@ def test_the_safety_suite_reads_the_memory_budget_before_any_case(monkeypatch, t
     first: on the limit it runs, a byte below it is refused naming the variable; a bad value is exit 2 and no folder."""
     from aev_ocp.cli import main
     from aev_ocp.safety.cases import CASE_UNITS, suite_cases
-    from aev_ocp.safety.suite import LAW_DT_OUT, run_suite
+    from aev_ocp.safety.run import LAW_DT_OUT, run_suite
 
     cases = suite_cases(True)[:2]
     t_ends = [float(CASE_UNITS.time_from_si(c.t_end_s)) for c in cases]

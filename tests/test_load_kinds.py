@@ -30,7 +30,7 @@ def _figure(obj) -> None:
 def test_ring_experiment_round_trip(tmp_path: Path) -> None:
     """The Stern ring all-human and with a FollowerStopper (30 s) saved and loaded: every run's arrays equal the
     run's, and the fleet metrics recomputed from the loaded trajectories equal the saved ones."""
-    from aev_ocp.ring.experiments import fleet_metrics, stern
+    from aev_ocp.ring.run import fleet_metrics, stern
     from aev_ocp.ring.outputs import save_ring_output
 
     direct = stern(["followerstopper"], t_end_s=30.0, seed=3)
@@ -125,7 +125,7 @@ def test_safety_suite_round_trip(tmp_path: Path) -> None:
     """Two cases × the IDM and OVFL: the loaded rows equal the run's, its trajectories bit for bit."""
     from aev_ocp.safety.cases import suite_cases
     from aev_ocp.safety.report import write_outputs
-    from aev_ocp.safety.suite import run_suite
+    from aev_ocp.safety.run import run_suite
 
     cases = [c for c in suite_cases(quick=True)][:2]
     res = run_suite(cases, ["idm", "ovfl"], actuators=["ideal"], workers=1)

@@ -256,7 +256,7 @@ def test_a_compilation_says_so_and_a_cache_hit_is_quiet(tmp_path: Path, monkeypa
 def test_comparison_and_safety_suite_reprs(run) -> None:  # noqa: ANN001
     from aev_ocp.mpc.report import Comparison
     from aev_ocp.safety.cases import suite_cases
-    from aev_ocp.safety.suite import run_suite
+    from aev_ocp.safety.run import run_suite
 
     one = simulate_platoon(ConstantSpeed(1.3), [Proposed()], [1.1], [1.2], 3.7, ev=EVParams(units=UNITS), dt_out=0.1)
     ms = {"proposed": [{**m, "cost_s9": 0.375} for m in one.metrics()]}
@@ -278,7 +278,7 @@ def test_comparison_and_safety_suite_reprs(run) -> None:  # noqa: ANN001
 
 
 def test_ring_result_repr() -> None:
-    from aev_ocp.ring.experiments import human_ring, run_ring
+    from aev_ocp.ring.run import human_ring, run_ring
 
     res = run_ring(human_ring(230.0, 7, seed=3), 12.5).result
     lines = repr(res).splitlines()

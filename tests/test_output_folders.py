@@ -136,7 +136,7 @@ def test_study_name_must_not_lead_outside_results(tmp_path, capsys, monkeypatch,
     "argv, claimed, work",
     [
         (["stability", "--law", "ovm", "--linear-only"], "gain.png", "aev_ocp.stability.run.run_stability"),
-        (["ring", "sugiyama", "--t-end-s", "5"], "ring.json", "aev_ocp.ring.experiments.sugiyama"),
+        (["ring", "sugiyama", "--t-end-s", "5"], "ring.json", "aev_ocp.ring.run.sugiyama"),
         (
             ["stability", "--law", "ovm", "--ring", "22", "--density-per-km", "47"],
             "ring_stability.json",

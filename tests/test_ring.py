@@ -16,7 +16,7 @@ from hypothesis import strategies as st
 from aev_ocp.control import Command, Observation
 from aev_ocp.models.carfollowing import OVM, Proposed
 from aev_ocp.params import UNLIMITED, EVParams, ParameterError, VehicleLimits
-from aev_ocp.ring.experiments import fleet_metrics, human_ring, make_aev, run_ring
+from aev_ocp.ring.run import fleet_metrics, human_ring, make_aev, run_ring
 from aev_ocp.ring.laws import FollowerStopper, PISaturation, follower_stopper_speed, idm_si
 from aev_ocp.ring.simulate import (
     RingInitial,
@@ -604,7 +604,7 @@ def test_ring_report_section(tmp_path):
     # the runs load back (manifest kind 'ring' in the section's folder 'ring'): the same fleet metrics as the report's
     # ring.json, and the trajectories recompute them (fleet_metrics of the loaded RingResult, an independent pass)
     import aev_ocp
-    from aev_ocp.ring.experiments import fleet_metrics
+    from aev_ocp.ring.run import fleet_metrics
     from aev_ocp.ring.outputs import RingOutput
 
     loaded = aev_ocp.load(tmp_path / "ring")
@@ -621,7 +621,7 @@ def test_ring_report_section(tmp_path):
 
 
 def test_ring_scenario_sweep_penetration_by_density():
-    from aev_ocp.ring.experiments import relative_to, run_ring_scenario
+    from aev_ocp.ring.run import relative_to, run_ring_scenario
     from aev_ocp.ring.scenario import load_ring_scenario, parse_ring_scenario, scenario_runs, spread
     from aev_ocp.scenarios import ScenarioError
 

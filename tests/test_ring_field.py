@@ -154,7 +154,7 @@ def test_count_braking_rule_and_sumo_thinning() -> None:
 def test_the_ring_table_carries_the_field_columns() -> None:
     """aev-ocp ring's fleet table (run_ring_scenario) has the same throughput and braking events per vehicle-km as
     field_metrics of the same run (the second half of 60 s)."""
-    from aev_ocp.ring.experiments import run_ring_scenario
+    from aev_ocp.ring.run import run_ring_scenario
     from aev_ocp.ring.scenario import load_ring_scenario
 
     sc = load_ring_scenario("ring_calibrated")

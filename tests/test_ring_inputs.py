@@ -16,7 +16,7 @@ from aev_ocp.control import ControlSequence
 from aev_ocp.limits import MAX_RING_CUTS, check_ring_cuts
 from aev_ocp.models.carfollowing import OVM
 from aev_ocp.params import EVParams, ParameterError
-from aev_ocp.ring.experiments import human_ring
+from aev_ocp.ring.run import human_ring
 from aev_ocp.ring.scenario import parse_ring_scenario
 from aev_ocp.ring.simulate import RingInitial, RingRoad, RingSimulator, start_problem, uniform_flow
 from aev_ocp.scenarios import ScenarioError

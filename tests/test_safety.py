@@ -295,7 +295,7 @@ def test_safe_fallback_alone_in_a_hard_cut_in() -> None:
     "name", ["CCRb_100kmh_12m_-6mps2", "CCRs_130kmh", "CCRm_120kmh", "cutin_100kmh_lead100kmh_15m_-6mps2"]
 )
 def test_mpc_one_case_per_family(name: str) -> None:
-    from aev_ocp.safety.suite import run_suite
+    from aev_ocp.safety.run import run_suite
 
     case = next(c for c in suite_cases() if c.name == name)
     short = SafetyCase(

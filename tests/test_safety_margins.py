@@ -16,7 +16,7 @@ from scipy.optimize import brentq
 from aev_ocp.params import EVParams, VehicleLimits
 from aev_ocp.safety import AVOIDABLE, COLLISION_AVOIDABLE_ONLY, UNAVOIDABLE, braking_bound
 from aev_ocp.safety.cases import CASE_UNITS, DECLARED, IDEAL, suite_cases
-from aev_ocp.safety.suite import (
+from aev_ocp.safety.run import (
     layer_changes,
     min_ttc_s,
     peak_jerk_mps3,

@@ -324,7 +324,7 @@ def test_collision_is_an_event_not_a_crash():
 def test_merge_vehicles_leave_the_network_and_save_load(tmp_path):
     """The on-ramp merge with a quarter of the cars on the proposed law: controlled cars leave the network (fleet
     events), change lanes, and the saved run loads back with the same metrics."""
-    from aev_ocp.sumo.output import load_sumo, save_sumo
+    from aev_ocp.sumo.outputs import load_sumo, save_sumo
     from aev_ocp.sumo.run import run_sumo
 
     doc = {

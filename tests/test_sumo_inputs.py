@@ -155,7 +155,7 @@ def test_saved_run_with_a_relative_cell_file_loads_from_another_folder(
         pytest.skip("SUMO is not installed (pip install 'aev_ocp[sumo]')")
     from aev_ocp.cells import shipped_cells
     from aev_ocp.cli import main
-    from aev_ocp.sumo.output import load_sumo
+    from aev_ocp.sumo.outputs import load_sumo
 
     d = tmp_path / "scen"  # type: ignore[operator]
     (d / "data").mkdir(parents=True)

@@ -202,7 +202,7 @@ def test_ring_followerstopper_table_is_checked() -> None:
 
 def test_tuned_sets_enter_the_suites_laws_in_si() -> None:
     from aev_ocp.safety.cases import CASE_UNITS, suite_cases
-    from aev_ocp.safety.suite import _law
+    from aev_ocp.safety.run import _law
     from aev_ocp.tuning.safety import suite_overrides
 
     case = suite_cases()[0]
@@ -214,7 +214,7 @@ def test_tuned_sets_enter_the_suites_laws_in_si() -> None:
     assert si["alpha_per_s"] == pytest.approx(2.0 * 17.0 / 15.0)  # untuned: the suite's α in SI
     idm = _law("idm", case, CASE_UNITS, (("idm", (("T_s", 2.74),)),))
     assert idm.T_s == 2.74 and idm.v0_mps == pytest.approx(case.v_ego_mps)  # v0: the case's speed, as the suite's
-    from aev_ocp.safety.suite import run_suite
+    from aev_ocp.safety.run import run_suite
 
     with pytest.raises(ParameterError, match="law_overrides"):
         run_suite(suite_cases()[:1], ["idm"], law_overrides={"idm": {"T_h": 1.0}})

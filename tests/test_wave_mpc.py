@@ -207,7 +207,7 @@ def test_behind_a_constant_speed_leader_it_keeps_its_speed_on_average_and_its_ga
 
 
 def test_one_wave_mpc_car_on_the_ring_under_the_safety_layer():
-    from aev_ocp.ring.experiments import fleet_metrics
+    from aev_ocp.ring.run import fleet_metrics
     from aev_ocp.ring.scenario import build_ring, load_ring_scenario
     from aev_ocp.ring.simulate import RingSimulator
 

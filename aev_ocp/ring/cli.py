@@ -1,6 +1,6 @@
 """``aev-ocp ring sugiyama | stern | sweep | SCENARIO.toml [--t-end-s S] [--seed K] [--out DIR] [--no-plots]``.
 
-The ring experiments (see :mod:`aev_ocp.ring.experiments`): ``sugiyama`` (22 human drivers on 230 m: the jam
+The ring experiments (see :mod:`aev_ocp.ring.run`): ``sugiyama`` (22 human drivers on 230 m: the jam
 emerges; and on 600 m, where uniform flow is linearly stable: it does not), ``stern`` (the same ring all-human
 and with one AEV under each AEV controller, with a space-time diagram of each run), ``sweep`` (penetration
 0–5 AEVs of 22, spread evenly, × ring lengths; ``--aev`` the controller). Writes ring.json (fleet metrics, SI),
@@ -117,7 +117,7 @@ def _row(label: str, fleet: dict[str, Any]) -> str:
 
 def cli_ring(argv: list[str]) -> int:
     """Entry point of ``aev-ocp ring``; returns the exit code."""
-    from .experiments import SUGIYAMA_N
+    from .run import SUGIYAMA_N
     from .simulate import RingOptions
 
     try:
@@ -242,13 +242,13 @@ def _cli_seeds(a: argparse.Namespace, sc: Any, time_limit: float | None) -> int:
 
 def _runs(a: argparse.Namespace, sc: Any) -> tuple[list[Any], dict[str, Any]]:
     """The runs of ``aev-ocp ring`` (a scenario file's, or an experiment's) and the document of ring.json."""
-    from .experiments import STABLE_LENGTH_M, human_ring, make_aev, relative_to, run_ring, stern, sugiyama
+    from .run import STABLE_LENGTH_M, human_ring, make_aev, relative_to, run_ring, stern, sugiyama
     from .simulate import uniform_speed_mps
 
     runs: list[Any]
     doc: dict[str, Any] = {"experiment": a.experiment, "t_end_s": a.t_end_s, "seed": a.seed}
     if sc is not None:
-        from .experiments import run_ring_scenario
+        from .run import run_ring_scenario
 
         runs = run_ring_scenario(sc, t_end_s=a.t_end_s)
         doc.update(

@@ -42,7 +42,7 @@ FIELD_METRICS: dict[str, bool] = {
 }
 
 
-BRAKING_MPS2 = -1.0  # a braking event: below this acceleration (aev_ocp.ring.experiments.BRAKING_MPS2) ...
+BRAKING_MPS2 = -1.0  # a braking event: below this acceleration (aev_ocp.ring.run.BRAKING_MPS2) ...
 BRAKING_HOLD_S = 0.5  # ... held at least this long (RingOptions.braking_hold_s)
 
 

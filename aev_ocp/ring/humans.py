@@ -47,7 +47,7 @@ SUGIYAMA_TARGETS: dict[str, tuple[float, float]] = {
 }
 SPREAD_CV = 0.1  # coefficient of variation of each driver's parameters (our choice: a mild heterogeneity)
 DELAY_CV = 0.2  # coefficient of variation of the reaction times (our choice)
-NOISE_MPS2 = 0.1  # acceleration noise σ [m/s²] held 0.5 s (aev_ocp.ring.experiments.NOISE_MPS2, our choice)
+NOISE_MPS2 = 0.1  # acceleration noise σ [m/s²] held 0.5 s (aev_ocp.ring.run.NOISE_MPS2, our choice)
 NOISE_DT_S = 0.5
 METRICS_FROM_S = 300.0  # the jam statistics over [300 s, end]: the wave has formed by then on the Sugiyama ring
 

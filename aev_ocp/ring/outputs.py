@@ -19,7 +19,7 @@ import numpy as np
 
 from ..results import FieldsRepr, fmt_value, write_json
 from ..saved import LoadError, MANIFEST, read_arrays, read_document, save_output, sim_record, sim_result
-from .experiments import RingExperiment
+from .run import RingExperiment
 from .simulate import RingInitial, RingResult, RingRoad
 
 RING_FILE = "ring.json"

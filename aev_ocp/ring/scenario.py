@@ -103,7 +103,7 @@ class RingSpec:
     human: str = spec("idm", kind="instance", cls=str)  # ring.human (HUMAN), or a calibrated population's model
     human_params: dict[str, float] = spec(kind="instance", cls=dict, default_factory=dict)
     heterogeneity: float = spec(0.0, ge=0, lt=1)
-    noise_mps2: float = spec(0.1, ge=0, le=10.0)  # aev_ocp.ring.experiments.NOISE_MPS2; at most 1 g (HUMAN_CHECKS)
+    noise_mps2: float = spec(0.1, ge=0, le=10.0)  # aev_ocp.ring.run.NOISE_MPS2; at most 1 g (HUMAN_CHECKS)
     noise_dt_s: float = spec(0.5, gt=0)
     seed: int = spec(0, kind="integer", ge=0)
     aev_vehicles: tuple[int, ...] = spec((), kind="instance", cls=tuple)  # 0-based
@@ -485,7 +485,7 @@ def build_ring(
     on = s.aev_vehicles if aevs is None else tuple(aevs)
     if s.population is not None:
         return _build_population_ring(sc, controller, length, on)
-    rng = np.random.default_rng(s.seed + 7919)  # the same draws as aev_ocp.ring.experiments.human_ring
+    rng = np.random.default_rng(s.seed + 7919)  # the same draws as aev_ocp.ring.run.human_ring
     humans: list[Any] = []
     for _ in range(s.vehicles):
         f = 1 + s.heterogeneity * rng.uniform(-1, 1, 5) if s.heterogeneity > 0 else np.ones(5)

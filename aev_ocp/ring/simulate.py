@@ -193,7 +193,7 @@ class RingOptions:
     threads: int = 1  # OpenMP threads over the vehicles (rings of >= 256 vehicles); 1 on a shared machine
     #: a braking event: the acceleration below braking_mps2 held at least braking_hold_s, counted on the
     #: integrator's own steps (independent of dt_out_s); the count from braking_from_s on (None: the second half)
-    braking_mps2: float = -1.0  # aev_ocp.ring.experiments.BRAKING_MPS2
+    braking_mps2: float = -1.0  # aev_ocp.ring.run.BRAKING_MPS2
     braking_hold_s: float = 0.5  # our choice: a press, not a blip of noise
     braking_from_s: float | None = None
 

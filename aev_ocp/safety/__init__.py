@@ -7,7 +7,7 @@
   stage uses it);
 * :class:`SafeFallback` (:mod:`aev_ocp.mpc.safe_fallback`): that bound as a controller; the MPC's fallback and
   safety filter.
-* :mod:`.cases`, :mod:`.suite`, :mod:`.report`, :mod:`.section`, :mod:`.cli` — the suite, its section of
+* :mod:`.cases`, :mod:`.run`, :mod:`.report`, :mod:`.section`, :mod:`.cli` — the suite, its section of
   ``aev-ocp reproduce`` and the ``aev-ocp safety`` command; never imported here (docs/guide/layers.md). The names
   below are imported on first use, so ``import aev_ocp.safety`` loads no physics until a name is used.
 
@@ -15,7 +15,7 @@ Python API (SI)::
 
     from aev_ocp.safety import braking_bound, safe_acceleration_mps2
     braking_bound(25.0, 8.0, 25.0, -9.0)            # BrakingBound(min_gap_m=3.66, ..., label='avoidable')
-    from aev_ocp.safety.suite import run_suite
+    from aev_ocp.safety.run import run_suite
     out = run_suite(quick=True); out.failures("mpc")
 """
 

@@ -48,7 +48,7 @@ def cli_safety(argv: list[str]) -> int:
     from ..params import ParameterError
     from ..results import claim_output_dir
     from .report import FILES, summary, write_outputs
-    from .suite import DEFAULT_CONTROLLERS, run_suite
+    from .run import DEFAULT_CONTROLLERS, run_suite
 
     try:
         a = build_parser().parse_args(argv)

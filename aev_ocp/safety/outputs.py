@@ -4,7 +4,7 @@ The folder holds safety.json (settings, summary, cases and one row per case × a
 document the manifest names with its SHA-256), the runs' trajectories when the suite kept them (one process:
 ``trajectories.npz``, one run per ``<case>:<actuator>:<controller>``) and safety.csv, safety.md and the figures
 beside them (:func:`aev_ocp.safety.report.write_outputs`). :func:`load_suite_output` gives the
-:class:`~aev_ocp.safety.suite.SuiteOutput` back.
+:class:`~aev_ocp.safety.run.SuiteOutput` back.
 """
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ from typing import Any
 
 from ..saved import MANIFEST, LoadError, load_all, read_document, save_output
 from .cases import SafetyCase
-from .suite import CaseRow, SuiteOutput
+from .run import CaseRow, SuiteOutput
 
 DOCUMENT = "safety.json"
 

@@ -13,7 +13,7 @@ from ..plots import LAW_STYLE, plt
 
 
 def family_figure(out: Any, family: str) -> Figure | None:
-    """The figure of one family of a suite run (:class:`aev_ocp.safety.suite.SuiteOutput`): min gap [m] per case and
+    """The figure of one family of a suite run (:class:`aev_ocp.safety.run.SuiteOutput`): min gap [m] per case and
     controller against the bound, the floor dashed, collisions marked ×; None when the run has no case of it."""
     cases = [c for c in out.cases if c.family == family]
     if not cases:

@@ -19,7 +19,7 @@ from ..results import save_figure_atomic, write_json  # noqa: E402
 from .cases import FAMILIES  # noqa: E402
 from ..models.braking import AVOIDABLE, COLLISION_AVOIDABLE_ONLY, LABELS, UNAVOIDABLE  # noqa: E402
 from .plots import family_figure  # noqa: E402
-from .suite import CaseRow, SuiteOutput  # noqa: E402
+from .run import CaseRow, SuiteOutput  # noqa: E402
 
 FILES = ("safety.csv", "safety.json", "safety.md", "manifest.json", "trajectories.npz") + tuple(
     f"safety_{f.replace('-', '')}.png" for f in FAMILIES

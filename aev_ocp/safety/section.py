@@ -13,7 +13,7 @@ from typing import Callable
 from ..report_sections import SectionContext
 from .cases import FAMILIES, reproduce_cases, suite_cases
 from .report import markdown, write_outputs
-from .suite import run_suite
+from .run import run_suite
 
 
 def figures_markdown(files: list[Path], out_dir: Path) -> str:

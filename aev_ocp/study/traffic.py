@@ -156,7 +156,7 @@ def _ring(spec: dict[str, Any]) -> dict[str, Any]:
 def _sumo(spec: dict[str, Any]) -> dict[str, Any]:
     import dataclasses
 
-    from ..sumo.output import sweep_row
+    from ..sumo.outputs import sweep_row
     from ..sumo.run import run_sumo
     from ..sumo.scenario import parse_sumo_scenario
 

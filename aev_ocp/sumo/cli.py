@@ -106,7 +106,7 @@ def _with_options(sc: SumoScenario, args: argparse.Namespace) -> SumoScenario:
 
 def run_one(sc: SumoScenario, out: Path, plots: bool = True, progress: Any = None) -> Any:
     """Run one scenario and write its folder; returns the SumoRun."""
-    from .output import save_space_time, save_sumo, write_report
+    from .outputs import save_space_time, save_sumo, write_report
     from .run import run_sumo
 
     run = run_sumo(sc, out / "network", progress=progress)
@@ -118,7 +118,7 @@ def run_one(sc: SumoScenario, out: Path, plots: bool = True, progress: Any = Non
 
 def _point(sc: SumoScenario, share: float, controller: str, out: str, plots: bool) -> dict[str, Any]:
     """One sweep point in a worker process (one SUMO per process)."""
-    from .output import sweep_row
+    from .outputs import sweep_row
 
     label = f"share{share:g}_{controller.replace(':', '_')}"
     try:
@@ -169,7 +169,7 @@ def cli_sumo(argv: list[str]) -> int:
             f"\n  wrote {out}/ (report.md, metrics.csv, fleet.json, manifest.json)"
         )
         return 1 if run.status in FAILED_STATUSES else 0
-    from .output import write_sweep
+    from .outputs import write_sweep
 
     s = sc.spec
     shares = list(s.sweep_share) or [s.share]

@@ -1,7 +1,7 @@
 """Figures of a SUMO run (:class:`aev_ocp.sumo.run.SumoRun`): the space-time diagram of every route (the ring: one).
 
 Each function takes the run (its ``vehicles``, ``controlled``, ``offsets_m``, ``ring_length_m`` and ``name``) and
-returns Figures; nothing is written here (:func:`aev_ocp.sumo.output.save_space_time` writes them).
+returns Figures; nothing is written here (:func:`aev_ocp.sumo.outputs.save_space_time` writes them).
 """
 
 from __future__ import annotations

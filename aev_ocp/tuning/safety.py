@@ -3,7 +3,7 @@ actuators, each tuned controller bare and under the braking-distance layer, once
 once with its tuned sets (a drive-cycle tuning folder's ``tuning.json``); the events (collisions, floor violations,
 failures in avoidable cases) counted per controller and actuator, default against tuned.
 
-The sets enter the suite as SI fields of its laws (:func:`aev_ocp.safety.suite.run_suite` ``law_overrides``): an
+The sets enter the suite as SI fields of its laws (:func:`aev_ocp.safety.run.run_suite` ``law_overrides``): an
 OV-type law's coefficients at its tuned scales, the IDM's T, a and b (its desired speed stays the suite's: the case's
 speed), the MPC's traffic-formulation weights and target time gap. The default sets are the drive-cycle tuning's
 defaults; for the OV-type laws and the MPC they are the suite's own, for the IDM the suite uses T = 1.5 s where the
@@ -33,7 +33,7 @@ def suite_overrides(controller: str, values: Mapping[str, float]) -> dict[str, f
     if controller == "idm":
         return {k: float(v) for k, v in values.items()}
     from ..models.carfollowing import OVFL, Proposed
-    from ..safety.suite import LAW_SCALE_M, LAW_SCALE_MPS
+    from ..safety.run import LAW_SCALE_M, LAW_SCALE_MPS
     from ..scenarios.followers import SI_COEFFICIENTS
 
     base = (Proposed if controller == "proposed" else OVFL)(h_scale_m=LAW_SCALE_M, v_scale_mps=LAW_SCALE_MPS)
@@ -71,7 +71,7 @@ def run_safety(
     from ..ocp.traffic import TrafficParams
     from ..results import to_jsonable, write_atomic, write_json
     from ..safety.report import summary
-    from ..safety.suite import LAYER, run_suite
+    from ..safety.run import LAYER, run_suite
 
     path = Path(folder) / "tuning.json"
     if not path.is_file():
