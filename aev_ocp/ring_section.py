@@ -20,6 +20,10 @@ from .ring.scenario import build_ring, load_ring_scenario
 from .stability.ring import measured_growth, ring_stability
 
 QUICK_T_END_S = 120.0
+#: samples stored per saved run (the loadable copy in ring/, for figures: every k-th sample and the last; 600 s
+#: runs at 0.5 s keep about every 3rd, 1.5 s apart, so reproduce's output stays under 60 MB). The fleet metrics
+#: in ring.json come from every sample; a run of QUICK_T_END_S (241 samples) is stored whole.
+RING_STORED_SAMPLES = 400
 #: Sub-folder of the report's folder with the section's runs (``aev_ocp.load("ring")``).
 RING_FOLDER = "ring"
 
@@ -148,7 +152,8 @@ def _save_runs(
     from .ring.outputs import save_ring_output
 
     named = [replace(r, label=f"sugiyama {r.result.ring.length_m:g} m") for r in sugiyama]
-    save_ring_output(folder, named + list(stern), {"experiment": "reproduce: Sugiyama and Stern", "sugiyama": doc_sug})
+    doc = {"experiment": "reproduce: Sugiyama and Stern", "sugiyama": doc_sug}
+    save_ring_output(folder, named + list(stern), doc, max_samples=RING_STORED_SAMPLES)
 
 
 def ring_section(out_dir: Path, progress: Callable[[str], None]) -> str:

@@ -295,9 +295,12 @@ def read_arrays(m: dict[str, Any], folder: Path) -> dict[str, np.ndarray]:
     return _arrays(m, folder)
 
 
-def sim_record(label: str, r: SimulationResult, arrays: dict[str, np.ndarray]) -> dict[str, Any]:
-    """The manifest record of one SimulationResult (its arrays added to ``arrays`` under ``label/``)."""
-    return _sim_record(label, r, arrays)
+def sim_record(
+    label: str, r: SimulationResult, arrays: dict[str, np.ndarray], max_samples: int | None = None
+) -> dict[str, Any]:
+    """The manifest record of one SimulationResult (its arrays added to ``arrays`` under ``label/``; at most about
+    ``max_samples`` samples stored, :func:`stored_samples`; None: every sample)."""
+    return _sim_record(label, r, arrays, max_samples)
 
 
 def sim_result(label: str, rec: dict[str, Any], arrays: dict[str, np.ndarray]) -> SimulationResult:

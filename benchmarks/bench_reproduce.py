@@ -99,6 +99,8 @@ def main(argv: list[str] | None = None) -> int:
     a = ap.parse_args(argv)
     res = run(a.quick, a.keep, a.profile, a.full, a.cache)
     base = json.loads(a.baseline.read_text()) if a.baseline else None
+    if base is not None and "run" in base:  # a JSON this script wrote: its measurements are under "run"
+        base = base["run"]
     rows = [
         ("wall [s]", "wall_s"),
         ("CPU [s]", "cpu_s"),

@@ -61,6 +61,33 @@ def test_ring_experiment_round_trip(tmp_path: Path) -> None:
     _figure(out)
 
 
+def test_ring_round_trip_thinned_keeps_every_kth_sample_and_the_last(tmp_path: Path) -> None:
+    """A ring run saved with at most 23 samples (reproduce stores its 600 s rings this way): the loaded arrays are
+    the run's own samples 0, k, 2k, … and the last (k = ceil(n / 23)), distance and energy thinned alike, and the
+    saved fleet metrics are the run's own (from every sample), not recomputed from the thinned copy."""
+    import math
+
+    from aev_ocp.ring.outputs import save_ring_output
+    from aev_ocp.ring.run import stern
+
+    direct = stern(["followerstopper"], t_end_s=17.5, seed=5)
+    save_ring_output(tmp_path, direct, {"experiment": "stern"}, max_samples=23)
+    out = aev_ocp.load(tmp_path)
+    for got, want in zip(out.runs, direct):
+        n = want.result.sim.t.shape[0]
+        k = math.ceil(n / 23)
+        idx = np.arange(0, n, k)
+        idx = idx if idx[-1] == n - 1 else np.append(idx, n - 1)
+        assert n > 23 and got.result.sim.t.shape[0] == idx.size < n
+        for name in SIM_ARRAYS:
+            want_a = np.asarray(getattr(want.result.sim, name))
+            want_a = want_a[idx] if want_a.ndim and want_a.shape[0] == n else want_a
+            np.testing.assert_array_equal(getattr(got.result.sim, name), want_a, err_msg=name)
+        np.testing.assert_array_equal(got.result.distance, np.asarray(want.result.distance)[idx])
+        np.testing.assert_array_equal(got.result.energy_J, np.asarray(want.result.energy_J)[idx])
+        assert got.fleet == json.loads(json.dumps(aev_ocp.results.to_jsonable(want.fleet)))
+
+
 # ----------------------------------------------------------------------------- stability
 def test_stability_round_trip(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     """``aev-ocp stability --law ovfl`` at two speeds, 8 followers: the linear analyses rebuilt from the loaded

@@ -18,7 +18,16 @@ from typing import Any, Sequence
 import numpy as np
 
 from ..results import FieldsRepr, fmt_value, write_json
-from ..saved import LoadError, MANIFEST, read_arrays, read_document, save_output, sim_record, sim_result
+from ..saved import (
+    LoadError,
+    MANIFEST,
+    read_arrays,
+    read_document,
+    save_output,
+    sim_record,
+    sim_result,
+    stored_samples,
+)
 from .run import RingExperiment
 from .simulate import RingInitial, RingResult, RingRoad
 
@@ -82,12 +91,16 @@ class RingOutput(FieldsRepr):
         )
 
 
-def _ring_record(i: int, run: RingExperiment, arrays: dict[str, np.ndarray]) -> dict[str, Any]:
+def _ring_record(
+    i: int, run: RingExperiment, arrays: dict[str, np.ndarray], max_samples: int | None = None
+) -> dict[str, Any]:
     res, ring = run.result, run.result.ring
     key = f"run{i:03d}"
-    rec = sim_record(key, res.sim, arrays)
-    arrays[f"{key}/distance"] = np.asarray(res.distance, float)
-    arrays[f"{key}/energy_J"] = np.asarray(res.energy_J, float)
+    rec = sim_record(key, res.sim, arrays, max_samples)
+    keep = stored_samples(np.asarray(res.sim.t).shape[0], max_samples)  # the same samples as the run's arrays
+    for name, v in (("distance", res.distance), ("energy_J", res.energy_J)):
+        a = np.asarray(v, float)
+        arrays[f"{key}/{name}"] = a if keep is None else a[keep]
     return {
         "key": key,
         "label": run.label,
@@ -113,15 +126,19 @@ def _ring_record(i: int, run: RingExperiment, arrays: dict[str, np.ndarray]) -> 
     }
 
 
-def save_ring_output(out: str | Path, runs: Sequence[RingExperiment], document: dict[str, Any]) -> list[Path]:
+def save_ring_output(
+    out: str | Path, runs: Sequence[RingExperiment], document: dict[str, Any], max_samples: int | None = None
+) -> list[Path]:
     """Write ring.json (``document`` with every run's label and fleet metrics under ``runs``), the runs'
-    trajectories and the manifest into ``out``; returns the paths (ring.json first)."""
+    trajectories and the manifest into ``out``; returns the paths (ring.json first). ``max_samples``: store at
+    most about that many samples of each run (every k-th and the last; the manifest's run record says so), for
+    figures; the fleet metrics in ring.json are the run's own, from every sample. None: every sample."""
     out = Path(out)
     doc = dict(document)
     doc["runs"] = [{"label": r.label, **r.fleet} for r in runs]
     files = [write_json(out / RING_FILE, doc)]
     arrays: dict[str, np.ndarray] = {}
-    records = [_ring_record(i, r, arrays) for i, r in enumerate(runs)]
+    records = [_ring_record(i, r, arrays, max_samples) for i, r in enumerate(runs)]
     files += save_output(out, "ring", {}, document=RING_FILE, arrays=arrays, extra={"ring_runs": records})
     return files
 
