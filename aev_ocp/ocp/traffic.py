@@ -181,6 +181,42 @@ def desired_gap_m(v_mps: Any, tp: TrafficParams) -> Any:
     return tp.target_gap_m + tp.target_time_gap_s * v_mps
 
 
+def _add_soft_gap(
+    pb: ProblemBuilder,
+    h_m: Any,
+    v_ms: Any,
+    vl_ms: Any,
+    tp: TrafficParams,
+    tpn: TrafficParams,
+    u: Any,
+    length_m: float,
+) -> None:
+    """The soft constraints on the gap [m] (:func:`traffic_problem`). One slack σ ≥ 0 [model length] is shared by
+    the time-headway and the braking floors (the larger violation sets it), with the exact L1 penalty ρ_safe per
+    metre per second (×T per model time, ×L per model length) plus 1e-3 σ² (a PD Hessian); the standstill floor
+    h ≥ s_min is implied (v ≥ 0 is hard). The soft margin (time gap and TTC) has a slack of its own, and no
+    variable at all when its weight is 0. ``tp``: the expressions' values (numbers or parameters); ``tpn``: the
+    numbers (bounds, structure); ``length_m``: the model length unit [m] (the slacks' bound)."""
+    T = u.time_s
+    s_min = tpn.standstill_gap_m
+    sig = pb.control("slack_gap", 0.0, SLACK_MAX_M / length_m)
+    sig_m = u.length_to_si(sig)
+    pb.subject_to(h_m + sig_m - tp.time_headway_s * v_ms, s_min, ca.inf, name="headway")
+    pb.subject_to(
+        h_m + sig_m - v_ms * tp.reaction_time_s - (v_ms**2 - vl_ms**2) / (2 * tp.brake_decel_mps2),
+        s_min,
+        ca.inf,
+        name="braking",
+    )
+    pb.add_stage_cost(T * (tp.safe_penalty * sig_m + 1e-3 * sig_m**2), "penalty_gap")
+    if tpn.margin_weight > 0.0:  # the soft margin (TrafficParams): no variable at all when it is off
+        sig_mg = pb.control("slack_margin", 0.0, SLACK_MAX_M / length_m)
+        sig_mg_m = u.length_to_si(sig_mg)
+        pb.subject_to(h_m + sig_mg_m - tp.margin_time_gap_s * v_ms, s_min, ca.inf, name="margin_time_gap")
+        pb.subject_to(h_m + sig_mg_m - tp.margin_ttc_s * (v_ms - vl_ms), s_min, ca.inf, name="margin_ttc")
+        pb.add_stage_cost(T * tp.margin_weight * sig_mg_m**2, "margin")
+
+
 def traffic_problem(
     ev: EVParams,
     tp: TrafficParams | None = None,
@@ -251,7 +287,6 @@ def traffic_problem(
     pb.subject_to(e - v_ms * a_ms2 / eta, 0.0, ca.inf, name="omega_epi_drive")
     pb.subject_to(e - eta * v_ms * a_ms2, 0.0, ca.inf, name="omega_epi_brake")
     h_des = desired_gap_m(v_ms, tp)
-    s_min = tpn.standstill_gap_m
     terms = {
         "omega": tp.omega_weight * e,
         "heat": tp.heat_weight * cell["Q_pack"] / m,
@@ -262,25 +297,7 @@ def traffic_problem(
     }
     for nm, expr in terms.items():  # Σ ℓ_SI·dt_s = Σ (T ℓ_SI)·dt_model
         pb.add_stage_cost(T * expr, nm)
-    # soft constraints on the gap [m], one slack σ ≥ 0 [model length] shared by both (the larger
-    # violation sets it) with the exact L1 penalty ρ_safe per metre per second (×T per model time, ×L per
-    # model length) plus 1e-3 σ² (a PD Hessian); the standstill floor h ≥ s_min is implied (v ≥ 0 is hard)
-    sig = pb.control("slack_gap", 0.0, SLACK_MAX_M / un.length_m)
-    sig_m = u.length_to_si(sig)
-    pb.subject_to(h_m + sig_m - tp.time_headway_s * v_ms, s_min, ca.inf, name="headway")
-    pb.subject_to(
-        h_m + sig_m - v_ms * tp.reaction_time_s - (v_ms**2 - vl_ms**2) / (2 * tp.brake_decel_mps2),
-        s_min,
-        ca.inf,
-        name="braking",
-    )
-    pb.add_stage_cost(T * (tp.safe_penalty * sig_m + 1e-3 * sig_m**2), "penalty_gap")
-    if tpn.margin_weight > 0.0:  # the soft margin (TrafficParams): no variable at all when it is off
-        sig_mg = pb.control("slack_margin", 0.0, SLACK_MAX_M / un.length_m)
-        sig_mg_m = u.length_to_si(sig_mg)
-        pb.subject_to(h_m + sig_mg_m - tp.margin_time_gap_s * v_ms, s_min, ca.inf, name="margin_time_gap")
-        pb.subject_to(h_m + sig_mg_m - tp.margin_ttc_s * (v_ms - vl_ms), s_min, ca.inf, name="margin_ttc")
-        pb.add_stage_cost(T * tp.margin_weight * sig_mg_m**2, "margin")
+    _add_soft_gap(pb, h_m, v_ms, vl_ms, tp, tpn, u, un.length_m)
     Imax = evn.cell.max_current_A
     pb.subject_to(cell["I"], -Imax, Imax, name="I")  # |I| ≤ 20C (model guide §9)
     pb.subject_to(cell["disc"], 0.0, ca.inf, name="disc")  # current map feasible (model guide §7)
