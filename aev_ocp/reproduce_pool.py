@@ -99,7 +99,7 @@ def run_sections_pooled(
     from concurrent.futures import ProcessPoolExecutor
 
     from . import interrupts
-    from .study.runner import _export_path, _stop_pool
+    from .study.runner import _export_path
 
     tasks: dict[str, tuple[list[str], list[tuple[str, str] | None]]] = {}
     local: list[Section] = []
@@ -154,7 +154,7 @@ def run_sections_pooled(
         if error:
             raise ReportSectionError(error)
     except BaseException:
-        _stop_pool(ex)
+        interrupts.stop_pool(ex)
         raise
     ex.shutdown(wait=True)
 

@@ -121,7 +121,7 @@ def test_reproduce_section_is_provided():
 def test_mpc_comparison_reports_its_cost_on_the_exact_model_and_warns_on_a_smoothing_gap() -> None:
     """Issue 13 for the MPC: every run reports its §9 cost twice (smoothed η as the optimiser saw it, and
     exact). Silent on the canonical settings (300 W); a 200 kW smoothing makes the warning fire."""
-    from aev_ocp.mpc.report import run_comparison
+    from aev_ocp.mpc.run import run_comparison
     from aev_ocp.params import PowertrainOptions
 
     sc = load_scenario(find_scenario("mpc_paper_single")).replace(t_end=4.0)

@@ -254,7 +254,7 @@ def test_a_compilation_says_so_and_a_cache_hit_is_quiet(tmp_path: Path, monkeypa
 
 
 def test_comparison_and_safety_suite_reprs(run) -> None:  # noqa: ANN001
-    from aev_ocp.mpc.report import Comparison
+    from aev_ocp.mpc.run import Comparison
     from aev_ocp.safety.cases import suite_cases
     from aev_ocp.safety.run import run_suite
 

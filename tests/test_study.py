@@ -371,7 +371,7 @@ codegen = false
 def test_study_ocpd_beside_a_traffic_mpc_is_the_traffic_optimum(tmp_path):
     """A study's OCP-D beside a traffic-formulation MPC solves the MPC's own problem (as `aev-ocp mpc` does):
     its optimum equals run_comparison's traffic OCP-D on the same scenario (it used to solve §9's)."""
-    from aev_ocp.mpc.report import run_comparison
+    from aev_ocp.mpc.run import run_comparison
 
     text = """
 scenarios = ["mpc_udds_single"]
@@ -488,7 +488,7 @@ def test_study_ocpd_is_the_same_solve_and_replay_as_aev_ocp_mpc_on_a_coarse_grid
     """The study's OCP-D runs aev-ocp mpc's solve-and-replay: a run too long for the MPC's grid gets the coarse
     grid there too (said in 'grid_dt' and 'coarse'), and its replay equals run_comparison's to the bit."""
     import aev_ocp.ocp.oracle as oracle
-    from aev_ocp.mpc.report import run_comparison
+    from aev_ocp.mpc.run import run_comparison
 
     monkeypatch.setattr(oracle, "ORACLE_BOUND_MAX_INTERVALS", 20)  # the run is too long for the MPC's grid
     text = """

@@ -38,7 +38,7 @@ def test_stopping_a_pool_ends_its_computing_workers():
     import multiprocessing as mp
     from concurrent.futures import ProcessPoolExecutor
 
-    from aev_ocp.study.runner import _stop_pool
+    from aev_ocp.interrupts import stop_pool
 
     ex = ProcessPoolExecutor(max_workers=2, mp_context=mp.get_context("fork"))
     futs = [ex.submit(time.sleep, 600.0) for _ in range(6)]
@@ -48,7 +48,7 @@ def test_stopping_a_pool_ends_its_computing_workers():
     procs = list(ex._processes.values())
     assert len(procs) == 2 and all(p.is_alive() for p in procs)
     pids = [p.pid for p in procs]
-    _stop_pool(ex)
+    stop_pool(ex)
     # the processes are gone (checked by pid: the pool's own thread may reap a worker first, and then
     # Process.is_alive() of our copy cannot tell, which made this test flaky under load)
     assert not any(_computing(pid) for pid in pids)
@@ -349,14 +349,14 @@ def test_a_local_cluster_s_workers_may_write_to_stdout(tmp_path, monkeypatch):
 
 # ----------------------------------------------------------------------------- from the issue-28 small leftovers (test_reliability_minors.py)
 def test_a_stopped_pool_has_closed_its_manager_thread_before_the_process_exits():
-    """study --time-limit with a pool: after _stop_pool the pool's manager thread has finished closing its
+    """study --time-limit with a pool: after stop_pool the pool's manager thread has finished closing its
     wake-up pipe; before, the interpreter's exit hook could write to it while the thread closed it ('OSError:
     [Errno 9] Bad file descriptor' traceback after the stop message, 2 runs in 16 of the probe's try)."""
     import multiprocessing as mp
     import time
     from concurrent.futures import ProcessPoolExecutor
 
-    from aev_ocp.study.runner import _stop_pool
+    from aev_ocp.interrupts import stop_pool
 
     ex = ProcessPoolExecutor(max_workers=1, mp_context=mp.get_context("spawn"))
     futures = [ex.submit(time.sleep, 30.0) for _ in range(3)]
@@ -366,7 +366,7 @@ def test_a_stopped_pool_has_closed_its_manager_thread_before_the_process_exits()
     manager = ex._executor_manager_thread
     wakeup = ex._executor_manager_thread_wakeup
     assert manager is not None and manager.is_alive()
-    _stop_pool(ex)
+    stop_pool(ex)
     assert not manager.is_alive() and wakeup._closed
     assert all(f.done() for f in futures)
 
@@ -380,13 +380,13 @@ def test_a_worker_stopped_halfway_through_sending_its_result_does_not_hang_the_e
     import time
     from concurrent.futures import ProcessPoolExecutor
 
-    from aev_ocp.study.runner import _stop_pool
+    from aev_ocp.interrupts import stop_pool
 
     ex = ProcessPoolExecutor(max_workers=1, mp_context=mp.get_context("spawn"))
     futures = [ex.submit(time.sleep, 600.0) for _ in range(2)]
     manager = ex._executor_manager_thread
     os.write(ex._result_queue._writer.fileno(), struct.pack("!i", 4000) + b"\x80\x04" + b"x" * 500)
-    _stop_pool(ex)
+    stop_pool(ex)
     assert not manager.is_alive()  # not hung on the half message
     # not waiting for the tasks: none returned (each 600 s sleep was cancelled or failed with its worker)
     assert all(f.done() and (f.cancelled() or f.exception() is not None) for f in futures)
@@ -410,13 +410,13 @@ import multiprocessing as mp, sys, time
 from concurrent.futures import ProcessPoolExecutor
 sys.path.insert(0, sys.argv[1])
 import halfmod
-from aev_ocp.study.runner import _stop_pool
+from aev_ocp.interrupts import stop_pool
 
 if __name__ == "__main__":
     ex = ProcessPoolExecutor(1, mp_context=mp.get_context("spawn"))
     ex.submit(halfmod.half_write)
     time.sleep(2.5)  # the worker has begun its result
-    _stop_pool(ex)
+    stop_pool(ex)
     print("stopped", flush=True)
 """
 
@@ -450,7 +450,7 @@ def test_a_pool_stopped_while_a_worker_writes_its_result_lets_the_process_exit(t
     try:
         r = subprocess.run([sys.executable, "drive.py", root], cwd=tmp_path, capture_output=True, text=True, timeout=40)
     except subprocess.TimeoutExpired:
-        pytest.fail("the process hung at exit after _stop_pool (the pool's manager thread was stuck in recv)")
+        pytest.fail("the process hung at exit after stop_pool (the pool's manager thread was stuck in recv)")
     assert r.returncode == 0 and "stopped" in r.stdout, r.stderr[-2000:]
     assert "Traceback" not in r.stderr and "Bad file descriptor" not in r.stderr, r.stderr[-2000:]
 

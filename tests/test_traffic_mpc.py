@@ -185,7 +185,8 @@ def test_comparison_table_flags_runs_of_different_duration():
     """A run 20 % shorter than the proposed law's is flagged and its column marked; a run of the same
     length and distance is not (distance within 1 %: OVFL and the proposed law behind the same leader)."""
     from aev_ocp.models import OVFL, PaperLeader, Proposed
-    from aev_ocp.mpc.report import Comparison, _flag_comparability, comparison_table
+    from aev_ocp.mpc.report import comparison_table
+    from aev_ocp.mpc.run import Comparison, _flag_comparability
     from aev_ocp.simulate import simulate_platoon
 
     runs = {

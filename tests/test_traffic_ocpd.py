@@ -9,7 +9,7 @@ import pytest
 
 from aev_ocp.models.ego import battery_side
 from aev_ocp.mpc import MPCSettings
-from aev_ocp.mpc.report import run_comparison
+from aev_ocp.mpc.run import run_comparison
 from aev_ocp.ocp.following import following_problem
 from aev_ocp.ocp.oracle import OracleScenario, OracleSolver, leader_forecast, scenario_oracle
 from aev_ocp.ocp.formulation import traffic_formulation

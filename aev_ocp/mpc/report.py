@@ -13,13 +13,7 @@ import numpy as np
 from ..limits import MPC_BYTES_PER_INTERVAL, memory_limit_bytes
 from ..results import write_json
 from ..truncation import VIEW_KEYS
-from .run import (  # noqa: F401  (re-exported: the comparison's run and its helpers kept their old home too)
-    Comparison,
-    _flag_comparability,
-    _run_status,
-    own_cost,
-    run_comparison,
-)
+from .run import Comparison, _run_status, run_comparison
 from .settings import MPCSettings
 
 #: every comparison table shows these first (issue 8): runs of different distance or duration (> 1 %) or

@@ -512,7 +512,7 @@ def _run_pool(
     from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 
     from .. import interrupts
-    from ..study.runner import _end_with, _export_path, _stop_pool
+    from ..study.runner import _end_with, _export_path
 
     _export_path()
     out: list[list[CaseRow]] = [[] for _ in cases]
@@ -532,7 +532,7 @@ def _run_pool(
                 out[k] = f.result()[0]
                 done(k, out[k])
     except BaseException:
-        _stop_pool(ex)
+        interrupts.stop_pool(ex)
         raise
     ex.shutdown(wait=True)
     return out

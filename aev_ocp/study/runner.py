@@ -122,7 +122,7 @@ def _simulate(spec: dict[str, Any]) -> Any:
     if ctrl.kind == "mpc":
         r = closed_loop_from_scenario(sc, cfg).run(list(sc.gaps0), list(sc.speeds0), sc.t_end)
         if spec.get("own_cost"):  # the study has an OCP-D: its bound check needs follower 1's own cost
-            from ..mpc.report import own_cost
+            from ..mpc.run import own_cost
 
             f = cfg.formulation
             st = dict(r.solver_stats[0] or {}) if r.solver_stats else {}
@@ -401,7 +401,7 @@ def _run_pool(
                     raise RuntimeError(f"a worker process failed ({type(exc).__name__}: {exc})") from exc
                 done(res)
     except BaseException:
-        _stop_pool(ex)
+        interrupts.stop_pool(ex)
         raise
     ex.shutdown(wait=True)
 
@@ -433,9 +433,6 @@ def _end_with(parent_pid: int) -> None:
         os._exit(1)
 
     threading.Thread(target=watch, name="aev-ocp-parent-watch", daemon=True).start()
-
-
-_stop_pool = interrupts.stop_pool  # (moved to aev_ocp.interrupts: sumo's sweep stops its pool too)
 
 
 def _export_path() -> None:
