@@ -647,7 +647,7 @@ def test_ring_scenario_sweep_penetration_by_density():
 
 
 def test_compiled_ring_is_built_for_a_named_cpu():
-    from aev_ocp.ring.simulate import native_arch
+    from aev_ocp.compiled import native_arch
 
     arch = native_arch()  # the resolved name goes into the compile flags and so into the library's cache key
     assert arch == "" or ("native" not in arch and arch.replace("-", "").isalnum())

@@ -48,7 +48,6 @@ import casadi as ca
 import numpy as np
 
 from ..compiled import compile_shared, dense_outputs, driver_source, exact_tuned_flags
-from ..compiled import native_arch as native_arch  # re-exported: it lived here before aev_ocp.compiled
 from ..limits import check_ring_cuts, check_ring_size
 from ..control import SampledLaw
 from ..loop import NO_STAGES, CommandStages, Controller, History, Observation, VehicleStep, stages_for
