@@ -37,7 +37,6 @@ from .loop import (
     Observation,
     VehicleStep,
     controller_stats,
-    fallback_causes as fallback_causes,  # (its home is aev_ocp.loop; importable from here as before)
     stages_for,
 )
 from .models import battery

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import scipy.linalg
 
-from aev_ocp.control import fallback_causes
+from aev_ocp.loop import fallback_causes
 from aev_ocp.models import drive_cycle
 from aev_ocp.models.leader import SpeedTrace
 from aev_ocp.mpc import MPCSettings, MPCVehicle, run_closed_loop

@@ -1,5 +1,5 @@
-"""The MPC comparison's tables, files and ``reproduce`` section (:func:`aev_ocp.mpc.run.run_comparison` runs it;
-re-exported here). The running formulation's own cost is the only cost row; another formulation's cost (the §9
+"""The MPC comparison's tables, files and ``reproduce`` section (:func:`aev_ocp.mpc.run.run_comparison` runs
+it). The running formulation's own cost is the only cost row; another formulation's cost (the §9
 cost of a traffic MPC) is only in a secondary table. Equal-distance and equal-time views
 (:func:`aev_ocp.truncation.equal_views`) rank runs of different length."""
 
