@@ -425,8 +425,9 @@ def test_traffic_formulation_exports_and_matches_the_python_driver(
 
 def test_c_hessian_projection_equals_numpy(canonical_lib: Path) -> None:
     """aev_mpc_project_pd (Jacobi eigenvalues, in C) against rti.project_pd (numpy.linalg.eigh) on
-    random symmetric blocks of sizes 1..9: indefinite, singular, PD with and without margin, badly scaled;
-    the result's eigenvalues are all >= the floor, and PD blocks come back unchanged (bit for bit)."""
+    random symmetric blocks of sizes 1..9: indefinite, singular, PD with and without margin, badly scaled, with
+    decoupled variables; the result's eigenvalues are all >= the floor, and PD blocks come back unchanged (bit for
+    bit)."""
     import ctypes
 
     from aev_ocp.mpc.controller import RTI_HESSIAN_FLOOR, _project_pd
@@ -458,6 +459,22 @@ def test_c_hessian_projection_equals_numpy(canonical_lib: Path) -> None:
         if kind == 1:
             assert flag == 0 and np.array_equal(got, 0.5 * (B + B.T))
     assert 50 < projected < 300  # both branches exercised
+    # variables without off-diagonal entries (as the traffic MPC's omega_rate and slack; the C leaves them out of
+    # the rotations): one to all of them decoupled, their diagonal entries negative, zero or positive
+    for trial in range(120):
+        n = int(rng.integers(2, 7))
+        M = rng.standard_normal((n, n))
+        B = (M + M.T) * 10.0 ** rng.uniform(-2, 3)
+        free = rng.permutation(n)[: int(rng.integers(1, n + 1))]
+        B[free, :] = 0.0
+        B[:, free] = 0.0
+        B[free, free] = rng.choice([-1.7, 0.0, 2.3, 4.1e-9], size=free.size)
+        ref = _project_pd(B[None].copy())[0]
+        got = np.asfortranarray(B.copy())
+        assert lib.aev_mpc_project_pd(got.ctypes.data, n, RTI_HESSIAN_FLOOR) in (0, 1)
+        scale = 1.0 + np.abs(np.linalg.eigvalsh(B)).max()
+        np.testing.assert_allclose(got, ref, rtol=0, atol=1e-11 * scale)
+        assert np.all(got[free][:, np.setdiff1d(np.arange(n), free)] == 0.0)  # still decoupled, exactly
     bad = np.full((3, 3), np.nan)
     assert lib.aev_mpc_project_pd(np.asfortranarray(bad).ctypes.data, 3, RTI_HESSIAN_FLOOR) == -1
 

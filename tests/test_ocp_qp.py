@@ -279,6 +279,40 @@ def test_compiled_in_dimensions_give_the_same_solution() -> None:
     assert np.abs(generic.lam_c - fixed.lam_c).max() <= 1e-10 * (1 + np.abs(generic.lam_c).max())
 
 
+# the stage kernels (ocp_qp.c: fully unrolled when the dimensions are compiled in, up to 16 per loop): the MPC's
+# two shapes, a terminal constraint with no stage rows, no controls, and blocks larger than the unrolling
+KERNEL_DIMS = [
+    OcpQPDims(N=9, nx=5, nu=1, nc=2),  # canonical MPC (model guide sec. 9)
+    OcpQPDims(N=6, nx=6, nu=3, nc=6),  # traffic MPC
+    OcpQPDims(N=5, nx=3, nu=2, nc=0, ncN=2),
+    OcpQPDims(N=4, nx=4, nu=0, nc=1, ncN=1),
+    OcpQPDims(N=3, nx=11, nu=7, nc=3, ncN=1),
+]
+
+
+@pytest.mark.parametrize("specialise", [False, True], ids=["generic", "compiled_dims"])
+@pytest.mark.parametrize("dims", KERNEL_DIMS, ids=lambda d: f"nx{d.nx}_nu{d.nu}_nc{d.nc}_ncN{d.ncN}")
+def test_stage_kernels_give_the_exact_active_set_solution(dims: OcpQPDims, specialise: bool) -> None:
+    """At a tight tolerance the solution equals the exact one (numpy's solve of the KKT system of the active
+    set, started from qpOASES's point), with the dimensions as run-time values and compiled in, on random QPs
+    with active bounds and general rows (equality rows among them)."""
+    qp = OcpQP(dims, _solve_settings(1e-11), specialise=specialise)
+    active = 0
+    for seed in range(3):
+        data = random_qp(dims, np.random.default_rng(1000 * dims.nx + 10 * dims.nu + seed), scale=2.3)
+        res = qp.solve(**data)
+        assert res.status == OK, (res.status_name, res.iterations, res.residuals)
+        f = _full(dims, data)
+        w = _exact_solution(f, _qpoases(f))
+        assert np.abs(res.w - w).max() <= 1e-8 * (1.0 + np.abs(w).max())
+        assert _kkt_violation(f, res.w, _lam_a(f, res.pi, res.lam_c), res.lam_w) <= 1e-8 * (1.0 + np.abs(w).max())
+        gx = np.concatenate([f["A"][f["rows_c"]] @ w, w[dims.nx :]])
+        lo = np.concatenate([f["lba"][f["rows_c"]], f["lbx"][dims.nx :]])
+        up = np.concatenate([f["uba"][f["rows_c"]], f["ubx"][dims.nx :]])
+        active += int(np.sum((np.abs(gx - lo) < 1e-9) | (np.abs(gx - up) < 1e-9)))
+    assert active >= 3  # the inequalities matter: rows of the sides' kernels are active
+
+
 # ---------------------------------------------------------------------------------------------- real RTI QPs
 DATA = Path(__file__).parent / "data"
 RTI_EPIGRAPH = [

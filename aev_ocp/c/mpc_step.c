@@ -175,14 +175,22 @@ static int chol_ok(const double *A, int n, double shift, double *L) {
   return 1;
 }
 
-/* Eigen-decomposition of the symmetric n x n A (destroyed) by cyclic Jacobi rotations: eigenvalues in
- * lam, eigenvectors in the columns of Q. */
-static void jacobi_eig(double *A, int n, double *lam, double *Q) {
-  int i, j, k, sweep;
+/* Eigen-decomposition of the symmetric n x n A (destroyed) by Jacobi rotations in the round-robin
+ * ("parallel") order (Golub & Van Loan, Matrix Computations, 4th ed., sec. 8.5.4 and 12.4): each round
+ * rotates disjoint pairs (i, j), whose angles depend only on a_ii, a_jj, a_ij and so are computed together
+ * (independent square roots and divisions, instead of one chain through the sweep); a sweep is n - 1 rounds
+ * (n even; n odd: one index rests in each of n rounds). Eigenvalues in lam, eigenvectors in the columns of Q.
+ * tot0: the sum of squares of the entries of a larger matrix that A is the coupled part of (0: none), part of
+ * the norm in the stopping test. A rotation sets a_ii, a_jj and a_ij in closed form (op. cit. sec. 8.5.2)
+ * and updates the other entries of rows and columns i, j once for both triangles. */
+static void jacobi_eig(double *A, int n, double tot0, double *lam, double *Q) {
+  int i, j, k, p, sweep, round, np = n + (n & 1), npair;
+  int pi[AEV_MPC_PD_MAXN / 2 + 1], pj[AEV_MPC_PD_MAXN / 2 + 1];
+  double pt[AEV_MPC_PD_MAXN / 2 + 1], pc[AEV_MPC_PD_MAXN / 2 + 1], ps[AEV_MPC_PD_MAXN / 2 + 1];
   for (i = 0; i < n * n; ++i) Q[i] = 0.0;
   for (i = 0; i < n; ++i) Q[i + i * n] = 1.0;
   for (sweep = 0; sweep < 100; ++sweep) {
-    double off = 0.0, tot = 0.0;
+    double off = 0.0, tot = tot0;
     for (j = 0; j < n; ++j)
       for (i = 0; i < n; ++i) {
         double a2 = A[i + j * n] * A[i + j * n];
@@ -190,23 +198,36 @@ static void jacobi_eig(double *A, int n, double *lam, double *Q) {
         if (i != j) off += a2;
       }
     if (off <= 1e-30 * tot || off == 0.0) break;
-    for (i = 0; i < n - 1; ++i)
-      for (j = i + 1; j < n; ++j) {
-        double aij = A[i + j * n], th, t, c, s;
-        if (aij == 0.0) continue;
-        th = (A[j + j * n] - A[i + i * n]) / (2.0 * aij);
-        t = (th >= 0.0 ? 1.0 : -1.0) / (fabs(th) + sqrt(th * th + 1.0));
-        c = 1.0 / sqrt(t * t + 1.0);
-        s = t * c;
-        for (k = 0; k < n; ++k) {  /* columns i, j */
-          double aki = A[k + i * n], akj = A[k + j * n];
-          A[k + i * n] = c * aki - s * akj;
-          A[k + j * n] = s * aki + c * akj;
+    for (round = 0; round < np - 1; ++round) {
+      npair = 0;
+      for (p = 0; p < np / 2; ++p) {  /* the circle method: position 0 stays, the others turn by one a round */
+        int q = np - 1 - p;
+        i = p == 0 ? 0 : 1 + (p - 1 + round) % (np - 1);
+        j = 1 + (q - 1 + round) % (np - 1);
+        if (i > j) { int t = i; i = j; j = t; }
+        if (j >= n || A[i + j * n] == 0.0) continue;  /* the resting index (n odd), or nothing to rotate */
+        {
+          /* t = sign(th) / (|th| + sqrt(th^2 + 1)) with th = d / a2, c = 1 / sqrt(1 + t^2), written with
+           * r = sqrt(d^2 + a2^2) */
+          double d = A[j + j * n] - A[i + i * n], a2 = 2.0 * A[i + j * n], r = sqrt(d * d + a2 * a2);
+          double t = ((d == 0.0 || (d > 0.0) == (a2 > 0.0)) ? fabs(a2) : -fabs(a2)) / (fabs(d) + r);
+          double c = sqrt((fabs(d) + r) / (2.0 * r));
+          pi[npair] = i; pj[npair] = j; pt[npair] = t; pc[npair] = c; ps[npair] = t * c;
+          ++npair;
         }
-        for (k = 0; k < n; ++k) {  /* rows i, j */
-          double aik = A[i + k * n], ajk = A[j + k * n];
-          A[i + k * n] = c * aik - s * ajk;
-          A[j + k * n] = s * aik + c * ajk;
+      }
+      for (p = 0; p < npair; ++p) {
+        double aij, t = pt[p], c = pc[p], s = ps[p];
+        i = pi[p]; j = pj[p];
+        aij = A[i + j * n];
+        A[i + i * n] -= t * aij;
+        A[j + j * n] += t * aij;
+        A[i + j * n] = A[j + i * n] = 0.0;
+        for (k = 0; k < n; ++k) {  /* rows and columns i, j outside the (i, j) block */
+          double aki = A[k + i * n], akj = A[k + j * n];
+          if (k == i || k == j) continue;
+          A[k + i * n] = A[i + k * n] = c * aki - s * akj;
+          A[k + j * n] = A[j + k * n] = s * aki + c * akj;
         }
         for (k = 0; k < n; ++k) {
           double qki = Q[k + i * n], qkj = Q[k + j * n];
@@ -214,14 +235,15 @@ static void jacobi_eig(double *A, int n, double *lam, double *Q) {
           Q[k + j * n] = s * qki + c * qkj;
         }
       }
+    }
   }
   for (i = 0; i < n; ++i) lam[i] = A[i + i * n];
 }
 
 int aev_mpc_project_pd(double *B, int n, double floor_rel) {
   double S[AEV_MPC_PD_MAXN * AEV_MPC_PD_MAXN], Q[AEV_MPC_PD_MAXN * AEV_MPC_PD_MAXN], lam[AEV_MPC_PD_MAXN];
-  double norm = 0.0, big = 0.0, fl;
-  int i, j, k, low = 0;
+  double lk[AEV_MPC_PD_MAXN], norm = 0.0, big = 0.0, fl, tot0 = 0.0;
+  int i, j, k, low = 0, m = 0, cp[AEV_MPC_PD_MAXN], coupled[AEV_MPC_PD_MAXN];
   if (n <= 0 || n > AEV_MPC_PD_MAXN || !all_finite(B, n * n)) return -1;
   for (j = 0; j < n; ++j)
     for (i = 0; i < j; ++i) B[i + j * n] = B[j + i * n] = 0.5 * (B[i + j * n] + B[j + i * n]);
@@ -231,17 +253,31 @@ int aev_mpc_project_pd(double *B, int n, double floor_rel) {
     if (r > norm) norm = r;
   }
   if (chol_ok(B, n, floor_rel * (1.0 + norm), S)) return 0;
-  memcpy(S, B, sizeof(double) * (size_t)(n * n));
-  jacobi_eig(S, n, lam, Q);
+  /* a variable without off-diagonal entries (e.g. a control that enters the cost only as its square) is its own
+   * eigenvector: only the coupled ones (cp, m of them) go through the rotations */
+  for (i = 0; i < n; ++i) {
+    coupled[i] = 0;
+    for (j = 0; j < n; ++j)
+      if (j != i && B[i + j * n] != 0.0) coupled[i] = 1;
+    if (coupled[i]) cp[m++] = i;
+    else tot0 += B[i + i * n] * B[i + i * n];
+  }
+  for (j = 0; j < m; ++j)
+    for (i = 0; i < m; ++i) S[i + j * m] = B[cp[i] + cp[j] * n];
+  jacobi_eig(S, m, tot0, lk, Q);
+  for (i = 0, k = 0; i < n; ++i) lam[i] = coupled[i] ? lk[k++] : B[i + i * n];
   for (i = 0; i < n; ++i) if (fabs(lam[i]) > big) big = fabs(lam[i]);
   fl = floor_rel * (1.0 + big);
   for (i = 0; i < n; ++i) if (lam[i] < fl) { lam[i] = fl; low = 1; }
   if (!low) return 0;  /* PD with margin after all: unchanged, as aev_ocp.mpc.controller._project_pd */
+  for (i = 0; i < m; ++i) lk[i] = lam[cp[i]];
   for (j = 0; j < n; ++j)
-    for (i = 0; i < n; ++i) {
+    for (i = 0; i < n; ++i) B[i + j * n] = (i == j && !coupled[i]) ? lam[i] : 0.0;
+  for (j = 0; j < m; ++j)
+    for (i = 0; i < m; ++i) {
       double s = 0.0;
-      for (k = 0; k < n; ++k) s += Q[i + k * n] * lam[k] * Q[j + k * n];
-      B[i + j * n] = s;
+      for (k = 0; k < m; ++k) s += Q[i + k * m] * lk[k] * Q[j + k * m];
+      B[cp[i] + cp[j] * n] = s;
     }
   return 1;
 }

@@ -29,6 +29,12 @@
  * Termination: every residual (inf-norms, complementarity as the mean of s z) below its tolerance. On
  * degenerate rows (weakly active, or linearly dependent active rows) w is then O(sqrt(mean s z)) from the
  * exact solution, e.g. up to 1e-4 at tolerances 1e-9 on the MPC's QPs, 4e-8 at 1e-12 (tests/test_ocp_qp.py).
+ * Speed (the MPC's QPs are small: nx 5-6, nu 1-3): the work is done stage by stage in small kernels (see
+ * "kernels" below), each stage's rows and sides inside its own pass; long reductions over the sides keep four
+ * partial results (their addition chains, not the arithmetic, bounded those loops). Against the previous
+ * version (generic matrix-vector loops, one sweep per piece): about 0.76x the time on the canonical MPC's QPs
+ * (N = 40, nx 5, nu 1), 0.85x on the traffic MPC's (N = 25, nx 6, nu 3), the same iterates up to rounding
+ * (benchmarks/bench_ocp_qp.py --baseline-src compares two versions in one process).
  */
 #include <stdlib.h>
 #include <string.h>
@@ -36,6 +42,11 @@
 
 #include "ocp_qp.h"
 
+#if defined(OCPQP_NX) && defined(OCPQP_NU) && defined(OCPQP_NC) && defined(OCPQP_NCN) && defined(__GNUC__)
+#define UNROLL _Pragma("GCC unroll 16") /* every loop of a block: its trip count is a constant */
+#else
+#define UNROLL
+#endif
 #define AMAX(acc, v) do { double a_ = fabs(v); if (a_ > (acc)) (acc) = a_; } while (0)
 
 /* Dimensions. Compiled with -DOCPQP_NX=.. -DOCPQP_NU=.. -DOCPQP_NC=.. -DOCPQP_NCN=.. (all four) they are
@@ -77,13 +88,14 @@ struct ocpqp_solver {
   double *t;      /* nx work */
   /* iterate and steps */
   double *w, *pi, *dw, *dpi;
-  double *rstat, *req, *gt;
+  double *rstat, *req;
   double *drow, *ddrow, *sigrow, *qrow, *lamrow;
   double *s, *z, *b, *sg, *r, *rc, *ds, *dz;
   double *is;     /* 1/s of the current factorisation */
   double *dw2, *dpi2, *ds2, *dz2, *rho, *lamrow2;  /* iterative refinement */
   int *srow;
   int *pind;      /* N+1: P_k is indefinite (no square root; the stage before adds E' P_k E explicitly) */
+  int *kside;     /* N+2: the sides of stage k are kside[k] .. kside[k+1] - 1 */
   int nside;
   double sigmax;  /* largest barrier term z/s of the current factorisation */
 };
@@ -102,7 +114,7 @@ static size_t layout(ocpqp_solver *s, double *blk) {
   size_t N = (size_t)s->d.N, nx = (size_t)s->d.nx, nu = (size_t)s->d.nu, nb = nx + nu;
   size_t nc = (size_t)s->d.nc, ncN = (size_t)s->d.ncN, nw = (size_t)s->nw, nrow = (size_t)s->nrow;
   size_t nsm = (size_t)s->nside_max, off = 0, i;
-  double **per_nw[] = {&s->w, &s->dw, &s->rstat, &s->gt, &s->dw2, &s->rho};
+  double **per_nw[] = {&s->w, &s->dw, &s->rstat, &s->dw2, &s->rho};
   double **per_pi[] = {&s->pi, &s->dpi, &s->req, &s->dpi2};
   double **per_row[] = {&s->drow, &s->ddrow, &s->sigrow, &s->qrow, &s->lamrow, &s->lamrow2};
   double **per_side[] = {&s->s, &s->z, &s->b, &s->sg, &s->r, &s->rc, &s->ds, &s->dz, &s->is, &s->ds2, &s->dz2};
@@ -145,7 +157,7 @@ ocpqp_solver *ocpqp_create(const ocpqp_dims *dims, const ocpqp_settings *setting
   if (settings) probe.set = *settings; else ocpqp_default_settings(&probe.set);
   nd = layout(&probe, NULL);
   /* one block: the struct, the doubles, then the side -> row indices */
-  blk = (double *)malloc((head + nd) * sizeof(double) + (size_t)(probe.nside_max + dims->N + 1) * sizeof(int));
+  blk = (double *)malloc((head + nd) * sizeof(double) + (size_t)(probe.nside_max + 2 * dims->N + 3) * sizeof(int));
   if (!blk) return NULL;
   s = (ocpqp_solver *)(void *)blk;
   *s = probe;
@@ -154,65 +166,64 @@ ocpqp_solver *ocpqp_create(const ocpqp_dims *dims, const ocpqp_settings *setting
   layout(s, blk);
   s->srow = (int *)(void *)(blk + nd);
   s->pind = s->srow + s->nside_max;
+  s->kside = s->pind + dims->N + 1;
   return s;
 }
 
 void ocpqp_free(ocpqp_solver *s) { free(s); }
 
 /* ------------------------------------------------------------------------------------------ kernels */
-/* y (m) += A (m x n, column-major) x; four, then two columns per pass (fewer loads and stores of y) */
-static void gemv_n(int m, int n, const double *A, const double *x, double *y) {
-  int i, j = 0;
-  if (m == 1) {
-    double acc = y[0];
-    for (j = 0; j < n; ++j) acc += A[j] * x[j];
-    y[0] = acc;
-    return;
-  }
-  for (; j + 3 < n; j += 4) {
-    double x0 = x[j], x1 = x[j + 1], x2 = x[j + 2], x3 = x[j + 3];
-    const double *a0 = A + (size_t)j * m, *a1 = a0 + m, *a2 = a1 + m, *a3 = a2 + m;
-    for (i = 0; i < m; ++i) y[i] += (a0[i] * x0 + a1[i] * x1) + (a2[i] * x2 + a3[i] * x3);
-  }
-  for (; j + 1 < n; j += 2) {
-    double x0 = x[j], x1 = x[j + 1];
-    const double *a0 = A + (size_t)j * m, *a1 = a0 + m;
-    for (i = 0; i < m; ++i) y[i] += a0[i] * x0 + a1[i] * x1;
-  }
-  if (j < n) {
-    double x0 = x[j];
-    const double *a0 = A + (size_t)j * m;
-    for (i = 0; i < m; ++i) y[i] += a0[i] * x0;
-  }
-}
+/* The stage kernels below are written for small blocks: every product is a dot product accumulated in a
+ * register (no partial sums stored and reloaded), every block pointer is restrict, and each kernel is
+ * inlined into its caller, where the block sizes (nb, nx, nc, or nx, ncN at stage N) are the arguments: with
+ * the dimensions compile-time constants (-DOCPQP_NX=..) every loop then has a constant trip count and is
+ * unrolled. The stages' inequality sides are contiguous (s->kside), so each stage's rows are handled inside
+ * the stage's pass instead of in separate sweeps over all rows. */
+#if defined(__GNUC__)
+#define KERNEL static inline __attribute__((always_inline))
+#else
+#define KERNEL static inline
+#endif
 
-/* G (n x n, lower triangle, leading dimension ldg) += A A', A n x k column-major (lda = n); two columns
- * of A per pass */
-static void syrk_ln(int n, int k, const double *A, double *G, int ldg) {
-  int i, j, l;
-  for (l = 0; l + 1 < k; l += 2) {
-    const double *a0 = A + (size_t)l * n, *a1 = a0 + n;
-    for (j = 0; j < n; ++j) {
-      double b0 = a0[j], b1 = a1[j];
-      double *Gj = G + (size_t)j * ldg;
-      for (i = j; i < n; ++i) Gj[i] += a0[i] * b0 + a1[i] * b1;
-    }
-  }
-  if (l < k) {
-    const double *a0 = A + (size_t)l * n;
-    for (j = 0; j < n; ++j) {
-      double b0 = a0[j];
-      double *Gj = G + (size_t)j * ldg;
-      for (i = j; i < n; ++i) Gj[i] += a0[i] * b0;
-    }
-  }
-}
-
+/* Reductions over long vectors keep four partial results: four independent chains of additions (or
+ * comparisons) instead of one, whose latency would otherwise bound the loop. */
 static int all_finite(const double *x, size_t n) {
   size_t i;
-  double acc = 0.0;
-  for (i = 0; i < n; ++i) acc += x[i] * 0.0;  /* NaN if any entry is NaN or +-inf */
-  return acc == 0.0;
+  double a0 = 0.0, a1 = 0.0, a2 = 0.0, a3 = 0.0;
+  for (i = 0; i + 3 < n; i += 4) {  /* NaN if any entry is NaN or +-inf */
+    a0 += x[i] * 0.0;
+    a1 += x[i + 1] * 0.0;
+    a2 += x[i + 2] * 0.0;
+    a3 += x[i + 3] * 0.0;
+  }
+  for (; i < n; ++i) a0 += x[i] * 0.0;
+  return (a0 + a1) + (a2 + a3) == 0.0;
+}
+
+/* sum over the sides of (s + alpha ds)(z + alpha dz) (alpha 0: of s z, ds and dz not read); *pmin (if not
+ * NULL): the smallest of them */
+static double pair_sum(const ocpqp_solver *s, double alpha, double *pmin) {
+  int i, n = s->nside;
+  const double *restrict sl = s->s, *restrict z = s->z, *restrict ds = s->ds, *restrict dz = s->dz;
+  double a0 = 0.0, a1 = 0.0, a2 = 0.0, a3 = 0.0, m0 = HUGE_VAL, m1 = HUGE_VAL, m2 = HUGE_VAL, m3 = HUGE_VAL;
+#define OCPQP_PAIR(j) (alpha != 0.0 ? (sl[j] + alpha * ds[j]) * (z[j] + alpha * dz[j]) : sl[j] * z[j])
+  for (i = 0; i + 3 < n; i += 4) {
+    double p0 = OCPQP_PAIR(i), p1 = OCPQP_PAIR(i + 1), p2 = OCPQP_PAIR(i + 2), p3 = OCPQP_PAIR(i + 3);
+    a0 += p0; a1 += p1; a2 += p2; a3 += p3;
+    m0 = p0 < m0 ? p0 : m0; m1 = p1 < m1 ? p1 : m1; m2 = p2 < m2 ? p2 : m2; m3 = p3 < m3 ? p3 : m3;
+  }
+  for (; i < n; ++i) {
+    double p0 = OCPQP_PAIR(i);
+    a0 += p0;
+    m0 = p0 < m0 ? p0 : m0;
+  }
+#undef OCPQP_PAIR
+  if (pmin) {
+    m0 = m1 < m0 ? m1 : m0;
+    m2 = m3 < m2 ? m3 : m2;
+    *pmin = m2 < m0 ? m2 : m0;
+  }
+  return (a0 + a1) + (a2 + a3);
 }
 
 static int no_nan(const double *x, size_t n) {
@@ -222,83 +233,108 @@ static int no_nan(const double *x, size_t n) {
   return 1;
 }
 
-/* ------------------------------------------------------------------------------------------ pieces */
-/* row values d = D w (bound rows: w; general rows: C w) */
-static void row_values(ocpqp_solver *s, const ocpqp_data *d, const double *w, double *dr) {
-  int N = s->d.N, nx = DNX(s), nb = DNB(s), nc = DNC(s), ncN = DNCN(s), k, i;
-  for (k = 0; k <= N; ++k) {
-    int n = k < N ? nb : nx, m = k < N ? nc : ncN;
-    const double *wk = w + (size_t)k * nb;
-    double *rk = dr + (size_t)k * (nb + nc);
-    const double *Ck = d->C + (size_t)k * nc * nb;
-    for (i = 0; i < n; ++i) rk[i] = wk[i];
-    for (i = 0; i < m; ++i) rk[n + i] = 0.0;
-    gemv_n(m, n, Ck, wk, rk + n);
+/* row values of stage k (n bound rows, m general rows): dr = [w_k; C_k w_k] (Ck m x n column-major) */
+KERNEL void stage_rows(int n, int m, const double *restrict Ck, const double *restrict wk, double *restrict dr) {
+  int i, j;
+  UNROLL for (i = 0; i < n; ++i) dr[i] = wk[i];
+  UNROLL for (i = 0; i < m; ++i) {
+    double acc = 0.0;
+    UNROLL for (j = 0; j < n; ++j) acc += Ck[i + j * m] * wk[j];
+    dr[n + i] = acc;
   }
 }
 
-/* out (stage vector of length nw) = base + D' v (v per row); base may equal out, or be NULL (zero) */
-static void rows_transpose(ocpqp_solver *s, const double *v, const double *base, double *out) {
-  int N = s->d.N, nx = DNX(s), nb = DNB(s), nc = DNC(s), ncN = DNCN(s), k, i;
-  for (k = 0; k <= N; ++k) {
-    int n = k < N ? nb : nx, m = k < N ? nc : ncN;
-    const double *vk = v + (size_t)k * (nb + nc);
-    double *ok = out + (size_t)k * nb;
-    if (base) {
-      const double *bk = base + (size_t)k * nb;
-      for (i = 0; i < n; ++i) ok[i] = bk[i] + vk[i];
-    } else {
-      for (i = 0; i < n; ++i) ok[i] = vk[i];
+/* stationarity of stage k: out = base + D_k' lam_k + H_k w_k + E_k' pi_k - [pi_{k-1}; 0] (base, ETk/pik, pim
+ * NULL: left out; n x n Hk, CTk n x m, ETk n x nx column-major) */
+KERNEL void stage_stat(int n, int m, int nx, const double *restrict Hk, const double *restrict CTk,
+                       const double *restrict ETk, const double *restrict wk, const double *restrict lamk,
+                       const double *restrict pik, const double *restrict pim, const double *restrict base,
+                       double *restrict out) {
+  int i, j;
+  UNROLL for (i = 0; i < n; ++i) {
+    double acc = base ? base[i] + lamk[i] : lamk[i];
+    UNROLL for (j = 0; j < n; ++j) acc += Hk[i + j * n] * wk[j];
+    UNROLL for (j = 0; j < m; ++j) acc += CTk[i + j * n] * lamk[n + j];
+    if (ETk) {
+      UNROLL for (j = 0; j < nx; ++j) acc += ETk[i + j * n] * pik[j];
     }
-    gemv_n(n, m, s->CT + (size_t)k * nc * nb, vk + n, ok);
+    if (pim && i < nx) acc -= pim[i];
+    out[i] = acc;
   }
 }
 
-/* out = base + D' lam + H w + E' pi - pi shifted (per stage; lam per row) */
+/* row multipliers of stage k (n + m rows, first row r0) from the stage's sides: lam = sum -sg z */
+KERNEL void stage_lam(const ocpqp_solver *s, int k, int nrk, int r0, const double *restrict z, double *restrict lamk) {
+  int i;
+  UNROLL for (i = 0; i < nrk; ++i) lamk[i] = 0.0;
+  for (i = s->kside[k]; i < s->kside[k + 1]; ++i) lamk[s->srow[i] - r0] -= s->sg[i] * z[i];
+}
+
+/* ------------------------------------------------------------------------------------------ pieces */
+/* row values d = D w (bound rows: w; general rows: C w), every stage */
+static void row_values(ocpqp_solver *s, const ocpqp_data *d, const double *w, double *dr) {
+  int N = s->d.N, nx = DNX(s), nb = DNB(s), nc = DNC(s), ncN = DNCN(s), nr = nb + nc, k;
+  for (k = 0; k < N; ++k) stage_rows(nb, nc, d->C + (size_t)k * nc * nb, w + (size_t)k * nb, dr + (size_t)k * nr);
+  stage_rows(nx, ncN, d->C + (size_t)N * nc * nb, w + (size_t)N * nb, dr + (size_t)N * nr);
+}
+
+/* out = base + D' lam + H w + E' pi - pi shifted (per stage; lam per row; base not NULL) */
 static void stationarity(ocpqp_solver *s, const ocpqp_data *d, const double *w, const double *pi, const double *lam,
                          const double *base, double *out) {
-  int N = s->d.N, nx = DNX(s), nb = DNB(s), k, i;
-  rows_transpose(s, lam, base, out);
-  for (k = 0; k <= N; ++k) {
-    int n = k < N ? nb : nx;
-    double *rk = out + (size_t)k * nb;
-    gemv_n(n, n, d->H + (size_t)k * nb * nb, w + (size_t)k * nb, rk);
-    if (k < N) gemv_n(nb, nx, s->ET + (size_t)k * nx * nb, pi + (size_t)k * nx, rk);
-    if (k > 0)
-      for (i = 0; i < nx; ++i) rk[i] -= pi[(size_t)(k - 1) * nx + i];
-  }
+  int N = s->d.N, nx = DNX(s), nb = DNB(s), nc = DNC(s), nr = nb + nc, k;
+  for (k = 0; k < N; ++k)
+    stage_stat(nb, nc, nx, d->H + (size_t)k * nb * nb, s->CT + (size_t)k * nc * nb, s->ET + (size_t)k * nx * nb,
+               w + (size_t)k * nb, lam + (size_t)k * nr, pi + (size_t)k * nx, k ? pi + (size_t)(k - 1) * nx : NULL,
+               base + (size_t)k * nb, out + (size_t)k * nb);
+  stage_stat(nx, DNCN(s), nx, d->H + (size_t)N * nb * nb, s->CT + (size_t)N * nc * nb, NULL, w + (size_t)N * nb,
+             lam + (size_t)N * nr, NULL, pi + (size_t)(N - 1) * nx, base + (size_t)N * nb, out + (size_t)N * nb);
 }
 
 /* lam per row = sum over the row's sides of -sg z */
 static void row_multipliers(ocpqp_solver *s, const double *z, double *lam) {
-  int i;
-  memset(lam, 0, (size_t)s->nrow * sizeof(double));
-  for (i = 0; i < s->nside; ++i) lam[s->srow[i]] -= s->sg[i] * z[i];
+  int N = s->d.N, nr = DNB(s) + DNC(s), k;
+  for (k = 0; k < N; ++k) stage_lam(s, k, nr, k * nr, z, lam + (size_t)k * nr);
+  stage_lam(s, N, DNX(s) + DNCN(s), N * nr, z, lam + (size_t)N * nr);
+}
+
+/* the residuals of stage k (n, m: its block sizes) at (w, pi, s, z), their maxima into acc[0..2] */
+KERNEL void stage_residuals(ocpqp_solver *s, const ocpqp_data *d, int k, int n, int m, double *acc) {
+  int N = s->d.N, nx = DNX(s), nb = DNB(s), nc = DNC(s), nr = nb + nc, i, j;
+  const double *restrict wk = s->w + (size_t)k * nb;
+  double *restrict lamk = s->lamrow + (size_t)k * nr, *restrict rk = s->rstat + (size_t)k * nb;
+  double *restrict dr = s->drow + (size_t)k * nr;
+  stage_lam(s, k, n + m, k * nr, s->z, lamk);
+  stage_stat(n, m, nx, d->H + (size_t)k * nb * nb, s->CT + (size_t)k * nc * nb,
+             k < N ? s->ET + (size_t)k * nx * nb : NULL, wk, lamk, k < N ? s->pi + (size_t)k * nx : NULL,
+             k ? s->pi + (size_t)(k - 1) * nx : NULL, d->g + (size_t)k * nb, rk);
+  UNROLL for (i = k ? 0 : nx; i < n; ++i) AMAX(acc[0], rk[i]);
+  if (k < N) {
+    const double *restrict Ek = d->E + (size_t)k * nx * nb, *restrict ek = d->e + (size_t)k * nx;
+    const double *restrict xn = s->w + (size_t)(k + 1) * nb;
+    double *restrict qk = s->req + (size_t)k * nx;
+    UNROLL for (i = 0; i < nx; ++i) {
+      double a = ek[i] - xn[i];
+      UNROLL for (j = 0; j < n; ++j) a += Ek[i + j * nx] * wk[j];
+      qk[i] = a;
+      AMAX(acc[1], a);
+    }
+  }
+  stage_rows(n, m, d->C + (size_t)k * nc * nb, wk, dr);
+  for (i = s->kside[k]; i < s->kside[k + 1]; ++i) {
+    s->r[i] = s->sg[i] * (dr[s->srow[i] - k * nr] - s->b[i]) - s->s[i];
+    AMAX(acc[2], s->r[i]);
+  }
 }
 
 /* residuals at (w, pi, s, z); returns 0, or OCPQP_NONFINITE */
 static int residuals(ocpqp_solver *s, const ocpqp_data *d, ocpqp_info *info) {
-  int N = s->d.N, nx = DNX(s), nb = DNB(s), nw = s->nw, k, i;
-  double rs = 0.0, re = 0.0, ri = 0.0, mu = 0.0;
-  row_multipliers(s, s->z, s->lamrow);
-  stationarity(s, d, s->w, s->pi, s->lamrow, d->g, s->rstat);
-  for (i = nx; i < nw; ++i) AMAX(rs, s->rstat[i]);
-  for (k = 0; k < N; ++k) {
-    double *rk = s->req + (size_t)k * nx;
-    const double *xn = s->w + (size_t)(k + 1) * nb;
-    for (i = 0; i < nx; ++i) rk[i] = d->e[(size_t)k * nx + i] - xn[i];
-    gemv_n(nx, nb, d->E + (size_t)k * nx * nb, s->w + (size_t)k * nb, rk);
-    for (i = 0; i < nx; ++i) AMAX(re, rk[i]);
-  }
-  row_values(s, d, s->w, s->drow);
-  for (i = 0; i < s->nside; ++i) {
-    s->r[i] = s->sg[i] * (s->drow[s->srow[i]] - s->b[i]) - s->s[i];
-    AMAX(ri, s->r[i]);
-    mu += s->s[i] * s->z[i];
-  }
+  int N = s->d.N, k;
+  double acc[3] = {0.0, 0.0, 0.0}, mu = pair_sum(s, 0.0, NULL);
+  for (k = 0; k < N; ++k) stage_residuals(s, d, k, DNB(s), DNC(s), acc);
+  stage_residuals(s, d, N, DNX(s), DNCN(s), acc);
   if (s->nside > 0) mu /= s->nside;
-  info->res_stat = rs; info->res_eq = re; info->res_ineq = ri; info->res_comp = mu;
-  if (!(rs + re + ri + mu < HUGE_VAL)) return OCPQP_NONFINITE;
+  info->res_stat = acc[0]; info->res_eq = acc[1]; info->res_ineq = acc[2]; info->res_comp = mu;
+  if (!(acc[0] + acc[1] + acc[2] + mu < HUGE_VAL)) return OCPQP_NONFINITE;
   return 0;
 }
 
@@ -307,221 +343,279 @@ static int residuals(ocpqp_solver *s, const ocpqp_data *d, ocpqp_info *info) {
  * Lp Lp' stays PSD under rounding. Returns 0; OCPQP_CHOL_INDEFINITE if a pivot is negative beyond
  * rounding (A is indefinite: Lp is then not used); OCPQP_NONFINITE on a NaN. */
 #define OCPQP_CHOL_INDEFINITE (-1)
-static int chol_psd(int n, const double *A, int lda, double *Lp) {
+KERNEL int chol_psd(int n, const double *restrict A, int lda, double *restrict Lp) {
   int i, j, l;
-  for (j = 0; j < n; ++j) {
+  UNROLL for (j = 0; j < n; ++j) {
     double dj = A[j + j * lda];
-    for (l = 0; l < j; ++l) dj -= Lp[j + l * n] * Lp[j + l * n];
+    UNROLL for (l = 0; l < j; ++l) dj -= Lp[j + l * n] * Lp[j + l * n];
     if (dj != dj) return OCPQP_NONFINITE;
     if (dj <= 1e-14 * (1.0 + fabs(A[j + j * lda]))) {
       if (dj < -1e-9 * (1.0 + fabs(A[j + j * lda]))) return OCPQP_CHOL_INDEFINITE;
-      for (i = j; i < n; ++i) Lp[i + j * n] = 0.0;
+      UNROLL for (i = j; i < n; ++i) Lp[i + j * n] = 0.0;
       continue;
     }
-    dj = sqrt(dj);
-    Lp[j + j * n] = dj;
-    dj = 1.0 / dj;
-    for (i = j + 1; i < n; ++i) {
-      double acc = A[i + j * lda];
-      for (l = 0; l < j; ++l) acc -= Lp[i + l * n] * Lp[j + l * n];
-      Lp[i + j * n] = acc * dj;
+    {  /* 1/sqrt(d) as sqrt(d) / d: the division runs beside the square root, not after it */
+      double r = sqrt(dj), id = 1.0 / dj;
+      Lp[j + j * n] = r;
+      dj = r * id;
+    }
+    UNROLL for (i = j + 1; i < n; ++i) {
+      double a = A[i + j * lda];
+      UNROLL for (l = 0; l < j; ++l) a -= Lp[i + l * n] * Lp[j + l * n];
+      Lp[i + j * n] = a * dj;
     }
   }
   return 0;
 }
 
-/* the factor of P_k (lower triangle of A, lda) into the solver, or its indefiniteness flag; 0 or a status */
-static int store_p(ocpqp_solver *s, int k, const double *A, int lda) {
-  int nx = DNX(s), st = chol_psd(nx, A, lda, s->P + (size_t)k * nx * nx);
+/* P_k from the lower triangle of A (leading dimension lda): its factor (or its indefiniteness flag) and Pf_k
+ * (both triangles); 0 or a status */
+KERNEL int store_p(ocpqp_solver *s, int k, const double *restrict A, int lda) {
+  int nx = DNX(s), i, j, st = chol_psd(nx, A, lda, s->P + (size_t)k * nx * nx);
+  double *restrict Pf = s->Pf + (size_t)k * nx * nx;
   if (st > 0) return st;
   s->pind[k] = st == OCPQP_CHOL_INDEFINITE;
+  UNROLL for (j = 0; j < nx; ++j)
+    UNROLL for (i = j; i < nx; ++i) Pf[i + j * nx] = Pf[j + i * nx] = A[i + j * lda];
   return 0;
 }
 
-/* Pf (n x n, both triangles) from the lower triangle of A (leading dimension lda) */
-static void full_from_lower(int n, const double *A, int lda, double *Pf) {
-  int i, j;
-  for (j = 0; j < n; ++j)
-    for (i = j; i < n; ++i) Pf[i + j * n] = Pf[j + i * n] = A[i + j * lda];
+/* the barrier terms of stage k's rows (nrk of them, first row r0): sig = sum over the row's sides of z/s; 1/s
+ * of each side into s->is; the largest z/s into s->sigmax */
+KERNEL void stage_sigma(ocpqp_solver *s, int k, int nrk, int r0, double *restrict sig) {
+  int i;
+  UNROLL for (i = 0; i < nrk; ++i) sig[i] = 0.0;
+  for (i = s->kside[k]; i < s->kside[k + 1]; ++i) {
+    double is = 1.0 / s->s[i], q = s->z[i] * is;
+    s->is[i] = is;
+    sig[s->srow[i] - r0] += q;
+    if (q > s->sigmax) s->sigmax = q;
+  }
 }
 
 /* Riccati factorisation of the Newton matrix (square-root form: P_k = Lp_k Lp_k'); 0 or a status */
 static int factor(ocpqp_solver *s, const ocpqp_data *d) {
   int N = s->d.N, nx = DNX(s), nu = DNU(s), nb = DNB(s), nc = DNC(s), ncN = DNCN(s), k, i, j, l;
   int nr = nb + nc;
-  double *G = s->G, *F = s->F;
-  for (i = 0; i < s->nrow; ++i) s->sigrow[i] = 0.0;
+  double *restrict G = s->G, *restrict F = s->F;
   s->sigmax = 0.0;
-  for (i = 0; i < s->nside; ++i) {
-    double is = 1.0 / s->s[i], q = s->z[i] * is;
-    s->is[i] = is;
-    s->sigrow[s->srow[i]] += q;
-    if (q > s->sigmax) s->sigmax = q;
-  }
   /* terminal: P_N = H_N + diag(sig) + C_N' diag(sig) C_N (lower triangle into G, ld nb) */
   {
-    const double *HN = d->H + (size_t)N * nb * nb, *CTN = s->CT + (size_t)N * nc * nb;
-    const double *sr = s->sigrow + (size_t)N * nr;
-    for (j = 0; j < nx; ++j)
-      for (i = j; i < nx; ++i) G[i + j * nb] = HN[i + j * nx];
-    for (i = 0; i < nx; ++i) G[i + i * nb] += sr[i];
-    for (l = 0; l < ncN; ++l) {
+    const double *restrict HN = d->H + (size_t)N * nb * nb, *restrict CTN = s->CT + (size_t)N * nc * nb;
+    double *restrict sr = s->sigrow + (size_t)N * nr;
+    stage_sigma(s, N, nx + ncN, N * nr, sr);
+    UNROLL for (l = 0; l < ncN; ++l) {
       double a0 = sqrt(sr[nx + l]);
-      for (i = 0; i < nx; ++i) F[i + l * nx] = CTN[i + l * nx] * a0;
+      UNROLL for (i = 0; i < nx; ++i) F[i + l * nx] = CTN[i + l * nx] * a0;
     }
-    syrk_ln(nx, ncN, F, G, nb);
+    UNROLL for (j = 0; j < nx; ++j)
+      UNROLL for (i = j; i < nx; ++i) {
+        double a = HN[i + j * nx] + (i == j ? sr[i] : 0.0);
+        UNROLL for (l = 0; l < ncN; ++l) a += F[i + l * nx] * F[j + l * nx];
+        G[i + j * nb] = a;
+      }
     if (store_p(s, N, G, nb)) return OCPQP_NONFINITE;
-    full_from_lower(nx, G, nb, s->Pf + (size_t)N * nx * nx);
   }
   for (k = N - 1; k >= 0; --k) {
-    const double *Hk = d->H + (size_t)k * nb * nb;
-    const double *L1 = s->P + (size_t)(k + 1) * nx * nx, *sr = s->sigrow + (size_t)k * nr;
-    double *Lk = s->L + (size_t)k * nu * nu, *Yk = s->Y + (size_t)k * nu * nx, *Ldk = s->Ld + (size_t)k * nu;
-    /* F = [E_k' Lp_{k+1}, C_k' diag(sqrt(sig))] (nb x (nx + nc)), column by column as sums of columns;
-     * an indefinite P_{k+1} has no square root: F = [E_k' P_{k+1}, C_k' diag(sqrt(sig))] then */
+    const double *restrict Hk = d->H + (size_t)k * nb * nb;
+    const double *restrict L1 = s->P + (size_t)(k + 1) * nx * nx, *restrict P1 = s->Pf + (size_t)(k + 1) * nx * nx;
+    const double *restrict ETk = s->ET + (size_t)k * nx * nb, *restrict CTk = s->CT + (size_t)k * nc * nb;
+    double *restrict Lk = s->L + (size_t)k * nu * nu, *restrict Yk = s->Y + (size_t)k * nu * nx;
+    double *restrict Ldk = s->Ld + (size_t)k * nu, *restrict sr = s->sigrow + (size_t)k * nr;
+    /* F = [E_k' Lp_{k+1}, C_k' diag(sqrt(sig))] (nb x (nx + nc)); an indefinite P_{k+1} has no square root:
+     * F = [E_k' P_{k+1}, C_k' diag(sqrt(sig))] then */
     const int ind = s->pind[k + 1];
-    const double *ETk = s->ET + (size_t)k * nx * nb;
-    {
-      const double *CTk = s->CT + (size_t)k * nc * nb, *P1 = s->Pf + (size_t)(k + 1) * nx * nx;
-      for (l = 0; ind && l < nx; ++l) {
-        double *Fl = F + (size_t)l * nb;
-        for (i = 0; i < nb; ++i) Fl[i] = 0.0;
-        gemv_n(nb, nx, ETk, P1 + (size_t)l * nx, Fl);
-      }
-      for (l = 0; !ind && l < nx; ++l) {
-        double *Fl = F + (size_t)l * nb;
-        const double *E0 = ETk + (size_t)l * nb;
-        double a0 = L1[l + l * nx];
-        for (i = 0; i < nb; ++i) Fl[i] = E0[i] * a0;
-        for (j = l + 1; j + 1 < nx; j += 2) {
-          double b0 = L1[j + l * nx], b1 = L1[j + 1 + l * nx];
-          const double *Ej = ETk + (size_t)j * nb, *Ej1 = Ej + nb;
-          for (i = 0; i < nb; ++i) Fl[i] += Ej[i] * b0 + Ej1[i] * b1;
-        }
-        if (j < nx) {
-          double b0 = L1[j + l * nx];
-          const double *Ej = ETk + (size_t)j * nb;
-          for (i = 0; i < nb; ++i) Fl[i] += Ej[i] * b0;
-        }
-      }
-      for (l = 0; l < nc; ++l) {
-        double *Fl = F + (size_t)(nx + l) * nb, a0 = sqrt(sr[nb + l]);
-        const double *cl = CTk + (size_t)l * nb;
-        for (i = 0; i < nb; ++i) Fl[i] = cl[i] * a0;
-      }
-    }
-    /* G = H + diag(sig) + F F' (lower triangle) */
-    for (j = 0; j < nb; ++j)
-      for (i = j; i < nb; ++i) G[i + j * nb] = Hk[i + j * nb];
-    for (i = 0; i < nb; ++i) G[i + i * nb] += sr[i];
+    stage_sigma(s, k, nr, k * nr, sr);
     if (!ind) {
-      syrk_ln(nb, nx + nc, F, G, nb);
-    } else {  /* G += C' diag(sig) C + (E' P) E */
-      syrk_ln(nb, nc, F + (size_t)nx * nb, G, nb);
-      for (j = 0; j < nb; ++j)
-        for (l = 0; l < nx; ++l) {
-          double e = ETk[j + l * nb];
-          const double *Fl = F + (size_t)l * nb;
-          for (i = j; i < nb; ++i) G[i + j * nb] += Fl[i] * e;
+      UNROLL for (l = 0; l < nx; ++l)
+        UNROLL for (i = 0; i < nb; ++i) {
+          double a = 0.0;
+          UNROLL for (j = l; j < nx; ++j) a += ETk[i + j * nb] * L1[j + l * nx];
+          F[i + l * nb] = a;
+        }
+    } else {
+      UNROLL for (l = 0; l < nx; ++l)
+        UNROLL for (i = 0; i < nb; ++i) {
+          double a = 0.0;
+          UNROLL for (j = 0; j < nx; ++j) a += ETk[i + j * nb] * P1[j + l * nx];
+          F[i + l * nb] = a;
         }
     }
+    UNROLL for (l = 0; l < nc; ++l) {
+      double a0 = sqrt(sr[nb + l]);
+      UNROLL for (i = 0; i < nb; ++i) F[i + (nx + l) * nb] = CTk[i + l * nb] * a0;
+    }
+    /* G = H + diag(sig) + F F' (indefinite P_{k+1}: + C' diag(sig) C + (E' P) E), lower triangle */
+    UNROLL for (j = 0; j < nb; ++j)
+      UNROLL for (i = j; i < nb; ++i) {
+        double a = Hk[i + j * nb] + (i == j ? sr[i] : 0.0);
+        if (!ind) {
+          UNROLL for (l = 0; l < nx + nc; ++l) a += F[i + l * nb] * F[j + l * nb];
+        } else {
+          UNROLL for (l = nx; l < nx + nc; ++l) a += F[i + l * nb] * F[j + l * nb];
+          UNROLL for (l = 0; l < nx; ++l) a += F[i + l * nb] * ETk[j + l * nb];
+        }
+        G[i + j * nb] = a;
+      }
     /* Cholesky of G_uu + reg I */
-    for (j = 0; j < nu; ++j) {
+    UNROLL for (j = 0; j < nu; ++j) {
       double dj = G[(nx + j) + (nx + j) * nb] + s->set.reg_prim;
-      for (l = 0; l < j; ++l) dj -= Lk[j + l * nu] * Lk[j + l * nu];
+      UNROLL for (l = 0; l < j; ++l) dj -= Lk[j + l * nu] * Lk[j + l * nu];
       if (!(dj > 0.0) || !(dj < HUGE_VAL)) return OCPQP_FACTORIZATION;
-      dj = sqrt(dj);
-      Lk[j + j * nu] = dj;
-      dj = Ldk[j] = 1.0 / dj;
-      for (i = j + 1; i < nu; ++i) {
-        double acc = G[(nx + i) + (nx + j) * nb];
-        for (l = 0; l < j; ++l) acc -= Lk[i + l * nu] * Lk[j + l * nu];
-        Lk[i + j * nu] = acc * dj;
+      {
+        double r = sqrt(dj), id = 1.0 / dj;
+        Lk[j + j * nu] = r;
+        dj = Ldk[j] = r * id;
+      }
+      UNROLL for (i = j + 1; i < nu; ++i) {
+        double a = G[(nx + i) + (nx + j) * nb];
+        UNROLL for (l = 0; l < j; ++l) a -= Lk[i + l * nu] * Lk[j + l * nu];
+        Lk[i + j * nu] = a * dj;
       }
     }
     /* Y = L^{-1} G_ux (nu x nx) */
-    for (j = 0; j < nx; ++j)
-      for (i = 0; i < nu; ++i) {
-        double acc = G[(nx + i) + j * nb];
-        for (l = 0; l < i; ++l) acc -= Lk[i + l * nu] * Yk[l + j * nu];
-        Yk[i + j * nu] = acc * Ldk[i];
+    UNROLL for (j = 0; j < nx; ++j)
+      UNROLL for (i = 0; i < nu; ++i) {
+        double a = G[(nx + i) + j * nb];
+        UNROLL for (l = 0; l < i; ++l) a -= Lk[i + l * nu] * Yk[l + j * nu];
+        Yk[i + j * nu] = a * Ldk[i];
       }
     if (k == 0) break;  /* x_0 is fixed: P_0 is not needed */
     /* P_k = G_xx - Y'Y (lower, in place in G), then its Cholesky factor */
-    for (j = 0; j < nx; ++j)
-      for (i = j; i < nx; ++i) {
-        double acc = G[i + j * nb];
-        for (l = 0; l < nu; ++l) acc -= Yk[l + i * nu] * Yk[l + j * nu];
-        G[i + j * nb] = acc;
+    UNROLL for (j = 0; j < nx; ++j)
+      UNROLL for (i = j; i < nx; ++i) {
+        double a = G[i + j * nb];
+        UNROLL for (l = 0; l < nu; ++l) a -= Yk[l + i * nu] * Yk[l + j * nu];
+        G[i + j * nb] = a;
       }
     if (store_p(s, k, G, nb)) return OCPQP_NONFINITE;
-    full_from_lower(nx, G, nb, s->Pf + (size_t)k * nx * nx);
   }
   return 0;
+}
+
+/* the right-hand side of stage k's rows (nrk, first row r0) from its sides: q_row = sum sg (rc + z r) / s
+ * (r, rc NULL: zero) */
+KERNEL void stage_q(const ocpqp_solver *s, int k, int nrk, int r0, const double *restrict r, const double *restrict rc,
+                    double *restrict q) {
+  int i;
+  UNROLL for (i = 0; i < nrk; ++i) q[i] = 0.0;
+  if (rc && r)
+    for (i = s->kside[k]; i < s->kside[k + 1]; ++i) q[s->srow[i] - r0] += s->sg[i] * (rc[i] + s->z[i] * r[i]) * s->is[i];
+  else if (rc)
+    for (i = s->kside[k]; i < s->kside[k + 1]; ++i) q[s->srow[i] - r0] += s->sg[i] * rc[i] * s->is[i];
+  else if (r)
+    for (i = s->kside[k]; i < s->kside[k + 1]; ++i) q[s->srow[i] - r0] += s->sg[i] * s->z[i] * r[i] * s->is[i];
+}
+
+/* the steps of stage k's sides from the stage's step dw_k (n bound rows, m general rows):
+ * ds = sg dd_row + r, dz = -(rc + z ds) / s (r, rc NULL: zero) */
+KERNEL void stage_side_steps(const ocpqp_solver *s, const ocpqp_data *d, int k, int n, int m, const double *restrict dwk,
+                             const double *restrict r, const double *restrict rc, double *restrict ds,
+                             double *restrict dz) {
+  int nb = DNB(s), nr = nb + DNC(s), i;
+  double *restrict dd = s->ddrow + (size_t)k * nr;
+  stage_rows(n, m, d->C + (size_t)k * DNC(s) * nb, dwk, dd);
+  if (r && rc)
+    for (i = s->kside[k]; i < s->kside[k + 1]; ++i) {
+      ds[i] = s->sg[i] * dd[s->srow[i] - k * nr] + r[i];
+      dz[i] = -(rc[i] + s->z[i] * ds[i]) * s->is[i];
+    }
+  else if (rc)
+    for (i = s->kside[k]; i < s->kside[k + 1]; ++i) {
+      ds[i] = s->sg[i] * dd[s->srow[i] - k * nr];
+      dz[i] = -(rc[i] + s->z[i] * ds[i]) * s->is[i];
+    }
+  else
+    for (i = s->kside[k]; i < s->kside[k + 1]; ++i) {
+      ds[i] = s->sg[i] * dd[s->srow[i] - k * nr] + (r ? r[i] : 0.0);
+      dz[i] = -s->z[i] * ds[i] * s->is[i];
+    }
 }
 
 /* one Newton solve for the residuals (rstat, req, r, rc) with the current factorisation (any of them NULL:
  * zero): fills dw, dpi, ds, dz */
 static void solve_rhs(ocpqp_solver *s, const ocpqp_data *d, const double *rstat, const double *req,
                       const double *r, const double *rc, double *dw, double *dpi, double *ds, double *dz) {
-  int N = s->d.N, nx = DNX(s), nu = DNU(s), nb = DNB(s), k, i, l;
-  double *h = s->h, *t = s->t;
-  for (i = 0; i < s->nrow; ++i) s->qrow[i] = 0.0;
-  if (rc && r)
-    for (i = 0; i < s->nside; ++i) s->qrow[s->srow[i]] += s->sg[i] * (rc[i] + s->z[i] * r[i]) * s->is[i];
-  else if (rc)
-    for (i = 0; i < s->nside; ++i) s->qrow[s->srow[i]] += s->sg[i] * rc[i] * s->is[i];
-  else if (r)
-    for (i = 0; i < s->nside; ++i) s->qrow[s->srow[i]] += s->sg[i] * s->z[i] * r[i] * s->is[i];
-  rows_transpose(s, s->qrow, rstat, s->gt);
-  /* backward: p_N = gt_N; h = gt_k + E'(P_{k+1} r_eq_k + p_{k+1}); ell = L^{-1} h_u; p_k = h_x - Y' ell */
-  memcpy(s->p + (size_t)N * nx, s->gt + (size_t)N * nb, (size_t)nx * sizeof(double));
+  int N = s->d.N, nx = DNX(s), nu = DNU(s), nb = DNB(s), nc = DNC(s), ncN = DNCN(s), nr = nb + nc, k, i, l;
+  double *restrict q = s->qrow, *restrict tt = s->t, *restrict hh = s->h;
+  /* backward: p_N = gt_N; h = gt_k + E'(P_{k+1} r_eq_k + p_{k+1}); ell = L^{-1} h_u; p_k = h_x - Y' ell, with the
+   * stage's gt_k = rstat_k + D_k' q_k */
+  {
+    const double *restrict CTN = s->CT + (size_t)N * nc * nb, *restrict rN = rstat ? rstat + (size_t)N * nb : NULL;
+    double *restrict pN = s->p + (size_t)N * nx;
+    stage_q(s, N, nx + ncN, N * nr, r, rc, q);
+    UNROLL for (i = 0; i < nx; ++i) {
+      double a = rN ? rN[i] + q[i] : q[i];
+      UNROLL for (l = 0; l < ncN; ++l) a += CTN[i + l * nx] * q[nx + l];
+      pN[i] = a;
+    }
+  }
   for (k = N - 1; k >= 0; --k) {
-    const double *P1 = s->Pf + (size_t)(k + 1) * nx * nx, *p1 = s->p + (size_t)(k + 1) * nx;
-    const double *Lk = s->L + (size_t)k * nu * nu, *Yk = s->Y + (size_t)k * nu * nx, *Ldk = s->Ld + (size_t)k * nu;
-    double *ek = s->ell + (size_t)k * nu, *pk = s->p + (size_t)k * nx;
-    memcpy(t, p1, (size_t)nx * sizeof(double));
-    if (req) gemv_n(nx, nx, P1, req + (size_t)k * nx, t);
-    memcpy(h, s->gt + (size_t)k * nb, (size_t)nb * sizeof(double));
-    gemv_n(nb, nx, s->ET + (size_t)k * nx * nb, t, h);
-    for (i = 0; i < nu; ++i) {
-      double acc = h[nx + i];
-      for (l = 0; l < i; ++l) acc -= Lk[i + l * nu] * ek[l];
-      ek[i] = acc * Ldk[i];
+    const double *restrict P1 = s->Pf + (size_t)(k + 1) * nx * nx, *restrict p1 = s->p + (size_t)(k + 1) * nx;
+    const double *restrict Lk = s->L + (size_t)k * nu * nu, *restrict Yk = s->Y + (size_t)k * nu * nx;
+    const double *restrict Ldk = s->Ld + (size_t)k * nu, *restrict ETk = s->ET + (size_t)k * nx * nb;
+    const double *restrict CTk = s->CT + (size_t)k * nc * nb, *restrict rs = rstat ? rstat + (size_t)k * nb : NULL;
+    const double *restrict rk = req ? req + (size_t)k * nx : NULL;
+    double *restrict ek = s->ell + (size_t)k * nu, *restrict pk = s->p + (size_t)k * nx;
+    stage_q(s, k, nr, k * nr, r, rc, q);
+    UNROLL for (i = 0; i < nx; ++i) {
+      double a = p1[i];
+      if (rk) {
+        UNROLL for (l = 0; l < nx; ++l) a += P1[i + l * nx] * rk[l];
+      }
+      tt[i] = a;
+    }
+    UNROLL for (i = 0; i < nb; ++i) {
+      double a = rs ? rs[i] + q[i] : q[i];
+      UNROLL for (l = 0; l < nc; ++l) a += CTk[i + l * nb] * q[nb + l];
+      UNROLL for (l = 0; l < nx; ++l) a += ETk[i + l * nb] * tt[l];
+      hh[i] = a;
+    }
+    UNROLL for (i = 0; i < nu; ++i) {
+      double a = hh[nx + i];
+      UNROLL for (l = 0; l < i; ++l) a -= Lk[i + l * nu] * ek[l];
+      ek[i] = a * Ldk[i];
     }
     if (k == 0) break;
-    for (i = 0; i < nx; ++i) {
-      double acc = h[i];
-      for (l = 0; l < nu; ++l) acc -= Yk[l + i * nu] * ek[l];
-      pk[i] = acc;
+    UNROLL for (i = 0; i < nx; ++i) {
+      double a = hh[i];
+      UNROLL for (l = 0; l < nu; ++l) a -= Yk[l + i * nu] * ek[l];
+      pk[i] = a;
     }
   }
-  /* forward: dx_0 = 0; du = -L^{-T} (Y dx + ell); dx+ = E dw + r_eq; dpi = P+ dx+ + p+ */
+  /* forward: dx_0 = 0; du = -L^{-T} (Y dx + ell); dx+ = E dw + r_eq; dpi = P+ dx+ + p+; then the stage's
+   * side steps */
   for (i = 0; i < nx; ++i) dw[i] = 0.0;
   for (k = 0; k < N; ++k) {
-    const double *Lk = s->L + (size_t)k * nu * nu, *Yk = s->Y + (size_t)k * nu * nx, *ek = s->ell + (size_t)k * nu;
-    const double *Ldk = s->Ld + (size_t)k * nu;
-    double *dwk = dw + (size_t)k * nb, *du = dwk + nx, *dxn = dw + (size_t)(k + 1) * nb;
-    double *dpk = dpi + (size_t)k * nx;
-    for (i = 0; i < nu; ++i) du[i] = ek[i];
-    gemv_n(nu, nx, Yk, dwk, du);
-    for (i = nu - 1; i >= 0; --i) {
-      double acc = du[i];
-      for (l = i + 1; l < nu; ++l) acc -= Lk[l + i * nu] * du[l];
-      du[i] = acc * Ldk[i];
+    const double *restrict Lk = s->L + (size_t)k * nu * nu, *restrict Yk = s->Y + (size_t)k * nu * nx;
+    const double *restrict ek = s->ell + (size_t)k * nu, *restrict Ldk = s->Ld + (size_t)k * nu;
+    const double *restrict Ek = d->E + (size_t)k * nx * nb, *restrict rk = req ? req + (size_t)k * nx : NULL;
+    const double *restrict P1 = s->Pf + (size_t)(k + 1) * nx * nx, *restrict p1 = s->p + (size_t)(k + 1) * nx;
+    double *dwk = dw + (size_t)k * nb, *restrict dxn = dw + (size_t)(k + 1) * nb, *restrict dpk = dpi + (size_t)k * nx;
+    UNROLL for (i = 0; i < nu; ++i) {
+      double a = ek[i];
+      UNROLL for (l = 0; l < nx; ++l) a += Yk[i + l * nu] * dwk[l];
+      dwk[nx + i] = a;
     }
-    for (i = 0; i < nu; ++i) du[i] = -du[i];
-    if (req) memcpy(dxn, req + (size_t)k * nx, (size_t)nx * sizeof(double));
-    else memset(dxn, 0, (size_t)nx * sizeof(double));
-    gemv_n(nx, nb, d->E + (size_t)k * nx * nb, dwk, dxn);
-    memcpy(dpk, s->p + (size_t)(k + 1) * nx, (size_t)nx * sizeof(double));
-    gemv_n(nx, nx, s->Pf + (size_t)(k + 1) * nx * nx, dxn, dpk);
+    UNROLL for (i = nu - 1; i >= 0; --i) {
+      double a = dwk[nx + i];
+      UNROLL for (l = i + 1; l < nu; ++l) a -= Lk[l + i * nu] * dwk[nx + l];
+      dwk[nx + i] = a * Ldk[i];
+    }
+    UNROLL for (i = 0; i < nu; ++i) dwk[nx + i] = -dwk[nx + i];
+    UNROLL for (i = 0; i < nx; ++i) {
+      double a = rk ? rk[i] : 0.0;
+      UNROLL for (l = 0; l < nb; ++l) a += Ek[i + l * nx] * dwk[l];
+      dxn[i] = a;
+    }
+    UNROLL for (i = 0; i < nx; ++i) {
+      double a = p1[i];
+      UNROLL for (l = 0; l < nx; ++l) a += P1[i + l * nx] * dxn[l];
+      dpk[i] = a;
+    }
+    stage_side_steps(s, d, k, nb, nc, dwk, r, rc, ds, dz);
   }
-  row_values(s, d, dw, s->ddrow);
-  for (i = 0; i < s->nside; ++i) {
-    ds[i] = s->sg[i] * s->ddrow[s->srow[i]] + (r ? r[i] : 0.0);
-    dz[i] = -((rc ? rc[i] : 0.0) + s->z[i] * ds[i]) * s->is[i];
-  }
+  stage_side_steps(s, d, N, nx, ncN, dw + (size_t)N * nb, r, rc, ds, dz);
 }
 
 /* iterative refinement of (dw, dpi, ds, dz): the stationarity residual of the Newton system (the only
@@ -547,13 +641,26 @@ static void refine(ocpqp_solver *s, const ocpqp_data *d, int max_ref, double tol
 
 /* largest alpha in (0, amax] keeping s + alpha ds >= 0 and z + alpha dz >= 0 */
 static double max_step(const ocpqp_solver *s, double amax) {
-  double a = amax;
-  int i;
-  for (i = 0; i < s->nside; ++i) {
-    if (s->ds[i] < 0.0 && -s->s[i] > a * s->ds[i]) a = -s->s[i] / s->ds[i];
-    if (s->dz[i] < 0.0 && -s->z[i] > a * s->dz[i]) a = -s->z[i] / s->dz[i];
+  /* four lanes (each the smallest ratio of its sides), then their minimum; s + a ds < 0 is the test -s > a ds
+   * (rounding keeps the sign of a sum), without the sign test of ds (s, z > 0) */
+  const double *restrict sl = s->s, *restrict z = s->z, *restrict ds = s->ds, *restrict dz = s->dz;
+  double a0 = amax, a1 = amax, a2 = amax, a3 = amax;
+  int i, n = s->nside;
+#define OCPQP_RATIO(a, j) do { \
+    if (sl[j] + (a) * ds[j] < 0.0) (a) = -sl[j] / ds[j]; \
+    if (z[j] + (a) * dz[j] < 0.0) (a) = -z[j] / dz[j]; \
+  } while (0)
+  for (i = 0; i + 3 < n; i += 4) {
+    OCPQP_RATIO(a0, i);
+    OCPQP_RATIO(a1, i + 1);
+    OCPQP_RATIO(a2, i + 2);
+    OCPQP_RATIO(a3, i + 3);
   }
-  return a;
+  for (; i < n; ++i) OCPQP_RATIO(a0, i);
+#undef OCPQP_RATIO
+  a0 = a1 < a0 ? a1 : a0;
+  a2 = a3 < a2 ? a3 : a2;
+  return a2 < a0 ? a2 : a0;
 }
 
 /* Centrality correctors (Gondzio, Comput. Optim. Appl. 6, 1996; Colombo & Gondzio, Comput. Optim. Appl. 41,
@@ -630,13 +737,7 @@ static double neighbourhood_step(const ocpqp_solver *s, double alpha0) {
   int tries, i;
   double alpha = alpha0;
   for (tries = 0; tries < OCPQP_NBH_TRIES; ++tries, alpha *= OCPQP_NBH_SHRINK) {
-    double m = 0.0, pmin = HUGE_VAL;
-    for (i = 0; i < s->nside; ++i) {
-      double pn = (s->s[i] + alpha * s->ds[i]) * (s->z[i] + alpha * s->dz[i]);
-      m += pn;
-      if (pn < pmin) pmin = pn;
-    }
-    m *= OCPQP_NBH_GAMMA / s->nside;
+    double pmin, m = pair_sum(s, alpha, &pmin) * (OCPQP_NBH_GAMMA / s->nside);
     if (pmin >= m) return alpha;  /* the usual case: every pair inside, one pass */
     for (i = 0; i < s->nside; ++i) {
       double pn = (s->s[i] + alpha * s->ds[i]) * (s->z[i] + alpha * s->dz[i]), p0 = s->s[i] * s->z[i];
@@ -692,6 +793,7 @@ int ocpqp_solve(ocpqp_solver *s, const ocpqp_data *d, double *w, double *pi, dou
   s->nside = 0;
   for (k = 0; k <= N; ++k) {
     int n = k < N ? nb : nx, m = k < N ? nc : ncN;
+    s->kside[k] = s->nside;
     for (i = 0; i < n + m; ++i) {
       double lo, up;
       if (i < n) {
@@ -705,6 +807,7 @@ int ocpqp_solve(ocpqp_solver *s, const ocpqp_data *d, double *w, double *pi, dou
       if (fabs(up) < OCPQP_INF) { s->srow[s->nside] = k * nr + i; s->sg[s->nside] = -1.0; s->b[s->nside++] = up; }
     }
   }
+  s->kside[N + 1] = s->nside;
   /* initial point: w = 0 with x_0 = x0, pi = 0, s = max(slack, 1), z = 2 z0 / s^(1/4) with z0 = sqrt(max(1,
    * |g|inf)) (duals of the cost gradient's scale: fewer short first steps than z = 1 when the gradient is
    * large; smaller on far bounds, so the first pairs s z are closer to each other: on the harvested RTI QPs
@@ -742,8 +845,7 @@ int ocpqp_solve(ocpqp_solver *s, const ocpqp_data *d, double *w, double *pi, dou
     if (s->nside > 0) {
       double mu_aff = 0.0, sigma;
       alpha = max_step(s, 1.0);
-      for (i = 0; i < s->nside; ++i) mu_aff += (s->s[i] + alpha * s->ds[i]) * (s->z[i] + alpha * s->dz[i]);
-      mu_aff /= s->nside;
+      mu_aff = pair_sum(s, alpha, NULL) / s->nside;
       sigma = mu > 0.0 ? mu_aff / mu : 0.0;
       sigma = sigma * sigma * sigma;
       if (sigma > 1.0) sigma = 1.0;
