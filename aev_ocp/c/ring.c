@@ -2,7 +2,8 @@
  * Compiled after the CasADi-generated right-hand sides and a generated prologue (aev_ocp.ring.simulate):
  * SZ_ARG/SZ_RES/SZ_IW/SZ_W (work sizes), NX (ODE states per vehicle), NQ (quadratures), NY (outputs),
  * NCTRL (states in the error norm: h, v and the actuator state when there is one), AEV_NP (runtime coefficients per vehicle),
- * AEV_LAW_SWITCH (the case list of the laws) and the event table of aev_ocp.plant.EVENT_RULES.
+ * AEV_LAW_SWITCH (the case list of the laws), the event table of aev_ocp.plant.EVENT_RULES, AEV_OCV_CALLS (the OCV
+ * arguments of aevring_bat) and the cell's OCV table (ocv_lookup.h).
  *
  * A ring closes the chain (vehicle 0 follows vehicle n-1), so the cascade's one-vehicle-at-a-time
  * integration does not apply without iterating. Here the whole ring is ONE explicit adaptive
@@ -29,6 +30,7 @@
  * Events are checked after every accepted step on every vehicle and located on the quartic dense output
  * (bisection), the earliest over the ring wins.                                                        */
 #include "dopri5.h"  /* NZ, aev_ctx, the Dormand-Prince tableau, aev_law, aev_dense_coef, aev_dense, aev_root */
+#include "ocv_lookup.h"  /* aev_ocv: the cell's OCV(S), the same numbers as the model's piecewise cubic */
 #ifdef _OPENMP
 #include <omp.h>
 #endif
@@ -130,13 +132,22 @@ RING_MOTION_PASS(4)
 RING_MOTION_PASS(5)
 RING_MOTION_PASS(6)
 
+/* The OCV of each of the AEV_OCV_CALLS arguments S[j] into E[j] (aev_ocv); exported for tests/test_ring_ocv.py. */
+CASADI_SYMBOL_EXPORT void aevring_ocv(int64_t m, const double* S, double* E) {
+  for (int64_t j = 0; j < m; j++) E[j] = aev_ocv(S[j]);
+}
+
 /* battery and quadrature stage st of vehicle i: its stage state (cell states and quadratures) into xs, their rates
- * from w of the same stage into k[st]; outputs (a, I, disc) into yi */
+ * from w of the same stage into k[st]; outputs (a, I, disc) into yi. The model's OCV(S) is an input of aevring_bat:
+ * aevring_bat_ocv gives its arguments S (the clamped SOC), aev_ocv its values. */
 RING_INLINE void ring_battery_stage(aev_ctx* c, int st, int i, int n, const double* z, double* const* k, double h,
                                     const double* W, double* xs, double* yi) {
-  double db[NB];
+  double db[NB], S[AEV_OCV_CALLS], E[AEV_OCV_CALLS];
   for (int jj = 0; jj < NB; jj++) xs[BAT_IDX[jj]] = ring_stage_entry(z, k, st, h, (int64_t)i * NZ + BAT_IDX[jj]);
-  c->arg[0] = W + ((int64_t)st * n + i) * 4; c->arg[1] = xs; c->res[0] = db; c->res[1] = yi;
+  c->arg[0] = W + ((int64_t)st * n + i) * 4; c->arg[1] = xs; c->res[0] = S;
+  aevring_bat_ocv(c->arg, c->res, c->iw, c->w, 0);
+  for (int j = 0; j < AEV_OCV_CALLS; j++) E[j] = aev_ocv(S[j]);
+  c->arg[2] = E; c->res[0] = db; c->res[1] = yi;
   aevring_bat(c->arg, c->res, c->iw, c->w, 0);
   for (int jj = 0; jj < NB; jj++) k[st][(int64_t)i * NZ + BAT_IDX[jj]] = db[jj];
 }

@@ -54,7 +54,7 @@ from ..loop import NO_STAGES, CommandStages, Controller, History, Observation, V
 from ..models import energy
 from ..models.actuator import actuator_rate, saturate, speed_cut
 from ..models.carfollowing import CarFollowingLaw, optimal_velocity
-from ..models.battery import piecewise_ocv
+from ..models.battery import ocv_inputs, ocv_segments, ocv_table, piecewise_ocv
 from ..models.ego import battery_side
 from ..params import EVParams, ParameterError, check_argument
 from ..plant import EVENT_RULES, current_limit_events, event_at, event_header, rule_of_code
@@ -653,27 +653,44 @@ class RingSimulator:
             f"aevring_law{k}", [u, ca.vertcat(*x), p], [ca.vertcat(*ode, *quad), ca.vertcat(a, b["I"], b["disc"])]
         )
 
-    def _battery_function(self) -> ca.Function:
-        """The battery and quadrature part of every vehicle's right-hand side, the same for every law:
-        (w = (h, v, v_l, a), x) -> ((V̇1, V̇2, Ṡ, quadrature integrands), y = (a, I, disc)). The compiled ring
-        evaluates it only on accepted steps (the step size is set by the motion alone, see ring.c)."""
+    def _battery_functions(self) -> tuple[ca.Function, ca.Function, str]:
+        """The battery and quadrature part of every vehicle's right-hand side, the same for every law, with the cell's
+        OCV as an input (:func:`aev_ocp.models.battery.ocv_inputs`): ``aevring_bat_ocv`` (w = (h, v, v_l, a), x) ->
+        the OCV's arguments S, and ``aevring_bat`` (w, x, OCV(S)) -> ((V̇1, V̇2, Ṡ, quadrature integrands),
+        y = (a, I, disc)); and the prologue lines of the OCV table for ring.c's lookup (ocv_lookup.h: the values of
+        the piecewise cubic the other right-hand sides use, to the bit). The compiled ring evaluates them only on
+        accepted steps (the step size is set by the motion alone, see ring.c)."""
         ev, T = self.ev, self.ev.units.time_s
         w = ca.SX.sym("w", 4)
         h, v, vl, a = w[0], w[1], w[2], w[3]
         x = ca.SX.sym("x", self.nx)
-        with piecewise_ocv():
+        with ocv_inputs() as calls:
             b = battery_side(v, a, x[2], x[3], x[4], ev)
+        own = [t.tolist() for t in ocv_table(ev.cell)]
+        if not calls or any([t.tolist() for t in ocv_table(c)] != own for _, _, c in calls):
+            raise RuntimeError("the ring's battery side must read the OCV of its own cell: ring.c has its table only")
+        S = ca.vertcat(*(ca.vec(s) for s, _, _ in calls))
+        E = ca.vertcat(*(ca.vec(e) for _, e, _ in calls))
         quad = _quadrature(h, v, vl, a, b, ev)
-        return ca.Function(
+        pre = ca.Function("aevring_bat_ocv", [w, x], [S])
+        bat = ca.Function(
             "aevring_bat",
-            [w, x],
+            [w, x, E],
             [ca.vertcat(T * b["dV1"], T * b["dV2"], T * b["dS"], *quad), ca.vertcat(a, b["I"], b["disc"])],
         )
+        grid, coef = ocv_segments(ev.cell)
+        table = (
+            f"#define AEV_OCV_CALLS {S.numel()}\n#define AEV_OCV_NSEG {len(coef)}\n"
+            f"#define AEV_OCV_GRID {{{', '.join(map(repr, map(float, grid)))}}}\n"
+            f"#define AEV_OCV_COEF {{{', '.join('{' + ', '.join(map(repr, map(float, r))) + '}' for r in coef)}}}\n"
+        )
+        return pre, bat, table
 
     def _build(self) -> None:
         cg = ca.CodeGenerator("aevring_rhs.c", {"with_header": False})
         # ring.c reads every output as a dense vector (see dense_outputs)
-        fs = [dense_outputs(f) for f in (*self.funcs, *self._split, self._battery_function())]
+        pre, bat, ocv_table_lines = self._battery_functions()
+        fs = [dense_outputs(f) for f in (*self.funcs, *self._split, pre, bat)]
         for f in fs:
             cg.add(f)
         head = (
@@ -703,7 +720,7 @@ class RingSimulator:
             f"#define MOT_IDX_INIT {{{', '.join(map(str, mot))}}}\n#define NB {len(bat)}\n"
             f"#define BAT_IDX_INIT {{{', '.join(map(str, bat))}}}\n"
         )
-        head += event_header()
+        head += event_header() + ocv_table_lines
         source = cg.dump() + "\n" + head + driver_source("ring.c")
         lib = _BUILT.get(source)
         if lib is None:
