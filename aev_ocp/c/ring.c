@@ -52,6 +52,7 @@ static int ring_threads = 1;
  * states), evaluated only once a step is accepted: a rejected step costs the motion alone, ~10 % of the whole. */
 static const int MOT_IDX[NCTRL] = MOT_IDX_INIT;
 static const int BAT_IDX[NB] = BAT_IDX_INIT;
+static const int BAT_READ_IDX[NBR] = BAT_READ_IDX_INIT;
 
 static int ring_mot(aev_ctx* c, int law, const double* par, const double* u, const double* x, double* dm, double* w) {
   c->arg[0] = u; c->arg[1] = x; c->arg[2] = par; c->res[0] = dm; c->res[1] = w;
@@ -61,17 +62,41 @@ AEV_MOT_SWITCH
   return 1;
 }
 
+/* The OCV of each of the AEV_OCV_CALLS arguments S[j] into E[j] (aev_ocv); exported for tests/test_ring_ocv.py. */
+CASADI_SYMBOL_EXPORT void aevring_ocv(int64_t m, const double* S, double* E) {
+  for (int64_t j = 0; j < m; j++) E[j] = aev_ocv(S[j]);
+}
+
+/* The battery and quadrature rates db (NB: V1, V2, S and the quadratures) and the outputs y (a, I, disc) of one
+ * vehicle from w = (h, v, v_l, a) of its motion and its state x. The model's OCV(S) is an input of aevring_bat:
+ * aevring_bat_ocv gives its arguments S (the clamped SOC), aev_ocv their values. */
+static void ring_bat(aev_ctx* c, const double* w, const double* x, double* db, double* y) {
+  double S[AEV_OCV_CALLS], E[AEV_OCV_CALLS];
+  c->arg[0] = w; c->arg[1] = x; c->res[0] = S;
+  aevring_bat_ocv(c->arg, c->res, c->iw, c->w, 0);
+  for (int j = 0; j < AEV_OCV_CALLS; j++) E[j] = aev_ocv(S[j]);
+  c->arg[2] = E; c->res[0] = db; c->res[1] = y;
+  aevring_bat(c->arg, c->res, c->iw, c->w, 0);
+}
+
 /* every vehicle's whole right-hand side at Z (n x NZ, vehicle-major) into D (n x NZ), outputs into Y when given;
- * u = (v_l, noise): its predecessor's speed and its additive acceleration noise */
+ * u = (v_l, noise): its predecessor's speed and its additive acceleration noise. The motion and the battery as in a
+ * step (ring_mot, ring_bat): the same numbers as the law's whole right-hand side (aevring_law, which the CVODES path
+ * evaluates), with the OCV looked up. */
 static void ring_rates(aev_ctx* ctx, int n, const int* law_idx, const double* params, const double* noise,
                        const double* Z, double* D, double* Y) {
   RING_PARALLEL
   for (int i = 0; i < n; i++) {
     aev_ctx* c = RING_CTX(ctx);
-    double u[2], ybuf[NY];
+    double u[2], ybuf[NY], dm[NCTRL], w[4], db[NB];
+    const double* x = Z + (int64_t)i * NZ;
+    double* d = D + (int64_t)i * NZ;
     int p = i == 0 ? n - 1 : i - 1;
     u[0] = Z[(int64_t)p * NZ + 1]; u[1] = noise[i];
-    aev_law(c, law_idx[i], params + (int64_t)i * AEV_NP, u, Z + (int64_t)i * NZ, D + (int64_t)i * NZ, Y ? Y + (int64_t)i * NY : ybuf);
+    ring_mot(c, law_idx[i], params + (int64_t)i * AEV_NP, u, x, dm, w);
+    ring_bat(c, w, x, db, Y ? Y + (int64_t)i * NY : ybuf);
+    for (int jj = 0; jj < NCTRL; jj++) d[MOT_IDX[jj]] = dm[jj];
+    for (int jj = 0; jj < NB; jj++) d[BAT_IDX[jj]] = db[jj];
   }
 }
 
@@ -132,23 +157,17 @@ RING_MOTION_PASS(4)
 RING_MOTION_PASS(5)
 RING_MOTION_PASS(6)
 
-/* The OCV of each of the AEV_OCV_CALLS arguments S[j] into E[j] (aev_ocv); exported for tests/test_ring_ocv.py. */
-CASADI_SYMBOL_EXPORT void aevring_ocv(int64_t m, const double* S, double* E) {
-  for (int64_t j = 0; j < m; j++) E[j] = aev_ocv(S[j]);
-}
-
-/* battery and quadrature stage st of vehicle i: its stage state (cell states and quadratures) into xs, their rates
- * from w of the same stage into k[st]; outputs (a, I, disc) into yi. The model's OCV(S) is an input of aevring_bat:
- * aevring_bat_ocv gives its arguments S (the clamped SOC), aev_ocv its values. */
+/* battery and quadrature stage st of vehicle i: its stage state into xs, their rates from w of the same stage into
+ * k[st]; outputs (a, I, disc) into yi. Stages 1..5 compute only the entries the battery reads (BAT_READ_IDX: the cell
+ * states; the quadratures' stage values are read by nothing), stage 6 (the step's end) all of them. */
 RING_INLINE void ring_battery_stage(aev_ctx* c, int st, int i, int n, const double* z, double* const* k, double h,
                                     const double* W, double* xs, double* yi) {
-  double db[NB], S[AEV_OCV_CALLS], E[AEV_OCV_CALLS];
-  for (int jj = 0; jj < NB; jj++) xs[BAT_IDX[jj]] = ring_stage_entry(z, k, st, h, (int64_t)i * NZ + BAT_IDX[jj]);
-  c->arg[0] = W + ((int64_t)st * n + i) * 4; c->arg[1] = xs; c->res[0] = S;
-  aevring_bat_ocv(c->arg, c->res, c->iw, c->w, 0);
-  for (int j = 0; j < AEV_OCV_CALLS; j++) E[j] = aev_ocv(S[j]);
-  c->arg[2] = E; c->res[0] = db; c->res[1] = yi;
-  aevring_bat(c->arg, c->res, c->iw, c->w, 0);
+  double db[NB];
+  if (st == 6)
+    for (int jj = 0; jj < NB; jj++) xs[BAT_IDX[jj]] = ring_stage_entry(z, k, st, h, (int64_t)i * NZ + BAT_IDX[jj]);
+  else
+    for (int jj = 0; jj < NBR; jj++) xs[BAT_READ_IDX[jj]] = ring_stage_entry(z, k, st, h, (int64_t)i * NZ + BAT_READ_IDX[jj]);
+  ring_bat(c, W + ((int64_t)st * n + i) * 4, xs, db, yi);
   for (int jj = 0; jj < NB; jj++) k[st][(int64_t)i * NZ + BAT_IDX[jj]] = db[jj];
 }
 

@@ -689,8 +689,9 @@ class RingSimulator:
     def _build(self) -> None:
         cg = ca.CodeGenerator("aevring_rhs.c", {"with_header": False})
         # ring.c reads every output as a dense vector (see dense_outputs)
-        pre, bat, ocv_table_lines = self._battery_functions()
-        fs = [dense_outputs(f) for f in (*self.funcs, *self._split, pre, bat)]
+        # the law's whole right-hand side (self.funcs) is not compiled: ring.c evaluates it as its motion and battery
+        pre, battery_fn, ocv_table_lines = self._battery_functions()
+        fs = [dense_outputs(f) for f in (*self._split, pre, battery_fn)]
         for f in fs:
             cg.add(f)
         head = (
@@ -700,13 +701,7 @@ class RingSimulator:
             f"#define AEV_NP {self.n_par}\n#define SPEED_FLOOR {int(self.ev.limits.enabled)}\n"
             f"#define LOCAL_FACTOR {float(self.opts.local_factor)!r}\n"
         )
-        head += (
-            "#define AEV_LAW_SWITCH "
-            + " ".join(
-                f"case {k}: return aevring_law{k}(c->arg, c->res, c->iw, c->w, 0);" for k in range(len(self.funcs))
-            )
-            + "\n"
-        )
+        head += "#define AEV_LAW_SWITCH\n"  # dopri5.h's aev_law: not called by ring.c
         head += (
             "#define AEV_MOT_SWITCH "
             + " ".join(
@@ -716,9 +711,13 @@ class RingSimulator:
         )
         mot = [0, 1] + ([self.nx - 1] if self.nx > 5 else [])
         bat = [j for j in range(self.nz) if j not in mot]
+        xb = pre.sx_in(1)  # the entries of x the battery reads (V1, V2, S): its stages 1..5 compute only these
+        outs = ca.vertcat(*pre.call([pre.sx_in(0), xb]), *battery_fn.call([pre.sx_in(0), xb, battery_fn.sx_in(2)]))
+        read = [j for j in bat if j < self.nx and ca.depends_on(outs, xb[j])]
         head += (
             f"#define MOT_IDX_INIT {{{', '.join(map(str, mot))}}}\n#define NB {len(bat)}\n"
             f"#define BAT_IDX_INIT {{{', '.join(map(str, bat))}}}\n"
+            f"#define NBR {len(read)}\n#define BAT_READ_IDX_INIT {{{', '.join(map(str, read))}}}\n"
         )
         head += event_header() + ocv_table_lines
         source = cg.dump() + "\n" + head + driver_source("ring.c")
