@@ -54,10 +54,22 @@ static const int MOT_IDX[NCTRL] = MOT_IDX_INIT;
 static const int BAT_IDX[NB] = BAT_IDX_INIT;
 static const int BAT_READ_IDX[NBR] = BAT_READ_IDX_INIT;
 
-static int ring_mot(aev_ctx* c, int law, const double* par, const double* u, const double* x, double* dm, double* w) {
-  c->arg[0] = u; c->arg[1] = x; c->arg[2] = par; c->res[0] = dm; c->res[1] = w;
+/* the motion of law ``law``: u = (v_l, noise), x the vehicle's state, q its law's coefficients (ring_coef) -> its
+ * motion rates dm and w = (h, v, v_l, a) */
+static int ring_mot(aev_ctx* c, int law, const double* q, const double* u, const double* x, double* dm, double* w) {
+  c->arg[0] = u; c->arg[1] = x; c->arg[2] = q; c->res[0] = dm; c->res[1] = w;
   switch (law) {
 AEV_MOT_SWITCH
+  }
+  return 1;
+}
+
+/* the coefficients q (AEV_NQ) of law ``law``'s motion from the vehicle's runtime coefficients par (AEV_NP): the parts of
+ * the motion that depend on them alone (aev_ocp.ring.simulate: RingSimulator._motion_functions), once per advance */
+static int ring_coef(aev_ctx* c, int law, const double* par, double* q) {
+  c->arg[0] = par; c->res[0] = q;
+  switch (law) {
+AEV_COEF_SWITCH
   }
   return 1;
 }
@@ -83,7 +95,7 @@ static void ring_bat(aev_ctx* c, const double* w, const double* x, double* db, d
  * u = (v_l, noise): its predecessor's speed and its additive acceleration noise. The motion and the battery as in a
  * step (ring_mot, ring_bat): the same numbers as the law's whole right-hand side (aevring_law, which the CVODES path
  * evaluates), with the OCV looked up. */
-static void ring_rates(aev_ctx* ctx, int n, const int* law_idx, const double* params, const double* noise,
+static void ring_rates(aev_ctx* ctx, int n, const int* law_idx, const double* q, const double* noise,
                        const double* Z, double* D, double* Y) {
   RING_PARALLEL
   for (int i = 0; i < n; i++) {
@@ -93,7 +105,7 @@ static void ring_rates(aev_ctx* ctx, int n, const int* law_idx, const double* pa
     double* d = D + (int64_t)i * NZ;
     int p = i == 0 ? n - 1 : i - 1;
     u[0] = Z[(int64_t)p * NZ + 1]; u[1] = noise[i];
-    ring_mot(c, law_idx[i], params + (int64_t)i * AEV_NP, u, x, dm, w);
+    ring_mot(c, law_idx[i], q + (int64_t)i * AEV_NQ, u, x, dm, w);
     ring_bat(c, w, x, db, Y ? Y + (int64_t)i * NY : ybuf);
     for (int jj = 0; jj < NCTRL; jj++) d[MOT_IDX[jj]] = dm[jj];
     for (int jj = 0; jj < NB; jj++) d[BAT_IDX[jj]] = db[jj];
@@ -116,14 +128,14 @@ RING_INLINE double ring_stage_entry(const double* z, double* const* k, int st, d
  * stage), its motion rates into k[st] and w into W. Stage 6 is the step's end: its motion entries go to zn, and the
  * vehicle's squared scaled error (the error norm's sum over h, v[, a_act]) to err[i] (the norm itself is reduced
  * in vehicle order by the caller). The motion reads only its own entries of x (MOT_IDX); the others stay 0. */
-RING_INLINE void ring_motion_vehicle(aev_ctx* c, int st, int i, int n, const int* law_idx, const double* params,
+RING_INLINE void ring_motion_vehicle(aev_ctx* c, int st, int i, int n, const int* law_idx, const double* q,
                                      const double* noise, const double* z, double* const* k, double h, double* zn,
                                      double* W, double* err, double rtol, double atol) {
   double x[NZ] = {0}, u[2], dm[NCTRL];
   int p = i == 0 ? n - 1 : i - 1;
   for (int jj = 0; jj < NCTRL; jj++) x[MOT_IDX[jj]] = ring_stage_entry(z, k, st, h, (int64_t)i * NZ + MOT_IDX[jj]);
   u[0] = ring_stage_entry(z, k, st, h, (int64_t)p * NZ + 1); u[1] = noise[i];
-  ring_mot(c, law_idx[i], params + (int64_t)i * AEV_NP, u, x, dm, W + ((int64_t)st * n + i) * 4);
+  ring_mot(c, law_idx[i], q + (int64_t)i * AEV_NQ, u, x, dm, W + ((int64_t)st * n + i) * 4);
   for (int jj = 0; jj < NCTRL; jj++) k[st][(int64_t)i * NZ + MOT_IDX[jj]] = dm[jj];
   if (st == 6) {
     double* zni = zn + (int64_t)i * NZ;
@@ -143,12 +155,12 @@ RING_INLINE void ring_motion_vehicle(aev_ctx* c, int st, int i, int n, const int
 /* one pass over the ring per motion stage (a function per literal stage: RING_PARALLEL's loop body then has its
  * coefficients as constants) */
 #define RING_MOTION_PASS(ST)                                                                                          \
-  static void ring_motion_##ST(aev_ctx* ctx, int n, const int* law_idx, const double* params, const double* noise, \
+  static void ring_motion_##ST(aev_ctx* ctx, int n, const int* law_idx, const double* q, const double* noise,      \
                                const double* z, double* const* k, double h, double* zn, double* W, double* err,     \
                                double rtol, double atol) {                                                          \
     RING_PARALLEL                                                                                                   \
     for (int i = 0; i < n; i++)                                                                                     \
-      ring_motion_vehicle(RING_CTX(ctx), ST, i, n, law_idx, params, noise, z, k, h, zn, W, err, rtol, atol);        \
+      ring_motion_vehicle(RING_CTX(ctx), ST, i, n, law_idx, q, noise, z, k, h, zn, W, err, rtol, atol);             \
   }
 RING_MOTION_PASS(1)
 RING_MOTION_PASS(2)
@@ -211,19 +223,21 @@ CASADI_SYMBOL_EXPORT int64_t aevring_advance(int n, const int* law_idx, const do
   ring_threads = nth;
   int64_t N = (int64_t)n * NZ, ncol = NZ + NY;
   aev_ctx* ctx = malloc(sizeof(aev_ctx) * nth);
-  double* buf = malloc(sizeof(double) * (N * 7 + N * 3 + N * 4 + (int64_t)n * NY * 2 + (int64_t)n * 4 * 7 + n));
+  double* buf = malloc(sizeof(double) * (N * 7 + N * 3 + N * 4 + (int64_t)n * NY * 2 + (int64_t)n * 4 * 7 + n + (int64_t)n * AEV_NQ));
   if (!ctx || !buf) { free(ctx); free(buf); return -1; }
   double* k[7];
   for (int s = 0; s < 7; s++) k[s] = buf + s * N;
   double *zt = buf + 7 * N, *zn = zt + N, *zs = zn + N, *Q = zs + N, *Y = Q + 4 * N, *Ys = Y + (int64_t)n * NY;
   double* W = Ys + (int64_t)n * NY;  /* w = (h, v, v_l, a) of every vehicle at stages 1..6 (7 x n x 4) */
   double* err = W + (int64_t)n * 4 * 7;  /* each vehicle's squared scaled error of the last attempt (n) */
+  double* q = err + n;  /* each vehicle's motion coefficients (n x AEV_NQ), from its runtime coefficients params */
+  for (int i = 0; i < n; i++) ring_coef(ctx, law_idx[i], params + (int64_t)i * AEV_NP, q + (int64_t)i * AEV_NQ);
   double (*Q4)[4] = (double (*)[4])Q;  /* the dense output's coefficients, 4 per entry (N x 4) */
   int64_t s_out = 0, nst = 0, nrej = 0, nfev = 0;
   int rejected_last = 0;
   double t = t0, h = *h_io > 0 ? *h_io : 1e-3, h_want = h;
   ev[0] = 0; ev[1] = -1; ev[2] = t0; ev[3] = 0;
-  ring_rates(ctx, n, law_idx, params, noise, z, k[0], NULL); nfev++;
+  ring_rates(ctx, n, law_idx, q, noise, z, k[0], NULL); nfev++;
   int cancelled = 0;
   while (t < t1 && !ev[0]) {
     if (aevring_cancel) { cancelled = 1; break; }
@@ -231,12 +245,12 @@ CASADI_SYMBOL_EXPORT int64_t aevring_advance(int n, const int* law_idx, const do
     h_want = h;
     if (t + h >= t1 - 1e-12 * (1 + fabs(t1))) { h = t1 - t; hit = 1; }
     /* the motion stages: one pass over the ring each */
-    ring_motion_1(ctx, n, law_idx, params, noise, z, k, h, zn, W, err, rtol, atol);
-    ring_motion_2(ctx, n, law_idx, params, noise, z, k, h, zn, W, err, rtol, atol);
-    ring_motion_3(ctx, n, law_idx, params, noise, z, k, h, zn, W, err, rtol, atol);
-    ring_motion_4(ctx, n, law_idx, params, noise, z, k, h, zn, W, err, rtol, atol);
-    ring_motion_5(ctx, n, law_idx, params, noise, z, k, h, zn, W, err, rtol, atol);
-    ring_motion_6(ctx, n, law_idx, params, noise, z, k, h, zn, W, err, rtol, atol);
+    ring_motion_1(ctx, n, law_idx, q, noise, z, k, h, zn, W, err, rtol, atol);
+    ring_motion_2(ctx, n, law_idx, q, noise, z, k, h, zn, W, err, rtol, atol);
+    ring_motion_3(ctx, n, law_idx, q, noise, z, k, h, zn, W, err, rtol, atol);
+    ring_motion_4(ctx, n, law_idx, q, noise, z, k, h, zn, W, err, rtol, atol);
+    ring_motion_5(ctx, n, law_idx, q, noise, z, k, h, zn, W, err, rtol, atol);
+    ring_motion_6(ctx, n, law_idx, q, noise, z, k, h, zn, W, err, rtol, atol);
     nfev += 6;
     /* error: max(RMS over the ring, the largest per-vehicle RMS / LOCAL_FACTOR), reduced in vehicle order */
     double nrm = 0, sum2 = 0;
@@ -283,7 +297,7 @@ CASADI_SYMBOL_EXPORT int64_t aevring_advance(int n, const int* law_idx, const do
       RING_NEED_Q();
       double* o = out + s_out * (int64_t)n * ncol;
       for (int i = 0; i < n; i++) aev_dense(z + (int64_t)i * NZ, Q4 + (int64_t)i * NZ, h, th, zs + (int64_t)i * NZ);
-      ring_rates(ctx, n, law_idx, params, noise, zs, zt, Ys); nfev++;
+      ring_rates(ctx, n, law_idx, q, noise, zs, zt, Ys); nfev++;
       for (int i = 0; i < n; i++) {
         memcpy(o + (int64_t)i * ncol, zs + (int64_t)i * NZ, NZ * sizeof(double));
         memcpy(o + (int64_t)i * ncol + NZ, Ys + (int64_t)i * NY, NY * sizeof(double));

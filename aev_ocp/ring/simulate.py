@@ -686,19 +686,38 @@ class RingSimulator:
         )
         return pre, bat, table
 
+    def _motion_functions(self) -> tuple[list[ca.Function], list[ca.Function]]:
+        """The motion of each law (``self._split``) with its parts that depend on the vehicle's coefficients p alone
+        (e.g. the law's SI coefficients in model units, IDM's 2 √(a b)) taken out (CasADi's extract_parametric):
+        ``aevring_coef{k}`` p -> q, evaluated by ring.c once per vehicle and advance, and ``aevring_mot{k}``
+        (u, x, q) -> (motion rates, w). The same operations on the same numbers as the law's, once instead of at
+        every stage."""
+        motion, coefs = [], []
+        for k, f in enumerate(self._split):
+            u, x, p = f.sx_in()
+            outs, syms, parts = ca.extract_parametric(f.call([u, x, p]), p)
+            q = ca.vertcat(*syms) if syms else ca.SX.sym("q", 1)
+            if ca.depends_on(ca.vertcat(*outs), p):  # not all of p's uses taken out: p itself as the coefficients
+                outs, q, parts = f.call([u, x, p]), p, [p]
+            motion.append(ca.Function(f"aevring_mot{k}", [u, x, q], outs))
+            coefs.append(ca.Function(f"aevring_coef{k}", [p], [ca.vertcat(*parts) if parts else ca.DM.zeros(1)]))
+        return motion, coefs
+
     def _build(self) -> None:
         cg = ca.CodeGenerator("aevring_rhs.c", {"with_header": False})
         # ring.c reads every output as a dense vector (see dense_outputs)
         # the law's whole right-hand side (self.funcs) is not compiled: ring.c evaluates it as its motion and battery
         pre, battery_fn, ocv_table_lines = self._battery_functions()
-        fs = [dense_outputs(f) for f in (*self._split, pre, battery_fn)]
+        motion, coefs = self._motion_functions()
+        fs = [dense_outputs(f) for f in (*motion, *coefs, pre, battery_fn)]
+        n_coef = max(1, *(f.size1_out(0) for f in coefs))
         for f in fs:
             cg.add(f)
         head = (
             f"#define SZ_ARG {max(3, *(f.sz_arg() for f in fs))}\n#define SZ_RES {max(2, *(f.sz_res() for f in fs))}\n"
             f"#define SZ_IW {max(f.sz_iw() for f in fs)}\n#define SZ_W {max(f.sz_w() for f in fs)}\n"
             f"#define NX {self.nx}\n#define NCTRL {2 + int(self.nx > 5)}\n#define NQ {self.nq}\n#define NY {self.ny}\n#define BATTERY 1\n"
-            f"#define AEV_NP {self.n_par}\n#define SPEED_FLOOR {int(self.ev.limits.enabled)}\n"
+            f"#define AEV_NP {self.n_par}\n#define AEV_NQ {n_coef}\n#define SPEED_FLOOR {int(self.ev.limits.enabled)}\n"
             f"#define LOCAL_FACTOR {float(self.opts.local_factor)!r}\n"
         )
         head += "#define AEV_LAW_SWITCH\n"  # dopri5.h's aev_law: not called by ring.c
@@ -706,6 +725,13 @@ class RingSimulator:
             "#define AEV_MOT_SWITCH "
             + " ".join(
                 f"case {k}: return aevring_mot{k}(c->arg, c->res, c->iw, c->w, 0);" for k in range(len(self.funcs))
+            )
+            + "\n"
+        )
+        head += (
+            "#define AEV_COEF_SWITCH "
+            + " ".join(
+                f"case {k}: return aevring_coef{k}(c->arg, c->res, c->iw, c->w, 0);" for k in range(len(self.funcs))
             )
             + "\n"
         )
