@@ -142,10 +142,10 @@ RING_INLINE void ring_motion_vehicle(aev_ctx* c, int st, int i, int n, const int
     double e2 = 0;
     for (int jj = 0; jj < NCTRL; jj++) {
       int j = MOT_IDX[jj];  /* h, v and the actuator state (last of x) when there is one */
-      int64_t q = (int64_t)i * NZ + j;
+      int64_t jz = (int64_t)i * NZ + j;
       zni[j] = x[j];
-      double e = 0; for (int l = 0; l < 7; l++) e += DP_E[l] * k[l][q];
-      double sc = atol + rtol * fmax(fabs(z[q]), fabs(zni[j]));
+      double e = 0; for (int l = 0; l < 7; l++) e += DP_E[l] * k[l][jz];
+      double sc = atol + rtol * fmax(fabs(z[jz]), fabs(zni[j]));
       e = h * e / sc; e2 += e * e;
     }
     err[i] = e2;
