@@ -746,7 +746,7 @@ class RingSimulator:
             f"#define NBR {len(read)}\n#define BAT_READ_IDX_INIT {{{', '.join(map(str, read))}}}\n"
         )
         head += event_header() + ocv_table_lines
-        source = cg.dump() + "\n" + head + driver_source("ring.c")
+        source = driver_source("fminmax.h") + cg.dump() + "\n" + head + driver_source("ring.c")
         lib = _BUILT.get(source)
         if lib is None:
             lib, self.build_error = _compile(source, "aevring")
