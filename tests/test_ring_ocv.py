@@ -61,7 +61,9 @@ def test_lookup_is_the_piecewise_cubic_to_the_bit(name: str) -> None:
     model = np.asarray(ca.Function("ocv", [s], [battery.ocv_piecewise(s, ev.cell)])(ca.DM(S).T)).ravel()
     got = _lookup(sim, S)
     differ = ~((got == model) | (np.isnan(got) & np.isnan(model)))
-    assert not differ.any(), f"{differ.sum()} differ, first at S = {S[differ][:3]!r}: {got[differ][:3]} vs {model[differ][:3]}"
+    assert not differ.any(), (
+        f"{differ.sum()} differ, first at S = {S[differ][:3]!r}: {got[differ][:3]} vs {model[differ][:3]}"
+    )
     inside = np.isfinite(S) & (S >= 0) & (S <= 1)  # the cell's curve itself there: an independent oracle
     spline = np.asarray(battery.ocv_function(ev.cell)(ca.DM(S[inside]).T)).ravel()
     assert np.max(np.abs(got[inside] - spline)) < 1e-12
