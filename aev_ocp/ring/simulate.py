@@ -693,9 +693,10 @@ class RingSimulator:
         (u, x, q) -> (motion rates, w). The same operations on the same numbers as the law's, once instead of at
         every stage."""
         motion, coefs = [], []
+        extract = getattr(ca, "extract_parametric", None)  # CasADi >= 3.6; without it the motion reads p itself
         for k, f in enumerate(self._split):
             u, x, p = f.sx_in()
-            outs, syms, parts = ca.extract_parametric(f.call([u, x, p]), p)
+            outs, syms, parts = extract(f.call([u, x, p]), p) if extract else (f.call([u, x, p]), [], [])
             q = ca.vertcat(*syms) if syms else ca.SX.sym("q", 1)
             if ca.depends_on(ca.vertcat(*outs), p):  # not all of p's uses taken out: p itself as the coefficients
                 outs, q, parts = f.call([u, x, p]), p, [p]
