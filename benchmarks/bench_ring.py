@@ -10,7 +10,10 @@ tolerance at a kink: a stop, a saturation) and thinned output (5 s): on 1 000 ve
 std and energy per km agree with the strict per-vehicle norm (local_factor 1) to 2e-5 and 1e-4 relative.
 
 Issue 36/40 target: 10 000 vehicles × 600 s in ≤ 60 s on one core (``--threads 1``, the default). ns per
-vehicle-step is the run's CPU time over n × (accepted + rejected steps). ``--baseline DIR`` measures the same in a child
+vehicle-step is the run's CPU time over n × (accepted + rejected steps). Issue 36's last step (the OCV looked up in a
+table instead of 40 masked comparisons, the laws' coefficient-only parts evaluated once per advance, fmax/fmin inline):
+CPU ratio to the main before it 0.50 at 10 000 and 0.61 at 1 000 vehicles (--baseline, load 3 on 2 cores), the
+same bits. ``--baseline DIR`` measures the same in a child
 process with another checkout's toolkit (e.g. ``git worktree add /tmp/main main``), alternating with this one, and
 prints the CPU ratio and whether the trajectories are the same to the bit (hash of gap, speed, accel, ω, S, I, energy).
 

@@ -2,7 +2,8 @@
  * Compiled after the CasADi-generated right-hand sides and a generated prologue (aev_ocp.ring.simulate):
  * SZ_ARG/SZ_RES/SZ_IW/SZ_W (work sizes), NX (ODE states per vehicle), NQ (quadratures), NY (outputs),
  * NCTRL (states in the error norm: h, v and the actuator state when there is one), AEV_NP (runtime coefficients per vehicle),
- * AEV_LAW_SWITCH (the case list of the laws) and the event table of aev_ocp.plant.EVENT_RULES.
+ * AEV_LAW_SWITCH (the case list of the laws), the event table of aev_ocp.plant.EVENT_RULES, AEV_OCV_CALLS (the OCV
+ * arguments of aevring_bat) and the cell's OCV table (ocv_lookup.h).
  *
  * A ring closes the chain (vehicle 0 follows vehicle n-1), so the cascade's one-vehicle-at-a-time
  * integration does not apply without iterating. Here the whole ring is ONE explicit adaptive
@@ -29,6 +30,7 @@
  * Events are checked after every accepted step on every vehicle and located on the quartic dense output
  * (bisection), the earliest over the ring wins.                                                        */
 #include "dopri5.h"  /* NZ, aev_ctx, the Dormand-Prince tableau, aev_law, aev_dense_coef, aev_dense, aev_root */
+#include "ocv_lookup.h"  /* aev_ocv: the cell's OCV(S), the same numbers as the model's piecewise cubic */
 #ifdef _OPENMP
 #include <omp.h>
 #endif
@@ -50,26 +52,63 @@ static int ring_threads = 1;
  * states), evaluated only once a step is accepted: a rejected step costs the motion alone, ~10 % of the whole. */
 static const int MOT_IDX[NCTRL] = MOT_IDX_INIT;
 static const int BAT_IDX[NB] = BAT_IDX_INIT;
+static const int BAT_READ_IDX[NBR] = BAT_READ_IDX_INIT;
 
-static int ring_mot(aev_ctx* c, int law, const double* par, const double* u, const double* x, double* dm, double* w) {
-  c->arg[0] = u; c->arg[1] = x; c->arg[2] = par; c->res[0] = dm; c->res[1] = w;
+/* the motion of law ``law``: u = (v_l, noise), x the vehicle's state, q its law's coefficients (ring_coef) -> its
+ * motion rates dm and w = (h, v, v_l, a) */
+static int ring_mot(aev_ctx* c, int law, const double* q, const double* u, const double* x, double* dm, double* w) {
+  c->arg[0] = u; c->arg[1] = x; c->arg[2] = q; c->res[0] = dm; c->res[1] = w;
   switch (law) {
 AEV_MOT_SWITCH
   }
   return 1;
 }
 
+/* the coefficients q (AEV_NQ) of law ``law``'s motion from the vehicle's runtime coefficients par (AEV_NP): the parts of
+ * the motion that depend on them alone (aev_ocp.ring.simulate: RingSimulator._motion_functions), once per advance */
+static int ring_coef(aev_ctx* c, int law, const double* par, double* q) {
+  c->arg[0] = par; c->res[0] = q;
+  switch (law) {
+AEV_COEF_SWITCH
+  }
+  return 1;
+}
+
+/* The OCV of each of the AEV_OCV_CALLS arguments S[j] into E[j] (aev_ocv); exported for tests/test_ring_ocv.py. */
+CASADI_SYMBOL_EXPORT void aevring_ocv(int64_t m, const double* S, double* E) {
+  for (int64_t j = 0; j < m; j++) E[j] = aev_ocv(S[j]);
+}
+
+/* The battery and quadrature rates db (NB: V1, V2, S and the quadratures) and the outputs y (a, I, disc) of one
+ * vehicle from w = (h, v, v_l, a) of its motion and its state x. The model's OCV(S) is an input of aevring_bat:
+ * aevring_bat_ocv gives its arguments S (the clamped SOC), aev_ocv their values. */
+static void ring_bat(aev_ctx* c, const double* w, const double* x, double* db, double* y) {
+  double S[AEV_OCV_CALLS], E[AEV_OCV_CALLS];
+  c->arg[0] = w; c->arg[1] = x; c->res[0] = S;
+  aevring_bat_ocv(c->arg, c->res, c->iw, c->w, 0);
+  for (int j = 0; j < AEV_OCV_CALLS; j++) E[j] = aev_ocv(S[j]);
+  c->arg[2] = E; c->res[0] = db; c->res[1] = y;
+  aevring_bat(c->arg, c->res, c->iw, c->w, 0);
+}
+
 /* every vehicle's whole right-hand side at Z (n x NZ, vehicle-major) into D (n x NZ), outputs into Y when given;
- * u = (v_l, noise): its predecessor's speed and its additive acceleration noise */
-static void ring_rates(aev_ctx* ctx, int n, const int* law_idx, const double* params, const double* noise,
+ * u = (v_l, noise): its predecessor's speed and its additive acceleration noise. The motion and the battery as in a
+ * step (ring_mot, ring_bat): the same numbers as the law's whole right-hand side (aevring_law, which the CVODES path
+ * evaluates), with the OCV looked up. */
+static void ring_rates(aev_ctx* ctx, int n, const int* law_idx, const double* q, const double* noise,
                        const double* Z, double* D, double* Y) {
   RING_PARALLEL
   for (int i = 0; i < n; i++) {
     aev_ctx* c = RING_CTX(ctx);
-    double u[2], ybuf[NY];
+    double u[2], ybuf[NY], dm[NCTRL], w[4], db[NB];
+    const double* x = Z + (int64_t)i * NZ;
+    double* d = D + (int64_t)i * NZ;
     int p = i == 0 ? n - 1 : i - 1;
     u[0] = Z[(int64_t)p * NZ + 1]; u[1] = noise[i];
-    aev_law(c, law_idx[i], params + (int64_t)i * AEV_NP, u, Z + (int64_t)i * NZ, D + (int64_t)i * NZ, Y ? Y + (int64_t)i * NY : ybuf);
+    ring_mot(c, law_idx[i], q + (int64_t)i * AEV_NQ, u, x, dm, w);
+    ring_bat(c, w, x, db, Y ? Y + (int64_t)i * NY : ybuf);
+    for (int jj = 0; jj < NCTRL; jj++) d[MOT_IDX[jj]] = dm[jj];
+    for (int jj = 0; jj < NB; jj++) d[BAT_IDX[jj]] = db[jj];
   }
 }
 
@@ -89,24 +128,24 @@ RING_INLINE double ring_stage_entry(const double* z, double* const* k, int st, d
  * stage), its motion rates into k[st] and w into W. Stage 6 is the step's end: its motion entries go to zn, and the
  * vehicle's squared scaled error (the error norm's sum over h, v[, a_act]) to err[i] (the norm itself is reduced
  * in vehicle order by the caller). The motion reads only its own entries of x (MOT_IDX); the others stay 0. */
-RING_INLINE void ring_motion_vehicle(aev_ctx* c, int st, int i, int n, const int* law_idx, const double* params,
+RING_INLINE void ring_motion_vehicle(aev_ctx* c, int st, int i, int n, const int* law_idx, const double* q,
                                      const double* noise, const double* z, double* const* k, double h, double* zn,
                                      double* W, double* err, double rtol, double atol) {
   double x[NZ] = {0}, u[2], dm[NCTRL];
   int p = i == 0 ? n - 1 : i - 1;
   for (int jj = 0; jj < NCTRL; jj++) x[MOT_IDX[jj]] = ring_stage_entry(z, k, st, h, (int64_t)i * NZ + MOT_IDX[jj]);
   u[0] = ring_stage_entry(z, k, st, h, (int64_t)p * NZ + 1); u[1] = noise[i];
-  ring_mot(c, law_idx[i], params + (int64_t)i * AEV_NP, u, x, dm, W + ((int64_t)st * n + i) * 4);
+  ring_mot(c, law_idx[i], q + (int64_t)i * AEV_NQ, u, x, dm, W + ((int64_t)st * n + i) * 4);
   for (int jj = 0; jj < NCTRL; jj++) k[st][(int64_t)i * NZ + MOT_IDX[jj]] = dm[jj];
   if (st == 6) {
     double* zni = zn + (int64_t)i * NZ;
     double e2 = 0;
     for (int jj = 0; jj < NCTRL; jj++) {
       int j = MOT_IDX[jj];  /* h, v and the actuator state (last of x) when there is one */
-      int64_t q = (int64_t)i * NZ + j;
+      int64_t jz = (int64_t)i * NZ + j;
       zni[j] = x[j];
-      double e = 0; for (int l = 0; l < 7; l++) e += DP_E[l] * k[l][q];
-      double sc = atol + rtol * fmax(fabs(z[q]), fabs(zni[j]));
+      double e = 0; for (int l = 0; l < 7; l++) e += DP_E[l] * k[l][jz];
+      double sc = atol + rtol * fmax(fabs(z[jz]), fabs(zni[j]));
       e = h * e / sc; e2 += e * e;
     }
     err[i] = e2;
@@ -116,12 +155,12 @@ RING_INLINE void ring_motion_vehicle(aev_ctx* c, int st, int i, int n, const int
 /* one pass over the ring per motion stage (a function per literal stage: RING_PARALLEL's loop body then has its
  * coefficients as constants) */
 #define RING_MOTION_PASS(ST)                                                                                          \
-  static void ring_motion_##ST(aev_ctx* ctx, int n, const int* law_idx, const double* params, const double* noise, \
+  static void ring_motion_##ST(aev_ctx* ctx, int n, const int* law_idx, const double* q, const double* noise,      \
                                const double* z, double* const* k, double h, double* zn, double* W, double* err,     \
                                double rtol, double atol) {                                                          \
     RING_PARALLEL                                                                                                   \
     for (int i = 0; i < n; i++)                                                                                     \
-      ring_motion_vehicle(RING_CTX(ctx), ST, i, n, law_idx, params, noise, z, k, h, zn, W, err, rtol, atol);        \
+      ring_motion_vehicle(RING_CTX(ctx), ST, i, n, law_idx, q, noise, z, k, h, zn, W, err, rtol, atol);             \
   }
 RING_MOTION_PASS(1)
 RING_MOTION_PASS(2)
@@ -130,14 +169,17 @@ RING_MOTION_PASS(4)
 RING_MOTION_PASS(5)
 RING_MOTION_PASS(6)
 
-/* battery and quadrature stage st of vehicle i: its stage state (cell states and quadratures) into xs, their rates
- * from w of the same stage into k[st]; outputs (a, I, disc) into yi */
+/* battery and quadrature stage st of vehicle i: its stage state into xs, their rates from w of the same stage into
+ * k[st]; outputs (a, I, disc) into yi. Stages 1..5 compute only the entries the battery reads (BAT_READ_IDX: the cell
+ * states; the quadratures' stage values are read by nothing), stage 6 (the step's end) all of them. */
 RING_INLINE void ring_battery_stage(aev_ctx* c, int st, int i, int n, const double* z, double* const* k, double h,
                                     const double* W, double* xs, double* yi) {
   double db[NB];
-  for (int jj = 0; jj < NB; jj++) xs[BAT_IDX[jj]] = ring_stage_entry(z, k, st, h, (int64_t)i * NZ + BAT_IDX[jj]);
-  c->arg[0] = W + ((int64_t)st * n + i) * 4; c->arg[1] = xs; c->res[0] = db; c->res[1] = yi;
-  aevring_bat(c->arg, c->res, c->iw, c->w, 0);
+  if (st == 6)
+    for (int jj = 0; jj < NB; jj++) xs[BAT_IDX[jj]] = ring_stage_entry(z, k, st, h, (int64_t)i * NZ + BAT_IDX[jj]);
+  else
+    for (int jj = 0; jj < NBR; jj++) xs[BAT_READ_IDX[jj]] = ring_stage_entry(z, k, st, h, (int64_t)i * NZ + BAT_READ_IDX[jj]);
+  ring_bat(c, W + ((int64_t)st * n + i) * 4, xs, db, yi);
   for (int jj = 0; jj < NB; jj++) k[st][(int64_t)i * NZ + BAT_IDX[jj]] = db[jj];
 }
 
@@ -181,19 +223,21 @@ CASADI_SYMBOL_EXPORT int64_t aevring_advance(int n, const int* law_idx, const do
   ring_threads = nth;
   int64_t N = (int64_t)n * NZ, ncol = NZ + NY;
   aev_ctx* ctx = malloc(sizeof(aev_ctx) * nth);
-  double* buf = malloc(sizeof(double) * (N * 7 + N * 3 + N * 4 + (int64_t)n * NY * 2 + (int64_t)n * 4 * 7 + n));
+  double* buf = malloc(sizeof(double) * (N * 7 + N * 3 + N * 4 + (int64_t)n * NY * 2 + (int64_t)n * 4 * 7 + n + (int64_t)n * AEV_NQ));
   if (!ctx || !buf) { free(ctx); free(buf); return -1; }
   double* k[7];
   for (int s = 0; s < 7; s++) k[s] = buf + s * N;
   double *zt = buf + 7 * N, *zn = zt + N, *zs = zn + N, *Q = zs + N, *Y = Q + 4 * N, *Ys = Y + (int64_t)n * NY;
   double* W = Ys + (int64_t)n * NY;  /* w = (h, v, v_l, a) of every vehicle at stages 1..6 (7 x n x 4) */
   double* err = W + (int64_t)n * 4 * 7;  /* each vehicle's squared scaled error of the last attempt (n) */
+  double* q = err + n;  /* each vehicle's motion coefficients (n x AEV_NQ), from its runtime coefficients params */
+  for (int i = 0; i < n; i++) ring_coef(ctx, law_idx[i], params + (int64_t)i * AEV_NP, q + (int64_t)i * AEV_NQ);
   double (*Q4)[4] = (double (*)[4])Q;  /* the dense output's coefficients, 4 per entry (N x 4) */
   int64_t s_out = 0, nst = 0, nrej = 0, nfev = 0;
   int rejected_last = 0;
   double t = t0, h = *h_io > 0 ? *h_io : 1e-3, h_want = h;
   ev[0] = 0; ev[1] = -1; ev[2] = t0; ev[3] = 0;
-  ring_rates(ctx, n, law_idx, params, noise, z, k[0], NULL); nfev++;
+  ring_rates(ctx, n, law_idx, q, noise, z, k[0], NULL); nfev++;
   int cancelled = 0;
   while (t < t1 && !ev[0]) {
     if (aevring_cancel) { cancelled = 1; break; }
@@ -201,12 +245,12 @@ CASADI_SYMBOL_EXPORT int64_t aevring_advance(int n, const int* law_idx, const do
     h_want = h;
     if (t + h >= t1 - 1e-12 * (1 + fabs(t1))) { h = t1 - t; hit = 1; }
     /* the motion stages: one pass over the ring each */
-    ring_motion_1(ctx, n, law_idx, params, noise, z, k, h, zn, W, err, rtol, atol);
-    ring_motion_2(ctx, n, law_idx, params, noise, z, k, h, zn, W, err, rtol, atol);
-    ring_motion_3(ctx, n, law_idx, params, noise, z, k, h, zn, W, err, rtol, atol);
-    ring_motion_4(ctx, n, law_idx, params, noise, z, k, h, zn, W, err, rtol, atol);
-    ring_motion_5(ctx, n, law_idx, params, noise, z, k, h, zn, W, err, rtol, atol);
-    ring_motion_6(ctx, n, law_idx, params, noise, z, k, h, zn, W, err, rtol, atol);
+    ring_motion_1(ctx, n, law_idx, q, noise, z, k, h, zn, W, err, rtol, atol);
+    ring_motion_2(ctx, n, law_idx, q, noise, z, k, h, zn, W, err, rtol, atol);
+    ring_motion_3(ctx, n, law_idx, q, noise, z, k, h, zn, W, err, rtol, atol);
+    ring_motion_4(ctx, n, law_idx, q, noise, z, k, h, zn, W, err, rtol, atol);
+    ring_motion_5(ctx, n, law_idx, q, noise, z, k, h, zn, W, err, rtol, atol);
+    ring_motion_6(ctx, n, law_idx, q, noise, z, k, h, zn, W, err, rtol, atol);
     nfev += 6;
     /* error: max(RMS over the ring, the largest per-vehicle RMS / LOCAL_FACTOR), reduced in vehicle order */
     double nrm = 0, sum2 = 0;
@@ -253,7 +297,7 @@ CASADI_SYMBOL_EXPORT int64_t aevring_advance(int n, const int* law_idx, const do
       RING_NEED_Q();
       double* o = out + s_out * (int64_t)n * ncol;
       for (int i = 0; i < n; i++) aev_dense(z + (int64_t)i * NZ, Q4 + (int64_t)i * NZ, h, th, zs + (int64_t)i * NZ);
-      ring_rates(ctx, n, law_idx, params, noise, zs, zt, Ys); nfev++;
+      ring_rates(ctx, n, law_idx, q, noise, zs, zt, Ys); nfev++;
       for (int i = 0; i < n; i++) {
         memcpy(o + (int64_t)i * ncol, zs + (int64_t)i * NZ, NZ * sizeof(double));
         memcpy(o + (int64_t)i * ncol + NZ, Ys + (int64_t)i * NY, NY * sizeof(double));

@@ -90,7 +90,26 @@ def ocv_piecewise(S: Any, cell: CellParams | None = None) -> Any:
     return a + u * (b + u * (cc + u * d))
 
 
+def ocv_segments(cell: CellParams | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`ocv_piecewise` as a table for a compiled lookup: the breakpoints s_k (its comparisons S ≥ s_k pick
+    the piece) and, per piece k, the numbers (s0, a, b, c, d) it evaluates there, a + u (b + u (c + u d)) with
+    u = S − s0. They are its sums of the pieces' differences in its order, so a lookup returns its value to the
+    bit (tests/test_ring_ocv.py); S below s_1 (or NaN) takes piece 0, S ≥ s_{n−1} the last."""
+    s, c = ocv_pieces(cell)
+    out = np.empty((len(c), 5))
+    for j, v in enumerate((s[:-1], c[:, 0], c[:, 1], c[:, 2], c[:, 3])):
+        diffs = [v[k] - v[k - 1] for k in range(1, len(c))]
+        for piece in range(len(c)):
+            terms = [d * float(k < piece) for k, d in enumerate(diffs)]  # d (S ≥ s_k+1) in ocv_piecewise
+            acc = terms[0] if terms else 0.0
+            for t in terms[1:]:
+                acc = acc + t
+            out[piece, j] = v[0] + acc
+    return s, out
+
+
 _PIECEWISE: ContextVar[bool] = ContextVar("aev_ocp_ocv_piecewise", default=False)
+_INPUTS: ContextVar[list[tuple[Any, Any, CellParams | None]] | None] = ContextVar("aev_ocp_ocv_inputs", default=None)
 
 
 @contextmanager
@@ -104,8 +123,26 @@ def piecewise_ocv() -> Iterator[None]:
         _PIECEWISE.reset(token)
 
 
+@contextmanager
+def ocv_inputs() -> Iterator[list[tuple[Any, Any, CellParams | None]]]:
+    """Within this block, :func:`ocv` of an SX expression S is a new SX symbol E of S's shape, and (S, E, cell) is
+    appended to the yielded list: a compiled driver that evaluates S itself passes OCV(S) as E, looked up in
+    :func:`ocv_segments` (the ring: aev_ocp/c/ocv_lookup.h). Numeric and MX arguments keep the B-spline."""
+    calls: list[tuple[Any, Any, CellParams | None]] = []
+    token = _INPUTS.set(calls)
+    try:
+        yield calls
+    finally:
+        _INPUTS.reset(token)
+
+
 def ocv(S: Any, cell: CellParams | None = None) -> Any:
     """Open-circuit voltage OCV(S) [V] of ``cell`` (None: the shipped A123 table)."""
+    calls = _INPUTS.get()
+    if calls is not None and isinstance(S, ca.SX):
+        E = ca.SX.sym(f"ocv_{len(calls)}", S.sparsity())
+        calls.append((S, E, cell))
+        return E
     if _PIECEWISE.get() and isinstance(S, ca.SX):
         return ocv_piecewise(S, cell)
     return ocv_function(cell)(S)

@@ -54,7 +54,7 @@ from ..loop import NO_STAGES, CommandStages, Controller, History, Observation, V
 from ..models import energy
 from ..models.actuator import actuator_rate, saturate, speed_cut
 from ..models.carfollowing import CarFollowingLaw, optimal_velocity
-from ..models.battery import piecewise_ocv
+from ..models.battery import ocv_inputs, ocv_segments, ocv_table, piecewise_ocv
 from ..models.ego import battery_side
 from ..params import EVParams, ParameterError, check_argument
 from ..plant import EVENT_RULES, current_limit_events, event_at, event_header, rule_of_code
@@ -653,43 +653,75 @@ class RingSimulator:
             f"aevring_law{k}", [u, ca.vertcat(*x), p], [ca.vertcat(*ode, *quad), ca.vertcat(a, b["I"], b["disc"])]
         )
 
-    def _battery_function(self) -> ca.Function:
-        """The battery and quadrature part of every vehicle's right-hand side, the same for every law:
-        (w = (h, v, v_l, a), x) -> ((V̇1, V̇2, Ṡ, quadrature integrands), y = (a, I, disc)). The compiled ring
-        evaluates it only on accepted steps (the step size is set by the motion alone, see ring.c)."""
+    def _battery_functions(self) -> tuple[ca.Function, ca.Function, str]:
+        """The battery and quadrature part of every vehicle's right-hand side, the same for every law, with the cell's
+        OCV as an input (:func:`aev_ocp.models.battery.ocv_inputs`): ``aevring_bat_ocv`` (w = (h, v, v_l, a), x) ->
+        the OCV's arguments S, and ``aevring_bat`` (w, x, OCV(S)) -> ((V̇1, V̇2, Ṡ, quadrature integrands),
+        y = (a, I, disc)); and the prologue lines of the OCV table for ring.c's lookup (ocv_lookup.h: the values of
+        the piecewise cubic the other right-hand sides use, to the bit). The compiled ring evaluates them only on
+        accepted steps (the step size is set by the motion alone, see ring.c)."""
         ev, T = self.ev, self.ev.units.time_s
         w = ca.SX.sym("w", 4)
         h, v, vl, a = w[0], w[1], w[2], w[3]
         x = ca.SX.sym("x", self.nx)
-        with piecewise_ocv():
+        with ocv_inputs() as calls:
             b = battery_side(v, a, x[2], x[3], x[4], ev)
+        own = [t.tolist() for t in ocv_table(ev.cell)]
+        if not calls or any([t.tolist() for t in ocv_table(c)] != own for _, _, c in calls):
+            raise RuntimeError("the ring's battery side must read the OCV of its own cell: ring.c has its table only")
+        S = ca.vertcat(*(ca.vec(s) for s, _, _ in calls))
+        E = ca.vertcat(*(ca.vec(e) for _, e, _ in calls))
         quad = _quadrature(h, v, vl, a, b, ev)
-        return ca.Function(
+        pre = ca.Function("aevring_bat_ocv", [w, x], [S])
+        bat = ca.Function(
             "aevring_bat",
-            [w, x],
+            [w, x, E],
             [ca.vertcat(T * b["dV1"], T * b["dV2"], T * b["dS"], *quad), ca.vertcat(a, b["I"], b["disc"])],
         )
+        grid, coef = ocv_segments(ev.cell)
+        table = (
+            f"#define AEV_OCV_CALLS {S.numel()}\n#define AEV_OCV_NSEG {len(coef)}\n"
+            f"#define AEV_OCV_GRID {{{', '.join(map(repr, map(float, grid)))}}}\n"
+            f"#define AEV_OCV_COEF {{{', '.join('{' + ', '.join(map(repr, map(float, r))) + '}' for r in coef)}}}\n"
+        )
+        return pre, bat, table
+
+    def _motion_functions(self) -> tuple[list[ca.Function], list[ca.Function]]:
+        """The motion of each law (``self._split``) with its parts that depend on the vehicle's coefficients p alone
+        (e.g. the law's SI coefficients in model units, IDM's 2 √(a b)) taken out (CasADi's extract_parametric):
+        ``aevring_coef{k}`` p -> q, evaluated by ring.c once per vehicle and advance, and ``aevring_mot{k}``
+        (u, x, q) -> (motion rates, w). The same operations on the same numbers as the law's, once instead of at
+        every stage."""
+        motion, coefs = [], []
+        extract = getattr(ca, "extract_parametric", None)  # CasADi >= 3.6; without it the motion reads p itself
+        for k, f in enumerate(self._split):
+            u, x, p = f.sx_in()
+            outs, syms, parts = extract(f.call([u, x, p]), p) if extract else (f.call([u, x, p]), [], [])
+            q = ca.vertcat(*syms) if syms else ca.SX.sym("q", 1)
+            if ca.depends_on(ca.vertcat(*outs), p):  # not all of p's uses taken out: p itself as the coefficients
+                outs, q, parts = f.call([u, x, p]), p, [p]
+            motion.append(ca.Function(f"aevring_mot{k}", [u, x, q], outs))
+            coefs.append(ca.Function(f"aevring_coef{k}", [p], [ca.vertcat(*parts) if parts else ca.DM.zeros(1)]))
+        return motion, coefs
 
     def _build(self) -> None:
         cg = ca.CodeGenerator("aevring_rhs.c", {"with_header": False})
         # ring.c reads every output as a dense vector (see dense_outputs)
-        fs = [dense_outputs(f) for f in (*self.funcs, *self._split, self._battery_function())]
+        # the law's whole right-hand side (self.funcs) is not compiled: ring.c evaluates it as its motion and battery
+        pre, battery_fn, ocv_table_lines = self._battery_functions()
+        motion, coefs = self._motion_functions()
+        fs = [dense_outputs(f) for f in (*motion, *coefs, pre, battery_fn)]
+        n_coef = max(1, *(f.size1_out(0) for f in coefs))
         for f in fs:
             cg.add(f)
         head = (
             f"#define SZ_ARG {max(3, *(f.sz_arg() for f in fs))}\n#define SZ_RES {max(2, *(f.sz_res() for f in fs))}\n"
             f"#define SZ_IW {max(f.sz_iw() for f in fs)}\n#define SZ_W {max(f.sz_w() for f in fs)}\n"
             f"#define NX {self.nx}\n#define NCTRL {2 + int(self.nx > 5)}\n#define NQ {self.nq}\n#define NY {self.ny}\n#define BATTERY 1\n"
-            f"#define AEV_NP {self.n_par}\n#define SPEED_FLOOR {int(self.ev.limits.enabled)}\n"
+            f"#define AEV_NP {self.n_par}\n#define AEV_NQ {n_coef}\n#define SPEED_FLOOR {int(self.ev.limits.enabled)}\n"
             f"#define LOCAL_FACTOR {float(self.opts.local_factor)!r}\n"
         )
-        head += (
-            "#define AEV_LAW_SWITCH "
-            + " ".join(
-                f"case {k}: return aevring_law{k}(c->arg, c->res, c->iw, c->w, 0);" for k in range(len(self.funcs))
-            )
-            + "\n"
-        )
+        head += "#define AEV_LAW_SWITCH\n"  # dopri5.h's aev_law: not called by ring.c
         head += (
             "#define AEV_MOT_SWITCH "
             + " ".join(
@@ -697,14 +729,25 @@ class RingSimulator:
             )
             + "\n"
         )
+        head += (
+            "#define AEV_COEF_SWITCH "
+            + " ".join(
+                f"case {k}: return aevring_coef{k}(c->arg, c->res, c->iw, c->w, 0);" for k in range(len(self.funcs))
+            )
+            + "\n"
+        )
         mot = [0, 1] + ([self.nx - 1] if self.nx > 5 else [])
         bat = [j for j in range(self.nz) if j not in mot]
+        xb = pre.sx_in(1)  # the entries of x the battery reads (V1, V2, S): its stages 1..5 compute only these
+        outs = ca.vertcat(*pre.call([pre.sx_in(0), xb]), *battery_fn.call([pre.sx_in(0), xb, battery_fn.sx_in(2)]))
+        read = [j for j in bat if j < self.nx and ca.depends_on(outs, xb[j])]
         head += (
             f"#define MOT_IDX_INIT {{{', '.join(map(str, mot))}}}\n#define NB {len(bat)}\n"
             f"#define BAT_IDX_INIT {{{', '.join(map(str, bat))}}}\n"
+            f"#define NBR {len(read)}\n#define BAT_READ_IDX_INIT {{{', '.join(map(str, read))}}}\n"
         )
-        head += event_header()
-        source = cg.dump() + "\n" + head + driver_source("ring.c")
+        head += event_header() + ocv_table_lines
+        source = driver_source("fminmax.h") + cg.dump() + "\n" + head + driver_source("ring.c")
         lib = _BUILT.get(source)
         if lib is None:
             lib, self.build_error = _compile(source, "aevring")
