@@ -6,6 +6,9 @@ the safety layer without a collision."""
 
 from __future__ import annotations
 
+import json
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -18,6 +21,7 @@ from aev_ocp.mpc.wave import SpeedAverage, WaveMPC, WaveParams, linear_gains, wa
 from aev_ocp.ocp.traffic import TrafficParams
 from aev_ocp.params import EVParams, ParameterError
 
+ROOT = Path(__file__).parents[1]  # the checkout (scenarios/, docs/, tests/data/)
 EV = EVParams()
 U = EV.units
 #: settings of the tests' own parameter sets: interpreted (no C compiled for a problem built once here)
@@ -211,7 +215,7 @@ def test_one_wave_mpc_car_on_the_ring_under_the_safety_layer():
     from aev_ocp.ring.scenario import build_ring, load_ring_scenario
     from aev_ocp.ring.simulate import RingSimulator
 
-    sc = load_ring_scenario("scenarios/ring_wave.toml")
+    sc = load_ring_scenario(ROOT / "scenarios" / "ring_wave.toml")
     assert sc.ev.limits.safety_layer and "wave-mpc" in sc.spec.controllers
     ring, init = build_ring(sc, "wave-mpc")
     assert isinstance(ring.vehicles[0], WaveMPC) and not ring.human[0] and all(ring.human[1:])
@@ -220,3 +224,54 @@ def test_one_wave_mpc_car_on_the_ring_under_the_safety_layer():
     assert res.status == "ok" and f["collisions"] == 0 and float(res.gap_m[:, 0].min()) > 2.0  # the car's own gap
     st = res.sim.solver_stats[0]
     assert st["steps"] == 450 and st["fallbacks"] == 0 and "safety layer" in st["conditioning"]
+
+
+def _cell(x: dict[str, float]) -> str:
+    """An interval as the guide prints it: mean [lo, hi], 3 significant digits."""
+    return f"{x['mean']:.3g} [{x['lo']:.3g}, {x['hi']:.3g}]"
+
+
+@pytest.mark.parametrize("scenario", ["ring_wave", "ring_wave_idm"])
+def test_the_guide_quotes_the_benchmark_and_its_intervals_are_the_per_seed_values(scenario):
+    """docs/guide/studies.md quotes what benchmarks/bench_wave_mpc.py measured (the JSON its --record writes to
+    tests/data/), and each target's interval is Student's t over the recorded per-seed values, recomputed here with
+    SciPy (the package computes its own quantile)."""
+    from scipy import stats
+
+    doc = json.loads((ROOT / "tests" / "data" / f"bench_wave_mpc_{scenario}.json").read_text(encoding="utf-8"))
+    seeds = [str(k) for k in doc["seeds"]]
+    assert len(seeds) >= 10 and not {int(k) for k in seeds} & {*range(10), *range(40, 50)}  # not the tuning seeds
+    ps = doc["per_seed"]
+    per = {
+        "speed_std_ratio_to_human": [
+            ps[k]["wave-mpc"]["speed_std_mps"] / ps[k]["human"]["speed_std_mps"] for k in seeds
+        ],
+        "mean_speed_minus_followerstopper_mps": [
+            ps[k]["wave-mpc"]["mean_speed_mps"] - ps[k]["followerstopper"]["mean_speed_mps"] for k in seeds
+        ],
+        "battery_energy_ratio_to_human": [
+            ps[k]["wave-mpc"]["battery_energy_J_per_km"] / ps[k]["human"]["battery_energy_J_per_km"] for k in seeds
+        ],
+    }
+    text = (ROOT / "docs" / "guide" / "studies.md").read_text(encoding="utf-8")
+    start = text.index(f"<!-- bench_wave_mpc {scenario} -->")
+    section = text[start : text.index("<!-- end -->", start)]
+    for name, x in per.items():
+        iv = doc["targets"][name]
+        n = len(x)
+        half = stats.t.ppf(0.975, n - 1) * np.std(x, ddof=1) / np.sqrt(n)
+        assert iv["mean"] == pytest.approx(np.mean(x), rel=1e-12)
+        assert (iv["lo"], iv["hi"]) == pytest.approx((np.mean(x) - half, np.mean(x) + half), rel=1e-9, abs=1e-12)
+        line = next(r for r in section.splitlines() if r.startswith(f"| {name} "))
+        assert f"| {_cell(iv)} | {iv['verdict']} |" in line, (line, iv)
+    for metric in ("throughput_veh_per_h", "mean_speed_mps", "speed_std_mps", "braking_events_per_veh_km"):
+        row = (
+            "| "
+            + metric
+            + " | "
+            + " | ".join(_cell(doc["table"][c][metric]) for c in ("human", "followerstopper", "wave-mpc"))
+        )
+        assert row + " |" in section, row
+    e = [doc["table"][c]["battery_energy_J_per_km"] for c in ("human", "followerstopper", "wave-mpc")]
+    row = "| battery_energy_kJ_per_km | " + " | ".join(_cell({k: x[k] / 1e3 for k in ("mean", "lo", "hi")}) for x in e)
+    assert row + " |" in section, row
