@@ -356,3 +356,71 @@ def test_cli_quick(tmp_path) -> None:  # type: ignore[no-untyped-def]
     assert "Safety suite" in md and "Euro NCAP AEB Car-to-Car test protocol" in md
     assert main(["safety", "--quick", "--bogus"]) == 2
     assert main(argv + ["--controllers", "mpc,lqr"]) == 2  # an unknown controller: refused, named
+
+
+# ----------------------------------------------------------------------------- the suite's shared runs and warnings
+_ARRAYS = ("t", "gap", "speed", "accel", "V1", "V2", "S", "current_A", "omega", "heat_J", "int_jerk2", "leader_speed")
+_TIMINGS = ("solve_ms_median", "solve_ms_p95", "solve_ms_max", "call_ms_median", "call_ms_p95")
+
+
+def test_bare_mpc_is_its_layered_run_only_when_the_layer_changed_no_command() -> None:
+    """With 'mpc' and 'mpc+layer' both asked for, the suite runs the MPC under the layer first and takes the bare run
+    from it when the layer changed no command: that run must equal the MPC run alone (every sample bit for bit, its
+    name, settings and statistics); where the layer did change commands the bare MPC must run on its own."""
+    from aev_ocp.safety.run import run_suite
+
+    quick = {c.name: c for c in suite_cases(quick=True)}
+    # at the declared actuator the layer never acts in CCRs 50 km/h and lowers commands at the lane end 60 m ahead
+    cases = [quick["CCRs_50kmh"], quick["laneend_100kmh_60m"]]
+    both = run_suite(cases, ("mpc", "mpc+layer"), actuators=("declared",))
+    alone = run_suite(cases, ("mpc",), actuators=("declared",))
+    for c, taken in (("CCRs_50kmh", True), ("laneend_100kmh_60m", False)):
+        r, ref, lay = both.runs[c]["declared/mpc"], alone.runs[c]["declared/mpc"], both.runs[c]["declared/mpc+layer"]
+        assert (r.gap is lay.gap) == taken  # taken from the layered run (the same arrays), or run on its own
+        for f in _ARRAYS:
+            assert np.array_equal(getattr(r, f), getattr(ref, f)), (c, f)
+        assert r.controllers == ref.controllers and r.status == ref.status and r.events == ref.events
+        assert r.meta["controllers"] == ref.meta["controllers"] and "layer" in lay.meta["controllers"][0]
+        mine, theirs = (
+            {k: v for k, v in (s or {}).items() if k not in _TIMINGS} for s in (r.solver_stats[0], ref.solver_stats[0])
+        )
+        assert mine == theirs and mine["n_steps"] > 0
+    lane = {x.controller: x for x in both.rows if x.case == "laneend_100kmh_60m"}
+    assert lane["mpc+layer"].safety_limited_steps > 0 and lane["mpc+layer"].min_gap_m != lane["mpc"].min_gap_m
+    strip = lambda rows: [{**vars(x), "wall_s": 0.0} for x in rows]  # noqa: E731
+    assert strip(x for x in both.rows if x.controller == "mpc") == strip(alone.rows)
+
+
+#: a cut-in the MPC cannot keep 2 m in (below its floor, no contact, ideal actuator), between two it can
+_TIGHT = [
+    SafetyCase("CCRs", "wide_before", 10.3, 37.0, 0.0, 0.0, 0.0, 2.5),
+    SafetyCase("cut-in", "tight_cut_in", 20.0, 3.0, 20.0, -9.0, 0.0, 2.5),
+    SafetyCase("CCRs", "wide_after", 11.7, 41.0, 0.0, 0.0, 0.0, 2.5),
+]
+
+
+# on the pool: two spawned workers, over 5 s of one core (measured under load)
+@pytest.mark.parametrize("workers", [1, pytest.param(2, marks=pytest.mark.slow)])
+def test_a_cases_warning_comes_under_its_own_progress_line(workers: int) -> None:
+    """The floor warning a run raises is said after its case's progress line ('case k/3 name'), never under another
+    case's, in this process and on the pool (where the worker's own stderr would put it anywhere)."""
+    import warnings
+
+    from aev_ocp.safety.run import run_suite
+
+    said: list[str] = []
+    with warnings.catch_warnings():
+        warnings.simplefilter("always")
+        warnings.showwarning = lambda m, *a, **k: said.append(f"warning: {m}")
+        out = run_suite(_TIGHT, ("mpc", "mpc+layer"), actuators=("ideal",), workers=workers, progress=said.append)
+    lines = [s for s in said if s.startswith("case ")]  # one per case as it ends, counted out of 3
+    assert [s.split()[1] for s in lines] == ["1/3", "2/3", "3/3"]
+    assert sorted(s.split()[2] for s in lines) == sorted(c.name for c in _TIGHT)
+    warned = [k for k, s in enumerate(said) if s.startswith("warning")]
+    tight = {r.controller: r for r in out.rows if r.case == "tight_cut_in"}
+    assert all(r.status == "violated" and not r.collision for r in tight.values())
+    assert len(warned) == 2  # the bare MPC's (taken from the layered run) and the layered one's
+    for k in warned:
+        heading = next(s for s in reversed(said[:k]) if s.startswith("case "))
+        assert heading.endswith(" tight_cut_in") and "safety case tight_cut_in: mpc(traffic)" in said[k]
+        assert "violated its gap floor" in said[k]
