@@ -21,22 +21,22 @@ from typing import Any, Iterator, Sequence
 
 from .report_sections import Claim, ReportSectionError, ReproduceConfig, Section, SectionContext, run_section
 
-#: Wall time of each section in the default reproduce [s], measured section by section by
-#: benchmarks/profile_reproduce.py (one process, warm compile cache, 2-core machine at load 4; issue 40): only the
-#: ORDER in which tasks are submitted follows it (longest first), never a result. "paper" is PaperRun's built-in
-#: sections together.
+#: CPU time of each section in the default reproduce [s] (its own process and its children: compilations, a section's
+#: pool), measured section by section in a reproduce from an empty compile cache (2-core machine at load 3-4, issue
+#: 40; the robustness studies run in the section's process): only the ORDER in which tasks are submitted follows it
+#: (longest first), never a result. "paper" is PaperRun's built-in sections together.
 SECTION_COST_S: dict[str, float] = {
-    "paper": 80.1,
-    "mpc-cycles": 55.2,
-    "robustness": 50.3,
-    "safety": 28.8,
-    "battery-life": 26.5,
-    "prop31": 15.3,
-    "theorem41": 15.2,
-    "ocp_checks": 13.8,
-    "ring": 10.0,
-    "mpc": 5.3,
-    "string-stability": 4.2,
+    "mpc-cycles": 65.9,
+    "robustness": 65.1,
+    "paper": 51.5,
+    "safety": 46.7,
+    "battery-life": 32.9,
+    "ring": 15.5,
+    "ocp_checks": 8.1,
+    "theorem41": 5.4,
+    "prop31": 5.2,
+    "string-stability": 5.2,
+    "mpc": 4.5,
 }
 
 _QUEUE: Any = None  # the worker's end of the progress queue (set by _init_worker)

@@ -14,7 +14,6 @@ from typing import Any, Callable
 
 from .report import markdown_table
 from .report_sections import SectionContext
-from .results import write_json
 from .ring.run import STABLE_LENGTH_M, RingExperiment, relative_to, run_ring_scenario
 from .ring.scenario import build_ring, load_ring_scenario
 from .stability.ring import measured_growth, ring_stability
@@ -22,7 +21,7 @@ from .stability.ring import measured_growth, ring_stability
 QUICK_T_END_S = 120.0
 #: samples stored per saved run (the loadable copy in ring/, for figures: every k-th sample and the last; 600 s
 #: runs at 0.5 s keep about every 3rd, 1.5 s apart, so reproduce's output stays under 60 MB). The fleet metrics
-#: in ring.json come from every sample; a run of QUICK_T_END_S (241 samples) is stored whole.
+#: in ring/ring.json come from every sample; a run of QUICK_T_END_S (241 samples) is stored whole.
 RING_STORED_SAMPLES = 400
 #: Sub-folder of the report's folder with the section's runs (``aev_ocp.load("ring")``).
 RING_FOLDER = "ring"
@@ -137,8 +136,9 @@ def _stern_markdown(srows: list[list[Any]], png: Path) -> list[str]:
         "formulation's 2 m floor and its safety filter; call: median controller call [ms].\n\n",
         markdown_table(STERN_HEAD, srows),
         f"\n![space-time diagrams of the ring runs]({png.name})\n\n"
-        "Files: ring.json (every fleet metric, SI), ring_space_time.png; every run (trajectories of every "
-        f'vehicle) loads back with `aev_ocp.load("{RING_FOLDER}")` (a RingOutput; `.plot()` draws the diagrams).\n',
+        f"Files: {RING_FOLDER}/ring.json (the Sugiyama entries under 'sugiyama', every run's label and fleet "
+        f"metrics under 'runs', SI), ring_space_time.png; every run (trajectories of every vehicle) loads back with "
+        f'`aev_ocp.load("{RING_FOLDER}")` (a RingOutput; `.plot()` draws the diagrams).\n',
     ]
 
 
@@ -157,7 +157,8 @@ def _save_runs(
 
 
 def ring_section(out_dir: Path, progress: Callable[[str], None]) -> str:
-    """Run the Sugiyama and Stern rings, write ring.json and ring_space_time.png into ``out_dir``; Markdown."""
+    """Run the Sugiyama and Stern rings, write ring_space_time.png and the runs (``out_dir``/ring: ring.json,
+    trajectories, manifest) into ``out_dir``; Markdown."""
     from .ring.plots import space_time_panels
 
     ctx = SectionContext.of(progress)
@@ -178,8 +179,7 @@ def ring_section(out_dir: Path, progress: Callable[[str], None]) -> str:
     ctx("ring: space-time diagrams")
     png = out_dir / "ring_space_time.png"
     space_time_panels([(r.label, r.result) for r in runs], png, t_from_s=float(runs[0].fleet["window_s"][0]))
-    write_json(out_dir / "ring.json", {"sugiyama": doc_sug, "stern": [{"label": r.label, **r.fleet} for r in runs]})
-    _save_runs(out_dir / RING_FOLDER, [r[0] for r in sug_runs], runs, doc_sug)
+    _save_runs(out_dir / RING_FOLDER, [r[0] for r in sug_runs], runs, doc_sug)  # ring/ring.json: the one copy
     return "".join(md + _stern_markdown(srows, png))
 
 

@@ -7,6 +7,14 @@ Run by ``benchmarks/bench_reproduce.py --profile DIR`` in the child process (or 
 * ``<section>.prof``: the section's cProfile statistics (``python -m pstats DIR/<section>.prof``);
 * ``sections.json``: per section, wall [s], CPU of this process [s] and of its finished children [s];
 * ``sources/<stem>_<key>/``: each compiled library's source, companions and flags (one folder per build).
+
+The run is in ONE process (``--workers 1`` unless the options say otherwise): a pool worker would run its sections
+unprofiled, and the sections the pool cannot import by name (wrapped here) would run after it in this process, so
+the profile would be of another schedule. cProfile counts this process's CPU time (``time.process_time``), not the
+wall clock, so that a loaded machine does not inflate the sections that wait. Note for reading the profiles: CasADi
+times every call of an integrator's or a solver's inner functions with ``std::clock()``, a real system call on a
+virtual machine (~1 µs): in the closed loops' CVODES plants that is millions of calls (battery life: ~4 M, ~4 s of
+its ~24 s; ``strace -c -f`` shows them as ``clock_gettime(CLOCK_PROCESS_CPUTIME_ID)``).
 """
 
 from __future__ import annotations
@@ -50,7 +58,7 @@ def install(folder: Path) -> dict[str, Any]:
 
     def wrap(sec: Section) -> Section:
         def fn(out: Path, ctx: Any) -> str:
-            prof = cProfile.Profile()
+            prof = cProfile.Profile(time.process_time)
             w0, c0, k0 = time.perf_counter(), time.process_time(), _children_cpu_s()
             prof.enable()
             try:
@@ -89,7 +97,10 @@ def main(argv: list[str]) -> int:
     install(Path(argv[0]))
     from aev_ocp.cli import main as cli_main
 
-    return int(cli_main(["reproduce", *argv[1:]]) or 0)
+    opts = list(argv[1:])
+    if not any(a == "--workers" or a.startswith("--workers=") for a in opts):
+        opts += ["--workers", "1"]  # every section profiled, in this process (module docstring)
+    return int(cli_main(["reproduce", *opts]) or 0)
 
 
 if __name__ == "__main__":

@@ -69,13 +69,16 @@ def test_battery_life_drops_hwfet_by_default_and_keeps_the_progress_count(monkey
 
 def test_robustness_drops_hwfet_by_default(monkeypatch, tmp_path: Path) -> None:  # noqa: ANN001
     calls: list[tuple[Any, ...]] = []
-    monkeypatch.setattr(rob, "run_seeded", lambda out, *a: calls.append(a) or {})
+    kws: list[dict[str, Any]] = []
+    monkeypatch.setattr(rob, "run_seeded", lambda out, *a, **kw: calls.append(a) or kws.append(kw) or {})
     monkeypatch.setattr(rob, "seeded_markdown", lambda res: "")
     for config in (DEFAULT, FULL, QUICK):
         rob.robustness_section(tmp_path, _ctx(config, []))
     (c_def, *_), (c_full, *_), (c_quick, *_) = calls
     assert c_def == ("udds", "us06") and c_full == ("udds", "hwfet", "us06") and c_quick == ("udds",)
     assert [c[2] for c in calls] == [(0, 1, 2), (0, 1, 2), (0, 1)]  # seeds
+    # in the section's own process (reproduce's pool runs the sections side by side): no second pool of workers
+    assert kws == [{"executor": "inprocess"}] * 3
 
 
 def test_the_report_table_names_each_reduced_study_and_its_full_size() -> None:

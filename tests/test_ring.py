@@ -588,20 +588,23 @@ def test_ring_report_section(tmp_path):
     md = ring_section(tmp_path, SectionContext(lines.append, ReproduceConfig.quick()))
     assert len(lines) == 3 and "### Sugiyama" in md and "### Stern" in md and "ring_space_time.png" in md
     assert (tmp_path / "ring_space_time.png").read_bytes()[:4] == b"\x89PNG"
-    doc = json.loads((tmp_path / "ring.json").read_text())
+    assert not (tmp_path / "ring.json").exists()  # one home: the section's folder
+    doc = json.loads((tmp_path / "ring" / "ring.json").read_text())
+    stern = [r for r in doc["runs"] if not r["label"].startswith("sugiyama")]
+    assert [r["label"] for r in doc["runs"][:2]] == ["sugiyama 230 m", "sugiyama 600 m"]
     jam, calm = doc["sugiyama"]
     for s in (jam, calm):  # the linear theory's growth rate and the measured one
         assert s["measured"]["measured_per_s"] == pytest.approx(s["predicted_growth_per_s"], rel=0.05)
     assert jam["predicted_growth_per_s"] > 0 > calm["predicted_growth_per_s"]
-    labels = [r["label"] for r in doc["stern"]]
+    labels = [r["label"] for r in stern]
     assert labels == ["all human", "followerstopper", "pi-saturation", "proposed", "ovfl", "mpc"]
     # the all-human row is the experiments' ring, run independently of the scenario file
     ref = run_ring(human_ring(230.0, seed=0), QUICK_T_END_S).fleet
     for k in ("speed_std_mps", "battery_energy_J_per_km", "heat_pack_J_per_km", "braking_events"):
-        assert doc["stern"][0][k] == pytest.approx(ref[k], rel=1e-9)
-    assert all(r["collisions"] == 0 for r in doc["stern"])
-    assert doc["stern"][-1]["fallbacks"] == 0 and doc["stern"][-1]["call_ms_median"] > 0
-    # the runs load back (manifest kind 'ring' in the section's folder 'ring'): the same fleet metrics as the report's
+        assert stern[0][k] == pytest.approx(ref[k], rel=1e-9)
+    assert all(r["collisions"] == 0 for r in stern)
+    assert stern[-1]["fallbacks"] == 0 and stern[-1]["call_ms_median"] > 0
+    # the runs load back (manifest kind 'ring' in the section's folder 'ring'): the same fleet metrics as its
     # ring.json, and the trajectories recompute them (fleet_metrics of the loaded RingResult, an independent pass)
     import aev_ocp
     from aev_ocp.ring.run import fleet_metrics
@@ -611,13 +614,13 @@ def test_ring_report_section(tmp_path):
     assert isinstance(loaded, RingOutput) and 'aev_ocp.load("ring")' in md
     assert [r.label for r in loaded.runs] == ["sugiyama 230 m", "sugiyama 600 m"] + labels
     assert loaded.document["sugiyama"] == doc["sugiyama"]
-    for r, saved in zip(loaded.runs[2:], doc["stern"]):
+    for r, saved in zip(loaded.runs[2:], stern, strict=True):
         assert {"label": r.label, **r.fleet} == saved
     stern_mpc = loaded.run("mpc")
-    t_from = float(doc["stern"][-1]["window_s"][0])
+    t_from = float(stern[-1]["window_s"][0])
     again = fleet_metrics(stern_mpc, t_from_s=t_from)
     for k in ("speed_std_mps", "heat_pack_J_per_km", "braking_events"):
-        assert again[k] == pytest.approx(doc["stern"][-1][k], rel=1e-12)
+        assert again[k] == pytest.approx(stern[-1][k], rel=1e-12)
 
 
 def test_ring_scenario_sweep_penetration_by_density():

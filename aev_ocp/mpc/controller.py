@@ -288,12 +288,6 @@ class MPCController:
     def _build_solvers(self) -> None:
         s, nlp = self.settings, self.nlp
         self._cold_ipopt: ca.Function | None = None
-        if not (s.solver == "rti" and self.rti_cold_start):
-            # the cold IPOPT runs only where a path can reach it: the rti path of a formulation that starts cold by
-            # RTI (traffic) never does (its failed steps start cold by RTI again), so its NLP is neither generated
-            # nor compiled (issue 40: one mpc_nlp_ipopt library fewer per traffic controller)
-            self._cold_ipopt, compiled = nlp.ipopt("mpc_ipopt_cold", warm=False)
-            self.codegen_active |= compiled
         self._fast: ca.Function | None = None
         if s.solver == "ipopt":
             self._fast, compiled = nlp.ipopt("mpc_ipopt_warm", warm=True)
@@ -307,6 +301,14 @@ class MPCController:
         elif s.solver == "rti":
             self._build_rti()
         # 'ipopt-cold': the cold IPOPT at every step
+        if not (s.solver == "rti" and (self.rti_cold_start or self.compiled_step is not None)):
+            # the cold IPOPT is built with the controller only where a cold start runs it: the rti path of a
+            # formulation that starts cold by RTI (traffic) never does (its failed steps start cold by RTI again),
+            # and §9's compiled step starts cold by itself, handing over to the cold IPOPT only after a cold start
+            # that failed (then it is built on that first use, :attr:`_cold`, before the step's clock starts), so
+            # neither generates nor compiles its NLP up front (issue 40: one mpc_nlp_ipopt library fewer each)
+            self._cold_ipopt, compiled = nlp.ipopt("mpc_ipopt_cold", warm=False)
+            self.codegen_active |= compiled
 
     def _build_rti(self) -> None:
         """The rti path: with qp_solver 'riccati' the compiled whole step (the exported C, mpc/export.py,
@@ -481,7 +483,7 @@ class MPCController:
 
     @property
     def _cold(self) -> ca.Function:
-        """The cold IPOPT (built with the controller where a path can reach it; else on first use)."""
+        """The cold IPOPT (built with the controller where a cold start runs it; else on first use)."""
         if self._cold_ipopt is None:
             self._cold_ipopt, compiled = self.nlp.ipopt("mpc_ipopt_cold", warm=False)
             self.codegen_active |= compiled
