@@ -4,12 +4,15 @@ the order files are handed to pytest-xdist's workers in (the heaviest first).
 The README's test command distributes whole files (``-n auto --dist loadfile``): a file's module-scoped results are
 computed once, on one worker. Files are collected heaviest first, so the long ones start at once and the short ones
 fill the end of the run on both workers. A file's weight is its measured seconds in the previous run (kept in
-pytest's cache, ``.pytest_cache``, by the controller at the end of a run), else an estimate from its tests: 5 s per
-test marked ``slow`` (each over about 5 s of one core) plus 0.1 s per other test.
+pytest's cache, ``.pytest_cache``, by the controller at the end of a run), else its seconds in the recorded run
+``tests/data/file_seconds.json`` (``python benchmarks/bench_suite.py --record``), else an estimate from its tests:
+5 s per test marked ``slow`` (each over about 5 s of one core) plus 0.1 s per other test. The weights only order
+the files: a stale one costs time, never a result.
 """
 
 from __future__ import annotations
 
+import json
 import os
 from collections import defaultdict
 from pathlib import Path
@@ -20,6 +23,15 @@ import pytest
 DURATIONS_KEY = "aev_ocp/file_seconds"
 SLOW_TEST_S = 5.0  # the weight of a test marked slow: over about 5 s of one core (pyproject.toml's marker)
 OTHER_TEST_S = 0.1  # the weight of any other test (most take well under a second)
+RECORDED = Path(__file__).resolve().parent / "data" / "file_seconds.json"
+
+
+def _recorded() -> dict[str, float]:
+    try:
+        table = json.loads(RECORDED.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return {}
+    return table if isinstance(table, dict) else {}
 
 
 def pytest_configure(config: pytest.Config) -> None:
@@ -34,9 +46,9 @@ def _file_of(item: pytest.Item) -> str:
 
 def pytest_collection_modifyitems(session: pytest.Session, config: pytest.Config, items: list[pytest.Item]) -> None:
     """Files heaviest first (stable: a file's tests keep their order and stay together)."""
-    known: dict[str, float] = (
-        cache.get(DURATIONS_KEY, {}) if (cache := getattr(config, "cache", None)) is not None else {}
-    )
+    cache = getattr(config, "cache", None)
+    last = cache.get(DURATIONS_KEY, {}) if cache is not None else {}
+    known = {**_recorded(), **(last if isinstance(last, dict) else {})}
     estimate: dict[str, float] = defaultdict(float)
     for item in items:
         estimate[_file_of(item)] += SLOW_TEST_S if item.get_closest_marker("slow") else OTHER_TEST_S
