@@ -16,6 +16,7 @@ import json
 import os
 from collections import defaultdict
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -24,6 +25,8 @@ DURATIONS_KEY = "aev_ocp/file_seconds"
 SLOW_TEST_S = 5.0  # the weight of a test marked slow: over about 5 s of one core (pyproject.toml's marker)
 OTHER_TEST_S = 0.1  # the weight of any other test (most take well under a second)
 RECORDED = Path(__file__).resolve().parent / "data" / "file_seconds.json"
+WEIGHTS_INPUT = "aev_ocp_file_weights"  # key of the weights in an xdist worker's start-up input
+_WEIGHTS = pytest.StashKey[dict[str, float]]()
 
 
 def _recorded() -> dict[str, float]:
@@ -38,6 +41,21 @@ def pytest_configure(config: pytest.Config) -> None:
     # with --dist loadfile, keep the collection order below (xdist would otherwise sort files by their number of tests)
     if getattr(config.option, "dist", "no") == "loadfile" and hasattr(config.option, "loadscopereorder"):
         config.option.loadscopereorder = False
+    # the weights are read once, by the controller, and handed to every worker (all must collect the same order, even
+    # if another run in this folder rewrites the cache meanwhile)
+    workerinput = getattr(config, "workerinput", None)
+    if workerinput is not None:
+        config.stash[_WEIGHTS] = dict(workerinput.get(WEIGHTS_INPUT, {}))
+    else:
+        cache = getattr(config, "cache", None)
+        last = cache.get(DURATIONS_KEY, {}) if cache is not None else {}
+        config.stash[_WEIGHTS] = {**_recorded(), **(last if isinstance(last, dict) else {})}
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_configure_node(node: Any) -> None:
+    """pytest-xdist (on the controller): the file weights go to each worker with its start-up input."""
+    node.workerinput[WEIGHTS_INPUT] = node.config.stash.get(_WEIGHTS, {})
 
 
 def _file_of(item: pytest.Item) -> str:
@@ -46,9 +64,7 @@ def _file_of(item: pytest.Item) -> str:
 
 def pytest_collection_modifyitems(session: pytest.Session, config: pytest.Config, items: list[pytest.Item]) -> None:
     """Files heaviest first (stable: a file's tests keep their order and stay together)."""
-    cache = getattr(config, "cache", None)
-    last = cache.get(DURATIONS_KEY, {}) if cache is not None else {}
-    known = {**_recorded(), **(last if isinstance(last, dict) else {})}
+    known = config.stash.get(_WEIGHTS, {})
     estimate: dict[str, float] = defaultdict(float)
     for item in items:
         estimate[_file_of(item)] += SLOW_TEST_S if item.get_closest_marker("slow") else OTHER_TEST_S
