@@ -117,3 +117,30 @@ def test_the_extractor_reads_code_blocks_continuations_and_inline_code() -> None
         "aev-ocp mpc x.toml --t-end 60",
         "aev-ocp study s.toml --set a.b=1",
     ]
+
+
+def _test_command(text: str) -> str:
+    """The pytest command of the README's test line (``… && pytest …``) or of .ci/run (a line starting with pytest)."""
+    lines = [ln.split("&&")[-1].strip() for ln in text.splitlines() if re.search(r"(^|&& )pytest ", ln.strip())]
+    assert len(lines) == 1, lines
+    return lines[0]
+
+
+def test_readme_docs_and_ci_run_the_same_test_command() -> None:
+    """CI runs the README's test command (the docs' start page shows it too): one change to it changes all three,
+    e.g. the xdist distribution that keeps a file's shared results on one worker."""
+    readme = _test_command(
+        next(
+            ln for ln in (ROOT / "README.md").read_text(encoding="utf-8").splitlines() if "pip install '.[test]'" in ln
+        )
+    )
+    docs = _test_command(
+        next(
+            ln
+            for ln in (ROOT / "docs" / "index.md").read_text(encoding="utf-8").splitlines()
+            if "pip install '.[test]'" in ln
+        )
+    )
+    ci = _test_command((ROOT / ".ci" / "run").read_text(encoding="utf-8"))
+    assert readme == docs == ci, (readme, docs, ci)
+    assert readme.startswith("pytest -q -n auto")

@@ -78,6 +78,12 @@ def canonical10():
     return run_single(S9(), formulation=F9, t_end=10.0)
 
 
+@pytest.fixture(scope="module")
+def canonical3():
+    """The canonical MPC scenario shortened to 3 time units (30 steps), IPOPT path: the reference of every solver path."""
+    return run_single(S9(), formulation=F9, t_end=3.0)
+
+
 def test_closed_loop_matches_ocp_d_within_1_percent():
     T = 4.0  # 40 steps; horizon N = 40 covers the whole scenario at t = 0
     ocpd = OracleSolver(OracleScenario(t_end=T)).solve()
@@ -145,15 +151,17 @@ def test_stage_cost_and_constraints_rechecked_in_numpy():
     [
         S9(solver="sqp", qp_solver="hpipm"),
         S9(solver="sqp", qp_solver="qrqp"),
-        S9(solver="sqp", qp_solver="hpipm", codegen=True),
+        # over 5 s of one core with its compilations (an empty cache), pytest --durations
+        pytest.param(S9(solver="sqp", qp_solver="hpipm", codegen=True), marks=pytest.mark.slow),
         S9(solver="ipopt-cold"),
     ],
     ids=["sqp-hpipm", "sqp-qrqp", "sqp-hpipm-codegen", "ipopt-cold"],
 )
-def test_solver_paths_give_the_same_closed_loop(settings, tmp_path_factory, monkeypatch):
-    monkeypatch.setenv("AEV_OCP_CACHE", str(tmp_path_factory.getbasetemp() / "cache"))
+def test_solver_paths_give_the_same_closed_loop(settings, canonical3, shared_compile_cache, monkeypatch):
+    monkeypatch.setenv("AEV_OCP_CACHE", str(shared_compile_cache))
     T = 3.0
-    ref = run_single(S9(), formulation=F9, t_end=T)
+    ref = canonical3
+    assert ref.t[-1] == pytest.approx(T)
     r = run_single(settings, formulation=F9, t_end=T)
     assert r.status == "ok" and r.solver_stats[0]["fallbacks"] == 0
     np.testing.assert_allclose(r.accel[:, 0], ref.accel[:, 0], atol=2e-4)
@@ -296,13 +304,15 @@ def test_bad_platoon_configuration_errors():
         run_single(S9(N=5), formulation=F9, t_end=0.25)
 
 
-@pytest.mark.parametrize("codegen", [True, False], ids=["codegen", "interpreted"])
-def test_rti_closed_loop_matches_ipopt_and_holds_constraints(codegen, tmp_path_factory, monkeypatch):
+# codegen: over 5 s of one core with its compilations (an empty cache), pytest --durations
+@pytest.mark.parametrize("codegen", [pytest.param(True, marks=pytest.mark.slow), False], ids=["codegen", "interpreted"])
+def test_rti_closed_loop_matches_ipopt_and_holds_constraints(codegen, canonical10, shared_compile_cache, monkeypatch):
     """Real-time iteration (one QP per step from the shifted previous solution) on the canonical
     scenario shortened to 10 time units: same closed loop as the IPOPT path within tolerance."""
-    monkeypatch.setenv("AEV_OCP_CACHE", str(tmp_path_factory.getbasetemp() / "cache"))
+    monkeypatch.setenv("AEV_OCP_CACHE", str(shared_compile_cache))
     T = 10.0
-    ref = run_single(S9(), formulation=F9, t_end=T)
+    ref = canonical10
+    assert ref.t[-1] == pytest.approx(T)
     # compiled: the whole step in C (qp_solver 'riccati'); interpreted: the Python RTI step on ca.conic (HPIPM)
     r = run_single(
         S9(solver="rti", codegen=codegen, qp_solver="riccati" if codegen else "hpipm"), formulation=F9, t_end=T

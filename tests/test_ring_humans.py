@@ -167,6 +167,7 @@ def test_wave_speed_of_a_synthetic_travelling_wave() -> None:
     assert math.isnan(wave_speed_mps(t, np.full((t.size, n), 3.0), L))
 
 
+@pytest.mark.slow  # over 5 s of one core (measured under load, pytest --durations)
 def test_calibration_by_simulation_recovers_known_parameters() -> None:
     """Synthetic target: the mean speeds of 5 identical IDM drivers (v0 = 13.4 m/s, T = 1.35 s) on rings of 80 m
     and 160 m after 60 s; the fit from v0 = 10, T = 0.8 recovers both parameters."""

@@ -6,6 +6,7 @@ or below, and no edges form a cycle."""
 from __future__ import annotations
 
 import ast
+import functools
 import subprocess
 import sys
 from pathlib import Path
@@ -105,7 +106,13 @@ def import_edges(
 
 
 def package_graph(package_dir: Path = PACKAGE_DIR, registries: bool = True) -> dict[str, dict[str, int]]:
-    """{importer: {imported: first line}} over the whole package."""
+    """{importer: {imported: first line}} over the whole package (a fresh copy: a test may plant edges in it)."""
+    return {a: dict(targets) for a, targets in _package_graph(package_dir, registries).items()}
+
+
+@functools.lru_cache(maxsize=None)
+def _package_graph(package_dir: Path, registries: bool) -> dict[str, dict[str, int]]:
+    """:func:`package_graph`, parsed once per folder and kind in this process (every test of this file reads it)."""
     modules = all_modules(package_dir)
     graph: dict[str, dict[str, int]] = {}
     for mod, path in modules.items():
@@ -222,7 +229,6 @@ def test_no_import_cycle() -> None:
     assert cycle is None, "import cycle: " + " -> ".join(cycle or [])
 
 
-@pytest.mark.slow  # over 5 s of one core (measured under load, pytest --durations)
 def test_allow_list_is_still_needed() -> None:
     """An allowed edge that no longer exists must leave the list (it only ever shrinks)."""
     graph = package_graph()

@@ -1,0 +1,112 @@
+"""What the whole suite shares: one compile cache per test run for the tests that must not use the user's cache, and
+the order files are handed to pytest-xdist's workers in (the heaviest first).
+
+The README's test command distributes whole files (``-n auto --dist loadfile``): a file's module-scoped results are
+computed once, on one worker. Files are collected heaviest first, so the long ones start at once and the short ones
+fill the end of the run on both workers. A file's weight is its measured seconds in the previous run (kept in
+pytest's cache, ``.pytest_cache``, by the controller at the end of a run), else its seconds in the recorded run
+``tests/data/file_seconds.json`` (``python benchmarks/bench_suite.py --record``), else an estimate from its tests:
+5 s per test marked ``slow`` (each over about 5 s of one core) plus 0.1 s per other test. The weights only order
+the files: a stale one costs time, never a result.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from collections import defaultdict
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+#: pytest cache key of {file: seconds of its setup, call and teardown} from the previous run
+DURATIONS_KEY = "aev_ocp/file_seconds"
+SLOW_TEST_S = 5.0  # the weight of a test marked slow: over about 5 s of one core (pyproject.toml's marker)
+OTHER_TEST_S = 0.1  # the weight of any other test (most take well under a second)
+RECORDED = Path(__file__).resolve().parent / "data" / "file_seconds.json"
+WEIGHTS_INPUT = "aev_ocp_file_weights"  # key of the weights in an xdist worker's start-up input
+_WEIGHTS = pytest.StashKey[dict[str, float]]()
+
+
+def _recorded() -> dict[str, float]:
+    try:
+        table = json.loads(RECORDED.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return {}
+    return table if isinstance(table, dict) else {}
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    # with --dist loadfile, keep the collection order below (xdist would otherwise sort files by their number of tests)
+    if getattr(config.option, "dist", "no") == "loadfile" and hasattr(config.option, "loadscopereorder"):
+        config.option.loadscopereorder = False
+    # the weights are read once, by the controller, and handed to every worker (all must collect the same order, even
+    # if another run in this folder rewrites the cache meanwhile)
+    workerinput = getattr(config, "workerinput", None)
+    if workerinput is not None:
+        config.stash[_WEIGHTS] = dict(workerinput.get(WEIGHTS_INPUT, {}))
+    else:
+        cache = getattr(config, "cache", None)
+        last = cache.get(DURATIONS_KEY, {}) if cache is not None else {}
+        config.stash[_WEIGHTS] = {**_recorded(), **(last if isinstance(last, dict) else {})}
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_configure_node(node: Any) -> None:
+    """pytest-xdist (on the controller): the file weights go to each worker with its start-up input."""
+    node.workerinput[WEIGHTS_INPUT] = node.config.stash.get(_WEIGHTS, {})
+
+
+def _file_of(item: pytest.Item) -> str:
+    return item.nodeid.split("::", 1)[0]
+
+
+def pytest_collection_modifyitems(session: pytest.Session, config: pytest.Config, items: list[pytest.Item]) -> None:
+    """Files heaviest first (stable: a file's tests keep their order and stay together)."""
+    known = config.stash.get(_WEIGHTS, {})
+    estimate: dict[str, float] = defaultdict(float)
+    for item in items:
+        estimate[_file_of(item)] += SLOW_TEST_S if item.get_closest_marker("slow") else OTHER_TEST_S
+    first = {f: k for k, f in enumerate(dict.fromkeys(_file_of(i) for i in items))}
+
+    def weight(f: str) -> float:
+        w = known.get(f)
+        return float(w) if isinstance(w, (int, float)) else estimate[f]
+
+    items.sort(key=lambda i: (-weight(_file_of(i)), first[_file_of(i)]))
+
+
+def pytest_runtest_logreport(report: pytest.TestReport) -> None:
+    # on the controller (or a run without xdist): every phase's report of every test arrives here
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        return
+    _SECONDS[report.nodeid.split("::", 1)[0]] += report.duration
+
+
+_SECONDS: dict[str, float] = defaultdict(float)
+
+
+def pytest_sessionfinish(session: pytest.Session, exitstatus: int) -> None:
+    """Keep each file's seconds for the next run's order (from a run that passed; files it did not run keep their
+    earlier weight)."""
+    if os.environ.get("PYTEST_XDIST_WORKER") or getattr(session.config, "cache", None) is None or not _SECONDS:
+        return
+    if exitstatus != 0:
+        return
+    old = session.config.cache.get(DURATIONS_KEY, {})
+    merged = {**(old if isinstance(old, dict) else {}), **{f: round(s, 2) for f, s in _SECONDS.items()}}
+    session.config.cache.set(DURATIONS_KEY, merged)
+
+
+@pytest.fixture(scope="session")
+def shared_compile_cache(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A compile cache (``$AEV_OCP_CACHE``) of this test run, shared by all of its xdist workers: a test that must not
+    use the user's cache still finds a library another worker already built (the cache's lock makes the second
+    worker wait for the first one's build rather than compile it again), so each library is compiled once per run.
+    Under xdist every worker's base temporary folder is a sub-folder of the run's one."""
+    base = tmp_path_factory.getbasetemp()
+    root = base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base
+    d = root / "aev_ocp_cache"
+    d.mkdir(mode=0o700, exist_ok=True)
+    return d
