@@ -1,4 +1,4 @@
-"""Calibration, one routine for all laws (issue 33.2): fit a law's free parameters so that its equilibrium gap matches a
+"""Calibration, one routine for all laws: fit a law's free parameters so that its equilibrium gap matches a
 stated equilibrium speed–gap curve (a fundamental diagram), and save the set with its target and residual.
 
 The fit is a least-squares problem on the equilibrium gap, solved by IPOPT through CasADi's nlpsol (bounds keep

@@ -1,4 +1,4 @@
-"""Seeds and intervals (issue 33.5): the mean of a metric over seeds with a 95 % interval, and a "better/worse"
+"""Seeds and intervals: the mean of a metric over seeds with a 95 % interval, and a "better/worse"
 verdict only when the interval of the difference excludes zero ("tie" otherwise).
 
 Tables of runs with randomness (noise, sensor draws, SUMO's drivers) report :func:`summarize` of each metric over
@@ -17,7 +17,7 @@ import numpy as np
 
 from .params import ParameterError
 
-#: seeds a table with randomness runs by default (issue 33.5: at least 10)
+#: seeds a table with randomness runs by default (at least 10)
 DEFAULT_SEEDS: tuple[int, ...] = tuple(range(10))
 LEVEL = 0.95  # the intervals' confidence level
 

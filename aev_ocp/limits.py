@@ -1,4 +1,4 @@
-"""How much memory a run needs, estimated before it starts (issue 11 item 6).
+"""How much memory a run needs, estimated before it starts.
 
 One place that answers "will this fit?" for every kind of run, against one budget
 (:func:`memory_limit_bytes`: ``$AEV_OCP_MAX_MEMORY_GB``, default 3 GB):

@@ -46,7 +46,7 @@ from .models.safety_bound import SafetyParams, safe_acceleration_mps2
 class History:
     """A series of floats appended one at a time and read as a NumPy array of everything so far (the closed loops'
     measured times and speeds): :meth:`view` is a read-only view, O(1), where ``np.asarray(list)`` copied the whole
-    history at every step (quadratic: 30 s of a 200 s reproduce section, issue 40). Entries never change once
+    history at every step (quadratic: 30 s of a 200 s reproduce section). Entries never change once
     appended, so a view taken earlier stays valid."""
 
     def __init__(self, capacity: int = 256) -> None:

@@ -725,7 +725,7 @@ METHODS = ("auto", "cascade", "cvodes")  # simulation integrators (aev_ocp.simul
 
 #: Tolerances the integrators can honour (CVODES and the cascade's Dormand–Prince 5(4)). Below
 #: rtol = 1e-14 the requested relative error is within ~50 ulp of double precision (2.2e-16), so the
-#: error test cannot pass and the step size underflows (rtol = atol = 1e-30 crashed the cascade, issue 11).
+#: error test cannot pass and the step size underflows (rtol = atol = 1e-30 crashed the cascade).
 #: atol is an absolute error on states of order 1e-3 … 1e3 (V1, V2 [V], S, h, v, ∫Q [J]); 1e-16 is below
 #: every state's resolution. Both corners (1e-14, 1e-16) run Table 1 to the converged ω. The loose ends
 #: run but are for quick looks only: rtol = atol = 1e-2 gives ω of follower 1 = 2.36 (cascade) and

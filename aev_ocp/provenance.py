@@ -1,5 +1,5 @@
 """Where a result came from: package, git commit, library versions, platform, time, the scenario as
-loaded (SHA-256 after overrides) and the random seeds (issue 10's provenance record).
+loaded (SHA-256 after overrides) and the random seeds (the provenance record).
 
 :func:`provenance` builds the record; :func:`context` lets a command state its scenario and seeds
 once, and every JSON written inside it (:func:`aev_ocp.results.write_json`) carries the record.

@@ -2,7 +2,7 @@
 
 Figures are linked by their path relative to the report (``<img src="fig1_phase_plane.png">``): the HTML opened
 from its folder shows them, and the output holds each figure once (embedding them doubled the folder's figure
-bytes: 7 MB of base64, issue 40). ``embed=True`` gives one self-contained file instead (base64 PNG). Either way a
+bytes: 7 MB of base64). ``embed=True`` gives one self-contained file instead (base64 PNG). Either way a
 figure the report names must exist (:class:`ReportHTMLError` otherwise).
 
 Only the Markdown that the report uses is converted (no runtime dependency beyond the standard library):

@@ -57,7 +57,7 @@ SECTION_PROVIDERS: tuple[str, ...] = (
 )
 
 
-#: The extended studies that ``reproduce`` runs reduced by default (issue 40: the reproduction in minutes), as
+#: The extended studies that ``reproduce`` runs reduced by default (the reproduction in minutes), as
 #: (section heading, what the default runs, what ``reproduce --full`` adds); the report's head shows this table. The
 #: sections read ``ReproduceConfig.extended``; the paper's figures and tables are whole either way.
 REDUCED_BY_DEFAULT: tuple[tuple[str, str, str], ...] = (

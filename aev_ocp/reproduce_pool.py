@@ -1,4 +1,4 @@
-"""``reproduce`` on a process pool (issue 40): independent report sections run at the same time.
+"""``reproduce`` on a process pool: independent report sections run at the same time.
 
 Tasks: PaperRun's built-in sections together, in their order, in one task (they share the run's state: its
 cache, notes and the Table 1 summary the disagreements section reads); every other section whose function a

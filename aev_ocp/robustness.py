@@ -2,7 +2,7 @@
 (model ≠ plant, noisy, quantised, late measurements, the estimator in the loop), and the report section of
 ``aev-ocp reproduce`` that shows it (benchmarks/bench_estimation.py runs the same with more options).
 
-The seeded comparison (issue 33.5, 35.5: :func:`robustness_study`, :func:`run_seeded`, ``python -m
+The seeded comparison (:func:`robustness_study`, :func:`run_seeded`, ``python -m
 aev_ocp.robustness``) runs the real condition over many seeds and both powertrains through the study layer (its
 process pool, resumable), and reports each controller's mean and 95 % interval and the paired difference MPC − law
 with a better/worse/tie verdict (:mod:`aev_ocp.study.seeds`); the reproduce section runs it on fewer seeds.
@@ -151,7 +151,7 @@ def margins(rows: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
 
 
 def targets(rows: Sequence[dict[str, Any]], mg: Sequence[dict[str, Any]]) -> dict[str, Any]:
-    """Issue 25's targets on the real rows: no collision / no event, the MPC below both laws, estimator + MPC
+    """The robustness targets on the real rows: no collision / no event, the MPC below both laws, estimator + MPC
     median per-step cost [ms]."""
     real = [r for r in rows if r["condition"] == "real"]
     cost = [r["estimator_plus_call_ms_median"] for r in real if r["controller"] == "mpc"]
@@ -221,7 +221,7 @@ def markdown(rows: Sequence[dict[str, Any]], mg: Sequence[dict[str, Any]]) -> st
 
 
 # ---------------------------------------------------------------- many seeds, through the study layer (issue 33.5)
-#: the seeded comparison's metrics (issue 33.5, 35.5): battery energy, pack heat and charge throughput per km, the
+#: the seeded comparison's metrics: battery energy, pack heat and charge throughput per km, the
 #: follower's RMS jerk and its smallest gap
 SEED_METRICS = (
     "battery_energy_kWh_per_100km",

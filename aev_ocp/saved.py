@@ -8,8 +8,8 @@ Format (``format = "aev_ocp-output"``, ``format_version`` 2; version 1 files loa
   bit for bit, NaN and inf included. Since version 2 a float64 array of at least :data:`PACK_MIN_SIZE` numbers is
   stored packed (the manifest's ``packed`` names it, with its shape): its bit patterns as int64, differenced along
   the first (time) axis with wrap-around, split into 8 byte planes (a uint8 array of shape (8, size)); smooth
-  trajectories then compress about twice as well, and :func:`unpack_array` restores them bit for bit (issue 40:
-  the reproduction's output 79 -> under 60 MB). Version 1 wrote every array as is (``numpy.load`` reads it). A run saved with ``max_samples``
+  trajectories then compress about twice as well, and :func:`unpack_array` restores them bit for bit (so
+  the reproduction's output fell from 79 MB to under 60 MB). Version 1 wrote every array as is (``numpy.load`` reads it). A run saved with ``max_samples``
   (reproduce's long drive-cycle runs, kept for their figures) holds every k-th sample and the last; its
   manifest record says ``stored_samples`` of ``samples``, and its ``metrics`` are those of the whole run.
 - ``manifest.json``: ``kind`` (:data:`KINDS`), ``primary`` (the run :func:`load` returns),
@@ -87,7 +87,7 @@ DOCUMENT_KINDS = ("ring", "safety", "stability", "ring_stability", "mixed_ring_s
 OCP_SCALARS = ("objective", "objective_exact", "max_violation", "wall_time_s", "solver_time_s")
 #: Samples per run that reproduce stores of its long drive-cycle runs (scenarios/, mpc_cycles/), which it keeps for
 #: their figures: our choice, more points than a figure has pixels across (udds_platoon: 31 101 samples -> 3 889;
-#: the output folder 132 -> under 60 MB, issue 40); their metrics are computed from every sample.
+#: the output folder 132 -> under 60 MB); their metrics are computed from every sample.
 FIGURE_MAX_SAMPLES = 4000
 OUTPUT_FILES = (MANIFEST, ARRAYS)  # what :func:`save_output` writes (for claim_output_dir)
 

@@ -1,4 +1,4 @@
-"""Runs cut at a time or a distance, so runs of different length get a verdict (issue 21 item 5).
+"""Runs cut at a time or a distance, so runs of different length get a verdict.
 
 Runs that end at different distances (an MPC that drops back 25 m in a braking test) are not comparable
 over their whole length. :func:`truncate_at_time` and :func:`truncate_at_distance` cut a

@@ -19,7 +19,7 @@ from .trace_replay import J_PER_KWH, default_ev, replay
 
 #: FASTSim's vehicle file of the 2022 Tesla Model 3 RWD (a resource of the fastsim package).
 FASTSIM_VEHICLE = "2022 Tesla Model 3 RWD thrml.yaml"
-#: The agreement the replay with the map powertrain must reach [-] (issue 35: within 2 %).
+#: The agreement the replay with the map powertrain must reach [-] (within 2 %).
 TOLERANCE = 0.02
 
 

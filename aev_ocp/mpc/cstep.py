@@ -163,7 +163,7 @@ def _template(name: str) -> str:
 
 # ---------------------------------------------------------------------------------------------- functions
 def step_constants(c: ExportableController) -> np.ndarray:
-    """The numbers the compiled step takes at run time after the NLP parameters (issue 40: its generated C holds
+    """The numbers the compiled step takes at run time after the NLP parameters (its generated C holds
     none of a vehicle's, a unit system's or a constraint's values, so one library serves every controller of the
     same structure): the simple bounds of a node (x_lb, x_ub scaled), of an interval (u_lb, u_ub scaled), the
     path constraints' bounds (lb, ub), then the cold-start guess's inputs (:attr:`HorizonNLP.rollout_inputs`:

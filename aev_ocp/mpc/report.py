@@ -16,7 +16,7 @@ from ..truncation import VIEW_KEYS
 from .run import Comparison, _run_status, run_comparison
 from .settings import MPCSettings
 
-#: every comparison table shows these first (issue 8): runs of different distance or duration (> 1 %) or
+#: every comparison table shows these first: runs of different distance or duration (> 1 %) or
 #: ended by an event are flagged 'comparable = False' and their column is marked, never ranked as complete
 COMPARABILITY_ROWS = [
     "comparable",

@@ -3,7 +3,7 @@ returns a :class:`Comparison`, which ``aev-ocp mpc``, the drive-cycle comparison
 (:mod:`aev_ocp.mpc.report`: tables, files) share. The orchestration stands here, in the application layer, apart
 from the controller it runs.
 
-Like with like (issue 20): every run is costed with the running formulation's own cost (``Formulation.cost_key``)
+Like with like: every run is costed with the running formulation's own cost (``Formulation.cost_key``)
 on the MPC's grid; OCP-D solves the same formulation, on the MPC's grid whenever it fits
 (:data:`aev_ocp.ocp.oracle.ORACLE_BOUND_MAX_INTERVALS`; :func:`aev_ocp.ocp.oracle.solve_and_replay`), and its
 column is a *bound* only when it is that optimum on that grid and its cost is at most every whole run's (checked);

@@ -1,4 +1,4 @@
-"""The wave-damping MPC: one automated EV that dissolves a ring's stop-and-go wave (issue 36, item 4).
+"""The wave-damping MPC: one automated EV that dissolves a ring's stop-and-go wave.
 
 The traffic MPC (:mod:`aev_ocp.ocp.traffic`) follows its predecessor: it tracks the predecessor's speed and a
 constant time gap, so among human drivers it rides the wave they make. A wave-dampener does the opposite

@@ -1,4 +1,4 @@
-"""Checks that every OCP result carries (issue 13): the smoothing gap, grid refinement, multi-start.
+"""Checks that every OCP result carries: the smoothing gap, grid refinement, multi-start.
 
 * :func:`record_smoothing_gap`: the objective as the NLP saw it (smoothed η switch / smoothed g,
   the transcription's integrator) next to the same objective re-evaluated on the EXACT model along

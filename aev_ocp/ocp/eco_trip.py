@@ -6,14 +6,14 @@ paper's inertial measure ω = ∫ v g(a) dt (objective 'omega', J/kg; old name '
 FutureWarning; ω is not battery energy). Bounds on v and a; |I| ≤ I_max and
 current-map feasibility disc ≥ 0 at the start of every interval.
 
-Exact where it can be (issue 13). For v ≥ 0, v·g(a) = max(v·a/η, η·v·a): a maximum of two
+Exact where it can be. For v ≥ 0, v·g(a) = max(v·a/η, η·v·a): a maximum of two
 functions linear in a. Minimising ∫ v g(a) dt is therefore the same as minimising ∫ s dt over an
 extra control s (the epigraph slack) with s ≥ v̄·a/η and s ≥ η·v̄·a, smooth and without a width
 parameter. With a piecewise constant, v is linear on each interval and ∫_k v g(a_k) dt =
 g(a_k)·v̄_k·h with the interval-mean speed v̄_k = v_k + a_k h/2 ≥ 0, so the slack constraints use
 v̄_k and the NLP objective Σ s_k h IS the exact ω of the applied profile (omega_form 'epigraph',
 the default). The smoothed g̃ of the earlier versions stays available as omega_form 'smooth' (its
-optimiser creeps at ±0.015 m/s² where g̃ < g, issue 13: 24.14 J/kg in the NLP, 25.07 exact).
+optimiser creeps at ±0.015 m/s² where g̃ < g: 24.14 J/kg in the NLP, 25.07 exact).
 
 No exact reformulation exists for the η switch inside the heat objective: P_b = max(P_w/η, η P_w)
 is convex in P_w, but it enters Q through the nonlinear current map I(P_c, E) and the RC states,

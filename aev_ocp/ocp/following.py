@@ -109,7 +109,7 @@ def following_stage_terms(
     :func:`term_names`: 'heat' Q_pack/(1 kW) (objective 'heat', η switch smoothed by ``smooth``) or 'omega'
     v g(a), the paper's inertial measure rate (objective 'omega', the exact g, η = ev.vehicle.efficiency), 'ovm'
     (V(h) − v)², 'relative' (v̂_l − v)², 'accel' a². The optimisers never see the non-smooth v g(a):
-    :func:`following_problem` states it exactly by an epigraph (issue 13)."""
+    :func:`following_problem` states it exactly by an epigraph."""
     objective = objective_name(objective)
     h, v = z[0], z[1]
     if objective == "heat":

@@ -125,7 +125,7 @@ class Formulation:
         """The problem on intervals of length dt [model time] (the traffic problem's jerk term uses dt).
         A user's builder or built problem is returned as given (it was stated for the MPC's dt).
         ``runtime_parameters``: a built-in problem takes the vehicle's (and the traffic formulation's SI) numbers as
-        global parameters with defaults (the MPC's: one compiled library per structure, issue 40)."""
+        global parameters with defaults (the MPC's: one compiled library per structure)."""
         if self.kind == "traffic":
             return traffic_problem(
                 ev,
@@ -161,7 +161,7 @@ class Formulation:
     def mpc_problem(self, ev: EVParams, dt: float) -> OCPProblem:
         """The MPC's problem: a built-in one with the vehicle's (and the traffic formulation's SI) numbers as global
         parameters with defaults (``runtime_parameters``: one compiled library serves every vehicle of the same
-        structure, issue 40), checked against the problem with the numbers in (:func:`same_problem`); if they
+        structure), checked against the problem with the numbers in (:func:`same_problem`); if they
         disagree (a model that turns a symbol into a number, e.g. through the math module), the numbers-in problem,
         with a warning. A user problem as :meth:`build` gives it."""
         if self.kind == "problem":

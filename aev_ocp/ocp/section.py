@@ -1,5 +1,5 @@
 """The OCP sections of ``aev-ocp reproduce``: Proposition 3.1 (OCP-A, both transcriptions) and the
-checks of issue 13 (OCP-B and OCP-C: NLP objective vs exact re-simulation, N doubled, the
+checks (OCP-B and OCP-C: NLP objective vs exact re-simulation, N doubled, the
 maximum deliverable energy)."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""The car-following MPC problem for real traffic (issue 8) — the default formulation of ``[mpc]``.
+"""The car-following MPC problem for real traffic — the default formulation of ``[mpc]``.
 
 model guide §9 states the canonical MPC: model-unit weights, a hard gap bound h ≥ 0.2, the OVM
 tracking term (V(h) − v)² and no terminal ingredient. Under an imperfect forecast (a drive cycle

@@ -1,4 +1,4 @@
-"""The field's metrics of a ring run, and their tables over seeds with 95 % intervals (issue 36.2).
+"""The field's metrics of a ring run, and their tables over seeds with 95 % intervals.
 
 :func:`field_metrics` of one run over the window [t_from_s, end] (SI):
 

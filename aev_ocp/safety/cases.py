@@ -62,8 +62,8 @@ class Actuator:
 #: The paper's model: the command is realised at once.
 IDEAL = Actuator("ideal", 0.0, None, "the paper's model: the command realised at once")
 #: A passenger car's brakes: full braking (−8 m/s²) is reached through a jerk-limited ramp at 40 m/s³ to −4 m/s²
-#: (0.1 s) and then the lag τ = 0.1 s: 90 % of it after 0.26 s, 95 % after 0.33 s — the "braking build-up of
-#: ~0.3 s" of issue 34. Sources: the brake build-up time ("Schwellzeit") of passenger-car hydraulic brakes in
+#: (0.1 s) and then the lag τ = 0.1 s: 90 % of it after 0.26 s, 95 % after 0.33 s — a braking build-up of
+#: about 0.3 s. Sources: the brake build-up time ("Schwellzeit") of passenger-car hydraulic brakes in
 #: emergency braking, 0.1–0.3 s, the range German accident reconstruction works with (the standard handbook is Burg &
 #: Moser (eds.), Handbuch Verkehrsunfallrekonstruktion, 2nd ed., 2009; its page was not checked here: the range is
 #: as practitioners' published summaries quote it, some giving 0.1–0.2 s for modern cars);

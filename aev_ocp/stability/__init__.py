@@ -1,4 +1,4 @@
-"""String stability of car-following laws and of the MPC platoon (issue 14).
+"""String stability of car-following laws and of the MPC platoon.
 
 Linear analysis of any :class:`~aev_ocp.models.carfollowing.CarFollowingLaw` at an equilibrium
 (:mod:`.linear`: exact CasADi partials, head-to-tail criterion, transfer function, sup|G|, unstable

@@ -184,7 +184,7 @@ def _linear_deviation(run: Attenuation, ref: Attenuation) -> float:
 def _linear_text(x: _Runs) -> str:
     lin, v_star, grid, c_min = x.lin, x.v_star, x.grid, x.c_min
     return (
-        "## String stability (Fig. 5 and §6, issue 14)\n\n"
+        "## String stability (Fig. 5 and §6)\n\n"
         "Convention: v̇ = f(h, v, Δv) with Δv = v_l − v; exact partials f_h, f_v (at fixed Δv), f_Δv at "
         "(h* = V⁻¹(v*), v*, 0); criterion C = f_v²/2 − f_Δv·f_v − f_h (string stable iff C ≥ 0); "
         "G(s) = (f_Δv s + f_h)/(s² + (f_Δv − f_v)s + f_h) from predecessor speed to follower speed; "

@@ -10,7 +10,7 @@ from ..errors import AevOcpError
 
 
 #: The study table's fixed columns (:mod:`aev_ocp.study.table`): % change against the reference of CHANGE_METRICS, and
-#: the equal-distance and equal-time views (issue 21 item 5): pack ∫Q per km of every run of a point up to the
+#: the equal-distance and equal-time views: pack ∫Q per km of every run of a point up to the
 #: shortest common distance / the common time of that point's runs, and its rank (1 = lowest).
 CHANGE_METRICS = ("omega_model", "heat_pack_J", "heat_pack_J_per_km")
 EQUAL_VIEWS = (("eq_distance", "distance", "cut_m"), ("eq_time", "time", "cut_s"))

@@ -1,4 +1,4 @@
-"""A study's runs over its seeds (issue 33.5): every metric's mean, 95 % interval and n per point of the other axes,
+"""A study's runs over its seeds: every metric's mean, 95 % interval and n per point of the other axes,
 and the paired difference between two controllers on the same seeds with its interval and a better/worse/tie verdict.
 
 A study has a *seed axis* when all keys of one of its axes are seeds (a key whose last part is ``seed`` or ends in

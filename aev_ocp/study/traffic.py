@@ -1,4 +1,4 @@
-"""Ring and SUMO sweeps as study points (issue 36.5): penetration × controller × density × seed, each point a
+"""Ring and SUMO sweeps as study points: penetration × controller × density × seed, each point a
 :class:`~aev_ocp.study.model.Task` run by the study's executors (in process, the process pool, Dask) into its
 hash-keyed :class:`~aev_ocp.study.runner.Store` (a rerun computes only what is missing), then tabled over seeds with
 95 % intervals and paired verdicts against the all-human point of the same density and seed

@@ -1,4 +1,4 @@
-"""Equal tuning effort (issue 33 item 3): every controller gets the same budget of closed-loop evaluations on a
+"""Equal tuning effort: every controller gets the same budget of closed-loop evaluations on a
 training set, chosen by one optimiser (optuna's TPE sampler with a fixed seed), and is reported at its default and
 tuned, side by side, on the training set and on held-out scenarios.
 

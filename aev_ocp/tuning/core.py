@@ -1,4 +1,4 @@
-"""The drive-cycle tuning's parts (issue 33 item 3): what is tuned (:data:`TUNING_TABLE`), the training and held-out
+"""The drive-cycle tuning's parts: what is tuned (:data:`TUNING_TABLE`), the training and held-out
 cases, a parameter set in a scenario, the scoring of a run, the optimiser (:class:`Tuner`) and the study-layer
 evaluator (:class:`Evaluator`). :func:`aev_ocp.tuning.cycles.run_tuning` puts them together.
 

@@ -1,4 +1,4 @@
-"""The ring in the tuning (issue 33 item 3): one AEV among the calibrated human drivers of a ring scenario
+"""The ring in the tuning: one AEV among the calibrated human drivers of a ring scenario
 (:data:`RING_SCENARIO`), every ring controller of :data:`RING_TABLE` tuned with the same budget of closed-loop
 evaluations on :data:`TRAIN_SEEDS`, then each controller at its default and tuned run on :data:`HELDOUT_SEEDS`
 (seeds the tuning never saw) and reported as the mean with a 95 % t interval over those seeds, with paired verdicts.

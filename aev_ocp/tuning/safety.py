@@ -1,4 +1,4 @@
-"""The drive-cycle tuned sets through the whole safety suite (issue 33): every case of :mod:`aev_ocp.safety`, both
+"""The drive-cycle tuned sets through the whole safety suite: every case of :mod:`aev_ocp.safety`, both
 actuators, each tuned controller bare and under the braking-distance layer, once with the tuning's default sets and
 once with its tuned sets (a drive-cycle tuning folder's ``tuning.json``); the events (collisions, floor violations,
 failures in avoidable cases) counted per controller and actuator, default against tuned.
