@@ -138,3 +138,16 @@ def test_the_reproduce_timing_the_docs_quote_is_the_benchmarks() -> None:
         assert f"{sum(run['compilations'].values())} compil" in doc and f"{run['output_MB']:.0f} MB" in doc
     assert "4.5 minutes" not in readme + index
     assert (ROOT / "benchmarks" / "bench_reproduce.py").is_file()
+
+
+def test_the_suite_timing_the_readme_quotes_is_the_benchmarks() -> None:
+    """README quotes the test command's wall and CPU time and counts as recorded by benchmarks/bench_suite.py."""
+    readme = " ".join((ROOT / "README.md").read_text(encoding="utf-8").split())
+    run = json.loads((ROOT / "benchmarks" / "bench_suite.json").read_text())["runs"][-1]
+    assert run["returncode"] == 0 and not run["failures"]
+    quoted = (
+        f"took {run['wall_s']:.0f} s of wall and {run['cpu_s']:.0f} s of CPU on this two-core machine "
+        f"(load {run['load_1min_before']:.1f} before it; {run['counts']['passed']} passed,"
+    )
+    assert quoted in readme
+    assert "benchmarks/bench_suite.json" in readme
