@@ -149,6 +149,17 @@ def event_from_code(code: int, time: float, vehicle: int, value: float) -> Event
     )
 
 
+def warn_floor_violations(violations: Sequence[Event], controllers: Sequence[str], stacklevel: int = 2) -> None:
+    """One warning line per floor violation (:func:`floor_violations`), naming the vehicle's controller;
+    ``stacklevel`` as :func:`warnings.warn`'s, counted from the caller of this function."""
+    for e in violations:
+        warnings.warn(
+            f"{controllers[e.vehicle]} (vehicle {e.vehicle + 1}) violated its gap floor: {e}",
+            RuntimeWarning,
+            stacklevel=stacklevel + 1,
+        )
+
+
 def floor_violations(t: np.ndarray, gap: np.ndarray, controllers: Sequence[Any], units: Units) -> list[Event]:
     """One 'violated' Event per follower whose gap went below its controller's own hard floor (the
     ``bounds_model`` → ``h_min`` of its ``describe()``, model units) by more than 1e-9: at the first such
@@ -679,12 +690,8 @@ def assemble_result(
     rows = lambda M, j: M[j * n : (j + 1) * n].T  # noqa: E731
     # a run that went below a controller's own hard floor gets status 'violated' and one warning line
     violations = floor_violations(t, rows(X, 0), meta.get("controllers") or [], ev.units)
-    for e in violations if not events else []:  # (an event that stopped the run is reported on its own)
-        warnings.warn(
-            f"{controllers[e.vehicle]} (vehicle {e.vehicle + 1}) violated its gap floor: {e}",
-            RuntimeWarning,
-            stacklevel=3,
-        )
+    if not events:  # (an event that stopped the run is reported on its own)
+        warn_floor_violations(violations, controllers, stacklevel=3)
     return SimulationResult(
         t=t,
         leader_speed=Y[3 * n],

@@ -2,7 +2,8 @@
  * Compiled after the CasADi-generated right-hand sides and a generated prologue (aev_ocp.ring.simulate):
  * SZ_ARG/SZ_RES/SZ_IW/SZ_W (work sizes), NX (ODE states per vehicle), NQ (quadratures), NY (outputs),
  * NCTRL (states in the error norm: h, v and the actuator state when there is one), AEV_NP (runtime coefficients per vehicle),
- * AEV_LAW_SWITCH (the case list of the laws), the event table of aev_ocp.plant.EVENT_RULES, AEV_OCV_CALLS (the OCV
+ * AEV_MOT_SWITCH and AEV_COEF_SWITCH (the case lists of the laws' motions and of their coefficient parts; AEV_LAW_SWITCH
+ * is empty: dopri5.h's aev_law is not called here), the event table of aev_ocp.plant.EVENT_RULES, AEV_OCV_CALLS (the OCV
  * arguments of aevring_bat) and the cell's OCV table (ocv_lookup.h).
  *
  * A ring closes the chain (vehicle 0 follows vehicle n-1), so the cascade's one-vehicle-at-a-time

@@ -54,6 +54,7 @@ from ..mpc.settings import MPCSettings
 from ..ocp.formulation import Formulation, traffic_formulation
 from ..ocp.traffic import TrafficParams
 from ..params import EVParams, ParameterError, Units, VehicleLimits
+from ..plant import warn_floor_violations
 from ..results import SimulationResult, require_pandas, summary_html, summary_text
 from ..simulate import simulate_platoon
 from .cases import ACTUATORS, CASE_UNITS, Actuator, SafetyCase, suite_cases
@@ -430,8 +431,8 @@ def _bare_of(r: SimulationResult, layered: LayeredController) -> SimulationResul
         ctrl[0].pop("layer", None)
     meta["controllers"] = ctrl
     name = layered.inner.name
-    for e in r.violations if not r.events else []:
-        warnings.warn(f"{name} (vehicle {e.vehicle + 1}) violated its gap floor: {e}", RuntimeWarning, stacklevel=2)
+    if not r.events:
+        warn_floor_violations(r.violations, [name])
     return dataclasses.replace(r, controllers=[name], meta=meta)
 
 
