@@ -5,7 +5,8 @@ clock too: a step longer than ``max_step_ms`` falls back (cause 'budget'), IPOPT
 The clock is a fake one on which every MPC step takes 1 s (10x the default 100 ms budget): a counted closed loop
 on it equals the one on the real clock to the last bit and reports the 1 s it measured; a wall closed loop on it
 falls back at every step, each with cause 'budget'. Both the Python real-time iteration (HPIPM through ca.conic)
-and the compiled whole step (ocp_qp.c) are run."""
+and the compiled whole step (ocp_qp.c) are run. The compiled ring, the other simulation that reads the clock (to choose
+how it calls its C), is shown to give the same bits either way."""
 
 from __future__ import annotations
 
@@ -149,3 +150,34 @@ def test_budget_is_validated_and_read_from_the_mpc_table(tmp_path: Path) -> None
     p.write_text(base.replace("[mpc]\n", '[mpc]\nbudget = "timed"\n', 1))
     with pytest.raises(ScenarioError, match=r"mpc\.budget = .timed. is not allowed"):
         load_scenario(p)
+
+
+def test_ring_call_path_chosen_by_the_clock_changes_no_bit(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The compiled ring is the other simulation that reads the clock: an advance after one faster than
+    DIRECT_CALL_S is called directly, else in a helper thread (to stay interruptible). Both call the same C on the
+    same arrays, so the choice changes no bit: every advance threaded (limit 0 s) equals every advance direct."""
+    import aev_ocp.ring.simulate as rs
+    from aev_ocp.ring.laws import FollowerStopper
+    from aev_ocp.ring.run import human_ring
+
+    ev = EVParams()
+    ring = human_ring(230.0, aevs={0: FollowerStopper.from_si(ev.units, 3.1)}, noise_mps2=0.3, seed=11)
+    threaded = [0]
+    call = rs._interruptible_call
+
+    def counted(*args: Any) -> int:
+        threaded[0] += 1
+        return call(*args)
+
+    monkeypatch.setattr(rs, "_interruptible_call", counted)
+    runs = {}
+    for limit_s in (0.0, 1e9):
+        monkeypatch.setattr(rs, "DIRECT_CALL_S", limit_s)
+        threaded[0] = 0
+        runs[limit_s] = (
+            rs.RingSimulator(ring, rs.RingOptions(dt_out_s=1.0)).run(rs.uniform_flow(ring), 30.0),
+            threaded[0],
+        )
+    (a, n_a), (b, n_b) = runs[0.0], runs[1e9]
+    assert n_a > 10 and n_b == 1  # every advance in a thread / only the first (it runs interruptibly)
+    assert a.status == b.status and np.array_equal(a.speed_mps, b.speed_mps) and np.array_equal(a.t_s, b.t_s)
