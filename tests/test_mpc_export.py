@@ -568,7 +568,7 @@ def test_late_cold_start_of_the_compiled_step_warm_starts_the_next(monkeypatch: 
     monkeypatch.setattr(CStep, "reset", reset)
     monkeypatch.setattr(CStep, "step_full", step_full)
     monkeypatch.setattr(rti, "time", SimpleNamespace(perf_counter=lambda: clock_s[0]))
-    s = MPCSettings(**{**CANON, "max_step_ms": 1.0})
+    s = MPCSettings(**{**CANON, "budget": "wall", "max_step_ms": 1.0})
     r = ClosedLoop(PaperLeader(), [MPCVehicle(s, formulation=F9)]).run([0.3], [1.87], 2.0)
     st = r.solver_stats[0]
     steps = r.meta["mpc_steps"][0]
