@@ -415,14 +415,19 @@ def test_traffic_formulation_exports_and_matches_the_python_driver(
     s = MPCSettings(N=14, predictor="constant-velocity", qp_solver="riccati", codegen=False)
     leader = drive_cycle("udds", ev.units)
     t_end = 40.0  # model time: 35 s of UDDS, 400 steps (the leader starts at 20 s, 10 m/s at 31 s)
-    rc, st = _c_run(lib, s, loop=ClosedLoop(leader, [MPCVehicle(s)], ev), start=(0.8, 0.0, t_end))
+    its: list[int] = []
+    rc, st = _c_run(lib, s, loop=ClosedLoop(leader, [MPCVehicle(s)], ev), start=(0.8, 0.0, t_end), qp_iterations=its)
     loop = ClosedLoop(leader, [MPCVehicle(s)], ev)
-    assert install(loop.ctrl[0]).compiled_step is None  # the Python twin of the driver, not the library
+    twin = install(loop.ctrl[0])
+    assert twin.compiled_step is None  # the Python twin of the driver, not the library
     rp = loop.run([0.8], [0.0], t_end)
     assert len(st) == 400 and all(k == 0 for k in st), st
     assert (rp.solver_stats[0] or {}).get("fallbacks") == 0
     du, dx = _compare(rc, rp)
     assert du <= TOL and dx <= TOL, (du, dx)
+    # the QPs of the warm steps start from the shifted multipliers in both (ocpqp_solve_warm): the same
+    # interior-point iterations (a guess laid out wrongly costs iterations: zero multipliers take 5x as many)
+    assert sum(its) == sum(twin.rti.qp_iterations), (sum(its), sum(twin.rti.qp_iterations))
     assert rc.speed[:, 0].max() > 0.5  # the follower really drives off behind the leader
     # aev_mpc_step_own: the own state a_prev given (e.g. after a fallback) is the one used, not the plan's
     cs = ModelStep(lib)
