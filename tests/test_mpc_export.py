@@ -218,8 +218,8 @@ def test_canonical_closed_loop_matches_interpreted_qp_path(canonical_lib: Path) 
     complementarity of 1e-9, which leaves about 1e-7 in the controls where active rows are degenerate (the
     closed loop differs by 6e-7 in u, 2e-7 in the states). All three loops start from the same cold IPOPT step.
     And against the twin with every QP cold-started (the driver before the warm start, ocpqp_solve_warm): the same
-    loop to 2e-6 (observed 6.3e-7 in u, 2.1e-7 in the states), the C's warm-started QPs taking at most 0.8 times
-    the iterations (observed 0.71: 796 against 1114 in 199 QPs)."""
+    loop to 2e-6 (observed 6.3e-7 in u, 2.1e-7 in the states), the C's warm-started QPs taking at most 0.45 times
+    the iterations (observed 0.36: 398 against 1114 in 199 QPs)."""
     from rti_twin import install
 
     from aev_ocp.mpc.controller import MPCController
@@ -242,7 +242,7 @@ def test_canonical_closed_loop_matches_interpreted_qp_path(canonical_lib: Path) 
         if qp != "qrqp":  # the twin's QPs: the first step's cold IPOPT has none, every other step one QP
             assert len(twin.qp_iterations) == len(its) == 199
             ratio = sum(its) / sum(twin.qp_iterations)
-            assert ratio == 1.0 if qp == "riccati" else ratio <= 0.8, (qp, ratio)
+            assert ratio == 1.0 if qp == "riccati" else ratio <= 0.45, (qp, ratio)
 
 
 def _candidate(ev: EVParams, s: MPCSettings, f: Any = F9) -> Any:

@@ -601,9 +601,9 @@ def test_warm_started_sequences_match_qpoases_and_satisfy_kkt(seed: int) -> None
 
 
 def test_warm_start_saves_iterations() -> None:
-    """Over 30 random QPs: from the QP's own solution the warm start takes at most 0.5 times the cold start's
-    iterations (observed 0.40), from the previous solution of a sequence (gradient moved by 5 %) at most 0.8
-    times (observed 0.63); a guess far off (random point, multipliers of size 1e3 and either sign) still ends
+    """Over 30 random QPs: from the QP's own solution the warm start takes at most 0.36 times the cold start's
+    iterations (observed 0.31; 0.40 with the cold start's fraction to the boundary 0.995), from the previous
+    solution of a sequence (gradient moved by 5 %) at most 0.6 times (observed 0.56; 0.63 with 0.995); a guess far off (random point, multipliers of size 1e3 and either sign) still ends
     at the cold start's solution (the warm start fails within OCPQP_WARM_MAX_ITER, then the cold one runs)."""
     its = {"cold": 0, "self": 0, "seq_cold": 0, "seq_warm": 0}
     for seed in range(30):
@@ -629,8 +629,8 @@ def test_warm_start_saves_iterations() -> None:
         nxt = _perturbed_gradient(data, rng, 0.05)
         its["seq_cold"] += qp.solve(**nxt).iterations
         its["seq_warm"] += qp.solve(**nxt, warm=_guess(cold)).iterations
-    assert its["self"] <= 0.5 * its["cold"], its
-    assert its["seq_warm"] <= 0.8 * its["seq_cold"], its
+    assert its["self"] <= 0.36 * its["cold"], its
+    assert its["seq_warm"] <= 0.6 * its["seq_cold"], its
 
 
 @pytest.mark.quick
