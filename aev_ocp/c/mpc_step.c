@@ -8,7 +8,8 @@
  *   aev_cg_node0(x, p) -> node-0 violation, u0
  *   aev_cg_eval(x, p) -> cost, violation                     (only in aev_mpc_get_info)
  * One SQP step: the QP data, the Hessian blocks projected onto the positive-definite cone (AEV_MPC_PROJECT;
- * aev_mpc_project_pd) plus reg I (the cold start's Levenberg-Marquardt term), ocpqp_solve, a full step.
+ * aev_mpc_project_pd) plus reg I (the cold start's Levenberg-Marquardt term), the QP (in a warm step
+ * ocpqp_solve_warm from the shifted multipliers, AEV_MPC_QP_WARM; in the cold start ocpqp_solve), a full step.
  * All memory is allocated in aev_mpc_create; a step allocates nothing.
  */
 #ifdef AEV_MPC_PROFILE  /* per-part wall times in aev_mpc_info (POSIX clock_gettime; off by default) */
