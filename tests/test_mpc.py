@@ -364,8 +364,8 @@ def test_rti_failed_qp_is_a_failure_and_restarts_cold(qp_solver):
         def stats(self):
             return {"success": False, "return_status": "forced"}
 
-        def solve(self, *a):
-            r = self.qp.solve(*a)
+        def solve(self, *a, **kw):
+            r = self.qp.solve(*a, **kw)
             r.status = 1  # OCPQP_MAX_ITER
             return r
 
