@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import io
 import json
+import re
 from pathlib import Path
 
 import pytest
@@ -15,6 +16,7 @@ from study_helpers import write_tiny_study as _study
 
 from aev_ocp import reproduce as rp
 from aev_ocp.report import PAPER_TABLE1, percent_change, table1_disagreements
+from aev_ocp.report_html import heading_anchor
 
 
 @pytest.fixture(scope="module")
@@ -108,8 +110,6 @@ def test_failing_provider_adds_no_section() -> None:
 def test_every_section_run_loads_back_with_the_numbers_of_the_report(quick_report: tuple[Path, str]) -> None:
     """The runs reproduce made are saved outputs: aev_ocp.load reads each folder, and the loaded runs give the
     numbers the report's own files state (issue 26)."""
-    import re
-
     import aev_ocp
 
     out, _ = quick_report
@@ -165,6 +165,44 @@ def test_report_html_shows_every_figure_of_the_folder(quick_report: tuple[Path, 
     assert unshown_figures(text, out) == []  # a figure a section writes and the report forgets
     html = (out / "report.html").read_text()
     assert html.count("<img ") >= len(list(out.glob("*.png")))
+
+
+# ----------------------------------------------------------------------------- the summary and report.html (issue 10 item 6)
+# (on this file's reproduce run: every section's claims and figures; test_report_summary.py ran a reproduce of its own)
+@pytest.mark.slow  # needs the module's reproduce run (quick_report: over a minute of one core)
+def test_summary_comes_first_and_every_link_reaches_a_heading(quick_report: tuple[Path, str]) -> None:
+    out, _ = quick_report
+    md = (out / "report.md").read_text()
+    heads = [ln for ln in md.splitlines() if ln.startswith("## ")]
+    assert heads[0] == "## Summary: the paper's claims and what the computations say"
+    anchors = {heading_anchor(h[3:]) for h in heads}
+    summary = md.split("## Summary", 1)[1].split("\n## ", 1)[0]
+    links = re.findall(r"\]\(#([^)]+)\)", summary)
+    rows = [ln for ln in summary.splitlines() if ln.startswith("| ") and "**" in ln]
+    assert len(rows) == len(links) >= 4  # Fig. 1/2, Table 1 (two), Fig. 5 (two), the sections' claims
+    assert set(links) <= anchors
+    assert any("**fails**" in r and "Table 1: the proposed law has a lower ω" in r for r in rows)
+    html = (out / "report.html").read_text()
+    for a in links:  # the same links work in report.html
+        assert f'id="{a}"' in html
+
+
+@pytest.mark.slow  # needs the module's reproduce run (quick_report: over a minute of one core)
+def test_html_links_every_figure_of_the_report(quick_report: tuple[Path, str]) -> None:
+    out, log = quick_report
+    md = (out / "report.md").read_text()
+    html = (out / "report.html").read_text()
+    figs = re.findall(r"!\[[^\]]*\]\(([^)]+)\)", md)
+    imgs = re.findall(r'<img alt="[^"]*" src="([^"]+)"', html)
+    assert imgs == figs and len(figs) >= 5 and "data:" not in html  # linked in order, none embedded (issue 40)
+    for f in imgs:  # each link resolves from the HTML's own folder to a PNG
+        assert (out / f).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert (out / "report.html").stat().st_size < 200_000  # the text alone, not 7 MB of base64
+    assert html.count("<table>") == md.count("\n|---")
+    # the progress counter reaches N/N
+    last = [ln for ln in log.splitlines() if ln.startswith("[")][-1]
+    m = re.match(r"\[(\d+)/(\d+)\]", last)
+    assert m is not None and m.group(1) == m.group(2)
 
 
 # ----------------------------------------------------------------------------- from the issue-28 re-probe (test_reprobe.py)
