@@ -205,6 +205,32 @@ def test_html_links_every_figure_of_the_report(quick_report: tuple[Path, str]) -
     assert m is not None and m.group(1) == m.group(2)
 
 
+# ----------------------------------------------------------------------------- the string-stability section (§6, Fig. 5)
+# (its checks were tests/test_stability.py's, on a run of the section of its own: the section takes no configuration,
+# so reproduce's run is the same computation)
+@pytest.mark.slow  # needs the module's reproduce run (quick_report: over a minute of one core)
+def test_string_stability_section_answers_fig5(quick_report: tuple[Path, str]) -> None:
+    out, log = quick_report
+    text = (out / "report.md").read_text()
+    assert "\n## String stability" in text
+    md = "## String stability" + text.split("\n## String stability", 1)[1].split("\n## ", 1)[0]  # the section's text
+    assert sum(ln.startswith("[") and "] string-stability: " in ln for ln in log.splitlines()) == 3  # its 3 steps
+    doc = json.loads((out / "string_stability.json").read_text())
+    assert doc["linear"]["string_stable"] and doc["linear"]["criterion"] == pytest.approx(1.7767, abs=1e-4)
+    assert doc["linear_agreement_up_to"] is not None and doc["linear_agreement_up_to"] < 1e-3
+    assert "C = 1.7767 ≥ 0" in md and "Fig. 5's 0.88 → 1.19" in md
+    # SI twins beside the paper's model-unit columns (L = 10 m, U = 5 m/s): v* = 1.7 -> 8.5 m/s, h* = 2.9416 -> 29.42 m
+    assert "| v* [m/s] | h* [m] | v* (model) | h* (model) |" in md
+    assert "| proposed (paper) | 8.5 | 29.42 | 1.7 | 2.9416 |" in md
+    assert "| A [m/s] | A (model) |" in md and "\n| 0.0005 | 0.0001 | " in md
+    assert doc["v_star_mps"] == pytest.approx(5.0 * doc["v_star"])
+    assert doc["units"] == {"length_m": 10.0, "speed_mps": 5.0}
+    assert (out / "string_stability.png").read_bytes()[:4] == b"\x89PNG"
+    assert doc["fig5_origin"]["proposed"]["paper"][1] > doc["fig5_origin"]["proposed"]["paper"][0]
+    eq = doc["fig5_origin"]["proposed"]["equilibrium"]
+    assert all(b < a for a, b in zip(eq[:-1], eq[1:]))  # from equilibrium the peaks decrease
+
+
 # ----------------------------------------------------------------------------- from the issue-28 re-probe (test_reprobe.py)
 
 
