@@ -1,8 +1,9 @@
 """What the whole suite shares: the order files are handed to pytest-xdist's workers in (the heaviest first).
 
-Tests that compile C use the compile cache of the environment (``$AEV_OCP_CACHE``, else the user's): libraries are
-keyed by a hash of their source, compiler and flags, so a cached library is the one the test's code generates, and a
-warm cache compiles nothing.
+Tests that compile C use the compile cache of the environment (``$AEV_OCP_CACHE``, else the user's), except those
+that count or break compilations (a cache of their own in ``tmp_path``): libraries are keyed by a hash of their
+source, compiler and flags, so a cached library is the one the test's code generates, and a warm cache compiles
+nothing.
 
 The README's test command distributes whole files (``-n auto --dist loadfile``): a file's module-scoped results are
 computed once, on one worker. Files are collected heaviest first, so the long ones start at once and the short ones
