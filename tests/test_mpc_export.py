@@ -250,16 +250,19 @@ def test_canonical_closed_loop_matches_interpreted_qp_path(canonical_lib: Path) 
 
     from aev_ocp.mpc.controller import MPCController
 
+    # the C closed loop, from the cold IPOPT step of the Python rti path (the Python QP solver plays no part in the C
+    # loop nor in that step: one C run serves both references)
+    s = MPCSettings(**{**CANON, "codegen": False, "qp_solver": "riccati"})
+    ref = install(MPCController(s, formulation=F9))  # the Python twin of the C driver (tests/rti_twin.py)
+    assert ref.compiled_step is None and ref.rti is not None  # the interpreted path, not the library
+    rc, st = _c_run(canonical_lib, s, first=ref)
     for qp, tol in (("riccati", TOL), ("qrqp", 2e-6)):
         s = MPCSettings(**{**CANON, "codegen": False, "qp_solver": qp})
-        ref = MPCController(s, formulation=F9)
-        if qp == "riccati":
-            install(ref)  # the Python twin of the C driver (tests/rti_twin.py), not the library
-        assert ref.compiled_step is None and ref.rti is not None  # the interpreted path, not the library
-        rc, st = _c_run(canonical_lib, s, first=ref)
         loop = _loop(MPCVehicle(s, formulation=F9))
         if qp == "riccati":
             install(loop.ctrl[0])
+        py = loop.ctrl[0].controller
+        assert py.compiled_step is None and py.rti is not None  # the interpreted path, not the library
         rp = loop.run([0.3], [1.87], T_END)
         assert all(k == 0 for k in st) and (rp.solver_stats[0] or {}).get("fallbacks") == 0
         du, dx = _compare(rc, rp)
