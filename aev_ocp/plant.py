@@ -368,6 +368,10 @@ class Plant:
         self._samples = ca.Function("plant_samples", [tt, X, ac], [y])
         self._sample_maps: dict[int, BufferedCall] = {}
         self._step: BufferedCall | None = None  # the integrator on bound buffers (built on first use)
+        self._grid = np.linspace(0.0, 1.0, self.k + 1)[1:]  # the output points in normalised time (s ∈ (0, 1])
+        self._io = tuple(self.integrator.index_in(k) for k in ("x0", "p")) + tuple(
+            self.integrator.index_out(k) for k in ("xf", "qf")
+        )  # where x0, p, xf and qf sit among the integrator's inputs and outputs
         self.nx, self.nq = X.numel(), len(quad) * n
 
     # ---------------------------------------------------------------- state
@@ -420,13 +424,13 @@ class Plant:
         f = self._step
         if f is None:
             f = self._step = BufferedCall(self.integrator)
-        ix, ip = self.integrator.index_in("x0"), self.integrator.index_in("p")
+        ix, ip, jx, jq = self._io
         f.args[ix][:] = x
         f.args[ip][0], f.args[ip][1] = a, b - a
         f.args[ip][2:] = ac
         try:
             if f():  # the same evaluation as the call below, on the bound buffers
-                fx, fq = f.res[self.integrator.index_out("xf")], f.res[self.integrator.index_out("qf")]
+                fx, fq = f.res[jx], f.res[jq]
                 res = {"xf": fx.reshape(self.nx, -1, order="F").copy(), "qf": fq.reshape(self.nq, -1, order="F").copy()}
             else:  # failed there: the call raises CasADi's own error (or, should it pass, gives its result)
                 res = self.integrator(x0=x, p=np.concatenate([[a, b - a], ac]))
@@ -451,7 +455,7 @@ class Plant:
                 )
             )
             return False
-        tk = a + (b - a) * np.linspace(0.0, 1.0, self.k + 1)[1:]
+        tk = a + (b - a) * self._grid
         xk = np.asarray(res["xf"]).reshape(self.nx, -1)
         qk = q[:, None] + np.asarray(res["qf"]).reshape(self.nq, -1)
         yk = self.samples(tk, xk, a_cmd)
