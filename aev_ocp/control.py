@@ -179,6 +179,10 @@ class ClosedLoop(PlatoonRun):
     (``VehicleLimits.command_filter_s``, ``command_jerk_max_mps3``, ``safety_layer``), the laws under realistic
     sensors getting a production ACC's conditioning (:data:`aev_ocp.loop.PRODUCTION_ACC`). A law whose stages are
     active runs as a :class:`SampledLaw` like under degraded sensors.
+
+    ``plant``: a :class:`~aev_ocp.plant.Plant` to reuse instead of building one (a run changes nothing in it, so loops
+    with other controllers on the same leader and vehicle can share it); it must be the plant this loop would build
+    (the same leader, laws, vehicle and tolerances), else a :class:`ParameterError` names the field.
     """
 
     who = "closed loop"
@@ -197,8 +201,10 @@ class ClosedLoop(PlatoonRun):
         estimator: str | EstimatorFactory | None = "ekf",
         law_dt: float = 0.1,
         stages: CommandStages | Sequence[CommandStages | None] | None = None,
+        plant: Plant | None = None,
     ) -> None:
         check_argument("closed loop", "leader", leader, LeaderProfile)
+        check_argument("closed loop", "plant", plant, (Plant, type(None)))
         check_argument("closed loop", "ev", ev, (EVParams, type(None)))
         check_argument("closed loop", "fallback_law", fallback_law, (CarFollowingLaw, type(None)))
         check_argument("closed loop", "mismatch", mismatch, (Mismatch, type(None)))
@@ -250,8 +256,32 @@ class ClosedLoop(PlatoonRun):
             raise ParameterError(f"ClosedLoop: every sampled controller must use the same dt, got {sorted(dts)}")
         self.dt = dts.pop()
         self.rtol, self.atol = rtol, atol
-        self.plant = Plant(leader, self.laws, self.ev, rtol=rtol, atol=atol)
+        if plant is None:
+            plant = Plant(leader, self.laws, self.ev, rtol=rtol, atol=atol)
+        else:
+            self._check_plant(plant)
+        self.plant = plant
         self.battery = self.plant.battery
+
+    def _check_plant(self, plant: Plant) -> None:
+        """A plant given to reuse (built once, run by many loops: a run changes nothing in it) must be the one this
+        loop would build: the same leader, laws (None for each sampled controller), vehicle, tolerances, battery and
+        one output sample per interval."""
+        want = {
+            "leader": (plant.leader, self.leader),
+            "laws": (plant.laws, self.laws),
+            "ev": (plant.ev, self.ev),
+            "rtol": (plant.rtol, self.rtol),
+            "atol": (plant.atol, self.atol),
+            "battery": (plant.battery, True),
+            "samples": (plant.k, 1),
+        }
+        for name, (have, need) in want.items():
+            if not (have is need or have == need):
+                raise ParameterError(
+                    f"closed loop: plant.{name} = {have!r} is not allowed: must be this loop's {need!r} "
+                    "(a reused plant must be the one the loop would build)"
+                )
 
     def _resolve(self, c: Any, i: int) -> tuple[CarFollowingLaw | None, Controller | None]:
         """(law, None) for a CarFollowingLaw, else (None, the Controller) of follower i's ``c`` (through its

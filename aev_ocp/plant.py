@@ -223,6 +223,34 @@ def current_limit_events(t: np.ndarray, current_A: np.ndarray, ev: EVParams) -> 
     return out
 
 
+class BufferedCall:
+    """``fn`` evaluated on numpy buffers bound once (CasADi's ``Function.buffer``): the same evaluation as
+    ``fn(...)``, without converting every argument and result to and from DM on each call (a closed loop calls the
+    plant's integrator and its output map once or twice per sample). ``args[i]`` / ``res[i]`` hold input / output
+    i's nonzeros, column-major; calling returns False when the evaluation failed (then call ``fn`` itself, which
+    raises the Function's own error)."""
+
+    def __init__(self, fn: ca.Function) -> None:
+        self.fn = fn
+        self.args = [np.zeros(fn.nnz_in(i)) for i in range(fn.n_in())]
+        self.res = [np.zeros(fn.nnz_out(i)) for i in range(fn.n_out())]
+        self._fb, self._eval = fn.buffer()
+        # (the type stub asks for a size in bytes too; the binding takes it from the buffer itself)
+        for i, a in enumerate(self.args):
+            if a.size:
+                self._fb.set_arg(i, a.data)  # type: ignore[call-arg]
+        for i, r in enumerate(self.res):
+            if r.size:
+                self._fb.set_res(i, r.data)  # type: ignore[call-arg]
+
+    def __call__(self) -> bool:
+        try:
+            self._eval()
+        except RuntimeError:
+            return False
+        return int(self._fb.ret()) == 0
+
+
 class Plant:
     """The exact platoon model behind ``leader`` integrated by ONE CasADi CVODES integrator.
 
@@ -338,7 +366,12 @@ class Plant:
         tt, ac = ca.SX.sym("t"), ca.SX.sym("a_cmd", len(self.commanded))
         y = ca.substitute(ca.vertcat(a, I, disc, vl), ca.vertcat(s, p), ca.vertcat(0, tt, 1, ac))
         self._samples = ca.Function("plant_samples", [tt, X, ac], [y])
-        self._sample_maps: dict[int, ca.Function] = {}
+        self._sample_maps: dict[int, BufferedCall] = {}
+        self._step: BufferedCall | None = None  # the integrator on bound buffers (built on first use)
+        self._grid = np.linspace(0.0, 1.0, self.k + 1)[1:]  # the output points in normalised time (s ∈ (0, 1])
+        self._io = tuple(self.integrator.index_in(k) for k in ("x0", "p")) + tuple(
+            self.integrator.index_out(k) for k in ("xf", "qf")
+        )  # where x0, p, xf and qf sit among the integrator's inputs and outputs
         self.nx, self.nq = X.numel(), len(quad) * n
 
     # ---------------------------------------------------------------- state
@@ -360,9 +393,16 @@ class Plant:
             if a_cmd is None
             else np.repeat(np.asarray(a_cmd, float).reshape(-1, 1), t.size, axis=1)
         )
-        if t.size not in self._sample_maps:  # built once per sample count
-            self._sample_maps[t.size] = self._samples.map(t.size)
-        return np.asarray(self._sample_maps[t.size](t.reshape(1, -1), X, ac))
+        f = self._sample_maps.get(t.size)
+        if f is None:  # built once per sample count
+            f = self._sample_maps[t.size] = BufferedCall(self._samples.map(t.size))
+        f.args[0][:] = t
+        f.args[1][:] = np.asarray(X, float).ravel(order="F")
+        if ac.size:
+            f.args[2][:] = ac.ravel(order="F")
+        if not f():
+            return np.asarray(f.fn(t.reshape(1, -1), X, ac))
+        return f.res[0].reshape(-1, t.size, order="F").copy()
 
     # ---------------------------------------------------------------- integration
     def advance(
@@ -381,8 +421,19 @@ class Plant:
         subdivided (3 levels) to locate it. Returns False when the run must stop."""
         ts, xs, qs, ys = out
         ac = np.zeros(0) if a_cmd is None else np.asarray(a_cmd, float)
+        f = self._step
+        if f is None:
+            f = self._step = BufferedCall(self.integrator)
+        ix, ip, jx, jq = self._io
+        f.args[ix][:] = x
+        f.args[ip][0], f.args[ip][1] = a, b - a
+        f.args[ip][2:] = ac
         try:
-            res = self.integrator(x0=x, p=np.concatenate([[a, b - a], ac]))
+            if f():  # the same evaluation as the call below, on the bound buffers
+                fx, fq = f.res[jx], f.res[jq]
+                res = {"xf": fx.reshape(self.nx, -1, order="F").copy(), "qf": fq.reshape(self.nq, -1, order="F").copy()}
+            else:  # failed there: the call raises CasADi's own error (or, should it pass, gives its result)
+                res = self.integrator(x0=x, p=np.concatenate([[a, b - a], ac]))
         except RuntimeError as exc:
             if depth < 3:
                 for lo, hi in zip(np.linspace(a, b, 11)[:-1], np.linspace(a, b, 11)[1:]):
@@ -404,7 +455,7 @@ class Plant:
                 )
             )
             return False
-        tk = a + (b - a) * np.linspace(0.0, 1.0, self.k + 1)[1:]
+        tk = a + (b - a) * self._grid
         xk = np.asarray(res["xf"]).reshape(self.nx, -1)
         qk = q[:, None] + np.asarray(res["qf"]).reshape(self.nq, -1)
         yk = self.samples(tk, xk, a_cmd)

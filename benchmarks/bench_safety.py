@@ -10,21 +10,29 @@ Targets: the whole suite (49 cases × 2 actuators × 10 controllers = 980 runs) 
 2. ``serial``: the suite in this process (``workers=1``);
 3. ``pool``: the suite on the process pool (``workers``, default 2).
 
+Every run's table (every row and number but the timing column ``wall_s``) is hashed (:func:`table_sha256`): the
+serial and the pool runs must give the same table, and ``--expect-table-sha256 HEX`` (the hash a run of the code
+before a change printed, same options) checks that the change left every result as it was; the run exits 1 when a
+check fails.
+
 Prints a table and writes JSON (``--out``, default results/bench_safety.json): wall time, CPU time (this process
 and its finished children), the 1-minute load average at each start and the machine's cores (on a shared machine
 the wall time is the CPU time the scheduler gave). The MPC libraries are compiled once per machine
 (~/.cache/aev_ocp); run the suite once before timing it, or pass ``--cold`` to time it as it comes.
 
-    python benchmarks/bench_safety.py [--quick] [--workers 2] [--skip-serial] [--out FILE]
+    python benchmarks/bench_safety.py [--quick] [--workers 2] [--skip-serial] [--expect-table-sha256 HEX] [--out FILE]
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
+import hashlib
 import json
 import os
 import resource
 import statistics
+import sys
 import time
 from pathlib import Path
 from typing import Any, Callable
@@ -38,6 +46,12 @@ from aev_ocp.safety.run import run_suite
 from aev_ocp.simulate import simulate_platoon
 
 TARGETS_S = {"issue 34 (2 cores)": 120.0, "issue 40": 30.0}
+
+
+def table_sha256(rows: list[Any]) -> str:
+    """SHA-256 of the suite's table: every row's every field as its repr (floats to the last bit), but ``wall_s``."""
+    d = [{k: repr(v) for k, v in dataclasses.asdict(r).items() if k != "wall_s"} for r in rows]
+    return hashlib.sha256(json.dumps(d, sort_keys=True).encode()).hexdigest()
 
 
 def _cpu() -> float:
@@ -75,6 +89,7 @@ def main() -> None:
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--skip-serial", action="store_true", help="time the pool only")
     ap.add_argument("--cold", action="store_true", help="no warm-up run (MPC libraries compiled as they come)")
+    ap.add_argument("--expect-table-sha256", default=None, help="the table hash every run must give")
     ap.add_argument("--out", default="results/bench_safety.json")
     a = ap.parse_args()
     res: dict[str, Any] = {"cores": os.cpu_count(), "quick": a.quick, "workers": a.workers, "targets_s": TARGETS_S}
@@ -85,8 +100,13 @@ def main() -> None:
     if not a.skip_serial:
         out, runs["serial"] = timed(lambda: run_suite(quick=a.quick, workers=1))
         runs["serial"]["runs"] = len(out.rows)
+        runs["serial"]["table_sha256"] = table_sha256(out.rows)
     out, runs["pool"] = timed(lambda: run_suite(quick=a.quick, workers=a.workers))
     runs["pool"]["runs"] = len(out.rows)
+    runs["pool"]["table_sha256"] = table_sha256(out.rows)
+    hashes = {k: v["table_sha256"] for k, v in runs.items()}
+    bad = [k for k, h in hashes.items() if h != (a.expect_table_sha256 or hashes["pool"])]
+    res["table_check"] = {"expected": a.expect_table_sha256, "hashes": hashes, "failed": bad}
     if "serial" in runs:
         runs["pool"]["speedup_vs_serial"] = runs["serial"]["wall_s"] / runs["pool"]["wall_s"]
         # the pool's ideal on an otherwise idle machine: the serial run's CPU shared evenly by the workers
@@ -110,6 +130,10 @@ def main() -> None:
     Path(a.out).parent.mkdir(parents=True, exist_ok=True)
     write_atomic(Path(a.out), json.dumps(res, indent=1, default=str))
     print(f"wrote {a.out}")
+    print(f"table sha256: {hashes}" + (f", expected {a.expect_table_sha256}" if a.expect_table_sha256 else ""))
+    if bad:
+        print(f"table check FAILED for {bad}")
+        sys.exit(1)
 
 
 if __name__ == "__main__":

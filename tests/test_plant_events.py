@@ -99,3 +99,46 @@ def test_collision_message_shows_the_gap_at_contact_without_round_off(h_model, s
     ev = event_at(EVENT_RULES[0], 0.81, 1, units, h_model, 0.42, 0.11, h_model)
     assert shown in ev.message and ev.kind == "collision"
     assert ev.impact_speed_mps == pytest.approx((0.42 - 0.11) * 13.3)
+
+
+# ----------------------------------------------------------------------------- the plant's calls on bound buffers
+def test_buffered_calls_equal_the_function_calls_and_fail_like_them() -> None:
+    """The plant calls its integrator and output map on bound buffers (plant.BufferedCall): the results equal the
+    ordinary Function calls bit for bit (integrator outputs at 3 samples, two commanded followers, the map at 4
+    times); a failing integration (too few steps allowed) reports False there, and the ordinary call raises."""
+    from aev_ocp.models.carfollowing import Proposed
+    from aev_ocp.models.leader import BrakingLeader
+
+    lead = BrakingLeader(1.1, -0.35, 0.4)
+    p = Plant(lead, [None, Proposed(), None], EVParams(), samples=3)
+    x = p.initial_state([0.9, 1.3, 0.7], [1.05, 0.95, 1.2], 0.8)
+    bc = plant_mod.BufferedCall(p.integrator)
+    pv = np.array([0.25, 0.6, -0.13, 0.07])  # (t0, L, a_cmd of followers 1 and 3)
+    bc.args[p.integrator.index_in("x0")][:] = x
+    bc.args[p.integrator.index_in("p")][:] = pv
+    assert bc()
+    ref = p.integrator(x0=x, p=pv)
+    for name in ("xf", "qf"):
+        got = bc.res[p.integrator.index_out(name)].reshape(ref[name].shape, order="F")
+        assert np.array_equal(got, np.asarray(ref[name])) and np.ptp(got) > 0, name
+    q0 = np.zeros(p.nq)
+    out: tuple[list, list, list, list] = (
+        [np.array([0.25])],
+        [x[:, None]],
+        [q0[:, None]],
+        [p.samples(0.25, x[:, None])],
+    )
+    assert p.advance(0.25, 0.85, x, q0, pv[2:], out, [])  # the plant's own step, on its buffers
+    assert np.array_equal(out[1][-1], np.asarray(ref["xf"])) and np.array_equal(out[2][-1], np.asarray(ref["qf"]))
+    t, X = np.array([0.3, 0.45, 0.7, 0.85]), np.asarray(ref["xf"])[:, [0, 1, 2, 2]]
+    ac = np.array([-0.13, 0.07])
+    want = np.asarray(p._samples.map(4)(t.reshape(1, -1), X, np.repeat(ac[:, None], 4, axis=1)))
+    assert np.array_equal(p.samples(t, X, ac), want) and want.shape == (3 * 3 + 1, 4)
+    stiff = Plant(lead, [None], EVParams(), max_num_steps=3)
+    sb = plant_mod.BufferedCall(stiff.integrator)
+    x1 = stiff.initial_state([0.9], [1.05], 0.8)
+    sb.args[stiff.integrator.index_in("x0")][:] = x1
+    sb.args[stiff.integrator.index_in("p")][:] = [0.0, 5.0, -0.2]
+    assert sb() is False
+    with pytest.raises(RuntimeError):
+        stiff.integrator(x0=x1, p=[0.0, 5.0, -0.2])

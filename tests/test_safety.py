@@ -424,3 +424,56 @@ def test_a_cases_warning_comes_under_its_own_progress_line(workers: int) -> None
         heading = next(s for s in reversed(said[:k]) if s.startswith("case "))
         assert heading.endswith(" tight_cut_in") and "safety case tight_cut_in: mpc(traffic)" in said[k]
         assert "violated its gap floor" in said[k]
+
+
+# ----------------------------------------------------------------------------- reuse: plants and controllers
+def _same_runs(a, b) -> None:  # type: ignore[no-untyped-def]
+    """Two SimulationResults equal bit for bit: every array, the events, status, names and settings."""
+    for f in _ARRAYS:
+        assert np.array_equal(getattr(a, f), getattr(b, f)), f
+    assert a.events == b.events and a.status == b.status and a.controllers == b.controllers
+    assert a.meta["controllers"] == b.meta["controllers"]
+
+
+def test_a_reused_plant_runs_bit_for_bit_like_a_fresh_one() -> None:
+    """A plant run by one closed loop and handed to another (the suite builds one per case and actuator) gives the
+    second loop's run bit for bit as on a plant of its own (a run leaves nothing in the plant); a plant built for
+    another vehicle is refused, naming the field."""
+    from aev_ocp.safety.cases import DECLARED
+
+    ev = EVParams(units=CASE_UNITS, limits=DECLARED.limits())
+    lead = BrakingLeader.from_si(23.0, -6.0, 0.0, CASE_UNITS)
+    h0, v0 = float(CASE_UNITS.length_from_si(17.0)), float(CASE_UNITS.speed_from_si(26.0))
+    first = ClosedLoop(lead, [SafeFallback.for_vehicle(Proposed(), ev, 0.1)], ev)
+    first.run([h0], [v0], 2.0)  # the plant has run once (another controller, another start)
+    law = Proposed(h_scale_m=15.0, v_scale_mps=17.0).in_units(CASE_UNITS)
+    reused = ClosedLoop(lead, [SafeFallback.for_vehicle(law, ev, 0.1)], ev, plant=first.plant)
+    fresh = ClosedLoop(lead, [SafeFallback.for_vehicle(law, ev, 0.1)], ev)
+    assert reused.plant is first.plant and fresh.plant is not first.plant
+    r, ref = reused.run([h0 * 0.7], [v0], 3.0), fresh.run([h0 * 0.7], [v0], 3.0)
+    _same_runs(r, ref)
+    assert r.gap.size > 30 and float(CASE_UNITS.accel_to_si(np.ptp(r.accel))) > 5.0  # it braked hard
+    other = EVParams(units=CASE_UNITS)  # the ideal actuator: another plant
+    with pytest.raises(ParameterError, match=r"plant\.ev"):
+        ClosedLoop(lead, [SafeFallback.for_vehicle(law, other, 0.1)], other, plant=first.plant)
+    with pytest.raises(ParameterError, match=r"plant\.rtol"):
+        ClosedLoop(lead, [SafeFallback.for_vehicle(law, ev, 0.1)], ev, rtol=1e-8, plant=first.plant)
+
+
+def test_a_case_runs_the_same_fresh_and_after_another_case(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The suite builds each MPC once per process and resets it before every run, and builds one plant per case and
+    actuator: a case run after another case (MPCs used, warm starts and forecasts filled) equals, bit for bit, the
+    same case run first on newly built MPCs."""
+    import aev_ocp.safety.run as sr
+
+    quick = {c.name: c for c in suite_cases(quick=True)}
+    ctrls = ("mpc", "mpc+layer", "wave-mpc+layer", "proposed+layer")
+    target = quick["CCRb_50kmh_12m_-6mps2"]
+    monkeypatch.setattr(sr, "_POLICIES", {})
+    monkeypatch.setattr(sr, "_WAVE", {})
+    fresh = sr.run_suite([target], ctrls, actuators=("declared",))
+    after = sr.run_suite([quick["laneend_100kmh_60m"], target], ctrls, actuators=("declared",))
+    for c in ctrls:
+        _same_runs(after.runs[target.name][f"declared/{c}"], fresh.runs[target.name][f"declared/{c}"])
+    strip = lambda rows: [{**vars(x), "wall_s": 0.0} for x in rows if x.case == target.name]  # noqa: E731
+    assert strip(after.rows) == strip(fresh.rows) and len(strip(fresh.rows)) == len(ctrls)

@@ -22,7 +22,7 @@ is not a jerk the controller commands), floor violations (samples with gap < the
 one, and the time spent there [s]).
 
 Cases are independent: with ``workers`` > 1 they run on a process pool (one case per task, each worker builds its
-MPCs once), with the study runner's worker guard (:mod:`aev_ocp.study.runner`). A sampled MPC asked for both bare
+MPCs once; within a case every sampled controller at one actuator runs on one plant, built once), with the study runner's worker guard (:mod:`aev_ocp.study.runner`). A sampled MPC asked for both bare
 and under the layer (the default's ``mpc`` and ``mpc+layer``) runs under the layer first; when the layer changed
 none of its commands, that run is the bare run too (the same controller, reset, saw the same observations and sent
 the same commands), and the bare MPC is not run again: in the whole suite this holds in 82 of 98 case × actuator
@@ -54,7 +54,7 @@ from ..mpc.settings import MPCSettings
 from ..ocp.formulation import Formulation, traffic_formulation
 from ..ocp.traffic import TrafficParams
 from ..params import EVParams, ParameterError, Units, VehicleLimits
-from ..plant import warn_floor_violations
+from ..plant import Plant, warn_floor_violations
 from ..results import SimulationResult, require_pandas, summary_html, summary_text
 from ..simulate import simulate_platoon
 from .cases import ACTUATORS, CASE_UNITS, Actuator, SafetyCase, suite_cases
@@ -400,10 +400,26 @@ def _floor_and_a_min(ev: EVParams, formulation: Formulation) -> tuple[float, flo
 
 
 def _run_one(
-    name: str, layered: bool, case: SafetyCase, setup: _Setup, ev: EVParams, leader: BrakingLeader
+    name: str,
+    layered: bool,
+    case: SafetyCase,
+    setup: _Setup,
+    ev: EVParams,
+    leader: BrakingLeader,
+    plants: dict[Any, Plant] | None = None,
 ) -> tuple[SimulationResult, Any]:
     """One run of controller ``name`` (under the layer if ``layered``) on ``case`` with the vehicle ``ev``: (the
-    result, the sampled controller that ran, None for a bare law on the simulator)."""
+    result, the sampled controller that ran, None for a bare law on the simulator). ``plants``: the closed loops'
+    plant for (leader, ev), built by the first sampled run and reused by the others (every sampled controller runs
+    on the same plant: one commanded vehicle behind ``leader``; a run leaves it as it was)."""
+
+    def loop(c: Any) -> SimulationResult:
+        key = (id(leader), id(ev))
+        cl = ClosedLoop(leader, [c], ev, plant=None if plants is None else plants.get(key))
+        if plants is not None:
+            plants[key] = cl.plant
+        return cl.run([h0], [v0], t_end)
+
     u = ev.units
     h0, v0 = float(u.length_from_si(case.gap_m)), float(u.speed_from_si(case.v_ego_mps))
     dt = LAYER_DT if name not in MPC_BASES else setup.settings.dt
@@ -411,11 +427,11 @@ def _run_one(
     if name in MPC_BASES:
         inner: Any = _wave_policy(setup, ev) if name == "wave-mpc" else _policy(setup, ev, name == "mpc-margin")
         c = LayeredController(inner, SafeFallback.for_vehicle(None, ev, dt, **layer_changes(ev))) if layered else inner
-        return ClosedLoop(leader, [c], ev).run([h0], [v0], t_end), c
+        return loop(c), c
     law = _law(name, case, u, setup.law_overrides)
     if layered:
         c = SafeFallback.for_vehicle(law, ev, dt, **layer_changes(ev))
-        return ClosedLoop(leader, [c], ev).run([h0], [v0], t_end), c
+        return loop(c), c
     return simulate_platoon(leader, [law], [h0], [v0], t_end, ev=ev, dt_out=LAW_DT_OUT, method="cvodes"), None
 
 
@@ -452,6 +468,7 @@ def _run_case(case: SafetyCase, setup: _Setup) -> tuple[list[CaseRow], dict[str,
             floor_m, a_min = _floor_and_a_min(ev, setup.formulation)
             bound = case_bound(case, act, a_min, floor_m)
             done: dict[str, tuple[SimulationResult, Any, float]] = {}
+            plants: dict[Any, Plant] = {}  # this actuator's closed-loop plant, built once
             for ctrl in [b + LAYER for b in shared] + list(setup.controllers):
                 if ctrl in done:
                     continue
@@ -461,7 +478,7 @@ def _run_case(case: SafetyCase, setup: _Setup) -> tuple[list[CaseRow], dict[str,
                 if lay is not None and lay[1].changed_steps == 0:
                     done[ctrl] = (_bare_of(lay[0], lay[1]), lay[1].inner, time.perf_counter() - tic)
                 else:
-                    r, c = _run_one(name, layered, case, setup, ev, leader)
+                    r, c = _run_one(name, layered, case, setup, ev, leader, plants)
                     done[ctrl] = (r, c, time.perf_counter() - tic)
             for ctrl in setup.controllers:
                 r, _, wall = done[ctrl]
