@@ -261,7 +261,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seeds", type=int, nargs="+", default=list(range(20, 40)))
     ap.add_argument("--t-end-s", type=float, default=None)
     ap.add_argument("--linear", action="store_true", help="add the mixed-ring linear design check")
-    ap.add_argument("--wave-params", default="{}", help="WaveParams fields as JSON (default: the defaults)")
+    ap.add_argument(
+        "--wave-params", default="{}", help="WaveParams fields as JSON over the scenario's [ring.wave] (default: none)"
+    )
     ap.add_argument("--safety", action="store_true", help="add the safety-suite cases under the safety layer")
     ap.add_argument(
         "--bound",
@@ -274,7 +276,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--record", action="store_true", help="also write the JSON to tests/data/ (the guide's numbers)")
     a = ap.parse_args(argv)
     sc = load_ring_scenario(a.scenario)
-    wp = replace(WaveParams(), **json.loads(a.wave_params))
+    wp = replace(WaveParams(**sc.spec.wave), **json.loads(a.wave_params))  # [ring.wave], then --wave-params
     t_end = a.t_end_s if a.t_end_s is not None else sc.spec.t_end_s
     ctrls: list[str | None] = [None, FS, WAVE]
     load = os.getloadavg()[0]

@@ -7,6 +7,7 @@ the safety layer without a collision."""
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
 import numpy as np
@@ -275,3 +276,57 @@ def test_the_guide_quotes_the_benchmark_and_its_intervals_are_the_per_seed_value
     e = [doc["table"][c]["battery_energy_J_per_km"] for c in ("human", "followerstopper", "wave-mpc")]
     row = "| battery_energy_kJ_per_km | " + " | ".join(_cell({k: x[k] / 1e3 for k in ("mean", "lo", "hi")}) for x in e)
     assert row + " |" in section, row
+
+
+def _wave_doc(**wave: object) -> dict[str, object]:
+    """A small IDM ring whose vehicle 2 runs the wave MPC, with ``[ring.wave]`` = ``wave`` (none if empty)."""
+    ring: dict[str, object] = {
+        "length_m": 123.0,
+        "vehicles": 7,
+        "t_end_s": 17.0,
+        "aev": {"vehicles": [2], "controllers": ["followerstopper", "wave-mpc"]},
+    }
+    if wave:
+        ring["wave"] = dict(wave)
+    return {"name": "w", "ring": ring}
+
+
+def test_a_ring_scenario_sets_its_wave_mpc_parameters_and_only_its_own():
+    """``[ring.wave]`` reaches the ring's wave-MPC car (the fields given, every other at WaveParams' default); without
+    the table the car keeps the defaults (those the drive cycles and the safety suite run)."""
+    from dataclasses import replace
+
+    from aev_ocp.ring.scenario import build_ring, parse_ring_scenario
+
+    sc = parse_ring_scenario(_wave_doc(target_gap_m=13.5, target_time_gap_s=2.75, buffer_time_s=0), "w.toml")
+    assert sc.spec.wave == {"target_gap_m": 13.5, "target_time_gap_s": 2.75, "buffer_time_s": 0.0}
+    car = build_ring(sc, "wave-mpc")[0].vehicles[1]
+    assert isinstance(car, WaveMPC)
+    assert car.params == replace(WaveParams(), target_gap_m=13.5, target_time_gap_s=2.75, buffer_time_s=0.0)
+    assert car.params != WaveParams() and car.describe()["wave"]["target_gap_m"] == 13.5
+    plain = build_ring(parse_ring_scenario(_wave_doc(), "w.toml"), "wave-mpc")[0].vehicles[1]
+    assert plain.params == WaveParams()
+
+
+@pytest.mark.parametrize(
+    "wave, controllers, message",
+    [
+        ({"target_gap": 12.0}, None, "unknown key 'ring.wave.target_gap'"),
+        ({"traffic": {"jerk_weight": 1.0}}, None, "unknown key 'ring.wave.traffic'"),
+        ({"target_gap_m": -0.5}, None, "ring.wave.target_gap_m = -0.5 is not allowed"),
+        ({"window_s": 0.0}, None, "ring.wave.window_s = 0.0 is not allowed: must be a finite number > 0"),
+        ({"catch_max_mps": "1"}, None, "ring.wave.catch_max_mps"),
+        ({"target_gap_m": 12.0}, ["followerstopper"], "no AEV runs 'wave-mpc'"),
+    ],
+)
+def test_a_ring_scenarios_wave_table_refuses_nonsense_naming_the_key(wave, controllers, message):
+    from aev_ocp.ring.scenario import parse_ring_scenario
+    from aev_ocp.scenarios import ScenarioError
+
+    doc = _wave_doc(**wave)
+    if controllers is not None:
+        doc["ring"]["aev"]["controllers"] = controllers  # type: ignore[index]
+    with pytest.raises(ScenarioError, match=re.escape(message)) as e:
+        parse_ring_scenario(doc, "w.toml")
+    assert str(e.value).startswith("w.toml: ")
+    assert parse_ring_scenario(_wave_doc(window_s=0.5), "w.toml").spec.wave == {"window_s": 0.5}  # inside: taken
