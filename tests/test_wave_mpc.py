@@ -186,6 +186,27 @@ def test_the_wave_buffer_raises_the_target_gap_by_c_times_the_predecessor_speed_
     assert np.isnan(c.predecessor_speeds.value)
 
 
+def test_the_speed_band_clips_v_ref_after_the_catch_up():
+    """v_ref = clip(U + clip(k (h̄ − s_t − T_t U), −v_c, v_c), v_lo, v_hi): below, inside and above the band, and each
+    side alone; an empty band is refused."""
+    base = dict(window_s=1.0, catch_gain_per_s=0.37, target_gap_m=6.5, target_time_gap_s=1.3, buffer_time_s=0.0)
+    for lo, hi in ((3.35, 4.15), (3.35, 0.0), (0.0, 4.15)):
+        c = WaveMPC(EV, Proposed(), WaveParams(**base, min_ref_mps=lo, max_ref_mps=hi), S)
+        for h, v in ((9.0, 3.0), (12.0, 3.6)):
+            c.reset()
+            free = v + 0.37 * (h - 6.5 - 1.3 * v)  # 2.482 and 3.903 m/s, both inside the saturation (±1 m/s)
+            assert 2.0 < free < 3.35 or 3.35 < free < 4.15  # one reference below the band, one inside it
+            got = float(U.speed_to_si(c.reference(float(U.length_from_si(h)), float(U.speed_from_si(v)))))
+            assert got == pytest.approx(max(free, lo), rel=1e-12)
+        c.reset()
+        free = 5.0 + 0.37 * (20.0 - 6.5 - 6.5)  # 7.59, saturated at U + v_c = 6.0 m/s: above the band
+        got = float(U.speed_to_si(c.reference(float(U.length_from_si(20.0)), float(U.speed_from_si(5.0)))))
+        assert got == pytest.approx(min(6.0, hi) if hi else 6.0, rel=1e-12)
+    with pytest.raises(ParameterError, match="min_ref_mps = 3.7 m/s is above max_ref_mps = 3.6"):
+        WaveParams(min_ref_mps=3.7, max_ref_mps=3.6)
+    assert WaveParams(min_ref_mps=3.6, max_ref_mps=3.6).max_ref_mps == 3.6  # on the limit: a point band
+
+
 @pytest.mark.slow  # 600 s of closed loop: about 5 s of one core
 def test_behind_a_constant_speed_leader_it_keeps_its_speed_on_average_and_its_gap_in_the_band():
     """Behind a constant-speed leader the catch-up's slow loop (an integral through the 38 s mean) does not settle:
