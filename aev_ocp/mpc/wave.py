@@ -61,8 +61,8 @@ WAVE_NAME = "wave-mpc"  # the controller's name in ring scenarios and tables
 @dataclass(frozen=True)
 class WaveParams:
     """Parameters of :func:`wave_problem`, SI (cost unit W/kg, integrated over seconds, as the traffic problem).
-    Sources: 'our choice' unless stated, tuned on ring seeds 0–2 (benchmarks/bench_wave_mpc.py, which evaluates
-    seeds 20–39; a 90 s window with v_c = 0.5 m/s, tuned on seeds 0–9 and 40–49, did about as well there and worse
+    Sources: 'our choice' unless stated, tuned on ring seeds 0–2 (benchmarks/bench_wave_mpc.py, evaluated on
+    seeds 20–39 and 60–79; a 90 s window with v_c = 0.5 m/s, tuned on seeds 0–9 and 40–49, did about as well there and worse
     behind the drive cycles: docs/guide/studies.md) and checked with
     the mixed-ring linear theory (docs/guide/studies.md, "The wave-damping MPC")."""
 
