@@ -234,6 +234,7 @@ def main(argv: list[str] | None = None) -> int:
                 "dt": traffic.dt,
                 "solver": traffic.solver,
                 "codegen": traffic.codegen,
+                "budget": traffic.budget,
                 "max_step_ms": traffic.max_step_ms,
             },
             "machine": {"platform": platform.platform(), "python": sys.version.split()[0], "cpus": os.cpu_count()},

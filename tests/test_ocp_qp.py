@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
 from aev_ocp.compiled import compiler
@@ -82,6 +82,17 @@ def _qpoases(f: dict[str, Any]) -> np.ndarray:
     ref = solver(h=f["h"], a=f["a"], g=f["g"], lba=f["lba"], uba=f["uba"], lbx=f["lbx"], ubx=f["ubx"])
     assert solver.stats()["success"]
     return np.array(ref["x"]).ravel()
+
+
+def _assert_solves(dims: OcpQPDims, data: dict[str, Any], res: Any, kkt_tol: float) -> None:
+    """res is qpOASES's solution of the QP (to 1e-6 relative), a KKT point (to kkt_tol relative), x_0 = x0 exactly."""
+    assert res.status == OK, (dims, res.status_name, res.residuals)
+    f = _full(dims, data)
+    w_ref = _qpoases(f)
+    scale = 1.0 + np.abs(w_ref).max()
+    assert np.abs(res.w - w_ref).max() <= 1e-6 * scale
+    assert _kkt_violation(f, res.w, _lam_a(f, res.pi, res.lam_c), res.lam_w) <= kkt_tol * scale
+    assert np.array_equal(res.w[: dims.nx], np.asarray(data["x0"]))
 
 
 def _random_dims(rng: np.random.Generator) -> OcpQPDims:
@@ -493,13 +504,7 @@ def test_hpipm_backend_random_qps_match_qpoases_and_satisfy_kkt(seed: int) -> No
         dims = OcpQPDims(dims.N, 2, dims.nu, dims.nc, dims.ncN)
     data = random_qp(dims, rng, scale=float(rng.uniform(0.3, 7.0)))
     res = OcpQP(dims, backend="hpipm", hpipm_mode="robust").solve(**data)
-    assert res.status == OK, (dims, res.status_name, res.residuals)
-    f = _full(dims, data)
-    w_ref = _qpoases(f)
-    scale = 1.0 + np.abs(w_ref).max()
-    assert np.abs(res.w - w_ref).max() <= 1e-6 * scale
-    assert _kkt_violation(f, res.w, _lam_a(f, res.pi, res.lam_c), res.lam_w) <= 1e-7 * scale
-    assert np.array_equal(res.w[: dims.nx], np.asarray(data["x0"]))
+    _assert_solves(dims, data, res, 1e-7)
 
 
 @needs_hpipm
@@ -560,3 +565,88 @@ def test_hpipm_backend_refuses_the_dimensions_it_gets_wrong() -> None:
         ref = OcpQP(dims).solve(**data)
         res = OcpQP(dims, backend="hpipm").solve(**data)
         assert res.status == OK and np.abs(res.w - ref.w).max() <= 1e-8 * (1 + np.abs(ref.w).max())
+
+
+# ---------------------------------------------------------------------------------------------- warm start
+def _guess(r: Any) -> dict[str, np.ndarray]:
+    return {"w": r.w, "pi": r.pi, "lam_w": r.lam_w, "lam_c": r.lam_c}
+
+
+def _perturbed_gradient(data: dict[str, Any], rng: np.random.Generator, size: float) -> dict[str, Any]:
+    """The same QP with its gradient g moved by ``size`` relative (the next QP of a sequence: still feasible)."""
+    g = np.concatenate([np.ravel(b) for b in data["g"]])
+    return {**data, "g": g + size * rng.normal(size=g.size) * (1.0 + np.abs(g))}
+
+
+@settings(max_examples=25, derandomize=True, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(st.integers(min_value=0, max_value=2**31 - 1))
+def test_warm_started_sequences_match_qpoases_and_satisfy_kkt(seed: int) -> None:
+    """A sequence of QPs (the gradient moved by 5 % each time), each started from the previous solution
+    (ocpqp_solve_warm): every one equal to qpOASES's solution and a KKT point, x_0 exactly x0 (not the guess's)."""
+    rng = np.random.default_rng(seed)
+    dims = _random_dims(rng)
+    data = random_qp(dims, rng, scale=float(rng.uniform(0.3, 7.0)))
+    qp = OcpQP(dims)
+    prev = qp.solve(**data)
+    # the cold start fails on a few of these QPs (e.g. seed 768: 'factorization' at iteration 19 with every
+    # residual below 5e-8; the cold solver's own weakness, not the warm start's): no sequence to start then
+    assume(prev.status == OK)
+    for _ in range(3):
+        data = _perturbed_gradient(data, rng, 0.05)
+        guess = _guess(prev)
+        guess["w"] = guess["w"] + 0.1  # x_0 of the guess is not x0: the solver must replace it
+        res = qp.solve(**data, warm=guess)
+        _assert_solves(dims, data, res, 1e-8)
+        prev = res
+
+
+def test_warm_start_saves_iterations() -> None:
+    """Over 30 random QPs: from the QP's own solution the warm start takes at most 0.36 times the cold start's
+    iterations (observed 0.31; 0.40 with the cold start's fraction to the boundary 0.995), from the previous
+    solution of a sequence (gradient moved by 5 %) at most 0.6 times (observed 0.56; 0.63 with 0.995); a guess far off (random point, multipliers of size 1e3 and either sign) still ends
+    at the cold start's solution (the warm start fails within OCPQP_WARM_MAX_ITER, then the cold one runs)."""
+    its = {"cold": 0, "self": 0, "seq_cold": 0, "seq_warm": 0}
+    for seed in range(30):
+        rng = np.random.default_rng(seed)
+        dims = _random_dims(rng)
+        data = random_qp(dims, rng, scale=float(rng.uniform(0.3, 7.0)))
+        qp = OcpQP(dims)
+        cold = qp.solve(**data)
+        own = qp.solve(**data, warm=_guess(cold))
+        assert cold.status == own.status == OK
+        assert np.abs(own.w - cold.w).max() <= 1e-6 * (1.0 + np.abs(cold.w).max())
+        its["cold"] += cold.iterations
+        its["self"] += own.iterations
+        far = {
+            "w": 10.0 * rng.normal(size=dims.nw),
+            "pi": 1e3 * rng.normal(size=dims.N * dims.nx),
+            "lam_w": 1e3 * rng.normal(size=dims.nw),
+            "lam_c": 1e3 * rng.normal(size=dims.N * dims.nc + dims.ncN),
+        }
+        bad = qp.solve(**data, warm=far)
+        assert bad.status == OK
+        assert np.abs(bad.w - cold.w).max() <= 1e-6 * (1.0 + np.abs(cold.w).max())
+        nxt = _perturbed_gradient(data, rng, 0.05)
+        its["seq_cold"] += qp.solve(**nxt).iterations
+        its["seq_warm"] += qp.solve(**nxt, warm=_guess(cold)).iterations
+    assert its["self"] <= 0.36 * its["cold"], its
+    assert its["seq_warm"] <= 0.6 * its["seq_cold"], its
+
+
+@pytest.mark.quick
+def test_warm_start_bad_guesses() -> None:
+    rng = np.random.default_rng(20261203)
+    dims = OcpQPDims(N=6, nx=3, nu=2, nc=2, ncN=1)
+    data = random_qp(dims, rng)
+    qp = OcpQP(dims)
+    res = qp.solve(**data)
+    guess = _guess(res)
+    guess["lam_c"] = guess["lam_c"].copy()
+    guess["lam_c"][3] = np.nan
+    assert qp.solve(**data, warm=guess).status == NONFINITE
+    with pytest.raises(ParameterError, match="lam_c"):
+        qp.solve(**data, warm={"lam_c": np.zeros(3)})
+    with pytest.raises(ParameterError, match="unknown warm-start keys"):
+        qp.solve(**data, warm={"z": np.zeros(3)})
+    # no guess at all (every part zero) is a valid warm start
+    assert np.abs(qp.solve(**data, warm={}).w - res.w).max() <= 1e-6 * (1.0 + np.abs(res.w).max())

@@ -133,7 +133,7 @@ def test_rti_hessian_projection_makes_the_reduced_hessian_pd():
 def test_step_over_budget_falls_back_with_cause_budget():
     """A budget no step can meet: every step falls back to the clipped law, each counted with cause 'budget'."""
     units = Units(15.0, 17.0)
-    s = MPCSettings(N=6, codegen=False, max_step_ms=1e-6, predictor="constant-velocity")
+    s = MPCSettings(N=6, codegen=False, budget="wall", max_step_ms=1e-6, predictor="constant-velocity")
     r = run_closed_loop(drive_cycle("udds", units), [MPCVehicle(s)], [0.8], [0.0], 1.2, ev=EVParams(units=units))
     st = r.solver_stats[0]
     assert st["fallbacks"] == st["n_steps"] == 12
@@ -240,7 +240,7 @@ def test_a_late_step_keeps_its_plan_as_the_next_warm_start() -> None:
     no step can meet, the first (cold, rti_cold_iterations) step and every later one fail on the budget, and
     every later one is a warm single iteration — not a cold start again (which made every step late)."""
     units = Units(15.0, 17.0)
-    s = MPCSettings(N=8, codegen=False, rti_cold_iterations=3, max_step_ms=1e-6)
+    s = MPCSettings(N=8, codegen=False, rti_cold_iterations=3, budget="wall", max_step_ms=1e-6)
     c = MPCController(s, EVParams(units=units))
     z0 = np.array([1.3, 0.4, 0.0, 0.0, 0.8])
     vl = np.full(s.N, 0.45)

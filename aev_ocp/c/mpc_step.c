@@ -8,7 +8,8 @@
  *   aev_cg_node0(x, p) -> node-0 violation, u0
  *   aev_cg_eval(x, p) -> cost, violation                     (only in aev_mpc_get_info)
  * One SQP step: the QP data, the Hessian blocks projected onto the positive-definite cone (AEV_MPC_PROJECT;
- * aev_mpc_project_pd) plus reg I (the cold start's Levenberg-Marquardt term), ocpqp_solve, a full step.
+ * aev_mpc_project_pd) plus reg I (the cold start's Levenberg-Marquardt term), the QP (in a warm step
+ * ocpqp_solve_warm from the shifted multipliers, AEV_MPC_QP_WARM; in the cold start ocpqp_solve), a full step.
  * All memory is allocated in aev_mpc_create; a step allocates nothing.
  */
 #ifdef AEV_MPC_PROFILE  /* per-part wall times in aev_mpc_info (POSIX clock_gettime; off by default) */
@@ -39,6 +40,11 @@ static double now_s(void) {
 #define NH (AEV_MPC_N * NB * NB + AEV_MPC_NX * AEV_MPC_NX)
 #define NE (AEV_MPC_N * AEV_MPC_NX * NB)
 #define NCM (AEV_MPC_N * NC * NB)
+/* 1: the QP of a warm (RTI) step starts from the previous solution's multipliers (ocpqp_solve_warm); 0: from
+ * ocp_qp.c's cold start */
+#ifndef AEV_MPC_QP_WARM
+#define AEV_MPC_QP_WARM 1
+#endif
 #define NF 5                                /* generated functions: guess, shift, qpdata, node0, eval */
 
 typedef int (*cg_work_t)(casadi_int *, casadi_int *, casadi_int *, casadi_int *);
@@ -294,8 +300,10 @@ static int project_hessian(aev_mpc_workspace *ws) {
   return 0;
 }
 
-/* One SQP step from (x, lam_g, lam_x) into the buffers, then swapped in. 0 ok, else a status. */
-static int sqp_step(aev_mpc_workspace *ws, double reg) {
+/* One SQP step from (x, lam_g, lam_x) into the buffers, then swapped in. 0 ok, else a status. warm: the QP
+ * starts from the step dw = 0 and the multipliers (lam_g, lam_x) (ocpqp_solve_warm, which falls back to the cold
+ * start itself); else from ocp_qp.c's cold start. */
+static int sqp_step(aev_mpc_workspace *ws, double reg, int warm) {
   int k, i, flag;
   ocpqp_data d;
   ocpqp_info qi;
@@ -318,7 +326,16 @@ static int sqp_step(aev_mpc_workspace *ws, double reg) {
   d.lbw = ws->lbw; d.ubw = ws->ubw; d.x0 = ws->x0;
   {
     TIC(t2);
-    flag = ocpqp_solve(ws->qp, &d, ws->dw, ws->pi, ws->lam_x2, ws->lam_c, &qi);
+    if (warm) {
+      for (k = 0; k < AEV_MPC_N; ++k) {  /* the multiplier guess in the QP's layout (pi, lam_c: its outputs) */
+        memcpy(ws->pi + k * AEV_MPC_NX, ws->lam_g + k * AEV_MPC_NG_STAGE, sizeof(double) * AEV_MPC_NX);
+        if (NC > 0) memcpy(ws->lam_c + k * NC, ws->lam_g + k * AEV_MPC_NG_STAGE + AEV_MPC_NX, sizeof(double) * NC);
+      }
+      flag = ocpqp_solve_warm(ws->qp, &d, NULL, ws->pi, ws->lam_x, ws->lam_c, ws->dw, ws->pi, ws->lam_x2, ws->lam_c,
+                              &qi);
+    } else {
+      flag = ocpqp_solve(ws->qp, &d, ws->dw, ws->pi, ws->lam_x2, ws->lam_c, &qi);
+    }
     TOC(t2, t_qp);
   }
   if (!AEV_MPC_PROJECT && (flag == OCPQP_MAX_ITER || flag == OCPQP_FACTORIZATION)) {
@@ -379,13 +396,13 @@ static int cold_start(aev_mpc_workspace *ws) {
   double reg = AEV_MPC_COLD_REG0;
   if (AEV_MPC_COLD_ITER > 0) {
     for (it = 0; it < AEV_MPC_COLD_ITER; ++it) {
-      st = sqp_step(ws, 0.0);
+      st = sqp_step(ws, 0.0, 0);
       if (st != AEV_MPC_OK || ws->info.step_inf <= AEV_MPC_TOL) return st;
     }
     return AEV_MPC_OK;
   }
   for (it = 0; it < AEV_MPC_COLD_MAX_ITER; ++it) {
-    st = sqp_step(ws, reg);
+    st = sqp_step(ws, reg, 0);
     if (st == AEV_MPC_QP_FAILED && reg > 0.0 && reg < AEV_MPC_COLD_REG_MAX) {  /* retry more regularised */
       reg *= 10.0;
       continue;
@@ -414,7 +431,7 @@ int aev_mpc_step_full(aev_mpc_workspace *ws, const double *z0, const double *p, 
     TOC(t0, t_shift);
     swap(&ws->x, &ws->x2); swap(&ws->lam_g, &ws->lam_g2); swap(&ws->lam_x, &ws->lam_x2);
     for (it = 0; it < AEV_MPC_RTI_ITER; ++it) {
-      st = sqp_step(ws, AEV_MPC_RTI_REG);
+      st = sqp_step(ws, AEV_MPC_RTI_REG, AEV_MPC_QP_WARM);
       if (st != AEV_MPC_OK || ws->info.step_inf <= AEV_MPC_TOL) break;
     }
   } else {

@@ -87,6 +87,14 @@ void ocpqp_free(ocpqp_solver *s);
 /* Solve; outputs may be NULL except w. Returns info->status. Allocates nothing. Not thread-safe per solver. */
 int ocpqp_solve(ocpqp_solver *s, const ocpqp_data *d, double *w, double *pi, double *lam_w, double *lam_c,
                 ocpqp_info *info);
+/* The same QP from a primal-dual guess (warm start; layouts and signs of the outputs): w0 (its x_0 part replaced
+ * by x0), pi0, lam_w0, lam_c0, each NULL for zeros. Each inequality side starts at its slack at w0 and its
+ * multiplier from lam_w0 / lam_c0, the pair s z lifted to at least OCPQP_WARM_MU (ocp_qp.c). A warm start that
+ * fails within OCPQP_WARM_MAX_ITER iterations (OCPQP_MAX_ITER, OCPQP_FACTORIZATION) is followed by the cold
+ * solve in the same call (info->iterations counts both). The guess is read before any output is written (it may
+ * be the output arrays). A non-finite guess: OCPQP_NONFINITE. The HPIPM backend ignores the guess (a cold start). */
+int ocpqp_solve_warm(ocpqp_solver *s, const ocpqp_data *d, const double *w0, const double *pi0, const double *lam_w0,
+                     const double *lam_c0, double *w, double *pi, double *lam_w, double *lam_c, ocpqp_info *info);
 
 #ifdef __cplusplus
 }

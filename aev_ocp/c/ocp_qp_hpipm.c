@@ -370,3 +370,10 @@ int ocpqp_solve(ocpqp_solver *s, const ocpqp_data *d, double *w, double *pi, dou
   }
   return info->status;
 }
+
+/* ocp_qp.h's warm start: the guess is ignored here (HPIPM starts cold, as ocpqp_solve) */
+int ocpqp_solve_warm(ocpqp_solver *s, const ocpqp_data *d, const double *w0, const double *pi0, const double *lam_w0,
+                     const double *lam_c0, double *w, double *pi, double *lam_w, double *lam_c, ocpqp_info *info) {
+  (void)w0; (void)pi0; (void)lam_w0; (void)lam_c0;
+  return ocpqp_solve(s, d, w, pi, lam_w, lam_c, info);
+}

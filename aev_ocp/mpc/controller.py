@@ -17,9 +17,11 @@ Formulations (:class:`aev_ocp.ocp.formulation.Formulation`, one object for the p
 it): 'traffic' (default, :mod:`aev_ocp.ocp.traffic`), 's9' (model guide §9) or a user problem. The 'rti' path
 (:mod:`aev_ocp.mpc.rti`) projects each diagonal block of the exact Lagrangian Hessian onto the PD cone
 (``rti_hessian = 'projected'``), handles terminal costs, starts cold by RTI iterations from the closed-form law's
-rollout (traffic; §9 keeps its cold IPOPT first step), and discards a step that took longer than ``max_step_ms``
-(status 'budget: …', the policy applies its fallback). Every failed step's status starts with its cause ('QP
-failed', 'budget', 'path constraint', 'exception', or the NLP solver's status; :mod:`aev_ocp.mpc.fallback`).
+rollout (traffic; §9 keeps its cold IPOPT first step), and, in real time only (``budget = 'wall'``), discards a step
+that took longer than ``max_step_ms`` (status 'budget: …', the policy applies its fallback); in simulation (``budget =
+'counted'``, the default) iteration limits alone bound a step, so no result depends on the machine's load. Every
+failed step's status starts with its cause ('QP failed', 'budget', 'path constraint', 'exception', or the NLP
+solver's status; :mod:`aev_ocp.mpc.fallback`).
 
 The controller's parts, one module each: the horizon NLP and its NLP solvers (:mod:`aev_ocp.mpc.nlp`), the
 real-time iteration (:mod:`aev_ocp.mpc.rti`), failed and late steps (:mod:`aev_ocp.mpc.fallback`), what a solve
@@ -491,9 +493,10 @@ class MPCController:
 
     # ------------------------------------------------------------------ failed and late steps
     def late(self, warm: dict[str, Any], iters: int, dt_wall: float, viol: float, path: str) -> MPCSolution:
-        """A valid plan that took longer than ``max_step_ms``: a failure with cause 'budget' (the policy
-        applies its fallback), but the plan (``warm``: the warm start it leaves) stays the next step's warm
-        start, so one late step (e.g. a cold start) does not make every following step cold, and late, too."""
+        """A valid plan that took longer than ``max_step_ms`` (``budget = 'wall'`` only, ``MPCSettings.over_budget``):
+        a failure with cause 'budget' (the policy applies its fallback), but the plan (``warm``: the warm start it
+        leaves) stays the next step's warm start, so one late step (e.g. a cold start) does not make every following
+        step cold, and late, too."""
         sol = self.failed(budget_status(dt_wall, self.settings.max_step_ms), iters, dt_wall, viol, path)
         self.warm = warm
         return sol

@@ -22,7 +22,8 @@ The hand-written driver ``aev_ocp/c/mpc_step.c`` (header ``mpc_step.h``) runs th
 solved by a Riccati recursion over the stages, built with the problem's dimensions as compile-time
 constants (:func:`qp_dimension_defines`). One SQP step: the QP data, each Hessian block projected onto
 the positive-definite cone in C when ``rti_hessian = 'projected'`` (``aev_mpc_project_pd``: the same
-floor as :func:`aev_ocp.mpc.nlp.project_pd`), a full step. A warm step shifts and does
+floor as :func:`aev_ocp.mpc.nlp.project_pd`), the QP (a warm step's from the shifted multipliers:
+``ocpqp_solve_warm``, 2-3 interior-point iterations instead of 6-10 from the cold start), a full step. A warm step shifts and does
 ``rti_iterations`` SQP steps; a cold step (the first, or after a failure) does ``rti_cold_iterations``
 SQP steps from the guess (the traffic formulation, as the Python rti path), or, for §9 (whose Python path
 starts with a cold IPOPT), Levenberg-Marquardt-regularised SQP until the step is below ``tol`` (at most

@@ -30,7 +30,7 @@ def failed_solution(
 
 
 def budget_status(dt_wall: float, max_step_ms: float) -> str:
-    """The status of a valid plan that took longer than ``max_step_ms``: cause 'budget'."""
+    """The status of a valid plan that took longer than ``max_step_ms`` (``budget = 'wall'`` only): cause 'budget'."""
     return f"budget: the step took {dt_wall * 1e3:.3g} ms > max_step_ms = {max_step_ms:g}"
 
 

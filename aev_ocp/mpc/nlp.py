@@ -213,7 +213,6 @@ class HorizonNLP:
             "sb": "yes",
             "tol": s.tol,
             "max_iter": s.max_iter,
-            "max_wall_time": s.max_cpu_time_s,
             "linear_solver": "mumps",
             "hessian_approximation": "exact",
             "nlp_scaling_method": "none" if warm else "gradient-based",
@@ -230,6 +229,8 @@ class HorizonNLP:
                     "nlp_scaling_method": "gradient-based",
                 }
             )
+        if s.budget == "wall":  # real time only: in simulation max_iter bounds IPOPT, the clock decides nothing
+            ip["max_wall_time"] = s.max_cpu_time_s
         return self.nlpsol(name, "ipopt", {"ipopt": ip})
 
     def sqp(self, qp_opts: dict[str, Any]) -> tuple[ca.Function, bool]:

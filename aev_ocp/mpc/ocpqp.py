@@ -219,6 +219,8 @@ def _declare(lib: ctypes.CDLL) -> None:
     lib.ocpqp_solve.restype = ctypes.c_int
     solve_args: list[Any] = [ctypes.c_void_p, ctypes.POINTER(_Data), *[ctypes.c_void_p] * 4, ctypes.POINTER(_Info)]
     lib.ocpqp_solve.argtypes = solve_args
+    lib.ocpqp_solve_warm.restype = ctypes.c_int
+    lib.ocpqp_solve_warm.argtypes = [*solve_args[:2], *[ctypes.c_void_p] * 4, *solve_args[2:]]
 
 
 def source_files() -> dict[str, str]:
@@ -389,22 +391,41 @@ class OcpQP:
             self._keep[name] = arr
             setattr(self._data, name, arr.ctypes.data if arr.size else None)
 
-    def solve_data(self) -> OcpQPResult:
-        """Solve the QP last given to :meth:`set_data`."""
+    def _guess(self, name: str, v: Any, n: int) -> np.ndarray | None:
+        """One part of a warm-start guess: None, or a flat float array of n entries (ParameterError naming it)."""
+        if v is None:
+            return None
+        arr = np.ascontiguousarray(v, dtype=float).reshape(-1)
+        if arr.size != n:
+            raise ParameterError(f"the warm-start guess {name} must have {n} entries, got {arr.size}")
+        return arr
+
+    def solve_data(self, warm: dict[str, Any] | None = None) -> OcpQPResult:
+        """Solve the QP last given to :meth:`set_data`; ``warm``: a primal-dual guess to start from
+        (ocpqp_solve_warm: keys w, pi, lam_w, lam_c, each optional, laid out as the result's; None: the cold
+        start; the HPIPM backend ignores it)."""
         if len(self._keep) != len(_DATA_FIELDS):
             raise ParameterError("solve_data called before set_data")
         d = self.dims
         w, pi = np.zeros(d.nw), np.zeros(d.N * d.nx)
         lam_w, lam_c = np.zeros(d.nw), np.zeros(d.N * d.nc + d.ncN)
-        st = self._lib.ocpqp_solve(
-            self._ptr,
-            ctypes.byref(self._data),
+        outs = (
             w.ctypes.data,
             pi.ctypes.data,
             lam_w.ctypes.data,
             lam_c.ctypes.data if lam_c.size else None,
             ctypes.byref(self._info),
         )
+        if warm is None:
+            st = self._lib.ocpqp_solve(self._ptr, ctypes.byref(self._data), *outs)
+        else:
+            unknown = set(warm) - {"w", "pi", "lam_w", "lam_c"}
+            if unknown:
+                raise ParameterError(f"unknown warm-start keys {sorted(unknown)}: allowed w, pi, lam_w, lam_c")
+            sizes = {"w": d.nw, "pi": d.N * d.nx, "lam_w": d.nw, "lam_c": d.N * d.nc + d.ncN}
+            g = [self._guess(k, warm.get(k), n) for k, n in sizes.items()]
+            ptrs = [a.ctypes.data if a is not None and a.size else None for a in g]
+            st = self._lib.ocpqp_solve_warm(self._ptr, ctypes.byref(self._data), *ptrs, *outs)
         i = self._info
         return OcpQPResult(
             w,
@@ -417,12 +438,23 @@ class OcpQP:
         )
 
     def solve(
-        self, H: Any, g: Any, E: Any, e: Any, C: Any, lc: Any, uc: Any, lbw: Any, ubw: Any, x0: Any
+        self,
+        H: Any,
+        g: Any,
+        E: Any,
+        e: Any,
+        C: Any,
+        lc: Any,
+        uc: Any,
+        lbw: Any,
+        ubw: Any,
+        x0: Any,
+        warm: dict[str, Any] | None = None,
     ) -> OcpQPResult:
-        """Check the data (ParameterError naming a wrongly sized argument) and solve; a failed solve is a
-        status in the result, not an exception."""
+        """Check the data (ParameterError naming a wrongly sized argument) and solve, from the guess ``warm``
+        if given (see :meth:`solve_data`); a failed solve is a status in the result, not an exception."""
         self.set_data(H, g, E, e, C, lc, uc, lbw, ubw, x0)
-        return self.solve_data()
+        return self.solve_data(warm)
 
     def timed_calls(self, n: int) -> np.ndarray:
         """Wall time in seconds of ``n`` repeated C solves of the data last set (for benchmarks: the

@@ -14,7 +14,9 @@ One step, two implementations of it:
   of the compiled step on this same loop.
 
 Both start cold by RTI iterations from the closed-form law's rollout (traffic), or (§9) after a cold IPOPT
-step, and discard a step longer than ``max_step_ms`` (cause 'budget', :mod:`aev_ocp.mpc.fallback`).
+step. Both measure the step's wall time (reported); with ``budget = 'wall'`` (real time) they discard a step longer
+than ``max_step_ms`` (cause 'budget', :mod:`aev_ocp.mpc.fallback`); with ``budget = 'counted'`` (the default, every
+simulation) the iteration limits alone bound a step, so the result does not depend on the machine's load.
 """
 
 from __future__ import annotations
@@ -188,8 +190,8 @@ class RTIStep:
         """Up to ``iterations`` full SQP steps from ``args`` (the shifted previous solution, or the cold
         guess), each QP by :meth:`qp_step`. Success: every QP solved, a finite step, the applied control's
         path constraints (node 0, where the state is the measurement) hold within
-        :data:`aev_ocp.plant.PLAN_TOLERANCE`, and the step took at most ``max_step_ms``
-        (else the cause 'budget'). A failure's status starts with its cause: 'QP failed', 'exception',
+        :data:`aev_ocp.plant.PLAN_TOLERANCE`, and, with ``budget = 'wall'`` only, the step took at most
+        ``max_step_ms`` (else the cause 'budget'). A failure's status starts with its cause: 'QP failed', 'exception',
         'path constraint', 'budget'. The controller ``c`` keeps the warm start."""
         s, nlp = self.nlp.settings, self.nlp
         t0 = time.perf_counter()
@@ -215,7 +217,7 @@ class RTIStep:
             viol0 = float(np.maximum(np.maximum(self.path0_lb - c0, c0 - self.path0_ub), 0).max(initial=0))
             if not np.isfinite(viol0) or viol0 > PLAN_TOLERANCE:
                 ok, status = False, f"path constraint: the applied control violates them by {viol0:.3g}"
-        if ok and dt_wall * 1e3 > s.max_step_ms:
+        if ok and s.over_budget(dt_wall):
             X_late = nlp.unpack(x)[0]
             return c.late({"x": x, "lam_x": lam_x, "lam_g": lam_g, "X1": X_late[:, 1]}, it, dt_wall, viol0, "rti")
         if not ok:
@@ -269,7 +271,7 @@ def solve_compiled(c: RTIHost, z0: np.ndarray, p: np.ndarray) -> MPCSolution:
         return c.failed(why, info.iterations, dt_wall, info.node0_violation, "rti")
     X, a, U = c.nlp.unpack(x)
     warm = {"x": x.copy(), "X1": X[:, 1]}  # (the library keeps its own warm start)
-    if dt_wall * 1e3 > c.settings.max_step_ms:
+    if c.settings.over_budget(dt_wall):
         return c.late(warm, info.iterations, dt_wall, info.node0_violation, "rti")
     c.warm = warm
     return MPCSolution(

@@ -1,14 +1,14 @@
 """The ``[mpc]`` table of scenario files, and building a closed loop from a scenario.
 
-Keys (all optional): every :class:`MPCSettings` solver option (N, dt,
-solver, qp_solver, codegen, tol, max_iter, rti_iterations, max_cpu_time_s, predictor, predictor_window, rk4_substeps,
-verbose); the formulation's keys, routed into one :class:`aev_ocp.ocp.formulation.Formulation`: ``formulation``
-('traffic', the default, or 's9'), the traffic formulation's SI parameters (TrafficParams fields), §9's
-objective, weights w_Q, w_V, w_r, w_a and bounds h_min, v_min, v_max, a_min, a_max, smoothing_width_W, and the pack
-temperature in the prediction (TemperatureTerms: temperature_state, temperature_max_K, temperature_penalty; needs
-``[thermal] enabled = true``); plus ``vehicles`` ("all" or an array of 1-based follower numbers on MPC; the others
-keep the scenario's [platoon] law) and ``follower_predictor`` (forecast of an MPC follower behind
-another vehicle: "cooperative" behind an MPC vehicle by default, else "constant-velocity").
+Keys (all optional): every :class:`MPCSettings` solver option (N, dt, solver, qp_solver, codegen, tol, max_iter,
+rti_iterations, budget, max_step_ms, max_cpu_time_s, predictor, predictor_window, rk4_substeps, verbose); the
+formulation's keys, routed into one :class:`aev_ocp.ocp.formulation.Formulation`: ``formulation`` ('traffic', the
+default, or 's9'), the traffic formulation's SI parameters (TrafficParams fields), §9's objective, weights w_Q, w_V,
+w_r, w_a and bounds h_min, v_min, v_max, a_min, a_max, smoothing_width_W, and the pack temperature in the prediction
+(TemperatureTerms: temperature_state, temperature_max_K, temperature_penalty; needs ``[thermal] enabled = true``); plus
+``vehicles`` ("all" or an array of 1-based follower numbers on MPC; the others keep the scenario's [platoon] law) and
+``follower_predictor`` (forecast of an MPC follower behind another vehicle: "cooperative" behind an MPC vehicle by
+default, else "constant-velocity").
 """
 
 from __future__ import annotations
