@@ -1,5 +1,9 @@
-"""What the whole suite shares: one compile cache per test run for the tests that must not use the user's cache, and
-the order files are handed to pytest-xdist's workers in (the heaviest first).
+"""What the whole suite shares: the order files are handed to pytest-xdist's workers in (the heaviest first).
+
+Tests that compile C use the compile cache of the environment (``$AEV_OCP_CACHE``, else the user's), except those
+that count or break compilations (a cache of their own in ``tmp_path``): libraries are keyed by a hash of their
+source, compiler and flags, so a cached library is the one the test's code generates, and a warm cache compiles
+nothing.
 
 The README's test command distributes whole files (``-n auto --dist loadfile``): a file's module-scoped results are
 computed once, on one worker. Files are collected heaviest first, so the long ones start at once and the short ones
@@ -97,16 +101,3 @@ def pytest_sessionfinish(session: pytest.Session, exitstatus: int) -> None:
     old = session.config.cache.get(DURATIONS_KEY, {})
     merged = {**(old if isinstance(old, dict) else {}), **{f: round(s, 2) for f, s in _SECONDS.items()}}
     session.config.cache.set(DURATIONS_KEY, merged)
-
-
-@pytest.fixture(scope="session")
-def shared_compile_cache(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """A compile cache (``$AEV_OCP_CACHE``) of this test run, shared by all of its xdist workers: a test that must not
-    use the user's cache still finds a library another worker already built (the cache's lock makes the second
-    worker wait for the first one's build rather than compile it again), so each library is compiled once per run.
-    Under xdist every worker's base temporary folder is a sub-folder of the run's one."""
-    base = tmp_path_factory.getbasetemp()
-    root = base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base
-    d = root / "aev_ocp_cache"
-    d.mkdir(mode=0o700, exist_ok=True)
-    return d

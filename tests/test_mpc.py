@@ -158,8 +158,7 @@ def test_stage_cost_and_constraints_rechecked_in_numpy():
     ],
     ids=["sqp-hpipm", "sqp-qrqp", "sqp-hpipm-codegen", "ipopt-cold"],
 )
-def test_solver_paths_give_the_same_closed_loop(settings, canonical3, shared_compile_cache, monkeypatch):
-    monkeypatch.setenv("AEV_OCP_CACHE", str(shared_compile_cache))
+def test_solver_paths_give_the_same_closed_loop(settings, canonical3):
     T = 3.0
     ref = canonical3
     assert ref.t[-1] == pytest.approx(T)
@@ -307,10 +306,9 @@ def test_bad_platoon_configuration_errors():
 
 # codegen: over 5 s of one core with its compilations (an empty cache), pytest --durations
 @pytest.mark.parametrize("codegen", [pytest.param(True, marks=pytest.mark.slow), False], ids=["codegen", "interpreted"])
-def test_rti_closed_loop_matches_ipopt_and_holds_constraints(codegen, canonical10, shared_compile_cache, monkeypatch):
+def test_rti_closed_loop_matches_ipopt_and_holds_constraints(codegen, canonical10):
     """Real-time iteration (one QP per step from the shifted previous solution) on the canonical
     scenario shortened to 10 time units: same closed loop as the IPOPT path within tolerance."""
-    monkeypatch.setenv("AEV_OCP_CACHE", str(shared_compile_cache))
     T = 10.0
     ref = canonical10
     assert ref.t[-1] == pytest.approx(T)

@@ -79,8 +79,7 @@ def test_cli_writes_results_and_compares(tmp_path, capsys):
 
 
 @pytest.mark.slow  # over 5 s of one core (measured under load, pytest --durations)
-def test_cli_scenario_default_rti_path(tmp_path, capsys, monkeypatch, shared_compile_cache):
-    monkeypatch.setenv("AEV_OCP_CACHE", str(shared_compile_cache))
+def test_cli_scenario_default_rti_path(tmp_path, capsys):
     rc = cli_mpc(
         ["mpc_paper_single", "--out", str(tmp_path), "--t-end-model", "1.0", "--no-ocpd", "--laws", "proposed"]
     )

@@ -185,6 +185,46 @@ def canonical_lib(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return build_library(out, out / "libaev_mpc.so")
 
 
+#: the traffic formulation's export: mpc_udds_single with a constant-velocity forecast and N = 14
+UDDS_EXPORT = ["mpc-export", "mpc_udds_single", "--set", "mpc.predictor=constant-velocity", "--set", "mpc.N=14"]
+UDDS_T_END = 40.0  # model time: 35 s of UDDS, 400 steps (the leader starts at 20 s, 10 m/s at 31 s)
+
+
+def _udds_settings() -> tuple[EVParams, MPCSettings, Any]:
+    """(vehicle, settings, leader) of the UDDS closed loops: the export's, on the Python side."""
+    from aev_ocp.models import drive_cycle
+
+    ev = EVParams(units=Units(15.0, 17.0))
+    return (
+        ev,
+        MPCSettings(N=14, predictor="constant-velocity", qp_solver="riccati", codegen=False),
+        drive_cycle("udds", ev.units),
+    )
+
+
+@pytest.fixture(scope="module")
+def udds_lib(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """`aev-ocp mpc-export mpc_udds_single --set mpc.predictor=constant-velocity --set mpc.N=14`, built: the default
+    traffic formulation's export, shared by the tests of its closed loop (one export and build per file)."""
+    from aev_ocp.cli import main
+
+    out = tmp_path_factory.mktemp("mpc_export_udds")
+    assert main([*UDDS_EXPORT, "--out", str(out)]) == 0
+    return build_library(out, out / "lib.so")
+
+
+@pytest.fixture(scope="module")
+def udds_c_loop(udds_lib: Path) -> tuple[Any, list[int], list[int]]:
+    """The UDDS closed loop driven by the export through aev_mpc_step_own (its own state a_prev given each step), from
+    rest: (result, C status per step, interior-point iterations per step), shared by the tests that compare it with a
+    Python controller."""
+    ev, s, leader = _udds_settings()
+    its: list[int] = []
+    loop = ClosedLoop(leader, [MPCVehicle(s)], ev)
+    rc, st = _c_run(udds_lib, s, loop=loop, start=(0.8, 0.0, UDDS_T_END), qp_iterations=its)
+    return rc, st, its
+
+
 @pytest.mark.slow  # over 5 s of one core (measured under load, pytest --durations)
 def test_export_has_no_python_or_casadi_dependency(canonical_lib: Path) -> None:
     """The library links only libc/libm: no libcasadi, no libpython."""
@@ -224,17 +264,20 @@ def test_canonical_closed_loop_matches_interpreted_qp_path(canonical_lib: Path) 
 
     from aev_ocp.mpc.controller import MPCController
 
+    # the C closed loop, from the cold IPOPT step of the Python rti path (the Python QP solver plays no part in the C
+    # loop nor in that step: one C run serves every reference)
+    s = MPCSettings(**{**CANON, "codegen": False, "qp_solver": "riccati"})
+    ref = install(MPCController(s, formulation=F9))  # the Python twin of the C driver (tests/rti_twin.py)
+    assert ref.compiled_step is None and ref.rti is not None  # the interpreted path, not the library
+    its: list[int] = []
+    rc, st = _c_run(canonical_lib, s, first=ref, qp_iterations=its)
     for qp, tol in (("riccati", TOL), ("riccati-cold", 2e-6), ("qrqp", 2e-6)):
         s = MPCSettings(**{**CANON, "codegen": False, "qp_solver": qp.removesuffix("-cold")})
-        ref = MPCController(s, formulation=F9)
-        if qp != "qrqp":
-            install(ref)  # the Python twin of the C driver (tests/rti_twin.py), not the library
-        assert ref.compiled_step is None and ref.rti is not None  # the interpreted path, not the library
-        its: list[int] = []
-        rc, st = _c_run(canonical_lib, s, first=ref, qp_iterations=its)
         loop = _loop(MPCVehicle(s, formulation=F9))
         if qp != "qrqp":
             twin = install(loop.ctrl[0], warm_qp=qp == "riccati").rti
+        py = loop.ctrl[0].controller
+        assert py.compiled_step is None and py.rti is not None  # the interpreted path, not the library
         rp = loop.run([0.3], [1.87], T_END)
         assert all(k == 0 for k in st) and (rp.solver_stats[0] or {}).get("fallbacks") == 0
         du, dx = _compare(rc, rp)
@@ -387,7 +430,7 @@ def test_cli_errors(capsys: pytest.CaptureFixture[str], tmp_path: Path, monkeypa
 
 @pytest.mark.slow  # over 5 s of one core (measured under load, pytest --durations)
 def test_traffic_formulation_exports_and_matches_the_python_driver(
-    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+    udds_lib: Path, udds_c_loop: tuple[Any, list[int], list[int]]
 ) -> None:
     """The default traffic formulation (soft constraints with a linear-cost slack, the energy epigraph control
     whose cost is linear, a terminal cost, the jerk state a_prev, projected Hessian, cold start by
@@ -395,35 +438,15 @@ def test_traffic_formulation_exports_and_matches_the_python_driver(
     of `aev-ocp mpc-export mpc_udds_single` on (x_meas, forecast), its own cold start included, against the
     Python rti path on the same QP solver but nothing else shared: the QP data from the interpreted CasADi
     functions, the Hessian projected by NumPy (eigh), the shift and the multipliers' layout in NumPy."""
-    from aev_ocp.models import drive_cycle
-
-    rc_cli, _, _ = run_cli(
-        [
-            "mpc-export",
-            "mpc_udds_single",
-            "--out",
-            str(tmp_path),
-            "--set",
-            "mpc.predictor=constant-velocity",
-            "--set",
-            "mpc.N=14",
-        ],
-        capsys,
-    )
-    assert rc_cli == 0
-    lib = build_library(tmp_path, tmp_path / "lib.so")
-    ev = EVParams(units=Units(15.0, 17.0))
     from rti_twin import install
 
-    s = MPCSettings(N=14, predictor="constant-velocity", qp_solver="riccati", codegen=False)
-    leader = drive_cycle("udds", ev.units)
-    t_end = 40.0  # model time: 35 s of UDDS, 400 steps (the leader starts at 20 s, 10 m/s at 31 s)
-    its: list[int] = []
-    rc, st = _c_run(lib, s, loop=ClosedLoop(leader, [MPCVehicle(s)], ev), start=(0.8, 0.0, t_end), qp_iterations=its)
+    lib = udds_lib
+    ev, s, leader = _udds_settings()
+    rc, st, its = udds_c_loop
     loop = ClosedLoop(leader, [MPCVehicle(s)], ev)
     twin = install(loop.ctrl[0])
     assert twin.compiled_step is None  # the Python twin of the driver, not the library
-    rp = loop.run([0.8], [0.0], t_end)
+    rp = loop.run([0.8], [0.0], UDDS_T_END)
     assert len(st) == 400 and all(k == 0 for k in st), st
     assert (rp.solver_stats[0] or {}).get("fallbacks") == 0
     du, dx = _compare(rc, rp)
@@ -643,45 +666,24 @@ def test_mpc_export_builds_into_a_relative_out(tmp_path, capsys, monkeypatch):
     if compiler() is None:
         pytest.skip("no C compiler")
     monkeypatch.chdir(tmp_path)
-    rc, out, err = run_cli(["mpc-export", "mpc_paper_single", "--out", "rel_dir", "--build"], capsys)
+    # a short horizon: the point is where the library is built, not the problem (N = 40 compiles the same code)
+    rc, out, err = run_cli(
+        ["mpc-export", "mpc_paper_single", "--out", "rel_dir", "--set", "mpc.N=5", "--build"], capsys
+    )
     assert rc == 0, err
     assert (tmp_path / "rel_dir" / "libaev_mpc.so").is_file() and "built" in out
 
 
 @pytest.mark.slow  # over 5 s of one core (measured under load, pytest --durations)
-@pytest.mark.skipif(shutil.which("cc") is None and shutil.which("gcc") is None, reason="no C compiler")
-def test_plain_c_step_with_own_states_matches_the_python_controller_in_closed_loop(tmp_path, capsys):
+def test_plain_c_step_with_own_states_matches_the_python_controller_in_closed_loop(
+    udds_lib: Path, udds_c_loop: tuple[Any, list[int], list[int]]
+) -> None:
     """aev_mpc_step (no own states given: a_prev taken from the previous plan, node 1) driven in a closed loop on
-    the traffic formulation (nx = 6) against the Python controller, and aev_mpc_step_own beside it; a one-node
-    shift of the own state in mpc_step.c makes every command after the first differ."""
-    from test_mpc_export import TOL, CPolicy, _compare
-
-    from aev_ocp.control import ClosedLoop
-    from aev_ocp.models import drive_cycle
-    from aev_ocp.mpc.export import CStep, build_library
-    from aev_ocp.mpc.policy import MPCVehicle
-    from aev_ocp.mpc.settings import MPCSettings
-    from aev_ocp.params import EVParams
-
-    rc, _, err = run_cli(
-        [
-            "mpc-export",
-            "mpc_udds_single",
-            "--out",
-            str(tmp_path / "x"),
-            "--set",
-            "mpc.predictor=constant-velocity",
-            "--set",
-            "mpc.N=14",
-        ],
-        capsys,
-    )
-    assert rc == 0, err
-    lib = build_library(tmp_path / "x", tmp_path / "x" / "lib.so")
-    ev = EVParams(units=Units(15.0, 17.0))
-    s = MPCSettings(N=14, predictor="constant-velocity", qp_solver="riccati", codegen=False)
-    leader = drive_cycle("udds", ev.units)
-    t_end = 40.0  # 400 steps; the leader drives off at 20 s (model 40 = 35 s of UDDS)
+    the traffic formulation (nx = 6) against the Python controller, and aev_mpc_step_own beside it (the file's
+    shared run, udds_c_loop); a one-node shift of the own state in mpc_step.c makes every command after the first
+    differ."""
+    lib = udds_lib
+    ev, s, leader = _udds_settings()
 
     class Plain(CStep):  # the documented entry point: never passes the own states
         calls = 0
@@ -690,19 +692,16 @@ def test_plain_c_step_with_own_states_matches_the_python_controller_in_closed_lo
             Plain.calls += 1
             return super().step(x_meas, forecast, None)
 
-    runs = {}
-    for name in ("plain", "own"):
-        loop = ClosedLoop(leader, [MPCVehicle(s)], ev)
-        cp = CPolicy(lib, loop.ctrl[0])
-        if name == "plain":
-            cp.step = Plain(lib)
-        assert cp.step.nx == 6  # the jerk state a_prev: an own state the plain step must take from its plan
-        loop.ctrl[0] = cp
-        runs[name] = (loop.run([0.8], [0.0], t_end), cp.status)
-    rp = ClosedLoop(leader, [MPCVehicle(s)], ev).run([0.8], [0.0], t_end)
+    loop = ClosedLoop(leader, [MPCVehicle(s)], ev)
+    cp = CPolicy(lib, loop.ctrl[0])
+    cp.step = Plain(lib)
+    assert cp.step.nx == 6  # the jerk state a_prev: an own state the plain step must take from its plan
+    loop.ctrl[0] = cp
+    runs = {"plain": (loop.run([0.8], [0.0], UDDS_T_END), cp.status), "own": udds_c_loop[:2]}
+    rp = ClosedLoop(leader, [MPCVehicle(s)], ev).run([0.8], [0.0], UDDS_T_END)
     assert Plain.calls == 400
     for name, (r, status) in runs.items():
-        assert all(k == 0 for k in status), (name, status)
+        assert len(status) == 400 and all(k == 0 for k in status), (name, status)
         du, dx = _compare(r, rp)
         assert du <= TOL and dx <= TOL, (name, du, dx)
     assert np.abs(np.diff(rp.accel[:, 0])).max() > 1e-3  # a_prev changes: a shifted node would be seen

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import io
 import json
+import re
 from pathlib import Path
 
 import pytest
@@ -15,6 +16,7 @@ from study_helpers import write_tiny_study as _study
 
 from aev_ocp import reproduce as rp
 from aev_ocp.report import PAPER_TABLE1, percent_change, table1_disagreements
+from aev_ocp.report_html import heading_anchor
 
 
 @pytest.fixture(scope="module")
@@ -108,8 +110,6 @@ def test_failing_provider_adds_no_section() -> None:
 def test_every_section_run_loads_back_with_the_numbers_of_the_report(quick_report: tuple[Path, str]) -> None:
     """The runs reproduce made are saved outputs: aev_ocp.load reads each folder, and the loaded runs give the
     numbers the report's own files state (issue 26)."""
-    import re
-
     import aev_ocp
 
     out, _ = quick_report
@@ -165,6 +165,70 @@ def test_report_html_shows_every_figure_of_the_folder(quick_report: tuple[Path, 
     assert unshown_figures(text, out) == []  # a figure a section writes and the report forgets
     html = (out / "report.html").read_text()
     assert html.count("<img ") >= len(list(out.glob("*.png")))
+
+
+# ----------------------------------------------------------------------------- the summary and report.html (issue 10 item 6)
+# (on this file's reproduce run: every section's claims and figures; test_report_summary.py ran a reproduce of its own)
+@pytest.mark.slow  # needs the module's reproduce run (quick_report: over a minute of one core)
+def test_summary_comes_first_and_every_link_reaches_a_heading(quick_report: tuple[Path, str]) -> None:
+    out, _ = quick_report
+    md = (out / "report.md").read_text()
+    heads = [ln for ln in md.splitlines() if ln.startswith("## ")]
+    assert heads[0] == "## Summary: the paper's claims and what the computations say"
+    anchors = {heading_anchor(h[3:]) for h in heads}
+    summary = md.split("## Summary", 1)[1].split("\n## ", 1)[0]
+    links = re.findall(r"\]\(#([^)]+)\)", summary)
+    rows = [ln for ln in summary.splitlines() if ln.startswith("| ") and "**" in ln]
+    assert len(rows) == len(links) >= 4  # Fig. 1/2, Table 1 (two), Fig. 5 (two), the sections' claims
+    assert set(links) <= anchors
+    assert any("**fails**" in r and "Table 1: the proposed law has a lower ω" in r for r in rows)
+    html = (out / "report.html").read_text()
+    for a in links:  # the same links work in report.html
+        assert f'id="{a}"' in html
+
+
+@pytest.mark.slow  # needs the module's reproduce run (quick_report: over a minute of one core)
+def test_html_links_every_figure_of_the_report(quick_report: tuple[Path, str]) -> None:
+    out, log = quick_report
+    md = (out / "report.md").read_text()
+    html = (out / "report.html").read_text()
+    figs = re.findall(r"!\[[^\]]*\]\(([^)]+)\)", md)
+    imgs = re.findall(r'<img alt="[^"]*" src="([^"]+)"', html)
+    assert imgs == figs and len(figs) >= 5 and "data:" not in html  # linked in order, none embedded (issue 40)
+    for f in imgs:  # each link resolves from the HTML's own folder to a PNG
+        assert (out / f).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert (out / "report.html").stat().st_size < 200_000  # the text alone, not 7 MB of base64
+    assert html.count("<table>") == md.count("\n|---")
+    # the progress counter reaches N/N
+    last = [ln for ln in log.splitlines() if ln.startswith("[")][-1]
+    m = re.match(r"\[(\d+)/(\d+)\]", last)
+    assert m is not None and m.group(1) == m.group(2)
+
+
+# ----------------------------------------------------------------------------- the string-stability section (§6, Fig. 5)
+# (its checks were tests/test_stability.py's, on a run of the section of its own: the section takes no configuration,
+# so reproduce's run is the same computation)
+@pytest.mark.slow  # needs the module's reproduce run (quick_report: over a minute of one core)
+def test_string_stability_section_answers_fig5(quick_report: tuple[Path, str]) -> None:
+    out, log = quick_report
+    text = (out / "report.md").read_text()
+    assert "\n## String stability" in text
+    md = "## String stability" + text.split("\n## String stability", 1)[1].split("\n## ", 1)[0]  # the section's text
+    assert sum(ln.startswith("[") and "] string-stability: " in ln for ln in log.splitlines()) == 3  # its 3 steps
+    doc = json.loads((out / "string_stability.json").read_text())
+    assert doc["linear"]["string_stable"] and doc["linear"]["criterion"] == pytest.approx(1.7767, abs=1e-4)
+    assert doc["linear_agreement_up_to"] is not None and doc["linear_agreement_up_to"] < 1e-3
+    assert "C = 1.7767 ≥ 0" in md and "Fig. 5's 0.88 → 1.19" in md
+    # SI twins beside the paper's model-unit columns (L = 10 m, U = 5 m/s): v* = 1.7 -> 8.5 m/s, h* = 2.9416 -> 29.42 m
+    assert "| v* [m/s] | h* [m] | v* (model) | h* (model) |" in md
+    assert "| proposed (paper) | 8.5 | 29.42 | 1.7 | 2.9416 |" in md
+    assert "| A [m/s] | A (model) |" in md and "\n| 0.0005 | 0.0001 | " in md
+    assert doc["v_star_mps"] == pytest.approx(5.0 * doc["v_star"])
+    assert doc["units"] == {"length_m": 10.0, "speed_mps": 5.0}
+    assert (out / "string_stability.png").read_bytes()[:4] == b"\x89PNG"
+    assert doc["fig5_origin"]["proposed"]["paper"][1] > doc["fig5_origin"]["proposed"]["paper"][0]
+    eq = doc["fig5_origin"]["proposed"]["equilibrium"]
+    assert all(b < a for a, b in zip(eq[:-1], eq[1:]))  # from equilibrium the peaks decrease
 
 
 # ----------------------------------------------------------------------------- from the issue-28 re-probe (test_reprobe.py)
