@@ -7,6 +7,7 @@ the safety layer without a collision."""
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
 import numpy as np
@@ -185,6 +186,27 @@ def test_the_wave_buffer_raises_the_target_gap_by_c_times_the_predecessor_speed_
     assert np.isnan(c.predecessor_speeds.value)
 
 
+def test_the_speed_band_clips_v_ref_after_the_catch_up():
+    """v_ref = clip(U + clip(k (h̄ − s_t − T_t U), −v_c, v_c), v_lo, v_hi): below, inside and above the band, and each
+    side alone; an empty band is refused."""
+    base = dict(window_s=1.0, catch_gain_per_s=0.37, target_gap_m=6.5, target_time_gap_s=1.3, buffer_time_s=0.0)
+    for lo, hi in ((3.35, 4.15), (3.35, 0.0), (0.0, 4.15)):
+        c = WaveMPC(EV, Proposed(), WaveParams(**base, min_ref_mps=lo, max_ref_mps=hi), S)
+        for h, v in ((9.0, 3.0), (12.0, 3.6)):
+            c.reset()
+            free = v + 0.37 * (h - 6.5 - 1.3 * v)  # 2.482 and 3.903 m/s, both inside the saturation (±1 m/s)
+            assert 2.0 < free < 3.35 or 3.35 < free < 4.15  # one reference below the band, one inside it
+            got = float(U.speed_to_si(c.reference(float(U.length_from_si(h)), float(U.speed_from_si(v)))))
+            assert got == pytest.approx(max(free, lo), rel=1e-12)
+        c.reset()
+        free = 5.0 + 0.37 * (20.0 - 6.5 - 6.5)  # 7.59, saturated at U + v_c = 6.0 m/s: above the band
+        got = float(U.speed_to_si(c.reference(float(U.length_from_si(20.0)), float(U.speed_from_si(5.0)))))
+        assert got == pytest.approx(min(6.0, hi) if hi else 6.0, rel=1e-12)
+    with pytest.raises(ParameterError, match="min_ref_mps = 3.7 m/s is above max_ref_mps = 3.6"):
+        WaveParams(min_ref_mps=3.7, max_ref_mps=3.6)
+    assert WaveParams(min_ref_mps=3.6, max_ref_mps=3.6).max_ref_mps == 3.6  # on the limit: a point band
+
+
 @pytest.mark.slow  # 600 s of closed loop: about 5 s of one core
 def test_behind_a_constant_speed_leader_it_keeps_its_speed_on_average_and_its_gap_in_the_band():
     """Behind a constant-speed leader the catch-up's slow loop (an integral through the 38 s mean) does not settle:
@@ -275,3 +297,57 @@ def test_the_guide_quotes_the_benchmark_and_its_intervals_are_the_per_seed_value
     e = [doc["table"][c]["battery_energy_J_per_km"] for c in ("human", "followerstopper", "wave-mpc")]
     row = "| battery_energy_kJ_per_km | " + " | ".join(_cell({k: x[k] / 1e3 for k in ("mean", "lo", "hi")}) for x in e)
     assert row + " |" in section, row
+
+
+def _wave_doc(**wave: object) -> dict[str, object]:
+    """A small IDM ring whose vehicle 2 runs the wave MPC, with ``[ring.wave]`` = ``wave`` (none if empty)."""
+    ring: dict[str, object] = {
+        "length_m": 123.0,
+        "vehicles": 7,
+        "t_end_s": 17.0,
+        "aev": {"vehicles": [2], "controllers": ["followerstopper", "wave-mpc"]},
+    }
+    if wave:
+        ring["wave"] = dict(wave)
+    return {"name": "w", "ring": ring}
+
+
+def test_a_ring_scenario_sets_its_wave_mpc_parameters_and_only_its_own():
+    """``[ring.wave]`` reaches the ring's wave-MPC car (the fields given, every other at WaveParams' default); without
+    the table the car keeps the defaults (those the drive cycles and the safety suite run)."""
+    from dataclasses import replace
+
+    from aev_ocp.ring.scenario import build_ring, parse_ring_scenario
+
+    sc = parse_ring_scenario(_wave_doc(target_gap_m=13.5, target_time_gap_s=2.75, buffer_time_s=0), "w.toml")
+    assert sc.spec.wave == {"target_gap_m": 13.5, "target_time_gap_s": 2.75, "buffer_time_s": 0.0}
+    car = build_ring(sc, "wave-mpc")[0].vehicles[1]
+    assert isinstance(car, WaveMPC)
+    assert car.params == replace(WaveParams(), target_gap_m=13.5, target_time_gap_s=2.75, buffer_time_s=0.0)
+    assert car.params != WaveParams() and car.describe()["wave"]["target_gap_m"] == 13.5
+    plain = build_ring(parse_ring_scenario(_wave_doc(), "w.toml"), "wave-mpc")[0].vehicles[1]
+    assert plain.params == WaveParams()
+
+
+@pytest.mark.parametrize(
+    "wave, controllers, message",
+    [
+        ({"target_gap": 12.0}, None, "unknown key 'ring.wave.target_gap'"),
+        ({"traffic": {"jerk_weight": 1.0}}, None, "unknown key 'ring.wave.traffic'"),
+        ({"target_gap_m": -0.5}, None, "ring.wave.target_gap_m = -0.5 is not allowed"),
+        ({"window_s": 0.0}, None, "ring.wave.window_s = 0.0 is not allowed: must be a finite number > 0"),
+        ({"catch_max_mps": "1"}, None, "ring.wave.catch_max_mps"),
+        ({"target_gap_m": 12.0}, ["followerstopper"], "no AEV runs 'wave-mpc'"),
+    ],
+)
+def test_a_ring_scenarios_wave_table_refuses_nonsense_naming_the_key(wave, controllers, message):
+    from aev_ocp.ring.scenario import parse_ring_scenario
+    from aev_ocp.scenarios import ScenarioError
+
+    doc = _wave_doc(**wave)
+    if controllers is not None:
+        doc["ring"]["aev"]["controllers"] = controllers  # type: ignore[index]
+    with pytest.raises(ScenarioError, match=re.escape(message)) as e:
+        parse_ring_scenario(doc, "w.toml")
+    assert str(e.value).startswith("w.toml: ")
+    assert parse_ring_scenario(_wave_doc(window_s=0.5), "w.toml").spec.wave == {"window_s": 0.5}  # inside: taken

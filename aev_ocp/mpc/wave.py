@@ -61,8 +61,8 @@ WAVE_NAME = "wave-mpc"  # the controller's name in ring scenarios and tables
 @dataclass(frozen=True)
 class WaveParams:
     """Parameters of :func:`wave_problem`, SI (cost unit W/kg, integrated over seconds, as the traffic problem).
-    Sources: 'our choice' unless stated, tuned on ring seeds 0–2 (benchmarks/bench_wave_mpc.py, which evaluates
-    seeds 20–39; a 90 s window with v_c = 0.5 m/s, tuned on seeds 0–9 and 40–49, did about as well there and worse
+    Sources: 'our choice' unless stated, tuned on ring seeds 0–2 (benchmarks/bench_wave_mpc.py, evaluated on
+    seeds 20–39 and 60–79; a 90 s window with v_c = 0.5 m/s, tuned on seeds 0–9 and 40–49, did about as well there and worse
     behind the drive cycles: docs/guide/studies.md) and checked with
     the mixed-ring linear theory (docs/guide/studies.md, "The wave-damping MPC")."""
 
@@ -92,6 +92,11 @@ class WaveParams:
     # speed over window_s (a wave of speed std σ and period P needs a gap swing of about √2 σ P/π: c ≈ 8 s at
     # the ring's 35 s); 0: off
     buffer_time_s: float = spec(4.0, ge=0.0)  # c [s] (our choice, seeds 0–2: 4 s against 8 s)
+    # a speed band on v_ref (after the catch-up): v_ref ∈ [v_lo, v_hi], so the integral action cannot take the ring
+    # below the speed where the humans behind the car amplify too much, nor above where their gaps leave the car too
+    # little room (benchmarks/bench_wave_mpc.py --bound); 0: no bound
+    min_ref_mps: float = spec(0.0, ge=0.0)  # v_lo [m/s] (our choice; 0: off)
+    max_ref_mps: float = spec(0.0, ge=0.0)  # v_hi [m/s] (our choice; 0: off)
     # the traffic problem's ω, heat, a², jerk terms and its soft gap floor (time_headway_s: T_min; ISO 15622
     # allows ACC time gaps from 0.8 s); its predecessor-speed and time-gap tracking weights are set to 0
     traffic: TrafficParams = spec(
@@ -100,6 +105,11 @@ class WaveParams:
 
     def __post_init__(self) -> None:
         validate_fields(self)
+        if self.max_ref_mps > 0 and self.min_ref_mps > self.max_ref_mps:
+            raise ParameterError(
+                f"WaveParams: min_ref_mps = {self.min_ref_mps:g} m/s is above max_ref_mps = {self.max_ref_mps:g} "
+                "m/s: the speed band of v_ref is empty"
+            )
 
 
 def wave_problem(ev: EVParams, wp: WaveParams | None = None, dt: float = 0.1, name: str = "wave") -> ProblemBuilder:
@@ -203,7 +213,8 @@ class WaveMPC(MPCPolicy):
 
     def reference(self, h: float, v: float) -> float:
         """Add one measured gap h and own speed v [model units] to the averages and return v_ref [model speed]
-        = U + clip(k (h̄ − s_t − T_t U), −v_c, v_c) (U the mean own speed, h̄ the mean gap; WaveParams)."""
+        = U + clip(k (h̄ − s_t − T_t U − c σ_l), −v_c, v_c) (U the mean own speed, h̄ the mean gap, σ_l the std of the
+        predecessor's speed; WaveParams), then within the band [v_lo, v_hi] when set, and never below 0."""
         p, u = self.params, self.units
         U = self.average.update(v)
         h_bar = float(u.length_to_si(self.gap_average.update(h)))
@@ -213,7 +224,12 @@ class WaveMPC(MPCPolicy):
         h_t = p.target_gap_m + p.target_time_gap_s * U_si + p.buffer_time_s * sigma_l
         catch = p.catch_gain_per_s * (h_bar - h_t)
         catch = min(max(catch, -p.catch_max_mps), p.catch_max_mps)
-        return max(0.0, U + float(u.speed_from_si(catch)))
+        ref = U + float(u.speed_from_si(catch))
+        if p.min_ref_mps > 0:
+            ref = max(ref, float(u.speed_from_si(p.min_ref_mps)))
+        if p.max_ref_mps > 0:
+            ref = min(ref, float(u.speed_from_si(p.max_ref_mps)))
+        return max(0.0, ref)
 
     def own_states(self, obs: Observation) -> dict[str, float]:
         """The policy's own states plus v_ref [model speed] (:meth:`reference`, this step's measurements included)."""

@@ -309,17 +309,18 @@ def make_aev(
     MPC; the pair's settings if given, its own formulation), or any registered law name. Laws take their coefficients and
     scales from ``cf`` (default CarFollowingParams()) and run in ``ev``'s units with the same SI behaviour. ``own``:
     {name: keyword arguments} of a law's own coefficients (a scenario's ``[carfollowing.<law>]``, e.g. the IDM's SI
-    ``T_s``) and of FollowerStopper's :meth:`FollowerStopper.from_si` (``tau_s``, ``dx0_m``, ``d_mps2``)."""
+    ``T_s``), of FollowerStopper's :meth:`FollowerStopper.from_si` (``tau_s``, ``dx0_m``, ``d_mps2``) and, under
+    'wave-mpc', the wave MPC's :class:`~aev_ocp.mpc.wave.WaveParams` fields (a scenario's ``[ring.wave]``)."""
     mine = dict((own or {}).get(name.lower(), {}))
     key = name.lower()
     if key == "mpc":
         s, f = mpc if mpc is not None else (None, None)
         return ring_mpc(ev, s, None, f, cf)
     if key == "wave-mpc":  # the wave-damping MPC (aev_ocp.mpc.wave); [mpc]'s solver settings when given
-        from ..mpc.wave import WaveMPC
+        from ..mpc.wave import WaveMPC, WaveParams
 
         s, _ = mpc if mpc is not None else (None, None)
-        return WaveMPC(ev, _law("proposed", ev, cf), settings=s)
+        return WaveMPC(ev, _law("proposed", ev, cf), WaveParams(**mine) if mine else None, settings=s)
     if key == "followerstopper":
         return FollowerStopper.from_si(ev.units, r_mps, **mine)
     if key == "pi-saturation":

@@ -23,6 +23,8 @@ A ring scenario file has ``name``, ``description``, the vehicle tables every sce
   ``d_mps2`` (its three d [m/s²]) and ``tau_s`` (its speed loop [s]); defaults Stern et al. 2018 and
   :data:`aev_ocp.ring.laws.SPEED_LOOP_S`. An AEV law's own coefficients come from ``[carfollowing]`` and its
   sub-tables (``[carfollowing.idm]``: the IDM's SI ``T_s``, ``a_mps2``, …);
+* ``[ring.wave]`` (optional, with a "wave-mpc" controller): the wave MPC's :class:`aev_ocp.mpc.wave.WaveParams`
+  fields in SI (e.g. ``target_gap_m``, ``target_time_gap_s``; not ``traffic``), the others at their defaults;
 * or, instead of ``human`` and its tables, ``population`` (a calibrated human population by name,
   :data:`aev_ocp.ring.humans.CALIBRATED`: heterogeneous seeded drivers with reaction times and noise) with an
   optional ``[ring.calibration]`` stating its fit (source, fitted and their values, statistics, target, tolerance, achieved,
@@ -125,6 +127,8 @@ class RingSpec:
     calibration: dict[str, Any] | None = spec(None, kind="instance", cls=dict, optional=True)
     #: [ring.followerstopper]: the keyword arguments of FollowerStopper.from_si (empty: its defaults)
     followerstopper: dict[str, Any] = spec(kind="instance", cls=dict, default_factory=dict)
+    #: [ring.wave]: WaveParams fields of the ring's wave-MPC cars (empty: WaveParams' defaults)
+    wave: dict[str, Any] = spec(kind="instance", cls=dict, default_factory=dict)
 
     def __post_init__(self) -> None:
         validate_fields(self)
@@ -197,6 +201,8 @@ def validate_ring_table(r: TableReader) -> RingSpec:
         length = _ring_sweep(r, kw, n, ell, length)
     if r.has("followerstopper"):
         kw["followerstopper"] = _followerstopper_table(r.sub("followerstopper"))
+    if r.has("wave"):
+        kw["wave"] = _wave_table(r.sub("wave"), kw.get("controllers", ()))
     _ring_start(r, kw, n, length, ell)
     r.finish()
     return RingSpec(**kw)
@@ -396,6 +402,27 @@ def _followerstopper_table(f: TableReader) -> dict[str, Any]:
     return out
 
 
+def _wave_table(w: TableReader, controllers: tuple[str, ...]) -> dict[str, Any]:
+    """``[ring.wave]``: the :class:`aev_ocp.mpc.wave.WaveParams` fields (SI, range-checked as declared beside them;
+    not ``traffic``) of the ring's "wave-mpc" cars, the others at their defaults. Only with a "wave-mpc" controller."""
+    from ..mpc.wave import WAVE_NAME, WaveParams
+    from ..scenarios.tables import read_declared
+
+    if WAVE_NAME not in controllers:
+        raise ScenarioError(
+            f"{w.file}: [{w.path}] is given but no AEV runs {WAVE_NAME!r} (ring.aev.controllers or "
+            f"ring.sweep.controllers = {list(controllers)}): it sets the wave MPC's parameters"
+        )
+    names = [f.name for f in fields(WaveParams) if f.name != "traffic"]
+    out = read_declared(WaveParams, w, names)
+    w.finish(allowed_hint=names)
+    try:
+        WaveParams(**out)
+    except ParameterError as exc:
+        raise ScenarioError(f"{w.file}: {w.path}: {exc}") from None
+    return out
+
+
 def _calibration_table(c: TableReader) -> dict[str, Any]:
     """``[ring.calibration]``: what a calibrated population was fitted to, as stated beside it (read and checked,
     not used to run): source, the statistics with their target, tolerance, the achieved means and residuals over
@@ -522,7 +549,7 @@ def _aevs(sc: RingScenario, controller: str, base: Any, on: tuple[int, ...]) -> 
     except ParameterError as exc:
         raise ScenarioError(f"{sc.source or sc.name}: {exc}") from None
     mpc = (sc.mpc.settings, sc.mpc.formulation) if sc.mpc is not None else None
-    own = {**sc.law_overrides, "followerstopper": dict(sc.spec.followerstopper)}
+    own = {**sc.law_overrides, "followerstopper": dict(sc.spec.followerstopper), "wave-mpc": dict(sc.spec.wave)}
     return {i: make_aev(controller, sc.ev, r_mps, mpc, sc.cf, own) for i in on}
 
 
