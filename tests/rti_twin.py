@@ -61,9 +61,9 @@ class TwinRTIStep(RTIStep):
         else:
             r = qp.solve(Hq, g, E, e, C, lc, uc, lbw, ubw, np.zeros(nx))
         self.qp_iterations.append(r.iterations)
-        if exact and r.status in (1, 2):  # MAX_ITER, FACTORIZATION: not convex enough (as mpc_step.c)
+        if exact and r.status in (1, 2, 6):  # MAX_ITER, FACTORIZATION, ACCEPTABLE: not convex enough (mpc_step.c)
             r = qp.solve(projected(H), g, E, e, C, lc, uc, lbw, ubw, np.zeros(nx))
-        if r.status != 0:
+        if r.status not in (0, 6):  # ok, or acceptable (every residual within 100x the tolerance: taken)
             return r.w, lam_g, np.zeros(nlp.nv), False, f"ocp_qp {r.status_name}"
         lg = np.concatenate([r.pi.reshape(N, nx), r.lam_c.reshape(N, ngs - nx)], axis=1).ravel()
         return r.w, lg, r.lam_w, True, ""

@@ -14,6 +14,9 @@
   and at a tight tolerance equal to the exact solution (the KKT system of the active set solved by numpy,
   checked feasible and sign-correct).
 * A QP that is not convex (negative curvature along the dynamics) ends with a failure status, never "ok".
+* A degenerate RTI QP (the §9 MPC, UDDS, stopped on its gap floor) on which the complementarity stalls at
+  3.7e-9 above the tolerance 1e-9 and the iterates then diverge: the best iterate is returned as 'acceptable'
+  (every residual within 100x its tolerance), equal to the exact solution as closely as the converged cases.
 """
 
 from __future__ import annotations
@@ -32,7 +35,7 @@ from aev_ocp.params import ParameterError
 
 pytestmark = pytest.mark.skipif(compiler() is None, reason="no C compiler")
 
-OK, MAX_ITER, FACTORIZATION, NONFINITE, INFEASIBLE = 0, 1, 2, 3, 4
+OK, MAX_ITER, FACTORIZATION, NONFINITE, INFEASIBLE, ACCEPTABLE = 0, 1, 2, 3, 4, 6
 
 
 def _full(dims: OcpQPDims, data: dict[str, Any]) -> dict[str, Any]:
@@ -456,6 +459,28 @@ def test_real_rti_qps_at_a_tight_tolerance_equal_the_exact_solution(
     assert np.abs(res.w - rti_exact[name]).max() <= 2e-7  # observed <= 8e-8 (us06_constant_6412)
 
 
+def test_a_stalled_degenerate_qp_returns_its_acceptable_iterate() -> None:
+    """Recorded from the §9 MPC on UDDS (constant-velocity forecast, step 1825): the car stopped on its 3 m floor.
+    Before the acceptable level the solver ran to its limit and returned the last iterate (residuals ~1e89), and
+    the MPC fell back 12 times in a row. Reference: qpOASES (the active-set reference of the other cases does not
+    converge here: the active rows are linearly dependent)."""
+    dims, data = _rti_case("udds_s9_stopped_on_floor")
+    res = OcpQP(dims, _solve_settings(MPC_TOL)).solve(**data)
+    assert res.status == ACCEPTABLE and res.status_name == "acceptable", (res.status_name, res.residuals)
+    assert MPC_TOL < max(res.residuals.values()) <= 100 * MPC_TOL
+    assert res.iterations < MPC_MAX_ITER  # the divergence after the acceptable iterate ends the solve early
+    f = _full(dims, data)
+    w_ref = _qpoases(f)
+    assert np.abs(res.w - w_ref).max() <= 1e-6  # observed 8.8e-8
+    j_ref = _objective(f, w_ref)
+    assert abs(_objective(f, res.w) - j_ref) <= 1e-8 * (1.0 + abs(j_ref))
+    assert _kkt_violation(f, res.w, _lam_a(f, res.pi, res.lam_c), res.lam_w) <= 1e-6
+    assert OcpQP(dims, _solve_settings(1e-7)).solve(**data).status == OK  # converged at a looser tolerance
+    # a limit below the first acceptable iterate: no acceptable point, the plain failure
+    two = OcpQPSettings(max_iter=2, **{k: MPC_TOL for k in ("tol_stat", "tol_eq", "tol_ineq", "tol_comp")})
+    assert OcpQP(dims, two).solve(**data).status == MAX_ITER
+
+
 def _reduced_hessian_min_eig(dims: OcpQPDims, f: dict[str, Any]) -> float:
     """Smallest eigenvalue of the Hessian on the null space of the dynamics and x_0 = x0 (numpy SVD)."""
     A_eq = np.vstack([f["A"][f["rows_pi"]], np.eye(dims.nx, dims.nw)])
@@ -588,8 +613,9 @@ def test_warm_started_sequences_match_qpoases_and_satisfy_kkt(seed: int) -> None
     data = random_qp(dims, rng, scale=float(rng.uniform(0.3, 7.0)))
     qp = OcpQP(dims)
     prev = qp.solve(**data)
-    # the cold start fails on a few of these QPs (e.g. seed 768: 'factorization' at iteration 19 with every
-    # residual below 5e-8; the cold solver's own weakness, not the warm start's): no sequence to start then
+    # the cold start does not converge on a few of these QPs (7 of the first 3000 seeds: 768, 934, 2145, 2210,
+    # 2744, 2903 end 'acceptable', every residual within 100x the tolerance, a breakdown of the factorisation
+    # after it; 770 'factorization'; the cold solver's own weakness, not the warm start's): no sequence then
     assume(prev.status == OK)
     for _ in range(3):
         data = _perturbed_gradient(data, rng, 0.05)

@@ -338,7 +338,7 @@ static int sqp_step(aev_mpc_workspace *ws, double reg, int warm) {
     }
     TOC(t2, t_qp);
   }
-  if (!AEV_MPC_PROJECT && (flag == OCPQP_MAX_ITER || flag == OCPQP_FACTORIZATION)) {
+  if (!AEV_MPC_PROJECT && (flag == OCPQP_MAX_ITER || flag == OCPQP_FACTORIZATION || flag == OCPQP_ACCEPTABLE)) {
     /* the exact Hessian was not convex enough for the interior point: the same QP once more with its
      * blocks projected onto the PD cone (as rti_hessian 'projected' always does) */
     ws->info.qp_iterations += qi.iterations;
@@ -353,7 +353,10 @@ static int sqp_step(aev_mpc_workspace *ws, double reg, int warm) {
   ws->info.qp_iterations += qi.iterations;
   ws->info.qp_status = flag;
   ws->info.qp_residual = qi.res_eq > qi.res_ineq ? qi.res_eq : qi.res_ineq;
-  if (flag != OCPQP_OK) return flag == OCPQP_NONFINITE ? AEV_MPC_NONFINITE : AEV_MPC_QP_FAILED;
+  /* an acceptable QP (every residual within 100x the tolerance, ocp_qp.h) is taken, and counted: as acados'
+   * RTI takes a QP at its iteration limit, but only with small residuals */
+  if (flag == OCPQP_ACCEPTABLE) ws->info.qp_acceptable++;
+  else if (flag != OCPQP_OK) return flag == OCPQP_NONFINITE ? AEV_MPC_NONFINITE : AEV_MPC_QP_FAILED;
   for (i = 0; i < AEV_MPC_NV; ++i) {
     double di = ws->dw[i];
     if (fabs(di) > step) step = fabs(di);
@@ -417,6 +420,7 @@ static int cold_start(aev_mpc_workspace *ws) {
 int aev_mpc_step_full(aev_mpc_workspace *ws, const double *z0, const double *p, double *u_out, int *status) {
   int it, st = AEV_MPC_OK;
   ws->info.iterations = ws->info.qp_iterations = ws->info.qp_status = ws->info.projected_retries = 0;
+  ws->info.qp_acceptable = 0;
   ws->info.t_shift = ws->info.t_qpdata = ws->info.t_project = ws->info.t_qp = ws->info.t_node0 = 0.0;
   ws->info.step_inf = ws->info.qp_residual = ws->info.cost = ws->info.violation = ws->info.node0_violation = NAN;
   ws->info.cold = !ws->warm;

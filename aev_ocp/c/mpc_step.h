@@ -44,6 +44,7 @@ typedef struct {
   int qp_status;          /* ocpqp status of the last QP (ocp_qp.h: OCPQP_OK = 0) */
   int projected_retries;  /* QPs re-solved with the projected Hessian after the exact one failed */
   int cold;               /* 1 if the last step was a cold start */
+  int qp_acceptable;      /* QPs of the last step taken at the acceptable level (OCPQP_ACCEPTABLE), not converged */
   double step_inf;        /* max |dx| of the last SQP iteration (scaled NLP variables) */
   double qp_residual;     /* max violation of the last QP's linear constraints */
   double cost;            /* NLP objective of the plan (NaN after a failed step) */

@@ -95,6 +95,7 @@ struct ocpqp_solver {
   double *s, *z, *b, *sg, *r, *rc, *ds, *dz;
   double *is;     /* 1/s of the current factorisation */
   double *dw2, *dpi2, *ds2, *dz2, *rho, *lamrow2;  /* iterative refinement */
+  double *bw, *bpi, *blam, *brs;  /* the best acceptable iterate: w, pi, lamrow, rstat (see OCPQP_ACCEPT_FACTOR) */
   int *srow;
   int *pind;      /* N+1: P_k is indefinite (no square root; the stage before adds E' P_k E explicitly) */
   int *kside;     /* N+2: the sides of stage k are kside[k] .. kside[k+1] - 1 */
@@ -116,9 +117,9 @@ static size_t layout(ocpqp_solver *s, double *blk) {
   size_t N = (size_t)s->d.N, nx = (size_t)s->d.nx, nu = (size_t)s->d.nu, nb = nx + nu;
   size_t nc = (size_t)s->d.nc, ncN = (size_t)s->d.ncN, nw = (size_t)s->nw, nrow = (size_t)s->nrow;
   size_t nsm = (size_t)s->nside_max, off = 0, i;
-  double **per_nw[] = {&s->w, &s->dw, &s->rstat, &s->dw2, &s->rho};
-  double **per_pi[] = {&s->pi, &s->dpi, &s->req, &s->dpi2};
-  double **per_row[] = {&s->drow, &s->ddrow, &s->sigrow, &s->qrow, &s->lamrow, &s->lamrow2};
+  double **per_nw[] = {&s->w, &s->dw, &s->rstat, &s->dw2, &s->rho, &s->bw, &s->brs};
+  double **per_pi[] = {&s->pi, &s->dpi, &s->req, &s->dpi2, &s->bpi};
+  double **per_row[] = {&s->drow, &s->ddrow, &s->sigrow, &s->qrow, &s->lamrow, &s->lamrow2, &s->blam};
   double **per_side[] = {&s->s, &s->z, &s->b, &s->sg, &s->r, &s->rc, &s->ds, &s->dz, &s->is, &s->ds2, &s->dz2};
 #define TAKE(ptr, n) do { (ptr) = blk ? blk + off : NULL; off += (n); } while (0)
   TAKE(s->P, (N + 1) * nx * nx);
@@ -754,6 +755,32 @@ static double neighbourhood_step(const ocpqp_solver *s, double alpha0) {
 }
 
 /* ------------------------------------------------------------------------------------------ solve */
+static double merit(const ocpqp_info *info, const ocpqp_settings *set) {
+  double r[4] = {info->res_stat, info->res_eq, info->res_ineq, info->res_comp};
+  double t[4] = {set->tol_stat, set->tol_eq, set->tol_ineq, set->tol_comp}, m = 0.0;
+  int j;
+  for (j = 0; j < 4; ++j) {
+    double q = t[j] > 0.0 ? r[j] / t[j] : (r[j] > 0.0 ? HUGE_VAL : 0.0);
+    if (!(q <= m)) m = q;  /* also a NaN */
+  }
+  return m;
+}
+
+/* The acceptable level (as IPOPT's acceptable_tol): an iterate whose every residual is within
+ * OCPQP_ACCEPT_FACTOR times its tolerance is kept (the best such, by the largest residual/tolerance ratio); if the
+ * solve then fails (iteration limit, a breakdown of the factorisation or non-finite iterates), that iterate is
+ * returned with status OCPQP_ACCEPTABLE instead of the last one. On degenerate QPs (a stopped car on its gap floor:
+ * the floor, v >= 0 and the path rows active together) the complementarity can stall a little above the
+ * tolerance (3.7e-9 against 1e-9) and the iterates then diverge (residuals 1e89 after 30 iterations): the
+ * acceptable iterate is the useful answer. Once one is kept, an iterate OCPQP_DIVERGE times worse ends the solve
+ * (the iterations after it would be wasted). */
+#ifndef OCPQP_ACCEPT_FACTOR
+#define OCPQP_ACCEPT_FACTOR 100.0
+#endif
+#ifndef OCPQP_DIVERGE
+#define OCPQP_DIVERGE 1e6
+#endif
+
 /* the cold or the warm start (see ocpqp_solve_warm); the guess (gw, gpi, glw, glc) is read before any output is
  * written */
 static int solve(ocpqp_solver *s, const ocpqp_data *d, int warm, int max_iter, const double *gw, const double *gpi,
@@ -761,7 +788,8 @@ static int solve(ocpqp_solver *s, const ocpqp_data *d, int warm, int max_iter, c
                  ocpqp_info *info_out) {
   int N = s->d.N, nx = DNX(s), nu = DNU(s), nb = DNB(s), nc = DNC(s), ncN = DNCN(s), nw = s->nw;
   int nr = nb + nc, k, i, it, st = OCPQP_OK;
-  double z0;
+  double z0, best = HUGE_VAL;  /* the best acceptable iterate's merit (none yet) */
+  ocpqp_info binfo;
   size_t nh = (size_t)N * nb * nb + (size_t)nx * nx, ncm = (size_t)N * nc * nb + (size_t)ncN * nx;
   ocpqp_info info_local, *info = info_out ? info_out : &info_local;
   info->iterations = 0;
@@ -874,6 +902,21 @@ static int solve(ocpqp_solver *s, const ocpqp_data *d, int warm, int max_iter, c
       st = OCPQP_OK;
       break;
     }
+    {
+      /* the merit: the largest residual/tolerance ratio (a tolerance 0 never accepts) */
+      double m = merit(info, &s->set);
+      if (m <= OCPQP_ACCEPT_FACTOR && m < best) {
+        best = m;
+        binfo = *info;
+        memcpy(s->bw, s->w, (size_t)nw * sizeof(double));
+        memcpy(s->bpi, s->pi, (size_t)N * nx * sizeof(double));
+        memcpy(s->blam, s->lamrow, (size_t)s->nrow * sizeof(double));
+        memcpy(s->brs, s->rstat, (size_t)nx * sizeof(double));
+      } else if (best < HUGE_VAL && !(m <= OCPQP_DIVERGE * best)) {
+        st = OCPQP_MAX_ITER;  /* diverging from an acceptable iterate */
+        break;
+      }
+    }
     if (it >= max_iter) { st = OCPQP_MAX_ITER; break; }
     st = factor(s, d);
     if (st) break;
@@ -932,7 +975,16 @@ static int solve(ocpqp_solver *s, const ocpqp_data *d, int warm, int max_iter, c
     }
     info->iterations = it + 1;
   }
-  /* outputs (the last iterate; lam of x_0 closes the stationarity of x_0) */
+  if (st != OCPQP_OK && best < HUGE_VAL) {  /* failed after an acceptable iterate: that one (see OCPQP_ACCEPT_FACTOR) */
+    memcpy(s->w, s->bw, (size_t)nw * sizeof(double));
+    memcpy(s->pi, s->bpi, (size_t)N * nx * sizeof(double));
+    memcpy(s->lamrow, s->blam, (size_t)s->nrow * sizeof(double));
+    memcpy(s->rstat, s->brs, (size_t)nx * sizeof(double));
+    info->res_stat = binfo.res_stat; info->res_eq = binfo.res_eq;
+    info->res_ineq = binfo.res_ineq; info->res_comp = binfo.res_comp;
+    st = OCPQP_ACCEPTABLE;
+  }
+  /* outputs (the last iterate, or the acceptable one; lam of x_0 closes the stationarity of x_0) */
   memcpy(w, s->w, (size_t)nw * sizeof(double));
   if (pi) memcpy(pi, s->pi, (size_t)N * nx * sizeof(double));
   if (lam_w || lam_c) {

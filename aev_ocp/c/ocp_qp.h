@@ -53,7 +53,10 @@ enum {
   OCPQP_FACTORIZATION = 2,  /* a Riccati block was not positive definite (a non-convex QP) */
   OCPQP_NONFINITE = 3,      /* a non-finite number in the data or the iterates */
   OCPQP_INFEASIBLE = 4,     /* inconsistent bounds (lb > ub; HPIPM: also its INCONS_EQ) */
-  OCPQP_BAD_DIMS = 5
+  OCPQP_BAD_DIMS = 5,
+  OCPQP_ACCEPTABLE = 6      /* not converged (iteration limit or breakdown), but an earlier iterate had every
+                             * residual within OCPQP_ACCEPT_FACTOR (100) times its tolerance: that iterate is
+                             * returned, with its residuals (ocp_qp.c) */
 };
 
 typedef struct { int N, nx, nu, nc, ncN; } ocpqp_dims;

@@ -564,6 +564,7 @@ class Info(ctypes.Structure):
         ("qp_status", ctypes.c_int),
         ("projected_retries", ctypes.c_int),
         ("cold", ctypes.c_int),
+        ("qp_acceptable", ctypes.c_int),
         ("step_inf", ctypes.c_double),
         ("qp_residual", ctypes.c_double),
         ("cost", ctypes.c_double),

@@ -47,7 +47,9 @@ __all__ = [
 ]
 
 INF = 1e19  # OCPQP_INF: a bound at least this large in magnitude is absent
-STATUS = {0: "ok", 1: "max_iter", 2: "factorization", 3: "nonfinite", 4: "infeasible", 5: "bad_dims"}
+#: ocp_qp.h's statuses; 6 'acceptable': not converged, the returned iterate is the best one with every residual
+#: within 100x its tolerance (OCPQP_ACCEPT_FACTOR), as IPOPT's acceptable level
+STATUS = {0: "ok", 1: "max_iter", 2: "factorization", 3: "nonfinite", 4: "infeasible", 5: "bad_dims", 6: "acceptable"}
 
 
 class OcpQPError(ParameterError):

@@ -284,6 +284,11 @@ def solve_compiled(c: RTIHost, z0: np.ndarray, p: np.ndarray) -> MPCSolution:
         info.cost,
         info.violation,
         "rti",
-        {"step_inf": info.step_inf, "node0_violation": info.node0_violation, "cold_start": bool(info.cold)},
+        {
+            "step_inf": info.step_inf,
+            "node0_violation": info.node0_violation,
+            "cold_start": bool(info.cold),
+            "qp_acceptable": int(info.qp_acceptable),
+        },
         U,
     )
