@@ -111,11 +111,18 @@ def _partials(fn: ca.Function) -> ca.Function:
     return ca.Function("partials", [h, v, vl], [f, J[0], J[1] + J[2], J[2]])
 
 
-def equilibrium_gap_m(accel: ca.Function, v_mps: float) -> float:
+def gap_scan(accel: ca.Function) -> ca.Function:
+    """``accel`` mapped over the scanned gaps (:func:`equilibrium_gap_m`'s ``scan``): build it once per law and
+    pass it to every call that scans that law (a CasADi map is built anew on each call otherwise)."""
+    return accel.map(_GAPS_M.size)
+
+
+def equilibrium_gap_m(accel: ca.Function, v_mps: float, scan: ca.Function | None = None) -> float:
     """The gap [m] at which ``accel`` holds speed v_mps behind a lead at the same speed: the first sign change of
     f(h, v, v) from braking to accelerating on h ∈ [1 mm, 10 km], then a bracketed root to 1e-13 (relative); 0 when
-    it does not brake even at 1 mm."""
-    f = np.asarray(accel.map(_GAPS_M.size)(_GAPS_M.reshape(1, -1), v_mps, v_mps)).ravel()
+    it does not brake even at 1 mm. ``scan``: :func:`gap_scan` of ``accel`` (built here when not given)."""
+    scan = gap_scan(accel) if scan is None else scan
+    f = np.asarray(scan(_GAPS_M.reshape(1, -1), v_mps, v_mps)).ravel()
     if f[0] >= 0:  # holds the speed at any gap from 1 mm up (an OV law at standstill): bumper to bumper
         return 0.0
     idx = np.flatnonzero((f[:-1] < 0) & (f[1:] >= 0))
@@ -142,9 +149,10 @@ def equilibrium(
     distinct: dict[int, tuple[ca.Function, int]] = {}  # vehicles sharing one Function share its gap
     for f in accels:
         distinct[id(f)] = (f, distinct.get(id(f), (f, 0))[1] + 1)
+    scans = {key: gap_scan(f) for key, (f, _) in distinct.items()}  # one map per law, not one per speed tried
 
     def excess(v: float) -> float:
-        gaps = sum(k * equilibrium_gap_m(f, v) for f, k in distinct.values())
+        gaps = sum(k * equilibrium_gap_m(f, v, scans[key]) for key, (f, k) in distinct.items())
         return gaps + float(sum(vehicle_lengths_m)) - length_m
 
     grid = np.linspace(0.0, v_max_mps, 65)
@@ -186,7 +194,7 @@ def equilibrium(
                 f"at any speed they can hold (up to {lo:.6g} m/s)"
             )
     v = bracketed_root(excess, lo, hi, 1e-13) if excess(lo) != 0 else lo
-    gap = {key: equilibrium_gap_m(f, v) for key, (f, _) in distinct.items()}
+    gap = {key: equilibrium_gap_m(f, v, scans[key]) for key, (f, _) in distinct.items()}
     return v, np.array([gap[id(f)] for f in accels])
 
 
