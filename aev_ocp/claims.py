@@ -95,12 +95,15 @@ def paper_platoon_check() -> dict[str, Any]:
 
 HEAD_THEOREM41 = "Theorem 4.1 checked numerically (ω(proposed) ≤ ω(OVFL)?)"
 THEOREM41_SEED = 2025  # the random Theorem 4.1 cases (recorded in theorem41.json's provenance)
+PROGRESS_LINES = 6  # progress lines of the random cases (the section declares 1 + these)
 
 
 def random_cases(
     n_cases: int = 60, seed: int = THEOREM41_SEED, t_end: float = 70.0, progress: ProgressFn | None = None
 ) -> list[Theorem41Case]:
-    """Random single-follower cases: paper leader or a constant leader, random gap, speed and κ."""
+    """Random single-follower cases: paper leader or a constant leader, random gap, speed and κ; ``progress`` gets
+    :data:`PROGRESS_LINES` lines, evenly spaced (every 10th case of 60)."""
+    marks = {round(k * n_cases / PROGRESS_LINES) for k in range(1, PROGRESS_LINES + 1)}
     rng = np.random.default_rng(seed)
     cases = []
     for j in range(n_cases):
@@ -123,7 +126,7 @@ def random_cases(
                 r["status"],
             )
         )
-        if progress is not None and (j + 1) % 10 == 0:
+        if progress is not None and j + 1 in marks:
             progress(f"Theorem 4.1 random cases: {j + 1}/{n_cases}")
     return cases
 
@@ -141,14 +144,22 @@ def theorem41_summary(cases: list[Theorem41Case]) -> dict[str, Any]:
     }
 
 
-def theorem41_section(out_dir: Path, progress: ProgressFn, n_cases: int = 60) -> str:
-    """Report section: Theorem 4.1 on the paper platoon and on random cases (writes theorem41.json/.png)."""
+N_CASES_FULL = 60  # random Theorem 4.1 cases of the full reproduction
+N_CASES_REDUCED = 10  # of a reduced configuration (ReproduceConfig.quick(): a smoke run)
+
+
+def theorem41_section(out_dir: Path, progress: ProgressFn, n_cases: int | None = None) -> str:
+    """Report section: Theorem 4.1 on the paper platoon and on random cases (writes theorem41.json/.png);
+    n_cases: the random cases (None: :data:`N_CASES_FULL` in the full reproduction, :data:`N_CASES_REDUCED` in a
+    reduced configuration)."""
     from .plots import plot_theorem41
     from .report import markdown_table
     from .provenance import provenance
     from .report_sections import SectionContext
     from .results import write_json
 
+    if n_cases is None:
+        n_cases = N_CASES_FULL if SectionContext.of(progress).config.is_full else N_CASES_REDUCED
     progress("Theorem 4.1 on the paper's platoon")
     platoon = paper_platoon_check()
     cases = random_cases(n_cases, seed=THEOREM41_SEED, progress=progress)
@@ -216,4 +227,4 @@ def theorem41_section(out_dir: Path, progress: ProgressFn, n_cases: int = 60) ->
     )
 
 
-REPRODUCE_SECTIONS = [("theorem41", theorem41_section, 7)]  # 1 + 60 cases / 10
+REPRODUCE_SECTIONS = [("theorem41", theorem41_section, 1 + PROGRESS_LINES)]  # the platoon, then the random cases

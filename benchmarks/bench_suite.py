@@ -8,7 +8,10 @@ Runs ``python -m pytest -q -n WORKERS --dist MODE`` in a child process from the 
   the wall time says little, the CPU time more);
 * the counts pytest reports (passed, skipped, failed, ...) and the compilations (``aev_ocp: compiling <stem>``
   lines, shown by pytest only for failing tests, so usually none: the compile cache's own test counts them);
-* the ten slowest phases and each file's seconds (setup, call and teardown of its tests, ``--durations=0``).
+* the ten slowest phases and each file's seconds (setup, call and teardown of its tests, ``--durations=0``);
+* the environment variables that change the time (:data:`TIMING_ENV`): ``PYTHONDONTWRITEBYTECODE`` set makes every
+  process compile the package's modules and pytest rewrite every test module again (about 4 s of CPU per worker to
+  collect, more in each process a test starts); the BLAS thread counts (tests/conftest.py sets 1 unless given).
 
 ``--dist MODE`` (repeatable) runs the suite once per mode in this process, in the order given, the first being the
 baseline of the ratios: ``python benchmarks/bench_suite.py --dist load --dist loadfile``. ``--cache DIR``: the
@@ -38,6 +41,8 @@ FILE_SECONDS = ROOT / "tests" / "data" / "file_seconds.json"
 _COUNTS = re.compile(r"(\d+) (passed|failed|skipped|errors?|xfailed|xpassed|deselected|warnings?)\b")
 _DURATION = re.compile(r"^\s*(\d+\.\d+)s (setup|call|teardown)\s+(\S+)", re.M)
 _COMPILING = re.compile(r"aev_ocp: compiling (\S+) with ")
+#: environment variables recorded with each run: they change its time, not its results
+TIMING_ENV = ("PYTHONDONTWRITEBYTECODE", "OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
 
 
 def children_cpu_s() -> float:
@@ -82,6 +87,7 @@ def run(mode: str, workers: str, cache: Path | None, extra: list[str]) -> dict[s
         "cpu_s": round(cpu, 2),
         "load_1min_before": round(load0, 2),
         "load_1min_after": round(os.getloadavg()[0], 2),
+        "environment": {k: os.environ.get(k) for k in TIMING_ENV},
         "counts": counts,
         "compilations": _COMPILING.findall(proc.stdout + proc.stderr),
         "slowest": [{"seconds": x, "phase": ph, "test": t} for x, ph, t in phases[:10]],

@@ -32,6 +32,13 @@ RECORDED = Path(__file__).resolve().parent / "data" / "file_seconds.json"
 WEIGHTS_INPUT = "aev_ocp_file_weights"  # key of the weights in an xdist worker's start-up input
 _WEIGHTS = pytest.StashKey[dict[str, float]]()
 
+# One BLAS thread per process (unless the environment says otherwise): the command runs one pytest worker per core and
+# tests start more processes (study pools, Dask workers, the CLI), which inherit this; OpenBLAS's own threads on top
+# oversubscribe the cores and spin while they wait (issue 40: the mixed-ring stability command's eigenvalues took 2.5 s
+# of CPU with OpenBLAS's default threads on this two-core machine, 0.6 s with one). Set before NumPy is imported here.
+for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
+
 
 def _recorded() -> dict[str, float]:
     try:

@@ -17,6 +17,8 @@ compiler and driven through the CVODES plant via ctypes.
 
 from __future__ import annotations
 
+import hashlib
+import os
 import shutil
 import re
 import subprocess
@@ -167,6 +169,25 @@ def _c_run(
     return r, cp.status
 
 
+def _build(src: Path, out_lib: Path) -> Path:
+    """``build_library(src, out_lib)`` through the environment's compile cache (``$AEV_OCP_CACHE``, as the codegen
+    tests): a library that build_library made from the same C sources, headers and compiler before is copied, so a
+    warm cache compiles nothing. build_library itself runs in test_mpc_export_builds_into_a_relative_out (``--build``)
+    and the canonical export is built by its own Makefile (canonical_lib), every run."""
+    from aev_ocp.compiled import cache_dir
+
+    key = hashlib.sha256(str(compiler()).encode())
+    for f in sorted(p for p in src.iterdir() if p.suffix in (".c", ".h")):  # mpc_config.h holds the QP's -D flags
+        key.update(f.name.encode() + b"\0" + f.read_bytes() + b"\0")
+    cached = cache_dir("mpc_export_tests") / f"lib_{key.hexdigest()[:24]}.so"
+    if not cached.is_file():
+        tmp = cached.with_name(f".{cached.name}.{os.getpid()}")
+        build_library(src, tmp)
+        os.replace(tmp, cached)  # atomic: a concurrent run finds a whole library or none
+    shutil.copyfile(cached, out_lib)
+    return out_lib
+
+
 @pytest.fixture(scope="module")
 def canonical_lib(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """`aev-ocp mpc-export mpc_paper_single --out DIR`, then `make` (or cc without make)."""
@@ -210,7 +231,7 @@ def udds_lib(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
     out = tmp_path_factory.mktemp("mpc_export_udds")
     assert main([*UDDS_EXPORT, "--out", str(out)]) == 0
-    return build_library(out, out / "lib.so")
+    return _build(out, out / "lib.so")
 
 
 @pytest.fixture(scope="module")
@@ -317,7 +338,7 @@ def test_soft_constraint_and_extra_state_problem(tmp_path: Path) -> None:
     c = export_controller_settings(s, ev, formulation=pf)
     assert c.nx == 6 and c.problem.control_names[-1] == "slack_headway"  # a_prev; the soft constraint's slack
     export_controller(c, tmp_path, "candidate")
-    lib = build_library(tmp_path, tmp_path / "lib.so")
+    lib = _build(tmp_path, tmp_path / "lib.so")
     from aev_ocp.mpc.controller import MPCController
 
     # against the Python driver (interpreted QP data, NumPy projection, the same QP solver), both from the

@@ -76,18 +76,18 @@ def test_epigraph_omega_is_the_bang_cruise_bang_optimum(D, T, a_max, a_min, N, m
 
 def test_smoothing_gap_fires_on_smoothed_g_and_wide_eta_smoothing_silent_on_shipped():
     # the case: the smoothed g lets the optimiser creep at ±0.015 m/s² where g~ < g
-    smooth = EcoTripSolver(EcoTrip(objective="omega", omega_form="smooth"), "ms", 100, mx_map=True).solve()
+    smooth = EcoTripSolver(EcoTrip(objective="omega", omega_form="smooth"), "ms", 50, mx_map=True).solve()
     assert smooth.success
     gap = smooth.meta["smoothing_gap"]
     assert gap["warning"] and gap["relative"] > 0.02
     assert smooth.objective < smooth.objective_exact  # the NLP saw a cheaper trip than it is
     assert f"{smooth.objective:.6g}" in smooth.warnings[0] and f"{smooth.objective_exact:.6g}" in smooth.warnings[0]
     # a too-wide η smoothing (20 kW) in the heat objective: the NLP under-counts braking losses
-    wide = EcoTripSolver(EcoTrip(smooth=PowertrainOptions(20_000.0)), "ms", 100, mx_map=True).solve()
+    wide = EcoTripSolver(EcoTrip(smooth=PowertrainOptions(20_000.0)), "ms", 50, mx_map=True).solve()
     assert wide.success and wide.meta["smoothing_gap"]["warning"] and len(wide.warnings) == 1
     # the shipped forms (model guide §7 width, exact ω) stay silent
     for obj in ("heat", "omega"):
-        r = EcoTripSolver(EcoTrip(objective=obj), "ms", 100, mx_map=True).solve()
+        r = EcoTripSolver(EcoTrip(objective=obj), "ms", 50, mx_map=True).solve()
         assert r.success and r.warnings == [] and r.meta["smoothing_gap"]["relative"] < 1e-3
 
 

@@ -291,3 +291,55 @@ def test_unknown_report_metrics_are_refused_and_absent_ones_named_in_a_warning(t
     rc, _, err = run_cli(["study", str(f), "--out", str(tmp_path / "o"), "--in-process"], capsys)
     warn = [ln for ln in err.splitlines() if "not columns of the table" in ln]
     assert rc == 0 and len(warn) == 1 and "'solve_ms_median'" in warn[0] and "nfev" not in warn[0]
+
+
+# ----------------------------------------------------------------------------- the ring section (Sugiyama, Stern)
+# (its checks were tests/test_ring.py's test_ring_report_section, on a quick run of the section of its own: reproduce's
+# quick run computes the same section with the same configuration, so they read that run)
+@pytest.mark.slow  # needs the module's reproduce run (quick_report: over a minute of one core)
+def test_ring_section_runs_sugiyama_and_stern_and_its_runs_load_back(quick_report: tuple[Path, str]) -> None:
+    import aev_ocp
+    from aev_ocp.reproduce import SECTION_PROVIDERS
+    from aev_ocp.report_sections import load_providers
+    from aev_ocp.ring.outputs import RingOutput
+    from aev_ocp.ring.run import fleet_metrics, human_ring, run_ring
+    from aev_ocp.ring_section import QUICK_T_END_S
+
+    out, log = quick_report
+    assert "aev_ocp.ring_section" in SECTION_PROVIDERS and "aev_ocp.ring_section" in load_providers(SECTION_PROVIDERS)
+    text = (out / "report.md").read_text()
+    head = "\n## Ring roads"
+    assert head in text
+    md = head[1:] + text.split(head, 1)[1].split("\n## ", 1)[0]  # the section's text
+    assert sum(ln.startswith("[") and "] ring: " in ln for ln in log.splitlines()) == 3  # its 3 steps
+    assert "### Sugiyama" in md and "### Stern" in md and "ring_space_time.png" in md
+    assert (out / "ring_space_time.png").read_bytes()[:4] == b"\x89PNG"
+    assert not (out / "ring.json").exists()  # one home: the section's folder
+    doc = json.loads((out / "ring" / "ring.json").read_text())
+    stern = [r for r in doc["runs"] if not r["label"].startswith("sugiyama")]
+    assert [r["label"] for r in doc["runs"][:2]] == ["sugiyama 230 m", "sugiyama 600 m"]
+    jam, calm = doc["sugiyama"]
+    for s in (jam, calm):  # the linear theory's growth rate and the measured one
+        assert s["measured"]["measured_per_s"] == pytest.approx(s["predicted_growth_per_s"], rel=0.05)
+    assert jam["predicted_growth_per_s"] > 0 > calm["predicted_growth_per_s"]
+    labels = [r["label"] for r in stern]
+    assert labels == ["all human", "followerstopper", "pi-saturation", "proposed", "ovfl", "mpc"]
+    # the all-human row is the experiments' ring, run independently of the scenario file
+    ref = run_ring(human_ring(230.0, seed=0), QUICK_T_END_S).fleet
+    for k in ("speed_std_mps", "battery_energy_J_per_km", "heat_pack_J_per_km", "braking_events"):
+        assert stern[0][k] == pytest.approx(ref[k], rel=1e-9)
+    assert all(r["collisions"] == 0 for r in stern)
+    assert stern[-1]["fallbacks"] == 0 and stern[-1]["call_ms_median"] > 0
+    # the runs load back (manifest kind 'ring' in the section's folder 'ring'): the same fleet metrics as its
+    # ring.json, and the trajectories recompute them (fleet_metrics of the loaded RingResult, an independent pass)
+    loaded = aev_ocp.load(out / "ring")
+    assert isinstance(loaded, RingOutput) and 'aev_ocp.load("ring")' in md
+    assert [r.label for r in loaded.runs] == ["sugiyama 230 m", "sugiyama 600 m"] + labels
+    assert loaded.document["sugiyama"] == doc["sugiyama"]
+    for r, saved in zip(loaded.runs[2:], stern, strict=True):
+        assert {"label": r.label, **r.fleet} == saved
+    stern_mpc = loaded.run("mpc")
+    t_from = float(stern[-1]["window_s"][0])
+    again = fleet_metrics(stern_mpc, t_from_s=t_from)
+    for k in ("speed_std_mps", "heat_pack_J_per_km", "braking_events"):
+        assert again[k] == pytest.approx(stern[-1][k], rel=1e-12)

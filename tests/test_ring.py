@@ -575,54 +575,6 @@ def test_cli_ring_scenario(tmp_path):
     assert p.returncode == 2 and "ring_stern" in p.stderr
 
 
-# ------------------------------------------------------------------------------------------- the report section
-def test_ring_report_section(tmp_path):
-    import json
-
-    from aev_ocp.report_sections import ReproduceConfig, SectionContext, load_providers
-    from aev_ocp.reproduce import SECTION_PROVIDERS
-    from aev_ocp.ring_section import QUICK_T_END_S, ring_section
-
-    assert "aev_ocp.ring_section" in SECTION_PROVIDERS and "aev_ocp.ring_section" in load_providers(SECTION_PROVIDERS)
-    lines: list[str] = []
-    md = ring_section(tmp_path, SectionContext(lines.append, ReproduceConfig.quick()))
-    assert len(lines) == 3 and "### Sugiyama" in md and "### Stern" in md and "ring_space_time.png" in md
-    assert (tmp_path / "ring_space_time.png").read_bytes()[:4] == b"\x89PNG"
-    assert not (tmp_path / "ring.json").exists()  # one home: the section's folder
-    doc = json.loads((tmp_path / "ring" / "ring.json").read_text())
-    stern = [r for r in doc["runs"] if not r["label"].startswith("sugiyama")]
-    assert [r["label"] for r in doc["runs"][:2]] == ["sugiyama 230 m", "sugiyama 600 m"]
-    jam, calm = doc["sugiyama"]
-    for s in (jam, calm):  # the linear theory's growth rate and the measured one
-        assert s["measured"]["measured_per_s"] == pytest.approx(s["predicted_growth_per_s"], rel=0.05)
-    assert jam["predicted_growth_per_s"] > 0 > calm["predicted_growth_per_s"]
-    labels = [r["label"] for r in stern]
-    assert labels == ["all human", "followerstopper", "pi-saturation", "proposed", "ovfl", "mpc"]
-    # the all-human row is the experiments' ring, run independently of the scenario file
-    ref = run_ring(human_ring(230.0, seed=0), QUICK_T_END_S).fleet
-    for k in ("speed_std_mps", "battery_energy_J_per_km", "heat_pack_J_per_km", "braking_events"):
-        assert stern[0][k] == pytest.approx(ref[k], rel=1e-9)
-    assert all(r["collisions"] == 0 for r in stern)
-    assert stern[-1]["fallbacks"] == 0 and stern[-1]["call_ms_median"] > 0
-    # the runs load back (manifest kind 'ring' in the section's folder 'ring'): the same fleet metrics as its
-    # ring.json, and the trajectories recompute them (fleet_metrics of the loaded RingResult, an independent pass)
-    import aev_ocp
-    from aev_ocp.ring.run import fleet_metrics
-    from aev_ocp.ring.outputs import RingOutput
-
-    loaded = aev_ocp.load(tmp_path / "ring")
-    assert isinstance(loaded, RingOutput) and 'aev_ocp.load("ring")' in md
-    assert [r.label for r in loaded.runs] == ["sugiyama 230 m", "sugiyama 600 m"] + labels
-    assert loaded.document["sugiyama"] == doc["sugiyama"]
-    for r, saved in zip(loaded.runs[2:], stern, strict=True):
-        assert {"label": r.label, **r.fleet} == saved
-    stern_mpc = loaded.run("mpc")
-    t_from = float(stern[-1]["window_s"][0])
-    again = fleet_metrics(stern_mpc, t_from_s=t_from)
-    for k in ("speed_std_mps", "heat_pack_J_per_km", "braking_events"):
-        assert again[k] == pytest.approx(stern[-1][k], rel=1e-12)
-
-
 def test_ring_scenario_sweep_penetration_by_density():
     from aev_ocp.ring.run import relative_to, run_ring_scenario
     from aev_ocp.ring.scenario import load_ring_scenario, parse_ring_scenario, scenario_runs, spread

@@ -291,9 +291,14 @@ def mpc_section(out_dir: Any, progress: Callable[[str], None]) -> str:
     """Reproduce section: the canonical MPC (model guide §9) beside the proposed law and OVFL (and OCP-D)."""
     from ..scenarios import find_scenario, load_scenario
 
+    from ..report_sections import SectionContext
+
     out = Path(out_dir) / "mpc"
     progress("MPC: canonical scenario (mpc_paper_single)")
     sc = load_scenario(find_scenario("mpc_paper_single"))
+    cap = SectionContext.of(progress).config.scenario_t_end_max  # a reduced configuration's horizon cap
+    if cap is not None and sc.t_end > cap:
+        sc = sc.replace(t_end=cap)
     c = run_comparison(sc, log=progress)
     progress("MPC: writing tables and plots")
     from ..saved import settings_of

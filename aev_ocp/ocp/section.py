@@ -16,14 +16,22 @@ from .prop31 import run_prop31
 from ..ocp_result import OCPResult, write_json_atomic
 
 HEAD_PROP31 = "Proposition 3.1: is I* = 0 the unique minimiser of ∫Q dt?"
+N_FULL = 200  # intervals of the OCP sections' problems in the full reproduction
+N_REDUCED = 50  # in a reduced configuration (ReproduceConfig.quick(): a smoke run, minutes of CPU less for tests)
+
+
+def _intervals(progress: Callable[[str], None]) -> int:
+    """N of the sections' problems: :data:`N_FULL` in the full reproduction, :data:`N_REDUCED` in a reduced one."""
+    return N_FULL if SectionContext.of(progress).config.is_full else N_REDUCED
 
 
 def prop31_section(out_dir: Path, progress: Callable[[str], None]) -> str:
     """Solve OCP-A's four cases with multiple shooting and collocation; write prop31.json/.png; return Markdown."""
+    N = _intervals(progress)
     progress("Proposition 3.1: OCP-A by multiple shooting")
-    ms = run_prop31(method="ms")
+    ms = run_prop31(method="ms", N=N)
     progress("Proposition 3.1: OCP-A by collocation")
-    col = run_prop31(method="collocation")
+    col = run_prop31(method="collocation", N=N)
     write_prop31_outputs(ms, out_dir)
     rows = []
     for case, e in ms.items():
@@ -66,7 +74,7 @@ def prop31_section(out_dir: Path, progress: Callable[[str], None]) -> str:
     )
     return (
         f"## {HEAD_PROP31}\n\n"
-        "OCP-A (model guide §8): one A123 cell, t_f = 60 s, S(0) = 0.5, |I| ≤ 46 A, N = 200 intervals, "
+        f"OCP-A (model guide §8): one A123 cell, t_f = 60 s, S(0) = 0.5, |I| ≤ 46 A, N = {N} intervals, "
         "IPOPT with exact Hessian. Cases: rest (V1 = V2 = 0) and relaxing polarisation (V1 = 0.02 V, "
         "V2 = 0.03 V), each with and without the constraint Q ≥ 0. The cases without Q ≥ 0 are "
         "linear-quadratic and are checked against an exact discrete Riccati solution. Files: prop31.json, "
@@ -127,14 +135,15 @@ def ocp_checks_section(out_dir: Path, progress: Callable[[str], None]) -> str:
     """OCP-C (both objectives, and the smoothed-g form the issue found) and OCP-B: NLP objective next to
     the exact re-simulation, with N doubled; OCP-B's infeasible row with its true bound. Writes
     ocp_checks.json; returns Markdown."""
-    progress("OCP checks: eco-trip (heat, exact ω, smoothed ω), N = 200 (and 400)")
+    N = _intervals(progress)
+    progress(f"OCP checks: eco-trip (heat, exact ω, smoothed ω), N = {N} (and {2 * N})")
     res: dict[str, OCPResult] = {}
     for label, trip in (
         ("heat [kJ]", EcoTrip()),
         ("ω [J/kg], exact epigraph form", EcoTrip(objective="omega")),
         ("ω [J/kg], smoothed g (earlier form)", EcoTrip(objective="omega", omega_form="smooth")),
     ):
-        solver = EcoTripSolver(trip, "ms", 200, mx_map=True)
+        solver = EcoTripSolver(trip, "ms", N, mx_map=True)
         # the smoothed form reaches the same 24.1378 J/kg from every start (README); from the
         # bang–cruise–bang guess in 9 IPOPT iterations instead of ~200 from the sine guess
         r = solver.solve(guess="bang" if trip.omega_form == "smooth" else "sine")
@@ -142,7 +151,7 @@ def ocp_checks_section(out_dir: Path, progress: Callable[[str], None]) -> str:
             solver.refine(r)
         res[label] = r
     progress("OCP checks: current profile (OCP-B) and its maximum deliverable energy")
-    cps = CurrentProfileSolver("ms", 200, mx_map=True)
+    cps = CurrentProfileSolver("ms", N, mx_map=True)
     b_ok = cps.solve(3000.0, 60.0)
     if b_ok.success:
         cps.refine(b_ok)
@@ -193,7 +202,7 @@ def ocp_checks_section(out_dir: Path, progress: Callable[[str], None]) -> str:
         "and the transcription's integrator) and re-evaluated on the exact, unsmoothed model along the "
         "applied piecewise-constant controls (CVODES interval by interval; OCP-D: replayed through the "
         "exact plant). A difference above 0.5 % puts a warning on the result. OCP-C, 1 km in 100 s from "
-        "rest to rest, N = 200, multiple shooting; file ocp_checks.json.\n\n" + table + "\n"
+        f"rest to rest, N = {N}, multiple shooting; file ocp_checks.json.\n\n" + table + "\n"
         "The ω objective is exact in its epigraph form (for v ≥ 0, v·g(a) = max(v·a/η, η·v·a); minimise ∫s "
         "with s above both): its optimum is the bang–cruise–bang trip (accelerate at 2 m/s² to 10.46 m/s, "
         "cruise, brake at 3 m/s²), 24.596 J/kg in continuous time. The smoothed g of earlier versions lets "

@@ -111,11 +111,18 @@ def _partials(fn: ca.Function) -> ca.Function:
     return ca.Function("partials", [h, v, vl], [f, J[0], J[1] + J[2], J[2]])
 
 
-def equilibrium_gap_m(accel: ca.Function, v_mps: float) -> float:
+def gap_scan(accel: ca.Function) -> ca.Function:
+    """``accel`` mapped over the scanned gaps (:func:`equilibrium_gap_m`'s ``scan``): build it once per law and
+    pass it to every call that scans that law (a CasADi map is built anew on each call otherwise)."""
+    return accel.map(_GAPS_M.size)
+
+
+def equilibrium_gap_m(accel: ca.Function, v_mps: float, scan: ca.Function | None = None) -> float:
     """The gap [m] at which ``accel`` holds speed v_mps behind a lead at the same speed: the first sign change of
     f(h, v, v) from braking to accelerating on h ∈ [1 mm, 10 km], then a bracketed root to 1e-13 (relative); 0 when
-    it does not brake even at 1 mm."""
-    f = np.asarray(accel.map(_GAPS_M.size)(_GAPS_M.reshape(1, -1), v_mps, v_mps)).ravel()
+    it does not brake even at 1 mm. ``scan``: :func:`gap_scan` of ``accel`` (built here when not given)."""
+    scan = gap_scan(accel) if scan is None else scan
+    f = np.asarray(scan(_GAPS_M.reshape(1, -1), v_mps, v_mps)).ravel()
     if f[0] >= 0:  # holds the speed at any gap from 1 mm up (an OV law at standstill): bumper to bumper
         return 0.0
     idx = np.flatnonzero((f[:-1] < 0) & (f[1:] >= 0))
@@ -128,8 +135,33 @@ def equilibrium_gap_m(accel: ca.Function, v_mps: float) -> float:
     return bracketed_root(lambda h: float(accel(h, v_mps, v_mps)), a, b, 1e-13)
 
 
+class GapMemo:
+    """Equilibrium gaps [m] of laws at speeds already solved (:func:`equilibrium_gap_m`, a pure function of the law and
+    the speed) and each law's gap scan, kept for the analyses of one search (:func:`min_aev_count`,
+    :func:`min_aev_gain`: every analysis scans the same speed grid for the same human law). It holds the laws it
+    saw, so their ids name them for its whole life; results are those computed without it, bit for bit."""
+
+    def __init__(self) -> None:
+        self._gaps: dict[tuple[int, float], float] = {}
+        self._scans: dict[int, tuple[ca.Function, ca.Function]] = {}
+
+    def gap(self, accel: ca.Function, v_mps: float) -> float:
+        """:func:`equilibrium_gap_m` of ``accel`` at ``v_mps``, computed once."""
+        key = id(accel)
+        if key not in self._scans:
+            self._scans[key] = (accel, gap_scan(accel))
+        v = float(v_mps)
+        if (key, v) not in self._gaps:
+            self._gaps[(key, v)] = equilibrium_gap_m(accel, v, self._scans[key][1])
+        return self._gaps[(key, v)]
+
+
 def equilibrium(
-    accels: Sequence[ca.Function], length_m: float, vehicle_lengths_m: Sequence[float], v_max_mps: float
+    accels: Sequence[ca.Function],
+    length_m: float,
+    vehicle_lengths_m: Sequence[float],
+    v_max_mps: float,
+    memo: GapMemo | None = None,
 ) -> tuple[float, np.ndarray]:
     """(v* [m/s], gaps h_i* [m]) of the mixed ring: the common speed whose equilibrium gaps fill the ring.
 
@@ -142,9 +174,10 @@ def equilibrium(
     distinct: dict[int, tuple[ca.Function, int]] = {}  # vehicles sharing one Function share its gap
     for f in accels:
         distinct[id(f)] = (f, distinct.get(id(f), (f, 0))[1] + 1)
+    memo = GapMemo() if memo is None else memo  # one gap scan (a CasADi map) per law, not one per speed tried
 
     def excess(v: float) -> float:
-        gaps = sum(k * equilibrium_gap_m(f, v) for f, k in distinct.values())
+        gaps = sum(k * memo.gap(f, v) for f, k in distinct.values())
         return gaps + float(sum(vehicle_lengths_m)) - length_m
 
     grid = np.linspace(0.0, v_max_mps, 65)
@@ -186,7 +219,7 @@ def equilibrium(
                 f"at any speed they can hold (up to {lo:.6g} m/s)"
             )
     v = bracketed_root(excess, lo, hi, 1e-13) if excess(lo) != 0 else lo
-    gap = {key: equilibrium_gap_m(f, v) for key, (f, _) in distinct.items()}
+    gap = {key: memo.gap(f, v) for key, (f, _) in distinct.items()}
     return v, np.array([gap[id(f)] for f in accels])
 
 
@@ -198,13 +231,15 @@ def linearise(
     lags_s: Sequence[float] | None = None,
     delays_s: Sequence[float] | None = None,
     names: Sequence[str] | None = None,
+    memo: GapMemo | None = None,
 ) -> tuple[float, list[LinearVehicle]]:
-    """(v* [m/s], the linearised vehicles) of a mixed ring at its equilibrium (exact partials by CasADi)."""
+    """(v* [m/s], the linearised vehicles) of a mixed ring at its equilibrium (exact partials by CasADi); ``memo``:
+    the equilibrium gaps of an earlier analysis of the same laws (:class:`GapMemo`)."""
     n = len(accels)
     lags = [0.0] * n if lags_s is None else list(lags_s)
     delays = [0.0] * n if delays_s is None else list(delays_s)
     nm = [f.name() for f in accels] if names is None else list(names)
-    v, gaps = equilibrium(accels, length_m, vehicle_lengths_m, v_max_mps)
+    v, gaps = equilibrium(accels, length_m, vehicle_lengths_m, v_max_mps, memo)
     out, partials = [], {id(f): _partials(f) for f in accels}
     for i, f in enumerate(accels):
         _, fh, fv, fdv = (float(x) for x in partials[id(f)](gaps[i], v, v))
@@ -377,9 +412,11 @@ def analyse_mixed_ring(
     delays_s: Sequence[float] | float = 0.0,
     names: Sequence[str] | None = None,
     pade_order: int = 6,
+    memo: GapMemo | None = None,
 ) -> MixedRingStability:
     """Equilibrium, linearisation and spectrum of a ring of n = len(accels) vehicles (each an SI Function
-    (h [m], v [m/s], v_l [m/s]) -> a [m/s²], e.g. from :func:`si_accel`); scalars apply to every vehicle."""
+    (h [m], v [m/s], v_l [m/s]) -> a [m/s²], e.g. from :func:`si_accel`); scalars apply to every vehicle. ``memo``: a
+    :class:`GapMemo` shared by analyses of the same laws (the same result, faster)."""
     n = len(accels)
     if n < 2:
         raise ParameterError(f"mixed ring: needs at least 2 vehicles, got {n}")
@@ -398,7 +435,9 @@ def analyse_mixed_ring(
             f"mixed ring: length_m = {length_m!r} is not allowed: must exceed the vehicles' total length "
             f"{sum(lengths):g} m"
         )
-    v, lin = linearise(accels, length_m, lengths, v_max_mps, per(lags_s, "lags_s"), per(delays_s, "delays_s"), names)
+    v, lin = linearise(
+        accels, length_m, lengths, v_max_mps, per(lags_s, "lags_s"), per(delays_s, "delays_s"), names, memo
+    )
     s = spectrum(lin, pade_order)
     return MixedRingStability(**{**s.to_dict(), "v_star_mps": v})
 
@@ -425,12 +464,13 @@ def min_aev_count(
     """(the fewest AEVs, evenly placed, that make the ring linearly stable, or None if even n do not; the growth
     rate [1/s] for m = 0 … n AEVs, up to the first stable m)."""
     growth: list[float] = []
+    memo = GapMemo()  # every count scans the same speeds for the same two laws
     for m in range(n + 1):
         idx = set(even_placement(n, m))
         acc = [aev if i in idx else human for i in range(n)]
         lags = [aev_lag_s if i in idx else human_lag_s for i in range(n)]
         dels = [aev_delay_s if i in idx else human_delay_s for i in range(n)]
-        g = analyse_mixed_ring(acc, length_m, vehicle_length_m, v_max_mps, lags, dels).growth_rate_per_s
+        g = analyse_mixed_ring(acc, length_m, vehicle_length_m, v_max_mps, lags, dels, memo=memo).growth_rate_per_s
         growth.append(g)
         if g < 0:
             return m, growth
@@ -457,11 +497,13 @@ def min_aev_gain(
     if any(not (0 <= i < n) for i in pos):
         raise ParameterError(f"mixed ring: aev_positions {sorted(pos)} are not all in 0 … {n - 1}")
 
+    memo = GapMemo()  # every gain scans the same speeds for the same human law
+
     def growth(k: float) -> float:
         acc = [aev_of_gain(k) if i in pos else human for i in range(n)]
         lags = [0.0 if i in pos else human_lag_s for i in range(n)]
         dels = [0.0 if i in pos else human_delay_s for i in range(n)]
-        return analyse_mixed_ring(acc, length_m, vehicle_length_m, v_max_mps, lags, dels).growth_rate_per_s
+        return analyse_mixed_ring(acc, length_m, vehicle_length_m, v_max_mps, lags, dels, memo=memo).growth_rate_per_s
 
     lo, hi = gain_range
     if growth(hi) >= 0:
