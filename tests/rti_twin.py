@@ -1,7 +1,7 @@
 """Test oracle (not part of the package): the Python twin of the compiled RTI step's SQP step
 (aev_ocp/c/mpc_step.c's sqp_step) on the package's Python RTI loop (aev_ocp.mpc.rti.RTIStep): the QP data in the
 stage layout of ocp_qp.h from the interpreted CasADi function (aev_ocp.mpc.cstep.qp_data_function), the Hessian
-blocks projected by NumPy (eigh; the C projects by Jacobi rotations), solved by ocp_qp.c through ctypes, and the
+blocks projected by NumPy (eigh; the C by Householder tridiagonalisation and QL), solved by ocp_qp.c through ctypes, and the
 same retry rule (an exact-Hessian QP that fails with max_iter or factorization is re-solved with the projected
 blocks) and the same start of the QPs of a warm step (ocpqp_solve_warm from the shifted multipliers). It shares with the compiled step only the QP solver and the CasADi expressions, so the two agreeing over
 a closed loop checks the C driver, its shift and its multiplier layout."""

@@ -492,10 +492,11 @@ def test_traffic_formulation_exports_and_matches_the_python_driver(
 
 
 def test_c_hessian_projection_equals_numpy(canonical_lib: Path) -> None:
-    """aev_mpc_project_pd (Jacobi eigenvalues, in C) against rti.project_pd (numpy.linalg.eigh) on
-    random symmetric blocks of sizes 1..9: indefinite, singular, PD with and without margin, badly scaled, with
-    decoupled variables; the result's eigenvalues are all >= the floor, and PD blocks come back unchanged (bit for
-    bit)."""
+    """aev_mpc_project_pd (Householder tridiagonalisation and implicit QL, in C) against rti.project_pd
+    (numpy.linalg.eigh) on random symmetric blocks of sizes 1..6: indefinite, singular, PD with and without margin,
+    badly scaled, with decoupled variables, with repeated eigenvalues, already (tri)diagonal, with entries near
+    1e-150 and 1e150 (squares out of range); the result's eigenvalues are all >= the floor, and PD blocks come back
+    unchanged (bit for bit)."""
     import ctypes
 
     from aev_ocp.mpc.controller import RTI_HESSIAN_FLOOR, _project_pd
@@ -528,7 +529,7 @@ def test_c_hessian_projection_equals_numpy(canonical_lib: Path) -> None:
             assert flag == 0 and np.array_equal(got, 0.5 * (B + B.T))
     assert 50 < projected < 300  # both branches exercised
     # variables without off-diagonal entries (as the traffic MPC's omega_rate and slack; the C leaves them out of
-    # the rotations): one to all of them decoupled, their diagonal entries negative, zero or positive
+    # the eigen-decomposition): one to all of them decoupled, their diagonal entries negative, zero or positive
     for trial in range(120):
         n = int(rng.integers(2, 7))
         M = rng.standard_normal((n, n))
@@ -543,6 +544,24 @@ def test_c_hessian_projection_equals_numpy(canonical_lib: Path) -> None:
         scale = 1.0 + np.abs(np.linalg.eigvalsh(B)).max()
         np.testing.assert_allclose(got, ref, rtol=0, atol=1e-11 * scale)
         assert np.all(got[free][:, np.setdiff1d(np.arange(n), free)] == 0.0)  # still decoupled, exactly
+    # repeated eigenvalues (a negative pair, a pair at 0), tridiagonal and diagonal blocks, and scales whose squares
+    # under- or overflow (the QL's rotations then take libm's hypot)
+    for trial in range(160):
+        n = int(rng.integers(2, 7))
+        Q, _ = np.linalg.qr(rng.standard_normal((n, n)))
+        lam = rng.uniform(-2.0, 5.0, n)
+        lam[1] = lam[0] = -abs(lam[0]) if trial % 2 else 0.0
+        B = (Q * lam) @ Q.T
+        if trial % 4 == 2:
+            B = np.diag(np.diag(B)) + np.diag(np.diag(B, 1), 1) + np.diag(np.diag(B, 1), -1)
+        elif trial % 4 == 3:
+            B = np.diag(lam)
+        B = 0.5 * (B + B.T) * (1e-150 if trial % 8 == 1 else 1e150 if trial % 8 == 5 else 1.0)
+        ref = _project_pd(B[None].copy())[0]
+        got = np.asfortranarray(B.copy())
+        assert lib.aev_mpc_project_pd(got.ctypes.data, n, RTI_HESSIAN_FLOOR) in (0, 1)
+        scale = 1.0 + np.abs(np.linalg.eigvalsh(B)).max()
+        np.testing.assert_allclose(got, ref, rtol=0, atol=1e-11 * scale)
     bad = np.full((3, 3), np.nan)
     assert lib.aev_mpc_project_pd(np.asfortranarray(bad).ctypes.data, 3, RTI_HESSIAN_FLOOR) == -1
 

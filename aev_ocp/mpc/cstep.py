@@ -272,7 +272,9 @@ def rti_functions(c: ExportableController) -> list[ca.Function]:
     lb0, ub0 = bd["path_lb"], bd["path_ub"]
     viol0 = ca.mmax(ca.vertcat(ca.fmax(ca.fmax(lb0 - path0, path0 - ub0), 0), ca.DM(0)))
     ev = ca.Function("aev_cg_eval", [V, P], [f, viol], ["x", "p"], ["f", "violation"])
-    node0 = ca.Function("aev_cg_node0", [V, P], [viol0, V[nx:nb] * us], ["x", "p"], ["node0_violation", "u0"])
+    # expanded (SX): only the path constraints' operations of the interval function remain, not its RK4 step (8 of
+    # 32 kB of machine code, which a step whose code is not in cache fetches from memory; issue 40)
+    node0 = ca.Function("aev_cg_node0", [V, P], [viol0, V[nx:nb] * us], ["x", "p"], ["node0_violation", "u0"]).expand()
     # --- cold-start guess (HorizonNLP.guess) and shift (HorizonNLP.shift)
     Z0 = ca.MX.sym("z0", nx)
     Wm, pm = ca.reshape(P[: pr.nw * N], pr.nw, N), P[pr.nw * N : pr.nw * N + pr.np_]
