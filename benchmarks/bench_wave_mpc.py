@@ -28,8 +28,9 @@ constant speed, the fleet's speed std and the gap that car would need on the rea
                                         [--safety] [--bound [V ...] [--bound-only]] [--wave-params JSON]
                                         [--out results/bench_wave_mpc.json] [--record]
 
-``--record`` also writes the JSON to tests/data/ (named after the scenario), where tests/test_wave_mpc.py checks
-that the guide quotes it.
+``--record`` also writes the JSON to tests/data/ (named after the scenario, plus ``--record-suffix``), where
+tests/test_wave_mpc.py checks that the guide quotes it: the table of seeds 60–79, and the final evaluation on seeds
+80–99 (``--seeds 80 … 99 --record --record-suffix _seeds80-99``).
 
 The wall times are those of a shared 2-core machine; the MPC's solve time per step is the median and maximum of its
 calls (wall) and the run's process CPU time per MPC step is printed beside it.
@@ -319,6 +320,11 @@ def main(argv: list[str] | None = None) -> int:
     )
     ap.add_argument("--out", default="results/bench_wave_mpc.json")
     ap.add_argument("--record", action="store_true", help="also write the JSON to tests/data/ (the guide's numbers)")
+    ap.add_argument(
+        "--record-suffix",
+        default="",
+        help="with --record: tests/data/bench_wave_mpc_<scenario><suffix>.json (e.g. _seeds80-99, the final evaluation)",
+    )
     a = ap.parse_args(argv)
     sc = load_ring_scenario(a.scenario)
     wp = replace(WaveParams(**sc.spec.wave), **json.loads(a.wave_params))  # [ring.wave], then --wave-params
@@ -412,7 +418,12 @@ def main(argv: list[str] | None = None) -> int:
         doc["safety"] = safety_check(wp=wp)
     outs = [Path(a.out)]
     if a.record:
-        outs.append(Path(__file__).parent.parent / "tests" / "data" / f"bench_wave_mpc_{Path(a.scenario).stem}.json")
+        outs.append(
+            Path(__file__).parent.parent
+            / "tests"
+            / "data"
+            / f"bench_wave_mpc_{Path(a.scenario).stem}{a.record_suffix}.json"
+        )
     return write_outputs(doc, outs)
 
 

@@ -407,3 +407,27 @@ def test_the_guide_quotes_the_sumo_wave_study_and_its_intervals_are_the_per_seed
                 assert (row[m]["lo"], row[m]["hi"]) == pytest.approx(
                     (x.mean() - half, x.mean() + half), rel=1e-9, abs=1e-12
                 )
+
+
+def test_the_guide_quotes_the_final_evaluation_on_seeds_80_to_99():
+    """The guide's paragraph on the fresh seeds 80–99 quotes the run recorded in tests/data (the three targets' means
+    and 95 % t intervals, recomputed here with SciPy from the per-seed values, and every seed's speed-std ratio)."""
+    from scipy import stats
+
+    doc = json.loads((ROOT / "tests" / "data" / "bench_wave_mpc_ring_wave_seeds80-99.json").read_text(encoding="utf-8"))
+    assert doc["seeds"] == list(range(80, 100))
+    ps = doc["per_seed"]
+    ratio = [ps[str(k)]["wave-mpc"]["speed_std_mps"] / ps[str(k)]["human"]["speed_std_mps"] for k in doc["seeds"]]
+    half = stats.t.ppf(0.975, len(ratio) - 1) * np.std(ratio, ddof=1) / np.sqrt(len(ratio))
+    iv = doc["targets"]["speed_std_ratio_to_human"]
+    assert (iv["mean"], iv["lo"], iv["hi"]) == pytest.approx(
+        (np.mean(ratio), np.mean(ratio) - half, np.mean(ratio) + half)
+    )
+    text = (ROOT / "docs" / "guide" / "studies.md").read_text(encoding="utf-8")
+    start = text.index("**The fresh seeds 80–99")
+    para = " ".join(text[start : text.index("\n\n", start)].split())  # the words, whatever the line breaks
+    assert f"{iv['mean']:.3f} [{iv['lo']:.3f}, {iv['hi']:.3f}]" in para
+    for name in ("mean_speed_minus_followerstopper_mps", "battery_energy_ratio_to_human"):
+        x = doc["targets"][name]
+        assert f"{x['mean']:.2f} [{x['lo']:.2f}, {x['hi']:.2f}]" in para, name
+    assert ", ".join(f"{r:.3f}" for r in ratio) in para
