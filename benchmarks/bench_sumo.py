@@ -10,7 +10,16 @@ own call time.
 
 Prints a table and writes results/bench_sumo.json.
 
+``--wave`` instead runs the wave-damping MPC (``aev_ocp.mpc.wave:sumo_controller``, the WaveParams defaults) in
+SUMO's ring (``sumo_ring``, one car of 22: share 0.05) and merge (``sumo_merge``, the scenario's share 0.2) over
+seeds (default 42–51, as the guide's SUMO study), against SUMO's Krauss drivers alone and the same share on the
+paper's law, every controlled car under the safety layer (``[limits] safety_layer = true``); through the study layer
+(:func:`aev_ocp.study.traffic.sumo_tasks`, :func:`aev_ocp.study.traffic_study.run_traffic_study`: the metrics'
+means with 95 % t intervals and the paired verdicts against share 0). Writes results/bench_sumo_wave.json
+(``--record``: also tests/data/bench_sumo_wave.json, which tests/test_wave_mpc.py ties to the guide's table).
+
     python benchmarks/bench_sumo.py [--quick]
+    python benchmarks/bench_sumo.py --wave [--seeds 42 ... 51] [--workers 1] [--record]
 """
 
 from __future__ import annotations
@@ -69,7 +78,93 @@ def _children(code: str, argsets: list[tuple[str, ...]]) -> list[dict]:
     return [json.loads(p.communicate()[0].strip().splitlines()[-1]) for p in procs]
 
 
+WAVE_CONTROLLER = "aev_ocp.mpc.wave:sumo_controller"
+#: the shipped SUMO scenario and the share of its cars the toolkit drives in the wave study
+WAVE_POINTS = {"sumo_ring": 0.05, "sumo_merge": 0.2}
+#: the columns of the wave study's tables (aev_ocp.sumo.cli.SEED_METRICS plus the closest gap)
+WAVE_METRICS = (
+    "throughput_veh_per_h",
+    "mean_speed_mps",
+    "speed_std_mps",
+    "braking_events_per_veh_km",
+    "battery_energy_kWh_per_100km",
+    "min_gap_m",
+)
+
+
+def wave_study(seeds: list[int], out: Path, workers: int = 1) -> dict:
+    """The wave MPC in SUMO's ring and merge (module docstring): {scenario: {share, seeds, rows (the study's table
+    rows), per_seed (share, controller, seed, status, metrics), markdown}}."""
+    from aev_ocp.ring.field import table_markdown
+    from aev_ocp.study.traffic import sumo_tasks
+    from aev_ocp.study.traffic_study import run_traffic_study
+
+    doc: dict = {}
+    for name, share in WAVE_POINTS.items():
+        src = ROOT / "aev_ocp" / "sumo" / "scenarios" / f"{name}.toml"
+        text = src.read_text(encoding="utf-8")
+        if "[limits]" in text:
+            raise SystemExit(f"{src}: has its own [limits]; the wave study adds safety_layer = true to none")
+        folder = out / name
+        folder.mkdir(parents=True, exist_ok=True)
+        path = folder / f"{name}.toml"  # the shipped scenario with every controlled car under the safety layer
+        path.write_text(text + "\n[limits]\nsafety_layer = true\n", encoding="utf-8")
+        tasks = sumo_tasks(path, [0.0, share], ["proposed", WAVE_CONTROLLER], seeds)
+        results, rows = run_traffic_study(tasks, folder, workers=workers, name=f"wave MPC in {name}")
+        for r in rows:
+            r["run"] = r["run"].replace(WAVE_CONTROLLER, "wave-mpc")
+            r["scenario"] = name  # not the path of this checkout's copy
+        per_seed = []
+        for t in tasks:
+            r = results.get(t.key) or {"status": "missing", "metrics": []}
+            m = r["metrics"][0] if r.get("metrics") else {}
+            v = t.spec["values"]
+            ctrl = "wave-mpc" if t.controller == WAVE_CONTROLLER else t.controller
+            row = {
+                "share": v["share"],
+                "controller": ctrl,
+                "seed": v["seed"],
+                "status": r["status"],
+                "wall_s": r.get("wall_s"),
+            }
+            per_seed.append({**row, "message": r.get("message", ""), **{k: m.get(k) for k in WAVE_METRICS}})
+        md = table_markdown(rows, [m for m in WAVE_METRICS if rows and m in rows[0]])
+        doc[name] = {"share": share, "seeds": seeds, "rows": rows, "per_seed": per_seed, "markdown": md}
+        print(f"\n{name} (share {share:g}), seeds {seeds[0]}-{seeds[-1]}, means [95 % t interval] and paired verdicts:")
+        print(md)
+    return doc
+
+
+def main_wave(argv: list[str]) -> None:
+    """``--wave``: the wave-MPC study (module docstring)."""
+    import argparse
+    import os
+
+    ap = argparse.ArgumentParser(description="the wave MPC in SUMO's ring and merge over seeds")
+    ap.add_argument("--wave", action="store_true")
+    ap.add_argument("--seeds", type=int, nargs="+", default=list(range(42, 52)))
+    ap.add_argument("--workers", type=int, default=1)
+    ap.add_argument("--out", default=str(ROOT / "results" / "bench_sumo_wave"))
+    ap.add_argument("--record", action="store_true", help="also write tests/data/bench_sumo_wave.json")
+    a = ap.parse_args(argv)
+    load = os.getloadavg()[0]
+    doc = wave_study(a.seeds, Path(a.out), a.workers)  # each run's wall time in its per_seed row (a rerun resumes)
+    doc = {"controller": WAVE_CONTROLLER, "load_1min_at_start": load, **doc}
+    outs = [Path(a.out) / "bench_sumo_wave.json"]
+    if a.record:
+        outs.append(ROOT / "tests" / "data" / "bench_sumo_wave.json")
+    for p in outs:
+        p.parent.mkdir(parents=True, exist_ok=True)
+        tmp = p.with_suffix(".json.tmp")
+        tmp.write_text(json.dumps(doc, indent=1, default=float) + "\n")
+        tmp.replace(p)  # atomic
+        print(f"wrote {p}")
+
+
 def main() -> None:
+    if "--wave" in sys.argv:
+        main_wave(sys.argv[1:])
+        return
     quick = "--quick" in sys.argv
     t_law = "30" if quick else "120"
     rows = []

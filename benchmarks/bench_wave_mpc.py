@@ -21,14 +21,16 @@ equilibrium (:func:`aev_ocp.mpc.wave.linear_gains`, v_ref held: the 38 s average
 growth rate of the ring with that car, and the smallest speed weight w_v that makes it linearly stable.
 
 ``--bound [V ...]`` adds the perfectly smooth car's bound (:func:`absorber_bound`: the humans behind a car at a
-constant speed, the fleet's speed std and the gap that car would need on the real ring).
+constant speed, the fleet's speed std and the gap that car would need on the real ring; each seed's ratio printed);
+``--bound-only`` runs that bound alone (no all-human, FollowerStopper or wave-MPC rings).
 
     python benchmarks/bench_wave_mpc.py [--scenario FILE] [--seeds 20 ... 39] [--t-end-s 600] [--linear]
-                                        [--safety] [--bound [V ...]] [--wave-params JSON]
+                                        [--safety] [--bound [V ...] [--bound-only]] [--wave-params JSON]
                                         [--out results/bench_wave_mpc.json] [--record]
 
-``--record`` also writes the JSON to tests/data/ (named after the scenario), where tests/test_wave_mpc.py checks
-that the guide quotes it.
+``--record`` also writes the JSON to tests/data/ (named after the scenario, plus ``--record-suffix``), where
+tests/test_wave_mpc.py checks that the guide quotes it: the table of seeds 60–79, and the final evaluation on seeds
+80–99 (``--seeds 80 … 99 --record --record-suffix _seeds80-99``).
 
 The wall times are those of a shared 2-core machine; the MPC's solve time per step is the median and maximum of its
 calls (wall) and the run's process CPU time per MPC step is printed beside it.
@@ -257,6 +259,43 @@ def safety_check(names: tuple[str, ...] = SAFETY_CASES, wp: WaveParams | None = 
     return rows
 
 
+def print_bound(rows: list[dict[str, Any]], speeds: list[float]) -> dict[str, Any]:
+    """Print the bound per speed (over the seeds, and each seed's ratio) and return its JSON part."""
+    doc: dict[str, Any] = {"rows": rows, "by_speed": {}}
+    print("\nperfectly smooth car (constant speed v_c) ahead of the 21 humans, over the seeds (95 % intervals):")
+    for vc in speeds:
+        r = [x for x in rows if x["v_c_mps"] == vc]
+        iv = {m: interval([x[m] for x in r]) for m in ("speed_std_ratio_to_human", "gap_needed_mean_m")}
+        lo, hi = min(x["gap_needed_min_m"] for x in r), max(x["gap_needed_max_m"] for x in r)
+        doc["by_speed"][str(vc)] = {**iv, "gap_needed_min_m": lo, "gap_needed_max_m": hi}
+        s_, g_ = iv["speed_std_ratio_to_human"], iv["gap_needed_mean_m"]
+        print(
+            f"  v_c {vc:4.2f} m/s: std / all-human {s_['mean']:.3f} [{s_['lo']:.3f}, {s_['hi']:.3f}]; the car's gap "
+            f"{g_['mean']:.1f} m mean, {lo:.1f}-{hi:.1f} m range; collisions {sum(x['collisions'] for x in r)}"
+        )
+        print("    per seed: " + ", ".join(f"{x['seed']}: {x['speed_std_ratio_to_human']:.3f}" for x in r))
+    return doc
+
+
+def bound_only(sc: Any, a: argparse.Namespace, t_end: float, load: float) -> int:
+    """``--bound --bound-only``: the smooth car's bound alone, written to ``--out``."""
+    speeds = a.bound or [2.5, 3.0, 3.5, 4.0, 4.5]
+    doc = {"scenario": Path(a.scenario).name, "seeds": a.seeds, "t_end_s": t_end, "load_1min_at_start": load}
+    doc["bound"] = print_bound(absorber_bound(sc, speeds, a.seeds, t_end), speeds)
+    return write_outputs(doc, [Path(a.out)])
+
+
+def write_outputs(doc: dict[str, Any], outs: list[Path]) -> int:
+    """Write ``doc`` as JSON to each path (atomically); 0."""
+    for out in outs:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        tmp = out.with_suffix(".json.tmp")
+        tmp.write_text(json.dumps(doc, indent=1, default=float))
+        os.replace(tmp, out)  # atomic
+        print(f"wrote {out}")
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--scenario", default=str(Path(__file__).parent.parent / "scenarios" / "ring_wave.toml"))
@@ -274,14 +313,28 @@ def main(argv: list[str] | None = None) -> int:
         default=None,
         help="add the perfectly smooth car's bound at these speeds [m/s] (absorber_bound; default 2.5 3 3.5 4 4.5)",
     )
+    ap.add_argument(
+        "--bound-only",
+        action="store_true",
+        help="with --bound: only the bound (no all-human, FollowerStopper, wave rings)",
+    )
     ap.add_argument("--out", default="results/bench_wave_mpc.json")
     ap.add_argument("--record", action="store_true", help="also write the JSON to tests/data/ (the guide's numbers)")
+    ap.add_argument(
+        "--record-suffix",
+        default="",
+        help="with --record: tests/data/bench_wave_mpc_<scenario><suffix>.json (e.g. _seeds80-99, the final evaluation)",
+    )
     a = ap.parse_args(argv)
     sc = load_ring_scenario(a.scenario)
     wp = replace(WaveParams(**sc.spec.wave), **json.loads(a.wave_params))  # [ring.wave], then --wave-params
     t_end = a.t_end_s if a.t_end_s is not None else sc.spec.t_end_s
     ctrls: list[str | None] = [None, FS, WAVE]
     load = os.getloadavg()[0]
+    if a.bound_only:
+        if a.bound is None:
+            ap.error("--bound-only needs --bound")
+        return bound_only(sc, a, t_end, load)
     per_seed: dict[int, dict[str, dict[str, Any]]] = {}
     for k in a.seeds:
         per_seed[k] = run_seed(sc, k, ctrls, t_end, wp)
@@ -359,32 +412,19 @@ def main(argv: list[str] | None = None) -> int:
         )
     if a.bound is not None:
         speeds = a.bound or [2.5, 3.0, 3.5, 4.0, 4.5]
-        rows = absorber_bound(sc, speeds, a.seeds, t_end)
-        doc["bound"] = {"rows": rows, "by_speed": {}}
-        print("\nperfectly smooth car (constant speed v_c) ahead of the 21 humans, over the seeds (95 % intervals):")
-        for vc in speeds:
-            r = [x for x in rows if x["v_c_mps"] == vc]
-            iv = {m: interval([x[m] for x in r]) for m in ("speed_std_ratio_to_human", "gap_needed_mean_m")}
-            lo, hi = min(x["gap_needed_min_m"] for x in r), max(x["gap_needed_max_m"] for x in r)
-            doc["bound"]["by_speed"][str(vc)] = {**iv, "gap_needed_min_m": lo, "gap_needed_max_m": hi}
-            s_, g_ = iv["speed_std_ratio_to_human"], iv["gap_needed_mean_m"]
-            print(
-                f"  v_c {vc:4.2f} m/s: std / all-human {s_['mean']:.3f} [{s_['lo']:.3f}, {s_['hi']:.3f}]; the car's gap "
-                f"{g_['mean']:.1f} m mean, {lo:.1f}-{hi:.1f} m range; collisions {sum(x['collisions'] for x in r)}"
-            )
+        doc["bound"] = print_bound(absorber_bound(sc, speeds, a.seeds, t_end), speeds)
     if a.safety:
         print("\nsafety suite cases, the wave MPC under the safety layer:")
         doc["safety"] = safety_check(wp=wp)
     outs = [Path(a.out)]
     if a.record:
-        outs.append(Path(__file__).parent.parent / "tests" / "data" / f"bench_wave_mpc_{Path(a.scenario).stem}.json")
-    for out in outs:
-        out.parent.mkdir(parents=True, exist_ok=True)
-        tmp = out.with_suffix(".json.tmp")
-        tmp.write_text(json.dumps(doc, indent=1, default=float))
-        os.replace(tmp, out)  # atomic
-        print(f"wrote {out}")
-    return 0
+        outs.append(
+            Path(__file__).parent.parent
+            / "tests"
+            / "data"
+            / f"bench_wave_mpc_{Path(a.scenario).stem}{a.record_suffix}.json"
+        )
+    return write_outputs(doc, outs)
 
 
 if __name__ == "__main__":

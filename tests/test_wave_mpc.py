@@ -168,6 +168,27 @@ def test_v_ref_adds_the_saturated_gap_catch_up():
     assert c.reference(float(U.length_from_si(0.5)), float(U.speed_from_si(0.3))) == 0.0
 
 
+def test_the_catch_ups_upper_saturation_can_be_set_alone():
+    """With ``catch_rise_max_mps`` = v_c⁺ the catch-up is clip(k (h̄ − h_t), −v_c, v_c⁺): a large gap raises v_ref by
+    v_c⁺ only, a small one still lowers it by v_c, and inside the saturation nothing changes; 0 (the default) is
+    the symmetric clip."""
+    base = dict(window_s=1.0, catch_gain_per_s=0.37, target_gap_m=6.5, target_time_gap_s=1.3, buffer_time_s=0.0)
+    assert WaveParams().catch_rise_max_mps == 0.0
+    for rise in (0.0, 0.35, 1.6):
+        c = WaveMPC(EV, Proposed(), WaveParams(**base, catch_max_mps=0.8, catch_rise_max_mps=rise), S)
+        for h, v in ((20.0, 5.0), (14.0, 5.0), (13.35, 5.0), (3.0, 5.0)):
+            c.reset()
+            raw = 0.37 * (h - 6.5 - 1.3 * v)  # 2.59, 0.37, 0.1295, −3.7 m/s
+            up = rise if rise > 0 else 0.8
+            got = float(U.speed_to_si(c.reference(float(U.length_from_si(h)), float(U.speed_from_si(v)))))
+            assert got == pytest.approx(v + min(max(raw, -0.8), up), rel=1e-12), (rise, h)
+    c.reset()  # exactly at the upper saturation v_c⁺ = 1.6 m/s
+    h_sat = 6.5 + 1.3 * 5.0 + 1.6 / 0.37
+    assert float(U.speed_to_si(c.reference(float(U.length_from_si(h_sat)), float(U.speed_from_si(5.0))))) == (
+        pytest.approx(6.6, rel=1e-12)
+    )
+
+
 def test_the_wave_buffer_raises_the_target_gap_by_c_times_the_predecessor_speed_std():
     """h_t = s_t + T_t U + c σ_l, σ_l the (population) std of the last 5 measured predecessor speeds."""
     wp = WaveParams(window_s=1.0, catch_gain_per_s=0.21, target_gap_m=15.0, target_time_gap_s=1.1, buffer_time_s=1.3)
@@ -351,3 +372,62 @@ def test_a_ring_scenarios_wave_table_refuses_nonsense_naming_the_key(wave, contr
         parse_ring_scenario(doc, "w.toml")
     assert str(e.value).startswith("w.toml: ")
     assert parse_ring_scenario(_wave_doc(window_s=0.5), "w.toml").spec.wave == {"window_s": 0.5}  # inside: taken
+
+
+def test_the_guide_quotes_the_sumo_wave_study_and_its_intervals_are_the_per_seed_values():
+    """docs/guide/studies.md quotes what ``benchmarks/bench_sumo.py --wave`` measured in SUMO's ring and merge (the
+    JSON its --record writes to tests/data/): the tables between the markers are the recorded ones, and each run's
+    mean and 95 % interval of the speed std and the battery energy is Student's t over the recorded per-seed values
+    of its completed runs, recomputed here with SciPy."""
+    from scipy import stats
+
+    doc = json.loads((ROOT / "tests" / "data" / "bench_sumo_wave.json").read_text(encoding="utf-8"))
+    text = (ROOT / "docs" / "guide" / "studies.md").read_text(encoding="utf-8")
+    for name in ("sumo_ring", "sumo_merge"):
+        d = doc[name]
+        assert len(d["seeds"]) >= 10
+        start = text.index(f"<!-- bench_sumo_wave {name} -->")
+        section = text[start : text.index("<!-- end -->", start)]
+        assert d["markdown"].strip() in section
+        for row in d["rows"]:
+            share, ctrl = row["run"].split(" ", 1)
+            runs = [
+                p
+                for p in d["per_seed"]
+                if p["share"] == float(share) and (p["controller"] == ctrl or float(share) == 0) and p["status"] == "ok"
+            ]
+            assert row["seeds"] - row["failed"] == len(runs)
+            for m in ("speed_std_mps", "battery_energy_kWh_per_100km"):
+                x = np.array([p[m] for p in runs], float)
+                if len(x) < 2:
+                    assert row[m] is None
+                    continue
+                half = stats.t.ppf(0.975, len(x) - 1) * np.std(x, ddof=1) / np.sqrt(len(x))
+                assert row[m]["mean"] == pytest.approx(np.mean(x), rel=1e-12)
+                assert (row[m]["lo"], row[m]["hi"]) == pytest.approx(
+                    (x.mean() - half, x.mean() + half), rel=1e-9, abs=1e-12
+                )
+
+
+def test_the_guide_quotes_the_final_evaluation_on_seeds_80_to_99():
+    """The guide's paragraph on the fresh seeds 80–99 quotes the run recorded in tests/data (the three targets' means
+    and 95 % t intervals, recomputed here with SciPy from the per-seed values, and every seed's speed-std ratio)."""
+    from scipy import stats
+
+    doc = json.loads((ROOT / "tests" / "data" / "bench_wave_mpc_ring_wave_seeds80-99.json").read_text(encoding="utf-8"))
+    assert doc["seeds"] == list(range(80, 100))
+    ps = doc["per_seed"]
+    ratio = [ps[str(k)]["wave-mpc"]["speed_std_mps"] / ps[str(k)]["human"]["speed_std_mps"] for k in doc["seeds"]]
+    half = stats.t.ppf(0.975, len(ratio) - 1) * np.std(ratio, ddof=1) / np.sqrt(len(ratio))
+    iv = doc["targets"]["speed_std_ratio_to_human"]
+    assert (iv["mean"], iv["lo"], iv["hi"]) == pytest.approx(
+        (np.mean(ratio), np.mean(ratio) - half, np.mean(ratio) + half)
+    )
+    text = (ROOT / "docs" / "guide" / "studies.md").read_text(encoding="utf-8")
+    start = text.index("**The fresh seeds 80–99")
+    para = " ".join(text[start : text.index("\n\n", start)].split())  # the words, whatever the line breaks
+    assert f"{iv['mean']:.3f} [{iv['lo']:.3f}, {iv['hi']:.3f}]" in para
+    for name in ("mean_speed_minus_followerstopper_mps", "battery_energy_ratio_to_human"):
+        x = doc["targets"][name]
+        assert f"{x['mean']:.2f} [{x['lo']:.2f}, {x['hi']:.2f}]" in para, name
+    assert ", ".join(f"{r:.3f}" for r in ratio) in para
