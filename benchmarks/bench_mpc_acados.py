@@ -327,14 +327,17 @@ def warm_of(c: Any) -> tuple[np.ndarray, np.ndarray]:
     return x.copy(), lam_g.copy()
 
 
-def aev_profile(
-    rows: np.ndarray, N: int, hessian: str, flags: tuple[str, ...] = ("-O2", "-fno-math-errno")
-) -> dict[str, Any]:
-    """The compiled step's parts timed inside its C (the exported library built with -DAEV_MPC_PROFILE), median
-    ms per step over the recorded inputs (first, cold, step excluded)."""
+def aev_profile(rows: np.ndarray, N: int, hessian: str, flags: tuple[str, ...] | None = None) -> dict[str, Any]:
+    """The compiled step's parts timed inside its C (the exported library built with -DAEV_MPC_PROFILE; by default
+    with the compiled step's own flags, tuned), median ms per step over the recorded inputs (first, cold, step
+    excluded)."""
     from bench_mpc import COMPILED, F9, S9
 
+    from aev_ocp.compiled import exact_tuned_flags
     from aev_ocp.mpc.export import CStep, build_library, export_mpc
+
+    if flags is None:
+        flags = ("-O2", "-fno-math-errno", *exact_tuned_flags())
     from aev_ocp.mpc.settings import MPCSettings
     from aev_ocp.scenarios import find_scenario, load_scenario
 

@@ -100,3 +100,45 @@ def test_equal_laws_are_probed_once_and_differing_bits_are_not_merged(monkeypatc
     out = S._law_templates(signed + typed)
     assert len(calls) == 4
     assert np.signbit(out[1][2]).any() and not np.signbit(out[0][2]).any()
+
+
+def _mpc_loop(monkeypatch: pytest.MonkeyPatch, tuned: bool, hessian: str) -> tuple[str, np.ndarray, list[np.ndarray]]:
+    """The §9 closed loop (one follower behind the Table 1 leader) on the compiled MPC step, N = 8: the library,
+    the applied accelerations and each step's plan with its multipliers."""
+    import aev_ocp.compiled as B
+    from aev_ocp.control import ClosedLoop
+    from aev_ocp.mpc import MPCVehicle
+    from aev_ocp.mpc.settings import MPCSettings
+    from aev_ocp.ocp.formulation import s9_formulation
+
+    if not tuned:
+        monkeypatch.setattr(B, "exact_tuned_flags", lambda: ())
+    s = MPCSettings(N=8, rti_hessian=hessian, predictor="oracle", solver="rti", qp_solver="riccati", codegen=True)
+    loop = ClosedLoop(PaperLeader(), [MPCVehicle(s, formulation=s9_formulation())])
+    c = loop.ctrl[0].controller  # type: ignore[union-attr]
+    assert c.compiled_step is not None
+    plans: list[np.ndarray] = []
+    solve = c.solve
+
+    def rec(*a: object, **kw: object) -> object:
+        out = solve(*a, **kw)
+        x, lam_g, lam_x, _ = c.compiled_step.solution()
+        plans.append(np.concatenate([x, lam_g, lam_x]))
+        return out
+
+    c.solve = rec
+    r = loop.run([0.3], [1.87], 6.0)
+    monkeypatch.undo()
+    return str(c.compiled_step.lib._name), np.asarray(r.accel), plans
+
+
+@pytest.mark.parametrize("hessian", ["exact", "projected"])
+def test_tuned_mpc_step_equals_the_plain_build_to_the_bit(monkeypatch: pytest.MonkeyPatch, hessian: str) -> None:
+    """The compiled MPC step (aev_ocp/c/mpc_step.c, ocp_qp.c and the generated CasADi C) is built with the tuned
+    flags too: every plan, multiplier and applied acceleration of a closed loop equals the plain build's."""
+    (lib_t, a_t, p_t), (lib_p, a_p, p_p) = _mpc_loop(monkeypatch, True, hessian), _mpc_loop(monkeypatch, False, hessian)
+    assert lib_t != lib_p  # two builds (the flags are part of the cache key)
+    assert len(p_t) == len(p_p) > 50
+    np.testing.assert_array_equal(a_t, a_p)
+    for k, (x, y) in enumerate(zip(p_t, p_p, strict=True)):
+        np.testing.assert_array_equal(x, y, err_msg=f"step {k}")
