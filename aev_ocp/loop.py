@@ -253,6 +253,9 @@ def controller_stats(
         # cause of each fallback: the status up to its first ':' ('QP failed', 'budget', 'path constraint',
         # 'exception', or the NLP solver's return status)
         "fallback_causes": fallback_causes(rec["status"], rec["ok"]),
+        # QPs of the compiled step that ended at their acceptable level (every residual within 100x its
+        # tolerance, ocp_qp.c's OCPQP_ACCEPTABLE) and were applied: 0 for every other controller
+        "qp_acceptable": int(sum(int((i or {}).get("qp_acceptable", 0)) for i in rec["info"])),
         "solver_path": d.get("solver_path", d.get("controller", "")),
         "qp_solver": d.get("qp_in_use", ""),  # the MPC's QP solver that ran ('' for the others)
         "n_steps": len(rec["ok"]),

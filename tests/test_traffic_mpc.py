@@ -260,3 +260,25 @@ def test_qp_solver_choices_refuse_what_they_cannot_do() -> None:
         MPCSettings(N=6, qp_solver="riccati", solver="sqp")
     c = MPCController(MPCSettings(N=6, qp_solver="riccati", codegen=True), ev)
     assert c.compiled_step is not None and c.problem.terminal_cost is not None
+
+
+def test_acceptable_qps_are_counted_in_the_controller_statistics(monkeypatch) -> None:
+    """Every applied step whose QPs ended at their acceptable level (the solution's stats 'qp_acceptable') adds its
+    count to the run's statistics; steps without the key (another QP path) add nothing."""
+    units = Units(15.0, 17.0)
+    s = MPCSettings(N=6, codegen=False, predictor="constant-velocity")
+    solve = MPCController.solve
+    marks = iter([0, 2, 0, 0, 1, 0, 3, 0, 0, 0, 0, 0, 0, 0, 0])
+
+    def marked(self, *a, **k):
+        sol = solve(self, *a, **k)
+        n = next(marks, 0)
+        if n:
+            sol.stats["qp_acceptable"] = n
+        return sol
+
+    monkeypatch.setattr(MPCController, "solve", marked)
+    r = run_closed_loop(drive_cycle("udds", units), [MPCVehicle(s)], [0.8], [0.0], 1.2, ev=EVParams(units=units))
+    st = r.solver_stats[0]
+    assert st["n_steps"] == 12 and st["fallbacks"] == 0
+    assert st["qp_acceptable"] == 6

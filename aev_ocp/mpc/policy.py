@@ -118,6 +118,8 @@ class MPCPolicy:
             )
         sol = self.controller.solve(obs.z, vm, vh, own=own)
         info = {"cost": sol.cost, "violation": sol.violation, "v_hat": vh}
+        if "qp_acceptable" in sol.stats:  # the compiled step's QPs ended at their acceptable level this step
+            info["qp_acceptable"] = int(sol.stats["qp_acceptable"])
         if sol.success:
             a0 = self._fallback.limit(obs, float(sol.a[0])) if self._filter else float(sol.a[0])
             return Command(a0, True, sol.status, sol.solve_time_s, sol.iterations, sol.X[1], info)

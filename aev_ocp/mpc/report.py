@@ -66,6 +66,7 @@ METRIC_ROWS = COMPARABILITY_ROWS + [
     "iterations_max",
     "fallbacks",
     "fallback_causes",
+    "qp_acceptable",
     "solver_path",
 ]
 #: rows of the §9 cost beside another formulation's run (a secondary table: never a verdict)
