@@ -169,12 +169,22 @@ def test_worst_delay_against_an_integrated_actuator(lag: float, jerk: float | No
     lim = VehicleLimits(a_min_mps2=-7.3, a_max_mps2=3.4, lag_s=lag, jerk_max_mps3=jerk)
     b, tau = 7.3, lim.actuator_tau_s
 
-    def rate(t: float, a: np.ndarray) -> list[float]:
-        r = (-b - a[0]) / tau
-        return [r if jerk is None else min(max(r, -jerk), jerk)]
+    t_end, clipped = 30 * tau + 2.0, [jerk is not None and (b + 3.4) / tau > jerk]
 
-    sol = solve_ivp(rate, (0, 30 * tau + 2.0), [3.4], dense_output=True, rtol=1e-11, atol=1e-12, max_step=1e-3)
-    area = quad(lambda t: float(sol.sol(t)[0]) + b, 0, 30 * tau + 2.0, limit=400, points=[(3.4 + b) / (jerk or 1e9)])[0]
+    def rate(t: float, a: np.ndarray) -> list[float]:
+        return [-jerk if clipped[0] and jerk is not None else (-b - a[0]) / tau]
+
+    def clip_ends(t: float, a: np.ndarray) -> float:  # the rate (−b − a)/τ reaches −J: the lag alone from there
+        return (-b - a[0]) / tau + (jerk or 0.0) if clipped[0] else 1.0
+
+    clip_ends.terminal = True  # type: ignore[attr-defined]
+    # piece by piece (the clipped ramp, then the lag), each smooth, the area by quad over each piece's dense output
+    # (it was one solve across the kink with 1 ms steps; issue 40)
+    area, t, a0 = 0.0, 0.0, 3.4
+    while t < t_end:
+        sol = solve_ivp(rate, (t, t_end), [a0], dense_output=True, events=clip_ends, rtol=1e-11, atol=1e-12)
+        area += quad(lambda s: float(sol.sol(s)[0]) + b, t, float(sol.t[-1]), limit=400)[0]
+        t, a0, clipped[0] = float(sol.t[-1]), float(sol.y[0, -1]), False
     assert worst_delay_s(lim, b) == pytest.approx(area / b, rel=1e-6)
     # the layer's reaction time then covers it: the fallback adds τ (a_max + b)/b, layer_changes the rest
     from aev_ocp.mpc.safe_fallback import SafetyParams, effective_reaction_s
