@@ -11,6 +11,7 @@ import math
 import numpy as np
 import pytest
 from scipy.integrate import quad, solve_ivp
+from braking_oracle import scipy_min_gap
 from scipy.optimize import brentq
 
 from aev_ocp.params import EVParams, VehicleLimits
@@ -69,56 +70,9 @@ def test_stopping_distance_with_jerk_and_lag_by_hand() -> None:
 
 
 def _scipy_min_gap(v0: float, g0: float, vl0: float, al: float, tb: float, am: float, tau: float, jm: float) -> float:
-    """The plant's actuator (rate (a_min − a)/τ clipped to ±J) and the cars integrated by SciPy, piece by piece: the
-    right-hand side is smooth between its switches (the rate leaving the jerk limit, the ego stopping, the lead
-    starting to brake at tb and stopping), each found as an event of the solve and the next piece started there. The
-    minimum gap is at a piece's end or where the closing speed v − v_l changes sign (an event too). (It was one solve
-    with 0.2 ms steps across the switches, 2–3 s per case; issue 40.)"""
-    t_end = v0 / -am + 1.0 + tb + (vl0 / -al if al < 0 else 0.0)
-    ramp = (am - 0.0) / tau < -jm  # the rate limit binds first (J τ < |a_min|)
-    ego_moving, lead_moving, lead_braking = v0 > 0, vl0 > 0, tb <= 0.0
-    t, y, h_min = 0.0, np.array([g0, v0, 0.0, vl0]), g0
-
-    def f(t: float, y: np.ndarray) -> list[float]:
-        h, v, a, vl = y
-        return [
-            vl - v,
-            a if ego_moving else 0.0,
-            -jm if ramp else (am - a) / tau,
-            al if lead_braking and lead_moving else 0.0,
-        ]
-
-    def ramp_ends(t: float, y: np.ndarray) -> float:
-        return (am - y[2]) / tau + jm if ramp else 1.0
-
-    def ego_stops(t: float, y: np.ndarray) -> float:
-        return y[1] if ego_moving else 1.0
-
-    def lead_stops(t: float, y: np.ndarray) -> float:
-        return y[3] if lead_braking and lead_moving else 1.0
-
-    def closing_ends(t: float, y: np.ndarray) -> float:
-        return y[3] - y[1]
-
-    for ev in (ramp_ends, ego_stops, lead_stops):
-        ev.terminal, ev.direction = True, 0  # type: ignore[attr-defined]
-    while t < t_end:
-        stop = tb if not lead_braking else t_end
-        sol = solve_ivp(
-            f, (t, stop), y, events=(ramp_ends, ego_stops, lead_stops, closing_ends), rtol=1e-11, atol=1e-12
-        )
-        h_min = min(h_min, float(sol.y[0].min()), *(float(e[0]) for e in sol.y_events[3]))
-        t, y = float(sol.t[-1]), sol.y[:, -1].copy()
-        if sol.status == 1:  # a switch: the next piece's right-hand side
-            if sol.t_events[0].size:
-                ramp = False
-            if sol.t_events[1].size:
-                ego_moving, y[1] = False, 0.0
-            if sol.t_events[2].size:
-                lead_moving, y[3] = False, 0.0
-        elif not lead_braking:
-            lead_braking = True
-    return h_min
+    """The plant's actuator (rate (a_min − a)/τ clipped to ±J) and the cars integrated by SciPy, piece by piece between
+    the right-hand side's switches (tests/braking_oracle.py)."""
+    return scipy_min_gap(v0, g0, vl0, al, tb, am, tau, v0 / -am + 1.0 + tb + (vl0 / -al if al < 0 else 0.0), jm)
 
 
 @pytest.mark.parametrize(
