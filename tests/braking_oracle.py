@@ -57,6 +57,7 @@ def scipy_min_gap(
         sol = solve_ivp(
             f, (t, stop), y, events=(ramp_ends, ego_stops, lead_stops, closing_ends), rtol=1e-11, atol=1e-12
         )
+        assert sol.success, sol.message  # (a failed solve would restart at its last step for ever)
         h_min = min(h_min, float(sol.y[0].min()), *(float(e[0]) for e in sol.y_events[3]))
         t, y = float(sol.t[-1]), sol.y[:, -1].copy()
         if sol.status == 1:  # a switch: the next piece's right-hand side
