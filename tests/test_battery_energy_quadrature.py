@@ -52,17 +52,17 @@ def scipy_battery_energy(s, ev) -> tuple[np.ndarray, np.ndarray]:
     and P_b from their own CasADi expressions, the leader's speed from its own function), split at the leader's
     breakpoints. The gross ∫|P_b| dt scales the tolerances: traction and regeneration cancel in the net."""
     n, law = N_FOLLOWERS, s.laws[0]
-    h, v, vl = ca.SX.sym("h", n), ca.SX.sym("v", n), ca.SX.sym("vl", n)
-    f_a = ca.Function("a", [h, v, vl], [law.accel(h, v, vl)])
-    vv, aa = ca.SX.sym("v", n), ca.SX.sym("a", n)
-    f_p = ca.Function("p", [vv, aa], [ev.units.time_s * battery_power_integrand(vv, aa, ev)])
+    # the whole right-hand side as one CasADi Function of (t, y): one call per evaluation (issue 40: three calls, the
+    # law's, P_b's and the leader's speed, cost 3x the time in the calls' overhead; the same expressions)
+    t, y = ca.SX.sym("t"), ca.SX.sym("y", 4 * n)
+    H, V = y[:n], y[n : 2 * n]
+    VL = ca.vertcat(s.leader.speed(t), V[:-1])
+    A = law.accel(H, V, VL)
+    P = ev.units.time_s * battery_power_integrand(V, A, ev)
+    f = ca.Function("rhs", [t, y], [ca.vertcat(VL - V, A, P, ca.fabs(P))])
 
     def rhs(t: float, y: np.ndarray) -> np.ndarray:
-        H, V = y[:n], y[n : 2 * n]
-        VL = np.concatenate([s.leader.speed_np(np.array([t])).ravel()[:1], V[:-1]])
-        A = np.asarray(f_a(H, V, VL)).ravel()
-        P = np.asarray(f_p(V, A)).ravel()
-        return np.concatenate([VL - V, A, P, np.abs(P)])
+        return np.asarray(f(t, y)).ravel()
 
     cuts = sorted({0.0, T_END, *(b for b in s.leader.breakpoints if 0.0 < b < T_END)})
     y = np.concatenate([s.gaps0[:n], s.speeds0[:n], np.zeros(2 * n)])

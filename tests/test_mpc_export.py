@@ -47,6 +47,7 @@ from aev_ocp.params import EVParams, ParameterError, Units
 pytestmark = pytest.mark.skipif(compiler() is None, reason="no C compiler")
 
 T_END = 20.0  # 200 closed-loop steps of the canonical 700
+T_QP = 10.0  # the interpreted-path comparison: 100 steps (its largest differences come in the first 7 s)
 TOL = 1e-8
 # model guide §9 as in scenarios/mpc_paper_single.toml (the default formulation is 'traffic')
 CANON = dict(
@@ -280,7 +281,9 @@ def test_canonical_closed_loop_matches_interpreted_qp_path(canonical_lib: Path) 
     closed loop differs by 6e-7 in u, 2e-7 in the states). All three loops start from the same cold IPOPT step.
     And against the twin with every QP cold-started (the driver before the warm start, ocpqp_solve_warm): the same
     loop to 2e-6 (observed 6.3e-7 in u, 2.1e-7 in the states), the C's warm-started QPs taking at most 0.45 times
-    the iterations (observed 0.36: 398 against 1114 in 199 QPs)."""
+    the iterations (observed 0.35: 198 against 561 in 99 QPs; 0.36 over 200 steps). On the first T_QP = 10 s of the
+    leader's 20 s of fluctuation (issue 40: 100 steps, not 200: the largest differences, 6.3e-7 and 2.1e-7, and the
+    acceleration's whole range, 3.77, all come in the first 7 s; the loops' set-up is the rest of the cost)."""
     from rti_twin import install
 
     from aev_ocp.mpc.controller import MPCController
@@ -291,7 +294,7 @@ def test_canonical_closed_loop_matches_interpreted_qp_path(canonical_lib: Path) 
     ref = install(MPCController(s, formulation=F9))  # the Python twin of the C driver (tests/rti_twin.py)
     assert ref.compiled_step is None and ref.rti is not None  # the interpreted path, not the library
     its: list[int] = []
-    rc, st = _c_run(canonical_lib, s, first=ref, qp_iterations=its)
+    rc, st = _c_run(canonical_lib, s, first=ref, qp_iterations=its, start=(0.3, 1.87, T_QP))
     for qp, tol in (("riccati", TOL), ("riccati-cold", 2e-6), ("qrqp", 2e-6)):
         s = MPCSettings(**{**CANON, "codegen": False, "qp_solver": qp.removesuffix("-cold")})
         loop = _loop(MPCVehicle(s, formulation=F9))
@@ -299,12 +302,12 @@ def test_canonical_closed_loop_matches_interpreted_qp_path(canonical_lib: Path) 
             twin = install(loop.ctrl[0], warm_qp=qp == "riccati").rti
         py = loop.ctrl[0].controller
         assert py.compiled_step is None and py.rti is not None  # the interpreted path, not the library
-        rp = loop.run([0.3], [1.87], T_END)
+        rp = loop.run([0.3], [1.87], T_QP)
         assert all(k == 0 for k in st) and (rp.solver_stats[0] or {}).get("fallbacks") == 0
         du, dx = _compare(rc, rp)
         assert du <= tol and dx <= tol, (qp, du, dx)
         if qp != "qrqp":  # the twin's QPs: the first step's cold IPOPT has none, every other step one QP
-            assert len(twin.qp_iterations) == len(its) == 199
+            assert len(twin.qp_iterations) == len(its) == round(T_QP / 0.1) - 1
             ratio = sum(its) / sum(twin.qp_iterations)
             assert ratio == 1.0 if qp == "riccati" else ratio <= 0.45, (qp, ratio)
 

@@ -119,7 +119,9 @@ def resim_vehicle(t, a, trip, exact=True):
 @pytest.fixture(scope="module")
 def ocp_c():
     trip = EcoTrip()
-    return trip, {m: EcoTripSolver(trip, m, N=100).solve() for m in ("ms", "collocation")}
+    # N = 50 (issue 40; was 100): the methods agree to 1.4e-6 in the objective and 2.7e-5 in v (1.5e-7 and 4.5e-7 at
+    # N = 100), the re-simulations to 7e-7 (1.7e-6), the reported heat to 3.2e-7 (1.7e-7): inside every bound below
+    return trip, {m: EcoTripSolver(trip, m, N=50).solve() for m in ("ms", "collocation")}
 
 
 def test_ocp_c_agree_and_resimulate(ocp_c):

@@ -48,9 +48,18 @@ def table1(request: pytest.FixtureRequest) -> dict[str, Any]:
     }
 
 
+@pytest.fixture(scope="module")
+def references() -> dict[str, dict[str, Any]]:
+    """The independent SciPy runs of Table 1 (aev_ocp.reference), each computed once for both integrators' checks
+    (issue 40: it was computed again for each)."""
+    return {kind: simulate_reference(kind, GAPS, SPEEDS, 70.0, rtol=1e-10, atol=1e-10) for kind in ("proposed", "ovfl")}
+
+
 @pytest.mark.parametrize("kind", ["proposed", "ovfl"])
-def test_omega_and_heat_match_independent_scipy(table1: dict[str, Any], kind: str) -> None:
-    ref = simulate_reference(kind, GAPS, SPEEDS, 70.0, rtol=1e-10, atol=1e-10)
+def test_omega_and_heat_match_independent_scipy(
+    table1: dict[str, Any], references: dict[str, dict[str, Any]], kind: str
+) -> None:
+    ref = references[kind]
     r = table1[kind]
     assert r.status == "ok"
     assert r.meta["integrator"].split("-")[0] in METHODS

@@ -82,10 +82,11 @@ def _ring_ode(t_end: float):
 @needs_sumo
 def test_ring_converges_to_the_ring_ode_at_first_order():
     """Every car under the same law: SUMO driven by the toolkit vs SciPy's ring ODE; the largest speed difference
-    over 20 s shrinks at least like the step (ratio >= 1.8 per halving: the command is held over a step)."""
+    over 10 s shrinks at least like the step (ratio >= 1.8 per halving: the command is held over a step). (10 s, not
+    20 s, issue 40: the largest differences come in the first 10 s, the same three numbers to the last digit.)"""
     from aev_ocp.sumo.run import run_sumo
 
-    T = 20.0
+    T = 10.0
     sol = _ring_ode(T)
     errs = []
     for dt in (0.1, 0.05, 0.025):
