@@ -146,12 +146,19 @@ def test_the_wave_mpc_in_sumo_plans_at_the_rings_interval_whatever_the_units(nam
 @needs_sumo
 def test_sumos_idm_ring_holds_the_idm_uniform_flow() -> None:
     """Started at the IDM's equilibrium speed at the equal gap (computed here), unperturbed, every car keeps it
-    to 1e-3 m/s for 20 s: SUMO's IDM has the toolkit's s0 (minGap), T (tau), a, b, δ and v0."""
+    to 1e-3 m/s for 20 s: SUMO's IDM has the toolkit's s0 (minGap), T (tau), a, b, δ and v0. One car is the
+    toolkit's FollowerStopper with r = that speed (at a 5.45 m gap it commands r): the gap it measures is the
+    ring's geometry, 230/22 − 5 m bumper to bumper, although SUMO's leader distance leaves out the 2 m minGap."""
     v_eq = _idm_uniform_speed(GAP_M)
     assert v_eq == pytest.approx(3.454, abs=1e-3)
-    run = run_sumo(parse_sumo_scenario(_idm_doc(20.0, speed0_mps=v_eq, perturbation_m=0.0)))
+    doc = _idm_doc(20.0, speed0_mps=v_eq, perturbation_m=0.0)
+    doc["sumo"].update(share=0.05, controller="followerstopper", desired_speed_mps=v_eq)
+    run = run_sumo(parse_sumo_scenario(doc))
     _, v = _speeds(run)
     assert np.max(np.abs(v - v_eq)) < 1e-3, np.max(np.abs(v - v_eq))
+    (vid,) = [k for k, c in run.controlled.items() if c]
+    r = run.vehicles[vid]
+    assert np.max(np.abs(np.asarray(r.units.length_to_si(r.gap[:, 0])) - GAP_M)) < 1e-3
 
 
 @pytest.mark.slow  # about 7 s of one core (two SUMO runs of 300 s and the toolkit's ring)
@@ -236,3 +243,28 @@ def test_speed_limits_cap_the_toolkits_speed_at_the_lanes_limit() -> None:
             assert np.max(np.abs(v - want)) < 1e-9, v
         else:
             assert v[-1] > 3.2 + 0.2
+
+
+def test_the_guide_quotes_every_recorded_sumo_wave_table_and_its_event_counts() -> None:
+    """Every scenario of tests/data/bench_sumo_wave.json (written by ``bench_sumo.py --wave --record``) is quoted
+    between its markers in docs/guide/studies.md, on seeds >= 100; each run's event counts are the sums of its
+    per-seed counts, and a run's 'failed' is its number of seeds with a status other than 'ok'."""
+    import json
+
+    root = Path(__file__).resolve().parents[1]
+    doc = json.loads((root / "tests" / "data" / "bench_sumo_wave.json").read_text(encoding="utf-8"))
+    text = (root / "docs" / "guide" / "studies.md").read_text(encoding="utf-8")
+    names = [k for k, v in doc.items() if isinstance(v, dict) and "rows" in v]
+    assert set(names) == {"sumo_ring", "sumo_ring_idm", "sumo_merge"}
+    assert doc["controller"] == "wave-mpc"
+    for name in names:
+        d = doc[name]
+        assert len(d["seeds"]) >= 10 and min(d["seeds"]) >= 100
+        start = text.index(f"<!-- bench_sumo_wave {name} -->")
+        assert d["markdown"].strip() in text[start : text.index("<!-- end -->", start)]
+        for row in d["rows"]:
+            runs = [p for p in d["per_seed"] if f"{p['share']} {p['controller']}" == row["run"]]
+            assert len(runs) == row["seeds"] == len(d["seeds"])
+            assert row["failed"] == sum(p["status"] != "ok" for p in runs)
+            for k, n in d["events"][row["run"]].items():
+                assert n == sum(int(p[k] or 0) for p in runs)
