@@ -9,8 +9,9 @@ command is an acceleration held over the step, exactly the toolkit's zero-order 
 3. every controlled vehicle observes what a car can: its leader's bumper-to-bumper gap and speed from SUMO
    (``getLeader`` within ``lookahead_m``; no leader: gap = lookahead and leader speed = own speed, i.e. free road;
    a lane that ends before the leader: a standing obstacle at its end) and its own speed; its controller commands
-   an acceleration, saturated to the vehicle's [limits] (and never below standstill), and ``setSpeed`` hands SUMO
-   the speed reached at the end of the next step.
+   an acceleration, saturated to the vehicle's [limits] (and never below standstill; with ``speed_limits`` never
+   above the lane's legal limit), and ``setSpeed`` hands SUMO the speed reached at the end of the next step. A
+   sampled controller commands every ``dt`` (a whole number of steps) and its command is held in between.
 
 The speed mode of controlled vehicles (default 24, :data:`.scenario.DEFAULT_SPEED_MODE`) switches off SUMO's own
 safe speed and acceleration bounds, so the controller alone decides (and a collision is possible: it is an
