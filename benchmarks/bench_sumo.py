@@ -10,16 +10,19 @@ own call time.
 
 Prints a table and writes results/bench_sumo.json.
 
-``--wave`` instead runs the wave-damping MPC (``aev_ocp.mpc.wave:sumo_controller``, the WaveParams defaults) in
-SUMO's ring (``sumo_ring``, one car of 22: share 0.05) and merge (``sumo_merge``, the scenario's share 0.2) over
-seeds (default 42–51, as the guide's SUMO study), against SUMO's Krauss drivers alone and the same share on the
-paper's law, every controlled car under the safety layer (``[limits] safety_layer = true``); through the study layer
-(:func:`aev_ocp.study.traffic.sumo_tasks`, :func:`aev_ocp.study.traffic_study.run_traffic_study`: the metrics'
-means with 95 % t intervals and the paired verdicts against share 0). Writes results/bench_sumo_wave.json
-(``--record``: also tests/data/bench_sumo_wave.json, which tests/test_wave_mpc.py ties to the guide's table).
+``--wave`` instead runs the wave-damping MPC (SUMO's named ``wave-mpc``: the WaveParams defaults, planning every
+0.2 s as on the toolkit's ring) in SUMO's Krauss ring (``sumo_ring``, one car of 22: share 0.05), SUMO's IDM ring
+(``sumo_ring_idm``, the toolkit's Treiber IDM drivers, one car of 22) and the merge (``sumo_merge``, the scenario's
+share 0.2) over seeds (default 100–109), against SUMO's drivers alone, the same share on FollowerStopper (each
+scenario's ``desired_speed_mps``) and on the paper's law; every controlled car under the safety layer
+(``[limits] safety_layer = true``) and keeping its lane's speed limit (``[sumo] speed_limits = true``), through the
+study layer (:func:`aev_ocp.study.traffic.sumo_tasks`, :func:`aev_ocp.study.traffic_study.run_traffic_study`: the
+metrics' means with 95 % t intervals and the paired verdicts against share 0). Writes results/bench_sumo_wave.json
+(``--record``: also tests/data/bench_sumo_wave.json, which tests/test_wave_mpc.py and tests/test_sumo_wave.py tie to
+the guide's tables).
 
     python benchmarks/bench_sumo.py [--quick]
-    python benchmarks/bench_sumo.py --wave [--seeds 42 ... 51] [--workers 1] [--record]
+    python benchmarks/bench_sumo.py --wave [--seeds 100 ... 109] [--workers 1] [--record]
 """
 
 from __future__ import annotations
@@ -78,9 +81,13 @@ def _children(code: str, argsets: list[tuple[str, ...]]) -> list[dict]:
     return [json.loads(p.communicate()[0].strip().splitlines()[-1]) for p in procs]
 
 
-WAVE_CONTROLLER = "aev_ocp.mpc.wave:sumo_controller"
+WAVE_CONTROLLER = "wave-mpc"
+#: the controllers of the wave study (each at the scenario's share; share 0: SUMO's drivers alone)
+WAVE_CONTROLLERS = ["proposed", "followerstopper", WAVE_CONTROLLER]
 #: the shipped SUMO scenario and the share of its cars the toolkit drives in the wave study
-WAVE_POINTS = {"sumo_ring": 0.05, "sumo_merge": 0.2}
+WAVE_POINTS = {"sumo_ring": 0.05, "sumo_ring_idm": 0.05, "sumo_merge": 0.2}
+#: the fleet's events counted per run (a run with one is 'failed' in the table and left out of its means)
+WAVE_EVENTS = ("lane_end_stop_events", "emergency_braking_events", "collisions", "teleports")
 #: the columns of the wave study's tables (aev_ocp.sumo.cli.SEED_METRICS plus the closest gap)
 WAVE_METRICS = (
     "throughput_veh_per_h",
@@ -103,35 +110,52 @@ def wave_study(seeds: list[int], out: Path, workers: int = 1) -> dict:
     for name, share in WAVE_POINTS.items():
         src = ROOT / "aev_ocp" / "sumo" / "scenarios" / f"{name}.toml"
         text = src.read_text(encoding="utf-8")
-        if "[limits]" in text:
-            raise SystemExit(f"{src}: has its own [limits]; the wave study adds safety_layer = true to none")
+        if "[limits]" in text or "speed_limits" in text or text.count("\n[sumo]\n") != 1:
+            raise SystemExit(f"{src}: has its own [limits] or speed_limits, or no single [sumo] table")
         folder = out / name
         folder.mkdir(parents=True, exist_ok=True)
-        path = folder / f"{name}.toml"  # the shipped scenario with every controlled car under the safety layer
+        # the shipped scenario with every controlled car under the safety layer and keeping the lanes' limits
+        path = folder / f"{name}.toml"
+        text = text.replace("\n[sumo]\n", "\n[sumo]\nspeed_limits = true\n")
         path.write_text(text + "\n[limits]\nsafety_layer = true\n", encoding="utf-8")
-        tasks = sumo_tasks(path, [0.0, share], ["proposed", WAVE_CONTROLLER], seeds)
+        tasks = sumo_tasks(path, [0.0, share], WAVE_CONTROLLERS, seeds)
         results, rows = run_traffic_study(tasks, folder, workers=workers, name=f"wave MPC in {name}")
         for r in rows:
-            r["run"] = r["run"].replace(WAVE_CONTROLLER, "wave-mpc")
             r["scenario"] = name  # not the path of this checkout's copy
         per_seed = []
         for t in tasks:
             r = results.get(t.key) or {"status": "missing", "metrics": []}
             m = r["metrics"][0] if r.get("metrics") else {}
             v = t.spec["values"]
-            ctrl = "wave-mpc" if t.controller == WAVE_CONTROLLER else t.controller
             row = {
                 "share": v["share"],
-                "controller": ctrl,
+                "controller": t.controller,
                 "seed": v["seed"],
                 "status": r["status"],
                 "wall_s": r.get("wall_s"),
             }
-            per_seed.append({**row, "message": r.get("message", ""), **{k: m.get(k) for k in WAVE_METRICS}})
+            per_seed.append(
+                {**row, "message": r.get("message", ""), **{k: m.get(k) for k in (*WAVE_METRICS, *WAVE_EVENTS)}}
+            )
         md = table_markdown(rows, [m for m in WAVE_METRICS if rows and m in rows[0]])
-        doc[name] = {"share": share, "seeds": seeds, "rows": rows, "per_seed": per_seed, "markdown": md}
+        events = {  # each run's events summed over its seeds (failed runs included)
+            r["run"]: {
+                k: sum(int(p[k] or 0) for p in per_seed if f"{p['share']} {p['controller']}" == r["run"])
+                for k in WAVE_EVENTS
+            }
+            for r in rows
+        }
+        doc[name] = {
+            "share": share,
+            "seeds": seeds,
+            "rows": rows,
+            "per_seed": per_seed,
+            "events": events,
+            "markdown": md,
+        }
         print(f"\n{name} (share {share:g}), seeds {seeds[0]}-{seeds[-1]}, means [95 % t interval] and paired verdicts:")
         print(md)
+        print("events over the seeds:", json.dumps(events))
     return doc
 
 
@@ -142,7 +166,7 @@ def main_wave(argv: list[str]) -> None:
 
     ap = argparse.ArgumentParser(description="the wave MPC in SUMO's ring and merge over seeds")
     ap.add_argument("--wave", action="store_true")
-    ap.add_argument("--seeds", type=int, nargs="+", default=list(range(42, 52)))
+    ap.add_argument("--seeds", type=int, nargs="+", default=list(range(100, 110)))
     ap.add_argument("--workers", type=int, default=1)
     ap.add_argument("--out", default=str(ROOT / "results" / "bench_sumo_wave"))
     ap.add_argument("--record", action="store_true", help="also write tests/data/bench_sumo_wave.json")

@@ -48,12 +48,31 @@ def _checked(obj: object) -> None:
         raise NetworkError(str(exc)) from None
 
 
+#: SUMO driver models of the ring's human cars (RingNetwork.human)
+RING_HUMANS = ("krauss", "idm")
+
+
+def ring_vtype(net: "RingNetwork") -> str:
+    """The ``<vType>`` of the ring's cars (every car; the toolkit's speed mode overrides it for the ones it drives)."""
+    head = f'<vType id="ring_car" length="{net.vehicle_length_m!r}"'
+    if net.human == "krauss":  # SUMO's Krauss defaults (accel, decel, sigma)
+        return f'{head} minGap="0" maxSpeed="{net.lane_speed_mps}" accel="2.6" decel="4.5" sigma="0.5"/>'
+    return (
+        f'{head} carFollowModel="IDM" accel="{net.idm_a_mps2!r}" decel="{net.idm_b_mps2!r}" '
+        f'maxSpeed="{net.idm_v0_mps!r}" minGap="{net.idm_s0_m!r}" tau="{net.idm_T_s!r}" delta="{net.idm_delta!r}" '
+        'speedFactor="1" speedDev="0"/>'
+    )
+
+
 @dataclass(frozen=True)
 class RingNetwork:
     """The single-lane ring. length_m: circumference [m]; vehicles: how many, equally spaced; perturbation_m:
     vehicle 0 starts this far behind its equal-spacing place (the wave's seed); speed0_mps: every vehicle's
     initial speed [m/s] (at most the lane's limit); lane_speed_mps: the lane's speed limit [m/s] (high, so that
-    only the controllers and SUMO's drivers set the speed)."""
+    only the controllers and SUMO's drivers set the speed). human: SUMO's driver model of the cars the toolkit does
+    not drive: "krauss" (SUMO's default Krauss driver, sigma 0.5, no standstill gap) or "idm" (SUMO's IDM with the
+    SI parameters idm_*: Treiber, Hennecke & Helbing 2000's city values by default, the humans of the toolkit's
+    ``ring_stern`` ring; a = accel, b = decel, v0 = maxSpeed, s0 = minGap, T = tau, δ = delta, no speed spread)."""
 
     length_m: float = spec(230.0, gt=0, le=MAX_ROAD_M)  # Sugiyama et al. 2008
     vehicles: int = spec(22, kind="integer", ge=1)  # Sugiyama et al. 2008
@@ -61,6 +80,14 @@ class RingNetwork:
     speed0_mps: float = spec(0.0, ge=0, le=MAX_LANE_SPEED_MPS)  # Sugiyama et al. 2008 start from rest
     vehicle_length_m: float = spec(VEHICLE_LENGTH_M, gt=0, le=30.0)  # 30 m: longer than any road vehicle
     lane_speed_mps: float = spec(40.0, gt=0, le=MAX_LANE_SPEED_MPS)
+    human: str = spec("krauss", kind="choice", choices=RING_HUMANS)
+    # the IDM's SI parameters (human = "idm"; aev_ocp.ring.laws.IDM_SI: Treiber et al. 2000, v0 a ring's 30 m/s)
+    idm_a_mps2: float = spec(1.0, gt=0, le=10.0)
+    idm_b_mps2: float = spec(1.5, gt=0, le=10.0)
+    idm_v0_mps: float = spec(30.0, gt=0, le=MAX_LANE_SPEED_MPS)
+    idm_s0_m: float = spec(2.0, ge=0, le=30.0)
+    idm_T_s: float = spec(1.0, gt=0, le=10.0)
+    idm_delta: float = spec(4.0, gt=0, le=10.0)
 
     def __post_init__(self) -> None:
         _checked(self)
@@ -176,8 +203,7 @@ def build_ring(net: RingNetwork, folder: Path, t_end_s: float) -> tuple[Path, li
     laps = int(math.ceil(t_end_s * net.lane_speed_mps / net.length_m)) + 2
     rows = [
         "<routes>",
-        f'  <vType id="ring_car" length="{net.vehicle_length_m!r}" minGap="0" maxSpeed="{net.lane_speed_mps}" '
-        'accel="2.6" decel="4.5" sigma="0.5"/>',  # SUMO's Krauss defaults (accel, decel, sigma)
+        f"  {ring_vtype(net)}",
         f'  <route id="from_top" edges="{" ".join(["top bottom"] * laps)}"/>',
         f'  <route id="from_bottom" edges="{" ".join(["bottom top"] * laps)}"/>',
     ]

@@ -9,8 +9,9 @@ command is an acceleration held over the step, exactly the toolkit's zero-order 
 3. every controlled vehicle observes what a car can: its leader's bumper-to-bumper gap and speed from SUMO
    (``getLeader`` within ``lookahead_m``; no leader: gap = lookahead and leader speed = own speed, i.e. free road;
    a lane that ends before the leader: a standing obstacle at its end) and its own speed; its controller commands
-   an acceleration, saturated to the vehicle's [limits] (and never below standstill), and ``setSpeed`` hands SUMO
-   the speed reached at the end of the next step.
+   an acceleration, saturated to the vehicle's [limits] (and never below standstill; with ``speed_limits`` never
+   above the lane's legal limit), and ``setSpeed`` hands SUMO the speed reached at the end of the next step. A
+   sampled controller commands every ``dt`` (a whole number of steps) and its command is held in between.
 
 The speed mode of controlled vehicles (default 24, :data:`.scenario.DEFAULT_SPEED_MODE`) switches off SUMO's own
 safe speed and acceleration bounds, so the controller alone decides (and a collision is possible: it is an
@@ -81,6 +82,20 @@ def is_controlled(vid: str, vtype: str, scenario: SumoScenario) -> bool:
 def _ring_selection(seed: int, n: int, share: float) -> frozenset[str]:
     ids = sorted((f"ring.{i}" for i in range(n)), key=lambda v: _draw(seed, v))
     return frozenset(ids[: int(round(share * n))])
+
+
+def controller_steps(period_s: float, step_s: float, name: str) -> int:
+    """How many SUMO steps of ``step_s`` [s] one period ``period_s`` [s] of a sampled controller spans; SumoError
+    naming ``sumo.controller`` when it is no whole number of steps (a controller sampled at another period than the
+    one it plans with holds each command longer or shorter than it assumed)."""
+    k = period_s / step_s
+    if not (round(k) >= 1 and abs(k - round(k)) <= 1e-9 * max(1.0, k)):
+        raise SumoError(
+            f"sumo.controller = {name!r}: its controller's dt = {period_s:g} s is not allowed: must be a whole "
+            f"number of SUMO steps (sumo.step_s = {step_s:g} s); a controller's dt is in model time, so it "
+            "changes with [units]"
+        )
+    return int(round(k))
 
 
 def check_ids_seen(scenario: SumoScenario, departed: list[str], t_s: float) -> None:
@@ -386,6 +401,16 @@ def make_controller_factory(scenario: SumoScenario) -> tuple[CarFollowingLaw | N
             return MPCPolicy(cfg.settings, ev, fallback, pred, formulation=cfg.formulation)
 
         return None, mpc
+    if name == "wave-mpc":  # the wave-damping MPC: [mpc]'s solver settings (a whole number of SUMO steps)
+        from ..mpc.wave import WaveMPC
+
+        wave_cfg, wave_fallback = scenario.mpc, make_law("proposed", scenario.cf)  # the ring's wave MPC's SI law
+        return None, lambda: WaveMPC(ev, wave_fallback, settings=wave_cfg.settings)
+    if name == "followerstopper":  # Stern et al. 2018's law with the scenario's desired speed
+        from ..ring.laws import FollowerStopper
+
+        assert scenario.spec.desired_speed_mps is not None  # required by the scenario's parser
+        return FollowerStopper.from_si(ev.units, scenario.spec.desired_speed_mps), None
     if ":" in name:
         mod, fn = name.split(":", 1)
         try:
@@ -504,6 +529,7 @@ class _SumoLoop:
         self.ring = s.ring if s.network == "ring" else None
         self.offsets: dict[str, float] = {}
         self.lane_ends: dict[tuple[str, int, str], float | None] = {}
+        self.limits: dict[str, float] = {}  # the lanes' speed limits [m/s]
         self.V = ts.vehicle
         self.t_ctrl = 0.0
         self.t_build = 0.0  # building sampled controllers (an MPC builds its NLP once per vehicle)
@@ -588,7 +614,7 @@ class _SumoLoop:
                 tr.ctrl.reset()
                 self.t_build += time.perf_counter() - tb
                 tr.controller = tr.ctrl.name
-                self.ctrl_every = max(1, int(round(tr.ctrl.dt * u.time_s / dt)))
+                self.ctrl_every = controller_steps(tr.ctrl.dt * u.time_s, dt, s.controller)
                 period = self.ctrl_every * dt / u.time_s
                 tr.step = VehicleStep(
                     tr.ctrl.name, f"vehicle {vid!r}", u, self.ev.limits, self.ctrl_stages, period, "sumo"
@@ -678,9 +704,20 @@ class _SumoLoop:
             a[i] = self.vehicle_command(tr, t_s, float(a[i]) if tr.ctrl is None else 0.0, gaps[i], vs[i], vls[i])
         a = np.clip(a, self.a_lo, self.a_hi)  # (the loop core saturated in model units: this only rounds to SI)
         v_next = np.clip(vs + a * dt, 0.0, np.maximum(self.v_max, vs))
+        if s.speed_limits:  # the lane's legal limit; a car above it (it entered a slower lane, or departed above
+            # the limit with its speed factor) slows down to it at no more than LIMIT_DECEL_MPS2
+            cap = np.array([self.lane_limit(tr.lane[-1]) for tr in ctl_live])
+            v_next = np.minimum(v_next, np.maximum(cap, vs - LIMIT_DECEL_MPS2 * dt))
+            a = (v_next - vs) / dt
         for i, tr in enumerate(ctl_live):
             self.V.setSpeed(tr.vid, float(v_next[i]))
             tr.a_prev = float(self.u.accel_from_si(a[i]))
+
+    def lane_limit(self, lane: str) -> float:
+        """The legal speed limit [m/s] of SUMO lane ``lane`` (cached: a lane's limit does not change)."""
+        if lane not in self.limits:
+            self.limits[lane] = float(self.ts.lane.getMaxSpeed(lane))
+        return self.limits[lane]
 
     def law_commands(self, ctl_live: list[_Track], gaps: np.ndarray, vs: np.ndarray, vls: np.ndarray) -> np.ndarray:
         """The law's raw accelerations [m/s²] of the vehicles a law drives (all of them in one call; a non-finite
@@ -763,6 +800,9 @@ class _SumoLoop:
         )
 
 
+#: how hard a controlled car above its lane's speed limit slows down to it ([sumo] speed_limits) [m/s²]: the IDM's
+#: comfortable deceleration b (Treiber, Hennecke & Helbing 2000)
+LIMIT_DECEL_MPS2 = 1.5
 #: a realised deceleration may exceed the vehicle's floor by this much [m/s²] (the speeds' round-off in SUMO)
 DECEL_TOLERANCE_MPS2 = 1e-3
 EMERGENCY_BRAKING, LANE_END_STOP = FLEET_EVENT_KINDS[:2]

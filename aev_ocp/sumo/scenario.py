@@ -14,10 +14,15 @@ Top level: ``name``, ``description``; the vehicle tables every scenario knows (`
   shipped ring exactly round(share × cars) cars: reproducible, and a larger share controls a superset); none of
   them: SUMO drives everything (the baseline);
 * ``controller``: a car-following law by name (``proposed``, ``ovfl``, ``ovm``, ``idm``, …), ``"mpc"`` (the MPC with
-  a measured forecast, settings from ``[mpc]``), or ``"module:function"`` (``function(ev)`` returns a new
-  :class:`aev_ocp.control.Controller` for one vehicle);
+  a measured forecast, settings from ``[mpc]``), ``"wave-mpc"`` (the wave-damping MPC,
+  :class:`aev_ocp.mpc.wave.WaveMPC` with its default parameters, solver settings from ``[mpc]`` as the MPC's, the
+  paper's law of ``[carfollowing]`` as its fallback), ``"followerstopper"`` (Stern et al. 2018's FollowerStopper with
+  the desired speed ``desired_speed_mps`` [m/s]), or ``"module:function"`` (``function(ev)`` returns a new
+  :class:`aev_ocp.control.Controller` for one vehicle, sampled every ``dt``: a whole number of SUMO steps);
 * ``speed_mode`` (default 24: SUMO still obeys right of way and red lights at junctions, the toolkit alone sets the
   speed: no SUMO safe-speed cap, no SUMO acceleration bounds, the vehicle's ``[limits]`` apply instead),
+  ``speed_limits`` (default false; true: every speed the toolkit hands SUMO is capped at the legal limit of the
+  car's lane, as SUMO's own drivers keep it: speed mode 24 lifts it, and a controller does not know it),
   ``collision_action`` (SUMO's, default ``remove``), ``lookahead_m`` (how far a car sees its leader, default 250 m),
   ``seed``, ``record_every`` (keep every k-th step), ``sumo_args`` (more SUMO options);
 * ``[sumo.sweep]``: ``share = [...]`` and/or ``controller = [...]``: ``aev-ocp sumo FILE --sweep`` runs every pair.
@@ -39,7 +44,7 @@ from ..params import CarFollowingParams, EVParams, ParameterError
 from ..scenarios import ScenarioError, TableReader, read_declared, read_scenario_doc, standalone_header
 from ..scenarios.followers import _carfollowing
 from . import SumoError
-from .networks import NETWORKS, MergeNetwork, RingNetwork
+from .networks import MAX_LANE_SPEED_MPS, NETWORKS, MergeNetwork, RingNetwork
 
 #: SUMO speed mode of controlled vehicles: bits 3 (right of way at junctions) and 4 (brake at red lights) on; safe
 #: speed (bit 0) and SUMO's acceleration/deceleration bounds (bits 1, 2) off: the controller and the vehicle's own
@@ -75,6 +80,14 @@ class SumoSpec:
     sumo_args: tuple[str, ...] = ()
     sweep_share: tuple[float, ...] = ()
     sweep_controller: tuple[str, ...] = ()
+    desired_speed_mps: float | None = None  # FollowerStopper's r (controller "followerstopper")
+    speed_limits: bool = False  # cap the toolkit's speeds at the lane's legal limit (SUMO's drivers keep it)
+
+
+#: controllers by name beside the registered laws: the MPC and the wave MPC (sampled; settings from [mpc]) and
+#: FollowerStopper (a law with a desired speed)
+MPC_NAMES = ("mpc", "wave-mpc")
+NAMED_CONTROLLERS = (*MPC_NAMES, "followerstopper")
 
 
 @dataclass(frozen=True)
@@ -104,13 +117,15 @@ class SumoScenario:
 
 def _controller(r: TableReader, key: str, value: Any) -> str:
     if not isinstance(value, str) or not value:
-        raise r.error(key, value, 'expected a law name, "mpc" or "module:function"')
+        raise r.error(key, value, 'expected a law name, "mpc", "wave-mpc", "followerstopper" or "module:function"')
     v = value.strip()
-    if v.lower() in LAW_REGISTRY or v.lower() == "mpc":
+    if v.lower() in LAW_REGISTRY or v.lower() in NAMED_CONTROLLERS:
         return v.lower()
     if re.fullmatch(r"[A-Za-z_][\w.]*:[A-Za-z_]\w*", v):
         return v
-    raise r.error(key, value, f'must be a law ({sorted(LAW_REGISTRY)}), "mpc" or "module:function"')
+    raise r.error(
+        key, value, f'must be a law ({sorted(LAW_REGISTRY)}), "mpc", "wave-mpc", "followerstopper" or "module:function"'
+    )
 
 
 def _path(r: TableReader, key: str, value: Any, base: Path | None) -> Path:
@@ -165,11 +180,14 @@ def parse_sumo_table(r: TableReader, base: Path | None) -> SumoSpec:
     if mode > 63:
         raise r.error("speed_mode", mode, "must be an integer 0-63 (SUMO's speed-mode bits)")
     kw["speed_mode"] = mode
+    kw["speed_limits"] = r.boolean("speed_limits", False)
     kw["collision_action"] = r.string("collision_action", "remove", choices=list(COLLISION_ACTIONS))
     kw["lookahead_m"] = r.number("lookahead_m", 250.0, gt=0)
     kw["seed"] = r.integer("seed", 42, ge=0)
     kw["record_every"] = r.integer("record_every", 1, ge=1)
     kw["sumo_args"] = check_sumo_args(r, r.strings("sumo_args", []))
+    if r.has("desired_speed_mps"):
+        kw["desired_speed_mps"] = r.number("desired_speed_mps", gt=0, le=MAX_LANE_SPEED_MPS)
     sw = r.sub("sweep")
     kw["sweep_share"] = tuple(sw.numbers("share", [], ge=0))
     if any(s > 1 for s in kw["sweep_share"]):
@@ -179,6 +197,10 @@ def parse_sumo_table(r: TableReader, base: Path | None) -> SumoSpec:
     sw.finish(allowed_hint=["share", "controller"])
     r.finish()
     spec = SumoSpec(**kw)
+    if "followerstopper" in (spec.controller, *spec.sweep_controller) and spec.desired_speed_mps is None:
+        raise r.error(
+            "desired_speed_mps", None, 'is required with controller "followerstopper" (its desired speed r [m/s])'
+        )
     _check_ids(r, spec)
     check_sumo_spec(spec, r.file)
     return spec
@@ -309,10 +331,11 @@ def _check_ids(r: TableReader, spec: SumoSpec) -> None:
 
 def mpc_for(spec: SumoSpec, ev: EVParams, mpc: Any, file: str) -> Any:
     """The [mpc] configuration a run of ``spec`` needs: ``mpc`` as given, or the default MPC when a controller (the
-    run's, or one of [sumo.sweep]'s; also one chosen with ``--controller mpc``) is "mpc" and the file has no [mpc];
+    run's, or one of [sumo.sweep]'s; also one chosen with ``--controller mpc``) is "mpc" or "wave-mpc" and the file
+    has no [mpc];
     ScenarioError naming ``file`` when its interval is no whole number of SUMO steps or its predictor needs what a
     SUMO car cannot measure."""
-    if "mpc" not in (spec.controller, *spec.sweep_controller):
+    if not set(MPC_NAMES) & {spec.controller, *spec.sweep_controller}:
         return mpc
     if mpc is None:
         from ..mpc.scenario import MPCConfig
