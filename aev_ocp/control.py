@@ -127,7 +127,7 @@ def sampled_stat_names() -> frozenset[str]:
     """Every key a sampled controller's statistics add to its follower's metrics (:func:`aev_ocp.loop.controller_stats`, the forecast
     RMS, the estimation errors and the estimator's timings of :meth:`ClosedLoop.run`), so that a study can check
     a [report] metric name before anything runs."""
-    rec: dict[str, list[Any]] = {k: [] for k in ("solve", "call", "iters", "ok", "status")}
+    rec: dict[str, list[Any]] = {k: [] for k in ("solve", "call", "iters", "ok", "status", "info")}
     est = estimation_errors(np.zeros((1, 5)), 1.0)
     extra = ("forecast_rms", "estimation", "estimator_ms_median", "estimator_plus_call_ms_median")
     return frozenset([*controller_stats(rec, cast(Controller, _Anonymous())), *extra, *(f"est_{k}" for k in est)])
