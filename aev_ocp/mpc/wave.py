@@ -22,6 +22,12 @@ different objective for the motion:
   never opens an absurd gap;
 * **terminal cost** w_vT (v_N − v_ref)² + w_gT (h_N − h_c(v_N))² (the short horizon does not plan a swing after it).
 
+Optionally (``WaveParams.hold_*``, off by default; a ring scenario's ``[ring.wave]``) v_ref is a **latched speed
+hold**: once the car has left the jam it starts in (its mean speed back at ``hold_min_mps`` after falling below it)
+and while its predecessor's measured speed std is at most ``hold_sigma_mps``, v_ref is held in [``hold_min_mps``,
+``hold_max_mps``] instead of chasing the gap; a growing wave (or a mean speed below ``hold_release_mps``) returns it
+to the catch-up, which collects the wave in the car's gap.
+
 The predecessor-speed term of the traffic problem (w_r (v̂_l − v)²) and its time-gap terms are off (weights 0): the
 predecessor forecast (its measured speed and acceleration, decaying) enters only the dynamics of the gap and the
 braking-distance constraint. Energy awareness is the traffic problem's: the paper's ω rate v g(a),
