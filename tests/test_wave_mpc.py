@@ -409,13 +409,28 @@ def test_the_guide_quotes_the_sumo_wave_study_and_its_intervals_are_the_per_seed
                 )
 
 
-def test_the_guide_quotes_the_final_evaluation_on_seeds_80_to_99():
-    """The guide's paragraph on the fresh seeds 80–99 quotes the run recorded in tests/data (the three targets' means
+@pytest.mark.parametrize(
+    "suffix, first, marker",
+    [
+        ("_seeds80-99", 80, "**The fresh seeds 80–99"),
+        ("_seeds100-119", 100, "**The fresh seeds 100–119"),
+        ("_hold_seeds100-119", 100, "**The speed hold on the fresh seeds 100–119"),
+        ("_hold_seeds20-39", 20, "**The hold on the earlier seeds 20–39"),
+        ("_hold_seeds80-99", 80, "**The hold on the earlier seeds 80–99"),
+    ],
+)
+def test_the_guide_quotes_the_evaluations_on_fresh_seeds(suffix, first, marker):
+    """The guide's paragraphs on the evaluations (the fresh seeds 80–99 and 100–119 with the defaults, 100–119 with
+    the speed hold, and the hold on 20–39 and 80–99) quote the runs recorded in tests/data (the three targets' means
     and 95 % t intervals, recomputed here with SciPy from the per-seed values, and every seed's speed-std ratio)."""
     from scipy import stats
 
-    doc = json.loads((ROOT / "tests" / "data" / "bench_wave_mpc_ring_wave_seeds80-99.json").read_text(encoding="utf-8"))
-    assert doc["seeds"] == list(range(80, 100))
+    doc = json.loads((ROOT / "tests" / "data" / f"bench_wave_mpc_ring_wave{suffix}.json").read_text(encoding="utf-8"))
+    assert doc["seeds"] == list(range(first, first + 20))
+    # the speed hold's runs ran with it (the guide's setting), the others with the defaults
+    hold = {"hold_min_mps": 3.5, "hold_max_mps": 3.5, "hold_sigma_mps": 1.5}
+    ran = all(f"{k}={v!r}" in doc["wave_params"] for k, v in hold.items())
+    assert ran == suffix.startswith("_hold"), doc["wave_params"]
     ps = doc["per_seed"]
     ratio = [ps[str(k)]["wave-mpc"]["speed_std_mps"] / ps[str(k)]["human"]["speed_std_mps"] for k in doc["seeds"]]
     half = stats.t.ppf(0.975, len(ratio) - 1) * np.std(ratio, ddof=1) / np.sqrt(len(ratio))
@@ -424,7 +439,7 @@ def test_the_guide_quotes_the_final_evaluation_on_seeds_80_to_99():
         (np.mean(ratio), np.mean(ratio) - half, np.mean(ratio) + half)
     )
     text = (ROOT / "docs" / "guide" / "studies.md").read_text(encoding="utf-8")
-    start = text.index("**The fresh seeds 80–99")
+    start = text.index(marker)
     para = " ".join(text[start : text.index("\n\n", start)].split())  # the words, whatever the line breaks
     assert f"{iv['mean']:.3f} [{iv['lo']:.3f}, {iv['hi']:.3f}]" in para
     for name in ("mean_speed_minus_followerstopper_mps", "battery_energy_ratio_to_human"):
