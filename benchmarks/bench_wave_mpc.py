@@ -29,8 +29,11 @@ constant speed, the fleet's speed std and the gap that car would need on the rea
                                         [--out results/bench_wave_mpc.json] [--record]
 
 ``--record`` also writes the JSON to tests/data/ (named after the scenario, plus ``--record-suffix``), where
-tests/test_wave_mpc.py checks that the guide quotes it: the table of seeds 60–79, and the final evaluation on seeds
-80–99 (``--seeds 80 … 99 --record --record-suffix _seeds80-99``).
+tests/test_wave_mpc.py checks that the guide quotes it: the table of seeds 60–79, the evaluations on seeds 80–99
+and 100–119 (``--seeds 80 … 99 --record --record-suffix _seeds80-99``, ``_seeds100-119``; the defaults), and the
+speed hold tried on 100–119, 20–39 and 80–99 (WaveParams ``hold_min_mps = hold_max_mps = 3.5``,
+``hold_sigma_mps = 1.5`` through ``[ring.wave]`` or ``--wave-params``; ``_hold_seeds100-119``, ``_hold_seeds20-39``,
+``_hold_seeds80-99``).
 
 The wall times are those of a shared 2-core machine; the MPC's solve time per step is the median and maximum of its
 calls (wall) and the run's process CPU time per MPC step is printed beside it.

@@ -409,13 +409,28 @@ def test_the_guide_quotes_the_sumo_wave_study_and_its_intervals_are_the_per_seed
                 )
 
 
-def test_the_guide_quotes_the_final_evaluation_on_seeds_80_to_99():
-    """The guide's paragraph on the fresh seeds 80–99 quotes the run recorded in tests/data (the three targets' means
+@pytest.mark.parametrize(
+    "suffix, first, marker",
+    [
+        ("_seeds80-99", 80, "**The fresh seeds 80–99"),
+        ("_seeds100-119", 100, "**The fresh seeds 100–119"),
+        ("_hold_seeds100-119", 100, "**The speed hold on the fresh seeds 100–119"),
+        ("_hold_seeds20-39", 20, "**The hold on the earlier seeds 20–39"),
+        ("_hold_seeds80-99", 80, "**The hold on the earlier seeds 80–99"),
+    ],
+)
+def test_the_guide_quotes_the_evaluations_on_fresh_seeds(suffix, first, marker):
+    """The guide's paragraphs on the evaluations (the fresh seeds 80–99 and 100–119 with the defaults, 100–119 with
+    the speed hold, and the hold on 20–39 and 80–99) quote the runs recorded in tests/data (the three targets' means
     and 95 % t intervals, recomputed here with SciPy from the per-seed values, and every seed's speed-std ratio)."""
     from scipy import stats
 
-    doc = json.loads((ROOT / "tests" / "data" / "bench_wave_mpc_ring_wave_seeds80-99.json").read_text(encoding="utf-8"))
-    assert doc["seeds"] == list(range(80, 100))
+    doc = json.loads((ROOT / "tests" / "data" / f"bench_wave_mpc_ring_wave{suffix}.json").read_text(encoding="utf-8"))
+    assert doc["seeds"] == list(range(first, first + 20))
+    # the speed hold's runs ran with it (the guide's setting), the others with the defaults
+    hold = {"hold_min_mps": 3.5, "hold_max_mps": 3.5, "hold_sigma_mps": 1.5}
+    ran = all(f"{k}={v!r}" in doc["wave_params"] for k, v in hold.items())
+    assert ran == suffix.startswith("_hold"), doc["wave_params"]
     ps = doc["per_seed"]
     ratio = [ps[str(k)]["wave-mpc"]["speed_std_mps"] / ps[str(k)]["human"]["speed_std_mps"] for k in doc["seeds"]]
     half = stats.t.ppf(0.975, len(ratio) - 1) * np.std(ratio, ddof=1) / np.sqrt(len(ratio))
@@ -424,10 +439,107 @@ def test_the_guide_quotes_the_final_evaluation_on_seeds_80_to_99():
         (np.mean(ratio), np.mean(ratio) - half, np.mean(ratio) + half)
     )
     text = (ROOT / "docs" / "guide" / "studies.md").read_text(encoding="utf-8")
-    start = text.index("**The fresh seeds 80–99")
+    start = text.index(marker)
     para = " ".join(text[start : text.index("\n\n", start)].split())  # the words, whatever the line breaks
     assert f"{iv['mean']:.3f} [{iv['lo']:.3f}, {iv['hi']:.3f}]" in para
     for name in ("mean_speed_minus_followerstopper_mps", "battery_energy_ratio_to_human"):
         x = doc["targets"][name]
         assert f"{x['mean']:.2f} [{x['lo']:.2f}, {x['hi']:.2f}]" in para, name
     assert ", ".join(f"{r:.3f}" for r in ratio) in para
+
+
+def test_the_latched_hold_engages_at_hold_min_and_then_clips_v_ref_to_its_band():
+    """Before the car's mean speed U first reaches v_lo = hold_min_mps, v_ref is the catch-up's (gain k, buffer c);
+    from that step on (and after U falls below v_lo again) v_ref = clip(U + clip(k_h (h̄ − s_t − T_t U − c_h σ_l),
+    −v_c, v_c), v_lo, v_hi), the reference written out here over a 5-sample window; reset() forgets the latch."""
+    wp = WaveParams(
+        window_s=1.0,
+        catch_gain_per_s=0.37,
+        target_gap_m=6.5,
+        target_time_gap_s=1.3,
+        catch_max_mps=0.8,
+        buffer_time_s=1.1,
+        hold_min_mps=3.45,
+        hold_max_mps=3.95,
+        hold_gain_per_s=0.13,
+        hold_buffer_time_s=0.6,
+    )
+    c = WaveMPC(EV, Proposed(), wp, S)
+    speeds = [2.1, 2.6, 3.0, 3.4, 4.6, 4.9, 2.3, 1.9, 2.2, 4.8, 5.6, 5.1, 3.7]
+    gaps = [11.0, 14.5, 9.0, 30.0, 16.0, 12.5, 4.0, 8.0, 12.2, 21.0, 25.0, 19.0, 17.5]
+    leads = [2.0, 6.5, 1.2, 7.7, 3.3, 5.9, 0.4, 2.8, 4.4, 6.1, 5.0, 3.9, 4.2]
+    latched, seen = False, set()
+    for k, (v, h, vl) in enumerate(zip(speeds, gaps, leads)):
+        cmd = c.command(obs(h, v, vl, t=0.1 * k))
+        w = slice(max(0, k - 4), k + 1)
+        U_, h_bar, sig = np.mean(speeds[w]), np.mean(gaps[w]), np.std(leads[w])
+        latched = latched or U_ >= 3.45
+        k_, c_ = (0.13, 0.6) if latched else (0.37, 1.1)
+        ref = U_ + min(max(k_ * (h_bar - 6.5 - 1.3 * U_ - c_ * sig), -0.8), 0.8)
+        if latched:
+            seen.add("below" if ref < 3.45 else "above" if ref > 3.95 else "inside")
+            ref = min(max(ref, 3.45), 3.95)
+        else:
+            seen.add("free")
+        assert c.held == latched
+        assert cmd.info["v_ref_mps"] == pytest.approx(ref, rel=1e-9), k
+    assert seen == {"free", "below", "inside", "above"}  # every branch of the reference taken
+    c.reset()
+    assert not c.held and not c.armed
+    # it latches only once U has been below v_lo: a car that starts above the band (a ring's uniform flow, before its
+    # jam) runs the catch-up until it has fallen below v_lo and come back (window 5 samples)
+    states = []
+    for v in (5.2, 5.0, 4.8, 1.0, 1.0, 1.0, 1.0, 6.0, 6.0, 6.0, 6.0, 6.0):
+        c.reference(float(U.length_from_si(15.0)), float(U.speed_from_si(v)))
+        states.append((c.armed, c.held))
+    # U: 5.2, 5.1, 5.0, 4.0, 3.4 (armed), 2.56, 1.76, 2.0, 3.0, 3.6 (held), ...
+    assert states == [(False, False)] * 4 + [(True, False)] * 5 + [(True, True)] * 3
+    # the upper side alone is refused (nothing latches it); an empty band too; on the limit a point band
+    with pytest.raises(ParameterError, match="hold_max_mps = 3.9 m/s needs hold_min_mps > 0"):
+        WaveParams(hold_max_mps=3.9)
+    with pytest.raises(ParameterError, match="hold_min_mps = 3.7 m/s is above hold_max_mps = 3.6"):
+        WaveParams(hold_min_mps=3.7, hold_max_mps=3.6)
+    assert WaveParams(hold_min_mps=3.6, hold_max_mps=3.6).hold_max_mps == 3.6
+    assert WaveParams(hold_min_mps=3.6).hold_max_mps == 0.0  # no upper side
+
+
+def test_the_hold_latches_only_while_the_ring_is_calm_and_releases_when_a_wave_grows():
+    """With ``hold_sigma_mps`` = σ* the hold latches only with σ_l ≤ σ* (σ_l the std of the predecessor's last 5 measured
+    speeds) and releases, back to the catch-up, at the first step with σ_l > σ*; it latches again when σ_l ≤ σ* with
+    U ≥ v_lo (already armed). Each step's state is written out here from the window's std."""
+    wp = WaveParams(window_s=1.0, buffer_time_s=0.0, hold_min_mps=3.5, hold_max_mps=3.5, hold_sigma_mps=0.45)
+    c = WaveMPC(EV, Proposed(), wp, S)
+    speeds = [2.0, 3.8, 4.0, 4.1, 4.2, 4.0, 4.0, 4.0, 4.0, 4.0, 4.0, 4.0, 4.0]
+    leads = [3.0, 3.1, 3.0, 3.2, 3.1, 3.0, 4.3, 3.1, 3.0, 3.0, 3.1, 3.0, 3.2]
+    got, want = [], []
+    held = False
+    for k, (v, vl) in enumerate(zip(speeds, leads)):
+        c.predecessor_speeds.update(float(U.speed_from_si(vl)))
+        ref = float(U.speed_to_si(c.reference(float(U.length_from_si(18.0)), float(U.speed_from_si(v)))))
+        w = slice(max(0, k - 4), k + 1)
+        calm = np.std(leads[w]) <= 0.45
+        held = calm and (held or np.mean(speeds[w]) >= 3.5)  # armed at step 0 (U = 2 m/s)
+        got.append(c.held)
+        want.append(held)
+        if held:
+            assert ref == pytest.approx(3.5, rel=1e-12)
+    assert got == want
+    # latched at step 4 (U 3.62), released at step 6 (the 4.3 m/s sample: σ_l 0.50), latched again at step 11
+    assert want == [False] * 4 + [True] * 2 + [False] * 5 + [True] * 2
+
+
+def test_the_hold_releases_below_hold_release_and_latches_again_at_hold_min():
+    """With ``hold_release_mps`` = v_r < v_lo the held car returns to the catch-up at the first step with U < v_r and
+    latches again at U ≥ v_lo (5-sample window); v_r ≥ v_lo is refused."""
+    wp = WaveParams(window_s=1.0, buffer_time_s=0.0, hold_min_mps=3.5, hold_release_mps=3.1)
+    c = WaveMPC(EV, Proposed(), wp, S)
+    speeds = [2.0, 4.0, 4.0, 4.0, 4.0, 2.9, 2.9, 2.9, 3.0, 3.5, 4.6, 4.6, 4.6]
+    # U: 2.0, 3.0, 3.33, 3.5 (held: on the limit), 3.6, 3.78, 3.56, 3.34, 3.14, 3.04 (released), 3.38, 3.72 (held), 4.06
+    want = [False] * 3 + [True] * 6 + [False] * 2 + [True] * 2
+    got = []
+    for v in speeds:
+        c.reference(float(U.length_from_si(18.0)), float(U.speed_from_si(v)))
+        got.append(c.held)
+    assert got == want
+    with pytest.raises(ParameterError, match="hold_release_mps = 3.5 m/s must be below hold_min_mps = 3.5"):
+        WaveParams(hold_min_mps=3.5, hold_release_mps=3.5)

@@ -22,6 +22,12 @@ different objective for the motion:
   never opens an absurd gap;
 * **terminal cost** w_vT (v_N − v_ref)² + w_gT (h_N − h_c(v_N))² (the short horizon does not plan a swing after it).
 
+Optionally (``WaveParams.hold_*``, off by default; a ring scenario's ``[ring.wave]``) v_ref is a **latched speed
+hold**: once the car has left the jam it starts in (its mean speed back at ``hold_min_mps`` after falling below it)
+and while its predecessor's measured speed std is at most ``hold_sigma_mps``, v_ref is held in [``hold_min_mps``,
+``hold_max_mps``] instead of chasing the gap; a growing wave (or a mean speed below ``hold_release_mps``) returns it
+to the catch-up, which collects the wave in the car's gap.
+
 The predecessor-speed term of the traffic problem (w_r (v̂_l − v)²) and its time-gap terms are off (weights 0): the
 predecessor forecast (its measured speed and acceleration, decaying) enters only the dynamics of the gap and the
 braking-distance constraint. Energy awareness is the traffic problem's: the paper's ω rate v g(a),
@@ -100,6 +106,23 @@ class WaveParams:
     # little room (benchmarks/bench_wave_mpc.py --bound); 0: no bound
     min_ref_mps: float = spec(0.0, ge=0.0)  # v_lo [m/s] (our choice; 0: off)
     max_ref_mps: float = spec(0.0, ge=0.0)  # v_hi [m/s] (our choice; 0: off)
+    # a latched speed hold (a ring setting: [ring.wave]): the car runs the catch-up above until its mean speed U, once
+    # below hold_min_mps (the jam it must first leave by collecting it in its gap, which a floor on v_ref forbids), is
+    # back at hold_min_mps; from that step on it holds v_ref within [hold_min_mps, hold_max_mps] (the catch-up's gain
+    # and buffer then hold_gain_per_s and hold_buffer_time_s; 0, 0 and a point band: v_ref = hold_min_mps, a constant
+    # speed, not chasing its gap). On a ring the car's long-run mean speed is the ring's, so holding it holds the ring
+    # at a speed where the humans behind it amplify less (benchmarks/bench_wave_mpc.py --bound), the gap (its soft
+    # floor and ceiling, the weak centring) only a constraint; 0: off (the default: every other use runs as before)
+    hold_min_mps: float = spec(0.0, ge=0.0)  # v_lo of the hold [m/s] and the speed that latches it (our choice; 0: off)
+    hold_max_mps: float = spec(0.0, ge=0.0)  # v_hi of the hold [m/s] (our choice; 0: no upper side)
+    hold_gain_per_s: float = spec(0.0, ge=0.0)  # k while held [1/s] (our choice; 0: v_ref = clip(U, band))
+    hold_buffer_time_s: float = spec(0.0, ge=0.0)  # c while held [s] (our choice)
+    # the hold releases when U falls below hold_release_mps (a jam the floor would keep the car driving into: it must
+    # slow down to collect it), and latches again when U is back at hold_min_mps; 0: it never releases
+    hold_release_mps: float = spec(0.0, ge=0.0)  # [m/s] (our choice; 0: off)
+    # ... and it holds only while the ring is calm: it latches only with σ_l <= hold_sigma_mps and releases when
+    # σ_l > hold_sigma_mps (a wave grows that the car must collect in its gap); 0: off
+    hold_sigma_mps: float = spec(0.0, ge=0.0)  # [m/s] (our choice; 0: off)
     # the traffic problem's ω, heat, a², jerk terms and its soft gap floor (time_headway_s: T_min; ISO 15622
     # allows ACC time gaps from 0.8 s); its predecessor-speed and time-gap tracking weights are set to 0
     traffic: TrafficParams = spec(
@@ -112,6 +135,21 @@ class WaveParams:
             raise ParameterError(
                 f"WaveParams: min_ref_mps = {self.min_ref_mps:g} m/s is above max_ref_mps = {self.max_ref_mps:g} "
                 "m/s: the speed band of v_ref is empty"
+            )
+        if self.hold_max_mps > 0 and self.hold_min_mps > self.hold_max_mps:
+            raise ParameterError(
+                f"WaveParams: hold_min_mps = {self.hold_min_mps:g} m/s is above hold_max_mps = {self.hold_max_mps:g} "
+                "m/s: the held speed band is empty"
+            )
+        if self.hold_release_mps > 0 and not self.hold_release_mps < self.hold_min_mps:
+            raise ParameterError(
+                f"WaveParams: hold_release_mps = {self.hold_release_mps:g} m/s must be below hold_min_mps = "
+                f"{self.hold_min_mps:g} m/s (the hold would release as it latches)"
+            )
+        if self.hold_max_mps > 0 and self.hold_min_mps == 0:
+            raise ParameterError(
+                f"WaveParams: hold_max_mps = {self.hold_max_mps:g} m/s needs hold_min_mps > 0 (the speed that latches "
+                "the hold)"
             )
 
 
@@ -205,10 +243,13 @@ class WaveMPC(MPCPolicy):
         self.gap_average = SpeedAverage(n_win)  # the mean measured gap h̄ of the catch-up term
         self.predecessor_speeds = SpeedAverage(n_win)  # the predecessor's measured speeds (σ_l of the buffer)
         self.v_ref = float("nan")  # the last reference [model speed]
+        self.armed = False  # the mean speed U has been below WaveParams.hold_min_mps
+        self.held = False  # the latched speed hold engaged (armed, then U >= hold_min_mps)
 
     def reset(self) -> None:
-        """Forget the warm start and the speed and gap averages."""
+        """Forget the warm start, the speed and gap averages and the latched hold."""
         super().reset()
+        self.armed = self.held = False
         self.average.reset()
         self.gap_average.reset()
         self.predecessor_speeds.reset()
@@ -218,15 +259,23 @@ class WaveMPC(MPCPolicy):
         """Add one measured gap h and own speed v [model units] to the averages and return v_ref [model speed]
         = U + clip(k (h̄ − s_t − T_t U − c σ_l), −v_c, v_c⁺) (U the mean own speed, h̄ the mean gap, σ_l the std of the
         predecessor's speed; v_c⁺ = v_c unless ``catch_rise_max_mps`` is set; WaveParams), then within the band
-        [v_lo, v_hi] when set, and never below 0."""
+        [v_lo, v_hi] when set, and never below 0. Once the latched hold is engaged (``hold_min_mps``: from the first
+        step with U >= hold_min_mps on) k and c are ``hold_gain_per_s`` and ``hold_buffer_time_s`` and v_ref is then
+        clipped to [hold_min_mps, hold_max_mps]; the hold latches at the first step with U >= hold_min_mps after one
+        with U < hold_min_mps, and releases at a step with U < hold_release_mps."""
         p, u = self.params, self.units
         U = self.average.update(v)
         h_bar = float(u.length_to_si(self.gap_average.update(h)))
         U_si = float(u.speed_to_si(U))
         buf = self.predecessor_speeds._buf
-        sigma_l = float(u.speed_to_si(np.std(buf))) if p.buffer_time_s > 0 and buf else 0.0
-        h_t = p.target_gap_m + p.target_time_gap_s * U_si + p.buffer_time_s * sigma_l
-        catch = p.catch_gain_per_s * (h_bar - h_t)
+        sigma_l = float(u.speed_to_si(np.std(buf))) if buf else 0.0
+        if p.hold_min_mps > 0:
+            self.armed = self.armed or U_si < p.hold_min_mps
+            calm = p.hold_sigma_mps <= 0 or sigma_l <= p.hold_sigma_mps
+            self.held = calm and ((self.held and U_si >= p.hold_release_mps) or (self.armed and U_si >= p.hold_min_mps))
+        gain, c = (p.hold_gain_per_s, p.hold_buffer_time_s) if self.held else (p.catch_gain_per_s, p.buffer_time_s)
+        h_t = p.target_gap_m + p.target_time_gap_s * U_si + c * sigma_l
+        catch = gain * (h_bar - h_t)
         rise = p.catch_rise_max_mps if p.catch_rise_max_mps > 0 else p.catch_max_mps
         catch = min(max(catch, -p.catch_max_mps), rise)
         ref = U + float(u.speed_from_si(catch))
@@ -234,6 +283,10 @@ class WaveMPC(MPCPolicy):
             ref = max(ref, float(u.speed_from_si(p.min_ref_mps)))
         if p.max_ref_mps > 0:
             ref = min(ref, float(u.speed_from_si(p.max_ref_mps)))
+        if self.held:
+            ref = max(ref, float(u.speed_from_si(p.hold_min_mps)))
+            if p.hold_max_mps > 0:
+                ref = min(ref, float(u.speed_from_si(p.hold_max_mps)))
         return max(0.0, ref)
 
     def own_states(self, obs: Observation) -> dict[str, float]:
