@@ -27,6 +27,9 @@ COMPANIONS = {
     ("RingNetwork", "length_m"): {"vehicles": 1, "vehicle_length_m": 1e-9},
     ("RingNetwork", "vehicle_length_m"): {"length_m": 1e5},
     ("RingNetwork", "speed0_mps"): {"lane_speed_mps": 100.0},
+    # a hold's upper side needs its latch speed (hold_min_mps > 0); its release speed is below that latch speed
+    ("WaveParams", "hold_max_mps"): {"hold_min_mps": 1e-9},
+    ("WaveParams", "hold_release_mps"): {"hold_min_mps": 100.0},
 }
 #: limits that a cross-field rule makes unreachable with any companion (charging must start after a trip at
 #: >= 0 h, so charge_start_h = 0 is refused by that rule whatever the trips; a jerk limit is 0 (off) or >= 0.1 m/s³,
