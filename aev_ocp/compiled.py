@@ -32,7 +32,7 @@ import warnings
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
-from typing import Any
+from typing import Any, Iterator, Sequence
 
 from .errors import AevOcpWarning
 
@@ -314,6 +314,45 @@ def compile_shared(
     # lock is on the cache folder itself: nothing is left behind; builds into one folder take turns)
     with _build_lock(d):
         return _build_locked(source, stem, key, d, lib, cc, flags, comp, timeout_s)
+
+
+def fastest_builds(
+    source: str,
+    stem: str,
+    sub: str = "",
+    flag_sets: Sequence[tuple[str, ...]] | None = None,
+    extra_flags: tuple[str, ...] = (),
+    companions: dict[str, str] | None = None,
+) -> Iterator[BuildResult]:
+    """:func:`compile_shared` with each of ``flag_sets`` in turn (default: :func:`exact_tuned_flags`, then the plain
+    build; ``extra_flags`` added to each), yielding every result: the caller stops at the first it can use. A build
+    that fails falls back to the next without a word unless it is the last; what a build that succeeds says (a
+    damaged cache rebuilt) is said."""
+    sets = list(dict.fromkeys(flag_sets if flag_sets is not None else (exact_tuned_flags(), ())))
+    for k, flags in enumerate(sets):
+        with warnings.catch_warnings(record=True) as said:
+            warnings.simplefilter("always")
+            built = compile_shared(source, stem, sub, (*flags, *extra_flags), companions=companions)
+        if built.path is not None or k == len(sets) - 1:
+            for w in said:
+                warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+        yield built
+
+
+def load_fastest(
+    source: str, stem: str, sub: str = "", flag_sets: Sequence[tuple[str, ...]] | None = None
+) -> tuple[ctypes.CDLL | None, str]:
+    """The first library of :func:`fastest_builds` that loads, or (None, why the last one did not)."""
+    err = ""
+    for built in fastest_builds(source, stem, sub, flag_sets):
+        if built.path is None:
+            err = built.error
+            continue
+        try:
+            return ctypes.CDLL(str(built.path)), ""
+        except OSError as exc:
+            err = f"cannot load {built.path}: {exc}"
+    return None, err
 
 
 class _build_lock:

@@ -37,7 +37,7 @@ import casadi as ca
 import numpy as np
 
 from . import interrupts
-from .compiled import compile_shared, dense_outputs, driver_source, exact_tuned_flags
+from .compiled import dense_outputs, driver_source, exact_tuned_flags, load_fastest
 from .models import energy
 from .models.actuator import actuator_rate, saturate, speed_cut
 from .models.carfollowing import CarFollowingLaw, optimal_velocity
@@ -318,24 +318,7 @@ def _interruptible_call(fn: Callable[..., int], args: tuple[Any, ...], cancel: c
 def _compile_shared(source: str) -> tuple[ctypes.CDLL | None, str]:
     """Compile and load the cascade's C source (cached, see :mod:`aev_ocp.compiled`); (None, why) on failure."""
     # tuned first (-O3, native CPU, no contraction: the same bits, ~35 % less CPU at 300 followers), else plain
-    err = ""
-    for flags in dict.fromkeys((exact_tuned_flags(), ())):
-        with warnings.catch_warnings(record=True) as said:
-            warnings.simplefilter("always")
-            built = compile_shared(source, "aevsim", "simulate", extra_flags=flags)
-        if built.path is None and flags:  # a failed tuned build falls back to the plain one without a word
-            err = built.error
-            continue
-        for w in said:  # what the build said (a damaged cache rebuilt, the plain build failed) is said
-            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
-        if built.path is None:
-            err = built.error
-            continue
-        try:
-            return ctypes.CDLL(str(built.path)), ""
-        except OSError as exc:
-            err = f"cannot load {built.path}: {exc}"
-    return None, err
+    return load_fastest(source, "aevsim", "simulate", (exact_tuned_flags(), ()))
 
 
 def _segments(t_end: float, breakpoints: Sequence[float], chunk: float) -> list[tuple[float, float]]:

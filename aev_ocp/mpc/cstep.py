@@ -717,7 +717,7 @@ class CompiledStep:
         """A :class:`CStep` on the cached library, or None (with a warning) when it cannot be built."""
         import warnings
 
-        from ..compiled import compile_shared, compiler, exact_tuned_flags
+        from ..compiled import compiler, fastest_builds
 
         if compiler() is None:
             warnings.warn(
@@ -737,12 +737,8 @@ class CompiledStep:
             main = Path(tmp, "mpc_casadi.c").read_text(encoding="utf-8")
         defines = tuple(f"-D{d}" for d in qp_dimension_defines(c))
         # tuned first (-O3, the native CPU, contraction off: the same bits as the plain build, about 0.85x the
-        # step's time; tests/test_compiled_speed.py), else plain; a failed tuned build falls back without a word
-        for flags in dict.fromkeys((exact_tuned_flags(), ())):
-            with warnings.catch_warnings():
-                if flags:
-                    warnings.simplefilter("ignore")
-                built = compile_shared(main, "mpc_step", "mpc", companions=files, extra_flags=(*flags, *defines))
+        # step's time; tests/test_compiled_speed.py), else plain
+        for built in fastest_builds(main, "mpc_step", "mpc", extra_flags=defines, companions=files):
             if built.path is not None:
                 break
         if built.path is None:

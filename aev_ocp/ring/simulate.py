@@ -47,7 +47,7 @@ from typing import Any, Callable, Sequence
 import casadi as ca
 import numpy as np
 
-from ..compiled import compile_shared, dense_outputs, driver_source, exact_tuned_flags
+from ..compiled import dense_outputs, driver_source, exact_tuned_flags, load_fastest
 from ..limits import check_ring_cuts, check_ring_size
 from ..control import SampledLaw
 from ..loop import NO_STAGES, CommandStages, Controller, History, Observation, VehicleStep, stages_for
@@ -435,21 +435,8 @@ def _compile(source: str, stem: str) -> tuple[ctypes.CDLL | None, str]:
     """Compile with OpenMP, -O3 for the resolved native CPU, contraction off and no semantic interposition
     (:func:`aev_ocp.compiled.exact_tuned_flags`: the same bits as the plain build, so a ring's numbers do not depend
     on the machine's CPU; benchmarks/bench_ring.py), falling back to OpenMP at -O2, then to a plain build."""
-    last = ""
     tuned = exact_tuned_flags()
-    for flags in (*((("-fopenmp", *tuned),) if tuned else ()), ("-fopenmp",), ()):
-        with warnings.catch_warnings():
-            if flags:
-                warnings.simplefilter("ignore")
-            built = compile_shared(source, stem, "ring", extra_flags=flags)
-        if built.path is not None:
-            try:
-                return ctypes.CDLL(str(built.path)), ""
-            except OSError as exc:
-                last = f"cannot load {built.path}: {exc}"
-                continue
-        last = built.error
-    return None, last
+    return load_fastest(source, stem, "ring", (*((("-fopenmp", *tuned),) if tuned else ()), ("-fopenmp",), ()))
 
 
 def _quadrature(h: Any, v: Any, vl: Any, a: Any, b: dict[str, Any], ev: EVParams) -> list[Any]:
