@@ -116,16 +116,15 @@ class SumoScenario:
 
 
 def _controller(r: TableReader, key: str, value: Any) -> str:
+    named = ", ".join(f'"{n}"' for n in NAMED_CONTROLLERS)
     if not isinstance(value, str) or not value:
-        raise r.error(key, value, 'expected a law name, "mpc", "wave-mpc", "followerstopper" or "module:function"')
+        raise r.error(key, value, f'expected a law name, {named} or "module:function"')
     v = value.strip()
     if v.lower() in LAW_REGISTRY or v.lower() in NAMED_CONTROLLERS:
         return v.lower()
     if re.fullmatch(r"[A-Za-z_][\w.]*:[A-Za-z_]\w*", v):
         return v
-    raise r.error(
-        key, value, f'must be a law ({sorted(LAW_REGISTRY)}), "mpc", "wave-mpc", "followerstopper" or "module:function"'
-    )
+    raise r.error(key, value, f'must be a law ({sorted(LAW_REGISTRY)}), {named} or "module:function"')
 
 
 def _path(r: TableReader, key: str, value: Any, base: Path | None) -> Path:
