@@ -23,6 +23,7 @@ from .models.carfollowing import optimal_velocity
 from .models.powertrain import battery_power_W
 from .models.vehicle import wheel_power_W
 from .params import VehicleParams
+from .results import BOUND_TOLERANCE
 from .models.thermal import temperature_metrics
 
 #: A :class:`aev_ocp.results.SimulationResult`. Not imported: ``SimulationResult.metrics()`` imports this module,
@@ -164,8 +165,9 @@ def vehicle_metrics(r: SimulationResult, i: int) -> dict[str, Any]:
         "max_abs_current_A": float(np.nanmax(np.abs(r.current_A[:, i])))
         if np.isfinite(r.current_A[:, i]).any()
         else float("nan"),
-        "gap_violations": int(np.sum(h[1:] < h_min - 1e-9)),
-        "speed_violations": int(np.sum((v[1:] < -1e-9) | (v[1:] > v_max + 1e-9))),
+        # beyond a bound by more than the tolerance plans are accepted with (results.BOUND_TOLERANCE)
+        "gap_violations": int(np.sum(h[1:] < h_min - BOUND_TOLERANCE)),
+        "speed_violations": int(np.sum((v[1:] < -BOUND_TOLERANCE) | (v[1:] > v_max + BOUND_TOLERANCE))),
         "collisions": kinds.count("collision"),
         "infeasible_current": kinds.count("infeasible_current"),
         "final_ovm_error_model": float(optimal_velocity(h[-1]) - v[-1]),

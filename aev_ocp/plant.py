@@ -47,12 +47,13 @@ from .models.powertrain import battery_power_W
 from .models.vehicle import wheel_power_W
 from .numerics import bracketed_root
 from .params import EVParams, ParameterError, Units
-from .results import VIOLATED, Event, SimulationResult
+from .results import BOUND_TOLERANCE, VIOLATED, Event, SimulationResult
 
 # A controller's plan may violate a bound by at most this much (NLP units: model speed for v) and
 # still be applied; the plant's negative-speed rule uses the same number, so a plan accepted within
-# tolerance never stops the plant (model guide §9: "negative speed in the plant is reported").
-PLAN_TOLERANCE = 1e-6
+# tolerance never stops the plant (model guide §9: "negative speed in the plant is reported"); the floor and the
+# metrics' bound counts use the same number (aev_ocp.results.BOUND_TOLERANCE).
+PLAN_TOLERANCE = BOUND_TOLERANCE
 
 
 @dataclass(frozen=True)
@@ -162,7 +163,8 @@ def warn_floor_violations(violations: Sequence[Event], controllers: Sequence[str
 
 def floor_violations(t: np.ndarray, gap: np.ndarray, controllers: Sequence[Any], units: Units) -> list[Event]:
     """One 'violated' Event per follower whose gap went below its controller's own hard floor (the
-    ``bounds_model`` → ``h_min`` of its ``describe()``, model units) by more than 1e-9: at the first such
+    ``bounds_model`` → ``h_min`` of its ``describe()``, model units) by more than :data:`PLAN_TOLERANCE` (the
+    tolerance its plans are accepted with): at the first such
     sample, with the smallest gap and how many samples were below (SI first)."""
     out: list[Event] = []
     for i, d in enumerate(controllers):
@@ -170,7 +172,7 @@ def floor_violations(t: np.ndarray, gap: np.ndarray, controllers: Sequence[Any],
         if not own or own.get("h_min") is None or i >= gap.shape[1]:
             continue
         h_min = float(own["h_min"])
-        below = np.where(gap[1:, i] < h_min - 1e-9)[0] + 1
+        below = np.where(gap[1:, i] < h_min - PLAN_TOLERANCE)[0] + 1
         if below.size == 0:
             continue
         k, lo = int(below[0]), float(np.min(gap[:, i]))

@@ -34,7 +34,7 @@ from ..ocp.problem import OCPProblem
 from ..ocp.traffic_cost import cost_traffic_of_result, problem_cost_of_result
 from ..params import ParameterError
 from ..progress import Progress
-from ..results import SimulationResult, fmt_value, require_pandas, summary_html, summary_text
+from ..results import BOUND_TOLERANCE, SimulationResult, fmt_value, require_pandas, summary_html, summary_text
 from ..simulate import simulate_platoon
 from ..truncation import equal_views
 from .scenario import MPCConfig, closed_loop_from_scenario
@@ -148,11 +148,12 @@ def own_cost(r: SimulationResult, i: int, s: MPCSettings, f: Formulation, ev: An
 
 
 def _violations(r: SimulationResult, i: int, b: ModelBounds) -> tuple[int, int]:
-    """(gap, speed) violations of follower i's samples after t_0 against the bounds ``b`` [model units]."""
-    h, v = r.gap[1:, i], r.speed[1:, i]
-    gap = int(np.sum(h < b.h_min - 1e-9)) if b.h_min is not None else 0
+    """(gap, speed) violations of follower i's samples after t_0 against the bounds ``b`` [model units]: beyond a
+    bound by more than the tolerance plans are accepted with (:data:`aev_ocp.results.BOUND_TOLERANCE`)."""
+    h, v, tol = r.gap[1:, i], r.speed[1:, i], BOUND_TOLERANCE
+    gap = int(np.sum(h < b.h_min - tol)) if b.h_min is not None else 0
     vmax = b.v_max if b.v_max is not None else np.inf
-    return gap, int(np.sum((v < -1e-9) | (v > vmax + 1e-9)))
+    return gap, int(np.sum((v < -tol) | (v > vmax + tol)))
 
 
 def _run_all(
