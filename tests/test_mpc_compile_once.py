@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 import warnings
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -60,14 +61,30 @@ def _numbers_in(ev: EVParams, formulation=DEFAULT_FORMULATION) -> MPCController:
     return install(MPCController(S.with_(codegen=False), ev, formulation=baked))
 
 
-@pytest.mark.slow  # one mpc_step library (~4 s of gcc) and 32 steps
-def test_two_vehicles_of_other_units_and_mass_share_one_library(tmp_path, monkeypatch) -> None:
-    monkeypatch.setenv("AEV_OCP_CACHE", str(tmp_path / "cache"))
+@pytest.fixture(scope="module")
+def step_cache(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, list[str], MPCController]:
+    """ONE empty compile cache for this file's tests that count the traffic step's compilations, and the first
+    controller of S built into it: (the cache, what that first build compiled, the controller). Every later controller
+    of the same structure, in any test of the file, must compile nothing (the compile-once invariant itself): the
+    file compiles the mpc_step library (~8 s of gcc at the tuned flags) once instead of once per test."""
+    cache = tmp_path_factory.mktemp("step_cache")
+    with pytest.MonkeyPatch.context() as m:
+        m.setenv("AEV_OCP_CACHE", str(cache))
+        n0 = len(B.compilations())
+        first = MPCController(S, _ev_a())
+        return cache, B.compilations()[n0:], first
+
+
+@pytest.mark.slow  # 32 steps of the compiled library and of its interpreted twin
+def test_two_vehicles_of_other_units_and_mass_share_one_library(step_cache, monkeypatch) -> None:  # noqa: ANN001
+    cache, first, ca_ = step_cache
+    monkeypatch.setenv("AEV_OCP_CACHE", str(cache))
+    assert first == ["mpc_step"]  # the first controller of S compiled its library into the empty cache
     n0 = len(B.compilations())
-    ca_, cb = MPCController(S, _ev_a()), MPCController(S, _ev_b())
-    assert B.compilations()[n0:] == ["mpc_step"]  # one library for both
+    cb = MPCController(S, _ev_b())
+    assert B.compilations()[n0:] == []  # one library for both: the second vehicle compiles nothing
     assert ca_.compiled_step is not None and cb.compiled_step is not None
-    assert list((tmp_path / "cache" / "mpc").glob("mpc_step_*.so")).__len__() == 1
+    assert list((cache / "mpc").glob("mpc_step_*.so")).__len__() == 1
     runs = {}
     for name, c, ev in (("a", ca_, _ev_a()), ("b", cb, _ev_b())):
         a, X = _run(c)
@@ -76,6 +93,27 @@ def test_two_vehicles_of_other_units_and_mass_share_one_library(tmp_path, monkey
         np.testing.assert_allclose(X, X_ref, rtol=0, atol=1e-8)
         runs[name] = a
     assert np.abs(runs["a"] - runs["b"]).max() > 1e-3  # each follows its own numbers
+
+
+def test_a_traffic_rti_controller_compiles_no_ipopt_nlp_it_never_runs(step_cache, monkeypatch) -> None:  # noqa: ANN001
+    """The cold IPOPT's NLP (library mpc_nlp_ipopt, ~0.65 MB of C) is generated and compiled only for a controller
+    that can run it: the traffic formulation's rti path starts cold by RTI and never does, §9's interpreted rti path
+    starts with a cold IPOPT and builds it with the controller (a first step that had to build it would blow its time
+    budget). In the file's cache, where the first controller of S compiled mpc_step and nothing else: a second one,
+    and its cold step, compile nothing at all (moved here from tests/test_compile_once.py, issue 40: it compiled the
+    same mpc_step library in a cache of its own)."""
+    cache, first, _ = step_cache
+    monkeypatch.setenv("AEV_OCP_CACHE", str(cache))
+    assert first == ["mpc_step"]  # the first controller of S compiled its step and no IPOPT NLP
+    n0 = len(B.compilations())
+    traffic = MPCController(S)
+    assert B.compilations()[n0:] == []
+    sol = traffic.solve(np.array([1.3, 0.9, 0.0, 0.0, 0.8]), np.full(6, 0.95), np.full(6, 0.95))
+    assert sol.success and sol.path != "ipopt-cold"
+    assert B.compilations()[n0:] == []  # a cold step of the traffic path builds no IPOPT
+    # §9's rti path starts with a cold IPOPT: built with the controller (interpreted here: no second compilation)
+    s9 = MPCController(S.with_(codegen=False), formulation=s9_formulation())
+    assert s9._cold_ipopt is not None and traffic._cold_ipopt is None
 
 
 @pytest.mark.slow  # one IPOPT NLP library (~10 s of gcc)
