@@ -11,6 +11,11 @@ from pathlib import Path
 
 from cli_helpers import run_cli
 
+#: The figures' resolution [dpi] in tests that check that a figure is written and shown, not how it looks
+#: (``aev_ocp.plots.DPI`` patched; the package's default 120 dpi costs about 2.5 times the drawing time)
+TEST_DPI = 40
+
+
 SMALL = """\
 name = "bom"
 [leader]

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 from cli_helpers import run_cli
-from helpers import SMALL
+from helpers import SMALL, TEST_DPI
 from study_helpers import TINY_STUDY as STUDY
 from study_helpers import write_tiny_study as _study
 
@@ -27,9 +27,9 @@ def quick_report(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, str]:
     rp.register_section("extra-test", lambda d, progress: (progress("extra"), "## Extra section\n")[1])
     try:
         with pytest.MonkeyPatch.context() as mp:
-            # the figures at 40 dpi, was 120: the tests check that each PNG is written and shown, not its
+            # the figures at TEST_DPI, was 120: the tests check that each PNG is written and shown, not its
             # resolution (issue 40: 3.7 s of the run's 31 s of CPU)
-            mp.setattr(plots, "DPI", 40)
+            mp.setattr(plots, "DPI", TEST_DPI)
             rp.reproduce(out, rp.ReproduceConfig.quick(), registered=True, stream=stream)
     finally:
         rp._REGISTRY.pop("extra-test", None)
