@@ -4,6 +4,7 @@ workload follows ReproduceConfig.extended, the report's table names both, and --
 from __future__ import annotations
 
 from pathlib import Path
+from types import SimpleNamespace
 from typing import Any
 
 import pytest
@@ -11,6 +12,7 @@ import pytest
 import aev_ocp.life_section as life
 import aev_ocp.mpc.cycles_section as cyc
 import aev_ocp.robustness as rob
+import aev_ocp.safety.section as safety
 from aev_ocp import cli
 from aev_ocp import reproduce as rp
 from aev_ocp.report_sections import ReproduceConfig, SectionContext
@@ -77,6 +79,8 @@ def test_robustness_drops_hwfet_by_default(monkeypatch, tmp_path: Path) -> None:
     (c_def, *_), (c_full, *_), (c_quick, *_) = calls
     assert c_def == ("udds", "us06") and c_full == ("udds", "hwfet", "us06") and c_quick == ("udds",)
     assert [c[2] for c in calls] == [(0, 1, 2), (0, 1, 2), (0, 1)]  # seeds
+    # the cut [s]: to the leader's next stop after 120 s, at most 150 s; a reduced configuration's smoke run 40 s
+    assert [(c[1], c[4]) for c in calls] == [(120.0, 150.0), (120.0, 150.0), (40.0, 40.0)]
     # in the section's own process (reproduce's pool runs the sections side by side): no second pool of workers
     assert kws == [{"executor": "inprocess"}] * 3
 
@@ -87,3 +91,16 @@ def test_the_report_table_names_each_reduced_study_and_its_full_size() -> None:
         assert f"| {head} | {small} | {big} |" in default and f"| {head} | {small} | {big} |" in full
     assert "this run: the default column" in default and "this run: `aev-ocp reproduce --full`" in full
     assert "HWFET" not in rp.REDUCED_BY_DEFAULT[1][1] and "HWFET" in rp.REDUCED_BY_DEFAULT[1][2]
+
+
+def test_safety_quick_subset_runs_the_declared_actuator_alone(monkeypatch, tmp_path: Path) -> None:  # noqa: ANN001
+    calls: list[tuple[Any, dict[str, Any]]] = []
+    monkeypatch.setattr(safety, "run_suite", lambda cases, **kw: calls.append((cases, kw)) or SimpleNamespace(cases=[]))
+    monkeypatch.setattr(safety, "write_outputs", lambda res, out: [])
+    monkeypatch.setattr(safety, "markdown", lambda res: "## Safety suite\n")
+    for config in (DEFAULT, FULL, QUICK):
+        safety.safety_section(tmp_path, _ctx(config, []))
+    (c_def, k_def), (c_full, k_full), (c_quick, k_quick) = calls
+    assert c_def == c_full == safety.reproduce_cases() and c_quick is None  # None: the suite's quick subset
+    assert k_def["actuators"] == k_full["actuators"] == ("ideal", "declared")  # both actuators
+    assert k_quick == {"quick": True, "workers": 1, "actuators": ("declared",)} and k_def["quick"] is False
