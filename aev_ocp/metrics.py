@@ -23,7 +23,7 @@ from .models.carfollowing import optimal_velocity
 from .models.powertrain import battery_power_W
 from .models.vehicle import wheel_power_W
 from .params import VehicleParams
-from .results import BOUND_TOLERANCE
+from .numerics import BOUND_TOLERANCE
 from .models.thermal import temperature_metrics
 
 #: A :class:`aev_ocp.results.SimulationResult`. Not imported: ``SimulationResult.metrics()`` imports this module,
@@ -165,7 +165,7 @@ def vehicle_metrics(r: SimulationResult, i: int) -> dict[str, Any]:
         "max_abs_current_A": float(np.nanmax(np.abs(r.current_A[:, i])))
         if np.isfinite(r.current_A[:, i]).any()
         else float("nan"),
-        # beyond a bound by more than the tolerance plans are accepted with (results.BOUND_TOLERANCE)
+        # beyond a bound by more than the tolerance plans are accepted with (numerics.BOUND_TOLERANCE)
         "gap_violations": int(np.sum(h[1:] < h_min - BOUND_TOLERANCE)),
         "speed_violations": int(np.sum((v[1:] < -BOUND_TOLERANCE) | (v[1:] > v_max + BOUND_TOLERANCE))),
         "collisions": kinds.count("collision"),

@@ -4,6 +4,12 @@ from __future__ import annotations
 
 from typing import Any, Callable, Literal
 
+# How far a sample may be beyond a bound [model units: length for a gap, speed for a speed] and still count as on it:
+# the tolerance a controller's plan is accepted with (aev_ocp.plant.PLAN_TOLERANCE is this number). A plan that
+# keeps its gap floor to this tolerance is a feasible plan to the solver; counting the plant's samples against a
+# tighter one labelled a run 'violated' for 3.5e-8 m below a 3 m floor (2.3e-9 in model length), a solver's rounding.
+BOUND_TOLERANCE = 1e-6
+
 
 def rk4(
     f: Callable[[Any], Any], x: Any, h: Any, substeps: int = 1, g: Callable[[Any], Any] | None = None

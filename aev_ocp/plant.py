@@ -45,14 +45,14 @@ from .models.ego import battery_side
 from .models.leader import LeaderProfile
 from .models.powertrain import battery_power_W
 from .models.vehicle import wheel_power_W
-from .numerics import bracketed_root
+from .numerics import BOUND_TOLERANCE, bracketed_root
 from .params import EVParams, ParameterError, Units
-from .results import BOUND_TOLERANCE, VIOLATED, Event, SimulationResult
+from .results import VIOLATED, Event, SimulationResult
 
 # A controller's plan may violate a bound by at most this much (NLP units: model speed for v) and
 # still be applied; the plant's negative-speed rule uses the same number, so a plan accepted within
 # tolerance never stops the plant (model guide §9: "negative speed in the plant is reported"); the floor and the
-# metrics' bound counts use the same number (aev_ocp.results.BOUND_TOLERANCE).
+# metrics' bound counts use the same number (aev_ocp.numerics.BOUND_TOLERANCE).
 PLAN_TOLERANCE = BOUND_TOLERANCE
 
 

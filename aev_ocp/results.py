@@ -37,11 +37,6 @@ EVENT_KINDS = (
     "estimation_failed",
 )  # estimation_failed: an estimator returned a NaN/inf state (the run stopped there); time_limit: the run was stopped by its wall-clock limit (vehicle -1: the whole run)
 VIOLATED = "violated"  # status of a run that went below a controller's own hard gap floor (it did not stop)
-# How far a sample may be beyond a bound [model units: length for a gap, speed for a speed] and still count as on it:
-# the tolerance a controller's plan is accepted with (aev_ocp.plant.PLAN_TOLERANCE, the same number). A plan that
-# keeps its gap floor to this tolerance is a feasible plan to the solver; counting the plant's samples against a
-# tighter one labelled a run 'violated' for 3.5e-8 m below a 3 m floor (2.3e-9 in model length), a solver's rounding.
-BOUND_TOLERANCE = 1e-6
 
 
 @contextlib.contextmanager

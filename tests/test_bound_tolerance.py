@@ -15,7 +15,7 @@ from aev_ocp.metrics import vehicle_metrics
 from aev_ocp.ocp.formulation import ModelBounds
 from aev_ocp.params import UNLIMITED, EVParams, Units
 from aev_ocp.plant import PLAN_TOLERANCE, floor_violations
-from aev_ocp.results import BOUND_TOLERANCE
+from aev_ocp.numerics import BOUND_TOLERANCE
 
 
 def test_the_plants_acceptance_and_the_counts_share_one_number() -> None:

@@ -32,9 +32,10 @@ from ..ocp.oracle import (
 )
 from ..ocp.problem import OCPProblem
 from ..ocp.traffic_cost import cost_traffic_of_result, problem_cost_of_result
+from ..numerics import BOUND_TOLERANCE
 from ..params import ParameterError
 from ..progress import Progress
-from ..results import BOUND_TOLERANCE, SimulationResult, fmt_value, require_pandas, summary_html, summary_text
+from ..results import SimulationResult, fmt_value, require_pandas, summary_html, summary_text
 from ..simulate import simulate_platoon
 from ..truncation import equal_views
 from .scenario import MPCConfig, closed_loop_from_scenario
@@ -149,7 +150,7 @@ def own_cost(r: SimulationResult, i: int, s: MPCSettings, f: Formulation, ev: An
 
 def _violations(r: SimulationResult, i: int, b: ModelBounds) -> tuple[int, int]:
     """(gap, speed) violations of follower i's samples after t_0 against the bounds ``b`` [model units]: beyond a
-    bound by more than the tolerance plans are accepted with (:data:`aev_ocp.results.BOUND_TOLERANCE`)."""
+    bound by more than the tolerance plans are accepted with (:data:`aev_ocp.numerics.BOUND_TOLERANCE`)."""
     h, v, tol = r.gap[1:, i], r.speed[1:, i], BOUND_TOLERANCE
     gap = int(np.sum(h < b.h_min - tol)) if b.h_min is not None else 0
     vmax = b.v_max if b.v_max is not None else np.inf
