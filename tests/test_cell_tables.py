@@ -347,6 +347,16 @@ def _check_runtime_cell(cell: CellParams) -> None:
                 assert np.array_equal(b[0], a[0])  # the OCV pieces: bit-equal
             else:
                 assert np.array_equal(b, a), (T_K, np.abs(b - a).max())
+    # T a number (the MPC without a temperature state): the same, through the rows' fixed combination along T
+    for smooth in (False, True):
+        for T_K in T_all:
+            want, got = battery.cell_at(cell, float(T_K), S, smooth), battery.cell_at(twin, float(T_K), S, smooth)
+            f_want = ca.Function("w", [S], [getattr(want, k) for k in RC_TABLE_KEYS])
+            f_got = ca.Function("g", [S, p], [getattr(got, k) for k in RC_TABLE_KEYS])
+            a = np.array([np.asarray(v).ravel() for v in f_want.map(S_all.size)(S_all)])
+            pm = ca.repmat(ca.DM(pv), 1, S_all.size)
+            b = np.array([np.asarray(v).ravel() for v in f_got.map(S_all.size)(S_all, pm)])
+            np.testing.assert_allclose(b, a, rtol=1e-12 if smooth else 0.0, atol=0)
     # the twin's OCV (B-spline pieces) outside the piecewise block: the numbers-in B-spline within 1e-12 on [0, 1]
     f_bs = ca.Function("b", [S], [battery.ocv(S, cell)])
     f_tw = ca.Function("t", [S, p], [battery.ocv(S, twin)])

@@ -213,6 +213,12 @@ def _rc_outputs(table: RCTable, Sc: Any, Tc: Any, smooth: bool) -> list[Any]:
         logs = np.log(vals) if numeric else ca.log(ca.vertcat(*vals.ravel()))  # T rows: soc runs fastest
         if len(temps) == 1:  # the spline of log(value): positive between the points too
             outs.append(ca.exp(_log_spline(key, [soc], logs[0] if numeric else logs, Sc, basis)))
+        elif not numeric and isinstance(Tc, float):  # T a number (the MPC without a temperature state): the
+            # interpolating tensor spline is the product of the axes' cardinal splines, so along T it is a fixed
+            # combination of the rows (weights ψ_j(T)); 1-D along SOC then (half the generated code)
+            psi = np.asarray(_spline_basis((tuple(temps),), (min(3, len(temps) - 1),))(Tc)).ravel()
+            rows = ca.reshape(logs, len(soc), len(temps))  # column j: the row of T_K[j]
+            outs.append(ca.exp(_log_spline(key, [soc], ca.mtimes(rows, ca.DM(psi)), Sc, basis)))
         else:  # CasADi's grid order: the first axis (soc) runs fastest
             flat = np.log(vals.T.ravel(order="F")) if numeric else logs
             outs.append(ca.exp(_log_spline(key, [soc, temps], flat, ca.vertcat(Sc, Tc), basis)))
