@@ -442,10 +442,11 @@ def _interp_held(x: float, xs: Sequence[float], ys: Sequence[float]) -> float:
     """Linear interpolation of (xs, ys) at x, the end values held outside [xs[0], xs[-1]]."""
     x = min(max(float(x), xs[0]), xs[-1])
     k = max(i for i in range(len(xs) - 1) if xs[i] <= x) if len(xs) > 1 else 0
+    num = (lambda v: float(v)) if all(isinstance(y, (int, float)) for y in ys) else (lambda v: v)  # noqa: E731
     if len(xs) == 1 or x == xs[k]:
-        return float(ys[k])
+        return num(ys[k])  # the values may be symbols (a problem's run-time parameters): kept as they are
     w = (x - xs[k]) / (xs[k + 1] - xs[k])
-    return float(ys[k] + w * (ys[k + 1] - ys[k]))
+    return num(ys[k] + w * (ys[k + 1] - ys[k]))
 
 
 @dataclass(frozen=True)

@@ -296,16 +296,134 @@ def test_stated_residual_matches_the_stored_hppc_test(name: str) -> None:
     assert np.ptp(I) > 0.9 * cf.cell.capacity_Ah  # a pulse test: ±1C pulses
 
 
+# ------------------------------------------------------------------ one compiled library for every identified cell
+
+
+def _runtime_twin(cell: CellParams) -> tuple[CellParams, ca.SX, list[float]]:
+    """The cell as a problem's run-time parameters (what the MPC builds): (the twin, the parameters, their values)."""
+    from aev_ocp.ocp.problem import ProblemBuilder
+
+    pb = ProblemBuilder("twin")
+    twin = pb.parameters_of(EVParams(cell=cell), "ev").cell
+    return twin, ca.vertcat(*pb.p.values()), [pb._p_values[k] for k in pb.p]
+
+
 @pytest.mark.parametrize("name", IDENTIFIED)
-def test_mpc_runs_on_each_identified_cell(tmp_path: Path, name: str) -> None:
-    """The UDDS MPC scenario (one follower) on the cell for 3 MPC steps, and the proposed law and OVFL beside it."""
+def test_runtime_cell_is_the_numbers_in_cell(name: str) -> None:
+    """The cell with its RC tables' values and OCV pieces as run-time parameters (one generated model for every cell
+    of the same grids) gives the model with the numbers written in: OCV and R_s, R1, C1, R2, C2 at every OCV and
+    table knot, between the knots and outside the grids, linear (bit-equal) and spline (≤ 1e-12 relative); also with
+    R1 and C2 scaled (a mismatch factor: the scale is computed at run time)."""
+    for cell in (load_cell(name), dataclasses.replace(load_cell(name), R1_ohm=0.0173, C2_F=2.9e3 * (1 + len(name)))):
+        _check_runtime_cell(cell)
+
+
+def _check_runtime_cell(cell: CellParams) -> None:
+    t = cell.rc_table
+    assert t is not None and cell.ocv_soc is not None
+    twin, p, pv = _runtime_twin(cell)
+    assert len(pv) > 4 * (len(cell.ocv_soc) - 1) + 5 * len(t.soc) * len(t.T_K)  # the tables are parameters
+    knots = sorted({*cell.ocv_soc, *t.soc})
+    mids = [0.5 * (a + b) for a, b in zip(knots, knots[1:])]
+    rng = np.random.default_rng(40)
+    S_all = np.array([*knots, *mids, *rng.uniform(0.0, 1.0, 300), -0.2, -1e-9, 1.0 + 1e-9, 1.3, t.soc[0] - 0.03])
+    T_all = [*t.T_K, *(0.5 * (a + b) for a, b in zip(t.T_K, t.T_K[1:])), t.T_K[0] - 20.0, t.T_K[-1] + 7.0, 301.7]
+    S, T = ca.SX.sym("S"), ca.SX.sym("T")
+    for smooth in (False, True):
+        with battery.piecewise_ocv():  # the MPC's OCV (the B-spline's pieces); the twin's is these pieces anyway
+            want = battery.cell_at(cell, T, S, smooth)
+            got = battery.cell_at(twin, T, S, smooth)
+            f_want = ca.Function("w", [S, T], [battery.ocv(S, cell), *(getattr(want, k) for k in RC_TABLE_KEYS)])
+        f_got = ca.Function("g", [S, T, p], [battery.ocv(S, twin), *(getattr(got, k) for k in RC_TABLE_KEYS)])
+        assert ca.symvar(f_got(S, T, p)[0])  # the OCV is an expression of the parameters, not of numbers
+        for T_K in T_all:
+            a = np.array([np.asarray(v).ravel() for v in f_want.map(S_all.size)(S_all, T_K)])
+            b = np.array(
+                [np.asarray(v).ravel() for v in f_got.map(S_all.size)(S_all, T_K, ca.repmat(ca.DM(pv), 1, S_all.size))]
+            )
+            assert np.all(np.isfinite(a))
+            if smooth:  # the parametric B-spline fits its coefficients at run time: rounding apart
+                np.testing.assert_allclose(b, a, rtol=1e-12, atol=0)
+                assert np.array_equal(b[0], a[0])  # the OCV pieces: bit-equal
+            else:
+                assert np.array_equal(b, a), (T_K, np.abs(b - a).max())
+    # T a number (the MPC without a temperature state): the same, through the rows' fixed combination along T
+    for smooth in (False, True):
+        for T_K in T_all:
+            want, got = battery.cell_at(cell, float(T_K), S, smooth), battery.cell_at(twin, float(T_K), S, smooth)
+            f_want = ca.Function("w", [S], [getattr(want, k) for k in RC_TABLE_KEYS])
+            f_got = ca.Function("g", [S, p], [getattr(got, k) for k in RC_TABLE_KEYS])
+            a = np.array([np.asarray(v).ravel() for v in f_want.map(S_all.size)(S_all)])
+            pm = ca.repmat(ca.DM(pv), 1, S_all.size)
+            b = np.array([np.asarray(v).ravel() for v in f_got.map(S_all.size)(S_all, pm)])
+            np.testing.assert_allclose(b, a, rtol=1e-12 if smooth else 0.0, atol=0)
+    # the twin's OCV (B-spline pieces) outside the piecewise block: the numbers-in B-spline within 1e-12 on [0, 1]
+    f_bs = ca.Function("b", [S], [battery.ocv(S, cell)])
+    f_tw = ca.Function("t", [S, p], [battery.ocv(S, twin)])
+    inside = S_all[(S_all >= 0.0) & (S_all <= 1.0)]
+    np.testing.assert_allclose(
+        np.asarray(f_tw.map(inside.size)(inside, ca.repmat(ca.DM(pv), 1, inside.size))).ravel(),
+        np.asarray(f_bs.map(inside.size)(inside)).ravel(),
+        rtol=1e-12,
+        atol=0,
+    )
+
+
+def test_identified_cells_make_one_generated_problem() -> None:
+    """Two identified cells (the same grids, other values): the MPC problem with the numbers as run-time parameters is
+    the same CasADi graph (hence the same generated C) and equals each cell's numbers-in problem (no fallback)."""
+    import warnings
+
+    from aev_ocp.ocp.formulation import DEFAULT_FORMULATION, same_problem
+
+    a, b = (EVParams(cell=load_cell(n)) for n in ("lg_m50", "nca_kim2011"))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # a fallback to the numbers in warns
+        pa, pb = DEFAULT_FORMULATION.mpc_problem(a, 0.1), DEFAULT_FORMULATION.mpc_problem(b, 0.1)
+    for ev, pr in ((a, pa), (b, pb)):
+        assert same_problem(DEFAULT_FORMULATION.build(ev, 0.1), pr) == ""
+        assert "ev__cell__rc_table__R1_ohm__2_8" in pr.meta["parameter_defaults"]
+    assert pa.meta["parameter_names"] == pb.meta["parameter_names"]
+    assert pa.meta["parameter_defaults"] != pb.meta["parameter_defaults"]
+    for nm in ("ode", "stage", "path", "outputs"):
+        assert getattr(pa, nm).serialize() == getattr(pb, nm).serialize(), nm
+
+
+@pytest.fixture(scope="module")
+def cell_runs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, tuple[list[str], dict]]:  # type: ignore[type-arg]
+    """ONE empty compile cache for the identified cells' closed loops: {cell: (what its run compiled, its runs)} for
+    every identified cell, run one after the other into that cache."""
+    from aev_ocp.compiled import compilations
     from aev_ocp.mpc.cycles import run_cycle
 
-    p = tmp_path / "s.toml"
-    p.write_text(find_scenario("mpc_udds_single").read_text() + f'\n[cell]\nname = "{name}"\nsoc0 = 0.68\n')
-    sc = load_scenario(p).replace(t_end=0.3)
-    assert sc.ev.cell.rc_table is not None
-    runs, _ = run_cycle(sc, (sc.extra["mpc"].settings.predictor,), laws=("proposed", "ovfl"))
+    out = {}
+    tmp = tmp_path_factory.mktemp("cells")
+    with pytest.MonkeyPatch.context() as m:
+        m.setenv("AEV_OCP_CACHE", str(tmp / "cache"))
+        for name in IDENTIFIED:
+            p = tmp / f"{name}.toml"
+            p.write_text(find_scenario("mpc_udds_single").read_text() + f'\n[cell]\nname = "{name}"\nsoc0 = 0.68\n')
+            sc = load_scenario(p).replace(t_end=0.3)
+            assert sc.ev.cell.rc_table is not None
+            n0 = len(compilations())
+            runs, _ = run_cycle(sc, (sc.extra["mpc"].settings.predictor,), laws=("proposed", "ovfl"))
+            out[name] = (compilations()[n0:], runs)
+    return out
+
+
+def test_identified_cells_share_one_mpc_library(cell_runs) -> None:  # noqa: ANN001
+    """In one empty cache, the first identified cell compiles the MPC's step; every other compiles none."""
+    first, *others = IDENTIFIED
+    assert cell_runs[first][0].count("mpc_step") == 1
+    for name in others:
+        assert "mpc_step" not in cell_runs[name][0], (name, cell_runs[name][0])
+
+
+@pytest.mark.parametrize("name", IDENTIFIED)
+def test_mpc_runs_on_each_identified_cell(cell_runs, name: str) -> None:  # noqa: ANN001
+    """The UDDS MPC scenario (one follower) on the cell for 3 MPC steps, and the proposed law and OVFL beside it."""
+    sc = load_scenario(find_scenario("mpc_udds_single")).replace(t_end=0.3)
+    runs = cell_runs[name][1]
     assert set(runs) == {("mpc", sc.extra["mpc"].settings.predictor), ("proposed", None), ("ovfl", None)}
     for r in runs.values():
         assert r.status == "ok" and r.t[-1] == pytest.approx(0.3)

@@ -9,12 +9,13 @@ file's ``[rc_table]``) R_s, R1, C1, R2 and C2 follow the SOC and the temperature
 
 from __future__ import annotations
 
+import copy
 import csv
 from contextlib import contextmanager
 from contextvars import ContextVar
 from functools import lru_cache
 from importlib import resources
-from typing import Any, Iterator
+from typing import Any, Callable, Iterator
 
 import casadi as ca
 import numpy as np
@@ -82,9 +83,12 @@ def ocv_piecewise(S: Any, cell: CellParams | None = None) -> Any:
     :func:`ocv_function` within 1e-14 V on [0, 1] (tests/test_mpc_export.py); the end pieces extended."""
     s, c = ocv_pieces(cell)
     step = [S >= s[k] for k in range(1, len(c))]
+    sym = getattr(cell, RUNTIME_OCV, None)  # a run-time cell (:func:`runtime_cell`): the same numbers as parameters
     s0, a, b, cc, d = (
         v[0] + sum((v[k] - v[k - 1]) * step[k - 1] for k in range(1, len(c)))
-        for v in (s[:-1], c[:, 0], c[:, 1], c[:, 2], c[:, 3])
+        if sym is None or j == 0
+        else sym[0, j - 1] + sum(sym[k, j - 1] * step[k - 1] for k in range(1, len(c)))
+        for j, v in enumerate((s[:-1], c[:, 0], c[:, 1], c[:, 2], c[:, 3]))
     )
     u = S - s0
     return a + u * (b + u * (cc + u * d))
@@ -143,8 +147,8 @@ def ocv(S: Any, cell: CellParams | None = None) -> Any:
         E = ca.SX.sym(f"ocv_{len(calls)}", S.sparsity())
         calls.append((S, E, cell))
         return E
-    if _PIECEWISE.get() and isinstance(S, ca.SX):
-        return ocv_piecewise(S, cell)
+    if isinstance(S, ca.SX) and (_PIECEWISE.get() or getattr(cell, RUNTIME_OCV, None) is not None):
+        return ocv_piecewise(S, cell)  # a run-time cell's OCV: its pieces' coefficients are parameters
     return ocv_function(cell)(S)
 
 
@@ -173,6 +177,54 @@ def _segment(x: Any, grid: list[float], vals: list[Any]) -> Any:
     return v0 + (x - x0) / (x1 - x0) * (v1 - v0)
 
 
+def _log_spline(key: str, grid: list[list[float]], logs: Any, x: Any, basis: dict[str, Any]) -> Any:
+    """The cubic (degree ≤ points − 1 per axis) B-spline through ``logs`` on ``grid`` at the point ``x``: the values
+    numeric (compiled in) or SX (run-time parameters: φ(x)·logs, φ(x) evaluated once per point in ``basis``)."""
+    deg = [min(3, len(g) - 1) for g in grid]
+    if isinstance(logs, np.ndarray):
+        return ca.interpolant(key, "bspline", grid, logs, {"degree": deg})(x)
+    if "phi" not in basis:
+        basis["phi"] = _spline_basis(tuple(tuple(g) for g in grid), tuple(deg))(x)
+    return ca.dot(basis["phi"], logs)
+
+
+@lru_cache(maxsize=16)
+def _spline_basis(grid: tuple[tuple[float, ...], ...], deg: tuple[int, ...]) -> ca.Function:
+    """The grid's cardinal splines φ_j (the B-spline through the unit values e_j) as one interpolant with one output
+    per point: the spline through values v is φ·v (it is linear in them), its coefficients fitted once, at build
+    time (CasADi's parametric B-spline refits them at every call: it made the MPC's closed loop ~28 times slower)."""
+    n = int(np.prod([len(g) for g in grid]))
+    return ca.interpolant("rc_basis", "bspline", [list(g) for g in grid], np.eye(n).ravel(), {"degree": list(deg)})
+
+
+def _rc_outputs(table: RCTable, Sc: Any, Tc: Any, smooth: bool) -> list[Any]:
+    """R_s, R1, C1, R2, C2 of ``table`` at the clamped (Sc, Tc): bilinear, or exp of the log-spline with
+    ``smooth``; the table's values numbers or (:func:`runtime_cell`) SX parameters."""
+    soc, temps = list(table.soc), list(table.T_K)
+    outs: list[Any] = []
+    basis: dict[str, Any] = {}
+    for key in RC_TABLE_KEYS:
+        raw = getattr(table, key)
+        numeric = all(isinstance(x, float) for r in raw for x in r)
+        vals = np.array(raw, dtype=float if numeric else object)  # (n_T, n_soc)
+        if not smooth:
+            outs.append(_segment(Tc, temps, [_segment(Sc, soc, list(row)) for row in vals]))
+            continue
+        logs = np.log(vals) if numeric else ca.log(ca.vertcat(*vals.ravel()))  # T rows: soc runs fastest
+        if len(temps) == 1:  # the spline of log(value): positive between the points too
+            outs.append(ca.exp(_log_spline(key, [soc], logs[0] if numeric else logs, Sc, basis)))
+        elif not numeric and isinstance(Tc, float):  # T a number (the MPC without a temperature state): the
+            # interpolating tensor spline is the product of the axes' cardinal splines, so along T it is a fixed
+            # combination of the rows (weights ψ_j(T)); 1-D along SOC then (half the generated code)
+            psi = np.asarray(_spline_basis((tuple(temps),), (min(3, len(temps) - 1),))(Tc)).ravel()
+            rows = ca.reshape(logs, len(soc), len(temps))  # column j: the row of T_K[j]
+            outs.append(ca.exp(_log_spline(key, [soc], ca.mtimes(rows, ca.DM(psi)), Sc, basis)))
+        else:  # CasADi's grid order: the first axis (soc) runs fastest
+            flat = np.log(vals.T.ravel(order="F")) if numeric else logs
+            outs.append(ca.exp(_log_spline(key, [soc, temps], flat, ca.vertcat(Sc, Tc), basis)))
+    return outs
+
+
 @lru_cache(maxsize=32)
 def rc_function(table: RCTable, smooth: bool = False) -> ca.Function:
     """(S [-], T [K]) → (R_s [Ω], R1 [Ω], C1 [F], R2 [Ω], C2 [F]) of ``table`` as one CasADi Function, built
@@ -182,22 +234,49 @@ def rc_function(table: RCTable, smooth: bool = False) -> ca.Function:
     table spans decades, e.g. an LFP C2). S and T are clamped to the grid first: outside it the end
     values hold."""
     S, T = ca.SX.sym("S"), ca.SX.sym("T_K")
-    soc, temps = list(table.soc), list(table.T_K)
-    Sc = ca.fmin(ca.fmax(S, soc[0]), soc[-1])
-    Tc = ca.fmin(ca.fmax(T, temps[0]), temps[-1])
-    outs = []
-    for key in RC_TABLE_KEYS:
-        vals = np.array(getattr(table, key), dtype=float)  # (n_T, n_soc)
-        if not smooth:
-            outs.append(_segment(Tc, temps, [_segment(Sc, soc, list(row)) for row in vals]))
-        elif len(temps) == 1:  # the spline of log(value): positive between the points too
-            f = ca.interpolant(key, "bspline", [soc], np.log(vals[0]), {"degree": [min(3, len(soc) - 1)]})
-            outs.append(ca.exp(f(Sc)))
-        else:  # CasADi's grid order: the first axis (soc) runs fastest
-            deg = [min(3, len(soc) - 1), min(3, len(temps) - 1)]
-            f = ca.interpolant(key, "bspline", [soc, temps], np.log(vals.T.ravel(order="F")), {"degree": deg})
-            outs.append(ca.exp(f(ca.vertcat(Sc, Tc))))
+    outs = _rc_outputs(table, *_clamped(table, S, T), smooth)
     return ca.Function("rc_spline" if smooth else "rc_linear", [S, T], outs, ["S", "T_K"], list(RC_TABLE_KEYS))
+
+
+def _clamped(table: RCTable, S: Any, T: Any) -> tuple[Any, Any]:
+    """(S, T) clamped to the table's grid (outside it the end values hold)."""
+    soc, temps = table.soc, table.T_K
+    return ca.fmin(ca.fmax(S, soc[0]), soc[-1]), ca.fmin(ca.fmax(T, temps[0]), temps[-1])
+
+
+#: The attribute of a run-time cell (:func:`runtime_cell`) holding its OCV pieces' coefficients as parameters.
+RUNTIME_OCV = "_runtime_ocv_coefficients"
+
+
+def runtime_cell(cell: CellParams, twin: CellParams, parameter: Callable[[str, float], Any], prefix: str) -> Any:
+    """``twin`` (a copy of ``cell`` whose float fields are a problem's run-time parameters) with the cell's tables
+    as run-time parameters too, so that the code generated from a model of it does not depend on the cell's
+    values: the RC tables' values (``<prefix>__rc_table__<key>__<T index>_<SOC index>``) and, for a cell with its
+    own OCV table, the coefficients of :func:`ocv_pieces` (``<prefix>__ocv__<piece>_<power>``: piece 0's, then
+    each piece's difference from the one before, the terms :func:`ocv_piecewise` sums); ``parameter(name,
+    value)`` makes one. The grids (SOC, T, the OCV's SOC), ``soc_ref`` and ``T_ref_K`` stay numbers: cells of the
+    same grids share one generated model, a cell on another grid generates its own. The model of the twin gives
+    the numbers-in model's values (the OCV within 1e-14 V: :func:`ocv_piecewise` in place of the B-spline)."""
+    tab = cell.rc_table
+    if tab is not None:
+        rc = copy.copy(tab)
+        for key in RC_TABLE_KEYS:
+            rows = tuple(
+                tuple(parameter(f"{prefix}__rc_table__{key}__{j}_{i}", v) for i, v in enumerate(r))
+                for j, r in enumerate(getattr(tab, key))
+            )
+            object.__setattr__(rc, key, rows)
+        object.__setattr__(twin, "rc_table", rc)
+        object.__setattr__(twin, "T_ref_K", cell.T_ref_K)  # the table's reference point: a number
+    if cell.ocv_soc is not None:
+        _, c = ocv_pieces(cell)
+        diff = [c[0]] + [c[k] - c[k - 1] for k in range(1, len(c))]  # what ocv_piecewise sums, as it computes it
+        sym = np.array(
+            [[parameter(f"{prefix}__ocv__{k}_{m}", float(diff[k][m])) for m in range(4)] for k in range(len(c))],
+            dtype=object,
+        )
+        object.__setattr__(twin, RUNTIME_OCV, sym)
+    return twin
 
 
 class CellAt:
@@ -214,12 +293,16 @@ class CellAt:
             self.R_s_ohm, self.R1_ohm, self.R2_ohm = cell.R_s_ohm * f, cell.R1_ohm * f, cell.R2_ohm * f
             return
         T = cell.T_ref_K if T_K is None else T_K
-        vals = rc_function(tab, smooth)(tab.soc_ref if S is None else S, T)
+        S = tab.soc_ref if S is None else S
+        if all(isinstance(x, float) for x in tab.R_s_ohm[0]):
+            vals = rc_function(tab, smooth)(S, T)
+        else:  # a run-time cell's table (:func:`runtime_cell`): the values are parameters
+            vals = _rc_outputs(tab, *_clamped(tab, S, T), smooth)
         numeric = all(isinstance(x, (int, float, np.floating)) for x in (S, T) if x is not None)
         for key, v in zip(RC_TABLE_KEYS, vals):
             scale = getattr(cell, key) / tab.value(key, tab.soc_ref, cell.T_ref_K)
             v = float(v) if numeric else v
-            setattr(self, key, v if scale == 1.0 else v * scale)
+            setattr(self, key, v if isinstance(scale, float) and scale == 1.0 else v * scale)
 
     def __getattr__(self, name: str) -> Any:
         return getattr(self.base, name)

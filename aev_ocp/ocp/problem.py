@@ -19,11 +19,12 @@ import copy
 import dataclasses
 import math
 from dataclasses import dataclass, field
-from typing import Any, Sequence
+from typing import Any, Sequence, cast
 
 import casadi as ca
 
-from ..params import ParameterError
+from ..models.battery import runtime_cell
+from ..params import CellParams, ParameterError, RCTable
 
 
 @dataclass
@@ -233,7 +234,9 @@ class ProblemBuilder:
         so the code generated from the problem does not depend on them (one compiled library for every vehicle of
         the same structure). Bools, ints, strings and None stay as they are (they shape the model), and so do the
         float fields and nested dataclasses named in ``numbers`` (dotted paths below ``obj``, e.g.
-        ``"vehicle.rotating_mass_kg"`` or ``"limits"``: what a model branches on in Python). The copy bypasses the dataclass's validation (which ran on ``obj``)."""
+        ``"vehicle.rotating_mass_kg"`` or ``"limits"``: what a model branches on in Python). The copy bypasses the dataclass's validation (which ran on ``obj``).
+        A cell (CellParams) also gets its RC tables' values and its OCV curve as parameters, its grids as numbers
+        (:func:`~aev_ocp.models.battery.runtime_cell`): cells on the same grids share one compiled library."""
         if not (dataclasses.is_dataclass(obj) and not isinstance(obj, type)):
             raise ParameterError(f"{self.name}: parameters_of needs a dataclass instance, got {type(obj).__name__}")
         twin = copy.copy(obj)
@@ -242,9 +245,13 @@ class ProblemBuilder:
             name = f"{prefix}__{f.name}"
             if isinstance(x, float) and f.name not in numbers:
                 object.__setattr__(twin, f.name, self.parameter(name, x))
+            elif isinstance(x, RCTable):
+                continue  # its owner's (the cell's) twin takes its values (runtime_cell below), not its soc_ref
             elif dataclasses.is_dataclass(x) and not isinstance(x, type) and f.name not in numbers:
                 below = [k.split(".", 1)[1] for k in numbers if k.startswith(f"{f.name}.")]
                 object.__setattr__(twin, f.name, self.parameters_of(x, name, below))
+        if isinstance(obj, CellParams) and "rc_table" not in numbers:  # "rc_table": the cell's tables as numbers
+            twin = runtime_cell(obj, cast(CellParams, twin), self.parameter, prefix)
         return twin
 
     # ---------------------------------------------------------------- dynamics, costs, constraints
