@@ -119,6 +119,14 @@ def violation_bounds(r: SimulationResult, i: int) -> tuple[float, float]:
     return (float(h) if h is not None else -math.inf), (float(v) if v is not None else math.inf)
 
 
+def bound_violations(h: np.ndarray, v: np.ndarray, h_min: float, v_max: float) -> tuple[int, int]:
+    """(gap, speed) samples beyond their bounds [model units]: h below h_min, v below 0 or above v_max, each by more
+    than the tolerance plans are accepted with (:data:`aev_ocp.numerics.BOUND_TOLERANCE`); h_min = −inf, v_max = inf:
+    no such bound."""
+    tol = BOUND_TOLERANCE
+    return int(np.sum(h < h_min - tol)), int(np.sum((v < -tol) | (v > v_max + tol)))
+
+
 def vehicle_metrics(r: SimulationResult, i: int) -> dict[str, Any]:
     """All §10 metrics of follower i (0-based) as a flat dict; units in the key names."""
     u = r.units
@@ -130,6 +138,7 @@ def vehicle_metrics(r: SimulationResult, i: int) -> dict[str, Any]:
     # violations count against the vehicle's controller's own bounds (an MPC states its formulation's: the
     # traffic formulation's 2 m floor and 45 m/s, in model units; None = no such bound), else model guide §9's
     h_min, v_max = violation_bounds(r, i)
+    n_gap, n_speed = bound_violations(h[1:], v[1:], h_min, v_max)
 
     def rms(c: np.ndarray) -> float:
         return math.sqrt(max(float(c[-1, i]), 0.0) / duration) if duration > 0 else float("nan")
@@ -165,9 +174,8 @@ def vehicle_metrics(r: SimulationResult, i: int) -> dict[str, Any]:
         "max_abs_current_A": float(np.nanmax(np.abs(r.current_A[:, i])))
         if np.isfinite(r.current_A[:, i]).any()
         else float("nan"),
-        # beyond a bound by more than the tolerance plans are accepted with (numerics.BOUND_TOLERANCE)
-        "gap_violations": int(np.sum(h[1:] < h_min - BOUND_TOLERANCE)),
-        "speed_violations": int(np.sum((v[1:] < -BOUND_TOLERANCE) | (v[1:] > v_max + BOUND_TOLERANCE))),
+        "gap_violations": n_gap,
+        "speed_violations": n_speed,
         "collisions": kinds.count("collision"),
         "infeasible_current": kinds.count("infeasible_current"),
         "final_ovm_error_model": float(optimal_velocity(h[-1]) - v[-1]),

@@ -19,7 +19,7 @@ from typing import Any, Callable
 import numpy as np
 
 from .. import interrupts
-from ..metrics import comparability
+from ..metrics import bound_violations, comparability
 from ..ocp.checks import GAP_RTOL as SMOOTHING_GAP_RTOL
 from ..ocp.formulation import Formulation, ModelBounds, s9_formulation
 from ..ocp.oracle import (
@@ -32,7 +32,6 @@ from ..ocp.oracle import (
 )
 from ..ocp.problem import OCPProblem
 from ..ocp.traffic_cost import cost_traffic_of_result, problem_cost_of_result
-from ..numerics import BOUND_TOLERANCE
 from ..params import ParameterError
 from ..progress import Progress
 from ..results import SimulationResult, fmt_value, require_pandas, summary_html, summary_text
@@ -149,12 +148,10 @@ def own_cost(r: SimulationResult, i: int, s: MPCSettings, f: Formulation, ev: An
 
 
 def _violations(r: SimulationResult, i: int, b: ModelBounds) -> tuple[int, int]:
-    """(gap, speed) violations of follower i's samples after t_0 against the bounds ``b`` [model units]: beyond a
-    bound by more than the tolerance plans are accepted with (:data:`aev_ocp.numerics.BOUND_TOLERANCE`)."""
-    h, v, tol = r.gap[1:, i], r.speed[1:, i], BOUND_TOLERANCE
-    gap = int(np.sum(h < b.h_min - tol)) if b.h_min is not None else 0
-    vmax = b.v_max if b.v_max is not None else np.inf
-    return gap, int(np.sum((v < -tol) | (v > vmax + tol)))
+    """(gap, speed) violations of follower i's samples after t_0 against the bounds ``b`` [model units]
+    (:func:`aev_ocp.metrics.bound_violations`)."""
+    h_min = b.h_min if b.h_min is not None else -math.inf
+    return bound_violations(r.gap[1:, i], r.speed[1:, i], h_min, b.v_max if b.v_max is not None else math.inf)
 
 
 def _run_all(
