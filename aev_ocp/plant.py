@@ -164,8 +164,8 @@ def warn_floor_violations(violations: Sequence[Event], controllers: Sequence[str
 def floor_violations(t: np.ndarray, gap: np.ndarray, controllers: Sequence[Any], units: Units) -> list[Event]:
     """One 'violated' Event per follower whose gap went below its controller's own hard floor (the
     ``bounds_model`` → ``h_min`` of its ``describe()``, model units) by more than :data:`PLAN_TOLERANCE` (the
-    tolerance its plans are accepted with): at the first such
-    sample, with the smallest gap and how many samples were below (SI first)."""
+    tolerance its plans are accepted with): at the first such sample, with the smallest gap and how many samples
+    were below (SI first)."""
     out: list[Event] = []
     for i, d in enumerate(controllers):
         own = d.get("bounds_model") if isinstance(d, dict) else None

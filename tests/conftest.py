@@ -88,6 +88,16 @@ def pytest_collection_modifyitems(session: pytest.Session, config: pytest.Config
     items.sort(key=lambda i: (-weight(_file_of(i)), first[_file_of(i)]))
 
 
+@pytest.fixture
+def figures_at_test_dpi(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The package's figures drawn at tests/helpers.py's TEST_DPI for one test (a test that checks that a figure is
+    written and shown, not how it looks: ``pytestmark = pytest.mark.usefixtures("figures_at_test_dpi")``)."""
+    import aev_ocp.plots
+    from helpers import TEST_DPI
+
+    monkeypatch.setattr(aev_ocp.plots, "DPI", TEST_DPI)
+
+
 def pytest_runtest_logreport(report: pytest.TestReport) -> None:
     # on the controller (or a run without xdist): every phase's report of every test arrives here
     if os.environ.get("PYTEST_XDIST_WORKER"):

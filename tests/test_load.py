@@ -12,23 +12,20 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from helpers import TEST_DPI, _unblocked_after
+from helpers import _unblocked_after
 from helpers import same_numbers as _same
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 import aev_ocp
-import aev_ocp.plots
 from aev_ocp.cli import main
 from aev_ocp.models.leader import ConstantSpeed
 from aev_ocp.saved import ARRAYS, MANIFEST, SIM_ARRAYS, LoadError, load_all
 from aev_ocp.scenarios import find_scenario, load_with_sets
 
 
-@pytest.fixture(autouse=True)
-def _figures_at_test_dpi(monkeypatch: pytest.MonkeyPatch) -> None:
-    """The figures these tests write at TEST_DPI (they check each file, not its resolution; issue 40: CPU)."""
-    monkeypatch.setattr(aev_ocp.plots, "DPI", TEST_DPI)
+# the figures these tests write at TEST_DPI: they check each file, not its resolution (tests/conftest.py)
+pytestmark = pytest.mark.usefixtures("figures_at_test_dpi")
 
 
 def _check_metrics(r) -> None:

@@ -7,18 +7,14 @@ from pathlib import Path
 
 import pytest
 from cli_helpers import one_error, run_cli
-from helpers import TEST_DPI
 
 import aev_ocp.mpc.report  # noqa: F401  (its REPRODUCE_SECTIONS)
-import aev_ocp.plots
 from aev_ocp.mpc.cli import cli_mpc
 from aev_ocp.scenarios import ScenarioError, find_scenario, load_scenario, parse_scenario
 
 
-@pytest.fixture(autouse=True)
-def _figures_at_test_dpi(monkeypatch: pytest.MonkeyPatch) -> None:
-    """The figures these tests write at TEST_DPI (they check each file, not its resolution; issue 40: CPU)."""
-    monkeypatch.setattr(aev_ocp.plots, "DPI", TEST_DPI)
+# the figures these tests write at TEST_DPI: they check each file, not its resolution (tests/conftest.py)
+pytestmark = pytest.mark.usefixtures("figures_at_test_dpi")
 
 
 try:
