@@ -10,8 +10,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 from cli_helpers import one_error, run_cli
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
-from aev_ocp.models.leader import load_cycle_si, read_trace_csv
+from aev_ocp.models.leader import SpeedTrace, load_cycle_si, read_trace_csv
 from aev_ocp.params import ParameterError
 from aev_ocp.scenarios import ScenarioError, find_scenario, load_scenario
 
@@ -319,3 +321,47 @@ def test_a_trace_read_for_a_short_run_refuses_a_longer_one_in_python(tmp_path):
     assert longer.leader.times[-1] * s.units.time_s > 160.0
     full = load_scenario(_trace_scenario(tmp_path, f)).with_overrides({"simulation.t_end_s": 400.0})
     assert full.leader.read_for_t_end is None  # the whole file was read: nothing to refuse
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    st.lists(st.floats(0.0, 30.0), min_size=2, max_size=12),
+    st.lists(st.floats(0.05, 4.0), min_size=11, max_size=11),
+    st.floats(-1.0, 50.0),
+)
+def test_a_traces_top_speed_is_exact_on_any_horizon(speeds, steps, t_end) -> None:
+    """SpeedTrace.max_speed (a knot or an end of [0, t_end]) against the trace's own CasADi speed evaluated on a
+    fine grid that also holds every knot and t_end: equal (to rounding); a grid without the knots never exceeds
+    it. Horizons before the start, between knots, on a knot and after the end."""
+    times = np.concatenate([[0.0], np.cumsum(steps[: len(speeds) - 1])])
+    trace = SpeedTrace(tuple(times), tuple(speeds))
+    top = trace.max_speed(t_end)
+    end = max(t_end, 0.0)
+    grid = np.linspace(0.0, end, 2001)
+    probe = np.concatenate([grid, times[times <= end], [end]])
+    assert top == pytest.approx(float(np.max(trace.speed_np(probe))), rel=1e-13, abs=1e-13)
+    assert float(np.max(trace.speed_np(grid))) <= top + 1e-13
+    on_knot = trace.max_speed(float(times[1]))
+    assert on_knot == pytest.approx(max(speeds[0], speeds[1]), rel=1e-15)
+
+
+def test_a_shipped_cycle_is_read_once_and_each_caller_gets_its_own_arrays() -> None:
+    """load_cycle_si reads the package's file once per process, yet gives the values of a fresh read, in new
+    arrays: a caller that writes into them changes no other caller's cycle."""
+    from importlib import resources
+
+    from aev_ocp.models import leader as mod
+
+    fresh = read_trace_csv(
+        resources.files("aev_ocp") / "data" / "cycles" / "hwfet.csv",
+        time_column="time_s",
+        speed_column="speed_mps",
+        max_gap_s=None,
+    )
+    t1, v1 = load_cycle_si("HWFET")
+    np.testing.assert_array_equal(t1, fresh[0])
+    np.testing.assert_array_equal(v1, fresh[1])
+    v1[:] = -7.25
+    t2, v2 = load_cycle_si("hwfet")
+    np.testing.assert_array_equal(v2, fresh[1])
+    assert mod._shipped_cycle.cache_info().currsize >= 1

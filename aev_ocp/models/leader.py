@@ -14,7 +14,7 @@ import math
 from abc import ABC, abstractmethod
 from array import array
 from dataclasses import dataclass, field
-from functools import cached_property
+from functools import cached_property, lru_cache
 from importlib import resources
 from pathlib import Path
 from typing import Any, Sequence
@@ -289,6 +289,14 @@ class SpeedTrace(LeaderProfile):
         slope = np.where(k < times.size - 1, np.append(self._slopes, 0.0)[k], 0.0)
         return self._cumulative[k] + v[k] * tau + 0.5 * slope * tau**2
 
+    def max_speed(self, t_end: float, n: int = 20001) -> float:
+        """Maximum speed over [0, t_end] [model speed], exact: a piecewise-linear speed peaks at a knot or at an
+        end of the interval (``n``, the grid of the general method, is not needed)."""
+        times, v = np.asarray(self.times), np.asarray(self.speeds)
+        t_end = max(float(t_end), 0.0)  # speed() holds its first value before 0
+        at_end = float(np.interp(t_end, times, v))  # and its last after the last knot
+        return float(max(np.max(v[times <= t_end]), at_end))
+
     def describe(self) -> dict[str, Any]:
         return {"profile": self.name, "label": self.label, "duration": self.times[-1], "max_speed": max(self.speeds)}
 
@@ -491,10 +499,19 @@ def _matches(text: str, value: Any) -> bool:
 
 
 def load_cycle_si(name: str) -> tuple[np.ndarray, np.ndarray]:
-    """EPA cycle shipped with the package (see aev_ocp/data/README.md): times [s], speeds [m/s]."""
+    """EPA cycle shipped with the package (see aev_ocp/data/README.md): times [s], speeds [m/s] (new arrays on
+    every call; the file is read and checked once per process)."""
     key = name.lower()
     if key not in CYCLES:
         raise ParameterError(f"unknown drive cycle {name!r}: known cycles are {list(CYCLES)}")
+    t, v = _shipped_cycle(key)
+    return t.copy(), v.copy()
+
+
+@lru_cache(maxsize=None)
+def _shipped_cycle(key: str) -> tuple[np.ndarray, np.ndarray]:
+    """The shipped cycle ``key``'s arrays, read once (package data does not change while a process runs; every
+    scenario of a drive cycle loads it, 6 ms a read)."""
     path = resources.files("aev_ocp") / "data" / "cycles" / f"{key}.csv"
     return read_trace_csv(path, time_column="time_s", speed_column="speed_mps", max_gap_s=None, label=f"{key}.csv")
 
