@@ -87,8 +87,8 @@ def test_robustness_drops_hwfet_by_default(monkeypatch, tmp_path: Path) -> None:
     (c_def, *_), (c_full, *_), (c_quick, *_) = calls
     assert c_def == ("udds", "us06") and c_full == ("udds", "hwfet", "us06") and c_quick == ("udds",)
     assert [c[2] for c in calls] == [(0, 1, 2), (0, 1, 2), (0, 1)]  # seeds
-    # the cut [s]: to the leader's next stop after 120 s, at most 150 s; a reduced configuration's smoke run 40 s
-    assert [(c[1], c[4]) for c in calls] == [(120.0, 150.0), (120.0, 150.0), (40.0, 40.0)]
+    # the cut [s]: to the leader's next stop after 120 s, at most 150 s; a reduced configuration's smoke run 30 s
+    assert [(c[1], c[4]) for c in calls] == [(120.0, 150.0), (120.0, 150.0), (30.0, 30.0)]
     # in the section's own process (reproduce's pool runs the sections side by side): no second pool of workers
     assert kws == [{"executor": "inprocess"}] * 3
 
