@@ -66,10 +66,11 @@ def test_mpc_round_trip_and_time_limit(tmp_path, capsys):
     from aev_ocp.mpc.cli import cli_mpc
 
     out = tmp_path / "full"
-    # the same controller and steps twice: the full run, then one stopped by a time limit
+    # the same controller and steps twice: the full run, then one stopped by a time limit; no PNG plots (issue 40:
+    # half the test's time; the plots of aev-ocp mpc: test_mpc_cli.py)
     same = ["--set", "simulation.t_end=1.2", "--solver", "sqp", "--no-codegen", "--no-ocpd", "--laws", "ovfl"]
-    rc = cli_mpc(["mpc_paper_single", "--out", str(out), *same])
-    assert rc == 0
+    rc = cli_mpc(["mpc_paper_single", "--out", str(out), *same, "--no-plots"])
+    assert rc == 0 and not list(out.glob("*.png"))
     r = aev_ocp.load(out)
     assert r.meta["output"]["runs"] == ["mpc", "ovfl"] and r.controllers[0].startswith("mpc")
     saved = json.loads((out / "results.json").read_text())
@@ -91,7 +92,7 @@ def test_mpc_round_trip_and_time_limit(tmp_path, capsys):
     # first part of the full run (same controller, same steps)
     part = tmp_path / "part"
     capsys.readouterr()
-    rc = cli_mpc(["mpc_paper_single", "--out", str(part), *same, "--time-limit", "1e-9"])
+    rc = cli_mpc(["mpc_paper_single", "--out", str(part), *same, "--time-limit", "1e-9", "--no-plots"])
     err = capsys.readouterr().err
     assert rc == 1 and "time_limit" in err and "partial" in err
     p = aev_ocp.load(part)

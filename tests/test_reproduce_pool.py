@@ -21,11 +21,14 @@ NONE = dataclasses.replace(rp.ReproduceConfig.quick(), builtin=("fig3",))  # one
 
 
 def slow_section(out_dir, ctx):
-    """Ends LAST on a pool (it waits there), though it is declared first; in this process (one process: the sections
-    run one after another) there is nothing to overtake it, so it does not wait (issue 40: 1.5 s per run)."""
+    """Ends LAST on a pool (it waits there for the fast section's file, written in the other worker), though it is
+    declared first; in this process (one process: the sections run one after another) there is nothing to overtake
+    it, so it does not wait (issue 40: was a fixed 1.5 s wait per pool run)."""
     ctx("slow: step 1 of 2")
     if multiprocessing.parent_process() is not None:  # in a pool's worker
-        time.sleep(1.5)
+        deadline = time.monotonic() + 60.0  # a bound against a hang only
+        while not (Path(out_dir) / "fast.json").exists() and time.monotonic() < deadline:
+            time.sleep(0.01)
     (Path(out_dir) / "slow.json").write_text(json.dumps({"value_m": 12.375}))
     ctx.record_claim("the slow claim", "holds", "12.375 m", "Slow")
     return "## Slow\n\n12.375 m\n"

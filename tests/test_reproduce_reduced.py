@@ -56,7 +56,15 @@ def test_mpc_cycles_runs_one_forecast_by_default_and_every_one_with_full(monkeyp
     default, full, quick = calls
     assert default == {"predictors": ("decaying-acceleration",)} and len(cyc.PREDICTORS) == 2
     assert full == {"predictors": cyc.PREDICTORS}
-    assert quick == {"predictors": ("decaying-acceleration",), "t_end_max": QUICK.scenario_t_end_max}
+    # a reduced configuration: UDDS alone beside the platoon, one progress line per line of a cycle left out
+    assert quick == {
+        "predictors": ("decaying-acceleration",),
+        "t_end_max": QUICK.scenario_t_end_max,
+        "cycles": ("udds",),
+    }
+    lines: list[str] = []
+    cyc._reproduce_section(tmp_path, _ctx(QUICK, lines))
+    assert len(lines) == 3 * 6 == len(cyc.CYCLE_SCENARIOS) * 6 - 6  # hwfet, us06, paper: 6 lines each
 
 
 def test_battery_life_drops_hwfet_by_default_and_keeps_the_progress_count(monkeypatch, tmp_path: Path) -> None:  # noqa: ANN001
@@ -79,8 +87,8 @@ def test_robustness_drops_hwfet_by_default(monkeypatch, tmp_path: Path) -> None:
     (c_def, *_), (c_full, *_), (c_quick, *_) = calls
     assert c_def == ("udds", "us06") and c_full == ("udds", "hwfet", "us06") and c_quick == ("udds",)
     assert [c[2] for c in calls] == [(0, 1, 2), (0, 1, 2), (0, 1)]  # seeds
-    # the cut [s]: to the leader's next stop after 120 s, at most 150 s; a reduced configuration's smoke run 40 s
-    assert [(c[1], c[4]) for c in calls] == [(120.0, 150.0), (120.0, 150.0), (40.0, 40.0)]
+    # the cut [s]: to the leader's next stop after 120 s, at most 150 s; a reduced configuration's smoke run 30 s
+    assert [(c[1], c[4]) for c in calls] == [(120.0, 150.0), (120.0, 150.0), (30.0, 30.0)]
     # in the section's own process (reproduce's pool runs the sections side by side): no second pool of workers
     assert kws == [{"executor": "inprocess"}] * 3
 
@@ -101,6 +109,22 @@ def test_safety_quick_subset_runs_the_declared_actuator_alone(monkeypatch, tmp_p
     for config in (DEFAULT, FULL, QUICK):
         safety.safety_section(tmp_path, _ctx(config, []))
     (c_def, k_def), (c_full, k_full), (c_quick, k_quick) = calls
-    assert c_def == c_full == safety.reproduce_cases() and c_quick is None  # None: the suite's quick subset
+    assert c_def == c_full == safety.reproduce_cases()
+    # a reduced configuration: the first case of each family of the suite's quick subset (3 s long)
+    quick = safety.suite_cases(quick=True)
+    assert [c.name for c in c_quick] == [
+        "CCRs_50kmh",
+        "CCRm_80kmh",
+        "CCRb_50kmh_12m_-6mps2",
+        "laneend_100kmh_60m",
+        "cutin_100kmh_lead100kmh_15m_-6mps2",
+    ]
+    assert all(c in quick for c in c_quick) and {c.family for c in c_quick} == set(safety.FAMILIES)
     assert k_def["actuators"] == k_full["actuators"] == ("ideal", "declared")  # both actuators
     assert k_quick == {"quick": True, "workers": 1, "actuators": ("declared",)} and k_def["quick"] is False
+
+
+def test_the_ocp_sections_solve_on_fewer_intervals_in_a_reduced_configuration_only() -> None:
+    from aev_ocp.ocp import section as ocp
+
+    assert [ocp._intervals(_ctx(c, [])) for c in (DEFAULT, FULL, QUICK)] == [200, 200, 25]

@@ -136,7 +136,9 @@ def test_executors_identical_and_dask_local_cluster(tmp_path):
     pytest.importorskip("dask.distributed")
     f = _study(tmp_path)
     tables = {}
-    for ex, kw in (("inprocess", {}), ("pool", {"workers": 2}), ("dask", {"workers": 2})):
+    # the pool's two workers return results out of order; the local Dask cluster runs one (issue 40: a second
+    # worker process, importing NumPy and CasADi, cost a second of CPU and checked nothing the pool does not)
+    for ex, kw in (("inprocess", {}), ("pool", {"workers": 2}), ("dask", {"workers": 1})):
         out = run_study(read_study(f), tmp_path / ex, executor=ex, report=False, **kw)
         tables[ex] = _stable(out.rows)
         # the stored task files hold the same bytes apart from the wall time

@@ -108,6 +108,7 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="S",
         help="seconds between progress lines (step k/N, elapsed, ETA) on stderr (default: 2)",
     )
+    p.add_argument("--no-plots", action="store_true", help="skip the PNG plots (default: write them)")
     return p
 
 
@@ -204,13 +205,14 @@ def _cli_mpc(argv: list[str]) -> int:
             sets=list(a.sets),
             time_limit_s=a.time_limit,
         ),
+        plots=not a.no_plots,
     )
     r = c.results["mpc"]
     for i in range(r.n_vehicles):
         print(f"\nfollower {i + 1}:")
         print(comparison_table(c, i))
     print(
-        f"\nwrote {out}/results.json, trajectories_mpc.csv, plots and manifest.json + trajectories.npz "
+        f"\nwrote {out}/results.json, trajectories_mpc.csv, {'' if a.no_plots else 'plots, '}manifest.json + trajectories.npz "
         f"(aev_ocp.load('{out}'))"
     )
     for lab, res in c.results.items():

@@ -228,8 +228,8 @@ def views_table(v: dict[str, Any], markdown: bool = False) -> str:
     return "\n".join(out).rstrip()
 
 
-def write_outputs(c: Comparison, out: Path) -> list[Path]:
-    """results.json, trajectories CSV and plots of a comparison into ``out``."""
+def write_outputs(c: Comparison, out: Path, plots: bool = True) -> list[Path]:
+    """results.json, trajectories CSV and (``plots``) the PNG plots of a comparison into ``out``."""
     from ..plots import plot_trajectories
     from .plots import plot_overlay, plot_solve_times
 
@@ -258,6 +258,8 @@ def write_outputs(c: Comparison, out: Path) -> list[Path]:
         )
     ]
     files.append(r.to_csv(out / "trajectories_mpc.csv"))
+    if not plots:
+        return files
     for png, plot in (
         (out / "mpc_trajectories.png", plot_trajectories),
         (out / "mpc_solve_times.png", plot_solve_times),
@@ -272,12 +274,12 @@ def write_outputs(c: Comparison, out: Path) -> list[Path]:
     return files
 
 
-def write_comparison(c: Comparison, out: Path, settings: dict[str, Any]) -> None:
-    """:func:`write_outputs` and the saved runs (manifest.json with ``settings`` and the comparison's OCP-D, metrics,
-    timings and warnings; trajectories.npz) that ``aev_ocp.load(out)`` reads."""
+def write_comparison(c: Comparison, out: Path, settings: dict[str, Any], plots: bool = True) -> None:
+    """:func:`write_outputs` (the PNG plots if ``plots``) and the saved runs (manifest.json with ``settings`` and the
+    comparison's OCP-D, metrics, timings and warnings; trajectories.npz) that ``aev_ocp.load(out)`` reads."""
     from ..saved import save_output
 
-    write_outputs(c, out)
+    write_outputs(c, out, plots)
     save_output(
         out,
         "mpc",

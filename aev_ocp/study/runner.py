@@ -445,6 +445,7 @@ def _export_path() -> None:
 
 SCHEDULER_CONNECT_TIMEOUT_S = 20.0  # connecting to a Dask scheduler (Dask's own default is 30 s) [s]
 SCHEDULER_HEARTBEAT_TIMEOUT_S = 60.0  # a connection silent this long is dropped (Dask's tcp timeout, default 30 s) [s]
+CONNECT_ERROR_WAIT_S = 1.0  # how long past SCHEDULER_CONNECT_TIMEOUT_S the study waits for Dask's own error [s]
 
 
 def _connect(client_type: Any, scheduler: str) -> Any:
@@ -462,7 +463,7 @@ def _connect(client_type: Any, scheduler: str) -> Any:
 
     t = threading.Thread(target=go, name="aev-ocp-dask-connect", daemon=True)
     t.start()
-    t.join(SCHEDULER_CONNECT_TIMEOUT_S + 1.0)
+    t.join(SCHEDULER_CONNECT_TIMEOUT_S + CONNECT_ERROR_WAIT_S)
     exc = box.get("error")
     if isinstance(exc, (ValueError, TypeError)):  # the address itself: bad input, not a scheduler that failed
         raise _bad_address(scheduler, exc)
