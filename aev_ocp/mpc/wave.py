@@ -51,11 +51,11 @@ import casadi as ca
 import numpy as np
 
 from ..control import Command, Observation
-from ..models.carfollowing import CarFollowingLaw
+from ..models.carfollowing import IDM, CarFollowingLaw, idm_accel
 from ..ocp.formulation import problem_formulation
 from ..ocp.problem import ProblemBuilder
 from ..ocp.traffic import SLACK_MAX_M, TrafficParams, traffic_problem
-from ..params import EVParams, ParameterError, as_dict, spec, validate_fields
+from ..params import EVParams, ParameterError, Units, as_dict, spec, validate_fields
 from .controller import MPCController
 from .policy import MPCPolicy
 from .predictors import make_predictor
@@ -123,6 +123,21 @@ class WaveParams:
     # ... and it holds only while the ring is calm: it latches only with σ_l <= hold_sigma_mps and releases when
     # σ_l > hold_sigma_mps (a wave grows that the car must collect in its gap); 0: off
     hold_sigma_mps: float = spec(0.0, ge=0.0)  # [m/s] (our choice; 0: off)
+    # the follower term (leading cruise control: Wang, Zheng, Chen, Xu, Li 2021, IEEE T-ITS 22(8):5142; DeeP-LCC,
+    # Wang, Zheng, Li, Li 2023, IEEE T-CST 31(6):2760): the car measures the vehicle behind it (a rear radar: its gap
+    # h_f to the car and its speed v_f), predicts it over the horizon with a human model linearised at the
+    # equilibrium at v_ref (``follower_law``) and penalises w_f (v_f − v_ref)² (and w_fT at the end): it shapes its
+    # own motion so that the driver behind it stays at the reference speed (pulls it along instead of only holding
+    # its own speed). 0 and 0: off (the problem is built without the follower states, as before)
+    follower_speed_weight: float = spec(0.0, ge=0.0)  # w_f [W/kg per (m/s)²] (our choice; 0: off)
+    follower_terminal_speed_weight: float = spec(0.0, ge=0.0)  # w_fT [J/kg per (m/s)²] (our choice; 0: off)
+    # the human model of the prediction: the IDM with the calibrated ring population's median parameters
+    # (aev_ocp.ring.humans.CALIBRATED["sugiyama_idm"], fitted to Sugiyama et al. 2008), no reaction time
+    follower_law: IDM = spec(
+        kind="instance",
+        cls=IDM,
+        default_factory=lambda: IDM(a_mps2=1.364, b_mps2=1.5, v0_mps=16.35, s0_m=2.0, T_s=0.716),
+    )
     # the traffic problem's ω, heat, a², jerk terms and its soft gap floor (time_headway_s: T_min; ISO 15622
     # allows ACC time gaps from 0.8 s); its predecessor-speed and time-gap tracking weights are set to 0
     traffic: TrafficParams = spec(
@@ -175,8 +190,48 @@ def wave_problem(ev: EVParams, wp: WaveParams | None = None, dt: float = 0.1, na
     pb.subject_to(h_m - sig_m - wp.max_time_gap_s * v_ms, -ca.inf, wp.max_gap_m, name="band_max")
     pb.add_stage_cost(T * (wp.band_penalty * sig_m + 1e-3 * sig_m**2), "penalty_band")
     pb.add_terminal_cost(wp.terminal_speed_weight * (v_ms - vr_ms) ** 2 + wp.terminal_gap_weight * (h_m - h_c) ** 2)
+    if wp.follower_speed_weight > 0 or wp.follower_terminal_speed_weight > 0:
+        add_follower(pb, wp, u)
     pb.meta.update({"wave": wp})
     return pb
+
+
+#: the follower states of the wave problem (its gap to the car [model length], its speed [model speed]) and the
+#: switch of the follower term (1: a follower is measured, 0: none; constant over the horizon)
+FOLLOWER_STATES = ("h_f", "v_f", "follower_on")
+
+
+def follower_linearisation(law: IDM, v_star: Any) -> tuple[Any, Any, Any, Any]:
+    """The human law linearised at its equilibrium at speed v* [m/s] (SI, numbers or CasADi expressions):
+    (h*(v*) [m], ∂a/∂h [1/s²], ∂a/∂v [1/s], ∂a/∂v_l [1/s]), so a ≈ α_h (h − h*) + α_v (v − v*) + α_l (v_l − v*)
+    (Wang et al. 2021's linearised car-following model). h* solves a(h*, v*, v*) = 0: h* = (s0 + v* T)/√(1 − (v*/v0)^δ)."""
+    h, v, vl = ca.SX.sym("h"), ca.SX.sym("v"), ca.SX.sym("v_l")
+    acc = idm_accel(h, v, vl, law.a_mps2, law.b_mps2, law.v0_mps, law.s0_m, law.T_s, law.delta)
+    jac = ca.Function("follower_jac", [h, v, vl], [ca.jacobian(acc, ca.vertcat(h, v, vl))])
+    h_star = (law.s0_m + v_star * law.T_s) / ca.sqrt(1.0 - (v_star / law.v0_mps) ** law.delta)
+    g = jac(h_star, v_star, v_star)
+    return h_star, g[0], g[1], g[2]
+
+
+def add_follower(pb: ProblemBuilder, wp: WaveParams, units: Units) -> None:
+    """Add the follower (h_f, v_f) and its term to the wave problem ``pb`` (states ``v`` and ``v_ref``, model
+    ``units``; module docstring and WaveParams' ``follower_*``): dh_f/dt = v − v_f, dv_f/dt = the law linearised at
+    v* = v_ref (:func:`follower_linearisation`), cost w_f (v_f − v_ref)² while the own state ``follower_on`` is 1."""
+    T = units.time_s
+    v, v_ref = pb.x["v"], pb.x["v_ref"]
+    h_f, v_f, on = (pb.state(n) for n in FOLLOWER_STATES)
+    v_ms, vr_ms = units.speed_to_si(v), units.speed_to_si(v_ref)
+    hf_m, vf_ms = units.length_to_si(h_f), units.speed_to_si(v_f)
+    h_star, a_h, a_v, a_l = follower_linearisation(wp.follower_law, vr_ms)
+    acc = a_h * (hf_m - h_star) + a_v * (vf_ms - vr_ms) + a_l * (v_ms - vr_ms)
+    pb.set_der(h_f, v - v_f)
+    pb.set_der(v_f, units.accel_from_si(acc))
+    pb.set_der(on, 0.0)
+    # (on (v_f − v_ref))², not on (v_f − v_ref)²: at on = 0 its Hessian then couples nothing (its cross terms carry the
+    # factor on), so no follower leaves the car's solution that of the weight-0 problem (to round-off)
+    e_f = on * (vf_ms - vr_ms)
+    pb.add_stage_cost(T * wp.follower_speed_weight * e_f**2, "follower_speed")
+    pb.add_terminal_cost(wp.follower_terminal_speed_weight * e_f**2)
 
 
 @dataclass
@@ -245,6 +300,8 @@ class WaveMPC(MPCPolicy):
         self.v_ref = float("nan")  # the last reference [model speed]
         self.armed = False  # the mean speed U has been below WaveParams.hold_min_mps
         self.held = False  # the latched speed hold engaged (armed, then U >= hold_min_mps)
+        # the problem predicts the follower (WaveParams.follower_*): fed from Observation.follower
+        self.with_follower = self.params.follower_speed_weight > 0 or self.params.follower_terminal_speed_weight > 0
 
     def reset(self) -> None:
         """Forget the warm start, the speed and gap averages and the latched hold."""
@@ -295,6 +352,12 @@ class WaveMPC(MPCPolicy):
         if len(obs.meas_v):
             self.predecessor_speeds.update(float(obs.meas_v[-1]))
         self.v_ref = own["v_ref"] = self.reference(float(obs.z[0]), float(obs.z[1]))
+        if self.with_follower:
+            fol = obs.follower
+            if fol is None:  # no follower measured: the term is off, its states only kept finite
+                own.update(h_f=float(obs.z[0]), v_f=float(obs.z[1]), follower_on=0.0)
+            else:
+                own.update(h_f=float(fol[0]), v_f=float(fol[1]), follower_on=1.0)
         return own
 
     def command(self, obs: Observation) -> Command:
