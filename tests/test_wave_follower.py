@@ -189,3 +189,68 @@ def test_with_weights_zero_the_problem_is_todays_and_ignores_the_follower():
     assert set(FOLLOWER_STATES) <= set(wave_problem(EV, WaveParams(follower_terminal_speed_weight=1.0)).x)
     moves = [_first_move(WaveParams(), f) for f in (None, _follower(-1.0))]
     assert moves[0] == moves[1]
+
+
+class SumoRadar(Radar):
+    """:class:`Radar` in a SUMO run, also recording the vehicle behind as SUMO's state gives it without
+    ``getFollower``: the vehicle whose leader (``getLeader``) is this one, its gap (plus its minGap) and speed [SI]."""
+
+    def __init__(self, units: Units, vid: str) -> None:
+        super().__init__(units, 0.2)
+        self.vid, self.truth = vid, []
+
+    def command(self, obs: Observation) -> Command:
+        import libsumo
+
+        V = libsumo.vehicle
+        behind = [
+            (V.getLeader(o, 100.0)[1] + libsumo.vehicletype.getMinGap(V.getTypeID(o)), V.getSpeed(o))
+            for o in V.getIDList()
+            if o != self.vid and V.getLeader(o, 100.0) and V.getLeader(o, 100.0)[0] == self.vid
+        ]
+        self.truth.append(min(behind) if behind else None)
+        return super().command(obs)
+
+
+SUMO_RADARS: list[SumoRadar] = []
+
+
+def sumo_radar(ev: EVParams) -> SumoRadar:
+    """The SUMO 'module:function' form of SumoRadar (on the ring's vehicle ring.3)."""
+    SUMO_RADARS.append(SumoRadar(ev.units, "ring.3"))
+    return SUMO_RADARS[-1]
+
+
+@pytest.mark.parametrize("human", ["krauss", "idm"])
+def test_sumo_observes_the_vehicle_behind_as_its_own_leader_gap_gives_it(human):
+    """In the SUMO ring (Krauss drivers: no minGap; IDM drivers: minGap s0 = 2 m) the controlled car's follower
+    observation is the gap (plus minGap) and speed of the vehicle whose leader it is, read from SUMO independently of
+    getFollower, at every control instant."""
+    from aev_ocp.sumo import sumo_available
+
+    if not sumo_available():
+        pytest.skip("SUMO is not installed (pip install 'aev_ocp[sumo]')")
+    from aev_ocp.sumo.run import run_sumo
+    from aev_ocp.sumo.scenario import parse_sumo_scenario
+
+    doc = {
+        "sumo": {
+            "network": "ring",
+            "t_end_s": 8.0,
+            "step_s": 0.1,
+            "controller": f"{__name__}:sumo_radar",
+            "share": 0.0,
+            "ids": ["ring.3"],
+            "ring": {"human": human},
+        }
+    }
+    SUMO_RADARS.clear()
+    run_sumo(parse_sumo_scenario(doc))
+    r = SUMO_RADARS[-1]
+    seen = [(fol, tr) for (_, fol), tr in zip(r.seen, r.truth) if tr is not None]
+    assert len(seen) >= 20
+    for fol, (gap_m, v_mps) in seen:
+        assert fol is not None
+        assert float(r.units.length_to_si(fol[0])) == pytest.approx(gap_m, abs=1e-6)
+        assert float(r.units.speed_to_si(fol[1])) == pytest.approx(v_mps, abs=1e-9)
+    assert np.ptp([tr[0] for _, tr in seen]) > 0.05  # the gap changes over the run

@@ -28,6 +28,16 @@ and while its predecessor's measured speed std is at most ``hold_sigma_mps``, v_
 ``hold_max_mps``] instead of chasing the gap; a growing wave (or a mean speed below ``hold_release_mps``) returns it
 to the catch-up, which collects the wave in the car's gap.
 
+Optionally (``WaveParams.follower_*``, off by default) the car also leads the driver **behind** it, as leading cruise
+control does (Wang, Zheng, Chen, Xu, Li 2022, IEEE T-ITS 23(8); DeeP-LCC: Wang, Zheng, Li, Xu 2023, IEEE T-CST
+31(6)): it measures that follower's gap h_f to it and its speed v_f (a rear radar:
+:attr:`aev_ocp.loop.Observation.follower`), predicts them over the horizon with a human car-following law linearised
+at its equilibrium at v_ref (dh_f/dt = v − v_f, dv_f/dt = α_h (h_f − h*(v_ref)) + α_v (v_f − v_ref) + α_l (v − v_ref):
+:func:`follower_linearisation`, the calibrated ring population's median IDM by default) and adds
+w_f (v_f − v_ref)² (and w_fT at the end), so it pulls a slow follower and holds back a fast one. Without a measured
+follower the term is off (its states are decoupled: the weight-0 solution to round-off); with both weights 0 the
+problem is built without them.
+
 The predecessor-speed term of the traffic problem (w_r (v̂_l − v)²) and its time-gap terms are off (weights 0): the
 predecessor forecast (its measured speed and acceleration, decaying) enters only the dynamics of the gap and the
 braking-distance constraint. Energy awareness is the traffic problem's: the paper's ω rate v g(a),
@@ -123,8 +133,8 @@ class WaveParams:
     # ... and it holds only while the ring is calm: it latches only with σ_l <= hold_sigma_mps and releases when
     # σ_l > hold_sigma_mps (a wave grows that the car must collect in its gap); 0: off
     hold_sigma_mps: float = spec(0.0, ge=0.0)  # [m/s] (our choice; 0: off)
-    # the follower term (leading cruise control: Wang, Zheng, Chen, Xu, Li 2021, IEEE T-ITS 22(8):5142; DeeP-LCC,
-    # Wang, Zheng, Li, Li 2023, IEEE T-CST 31(6):2760): the car measures the vehicle behind it (a rear radar: its gap
+    # the follower term (leading cruise control: Wang, Zheng, Chen, Xu, Li 2022, IEEE T-ITS 23(8); DeeP-LCC,
+    # Wang, Zheng, Li, Xu 2023, IEEE T-CST 31(6)): the car measures the vehicle behind it (a rear radar: its gap
     # h_f to the car and its speed v_f), predicts it over the horizon with a human model linearised at the
     # equilibrium at v_ref (``follower_law``) and penalises w_f (v_f − v_ref)² (and w_fT at the end): it shapes its
     # own motion so that the driver behind it stays at the reference speed (pulls it along instead of only holding
@@ -204,7 +214,7 @@ FOLLOWER_STATES = ("h_f", "v_f", "follower_on")
 def follower_linearisation(law: IDM, v_star: Any) -> tuple[Any, Any, Any, Any]:
     """The human law linearised at its equilibrium at speed v* [m/s] (SI, numbers or CasADi expressions):
     (h*(v*) [m], ∂a/∂h [1/s²], ∂a/∂v [1/s], ∂a/∂v_l [1/s]), so a ≈ α_h (h − h*) + α_v (v − v*) + α_l (v_l − v*)
-    (Wang et al. 2021's linearised car-following model). h* solves a(h*, v*, v*) = 0: h* = (s0 + v* T)/√(1 − (v*/v0)^δ)."""
+    (the linearised car-following model of Wang et al. 2022's leading cruise control). h* solves a(h*, v*, v*) = 0: h* = (s0 + v* T)/√(1 − (v*/v0)^δ)."""
     h, v, vl = ca.SX.sym("h"), ca.SX.sym("v"), ca.SX.sym("v_l")
     acc = idm_accel(h, v, vl, law.a_mps2, law.b_mps2, law.v0_mps, law.s0_m, law.T_s, law.delta)
     jac = ca.Function("follower_jac", [h, v, vl], [ca.jacobian(acc, ca.vertcat(h, v, vl))])
