@@ -166,9 +166,9 @@ def test_the_term_pulls_a_slow_follower_and_holds_back_a_fast_one():
 
 
 def test_without_a_measured_follower_the_term_is_off():
-    """No follower observed (the platoon's last car, a simulator without a rear radar): the weighted controller's
-    commands over five warm-started steps are the weight-0 controller's to round-off (the follower states are decoupled
-    from the cost and the car's dynamics; not bit-identical: the problem has more variables)."""
+    """No follower observed (the platoon's last car, a simulator without a rear radar): over five warm-started steps
+    the weighted controller's commands are the weight-0 controller's, bit for bit (such steps are its follower-less
+    twin's)."""
     for h, v in ((18.0, 5.0), (9.0, 6.5), (30.0, 3.0)):
         moves = []
         for wp in (WaveParams(), WaveParams(follower_speed_weight=W_F, follower_terminal_speed_weight=3.0)):
@@ -177,9 +177,25 @@ def test_without_a_measured_follower_the_term_is_off():
             z = np.array([float(U.length_from_si(h)), float(U.speed_from_si(v)), 0.0, 0.0, EV.cell.soc0])
             vl = float(U.speed_from_si(4.5))
             seen = [Observation(0.1 * k, S.dt, 0, z, np.array([0.0]), np.array([vl]), None, 0.0) for k in range(5)]
-            moves.append([c.command(o).a for o in seen])
-        np.testing.assert_allclose(moves[1], moves[0], rtol=0, atol=1e-6)
-        assert np.ptp(moves[0]) > 1e-3  # the steps differ: warm starts, not one solve repeated
+            moves.append([(c.command(o).a, c.v_ref) for o in seen])
+        assert moves[1] == moves[0]
+        assert np.ptp([a for a, _ in moves[0]]) > 1e-3  # the steps differ: warm starts, not one solve repeated
+
+
+def test_a_follower_that_comes_and_goes_keeps_one_reference():
+    """A follower measured, then not, then again: v_ref stays the mean of every own speed measured (one window,
+    shared by the controller and its follower-less twin) and each step is solved (no fallback)."""
+    c = WaveMPC(EV, Proposed(), WaveParams(window_s=1.0, catch_gain_per_s=0.0, follower_speed_weight=W_F), S)
+    speeds = [4.1, 4.9, 3.7, 5.3, 4.4, 3.9, 5.1, 4.6]
+    fol = _follower(-0.5)
+    for k, v in enumerate(speeds):
+        z = np.array([float(U.length_from_si(15.0)), float(U.speed_from_si(v)), 0.0, 0.0, EV.cell.soc0])
+        ob = Observation(0.1 * k, S.dt, 0, z, np.array([0.0]), np.array([U.speed_from_si(4.5)]), None, 0.0)
+        ob.follower = None if k in (2, 3, 6) else fol
+        cmd = c.command(ob)
+        assert cmd.ok, (k, cmd.status)
+        want = np.mean(speeds[max(0, k - 4) : k + 1])  # 5 samples of 0.2 s
+        assert float(U.speed_to_si(c.v_ref)) == pytest.approx(want, rel=1e-12), k
 
 
 def test_with_weights_zero_the_problem_is_todays_and_ignores_the_follower():

@@ -310,12 +310,19 @@ class WaveMPC(MPCPolicy):
         self.v_ref = float("nan")  # the last reference [model speed]
         self.armed = False  # the mean speed U has been below WaveParams.hold_min_mps
         self.held = False  # the latched speed hold engaged (armed, then U >= hold_min_mps)
-        # the problem predicts the follower (WaveParams.follower_*): fed from Observation.follower
+        # the problem predicts the follower (WaveParams.follower_*): fed from Observation.follower; a step without a
+        # measured follower is the follower-less wave MPC's (built at the first such step, sharing the averages)
         self.with_follower = self.params.follower_speed_weight > 0 or self.params.follower_terminal_speed_weight > 0
+        self._build = (ev, fallback_law, s, predictor)
+        self._plain: WaveMPC | None = None
+        self._plain_last = False  # the last step was the follower-less one's
 
     def reset(self) -> None:
         """Forget the warm start, the speed and gap averages and the latched hold."""
         super().reset()
+        if self._plain is not None:
+            self._plain.controller.reset()
+        self._plain_last = False
         self.armed = self.held = False
         self.average.reset()
         self.gap_average.reset()
@@ -364,13 +371,38 @@ class WaveMPC(MPCPolicy):
         self.v_ref = own["v_ref"] = self.reference(float(obs.z[0]), float(obs.z[1]))
         if self.with_follower:
             fol = obs.follower
-            if fol is None:  # no follower measured: the term is off, its states only kept finite
+            if fol is None:  # no follower measured (command() hands such a step to without_follower()): term off
                 own.update(h_f=float(obs.z[0]), v_f=float(obs.z[1]), follower_on=0.0)
             else:
                 own.update(h_f=float(fol[0]), v_f=float(fol[1]), follower_on=1.0)
         return own
 
+    def without_follower(self) -> "WaveMPC":
+        """The wave MPC without the follower term (the follower weights 0: the problem without its states) that
+        commands the steps without a measured follower, built at the first; it shares this one's averages."""
+        if self._plain is None:
+            ev, law, s, pred = self._build
+            p = replace(self.params, follower_speed_weight=0.0, follower_terminal_speed_weight=0.0)
+            self._plain = WaveMPC(ev, law, p, s, pred)
+            self._plain.average, self._plain.gap_average = self.average, self.gap_average
+            self._plain.predecessor_speeds = self.predecessor_speeds
+        return self._plain
+
     def command(self, obs: Observation) -> Command:
+        """The policy's command with v_ref in its info; with the follower term and no measured follower, the
+        command of :meth:`without_follower` (so such a step is exactly the follower-less MPC's; a switch between the
+        two forgets the warm start of the one taking over)."""
+        if self.with_follower and obs.follower is None:
+            plain = self.without_follower()
+            if not self._plain_last:
+                plain.controller.reset()
+            plain.armed, plain.held = self.armed, self.held
+            cmd = plain.command(obs)
+            self.armed, self.held, self.v_ref, self._plain_last = plain.armed, plain.held, plain.v_ref, True
+            return cmd
+        if self._plain_last:
+            self.controller.reset()
+            self._plain_last = False
         cmd = super().command(obs)
         cmd.info["v_ref_mps"] = float(self.units.speed_to_si(self.v_ref))
         return cmd
