@@ -7,6 +7,8 @@ term is off (the command of the weight-0 controller); with its weights 0 the pro
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
@@ -24,6 +26,7 @@ U = EV.units
 S = MPCSettings(codegen=False)  # interpreted: no C compiled for the tests' parameter sets
 LAW = WaveParams().follower_law  # the calibrated ring population's median IDM
 W_F = 40.0
+OFF = WaveParams(follower_speed_weight=0.0)  # the term off (the wave MPC as before it)
 
 
 class Radar:
@@ -158,7 +161,7 @@ def test_the_term_pulls_a_slow_follower_and_holds_back_a_fast_one():
     """The car at v_ref = 5 m/s, its gap inside the band: a follower at equilibrium leaves its move where the weight-0
     car's is; a follower 1 m/s slower makes it accelerate (it opens the gap the follower speeds up into), one 1 m/s
     faster makes it brake."""
-    base = _first_move(WaveParams(catch_gain_per_s=0.0), None)
+    base = _first_move(replace(OFF, catch_gain_per_s=0.0), None)
     wp = WaveParams(catch_gain_per_s=0.0, follower_speed_weight=W_F)
     at_eq, slow, fast = (_first_move(wp, _follower(dv)) for dv in (0.0, -1.0, 1.0))
     assert abs(at_eq - base) < 0.02
@@ -171,7 +174,7 @@ def test_without_a_measured_follower_the_term_is_off():
     twin's)."""
     for h, v in ((18.0, 5.0), (9.0, 6.5), (30.0, 3.0)):
         moves = []
-        for wp in (WaveParams(), WaveParams(follower_speed_weight=W_F, follower_terminal_speed_weight=3.0)):
+        for wp in (OFF, WaveParams(follower_speed_weight=W_F, follower_terminal_speed_weight=3.0)):
             c = WaveMPC(EV, Proposed(), wp, S)
             c.average.update(float(U.speed_from_si(4.0)))
             z = np.array([float(U.length_from_si(h)), float(U.speed_from_si(v)), 0.0, 0.0, EV.cell.soc0])
@@ -199,11 +202,12 @@ def test_a_follower_that_comes_and_goes_keeps_one_reference():
 
 
 def test_with_weights_zero_the_problem_is_todays_and_ignores_the_follower():
-    """The default parameters build the problem without the follower states, and a measured follower changes
-    nothing (bit-identical commands with and without it)."""
-    assert not set(FOLLOWER_STATES) & set(wave_problem(EV, WaveParams()).x)
-    assert set(FOLLOWER_STATES) <= set(wave_problem(EV, WaveParams(follower_terminal_speed_weight=1.0)).x)
-    moves = [_first_move(WaveParams(), f) for f in (None, _follower(-1.0))]
+    """The follower weights 0 build the problem without the follower states (the defaults build it with them), and
+    then a measured follower changes nothing (bit-identical commands with and without it)."""
+    assert not set(FOLLOWER_STATES) & set(wave_problem(EV, OFF).x)
+    assert set(FOLLOWER_STATES) <= set(wave_problem(EV, replace(OFF, follower_terminal_speed_weight=1.0)).x)
+    assert set(FOLLOWER_STATES) <= set(wave_problem(EV, WaveParams()).x)  # the default: the term on
+    moves = [_first_move(OFF, f) for f in (None, _follower(-1.0))]
     assert moves[0] == moves[1]
 
 
@@ -270,3 +274,40 @@ def test_sumo_observes_the_vehicle_behind_as_its_own_leader_gap_gives_it(human):
         assert float(r.units.length_to_si(fol[0])) == pytest.approx(gap_m, abs=1e-6)
         assert float(r.units.speed_to_si(fol[1])) == pytest.approx(v_mps, abs=1e-9)
     assert np.ptp([tr[0] for _, tr in seen]) > 0.05  # the gap changes over the run
+
+
+def test_the_guide_quotes_the_follower_terms_evaluation_on_fresh_seeds():
+    """The guide's paragraph on the follower term's one evaluation (fresh seeds 120–139, the term off against on,
+    paired) quotes the run recorded in tests/data: both speed-std ratios and their paired difference as means and 95 %
+    t intervals (recomputed here with SciPy from the per-seed values), the seeds above 0.20, and every seed's pair."""
+    import json
+    from pathlib import Path
+
+    from scipy import stats
+
+    root = Path(__file__).parents[1]
+    doc = json.loads((root / "tests/data/bench_wave_mpc_ring_wave_follower_seeds120-139.json").read_text("utf-8"))
+    assert doc["seeds"] == list(range(120, 140))
+    assert "follower_speed_weight=0.0" in doc["wave_params"]
+    assert "follower_speed_weight=300," in doc["variant_params"]  # (given as the integer 300)
+    ps = doc["per_seed"]
+    ratio = {
+        c: np.array([ps[str(k)][c]["speed_std_mps"] / ps[str(k)]["human"]["speed_std_mps"] for k in doc["seeds"]])
+        for c in ("wave-mpc", "wave-mpc-variant")
+    }
+
+    def cell(x: np.ndarray, sign: str = "") -> str:
+        half = stats.t.ppf(0.975, x.size - 1) * np.std(x, ddof=1) / np.sqrt(x.size)
+        return f"{x.mean():{sign}.3f} [{x.mean() - half:{sign}.3f}, {x.mean() + half:{sign}.3f}]"
+
+    text = (root / "docs" / "guide" / "studies.md").read_text(encoding="utf-8")
+    start = text.index("**The follower term on the fresh seeds 120–139")
+    para = " ".join(text[start : text.index("\n\n", start)].split()).replace("−", "-")
+    for c in ratio:
+        assert cell(ratio[c]) in para, c
+        assert f"{int(np.sum(ratio[c] > 0.20))} of 20 above 0.20" in para, c
+        iv = doc["variant"][c]["speed_std_ratio_to_human"]
+        assert iv["mean"] == pytest.approx(ratio[c].mean(), rel=1e-12)
+    assert cell(ratio["wave-mpc-variant"] - ratio["wave-mpc"], "+") in para
+    pairs = ", ".join(f"{a:.3f}/{b:.3f}" for a, b in zip(ratio["wave-mpc"], ratio["wave-mpc-variant"]))
+    assert pairs in para
