@@ -24,9 +24,14 @@ growth rate of the ring with that car, and the smallest speed weight w_v that ma
 constant speed, the fleet's speed std and the gap that car would need on the real ring; each seed's ratio printed);
 ``--bound-only`` runs that bound alone (no all-human, FollowerStopper or wave-MPC rings).
 
+``--variant-params JSON`` runs a second wave MPC (WaveParams fields over the first's) on every seed and prints both
+paired (:func:`variant_comparison`: speed-std ratios, the fraction of seeds above 0.20, mean speed against
+FollowerStopper's, energy, collisions, fallbacks); the follower term (``follower_speed_weight``) was screened so on
+seeds 0–19 and evaluated on 120–139 (``--record-suffix _follower_seeds120-139``, with the term off as the defaults).
+
     python benchmarks/bench_wave_mpc.py [--scenario FILE] [--seeds 20 ... 39] [--t-end-s 600] [--linear]
                                         [--safety] [--bound [V ...] [--bound-only]] [--wave-params JSON]
-                                        [--out results/bench_wave_mpc.json] [--record]
+                                        [--variant-params JSON] [--out results/bench_wave_mpc.json] [--record]
 
 ``--record`` also writes the JSON to tests/data/ (named after the scenario, plus ``--record-suffix``), where
 tests/test_wave_mpc.py checks that the guide quotes it: the table of seeds 60–79, the evaluations on seeds 80–99
