@@ -27,7 +27,7 @@ constant speed, the fleet's speed std and the gap that car would need on the rea
 ``--variant-params JSON`` runs a second wave MPC (WaveParams fields over the first's) on every seed and prints both
 paired (:func:`variant_comparison`: speed-std ratios, the fraction of seeds above 0.20, mean speed against
 FollowerStopper's, energy, collisions, fallbacks); the follower term (``follower_speed_weight``) was screened so on
-seeds 0–19 and evaluated on 120–139 (``--record-suffix _follower_seeds120-139``, with the term off as the defaults).
+seeds 0–19 and evaluated on 120–139 (``--record-suffix _follower_seeds120-139``, the term then off in the scenario).
 
     python benchmarks/bench_wave_mpc.py [--scenario FILE] [--seeds 20 ... 39] [--t-end-s 600] [--linear]
                                         [--safety] [--bound [V ...] [--bound-only]] [--wave-params JSON]

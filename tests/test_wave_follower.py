@@ -202,11 +202,11 @@ def test_a_follower_that_comes_and_goes_keeps_one_reference():
 
 
 def test_with_weights_zero_the_problem_is_todays_and_ignores_the_follower():
-    """The follower weights 0 build the problem without the follower states (the defaults build it with them), and
-    then a measured follower changes nothing (bit-identical commands with and without it)."""
+    """The follower weights 0 (the defaults) build the problem without the follower states, and then a measured
+    follower changes nothing (bit-identical commands with and without it)."""
     assert not set(FOLLOWER_STATES) & set(wave_problem(EV, OFF).x)
     assert set(FOLLOWER_STATES) <= set(wave_problem(EV, replace(OFF, follower_terminal_speed_weight=1.0)).x)
-    assert set(FOLLOWER_STATES) <= set(wave_problem(EV, WaveParams()).x)  # the default: the term on
+    assert WaveParams() == OFF  # the default: the term off (the calibrated ring's [ring.wave] sets it)
     moves = [_first_move(OFF, f) for f in (None, _follower(-1.0))]
     assert moves[0] == moves[1]
 
@@ -311,3 +311,17 @@ def test_the_guide_quotes_the_follower_terms_evaluation_on_fresh_seeds():
     assert cell(ratio["wave-mpc-variant"] - ratio["wave-mpc"], "+") in para
     pairs = ", ".join(f"{a:.3f}/{b:.3f}" for a, b in zip(ratio["wave-mpc"], ratio["wave-mpc-variant"]))
     assert pairs in para
+
+
+def test_the_calibrated_ring_sets_the_follower_term_and_feeds_it():
+    """scenarios/ring_wave.toml's [ring.wave] turns the term on (w_f = 300, its evaluated value) for its wave-MPC car,
+    whose ring gives it the vehicle behind at every step (the term's states in the problem it solves)."""
+    from pathlib import Path
+
+    from aev_ocp.ring.scenario import build_ring, load_ring_scenario
+
+    sc = load_ring_scenario(Path(__file__).parents[1] / "scenarios" / "ring_wave.toml")
+    ring, _ = build_ring(sc, "wave-mpc")
+    car = ring.vehicles[0]
+    assert isinstance(car, WaveMPC) and car.params.follower_speed_weight == 300.0 and car.with_follower
+    assert set(FOLLOWER_STATES) <= set(car.controller.problem.state_names)

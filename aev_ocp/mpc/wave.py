@@ -28,7 +28,7 @@ and while its predecessor's measured speed std is at most ``hold_sigma_mps``, v_
 ``hold_max_mps``] instead of chasing the gap; a growing wave (or a mean speed below ``hold_release_mps``) returns it
 to the catch-up, which collects the wave in the car's gap.
 
-By default (``WaveParams.follower_*``; weights 0: off) the car also leads the driver **behind** it, as leading cruise
+Optionally (``WaveParams.follower_*``, off by default; the calibrated ring's ``[ring.wave]`` sets it) the car also leads the driver **behind** it, as leading cruise
 control does (Wang, Zheng, Chen, Xu, Li 2022, IEEE T-ITS 23(8); DeeP-LCC: Wang, Zheng, Li, Xu 2023, IEEE T-CST
 31(6)): it measures that follower's gap h_f to it and its speed v_f (a rear radar:
 :attr:`aev_ocp.loop.Observation.follower`), predicts them over the horizon with a human car-following law linearised
@@ -139,9 +139,11 @@ class WaveParams:
     # equilibrium at v_ref (``follower_law``) and penalises w_f (v_f − v_ref)² (and w_fT at the end): it shapes its
     # own motion so that the driver behind it stays at the reference speed (pulls it along instead of only holding
     # its own speed). 0 and 0: off (the problem is built without the follower states, as before the term)
-    follower_speed_weight: float = spec(300.0, ge=0.0)  # w_f [W/kg per (m/s)²] (our choice: screened on the ring's
-    # seeds 0–19 at 30, 100, 300, 1000 (speed-std ratio 0.172, 0.151, 0.146, 0.142 against 0.183 off), 300 the milder
-    # of the two best; evaluated once on the fresh seeds 120–139: 0.144 against 0.167 off, docs/guide/studies.md)
+    follower_speed_weight: float = spec(0.0, ge=0.0)  # w_f [W/kg per (m/s)²] (our choice; 0: off, the default: in
+    # SUMO's merge one controlled car with the term stopped at its lane's end, docs/guide/studies.md). The calibrated
+    # ring sets 300 (scenarios/ring_wave.toml's [ring.wave]): screened on its seeds 0–19 at 30, 100, 300, 1000
+    # (speed-std ratio 0.172, 0.151, 0.146, 0.142 against 0.183 off), evaluated once on the fresh seeds 120–139
+    # (0.144 against 0.167 off)
     follower_terminal_speed_weight: float = spec(0.0, ge=0.0)  # w_fT [J/kg per (m/s)²] (our choice; 0: off)
     # the human model of the prediction: the IDM with the calibrated ring population's median parameters
     # (aev_ocp.ring.humans.CALIBRATED["sugiyama_idm"], fitted to Sugiyama et al. 2008), no reaction time
