@@ -79,7 +79,8 @@ class Observation:
     sample times so far (oldest first, the last at t), the predecessor's latest plan of node speeds
     at t, t + dt, … when the predecessor publishes one (V2V), the command it applied last (after the
     vehicle's saturation), with an actuator lag its realised acceleration a_act and, with the thermal model
-    (``[thermal] enabled``), its pack temperature T_K [K] (a temperature sensor: read exactly, with sensors too).
+    (``[thermal] enabled``), its pack temperature T_K [K] (a temperature sensor: read exactly, with sensors too)
+    and, where the simulator provides it, its follower's gap to it and speed (a rear radar; read exactly).
 
     With sensors (:class:`aev_ocp.estimation.sensors.Sensors`) z and meas_v are what the car knows, not the
     plant's state: h, v, the predecessor speeds and V1, V2, S from the estimator (each bridged over its
@@ -97,6 +98,9 @@ class Observation:
     measurement: Measurement | None = None  # with sensors: the raw (noisy, late) measurement, SI
     estimate: Estimate | None = None  # with sensors and an estimator: its estimate, SI
     T_K: float | None = None  # the pack temperature at t [K] when the plant has the thermal model
+    # the vehicle behind (a rear radar): (its gap to this vehicle, its speed) at t [model length, model speed];
+    # None where no follower is measured (the last car of a platoon, a simulator that does not provide it)
+    follower: np.ndarray | None = None
 
 
 @dataclass

@@ -24,9 +24,14 @@ growth rate of the ring with that car, and the smallest speed weight w_v that ma
 constant speed, the fleet's speed std and the gap that car would need on the real ring; each seed's ratio printed);
 ``--bound-only`` runs that bound alone (no all-human, FollowerStopper or wave-MPC rings).
 
+``--variant-params JSON`` runs a second wave MPC (WaveParams fields over the first's) on every seed and prints both
+paired (:func:`variant_comparison`: speed-std ratios, the fraction of seeds above 0.20, mean speed against
+FollowerStopper's, energy, collisions, fallbacks); the follower term (``follower_speed_weight``) was screened so on
+seeds 0–19 and evaluated on 120–139 (``--record-suffix _follower_seeds120-139``, the term then off in the scenario).
+
     python benchmarks/bench_wave_mpc.py [--scenario FILE] [--seeds 20 ... 39] [--t-end-s 600] [--linear]
                                         [--safety] [--bound [V ...] [--bound-only]] [--wave-params JSON]
-                                        [--out results/bench_wave_mpc.json] [--record]
+                                        [--variant-params JSON] [--out results/bench_wave_mpc.json] [--record]
 
 ``--record`` also writes the JSON to tests/data/ (named after the scenario, plus ``--record-suffix``), where
 tests/test_wave_mpc.py checks that the guide quotes it: the table of seeds 60–79, the evaluations on seeds 80–99
@@ -72,6 +77,7 @@ METRICS = (
 )
 WAVE = "wave-mpc"
 FS = "followerstopper"
+VARIANT = "wave-mpc-variant"  # --variant-params: a second wave MPC on the same seeds
 
 
 def run_seed(
@@ -288,6 +294,46 @@ def bound_only(sc: Any, a: argparse.Namespace, t_end: float, load: float) -> int
     return write_outputs(doc, [Path(a.out)])
 
 
+def variant_comparison(per_seed: dict[int, dict[str, dict[str, Any]]], seeds: list[int]) -> dict[str, Any]:
+    """``--variant-params``: the default wave MPC and the variant on the same seeds, paired (95 % intervals): the
+    speed-std ratio to the all-human ring, the fraction of seeds above 0.20, the mean speed − FollowerStopper's [m/s],
+    the battery energy per km / all-human, collisions and fallbacks; printed and returned."""
+    out: dict[str, Any] = {}
+    print("\ndefault wave MPC vs the variant, paired over the seeds (95 % intervals):")
+    ratio = {}
+    for c in (WAVE, VARIANT):
+        hum = {k: per_seed[k]["human"] for k in seeds}
+        ratio[c] = [per_seed[k][c]["speed_std_mps"] / hum[k]["speed_std_mps"] for k in seeds]
+        out[c] = {
+            "speed_std_ratio_to_human": interval(ratio[c]),
+            "fraction_above_0.20": float(np.mean(np.asarray(ratio[c]) > 0.20)),
+            "mean_speed_minus_followerstopper_mps": interval(
+                [per_seed[k][c]["mean_speed_mps"] - per_seed[k][FS]["mean_speed_mps"] for k in seeds]
+            ),
+            "battery_energy_ratio_to_human": interval(
+                [per_seed[k][c]["battery_energy_J_per_km"] / hum[k]["battery_energy_J_per_km"] for k in seeds]
+            ),
+            "collisions": int(sum(per_seed[k][c]["collisions"] for k in seeds)),
+            "fallbacks": int(sum(per_seed[k][c]["fallbacks"] for k in seeds)),
+        }
+        o = out[c]
+        print(
+            f"  {c:18s} std ratio {o['speed_std_ratio_to_human']['mean']:.4f} [{o['speed_std_ratio_to_human']['lo']:.4f}, "
+            f"{o['speed_std_ratio_to_human']['hi']:.4f}], above 0.20: {o['fraction_above_0.20']:.2f}; mean speed − FS "
+            f"{o['mean_speed_minus_followerstopper_mps']['mean']:+.3f} [{o['mean_speed_minus_followerstopper_mps']['lo']:+.3f}, "
+            f"{o['mean_speed_minus_followerstopper_mps']['hi']:+.3f}] m/s; energy/km ÷ human "
+            f"{o['battery_energy_ratio_to_human']['mean']:.4f} [{o['battery_energy_ratio_to_human']['lo']:.4f}, "
+            f"{o['battery_energy_ratio_to_human']['hi']:.4f}]; collisions {o['collisions']}, fallbacks {o['fallbacks']}"
+        )
+    out["std_ratio_variant_minus_default"] = d = interval([b - a for a, b in zip(ratio[WAVE], ratio[VARIANT])])
+    print(f"  std ratio, variant − default: {d['mean']:+.4f} [{d['lo']:+.4f}, {d['hi']:+.4f}]")
+    print(
+        "  per seed (default, variant): "
+        + ", ".join(f"{k}: {a:.3f}/{b:.3f}" for k, a, b in zip(seeds, ratio[WAVE], ratio[VARIANT]))
+    )
+    return out
+
+
 def write_outputs(doc: dict[str, Any], outs: list[Path]) -> int:
     """Write ``doc`` as JSON to each path (atomically); 0."""
     for out in outs:
@@ -307,6 +353,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--linear", action="store_true", help="add the mixed-ring linear design check")
     ap.add_argument(
         "--wave-params", default="{}", help="WaveParams fields as JSON over the scenario's [ring.wave] (default: none)"
+    )
+    ap.add_argument(
+        "--variant-params",
+        default=None,
+        help="WaveParams fields as JSON over the wave MPC's: a second wave-MPC ring per seed, compared paired",
     )
     ap.add_argument("--safety", action="store_true", help="add the safety-suite cases under the safety layer")
     ap.add_argument(
@@ -331,6 +382,7 @@ def main(argv: list[str] | None = None) -> int:
     a = ap.parse_args(argv)
     sc = load_ring_scenario(a.scenario)
     wp = replace(WaveParams(**sc.spec.wave), **json.loads(a.wave_params))  # [ring.wave], then --wave-params
+    wp_var = replace(wp, **json.loads(a.variant_params)) if a.variant_params is not None else None
     t_end = a.t_end_s if a.t_end_s is not None else sc.spec.t_end_s
     ctrls: list[str | None] = [None, FS, WAVE]
     load = os.getloadavg()[0]
@@ -341,6 +393,8 @@ def main(argv: list[str] | None = None) -> int:
     per_seed: dict[int, dict[str, dict[str, Any]]] = {}
     for k in a.seeds:
         per_seed[k] = run_seed(sc, k, ctrls, t_end, wp)
+        if wp_var is not None:
+            per_seed[k][VARIANT] = run_seed(sc, k, [WAVE], t_end, wp_var)[WAVE]
         w = per_seed[k][WAVE]
         print(
             f"seed {k}: std human {per_seed[k]['human']['speed_std_mps']:.3f}  FS {per_seed[k][FS]['speed_std_mps']:.3f}"
@@ -405,6 +459,9 @@ def main(argv: list[str] | None = None) -> int:
         "table": table,
         "targets": verdicts,
     }
+    if wp_var is not None:
+        doc["variant_params"] = repr(wp_var)
+        doc["variant"] = variant_comparison(per_seed, a.seeds)
     if a.linear:
         doc["linear"] = lin = linear_design(sc, wp)
         print(

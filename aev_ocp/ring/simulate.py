@@ -1056,6 +1056,7 @@ class RingSimulator:
                 None,
                 r.a_prev[i],
                 float(z[i, 5]) if self.nx > 5 else None,
+                follower=np.array([z[(i + 1) % n, 0], z[(i + 1) % n, 1]]),  # the vehicle behind it (a rear radar)
             )
             _, r.a_prev[i] = r.steps[i].command(c, obs)
             self.params[i, 0] = r.a_prev[i]

@@ -758,8 +758,21 @@ class _SumoLoop:
         tr.meas_t.append(u.time_from_si(t_s))
         tr.meas_v.append(u.speed_from_si(v_lead))
         if (len(tr.t_s) - 1) % self.ctrl_every == 0:  # every controller dt since the vehicle departed
-            tr.a_cmd_mps2 = _call(tr, u, v, gap)
+            tr.a_cmd_mps2 = _call(tr, u, v, gap, self.follower(tr))
         return tr.a_cmd_mps2
+
+    def follower(self, tr: _Track) -> np.ndarray | None:
+        """The vehicle behind ``tr`` within the lookahead as a rear radar sees it: (its gap to ``tr`` [model length],
+        its speed [model speed]); None when there is none. SUMO's ``getFollower`` measures from the follower's front
+        plus its minGap to ``tr``'s back, so its minGap is added back (as ``getLeader``'s is for the leader)."""
+        V = self.V
+        f = V.getFollower(tr.vid, self.s.lookahead_m)
+        if not f or not f[0]:
+            return None
+        vt = V.getTypeID(f[0])
+        if vt not in self.min_gaps:
+            self.min_gaps[vt] = self.ts.vehicletype.getMinGap(vt)
+        return np.array([self.u.length_from_si(f[1] + self.min_gaps[vt]), self.u.speed_from_si(V.getSpeed(f[0]))])
 
     # ------------------------------------------------------------------ the result
     def result(self, wall: float) -> SumoRun:
@@ -860,13 +873,24 @@ def _route_goes_on(V: Any, vid: str, best: Any) -> bool:
     return edge in edges[idx:] and edges.index(edge, idx) < len(edges) - 1
 
 
-def _call(tr: _Track, u: Any, v: float, gap: float) -> float:
-    """One control instant of a sampled Controller on the vehicle's measurements through the loop core (checked,
-    conditioned, safety layer, limits); returns the acceleration the vehicle applies [m/s²]."""
+def _call(tr: _Track, u: Any, v: float, gap: float, follower: np.ndarray | None = None) -> float:
+    """One control instant of a sampled Controller on the vehicle's measurements (and its follower's, when one is
+    behind it: Observation.follower) through the loop core (checked, conditioned, safety layer, limits); returns the
+    acceleration the vehicle applies [m/s²]."""
     assert tr.ctrl is not None and tr.step is not None
     x = tr.x_bat[-1]
     z = np.array([u.length_from_si(gap), u.speed_from_si(v), x[0], x[1], x[2]])
-    obs = Observation(tr.meas_t[-1], tr.ctrl.dt, 0, z, np.asarray(tr.meas_t), np.asarray(tr.meas_v), None, tr.a_prev)
+    obs = Observation(
+        tr.meas_t[-1],
+        tr.ctrl.dt,
+        0,
+        z,
+        np.asarray(tr.meas_t),
+        np.asarray(tr.meas_v),
+        None,
+        tr.a_prev,
+        follower=follower,
+    )
     _, a = tr.step.command(tr.ctrl, obs)
     tr.step.rec["info"][-1] = {}  # (a SUMO run keeps no forecasts)
     return float(u.accel_to_si(a))
