@@ -171,6 +171,37 @@ def test_solver_paths_give_the_same_closed_loop(settings, canonical3):
         assert r.solver_stats[0]["solver_path"] == "sqp+codegen"
 
 
+def test_controllers_of_one_nlp_share_its_solvers_and_step_as_built_afresh(monkeypatch):
+    """aev_ocp.mpc.nlp.shared_nlpsol: two controllers of the same problem and settings share one warm and one cold
+    IPOPT; another vehicle (its numbers in the NLP: another graph) gets its own; and steps of the two sharing
+    controllers, interleaved, equal bit for bit those of a controller whose solvers were built afresh (an empty
+    memo)."""
+    import dataclasses
+    from collections import OrderedDict
+
+    import aev_ocp.mpc.nlp as nlp
+    from aev_ocp.params import VehicleParams
+
+    s = S9(N=8)
+    a, a2 = MPCController(s, EV, formulation=F9), MPCController(s, EV, formulation=F9)
+    assert a._fast is a2._fast and a._cold_ipopt is a2._cold_ipopt
+    ev_b = EVParams(vehicle=dataclasses.replace(VehicleParams(), mass_kg=1390.0, drag_coefficient=0.31))
+    b = MPCController(s, ev_b, formulation=F9)
+    assert b._fast is not a._fast and b._cold_ipopt is not a._cold_ipopt
+    monkeypatch.setattr(nlp, "_NLPSOLS", OrderedDict())
+    fresh = MPCController(s, EV, formulation=F9)
+    assert fresh._fast is not a._fast and fresh._cold_ipopt is not a._cold_ipopt
+    for k in range(3):  # a cold step, then warm ones, each controller's in turn
+        z = [0.5 + 0.05 * k, 1.2, 0.01, 0.005, 0.7]
+        fc = _forecast(0.1 * k, 8)
+        sols = [c.solve(z, *fc) for c in (a, b, a2, fresh)]
+        assert all(x.success for x in sols) and sols[0].path == ("ipopt-cold" if k == 0 else "ipopt")
+        sa, sb, sa2, sf = sols
+        for x in (sa, sa2):
+            assert np.array_equal(x.X, sf.X) and np.array_equal(x.a, sf.a) and x.iterations == sf.iterations
+        assert np.abs(sa.a - sb.a).max() > 1e-4  # the other vehicle's own solver follows its own numbers
+
+
 def test_codegen_without_compiler_falls_back_with_warning(monkeypatch):
     import aev_ocp.compiled as B
 
