@@ -687,6 +687,23 @@ def test_export_refuses_what_the_step_does_not_implement(tmp_path: Path) -> None
     assert not (tmp_path / "t").exists()
 
 
+def test_an_export_controller_builds_its_ipopt_only_when_it_solves() -> None:
+    """export_controller_settings: the cold IPOPT, which an export never runs, is not built with the controller
+    (~1 s at N = 40); a solve builds it then, and gives the plan of a controller that built it up front (the
+    export's problem has the OCV as comparisons: within IPOPT's tolerance)."""
+    from aev_ocp.mpc.controller import MPCController
+
+    s = MPCSettings(**{**CANON, "N": 6})
+    c = export_controller_settings(s, formulation=F9)
+    assert c.export_only and c._cold_ipopt is None
+    ref = MPCController(s.with_(solver="ipopt-cold", codegen=False), formulation=F9)
+    assert not ref.export_only and ref._cold_ipopt is not None
+    z, fc = np.array([0.3, 1.87, 0.0, 0.0, 0.8]), np.full(6, 1.7)
+    sol, sol_ref = c.solve(z, fc, fc), ref.solve(z, fc, fc)
+    assert c._cold_ipopt is not None and sol.success and sol.path == "ipopt-cold"
+    np.testing.assert_allclose(sol.X, sol_ref.X, rtol=0, atol=1e-7)
+
+
 def test_late_cold_start_of_the_compiled_step_warm_starts_the_next(monkeypatch: pytest.MonkeyPatch) -> None:
     """§9 on the compiled step with a budget below its cold start (SQP to convergence, several ms) but far
     above a warm step (0.2 ms): the first step is a 'budget' fallback whose plan warm-starts the next (it
