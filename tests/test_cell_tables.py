@@ -331,6 +331,7 @@ def _check_runtime_cell(cell: CellParams) -> None:
     S_all = np.array([*knots, *mids, *rng.uniform(0.0, 1.0, 300), -0.2, -1e-9, 1.0 + 1e-9, 1.3, t.soc[0] - 0.03])
     T_all = [*t.T_K, *(0.5 * (a + b) for a, b in zip(t.T_K, t.T_K[1:])), t.T_K[0] - 20.0, t.T_K[-1] + 7.0, 301.7]
     S, T = ca.SX.sym("S"), ca.SX.sym("T")
+    pm = ca.repmat(ca.DM(pv), 1, S_all.size)  # the parameters' values at every S (built once: issue 40)
     for smooth in (False, True):
         with battery.piecewise_ocv():  # the MPC's OCV (the B-spline's pieces); the twin's is these pieces anyway
             want = battery.cell_at(cell, T, S, smooth)
@@ -338,11 +339,10 @@ def _check_runtime_cell(cell: CellParams) -> None:
             f_want = ca.Function("w", [S, T], [battery.ocv(S, cell), *(getattr(want, k) for k in RC_TABLE_KEYS)])
         f_got = ca.Function("g", [S, T, p], [battery.ocv(S, twin), *(getattr(got, k) for k in RC_TABLE_KEYS)])
         assert ca.symvar(f_got(S, T, p)[0])  # the OCV is an expression of the parameters, not of numbers
+        m_want, m_got = f_want.map(S_all.size), f_got.map(S_all.size)  # T an input: one map for every T_K
         for T_K in T_all:
-            a = np.array([np.asarray(v).ravel() for v in f_want.map(S_all.size)(S_all, T_K)])
-            b = np.array(
-                [np.asarray(v).ravel() for v in f_got.map(S_all.size)(S_all, T_K, ca.repmat(ca.DM(pv), 1, S_all.size))]
-            )
+            a = np.array([np.asarray(v).ravel() for v in m_want(S_all, T_K)])
+            b = np.array([np.asarray(v).ravel() for v in m_got(S_all, T_K, pm)])
             assert np.all(np.isfinite(a))
             if smooth:  # the parametric B-spline fits its coefficients at run time: rounding apart
                 np.testing.assert_allclose(b, a, rtol=1e-12, atol=0)
@@ -356,7 +356,6 @@ def _check_runtime_cell(cell: CellParams) -> None:
             f_want = ca.Function("w", [S], [getattr(want, k) for k in RC_TABLE_KEYS])
             f_got = ca.Function("g", [S, p], [getattr(got, k) for k in RC_TABLE_KEYS])
             a = np.array([np.asarray(v).ravel() for v in f_want.map(S_all.size)(S_all)])
-            pm = ca.repmat(ca.DM(pv), 1, S_all.size)
             b = np.array([np.asarray(v).ravel() for v in f_got.map(S_all.size)(S_all, pm)])
             np.testing.assert_allclose(b, a, rtol=1e-12 if smooth else 0.0, atol=0)
     # the twin's OCV (B-spline pieces) outside the piecewise block: the numbers-in B-spline within 1e-12 on [0, 1]
@@ -364,7 +363,7 @@ def _check_runtime_cell(cell: CellParams) -> None:
     f_tw = ca.Function("t", [S, p], [battery.ocv(S, twin)])
     inside = S_all[(S_all >= 0.0) & (S_all <= 1.0)]
     np.testing.assert_allclose(
-        np.asarray(f_tw.map(inside.size)(inside, ca.repmat(ca.DM(pv), 1, inside.size))).ravel(),
+        np.asarray(f_tw.map(inside.size)(inside, pm[:, : inside.size])).ravel(),
         np.asarray(f_bs.map(inside.size)(inside)).ravel(),
         rtol=1e-12,
         atol=0,

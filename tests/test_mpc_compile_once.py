@@ -2,8 +2,15 @@
 formulation's SI parameters, the bounds and the cold-start law's coefficients are run-time inputs of the MPC's
 generated C, so controllers that differ only in those values share one compiled library; each still follows its
 own numbers: its steps equal those of the problem with its numbers written in, solved by the interpreted Python
-twin of the compiled step (tests/rti_twin.py), which shares no compiled code with it. Compilations are counted
-with :func:`aev_ocp.compiled.compilations`, never timed."""
+twin of the compiled step (tests/rti_twin.py), which shares no compiled code with it.
+
+Which libraries a controller asks the compile cache for is read by a spy on :func:`aev_ocp.compiled.compile_shared`
+(as the step's and the NLP's builders call it), in the environment's cache: a library is named by a hash of its
+generated source, compiler and flags, so two controllers that need two libraries ask for two paths whether the cache
+is empty or warm (issue 40: an empty cache per file compiled the -O3 mpc_step, ~8 s of gcc, and §9's IPOPT NLP,
+~4 s, in every run of the suite). That a library asked for twice is compiled once, and says so once, is checked on
+the compile cache itself: tests/test_compile_once.py (a real cold compile, counted) and
+tests/test_compiled_cache.py (concurrent processes, one 'compiling' line)."""
 
 from __future__ import annotations
 
@@ -61,30 +68,49 @@ def _numbers_in(ev: EVParams, formulation=DEFAULT_FORMULATION) -> MPCController:
     return install(MPCController(S.with_(codegen=False), ev, formulation=baked))
 
 
+def _spy_builds(m: pytest.MonkeyPatch) -> list[tuple[str, str]]:
+    """(stem, library file) of every library built or found in the compile cache from now on (under ``m``): the
+    compile_shared of aev_ocp.compiled (the step's builds) and of aev_ocp.mpc.nlp (the NLP's), spied."""
+    import aev_ocp.mpc.nlp as nlp
+
+    got: list[tuple[str, str]] = []
+    real = B.compile_shared
+
+    def spy(source: str, stem: str, *a, **kw):  # noqa: ANN002, ANN003, ANN202
+        built = real(source, stem, *a, **kw)
+        assert built.path is not None, built.error
+        got.append((stem, built.path.name))
+        return built
+
+    m.setattr(B, "compile_shared", spy)
+    m.setattr(nlp, "compile_shared", spy)
+    return got
+
+
 @pytest.fixture(scope="module")
-def step_cache(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, list[str], MPCController]:
-    """ONE empty compile cache for this file's tests that count the traffic step's compilations, and the first
-    controller of S built into it: (the cache, what that first build compiled, the controller). Every later controller
-    of the same structure, in any test of the file, must compile nothing (the compile-once invariant itself): the
-    file compiles the mpc_step library (~8 s of gcc at the tuned flags) once instead of once per test."""
-    cache = tmp_path_factory.mktemp("step_cache")
+def first_of_s() -> tuple[list[tuple[str, str]], MPCController]:
+    """The first controller of S built in this file, and the libraries it asked the compile cache for (shared by the
+    tests that compare later controllers of the same structure with it)."""
     with pytest.MonkeyPatch.context() as m:
-        m.setenv("AEV_OCP_CACHE", str(cache))
-        n0 = len(B.compilations())
+        got = _spy_builds(m)
         first = MPCController(S, _ev_a())
-        return cache, B.compilations()[n0:], first
+        return list(got), first
+
+
+def _loaded(c: MPCController) -> str:
+    """The file of the step library the controller loaded."""
+    assert c.compiled_step is not None
+    return Path(c.compiled_step.lib._name).name
 
 
 @pytest.mark.slow  # 32 steps of the compiled library and of its interpreted twin
-def test_two_vehicles_of_other_units_and_mass_share_one_library(step_cache, monkeypatch) -> None:  # noqa: ANN001
-    cache, first, ca_ = step_cache
-    monkeypatch.setenv("AEV_OCP_CACHE", str(cache))
-    assert first == ["mpc_step"]  # the first controller of S compiled its library into the empty cache
-    n0 = len(B.compilations())
+def test_two_vehicles_of_other_units_and_mass_share_one_library(first_of_s, monkeypatch) -> None:  # noqa: ANN001
+    first, ca_ = first_of_s
+    assert [stem for stem, _ in first] == ["mpc_step"]  # the first controller of S: its step library, nothing else
+    got = _spy_builds(monkeypatch)
     cb = MPCController(S, _ev_b())
-    assert B.compilations()[n0:] == []  # one library for both: the second vehicle compiles nothing
-    assert ca_.compiled_step is not None and cb.compiled_step is not None
-    assert list((cache / "mpc").glob("mpc_step_*.so")).__len__() == 1
+    assert got == first  # one library for both: the second vehicle asks for the same file
+    assert _loaded(ca_) == _loaded(cb) == first[0][1]
     runs = {}
     for name, c, ev in (("a", ca_, _ev_a()), ("b", cb, _ev_b())):
         a, X = _run(c)
@@ -95,44 +121,47 @@ def test_two_vehicles_of_other_units_and_mass_share_one_library(step_cache, monk
     assert np.abs(runs["a"] - runs["b"]).max() > 1e-3  # each follows its own numbers
 
 
-def test_a_traffic_rti_controller_compiles_no_ipopt_nlp_it_never_runs(step_cache, monkeypatch) -> None:  # noqa: ANN001
+def test_a_traffic_rti_controller_compiles_no_ipopt_nlp_it_never_runs(first_of_s, monkeypatch) -> None:  # noqa: ANN001
     """The cold IPOPT's NLP (library mpc_nlp_ipopt, ~0.65 MB of C) is generated and compiled only for a controller
     that can run it: the traffic formulation's rti path starts cold by RTI and never does, §9's interpreted rti path
     starts with a cold IPOPT and builds it with the controller (a first step that had to build it would blow its time
-    budget). In the file's cache, where the first controller of S compiled mpc_step and nothing else: a second one,
-    and its cold step, compile nothing at all (moved here from tests/test_compile_once.py, issue 40: it compiled the
-    same mpc_step library in a cache of its own)."""
-    cache, first, _ = step_cache
-    monkeypatch.setenv("AEV_OCP_CACHE", str(cache))
-    assert first == ["mpc_step"]  # the first controller of S compiled its step and no IPOPT NLP
-    n0 = len(B.compilations())
+    budget). The first controller of S asked for mpc_step and nothing else: a second one asks for the same file, and
+    its cold step for nothing at all (moved here from tests/test_compile_once.py, issue 40)."""
+    first, _ = first_of_s
+    assert [stem for stem, _ in first] == ["mpc_step"]  # the first controller of S: its step and no IPOPT NLP
+    got = _spy_builds(monkeypatch)
     traffic = MPCController(S)
-    assert B.compilations()[n0:] == []
+    assert got == first
     sol = traffic.solve(np.array([1.3, 0.9, 0.0, 0.0, 0.8]), np.full(6, 0.95), np.full(6, 0.95))
     assert sol.success and sol.path != "ipopt-cold"
-    assert B.compilations()[n0:] == []  # a cold step of the traffic path builds no IPOPT
-    # §9's rti path starts with a cold IPOPT: built with the controller (interpreted here: no second compilation)
+    assert got == first  # a cold step of the traffic path builds no IPOPT
+    # §9's rti path starts with a cold IPOPT: built with the controller (interpreted here: no library)
     s9 = MPCController(S.with_(codegen=False), formulation=s9_formulation())
     assert s9._cold_ipopt is not None and traffic._cold_ipopt is None
+    assert got == first
 
 
-@pytest.mark.slow  # one IPOPT NLP library (~10 s of gcc)
-def test_s9_ipopt_nlp_is_one_library_for_two_vehicles(tmp_path, monkeypatch) -> None:
-    monkeypatch.setenv("AEV_OCP_CACHE", str(tmp_path / "cache"))
+@pytest.mark.slow  # two IPOPT controllers on the compiled NLP and two on the interpreted one
+def test_s9_ipopt_nlp_is_one_library_for_two_vehicles(monkeypatch) -> None:  # noqa: ANN001
+    got = _spy_builds(monkeypatch)
     s = MPCSettings(N=5, dt=0.1, solver="ipopt", codegen=True)
     f = s9_formulation()
-    n0 = len(B.compilations())
-    got = {}
+    out = {}
     for name, ev in (("a", _ev_a()), ("b", _ev_b())):
+        n0 = len(got)
         c = MPCController(s, ev, formulation=f)
+        assert c.codegen_active
+        out[name] = got[n0:]
         ref = MPCController(s.with_(codegen=False), ev, formulation=problem_formulation(f.build(ev, s.dt)))
         z, vm, vh = _inputs(1)
         sol, sol_ref = c.solve(z, vm[:5], vh[:5]), ref.solve(z, vm[:5], vh[:5])
         assert sol.success and sol_ref.success
         np.testing.assert_allclose(sol.X, sol_ref.X, rtol=0, atol=1e-7)  # IPOPT tolerance 1e-8
-        got[name] = sol.a[0]
-    assert B.compilations()[n0:] == ["mpc_nlp_ipopt"]
-    assert abs(got["a"] - got["b"]) > 1e-3
+        out[name + "_a0"] = sol.a[0]
+    # each vehicle's IPOPT (warm and cold) asks for the NLP's library and nothing else: one file for both
+    assert out["a"] and out["b"] and {stem for stem, _ in out["a"] + out["b"]} == {"mpc_nlp_ipopt"}
+    assert {lib for _, lib in out["a"] + out["b"]} == {out["a"][0][1]}
+    assert abs(out["a_a0"] - out["b_a0"]) > 1e-3
 
 
 @pytest.mark.parametrize(

@@ -179,20 +179,45 @@ def _source_key(src: Path, tool: str, names: tuple[str, ...] = ()) -> str:
     return key.hexdigest()[:24]
 
 
-def _build(src: Path, out_lib: Path) -> Path:
-    """``build_library(src, out_lib)`` through the environment's compile cache (``$AEV_OCP_CACHE``, as the codegen
-    tests): a library that build_library made from the same C sources, headers and compiler before is copied, so a
-    warm cache compiles nothing. build_library itself runs in test_mpc_export_builds_into_a_relative_out (``--build``)
-    and the canonical export's own Makefile in canonical_lib (whenever its sources, Makefile or compiler change)."""
+def _cached_compiler(real: Any) -> Any:
+    """A stand-in for aev_ocp.compiled.run_tool (how build_library runs the compiler) through the environment's
+    compile cache (``$AEV_OCP_CACHE``, as the codegen tests): the library that the same command (its output name
+    left out), run on the same C sources and headers of its folder, wrote before is copied to where the compiler,
+    run in that folder, would write it; else the compiler runs and what it wrote is kept. So build_library itself
+    (its command, its folder and output path, its errors) runs in every test, and a warm cache compiles nothing."""
     from aev_ocp.compiled import cache_dir
 
-    cached = cache_dir("mpc_export_tests") / f"lib_{_source_key(src, 'build_library')}.so"
-    if not cached.is_file():
-        tmp = cached.with_name(f".{cached.name}.{os.getpid()}")
-        build_library(src, tmp)
-        os.replace(tmp, cached)  # atomic: a concurrent run finds a whole library or none
-    shutil.copyfile(cached, out_lib)
-    return out_lib
+    def run(cmd: list[str], cwd: Any, timeout_s: float) -> subprocess.CompletedProcess[str]:
+        k = cmd.index("-o") + 1
+        target = Path(cwd) / cmd[k]  # a relative output is the compiler's, in its folder cwd
+        key = hashlib.sha256("\0".join([*cmd[:k], *cmd[k + 1 :]]).encode())
+        for f in sorted(p for p in Path(cwd).iterdir() if p.suffix in (".c", ".h")):
+            key.update(f.name.encode() + b"\0" + f.read_bytes() + b"\0")
+        cached = cache_dir("mpc_export_tests") / f"cc_{key.hexdigest()[:24]}.so"
+        if not cached.is_file():
+            proc = real(cmd, cwd, timeout_s)
+            if proc.returncode == 0:
+                tmp = cached.with_name(f".{cached.name}.{os.getpid()}")
+                shutil.copyfile(target, tmp)
+                os.replace(tmp, cached)  # atomic: a concurrent run finds a whole library or none
+            return proc
+        try:
+            shutil.copyfile(cached, target)
+        except OSError as exc:  # what the compiler would say when it cannot write its output there
+            return subprocess.CompletedProcess(cmd, 1, "", f"cannot open output file {cmd[k]}: {exc.strerror}")
+        return subprocess.CompletedProcess(cmd, 0, "", "")
+
+    return run
+
+
+def _build(src: Path, out_lib: Path) -> Path:
+    """``build_library(src, out_lib)`` with its compiler run through the compile cache (:func:`_cached_compiler`).
+    The canonical export's own Makefile runs in canonical_lib (whenever its sources, Makefile or compiler change)."""
+    import aev_ocp.compiled
+
+    with pytest.MonkeyPatch.context() as m:
+        m.setattr(aev_ocp.compiled, "run_tool", _cached_compiler(aev_ocp.compiled.run_tool))
+        return build_library(src, out_lib)
 
 
 @pytest.fixture(scope="module")
@@ -662,6 +687,23 @@ def test_export_refuses_what_the_step_does_not_implement(tmp_path: Path) -> None
     assert not (tmp_path / "t").exists()
 
 
+def test_an_export_controller_builds_its_ipopt_only_when_it_solves() -> None:
+    """export_controller_settings: the cold IPOPT, which an export never runs, is not built with the controller
+    (~1 s at N = 40); a solve builds it then, and gives the plan of a controller that built it up front (the
+    export's problem has the OCV as comparisons: within IPOPT's tolerance)."""
+    from aev_ocp.mpc.controller import MPCController
+
+    s = MPCSettings(**{**CANON, "N": 6})
+    c = export_controller_settings(s, formulation=F9)
+    assert c.export_only and c._cold_ipopt is None
+    ref = MPCController(s.with_(solver="ipopt-cold", codegen=False), formulation=F9)
+    assert not ref.export_only and ref._cold_ipopt is not None
+    z, fc = np.array([0.3, 1.87, 0.0, 0.0, 0.8]), np.full(6, 1.7)
+    sol, sol_ref = c.solve(z, fc, fc), ref.solve(z, fc, fc)
+    assert c._cold_ipopt is not None and sol.success and sol.path == "ipopt-cold"
+    np.testing.assert_allclose(sol.X, sol_ref.X, rtol=0, atol=1e-7)
+
+
 def test_late_cold_start_of_the_compiled_step_warm_starts_the_next(monkeypatch: pytest.MonkeyPatch) -> None:
     """§9 on the compiled step with a budget below its cold start (SQP to convergence, several ms) but far
     above a warm step (0.2 ms): the first step is a 'budget' fallback whose plan warm-starts the next (it
@@ -734,11 +776,14 @@ def test_mpc_export_refuses_a_users_folder_and_a_huge_horizon_before_generating(
 
 
 def test_mpc_export_builds_into_a_relative_out(tmp_path, capsys, monkeypatch):
-    from aev_ocp.compiled import compiler
+    import aev_ocp.compiled
 
-    if compiler() is None:
+    if aev_ocp.compiled.compiler() is None:
         pytest.skip("no C compiler")
     monkeypatch.chdir(tmp_path)
+    # --build's compiler run through the compile cache (issue 40: ~3 s of gcc in every run): the library that the
+    # same command wrote before is copied where the compiler, run in the export folder, would write it
+    monkeypatch.setattr(aev_ocp.compiled, "run_tool", _cached_compiler(aev_ocp.compiled.run_tool))
     # a short horizon: the point is where the library is built, not the problem (N = 40 compiles the same code)
     rc, out, err = run_cli(
         ["mpc-export", "mpc_paper_single", "--out", "rel_dir", "--set", "mpc.N=5", "--build"], capsys

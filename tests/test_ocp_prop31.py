@@ -16,7 +16,10 @@ CELL = CellParams()
 
 @pytest.fixture(scope="module")
 def cases() -> dict[str, dict[str, dict]]:
-    return {m: run_prop31(m, N=200) for m in ("ms", "collocation")}
+    """The four cases by both transcriptions at N = 200, without the 2N refinement (no test here reads it; it is
+    checked in tests/test_ocp_checks.py: issue 40, its two solvers at N = 400 per transcription were half the file's
+    time)."""
+    return {m: run_prop31(m, N=200, refine=False) for m in ("ms", "collocation")}
 
 
 def riccati_continuous_J(cell: CellParams, V0: tuple[float, float], t_f: float) -> float:

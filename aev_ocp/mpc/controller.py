@@ -133,7 +133,8 @@ class MPCController:
     default the traffic formulation); ``problem``: a user :class:`OCPProblem` or :class:`ProblemBuilder`
     instead (it becomes the formulation); ``guess_law``: closed-form law rolled out over the
     horizon as the cold-start guess (default the paper's proposed law); ``parameter_values`` /
-    ``initial_values``: values of a user problem's extra parameters / own states by name.
+    ``initial_values``: values of a user problem's extra parameters / own states by name; ``export_only``: a
+    controller built to be exported, whose cold IPOPT is built on its first solve, if any, not with it.
     """
 
     def __init__(
@@ -145,8 +146,13 @@ class MPCController:
         parameter_values: dict[str, float] | None = None,
         initial_values: dict[str, float] | None = None,
         formulation: Formulation | None = None,
+        *,
+        export_only: bool = False,
     ) -> None:
         self.settings = settings or MPCSettings()
+        #: built to be exported (:func:`aev_ocp.mpc.export.export_controller_settings`): its cold IPOPT, which an export
+        #: never runs, is built on its first use instead of with the controller (~1 s at N = 40)
+        self.export_only = export_only
         if not isinstance(self.settings, MPCSettings):
             raise ParameterError(f"MPCController: settings must be an MPCSettings, got {type(settings).__name__}")
         self.ev = ev or EVParams()
@@ -303,7 +309,7 @@ class MPCController:
         elif s.solver == "rti":
             self._build_rti()
         # 'ipopt-cold': the cold IPOPT at every step
-        if not (s.solver == "rti" and (self.rti_cold_start or self.compiled_step is not None)):
+        if not self.export_only and not (s.solver == "rti" and (self.rti_cold_start or self.compiled_step is not None)):
             # the cold IPOPT is built with the controller only where a cold start runs it: the rti path of a
             # formulation that starts cold by RTI (traffic) never does (its failed steps start cold by RTI again),
             # and §9's compiled step starts cold by itself, handing over to the cold IPOPT only after a cold start

@@ -91,7 +91,8 @@ def export_controller_settings(
     initial_values: dict[str, float] | None = None,
     formulation: Any = None,
 ) -> "MPCController":
-    """A controller built only for the export (cold IPOPT path, no codegen: nothing is compiled); a built-in
+    """A controller built only for the export (cold IPOPT path, no codegen: nothing is compiled; the IPOPT, which
+    the export never runs, built only if the controller solves); a built-in
     formulation's problem is built as the rti path builds it (the OCV as comparisons, models/battery.py), and
     the controller keeps the formulation (its cold start: the exported step's COLD_ITER)."""
     from ..models.battery import piecewise_ocv
@@ -100,11 +101,12 @@ def export_controller_settings(
     f = resolve_formulation(formulation, problem, parameter_values, initial_values)
     refuse_temperature_state(f)
     c: MPCController
+    s = settings.with_(solver="ipopt-cold", codegen=False)
     if f.kind != "problem":
         with piecewise_ocv():
-            c = MPCController(settings.with_(solver="ipopt-cold", codegen=False), ev or EVParams(), formulation=f)
+            c = MPCController(s, ev or EVParams(), formulation=f, export_only=True)
         return c
-    return MPCController(settings.with_(solver="ipopt-cold", codegen=False), ev, formulation=f)
+    return MPCController(s, ev, formulation=f, export_only=True)
 
 
 #: Control steps of the recorded input an export writes (mpc_input.txt).

@@ -19,9 +19,12 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+import hashlib
+import json
 import os
 import tempfile
 import warnings
+from collections import OrderedDict
 from pathlib import Path
 from typing import Any, Callable
 
@@ -43,6 +46,44 @@ _PLUGIN_GEN_OPTS: dict[str, dict[str, Any]] = {
         "qpsol_options": {"print_info": False, "print_header": False, "print_iter": False},
     }
 }
+
+#: nlpsol Functions built in this process, by a hash of what each was built from (name, plugin, the NLP's whole
+#: graph or its compiled library's path, and the options), the most recently used last. Controllers of the same
+#: problem and settings (the vehicles of a platoon, the runs of a sweep, a controller built again on the same
+#: settings) share one solver instead of each expanding the NLP and its exact Hessian again (~1 s at N = 40, issue
+#: 40). An nlpsol keeps nothing from one call to the next that changes a result (each controller already calls its
+#: own many times), and every caller reads the solver's stats right after its own call.
+_NLPSOLS: "OrderedDict[str, ca.Function]" = OrderedDict()
+NLPSOL_MEMO_SIZE = 32  # keys kept, two per solver at most (an N = 40 expanded IPOPT holds a few MB)
+
+
+def shared_nlpsol(name: str, plugin: str, problem: dict[str, Any] | str, opts: dict[str, Any]) -> ca.Function:
+    """``ca.nlpsol(name, plugin, problem, opts)``, built once per process for the same name, plugin, problem (its
+    serialized graph: equal bit for bit, constants included; or the same compiled library) and options."""
+    keys = [_nlpsol_key(name, plugin, problem, opts)]
+    f = _NLPSOLS.get(keys[0])
+    if f is None:
+        f = ca.nlpsol(name, plugin, problem, opts)
+        # building the solver leaves derivatives cached in the Functions its graph calls (e.g. the OCV's B-spline),
+        # which their serialization holds: the same problem built next has the graph as it is now
+        keys.append(_nlpsol_key(name, plugin, problem, opts))
+    for k in keys:
+        _NLPSOLS[k] = f
+        _NLPSOLS.move_to_end(k)
+    while len(_NLPSOLS) > NLPSOL_MEMO_SIZE:
+        _NLPSOLS.popitem(last=False)
+    return f
+
+
+def _nlpsol_key(name: str, plugin: str, problem: dict[str, Any] | str, opts: dict[str, Any]) -> str:
+    """A hash of the name, plugin, options and problem (the serialized graph of the NLP dict, or the library path)."""
+    if isinstance(problem, str):
+        what = problem.encode()
+    else:
+        what = ca.Function("nlp", [problem["x"], problem["p"]], [problem["f"], problem["g"]]).serialize().encode()
+    h = hashlib.sha256("\0".join((name, plugin, json.dumps(opts, sort_keys=True, default=repr))).encode())
+    h.update(b"\0" + what)
+    return h.hexdigest()
 
 
 class HorizonNLP:
@@ -197,13 +238,14 @@ class HorizonNLP:
 
     def nlpsol(self, name: str, plugin: str, opts: dict[str, Any]) -> tuple[ca.Function, bool]:
         """(nlpsol on the compiled library of the NLP functions when codegen is on and works, else on the
-        symbolic NLP expanded to SX; whether it is compiled)."""
+        symbolic NLP expanded to SX; whether it is compiled), one per process for the same NLP and options
+        (:func:`shared_nlpsol`)."""
         base = {"print_time": False, "error_on_fail": False}
         if self.settings.codegen:
             lib = self.compile(plugin)
             if lib is not None:
-                return ca.nlpsol(name, plugin, lib, {**base, **opts}), True
-        return ca.nlpsol(name, plugin, self.nlp, {**base, "expand": True, **opts}), False
+                return shared_nlpsol(name, plugin, lib, {**base, **opts}), True
+        return shared_nlpsol(name, plugin, self.nlp, {**base, "expand": True, **opts}), False
 
     def ipopt(self, name: str, warm: bool) -> tuple[ca.Function, bool]:
         """IPOPT on the NLP (exact Hessian, MUMPS), cold or warm-started; see :meth:`nlpsol`."""
