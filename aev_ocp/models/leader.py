@@ -290,7 +290,7 @@ class SpeedTrace(LeaderProfile):
         return self._cumulative[k] + v[k] * tau + 0.5 * slope * tau**2
 
     def max_speed(self, t_end: float, n: int = 20001) -> float:
-        """Maximum speed over [0, t_end] [model speed], exact: a piecewise-linear speed peaks at a knot or at an
+        """Maximum speed over [0, t_end] in model speed, exact: a piecewise-linear speed peaks at a knot or at an
         end of the interval (``n``, the grid of the general method, is not needed)."""
         times, v = np.asarray(self.times), np.asarray(self.speeds)
         t_end = max(float(t_end), 0.0)  # speed() holds its first value before 0
