@@ -140,16 +140,13 @@ class LocalClusterProcess:
             time.sleep(0.02)
 
 
-def _group_alive(pgid: int) -> bool:
-    """Whether a process of group ``pgid`` still runs (zombies, which hold nothing open, do not count; where
-    there is no /proc, any member counts)."""
+def _group_members(pgid: int) -> list[int] | None:
+    """The live processes of group ``pgid`` (zombies, which hold nothing open, do not count); None where there is
+    no /proc to read them from."""
     proc = Path("/proc")
     if not proc.is_dir():
-        try:
-            os.killpg(pgid, 0)
-        except (ProcessLookupError, PermissionError):
-            return False
-        return True
+        return None
+    pids = []
     for p in proc.iterdir():
         if p.name.isdigit():
             try:
@@ -157,29 +154,31 @@ def _group_alive(pgid: int) -> bool:
             except OSError:
                 continue
             if int(stat[2]) == pgid and stat[0] not in ("Z", "X"):
-                return True
-    return False
+                pids.append(int(p.name))
+    return pids
+
+
+def _group_alive(pgid: int) -> bool:
+    """Whether a process of group ``pgid`` still runs (zombies do not count; where there is no /proc, any member
+    counts)."""
+    members = _group_members(pgid)
+    if members is None:
+        try:
+            os.killpg(pgid, 0)
+        except (ProcessLookupError, PermissionError):
+            return False
+        return True
+    return bool(members)
 
 
 def _end_group_but_me(wait_s: float = 2.0) -> None:
     """SIGKILL every other live process of this process's group (the cluster's nannies and workers, and what they
     started) and wait up to ``wait_s`` [s] until they are gone (zombies count as gone); where there is no /proc,
     nothing."""
-    me, group, proc = os.getpid(), os.getpgrp(), Path("/proc")
-    if not proc.is_dir():
-        return
+    me, group = os.getpid(), os.getpgrp()
 
     def others() -> list[int]:
-        pids = []
-        for p in proc.iterdir():
-            if p.name.isdigit() and int(p.name) != me:
-                try:
-                    stat = (p / "stat").read_text().rsplit(")", 1)[-1].split()
-                except OSError:
-                    continue
-                if int(stat[2]) == group and stat[0] not in ("Z", "X"):
-                    pids.append(int(p.name))
-        return pids
+        return [pid for pid in _group_members(group) or [] if pid != me]
 
     deadline = time.monotonic() + wait_s
     while (pids := others()) and time.monotonic() < deadline:
