@@ -8,9 +8,8 @@ through this module as a separate process in a new session (:class:`LocalCluster
 sees the terminal's signals, and it stops the cluster itself.
 
 The cluster process writes its scheduler's address as one JSON line on a pipe of its own, then serves until its stdin
-closes (the study ended, whatever way, even killed) or it gets SIGTERM/SIGINT; then it closes the cluster (a killed
-study's cluster first kills its workers, computing or not: nobody waits for their results). Whatever of its process
-group is still alive after the study's grace period is killed.
+closes (the study ended, whatever way, even killed) or it gets SIGTERM/SIGINT; then it closes the cluster.
+Whatever of its process group is still alive after the study's grace period is killed.
 """
 
 from __future__ import annotations
@@ -36,9 +35,6 @@ CLOSE_GRACE_S = 10.0
 #: After an interrupt or a failure, the same, short: the user is waiting for the prompt [s]. A cluster that has
 #: not started yet is killed at once.
 INTERRUPT_GRACE_S = 1.0
-#: What the study writes on the cluster process's stdin before it closes it: a stop. Its stdin ending without it
-#: means the study was killed (its pipe closed by the kernel; the process may not even be re-parented yet).
-STOP_WORD = b"aev-ocp: stop\n"
 #: The last characters of the cluster process's log shown when it fails to start.
 LOG_TAIL_CHARS = 600
 
@@ -109,11 +105,6 @@ class LocalClusterProcess:
         process group is left (scheduler, nannies, workers, resource tracker). Safe to call twice."""
         if self.proc.stdin is not None and not self.proc.stdin.closed:
             try:
-                self.proc.stdin.write(STOP_WORD)  # a stop, not the end of a killed study
-                self.proc.stdin.flush()
-            except OSError:
-                pass
-            try:
                 self.proc.stdin.close()
             except OSError:
                 pass
@@ -140,13 +131,16 @@ class LocalClusterProcess:
             time.sleep(0.02)
 
 
-def _group_members(pgid: int) -> list[int] | None:
-    """The live processes of group ``pgid`` (zombies, which hold nothing open, do not count); None where there is
-    no /proc to read them from."""
+def _group_alive(pgid: int) -> bool:
+    """Whether a process of group ``pgid`` still runs (zombies, which hold nothing open, do not count; where
+    there is no /proc, any member counts)."""
     proc = Path("/proc")
     if not proc.is_dir():
-        return None
-    pids = []
+        try:
+            os.killpg(pgid, 0)
+        except (ProcessLookupError, PermissionError):
+            return False
+        return True
     for p in proc.iterdir():
         if p.name.isdigit():
             try:
@@ -154,40 +148,8 @@ def _group_members(pgid: int) -> list[int] | None:
             except OSError:
                 continue
             if int(stat[2]) == pgid and stat[0] not in ("Z", "X"):
-                pids.append(int(p.name))
-    return pids
-
-
-def _group_alive(pgid: int) -> bool:
-    """Whether a process of group ``pgid`` still runs (zombies do not count; where there is no /proc, any member
-    counts)."""
-    members = _group_members(pgid)
-    if members is None:
-        try:
-            os.killpg(pgid, 0)
-        except (ProcessLookupError, PermissionError):
-            return False
-        return True
-    return bool(members)
-
-
-def _end_group_but_me(wait_s: float = 2.0) -> None:
-    """SIGKILL every other live process of this process's group (the cluster's nannies and workers, and what they
-    started) and wait up to ``wait_s`` [s] until they are gone (zombies count as gone); where there is no /proc,
-    nothing."""
-    me, group = os.getpid(), os.getpgrp()
-
-    def others() -> list[int]:
-        return [pid for pid in _group_members(group) or [] if pid != me]
-
-    deadline = time.monotonic() + wait_s
-    while (pids := others()) and time.monotonic() < deadline:
-        for pid in pids:
-            try:
-                os.kill(pid, signal.SIGKILL)
-            except OSError:
-                pass
-        time.sleep(0.02)
+                return True
+    return False
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -203,7 +165,6 @@ def main(argv: list[str] | None = None) -> int:
         raise SystemExit(0)
 
     study = os.getppid()
-    said, killed = b"", False
     signal.signal(signal.SIGTERM, stop)
     signal.signal(signal.SIGINT, stop)
     import dask
@@ -221,19 +182,12 @@ def main(argv: list[str] | None = None) -> int:
     try:
         with os.fdopen(a.address_fd, "w") as addr:
             addr.write(json.dumps({"address": cluster.scheduler_address}) + "\n")
-        while chunk := sys.stdin.buffer.read(65536):  # until the study closes its end (or ends)
-            said = (said + chunk)[-len(STOP_WORD) :]
-        killed = said != STOP_WORD  # the end of stdin without the study's word: the study was killed
+        while sys.stdin.buffer.read(65536):  # until the study closes its end (or ends)
+            pass
     finally:
         logging.getLogger("distributed").setLevel(logging.CRITICAL)  # "stream closed" while closing is no news
-        if killed:  # nobody waits for the study's tasks nor cleans up after it
-            # its workers end now, computing or not (a busy worker's graceful close took 4 s; issue 40); then nobody
-            # else will remove their scratch folder, and this process ends without a close (the scheduler is here)
-            _end_group_but_me()
-            shutil.rmtree(a.scratch, ignore_errors=True)
-            os._exit(0)
         cluster.close(timeout=CLOSE_GRACE_S)
-        if os.getppid() != study:  # the study ended meanwhile: nobody else will remove the workers' scratch folder
+        if os.getppid() != study:  # the study was killed: nobody else will remove the workers' scratch folder
             shutil.rmtree(a.scratch, ignore_errors=True)
     return 0
 
