@@ -823,3 +823,41 @@ def test_plain_c_step_with_own_states_matches_the_python_controller_in_closed_lo
         du, dx = _compare(r, rp)
         assert du <= TOL and dx <= TOL, (name, du, dx)
     assert np.abs(np.diff(rp.accel[:, 0])).max() > 1e-3  # a_prev changes: a shifted node would be seen
+
+
+def test_the_compiled_steps_c_is_generated_once_per_structure(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:
+    """CompiledStep's generated C (aev_ocp.mpc.cstep.generated_casadi) is generated once per process for the same
+    five functions: a second controller of the same settings generates nothing and gets the source write_sources
+    writes for it; a controller whose functions differ by a number in them (the car's mass, 1873 kg against
+    1752 kg: what a key of the functions' names and sizes alone would miss) generates again and gets its own
+    source, the one write_sources writes for it."""
+    import dataclasses
+
+    from aev_ocp.mpc import cstep
+
+    monkeypatch.setattr(cstep, "_GENERATED", {})
+    generated: list[int] = []
+    real = cstep.generate_casadi
+
+    def counted(c: Any, folder: Path, functions: Any = None) -> None:
+        generated.append(1)
+        real(c, folder, functions)
+
+    monkeypatch.setattr(cstep, "generate_casadi", counted)
+
+    def fresh(c: Any, name: str) -> tuple[str, ...]:  # what write_sources writes (generate_casadi's own files)
+        cstep.write_sources(c, tmp_path / name, "x", values=False)
+        return tuple((tmp_path / name / n).read_text(encoding="utf-8") for n in ("mpc_casadi.c", "mpc_casadi.h"))
+
+    ev, s = EVParams(), MPCSettings(N=7, qp_solver="riccati", codegen=False)
+    got = cstep.generated_casadi(export_controller_settings(s, ev))
+    again = export_controller_settings(s, ev)
+    assert len(generated) == 1 and cstep.generated_casadi(again) == got and len(generated) == 1
+    assert fresh(again, "again") == got
+    heavier = export_controller_settings(
+        s, dataclasses.replace(ev, vehicle=dataclasses.replace(ev.vehicle, mass_kg=1873.0))
+    )
+    n = len(generated)  # (write_sources generates: fresh() counts too)
+    mine = cstep.generated_casadi(heavier)
+    assert len(generated) == n + 1 and mine != got
+    assert fresh(heavier, "heavier") == mine

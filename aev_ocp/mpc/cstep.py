@@ -49,6 +49,7 @@ the step keeps ocp_qp.c (12 of 12).
 from __future__ import annotations
 
 import ctypes
+import hashlib
 import os
 import subprocess
 import tempfile
@@ -305,10 +306,11 @@ def rti_functions(c: ExportableController) -> list[ca.Function]:
     return [guess, shift, qpdata, node0, ev]
 
 
-def generate_casadi(c: ExportableController, folder: Path) -> None:
-    """Write mpc_casadi.c and mpc_casadi.h (the five functions, CasADi's generated C)."""
+def generate_casadi(c: ExportableController, folder: Path, functions: list[ca.Function] | None = None) -> None:
+    """Write mpc_casadi.c and mpc_casadi.h (the five functions, CasADi's generated C; ``functions``: the controller's
+    :func:`rti_functions`, if built already)."""
     cg = ca.CodeGenerator("mpc_casadi.c", {"with_header": True})
-    for f in rti_functions(c):
+    for f in rti_functions(c) if functions is None else functions:
         cg.add(f)
     cwd = os.getcwd()
     os.chdir(folder)
@@ -455,6 +457,29 @@ def write_sources(c: ExportableController, folder: Path, description: str, value
     (folder / "mpc_config.h").write_text(config_header(c, description, values), encoding="utf-8")
     for name in TEMPLATES:
         (folder / name).write_text(_template(name), encoding="utf-8")
+
+
+#: CasADi's generated C of :class:`CompiledStep` in this process: a hash of the five functions (serialized: every
+#: operation, constant and name the generated C is written from) and of CasADi's version -> (mpc_casadi.c,
+#: mpc_casadi.h). Controllers of the same structure (one library for them all, issue 40) generate it once.
+_GENERATED: dict[str, tuple[str, str]] = {}
+
+
+def generated_casadi(c: ExportableController) -> tuple[str, str]:
+    """(mpc_casadi.c, mpc_casadi.h) of the controller's five functions: :func:`generate_casadi`'s files, generated
+    once per process for the same functions (:data:`_GENERATED`)."""
+    functions = rti_functions(c)
+    key = hashlib.sha256(str(ca.CasadiMeta.version()).encode())
+    for f in functions:
+        key.update(b"\0" + f.serialize().encode())
+    digest = key.hexdigest()
+    if digest not in _GENERATED:
+        with tempfile.TemporaryDirectory() as tmp:
+            generate_casadi(c, Path(tmp), functions)
+            _GENERATED[digest] = tuple(  # type: ignore[assignment]
+                Path(tmp, n).read_text(encoding="utf-8") for n in ("mpc_casadi.c", "mpc_casadi.h")
+            )
+    return _GENERATED[digest]
 
 
 # ---------------------------------------------------------------------------------------------- export
@@ -727,14 +752,15 @@ class CompiledStep:
                 stacklevel=4,
             )
             return None
-        with tempfile.TemporaryDirectory() as tmp:
-            # the problem's numbers are not in the source (set below): one library per structure (issue 40)
-            write_sources(c, Path(tmp), f"MPC controller {c.problem.name}", values=False)
-            files = {
-                n: Path(tmp, n).read_text(encoding="utf-8")
-                for n in ("mpc_config.h", "mpc_casadi.h", "mpc_step.h", "mpc_step.c", "ocp_qp.h", "ocp_qp.c")
-            }
-            main = Path(tmp, "mpc_casadi.c").read_text(encoding="utf-8")
+        # the sources of write_sources(c, folder, description, values=False): the problem's numbers are not in them
+        # (set below), so one library serves every controller of the structure, and the generated C is generated
+        # once per process (issue 40: a controller's build regenerated it only to find the cached library)
+        main, header = generated_casadi(c)
+        files = {
+            "mpc_config.h": config_header(c, f"MPC controller {c.problem.name}", values=False),
+            "mpc_casadi.h": header,
+            **{n: _template(n) for n in ("mpc_step.h", "mpc_step.c", "ocp_qp.h", "ocp_qp.c")},
+        }
         defines = tuple(f"-D{d}" for d in qp_dimension_defines(c))
         # tuned first (-O3, the native CPU, contraction off: the same bits as the plain build, about 0.85x the
         # step's time; tests/test_compiled_speed.py), else plain

@@ -8,11 +8,13 @@
   and the ramp (vehicles per hour) with SUMO's own human-driver model.
 
 Each builder writes the plain XML (``*.nod.xml``, ``*.edg.xml``, ``*.con.xml``), the network and the routes into a
-folder and returns their paths; the same parameters give the same files.
+folder and returns their paths; the same parameters give the same files. netconvert runs once per process for the
+same plain XML (:func:`netconvert`): a study or a test file running many SUMO runs on one network pays for one build.
 """
 
 from __future__ import annotations
 
+import hashlib
 import math
 import subprocess
 from dataclasses import dataclass
@@ -140,9 +142,9 @@ class MergeNetwork:
         return 2 * self.main_length_m + 400.0 + 3 * self.accel_lane_m + 2 * self.after_m
 
 
-def run_tool(args: list[str], what: str) -> None:
-    """Run a SUMO tool; its first error line becomes a one-line :class:`SumoError`."""
-    proc = subprocess.run(args, capture_output=True, text=True, check=False)
+def run_tool(args: list[str], what: str, cwd: Path | None = None) -> None:
+    """Run a SUMO tool (in folder ``cwd``, if given); its first error line becomes a one-line :class:`SumoError`."""
+    proc = subprocess.run(args, capture_output=True, text=True, check=False, cwd=cwd)
     if proc.returncode != 0:
         raise SumoError(f"{what}: {first_error(proc.stderr + proc.stdout)}")
 
@@ -152,6 +154,33 @@ def first_error(text: str) -> str:
     lines = [ln.strip() for ln in text.splitlines() if ln.strip()]
     err = next((ln for ln in lines if ln.startswith("Error")), lines[-1] if lines else "failed without a message")
     return err.removeprefix("Error:").strip()
+
+
+#: netconvert's networks built in this process: a hash of its binary, its options and the plain XML it read (the
+#: names and texts of its input files) -> the network it wrote (bytes; its header names the inputs relative to the
+#: folder, so the same bytes are right in any folder)
+_BUILT: dict[str, bytes] = {}
+
+
+def netconvert(folder: Path, inputs: list[tuple[str, str]], out: str, options: list[str], what: str) -> Path:
+    """``netconvert <flag> <file> ... -o out <options>`` run in ``folder`` on its plain-XML files ``inputs``
+    ((flag, file name) pairs, written there before), or, when this process built a network from the same files
+    (names and texts), options and netconvert binary before, that network written to ``folder / out``."""
+    binary = sumo_binary("netconvert")
+    key = hashlib.sha256()
+    for part in (binary, out, *options):
+        key.update(part.encode() + b"\0")
+    for flag, name in inputs:
+        key.update(f"{flag}\0{name}\0".encode() + (folder / name).read_bytes() + b"\0")
+    digest = key.hexdigest()
+    target = folder / out
+    if digest in _BUILT:
+        target.write_bytes(_BUILT[digest])
+        return target
+    args = [binary, *(x for pair in inputs for x in pair), "-o", out, *options]
+    run_tool(args, what, cwd=folder)
+    _BUILT[digest] = target.read_bytes()
+    return target
 
 
 def _write(path: Path, text: str) -> Path:
@@ -184,20 +213,11 @@ def build_ring(net: RingNetwork, folder: Path, t_end_s: float) -> tuple[Path, li
         + edge.format(id="bottom", f="b", t="a", v=net.lane_speed_mps, L=half, s=arc(math.pi, 2 * math.pi))
         + "</edges>\n",
     )
-    out = folder / "ring.net.xml"
-    run_tool(
-        [
-            sumo_binary("netconvert"),
-            "-n",
-            str(folder / "ring.nod.xml"),
-            "-e",
-            str(folder / "ring.edg.xml"),
-            "-o",
-            str(out),
-            "--no-internal-links",
-            "--no-turnarounds",
-            "--no-warnings",
-        ],
+    out = netconvert(
+        folder,
+        [("-n", "ring.nod.xml"), ("-e", "ring.edg.xml")],
+        "ring.net.xml",
+        ["--no-internal-links", "--no-turnarounds", "--no-warnings"],
         "netconvert (ring)",
     )
     laps = int(math.ceil(t_end_s * net.lane_speed_mps / net.length_m)) + 2
@@ -249,21 +269,11 @@ def build_merge(net: MergeNetwork, folder: Path, t_end_s: float) -> tuple[Path, 
         '  <connection from="accel" to="after" fromLane="2" toLane="1"/>\n'
         "</connections>\n",
     )
-    out = folder / "merge.net.xml"
-    run_tool(
-        [
-            sumo_binary("netconvert"),
-            "-n",
-            str(folder / "merge.nod.xml"),
-            "-e",
-            str(folder / "merge.edg.xml"),
-            "-x",
-            str(folder / "merge.con.xml"),
-            "-o",
-            str(out),
-            "--no-turnarounds",
-            "--no-warnings",
-        ],
+    out = netconvert(
+        folder,
+        [("-n", "merge.nod.xml"), ("-e", "merge.edg.xml"), ("-x", "merge.con.xml")],
+        "merge.net.xml",
+        ["--no-turnarounds", "--no-warnings"],
         "netconvert (merge)",
     )
     rows = [
