@@ -29,6 +29,10 @@ from aev_ocp.study import runner as runner_mod
 from aev_ocp.study.report import pareto_mask
 from aev_ocp.study.tables import report_columns
 
+# the study reports' figures at TEST_DPI (aev_ocp.plots.DPI): these tests check that each figure is written and shown,
+# not its resolution (tests/conftest.py)
+pytestmark = pytest.mark.usefixtures("module_figures_at_test_dpi")
+
 # Table 1 platoon cut to 3 followers and t_end = 2.5: cheap, but every metric non-trivial.
 STUDY = """
 name = "tiny"
