@@ -20,7 +20,7 @@ import json
 import os
 from collections import defaultdict
 from pathlib import Path
-from typing import Any
+from typing import Any, Iterator
 
 import pytest
 
@@ -96,6 +96,18 @@ def figures_at_test_dpi(monkeypatch: pytest.MonkeyPatch) -> None:
     from helpers import TEST_DPI
 
     monkeypatch.setattr(aev_ocp.plots, "DPI", TEST_DPI)
+
+
+@pytest.fixture(scope="module")
+def module_figures_at_test_dpi() -> Iterator[None]:
+    """:func:`figures_at_test_dpi` for a whole module (``pytestmark = pytest.mark.usefixtures(...)``), also for a
+    module-scoped fixture's figures and for a hypothesis test (which refuses function-scoped fixtures)."""
+    import aev_ocp.plots
+    from helpers import TEST_DPI
+
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(aev_ocp.plots, "DPI", TEST_DPI)
+        yield
 
 
 def pytest_runtest_logreport(report: pytest.TestReport) -> None:

@@ -80,10 +80,46 @@ def test_the_site_owns_its_pages_and_executes_every_notebook() -> None:
     assert "mkdocs build --strict" in (ROOT / ".ci" / "run").read_text(encoding="utf-8")
 
 
+# Both builds of the scratch site in one process (issue 40: a second interpreter importing mkdocs, its plugins and
+# nbconvert cost 1-3 s of CPU): mkdocs' own command line (``mkdocs build --strict -q``, click's standalone mode, whose
+# SystemExit code is the command's exit status, and an exception out of it status 1 with its traceback, as the
+# interpreter gives) on the broken notebook, then on the fixed one; each notebook is
+# executed by a kernel of its own, as in a build of its own.
+_TWO_BUILDS = """
+import json, shutil, sys, traceback
+from pathlib import Path
+
+from mkdocs.__main__ import cli
+
+def build(source):
+    nb = {
+        "cells": [{"cell_type": "code", "metadata": {}, "source": source, "outputs": [], "execution_count": None}],
+        "metadata": {"kernelspec": {"name": "python3", "display_name": "Python 3", "language": "python"}},
+        "nbformat": 4,
+        "nbformat_minor": 5,
+    }
+    Path("docs/nb.ipynb").write_text(json.dumps(nb), encoding="utf-8")
+    shutil.rmtree("site", ignore_errors=True)
+    try:
+        cli.main(["build", "--strict", "-q"], prog_name="mkdocs")
+    except SystemExit as stop:
+        return stop.code if isinstance(stop.code, int) else 1
+    except Exception:  # what the interpreter does with an exception out of the command: its traceback, status 1
+        traceback.print_exc()
+        return 1
+    return 0
+
+for name, source in zip(("bad", "good"), sys.argv[1:3]):
+    code = build(source)
+    sys.stderr.flush()
+    print(f"@@ build {name} exit {code}", flush=True)
+    print(f"@@ build {name} exit {code}", file=sys.stderr, flush=True)
+"""
+
+
 def test_a_broken_notebook_fails_the_strict_build(tmp_path) -> None:
     """The site's mkdocs-jupyter settings on a scratch site whose one notebook raises: ``mkdocs build --strict``
     exits non-zero naming the error (so CI fails on a broken notebook); the same notebook fixed builds."""
-    import shutil
     import subprocess
     import sys
 
@@ -97,28 +133,26 @@ def test_a_broken_notebook_fails_the_strict_build(tmp_path) -> None:
         "site_name: scratch\nnav:\n  - Home: index.md\n  - NB: nb.ipynb\nplugins:\n  - mkdocs-jupyter:" + plugin + "\n",
         encoding="utf-8",
     )
-
-    def build(source: str) -> subprocess.CompletedProcess[str]:
-        nb = {
-            "cells": [{"cell_type": "code", "metadata": {}, "source": source, "outputs": [], "execution_count": None}],
-            "metadata": {"kernelspec": {"name": "python3", "display_name": "Python 3", "language": "python"}},
-            "nbformat": 4,
-            "nbformat_minor": 5,
-        }
-        (tmp_path / "docs" / "nb.ipynb").write_text(json.dumps(nb), encoding="utf-8")
-        shutil.rmtree(tmp_path / "site", ignore_errors=True)
-        return subprocess.run(
-            [sys.executable, "-m", "mkdocs", "build", "--strict", "-q"],
-            cwd=tmp_path,
-            capture_output=True,
-            text=True,
-            timeout=600,
-        )
-
-    bad = build("x = 3.25\nraise ValueError('planted notebook error')")
-    assert bad.returncode != 0 and "planted notebook error" in bad.stdout + bad.stderr
-    good = build("x = 3.25\nprint(x * 2)")
-    assert good.returncode == 0, good.stderr[-2000:]
+    p = subprocess.run(
+        [
+            sys.executable,
+            "-c",
+            _TWO_BUILDS,
+            "x = 3.25\nraise ValueError('planted notebook error')",
+            "x = 3.25\nprint(x * 2)",
+        ],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
+    assert p.returncode == 0, p.stderr[-2000:]
+    bad_out, rest_out = p.stdout.split("@@ build bad exit ", 1)
+    bad_err, rest_err = p.stderr.split("@@ build bad exit ", 1)
+    bad_code, rest_out = rest_out.split("\n", 1)
+    good_err = rest_err.split("\n", 1)[1]
+    assert int(bad_code) != 0 and "planted notebook error" in bad_out + bad_err
+    assert rest_out.strip() == "@@ build good exit 0", good_err[-2000:]
     assert "6.5" in (tmp_path / "site" / "nb" / "index.html").read_text(encoding="utf-8")
     assert not (tmp_path / ".cache").exists()  # nothing cached for the next build to reuse
 

@@ -19,6 +19,10 @@ from aev_ocp import reproduce as rp
 from aev_ocp.report import PAPER_TABLE1, percent_change, table1_disagreements
 from aev_ocp.report_html import heading_anchor
 
+# the study reports' figures at TEST_DPI (aev_ocp.plots.DPI): these tests check that each figure is written and shown,
+# not its resolution (tests/conftest.py)
+pytestmark = pytest.mark.usefixtures("module_figures_at_test_dpi")
+
 
 @pytest.fixture(scope="module")
 def quick_report(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, str]:

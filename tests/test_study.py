@@ -29,6 +29,10 @@ from aev_ocp.study import runner as runner_mod
 from aev_ocp.study.report import pareto_mask
 from aev_ocp.study.tables import report_columns
 
+# the study reports' figures at TEST_DPI (aev_ocp.plots.DPI): these tests check that each figure is written and shown,
+# not its resolution (tests/conftest.py)
+pytestmark = pytest.mark.usefixtures("module_figures_at_test_dpi")
+
 # Table 1 platoon cut to 3 followers and t_end = 2.5: cheap, but every metric non-trivial.
 STUDY = """
 name = "tiny"
@@ -423,7 +427,13 @@ def test_dask_scheduler_address(tmp_path):
     distributed = pytest.importorskip("dask.distributed")
     f = _study(tmp_path, STUDY.replace("values = [0.35, 0.9]", "values = [0.35]"))
     ref = run_study(read_study(f), tmp_path / "ref", executor="inprocess", report=False)
-    with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=None) as cl:
+    # the cluster's worker a thread of this process, its scheduler on TCP: the study still reaches it by its address
+    # and sends it the tasks (issue 40: a worker process importing NumPy, CasADi and aev_ocp cost 3-5 s of CPU and
+    # checked nothing the --dask-local tests do not)
+    with distributed.LocalCluster(
+        n_workers=1, threads_per_worker=1, processes=False, protocol="tcp://", dashboard_address=None
+    ) as cl:
+        assert cl.scheduler_address.startswith("tcp://")
         out = run_study(
             read_study(f), tmp_path / "sched", executor="dask", scheduler=cl.scheduler_address, report=False
         )

@@ -17,6 +17,7 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
+from .. import plots  # noqa: E402
 from ..plots import comparable_dots  # noqa: E402
 from ..results import save_figure_atomic, write_atomic  # noqa: E402
 from .table import EQUAL_METRIC
@@ -47,7 +48,7 @@ def _primary_axes(study: Study) -> list[str]:
 def _save(fig: Any, path: Path) -> Path:
     fig.tight_layout()
     try:  # a unique temporary name beside path, removed on any failure (Ctrl-C included)
-        save_figure_atomic(fig, path, dpi=120)
+        save_figure_atomic(fig, path, dpi=plots.DPI)  # the package's figure resolution (120 dpi)
     finally:
         plt.close(fig)
     return path
