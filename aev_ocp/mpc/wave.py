@@ -145,7 +145,8 @@ class WaveParams:
     # own motion so that the driver behind it stays at the reference speed (pulls it along instead of only holding
     # its own speed). 0 and 0: off (the problem is built without the follower states, as before the term)
     follower_speed_weight: float = spec(0.0, ge=0.0)  # w_f [W/kg per (m/s)²] (our choice; 0: off, the default: in
-    # SUMO's merge one controlled car with the term stopped at its lane's end, docs/guide/studies.md). The calibrated
+    # SUMO's IDM ring it made the spread worse; its merge stop, the law's NaN above v0, is fixed by the guards of
+    # WaveMPC.usable_follower; docs/guide/studies.md). The calibrated
     # ring sets 300 (scenarios/ring_wave.toml's [ring.wave]): screened on its seeds 0–19 at 30, 100, 300, 1000
     # (speed-std ratio 0.172, 0.151, 0.146, 0.142 against 0.183 off), evaluated once on the fresh seeds 120–139
     # (0.144 against 0.167 off)
@@ -154,8 +155,8 @@ class WaveParams:
     # valid near the equilibrium gap, would predict an absurd acceleration; SUMO's merge: a follower 133-148 m behind
     # on the ramp); the term is also off while v_ref is above FOLLOWER_V0_SHARE of the law's desired speed v0,
     # where the law has no equilibrium (the merge's 23 m/s against the calibrated v0 = 16.35 m/s: NaN in the problem)
-    follower_range_m: float = spec(60.0, gt=0.0)  # [m] (our choice: the gap ceiling's s_max; screened on SUMO
-    # seeds 100-109 and ring seeds 0-19)
+    follower_range_m: float = spec(60.0, gt=0.0)  # [m] (our choice: the gap ceiling's s_max; checked on the seen
+    # SUMO merge seed 102 and calibrated-ring seeds 0-4, where it never acts; fresh: docs/guide/studies.md)
     # the human model of the prediction: the IDM with the calibrated ring population's median parameters
     # (aev_ocp.ring.humans.CALIBRATED["sugiyama_idm"], fitted to Sugiyama et al. 2008), no reaction time
     follower_law: IDM = spec(
