@@ -185,6 +185,41 @@ def test_without_a_measured_follower_the_term_is_off():
         assert np.ptp([a for a, _ in moves[0]]) > 1e-3  # the steps differ: warm starts, not one solve repeated
 
 
+def _move_at(wp: WaveParams, v_mps: float, follower: np.ndarray | None) -> tuple[float, bool]:
+    """The first move [m/s²] of a wave MPC at own speed v_mps = v_ref (k = 0), 18 m behind a leader at the same speed,
+    and whether it was solved."""
+    c = WaveMPC(EV, Proposed(), replace(wp, catch_gain_per_s=0.0), S)
+    v = float(U.speed_from_si(v_mps))
+    z = np.array([float(U.length_from_si(18.0 + 1.2 * v_mps)), v, 0.0, 0.0, EV.cell.soc0])
+    cmd = c.command(Observation(0.0, S.dt, 0, z, np.array([0.0]), np.array([v]), None, 0.0, follower=follower))
+    return float(U.accel_to_si(cmd.a)), cmd.ok
+
+
+@pytest.mark.parametrize(
+    "v_mps, gap_m, vf_mps, used",
+    [
+        (5.0, 58.7, 5.4, True),  # within the radar's range (60 m): the far, fast follower moves the car
+        (5.0, 61.3, 5.4, False),  # beyond it: no follower
+        (14.2, 31.0, 13.1, True),  # v_ref below 0.9 v0 = 14.7 m/s of the calibrated law: its equilibrium exists
+        (15.3, 31.0, 13.1, False),  # above: the law has no equilibrium near v_ref (NaN at v0 = 16.35 m/s): none
+    ],
+)
+def test_a_follower_out_of_range_or_where_the_law_has_no_equilibrium_is_none(v_mps, gap_m, vf_mps, used):
+    """A measured follower the term cannot use (farther than ``follower_range_m``, or v_ref above FOLLOWER_V0_SHARE of
+    the law's v0, where SUMO's merge put NaN into the problem) leaves the command the weight-0 controller's, bit for
+    bit, and solved; one it can use changes it."""
+    fol = np.array([float(U.length_from_si(gap_m)), float(U.speed_from_si(vf_mps))])
+    on = WaveParams(follower_speed_weight=W_F)
+    assert on.follower_range_m == 60.0 and 0.9 * LAW.v0_mps == pytest.approx(14.715)
+    a_on, ok_on = _move_at(on, v_mps, fol)
+    a_off, ok_off = _move_at(OFF, v_mps, fol)
+    assert ok_on and ok_off
+    if used:
+        assert abs(a_on - a_off) > 1e-3
+    else:
+        assert a_on == a_off
+
+
 def test_a_follower_that_comes_and_goes_keeps_one_reference():
     """A follower measured, then not, then again: v_ref stays the mean of every own speed measured (one window,
     shared by the controller and its follower-less twin) and each step is solved (no fallback)."""
@@ -241,11 +276,12 @@ def sumo_radar(ev: EVParams) -> SumoRadar:
     return SUMO_RADARS[-1]
 
 
-@pytest.mark.parametrize("human", ["krauss", "idm"])
-def test_sumo_observes_the_vehicle_behind_as_its_own_leader_gap_gives_it(human):
+@pytest.mark.parametrize("human, lookahead_m", [("krauss", 250.0), ("idm", 250.0), ("krauss", 4.7)])
+def test_sumo_observes_the_vehicle_behind_as_its_own_leader_gap_gives_it(human, lookahead_m):
     """In the SUMO ring (Krauss drivers: no minGap; IDM drivers: minGap s0 = 2 m) the controlled car's follower
     observation is the gap (plus minGap) and speed of the vehicle whose leader it is, read from SUMO independently of
-    getFollower, at every control instant."""
+    getFollower, at every control instant; with a radar range (the lookahead) shorter than some of those gaps, a
+    vehicle farther behind is no follower (None; SUMO's getFollower may return it)."""
     from aev_ocp.sumo import sumo_available
 
     if not sumo_available():
@@ -262,13 +298,16 @@ def test_sumo_observes_the_vehicle_behind_as_its_own_leader_gap_gives_it(human):
             "share": 0.0,
             "ids": ["ring.3"],
             "ring": {"human": human},
+            "lookahead_m": lookahead_m,
         }
     }
     SUMO_RADARS.clear()
     run_sumo(parse_sumo_scenario(doc))
     r = SUMO_RADARS[-1]
-    seen = [(fol, tr) for (_, fol), tr in zip(r.seen, r.truth) if tr is not None]
-    assert len(seen) >= 20
+    seen = [(fol, tr) for (_, fol), tr in zip(r.seen, r.truth) if tr is not None and tr[0] <= lookahead_m]
+    beyond = [fol for (_, fol), tr in zip(r.seen, r.truth) if tr is not None and tr[0] > lookahead_m]
+    assert len(seen) >= 20 and (lookahead_m > 100 or len(beyond) >= 5)
+    assert all(fol is None for fol in beyond)
     for fol, (gap_m, v_mps) in seen:
         assert fol is not None
         assert float(r.units.length_to_si(fol[0])) == pytest.approx(gap_m, abs=1e-6)

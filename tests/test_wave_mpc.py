@@ -209,6 +209,36 @@ def test_the_wave_buffer_raises_the_target_gap_by_c_times_the_predecessor_speed_
     assert np.isnan(c.predecessor_speeds.value)
 
 
+@pytest.mark.parametrize("beta", [1.0, 0.35])
+def test_the_reference_base_is_the_blend_of_own_and_predecessor_mean_speeds(beta):
+    """``base_predecessor_share`` = β: v_ref = B + clip(k (h̄ − s_t − T_t B − c σ_l), −v_c, v_c), B = (1 − β) U + β U_l,
+    U and U_l the means of the last 5 own and predecessor speeds (hand computation; the predecessor's speeds are not
+    the car's, so B is not U)."""
+    wp = WaveParams(
+        window_s=1.0,
+        catch_gain_per_s=0.23,
+        target_gap_m=7.5,
+        target_time_gap_s=1.7,
+        buffer_time_s=0.6,
+        base_predecessor_share=beta,
+    )
+    c = WaveMPC(EV, Proposed(), wp, S)
+    speeds = [2.3, 3.1, 2.7, 3.6, 2.9, 3.3, 2.6]
+    gaps = [16.0, 14.5, 17.5, 15.0, 16.5, 13.5, 18.0]
+    leads = [4.7, 3.8, 5.3, 4.1, 4.9, 3.6, 5.6]
+    for k, (v, h, vl) in enumerate(zip(speeds, gaps, leads)):
+        cmd = c.command(obs(h, v, vl, t=0.1 * k))
+        w = slice(max(0, k - 4), k + 1)
+        base = (1.0 - beta) * np.mean(speeds[w]) + beta * np.mean(leads[w])
+        raw = 0.23 * (np.mean(gaps[w]) - 7.5 - 1.7 * base - 0.6 * np.std(leads[w]))
+        assert abs(raw) < 1.0  # inside the saturation
+        assert abs(base - np.mean(speeds[w])) > 0.4  # the predecessor's mean is not the own one
+        assert cmd.info["v_ref_mps"] == pytest.approx(base + raw, rel=1e-9), k
+    assert WaveParams().base_predecessor_share == 0.0  # the default: the own mean, as before
+    with pytest.raises(ParameterError, match="base_predecessor_share"):
+        WaveParams(base_predecessor_share=1.2)
+
+
 def test_the_speed_band_clips_v_ref_after_the_catch_up():
     """v_ref = clip(U + clip(k (h̄ − s_t − T_t U), −v_c, v_c), v_lo, v_hi): below, inside and above the band, and each
     side alone; an empty band is refused."""

@@ -99,6 +99,11 @@ class WaveParams:
     # gap is large): v_ref = U + clip(k (h̄ − h_t(U)), −v_c, v_c), h̄ the mean measured gap over window_s,
     # h_t(U) = s_t + T_t U; in steady state h̄ = h_t: an integral action that sets the ring's speed
     catch_gain_per_s: float = spec(0.1, ge=0.0)  # k [1/s] (our choice, seeds 0–2; 0: off, v_ref = U)
+    # the base of v_ref: (1 − β) U + β U_l, U_l the mean of the predecessor's measured speed over window_s (the same
+    # window); U, the car's own mean, makes v_ref = U + catch an integrator of the catch-up (its speed drifts while
+    # the catch-up is not 0), so with the windowed gap h̄ the loop is two integrators and a 19 s lag: behind steady
+    # drivers it swings (SUMO's Krauss ring: a 75 s cycle); U_l does not move with the car's own speed
+    base_predecessor_share: float = spec(0.0, ge=0.0, le=1.0)  # β (our choice; 0: U, as before)
     target_gap_m: float = spec(8.0, ge=0.0)  # s_t [m] (our choice, seed 0: on the calibrated ring the car
     # settles near 3.9 m/s with a 16 m gap, where a smooth car leaves little wave behind it, when it gets out of
     # the jam it starts in: on 1 of the unseen seeds 10–19; docs/guide/studies.md)
@@ -140,11 +145,18 @@ class WaveParams:
     # own motion so that the driver behind it stays at the reference speed (pulls it along instead of only holding
     # its own speed). 0 and 0: off (the problem is built without the follower states, as before the term)
     follower_speed_weight: float = spec(0.0, ge=0.0)  # w_f [W/kg per (m/s)²] (our choice; 0: off, the default: in
-    # SUMO's merge one controlled car with the term stopped at its lane's end, docs/guide/studies.md). The calibrated
+    # SUMO's IDM ring it made the spread worse; its merge stop, the law's NaN above v0, is fixed by the guards of
+    # WaveMPC.usable_follower; docs/guide/studies.md). The calibrated
     # ring sets 300 (scenarios/ring_wave.toml's [ring.wave]): screened on its seeds 0–19 at 30, 100, 300, 1000
     # (speed-std ratio 0.172, 0.151, 0.146, 0.142 against 0.183 off), evaluated once on the fresh seeds 120–139
     # (0.144 against 0.167 off)
     follower_terminal_speed_weight: float = spec(0.0, ge=0.0)  # w_fT [J/kg per (m/s)²] (our choice; 0: off)
+    # the rear radar's range for the term: a follower farther behind than this is no follower (its linearised law,
+    # valid near the equilibrium gap, would predict an absurd acceleration; SUMO's merge: a follower 133-148 m behind
+    # on the ramp); the term is also off while v_ref is above FOLLOWER_V0_SHARE of the law's desired speed v0,
+    # where the law has no equilibrium (the merge's 23 m/s against the calibrated v0 = 16.35 m/s: NaN in the problem)
+    follower_range_m: float = spec(60.0, gt=0.0)  # [m] (our choice: the gap ceiling's s_max; checked on the seen
+    # SUMO merge seed 102 and calibrated-ring seeds 0-4, where it never acts; fresh: docs/guide/studies.md)
     # the human model of the prediction: the IDM with the calibrated ring population's median parameters
     # (aev_ocp.ring.humans.CALIBRATED["sugiyama_idm"], fitted to Sugiyama et al. 2008), no reaction time
     follower_law: IDM = spec(
@@ -209,6 +221,10 @@ def wave_problem(ev: EVParams, wp: WaveParams | None = None, dt: float = 0.1, na
     pb.meta.update({"wave": wp})
     return pb
 
+
+#: the term predicts the follower only while v_ref <= this share of its law's v0 (at v0 the IDM's equilibrium gap is
+#: infinite; at 0.9 v0 it is 1.9 times the gap s0 + T v: our choice)
+FOLLOWER_V0_SHARE = 0.9
 
 #: the follower states of the wave problem (its gap to the car [model length], its speed [model speed]) and the
 #: switch of the follower term (1: a follower is measured, 0: none; constant over the horizon)
@@ -344,9 +360,11 @@ class WaveMPC(MPCPolicy):
         p, u = self.params, self.units
         U = self.average.update(v)
         h_bar = float(u.length_to_si(self.gap_average.update(h)))
-        U_si = float(u.speed_to_si(U))
         buf = self.predecessor_speeds._buf
         sigma_l = float(u.speed_to_si(np.std(buf))) if buf else 0.0
+        if p.base_predecessor_share > 0 and buf:
+            U = (1.0 - p.base_predecessor_share) * U + p.base_predecessor_share * float(np.mean(buf))
+        U_si = float(u.speed_to_si(U))
         if p.hold_min_mps > 0:
             self.armed = self.armed or U_si < p.hold_min_mps
             calm = p.hold_sigma_mps <= 0 or sigma_l <= p.hold_sigma_mps
@@ -370,16 +388,29 @@ class WaveMPC(MPCPolicy):
     def own_states(self, obs: Observation) -> dict[str, float]:
         """The policy's own states plus v_ref [model speed] (:meth:`reference`, this step's measurements included)."""
         own = super().own_states(obs)
+        fol = self.usable_follower(obs) if self.with_follower else None  # decided as command() did (the last v_ref)
         if len(obs.meas_v):
             self.predecessor_speeds.update(float(obs.meas_v[-1]))
         self.v_ref = own["v_ref"] = self.reference(float(obs.z[0]), float(obs.z[1]))
         if self.with_follower:
-            fol = obs.follower
             if fol is None:  # no follower measured (command() hands such a step to without_follower()): term off
                 own.update(h_f=float(obs.z[0]), v_f=float(obs.z[1]), follower_on=0.0)
             else:
                 own.update(h_f=float(fol[0]), v_f=float(fol[1]), follower_on=1.0)
         return own
+
+    def usable_follower(self, obs: Observation) -> np.ndarray | None:
+        """The measured follower (its gap [model length], its speed [model speed]) if the term may use it, else None:
+        none measured, its gap beyond ``follower_range_m``, or the step's speed (the last v_ref; the own measured
+        speed before the first) above FOLLOWER_V0_SHARE of the follower law's v0 (v_ref moves by far less than the
+        margin in one step)."""
+        fol, u = obs.follower, self.units
+        if fol is None or float(u.length_to_si(fol[0])) > self.params.follower_range_m:
+            return None
+        v_star = self.v_ref if np.isfinite(self.v_ref) else float(obs.z[1])
+        if float(u.speed_to_si(v_star)) > FOLLOWER_V0_SHARE * self.params.follower_law.v0_mps:
+            return None
+        return fol
 
     def without_follower(self) -> "WaveMPC":
         """The wave MPC without the follower term (the follower weights 0: the problem without its states) that
@@ -396,7 +427,7 @@ class WaveMPC(MPCPolicy):
         """The policy's command with v_ref in its info; with the follower term and no measured follower, the
         command of :meth:`without_follower` (so such a step is exactly the follower-less MPC's; a switch between the
         two forgets the warm start of the one taking over)."""
-        if self.with_follower and obs.follower is None:
+        if self.with_follower and self.usable_follower(obs) is None:
             plain = self.without_follower()
             if not self._plain_last:
                 plain.controller.reset()
@@ -472,6 +503,7 @@ def linear_gains(
 
 
 __all__ = [
+    "FOLLOWER_V0_SHARE",
     "WAVE_NAME",
     "SpeedAverage",
     "WaveMPC",

@@ -764,7 +764,8 @@ class _SumoLoop:
     def follower(self, tr: _Track) -> np.ndarray | None:
         """The vehicle behind ``tr`` within the lookahead as a rear radar sees it: (its gap to ``tr`` [model length],
         its speed [model speed]); None when there is none. SUMO's ``getFollower`` measures from the follower's front
-        plus its minGap to ``tr``'s back, so its minGap is added back (as ``getLeader``'s is for the leader)."""
+        plus its minGap to ``tr``'s back, so its minGap is added back (as ``getLeader``'s is for the leader); it may
+        return a follower farther back than the distance asked (its documentation), which is then None here."""
         V = self.V
         f = V.getFollower(tr.vid, self.s.lookahead_m)
         if not f or not f[0]:
@@ -772,7 +773,10 @@ class _SumoLoop:
         vt = V.getTypeID(f[0])
         if vt not in self.min_gaps:
             self.min_gaps[vt] = self.ts.vehicletype.getMinGap(vt)
-        return np.array([self.u.length_from_si(f[1] + self.min_gaps[vt]), self.u.speed_from_si(V.getSpeed(f[0]))])
+        gap = f[1] + self.min_gaps[vt]
+        if gap > self.s.lookahead_m:  # beyond the radar's range
+            return None
+        return np.array([self.u.length_from_si(gap), self.u.speed_from_si(V.getSpeed(f[0]))])
 
     # ------------------------------------------------------------------ the result
     def result(self, wall: float) -> SumoRun:
