@@ -6,6 +6,9 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+import re
+import runpy
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -87,3 +90,86 @@ def test_a_run_with_the_table_drives_as_its_fields_say() -> None:
     assert plain.speed.shape == other.speed.shape
     print("largest speed difference [model]:", np.max(np.abs(plain.speed - other.speed)))
     assert np.max(np.abs(plain.speed - other.speed)) > 1e-3
+
+
+# ----------------------------------------------------------------------------- bench_sumo.py --wave
+BENCH = runpy.run_path(str(Path(__file__).resolve().parents[1] / "benchmarks" / "bench_sumo.py"), run_name="bench")
+
+
+@pytest.mark.parametrize("name", ["sumo_ring", "sumo_merge"])
+def test_the_study_copy_is_the_shipped_scenario_with_its_wave_table(name: str, tmp_path: Path) -> None:
+    """The copied scenario's document is the shipped one with speed_limits, the safety layer and, only when fields
+    are given, [sumo.wave] holding them: without fields the study's tasks are today's (the same keys)."""
+    from aev_ocp.study.traffic import sumo_tasks
+
+    want = copy.deepcopy(load_sumo_scenario(name).document)
+    want["sumo"]["speed_limits"] = True
+    want["limits"] = {"safety_layer": True}
+    plain = BENCH["scenario_copy"](name, tmp_path / "a")
+    assert load_sumo_scenario(plain).document == want
+    fields = {"target_gap_m": 6.5, "buffer_time_s": 7.25}
+    waved = load_sumo_scenario(BENCH["scenario_copy"](name, tmp_path / "b", fields))
+    assert waved.document == {**want, "sumo": {**want["sumo"], "wave": fields}} and waved.spec.wave == fields
+    keys = [
+        [t.key for t in sumo_tasks(p, [0.0, 0.05], ["wave-mpc"], [100, 101])]
+        for p in (plain, BENCH["scenario_copy"](name, tmp_path / "a2", None))
+    ]
+    empty = BENCH["scenario_copy"](name, tmp_path / "c", {})
+    assert keys[0] == keys[1] == [t.key for t in sumo_tasks(empty, [0.0, 0.05], ["wave-mpc"], [100, 101])]
+    with pytest.raises(SystemExit, match=r"d/" + name + r"\.toml: sumo\.wave\.buffer_time_s = -1\.0 is not allowed"):
+        BENCH["scenario_copy"](name, tmp_path / "d", {"buffer_time_s": -1.0})
+
+
+def _run(seed: int, controller: str, **m: float | None) -> dict:
+    events = {k: 0 for k in BENCH["WAVE_EVENTS"]}
+    return {"share": 0.05, "controller": controller, "seed": seed, "status": "ok", **m, **events}
+
+
+def _runs(controller: str, *columns: list[float]) -> list[dict]:
+    """Runs on seeds 100, 101, … with the values of VARIANT_METRICS in their order, one column per metric."""
+    names = list(BENCH["VARIANT_METRICS"])
+    return [_run(100 + i, controller, **dict(zip(names, row))) for i, row in enumerate(zip(*columns))]
+
+
+def test_the_variant_comparison_is_the_paired_t_interval_of_variant_minus_base(capsys) -> None:  # noqa: ANN001
+    """Three seeds with both runs and one whose variant failed to run (left out, named); the mean and 95 % t
+    interval of the per-seed differences (t = 4.302653 for 2 degrees of freedom, Student's table), verdicts for
+    the variant (lower speed std and energy, higher speed and throughput are better), event sums per wave MPC."""
+    std_b, std_v = [0.91, 1.27, 0.64, 0.7], [0.83, 1.19, 0.57]
+    base = _runs("wave-mpc", std_b, [3.1, 4.1, 5.1, 3.0], [1500.0, 1620.0, 1410.0, 1500.0], [12.0, 13.0, 14.0, 12.0])
+    var = _runs("wave-mpc-variant", std_v, [3.0, 4.0, 5.0], [1490.0, 1631.0, 1409.0], [12.5, 13.6, 14.7])
+    base[1]["lane_end_stop_events"], var[2]["collisions"] = 2, 1
+    var.append({**_run(103, "wave-mpc-variant", **dict.fromkeys(BENCH["VARIANT_METRICS"])), "status": "error"})
+    out = BENCH["variant_comparison"]("ring", [_run(100, "sumo"), *base], var, [100, 101, 102, 103])
+    assert out["seeds"] == [100, 101, 102] and out["left_out"] == [103]
+    d = np.array(std_v) - np.array(std_b[:3])
+    half = 4.302653 * d.std(ddof=1) / np.sqrt(3)
+    got = out["difference"]["speed_std_mps"]
+    assert got["mean"] == pytest.approx(d.mean(), abs=1e-12)
+    assert (got["lo"], got["hi"]) == pytest.approx((d.mean() - half, d.mean() + half), abs=1e-6)
+    assert got["verdict"] == "better"  # −0.08, −0.08, −0.07 m/s: every seed calmer
+    assert out["difference"]["throughput_veh_per_h"]["verdict"] == "tie"  # −10, +11, −1 veh/h
+    assert out["difference"]["mean_speed_mps"]["verdict"] == "worse"  # −0.1 m/s on every seed
+    assert out["difference"]["battery_energy_kWh_per_100km"]["verdict"] == "worse"  # +0.5, +0.6, +0.7
+    assert [r["speed_std_mps"] for r in out["per_seed"]] == pytest.approx(list(d), abs=1e-12)
+    assert (
+        out["events"]["wave-mpc"]["lane_end_stop_events"] == 2 and out["events"]["wave-mpc-variant"]["collisions"] == 1
+    )
+    assert "| 101 | ok / ok | -0.08 |" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize(
+    "argv, says",
+    [
+        (["--variant-params", "[1.5]"], "--variant-params '\\[1.5\\]': must be a JSON object of WaveParams fields"),
+        (["--wave-params", "{target_gap_m: 6}"], "--wave-params '{target_gap_m: 6}': not JSON"),
+        (["--wave-params", '{"follower_law": {"a_mps2": 1.2}}'], "--wave-params: 'follower_law' must be a number"),
+        (["--controllers", "proposed", "--wave-params", '{"target_gap_m": 6}'], "--controllers must include wave-mpc"),
+        (["--scenarios", "sumo_merge", "--record"], "--record writes the guide's full study"),
+    ],
+)
+def test_the_wave_studys_options_are_checked_before_any_run(argv: list[str], says: str, capsys) -> None:  # noqa: ANN001
+    with pytest.raises(SystemExit) as exc:
+        BENCH["main_wave"](["--wave", *argv])
+    assert exc.value.code == 2
+    assert re.search(says, capsys.readouterr().err)
