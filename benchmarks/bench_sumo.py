@@ -21,13 +21,25 @@ metrics' means with 95 % t intervals and the paired verdicts against share 0). W
 (``--record``: also tests/data/bench_sumo_wave.json, which tests/test_wave_mpc.py and tests/test_sumo_wave.py tie to
 the guide's tables).
 
+``--wave-params JSON`` sets WaveParams fields (SI, over the defaults) of every wave-MPC run: they are written into the
+copied scenarios' ``[sumo.wave]`` (checked there as a scenario file's, before any run). ``--variant-params JSON``
+runs a second wave MPC (its fields over the first's) on the same seeds, a study of its own in ``<out>/<name>-variant``,
+and prints per scenario the paired comparison variant − base (:func:`variant_comparison`: per seed, and the mean
+with its 95 % t interval and verdict, of the speed std, mean speed, throughput and battery energy per 100 km, and
+both runs' events). ``--scenarios`` runs only some of the three, ``--controllers`` only some of the controllers
+(SUMO's drivers alone always run: the table's baseline), e.g. a screening run of two wave MPCs:
+
     python benchmarks/bench_sumo.py [--quick]
     python benchmarks/bench_sumo.py --wave [--seeds 100 ... 109] [--workers 1] [--record]
+    python benchmarks/bench_sumo.py --wave --scenarios sumo_ring_idm --controllers wave-mpc --seeds 100 101 \
+        --wave-params '{"target_gap_m": 6.0}' --variant-params '{"buffer_time_s": 8.0}' --out results/screen
 """
 
 from __future__ import annotations
 
+import argparse
 import json
+import math
 import subprocess
 import sys
 from pathlib import Path
@@ -88,6 +100,14 @@ WAVE_CONTROLLERS = ["proposed", "followerstopper", WAVE_CONTROLLER]
 WAVE_POINTS = {"sumo_ring": 0.05, "sumo_ring_idm": 0.05, "sumo_merge": 0.2}
 #: the fleet's events counted per run (a run with one is 'failed' in the table and left out of its means)
 WAVE_EVENTS = ("lane_end_stop_events", "emergency_braking_events", "collisions", "teleports")
+VARIANT = "wave-mpc-variant"  # --variant-params: the second wave MPC of the paired comparison
+#: the metrics of the paired comparison variant − base, each with whether a lower value is better
+VARIANT_METRICS = {
+    "speed_std_mps": True,
+    "mean_speed_mps": False,
+    "throughput_veh_per_h": False,
+    "battery_energy_kWh_per_100km": True,
+}
 #: the columns of the wave study's tables (aev_ocp.sumo.cli.SEED_METRICS plus the closest gap)
 WAVE_METRICS = (
     "throughput_veh_per_h",
@@ -99,44 +119,87 @@ WAVE_METRICS = (
 )
 
 
-def wave_study(seeds: list[int], out: Path, workers: int = 1) -> dict:
+def _toml_value(x: object) -> str:
+    """A scalar of a JSON object as a TOML value (numbers, true/false, strings; a non-finite number as TOML's)."""
+    if isinstance(x, float) and not math.isfinite(x):
+        return "nan" if math.isnan(x) else ("inf" if x > 0 else "-inf")
+    return json.dumps(x)
+
+
+def scenario_copy(name: str, folder: Path, wave: dict | None = None) -> Path:
+    """The shipped scenario ``name`` written into ``folder`` with every controlled car under the safety layer and
+    keeping the lanes' limits, and ``wave`` (WaveParams fields) as its ``[sumo.wave]`` (none when empty); loaded
+    once, so that a bad field stops the study before any run (SystemExit naming the file and the field)."""
+    from aev_ocp.scenarios import ScenarioError
+    from aev_ocp.sumo.scenario import load_sumo_scenario
+
+    src = ROOT / "aev_ocp" / "sumo" / "scenarios" / f"{name}.toml"
+    text = src.read_text(encoding="utf-8")
+    if "[limits]" in text or "speed_limits" in text or "[sumo.wave]" in text or text.count("\n[sumo]\n") != 1:
+        raise SystemExit(f"{src}: has its own [limits], speed_limits or [sumo.wave], or no single [sumo] table")
+    folder.mkdir(parents=True, exist_ok=True)
+    path = folder / f"{name}.toml"
+    text = text.replace("\n[sumo]\n", "\n[sumo]\nspeed_limits = true\n")
+    if wave:
+        text += "\n[sumo.wave]\n" + "".join(f"{k} = {_toml_value(v)}\n" for k, v in wave.items())
+    path.write_text(text + "\n[limits]\nsafety_layer = true\n", encoding="utf-8")
+    try:
+        load_sumo_scenario(path)
+    except ScenarioError as exc:
+        raise SystemExit(f"bench_sumo.py: {exc}") from None
+    return path
+
+
+def _per_seed(tasks: list, results: dict) -> list[dict]:
+    """One row per run: share, controller, seed, status, wall time, message, the metrics and the events."""
+    per_seed = []
+    for t in tasks:
+        r = results.get(t.key) or {"status": "missing", "metrics": []}
+        m = r["metrics"][0] if r.get("metrics") else {}
+        v = t.spec["values"]
+        row = {
+            "share": v["share"],
+            "controller": t.controller,
+            "seed": v["seed"],
+            "status": r["status"],
+            "wall_s": r.get("wall_s"),
+        }
+        per_seed.append(
+            {**row, "message": r.get("message", ""), **{k: m.get(k) for k in (*WAVE_METRICS, *WAVE_EVENTS)}}
+        )
+    return per_seed
+
+
+def wave_study(
+    seeds: list[int],
+    out: Path,
+    workers: int = 1,
+    scenarios: list[str] | None = None,
+    controllers: list[str] | None = None,
+    wave: dict | None = None,
+    variant: dict | None = None,
+) -> dict:
     """The wave MPC in SUMO's ring and merge (module docstring): {scenario: {share, seeds, rows (the study's table
-    rows), per_seed (share, controller, seed, status, metrics), markdown}}."""
+    rows), per_seed (share, controller, seed, status, metrics), markdown, and with ``variant`` the paired
+    comparison}}. ``scenarios`` / ``controllers``: some of WAVE_POINTS / WAVE_CONTROLLERS (default all); ``wave``:
+    WaveParams fields of the wave-MPC runs; ``variant``: a second wave MPC's fields over ``wave``'s."""
     from aev_ocp.ring.field import table_markdown
     from aev_ocp.study.traffic import sumo_tasks
     from aev_ocp.study.traffic_study import run_traffic_study
 
+    names = [n for n in WAVE_POINTS if scenarios is None or n in scenarios]
+    ctrls = [c for c in WAVE_CONTROLLERS if controllers is None or c in controllers]
+    var_wave = {**(wave or {}), **variant} if variant is not None else None
+    paths = {n: scenario_copy(n, out / n, wave) for n in names}  # every file checked before the first run
+    var_paths = {n: scenario_copy(n, out / f"{n}-variant", var_wave) for n in names} if var_wave is not None else {}
     doc: dict = {}
-    for name, share in WAVE_POINTS.items():
-        src = ROOT / "aev_ocp" / "sumo" / "scenarios" / f"{name}.toml"
-        text = src.read_text(encoding="utf-8")
-        if "[limits]" in text or "speed_limits" in text or text.count("\n[sumo]\n") != 1:
-            raise SystemExit(f"{src}: has its own [limits] or speed_limits, or no single [sumo] table")
-        folder = out / name
-        folder.mkdir(parents=True, exist_ok=True)
-        # the shipped scenario with every controlled car under the safety layer and keeping the lanes' limits
-        path = folder / f"{name}.toml"
-        text = text.replace("\n[sumo]\n", "\n[sumo]\nspeed_limits = true\n")
-        path.write_text(text + "\n[limits]\nsafety_layer = true\n", encoding="utf-8")
-        tasks = sumo_tasks(path, [0.0, share], WAVE_CONTROLLERS, seeds)
+    for name in names:
+        share, folder = WAVE_POINTS[name], out / name
+        tasks = sumo_tasks(paths[name], [0.0, share], ctrls, seeds)
         results, rows = run_traffic_study(tasks, folder, workers=workers, name=f"wave MPC in {name}")
         for r in rows:
             r["scenario"] = name  # not the path of this checkout's copy
-        per_seed = []
-        for t in tasks:
-            r = results.get(t.key) or {"status": "missing", "metrics": []}
-            m = r["metrics"][0] if r.get("metrics") else {}
-            v = t.spec["values"]
-            row = {
-                "share": v["share"],
-                "controller": t.controller,
-                "seed": v["seed"],
-                "status": r["status"],
-                "wall_s": r.get("wall_s"),
-            }
-            per_seed.append(
-                {**row, "message": r.get("message", ""), **{k: m.get(k) for k in (*WAVE_METRICS, *WAVE_EVENTS)}}
-            )
+        per_seed = _per_seed(tasks, results)
         md = table_markdown(rows, [m for m in WAVE_METRICS if rows and m in rows[0]])
         events = {  # each run's events summed over its seeds (failed runs included)
             r["run"]: {
@@ -156,12 +219,85 @@ def wave_study(seeds: list[int], out: Path, workers: int = 1) -> dict:
         print(f"\n{name} (share {share:g}), seeds {seeds[0]}-{seeds[-1]}, means [95 % t interval] and paired verdicts:")
         print(md)
         print("events over the seeds:", json.dumps(events))
+        if var_wave is not None:
+            vtasks = sumo_tasks(var_paths[name], [share], [WAVE_CONTROLLER], seeds)
+            vname = f"wave MPC variant in {name}"
+            vresults, _ = run_traffic_study(vtasks, out / f"{name}-variant", workers=workers, name=vname)
+            vper_seed = [{**p, "controller": VARIANT} for p in _per_seed(vtasks, vresults)]
+            doc[name]["variant"] = {
+                "wave_params": var_wave,
+                "per_seed": vper_seed,
+                "comparison": variant_comparison(name, per_seed, vper_seed, seeds),
+            }
     return doc
+
+
+def _events(p: dict) -> str:
+    """A run's events as 'kind n, ...' (its nonzero WAVE_EVENTS counts; '-' for none)."""
+    return ", ".join(f"{k.removesuffix('_events')} {int(p[k])}" for k in WAVE_EVENTS if p.get(k)) or "-"
+
+
+def variant_comparison(name: str, base: list[dict], variant: list[dict], seeds: list[int]) -> dict:
+    """``--variant-params``: the variant's runs − the base wave MPC's, paired by seed (aev_ocp.intervals: the mean
+    of the per-seed differences with its 95 % t interval, and a verdict only when it excludes 0), for each of
+    VARIANT_METRICS, over the seeds where both runs have numbers (a run with an event is kept: its status is shown;
+    a run that failed to run is left out, named); and both runs' events. Printed and returned."""
+    from aev_ocp.intervals import difference, verdict
+
+    b = {p["seed"]: p for p in base if p["controller"] == WAVE_CONTROLLER}
+    v = {p["seed"]: p for p in variant}
+    both = [s for s in seeds if s in b and s in v and all(x[s][m] is not None for x in (b, v) for m in VARIANT_METRICS)]
+    out: dict = {"seeds": both, "left_out": [s for s in seeds if s not in both], "per_seed": [], "difference": {}}
+    for s in both:
+        row = {"seed": s, "status": [b[s]["status"], v[s]["status"]], "events": [_events(b[s]), _events(v[s])]}
+        out["per_seed"].append({**row, **{m: v[s][m] - b[s][m] for m in VARIANT_METRICS}})
+    for m, lower in VARIANT_METRICS.items():
+        d = difference([v[s][m] for s in both], [b[s][m] for s in both]) if len(both) > 1 else None
+        out["difference"][m] = None if d is None else {**d.as_dict(), "verdict": verdict(d, lower)}
+    out["events"] = {
+        c: {k: sum(int(x[s][k] or 0) for s in seeds if s in x) for k in WAVE_EVENTS}
+        for c, x in ((WAVE_CONTROLLER, b), (VARIANT, v))
+    }
+    print(f"\n{name}: variant − base wave MPC, paired by seed (95 % t intervals; verdict for the variant):")
+    print(
+        "| seed | status base / variant | "
+        + " | ".join(f"Δ {m}" for m in VARIANT_METRICS)
+        + " | events base / variant |"
+    )
+    print("|" + "---|" * (len(VARIANT_METRICS) + 3))
+    for r in out["per_seed"]:
+        cells = " | ".join(f"{r[m]:+.4g}" for m in VARIANT_METRICS)
+        print(f"| {r['seed']} | {' / '.join(r['status'])} | {cells} | {' / '.join(r['events'])} |")
+    cells = " | ".join(
+        "n < 2" if d is None else f"{d['mean']:+.4g} [{d['lo']:+.4g}, {d['hi']:+.4g}] {d['verdict']}"
+        for d in out["difference"].values()
+    )
+    print(f"| mean | {len(both)} seeds | {cells} | |")
+    if out["left_out"]:
+        print("left out (a run without numbers):", out["left_out"])
+    print("events over the seeds:", json.dumps(out["events"]))
+    return out
+
+
+def _json_object(ap: argparse.ArgumentParser, flag: str, text: str | None) -> dict | None:
+    """``text`` parsed as a JSON object of scalars (WaveParams fields), None when not given; else ap.error naming
+    ``flag``."""
+    if text is None:
+        return None
+    try:
+        obj = json.loads(text)
+    except json.JSONDecodeError as exc:
+        ap.error(f"{flag} {text!r}: not JSON ({exc})")
+    if not isinstance(obj, dict):
+        ap.error(f"{flag} {text!r}: must be a JSON object of WaveParams fields, e.g. '{{\"target_gap_m\": 6.0}}'")
+    nested = [k for k, x in obj.items() if isinstance(x, (dict, list)) or x is None]
+    if nested:
+        ap.error(f"{flag}: {nested[0]!r} must be a number (a [sumo.wave] field; no sub-tables, as [ring.wave])")
+    return obj
 
 
 def main_wave(argv: list[str]) -> None:
     """``--wave``: the wave-MPC study (module docstring)."""
-    import argparse
     import os
 
     ap = argparse.ArgumentParser(description="the wave MPC in SUMO's ring and merge over seeds")
@@ -170,10 +306,30 @@ def main_wave(argv: list[str]) -> None:
     ap.add_argument("--workers", type=int, default=1)
     ap.add_argument("--out", default=str(ROOT / "results" / "bench_sumo_wave"))
     ap.add_argument("--record", action="store_true", help="also write tests/data/bench_sumo_wave.json")
+    ap.add_argument("--scenarios", nargs="+", choices=list(WAVE_POINTS), default=None, help="default: all three")
+    ap.add_argument(
+        "--controllers", nargs="+", choices=WAVE_CONTROLLERS, default=None, help="default: all (SUMO alone always runs)"
+    )
+    ap.add_argument("--wave-params", default=None, help="WaveParams fields as JSON over the defaults ([sumo.wave])")
+    ap.add_argument(
+        "--variant-params", default=None, help="a second wave MPC's WaveParams fields as JSON over --wave-params'"
+    )
     a = ap.parse_args(argv)
+    wave = _json_object(ap, "--wave-params", a.wave_params)
+    variant = _json_object(ap, "--variant-params", a.variant_params)
+    if (wave is not None or variant is not None) and a.controllers is not None and WAVE_CONTROLLER not in a.controllers:
+        ap.error(
+            f"--wave-params and --variant-params set the wave MPC's fields: --controllers must include {WAVE_CONTROLLER}"
+        )
+    if a.record and (a.scenarios is not None or a.controllers is not None):
+        ap.error("--record writes the guide's full study: not with --scenarios or --controllers")
     load = os.getloadavg()[0]
-    doc = wave_study(a.seeds, Path(a.out), a.workers)  # each run's wall time in its per_seed row (a rerun resumes)
+    # each run's wall time in its per_seed row (a rerun resumes)
+    doc = wave_study(a.seeds, Path(a.out), a.workers, a.scenarios, a.controllers, wave, variant)
     doc = {"controller": WAVE_CONTROLLER, "load_1min_at_start": load, **doc}
+    for key, value in (("wave_params", wave), ("variant_params", variant)):
+        if value is not None:  # (the default study's JSON as before)
+            doc[key] = value
     outs = [Path(a.out) / "bench_sumo_wave.json"]
     if a.record:
         outs.append(ROOT / "tests" / "data" / "bench_sumo_wave.json")

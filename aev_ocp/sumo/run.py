@@ -402,10 +402,11 @@ def make_controller_factory(scenario: SumoScenario) -> tuple[CarFollowingLaw | N
 
         return None, mpc
     if name == "wave-mpc":  # the wave-damping MPC: [mpc]'s solver settings (a whole number of SUMO steps)
-        from ..mpc.wave import WaveMPC
+        from ..mpc.wave import WaveMPC, WaveParams
 
         wave_cfg, wave_fallback = scenario.mpc, make_law("proposed", scenario.cf)  # the ring's wave MPC's SI law
-        return None, lambda: WaveMPC(ev, wave_fallback, settings=wave_cfg.settings)
+        wave = WaveParams(**scenario.spec.wave) if scenario.spec.wave else None  # [sumo.wave]; None: the defaults
+        return None, lambda: WaveMPC(ev, wave_fallback, wave, settings=wave_cfg.settings)
     if name == "followerstopper":  # Stern et al. 2018's law with the scenario's desired speed
         from ..ring.laws import FollowerStopper
 

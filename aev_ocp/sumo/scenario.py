@@ -15,8 +15,8 @@ Top level: ``name``, ``description``; the vehicle tables every scenario knows (`
   them: SUMO drives everything (the baseline);
 * ``controller``: a car-following law by name (``proposed``, ``ovfl``, ``ovm``, ``idm``, …), ``"mpc"`` (the MPC with
   a measured forecast, settings from ``[mpc]``), ``"wave-mpc"`` (the wave-damping MPC,
-  :class:`aev_ocp.mpc.wave.WaveMPC` with its default parameters, solver settings from ``[mpc]`` as the MPC's, the
-  paper's law of ``[carfollowing]`` as its fallback), ``"followerstopper"`` (Stern et al. 2018's FollowerStopper with
+  :class:`aev_ocp.mpc.wave.WaveMPC` with the parameters of ``[sumo.wave]``, solver settings from ``[mpc]`` as the
+  MPC's, the paper's law of ``[carfollowing]`` as its fallback), ``"followerstopper"`` (Stern et al. 2018's FollowerStopper with
   the desired speed ``desired_speed_mps`` [m/s]), or ``"module:function"`` (``function(ev)`` returns a new
   :class:`aev_ocp.control.Controller` for one vehicle, sampled every ``dt``: a whole number of SUMO steps);
 * ``speed_mode`` (default 24: SUMO still obeys right of way and red lights at junctions, the toolkit alone sets the
@@ -25,7 +25,13 @@ Top level: ``name``, ``description``; the vehicle tables every scenario knows (`
   car's lane, as SUMO's own drivers keep it: speed mode 24 lifts it, and a controller does not know it),
   ``collision_action`` (SUMO's, default ``remove``), ``lookahead_m`` (how far a car sees its leader, default 250 m),
   ``seed``, ``record_every`` (keep every k-th step), ``sumo_args`` (more SUMO options);
-* ``[sumo.sweep]``: ``share = [...]`` and/or ``controller = [...]``: ``aev-ocp sumo FILE --sweep`` runs every pair.
+* ``[sumo.sweep]``: ``share = [...]`` and/or ``controller = [...]``: ``aev-ocp sumo FILE --sweep`` runs every pair;
+* ``[sumo.wave]`` (optional): the wave MPC's :class:`aev_ocp.mpc.wave.WaveParams` fields in SI (e.g.
+  ``speed_weight``, ``target_gap_m``, ``follower_speed_weight``; not ``traffic`` nor ``follower_law``), read and
+  range-checked as the ring's ``[ring.wave]`` (the same reader), the others at their defaults; absent: the defaults.
+  Every run whose controller is ``"wave-mpc"`` uses it, wherever the controller was chosen (``sumo.controller``,
+  ``[sumo.sweep]``, ``--controller wave-mpc``, a study's point), so a file may carry it with another
+  ``sumo.controller``; the other controllers ignore it.
 """
 
 from __future__ import annotations
@@ -82,6 +88,8 @@ class SumoSpec:
     sweep_controller: tuple[str, ...] = ()
     desired_speed_mps: float | None = None  # FollowerStopper's r (controller "followerstopper")
     speed_limits: bool = False  # cap the toolkit's speeds at the lane's legal limit (SUMO's drivers keep it)
+    #: [sumo.wave]: WaveParams fields of the "wave-mpc" cars (SI; empty: WaveParams' defaults)
+    wave: dict[str, Any] = field(default_factory=dict)
 
 
 #: controllers by name beside the registered laws: the MPC and the wave MPC (sampled; settings from [mpc]) and
@@ -194,6 +202,7 @@ def parse_sumo_table(r: TableReader, base: Path | None) -> SumoSpec:
     if sw.has("controller"):
         kw["sweep_controller"] = tuple(_controller(sw, "controller", c) for c in sw.strings("controller"))
     sw.finish(allowed_hint=["share", "controller"])
+    kw["wave"] = _wave_table(r.sub("wave"))
     r.finish()
     spec = SumoSpec(**kw)
     if "followerstopper" in (spec.controller, *spec.sweep_controller) and spec.desired_speed_mps is None:
@@ -203,6 +212,17 @@ def parse_sumo_table(r: TableReader, base: Path | None) -> SumoSpec:
     _check_ids(r, spec)
     check_sumo_spec(spec, r.file)
     return spec
+
+
+def _wave_table(w: TableReader) -> dict[str, Any]:
+    """``[sumo.wave]``: the :class:`aev_ocp.mpc.wave.WaveParams` fields of the "wave-mpc" cars ({} when absent),
+    read by the ring's reader of ``[ring.wave]`` (the same keys, ranges and errors, naming ``sumo.wave.<field>``).
+    Not tied to ``sumo.controller``: the command line and the studies choose a run's controller after the file is
+    read (module docstring)."""
+    from ..mpc.wave import WAVE_NAME
+    from ..ring.scenario import _wave_table as ring_wave_table
+
+    return ring_wave_table(w, (WAVE_NAME,)) if w.table else {}  # (WAVE_NAME: the ring's controller rule is not SUMO's)
 
 
 #: SUMO options a scenario may pass in ``sumo_args`` (allow-listed): {option: takes a value}. Everything else is
