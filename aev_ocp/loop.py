@@ -101,6 +101,11 @@ class Observation:
     # the vehicle behind (a rear radar): (its gap to this vehicle, its speed) at t [model length, model speed];
     # None where no follower is measured (the last car of a platoon, a simulator that does not provide it)
     follower: np.ndarray | None = None
+    # the legal speed limit of the vehicle's lane [model speed] (a map), where the simulator provides it
+    speed_limit: float | None = None
+    # the obstacle the gap h measures is the end of the vehicle's lane, not a vehicle (a map: the lane ends before
+    # the route goes on, so the car must change lanes before it; its "predecessor speed" in meas_v is then 0)
+    lane_end: bool = False
 
 
 @dataclass

@@ -10,7 +10,9 @@ targets as paired per-seed quantities with their intervals:
 * mean speed of the wave-MPC ring − the FollowerStopper ring's [m/s] (target ≥ 0);
 * fleet battery energy per km of the wave-MPC ring / the all-human ring's (target ≤ 1).
 
-``--safety`` runs the safety suite's following cases (:data:`SAFETY_CASES`) with the wave MPC under the safety layer.
+``--safety`` runs the safety suite's following cases (:data:`SAFETY_CASES`) with the wave MPC under the safety layer;
+``--cycles [udds hwfet us06]`` runs it behind the whole drive cycles (:func:`cycles_check`); both also run the
+variant of ``--variant-params``, and ``--checks-only`` runs them without the rings.
 A target is "met" when its whole interval is on the right side, "met on the mean" when only the mean is. The MPC's
 weights were tuned on seeds 0–2 (variants of its window and v_c, and the ring's ``[ring.wave]`` speed cap, screened on
 0–9 and 40–49; seeds 10–19 evaluated it first and then served to diagnose it, as did 20–39 later); the default seeds
@@ -268,6 +270,59 @@ def safety_check(names: tuple[str, ...] = SAFETY_CASES, wp: WaveParams | None = 
     return rows
 
 
+#: the shipped drive-cycle scenarios' units (scenarios/*_platoon.toml, as benchmarks/bench_mpc_cycles.py)
+CYCLE_UNITS = {"udds": (15.0, 17.0), "hwfet": (15.0, 17.0), "us06": (20.0, 22.0)}
+
+
+def cycles_check(params: dict[str, WaveParams], cycles: list[str], gap0_m: float = 12.0) -> list[dict[str, Any]]:
+    """Each wave MPC of ``params`` (name: WaveParams) behind each whole drive cycle: one follower from rest
+    ``gap0_m`` behind, the cycle's units, its own safety filter (no layer); distance [km], battery energy
+    [kWh/100 km], pack heat [J/km], gap min/mean/max [m], RMS jerk [m/s³], fallbacks, status and the samples at the
+    2 m floor (the guide's table "behind the drive cycles")."""
+    from aev_ocp.control import run_closed_loop
+    from aev_ocp.models import drive_cycle
+    from aev_ocp.models.carfollowing import Proposed
+    from aev_ocp.params import EVParams, Units
+
+    rows = []
+    for cyc in cycles:
+        u = Units(*CYCLE_UNITS[cyc])
+        ev = EVParams(units=u)
+        lead = drive_cycle(cyc, u)
+        for name, wp in params.items():
+            t0 = time.perf_counter()
+            r = run_closed_loop(
+                lead, [WaveMPC(ev, Proposed(), wp)], [float(u.length_from_si(gap0_m))], [0.0], lead.times[-1], ev=ev
+            )
+            m, gap = r.metrics()[0], np.asarray(u.length_to_si(r.gap[:, 0]), float)
+            rows.append(
+                {
+                    "cycle": cyc,
+                    "controller": name,
+                    "distance_km": m["distance_m"] / 1000.0,
+                    "battery_energy_kWh_per_100km": m["battery_energy_kWh_per_100km"],
+                    "heat_pack_J_per_km": m["heat_pack_J_per_km"],
+                    "gap_min_m": float(gap.min()),
+                    "gap_mean_m": float(gap.mean()),
+                    "gap_max_m": float(gap.max()),
+                    "rms_jerk_mps3": m["rms_jerk_mps3"],
+                    "fallbacks": int(m["fallbacks"]),
+                    "status": r.status,
+                    "at_floor_samples": int(np.sum(gap <= 2.0 + 1e-6)),
+                    "wall_s": time.perf_counter() - t0,
+                }
+            )
+            x = rows[-1]
+            print(
+                f"  {cyc:6s} {name:18s} {x['distance_km']:6.2f} km {x['battery_energy_kWh_per_100km']:6.2f} kWh/100km "
+                f"heat {x['heat_pack_J_per_km']:7.0f} J/km gap {x['gap_min_m']:.2f}/{x['gap_mean_m']:.0f}/"
+                f"{x['gap_max_m']:.0f} m jerk {x['rms_jerk_mps3']:.2f} m/s³ fallbacks {x['fallbacks']} "
+                f"{x['status']} at floor {x['at_floor_samples']} ({x['wall_s']:.0f} s)",
+                flush=True,
+            )
+    return rows
+
+
 def print_bound(rows: list[dict[str, Any]], speeds: list[float]) -> dict[str, Any]:
     """Print the bound per speed (over the seeds, and each seed's ratio) and return its JSON part."""
     doc: dict[str, Any] = {"rows": rows, "by_speed": {}}
@@ -345,6 +400,21 @@ def write_outputs(doc: dict[str, Any], outs: list[Path]) -> int:
     return 0
 
 
+def checks(a: argparse.Namespace, wp: WaveParams, wp_var: WaveParams | None, doc: dict[str, Any]) -> dict[str, Any]:
+    """``--safety`` and ``--cycles`` for the wave MPC and, with ``--variant-params``, the variant; added to ``doc``."""
+    if a.safety:
+        print("\nsafety suite cases, the wave MPC under the safety layer:")
+        doc["safety"] = safety_check(wp=wp)
+        if wp_var is not None:
+            print("\nsafety suite cases, the variant under the safety layer:")
+            doc["safety_variant"] = safety_check(wp=wp_var)
+    if a.cycles is not None:
+        print("\nbehind the whole drive cycles (from rest 12 m behind, no layer beyond its own filter):")
+        params = {WAVE: wp, **({VARIANT: wp_var} if wp_var is not None else {})}
+        doc["cycles"] = cycles_check(params, a.cycles or list(CYCLE_UNITS))
+    return doc
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--scenario", default=str(Path(__file__).parent.parent / "scenarios" / "ring_wave.toml"))
@@ -359,7 +429,17 @@ def main(argv: list[str] | None = None) -> int:
         default=None,
         help="WaveParams fields as JSON over the wave MPC's: a second wave-MPC ring per seed, compared paired",
     )
-    ap.add_argument("--safety", action="store_true", help="add the safety-suite cases under the safety layer")
+    ap.add_argument(
+        "--safety", action="store_true", help="add the safety-suite cases under the safety layer (and the variant's)"
+    )
+    ap.add_argument(
+        "--cycles",
+        nargs="*",
+        default=None,
+        choices=list(CYCLE_UNITS),
+        help="add the whole drive cycles (default all three) behind which the wave MPC (and the variant) follows",
+    )
+    ap.add_argument("--checks-only", action="store_true", help="only --safety and --cycles (no rings; --seeds unused)")
     ap.add_argument(
         "--bound",
         type=float,
@@ -390,6 +470,14 @@ def main(argv: list[str] | None = None) -> int:
         if a.bound is None:
             ap.error("--bound-only needs --bound")
         return bound_only(sc, a, t_end, load)
+    if a.checks_only:
+        if not a.safety and a.cycles is None:
+            ap.error("--checks-only needs --safety or --cycles")
+        return write_outputs(
+            checks(a, wp, wp_var, {"wave_params": repr(wp), "load_1min_at_start": load}), [Path(a.out)]
+        )
+    if len(a.seeds) < 2:
+        ap.error(f"--seeds needs at least 2 seeds (the tables are 95 % intervals over them), got {a.seeds}")
     per_seed: dict[int, dict[str, dict[str, Any]]] = {}
     for k in a.seeds:
         per_seed[k] = run_seed(sc, k, ctrls, t_end, wp)
@@ -473,9 +561,7 @@ def main(argv: list[str] | None = None) -> int:
     if a.bound is not None:
         speeds = a.bound or [2.5, 3.0, 3.5, 4.0, 4.5]
         doc["bound"] = print_bound(absorber_bound(sc, speeds, a.seeds, t_end), speeds)
-    if a.safety:
-        print("\nsafety suite cases, the wave MPC under the safety layer:")
-        doc["safety"] = safety_check(wp=wp)
+    doc = checks(a, wp, wp_var, doc)
     outs = [Path(a.out)]
     if a.record:
         outs.append(

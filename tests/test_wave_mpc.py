@@ -209,19 +209,20 @@ def test_the_wave_buffer_raises_the_target_gap_by_c_times_the_predecessor_speed_
     assert np.isnan(c.predecessor_speeds.value)
 
 
+def reference_params(k: float, s_t: float, T_t: float, c: float, **fields: float) -> WaveParams:
+    """WaveParams of the reference tests: a 1 s window (5 samples), catch-up gain k [1/s], target s_t [m] + T_t [s] U,
+    buffer c [s] σ_l, and ``fields``."""
+    return WaveParams(
+        window_s=1.0, catch_gain_per_s=k, target_gap_m=s_t, target_time_gap_s=T_t, buffer_time_s=c, **fields
+    )
+
+
 @pytest.mark.parametrize("beta", [1.0, 0.35])
 def test_the_reference_base_is_the_blend_of_own_and_predecessor_mean_speeds(beta):
     """``base_predecessor_share`` = β: v_ref = B + clip(k (h̄ − s_t − T_t B − c σ_l), −v_c, v_c), B = (1 − β) U + β U_l,
     U and U_l the means of the last 5 own and predecessor speeds (hand computation; the predecessor's speeds are not
     the car's, so B is not U)."""
-    wp = WaveParams(
-        window_s=1.0,
-        catch_gain_per_s=0.23,
-        target_gap_m=7.5,
-        target_time_gap_s=1.7,
-        buffer_time_s=0.6,
-        base_predecessor_share=beta,
-    )
+    wp = reference_params(0.23, 7.5, 1.7, 0.6, base_predecessor_share=beta)
     c = WaveMPC(EV, Proposed(), wp, S)
     speeds = [2.3, 3.1, 2.7, 3.6, 2.9, 3.3, 2.6]
     gaps = [16.0, 14.5, 17.5, 15.0, 16.5, 13.5, 18.0]
@@ -575,3 +576,91 @@ def test_the_hold_releases_below_hold_release_and_latches_again_at_hold_min():
     assert got == want
     with pytest.raises(ParameterError, match="hold_release_mps = 3.5 m/s must be below hold_min_mps = 3.5"):
         WaveParams(hold_min_mps=3.5, hold_release_mps=3.5)
+
+
+def test_the_adaptive_buffer_integrates_the_wave_and_hands_the_base_back_to_the_own_mean():
+    """``buffer_rate`` = g: b_k = clip(b_(k−1) + Δt g (σ_l − σ*), 0, b_max), h_t = s_t + T_t B + c σ_l + b and the
+    base B = (1 − β') U + β' U_l with β' = β (1 − b/b_max) (hand computation over a wave and a calm that drive b to
+    both of its limits; the catch-up unsaturated)."""
+    g, sig_star, b_max, beta = 7.3, 0.45, 2.9, 0.8
+    wp = reference_params(
+        0.19,
+        3.5,
+        0.9,
+        0.7,
+        catch_max_mps=50.0,
+        base_predecessor_share=beta,
+        buffer_rate=g,
+        buffer_sigma_mps=sig_star,
+        buffer_max_m=b_max,
+    )
+    c = WaveMPC(EV, Proposed(), wp, S)
+    dt_s = float(U.time_to_si(S.dt))
+    speeds = [3.1, 3.4, 2.8, 3.3, 3.0, 3.2, 3.5, 2.9, 3.1, 3.3, 3.0, 3.2, 3.4, 2.7, 3.6]
+    gaps = [12.0, 13.5, 11.0, 12.5, 14.0, 12.8, 13.1, 11.9, 12.2, 13.4, 12.6, 13.0, 12.4, 11.6, 13.7]
+    leads = [
+        1.2,
+        5.1,
+        0.9,
+        5.6,
+        1.5,
+        3.3,
+        3.3,
+        3.3,
+        3.3,
+        3.3,
+        3.3,
+        3.3,
+        3.3,
+        3.3,
+        3.3,
+    ]  # a wave, then a steady predecessor
+    b, seen = 0.0, []
+    for k, (v, h, vl) in enumerate(zip(speeds, gaps, leads)):
+        cmd = c.command(obs(h, v, vl, t=0.1 * k))
+        w = slice(max(0, k - 4), k + 1)
+        sig = np.std(leads[w])
+        b = min(max(b + dt_s * g * (sig - sig_star), 0.0), b_max)
+        beta_k = beta * (1.0 - b / b_max)
+        base = (1.0 - beta_k) * np.mean(speeds[w]) + beta_k * np.mean(leads[w])
+        ref = base + 0.19 * (np.mean(gaps[w]) - 3.5 - 0.9 * base - 0.7 * sig - b)
+        assert cmd.info["buffer_m"] == pytest.approx(b, rel=1e-12, abs=1e-12), k
+        assert cmd.info["v_ref_mps"] == pytest.approx(ref, rel=1e-9), k
+        seen.append(b)
+    assert b_max in seen and seen[-1] == 0.0 and any(0.0 < x < b_max for x in seen)  # both limits and inside
+    c.reset()
+    assert c.buffer_m == 0.0
+    assert WaveParams().buffer_rate == 0.0  # off by default
+    with pytest.raises(ParameterError, match="buffer_sigma_mps"):
+        WaveParams(buffer_sigma_mps=0.0)
+
+
+def test_at_the_end_of_its_lane_it_targets_the_lanes_limit_and_keeps_the_lane_end_out_of_its_averages():
+    """With ``Observation.lane_end`` (the gap measures the distance to the end of its lane, the "predecessor speed"
+    is 0) v_ref is ``Observation.speed_limit``; the predecessor-speed and gap windows stay as they were (the own
+    speed is still averaged); without a known limit v_ref is the reference of those windows (hand computation); the
+    next ordinary step averages as before."""
+    wp = WaveParams(window_s=1.0, catch_gain_per_s=0.27, target_gap_m=9.5, target_time_gap_s=1.4, buffer_time_s=0.5)
+    wp = replace(wp, base_predecessor_share=0.6)
+    c = WaveMPC(EV, Proposed(), wp, S)
+    speeds, gaps, leads = [22.4, 22.9, 23.3], [41.0, 44.5, 39.5], [22.8, 23.6, 21.9]
+    for k, (v, h, vl) in enumerate(zip(speeds, gaps, leads)):
+        c.command(obs(h, v, vl, t=0.1 * k))
+    lead_buf, gap_buf = list(c.predecessor_speeds._buf), list(c.gap_average._buf)
+    limit = 31.7
+    for k, v in enumerate([23.8, 24.6]):
+        o = replace(
+            obs(180.0 - 2.5 * k, v, 0.0, t=0.3 + 0.1 * k), lane_end=True, speed_limit=float(U.speed_from_si(limit))
+        )
+        cmd = c.command(o)
+        assert cmd.info["v_ref_mps"] == pytest.approx(limit, rel=1e-12)
+        assert list(c.predecessor_speeds._buf) == lead_buf and list(c.gap_average._buf) == gap_buf
+    own = speeds + [23.8, 24.6]
+    cmd = c.command(replace(obs(175.0, 25.1, 0.0, t=0.5), lane_end=True))  # the limit unknown
+    U_ = np.mean((own + [25.1])[-5:])
+    base = 0.4 * U_ + 0.6 * np.mean(leads)
+    ref = base + min(max(0.27 * (np.mean(gaps) - 9.5 - 1.4 * base - 0.5 * np.std(leads)), -1.0), 1.0)
+    assert cmd.info["v_ref_mps"] == pytest.approx(ref, rel=1e-9)
+    c.command(obs(35.5, 25.3, 24.9, t=0.6))  # an ordinary step: both windows take its samples again
+    assert list(c.predecessor_speeds._buf)[-1] == pytest.approx(float(U.speed_from_si(24.9)), rel=1e-12)
+    assert list(c.gap_average._buf)[-1] == pytest.approx(float(U.length_from_si(35.5)), rel=1e-12)

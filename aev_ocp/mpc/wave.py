@@ -116,6 +116,14 @@ class WaveParams:
     # speed over window_s (a wave of speed std σ and period P needs a gap swing of about √2 σ P/π: c ≈ 8 s at
     # the ring's 35 s); 0: off
     buffer_time_s: float = spec(4.0, ge=0.0)  # c [s] (our choice, seeds 0–2: 4 s against 8 s)
+    # an adaptive wave buffer b [m] added to h_t (h_t = s_t + T_t U + c σ_l + b): an integral action on the wave the
+    # car sees, db/dt = g (σ_l − σ*), b within [0, b_max]: behind steady drivers (σ_l below σ*) it shrinks to 0 and
+    # the car keeps the base gap s_t + T_t U; while a wave grows it opens the gap that absorbs it, until σ_l is back
+    # at σ* (or b at b_max); so the base gap may be a human's and the wave sets the buffer (our design; Stern et al.
+    # 2018's PI with saturation has a fixed target gap); g = 0: off, b = 0
+    buffer_rate: float = spec(0.0, ge=0.0)  # g [m/s of buffer growth per m/s of σ_l above σ*] (our choice; 0: off)
+    buffer_sigma_mps: float = spec(0.3, gt=0.0)  # σ* [m/s] (our choice)
+    buffer_max_m: float = spec(20.0, ge=0.0)  # b_max [m] (our choice)
     # a speed band on v_ref (after the catch-up): v_ref ∈ [v_lo, v_hi], so the integral action cannot take the ring
     # below the speed where the humans behind the car amplify too much, nor above where their gaps leave the car too
     # little room (benchmarks/bench_wave_mpc.py --bound); 0: no bound
@@ -328,6 +336,8 @@ class WaveMPC(MPCPolicy):
         self.gap_average = SpeedAverage(n_win)  # the mean measured gap h̄ of the catch-up term
         self.predecessor_speeds = SpeedAverage(n_win)  # the predecessor's measured speeds (σ_l of the buffer)
         self.v_ref = float("nan")  # the last reference [model speed]
+        self.buffer_m = 0.0  # the adaptive wave buffer b [m] (WaveParams.buffer_rate)
+        self._dt_s = dt_s
         self.armed = False  # the mean speed U has been below WaveParams.hold_min_mps
         self.held = False  # the latched speed hold engaged (armed, then U >= hold_min_mps)
         # the problem predicts the follower (WaveParams.follower_*): fed from Observation.follower; a step without a
@@ -348,29 +358,41 @@ class WaveMPC(MPCPolicy):
         self.gap_average.reset()
         self.predecessor_speeds.reset()
         self.v_ref = float("nan")
+        self.buffer_m = 0.0
 
-    def reference(self, h: float, v: float) -> float:
+    def reference(self, h: float, v: float, lane_end: bool = False) -> float:
         """Add one measured gap h and own speed v [model units] to the averages and return v_ref [model speed]
         = U + clip(k (h̄ − s_t − T_t U − c σ_l), −v_c, v_c⁺) (U the mean own speed, h̄ the mean gap, σ_l the std of the
         predecessor's speed; v_c⁺ = v_c unless ``catch_rise_max_mps`` is set; WaveParams), then within the band
         [v_lo, v_hi] when set, and never below 0. Once the latched hold is engaged (``hold_min_mps``: from the first
         step with U >= hold_min_mps on) k and c are ``hold_gain_per_s`` and ``hold_buffer_time_s`` and v_ref is then
         clipped to [hold_min_mps, hold_max_mps]; the hold latches at the first step with U >= hold_min_mps after one
-        with U < hold_min_mps, and releases at a step with U < hold_release_mps."""
+        with U < hold_min_mps, and releases at a step with U < hold_release_mps. ``lane_end``: h is the distance to
+        the end of the car's lane, not a gap to a vehicle, and is not added to h̄ (h̄ of the gaps so far, h before
+        the first)."""
         p, u = self.params, self.units
         U = self.average.update(v)
-        h_bar = float(u.length_to_si(self.gap_average.update(h)))
+        if lane_end:
+            h_bar = float(u.length_to_si(self.gap_average.value if self.gap_average._buf else h))
+        else:
+            h_bar = float(u.length_to_si(self.gap_average.update(h)))
         buf = self.predecessor_speeds._buf
         sigma_l = float(u.speed_to_si(np.std(buf))) if buf else 0.0
-        if p.base_predecessor_share > 0 and buf:
-            U = (1.0 - p.base_predecessor_share) * U + p.base_predecessor_share * float(np.mean(buf))
+        beta = p.base_predecessor_share
+        if p.buffer_rate > 0:
+            db = self._dt_s * p.buffer_rate * (sigma_l - p.buffer_sigma_mps)
+            self.buffer_m = min(max(self.buffer_m + db, 0.0), p.buffer_max_m)
+            if p.buffer_max_m > 0:  # the wave's share of the buffer takes the base back to the own mean
+                beta *= 1.0 - self.buffer_m / p.buffer_max_m
+        if beta > 0 and buf:
+            U = (1.0 - beta) * U + beta * float(np.mean(buf))
         U_si = float(u.speed_to_si(U))
         if p.hold_min_mps > 0:
             self.armed = self.armed or U_si < p.hold_min_mps
             calm = p.hold_sigma_mps <= 0 or sigma_l <= p.hold_sigma_mps
             self.held = calm and ((self.held and U_si >= p.hold_release_mps) or (self.armed and U_si >= p.hold_min_mps))
         gain, c = (p.hold_gain_per_s, p.hold_buffer_time_s) if self.held else (p.catch_gain_per_s, p.buffer_time_s)
-        h_t = p.target_gap_m + p.target_time_gap_s * U_si + c * sigma_l
+        h_t = p.target_gap_m + p.target_time_gap_s * U_si + c * sigma_l + self.buffer_m
         catch = gain * (h_bar - h_t)
         rise = p.catch_rise_max_mps if p.catch_rise_max_mps > 0 else p.catch_max_mps
         catch = min(max(catch, -p.catch_max_mps), rise)
@@ -386,12 +408,20 @@ class WaveMPC(MPCPolicy):
         return max(0.0, ref)
 
     def own_states(self, obs: Observation) -> dict[str, float]:
-        """The policy's own states plus v_ref [model speed] (:meth:`reference`, this step's measurements included)."""
+        """The policy's own states plus v_ref [model speed] (:meth:`reference`, this step's measurements included).
+        At the end of its lane (``obs.lane_end``) v_ref is the lane's speed limit (``obs.speed_limit``) when known: the
+        car must merge into the next lane's traffic, as a driver accelerates along an acceleration lane (its
+        braking-distance constraint to the lane's end still stops it there if it finds no gap); the lane's end is no
+        predecessor, so neither its speed nor its distance enters the averages."""
         own = super().own_states(obs)
         fol = self.usable_follower(obs) if self.with_follower else None  # decided as command() did (the last v_ref)
-        if len(obs.meas_v):
+        # (the end of a lane is no predecessor: its "speed" 0 is not the traffic's)
+        if len(obs.meas_v) and not obs.lane_end:
             self.predecessor_speeds.update(float(obs.meas_v[-1]))
-        self.v_ref = own["v_ref"] = self.reference(float(obs.z[0]), float(obs.z[1]))
+        v_ref = self.reference(float(obs.z[0]), float(obs.z[1]), obs.lane_end)
+        if obs.lane_end and obs.speed_limit is not None:  # it must merge: it drives up to the road's speed
+            v_ref = float(obs.speed_limit)
+        self.v_ref = own["v_ref"] = v_ref
         if self.with_follower:
             if fol is None:  # no follower measured (command() hands such a step to without_follower()): term off
                 own.update(h_f=float(obs.z[0]), v_f=float(obs.z[1]), follower_on=0.0)
@@ -431,15 +461,17 @@ class WaveMPC(MPCPolicy):
             plain = self.without_follower()
             if not self._plain_last:
                 plain.controller.reset()
-            plain.armed, plain.held = self.armed, self.held
+            plain.armed, plain.held, plain.buffer_m = self.armed, self.held, self.buffer_m
             cmd = plain.command(obs)
-            self.armed, self.held, self.v_ref, self._plain_last = plain.armed, plain.held, plain.v_ref, True
+            self.armed, self.held, self.buffer_m = plain.armed, plain.held, plain.buffer_m
+            self.v_ref, self._plain_last = plain.v_ref, True
             return cmd
         if self._plain_last:
             self.controller.reset()
             self._plain_last = False
         cmd = super().command(obs)
         cmd.info["v_ref_mps"] = float(self.units.speed_to_si(self.v_ref))
+        cmd.info["buffer_m"] = self.buffer_m
         return cmd
 
     def describe(self) -> dict[str, Any]:

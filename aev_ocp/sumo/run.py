@@ -759,7 +759,8 @@ class _SumoLoop:
         tr.meas_t.append(u.time_from_si(t_s))
         tr.meas_v.append(u.speed_from_si(v_lead))
         if (len(tr.t_s) - 1) % self.ctrl_every == 0:  # every controller dt since the vehicle departed
-            tr.a_cmd_mps2 = _call(tr, u, v, gap, self.follower(tr))
+            limit = u.speed_from_si(self.lane_limit(tr.lane[-1]))
+            tr.a_cmd_mps2 = _call(tr, u, v, gap, self.follower(tr), float(limit), tr.at_lane_end)
         return tr.a_cmd_mps2
 
     def follower(self, tr: _Track) -> np.ndarray | None:
@@ -878,10 +879,19 @@ def _route_goes_on(V: Any, vid: str, best: Any) -> bool:
     return edge in edges[idx:] and edges.index(edge, idx) < len(edges) - 1
 
 
-def _call(tr: _Track, u: Any, v: float, gap: float, follower: np.ndarray | None = None) -> float:
+def _call(
+    tr: _Track,
+    u: Any,
+    v: float,
+    gap: float,
+    follower: np.ndarray | None = None,
+    speed_limit: float | None = None,
+    lane_end: bool = False,
+) -> float:
     """One control instant of a sampled Controller on the vehicle's measurements (and its follower's, when one is
-    behind it: Observation.follower) through the loop core (checked, conditioned, safety layer, limits); returns the
-    acceleration the vehicle applies [m/s²]."""
+    behind it: Observation.follower; its lane's limit [model speed] and whether its obstacle is its lane's end:
+    Observation.speed_limit, Observation.lane_end) through the loop core (checked, conditioned, safety layer,
+    limits); returns the acceleration the vehicle applies [m/s²]."""
     assert tr.ctrl is not None and tr.step is not None
     x = tr.x_bat[-1]
     z = np.array([u.length_from_si(gap), u.speed_from_si(v), x[0], x[1], x[2]])
@@ -895,6 +905,8 @@ def _call(tr: _Track, u: Any, v: float, gap: float, follower: np.ndarray | None 
         None,
         tr.a_prev,
         follower=follower,
+        speed_limit=speed_limit,
+        lane_end=lane_end,
     )
     _, a = tr.step.command(tr.ctrl, obs)
     tr.step.rec["info"][-1] = {}  # (a SUMO run keeps no forecasts)
