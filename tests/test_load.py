@@ -118,6 +118,7 @@ def test_ocp_round_trip_with_grid(tmp_path, capsys):
             "t_f=45",
             "--out",
             str(tmp_path),
+            "--no-plots",  # no figure is checked here
         ]
     )
     assert rc == 0
@@ -236,7 +237,10 @@ def test_ocp_eco_trip_time_limit_writes_a_flagged_partial_sweep(tmp_path, capsys
     from aev_ocp.ocp.cli import cli_ocp
 
     rc = cli_ocp(
-        ["eco-trip", "--N", "20", "--no-refine", "--grid", "D=800,900", "--time-limit", "1e-9", "--out", str(tmp_path)]
+        [
+            *("eco-trip", "--N", "20", "--no-refine", "--grid", "D=800,900", "--time-limit", "1e-9"),
+            *("--out", str(tmp_path), "--no-plots"),  # no figure is checked here
+        ]
     )
     err = capsys.readouterr().err
     assert rc == 1 and "stopped by --time-limit" in err and "partial" in err
@@ -276,7 +280,8 @@ def test_ocp_prop31_cases_load_back(tmp_path, capsys):
     from aev_ocp.ocp.run import run_prop31
     from aev_ocp.ocp.cli import cli_ocp
 
-    assert cli_ocp(["prop31", "--N", "16", "--no-refine", "--out", str(tmp_path)]) == 0
+    assert cli_ocp(["prop31", "--N", "16", "--no-refine", "--out", str(tmp_path), "--no-plots"]) == 0
+    assert not (tmp_path / "prop31_currents.png").exists()  # the figure is test_ocp_prop31's (test_outputs_written)
     runs = load_all(tmp_path)
     direct = run_prop31("ms", N=16, refine=False)
     assert list(runs) == list(direct)

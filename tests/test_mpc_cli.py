@@ -85,8 +85,12 @@ def test_cli_writes_results_and_compares(tmp_path, capsys):
 
 @pytest.mark.slow  # over 5 s of one core (measured under load, pytest --durations)
 def test_cli_scenario_default_rti_path(tmp_path, capsys):
+    # --no-plots: no figure is checked here (test_cli_writes_results_and_compares checks the MPC's figures)
     rc = cli_mpc(
-        ["mpc_paper_single", "--out", str(tmp_path), "--t-end-model", "1.0", "--no-ocpd", "--laws", "proposed"]
+        [
+            *("mpc_paper_single", "--out", str(tmp_path), "--t-end-model", "1.0", "--no-ocpd", "--laws", "proposed"),
+            "--no-plots",
+        ]
     )
     assert rc == 0
     m = json.loads((tmp_path / "results.json").read_text())["metrics"]["mpc"][0]
@@ -105,6 +109,7 @@ def test_cli_scenario_default_rti_path(tmp_path, capsys):
             "--solver",
             "rti",
             "--no-codegen",
+            "--no-plots",
         ]
     )
     assert rc == 0

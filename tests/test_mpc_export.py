@@ -826,11 +826,11 @@ def test_plain_c_step_with_own_states_matches_the_python_controller_in_closed_lo
 
 
 def test_the_compiled_steps_c_is_generated_once_per_structure(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:
-    """CompiledStep's generated C (aev_ocp.mpc.cstep.generated_casadi) is generated once per process for the same
-    five functions: a second controller of the same settings generates nothing and gets the source write_sources
-    writes for it; a controller whose functions differ by a number in them (the car's mass, 1873 kg against
-    1752 kg: what a key of the functions' names and sizes alone would miss) generates again and gets its own
-    source, the one write_sources writes for it."""
+    """The step's generated C (aev_ocp.mpc.cstep.generated_casadi, what CompiledStep and an export use) is generated
+    once per process for the same five functions: a second controller of the same settings generates nothing and gets
+    the source generate_casadi writes for it; a controller whose functions differ by a number in them (the car's
+    mass, 1873 kg against 1752 kg: what a key of the functions' names and sizes alone would miss) generates again and
+    gets its own source, the one generate_casadi writes for it."""
     import dataclasses
 
     from aev_ocp.mpc import cstep
@@ -845,8 +845,9 @@ def test_the_compiled_steps_c_is_generated_once_per_structure(monkeypatch: pytes
 
     monkeypatch.setattr(cstep, "generate_casadi", counted)
 
-    def fresh(c: Any, name: str) -> tuple[str, ...]:  # what write_sources writes (generate_casadi's own files)
-        cstep.write_sources(c, tmp_path / name, "x", values=False)
+    def fresh(c: Any, name: str) -> tuple[str, ...]:  # generate_casadi's own files, the cache bypassed
+        (tmp_path / name).mkdir()
+        real(c, tmp_path / name)
         return tuple((tmp_path / name / n).read_text(encoding="utf-8") for n in ("mpc_casadi.c", "mpc_casadi.h"))
 
     ev, s = EVParams(), MPCSettings(N=7, qp_solver="riccati", codegen=False)
@@ -857,7 +858,12 @@ def test_the_compiled_steps_c_is_generated_once_per_structure(monkeypatch: pytes
     heavier = export_controller_settings(
         s, dataclasses.replace(ev, vehicle=dataclasses.replace(ev.vehicle, mass_kg=1873.0))
     )
-    n = len(generated)  # (write_sources generates: fresh() counts too)
     mine = cstep.generated_casadi(heavier)
-    assert len(generated) == n + 1 and mine != got
+    assert len(generated) == 2 and mine != got
     assert fresh(heavier, "heavier") == mine
+    # an export writes the same generated C (step_sources: one assembly for CompiledStep and write_sources)
+    cstep.write_sources(heavier, tmp_path / "export", "x", values=False)
+    assert len(generated) == 2
+    assert (
+        tuple((tmp_path / "export" / n).read_text(encoding="utf-8") for n in ("mpc_casadi.c", "mpc_casadi.h")) == mine
+    )

@@ -230,12 +230,59 @@ def test_cli_eco_trip_reports_gap_refinement_and_multistart(capsys, tmp_path, mo
 
     monkeypatch.chdir(tmp_path)  # the default output folder results/ocp/eco-trip goes there
 
-    # N = 20: the command's report (exact objective, the refinement to 2N, the starts) is what is checked, not the size
-    assert cli_ocp(["eco-trip", "--N", "20", "--multistart"]) == 0
+    # N = 20: the command's report (exact objective, the refinement to 2N, the starts) is what is checked, not the size;
+    # --no-plots: no figure is checked here (test_cli_no_plots_writes_the_same_tables_and_json checks the switch)
+    assert cli_ocp(["eco-trip", "--N", "20", "--multistart", "--no-plots"]) == 0
     out = capsys.readouterr().out
     assert "exact obj" in out and "N = 20 -> 40" in out and "starts: sine" in out and "WARNING" not in out
+    written = {p.name for p in (tmp_path / "results" / "ocp" / "eco-trip").iterdir()}
+    assert {f"eco_trip_{o}.{x}" for o in ("heat", "omega") for x in ("json", "csv")} <= written
+    assert not any(n.endswith(".png") for n in written), written
     assert cli_ocp(["current-profile", "--multistart"]) == 2
     assert "--multistart applies to eco-trip and oracle only" in capsys.readouterr().err
+
+
+_VOLATILE = {"wall_time_s", "solver_time_s", "utc", "arrays_sha256"}  # timings, clock, the hash over the timings
+
+
+def _steady(x: object) -> object:
+    """A JSON value without its timings and clock (the only entries two runs of one command may differ in)."""
+    if isinstance(x, dict):
+        return {k: _steady(v) for k, v in x.items() if k not in _VOLATILE}
+    if isinstance(x, list):
+        return [_steady(v) for v in x]
+    return x
+
+
+def test_cli_no_plots_writes_the_same_tables_and_json(capsys, tmp_path):
+    """``aev-ocp ocp … --no-plots`` writes every file of the plotted run but its PNG figures, with the same
+    numbers, and prints the same table. current-profile with a one-point sweep: it draws both kinds of OCP
+    figure (a result's, as eco-trip and oracle, and the sweep's)."""
+    import json
+
+    from aev_ocp.ocp.cli import cli_ocp
+
+    argv = ["current-profile", "--N", "20", "--no-refine", "--grid", "E_req=1700", "--grid", "t_f=55"]
+    tables, files = [], []
+    for d, extra in (("plots", []), ("none", ["--no-plots"])):
+        assert cli_ocp([*argv, "--out", str(tmp_path / d), *extra]) == 0
+        tables.append(capsys.readouterr().out.split("wrote results to")[0])
+        files.append({p.name for p in (tmp_path / d).iterdir()})
+    assert tables[0] == tables[1] and "OCP-B" in tables[0]
+    assert files[0] - files[1] == {"current_profile.png", "current_profile_sweep.png"}
+    assert files[1] <= files[0]
+    for name in sorted(files[1]):
+        a, b = ((tmp_path / d / name).read_bytes() for d in ("plots", "none"))
+        if name.endswith(".json"):
+            assert _steady(json.loads(a)) == _steady(json.loads(b)), name
+        elif name.endswith(".npz"):
+            za, zb = np.load(tmp_path / "plots" / name), np.load(tmp_path / "none" / name)
+            assert za.files == zb.files
+            for k in za.files:
+                if k.rsplit("/", 1)[-1] not in _VOLATILE:
+                    np.testing.assert_array_equal(za[k], zb[k], err_msg=k)
+        else:
+            assert a == b, name
 
 
 def test_prop31_results_carry_exact_resimulation_and_refinement():

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from typing import Any
 
 import numpy as np
 import pytest
@@ -264,3 +265,51 @@ def test_the_calibrated_scenario_states_the_fit_the_code_uses(name: str) -> None
     del doc["ring"]["population"]
     with pytest.raises(ScenarioError, match="ring.calibration"):
         parse_ring_scenario(doc, "x.toml")
+
+
+def test_rings_of_one_structure_build_their_functions_and_c_once(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A ring of the same laws and car as an earlier one, with other coefficients (what a calibration simulates
+    over and over), builds no CasADi function and no C source again (aev_ocp.ring.simulate._STRUCTURES) and runs
+    as the same ring built afresh (the kept structures emptied), to the bit; a heavier car (1873 kg against the
+    default 1752 kg: its battery side differs) builds its own."""
+    from aev_ocp.params import EVParams
+    from aev_ocp.ring import simulate as rs
+
+    monkeypatch.setattr(rs, "_STRUCTURES", {})
+    built: list[str] = []
+    for name in ("_vehicle_function", "_source"):
+        real = getattr(rs.RingSimulator, name)
+
+        def counted(self: Any, *a: Any, _real: Any = real, _name: str = name) -> Any:
+            built.append(_name)
+            return _real(self, *a)
+
+        monkeypatch.setattr(rs.RingSimulator, name, counted)
+
+    def ring(v0: float, T: float, ev: EVParams | None = None) -> RingRoad:
+        return RingRoad(95.0, (_idm(1.1, v0, T), _idm(0.9, v0 + 0.6, T)) * 3, 5.0, ev=ev or EVParams())
+
+    def run(sim: RingSimulator) -> Any:
+        return sim.run(uniform_flow(sim.ring, shift_m=1.3), 25.0)
+
+    opts = RingOptions(rtol=1e-8, atol=1e-8, dt_out_s=0.5)
+    RingSimulator(ring(12.2, 1.4), opts)
+    first = list(built)
+    assert first.count("_vehicle_function") == 1 and first.count("_source") == 1  # one IDM template
+    other = ring(10.7, 1.75)
+    kept = RingSimulator(other, opts)
+    assert built == first and kept.method == "compiled"
+    monkeypatch.setattr(rs, "_STRUCTURES", {})
+    fresh = RingSimulator(other, opts)
+    assert built == first * 2
+    a, b = run(kept), run(fresh)
+    assert a.status == b.status == "ok"
+    np.testing.assert_array_equal(a.speed_mps, b.speed_mps)
+    np.testing.assert_array_equal(a.gap_m, b.gap_m)
+    np.testing.assert_array_equal(a.energy_J, b.energy_J)
+    ev = EVParams()
+    heavy = dataclasses.replace(ev, vehicle=dataclasses.replace(ev.vehicle, mass_kg=1873.0))
+    h = RingSimulator(ring(10.7, 1.75, heavy), opts)
+    assert built == first * 3 and h.funcs is not kept.funcs
+    hr = run(h)
+    assert hr.status == "ok" and np.all(hr.energy_J[-1] > 1.02 * a.energy_J[-1])  # the heavier car's battery works more

@@ -109,6 +109,9 @@ class ExportableController(Protocol):
 
 #: Hand-written templates (package data under aev_ocp/c/) copied or filled into an export.
 TEMPLATES = ("mpc_step.c", "mpc_step.h", "ocp_qp.c", "ocp_qp.h", "mpc_bench_main.c")
+#: The C files of an export compiled into the step's library (the others are headers, and mpc_bench_main.c, the
+#: benchmark program's main).
+LIBRARY_C = ("mpc_casadi.c", "mpc_step.c", "ocp_qp.c")
 #: Files of an export folder.
 EXPORT_FILES = (
     "mpc_casadi.c",
@@ -449,19 +452,31 @@ def _plan_tolerance() -> float:
     return float(PLAN_TOLERANCE)
 
 
+def step_sources(c: ExportableController, description: str, values: bool = True) -> dict[str, str]:
+    """The step's C sources by file name: CasADi's generated mpc_casadi.c and .h (:func:`generated_casadi`),
+    mpc_config.h (:func:`config_header`; ``values``: see there) and the hand-written :data:`TEMPLATES`. What an
+    export writes (:func:`write_sources`) and what :class:`CompiledStep` compiles (:data:`LIBRARY_C` and the
+    headers)."""
+    main, header = generated_casadi(c)
+    return {
+        "mpc_casadi.c": main,
+        "mpc_casadi.h": header,
+        "mpc_config.h": config_header(c, description, values),
+        **{name: _template(name) for name in TEMPLATES},
+    }
+
+
 def write_sources(c: ExportableController, folder: Path, description: str, values: bool = True) -> None:
-    """Generated and hand-written C sources of the step into ``folder`` (created); ``values``: see
-    :func:`config_header`."""
+    """:func:`step_sources` into ``folder`` (created)."""
     folder.mkdir(parents=True, exist_ok=True)
-    generate_casadi(c, folder)
-    (folder / "mpc_config.h").write_text(config_header(c, description, values), encoding="utf-8")
-    for name in TEMPLATES:
-        (folder / name).write_text(_template(name), encoding="utf-8")
+    for name, text in step_sources(c, description, values).items():
+        (folder / name).write_text(text, encoding="utf-8")
 
 
-#: CasADi's generated C of :class:`CompiledStep` in this process: a hash of the five functions (serialized: every
-#: operation, constant and name the generated C is written from) and of CasADi's version -> (mpc_casadi.c,
-#: mpc_casadi.h). Controllers of the same structure (one library for them all, issue 40) generate it once.
+#: CasADi's generated C of the step (:class:`CompiledStep`, an export) in this process: a hash of the five functions
+#: (serialized: every operation, constant and name the generated C is written from) and of CasADi's version ->
+#: (mpc_casadi.c, mpc_casadi.h). Controllers of the same structure (one library for them all, issue 40) generate it
+#: once.
 _GENERATED: dict[str, tuple[str, str]] = {}
 
 
@@ -567,9 +582,7 @@ def build_library(src: Path, out_lib: Path, cc: str | None = None, flags: tuple[
         "-shared",
         "-o",
         str(out_lib),
-        "mpc_casadi.c",
-        "mpc_step.c",
-        "ocp_qp.c",
+        *LIBRARY_C,
         "-lm",
     ]
     try:
@@ -752,15 +765,13 @@ class CompiledStep:
                 stacklevel=4,
             )
             return None
-        # the sources of write_sources(c, folder, description, values=False): the problem's numbers are not in them
-        # (set below), so one library serves every controller of the structure, and the generated C is generated
-        # once per process (issue 40: a controller's build regenerated it only to find the cached library)
-        main, header = generated_casadi(c)
-        files = {
-            "mpc_config.h": config_header(c, f"MPC controller {c.problem.name}", values=False),
-            "mpc_casadi.h": header,
-            **{n: _template(n) for n in ("mpc_step.h", "mpc_step.c", "ocp_qp.h", "ocp_qp.c")},
-        }
+        # an export's sources without the problem's numbers (values=False: set below), so one library serves every
+        # controller of the structure; the generated C is generated once per process (issue 40: a controller's
+        # build regenerated it only to find the cached library). mpc_casadi.c is the main source, the library's
+        # other C files and the headers its companions, the benchmark's main is left out.
+        src = step_sources(c, f"MPC controller {c.problem.name}", values=False)
+        main = src.pop(LIBRARY_C[0])
+        files = {n: t for n, t in src.items() if n in LIBRARY_C or n.endswith(".h")}
         defines = tuple(f"-D{d}" for d in qp_dimension_defines(c))
         # tuned first (-O3, the native CPU, contraction off: the same bits as the plain build, about 0.85x the
         # step's time; tests/test_compiled_speed.py), else plain

@@ -15,6 +15,7 @@ from .cstep import (
     COLD_REG_MAX,
     COLD_REG_STEP,
     EXPORT_FILES,
+    LIBRARY_C,
     QP_MAX_ITER,
     QP_TOL,
     RTI_REG,
@@ -33,6 +34,7 @@ from .cstep import (
     qp_data_function,
     qp_dimension_defines,
     rti_functions,
+    step_sources,
     write_sources,
 )
 from .controller import MPCController, resolve_formulation
@@ -43,6 +45,7 @@ __all__ = [
     "COLD_REG_MAX",
     "COLD_REG_STEP",
     "EXPORT_FILES",
+    "LIBRARY_C",
     "QP_MAX_ITER",
     "QP_TOL",
     "RTI_REG",
@@ -61,6 +64,7 @@ __all__ = [
     "qp_data_function",
     "qp_dimension_defines",
     "rti_functions",
+    "step_sources",
     "write_sources",
     "export_controller_settings",
     "export_mpc",

@@ -1,5 +1,5 @@
 """``aev-ocp ocp {prop31,current-profile,eco-trip,oracle} [SCENARIO.toml] [--method ms|collocation] [--out DIR]
-[--N N] [--no-refine] [--multistart] [--grid NAME=V1,V2,...] [--grid-file FILE] [--time-limit S]``.
+[--N N] [--no-refine] [--multistart] [--grid NAME=V1,V2,...] [--grid-file FILE] [--time-limit S] [--no-plots]``.
 
 Every problem writes into ``--out`` (default ``results/ocp/<problem>[/<scenario>]``), including
 manifest.json + trajectories.npz that :func:`aev_ocp.load` reads back.
@@ -76,6 +76,9 @@ def _parser() -> argparse.ArgumentParser:
         default=None,
         metavar="V1,V2",
         help="prop31: the relaxing cases' initial polarisation V1(0),V2(0) [V] (default 0.02,0.03)",
+    )
+    ap.add_argument(
+        "--no-plots", action="store_true", help="skip the PNG plots (default: write them; JSON and CSV are the same)"
     )
     ap.add_argument(
         "--progress-every",
@@ -225,7 +228,12 @@ def _solve(
 
     # what current-profile and eco-trip both take from the command line (N only when given: else the problem's)
     common: dict[str, Any] = dict(
-        method=args.method, out_dir=out, scenario=args.scenario, refine=not args.no_refine, progress=prog
+        method=args.method,
+        out_dir=out,
+        scenario=args.scenario,
+        refine=not args.no_refine,
+        progress=prog,
+        plots=not args.no_plots,
     )
     common.update({"N": args.N} if args.N is not None else {})
     if args.problem == "prop31":
@@ -234,7 +242,7 @@ def _solve(
 
         kw = _prop31_options(args)
         cases = runs.run_prop31(args.method, refine=not args.no_refine, **kw)
-        write_prop31_outputs(cases, out)
+        write_prop31_outputs(cases, out, plots=not args.no_plots)
         print(prop31_table(cases))
         ok = all(e["status"] in ("optimal", "acceptable") for e in cases.values())
         return ok, {case: e["result"] for case, e in cases.items() if "result" in e}, {}
@@ -266,6 +274,7 @@ def _solve(
         time_limit_s=args.time_limit or DEFAULT_TIME_LIMIT_S,
         progress=prog.say,
         progress_every_s=args.progress_every,
+        plots=not args.no_plots,
     )
     print(rep["table"])
     return rep["ok"], {"main": rep["result"]}, rep

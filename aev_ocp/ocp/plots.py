@@ -205,8 +205,8 @@ def plot_current_profile_sweep(rows: list[dict[str, Any]], path: str | Path | No
     return save_figure(fig, path)
 
 
-def write_prop31_outputs(cases: dict[str, dict[str, Any]], out_dir: str | Path) -> dict[str, Path]:
-    """prop31.json (one entry per case, without the trajectories) and prop31_currents.png."""
+def write_prop31_outputs(cases: dict[str, dict[str, Any]], out_dir: str | Path, plots: bool = True) -> dict[str, Path]:
+    """prop31.json (one entry per case, without the trajectories) and (plots) prop31_currents.png."""
     out_dir = Path(out_dir)
     keep = (
         "objective_J",
@@ -229,6 +229,7 @@ def write_prop31_outputs(cases: dict[str, dict[str, Any]], out_dir: str | Path) 
     )
     js = {c: {k: e[k] for k in keep if k in e} for c, e in cases.items()}
     paths = {"json": write_json_atomic(out_dir / "prop31.json", js)}
-    paths["png"] = out_dir / "prop31_currents.png"
-    plot_prop31(cases, paths["png"])
+    if plots:
+        paths["png"] = out_dir / "prop31_currents.png"
+        plot_prop31(cases, paths["png"])
     return paths

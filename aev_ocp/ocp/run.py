@@ -1,7 +1,7 @@
 """Top-level entry points of the OCP package (Python API behind ``aev-ocp ocp …``).
 
 Each ``run_*`` returns a dict with at least 'result' (OCPResult) or cases, 'table' (text), 'ok'
-(bool), and writes JSON/CSV/PNG into ``out_dir`` when given.
+(bool), and writes JSON/CSV/PNG into ``out_dir`` when given (``plots=False``: JSON/CSV only, no PNG).
 """
 
 from __future__ import annotations
@@ -73,12 +73,14 @@ def oracle_scenario_from_file(path: str | Path, dt: float = 0.1) -> OracleScenar
     return scenario_oracle(sc, dt)
 
 
-def _write_result(res: OCPResult, out: Path, stem: str) -> None:
-    from .plots import plot_result
-
+def _write_result(res: OCPResult, out: Path, stem: str, plots: bool = True) -> None:
+    """``stem``.json, and for a solved result ``stem``.csv and (plots) ``stem``.png, into ``out``."""
     if res.success:
         res.to_csv(out / f"{stem}.csv")
-        plot_result(res, out / f"{stem}.png")
+        if plots:
+            from .plots import plot_result
+
+            plot_result(res, out / f"{stem}.png")
     res.to_json(out / f"{stem}.json")
 
 
@@ -118,13 +120,14 @@ def run_current_profile(
     sweep_t_f_s: Sequence[float] = SWEEP_T_F_S,
     refine: bool = True,
     progress: Progress | None = None,
+    plots: bool = True,
 ) -> dict[str, Any]:
     """OCP-B: optimal current for (E_req_J [J], t_f_s [s]) vs constant current / constant power, and a
     sweep over E_req × t_f (one solver, re-solved). Cell parameters from ``scenario`` if given.
     Each row reports the NLP ∫Q and its exact re-simulation; infeasible rows the maximum deliverable
     energy; refine: the main case is solved again with 2N intervals (meta['refinement']).
     progress: reports each solve (k/n, ETA); past its time limit the sweep stops and the output is
-    flagged (``time_limit`` True, the rows solved so far)."""
+    flagged (``time_limit`` True, the rows solved so far); plots: False writes no PNG into ``out_dir``."""
     solver = CurrentProfileSolver(method, N, cell=scenario_ev(scenario).cell)
     main = compare_profiles(E_req_J, t_f_s, S0, solver)
     if refine and main["result"].success:
@@ -176,7 +179,7 @@ def run_current_profile(
     }
     if out_dir is not None:
         o = Path(out_dir)
-        _write_result(main["result"], o, "current_profile")
+        _write_result(main["result"], o, "current_profile", plots)
         write_json_atomic(
             o / "current_profile_sweep.json",
             {
@@ -187,11 +190,12 @@ def run_current_profile(
                 "grid": {"E_req_J": list(sweep_E_J), "t_f_s": list(sweep_t_f_s)},
             },
         )
-        from .plots import plot_current_profile_sweep
+        if plots:
+            from .plots import plot_current_profile_sweep
 
-        plot_current_profile_sweep(
-            [r for r in rows if r["status"] in ("optimal", "acceptable")], o / "current_profile_sweep.png"
-        )
+            plot_current_profile_sweep(
+                [r for r in rows if r["status"] in ("optimal", "acceptable")], o / "current_profile_sweep.png"
+            )
     return out
 
 
@@ -311,6 +315,7 @@ def run_eco_trip(
     sweep_D_m: Sequence[float] = (),
     sweep_t_f_s: Sequence[float] = (),
     progress: Progress | None = None,
+    plots: bool = True,
 ) -> dict[str, Any]:
     """OCP-C for ``trip`` (default EcoTrip(): 1 km in 100 s, rest to rest), objective 'heat' and the
     paper's inertial measure ω ('omega', exact epigraph form), each evaluated on both metrics by the exact
@@ -321,7 +326,8 @@ def run_eco_trip(
     solve from each of ``guesses`` (eco_trip.GUESSES) and keep the best (meta['multistart']).
     sweep_D_m [m] × sweep_t_f_s [s]: also solve every such trip (either list empty: the main trip's
     value) for both objectives with the same solvers (rows in 'sweep'); progress: reports each solve,
-    and past its time limit the sweep stops (``time_limit`` True, the rows solved so far)."""
+    and past its time limit the sweep stops (``time_limit`` True, the rows solved so far); plots: False
+    writes no PNG into ``out_dir``."""
     base = trip or EcoTrip(ev=scenario_ev(scenario))
     grid = (
         [(D, tf) for tf in (sweep_t_f_s or [base.t_f_s]) for D in (sweep_D_m or [base.distance_m])]
@@ -351,7 +357,7 @@ def run_eco_trip(
     }
     if out_dir is not None:
         for obj, r in results.items():
-            _write_result(r, Path(out_dir), f"eco_trip_{obj}")
+            _write_result(r, Path(out_dir), f"eco_trip_{obj}", plots)
         if grid:
             write_json_atomic(
                 Path(out_dir) / "eco_trip_sweep.json",
@@ -447,6 +453,7 @@ def run_oracle(
     time_limit_s: float | None = DEFAULT_TIME_LIMIT_S,
     progress: Callable[[str], None] | bool | None = None,
     progress_every_s: float = PROGRESS_EVERY_S,
+    plots: bool = True,
 ) -> dict[str, Any]:
     """OCP-D lower bound. scenario: a TOML file, else ``which`` = 'canonical' (model guide §9) or
     'udds' (first 600 s of UDDS, U = 13 m/s, dt = 1 s). Also reports the same §9 cost of the
@@ -456,7 +463,7 @@ def run_oracle(
     spread (meta['multistart']); default: the proposed law's rollout only. OCP-D's N is fixed by §9's
     dt, so there is no N-doubling. time_limit_s: IPOPT's wall-time limit per solve [s] (a solve stopped
     there is reported, never used as the bound); progress: a line every few seconds while IPOPT
-    iterates (True: on stderr)."""
+    iterates (True: on stderr); plots: False writes no PNG into ``out_dir``."""
     if scenario is not None:
         scn = oracle_scenario_from_file(scenario)
     else:
@@ -504,5 +511,5 @@ def run_oracle(
         "time_limit": res.status == "time_limit",
     }
     if out_dir is not None:
-        _write_result(res, Path(out_dir), f"oracle_{scn.name}")
+        _write_result(res, Path(out_dir), f"oracle_{scn.name}", plots)
     return out
