@@ -50,6 +50,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import time
 from dataclasses import replace
@@ -291,9 +292,9 @@ def cycles_check(params: dict[str, WaveParams], cycles: list[str], gap0_m: float
         lead = drive_cycle(cyc, u)
         for name, wp in params.items():
             t0 = time.perf_counter()
-            r = run_closed_loop(
-                lead, [WaveMPC(ev, Proposed(), wp)], [float(u.length_from_si(gap0_m))], [0.0], lead.times[-1], ev=ev
-            )
+            ctl = WaveMPC(ev, Proposed(), wp)
+            t_end = ctl.dt * math.floor(lead.times[-1] / ctl.dt + 1e-9)  # the whole cycle, in whole MPC intervals
+            r = run_closed_loop(lead, [ctl], [float(u.length_from_si(gap0_m))], [0.0], t_end, ev=ev)
             m, gap = r.metrics()[0], np.asarray(u.length_to_si(r.gap[:, 0]), float)
             rows.append(
                 {
