@@ -684,9 +684,11 @@ class _SumoLoop:
         tr.gap.append(g)
         tr.v_lead.append(vl)
         tr.lane.append(V.getLaneID(vid))
+        lane_end = tr.controlled and left is not None and g == left
         if len(tr.v) > 1:
-            lane_end = tr.controlled and left is not None and g == left
             _check_motion(tr, self.dt, self.u, self.fleet_events, lane_end=lane_end)
+        else:  # (its first sample: no motion to check, but the controller's Observation.lane_end is known)
+            tr.at_lane_end = lane_end
 
     def command(self, ctl_live: list[_Track], t_s: float) -> None:
         """The accelerations [m/s²] of the live controlled vehicles for [t_s, t_s + dt] through their step cores,
