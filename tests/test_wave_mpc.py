@@ -664,3 +664,34 @@ def test_at_the_end_of_its_lane_it_targets_the_lanes_limit_and_keeps_the_lane_en
     c.command(obs(35.5, 25.3, 24.9, t=0.6))  # an ordinary step: both windows take its samples again
     assert list(c.predecessor_speeds._buf)[-1] == pytest.approx(float(U.speed_from_si(24.9)), rel=1e-12)
     assert list(c.gap_average._buf)[-1] == pytest.approx(float(U.length_from_si(35.5)), rel=1e-12)
+
+
+def test_the_reference_with_the_adaptive_buffer_and_a_lane_end_is_the_same_in_si_whatever_the_units():
+    """[units] changes no SI behaviour of the reference: the same SI measurements (a wave, a calm, a lane end with its
+    limit) give the same v_ref [m/s] and buffer b [m] under two unit systems (the MPC's dt set so both sample every
+    0.2 s)."""
+    from aev_ocp.params import Units
+
+    wp = reference_params(
+        0.23, 4.5, 1.2, 0.8, base_predecessor_share=0.7, buffer_rate=3.1, buffer_sigma_mps=0.35, buffer_max_m=6.5
+    )
+    leads = [2.1, 6.3, 1.4, 5.9, 3.8, 4.0, 4.1, 4.0, 3.9, 4.0]
+    runs = []
+    for units in (Units(7.0, 3.0), Units(23.0, 11.0)):
+        ev = EVParams(units=units)
+        s = MPCSettings(codegen=False, dt=float(units.time_from_si(0.2)))
+        c = WaveMPC(ev, Proposed(), wp, s)
+        out = []
+        for k, vl in enumerate(leads):
+            h, v, end = 14.0 + 0.7 * k, 3.6 + 0.05 * k, k >= 8
+            z = np.array([float(units.length_from_si(h)), float(units.speed_from_si(v)), 0.0, 0.0, ev.cell.soc0])
+            t = float(units.time_from_si(0.2 * k))
+            o = Observation(t, s.dt, 0, z, np.array([t]), np.array([float(units.speed_from_si(0.0 if end else vl))]))
+            o = replace(o, lane_end=end, speed_limit=float(units.speed_from_si(13.9)))
+            own = c.own_states(o)
+            out.append((float(units.speed_to_si(own["v_ref"])), c.buffer_m))
+        runs.append(out)
+    assert max(b for _, b in runs[0]) > 0.0  # the buffer acts
+    for (r0, b0), (r1, b1) in zip(*runs):
+        assert r0 == pytest.approx(r1, rel=1e-12) and b0 == pytest.approx(b1, rel=1e-12, abs=1e-12)
+    assert runs[0][-1][0] == pytest.approx(13.9, rel=1e-12)
