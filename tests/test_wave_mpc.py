@@ -13,13 +13,15 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from aev_ocp.control import run_closed_loop
 from aev_ocp.loop import Observation
 from aev_ocp.models.carfollowing import Proposed
 from aev_ocp.models.leader import ConstantSpeed
 from aev_ocp.mpc.settings import MPCSettings
-from aev_ocp.mpc.wave import SpeedAverage, WaveMPC, WaveParams, linear_gains, wave_problem
+from aev_ocp.mpc.wave import SpeedAverage, WaveMPC, WaveParams, linear_gains, spread, wave_problem
 from aev_ocp.ocp.traffic import TrafficParams
 from aev_ocp.params import EVParams, ParameterError
 
@@ -633,6 +635,55 @@ def test_the_adaptive_buffer_integrates_the_wave_and_hands_the_base_back_to_the_
     assert WaveParams().buffer_rate == 0.0  # off by default
     with pytest.raises(ParameterError, match="buffer_sigma_mps"):
         WaveParams(buffer_sigma_mps=0.0)
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.lists(st.floats(-40.0, 40.0, allow_nan=False), min_size=2, max_size=40), st.floats(-3.0, 3.0))
+def test_the_detrended_spread_is_the_std_of_the_least_squares_residuals(ys, slope):
+    """``spread(detrend=True)`` equals the population std of the residuals of numpy's degree-1 least-squares fit
+    over the sample index; a linear trend added to the samples changes it by nothing; without detrending it is
+    numpy's std."""
+    y = np.asarray(ys) + slope * np.arange(len(ys))
+    x = np.arange(len(ys), dtype=float)
+    resid = y - np.polyval(np.polyfit(x, y, 1), x)
+    assert spread(y, detrend=True) == pytest.approx(np.std(resid), rel=1e-7, abs=1e-9)
+    assert spread(y, detrend=True) == pytest.approx(spread(np.asarray(ys), detrend=True), rel=1e-7, abs=1e-9)
+    assert spread(y) == pytest.approx(np.std(y), rel=1e-12, abs=1e-12)
+
+
+def test_the_detrended_wave_buffer_ignores_a_ramp_and_sees_an_oscillation():
+    """With ``detrend_sigma`` the σ_l of c σ_l and of the adaptive buffer is the std of the last 5 predecessor speeds
+    about their least-squares line (hand computation with numpy's polyfit): a predecessor leaving at a steady
+    acceleration opens no buffer, an oscillating one opens the same buffer as the plain std's minus its trend."""
+    g, sig_star, c_s = 3.7, 0.25, 1.9
+    wp = reference_params(0.17, 4.5, 1.1, c_s, catch_max_mps=50.0, buffer_rate=g, buffer_sigma_mps=sig_star)
+    dt_s = float(U.time_to_si(S.dt))
+    speeds = [0.4, 1.1, 1.9, 2.6, 3.2, 3.9, 4.3, 4.6, 4.4, 4.7]
+    gaps = [6.0, 6.8, 7.9, 8.6, 9.4, 9.9, 10.3, 10.1, 9.8, 10.4]
+    for leads, ramp in (
+        ([0.7, 1.4, 2.1, 2.8, 3.5, 4.2, 4.9, 5.6, 6.3, 7.0], True),
+        ([2.1, 4.8, 1.6, 5.3, 2.4, 4.9, 1.8, 5.5, 2.2, 4.6], False),
+    ):
+        plain = WaveMPC(EV, Proposed(), wp, S)
+        det = WaveMPC(EV, Proposed(), replace(wp, detrend_sigma=True), S)
+        b = 0.0
+        for k, (v, h, vl) in enumerate(zip(speeds, gaps, leads)):
+            o = obs(h, v, vl, t=0.1 * k)
+            cmd = det.command(o)
+            plain.command(o)
+            w = slice(max(0, k - 4), k + 1)
+            x = np.arange(len(leads[w]), dtype=float)
+            sig = float(np.std(leads[w] - np.polyval(np.polyfit(x, leads[w], 1), x))) if k else 0.0
+            b = min(max(b + dt_s * g * (sig - sig_star), 0.0), 20.0)
+            U_ = np.mean(speeds[w])
+            ref = U_ + 0.17 * (np.mean(gaps[w]) - 4.5 - 1.1 * U_ - c_s * sig - b)
+            assert cmd.info["buffer_m"] == pytest.approx(b, rel=1e-9, abs=1e-9), (ramp, k)
+            assert cmd.info["v_ref_mps"] == pytest.approx(ref, rel=1e-9), (ramp, k)
+        if ramp:  # a steady acceleration: no buffer detrended, a growing one plain
+            assert det.buffer_m == 0.0 and plain.buffer_m > 0.5
+        else:
+            assert det.buffer_m > 0.5
+    assert WaveParams().detrend_sigma is False  # off by default: the plain std, as before
 
 
 def test_at_the_end_of_its_lane_it_targets_the_lanes_limit_and_keeps_the_lane_end_out_of_its_averages():

@@ -55,6 +55,7 @@ from __future__ import annotations
 
 from collections import deque
 from dataclasses import dataclass, field, replace
+from collections.abc import Sequence
 from typing import Any
 
 import casadi as ca
@@ -116,6 +117,10 @@ class WaveParams:
     # speed over window_s (a wave of speed std σ and period P needs a gap swing of about √2 σ P/π: c ≈ 8 s at
     # the ring's 35 s); 0: off
     buffer_time_s: float = spec(4.0, ge=0.0)  # c [s] (our choice, seeds 0–2: 4 s against 8 s)
+    # σ_l about its trend: the std of the predecessor's speeds about their least-squares line over the window, so a
+    # start, a stop or a steady change of speed (a trend) opens no buffer and only an oscillation (a wave) does
+    # (our choice; False: the plain std, as before). It is the σ_l of c σ_l, of the adaptive buffer and of the hold
+    detrend_sigma: bool = spec(False, kind="bool")
     # an adaptive wave buffer b [m] added to h_t (h_t = s_t + T_t U + c σ_l + b): an integral action on the wave the
     # car sees, db/dt = g (σ_l − σ*), b within [0, b_max]: behind steady drivers (σ_l below σ*) it shrinks to 0 and
     # the car keeps the base gap s_t + T_t U; while a wave grows it opens the gap that absorbs it, until σ_l is back
@@ -299,6 +304,18 @@ class SpeedAverage:
         return float(np.mean(self._buf))
 
 
+def spread(samples: Sequence[float], detrend: bool = False) -> float:
+    """The population std of ``samples`` [their unit]; ``detrend``: about their least-squares line over the sample
+    index instead of their mean (a linear trend has spread 0)."""
+    y = np.asarray(samples, dtype=float)
+    if not detrend or y.size < 2:
+        return float(np.std(y))
+    x = np.arange(y.size, dtype=float) - 0.5 * (y.size - 1)
+    r = y - y.mean()
+    r = r - (x @ r) / (x @ x) * x
+    return float(np.sqrt(np.mean(r * r)))
+
+
 class WaveMPC(MPCPolicy):
     """The wave-damping MPC as a :class:`~aev_ocp.loop.Controller`: every step v_ref = the mean of its own
     measured speed over the last ``window_s`` (:class:`SpeedAverage`), then the policy's forecast, warm-started
@@ -377,7 +394,7 @@ class WaveMPC(MPCPolicy):
         else:
             h_bar = float(u.length_to_si(self.gap_average.update(h)))
         buf = self.predecessor_speeds._buf
-        sigma_l = float(u.speed_to_si(np.std(buf))) if buf else 0.0
+        sigma_l = float(u.speed_to_si(spread(buf, p.detrend_sigma))) if buf else 0.0
         beta = p.base_predecessor_share
         if p.buffer_rate > 0:
             db = self._dt_s * p.buffer_rate * (sigma_l - p.buffer_sigma_mps)
