@@ -10,8 +10,8 @@ own call time.
 
 Prints a table and writes results/bench_sumo.json.
 
-``--wave`` instead runs the wave-damping MPC (SUMO's named ``wave-mpc``: the WaveParams defaults, planning every
-0.2 s as on the toolkit's ring) in SUMO's Krauss ring (``sumo_ring``, one car of 22: share 0.05), SUMO's IDM ring
+``--wave`` instead runs the wave-damping MPC (SUMO's named ``wave-mpc``: each scenario's ``[sumo.wave]`` over the
+WaveParams defaults, planning every 0.2 s as on the toolkit's ring) in SUMO's Krauss ring (``sumo_ring``, one car of 22: share 0.05), SUMO's IDM ring
 (``sumo_ring_idm``, the toolkit's Treiber IDM drivers, one car of 22) and the merge (``sumo_merge``, the scenario's
 share 0.2) over seeds (default 100–109), against SUMO's drivers alone, the same share on FollowerStopper (each
 scenario's ``desired_speed_mps``) and on the paper's law; every controlled car under the safety layer
@@ -21,8 +21,8 @@ metrics' means with 95 % t intervals and the paired verdicts against share 0). W
 (``--record``: also tests/data/bench_sumo_wave.json, which tests/test_wave_mpc.py and tests/test_sumo_wave.py tie to
 the guide's tables).
 
-``--wave-params JSON`` sets WaveParams fields (SI, over the defaults) of every wave-MPC run: they are written into the
-copied scenarios' ``[sumo.wave]`` (checked there as a scenario file's, before any run). ``--variant-params JSON``
+``--wave-params JSON`` sets WaveParams fields (SI, over the scenario's own ``[sumo.wave]``) of every wave-MPC run: they
+are written into the copied scenarios' ``[sumo.wave]`` (checked there as a scenario file's, before any run). ``--variant-params JSON``
 runs a second wave MPC (its fields over the first's) on the same seeds, a study of its own in ``<out>/<name>-variant``,
 and prints per scenario the paired comparison variant − base (:func:`variant_comparison`: per seed, and the mean
 with its 95 % t interval and verdict, of the speed std, mean speed, throughput and battery energy per 100 km, and
@@ -40,8 +40,10 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import re
 import subprocess
 import sys
+import tomllib
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -128,20 +130,28 @@ def _toml_value(x: object) -> str:
 
 def scenario_copy(name: str, folder: Path, wave: dict | None = None) -> Path:
     """The shipped scenario ``name`` written into ``folder`` with every controlled car under the safety layer and
-    keeping the lanes' limits, and ``wave`` (WaveParams fields) as its ``[sumo.wave]`` (none when empty); loaded
-    once, so that a bad field stops the study before any run (SystemExit naming the file and the field)."""
+    keeping the lanes' limits, and as its ``[sumo.wave]`` the shipped file's own (if any) with ``wave`` (WaveParams
+    fields) over it (none when both are empty); loaded once, so that a bad field stops the study before any run
+    (SystemExit naming the file and the field)."""
     from aev_ocp.scenarios import ScenarioError
     from aev_ocp.sumo.scenario import load_sumo_scenario
 
     src = ROOT / "aev_ocp" / "sumo" / "scenarios" / f"{name}.toml"
     text = src.read_text(encoding="utf-8")
-    if "[limits]" in text or "speed_limits" in text or "[sumo.wave]" in text or text.count("\n[sumo]\n") != 1:
-        raise SystemExit(f"{src}: has its own [limits], speed_limits or [sumo.wave], or no single [sumo] table")
+    if "[limits]" in text or "speed_limits" in text or text.count("\n[sumo]\n") != 1:
+        raise SystemExit(f"{src}: has its own [limits] or speed_limits, or no single [sumo] table")
+    shipped = tomllib.loads(text).get("sumo", {}).get("wave", {})
+    if shipped:  # the file's own table goes; its fields come back below, under ``wave``'s
+        table = re.search(r"^\[sumo\.wave\][^\n]*\n(?:(?!\[)[^\n]*\n?)*", text, flags=re.M)
+        if table is None or "[sumo.wave]" in text[table.end() :]:
+            raise SystemExit(f"{src}: its [sumo.wave] table is not one plain table")
+        text = text[: table.start()] + text[table.end() :]
     folder.mkdir(parents=True, exist_ok=True)
     path = folder / f"{name}.toml"
     text = text.replace("\n[sumo]\n", "\n[sumo]\nspeed_limits = true\n")
-    if wave:
-        text += "\n[sumo.wave]\n" + "".join(f"{k} = {_toml_value(v)}\n" for k, v in wave.items())
+    fields = {**shipped, **(wave or {})}
+    if fields:
+        text = text.rstrip("\n") + "\n\n[sumo.wave]\n" + "".join(f"{k} = {_toml_value(v)}\n" for k, v in fields.items())
     path.write_text(text + "\n[limits]\nsafety_layer = true\n", encoding="utf-8")
     try:
         load_sumo_scenario(path)
@@ -310,7 +320,9 @@ def main_wave(argv: list[str]) -> None:
     ap.add_argument(
         "--controllers", nargs="+", choices=WAVE_CONTROLLERS, default=None, help="default: all (SUMO alone always runs)"
     )
-    ap.add_argument("--wave-params", default=None, help="WaveParams fields as JSON over the defaults ([sumo.wave])")
+    ap.add_argument(
+        "--wave-params", default=None, help="WaveParams fields as JSON over each scenario's own [sumo.wave]"
+    )
     ap.add_argument(
         "--variant-params", default=None, help="a second wave MPC's WaveParams fields as JSON over --wave-params'"
     )

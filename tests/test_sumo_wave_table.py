@@ -98,18 +98,22 @@ BENCH = runpy.run_path(str(Path(__file__).resolve().parents[1] / "benchmarks" / 
 
 @pytest.mark.parametrize("name", ["sumo_ring", "sumo_merge"])
 def test_the_study_copy_is_the_shipped_scenario_with_its_wave_table(name: str, tmp_path: Path) -> None:
-    """The copied scenario's document is the shipped one with speed_limits, the safety layer and, only when fields
-    are given, [sumo.wave] holding them: without fields the study's tasks are today's (the same keys)."""
+    """The copied scenario's document is the shipped one with speed_limits, the safety layer and [sumo.wave]: the
+    shipped file's own (sumo_ring has one, sumo_merge none) with the given fields over it: without fields the
+    study's tasks are today's (the same keys)."""
     from aev_ocp.study.traffic import sumo_tasks
 
     want = copy.deepcopy(load_sumo_scenario(name).document)
+    shipped = want["sumo"].get("wave", {})
+    assert bool(shipped) == (name == "sumo_ring") and ("buffer_rate" in shipped) == (name == "sumo_ring")
     want["sumo"]["speed_limits"] = True
     want["limits"] = {"safety_layer": True}
     plain = BENCH["scenario_copy"](name, tmp_path / "a")
     assert load_sumo_scenario(plain).document == want
-    fields = {"target_gap_m": 6.5, "buffer_time_s": 7.25}
+    fields = {"target_gap_m": 6.5, "buffer_time_s": 7.25}  # target_gap_m is also sumo_ring's own: the given wins
     waved = load_sumo_scenario(BENCH["scenario_copy"](name, tmp_path / "b", fields))
-    assert waved.document == {**want, "sumo": {**want["sumo"], "wave": fields}} and waved.spec.wave == fields
+    merged = {**shipped, **fields}
+    assert waved.document == {**want, "sumo": {**want["sumo"], "wave": merged}} and waved.spec.wave == merged
     keys = [
         [t.key for t in sumo_tasks(p, [0.0, 0.05], ["wave-mpc"], [100, 101])]
         for p in (plain, BENCH["scenario_copy"](name, tmp_path / "a2", None))
