@@ -106,6 +106,9 @@ class Observation:
     # the obstacle the gap h measures is the end of the vehicle's lane, not a vehicle (a map: the lane ends before
     # the route goes on, so the car must change lanes before it; its "predecessor speed" in meas_v is then 0)
     lane_end: bool = False
+    # at the end of its lane: the speed a merge assistant advises [model speed], one that sees the target lane's
+    # traffic (in SUMO the speed its lane-change model asks of the car to reach a gap); None where none is given
+    merge_speed: float | None = None
 
 
 @dataclass

@@ -1,7 +1,7 @@
-"""What a controlled SUMO car knows of the road (aev_ocp.loop.Observation.speed_limit, .lane_end) against SUMO's own
-state read independently in the controller: its lane's legal limit (and the merge network's stated limits), and
-whether the obstacle it measures is the end of its lane (the merge's acceleration lane), with the gap then the
-distance to that end."""
+"""What a controlled SUMO car knows of the road (aev_ocp.loop.Observation.speed_limit, .lane_end, .merge_speed)
+against SUMO's own state read independently in the controller: its lane's legal limit (and the merge network's
+stated limits), whether the obstacle it measures is the end of its lane (the merge's acceleration lane), with the gap
+then the distance to that end, and there the speed SUMO's driver model would drive (the merge advice)."""
 
 from __future__ import annotations
 
@@ -45,6 +45,8 @@ class MapReader:
                 "left_true": libsumo.lane.getLength(lane) - V.getLanePosition(VID),
                 "lead_gap": lead[1] if lead and lead[0] else np.inf,
                 "gap": float(u.length_to_si(obs.z[0])),
+                "merge": None if obs.merge_speed is None else float(u.speed_to_si(obs.merge_speed)),
+                "merge_true": V.getSpeedWithoutTraCI(VID),
             }
         )
         v, h = float(u.speed_to_si(obs.z[1])), float(u.length_to_si(obs.z[0]))
@@ -102,6 +104,12 @@ def test_a_controlled_car_knows_its_lanes_limit_and_when_its_obstacle_is_its_lan
         if end_ahead:
             assert s["gap"] == pytest.approx(s["left_true"], abs=1e-6)
     assert any(s["lane_end"] for s in on_accel)
+    for s in seen:  # a merge assistant's advice only at the lane's end: the speed SUMO's own driver model asks
+        if s["lane_end"]:
+            assert s["merge"] == pytest.approx(s["merge_true"], rel=1e-9)
+        else:
+            assert s["merge"] is None
+    assert any(abs(s["merge"] - s["limit"]) > 1.0 for s in seen if s["lane_end"])  # the advice is not the limit
     assert any(s["lead_gap"] < 150.0 and not s["lane_end"] for s in seen)  # a vehicle ahead is no lane end
     for s in seen:
         if s["lane"] not in ("accel_0", "ramp_0") and not s["lane"].startswith(":"):

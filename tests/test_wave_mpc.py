@@ -689,8 +689,9 @@ def test_the_detrended_wave_buffer_ignores_a_ramp_and_sees_an_oscillation():
 def test_at_the_end_of_its_lane_it_targets_the_lanes_limit_and_keeps_the_lane_end_out_of_its_averages():
     """With ``Observation.lane_end`` (the gap measures the distance to the end of its lane, the "predecessor speed"
     is 0) v_ref is ``Observation.speed_limit``; the predecessor-speed and gap windows stay as they were (the own
-    speed is still averaged); without a known limit v_ref is the reference of those windows (hand computation); the
-    next ordinary step averages as before."""
+    speed is still averaged); a merge assistant's advised speed (``Observation.merge_speed``) replaces the limit;
+    without either v_ref is the reference of those windows (hand computation); the next ordinary step averages as
+    before."""
     wp = WaveParams(window_s=1.0, catch_gain_per_s=0.27, target_gap_m=9.5, target_time_gap_s=1.4, buffer_time_s=0.5)
     wp = replace(wp, base_predecessor_share=0.6)
     c = WaveMPC(EV, Proposed(), wp, S)
@@ -706,13 +707,17 @@ def test_at_the_end_of_its_lane_it_targets_the_lanes_limit_and_keeps_the_lane_en
         cmd = c.command(o)
         assert cmd.info["v_ref_mps"] == pytest.approx(limit, rel=1e-12)
         assert list(c.predecessor_speeds._buf) == lead_buf and list(c.gap_average._buf) == gap_buf
-    own = speeds + [23.8, 24.6]
-    cmd = c.command(replace(obs(175.0, 25.1, 0.0, t=0.5), lane_end=True))  # the limit unknown
+    # a merge assistant's advice (Observation.merge_speed) wins over the limit, and it too leaves the windows alone
+    o = replace(o, t=0.5, merge_speed=float(U.speed_from_si(27.3)))
+    assert c.command(o).info["v_ref_mps"] == pytest.approx(27.3, rel=1e-12)
+    assert list(c.predecessor_speeds._buf) == lead_buf and list(c.gap_average._buf) == gap_buf
+    own = speeds + [23.8, 24.6, 24.6]
+    cmd = c.command(replace(obs(175.0, 25.1, 0.0, t=0.6), lane_end=True))  # the limit and the advice unknown
     U_ = np.mean((own + [25.1])[-5:])
     base = 0.4 * U_ + 0.6 * np.mean(leads)
     ref = base + min(max(0.27 * (np.mean(gaps) - 9.5 - 1.4 * base - 0.5 * np.std(leads)), -1.0), 1.0)
     assert cmd.info["v_ref_mps"] == pytest.approx(ref, rel=1e-9)
-    c.command(obs(35.5, 25.3, 24.9, t=0.6))  # an ordinary step: both windows take its samples again
+    c.command(obs(35.5, 25.3, 24.9, t=0.7))  # an ordinary step: both windows take its samples again
     assert list(c.predecessor_speeds._buf)[-1] == pytest.approx(float(U.speed_from_si(24.9)), rel=1e-12)
     assert list(c.gap_average._buf)[-1] == pytest.approx(float(U.length_from_si(35.5)), rel=1e-12)
 

@@ -436,7 +436,9 @@ class WaveMPC(MPCPolicy):
         if len(obs.meas_v) and not obs.lane_end:
             self.predecessor_speeds.update(float(obs.meas_v[-1]))
         v_ref = self.reference(float(obs.z[0]), float(obs.z[1]), obs.lane_end)
-        if obs.lane_end and obs.speed_limit is not None:  # it must merge: it drives up to the road's speed
+        if obs.lane_end and obs.merge_speed is not None:  # it must merge: at the speed that reaches a gap
+            v_ref = float(obs.merge_speed)
+        elif obs.lane_end and obs.speed_limit is not None:  # without one, it drives up to the road's speed
             v_ref = float(obs.speed_limit)
         self.v_ref = own["v_ref"] = v_ref
         if self.with_follower:

@@ -762,7 +762,10 @@ class _SumoLoop:
         tr.meas_v.append(u.speed_from_si(v_lead))
         if (len(tr.t_s) - 1) % self.ctrl_every == 0:  # every controller dt since the vehicle departed
             limit = u.speed_from_si(self.lane_limit(tr.lane[-1]))
-            tr.a_cmd_mps2 = _call(tr, u, v, gap, self.follower(tr), float(limit), tr.at_lane_end)
+            # at its lane's end, the speed SUMO's lane-change model asks of the car to reach a gap in the next lane
+            # (a merge assistant's advice: the driver model's speed without the controller's command)
+            merge = float(u.speed_from_si(self.V.getSpeedWithoutTraCI(tr.vid))) if tr.at_lane_end else None
+            tr.a_cmd_mps2 = _call(tr, u, v, gap, self.follower(tr), float(limit), tr.at_lane_end, merge)
         return tr.a_cmd_mps2
 
     def follower(self, tr: _Track) -> np.ndarray | None:
@@ -889,6 +892,7 @@ def _call(
     follower: np.ndarray | None = None,
     speed_limit: float | None = None,
     lane_end: bool = False,
+    merge_speed: float | None = None,
 ) -> float:
     """One control instant of a sampled Controller on the vehicle's measurements (and its follower's, when one is
     behind it: Observation.follower; its lane's limit [model speed] and whether its obstacle is its lane's end:
@@ -909,6 +913,7 @@ def _call(
         follower=follower,
         speed_limit=speed_limit,
         lane_end=lane_end,
+        merge_speed=merge_speed,
     )
     _, a = tr.step.command(tr.ctrl, obs)
     tr.step.rec["info"][-1] = {}  # (a SUMO run keeps no forecasts)
