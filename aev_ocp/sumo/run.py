@@ -896,7 +896,8 @@ def _call(
 ) -> float:
     """One control instant of a sampled Controller on the vehicle's measurements (and its follower's, when one is
     behind it: Observation.follower; its lane's limit [model speed] and whether its obstacle is its lane's end:
-    Observation.speed_limit, Observation.lane_end) through the loop core (checked, conditioned, safety layer,
+    Observation.speed_limit, Observation.lane_end; there the speed SUMO's driver model would drive [model speed]:
+    Observation.merge_speed) through the loop core (checked, conditioned, safety layer,
     limits); returns the acceleration the vehicle applies [m/s²]."""
     assert tr.ctrl is not None and tr.step is not None
     x = tr.x_bat[-1]
