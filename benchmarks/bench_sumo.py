@@ -11,9 +11,9 @@ own call time.
 Prints a table and writes results/bench_sumo.json.
 
 ``--wave`` instead runs the wave-damping MPC (SUMO's named ``wave-mpc``: each scenario's ``[sumo.wave]`` over the
-WaveParams defaults, planning every 0.2 s as on the toolkit's ring) in SUMO's Krauss ring (``sumo_ring``, one car of 22: share 0.05), SUMO's IDM ring
-(``sumo_ring_idm``, the toolkit's Treiber IDM drivers, one car of 22) and the merge (``sumo_merge``, the scenario's
-share 0.2) over seeds (default 100–109), against SUMO's drivers alone, the same share on FollowerStopper (each
+WaveParams defaults, planning every 0.2 s as on the toolkit's ring) in SUMO's Krauss ring (``sumo_ring``, one car of
+22: share 0.05), SUMO's IDM ring (``sumo_ring_idm``, the toolkit's Treiber IDM drivers, one car of 22) and the merge
+(``sumo_merge``, the scenario's share 0.2) over seeds (default 100–109), against SUMO's drivers alone, the same share on FollowerStopper (each
 scenario's ``desired_speed_mps``) and on the paper's law; every controlled car under the safety layer
 (``[limits] safety_layer = true``) and keeping its lane's speed limit (``[sumo] speed_limits = true``), through the
 study layer (:func:`aev_ocp.study.traffic.sumo_tasks`, :func:`aev_ocp.study.traffic_study.run_traffic_study`: the
@@ -21,9 +21,9 @@ metrics' means with 95 % t intervals and the paired verdicts against share 0). W
 (``--record``: also tests/data/bench_sumo_wave.json, which tests/test_wave_mpc.py and tests/test_sumo_wave.py tie to
 the guide's tables).
 
-``--wave-params JSON`` sets WaveParams fields (SI, over the scenario's own ``[sumo.wave]``) of every wave-MPC run: they
-are written into the copied scenarios' ``[sumo.wave]`` (checked there as a scenario file's, before any run). ``--variant-params JSON``
-runs a second wave MPC (its fields over the first's) on the same seeds, a study of its own in ``<out>/<name>-variant``,
+``--wave-params JSON`` sets WaveParams fields (SI, over the scenario's own ``[sumo.wave]``) of every wave-MPC run:
+they are written into the copied scenarios' ``[sumo.wave]`` (checked there as a scenario file's, before any run).
+``--variant-params JSON`` runs a second wave MPC (its fields over the first's) on the same seeds, a study of its own in ``<out>/<name>-variant``,
 and prints per scenario the paired comparison variant − base (:func:`variant_comparison`: per seed, and the mean
 with its 95 % t interval and verdict, of the speed std, mean speed, throughput and battery energy per 100 km, and
 both runs' events). ``--scenarios`` runs only some of the three, ``--controllers`` only some of the controllers
