@@ -79,12 +79,37 @@ def write_atomic(path: str | os.PathLike[str], data: str | bytes) -> Path:
 
 
 def save_figure_atomic(fig: Any, path: str | os.PathLike[str], **savefig_kwargs: Any) -> Path:
-    """Save a matplotlib figure as ``path`` atomically (see :func:`atomic_path`); the figure stays open."""
+    """Save a matplotlib figure as ``path`` atomically (see :func:`atomic_path`); the figure stays open.
+
+    A figure laid out once by ``fig.tight_layout()`` is drawn once, not twice: tight_layout leaves a placeholder
+    layout engine on the figure (it lays out nothing), and matplotlib's savefig draws a figure with any layout engine
+    once without rendering before it renders it (for layouts computed at draw time, such as constrained layout). The
+    placeholder is taken off for the save and put back: the file is the same byte for byte, about half of a
+    figure's save time less (issue 40). A figure with a working layout engine (constrained) is saved as it is."""
+    from matplotlib.layout_engine import PlaceHolderLayoutEngine
+
     path = Path(path)
     fmt = savefig_kwargs.pop("format", path.suffix.lstrip(".") or "png")
+    engine = getattr(fig, "get_layout_engine", lambda: None)()  # anything with a savefig method is accepted
+    placeholder = isinstance(engine, PlaceHolderLayoutEngine)
     with atomic_path(path) as tmp:
-        fig.savefig(tmp, format=fmt, **savefig_kwargs)
+        if placeholder:
+            _set_no_layout_engine(fig)
+        try:
+            fig.savefig(tmp, format=fmt, **savefig_kwargs)
+        finally:
+            if placeholder:
+                fig.set_layout_engine(engine)
     return path
+
+
+def _set_no_layout_engine(fig: Any) -> None:
+    """``fig`` without a layout engine (matplotlib's set_layout_engine(None) picks the rc's default engine instead
+    when ``figure.autolayout`` or ``figure.constrained_layout.use`` is set: both off for this call)."""
+    import matplotlib as mpl
+
+    with mpl.rc_context({"figure.autolayout": False, "figure.constrained_layout.use": False}):
+        fig.set_layout_engine(None)
 
 
 # ----------------------------------------------------------------------------- notebook display

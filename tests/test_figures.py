@@ -258,3 +258,59 @@ def test_phase_plane_and_leader_in_si(figs, tmp_path) -> None:  # noqa: ANN001
     v_ax = figs[-1].axes[1]
     np.testing.assert_allclose(v_ax.lines[0].get_ydata(), 0.9 * UNITS.speed_mps * 3.6)
     assert v_ax.get_ylabel() == "v_l [km/h]"
+
+
+def _two_panel_figure(layout: str):  # noqa: ANN202
+    """A figure of the package's kind (two panels, legends, titles, SI labels), laid out by tight_layout() as the
+    package's figures are, or by matplotlib's constrained layout (the ring's figures)."""
+    import matplotlib.pyplot as plt
+
+    fig, axs = plt.subplots(2, 1, figsize=(5.3, 4.1), layout="constrained" if layout == "constrained" else None)
+    t_s = np.linspace(0.0, 37.0, 211)
+    for k, ax in enumerate(axs):
+        ax.plot(t_s, 3.1 * np.sin(0.23 * (k + 1) * t_s), label=f"vehicle {k + 1}")
+        ax.set_ylabel("v [m/s]")
+        ax.set_title(f"panel {k + 1}")
+        ax.legend(fontsize=8)
+    axs[-1].set_xlabel("t [s]")
+    if layout == "tight":
+        fig.tight_layout()
+    return fig
+
+
+@pytest.mark.parametrize("layout, draws", [("tight", 1), ("constrained", 2)])
+def test_a_saved_figure_is_the_file_savefig_writes_drawn_once_when_laid_out_already(
+    tmp_path, monkeypatch: pytest.MonkeyPatch, layout: str, draws: int
+) -> None:
+    """save_figure_atomic writes the bytes matplotlib's own savefig writes for the same figure (a second figure built
+    the same way), draws a figure tight_layout() laid out once (not a layout-only draw first: issue 40) and one with
+    constrained layout twice (its layout needs that draw), and leaves the figure's layout engine as it was."""
+    import io
+
+    import matplotlib.figure
+    import matplotlib.pyplot as plt
+    from helpers import TEST_DPI
+
+    from aev_ocp.results import save_figure_atomic
+
+    reference = io.BytesIO()
+    twin = _two_panel_figure(layout)
+    twin.savefig(reference, format="png", dpi=TEST_DPI)
+    plt.close(twin)
+
+    fig = _two_panel_figure(layout)
+    engine = fig.get_layout_engine()
+    counted: list[int] = []
+    real_draw = matplotlib.figure.Figure.draw
+
+    def draw(self, renderer):  # noqa: ANN001, ANN202
+        counted.append(1)
+        return real_draw(self, renderer)
+
+    monkeypatch.setattr(matplotlib.figure.Figure, "draw", draw)
+    path = save_figure_atomic(fig, tmp_path / "fig.png", dpi=TEST_DPI)
+    monkeypatch.undo()
+    assert len(counted) == draws
+    assert fig.get_layout_engine() is engine
+    assert path.read_bytes() == reference.getvalue()
+    plt.close(fig)
