@@ -81,3 +81,23 @@ def test_compiled_ring_outputs_are_the_models_right_hand_side(name: str) -> None
         y = sim._outputs(z, np.zeros(sim.n))
         assert np.array_equal(r.current_A[k], y[:, 1]), k
         assert np.array_equal(r.accel[k], y[:, 0]), k
+
+
+@pytest.mark.parametrize("name", sorted(EVS))
+def test_piecewise_ocv_through_its_cached_function_is_the_written_out_expression(name: str) -> None:
+    """ocv_piecewise of a dense SX (a scalar and a 3-vector) goes through a Function built once per table and shape:
+    the values are those of the expression written out from Python, to the bit, at random SOCs inside and outside
+    [0, 1], on the breakpoints and at ±inf; a second model reuses the Function."""
+    cell = EVS[name].cell
+    grid = battery.ocv_table(cell)[0]
+    S = np.concatenate([np.random.default_rng(40).uniform(-0.3, 1.3, 600), grid, [np.inf, -np.inf]])
+    for shape in ((1, 1), (3, 1)):
+        s = ca.SX.sym("S", *shape)
+        via = ca.Function("via", [s], [battery.ocv_piecewise(s, cell)])
+        direct = ca.Function("direct", [s], [battery._ocv_piecewise_expression(s, cell, None)])
+        X = ca.DM(np.resize(S, (shape[0], S.size)))
+        a, b = np.asarray(via(X)), np.asarray(direct(X))
+        assert a.shape == (shape[0], S.size) and np.array_equal(a, b)
+    hits = battery._ocv_piecewise_function.cache_info().hits
+    battery.ocv_piecewise(ca.SX.sym("T"), cell)
+    assert battery._ocv_piecewise_function.cache_info().hits == hits + 1

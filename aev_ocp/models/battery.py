@@ -80,10 +80,42 @@ def ocv_pieces(cell: CellParams | None = None) -> tuple[np.ndarray, np.ndarray]:
 def ocv_piecewise(S: Any, cell: CellParams | None = None) -> Any:
     """OCV(S) [V] as the same piecewise cubic written with comparisons: an SX expression whose
     derivatives are plain arithmetic (cheaper than B-spline calls in generated Hessians); equal to
-    :func:`ocv_function` within 1e-14 V on [0, 1] (tests/test_mpc_export.py); the end pieces extended."""
+    :func:`ocv_function` within 1e-14 V on [0, 1] (tests/test_mpc_export.py); the end pieces extended.
+
+    A dense SX argument of a cell with numbers (not :func:`runtime_cell`'s parameters) gets the expression through
+    a Function built once per OCV table and shape: the same operations on the same nodes, so the same values to the
+    bit (tests/test_battery.py), where writing it out again from Python took about 80 times longer at every model
+    built."""
+    sym = getattr(cell, RUNTIME_OCV, None)  # a run-time cell (:func:`runtime_cell`): the same numbers as parameters
+    if sym is None and isinstance(S, ca.SX) and S.is_dense():
+        return _ocv_piecewise_function(_key(cell), S.shape)(S)
+    return _ocv_piecewise_expression(S, cell, sym)
+
+
+@lru_cache(maxsize=32)
+def _ocv_piecewise_function(
+    key: tuple[tuple[float, ...], tuple[float, ...]] | None,
+    shape: tuple[int, int],
+) -> ca.Function:
+    """:func:`_ocv_piecewise_expression` of the OCV table ``key`` as a Function of S of ``shape``."""
+    S = ca.SX.sym("S", *shape)
+    return ca.Function(
+        "ocv_piecewise", [S], [_ocv_piecewise_expression(S, None if key is None else _KeyCell(key), None)]
+    )
+
+
+class _KeyCell:
+    """The OCV table of a :func:`_key` where a cell is asked for (:func:`ocv_pieces` reads these two fields)."""
+
+    def __init__(self, key: tuple[tuple[float, ...], tuple[float, ...]]) -> None:
+        self.ocv_soc, self.ocv_V = key
+
+
+def _ocv_piecewise_expression(S: Any, cell: Any, sym: Any) -> Any:
+    """:func:`ocv_piecewise` written out: the piece's numbers picked by the comparisons S ≥ s_k (from ``sym``, the
+    run-time cell's coefficients, when given)."""
     s, c = ocv_pieces(cell)
     step = [S >= s[k] for k in range(1, len(c))]
-    sym = getattr(cell, RUNTIME_OCV, None)  # a run-time cell (:func:`runtime_cell`): the same numbers as parameters
     s0, a, b, cc, d = (
         v[0] + sum((v[k] - v[k - 1]) * step[k - 1] for k in range(1, len(c)))
         if sym is None or j == 0
@@ -138,6 +170,12 @@ def ocv_inputs() -> Iterator[list[tuple[Any, Any, CellParams | None]]]:
         yield calls
     finally:
         _INPUTS.reset(token)
+
+
+def ocv_form() -> tuple[bool, bool]:
+    """How :func:`ocv` writes an SX argument here: (inside :func:`piecewise_ocv`, inside :func:`ocv_inputs`): a model
+    built under one is not the model built under another (a key of models kept for reuse)."""
+    return _PIECEWISE.get(), _INPUTS.get() is not None
 
 
 def ocv(S: Any, cell: CellParams | None = None) -> Any:
