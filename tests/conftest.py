@@ -88,6 +88,23 @@ def pytest_collection_modifyitems(session: pytest.Session, config: pytest.Config
     items.sort(key=lambda i: (-weight(_file_of(i)), first[_file_of(i)]))
 
 
+@pytest.fixture(autouse=True)
+def _no_shared_mpc_problems_across_a_monkeypatch(request: pytest.FixtureRequest) -> Iterator[None]:
+    """A test that asks for ``monkeypatch`` may change the models' code: the MPC problems this process keeps
+    (Formulation.mpc_problem, built once per equal inputs) are forgotten before it and after it."""
+    import inspect
+
+    fn = getattr(request, "function", None)
+    patches = fn is not None and "monkeypatch" in inspect.signature(fn).parameters
+    if patches:
+        from aev_ocp.ocp.formulation import clear_mpc_problems
+
+        clear_mpc_problems()
+    yield
+    if patches:
+        clear_mpc_problems()
+
+
 @pytest.fixture
 def figures_at_test_dpi(monkeypatch: pytest.MonkeyPatch) -> None:
     """The package's figures drawn at tests/helpers.py's TEST_DPI for one test (a test that checks that a figure is

@@ -192,12 +192,41 @@ def test_a_number_the_model_cannot_take_as_a_symbol_keeps_the_numbers_in(monkeyp
     import aev_ocp.ocp.traffic as T
 
     monkeypatch.setattr(T, "EV_NUMBERS", ("vehicle.rotating_mass_kg",))  # the grade would become a parameter
-    with warnings.catch_warnings(record=True) as w:
-        warnings.simplefilter("always")
-        pr = DEFAULT_FORMULATION.mpc_problem(EVParams(), 0.1)
-    assert any(isinstance(x.message, AevOcpWarning) and "numbers in" in str(x.message) for x in w)
+    for _ in range(2):  # the second call reuses the kept problem and warns again
+        with warnings.catch_warnings(record=True) as w:
+            warnings.simplefilter("always")
+            pr = DEFAULT_FORMULATION.mpc_problem(EVParams(), 0.1)
+        assert any(isinstance(x.message, AevOcpWarning) and "numbers in" in str(x.message) for x in w)
     assert "ev__units__length_m" not in pr.meta["parameter_defaults"]
     assert same_problem(DEFAULT_FORMULATION.build(EVParams(), 0.1), pr) == ""
+
+
+def test_the_mpc_problem_is_built_once_per_formulation_vehicle_step_and_ocv_form() -> None:
+    """Equal (formulation, vehicle, dt, OCV form) give the one problem kept; another vehicle, step, formulation or OCV
+    form gives its own (with its own numbers); after clear_mpc_problems the problem is built again, equal to the one before."""
+    from aev_ocp.models.battery import piecewise_ocv
+    from aev_ocp.ocp.formulation import clear_mpc_problems
+
+    clear_mpc_problems()
+    ev = _ev_b()
+    pr = DEFAULT_FORMULATION.mpc_problem(ev, 0.13)
+    assert DEFAULT_FORMULATION.mpc_problem(dataclasses.replace(ev), 0.13) is pr  # an equal vehicle
+    heavier = dataclasses.replace(ev, vehicle=dataclasses.replace(ev.vehicle, mass_kg=1612.5))
+    others = [
+        DEFAULT_FORMULATION.mpc_problem(heavier, 0.13),
+        DEFAULT_FORMULATION.mpc_problem(ev, 0.17),
+        DEFAULT_FORMULATION.with_(traffic=TrafficParams(margin_weight=0.7)).mpc_problem(ev, 0.13),
+    ]
+    assert all(o is not pr for o in others)
+    assert others[0].meta["parameter_defaults"]["ev__vehicle__mass_kg"] == 1612.5
+    assert pr.meta["parameter_defaults"]["ev__vehicle__mass_kg"] == 1390.0
+    with piecewise_ocv():
+        pw = DEFAULT_FORMULATION.mpc_problem(ev, 0.13)
+        assert pw is not pr and DEFAULT_FORMULATION.mpc_problem(ev, 0.13) is pw
+    assert pw.ode.n_instructions() != pr.ode.n_instructions()  # comparisons in place of the B-spline's call
+    clear_mpc_problems()
+    again = DEFAULT_FORMULATION.mpc_problem(ev, 0.13)
+    assert again is not pr and same_problem(pr, again) == "" and again.np_ == pr.np_
 
 
 def test_parameters_of_names_every_float_and_keeps_the_numbers_asked_for() -> None:

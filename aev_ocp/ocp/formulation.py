@@ -24,6 +24,7 @@ import math
 from dataclasses import dataclass, field
 from typing import Any, Callable, Mapping
 
+from ..models.battery import ocv_form
 from ..params import EVParams, ParameterError, PowertrainOptions, spec, validate_fields
 from .following import (
     OBJECTIVES,
@@ -163,23 +164,28 @@ class Formulation:
         parameters with defaults (``runtime_parameters``: one compiled library serves every vehicle of the same
         structure), checked against the problem with the numbers in (:func:`same_problem`); if they
         disagree (a model that turns a symbol into a number, e.g. through the math module), the numbers-in problem,
-        with a warning. A user problem as :meth:`build` gives it."""
+        with a warning. A user problem as :meth:`build` gives it.
+
+        A built-in problem is built once per process for equal (formulation, vehicle, dt, OCV form): the MPCs of a
+        platoon, a sweep or a study's points share it (it is read, never changed: its Functions are immutable);
+        :func:`clear_mpc_problems` forgets them (after a change of the models' code, e.g. a test's monkeypatch)."""
         if self.kind == "problem":
             return self.build(ev, dt)
-        baked = self.build(ev, dt)
-        why = ""
-        # the vehicle's groups a model may need as numbers (a jerk limit converted with float(), a lag's τ compared
-        # with 0), kept as numbers in turn until the problem builds: each tier is one library per such value
-        for keep in EV_NUMBER_TIERS:
-            try:
-                b = self.builder(ev, dt, baked.name, runtime_parameters=True, ev_numbers=keep)
-                pr = b.build() if isinstance(b, ProblemBuilder) else b
-            except (RuntimeError, TypeError, ValueError, NotImplementedError) as exc:
-                why = f"{type(exc).__name__}: {str(exc).splitlines()[-1][:120]}"
-                continue
-            why = same_problem(baked, pr)
-            if not why:
-                return pr
+        form = ocv_form()
+        try:
+            key = (self, ev, float(dt), form)
+            hash(key)
+        except TypeError:  # a field that cannot be a key (not expected of the built-in kinds): no sharing
+            key = None
+        if key is None or form[1]:  # under ocv_inputs the problem's OCV symbols are the caller's own: never shared
+            problem, why = self._mpc_problem(ev, dt)
+        else:
+            hit = _MPC_PROBLEMS.get(key)
+            if hit is None:
+                hit = _MPC_PROBLEMS[key] = self._mpc_problem(ev, dt)
+                while len(_MPC_PROBLEMS) > _MPC_PROBLEMS_KEPT:  # the oldest first
+                    del _MPC_PROBLEMS[next(iter(_MPC_PROBLEMS))]
+            problem, why = hit
         if why:
             import warnings
 
@@ -193,7 +199,25 @@ class Formulation:
                 ),
                 stacklevel=2,
             )
-        return baked
+        return problem
+
+    def _mpc_problem(self, ev: EVParams, dt: float) -> tuple[OCPProblem, str]:
+        """:meth:`mpc_problem` built: (the problem, '' or why the run-time parameters' problem was not used)."""
+        baked = self.build(ev, dt)
+        why = ""
+        # the vehicle's groups a model may need as numbers (a jerk limit converted with float(), a lag's τ compared
+        # with 0), kept as numbers in turn until the problem builds: each tier is one library per such value
+        for keep in EV_NUMBER_TIERS:
+            try:
+                b = self.builder(ev, dt, baked.name, runtime_parameters=True, ev_numbers=keep)
+                pr = b.build() if isinstance(b, ProblemBuilder) else b
+            except (RuntimeError, TypeError, ValueError, NotImplementedError) as exc:
+                why = f"{type(exc).__name__}: {str(exc).splitlines()[-1][:120]}"
+                continue
+            why = same_problem(baked, pr)
+            if not why:
+                return pr, ""
+        return baked, why
 
     def build(self, ev: EVParams, dt: float, name: str | None = None) -> OCPProblem:
         """:meth:`builder`, built."""
@@ -399,6 +423,16 @@ def problem_formulation(
 #: (:meth:`Formulation.mpc_problem`): none, then the limits (a lag's τ is compared with 0, a jerk limit goes through
 #: float()), then the limits and the units.
 EV_NUMBER_TIERS: tuple[tuple[str, ...], ...] = ((), ("limits",), ("limits", "units"))
+
+#: :meth:`Formulation.mpc_problem`'s problems of this process, by (formulation, vehicle, dt, OCV form), the oldest
+#: forgotten first beyond :data:`_MPC_PROBLEMS_KEPT`
+_MPC_PROBLEMS: dict[tuple[Any, ...], tuple[OCPProblem, str]] = {}
+_MPC_PROBLEMS_KEPT = 64
+
+
+def clear_mpc_problems() -> None:
+    """Forget the problems :meth:`Formulation.mpc_problem` keeps (the next call builds its problem again)."""
+    _MPC_PROBLEMS.clear()
 
 
 def same_problem(baked: OCPProblem, runtime: OCPProblem, rtol: float = 1e-9) -> str:
