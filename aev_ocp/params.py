@@ -11,7 +11,7 @@ that converts model units to SI and back.
 from __future__ import annotations
 
 import math
-from dataclasses import MISSING, dataclass, field, fields
+from dataclasses import MISSING, dataclass, field, fields, is_dataclass
 from typing import Any, Sequence
 
 from .errors import AevOcpError
@@ -209,6 +209,22 @@ def check_argument(where: str, name: str, value: Any, expected: type | tuple[typ
         names = " or ".join("None" if k is type(None) else k.__name__ for k in kinds)
         raise TypeError(f"{where}: {name} must be {names}, got {type(value).__name__} {echo(value)}")
     return value
+
+
+def exact_key(obj: Any) -> Any:
+    """A key equal only for dataclasses of the same type whose fields are identical to the bit (floats by their hex,
+    so 0.0 and -0.0 differ; their types too, so 1 and 1.0 differ): what a process may keep a result of a law or a
+    leader by; None when ``obj`` is not a dataclass or a field is not hashable."""
+    if not is_dataclass(obj):
+        return None
+    vals = tuple(
+        (f.name, type(v), v.hex() if isinstance(v, float) else v) for f in fields(obj) for v in (getattr(obj, f.name),)
+    )
+    try:
+        hash(vals)
+    except TypeError:
+        return None
+    return type(obj), vals
 
 
 def validate_fields(obj: Any) -> None:

@@ -45,7 +45,7 @@ from .models.ego import battery_side
 from .models.leader import LeaderProfile, SpeedTrace
 from .limits import check_simulation_size
 from .progress import check_deadline
-from .params import METHODS, EVParams, ParameterError, SimOptions, check_argument
+from .params import METHODS, EVParams, ParameterError, SimOptions, check_argument, exact_key
 from .plant import (
     battery_power_integrand,
     INTEGRATION_FAILED,
@@ -117,23 +117,6 @@ def _law_template(law: CarFollowingLaw) -> tuple[Any, Callable[[ca.SX], CarFollo
     return law, (lambda p, _law=law: _law), []
 
 
-def _exact_key(law: CarFollowingLaw) -> Any:
-    """A key equal only for laws of the same type whose fields are identical to the bit (floats by their hex, so
-    0.0 and -0.0 differ; their types too, so 1 and 1.0 differ); None when a field is not hashable."""
-    if not dataclasses.is_dataclass(law):
-        return None
-    vals = tuple(
-        (f.name, type(v), v.hex() if isinstance(v, float) else v)
-        for f in dataclasses.fields(law)
-        for v in (getattr(law, f.name),)
-    )
-    try:
-        hash(vals)
-    except TypeError:
-        return None
-    return type(law), vals
-
-
 def _law_templates(
     laws: Sequence[CarFollowingLaw],
 ) -> list[tuple[Any, Callable[[ca.SX], CarFollowingLaw], list[float]]]:
@@ -142,7 +125,7 @@ def _law_templates(
     seen: dict[Any, tuple[Any, Callable[[ca.SX], CarFollowingLaw], list[float]]] = {}
     out = []
     for law in laws:
-        key = _exact_key(law)
+        key = exact_key(law)
         if key is None:
             out.append(_law_template(law))
             continue

@@ -100,6 +100,42 @@ def test_paper_leader_consistency() -> None:
     assert L.breakpoints == (20.0,)
 
 
+def test_max_speed_is_the_closed_forms_grid_maximum_once_per_leader_and_horizon(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """LeaderProfile.max_speed against the paper leader's closed form v0 − c((1 − cos w1 t)/w1 + sin(w2 t)/w2) on the
+    same grid (numpy), computed once per process for equal leaders and horizons: an equal leader built again and the
+    same horizon reuse it, another horizon, amplitude or type computes its own."""
+    from aev_ocp.models import leader as leader_mod
+    from aev_ocp.stability.perturbation import PerturbedLeader
+
+    monkeypatch.setattr(leader_mod, "_MAX_SPEEDS", {})
+    computed: list[float] = []
+    real = leader_mod.LeaderProfile._max_speed
+
+    def counted(self, t_end, n):  # noqa: ANN001, ANN202
+        computed.append(t_end)
+        return real(self, t_end, n)
+
+    monkeypatch.setattr(leader_mod.LeaderProfile, "_max_speed", counted)
+
+    def closed_form(ld: PaperLeader, t_end: float, n: int = 20001) -> float:
+        t = np.minimum(np.linspace(0.0, t_end, n), ld.t_end)
+        c = ld.amplitude
+        return float(np.max(ld.v0 - c * ((1 - np.cos(ld.w1 * t)) / ld.w1 + np.sin(ld.w2 * t) / ld.w2)))
+
+    a = PaperLeader(v0=1.63, amplitude=1.17)
+    assert a.max_speed(3.7) == pytest.approx(closed_form(a, 3.7), abs=1e-13) and computed == [3.7]
+    assert PaperLeader(v0=1.63, amplitude=1.17).max_speed(3.7) == a.max_speed(3.7) and computed == [3.7]
+    b = PaperLeader(v0=1.63, amplitude=0.83, t_end=2.9)
+    assert b.max_speed(3.7) == pytest.approx(closed_form(b, 3.7), abs=1e-13) and computed == [3.7, 3.7]
+    # another type, and another horizon: v* + A sin(ω t) peaks at t = π/(2ω) = 1.745, after 0.31 and before 3.7
+    p = PerturbedLeader(v_star=1.63, amplitude=0.21, omega=0.9)
+    assert p.max_speed(0.31) == pytest.approx(1.63 + 0.21 * math.sin(0.9 * 0.31), abs=1e-12)
+    assert p.max_speed(3.7) == pytest.approx(1.63 + 0.21, abs=1e-9)
+    assert p.max_speed(0.31) < p.max_speed(3.7) and computed == [3.7, 3.7, 0.31, 3.7]
+
+
 def test_cycle_distance_matches_provenance() -> None:
     """aev_ocp/data/README.md: UDDS 11.99 km, HWFET 16.51 km, US06 12.89 km."""
     u = Units()

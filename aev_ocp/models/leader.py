@@ -22,9 +22,14 @@ from typing import Any, Sequence
 import casadi as ca
 import numpy as np
 
-from ..params import ParameterError, Units
+from ..params import ParameterError, Units, exact_key
 
 CYCLES = ("udds", "hwfet", "us06")
+
+
+#: :meth:`LeaderProfile.max_speed` of this process, by (the leader's exact key, t_end, n); the oldest forgotten first
+_MAX_SPEEDS: dict[tuple[Any, ...], float] = {}
+MAX_SPEEDS_KEPT = 256
 
 
 class LeaderProfile(ABC):
@@ -68,7 +73,19 @@ class LeaderProfile(ABC):
         return np.asarray(f(tt.reshape(1, -1))).ravel()
 
     def max_speed(self, t_end: float, n: int = 20001) -> float:
-        """Maximum speed over [0, t_end] on a fine grid [model speed]."""
+        """Maximum speed over [0, t_end] on a fine grid [model speed]; computed once per process for a leader of the
+        same type and fields to the bit (:data:`_MAX_SPEEDS`: every load of a scenario checks its leader's)."""
+        key = exact_key(self)
+        if key is None:
+            return self._max_speed(t_end, n)
+        key = (key, float(t_end).hex(), int(n))
+        if key not in _MAX_SPEEDS:
+            _MAX_SPEEDS[key] = self._max_speed(t_end, n)
+            while len(_MAX_SPEEDS) > MAX_SPEEDS_KEPT:
+                del _MAX_SPEEDS[next(iter(_MAX_SPEEDS))]
+        return _MAX_SPEEDS[key]
+
+    def _max_speed(self, t_end: float, n: int) -> float:
         return float(np.max(self.speed_np(np.linspace(0.0, t_end, n))))
 
     def describe(self) -> dict[str, Any]:
