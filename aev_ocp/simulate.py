@@ -164,22 +164,33 @@ def _with_symbols(obj: Any, paths: Sequence[tuple[str, ...]], p: Any) -> Any:
     return twin
 
 
+def _outputs(f: ca.Function, values: Any, points: Sequence[Any]) -> list[np.ndarray] | None:
+    """``f``'s outputs at every probe point (columns), the last input the runtime parameters ``values`` at each: one
+    call of ``f`` mapped over the points (the same operations per point as a call per point; issue 40); None when
+    ``f`` cannot be evaluated there."""
+    try:
+        k = len(points)
+        args = [np.column_stack([np.asarray(pt[i], float).ravel() for pt in points]) for i in range(len(points[0]))]
+        args.append(np.repeat(np.asarray(values, float).reshape(-1, 1), k, axis=1))
+        return [np.asarray(r, float) for r in f.map(k).call(args)]
+    except (TypeError, ValueError, RuntimeError, NotImplementedError, ParameterError):
+        return None
+
+
+def _same_outputs(a: list[np.ndarray] | None, b: list[np.ndarray] | None) -> bool:
+    """Both evaluated, and equal bit for bit (NaN where NaN)."""
+    if a is None or b is None or len(a) != len(b):
+        return False
+    return all(x.shape == y.shape and np.array_equal(x, y, equal_nan=True) for x, y in zip(a, b))
+
+
 def _same_function(baked: ca.Function, symbolic: ca.Function, values: Any, points: Sequence[Any]) -> bool:
     """``symbolic`` evaluates bit for bit like ``baked`` (same inputs; the last one, the runtime parameters
     ``values``, is unused by ``baked``) at every probe point, NaN where it is NaN: the parameters replaced the
     compiled-in numbers without changing the model or its rounding (a parameter that changes how CasADi folds
     the constants, e.g. a product of several of them, fails this and stays compiled in: the paper's numbers
     stay bit-identical)."""
-    try:
-        for pt in points:
-            args = [*pt, np.asarray(values, float)]
-            for a, b in zip(baked.call(args), symbolic.call(args)):
-                x, y = np.asarray(a, float), np.asarray(b, float)
-                if x.shape != y.shape or not np.array_equal(x, y, equal_nan=True):
-                    return False
-    except (TypeError, ValueError, RuntimeError, NotImplementedError, ParameterError):
-        return False
-    return True
+    return _same_outputs(_outputs(baked, values, points), _outputs(symbolic, values, points))
 
 
 #: Lengths a recorded leader's table is padded to (a power of two from this one on): one compiled library serves
@@ -233,6 +244,26 @@ def _leader_template(leader: LeaderProfile) -> tuple[ca.Function, np.ndarray]:
         if f is not None and _same_function(fn(vb, q), f, values, probes):
             return f, values
     return fn(vb, q0), np.zeros(0)
+
+
+def ev_probe_points(battery: bool, actuator: bool) -> list[tuple[list[float], list[float]]]:
+    """The fixed points (u = (v_l, a_l), x) at which a follower's right-hand side with the vehicle's fields as runtime
+    parameters must equal the compiled-in one (:meth:`PlatoonSimulator._probe_ev_paths`): four chosen, 60 drawn from
+    a fixed seed (the choice must not depend on the run); x = (h, v[, V1, V2, S][, a_act]) [model units, volts]."""
+    x = [1.3, 0.9] + ([3.55e-3, 1.2e-3, 0.63] if battery else [])
+    x2 = [2.4, 1.35] + ([-2.1e-3, 4.0e-4, 0.38] if battery else [])
+    if actuator:
+        x, x2 = x + [0.07], x2 + [-0.11]
+    probes = [([1.1, 0.23], x), ([0.4, -0.61], x2), ([1.62, 0.05], x2), ([0.2, 0.9], x)]
+    rng = np.random.default_rng(40)
+    for _ in range(60):
+        xr = [rng.uniform(0.2, 3.0), rng.uniform(0.0, 2.0)]
+        if battery:
+            xr += [rng.uniform(-0.01, 0.01), rng.uniform(-0.01, 0.01), rng.uniform(0.1, 0.9)]
+        if actuator:
+            xr.append(rng.uniform(-0.5, 0.5))
+        probes.append(([rng.uniform(0.0, 2.0), rng.uniform(-1.0, 1.0)], xr))
+    return probes
 
 
 #: The vehicle fields that are runtime parameters of the cascade, per model structure (found by probing once per
@@ -455,32 +486,30 @@ class PlatoonSimulator(PlatoonRun):
         if that gives the compiled-in right-hand side at probe points, else each top-level group (units,
         vehicle, cell, …) that does as a whole (a group that fails stays compiled in)."""
         every = _float_paths(self.ev)
-        x = [1.3, 0.9] + ([3.55e-3, 1.2e-3, 0.63] if self.battery else [])
-        x2 = [2.4, 1.35] + ([-2.1e-3, 4.0e-4, 0.38] if self.battery else [])
-        if self.ev.limits.has_actuator_state:
-            x, x2 = x + [0.07], x2 + [-0.11]
-        probes = [([1.1, 0.23], x), ([0.4, -0.61], x2), ([1.62, 0.05], x2), ([0.2, 0.9], x)]
-        rng = np.random.default_rng(40)  # fixed probe points (the choice must not depend on the run)
-        for _ in range(60):
-            xr = [rng.uniform(0.2, 3.0), rng.uniform(0.0, 2.0)]
-            if self.battery:
-                xr += [rng.uniform(-0.01, 0.01), rng.uniform(-0.01, 0.01), rng.uniform(0.1, 0.9)]
-            if self.ev.limits.has_actuator_state:
-                xr.append(rng.uniform(-0.5, 0.5))
-            probes.append(([rng.uniform(0.0, 2.0), rng.uniform(-1.0, 1.0)], xr))
+        probes = ev_probe_points(self.battery, self.ev.limits.has_actuator_state)
         law = np.concatenate([law_values, np.zeros(n_par - law_values.size)])
+        # one parameter vector for every candidate set (the law's, then up to all the vehicle's fields; a set uses
+        # the first entries, the rest are unused): the compiled-in right-hand side is built and evaluated once
+        p = ca.SX.sym("p", n_par + len(every))
+        try:
+            unused = np.zeros(len(every))  # the compiled-in function reads the law's entries only
+            baked = _outputs(self._vehicle_function(make(p[:n_par]), 0, p), np.concatenate([law, unused]), probes)
+        except (TypeError, ValueError, RuntimeError, NotImplementedError, ParameterError, AttributeError):
+            baked = None
+        if baked is None:
+            return ()
 
         def ok(paths: Sequence[tuple[str, ...]]) -> bool:
             if not paths:
                 return False
-            p = ca.SX.sym("p", n_par + len(paths))
-            values = np.concatenate([law, [float(_get(self.ev, pth)) for pth in paths]])
+            ev_values = [float(_get(self.ev, pth)) for pth in paths]
+            values = np.concatenate([law, ev_values, np.zeros(len(every) - len(paths))])
             try:
-                baked = self._vehicle_function(make(p[:n_par]), 0, p)
-                symbolic = self._vehicle_function(make(p[:n_par]), 0, p, _with_symbols(self.ev, paths, p[n_par:]))
+                ev = _with_symbols(self.ev, paths, p[n_par : n_par + len(paths)])
+                symbolic = self._vehicle_function(make(p[:n_par]), 0, p, ev)
             except (TypeError, ValueError, RuntimeError, NotImplementedError, ParameterError, AttributeError):
                 return False
-            return _same_function(baked, symbolic, values, probes)
+            return _same_outputs(baked, _outputs(symbolic, values, probes))
 
         if ok(every):
             return tuple(every)

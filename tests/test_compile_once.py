@@ -89,6 +89,67 @@ def test_a_parameter_that_would_change_the_rounding_stays_compiled_in() -> None:
     assert "cell" in chosen and "units" not in chosen and "vehicle" not in chosen
 
 
+def _per_point_choice(sim: S.PlatoonSimulator) -> tuple[tuple[str, ...], ...]:
+    """The fields the probe should choose, by its definition with one call per probe point and a compiled-in and a
+    parameter function built for every candidate set: all fields if they give the compiled-in right-hand side bit
+    for bit, else each top-level group that does, and nothing if those together do not."""
+    _, make, law_values = S._law_template(sim.laws[0])
+    n_par = max(1, len(law_values))
+    law = np.concatenate([law_values, np.zeros(n_par - len(law_values))])
+    every = S._float_paths(sim.ev)
+    points = S.ev_probe_points(sim.battery, sim.ev.limits.has_actuator_state)
+
+    def same(paths: list[tuple[str, ...]]) -> bool:
+        if not paths:
+            return False
+        p = ca.SX.sym("p", n_par + len(paths))
+        values = np.concatenate([law, [float(S._get(sim.ev, pth)) for pth in paths]])
+        try:
+            baked = sim._vehicle_function(make(p[:n_par]), 0, p)
+            symbolic = sim._vehicle_function(make(p[:n_par]), 0, p, S._with_symbols(sim.ev, paths, p[n_par:]))
+        except (TypeError, ValueError, RuntimeError, NotImplementedError, S.ParameterError, AttributeError):
+            return False
+        for u, x in points:
+            for a, b in zip(baked(u, x, values), symbolic(u, x, values)):
+                if not np.array_equal(np.asarray(a), np.asarray(b), equal_nan=True):
+                    return False
+        return True
+
+    if same(every):
+        return tuple(every)
+    groups = {g: [pth for pth in every if pth[0] == g] for g in dict.fromkeys(pth[0] for pth in every)}
+    chosen = [pth for members in groups.values() if same(members) for pth in members]
+    return tuple(chosen) if same(chosen) else ()
+
+
+#: the groups chosen by (battery, limits on): never the units or the body (products CasADi folds), the limits only
+#: where they are off (on, they reach float() and comparisons)
+GROUPS_CHOSEN = {
+    (True, False): {"cell", "limits", "thermal"},
+    (True, True): {"cell", "thermal"},
+    (False, False): {"cell", "limits", "thermal"},
+}
+
+
+@pytest.mark.parametrize(
+    "ev, battery",
+    [
+        (_ev(0.0121), True),
+        (EVParams(), True),  # the shipped limits: saturation and the speed range
+        (EVParams(limits=dataclasses.replace(EVParams().limits, lag_s=0.23)), True),  # an actuator state
+        (_ev(0.0173), False),
+    ],
+)
+def test_the_batched_probe_chooses_what_its_definition_chooses_point_by_point(ev: EVParams, battery: bool) -> None:
+    """The probe evaluates each function once over all its points (mapped) and builds the compiled-in one once for
+    every candidate set: the same fields as the definition checked one point and one pair of functions at a time."""
+    S._EV_PATHS.clear()
+    sim = S.PlatoonSimulator(ConstantSpeed(0.5), [Proposed(alpha=2.3, kappa=0.61)], ev, battery=battery)
+    chosen = S._EV_PATHS[(battery, S._skeleton(sim.ev), S._law_template(sim.laws[0])[0])]
+    assert chosen and chosen == _per_point_choice(sim)
+    assert {pth[0] for pth in chosen} == GROUPS_CHOSEN[(battery, sim.ev.limits.enabled)]
+
+
 def test_s9_compiled_step_builds_its_cold_ipopt_only_when_a_cold_start_fails(monkeypatch) -> None:
     """§9's compiled rti step starts cold by itself (its regularised SQP) and hands over to the cold IPOPT only after
     a cold start that failed: the IPOPT is built then (not with the controller: reproduce's §9 controllers never ran
