@@ -249,7 +249,8 @@ def _leader_template(leader: LeaderProfile) -> tuple[ca.Function, np.ndarray]:
 def ev_probe_points(battery: bool, actuator: bool) -> list[tuple[list[float], list[float]]]:
     """The fixed points (u = (v_l, a_l), x) at which a follower's right-hand side with the vehicle's fields as runtime
     parameters must equal the compiled-in one (:meth:`PlatoonSimulator._probe_ev_paths`): four chosen, 60 drawn from
-    a fixed seed (the choice must not depend on the run); x = (h, v[, V1, V2, S][, a_act]) [model units, volts]."""
+    a fixed seed (the choice must not depend on the run); x: h and v, then V1, V2 and S with the battery, then a_act
+    with an actuator state [model units, volts]."""
     x = [1.3, 0.9] + ([3.55e-3, 1.2e-3, 0.63] if battery else [])
     x2 = [2.4, 1.35] + ([-2.1e-3, 4.0e-4, 0.38] if battery else [])
     if actuator:
