@@ -379,6 +379,45 @@ class _build_lock:
             os.close(self.fd)  # closing releases the lock
 
 
+#: what a build in progress keeps in the cache folder, named after its process (:func:`_build_locked`'s ``tag``): the
+#: build folder, the library and its checksum before they are renamed into place
+_IN_PROGRESS = re.compile(r"^\.(?P<stem>.+)_(?P<key>[0-9a-f]{24})_(?P<pid>[0-9]+)\.(?:build|so|sha256)$")
+
+
+def _alive(pid: int) -> bool:
+    """Whether process ``pid`` exists (a process we may not signal exists too)."""
+    if pid == os.getpid():
+        return True
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except OSError:
+        return True
+    return True
+
+
+def sweep_stale_builds(d: Path) -> list[str]:
+    """Remove from cache folder ``d`` what builds left that were killed mid-way (SIGKILL, a worker that died with its
+    study, the machine's power): the build folders, libraries and checksums named after processes that no longer
+    exist. Returns the names removed. A live process's files are kept (pid reuse only keeps a leftover longer)."""
+    gone: list[str] = []
+    try:
+        entries = list(d.iterdir())
+    except OSError:
+        return gone
+    for f in entries:
+        m = _IN_PROGRESS.match(f.name)
+        if m is None or _alive(int(m["pid"])):
+            continue
+        if f.is_dir() and not f.is_symlink():
+            shutil.rmtree(f, ignore_errors=True)
+        else:
+            _remove(f)
+        gone.append(f.name)
+    return gone
+
+
 def _build_locked(
     source: str,
     stem: str,
@@ -405,6 +444,7 @@ def _build_locked(
         )
         _remove(lib, side)
         rebuilt = True
+    sweep_stale_builds(d)  # before building: what killed builds left here goes (a cache hit reads nothing more)
     tag = f".{stem}_{key}_{os.getpid()}"
     # The source gets the same relative name in every process (gcc records it in the library), so
     # concurrent builds of one library are byte-identical and whichever lands first verifies.

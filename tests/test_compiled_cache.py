@@ -68,6 +68,43 @@ def test_damaged_library_is_rebuilt_once_with_a_warning(tmp_path, monkeypatch, d
     assert not [p for p in lib.parent.iterdir() if p.name.startswith(".")]  # no temp files left
 
 
+def test_a_build_sweeps_what_killed_builds_left_and_keeps_a_live_ones(tmp_path, monkeypatch) -> None:
+    """A build killed mid-way (SIGKILL: no cleanup) leaves its build folder, library and checksum, named after its
+    process, in the cache folder; the next build there removes those of processes that no longer exist and keeps a
+    live process's, other files, and a cache hit touches nothing."""
+    monkeypatch.setenv("AEV_OCP_CACHE", str(tmp_path / "cache"))
+    first, _ = _build(SRC % "0.5")
+    d = first.path.parent
+    child = subprocess.Popen([sys.executable, "-c", "pass"])
+    child.wait()  # reaped: its pid names no process
+    live = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
+    try:
+        key = "0123456789abcdef01234567"
+
+        def leftovers(pid: int) -> list[Path]:
+            folder = d / f".aevtest_{key}_{pid}.build"
+            folder.mkdir()
+            (folder / f"aevtest_{key}.c").write_text("int x;\n")
+            files = [d / f".aevtest_{key}_{pid}.so", d / f".aevtest_{key}_{pid}.sha256"]
+            for f in files:
+                f.write_text("partial")
+            return [folder, *files]
+
+        dead, alive = leftovers(child.pid), leftovers(live.pid)
+        other = [d / "notes.txt", d / f".aevtest_{key}.so", d / f".aevtest_{key}_x7.so"]  # not a build's name
+        for f in other:
+            f.write_text("kept")
+        hit, _ = _build(SRC % "0.5")  # a cache hit: nothing swept
+        assert hit.path == first.path and all(f.exists() for f in dead)
+        second, warned = _build(SRC % "0.75")  # a build: the dead process's leftovers go
+        assert second.path is not None and _call(second.path, 2.0) == 4.75 and warned == []
+        assert not any(f.exists() for f in dead)
+        assert all(f.exists() for f in alive + other)
+    finally:
+        live.kill()
+        live.wait()
+
+
 def test_failed_build_warns(tmp_path, monkeypatch) -> None:
     monkeypatch.setenv("AEV_OCP_CACHE", str(tmp_path / "cache"))
     B._WARNED.clear()
