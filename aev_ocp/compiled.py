@@ -230,7 +230,7 @@ def _digest(path: Path) -> str:
 
 
 def verify_library(lib: Path) -> str:
-    """'' if ``lib`` matches its sidecar and loads, else why not (one line)."""
+    """'' if ``lib`` matches its sidecar and loads (an object file, ``.o``: matches it), else why not (one line)."""
     side = lib.with_name(lib.name + SIDECAR_SUFFIX)
     try:
         want = side.read_text(encoding="ascii").strip()
@@ -243,6 +243,8 @@ def verify_library(lib: Path) -> str:
     if got != want:
         size_want = want.split(" ")[0]
         return f"size/checksum mismatch ({got.split(' ')[0]} bytes, {size_want} expected)"
+    if lib.suffix == ".o":
+        return ""
     try:
         ctypes.CDLL(str(lib))
     except OSError as exc:
@@ -293,27 +295,60 @@ def compile_shared(
     extra_flags: tuple[str, ...] = (),
     timeout_s: float = 600.0,
     companions: dict[str, str] | None = None,
+    objects: Sequence[Path] = (),
 ) -> BuildResult:
     """Compile C ``source`` into ``<cache>/<stem>_<hash>.so`` unless a verified copy is already there.
     ``companions``: further files by name (headers, and ``.c`` files compiled into the same library),
-    written beside the source and part of the cache key."""
+    written beside the source and part of the cache key; ``objects``: compiled objects linked in
+    (:func:`compile_object`'s, their contents part of the key)."""
+    return _compile(source, stem, sub, FLAGS + tuple(extra_flags), companions, objects, timeout_s, ".so")
+
+
+def compile_object(
+    source: str,
+    stem: str,
+    sub: str = "",
+    extra_flags: tuple[str, ...] = (),
+    companions: dict[str, str] | None = None,
+    timeout_s: float = 600.0,
+) -> BuildResult:
+    """Compile C ``source`` into the object ``<cache>/<stem>_<hash>.o`` (position-independent, for
+    :func:`compile_shared`'s ``objects``) unless a verified copy is already there: a source that several libraries
+    link, and that depends only on its own text, headers (``companions``) and flags, is compiled once for them all
+    (issue 40: the MPC step's ocp_qp.c, 4 of a step's 10 s of gcc, the same for every step of its dimensions)."""
+    return _compile(source, stem, sub, FLAGS + tuple(extra_flags) + ("-c",), companions, (), timeout_s, ".o")
+
+
+def _compile(
+    source: str,
+    stem: str,
+    sub: str,
+    flags: tuple[str, ...],
+    companions: dict[str, str] | None,
+    objects: Sequence[Path],
+    timeout_s: float,
+    suffix: str,
+) -> BuildResult:
     cc = compiler()
     if cc is None:
         return BuildResult(None, "no C compiler found (set $CC or install gcc)")
-    flags = FLAGS + tuple(extra_flags)
     comp = dict(sorted((companions or {}).items()))
-    key = hashlib.sha256("\0".join((source, cc, *flags, *(f"{k}\0{v}" for k, v in comp.items()))).encode()).hexdigest()[
-        :24
-    ]
+    try:
+        linked = tuple(f"{o.name}\0{_digest(o)}" for o in objects)
+    except OSError as exc:
+        return BuildResult(None, f"cannot read an object to link ({exc})")
+    key = hashlib.sha256(
+        "\0".join((source, cc, *flags, *(f"{k}\0{v}" for k, v in comp.items()), *linked)).encode()
+    ).hexdigest()[:24]
     d = cache_dir(sub)
-    lib = d / f"{stem}_{key}.so"
+    lib = d / f"{stem}_{key}{suffix}"
     if lib.exists() and not verify_library(lib):
         return BuildResult(lib)
     # one build per library per machine: concurrent processes (a study's or reproduce's workers) that need the same
     # library wait for the one that builds it, then find it in the cache, instead of each compiling it again (the
     # lock is on the cache folder itself: nothing is left behind; builds into one folder take turns)
     with _build_lock(d):
-        return _build_locked(source, stem, key, d, lib, cc, flags, comp, timeout_s)
+        return _build_locked(source, stem, key, d, lib, cc, flags, comp, timeout_s, tuple(objects))
 
 
 def fastest_builds(
@@ -323,16 +358,27 @@ def fastest_builds(
     flag_sets: Sequence[tuple[str, ...]] | None = None,
     extra_flags: tuple[str, ...] = (),
     companions: dict[str, str] | None = None,
+    objects: dict[str, tuple[str, dict[str, str]]] | None = None,
 ) -> Iterator[BuildResult]:
     """:func:`compile_shared` with each of ``flag_sets`` in turn (default: :func:`exact_tuned_flags`, then the plain
     build; ``extra_flags`` added to each), yielding every result: the caller stops at the first it can use. A build
     that fails falls back to the next without a word unless it is the last; what a build that succeeds says (a
-    damaged cache rebuilt) is said."""
+    damaged cache rebuilt) is said. ``objects``: {stem: (source, its headers)} compiled by :func:`compile_object`
+    with the same flags and linked in."""
     sets = list(dict.fromkeys(flag_sets if flag_sets is not None else (exact_tuned_flags(), ())))
     for k, flags in enumerate(sets):
         with warnings.catch_warnings(record=True) as said:
             warnings.simplefilter("always")
-            built = compile_shared(source, stem, sub, (*flags, *extra_flags), companions=companions)
+            objs = [
+                compile_object(src, name, sub, (*flags, *extra_flags), hdr)
+                for name, (src, hdr) in (objects or {}).items()
+            ]
+            failed = next((o for o in objs if o.path is None), None)
+            if failed is not None:
+                built = failed
+            else:
+                paths = [o.path for o in objs if o.path is not None]
+                built = compile_shared(source, stem, sub, (*flags, *extra_flags), companions=companions, objects=paths)
         if built.path is not None or k == len(sets) - 1:
             for w in said:
                 warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
@@ -381,7 +427,7 @@ class _build_lock:
 
 #: what a build in progress keeps in the cache folder, named after its process (:func:`_build_locked`'s ``tag``): the
 #: build folder, the library and its checksum before they are renamed into place
-_IN_PROGRESS = re.compile(r"^\.(?P<stem>.+)_(?P<key>[0-9a-f]{24})_(?P<pid>[0-9]+)\.(?:build|so|sha256)$")
+_IN_PROGRESS = re.compile(r"^\.(?P<stem>.+)_(?P<key>[0-9a-f]{24})_(?P<pid>[0-9]+)\.(?:build|so|o|sha256)$")
 
 
 def _alive(pid: int) -> bool:
@@ -428,8 +474,10 @@ def _build_locked(
     flags: tuple[str, ...],
     comp: dict[str, str],
     timeout_s: float,
+    objects: tuple[Path, ...] = (),
 ) -> BuildResult:
-    """:func:`compile_shared` under the library's lock: use a verified cached copy, else build it."""
+    """:func:`compile_shared` (or :func:`compile_object`: ``lib`` an ``.o``) under the library's lock: use a verified
+    cached copy, else build it."""
     side = lib.with_name(lib.name + SIDECAR_SUFFIX)
     rebuilt = False
     if lib.exists():
@@ -449,7 +497,7 @@ def _build_locked(
     # The source gets the same relative name in every process (gcc records it in the library), so
     # concurrent builds of one library are byte-identical and whichever lands first verifies.
     build_dir = d / f"{tag}.build"
-    c_file, tmp, tmp_side = build_dir / f"{stem}_{key}.c", d / f"{tag}.so", d / f"{tag}.sha256"
+    c_file, tmp, tmp_side = build_dir / f"{stem}_{key}.c", d / f"{tag}{lib.suffix}", d / f"{tag}.sha256"
     try:
         build_dir.mkdir(mode=0o700, exist_ok=True)
         c_file.write_text(source)
@@ -459,7 +507,11 @@ def _build_locked(
         announce(f"compiling {stem} with {Path(cc).name} (once: the library is cached in {d}) …")
         _COMPILED.append(stem)
         t0 = time.perf_counter()
-        proc = run_tool([cc, *flags, "-o", str(tmp), c_file.name, *more, "-lm"], build_dir, timeout_s)
+        if lib.suffix == ".o":  # an object: the source alone (its flags hold -c)
+            cmd = [cc, *flags, "-o", str(tmp), c_file.name]
+        else:
+            cmd = [cc, *flags, "-o", str(tmp), c_file.name, *more, *(str(o) for o in objects), "-lm"]
+        proc = run_tool(cmd, build_dir, timeout_s)
         if proc.returncode != 0:
             last = (proc.stderr or proc.stdout).strip().splitlines()
             err = f"{Path(cc).name} failed: {last[-1] if last else 'exit ' + str(proc.returncode)}"

@@ -105,6 +105,68 @@ def test_a_build_sweeps_what_killed_builds_left_and_keeps_a_live_ones(tmp_path, 
         live.wait()
 
 
+HELPER = "double aev_helper(double x) { return 3.0 * x + AEV_K; }\n"
+MAIN = "double aev_helper(double x);\ndouble aev_test_twice(double x) { return aev_helper(x) * %s; }\n"
+
+
+def test_an_object_is_compiled_once_for_every_library_that_links_it(tmp_path, monkeypatch) -> None:
+    """compile_object caches an object per (source, headers, flags); libraries of different main sources link the
+    same object without compiling it again, and a library's key holds the object's content: another object (another
+    define) gives another library, with its own numbers. A damaged object is rebuilt, with a warning."""
+    monkeypatch.setenv("AEV_OCP_CACHE", str(tmp_path / "cache"))
+    monkeypatch.setattr(B, "_COMPILED", [])
+    o1 = B.compile_object(HELPER, "aevhelp", "t", ("-DAEV_K=0.5",))
+    assert o1.path is not None and o1.path.suffix == ".o" and B.verify_library(o1.path) == ""
+    libs = [B.compile_shared(MAIN % f, "aevtest", "t", objects=[o1.path]) for f in ("2.0", "0.25")]
+    assert [lib.path is not None for lib in libs] == [True, True] and libs[0].path != libs[1].path
+    assert _call(libs[0].path, 1.5) == (3.0 * 1.5 + 0.5) * 2.0 and _call(libs[1].path, 1.5) == (3.0 * 1.5 + 0.5) * 0.25
+    again = B.compile_object(HELPER, "aevhelp", "t", ("-DAEV_K=0.5",))
+    assert again.path == o1.path and not again.rebuilt and B._COMPILED == ["aevhelp", "aevtest", "aevtest"]
+    o2 = B.compile_object(HELPER, "aevhelp", "t", ("-DAEV_K=-1.25",))
+    other = B.compile_shared(MAIN % "2.0", "aevtest", "t", objects=[o2.path])
+    assert o2.path != o1.path and other.path != libs[0].path and _call(other.path, 1.5) == (4.5 - 1.25) * 2.0
+    o1.path.write_bytes(o1.path.read_bytes()[:100])  # truncated
+    B._WARNED.clear()
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        fixed = B.compile_object(HELPER, "aevhelp", "t", ("-DAEV_K=0.5",))
+    assert fixed.path == o1.path and fixed.rebuilt and B.verify_library(fixed.path) == ""
+    assert any("damaged" in str(w.message) for w in caught)
+
+
+def test_the_mpc_step_links_its_qp_solver_as_an_object_keyed_by_the_qp_dimensions(monkeypatch) -> None:
+    """CompiledStep.build compiles ocp_qp.c as an object of its own, with the step's flags and the QP's dimensions,
+    and links it into the step (not as one more source of the step's library)."""
+    from aev_ocp.mpc.controller import MPCController
+    from aev_ocp.mpc.settings import MPCSettings
+    from aev_ocp.ocp.formulation import s9_formulation
+
+    objects, libraries = [], []
+    real_object, real_shared = B.compile_object, B.compile_shared
+
+    def spy_object(source, stem, sub="", extra_flags=(), companions=None, timeout_s=600.0):  # noqa: ANN001, ANN202
+        objects.append((stem, extra_flags, sorted(companions or {})))
+        return real_object(source, stem, sub, extra_flags, companions, timeout_s)
+
+    def spy_shared(source, stem, sub="", extra_flags=(), timeout_s=600.0, companions=None, objects=()):  # noqa: ANN001, ANN202
+        libraries.append((stem, sorted(companions or {}), [o.name for o in objects]))
+        return real_shared(source, stem, sub, extra_flags, timeout_s, companions, objects)
+
+    monkeypatch.setattr(B, "compile_object", spy_object)
+    monkeypatch.setattr(B, "compile_shared", spy_shared)
+    # the settings of tests/test_compile_once.py's §9 compiled step: the same library
+    c = MPCController(
+        MPCSettings(N=6, dt=0.2, solver="rti", qp_solver="riccati", codegen=False), formulation=s9_formulation()
+    )
+    assert c.compiled_step is not None
+    stem, flags, headers = objects[0]
+    assert stem == "ocp_qp" and headers == ["ocp_qp.h"]
+    dims = {f for f in flags if f.startswith("-DOCPQP_")}
+    assert dims == {f"-DOCPQP_NX={c.nx}", f"-DOCPQP_NU={c.nu}", f"-DOCPQP_NC={c.nlp.ng_stage - c.nx}", "-DOCPQP_NCN=0"}
+    step = [lib for lib in libraries if lib[0] == "mpc_step"][0]
+    assert "ocp_qp.c" not in step[1] and "mpc_step.c" in step[1] and step[2][0].startswith("ocp_qp_")
+
+
 def test_failed_build_warns(tmp_path, monkeypatch) -> None:
     monkeypatch.setenv("AEV_OCP_CACHE", str(tmp_path / "cache"))
     B._WARNED.clear()

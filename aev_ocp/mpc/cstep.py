@@ -112,6 +112,8 @@ TEMPLATES = ("mpc_step.c", "mpc_step.h", "ocp_qp.c", "ocp_qp.h", "mpc_bench_main
 #: The C files of an export compiled into the step's library (the others are headers, and mpc_bench_main.c, the
 #: benchmark program's main).
 LIBRARY_C = ("mpc_casadi.c", "mpc_step.c", "ocp_qp.c")
+#: the library's source compiled into an object of its own, shared by the steps of the same QP dimensions
+QP_C = "ocp_qp.c"
 #: Files of an export folder.
 EXPORT_FILES = (
     "mpc_casadi.c",
@@ -772,10 +774,13 @@ class CompiledStep:
         src = step_sources(c, f"MPC controller {c.problem.name}", values=False)
         main = src.pop(LIBRARY_C[0])
         files = {n: t for n, t in src.items() if n in LIBRARY_C or n.endswith(".h")}
+        # the hand-written QP solver depends on its header, the QP's dimensions and the flags only: one object per
+        # dimensions, linked into every step that has them (issue 40: 4 of a step's 10 s of gcc)
+        qp = {QP_C.removesuffix(".c"): (files.pop(QP_C), {"ocp_qp.h": files["ocp_qp.h"]})}
         defines = tuple(f"-D{d}" for d in qp_dimension_defines(c))
         # tuned first (-O3, the native CPU, contraction off: the same bits as the plain build, about 0.85x the
         # step's time; tests/test_compiled_speed.py), else plain
-        for built in fastest_builds(main, "mpc_step", "mpc", extra_flags=defines, companions=files):
+        for built in fastest_builds(main, "mpc_step", "mpc", extra_flags=defines, companions=files, objects=qp):
             if built.path is not None:
                 break
         if built.path is None:
