@@ -300,7 +300,7 @@ def compile_shared(
     """Compile C ``source`` into ``<cache>/<stem>_<hash>.so`` unless a verified copy is already there.
     ``companions``: further files by name (headers, and ``.c`` files compiled into the same library),
     written beside the source and part of the cache key; ``objects``: compiled objects linked in
-    (:func:`compile_object`'s, their contents part of the key)."""
+    (:func:`compile_object`'s, whose names, a hash of what they were compiled from, are part of the key)."""
     return _compile(source, stem, sub, FLAGS + tuple(extra_flags), companions, objects, timeout_s, ".so")
 
 
@@ -333,10 +333,8 @@ def _compile(
     if cc is None:
         return BuildResult(None, "no C compiler found (set $CC or install gcc)")
     comp = dict(sorted((companions or {}).items()))
-    try:
-        linked = tuple(f"{o.name}\0{_digest(o)}" for o in objects)
-    except OSError as exc:
-        return BuildResult(None, f"cannot read an object to link ({exc})")
+    # an object's name holds the hash of what it was compiled from (its source, headers, flags, compiler)
+    linked = tuple(o.name for o in objects)
     key = hashlib.sha256(
         "\0".join((source, cc, *flags, *(f"{k}\0{v}" for k, v in comp.items()), *linked)).encode()
     ).hexdigest()[:24]

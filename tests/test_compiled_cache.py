@@ -111,7 +111,7 @@ MAIN = "double aev_helper(double x);\ndouble aev_test_twice(double x) { return a
 
 def test_an_object_is_compiled_once_for_every_library_that_links_it(tmp_path, monkeypatch) -> None:
     """compile_object caches an object per (source, headers, flags); libraries of different main sources link the
-    same object without compiling it again, and a library's key holds the object's content: another object (another
+    same object without compiling it again, and a library's key names the object it links: another object (another
     define) gives another library, with its own numbers. A damaged object is rebuilt, with a warning."""
     monkeypatch.setenv("AEV_OCP_CACHE", str(tmp_path / "cache"))
     monkeypatch.setattr(B, "_COMPILED", [])
