@@ -56,13 +56,20 @@ class RTIHost(Protocol):
 HPIPM_INF_TRAFFIC = 1e5
 
 
+#: qrqp's smallest multiplier treated as nonzero (its option min_lam; CasADi's default is 0): see :func:`qp_options`
+QRQP_MIN_LAM = 1e-9
+
+
 def qp_options(qp_solver: str, hpipm_inf: float | None = None) -> dict[str, Any]:
     """Silent, tight options of a QP solver (the 'sqp' path's qpsol and the 'rti' path's conic)."""
     opts: dict[str, Any] = {"error_on_fail": False}
     if qp_solver == "hpipm" and hpipm_inf is not None:
         opts["inf"] = hpipm_inf
     if qp_solver == "qrqp":
-        opts.update({"print_iter": False, "print_header": False, "print_info": False})
+        # min_lam: multipliers below 1e-9 count as zero, so a bound that is only just active (a degenerate active set)
+        # does not make the active set cycle: with CasADi's default 0, the canonical closed loop's second step ran
+        # qrqp into its 1000-iteration limit (1.2 s) and a fallback, from plant states 1e-9 apart (tests/test_mpc.py)
+        opts.update({"print_iter": False, "print_header": False, "print_info": False, "min_lam": QRQP_MIN_LAM})
     elif qp_solver == "osqp":
         opts["osqp"] = {"verbose": False, "eps_abs": 1e-9, "eps_rel": 1e-9, "polish": True, "max_iter": 20000}
     elif qp_solver == "hpipm":
