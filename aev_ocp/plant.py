@@ -54,6 +54,9 @@ from .results import VIOLATED, Event, SimulationResult
 # tolerance never stops the plant (model guide §9: "negative speed in the plant is reported"); the floor and the
 # metrics' bound counts use the same number (aev_ocp.numerics.BOUND_TOLERANCE).
 PLAN_TOLERANCE = BOUND_TOLERANCE
+#: CVODES options of the plant's integrator: Adams–Moulton with functional iteration, for the non-stiff platoon ODE
+#: (:class:`Plant`; an interval they fail on is retried with CVODES's default BDF and Newton iteration)
+NONSTIFF: dict[str, str] = {"linear_multistep_method": "adams", "nonlinear_solver_iteration": "functional"}
 
 
 @dataclass(frozen=True)
@@ -339,8 +342,8 @@ class Plant:
             I = disc = ca.SX.zeros(n)
         # battery energy ∫P_b dt [J per model time unit], last: output only (nothing reads it back). Laws only: with
         # commanded vehicles (the MPC, any Controller) CVODES's error norm would see one more quadrature and move its
-        # steps by ~1e-10, enough to tip a closed loop's QP solves (tests/test_mpc.py's qrqp path falls back once at
-        # h(0) + 1e-9); there the command is held over each sample interval and aev_ocp.metrics integrates the exact
+        # steps by ~1e-10, enough to tip a closed loop's QP solves (tests/test_mpc.py's qrqp path fell back once at
+        # h(0) + 1e-9 before qrqp's min_lam was set, aev_ocp.mpc.rti.QRQP_MIN_LAM); there the command is held over each sample interval and aev_ocp.metrics integrates the exact
         # P_b(v, a_held) on the samples
         self.energy_quad: int | None = None  # its block in the quadratures (SimulationResult.battery_energy_J)
         if not self.commanded:
@@ -355,7 +358,13 @@ class Plant:
         dae = {"x": X, "p": p, "t": s, "ode": p[1] * ca.vertcat(*ode), "quad": p[1] * ca.vertcat(*quad)}
         grid = np.linspace(0.0, 1.0, self.k + 1)[1:].tolist()
         self._dae = dae
-        self._int_opts = {
+        # CVODES's Adams–Moulton method with functional (fixed-point) iteration: the platoon's ODE is not stiff
+        # (car-following time constants of seconds, the cell's RC pairs of tens to thousands of seconds), and at
+        # rtol 1e-10 Adams (orders up to 12) takes fewer and cheaper steps than BDF (up to 5) with Newton: 2-3x less
+        # time per interval, as close to a 1e-13 reference (a few 1e-9 or less; benchmarks/bench_plant.py). Where it fails (a stiff
+        # moment, such as a gap closing to zero under a 1/h² law) the interval is retried on BDF with Newton, the
+        # method CVODES recommends for stiff problems (:attr:`stiff`), before it is subdivided.
+        self._stiff_opts: dict[str, Any] = {
             "abstol": self.atol,
             "reltol": self.rtol,
             "max_num_steps": max_num_steps,
@@ -363,8 +372,13 @@ class Plant:
             "disable_internal_warnings": True,
             "show_eval_warnings": False,
         }
+        self._int_opts: dict[str, Any] = {**self._stiff_opts, **NONSTIFF}
         self.integrator = ca.integrator("plant", "cvodes", dae, 0.0, grid, self._int_opts)
+        self._stiff: ca.Function | None = None  # BDF with Newton on the same grid (built on the first failure)
+        self._stiff_step: BufferedCall | None = None
+        self.stiff_retries = 0  # intervals the non-stiff method failed on and BDF integrated
         self._one: ca.Function | None = None  # one output point: locates events (built on first use)
+        self._one_stiff: ca.Function | None = None  # the same with BDF and Newton (built on its first failure)
         tt, ac = ca.SX.sym("t"), ca.SX.sym("a_cmd", len(self.commanded))
         y = ca.substitute(ca.vertcat(a, I, disc, vl), ca.vertcat(s, p), ca.vertcat(0, tt, 1, ac))
         self._samples = ca.Function("plant_samples", [tt, X, ac], [y])
@@ -431,11 +445,14 @@ class Plant:
         f.args[ip][0], f.args[ip][1] = a, b - a
         f.args[ip][2:] = ac
         try:
+            if not f():  # failed with the non-stiff method: the same interval on BDF with Newton
+                f = self._stiff_buffers(x, a, b, ac)
+                self.stiff_retries += 1
             if f():  # the same evaluation as the call below, on the bound buffers
                 fx, fq = f.res[jx], f.res[jq]
                 res = {"xf": fx.reshape(self.nx, -1, order="F").copy(), "qf": fq.reshape(self.nq, -1, order="F").copy()}
-            else:  # failed there: the call raises CasADi's own error (or, should it pass, gives its result)
-                res = self.integrator(x0=x, p=np.concatenate([[a, b - a], ac]))
+            else:  # failed there too: the call raises CasADi's own error (or, should it pass, gives its result)
+                res = f.fn(x0=x, p=np.concatenate([[a, b - a], ac]))
         except RuntimeError as exc:
             if depth < 3:
                 for lo, hi in zip(np.linspace(a, b, 11)[:-1], np.linspace(a, b, 11)[1:]):
@@ -487,14 +504,40 @@ class Plant:
         ys.append(yk)  # noqa: E702
         return True
 
+    @property
+    def stiff(self) -> ca.Function:
+        """The plant's integrator with CVODES's BDF method and Newton iteration (same grid and tolerances): what an
+        interval falls back to when the non-stiff Adams method fails on it."""
+        if self._stiff is None:
+            self._stiff = ca.integrator("plant_stiff", "cvodes", self._dae, 0.0, self._grid.tolist(), self._stiff_opts)
+        return self._stiff
+
+    def _stiff_buffers(self, x: np.ndarray, a: float, b: float, ac: np.ndarray) -> BufferedCall:
+        """:attr:`stiff` on bound buffers holding the interval [a, b] from x with the commands ac."""
+        g = self._stiff_step
+        if g is None:
+            g = self._stiff_step = BufferedCall(self.stiff)
+        ix, ip = self._io[:2]
+        g.args[ix][:] = x
+        g.args[ip][0], g.args[ip][1] = a, b - a
+        g.args[ip][2:] = ac
+        return g
+
     def _one_step(
         self, t0: float, t1: float, x0: np.ndarray, q0: np.ndarray, a_cmd: np.ndarray | None
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(x, q, y) at t1 integrated from (x0, q0) at t0 with the commands held (one output point)."""
+        """(x, q, y) at t1 integrated from (x0, q0) at t0 with the commands held (one output point; BDF with Newton
+        where the non-stiff method fails)."""
         if self._one is None:
             self._one = ca.integrator("plant_one", "cvodes", self._dae, 0.0, [1.0], self._int_opts)
         ac = np.zeros(0) if a_cmd is None else np.asarray(a_cmd, float)
-        res = self._one(x0=x0, p=np.concatenate([[t0, t1 - t0], ac]))
+        p = np.concatenate([[t0, t1 - t0], ac])
+        try:
+            res = self._one(x0=x0, p=p)
+        except RuntimeError:
+            if self._one_stiff is None:
+                self._one_stiff = ca.integrator("plant_one_stiff", "cvodes", self._dae, 0.0, [1.0], self._stiff_opts)
+            res = self._one_stiff(x0=x0, p=p)
         x = np.asarray(res["xf"]).ravel()
         q = q0 + np.asarray(res["qf"]).ravel()
         return x, q, self.samples(np.array([t1]), x[:, None], a_cmd)[:, 0]
