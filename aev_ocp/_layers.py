@@ -21,6 +21,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
             "aev_ocp.errors",
             "aev_ocp.params",
             "aev_ocp.numerics",
+            "aev_ocp.fastcall",
             "aev_ocp.compiled",
             "aev_ocp.cells",
             "aev_ocp.limits",

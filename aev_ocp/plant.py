@@ -38,6 +38,7 @@ from typing import Any, Callable, ClassVar, Sequence
 import casadi as ca
 import numpy as np
 
+from .fastcall import BufferedCall
 from .models import energy
 from .models.actuator import actuator_rate, saturate, speed_cut
 from .models.carfollowing import CarFollowingLaw, optimal_velocity
@@ -226,34 +227,6 @@ def current_limit_events(t: np.ndarray, current_A: np.ndarray, ev: EVParams) -> 
             )
         )
     return out
-
-
-class BufferedCall:
-    """``fn`` evaluated on numpy buffers bound once (CasADi's ``Function.buffer``): the same evaluation as
-    ``fn(...)``, without converting every argument and result to and from DM on each call (a closed loop calls the
-    plant's integrator and its output map once or twice per sample). ``args[i]`` / ``res[i]`` hold input / output
-    i's nonzeros, column-major; calling returns False when the evaluation failed (then call ``fn`` itself, which
-    raises the Function's own error)."""
-
-    def __init__(self, fn: ca.Function) -> None:
-        self.fn = fn
-        self.args = [np.zeros(fn.nnz_in(i)) for i in range(fn.n_in())]
-        self.res = [np.zeros(fn.nnz_out(i)) for i in range(fn.n_out())]
-        self._fb, self._eval = fn.buffer()
-        # (the type stub asks for a size in bytes too; the binding takes it from the buffer itself)
-        for i, a in enumerate(self.args):
-            if a.size:
-                self._fb.set_arg(i, a.data)  # type: ignore[call-arg]
-        for i, r in enumerate(self.res):
-            if r.size:
-                self._fb.set_res(i, r.data)  # type: ignore[call-arg]
-
-    def __call__(self) -> bool:
-        try:
-            self._eval()
-        except RuntimeError:
-            return False
-        return int(self._fb.ret()) == 0
 
 
 class Plant:

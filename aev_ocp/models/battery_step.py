@@ -17,6 +17,7 @@ from typing import Any
 import casadi as ca
 import numpy as np
 
+from ..fastcall import column_call
 from ..models.energy import g_exact
 from ..models.ego import battery_side
 from ..params import EVParams
@@ -70,5 +71,5 @@ def step(
     (x_next 7×n, I [A per cell], disc [V²])."""
     if x.shape[1] == 0:
         return x.copy(), np.zeros(0), np.zeros(0)
-    x1, I, disc = battery_step(ev)(x, v0[None, :], a[None, :], dt_s)
-    return np.asarray(x1), np.asarray(I).ravel(), np.asarray(disc).ravel()
+    x1, I, disc = column_call(battery_step(ev))(x, v0, a, dt_s)
+    return x1, I.ravel(), disc.ravel()

@@ -22,6 +22,7 @@ from typing import Any, Sequence
 import casadi as ca
 import numpy as np
 
+from ..fastcall import column_call
 from ..params import ParameterError, Units, exact_key
 
 CYCLES = ("udds", "hwfet", "us06")
@@ -60,17 +61,10 @@ class LeaderProfile(ABC):
         t = ca.SX.sym("t")
         return ca.Function(f"{self.name}_speed", [t], [self.speed(t)], ["t"], ["v_l"])
 
-    @cached_property
-    def _speed_maps(self) -> dict[int, ca.Function]:
-        return {}
-
     def speed_np(self, t: np.ndarray | float) -> np.ndarray:
-        """Numeric leader speed at the times t [model speed] (the mapped Function is built once per size)."""
+        """Numeric leader speed at the times t [model speed] (on bound buffers: :func:`aev_ocp.fastcall.column_call`)."""
         tt = np.atleast_1d(np.asarray(t, dtype=float))
-        f = self._speed_maps.get(tt.size)
-        if f is None:
-            f = self._speed_maps.setdefault(tt.size, self.speed_function.map(tt.size))
-        return np.asarray(f(tt.reshape(1, -1))).ravel()
+        return column_call(self.speed_function)(tt.ravel())[0].ravel()
 
     def max_speed(self, t_end: float, n: int = 20001) -> float:
         """Maximum speed over [0, t_end] on a fine grid [model speed]; computed once per process for a leader of the

@@ -47,6 +47,7 @@ from typing import Any, Callable, Sequence
 import casadi as ca
 import numpy as np
 
+from ..fastcall import column_call
 from ..compiled import dense_outputs, driver_source, exact_tuned_flags, load_fastest
 from ..limits import check_ring_cuts, check_ring_size
 from ..control import SampledLaw
@@ -600,8 +601,9 @@ class RingSimulator:
 
     @staticmethod
     def _delay_functions(laws: dict[int, CarFollowingLaw]) -> list[tuple[np.ndarray, Any, np.ndarray]]:
-        """(vehicles, mapped law function (h, v, v_l, p) -> a, their parameters) per distinct law template of the
-        delayed drivers: one CasADi call evaluates every delayed driver of a template (model units)."""
+        """(vehicles, law function (h, v, v_l, p) -> a, their parameters) per distinct law template of the delayed
+        drivers: one call (:func:`aev_ocp.fastcall.column_call`) evaluates every delayed driver of a template (model
+        units)."""
         groups: dict[Any, tuple[Any, list[tuple[int, list[float]]]]] = {}
         for i, law in laws.items():
             key, make, values = _law_template(law)
@@ -615,7 +617,7 @@ class RingSimulator:
             P = np.zeros((n_par, len(members)))
             for j, (_, values) in enumerate(members):
                 P[: len(values), j] = values
-            out.append((np.array([m[0] for m in members], int), f.map(len(members)), P))
+            out.append((np.array([m[0] for m in members], int), f, P))
         return out
 
     def _delayed_commands(self, k: int, ddt: float, H: np.ndarray, V: np.ndarray) -> None:
@@ -633,7 +635,7 @@ class RingSimulator:
             hh = (1 - w) * H[j0 % nb, idx] + w * H[j1 % nb, idx]
             vv = (1 - w) * V[j0 % nb, idx] + w * V[j1 % nb, idx]
             vl = (1 - w) * V[j0 % nb, pr] + w * V[j1 % nb, pr]
-            self.params[idx, 0] = np.asarray(f(hh, vv, vl, P)).ravel()
+            self.params[idx, 0] = column_call(f)(hh, vv, vl, P)[0].ravel()
 
     def _vehicle_function(self, law: CarFollowingLaw, k: int, p: ca.SX) -> ca.Function:
         """(u = (v_l, noise), x, p) -> (dz = (ẋ, quadrature integrands), y = (a, I, disc)), model units; the

@@ -42,6 +42,7 @@ import casadi as ca
 import numpy as np
 
 from ..models.carfollowing import CarFollowingLaw
+from ..fastcall import column_call
 from ..numerics import bracketed_root
 from ..params import ParameterError, Units
 
@@ -132,7 +133,8 @@ def equilibrium_gap_m(accel: ca.Function, v_mps: float, scan: ca.Function | None
             "f(h, v, v) for h in [1 mm, 10 km])"
         )
     a, b = float(_GAPS_M[idx[0]]), float(_GAPS_M[idx[0] + 1])
-    return bracketed_root(lambda h: float(accel(h, v_mps, v_mps)), a, b, 1e-13)
+    f1 = column_call(accel)
+    return bracketed_root(lambda h: float(f1(h, v_mps, v_mps)[0][0, 0]), a, b, 1e-13)
 
 
 class GapMemo:
