@@ -5,9 +5,9 @@ from __future__ import annotations
 
 from typing import Any
 
-import casadi as ca
 import numpy as np
 
+from ..fastcall import BufferedCall
 from ..params import EVParams
 from .base import NX, STATE_NAMES, Estimate, EstimationModel, estimate_of
 from .sensors import Measurement, Sensors
@@ -43,29 +43,46 @@ class EKF:
         self.soc0 = soc0
         self.lead_delay_s = sensors.delay("gap")
         self.x = np.zeros(NX)
-        self._P = ca.DM.eye(NX)  # kept as a CasADi matrix between steps: no conversion per call (half its cost)
+        self._P = np.eye(NX)  # the covariance, dense
         self.speed_delay_s = sensors.delay("speed")
         self.t_s = 0.0
         self.u = np.zeros(2)
         self._fn = self.model.ekf_step(ITERATIONS)  # the whole step: one CasADi call
+        # ... on bound buffers (no DM conversion of its six arguments and two results per step); P⁺'s nonzeros go to
+        # these places of the dense covariance (column-major)
+        self._call: BufferedCall | None = None  # built on the first step
+        rows, cols = self._fn.sparsity_out(1).get_triplet()
+        self._p_places = np.asarray(cols, dtype=int) * NX + np.asarray(rows, dtype=int)
 
     def reset(self, first: Measurement) -> Estimate:
         """x0, P0 from the first measurement (:meth:`EstimationModel.initial`), then its update."""
         self.x, P0 = self.model.initial(first, self.soc0)
-        self._P = ca.DM(P0)
+        self._P = np.array(P0, dtype=float).reshape(NX, NX)
         self.t_s, self.u = first.t_s, self.model.inputs(first)
         return self._step(first, 0.0)
 
     def _step(self, y: Measurement, dt_s: float) -> Estimate:
         u = self.model.inputs(y)
-        x, self._P = self._fn(self.x, self._P, self.u, u, self.model.outputs(y), dt_s)
-        self.x, self.u, self.t_s = x.full().ravel(), u, y.t_s
+        b = self._call
+        if b is None:
+            b = self._call = BufferedCall(self._fn)
+        values: tuple[Any, ...] = (self.x, self._P.ravel(order="F"), self.u, u, self.model.outputs(y), dt_s)
+        for buf, value in zip(b.args, values):
+            buf[:] = np.ravel(np.asarray(value, dtype=float))
+        if b():
+            P = np.zeros(NX * NX)
+            P[self._p_places] = b.res[1]
+            self.x, self._P = b.res[0].copy(), P.reshape(NX, NX, order="F")
+        else:  # failed there: the call raises CasADi's own error (or, should it pass, gives its result)
+            x, P_dm = self._fn(self.x, self._P, self.u, u, self.model.outputs(y), dt_s)
+            self.x, self._P = np.asarray(x).ravel(), np.asarray(P_dm.full())
+        self.u, self.t_s = u, y.t_s
         return self.estimate()
 
     @property
     def P(self) -> np.ndarray:
         """The filtered covariance (the order of :data:`~aev_ocp.estimation.base.STATE_NAMES`, SI²)."""
-        return np.asarray(self._P.full())
+        return self._P.copy()
 
     def update(self, y: Measurement) -> Estimate:
         return self._step(y, max(y.t_s - self.t_s, 0.0))
