@@ -24,6 +24,7 @@ from typing import Any, Callable, Sequence, cast
 import numpy as np
 
 from .errors import AevOcpError
+from .fastcall import column_call
 from .estimation.base import Estimate, Estimator
 from .estimation.kalman import EKF
 from .estimation.mhe import MHE
@@ -92,7 +93,7 @@ class SampledLaw:
         """Nothing to forget."""
 
     def command(self, obs: Observation) -> Command:
-        a = float(self.law.function(max(obs.z[0], 1e-6), obs.z[1], obs.meas_v[-1]))
+        a = column_call(self.law.function).scalar(max(float(obs.z[0]), 1e-6), float(obs.z[1]), float(obs.meas_v[-1]))
         return Command(min(max(a if math.isfinite(a) else self.a_min, self.a_min), self.a_max))
 
     def describe(self) -> dict[str, Any]:

@@ -93,3 +93,18 @@ def test_a_reused_id_is_not_taken_for_the_function_that_had_it(monkeypatch: pyte
     f, g = _fn(), _fn()
     monkeypatch.setattr(fc, "_CALLS", {id(g): (f, ColumnCall(f))})
     assert column_call(g).fn is g
+
+
+def test_scalar_is_the_plain_call_at_one_point_and_raises_its_error() -> None:
+    from aev_ocp.models.carfollowing import IDM, Proposed
+
+    for law in (Proposed(), IDM()):
+        c = column_call(law.function)
+        for h, v, vl in [(2.37, 1.61, 1.83), (0.41, 0.0, 0.77), (7.9, 2.2, 0.3)]:
+            assert c.scalar(h, v, vl) == float(law.function(h, v, vl))  # first call builds, later ones reuse
+            assert c.scalar(h, v, vl) == float(law.function(h, v, vl))
+    x = ca.MX.sym("x")
+    c = ColumnCall(ca.Function("checked", [x], [x.attachAssert(x > 0, "x must be positive here") * 2.3]))
+    assert c.scalar(0.4) == 0.4 * 2.3
+    with pytest.raises(RuntimeError, match="x must be positive here"):
+        c.scalar(-0.4)

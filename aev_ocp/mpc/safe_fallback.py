@@ -17,6 +17,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from ..control import Command, Observation
+from ..fastcall import column_call
 from ..models.carfollowing import CarFollowingLaw
 from ..params import EVParams, ParameterError, Units
 from ..models.safety_bound import (  # noqa: F401 - re-exported: the bound's names stay importable from here
@@ -128,7 +129,9 @@ class SafeFallback:
         if self.law is None:
             a = hi
         else:
-            a = float(self.law.function(max(float(obs.z[0]), 1e-6), float(obs.z[1]), float(obs.meas_v[-1])))
+            a = column_call(self.law.function).scalar(
+                max(float(obs.z[0]), 1e-6), float(obs.z[1]), float(obs.meas_v[-1])
+            )
             a = min(max(a if math.isfinite(a) else lo, lo), hi)
         return Command(self.limit(obs, a))
 

@@ -23,6 +23,7 @@ from typing import Any, Callable
 import casadi as ca
 import numpy as np
 
+from ..fastcall import column_call
 from ..models import battery
 from ..numerics import trapezoid
 from ..params import CellParams, ParameterError, check_declared
@@ -103,7 +104,7 @@ def simulate_cell_feedback(
     X = np.concatenate([np.asarray(x0, float).reshape(3, 1), np.asarray(out["xf"])], axis=1)
     Qi = np.concatenate([np.zeros((2, 1)), np.asarray(out["qf"])], axis=1)
     Ifun = ca.Function("I", [t, x], [I])
-    Is = np.array([float(Ifun(ts[k], X[:, k])) for k in range(ts.size)])
+    Is = column_call(Ifun)(ts, X)[0].ravel()  # every sample in one call
     return {"t": ts, "V1": X[0], "V2": X[1], "S": X[2], "I": Is, "Q_int": Qi[0], "Qirr_int": Qi[1]}
 
 

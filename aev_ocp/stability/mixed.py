@@ -134,7 +134,7 @@ def equilibrium_gap_m(accel: ca.Function, v_mps: float, scan: ca.Function | None
         )
     a, b = float(_GAPS_M[idx[0]]), float(_GAPS_M[idx[0] + 1])
     f1 = column_call(accel)
-    return bracketed_root(lambda h: float(f1(h, v_mps, v_mps)[0][0, 0]), a, b, 1e-13)
+    return bracketed_root(lambda h: f1.scalar(h, v_mps, v_mps), a, b, 1e-13)
 
 
 class GapMemo:
