@@ -14,6 +14,8 @@ from typing import Any
 import casadi as ca
 import numpy as np
 
+from .params import remember
+
 
 class BufferedCall:
     """``fn`` evaluated on numpy buffers bound once (CasADi's ``Function.buffer``): the same evaluation as
@@ -62,6 +64,7 @@ class ColumnCall:
         self.rows_out = [fn.size1_out(i) for i in range(fn.n_out())]
         self.sizes_kept = int(sizes_kept)
         self._maps: dict[int, BufferedCall] = {}
+        self._scalars = all(r == 1 for r in self.rows_in)  # every input one row: :meth:`scalar`'s fast path
 
     def _columns(self, args: tuple[Any, ...]) -> int:
         """The column count n the arguments ask for (1 when every one is a single column)."""
@@ -81,16 +84,14 @@ class ColumnCall:
     def _buffers(self, n: int) -> BufferedCall:
         f = self._maps.get(n)
         if f is None:
-            f = self._maps[n] = BufferedCall(self.fn.map(n))
-            while len(self._maps) > self.sizes_kept:
-                del self._maps[next(iter(self._maps))]
+            f = remember(self._maps, n, BufferedCall(self.fn.map(n)), self.sizes_kept)
         return f
 
     def scalar(self, *args: float) -> float:
         """The first output's first entry at one column of scalar arguments (every input one row): a law's
         acceleration at (h, v, v_l), the cheapest call (about 3 µs)."""
         f = self._maps.get(1)
-        if f is None or len(args) != len(self.rows_in) or any(r != 1 for r in self.rows_in):
+        if f is None or not self._scalars or len(args) != len(self.rows_in):
             return float(self(*args)[0][0, 0])
         for buf, x in zip(f.args, args):
             buf[0] = x
@@ -133,8 +134,4 @@ def column_call(fn: ca.Function) -> ColumnCall:
     hit = _CALLS.get(id(fn))
     if hit is not None and hit[0] is fn:
         return hit[1]
-    call = ColumnCall(fn)
-    _CALLS[id(fn)] = (fn, call)
-    while len(_CALLS) > FUNCTIONS_KEPT:
-        del _CALLS[next(iter(_CALLS))]
-    return call
+    return remember(_CALLS, id(fn), (fn, ColumnCall(fn)), FUNCTIONS_KEPT)[1]

@@ -227,6 +227,15 @@ def exact_key(obj: Any) -> Any:
     return type(obj), vals
 
 
+def remember(cache: dict[Any, Any], key: Any, value: Any, kept: int) -> Any:
+    """Put ``value`` under ``key`` in a process cache and forget its oldest entries beyond ``kept``; returns
+    ``value`` (the one bound for every per-process cache of results keyed by :func:`exact_key` and the like)."""
+    cache[key] = value
+    while len(cache) > kept:
+        del cache[next(iter(cache))]
+    return value
+
+
 def validate_fields(obj: Any) -> None:
     """Check every declared field of a dataclass instance; ParameterError names class, field, value, range."""
     for name, check in field_checks(obj).items():

@@ -108,3 +108,18 @@ def test_scalar_is_the_plain_call_at_one_point_and_raises_its_error() -> None:
     assert c.scalar(0.4) == 0.4 * 2.3
     with pytest.raises(RuntimeError, match="x must be positive here"):
         c.scalar(-0.4)
+
+
+def test_remember_keeps_the_newest_entries_up_to_its_bound() -> None:
+    """aev_ocp.params.remember, the bound of every per-process cache: on, inside and beyond the bound."""
+    from aev_ocp.params import remember
+
+    cache: dict[str, float] = {}
+    assert remember(cache, "a", 1.5, 3) == 1.5
+    remember(cache, "b", 2.5, 3)
+    remember(cache, "c", 3.5, 3)
+    assert list(cache) == ["a", "b", "c"]  # on the bound: nothing forgotten
+    remember(cache, "d", 4.5, 3)
+    assert list(cache) == ["b", "c", "d"]  # beyond it: the oldest goes
+    remember(cache, "c", 7.5, 3)  # an existing key keeps its place and takes the new value
+    assert cache == {"b": 2.5, "c": 7.5, "d": 4.5} and list(cache) == ["b", "c", "d"]

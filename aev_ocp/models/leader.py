@@ -23,7 +23,7 @@ import casadi as ca
 import numpy as np
 
 from ..fastcall import column_call
-from ..params import ParameterError, Units, exact_key
+from ..params import ParameterError, Units, exact_key, remember
 
 CYCLES = ("udds", "hwfet", "us06")
 
@@ -74,9 +74,7 @@ class LeaderProfile(ABC):
             return self._max_speed(t_end, n)
         key = (key, float(t_end).hex(), int(n))
         if key not in _MAX_SPEEDS:
-            _MAX_SPEEDS[key] = self._max_speed(t_end, n)
-            while len(_MAX_SPEEDS) > MAX_SPEEDS_KEPT:
-                del _MAX_SPEEDS[next(iter(_MAX_SPEEDS))]
+            return float(remember(_MAX_SPEEDS, key, self._max_speed(t_end, n), MAX_SPEEDS_KEPT))
         return _MAX_SPEEDS[key]
 
     def _max_speed(self, t_end: float, n: int) -> float:

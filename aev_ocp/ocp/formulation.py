@@ -25,7 +25,7 @@ from dataclasses import dataclass, field
 from typing import Any, Callable, Mapping
 
 from ..models.battery import ocv_form
-from ..params import EVParams, ParameterError, PowertrainOptions, spec, validate_fields
+from ..params import EVParams, ParameterError, PowertrainOptions, remember, spec, validate_fields
 from .following import (
     OBJECTIVES,
     RENAMED_OBJECTIVES,
@@ -182,9 +182,7 @@ class Formulation:
         else:
             hit = _MPC_PROBLEMS.get(key)
             if hit is None:
-                hit = _MPC_PROBLEMS[key] = self._mpc_problem(ev, dt)
-                while len(_MPC_PROBLEMS) > _MPC_PROBLEMS_KEPT:  # the oldest first
-                    del _MPC_PROBLEMS[next(iter(_MPC_PROBLEMS))]
+                hit = remember(_MPC_PROBLEMS, key, self._mpc_problem(ev, dt), _MPC_PROBLEMS_KEPT)
             problem, why = hit
         if why:
             import warnings

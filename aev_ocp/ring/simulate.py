@@ -47,8 +47,8 @@ from typing import Any, Callable, Sequence
 import casadi as ca
 import numpy as np
 
-from ..fastcall import column_call
 from ..compiled import dense_outputs, driver_source, exact_tuned_flags, load_fastest
+from ..fastcall import column_call
 from ..limits import check_ring_cuts, check_ring_size
 from ..control import SampledLaw
 from ..loop import NO_STAGES, CommandStages, Controller, History, Observation, VehicleStep, stages_for
@@ -57,7 +57,7 @@ from ..models.actuator import actuator_rate, saturate, speed_cut
 from ..models.carfollowing import CarFollowingLaw, optimal_velocity
 from ..models.battery import ocv_inputs, ocv_segments, ocv_table, piecewise_ocv
 from ..models.ego import battery_side
-from ..params import EVParams, ParameterError, check_argument
+from ..params import EVParams, ParameterError, check_argument, remember
 from ..plant import EVENT_RULES, current_limit_events, event_at, event_header, rule_of_code
 from ..results import Event, SimulationResult, fmt_value, summary_html, summary_text
 from .. import interrupts
@@ -575,9 +575,7 @@ class RingSimulator:
             self.funcs = [self._vehicle_function(make(p), k, p) for k, make in first.items()]
             known = (self.funcs, self._split, {})
             if self._structure is not None:
-                while len(_STRUCTURES) >= _STRUCTURES_MAX:
-                    _STRUCTURES.pop(next(iter(_STRUCTURES)))
-                _STRUCTURES[self._structure] = known
+                remember(_STRUCTURES, self._structure, known, _STRUCTURES_MAX)
         self.funcs, self._split, self._sources = known
         self.nq, self.ny = len(QUAD_NAMES), len(OUT_NAMES)
         self.nz = self.nx + self.nq

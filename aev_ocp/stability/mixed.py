@@ -41,8 +41,8 @@ from typing import Any, Callable, Sequence
 import casadi as ca
 import numpy as np
 
-from ..models.carfollowing import CarFollowingLaw
 from ..fastcall import column_call
+from ..models.carfollowing import CarFollowingLaw
 from ..numerics import bracketed_root
 from ..params import ParameterError, Units
 
