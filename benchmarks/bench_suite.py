@@ -9,9 +9,19 @@ Runs ``python -m pytest -q -n WORKERS --dist MODE`` in a child process from the 
 * the counts pytest reports (passed, skipped, failed, ...) and the compilations (``aev_ocp: compiling <stem>``
   lines, shown by pytest only for failing tests, so usually none: the compile cache's own test counts them);
 * the ten slowest phases and each file's seconds (setup, call and teardown of its tests, ``--durations=0``);
-* the environment variables that change the time (:data:`TIMING_ENV`): ``PYTHONDONTWRITEBYTECODE`` set makes every
-  process compile the package's modules and pytest rewrite every test module again (about 4 s of CPU per worker to
-  collect, more in each process a test starts); the BLAS thread counts (tests/conftest.py sets 1 unless given).
+* the environment variables that change the time (:data:`TIMING_ENV`): the BLAS thread counts (tests/conftest.py
+  sets 1 unless given) and ``PYTHONDONTWRITEBYTECODE``, which ``--bytecode`` sets for the run.
+
+``--bytecode on`` (the default) runs the suite as Python runs it unless told otherwise: ``PYTHONDONTWRITEBYTECODE``
+is removed from the suite's environment, so the package's modules are compiled to bytecode once and pytest's
+rewritten test modules are cached (``__pycache__``), after an untimed ``pytest --collect-only`` that fills both (the
+way the compile cache is warm). ``--bytecode off`` sets ``PYTHONDONTWRITEBYTECODE=1`` (some machines set it for every
+process, this one among them) and first removes the checkout's ``__pycache__`` folders (package, tests), as in a fresh
+clone on such a machine: each worker rewrites every test module again (about 5 s of CPU to collect instead of
+2) and each process a test starts compiles the modules it imports, about 15 s of wall in all. ``--bytecode
+inherit`` keeps this process's environment. Repeatable like ``--dist``; every (dist, bytecode) pair runs ``--repeat``
+times, the pairs in turns (A B A B: the machine's speed drifts, each pair meets the same drift), the last pair being
+the quoted one.
 
 ``--dist MODE`` (repeatable) runs the suite once per mode in this process, in the order given, the first being the
 baseline of the ratios: ``python benchmarks/bench_suite.py --dist load --dist loadfile``. ``--repeat K`` runs each
@@ -30,6 +40,7 @@ import argparse
 import os
 import re
 import resource
+import shutil
 import subprocess
 import sys
 import time
@@ -58,11 +69,56 @@ def children_cpu_s() -> float:
     return r.ru_utime + r.ru_stime
 
 
-def run(mode: str, workers: str, cache: Path | None, extra: list[str]) -> dict[str, Any]:
-    """One run of the suite with ``--dist mode``; its measurements."""
+#: --bytecode: the suite's PYTHONDONTWRITEBYTECODE (None: removed, Python's default; "1": set; absent: inherited)
+BYTECODE = {"on": None, "off": "1"}
+
+
+def suite_env(cache: Path | None, bytecode: str) -> dict[str, str]:
+    """The suite's environment: this one with the checkout first on the path, the compile cache and ``bytecode``."""
     env = {**os.environ, "PYTHONPATH": str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", "")}
     if cache is not None:
         env["AEV_OCP_CACHE"] = str(cache)
+    if bytecode in BYTECODE:
+        env.pop("PYTHONDONTWRITEBYTECODE", None)
+        if BYTECODE[bytecode] is not None:
+            env["PYTHONDONTWRITEBYTECODE"] = BYTECODE[bytecode]
+    return env
+
+
+def warm_bytecode(env: dict[str, str]) -> None:
+    """An untimed collection: compiles the package's modules and caches pytest's rewritten test modules (where
+    ``env`` lets Python write bytecode)."""
+    subprocess.run([sys.executable, "-m", "pytest", "-q", "--collect-only"], cwd=ROOT, env=env, capture_output=True)
+
+
+def machine_speed_s(repeats: int = 5) -> float:
+    """CPU seconds [s] of a fixed workload (a pure-Python loop and NumPy element-wise functions, no BLAS threads;
+    median of ``repeats``), taken before each run: the suite's times move with it (the machine is shared; its speed
+    drifts over minutes), so the JSON lets a reader compare runs at the machine's speed of the moment."""
+    x = np.linspace(0.0, 1.0, 1_000_000)
+    times = []
+    for _ in range(repeats):
+        t0 = time.process_time()
+        acc = 0
+        for k in range(2_000_000):
+            acc += k % 7
+        for _ in range(10):
+            x = np.sin(x) + np.exp(-x)
+        times.append(time.process_time() - t0)
+    return float(np.median(times))
+
+
+def clear_bytecode() -> int:
+    """Remove the checkout's bytecode caches (``__pycache__`` under the package and the tests); how many."""
+    found = [d for top in ("aev_ocp", "tests") for d in (ROOT / top).rglob("__pycache__") if d.is_dir()]
+    for d in found:
+        shutil.rmtree(d, ignore_errors=True)
+    return len(found)
+
+
+def run(mode: str, workers: str, cache: Path | None, extra: list[str], bytecode: str = "on") -> dict[str, Any]:
+    """One run of the suite with ``--dist mode`` and ``--bytecode bytecode``; its measurements."""
+    env = suite_env(cache, bytecode)
     cmd = [
         sys.executable,
         "-m",
@@ -79,6 +135,7 @@ def run(mode: str, workers: str, cache: Path | None, extra: list[str]) -> dict[s
         QUOTE_TEST,
         *extra,
     ]
+    speed = machine_speed_s()
     load0 = os.getloadavg()[0]
     cpu0, t0 = children_cpu_s(), time.perf_counter()
     proc = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True)
@@ -92,12 +149,14 @@ def run(mode: str, workers: str, cache: Path | None, extra: list[str]) -> dict[s
     return {
         "command": " ".join(["pytest", *cmd[3:]]),
         "dist": mode,
+        "bytecode": bytecode,
         "returncode": proc.returncode,
         "wall_s": round(wall, 2),
         "cpu_s": round(cpu, 2),
         "load_1min_before": round(load0, 2),
+        "machine_speed_s": round(speed, 4),
         "load_1min_after": round(os.getloadavg()[0], 2),
-        "environment": {k: os.environ.get(k) for k in TIMING_ENV},
+        "environment": {k: env.get(k) for k in TIMING_ENV},
         "counts": counts,
         "compilations": _COMPILING.findall(proc.stdout + proc.stderr),
         "slowest": [{"seconds": x, "phase": ph, "test": t} for x, ph, t in phases[:10]],
@@ -120,6 +179,7 @@ def summary(runs: list[dict[str, Any]]) -> dict[str, Any]:
     walls, cpus = [r["wall_s"] for r in runs], [r["cpu_s"] for r in runs]
     return {
         "dist": runs[0]["dist"],
+        "bytecode": runs[0]["bytecode"],
         "repeats": len(runs),
         "wall_s_median": float(np.median(walls)),
         "cpu_s_median": float(np.median(cpus)),
@@ -132,6 +192,12 @@ def summary(runs: list[dict[str, Any]]) -> dict[str, Any]:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--dist", action="append", help="xdist mode(s), the first is the baseline (default: loadfile)")
+    ap.add_argument(
+        "--bytecode",
+        action="append",
+        choices=["on", "off", "inherit"],
+        help="on: Python's default, bytecode cached (the default); off: PYTHONDONTWRITEBYTECODE=1; inherit: as here",
+    )
     ap.add_argument("-n", "--workers", default="auto", help="pytest-xdist workers (default: auto, one per core)")
     ap.add_argument("--cache", type=Path, default=None, help="compile cache folder ($AEV_OCP_CACHE)")
     ap.add_argument("--out", type=Path, default=OUT)
@@ -143,20 +209,34 @@ def main(argv: list[str] | None = None) -> int:
     a = ap.parse_args(argv)
     if a.repeat < 1:
         ap.error(f"--repeat = {a.repeat} is not allowed: must be >= 1")
-    modes = a.dist or ["loadfile"]
-    runs = [run(m, a.workers, a.cache, a.pytest_args) for m in modes for _ in range(a.repeat)]
-    by_mode = [[r for r in runs if r["dist"] == m] for m in dict.fromkeys(modes)]
+    pairs = list(dict.fromkeys((m, b) for b in a.bytecode or ["on"] for m in a.dist or ["loadfile"]))
+    runs = []
+    # in turns (A B A B ...), not A A B B: the machine's speed drifts over minutes, and each configuration should
+    # meet the same drift
+    for _ in range(a.repeat):
+        for m, b in pairs:
+            if b == "on":
+                warm_bytecode(suite_env(a.cache, b))
+            elif b == "off":
+                clear_bytecode()
+            runs.append(run(m, a.workers, a.cache, a.pytest_args, b))
+    by_mode = [[r for r in runs if (r["dist"], r["bytecode"]) == pair] for pair in pairs]
     medians = [summary(rs) for rs in by_mode]
     base = medians[0]
-    print(f"{'dist':10} {'wall [s]':>9} {'CPU [s]':>9} {'wall/base':>9} {'CPU/base':>9} {'load':>11}  result")
+    print(
+        f"{'dist':10} {'bytecode':8} {'wall [s]':>9} {'CPU [s]':>9} {'wall/base':>9} {'CPU/base':>9} {'load':>11}  result"
+    )
     for r in runs:
         print(
-            f"{r['dist']:10} {r['wall_s']:9.1f} {r['cpu_s']:9.1f} {r['wall_s'] / base['wall_s_median']:9.2f} "
+            f"{r['dist']:10} {r['bytecode']:8} {r['wall_s']:9.1f} {r['cpu_s']:9.1f} {r['wall_s'] / base['wall_s_median']:9.2f} "
             f"{r['cpu_s'] / base['cpu_s_median']:9.2f} {r['load_1min_before']:5.2f}/{r['load_1min_after']:5.2f}  "
             f"{r['summary']}"
         )
     for m in medians:
-        print(f"{m['dist']:10} {m['wall_s_median']:9.1f} {m['cpu_s_median']:9.1f}  median of {m['repeats']} run(s)")
+        print(
+            f"{m['dist']:10} {m['bytecode']:8} {m['wall_s_median']:9.1f} {m['cpu_s_median']:9.1f}  "
+            f"median of {m['repeats']} run(s)"
+        )
     quoted = median_run(by_mode[-1])
     uname = os.uname()
     write_json(

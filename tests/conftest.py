@@ -16,6 +16,7 @@ the files: a stale one costs time, never a result.
 
 from __future__ import annotations
 
+import gc
 import json
 import os
 from collections import defaultdict
@@ -147,3 +148,10 @@ def pytest_sessionfinish(session: pytest.Session, exitstatus: int) -> None:
     old = session.config.cache.get(DURATIONS_KEY, {})
     merged = {**(old if isinstance(old, dict) else {}), **{f: round(s, 2) for f, s in _SECONDS.items()}}
     session.config.cache.set(DURATIONS_KEY, merged)
+
+
+def pytest_collection_finish(session: pytest.Session) -> None:
+    # what collection leaves alive (the modules, their functions, pytest's items: ~250 000 objects per worker) lives
+    # to the end of the run: moved out of the cyclic garbage collector's reach, its full collections scan only what
+    # the tests create (issue 40: they took ~3.5 s of each worker's CPU, rescanning the same objects)
+    gc.freeze()
