@@ -17,8 +17,9 @@ is removed from the suite's environment, so the package's modules are compiled t
 rewritten test modules are cached (``__pycache__``), after an untimed ``pytest --collect-only`` that fills both (the
 way the compile cache is warm). ``--bytecode off`` sets ``PYTHONDONTWRITEBYTECODE=1`` (some machines set it for every
 process, this one among them) and first removes the checkout's ``__pycache__`` folders (package, tests), as in a fresh
-clone on such a machine: each worker rewrites every test module again (about 5 s of CPU to collect instead of
-2) and each process a test starts compiles the modules it imports, about 15 s of wall in all. ``--bytecode
+clone on such a machine: each worker rewrites every test module again (collecting takes about 10 s of one core
+instead of 4) and each process a test starts compiles the modules it imports; measured in turns, three runs each,
+the suite's wall time did not move beyond its run-to-run spread (README). ``--bytecode
 inherit`` keeps this process's environment. Repeatable like ``--dist``; every (dist, bytecode) pair runs ``--repeat``
 times, the pairs in turns (A B A B: the machine's speed drifts, each pair meets the same drift), the last pair being
 the quoted one.
@@ -93,8 +94,9 @@ def warm_bytecode(env: dict[str, str]) -> None:
 
 def machine_speed_s(repeats: int = 5) -> float:
     """CPU seconds [s] of a fixed workload (a pure-Python loop and NumPy element-wise functions, no BLAS threads;
-    median of ``repeats``), taken before each run: the suite's times move with it (the machine is shared; its speed
-    drifts over minutes), so the JSON lets a reader compare runs at the machine's speed of the moment."""
+    median of ``repeats``), taken before each run, so the JSON shows whether one core's speed moved between runs.
+    On this machine it did not follow the suite's swings (0.20-0.29 s while the suite took 123-176 s): what moves
+    the suite's time is not a core's speed alone."""
     x = np.linspace(0.0, 1.0, 1_000_000)
     times = []
     for _ in range(repeats):
