@@ -213,14 +213,16 @@ def main(argv: list[str] | None = None) -> int:
         ap.error(f"--repeat = {a.repeat} is not allowed: must be >= 1")
     pairs = list(dict.fromkeys((m, b) for b in a.bytecode or ["on"] for m in a.dist or ["loadfile"]))
     runs = []
+    cached = None  # the checkout's bytecode caches: None unknown, True filled (an 'on' run), False cleared ('off')
     # in turns (A B A B ...), not A A B B: the machine's speed drifts over minutes, and each configuration should
     # meet the same drift
     for _ in range(a.repeat):
         for m, b in pairs:
-            if b == "on":
+            if b == "on" and cached is not True:
                 warm_bytecode(suite_env(a.cache, b))
-            elif b == "off":
+            elif b == "off" and cached is not False:
                 clear_bytecode()
+            cached = {"on": True, "off": False}.get(b)  # inherit: whatever the environment lets Python write
             runs.append(run(m, a.workers, a.cache, a.pytest_args, b))
     by_mode = [[r for r in runs if (r["dist"], r["bytecode"]) == pair] for pair in pairs]
     medians = [summary(rs) for rs in by_mode]

@@ -86,6 +86,11 @@ def test_configurations_run_in_turns_and_the_last_ones_median_run_is_quoted(monk
     ]
     assert (doc["quoted"]["bytecode"], doc["quoted"]["wall_s"]) == ("on", 166.0)  # the median run, not the fastest
     assert "median of 3" in capsys.readouterr().out
+    # one configuration: its caches are prepared once, not before every run
+    calls.clear(), prepared.clear()
+    walls[("loadfile", "on")] = [131.0, 127.0]
+    assert bench_suite.main(["--bytecode", "on", "--repeat", "2", "--out", str(out)]) == 0
+    assert calls == [("loadfile", "on")] * 2 and prepared == ["warm"]
 
 
 def test_machine_speed_is_a_positive_cpu_time() -> None:
