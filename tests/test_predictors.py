@@ -13,6 +13,7 @@ from aev_ocp.mpc.predictors import (
     ConstantVelocityPredictor,
     DecayingAccelerationPredictor,
     Measurements,
+    least_squares_slope,
     make_predictor,
 )
 from aev_ocp.params import ParameterError
@@ -42,6 +43,29 @@ def test_decaying_acceleration_closed_form_and_consistent_position(v0: float, a:
     vf = np.maximum(vk + a * tau * (1 - np.exp(-fine / tau)), 0.0)
     xf = np.concatenate([[0.0], np.cumsum(0.5 * (vf[1:] + vf[:-1]) * np.diff(fine))])
     np.testing.assert_allclose(x, np.interp(s, fine, xf), atol=2e-7)
+
+
+@given(
+    t0=st.floats(-50.0, 500.0),
+    steps=st.lists(st.floats(0.013, 0.7), min_size=1, max_size=9),
+    v=st.lists(st.floats(-3.0, 40.0), min_size=10, max_size=10),
+)
+@settings(max_examples=80, deadline=None)
+def test_least_squares_slope_is_polyfits_slope(t0: float, steps: list[float], v: list[float]) -> None:
+    """The closed-form slope equals NumPy's least-squares fit of a line (an SVD) on uneven samples."""
+    t = t0 + np.concatenate([[0.0], np.cumsum(steps)])
+    vv = np.asarray(v[: t.size])
+    ref = float(np.polyfit(t - t[-1], vv, 1)[0])
+    assert least_squares_slope(t, vv) == pytest.approx(ref, rel=1e-9, abs=1e-9 * (1.0 + np.ptp(vv) / np.ptp(t)))
+
+
+def test_least_squares_slope_limits() -> None:
+    """An exact line gives its slope; one sample or a single repeated time gives 0 (no slope to fit)."""
+    t = np.array([3.1, 3.4, 3.5, 4.2])
+    assert least_squares_slope(t, 0.37 - 1.9 * t) == pytest.approx(-1.9, rel=1e-12)
+    assert least_squares_slope(t[:2], 0.37 - 1.9 * t[:2]) == pytest.approx(-1.9, rel=1e-12)  # two points: the line
+    assert least_squares_slope(t[:1], [2.3]) == 0.0
+    assert least_squares_slope(np.full(3, 7.3), [1.2, 2.5, 0.4]) == 0.0
 
 
 def test_decaying_acceleration_between_constant_velocity_and_acceleration() -> None:
