@@ -348,6 +348,47 @@ def test_a_local_cluster_s_workers_may_write_to_stdout(tmp_path, monkeypatch):
         cluster.stop(1.0)
 
 
+def _started_then_finished(started: str, finished: str, seconds: float) -> None:
+    """A task that marks its start, computes for ``seconds`` [s] and marks its end."""
+    Path(started).touch()
+    time.sleep(seconds)
+    Path(finished).touch()
+
+
+def test_a_cluster_whose_study_died_ends_its_computing_worker_at_once(tmp_path, monkeypatch):
+    """The cluster process's stdin ends without the study's close request (the study was killed): no one waits for
+    a result, so it kills its worker in the middle of the task (a graceful close let the task run on, 4 s before
+    Dask's nanny killed the worker), leaves no process of its group and removes the workers' scratch folder."""
+    pytest.importorskip("dask.distributed")
+    from dask.distributed import Client
+
+    from aev_ocp.study.cluster import LocalClusterProcess, _group_alive
+
+    here = str(Path(__file__).resolve().parent)  # the worker imports _started_then_finished from this file
+    monkeypatch.setenv("PYTHONPATH", os.pathsep.join([here, os.environ.get("PYTHONPATH", "")]))
+    scratch = tmp_path / "scratch"
+    scratch.mkdir()
+    started, finished = tmp_path / "started", tmp_path / "finished"
+    cluster = LocalClusterProcess(1, str(scratch), {})
+    try:
+        with Client(cluster.wait_address(), timeout=30) as client:
+            task_s = 1.2  # the task's length [s]: far above the cluster process's reaction (0.03 s measured)
+            task = client.submit(_started_then_finished, str(started), str(finished), task_s, pure=False)
+            deadline = time.monotonic() + 60.0
+            while not started.exists() and time.monotonic() < deadline:
+                time.sleep(0.02)
+            assert started.exists()
+            t_started = time.monotonic()
+            cluster.proc.stdin.close()  # as the kernel closes it when the study dies: no close request
+            cluster.proc.wait(30)
+            del task
+        time.sleep(max(0.0, t_started + task_s + 0.4 - time.monotonic()))  # past the task's end, had it run on
+        assert not finished.exists(), "the worker finished its task after the study died"
+        assert not _group_alive(cluster.proc.pid) and not scratch.exists()
+    finally:
+        cluster.stop(1.0)
+
+
 # ----------------------------------------------------------------------------- from the issue-28 small leftovers (test_reliability_minors.py)
 def test_a_stopped_pool_has_closed_its_manager_thread_before_the_process_exits():
     """study --time-limit with a pool: after stop_pool the pool's manager thread has finished closing its

@@ -8,8 +8,10 @@ through this module as a separate process in a new session (:class:`LocalCluster
 sees the terminal's signals, and it stops the cluster itself.
 
 The cluster process writes its scheduler's address as one JSON line on a pipe of its own, then serves until its stdin
-closes (the study ended, whatever way, even killed) or it gets SIGTERM/SIGINT; then it closes the cluster.
-Whatever of its process group is still alive after the study's grace period is killed.
+closes (the study ended, whatever way, even killed) or it gets SIGTERM/SIGINT. A study that stops it writes
+:data:`CLOSE_REQUEST` first: then it closes the cluster, and whatever of its process group is still alive after the
+study's grace period is killed. A stdin that ends without the request means the study died: nobody waits for a result,
+so the cluster process removes the workers' scratch folder and kills its whole process group at once.
 """
 
 from __future__ import annotations
@@ -37,6 +39,9 @@ CLOSE_GRACE_S = 10.0
 INTERRUPT_GRACE_S = 1.0
 #: The last characters of the cluster process's log shown when it fails to start.
 LOG_TAIL_CHARS = 600
+#: What the study writes on the cluster process's stdin before it closes it (:meth:`LocalClusterProcess.stop`): a
+#: stdin that ends without it means the study died (killed, crashed), and the cluster ends its workers at once.
+CLOSE_REQUEST = b"close\n"
 
 
 class LocalClusterProcess:
@@ -101,9 +106,15 @@ class LocalClusterProcess:
         return f": {text.splitlines()[-1]}" if text else ""
 
     def stop(self, grace_s: float = CLOSE_GRACE_S) -> None:
-        """Ask the cluster to close (its stdin closes), wait up to ``grace_s`` [s], then kill whatever of its
-        process group is left (scheduler, nannies, workers, resource tracker). Safe to call twice."""
+        """Ask the cluster to close (:data:`CLOSE_REQUEST`, then its stdin closes), wait up to ``grace_s`` [s], then
+        kill whatever of its process group is left (scheduler, nannies, workers, resource tracker). Safe to call
+        twice."""
         if self.proc.stdin is not None and not self.proc.stdin.closed:
+            try:
+                self.proc.stdin.write(CLOSE_REQUEST)  # a close the study asks for, not its death (see main)
+                self.proc.stdin.flush()
+            except OSError:
+                pass
             try:
                 self.proc.stdin.close()
             except OSError:
@@ -131,16 +142,13 @@ class LocalClusterProcess:
             time.sleep(0.02)
 
 
-def _group_alive(pgid: int) -> bool:
-    """Whether a process of group ``pgid`` still runs (zombies, which hold nothing open, do not count; where
-    there is no /proc, any member counts)."""
+def _group_members(pgid: int) -> list[int] | None:
+    """The live processes of group ``pgid`` (zombies, which hold nothing open, do not count); None where there is
+    no /proc to list them."""
     proc = Path("/proc")
     if not proc.is_dir():
-        try:
-            os.killpg(pgid, 0)
-        except (ProcessLookupError, PermissionError):
-            return False
-        return True
+        return None
+    members = []
     for p in proc.iterdir():
         if p.name.isdigit():
             try:
@@ -148,8 +156,42 @@ def _group_alive(pgid: int) -> bool:
             except OSError:
                 continue
             if int(stat[2]) == pgid and stat[0] not in ("Z", "X"):
-                return True
-    return False
+                members.append(int(p.name))
+    return members
+
+
+def _group_alive(pgid: int) -> bool:
+    """Whether a process of group ``pgid`` still runs (zombies do not count; where there is no /proc, any member
+    counts)."""
+    members = _group_members(pgid)
+    if members is None:
+        try:
+            os.killpg(pgid, 0)
+        except (ProcessLookupError, PermissionError):
+            return False
+        return True
+    return bool(members)
+
+
+def _kill_own_group(scratch: str) -> bool:
+    """End this process's group at once: the cluster's workers and multiprocessing's resource tracker (the cluster
+    process leads a session of its own), then this process. The others are stopped first (SIGSTOP: a stopped
+    worker writes nothing more, and a nanny restarts no worker that has not died), the workers' ``scratch`` folder is
+    removed, then SIGKILL goes to the whole group, this process included: this function does not return then.
+    False (nothing done) where the group's members cannot be listed (no /proc)."""
+    me, group = os.getpid(), os.getpgrp()
+    members = _group_members(group)
+    if members is None:
+        return False
+    for pid in members:
+        if pid != me:
+            try:
+                os.kill(pid, signal.SIGSTOP)
+            except ProcessLookupError:
+                pass
+    shutil.rmtree(scratch, ignore_errors=True)
+    os.killpg(group, signal.SIGKILL)
+    return True  # not reached
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -179,15 +221,21 @@ def main(argv: list[str] | None = None) -> int:
         silence_logs=logging.CRITICAL,
         local_directory=a.scratch,
     )
+    died = False  # the study's end of stdin closed without CLOSE_REQUEST: the study was killed or crashed
     try:
         with os.fdopen(a.address_fd, "w") as addr:
             addr.write(json.dumps({"address": cluster.scheduler_address}) + "\n")
-        while sys.stdin.buffer.read(65536):  # until the study closes its end (or ends)
-            pass
+        tail = b""
+        while chunk := sys.stdin.buffer.read(65536):  # until the study closes its end (or ends)
+            tail = (tail + chunk)[-len(CLOSE_REQUEST) :]
+        died = tail != CLOSE_REQUEST
     finally:
         logging.getLogger("distributed").setLevel(logging.CRITICAL)  # "stream closed" while closing is no news
-        cluster.close(timeout=CLOSE_GRACE_S)
-        if os.getppid() != study:  # the study was killed: nobody else will remove the workers' scratch folder
+        # a dead study waits for no result: its workers end at once (a graceful close let a computing worker run on
+        # for 4 s, until Dask's nanny killed it; measured); else (asked, or a SIGTERM/SIGINT) they close gracefully
+        if not (died and _kill_own_group(a.scratch)):
+            cluster.close(timeout=CLOSE_GRACE_S)
+        if died or os.getppid() != study:  # the study is gone: nobody else will remove the workers' scratch folder
             shutil.rmtree(a.scratch, ignore_errors=True)
     return 0
 
