@@ -5,6 +5,7 @@ study's files): Table 1 cut to 2 followers and 1.5 model time, two points, two l
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 TINY_STUDY = """
 name = "{name}"
@@ -28,3 +29,19 @@ def write_tiny_study(tmp_path: Path, name: str = "tiny", text: str = TINY_STUDY)
     f = tmp_path / f"{name.replace('/', '_')}.toml"
     f.write_text(text.replace("{name}", name))
     return f
+
+
+def record_cluster_stops(monkeypatch: Any) -> list[bool]:
+    """A list that receives ``graceful`` of every :meth:`LocalClusterProcess.stop` call from now on (the stops still
+    happen)."""
+    from aev_ocp.study.cluster import LocalClusterProcess
+
+    stops: list[bool] = []
+    real_stop = LocalClusterProcess.stop
+
+    def stop(self: LocalClusterProcess, *args: Any, **kwargs: Any) -> None:
+        stops.append(kwargs.get("graceful", True))
+        real_stop(self, *args, **kwargs)
+
+    monkeypatch.setattr(LocalClusterProcess, "stop", stop)
+    return stops

@@ -17,7 +17,7 @@ from cli_helpers import one_error, run_cli
 from helpers import _BIG_STR, _BIG_TABLE, _never, _run_study
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-from study_helpers import TINY_STUDY, write_tiny_study
+from study_helpers import TINY_STUDY, record_cluster_stops, write_tiny_study
 
 from aev_ocp.cli import main
 from aev_ocp.params import ParameterError
@@ -136,8 +136,9 @@ def test_points_equal_direct_simulations(tmp_path):
 
 
 @pytest.mark.slow  # over 5 s of one core (measured under load, pytest --durations)
-def test_executors_identical_and_dask_local_cluster(tmp_path):
+def test_executors_identical_and_dask_local_cluster(tmp_path, monkeypatch):
     pytest.importorskip("dask.distributed")
+    stops = record_cluster_stops(monkeypatch)
     f = _study(tmp_path)
     tables = {}
     # the pool's two workers return results out of order; the local Dask cluster runs one (issue 40: a second
@@ -153,6 +154,7 @@ def test_executors_identical_and_dask_local_cluster(tmp_path):
         tables[ex + "-store"] = json.dumps(stored, sort_keys=True)
     assert tables["pool"] == tables["inprocess"] == tables["dask"]
     assert tables["pool-store"] == tables["inprocess-store"] == tables["dask-store"]
+    assert stops == [True]  # a study that got every result asks its cluster to close gracefully
 
 
 @pytest.mark.quick

@@ -14,6 +14,7 @@ import pytest
 from cli_helpers import one_error, run_cli
 from helpers import _computing
 from study_helpers import TINY_STUDY as STUDY
+from study_helpers import record_cluster_stops
 from study_helpers import write_tiny_study as _study
 
 from aev_ocp import interrupts
@@ -219,13 +220,15 @@ def _descendants(pid: int) -> set[int]:
     return out
 
 
-def test_run_dask_closes_the_local_cluster_it_started_when_interrupted(tmp_path):
+def test_run_dask_closes_the_local_cluster_it_started_when_interrupted(tmp_path, monkeypatch):
     """In-process: the interrupt reaches _run_dask while the cluster computes; before this process ends, the
-    cluster's processes are gone (closed by the study, not reaped at exit)."""
+    cluster's processes are gone (closed by the study, not reaped at exit), ended at once: the study asks for no
+    graceful close, which waits for a computing worker."""
     pytest.importorskip("dask.distributed")
     from aev_ocp.study import read_study
     from aev_ocp.study.runner import _run_dask
 
+    stops = record_cluster_stops(monkeypatch)
     specs = [t.spec for t in read_study(_study(tmp_path)).tasks()]
     before = _descendants(os.getpid())
 
@@ -239,6 +242,7 @@ def test_run_dask_closes_the_local_cluster_it_started_when_interrupted(tmp_path)
     while _descendants(os.getpid()) - before and time.monotonic() < deadline:
         time.sleep(0.2)
     assert _descendants(os.getpid()) - before == set()
+    assert stops == [False]
 
 
 def test_ctrl_c_while_the_pool_starts_its_workers_waits_until_all_can_be_stopped(tmp_path, monkeypatch):
@@ -355,10 +359,12 @@ def _started_then_finished(started: str, finished: str, seconds: float) -> None:
     Path(finished).touch()
 
 
-def test_a_cluster_whose_study_died_ends_its_computing_worker_at_once(tmp_path, monkeypatch):
-    """The cluster process's stdin ends without the study's close request (the study was killed): no one waits for
-    a result, so it kills its worker in the middle of the task (a graceful close let the task run on, 4 s before
-    Dask's nanny killed the worker), leaves no process of its group and removes the workers' scratch folder."""
+@pytest.mark.parametrize("end", ["study died", "stopped unasked"])
+def test_a_cluster_whose_study_died_ends_its_computing_worker_at_once(tmp_path, monkeypatch, end):
+    """The cluster process's stdin ends without the study's close request (the study was killed, or it stops the
+    cluster after an interrupt: ``stop(graceful=False)``): no one waits for a result, so it kills its worker in the
+    middle of the task (a graceful close let the task run on, 4 s before Dask's nanny killed the worker), leaves no
+    process of its group and removes the workers' scratch folder."""
     pytest.importorskip("dask.distributed")
     from dask.distributed import Client
 
@@ -379,8 +385,11 @@ def test_a_cluster_whose_study_died_ends_its_computing_worker_at_once(tmp_path, 
                 time.sleep(0.02)
             assert started.exists()
             t_started = time.monotonic()
-            cluster.proc.stdin.close()  # as the kernel closes it when the study dies: no close request
-            cluster.proc.wait(30)
+            if end == "study died":
+                cluster.proc.stdin.close()  # as the kernel closes it when the study dies: no close request
+                cluster.proc.wait(30)
+            else:  # a grace far above the task's length: only the cluster's own kill ends the task in time
+                cluster.stop(10.0, graceful=False)
             del task
         time.sleep(max(0.0, t_started + task_s + 0.4 - time.monotonic()))  # past the task's end, had it run on
         assert not finished.exists(), "the worker finished its task after the study died"

@@ -34,8 +34,9 @@ from typing import Any, Callable
 CLUSTER_START_TIMEOUT_S = 180.0
 #: After a normal end, how long the cluster may take to close its workers before they are killed [s].
 CLOSE_GRACE_S = 10.0
-#: After an interrupt or a failure, the same, short: the user is waiting for the prompt [s]. A cluster that has
-#: not started yet is killed at once.
+#: After an interrupt or a failure, the same, short: the user is waiting for the prompt [s]. The study then does not
+#: ask for a close: the cluster process ends its group at once (:func:`main`). A cluster that has not started yet is
+#: killed at once.
 INTERRUPT_GRACE_S = 1.0
 #: The last characters of the cluster process's log shown when it fails to start.
 LOG_TAIL_CHARS = 600
@@ -105,16 +106,18 @@ class LocalClusterProcess:
             return ""
         return f": {text.splitlines()[-1]}" if text else ""
 
-    def stop(self, grace_s: float = CLOSE_GRACE_S) -> None:
-        """Ask the cluster to close (:data:`CLOSE_REQUEST`, then its stdin closes), wait up to ``grace_s`` [s], then
-        kill whatever of its process group is left (scheduler, nannies, workers, resource tracker). Safe to call
-        twice."""
+    def stop(self, grace_s: float = CLOSE_GRACE_S, graceful: bool = True) -> None:
+        """End the cluster: ``graceful``, ask it to close (:data:`CLOSE_REQUEST`, then its stdin closes), else close
+        its stdin unasked (it kills its workers at once, as when the study dies: an interrupted study waits for no
+        result); wait up to ``grace_s`` [s], then kill whatever of its process group is left (scheduler, nannies,
+        workers, resource tracker). Safe to call twice."""
         if self.proc.stdin is not None and not self.proc.stdin.closed:
-            try:
-                self.proc.stdin.write(CLOSE_REQUEST)  # a close the study asks for, not its death (see main)
-                self.proc.stdin.flush()
-            except OSError:
-                pass
+            if graceful:
+                try:
+                    self.proc.stdin.write(CLOSE_REQUEST)  # a close the study asks for, not its death (see main)
+                    self.proc.stdin.flush()
+                except OSError:
+                    pass
             try:
                 self.proc.stdin.close()
             except OSError:

@@ -534,7 +534,7 @@ def _run_dask(
         "distributed.comm.timeouts.tcp": f"{SCHEDULER_HEARTBEAT_TIMEOUT_S}s",
     }
     cfg = dask.config.set(timeouts)
-    grace = INTERRUPT_GRACE_S
+    finished = False  # every result in: the cluster closes gracefully; else (interrupted, failed) it ends at once
     try:
         if scheduler:
             client = _connect(Client, scheduler)
@@ -566,17 +566,18 @@ def _run_dask(
             if cluster is None:  # a shared scheduler: withdraw this study's tasks (a local cluster just ends)
                 client.cancel(futures)
             raise
-        grace = CLOSE_GRACE_S
+        finished = True
     finally:
         quiet = logging.getLogger("distributed")  # closing after Ctrl-C: the heartbeats' "stream closed" are no news
         level = quiet.level
         quiet.setLevel(logging.CRITICAL)
         try:
+            grace = CLOSE_GRACE_S if finished else INTERRUPT_GRACE_S
             with interrupts.deferred():  # a second Ctrl-C must not leave the cluster running
                 if client is not None:
                     client.close(timeout=grace)
                 if cluster is not None:
-                    cluster.stop(grace)  # ends the processes this study started, computing or not
+                    cluster.stop(grace, graceful=finished)  # ends the processes this study started, computing or not
         finally:
             quiet.setLevel(level)
             cfg.__exit__(None, None, None)
