@@ -244,17 +244,17 @@ def test_sigterm_during_mpc_exits_130_and_leaves_no_temp_files(tmp_path: Path) -
         stderr=subprocess.PIPE,
         text=True,
     )
-    t0 = time.time()
-    while time.time() - t0 < 120:  # wait until the closed loop runs
-        if out.exists():
-            break
-        time.sleep(0.2)
-    time.sleep(2.0)
+    assert proc.stderr is not None
+    head = []  # the closed loop's first progress line says it runs (a line ends it, or the process's end)
+    while not head or not (head[-1].startswith("[mpc] step") or head[-1] == ""):
+        head.append(proc.stderr.readline())
+    assert head[-1].startswith("[mpc] step"), "".join(head)[-800:]
     proc.send_signal(signal.SIGTERM)
     _, err = proc.communicate(timeout=120)
+    err = "".join(head) + err
     assert proc.returncode == EXIT_INTERRUPTED, err[-800:]
     assert one_error(err) == "aev-ocp: error: interrupted"
-    assert not [p for p in out.iterdir() if ".tmp" in p.name]
+    assert out.is_dir() and not [p for p in out.iterdir() if ".tmp" in p.name]  # the run's folder, whole
 
 
 # ----------------------------------------------------------------------------- 5. concurrent writers
