@@ -10,8 +10,9 @@ sees the terminal's signals, and it stops the cluster itself.
 The cluster process writes its scheduler's address as one JSON line on a pipe of its own, then serves until its stdin
 closes (the study ended, whatever way, even killed) or it gets SIGTERM/SIGINT. A study that stops it writes
 :data:`CLOSE_REQUEST` first: then it closes the cluster, and whatever of its process group is still alive after the
-study's grace period is killed. A stdin that ends without the request means the study died: nobody waits for a result,
-so the cluster process removes the workers' scratch folder and kills its whole process group at once.
+study's grace period is killed. A stdin that ends without the request means the study died, or stops the cluster after an
+interrupt: nobody waits for a result, so the cluster process removes the workers' scratch folder and kills its whole
+process group at once.
 """
 
 from __future__ import annotations
@@ -40,8 +41,9 @@ CLOSE_GRACE_S = 10.0
 INTERRUPT_GRACE_S = 1.0
 #: The last characters of the cluster process's log shown when it fails to start.
 LOG_TAIL_CHARS = 600
-#: What the study writes on the cluster process's stdin before it closes it (:meth:`LocalClusterProcess.stop`): a
-#: stdin that ends without it means the study died (killed, crashed), and the cluster ends its workers at once.
+#: What the study writes on the cluster process's stdin before it closes it to end the cluster gracefully
+#: (:meth:`LocalClusterProcess.stop`): a stdin that ends without it (the study killed or crashed, or stopping the
+#: cluster after an interrupt) makes the cluster end its workers at once.
 CLOSE_REQUEST = b"close\n"
 
 
@@ -224,21 +226,21 @@ def main(argv: list[str] | None = None) -> int:
         silence_logs=logging.CRITICAL,
         local_directory=a.scratch,
     )
-    died = False  # the study's end of stdin closed without CLOSE_REQUEST: the study was killed or crashed
+    unasked = False  # stdin ended without CLOSE_REQUEST: the study died, or stops the cluster after an interrupt
     try:
         with os.fdopen(a.address_fd, "w") as addr:
             addr.write(json.dumps({"address": cluster.scheduler_address}) + "\n")
         tail = b""
         while chunk := sys.stdin.buffer.read(65536):  # until the study closes its end (or ends)
             tail = (tail + chunk)[-len(CLOSE_REQUEST) :]
-        died = tail != CLOSE_REQUEST
+        unasked = tail != CLOSE_REQUEST
     finally:
         logging.getLogger("distributed").setLevel(logging.CRITICAL)  # "stream closed" while closing is no news
-        # a dead study waits for no result: its workers end at once (a graceful close let a computing worker run on
+        # unasked, nobody waits for a result: the workers end at once (a graceful close let a computing worker run on
         # for 4 s, until Dask's nanny killed it; measured); else (asked, or a SIGTERM/SIGINT) they close gracefully
-        if not (died and _kill_own_group(a.scratch)):
+        if not (unasked and _kill_own_group(a.scratch)):
             cluster.close(timeout=CLOSE_GRACE_S)
-        if died or os.getppid() != study:  # the study is gone: nobody else will remove the workers' scratch folder
+        if unasked or os.getppid() != study:  # the study may be gone: nobody else would remove the scratch folder
             shutil.rmtree(a.scratch, ignore_errors=True)
     return 0
 
