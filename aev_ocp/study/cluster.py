@@ -10,9 +10,9 @@ sees the terminal's signals, and it stops the cluster itself.
 The cluster process writes its scheduler's address as one JSON line on a pipe of its own, then serves until its stdin
 closes (the study ended, whatever way, even killed) or it gets SIGTERM/SIGINT. A study that stops it writes
 :data:`CLOSE_REQUEST` first: then it closes the cluster, and whatever of its process group is still alive after the
-study's grace period is killed. A stdin that ends without the request means the study died, or stops the cluster after an
-interrupt: nobody waits for a result, so the cluster process removes the workers' scratch folder and kills its whole
-process group at once.
+study's grace period is killed. A stdin that ends without the request means the study died, or stops the cluster
+after an interrupt: nobody waits for a result, so the cluster process removes the workers' scratch folder and kills
+its whole process group at once.
 """
 
 from __future__ import annotations
