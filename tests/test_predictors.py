@@ -13,9 +13,9 @@ from aev_ocp.mpc.predictors import (
     ConstantVelocityPredictor,
     DecayingAccelerationPredictor,
     Measurements,
-    least_squares_slope,
     make_predictor,
 )
+from aev_ocp.numerics import least_squares_slope
 from aev_ocp.params import ParameterError
 
 

@@ -22,6 +22,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from ..models.carfollowing import CarFollowingLaw
+from ..numerics import least_squares_slope
 from ..params import EVParams, ParameterError
 from .laws import AEV_CONTROLLERS, RING_PREDICTORS, idm_si, make_aev, ring_mpc  # noqa: F401 (re-exported)
 from .simulate import RingOptions, RingResult, RingRoad, RingSimulator, uniform_flow
@@ -80,7 +81,7 @@ def _wave_speed(res: RingResult, sel: np.ndarray) -> float:
     pos = x[np.arange(t.size), j]
     L = res.ring.length_m
     unwrapped = np.unwrap(pos * 2 * math.pi / L) * L / (2 * math.pi)
-    return float(np.polyfit(t, unwrapped, 1)[0])
+    return least_squares_slope(t, unwrapped)
 
 
 def fleet_metrics(res: RingResult, t_from_s: float | None = None) -> dict[str, Any]:

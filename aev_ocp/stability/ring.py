@@ -30,6 +30,7 @@ import casadi as ca
 import numpy as np
 
 from ..models.carfollowing import CarFollowingLaw
+from ..numerics import least_squares_slope
 from ..params import EVParams, ParameterError
 from .linear import head_to_tail_criterion, partials_function
 from ..ring.simulate import _equilibrium_speed
@@ -260,7 +261,7 @@ def measured_growth(
     c = np.abs((res.gap_m - rs.gap_m) @ np.exp(-1j * theta * idx))
     t = res.t_s
     keep = c > 0
-    slope = float(np.polyfit(t[keep], np.log(c[keep]), 1)[0])
+    slope = least_squares_slope(t[keep], np.log(c[keep]))
     _ = s
     return {
         "k": k,
