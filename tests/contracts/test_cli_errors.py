@@ -245,10 +245,12 @@ def test_sigterm_during_mpc_exits_130_and_leaves_no_temp_files(tmp_path: Path) -
         text=True,
     )
     assert proc.stderr is not None
-    head = []  # the closed loop's first progress line says it runs (a line ends it, or the process's end)
-    while not head or not (head[-1].startswith("[mpc] step") or head[-1] == ""):
-        head.append(proc.stderr.readline())
-    assert head[-1].startswith("[mpc] step"), "".join(head)[-800:]
+    head = []  # stderr up to the closed loop's first progress line, which says it runs (or to the process's end)
+    for line in iter(proc.stderr.readline, ""):
+        head.append(line)
+        if line.startswith("[mpc] step"):
+            break
+    assert head and head[-1].startswith("[mpc] step"), "".join(head)[-800:]
     proc.send_signal(signal.SIGTERM)
     _, err = proc.communicate(timeout=120)
     err = "".join(head) + err
