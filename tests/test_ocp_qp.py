@@ -365,7 +365,8 @@ def _solve_settings(tol: float) -> OcpQPSettings:
 def _exact_solution(f: dict[str, Any], w_start: np.ndarray) -> np.ndarray:
     """The QP's exact solution, independent of ocp_qp: starting from the constraints active at ``w_start``
     (HPIPM's solution), the equality-constrained QP of the active set is solved through its KKT system
-    (numpy lstsq: the active rows may be linearly dependent, then five refinement steps); a violated
+    (the minimum-norm least-squares solution of numpy's lstsq, from one SVD of the KKT matrix: the active rows may
+    be linearly dependent; then five refinement steps on the same factors); a violated
     constraint is added, an active one whose multiplier has the wrong sign dropped, until the point is
     feasible to 1e-11 with every multiplier of the right sign: the KKT conditions hold."""
     H, A, g = f["H"], f["A"], f["g"]
@@ -384,9 +385,15 @@ def _exact_solution(f: dict[str, Any], w_start: np.ndarray) -> np.ndarray:
         rhs = np.array([up[i] if act[i] == "up" else lo[i] for i in idx])
         K = np.block([[H, Ga.T], [Ga, np.zeros((len(idx), len(idx)))]])
         b = np.concatenate([-g, rhs])
-        sol = np.linalg.lstsq(K, b, rcond=1e-14)[0]
+        U, sv, Vt = np.linalg.svd(K)
+        inv = np.where(sv > 1e-14 * sv[0], 1.0 / np.where(sv > 0.0, sv, 1.0), 0.0)  # lstsq's rcond cut-off
+
+        def lstsq(r: np.ndarray) -> np.ndarray:
+            return Vt.T @ (inv * (U.T @ r))  # noqa: B023 (used within this iteration only)
+
+        sol = lstsq(b)
         for _ in range(5):
-            sol += np.linalg.lstsq(K, b - K @ sol, rcond=1e-14)[0]
+            sol += lstsq(b - K @ sol)
         w, lam = sol[:n], sol[n:]  # H w + g + Ga' lam = 0: lam >= 0 on an upper bound, <= 0 on a lower one
         gw = G @ w
         viol = np.maximum(lo - gw, 0.0) + np.maximum(gw - up, 0.0)
