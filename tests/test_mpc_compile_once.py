@@ -265,3 +265,56 @@ def test_a_user_parameter_with_a_value_is_its_default_in_the_mpc() -> None:
         runs[name] = sol.a
     assert np.array_equal(runs["default"], runs["explicit"])
     assert np.abs(runs["default"] - runs["other"]).max() > 1e-4
+
+
+def test_controllers_of_one_problem_share_its_horizon_nlp_and_step_c_yet_keep_their_own_state(monkeypatch) -> None:  # noqa: ANN001
+    """Equal (problem, settings, guess law) share one HorizonNLP and build the step's five functions once; each
+    controller keeps its own compiled step and warm start: two run in turns on other inputs give, bit for bit, what
+    each gives alone when built with nothing shared. Another vehicle, guess law or horizon, or a user problem, gets
+    its own NLP."""
+    import aev_ocp.mpc.cstep as cstep
+    import aev_ocp.mpc.nlp as nlp
+    from aev_ocp.models.carfollowing import Proposed
+
+    def forget() -> None:
+        nlp._HORIZONS.clear()
+        cstep._DIGESTS.clear()
+
+    built = []
+    real = cstep.rti_functions
+    monkeypatch.setattr(cstep, "rti_functions", lambda c: built.append(c) or real(c))
+    forget()
+    ev = _ev_b()
+    c1 = MPCController(S, ev)
+    c2 = MPCController(S, dataclasses.replace(ev))  # an equal vehicle: the one problem Formulation.mpc_problem keeps
+    assert c2.nlp is c1.nlp and len(built) == 1
+    assert c2.compiled_step is not None and c2.compiled_step is not c1.compiled_step
+    # of the same structure (one step library, no compilation): another vehicle, guess law's numbers, iteration cap
+    same = [
+        MPCController(S, _ev_a()),
+        MPCController(S, ev, guess_law=Proposed(kappa=0.045)),
+        MPCController(S.with_(max_iter=150), ev),
+    ]
+    assert {_loaded(c) for c in same} == {_loaded(c1)}
+    # a user problem (here the one with the numbers in, as _numbers_in builds it): never shared
+    users = [MPCController(S, formulation=problem_formulation(DEFAULT_FORMULATION.build(ev, S.dt))) for _ in range(2)]
+    assert len({id(c.nlp) for c in [c1, *same, *users]}) == 6
+    assert _loaded(users[0]) == _loaded(users[1]) != _loaded(c1)  # its step's C holds the numbers
+
+    def steps(c: MPCController, shift: int, k: int) -> tuple[float, np.ndarray]:
+        z, vm, vh = _inputs(k + shift)
+        sol = c.solve(z, vm, vh)
+        assert sol.success, sol.status
+        return sol.a[0], sol.X
+
+    turns = [(steps(c1, 0, k), steps(c2, 3, k)) for k in range(6)]
+    for shift, i in ((0, 0), (3, 1)):
+        forget()
+        alone = MPCController(S, dataclasses.replace(ev))
+        assert alone.nlp is not c1.nlp
+        for k in range(6):
+            a, X = steps(alone, shift, k)
+            assert a == turns[k][i][0] and np.array_equal(X, turns[k][i][1])
+    for k in range(6):  # the user problem's own library: the same steps as the shared one's, numbers in
+        a, X = steps(users[0], 0, k)
+        assert abs(a - turns[k][0][0]) < 1e-9 and np.abs(X - turns[k][0][1]).max() < 1e-8

@@ -53,7 +53,7 @@ from ..ocp.problem import OCPProblem, ProblemBuilder
 from ..params import EVParams, ParameterError
 from ..plant import PLAN_TOLERANCE
 from .fallback import budget_status, cold_start_falls_back_to_ipopt, failed_solution
-from .nlp import HorizonNLP
+from .nlp import HorizonNLP, shared_horizon_nlp
 from .cstep import CompiledStep
 from .nlp import rti_stage_functions
 from .rti import HPIPM_INF_TRAFFIC, RTI_HESSIAN_FLOOR, RTIStep, check_rti_qp, project_pd, qp_options, solve_compiled
@@ -178,7 +178,15 @@ class MPCController:
         # its cold IPOPT first step (model guide §9 numbers unchanged): the formulation says which
         self.rti_cold_start = f.rti_cold_start
         t0 = time.perf_counter()
-        self.nlp = HorizonNLP(self.problem, s, self.guess_law)
+        # a built-in formulation's compiled-path problem is the one Formulation.mpc_problem keeps: controllers of
+        # equal settings and guess law share its horizon NLP (and the step's generated C); a user problem, or one
+        # built with the numbers in (a fresh object per controller), gets its own
+        shared = compiled and f.kind != "problem"
+        self.nlp = (
+            shared_horizon_nlp(self.problem, s, self.guess_law)
+            if shared
+            else HorizonNLP(self.problem, s, self.guess_law)
+        )
         self._build_solvers()
         self.build_time_s = time.perf_counter() - t0
         #: the warm start of the next solve (x, lam_x, lam_g, X1: the plan's node 1), None: the next solve is cold

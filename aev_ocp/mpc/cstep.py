@@ -60,7 +60,7 @@ from typing import Any, Protocol
 import casadi as ca
 import numpy as np
 
-from ..params import ParameterError
+from ..params import ParameterError, remember
 from .nlp import RTI_HESSIAN_FLOOR, HorizonNLP, rti_stage_functions
 
 
@@ -480,11 +480,20 @@ def write_sources(c: ExportableController, folder: Path, description: str, value
 #: (mpc_casadi.c, mpc_casadi.h). Controllers of the same structure (one library for them all, issue 40) generate it
 #: once.
 _GENERATED: dict[str, tuple[str, str]] = {}
+#: the :data:`_GENERATED` key of a horizon NLP in this process, by its id (each entry holds the NLP, so the id names
+#: it while the entry lives): the five functions are built from the controller's NLP alone (its problem, settings,
+#: bounds, scaling, rollout), so controllers sharing one (:func:`aev_ocp.mpc.nlp.shared_horizon_nlp`) skip building
+#: and serializing them again (~50 ms of a default controller's build)
+_DIGESTS: dict[int, tuple[Any, str]] = {}
+DIGESTS_KEPT = 16
 
 
 def generated_casadi(c: ExportableController) -> tuple[str, str]:
     """(mpc_casadi.c, mpc_casadi.h) of the controller's five functions: :func:`generate_casadi`'s files, generated
-    once per process for the same functions (:data:`_GENERATED`)."""
+    once per process for the same functions (:data:`_GENERATED`; the same horizon NLP: :data:`_DIGESTS`)."""
+    hit = _DIGESTS.get(id(c.nlp))
+    if hit is not None and hit[0] is c.nlp and hit[1] in _GENERATED:
+        return _GENERATED[hit[1]]
     functions = rti_functions(c)
     key = hashlib.sha256(str(ca.CasadiMeta.version()).encode())
     for f in functions:
@@ -496,6 +505,7 @@ def generated_casadi(c: ExportableController) -> tuple[str, str]:
             _GENERATED[digest] = tuple(  # type: ignore[assignment]
                 Path(tmp, n).read_text(encoding="utf-8") for n in ("mpc_casadi.c", "mpc_casadi.h")
             )
+    remember(_DIGESTS, id(c.nlp), (c.nlp, digest), DIGESTS_KEPT)
     return _GENERATED[digest]
 
 

@@ -36,6 +36,7 @@ from ..models.carfollowing import CarFollowingLaw
 from ..numerics import rk4
 from ..ocp.problem import OCPProblem
 from ..ocp.transcription import TranscriptionOptions, horizon_nlp, interval_function, with_discrete_update
+from ..params import remember
 from .settings import MPCSettings
 
 _SQP_EXTRA: dict[str, Any] = {}
@@ -292,6 +293,30 @@ class HorizonNLP:
             **_SQP_EXTRA,
         }
         return self.nlpsol("mpc_sqp", "sqpmethod", opts)
+
+
+#: HorizonNLPs built in this process, by (the problem's id, the settings, the guess law); each entry holds its problem,
+#: so the id names it as long as the entry lives. The MPCs of a platoon, a sweep or a study's points, built on the
+#: one problem :meth:`aev_ocp.ocp.formulation.Formulation.mpc_problem` keeps per (formulation, vehicle, dt, OCV form),
+#: share one horizon NLP and the C generated from it, which they read and never change (issue 40: ~80 ms of a
+#: default MPC's 84 ms build, a third of it assembling the NLP, the rest its step's C for the compile cache's key).
+_HORIZONS: dict[tuple[int, MPCSettings, CarFollowingLaw], tuple[OCPProblem, HorizonNLP]] = {}
+HORIZONS_KEPT = 16
+
+
+def shared_horizon_nlp(problem: OCPProblem, settings: MPCSettings, guess_law: CarFollowingLaw) -> HorizonNLP:
+    """``HorizonNLP(problem, settings, guess_law)``, built once per process for the same problem object and equal
+    settings and guess law (:data:`_HORIZONS`); a guess law that cannot be a key (unhashable) gets its own. For
+    problems nothing changes once built (a built-in formulation's, :meth:`Formulation.mpc_problem`)."""
+    try:
+        key = (id(problem), settings, guess_law)
+        hash(key)
+    except TypeError:
+        return HorizonNLP(problem, settings, guess_law)
+    hit = _HORIZONS.get(key)
+    if hit is not None and hit[0] is problem:
+        return hit[1]
+    return remember(_HORIZONS, key, (problem, HorizonNLP(problem, settings, guess_law)), HORIZONS_KEPT)[1]
 
 
 def law_parameters(law: CarFollowingLaw) -> tuple[Callable[[Any], CarFollowingLaw], np.ndarray]:
