@@ -86,10 +86,18 @@ def suite_env(cache: Path | None, bytecode: str) -> dict[str, str]:
     return env
 
 
-def warm_bytecode(env: dict[str, str]) -> None:
+def warm_bytecode(env: dict[str, str], python: str = sys.executable) -> None:
     """An untimed collection: compiles the package's modules and caches pytest's rewritten test modules (where
     ``env`` lets Python write bytecode)."""
-    subprocess.run([sys.executable, "-m", "pytest", "-q", "--collect-only"], cwd=ROOT, env=env, capture_output=True)
+    subprocess.run([python, "-m", "pytest", "-q", "--collect-only"], cwd=ROOT, env=env, capture_output=True)
+
+
+def distributions(python: str) -> int:
+    """How many distributions (installed packages) the interpreter ``python`` sees: the README's test environment
+    (a fresh venv of ``.[test]``) has about 60, a development venv (``.[test,dev,docs]``) about 135."""
+    code = "import importlib.metadata as m; print(len({d.metadata['Name'] for d in m.distributions()}))"
+    out = subprocess.run([python, "-c", code], capture_output=True, text=True)
+    return int(out.stdout.strip() or -1)
 
 
 def machine_speed_s(repeats: int = 5) -> float:
@@ -118,11 +126,14 @@ def clear_bytecode() -> int:
     return len(found)
 
 
-def run(mode: str, workers: str, cache: Path | None, extra: list[str], bytecode: str = "on") -> dict[str, Any]:
-    """One run of the suite with ``--dist mode`` and ``--bytecode bytecode``; its measurements."""
+def run(
+    mode: str, workers: str, cache: Path | None, extra: list[str], bytecode: str = "on", python: str = sys.executable
+) -> dict[str, Any]:
+    """One run of the suite with ``--dist mode`` and ``--bytecode bytecode`` by the interpreter ``python``; its
+    measurements."""
     env = suite_env(cache, bytecode)
     cmd = [
-        sys.executable,
+        python,
         "-m",
         "pytest",
         "-q",
@@ -152,6 +163,7 @@ def run(mode: str, workers: str, cache: Path | None, extra: list[str], bytecode:
         "command": " ".join(["pytest", *cmd[3:]]),
         "dist": mode,
         "bytecode": bytecode,
+        "interpreter": {"path": python, "distributions": distributions(python)},
         "returncode": proc.returncode,
         "wall_s": round(wall, 2),
         "cpu_s": round(cpu, 2),
@@ -202,6 +214,12 @@ def main(argv: list[str] | None = None) -> int:
     )
     ap.add_argument("-n", "--workers", default="auto", help="pytest-xdist workers (default: auto, one per core)")
     ap.add_argument("--cache", type=Path, default=None, help="compile cache folder ($AEV_OCP_CACHE)")
+    ap.add_argument(
+        "--python",
+        default=sys.executable,
+        help="the interpreter whose pytest runs the suite (default: this one), e.g. a fresh venv's as README's test "
+        "command makes it: python3 -m venv /tmp/v && /tmp/v/bin/pip install '.[test]'; --python /tmp/v/bin/python",
+    )
     ap.add_argument("--out", type=Path, default=OUT)
     ap.add_argument("--repeat", type=int, default=1, help="runs per mode (the medians and the median run are kept)")
     ap.add_argument(
@@ -219,11 +237,11 @@ def main(argv: list[str] | None = None) -> int:
     for _ in range(a.repeat):
         for m, b in pairs:
             if b == "on" and cached is not True:
-                warm_bytecode(suite_env(a.cache, b))
+                warm_bytecode(suite_env(a.cache, b), a.python)
             elif b == "off" and cached is not False:
                 clear_bytecode()
             cached = {"on": True, "off": False}.get(b)  # inherit: whatever the environment lets Python write
-            runs.append(run(m, a.workers, a.cache, a.pytest_args, b))
+            runs.append(run(m, a.workers, a.cache, a.pytest_args, b, a.python))
     by_mode = [[r for r in runs if (r["dist"], r["bytecode"]) == pair] for pair in pairs]
     medians = [summary(rs) for rs in by_mode]
     base = medians[0]

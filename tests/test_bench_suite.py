@@ -48,9 +48,15 @@ def test_clear_bytecode_removes_the_package_and_test_caches_only(monkeypatch, tm
     assert [d.exists() for d in made] == [False, False, False, False, True]  # docs/ is not the suite's
 
 
-def _fake_run(calls: list[tuple[str, str]], walls: dict[tuple[str, str], list[float]]) -> Any:
-    def run(mode: str, workers: str, cache: Path | None, extra: list[str], bytecode: str = "on") -> dict[str, Any]:
+def _fake_run(
+    calls: list[tuple[str, str]], walls: dict[tuple[str, str], list[float]], pythons: list[str] | None = None
+) -> Any:
+    def run(
+        mode: str, workers: str, cache: Path | None, extra: list[str], bytecode: str = "on", python: str = ""
+    ) -> dict[str, Any]:
         calls.append((mode, bytecode))
+        if pythons is not None:
+            pythons.append(python)
         wall = walls[(mode, bytecode)].pop(0)
         return {
             "dist": mode,
@@ -72,7 +78,7 @@ def test_configurations_run_in_turns_and_the_last_ones_median_run_is_quoted(monk
     prepared: list[str] = []
     walls = {("loadfile", "off"): [171.0, 163.0, 158.0], ("loadfile", "on"): [166.0, 149.0, 177.0]}
     monkeypatch.setattr(bench_suite, "run", _fake_run(calls, walls))
-    monkeypatch.setattr(bench_suite, "warm_bytecode", lambda env: prepared.append("warm"))
+    monkeypatch.setattr(bench_suite, "warm_bytecode", lambda env, python: prepared.append("warm"))
     monkeypatch.setattr(bench_suite, "clear_bytecode", lambda: prepared.append("clear") or 0)
     out = tmp_path / "b.json"
     rc = bench_suite.main(["--bytecode", "off", "--bytecode", "on", "--repeat", "3", "--out", str(out)])
@@ -91,6 +97,27 @@ def test_configurations_run_in_turns_and_the_last_ones_median_run_is_quoted(monk
     walls[("loadfile", "on")] = [131.0, 127.0]
     assert bench_suite.main(["--bytecode", "on", "--repeat", "2", "--out", str(out)]) == 0
     assert calls == [("loadfile", "on")] * 2 and prepared == ["warm"]
+
+
+def test_another_interpreter_runs_every_run_and_its_warm_up(monkeypatch, tmp_path) -> None:
+    """--python: the suite and its untimed warm-up run by that interpreter (e.g. a fresh venv of .[test], as README's
+    command makes it), not by the one running the benchmark; each run records it."""
+    calls: list[tuple[str, str]] = []
+    pythons: list[str] = []
+    warmed: list[str] = []
+    walls = {("loadfile", "on"): [139.0, 121.0, 118.0, 131.0]}
+    monkeypatch.setattr(bench_suite, "run", _fake_run(calls, walls, pythons))
+    monkeypatch.setattr(bench_suite, "warm_bytecode", lambda env, python: warmed.append(python))
+    out = tmp_path / "b.json"
+    assert bench_suite.main(["--repeat", "3", "--python", "/opt/fresh/bin/python", "--out", str(out)]) == 0
+    assert pythons == ["/opt/fresh/bin/python"] * 3 and warmed == ["/opt/fresh/bin/python"]
+    assert bench_suite.main(["--repeat", "1", "--out", str(out)]) == 0 and pythons[-1] == sys.executable
+
+
+def test_distributions_counts_what_an_interpreter_sees() -> None:
+    import importlib.metadata as m
+
+    assert bench_suite.distributions(sys.executable) == len({d.metadata["Name"] for d in m.distributions()}) > 5
 
 
 def test_machine_speed_is_a_positive_cpu_time() -> None:
